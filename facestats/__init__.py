@@ -1,0 +1,33 @@
+"""facestats: measure, analyse and edit the appearance of human facial skin.
+
+The skin model is the one of Weyrich et al. 2006 (*Analysis of Human Faces using
+a Measurement-Based Skin Reflectance Model*): a spatially varying Torrance-Sparrow
+or Blinn-Phong specular BRDF, a diffuse albedo map and dipole subsurface
+scattering.  Subpackages:
+
+* :mod:`facestats.model` - the physics (Fresnel, BRDFs, dipole, skin model) and fitting;
+* :mod:`facestats.acquire` - the dome and contact-sensor captures (devices or simulator);
+* :mod:`facestats.io` - the Zarr parameter store and file formats;
+* :mod:`facestats.analysis` - population statistics;
+* :mod:`facestats.edit` - appearance editing.
+
+Heavy modules are imported lazily so the command line starts fast.
+"""
+
+from __future__ import annotations
+
+from .errors import FacestatsError
+
+__version__ = "0.1.0"
+
+__all__ = ["FacestatsError", "__version__", "open_store"]
+
+
+def open_store(path=None, mode="r"):
+    """Open a facestats parameter store (``None``: the embedded default, read-only).
+
+    See :func:`facestats.io.store.open_store`.
+    """
+    from .io.store import open_store as _open_store
+
+    return _open_store(path, mode=mode)

@@ -1,0 +1,116 @@
+"""Input validation shared by the public functions.
+
+Each helper raises :class:`facestats.errors.ValidationError` with a message of the
+form ``"<name> must be <expected>, got <value>"`` so users see which argument was
+wrong, what it held and what was expected.
+"""
+
+from __future__ import annotations
+
+from typing import Iterable
+
+import numpy as np
+
+from .errors import ValidationError
+
+__all__ = ["as_float", "check_finite", "check_range", "check_shape", "check_choice", "result_dtype"]
+
+_FLOAT_TYPES = (np.float32, np.float64)
+
+
+def _describe(a: np.ndarray) -> str:
+    """A short description of the offending values of an array for messages."""
+    if a.size == 1:
+        return repr(a.reshape(-1)[0].item())  # plain Python value, not np.float64(...)
+    return f"an array of shape {a.shape}"
+
+
+def result_dtype(*arrays) -> np.dtype:
+    """The float dtype of a computation: float32 only if every float input is float32.
+
+    Integer and Python-scalar inputs do not force float64, so a float32 map
+    combined with a Python ``eta=1.38`` stays float32.
+    """
+    kinds = [np.asarray(a).dtype for a in arrays if np.ndim(a) > 0 or isinstance(a, np.generic)]
+    floats = [d for d in kinds if d.kind == "f"]
+    if floats and all(d == np.float32 for d in floats):
+        return np.dtype(np.float32)
+    return np.dtype(np.float64)
+
+
+def as_float(value, name: str, dtype=None) -> np.ndarray:
+    """Convert ``value`` to a float array (float32 or float64), rejecting non-numeric input."""
+    try:
+        arr = np.asarray(value)
+    except Exception as exc:  # pragma: no cover - numpy raises many types here
+        raise ValidationError(f"{name} must be numeric, got {value!r}") from exc
+    if arr.dtype.kind not in "fiub":
+        raise ValidationError(f"{name} must be numeric, got dtype {arr.dtype} ({_describe(arr)})")
+    if dtype is None:
+        dtype = arr.dtype if arr.dtype in _FLOAT_TYPES else np.float64
+    return arr.astype(dtype, copy=False)
+
+
+def check_finite(arr: np.ndarray, name: str) -> np.ndarray:
+    """Raise unless every element of ``arr`` is finite."""
+    if not np.all(np.isfinite(arr)):
+        bad = arr[~np.isfinite(arr)]
+        raise ValidationError(
+            f"{name} must be finite, got {bad.size} non-finite value(s) (first: {bad.reshape(-1)[0].item()!r})"
+        )
+    return arr
+
+
+def check_range(
+    arr: np.ndarray,
+    name: str,
+    low: float | None = None,
+    high: float | None = None,
+    *,
+    low_inclusive: bool = True,
+    high_inclusive: bool = True,
+    unit: str = "",
+) -> np.ndarray:
+    """Raise unless every element of ``arr`` lies in the stated interval (NaN fails)."""
+    ok = np.ones(arr.shape, dtype=bool)
+    if low is not None:
+        ok &= (arr >= low) if low_inclusive else (arr > low)
+    if high is not None:
+        ok &= (arr <= high) if high_inclusive else (arr < high)
+    if not np.all(ok):
+        lo = "-inf" if low is None else f"{low:g}"
+        hi = "inf" if high is None else f"{high:g}"
+        interval = ("[" if low_inclusive else "(") + f"{lo}, {hi}" + ("]" if high_inclusive else ")")
+        bad = np.asarray(arr)[~ok].reshape(-1)
+        unit_s = f" {unit}" if unit else ""
+        raise ValidationError(
+            f"{name} must lie in {interval}{unit_s}, got {bad[0].item()!r}"
+            + (f" ({bad.size} value(s) outside)" if bad.size > 1 else "")
+        )
+    return arr
+
+
+def check_shape(arr: np.ndarray, name: str, shape: Iterable) -> np.ndarray:
+    """Check ``arr.shape`` against a pattern; ``None`` entries match any length.
+
+    A leading ``...`` matches any number of leading dimensions, e.g. ``(..., 3)``.
+    """
+    pattern = tuple(shape)
+    if pattern and pattern[0] is Ellipsis:
+        tail = pattern[1:]
+        ok = arr.ndim >= len(tail) and all(
+            p is None or p == s for p, s in zip(tail, arr.shape[arr.ndim - len(tail):])
+        )
+    else:
+        ok = arr.ndim == len(pattern) and all(p is None or p == s for p, s in zip(pattern, arr.shape))
+    if not ok:
+        want = "(" + ", ".join("..." if p is Ellipsis else ("n" if p is None else str(p)) for p in pattern) + ")"
+        raise ValidationError(f"{name} must have shape {want}, got shape {arr.shape}")
+    return arr
+
+
+def check_choice(value, name: str, choices) -> object:
+    """Raise unless ``value`` is one of ``choices``."""
+    if value not in choices:
+        raise ValidationError(f"{name} must be one of {sorted(map(str, choices))}, got {value!r}")
+    return value

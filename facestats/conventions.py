@@ -1,0 +1,166 @@
+"""Vocabulary shared across facestats: channels, regions, sites, conditions, skin types, genders.
+
+Names follow Weyrich et al. 2006 and ``design.md``: Fitzpatrick skin types are the
+integers 1-6 inside the library and Roman numerals at the boundary (the paper
+groups I and II); face regions keep the numbering of Weyrich Fig. 15, which the
+published MERL/ETH data files use.
+"""
+
+from __future__ import annotations
+
+from .errors import ValidationError
+
+__all__ = [
+    "CHANNELS",
+    "REGIONS",
+    "REGION_IDS",
+    "SITES",
+    "CONDITIONS",
+    "GENDERS",
+    "ROMAN",
+    "AGE_GROUPS",
+    "parse_skin_type",
+    "skin_type_roman",
+    "parse_gender",
+    "parse_region",
+    "parse_condition",
+    "parse_age",
+    "age_group",
+]
+
+#: Colour channels (linear RGB).
+CHANNELS = ("R", "G", "B")
+
+#: Face regions of Weyrich et al. 2006 Fig. 15 (left).  The text names all but
+#: region 5; facestats places it below the eyes, between eyelids and cheeks
+#: (an assumption, see ``facestats.acquire.face``).
+REGIONS = {
+    1: "mustache",
+    2: "forehead",
+    3: "eyebrows",
+    4: "eyelids",
+    5: "under-eye",
+    6: "nose",
+    7: "cheeks",
+    8: "lips",
+    9: "chin",
+    10: "beard",
+}
+REGION_IDS = tuple(REGIONS)
+
+#: Contact-sensor measurement sites (Weyrich et al. 2006 §5.4).
+SITES = ("cheek", "forehead", "neck")
+
+#: External conditions of the one subject measured seven times (§7).
+CONDITIONS = ("normal", "cold", "hot", "sweaty", "makeup", "lotion", "powder")
+
+GENDERS = ("M", "F")
+
+ROMAN = {1: "I", 2: "II", 3: "III", 4: "IV", 5: "V", 6: "VI"}
+_FROM_ROMAN = {v: k for k, v in ROMAN.items()}
+
+#: Age groups of §7: (label, min age, max age) inclusive.
+AGE_GROUPS = (("20s", 0, 29), ("30s", 30, 39), ("40s", 40, 49), ("50s+", 50, 200))
+
+
+def parse_skin_type(value) -> int:
+    """Fitzpatrick skin type as an int 1-6 from ``3``, ``"3"``, ``"III"`` or ``"iii"``."""
+    if isinstance(value, str):
+        v = value.strip().upper()
+        if v in _FROM_ROMAN:
+            return _FROM_ROMAN[v]
+        if v.isdigit():
+            value = int(v)
+        else:
+            raise ValidationError(f"skin type must be I-VI or 1-6, got {value!r}")
+    try:
+        iv = int(value)
+    except (TypeError, ValueError):
+        raise ValidationError(f"skin type must be I-VI or 1-6, got {value!r}") from None
+    if iv != value or iv not in ROMAN:
+        raise ValidationError(f"skin type must be I-VI or 1-6, got {value!r}")
+    return iv
+
+
+def skin_type_roman(value) -> str:
+    """Roman numeral of a skin type (``4`` → ``"IV"``)."""
+    return ROMAN[parse_skin_type(value)]
+
+
+def parse_gender(value) -> str:
+    """``"M"`` or ``"F"`` from M/F, male/female (any case) or the paper's code 0 = M, 1 = F."""
+    if isinstance(value, bytes):
+        value = value.decode()
+    if isinstance(value, str):
+        v = value.strip().upper()
+        if v in ("M", "MALE", "0"):
+            return "M"
+        if v in ("F", "FEMALE", "1", "W"):
+            return "F"
+    else:
+        try:
+            if float(value) == 0:
+                return "M"
+            if float(value) == 1:
+                return "F"
+        except (TypeError, ValueError):
+            pass
+    raise ValidationError(f"gender must be M or F (or 0 = M, 1 = F), got {value!r}")
+
+
+def parse_region(value) -> int:
+    """Region number 1-10 from a number or a name of :data:`REGIONS` (singular accepted)."""
+    if isinstance(value, str):
+        v = value.strip().lower()
+        if v.isdigit():
+            value = int(v)
+        else:
+            for k, name in REGIONS.items():
+                if v in (name, name.rstrip("s"), name.replace("-", ""), name.replace("-", " ")):
+                    return k
+            raise ValidationError(f"region must be 1-10 or one of {list(REGIONS.values())}, got {value!r}")
+    try:
+        iv = int(value)
+    except (TypeError, ValueError):
+        raise ValidationError(f"region must be 1-10 or a region name, got {value!r}") from None
+    if iv not in REGIONS or iv != value:
+        raise ValidationError(f"region must be 1-10 or a region name, got {value!r}")
+    return iv
+
+
+def parse_condition(value) -> str:
+    """A condition name of :data:`CONDITIONS` (case-insensitive)."""
+    v = str(value).strip().lower()
+    if v not in CONDITIONS:
+        raise ValidationError(f"condition must be one of {list(CONDITIONS)}, got {value!r}")
+    return v
+
+
+def parse_age(value) -> tuple[int, int]:
+    """An inclusive age range from ``"20s"``, ``"30s"``, ``"40s"``, ``"50s+"``, ``"MIN-MAX"`` or one age."""
+    if isinstance(value, (tuple, list)) and len(value) == 2:
+        lo, hi = value
+    else:
+        v = str(value).strip().lower()
+        for label, lo_, hi_ in AGE_GROUPS:
+            if v == label.lower() or (label == "50s+" and v in ("50s", "50+")):
+                return lo_, hi_
+        try:
+            if "-" in v:
+                a, b = v.split("-", 1)
+                lo, hi = int(a), int(b)
+            else:
+                lo = hi = int(v)
+        except ValueError:
+            raise ValidationError(f"age must be 20s, 30s, 40s, 50s+, MIN-MAX or an age in years, got {value!r}") from None
+    if not (0 <= int(lo) <= int(hi) <= 200):
+        raise ValidationError(f"age range must satisfy 0 <= MIN <= MAX <= 200, got {value!r}")
+    return int(lo), int(hi)
+
+
+def age_group(age) -> str:
+    """The §7 age group label of an age in years."""
+    for label, lo, hi in AGE_GROUPS:
+        if lo <= age <= hi:
+            return label
+    raise ValidationError(f"age must be in 0-200 years, got {age!r}")

@@ -1,0 +1,46 @@
+"""The exception hierarchy of facestats.
+
+Every error facestats raises on purpose derives from :class:`FacestatsError`, so
+callers can catch one class.  Messages name the argument, the offending value
+and what was expected.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "FacestatsError",
+    "ValidationError",
+    "StoreError",
+    "SchemaError",
+    "FitError",
+    "FormatError",
+    "ConvergenceWarning",
+]
+
+
+class FacestatsError(Exception):
+    """Root of every error raised by facestats."""
+
+
+class ValidationError(FacestatsError, ValueError):
+    """An argument has the wrong shape, type, domain or value."""
+
+
+class StoreError(FacestatsError):
+    """A parameter store is missing, corrupt, locked or read-only."""
+
+
+class SchemaError(StoreError):
+    """Stored data does not follow the facestats schema (or a version it cannot migrate)."""
+
+
+class FitError(FacestatsError):
+    """A fit could not be carried out at all (as opposed to a flagged texel)."""
+
+
+class FormatError(FacestatsError):
+    """A file in an external format (mesh, MATLAB, capture) cannot be read."""
+
+
+class ConvergenceWarning(UserWarning):
+    """A sampler or solver finished without meeting its convergence criterion."""

@@ -1,0 +1,1 @@
+"""facestats.io."""

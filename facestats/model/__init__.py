@@ -1,0 +1,10 @@
+"""Physics of the skin reflectance model: pure functions of arrays, no I/O.
+
+Modules: :mod:`~facestats.model.fresnel`, :mod:`~facestats.model.brdf`,
+:mod:`~facestats.model.dipole`, :mod:`~facestats.model.skin`, and the fitting
+stages in :mod:`~facestats.model.fitting`.
+"""
+
+from . import brdf, dipole, fresnel, skin  # noqa: F401
+
+__all__ = ["brdf", "dipole", "fresnel", "skin"]

@@ -1,0 +1,415 @@
+"""The complete skin reflectance model of Weyrich et al. 2006, eq. 6.
+
+L(xo, ωo) = f_s(xo, ωi, ωo) E(xo, ωi)                                  (specular, eq. 3)
+          + M(xo) F_t(ωo)/π · ∫_A R_d(‖xo − xi‖) F_t(ωi) E(xi, ωi) dA(xi)  (diffuse, eq. 4-7)
+
+for each light, where E is the irradiance a light produces on the surface
+(including N·ωi and visibility), f_s is the Torrance-Sparrow or Blinn-Phong BRDF
+(:mod:`facestats.model.brdf`), R_d the dipole profile
+(:mod:`facestats.model.dipole`) and M the modulation texture of eq. 7.
+
+Seed check (factor 1/π): eq. 6 as printed omits the 1/π of the BSSRDF
+decomposition eq. 5 (S_d ≈ (1/π) f_i R_d f_o, Jensen et al. 2001).  With the
+1/π, a flat homogeneous patch under uniform light reflects the diffuse BRDF
+(α/π) F_t(ωi) F_t(ωo) that eq. 9-10 subtract; without it eq. 6 and eq. 10 would
+disagree by π.  ``tests/test_skin.py`` integrates the diffuse term over a flat
+patch and checks it against :func:`facestats.model.dipole.total_diffuse_reflectance`.
+
+Conventions: positions in mm, areas in mm², directions unit vectors pointing away
+from the surface, irradiance E in W mm⁻² (any consistent radiometric unit works:
+radiance comes out in the same unit per sr), RGB on the last axis.
+
+Shapes (N points, L lights, C cameras): ``normal`` (N, 3), ``wi`` (N, L, 3),
+``irradiance`` (N, L, 3), ``wo`` (N, C, 3); radiance (N, C, L, 3).  This is the
+forward model of the dome simulator and of the renderer: batch many points,
+lights and cameras in one call and chunk over points for large surfaces.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._validate import as_float, check_choice, check_finite, check_range, check_shape, result_dtype
+from ..errors import ValidationError
+from . import brdf as _brdf
+from .dipole import _coefficients, _eta, _profile, _radial_energy, _total_from_reduced_albedo
+from .fresnel import _fresnel_reflectance
+
+__all__ = [
+    "SPECULAR_MODELS",
+    "modulation_texture",
+    "point_lights",
+    "directional_lights",
+    "view_directions",
+    "SubsurfaceTransport",
+    "specular_brdf",
+    "skin_radiance",
+]
+
+#: The specular BRDFs of the model and the name of their second parameter.
+SPECULAR_MODELS = {"torrance_sparrow": "m", "blinn_phong": "exponent"}
+
+
+def modulation_texture(albedo, mask=None):
+    """Modulation texture M(xo) = α(xo) / α_avg, Weyrich et al. 2006 eq. 7.
+
+    R_d(r) M(xo) = R(r) α(xo)/α_avg: the homogeneous dipole R(r), whose parameters
+    are derived from the average albedo (§5.4), is modulated at the exit point so
+    that the local diffuse reflectance equals the albedo map.
+
+    Parameters
+    ----------
+    albedo : array_like, shape (..., 3)
+        Albedo map α (total diffuse reflectance per channel), ≥ 0.
+    mask : array_like of bool, optional
+        Texels that belong to the face (shape of ``albedo`` without the channel
+        axis); α_avg is the mean over them.  Default: all texels.
+
+    Returns
+    -------
+    modulation : ndarray, shape of ``albedo``
+        M, 0 outside the mask.
+    albedo_avg : ndarray, shape (3,)
+        α_avg per channel.
+    """
+    a = check_finite(as_float(albedo, "albedo"), "albedo")
+    check_shape(a, "albedo", (..., 3))
+    check_range(a, "albedo", 0, 1)
+    m = np.ones(a.shape[:-1], bool) if mask is None else np.asarray(mask, bool)
+    if m.shape != a.shape[:-1]:
+        raise ValidationError(f"mask must have shape {a.shape[:-1]}, got {m.shape}")
+    if not m.any():
+        raise ValidationError("mask must select at least one texel, got an empty mask")
+    avg = a[m].mean(axis=0)
+    if np.any(avg <= 0):
+        raise ValidationError(f"albedo must have a positive mean per channel, got {avg.tolist()}")
+    out = np.where(m[..., None], a / avg, 0).astype(a.dtype, copy=False)
+    return out, avg.astype(a.dtype)
+
+
+def _dot(a, b):
+    return np.sum(a * b, axis=-1)
+
+
+def point_lights(positions, normals, light_positions, intensity):
+    """Directions and irradiance from isotropic point lights (inverse-square law).
+
+    E = I cos θi / d², with d the distance to the light, I its radiant intensity
+    (per channel) and cos θi = max(N·ωi, 0).  Visibility (shadowing) is the
+    caller's: multiply E by it.
+
+    Parameters
+    ----------
+    positions, normals : array_like, shape (N, 3)
+        Surface points (mm) and unit normals.
+    light_positions : array_like, shape (L, 3)
+        Light positions (mm).
+    intensity : array_like, shape (L,) or (L, 3)
+        Radiant intensity per light (and channel), ≥ 0, in W sr⁻¹.
+
+    Returns
+    -------
+    wi : ndarray, shape (N, L, 3)
+        Unit directions towards the lights.
+    irradiance : ndarray, shape (N, L, 3)
+        E in W mm⁻².
+    """
+    p = check_shape(check_finite(as_float(positions, "positions"), "positions"), "positions", (None, 3))
+    n = check_shape(check_finite(as_float(normals, "normals"), "normals"), "normals", (p.shape[0], 3))
+    lp = check_shape(check_finite(as_float(light_positions, "light_positions"), "light_positions"), "light_positions", (None, 3))
+    i = check_range(check_finite(as_float(intensity, "intensity"), "intensity"), "intensity", 0, None)
+    if i.ndim == 1:
+        i = np.repeat(i[:, None], 3, axis=1)
+    check_shape(i, "intensity", (lp.shape[0], 3))
+    d = lp[None, :, :] - p[:, None, :]
+    dist2 = _dot(d, d)
+    if np.any(dist2 <= 0):
+        raise ValidationError("light_positions must not coincide with surface positions, got distance 0")
+    wi = d / np.sqrt(dist2)[..., None]
+    cos_i = np.maximum(_dot(n[:, None, :], wi), 0)
+    return wi, (cos_i / dist2)[..., None] * i[None, :, :]
+
+
+def directional_lights(normals, directions, irradiance):
+    """Directions and irradiance from distant (directional) lights.
+
+    E = E⊥ max(N·ωi, 0), with E⊥ the irradiance on a plane facing the light.
+
+    Parameters
+    ----------
+    normals : array_like, shape (N, 3)
+        Unit normals.
+    directions : array_like, shape (L, 3)
+        Unit directions *towards* the lights.
+    irradiance : array_like, shape (L,) or (L, 3)
+        E⊥ per light (and channel), ≥ 0.
+
+    Returns
+    -------
+    wi : ndarray, shape (N, L, 3)
+    irradiance : ndarray, shape (N, L, 3)
+    """
+    n = check_shape(check_finite(as_float(normals, "normals"), "normals"), "normals", (None, 3))
+    w = _brdf._check_directions(directions, "directions")
+    check_shape(w, "directions", (None, 3))
+    e = check_range(check_finite(as_float(irradiance, "irradiance"), "irradiance"), "irradiance", 0, None)
+    if e.ndim == 1:
+        e = np.repeat(e[:, None], 3, axis=1)
+    check_shape(e, "irradiance", (w.shape[0], 3))
+    wi = np.broadcast_to(w[None, :, :], (n.shape[0],) + w.shape)
+    cos_i = np.maximum(n @ w.T, 0)
+    return wi, cos_i[..., None] * e[None, :, :]
+
+
+def view_directions(positions, camera_positions):
+    """Unit directions from surface points towards camera centres, shape (N, C, 3)."""
+    p = check_shape(check_finite(as_float(positions, "positions"), "positions"), "positions", (None, 3))
+    c = check_shape(check_finite(as_float(camera_positions, "camera_positions"), "camera_positions"), "camera_positions", (None, 3))
+    d = c[None, :, :] - p[:, None, :]
+    dist = np.sqrt(_dot(d, d))
+    if np.any(dist <= 0):
+        raise ValidationError("camera_positions must not coincide with surface positions, got distance 0")
+    return d / dist[..., None]
+
+
+@dataclass
+class SubsurfaceTransport:
+    """The homogeneous dipole transport ∫_A R_d(‖xo − xi‖) Φ(xi) dA(xi) of eq. 6, per channel.
+
+    Two modes:
+
+    * **local** (``positions=None``): the flat-patch limit, B(xo) = R_total Φ(xo),
+      exact where the entering flux Φ is locally constant (the diffuse BRDF
+      approximation of Jensen et al. 2001 used by Weyrich eq. 16).
+    * **surface** (``positions`` and ``areas`` given): a sparse quadrature over the
+      surface samples.  Each sample keeps the exact energy of its own footprint
+      (a disk of its area, :func:`facestats.model.dipole.dipole_radial_energy`);
+      neighbours within ``radius`` receive R_d(r)·A_i, rescaled per output sample
+      so that the ring between footprint and radius carries exactly its analytic
+      energy; the tail beyond ``radius`` is returned locally.  Hence Σ_i w_oi equals
+      the total diffuse reflectance and a flat, uniformly lit patch conserves energy
+      exactly whatever the sampling.
+
+    Parameters
+    ----------
+    sigma_s_prime, sigma_a : array_like, shape (3,)
+        Homogeneous reduced scattering and absorption coefficients (mm⁻¹).
+    eta : float
+        Relative index of refraction, default 1.38.
+    positions : array_like, shape (N, 3), optional
+        Surface sample positions in mm.
+    areas : array_like, shape (N,), optional
+        Surface area each sample represents, mm².
+    radius : float, optional
+        Neighbourhood radius in mm.  Default: where the dipole has delivered all but
+        ``tail`` of its energy in the most translucent channel, capped so that a
+        sample has about ``max_neighbors`` neighbours.
+    tail : float
+        Energy fraction left to the local tail when choosing the default radius.
+    max_neighbors : int
+        Cap on the neighbourhood size that bounds cost at high resolution.
+    """
+
+    sigma_s_prime: np.ndarray
+    sigma_a: np.ndarray
+    eta: float = 1.38
+    positions: np.ndarray | None = None
+    areas: np.ndarray | None = None
+    radius: float | None = None
+    tail: float = 1e-3
+    max_neighbors: int = 128
+    _weights: list = field(default=None, init=False, repr=False)
+
+    def __post_init__(self):
+        s, a = _coefficients(self.sigma_s_prime, self.sigma_a)
+        s = np.broadcast_to(s, (3,)).astype(np.float64)
+        a = np.broadcast_to(a, (3,)).astype(np.float64)
+        self.sigma_s_prime, self.sigma_a = s, a
+        self.eta = float(_eta(self.eta))
+        alpha = s / (s + a)
+        self.total_reflectance = _total_from_reduced_albedo(alpha, self.eta)
+        if self.positions is None:
+            return
+        p = check_shape(check_finite(as_float(self.positions, "positions", np.float64), "positions"), "positions", (None, 3))
+        ar = check_finite(as_float(self.areas, "areas", np.float64), "areas")
+        check_shape(ar, "areas", (p.shape[0],))
+        check_range(ar, "areas", 0, None, low_inclusive=False, unit="mm^2")
+        self.positions, self.areas = p, ar
+        self._build()
+
+    # -- construction -------------------------------------------------------------
+    def _default_radius(self):
+        from scipy.optimize import brentq
+
+        sigma_tr = np.sqrt(3 * self.sigma_a * (self.sigma_a + self.sigma_s_prime))
+        c = int(np.argmin(sigma_tr))  # most translucent channel
+        args = (self.sigma_s_prime[c], self.sigma_a[c], self.eta)
+        target = (1 - self.tail) * self.total_reflectance[c]
+        r_energy = brentq(lambda r: _radial_energy(r, *args) - target, 0.0, 1e4)
+        spacing = np.sqrt(np.median(self.areas))
+        r_cap = spacing * np.sqrt(self.max_neighbors / np.pi)
+        return float(min(r_energy, max(r_cap, spacing)))
+
+    def _build(self):
+        from scipy import sparse
+        from scipy.spatial import cKDTree
+
+        n = self.positions.shape[0]
+        radius = self._default_radius() if self.radius is None else float(self.radius)
+        check_range(np.asarray(radius), "radius", 0, None, low_inclusive=False, unit="mm")
+        self.radius = radius
+        tree = cKDTree(self.positions)
+        pairs = tree.query_pairs(radius, output_type="ndarray")
+        rows = np.concatenate([pairs[:, 0], pairs[:, 1]])
+        cols = np.concatenate([pairs[:, 1], pairs[:, 0]])
+        dist = np.linalg.norm(self.positions[rows] - self.positions[cols], axis=1)
+        foot = np.minimum(np.sqrt(self.areas / np.pi), radius)  # footprint disk radius
+        weights = []
+        for c in range(3):  # loop over the three channels, not over samples
+            args = (self.sigma_s_prime[c], self.sigma_a[c], self.eta)
+            e_foot = _radial_energy(foot, *args)
+            e_ring = _radial_energy(radius, *args) - e_foot  # analytic energy of the ring
+            # Mean of R_d over the annulus of one sample width around r (exact for
+            # the radial energy), times the neighbour's area.
+            width = np.sqrt(self.areas[cols])
+            r_in = np.maximum(dist - width / 2, foot[rows])
+            r_out = np.maximum(dist + width / 2, r_in + 1e-12)
+            ring = _radial_energy(r_out, *args) - _radial_energy(r_in, *args)
+            w = ring / (np.pi * (r_out * r_out - r_in * r_in)) * self.areas[cols]
+            raw = np.bincount(rows, weights=w, minlength=n)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                scale = np.where(raw > 0, e_ring / raw, 0)
+            w = w * scale[rows]
+            # Footprint energy, plus the ring's energy where a sample has no
+            # neighbour, plus the tail beyond the radius, stay at the sample itself.
+            self_w = e_foot + np.where(raw > 0, 0, e_ring) + (self.total_reflectance[c] - _radial_energy(radius, *args))
+            m = sparse.csr_matrix((w, (rows, cols)), shape=(n, n)) + sparse.diags(self_w)
+            weights.append(m.tocsr())
+        self._weights = weights
+
+    # -- application ----------------------------------------------------------------
+    @property
+    def n_points(self):
+        """Number of surface samples (None in local mode)."""
+        return None if self.positions is None else self.positions.shape[0]
+
+    def apply(self, flux):
+        """Exitance B(xo) = ∫ R_d(‖xo − xi‖) Φ(xi) dA(xi) for entering flux density Φ.
+
+        Parameters
+        ----------
+        flux : array_like, shape (N, ..., 3)
+            Flux density entering the skin (F_t(ωi)·E) per channel, W mm⁻².
+
+        Returns
+        -------
+        ndarray, shape of ``flux``
+            Exitance per channel before modulation and exit Fresnel, W mm⁻².
+        """
+        f = np.asarray(flux)
+        if f.shape[-1] != 3:
+            raise ValidationError(f"flux must have 3 channels on the last axis, got shape {f.shape}")
+        if self.positions is None:
+            return f * self.total_reflectance.astype(f.dtype)
+        if f.shape[0] != self.n_points:
+            raise ValidationError(f"flux must have {self.n_points} points on axis 0, got shape {f.shape}")
+        out = np.empty_like(f)
+        flat = f.reshape(f.shape[0], -1, 3)
+        out_flat = out.reshape(flat.shape)
+        for c in range(3):  # three sparse products, one per channel
+            out_flat[:, :, c] = self._weights[c] @ flat[:, :, c]
+        return out
+
+
+def specular_brdf(model, normal, wi, wo, rho_s, roughness, eta=1.38):
+    """Evaluate the named specular BRDF: ``"torrance_sparrow"`` (roughness = m) or ``"blinn_phong"`` (roughness = exponent)."""
+    check_choice(model, "specular", SPECULAR_MODELS)
+    if model == "torrance_sparrow":
+        return _brdf.torrance_sparrow(normal, wi, wo, rho_s, roughness, eta)
+    return _brdf.blinn_phong(normal, wi, wo, rho_s, roughness)
+
+
+def skin_radiance(
+    normal,
+    wi,
+    irradiance,
+    wo,
+    *,
+    rho_s,
+    roughness,
+    modulation,
+    subsurface: SubsurfaceTransport,
+    specular: str = "torrance_sparrow",
+    eta: float = 1.38,
+    components: bool = False,
+):
+    """Outgoing radiance of the skin model, Weyrich et al. 2006 eq. 6 (with eq. 5's 1/π).
+
+    For N surface points, L lights and C cameras:
+
+    L[n, c, l] = f_s(N_n, ωi[n, l], ωo[n, c]) E[n, l]
+               + M[n] F_t(ωo[n, c])/π · B_l[n],   B_l = ∫ R_d Φ_l dA,  Φ_l = F_t(ωi) E_l
+
+    The specular highlight is the colour of the light (E per channel times a grey
+    BRDF, §5.3).  F_t uses the unpolarised Fresnel equations at relative index η.
+
+    Parameters
+    ----------
+    normal : array_like, shape (N, 3)
+        Unit surface normals (the specular normal; micro-normals if available).
+    wi : array_like, shape (N, L, 3)
+        Unit directions towards each light.
+    irradiance : array_like, shape (N, L, 3)
+        Irradiance E (with N·ωi and visibility) per light and channel, ≥ 0.
+    wo : array_like, shape (N, C, 3)
+        Unit directions towards each camera.
+    rho_s, roughness : array_like, shape (N,)
+        Specular parameters: (ρs, m) for Torrance-Sparrow, (ρs, n) for Blinn-Phong.
+    modulation : array_like, shape (N, 3)
+        Modulation texture M (:func:`modulation_texture`).
+    subsurface : SubsurfaceTransport
+        The dipole transport (local or over these N points).
+    specular : {"torrance_sparrow", "blinn_phong"}
+    eta : float
+        Relative index of refraction for the Fresnel terms, default 1.38.
+    components : bool
+        If True return ``(specular, diffuse)`` separately.
+
+    Returns
+    -------
+    radiance : ndarray, shape (N, C, L, 3)
+        Outgoing radiance in W mm⁻² sr⁻¹ (irradiance unit per sr).
+    """
+    check_choice(specular, "specular", SPECULAR_MODELS)
+    n = _brdf._check_directions(normal, "normal")
+    check_shape(n, "normal", (None, 3))
+    npts = n.shape[0]
+    wi = check_shape(_brdf._check_directions(wi, "wi"), "wi", (npts, None, 3))
+    wo = check_shape(_brdf._check_directions(wo, "wo"), "wo", (npts, None, 3))
+    e = check_range(check_finite(as_float(irradiance, "irradiance"), "irradiance"), "irradiance", 0, None)
+    check_shape(e, "irradiance", (npts, wi.shape[1], 3))
+    mod = check_range(check_finite(as_float(modulation, "modulation"), "modulation"), "modulation", 0, None)
+    check_shape(mod, "modulation", (npts, 3))
+    rho = np.broadcast_to(as_float(rho_s, "rho_s"), (npts,))
+    rough = np.broadcast_to(as_float(roughness, "roughness"), (npts,))
+    dtype = result_dtype(n, wi, wo, e, mod)
+
+    # Specular: grey BRDF for every (point, camera, light), times the light's colour.
+    f_s = specular_brdf(
+        specular, n[:, None, None, :], wi[:, None, :, :], wo[:, :, None, :], rho[:, None, None], rough[:, None, None], eta
+    ).astype(dtype, copy=False)
+    spec = f_s[..., None] * e[:, None, :, :]
+
+    # Diffuse: entering flux, transport, then modulation and exit transmittance.
+    cos_i = np.clip(np.einsum("nk,nlk->nl", n, wi), 0, 1)
+    cos_o = np.clip(np.einsum("nk,nck->nc", n, wo), 0, 1)
+    t_i = 1 - _fresnel_reflectance(cos_i.astype(dtype), dtype.type(eta))
+    t_o = np.where(cos_o > 0, 1 - _fresnel_reflectance(cos_o.astype(dtype), dtype.type(eta)), 0)
+    exitance = subsurface.apply((t_i[..., None] * e).astype(dtype, copy=False))  # (N, L, 3)
+    diff = (mod[:, None, None, :] * (t_o / np.pi)[:, :, None, None]) * exitance[:, None, :, :]
+    diff = diff.astype(dtype, copy=False)
+    if components:
+        return spec.astype(dtype, copy=False), diff
+    return (spec + diff).astype(dtype, copy=False)

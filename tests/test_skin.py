@@ -1,0 +1,125 @@
+import numpy as np
+import pytest
+from scipy.integrate import quad
+
+from facestats import FacestatsError
+from facestats.model import brdf, dipole, skin
+from facestats.model.fresnel import fresnel_transmittance
+
+SIGMA_S = np.array([2.42, 1.69, 1.83])
+SIGMA_A = np.array([0.041, 0.172, 0.364])
+
+
+def _plane(h, half_width):
+    x = np.arange(-half_width + h / 2, half_width, h)
+    xx, yy = np.meshgrid(x, x, indexing="ij")
+    pos = np.stack([xx.ravel(), yy.ravel(), np.zeros(xx.size)], -1)
+    return pos, np.full(len(pos), h * h)
+
+
+def test_flat_patch_diffuse_equals_total_reflectance_with_fresnel():
+    pos, area = _plane(0.5, 12.0)
+    normals = np.tile([0.0, 0.0, 1.0], (len(pos), 1))
+    transport = skin.SubsurfaceTransport(SIGMA_S, SIGMA_A, 1.38, positions=pos, areas=area, radius=6.0)
+    th_i, th_o = np.radians(35), np.radians(50)
+    wi_dir = np.array([[np.sin(th_i), 0, np.cos(th_i)]])
+    cams = np.array([[np.sin(th_o) * 1e6, 0, np.cos(th_o) * 1e6]])
+    wi, e = skin.directional_lights(normals, wi_dir, [2.0])
+    wo = skin.view_directions(pos, cams)
+    spec, diff = skin.skin_radiance(
+        normals, wi, e, wo, rho_s=0.0, roughness=0.3, modulation=np.ones((len(pos), 3)),
+        subsurface=transport, components=True,
+    )
+    assert np.all(spec == 0)
+    centre = np.argmin(np.linalg.norm(pos, axis=1))
+    rd = dipole.total_diffuse_reflectance(SIGMA_S, SIGMA_A, 1.38)
+    expected = rd / np.pi * fresnel_transmittance(np.cos(th_i)) * fresnel_transmittance(np.cos(th_o)) * 2.0 * np.cos(th_i)
+    np.testing.assert_allclose(diff[centre, 0, 0], expected, rtol=1e-6)
+    # The local (flat-patch) mode gives the same everywhere.
+    local = skin.skin_radiance(normals, wi, e, wo, rho_s=0.0, roughness=0.3, modulation=np.ones((len(pos), 3)),
+                               subsurface=skin.SubsurfaceTransport(SIGMA_S, SIGMA_A, 1.38))
+    np.testing.assert_allclose(local[centre, 0, 0], expected, rtol=1e-6)
+
+
+def _half_plane_response(x, s, a):
+    """Exitance at signed distance x from the edge of a half-plane lit with unit flux (x > 0: dark side)."""
+    def strip(u):  # ∫ R_d(sqrt(u² + y²)) dy over the line at distance u
+        return 2 * quad(lambda y: dipole.dipole_profile(np.hypot(u, y), s, a), 0, np.inf, limit=200)[0]
+    if x >= 0:
+        return quad(strip, x, np.inf, limit=200)[0]
+    return float(dipole.total_diffuse_reflectance(s, a)) - quad(strip, -x, np.inf, limit=200)[0]
+
+
+def test_shadow_edge_blur_matches_half_plane_integral():
+    h = 0.25
+    pos, area = _plane(h, 6.0)
+    transport = skin.SubsurfaceTransport(SIGMA_S, SIGMA_A, 1.38, positions=pos, areas=area, radius=6.0)
+    flux = np.where(pos[:, :1] < 0, 1.0, 0.0) * np.ones((1, 3))
+    out = transport.apply(flux)
+    row = np.abs(pos[:, 1] - h / 2) < 1e-9
+    xs, vals = pos[row, 0], out[row]
+    for x_probe in (-1.125, -0.125, 0.125, 0.375):
+        i = np.argmin(np.abs(xs - x_probe))
+        for c in range(3):
+            ref = _half_plane_response(xs[i], SIGMA_S[c], SIGMA_A[c])
+            assert vals[i, c] == pytest.approx(ref, rel=0.03)
+    # Symmetry: the two columns at the edge sum to the total reflectance.
+    i0, i1 = np.argmin(np.abs(xs + h / 2)), np.argmin(np.abs(xs - h / 2))
+    np.testing.assert_allclose(vals[i0] + vals[i1], dipole.total_diffuse_reflectance(SIGMA_S, SIGMA_A), rtol=0.01)
+
+
+def test_energy_conservation_flat_patch(rng):
+    pos, area = _plane(0.5, 10.0)
+    transport = skin.SubsurfaceTransport(SIGMA_S, SIGMA_A, 1.38, positions=pos, areas=area)
+    flux = rng.uniform(0, 1, (len(pos), 4, 3))
+    out = transport.apply(flux)
+    # Every weight is non-negative and each row sums to R_d: total exitance ≤ entering flux.
+    assert np.all(out >= 0)
+    np.testing.assert_allclose(out.sum(0) / flux.sum(0), np.broadcast_to(dipole.total_diffuse_reflectance(SIGMA_S, SIGMA_A), (4, 3)), rtol=0.05)
+
+
+def test_specular_component_is_brdf_times_irradiance(rng):
+    n = 50
+    normals = np.tile([0.0, 0.0, 1.0], (n, 1))
+    pos = np.c_[rng.uniform(-5, 5, (n, 2)), np.zeros(n)]
+    lights = np.array([[100.0, 0, 500], [-200, 50, 400]])
+    cams = np.array([[0.0, 0, 600], [150, -100, 500], [0, 300, 300]])
+    wi, e = skin.point_lights(pos, normals, lights, [[1e5, 9e4, 8e4], [5e4, 5e4, 5e4]])
+    wo = skin.view_directions(pos, cams)
+    rho, m = rng.uniform(0.1, 0.3, n), rng.uniform(0.2, 0.5, n)
+    for model in skin.SPECULAR_MODELS:
+        r = rho if model == "torrance_sparrow" else rho
+        p = m if model == "torrance_sparrow" else 1 / m**2
+        spec, _ = skin.skin_radiance(normals, wi, e, wo, rho_s=r, roughness=p, modulation=np.ones((n, 3)),
+                                     subsurface=skin.SubsurfaceTransport(SIGMA_S, SIGMA_A), specular=model, components=True)
+        f = skin.specular_brdf(model, normals[:, None, None], wi[:, None], wo[:, :, None], r[:, None, None], p[:, None, None])
+        np.testing.assert_allclose(spec, f[..., None] * e[:, None], rtol=1e-12)
+        assert spec.shape == (n, 3, 2, 3)
+
+
+def test_modulation_texture_eq7():
+    albedo = np.array([[[0.4, 0.2, 0.1], [0.6, 0.3, 0.2]], [[0.5, 0.25, 0.15], [0.9, 0.9, 0.9]]])
+    mask = np.array([[True, True], [True, False]])
+    m, avg = skin.modulation_texture(albedo, mask)
+    np.testing.assert_allclose(avg, [0.5, 0.25, 0.15])
+    np.testing.assert_allclose(m[0, 0], [0.8, 0.8, 2 / 3])
+    assert np.all(m[1, 1] == 0)
+    np.testing.assert_allclose(m[mask].mean(0), 1.0)
+
+
+def test_point_light_inverse_square():
+    wi, e = skin.point_lights([[0, 0, 0.0]], [[0, 0, 1.0]], [[0, 0, 100.0], [0, 0, 200.0]], [1.0, 1.0])
+    assert e[0, 0, 0] / e[0, 1, 0] == pytest.approx(4.0)
+    np.testing.assert_allclose(wi[0, 0], [0, 0, 1])
+
+
+def test_validation():
+    n = np.array([[0, 0, 1.0]])
+    with pytest.raises(FacestatsError, match="specular must be one of"):
+        skin.skin_radiance(n, n[:, None], np.ones((1, 1, 3)), n[:, None], rho_s=0.1, roughness=0.3,
+                           modulation=np.ones((1, 3)), subsurface=skin.SubsurfaceTransport(SIGMA_S, SIGMA_A), specular="phong")
+    with pytest.raises(FacestatsError, match="irradiance must lie in"):
+        skin.skin_radiance(n, n[:, None], -np.ones((1, 1, 3)), n[:, None], rho_s=0.1, roughness=0.3,
+                           modulation=np.ones((1, 3)), subsurface=skin.SubsurfaceTransport(SIGMA_S, SIGMA_A))
+    with pytest.raises(FacestatsError, match="areas must lie in"):
+        skin.SubsurfaceTransport(SIGMA_S, SIGMA_A, positions=np.zeros((2, 3)), areas=[1.0, 0.0])

@@ -1,0 +1,163 @@
+"""Per-subject summaries: the rows of the population index.
+
+One row per subject holds its metadata, per-region mean and spread of the BRDF
+parameters, the per-site and per-subject scattering coefficients and albedo
+statistics; 256-bin albedo histograms per channel are kept beside the row.
+These functions work on a subject :class:`xarray.Dataset` (either kind of
+:mod:`facestats.io.schema`) and are what the store calls when it writes a
+subject, so the index can never disagree with the data it summarises.
+
+Column names (``r`` = region 1-10, ``ch`` = R/G/B, ``site`` = cheek/forehead/neck):
+
+* metadata: ``subject_id``, ``person_id``, ``age``, ``gender``, ``skin_type``,
+  ``condition``, ``kind`` (``maps``/``samples``), ``source``;
+* ``{p}_mean_r{r}``, ``{p}_std_r{r}`` for p in ``ts_rho_s``, ``ts_m``,
+  ``bp_rho_s``, ``bp_exponent``, and ``n_ts_r{r}``, ``n_bp_r{r}`` (sample counts);
+* ``site_sigma_tr_{site}_{ch}``, ``site_sigma_s_prime_{site}_{ch}``,
+  ``site_sigma_a_{site}_{ch}``;
+* ``sigma_s_prime_{ch}``, ``sigma_a_{ch}``, ``sigma_tr_{ch}``;
+* ``albedo_mean_{ch}``, ``albedo_std_{ch}``;
+* ``flagged_fraction`` (texels whose Torrance-Sparrow fit was flagged).
+
+Missing quantities (e.g. an imported subject without sensor data) are NaN.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..conventions import CHANNELS, REGION_IDS, SITES
+from .schema import provenance, subject_kind
+
+__all__ = [
+    "HIST_BINS",
+    "BRDF_PARAMS",
+    "MODEL_PARAMS",
+    "region_samples",
+    "albedo_histogram",
+    "summarise_subject",
+    "column",
+]
+
+#: Albedo histograms: 256 bins over [0, 1] per channel.
+HIST_BINS = 256
+#: The BRDF parameters summarised per region.
+BRDF_PARAMS = ("ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent")
+#: model -> (scale parameter, lobe parameter, flag variable).
+MODEL_PARAMS = {"ts": ("ts_rho_s", "ts_m", "ts_flag"), "bp": ("bp_rho_s", "bp_exponent", "bp_flag")}
+
+
+def column(kind: str, **keys) -> str:
+    """Build an index column name, e.g. ``column("mean", param="ts_m", region=6)`` -> ``"ts_m_mean_r6"``."""
+    if kind in ("mean", "std"):
+        return f"{keys['param']}_{kind}_r{keys['region']}"
+    if kind == "n":
+        return f"n_{keys['model']}_r{keys['region']}"
+    if kind == "site":
+        return f"site_{keys['param']}_{keys['site']}_{keys['channel']}"
+    if kind == "subject":
+        return f"{keys['param']}_{keys['channel']}"
+    raise KeyError(kind)
+
+
+def region_samples(ds, model: str = "ts") -> dict:
+    """Per-region parameter samples of one subject: ``{region: (rho_s, lobe)}`` arrays.
+
+    For map subjects these are the texels of the region whose fit was not
+    flagged (texels filled from neighbours are excluded: they are not
+    measurements).  For sample subjects (published files) they are the stored
+    samples; sample subjects carry Torrance-Sparrow samples only.
+    """
+    rho_name, lobe_name, flag_name = MODEL_PARAMS[model]
+    out = {}
+    if subject_kind(ds) == "maps":
+        region = np.asarray(ds["region"].values)
+        good = np.asarray(ds[flag_name].values) == 0
+        rho = np.asarray(ds[rho_name].values)
+        lobe = np.asarray(ds[lobe_name].values)
+        for r in REGION_IDS:
+            sel = (region == r) & good
+            out[r] = (rho[sel].astype(np.float64), lobe[sel].astype(np.float64))
+        return out
+    if model != "ts":
+        return {r: (np.empty(0), np.empty(0)) for r in REGION_IDS}
+    reg = np.asarray(ds["ts_sample_region"].values)
+    rho = np.asarray(ds["ts_sample_rho_s"].values, dtype=np.float64)
+    m = np.asarray(ds["ts_sample_m"].values, dtype=np.float64)
+    for r in REGION_IDS:
+        sel = reg == r
+        out[r] = (rho[sel], m[sel])
+    return out
+
+
+def _albedo_values(ds) -> np.ndarray:
+    """Albedo values (n, 3) of the face texels or of the stored albedo samples."""
+    if subject_kind(ds) == "maps":
+        face = np.asarray(ds["region"].values) > 0
+        return np.asarray(ds["albedo"].values)[face].astype(np.float64)
+    if "albedo_sample" in ds.data_vars:
+        return np.asarray(ds["albedo_sample"].values, dtype=np.float64).reshape(-1, 3)
+    return np.empty((0, 3))
+
+
+def albedo_histogram(ds, bins: int = HIST_BINS) -> np.ndarray:
+    """Counts of albedo values per channel in ``bins`` equal bins over [0, 1], shape (3, bins)."""
+    vals = np.clip(_albedo_values(ds), 0, 1)
+    idx = np.minimum((vals * bins).astype(np.int64), bins - 1)
+    return np.stack([np.bincount(idx[:, c], minlength=bins) for c in range(3)]).astype(np.int64)
+
+
+def _nan_stats(x):
+    if x.size == 0:
+        return np.nan, np.nan
+    return float(np.mean(x)), float(np.std(x, ddof=1)) if x.size > 1 else 0.0
+
+
+def summarise_subject(ds) -> dict:
+    """The population-index row of a subject (see the module docstring for the columns)."""
+    a = ds.attrs
+    row = {
+        "subject_id": str(a["subject_id"]),
+        "person_id": str(a.get("person_id", a["subject_id"])),
+        "age": int(a["age"]),
+        "gender": str(a["gender"]),
+        "skin_type": int(a["skin_type"]),
+        "condition": str(a["condition"]),
+        "kind": subject_kind(ds),
+    }
+    row["source"] = str(provenance(ds).get("source", ""))
+    for model in ("ts", "bp"):
+        rho_name, lobe_name, _ = MODEL_PARAMS[model]
+        samples = region_samples(ds, model)
+        for r in REGION_IDS:
+            rho, lobe = samples[r]
+            row[column("n", model=model, region=r)] = int(rho.size)
+            for name, x in ((rho_name, rho), (lobe_name, lobe)):
+                mean, std = _nan_stats(x)
+                row[column("mean", param=name, region=r)] = mean
+                row[column("std", param=name, region=r)] = std
+    sites = [str(s) for s in ds["site"].values] if "site" in ds.dims else []
+    for param in ("sigma_tr", "sigma_s_prime", "sigma_a"):
+        var = f"site_{param}"
+        for site in SITES:
+            for c, ch in enumerate(CHANNELS):
+                val = np.nan
+                if var in ds.data_vars and site in sites:
+                    val = float(ds[var].sel(site=site).values[c])
+                row[column("site", param=param, site=site, channel=ch)] = val
+    for param in ("sigma_s_prime", "sigma_a", "sigma_tr"):
+        vals = np.asarray(ds[param].values, float) if param in ds.data_vars else np.full(3, np.nan)
+        for c, ch in enumerate(CHANNELS):
+            row[column("subject", param=param, channel=ch)] = float(vals[c])
+    alb = _albedo_values(ds)
+    for c, ch in enumerate(CHANNELS):
+        mean, std = _nan_stats(alb[:, c]) if alb.size else (np.nan, np.nan)
+        row[f"albedo_mean_{ch}"] = mean
+        row[f"albedo_std_{ch}"] = std
+    if subject_kind(ds) == "maps":
+        face = np.asarray(ds["region"].values) > 0
+        flags = np.asarray(ds["ts_flag"].values)[face]
+        row["flagged_fraction"] = float(np.mean(flags != 0))
+    else:
+        row["flagged_fraction"] = np.nan
+    return row

@@ -10,8 +10,10 @@ model both use:
 * noise: shot noise (variance = mean electrons, Gaussian approximation of the
   Poisson distribution, good above ~20 e⁻) plus Gaussian read noise;
 * response: linear, quantised by an ``adc_bits`` converter whose full scale is
-  the full-well capacity; values at or above ``saturation`` of full scale are
-  clipped and unusable;
+  the full-well capacity, with a black level (pedestal) of ``black_level`` DN so
+  that noise below zero signal is recorded rather than clipped (merges subtract
+  it, leaving dark readings unbiased); values at or above ``saturation`` of full
+  scale are clipped and unusable;
 * merge (after Debevec & Malik 1997, with inverse-variance weights): each
   unclipped exposure gives an estimate DN·g/t of the rate; estimates are combined
   with weights 1/Var, Var = (rate·t + σ_read² + g²/12)/t², evaluated at a first
@@ -44,15 +46,19 @@ class CameraResponse:
         ADC resolution.
     saturation : float
         Fraction of full scale above which a value counts as clipped.
+    black_level : float
+        Pedestal added to every reading, DN.
     """
 
     full_well: float = 20000.0
     read_noise: float = 5.0
     adc_bits: int = 12
     saturation: float = 0.95
+    black_level: float = 64.0
 
     def __post_init__(self):
-        if not (self.full_well > 0 and self.read_noise >= 0 and 1 <= self.adc_bits <= 24 and 0 < self.saturation <= 1):
+        if not (self.full_well > 0 and self.read_noise >= 0 and 1 <= self.adc_bits <= 24 and 0 < self.saturation <= 1
+                and 0 <= self.black_level < 2**self.adc_bits - 1):
             raise ValidationError(f"CameraResponse parameters out of range: {self!r}")
 
     @property
@@ -67,7 +73,8 @@ class CameraResponse:
 
     def variance(self, electrons):
         """Variance (e⁻²) of a reading with ``electrons`` expected: shot + read + quantisation."""
-        return np.maximum(electrons, 0) + self.read_noise**2 + self.gain**2 / 12
+        e = np.asarray(electrons)
+        return np.maximum(e, 0) + e.dtype.type(self.read_noise**2 + self.gain**2 / 12) if e.dtype.kind == "f" else np.maximum(e, 0) + self.read_noise**2 + self.gain**2 / 12
 
 
 def expose(rate, times, response: CameraResponse, rng: np.random.Generator, dtype=np.float32):
@@ -88,13 +95,22 @@ def expose(rate, times, response: CameraResponse, rng: np.random.Generator, dtyp
     ndarray, shape ``rate.shape + (E,)``
         Quantised readings in DN, clipped to [0, max_dn], as ``dtype``.
     """
+    dtype = np.dtype(dtype)
     r = np.asarray(rate, dtype=dtype)
-    t = np.asarray(times, dtype=dtype)
-    mean = r[..., None] * t
-    noise = rng.standard_normal(mean.shape, dtype=np.float32).astype(dtype, copy=False)
-    electrons = mean + noise * np.sqrt(mean + dtype(response.read_noise**2))
-    dn = np.rint(electrons / dtype(response.gain))
-    return np.clip(dn, 0, response.max_dn).astype(dtype, copy=False)
+    t = np.asarray(times, dtype=np.float64)
+    out = np.empty((t.size,) + r.shape, dtype)
+    read2 = dtype.type(response.read_noise**2)
+    inv_gain = dtype.type(1 / response.gain)
+    for j, tj in enumerate(t):  # loop over exposures, vectorised over samples
+        mean = r * dtype.type(tj)
+        e = rng.standard_normal(r.shape, dtype=np.float32 if dtype == np.float32 else np.float64)
+        e *= np.sqrt(mean + read2)
+        e += mean
+        e *= inv_gain
+        e += dtype.type(response.black_level)
+        np.rint(e, out=e)
+        np.clip(e, 0, response.max_dn, out=out[j])
+    return np.moveaxis(out, 0, -1)
 
 
 def merge_exposures(dn, times, response: CameraResponse):
@@ -121,26 +137,39 @@ def merge_exposures(dn, times, response: CameraResponse):
     t = check_range(check_finite(as_float(times, "times"), "times"), "times", 0, None, low_inclusive=False)
     if d.shape[-1] != t.shape[0]:
         raise ValidationError(f"dn must have {t.shape[0]} exposures on its last axis, got shape {d.shape}")
-    dtype = d.dtype if d.dtype in (np.float32, np.float64) else np.float64
-    d = d.astype(dtype, copy=False)
-    t = t.astype(dtype)
-    ok = d < response.saturation * response.max_dn
-    est = d * dtype.type(response.gain) / t  # electrons per unit time, per exposure
+    dtype = d.dtype if d.dtype in (np.float32, np.float64) else np.dtype(np.float64)
+    d = np.moveaxis(d, -1, 0)  # loop over exposures below; each slice is a whole-array operation
+    sat = response.saturation * response.max_dn
+    gain = dtype.type(response.gain)
+    black = dtype.type(response.black_level)
+    shape = d.shape[1:]
     # First pass: time-weighted mean of the unclipped estimates (Debevec & Malik weights ∝ t).
-    w0 = np.where(ok, t, 0)
+    num = np.zeros(shape, dtype)
+    den = np.zeros(shape, dtype)
+    n_used = np.zeros(shape, np.int16)
+    for j, tj in enumerate(t):
+        ok = d[j] < sat
+        n_used += ok
+        num += np.where(ok, (d[j] - black) * gain, 0)  # t·((DN − black)·g/t)
+        den += np.where(ok, dtype.type(tj), 0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        rate0 = np.sum(w0 * est, axis=-1) / np.sum(w0, axis=-1)
+        rate0 = np.maximum(num / den, 0)
     # Second pass: inverse-variance weights from the first estimate.
-    var_e = response.variance(np.maximum(rate0, 0)[..., None] * t)
-    w = np.where(ok, t * t / var_e, 0)
-    wsum = np.sum(w, axis=-1)
+    num[...] = 0
+    wsum = np.zeros(shape, dtype)
+    for j, tj in enumerate(t):
+        ok = d[j] < sat
+        tj = dtype.type(tj)
+        w = np.where(ok, tj * tj / response.variance(rate0 * tj).astype(dtype, copy=False), 0)
+        num += w * ((d[j] - black) * gain / tj)
+        wsum += w
     with np.errstate(invalid="ignore", divide="ignore"):
-        rate = np.sum(w * est, axis=-1) / wsum
+        rate = num / wsum
         std = 1 / np.sqrt(wsum)
-    n_used = ok.sum(axis=-1)
-    rate = np.where(n_used > 0, rate, np.nan)
-    std = np.where(n_used > 0, std, np.nan)
-    return rate.astype(dtype, copy=False), std.astype(dtype, copy=False), n_used
+    none = n_used == 0
+    rate[none] = np.nan
+    std[none] = np.nan
+    return rate, std, n_used
 
 
 def merged_std(rate, times, response: CameraResponse):

@@ -126,7 +126,8 @@ class ContactSensor:
             "stop": self.stop,
             "shortest_exposure_s": self.shortest_exposure,
             "scale_e_per_s_per_mm-2": self.scale,
-            "camera": {"full_well": self.camera.full_well, "read_noise": self.camera.read_noise, "adc_bits": self.camera.adc_bits},
+            "camera": {"full_well": self.camera.full_well, "read_noise": self.camera.read_noise, "adc_bits": self.camera.adc_bits,
+                       "saturation": self.camera.saturation, "black_level": self.camera.black_level},
         }
 
     @classmethod

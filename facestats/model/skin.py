@@ -44,6 +44,7 @@ __all__ = [
     "directional_lights",
     "view_directions",
     "SubsurfaceTransport",
+    "neighbour_pairs",
     "specular_brdf",
     "skin_radiance",
 ]
@@ -174,6 +175,17 @@ def view_directions(positions, camera_positions):
     return d / dist[..., None]
 
 
+def neighbour_pairs(positions, radius):
+    """All ordered pairs of distinct points closer than ``radius``: ``(rows, cols, distance)``."""
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(positions, np.float64)
+    pairs = cKDTree(p).query_pairs(float(radius), output_type="ndarray")
+    rows = np.concatenate([pairs[:, 0], pairs[:, 1]])
+    cols = np.concatenate([pairs[:, 1], pairs[:, 0]])
+    return rows, cols, np.linalg.norm(p[rows] - p[cols], axis=1)
+
+
 @dataclass
 class SubsurfaceTransport:
     """The homogeneous dipole transport ∫_A R_d(‖xo − xi‖) Φ(xi) dA(xi) of eq. 6, per channel.
@@ -210,6 +222,9 @@ class SubsurfaceTransport:
         Energy fraction left to the local tail when choosing the default radius.
     max_neighbors : int
         Cap on the neighbourhood size that bounds cost at high resolution.
+    neighbours : tuple of ndarray, optional
+        Precomputed ``(rows, cols, distance)`` of :func:`neighbour_pairs` for these
+        positions and ``radius``, to reuse the search across many subjects.
     """
 
     sigma_s_prime: np.ndarray
@@ -220,6 +235,7 @@ class SubsurfaceTransport:
     radius: float | None = None
     tail: float = 1e-3
     max_neighbors: int = 128
+    neighbours: tuple | None = None
     _weights: list = field(default=None, init=False, repr=False)
 
     def __post_init__(self):
@@ -254,17 +270,15 @@ class SubsurfaceTransport:
 
     def _build(self):
         from scipy import sparse
-        from scipy.spatial import cKDTree
 
         n = self.positions.shape[0]
         radius = self._default_radius() if self.radius is None else float(self.radius)
         check_range(np.asarray(radius), "radius", 0, None, low_inclusive=False, unit="mm")
         self.radius = radius
-        tree = cKDTree(self.positions)
-        pairs = tree.query_pairs(radius, output_type="ndarray")
-        rows = np.concatenate([pairs[:, 0], pairs[:, 1]])
-        cols = np.concatenate([pairs[:, 1], pairs[:, 0]])
-        dist = np.linalg.norm(self.positions[rows] - self.positions[cols], axis=1)
+        if self.neighbours is None:
+            rows, cols, dist = neighbour_pairs(self.positions, radius)
+        else:
+            rows, cols, dist = self.neighbours
         foot = np.minimum(np.sqrt(self.areas / np.pi), radius)  # footprint disk radius
         weights = []
         for c in range(3):  # loop over the three channels, not over samples

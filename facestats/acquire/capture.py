@@ -1,0 +1,277 @@
+"""Captures: the raw data of one subject from the dome and the contact sensor.
+
+A capture holds, for every lumitexel (Weyrich et al. 2006 §5), its geometry
+(position, scanned normal, UV, area, region) and every (camera, light) sample:
+the HDR radiance L (NaN where the sample is invalid: unlit, shadowed, occluded,
+out of frame, back-facing, or clipped in every exposure), the beam-normal
+irradiance E⊥ of each light at the lumitexel (the calibrated LED model of
+:class:`facestats.acquire.dome.Dome`), and the calibration; plus the HDR
+contact-sensor profiles R(r) of three sites with their noise.
+
+Layout (arrays, any of numpy in memory or zarr on disk; dims in brackets)::
+
+    position     [lumitexel, xyz]                 float32  mm
+    scan_normal  [lumitexel, xyz]                 float32  unit
+    uv           [lumitexel, uvc]                 float32  in [0, 1]
+    area         [lumitexel]                      float32  mm²
+    region       [lumitexel]                      uint8    1-10
+    irradiance   [lumitexel, light, channel]      float32  E⊥, dome units
+    radiance     [lumitexel, camera, light, channel] float16 dome units / sr, NaN = invalid
+    region_map   [v, u]                           uint8    label image of the output maps
+    sensor_profile, sensor_profile_std [site, fiber, channel] float64 mm⁻²
+    fiber_distance [fiber]                        float64  mm
+
+Attributes: ``dome`` and ``sensor`` (JSON calibration), subject metadata
+(``subject_id``, ``person_id``, ``age``, ``gender``, ``skin_type``,
+``condition``), ``map_size``, ``provenance`` (JSON).
+
+On disk a capture is a zarr v3 group with these arrays (``dimension_names`` set,
+so :func:`xarray.open_zarr` reads it too), chunked along ``lumitexel`` so a
+subject at full resolution streams chunk by chunk.  Real captures are brought
+into this layout by whoever registers the images to the geometry; everything
+downstream (the fit pipeline) reads only this layout.
+
+The BRDF samples of eq. 8 are f_r = L / E with E = E⊥ (N·ωi):
+:meth:`Lumitexels.brdf`.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..conventions import CHANNELS, SITES
+from ..errors import FormatError, ValidationError
+from .dome import Dome
+from .sensor import ContactSensor
+
+__all__ = ["Capture", "Lumitexels", "open_capture", "CAPTURE_ARRAYS"]
+
+#: Array name -> (dims, dtype).
+CAPTURE_ARRAYS = {
+    "position": (("lumitexel", "xyz"), "float32"),
+    "scan_normal": (("lumitexel", "xyz"), "float32"),
+    "uv": (("lumitexel", "uvc"), "float32"),
+    "area": (("lumitexel",), "float32"),
+    "region": (("lumitexel",), "uint8"),
+    "irradiance": (("lumitexel", "light", "channel"), "float32"),
+    "radiance": (("lumitexel", "camera", "light", "channel"), "float16"),
+    "region_map": (("v", "u"), "uint8"),
+    "sensor_profile": (("site", "fiber", "channel"), "float64"),
+    "sensor_profile_std": (("site", "fiber", "channel"), "float64"),
+    "fiber_distance": (("fiber",), "float64"),
+}
+_PER_LUMITEXEL = tuple(k for k, (dims, _) in CAPTURE_ARRAYS.items() if dims[0] == "lumitexel")
+_META = ("subject_id", "person_id", "age", "gender", "skin_type", "condition")
+
+
+@dataclass
+class Lumitexels:
+    """A block of lumitexels with their samples, ready for the fit stages.
+
+    Attributes
+    ----------
+    index : ndarray of int, shape (n,)
+        Lumitexel indices in the capture.
+    position, scan_normal, uv, area, region
+        Per-lumitexel geometry (see the module docstring).
+    wi : ndarray, shape (n, L, 3)
+        Unit directions towards the LEDs.
+    wo : ndarray, shape (n, C, 3)
+        Unit directions towards the cameras.
+    irradiance : ndarray, shape (n, L, 3)
+        E⊥ per LED and channel.
+    radiance : ndarray, shape (n, C, L, 3)
+        HDR radiance, NaN where invalid.
+    """
+
+    index: np.ndarray
+    position: np.ndarray
+    scan_normal: np.ndarray
+    uv: np.ndarray
+    area: np.ndarray
+    region: np.ndarray
+    wi: np.ndarray
+    wo: np.ndarray
+    irradiance: np.ndarray
+    radiance: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.index.shape[0])
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(n, C, L) validity of each sample: finite, non-negative radiance and positive irradiance."""
+        rad = self.radiance
+        ok = np.all(np.isfinite(rad), axis=-1) & np.all(rad >= 0, axis=-1)
+        return ok & np.all(self.irradiance > 0, axis=-1)[:, None, :]
+
+    def cos_incident(self, normal) -> np.ndarray:
+        """N·ωi, shape (n, L)."""
+        return np.einsum("nk,nlk->nl", normal, self.wi)
+
+    def cos_outgoing(self, normal) -> np.ndarray:
+        """N·ωo, shape (n, C)."""
+        return np.einsum("nk,nck->nc", normal, self.wo)
+
+    def brdf(self, normal=None) -> np.ndarray:
+        """BRDF samples f_r = L / E, E = E⊥ max(N·ωi, 0) (Weyrich et al. 2006 eq. 8), shape (n, C, L, 3).
+
+        NaN where the sample is invalid or the light is at or below the horizon of
+        ``normal`` (default: the scanned normal).
+        """
+        nrm = self.scan_normal if normal is None else normal
+        e = self.irradiance * np.maximum(self.cos_incident(nrm), 0)[..., None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = self.radiance.astype(np.float32) / e[:, None, :, :]
+        return np.where(self.valid[..., None] & (e[:, None] > 0), f, np.nan).astype(np.float32)
+
+
+@dataclass
+class Capture:
+    """One subject's capture (module docstring): arrays in memory or on disk, calibration and metadata."""
+
+    arrays: dict
+    attrs: dict
+    path: str | None = None
+    _dome: Dome = field(default=None, init=False, repr=False)
+    _sensor: ContactSensor = field(default=None, init=False, repr=False)
+
+    def __post_init__(self):
+        missing = [k for k in CAPTURE_ARRAYS if k not in self.arrays]
+        if missing:
+            raise FormatError(f"capture {self.path or ''} is missing arrays {missing}")
+        n = self.arrays["position"].shape[0]
+        for k in _PER_LUMITEXEL:
+            if self.arrays[k].shape[0] != n:
+                raise FormatError(f"capture array {k!r} has {self.arrays[k].shape[0]} lumitexels, expected {n}")
+        for key in ("dome", "sensor", "map_size") + _META:
+            if key not in self.attrs:
+                raise FormatError(f"capture {self.path or ''} is missing the attribute {key!r}")
+
+    # -- metadata --------------------------------------------------------------
+    @property
+    def n_lumitexels(self) -> int:
+        return int(self.arrays["position"].shape[0])
+
+    @property
+    def map_size(self) -> int:
+        return int(self.attrs["map_size"])
+
+    @property
+    def dome(self) -> Dome:
+        if self._dome is None:
+            d = self.attrs["dome"]
+            self._dome = Dome.from_dict(json.loads(d) if isinstance(d, str) else d)
+        return self._dome
+
+    @property
+    def sensor(self) -> ContactSensor:
+        if self._sensor is None:
+            s = self.attrs["sensor"]
+            self._sensor = ContactSensor.from_attrs(json.loads(s) if isinstance(s, str) else s)
+        return self._sensor
+
+    @property
+    def metadata(self) -> dict:
+        return {k: self.attrs[k] for k in _META}
+
+    @property
+    def provenance(self) -> dict:
+        p = self.attrs.get("provenance", "{}")
+        return json.loads(p) if isinstance(p, str) else dict(p)
+
+    def array(self, name, sl=slice(None)) -> np.ndarray:
+        """An array (or a lumitexel slice of it) as numpy."""
+        return np.asarray(self.arrays[name][sl])
+
+    # -- lumitexel blocks ------------------------------------------------------------
+    def lumitexels(self, start: int = 0, stop: int | None = None, cameras=None) -> Lumitexels:
+        """Lumitexels ``start:stop`` with their samples (directions from the calibration)."""
+        stop = self.n_lumitexels if stop is None else min(int(stop), self.n_lumitexels)
+        if not (0 <= start < stop):
+            raise ValidationError(f"lumitexel range must satisfy 0 <= start < stop <= {self.n_lumitexels}, got {start}:{stop}")
+        sl = slice(int(start), stop)
+        pos = self.array("position", sl).astype(np.float64)
+        dome = self.dome
+        wi, _ = dome.incident(pos)
+        wo, _, _ = dome.view(pos)
+        rad = self.array("radiance", sl)
+        if cameras is not None:
+            keep = np.zeros(dome.n_cameras, bool)
+            keep[np.asarray(cameras)] = True
+            rad = np.where(keep[None, :, None, None], rad, np.nan)
+        return Lumitexels(
+            index=np.arange(sl.start, sl.stop),
+            position=pos,
+            scan_normal=self.array("scan_normal", sl).astype(np.float64),
+            uv=self.array("uv", sl).astype(np.float64),
+            area=self.array("area", sl).astype(np.float64),
+            region=self.array("region", sl),
+            wi=wi.astype(np.float32),
+            wo=wo.astype(np.float32),
+            irradiance=self.array("irradiance", sl),
+            radiance=rad,
+        )
+
+    def blocks(self, size: int = 4096):
+        """Yield ``(start, stop)`` lumitexel ranges aligned to ``size``."""
+        for start in range(0, self.n_lumitexels, int(size)):
+            yield start, min(start + int(size), self.n_lumitexels)
+
+    # -- persistence -----------------------------------------------------------------
+    def to_zarr(self, path, chunk: int = 4096):
+        """Write the capture as a zarr v3 group (chunked along lumitexel)."""
+        writer = CaptureWriter(path, n_lumitexels=self.n_lumitexels, n_cameras=self.dome.n_cameras, n_lights=self.dome.n_leds,
+                               map_size=self.map_size, n_fibers=self.sensor.n_fibers, attrs=self.attrs, chunk=chunk)
+        for start, stop in self.blocks(chunk):
+            writer.write_block(start, {k: self.array(k, slice(start, stop)) for k in _PER_LUMITEXEL})
+        writer.write_global({k: self.array(k) for k in CAPTURE_ARRAYS if k not in _PER_LUMITEXEL})
+        return str(path)
+
+
+class CaptureWriter:
+    """Create a capture group on disk and fill it block by block (bounded memory)."""
+
+    def __init__(self, path, *, n_lumitexels, n_cameras, n_lights, map_size, n_fibers, attrs, chunk=4096):
+        import zarr
+
+        self.path = str(path)
+        self.group = zarr.open_group(self.path, mode="w")
+        sizes = {"lumitexel": n_lumitexels, "xyz": 3, "uvc": 2, "light": n_lights, "camera": n_cameras, "channel": 3,
+                 "v": map_size, "u": map_size, "site": len(SITES), "fiber": n_fibers}
+        for name, (dims, dtype) in CAPTURE_ARRAYS.items():
+            shape = tuple(sizes[d] for d in dims)
+            chunks = tuple(min(chunk, s) if d == "lumitexel" else s for d, s in zip(dims, shape))
+            fill = np.nan if dtype.startswith("float") else 0
+            self.group.create_array(name, shape=shape, chunks=chunks, dtype=dtype, dimension_names=dims, fill_value=fill)
+        self.group.attrs.update({k: (json.dumps(v) if isinstance(v, dict) else v) for k, v in attrs.items()})
+        self.group.attrs["channel"] = list(CHANNELS)
+        self.group.attrs["site"] = list(SITES)
+
+    def write_block(self, start, arrays: dict):
+        for name, arr in arrays.items():
+            self.group[name][start : start + arr.shape[0]] = arr
+
+    def write_global(self, arrays: dict):
+        for name, arr in arrays.items():
+            self.group[name][...] = arr
+
+
+def open_capture(path) -> Capture:
+    """Open a capture written by :meth:`Capture.to_zarr` (arrays stay on disk until sliced)."""
+    import zarr
+
+    try:
+        g = zarr.open_group(str(path), mode="r")
+    except Exception as exc:  # zarr raises several types for a missing/invalid group
+        raise FormatError(f"cannot open capture {path!s}: {exc}") from None
+    arrays = {}
+    for name in CAPTURE_ARRAYS:
+        if name not in g:
+            raise FormatError(f"capture {path!s} is missing the array {name!r}")
+        arrays[name] = g[name]
+    return Capture(arrays=arrays, attrs=dict(g.attrs), path=str(path))

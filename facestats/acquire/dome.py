@@ -1,0 +1,338 @@
+"""Calibration of a face-scanning dome: LEDs, their beam spread, and cameras.
+
+Weyrich et al. 2006 §5: 16 cameras and 150 LEDs on a geodesic dome; each LED's
+radiance is calibrated against a white diffuse reflector and its beam spread is
+modelled "by a bi-variate 2nd degree polynomial".  A :class:`Dome` holds such a
+calibration; real rigs are described with the same object (:meth:`Dome.from_dict`
+/ :meth:`Dome.load` of a JSON file), the simulator's default rig with
+:func:`default_dome`.
+
+Conventions: world frame of :mod:`facestats.acquire.face` (mm, +y up, +z towards
+the frontal camera).  Irradiance is in *dome units*: the calibrated LEDs give
+E⊥ ≈ 1 at the head on their axis; radiance is in dome units per sr.  Only
+ratios L/E enter the model, so the unit needs no physical scale.
+
+LED beam model: an LED at p with unit axis a emits towards direction d (unit,
+from the LED) the radiant intensity
+
+    I(d) = I₀ · P(s, t),  P = c₀ + c₁ s + c₂ t + c₃ s² + c₄ s t + c₅ t²,
+
+where (s, t) = (d·e₁, d·e₂)/(d·a) are the beam-plane (tangent) coordinates of d
+in an orthonormal frame (e₁, e₂, a) of the LED, and I₀ is the RGB intensity.
+The irradiance on a surface with normal N at distance r is E = I(d) (N·ωi)/r²
+(point source, inverse-square law); E⊥ = I(d)/r² is the irradiance normal to
+the beam.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validate import as_float, check_finite, check_shape
+from ..errors import FormatError, ValidationError
+from ..published import N_CAMERAS, N_LEDS
+from .hdr import CameraResponse
+
+__all__ = ["Dome", "default_dome", "look_at", "geodesic_points"]
+
+
+def look_at(position, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """World-to-camera rotation (rows: camera x right, y down, z forward) looking from ``position`` at ``target``."""
+    p = np.asarray(position, float)
+    fwd = np.asarray(target, float) - p
+    fwd /= np.linalg.norm(fwd, axis=-1, keepdims=True)
+    up = np.broadcast_to(np.asarray(up, float), fwd.shape)
+    right = np.cross(fwd, up)
+    bad = np.linalg.norm(right, axis=-1) < 1e-6
+    right = np.where(bad[..., None], np.cross(fwd, [1.0, 0.0, 0.0]), right)
+    right /= np.linalg.norm(right, axis=-1, keepdims=True)
+    down = np.cross(fwd, right)
+    return np.stack([right, down, fwd], axis=-2)
+
+
+def _tangent_frames(axis):
+    """Orthonormal (e1, e2) perpendicular to each unit axis."""
+    ref = np.where(np.abs(axis[:, 1:2]) < 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
+    e1 = np.cross(ref, axis)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(axis, e1)
+    return e1, e2
+
+
+@dataclass
+class Dome:
+    """Calibration of the LEDs and cameras of a dome.
+
+    Attributes
+    ----------
+    led_position : ndarray, shape (L, 3)
+        LED positions, mm.
+    led_axis : ndarray, shape (L, 3)
+        Unit beam axes.
+    led_intensity : ndarray, shape (L, 3)
+        On-axis RGB radiant intensity I₀ (dome units · mm²).
+    led_beam : ndarray, shape (L, 6)
+        Beam-spread polynomial coefficients c₀..c₅ (module docstring).
+    camera_position : ndarray, shape (C, 3)
+        Camera centres, mm.
+    camera_rotation : ndarray, shape (C, 3, 3)
+        World-to-camera rotations (rows x right, y down, z forward).
+    camera_matrix : ndarray, shape (C, 3, 3)
+        Pinhole intrinsics K (pixels).
+    image_size : ndarray of int, shape (C, 2)
+        Width, height in pixels.
+    exposure_times : ndarray, shape (E,)
+        HDR exposure times (s) of the two passes (§5).
+    camera_scale : float
+        Electrons per second of exposure per (dome unit / sr) of radiance.
+    response : CameraResponse
+        Camera noise and ADC model.
+    """
+
+    led_position: np.ndarray
+    led_axis: np.ndarray
+    led_intensity: np.ndarray
+    led_beam: np.ndarray
+    camera_position: np.ndarray
+    camera_rotation: np.ndarray
+    camera_matrix: np.ndarray
+    image_size: np.ndarray
+    exposure_times: np.ndarray
+    camera_scale: float
+    response: CameraResponse = CameraResponse()
+
+    def __post_init__(self):
+        lp = check_shape(check_finite(as_float(self.led_position, "led_position", np.float64), "led_position"), "led_position", (None, 3))
+        n_led = lp.shape[0]
+        la = check_shape(as_float(self.led_axis, "led_axis", np.float64), "led_axis", (n_led, 3))
+        li = check_shape(as_float(self.led_intensity, "led_intensity", np.float64), "led_intensity", (n_led, 3))
+        lb = check_shape(as_float(self.led_beam, "led_beam", np.float64), "led_beam", (n_led, 6))
+        cp = check_shape(as_float(self.camera_position, "camera_position", np.float64), "camera_position", (None, 3))
+        n_cam = cp.shape[0]
+        cr = check_shape(as_float(self.camera_rotation, "camera_rotation", np.float64), "camera_rotation", (n_cam, 3, 3))
+        ck = check_shape(as_float(self.camera_matrix, "camera_matrix", np.float64), "camera_matrix", (n_cam, 3, 3))
+        im = np.asarray(self.image_size, dtype=np.int64)
+        if im.shape != (n_cam, 2) or np.any(im <= 0):
+            raise ValidationError(f"image_size must be ({n_cam}, 2) positive integers, got shape {im.shape}")
+        et = as_float(self.exposure_times, "exposure_times", np.float64)
+        if et.ndim != 1 or et.size < 1 or np.any(et <= 0):
+            raise ValidationError(f"exposure_times must be a 1-D array of positive times, got {et!r}")
+        if np.any(np.abs(np.linalg.norm(la, axis=1) - 1) > 1e-6):
+            raise ValidationError("led_axis must hold unit vectors")
+        if np.any(li < 0):
+            raise ValidationError("led_intensity must be >= 0")
+        if not np.allclose(cr @ np.swapaxes(cr, 1, 2), np.eye(3), atol=1e-6):
+            raise ValidationError("camera_rotation must hold rotation matrices")
+        if not float(self.camera_scale) > 0:
+            raise ValidationError(f"camera_scale must be > 0, got {self.camera_scale!r}")
+        self.led_position, self.led_axis, self.led_intensity, self.led_beam = lp, la, li, lb
+        self.camera_position, self.camera_rotation, self.camera_matrix = cp, cr, ck
+        self.image_size, self.exposure_times = im, et
+        self.camera_scale = float(self.camera_scale)
+
+    @property
+    def n_leds(self) -> int:
+        return int(self.led_position.shape[0])
+
+    @property
+    def n_cameras(self) -> int:
+        return int(self.camera_position.shape[0])
+
+    # -- photometry -------------------------------------------------------------
+    def incident(self, points, leds=None):
+        """Directions towards the LEDs and the beam-normal irradiance E⊥ = I(d)/r² at ``points``.
+
+        Parameters
+        ----------
+        points : ndarray, shape (N, 3)
+            Surface points, mm.
+        leds : array_like of int, optional
+            Subset of LEDs (default all).
+
+        Returns
+        -------
+        wi : ndarray, shape (N, L, 3)
+            Unit directions from the points towards the LEDs.
+        e_perp : ndarray, shape (N, L, 3)
+            RGB irradiance on a plane facing the LED (dome units); 0 where the
+            point lies behind the LED's emitting hemisphere.
+        """
+        sel = slice(None) if leds is None else np.asarray(leds)
+        lp, la, li, lb = self.led_position[sel], self.led_axis[sel], self.led_intensity[sel], self.led_beam[sel]
+        p = np.asarray(points, np.float64)
+        d = p[:, None, :] - lp[None, :, :]  # LED -> point
+        r2 = np.einsum("nlk,nlk->nl", d, d)
+        d_unit = d / np.sqrt(r2)[..., None]
+        e1, e2 = _tangent_frames(la)
+        ca = np.einsum("nlk,lk->nl", d_unit, la)
+        front = ca > 1e-6
+        ca_s = np.where(front, ca, 1.0)
+        s = np.einsum("nlk,lk->nl", d_unit, e1) / ca_s
+        t = np.einsum("nlk,lk->nl", d_unit, e2) / ca_s
+        poly = lb[:, 0] + lb[:, 1] * s + lb[:, 2] * t + lb[:, 3] * s * s + lb[:, 4] * s * t + lb[:, 5] * t * t
+        gain = np.where(front, np.maximum(poly, 0), 0) / r2
+        return -d_unit, gain[..., None] * li[None, :, :]
+
+    def view(self, points, cameras=None):
+        """Unit directions from ``points`` towards the camera centres and whether each point is in frame.
+
+        Returns
+        -------
+        wo : ndarray, shape (N, C, 3)
+        in_frame : ndarray of bool, shape (N, C)
+            In front of the camera and inside its image.
+        pixel : ndarray, shape (N, C, 2)
+            Image coordinates (x, y) in pixels.
+        """
+        sel = slice(None) if cameras is None else np.asarray(cameras)
+        cp, cr, ck, im = self.camera_position[sel], self.camera_rotation[sel], self.camera_matrix[sel], self.image_size[sel]
+        p = np.asarray(points, np.float64)
+        d = cp[None, :, :] - p[:, None, :]
+        wo = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        cam = np.einsum("cij,ncj->nci", cr, -d)  # point in camera coordinates
+        z = cam[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uvw = np.einsum("cij,ncj->nci", ck, cam)
+            pix = uvw[..., :2] / uvw[..., 2:3]
+        in_frame = (z > 0) & (pix[..., 0] >= 0) & (pix[..., 1] >= 0) & (pix[..., 0] < im[None, :, 0]) & (pix[..., 1] < im[None, :, 1])
+        return wo, in_frame, pix
+
+    # -- serialisation ------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """JSON-serialisable calibration."""
+        r = self.response
+        return {
+            "led_position_mm": self.led_position.tolist(),
+            "led_axis": self.led_axis.tolist(),
+            "led_intensity": self.led_intensity.tolist(),
+            "led_beam_polynomial": self.led_beam.tolist(),
+            "camera_position_mm": self.camera_position.tolist(),
+            "camera_rotation": self.camera_rotation.tolist(),
+            "camera_matrix": self.camera_matrix.tolist(),
+            "image_size": self.image_size.tolist(),
+            "exposure_times_s": self.exposure_times.tolist(),
+            "camera_scale": self.camera_scale,
+            "response": {"full_well": r.full_well, "read_noise": r.read_noise, "adc_bits": r.adc_bits, "saturation": r.saturation,
+                         "black_level": r.black_level},
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Dome":
+        """Inverse of :meth:`to_dict` (e.g. a real rig's calibration file)."""
+        try:
+            return cls(
+                led_position=np.asarray(d["led_position_mm"], float),
+                led_axis=np.asarray(d["led_axis"], float),
+                led_intensity=np.asarray(d["led_intensity"], float),
+                led_beam=np.asarray(d["led_beam_polynomial"], float),
+                camera_position=np.asarray(d["camera_position_mm"], float),
+                camera_rotation=np.asarray(d["camera_rotation"], float),
+                camera_matrix=np.asarray(d["camera_matrix"], float),
+                image_size=np.asarray(d["image_size"], int),
+                exposure_times=np.asarray(d["exposure_times_s"], float),
+                camera_scale=float(d["camera_scale"]),
+                response=CameraResponse(**d.get("response", {})),
+            )
+        except KeyError as exc:
+            raise FormatError(f"dome calibration is missing the key {exc.args[0]!r}") from None
+
+    def save(self, path):
+        """Write the calibration as JSON."""
+        with open(path, "w") as f:
+            json.dump(self.to_dict(), f)
+
+    @classmethod
+    def load(cls, path) -> "Dome":
+        """Read a calibration written by :meth:`save` (or by hand for a real rig)."""
+        try:
+            with open(path) as f:
+                return cls.from_dict(json.load(f))
+        except (OSError, json.JSONDecodeError) as exc:
+            raise FormatError(f"cannot read dome calibration {path!s}: {exc}") from None
+
+
+def geodesic_points(frequency: int = 4) -> np.ndarray:
+    """Vertices of a geodesic sphere: an icosahedron with each edge split ``frequency`` times, projected to the unit sphere."""
+    t = (1 + 5**0.5) / 2
+    v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t], [0, 1, -t],
+                  [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], float)
+    faces = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2],
+                      [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5],
+                      [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]])
+    f = int(frequency)
+    i, j = np.meshgrid(np.arange(f + 1), np.arange(f + 1), indexing="ij")
+    keep = (i + j) <= f
+    a, b = i[keep] / f, j[keep] / f
+    pts = v[faces[:, 0]][:, None] * (1 - a - b)[None, :, None] + v[faces[:, 1]][:, None] * a[None, :, None] + v[faces[:, 2]][:, None] * b[None, :, None]
+    pts = pts.reshape(-1, 3)
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
+    _, idx = np.unique(np.round(pts, 9), axis=0, return_index=True)
+    return pts[np.sort(idx)]
+
+
+def _farthest_point_subset(points, k, start):
+    """Deterministic farthest-point sampling of ``k`` points (loop over the k picks)."""
+    chosen = [start]
+    d = np.linalg.norm(points - points[start], axis=1)
+    for _ in range(k - 1):
+        nxt = int(np.argmax(d))
+        chosen.append(nxt)
+        d = np.minimum(d, np.linalg.norm(points - points[nxt], axis=1))
+    return np.array(chosen)
+
+
+def default_dome(seed: int = 2006) -> Dome:
+    """The simulator's dome: 150 LEDs and 16 cameras (Weyrich §5), documented choices.
+
+    * **LEDs.** 150 vertices of a frequency-8 geodesic sphere of radius 1000 mm around
+      the head, chosen by farthest-point sampling among the directions the dome
+      covers (elevation ≥ -40°, below which the chair stands, and z ≥ -0.8: the
+      dome wraps around the head), all aimed at the head centre.  A frontal
+      lumitexel then sees about 76 LEDs and 12 cameras, about 900 samples, the
+      paper's figure (§5: ~900, up to 1,200).  White LEDs with a slightly warm RGB intensity [1.00, 0.97,
+      0.92] × 10⁶ dome units·mm² (E⊥ ≈ 1 at 1 m) and beam polynomials with a
+      fall-off of 30 % per unit tan² off-axis and 2 % random tilt and curvature terms;
+      ``seed`` fixes the draw.
+    * **Cameras.** 16 cameras at 1200 mm in two rows (elevation −12° and +18°) of 8,
+      azimuths −84°..84°, looking at the face centre (0, 0, 50) mm; 1024 × 1024
+      pixels with a 17° field of view, enough to frame the face.
+    * **Exposures.** Two passes (§5, HDR from two exposures) of 1/60 s and 1/8 s; with
+      ``camera_scale`` chosen so that diffuse skin reads about a third of the full
+      well in the long pass, highlights clip there and are read from the short one.
+    """
+    rng = np.random.default_rng(seed)
+    sphere = geodesic_points(8)
+    ok = (sphere[:, 1] >= np.sin(np.radians(-40))) & (sphere[:, 2] >= -0.8)
+    cand = sphere[ok]
+    start = int(np.argmax(cand[:, 2]))
+    dirs = cand[_farthest_point_subset(cand, N_LEDS, start)]
+    centre = np.array([0.0, 0.0, 40.0])
+    led_pos = centre + 1000.0 * dirs
+    axis = centre - led_pos
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    intensity = np.outer(np.ones(N_LEDS), [1.0, 0.97, 0.92]) * 1e6 * (1 + 0.02 * rng.standard_normal((N_LEDS, 1)))
+    beam = np.column_stack([
+        np.ones(N_LEDS),
+        0.02 * rng.standard_normal(N_LEDS),
+        0.02 * rng.standard_normal(N_LEDS),
+        -0.3 + 0.02 * rng.standard_normal(N_LEDS),
+        0.01 * rng.standard_normal(N_LEDS),
+        -0.3 + 0.02 * rng.standard_normal(N_LEDS),
+    ])
+    el = np.radians(np.repeat([-12.0, 18.0], N_CAMERAS // 2))
+    az = np.radians(np.tile(np.linspace(-84, 84, N_CAMERAS // 2), 2) + np.repeat([0.0, 12.0], N_CAMERAS // 2))
+    target = np.array([0.0, 0.0, 50.0])
+    cam_dir = np.stack([np.cos(el) * np.sin(az), np.sin(el), np.cos(el) * np.cos(az)], 1)
+    cam_pos = target + 1200.0 * cam_dir
+    rot = look_at(cam_pos, target)
+    f = 512 / np.tan(np.radians(17.0) / 2)
+    k = np.tile(np.array([[f, 0, 512.0], [0, f, 512.0], [0, 0, 1.0]]), (N_CAMERAS, 1, 1))
+    return Dome(
+        led_position=led_pos, led_axis=axis, led_intensity=intensity, led_beam=beam,
+        camera_position=cam_pos, camera_rotation=rot, camera_matrix=k,
+        image_size=np.full((N_CAMERAS, 2), 1024), exposure_times=np.array([1 / 60, 1 / 8]),
+        camera_scale=4.0e5, response=CameraResponse(full_well=20000.0, read_noise=5.0, adc_bits=12),
+    )

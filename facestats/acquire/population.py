@@ -1,0 +1,566 @@
+"""The embedded default: a synthetic population built from the published statistics.
+
+No measured face database can be downloaded, so facestats ships a population
+whose ground truth follows Weyrich et al. 2006 (numbers from
+:mod:`facestats.published`) and pushes it through the real pipeline (simulated
+captures, then fitting).  Every number chosen here is listed with the published
+figure it reproduces.
+
+Demographics (Table 2, §7)
+    149 subjects with the exact skin type × gender counts of Table 2 (I-II 8 M /
+    6 F, III 49/18, IV 40/8, V 13/2, VI 4/1; two of the I-II subjects, one man
+    and one woman, are type I: "we measured only two individuals of skin type I")
+    and the exact age-group × gender counts of §7 (20s or younger 61/18, 30s
+    37/10, 40s 10/2, 50s or older 6/5), ages uniform within the group (18-29,
+    30-39, 40-49, 50-69), age groups assigned to subjects by a seeded shuffle
+    within each gender.  One more person (male, type III, 34 years) is measured
+    under the seven conditions of §7.
+
+Albedo (linear RGB, total diffuse reflectance)
+    The colour of each skin type is anchored in the measured reflectance spectra
+    of the ColorChecker "light skin" and "dark skin" patches shipped with
+    colour-science (BabelColor average): the spectrum of a subject is
+    R(λ) = R_light(λ)^(1-t) · R_dark(λ)^t, a Beer-Lambert mixing of absorbers
+    (melanin-like), rendered to linear sRGB under D65 by colour-science.  The
+    melanin index t per skin type is ``SKIN_TYPE_MELANIN`` (I: -0.25 … VI: 1.25,
+    "dark skin" ≈ type V), with a per-subject spread of 0.08.  The map adds
+    smooth low-frequency variation (±6 %), regional tints (redder lips, nose and
+    cheeks, darker eyebrows and under-eye), pores (dark 0.3 mm dots), and
+    optionally freckles and moles.
+
+Specular BRDF (Fig. 15, Fig. 16)
+    Region means of the Torrance-Sparrow (ρs, m) in ``TS_REGION_MEAN``, ordered as
+    §7 reports: the nose (6) has the smallest m; nose, eyebrows, eyelids, lips and
+    forehead (6, 3, 4, 8, 2) the highest ρs; lips, mustache, eyebrows, chin and
+    beard (8, 1, 3, 9, 10) the largest spread (``TS_REGION_CV``), 1.5× larger for
+    men in the facial-hair regions (1, 3, 9, 10).  Ranges follow the Fig. 15 axes
+    (m ≈ 0.23-0.31, ρs ≈ 0.18-0.32).  Each subject's region means shift with
+    skin type, gender and age along fixed loading patterns
+    (``LOADINGS``), scaled so that the canonical correlation analysis of the
+    149 × 23 matrix reproduces Fig. 16 (principal correlations 0.768 and 0.585,
+    direct correlations 0.766 skin type, 0.573 gender, 0.537 age; see
+    ``tests/test_population.py``).  The directions of the effects are our
+    choice (the paper publishes strengths only): darker types and women
+    shinier (higher ρs, lower m), older skin rougher.  Blinn-Phong truth follows
+    from Torrance-Sparrow by the Beckmann-Phong correspondence n = 2/m² − 2
+    (Walter et al. 2007) and ρs_BP = ρs_TS · F_r(0) (equal peak value at normal
+    incidence, and equal albedo for narrow lobes).
+
+Translucency (Table 1, §5.4, Fig. 11, Fig. 14)
+    σtr per site (cheek, forehead, neck) and channel is log-normal with the
+    Table 1 mean and spread; within a subject, sites share a subject factor
+    (correlation 0.5) and channels correlate (0.6).  **Table 1's "Var." column is
+    read as a standard deviation** (``table1_spread="std"``): taken as a variance,
+    the red-channel spread (CV 75 %) would give 149 subjects ℓd from about 0.6 to
+    10 mm, against §5.4's "ℓd do not vary much between individuals" and the
+    extremes of Fig. 11 (1.09-2.81 mm in red); as a standard deviation it gives
+    about 1.1-3.3 mm.  ``table1_spread="variance"`` reproduces the literal
+    reading.  σ's and σa at each site follow from the site's albedo and σtr
+    through §5.4 (:func:`facestats.model.dipole.scattering_from_albedo`), so
+    darker skin has higher absorption and lower scattering (Fig. 14); the
+    subject's own σ's and σa come from its α_avg and the population's σtrAvg.
+
+Conditions (§7)
+    Multiplicative effects on (ρs, m) relative to "normal" (``CONDITION_EFFECTS``):
+    lotion (1.35, 0.85) and hot (1.20, 0.92) shinier, sweaty (1.25, 0.90),
+    cold (0.85, 1.10) and powder (0.60, 1.30) more matte, makeup (0.80, 1.15) with
+    an evened albedo texture; "noticeable differences … especially between
+    lotion / hot and cold / powder".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..conventions import CHANNELS, CONDITIONS, REGION_IDS, SITES
+from ..errors import ValidationError
+from ..published import AGE_COUNTS, ETA_SKIN, TABLE1_MEAN, TABLE1_VAR, TABLE2_COUNTS
+from ..model import dipole, fresnel
+
+__all__ = [
+    "SKIN_TYPE_MELANIN",
+    "TS_REGION_MEAN",
+    "TS_REGION_CV",
+    "LOADINGS",
+    "CONDITION_EFFECTS",
+    "SubjectTruth",
+    "Population",
+    "skin_albedo",
+    "albedo_map",
+    "synthesize_population",
+    "default_population",
+]
+
+#: Melanin index t per Fitzpatrick type (0 = ColorChecker "light skin", 1 = "dark skin").
+SKIN_TYPE_MELANIN = {1: -0.25, 2: -0.10, 3: 0.15, 4: 0.45, 5: 0.85, 6: 1.25}
+#: Per-subject spread of t.
+MELANIN_SPREAD = 0.08
+
+#: Torrance-Sparrow (ρs, m) region means (Fig. 15 ordering, see the module docstring).
+TS_REGION_MEAN = {
+    1: (0.20, 0.300),  # mustache
+    2: (0.27, 0.270),  # forehead
+    3: (0.28, 0.290),  # eyebrows
+    4: (0.28, 0.280),  # eyelids
+    5: (0.22, 0.280),  # under-eye (region 5)
+    6: (0.31, 0.230),  # nose: highest rho_s, smallest m
+    7: (0.21, 0.280),  # cheeks
+    8: (0.27, 0.260),  # lips
+    9: (0.22, 0.300),  # chin
+    10: (0.19, 0.310),  # beard
+}
+#: Within-region texel spread (coefficient of variation of ρs and m).
+TS_REGION_CV = {1: 0.12, 2: 0.05, 3: 0.12, 4: 0.05, 5: 0.05, 6: 0.05, 7: 0.05, 8: 0.15, 9: 0.12, 10: 0.12}
+#: Facial-hair regions, whose spread is larger for men (§7).
+HAIR_REGIONS = (1, 3, 9, 10)
+HAIR_FACTOR_MEN = 1.5
+#: Between-subject spread of the region means around the covariate model (relative).
+BETWEEN_SUBJECT_CV = 0.035
+
+#: Relative effect of one standard deviation of each covariate on (ρs, m) per region:
+#: patterns (unit-free) that the strengths below scale.
+LOADINGS = {
+    "skin_type": {r: (1.0, -0.6) for r in REGION_IDS},
+    "gender": {r: ((1.4, -1.0) if r in HAIR_REGIONS else (0.4, -0.3)) for r in REGION_IDS},
+    "age": {r: (-0.3, 1.0 if r in (2, 4, 5, 7) else 0.5) for r in REGION_IDS},
+}
+#: Strengths (relative change per standard deviation of the covariate), found by
+#: Monte-Carlo search so that the expected sample CCA of 149 subjects matches Fig. 16.
+EFFECT_STRENGTH = {"skin_type": 0.052, "gender": 0.040, "age": 0.036}
+
+#: (factor on ρs, factor on m) per condition, relative to normal (§7).
+CONDITION_EFFECTS = {
+    "normal": (1.00, 1.00),
+    "cold": (0.85, 1.10),
+    "hot": (1.20, 0.92),
+    "sweaty": (1.25, 0.90),
+    "makeup": (0.80, 1.15),
+    "lotion": (1.35, 0.85),
+    "powder": (0.60, 1.30),
+}
+
+#: Age ranges of the §7 groups used for drawing ages.
+_AGE_RANGES = {"20s": (18, 29), "30s": (30, 39), "40s": (40, 49), "50s+": (50, 69)}
+#: Correlations of the σtr draws.
+_SITE_CORRELATION = 0.5
+_CHANNEL_CORRELATION = 0.6
+
+
+@dataclass
+class SubjectTruth:
+    """Ground truth of one synthetic subject (maps on the UV grid, [v, u] indexed)."""
+
+    subject_id: str
+    person_id: str
+    age: int
+    gender: str
+    skin_type: int
+    condition: str
+    region_map: np.ndarray
+    albedo: np.ndarray
+    ts_rho_s: np.ndarray
+    ts_m: np.ndarray
+    bp_rho_s: np.ndarray
+    bp_exponent: np.ndarray
+    site_sigma_tr: np.ndarray  # (site, channel)
+    site_albedo: np.ndarray  # (site, channel)
+    sigma_tr: np.ndarray = None  # (channel,), set by the population (σtrAvg)
+    seed: int = 0
+    features: dict = field(default_factory=dict)
+
+    @property
+    def face(self) -> np.ndarray:
+        return self.region_map > 0
+
+    @property
+    def albedo_avg(self) -> np.ndarray:
+        """α_avg: mean albedo over the face, per channel (Weyrich §5.4)."""
+        return self.albedo[self.face].mean(axis=0).astype(np.float64)
+
+    @property
+    def site_scattering(self):
+        """(σ's, σa) per site and channel from the site albedo and σtr (§5.4)."""
+        return dipole.scattering_from_albedo(self.site_albedo, self.site_sigma_tr, ETA_SKIN)
+
+    @property
+    def scattering(self):
+        """The subject's homogeneous (σ's, σa) from α_avg and σtrAvg (§5.4)."""
+        return dipole.scattering_from_albedo(self.albedo_avg, self.sigma_tr, ETA_SKIN)
+
+    def metadata(self) -> dict:
+        return {"subject_id": self.subject_id, "person_id": self.person_id, "age": int(self.age), "gender": self.gender,
+                "skin_type": int(self.skin_type), "condition": self.condition}
+
+    def to_dataset(self):
+        """The ground truth as an xarray Dataset on the subject schema's dims."""
+        import xarray as xr
+
+        n = self.region_map.shape[0]
+        sp, sa = self.site_scattering
+        ssp, ssa = self.scattering
+        ds = xr.Dataset(
+            {
+                "region": (("v", "u"), self.region_map),
+                "albedo": (("v", "u", "channel"), self.albedo),
+                "ts_rho_s": (("v", "u"), self.ts_rho_s),
+                "ts_m": (("v", "u"), self.ts_m),
+                "bp_rho_s": (("v", "u"), self.bp_rho_s),
+                "bp_exponent": (("v", "u"), self.bp_exponent),
+                "site_sigma_tr": (("site", "channel"), self.site_sigma_tr),
+                "site_sigma_s_prime": (("site", "channel"), sp),
+                "site_sigma_a": (("site", "channel"), sa),
+                "albedo_avg": (("channel",), self.albedo_avg),
+                "sigma_tr": (("channel",), np.asarray(self.sigma_tr, float)),
+                "sigma_s_prime": (("channel",), ssp),
+                "sigma_a": (("channel",), ssa),
+            },
+            coords={"u": (np.arange(n) + 0.5) / n, "v": (np.arange(n) + 0.5) / n, "channel": list(CHANNELS), "site": list(SITES)},
+            attrs=dict(self.metadata(), kind="truth", seed=int(self.seed), **{f"feature_{k}": v for k, v in self.features.items()}),
+        )
+        return ds
+
+
+@dataclass
+class Population:
+    """A synthetic population: subjects' ground truth and the population σtrAvg."""
+
+    subjects: list
+    sigma_tr_avg: np.ndarray
+    seed: int
+    settings: dict = field(default_factory=dict)
+
+    def __len__(self):
+        return len(self.subjects)
+
+    def __getitem__(self, key):
+        if isinstance(key, str):
+            for s in self.subjects:
+                if s.subject_id == key:
+                    return s
+            raise KeyError(key)
+        return self.subjects[key]
+
+    def table(self):
+        """Metadata of every subject as a pandas DataFrame indexed by subject_id."""
+        import pandas as pd
+
+        return pd.DataFrame([s.metadata() for s in self.subjects]).set_index("subject_id")
+
+
+# -- colour ------------------------------------------------------------------------------
+_ANCHORS = None
+
+
+def _anchor_spectra():
+    global _ANCHORS
+    if _ANCHORS is None:
+        import colour
+
+        sds = colour.characterisation.SDS_COLOURCHECKERS["BabelColor Average"]
+        shape = colour.SpectralShape(380, 730, 10)
+        light = sds["light skin"].copy().align(shape)
+        dark = sds["dark skin"].copy().align(shape)
+        _ANCHORS = (light, dark)
+    return _ANCHORS
+
+
+def skin_albedo(melanin) -> np.ndarray:
+    """Linear sRGB albedo (D65) of the spectral mix R_light^(1-t) R_dark^t of the ColorChecker skin patches.
+
+    Parameters
+    ----------
+    melanin : array_like
+        Melanin index t (0: "light skin" patch, 1: "dark skin" patch; values
+        outside [0, 1] extrapolate in log-reflectance).
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        Linear RGB in (0, 1).
+    """
+    import colour
+
+    light, dark = _anchor_spectra()
+    t = np.atleast_1d(np.asarray(melanin, float))
+    rl, rd = np.maximum(light.values, 1e-4), np.maximum(dark.values, 1e-4)
+    spectra = np.exp((1 - t[:, None]) * np.log(rl) + t[:, None] * np.log(rd))
+    # Integrate R(λ) against the CIE 1931 observer under D65 (colour-science data), vectorised over subjects.
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(light.shape)
+    ill = colour.SDS_ILLUMINANTS["D65"].copy().align(light.shape)
+    w = cmfs.values * ill.values[:, None]
+    xyz = spectra @ w / w[:, 1].sum()
+    rgb = colour.XYZ_to_RGB(xyz, colour.RGB_COLOURSPACES["sRGB"], apply_cctf_encoding=False)
+    out = np.clip(rgb, 0.005, 0.95)
+    return out.reshape(np.shape(melanin) + (3,))
+
+
+def _smooth_noise(rng, shape, sigma_px):
+    from scipy.ndimage import gaussian_filter
+
+    z = gaussian_filter(rng.standard_normal(shape), sigma_px, mode="wrap")
+    return z / max(z.std(), 1e-12)
+
+
+def _spots(rng, shape, count, radius_px, strength_sampler):
+    """A field of Gaussian spots (0 = none, up to ~1 at a spot centre) scaled by strengths."""
+    from scipy.ndimage import gaussian_filter
+
+    field_ = np.zeros(shape)
+    if count <= 0:
+        return field_
+    iy = rng.integers(0, shape[0], count)
+    ix = rng.integers(0, shape[1], count)
+    np.add.at(field_, (iy, ix), strength_sampler(count))
+    sigma = max(radius_px, 0.35)
+    out = gaussian_filter(field_, sigma, mode="constant")
+    return out * (2 * np.pi * sigma * sigma)
+
+
+def albedo_map(region_map, base_rgb, rng, *, texel_mm=2.5, freckles=False, moles=0, condition="normal", gender="M"):
+    """A textured albedo map for a face (module docstring: low frequencies, tints, pores, freckles, moles).
+
+    Parameters
+    ----------
+    region_map : ndarray of uint8, shape (n, n)
+        Region labels (0 = not face).
+    base_rgb : array_like, shape (3,)
+        The subject's mean skin colour (linear RGB).
+    rng : numpy.random.Generator
+    texel_mm : float
+        Texel size in mm (spot sizes are physical).
+    freckles : bool
+        Add freckles (melanin spots, 2 mm) on cheeks, nose and forehead.
+    moles : int
+        Number of moles (4 mm dark spots).
+
+    Returns
+    -------
+    ndarray of float32, shape (n, n, 3)
+        Albedo in (0, 1), 0 outside the face.
+    """
+    n = region_map.shape[0]
+    face = region_map > 0
+    base = np.asarray(base_rgb, float)
+    low = 1 + 0.06 * _smooth_noise(rng, (n, n), max(n / 10, 1.0))
+    tint = np.ones((n, n, 3))
+    tints = {8: (1.12, 0.80, 0.85), 6: (1.04, 0.97, 0.97), 7: (1.03, 0.98, 0.98), 3: (0.80, 0.78, 0.78), 5: (0.94, 0.93, 0.95)}
+    for r, t in tints.items():
+        tint[region_map == r] = t
+    from scipy.ndimage import gaussian_filter
+
+    tint = gaussian_filter(tint, (max(n / 64, 0.5), max(n / 64, 0.5), 0))  # soft region borders
+    alb = base[None, None, :] * low[..., None] * tint
+    # Pores: small dark dots, densest on the nose and cheeks.
+    n_pores = int(0.05 * texel_mm**2 * face.sum())  # 5 visible pores per cm²
+    pores = _spots(rng, (n, n), n_pores, 0.3 / texel_mm, lambda k: rng.uniform(0.03, 0.08, k))
+    alb *= (1 - np.clip(pores, 0, 0.3))[..., None]
+    if freckles:
+        allowed = np.isin(region_map, (2, 6, 7))
+        k = int(0.02 * texel_mm**2 * allowed.sum())  # 2 freckles per cm²
+        fr = _spots(rng, (n, n), k, 1.0 / texel_mm, lambda k_: rng.uniform(0.15, 0.35, k_)) * allowed
+        # Melanin darkens blue and green more than red.
+        alb *= (1 - np.clip(fr, 0, 0.6)[..., None] * np.array([0.45, 0.75, 0.85]))
+    if moles:
+        mo = _spots(rng, (n, n), int(moles), 2.0 / texel_mm, lambda k_: rng.uniform(0.5, 0.8, k_))
+        alb *= (1 - np.clip(mo, 0, 0.8)[..., None] * np.array([0.6, 0.75, 0.8]))
+    if condition == "makeup":  # foundation evens the texture and lightens slightly
+        mean = alb[face].mean(axis=0)
+        alb = mean + 0.6 * (alb - mean)
+        alb *= 1.04
+    elif condition == "powder":
+        alb *= 1.05
+    elif condition == "hot":
+        alb *= np.array([1.05, 0.99, 0.99])
+    alb = np.clip(alb, 0.01, 0.95)
+    alb[~face] = 0
+    return alb.astype(np.float32)
+
+
+def _brdf_maps(region_map, region_means, rng, gender):
+    """Texel maps of (ρs, m) from per-region means with smooth log-normal within-region spread."""
+    n = region_map.shape[0]
+    z1 = _smooth_noise(rng, (n, n), max(n / 48, 0.6))
+    z2 = _smooth_noise(rng, (n, n), max(n / 48, 0.6))
+    rho = np.zeros((n, n))
+    m = np.zeros((n, n))
+    for r in REGION_IDS:
+        sel = region_map == r
+        cv = TS_REGION_CV[r] * (HAIR_FACTOR_MEN if (gender == "M" and r in HAIR_REGIONS) else 1.0)
+        mr, mm = region_means[r]
+        # ρs and m vary together a little (correlation -0.3) within a region.
+        rho[sel] = mr * np.exp(cv * z1[sel] - 0.5 * cv * cv)
+        m[sel] = mm * np.exp(cv * (-0.3 * z1[sel] + np.sqrt(1 - 0.09) * z2[sel]) - 0.5 * cv * cv)
+    return rho.astype(np.float32), m.astype(np.float32)
+
+
+def _bp_from_ts(rho_s, m):
+    """Blinn-Phong truth from Torrance-Sparrow (module docstring): n = 2/m² − 2, ρs_BP = ρs F_r(0)."""
+    f0 = float(fresnel.fresnel_reflectance(1.0, ETA_SKIN))
+    with np.errstate(divide="ignore"):
+        n = np.where(m > 0, 2 / np.maximum(m, 1e-6) ** 2 - 2, 0)
+    return (rho_s * f0).astype(np.float32), n.astype(np.float32)
+
+
+def _demographics(rng):
+    """Skin type, gender and age of the 149 subjects (Table 2 and §7 counts, exact)."""
+    rows = []
+    for gender, gi in (("M", 0), ("F", 1)):
+        types = []
+        for st, counts in TABLE2_COUNTS.items():
+            types += [st] * counts[gi]
+        types = np.array(types)
+        # Two of the I-II group are type I (one man, one woman; §7).
+        types[np.nonzero(types == 2)[0][0]] = 1
+        groups = []
+        for label, counts in AGE_COUNTS.items():
+            groups += [label] * counts[gi]
+        groups = np.array(groups)[rng.permutation(len(groups))]
+        for st, grp in zip(types, groups):
+            lo, hi = _AGE_RANGES[grp]
+            rows.append((int(st), gender, int(rng.integers(lo, hi + 1))))
+    order = rng.permutation(len(rows))
+    return [rows[i] for i in order]
+
+
+def _standardise(x):
+    x = np.asarray(x, float)
+    return (x - x.mean()) / x.std()
+
+
+def _sigma_tr_draws(rng, n, spread):
+    """σtr (n, site, channel), log-normal with Table 1 means and spreads, correlated sites/channels."""
+    sites = SITES
+    mean = np.stack([TABLE1_MEAN[s] for s in sites])
+    var_col = np.stack([TABLE1_VAR[s] for s in sites])
+    sd = var_col if spread == "std" else np.sqrt(var_col)
+    s_log = np.sqrt(np.log1p((sd / mean) ** 2))  # log-normal shape giving that mean and sd
+    mu_log = np.log(mean) - 0.5 * s_log**2
+    ch_cov = np.full((3, 3), _CHANNEL_CORRELATION) + (1 - _CHANNEL_CORRELATION) * np.eye(3)
+    chol = np.linalg.cholesky(ch_cov)
+    subj = rng.standard_normal((n, 1, 3)) @ chol.T
+    own = rng.standard_normal((n, 3, 3)) @ chol.T
+    z = np.sqrt(_SITE_CORRELATION) * subj + np.sqrt(1 - _SITE_CORRELATION) * own
+    return np.exp(mu_log[None] + s_log[None] * z)
+
+
+def synthesize_population(
+    seed: int = 2006,
+    map_size: int = 64,
+    *,
+    geometry=None,
+    conditions: bool = True,
+    table1_spread: str = "std",
+    freckle_fraction: float = 0.15,
+):
+    """Draw the synthetic population (module docstring), deterministic for a seed.
+
+    Parameters
+    ----------
+    seed : int
+        Seed of every random draw: the same seed gives bit-identical truth.
+    map_size : int
+        Side of the UV maps (must match the capture geometry's ``map_size``).
+    geometry : FaceGeometry, optional
+        Geometry whose ``region_map`` to use; default the procedural face.
+    conditions : bool
+        Include the person measured under the seven conditions of §7.
+    table1_spread : {"std", "variance"}
+        How to read Table 1's "Var." column (module docstring).
+    freckle_fraction : float
+        Fraction of subjects (skin types I-III) given freckles.
+
+    Returns
+    -------
+    Population
+    """
+    if table1_spread not in ("std", "variance"):
+        raise ValidationError(f"table1_spread must be 'std' or 'variance', got {table1_spread!r}")
+    if geometry is None:
+        from .face import procedural_face
+
+        geometry = procedural_face(map_size)
+    region_map = geometry.region_map
+    if region_map is None or region_map.shape != (map_size, map_size):
+        raise ValidationError(f"geometry must carry a {map_size}x{map_size} region_map, got {None if region_map is None else region_map.shape}")
+    texel_mm = float(np.sqrt(np.median(geometry.area))) * (geometry.meta.get("lumitexel_grid", map_size) / map_size)
+    root = np.random.SeedSequence(seed)
+    demo_seed, tr_seed, subj_seed = root.spawn(3)
+    demo = _demographics(np.random.default_rng(demo_seed))
+    n = len(demo)
+    rng = np.random.default_rng(tr_seed)
+    st = np.array([d[0] for d in demo])
+    gender = np.array([d[1] for d in demo])
+    age = np.array([d[2] for d in demo])
+    z_cov = {"skin_type": _standardise(np.where(st == 1, 2, st)), "gender": _standardise(gender == "F"), "age": _standardise(age)}
+    melanin = np.array([SKIN_TYPE_MELANIN[s] for s in st]) + MELANIN_SPREAD * rng.standard_normal(n)
+    melanin -= 0.05 * (gender == "F")
+    base_rgb = skin_albedo(melanin)
+    sigma_tr = _sigma_tr_draws(rng, n + (1 if conditions else 0), table1_spread)
+    between = rng.standard_normal((n + 1, len(REGION_IDS), 2)) * BETWEEN_SUBJECT_CV
+
+    def region_means(i, zs):
+        out = {}
+        for k, r in enumerate(REGION_IDS):
+            rho0, m0 = TS_REGION_MEAN[r]
+            drho = sum(EFFECT_STRENGTH[c] * LOADINGS[c][r][0] * zs[c] for c in EFFECT_STRENGTH)
+            dm = sum(EFFECT_STRENGTH[c] * LOADINGS[c][r][1] * zs[c] for c in EFFECT_STRENGTH)
+            out[r] = (rho0 * np.exp(drho + between[i, k, 0]), m0 * np.exp(dm + between[i, k, 1]))
+        return out
+
+    subject_seeds = subj_seed.spawn(n + len(CONDITIONS))
+    subjects = []
+    for i in range(n):  # loop over subjects (each vectorised over texels)
+        srng = np.random.default_rng(subject_seeds[i])
+        means = region_means(i, {c: z_cov[c][i] for c in z_cov})
+        freckled = bool(st[i] <= 3 and srng.uniform() < freckle_fraction / 0.57)
+        n_moles = int(srng.poisson(1.0))
+        alb = albedo_map(region_map, base_rgb[i], srng, texel_mm=texel_mm, freckles=freckled, moles=n_moles, gender=gender[i])
+        rho, m = _brdf_maps(region_map, means, srng, gender[i])
+        subjects.append(_make_subject(f"S{i + 1:03d}", f"S{i + 1:03d}", int(age[i]), str(gender[i]), int(st[i]), "normal",
+                                      region_map, alb, rho, m, sigma_tr[i], int(subject_seeds[i].generate_state(1)[0]),
+                                      {"freckles": freckled, "moles": n_moles, "melanin": float(melanin[i])}))
+    # σtrAvg: mean over subjects of cheek and forehead (neck excluded), §5.4.
+    sigma_tr_avg = sigma_tr[:n, :2].mean(axis=(0, 1))
+    if conditions:
+        person = f"P{n + 1:03d}"
+        crng = np.random.default_rng(subject_seeds[n])
+        p_st, p_gender, p_age = 3, "M", 34
+        zs = {"skin_type": (3 - np.mean(np.where(st == 1, 2, st))) / np.std(np.where(st == 1, 2, st)),
+              "gender": float(-np.mean(gender == "F") / np.std(gender == "F")), "age": float((34 - age.mean()) / age.std())}
+        means = region_means(n, zs)
+        p_melanin = SKIN_TYPE_MELANIN[3]
+        state = crng.bit_generator.state  # every condition starts from the same texture
+        for j, cond in enumerate(CONDITIONS):
+            crng.bit_generator.state = state
+            alb = albedo_map(region_map, skin_albedo(p_melanin), crng, texel_mm=texel_mm, condition=cond, gender=p_gender)
+            f_rho, f_m = CONDITION_EFFECTS[cond]
+            cmeans = {r: (v[0] * f_rho, v[1] * f_m) for r, v in means.items()}
+            rho, m = _brdf_maps(region_map, cmeans, crng, p_gender)
+            subjects.append(_make_subject(f"{person}-{cond}", person, p_age, p_gender, p_st, cond, region_map, alb, rho, m,
+                                          sigma_tr[n], int(subject_seeds[n + j].generate_state(1)[0]), {"melanin": p_melanin}))
+    for s in subjects:
+        s.sigma_tr = sigma_tr_avg
+    return Population(subjects=subjects, sigma_tr_avg=sigma_tr_avg, seed=int(seed),
+                      settings={"map_size": int(map_size), "table1_spread": table1_spread, "conditions": bool(conditions)})
+
+
+def _make_subject(sid, pid, age, gender, st, cond, region_map, alb, rho, m, sigma_tr_sites, seed, features):
+    face = region_map > 0
+    bp_rho, bp_n = _bp_from_ts(rho, m)
+    for a in (rho, m, bp_rho, bp_n):
+        a[~face] = 0
+    site_albedo = np.stack([
+        alb[region_map == 7].mean(axis=0),  # cheek
+        alb[region_map == 2].mean(axis=0),  # forehead
+        alb[face].mean(axis=0),  # neck: not mapped, the face average
+    ]).astype(np.float64)
+    return SubjectTruth(subject_id=sid, person_id=pid, age=age, gender=gender, skin_type=st, condition=cond, region_map=region_map,
+                        albedo=alb, ts_rho_s=rho, ts_m=m, bp_rho_s=bp_rho, bp_exponent=bp_n,
+                        site_sigma_tr=np.asarray(sigma_tr_sites, float), site_albedo=site_albedo, seed=seed, features=features)
+
+
+def default_population(map_size: int = 64, seed: int = 2006) -> Population:
+    """The embedded default population: :func:`synthesize_population` with its defaults."""
+    return synthesize_population(seed=seed, map_size=map_size)

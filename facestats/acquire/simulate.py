@@ -1,0 +1,357 @@
+"""Simulator of the face-scanning dome and the contact sensor (Weyrich et al. 2006 §5, §5.4).
+
+Turns a subject's ground truth (:class:`facestats.acquire.population.SubjectTruth`)
+into the raw capture the real devices would produce (:class:`Capture`), using
+the skin model of :mod:`facestats.model` as the forward model — no second copy
+of the physics:
+
+1. **Geometry and visibility** (per face geometry and dome, cached across
+   subjects): directions to every LED and camera, the calibrated LED irradiance
+   E⊥ (inverse square law and beam polynomial, :meth:`Dome.incident`), shadow
+   maps of the mesh from every LED and camera
+   (:class:`facestats.acquire.visibility.ShadowMaps`), the in-frame test, and the
+   list of valid (lumitexel, camera, light) samples; the parameter-free factors of
+   the Torrance-Sparrow BRDF per sample
+   (:func:`facestats.model.brdf.torrance_sparrow_geometry`).
+2. **Radiance** per valid sample: specular f_s E (Torrance-Sparrow or Blinn-Phong
+   truth maps) plus the diffuse subsurface term M F_t(ωo)/π ∫R_d F_t(ωi) E dA
+   through :class:`facestats.model.skin.SubsurfaceTransport` (the dipole over the
+   lumitexels' surface when the subject is simulated in one block; the flat-patch
+   limit per block when streaming large subjects).
+3. **Camera**: two exposures (§5) with shot and read noise and 12-bit clipping
+   (:mod:`facestats.acquire.hdr`), merged to HDR; samples clipped in both
+   exposures are invalid.
+4. **Optional head motion**: each light's pass sees the head rotated by a small
+   random angle (σ = ``head_motion_deg``) about its centre; the capture still
+   records the nominal geometry, as a real registration would.
+5. **Scanner normals**: the capture's ``scan_normal`` is the true normal tilted by
+   a random angle (σ = ``scan_normal_noise_deg``, default 2°): the fit must
+   recover normals by photometric stereo.
+6. **Contact sensor**: at cheek, forehead and neck the dipole profile of the site's
+   (σ's, σa) at the 28 fibre distances, captured with the 23-image HDR bracket of
+   :class:`facestats.acquire.sensor.ContactSensor`.
+
+Determinism: every random draw comes from the subject's seed (and the block index
+when streaming), so the same truth, seed and block size give bit-identical
+captures.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import __version__
+from ..errors import ValidationError
+from ..model import brdf as _brdf
+from ..model.fresnel import _fresnel_reflectance
+from ..model.skin import SPECULAR_MODELS, SubsurfaceTransport, neighbour_pairs
+from ..published import ETA_SKIN
+from .capture import Capture, CaptureWriter, _PER_LUMITEXEL
+from .dome import Dome, default_dome
+from .face import FaceGeometry
+from .hdr import expose, merge_exposures
+from .sensor import ContactSensor
+from .visibility import ShadowMaps
+
+__all__ = ["DomeSimulator", "simulate_capture"]
+
+
+@dataclass
+class _Block:
+    """Truth-independent geometry of one block of lumitexels."""
+
+    start: int
+    stop: int
+    normal: np.ndarray  # (n, 3) true normals
+    e_perp: np.ndarray  # (n, L, 3) float32
+    cos_i: np.ndarray  # (n, L) float32, clipped at 0, 0 where unlit
+    ft_i: np.ndarray  # (n, L) float32
+    ft_o: np.ndarray  # (n, C) float32
+    t: np.ndarray  # (S,) sample lumitexel (block-local)
+    c: np.ndarray  # (S,) sample camera
+    l: np.ndarray  # (S,) sample light
+    cos_delta: np.ndarray  # (S,) float32
+    k_ts: np.ndarray  # (S,) float32
+    neighbours: tuple | None = None
+
+
+class DomeSimulator:
+    """Simulate dome and contact-sensor captures of subjects on one face geometry.
+
+    Parameters
+    ----------
+    geometry : FaceGeometry
+        Lumitexels, normals (the truth) and shadowing mesh.
+    dome : Dome, optional
+        Calibration of the rig; default :func:`facestats.acquire.dome.default_dome`.
+    sensor : ContactSensor, optional
+        Contact sensor; default :class:`ContactSensor`.
+    specular : {"torrance_sparrow", "blinn_phong"}
+        Which of the truth's BRDF maps renders the highlights.
+    noise : bool
+        Simulate camera and sensor noise (False: exact radiance, no clipping).
+    head_motion_deg : float
+        Standard deviation of the per-light head rotation (0 = still).
+    scan_normal_noise_deg : float
+        Standard deviation of the scanner-normal tilt.
+    block : int
+        Lumitexels per block.  When the geometry fits one block, the geometry is
+        cached across subjects and the dipole transport runs over the whole face.
+    subsurface_radius : float
+        Neighbourhood radius of the dipole transport, mm (the energy beyond it is
+        returned locally; 12 mm keeps > 98 % of red-channel energy in the
+        neighbourhood for σtr ≥ 0.45 mm⁻¹).
+    shadow_resolution : int, optional
+        Shadow-map side in pixels; default twice the mesh grid (about one pixel per
+        half triangle edge).
+    """
+
+    def __init__(self, geometry: FaceGeometry, dome: Dome | None = None, sensor: ContactSensor | None = None, *,
+                 specular: str = "torrance_sparrow", noise: bool = True, head_motion_deg: float = 0.0,
+                 scan_normal_noise_deg: float = 2.0, block: int = 8192, subsurface_radius: float = 12.0,
+                 shadow_resolution: int | None = None, eta: float = ETA_SKIN):
+        if specular not in SPECULAR_MODELS:
+            raise ValidationError(f"specular must be one of {list(SPECULAR_MODELS)}, got {specular!r}")
+        if head_motion_deg < 0 or scan_normal_noise_deg < 0:
+            raise ValidationError("head_motion_deg and scan_normal_noise_deg must be >= 0")
+        self.geometry = geometry
+        self.dome = default_dome() if dome is None else dome
+        self.sensor = ContactSensor() if sensor is None else sensor
+        self.specular = specular
+        self.noise = bool(noise)
+        self.head_motion_deg = float(head_motion_deg)
+        self.scan_normal_noise_deg = float(scan_normal_noise_deg)
+        self.block = int(block)
+        self.subsurface_radius = float(subsurface_radius)
+        self.eta = float(eta)
+        mesh_grid = int(geometry.meta.get("mesh_grid", 128))
+        self.shadow_resolution = int(shadow_resolution or 2 * mesh_grid)
+        eyes = np.concatenate([self.dome.led_position, self.dome.camera_position])
+        self.shadows = ShadowMaps(geometry.mesh_vertices, geometry.mesh_faces, eyes, resolution=self.shadow_resolution)
+        self._cache: dict = {}
+
+    @property
+    def single_block(self) -> bool:
+        return self.geometry.n_points <= self.block
+
+    # -- geometry -------------------------------------------------------------------
+    def _block_geometry(self, start: int, stop: int) -> _Block:
+        key = (start, stop)
+        if key in self._cache:
+            return self._cache[key]
+        g, dome = self.geometry, self.dome
+        pos, nrm = g.position[start:stop], g.normal[start:stop]
+        vis = self.shadows.visible(pos, nrm)
+        n_led = dome.n_leds
+        wi, e_perp = dome.incident(pos)
+        wo, in_frame, _ = dome.view(pos)
+        cos_i = np.einsum("nk,nlk->nl", nrm, wi)
+        cos_o = np.einsum("nk,nck->nc", nrm, wo)
+        lit = vis[:, :n_led] & (cos_i > 0) & np.all(e_perp > 0, axis=-1)
+        seen = vis[:, n_led:] & in_frame & (cos_o > 0)
+        t, c, l = np.nonzero(seen[:, :, None] & lit[:, None, :])
+        cos_delta, k_ts = _brdf.torrance_sparrow_geometry(nrm[t].astype(np.float32), wi[t, l].astype(np.float32),
+                                                          wo[t, c].astype(np.float32), self.eta)
+        eta = np.float32(self.eta)
+        ci = np.where(lit, cos_i, 0).astype(np.float32)
+        blk = _Block(
+            start=start, stop=stop, normal=nrm,
+            e_perp=e_perp.astype(np.float32), cos_i=ci,
+            ft_i=(1 - _fresnel_reflectance(np.clip(ci, 0, 1), eta)).astype(np.float32),
+            ft_o=(1 - _fresnel_reflectance(np.clip(cos_o, 0, 1).astype(np.float32), eta)).astype(np.float32),
+            t=t.astype(np.int32), c=c.astype(np.int32), l=l.astype(np.int32),
+            cos_delta=cos_delta.astype(np.float32), k_ts=k_ts.astype(np.float32),
+        )
+        if self.single_block:
+            blk.neighbours = neighbour_pairs(pos, self.subsurface_radius)
+            self._cache[key] = blk
+        return blk
+
+    def samples_per_lumitexel(self) -> np.ndarray:
+        """Number of valid (camera, light) samples of each lumitexel before noise and clipping."""
+        out = np.zeros(self.geometry.n_points, np.int64)
+        for start in range(0, self.geometry.n_points, self.block):
+            b = self._block_geometry(start, min(start + self.block, self.geometry.n_points))
+            out[start:b.stop] = np.bincount(b.t, minlength=b.stop - start)
+        return out
+
+    # -- per subject ---------------------------------------------------------------------
+    def _truth_at_lumitexels(self, truth, sl):
+        tex = self.geometry.texel_index(truth.region_map.shape[0])[sl]
+        v, u = tex[:, 0], tex[:, 1]
+        if self.specular == "torrance_sparrow":
+            rho, lobe = truth.ts_rho_s[v, u], truth.ts_m[v, u]
+        else:
+            rho, lobe = truth.bp_rho_s[v, u], truth.bp_exponent[v, u]
+        return truth.albedo[v, u].astype(np.float32), rho.astype(np.float32), lobe.astype(np.float32)
+
+    def _motion(self, blk, rng):
+        """Per-sample geometry with the head rotated for each light's pass (module docstring, item 4)."""
+        dome, g = self.dome, self.geometry
+        n_led = dome.n_leds
+        sigma = np.radians(self.head_motion_deg)
+        axis = rng.standard_normal((n_led, 3))
+        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+        ang = sigma * rng.standard_normal(n_led)
+        kx = np.zeros((n_led, 3, 3))
+        kx[:, 0, 1], kx[:, 0, 2], kx[:, 1, 2] = -axis[:, 2], axis[:, 1], -axis[:, 0]
+        kx = kx - np.swapaxes(kx, 1, 2)
+        rot = np.eye(3) + np.sin(ang)[:, None, None] * kx + (1 - np.cos(ang))[:, None, None] * (kx @ kx)  # Rodrigues
+        centre = 0.5 * (g.mesh_vertices.min(0) + g.mesh_vertices.max(0))
+        # Rotating the head by R equals rotating lights and cameras by Rᵀ about its centre.
+        led = centre + np.einsum("lji,lj->li", rot, dome.led_position - centre)
+        cams = centre + np.einsum("lji,cj->lci", rot, dome.camera_position - centre)  # (L, C, 3)
+        pos = g.position[blk.start:blk.stop]
+        p = pos[blk.t]
+        wi = led[blk.l] - p
+        wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+        wo = cams[blk.l, blk.c] - p
+        wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+        nrm = blk.normal[blk.t]
+        cos_delta, k_ts = _brdf.torrance_sparrow_geometry(nrm.astype(np.float32), wi.astype(np.float32), wo.astype(np.float32), self.eta)
+        eta = np.float32(self.eta)
+        ci = np.clip(np.einsum("sk,sk->s", nrm, wi), 0, 1).astype(np.float32)
+        co = np.clip(np.einsum("sk,sk->s", nrm, wo), 0, 1).astype(np.float32)
+        return cos_delta, k_ts, ci, 1 - _fresnel_reflectance(ci, eta), 1 - _fresnel_reflectance(co, eta)
+
+    def _radiance_block(self, truth, blk: _Block, rng) -> np.ndarray:
+        """Simulated HDR radiance of one block, dense (n, C, L, 3) float16 with NaN for invalid samples."""
+        dome = self.dome
+        n, n_cam, n_led = blk.stop - blk.start, dome.n_cameras, dome.n_leds
+        albedo, rho, lobe = self._truth_at_lumitexels(truth, slice(blk.start, blk.stop))
+        modulation = albedo / truth.albedo_avg.astype(np.float32)
+        t, c, l = blk.t, blk.c, blk.l
+        if self.head_motion_deg > 0:
+            cos_delta, k_ts, cos_i_s, ft_i_s, ft_o_s = self._motion(blk, rng)
+        else:
+            cos_delta, k_ts = blk.cos_delta, blk.k_ts
+            cos_i_s, ft_i_s, ft_o_s = blk.cos_i[t, l], blk.ft_i[t, l], blk.ft_o[t, c]
+        # Specular (grey BRDF × light colour), Weyrich eq. 11-13.
+        if self.specular == "torrance_sparrow":
+            f_s = rho[t] * _brdf.beckmann_distribution(cos_delta, lobe[t]) * k_ts
+        else:
+            f_s = rho[t] * _brdf.blinn_phong_lobe(cos_delta, lobe[t])
+        e_s = blk.e_perp[t, l] * cos_i_s[:, None]  # (S, 3) irradiance E = E⊥ cos θi
+        # Diffuse: entering flux F_t(ωi) E per (lumitexel, light), dipole transport, exit.
+        e_tl = blk.e_perp * blk.cos_i[..., None]
+        sp, sa = truth.scattering
+        if self.single_block and self.head_motion_deg == 0:
+            transport = SubsurfaceTransport(sp, sa, self.eta, positions=self.geometry.position[blk.start:blk.stop],
+                                            areas=self.geometry.area[blk.start:blk.stop], radius=self.subsurface_radius,
+                                            neighbours=blk.neighbours)
+        else:
+            transport = SubsurfaceTransport(sp, sa, self.eta)
+        exitance = transport.apply((blk.ft_i[..., None] * e_tl).astype(np.float32)).astype(np.float32)  # (n, L, 3)
+        if self.head_motion_deg > 0:  # flux of the moved geometry, local transport
+            exitance_s = (transport.total_reflectance.astype(np.float32) * (ft_i_s[:, None] * e_s)).astype(np.float32)
+        else:
+            exitance_s = exitance[t, l]
+        radiance = f_s[:, None] * e_s + (modulation[t] * (ft_o_s / np.float32(np.pi))[:, None]) * exitance_s
+        if self.noise:
+            rate = radiance * np.float32(dome.camera_scale)
+            dn = expose(rate, dome.exposure_times, dome.response, rng)
+            rate_hat, _, n_used = merge_exposures(dn, dome.exposure_times, dome.response)
+            radiance = rate_hat / np.float32(dome.camera_scale)
+            radiance[np.any(n_used == 0, axis=-1)] = np.nan
+        out = np.full((n * n_cam * n_led, 3), np.nan, np.float16)
+        out[(t.astype(np.int64) * n_cam + c) * n_led + l] = radiance.astype(np.float16)
+        return out.reshape(n, n_cam, n_led, 3)
+
+    def _scan_normals(self, sl, rng):
+        nrm = self.geometry.normal[sl]
+        if self.scan_normal_noise_deg == 0:
+            return nrm.astype(np.float32)
+        tilt = rng.standard_normal(nrm.shape) * np.radians(self.scan_normal_noise_deg) / np.sqrt(2)
+        tilt -= np.einsum("nk,nk->n", tilt, nrm)[:, None] * nrm  # tangent perturbation
+        out = nrm + tilt
+        return (out / np.linalg.norm(out, axis=1, keepdims=True)).astype(np.float32)
+
+    def _sensor(self, truth, rng):
+        sp, sa = truth.site_scattering
+        from ..model.dipole import dipole_profile
+
+        r = self.sensor.fiber_distance
+        prof = dipole_profile(r[None, :, None], sp[:, None, :], sa[:, None, :], self.eta)  # (site, fiber, channel)
+        if not self.noise:
+            return prof, np.zeros_like(prof)
+        return self.sensor.capture(prof, rng)
+
+    def _attrs(self, truth, seed):
+        prov = {
+            "source": "facestats simulator", "software": f"facestats {__version__}", "seed": int(seed),
+            "specular": self.specular, "noise": self.noise, "head_motion_deg": self.head_motion_deg,
+            "scan_normal_noise_deg": self.scan_normal_noise_deg, "geometry": self.geometry.name,
+            "subsurface": "dipole" if (self.single_block and self.head_motion_deg == 0) else "local",
+            "block": self.block,
+        }
+        return dict(truth.metadata(), dome=json.dumps(self.dome.to_dict()), sensor=json.dumps(self.sensor.to_attrs()),
+                    map_size=int(truth.region_map.shape[0]), provenance=json.dumps(prov))
+
+    def _streams(self, seed, n_blocks):
+        ss = np.random.SeedSequence(int(seed))
+        normals_ss, sensor_ss, *blocks = ss.spawn(2 + n_blocks)
+        return np.random.default_rng(normals_ss), np.random.default_rng(sensor_ss), [np.random.default_rng(b) for b in blocks]
+
+    def _check_truth(self, truth):
+        if truth.region_map.shape[0] != self.geometry.map_size:
+            raise ValidationError(
+                f"truth maps are {truth.region_map.shape[0]}² but the geometry's map_size is {self.geometry.map_size}"
+            )
+
+    # -- public -------------------------------------------------------------------------
+    def simulate(self, truth, seed: int | None = None) -> Capture:
+        """Simulate one subject in memory (use :meth:`simulate_to_zarr` for large geometries)."""
+        self._check_truth(truth)
+        seed = truth.seed if seed is None else seed
+        g = self.geometry
+        ranges = [(s, min(s + self.block, g.n_points)) for s in range(0, g.n_points, self.block)]
+        rng_n, rng_s, rngs = self._streams(seed, len(ranges))
+        radiance = np.concatenate([self._radiance_block(truth, self._block_geometry(a, b), r) for (a, b), r in zip(ranges, rngs)])
+        irr = np.concatenate([self._block_geometry(a, b).e_perp for a, b in ranges])
+        prof, std = self._sensor(truth, rng_s)
+        arrays = {
+            "position": g.position.astype(np.float32), "scan_normal": self._scan_normals(slice(None), rng_n),
+            "uv": g.uv.astype(np.float32), "area": g.area.astype(np.float32), "region": g.region,
+            "irradiance": irr, "radiance": radiance, "region_map": truth.region_map,
+            "sensor_profile": prof, "sensor_profile_std": std, "fiber_distance": self.sensor.fiber_distance,
+        }
+        return Capture(arrays=arrays, attrs=self._attrs(truth, seed))
+
+    def simulate_to_zarr(self, truth, path, seed: int | None = None, progress: bool = False) -> str:
+        """Simulate one subject block by block straight into a zarr capture (bounded memory)."""
+        self._check_truth(truth)
+        seed = truth.seed if seed is None else seed
+        g = self.geometry
+        ranges = [(s, min(s + self.block, g.n_points)) for s in range(0, g.n_points, self.block)]
+        rng_n, rng_s, rngs = self._streams(seed, len(ranges))
+        writer = CaptureWriter(path, n_lumitexels=g.n_points, n_cameras=self.dome.n_cameras, n_lights=self.dome.n_leds,
+                               map_size=g.map_size, n_fibers=self.sensor.n_fibers, attrs=self._attrs(truth, seed), chunk=self.block)
+        it = zip(ranges, rngs)
+        if progress:
+            from tqdm.auto import tqdm
+
+            it = tqdm(list(it), desc=f"simulate {truth.subject_id}", unit="block")
+        for (a, b), r in it:
+            blk = self._block_geometry(a, b)
+            sl = slice(a, b)
+            arrays = {"position": g.position[sl].astype(np.float32), "scan_normal": self._scan_normals(sl, rng_n),
+                      "uv": g.uv[sl].astype(np.float32), "area": g.area[sl].astype(np.float32), "region": g.region[sl],
+                      "irradiance": blk.e_perp, "radiance": self._radiance_block(truth, blk, r)}
+            assert set(arrays) == set(_PER_LUMITEXEL)
+            writer.write_block(a, arrays)
+        prof, std = self._sensor(truth, rng_s)
+        writer.write_global({"region_map": truth.region_map, "sensor_profile": prof, "sensor_profile_std": std,
+                             "fiber_distance": self.sensor.fiber_distance})
+        return str(path)
+
+
+def simulate_capture(truth, geometry: FaceGeometry | None = None, **kwargs) -> Capture:
+    """Simulate one subject on ``geometry`` (default: the procedural face at the truth's map size)."""
+    if geometry is None:
+        from .face import procedural_face
+
+        geometry = procedural_face(truth.region_map.shape[0])
+    return DomeSimulator(geometry, **kwargs).simulate(truth)

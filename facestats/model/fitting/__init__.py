@@ -1,0 +1,26 @@
+"""The fit pipeline's stages (Weyrich et al. 2006 §4-5, Fig. 3), as functions on arrays.
+
+1. :func:`photometric_normals`, :func:`micro_normals` (§5.1)
+2. :func:`albedo_stable_minimum` (eq. 9) and :func:`refine_albedo`
+3. :func:`specular_residual` (eq. 10)
+4. :func:`fit_specular` (eq. 11-14, batch Levenberg-Marquardt)
+5. :func:`scatter_to_map`, :func:`push_pull`, :func:`fill_flagged`
+6. :func:`fit_translucency`, :func:`population_sigma_tr_avg` (§5.4)
+7. :func:`scattering_parameters` (§5.4, eq. 7, eq. 16)
+
+:func:`facestats.pipeline.fit_subject` runs them all on a capture.
+"""
+
+from .albedo import albedo_stable_minimum, fresnel_factors, refine_albedo, specular_residual
+from .maps import fill_flagged, push_pull, scatter_to_map
+from .normals import micro_normals, photometric_normals
+from .samples import Samples
+from .specular import DEFAULT_BOUNDS, SpecularFit, fit_specular, fit_specular_samples, specular_factors, specular_model_values
+from .translucency import TranslucencyFit, fit_translucency, population_sigma_tr_avg, scattering_parameters
+
+__all__ = [
+    "photometric_normals", "micro_normals", "albedo_stable_minimum", "refine_albedo", "specular_residual",
+    "fresnel_factors", "fit_specular", "fit_specular_samples", "specular_factors", "SpecularFit", "Samples", "DEFAULT_BOUNDS", "specular_model_values", "scatter_to_map",
+    "push_pull", "fill_flagged", "fit_translucency", "TranslucencyFit", "population_sigma_tr_avg",
+    "scattering_parameters",
+]

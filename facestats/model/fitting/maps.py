@@ -1,0 +1,130 @@
+"""Stage 5 of the fit: lumitexel results to UV maps, with push-pull hole filling (Weyrich et al. 2006 §4, §5.3).
+
+§4: "The data is densely interpolated using push-pull interpolation into texture
+maps"; §5.3: "The data for lumitexels with a badly conditioned fit is
+interpolated during creation of the BRDF coefficient texture."
+
+* :func:`scatter_to_map` averages the values of the lumitexels that fall into
+  each texel of a UV map.
+* :func:`push_pull` fills holes (Gortler et al. 1996, "The Lumigraph", §3.2):
+  *pull* builds a pyramid of weighted averages, halving the resolution until no
+  cell is empty; *push* walks back up and gives every empty cell the value of its
+  coarser parent (bilinearly interpolated from the parent level), so holes receive
+  smooth data from their neighbourhood.  Known values are never changed.
+* :func:`fill_flagged` treats flagged texels as holes (their values are replaced,
+  their flags keep a record).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...errors import ValidationError
+
+__all__ = ["scatter_to_map", "push_pull", "fill_flagged"]
+
+
+def scatter_to_map(values, texel, size):
+    """Average per-lumitexel values into a ``size``² map.
+
+    Parameters
+    ----------
+    values : ndarray, shape (N, ...)
+        Values per lumitexel (trailing dims kept, e.g. channels); NaN ignored.
+    texel : ndarray of int, shape (N, 2)
+        ``(v, u)`` texel of each lumitexel.
+    size : int
+
+    Returns
+    -------
+    mean : ndarray, shape (size, size, ...)
+        NaN where no lumitexel landed.
+    count : ndarray of int, shape (size, size)
+    """
+    v = np.asarray(values, np.float64)
+    t = np.asarray(texel)
+    flat = t[:, 0] * size + t[:, 1]
+    trail = v.shape[1:]
+    vv = v.reshape(v.shape[0], -1)
+    ok = np.isfinite(vv)
+    sums = np.zeros((size * size, vv.shape[1]))
+    cnts = np.zeros((size * size, vv.shape[1]))
+    for j in range(vv.shape[1]):  # loop over trailing components (channels), vectorised over lumitexels
+        sums[:, j] = np.bincount(flat[ok[:, j]], weights=vv[ok[:, j], j], minlength=size * size)
+        cnts[:, j] = np.bincount(flat[ok[:, j]], minlength=size * size)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = sums / cnts
+    count = np.bincount(flat, minlength=size * size).reshape(size, size)
+    return mean.reshape((size, size) + trail), count
+
+
+def _pull(val, w):
+    """One coarser level: weighted 2×2 averages (odd sizes padded with zero weight)."""
+    h, wd = w.shape
+    ph, pw = h % 2, wd % 2
+    if ph or pw:
+        val = np.pad(val, ((0, ph), (0, pw)) + ((0, 0),) * (val.ndim - 2))
+        w = np.pad(w, ((0, ph), (0, pw)))
+    ws = w.reshape(w.shape[0] // 2, 2, w.shape[1] // 2, 2)
+    vs = (val * w[..., None]).reshape(ws.shape + val.shape[2:])
+    wsum = ws.sum(axis=(1, 3))
+    vsum = vs.sum(axis=(1, 3))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = vsum / wsum[..., None]
+    return np.where(wsum[..., None] > 0, out, 0), np.minimum(wsum, 1.0)
+
+
+def _upsample(coarse, shape):
+    """Bilinear upsampling of a coarse level to ``shape`` (cell-centred grids)."""
+    from scipy.ndimage import zoom
+
+    zh, zw = shape[0] / coarse.shape[0], shape[1] / coarse.shape[1]
+    out = zoom(coarse, (zh, zw) + (1,) * (coarse.ndim - 2), order=1, mode="nearest", grid_mode=True)
+    return out[: shape[0], : shape[1]]
+
+
+def push_pull(image, known, fill=None):
+    """Fill the unknown texels of an image by push-pull interpolation (module docstring).
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W) or (H, W, K)
+        Values; entries where ``known`` is False are ignored.
+    known : ndarray of bool, shape (H, W)
+        Texels holding data.
+    fill : ndarray of bool, shape (H, W), optional
+        Texels to fill (default: all unknown ones).  Others keep ``image``'s value.
+
+    Returns
+    -------
+    ndarray, shape of ``image``
+    """
+    img = np.asarray(image, np.float64)
+    k = np.asarray(known, bool)
+    if k.shape != img.shape[:2]:
+        raise ValidationError(f"known must have shape {img.shape[:2]}, got {k.shape}")
+    if not k.any():
+        raise ValidationError("known must mark at least one texel with data, got none")
+    squeeze = img.ndim == 2
+    val = np.where(k[..., None] if not squeeze else k, img, 0)
+    if squeeze:
+        val = val[..., None]
+    levels = [(val, k.astype(np.float64))]
+    while levels[-1][1].min() < 1 and min(levels[-1][1].shape) > 1:
+        levels.append(_pull(*levels[-1]))
+    # Push: from the coarsest level down, fill every empty cell from the parent.
+    cur = levels[-1][0]
+    for val_l, w_l in reversed(levels[:-1]):
+        up = _upsample(cur, w_l.shape)
+        cur = w_l[..., None] * val_l + (1 - w_l[..., None]) * up
+    out = cur[..., 0] if squeeze else cur
+    target = ~k if fill is None else (np.asarray(fill, bool) & ~k)
+    res = np.array(img, copy=True)
+    res[target] = out[target]
+    return res.astype(np.asarray(image).dtype if np.asarray(image).dtype.kind == "f" else np.float64)
+
+
+def fill_flagged(image, flagged, face):
+    """Replace flagged face texels by push-pull interpolation of the unflagged face texels (§5.3)."""
+    known = np.asarray(face, bool) & ~np.asarray(flagged, bool) & np.all(np.isfinite(np.asarray(image).reshape(face.shape + (-1,))), axis=-1)
+    return push_pull(image, known, fill=np.asarray(face, bool) & ~known)

@@ -1,0 +1,378 @@
+"""Stage 4 of the fit: the specular BRDF per texel, as one batch solve over all texels.
+
+Weyrich et al. 2006 §5.3 fits Torrance-Sparrow (ρs, m) and Blinn-Phong (ρs, n)
+to the specular residual f_s of every lumitexel by minimising
+
+    E(p) = sqrt( Σ w [f_s cos θi − f_sM(p) cos θi]² / Σ w )          (eq. 14)
+
+with w = 0 for samples whose ωi or ωo lies beyond 80°.  The paper uses
+constrained sequential quadratic programming per lumitexel (the baseline of
+``benchmarks/bench_fit.py``).  Here every texel is solved at once by a bounded
+Levenberg-Marquardt iteration vectorised over texels and samples:
+
+* Both models are ρs times a lobe: f_sM cos θi = ρs · g(p), with
+  g = A exp(−t/m²)/m², A = K cos θi / cos⁴δ, t = tan²δ for Torrance-Sparrow
+  (K = G F_r/(π cos θi cos θo), :func:`facestats.model.brdf.torrance_sparrow_geometry`)
+  and g = A (n+2) cosⁿδ, A = cos θi/(2π) for Blinn-Phong.  The per-sample
+  factors A, t (or ln cos δ) are computed once; every iteration costs one
+  exponential per sample.
+* Parameters (ρs, q = ln p): the lobe parameter is solved in log space, where
+  the problem is well scaled.  Bounds are enforced by projection of each step,
+  with per-texel damping λ (accepted steps divide it by 3, rejected ones
+  multiply it by 4).
+* Start: a weighted log-linear fit of ln(y/A) against t (or ln cos δ) over the
+  strongest samples gives p₀ (the slope is −1/m², or n); ρs₀ then follows in
+  closed form.  The better of p₀, p₀/1.6 and p₀·1.6 starts the iteration.
+* Only samples with w = 1 are kept, as flat arrays grouped by texel
+  (:class:`facestats.model.fitting.samples.Samples`); per-texel sums are
+  ``np.bincount`` over the texel index, and texels that have converged leave the
+  working set.
+
+Flags (:data:`facestats.io.schema.FLAG_BITS`): ``few_samples`` when fewer than
+``min_samples`` samples remain, ``not_converged`` when ``max_iter`` is reached,
+``ill_conditioned`` when the normal matrix is singular or a parameter's relative
+standard error (from σ² (JᵀJ)⁻¹) exceeds ``max_relative_error``, ``at_bound``
+when the lobe parameter ends on a bound.  Flagged texels keep their values but
+are meant to be filled from neighbours (:func:`facestats.model.fitting.maps.fill_flagged`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..._validate import as_float, check_choice, check_shape
+from ...errors import ValidationError
+from ..brdf import torrance_sparrow_geometry
+
+__all__ = ["SpecularFit", "fit_specular", "fit_specular_samples", "specular_factors", "DEFAULT_BOUNDS", "specular_model_values"]
+
+#: Default bounds (ρs, lobe parameter) per model.
+DEFAULT_BOUNDS = {
+    "torrance_sparrow": ((0.0, 5.0), (0.03, 1.0)),
+    "blinn_phong": ((0.0, 1.0), (0.5, 5000.0)),
+}
+_LOBE_NAME = {"torrance_sparrow": "m", "blinn_phong": "exponent"}
+FLAG_FEW, FLAG_NOT_CONVERGED, FLAG_ILL, FLAG_BOUND = 1, 2, 4, 8
+
+
+@dataclass
+class SpecularFit:
+    """Result of :func:`fit_specular` (one entry per texel).
+
+    Attributes
+    ----------
+    model : str
+    rho_s : ndarray
+        ρs.
+    lobe : ndarray
+        m (Torrance-Sparrow) or n (Blinn-Phong).
+    error : ndarray
+        E(p) of eq. 14 (sr⁻¹).
+    flags : ndarray of uint8
+        Bit flags (module docstring).
+    n_samples : ndarray of int
+        Samples that entered the fit (w = 1).
+    iterations : int
+        Levenberg-Marquardt iterations run.
+    rho_s_std, lobe_std : ndarray
+        Standard errors from σ² (JᵀJ)⁻¹.
+    """
+
+    model: str
+    rho_s: np.ndarray
+    lobe: np.ndarray
+    error: np.ndarray
+    flags: np.ndarray
+    n_samples: np.ndarray
+    iterations: int
+    rho_s_std: np.ndarray
+    lobe_std: np.ndarray
+
+    @property
+    def lobe_name(self) -> str:
+        return _LOBE_NAME[self.model]
+
+    @property
+    def params(self) -> dict:
+        return {"rho_s": self.rho_s, self.lobe_name: self.lobe}
+
+
+def _lobe(model, p, s1, a):
+    """g(p) = A·h and d g/d ln p per sample; s1 is t = tan²δ (TS) or ln cos δ (BP)."""
+    if model == "torrance_sparrow":
+        inv = 1 / (p * p)
+        g = a * np.exp(-s1 * inv) * inv
+        return g, g * (2 * s1 * inv - 2)
+    g = a * (p + 2) * np.exp(p * s1)
+    return g, g * (p / (p + 2) + p * s1)
+
+
+def specular_model_values(model, rho_s, lobe, normal, wi, wo, eta=1.38):
+    """f_sM of a fitted model at arbitrary samples, broadcasting texel parameters over samples."""
+    from ..skin import specular_brdf
+
+    return specular_brdf(model, normal, wi, wo, rho_s, lobe, eta)
+
+
+def lobe_values(model, rho_s, lobe, s1, a):
+    """f_sM cos θi = ρs g(p) at samples with precomputed :func:`specular_factors` (per-sample ρs, p)."""
+    g, _ = _lobe(model, np.asarray(lobe, np.float32), s1, a)
+    return np.asarray(rho_s, np.float32) * g
+
+
+def specular_factors(samples, normal, model, eta=1.38):
+    """Parameter-free per-sample factors (s1, A) of ``model`` (module docstring), float32.
+
+    Torrance-Sparrow: s1 = tan²δ, A = K cos θi / cos⁴δ with K from
+    :func:`facestats.model.brdf.torrance_sparrow_geometry`; Blinn-Phong:
+    s1 = ln cos δ, A = cos θi / (2π).  A = 0 where a direction is below the horizon.
+    """
+    nrm = np.asarray(normal, np.float32)[samples.texel]
+    ci = np.einsum("sk,sk->s", nrm, samples.wi)
+    if model == "torrance_sparrow":
+        cos_d, k = torrance_sparrow_geometry(nrm, samples.wi, samples.wo, eta)
+        c2 = cos_d * cos_d
+        return ((1 - c2) / c2).astype(np.float32), np.maximum(k * ci / (c2 * c2), 0).astype(np.float32)
+    check_choice(model, "model", DEFAULT_BOUNDS)
+    h = samples.wi + samples.wo
+    cos_d = np.einsum("sk,sk->s", nrm, h) / np.linalg.norm(h, axis=-1)
+    co = np.einsum("sk,sk->s", nrm, samples.wo)
+    above = (ci > 0) & (co > 0)
+    return np.log(np.clip(cos_d, 1e-6, 1)).astype(np.float32), np.where(above, ci / (2 * np.pi), 0).astype(np.float32)
+
+
+def fit_specular_samples(samples, normal, f_s, use, model, *, factors=None, eta=1.38, bounds=None, min_samples=30,
+                         max_iter=40, tol=1e-6, max_relative_error=0.25) -> SpecularFit:
+    """Fit ``model`` to grey specular samples on flat :class:`Samples` (the pipeline's form of :func:`fit_specular`).
+
+    Parameters
+    ----------
+    samples : Samples
+    normal : ndarray, shape (n, 3)
+    f_s : ndarray, shape (S,)
+        Grey specular BRDF samples.
+    use : ndarray of bool, shape (S,)
+        Samples that enter eq. 14 (w = 1).
+    factors : tuple, optional
+        Precomputed :func:`specular_factors` for these samples, normals and model.
+    """
+    check_choice(model, "model", DEFAULT_BOUNDS)
+    s1, a = specular_factors(samples, normal, model, eta) if factors is None else factors
+    nrm = np.asarray(normal, np.float32)[samples.texel]
+    ci = np.einsum("sk,sk->s", nrm, samples.wi)
+    ok = np.asarray(use, bool) & np.isfinite(f_s) & (a > 0)
+    y = (f_s[ok] * ci[ok]).astype(np.float32)
+    return _solve(model, y, s1[ok], a[ok], samples.texel[ok], samples.n_texels, bounds=bounds, min_samples=min_samples,
+                  max_iter=max_iter, tol=tol, max_relative_error=max_relative_error)
+
+
+def fit_specular(wi, wo, normal, f_s, valid, model, *, bounds=None, eta=1.38, max_angle=np.radians(80.0), min_samples=30,
+                 max_iter=40, tol=1e-6, max_relative_error=0.25):
+    """Fit Torrance-Sparrow or Blinn-Phong to specular samples of every texel at once (eq. 14).
+
+    Parameters
+    ----------
+    wi, wo : array_like, shape (texels, samples, 3)
+        Unit directions towards light and camera of every sample (broadcastable
+        views are fine, e.g. ``np.broadcast_to``).
+    normal : array_like, shape (texels, 3)
+        Unit normals the BRDF is evaluated with.
+    f_s : array_like, shape (texels, samples)
+        Grey specular BRDF samples (eq. 10), sr⁻¹.
+    valid : array_like of bool, shape (texels, samples)
+        Usable samples (NaN ``f_s`` and samples beyond ``max_angle`` are excluded too).
+    model : {"torrance_sparrow", "blinn_phong"}
+    bounds : ((rho_lo, rho_hi), (lobe_lo, lobe_hi)), optional
+        Default :data:`DEFAULT_BOUNDS`.
+    eta : float
+        Relative index for the Torrance-Sparrow Fresnel term.
+    max_angle : float
+        The 80° limit of eq. 14 (rad).
+    min_samples : int
+        Texels with fewer samples are flagged ``few_samples`` (values NaN).
+    max_iter, tol
+        Iteration cap and relative convergence tolerance on E(p)².
+    max_relative_error : float
+        Relative standard error above which a texel is flagged ``ill_conditioned``.
+
+    Returns
+    -------
+    SpecularFit
+    """
+    from .samples import Samples
+
+    check_choice(model, "model", DEFAULT_BOUNDS)
+    wi = as_float(wi, "wi")
+    wo = as_float(wo, "wo")
+    normal = as_float(normal, "normal")
+    f_s = as_float(f_s, "f_s")
+    check_shape(normal, "normal", (None, 3))
+    n_tex = normal.shape[0]
+    check_shape(f_s, "f_s", (n_tex, None))
+    n_smp = f_s.shape[1]
+    check_shape(wi, "wi", (n_tex, n_smp, 3))
+    check_shape(wo, "wo", (n_tex, n_smp, 3))
+    valid = check_shape(np.asarray(valid, bool), "valid", (n_tex, n_smp))
+    lim = np.cos(max_angle)
+    valid = valid & np.isfinite(f_s) & (np.einsum("tk,tsk->ts", normal, wi) > lim) & (np.einsum("tk,tsk->ts", normal, wo) > lim)
+    samples = Samples.from_arrays(wi, wo, valid)
+    fs = f_s[valid].astype(np.float32)
+    return fit_specular_samples(samples, normal, fs, np.ones(samples.n, bool), model, eta=eta, bounds=bounds,
+                                min_samples=min_samples, max_iter=max_iter, tol=tol, max_relative_error=max_relative_error)
+
+
+def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol, max_relative_error, dtype=np.float32):
+    """Batch bounded Levenberg-Marquardt on flat samples grouped by texel (module docstring)."""
+    (r_lo, r_hi), (p_lo, p_hi) = DEFAULT_BOUNDS[model] if bounds is None else bounds
+    if not (0 <= r_lo < r_hi and 0 < p_lo < p_hi):
+        raise ValidationError(f"bounds must be ((rho_lo, rho_hi), (lobe_lo, lobe_hi)) with 0 <= rho_lo < rho_hi and 0 < lobe_lo < lobe_hi, got {bounds!r}")
+    if int(min_samples) < 2:
+        raise ValidationError(f"min_samples must be >= 2 (two parameters), got {min_samples!r}")
+    dt = np.dtype(dtype)
+    q_lo, q_hi = np.log(p_lo), np.log(p_hi)
+    n_use = np.bincount(texel, minlength=n_tex)
+    few = n_use < min_samples
+    rho = np.full(n_tex, np.nan, dt)
+    q = np.full(n_tex, np.nan, dt)
+    lam = np.full(n_tex, 1e-3, dt)
+    done = few.copy()
+    swyy = np.bincount(texel, weights=y * y, minlength=n_tex)
+
+    def segments(t, n):
+        """Start offsets of the contiguous, non-empty per-texel runs of sorted ``t``."""
+        c = np.bincount(t, minlength=n)
+        return np.concatenate([[0], np.cumsum(c)[:-1]])
+
+    def rsum(x, starts):
+        return np.add.reduceat(x, starts).astype(np.float64)
+
+    # Working set: the samples of texels still moving, with texel ids renumbered 0..k-1.
+    if np.any(np.diff(texel) < 0):
+        raise ValidationError("samples must be grouped by texel (non-decreasing texel index)")
+    work = np.nonzero(~few)[0]
+    sel = ~few[texel]
+    texel_w = (np.cumsum(~few) - 1)[texel[sel]]
+    wy, wa, ws = y[sel], a[sel], s1[sel]
+    k = work.size
+    st_w = segments(texel_w, k) if k else None
+    iterations = 0
+    if k:
+        # -- start: weighted log-linear fit over the strongest samples ----------------
+        ymax = np.full(k, -np.inf)
+        np.maximum.at(ymax, texel_w, wy)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            strong = (wy > 0.25 * ymax[texel_w]) & (wy > 0)
+            lr = np.where(strong, np.log(np.where(strong, wy / wa, 1)), 0)
+            wt = np.where(strong, wy * wy, 0)
+            s_w = rsum(wt, st_w)
+            mx = rsum(wt * ws, st_w) / s_w
+            my = rsum(wt * lr, st_w) / s_w
+            dx = ws - mx[texel_w]
+            slope = rsum(wt * dx * (lr - my[texel_w]), st_w) / rsum(wt * dx * dx, st_w)
+            if model == "torrance_sparrow":
+                p0 = np.where(slope < 0, 1 / np.sqrt(np.abs(slope)), 0.3)
+            else:
+                p0 = np.where(slope > 0, slope, 20.0)
+        p0 = np.clip(np.nan_to_num(p0, nan=0.3 if model == "torrance_sparrow" else 20.0), p_lo, p_hi)
+        best_e = np.full(k, np.inf)
+        best_q = np.log(p0)
+        best_r = np.zeros(k)
+        swyy_w = swyy[work]
+        for f in (1.0, 1 / 1.6, 1.6):  # three candidate starts
+            qq = np.clip(np.log(p0 * f), q_lo, q_hi)
+            g, _ = _lobe(model, np.exp(qq)[texel_w].astype(dt), ws, wa)
+            syg, sgg = rsum(wy * g, st_w), rsum(g * g, st_w)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                rr = np.clip(np.nan_to_num(syg / sgg), r_lo, r_hi)
+            e = swyy_w - 2 * rr * syg + rr * rr * sgg
+            better = e < best_e
+            best_e, best_q, best_r = np.where(better, e, best_e), np.where(better, qq, best_q), np.where(better, rr, best_r)
+        q[work], rho[work] = best_q, best_r
+        wg, wdg = _lobe(model, np.exp(q[work])[texel_w].astype(dt), ws, wa)
+        syg, sgg = rsum(wy * wg, st_w), rsum(wg * wg, st_w)
+        # -- Levenberg-Marquardt, vectorised over the texels still moving ---------------
+        for iterations in range(1, int(max_iter) + 1):
+            live = ~done[work]
+            if not live.any():
+                break
+            if live.mean() < 0.7:  # compact the working set
+                keep = live[texel_w]
+                remap = np.cumsum(live) - 1
+                work, texel_w = work[live], remap[texel_w[keep]]
+                wy, wa, ws, wg, wdg = wy[keep], wa[keep], ws[keep], wg[keep], wdg[keep]
+                syg, sgg = syg[live], sgg[live]
+                k = work.size
+                st_w = segments(texel_w, k)
+            r0, q0, lm = rho[work], q[work], lam[work]
+            sydg, sgdg, sdgdg = rsum(wy * wdg, st_w), rsum(wg * wdg, st_w), rsum(wdg * wdg, st_w)
+            e0 = swyy[work] - 2 * r0 * syg + r0 * r0 * sgg
+            h00, h01, h11 = sgg, r0 * sgdg, r0 * r0 * sdgdg
+            b0, b1 = syg - r0 * sgg, r0 * (sydg - r0 * sgdg)
+            d00 = h00 * (1 + lm) + 1e-30
+            d11 = h11 * (1 + lm) + 1e-30
+            det = d00 * d11 - h01 * h01
+            with np.errstate(invalid="ignore", divide="ignore"):
+                dr = (d11 * b0 - h01 * b1) / det
+                dq = (d00 * b1 - h01 * b0) / det
+            r1 = np.clip(r0 + np.nan_to_num(dr), r_lo, r_hi)
+            q1 = np.clip(q0 + np.nan_to_num(dq), q_lo, q_hi)
+            g1, dg1 = _lobe(model, np.exp(q1)[texel_w].astype(dt), ws, wa)
+            syg1, sgg1 = rsum(wy * g1, st_w), rsum(g1 * g1, st_w)
+            e1 = swyy[work] - 2 * r1 * syg1 + r1 * r1 * sgg1
+            accept = e1 < e0
+            rho[work] = np.where(accept, r1, r0)
+            q[work] = np.where(accept, q1, q0)
+            lam[work] = np.where(accept, lm / 3, lm * 4)
+            acc_s = accept[texel_w]
+            np.copyto(wg, g1, where=acc_s)
+            np.copyto(wdg, dg1, where=acc_s)
+            syg, sgg = np.where(accept, syg1, syg), np.where(accept, sgg1, sgg)
+            rel = (e0 - np.minimum(e1, e0)) / np.maximum(e0, 1e-30)
+            small_step = (np.abs(r1 - r0) <= 1e-6 * np.maximum(np.abs(r0), 1e-6)) & (np.abs(q1 - q0) <= 1e-6)
+            done[work] |= (accept & (rel < tol)) | small_step | (lam[work] > 1e10)
+    not_conv = ~done
+
+    # -- error, uncertainty and flags --------------------------------------------------------
+    p = np.exp(q)
+    err = np.full(n_tex, np.nan)
+    r_std = np.full(n_tex, np.nan)
+    p_std = np.full(n_tex, np.nan)
+    ill = np.zeros(n_tex, bool)
+    good = ~few
+    if good.any():
+        sel = good[texel]
+        t = texel[sel]
+        st_g = segments((np.cumsum(good) - 1)[t], int(good.sum()))
+        g, dg = _lobe(model, p[t].astype(dt), s1[sel], a[sel])
+        yy = y[sel]
+        res = yy - rho[t] * g
+        jq = rho[t] * dg
+
+        def full(x):
+            out = np.zeros(n_tex)
+            out[good] = rsum(x, st_g)
+            return out
+
+        e = full(res * res)
+        sw = n_use.astype(np.float64)
+        h00, h01, h11 = full(g * g), full(g * jq), full(jq * jq)
+        det = h00 * h11 - h01 * h01
+        with np.errstate(invalid="ignore", divide="ignore"):
+            err = np.where(good, np.sqrt(e / sw), np.nan)
+            sigma2 = e / np.maximum(sw - 2, 1)
+            var_r = sigma2 * h11 / det
+            var_q = sigma2 * h00 / det
+            r_std = np.where(good, np.sqrt(var_r), np.nan)
+            p_std = np.where(good, p * np.sqrt(var_q), np.nan)  # std of ln p times p
+            rel_r = np.sqrt(var_r) / rho
+            rel_q = np.sqrt(var_q)
+            singular = ~(det > 1e-12 * np.maximum(h00 * h11, 1e-300))
+            ill = good & (singular | ~(rel_r <= max_relative_error) | ~(rel_q <= max_relative_error))
+    at_bound = good & ((q <= q_lo + 1e-6) | (q >= q_hi - 1e-6))
+    flags = (few * FLAG_FEW) | (not_conv * FLAG_NOT_CONVERGED) | (ill * FLAG_ILL) | (at_bound * FLAG_BOUND)
+    rho = np.where(few, np.nan, rho)
+    p = np.where(few, np.nan, p)
+    return SpecularFit(model=model, rho_s=rho.astype(dt), lobe=p.astype(dt), error=err.astype(dt), flags=flags.astype(np.uint8),
+                       n_samples=n_use, iterations=iterations, rho_s_std=r_std.astype(dt), lobe_std=p_std.astype(dt))

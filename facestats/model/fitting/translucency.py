@@ -1,0 +1,249 @@
+"""Stages 6-7 of the fit: the dipole fitted to contact-sensor profiles, and scattering from albedo.
+
+Stage 6 (Weyrich et al. 2006 §5.4): "We fit the analytic BSSRDF model of Jensen et
+al. [2001] to the data points of each subsurface measurement, providing us with
+the reduced scattering coefficient σ's and absorption coefficient σa", then
+σtr = sqrt(3 σa (σa + σ's)) ≈ 1/ℓd (eq. 15).  With the readings' standard
+deviations s_k (the sensor's noise model,
+:meth:`facestats.acquire.sensor.ContactSensor.profile_std`) the fit is the
+Gaussian maximum-likelihood fit
+
+    Σ_k [(R_meas(r_k) − R_d(r_k; σ's, σa)) / s_k]²,
+
+which uses every reading, including those at the noise floor; without them it is
+the log-space fit of Suzuki, Mukaigawa & Yagi (eq. 36),
+Σ_k [ln R_meas(r_k) − ln R_d(r_k)]², over the positive readings.  (A log-space
+fit weighted by relative errors would be biased by readings near the noise
+floor, whose logarithm is dominated by noise.)  Non-finite readings are left out.
+The solve is a Levenberg-Marquardt iteration in (ln σ's, ln σa), vectorised over
+all profiles (sites × channels × subjects), started from the best point of a
+log-spaced grid.  Standard errors come from (JᵀWJ)⁻¹ and propagate to σtr by the
+delta method.
+
+σtrAvg (§5.4) "is the mean over all subjects of the measurements for the
+forehead and cheek, ignoring the neck".
+
+Stage 7 (§5.4): α_avg is the mean of the albedo map; σ's and σa follow from α_avg
+and σtrAvg by inverting eq. 16 (:func:`facestats.model.dipole.scattering_from_albedo`);
+the modulation texture is M = α/α_avg (eq. 7,
+:func:`facestats.model.skin.modulation_texture`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..._validate import as_float, check_finite, check_range
+from ...errors import ValidationError
+from ..dipole import _profile, scattering_from_albedo
+from ..skin import modulation_texture
+
+__all__ = ["TranslucencyFit", "fit_translucency", "population_sigma_tr_avg", "scattering_parameters"]
+
+_BOUNDS = ((0.02, 50.0), (1e-4, 20.0))  # σ's, σa in mm⁻¹
+
+
+@dataclass
+class TranslucencyFit:
+    """Dipole parameters fitted to profiles (arrays of the profiles' leading shape)."""
+
+    sigma_s_prime: np.ndarray
+    sigma_a: np.ndarray
+    sigma_s_prime_std: np.ndarray
+    sigma_a_std: np.ndarray
+    sigma_tr: np.ndarray
+    sigma_tr_std: np.ndarray
+    chi2: np.ndarray
+    n_points: np.ndarray
+
+    @property
+    def ell_d(self):
+        """Diffuse mean free path ℓd = 1/σtr, mm."""
+        return 1 / self.sigma_tr
+
+
+def _model(log_s, log_a, r, eta):
+    return _profile(r, np.exp(log_s)[..., None], np.exp(log_a)[..., None], eta)
+
+
+def fit_translucency(r, profile, std=None, *, eta=1.38, max_iter=60, grid=16):
+    """Fit the dipole (σ's, σa) to diffuse reflectance profiles R(r) (module docstring).
+
+    Parameters
+    ----------
+    r : array_like, shape (F,)
+        Distances from the source, mm.
+    profile : array_like, shape (..., F)
+        Measured R(r) in mm⁻² (any leading shape: sites, channels, subjects).
+    std : array_like, shape (..., F), optional
+        Standard deviation of each reading (the sensor's noise model).
+    eta : float
+        Relative index of refraction.
+
+    Returns
+    -------
+    TranslucencyFit
+        Arrays of the leading shape of ``profile``.  Without ``std`` the standard
+        errors assume unit variance of ln R and are only relative.
+    """
+    rr = check_range(check_finite(as_float(r, "r", np.float64), "r"), "r", 0, None, unit="mm")
+    p = as_float(profile, "profile", np.float64)
+    if p.shape[-1] != rr.shape[0]:
+        raise ValidationError(f"profile must have {rr.shape[0]} distances on its last axis, got shape {p.shape}")
+    lead = p.shape[:-1]
+    p = p.reshape(-1, rr.shape[0])
+    use = np.isfinite(p)
+    linear = std is not None
+    if linear:
+        s = as_float(std, "std", np.float64).reshape(p.shape)
+        use &= np.isfinite(s) & (s > 0)
+        wgt = np.where(use, 1 / np.where(use, s, 1.0) ** 2, 0)
+        obs = np.where(use, p, 0.0)
+        transform = lambda x: x  # noqa: E731
+    else:
+        use &= p > 0
+        wgt = use.astype(np.float64)
+        obs = np.log(np.where(use, p, 1.0))
+        transform = np.log
+    if np.any(use.sum(1) < 3):
+        raise ValidationError("profile must have at least 3 usable (finite; positive without std) readings per profile to fit 2 parameters")
+    (s_lo, s_hi), (a_lo, a_hi) = _BOUNDS
+    lo, hi = np.log([s_lo, a_lo]), np.log([s_hi, a_hi])
+
+    def cost(ls, la):
+        d = np.where(use, obs - transform(_model(ls, la, rr, eta)), 0)
+        return np.sum(wgt * d * d, axis=-1), d
+
+    # The cost has a narrow curved valley in (σ's, σa).  In (ln σtr, logit α') it is
+    # nearly axis-aligned (σtr sets the decay, α' the level), so the iteration runs
+    # there, from the best of several starts around the far-field decay rate.
+    st_lo, st_hi = np.log(0.02), np.log(20.0)
+    al_lo, al_hi = -5.0, 9.0  # logit α' in [0.0067, 0.99988]
+
+    def to_coeffs(u, v):
+        tr = np.exp(u)
+        al = 1 / (1 + np.exp(-v))
+        st = tr / np.sqrt(3 * (1 - al))
+        return np.log(np.clip(al * st, s_lo, s_hi)), np.log(np.clip((1 - al) * st, a_lo, a_hi))
+
+    def cost_uv(u, v):
+        return cost(*to_coeffs(u, v))
+
+    # Far-field decay: ln R + 2 ln r ≈ const − σtr r where the signal is clear.
+    with np.errstate(invalid="ignore", divide="ignore"):
+        snr = np.where(use, p / (np.where(use, s, np.inf) if linear else 1e-3 * np.abs(p) + 1e-300), 0)
+        tail = use & (p > 0) & (snr > 5) & (rr[None, :] >= 1.5)
+        yy = np.where(tail, np.log(np.where(tail, p, 1)) + 2 * np.log(rr)[None, :], 0)
+        nt = tail.sum(1)
+        mr = np.where(tail, rr, 0).sum(1) / nt
+        my = yy.sum(1) / nt
+        slope = (np.where(tail, (rr - mr[:, None]) * (yy - my[:, None]), 0)).sum(1) / np.where(tail, (rr - mr[:, None]) ** 2, 0).sum(1)
+    tr0 = np.where((nt >= 3) & (slope < 0), -np.nan_to_num(slope), 1.0)
+    h = 1e-6
+
+    def lm(u, v):
+        lam = np.full(u.shape, 1e-2)
+        for _ in range(int(max_iter)):  # Levenberg-Marquardt iterations in (ln σtr, logit α')
+            c0, d0 = cost_uv(u, v)
+            ju = (transform(_model(*to_coeffs(u + h, v), rr, eta)) - transform(_model(*to_coeffs(u - h, v), rr, eta))) / (2 * h)
+            jv = (transform(_model(*to_coeffs(u, v + h), rr, eta)) - transform(_model(*to_coeffs(u, v - h), rr, eta))) / (2 * h)
+            ju, jv = np.where(use, ju, 0), np.where(use, jv, 0)
+            a00, a01, a11 = np.sum(wgt * ju * ju, -1), np.sum(wgt * ju * jv, -1), np.sum(wgt * jv * jv, -1)
+            g0, g1 = np.sum(wgt * ju * d0, -1), np.sum(wgt * jv * d0, -1)
+            m00, m11 = a00 * (1 + lam) + 1e-300, a11 * (1 + lam) + 1e-300
+            det = m00 * m11 - a01 * a01
+            with np.errstate(invalid="ignore", divide="ignore"):
+                du = np.nan_to_num((m11 * g0 - a01 * g1) / det)
+                dv = np.nan_to_num((m00 * g1 - a01 * g0) / det)
+            u1, v1 = np.clip(u + du, st_lo, st_hi), np.clip(v + dv, al_lo, al_hi)
+            c1, _ = cost_uv(u1, v1)
+            acc = c1 < c0
+            u, v = np.where(acc, u1, u), np.where(acc, v1, v)
+            lam = np.where(acc, lam / 3, lam * 4)
+            small = (np.abs(du) < 1e-10) & (np.abs(dv) < 1e-10)
+            if np.all((acc & (np.abs(c0 - c1) <= 1e-12 * (1 + c0))) | small | (lam > 1e10)):
+                break
+        return u, v, cost_uv(u, v)[0]
+
+    # Starts: decay rates around the far-field estimate × levels of α'; the iteration
+    # runs from the best start of each α' band (low, middle, high), the best result wins.
+    bands = ((0.3, 0.6, 0.8), (0.88, 0.93, 0.96), (0.98, 0.99, 0.997))
+    u = v = best = None
+    for band in bands:  # loop over three start bands, vectorised over profiles
+        bu = bv = None
+        bc = np.full(p.shape[0], np.inf)
+        for f in (0.5, 0.7, 0.85, 1.0, 1.2, 1.5):
+            for a0 in band:
+                uu = np.clip(np.log(np.maximum(tr0 * f, 1e-3)), st_lo, st_hi)
+                vv = np.full(p.shape[0], np.log(a0 / (1 - a0)))
+                c, _ = cost_uv(uu, vv)
+                better = c < bc
+                bc = np.where(better, c, bc)
+                bu = uu if bu is None else np.where(better, uu, bu)
+                bv = vv if bv is None else np.where(better, vv, bv)
+        fu, fv, fc = lm(bu, bv)
+        if best is None:
+            u, v, best = fu, fv, fc
+        else:
+            better = fc < best
+            u, v, best = np.where(better, fu, u), np.where(better, fv, v), np.where(better, fc, best)
+    ls, la = to_coeffs(u, v)
+    c, _ = cost(ls, la)
+    js = (transform(_model(ls + h, la, rr, eta)) - transform(_model(ls - h, la, rr, eta))) / (2 * h)
+    ja = (transform(_model(ls, la + h, rr, eta)) - transform(_model(ls, la - h, rr, eta))) / (2 * h)
+    js, ja = np.where(use, js, 0), np.where(use, ja, 0)
+    a00, a01, a11 = np.sum(wgt * js * js, -1), np.sum(wgt * js * ja, -1), np.sum(wgt * ja * ja, -1)
+    det = a00 * a11 - a01 * a01
+    with np.errstate(invalid="ignore", divide="ignore"):
+        v_ls, v_la, c_sa = a11 / det, a00 / det, -a01 / det  # covariance of (ln σ's, ln σa)
+    sp, sa = np.exp(ls), np.exp(la)
+    tr = np.sqrt(3 * sa * (sa + sp))
+    # Delta method: ∂σtr/∂ln σ's = 3 σa σ's/(2σtr), ∂σtr/∂ln σa = 3 σa (2σa + σ's)/(2σtr).
+    gs_, ga_ = 3 * sa * sp / (2 * tr), 3 * sa * (2 * sa + sp) / (2 * tr)
+    var_tr = gs_ * gs_ * v_ls + ga_ * ga_ * v_la + 2 * gs_ * ga_ * c_sa
+    n_pts = use.sum(1)
+    out = TranslucencyFit(
+        sigma_s_prime=sp, sigma_a=sa, sigma_s_prime_std=sp * np.sqrt(v_ls), sigma_a_std=sa * np.sqrt(v_la),
+        sigma_tr=tr, sigma_tr_std=np.sqrt(np.maximum(var_tr, 0)), chi2=c, n_points=n_pts,
+    )
+    for k, v in vars(out).items():
+        setattr(out, k, np.asarray(v).reshape(lead))
+    return out
+
+
+def population_sigma_tr_avg(site_sigma_tr, sites, use_sites=("cheek", "forehead")):
+    """σtrAvg: mean over subjects of the cheek and forehead σtr, neck excluded (§5.4).
+
+    Parameters
+    ----------
+    site_sigma_tr : array_like, shape (subjects, sites, 3)
+    sites : sequence of str
+        Names of the site axis.
+    use_sites : sequence of str
+        Sites that enter the mean.
+    """
+    t = as_float(site_sigma_tr, "site_sigma_tr", np.float64)
+    idx = [list(sites).index(s) for s in use_sites if s in sites]
+    if t.ndim != 3 or t.shape[-1] != 3 or not idx:
+        raise ValidationError(f"site_sigma_tr must have shape (subjects, sites, 3) with sites {use_sites}, got {t.shape} and {list(sites)}")
+    vals = t[:, idx, :]
+    ok = np.all(np.isfinite(vals), axis=(1, 2))
+    if not ok.any():
+        raise ValidationError("site_sigma_tr has no subject with finite values at the cheek and forehead")
+    return vals[ok].mean(axis=(0, 1))
+
+
+def scattering_parameters(albedo, mask, sigma_tr_avg, eta=1.38):
+    """Stage 7: α_avg, (σ's, σa) from α_avg and σtrAvg (§5.4), and the modulation texture M (eq. 7).
+
+    Returns
+    -------
+    albedo_avg : ndarray, shape (3,)
+    sigma_s_prime, sigma_a : ndarray, shape (3,)
+    modulation : ndarray, shape of ``albedo``
+    """
+    mod, avg = modulation_texture(albedo, mask)
+    sp, sa = scattering_from_albedo(avg.astype(np.float64), np.asarray(sigma_tr_avg, np.float64), eta)
+    return avg, sp, sa, mod

@@ -1,0 +1,426 @@
+"""The fit pipeline: from a capture to a subject's skin parameters (Weyrich et al. 2006 §4-5, Fig. 3).
+
+:func:`fit_lumitexels` runs stages 1-4 on a block of lumitexels (they are
+independent per lumitexel), :func:`fit_subject` runs every stage on a capture —
+block by block, so a full-resolution capture streams from zarr with bounded
+memory, optionally spread over Dask workers — and returns an
+:class:`xarray.Dataset` in the subject schema of :mod:`facestats.io.schema`,
+ready for the store.  :func:`fit_population` fits many subjects: the contact
+sensor profiles of all of them first (cheap) to get the population's σtrAvg
+(§5.4), then every subject's maps.
+
+Stages (functions of :mod:`facestats.model.fitting`):
+
+1. diffuse normals by photometric stereo, per-camera micro-normals;
+2. albedo by the stable minimum of eq. 9 (then refined, see
+   :func:`facestats.model.fitting.refine_albedo`);
+3. grey specular residual, eq. 10;
+4. Torrance-Sparrow and Blinn-Phong fits, eq. 14, flags;
+5. maps at the capture's resolution, push-pull hole filling, flagged texels
+   filled from neighbours;
+6. dipole fits of the sensor profiles, σtr and ℓd per site, σtrAvg;
+7. α_avg, σ's and σa from α_avg and σtrAvg (inverse of eq. 16), modulation M.
+
+Invalid samples (NaN or negative radiance, zero irradiance, occluded or unlit
+samples — all NaN in the capture —, and samples beyond 80°) are masked and
+counted; a texel with too few valid samples is flagged and filled, never NaN in
+the output maps.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from . import __version__
+from .conventions import CHANNELS, SITES
+from .errors import FitError, ValidationError
+from .io.schema import FLAG_BITS, SCHEMA_VERSION, set_variable_attrs
+from .model import fitting
+from .published import ETA_SKIN, SIGMA_TR_AVG
+
+__all__ = ["FitSettings", "fit_lumitexels", "fit_sensor", "fit_subject", "fit_population", "LUMITEXEL_OUTPUTS"]
+
+
+@dataclass
+class FitSettings:
+    """Settings of the fit pipeline (recorded in each subject's provenance).
+
+    Attributes
+    ----------
+    discard : int
+        k of the stable minimum (eq. 9): smallest values discarded.
+    grazing_penalty : float
+        γ of the grazing penalty of the stable minimum.
+    refine_albedo : bool
+        Re-estimate the albedo once the specular lobe is known (removes the
+        low bias of the minimum of noisy samples).
+    max_angle_deg : float
+        Samples with θi or θo beyond this are ignored (eq. 14: 80°).
+    min_samples : int
+        Texels with fewer usable samples are flagged ``few_samples``.
+    max_relative_error : float
+        Relative standard error above which a fit is flagged ``ill_conditioned``.
+    models : tuple of str
+        Specular models to fit.
+    exclude_cameras : tuple of int
+        Cameras left out of the fit (e.g. one held out to validate renderings).
+    micro_normals : bool
+        Keep the per-camera micro-normal maps (16 × 3 values per texel).
+    block : int
+        Lumitexels per block (memory per block ≈ block × 0.1 MB).
+    eta : float
+        Relative index of refraction.
+    """
+
+    discard: int = 2
+    grazing_penalty: float = 1.0
+    refine_albedo: bool = True
+    max_angle_deg: float = 80.0
+    min_samples: int = 30
+    max_relative_error: float = 0.25
+    models: tuple = ("torrance_sparrow", "blinn_phong")
+    exclude_cameras: tuple = ()
+    micro_normals: bool = True
+    block: int = 4096
+    eta: float = ETA_SKIN
+
+    def __post_init__(self):
+        self.models = tuple(self.models)
+        self.exclude_cameras = tuple(int(c) for c in self.exclude_cameras)
+        for m in self.models:
+            if m not in fitting.DEFAULT_BOUNDS:
+                raise ValidationError(f"models must be among {list(fitting.DEFAULT_BOUNDS)}, got {m!r}")
+        if self.discard < 0 or self.min_samples < 2 or self.block < 1:
+            raise ValidationError(f"discard >= 0, min_samples >= 2 and block >= 1 required, got {self.discard}, {self.min_samples}, {self.block}")
+        if not 0 < self.max_angle_deg <= 90:
+            raise ValidationError(f"max_angle_deg must lie in (0, 90], got {self.max_angle_deg}")
+
+
+#: Per-lumitexel outputs of :func:`fit_lumitexels` (name -> trailing shape).
+LUMITEXEL_OUTPUTS = ("normal", "albedo", "albedo_min", "n_samples", "n_invalid",
+                     "ts_rho_s", "ts_m", "ts_error", "ts_flag", "bp_rho_s", "bp_exponent", "bp_error", "bp_flag")
+
+_MODEL_KEYS = {"torrance_sparrow": ("ts_rho_s", "ts_m", "ts_error", "ts_flag"),
+               "blinn_phong": ("bp_rho_s", "bp_exponent", "bp_error", "bp_flag")}
+
+
+def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
+    """Stages 1-4 on a block of lumitexels (:class:`facestats.acquire.capture.Lumitexels`).
+
+    Returns
+    -------
+    dict of ndarray
+        ``normal`` (n, 3), ``micro_normal`` (n, C, 3) if requested, ``albedo`` and
+        ``albedo_min`` (n, 3; refined and stable-minimum albedo), ``n_samples``
+        (usable samples), ``n_invalid`` (masked samples), and for each model
+        ``*_rho_s``, ``*_m``/``*_exponent``, ``*_error``, ``*_flag``.
+    """
+    st = settings or FitSettings()
+    valid = lt.valid
+    if st.exclude_cameras:
+        valid = valid.copy()
+        valid[:, list(st.exclude_cameras), :] = False
+    n_cam = lt.wo.shape[1]
+    samples = fitting.Samples.from_grid(lt.wi, lt.wo, lt.irradiance, lt.radiance, valid)
+    out = {"n_invalid": (~valid).reshape(lt.n, -1).sum(1)}
+    # Stage 1: normals.
+    normal, _ = fitting.photometric_normals(samples, lt.scan_normal, n_cam, eta=st.eta)
+    out["normal"] = normal
+    if st.micro_normals:
+        out["micro_normal"] = fitting.micro_normals(samples, n_cam)
+    # Stage 2: albedo from BRDF samples with the photometric normal (eq. 8).
+    cos_i, cos_o, ft2 = fitting.fresnel_factors(samples, normal, st.eta)
+    lim = np.float32(np.cos(np.radians(st.max_angle_deg)))
+    use = (cos_i > lim) & (cos_o > lim)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f_r = samples.radiance / (samples.irradiance * np.maximum(cos_i, 0)[:, None])
+    albedo_min, _ = fitting.albedo_stable_minimum(samples, f_r, cos_i, cos_o, ft2, use, discard=st.discard,
+                                                  grazing_penalty=st.grazing_penalty)
+    albedo = np.where(np.isfinite(albedo_min), albedo_min, 0).astype(np.float32)
+    out["n_samples"] = samples.count(use)
+    factors = {}
+
+    def fit(model, alb):
+        f_s = fitting.specular_residual(samples, f_r, alb, ft2)
+        if model not in factors:
+            factors[model] = fitting.specular_factors(samples, normal, model, st.eta)
+        return fitting.fit_specular_samples(samples, normal, f_s, use, model, factors=factors[model], eta=st.eta,
+                                            min_samples=st.min_samples, max_relative_error=st.max_relative_error)
+
+    fits = {}
+    first = st.models[0]
+    fits[first] = fit(first, albedo)
+    if st.refine_albedo:
+        # Stage 2b: albedo refined under the first model's lobe, then the fits redone with it.
+        f0 = fits[first]
+        good = np.isfinite(f0.rho_s) & np.isfinite(f0.lobe)
+        s1, a = factors[first]
+        rho = np.where(good, f0.rho_s, 0)[samples.texel]
+        lobe = np.where(good, f0.lobe, 1.0)[samples.texel]
+        spec = fitting.specular.lobe_values(first, rho, lobe, s1, a) / np.maximum(cos_i, 1e-6)
+        refined, n_ref = fitting.refine_albedo(samples, f_r, ft2, spec.astype(np.float32), use)
+        ok = np.isfinite(refined).all(1) & (n_ref >= st.min_samples)
+        albedo = np.where(ok[:, None], refined, albedo).astype(np.float32)
+        fits[first] = fit(first, albedo)
+    for model in st.models[1:]:
+        fits[model] = fit(model, albedo)
+    few = out["n_samples"] < st.min_samples
+    out["albedo"] = np.where(few[:, None], np.nan, albedo).astype(np.float32)
+    out["albedo_min"] = albedo_min.astype(np.float32)
+    for model, res in fits.items():
+        k_rho, k_lobe, k_err, k_flag = _MODEL_KEYS[model]
+        out[k_rho], out[k_lobe], out[k_err], out[k_flag] = res.rho_s, res.lobe, res.error, res.flags
+    return out
+
+
+def fit_sensor(capture, eta=ETA_SKIN):
+    """Stage 6 for one capture: dipole fits of its three sensor profiles (per site and channel)."""
+    r = capture.array("fiber_distance")
+    prof = capture.array("sensor_profile")  # (site, fiber, channel)
+    std = capture.array("sensor_profile_std")
+    has_std = np.any(std > 0)
+    return fitting.fit_translucency(r, np.moveaxis(prof, 1, 2), np.moveaxis(std, 1, 2) if has_std else None, eta=eta)
+
+
+def _blocks_result(capture, settings, client=None, progress=False):
+    """Stages 1-4 over all blocks of a capture (optionally on a Dask client), concatenated."""
+    ranges = list(capture.blocks(settings.block))
+
+    def run(a, b):
+        return fit_lumitexels(capture.lumitexels(a, b), settings)
+
+    if client is not None:
+        futures = [client.submit(_fit_block_from_path, capture.path, a, b, settings, pure=False) for a, b in ranges]
+        parts = client.gather(futures)
+    else:
+        it = ranges
+        if progress:
+            from tqdm.auto import tqdm
+
+            it = tqdm(ranges, desc=f"fit {capture.attrs.get('subject_id', '')}", unit="block")
+        parts = [run(a, b) for a, b in it]
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+def _fit_block_from_path(path, a, b, settings):
+    from .acquire.capture import open_capture
+
+    return fit_lumitexels(open_capture(path).lumitexels(a, b), settings)
+
+
+def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None, *, client=None, progress=False,
+                sensor_fit=None):
+    """Run the whole pipeline on one capture and return the subject Dataset.
+
+    Parameters
+    ----------
+    capture : Capture or str
+        The capture (:mod:`facestats.acquire.capture`) or the path of one on disk.
+    sigma_tr_avg : array_like, shape (3,), optional
+        The population's σtrAvg (mm⁻¹) for stage 7; default the published
+        [0.5508, 0.9791, 1.5497] (use :func:`fit_population` to derive it from the
+        subjects themselves).
+    settings : FitSettings, optional
+    client : dask.distributed.Client, optional
+        Spread the lumitexel blocks over its workers (the capture must be on disk).
+    progress : bool
+        Show a progress bar over blocks.
+    sensor_fit : TranslucencyFit, optional
+        Precomputed stage 6 result (as :func:`fit_population` passes).
+
+    Returns
+    -------
+    xarray.Dataset
+        Maps on (v, u[, channel | component]) at the capture's map size, sensor data
+        and fits per site, subject-level scattering coefficients; provenance in attrs.
+    """
+    import xarray as xr
+
+    from .acquire.capture import Capture, open_capture
+
+    if not isinstance(capture, Capture):
+        capture = open_capture(capture)
+    if client is not None and capture.path is None:
+        raise ValidationError("client requires a capture on disk (pass a path or write it with Capture.to_zarr)")
+    st = settings or FitSettings()
+    t0 = time.perf_counter()
+    res = _blocks_result(capture, st, client=client, progress=progress)
+    t_lumi = time.perf_counter() - t0
+
+    # Stage 5: maps.
+    size = capture.map_size
+    region_map = capture.array("region_map")
+    face = region_map > 0
+    uv = capture.array("uv").astype(np.float64)
+    texel = np.clip((uv[:, ::-1] * size).astype(np.int64), 0, size - 1)
+    maps = {}
+    for name in ("albedo", "normal", "ts_rho_s", "ts_m", "ts_error", "bp_rho_s", "bp_exponent", "bp_error"):
+        if name in res:
+            maps[name], count = fitting.scatter_to_map(res[name], texel, size)
+    n_samples, _ = fitting.scatter_to_map(res["n_samples"].astype(np.float64), texel, size)
+    has_data = count > 0
+    for key in ("ts", "bp"):
+        flag_name = f"{key}_flag"
+        if flag_name not in res:
+            continue
+        fl = np.zeros((size, size), np.uint8)
+        np.bitwise_or.at(fl, (texel[:, 0], texel[:, 1]), res[flag_name].astype(np.uint8))
+        hole = face & ~has_data
+        fl[hole] |= FLAG_BITS["few_samples"]
+        bad = face & (fl != 0)
+        lobe = "ts_m" if key == "ts" else "bp_exponent"
+        for var in (f"{key}_rho_s", lobe, f"{key}_error"):
+            maps[var] = np.where(face, fitting.fill_flagged(maps[var], bad, face), 0)
+        fl[bad] |= FLAG_BITS["filled"]
+        fl[~face] = 0
+        maps[flag_name] = fl
+    alb_known = face & has_data & np.all(np.isfinite(maps["albedo"]), axis=-1)
+    maps["albedo"] = np.where(face[..., None], fitting.push_pull(maps["albedo"], alb_known, fill=face), 0)
+    nrm_known = face & has_data & np.all(np.isfinite(maps["normal"]), axis=-1)
+    nrm = fitting.push_pull(maps["normal"], nrm_known, fill=face)
+    nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=-1, keepdims=True), 1e-12)
+    maps["normal"] = np.where(face[..., None], nrm, 0)
+    micro = None
+    if "micro_normal" in res:
+        mn, _ = fitting.scatter_to_map(res["micro_normal"].reshape(res["micro_normal"].shape[0], -1), texel, size)
+        micro = np.moveaxis(mn.reshape(size, size, -1, 3), 2, 0)  # (camera, v, u, 3), NaN where unseen
+        micro = np.where(face[None, ..., None], micro, np.nan)
+
+    # Stage 6: sensor profiles.
+    tf = fit_sensor(capture, st.eta) if sensor_fit is None else sensor_fit
+    # Stage 7: subject scattering from α_avg and σtrAvg.
+    stra = SIGMA_TR_AVG if sigma_tr_avg is None else np.asarray(sigma_tr_avg, np.float64)
+    alb = np.clip(maps["albedo"], 1e-4, 1 - 1e-4)
+    alb_avg, sp, sa, modulation = fitting.scattering_parameters(np.where(face[..., None], alb, 0), face, stra, st.eta)
+    t_total = time.perf_counter() - t0
+
+    n = size
+    data = {
+        "region": (("v", "u"), region_map.astype(np.uint8)),
+        "albedo": (("v", "u", "channel"), maps["albedo"].astype(np.float32)),
+        "modulation": (("v", "u", "channel"), modulation.astype(np.float32)),
+        "normal": (("v", "u", "component"), maps["normal"].astype(np.float32)),
+        "n_samples": (("v", "u"), np.nan_to_num(n_samples).round().astype(np.int16)),
+        "sensor_profile": (("site", "fiber", "channel"), capture.array("sensor_profile")),
+        "sensor_profile_std": (("site", "fiber", "channel"), capture.array("sensor_profile_std")),
+        "site_sigma_s_prime": (("site", "channel"), tf.sigma_s_prime),
+        "site_sigma_a": (("site", "channel"), tf.sigma_a),
+        "site_sigma_tr": (("site", "channel"), tf.sigma_tr),
+        "site_sigma_s_prime_std": (("site", "channel"), tf.sigma_s_prime_std),
+        "site_sigma_a_std": (("site", "channel"), tf.sigma_a_std),
+        "site_sigma_tr_std": (("site", "channel"), tf.sigma_tr_std),
+        "albedo_avg": (("channel",), alb_avg.astype(np.float64)),
+        "sigma_s_prime": (("channel",), sp),
+        "sigma_a": (("channel",), sa),
+        "sigma_tr": (("channel",), stra.astype(np.float64)),
+    }
+    for key in ("ts", "bp"):
+        if f"{key}_flag" in maps:
+            lobe = "ts_m" if key == "ts" else "bp_exponent"
+            for var in (f"{key}_rho_s", lobe, f"{key}_error"):
+                data[var] = (("v", "u"), np.where(face, maps[var], 0).astype(np.float32))
+            data[f"{key}_flag"] = (("v", "u"), maps[f"{key}_flag"])
+    if micro is not None:
+        data["micro_normal"] = (("camera", "v", "u", "component"), micro.astype(np.float32))
+    meta = capture.metadata
+    face_n = int(face.sum())
+    prov = {
+        "source": capture.provenance.get("source", "capture"),
+        "capture": capture.path or f"in-memory capture of {meta['subject_id']}",
+        "capture_provenance": capture.provenance,
+        "fit_settings": asdict(st),
+        "sigma_tr_avg": [float(x) for x in stra],
+        "software": f"facestats {__version__}",
+        "schema_version": SCHEMA_VERSION,
+        "timing_s": {"lumitexels": round(t_lumi, 3), "total": round(t_total, 3)},
+        "counts": {
+            "lumitexels": int(capture.n_lumitexels),
+            "samples_used": int(res["n_samples"].sum()),
+            "samples_masked": int(res["n_invalid"].sum()),
+            "ts_flagged_texels": int((maps.get("ts_flag", np.zeros(1)) != 0).sum()),
+            "face_texels": face_n,
+        },
+    }
+    ds = xr.Dataset(
+        data,
+        coords={
+            "u": (np.arange(n) + 0.5) / n, "v": (np.arange(n) + 0.5) / n, "channel": list(CHANNELS),
+            "site": list(SITES), "component": ["x", "y", "z"], "fiber_distance": ("fiber", capture.array("fiber_distance")),
+        },
+        attrs={
+            "subject_id": str(meta["subject_id"]), "person_id": str(meta.get("person_id", meta["subject_id"])),
+            "age": int(meta["age"]), "gender": str(meta["gender"]), "skin_type": int(meta["skin_type"]),
+            "condition": str(meta["condition"]), "provenance": json.dumps(prov, sort_keys=True, default=str),
+        },
+    )
+    return set_variable_attrs(ds)
+
+
+def _fit_capture_task(capture, sigma_tr_avg, settings, sensor_fit):
+    return fit_subject(capture, sigma_tr_avg, settings, sensor_fit=sensor_fit)
+
+
+def fit_population(captures, settings: FitSettings | None = None, *, client=None, scheduler="processes",
+                   num_workers=None, progress=False):
+    """Fit many captures: σtrAvg from all sensor fits (§5.4), then every subject (in parallel).
+
+    Parameters
+    ----------
+    captures : sequence of Capture or str
+        Captures or paths of captures on disk.
+    settings : FitSettings, optional
+    client : dask.distributed.Client, optional
+        Run subjects on a distributed cluster (captures must be paths, readable by
+        the workers).
+    scheduler : {"processes", "threads", "synchronous"}
+        Dask's local scheduler when no client is given.
+    num_workers : int, optional
+        Local workers (default: number of cores).
+
+    Returns
+    -------
+    datasets : list of xarray.Dataset
+    sigma_tr_avg : ndarray, shape (3,)
+    """
+    from .acquire.capture import Capture, open_capture
+
+    st = settings or FitSettings()
+    caps = [c if isinstance(c, Capture) else open_capture(c) for c in captures]
+    if not caps:
+        raise ValidationError("captures must contain at least one capture, got none")
+    fits = [fit_sensor(c, st.eta) for c in caps]
+    sites = list(SITES)
+    condition_normal = [i for i, c in enumerate(caps) if c.attrs.get("condition", "normal") == "normal"]
+    tr = np.stack([fits[i].sigma_tr for i in condition_normal])
+    stra = fitting.population_sigma_tr_avg(tr, sites)
+    if client is not None:
+        futs = [client.submit(_fit_capture_task, c.path if c.path else c, stra, st, f, pure=False) for c, f in zip(caps, fits)]
+        if progress:
+            from distributed import progress as dprogress
+
+            dprogress(futs)
+        return client.gather(futs), stra
+    if scheduler == "synchronous" or len(caps) == 1:
+        it = zip(caps, fits)
+        if progress:
+            from tqdm.auto import tqdm
+
+            it = tqdm(list(it), desc="fit", unit="subject")
+        return [fit_subject(c, stra, st, sensor_fit=f) for c, f in it], stra
+    import dask
+
+    tasks = [dask.delayed(_fit_capture_task)(c.path if c.path else c, stra, st, f) for c, f in zip(caps, fits)]
+    if progress:
+        from dask.diagnostics import ProgressBar
+
+        with ProgressBar():
+            out = dask.compute(*tasks, scheduler=scheduler, num_workers=num_workers)
+    else:
+        out = dask.compute(*tasks, scheduler=scheduler, num_workers=num_workers)
+    if any(o is None for o in out):
+        raise FitError("a subject fit returned nothing")
+    return list(out), stra

@@ -20,13 +20,10 @@ __all__ = ["DemoReport", "physics_demo", "light_skin_albedo", "plot_dipole_profi
 
 
 def light_skin_albedo() -> np.ndarray:
-    """Linear sRGB reflectance of the ColorChecker 'light skin' patch under D65 (colour-science data)."""
-    import colour
+    """Linear sRGB reflectance of the measured ColorChecker 'light skin' patch under D65 (colour-science data)."""
+    from .acquire.population import skin_albedo
 
-    sd = colour.characterisation.SDS_COLOURCHECKERS["BabelColor Average"]["light skin"]
-    xyz = colour.sd_to_XYZ(sd, illuminant=colour.SDS_ILLUMINANTS["D65"]) / 100
-    rgb = colour.XYZ_to_RGB(xyz, colour.RGB_COLOURSPACES["sRGB"], apply_cctf_encoding=False)
-    return np.clip(np.asarray(rgb, float), 1e-4, 1 - 1e-4)
+    return skin_albedo(0.0)
 
 
 @dataclass

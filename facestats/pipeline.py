@@ -56,8 +56,9 @@ class FitSettings:
     grazing_penalty : float
         γ of the grazing penalty of the stable minimum.
     refine_albedo : bool
-        Re-estimate the albedo once the specular lobe is known (removes the
-        low bias of the minimum of noisy samples).
+        Re-estimate the albedo as the mean over specular-free samples (removes
+        the low bias of the minimum of noisy samples; see
+        :func:`facestats.model.fitting.refine_albedo`).
     max_angle_deg : float
         Samples with θi or θo beyond this are ignored (eq. 14: 80°).
     min_samples : int
@@ -144,30 +145,34 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
     out["n_samples"] = samples.count(use)
     factors = {}
 
-    def fit(model, alb):
+    def fit(model, alb, start=None):
         f_s = fitting.specular_residual(samples, f_r, alb, ft2)
         if model not in factors:
             factors[model] = fitting.specular_factors(samples, normal, model, st.eta)
         return fitting.fit_specular_samples(samples, normal, f_s, use, model, factors=factors[model], eta=st.eta,
-                                            min_samples=st.min_samples, max_relative_error=st.max_relative_error)
+                                            min_samples=st.min_samples, max_relative_error=st.max_relative_error,
+                                            start=start)
 
+    def equivalent_start(model, res):
+        """Start of ``model`` from a fit of the other model (Beckmann-Phong correspondence n = 2/m² − 2)."""
+        if res.model == model:
+            return res.lobe
+        if model == "blinn_phong":
+            return 2 / np.maximum(res.lobe, 1e-3) ** 2 - 2
+        return np.sqrt(2 / (np.maximum(res.lobe, 0) + 2))
+
+    if st.refine_albedo:
+        # Stage 2b: the mean over specular-free samples removes the noise bias of the minimum.
+        io = np.einsum("sk,sk->s", samples.wi, samples.wo)
+        cos_half = (cos_i + cos_o) / np.sqrt(np.maximum(2 + 2 * io, 1e-12))
+        refined, n_ref = fitting.refine_albedo(samples, f_r, ft2, cos_half, use)
+        ok = np.isfinite(refined).all(1) & (n_ref >= st.min_samples)
+        albedo = np.where(ok[:, None], refined, albedo).astype(np.float32)
     fits = {}
     first = st.models[0]
     fits[first] = fit(first, albedo)
-    if st.refine_albedo:
-        # Stage 2b: albedo refined under the first model's lobe, then the fits redone with it.
-        f0 = fits[first]
-        good = np.isfinite(f0.rho_s) & np.isfinite(f0.lobe)
-        s1, a = factors[first]
-        rho = np.where(good, f0.rho_s, 0)[samples.texel]
-        lobe = np.where(good, f0.lobe, 1.0)[samples.texel]
-        spec = fitting.specular.lobe_values(first, rho, lobe, s1, a) / np.maximum(cos_i, 1e-6)
-        refined, n_ref = fitting.refine_albedo(samples, f_r, ft2, spec.astype(np.float32), use)
-        ok = np.isfinite(refined).all(1) & (n_ref >= st.min_samples)
-        albedo = np.where(ok[:, None], refined, albedo).astype(np.float32)
-        fits[first] = fit(first, albedo)
     for model in st.models[1:]:
-        fits[model] = fit(model, albedo)
+        fits[model] = fit(model, albedo, start=equivalent_start(model, fits[first]))
     few = out["n_samples"] < st.min_samples
     out["albedo"] = np.where(few[:, None], np.nan, albedo).astype(np.float32)
     out["albedo_min"] = albedo_min.astype(np.float32)

@@ -83,7 +83,7 @@ class Lumitexels:
         Unit directions towards the cameras.
     irradiance : ndarray, shape (n, L, 3)
         E⊥ per LED and channel.
-    radiance : ndarray, shape (n, C, L, 3)
+    radiance : ndarray of float32, shape (n, C, L, 3)
         HDR radiance, NaN where invalid.
     """
 
@@ -105,9 +105,11 @@ class Lumitexels:
     @property
     def valid(self) -> np.ndarray:
         """(n, C, L) validity of each sample: finite, non-negative radiance and positive irradiance."""
-        rad = self.radiance
-        ok = np.all(np.isfinite(rad), axis=-1) & np.all(rad >= 0, axis=-1)
-        return ok & np.all(self.irradiance > 0, axis=-1)[:, None, :]
+        r = self.radiance
+        low = np.minimum(np.minimum(r[..., 0], r[..., 1]), r[..., 2])  # NaN propagates
+        ok = low >= 0
+        irr = self.irradiance
+        return ok & ((irr[..., 0] > 0) & (irr[..., 1] > 0) & (irr[..., 2] > 0))[:, None, :]
 
     def cos_incident(self, normal) -> np.ndarray:
         """N·ωi, shape (n, L)."""
@@ -199,7 +201,7 @@ class Capture:
         dome = self.dome
         wi, _ = dome.incident(pos)
         wo, _, _ = dome.view(pos)
-        rad = self.array("radiance", sl)
+        rad = self.array("radiance", sl).astype(np.float32)  # float16 on disk; compute in float32
         if cameras is not None:
             keep = np.zeros(dome.n_cameras, bool)
             keep[np.asarray(cameras)] = True

@@ -1,1 +1,65 @@
-"""facestats.analysis."""
+"""Population analysis of facial skin reflectance (Weyrich et al. 2006 §5.4 and §7).
+
+Every statistic takes a parameter store (``facestats.open_store()``: the
+shipped default, a user's own or an imported MERL/ETH file) or its population
+index as a DataFrame, and returns a small result object; the functions of
+:mod:`facestats.analysis.plots` turn results into matplotlib figures.
+
+* :func:`region_pca`: PCA ellipses of (ρs, m) per face region (§7, Fig. 15);
+* :func:`cca`: canonical correlation analysis of two blocks of variables (§7, Fig. 16);
+* :func:`brdf_cca`: CCA of the region BRDF means against skin type, gender and age (§7, Fig. 16);
+* :func:`absorption_scattering`: σa against σ's per subject and channel (§7, Fig. 14);
+* :func:`translucency_table`: mean and variance of σtr per site, σtrAvg, ℓd extremes (§5.4, Table 1);
+* :func:`condition_differences`: BRDF differences between external conditions (§7);
+* :func:`sigma_posterior`, :func:`site_sigma_posterior`: Bayesian (σ's, σa, σtr, ℓd) of a
+  contact-sensor profile (§5.4, with uncertainty);
+* :func:`population_sigma_tr`: posterior of the mean σtr per skin type (§5.4, with uncertainty).
+
+The posterior (emcee) and plotting (matplotlib) modules are imported on first use and
+pandas/scipy inside the functions, so ``import facestats.analysis`` is cheap.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+# numpy-only modules are imported eagerly (pandas, scipy, matplotlib are imported inside their functions);
+# importing ``cca`` here also keeps ``facestats.analysis.cca`` bound to the function, not the submodule.
+from .cca import CCAResult, brdf_cca, cca
+from .conditions import ConditionDifferences, condition_differences, select_population
+from .pca import RegionEllipse, RegionPCA, principal_axes, region_pca
+from .scatter import AbsorptionScattering, absorption_scattering
+from .translucency import TranslucencyTable, translucency_table
+
+#: Names imported on first use (emcee is imported with the posterior module).
+_LAZY = {
+    "sigma_posterior": "posterior",
+    "site_sigma_posterior": "posterior",
+    "SigmaPosterior": "posterior",
+    "population_sigma_tr": "posterior",
+    "PopulationSigmaTr": "posterior",
+}
+
+__all__ = [
+    "region_pca", "principal_axes", "RegionPCA", "RegionEllipse",
+    "cca", "brdf_cca", "CCAResult",
+    "absorption_scattering", "AbsorptionScattering",
+    "translucency_table", "TranslucencyTable",
+    "condition_differences", "ConditionDifferences", "select_population",
+    "sigma_posterior", "site_sigma_posterior", "SigmaPosterior", "population_sigma_tr", "PopulationSigmaTr",
+    "plots",
+]
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    if name in ("plots", "posterior"):
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -1,1 +1,21 @@
-"""facestats.io."""
+"""facestats.io: the Zarr parameter store, its population index, queries and file formats.
+
+* :func:`open_store` / :class:`Store` (:mod:`facestats.io.store`): one Zarr v3
+  group per subject (an xarray Dataset following :mod:`facestats.io.schema`),
+  a population index of per-subject summaries (:mod:`facestats.io.summary`,
+  :mod:`facestats.io.index`), atomic per-subject writes with file locking
+  (:mod:`facestats.io.locking`), integrity checks on read, and read-only zip
+  stores (:func:`pack_store`, the embedded default).
+* :class:`QueryResult` (:mod:`facestats.io.query`): the §7 "applet" statistics
+  of the subjects matching skin type, gender, age and condition.
+* :mod:`facestats.io.export`: the public statistics release (CSV/JSON).
+* :mod:`facestats.io.merl`: the MERL/ETH Skin Reflectance Database ``ts_data.mat``.
+
+Importing this package loads numpy only; xarray, zarr and pandas are imported
+when a subject or a DataFrame is needed.
+"""
+
+from .query import QueryResult
+from .store import Store, open_store, pack_store
+
+__all__ = ["open_store", "Store", "QueryResult", "pack_store"]

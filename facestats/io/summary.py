@@ -95,7 +95,7 @@ def _albedo_values(ds) -> np.ndarray:
     if subject_kind(ds) == "maps":
         face = np.asarray(ds["region"].values) > 0
         return np.asarray(ds["albedo"].values)[face].astype(np.float64)
-    if "albedo_sample" in ds.data_vars:
+    if "albedo_sample" in ds.variables:  # a 2-D variable named like its dim: xarray makes it a coordinate
         return np.asarray(ds["albedo_sample"].values, dtype=np.float64).reshape(-1, 3)
     return np.empty((0, 3))
 

@@ -22,7 +22,11 @@ Levenberg-Marquardt iteration vectorised over texels and samples:
   multiply it by 4).
 * Start: a weighted log-linear fit of ln(y/A) against t (or ln cos δ) over the
   strongest samples gives p₀ (the slope is −1/m², or n); ρs₀ then follows in
-  closed form.  The better of p₀, p₀/1.6 and p₀·1.6 starts the iteration.
+  closed form.  The better of p₀, p₀/1.6 and p₀·1.6 starts the iteration, unless a
+  start is given (a previous fit: the pipeline refits after refining the albedo,
+  and starts Blinn-Phong at the Beckmann-equivalent n = 2/m² − 2).
+* Convergence: a texel stops when an accepted step changes E² by less than
+  ``tol`` relative, or ρs and ln p by less than 10⁻⁴ (relative).
 * Only samples with w = 1 are kept, as flat arrays grouped by texel
   (:class:`facestats.model.fitting.samples.Samples`); per-texel sums are
   ``np.bincount`` over the texel index, and texels that have converged leave the
@@ -144,7 +148,7 @@ def specular_factors(samples, normal, model, eta=1.38):
 
 
 def fit_specular_samples(samples, normal, f_s, use, model, *, factors=None, eta=1.38, bounds=None, min_samples=30,
-                         max_iter=40, tol=1e-6, max_relative_error=0.25) -> SpecularFit:
+                         max_iter=40, tol=1e-6, max_relative_error=0.25, start=None) -> SpecularFit:
     """Fit ``model`` to grey specular samples on flat :class:`Samples` (the pipeline's form of :func:`fit_specular`).
 
     Parameters
@@ -157,6 +161,9 @@ def fit_specular_samples(samples, normal, f_s, use, model, *, factors=None, eta=
         Samples that enter eq. 14 (w = 1).
     factors : tuple, optional
         Precomputed :func:`specular_factors` for these samples, normals and model.
+    start : ndarray, shape (n,), optional
+        Starting lobe parameter per texel (e.g. a previous fit); NaN entries use
+        the log-linear start.
     """
     check_choice(model, "model", DEFAULT_BOUNDS)
     s1, a = specular_factors(samples, normal, model, eta) if factors is None else factors
@@ -165,7 +172,7 @@ def fit_specular_samples(samples, normal, f_s, use, model, *, factors=None, eta=
     ok = np.asarray(use, bool) & np.isfinite(f_s) & (a > 0)
     y = (f_s[ok] * ci[ok]).astype(np.float32)
     return _solve(model, y, s1[ok], a[ok], samples.texel[ok], samples.n_texels, bounds=bounds, min_samples=min_samples,
-                  max_iter=max_iter, tol=tol, max_relative_error=max_relative_error)
+                  max_iter=max_iter, tol=tol, max_relative_error=max_relative_error, start=start)
 
 
 def fit_specular(wi, wo, normal, f_s, valid, model, *, bounds=None, eta=1.38, max_angle=np.radians(80.0), min_samples=30,
@@ -223,7 +230,8 @@ def fit_specular(wi, wo, normal, f_s, valid, model, *, bounds=None, eta=1.38, ma
                                 min_samples=min_samples, max_iter=max_iter, tol=tol, max_relative_error=max_relative_error)
 
 
-def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol, max_relative_error, dtype=np.float32):
+def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol, max_relative_error, dtype=np.float32,
+           start=None):
     """Batch bounded Levenberg-Marquardt on flat samples grouped by texel (module docstring)."""
     (r_lo, r_hi), (p_lo, p_hi) = DEFAULT_BOUNDS[model] if bounds is None else bounds
     if not (0 <= r_lo < r_hi and 0 < p_lo < p_hi):
@@ -276,11 +284,16 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
             else:
                 p0 = np.where(slope > 0, slope, 20.0)
         p0 = np.clip(np.nan_to_num(p0, nan=0.3 if model == "torrance_sparrow" else 20.0), p_lo, p_hi)
+        warm = np.zeros(k, bool)
+        if start is not None:  # a given start wins where it is finite
+            st0 = np.asarray(start, np.float64)[work]
+            warm = np.isfinite(st0) & (st0 > 0)
+            p0 = np.where(warm, np.clip(np.where(warm, st0, 1), p_lo, p_hi), p0)
         best_e = np.full(k, np.inf)
         best_q = np.log(p0)
         best_r = np.zeros(k)
         swyy_w = swyy[work]
-        for f in (1.0, 1 / 1.6, 1.6):  # three candidate starts
+        for f in ((1.0,) if warm.all() else (1.0, 1 / 1.6, 1.6)):  # candidate starts
             qq = np.clip(np.log(p0 * f), q_lo, q_hi)
             g, _ = _lobe(model, np.exp(qq)[texel_w].astype(dt), ws, wa)
             syg, sgg = rsum(wy * g, st_w), rsum(g * g, st_w)
@@ -330,7 +343,8 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
             np.copyto(wdg, dg1, where=acc_s)
             syg, sgg = np.where(accept, syg1, syg), np.where(accept, sgg1, sgg)
             rel = (e0 - np.minimum(e1, e0)) / np.maximum(e0, 1e-30)
-            small_step = (np.abs(r1 - r0) <= 1e-6 * np.maximum(np.abs(r0), 1e-6)) & (np.abs(q1 - q0) <= 1e-6)
+            # A step this small, accepted or not, means the minimum is reached (to float32 precision).
+            small_step = (np.abs(r1 - r0) <= 1e-4 * np.maximum(np.abs(r0), 1e-6)) & (np.abs(q1 - q0) <= 1e-4)
             done[work] |= (accept & (rel < tol)) | small_step | (lam[work] > 1e10)
     not_conv = ~done
 

@@ -1,0 +1,215 @@
+"""Population analysis (Weyrich §5.4, §7): whole non-posterior analysis, one profile's posterior, calibration.
+
+Benchmarks
+----------
+* ``population``: region PCA, CCA (999 permutations), Fig. 14 data, Table 1,
+  condition differences and the population σtr posterior on a stand-in store of
+  156 normal-condition subjects (plus one person under the seven conditions),
+  built from ``tests/factories.py`` subjects with 96 × 96 maps (about 7,000
+  face texels each, 1.1 million region samples in all).  Target: ≤ 10 s.  The
+  store calls (``subjects()``, ``region_samples()``) of the stand-in are
+  included in the time; building the stand-in is not.  Baseline for the CCA
+  permutation test: one :func:`cca` call per permutation.
+* ``figures``: rendering the six population figures to PNG.
+* ``posterior``: one 3-channel contact-sensor profile, median of 5 seeds.
+  Target: ≤ 5 s.  Baseline: what one writes with emcee's defaults, one
+  sampler per channel with the stretch move, run to the same 50 τ criterion.
+* ``calibration``: coverage of the 90 % intervals on 600 simulated profiles.
+* ``default_store``: the whole non-posterior analysis of ``facestats.open_store()``
+  when the shipped store is available.
+"""
+
+from __future__ import annotations
+
+import io
+import pathlib
+import sys
+import time
+
+import numpy as np
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from facestats import analysis as fa  # noqa: E402
+from facestats.acquire.sensor import ContactSensor  # noqa: E402
+from facestats.errors import ValidationError  # noqa: E402
+from facestats.model import dipole  # noqa: E402
+
+_STORE = {}
+
+
+def _stand_in():
+    if "store" not in _STORE:
+        from tests.test_analysis_pca import make_population
+
+        _STORE["store"] = make_population(n=156, seed=1, size=96)
+    return _STORE["store"]
+
+
+def _analyse(store, n_permutations=999):
+    """Every non-posterior statistic of a store, with per-step timings."""
+    steps = {}
+    t = time.perf_counter()
+    out = {"pca": fa.region_pca(store)}
+    steps["pca_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    out["cca"] = fa.brdf_cca(store, n_permutations=n_permutations)
+    steps["cca_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    out["scatter"] = fa.absorption_scattering(store)
+    out["translucency"] = fa.translucency_table(store)
+    try:
+        out["conditions"] = fa.condition_differences(store)
+    except ValidationError:  # a store without a condition series
+        out["conditions"] = None
+    out["population"] = fa.population_sigma_tr(store)
+    steps["rest_s"] = time.perf_counter() - t
+    return out, steps
+
+
+def bench_population():
+    store = _stand_in()
+    t0 = time.perf_counter()
+    res, steps = _analyse(store)
+    total = time.perf_counter() - t0
+    n_samples = sum(e.n for e in res["pca"].regions.values())
+    cca = res["cca"]
+    # baseline: the permutation test as a loop of cca() calls
+    frame = fa.select_population(store)
+    X = frame[[f"ts_{p}_mean_r{r}" for r in range(1, 11) for p in ("rho_s", "m")]].to_numpy(float)
+    Y = cca.y_data.loc[frame.index].to_numpy()
+    rng = np.random.default_rng(0)
+    t = time.perf_counter()
+    for _ in range(100):
+        fa.cca(X, Y[rng.permutation(len(Y))])
+    loop_999 = (time.perf_counter() - t) * 999 / 100
+    t = time.perf_counter()
+    fa.cca(X, Y, n_permutations=999)
+    batched = time.perf_counter() - t
+    return {
+        "total_s": total, **steps, "subjects": res["pca"].n_subjects, "region_samples": n_samples,
+        "cca_r1": cca.correlations[0], "cca_r2": cca.correlations[1],
+        "perm_batched_s": batched, "perm_loop_s": loop_999, "perm_speedup": loop_999 / batched,
+    }
+
+
+def bench_figures():
+    from facestats.analysis import plots
+
+    store = _stand_in()
+    res, _ = _analyse(store, n_permutations=0)
+    t0 = time.perf_counter()
+    figs = [plots.plot_region_pca(res["pca"]), plots.plot_cca(res["cca"]),
+            plots.plot_absorption_scattering(res["scatter"]), plots.plot_translucency(res["translucency"]),
+            plots.plot_conditions(res["conditions"]), plots.plot_population_sigma_tr(res["population"])]
+    for f in figs:
+        f.savefig(io.BytesIO(), format="png", dpi=80)
+    return {"figures_s": time.perf_counter() - t0, "n_figures": len(figs)}
+
+
+def _profile(seed):
+    sensor = ContactSensor()
+    rng = np.random.default_rng(seed)
+    albedo = rng.uniform([0.4, 0.2, 0.15], [0.7, 0.4, 0.3])
+    sigma_tr = rng.uniform([0.45, 0.85, 1.4], [0.7, 1.1, 1.7])
+    sp, sa = dipole.scattering_from_albedo(albedo, sigma_tr)
+    truth = np.stack([dipole.dipole_profile(sensor.fiber_distance, sp[c], sa[c]) for c in range(3)], -1)
+    return sensor, sensor.capture(truth, rng)[0]
+
+
+def _baseline_posterior(sensor, measured, n_walkers=16, min_tau=50):
+    """emcee defaults: one stretch-move sampler per channel, vectorised over walkers, run to 50 τ."""
+    import emcee
+
+    from facestats.analysis.posterior import _LogPosterior, _initial_walkers, _least_squares_start
+
+    r = sensor.fiber_distance
+    lo, hi = np.log([0.01, 1e-5]), np.log([100.0, 10.0])
+    steps = []
+    for c in range(3):
+        y = measured[:, c:c + 1]
+        mask = np.isfinite(y)
+        post = _LogPosterior(r, y, None, mask, sensor, 1.38, lo, hi)
+        theta, cov = _least_squares_start(post, y, sensor.profile_std(np.maximum(y, 0)), mask)
+        p0 = _initial_walkers(post, theta, cov, n_walkers, np.random.default_rng(c))
+        sampler = emcee.EnsembleSampler(n_walkers, 2, lambda th: post(th)[:, 0], vectorize=True)
+        state, n = p0, 0
+        while True:
+            state = sampler.run_mcmc(state, 500, progress=False)
+            n += 500
+            tau = emcee.autocorr.integrated_time(sampler.get_chain(), tol=0, quiet=True).max()
+            if n >= min_tau * tau or n >= 20000:
+                break
+        steps.append(n)
+    return steps
+
+
+def bench_posterior():
+    times, taus, accs, ess, steps = [], [], [], [], []
+    for seed in range(5):
+        sensor, measured = _profile(seed)
+        t = time.perf_counter()
+        post = fa.sigma_posterior(sensor.fiber_distance, measured, seed=seed)
+        times.append(time.perf_counter() - t)
+        d = post.diagnostics
+        taus.append(d[["tau_sigma_s_prime", "tau_sigma_a"]].to_numpy().max())
+        accs.append(d["acceptance"].mean())
+        ess.append(d[["ess_sigma_s_prime", "ess_sigma_a"]].to_numpy().min())
+        steps.append(post.n_steps)
+    sensor, measured = _profile(0)
+    t = time.perf_counter()
+    base_steps = _baseline_posterior(sensor, measured)
+    base = time.perf_counter() - t
+    return {
+        "median_s": float(np.median(times)), "max_s": float(np.max(times)), "steps": int(np.median(steps)),
+        "tau_max": float(np.max(taus)), "acceptance": float(np.mean(accs)), "min_ess": float(np.min(ess)),
+        "baseline_stretch_per_channel_s": base, "baseline_steps": max(base_steps),
+        "speedup": base / float(np.median(times)),
+    }
+
+
+def bench_calibration():
+    sensor = ContactSensor()
+    rng = np.random.default_rng(99)
+    n = 600
+    sigma_tr = rng.uniform(0.4, 2.0, n)
+    albedo = rng.uniform(0.1, 0.7, n)
+    sp, sa = dipole.scattering_from_albedo(albedo, sigma_tr)
+    truth = dipole.dipole_profile(sensor.fiber_distance[:, None], sp[None], sa[None])
+    measured, _ = sensor.capture(truth, rng)
+    t = time.perf_counter()
+    cover = {}
+    for start in range(0, n, 200):
+        sl = slice(start, start + 200)
+        post = fa.sigma_posterior(sensor.fiber_distance, measured[:, sl], seed=start)
+        for name, tr in (("sigma_s_prime", sp), ("sigma_a", sa), ("sigma_tr", sigma_tr)):
+            iv = post.interval(name)
+            cover.setdefault(name, []).append((iv[:, 0] <= tr[sl]) & (tr[sl] <= iv[:, 1]))
+    out = {f"coverage_{k}": float(np.mean(np.concatenate(v))) for k, v in cover.items()}
+    out["profiles"] = n
+    out["s_per_profile"] = (time.perf_counter() - t) / n
+    return out
+
+
+def bench_default_store():
+    import facestats
+
+    try:
+        store = facestats.open_store()
+    except Exception as exc:  # the shipped store is built elsewhere; report, do not fail
+        return {"status": f"unavailable ({type(exc).__name__})"}
+    t0 = time.perf_counter()
+    res, steps = _analyse(store)
+    return {"total_s": time.perf_counter() - t0, **steps, "subjects": res["pca"].n_subjects,
+            "cca_r1": res["cca"].correlations[0], "cca_r2": res["cca"].correlations[1]}
+
+
+BENCHMARKS = [
+    ("population", bench_population),
+    ("figures", bench_figures),
+    ("posterior", bench_posterior),
+    ("calibration", bench_calibration),
+    ("default_store", bench_default_store),
+]

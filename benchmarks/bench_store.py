@@ -1,0 +1,106 @@
+"""Parameter store: end-to-end ``facestats query`` time, write and read throughput (issue: store).
+
+Requirement: ``facestats query --skin-type IV`` finishes in at most 1 s end to
+end.  Measured as the wall time of the installed console script in a fresh
+subprocess (interpreter start-up included), median of several runs, on a zip
+store of 160 factory subjects (the size of the paper's population, 149, plus
+margin) packed like the embedded default.  Baseline: ``facestats --version``,
+the start-up cost of the interpreter and the CLI without any store work.
+"""
+
+from __future__ import annotations
+
+import pathlib
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+N_SUBJECTS = 160
+MAP_SIZE = 32
+RUNS = 7
+
+
+def _exe():
+    exe = pathlib.Path(sys.executable).parent / "facestats"
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "facestats"]
+
+
+def _wall(args) -> float:
+    times = []
+    for _ in range(RUNS):
+        t0 = time.perf_counter()
+        r = subprocess.run(_exe() + [str(a) for a in args], capture_output=True, text=True,
+                           stdin=subprocess.DEVNULL)
+        times.append(time.perf_counter() - t0)
+        if r.returncode not in (0, 1):
+            raise RuntimeError(f"facestats {' '.join(map(str, args))} failed: {r.stderr}")
+    return statistics.median(times)
+
+
+def _population():
+    from tests.factories import make_map_subject
+
+    types = [2] * 14 + [3] * 67 + [4] * 48 + [5] * 15 + [6] * 5  # Weyrich Table 2 proportions
+    types += [4] * (N_SUBJECTS - len(types))
+    for k in range(N_SUBJECTS):
+        yield make_map_subject(f"S{k:03d}", size=MAP_SIZE, skin_type=types[k], gender="MF"[k % 4 == 0],
+                               age=20 + (k * 7) % 45, seed=k)
+
+
+def bench_query_cli():
+    from facestats.io import open_store, pack_store
+
+    tmp = pathlib.Path(tempfile.mkdtemp(prefix="facestats-bench-"))
+    try:
+        store = tmp / "pop.zarr"
+        t0 = time.perf_counter()
+        with open_store(store, mode="a") as st:
+            batch = []
+            for ds in _population():
+                batch.append(ds)
+                if len(batch) == 20:
+                    st.write_subjects(batch)
+                    batch = []
+        write_s = time.perf_counter() - t0
+        zp = pack_store(store, tmp / "pop.zip")
+        q = _wall(["query", "--skin-type", "IV", "--store", zp])
+        qj = _wall(["query", "--skin-type", "IV", "--store", zp, "--format", "json"])
+        qd = _wall(["query", "--skin-type", "IV", "--store", store])
+        base = _wall(["--version"])
+        with open_store(zp) as st:
+            t0 = time.perf_counter()
+            for sid in st.ids()[:20]:
+                st.subject(sid)
+            read_ms = (time.perf_counter() - t0) / 20 * 1e3
+            t0 = time.perf_counter()
+            st.query(skin_type="IV")
+            api_ms = (time.perf_counter() - t0) * 1e3
+        return {
+            "query_cli_zip_s": q,
+            "limit_s": 1.0,
+            "query_cli_json_s": qj,
+            "query_cli_directory_s": qd,
+            "cli_startup_s": base,
+            "query_api_ms": api_ms,
+            "subjects": N_SUBJECTS,
+            "write_subjects_per_s": N_SUBJECTS / write_s,
+            "read_subject_ms": read_ms,
+            "zip_MB": zp.stat().st_size / 1e6,
+            "index_kB": (store / "index.json").stat().st_size / 1e3,
+        }
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+BENCHMARKS = [("query_cli", bench_query_cli)]
+
+if __name__ == "__main__":
+    for name, fn in BENCHMARKS:
+        print(name, fn())

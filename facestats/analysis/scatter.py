@@ -1,0 +1,110 @@
+"""Absorption against reduced scattering per subject and channel (Weyrich et al. 2006 §7, Fig. 14).
+
+Fig. 14 plots σa against σ's (mm⁻¹) of all subjects per colour channel, with
+colour = skin type, marker = gender and size = age.  The paper's values are the
+subject-level coefficients "estimated from the average albedo α_avg and the
+average translucency σtrAvg" (§5.4, :func:`facestats.model.dipole.scattering_from_albedo`),
+i.e. the index columns ``sigma_a_{ch}`` and ``sigma_s_prime_{ch}``.  Per-site
+coefficients fitted to the contact-sensor profiles (``site_sigma_a_{site}_{ch}``)
+can be analysed instead with ``site=``.
+
+The paper observes that σa falls as σ's rises, "near-exponential" because both
+come through eq. 16 from one albedo at fixed σtr; :meth:`AbsorptionScattering.correlations`
+quantifies it per channel (Pearson on log σa vs σ's, and Spearman rank).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validate import check_choice
+from ..conventions import CHANNELS, SITES
+from ..errors import ValidationError
+from .conditions import select_population
+
+__all__ = ["AbsorptionScattering", "absorption_scattering"]
+
+
+@dataclass(frozen=True)
+class AbsorptionScattering:
+    """Per-subject σa and σ's per channel (Fig. 14 data).
+
+    Attributes
+    ----------
+    data : pandas.DataFrame
+        Long form, one row per subject and channel: ``subject_id``, ``channel``,
+        ``sigma_a``, ``sigma_s_prime`` (mm⁻¹), ``skin_type``, ``gender``, ``age``.
+    site : str or None
+        Contact-sensor site the values come from, or None for the subject-level
+        coefficients from α_avg and σtrAvg (the paper's Fig. 14).
+    """
+
+    data: object
+    site: str | None
+
+    def correlations(self):
+        """Per channel: n, Pearson r of (σ's, ln σa) and Spearman ρ of (σ's, σa)."""
+        import pandas as pd
+
+        rows = []
+        for ch in CHANNELS:
+            d = self.data[self.data["channel"] == ch]
+            with np.errstate(invalid="ignore", divide="ignore"):  # constant columns give NaN
+                pear = np.corrcoef(d["sigma_s_prime"], np.log(d["sigma_a"]))[0, 1] if len(d) > 2 else np.nan
+            spear = d["sigma_s_prime"].rank().corr(d["sigma_a"].rank()) if len(d) > 2 else np.nan
+            rows.append({"channel": ch, "n": len(d), "pearson_log": pear, "spearman": spear})
+        return pd.DataFrame.from_records(rows).set_index("channel")
+
+    def by_skin_type(self):
+        """Mean and standard deviation of σa and σ's per skin type and channel."""
+        g = self.data.groupby(["skin_type", "channel"])[["sigma_a", "sigma_s_prime"]]
+        return g.agg(["mean", "std", "count"])
+
+
+def absorption_scattering(source, site=None, subjects=None, conditions=("normal",)):
+    """σa and σ's of every subject per channel, with skin type, gender and age (Weyrich et al. 2006 Fig. 14).
+
+    Parameters
+    ----------
+    source : store or pandas.DataFrame
+        Parameter store or its population index.
+    site : {None, "cheek", "forehead", "neck"}
+        None (default): the subject-level coefficients from α_avg and σtrAvg
+        (§5.4), as in the paper; a site: the coefficients fitted to that site's
+        contact-sensor profile.
+    subjects, conditions
+        Population selection (:func:`facestats.analysis.conditions.select_population`).
+
+    Returns
+    -------
+    AbsorptionScattering
+        Subjects without positive finite values in a channel are left out of
+        that channel.
+    """
+    import pandas as pd
+
+    if site is not None:
+        check_choice(site, "site", SITES)
+    frame = select_population(source, subjects, conditions)
+    parts = []
+    for ch in CHANNELS:
+        if site is None:
+            ca, cs = f"sigma_a_{ch}", f"sigma_s_prime_{ch}"
+        else:
+            ca, cs = f"site_sigma_a_{site}_{ch}", f"site_sigma_s_prime_{site}_{ch}"
+        if ca not in frame.columns or cs not in frame.columns:
+            raise ValidationError(f"the population index has no columns {ca!r}/{cs!r}")
+        part = pd.DataFrame({
+            "subject_id": frame.index.astype(str), "channel": ch,
+            "sigma_a": frame[ca].astype(float).to_numpy(), "sigma_s_prime": frame[cs].astype(float).to_numpy(),
+            "skin_type": frame["skin_type"].astype(int).to_numpy(), "gender": frame["gender"].astype(str).to_numpy(),
+            "age": frame["age"].astype(float).to_numpy(),
+        })
+        ok = np.isfinite(part["sigma_a"]) & np.isfinite(part["sigma_s_prime"]) & (part["sigma_a"] > 0) & (part["sigma_s_prime"] > 0)
+        parts.append(part[ok])
+    data = pd.concat(parts, ignore_index=True)
+    if data.empty:
+        raise ValidationError("no selected subject has positive sigma_a and sigma_s_prime")
+    return AbsorptionScattering(data, site)

@@ -1,0 +1,178 @@
+"""The public statistics release of a store (Weyrich et al. 2006 §7, Dissemination).
+
+§7: "We are releasing all reflectance data, such as BRDF coefficients,
+absorption and scattering coefficients, and albedo histograms, for each
+subject."  :func:`export_statistics` writes exactly that, per subject, from the
+population index (which :meth:`facestats.io.store.Store.validate` checks
+against the data):
+
+CSV (``formats`` contains ``"csv"``)
+    ``subjects.csv``: one row per subject with the columns of
+    :func:`facestats.io.summary.summarise_subject` (metadata; per-region mean,
+    std and sample count of the Torrance-Sparrow ρs, m and Blinn-Phong ρs, n;
+    σa, σ's, σtr per channel per contact-sensor site and for the subject;
+    albedo mean and std per channel; empty cells are missing values);
+    ``albedo_histograms.csv``: one row per subject and channel, columns
+    ``subject_id, channel, bin_000 ... bin_255`` (texel or sample counts in
+    256 equal bins over [0, 1]).
+JSON (``formats`` contains ``"json"``)
+    ``statistics.json``, format ``"facestats.export/1"``: ``{"format",
+    "facestats_version", "exported", "store", "units", "histogram": {"bins",
+    "range"}, "subjects": [...]}`` where each subject is ``{"subject_id",
+    "person_id", "age", "gender", "skin_type", "skin_type_roman",
+    "condition", "kind", "source", "flagged_fraction",
+    "brdf": {"torrance_sparrow": [{"region", "name", "n", "rho_s": {"mean",
+    "std"}, "m": {...}}], "blinn_phong": [{"region", "name", "n", "rho_s",
+    "exponent"}]}, "scattering": {"sigma_a"|"sigma_s_prime"|"sigma_tr":
+    {"R", "G", "B"}}, "sites": {site: {param: {"R", "G", "B"}}},
+    "albedo": {"mean": {"R", "G", "B"}, "std": {...}}, "albedo_histogram":
+    {"R": [256 counts], "G": [...], "B": [...]}}``; missing values are null.
+
+A ``README.txt`` describing the files and units is written beside them.
+Units: ρs, m, n, albedo dimensionless; σ in mm⁻¹.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from pathlib import Path
+
+from .. import __version__
+from ..conventions import CHANNELS, REGIONS, ROMAN, SITES
+from ..errors import ValidationError
+from .index import utc_now
+from .summary import HIST_BINS, column
+
+__all__ = ["EXPORT_FORMAT", "export_statistics"]
+
+EXPORT_FORMAT = "facestats.export/1"
+_SCATTERING = ("sigma_a", "sigma_s_prime", "sigma_tr")
+
+_README = """facestats statistics release (format {fmt})
+Exported {when} by facestats {version} from {store} ({n} subjects).
+
+Per subject (Weyrich et al. 2006, §7 Dissemination): BRDF coefficients, absorption
+and scattering coefficients, albedo statistics and albedo histograms.
+
+subjects.csv          one row per subject
+  subject_id, person_id, age (years), gender (M/F), skin_type (Fitzpatrick 1-6; I and II are
+  grouped by the paper), condition, kind (maps = fitted maps, samples = imported samples), source
+  {{ts_rho_s,ts_m,bp_rho_s,bp_exponent}}_{{mean,std}}_r{{1..10}}
+                      per-region mean and standard deviation of the Torrance-Sparrow rho_s and m
+                      and the Blinn-Phong rho_s and exponent n (dimensionless); regions as in
+                      Weyrich Fig. 15: {regions}
+  n_ts_r*, n_bp_r*    number of texels/samples behind each region statistic
+  site_{{sigma_tr,sigma_s_prime,sigma_a}}_{{cheek,forehead,neck}}_{{R,G,B}}
+                      contact-sensor coefficients per site (1/mm)
+  {{sigma_s_prime,sigma_a,sigma_tr}}_{{R,G,B}}
+                      subject scattering coefficients (1/mm, Weyrich 5.4)
+  albedo_{{mean,std}}_{{R,G,B}}
+                      diffuse albedo over the face (dimensionless)
+  flagged_fraction    fraction of face texels whose Torrance-Sparrow fit was flagged
+  Empty cells are missing values (e.g. imported subjects have no sensor data).
+albedo_histograms.csv one row per subject and channel: counts in 256 equal bins over [0, 1]
+statistics.json       the same data, structured (format {fmt})
+"""
+
+
+def _num(v):
+    if v is None:
+        return None
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def _subject_json(sid: str, row: dict, hist) -> dict:
+    get = lambda k: _num(row.get(k))  # noqa: E731
+    out = {k: get(k) for k in ("subject_id", "person_id", "age", "gender", "skin_type")}
+    out["skin_type_roman"] = ROMAN.get(row.get("skin_type"))
+    for k in ("condition", "kind", "source", "flagged_fraction"):
+        out[k] = get(k)
+    brdf = {}
+    for model, name, lobe in (("ts", "torrance_sparrow", ("ts_m", "m")), ("bp", "blinn_phong", ("bp_exponent", "exponent"))):
+        items = []
+        for r, rname in REGIONS.items():
+            item = {"region": r, "name": rname, "n": get(column("n", model=model, region=r))}
+            for param, key in ((f"{model}_rho_s", "rho_s"), lobe):
+                item[key] = {"mean": get(column("mean", param=param, region=r)),
+                             "std": get(column("std", param=param, region=r))}
+            items.append(item)
+        brdf[name] = items
+    out["brdf"] = brdf
+    out["scattering"] = {p: {ch: get(column("subject", param=p, channel=ch)) for ch in CHANNELS} for p in _SCATTERING}
+    out["sites"] = {s: {p: {ch: get(column("site", param=p, site=s, channel=ch)) for ch in CHANNELS}
+                        for p in _SCATTERING} for s in SITES}
+    out["albedo"] = {stat: {ch: get(f"albedo_{stat}_{ch}") for ch in CHANNELS} for stat in ("mean", "std")}
+    out["albedo_histogram"] = {ch: [int(v) for v in hist[c]] for c, ch in enumerate(CHANNELS)}
+    return out
+
+
+def export_statistics(store, out_dir, formats=("csv", "json")) -> list[Path]:
+    """Write the per-subject statistics release of ``store`` into ``out_dir``.
+
+    Parameters
+    ----------
+    store : facestats.io.store.Store
+    out_dir : str or os.PathLike
+        Created if missing; existing files of the same names are replaced.
+    formats : iterable of {"csv", "json"}
+
+    Returns
+    -------
+    list of pathlib.Path
+        The files written.
+    """
+    formats = tuple(formats)
+    if not formats or any(f not in ("csv", "json") for f in formats):
+        raise ValidationError(f"formats must be a non-empty subset of ['csv', 'json'], got {list(formats)!r}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    entries = store.index_entries()
+    ids = sorted(entries)
+    rows = [entries[i]["row"] for i in ids]
+    hists = [entries[i]["albedo_hist"] for i in ids]
+    written = []
+    if "csv" in formats:
+        cols: list[str] = []
+        for r in rows:
+            cols += [k for k in r if k not in cols]
+        path = out / "subjects.csv"
+        with open(path, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(cols)
+            for r in rows:
+                w.writerow(["" if _num(r.get(c)) is None else r.get(c) for c in cols])
+        written.append(path)
+        path = out / "albedo_histograms.csv"
+        with open(path, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["subject_id", "channel"] + [f"bin_{b:03d}" for b in range(HIST_BINS)])
+            for sid, h in zip(ids, hists):
+                for c, ch in enumerate(CHANNELS):
+                    w.writerow([sid, ch] + [int(v) for v in h[c]])
+        written.append(path)
+    when = utc_now()
+    if "json" in formats:
+        doc = {
+            "format": EXPORT_FORMAT,
+            "facestats_version": __version__,
+            "exported": when,
+            "store": store.label,
+            "units": {"rho_s": "1", "m": "1", "exponent": "1", "sigma": "mm-1", "albedo": "1", "age": "years"},
+            "histogram": {"bins": HIST_BINS, "range": [0.0, 1.0]},
+            "subjects": [_subject_json(sid, r, h) for sid, r, h in zip(ids, rows, hists)],
+        }
+        path = out / "statistics.json"
+        tmp = out / f".statistics.json.tmp-{os.getpid()}"
+        tmp.write_text(json.dumps(doc, indent=1, allow_nan=False))
+        os.replace(tmp, path)
+        written.append(path)
+    path = out / "README.txt"
+    path.write_text(_README.format(fmt=EXPORT_FORMAT, when=when, version=__version__, store=store.label,
+                                   n=len(ids), regions=", ".join(f"{k} {v}" for k, v in REGIONS.items())))
+    written.append(path)
+    return written

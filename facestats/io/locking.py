@@ -1,0 +1,160 @@
+"""Advisory file locks for the parameter store (zarr itself has no locking).
+
+The store uses two kinds of lock, both POSIX ``flock`` locks on small files:
+
+* the **store lock** (``<store>/.lock``): held exclusively while a writer
+  commits a new version of the population index, and while garbage collection
+  decides what to delete.  It is held for milliseconds, never while subject
+  data are written.
+* a **writer lock** per generation being written
+  (``<store>/.writers/<subject>~<generation>.lock``): held by the writing
+  process from before it creates the generation directory until after the
+  commit.  Garbage collection never deletes an unreferenced generation whose
+  writer lock is still held, so it cannot remove the half-written data of a
+  live writer; the lock of a killed process is released by the kernel, so
+  its leftovers can be collected.
+
+``flock`` locks belong to an open file description: two threads or two
+processes that open the file separately exclude each other, and a process
+killed with ``SIGKILL`` releases its locks.  They are not reliable on some
+network file systems (older NFS); keep stores on local disks.
+"""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import os
+import time
+
+from ..errors import StoreError
+
+__all__ = ["FileLock", "is_locked", "try_lock", "create_locked"]
+
+
+class FileLock:
+    """An exclusive ``flock`` on ``path`` (created if missing), with a timeout.
+
+    Use as a context manager::
+
+        with FileLock(root / ".lock", timeout=60):
+            ...  # commit
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The lock file.
+    timeout : float
+        Seconds to wait for the lock before raising :class:`StoreError`.
+    """
+
+    def __init__(self, path, timeout: float = 60.0):
+        self.path = os.fspath(path)
+        self.timeout = float(timeout)
+        self._fd: int | None = None
+
+    @property
+    def held(self) -> bool:
+        return self._fd is not None
+
+    def acquire(self, blocking: bool = True) -> bool:
+        """Take the lock; return False (non-blocking) or raise :class:`StoreError` (timeout) if busy."""
+        if self._fd is not None:
+            raise StoreError(f"lock {self.path} is already held by this object")
+        try:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise StoreError(f"cannot open lock file {self.path}: {exc.strerror}") from exc
+        deadline = time.monotonic() + self.timeout
+        delay = 0.0005
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                self._fd = fd
+                return True
+            except OSError as exc:
+                if exc.errno not in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
+                    os.close(fd)
+                    raise StoreError(f"cannot lock {self.path}: {exc.strerror}") from exc
+            if not blocking:
+                os.close(fd)
+                return False
+            if time.monotonic() >= deadline:
+                os.close(fd)
+                raise StoreError(
+                    f"timed out after {self.timeout:g} s waiting for the lock {self.path} "
+                    "(another process is writing to the store)"
+                )
+            time.sleep(delay)
+            delay = min(delay * 2, 0.02)
+
+    def release(self) -> None:
+        """Release the lock (no-op if not held)."""
+        if self._fd is not None:
+            fd, self._fd = self._fd, None
+            try:
+                fcntl.flock(fd, fcntl.LOCK_UN)
+            finally:
+                os.close(fd)
+
+    def __enter__(self):
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc):
+        self.release()
+        return False
+
+    def __del__(self):  # pragma: no cover - safety net
+        self.release()
+
+
+def try_lock(path) -> FileLock | None:
+    """Take the lock on ``path`` without waiting; the held :class:`FileLock`, or None if busy."""
+    lock = FileLock(path, timeout=0)
+    return lock if lock.acquire(blocking=False) else None
+
+
+def is_locked(path) -> bool:
+    """True if another open file description holds a lock on the existing file ``path``."""
+    if not os.path.exists(path):
+        return False
+    lock = try_lock(path)
+    if lock is None:
+        return True
+    lock.release()
+    return False
+
+
+def create_locked(path) -> FileLock:
+    """Create the lock file ``path`` already locked, and return the held lock.
+
+    The file is created under a temporary name, locked, then renamed into
+    place, so no other process can ever observe ``path`` unlocked while its
+    creator is alive (garbage collection relies on this).  Raises
+    :class:`StoreError` if ``path`` already exists.
+    """
+    path = os.fspath(path)
+    folder, name = os.path.split(path)
+    tmp = os.path.join(folder, f".tmp-{os.getpid()}-{name}")
+    lock = FileLock(tmp, timeout=0)
+    if not lock.acquire(blocking=False):  # pragma: no cover - tmp names are unique per process
+        raise StoreError(f"cannot lock {tmp}")
+    try:
+        if os.path.exists(path):
+            raise StoreError(f"lock file {path} already exists")
+        os.rename(tmp, path)
+    except BaseException:
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        lock.release()
+        raise
+    lock.path = path
+    return lock
+
+
+def is_lock_temp(name: str) -> bool:
+    """True for the temporary names :func:`create_locked` uses."""
+    return name.startswith(".tmp-")

@@ -1,0 +1,476 @@
+"""Population queries on the store index: the "interactive applet" of Weyrich et al. 2006 §7.
+
+§7 (Dissemination) describes an applet that "outputs average parameter values
+and histograms based on user choice for gender, age, and skin type".
+:func:`run_query` does that on the population index (one row per subject,
+:mod:`facestats.io.summary`), without opening any subject, using numpy only
+(no xarray, zarr or pandas: ``facestats query`` must start fast).
+
+Filters
+-------
+* ``skin_type``: Fitzpatrick type, Roman (``"IV"``) or 1-6.  The paper groups
+  types I and II (Table 2), so asking for I or for II matches subjects of both.
+* ``gender``: ``"M"``/``"F"`` (also male/female, 0 = M, 1 = F).
+* ``age``: ``"20s"``, ``"30s"``, ``"40s"``, ``"50s+"``, ``"MIN-MAX"`` or one age (inclusive, years).
+* ``condition``: one of ``facestats.conventions.CONDITIONS``.  ``None`` means
+  any condition: records of one person measured under several conditions
+  (§7) then count separately (``n_persons`` counts distinct people); pass
+  ``condition="normal"`` for the population as the paper analyses it.
+* ``region``: restricts the per-region BRDF section to one region (1-10 or a
+  name); it does not select subjects.
+
+Statistics
+----------
+For every quantity, ``mean`` and ``std`` (sample standard deviation, ddof = 1;
+null for fewer than two values) are taken *across the matching subjects* of
+each subject's own value, and ``n`` counts the subjects that have the quantity
+(imported subjects have no sensor data, for instance).  Per-region BRDF
+entries also give ``within_std``: the mean over subjects of the spread of the
+parameter inside the region of one subject.  Albedo statistics and
+histograms are over the whole face.  The albedo histogram (256 bins over
+[0, 1] per channel) is the mean of the matching subjects' normalised
+histograms, so every subject weighs the same whatever its texel count.
+
+JSON document (``QueryResult.to_dict()``, ``facestats query --format json``)
+-------------------------------------------------------------------------
+Format ``"facestats.query/1"``; keys are only ever added within a format
+version.  ``stat`` below is ``{"mean": float|null, "std": float|null,
+"n": int}`` (BRDF stats also carry ``"within_std"``)::
+
+    {
+      "format": "facestats.query/1",
+      "store": str,                      # store path, or "default"
+      "n_store_subjects": int,
+      "filters": {"skin_type": [int]|null, "gender": "M"|"F"|null,
+                  "age": [min, max]|null, "condition": str|null, "region": int|null},
+      "count": int,                      # matching subject records
+      "n_persons": int,                  # distinct person_id among them
+      "subject_ids": [str],
+      "breakdown": {"gender": {"M": int, ...}, "skin_type": {"IV": int, ...},
+                    "age_group": {"20s": int, ...}, "condition": {...}, "kind": {...}},
+      "units": {"rho_s": "1", "m": "1", "exponent": "1", "sigma": "mm-1", "albedo": "1"},
+      "regions": [{"region": int, "name": str,
+                   "ts_rho_s": stat, "ts_m": stat, "bp_rho_s": stat, "bp_exponent": stat}],
+      "scattering": {"sigma_a" | "sigma_s_prime" | "sigma_tr": {"R"|"G"|"B": stat}},
+      "sites": {"cheek" | "forehead" | "neck": {"sigma_a" | "sigma_s_prime" | "sigma_tr": {"R"|"G"|"B": stat}}},
+      "albedo": {"R"|"G"|"B": stat},
+      "albedo_histogram": {"bins": 256, "range": [0.0, 1.0],
+                           "R"|"G"|"B": [256 floats summing to 1] | null}
+    }
+
+When nothing matches, ``count`` is 0, every ``mean``/``std`` is null, every
+``n`` is 0 and the histogram channels are null.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..conventions import (
+    AGE_GROUPS,
+    CHANNELS,
+    CONDITIONS,
+    GENDERS,
+    REGIONS,
+    ROMAN,
+    SITES,
+    parse_age,
+    parse_condition,
+    parse_gender,
+    parse_region,
+    parse_skin_type,
+)
+from .summary import BRDF_PARAMS, HIST_BINS, column
+
+__all__ = ["QUERY_FORMAT", "Stat", "QueryResult", "normalise_filters", "run_query", "histogram_sparkline"]
+
+#: Version tag of the JSON document.
+QUERY_FORMAT = "facestats.query/1"
+#: Scattering parameters reported per channel (subject level and per site).
+SCATTERING = ("sigma_a", "sigma_s_prime", "sigma_tr")
+UNITS = {"rho_s": "1", "m": "1", "exponent": "1", "sigma": "mm-1", "albedo": "1"}
+_SYMBOL = {"sigma_a": "σa", "sigma_s_prime": "σ's", "sigma_tr": "σtr"}
+_ASCII_SYMBOL = {"sigma_a": "sigma_a", "sigma_s_prime": "sigma_s'", "sigma_tr": "sigma_tr"}
+
+
+@dataclass(frozen=True)
+class Stat:
+    """Mean and sample standard deviation of ``n`` values (NaN when undefined)."""
+
+    mean: float
+    std: float
+    n: int
+    within_std: float | None = None
+
+    def to_dict(self) -> dict:
+        d = {"mean": _num(self.mean), "std": _num(self.std), "n": int(self.n)}
+        if self.within_std is not None:
+            d["within_std"] = _num(self.within_std)
+        return d
+
+
+def _num(x):
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _stat(x: np.ndarray, within: np.ndarray | None = None) -> Stat:
+    """Stat of the finite values of ``x`` (no warnings on empty input)."""
+    x = np.asarray(x, dtype=np.float64)
+    x = x[np.isfinite(x)]
+    n = int(x.size)
+    mean = float(x.mean()) if n else math.nan
+    std = float(x.std(ddof=1)) if n > 1 else math.nan
+    w = None
+    if within is not None:
+        within = np.asarray(within, dtype=np.float64)
+        within = within[np.isfinite(within)]
+        w = float(within.mean()) if within.size else math.nan
+    return Stat(mean, std, n, w)
+
+
+def normalise_filters(skin_type=None, gender=None, age=None, condition=None, region=None) -> dict:
+    """Parse the query filters (raises :class:`facestats.errors.ValidationError` on a bad value).
+
+    Returns the JSON-ready form used in :attr:`QueryResult.filters`: skin types
+    as a list of ints (I and II are grouped), age as ``[min, max]``.
+    """
+    out = {"skin_type": None, "gender": None, "age": None, "condition": None, "region": None}
+    if skin_type is not None:
+        t = parse_skin_type(skin_type)
+        out["skin_type"] = [1, 2] if t in (1, 2) else [t]
+    if gender is not None:
+        out["gender"] = parse_gender(gender)
+    if age is not None:
+        out["age"] = list(parse_age(age))
+    if condition is not None:
+        out["condition"] = parse_condition(condition)
+    if region is not None:
+        out["region"] = parse_region(region)
+    return out
+
+
+def describe_filters(filters: dict) -> str:
+    """A one-line human description of normalised filters."""
+    parts = []
+    st = filters.get("skin_type")
+    parts.append("skin type " + ("any" if st is None else "/".join(ROMAN[t] for t in st)))
+    parts.append("gender " + (filters.get("gender") or "any"))
+    a = filters.get("age")
+    parts.append("age " + ("any" if a is None else f"{a[0]}-{a[1]}"))
+    parts.append("condition " + (filters.get("condition") or "any"))
+    if filters.get("region") is not None:
+        r = filters["region"]
+        parts.append(f"region {r} ({REGIONS[r]})")
+    return ", ".join(parts)
+
+
+@dataclass(frozen=True)
+class QueryResult:
+    """What :meth:`facestats.io.store.Store.query` returns (see the module docstring).
+
+    Attributes
+    ----------
+    filters : dict
+        Normalised filters.
+    count, n_persons : int
+        Matching subject records and distinct persons among them.
+    subject_ids : tuple of str
+    n_store : int
+        Subjects in the store.
+    breakdown : dict
+        Counts of the matches by gender, skin type (Roman), age group, condition, kind.
+    regions : tuple of dict
+        Per region: ``{"region", "name", "ts_rho_s": Stat, "ts_m": Stat, "bp_rho_s": Stat, "bp_exponent": Stat}``.
+    scattering : dict
+        ``{param: {channel: Stat}}`` for σa, σ's, σtr of the subjects (mm⁻¹).
+    sites : dict
+        ``{site: {param: {channel: Stat}}}`` for the contact-sensor sites (mm⁻¹).
+    albedo : dict
+        ``{channel: Stat}`` of the subjects' mean face albedo.
+    albedo_histogram : numpy.ndarray or None
+        (3, 256) mean normalised histogram (rows R, G, B); None if nothing matches.
+    store : str
+        Where the data came from.
+    """
+
+    filters: dict
+    count: int
+    n_persons: int
+    subject_ids: tuple
+    n_store: int
+    breakdown: dict
+    regions: tuple
+    scattering: dict
+    sites: dict
+    albedo: dict
+    albedo_histogram: np.ndarray | None = field(repr=False)
+    store: str = ""
+
+    # -- JSON ----------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """The documented JSON document (format ``facestats.query/1``; NaN -> null)."""
+        hist = {"bins": HIST_BINS, "range": [0.0, 1.0]}
+        for c, ch in enumerate(CHANNELS):
+            hist[ch] = None if self.albedo_histogram is None else [float(v) for v in self.albedo_histogram[c]]
+        return {
+            "format": QUERY_FORMAT,
+            "store": self.store,
+            "n_store_subjects": int(self.n_store),
+            "filters": dict(self.filters),
+            "count": int(self.count),
+            "n_persons": int(self.n_persons),
+            "subject_ids": list(self.subject_ids),
+            "breakdown": {k: dict(v) for k, v in self.breakdown.items()},
+            "units": dict(UNITS),
+            "regions": [
+                {"region": r["region"], "name": r["name"], **{p: r[p].to_dict() for p in BRDF_PARAMS}}
+                for r in self.regions
+            ],
+            "scattering": {p: {ch: s.to_dict() for ch, s in d.items()} for p, d in self.scattering.items()},
+            "sites": {
+                site: {p: {ch: s.to_dict() for ch, s in d.items()} for p, d in params.items()}
+                for site, params in self.sites.items()
+            },
+            "albedo": {ch: s.to_dict() for ch, s in self.albedo.items()},
+            "albedo_histogram": hist,
+        }
+
+    def to_json(self, indent: int | None = 2) -> str:
+        import json
+
+        return json.dumps(self.to_dict(), indent=indent, allow_nan=False)
+
+    # -- CSV -----------------------------------------------------------------------
+    def to_csv(self) -> str:
+        """Long CSV: one row per statistic, arrays (ids, histograms) space-separated in ``values``.
+
+        Columns: ``section, quantity, region, region_name, site, channel, n,
+        mean, std, within_std, values``.  Sections: ``meta`` (count,
+        n_persons, subject_ids), ``brdf``, ``scattering``, ``site``,
+        ``albedo``, ``histogram``.
+        """
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(["section", "quantity", "region", "region_name", "site", "channel", "n", "mean", "std",
+                    "within_std", "values"])
+
+        def f(x):
+            x = _num(x)
+            return "" if x is None else repr(x)
+
+        def stat_row(section, quantity, s: Stat, region="", name="", site="", ch=""):
+            w.writerow([section, quantity, region, name, site, ch, s.n, f(s.mean), f(s.std),
+                        "" if s.within_std is None else f(s.within_std), ""])
+
+        w.writerow(["meta", "count", "", "", "", "", self.count, "", "", "", ""])
+        w.writerow(["meta", "n_persons", "", "", "", "", self.n_persons, "", "", "", ""])
+        w.writerow(["meta", "subject_ids", "", "", "", "", self.count, "", "", "", " ".join(self.subject_ids)])
+        for r in self.regions:
+            for p in BRDF_PARAMS:
+                stat_row("brdf", p, r[p], r["region"], r["name"])
+        for p, d in self.scattering.items():
+            for ch, s in d.items():
+                stat_row("scattering", p, s, ch=ch)
+        for site, params in self.sites.items():
+            for p, d in params.items():
+                for ch, s in d.items():
+                    stat_row("site", p, s, site=site, ch=ch)
+        for ch, s in self.albedo.items():
+            stat_row("albedo", "albedo", s, ch=ch)
+        for c, ch in enumerate(CHANNELS):
+            vals = "" if self.albedo_histogram is None else " ".join(repr(float(v)) for v in self.albedo_histogram[c])
+            w.writerow(["histogram", "albedo_histogram", "", "", "", ch, self.count, "", "", "", vals])
+        return buf.getvalue()
+
+    # -- text ----------------------------------------------------------------------
+    def to_table(self, *, ascii: bool = False, columns: int = 32) -> str:
+        """A human-readable report; histograms drawn as ``columns``-wide bar strips."""
+        lines = [f"facestats query: {describe_filters(self.filters)}",
+                 f"store: {self.store} ({self.n_store} subjects)"]
+        if self.count == 0:
+            lines.append("no subject matches these filters")
+            return "\n".join(lines) + "\n"
+        persons = "" if self.n_persons == self.count else f" ({self.n_persons} distinct persons)"
+        lines.append(f"matching subjects: {self.count}{persons}")
+        for key, title in (("gender", "gender"), ("skin_type", "skin type"), ("age_group", "age"),
+                           ("condition", "condition"), ("kind", "kind")):
+            counts = self.breakdown.get(key, {})
+            if counts:
+                lines.append(f"  {title:<10} " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+        pm = "+-" if ascii else "±"
+        lines.append("")
+        lines.append(f"Specular BRDF per region: mean {pm} std across subjects (n = subjects with samples)")
+        head = ["region", "TS rho_s" if ascii else "TS ρs", "TS m", "BP rho_s" if ascii else "BP ρs", "BP n", "n"]
+        rows = []
+        for r in self.regions:
+            rows.append([f"{r['region']:>2} {r['name']}"] + [_fmt_stat(r[p], pm) for p in BRDF_PARAMS]
+                        + [str(max(r[p].n for p in BRDF_PARAMS))])
+        lines += _grid(head, rows)
+        lines.append("")
+        unit = "1/mm" if ascii else "mm⁻¹"
+        lines.append(f"Scattering ({unit}) and albedo: mean {pm} std across subjects")
+        sym = _ASCII_SYMBOL if ascii else _SYMBOL
+        rows = []
+        for p in SCATTERING:
+            rows.append([sym[p]] + [_fmt_stat(self.scattering[p][ch], pm) for ch in CHANNELS])
+        for site in SITES:
+            for p in SCATTERING:
+                stats = [self.sites[site][p][ch] for ch in CHANNELS]
+                if any(s.n for s in stats):
+                    rows.append([f"{sym[p]} {site}"] + [_fmt_stat(s, pm) for s in stats])
+        rows.append(["albedo"] + [_fmt_stat(self.albedo[ch], pm) for ch in CHANNELS])
+        lines += _grid(["", *CHANNELS], rows)
+        lines.append("")
+        if self.albedo_histogram is None:
+            lines.append("albedo histograms: no albedo data")
+        else:
+            lines.append(f"Albedo histograms ({HIST_BINS} bins over [0, 1] drawn as {columns} columns; "
+                         "mean of the subjects' normalised histograms)")
+            lines.append("    0" + " " * (columns - 2) + "1")
+            for c, ch in enumerate(CHANNELS):
+                lines.append(f"{ch}  |{histogram_sparkline(self.albedo_histogram[c], columns, ascii=ascii)}|")
+        return "\n".join(lines) + "\n"
+
+
+def _fmt_num(x: float) -> str:
+    if not math.isfinite(x):
+        return "-"
+    return f"{x:.4g}"
+
+
+def _fmt_stat(s: Stat, pm: str) -> str:
+    if s.n == 0:
+        return "-"
+    if not math.isfinite(s.std):
+        return f"{_fmt_num(s.mean)} (n={s.n})"
+    return f"{_fmt_num(s.mean)} {pm} {s.std:.2g}"
+
+
+def _grid(head, rows) -> list[str]:
+    widths = [max(len(str(x)) for x in col) for col in zip(head, *rows)]
+    out = ["  ".join(str(h).ljust(w) for h, w in zip(head, widths)).rstrip()]
+    for r in rows:
+        out.append("  ".join(str(x).ljust(w) for x, w in zip(r, widths)).rstrip())
+    return out
+
+
+_BARS = " ▁▂▃▄▅▆▇█"
+_ASCII_BARS = " .:-=+*#@"
+
+
+def histogram_sparkline(hist, columns: int = 32, *, ascii: bool = False) -> str:
+    """Draw a histogram as ``columns`` characters (bins summed in groups; height relative to the maximum).
+
+    ``len(hist)`` must be a multiple of ``columns``.  Empty bins print as a
+    space, any non-empty bin as at least the lowest bar.
+    """
+    h = np.asarray(hist, dtype=np.float64)
+    if h.size % columns:
+        raise ValueError(f"histogram length {h.size} is not a multiple of columns={columns}")
+    g = h.reshape(columns, -1).sum(axis=1)
+    bars = _ASCII_BARS if ascii else _BARS
+    top = g.max()
+    if top <= 0:
+        return " " * columns
+    level = np.ceil(g / top * (len(bars) - 1)).astype(int)
+    return "".join(bars[i] for i in level)
+
+
+def _counts(values, order) -> dict:
+    vals, n = np.unique(np.asarray(values, dtype=object).astype(str), return_counts=True)
+    d = dict(zip(vals.tolist(), n.tolist()))
+    keys = [k for k in order if k in d] + sorted(k for k in d if k not in order)
+    return {k: int(d[k]) for k in keys}
+
+
+def run_query(table, *, skin_type=None, gender=None, age=None, condition=None, region=None,
+              store: str = "") -> QueryResult:
+    """Filter the index and summarise the matching subjects (see the module docstring).
+
+    Parameters
+    ----------
+    table : facestats.io.index.IndexTable
+        The population index as columns.
+    skin_type, gender, age, condition, region
+        Filters; ``None`` = no filter.  Invalid values raise
+        :class:`facestats.errors.ValidationError`.
+    store : str
+        Label of the store for the report.
+    """
+    filters = normalise_filters(skin_type, gender, age, condition, region)
+    n_all = len(table)
+    mask = np.ones(n_all, dtype=bool)
+    if n_all:
+        if filters["skin_type"] is not None:
+            mask &= np.isin(table["skin_type"], filters["skin_type"])
+        if filters["gender"] is not None:
+            mask &= table["gender"] == filters["gender"]
+        if filters["age"] is not None:
+            lo, hi = filters["age"]
+            mask &= (table["age"] >= lo) & (table["age"] <= hi)
+        if filters["condition"] is not None:
+            mask &= table["condition"] == filters["condition"]
+    idx = np.flatnonzero(mask)
+    count = int(idx.size)
+
+    def col(name):
+        if name in table.columns:
+            return np.asarray(table[name][idx], dtype=np.float64)
+        return np.full(count, np.nan)
+
+    if count:
+        ages = table["age"][idx]
+        age_labels = [next(lbl for lbl, lo, hi in AGE_GROUPS if lo <= a <= hi) for a in ages.tolist()]
+        breakdown = {
+            "gender": _counts(table["gender"][idx], GENDERS),
+            "skin_type": _counts([ROMAN[int(t)] for t in table["skin_type"][idx]], ROMAN.values()),
+            "age_group": _counts(age_labels, [g[0] for g in AGE_GROUPS]),
+            "condition": _counts(table["condition"][idx], CONDITIONS),
+            "kind": _counts(table["kind"][idx], ("maps", "samples")),
+        }
+        n_persons = len(set(table["person_id"][idx].tolist()))
+    else:
+        breakdown = {"gender": {}, "skin_type": {}, "age_group": {}, "condition": {}, "kind": {}}
+        n_persons = 0
+
+    region_ids = [filters["region"]] if filters["region"] is not None else list(REGIONS)
+    regions = []
+    for r in region_ids:
+        entry = {"region": r, "name": REGIONS[r]}
+        for p in BRDF_PARAMS:
+            entry[p] = _stat(col(column("mean", param=p, region=r)), col(column("std", param=p, region=r)))
+        regions.append(entry)
+    scattering = {p: {ch: _stat(col(column("subject", param=p, channel=ch))) for ch in CHANNELS}
+                  for p in SCATTERING}
+    sites = {site: {p: {ch: _stat(col(column("site", param=p, site=site, channel=ch))) for ch in CHANNELS}
+                    for p in SCATTERING} for site in SITES}
+    albedo = {ch: _stat(col(f"albedo_mean_{ch}")) for ch in CHANNELS}
+
+    hist = None
+    if count:
+        h = table.hists[idx].astype(np.float64)  # (n, 3, bins)
+        tot = h.sum(axis=2, keepdims=True)
+        has = tot[..., 0] > 0  # (n, 3)
+        norm = np.divide(h, tot, out=np.zeros_like(h), where=tot > 0)
+        k = has.sum(axis=0)  # subjects with albedo data per channel
+        if np.all(k > 0):
+            hist = norm.sum(axis=0) / k[:, None]
+    return QueryResult(
+        filters=filters,
+        count=count,
+        n_persons=n_persons,
+        subject_ids=tuple(table.ids[i] for i in idx),
+        n_store=n_all,
+        breakdown=breakdown,
+        regions=tuple(regions),
+        scattering=scattering,
+        sites=sites,
+        albedo=albedo,
+        albedo_histogram=hist,
+        store=store,
+    )

@@ -1,0 +1,184 @@
+"""Region PCA (Weyrich Fig. 15), population selection and condition differences.
+
+Also home of :class:`MemoryStore`, the in-memory stand-in of the parameter store
+interface (``subjects()``, ``subject(id)``, ``region_samples(model, subjects)``)
+that the analysis tests and benchmark build from ``tests/factories.py`` subjects.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from facestats.analysis import condition_differences, principal_axes, region_pca, select_population
+from facestats.conventions import CONDITIONS, REGION_IDS
+from facestats.errors import ValidationError
+from facestats.io.summary import region_samples, summarise_subject
+from tests.factories import make_map_subject
+
+#: Skin-type frequencies of Weyrich Table 2 (types II-VI).
+_TYPE_P = np.array([14, 67, 48, 15, 5]) / 149
+
+
+class MemoryStore:
+    """In-memory stand-in of the store interface used by :mod:`facestats.analysis`."""
+
+    def __init__(self, datasets):
+        self._ds = {str(ds.attrs["subject_id"]): ds for ds in datasets}
+        self._index = pd.DataFrame.from_records([summarise_subject(ds) for ds in datasets]).set_index("subject_id")
+
+    def subjects(self):
+        return self._index.copy()
+
+    def subject(self, subject_id):
+        return self._ds[subject_id]
+
+    def region_samples(self, model="ts", subjects=None):
+        ids = list(self._ds) if subjects is None else [str(s) for s in subjects]
+        parts = []
+        for sid in ids:
+            for r, (rho, lobe) in region_samples(self._ds[sid], model).items():
+                parts.append(pd.DataFrame({"subject_id": sid, "region": r, "rho_s": rho, "lobe": lobe}))
+        return pd.concat(parts, ignore_index=True)
+
+
+def make_population(n=40, seed=0, size=24, conditions=True):
+    """``n`` normal-condition subjects (skin types as Table 2) plus one person under the seven conditions.
+
+    ρs rises with skin type and is higher for women (so CCA has something to
+    find); σtr rises 4 % per skin type.
+    """
+    rng = np.random.default_rng(seed)
+    datasets = []
+    for i in range(n):
+        st = int(rng.choice([2, 3, 4, 5, 6], p=_TYPE_P)) if i >= 5 else 2 + i  # every type present
+        if st == 2 and rng.uniform() < 0.3:
+            st = 1  # some type I subjects (grouped with II)
+        gender = "F" if rng.uniform() < 0.3 else "M"
+        age = int(rng.integers(18, 66))
+        shift = 0.02 * (st - 3) + 0.015 * (gender == "F") + 0.004 * rng.standard_normal()
+        ds = make_map_subject(f"S{i:03d}", size=size, skin_type=st, gender=gender, age=age, seed=seed * 1000 + i,
+                              rho_shift=shift)
+        ds["site_sigma_tr"] = ds["site_sigma_tr"] * (1 + 0.04 * (st - 3))
+        datasets.append(ds)
+    if conditions:
+        for j, cond in enumerate(CONDITIONS):
+            datasets.append(make_map_subject(f"C{j}", size=size, skin_type=3, gender="M", age=30, condition=cond,
+                                             seed=seed * 1000 + 900 + j, rho_shift=0.03 * j, person_id="P-cond"))
+    return MemoryStore(datasets)
+
+
+@pytest.fixture(scope="module")
+def store():
+    return make_population()
+
+
+def test_principal_axes_eigendecomposition_matches_svd(rng):
+    x = rng.multivariate_normal([0.2, 0.35], [[4e-4, -1.5e-4], [-1.5e-4, 2.5e-4]], size=500)
+    mean, w, v = principal_axes(x)
+    xc = x - x.mean(0)
+    _, s, vt = np.linalg.svd(xc, full_matrices=False)
+    np.testing.assert_allclose(mean, x.mean(0), rtol=1e-12)
+    np.testing.assert_allclose(w, s**2 / (len(x) - 1), rtol=1e-10)
+    for i in range(2):  # same directions up to sign
+        assert abs(abs(v[:, i] @ vt[i]) - 1) < 1e-10
+    assert np.all(v[np.argmax(np.abs(v), axis=0), [0, 1]] > 0)
+    np.testing.assert_allclose(v.T @ v, np.eye(2), atol=1e-12)
+
+
+def test_principal_axes_recovers_known_covariance(rng):
+    angle = np.radians(30)
+    rot = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    cov = rot @ np.diag([0.04**2, 0.01**2]) @ rot.T
+    x = rng.multivariate_normal([0.2, 0.4], cov, size=200_000)
+    mean, w, v = principal_axes(x)
+    np.testing.assert_allclose(mean, [0.2, 0.4], atol=3e-4)
+    np.testing.assert_allclose(np.sqrt(w), [0.04, 0.01], rtol=0.01)
+    assert abs(abs(v[:, 0] @ rot[:, 0]) - 1) < 1e-4
+
+
+def test_region_pca_against_svd_of_pooled_samples(store):
+    res = region_pca(store)
+    ids = [s for s in store.subjects().index if s.startswith("S")]  # the normal-condition population
+    assert res.n_subjects == len(ids) + 1  # + the normal measurement of the condition series
+    ids.append("C0")
+    for r in REGION_IDS:
+        pooled = np.concatenate([np.stack(region_samples(store.subject(s), "ts")[r], 1) for s in ids])
+        e = res[r]
+        assert e.n == len(pooled)
+        np.testing.assert_allclose(e.mean, pooled.mean(0), rtol=1e-10)
+        _, s, vt = np.linalg.svd(pooled - pooled.mean(0), full_matrices=False)
+        np.testing.assert_allclose(e.eigenvalues, s**2 / (len(pooled) - 1), rtol=1e-8)
+        assert abs(abs(e.eigenvectors[:, 0] @ vt[0]) - 1) < 1e-8
+    # the factories give the nose (6) the smallest mean m, as Weyrich observe
+    assert min(res.regions, key=lambda r: res[r].mean[1]) == 6
+
+
+def test_region_ellipse_geometry(store):
+    e = region_pca(store)[8]
+    pts = e.boundary(k=2.0, n_points=50)
+    cov = e.eigenvectors @ np.diag(e.eigenvalues) @ e.eigenvectors.T
+    d = pts - e.mean
+    maha = np.sqrt(np.einsum("ni,ij,nj->n", d, np.linalg.inv(cov), d))
+    np.testing.assert_allclose(maha, 2.0, rtol=1e-10)
+    np.testing.assert_allclose(e.half_axes(2.0), 2 * np.sqrt(e.eigenvalues))
+    assert -np.pi / 2 < e.angle <= np.pi / 2
+    frame = region_pca(store).to_frame()
+    assert list(frame.index) == list(REGION_IDS)
+    np.testing.assert_allclose(frame.loc[8, "std_1"], np.sqrt(e.eigenvalues[0]))
+
+
+def test_region_pca_dataframe_and_blinn_phong(store):
+    ids = list(select_population(store).index)
+    df = store.region_samples("ts", ids)
+    a, b = region_pca(store), region_pca(df)
+    for r in REGION_IDS:
+        np.testing.assert_allclose(a[r].eigenvalues, b[r].eigenvalues, rtol=1e-12)
+    bp = region_pca(store, model="bp")
+    assert bp.parameters == ("rho_s", "exponent")
+    # Blinn-Phong exponent of the factories is 2/m^2 - 2, far larger than m
+    assert bp[7].mean[1] > 10
+
+
+def test_select_population_and_errors(store):
+    normal = select_population(store)
+    assert set(normal["condition"]) == {"normal"}
+    assert len(select_population(store, conditions=None)) == len(store.subjects())
+    assert list(select_population(store, subjects=["S001", "S002"]).index) == ["S001", "S002"]
+    with pytest.raises(ValidationError, match="unknown"):
+        select_population(store, subjects=["nope"])
+    with pytest.raises(ValidationError, match="no subject"):
+        select_population(store, subjects=["S001"], conditions=["cold"])
+    with pytest.raises(ValidationError, match="source"):
+        region_pca(42)
+    with pytest.raises(ValidationError, match="model"):
+        region_pca(store, model="lafortune")
+
+
+def test_condition_differences_against_index(store):
+    res = condition_differences(store)
+    assert res.person_id == "P-cond"
+    assert res.conditions == CONDITIONS
+    idx = store.subjects()
+    for j, cond in enumerate(CONDITIONS[1:], start=1):
+        for r in (2, 6, 8):
+            want = idx.loc[f"C{j}", f"ts_rho_s_mean_r{r}"] - idx.loc["C0", f"ts_rho_s_mean_r{r}"]
+            assert res.differences.loc[(cond, r), "d_rho_s"] == pytest.approx(want, rel=1e-12)
+            s = np.sqrt((idx.loc[f"C{j}", f"ts_rho_s_std_r{r}"] ** 2 + idx.loc["C0", f"ts_rho_s_std_r{r}"] ** 2) / 2)
+            assert res.differences.loc[(cond, r), "z_rho_s"] == pytest.approx(want / s, rel=1e-10)
+    # rho_shift grows 0.03 per condition, so d_rho_s ≈ 0.03 j in every region
+    d = res.differences["d_rho_s"].xs("powder", level="condition")
+    np.testing.assert_allclose(d, 0.18, atol=0.01)
+    dist = res.distance.to_numpy()
+    np.testing.assert_allclose(dist, dist.T)
+    assert np.all(np.diag(dist) == 0)
+    assert dist[0, 6] > dist[0, 1] > 0  # powder (shift 0.18) is further from normal than cold (0.03)
+
+
+def test_condition_differences_needs_a_series():
+    plain = make_population(n=5, conditions=False)
+    with pytest.raises(ValidationError, match="another condition"):
+        condition_differences(plain)
+    with pytest.raises(ValidationError, match="person_id"):
+        condition_differences(make_population(n=5), person_id="nobody")

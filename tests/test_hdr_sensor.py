@@ -1,0 +1,60 @@
+"""Camera HDR merging and the contact sensor (Weyrich et al. 2006 §5, §5.4)."""
+
+import numpy as np
+import pytest
+
+from facestats import FacestatsError
+from facestats.acquire.hdr import CameraResponse, expose, merge_exposures, merged_std
+from facestats.acquire.sensor import ContactSensor
+from facestats.model import dipole
+
+
+def test_hdr_merge_unbiased_with_predicted_noise(rng):
+    cam = CameraResponse()
+    times = np.array([1 / 60, 1 / 8])
+    rate = np.geomspace(50, 5e6, 40)  # electrons per second: dark to clipped in the long exposure
+    reps = np.repeat(rate[None], 4000, 0)
+    dn = expose(reps, times, cam, rng, dtype=np.float64)
+    est, std, n_used = merge_exposures(dn, times, cam)
+    ok = np.all(n_used > 0, axis=0)
+    assert ok.sum() >= 30
+    mean = est[:, ok].mean(0)
+    sd = est[:, ok].std(0)
+    pred = merged_std(rate[ok], times, cam)
+    np.testing.assert_allclose(mean, rate[ok], rtol=0.02, atol=3 * pred.max() / np.sqrt(4000) + 1)
+    np.testing.assert_allclose(sd, pred, rtol=0.12)
+    # Highlights that clip in the long exposure are read from the short one.
+    bright = rate > 0.95 * cam.full_well / times[1]
+    assert np.all(n_used[:, bright & ok] == 1)
+
+
+def test_all_clipped_is_nan():
+    cam = CameraResponse()
+    dn = np.full((3, 2), cam.max_dn, float)
+    est, std, n = merge_exposures(dn, [0.1, 1.0], cam)
+    assert np.all(np.isnan(est)) and np.all(n == 0)
+
+
+def test_sensor_layout_and_bracket():
+    s = ContactSensor()
+    assert s.n_fibers == 28 and s.n_exposures == 23
+    np.testing.assert_allclose(np.diff(np.log2(s.exposure_times)), 2 / 3)
+    # The 23-image bracket takes about the 88 s of §5.4 at the default shortest exposure.
+    assert 60 < s.exposure_times.sum() < 100
+    with pytest.raises(FacestatsError, match="fiber_distance must be strictly increasing"):
+        ContactSensor(fiber_distance=np.array([1.0, 0.5]))
+
+
+def test_sensor_profiles_follow_the_dipole(rng):
+    s = ContactSensor()
+    sp = np.array([2.4, 1.7, 1.8])
+    sa = np.array([0.04, 0.17, 0.36])
+    truth = dipole.dipole_profile(s.fiber_distance[:, None], sp, sa)  # (fiber, channel)
+    meas = np.stack([s.capture(truth, rng)[0] for _ in range(300)])
+    std = s.profile_std(truth)
+    z = (meas - truth) / std
+    strong = truth / std > 10
+    assert abs(z[:, strong].mean()) < 0.05
+    assert z[:, strong].std() == pytest.approx(1.0, abs=0.1)
+    # Relative noise below 1 % where the signal is strong: a profile good enough to fit.
+    assert np.all((std / truth)[:10] < 0.01)

@@ -1,0 +1,187 @@
+"""The dome and contact-sensor simulator (Weyrich et al. 2006 §5, §5.4) and captures on disk."""
+
+import numpy as np
+import pytest
+
+from facestats.acquire.capture import Capture, open_capture
+from facestats.acquire.dome import Dome, default_dome, look_at
+from facestats.acquire.face import FaceGeometry, procedural_face
+from facestats.acquire.hdr import CameraResponse
+from facestats.acquire.population import SubjectTruth, synthesize_population
+from facestats.acquire.simulate import DomeSimulator
+from facestats.model import brdf, dipole
+from facestats.model.fresnel import fresnel_reflectance, fresnel_transmittance
+
+
+@pytest.fixture(scope="module")
+def pop32():
+    return synthesize_population(map_size=32, conditions=False)
+
+
+@pytest.fixture(scope="module")
+def sim32():
+    return DomeSimulator(procedural_face(32))
+
+
+def test_same_seed_gives_bit_identical_captures(pop32, sim32):
+    a = sim32.simulate(pop32[3])
+    b = sim32.simulate(pop32[3])
+    c = sim32.simulate(pop32[3], seed=99)
+    for k in a.arrays:
+        assert a.array(k).tobytes() == b.array(k).tobytes(), k
+    assert a.array("radiance").tobytes() != c.array("radiance").tobytes()
+
+
+def test_valid_samples_per_lumitexel_match_the_paper():
+    # §5: "about 900 BRDF samples per color channel, with many lumitexels having up to 1,200".
+    sim = DomeSimulator(procedural_face(64))
+    n = sim.samples_per_lumitexel()
+    assert 850 <= np.median(n) <= 1000
+    assert np.percentile(n, 90) <= 1300
+    frontal = np.abs(sim.geometry.normal[:, 2]) > 0.9
+    assert 850 <= np.median(n[frontal]) <= 1100
+
+
+def test_noise_free_radiance_is_the_skin_model(pop32):
+    from facestats.model import skin
+
+    g = procedural_face(32)
+    sim = DomeSimulator(g, noise=False, block=100)  # several blocks: local (flat-patch) transport
+    truth = pop32[5]
+    cap = sim.simulate(truth)
+    lt = cap.lumitexels(200, 260)
+    tex = g.texel_index(32)[200:260]
+    alb = truth.albedo[tex[:, 0], tex[:, 1]]
+    sp, sa = truth.scattering
+    normal = g.normal[200:260]
+    wi, e_perp = sim.dome.incident(g.position[200:260])
+    cos_i = np.einsum("nk,nlk->nl", normal, wi)
+    model = skin.skin_radiance(
+        normal, wi, e_perp * np.maximum(cos_i, 0)[..., None], lt.wo.astype(float),
+        rho_s=truth.ts_rho_s[tex[:, 0], tex[:, 1]], roughness=truth.ts_m[tex[:, 0], tex[:, 1]],
+        modulation=alb / truth.albedo_avg, subsurface=skin.SubsurfaceTransport(sp, sa),
+    )
+    valid = lt.valid
+    assert valid.sum() > 20000
+    np.testing.assert_allclose(lt.radiance[valid], model[valid], rtol=2e-3, atol=1e-7)  # float16 storage
+
+
+def _flat_patch_geometry():
+    x = np.arange(-2, 3, 1.0)
+    xx, yy = np.meshgrid(x, x)
+    pos = np.stack([xx.ravel(), yy.ravel(), np.zeros(25)], 1)
+    verts = np.array([[-60.0, -60, 0], [60, -60, 0], [60, 60, 0], [-60, 60, 0]])
+    return FaceGeometry(position=pos, normal=np.tile([0, 0, 1.0], (25, 1)), area=np.ones(25), uv=(pos[:, :2] + 2.5) / 5,
+                        region=np.full(25, 7), map_size=4, mesh_vertices=verts, mesh_faces=np.array([[0, 1, 2], [0, 2, 3]]),
+                        region_map=np.full((4, 4), 7, np.uint8), meta={"mesh_grid": 32})
+
+
+def test_energy_conservation_of_simulated_radiance():
+    """Reflected flux over a dense hemisphere of cameras equals (and never exceeds) the incident flux × albedo."""
+    n_cam = 900
+    k = np.arange(n_cam) + 0.5
+    z = 1 - k / n_cam  # equal-area bands over the upper hemisphere
+    phi = np.pi * (1 + 5**0.5) * k
+    dirs = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], 1)
+    cam_pos = 2000.0 * dirs
+    th = np.radians(40.0)
+    led = np.array([[1000 * np.sin(th), 0.0, 1000 * np.cos(th)]])
+    f = 64.0
+    dome = Dome(led_position=led, led_axis=-led / 1000, led_intensity=np.array([[1e6, 1e6, 1e6]]),
+                led_beam=np.array([[1.0, 0, 0, 0, 0, 0]]), camera_position=cam_pos, camera_rotation=look_at(cam_pos, [0, 0, 0]),
+                camera_matrix=np.tile([[f, 0, 32], [0, f, 32], [0, 0, 1]], (n_cam, 1, 1)), image_size=np.full((n_cam, 2), 64),
+                exposure_times=np.array([1.0]), camera_scale=1.0, response=CameraResponse())
+    g = _flat_patch_geometry()
+    albedo = np.array([0.5, 0.3, 0.2])
+    full = np.ones((4, 4))
+    truth = SubjectTruth(subject_id="E", person_id="E", age=30, gender="M", skin_type=3, condition="normal",
+                         region_map=g.region_map, albedo=(full[..., None] * albedo).astype(np.float32),
+                         ts_rho_s=(0.25 * full).astype(np.float32), ts_m=(0.3 * full).astype(np.float32),
+                         bp_rho_s=full.astype(np.float32), bp_exponent=full.astype(np.float32),
+                         site_sigma_tr=np.ones((3, 3)), site_albedo=np.tile(albedo, (3, 1)), sigma_tr=np.array([0.55, 0.98, 1.55]))
+    sim = DomeSimulator(g, dome, noise=False, scan_normal_noise_deg=0, shadow_resolution=64)
+    cap = sim.simulate(truth)
+    lt = cap.lumitexels(12, 13)  # the centre point
+    rad = lt.radiance[0, :, 0, :]  # (camera, channel)
+    e = lt.irradiance[0, 0] * np.cos(th)
+    cos_o = dirs[:, 2]
+    seen = np.isfinite(rad[:, 0])
+    assert seen.sum() > 0.97 * n_cam
+    flux = np.nansum(rad * cos_o[:, None], axis=0) * (2 * np.pi / n_cam) / e  # reflected / incident
+    mu = np.linspace(0, 1, 20001)
+    f_ext = 2 * np.trapezoid(fresnel_reflectance(mu, 1.38) * mu, mu)
+    diffuse = albedo * fresnel_transmittance(np.cos(th)) * (1 - f_ext)
+    wo = dirs
+    spec = np.sum(brdf.torrance_sparrow([0, 0, 1.0], [np.sin(th), 0, np.cos(th)], wo, 0.25, 0.3) * cos_o) * 2 * np.pi / n_cam
+    np.testing.assert_allclose(flux, diffuse + spec, rtol=0.03)
+    assert np.all(flux < 1)
+
+
+def test_capture_round_trip_through_zarr(tmp_path, pop32, sim32):
+    cap = sim32.simulate(pop32[1])
+    path = cap.to_zarr(tmp_path / "cap.zarr", chunk=300)
+    back = open_capture(path)
+    for k in cap.arrays:
+        np.testing.assert_array_equal(back.array(k), cap.array(k), err_msg=k)
+    assert back.metadata == cap.metadata and back.dome.n_leds == 150 and back.sensor.n_fibers == 28
+    a, b = cap.lumitexels(100, 400), back.lumitexels(100, 400)
+    np.testing.assert_array_equal(a.radiance, b.radiance)
+    np.testing.assert_array_equal(a.valid, b.valid)
+
+
+def test_streaming_simulation_equals_in_memory(tmp_path, pop32):
+    sim = DomeSimulator(procedural_face(32), block=256)
+    path = sim.simulate_to_zarr(pop32[2], tmp_path / "s.zarr")
+    mem = sim.simulate(pop32[2])
+    disk = open_capture(path)
+    for k in mem.arrays:
+        assert disk.array(k).tobytes() == mem.array(k).tobytes(), k
+
+
+def test_sensor_site_profiles_are_the_dipole(pop32):
+    sim = DomeSimulator(procedural_face(32), noise=False)
+    truth = pop32[7]
+    cap = sim.simulate(truth)
+    sp, sa = truth.site_scattering
+    r = cap.array("fiber_distance")
+    expect = dipole.dipole_profile(r[None, :, None], sp[:, None, :], sa[:, None, :])
+    np.testing.assert_allclose(cap.array("sensor_profile"), expect, rtol=1e-12)
+
+
+def test_head_motion_perturbs_the_samples(pop32):
+    g = procedural_face(32)
+    still = DomeSimulator(g, noise=False).simulate(pop32[0]).array("radiance").astype(float)
+    moved = DomeSimulator(g, noise=False, head_motion_deg=0.5).simulate(pop32[0]).array("radiance").astype(float)
+    both = np.isfinite(still) & np.isfinite(moved) & (still > 1e-3)
+    rel = np.abs(moved[both] / still[both] - 1)
+    assert 1e-4 < np.median(rel) < 0.05
+
+
+def test_dome_calibration_round_trip(tmp_path):
+    d = default_dome()
+    d.save(tmp_path / "dome.json")
+    e = Dome.load(tmp_path / "dome.json")
+    np.testing.assert_allclose(e.led_position, d.led_position)
+    np.testing.assert_allclose(e.camera_matrix, d.camera_matrix)
+    assert d.n_leds == 150 and d.n_cameras == 16
+
+
+def test_real_mesh_loader_round_trip(tmp_path):
+    from facestats.io.mesh import load_face_mesh, save_face_mesh
+
+    g = procedural_face(48, mesh_grid=48)
+    save_face_mesh(g, tmp_path / "face.obj", tmp_path / "regions.npy")
+    h = load_face_mesh(tmp_path / "face.obj", tmp_path / "regions.npy")
+    assert h.n_points == g.n_points and h.map_size == 48
+    from scipy.spatial import cKDTree
+
+    dist, match = cKDTree(g.position).query(h.position)
+    assert dist.max() < 1e-4 and np.unique(match).size == h.n_points
+    np.testing.assert_array_equal(h.region, g.region[match])
+    ang = np.degrees(np.arccos(np.clip(np.sum(h.normal * g.normal[match], 1), -1, 1)))
+    assert np.median(ang) < 2.0
+    np.testing.assert_allclose(h.area.sum(), g.area.sum(), rtol=0.1)
+    # and it can be simulated
+    pop = synthesize_population(map_size=48, conditions=False, geometry=h)
+    cap = DomeSimulator(h).simulate(pop[0])
+    assert np.isfinite(cap.array("radiance")).mean() > 0.2

@@ -1,0 +1,553 @@
+"""The parameter store: round trips, index, queries, integrity checks, zip stores, gc."""
+
+import json
+import os
+import pathlib
+import zipfile
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import facestats
+from facestats.conventions import CHANNELS, REGIONS, SITES
+from facestats.errors import SchemaError, StoreError, ValidationError
+from facestats.io import QueryResult, open_store, pack_store
+from facestats.io import store as store_mod
+from facestats.io.locking import create_locked
+from facestats.io.schema import SCHEMA_VERSION, provenance, set_provenance
+from facestats.io.summary import albedo_histogram, region_samples, summarise_subject
+
+from .factories import make_map_subject, make_sample_subject
+
+# A small population: (id, skin type, gender, age, condition).
+POP = [
+    ("A01", 1, "M", 23, "normal"), ("A02", 2, "F", 27, "normal"), ("A03", 3, "M", 31, "normal"),
+    ("A04", 3, "M", 45, "normal"), ("A05", 3, "F", 52, "normal"), ("A06", 4, "M", 24, "normal"),
+    ("A07", 4, "M", 38, "normal"), ("A08", 4, "F", 29, "normal"), ("A09", 5, "M", 41, "normal"),
+    ("A10", 6, "F", 60, "normal"), ("A11", 4, "M", 24, "lotion"),
+]
+
+
+def population():
+    out = [make_map_subject(sid, skin_type=t, gender=g, age=a, condition=c, seed=k, rho_shift=0.01 * k,
+                            person_id="A06" if sid == "A11" else None)
+           for k, (sid, t, g, a, c) in enumerate(POP)]
+    out.append(make_sample_subject("M001", skin_type=4, gender="F", age=33, seed=3))
+    return out
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    path = tmp_path_factory.mktemp("store") / "pop.zarr"
+    subjects = population()
+    with open_store(path, mode="a") as st:
+        st.write_subjects(subjects)
+    return path, {ds.attrs["subject_id"]: ds for ds in subjects}
+
+
+def _copy_store(src, dst):
+    import shutil
+
+    shutil.copytree(src, dst)
+    return dst
+
+
+def _nan_equal(a, b):
+    if isinstance(a, float) and isinstance(b, float):
+        return (np.isnan(a) and np.isnan(b)) or a == b
+    return a == b
+
+
+# -- round trips -----------------------------------------------------------------------
+def test_map_subject_round_trip_values_attrs_units_and_chunks(tmp_path):
+    ds = make_map_subject("R1", size=80, seed=5)
+    with open_store(tmp_path / "s.zarr", mode="a") as st:
+        assert st.write_subject(ds) == "R1"
+        back = st.subject("R1")
+    assert set(back.variables) == set(ds.variables)
+    for name in ds.variables:
+        assert back[name].dtype == ds[name].dtype, name
+        assert back[name].dims == ds[name].dims, name
+        np.testing.assert_array_equal(back[name].values, ds[name].values, err_msg=name)
+        assert back[name].attrs == ds[name].attrs, name
+    assert back["site_sigma_a"].attrs["units"] == "mm-1"
+    assert back["sensor_profile"].attrs["units"] == "mm-2"
+    assert list(back["channel"].values) == list(CHANNELS)
+    for key in ("subject_id", "person_id", "age", "gender", "skin_type", "condition"):
+        assert back.attrs[key] == ds.attrs[key]
+    assert provenance(back) == dict(provenance(ds), software_version=facestats.__version__)
+    assert store_mod.STORE_ATTR not in back.attrs
+    assert back.encoding[store_mod.STORE_ATTR]["schema"] == SCHEMA_VERSION
+    assert back.sel(channel="G")["albedo"].shape == (80, 80)
+    # maps are chunked in 64-row bands of v
+    meta = json.loads((tmp_path / "s.zarr" / "subjects" / "R1").glob("g*").__next__().joinpath("albedo", "zarr.json").read_text())
+    assert meta["chunk_grid"]["configuration"]["chunk_shape"] == [64, 80, 3]
+    assert meta["dimension_names"] == ["v", "u", "channel"]
+    root = json.loads((tmp_path / "s.zarr" / "zarr.json").read_text())["attributes"]
+    assert root["facestats_schema"] == SCHEMA_VERSION and root["facestats_version"] == facestats.__version__
+
+
+def test_the_written_dataset_is_not_modified(tmp_path):
+    ds = make_map_subject("R2")
+    before = dict(ds.attrs)
+    with open_store(tmp_path / "s.zarr", mode="a") as st:
+        st.write_subject(ds)
+    assert ds.attrs == before and ds["channel"].dtype.kind == "U"
+
+
+def test_sample_subjects_round_trip_including_empty_ones(tmp_path):
+    ds = make_sample_subject("M1", seed=4)
+    empty = make_sample_subject("M2").isel(sample=slice(0, 0), albedo_sample=slice(0, 0))
+    with open_store(tmp_path / "s.zarr", mode="a") as st:
+        st.write_subjects([ds, empty])
+        back, back_empty = st.subject("M1"), st.subject("M2")
+        df = st.subjects()
+    for name in ds.variables:
+        np.testing.assert_array_equal(back[name].values, ds[name].values)
+    assert back_empty.sizes["sample"] == 0 and back_empty.sizes["albedo_sample"] == 0
+    assert df.loc["M2", "n_ts_r3"] == 0 and np.isnan(df.loc["M2", "ts_m_mean_r3"])
+    assert df.loc["M1", "kind"] == "samples"
+
+
+def test_lazy_read_of_one_band_reads_only_its_chunks(tmp_path):
+    ds = make_map_subject("L1", size=128, seed=2)
+    path = tmp_path / "s.zarr"
+    with open_store(path, mode="a") as st:
+        st.write_subject(ds)
+    gen = next((path / "subjects" / "L1").glob("g*"))
+    (gen / "ts_m" / "c" / "1" / "0").unlink()  # the second band of rows (v = 64..127)
+    with open_store(path) as st:
+        lazy = st.subject("L1", lazy=True)
+        np.testing.assert_array_equal(lazy["ts_m"].isel(v=slice(0, 64)).values, ds["ts_m"].values[:64])
+        with pytest.raises(SchemaError, match="'L1'.*'ts_m'.*checksum"):
+            st.subject("L1")
+
+
+# -- index ------------------------------------------------------------------------------
+def test_index_rows_and_histograms_equal_the_summaries(built):
+    path, subjects = built
+    with open_store(path) as st:
+        df = st.subjects()
+        hists = st.albedo_histograms()
+    assert list(df.index) == sorted(subjects)
+    assert hists.shape == (len(subjects), 3, 256)
+    for k, sid in enumerate(df.index):
+        row = summarise_subject(subjects[sid])
+        for key, val in row.items():
+            if key == "subject_id":
+                continue
+            assert _nan_equal(df.loc[sid, key], val), (sid, key)
+        np.testing.assert_array_equal(hists[k], albedo_histogram(subjects[sid]))
+    assert df["age"].dtype == np.int64 and df["skin_type"].dtype == np.int64
+    assert np.isfinite(df.loc["M001", "albedo_mean_R"])  # sample subjects have albedo samples
+
+
+def test_region_samples_long_frame(built):
+    path, subjects = built
+    with open_store(path) as st:
+        for model in ("ts", "bp"):
+            df = st.region_samples(model, subjects=["A03", "M001"])
+            assert list(df.columns) == ["subject_id", "region", "rho_s", "lobe"]
+            for sid in ("A03", "M001"):
+                truth = region_samples(subjects[sid], model)
+                for r, (rho, lobe) in truth.items():
+                    sel = df[(df.subject_id == sid) & (df.region == r)]
+                    np.testing.assert_array_equal(sel.rho_s.values, rho)
+                    np.testing.assert_array_equal(sel.lobe.values, lobe)
+        everyone = st.region_samples()
+        assert set(everyone.subject_id) == set(subjects)
+        with pytest.raises(ValidationError, match="model"):
+            st.region_samples("phong")
+        with pytest.raises(StoreError, match="no subject 'nope'"):
+            st.region_samples(subjects=["nope"])
+
+
+# -- queries ----------------------------------------------------------------------------
+def _direct(subjects, ids):
+    """Summary rows of the original Datasets (not the store) as a DataFrame."""
+    return pd.DataFrame([summarise_subject(subjects[i]) for i in ids]).set_index("subject_id")
+
+
+def test_query_statistics_match_a_direct_computation(built):
+    path, subjects = built
+    with open_store(path) as st:
+        res = st.query(skin_type="III")
+    ids = [sid for sid, ds in subjects.items() if ds.attrs["skin_type"] == 3]
+    assert isinstance(res, QueryResult)
+    assert res.count == 3 and sorted(res.subject_ids) == sorted(ids)
+    df = _direct(subjects, ids)
+    for r in res.regions:
+        for p in ("ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent"):
+            col = df[f"{p}_mean_r{r['region']}"]
+            assert r[p].n == 3
+            assert r[p].mean == pytest.approx(col.mean(), rel=1e-12)
+            assert r[p].std == pytest.approx(col.std(ddof=1), rel=1e-12)
+            assert r[p].within_std == pytest.approx(df[f"{p}_std_r{r['region']}"].mean(), rel=1e-12)
+    for p in ("sigma_a", "sigma_s_prime", "sigma_tr"):
+        for ch in CHANNELS:
+            assert res.scattering[p][ch].mean == pytest.approx(df[f"{p}_{ch}"].mean(), rel=1e-12)
+            for site in SITES:
+                col = df[f"site_{p}_{site}_{ch}"]
+                assert res.sites[site][p][ch].mean == pytest.approx(col.mean(), rel=1e-12)
+                assert res.sites[site][p][ch].std == pytest.approx(col.std(ddof=1), rel=1e-12)
+    for ch in CHANNELS:
+        assert res.albedo[ch].mean == pytest.approx(df[f"albedo_mean_{ch}"].mean(), rel=1e-12)
+    h = np.array([albedo_histogram(subjects[i]) for i in ids], float)
+    h /= h.sum(axis=2, keepdims=True)
+    np.testing.assert_allclose(res.albedo_histogram, h.mean(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(res.albedo_histogram.sum(axis=1), 1.0)
+
+
+def test_query_filters(built):
+    path, subjects = built
+    with open_store(path) as st:
+        # the paper groups I and II: either matches both
+        assert set(st.query(skin_type="I").subject_ids) == {"A01", "A02"}
+        assert set(st.query(skin_type=2).subject_ids) == {"A01", "A02"}
+        iv = st.query(skin_type="iv")
+        assert set(iv.subject_ids) == {"A06", "A07", "A08", "A11", "M001"}
+        assert iv.n_persons == 4  # A11 is A06 under lotion
+        assert iv.breakdown["condition"] == {"normal": 4, "lotion": 1}
+        assert iv.breakdown["kind"] == {"maps": 4, "samples": 1}
+        assert set(st.query(skin_type="IV", gender="male").subject_ids) == {"A06", "A07", "A11"}
+        assert set(st.query(age="20s").subject_ids) == {"A01", "A02", "A06", "A08", "A11"}
+        assert set(st.query(age="50s+").subject_ids) == {"A05", "A10"}
+        assert set(st.query(age="30-41").subject_ids) == {"A03", "A07", "A09", "M001"}
+        assert st.query(condition="lotion").subject_ids == ("A11",)
+        one = st.query(region="nose")
+        assert [r["region"] for r in one.regions] == [6] and one.count == len(subjects)
+        # the sample subject has Torrance-Sparrow samples only
+        assert one.regions[0]["ts_m"].n == len(subjects) and one.regions[0]["bp_exponent"].n == len(subjects) - 1
+        for bad, msg in ((dict(skin_type="VII"), "skin type"), (dict(gender="X"), "gender"),
+                         (dict(age="old"), "age"), (dict(condition="wet"), "condition"),
+                         (dict(region="ear"), "region")):
+            with pytest.raises(ValidationError, match=msg):
+                st.query(**bad)
+
+
+def test_query_with_no_match_gives_an_empty_valid_document(built):
+    path, _ = built
+    with open_store(path) as st:
+        res = st.query(skin_type="VI", gender="M")
+    assert res.count == 0 and res.albedo_histogram is None
+    doc = json.loads(res.to_json())
+    assert doc["format"] == "facestats.query/1" and doc["count"] == 0 and doc["subject_ids"] == []
+    assert doc["filters"] == {"skin_type": [6], "gender": "M", "age": None, "condition": None, "region": None}
+    assert all(r["ts_m"] == {"mean": None, "std": None, "n": 0, "within_std": None} for r in doc["regions"])
+    assert doc["albedo_histogram"]["R"] is None
+    assert "no subject matches" in res.to_table()
+
+
+def test_query_documents_json_csv_and_table(built):
+    path, subjects = built
+    with open_store(path) as st:
+        res = st.query(gender="F")
+    doc = json.loads(res.to_json())
+    assert set(doc) == {"format", "store", "n_store_subjects", "filters", "count", "n_persons", "subject_ids",
+                        "breakdown", "units", "regions", "scattering", "sites", "albedo", "albedo_histogram"}
+    assert doc["count"] == 5 and len(doc["regions"]) == 10
+    assert doc["regions"][5]["name"] == REGIONS[6]
+    assert len(doc["albedo_histogram"]["G"]) == 256
+    assert doc["scattering"]["sigma_tr"]["R"]["mean"] == pytest.approx(res.scattering["sigma_tr"]["R"].mean)
+    import csv
+    import io
+
+    rows = list(csv.DictReader(io.StringIO(res.to_csv())))
+    count = next(r for r in rows if r["quantity"] == "count")
+    assert int(count["n"]) == 5
+    nose = next(r for r in rows if r["quantity"] == "ts_m" and r["region"] == "6")
+    assert float(nose["mean"]) == res.regions[5]["ts_m"].mean
+    hist = next(r for r in rows if r["section"] == "histogram" and r["channel"] == "B")
+    np.testing.assert_allclose([float(x) for x in hist["values"].split()], res.albedo_histogram[2])
+    text = res.to_table()
+    assert "matching subjects: 5" in text and "R  |" in text and "σtr cheek" in text
+    assert "+-" in res.to_table(ascii=True) and "σ" not in res.to_table(ascii=True)
+
+
+# -- writes -----------------------------------------------------------------------------
+def test_invalid_subjects_are_refused_without_touching_the_store(tmp_path):
+    path = tmp_path / "s.zarr"
+    with open_store(path, mode="a") as st:
+        st.write_subject(make_map_subject("OK"))
+        rev = st.revision
+        listing = sorted(p.relative_to(path) for p in path.rglob("*"))
+        bad = make_map_subject("BAD")
+        bad.attrs["skin_type"] = 9
+        with pytest.raises(SchemaError, match="skin_type"):
+            st.write_subject(bad)
+        bad = make_map_subject("BAD2")
+        bad["ts_m"] = bad["ts_m"].transpose("u", "v")
+        with pytest.raises(SchemaError, match="ts_m"):
+            st.write_subject(bad)
+        bad = make_map_subject("../evil")
+        with pytest.raises(ValidationError, match="subject_id"):
+            st.write_subject(bad)
+        with pytest.raises(ValidationError, match="xarray.Dataset"):
+            st.write_subject({"subject_id": "x"})
+        bad = make_map_subject("BAD3")
+        bad.attrs["provenance"] = "source: camera"
+        with pytest.raises(SchemaError, match="provenance must be a JSON"):
+            st.write_subject(bad)
+        assert st.revision == rev
+        assert sorted(p.relative_to(path) for p in path.rglob("*")) == listing
+
+
+def test_overwrite_and_edits(tmp_path):
+    with open_store(tmp_path / "s.zarr", mode="a") as st:
+        st.write_subject(make_map_subject("S1", seed=1))
+        with pytest.raises(StoreError, match="already exist.*overwrite=True"):
+            st.write_subject(make_map_subject("S1", seed=2))
+        np.testing.assert_array_equal(st.subject("S1")["ts_m"].values, make_map_subject("S1", seed=1)["ts_m"].values)
+        st.write_subject(make_map_subject("S1", seed=2), overwrite=True)
+        np.testing.assert_array_equal(st.subject("S1")["ts_m"].values, make_map_subject("S1", seed=2)["ts_m"].values)
+        assert len(list((tmp_path / "s.zarr" / "subjects" / "S1").glob("g*"))) == 1  # superseded one deleted
+        edited = make_map_subject("S1-edit", seed=3)
+        set_provenance(edited, source_subject="S1", edit={"kind": "skin_type", "to": "V"})
+        st.write_subject(edited)
+        p = provenance(st.subject("S1-edit"))
+        assert p["source_subject"] == "S1" and p["edit"] == {"kind": "skin_type", "to": "V"}
+        st.delete_subject("S1")
+        assert "S1" not in st and st.ids() == ["S1-edit"]
+        assert not (tmp_path / "s.zarr" / "subjects" / "S1").exists() or not list(
+            (tmp_path / "s.zarr" / "subjects" / "S1").glob("g*"))
+        with pytest.raises(StoreError, match="no subject 'S1'"):
+            st.subject("S1")
+
+
+def test_batch_write_is_all_or_nothing(tmp_path):
+    with open_store(tmp_path / "s.zarr", mode="a") as st:
+        st.write_subject(make_map_subject("B2"))
+        with pytest.raises(StoreError, match="B2"):
+            st.write_subjects([make_map_subject("B1"), make_map_subject("B2")])
+        assert st.ids() == ["B2"]
+        with pytest.raises(ValidationError, match="twice"):
+            st.write_subjects([make_map_subject("B3"), make_map_subject("B3")])
+        assert not (tmp_path / "s.zarr" / "subjects" / "B1").exists() or not list(
+            (tmp_path / "s.zarr" / "subjects" / "B1").glob("g*"))
+
+
+# -- bad stores -------------------------------------------------------------------------
+def _gen_dir(path, sid):
+    return next((path / "subjects" / sid).glob("g*"))
+
+
+def test_wrong_schema_version_and_not_a_store(built, tmp_path):
+    path = _copy_store(built[0], tmp_path / "c.zarr")
+    meta = json.loads((path / "zarr.json").read_text())
+    meta["attributes"]["facestats_schema"] = SCHEMA_VERSION + 1
+    (path / "zarr.json").write_text(json.dumps(meta))
+    with pytest.raises(SchemaError, match=f"schema version {SCHEMA_VERSION + 1}.*upgrade facestats"):
+        open_store(path)
+    meta["attributes"]["facestats_schema"] = "zero"
+    (path / "zarr.json").write_text(json.dumps(meta))
+    with pytest.raises(SchemaError, match="schema version 'zero'"):
+        open_store(path)
+    del meta["attributes"]["facestats_schema"]
+    (path / "zarr.json").write_text(json.dumps(meta))
+    with pytest.raises(StoreError, match="not a facestats store"):
+        open_store(path)
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "data.txt").write_text("x")
+    with pytest.raises(StoreError, match="not a facestats store"):
+        open_store(tmp_path / "other")
+    with pytest.raises(StoreError, match="not empty and is not a facestats store"):
+        open_store(tmp_path / "other", mode="a")
+    with pytest.raises(StoreError, match="does not exist"):
+        open_store(tmp_path / "missing.zarr")
+    (tmp_path / "f.txt").write_text("hello")
+    with pytest.raises(StoreError, match="neither a store directory nor a zip"):
+        open_store(tmp_path / "f.txt")
+    with pytest.raises(ValidationError, match="mode"):
+        open_store(tmp_path / "x.zarr", mode="w")
+
+
+@pytest.mark.parametrize("damage, pattern", [
+    ("missing_group", r"subject 'A03': group subjects/A03/g\S+ is missing"),
+    ("deleted_chunk", r"subject 'A03': variable 'albedo' does not match its checksum"),
+    ("truncated_chunk", r"subject 'A03': variable 'ts_rho_s' cannot be read \(truncated or corrupt chunk\)"),
+    ("wrong_dims", r"subject 'A03': variable 'ts_m' has dims \('u', 'v'\), expected \('v', 'u'\)"),
+    ("wrong_shape", r"subject 'A03': cannot open group .*conflicting sizes for dimension 'v'.*'bp_flag'"),
+    ("missing_variable", r"subject 'A03': variable\(s\) \['region'\] missing"),
+    ("no_manifest", r"subject 'A03': group .* lacks the 'facestats_store' attribute"),
+])
+def test_damaged_subjects_give_clear_errors(built, tmp_path, damage, pattern):
+    import shutil
+
+    path = _copy_store(built[0], tmp_path / "c.zarr")
+    gen = _gen_dir(path, "A03")
+    if damage == "missing_group":
+        shutil.rmtree(gen)
+    elif damage == "deleted_chunk":
+        (gen / "albedo" / "c" / "0" / "0" / "0").unlink()
+    elif damage == "truncated_chunk":
+        f = gen / "ts_rho_s" / "c" / "0" / "0"
+        f.write_bytes(f.read_bytes()[:20])
+    elif damage in ("wrong_dims", "wrong_shape"):
+        name = "ts_m" if damage == "wrong_dims" else "bp_flag"
+        meta = json.loads((gen / name / "zarr.json").read_text())
+        if damage == "wrong_dims":
+            meta["dimension_names"] = ["u", "v"]
+        else:
+            meta["shape"] = [12, 24]
+        (gen / name / "zarr.json").write_text(json.dumps(meta))
+    elif damage == "missing_variable":
+        shutil.rmtree(gen / "region")
+    elif damage == "no_manifest":
+        meta = json.loads((gen / "zarr.json").read_text())
+        del meta["attributes"]["facestats_store"]
+        (gen / "zarr.json").write_text(json.dumps(meta))
+    with open_store(path) as st:
+        with pytest.raises(SchemaError, match=pattern):
+            st.subject("A03")
+        st.subject("A04")  # the others are fine
+        report = st.validate()
+    assert not report.ok and len(report.problems) == 1
+    assert re_search(pattern, report.problems[0])
+    # repair drops the broken subject from the index; the rest validates
+    with open_store(path, mode="r+") as st:
+        report = st.validate(repair=True)
+        assert report.ok, report.problems
+        assert any("A03" in r for r in report.repaired)
+        assert "A03" not in st and len(st) == len(built[1]) - 1
+
+
+def re_search(pattern, text):
+    import re
+
+    return re.search(pattern, text) is not None
+
+
+def test_stale_index_row_is_reported_and_repaired(built, tmp_path):
+    path = _copy_store(built[0], tmp_path / "c.zarr")
+    index = json.loads((path / "index.json").read_text())
+    index["subjects"]["A05"]["row"]["ts_m_mean_r6"] += 0.1
+    (path / "index.json").write_text(json.dumps(index))
+    with open_store(path, mode="r+") as st:
+        report = st.validate()
+        assert not report.ok and "A05" in report.problems[0] and "ts_m_mean_r6" in report.problems[0]
+        assert st.validate(repair=True).ok
+        assert st.subjects().loc["A05", "ts_m_mean_r6"] == summarise_subject(built[1]["A05"])["ts_m_mean_r6"]
+
+
+def test_lost_index_is_rebuilt_by_repair(built, tmp_path):
+    path = _copy_store(built[0], tmp_path / "c.zarr")
+    (path / "index.json").unlink()
+    with open_store(path) as st:
+        with pytest.raises(StoreError, match="no index.json.*--repair"):
+            st.subjects()
+        assert not st.validate().ok
+    with open_store(path, mode="r+") as st:
+        report = st.validate(repair=True)
+        assert report.ok and len(st) == len(built[1])
+        assert st.query(skin_type="IV").count == 5
+
+
+def test_corrupt_index_file(built, tmp_path):
+    path = _copy_store(built[0], tmp_path / "c.zarr")
+    (path / "index.json").write_text('{"format": 1, "subj')
+    with open_store(path) as st:
+        with pytest.raises(StoreError, match="index.json is not valid JSON.*--repair"):
+            st.query()
+
+
+# -- zip stores and the default ---------------------------------------------------------
+def test_pack_store_to_zip_and_read_it(built, tmp_path):
+    path, subjects = built
+    z = pack_store(path, tmp_path / "pop.zip")
+    z2 = pack_store(path, tmp_path / "pop2.zip")
+    assert z.read_bytes() == z2.read_bytes()  # deterministic
+    with zipfile.ZipFile(z) as zf:
+        names = zf.namelist()
+        assert all(i.compress_type == zipfile.ZIP_STORED for i in zf.infolist())
+    assert "index.json" in names and "zarr.json" in names and not any(".lock" in n for n in names)
+    with open_store(z) as st:
+        assert st.kind == "zip" and st.read_only
+        assert st.ids() == sorted(subjects)
+        back = st.subject("A07")
+        np.testing.assert_array_equal(back["albedo"].values, subjects["A07"]["albedo"].values)
+        assert st.query(skin_type="IV").count == 5
+        with pytest.raises(StoreError, match="read-only zip store.*--store PATH"):
+            st.write_subject(make_map_subject("new"))
+        assert st.validate().ok
+    with pytest.raises(StoreError, match="read-only"):
+        open_store(z, mode="a")
+    with pytest.raises(StoreError, match="exists"):
+        pack_store(path, z)
+
+
+def test_a_zip_made_by_other_tools_opens_too(built, tmp_path):
+    import shutil
+
+    # compressed entries, any order, leftovers included: read through the zip directory
+    zp = shutil.make_archive(str(tmp_path / "plain"), "zip", root_dir=built[0])
+    with open_store(zp) as st:
+        assert st.ids() == sorted(built[1])
+        np.testing.assert_array_equal(st.subject("M001")["ts_sample_m"].values,
+                                      built[1]["M001"]["ts_sample_m"].values)
+
+
+def test_default_store(built, tmp_path, monkeypatch):
+    missing = tmp_path / "data" / "default_store.zip"
+    monkeypatch.setattr(store_mod, "default_store_path", lambda: missing)
+    with pytest.raises(StoreError, match="default store has not been built"):
+        facestats.open_store()
+    pack_store(built[0], missing)
+    with facestats.open_store() as st:
+        assert st.label == "default" and len(st) == len(built[1])
+        assert st.query(gender="F").store == "default"
+    with pytest.raises(StoreError, match="read-only"):
+        facestats.open_store(None, mode="a")
+
+
+def test_real_default_store_path_is_inside_the_package():
+    p = store_mod.default_store_path()
+    assert p.name == "default_store.zip" and p.parent == pathlib.Path(facestats.__file__).parent / "data"
+    if p.exists():  # once the lead has built it: it must open and stay small
+        assert p.stat().st_size <= 20e6
+        with facestats.open_store() as st:
+            assert len(st) > 0
+
+
+# -- info, gc ---------------------------------------------------------------------------
+def test_info(built):
+    with open_store(built[0]) as st:
+        info = st.info()
+    assert info["n_subjects"] == 12 and info["n_persons"] == 11
+    assert info["by_skin_type"] == {"I": 1, "II": 1, "III": 3, "IV": 5, "V": 1, "VI": 1}
+    assert info["by_gender"] == {"M": 7, "F": 5}
+    assert info["by_condition"] == {"normal": 11, "lotion": 1}
+    assert info["by_kind"] == {"maps": 11, "samples": 1}
+    assert info["schema_version"] == SCHEMA_VERSION and info["size_bytes"] > 0
+
+
+def test_gc_removes_dead_writers_leftovers_but_not_live_ones(tmp_path):
+    path = tmp_path / "s.zarr"
+    with open_store(path, mode="a") as st:
+        st.write_subject(make_map_subject("G1"))
+        keep = _gen_dir(path, "G1")
+        subj = path / "subjects" / "G1"
+        # a dead writer: generation directory, its lock file unlocked
+        dead = subj / "g0000000000000001-1-aaaaaa"
+        dead.mkdir()
+        (dead / "zarr.json").write_text("{}")
+        (path / ".writers" / "G1~g0000000000000001-1-aaaaaa.lock").write_text("")
+        # a crashed writer of a new subject, without lock file
+        (path / "subjects" / "G9" / "g0000000000000002-1-bbbbbb").mkdir(parents=True)
+        # a live writer: its lock is held
+        live_lock = create_locked(path / ".writers" / "G1~g0000000000000003-1-cccccc.lock")
+        live = subj / "g0000000000000003-1-cccccc"
+        live.mkdir()
+        (path / "index.json.tmp-99-deadbeef").write_text("partial")
+        assert len(st.validate().notes) == 1
+        removed = st.gc()
+        assert not dead.exists() and not (path / "subjects" / "G9").exists()
+        assert not (path / "index.json.tmp-99-deadbeef").exists()
+        assert not (path / ".writers" / "G1~g0000000000000001-1-aaaaaa.lock").exists()
+        assert live.exists() and keep.exists()
+        assert "subjects/G1/g0000000000000001-1-aaaaaa" in removed
+        live_lock.release()  # the writer died
+        st.gc()
+        assert not live.exists() and keep.exists()
+        assert st.validate().ok and not st.validate().notes
+        assert sorted(os.listdir(path / ".writers")) == []

@@ -30,7 +30,6 @@ the output maps.
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -42,7 +41,8 @@ from .io.schema import FLAG_BITS, SCHEMA_VERSION, set_variable_attrs
 from .model import fitting
 from .published import ETA_SKIN, SIGMA_TR_AVG
 
-__all__ = ["FitSettings", "fit_lumitexels", "fit_sensor", "fit_subject", "fit_population", "LUMITEXEL_OUTPUTS"]
+__all__ = ["FitSettings", "fit_lumitexels", "fit_sensor", "fit_subject", "fit_population", "predict_radiance",
+           "held_out_camera_error", "camera_image", "LUMITEXEL_OUTPUTS"]
 
 
 @dataclass
@@ -148,10 +148,10 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
     def fit(model, alb, start=None):
         f_s = fitting.specular_residual(samples, f_r, alb, ft2)
         if model not in factors:
-            factors[model] = fitting.specular_factors(samples, normal, model, st.eta)
+            factors[model] = fitting.specular_factors(samples, normal, model, st.eta, cos_i)
         return fitting.fit_specular_samples(samples, normal, f_s, use, model, factors=factors[model], eta=st.eta,
                                             min_samples=st.min_samples, max_relative_error=st.max_relative_error,
-                                            start=start)
+                                            start=start, cos_i=cos_i)
 
     def equivalent_start(model, res):
         """Start of ``model`` from a fit of the other model (Beckmann-Phong correspondence n = 2/m² − 2)."""
@@ -252,9 +252,7 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
     if client is not None and capture.path is None:
         raise ValidationError("client requires a capture on disk (pass a path or write it with Capture.to_zarr)")
     st = settings or FitSettings()
-    t0 = time.perf_counter()
     res = _blocks_result(capture, st, client=client, progress=progress)
-    t_lumi = time.perf_counter() - t0
 
     # Stage 5: maps.
     size = capture.map_size
@@ -301,7 +299,6 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
     stra = SIGMA_TR_AVG if sigma_tr_avg is None else np.asarray(sigma_tr_avg, np.float64)
     alb = np.clip(maps["albedo"], 1e-4, 1 - 1e-4)
     alb_avg, sp, sa, modulation = fitting.scattering_parameters(np.where(face[..., None], alb, 0), face, stra, st.eta)
-    t_total = time.perf_counter() - t0
 
     n = size
     data = {
@@ -341,7 +338,6 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
         "sigma_tr_avg": [float(x) for x in stra],
         "software": f"facestats {__version__}",
         "schema_version": SCHEMA_VERSION,
-        "timing_s": {"lumitexels": round(t_lumi, 3), "total": round(t_total, 3)},
         "counts": {
             "lumitexels": int(capture.n_lumitexels),
             "samples_used": int(res["n_samples"].sum()),
@@ -429,3 +425,97 @@ def fit_population(captures, settings: FitSettings | None = None, *, client=None
     if any(o is None for o in out):
         raise FitError("a subject fit returned nothing")
     return list(out), stra
+
+
+def predict_radiance(subject, capture, start: int = 0, stop: int | None = None, *, specular: str = "torrance_sparrow",
+                     eta: float = ETA_SKIN):
+    """Radiance the fitted skin model predicts for a capture's samples (for validation and rendering).
+
+    The fitted maps of ``subject`` (a Dataset from :func:`fit_subject`) are sampled
+    at the lumitexels ``start:stop`` of ``capture`` and rendered through
+    :func:`facestats.model.skin.skin_radiance` with the capture's calibrated
+    lights and cameras: specular from the fitted ``specular`` model with the
+    diffuse normal map, diffuse from the fitted albedo (modulation α/α_avg and
+    the subject's σ's, σa in the flat-patch transport).  Visibility is the
+    capture's: samples that are invalid in the capture are NaN.
+
+    Returns
+    -------
+    predicted, measured : ndarray, shape (n, C, L, 3)
+    """
+    from .io.schema import modulation as _modulation
+    from .model.skin import SubsurfaceTransport, skin_radiance
+
+    lt = capture.lumitexels(start, stop)
+    size = int(subject.sizes["u"])
+    texel = np.clip((lt.uv[:, ::-1] * size).astype(np.int64), 0, size - 1)
+    v, u = texel[:, 0], texel[:, 1]
+    normal = np.asarray(subject["normal"].values)[v, u].astype(np.float64)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    mod = np.asarray(_modulation(subject).values)[v, u]
+    key = "ts" if specular == "torrance_sparrow" else "bp"
+    lobe = "ts_m" if key == "ts" else "bp_exponent"
+    rho = np.asarray(subject[f"{key}_rho_s"].values)[v, u]
+    rough = np.asarray(subject[lobe].values)[v, u]
+    cos_i = np.einsum("nk,nlk->nl", normal, lt.wi)
+    irr = lt.irradiance * np.maximum(cos_i, 0)[..., None]
+    transport = SubsurfaceTransport(subject["sigma_s_prime"].values, subject["sigma_a"].values, eta)
+    pred = skin_radiance(normal, lt.wi.astype(np.float64), irr, lt.wo.astype(np.float64), rho_s=rho, roughness=rough,
+                         modulation=mod, subsurface=transport, specular=specular, eta=eta)
+    valid = lt.valid
+    return np.where(valid[..., None], pred, np.nan), np.where(valid[..., None], lt.radiance, np.nan)
+
+
+def held_out_camera_error(subject, capture, camera: int, *, specular: str = "torrance_sparrow", max_angle_deg: float = 80.0):
+    """Relative RMSE of the model's prediction against a camera (ideally one left out of the fit).
+
+    RMSE over the valid samples of ``camera`` whose θi and θo (about the fitted
+    normal) lie within ``max_angle_deg`` — the domain eq. 14 fits — and all
+    channels, divided by the RMS of the measured radiance.
+    """
+    pred, meas = predict_radiance(subject, capture, specular=specular)
+    lt = capture.lumitexels()
+    size = int(subject.sizes["u"])
+    texel = np.clip((lt.uv[:, ::-1] * size).astype(np.int64), 0, size - 1)
+    normal = np.asarray(subject["normal"].values)[texel[:, 0], texel[:, 1]]
+    lim = np.cos(np.radians(max_angle_deg))
+    inside = (np.einsum("nk,nlk->nl", normal, lt.wi) > lim) & (np.einsum("nk,nk->n", normal, lt.wo[:, camera]) > lim)[:, None]
+    p, m = pred[:, camera], meas[:, camera]
+    ok = np.isfinite(p) & np.isfinite(m) & inside[..., None]
+    if not ok.any():
+        raise ValidationError(f"camera {camera} has no valid sample in this capture")
+    return float(np.sqrt(np.mean((p[ok] - m[ok]) ** 2)) / np.sqrt(np.mean(m[ok] ** 2)))
+
+
+def camera_image(values, capture, camera: int, light: int, channel=None):
+    """Splat per-lumitexel sample values of one (camera, light) into the camera's image (for figures).
+
+    Parameters
+    ----------
+    values : ndarray, shape (n, C, L, 3)
+        E.g. the output of :func:`predict_radiance`.
+    capture : Capture
+    camera, light : int
+    channel : int, optional
+        Channel to return; default all three (RGB image).
+
+    Returns
+    -------
+    ndarray, shape (H, W[, 3])
+        NaN where no lumitexel projects.
+    """
+    pos = capture.array("position").astype(np.float64)[: values.shape[0]]
+    _, _, pix = capture.dome.view(pos, cameras=[camera])
+    x, y = pix[:, 0, 0], pix[:, 0, 1]
+    ok = np.isfinite(x) & np.isfinite(y)
+    # Crop to the face's bounding box, about one image pixel per lumitexel.
+    x0, x1 = np.floor(x[ok].min()) - 2, np.ceil(x[ok].max()) + 2
+    y0, y1 = np.floor(y[ok].min()) - 2, np.ceil(y[ok].max()) + 2
+    n_px = int(np.clip(np.sqrt(ok.sum()) * 1.6, 16, 1024))
+    res = n_px / max(x1 - x0, y1 - y0)
+    ix = np.clip(((x - x0) * res).astype(np.int64), 0, n_px - 1)
+    iy = np.clip(((y - y0) * res).astype(np.int64), 0, n_px - 1)
+    vals = values[:, camera, light, :] if channel is None else values[:, camera, light, channel : channel + 1]
+    img = np.full((n_px, n_px, vals.shape[-1]), np.nan)
+    img[iy[ok], ix[ok]] = vals[ok]
+    return img if channel is None else img[..., 0]

@@ -54,9 +54,9 @@ finally :func:`facestats.io.schema.validate_subject` runs.  Problems raise
 The embedded default
 --------------------
 ``facestats/data/default_store.zip`` is a store packed by :func:`pack_store`
-(a zip of the directory layout above holding only current generations, entries
-stored uncompressed since Zarr chunks are compressed already, ``zarr.json``
-and ``index.json`` first).  Zip stores open read-only: the root attributes and
+(a zip of the directory layout above holding only current generations; chunk
+entries stored uncompressed since Zarr chunks are compressed already, subject
+metadata deflated; the root ``zarr.json`` and ``index.json`` first and stored).  Zip stores open read-only: the root attributes and
 the index are read straight from the head of the file (no need to parse the
 zip directory of every chunk), subject groups through ``zarr.storage.ZipStore``.
 ``open_store(None)`` opens it.
@@ -1224,27 +1224,29 @@ def pack_store(src, zip_path, *, overwrite: bool = False) -> Path:
         tmp = zip_path.with_name(f".{zip_path.name}.tmp-{os.getpid()}")
         zip_path.parent.mkdir(parents=True, exist_ok=True)
 
-        def add(zf, arcname, data):
+        def add(zf, arcname, data, deflate=False):
             info = zipfile.ZipInfo(arcname, date_time=_ZIP_TIME)
-            info.compress_type = zipfile.ZIP_STORED
+            # Chunks are compressed by Zarr already; subject metadata (JSON) deflates 5x.
+            info.compress_type = zipfile.ZIP_DEFLATED if deflate else zipfile.ZIP_STORED
             info.external_attr = 0o644 << 16
-            zf.writestr(info, data)
+            zf.writestr(info, data, compresslevel=9 if deflate else None)
 
         try:
             with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as zf:
                 root = Path(store.path)
                 add(zf, ROOT_META, (root / ROOT_META).read_bytes())
                 add(zf, INDEX_NAME, json.dumps(index, separators=(",", ":"), allow_nan=False).encode())
-                add(zf, f"{SUBJECTS}/{ROOT_META}", json.dumps(_group_meta(), indent=2).encode())
+                add(zf, f"{SUBJECTS}/{ROOT_META}", json.dumps(_group_meta(), indent=2).encode(), deflate=True)
                 for sid in sorted(index["subjects"]):
-                    add(zf, f"{SUBJECTS}/{sid}/{ROOT_META}", json.dumps(_group_meta(), indent=2).encode())
+                    add(zf, f"{SUBJECTS}/{sid}/{ROOT_META}", json.dumps(_group_meta(), indent=2).encode(), deflate=True)
                     gen = index["subjects"][sid]["generation"]
                     gdir = root / SUBJECTS / sid / gen
                     for f in sorted(p for p in gdir.rglob("*") if p.is_file()):
                         data = f.read_bytes()
-                        if f.name == ROOT_META:  # Zarr metadata: drop the indentation (a third of a small subject)
+                        meta = f.name == ROOT_META
+                        if meta:  # Zarr metadata: drop the indentation (a third of a small subject)
                             data = json.dumps(json.loads(data), separators=(",", ":")).encode()
-                        add(zf, f"{SUBJECTS}/{sid}/{gen}/{f.relative_to(gdir).as_posix()}", data)
+                        add(zf, f"{SUBJECTS}/{sid}/{gen}/{f.relative_to(gdir).as_posix()}", data, deflate=meta)
             os.replace(tmp, zip_path)
         except BaseException:
             if tmp.exists():

@@ -86,16 +86,22 @@ def albedo_stable_minimum(samples, brdf, cos_i, cos_o, ft2, use, *, discard=2, g
     graze = np.clip((c0 - np.minimum(cos_i, cos_o)) / (c0 - c1), 0, 1)
     penalty = (1 + np.float32(grazing_penalty) * graze).astype(np.float32)
     k = int(discard)
-    out = np.empty((samples.n_texels, 3), np.float32)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        v = (np.float32(np.pi) * brdf / ft2[:, None]).astype(np.float32)
+    ok = use & np.all(np.isfinite(v), axis=1)
+    # One padded (lumitexel, sample) layout for all channels.
+    t = samples.texel[ok]
+    counts = np.bincount(t, minlength=samples.n_texels)
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    rank = np.arange(t.size) - start[t]
+    width = max(int(counts.max(initial=0)), k + 1)
+    out = np.full((samples.n_texels, 3), np.nan, np.float32)
+    vo, po = v[ok], penalty[ok]
     for c in range(3):  # loop over channels, vectorised over samples
-        with np.errstate(invalid="ignore", divide="ignore"):
-            v = (np.float32(np.pi) * brdf[:, c] / ft2).astype(np.float32)
-        ok = use & np.isfinite(v)
-        ranked, counts = samples.padded((v * penalty).astype(np.float32), np.inf, ok)
-        raw, _ = samples.padded(v, np.nan, ok)
-        if ranked.shape[1] <= k:
-            out[:, c] = np.nan
-            continue
+        ranked = np.full((samples.n_texels, width), np.inf, np.float32)
+        raw = np.full((samples.n_texels, width), np.nan, np.float32)
+        ranked[t, rank] = vo[:, c] * po
+        raw[t, rank] = vo[:, c]
         pick = np.argpartition(ranked, k, axis=1)[:, k]
         kth = np.take_along_axis(raw, pick[:, None], 1)[:, 0]
         out[:, c] = np.where(counts > k, kth, np.nan)

@@ -126,15 +126,16 @@ def lobe_values(model, rho_s, lobe, s1, a):
     return np.asarray(rho_s, np.float32) * g
 
 
-def specular_factors(samples, normal, model, eta=1.38):
+def specular_factors(samples, normal, model, eta=1.38, cos_i=None):
     """Parameter-free per-sample factors (s1, A) of ``model`` (module docstring), float32.
 
     Torrance-Sparrow: s1 = tan²δ, A = K cos θi / cos⁴δ with K from
     :func:`facestats.model.brdf.torrance_sparrow_geometry`; Blinn-Phong:
     s1 = ln cos δ, A = cos θi / (2π).  A = 0 where a direction is below the horizon.
+    ``cos_i`` (N·ωi per sample) may be passed when already known.
     """
     nrm = np.asarray(normal, np.float32)[samples.texel]
-    ci = np.einsum("sk,sk->s", nrm, samples.wi)
+    ci = np.einsum("sk,sk->s", nrm, samples.wi) if cos_i is None else cos_i
     if model == "torrance_sparrow":
         cos_d, k = torrance_sparrow_geometry(nrm, samples.wi, samples.wo, eta)
         c2 = cos_d * cos_d
@@ -148,7 +149,7 @@ def specular_factors(samples, normal, model, eta=1.38):
 
 
 def fit_specular_samples(samples, normal, f_s, use, model, *, factors=None, eta=1.38, bounds=None, min_samples=30,
-                         max_iter=40, tol=1e-6, max_relative_error=0.25, start=None) -> SpecularFit:
+                         max_iter=40, tol=1e-6, max_relative_error=0.25, start=None, cos_i=None) -> SpecularFit:
     """Fit ``model`` to grey specular samples on flat :class:`Samples` (the pipeline's form of :func:`fit_specular`).
 
     Parameters
@@ -164,11 +165,14 @@ def fit_specular_samples(samples, normal, f_s, use, model, *, factors=None, eta=
     start : ndarray, shape (n,), optional
         Starting lobe parameter per texel (e.g. a previous fit); NaN entries use
         the log-linear start.
+    cos_i : ndarray, shape (S,), optional
+        N·ωi per sample, when already known.
     """
     check_choice(model, "model", DEFAULT_BOUNDS)
-    s1, a = specular_factors(samples, normal, model, eta) if factors is None else factors
-    nrm = np.asarray(normal, np.float32)[samples.texel]
-    ci = np.einsum("sk,sk->s", nrm, samples.wi)
+    if cos_i is None:
+        cos_i = np.einsum("sk,sk->s", np.asarray(normal, np.float32)[samples.texel], samples.wi)
+    s1, a = specular_factors(samples, normal, model, eta, cos_i) if factors is None else factors
+    ci = cos_i
     ok = np.asarray(use, bool) & np.isfinite(f_s) & (a > 0)
     y = (f_s[ok] * ci[ok]).astype(np.float32)
     return _solve(model, y, s1[ok], a[ok], samples.texel[ok], samples.n_texels, bounds=bounds, min_samples=min_samples,
@@ -268,8 +272,7 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
     iterations = 0
     if k:
         # -- start: weighted log-linear fit over the strongest samples ----------------
-        ymax = np.full(k, -np.inf)
-        np.maximum.at(ymax, texel_w, wy)
+        ymax = np.maximum.reduceat(wy, st_w)
         with np.errstate(invalid="ignore", divide="ignore"):
             strong = (wy > 0.25 * ymax[texel_w]) & (wy > 0)
             lr = np.where(strong, np.log(np.where(strong, wy / wa, 1)), 0)

@@ -1,0 +1,240 @@
+"""Build a parameter store from a synthetic population: simulate every capture, fit it, store it.
+
+This is how the embedded default is made (Weyrich et al. 2006 pipeline, Fig. 3,
+run on the synthetic population of :mod:`facestats.acquire.population`):
+
+1. draw the population (seeded);
+2. simulate every subject's contact-sensor profiles and fit the dipole to them
+   (cheap), giving the population's σtrAvg over the normal-condition subjects,
+   cheek and forehead (§5.4);
+3. for every subject, in parallel on Dask's local process scheduler (or a
+   ``distributed`` client; worker processes keep their simulator and population
+   between subjects): simulate the dome capture, run the fit pipeline with
+   that σtrAvg, and write the subject to the store at once — so an interrupted
+   build keeps what it finished, and a rerun skips subjects already stored;
+4. for the default, pack the store into ``facestats/data/default_store.zip``.
+
+Everything is deterministic for a seed: the simulator draws its noise from each
+subject's seed and the fit has no randomness, so a rebuild reproduces the same
+subjects (tested in ``tests/test_default_store.py``).
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["BuildReport", "build_store", "build_default", "DEFAULT_SEED", "DEFAULT_MAP_SIZE"]
+
+#: Seed and map size of the embedded default.
+DEFAULT_SEED = 2006
+DEFAULT_MAP_SIZE = 48
+
+_WORKER_CACHE: dict = {}
+
+
+@dataclass
+class BuildReport:
+    """What a build did."""
+
+    store: str
+    written: list
+    skipped: list
+    sigma_tr_avg: np.ndarray
+    seconds: float
+    workers: int
+
+    def to_text(self) -> str:
+        return (f"store {self.store}: {len(self.written)} subject(s) written, {len(self.skipped)} already present; "
+                f"sigma_trAvg = {np.round(self.sigma_tr_avg, 4).tolist()} mm^-1; {self.seconds:.1f} s with {self.workers} worker(s)")
+
+
+class _TaskProgress:
+    """A tqdm bar advanced by Dask's local scheduler as tasks finish (silent when not on a terminal)."""
+
+    def __init__(self, total, enabled=True):
+        self.total, self.enabled = total, enabled
+
+    def __enter__(self):
+        if not self.enabled:
+            return self
+        from dask.callbacks import Callback
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=self.total, desc="build", unit="subject", disable=None)
+
+        class _CB(Callback):
+            def _posttask(self, key, result, dsk, state, id):
+                bar.update(1)
+
+        self.bar, self.cb = bar, _CB()
+        self.cb.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        if self.enabled:
+            self.cb.__exit__(*exc)
+            self.bar.close()
+
+
+def _simulator(map_size: int, specular: str):
+    """One simulator per process (shadow maps and geometry are reused across subjects)."""
+    key = (map_size, specular)
+    if key not in _WORKER_CACHE:
+        from .acquire.face import procedural_face
+        from .acquire.simulate import DomeSimulator
+
+        _WORKER_CACHE[key] = DomeSimulator(procedural_face(map_size), specular=specular)
+    return _WORKER_CACHE[key]
+
+
+def _population(seed: int, map_size: int, conditions: bool):
+    key = ("population", seed, map_size, conditions)
+    if key not in _WORKER_CACHE:
+        from .acquire.population import synthesize_population
+
+        _WORKER_CACHE[key] = synthesize_population(seed=seed, map_size=map_size, conditions=conditions)
+    return _WORKER_CACHE[key]
+
+
+def _settings(micro_normals: bool):
+    from .pipeline import FitSettings
+
+    return FitSettings(micro_normals=micro_normals)
+
+
+def sensor_fits(population, map_size: int, specular: str = "torrance_sparrow"):
+    """Stage 6 for every subject from its simulated sensor profiles (the same draws as the full simulation)."""
+    from .model.fitting import fit_translucency
+
+    sim = _simulator(map_size, specular)
+    out = {}
+    for truth in population.subjects:  # loop over subjects; each fit is vectorised over sites and channels
+        _, rng_sensor, _ = sim._streams(truth.seed, 1)
+        prof, std = sim._sensor(truth, rng_sensor)
+        has = np.any(std > 0)
+        out[truth.subject_id] = fit_translucency(sim.sensor.fiber_distance, np.moveaxis(prof, 1, 2),
+                                                 np.moveaxis(std, 1, 2) if has else None)
+    return out
+
+
+#: Variables the default store leaves out because they are derived from others:
+#: the modulation texture M = α/α_avg (:func:`facestats.io.schema.modulation`).
+DERIVED = ("modulation",)
+
+
+def _build_one(store_path, seed, map_size, conditions, specular, subject_id, sigma_tr_avg, sensor_fit, micro_normals,
+               keep_derived=True):
+    """Simulate, fit and store one subject (runs in a worker process)."""
+    from .io.store import open_store
+    from .pipeline import fit_subject
+
+    pop = _population(seed, map_size, conditions)
+    truth = pop[subject_id]
+    capture = _simulator(map_size, specular).simulate(truth)
+    ds = fit_subject(capture, sigma_tr_avg, _settings(micro_normals), sensor_fit=sensor_fit)
+    if not keep_derived:
+        ds = ds.drop_vars([v for v in DERIVED if v in ds.data_vars])
+    store = open_store(store_path, mode="r+")
+    store.write_subject(ds, overwrite=True)
+    return subject_id
+
+
+def build_store(store_path, *, seed: int = DEFAULT_SEED, map_size: int = DEFAULT_MAP_SIZE, conditions: bool = True,
+                specular: str = "torrance_sparrow", subjects=None, workers: int | None = None, client=None,
+                micro_normals: bool = True, keep_derived: bool = True, progress: bool = False) -> BuildReport:
+    """Simulate and fit a synthetic population into a directory store (resumable).
+
+    Parameters
+    ----------
+    store_path : str or path-like
+        Directory store; created if missing.  Subjects it already holds are skipped.
+    seed, map_size, conditions
+        Population settings (:func:`facestats.acquire.population.synthesize_population`).
+    specular : {"torrance_sparrow", "blinn_phong"}
+        BRDF the simulator renders highlights with.
+    subjects : sequence of str, optional
+        Only these subject ids (σtrAvg still comes from the whole population).
+    workers : int, optional
+        Local worker processes (default: the number of cores); 1 runs in-process.
+    client : dask.distributed.Client, optional
+        Run on a cluster instead (workers must see ``store_path``).
+    micro_normals : bool
+        Keep per-camera micro-normal maps (the default store drops them to stay small).
+    keep_derived : bool
+        Keep variables derived from others (:data:`DERIVED`; the default store drops them).
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    BuildReport
+    """
+    import os
+
+    from .io.store import open_store
+    from .model.fitting import population_sigma_tr_avg
+    from .conventions import SITES
+
+    t0 = time.perf_counter()
+    store = open_store(store_path, mode="a")
+    pop = _population(seed, map_size, conditions)
+    fits = sensor_fits(pop, map_size, specular)
+    normal = [s.subject_id for s in pop.subjects if s.condition == "normal"]
+    stra = population_sigma_tr_avg(np.stack([fits[s].sigma_tr for s in normal]), SITES)
+    wanted = [s.subject_id for s in pop.subjects] if subjects is None else list(subjects)
+    unknown = [s for s in wanted if s not in {t.subject_id for t in pop.subjects}]
+    if unknown:
+        from .errors import ValidationError
+
+        raise ValidationError(f"subjects must be ids of the population, got unknown {unknown[:5]}")
+    present = set(store.ids())
+    todo = [s for s in wanted if s not in present]
+    skipped = [s for s in wanted if s in present]
+    n_workers = workers or os.cpu_count() or 1
+    args = [(str(store_path), seed, map_size, conditions, specular, sid, stra, fits[sid], micro_normals, keep_derived)
+            for sid in todo]
+    if client is not None:
+        futures = [client.submit(_build_one, *a, pure=False) for a in args]
+        done = client.gather(futures)
+    elif n_workers == 1 or len(todo) <= 1:
+        it = args
+        if progress:
+            from tqdm.auto import tqdm
+
+            it = tqdm(args, desc="build", unit="subject", disable=None)
+        done = [_build_one(*a) for a in it]
+    else:
+        import dask
+
+        tasks = [dask.delayed(_build_one, pure=False)(*a) for a in args]
+        with _TaskProgress(len(tasks), enabled=progress):
+            done = list(dask.compute(*tasks, scheduler="processes", num_workers=n_workers))
+    return BuildReport(store=str(store_path), written=sorted(done), skipped=skipped, sigma_tr_avg=stra,
+                       seconds=time.perf_counter() - t0, workers=1 if client is None and n_workers == 1 else n_workers)
+
+
+def build_default(*, workers: int | None = None, progress: bool = False, out=None) -> BuildReport:
+    """Regenerate the embedded default store and pack it into the package (or ``out``).
+
+    The default is the population of :data:`DEFAULT_SEED` at :data:`DEFAULT_MAP_SIZE`²,
+    fitted without micro-normal maps (16 × 3 values per texel would triple its size)
+    and stored without the derived modulation texture, so it stays under 20 MB.
+    """
+    from .io.store import default_store_path, pack_store
+
+    target = Path(out) if out is not None else default_store_path()
+    tmp = Path(tempfile.mkdtemp(prefix="facestats-default-"))
+    try:
+        report = build_store(tmp / "default.zarr", seed=DEFAULT_SEED, map_size=DEFAULT_MAP_SIZE, workers=workers,
+                             micro_normals=False, keep_derived=False, progress=progress)
+        pack_store(tmp / "default.zarr", target, overwrite=True)
+        report.store = str(target)
+        return report
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)

@@ -16,7 +16,14 @@ Benchmarks
   sampler per channel with the stretch move, run to the same 50 τ criterion.
 * ``calibration``: coverage of the 90 % intervals on 600 simulated profiles.
 * ``default_store``: the whole non-posterior analysis of ``facestats.open_store()``
-  when the shipped store is available.
+  (the embedded store: 156 subjects, 48 × 48 maps), opening the store included.
+  Target: ≤ 10 s.
+* ``default_store_cli``: ``facestats analyze all`` on the embedded store, in
+  process: the same analysis plus rendering and writing the five PNG figures
+  and JSON files.
+* ``default_store_posterior``: one contact-sensor profile (3 channels) of the
+  embedded store, reading the subject included; median over 5 subjects and
+  sites.  Target: ≤ 5 s.
 """
 
 from __future__ import annotations
@@ -42,7 +49,7 @@ _STORE = {}
 
 def _stand_in():
     if "store" not in _STORE:
-        from tests.test_analysis_pca import make_population
+        from tests.analysis_store import make_population
 
         _STORE["store"] = make_population(n=156, seed=1, size=96)
     return _STORE["store"]
@@ -193,17 +200,61 @@ def bench_calibration():
     return out
 
 
-def bench_default_store():
+def _default_store():
     import facestats
+    from facestats.errors import StoreError
 
     try:
-        store = facestats.open_store()
-    except Exception as exc:  # the shipped store is built elsewhere; report, do not fail
-        return {"status": f"unavailable ({type(exc).__name__})"}
+        return facestats.open_store()
+    except StoreError:  # the embedded store is built by `facestats build --default`
+        return None
+
+
+def bench_default_store():
     t0 = time.perf_counter()
+    store = _default_store()
+    if store is None:
+        return {"status": "unavailable (the embedded store is not built)"}
     res, steps = _analyse(store)
     return {"total_s": time.perf_counter() - t0, **steps, "subjects": res["pca"].n_subjects,
             "cca_r1": res["cca"].correlations[0], "cca_r2": res["cca"].correlations[1]}
+
+
+def bench_default_store_cli():
+    import argparse
+    import contextlib
+    import tempfile
+
+    from facestats.cli_analyze import add_analyze
+
+    if _default_store() is None:
+        return {"status": "unavailable (the embedded store is not built)"}
+    parser = argparse.ArgumentParser(prog="facestats")
+    add_analyze(parser.add_subparsers())
+    with tempfile.TemporaryDirectory() as out:
+        args = parser.parse_args(["analyze", "all", "--out", out])
+        t0 = time.perf_counter()
+        with contextlib.redirect_stdout(io.StringIO()):
+            args.func(args)
+        total = time.perf_counter() - t0
+        n_files = len(list(pathlib.Path(out).iterdir()))
+    return {"total_s": total, "files": n_files}
+
+
+def bench_default_store_posterior():
+    store = _default_store()
+    if store is None:
+        return {"status": "unavailable (the embedded store is not built)"}
+    cases = [("S001", "cheek"), ("S040", "forehead"), ("S080", "neck"), ("S120", "cheek"), ("P150-normal", "forehead")]
+    times, steps, taus = [], [], []
+    for seed, (sid, site) in enumerate(cases):
+        t = time.perf_counter()
+        post = fa.site_sigma_posterior(store.subject(sid), site, seed=seed)
+        times.append(time.perf_counter() - t)
+        steps.append(post.n_steps)
+        taus.append(post.diagnostics[["tau_sigma_s_prime", "tau_sigma_a"]].to_numpy().max())
+    return {"median_s": float(np.median(times)), "max_s": float(np.max(times)), "steps": int(np.median(steps)),
+            "tau_max": float(np.max(taus)), "profiles": len(cases)}
 
 
 BENCHMARKS = [
@@ -212,4 +263,6 @@ BENCHMARKS = [
     ("posterior", bench_posterior),
     ("calibration", bench_calibration),
     ("default_store", bench_default_store),
+    ("default_store_cli", bench_default_store_cli),
+    ("default_store_posterior", bench_default_store_posterior),
 ]

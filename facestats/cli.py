@@ -12,6 +12,8 @@ import os
 import sys
 
 from . import __version__
+from .cli_analyze import add_analyze
+from .cli_edit import add_edit
 from .errors import FacestatsError
 
 __all__ = ["main", "build_parser"]
@@ -279,7 +281,8 @@ def _add_build(sub):
     p.set_defaults(func=_cmd_build)
 
 
-_COMMANDS = [_add_demo, _add_query, _add_info, _add_validate, _add_export, _add_import_merl, _add_build]
+_COMMANDS = [_add_demo, _add_query, _add_info, _add_validate, _add_export, _add_import_merl, _add_build, add_analyze,
+             add_edit]
 
 
 def main(argv=None) -> int:

@@ -138,7 +138,7 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
     lim = np.float32(np.cos(np.radians(st.max_angle_deg)))
     use = (cos_i > lim) & (cos_o > lim)
     with np.errstate(invalid="ignore", divide="ignore"):
-        f_r = samples.radiance / (samples.irradiance * np.maximum(cos_i, 0)[:, None])
+        f_r = samples.radiance / (samples.irradiance * np.maximum(cos_i, 0))  # eq. 8, channel-major (3, S)
     albedo_min, _ = fitting.albedo_stable_minimum(samples, f_r, cos_i, cos_o, ft2, use, discard=st.discard,
                                                   grazing_penalty=st.grazing_penalty)
     albedo = np.where(np.isfinite(albedo_min), albedo_min, 0).astype(np.float32)
@@ -148,10 +148,10 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
     def fit(model, alb, start=None):
         f_s = fitting.specular_residual(samples, f_r, alb, ft2)
         if model not in factors:
-            factors[model] = fitting.specular_factors(samples, normal, model, st.eta, cos_i)
+            factors[model] = fitting.specular_factors(samples, normal, model, st.eta, (cos_i, cos_o))
         return fitting.fit_specular_samples(samples, normal, f_s, use, model, factors=factors[model], eta=st.eta,
                                             min_samples=st.min_samples, max_relative_error=st.max_relative_error,
-                                            start=start, cos_i=cos_i)
+                                            start=start, cos=(cos_i, cos_o))
 
     def equivalent_start(model, res):
         """Start of ``model`` from a fit of the other model (Beckmann-Phong correspondence n = 2/m² − 2)."""
@@ -163,8 +163,7 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
 
     if st.refine_albedo:
         # Stage 2b: the mean over specular-free samples removes the noise bias of the minimum.
-        io = np.einsum("sk,sk->s", samples.wi, samples.wo)
-        cos_half = (cos_i + cos_o) / np.sqrt(np.maximum(2 + 2 * io, 1e-12))
+        cos_half = (cos_i + cos_o) / np.sqrt(np.maximum(2 + 2 * samples.cos_io(), 1e-12))
         refined, n_ref = fitting.refine_albedo(samples, f_r, ft2, cos_half, use)
         ok = np.isfinite(refined).all(1) & (n_ref >= st.min_samples)
         albedo = np.where(ok[:, None], refined, albedo).astype(np.float32)
@@ -191,8 +190,8 @@ def fit_sensor(capture, eta=ETA_SKIN):
     return fitting.fit_translucency(r, np.moveaxis(prof, 1, 2), np.moveaxis(std, 1, 2) if has_std else None, eta=eta)
 
 
-def _blocks_result(capture, settings, client=None, progress=False):
-    """Stages 1-4 over all blocks of a capture (optionally on a Dask client), concatenated."""
+def _blocks_result(capture, settings, client=None, progress=False, workers=1):
+    """Stages 1-4 over all blocks of a capture (on a Dask client or Dask's local scheduler), concatenated."""
     ranges = list(capture.blocks(settings.block))
 
     def run(a, b):
@@ -201,6 +200,16 @@ def _blocks_result(capture, settings, client=None, progress=False):
     if client is not None:
         futures = [client.submit(_fit_block_from_path, capture.path, a, b, settings, pure=False) for a, b in ranges]
         parts = client.gather(futures)
+    elif workers > 1 and len(ranges) > 1:
+        import dask
+
+        if capture.path is not None:  # worker processes read their own blocks from disk
+            tasks = [dask.delayed(_fit_block_from_path, pure=False)(capture.path, a, b, settings) for a, b in ranges]
+            scheduler = "processes"
+        else:
+            tasks = [dask.delayed(run, pure=False)(a, b) for a, b in ranges]
+            scheduler = "threads"
+        parts = list(dask.compute(*tasks, scheduler=scheduler, num_workers=workers))
     else:
         it = ranges
         if progress:
@@ -217,8 +226,8 @@ def _fit_block_from_path(path, a, b, settings):
     return fit_lumitexels(open_capture(path).lumitexels(a, b), settings)
 
 
-def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None, *, client=None, progress=False,
-                sensor_fit=None):
+def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None, *, client=None, workers: int = 1,
+                progress=False, sensor_fit=None):
     """Run the whole pipeline on one capture and return the subject Dataset.
 
     Parameters
@@ -232,6 +241,10 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
     settings : FitSettings, optional
     client : dask.distributed.Client, optional
         Spread the lumitexel blocks over its workers (the capture must be on disk).
+    workers : int
+        Without a client: spread the blocks over this many local workers with
+        Dask's local scheduler (processes reading their blocks from disk for a
+        capture on disk, threads for one in memory).
     progress : bool
         Show a progress bar over blocks.
     sensor_fit : TranslucencyFit, optional
@@ -252,7 +265,7 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
     if client is not None and capture.path is None:
         raise ValidationError("client requires a capture on disk (pass a path or write it with Capture.to_zarr)")
     st = settings or FitSettings()
-    res = _blocks_result(capture, st, client=client, progress=progress)
+    res = _blocks_result(capture, st, client=client, progress=progress, workers=int(workers))
 
     # Stage 5: maps.
     size = capture.map_size
@@ -272,9 +285,8 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
             continue
         fl = np.zeros((size, size), np.uint8)
         np.bitwise_or.at(fl, (texel[:, 0], texel[:, 1]), res[flag_name].astype(np.uint8))
-        hole = face & ~has_data
-        fl[hole] |= FLAG_BITS["few_samples"]
-        bad = face & (fl != 0)
+        hole = face & ~has_data  # texels no lumitexel maps to (the map is finer than the mesh): filled below
+        bad = face & ((fl != 0) | hole)
         lobe = "ts_m" if key == "ts" else "bp_exponent"
         for var in (f"{key}_rho_s", lobe, f"{key}_error"):
             maps[var] = np.where(face, fitting.fill_flagged(maps[var], bad, face), 0)

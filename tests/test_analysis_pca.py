@@ -1,72 +1,15 @@
-"""Region PCA (Weyrich Fig. 15), population selection and condition differences.
-
-Also home of :class:`MemoryStore`, the in-memory stand-in of the parameter store
-interface (``subjects()``, ``subject(id)``, ``region_samples(model, subjects)``)
-that the analysis tests and benchmark build from ``tests/factories.py`` subjects.
-"""
+"""Region PCA (Weyrich Fig. 15), population selection and condition differences."""
 
 from __future__ import annotations
 
 import numpy as np
-import pandas as pd
 import pytest
 
 from facestats.analysis import condition_differences, principal_axes, region_pca, select_population
 from facestats.conventions import CONDITIONS, REGION_IDS
 from facestats.errors import ValidationError
-from facestats.io.summary import region_samples, summarise_subject
-from tests.factories import make_map_subject
-
-#: Skin-type frequencies of Weyrich Table 2 (types II-VI).
-_TYPE_P = np.array([14, 67, 48, 15, 5]) / 149
-
-
-class MemoryStore:
-    """In-memory stand-in of the store interface used by :mod:`facestats.analysis`."""
-
-    def __init__(self, datasets):
-        self._ds = {str(ds.attrs["subject_id"]): ds for ds in datasets}
-        self._index = pd.DataFrame.from_records([summarise_subject(ds) for ds in datasets]).set_index("subject_id")
-
-    def subjects(self):
-        return self._index.copy()
-
-    def subject(self, subject_id):
-        return self._ds[subject_id]
-
-    def region_samples(self, model="ts", subjects=None):
-        ids = list(self._ds) if subjects is None else [str(s) for s in subjects]
-        parts = []
-        for sid in ids:
-            for r, (rho, lobe) in region_samples(self._ds[sid], model).items():
-                parts.append(pd.DataFrame({"subject_id": sid, "region": r, "rho_s": rho, "lobe": lobe}))
-        return pd.concat(parts, ignore_index=True)
-
-
-def make_population(n=40, seed=0, size=24, conditions=True):
-    """``n`` normal-condition subjects (skin types as Table 2) plus one person under the seven conditions.
-
-    ρs rises with skin type and is higher for women (so CCA has something to
-    find); σtr rises 4 % per skin type.
-    """
-    rng = np.random.default_rng(seed)
-    datasets = []
-    for i in range(n):
-        st = int(rng.choice([2, 3, 4, 5, 6], p=_TYPE_P)) if i >= 5 else 2 + i  # every type present
-        if st == 2 and rng.uniform() < 0.3:
-            st = 1  # some type I subjects (grouped with II)
-        gender = "F" if rng.uniform() < 0.3 else "M"
-        age = int(rng.integers(18, 66))
-        shift = 0.02 * (st - 3) + 0.015 * (gender == "F") + 0.004 * rng.standard_normal()
-        ds = make_map_subject(f"S{i:03d}", size=size, skin_type=st, gender=gender, age=age, seed=seed * 1000 + i,
-                              rho_shift=shift)
-        ds["site_sigma_tr"] = ds["site_sigma_tr"] * (1 + 0.04 * (st - 3))
-        datasets.append(ds)
-    if conditions:
-        for j, cond in enumerate(CONDITIONS):
-            datasets.append(make_map_subject(f"C{j}", size=size, skin_type=3, gender="M", age=30, condition=cond,
-                                             seed=seed * 1000 + 900 + j, rho_shift=0.03 * j, person_id="P-cond"))
-    return MemoryStore(datasets)
+from facestats.io.summary import region_samples
+from tests.analysis_store import make_population
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ from facestats.analysis import absorption_scattering, translucency_table
 from facestats.conventions import CHANNELS, SITES
 from facestats.errors import ValidationError
 from facestats.model import dipole
-from tests.test_analysis_pca import make_population
+from tests.analysis_store import make_population
 
 
 @pytest.fixture(scope="module")

@@ -192,15 +192,15 @@ def grid_triangles(valid: np.ndarray) -> np.ndarray:
     return np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)])
 
 
-def procedural_face(lumitexel_grid: int = 64, map_size: int | None = None, mesh_grid: int | None = None) -> FaceGeometry:
+def procedural_face(lumitexel_grid: int = 48, map_size: int | None = None, mesh_grid: int | None = None) -> FaceGeometry:
     """The embedded default face: a parametric head with the 10 regions of Weyrich Fig. 15.
 
     Parameters
     ----------
     lumitexel_grid : int
-        Lumitexels are the face points of a ``lumitexel_grid``² grid in UV (64 by
-        default: about 2,700 lumitexels 2.5 × 3.6 mm apart, which keeps the whole
-        default population fast; 1,152 gives about 850,000, the paper's full
+        Lumitexels are the face points of a ``lumitexel_grid``² grid in UV (48 by
+        default: about 1,560 lumitexels 3.3 × 4.8 mm apart, which keeps the whole
+        default population fast; 1,152 gives about 900,000, the paper's full
         resolution of 700,000-900,000 vertices).
     map_size : int, optional
         Side of the output UV maps; default ``lumitexel_grid``.

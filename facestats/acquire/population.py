@@ -456,12 +456,13 @@ def _sigma_tr_draws(rng, n, spread):
 
 def synthesize_population(
     seed: int = 2006,
-    map_size: int = 64,
+    map_size: int = 48,
     *,
     geometry=None,
     conditions: bool = True,
     table1_spread: str = "std",
     freckle_fraction: float = 0.15,
+    subjects=None,
 ):
     """Draw the synthetic population (module docstring), deterministic for a seed.
 
@@ -479,6 +480,10 @@ def synthesize_population(
         How to read Table 1's "Var." column (module docstring).
     freckle_fraction : float
         Fraction of subjects (skin types I-III) given freckles.
+    subjects : collection of str, optional
+        Materialise only these subject ids (at high resolution the maps of all
+        156 subjects would not fit in memory).  Every draw is the same as in the
+        full population: each subject has its own random stream.
 
     Returns
     -------
@@ -519,8 +524,11 @@ def synthesize_population(
         return out
 
     subject_seeds = subj_seed.spawn(n + len(CONDITIONS))
+    wanted = None if subjects is None else set(subjects)
     subjects = []
     for i in range(n):  # loop over subjects (each vectorised over texels)
+        if wanted is not None and f"S{i + 1:03d}" not in wanted:
+            continue
         srng = np.random.default_rng(subject_seeds[i])
         means = region_means(i, {c: z_cov[c][i] for c in z_cov})
         freckled = bool(st[i] <= 3 and srng.uniform() < freckle_fraction / 0.57)
@@ -542,6 +550,8 @@ def synthesize_population(
         p_melanin = SKIN_TYPE_MELANIN[3]
         state = crng.bit_generator.state  # every condition starts from the same texture
         for j, cond in enumerate(CONDITIONS):
+            if wanted is not None and f"{person}-{cond}" not in wanted:
+                continue
             crng.bit_generator.state = state
             alb = albedo_map(region_map, skin_albedo(p_melanin), crng, texel_mm=texel_mm, condition=cond, gender=p_gender)
             f_rho, f_m = CONDITION_EFFECTS[cond]
@@ -570,6 +580,6 @@ def _make_subject(sid, pid, age, gender, st, cond, region_map, alb, rho, m, sigm
                         site_sigma_tr=np.asarray(sigma_tr_sites, float), site_albedo=site_albedo, seed=seed, features=features)
 
 
-def default_population(map_size: int = 64, seed: int = 2006) -> Population:
+def default_population(map_size: int = 48, seed: int = 2006) -> Population:
     """The embedded default population: :func:`synthesize_population` with its defaults."""
     return synthesize_population(seed=seed, map_size=map_size)

@@ -228,9 +228,9 @@ def plot_translucency(table, ax=None, published=True):
     ax.set_xticks(x, sites)
     ax.set_ylabel(r"$\sigma_{tr}$ (mm$^{-1}$)")
     avg = ", ".join(f"{v:.4f}" for v in table.sigma_tr_avg)
+    lo, hi = (", ".join(f"{v:.3f}" for v in e) for e in (table.ell_d_min, table.ell_d_max))
     ax.set_title(f"Translucency per site (mean ± 1 sd); $\\sigma_{{trAvg}}$ = [{avg}]\n"
-                 f"$\\ell_d$ range: {table.min_subject} {np.round(table.ell_d_min, 3).tolist()} mm to "
-                 f"{table.max_subject} {np.round(table.ell_d_max, 3).tolist()} mm", fontsize=9)
+                 f"$\\ell_d$ range: {table.min_subject} [{lo}] mm to {table.max_subject} [{hi}] mm", fontsize=9)
     ax.legend(fontsize=8, ncol=2)
     return fig
 
@@ -283,6 +283,8 @@ def plot_sigma_posterior(post, labels=None, parameters=("sigma_s_prime", "sigma_
         ``{label: {parameter: value}}`` drawn as black lines (simulations).
     bins : int
     """
+    from matplotlib.ticker import MaxNLocator
+
     labels = list(post.labels if labels is None else labels)
     p = len(parameters)
     fig = _new_figure((1.7 * p * len(labels) + 0.5, 1.7 * p + 0.5))
@@ -314,6 +316,9 @@ def plot_sigma_posterior(post, labels=None, parameters=("sigma_s_prime", "sigma_
                         ax.axhline(t[pi], color="k", lw=1.2, alpha=0.7)
                 ax.tick_params(labelsize=6)
                 ax.ticklabel_format(useOffset=False, style="plain")
+                ax.xaxis.set_major_locator(MaxNLocator(4))  # narrow posteriors have long tick labels
+                if i != j:
+                    ax.yaxis.set_major_locator(MaxNLocator(4))
                 if i == p - 1:
                     ax.set_xlabel(_LABELS[pj], fontsize=8)
                 else:
@@ -346,10 +351,14 @@ def plot_population_sigma_tr(result):
         if result.hyper is not None:
             h = result.hyper.loc[ch]
             ax.axhspan(h["mu_lo"], h["mu_hi"], color="0.85", zorder=0, label=r"population mean $\mu$")
+        lo, hi = np.nanmin(t["lo"]), np.nanmax(t["hi"])
+        if np.isfinite(lo) and np.isfinite(hi) and hi > lo:  # headroom for the n= labels above the intervals
+            ax.set_ylim(lo - 0.05 * (hi - lo), hi + 0.15 * (hi - lo))
         ax.set_xticks(x, [ROMAN[int(v)] for v in t.index])
         ax.set_xlabel("skin type")
         ax.set_ylabel(r"mean $\sigma_{tr}$ (mm$^{-1}$)")
         ax.set_title(f"{ch} channel", color=_CHANNEL_COLORS[ch])
-    axes[0].legend(fontsize=7)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=len(labels), fontsize=8, frameon=False)
     fig.suptitle(f"Posterior of the mean translucency per skin type ({result.model} model)", fontsize=10)
     return fig

@@ -32,6 +32,7 @@ __all__ = [
     "v_groove_shadowing",
     "blinn_phong_lobe",
     "torrance_sparrow_geometry",
+    "torrance_sparrow_cosines",
     "blinn_phong",
     "torrance_sparrow",
 ]
@@ -112,26 +113,39 @@ def blinn_phong_lobe(cos_delta, exponent):
 def _ts_geometry_kernel(nx, ny, nz, ix, iy, iz, ox, oy, oz, eta):
     """cos δ and K = G F_r(ωo·H)/(π N·ωi N·ωo) from vector components (no checks).
 
-    Below the horizon cos δ = 1 and K = 0.  Written on components so that
-    :func:`facestats._blocked.blockwise` can stream it through the cache.
+    Written on components so that :func:`facestats._blocked.blockwise` can stream
+    it through the cache; the geometry itself is :func:`torrance_sparrow_cosines`.
     """
-    one = nx.dtype.type(1)
     n_wi = nx * ix + ny * iy + nz * iz
     n_wo = nx * ox + ny * oy + nz * oz
+    wi_wo = ix * ox + iy * oy + iz * oz
+    return torrance_sparrow_cosines(n_wi, n_wo, wi_wo, eta)
+
+
+def torrance_sparrow_cosines(n_wi, n_wo, wi_wo, eta=1.38):
+    """cos δ and K = G F_r(ωo·H)/(π (N·ωi)(N·ωo)) of eq. 12-13 from three cosines (no checks).
+
+    With ‖ωi + ωo‖ = sqrt(2 + 2 ωi·ωo), the half vector gives
+    N·H = (N·ωi + N·ωo)/‖ωi + ωo‖ and ωo·H = (1 + ωi·ωo)/‖ωi + ωo‖, so the
+    Torrance-Sparrow geometry needs only N·ωi, N·ωo and ωi·ωo; the fitter gathers
+    these per sample from small per-lumitexel grids instead of building
+    per-sample vectors.  Below the horizon cos δ = 1 and K = 0.
+    """
+    dtype = np.result_type(n_wi, np.float32)
+    one = dtype.type(1)
     above = (n_wi > 0) & (n_wo > 0)
-    hx, hy, hz = ix + ox, iy + oy, iz + oz
     with np.errstate(invalid="ignore", divide="ignore"):
-        inv = 1 / np.sqrt(hx * hx + hy * hy + hz * hz)
-    n_h = (nx * hx + ny * hy + nz * hz) * inv
-    wo_h = (ox * hx + oy * hy + oz * hz) * inv
-    tiny = np.finfo(nx.dtype).tiny
+        inv = 1 / np.sqrt(np.maximum(2 + 2 * wi_wo, 0))
+    n_h = (n_wi + n_wo) * inv
+    wo_h = (1 + wi_wo) * inv
+    tiny = np.finfo(dtype).tiny
     n_h = np.where(above, np.clip(n_h, tiny, one), one)
     wo_h = np.where(above, np.clip(wo_h, tiny, one), one)
     n_wi = np.where(above, n_wi, one)
     n_wo = np.where(above, n_wo, one)
     g = v_groove_shadowing(n_h, n_wi, n_wo, wo_h)
     k = g * _fresnel_reflectance(wo_h, eta) / (np.pi * n_wi * n_wo)
-    return n_h, np.where(above, k, 0)
+    return n_h.astype(dtype, copy=False), np.where(above, k, 0).astype(dtype, copy=False)
 
 
 def torrance_sparrow_geometry(normal, wi, wo, eta=1.38):

@@ -46,12 +46,19 @@ __all__ = ["fresnel_factors", "albedo_stable_minimum", "specular_residual", "ref
 
 
 def fresnel_factors(samples, normal, eta=1.38):
-    """Per-sample cos θi, cos θo and F_t(θi) F_t(θo) for per-lumitexel unit normals (no checks)."""
-    ci, co = samples.cos(normal)
+    """Per-sample cos θi, cos θo and F_t(θi) F_t(θo) for per-lumitexel unit normals (no checks).
+
+    The Fresnel terms are evaluated on the (lumitexel, light) and (lumitexel,
+    camera) grids and gathered per sample.
+    """
+    nrm = np.asarray(normal, np.float32)
+    ci_g = np.matmul(samples.wi_grid, nrm[:, :, None])[..., 0]
+    co_g = np.matmul(samples.wo_grid, nrm[:, :, None])[..., 0]
     e = np.float32(eta)
-    ft_i = 1 - _fresnel_reflectance(np.clip(ci, 0, 1).astype(np.float32), e)
-    ft_o = 1 - _fresnel_reflectance(np.clip(co, 0, 1).astype(np.float32), e)
-    return ci.astype(np.float32), co.astype(np.float32), (ft_i * ft_o).astype(np.float32)
+    ft_i = 1 - _fresnel_reflectance(np.clip(ci_g, 0, 1).astype(np.float32), e)
+    ft_o = 1 - _fresnel_reflectance(np.clip(co_g, 0, 1).astype(np.float32), e)
+    t, c, l = samples.texel, samples.camera, samples.light
+    return ci_g[t, l], co_g[t, c], (ft_i[t, l] * ft_o[t, c]).astype(np.float32)
 
 
 def albedo_stable_minimum(samples, brdf, cos_i, cos_o, ft2, use, *, discard=2, grazing_penalty=1.0,
@@ -62,8 +69,8 @@ def albedo_stable_minimum(samples, brdf, cos_i, cos_o, ft2, use, *, discard=2, g
     ----------
     samples : Samples
         The samples (for their lumitexel index).
-    brdf : ndarray, shape (S, 3)
-        BRDF samples f_r (eq. 8).
+    brdf : ndarray, shape (3, S)
+        BRDF samples f_r (eq. 8), channel-major.
     cos_i, cos_o, ft2 : ndarray, shape (S,)
         cos θi, cos θo and F_t(θi) F_t(θo).
     use : ndarray of bool, shape (S,)
@@ -87,8 +94,8 @@ def albedo_stable_minimum(samples, brdf, cos_i, cos_o, ft2, use, *, discard=2, g
     penalty = (1 + np.float32(grazing_penalty) * graze).astype(np.float32)
     k = int(discard)
     with np.errstate(invalid="ignore", divide="ignore"):
-        v = (np.float32(np.pi) * brdf / ft2[:, None]).astype(np.float32)
-    ok = use & np.all(np.isfinite(v), axis=1)
+        v = (np.float32(np.pi) * brdf / ft2).astype(np.float32)  # (3, S)
+    ok = use & np.isfinite(v[0] + v[1] + v[2])
     # One padded (lumitexel, sample) layout for all channels.
     t = samples.texel[ok]
     counts = np.bincount(t, minlength=samples.n_texels)
@@ -96,12 +103,13 @@ def albedo_stable_minimum(samples, brdf, cos_i, cos_o, ft2, use, *, discard=2, g
     rank = np.arange(t.size) - start[t]
     width = max(int(counts.max(initial=0)), k + 1)
     out = np.full((samples.n_texels, 3), np.nan, np.float32)
-    vo, po = v[ok], penalty[ok]
+    po = penalty[ok]
     for c in range(3):  # loop over channels, vectorised over samples
+        vo = v[c][ok]
         ranked = np.full((samples.n_texels, width), np.inf, np.float32)
         raw = np.full((samples.n_texels, width), np.nan, np.float32)
-        ranked[t, rank] = vo[:, c] * po
-        raw[t, rank] = vo[:, c]
+        ranked[t, rank] = vo * po
+        raw[t, rank] = vo
         pick = np.argpartition(ranked, k, axis=1)[:, k]
         kth = np.take_along_axis(raw, pick[:, None], 1)[:, 0]
         out[:, c] = np.where(counts > k, kth, np.nan)
@@ -109,9 +117,13 @@ def albedo_stable_minimum(samples, brdf, cos_i, cos_o, ft2, use, *, discard=2, g
 
 
 def specular_residual(samples, brdf, albedo, ft2):
-    """Grey specular BRDF samples f_s = mean_RGB(f_r − (α/π) F_t F_t), eq. 10, shape (S,)."""
-    diffuse = albedo[samples.texel] * (ft2 / np.float32(np.pi))[:, None]
-    return np.mean(brdf - diffuse, axis=1).astype(np.float32)
+    """Grey specular BRDF samples f_s = mean_RGB(f_r − (α/π) F_t F_t), eq. 10, shape (S,).
+
+    ``brdf`` is channel-major (3, S); ``albedo`` (n, 3).
+    """
+    grey_albedo = albedo.sum(axis=1, dtype=np.float32)[samples.texel]  # Σ_ch α
+    total = brdf[0] + brdf[1] + brdf[2]
+    return ((total - grey_albedo * (ft2 / np.float32(np.pi))) / np.float32(3)).astype(np.float32)
 
 
 def refine_albedo(samples, brdf, ft2, cos_half, use, *, min_half_angle=np.radians(50.0)):
@@ -123,7 +135,8 @@ def refine_albedo(samples, brdf, ft2, cos_half, use, *, min_half_angle=np.radian
     Parameters
     ----------
     samples : Samples
-    brdf : ndarray, shape (S, 3)
+    brdf : ndarray, shape (3, S)
+        Channel-major BRDF samples.
     ft2 : ndarray, shape (S,)
     cos_half : ndarray, shape (S,)
         N·H per sample.
@@ -137,9 +150,9 @@ def refine_albedo(samples, brdf, ft2, cos_half, use, *, min_half_angle=np.radian
     n_used : ndarray of int, shape (n,)
     """
     with np.errstate(invalid="ignore", divide="ignore"):
-        v = np.float32(np.pi) * brdf / ft2[:, None]
-    sel = use & (cos_half < np.cos(min_half_angle)) & np.all(np.isfinite(v), axis=1)
+        v = np.float32(np.pi) * brdf / ft2
+    sel = use & (cos_half < np.cos(min_half_angle)) & np.isfinite(v[0] + v[1] + v[2])
     cnt = samples.count(sel)
     with np.errstate(invalid="ignore", divide="ignore"):
-        alb = np.stack([samples.sum(v[:, c], sel) for c in range(3)], 1) / cnt[:, None]
+        alb = np.stack([samples.sum(v[c], sel) for c in range(3)], 1) / cnt[:, None]
     return np.where(cnt[:, None] > 0, alb, np.nan).astype(np.float32), cnt

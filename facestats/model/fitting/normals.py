@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...errors import ValidationError
 from ..fresnel import _fresnel_reflectance
 
 __all__ = ["photometric_normals", "micro_normals"]
@@ -33,12 +34,6 @@ def _unit(v):
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
         return v / n
-
-
-def _grey_brdf_cos(samples):
-    """y = Σ_ch L / Σ_ch E⊥ per sample (grey f_r cos θi)."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return samples.radiance.sum(1) / samples.irradiance.sum(1)
 
 
 def photometric_normals(samples, scan_normal, n_cameras, *, eta=1.38, specular_exclusion=np.radians(35.0),
@@ -73,25 +68,28 @@ def photometric_normals(samples, scan_normal, n_cameras, *, eta=1.38, specular_e
     """
     n_scan = np.asarray(scan_normal, np.float32)
     n, n_key = samples.n_texels, samples.n_texels * int(n_cameras)
-    y = _grey_brdf_cos(samples)
+    y = samples.grey()
     ci, co = samples.cos(n_scan)
-    io = np.einsum("sk,sk->s", samples.wi, samples.wo)
+    io = samples.cos_io()
     cos_h = (ci + co) / np.sqrt(np.maximum(2 + 2 * io, 1e-12))  # N·H with ‖ωi + ωo‖² = 2 + 2 ωi·ωo
     lim = np.cos(max_angle)
     use = (cos_h < np.cos(specular_exclusion)) & (ci > lim) & (co > lim) & np.isfinite(y) & (y > 0)
     key = samples.texel.astype(np.int64)[use] * n_cameras + samples.camera[use]
-    wi = samples.wi[use].astype(np.float64)
-    wo = samples.wo[use].astype(np.float64)
-    yu = y[use].astype(np.float64)
+    light = samples.light[use]
     texel_u = samples.texel[use]
+    yu = y[use].astype(np.float64)
     count = np.bincount(key, minlength=n_key)
-    # Σ ωi ωiᵀ per (lumitexel, camera): six distinct entries of the symmetric matrix.
-    pairs = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
-    a = np.zeros((n_key, 3, 3))
-    for i, j in pairs:  # six bincounts, each vectorised over samples
-        a[:, i, j] = a[:, j, i] = np.bincount(key, weights=wi[:, i] * wi[:, j], minlength=n_key)
-    cam_dir = np.stack([np.bincount(key, weights=wo[:, k], minlength=n_key) for k in range(3)], 1)
-    cam_dir = _unit(cam_dir).reshape(n, n_cameras, 3)
+    # Σ_l ωi ωiᵀ per (lumitexel, camera) = Σ over the camera's used lights of the light's
+    # outer product: a 0/1 (camera × light) matrix times the (light × 9) outer products.
+    n_led = samples.wi_grid.shape[1]
+    sel = np.zeros((n, n_cameras, n_led), np.float32)
+    sel.reshape(-1)[key * n_led + light] = 1
+    wig = samples.wi_grid.astype(np.float64)
+    outer = (samples.wi_grid[:, :, :, None] * samples.wi_grid[:, :, None, :]).reshape(n, n_led, 9)
+    a = np.matmul(sel, outer).astype(np.float64).reshape(n_key, 3, 3)  # float32 products, ~150 terms
+    cam_dir = samples.wo_grid[:, :n_cameras].astype(np.float64) if samples.wo_grid.shape[1] == n_cameras else None
+    if cam_dir is None:
+        raise ValidationError("photometric_normals needs samples on a camera grid (Samples.from_grid)")
     ok = count >= min_lights
     det = np.linalg.det(a)
     ok &= det > 1e-6 * np.maximum(count, 1.0) ** 3
@@ -100,16 +98,18 @@ def photometric_normals(samples, scan_normal, n_cameras, *, eta=1.38, specular_e
     cam_n = None
     e32 = np.float32(eta)
     for it in range(int(iterations)):  # refinement passes
-        if it > 0:  # divide out F_t(θi) with the current normal
-            c = np.clip(np.einsum("sk,sk->s", normal[texel_u], wi), 0, 1).astype(np.float32)
+        if it > 0:  # divide out F_t(θi) with the current normal (computed on the light grid)
+            c = np.clip(np.matmul(wig, normal[:, :, None])[..., 0], 0, 1).astype(np.float32)  # (n, L)
             ft = 1 - _fresnel_reflectance(c, e32)
-            yy = yu / np.where(ft > 0, ft, 1)
+            yy = yu / np.where(ft > 0, ft, 1)[texel_u, light]
         else:
             yy = yu
-        b = np.stack([np.bincount(key, weights=yy * wi[:, k], minlength=n_key) for k in range(3)], 1)
+        yw = np.zeros((n, n_cameras, n_led))
+        yw.reshape(-1)[key * n_led + light] = yy
+        b = np.matmul(yw, wig).reshape(n_key, 3)  # Σ_l y ωi per (lumitexel, camera)
         g = np.linalg.solve(a_safe, b[..., None])[..., 0]
         cam_n = np.where(ok[:, None], _unit(g), np.nan).reshape(n, n_cameras, 3)
-        weight = np.where(ok.reshape(n, n_cameras), np.clip(np.einsum("nck,nck->nc", np.nan_to_num(cam_n), np.nan_to_num(cam_dir)), 0, None), 0)
+        weight = np.where(ok.reshape(n, n_cameras), np.clip(np.einsum("nck,nck->nc", np.nan_to_num(cam_n), cam_dir), 0, None), 0)
         acc = np.einsum("nc,nck->nk", weight, np.nan_to_num(cam_n))
         have = weight.sum(-1) > 0
         normal = np.where(have[:, None], _unit(acc), n_scan)
@@ -128,7 +128,7 @@ def micro_normals(samples, n_cameras):
         Unit half vectors; NaN where a camera has no valid sample.
     """
     n = samples.n_texels
-    y = np.nan_to_num(_grey_brdf_cos(samples), nan=-np.inf)
+    y = np.nan_to_num(samples.grey(), nan=-np.inf)
     key = samples.texel.astype(np.int64) * n_cameras + samples.camera
     if np.any(np.diff(key) < 0):  # not grouped by (lumitexel, camera): sort once
         order = np.argsort(key, kind="stable")
@@ -143,5 +143,5 @@ def micro_normals(samples, n_cameras):
     best = order[hit[first]]
     key = samples.texel.astype(np.int64)[best] * n_cameras + samples.camera[best]
     out = np.full((n * n_cameras, 3), np.nan, np.float32)
-    out[key] = _unit(samples.wi[best] + samples.wo[best])
+    out[key] = _unit(samples.wi_grid[samples.texel[best], samples.light[best]] + samples.wo_grid[samples.texel[best], samples.camera[best]])
     return out.reshape(n, n_cameras, 3)

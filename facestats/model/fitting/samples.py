@@ -3,14 +3,19 @@
 A lumitexel gathers up to (cameras × lights) BRDF samples but only a fraction is
 valid (about 900 of 2,400 in the default dome, §5).  Rather than dense
 (lumitexel, camera, light) grids that are mostly empty, the stages keep only the
-valid samples in flat arrays sorted by lumitexel, so every pass touches useful
-data; per-lumitexel sums are ``np.bincount`` over the lumitexel index and
-per-lumitexel order statistics use a padded view built once.
+valid samples, sorted by lumitexel, as flat arrays: the lumitexel, camera and
+light of each sample and its radiance and irradiance (channel-major, so every
+channel is contiguous).  Directions stay on the per-lumitexel grids they come
+from (towards each light, towards each camera); the stages need only cosines
+(N·ωi, N·ωo, ωi·ωo), which are computed on the small grids and gathered per
+sample, so no per-sample 3-vector is ever built.  Per-lumitexel sums are
+``np.bincount`` over the lumitexel index; per-lumitexel order statistics use a
+padded view.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -28,13 +33,15 @@ class Samples:
     n_texels : int
     texel : ndarray of int32, shape (S,)
         Lumitexel of each sample (non-decreasing).
-    camera, light : ndarray of int16, shape (S,)
-        Camera and light of each sample (−1 when the samples do not come from a grid).
-    wi, wo : ndarray of float32, shape (S, 3)
-        Unit directions towards the light and the camera.
-    radiance : ndarray of float32, shape (S, 3)
+    camera, light : ndarray of int32, shape (S,)
+        Index of each sample's outgoing and incident direction in ``wo_grid`` and ``wi_grid``.
+    wi_grid : ndarray of float32, shape (n, L, 3)
+        Unit directions from each lumitexel towards each light.
+    wo_grid : ndarray of float32, shape (n, C, 3)
+        Unit directions from each lumitexel towards each camera.
+    radiance : ndarray of float32, shape (3, S)
         Radiance per channel (RGB).
-    irradiance : ndarray of float32, shape (S, 3)
+    irradiance : ndarray of float32, shape (3, S)
         Beam-normal irradiance E⊥ per channel.
     """
 
@@ -42,10 +49,11 @@ class Samples:
     texel: np.ndarray
     camera: np.ndarray
     light: np.ndarray
-    wi: np.ndarray
-    wo: np.ndarray
+    wi_grid: np.ndarray
+    wo_grid: np.ndarray
     radiance: np.ndarray
     irradiance: np.ndarray
+    _cache: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def from_grid(cls, wi, wo, irradiance, radiance, valid):
@@ -57,12 +65,15 @@ class Samples:
             raise ValidationError(
                 f"grid shapes disagree: valid {v.shape}, radiance {np.shape(radiance)}, wi {np.shape(wi)}, wo {np.shape(wo)}"
             )
-        t, c, l = np.nonzero(v)  # row-major: sorted by lumitexel, then camera
-        rad = np.asarray(radiance)[t, c, l].astype(np.float32)
+        flat = np.flatnonzero(v)  # row-major: sorted by lumitexel, then camera, then light
+        t, rem = np.divmod(flat, n_cam * n_led)
+        c, l = np.divmod(rem, n_led)
+        rad = np.asarray(radiance).reshape(-1, 3)[flat]
+        irr = np.asarray(irradiance).reshape(-1, 3)[t * n_led + l]
         return cls(
-            n_texels=n, texel=t.astype(np.int32), camera=c.astype(np.int16), light=l.astype(np.int16),
-            wi=np.asarray(wi, np.float32)[t, l], wo=np.asarray(wo, np.float32)[t, c],
-            radiance=rad, irradiance=np.asarray(irradiance, np.float32)[t, l],
+            n_texels=n, texel=t.astype(np.int32), camera=c.astype(np.int32), light=l.astype(np.int32),
+            wi_grid=np.asarray(wi, np.float32), wo_grid=np.asarray(wo, np.float32),
+            radiance=np.ascontiguousarray(rad.T, dtype=np.float32), irradiance=np.ascontiguousarray(irr.T, dtype=np.float32),
         )
 
     @classmethod
@@ -71,16 +82,26 @@ class Samples:
         v = np.asarray(valid, bool)
         t, s = np.nonzero(v)
         n_s = t.size
-        rad = np.zeros((n_s, 3), np.float32) if radiance is None else np.asarray(radiance, np.float32)[t, s]
-        irr = np.ones((n_s, 3), np.float32) if irradiance is None else np.asarray(irradiance, np.float32)[t, s]
-        minus = np.full(n_s, -1, np.int16)
-        return cls(n_texels=v.shape[0], texel=t.astype(np.int32), camera=minus, light=minus,
-                   wi=np.asarray(wi, np.float32)[t, s], wo=np.asarray(wo, np.float32)[t, s], radiance=rad, irradiance=irr)
+        rad = np.zeros((3, n_s), np.float32) if radiance is None else np.asarray(radiance, np.float32)[t, s].T
+        irr = np.ones((3, n_s), np.float32) if irradiance is None else np.asarray(irradiance, np.float32)[t, s].T
+        return cls(n_texels=v.shape[0], texel=t.astype(np.int32), camera=s.astype(np.int32), light=s.astype(np.int32),
+                   wi_grid=np.asarray(wi, np.float32), wo_grid=np.asarray(wo, np.float32),
+                   radiance=np.ascontiguousarray(rad), irradiance=np.ascontiguousarray(irr))
 
     @property
     def n(self) -> int:
         """Number of samples."""
         return int(self.texel.shape[0])
+
+    @property
+    def wi(self) -> np.ndarray:
+        """Per-sample unit directions towards the light, (S, 3) (built on demand)."""
+        return self.wi_grid[self.texel, self.light]
+
+    @property
+    def wo(self) -> np.ndarray:
+        """Per-sample unit directions towards the camera, (S, 3) (built on demand)."""
+        return self.wo_grid[self.texel, self.camera]
 
     def count(self, mask=None) -> np.ndarray:
         """Samples per lumitexel (optionally only where ``mask``)."""
@@ -93,14 +114,29 @@ class Samples:
             return np.bincount(self.texel, weights=values, minlength=self.n_texels)
         return np.bincount(self.texel[mask], weights=values[mask], minlength=self.n_texels)
 
-    def segment_sum(self, values, key, n_keys) -> np.ndarray:
-        """Sum of ``values`` per arbitrary integer ``key`` (e.g. lumitexel × camera)."""
-        return np.bincount(key, weights=values, minlength=n_keys)
-
-    def cos(self, normal):
+    def cos(self, normal, dtype=np.float32):
         """(N·ωi, N·ωo) per sample for per-lumitexel normals (n, 3)."""
-        nrm = np.asarray(normal, np.float32)[self.texel]
-        return np.einsum("sk,sk->s", nrm, self.wi), np.einsum("sk,sk->s", nrm, self.wo)
+        nrm = np.asarray(normal, dtype)
+        ci = np.matmul(self.wi_grid.astype(dtype, copy=False), nrm[:, :, None])[..., 0]  # (n, L)
+        co = np.matmul(self.wo_grid.astype(dtype, copy=False), nrm[:, :, None])[..., 0]  # (n, C)
+        return ci[self.texel, self.light], co[self.texel, self.camera]
+
+    def cos_io(self) -> np.ndarray:
+        """ωi·ωo per sample (float64, cached)."""
+        if "io" not in self._cache:
+            n = self.n_texels
+            wo = self.wo_grid.astype(np.float64)
+            grid = np.matmul(wo, np.swapaxes(self.wi_grid.astype(np.float64), 1, 2))  # (n, C, L)
+            self._cache["io"] = grid.reshape(n, -1)[self.texel, self.camera * self.wi_grid.shape[1] + self.light]
+        return self._cache["io"]
+
+    def grey(self) -> np.ndarray:
+        """Σ_ch L / Σ_ch E⊥ per sample: the grey f_r cos θi (cached)."""
+        if "grey" not in self._cache:
+            r, e = self.radiance, self.irradiance
+            with np.errstate(invalid="ignore", divide="ignore"):
+                self._cache["grey"] = (r[0] + r[1] + r[2]) / (e[0] + e[1] + e[2])
+        return self._cache["grey"]
 
     def padded(self, values, fill, mask=None):
         """Per-lumitexel padded view (n_texels, S_max) of ``values`` (S,) (only ``mask`` samples kept)."""

@@ -12,7 +12,7 @@ Levenberg-Marquardt iteration vectorised over texels and samples:
 
 * Both models are ρs times a lobe: f_sM cos θi = ρs · g(p), with
   g = A exp(−t/m²)/m², A = K cos θi / cos⁴δ, t = tan²δ for Torrance-Sparrow
-  (K = G F_r/(π cos θi cos θo), :func:`facestats.model.brdf.torrance_sparrow_geometry`)
+  (K = G F_r/(π cos θi cos θo), :func:`facestats.model.brdf.torrance_sparrow_cosines`)
   and g = A (n+2) cosⁿδ, A = cos θi/(2π) for Blinn-Phong.  The per-sample
   factors A, t (or ln cos δ) are computed once; every iteration costs one
   exponential per sample.
@@ -22,11 +22,11 @@ Levenberg-Marquardt iteration vectorised over texels and samples:
   multiply it by 4).
 * Start: a weighted log-linear fit of ln(y/A) against t (or ln cos δ) over the
   strongest samples gives p₀ (the slope is −1/m², or n); ρs₀ then follows in
-  closed form.  The better of p₀, p₀/1.6 and p₀·1.6 starts the iteration, unless a
+  closed form and p₀ starts the iteration (see ``_COLD_STARTS``), unless a
   start is given (a previous fit: the pipeline refits after refining the albedo,
   and starts Blinn-Phong at the Beckmann-equivalent n = 2/m² − 2).
 * Convergence: a texel stops when an accepted step changes E² by less than
-  ``tol`` relative, or ρs and ln p by less than 10⁻⁴ (relative).
+  ``tol`` relative, or ρs and ln p by less than 10⁻⁵ (relative).
 * Only samples with w = 1 are kept, as flat arrays grouped by texel
   (:class:`facestats.model.fitting.samples.Samples`); per-texel sums are
   ``np.bincount`` over the texel index, and texels that have converged leave the
@@ -48,7 +48,8 @@ import numpy as np
 
 from ..._validate import as_float, check_choice, check_shape
 from ...errors import ValidationError
-from ..brdf import torrance_sparrow_geometry
+from ..._blocked import blockwise
+from ..brdf import torrance_sparrow_cosines
 
 __all__ = ["SpecularFit", "fit_specular", "fit_specular_samples", "specular_factors", "DEFAULT_BOUNDS", "specular_model_values"]
 
@@ -59,6 +60,9 @@ DEFAULT_BOUNDS = {
 }
 _LOBE_NAME = {"torrance_sparrow": "m", "blinn_phong": "exponent"}
 FLAG_FEW, FLAG_NOT_CONVERGED, FLAG_ILL, FLAG_BOUND = 1, 2, 4, 8
+#: Multiples of the log-linear estimate tried as cold starts (the best one starts the iteration);
+#: one suffices on skin-like lobes (extra starts at 0.625× and 1.6× changed 0.1 % of texels).
+_COLD_STARTS = (1.0,)
 
 
 @dataclass
@@ -104,13 +108,28 @@ class SpecularFit:
 
 
 def _lobe(model, p, s1, a):
-    """g(p) = A·h and d g/d ln p per sample; s1 is t = tan²δ (TS) or ln cos δ (BP)."""
+    """g(p) = A·h and d g/d ln p per sample; s1 is t = tan²δ (TS) or ln cos δ (BP).
+
+    Torrance-Sparrow: g = A e^{−t/m²}/m², dg/d ln m = 2 g (t/m² − 1);
+    Blinn-Phong: g = A (n+2) e^{n ln cos δ}, dg/d ln n = g (n/(n+2) + n ln cos δ).
+    """
     if model == "torrance_sparrow":
         inv = 1 / (p * p)
-        g = a * np.exp(-s1 * inv) * inv
-        return g, g * (2 * s1 * inv - 2)
-    g = a * (p + 2) * np.exp(p * s1)
-    return g, g * (p / (p + 2) + p * s1)
+        x = s1 * inv
+        g = np.exp(-x)
+        g *= a
+        g *= inv
+        x -= 1
+        x *= g
+        x *= 2
+        return g, x
+    x = p * s1
+    g = np.exp(x)
+    g *= a
+    g *= p + 2
+    x += p / (p + 2)
+    x *= g
+    return g, x
 
 
 def specular_model_values(model, rho_s, lobe, normal, wi, wo, eta=1.38):
@@ -126,30 +145,38 @@ def lobe_values(model, rho_s, lobe, s1, a):
     return np.asarray(rho_s, np.float32) * g
 
 
-def specular_factors(samples, normal, model, eta=1.38, cos_i=None):
+def _ts_factor_kernel(ci, co, io, eta):
+    """(tan²δ, K cos θi / cos⁴δ) of a block of samples (run through :func:`facestats._blocked.blockwise`)."""
+    cos_d, k = torrance_sparrow_cosines(ci, co, io, eta)
+    c2 = cos_d * cos_d
+    return (1 - c2) / c2, np.maximum(k * ci / (c2 * c2), 0)
+
+
+def specular_factors(samples, normal, model, eta=1.38, cos=None):
     """Parameter-free per-sample factors (s1, A) of ``model`` (module docstring), float32.
 
     Torrance-Sparrow: s1 = tan²δ, A = K cos θi / cos⁴δ with K from
-    :func:`facestats.model.brdf.torrance_sparrow_geometry`; Blinn-Phong:
+    :func:`facestats.model.brdf.torrance_sparrow_cosines`; Blinn-Phong:
     s1 = ln cos δ, A = cos θi / (2π).  A = 0 where a direction is below the horizon.
-    ``cos_i`` (N·ωi per sample) may be passed when already known.
+    ``cos`` is accepted for symmetry with :func:`fit_specular_samples` but the
+    cosines are recomputed in float64 from the direction grids.
     """
-    nrm = np.asarray(normal, np.float32)[samples.texel]
-    ci = np.einsum("sk,sk->s", nrm, samples.wi) if cos_i is None else cos_i
-    if model == "torrance_sparrow":
-        cos_d, k = torrance_sparrow_geometry(nrm, samples.wi, samples.wo, eta)
-        c2 = cos_d * cos_d
-        return ((1 - c2) / c2).astype(np.float32), np.maximum(k * ci / (c2 * c2), 0).astype(np.float32)
     check_choice(model, "model", DEFAULT_BOUNDS)
-    h = samples.wi + samples.wo
-    cos_d = np.einsum("sk,sk->s", nrm, h) / np.linalg.norm(h, axis=-1)
-    co = np.einsum("sk,sk->s", nrm, samples.wo)
+    # Cosines and factors in float64 (tan²δ = (1 − cos²δ)/cos²δ cancels near the peak),
+    # stored as float32 for the iteration.
+    ci, co = samples.cos(normal, dtype=np.float64)
+    io = samples.cos_io().astype(np.float64)
+    if model == "torrance_sparrow":
+        s1, a = blockwise(_ts_factor_kernel, [ci, co, io, eta], np.float64, n_out=2)
+        return s1.astype(np.float32), a.astype(np.float32)
     above = (ci > 0) & (co > 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_d = (ci + co) / np.sqrt(np.maximum(2 + 2 * io, 1e-12))
     return np.log(np.clip(cos_d, 1e-6, 1)).astype(np.float32), np.where(above, ci / (2 * np.pi), 0).astype(np.float32)
 
 
 def fit_specular_samples(samples, normal, f_s, use, model, *, factors=None, eta=1.38, bounds=None, min_samples=30,
-                         max_iter=40, tol=1e-6, max_relative_error=0.25, start=None, cos_i=None) -> SpecularFit:
+                         max_iter=40, tol=1e-6, max_relative_error=0.25, start=None, cos=None) -> SpecularFit:
     """Fit ``model`` to grey specular samples on flat :class:`Samples` (the pipeline's form of :func:`fit_specular`).
 
     Parameters
@@ -165,14 +192,14 @@ def fit_specular_samples(samples, normal, f_s, use, model, *, factors=None, eta=
     start : ndarray, shape (n,), optional
         Starting lobe parameter per texel (e.g. a previous fit); NaN entries use
         the log-linear start.
-    cos_i : ndarray, shape (S,), optional
-        N·ωi per sample, when already known.
+    cos : tuple of ndarray, optional
+        (N·ωi, N·ωo) per sample, when already known.
     """
     check_choice(model, "model", DEFAULT_BOUNDS)
-    if cos_i is None:
-        cos_i = np.einsum("sk,sk->s", np.asarray(normal, np.float32)[samples.texel], samples.wi)
-    s1, a = specular_factors(samples, normal, model, eta, cos_i) if factors is None else factors
-    ci = cos_i
+    if cos is None:
+        cos = samples.cos(normal)
+    s1, a = specular_factors(samples, normal, model, eta, cos) if factors is None else factors
+    ci = cos[0]
     ok = np.asarray(use, bool) & np.isfinite(f_s) & (a > 0)
     y = (f_s[ok] * ci[ok]).astype(np.float32)
     return _solve(model, y, s1[ok], a[ok], samples.texel[ok], samples.n_texels, bounds=bounds, min_samples=min_samples,
@@ -271,34 +298,36 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
     st_w = segments(texel_w, k) if k else None
     iterations = 0
     if k:
-        # -- start: weighted log-linear fit over the strongest samples ----------------
-        ymax = np.maximum.reduceat(wy, st_w)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            strong = (wy > 0.25 * ymax[texel_w]) & (wy > 0)
-            lr = np.where(strong, np.log(np.where(strong, wy / wa, 1)), 0)
-            wt = np.where(strong, wy * wy, 0)
-            s_w = rsum(wt, st_w)
-            mx = rsum(wt * ws, st_w) / s_w
-            my = rsum(wt * lr, st_w) / s_w
-            dx = ws - mx[texel_w]
-            slope = rsum(wt * dx * (lr - my[texel_w]), st_w) / rsum(wt * dx * dx, st_w)
-            if model == "torrance_sparrow":
-                p0 = np.where(slope < 0, 1 / np.sqrt(np.abs(slope)), 0.3)
-            else:
-                p0 = np.where(slope > 0, slope, 20.0)
-        p0 = np.clip(np.nan_to_num(p0, nan=0.3 if model == "torrance_sparrow" else 20.0), p_lo, p_hi)
-        warm = np.zeros(k, bool)
+        swyy_w = swyy[work]
+        p0 = np.full(k, np.nan)
         if start is not None:  # a given start wins where it is finite
             st0 = np.asarray(start, np.float64)[work]
-            warm = np.isfinite(st0) & (st0 > 0)
-            p0 = np.where(warm, np.clip(np.where(warm, st0, 1), p_lo, p_hi), p0)
+            p0 = np.where(np.isfinite(st0) & (st0 > 0), st0, np.nan)
+        cold = ~np.isfinite(p0)
+        if cold.any():
+            # -- start: weighted log-linear fit over the strongest samples -----------------
+            # ln(y/A) = ln ρs − t/m² (TS) or ln(ρs (n+2)) + n ln cos δ (BP): the slope gives p₀.
+            ymax = np.maximum.reduceat(wy, st_w)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                strong = (wy > np.float32(0.25) * ymax.astype(dt)[texel_w]) & (wy > 0)
+                lr = np.where(strong, np.log(np.where(strong, wy / wa, 1)), 0).astype(dt)
+                wt = np.where(strong, wy * wy, 0).astype(dt)
+                sw_, sx_, sy_ = rsum(wt, st_w), rsum(wt * ws, st_w), rsum(wt * lr, st_w)
+                sxy_, sxx_ = rsum(wt * ws * lr, st_w), rsum(wt * ws * ws, st_w)
+                slope = (sxy_ - sx_ * sy_ / sw_) / (sxx_ - sx_ * sx_ / sw_)
+                if model == "torrance_sparrow":
+                    pc = np.where(slope < 0, 1 / np.sqrt(np.abs(slope)), 0.3)
+                else:
+                    pc = np.where(slope > 0, slope, 20.0)
+            pc = np.nan_to_num(pc, nan=0.3 if model == "torrance_sparrow" else 20.0)
+            p0 = np.where(cold, pc, p0)
+        p0 = np.clip(p0, p_lo, p_hi)
         best_e = np.full(k, np.inf)
         best_q = np.log(p0)
         best_r = np.zeros(k)
-        swyy_w = swyy[work]
-        for f in ((1.0,) if warm.all() else (1.0, 1 / 1.6, 1.6)):  # candidate starts
-            qq = np.clip(np.log(p0 * f), q_lo, q_hi)
-            g, _ = _lobe(model, np.exp(qq)[texel_w].astype(dt), ws, wa)
+        for f in ((1.0,) if not cold.any() else _COLD_STARTS):  # candidate starts
+            qq = np.clip(np.log(p0 * np.where(cold, f, 1.0)), q_lo, q_hi)
+            g, _ = _lobe(model, np.exp(qq).astype(dt)[texel_w], ws, wa)
             syg, sgg = rsum(wy * g, st_w), rsum(g * g, st_w)
             with np.errstate(invalid="ignore", divide="ignore"):
                 rr = np.clip(np.nan_to_num(syg / sgg), r_lo, r_hi)
@@ -306,7 +335,7 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
             better = e < best_e
             best_e, best_q, best_r = np.where(better, e, best_e), np.where(better, qq, best_q), np.where(better, rr, best_r)
         q[work], rho[work] = best_q, best_r
-        wg, wdg = _lobe(model, np.exp(q[work])[texel_w].astype(dt), ws, wa)
+        wg, wdg = _lobe(model, np.exp(q[work]).astype(dt)[texel_w], ws, wa)
         syg, sgg = rsum(wy * wg, st_w), rsum(wg * wg, st_w)
         # -- Levenberg-Marquardt, vectorised over the texels still moving ---------------
         for iterations in range(1, int(max_iter) + 1):
@@ -334,7 +363,7 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
                 dq = (d00 * b1 - h01 * b0) / det
             r1 = np.clip(r0 + np.nan_to_num(dr), r_lo, r_hi)
             q1 = np.clip(q0 + np.nan_to_num(dq), q_lo, q_hi)
-            g1, dg1 = _lobe(model, np.exp(q1)[texel_w].astype(dt), ws, wa)
+            g1, dg1 = _lobe(model, np.exp(q1).astype(dt)[texel_w], ws, wa)
             syg1, sgg1 = rsum(wy * g1, st_w), rsum(g1 * g1, st_w)
             e1 = swyy[work] - 2 * r1 * syg1 + r1 * r1 * sgg1
             accept = e1 < e0
@@ -347,34 +376,38 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
             syg, sgg = np.where(accept, syg1, syg), np.where(accept, sgg1, sgg)
             rel = (e0 - np.minimum(e1, e0)) / np.maximum(e0, 1e-30)
             # A step this small, accepted or not, means the minimum is reached (to float32 precision).
-            small_step = (np.abs(r1 - r0) <= 1e-4 * np.maximum(np.abs(r0), 1e-6)) & (np.abs(q1 - q0) <= 1e-4)
+            small_step = (np.abs(r1 - r0) <= 1e-5 * np.maximum(np.abs(r0), 1e-6)) & (np.abs(q1 - q0) <= 1e-5)
             done[work] |= (accept & (rel < tol)) | small_step | (lam[work] > 1e10)
     not_conv = ~done
 
-    # -- error, uncertainty and flags --------------------------------------------------------
-    p = np.exp(q)
+    # -- error (in float64), uncertainty and flags -------------------------------------------
     err = np.full(n_tex, np.nan)
     r_std = np.full(n_tex, np.nan)
     p_std = np.full(n_tex, np.nan)
     ill = np.zeros(n_tex, bool)
     good = ~few
+    rho = rho.astype(np.float64)
+    q = q.astype(np.float64)
     if good.any():
         sel = good[texel]
         t = texel[sel]
         st_g = segments((np.cumsum(good) - 1)[t], int(good.sum()))
-        g, dg = _lobe(model, p[t].astype(dt), s1[sel], a[sel])
-        yy = y[sel]
-        res = yy - rho[t] * g
-        jq = rho[t] * dg
+        y64, s64, a64 = y[sel].astype(np.float64), s1[sel].astype(np.float64), a[sel].astype(np.float64)
 
         def full(x):
             out = np.zeros(n_tex)
-            out[good] = rsum(x, st_g)
+            out[good] = np.add.reduceat(x, st_g)
             return out
 
-        e = full(res * res)
-        sw = n_use.astype(np.float64)
+        def evaluate(r_, q_):
+            g_, dg_ = _lobe(model, np.exp(q_)[t], s64, a64)
+            res_ = y64 - r_[t] * g_
+            return g_, dg_, res_, full(res_ * res_)
+
+        g, dg, res, e = evaluate(rho, q)
+        jq = rho[t] * dg
         h00, h01, h11 = full(g * g), full(g * jq), full(jq * jq)
+        sw = n_use.astype(np.float64)
         det = h00 * h11 - h01 * h01
         with np.errstate(invalid="ignore", divide="ignore"):
             err = np.where(good, np.sqrt(e / sw), np.nan)
@@ -382,11 +415,12 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
             var_r = sigma2 * h11 / det
             var_q = sigma2 * h00 / det
             r_std = np.where(good, np.sqrt(var_r), np.nan)
-            p_std = np.where(good, p * np.sqrt(var_q), np.nan)  # std of ln p times p
+            p_std = np.where(good, np.exp(q) * np.sqrt(var_q), np.nan)  # std of ln p times p
             rel_r = np.sqrt(var_r) / rho
             rel_q = np.sqrt(var_q)
             singular = ~(det > 1e-12 * np.maximum(h00 * h11, 1e-300))
             ill = good & (singular | ~(rel_r <= max_relative_error) | ~(rel_q <= max_relative_error))
+    p = np.exp(q)
     at_bound = good & ((q <= q_lo + 1e-6) | (q >= q_hi - 1e-6))
     flags = (few * FLAG_FEW) | (not_conv * FLAG_NOT_CONVERGED) | (ill * FLAG_ILL) | (at_bound * FLAG_BOUND)
     rho = np.where(few, np.nan, rho)

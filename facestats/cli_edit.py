@@ -1,0 +1,270 @@
+"""``facestats edit``: appearance edits of store subjects (Weyrich et al. 2006 §8).
+
+Each action makes one call to :mod:`facestats.edit.subjects`, which writes the
+edited subject under a new id with its provenance, then saves before/after
+PNGs (:func:`facestats.edit.subjects.save_edit_images`) and prints the new id
+and the files.  Heavy modules are imported inside the commands.
+
+Registered in :mod:`facestats.cli` with :func:`add_edit`.
+"""
+
+from __future__ import annotations
+
+import os
+
+__all__ = ["add_edit"]
+
+_DESCRIPTION = (
+    "Change a face's appearance with the statistics of another subject or of a population subset (Weyrich et al. "
+    "2006 §8). Each edit writes a NEW subject (id SOURCE.<edit>-<digest> unless --id is given) with its provenance "
+    "(source subject and store, edit parameters) and never modifies its source; before/after images of the albedo "
+    "(sRGB-encoded) and of the edited BRDF maps are saved as PNG. The embedded default store is read-only: pass "
+    "--out-store PATH (a directory store, created if missing) to write there."
+)
+
+
+def _common(p, images=True):
+    p.add_argument("--store", default=None, metavar="PATH",
+                   help="store holding the subject and the targets (default: the store embedded in facestats)")
+    p.add_argument("--out-store", default=None, metavar="PATH",
+                   help="directory store for the edited subject (created if missing); default --store, which must "
+                        "then be a writable directory store")
+    p.add_argument("--id", default=None, metavar="NEW_ID", dest="new_id",
+                   help="id of the edited subject (default SUBJECT.<edit>-<digest of the edit>)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing subject NEW_ID in the output store")
+    if images:
+        p.add_argument("--images", default=".", metavar="DIR",
+                       help="directory for the before/after PNGs (default: the current directory)")
+
+
+def _query_args(p, what):
+    p.add_argument("--target", metavar="ID", help=f"take the {what} of this subject")
+    p.add_argument("--skin-type", metavar="TYPE",
+                   help="... or of the subjects of this skin type (I-VI or 1-6; condition normal unless --condition)")
+    p.add_argument("--condition", metavar="NAME", help="... or of the subjects measured under this condition")
+    p.add_argument("--gender", metavar="M|F", help="restrict the subset to one gender")
+    p.add_argument("--age", metavar="RANGE", help="restrict the subset to an age range (20s, 30s, MIN-MAX, ...)")
+
+
+def _regions_arg(p, help_text):
+    p.add_argument("--regions", nargs="+", metavar="R", default=None, help=help_text)
+
+
+def _target(args, *, stats=False):
+    """The API target from --target / --stats / the query options."""
+    from .errors import ValidationError
+
+    query = {k: getattr(args, k) for k in ("skin_type", "condition", "gender", "age") if getattr(args, k, None)}
+    given = [name for name, v in (("--target", args.target), ("--stats", getattr(args, "stats", None))) if v]
+    if query:
+        given.append("--skin-type/--condition/--gender/--age")
+    if len(given) != 1:
+        opts = "--target ID" + (", --stats FILE" if stats else "") + " or a subset (--skin-type, --condition, ...)"
+        raise ValidationError(f"give exactly one target: {opts}, got {given or 'none'}")
+    if args.target:
+        return args.target
+    if getattr(args, "stats", None):
+        import pathlib
+
+        return pathlib.Path(args.stats)
+    if "condition" not in query:
+        query["condition"] = "normal"
+    return query
+
+
+def _open(args):
+    """(source store, output store) from --store / --out-store."""
+    from .errors import StoreError
+    from .io.store import open_store
+
+    if args.out_store:
+        return open_store(args.store), open_store(args.out_store, mode="a")
+    if args.store is None:
+        raise StoreError(
+            "the embedded default store is read-only: pass --out-store PATH (a directory store, created if "
+            "missing) for the edited subject"
+        )
+    if os.path.isfile(args.store):
+        raise StoreError(f"store {args.store} is a read-only zip store: pass --out-store PATH for the edited subject")
+    store = open_store(args.store, mode="r+")
+    return store, store
+
+
+def _report(edit, args) -> int:
+    from .edit.subjects import save_edit_images
+
+    files = save_edit_images(edit, args.images)
+    src = edit.source.attrs["subject_id"]
+    n = len(edit.targets)
+    target = edit.edit.get("target", {})
+    if "file" in target:
+        what = f"statistics {target['file']}"
+    elif "statistics" in target:
+        what = "texture statistics"
+    else:
+        what = f"{n} subject(s): " + ", ".join(edit.targets[:6]) + (" ..." if n > 6 else "")
+    params = ", ".join(f"{k}={v}" for k, v in edit.edit["parameters"].items() if v is not None)
+    print(edit.subject_id)
+    print(f"wrote subject {edit.subject_id} to store {edit.store}")
+    print(f"  edit {edit.edit['name']} of {src} ({params})")
+    print(f"  target: {what}")
+    print(f"  variables changed: {', '.join(edit.variables)}")
+    print(f"images ({len(files)}) in {os.path.abspath(args.images)}:")
+    for f in files:
+        print(f"  {f.name}")
+    return 0
+
+
+def _cmd_skin_type(args) -> int:
+    from .edit.subjects import change_skin_type
+
+    store, out = _open(args)
+    with store, out:
+        edit = change_skin_type(store, args.subject, args.skin_type, t=args.t, brdf=not args.no_brdf,
+                                colour=not args.no_colour, keep_translucency=args.keep_translucency,
+                                seed=args.seed, out_store=out, new_id=args.new_id, overwrite=args.overwrite)
+        return _report(edit, args)
+
+
+def _cmd_brdf(args) -> int:
+    from .edit.subjects import transfer_brdf_subject
+
+    target = _target(args)
+    store, out = _open(args)
+    with store, out:
+        edit = transfer_brdf_subject(store, args.subject, target, t=args.t, model=args.model, regions=args.regions,
+                                     out_store=out, new_id=args.new_id, overwrite=args.overwrite)
+        return _report(edit, args)
+
+
+def _cmd_colour(args) -> int:
+    from .edit.subjects import transfer_colour_subject
+
+    target = _target(args, stats=True)
+    store, out = _open(args)
+    with store, out:
+        edit = transfer_colour_subject(store, args.subject, target, t=args.t, regions=args.regions,
+                                       feather=args.feather, keep_translucency=args.keep_translucency, seed=args.seed,
+                                       out_store=out, new_id=args.new_id, overwrite=args.overwrite)
+        return _report(edit, args)
+
+
+def _cmd_texture(args) -> int:
+    from .edit.subjects import transfer_texture_subject
+
+    target = _target(args, stats=True)
+    store, out = _open(args)
+    with store, out:
+        edit = transfer_texture_subject(store, args.subject, target, regions=args.regions, levels=args.levels,
+                                        bins=args.bins, iterations=args.iterations, seed=args.seed, noise=args.noise,
+                                        feather=args.feather, keep_translucency=args.keep_translucency, out_store=out,
+                                        new_id=args.new_id, overwrite=args.overwrite)
+        d = edit.texture.distance
+        code = _report(edit, args)
+        print(f"histogram distance to the target (mean over bands): {d[0]:.3f} at the start, {d[-1]:.3f} after "
+              f"{edit.texture.iterations} iteration(s)")
+        return code
+
+
+def _cmd_stats(args) -> int:
+    from .edit.subjects import subject_texture_statistics
+    from .io.store import open_store
+
+    with open_store(args.store) as store:
+        stats = subject_texture_statistics(store, args.subject, regions=args.regions, levels=args.levels,
+                                           bins=args.bins)
+    path = stats.save(args.out)
+    print(f"wrote the texture statistics of {args.subject} ({stats.n_bands} bands x {stats.bins} bins x 3 channels, "
+          f"{stats.levels} levels, {stats.orientations} orientations) to {path}")
+    return 0
+
+
+def add_edit(sub) -> None:
+    """Register ``facestats edit`` and its actions on the top-level subparsers ``sub``."""
+    p = sub.add_parser("edit", help="appearance edits (§8): skin type, BRDF, colour, texture; writes a new subject",
+                       description=_DESCRIPTION)
+    actions = p.add_subparsers(title="actions", metavar="ACTION")
+
+    def _help(args) -> int:
+        p.print_help()
+        return 2
+
+    p.set_defaults(func=_help)
+
+    a = actions.add_parser(
+        "skin-type", help="change the skin type with the statistics of the subjects of that type",
+        description="Match the face albedo (in a decorrelated colour space) and the per-region BRDF histograms to "
+                    "the pooled statistics of the subjects of skin type TYPE (condition normal; I and II grouped). "
+                    "Translucency (albedo_avg, σ's, σa) follows the new albedo through §5.4 unless "
+                    "--keep-translucency.")
+    a.add_argument("subject", metavar="SUBJECT", help="subject id")
+    a.add_argument("skin_type", metavar="TYPE", help="target skin type, I-VI or 1-6")
+    a.add_argument("--t", type=float, default=1.0, help="interpolation weight in [0, 1] (default 1: the target)")
+    a.add_argument("--no-brdf", action="store_true", help="leave the BRDF maps")
+    a.add_argument("--no-colour", action="store_true", help="leave the albedo")
+    a.add_argument("--keep-translucency", action="store_true", help="keep albedo_avg, σ's and σa")
+    a.add_argument("--seed", type=int, default=None, help="seed of the subsample of a very large target subset")
+    _common(a)
+    a.set_defaults(func=_cmd_skin_type)
+
+    a = actions.add_parser(
+        "brdf", help="per-region BRDF histogram transfer / interpolation from a subject or a subset",
+        description="Move each region's Torrance-Sparrow and/or Blinn-Phong parameter histograms to the target's "
+                    "(histogram interpolation of Matusik et al. 2005), e.g. normal -> lotion half-way: "
+                    "brdf P150-normal --condition lotion --t 0.5.")
+    a.add_argument("subject", metavar="SUBJECT", help="subject id")
+    _query_args(a, "BRDF")
+    a.add_argument("--t", type=float, default=1.0, help="interpolation weight in [0, 1] (default 1: the target)")
+    a.add_argument("--model", choices=("both", "ts", "bp"), default="both",
+                   help="Torrance-Sparrow (ts), Blinn-Phong (bp) or both (default)")
+    _regions_arg(a, "regions to edit, 1-10 or names (default: all with target samples)")
+    _common(a)
+    a.set_defaults(func=_cmd_brdf)
+
+    a = actions.add_parser(
+        "colour", help="albedo histogram transfer in a decorrelated colour space",
+        description="Match the albedo histograms of SUBJECT, in the target's PCA colour basis, to those of a "
+                    "subject, a subset or saved texture statistics. Translucency follows the new albedo (§5.4) "
+                    "unless --keep-translucency.")
+    a.add_argument("subject", metavar="SUBJECT", help="subject id")
+    _query_args(a, "albedo")
+    a.add_argument("--stats", metavar="FILE", help="... or use the image histograms of saved texture statistics")
+    a.add_argument("--t", type=float, default=1.0, help="interpolation weight in [0, 1] (default 1: the target)")
+    _regions_arg(a, "regions to edit and take the target albedo from, 1-10 or names (default: the face)")
+    a.add_argument("--feather", type=float, default=0.0, help="blend width in texels inside the edge (default 0)")
+    a.add_argument("--keep-translucency", action="store_true", help="keep albedo_avg, σ's and σa")
+    a.add_argument("--seed", type=int, default=None, help="seed of the subsample of a very large target subset")
+    _common(a)
+    a.set_defaults(func=_cmd_colour)
+
+    a = actions.add_parser(
+        "texture", help="Heeger-Bergen texture transfer (e.g. freckles) from a subject or saved statistics",
+        description="Give the albedo of SUBJECT the texture statistics (histograms of the steerable-pyramid bands in "
+                    "a decorrelated colour space) of another subject or of a statistics file, optionally only in "
+                    "some regions (each matched on its own; texels outside are unchanged).")
+    a.add_argument("subject", metavar="SUBJECT", help="subject id")
+    a.add_argument("--target", metavar="ID", help="take the texture of this subject")
+    a.add_argument("--stats", metavar="FILE", help="... or of saved statistics (facestats edit stats)")
+    _regions_arg(a, "regions to edit, 1-10 or names, e.g. 2 6 7 (forehead, nose, cheeks); default: the face")
+    a.add_argument("--seed", type=int, default=None, help="seed of the start noise (same seed, same result)")
+    a.add_argument("--iterations", type=int, default=5, help="Heeger-Bergen iterations (default 5)")
+    a.add_argument("--levels", type=int, default=None, help="pyramid levels (default: the most the map supports, <= 7)")
+    a.add_argument("--bins", type=int, default=256, help="histogram bins for a subject target (default 256)")
+    a.add_argument("--noise", type=float, default=0.1, help="start-noise amplitude (default 0.1)")
+    a.add_argument("--feather", type=float, default=2.0, help="blend width in texels inside the edge (default 2)")
+    a.add_argument("--keep-translucency", action="store_true", help="keep albedo_avg, σ's and σa")
+    _common(a)
+    a.set_defaults(func=_cmd_texture)
+
+    a = actions.add_parser(
+        "stats", help="save the texture statistics of a subject (a target for texture / colour)",
+        description="Compute the §8 texture statistics (256-bin histograms of the albedo and its steerable-pyramid "
+                    "bands in a decorrelated colour space) of a subject's face or regions and save them (.npz).")
+    a.add_argument("subject", metavar="SUBJECT", help="subject id")
+    a.add_argument("--out", required=True, metavar="FILE", help="output file (.npz appended if missing)")
+    _regions_arg(a, "regions to analyse, 1-10 or names (default: the face)")
+    a.add_argument("--levels", type=int, default=None, help="pyramid levels (default: the most the map supports, <= 7)")
+    a.add_argument("--bins", type=int, default=256, help="histogram bins (default 256)")
+    a.add_argument("--store", default=None, metavar="PATH",
+                   help="store holding the subject (default: the store embedded in facestats)")
+    a.set_defaults(func=_cmd_stats)

@@ -1,0 +1,126 @@
+"""``facestats edit`` of the installed console script, run in a subprocess."""
+
+import numpy as np
+import pytest
+from matplotlib.image import imread
+
+from facestats.edit import TextureStatistics
+from facestats.io import open_store
+from facestats.io.schema import provenance
+
+from .cli_helpers import run_cli
+from .factories import make_map_subject
+
+SIZE = 24
+
+
+@pytest.fixture(scope="module")
+def pop(tmp_path_factory):
+    """A small directory store: a type III face, two type V faces, a lotion record."""
+    path = tmp_path_factory.mktemp("cli_edit") / "pop.zarr"
+    with open_store(path, mode="a") as st:
+        st.write_subjects([
+            make_map_subject("F3", size=SIZE, skin_type=3, seed=1),
+            make_map_subject("F5a", size=SIZE, skin_type=5, seed=2, rho_shift=0.06),
+            make_map_subject("F5b", size=SIZE, skin_type=5, seed=3, rho_shift=0.07),
+            make_map_subject("F3-lotion", size=SIZE, skin_type=3, seed=4, condition="lotion", rho_shift=0.1,
+                             person_id="F3"),
+        ])
+    return path
+
+
+def _new_id(stdout):
+    return stdout.splitlines()[0].strip()
+
+
+def test_skin_type_writes_a_new_subject_and_images(pop, tmp_path):
+    r = run_cli("edit", "skin-type", "F3", "V", "--store", pop, "--images", tmp_path / "img")
+    assert r.returncode == 0, r.stderr
+    sid = _new_id(r.stdout)
+    assert sid.startswith("F3.skin-V-") and f"wrote subject {sid} to store {pop}" in r.stdout
+    assert "target: 2 subject(s): F5a, F5b" in r.stdout
+    with open_store(pop) as st:
+        new, src = st.subject(sid), st.subject("F3")
+        p = provenance(new)
+    assert new.attrs["skin_type"] == 5
+    assert p["source_subject"] == "F3" and p["edit"]["name"] == "change_skin_type"
+    assert p["edit"]["parameters"]["skin_type"] == 5 and p["edit"]["target"]["subjects"] == ["F5a", "F5b"]
+    face = src["region"].values > 0
+    assert np.all(new["albedo"].values[face].mean(0) < 0.9 * src["albedo"].values[face].mean(0))
+    for name in ("albedo_before", "albedo_after", "ts_rho_s_before", "ts_rho_s_after", "bp_exponent_after", "summary"):
+        f = tmp_path / "img" / f"{sid}_{name}.png"
+        assert f.is_file() and f.name in r.stdout
+    before = imread(tmp_path / "img" / f"{sid}_albedo_before.png")
+    after = imread(tmp_path / "img" / f"{sid}_albedo_after.png")
+    assert before.shape[:2] == (264, 264)  # 24 x 11 pixels
+    inside = np.kron(face, np.ones((11, 11), bool))
+    assert after[inside, :3].mean() < before[inside, :3].mean()  # darker skin in the after image
+    # The same edit again: refused (the id exists; --overwrite would replace it).
+    r2 = run_cli("edit", "skin-type", "F3", "V", "--store", pop, "--images", tmp_path / "img")
+    assert r2.returncode == 2 and f"subject {sid!r} already exists" in r2.stderr and "overwrite" in r2.stderr
+
+
+def test_brdf_lotion_half_way_from_the_default_store(tmp_path):
+    out = tmp_path / "edits.zarr"
+    r = run_cli("edit", "brdf", "P150-normal", "--condition", "lotion", "--t", "0.5", "--out-store", out,
+                "--id", "P150-half-lotion", "--images", tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert _new_id(r.stdout) == "P150-half-lotion" and "target: 1 subject(s): P150-lotion" in r.stdout
+    with open_store(out) as st:
+        new = st.subject("P150-half-lotion")
+    p = provenance(new)
+    assert p["source_store"] == "default" and p["source_subject"] == "P150-normal"
+    assert p["edit"]["parameters"]["t"] == 0.5 and p["edit"]["target"]["query"] == {"condition": "lotion"}
+    with open_store(None) as default:
+        src, lot = default.subject("P150-normal"), default.subject("P150-lotion")
+    reg = src["region"].values
+    sel = reg == 2
+    b = src["ts_rho_s"].values[sel].mean()
+    tgt = lot["ts_rho_s"].values[sel & (lot["ts_flag"].values == 0)].mean()
+    assert abs(new["ts_rho_s"].values[sel].mean() - 0.5 * (b + tgt)) < 0.05 * abs(tgt - b)
+    np.testing.assert_array_equal(new["albedo"].values, src["albedo"].values)
+    assert (tmp_path / "P150-half-lotion_ts_m_before.png").is_file()
+
+
+def test_texture_with_regions_and_saved_stats(pop, tmp_path):
+    r = run_cli("edit", "stats", "F5a", "--store", pop, "--regions", "cheeks", "--out", tmp_path / "f5a")
+    assert r.returncode == 0, r.stderr
+    stats = TextureStatistics.load(tmp_path / "f5a.npz")
+    assert stats.levels == 2 and stats.bins == 256 and str(tmp_path / "f5a.npz") in r.stdout
+    out = tmp_path / "out.zarr"
+    common = ("--store", pop, "--out-store", out, "--images", tmp_path / "img", "--iterations", "2", "--seed", "5")
+    r1 = run_cli("edit", "texture", "F3", "--target", "F5a", "--regions", "forehead", "6", "7", "--id", "T1", *common)
+    r3 = run_cli("edit", "texture", "F3", "--stats", tmp_path / "f5a.npz", "--regions", "7", "--id", "T3", *common)
+    for r in (r1, r3):
+        assert r.returncode == 0, r.stderr
+    assert "histogram distance to the target" in r1.stdout
+    with open_store(out) as st, open_store(pop) as src_store:
+        src = src_store.subject("F3")
+        t1, t3 = st.subject("T1"), st.subject("T3")
+    reg = src["region"].values
+    out1, out3 = ~np.isin(reg, [2, 6, 7]), reg != 7
+    np.testing.assert_array_equal(t1["albedo"].values[out1], src["albedo"].values[out1])
+    np.testing.assert_array_equal(t3["albedo"].values[out3], src["albedo"].values[out3])
+    p1, p3 = provenance(t1)["edit"], provenance(t3)["edit"]
+    assert p1["target"] == {"subject": "F5a"} and p1["parameters"]["regions"] == [2, 6, 7]
+    assert p3["target"]["file"] == str(tmp_path / "f5a.npz")
+    assert (tmp_path / "img" / "T3_albedo_after.png").is_file()
+
+
+def test_errors_exit_2_with_clear_messages(pop, tmp_path):
+    r = run_cli("edit", "skin-type", "P150-normal", "V", "--images", tmp_path)
+    assert r.returncode == 2 and "embedded default store is read-only: pass --out-store PATH" in r.stderr
+    r = run_cli("edit", "brdf", "F3", "--store", pop, "--images", tmp_path)
+    assert r.returncode == 2 and "give exactly one target" in r.stderr
+    r = run_cli("edit", "brdf", "F3", "--target", "F5a", "--condition", "lotion", "--store", pop)
+    assert r.returncode == 2 and "give exactly one target" in r.stderr
+    r = run_cli("edit", "brdf", "F3", "--target", "nobody", "--store", pop, "--images", tmp_path)
+    assert r.returncode == 2 and "target 'nobody' is neither a subject of store" in r.stderr
+    r = run_cli("edit", "skin-type", "F3", "VII", "--store", pop, "--images", tmp_path)
+    assert r.returncode == 2 and "skin type must be I-VI or 1-6, got 'VII'" in r.stderr
+    r = run_cli("edit", "brdf", "F3", "--skin-type", "V", "--t", "2", "--store", pop, "--images", tmp_path)
+    assert r.returncode == 2 and "t must lie in [0, 1], got 2.0" in r.stderr
+    r = run_cli("edit")
+    assert r.returncode == 2 and "skin-type" in r.stdout
+    with open_store(pop) as st:  # failed edits wrote nothing
+        assert not [s for s in st.ids() if s.startswith("F3.brdf")]

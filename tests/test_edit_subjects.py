@@ -1,0 +1,366 @@
+"""Store-level appearance edits (Weyrich et al. 2006 §8): new subjects with provenance, never the source."""
+
+import json
+
+import numpy as np
+import pytest
+import xarray as xr
+
+import facestats
+from facestats.edit import (
+    SubjectEdit,
+    TextureStatistics,
+    change_skin_type,
+    select_subjects,
+    subject_texture_statistics,
+    transfer_brdf_subject,
+    transfer_colour_subject,
+    transfer_texture_subject,
+)
+from facestats.edit.subjects import EDIT_SOURCE, plot_subject_edit, save_edit_images
+from facestats.errors import StoreError, ValidationError
+from facestats.io import open_store
+from facestats.io.schema import provenance, set_provenance
+from facestats.model import dipole
+
+from .factories import make_map_subject, make_sample_subject
+
+SIZE = 24
+# (id, skin type, condition, seed, rho_shift, person)
+POP = [
+    ("A2", 2, "normal", 1, 0.0, None),
+    ("V1", 5, "normal", 2, 0.06, None),
+    ("V2", 5, "normal", 3, 0.07, None),
+    ("V5", 5, "lotion", 6, 0.20, None),  # type V but not "normal": not in the default subset
+    ("N1", 3, "normal", 7, 0.0, "N1"),
+    ("N1-lotion", 3, "lotion", 8, 0.10, "N1"),
+]
+SUBSET_V = ["V1", "V2"]
+
+
+def _subjects():
+    out = {}
+    for sid, st, cond, seed, shift, person in POP:
+        out[sid] = make_map_subject(sid, size=SIZE, skin_type=st, condition=cond, seed=seed, rho_shift=shift,
+                                    person_id=person)
+    # An earlier edit of type V with wild values: subsets must never include it.
+    e = make_map_subject("E1", size=SIZE, skin_type=5, seed=9, rho_shift=0.5)
+    e["albedo"] = e["albedo"] * 0.2
+    set_provenance(e, source=EDIT_SOURCE)
+    out["E1"] = e
+    out["M1"] = make_sample_subject("M1", skin_type=1)
+    return out
+
+
+@pytest.fixture(scope="module")
+def pop(tmp_path_factory):
+    path = tmp_path_factory.mktemp("edit") / "pop.zarr"
+    subjects = _subjects()
+    with open_store(path, mode="a") as st:
+        st.write_subjects(list(subjects.values()))
+    return path, subjects
+
+
+@pytest.fixture(scope="module")
+def skin_v(pop):
+    """The source before the edit and the type II -> V edit of A2 (t = 1), made once."""
+    with open_store(pop[0], mode="r+") as st:
+        before = st.subject("A2")
+        generation = st.index_entries()["A2"]["generation"]
+        return before, generation, change_skin_type(st, "A2", "V")
+
+
+@pytest.fixture
+def store(pop):
+    st = open_store(pop[0], mode="r+")
+    yield st
+    st.close()
+
+
+def _face(ds):
+    return ds["region"].values > 0
+
+
+def _pooled(subjects, ids, var, region=None):
+    """Independent pooled samples: unflagged texels of the subjects' maps (all regions or one)."""
+    parts = []
+    for sid in ids:
+        ds = subjects[sid]
+        reg = ds["region"].values
+        sel = (reg > 0) if region is None else (reg == region)
+        if var != "albedo":
+            flag = ds[("ts" if var.startswith("ts") else "bp") + "_flag"].values
+            sel &= flag == 0
+        parts.append(ds[var].values[sel])
+    return np.concatenate(parts).astype(np.float64)
+
+
+def test_select_subjects_excludes_edits_and_the_source(store):
+    assert select_subjects(store, {"skin_type": 5}) == SUBSET_V  # not E1 (an edit) nor V5 (lotion)
+    assert "E1" in store.query(skin_type=5, condition="normal").subject_ids  # ... which the query itself includes
+    assert select_subjects(store, {"skin_type": "II"}) == ["A2", "M1"]  # I and II grouped; sample subjects count
+    assert select_subjects(store, {"skin_type": "V"}, exclude=["V2"]) == ["V1"]
+    assert select_subjects(store, {"skin_type": 5, "condition": None}) == ["V1", "V2", "V5"]
+    assert select_subjects(store, {"condition": "lotion"}) == ["N1-lotion", "V5"]
+    with pytest.raises(ValidationError, match="target query keys must be among"):
+        select_subjects(store, {"skin": 5})
+
+
+def test_change_skin_type_moves_albedo_and_brdf_to_the_subset(store, pop, skin_v):
+    _, subjects = pop
+    src = subjects["A2"]
+    before_src, generation, e = skin_v
+    assert isinstance(e, SubjectEdit) and e.subject_id.startswith("A2.skin-V-") and e.subject_id in store
+    assert list(e.targets) == SUBSET_V
+    new = store.subject(e.subject_id)
+    assert new.attrs["skin_type"] == 5 and new.attrs["condition"] == "normal" and new.attrs["person_id"] == "A2"
+
+    # Provenance in the store.
+    p = provenance(new)
+    assert p["source"] == EDIT_SOURCE and p["source_subject"] == "A2" and p["source_store"] == store.label
+    assert p["edit"]["name"] == "change_skin_type"
+    assert p["edit"]["parameters"]["skin_type"] == 5 and p["edit"]["parameters"]["t"] == 1.0
+    assert p["edit"]["target"]["subjects"] == SUBSET_V
+    assert p["edit"]["target"]["query"] == {"skin_type": 5, "condition": "normal"}
+    assert p["source_provenance"] == provenance(before_src)  # the stored source's, with its software_version
+    assert store.subjects().loc[e.subject_id, "source"] == EDIT_SOURCE
+
+    # The source is untouched, bit for bit, in the same generation.
+    xr.testing.assert_identical(store.subject("A2"), before_src)
+    assert store.index_entries()["A2"]["generation"] == generation
+
+    face = _face(src)
+    alb0, alb1 = src["albedo"].values[face].mean(0), new["albedo"].values[face].mean(0)
+    target = _pooled(subjects, SUBSET_V, "albedo").reshape(-1, 3).mean(0)
+    # The face's mean colour lands on the subset's (decorrelated marginals matched; the basis is linear).
+    np.testing.assert_allclose(alb1, target, rtol=0.01)
+    assert np.all(np.abs(alb1 - target) < 0.03 * np.abs(alb0 - target))
+    np.testing.assert_array_equal(new["albedo"].values[~face], src["albedo"].values[~face])
+
+    reg = src["region"].values
+    for var in ("ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent"):
+        for r in range(1, 11):
+            sel = reg == r
+            tgt = _pooled(subjects, SUBSET_V, var, r).mean()
+            b, a = src[var].values[sel].mean(), new[var].values[sel].mean()
+            # Quantiles of the pooled target at the region's rank levels: the mean is the target's.
+            assert a == pytest.approx(tgt, rel=0.02), (var, r)
+            assert e.target_means[var][r] == pytest.approx(tgt, rel=1e-12)
+            if var == "ts_rho_s":
+                assert abs(a - tgt) < 0.25 * abs(b - tgt), (var, r)  # rho_shift 0.06-0.08 vs 0
+    table = e.region_means()
+    row = table[(table.variable == "ts_rho_s") & (table.region == 7)].iloc[0]
+    assert row["after"] == pytest.approx(new["ts_rho_s"].values[reg == 7].mean())
+    assert row["target"] == pytest.approx(_pooled(subjects, SUBSET_V, "ts_rho_s", 7).mean())
+
+
+def test_translucency_follows_the_new_albedo(store, pop):
+    _, subjects = pop
+    src = subjects["A2"]
+    e = change_skin_type(store, "A2", 5, brdf=False, new_id="A2-typeV-colour")
+    new = store.subject("A2-typeV-colour")
+    face = _face(src)
+    np.testing.assert_array_equal(new["sigma_tr"].values, src["sigma_tr"].values)  # σtr is kept
+    avg = np.clip(new["albedo"].values[face].astype(np.float64), 1e-4, 1 - 1e-4).mean(0)
+    np.testing.assert_allclose(new["albedo_avg"].values, avg, rtol=1e-6)
+    assert np.all(new["albedo_avg"].values < 0.8 * src["albedo_avg"].values)  # type II -> V is darker
+    sp, sa = new["sigma_s_prime"].values, new["sigma_a"].values
+    # The dipole of (σ's, σa) reflects exactly the new average albedo (eq. 16) with the same σtr (eq. 15).
+    np.testing.assert_allclose(dipole.total_diffuse_reflectance(sp, sa, 1.38), new["albedo_avg"].values, rtol=1e-8)
+    np.testing.assert_allclose(np.sqrt(3 * sa * (sa + sp)), src["sigma_tr"].values, rtol=1e-10)
+    assert np.all(sa > src["sigma_a"].values)  # darker skin absorbs more
+    # BRDF untouched when brdf=False; sensor data copied.
+    for var in ("ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent", "site_sigma_tr", "sensor_profile"):
+        np.testing.assert_array_equal(new[var].values, src[var].values)
+    assert set(e.variables) == {"albedo", "albedo_avg", "sigma_s_prime", "sigma_a"}
+
+
+def test_keep_translucency(store, pop):
+    src = pop[1]["A2"]
+    change_skin_type(store, "A2", 5, brdf=False, keep_translucency=True, new_id="A2-typeV-keep")
+    new = store.subject("A2-typeV-keep")
+    for var in ("albedo_avg", "sigma_s_prime", "sigma_a", "sigma_tr"):
+        np.testing.assert_array_equal(new[var].values, src[var].values)
+    assert not np.array_equal(new["albedo"].values, src["albedo"].values)
+    assert provenance(new)["edit"]["parameters"]["keep_translucency"] is True
+
+
+def test_interpolation_half_way_and_determinism(store, pop, skin_v):
+    src = pop[1]["A2"]
+    full = skin_v[2].dataset
+    half = change_skin_type(store, "A2", 5, t=0.5, new_id="A2-t05")
+    again = change_skin_type(store, "A2", 5, t=0.5, new_id="A2-t05-again")
+    for var in half.dataset.data_vars:  # no randomness: bit-identical
+        np.testing.assert_array_equal(again.dataset[var].values, half.dataset[var].values)
+    assert half.dataset.attrs["skin_type"] == 2  # only t = 1 relabels
+    reg = src["region"].values
+    for var in ("ts_rho_s", "bp_exponent"):
+        x0, x1, xh = (np.asarray(d[var].values, np.float64) for d in (src, full, half.dataset))
+        face = reg > 0
+        # x' = (1 - t) x + t Q(u): per texel exactly half-way between the source and the t = 1 result.
+        np.testing.assert_allclose(xh[face], 0.5 * (x0[face] + x1[face]), rtol=1e-6)
+    a0, a1, ah = (d["albedo"].values[reg > 0].mean(0) for d in (src, full, half.dataset))
+    np.testing.assert_allclose(ah, 0.5 * (a0 + a1), rtol=0.01)
+
+
+def test_brdf_transfer_normal_to_lotion_half_way(store, pop):
+    _, subjects = pop
+    src = subjects["N1"]
+    e = transfer_brdf_subject(store, "N1", {"condition": "lotion", "skin_type": 3}, t=0.5)
+    assert e.subject_id.startswith("N1.brdf-") and list(e.targets) == ["N1-lotion"]
+    new = store.subject(e.subject_id)
+    p = provenance(new)["edit"]
+    assert p["name"] == "transfer_brdf" and p["parameters"] == {"t": 0.5, "model": "both", "regions": None}
+    assert p["target"]["query"] == {"condition": "lotion", "skin_type": 3}
+    assert new.attrs["condition"] == "normal"  # t < 1: still the source's condition
+    reg = src["region"].values
+    for var in ("ts_rho_s", "ts_m"):
+        for r in (2, 6, 7):
+            sel = reg == r
+            b, a = src[var].values[sel].mean(), new[var].values[sel].mean()
+            tgt = _pooled(subjects, ["N1-lotion"], var, r).mean()
+            assert a == pytest.approx(0.5 * (b + tgt), abs=0.05 * abs(tgt - b) + 1e-6), (var, r)
+    for var in ("albedo", "albedo_avg", "sigma_a", "normal" if "normal" in new else "albedo"):
+        np.testing.assert_array_equal(new[var].values, src[var].values)
+    full = transfer_brdf_subject(store, "N1", {"condition": "lotion"}, t=1.0, model="ts")
+    assert full.dataset.attrs["condition"] == "lotion"
+    assert set(full.variables) == {"ts_rho_s", "ts_m"}
+    np.testing.assert_array_equal(full.dataset["bp_rho_s"].values, src["bp_rho_s"].values)
+
+
+def test_brdf_transfer_from_a_subject_in_some_regions(store, pop):
+    _, subjects = pop
+    src = subjects["A2"]
+    e = transfer_brdf_subject(store, "A2", "V1", regions=[2, "cheeks"], model="ts", new_id="A2-brdf-V1")
+    assert provenance(e.dataset)["edit"]["regions_edited"] == {"ts": [2, 7]}
+    assert provenance(e.dataset)["edit"]["target"] == {"subject": "V1"}
+    reg = src["region"].values
+    inside = np.isin(reg, [2, 7])
+    for var in ("ts_rho_s", "ts_m"):
+        np.testing.assert_array_equal(e.dataset[var].values[~inside], src[var].values[~inside])
+        for r in (2, 7):  # equal region sizes, one flagged texel outside: exactly V1's unflagged values
+            np.testing.assert_allclose(np.sort(e.dataset[var].values[reg == r]),
+                                       np.sort(_pooled(subjects, ["V1"], var, r)), rtol=1e-6)
+
+
+def test_colour_transfer_within_a_region(store, pop):
+    _, subjects = pop
+    src = subjects["A2"]
+    e = transfer_colour_subject(store, "A2", "V1", regions=["cheeks"], new_id="A2-colour-cheeks")
+    reg = src["region"].values
+    inside = reg == 7
+    np.testing.assert_array_equal(e.dataset["albedo"].values[~inside], src["albedo"].values[~inside])
+    target = subjects["V1"]["albedo"].values[subjects["V1"]["region"].values == 7].mean(0)
+    np.testing.assert_allclose(e.dataset["albedo"].values[inside].mean(0), target, rtol=0.01)
+    assert e.edit["target"]["n_albedo_samples"] == int(inside.sum())
+
+
+def test_texture_transfer_in_regions_is_deterministic_and_leaves_the_outside(store, pop):
+    src = pop[1]["A2"]
+    kw = dict(regions=[2, 6, 7], iterations=2, seed=11)
+    a = transfer_texture_subject(store, "A2", "V1", new_id="A2-tex-a", **kw)
+    b = transfer_texture_subject(store, "A2", "V1", new_id="A2-tex-b", **kw)
+    c = transfer_texture_subject(store, "A2", "V1", new_id="A2-tex-c", **{**kw, "seed": 12})
+    sa, sb, sc = (store.subject(x)["albedo"].values for x in ("A2-tex-a", "A2-tex-b", "A2-tex-c"))
+    np.testing.assert_array_equal(sa, sb)  # same seed, same subject bit for bit
+    assert not np.array_equal(sa, sc)
+    reg = src["region"].values
+    outside = ~np.isin(reg, [2, 6, 7])
+    np.testing.assert_array_equal(sa[outside], src["albedo"].values[outside])
+    assert np.abs(sa[~outside] - src["albedo"].values[~outside]).max() > 1e-3
+    p = provenance(store.subject("A2-tex-a"))["edit"]
+    assert p["parameters"]["seed"] == 11 and p["parameters"]["regions"] == [2, 6, 7]
+    assert p["parameters"]["levels"] == 2  # the most a 24 x 24 map supports
+    assert a.texture.distance.shape == (3,) and p["final_distance"] == pytest.approx(a.texture.distance[-1])
+    assert a.dataset["albedo_avg"].values == pytest.approx(
+        np.clip(sa[reg > 0], 1e-4, 1 - 1e-4).mean(0), rel=1e-6)
+
+
+def test_texture_from_saved_statistics(store, pop, tmp_path):
+    stats = subject_texture_statistics(store, "V1", regions=["cheeks"])
+    assert isinstance(stats, TextureStatistics) and stats.levels == 2
+    path = stats.save(tmp_path / "v1_cheeks")
+    e1 = transfer_texture_subject(store, "A2", str(path), regions=[7], seed=1, iterations=1, new_id="A2-tex-file")
+    e3 = transfer_texture_subject(store, "A2", stats, regions=[7], seed=1, iterations=1, new_id="A2-tex-obj")
+    np.testing.assert_array_equal(e1.dataset["albedo"].values, e3.dataset["albedo"].values)
+    assert e1.edit["target"]["file"] == str(path) and e1.edit["target"]["statistics"] == e3.edit["target"]["statistics"]
+    assert e1.targets == ()
+    # Colour transfer from the same statistics: their image histograms and colour basis.
+    c = transfer_colour_subject(store, "A2", stats, regions=[7], new_id="A2-colour-stats")
+    cheek = pop[1]["A2"]["region"].values == 7
+    v1 = pop[1]["V1"]
+    np.testing.assert_allclose(c.dataset["albedo"].values[cheek].mean(0),
+                               v1["albedo"].values[v1["region"].values == 7].mean(0), rtol=0.01)
+    assert c.targets == () and c.edit["target"] == e3.edit["target"]
+    with pytest.raises(StoreError, match="neither a subject of store"):
+        transfer_texture_subject(store, "A2", str(tmp_path / "missing.npz"))
+
+
+def test_ids_are_new_and_existing_ids_refused(store, pop):
+    e = transfer_brdf_subject(store, "A2", "V2", model="bp")
+    with pytest.raises(StoreError, match="already exists"):
+        transfer_brdf_subject(store, "A2", "V2", model="bp")  # same edit, same default id
+    again = transfer_brdf_subject(store, "A2", "V2", model="bp", overwrite=True)
+    assert again.subject_id == e.subject_id
+    other = transfer_brdf_subject(store, "A2", "V2", model="bp", t=0.3)
+    assert other.subject_id != e.subject_id  # the digest covers the parameters
+    with pytest.raises(ValidationError, match="never overwrites its source"):
+        transfer_brdf_subject(store, "A2", "V2", new_id="A2", overwrite=True)
+    with pytest.raises(StoreError, match="already exists"):
+        transfer_brdf_subject(store, "A2", "V2", new_id="V1")
+    xr.testing.assert_identical(store.subject("A2"), store.subject("A2"))
+    np.testing.assert_array_equal(store.subject("A2")["bp_rho_s"].values, pop[1]["A2"]["bp_rho_s"].values)
+
+
+def test_errors(store, pop, tmp_path):
+    with pytest.raises(ValidationError, match="subject must be a map subject"):
+        change_skin_type(store, "M1", 2)
+    with pytest.raises(ValidationError, match="matches no subject"):
+        transfer_brdf_subject(store, "A2", {"skin_type": 1, "condition": "cold"})
+    with pytest.raises(ValidationError, match="target must differ"):
+        transfer_brdf_subject(store, "A2", "A2")
+    with pytest.raises(ValidationError, match="region must be 1-10 or one of"):
+        transfer_brdf_subject(store, "A2", "V1", regions=["knee"])
+    with pytest.raises(ValidationError, match="t must lie in"):
+        transfer_brdf_subject(store, "A2", "V1", t=1.5)
+    with pytest.raises(ValidationError, match="brdf and colour"):
+        change_skin_type(store, "A2", 5, brdf=False, colour=False)
+    with pytest.raises(StoreError, match="no subject 'nobody'"):
+        change_skin_type(store, "nobody", 5)
+    ro = open_store(pop[0])
+    with pytest.raises(StoreError, match="read-only.*out_store"):
+        change_skin_type(ro, "A2", 5)
+
+
+def test_default_store_is_read_only_and_edits_go_to_another_store(tmp_path):
+    default = facestats.open_store(None)
+    with pytest.raises(StoreError, match="embedded default store is read-only.*out_store=open_store"):
+        transfer_brdf_subject(default, "P150-normal", {"condition": "lotion"}, t=0.5)
+    out = open_store(tmp_path / "edits.zarr", mode="a")
+    e = transfer_brdf_subject(default, "P150-normal", {"condition": "lotion"}, t=0.5, out_store=out)
+    assert e.subject_id in out and e.subject_id not in default and list(e.targets) == ["P150-lotion"]
+    assert provenance(out.subject(e.subject_id))["source_store"] == "default"
+    src, lot = default.subject("P150-normal"), default.subject("P150-lotion")
+    reg = src["region"].values
+    for var in ("ts_rho_s", "ts_m"):
+        for r in (2, 7):
+            sel = reg == r
+            b, tgt = src[var].values[sel].mean(), lot[var].values[sel & (lot["ts_flag"].values == 0)].mean()
+            a = e.dataset[var].values[sel].mean()
+            assert abs(a - 0.5 * (b + tgt)) < 0.05 * abs(tgt - b), (var, r)
+
+    # Before/after images: sRGB-encoded albedo, enlarged by pixel repetition; one summary figure.
+    import colour
+    from matplotlib.image import imread
+
+    files = save_edit_images(e, tmp_path / "img")
+    names = {f.name for f in files}
+    sid = e.subject_id
+    assert {f"{sid}_albedo_before.png", f"{sid}_albedo_after.png", f"{sid}_ts_m_after.png",
+            f"{sid}_bp_exponent_before.png", f"{sid}_summary.png"} <= names
+    img = imread(tmp_path / "img" / f"{sid}_albedo_before.png")[..., :3]
+    assert img.shape == (288, 288, 3)  # 48 x 6
+    expect = np.clip(colour.cctf_encoding(np.clip(src["albedo"].values.astype(np.float64), 0, 1)), 0, 1)
+    np.testing.assert_allclose(img[::6, ::6], expect, atol=1 / 255 + 1e-6)
+    fig = plot_subject_edit(e)
+    assert len([ax for ax in fig.axes if ax.images]) == 3 * 4  # 4 BRDF maps (albedo unchanged), before/after/diff

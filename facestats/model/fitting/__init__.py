@@ -15,12 +15,12 @@ from .albedo import albedo_stable_minimum, fresnel_factors, refine_albedo, specu
 from .maps import fill_flagged, push_pull, scatter_to_map
 from .normals import micro_normals, photometric_normals
 from .samples import Samples
-from .specular import DEFAULT_BOUNDS, SpecularFit, fit_specular, fit_specular_samples, specular_factors, specular_model_values
+from .specular import DEFAULT_BOUNDS, SpecularFit, fit_specular, fit_specular_samples, specular_factors
 from .translucency import TranslucencyFit, fit_translucency, population_sigma_tr_avg, scattering_parameters
 
 __all__ = [
     "photometric_normals", "micro_normals", "albedo_stable_minimum", "refine_albedo", "specular_residual",
-    "fresnel_factors", "fit_specular", "fit_specular_samples", "specular_factors", "SpecularFit", "Samples", "DEFAULT_BOUNDS", "specular_model_values", "scatter_to_map",
+    "fresnel_factors", "fit_specular", "fit_specular_samples", "specular_factors", "SpecularFit", "Samples", "DEFAULT_BOUNDS", "scatter_to_map",
     "push_pull", "fill_flagged", "fit_translucency", "TranslucencyFit", "population_sigma_tr_avg",
     "scattering_parameters",
 ]

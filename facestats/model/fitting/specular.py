@@ -51,7 +51,7 @@ from ...errors import ValidationError
 from ..._blocked import blockwise
 from ..brdf import torrance_sparrow_cosines
 
-__all__ = ["SpecularFit", "fit_specular", "fit_specular_samples", "specular_factors", "DEFAULT_BOUNDS", "specular_model_values"]
+__all__ = ["SpecularFit", "fit_specular", "fit_specular_samples", "specular_factors", "DEFAULT_BOUNDS"]
 
 #: Default bounds (ρs, lobe parameter) per model.
 DEFAULT_BOUNDS = {
@@ -107,42 +107,35 @@ class SpecularFit:
         return {"rho_s": self.rho_s, self.lobe_name: self.lobe}
 
 
-def _lobe(model, p, s1, a):
-    """g(p) = A·h and d g/d ln p per sample; s1 is t = tan²δ (TS) or ln cos δ (BP).
+def _lobe(model, q, counts, s1, a):
+    """g(p) = A·h and d g/d ln p per sample, for per-texel q = ln p repeated ``counts`` times.
 
-    Torrance-Sparrow: g = A e^{−t/m²}/m², dg/d ln m = 2 g (t/m² − 1);
-    Blinn-Phong: g = A (n+2) e^{n ln cos δ}, dg/d ln n = g (n/(n+2) + n ln cos δ).
+    s1 is t = tan²δ (TS) or ln cos δ (BP).  Torrance-Sparrow: g = A e^{−t/m²}/m²,
+    dg/d ln m = 2 g (t/m² − 1); Blinn-Phong: g = A (n+2) e^{n ln cos δ},
+    dg/d ln n = g (n/(n+2) + n ln cos δ).  Per-texel factors are formed before
+    gathering, so each sample costs one exponential and a handful of products.
     """
+    dt = s1.dtype
     if model == "torrance_sparrow":
-        inv = 1 / (p * p)
-        x = s1 * inv
-        g = np.exp(-x)
-        g *= a
-        g *= inv
-        x -= 1
-        x *= g
-        x *= 2
-        return g, x
-    x = p * s1
+        ninv = np.repeat((-np.exp(-2 * np.asarray(q, np.float64))).astype(dt), counts)  # −1/m² per sample
+        x = s1 * ninv  # −t/m²
+        e = np.exp(x)
+        e *= a
+        e *= ninv  # e = −g
+        x += 1
+        x *= e
+        x *= 2  # dg = −2 g (1 − t/m²) = 2 e (1 + x)
+        np.negative(e, out=e)
+        return e, x
+    p = np.exp(np.asarray(q, np.float64))
+    ps = np.repeat(p.astype(dt), counts)
+    x = ps * s1
     g = np.exp(x)
     g *= a
-    g *= p + 2
-    x += p / (p + 2)
+    g *= np.repeat((p + 2).astype(dt), counts)
+    x += np.repeat((p / (p + 2)).astype(dt), counts)
     x *= g
     return g, x
-
-
-def specular_model_values(model, rho_s, lobe, normal, wi, wo, eta=1.38):
-    """f_sM of a fitted model at arbitrary samples, broadcasting texel parameters over samples."""
-    from ..skin import specular_brdf
-
-    return specular_brdf(model, normal, wi, wo, rho_s, lobe, eta)
-
-
-def lobe_values(model, rho_s, lobe, s1, a):
-    """f_sM cos θi = ρs g(p) at samples with precomputed :func:`specular_factors` (per-sample ρs, p)."""
-    g, _ = _lobe(model, np.asarray(lobe, np.float32), s1, a)
-    return np.asarray(rho_s, np.float32) * g
 
 
 def _ts_factor_kernel(ci, co, io, eta):
@@ -158,17 +151,15 @@ def specular_factors(samples, normal, model, eta=1.38, cos=None):
     Torrance-Sparrow: s1 = tan²δ, A = K cos θi / cos⁴δ with K from
     :func:`facestats.model.brdf.torrance_sparrow_cosines`; Blinn-Phong:
     s1 = ln cos δ, A = cos θi / (2π).  A = 0 where a direction is below the horizon.
-    ``cos`` is accepted for symmetry with :func:`fit_specular_samples` but the
-    cosines are recomputed in float64 from the direction grids.
+    ``cos`` = (N·ωi, N·ωo) per sample may be passed when already known.
     """
     check_choice(model, "model", DEFAULT_BOUNDS)
-    # Cosines and factors in float64 (tan²δ = (1 − cos²δ)/cos²δ cancels near the peak),
-    # stored as float32 for the iteration.
-    ci, co = samples.cos(normal, dtype=np.float64)
-    io = samples.cos_io().astype(np.float64)
+    # float32 throughout: the factors' relative error stays below 2e-5 (1e-6 typical), far
+    # below the noise of any measured sample.
+    ci, co = samples.cos(normal) if cos is None else cos
+    io = samples.cos_io().astype(np.float32)
     if model == "torrance_sparrow":
-        s1, a = blockwise(_ts_factor_kernel, [ci, co, io, eta], np.float64, n_out=2)
-        return s1.astype(np.float32), a.astype(np.float32)
+        return blockwise(_ts_factor_kernel, [ci, co, io, np.float32(eta)], np.float32, n_out=2)
     above = (ci > 0) & (co > 0)
     with np.errstate(invalid="ignore", divide="ignore"):
         cos_d = (ci + co) / np.sqrt(np.maximum(2 + 2 * io, 1e-12))
@@ -277,12 +268,10 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
     q = np.full(n_tex, np.nan, dt)
     lam = np.full(n_tex, 1e-3, dt)
     done = few.copy()
-    swyy = np.bincount(texel, weights=y * y, minlength=n_tex)
 
-    def segments(t, n):
-        """Start offsets of the contiguous, non-empty per-texel runs of sorted ``t``."""
-        c = np.bincount(t, minlength=n)
-        return np.concatenate([[0], np.cumsum(c)[:-1]])
+    def segments(counts):
+        """Start offsets of contiguous per-texel runs with these (non-zero) sample counts."""
+        return np.concatenate([[0], np.cumsum(counts)[:-1]])
 
     def rsum(x, starts):
         return np.add.reduceat(x, starts).astype(np.float64)
@@ -292,10 +281,13 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
         raise ValidationError("samples must be grouped by texel (non-decreasing texel index)")
     work = np.nonzero(~few)[0]
     sel = ~few[texel]
-    texel_w = (np.cumsum(~few) - 1)[texel[sel]]
     wy, wa, ws = y[sel], a[sel], s1[sel]
     k = work.size
-    st_w = segments(texel_w, k) if k else None
+    cnt_w = n_use[work]
+    st_w = segments(cnt_w) if k else None
+    swyy = np.zeros(n_tex)
+    if k:
+        swyy[work] = rsum(wy * wy, st_w)
     iterations = 0
     if k:
         swyy_w = swyy[work]
@@ -309,7 +301,7 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
             # ln(y/A) = ln ρs − t/m² (TS) or ln(ρs (n+2)) + n ln cos δ (BP): the slope gives p₀.
             ymax = np.maximum.reduceat(wy, st_w)
             with np.errstate(invalid="ignore", divide="ignore"):
-                strong = (wy > np.float32(0.25) * ymax.astype(dt)[texel_w]) & (wy > 0)
+                strong = (wy > np.repeat(np.float32(0.25) * ymax.astype(dt), cnt_w)) & (wy > 0)
                 lr = np.where(strong, np.log(np.where(strong, wy / wa, 1)), 0).astype(dt)
                 wt = np.where(strong, wy * wy, 0).astype(dt)
                 sw_, sx_, sy_ = rsum(wt, st_w), rsum(wt * ws, st_w), rsum(wt * lr, st_w)
@@ -327,7 +319,7 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
         best_r = np.zeros(k)
         for f in ((1.0,) if not cold.any() else _COLD_STARTS):  # candidate starts
             qq = np.clip(np.log(p0 * np.where(cold, f, 1.0)), q_lo, q_hi)
-            g, _ = _lobe(model, np.exp(qq).astype(dt)[texel_w], ws, wa)
+            g, _ = _lobe(model, qq, cnt_w, ws, wa)
             syg, sgg = rsum(wy * g, st_w), rsum(g * g, st_w)
             with np.errstate(invalid="ignore", divide="ignore"):
                 rr = np.clip(np.nan_to_num(syg / sgg), r_lo, r_hi)
@@ -335,7 +327,7 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
             better = e < best_e
             best_e, best_q, best_r = np.where(better, e, best_e), np.where(better, qq, best_q), np.where(better, rr, best_r)
         q[work], rho[work] = best_q, best_r
-        wg, wdg = _lobe(model, np.exp(q[work]).astype(dt)[texel_w], ws, wa)
+        wg, wdg = _lobe(model, q[work], cnt_w, ws, wa)
         syg, sgg = rsum(wy * wg, st_w), rsum(wg * wg, st_w)
         # -- Levenberg-Marquardt, vectorised over the texels still moving ---------------
         for iterations in range(1, int(max_iter) + 1):
@@ -343,13 +335,13 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
             if not live.any():
                 break
             if live.mean() < 0.7:  # compact the working set
-                keep = live[texel_w]
-                remap = np.cumsum(live) - 1
-                work, texel_w = work[live], remap[texel_w[keep]]
+                keep = np.repeat(live, cnt_w)
+                work = work[live]
                 wy, wa, ws, wg, wdg = wy[keep], wa[keep], ws[keep], wg[keep], wdg[keep]
                 syg, sgg = syg[live], sgg[live]
                 k = work.size
-                st_w = segments(texel_w, k)
+                cnt_w = n_use[work]
+                st_w = segments(cnt_w)
             r0, q0, lm = rho[work], q[work], lam[work]
             sydg, sgdg, sdgdg = rsum(wy * wdg, st_w), rsum(wg * wdg, st_w), rsum(wdg * wdg, st_w)
             e0 = swyy[work] - 2 * r0 * syg + r0 * r0 * sgg
@@ -363,14 +355,14 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
                 dq = (d00 * b1 - h01 * b0) / det
             r1 = np.clip(r0 + np.nan_to_num(dr), r_lo, r_hi)
             q1 = np.clip(q0 + np.nan_to_num(dq), q_lo, q_hi)
-            g1, dg1 = _lobe(model, np.exp(q1).astype(dt)[texel_w], ws, wa)
+            g1, dg1 = _lobe(model, q1, cnt_w, ws, wa)
             syg1, sgg1 = rsum(wy * g1, st_w), rsum(g1 * g1, st_w)
             e1 = swyy[work] - 2 * r1 * syg1 + r1 * r1 * sgg1
             accept = e1 < e0
             rho[work] = np.where(accept, r1, r0)
             q[work] = np.where(accept, q1, q0)
             lam[work] = np.where(accept, lm / 3, lm * 4)
-            acc_s = accept[texel_w]
+            acc_s = np.repeat(accept, cnt_w)
             np.copyto(wg, g1, where=acc_s)
             np.copyto(wdg, dg1, where=acc_s)
             syg, sgg = np.where(accept, syg1, syg), np.where(accept, sgg1, sgg)
@@ -390,22 +382,18 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
     q = q.astype(np.float64)
     if good.any():
         sel = good[texel]
-        t = texel[sel]
-        st_g = segments((np.cumsum(good) - 1)[t], int(good.sum()))
-        y64, s64, a64 = y[sel].astype(np.float64), s1[sel].astype(np.float64), a[sel].astype(np.float64)
+        st_g = segments(n_use[good])
 
-        def full(x):
+        def full(x):  # per-texel sums, accumulated in float64
             out = np.zeros(n_tex)
-            out[good] = np.add.reduceat(x, st_g)
+            out[good] = np.add.reduceat(x.astype(np.float64), st_g)
             return out
 
-        def evaluate(r_, q_):
-            g_, dg_ = _lobe(model, np.exp(q_)[t], s64, a64)
-            res_ = y64 - r_[t] * g_
-            return g_, dg_, res_, full(res_ * res_)
-
-        g, dg, res, e = evaluate(rho, q)
-        jq = rho[t] * dg
+        g, dg = _lobe(model, q[good], n_use[good], s1[sel], a[sel])
+        rho_s = np.repeat(rho[good].astype(dt), n_use[good])
+        res = (y[sel] - rho_s * g).astype(np.float64)
+        e = full(res * res)
+        jq = rho_s * dg
         h00, h01, h11 = full(g * g), full(g * jq), full(jq * jq)
         sw = n_use.astype(np.float64)
         det = h00 * h11 - h01 * h01

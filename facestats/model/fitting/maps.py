@@ -38,22 +38,24 @@ def scatter_to_map(values, texel, size):
     Returns
     -------
     mean : ndarray, shape (size, size, ...)
-        NaN where no lumitexel landed.
+        NaN where no lumitexel landed (float32 for float32 input, else float64;
+        sums are accumulated in float64 one component at a time, so memory stays
+        at the output's size).
     count : ndarray of int, shape (size, size)
     """
-    v = np.asarray(values, np.float64)
+    v = np.asarray(values)
     t = np.asarray(texel)
     flat = t[:, 0] * size + t[:, 1]
     trail = v.shape[1:]
     vv = v.reshape(v.shape[0], -1)
-    ok = np.isfinite(vv)
-    sums = np.zeros((size * size, vv.shape[1]))
-    cnts = np.zeros((size * size, vv.shape[1]))
+    dtype = np.float32 if vv.dtype == np.float32 else np.float64
+    mean = np.empty((size * size, vv.shape[1]), dtype)
     for j in range(vv.shape[1]):  # loop over trailing components (channels), vectorised over lumitexels
-        sums[:, j] = np.bincount(flat[ok[:, j]], weights=vv[ok[:, j], j], minlength=size * size)
-        cnts[:, j] = np.bincount(flat[ok[:, j]], minlength=size * size)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = sums / cnts
+        ok = np.isfinite(vv[:, j])
+        sums = np.bincount(flat[ok], weights=vv[ok, j], minlength=size * size)
+        cnts = np.bincount(flat[ok], minlength=size * size)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean[:, j] = sums / cnts
     count = np.bincount(flat, minlength=size * size).reshape(size, size)
     return mean.reshape((size, size) + trail), count
 

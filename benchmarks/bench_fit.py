@@ -20,8 +20,9 @@ Figures:
   ``FACESTATS_BENCH_DIR`` if not there) fitted from zarr block by block on two
   local worker processes; wall time and peak resident memory (main process and
   workers).
-* ``dask_scaling``: subjects per minute fitting four captures from disk with 1
-  and 2 local Dask workers, and the speed-up.
+* ``dask_scaling``: subjects per minute fitting twelve captures from disk in one
+  process, on Dask's local process scheduler with 2 workers, and on a
+  ``distributed`` cluster of 1 and 2 workers (warmed up), with the speed-ups.
 """
 
 from __future__ import annotations
@@ -211,21 +212,37 @@ def bench_full_resolution(workers=2, block=2048):
     return figures
 
 
-def _fit_paths(paths, workers):
+def _fit_paths(paths, workers=1, client=None):
     from facestats.pipeline import FitSettings, fit_population
 
     t0 = time.perf_counter()
-    fit_population(paths, FitSettings(micro_normals=False), scheduler="processes", num_workers=workers)
+    scheduler = "synchronous" if workers == 1 else "processes"
+    fit_population(paths, FitSettings(micro_normals=False), scheduler=scheduler, num_workers=workers, client=client)
     return time.perf_counter() - t0
 
 
-def bench_dask_scaling(n=4):
+def bench_dask_scaling(n=12):
+    """Subjects per minute fitting ``n`` captures from disk: 1 worker, Dask's local processes, a distributed cluster."""
     pop, _, sim = _default_case()
+    out = {}
     with tempfile.TemporaryDirectory() as tmp:
         paths = [sim.simulate(pop[i]).to_zarr(os.path.join(tmp, f"{i}.zarr")) for i in range(n)]
         t1 = _fit_paths(paths, 1)
         t2 = _fit_paths(paths, 2)
-    return {"subjects_per_min_1_worker": 60 * n / t1, "subjects_per_min_2_workers": 60 * n / t2, "speedup": t1 / t2}
+        out.update({"subjects_per_min_1_worker": 60 * n / t1, "subjects_per_min_2_local_processes": 60 * n / t2,
+                    "speedup_local": t1 / t2})
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError:
+            return out
+        for workers in (1, 2):
+            with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+                    Client(cluster) as client:
+                _fit_paths(paths[:2], client=client)  # warm the workers (imports)
+                t = _fit_paths(paths, client=client)
+            out[f"subjects_per_min_distributed_{workers}_workers"] = 60 * n / t
+        out["speedup_distributed"] = out["subjects_per_min_distributed_2_workers"] / out["subjects_per_min_distributed_1_workers"]
+    return out
 
 
 BENCHMARKS = [("slsqp_ratio", bench_slsqp_ratio), ("accuracy", bench_accuracy), ("dask_scaling", bench_dask_scaling),

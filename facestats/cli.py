@@ -49,7 +49,7 @@ def _add_demo(sub):
 
 
 # -- store commands ----------------------------------------------------------------
-def _store_help(p):
+def _store_option(p):
     p.add_argument("--store", default=None, metavar="PATH",
                    help="a store directory (X.zarr) or zip; default: the store embedded in facestats")
 
@@ -97,7 +97,7 @@ def _add_query(sub):
     p.add_argument("--age", metavar="RANGE", help="20s, 30s, 40s, 50s+, MIN-MAX or one age in years")
     p.add_argument("--condition", metavar="NAME", help="one of: " + ", ".join(_conditions()))
     p.add_argument("--region", metavar="NAME|N", help="report the BRDF of one face region (1-10 or a name)")
-    _store_help(p)
+    _store_option(p)
     p.add_argument("--format", choices=("table", "json", "csv"), default="table",
                    help="table (text, histograms drawn), json (documented, stable) or csv")
     p.set_defaults(func=_cmd_query)
@@ -144,7 +144,7 @@ def _add_info(sub):
     p = sub.add_parser("info", help="schema and writer versions, subject counts and size of a store",
                        description="Describe a parameter store: versions, subject counts by skin type, gender, "
                                    "age group, condition and kind, and its size on disk.")
-    _store_help(p)
+    _store_option(p)
     p.add_argument("--format", choices=("text", "json"), default="text")
     p.set_defaults(func=_cmd_info)
 
@@ -168,7 +168,7 @@ def _add_validate(sub):
     p = sub.add_parser("validate", help="check every subject of a store and the index (exit 1 if invalid)",
                        description="Open and check every subject (group present, dims, checksums, schema) and "
                                    "compare the population index with the data. Exit 0 if valid, 1 if not.")
-    _store_help(p)
+    _store_option(p)
     p.add_argument("--repair", action="store_true",
                    help="rebuild a lost index, drop broken subjects from it, recompute stale rows and remove what "
                         "interrupted writers left (directory stores)")
@@ -193,7 +193,7 @@ def _add_export(sub):
     p = sub.add_parser("export", help="write the per-subject statistics release (CSV/JSON)",
                        description="Per subject: metadata, per-region Torrance-Sparrow and Blinn-Phong coefficients, "
                                    "σa, σ's and σtr per channel and albedo histograms (Weyrich et al. 2006 §7).")
-    _store_help(p)
+    _store_option(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
     p.add_argument("--format", choices=("csv", "json", "both"), default="both")
     p.set_defaults(func=_cmd_export)

@@ -296,13 +296,14 @@ def _translucency(store, args):
     for (site, ch), row in cmp.iterrows():
         lines.append(f"{site:<9}{ch:<3}{row['mean']:8.4f}{row['paper_mean']:8.4f}   {row['var']:7.4f}"
                      f"{row['std']:8.4f}{row['paper_var']:12.4f}")
-    def f3(v):
+
+    def rgb(v):
         return " ".join(f"{x:.4f}" for x in v)
 
     lines += [
-        f"sigma_trAvg (cheek and forehead): {f3(t.sigma_tr_avg)}   (paper {f3(SIGMA_TR_AVG)})",
-        f"l_d least translucent {t.min_subject}: {f3(t.ell_d_min)} mm   (paper {f3(ELL_D_MIN)})",
-        f"l_d most translucent {t.max_subject}: {f3(t.ell_d_max)} mm   (paper {f3(ELL_D_MAX)})",
+        f"sigma_trAvg (cheek and forehead): {rgb(t.sigma_tr_avg)}   (paper {rgb(SIGMA_TR_AVG)})",
+        f"l_d least translucent {t.min_subject}: {rgb(t.ell_d_min)} mm   (paper {rgb(ELL_D_MIN)})",
+        f"l_d most translucent {t.max_subject}: {rgb(t.ell_d_max)} mm   (paper {rgb(ELL_D_MAX)})",
         "note: " + _VAR_NOTE,
     ]
     return plot_translucency(t), doc, lines
@@ -408,7 +409,7 @@ def _posterior(store, args):
 def _population_posterior(store, args):
     from .analysis import population_sigma_tr
     from .analysis.plots import plot_population_sigma_tr
-    from .conventions import ROMAN
+    from .conventions import CHANNELS, ROMAN
 
     res = population_sigma_tr(store, seed=args.seed)
     summary = _records(res.summary)
@@ -421,7 +422,7 @@ def _population_posterior(store, args):
              f"[{res.level:.0%} interval]"]
     for st in res.skin_types:
         cells = []
-        for ch in ("R", "G", "B"):
+        for ch in CHANNELS:
             r = res.summary.loc[(st, ch)]
             cells.append(f"{ch} {r['median']:.3f} [{r['lo']:.3f}, {r['hi']:.3f}]")
         lines.append(f"type {ROMAN[st]:<4}n={int(res.summary.loc[(st, 'R'), 'n']):<4}" + "   ".join(cells))
@@ -480,11 +481,11 @@ def _cmd_analyze(args) -> int:
             if args.population:
                 if args.subject or args.site:
                     raise ValidationError("posterior --population takes no --subject or --site")
-                fig, doc, lines = _population_posterior(store, args)
-                _emit(lines, _write(out, "posterior_population", fig, doc, args.format, store))
+                name, handler = "posterior_population", _population_posterior
             else:
-                fig, doc, lines = _posterior(store, args)
-                _emit(lines, _write(out, "posterior", fig, doc, args.format, store))
+                name, handler = "posterior", _posterior
+            fig, doc, lines = handler(store, args)
+            _emit(lines, _write(out, name, fig, doc, args.format, store))
             return 0
         actions = BATCH_ACTIONS if args.action == "all" else (args.action,)
         for i, action in enumerate(actions):

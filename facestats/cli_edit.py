@@ -115,55 +115,48 @@ def _report(edit, args) -> int:
     return 0
 
 
+def _run(args, edit_function, target, **kwargs):
+    """Open the stores, make the edit ``edit_function(store, SUBJECT, target, ...)``, report it; (edit, exit code)."""
+    store, out = _open(args)
+    with store, out:
+        edit = edit_function(store, args.subject, target, out_store=out, new_id=args.new_id,
+                             overwrite=args.overwrite, **kwargs)
+        return edit, _report(edit, args)
+
+
 def _cmd_skin_type(args) -> int:
     from .edit.subjects import change_skin_type
 
-    store, out = _open(args)
-    with store, out:
-        edit = change_skin_type(store, args.subject, args.skin_type, t=args.t, brdf=not args.no_brdf,
-                                colour=not args.no_colour, keep_translucency=args.keep_translucency,
-                                seed=args.seed, out_store=out, new_id=args.new_id, overwrite=args.overwrite)
-        return _report(edit, args)
+    _, code = _run(args, change_skin_type, args.skin_type, t=args.t, brdf=not args.no_brdf,
+                   colour=not args.no_colour, keep_translucency=args.keep_translucency, seed=args.seed)
+    return code
 
 
 def _cmd_brdf(args) -> int:
     from .edit.subjects import transfer_brdf_subject
 
-    target = _target(args)
-    store, out = _open(args)
-    with store, out:
-        edit = transfer_brdf_subject(store, args.subject, target, t=args.t, model=args.model, regions=args.regions,
-                                     out_store=out, new_id=args.new_id, overwrite=args.overwrite)
-        return _report(edit, args)
+    _, code = _run(args, transfer_brdf_subject, _target(args), t=args.t, model=args.model, regions=args.regions)
+    return code
 
 
 def _cmd_colour(args) -> int:
     from .edit.subjects import transfer_colour_subject
 
-    target = _target(args, stats=True)
-    store, out = _open(args)
-    with store, out:
-        edit = transfer_colour_subject(store, args.subject, target, t=args.t, regions=args.regions,
-                                       feather=args.feather, keep_translucency=args.keep_translucency, seed=args.seed,
-                                       out_store=out, new_id=args.new_id, overwrite=args.overwrite)
-        return _report(edit, args)
+    _, code = _run(args, transfer_colour_subject, _target(args, stats=True), t=args.t, regions=args.regions,
+                   feather=args.feather, keep_translucency=args.keep_translucency, seed=args.seed)
+    return code
 
 
 def _cmd_texture(args) -> int:
     from .edit.subjects import transfer_texture_subject
 
-    target = _target(args, stats=True)
-    store, out = _open(args)
-    with store, out:
-        edit = transfer_texture_subject(store, args.subject, target, regions=args.regions, levels=args.levels,
-                                        bins=args.bins, iterations=args.iterations, seed=args.seed, noise=args.noise,
-                                        feather=args.feather, keep_translucency=args.keep_translucency, out_store=out,
-                                        new_id=args.new_id, overwrite=args.overwrite)
-        d = edit.texture.distance
-        code = _report(edit, args)
-        print(f"histogram distance to the target (mean over bands): {d[0]:.3f} at the start, {d[-1]:.3f} after "
-              f"{edit.texture.iterations} iteration(s)")
-        return code
+    edit, code = _run(args, transfer_texture_subject, _target(args, stats=True), regions=args.regions,
+                      levels=args.levels, bins=args.bins, iterations=args.iterations, seed=args.seed,
+                      noise=args.noise, feather=args.feather, keep_translucency=args.keep_translucency)
+    d = edit.texture.distance
+    print(f"histogram distance to the target (mean over bands): {d[0]:.3f} at the start, {d[-1]:.3f} after "
+          f"{edit.texture.iterations} iteration(s)")
+    return code
 
 
 def _cmd_stats(args) -> int:

@@ -72,7 +72,8 @@ class FitSettings:
     micro_normals : bool
         Keep the per-camera micro-normal maps (16 × 3 values per texel).
     block : int
-        Lumitexels per block (memory per block ≈ block × 0.1 MB).
+        Lumitexels per block (memory per block ≈ block × 0.1 MB); best equal to the
+        capture's zarr chunk (2048 by default), so no chunk is decoded twice.
     eta : float
         Relative index of refraction.
     """
@@ -86,7 +87,7 @@ class FitSettings:
     models: tuple = ("torrance_sparrow", "blinn_phong")
     exclude_cameras: tuple = ()
     micro_normals: bool = True
-    block: int = 4096
+    block: int = 2048
     eta: float = ETA_SKIN
 
     def __post_init__(self):

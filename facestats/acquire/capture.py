@@ -225,7 +225,7 @@ class Capture:
             yield start, min(start + int(size), self.n_lumitexels)
 
     # -- persistence -----------------------------------------------------------------
-    def to_zarr(self, path, chunk: int = 4096):
+    def to_zarr(self, path, chunk: int = 2048):
         """Write the capture as a zarr v3 group (chunked along lumitexel)."""
         writer = CaptureWriter(path, n_lumitexels=self.n_lumitexels, n_cameras=self.dome.n_cameras, n_lights=self.dome.n_leds,
                                map_size=self.map_size, n_fibers=self.sensor.n_fibers, attrs=self.attrs, chunk=chunk)
@@ -238,7 +238,7 @@ class Capture:
 class CaptureWriter:
     """Create a capture group on disk and fill it block by block (bounded memory)."""
 
-    def __init__(self, path, *, n_lumitexels, n_cameras, n_lights, map_size, n_fibers, attrs, chunk=4096):
+    def __init__(self, path, *, n_lumitexels, n_cameras, n_lights, map_size, n_fibers, attrs, chunk=2048):
         import zarr
 
         self.path = str(path)

@@ -320,15 +320,20 @@ class DomeSimulator:
         }
         return Capture(arrays=arrays, attrs=self._attrs(truth, seed))
 
-    def simulate_to_zarr(self, truth, path, seed: int | None = None, progress: bool = False) -> str:
-        """Simulate one subject block by block straight into a zarr capture (bounded memory)."""
+    def simulate_to_zarr(self, truth, path, seed: int | None = None, progress: bool = False, chunk: int = 2048) -> str:
+        """Simulate one subject block by block straight into a zarr capture (bounded memory).
+
+        ``chunk`` is the lumitexel chunk of the zarr arrays (a fit reads blocks of
+        this size without decoding a chunk twice); it is independent of the
+        simulation block.
+        """
         self._check_truth(truth)
         seed = truth.seed if seed is None else seed
         g = self.geometry
         ranges = [(s, min(s + self.block, g.n_points)) for s in range(0, g.n_points, self.block)]
         rng_n, rng_s, rngs = self._streams(seed, len(ranges))
         writer = CaptureWriter(path, n_lumitexels=g.n_points, n_cameras=self.dome.n_cameras, n_lights=self.dome.n_leds,
-                               map_size=g.map_size, n_fibers=self.sensor.n_fibers, attrs=self._attrs(truth, seed), chunk=self.block)
+                               map_size=g.map_size, n_fibers=self.sensor.n_fibers, attrs=self._attrs(truth, seed), chunk=int(chunk))
         it = zip(ranges, rngs)
         if progress:
             from tqdm.auto import tqdm

@@ -50,7 +50,7 @@ from .conditions import index_columns, select_population
 
 __all__ = ["CCAResult", "cca", "brdf_cca", "EXPERIMENTAL_VARIABLES"]
 
-#: Experimental variables of Weyrich Fig. 16 and how they are coded (index column -> code).
+#: Experimental variables of Weyrich Fig. 16 (population index columns; :func:`brdf_cca` codes them).
 EXPERIMENTAL_VARIABLES = ("skin_type", "gender", "age")
 
 
@@ -257,7 +257,7 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
     import pandas as pd
 
     x, x_names, x_index = _as_block(X, "X")
-    y, y_names, y_index = _as_block(Y, "Y")
+    y, y_names, _ = _as_block(Y, "Y")
     if x.shape[0] != y.shape[0]:
         raise ValidationError(f"X and Y must have the same number of rows (subjects), got {x.shape[0]} and {y.shape[0]}")
     reg = np.broadcast_to(np.asarray(regularization, dtype=np.float64), (2,))
@@ -282,7 +282,8 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
     syy = _shrink(yc.T @ yc / (n - 1), reg[1])
     wx, wy = _whitener(sxx, rcond), _whitener(syy, rcond)
     xw, yw = xc @ wx, yc @ wy
-    upper = 1.0 if not reg.any() else np.inf
+    plain = not reg.any()
+    upper = 1.0 if plain else np.inf
     r, u, v = _canonical(xw, yw, upper)
     a, b = wx @ u, wy @ v
     proj_x, proj_y = xc @ a, yc @ b
@@ -304,7 +305,6 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
         wj = _whitener(_shrink(yj.T @ yj / (n - 1), reg[1]), rcond)
         if wj.shape[1]:
             direct[j] = _canonical(xw, yj @ wj, upper)[0][0]
-    plain = not reg.any()
     # F test of each multiple correlation (exact under normality): (R²/p) / ((1 − R²)/(n − p − 1)).
     from scipy.stats import chi2 as chi2_dist
     from scipy.stats import f as f_dist

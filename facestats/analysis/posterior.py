@@ -247,6 +247,13 @@ def _validate_profiles(r, profile, std):
     return r_a, y, s, mask
 
 
+def _check_level(level) -> float:
+    """A credible level in the open interval (0, 1)."""
+    lv = check_shape(as_float(level, "level", np.float64), "level", ())
+    check_range(lv, "level", 0, 1, low_inclusive=False, high_inclusive=False)
+    return float(lv)
+
+
 def _bounds(bounds):
     b = dict(DEFAULT_BOUNDS)
     if bounds:
@@ -305,7 +312,12 @@ class _LogPosterior:
 
 
 def _albedo_coordinates(t, ln_tr):
-    """(ln σ's, ln σa) from logit(total albedo) and ln σtr (:func:`facestats.model.dipole.scattering_from_albedo`)."""
+    """(ln σ's, ln σa) from logit(total albedo) and ln σtr.
+
+    Weyrich et al. 2006 §5.4: the apparent albedo α' from the total diffuse
+    reflectance by inverting eq. 16, then σ's = α' σ't and σa = σ't − σ's with
+    σ't = σtr / sqrt(3 (1 − α')) (:func:`facestats.model.dipole.scattering_from_albedo`).
+    """
     sp, sa = dipole.scattering_from_albedo(1 / (1 + np.exp(-t)), np.exp(ln_tr))
     return np.stack([np.log(sp), np.log(sa)], -1)
 
@@ -461,8 +473,7 @@ def sigma_posterior(r, profile, std=None, *, sensor=None, eta=1.38, labels=None,
         raise ValidationError(f"labels must have {k} entries (one per profile column), got {len(labels)}")
     if int(n_walkers) < 8 or int(n_walkers) % 2:
         raise ValidationError(f"n_walkers must be an even number >= 8, got {n_walkers!r}")
-    if not (0 < level < 1):
-        raise ValidationError(f"level must lie in (0, 1), got {level!r}")
+    level = _check_level(level)
     if min_tau <= 0 or burn_in < 0 or int(max_steps) < int(initial_steps) or int(initial_steps) < 50:
         raise ValidationError(
             f"need min_tau > 0, burn_in >= 0, initial_steps >= 50 and max_steps >= initial_steps, got "
@@ -682,8 +693,7 @@ def population_sigma_tr(source, model="hierarchical", subjects=None, conditions=
     from .translucency import subject_sigma_tr
 
     check_choice(model, "model", ("hierarchical", "independent"))
-    if not (0 < level < 1):
-        raise ValidationError(f"level must lie in (0, 1), got {level!r}")
+    level = _check_level(level)
     frame = select_population(source, subjects, conditions)
     sig = subject_sigma_tr(frame)
     types = frame["skin_type"].astype(int)

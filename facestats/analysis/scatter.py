@@ -58,7 +58,7 @@ class AbsorptionScattering:
         return pd.DataFrame.from_records(rows).set_index("channel")
 
     def by_skin_type(self):
-        """Mean and standard deviation of σa and σ's per skin type and channel."""
+        """Mean, standard deviation and count of σa and σ's per skin type and channel."""
         g = self.data.groupby(["skin_type", "channel"])[["sigma_a", "sigma_s_prime"]]
         return g.agg(["mean", "std", "count"])
 

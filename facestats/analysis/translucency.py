@@ -47,7 +47,9 @@ AVERAGE_SITES = ("cheek", "forehead")
 def subject_sigma_tr(frame, sites=AVERAGE_SITES):
     """Per-subject σtr (mm⁻¹) per channel: mean over ``sites`` of ``site_sigma_tr_{site}_{ch}``.
 
-    Missing sites are skipped; a subject with none of them gets NaN.
+    The per-subject values behind σtrAvg (Weyrich et al. 2006 §5.4: cheek and
+    forehead, "ignoring the neck").  Missing sites are skipped; a subject with
+    none of them gets NaN.
 
     Returns
     -------

@@ -115,7 +115,8 @@ def transfer_brdf(source: Mapping, regions, target: Mapping, *, target_regions=N
         New maps (copies, the source dtype) for the parameters of ``source``.
     """
     if not isinstance(source, Mapping) or not source:
-        raise ValidationError("source must be a non-empty mapping of parameter name to map")
+        got = "an empty mapping" if isinstance(source, Mapping) else type(source).__name__
+        raise ValidationError(f"source must be a non-empty mapping of parameter name to map, got {got}")
     if not isinstance(target, Mapping):
         raise ValidationError(f"target must be a mapping of parameter name to target data, got {type(target).__name__}")
     t = _check_t(t)

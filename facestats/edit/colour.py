@@ -54,7 +54,8 @@ class ColourBasis:
         p = check_shape(check_finite(as_float(self.axes, "axes", np.float64), "axes"), "axes", (3, 3))
         v = check_shape(check_finite(as_float(self.variances, "variances", np.float64), "variances"), "variances", (3,))
         if not np.allclose(p @ p.T, np.eye(3), atol=1e-9):
-            raise ValidationError("axes must be orthonormal (P Pᵀ = I)")
+            dev = float(np.abs(p @ p.T - np.eye(3)).max())
+            raise ValidationError(f"axes must be orthonormal (P Pᵀ = I), got max |P Pᵀ - I| = {dev:.3g}")
         object.__setattr__(self, "mean", m)
         object.__setattr__(self, "axes", p)
         object.__setattr__(self, "variances", v)

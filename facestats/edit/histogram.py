@@ -82,8 +82,13 @@ class Histogram:
                 f"edges and counts must be 1-D with len(edges) == len(counts) + 1 >= 2, "
                 f"got shapes {e.shape} and {c.shape}"
             )
-        if np.any(np.diff(e) <= 0):
-            raise ValidationError("edges must be strictly increasing")
+        bad = np.flatnonzero(np.diff(e) <= 0)
+        if bad.size:
+            k = int(bad[0])
+            raise ValidationError(
+                f"edges must be strictly increasing, got edges[{k}] = {e[k].item()!r} >= edges[{k + 1}] = "
+                f"{e[k + 1].item()!r}"
+            )
         check_range(c, "counts", 0.0, None)
         if not c.sum() > 0:
             raise ValidationError("counts must not all be zero")
@@ -254,32 +259,28 @@ def interpolate_histograms(h0: Histogram, h1: Histogram, t: float, edges=None) -
 # --------------------------------------------------------------------------- O(N) matching
 
 
-def _value_range(x: np.ndarray) -> tuple[float, float]:
-    return _widen(float(x.min()), float(x.max()))
-
-
-def _bin_counts(x: np.ndarray, lo: float, scale: float, bins: int) -> np.ndarray:
-    """Counts of the flat array ``x`` on ``bins`` uniform bins from ``lo`` (chunked)."""
-    counts = np.zeros(bins, np.int64)
+def _chunk_bins(x: np.ndarray, lo: float, scale: float, bins: int):
+    """Chunks of the flat ``x`` as ``(start, p, i)``: ``p = (x - lo) · scale``, ``i = floor(p)`` clipped to bins."""
     lo_, scale_ = x.dtype.type(lo), x.dtype.type(scale)
     for s in range(0, x.size, _CHUNK):
         p = np.subtract(x[s:s + _CHUNK], lo_)
         p *= scale_
         i = p.astype(np.intp)
         np.clip(i, 0, bins - 1, out=i)
+        yield s, p, i
+
+
+def _bin_counts(x: np.ndarray, lo: float, scale: float, bins: int) -> np.ndarray:
+    """Counts of the flat array ``x`` on ``bins`` uniform bins from ``lo`` (chunked)."""
+    counts = np.zeros(bins, np.int64)
+    for _, _, i in _chunk_bins(x, lo, scale, bins):
         counts += np.bincount(i, minlength=bins)
     return counts
 
 
 def _apply_lut(x: np.ndarray, lo: float, scale: float, intercept, slope, out: np.ndarray) -> None:
     """``out = intercept[i] + slope[i] · p`` with ``p = (x - lo) · scale``, ``i = floor(p)`` (chunked)."""
-    bins = slope.size
-    lo_, scale_ = x.dtype.type(lo), x.dtype.type(scale)
-    for s in range(0, x.size, _CHUNK):
-        p = np.subtract(x[s:s + _CHUNK], lo_)
-        p *= scale_
-        i = p.astype(np.intp)
-        np.clip(i, 0, bins - 1, out=i)
+    for s, p, i in _chunk_bins(x, lo, scale, slope.size):
         o = out[s:s + _CHUNK]
         np.take(slope, i, out=o)
         o *= p
@@ -288,7 +289,7 @@ def _apply_lut(x: np.ndarray, lo: float, scale: float, intercept, slope, out: np
 
 def _source_histogram(x: np.ndarray, source_bins: int) -> tuple[Histogram, float]:
     """The fine histogram of ``x`` (flat) used to estimate F_source, and its ``scale``."""
-    lo, hi = _value_range(x)
+    lo, hi = _widen(float(x.min()), float(x.max()))
     scale = source_bins / (hi - lo)
     counts = _bin_counts(x, lo, scale, source_bins)
     return Histogram(np.linspace(lo, hi, source_bins + 1), counts.astype(np.float64)), scale

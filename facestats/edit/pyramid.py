@@ -113,6 +113,7 @@ def _highpass_mask(r):
 
 
 def _angular_constant(orientations):
+    """α_K = sqrt(2^(2n) (n!)² / (K (2n)!)), n = K - 1, so that Σ_b A_b² = 1 (Simoncelli & Freeman 1995)."""
     n = orientations - 1
     return math.sqrt(2.0 ** (2 * n) * math.factorial(n) ** 2 / (orientations * math.factorial(2 * n)))
 

@@ -104,8 +104,9 @@ from ..errors import StoreError, ValidationError
 from .brdf import transfer_brdf
 from .colour import transfer_colour
 from .histogram import _check_t
+from .plots import _display
 from .pyramid import max_levels
-from .texture import TextureStatistics, TextureTransfer, transfer_texture
+from .texture import TextureStatistics, TextureTransfer, _pad_shape, transfer_texture
 
 __all__ = [
     "EDIT_SOURCE",
@@ -225,6 +226,7 @@ def _same_store(a, b) -> bool:
 
 
 def _load_source(store, subject):
+    """``(dataset, region map)`` of a map subject of ``store``."""
     from ..io.schema import subject_kind
 
     sid = str(subject)
@@ -234,7 +236,7 @@ def _load_source(store, subject):
             f"subject must be a map subject (fitted maps), got {sid!r}, a sample subject imported from a "
             "statistics file: it has no maps to edit"
         )
-    return ds
+    return ds, np.asarray(ds["region"].values)
 
 
 def _parse_regions(regions, present, name="regions"):
@@ -254,6 +256,16 @@ def _parse_regions(regions, present, name="regions"):
 
 def _present(region) -> list[int]:
     return [int(r) for r in np.unique(region) if r != 0]
+
+
+def _face_mask(region, regions):
+    """Texels of the face (``regions`` None) or of the listed regions, as a bool map."""
+    return region > 0 if regions is None else np.isin(region, regions)
+
+
+def _label_mask(region, regions):
+    """The face as one region (bool map, ``regions`` None), else the listed regions' labels (0 elsewhere)."""
+    return region > 0 if regions is None else np.where(np.isin(region, regions), region, 0).astype(np.int64)
 
 
 def _normalise_query(query) -> dict:
@@ -362,9 +374,7 @@ def _pooled_albedo(store, ids, regions, max_samples, seed):
     for sid in ids:  # loop over subjects; each is vectorised over texels
         ds = store.subject(sid, lazy=True)
         if entries[sid]["row"].get("kind") == "maps":
-            reg = np.asarray(ds["region"].values)
-            sel = reg > 0 if regions is None else np.isin(reg, regions)
-            px = np.asarray(ds["albedo"].values)[sel]
+            px = np.asarray(ds["albedo"].values)[_face_mask(np.asarray(ds["region"].values), regions)]
         elif "albedo_sample" in ds.variables:
             px = np.asarray(ds["albedo_sample"].values).reshape(-1, 3)
             if regions is not None and "albedo_sample_region" in ds.variables:
@@ -540,9 +550,8 @@ def transfer_brdf_subject(store, subject, target, *, t: float = 1.0, model: str 
     out = _output(store, out_store)
     t = _check_t(t)
     models = _check_model(model)
-    src = _load_source(store, subject)
+    src, region = _load_source(store, subject)
     sid = str(subject)
-    region = np.asarray(src["region"].values)
     regions = _parse_regions(regions, _present(region))
     _, ids, descriptor = _resolve_target(store, target, sid)
     record = {"name": "transfer_brdf", "parameters": {"t": t, "model": model, "regions": regions},
@@ -604,9 +613,8 @@ def transfer_colour_subject(store, subject, target, *, t: float = 1.0, regions=N
     store = _check_store(store, "store")
     out = _output(store, out_store)
     t = _check_t(t)
-    src = _load_source(store, subject)
+    src, region = _load_source(store, subject)
     sid = str(subject)
-    region = np.asarray(src["region"].values)
     regions = _parse_regions(regions, _present(region))
     kind, tgt, descriptor = _resolve_target(store, target, sid, statistics=True)
     params = {"t": t, "regions": regions, "feather": feather, "keep_translucency": bool(keep_translucency),
@@ -620,8 +628,8 @@ def transfer_colour_subject(store, subject, target, *, t: float = 1.0, regions=N
         descriptor["n_albedo_samples"] = int(tgt.shape[0])
         means["albedo"] = tgt.mean(axis=0)
     ds = src.copy(deep=True)
-    mask = region > 0 if regions is None else np.isin(region, regions)
-    _set(ds, "albedo", transfer_colour(src["albedo"].values, tgt, mask=mask, t=t, feather=feather))
+    _set(ds, "albedo", transfer_colour(src["albedo"].values, tgt, mask=_face_mask(region, regions), t=t,
+                                       feather=feather))
     changed = ["albedo"] + _follow_translucency(ds, keep_translucency)
     record["regions_edited"] = regions or _present(region)
     return _finish(store, src, ds, out, new_id, overwrite, record, changed, ids, means)
@@ -681,9 +689,8 @@ def change_skin_type(store, subject, skin_type, *, t: float = 1.0, brdf: bool = 
     t = _check_t(t)
     if not (brdf or colour):
         raise ValidationError("brdf and colour must not both be False: nothing to change")
-    src = _load_source(store, subject)
+    src, region = _load_source(store, subject)
     sid = str(subject)
-    region = np.asarray(src["region"].values)
     _, ids, descriptor = _resolve_target(store, {"skin_type": st, "condition": condition}, sid)
     params = {"skin_type": st, "t": t, "brdf": bool(brdf), "colour": bool(colour),
               "keep_translucency": bool(keep_translucency), "condition": condition, "max_samples": int(max_samples),
@@ -712,8 +719,7 @@ def change_skin_type(store, subject, skin_type, *, t: float = 1.0, brdf: bool = 
 def _levels_for(*shapes) -> int:
     """The most pyramid levels (at most 7, §8) that maps of every shape in ``shapes`` support."""
     for levels in range(7, 0, -1):
-        step = 1 << levels
-        if all(levels <= max_levels(tuple(-(-s // step) * step for s in shape)) for shape in shapes):
+        if all(levels <= max_levels(_pad_shape(shape, levels)) for shape in shapes):
             return levels
     return 0
 
@@ -775,25 +781,20 @@ def transfer_texture_subject(store, subject, target, *, regions=None, levels: in
     """
     store = _check_store(store, "store")
     out = _output(store, out_store)
-    src = _load_source(store, subject)
+    src, region = _load_source(store, subject)
     sid = str(subject)
-    region = np.asarray(src["region"].values)
     regions = _parse_regions(regions, _present(region))
     kind, tgt, descriptor = _resolve_target(store, target, sid, query=False, statistics=True)
-    mask = region > 0 if regions is None else np.where(np.isin(region, regions), region, 0).astype(np.int64)
+    mask = _label_mask(region, regions)
     if kind == "statistics":
         ids, kwargs = [], {"levels": levels}
     else:
         ids = tgt
-        tds = _load_source(store, ids[0])
-        treg = np.asarray(tds["region"].values)
-        if regions is None:
-            tmask = treg > 0
-        else:
-            lacking = [r for r in regions if r not in _present(treg)]
-            if lacking:
-                raise ValidationError(f"target subject {ids[0]!r} has no texel in region(s) {lacking}")
-            tmask = np.where(np.isin(treg, regions), treg, 0).astype(np.int64)
+        tds, treg = _load_source(store, ids[0])
+        lacking = sorted(set(regions or ()) - set(_present(treg)))
+        if lacking:
+            raise ValidationError(f"target subject {ids[0]!r} has no texel in region(s) {lacking}")
+        tmask = _label_mask(treg, regions)
         levels = _levels_for(region.shape, treg.shape) if levels is None else levels
         kwargs = {"target_mask": tmask, "levels": levels, "orientations": orientations, "bins": bins}
         tgt = np.asarray(tds["albedo"].values)
@@ -837,21 +838,14 @@ def subject_texture_statistics(store, subject, *, regions=None, levels: int | No
         of :func:`transfer_texture_subject`.
     """
     store = _check_store(store, "store")
-    ds = _load_source(store, subject)
-    region = np.asarray(ds["region"].values)
+    ds, region = _load_source(store, subject)
     regions = _parse_regions(regions, _present(region))
-    mask = region > 0 if regions is None else np.isin(region, regions)
     levels = _levels_for(region.shape) if levels is None else levels
-    return TextureStatistics.from_image(ds["albedo"].values, mask, levels=levels, orientations=orientations, bins=bins)
+    return TextureStatistics.from_image(ds["albedo"].values, _face_mask(region, regions), levels=levels,
+                                        orientations=orientations, bins=bins)
 
 
 # --------------------------------------------------------------------------- figures
-
-
-def _display(rgb):
-    from .plots import _display as display
-
-    return display(rgb)
 
 
 def _brdf_variables(edit):

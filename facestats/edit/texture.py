@@ -110,10 +110,14 @@ class TextureStatistics:
                 f"edges and counts must have shapes (3, {nb}, bins + 1) and (3, {nb}, bins) for "
                 f"levels={levels}, orientations={orientations}, got {e.shape} and {c.shape}"
             )
-        if np.any(np.diff(e, axis=-1) <= 0):
-            raise ValidationError("edges must be strictly increasing along the last axis")
-        if np.any(c < 0) or np.any(c.sum(axis=-1) <= 0):
-            raise ValidationError("counts must be >= 0 with a positive total per histogram")
+        bad = np.argwhere(np.any(np.diff(e, axis=-1) <= 0, axis=-1))
+        if bad.size:
+            raise ValidationError(f"edges must be strictly increasing along the last axis, got non-increasing "
+                                  f"edges in channel {bad[0][0]}, band {bad[0][1]}")
+        bad = np.argwhere(np.any(c < 0, axis=-1) | (c.sum(axis=-1) <= 0))
+        if bad.size:
+            raise ValidationError(f"counts must be >= 0 with a positive total per histogram, got a negative count "
+                                  f"or a zero total in channel {bad[0][0]}, band {bad[0][1]}")
         if not isinstance(self.basis, ColourBasis):
             raise ValidationError(f"basis must be a ColourBasis, got {type(self.basis).__name__}")
         object.__setattr__(self, "edges", e)
@@ -257,9 +261,15 @@ def _check_settings(levels, orientations, bins):
     _check_int(bins, "bins", 2)
 
 
-def _padded_shape(shape, levels):
+def _pad_shape(shape, levels) -> tuple[int, ...]:
+    """``shape`` with each side rounded up to a multiple of ``2**levels`` (the pyramid's grid)."""
     step = 1 << levels
-    padded = tuple(-(-s // step) * step for s in shape)
+    return tuple(-(-s // step) * step for s in shape)
+
+
+def _padded_shape(shape, levels):
+    """:func:`_pad_shape`, checked against the levels the padded grid supports."""
+    padded = _pad_shape(shape, levels)
     if levels > max_levels(padded):
         raise ValidationError(
             f"levels must be at most {max_levels(padded)} for a map of shape {tuple(shape)} "
@@ -283,7 +293,7 @@ def _region_index(inside: np.ndarray | None, shape, padded, levels):
     m[: shape[0], : shape[1]] = True if inside is None else inside
     out = [np.flatnonzero(m)]
     frac = m.astype(np.float32)
-    for g in range(1, levels + 1):
+    for _ in range(levels):
         h, w = frac.shape
         frac = frac.reshape(h // 2, 2, w // 2, 2).mean(axis=(1, 3))
         idx = np.flatnonzero(frac >= 0.5)

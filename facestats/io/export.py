@@ -44,12 +44,12 @@ from .. import __version__
 from ..conventions import CHANNELS, REGIONS, ROMAN, SITES
 from ..errors import ValidationError
 from .index import utc_now
+from .query import SCATTERING, UNITS
 from .summary import HIST_BINS, column
 
 __all__ = ["EXPORT_FORMAT", "export_statistics"]
 
 EXPORT_FORMAT = "facestats.export/1"
-_SCATTERING = ("sigma_a", "sigma_s_prime", "sigma_tr")
 
 _README = """facestats statistics release (format {fmt})
 Exported {when} by facestats {version} from {store} ({n} subjects).
@@ -103,9 +103,9 @@ def _subject_json(sid: str, row: dict, hist) -> dict:
             items.append(item)
         brdf[name] = items
     out["brdf"] = brdf
-    out["scattering"] = {p: {ch: get(column("subject", param=p, channel=ch)) for ch in CHANNELS} for p in _SCATTERING}
+    out["scattering"] = {p: {ch: get(column("subject", param=p, channel=ch)) for ch in CHANNELS} for p in SCATTERING}
     out["sites"] = {s: {p: {ch: get(column("site", param=p, site=s, channel=ch)) for ch in CHANNELS}
-                        for p in _SCATTERING} for s in SITES}
+                        for p in SCATTERING} for s in SITES}
     out["albedo"] = {stat: {ch: get(f"albedo_{stat}_{ch}") for ch in CHANNELS} for stat in ("mean", "std")}
     out["albedo_histogram"] = {ch: [int(v) for v in hist[c]] for c, ch in enumerate(CHANNELS)}
     return out
@@ -137,9 +137,7 @@ def export_statistics(store, out_dir, formats=("csv", "json")) -> list[Path]:
     hists = [entries[i]["albedo_hist"] for i in ids]
     written = []
     if "csv" in formats:
-        cols: list[str] = []
-        for r in rows:
-            cols += [k for k in r if k not in cols]
+        cols = list(dict.fromkeys(k for r in rows for k in r))  # every column, in first-seen order
         path = out / "subjects.csv"
         with open(path, "w", newline="") as fh:
             w = csv.writer(fh)
@@ -162,7 +160,7 @@ def export_statistics(store, out_dir, formats=("csv", "json")) -> list[Path]:
             "facestats_version": __version__,
             "exported": when,
             "store": store.label,
-            "units": {"rho_s": "1", "m": "1", "exponent": "1", "sigma": "mm-1", "albedo": "1", "age": "years"},
+            "units": {**UNITS, "age": "years"},
             "histogram": {"bins": HIST_BINS, "range": [0.0, 1.0]},
             "subjects": [_subject_json(sid, r, h) for sid, r, h in zip(ids, rows, hists)],
         }

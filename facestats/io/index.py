@@ -80,7 +80,7 @@ def empty_index(schema_version: int, facestats_version: str) -> dict:
 
 def _json_value(v):
     """A JSON-safe scalar: NaN/inf -> None, numpy scalars -> Python."""
-    if isinstance(v, (np.generic,)):
+    if isinstance(v, np.generic):
         v = v.item()
     if isinstance(v, float) and not math.isfinite(v):
         return None
@@ -194,13 +194,7 @@ def index_table(index: dict) -> IndexTable:
     """Column arrays of an index document, subjects sorted by id."""
     ids = sorted(index["subjects"])
     entries = [index["subjects"][i] for i in ids]
-    names: list[str] = []
-    seen = set()
-    for e in entries:
-        for k in e["row"]:
-            if k not in seen:
-                seen.add(k)
-                names.append(k)
+    names = dict.fromkeys(k for e in entries for k in e["row"])  # every column, in first-seen order
     columns = {}
     for name in names:
         vals = [e["row"].get(name) for e in entries]

@@ -108,10 +108,8 @@ class _Reader:
         return a.astype(np.float64)
 
     def vector(self, key, a: np.ndarray, n: int | None = None) -> np.ndarray:
-        if a.ndim > 1:
-            if sum(d > 1 for d in a.shape) > 1:
-                self.fail(f"{key} must be a vector (1×n or n×1), got shape {a.shape}")
-            a = a.reshape(-1)
+        if a.ndim > 1 and sum(d > 1 for d in a.shape) > 1:
+            self.fail(f"{key} must be a vector (1×n or n×1), got shape {a.shape}")
         a = a.reshape(-1)
         if n is not None and a.size != n:
             self.fail(f"{key} must have {n} entries, got {a.size}")
@@ -156,6 +154,16 @@ class _Reader:
             return flat
         self.fail(f"{key} must be numeric, a char array or a cell array of strings, got {a.dtype} data")
 
+    def parsed(self, key, n: int, parse, expected: str) -> list:
+        """``parse`` applied to each of the S labels of ``key``; a bad one fails naming its 1-based row."""
+        out = []
+        for i, v in enumerate(self.labels(key, n)):
+            try:
+                out.append(parse(v))
+            except ValidationError:
+                self.fail(f"{key}[{i + 1}] must be {expected}, got {v!r}")
+        return out
+
     def columns(self, key, allowed) -> np.ndarray:
         """A K×c table with c in ``allowed`` (a c×K table is transposed; a vector is K×1 if 1 is allowed)."""
         a = self.numeric(key)
@@ -196,6 +204,17 @@ def _split(subj: np.ndarray, n: int):
 def read_merl(path, *, prefix: str = "merl") -> MerlData:
     """Read and check a ``ts_data.mat`` file; sample-subject Datasets, nothing written.
 
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The MATLAB file (v7 or older; v7.3 HDF5 files are refused with a hint).
+    prefix : str
+        Subject ids are ``<prefix>-001`` ... (more digits for more than 999 subjects).
+
+    Returns
+    -------
+    MerlData
+
     Raises
     ------
     FormatError
@@ -223,18 +242,8 @@ def read_merl(path, *, prefix: str = "merl") -> MerlData:
         r.fail(f"s_count must be one positive integer, got {r.get('s_count')!r}")
     n = int(s[0])
     ages = r.integers("subj_age", n, 0, 200, "an integer age in 0-200 years")
-    genders = []
-    for i, v in enumerate(r.labels("subj_gen", n)):
-        try:
-            genders.append(parse_gender(v))
-        except ValidationError:
-            r.fail(f"subj_gen[{i + 1}] must be 0/1, M/F or male/female, got {v!r}")
-    types = []
-    for i, v in enumerate(r.labels("subj_skintype", n)):
-        try:
-            types.append(parse_skin_type(v))
-        except ValidationError:
-            r.fail(f"subj_skintype[{i + 1}] must be a Fitzpatrick type 1-6 or I-VI, got {v!r}")
+    genders = r.parsed("subj_gen", n, parse_gender, "0/1, M/F or male/female")
+    types = r.parsed("subj_skintype", n, parse_skin_type, "a Fitzpatrick type 1-6 or I-VI")
 
     ts = r.columns("ts", (2,))
     k = ts.shape[0]

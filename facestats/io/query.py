@@ -85,6 +85,7 @@ from ..conventions import (
     parse_region,
     parse_skin_type,
 )
+from ..errors import ValidationError
 from .summary import BRDF_PARAMS, HIST_BINS, column
 
 __all__ = ["QUERY_FORMAT", "Stat", "QueryResult", "normalise_filters", "run_query", "histogram_sparkline"]
@@ -371,7 +372,7 @@ def histogram_sparkline(hist, columns: int = 32, *, ascii: bool = False) -> str:
     """
     h = np.asarray(hist, dtype=np.float64)
     if h.size % columns:
-        raise ValueError(f"histogram length {h.size} is not a multiple of columns={columns}")
+        raise ValidationError(f"columns must divide the histogram length {h.size}, got {columns!r}")
     g = h.reshape(columns, -1).sum(axis=1)
     bars = _ASCII_BARS if ascii else _BARS
     top = g.max()
@@ -382,10 +383,26 @@ def histogram_sparkline(hist, columns: int = 32, *, ascii: bool = False) -> str:
 
 
 def _counts(values, order) -> dict:
+    """Occurrences of each value: those of ``order`` first, in that order, then any others sorted."""
     vals, n = np.unique(np.asarray(values, dtype=object).astype(str), return_counts=True)
     d = dict(zip(vals.tolist(), n.tolist()))
     keys = [k for k in order if k in d] + sorted(k for k in d if k not in order)
     return {k: int(d[k]) for k in keys}
+
+
+def _breakdown(table, idx) -> dict:
+    """Counts of the index rows ``idx`` by gender, skin type (Roman), age group, condition and kind."""
+    if len(idx) == 0:
+        return {"gender": {}, "skin_type": {}, "age_group": {}, "condition": {}, "kind": {}}
+    ages = table["age"][idx].tolist()
+    age_labels = [next(lbl for lbl, lo, hi in AGE_GROUPS if lo <= a <= hi) for a in ages]
+    return {
+        "gender": _counts(table["gender"][idx], GENDERS),
+        "skin_type": _counts([ROMAN[int(t)] for t in table["skin_type"][idx]], ROMAN.values()),
+        "age_group": _counts(age_labels, [g[0] for g in AGE_GROUPS]),
+        "condition": _counts(table["condition"][idx], CONDITIONS),
+        "kind": _counts(table["kind"][idx], ("maps", "samples")),
+    }
 
 
 def run_query(table, *, skin_type=None, gender=None, age=None, condition=None, region=None,
@@ -423,20 +440,7 @@ def run_query(table, *, skin_type=None, gender=None, age=None, condition=None, r
             return np.asarray(table[name][idx], dtype=np.float64)
         return np.full(count, np.nan)
 
-    if count:
-        ages = table["age"][idx]
-        age_labels = [next(lbl for lbl, lo, hi in AGE_GROUPS if lo <= a <= hi) for a in ages.tolist()]
-        breakdown = {
-            "gender": _counts(table["gender"][idx], GENDERS),
-            "skin_type": _counts([ROMAN[int(t)] for t in table["skin_type"][idx]], ROMAN.values()),
-            "age_group": _counts(age_labels, [g[0] for g in AGE_GROUPS]),
-            "condition": _counts(table["condition"][idx], CONDITIONS),
-            "kind": _counts(table["kind"][idx], ("maps", "samples")),
-        }
-        n_persons = len(set(table["person_id"][idx].tolist()))
-    else:
-        breakdown = {"gender": {}, "skin_type": {}, "age_group": {}, "condition": {}, "kind": {}}
-        n_persons = 0
+    n_persons = len(set(table["person_id"][idx].tolist())) if count else 0
 
     region_ids = [filters["region"]] if filters["region"] is not None else list(REGIONS)
     regions = []
@@ -466,7 +470,7 @@ def run_query(table, *, skin_type=None, gender=None, age=None, condition=None, r
         n_persons=n_persons,
         subject_ids=tuple(table.ids[i] for i in idx),
         n_store=n_all,
-        breakdown=breakdown,
+        breakdown=_breakdown(table, idx),
         regions=tuple(regions),
         scattering=scattering,
         sites=sites,

@@ -82,7 +82,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..conventions import AGE_GROUPS, CONDITIONS, GENDERS, ROMAN
+from .._validate import check_choice
 from ..errors import SchemaError, StoreError, ValidationError
 from .index import (
     INDEX_NAME,
@@ -95,7 +95,7 @@ from .index import (
     utc_now,
     write_index_file,
 )
-from .locking import FileLock, create_locked, is_lock_temp, try_lock
+from .locking import FileLock, create_locked, is_lock_temp, is_locked, try_lock
 from .schema import SCHEMA_VERSION, provenance, set_provenance, validate_subject
 
 __all__ = [
@@ -384,8 +384,7 @@ def open_store(path=None, mode: str = "r", *, lock_timeout: float = 60.0) -> "St
     SchemaError
         A store written with a schema version this facestats cannot read.
     """
-    if mode not in ("r", "r+", "a"):
-        raise ValidationError(f"mode must be one of ['a', 'r', 'r+'], got {mode!r}")
+    check_choice(mode, "mode", ("r", "r+", "a"))
     if path is None:
         zp = default_store_path()
         if not zp.is_file():
@@ -594,8 +593,7 @@ class Store:
         """
         import pandas as pd
 
-        t = self._table()
-        cols = {k: v for k, v in t.columns.items()}
+        cols = self._table().columns
         df = pd.DataFrame(cols, columns=list(cols))
         if "subject_id" not in df:
             df["subject_id"] = pd.Series([], dtype=object)
@@ -725,8 +723,7 @@ class Store:
 
         from .summary import MODEL_PARAMS, region_samples
 
-        if model not in MODEL_PARAMS:
-            raise ValidationError(f"model must be one of {sorted(MODEL_PARAMS)}, got {model!r}")
+        check_choice(model, "model", MODEL_PARAMS)
         if subjects is None:
             ids = self.ids()
         else:
@@ -936,6 +933,14 @@ class Store:
                 self.writer_version = __version__
         return result
 
+    def _subject_dirs(self):
+        """``(subject id, directory)`` of every directory under ``subjects/`` (directory stores), by id."""
+        sub_root = os.path.join(self.path, SUBJECTS)
+        for sid in sorted(os.listdir(sub_root)) if os.path.isdir(sub_root) else []:
+            sdir = os.path.join(sub_root, sid)
+            if os.path.isdir(sdir):
+                yield sid, sdir
+
     def _remove_generation(self, sid: str, gen: str) -> None:
         """Delete an unreferenced generation: rename it aside (atomic), then remove it."""
         src = os.path.join(self.path, self._gen_rel(sid, gen))
@@ -957,16 +962,12 @@ class Store:
         """
         self._require_writable()
         root = self.path
-        sub_root = os.path.join(root, SUBJECTS)
         writers = os.path.join(root, WRITERS)
         doomed, held, emptied = [], [], []
         with self._lock():
             index = read_index_file(root)
             live = {(sid, e["generation"]) for sid, e in index["subjects"].items()}
-            for sid in sorted(os.listdir(sub_root)) if os.path.isdir(sub_root) else []:
-                sdir = os.path.join(sub_root, sid)
-                if not os.path.isdir(sdir):
-                    continue
+            for sid, sdir in self._subject_dirs():
                 keep = False
                 for name in os.listdir(sdir):
                     p = os.path.join(sdir, name)
@@ -1031,11 +1032,7 @@ class Store:
             return []
         live = {(sid, e["generation"]) for sid, e in index["subjects"].items()}
         out = []
-        sub_root = os.path.join(self.path, SUBJECTS)
-        for sid in sorted(os.listdir(sub_root)) if os.path.isdir(sub_root) else []:
-            sdir = os.path.join(sub_root, sid)
-            if not os.path.isdir(sdir):
-                continue
+        for sid, sdir in self._subject_dirs():
             for name in sorted(os.listdir(sdir)):
                 if os.path.isdir(os.path.join(sdir, name)) and (sid, name) not in live:
                     out.append(f"{SUBJECTS}/{sid}/{name}")
@@ -1048,15 +1045,11 @@ class Store:
 
         index = empty_index(SCHEMA_VERSION, __version__)
         notes = []
-        sub_root = os.path.join(self.path, SUBJECTS)
-        for sid in sorted(os.listdir(sub_root)) if os.path.isdir(sub_root) else []:
-            sdir = os.path.join(sub_root, sid)
-            if not os.path.isdir(sdir):
-                continue
+        for sid, sdir in self._subject_dirs():
             gens = sorted((n for n in os.listdir(sdir) if _GEN_RE.match(n)), reverse=True)
             for gen in gens:
-                if try_lock_free(os.path.join(self.path, WRITERS, f"{sid}~{gen}.lock")) is False:
-                    continue
+                if is_locked(os.path.join(self.path, WRITERS, f"{sid}~{gen}.lock")):
+                    continue  # its writer is still running
                 try:
                     ds = self._open_generation(sid, gen)
                 except StoreError:
@@ -1142,17 +1135,12 @@ class Store:
 
     def info(self) -> dict:
         """Summary of the store: versions, counts by skin type/gender/condition/kind/age, size on disk."""
+        from .query import _breakdown
+
         index = self._index()
         t = self._table()
         n = len(t)
-
-        def counts(values, order):
-            d = {}
-            for v in values:
-                d[v] = d.get(v, 0) + 1
-            return {k: d[k] for k in [o for o in order if o in d] + sorted(set(d) - set(order))}
-
-        age_groups = [next(lbl for lbl, lo, hi in AGE_GROUPS if lo <= a <= hi) for a in t["age"].tolist()] if n else []
+        counts = _breakdown(t, np.arange(n))
         return {
             "store": self.label,
             "path": self.path,
@@ -1165,24 +1153,13 @@ class Store:
             "updated": index.get("updated"),
             "n_subjects": n,
             "n_persons": len(set(t["person_id"].tolist())) if n else 0,
-            "by_skin_type": counts([ROMAN[int(s)] for s in t["skin_type"].tolist()] if n else [], ROMAN.values()),
-            "by_gender": counts(t["gender"].tolist() if n else [], GENDERS),
-            "by_age_group": counts(age_groups, [g[0] for g in AGE_GROUPS]),
-            "by_condition": counts(t["condition"].tolist() if n else [], CONDITIONS),
-            "by_kind": counts(t["kind"].tolist() if n else [], ("maps", "samples")),
+            "by_skin_type": counts["skin_type"],
+            "by_gender": counts["gender"],
+            "by_age_group": counts["age_group"],
+            "by_condition": counts["condition"],
+            "by_kind": counts["kind"],
             "size_bytes": self._b.size(),
         }
-
-
-def try_lock_free(path) -> bool | None:
-    """None if ``path`` does not exist, True if it can be locked (no live holder), False if held."""
-    if not os.path.exists(path):
-        return None
-    lk = try_lock(path)
-    if lk is None:
-        return False
-    lk.release()
-    return True
 
 
 # -- packing -----------------------------------------------------------------------
@@ -1194,11 +1171,12 @@ def pack_store(src, zip_path, *, overwrite: bool = False) -> Path:
 
     The store is validated first (:class:`StoreError` if it is not valid);
     only the current generation of each subject, the root and subject group
-    metadata and the index go into the zip, as stored (uncompressed) entries
-    with fixed timestamps so the same store packs to the same bytes (Zarr
-    metadata files are re-serialised without indentation).  The zip
-    is written to a temporary file and moved into place, then opened and
-    checked.
+    metadata and the index go into the zip, with fixed timestamps so the same
+    store packs to the same bytes: the root ``zarr.json`` and ``index.json``
+    first and stored (uncompressed, read without the zip directory), chunks
+    stored (Zarr compressed them already), group and Zarr metadata deflated
+    (Zarr metadata re-serialised without indentation).  The zip is written to
+    a temporary file and moved into place, then opened and checked.
 
     Returns
     -------
@@ -1212,7 +1190,7 @@ def pack_store(src, zip_path, *, overwrite: bool = False) -> Path:
     if store.kind != "directory":
         raise StoreError(f"pack_store needs a directory store, got {store.kind} store {src}")
     try:
-        lock = FileLock(os.path.join(store.path, LOCK_NAME), timeout=store.lock_timeout)
+        lock = store._lock()
         lock.acquire()
     except StoreError:
         lock = None  # read-only source: pack without blocking writers

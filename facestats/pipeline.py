@@ -30,7 +30,7 @@ the output maps.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -103,7 +103,7 @@ class FitSettings:
 
 
 #: Per-lumitexel outputs of :func:`fit_lumitexels` (name -> trailing shape).
-LUMITEXEL_OUTPUTS = ("normal", "albedo", "albedo_min", "n_samples", "n_invalid",
+LUMITEXEL_OUTPUTS = ("normal", "albedo", "albedo_min", "n_samples", "n_invalid", "n_grazing",
                      "ts_rho_s", "ts_m", "ts_error", "ts_flag", "bp_rho_s", "bp_exponent", "bp_error", "bp_flag")
 
 _MODEL_KEYS = {"torrance_sparrow": ("ts_rho_s", "ts_m", "ts_error", "ts_flag"),
@@ -118,7 +118,8 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
     dict of ndarray
         ``normal`` (n, 3), ``micro_normal`` (n, C, 3) if requested, ``albedo`` and
         ``albedo_min`` (n, 3; refined and stable-minimum albedo), ``n_samples``
-        (usable samples), ``n_invalid`` (masked samples), and for each model
+        (usable samples), ``n_invalid`` (masked: NaN, negative, unlit, occluded, clipped),
+        ``n_grazing`` (valid but beyond the angle limit of eq. 14), and for each model
         ``*_rho_s``, ``*_m``/``*_exponent``, ``*_error``, ``*_flag``.
     """
     st = settings or FitSettings()
@@ -144,6 +145,7 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
                                                   grazing_penalty=st.grazing_penalty)
     albedo = np.where(np.isfinite(albedo_min), albedo_min, 0).astype(np.float32)
     out["n_samples"] = samples.count(use)
+    out["n_grazing"] = samples.count(~use)
     factors = {}
 
     def fit(model, alb, start=None):
@@ -355,6 +357,7 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
             "lumitexels": int(capture.n_lumitexels),
             "samples_used": int(res["n_samples"].sum()),
             "samples_masked": int(res["n_invalid"].sum()),
+            "samples_grazing": int(res["n_grazing"].sum()),
             "ts_flagged_texels": int((maps.get("ts_flag", np.zeros(1)) != 0).sum()),
             "face_texels": face_n,
         },

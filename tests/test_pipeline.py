@@ -111,6 +111,8 @@ def test_bad_samples_are_masked_and_counted(pop, geom):
     out = fit_lumitexels(lt, FitSettings(models=("torrance_sparrow",), micro_normals=False))
     lost_light = int(cap.lumitexels().valid[5, :, 7].sum())
     assert out["n_invalid"].sum() - base["n_invalid"].sum() == 2000 + lost_light
+    # Every (camera, light) slot is used, masked as invalid, or left out as grazing (> 80°).
+    np.testing.assert_array_equal(out["n_samples"] + out["n_grazing"] + out["n_invalid"], 16 * 150)
     assert np.all(np.isfinite(out["albedo"]))
     np.testing.assert_allclose(np.median(out["ts_m"] / base["ts_m"]), 1, atol=0.01)
 

@@ -13,7 +13,16 @@ import numpy as np
 
 from .errors import ValidationError
 
-__all__ = ["as_float", "check_finite", "check_range", "check_shape", "check_choice", "result_dtype"]
+__all__ = [
+    "as_float",
+    "as_finite",
+    "check_finite",
+    "check_range",
+    "check_shape",
+    "check_choice",
+    "check_integer",
+    "result_dtype",
+]
 
 _FLOAT_TYPES = (np.float32, np.float64)
 
@@ -49,6 +58,21 @@ def as_float(value, name: str, dtype=None) -> np.ndarray:
     if dtype is None:
         dtype = arr.dtype if arr.dtype in _FLOAT_TYPES else np.float64
     return arr.astype(dtype, copy=False)
+
+
+def as_finite(value, name: str, low: float | None = None, high: float | None = None, *, dtype=None, **bounds) -> np.ndarray:
+    """:func:`as_float`, then :func:`check_finite`, then (if a bound is given) :func:`check_range`.
+
+    The common validation of a numeric argument in one call, so the argument's
+    name is written once; ``bounds`` are the keyword arguments of
+    :func:`check_range` (``low_inclusive``, ``high_inclusive``, ``unit``).
+    Returns the array :func:`as_float` made (no copy of float input of the
+    requested dtype).
+    """
+    arr = check_finite(as_float(value, name, dtype), name)
+    if low is not None or high is not None:
+        check_range(arr, name, low, high, **bounds)
+    return arr
 
 
 def check_finite(arr: np.ndarray, name: str) -> np.ndarray:
@@ -114,3 +138,15 @@ def check_choice(value, name: str, choices) -> object:
     if value not in choices:
         raise ValidationError(f"{name} must be one of {sorted(map(str, choices))}, got {value!r}")
     return value
+
+
+def check_integer(value, name: str, low: int | None = None, high: int | None = None) -> int:
+    """Raise unless ``value`` is an integer (Python or numpy, not bool) in ``[low, high]``; return it as ``int``."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise ValidationError(f"{name} must be an integer, got {value!r}")
+    iv = int(value)
+    if (low is not None and iv < low) or (high is not None and iv > high):
+        lo = "-inf" if low is None else str(low)
+        hi = "inf" if high is None else str(high)
+        raise ValidationError(f"{name} must be an integer in [{lo}, {hi}], got {value!r}")
+    return iv

@@ -21,6 +21,7 @@ subjects (tested in ``tests/test_default_store.py``).
 
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 import time
@@ -28,6 +29,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from ._validate import check_choice, check_integer
+from .conventions import SITES
+from .errors import ValidationError
 
 __all__ = ["BuildReport", "build_store", "build_default", "DEFAULT_SEED", "DEFAULT_MAP_SIZE"]
 
@@ -50,6 +55,7 @@ class BuildReport:
     workers: int
 
     def to_text(self) -> str:
+        """One line for the command line."""
         return (f"store {self.store}: {len(self.written)} subject(s) written, {len(self.skipped)} already present; "
                 f"sigma_trAvg = {np.round(self.sigma_tr_avg, 4).tolist()} mm^-1; {self.seconds:.1f} s with {self.workers} worker(s)")
 
@@ -94,6 +100,7 @@ def _simulator(map_size: int, specular: str):
 
 
 def _population(seed: int, map_size: int, conditions: bool):
+    """One population per process (drawn once, reused across subjects)."""
     key = ("population", seed, map_size, conditions)
     if key not in _WORKER_CACHE:
         from .acquire.population import synthesize_population
@@ -103,13 +110,20 @@ def _population(seed: int, map_size: int, conditions: bool):
 
 
 def _settings(micro_normals: bool):
+    """The fit settings of a build: the defaults, with or without micro-normal maps."""
     from .pipeline import FitSettings
 
     return FitSettings(micro_normals=micro_normals)
 
 
 def sensor_fits(population, map_size: int, specular: str = "torrance_sparrow"):
-    """Stage 6 for every subject from its simulated sensor profiles (the same draws as the full simulation)."""
+    """Stage 6 for every subject from its simulated sensor profiles (the same draws as the full simulation).
+
+    Returns
+    -------
+    dict
+        ``subject_id`` -> :class:`facestats.model.fitting.TranslucencyFit` of shape (site, channel).
+    """
     from .model.fitting import fit_translucency
 
     sim = _simulator(map_size, specular)
@@ -155,13 +169,14 @@ def build_store(store_path, *, seed: int = DEFAULT_SEED, map_size: int = DEFAULT
     store_path : str or path-like
         Directory store; created if missing.  Subjects it already holds are skipped.
     seed, map_size, conditions
-        Population settings (:func:`facestats.acquire.population.synthesize_population`).
+        Population settings (:func:`facestats.acquire.population.synthesize_population`);
+        ``map_size`` ≥ 8 is also the lumitexel grid of the procedural face.
     specular : {"torrance_sparrow", "blinn_phong"}
         BRDF the simulator renders highlights with.
     subjects : sequence of str, optional
         Only these subject ids (σtrAvg still comes from the whole population).
     workers : int, optional
-        Local worker processes (default: the number of cores); 1 runs in-process.
+        Local worker processes, ≥ 1 (default: the number of cores); 1 runs in-process.
     client : dask.distributed.Client, optional
         Run on a cluster instead (workers must see ``store_path``).
     micro_normals : bool
@@ -175,24 +190,28 @@ def build_store(store_path, *, seed: int = DEFAULT_SEED, map_size: int = DEFAULT
     -------
     BuildReport
     """
-    import os
-
     from .io.store import open_store
     from .model.fitting import population_sigma_tr_avg
-    from .conventions import SITES
+    from .model.skin import SPECULAR_MODELS
 
+    check_integer(seed, "seed", 0)
+    check_integer(map_size, "map_size", 8)
+    check_choice(specular, "specular", SPECULAR_MODELS)
+    if workers is not None:
+        check_integer(workers, "workers", 1)
+    if isinstance(subjects, str):
+        raise ValidationError(f"subjects must be a sequence of subject ids, got the string {subjects!r}")
     t0 = time.perf_counter()
-    store = open_store(store_path, mode="a")
     pop = _population(seed, map_size, conditions)
+    wanted = [s.subject_id for s in pop.subjects] if subjects is None else list(subjects)
+    ids = {t.subject_id for t in pop.subjects}
+    unknown = [s for s in wanted if s not in ids]
+    if unknown:
+        raise ValidationError(f"subjects must be ids of the population, got unknown {unknown[:5]}")
+    store = open_store(store_path, mode="a")  # only now: bad arguments leave no empty store behind
     fits = sensor_fits(pop, map_size, specular)
     normal = [s.subject_id for s in pop.subjects if s.condition == "normal"]
     stra = population_sigma_tr_avg(np.stack([fits[s].sigma_tr for s in normal]), SITES)
-    wanted = [s.subject_id for s in pop.subjects] if subjects is None else list(subjects)
-    unknown = [s for s in wanted if s not in {t.subject_id for t in pop.subjects}]
-    if unknown:
-        from .errors import ValidationError
-
-        raise ValidationError(f"subjects must be ids of the population, got unknown {unknown[:5]}")
     present = set(store.ids())
     todo = [s for s in wanted if s not in present]
     skipped = [s for s in wanted if s in present]

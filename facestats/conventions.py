@@ -139,7 +139,10 @@ def parse_condition(value) -> str:
 def parse_age(value) -> tuple[int, int]:
     """An inclusive age range from ``"20s"``, ``"30s"``, ``"40s"``, ``"50s+"``, ``"MIN-MAX"`` or one age."""
     if isinstance(value, (tuple, list)) and len(value) == 2:
-        lo, hi = value
+        try:
+            lo, hi = int(value[0]), int(value[1])
+        except (TypeError, ValueError):
+            raise ValidationError(f"age range must be two ages in years (MIN, MAX), got {value!r}") from None
     else:
         v = str(value).strip().lower()
         for label, lo_, hi_ in AGE_GROUPS:

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._validate import as_finite, as_float, check_shape
 from .conventions import CHANNELS
 from .model import dipole
 from .published import ETA_SKIN, SIGMA_TR_AVG
@@ -44,6 +45,7 @@ class DemoReport:
         return dipole.diffuse_mean_free_path(self.sigma_tr)
 
     def to_text(self) -> str:
+        """A table of the parameters per channel, with units."""
         rows = [
             ("albedo α_avg", self.albedo, ""),
             ("reduced albedo α'", self.reduced_albedo, ""),
@@ -61,7 +63,8 @@ class DemoReport:
 
 
 def plot_dipole_profiles(report: DemoReport, r_max: float = 10.0):
-    """Figure of R_d(r) per channel on a log scale, with ℓd marked."""
+    """Figure of R_d(r) (mm⁻², Jensen et al. 2001 dipole) per channel for r in [0, ``r_max``] mm, log scale, ℓd marked."""
+    as_finite(r_max, "r_max", 0, None, low_inclusive=False, unit="mm")
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -96,9 +99,11 @@ def physics_demo(albedo=None, sigma_tr=None, eta: float = ETA_SKIN, plot: str | 
         Relative index of refraction.
     plot : str, optional
         Path of an image file for :func:`plot_dipole_profiles`.
-    """
-    from ._validate import as_float, check_shape
 
+    Returns
+    -------
+    DemoReport
+    """
     a = light_skin_albedo() if albedo is None else check_shape(as_float(albedo, "albedo"), "albedo", (3,))
     t = SIGMA_TR_AVG.copy() if sigma_tr is None else check_shape(as_float(sigma_tr, "sigma_tr"), "sigma_tr", (3,))
     s_prime, s_a = dipole.scattering_from_albedo(a, t, eta)

@@ -35,11 +35,14 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from . import __version__
+from ._validate import as_finite, check_choice, check_integer, check_shape
+from .acquire.face import uv_to_texel
 from .conventions import CHANNELS, SITES
 from .errors import FitError, ValidationError
 from .io.schema import FLAG_BITS, SCHEMA_VERSION, set_variable_attrs
 from .model import fitting
-from .published import ETA_SKIN, SIGMA_TR_AVG
+from .model.dipole import _eta
+from .published import ETA_SKIN, GRAZING_LIMIT_DEG, SIGMA_TR_AVG
 
 __all__ = ["FitSettings", "fit_lumitexels", "fit_sensor", "fit_subject", "fit_population", "predict_radiance",
            "held_out_camera_error", "camera_image", "LUMITEXEL_OUTPUTS"]
@@ -52,36 +55,38 @@ class FitSettings:
     Attributes
     ----------
     discard : int
-        k of the stable minimum (eq. 9): smallest values discarded.
+        k of the stable minimum (eq. 9): smallest values discarded (≥ 0).
     grazing_penalty : float
-        γ of the grazing penalty of the stable minimum.
+        γ ≥ 0 of the grazing penalty of the stable minimum (growing from θ = 60°
+        to 80°, :func:`facestats.model.fitting.albedo_stable_minimum`).
     refine_albedo : bool
         Re-estimate the albedo as the mean over specular-free samples (removes
         the low bias of the minimum of noisy samples; see
         :func:`facestats.model.fitting.refine_albedo`).
     max_angle_deg : float
-        Samples with θi or θo beyond this are ignored (eq. 14: 80°).
+        Samples with θi or θo beyond this are ignored (eq. 14: 80°), in (0, 90].
     min_samples : int
-        Texels with fewer usable samples are flagged ``few_samples``.
+        Texels with fewer usable samples are flagged ``few_samples`` (≥ 2).
     max_relative_error : float
-        Relative standard error above which a fit is flagged ``ill_conditioned``.
+        Relative standard error above which a fit is flagged ``ill_conditioned`` (> 0).
     models : tuple of str
-        Specular models to fit.
+        Specular models to fit, at least one, each once; the first is fitted from
+        the log-linear start, the others start from its result.
     exclude_cameras : tuple of int
-        Cameras left out of the fit (e.g. one held out to validate renderings).
+        Cameras left out of the fit (e.g. one held out to validate renderings), ≥ 0.
     micro_normals : bool
         Keep the per-camera micro-normal maps (16 × 3 values per texel).
     block : int
-        Lumitexels per block (memory per block ≈ block × 0.1 MB); best equal to the
-        capture's zarr chunk (2048 by default), so no chunk is decoded twice.
+        Lumitexels per block, ≥ 1 (memory per block ≈ block × 0.1 MB); best equal to
+        the capture's zarr chunk (2048 by default), so no chunk is decoded twice.
     eta : float
-        Relative index of refraction.
+        Relative index of refraction, in [1, 3].
     """
 
     discard: int = 2
     grazing_penalty: float = 1.0
     refine_albedo: bool = True
-    max_angle_deg: float = 80.0
+    max_angle_deg: float = GRAZING_LIMIT_DEG
     min_samples: int = 30
     max_relative_error: float = 0.25
     models: tuple = ("torrance_sparrow", "blinn_phong")
@@ -91,27 +96,47 @@ class FitSettings:
     eta: float = ETA_SKIN
 
     def __post_init__(self):
+        if isinstance(self.models, str):
+            raise ValidationError(f"models must be a tuple of model names, got the string {self.models!r}")
         self.models = tuple(self.models)
-        self.exclude_cameras = tuple(int(c) for c in self.exclude_cameras)
+        if isinstance(self.exclude_cameras, (int, np.integer)):
+            raise ValidationError(f"exclude_cameras must be a tuple of camera indices, got {self.exclude_cameras!r}")
+        self.exclude_cameras = tuple(check_integer(c, "exclude_cameras", 0) for c in self.exclude_cameras)
+        if not self.models or len(set(self.models)) != len(self.models):
+            raise ValidationError(f"models must name at least one model, each once, got {self.models!r}")
         for m in self.models:
             if m not in fitting.DEFAULT_BOUNDS:
                 raise ValidationError(f"models must be among {list(fitting.DEFAULT_BOUNDS)}, got {m!r}")
-        if self.discard < 0 or self.min_samples < 2 or self.block < 1:
-            raise ValidationError(f"discard >= 0, min_samples >= 2 and block >= 1 required, got {self.discard}, {self.min_samples}, {self.block}")
-        if not 0 < self.max_angle_deg <= 90:
-            raise ValidationError(f"max_angle_deg must lie in (0, 90], got {self.max_angle_deg}")
+        check_integer(self.discard, "discard", 0)
+        check_integer(self.min_samples, "min_samples", 2)
+        check_integer(self.block, "block", 1)
+        as_finite(self.grazing_penalty, "grazing_penalty", 0, None)
+        as_finite(self.max_angle_deg, "max_angle_deg", 0, 90, low_inclusive=False, unit="deg")
+        as_finite(self.max_relative_error, "max_relative_error", 0, None, low_inclusive=False)
+        _eta(self.eta)
 
 
-#: Per-lumitexel outputs of :func:`fit_lumitexels` (name -> trailing shape).
+#: Per-lumitexel outputs of :func:`fit_lumitexels` (a model's four entries only when it is
+#: fitted; ``micro_normal`` is added when requested).
 LUMITEXEL_OUTPUTS = ("normal", "albedo", "albedo_min", "n_samples", "n_invalid", "n_grazing",
                      "ts_rho_s", "ts_m", "ts_error", "ts_flag", "bp_rho_s", "bp_exponent", "bp_error", "bp_flag")
 
-_MODEL_KEYS = {"torrance_sparrow": ("ts_rho_s", "ts_m", "ts_error", "ts_flag"),
-               "blinn_phong": ("bp_rho_s", "bp_exponent", "bp_error", "bp_flag")}
+#: Prefix of each specular model's outputs, and the (ρs, lobe, error) maps of each prefix.
+_MODEL_PREFIX = {"torrance_sparrow": "ts", "blinn_phong": "bp"}
+_MAP_VARS = {"ts": ("ts_rho_s", "ts_m", "ts_error"), "bp": ("bp_rho_s", "bp_exponent", "bp_error")}
 
 
 def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
     """Stages 1-4 on a block of lumitexels (:class:`facestats.acquire.capture.Lumitexels`).
+
+    The block's valid samples (minus ``settings.exclude_cameras``) are flattened
+    into :class:`facestats.model.fitting.Samples`, one contiguous run per
+    lumitexel; then: diffuse normals by photometric stereo (3 passes) and
+    micro-normals; BRDF samples f_r (eq. 8) with the photometric normal; the
+    albedo by the stable minimum (eq. 9), refined over specular-free samples if
+    ``settings.refine_albedo``; the grey specular residual (eq. 10); and the
+    batch fit of each of ``settings.models`` (eq. 14), the later ones started
+    from the first.
 
     Returns
     -------
@@ -179,13 +204,23 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
     out["albedo"] = np.where(few[:, None], np.nan, albedo).astype(np.float32)
     out["albedo_min"] = albedo_min.astype(np.float32)
     for model, res in fits.items():
-        k_rho, k_lobe, k_err, k_flag = _MODEL_KEYS[model]
-        out[k_rho], out[k_lobe], out[k_err], out[k_flag] = res.rho_s, res.lobe, res.error, res.flags
+        key = _MODEL_PREFIX[model]
+        k_rho, k_lobe, k_err = _MAP_VARS[key]
+        out[k_rho], out[k_lobe], out[k_err], out[f"{key}_flag"] = res.rho_s, res.lobe, res.error, res.flags
     return out
 
 
 def fit_sensor(capture, eta=ETA_SKIN):
-    """Stage 6 for one capture: dipole fits of its three sensor profiles (per site and channel)."""
+    """Stage 6 for one capture: dipole fits of its three sensor profiles (per site and channel).
+
+    Weighted by the recorded noise model (``sensor_profile_std``) when the capture
+    has one, else the log-space fit (:func:`facestats.model.fitting.fit_translucency`).
+
+    Returns
+    -------
+    TranslucencyFit
+        Arrays of shape (site, channel).
+    """
     r = capture.array("fiber_distance")
     prof = capture.array("sensor_profile")  # (site, fiber, channel)
     std = capture.array("sensor_profile_std")
@@ -267,22 +302,25 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
         capture = open_capture(capture)
     if client is not None and capture.path is None:
         raise ValidationError("client requires a capture on disk (pass a path or write it with Capture.to_zarr)")
+    workers = check_integer(workers, "workers", 1)
+    if sigma_tr_avg is not None:
+        as_finite(sigma_tr_avg, "sigma_tr_avg", 0, None, low_inclusive=False, unit="mm^-1")
+        check_shape(np.asarray(sigma_tr_avg), "sigma_tr_avg", (3,))
     st = settings or FitSettings()
-    res = _blocks_result(capture, st, client=client, progress=progress, workers=int(workers))
+    res = _blocks_result(capture, st, client=client, progress=progress, workers=workers)
 
     # Stage 5: maps.
     size = capture.map_size
     region_map = capture.array("region_map")
     face = region_map > 0
-    uv = capture.array("uv").astype(np.float64)
-    texel = np.clip((uv[:, ::-1] * size).astype(np.int64), 0, size - 1)
+    texel = uv_to_texel(capture.array("uv").astype(np.float64), size)
     maps = {}
-    for name in ("albedo", "normal", "ts_rho_s", "ts_m", "ts_error", "bp_rho_s", "bp_exponent", "bp_error"):
+    for name in ("albedo", "normal", *_MAP_VARS["ts"], *_MAP_VARS["bp"]):
         if name in res:
             maps[name], count = fitting.scatter_to_map(res[name], texel, size)
     n_samples, _ = fitting.scatter_to_map(res["n_samples"].astype(np.float64), texel, size)
     has_data = count > 0
-    for key in ("ts", "bp"):
+    for key, map_vars in _MAP_VARS.items():
         flag_name = f"{key}_flag"
         if flag_name not in res:
             continue
@@ -290,8 +328,7 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
         np.bitwise_or.at(fl, (texel[:, 0], texel[:, 1]), res[flag_name].astype(np.uint8))
         hole = face & ~has_data  # texels no lumitexel maps to (the map is finer than the mesh): filled below
         bad = face & ((fl != 0) | hole)
-        lobe = "ts_m" if key == "ts" else "bp_exponent"
-        for var in (f"{key}_rho_s", lobe, f"{key}_error"):
+        for var in map_vars:
             maps[var] = np.where(face, fitting.fill_flagged(maps[var], bad, face), 0)
         fl[bad] |= FLAG_BITS["filled"]
         fl[~face] = 0
@@ -335,10 +372,9 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
         "sigma_a": (("channel",), sa),
         "sigma_tr": (("channel",), stra.astype(np.float64)),
     }
-    for key in ("ts", "bp"):
+    for key, map_vars in _MAP_VARS.items():
         if f"{key}_flag" in maps:
-            lobe = "ts_m" if key == "ts" else "bp_exponent"
-            for var in (f"{key}_rho_s", lobe, f"{key}_error"):
+            for var in map_vars:
                 data[var] = (("v", "u"), np.where(face, maps[var], 0).astype(np.float32))
             data[f"{key}_flag"] = (("v", "u"), maps[f"{key}_flag"])
     if micro is not None:
@@ -383,7 +419,10 @@ def _fit_capture_task(capture, sigma_tr_avg, settings, sensor_fit):
 
 def fit_population(captures, settings: FitSettings | None = None, *, client=None, scheduler="processes",
                    num_workers=None, progress=False):
-    """Fit many captures: σtrAvg from all sensor fits (§5.4), then every subject (in parallel).
+    """Fit many captures: σtrAvg from the sensor fits (§5.4), then every subject (in parallel).
+
+    σtrAvg is the mean cheek and forehead σtr over the captures of condition
+    "normal" (:func:`facestats.model.fitting.population_sigma_tr_avg`).
 
     Parameters
     ----------
@@ -397,6 +436,8 @@ def fit_population(captures, settings: FitSettings | None = None, *, client=None
         Dask's local scheduler when no client is given.
     num_workers : int, optional
         Local workers (default: number of cores).
+    progress : bool
+        Show a progress bar over subjects.
 
     Returns
     -------
@@ -405,6 +446,9 @@ def fit_population(captures, settings: FitSettings | None = None, *, client=None
     """
     from .acquire.capture import Capture, open_capture
 
+    check_choice(scheduler, "scheduler", ("processes", "threads", "synchronous"))
+    if num_workers is not None:
+        check_integer(num_workers, "num_workers", 1)
     st = settings or FitSettings()
     caps = [c if isinstance(c, Capture) else open_capture(c) for c in captures]
     if not caps:
@@ -412,6 +456,8 @@ def fit_population(captures, settings: FitSettings | None = None, *, client=None
     fits = [fit_sensor(c, st.eta) for c in caps]
     sites = list(SITES)
     condition_normal = [i for i, c in enumerate(caps) if c.attrs.get("condition", "normal") == "normal"]
+    if not condition_normal:
+        raise ValidationError("captures must include at least one subject of condition 'normal' (σtrAvg is their mean), got none")
     tr = np.stack([fits[i].sigma_tr for i in condition_normal])
     stra = fitting.population_sigma_tr_avg(tr, sites)
     if client is not None:
@@ -455,24 +501,37 @@ def predict_radiance(subject, capture, start: int = 0, stop: int | None = None, 
     the subject's σ's, σa in the flat-patch transport).  Visibility is the
     capture's: samples that are invalid in the capture are NaN.
 
+    Parameters
+    ----------
+    subject : xarray.Dataset
+        A map subject (the fitted ``normal`` map is required).
+    capture : Capture
+    start, stop : int
+        Lumitexel range.
+    specular : {"torrance_sparrow", "blinn_phong"}
+    eta : float
+        Relative index of refraction.
+
     Returns
     -------
     predicted, measured : ndarray, shape (n, C, L, 3)
+        Radiance in the capture's dome units per sr.
     """
     from .io.schema import modulation as _modulation
-    from .model.skin import SubsurfaceTransport, skin_radiance
+    from .model.skin import SPECULAR_MODELS, SubsurfaceTransport, skin_radiance
 
+    check_choice(specular, "specular", SPECULAR_MODELS)
+    if "normal" not in subject.data_vars:
+        raise ValidationError("subject must hold the fitted 'normal' map (a Dataset from fit_subject)")
     lt = capture.lumitexels(start, stop)
-    size = int(subject.sizes["u"])
-    texel = np.clip((lt.uv[:, ::-1] * size).astype(np.int64), 0, size - 1)
+    texel = uv_to_texel(lt.uv, int(subject.sizes["u"]))
     v, u = texel[:, 0], texel[:, 1]
     normal = np.asarray(subject["normal"].values)[v, u].astype(np.float64)
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     mod = np.asarray(_modulation(subject).values)[v, u]
-    key = "ts" if specular == "torrance_sparrow" else "bp"
-    lobe = "ts_m" if key == "ts" else "bp_exponent"
-    rho = np.asarray(subject[f"{key}_rho_s"].values)[v, u]
-    rough = np.asarray(subject[lobe].values)[v, u]
+    rho_var, lobe_var, _ = _MAP_VARS[_MODEL_PREFIX[specular]]
+    rho = np.asarray(subject[rho_var].values)[v, u]
+    rough = np.asarray(subject[lobe_var].values)[v, u]
     cos_i = np.einsum("nk,nlk->nl", normal, lt.wi)
     irr = lt.irradiance * np.maximum(cos_i, 0)[..., None]
     transport = SubsurfaceTransport(subject["sigma_s_prime"].values, subject["sigma_a"].values, eta)
@@ -482,17 +541,19 @@ def predict_radiance(subject, capture, start: int = 0, stop: int | None = None, 
     return np.where(valid[..., None], pred, np.nan), np.where(valid[..., None], lt.radiance, np.nan)
 
 
-def held_out_camera_error(subject, capture, camera: int, *, specular: str = "torrance_sparrow", max_angle_deg: float = 80.0):
+def held_out_camera_error(subject, capture, camera: int, *, specular: str = "torrance_sparrow",
+                          max_angle_deg: float = GRAZING_LIMIT_DEG):
     """Relative RMSE of the model's prediction against a camera (ideally one left out of the fit).
 
     RMSE over the valid samples of ``camera`` whose θi and θo (about the fitted
     normal) lie within ``max_angle_deg`` — the domain eq. 14 fits — and all
     channels, divided by the RMS of the measured radiance.
     """
+    check_integer(camera, "camera", 0, capture.dome.n_cameras - 1)
+    as_finite(max_angle_deg, "max_angle_deg", 0, 90, low_inclusive=False, unit="deg")
     pred, meas = predict_radiance(subject, capture, specular=specular)
     lt = capture.lumitexels()
-    size = int(subject.sizes["u"])
-    texel = np.clip((lt.uv[:, ::-1] * size).astype(np.int64), 0, size - 1)
+    texel = uv_to_texel(lt.uv, int(subject.sizes["u"]))
     normal = np.asarray(subject["normal"].values)[texel[:, 0], texel[:, 1]]
     lim = np.cos(np.radians(max_angle_deg))
     inside = (np.einsum("nk,nlk->nl", normal, lt.wi) > lim) & (np.einsum("nk,nk->n", normal, lt.wo[:, camera]) > lim)[:, None]
@@ -520,6 +581,10 @@ def camera_image(values, capture, camera: int, light: int, channel=None):
     ndarray, shape (H, W[, 3])
         NaN where no lumitexel projects.
     """
+    check_integer(camera, "camera", 0, capture.dome.n_cameras - 1)
+    check_integer(light, "light", 0, capture.dome.n_leds - 1)
+    if channel is not None:
+        check_integer(channel, "channel", 0, 2)
     pos = capture.array("position").astype(np.float64)[: values.shape[0]]
     _, _, pix = capture.dome.view(pos, cameras=[camera])
     x, y = pix[:, 0, 0], pix[:, 0, 1]

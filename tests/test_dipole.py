@@ -102,3 +102,16 @@ def test_validation():
         dipole.total_diffuse_reflectance(0, 0)
     with pytest.raises(FacestatsError, match="sigma_tr must lie in"):
         dipole.scattering_from_albedo(0.5, 0.0)
+
+
+def test_boundary_coefficient_matches_fresnel_and_validates():
+    from facestats.model.fresnel import diffuse_fresnel_reflectance
+
+    fdr = diffuse_fresnel_reflectance(1.38)
+    assert dipole.boundary_coefficient(1.38) == pytest.approx((1 + fdr) / (1 - fdr), rel=1e-15)
+    assert dipole.boundary_coefficient(1.38) == pytest.approx(3.116, abs=2e-3)  # F_dr = 0.5141
+    with pytest.raises(FacestatsError, match=r"eta must lie in \[1, 3\], got 0.9"):
+        dipole.boundary_coefficient(0.9)
+    with pytest.raises(FacestatsError, match="radius must be a number of mm"):
+        dipole.dipole_radial_energy(np.nan, 1.0, 0.1)
+    assert dipole.dipole_radial_energy(np.inf, 1.0, 0.1) == pytest.approx(dipole.total_diffuse_reflectance(1.0, 0.1), rel=1e-12)

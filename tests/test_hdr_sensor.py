@@ -58,3 +58,22 @@ def test_sensor_profiles_follow_the_dipole(rng):
     assert z[:, strong].std() == pytest.approx(1.0, abs=0.1)
     # Relative noise below 1 % where the signal is strong: a profile good enough to fit.
     assert np.all((std / truth)[:10] < 0.01)
+
+
+def test_invalid_inputs_name_the_argument(rng):
+    cam = CameraResponse()
+    with pytest.raises(FacestatsError, match="rate must be finite and >= 0"):
+        expose(np.array([1.0, -2.0]), [0.1], cam, rng)
+    with pytest.raises(FacestatsError, match="rate must be finite and >= 0"):
+        expose(np.array([1.0, np.nan]), [0.1], cam, rng)
+    with pytest.raises(FacestatsError, match=r"times must lie in \(0, inf\]"):
+        expose(np.array([1.0]), [0.0], cam, rng)
+    with pytest.raises(FacestatsError, match="times must be a 1-D array"):
+        merge_exposures(np.zeros((3, 2)), [[0.1, 1.0]], cam)
+    with pytest.raises(FacestatsError, match="dn must have 2 exposures on its last axis"):
+        merge_exposures(np.zeros((3, 4)), [0.1, 1.0], cam)
+    with pytest.raises(FacestatsError, match="CameraResponse needs full_well > 0"):
+        CameraResponse(full_well=0.0)
+    with pytest.raises(FacestatsError, match=r"profile must have shape \(\.\.\., 28, 3\)"):
+        ContactSensor().capture(np.ones((27, 3)), rng)
+

@@ -206,3 +206,132 @@ def test_distributed_client_blocks(tmp_path, pop, geom):
         a = fit_subject(path, settings=st, client=client)
     b = fit_subject(path, settings=st)
     np.testing.assert_array_equal(a.ts_m.values, b.ts_m.values)
+
+
+def _random_samples(rng, n_tex=30, n_smp=40):
+    from facestats.model.fitting import Samples
+
+    v = rng.normal(size=(2, n_tex, n_smp, 3))
+    v[..., 2] = np.abs(v[..., 2]) + 0.05
+    v /= np.linalg.norm(v, axis=-1, keepdims=True)
+    valid = rng.uniform(size=(n_tex, n_smp)) > 0.3
+    valid[3] = False  # a lumitexel without samples
+    valid[4, :2] = True
+    valid[4, 2:] = False  # and one with only two
+    return Samples.from_arrays(v[0], v[1], valid)
+
+
+def test_stable_minimum_and_refined_albedo_against_per_texel_loops(rng):
+    from facestats.model.fitting import albedo_stable_minimum, refine_albedo
+
+    s = _random_samples(rng)
+    brdf = rng.uniform(0.05, 0.5, (3, s.n)).astype(np.float32)
+    ci, co = rng.uniform(0.05, 1, (2, s.n)).astype(np.float32)
+    ft2 = rng.uniform(0.8, 0.95, s.n).astype(np.float32)
+    use = rng.uniform(size=s.n) > 0.1
+    k, gamma = 2, 1.0
+    alb, n_used = albedo_stable_minimum(s, brdf, ci, co, ft2, use, discard=k, grazing_penalty=gamma)
+    c0, c1 = np.cos(np.radians(60.0)), np.cos(np.radians(80.0))
+    for t in range(s.n_texels):  # independent per-texel loop: sort by the penalised value, take the (k+1)-th
+        sel = np.flatnonzero((s.texel == t) & use)
+        assert n_used[t] == sel.size
+        if sel.size <= k:
+            assert np.all(np.isnan(alb[t]))
+            continue
+        pen = 1 + gamma * np.clip((c0 - np.minimum(ci[sel], co[sel])) / (c0 - c1), 0, 1)
+        for c in range(3):
+            val = np.pi * brdf[c, sel] / ft2[sel]
+            np.testing.assert_allclose(alb[t, c], val[np.argsort(val * pen)[k]], rtol=1e-6)
+    cos_half = rng.uniform(0, 1, s.n).astype(np.float32)
+    ref, cnt = refine_albedo(s, brdf, ft2, cos_half, use)
+    for t in range(s.n_texels):
+        sel = np.flatnonzero((s.texel == t) & use & (cos_half < np.cos(np.radians(50.0))))
+        assert cnt[t] == sel.size
+        if sel.size:
+            np.testing.assert_allclose(ref[t], (np.pi * brdf[:, sel] / ft2[sel]).mean(1), rtol=1e-5)
+        else:
+            assert np.all(np.isnan(ref[t]))
+    # The padded layout: row t holds the values of lumitexel t's kept samples, in order.
+    pad, counts = s.padded(np.arange(s.n, dtype=float), -1.0, mask=use)
+    for t in (0, 3, 4, 17):
+        kept = np.flatnonzero((s.texel == t) & use)
+        np.testing.assert_array_equal(pad[t, : counts[t]], kept)
+        assert np.all(pad[t, counts[t]:] == -1)
+
+
+def test_fit_stages_reject_bad_arguments(rng):
+    from facestats.model.fitting import (albedo_stable_minimum, fit_translucency, micro_normals,
+                                         photometric_normals, scatter_to_map)
+
+    s = _random_samples(rng)
+    ones = np.ones(s.n, np.float32)
+    brdf = np.ones((3, s.n), np.float32)
+    with pytest.raises(FacestatsError, match=r"discard must be an integer in \[0, inf\], got -1"):
+        albedo_stable_minimum(s, brdf, ones, ones, ones, ones > 0, discard=-1)
+    with pytest.raises(FacestatsError, match="grazing_start must be < grazing_end"):
+        albedo_stable_minimum(s, brdf, ones, ones, ones, ones > 0, grazing_start=1.4, grazing_end=1.2)
+    with pytest.raises(FacestatsError, match=r"ft2 must have shape \(%d\)" % s.n):
+        albedo_stable_minimum(s, brdf, ones, ones, ones[1:], ones > 0)
+    with pytest.raises(FacestatsError, match="samples must hold one wo_grid direction per camera"):
+        photometric_normals(s, np.tile([0, 0, 1.0], (s.n_texels, 1)), 16)
+    with pytest.raises(FacestatsError, match="n_cameras must be an integer"):
+        micro_normals(s, 0)
+    with pytest.raises(FacestatsError, match=r"texel must lie in \[0, 4\)"):
+        scatter_to_map(np.ones(2), np.array([[0, 0], [4, 1]]), 4)
+    r = np.linspace(0.5, 5, 10)
+    prof = np.exp(-r)[None]
+    with pytest.raises(FacestatsError, match=r"std must have the shape of profile, \(1, 10\), got \(10,\)"):
+        fit_translucency(r, prof, np.ones(10))
+    with pytest.raises(FacestatsError, match=r"eta must lie in \[1, 3\]"):
+        fit_translucency(r, prof, eta=0.5)
+
+
+def test_photometric_normals_runs_at_least_one_pass(ts_case):
+    from facestats.model import fitting
+
+    _, cap, _ = ts_case
+    lt = cap.lumitexels(0, 50)
+    samples = fitting.Samples.from_grid(lt.wi, lt.wo, lt.irradiance, lt.radiance, lt.valid)
+    one, _ = fitting.photometric_normals(samples, lt.scan_normal, 16, iterations=1)
+    three, _ = fitting.photometric_normals(samples, lt.scan_normal, 16)
+    assert np.median(np.degrees(np.arccos(np.clip(np.sum(one * three, 1), -1, 1)))) < 2  # refinement, not a new answer
+    with pytest.raises(FacestatsError, match=r"iterations must be an integer in \[1, inf\], got 0"):
+        fitting.photometric_normals(samples, lt.scan_normal, 16, iterations=0)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"discard": -1}, r"discard must be an integer in \[0, inf\]"),
+    ({"min_samples": 1}, r"min_samples must be an integer in \[2, inf\]"),
+    ({"block": 0}, r"block must be an integer in \[1, inf\]"),
+    ({"models": ()}, "models must name at least one model"),
+    ({"models": "torrance_sparrow"}, "models must be a tuple of model names"),
+    ({"models": ("phong",)}, "models must be among"),
+    ({"exclude_cameras": (-1,)}, r"exclude_cameras must be an integer in \[0, inf\]"),
+    ({"grazing_penalty": -1.0}, r"grazing_penalty must lie in \[0, inf\]"),
+    ({"max_angle_deg": 95.0}, r"max_angle_deg must lie in \(0, 90\] deg"),
+    ({"max_relative_error": 0.0}, r"max_relative_error must lie in \(0, inf\]"),
+    ({"eta": 0.5}, r"eta must lie in \[1, 3\]"),
+])
+def test_fit_settings_validation(kwargs, message):
+    with pytest.raises(FacestatsError, match=message):
+        FitSettings(**kwargs)
+
+
+def test_fit_subject_and_build_store_reject_bad_arguments_early(tmp_path, ts_case):
+    from facestats.build import build_store
+
+    _, cap, _ = ts_case
+    with pytest.raises(FacestatsError, match=r"sigma_tr_avg must have shape \(3\)"):
+        fit_subject(cap, [0.5, 1.0])
+    with pytest.raises(FacestatsError, match=r"sigma_tr_avg must lie in \(0, inf\] mm\^-1"):
+        fit_subject(cap, [0.5, 0.0, 1.5])
+    with pytest.raises(FacestatsError, match=r"workers must be an integer in \[1, inf\]"):
+        fit_subject(cap, workers=0)
+    store = tmp_path / "s.zarr"
+    with pytest.raises(FacestatsError, match=r"subjects must be ids of the population, got unknown \['S999'\]"):
+        build_store(store, map_size=16, subjects=["S999"], workers=1)
+    with pytest.raises(FacestatsError, match="subjects must be a sequence of subject ids, got the string"):
+        build_store(store, map_size=16, subjects="S001", workers=1)
+    with pytest.raises(FacestatsError, match=r"map_size must be an integer in \[8, inf\]"):
+        build_store(store, map_size=4)
+    assert not store.exists()  # bad arguments leave no empty store behind

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from facestats import published
+from facestats import FacestatsError, published
 from facestats.acquire.population import default_population, skin_albedo, synthesize_population
 from facestats.conventions import SITES, age_group
 
@@ -115,12 +115,17 @@ def test_fig14_darker_types_absorb_more_and_scatter_less(pop):
 
 
 def test_skin_colour_anchored_in_colorchecker_patches():
+    import warnings
+
     import colour
 
-    # Independent path: colour-science's own spectral integration of the measured patches.
+    # Independent path: colour-science's own spectral integration of the measured patches
+    # (it warns that it aligns and trims the spectra to the observer's range, as intended).
     for t, name in ((0.0, "light skin"), (1.0, "dark skin")):
         sd = colour.characterisation.SDS_COLOURCHECKERS["BabelColor Average"][name]
-        xyz = colour.sd_to_XYZ(sd, illuminant=colour.SDS_ILLUMINANTS["D65"]) / 100
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", colour.utilities.ColourRuntimeWarning)
+            xyz = colour.sd_to_XYZ(sd, illuminant=colour.SDS_ILLUMINANTS["D65"]) / 100
         ref = colour.XYZ_to_RGB(xyz, colour.RGB_COLOURSPACES["sRGB"], apply_cctf_encoding=False)
         np.testing.assert_allclose(skin_albedo(t), ref, atol=3e-3)
     rgb = skin_albedo(np.array([-0.25, 0.15, 0.45, 0.85, 1.25]))
@@ -136,3 +141,21 @@ def test_conditions_effects(pop):
         assert mean[shiny][0] > mean["normal"][0] and mean[shiny][1] < mean["normal"][1]
     for matte in ("powder", "cold"):
         assert mean[matte][0] < mean["normal"][0] and mean[matte][1] > mean["normal"][1]
+
+
+def test_subject_subset_is_the_same_draw_and_unknown_ids_are_rejected():
+    full = synthesize_population(seed=5, map_size=16)
+    part = synthesize_population(seed=5, map_size=16, subjects=["S002", "P150-lotion"])
+    assert [s.subject_id for s in part.subjects] == ["S002", "P150-lotion"]
+    for s in part.subjects:
+        np.testing.assert_array_equal(s.albedo, full[s.subject_id].albedo)
+        np.testing.assert_array_equal(s.ts_m, full[s.subject_id].ts_m)
+    np.testing.assert_array_equal(part.sigma_tr_avg, full.sigma_tr_avg)
+    with pytest.raises(FacestatsError, match=r"subjects must be ids of the population .*got unknown \['S150'\]"):
+        synthesize_population(seed=5, map_size=16, subjects=["S001", "S150"])
+    with pytest.raises(FacestatsError, match="got unknown"):
+        synthesize_population(seed=5, map_size=16, conditions=False, subjects=["P150-normal"])
+    with pytest.raises(FacestatsError, match="subjects must be a collection of subject ids, got the string"):
+        synthesize_population(seed=5, map_size=16, subjects="S001")
+    with pytest.raises(FacestatsError, match=r"freckle_fraction must lie in \[0, 0.57\]"):
+        synthesize_population(seed=5, map_size=16, freckle_fraction=0.8)

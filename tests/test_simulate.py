@@ -185,3 +185,42 @@ def test_real_mesh_loader_round_trip(tmp_path):
     pop = synthesize_population(map_size=48, conditions=False, geometry=h)
     cap = DomeSimulator(h).simulate(pop[0])
     assert np.isfinite(cap.array("radiance")).mean() > 0.2
+
+
+def test_uv_to_texel_is_the_map_cell_containing_the_uv():
+    from facestats.acquire.face import uv_to_texel
+
+    uv = np.array([[0.0, 0.0], [0.999, 0.0], [1.0, 1.0], [0.26, 0.74], [0.5, 0.25]])
+    np.testing.assert_array_equal(uv_to_texel(uv, 4), [[0, 0], [0, 3], [3, 3], [2, 1], [1, 2]])  # (v, u)
+    g = procedural_face(16)
+    np.testing.assert_array_equal(g.texel_index(), g.grid_index)  # lumitexels sit at texel centres
+
+
+def test_simulator_and_calibration_reject_bad_arguments():
+    from facestats import FacestatsError
+
+    g = procedural_face(16)
+    with pytest.raises(FacestatsError, match=r"block must be an integer in \[1, inf\], got 0"):
+        DomeSimulator(g, block=0)
+    with pytest.raises(FacestatsError, match=r"subsurface_radius must lie in \(0, inf\] mm, got -1"):
+        DomeSimulator(g, subsurface_radius=-1.0)
+    with pytest.raises(FacestatsError, match="head_motion_deg must lie in"):
+        DomeSimulator(g, head_motion_deg=-0.5)
+    with pytest.raises(FacestatsError, match=r"eta must lie in \[1, 3\]"):
+        DomeSimulator(g, eta=0.7)
+    with pytest.raises(FacestatsError, match="geometry must be a FaceGeometry, got ndarray"):
+        DomeSimulator(np.zeros((3, 3)))
+    with pytest.raises(FacestatsError, match="specular must be one of"):
+        DomeSimulator(g, specular="phong")
+    d = default_dome().to_dict()
+    d["led_axis"][0] = [0.0, 0.0, 2.0]
+    with pytest.raises(FacestatsError, match="led_axis must hold unit vectors .*norm 2"):
+        Dome.from_dict(d)
+    d = default_dome().to_dict()
+    d["led_intensity"][5][1] = -1.0
+    with pytest.raises(FacestatsError, match=r"led_intensity must lie in \[0, inf\], got -1"):
+        Dome.from_dict(d)
+    d = default_dome().to_dict()
+    d["camera_rotation"][2] = np.diag([1.0, 1.0, 2.0]).tolist()
+    with pytest.raises(FacestatsError, match="camera_rotation must hold rotation matrices .*camera 2"):
+        Dome.from_dict(d)

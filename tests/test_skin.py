@@ -123,3 +123,31 @@ def test_validation():
                            modulation=np.ones((1, 3)), subsurface=skin.SubsurfaceTransport(SIGMA_S, SIGMA_A))
     with pytest.raises(FacestatsError, match="areas must lie in"):
         skin.SubsurfaceTransport(SIGMA_S, SIGMA_A, positions=np.zeros((2, 3)), areas=[1.0, 0.0])
+
+
+def test_neighbour_pairs_against_brute_force_and_validation(rng):
+    pos = rng.uniform(0, 10, (300, 3))
+    rows, cols, dist = skin.neighbour_pairs(pos, 1.5)
+    full = np.linalg.norm(pos[:, None] - pos[None], axis=-1)
+    want = np.argwhere((full < 1.5) & ~np.eye(300, dtype=bool))
+    assert {tuple(p) for p in np.stack([rows, cols], 1)} == {tuple(p) for p in want}
+    np.testing.assert_allclose(dist, full[rows, cols], rtol=1e-12)
+    with pytest.raises(FacestatsError, match=r"radius must lie in \(0, inf\] mm, got 0"):
+        skin.neighbour_pairs(pos, 0.0)
+    with pytest.raises(FacestatsError, match=r"positions must have shape \(n, 3\)"):
+        skin.neighbour_pairs(pos[:, :2], 1.0)
+
+
+def test_per_point_parameters_and_default_radius_settings_are_checked():
+    n = np.array([[0, 0, 1.0], [0, 0, 1.0]])
+    sub = skin.SubsurfaceTransport(SIGMA_S, SIGMA_A)
+    args = dict(modulation=np.ones((2, 3)), subsurface=sub)
+    ok = skin.skin_radiance(n, n[:, None], np.ones((2, 1, 3)), n[:, None], rho_s=0.1, roughness=[0.3, 0.3], **args)
+    same = skin.skin_radiance(n, n[:, None], np.ones((2, 1, 3)), n[:, None], rho_s=[0.1, 0.1], roughness=0.3, **args)
+    np.testing.assert_array_equal(ok, same)  # a scalar is the same parameter at every point
+    with pytest.raises(FacestatsError, match=r"roughness must be a scalar or have shape \(2,\), got shape \(3,\)"):
+        skin.skin_radiance(n, n[:, None], np.ones((2, 1, 3)), n[:, None], rho_s=0.1, roughness=[0.3] * 3, **args)
+    with pytest.raises(FacestatsError, match=r"tail must lie in \(0, 1\)"):
+        skin.SubsurfaceTransport(SIGMA_S, SIGMA_A, positions=np.zeros((2, 3)), areas=[1.0, 1.0], tail=1.0)
+    with pytest.raises(FacestatsError, match="max_neighbors must be an integer"):
+        skin.SubsurfaceTransport(SIGMA_S, SIGMA_A, positions=np.zeros((2, 3)), areas=[1.0, 1.0], max_neighbors=0)

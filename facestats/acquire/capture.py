@@ -26,8 +26,9 @@ Attributes: ``dome`` and ``sensor`` (JSON calibration), subject metadata
 ``condition``), ``map_size``, ``provenance`` (JSON).
 
 On disk a capture is a zarr v3 group with these arrays (``dimension_names`` set,
-so :func:`xarray.open_zarr` reads it too), chunked along ``lumitexel`` so a
-subject at full resolution streams chunk by chunk.  Real captures are brought
+so :func:`xarray.open_zarr` reads it too), chunked along ``lumitexel`` (2048
+lumitexels per chunk by default, the fit's default block) so a subject at full
+resolution streams chunk by chunk.  Real captures are brought
 into this layout by whoever registers the images to the geometry; everything
 downstream (the fit pipeline) reads only this layout.
 
@@ -42,6 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._validate import check_integer
 from ..conventions import CHANNELS, SITES
 from ..errors import FormatError, ValidationError
 from .dome import Dome
@@ -100,6 +102,7 @@ class Lumitexels:
 
     @property
     def n(self) -> int:
+        """Number of lumitexels in the block."""
         return int(self.index.shape[0])
 
     @property
@@ -157,14 +160,17 @@ class Capture:
     # -- metadata --------------------------------------------------------------
     @property
     def n_lumitexels(self) -> int:
+        """Number of lumitexels."""
         return int(self.arrays["position"].shape[0])
 
     @property
     def map_size(self) -> int:
+        """Side of the square UV maps the fit produces."""
         return int(self.attrs["map_size"])
 
     @property
     def dome(self) -> Dome:
+        """The dome calibration (parsed once from the ``dome`` attribute)."""
         if self._dome is None:
             d = self.attrs["dome"]
             self._dome = Dome.from_dict(json.loads(d) if isinstance(d, str) else d)
@@ -172,6 +178,7 @@ class Capture:
 
     @property
     def sensor(self) -> ContactSensor:
+        """The contact sensor's description (parsed once from the ``sensor`` attribute)."""
         if self._sensor is None:
             s = self.attrs["sensor"]
             self._sensor = ContactSensor.from_attrs(json.loads(s) if isinstance(s, str) else s)
@@ -179,10 +186,12 @@ class Capture:
 
     @property
     def metadata(self) -> dict:
+        """Subject metadata: ``subject_id``, ``person_id``, ``age``, ``gender``, ``skin_type``, ``condition``."""
         return {k: self.attrs[k] for k in _META}
 
     @property
     def provenance(self) -> dict:
+        """How the capture was made (a dict; stored as JSON)."""
         p = self.attrs.get("provenance", "{}")
         return json.loads(p) if isinstance(p, str) else dict(p)
 
@@ -192,7 +201,11 @@ class Capture:
 
     # -- lumitexel blocks ------------------------------------------------------------
     def lumitexels(self, start: int = 0, stop: int | None = None, cameras=None) -> Lumitexels:
-        """Lumitexels ``start:stop`` with their samples (directions from the calibration)."""
+        """Lumitexels ``start:stop`` with their samples (directions from the calibration).
+
+        ``cameras`` (indices), if given, keeps only those cameras' samples (the
+        others become NaN, i.e. invalid).
+        """
         stop = self.n_lumitexels if stop is None else min(int(stop), self.n_lumitexels)
         if not (0 <= start < stop):
             raise ValidationError(f"lumitexel range must satisfy 0 <= start < stop <= {self.n_lumitexels}, got {start}:{stop}")
@@ -203,6 +216,9 @@ class Capture:
         wo, _, _ = dome.view(pos)
         rad = self.array("radiance", sl).astype(np.float32)  # float16 on disk; compute in float32
         if cameras is not None:
+            cams = np.asarray(cameras)
+            if cams.dtype.kind not in "iu" or np.any((cams < 0) | (cams >= dome.n_cameras)):
+                raise ValidationError(f"cameras must be indices in [0, {dome.n_cameras}), got {cameras!r}")
             keep = np.zeros(dome.n_cameras, bool)
             keep[np.asarray(cameras)] = True
             rad = np.where(keep[None, :, None, None], rad, np.nan)
@@ -220,13 +236,14 @@ class Capture:
         )
 
     def blocks(self, size: int = 4096):
-        """Yield ``(start, stop)`` lumitexel ranges aligned to ``size``."""
+        """Yield ``(start, stop)`` lumitexel ranges aligned to ``size`` (≥ 1)."""
+        check_integer(size, "size", 1)
         for start in range(0, self.n_lumitexels, int(size)):
             yield start, min(start + int(size), self.n_lumitexels)
 
     # -- persistence -----------------------------------------------------------------
     def to_zarr(self, path, chunk: int = 2048):
-        """Write the capture as a zarr v3 group (chunked along lumitexel)."""
+        """Write the capture as a zarr v3 group (``chunk`` lumitexels per chunk); returns the path."""
         writer = CaptureWriter(path, n_lumitexels=self.n_lumitexels, n_cameras=self.dome.n_cameras, n_lights=self.dome.n_leds,
                                map_size=self.map_size, n_fibers=self.sensor.n_fibers, attrs=self.attrs, chunk=chunk)
         for start, stop in self.blocks(chunk):
@@ -241,6 +258,7 @@ class CaptureWriter:
     def __init__(self, path, *, n_lumitexels, n_cameras, n_lights, map_size, n_fibers, attrs, chunk=2048):
         import zarr
 
+        check_integer(chunk, "chunk", 1)
         self.path = str(path)
         self.group = zarr.open_group(self.path, mode="w")
         sizes = {"lumitexel": n_lumitexels, "xyz": 3, "uvc": 2, "light": n_lights, "camera": n_cameras, "channel": 3,
@@ -255,10 +273,12 @@ class CaptureWriter:
         self.group.attrs["site"] = list(SITES)
 
     def write_block(self, start, arrays: dict):
+        """Write per-lumitexel arrays for the lumitexels from ``start`` on."""
         for name, arr in arrays.items():
             self.group[name][start : start + arr.shape[0]] = arr
 
     def write_global(self, arrays: dict):
+        """Write arrays that are not per lumitexel (region map, sensor data) whole."""
         for name, arr in arrays.items():
             self.group[name][...] = arr
 

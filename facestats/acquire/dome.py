@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_float, check_finite, check_shape
+from .._validate import as_finite, as_float, check_range, check_shape
 from ..errors import FormatError, ValidationError
 from ..published import N_CAMERAS, N_LEDS
 from .hdr import CameraResponse
@@ -105,27 +105,35 @@ class Dome:
     response: CameraResponse = CameraResponse()
 
     def __post_init__(self):
-        lp = check_shape(check_finite(as_float(self.led_position, "led_position", np.float64), "led_position"), "led_position", (None, 3))
+        def array(name, shape):
+            return check_shape(as_finite(getattr(self, name), name, dtype=np.float64), name, shape)
+
+        lp = array("led_position", (None, 3))
         n_led = lp.shape[0]
-        la = check_shape(as_float(self.led_axis, "led_axis", np.float64), "led_axis", (n_led, 3))
-        li = check_shape(as_float(self.led_intensity, "led_intensity", np.float64), "led_intensity", (n_led, 3))
-        lb = check_shape(as_float(self.led_beam, "led_beam", np.float64), "led_beam", (n_led, 6))
-        cp = check_shape(as_float(self.camera_position, "camera_position", np.float64), "camera_position", (None, 3))
+        la = array("led_axis", (n_led, 3))
+        li = check_range(array("led_intensity", (n_led, 3)), "led_intensity", 0, None)
+        lb = array("led_beam", (n_led, 6))
+        cp = array("camera_position", (None, 3))
         n_cam = cp.shape[0]
-        cr = check_shape(as_float(self.camera_rotation, "camera_rotation", np.float64), "camera_rotation", (n_cam, 3, 3))
-        ck = check_shape(as_float(self.camera_matrix, "camera_matrix", np.float64), "camera_matrix", (n_cam, 3, 3))
+        cr = array("camera_rotation", (n_cam, 3, 3))
+        ck = array("camera_matrix", (n_cam, 3, 3))
         im = np.asarray(self.image_size, dtype=np.int64)
         if im.shape != (n_cam, 2) or np.any(im <= 0):
             raise ValidationError(f"image_size must be ({n_cam}, 2) positive integers, got shape {im.shape}")
         et = as_float(self.exposure_times, "exposure_times", np.float64)
-        if et.ndim != 1 or et.size < 1 or np.any(et <= 0):
+        if et.ndim != 1 or et.size < 1 or not np.all(et > 0):
             raise ValidationError(f"exposure_times must be a 1-D array of positive times, got {et!r}")
-        if np.any(np.abs(np.linalg.norm(la, axis=1) - 1) > 1e-6):
-            raise ValidationError("led_axis must hold unit vectors")
-        if np.any(li < 0):
-            raise ValidationError("led_intensity must be >= 0")
-        if not np.allclose(cr @ np.swapaxes(cr, 1, 2), np.eye(3), atol=1e-6):
-            raise ValidationError("camera_rotation must hold rotation matrices")
+        norm = np.linalg.norm(la, axis=1)
+        if np.any(np.abs(norm - 1) > 1e-6):
+            bad = norm[np.abs(norm - 1) > 1e-6][0]
+            raise ValidationError(f"led_axis must hold unit vectors (norm 1 ± 1e-6), got a vector of norm {bad:.6g}")
+        rrt = cr @ np.swapaxes(cr, 1, 2)
+        if not np.allclose(rrt, np.eye(3), atol=1e-6):
+            err = np.abs(rrt - np.eye(3)).max(axis=(1, 2))
+            raise ValidationError(
+                f"camera_rotation must hold rotation matrices (R Rᵀ = I), got camera {int(np.argmax(err))} "
+                f"with |R Rᵀ − I| = {err.max():.3g}"
+            )
         if not float(self.camera_scale) > 0:
             raise ValidationError(f"camera_scale must be > 0, got {self.camera_scale!r}")
         self.led_position, self.led_axis, self.led_intensity, self.led_beam = lp, la, li, lb

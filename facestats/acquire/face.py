@@ -30,10 +30,27 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import as_float, check_finite, check_shape
+from .._validate import as_finite, check_range, check_shape
 from ..errors import ValidationError
 
-__all__ = ["FaceGeometry", "procedural_face", "grid_triangles"]
+__all__ = ["FaceGeometry", "procedural_face", "grid_triangles", "uv_to_texel"]
+
+
+def uv_to_texel(uv, size: int) -> np.ndarray:
+    """The ``(v, u)`` texel of a ``size``² map that contains each UV coordinate, shape (N, 2).
+
+    Texel (i, j) covers v ∈ [i/size, (i+1)/size) and u ∈ [j/size, (j+1)/size)
+    (module docstring: ``v`` grows downwards, maps are indexed ``[v, u]``);
+    u or v = 1 falls into the last texel.
+
+    Parameters
+    ----------
+    uv : ndarray, shape (N, 2)
+        Texture coordinates (u, v) in [0, 1].
+    size : int
+        Side of the map.
+    """
+    return np.clip((np.asarray(uv)[:, ::-1] * size).astype(np.int64), 0, size - 1)
 
 
 @dataclass
@@ -77,20 +94,22 @@ class FaceGeometry:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        p = check_shape(check_finite(as_float(self.position, "position", np.float64), "position"), "position", (None, 3))
-        n = check_shape(check_finite(as_float(self.normal, "normal", np.float64), "normal"), "normal", (p.shape[0], 3))
+        p = check_shape(as_finite(self.position, "position", dtype=np.float64), "position", (None, 3))
+        n = check_shape(as_finite(self.normal, "normal", dtype=np.float64), "normal", (p.shape[0], 3))
         norm = np.linalg.norm(n, axis=1)
         if np.any(np.abs(norm - 1) > 1e-3):
-            raise ValidationError("normal must hold unit vectors, got norms outside 1 ± 1e-3")
-        a = check_shape(check_finite(as_float(self.area, "area", np.float64), "area"), "area", (p.shape[0],))
-        if np.any(a <= 0):
-            raise ValidationError("area must be > 0 mm^2 for every lumitexel")
-        uv = check_shape(check_finite(as_float(self.uv, "uv", np.float64), "uv"), "uv", (p.shape[0], 2))
-        if np.any((uv < 0) | (uv > 1)):
-            raise ValidationError("uv must lie in [0, 1]")
+            bad = norm[np.abs(norm - 1) > 1e-3][0]
+            raise ValidationError(f"normal must hold unit vectors (norm 1 ± 1e-3), got a vector of norm {bad:.6g}")
+        a = check_shape(as_finite(self.area, "area", dtype=np.float64), "area", (p.shape[0],))
+        check_range(a, "area", 0, None, low_inclusive=False, unit="mm^2")
+        uv = check_shape(as_finite(self.uv, "uv", dtype=np.float64), "uv", (p.shape[0], 2))
+        check_range(uv, "uv", 0, 1)
         reg = np.asarray(self.region)
         if reg.shape != (p.shape[0],) or reg.min(initial=1) < 1 or reg.max(initial=1) > 10:
-            raise ValidationError("region must hold one label 1-10 per lumitexel")
+            raise ValidationError(
+                f"region must hold one label 1-10 per lumitexel, shape ({p.shape[0]},), got shape {reg.shape} "
+                f"with labels {reg.min(initial=0)}..{reg.max(initial=0)}"
+            )
         if int(self.map_size) < 2:
             raise ValidationError(f"map_size must be >= 2, got {self.map_size!r}")
         self.position, self.normal, self.area, self.uv = p, n, a, uv
@@ -106,7 +125,7 @@ class FaceGeometry:
     def texel_index(self, size: int | None = None) -> np.ndarray:
         """Nearest ``(v, u)`` texel of each lumitexel in a ``size``² map (default ``map_size``)."""
         s = self.map_size if size is None else int(size)
-        return np.clip((self.uv[:, ::-1] * s).astype(np.int64), 0, s - 1)
+        return uv_to_texel(self.uv, s)
 
     def subset(self, index) -> "FaceGeometry":
         """The geometry restricted to some lumitexels (the mesh is kept whole for shadowing)."""

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_float, check_finite, check_range
+from .._validate import as_finite
 from ..errors import ValidationError
 
 __all__ = ["CameraResponse", "expose", "merge_exposures", "merged_std"]
@@ -59,7 +59,10 @@ class CameraResponse:
     def __post_init__(self):
         if not (self.full_well > 0 and self.read_noise >= 0 and 1 <= self.adc_bits <= 24 and 0 < self.saturation <= 1
                 and 0 <= self.black_level < 2**self.adc_bits - 1):
-            raise ValidationError(f"CameraResponse parameters out of range: {self!r}")
+            raise ValidationError(
+                "CameraResponse needs full_well > 0, read_noise >= 0, adc_bits in [1, 24], saturation in (0, 1] "
+                f"and black_level in [0, 2**adc_bits - 1), got {self!r}"
+            )
 
     @property
     def max_dn(self) -> int:
@@ -72,9 +75,15 @@ class CameraResponse:
         return self.full_well / self.max_dn
 
     def variance(self, electrons):
-        """Variance (e⁻²) of a reading with ``electrons`` expected: shot + read + quantisation."""
+        """Variance (e⁻²) of a reading with ``electrons`` expected: shot + read + quantisation.
+
+        max(e, 0) + σ_read² + g²/12 (Poisson shot noise, Gaussian read noise and the
+        uniform quantisation error of one DN of g electrons); float input keeps its dtype.
+        """
         e = np.asarray(electrons)
-        return np.maximum(e, 0) + e.dtype.type(self.read_noise**2 + self.gain**2 / 12) if e.dtype.kind == "f" else np.maximum(e, 0) + self.read_noise**2 + self.gain**2 / 12
+        if e.dtype.kind == "f":
+            return np.maximum(e, 0) + e.dtype.type(self.read_noise**2 + self.gain**2 / 12)
+        return np.maximum(e, 0) + self.read_noise**2 + self.gain**2 / 12
 
 
 def expose(rate, times, response: CameraResponse, rng: np.random.Generator, dtype=np.float32):
@@ -89,6 +98,8 @@ def expose(rate, times, response: CameraResponse, rng: np.random.Generator, dtyp
     response : CameraResponse
     rng : numpy.random.Generator
         Source of the noise (seed it for reproducible captures).
+    dtype : {numpy.float32, numpy.float64}
+        Computation and output dtype (float32 draws float32 normals).
 
     Returns
     -------
@@ -96,7 +107,14 @@ def expose(rate, times, response: CameraResponse, rng: np.random.Generator, dtyp
         Quantised readings in DN, clipped to [0, max_dn], as ``dtype``.
     """
     dtype = np.dtype(dtype)
+    if dtype not in (np.float32, np.float64):
+        raise ValidationError(f"dtype must be float32 or float64, got {dtype}")
     r = np.asarray(rate, dtype=dtype)
+    if r.size and not (np.min(r) >= 0 and np.isfinite(np.max(r))):  # reductions only: no temporaries
+        raise ValidationError(
+            f"rate must be finite and >= 0 electrons per unit time, got values in [{np.min(r)!r}, {np.max(r)!r}]"
+        )
+    as_finite(times, "times", 0, None, low_inclusive=False)
     t = np.asarray(times, dtype=np.float64)
     out = np.empty((t.size,) + r.shape, dtype)
     read2 = dtype.type(response.read_noise**2)
@@ -134,8 +152,10 @@ def merge_exposures(dn, times, response: CameraResponse):
         Number of unclipped exposures that contributed.
     """
     d = np.asarray(dn)
-    t = check_range(check_finite(as_float(times, "times"), "times"), "times", 0, None, low_inclusive=False)
-    if d.shape[-1] != t.shape[0]:
+    t = as_finite(times, "times", 0, None, low_inclusive=False)
+    if t.ndim != 1:
+        raise ValidationError(f"times must be a 1-D array of exposure times, got shape {t.shape}")
+    if d.ndim < 1 or d.shape[-1] != t.shape[0]:
         raise ValidationError(f"dn must have {t.shape[0]} exposures on its last axis, got shape {d.shape}")
     dtype = d.dtype if d.dtype in (np.float32, np.float64) else np.dtype(np.float64)
     d = np.moveaxis(d, -1, 0)  # loop over exposures below; each slice is a whole-array operation

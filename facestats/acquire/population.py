@@ -75,6 +75,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._validate import as_finite, check_choice, check_integer
 from ..conventions import CHANNELS, CONDITIONS, REGION_IDS, SITES
 from ..errors import ValidationError
 from ..published import AGE_COUNTS, ETA_SKIN, TABLE1_MEAN, TABLE1_VAR, TABLE2_COUNTS
@@ -181,6 +182,7 @@ class SubjectTruth:
 
     @property
     def face(self) -> np.ndarray:
+        """Texels that belong to the face (region > 0)."""
         return self.region_map > 0
 
     @property
@@ -199,6 +201,7 @@ class SubjectTruth:
         return dipole.scattering_from_albedo(self.albedo_avg, self.sigma_tr, ETA_SKIN)
 
     def metadata(self) -> dict:
+        """The subject's metadata attributes (ids, age, gender, skin type, condition)."""
         return {"subject_id": self.subject_id, "person_id": self.person_id, "age": int(self.age), "gender": self.gender,
                 "skin_type": int(self.skin_type), "condition": self.condition}
 
@@ -263,6 +266,7 @@ _ANCHORS = None
 
 
 def _anchor_spectra():
+    """The ColorChecker "light skin" and "dark skin" reflectance spectra, 380-730 nm in 10 nm steps (cached)."""
     global _ANCHORS
     if _ANCHORS is None:
         import colour
@@ -306,6 +310,7 @@ def skin_albedo(melanin) -> np.ndarray:
 
 
 def _smooth_noise(rng, shape, sigma_px):
+    """Gaussian-filtered white noise (periodic), scaled to unit standard deviation."""
     from scipy.ndimage import gaussian_filter
 
     z = gaussian_filter(rng.standard_normal(shape), sigma_px, mode="wrap")
@@ -405,7 +410,8 @@ def _brdf_maps(region_map, region_means, rng, gender):
 
 
 def _bp_from_ts(rho_s, m):
-    """Blinn-Phong truth from Torrance-Sparrow (module docstring): n = 2/m² − 2, ρs_BP = ρs F_r(0)."""
+    """Blinn-Phong truth from Torrance-Sparrow: n = 2/m² − 2 (Beckmann-Phong correspondence,
+    Walter et al. 2007), ρs_BP = ρs F_r(0) with F_r(0) ≈ 0.0255 at η = 1.38 (module docstring)."""
     f0 = float(fresnel.fresnel_reflectance(1.0, ETA_SKIN))
     with np.errstate(divide="ignore"):
         n = np.where(m > 0, 2 / np.maximum(m, 1e-6) ** 2 - 2, 0)
@@ -434,6 +440,7 @@ def _demographics(rng):
 
 
 def _standardise(x):
+    """Zero mean, unit (population) standard deviation."""
     x = np.asarray(x, float)
     return (x - x.mean()) / x.std()
 
@@ -469,9 +476,9 @@ def synthesize_population(
     Parameters
     ----------
     seed : int
-        Seed of every random draw: the same seed gives bit-identical truth.
+        Seed of every random draw (≥ 0): the same seed gives bit-identical truth.
     map_size : int
-        Side of the UV maps (must match the capture geometry's ``map_size``).
+        Side of the UV maps (≥ 2; must match the capture geometry's ``map_size``).
     geometry : FaceGeometry, optional
         Geometry whose ``region_map`` to use; default the procedural face.
     conditions : bool
@@ -479,18 +486,24 @@ def synthesize_population(
     table1_spread : {"std", "variance"}
         How to read Table 1's "Var." column (module docstring).
     freckle_fraction : float
-        Fraction of subjects (skin types I-III) given freckles.
+        Fraction of subjects given freckles, in [0, 0.57]: a subject of skin type
+        I-III is freckled with probability ``freckle_fraction / 0.57``.
     subjects : collection of str, optional
-        Materialise only these subject ids (at high resolution the maps of all
-        156 subjects would not fit in memory).  Every draw is the same as in the
-        full population: each subject has its own random stream.
+        Materialise only these subject ids (``"S001"`` … ``"S149"``, and
+        ``"P150-<condition>"`` with ``conditions``; at high resolution the maps of
+        all 156 subjects would not fit in memory).  Every draw is the same as in
+        the full population: each subject has its own random stream.
 
     Returns
     -------
     Population
     """
-    if table1_spread not in ("std", "variance"):
-        raise ValidationError(f"table1_spread must be 'std' or 'variance', got {table1_spread!r}")
+    check_choice(table1_spread, "table1_spread", ("std", "variance"))
+    check_integer(seed, "seed", 0)
+    check_integer(map_size, "map_size", 2)
+    as_finite(freckle_fraction, "freckle_fraction", 0, 0.57)
+    if isinstance(subjects, str):
+        raise ValidationError(f"subjects must be a collection of subject ids, got the string {subjects!r}")
     if geometry is None:
         from .face import procedural_face
 
@@ -525,6 +538,12 @@ def synthesize_population(
 
     subject_seeds = subj_seed.spawn(n + len(CONDITIONS))
     wanted = None if subjects is None else set(subjects)
+    if wanted is not None:
+        ids = {f"S{i + 1:03d}" for i in range(n)} | ({f"P{n + 1:03d}-{c}" for c in CONDITIONS} if conditions else set())
+        unknown = sorted(wanted - ids)
+        if unknown:
+            raise ValidationError(f"subjects must be ids of the population (S001-S{n:03d}"
+                                  f"{f', P{n + 1:03d}-<condition>' if conditions else ''}), got unknown {unknown[:5]}")
     subjects = []
     for i in range(n):  # loop over subjects (each vectorised over texels)
         if wanted is not None and f"S{i + 1:03d}" not in wanted:
@@ -566,6 +585,7 @@ def synthesize_population(
 
 
 def _make_subject(sid, pid, age, gender, st, cond, region_map, alb, rho, m, sigma_tr_sites, seed, features):
+    """A :class:`SubjectTruth` from its maps: Blinn-Phong truth, zeros off the face, site albedos."""
     face = region_map > 0
     bp_rho, bp_n = _bp_from_ts(rho, m)
     for a in (rho, m, bp_rho, bp_n):

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import as_float, check_finite, check_range, check_shape
+from .._validate import as_finite, check_range, check_shape
 from ..errors import ValidationError
 from ..published import N_FIBERS, SENSOR_BRACKET_IMAGES, SENSOR_BRACKET_STOP
 from .hdr import CameraResponse, expose, merge_exposures, merged_std
@@ -70,7 +70,7 @@ class ContactSensor:
     camera: CameraResponse = field(default_factory=lambda: CameraResponse(full_well=20000.0, read_noise=3.0, adc_bits=12))
 
     def __post_init__(self):
-        d = check_finite(as_float(self.fiber_distance, "fiber_distance"), "fiber_distance")
+        d = as_finite(self.fiber_distance, "fiber_distance")
         check_shape(d, "fiber_distance", (None,))
         check_range(d, "fiber_distance", 0, None, low_inclusive=False, unit="mm")
         if np.any(np.diff(d) <= 0):
@@ -106,7 +106,7 @@ class ContactSensor:
             The HDR-merged R(r) and its standard deviation under the noise model,
             mm⁻² (NaN where every exposure clipped).
         """
-        p = check_range(check_finite(as_float(profile, "profile", np.float64), "profile"), "profile", 0, None)
+        p = as_finite(profile, "profile", 0, None, unit="mm^-2", dtype=np.float64)
         if p.ndim < 2 or p.shape[-2] != self.n_fibers:
             raise ValidationError(f"profile must have shape (..., {self.n_fibers}, 3), got {p.shape}")
         dn = expose(p * self.scale, self.exposure_times, self.camera, rng, dtype=np.float64)
@@ -114,7 +114,12 @@ class ContactSensor:
         return rate / self.scale, std / self.scale
 
     def profile_std(self, profile):
-        """Noise model: standard deviation of a measured R(r) whose true value is ``profile`` (mm⁻²)."""
+        """Noise model: standard deviation of a measured R(r) whose true value is ``profile`` (mm⁻²).
+
+        :func:`facestats.acquire.hdr.merged_std` of the expected electron rate
+        ``profile × scale`` over the bracket, divided by ``scale``; inf where every
+        exposure would clip.
+        """
         p = np.asarray(profile, dtype=np.float64)
         return merged_std(p * self.scale, self.exposure_times, self.camera) / self.scale
 

@@ -44,8 +44,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import __version__
+from .._validate import as_finite, check_choice, check_integer
 from ..errors import ValidationError
 from ..model import brdf as _brdf
+from ..model.dipole import _eta, dipole_profile
 from ..model.fresnel import _fresnel_reflectance
 from ..model.skin import SPECULAR_MODELS, SubsurfaceTransport, neighbour_pairs
 from ..published import ETA_SKIN
@@ -94,29 +96,41 @@ class DomeSimulator:
     noise : bool
         Simulate camera and sensor noise (False: exact radiance, no clipping).
     head_motion_deg : float
-        Standard deviation of the per-light head rotation (0 = still).
+        Standard deviation of the per-light head rotation, degrees, ≥ 0 (0 = still).
     scan_normal_noise_deg : float
-        Standard deviation of the scanner-normal tilt.
+        Standard deviation of the scanner-normal tilt, degrees, ≥ 0.
     block : int
-        Lumitexels per block.  When the geometry fits one block, the geometry is
-        cached across subjects and the dipole transport runs over the whole face.
+        Lumitexels per block (≥ 1).  When the geometry fits one block, the geometry
+        is cached across subjects and the dipole transport runs over the whole face.
     subsurface_radius : float
-        Neighbourhood radius of the dipole transport, mm (the energy beyond it is
-        returned locally; 12 mm keeps > 98 % of red-channel energy in the
+        Neighbourhood radius of the dipole transport, mm, > 0 (the energy beyond it
+        is returned locally; 12 mm keeps > 98 % of red-channel energy in the
         neighbourhood for σtr ≥ 0.45 mm⁻¹).
     shadow_resolution : int, optional
-        Shadow-map side in pixels; default twice the mesh grid (about one pixel per
-        half triangle edge).
+        Shadow-map side in pixels (≥ 1); default twice the mesh grid (about one
+        pixel per half triangle edge).
+    eta : float
+        Relative index of refraction of skin, in [1, 3] (default 1.38).
     """
 
     def __init__(self, geometry: FaceGeometry, dome: Dome | None = None, sensor: ContactSensor | None = None, *,
                  specular: str = "torrance_sparrow", noise: bool = True, head_motion_deg: float = 0.0,
                  scan_normal_noise_deg: float = 2.0, block: int = 8192, subsurface_radius: float = 12.0,
                  shadow_resolution: int | None = None, eta: float = ETA_SKIN):
-        if specular not in SPECULAR_MODELS:
-            raise ValidationError(f"specular must be one of {list(SPECULAR_MODELS)}, got {specular!r}")
-        if head_motion_deg < 0 or scan_normal_noise_deg < 0:
-            raise ValidationError("head_motion_deg and scan_normal_noise_deg must be >= 0")
+        if not isinstance(geometry, FaceGeometry):
+            raise ValidationError(f"geometry must be a FaceGeometry, got {type(geometry).__name__}")
+        if dome is not None and not isinstance(dome, Dome):
+            raise ValidationError(f"dome must be a Dome (or None for the default), got {type(dome).__name__}")
+        if sensor is not None and not isinstance(sensor, ContactSensor):
+            raise ValidationError(f"sensor must be a ContactSensor (or None for the default), got {type(sensor).__name__}")
+        check_choice(specular, "specular", SPECULAR_MODELS)
+        as_finite(head_motion_deg, "head_motion_deg", 0, None, unit="deg")
+        as_finite(scan_normal_noise_deg, "scan_normal_noise_deg", 0, None, unit="deg")
+        check_integer(block, "block", 1)
+        as_finite(subsurface_radius, "subsurface_radius", 0, None, low_inclusive=False, unit="mm")
+        if shadow_resolution is not None:
+            check_integer(shadow_resolution, "shadow_resolution", 1)
+        _eta(eta)
         self.geometry = geometry
         self.dome = default_dome() if dome is None else dome
         self.sensor = ContactSensor() if sensor is None else sensor
@@ -135,7 +149,13 @@ class DomeSimulator:
 
     @property
     def single_block(self) -> bool:
+        """Whether the whole geometry is one block (geometry cached, dipole over the whole face)."""
         return self.geometry.n_points <= self.block
+
+    def _ranges(self):
+        """``(start, stop)`` of every block of lumitexels."""
+        n = self.geometry.n_points
+        return [(s, min(s + self.block, n)) for s in range(0, n, self.block)]
 
     # -- geometry -------------------------------------------------------------------
     def _block_geometry(self, start: int, stop: int) -> _Block:
@@ -173,13 +193,14 @@ class DomeSimulator:
     def samples_per_lumitexel(self) -> np.ndarray:
         """Number of valid (camera, light) samples of each lumitexel before noise and clipping."""
         out = np.zeros(self.geometry.n_points, np.int64)
-        for start in range(0, self.geometry.n_points, self.block):
-            b = self._block_geometry(start, min(start + self.block, self.geometry.n_points))
-            out[start:b.stop] = np.bincount(b.t, minlength=b.stop - start)
+        for start, stop in self._ranges():
+            b = self._block_geometry(start, stop)
+            out[start:stop] = np.bincount(b.t, minlength=stop - start)
         return out
 
     # -- per subject ---------------------------------------------------------------------
     def _truth_at_lumitexels(self, truth, sl):
+        """Albedo (n, 3), ρs and lobe parameter (n,) of the truth maps at lumitexels ``sl``, float32."""
         tex = self.geometry.texel_index(truth.region_map.shape[0])[sl]
         v, u = tex[:, 0], tex[:, 1]
         if self.specular == "torrance_sparrow":
@@ -260,7 +281,14 @@ class DomeSimulator:
         out[(t.astype(np.int64) * n_cam + c) * n_led + l] = radiance.astype(np.float16)
         return out.reshape(n, n_cam, n_led, 3)
 
+    def _geometry_arrays(self, sl):
+        """The capture's per-lumitexel geometry arrays (except ``scan_normal``) of lumitexels ``sl``."""
+        g = self.geometry
+        return {"position": g.position[sl].astype(np.float32), "uv": g.uv[sl].astype(np.float32),
+                "area": g.area[sl].astype(np.float32), "region": g.region[sl]}
+
     def _scan_normals(self, sl, rng):
+        """Scanner normals of lumitexels ``sl``: the true normals tilted (module docstring, item 5)."""
         nrm = self.geometry.normal[sl]
         if self.scan_normal_noise_deg == 0:
             return nrm.astype(np.float32)
@@ -270,9 +298,8 @@ class DomeSimulator:
         return (out / np.linalg.norm(out, axis=1, keepdims=True)).astype(np.float32)
 
     def _sensor(self, truth, rng):
+        """Sensor profiles and their std (site, fiber, channel) of the truth's sites (module docstring, item 6)."""
         sp, sa = truth.site_scattering
-        from ..model.dipole import dipole_profile
-
         r = self.sensor.fiber_distance
         prof = dipole_profile(r[None, :, None], sp[:, None, :], sa[:, None, :], self.eta)  # (site, fiber, channel)
         if not self.noise:
@@ -280,6 +307,7 @@ class DomeSimulator:
         return self.sensor.capture(prof, rng)
 
     def _attrs(self, truth, seed):
+        """Capture attributes: metadata, calibration and provenance."""
         prov = {
             "source": "facestats simulator", "software": f"facestats {__version__}", "seed": int(seed),
             "specular": self.specular, "noise": self.noise, "head_motion_deg": self.head_motion_deg,
@@ -291,11 +319,13 @@ class DomeSimulator:
                     map_size=int(truth.region_map.shape[0]), provenance=json.dumps(prov))
 
     def _streams(self, seed, n_blocks):
+        """Independent generators from ``seed``: scanner normals, sensor, and one per block."""
         ss = np.random.SeedSequence(int(seed))
         normals_ss, sensor_ss, *blocks = ss.spawn(2 + n_blocks)
         return np.random.default_rng(normals_ss), np.random.default_rng(sensor_ss), [np.random.default_rng(b) for b in blocks]
 
     def _check_truth(self, truth):
+        """Raise unless the truth's maps have the geometry's map size."""
         if truth.region_map.shape[0] != self.geometry.map_size:
             raise ValidationError(
                 f"truth maps are {truth.region_map.shape[0]}² but the geometry's map_size is {self.geometry.map_size}"
@@ -306,18 +336,16 @@ class DomeSimulator:
         """Simulate one subject in memory (use :meth:`simulate_to_zarr` for large geometries)."""
         self._check_truth(truth)
         seed = truth.seed if seed is None else seed
-        g = self.geometry
-        ranges = [(s, min(s + self.block, g.n_points)) for s in range(0, g.n_points, self.block)]
+        ranges = self._ranges()
         rng_n, rng_s, rngs = self._streams(seed, len(ranges))
         radiance = np.concatenate([self._radiance_block(truth, self._block_geometry(a, b), r) for (a, b), r in zip(ranges, rngs)])
         irr = np.concatenate([self._block_geometry(a, b).e_perp for a, b in ranges])
         prof, std = self._sensor(truth, rng_s)
-        arrays = {
-            "position": g.position.astype(np.float32), "scan_normal": self._scan_normals(slice(None), rng_n),
-            "uv": g.uv.astype(np.float32), "area": g.area.astype(np.float32), "region": g.region,
-            "irradiance": irr, "radiance": radiance, "region_map": truth.region_map,
-            "sensor_profile": prof, "sensor_profile_std": std, "fiber_distance": self.sensor.fiber_distance,
-        }
+        arrays = dict(
+            self._geometry_arrays(slice(None)), scan_normal=self._scan_normals(slice(None), rng_n),
+            irradiance=irr, radiance=radiance, region_map=truth.region_map,
+            sensor_profile=prof, sensor_profile_std=std, fiber_distance=self.sensor.fiber_distance,
+        )
         return Capture(arrays=arrays, attrs=self._attrs(truth, seed))
 
     def simulate_to_zarr(self, truth, path, seed: int | None = None, progress: bool = False, chunk: int = 2048) -> str:
@@ -330,7 +358,7 @@ class DomeSimulator:
         self._check_truth(truth)
         seed = truth.seed if seed is None else seed
         g = self.geometry
-        ranges = [(s, min(s + self.block, g.n_points)) for s in range(0, g.n_points, self.block)]
+        ranges = self._ranges()
         rng_n, rng_s, rngs = self._streams(seed, len(ranges))
         writer = CaptureWriter(path, n_lumitexels=g.n_points, n_cameras=self.dome.n_cameras, n_lights=self.dome.n_leds,
                                map_size=g.map_size, n_fibers=self.sensor.n_fibers, attrs=self._attrs(truth, seed), chunk=int(chunk))
@@ -342,9 +370,8 @@ class DomeSimulator:
         for (a, b), r in it:
             blk = self._block_geometry(a, b)
             sl = slice(a, b)
-            arrays = {"position": g.position[sl].astype(np.float32), "scan_normal": self._scan_normals(sl, rng_n),
-                      "uv": g.uv[sl].astype(np.float32), "area": g.area[sl].astype(np.float32), "region": g.region[sl],
-                      "irradiance": blk.e_perp, "radiance": self._radiance_block(truth, blk, r)}
+            arrays = dict(self._geometry_arrays(sl), scan_normal=self._scan_normals(sl, rng_n),
+                          irradiance=blk.e_perp, radiance=self._radiance_block(truth, blk, r))
             assert set(arrays) == set(_PER_LUMITEXEL)
             writer.write_block(a, arrays)
         prof, std = self._sensor(truth, rng_s)

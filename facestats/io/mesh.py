@@ -26,7 +26,7 @@ import os
 
 import numpy as np
 
-from ..acquire.face import FaceGeometry
+from ..acquire.face import FaceGeometry, uv_to_texel
 from ..errors import FormatError, ValidationError
 
 __all__ = ["load_face_mesh", "read_region_image", "save_face_mesh"]
@@ -126,7 +126,7 @@ def load_face_mesh(path, region_image, *, scale=1.0, transform=None, flip_v=True
     length = np.linalg.norm(normals, axis=1)
     regions = read_region_image(region_image)
     size = regions.shape[0]
-    texel = np.clip((uv[:, ::-1] * size).astype(np.int64), 0, size - 1)
+    texel = uv_to_texel(uv, size)
     label = regions[texel[:, 0], texel[:, 1]]
     keep = (label > 0) & (length > 0) & (area > 0)
     if not keep.any():
@@ -139,26 +139,31 @@ def load_face_mesh(path, region_image, *, scale=1.0, transform=None, flip_v=True
 
 
 def save_face_mesh(geometry: FaceGeometry, path, region_path=None):
-    """Write a geometry's lumitexels as an OBJ point mesh with UVs (and its region image as .npy).
+    """Write a procedural geometry's shadowing mesh as an OBJ with per-vertex UVs (and its region image as .npy).
 
-    The OBJ holds the lumitexel vertices with their UVs (v upwards, as files
-    store it) and the shadowing mesh's triangles are *not* included; use it to
-    hand a procedural face to other tools, or build a full mesh with trimesh.
+    The OBJ holds the triangle mesh of :func:`facestats.acquire.face.procedural_face`
+    (its vertices lie on a regular UV grid of side ``mesh_grid``) with the UV of
+    every vertex (v upwards, as files store it), so :func:`load_face_mesh` reads
+    it back; the lumitexels it then finds are the mesh vertices on labelled
+    texels, which are the geometry's own lumitexels when ``mesh_grid`` equals the
+    lumitexel grid.  Use it to hand a procedural face to other tools.
+
+    Raises
+    ------
+    ValidationError
+        For geometries that are not procedural (their mesh vertices have no UV grid).
     """
     import trimesh
 
-    uv = geometry.uv.copy()
-    uv[:, 1] = 1 - uv[:, 1]
+    if geometry.grid_index is None or geometry.meta.get("kind") != "procedural":
+        raise ValidationError(f"geometry must be procedural (mesh vertices on the UV grid), got {geometry.name!r}")
     verts = np.asarray(geometry.mesh_vertices)
     faces = np.asarray(geometry.mesh_faces)
     mesh = trimesh.Trimesh(verts, faces, process=False)
-    if geometry.grid_index is not None and geometry.meta.get("kind") == "procedural":
-        n = int(round(np.sqrt(len(verts))))
-        c = (np.arange(n) + 0.5) / n
-        uu, vv = np.meshgrid(c, c)
-        mesh.visual = trimesh.visual.TextureVisuals(uv=np.stack([uu.ravel(), 1 - vv.ravel()], 1))
-    else:
-        raise ValidationError("save_face_mesh writes procedural geometries (mesh vertices on the UV grid)")
+    n = int(round(np.sqrt(len(verts))))
+    c = (np.arange(n) + 0.5) / n
+    uu, vv = np.meshgrid(c, c)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.stack([uu.ravel(), 1 - vv.ravel()], 1))
     mesh.export(os.fspath(path))
     if region_path is not None and geometry.region_map is not None:
         np.save(os.fspath(region_path), geometry.region_map)

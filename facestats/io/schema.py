@@ -46,7 +46,7 @@ SCHEMA_VERSION = 1
 FLAG_BITS = {
     "few_samples": 1,  # fewer valid samples than the fit needs
     "not_converged": 2,  # the solver hit its iteration limit
-    "ill_conditioned": 4,  # the Gauss-Newton normal matrix is (near) singular
+    "ill_conditioned": 4,  # JᵀJ is (near) singular or a parameter's relative standard error is too large
     "at_bound": 8,  # a parameter ended on its bound
     "filled": 16,  # value interpolated from neighbours in UV (§5.3)
 }

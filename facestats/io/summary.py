@@ -107,10 +107,11 @@ def albedo_histogram(ds, bins: int = HIST_BINS) -> np.ndarray:
     return np.stack([np.bincount(idx[:, c], minlength=bins) for c in range(3)]).astype(np.int64)
 
 
-def _nan_stats(x):
+def _mean_std(x):
+    """Mean and sample standard deviation (ddof 1) of a 1-D array: NaN, NaN if empty; std 0 for one value."""
     if x.size == 0:
         return np.nan, np.nan
-    return float(np.mean(x)), float(np.std(x, ddof=1)) if x.size > 1 else 0.0
+    return float(np.mean(x)), (float(np.std(x, ddof=1)) if x.size > 1 else 0.0)
 
 
 def summarise_subject(ds) -> dict:
@@ -133,7 +134,7 @@ def summarise_subject(ds) -> dict:
             rho, lobe = samples[r]
             row[column("n", model=model, region=r)] = int(rho.size)
             for name, x in ((rho_name, rho), (lobe_name, lobe)):
-                mean, std = _nan_stats(x)
+                mean, std = _mean_std(x)
                 row[column("mean", param=name, region=r)] = mean
                 row[column("std", param=name, region=r)] = std
     sites = [str(s) for s in ds["site"].values] if "site" in ds.dims else []
@@ -151,7 +152,7 @@ def summarise_subject(ds) -> dict:
             row[column("subject", param=param, channel=ch)] = float(vals[c])
     alb = _albedo_values(ds)
     for c, ch in enumerate(CHANNELS):
-        mean, std = _nan_stats(alb[:, c]) if alb.size else (np.nan, np.nan)
+        mean, std = _mean_std(alb[:, c])
         row[f"albedo_mean_{ch}"] = mean
         row[f"albedo_std_{ch}"] = std
     if subject_kind(ds) == "maps":

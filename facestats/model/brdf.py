@@ -22,9 +22,9 @@ from __future__ import annotations
 import numpy as np
 
 from .._blocked import blockwise, components
-from .._validate import as_float, check_finite, check_range, check_shape, result_dtype
+from .._validate import as_finite, check_shape, result_dtype
 from ..errors import ValidationError
-from .fresnel import _fresnel_reflectance
+from .fresnel import _check_eta, _fresnel_reflectance
 
 __all__ = [
     "half_vector",
@@ -41,9 +41,9 @@ _UNIT_TOL = 1e-3
 
 
 def _check_directions(value, name):
-    v = as_float(value, name)
+    """Validate finite unit 3-vectors on the last axis (norm 1 within ``_UNIT_TOL``)."""
+    v = as_finite(value, name)
     check_shape(v, name, (..., 3))
-    check_finite(v, name)
     norm = np.sqrt(np.einsum("...k,...k->...", v, v))
     if np.any(np.abs(norm - 1) > _UNIT_TOL):
         bad = norm[np.abs(norm - 1) > _UNIT_TOL].reshape(-1)[0]
@@ -52,6 +52,7 @@ def _check_directions(value, name):
 
 
 def _dot(a, b):
+    """Dot products over the last axis."""
     return np.einsum("...k,...k->...", a, b) if a.shape == b.shape else np.sum(a * b, axis=-1)
 
 
@@ -59,7 +60,8 @@ def half_vector(wi, wo):
     """Half-way vector H = (ωi + ωo) / ‖ωi + ωo‖ (Weyrich et al. 2006, eq. 11-13).
 
     For ωi = −ωo (undefined H) the result is NaN; callers only use H for pairs
-    above the horizon, where it is always defined.
+    above the horizon, where it is always defined.  No input checks: ``wi`` and
+    ``wo`` are unit vectors on the last axis, broadcast against each other.
     """
     h = np.asarray(wi) + np.asarray(wo)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -82,6 +84,12 @@ def beckmann_distribution(cos_delta, m):
         cos δ = N·H in (0, 1].
     m : ndarray
         RMS micro-facet slope (roughness), > 0, dimensionless.
+
+    Returns
+    -------
+    ndarray
+        D, dimensionless (per unit solid angle once divided by π); no input checks
+        (a building block of :func:`torrance_sparrow` and of the simulator).
     """
     c2 = cos_delta * cos_delta
     tan2 = (1 - c2) / c2
@@ -96,7 +104,8 @@ def v_groove_shadowing(n_h, n_wi, n_wo, wo_h):
 
     The seed prints ωo·H in both denominators; since H bisects ωi and ωo,
     ωi·H = ωo·H, so the printed form equals the symmetric Cook-Torrance form and G
-    is reciprocal.
+    is reciprocal.  Arguments are the cosines N·H, N·ωi, N·ωo and ωo·H (> 0,
+    no input checks); G is dimensionless, in (0, 1].
     """
     return np.minimum(1, np.minimum(2 * n_h * n_wo / wo_h, 2 * n_h * n_wi / wo_h))
 
@@ -105,7 +114,8 @@ def blinn_phong_lobe(cos_delta, exponent):
     """Normalised Blinn-Phong lobe (n + 2)/(2π) cosⁿ δ (Weyrich et al. 2006, eq. 11 without ρs).
 
     The factor (n + 2)/(2π) makes the cosine-weighted lobe over half-vector
-    directions integrate to one: ∫ (n+2)/(2π) cosⁿ δ cos δ dω_H = 1.
+    directions integrate to one: ∫ (n+2)/(2π) cosⁿ δ cos δ dω_H = 1.  ``cos_delta``
+    = N·H in [0, 1], ``exponent`` n ≥ 0 (no input checks); the lobe is in sr⁻¹.
     """
     return (exponent + 2) / (2 * np.pi) * cos_delta ** exponent
 
@@ -171,11 +181,13 @@ def torrance_sparrow_geometry(normal, wi, wo, eta=1.38):
     return blockwise(_ts_geometry_kernel, ops, dtype, n_out=2)
 
 
-def _check_common(normal, wi, wo):
+def _check_common(normal, wi, wo, rho_s):
+    """Validate the arguments both BRDFs take: three unit directions and ρs ≥ 0."""
     return (
         _check_directions(normal, "normal"),
         _check_directions(wi, "wi"),
         _check_directions(wo, "wo"),
+        as_finite(rho_s, "rho_s", 0, None),
     )
 
 
@@ -210,9 +222,8 @@ def blinn_phong(normal, wi, wo, rho_s, exponent):
     ndarray
         BRDF in sr⁻¹, broadcast shape of the inputs without the vector axis.
     """
-    normal, wi, wo = _check_common(normal, wi, wo)
-    rho_s = check_range(check_finite(as_float(rho_s, "rho_s"), "rho_s"), "rho_s", 0, None)
-    exponent = check_range(check_finite(as_float(exponent, "exponent"), "exponent"), "exponent", 0, None)
+    normal, wi, wo, rho_s = _check_common(normal, wi, wo, rho_s)
+    exponent = as_finite(exponent, "exponent", 0, None)
     dtype = result_dtype(normal, wi, wo, rho_s, exponent)
     ops = [*components(normal), *components(wi), *components(wo), rho_s, exponent]
     return blockwise(_bp_kernel, ops, dtype)
@@ -265,10 +276,9 @@ def torrance_sparrow(normal, wi, wo, rho_s, m, eta=1.38):
     ndarray
         BRDF in sr⁻¹, broadcast shape of the inputs without the vector axis.
     """
-    normal, wi, wo = _check_common(normal, wi, wo)
-    rho_s = check_range(check_finite(as_float(rho_s, "rho_s"), "rho_s"), "rho_s", 0, None)
-    m = check_range(check_finite(as_float(m, "m"), "m"), "m", 0, None, low_inclusive=False)
-    eta_a = check_range(check_finite(as_float(eta, "eta"), "eta"), "eta", 0, None, low_inclusive=False)
+    normal, wi, wo, rho_s = _check_common(normal, wi, wo, rho_s)
+    m = as_finite(m, "m", 0, None, low_inclusive=False)
+    eta_a = _check_eta(eta)
     dtype = result_dtype(normal, wi, wo, rho_s, m, eta)
     ops = [*components(normal), *components(wi), *components(wo), eta_a, rho_s, m]
     return blockwise(_ts_kernel, ops, dtype)

@@ -15,7 +15,7 @@ Notation (Suzuki, Mukaigawa & Yagi, eq. 3-13, which is Jensen et al. 2001):
     α'  = σ's / σ't                      (eq. 12, the reduced albedo)
     σtr = sqrt(3 σa σ't)                 (eq. 10; Weyrich eq. 15)
     z_r = 1/σ't,  z_v = z_r (1 + 4A/3)   (eq. 6-7)
-    A   = (1 + F_dr)/(1 − F_dr)          (eq. 8, corrected, see dipole_profile)
+    A   = (1 + F_dr)/(1 − F_dr)          (eq. 8, corrected, see boundary_coefficient)
     d_r = sqrt(r² + z_r²),  d_v = sqrt(r² + z_v²)      (eq. 4-5)
     R_d(r) = α'/(4π) [ z_r (σtr + 1/d_r) e^{−σtr d_r}/d_r²
                      + z_v (σtr + 1/d_v) e^{−σtr d_v}/d_v² ]   (eq. 3)
@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._blocked import blockwise
-from .._validate import as_float, check_finite, check_range, result_dtype
+from .._validate import as_finite, as_float, check_range, result_dtype
 from ..errors import FitError, ValidationError
 from .fresnel import _check_eta, _fdr_polynomial
 
@@ -42,21 +42,27 @@ __all__ = [
 ]
 
 
-def _coefficients(sigma_s_prime, sigma_a, names=("sigma_s_prime", "sigma_a")):
-    s = check_finite(as_float(sigma_s_prime, names[0]), names[0])
-    a = check_finite(as_float(sigma_a, names[1]), names[1])
-    check_range(s, names[0], 0, None, unit="mm^-1")
-    check_range(a, names[1], 0, None, unit="mm^-1")
+def _coefficients(sigma_s_prime, sigma_a):
+    """Validate (σ's, σa) in mm⁻¹: finite, ≥ 0, and not both 0 anywhere."""
+    s = as_finite(sigma_s_prime, "sigma_s_prime", 0, None, unit="mm^-1")
+    a = as_finite(sigma_a, "sigma_a", 0, None, unit="mm^-1")
     if np.any((s + a) <= 0):
         raise ValidationError(
-            f"{names[0]} + {names[1]} must be > 0 mm^-1 (a medium that neither scatters nor absorbs has no dipole), got 0"
+            "sigma_s_prime + sigma_a must be > 0 mm^-1 (a medium that neither scatters nor absorbs has no dipole), got 0"
         )
     return s, a
 
 
 def _eta(eta):
+    """Validate the relative index of the dipole: finite, in [1, 3] (range of the F_dr polynomial)."""
     e = _check_eta(eta)
     return check_range(e, "eta", 1.0, 3.0)
+
+
+def _boundary(eta):
+    """A = (1 + F_dr)/(1 − F_dr) without input checks (see :func:`boundary_coefficient`)."""
+    fdr = _fdr_polynomial(eta)
+    return (1 + fdr) / (1 - fdr)
 
 
 def boundary_coefficient(eta=1.38):
@@ -70,9 +76,7 @@ def boundary_coefficient(eta=1.38):
     (:func:`total_diffuse_reflectance`) equal the numerical integral of the
     profile, which ``tests/test_dipole.py`` checks to 1e-8.
     """
-    e = _eta(eta)
-    fdr = _fdr_polynomial(e)
-    return (1 + fdr) / (1 - fdr)
+    return _boundary(_eta(eta))
 
 
 def _dipole_terms(sigma_s_prime, sigma_a, eta):
@@ -80,8 +84,7 @@ def _dipole_terms(sigma_s_prime, sigma_a, eta):
     sigma_t = sigma_s_prime + sigma_a
     alpha = sigma_s_prime / sigma_t
     sigma_tr = np.sqrt(3 * sigma_a * sigma_t)
-    fdr = _fdr_polynomial(eta)
-    a_coef = (1 + fdr) / (1 - fdr)
+    a_coef = _boundary(eta)
     z_r = 1 / sigma_t
     z_v = z_r * (1 + 4 * a_coef / 3)
     return sigma_tr, z_r, z_v, alpha
@@ -138,7 +141,7 @@ def dipole_profile(r, sigma_s_prime, sigma_a, eta=1.38):
     >>> float(dipole_profile(1.0, 0.74, 0.032, eta=1.3))  # doctest: +ELLIPSIS
     0.0220...
     """
-    r_a = check_range(check_finite(as_float(r, "r"), "r"), "r", 0, None, unit="mm")
+    r_a = as_finite(r, "r", 0, None, unit="mm")
     s, a = _coefficients(sigma_s_prime, sigma_a)
     e = _eta(eta)
     dtype = result_dtype(r, sigma_s_prime, sigma_a, eta)
@@ -171,7 +174,7 @@ def dipole_radial_energy(radius, sigma_s_prime, sigma_a, eta=1.38):
     """
     rad = as_float(radius, "radius")
     if np.any(np.isnan(rad)):
-        raise ValidationError("radius must not be NaN")
+        raise ValidationError(f"radius must be a number of mm (inf allowed), got {int(np.isnan(rad).sum())} NaN value(s)")
     check_range(rad, "radius", 0, None, unit="mm")
     s, a = _coefficients(sigma_s_prime, sigma_a)
     e = _eta(eta)
@@ -180,6 +183,7 @@ def dipole_radial_energy(radius, sigma_s_prime, sigma_a, eta=1.38):
 
 
 def _radial_energy(radius, sigma_s_prime, sigma_a, eta):
+    """E(ρ) of :func:`dipole_radial_energy` without input checks (E(∞) is handled: the tails vanish)."""
     sigma_tr, z_r, z_v, alpha = _dipole_terms(sigma_s_prime, sigma_a, eta)
     with np.errstate(invalid="ignore", over="ignore"):
         d_r = np.sqrt(radius * radius + z_r * z_r)
@@ -192,7 +196,7 @@ def _radial_energy(radius, sigma_s_prime, sigma_a, eta):
 def _total_from_reduced_albedo(alpha, eta):
     """Weyrich et al. 2006 eq. 16 as a total reflectance (no checks)."""
     s = np.sqrt(3 * (1 - alpha))
-    a_coef = (1 + _fdr_polynomial(eta)) / (1 - _fdr_polynomial(eta))
+    a_coef = _boundary(eta)
     return alpha / 2 * (1 + np.exp(-4 / 3 * a_coef * s)) * np.exp(-s)
 
 
@@ -262,8 +266,7 @@ def diffuse_mean_free_path(sigma_tr):
     ℓd measures translucency; Weyrich et al. report subjects with ℓd from
     [1.0904, 0.6376, 0.6035] to [2.8106, 1.2607, 0.6590] mm (R, G, B).
     """
-    t = check_finite(as_float(sigma_tr, "sigma_tr"), "sigma_tr")
-    check_range(t, "sigma_tr", 0, None, low_inclusive=False, unit="mm^-1")
+    t = as_finite(sigma_tr, "sigma_tr", 0, None, low_inclusive=False, unit="mm^-1")
     return 1 / t
 
 
@@ -284,7 +287,7 @@ def _reduced_albedo(total, eta, tol=1e-13, max_iter=100):
     total = np.asarray(total, dtype=np.float64)
     eta = np.asarray(eta, dtype=np.float64)
     total, eta = np.broadcast_arrays(total, eta)
-    a_coef = (1 + _fdr_polynomial(eta)) / (1 - _fdr_polynomial(eta))
+    a_coef = _boundary(eta)
 
     def g(s):
         return (1 - s * s / 3) / 2 * (1 + np.exp(-4 / 3 * a_coef * s)) * np.exp(-s) - total
@@ -338,8 +341,7 @@ def reduced_albedo(total_reflectance, eta=1.38):
     ValidationError
         If a reflectance lies outside (0, 1): no albedo α' ∈ [0, 1] produces it.
     """
-    t = check_finite(as_float(total_reflectance, "total_reflectance"), "total_reflectance")
-    check_range(t, "total_reflectance", 0, 1, low_inclusive=False, high_inclusive=False)
+    t = as_finite(total_reflectance, "total_reflectance", 0, 1, low_inclusive=False, high_inclusive=False)
     e = _eta(eta)
     dtype = result_dtype(total_reflectance, eta)
     return np.asarray(_reduced_albedo(t, e), dtype=dtype)
@@ -371,8 +373,7 @@ def scattering_from_albedo(albedo, sigma_tr, eta=1.38):
         In mm⁻¹, broadcast shape of the inputs.
     """
     alpha = reduced_albedo(albedo, eta)
-    t = check_finite(as_float(sigma_tr, "sigma_tr"), "sigma_tr")
-    check_range(t, "sigma_tr", 0, None, low_inclusive=False, unit="mm^-1")
+    t = as_finite(sigma_tr, "sigma_tr", 0, None, low_inclusive=False, unit="mm^-1")
     dtype = result_dtype(albedo, sigma_tr, eta)
     sigma_t = t / np.sqrt(3 * (1 - alpha))
     sigma_s_prime = alpha * sigma_t

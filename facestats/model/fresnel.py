@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._blocked import blockwise
-from .._validate import as_float, check_finite, check_range, result_dtype
+from .._validate import as_finite, check_range, result_dtype
 from ..errors import ValidationError
 
 __all__ = ["fresnel_reflectance", "fresnel_transmittance", "diffuse_fresnel_reflectance"]
@@ -60,18 +60,17 @@ def _fresnel_reflectance(cos_i, eta):
 
 
 def _check_cos(cos_theta, name="cos_theta"):
-    c = check_finite(as_float(cos_theta, name), name)
+    """Validate cosines in [0, 1] (rounding overshoot within ``_COS_TOL`` is clipped)."""
+    c = as_finite(cos_theta, name)
     bad = (c < -_COS_TOL) | (c > 1 + _COS_TOL)
     if np.any(bad):
         raise ValidationError(f"{name} must lie in [0, 1], got {c[bad].reshape(-1)[0].item()!r}")
     return np.clip(c, 0, 1)
 
 
-def _check_eta(eta, low=0.0):
-    e = as_float(eta, "eta")
-    check_finite(e, "eta")
-    check_range(e, "eta", low, None, low_inclusive=False)
-    return e
+def _check_eta(eta):
+    """Validate a relative index of refraction: finite and > 0."""
+    return as_finite(eta, "eta", 0.0, None, low_inclusive=False)
 
 
 def fresnel_reflectance(cos_theta, eta=1.38):
@@ -120,7 +119,8 @@ def fresnel_transmittance(cos_theta, eta=1.38):
 
 
 def _fdr_polynomial(eta):
-    """Egan & Hilgeman polynomial for F_dr, valid for η ≥ 1 (no input checks)."""
+    """Egan & Hilgeman polynomial for F_dr, valid for η ≥ 1 (no input checks; see
+    :func:`diffuse_fresnel_reflectance`, Suzuki et al. eq. 9 with the sign corrected)."""
     return -1.440 / (eta * eta) + 0.710 / eta + 0.668 + 0.0636 * eta
 
 

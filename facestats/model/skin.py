@@ -31,10 +31,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import as_float, check_choice, check_finite, check_range, check_shape, result_dtype
+from .._validate import as_finite, as_float, check_choice, check_integer, check_range, check_shape, result_dtype
 from ..errors import ValidationError
 from . import brdf as _brdf
-from .dipole import _coefficients, _eta, _profile, _radial_energy, _total_from_reduced_albedo
+from .dipole import _coefficients, _eta, _radial_energy, _total_from_reduced_albedo
 from .fresnel import _fresnel_reflectance
 
 __all__ = [
@@ -75,7 +75,7 @@ def modulation_texture(albedo, mask=None):
     albedo_avg : ndarray, shape (3,)
         α_avg per channel.
     """
-    a = check_finite(as_float(albedo, "albedo"), "albedo")
+    a = as_finite(albedo, "albedo")
     check_shape(a, "albedo", (..., 3))
     check_range(a, "albedo", 0, 1)
     m = np.ones(a.shape[:-1], bool) if mask is None else np.asarray(mask, bool)
@@ -91,7 +91,13 @@ def modulation_texture(albedo, mask=None):
 
 
 def _dot(a, b):
+    """Dot products over the last axis."""
     return np.sum(a * b, axis=-1)
+
+
+def _points(value, name, n=None):
+    """Validate finite 3-D points or vectors, shape (N, 3) (N = ``n`` when given)."""
+    return check_shape(as_finite(value, name), name, (n, 3))
 
 
 def point_lights(positions, normals, light_positions, intensity):
@@ -117,10 +123,10 @@ def point_lights(positions, normals, light_positions, intensity):
     irradiance : ndarray, shape (N, L, 3)
         E in W mm⁻².
     """
-    p = check_shape(check_finite(as_float(positions, "positions"), "positions"), "positions", (None, 3))
-    n = check_shape(check_finite(as_float(normals, "normals"), "normals"), "normals", (p.shape[0], 3))
-    lp = check_shape(check_finite(as_float(light_positions, "light_positions"), "light_positions"), "light_positions", (None, 3))
-    i = check_range(check_finite(as_float(intensity, "intensity"), "intensity"), "intensity", 0, None)
+    p = _points(positions, "positions")
+    n = _points(normals, "normals", p.shape[0])
+    lp = _points(light_positions, "light_positions")
+    i = as_finite(intensity, "intensity", 0, None)
     if i.ndim == 1:
         i = np.repeat(i[:, None], 3, axis=1)
     check_shape(i, "intensity", (lp.shape[0], 3))
@@ -152,10 +158,10 @@ def directional_lights(normals, directions, irradiance):
     wi : ndarray, shape (N, L, 3)
     irradiance : ndarray, shape (N, L, 3)
     """
-    n = check_shape(check_finite(as_float(normals, "normals"), "normals"), "normals", (None, 3))
+    n = _points(normals, "normals")
     w = _brdf._check_directions(directions, "directions")
     check_shape(w, "directions", (None, 3))
-    e = check_range(check_finite(as_float(irradiance, "irradiance"), "irradiance"), "irradiance", 0, None)
+    e = as_finite(irradiance, "irradiance", 0, None)
     if e.ndim == 1:
         e = np.repeat(e[:, None], 3, axis=1)
     check_shape(e, "irradiance", (w.shape[0], 3))
@@ -166,8 +172,8 @@ def directional_lights(normals, directions, irradiance):
 
 def view_directions(positions, camera_positions):
     """Unit directions from surface points towards camera centres, shape (N, C, 3)."""
-    p = check_shape(check_finite(as_float(positions, "positions"), "positions"), "positions", (None, 3))
-    c = check_shape(check_finite(as_float(camera_positions, "camera_positions"), "camera_positions"), "camera_positions", (None, 3))
+    p = _points(positions, "positions")
+    c = _points(camera_positions, "camera_positions")
     d = c[None, :, :] - p[:, None, :]
     dist = np.sqrt(_dot(d, d))
     if np.any(dist <= 0):
@@ -176,10 +182,26 @@ def view_directions(positions, camera_positions):
 
 
 def neighbour_pairs(positions, radius):
-    """All ordered pairs of distinct points closer than ``radius``: ``(rows, cols, distance)``."""
+    """All ordered pairs of distinct points closer than ``radius``: ``(rows, cols, distance)``.
+
+    Parameters
+    ----------
+    positions : array_like, shape (N, 3)
+        Points in mm.
+    radius : float
+        Search radius in mm, > 0.
+
+    Returns
+    -------
+    rows, cols : ndarray of int
+        Indices of each pair (both orders of every pair).
+    distance : ndarray
+        Euclidean distance of each pair, mm.
+    """
     from scipy.spatial import cKDTree
 
-    p = np.asarray(positions, np.float64)
+    p = _points(positions, "positions").astype(np.float64, copy=False)
+    as_finite(radius, "radius", 0, None, low_inclusive=False, unit="mm")
     pairs = cKDTree(p).query_pairs(float(radius), output_type="ndarray")
     rows = np.concatenate([pairs[:, 0], pairs[:, 1]])
     cols = np.concatenate([pairs[:, 1], pairs[:, 0]])
@@ -248,10 +270,13 @@ class SubsurfaceTransport:
         self.total_reflectance = _total_from_reduced_albedo(alpha, self.eta)
         if self.positions is None:
             return
-        p = check_shape(check_finite(as_float(self.positions, "positions", np.float64), "positions"), "positions", (None, 3))
-        ar = check_finite(as_float(self.areas, "areas", np.float64), "areas")
+        p = check_shape(as_finite(self.positions, "positions", dtype=np.float64), "positions", (None, 3))
+        ar = as_finite(self.areas, "areas", dtype=np.float64)
         check_shape(ar, "areas", (p.shape[0],))
         check_range(ar, "areas", 0, None, low_inclusive=False, unit="mm^2")
+        if self.radius is None:  # the settings of the default radius
+            as_finite(self.tail, "tail", 0, 1, low_inclusive=False, high_inclusive=False)
+            check_integer(self.max_neighbors, "max_neighbors", 1)
         self.positions, self.areas = p, ar
         self._build()
 
@@ -345,6 +370,14 @@ def specular_brdf(model, normal, wi, wo, rho_s, roughness, eta=1.38):
     return _brdf.blinn_phong(normal, wi, wo, rho_s, roughness)
 
 
+def _per_point(value, name, npts):
+    """A scalar or one value per point, as a read-only (N,) view (values are checked by the BRDF)."""
+    a = as_float(value, name)
+    if a.ndim > 1 or a.size not in (1, npts):
+        raise ValidationError(f"{name} must be a scalar or have shape ({npts},), got shape {a.shape}")
+    return np.broadcast_to(a, (npts,))
+
+
 def skin_radiance(
     normal,
     wi,
@@ -402,12 +435,12 @@ def skin_radiance(
     npts = n.shape[0]
     wi = check_shape(_brdf._check_directions(wi, "wi"), "wi", (npts, None, 3))
     wo = check_shape(_brdf._check_directions(wo, "wo"), "wo", (npts, None, 3))
-    e = check_range(check_finite(as_float(irradiance, "irradiance"), "irradiance"), "irradiance", 0, None)
+    e = as_finite(irradiance, "irradiance", 0, None)
     check_shape(e, "irradiance", (npts, wi.shape[1], 3))
-    mod = check_range(check_finite(as_float(modulation, "modulation"), "modulation"), "modulation", 0, None)
+    mod = as_finite(modulation, "modulation", 0, None)
     check_shape(mod, "modulation", (npts, 3))
-    rho = np.broadcast_to(as_float(rho_s, "rho_s"), (npts,))
-    rough = np.broadcast_to(as_float(roughness, "roughness"), (npts,))
+    rho = _per_point(rho_s, "rho_s", npts)
+    rough = _per_point(roughness, "roughness", npts)
     dtype = result_dtype(n, wi, wo, e, mod)
 
     # Specular: grey BRDF for every (point, camera, light), times the light's colour.

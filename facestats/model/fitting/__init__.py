@@ -1,9 +1,13 @@
 """The fit pipeline's stages (Weyrich et al. 2006 §4-5, Fig. 3), as functions on arrays.
 
-1. :func:`photometric_normals`, :func:`micro_normals` (§5.1)
-2. :func:`albedo_stable_minimum` (eq. 9) and :func:`refine_albedo`
+Stages 1-4 work on :class:`Samples`: the valid samples of many lumitexels as
+flat arrays, one contiguous run per lumitexel.
+
+1. :func:`photometric_normals` (3 passes), :func:`micro_normals` (§5.1)
+2. :func:`fresnel_factors`, :func:`albedo_stable_minimum` (eq. 9) and :func:`refine_albedo`
 3. :func:`specular_residual` (eq. 10)
-4. :func:`fit_specular` (eq. 11-14, batch Levenberg-Marquardt)
+4. :func:`specular_factors` and :func:`fit_specular_samples` (eq. 11-14, batch
+   Levenberg-Marquardt; :func:`fit_specular` for per-texel sample arrays)
 5. :func:`scatter_to_map`, :func:`push_pull`, :func:`fill_flagged`
 6. :func:`fit_translucency`, :func:`population_sigma_tr_avg` (§5.4)
 7. :func:`scattering_parameters` (§5.4, eq. 7, eq. 16)

@@ -8,10 +8,11 @@ every observation,
 
 made stable "by penalizing grazing observations and discarding the k smallest
 values".  Here the Fresnel-normalised samples v = π f_r/(F_t F_t) are *ranked*
-by the penalised value v · (1 + γ g), with g rising linearly from 0 where both
-θi and θo are below ``grazing_start`` (60°) to 1 at 80° (γ = ``grazing_penalty``;
-grazing samples are least reliable, §5.3); the k smallest (k = ``discard``) are
-discarded, and α is the unpenalised v of the next one, per channel.  Two
+by the penalised value v · (1 + γ g), with g rising from 0 where both θi and θo
+are below ``grazing_start`` (60°) to 1 at ``grazing_end`` (80°), linearly in the
+cosine of the larger angle (γ = ``grazing_penalty``; grazing samples are least
+reliable, §5.3); the k smallest (k = ``discard``) are discarded, and α is the
+unpenalised v of the next one, per channel.  Two
 choices matter, both checked on noise-free simulated captures: returning the
 penalised value would bias α upwards by the chosen sample's penalty, and a
 penalty that grows from normal incidence would favour samples with light and
@@ -40,17 +41,42 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..fresnel import _fresnel_reflectance
+from ..._validate import as_finite, check_integer, check_shape
+from ...errors import ValidationError
+from ..fresnel import _check_eta, _fresnel_reflectance
 
 __all__ = ["fresnel_factors", "albedo_stable_minimum", "specular_residual", "refine_albedo"]
 
 
-def fresnel_factors(samples, normal, eta=1.38):
-    """Per-sample cos θi, cos θo and F_t(θi) F_t(θo) for per-lumitexel unit normals (no checks).
+def _check_per_sample(samples, brdf=None, **vectors):
+    """Check a channel-major ``brdf`` (3, S) and per-sample vectors (S,) against ``samples``."""
+    if brdf is not None:
+        check_shape(np.asarray(brdf), "brdf", (3, samples.n))
+    for name, v in vectors.items():
+        check_shape(np.asarray(v), name, (samples.n,))
 
-    The Fresnel terms are evaluated on the (lumitexel, light) and (lumitexel,
-    camera) grids and gathered per sample.
+
+def _check_angle(value, name):
+    """An angle in [0, π/2] rad."""
+    return float(as_finite(value, name, 0, np.pi / 2, unit="rad"))
+
+
+def fresnel_factors(samples, normal, eta=1.38):
+    """Per-sample cos θi, cos θo and F_t(θi) F_t(θo) for per-lumitexel unit normals.
+
+    F_t = 1 − F_r is the unpolarised Fresnel transmittance at relative index
+    ``eta`` (Weyrich et al. 2006 eq. 6, :func:`facestats.model.fresnel.fresnel_transmittance`),
+    evaluated in float32 on the (lumitexel, light) and (lumitexel, camera) grids
+    and gathered per sample.  Cosines below 0 are returned as they are (F_t uses
+    them clipped to [0, 1]).  ``normal`` must have shape (n_texels, 3) and hold
+    unit vectors (not checked).
+
+    Returns
+    -------
+    cos_i, cos_o, ft2 : ndarray of float32, shape (S,)
     """
+    check_shape(np.asarray(normal), "normal", (samples.n_texels, 3))
+    _check_eta(eta)
     nrm = np.asarray(normal, np.float32)
     ci_g = np.matmul(samples.wi_grid, nrm[:, :, None])[..., 0]
     co_g = np.matmul(samples.wo_grid, nrm[:, :, None])[..., 0]
@@ -64,6 +90,12 @@ def fresnel_factors(samples, normal, eta=1.38):
 def albedo_stable_minimum(samples, brdf, cos_i, cos_o, ft2, use, *, discard=2, grazing_penalty=1.0,
                           grazing_start=np.radians(60.0), grazing_end=np.radians(80.0)):
     """Diffuse albedo by the stable minimum of eq. 9 (module docstring).
+
+    Samples are ranked per channel by the penalised value v·(1 + γ g) of
+    v = π f_r/(F_t F_t), with g rising from 0 at ``grazing_start`` (60°) to 1 at
+    ``grazing_end`` (80°), linearly in the cosine of the larger of θi and θo; the
+    ``discard`` smallest are skipped and the unpenalised v of the next one is the
+    albedo.
 
     Parameters
     ----------
@@ -80,27 +112,28 @@ def albedo_stable_minimum(samples, brdf, cos_i, cos_o, ft2, use, *, discard=2, g
     grazing_penalty : float
         γ ≥ 0 of the grazing penalty.
     grazing_start, grazing_end : float
-        Angles (rad) between which the penalty grows from 0 to γ.
+        Angles (rad), 0 ≤ start < end ≤ π/2, between which the penalty grows from 0 to γ.
 
     Returns
     -------
-    albedo : ndarray, shape (n, 3)
+    albedo : ndarray of float32, shape (n, 3)
         α per channel; NaN where fewer than k + 1 samples are usable.
     n_used : ndarray of int, shape (n,)
         Usable samples per lumitexel.
     """
+    _check_per_sample(samples, brdf, cos_i=cos_i, cos_o=cos_o, ft2=ft2, use=use)
+    k = check_integer(discard, "discard", 0)
+    as_finite(grazing_penalty, "grazing_penalty", 0, None)
+    if not _check_angle(grazing_start, "grazing_start") < _check_angle(grazing_end, "grazing_end"):
+        raise ValidationError(f"grazing_start must be < grazing_end, got {grazing_start!r} >= {grazing_end!r} rad")
     c0, c1 = np.cos(grazing_start), np.cos(grazing_end)
     graze = np.clip((c0 - np.minimum(cos_i, cos_o)) / (c0 - c1), 0, 1)
     penalty = (1 + np.float32(grazing_penalty) * graze).astype(np.float32)
-    k = int(discard)
     with np.errstate(invalid="ignore", divide="ignore"):
         v = (np.float32(np.pi) * brdf / ft2).astype(np.float32)  # (3, S)
     ok = use & np.isfinite(v[0] + v[1] + v[2])
-    # One padded (lumitexel, sample) layout for all channels.
-    t = samples.texel[ok]
-    counts = np.bincount(t, minlength=samples.n_texels)
-    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    rank = np.arange(t.size) - start[t]
+    # One padded (lumitexel, rank) layout for all channels.
+    t, rank, counts = samples.ranks(ok)
     width = max(int(counts.max(initial=0)), k + 1)
     out = np.full((samples.n_texels, 3), np.nan, np.float32)
     po = penalty[ok]
@@ -117,10 +150,12 @@ def albedo_stable_minimum(samples, brdf, cos_i, cos_o, ft2, use, *, discard=2, g
 
 
 def specular_residual(samples, brdf, albedo, ft2):
-    """Grey specular BRDF samples f_s = mean_RGB(f_r − (α/π) F_t F_t), eq. 10, shape (S,).
+    """Grey specular BRDF samples f_s = mean_RGB(f_r − (α/π) F_t F_t), eq. 10, shape (S,), float32, sr⁻¹.
 
-    ``brdf`` is channel-major (3, S); ``albedo`` (n, 3).
+    ``brdf`` is channel-major (3, S); ``albedo`` (n, 3); ``ft2`` (S,) is F_t(θi) F_t(θo).
     """
+    _check_per_sample(samples, brdf, ft2=ft2)
+    check_shape(np.asarray(albedo), "albedo", (samples.n_texels, 3))
     grey_albedo = albedo.sum(axis=1, dtype=np.float32)[samples.texel]  # Σ_ch α
     total = brdf[0] + brdf[1] + brdf[2]
     return ((total - grey_albedo * (ft2 / np.float32(np.pi))) / np.float32(3)).astype(np.float32)
@@ -142,13 +177,18 @@ def refine_albedo(samples, brdf, ft2, cos_half, use, *, min_half_angle=np.radian
         N·H per sample.
     use : ndarray of bool, shape (S,)
         Samples allowed in the estimate (valid, within the angle limit).
+    min_half_angle : float
+        Angle (rad, in [0, π/2]) between normal and half vector beyond which a
+        sample counts as specular-free (default 50°).
 
     Returns
     -------
-    albedo : ndarray, shape (n, 3)
+    albedo : ndarray of float32, shape (n, 3)
         NaN where no sample qualifies.
     n_used : ndarray of int, shape (n,)
     """
+    _check_per_sample(samples, brdf, ft2=ft2, cos_half=cos_half, use=use)
+    _check_angle(min_half_angle, "min_half_angle")
     with np.errstate(invalid="ignore", divide="ignore"):
         v = np.float32(np.pi) * brdf / ft2
     sel = use & (cos_half < np.cos(min_half_angle)) & np.isfinite(v[0] + v[1] + v[2])

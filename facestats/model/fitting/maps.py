@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..._validate import check_integer, check_shape
 from ...errors import ValidationError
 
 __all__ = ["scatter_to_map", "push_pull", "fill_flagged"]
@@ -32,8 +33,9 @@ def scatter_to_map(values, texel, size):
     values : ndarray, shape (N, ...)
         Values per lumitexel (trailing dims kept, e.g. channels); NaN ignored.
     texel : ndarray of int, shape (N, 2)
-        ``(v, u)`` texel of each lumitexel.
+        ``(v, u)`` texel of each lumitexel, in [0, size).
     size : int
+        Side of the square map (≥ 1).
 
     Returns
     -------
@@ -43,8 +45,13 @@ def scatter_to_map(values, texel, size):
         at the output's size).
     count : ndarray of int, shape (size, size)
     """
+    size = check_integer(size, "size", 1)
     v = np.asarray(values)
-    t = np.asarray(texel)
+    t = check_shape(np.asarray(texel), "texel", (v.shape[0] if v.ndim else None, 2))
+    if t.dtype.kind not in "iu":
+        raise ValidationError(f"texel must hold integer (v, u) indices, got dtype {t.dtype}")
+    if t.size and (t.min() < 0 or t.max() >= size):
+        raise ValidationError(f"texel must lie in [0, {size}), got indices {int(t.min())}..{int(t.max())}")
     flat = t[:, 0] * size + t[:, 1]
     trail = v.shape[1:]
     vv = v.reshape(v.shape[0], -1)
@@ -102,6 +109,8 @@ def push_pull(image, known, fill=None):
     ndarray, shape of ``image``
     """
     img = np.asarray(image, np.float64)
+    if img.ndim not in (2, 3):
+        raise ValidationError(f"image must have shape (H, W) or (H, W, K), got shape {img.shape}")
     k = np.asarray(known, bool)
     if k.shape != img.shape[:2]:
         raise ValidationError(f"known must have shape {img.shape[:2]}, got {k.shape}")
@@ -120,6 +129,8 @@ def push_pull(image, known, fill=None):
         up = _upsample(cur, w_l.shape)
         cur = w_l[..., None] * val_l + (1 - w_l[..., None]) * up
     out = cur[..., 0] if squeeze else cur
+    if fill is not None and np.shape(fill) != k.shape:
+        raise ValidationError(f"fill must have shape {k.shape}, got {np.shape(fill)}")
     target = ~k if fill is None else (np.asarray(fill, bool) & ~k)
     res = np.array(img, copy=True)
     res[target] = out[target]
@@ -127,6 +138,25 @@ def push_pull(image, known, fill=None):
 
 
 def fill_flagged(image, flagged, face):
-    """Replace flagged face texels by push-pull interpolation of the unflagged face texels (§5.3)."""
-    known = np.asarray(face, bool) & ~np.asarray(flagged, bool) & np.all(np.isfinite(np.asarray(image).reshape(face.shape + (-1,))), axis=-1)
-    return push_pull(image, known, fill=np.asarray(face, bool) & ~known)
+    """Replace flagged face texels by push-pull interpolation of the unflagged face texels (§5.3).
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W) or (H, W, K)
+    flagged, face : ndarray of bool, shape (H, W)
+        Texels whose fit was flagged; texels that belong to the face.  Non-finite
+        face texels are filled too.
+
+    Returns
+    -------
+    ndarray, shape of ``image``
+        Face texels that are flagged or non-finite replaced; others unchanged.
+    """
+    face = np.asarray(face, bool)
+    flagged = np.asarray(flagged, bool)
+    if flagged.shape != face.shape or np.shape(image)[:2] != face.shape:
+        raise ValidationError(
+            f"image, flagged and face must share (H, W), got shapes {np.shape(image)}, {flagged.shape} and {face.shape}"
+        )
+    known = face & ~flagged & np.all(np.isfinite(np.asarray(image).reshape(face.shape + (-1,))), axis=-1)
+    return push_pull(image, known, fill=face & ~known)

@@ -13,7 +13,8 @@ normal (§5.1 "blending weights").  Samples near the mirror direction of the
 scanned normal (half-vector within ``specular_exclusion`` of it) and beyond
 ``max_angle`` are left out so the specular lobe does not bias the estimate, and
 the F_t(θi) factor is divided out with the current normal estimate and the solve
-repeated (``iterations``).
+repeated: ``iterations`` = 3 passes by default (the first without the F_t(θi)
+correction).
 
 Micro-normals (§5.1): "For each camera viewpoint, we choose the sample with
 maximum value in each lumitexel.  The half-way vector between the view direction
@@ -24,13 +25,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..._validate import as_finite, check_integer, check_shape
 from ...errors import ValidationError
-from ..fresnel import _fresnel_reflectance
+from ..fresnel import _check_eta, _fresnel_reflectance
 
 __all__ = ["photometric_normals", "micro_normals"]
 
 
 def _unit(v):
+    """Vectors on the last axis scaled to unit length (NaN for zero vectors, no warning)."""
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
         return v / n
@@ -43,21 +46,25 @@ def photometric_normals(samples, scan_normal, n_cameras, *, eta=1.38, specular_e
     Parameters
     ----------
     samples : facestats.model.fitting.Samples
-        Valid samples with camera indices.
+        Valid samples on a dome grid (:meth:`Samples.from_grid`: one ``wo_grid``
+        direction per camera).
     scan_normal : ndarray, shape (n, 3)
         Scanned normals, used only to exclude specular and grazing samples.
     n_cameras : int
+        Number of cameras of the grid (≥ 1).
     eta : float
         Relative index of refraction for F_t.
     specular_exclusion : float
-        Samples whose half vector lies within this angle (rad) of the scan normal are ignored.
+        Samples whose half vector lies within this angle (rad, in [0, π/2]) of the
+        scan normal are ignored.
     max_angle : float
-        Samples with θi or θo beyond this angle (rad) are ignored.
+        Samples with θi or θo beyond this angle (rad, in (0, π/2]) are ignored.
     iterations : int
-        Number of solves (the first without, later ones with the F_t(θi) correction
-        of the previous normal; three bring the noise-free error from 1.1° to 0.08°).
+        Number of solves, ≥ 1 (the first without, later ones with the F_t(θi)
+        correction of the previous normal; the default three bring the noise-free
+        error from 1.1° to 0.08°).
     min_lights : int
-        Cameras with fewer usable lights get no vote.
+        Cameras with fewer usable lights get no vote (≥ 3: three unknowns).
 
     Returns
     -------
@@ -66,8 +73,15 @@ def photometric_normals(samples, scan_normal, n_cameras, *, eta=1.38, specular_e
     camera_normal : ndarray, shape (n, C, 3)
         Per-camera normals (NaN where a camera had too few lights).
     """
+    n_cameras = _check_camera_grid(samples, n_cameras)
+    check_shape(np.asarray(scan_normal), "scan_normal", (samples.n_texels, 3))
+    _check_eta(eta)
+    as_finite(specular_exclusion, "specular_exclusion", 0, np.pi / 2, unit="rad")
+    as_finite(max_angle, "max_angle", 0, np.pi / 2, low_inclusive=False, unit="rad")
+    check_integer(iterations, "iterations", 1)
+    check_integer(min_lights, "min_lights", 3)
     n_scan = np.asarray(scan_normal, np.float32)
-    n, n_key = samples.n_texels, samples.n_texels * int(n_cameras)
+    n, n_key = samples.n_texels, samples.n_texels * n_cameras
     y = samples.grey()
     ci, co = samples.cos(n_scan)
     io = samples.cos_io()
@@ -87,9 +101,7 @@ def photometric_normals(samples, scan_normal, n_cameras, *, eta=1.38, specular_e
     wig = samples.wi_grid.astype(np.float64)
     outer = (samples.wi_grid[:, :, :, None] * samples.wi_grid[:, :, None, :]).reshape(n, n_led, 9)
     a = np.matmul(sel, outer).astype(np.float64).reshape(n_key, 3, 3)  # float32 products, ~150 terms
-    cam_dir = samples.wo_grid[:, :n_cameras].astype(np.float64) if samples.wo_grid.shape[1] == n_cameras else None
-    if cam_dir is None:
-        raise ValidationError("photometric_normals needs samples on a camera grid (Samples.from_grid)")
+    cam_dir = samples.wo_grid.astype(np.float64)
     ok = count >= min_lights
     det = np.linalg.det(a)
     ok &= det > 1e-6 * np.maximum(count, 1.0) ** 3
@@ -116,17 +128,36 @@ def photometric_normals(samples, scan_normal, n_cameras, *, eta=1.38, specular_e
     return normal.astype(np.float32), cam_n.astype(np.float32)
 
 
+def _check_camera_grid(samples, n_cameras):
+    """``n_cameras`` as an int, checked against the samples' camera grid."""
+    n_cameras = check_integer(n_cameras, "n_cameras", 1)
+    if samples.wo_grid.shape[1] != n_cameras:
+        raise ValidationError(
+            f"samples must hold one wo_grid direction per camera (build them with Samples.from_grid): "
+            f"n_cameras is {n_cameras}, got wo_grid of shape {samples.wo_grid.shape}"
+        )
+    return n_cameras
+
+
 def micro_normals(samples, n_cameras):
     """Per-camera micro-normals: the half vector of each view's brightest sample (§5.1).
 
     "Brightest" is the largest grey BRDF-like value L/E⊥ among the camera's valid
     samples.
 
+    Parameters
+    ----------
+    samples : facestats.model.fitting.Samples
+        Valid samples on a dome grid (:meth:`Samples.from_grid`).
+    n_cameras : int
+        Number of cameras of the grid.
+
     Returns
     -------
     ndarray, shape (n, C, 3)
         Unit half vectors; NaN where a camera has no valid sample.
     """
+    n_cameras = _check_camera_grid(samples, n_cameras)
     n = samples.n_texels
     y = np.nan_to_num(samples.grey(), nan=-np.inf)
     key = samples.texel.astype(np.int64) * n_cameras + samples.camera

@@ -8,9 +8,11 @@ light of each sample and its radiance and irradiance (channel-major, so every
 channel is contiguous).  Directions stay on the per-lumitexel grids they come
 from (towards each light, towards each camera); the stages need only cosines
 (N·ωi, N·ωo, ωi·ωo), which are computed on the small grids and gathered per
-sample, so no per-sample 3-vector is ever built.  Per-lumitexel sums are
-``np.bincount`` over the lumitexel index; per-lumitexel order statistics use a
-padded view.
+sample, so no per-sample 3-vector is ever built.  Because the samples of a
+lumitexel are contiguous, per-lumitexel sums are ``np.bincount`` over the
+lumitexel index (:meth:`Samples.sum`) or ``np.add.reduceat`` over the runs (the
+specular solver); per-lumitexel order statistics use a padded
+(lumitexel, rank) layout (:meth:`Samples.ranks`, :meth:`Samples.padded`).
 """
 
 from __future__ import annotations
@@ -138,13 +140,22 @@ class Samples:
                 self._cache["grey"] = (r[0] + r[1] + r[2]) / (e[0] + e[1] + e[2])
         return self._cache["grey"]
 
-    def padded(self, values, fill, mask=None):
-        """Per-lumitexel padded view (n_texels, S_max) of ``values`` (S,) (only ``mask`` samples kept)."""
-        sel = np.ones(self.n, bool) if mask is None else np.asarray(mask, bool)
-        t = self.texel[sel]
+    def ranks(self, mask=None):
+        """Position of each kept sample within its lumitexel: ``(texel, rank, counts)``.
+
+        ``texel`` and ``rank`` (S',) index the padded (lumitexel, rank) layout of the
+        samples kept by ``mask`` (all by default); ``counts`` (n_texels,) is the
+        number kept per lumitexel.  Relies on the samples being sorted by lumitexel.
+        """
+        t = self.texel if mask is None else self.texel[np.asarray(mask, bool)]
         counts = np.bincount(t, minlength=self.n_texels)
         start = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        rank = np.arange(t.size) - start[t]
-        out = np.full((self.n_texels, max(int(counts.max(initial=0)), 1)), fill, dtype=np.asarray(values).dtype)
-        out[t, rank] = np.asarray(values)[sel]
+        return t, np.arange(t.size) - start[t], counts
+
+    def padded(self, values, fill, mask=None):
+        """Per-lumitexel padded view (n_texels, S_max) of ``values`` (S,) (only ``mask`` samples kept)."""
+        t, rank, counts = self.ranks(mask)
+        vals = np.asarray(values)
+        out = np.full((self.n_texels, max(int(counts.max(initial=0)), 1)), fill, dtype=vals.dtype)
+        out[t, rank] = vals if mask is None else vals[np.asarray(mask, bool)]
         return out, counts

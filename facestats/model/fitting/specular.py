@@ -14,8 +14,9 @@ Levenberg-Marquardt iteration vectorised over texels and samples:
   g = A exp(−t/m²)/m², A = K cos θi / cos⁴δ, t = tan²δ for Torrance-Sparrow
   (K = G F_r/(π cos θi cos θo), :func:`facestats.model.brdf.torrance_sparrow_cosines`)
   and g = A (n+2) cosⁿδ, A = cos θi/(2π) for Blinn-Phong.  The per-sample
-  factors A, t (or ln cos δ) are computed once; every iteration costs one
-  exponential per sample.
+  factors A, t (or ln cos δ) are computed once, in float32 and blockwise
+  (:func:`specular_factors`, :func:`facestats._blocked.blockwise`); every
+  iteration costs one exponential per sample.
 * Parameters (ρs, q = ln p): the lobe parameter is solved in log space, where
   the problem is well scaled.  Bounds are enforced by projection of each step,
   with per-texel damping λ (accepted steps divide it by 3, rejected ones
@@ -26,11 +27,14 @@ Levenberg-Marquardt iteration vectorised over texels and samples:
   start is given (a previous fit: the pipeline refits after refining the albedo,
   and starts Blinn-Phong at the Beckmann-equivalent n = 2/m² − 2).
 * Convergence: a texel stops when an accepted step changes E² by less than
-  ``tol`` relative, or ρs and ln p by less than 10⁻⁵ (relative).
-* Only samples with w = 1 are kept, as flat arrays grouped by texel
-  (:class:`facestats.model.fitting.samples.Samples`); per-texel sums are
-  ``np.bincount`` over the texel index, and texels that have converged leave the
-  working set.
+  ``tol`` relative, when a step (accepted or not) changes ρs by less than 10⁻⁵
+  relative and ln p by less than 10⁻⁵, or when λ exceeds 10¹⁰.
+* Only samples with w = 1 are kept, as flat arrays in which every texel's
+  samples form one contiguous run (:class:`facestats.model.fitting.samples.Samples`
+  is sorted by texel); per-texel sums are ``np.add.reduceat`` over the runs
+  (float32 in the iteration; the final error and standard errors accumulate in
+  float64), and when fewer than 70 % of the texels are still moving the
+  converged ones leave the working set.
 
 Flags (:data:`facestats.io.schema.FLAG_BITS`): ``few_samples`` when fewer than
 ``min_samples`` samples remain, ``not_converged`` when ``max_iter`` is reached,
@@ -46,10 +50,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..._validate import as_float, check_choice, check_shape
-from ...errors import ValidationError
 from ..._blocked import blockwise
+from ..._validate import as_finite, as_float, check_choice, check_integer, check_shape
+from ...errors import ValidationError
 from ..brdf import torrance_sparrow_cosines
+from ..fresnel import _check_eta
+from .samples import Samples
 
 __all__ = ["SpecularFit", "fit_specular", "fit_specular_samples", "specular_factors", "DEFAULT_BOUNDS"]
 
@@ -100,10 +106,12 @@ class SpecularFit:
 
     @property
     def lobe_name(self) -> str:
+        """Name of the lobe parameter: ``"m"`` (Torrance-Sparrow) or ``"exponent"`` (Blinn-Phong)."""
         return _LOBE_NAME[self.model]
 
     @property
     def params(self) -> dict:
+        """``{"rho_s": ..., lobe_name: ...}``, keyword arguments of the model's BRDF."""
         return {"rho_s": self.rho_s, self.lobe_name: self.lobe}
 
 
@@ -148,12 +156,16 @@ def _ts_factor_kernel(ci, co, io, eta):
 def specular_factors(samples, normal, model, eta=1.38, cos=None):
     """Parameter-free per-sample factors (s1, A) of ``model`` (module docstring), float32.
 
-    Torrance-Sparrow: s1 = tan²δ, A = K cos θi / cos⁴δ with K from
-    :func:`facestats.model.brdf.torrance_sparrow_cosines`; Blinn-Phong:
-    s1 = ln cos δ, A = cos θi / (2π).  A = 0 where a direction is below the horizon.
-    ``cos`` = (N·ωi, N·ωo) per sample may be passed when already known.
+    Torrance-Sparrow (Weyrich et al. 2006 eq. 12-13): s1 = tan²δ,
+    A = K cos θi / cos⁴δ (sr⁻¹) with K from
+    :func:`facestats.model.brdf.torrance_sparrow_cosines`, evaluated block by
+    block (:func:`facestats._blocked.blockwise`); Blinn-Phong (eq. 11):
+    s1 = ln cos δ, A = cos θi / (2π).  A = 0 where a direction is below the
+    horizon.  ``cos`` = (N·ωi, N·ωo) per sample may be passed when already known
+    (``normal`` is then not used).
     """
     check_choice(model, "model", DEFAULT_BOUNDS)
+    _check_eta(eta)
     # float32 throughout: the factors' relative error stays below 2e-5 (1e-6 typical), far
     # below the noise of any measured sample.
     ci, co = samples.cos(normal) if cos is None else cos
@@ -178,15 +190,27 @@ def fit_specular_samples(samples, normal, f_s, use, model, *, factors=None, eta=
         Grey specular BRDF samples.
     use : ndarray of bool, shape (S,)
         Samples that enter eq. 14 (w = 1).
+    model : {"torrance_sparrow", "blinn_phong"}
     factors : tuple, optional
         Precomputed :func:`specular_factors` for these samples, normals and model.
+    eta, bounds, min_samples, max_iter, tol, max_relative_error
+        As :func:`fit_specular`.
     start : ndarray, shape (n,), optional
         Starting lobe parameter per texel (e.g. a previous fit); NaN entries use
         the log-linear start.
     cos : tuple of ndarray, optional
         (N·ωi, N·ωo) per sample, when already known.
+
+    Returns
+    -------
+    SpecularFit
     """
     check_choice(model, "model", DEFAULT_BOUNDS)
+    check_shape(np.asarray(normal), "normal", (samples.n_texels, 3))
+    check_shape(np.asarray(f_s), "f_s", (samples.n,))
+    check_shape(np.asarray(use), "use", (samples.n,))
+    if start is not None:
+        check_shape(np.asarray(start), "start", (samples.n_texels,))
     if cos is None:
         cos = samples.cos(normal)
     s1, a = specular_factors(samples, normal, model, eta, cos) if factors is None else factors
@@ -230,9 +254,8 @@ def fit_specular(wi, wo, normal, f_s, valid, model, *, bounds=None, eta=1.38, ma
     -------
     SpecularFit
     """
-    from .samples import Samples
-
     check_choice(model, "model", DEFAULT_BOUNDS)
+    as_finite(max_angle, "max_angle", 0, np.pi / 2, low_inclusive=False, unit="rad")
     wi = as_float(wi, "wi")
     wo = as_float(wo, "wo")
     normal = as_float(normal, "normal")
@@ -255,11 +278,20 @@ def fit_specular(wi, wo, normal, f_s, valid, model, *, bounds=None, eta=1.38, ma
 def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol, max_relative_error, dtype=np.float32,
            start=None):
     """Batch bounded Levenberg-Marquardt on flat samples grouped by texel (module docstring)."""
-    (r_lo, r_hi), (p_lo, p_hi) = DEFAULT_BOUNDS[model] if bounds is None else bounds
-    if not (0 <= r_lo < r_hi and 0 < p_lo < p_hi):
-        raise ValidationError(f"bounds must be ((rho_lo, rho_hi), (lobe_lo, lobe_hi)) with 0 <= rho_lo < rho_hi and 0 < lobe_lo < lobe_hi, got {bounds!r}")
-    if int(min_samples) < 2:
-        raise ValidationError(f"min_samples must be >= 2 (two parameters), got {min_samples!r}")
+    try:
+        (r_lo, r_hi), (p_lo, p_hi) = DEFAULT_BOUNDS[model] if bounds is None else bounds
+        ordered = 0 <= r_lo < r_hi and 0 < p_lo < p_hi
+    except (TypeError, ValueError):
+        ordered = False
+    if not ordered:
+        raise ValidationError(
+            "bounds must be ((rho_lo, rho_hi), (lobe_lo, lobe_hi)) with 0 <= rho_lo < rho_hi and "
+            f"0 < lobe_lo < lobe_hi, got {bounds!r}"
+        )
+    check_integer(min_samples, "min_samples", 2)
+    check_integer(max_iter, "max_iter", 0)
+    as_finite(tol, "tol", 0, None)
+    as_finite(max_relative_error, "max_relative_error", 0, None, low_inclusive=False)
     dt = np.dtype(dtype)
     q_lo, q_hi = np.log(p_lo), np.log(p_hi)
     n_use = np.bincount(texel, minlength=n_tex)

@@ -15,10 +15,15 @@ the log-space fit of Suzuki, Mukaigawa & Yagi (eq. 36),
 Σ_k [ln R_meas(r_k) − ln R_d(r_k)]², over the positive readings.  (A log-space
 fit weighted by relative errors would be biased by readings near the noise
 floor, whose logarithm is dominated by noise.)  Non-finite readings are left out.
-The solve is a Levenberg-Marquardt iteration in (ln σ's, ln σa), vectorised over
-all profiles (sites × channels × subjects), started from the best point of a
-log-spaced grid.  Standard errors come from (JᵀWJ)⁻¹ and propagate to σtr by the
-delta method.
+The cost has a narrow curved valley in (σ's, σa) but is nearly axis-aligned in
+(ln σtr, logit α') (σtr sets the decay, α' the level), so the solve is a
+Levenberg-Marquardt iteration in those coordinates, vectorised over all profiles
+(sites × channels × subjects), with σ's ∈ [0.02, 50] and σa ∈ [10⁻⁴, 20] mm⁻¹.
+It starts from the far-field decay rate (the slope of ln R + 2 ln r against r
+over the clear readings beyond 1.5 mm): for each of three bands of α' the best
+of 18 starts (6 decay rates × 3 levels) is iterated, and the best of the three
+results wins.  Standard errors come from (JᵀWJ)⁻¹ in (ln σ's, ln σa) and
+propagate to σtr by the delta method.
 
 σtrAvg (§5.4) "is the mean over all subjects of the measurements for the
 forehead and cheek, ignoring the neck".
@@ -35,9 +40,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..._validate import as_float, check_finite, check_range
+from ..._validate import as_finite, as_float, check_integer, check_shape
 from ...errors import ValidationError
-from ..dipole import _profile, scattering_from_albedo
+from ..dipole import _eta, _profile, scattering_from_albedo
 from ..skin import modulation_texture
 
 __all__ = ["TranslucencyFit", "fit_translucency", "population_sigma_tr_avg", "scattering_parameters"]
@@ -47,7 +52,12 @@ _BOUNDS = ((0.02, 50.0), (1e-4, 20.0))  # σ's, σa in mm⁻¹
 
 @dataclass
 class TranslucencyFit:
-    """Dipole parameters fitted to profiles (arrays of the profiles' leading shape)."""
+    """Dipole parameters fitted to profiles (arrays of the profiles' leading shape).
+
+    ``sigma_s_prime``, ``sigma_a``, ``sigma_tr`` and their ``*_std`` standard errors
+    in mm⁻¹; ``chi2`` the final cost (weighted squared residuals; in ln R without
+    std); ``n_points`` the readings used per profile.
+    """
 
     sigma_s_prime: np.ndarray
     sigma_a: np.ndarray
@@ -65,10 +75,11 @@ class TranslucencyFit:
 
 
 def _model(log_s, log_a, r, eta):
+    """R_d(r) (mm⁻²) for log-coefficients of the profiles' leading shape, r on a new last axis."""
     return _profile(r, np.exp(log_s)[..., None], np.exp(log_a)[..., None], eta)
 
 
-def fit_translucency(r, profile, std=None, *, eta=1.38, max_iter=60, grid=16):
+def fit_translucency(r, profile, std=None, *, eta=1.38, max_iter=60):
     """Fit the dipole (σ's, σa) to diffuse reflectance profiles R(r) (module docstring).
 
     Parameters
@@ -78,9 +89,12 @@ def fit_translucency(r, profile, std=None, *, eta=1.38, max_iter=60, grid=16):
     profile : array_like, shape (..., F)
         Measured R(r) in mm⁻² (any leading shape: sites, channels, subjects).
     std : array_like, shape (..., F), optional
-        Standard deviation of each reading (the sensor's noise model).
+        Standard deviation of each reading (the sensor's noise model), mm⁻²;
+        readings with a non-positive or non-finite std are left out.
     eta : float
-        Relative index of refraction.
+        Relative index of refraction, in [1, 3].
+    max_iter : int
+        Levenberg-Marquardt iterations per start band (≥ 1).
 
     Returns
     -------
@@ -88,16 +102,21 @@ def fit_translucency(r, profile, std=None, *, eta=1.38, max_iter=60, grid=16):
         Arrays of the leading shape of ``profile``.  Without ``std`` the standard
         errors assume unit variance of ln R and are only relative.
     """
-    rr = check_range(check_finite(as_float(r, "r", np.float64), "r"), "r", 0, None, unit="mm")
+    rr = check_shape(as_finite(r, "r", 0, None, unit="mm", dtype=np.float64), "r", (None,))
     p = as_float(profile, "profile", np.float64)
-    if p.shape[-1] != rr.shape[0]:
+    if p.ndim < 1 or p.shape[-1] != rr.shape[0]:
         raise ValidationError(f"profile must have {rr.shape[0]} distances on its last axis, got shape {p.shape}")
+    _eta(eta)
+    check_integer(max_iter, "max_iter", 1)
     lead = p.shape[:-1]
     p = p.reshape(-1, rr.shape[0])
     use = np.isfinite(p)
     linear = std is not None
     if linear:
-        s = as_float(std, "std", np.float64).reshape(p.shape)
+        s = as_float(std, "std", np.float64)
+        if s.shape != lead + rr.shape:
+            raise ValidationError(f"std must have the shape of profile, {lead + rr.shape}, got {s.shape}")
+        s = s.reshape(p.shape)
         use &= np.isfinite(s) & (s > 0)
         wgt = np.where(use, 1 / np.where(use, s, 1.0) ** 2, 0)
         obs = np.where(use, p, 0.0)
@@ -110,15 +129,12 @@ def fit_translucency(r, profile, std=None, *, eta=1.38, max_iter=60, grid=16):
     if np.any(use.sum(1) < 3):
         raise ValidationError("profile must have at least 3 usable (finite; positive without std) readings per profile to fit 2 parameters")
     (s_lo, s_hi), (a_lo, a_hi) = _BOUNDS
-    lo, hi = np.log([s_lo, a_lo]), np.log([s_hi, a_hi])
 
     def cost(ls, la):
         d = np.where(use, obs - transform(_model(ls, la, rr, eta)), 0)
         return np.sum(wgt * d * d, axis=-1), d
 
-    # The cost has a narrow curved valley in (σ's, σa).  In (ln σtr, logit α') it is
-    # nearly axis-aligned (σtr sets the decay, α' the level), so the iteration runs
-    # there, from the best of several starts around the far-field decay rate.
+    # The iteration runs in (ln σtr, logit α') (module docstring).
     st_lo, st_hi = np.log(0.02), np.log(20.0)
     al_lo, al_hi = -5.0, 9.0  # logit α' in [0.0067, 0.99988]
 
@@ -219,31 +235,51 @@ def population_sigma_tr_avg(site_sigma_tr, sites, use_sites=("cheek", "forehead"
     Parameters
     ----------
     site_sigma_tr : array_like, shape (subjects, sites, 3)
+        Fitted σtr per subject, site and channel, mm⁻¹.
     sites : sequence of str
         Names of the site axis.
     use_sites : sequence of str
-        Sites that enter the mean.
+        Sites that enter the mean (those present in ``sites``).
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        σtrAvg in mm⁻¹, over the subjects whose values at ``use_sites`` are all finite.
     """
     t = as_float(site_sigma_tr, "site_sigma_tr", np.float64)
-    idx = [list(sites).index(s) for s in use_sites if s in sites]
-    if t.ndim != 3 or t.shape[-1] != 3 or not idx:
-        raise ValidationError(f"site_sigma_tr must have shape (subjects, sites, 3) with sites {use_sites}, got {t.shape} and {list(sites)}")
+    sites = list(sites)
+    idx = [sites.index(s) for s in use_sites if s in sites]
+    if t.ndim != 3 or t.shape[1] != len(sites) or t.shape[-1] != 3 or not idx:
+        raise ValidationError(f"site_sigma_tr must have shape (subjects, sites, 3) with sites {use_sites}, got {t.shape} and {sites}")
     vals = t[:, idx, :]
     ok = np.all(np.isfinite(vals), axis=(1, 2))
     if not ok.any():
-        raise ValidationError("site_sigma_tr has no subject with finite values at the cheek and forehead")
+        raise ValidationError(f"site_sigma_tr has no subject with finite values at the sites {[sites[i] for i in idx]}")
     return vals[ok].mean(axis=(0, 1))
 
 
 def scattering_parameters(albedo, mask, sigma_tr_avg, eta=1.38):
     """Stage 7: α_avg, (σ's, σa) from α_avg and σtrAvg (§5.4), and the modulation texture M (eq. 7).
 
+    Parameters
+    ----------
+    albedo : array_like, shape (..., 3)
+        Albedo map, in [0, 1].
+    mask : array_like of bool
+        Face texels (shape of ``albedo`` without the channel axis).
+    sigma_tr_avg : array_like, shape (3,)
+        The population's σtrAvg, mm⁻¹ (> 0).
+    eta : float
+        Relative index of refraction.
+
     Returns
     -------
     albedo_avg : ndarray, shape (3,)
     sigma_s_prime, sigma_a : ndarray, shape (3,)
+        mm⁻¹ (inverse of Weyrich eq. 16, :func:`facestats.model.dipole.scattering_from_albedo`).
     modulation : ndarray, shape of ``albedo``
     """
+    check_shape(np.asarray(sigma_tr_avg), "sigma_tr_avg", (3,))
     mod, avg = modulation_texture(albedo, mask)
     sp, sa = scattering_from_albedo(avg.astype(np.float64), np.asarray(sigma_tr_avg, np.float64), eta)
     return avg, sp, sa, mod

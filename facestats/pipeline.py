@@ -126,6 +126,11 @@ _MODEL_PREFIX = {"torrance_sparrow": "ts", "blinn_phong": "bp"}
 _MAP_VARS = {"ts": ("ts_rho_s", "ts_m", "ts_error"), "bp": ("bp_rho_s", "bp_exponent", "bp_error")}
 
 
+#: Lumitexels per piece inside :func:`fit_lumitexels`: about 1 MB per per-sample array, so each
+#: stage's temporaries stay in the CPU cache (0.47 s against 0.60 s per 2048 lumitexels).
+PIECE = 256
+
+
 def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
     """Stages 1-4 on a block of lumitexels (:class:`facestats.acquire.capture.Lumitexels`).
 
@@ -136,7 +141,8 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
     albedo by the stable minimum (eq. 9), refined over specular-free samples if
     ``settings.refine_albedo``; the grey specular residual (eq. 10); and the
     batch fit of each of ``settings.models`` (eq. 14), the later ones started
-    from the first.
+    from the first.  Lumitexels are independent: a block runs in pieces of
+    :data:`PIECE` lumitexels (cache-sized), concatenated.
 
     Returns
     -------
@@ -148,6 +154,14 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
         ``*_rho_s``, ``*_m``/``*_exponent``, ``*_error``, ``*_flag``.
     """
     st = settings or FitSettings()
+    if lt.n <= PIECE:
+        return _fit_piece(lt, st)
+    parts = [_fit_piece(lt[a : a + PIECE], st) for a in range(0, lt.n, PIECE)]
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+def _fit_piece(lt, st):
+    """Stages 1-4 on lumitexels ``lt`` (:func:`fit_lumitexels`)."""
     valid = lt.valid
     if st.exclude_cameras:
         valid = valid.copy()
@@ -314,11 +328,16 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
     region_map = capture.array("region_map")
     face = region_map > 0
     texel = uv_to_texel(capture.array("uv").astype(np.float64), size)
-    maps = {}
-    for name in ("albedo", "normal", *_MAP_VARS["ts"], *_MAP_VARS["bp"]):
-        if name in res:
-            maps[name], count = fitting.scatter_to_map(res[name], texel, size)
-    n_samples, _ = fitting.scatter_to_map(res["n_samples"].astype(np.float64), texel, size)
+    # Every per-lumitexel float output averaged into the maps by one grouping of the lumitexels.
+    names = [name for name in ("albedo", "normal", *_MAP_VARS["ts"], *_MAP_VARS["bp"], "n_samples") if name in res]
+    columns = [np.asarray(res[name], np.float32).reshape(capture.n_lumitexels, -1) for name in names]
+    stacked, count = fitting.scatter_to_map(np.concatenate(columns, axis=1), texel, size)
+    maps, col = {}, 0
+    for name, c in zip(names, columns):
+        maps[name] = stacked[..., col : col + c.shape[1]]
+        maps[name] = maps[name] if c.shape[1] > 1 and name in ("albedo", "normal") else maps[name][..., 0]
+        col += c.shape[1]
+    n_samples = maps.pop("n_samples")
     has_data = count > 0
     for key, map_vars in _MAP_VARS.items():
         flag_name = f"{key}_flag"
@@ -328,8 +347,10 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
         np.bitwise_or.at(fl, (texel[:, 0], texel[:, 1]), res[flag_name].astype(np.uint8))
         hole = face & ~has_data  # texels no lumitexel maps to (the map is finer than the mesh): filled below
         bad = face & ((fl != 0) | hole)
-        for var in map_vars:
-            maps[var] = np.where(face, fitting.fill_flagged(maps[var], bad, face), 0)
+        # The model's three maps filled together (push-pull is linear per channel).
+        filled = fitting.fill_flagged(np.stack([maps[var] for var in map_vars], axis=-1), bad, face)
+        for i, var in enumerate(map_vars):
+            maps[var] = np.where(face, filled[..., i], 0)
         fl[bad] |= FLAG_BITS["filled"]
         fl[~face] = 0
         maps[flag_name] = fl
@@ -538,7 +559,7 @@ def predict_radiance(subject, capture, start: int = 0, stop: int | None = None, 
     pred = skin_radiance(normal, lt.wi.astype(np.float64), irr, lt.wo.astype(np.float64), rho_s=rho, roughness=rough,
                          modulation=mod, subsurface=transport, specular=specular, eta=eta)
     valid = lt.valid
-    return np.where(valid[..., None], pred, np.nan), np.where(valid[..., None], lt.radiance, np.nan)
+    return np.where(valid[..., None], pred, np.nan), np.where(valid[..., None], lt.radiance.astype(np.float32), np.nan)
 
 
 def held_out_camera_error(subject, capture, camera: int, *, specular: str = "torrance_sparrow",

@@ -39,7 +39,7 @@ The BRDF samples of eq. 8 are f_r = L / E with E = E⊥ (N·ωi):
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -85,8 +85,9 @@ class Lumitexels:
         Unit directions towards the cameras.
     irradiance : ndarray, shape (n, L, 3)
         E⊥ per LED and channel.
-    radiance : ndarray of float32, shape (n, C, L, 3)
-        HDR radiance, NaN where invalid.
+    radiance : ndarray, shape (n, C, L, 3)
+        HDR radiance, NaN where invalid, in the stored dtype (float16 for captures
+        on disk: the fit converts only the valid samples).
     """
 
     index: np.ndarray
@@ -105,14 +106,18 @@ class Lumitexels:
         """Number of lumitexels in the block."""
         return int(self.index.shape[0])
 
+    def __getitem__(self, sl: slice) -> "Lumitexels":
+        """The lumitexels of a slice of this block (views, no copy)."""
+        if not isinstance(sl, slice):
+            raise ValidationError(f"Lumitexels can only be sliced by a slice, got {sl!r}")
+        return Lumitexels(**{f.name: getattr(self, f.name)[sl] for f in fields(self)})
+
     @property
     def valid(self) -> np.ndarray:
         """(n, C, L) validity of each sample: finite, non-negative radiance and positive irradiance."""
-        r = self.radiance
-        low = np.minimum(np.minimum(r[..., 0], r[..., 1]), r[..., 2])  # NaN propagates
-        ok = low >= 0
-        irr = self.irradiance
-        return ok & ((irr[..., 0] > 0) & (irr[..., 1] > 0) & (irr[..., 2] > 0))[:, None, :]
+        from ..model.fitting.samples import valid_samples
+
+        return valid_samples(self.radiance, self.irradiance)
 
     def cos_incident(self, normal) -> np.ndarray:
         """N·ωi, shape (n, L)."""
@@ -214,7 +219,7 @@ class Capture:
         dome = self.dome
         wi, _ = dome.incident(pos)
         wo, _, _ = dome.view(pos)
-        rad = self.array("radiance", sl).astype(np.float32)  # float16 on disk; compute in float32
+        rad = self.array("radiance", sl)  # as stored (float16): the fit converts only the valid samples
         if cameras is not None:
             cams = np.asarray(cameras)
             if cams.dtype.kind not in "iu" or np.any((cams < 0) | (cams >= dome.n_cameras)):

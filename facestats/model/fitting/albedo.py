@@ -77,14 +77,11 @@ def fresnel_factors(samples, normal, eta=1.38):
     """
     check_shape(np.asarray(normal), "normal", (samples.n_texels, 3))
     _check_eta(eta)
-    nrm = np.asarray(normal, np.float32)
-    ci_g = np.matmul(samples.wi_grid, nrm[:, :, None])[..., 0]
-    co_g = np.matmul(samples.wo_grid, nrm[:, :, None])[..., 0]
+    ci_g, co_g = samples.cos_grids(normal)
     e = np.float32(eta)
-    ft_i = 1 - _fresnel_reflectance(np.clip(ci_g, 0, 1).astype(np.float32), e)
-    ft_o = 1 - _fresnel_reflectance(np.clip(co_g, 0, 1).astype(np.float32), e)
-    t, c, l = samples.texel, samples.camera, samples.light
-    return ci_g[t, l], co_g[t, c], (ft_i[t, l] * ft_o[t, c]).astype(np.float32)
+    ft_i = 1 - _fresnel_reflectance(np.clip(ci_g, 0, 1), e)
+    ft_o = 1 - _fresnel_reflectance(np.clip(co_g, 0, 1), e)
+    return samples.at_lights(ci_g), samples.at_cameras(co_g), samples.at_lights(ft_i) * samples.at_cameras(ft_o)
 
 
 def albedo_stable_minimum(samples, brdf, cos_i, cos_o, ft2, use, *, discard=2, grazing_penalty=1.0,
@@ -132,21 +129,40 @@ def albedo_stable_minimum(samples, brdf, cos_i, cos_o, ft2, use, *, discard=2, g
     with np.errstate(invalid="ignore", divide="ignore"):
         v = (np.float32(np.pi) * brdf / ft2).astype(np.float32)  # (3, S)
     ok = use & np.isfinite(v[0] + v[1] + v[2])
-    # One padded (lumitexel, rank) layout for all channels.
-    t, rank, counts = samples.ranks(ok)
-    width = max(int(counts.max(initial=0)), k + 1)
+    counts = samples.count(ok)
     out = np.full((samples.n_texels, 3), np.nan, np.float32)
-    po = penalty[ok]
+    have = counts > k
+    if not have.any():
+        return out, samples.count(use)
+    # Segmented selection over each lumitexel's run of samples: k times, remove the first
+    # smallest penalised value; then the smallest left is the (k+1)-th.  Excluded samples
+    # rank last (+inf).
+    starts = samples.starts[have]
+    size = samples.counts[have]
+    with np.errstate(divide="ignore"):
+        dropped = np.float32(1) / ok.astype(np.float32) - np.float32(1)  # +inf where excluded, 0 elsewhere
     for c in range(3):  # loop over channels, vectorised over samples
-        vo = v[c][ok]
-        ranked = np.full((samples.n_texels, width), np.inf, np.float32)
-        raw = np.full((samples.n_texels, width), np.nan, np.float32)
-        ranked[t, rank] = vo * po
-        raw[t, rank] = vo
-        pick = np.argpartition(ranked, k, axis=1)[:, k]
-        kth = np.take_along_axis(raw, pick[:, None], 1)[:, 0]
-        out[:, c] = np.where(counts > k, kth, np.nan)
+        ranked = v[c] * penalty + dropped
+        for step in range(k + 1):
+            low = np.fmin.reduceat(ranked, starts)  # NaN (an excluded sample) never wins
+            at = _first_in_runs(np.flatnonzero(ranked == samples.expand(_spread(low, have))), samples.texel)
+            if step < k:
+                ranked[at] = np.inf
+        out[have, c] = v[c].take(at)
     return out, samples.count(use)
+
+
+def _spread(values, where):
+    """Per-texel values given on the texels ``where``, NaN elsewhere (equal to no sample)."""
+    full = np.full(where.shape, np.nan, values.dtype)
+    full[where] = values
+    return full
+
+
+def _first_in_runs(index, texel):
+    """The first of sorted sample indices ``index`` in every texel that has one."""
+    t = texel.take(index)
+    return index[np.concatenate([[True], t[1:] != t[:-1]])]
 
 
 def specular_residual(samples, brdf, albedo, ft2):
@@ -156,7 +172,7 @@ def specular_residual(samples, brdf, albedo, ft2):
     """
     _check_per_sample(samples, brdf, ft2=ft2)
     check_shape(np.asarray(albedo), "albedo", (samples.n_texels, 3))
-    grey_albedo = albedo.sum(axis=1, dtype=np.float32)[samples.texel]  # Σ_ch α
+    grey_albedo = samples.expand(albedo.sum(axis=1, dtype=np.float32))  # Σ_ch α
     total = brdf[0] + brdf[1] + brdf[2]
     return ((total - grey_albedo * (ft2 / np.float32(np.pi))) / np.float32(3)).astype(np.float32)
 
@@ -194,5 +210,5 @@ def refine_albedo(samples, brdf, ft2, cos_half, use, *, min_half_angle=np.radian
     sel = use & (cos_half < np.cos(min_half_angle)) & np.isfinite(v[0] + v[1] + v[2])
     cnt = samples.count(sel)
     with np.errstate(invalid="ignore", divide="ignore"):
-        alb = np.stack([samples.sum(v[c], sel) for c in range(3)], 1) / cnt[:, None]
+        alb = samples.sum(v, sel).T / cnt[:, None]
     return np.where(cnt[:, None] > 0, alb, np.nan).astype(np.float32), cnt

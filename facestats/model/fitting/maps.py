@@ -41,8 +41,7 @@ def scatter_to_map(values, texel, size):
     -------
     mean : ndarray, shape (size, size, ...)
         NaN where no lumitexel landed (float32 for float32 input, else float64;
-        sums are accumulated in float64 one component at a time, so memory stays
-        at the output's size).
+        sums are accumulated in float64).
     count : ndarray of int, shape (size, size)
     """
     size = check_integer(size, "size", 1)
@@ -52,19 +51,28 @@ def scatter_to_map(values, texel, size):
         raise ValidationError(f"texel must hold integer (v, u) indices, got dtype {t.dtype}")
     if t.size and (t.min() < 0 or t.max() >= size):
         raise ValidationError(f"texel must lie in [0, {size}), got indices {int(t.min())}..{int(t.max())}")
-    flat = t[:, 0] * size + t[:, 1]
+    flat = t[:, 0].astype(np.int64) * size + t[:, 1]
     trail = v.shape[1:]
     vv = v.reshape(v.shape[0], -1)
     dtype = np.float32 if vv.dtype == np.float32 else np.float64
-    mean = np.empty((size * size, vv.shape[1]), dtype)
+    # Group the lumitexels by texel once; per component, sums over the groups (float64).
+    where, group = np.unique(flat, return_inverse=True)
+    sizes = np.bincount(group, minlength=where.size)
+    mean = np.full((vv.shape[1], size * size), np.nan, dtype)
     for j in range(vv.shape[1]):  # loop over trailing components (channels), vectorised over lumitexels
-        ok = np.isfinite(vv[:, j])
-        sums = np.bincount(flat[ok], weights=vv[ok, j], minlength=size * size)
-        cnts = np.bincount(flat[ok], minlength=size * size)
+        col = np.ascontiguousarray(vv[:, j])
+        ok = np.isfinite(col)
+        if ok.all():
+            sums, cnts = np.bincount(group, weights=col, minlength=where.size), sizes
+        else:
+            sums = np.bincount(group, weights=np.where(ok, col, 0), minlength=where.size)
+            cnts = np.bincount(group, weights=ok, minlength=where.size)
         with np.errstate(invalid="ignore", divide="ignore"):
-            mean[:, j] = sums / cnts
-    count = np.bincount(flat, minlength=size * size).reshape(size, size)
-    return mean.reshape((size, size) + trail), count
+            mean[j, where] = sums / cnts
+    count = np.zeros(size * size, np.int64)
+    count[where] = sizes
+    # (K, size²) -> (size, size, K): a transposed view, no copy.
+    return mean.T.reshape((size, size) + trail), count.reshape(size, size)
 
 
 def _pull(val, w):
@@ -84,11 +92,23 @@ def _pull(val, w):
 
 
 def _upsample(coarse, shape):
-    """Bilinear upsampling of a coarse level to ``shape`` (cell-centred grids)."""
-    from scipy.ndimage import zoom
+    """Bilinear upsampling by 2 of a coarse level, cropped to ``shape`` (cell-centred grids).
 
-    zh, zw = shape[0] / coarse.shape[0], shape[1] / coarse.shape[1]
-    out = zoom(coarse, (zh, zw) + (1,) * (coarse.ndim - 2), order=1, mode="nearest", grid_mode=True)
+    Fine cell i lies at coarse coordinate i/2 − 1/4: an even cell takes
+    3/4 of its parent and 1/4 of the parent's previous neighbour, an odd cell 3/4
+    and 1/4 of the next one (edges clamped).  The pull step pads odd sizes at the
+    end, so parent j always covers fine cells 2j and 2j + 1.
+    """
+    out = coarse
+    for axis in (0, 1):
+        n = out.shape[axis]
+        idx = np.arange(n)
+        prev = np.take(out, np.maximum(idx - 1, 0), axis=axis)
+        nxt = np.take(out, np.minimum(idx + 1, n - 1), axis=axis)
+        even = 0.75 * out + 0.25 * prev
+        odd = 0.75 * out + 0.25 * nxt
+        both = np.stack([even, odd], axis=axis + 1)  # interleave: (..., n, 2, ...) -> (..., 2n, ...)
+        out = both.reshape(out.shape[:axis] + (2 * n,) + out.shape[axis + 1 :])
     return out[: shape[0], : shape[1]]
 
 
@@ -108,7 +128,8 @@ def push_pull(image, known, fill=None):
     -------
     ndarray, shape of ``image``
     """
-    img = np.asarray(image, np.float64)
+    dtype = np.float32 if np.asarray(image).dtype == np.float32 else np.float64  # float32 maps stay float32
+    img = np.asarray(image, dtype)
     if img.ndim not in (2, 3):
         raise ValidationError(f"image must have shape (H, W) or (H, W, K), got shape {img.shape}")
     k = np.asarray(known, bool)
@@ -120,7 +141,7 @@ def push_pull(image, known, fill=None):
     val = np.where(k[..., None] if not squeeze else k, img, 0)
     if squeeze:
         val = val[..., None]
-    levels = [(val, k.astype(np.float64))]
+    levels = [(val, k.astype(dtype))]
     while levels[-1][1].min() < 1 and min(levels[-1][1].shape) > 1:
         levels.append(_pull(*levels[-1]))
     # Push: from the coarsest level down, fill every empty cell from the parent.
@@ -134,7 +155,7 @@ def push_pull(image, known, fill=None):
     target = ~k if fill is None else (np.asarray(fill, bool) & ~k)
     res = np.array(img, copy=True)
     res[target] = out[target]
-    return res.astype(np.asarray(image).dtype if np.asarray(image).dtype.kind == "f" else np.float64)
+    return res.astype(np.asarray(image).dtype if np.asarray(image).dtype.kind == "f" else np.float64, copy=False)
 
 
 def fill_flagged(image, flagged, face):

@@ -28,6 +28,7 @@ import numpy as np
 from ..._validate import as_finite, check_integer, check_shape
 from ...errors import ValidationError
 from ..fresnel import _check_eta, _fresnel_reflectance
+from .samples import masked
 
 __all__ = ["photometric_normals", "micro_normals"]
 
@@ -81,51 +82,60 @@ def photometric_normals(samples, scan_normal, n_cameras, *, eta=1.38, specular_e
     check_integer(iterations, "iterations", 1)
     check_integer(min_lights, "min_lights", 3)
     n_scan = np.asarray(scan_normal, np.float32)
-    n, n_key = samples.n_texels, samples.n_texels * n_cameras
+    n = samples.n_texels
     y = samples.grey()
-    ci, co = samples.cos(n_scan)
-    io = samples.cos_io()
-    cos_h = (ci + co) / np.sqrt(np.maximum(2 + 2 * io, 1e-12))  # N·H with ‖ωi + ωo‖² = 2 + 2 ωi·ωo
-    lim = np.cos(max_angle)
-    use = (cos_h < np.cos(specular_exclusion)) & (ci > lim) & (co > lim) & np.isfinite(y) & (y > 0)
-    key = samples.texel.astype(np.int64)[use] * n_cameras + samples.camera[use]
-    light = samples.light[use]
-    texel_u = samples.texel[use]
-    yu = y[use].astype(np.float64)
-    count = np.bincount(key, minlength=n_key)
-    # Σ_l ωi ωiᵀ per (lumitexel, camera) = Σ over the camera's used lights of the light's
-    # outer product: a 0/1 (camera × light) matrix times the (light × 9) outer products.
-    n_led = samples.wi_grid.shape[1]
-    sel = np.zeros((n, n_cameras, n_led), np.float32)
-    sel.reshape(-1)[key * n_led + light] = 1
-    wig = samples.wi_grid.astype(np.float64)
-    outer = (samples.wi_grid[:, :, :, None] * samples.wi_grid[:, :, None, :]).reshape(n, n_led, 9)
-    a = np.matmul(sel, outer).astype(np.float64).reshape(n_key, 3, 3)  # float32 products, ~150 terms
-    cam_dir = samples.wo_grid.astype(np.float64)
+    ci_g, co_g = samples.cos_grids(n_scan)
+    ci, co = samples.at_lights(ci_g), samples.at_cameras(co_g)
+    cos_h = (ci + co) / np.sqrt(np.maximum(2 + 2 * samples.cos_io(), 1e-12))  # N·H with ‖ωi + ωo‖² = 2 + 2 ωi·ωo
+    lim = np.float32(np.cos(max_angle))
+    with np.errstate(invalid="ignore"):
+        use = (cos_h < np.float32(np.cos(specular_exclusion))) & (ci > lim) & (co > lim) & (y > 0) & (y < np.inf)
+    # Per (lumitexel, camera) run of samples: A = Σ ωi ωiᵀ and b = Σ y ωi over the used lights
+    # (segmented sums over the runs; runs without samples are absent).
+    key, start, cnt = samples.camera_runs()
+    m = use.astype(np.float32)
+    wi = [samples.at_lights(np.ascontiguousarray(samples.wi_grid[..., k])) for k in range(3)]
+    wm = [w * m for w in wi]  # ωi where used, 0 elsewhere
+    scratch = np.empty(samples.n, np.float32)
+
+    def run_sum(x, y):
+        """Σ x y over every (lumitexel, camera) run, float64."""
+        return np.add.reduceat(np.multiply(x, y, out=scratch), start).astype(np.float64)
+
+    a = np.empty((key.size, 3, 3))
+    for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)):
+        a[:, i, j] = a[:, j, i] = run_sum(wm[i], wi[j])
+    count = np.add.reduceat(m, start)
     ok = count >= min_lights
     det = np.linalg.det(a)
     ok &= det > 1e-6 * np.maximum(count, 1.0) ** 3
-    a_safe = np.where(ok[:, None, None], a, np.eye(3))
+    a_inv = np.linalg.inv(np.where(ok[:, None, None], a, np.eye(3)))  # A is the same in every pass
+    ym = masked(y, use)
+    wig = samples.wi_grid.astype(np.float64)
+    cam_dir = samples.wo_grid.astype(np.float64).reshape(-1, 3)[key]
     normal = n_scan.astype(np.float64)
-    cam_n = None
+    cam_n = np.full((n * n_cameras, 3), np.nan)
     e32 = np.float32(eta)
     for it in range(int(iterations)):  # refinement passes
         if it > 0:  # divide out F_t(θi) with the current normal (computed on the light grid)
             c = np.clip(np.matmul(wig, normal[:, :, None])[..., 0], 0, 1).astype(np.float32)  # (n, L)
             ft = 1 - _fresnel_reflectance(c, e32)
-            yy = yu / np.where(ft > 0, ft, 1)[texel_u, light]
+            yy = ym / samples.at_lights(np.where(ft > 0, ft, 1))
         else:
-            yy = yu
-        yw = np.zeros((n, n_cameras, n_led))
-        yw.reshape(-1)[key * n_led + light] = yy
-        b = np.matmul(yw, wig).reshape(n_key, 3)  # Σ_l y ωi per (lumitexel, camera)
-        g = np.linalg.solve(a_safe, b[..., None])[..., 0]
-        cam_n = np.where(ok[:, None], _unit(g), np.nan).reshape(n, n_cameras, 3)
-        weight = np.where(ok.reshape(n, n_cameras), np.clip(np.einsum("nck,nck->nc", np.nan_to_num(cam_n), cam_dir), 0, None), 0)
-        acc = np.einsum("nc,nck->nk", weight, np.nan_to_num(cam_n))
-        have = weight.sum(-1) > 0
+            yy = ym
+        b = np.stack([run_sum(yy, w) for w in wi], axis=1)
+        g = np.einsum("rij,rj->ri", a_inv, b)
+        run_n = np.where(ok[:, None], _unit(g), np.nan)
+        weight = np.where(ok, np.clip(np.einsum("rk,rk->r", np.nan_to_num(run_n), cam_dir), 0, None), 0)
+        acc = np.zeros((n * n_cameras, 3))
+        acc[key] = weight[:, None] * np.nan_to_num(run_n)
+        acc = acc.reshape(n, n_cameras, 3).sum(1)
+        wsum = np.zeros(n * n_cameras)
+        wsum[key] = weight
+        have = wsum.reshape(n, n_cameras).sum(1) > 0
         normal = np.where(have[:, None], _unit(acc), n_scan)
-    return normal.astype(np.float32), cam_n.astype(np.float32)
+        cam_n[key] = run_n
+    return normal.astype(np.float32), cam_n.reshape(n, n_cameras, 3).astype(np.float32)
 
 
 def _check_camera_grid(samples, n_cameras):
@@ -159,20 +169,16 @@ def micro_normals(samples, n_cameras):
     """
     n_cameras = _check_camera_grid(samples, n_cameras)
     n = samples.n_texels
-    y = np.nan_to_num(samples.grey(), nan=-np.inf)
-    key = samples.texel.astype(np.int64) * n_cameras + samples.camera
-    if np.any(np.diff(key) < 0):  # not grouped by (lumitexel, camera): sort once
-        order = np.argsort(key, kind="stable")
-        key, y = key[order], y[order]
-    else:
-        order = np.arange(key.size)
-    starts = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]]))
-    peak = np.maximum.reduceat(y, starts)
-    seg = np.cumsum(np.concatenate([[False], key[1:] != key[:-1]]))  # run index of each sample
-    hit = np.flatnonzero(y == peak[seg])
-    first = np.concatenate([[True], seg[hit][1:] != seg[hit][:-1]])
-    best = order[hit[first]]
-    key = samples.texel.astype(np.int64)[best] * n_cameras + samples.camera[best]
     out = np.full((n * n_cameras, 3), np.nan, np.float32)
-    out[key] = _unit(samples.wi_grid[samples.texel[best], samples.light[best]] + samples.wo_grid[samples.texel[best], samples.camera[best]])
+    if samples.n == 0:
+        return out.reshape(n, n_cameras, 3)
+    y = np.nan_to_num(samples.grey(), nan=-np.inf)
+    key, start, cnt = samples.camera_runs()
+    peak = np.maximum.reduceat(y, start)
+    run = np.repeat(np.arange(key.size), cnt)  # run of each sample
+    hit = np.flatnonzero(y == np.repeat(peak, cnt))
+    first = np.concatenate([[True], run[hit][1:] != run[hit][:-1]])
+    best = hit[first]  # the first brightest sample of every run
+    t, l, c = samples.texel[best], samples.light[best], samples.camera[best]
+    out[key[run[best]]] = _unit(samples.wi_grid[t, l] + samples.wo_grid[t, c])
     return out.reshape(n, n_cameras, 3)

@@ -3,16 +3,21 @@
 A lumitexel gathers up to (cameras × lights) BRDF samples but only a fraction is
 valid (about 900 of 2,400 in the default dome, §5).  Rather than dense
 (lumitexel, camera, light) grids that are mostly empty, the stages keep only the
-valid samples, sorted by lumitexel, as flat arrays: the lumitexel, camera and
-light of each sample and its radiance and irradiance (channel-major, so every
-channel is contiguous).  Directions stay on the per-lumitexel grids they come
-from (towards each light, towards each camera); the stages need only cosines
-(N·ωi, N·ωo, ωi·ωo), which are computed on the small grids and gathered per
-sample, so no per-sample 3-vector is ever built.  Because the samples of a
-lumitexel are contiguous, per-lumitexel sums are ``np.bincount`` over the
-lumitexel index (:meth:`Samples.sum`) or ``np.add.reduceat`` over the runs (the
-specular solver); per-lumitexel order statistics use a padded
-(lumitexel, rank) layout (:meth:`Samples.ranks`, :meth:`Samples.padded`).
+valid samples, sorted by lumitexel then camera, as flat arrays: the lumitexel,
+camera and light of each sample and its radiance and irradiance (channel-major,
+so every channel is contiguous).  Directions stay on the per-lumitexel grids
+they come from (towards each light, towards each camera); the stages need only
+cosines (N·ωi, N·ωo, ωi·ωo), which are computed on the small grids and gathered
+per sample, so no per-sample 3-vector is ever built.
+
+Because the samples of a lumitexel form one contiguous run (and, within it, the
+samples of each camera), every per-lumitexel or per-(lumitexel, camera)
+reduction is a segmented reduction over runs (``np.add.reduceat``), per-lumitexel
+values reach the samples by ``np.repeat`` over the run lengths, and grid values
+by ``np.take`` on precomputed flat indices.  These primitives cost about as much
+as one elementwise operation, where ``np.bincount`` with weights, 2-D fancy
+indexing and ``np.where`` on scattered masks cost 5 to 30 times more
+(``benchmarks/bench_fit.py``); the fit stages use only them.
 """
 
 from __future__ import annotations
@@ -23,12 +28,68 @@ import numpy as np
 
 from ...errors import ValidationError
 
-__all__ = ["Samples"]
+__all__ = ["Samples", "segment_sum", "masked", "valid_samples"]
+
+
+def segment_sum(values, starts, counts):
+    """Sums of ``values`` over consecutive runs (``starts``, ``counts``; runs may be empty).
+
+    ``values`` is (S,) or (K, S) (summed along the last axis); the result has one
+    entry per run, 0 for empty runs, in the dtype of ``values`` (float32 sums are
+    pairwise, accurate to about 1e-7 relative).
+    """
+    v = np.asarray(values)
+    nonempty = counts > 0
+    out = np.zeros(v.shape[:-1] + (counts.shape[0],), v.dtype if v.dtype.kind == "f" else np.int64)
+    if v.shape[-1] and nonempty.any():
+        sums = np.add.reduceat(v, starts[nonempty], axis=-1, dtype=out.dtype)
+        if nonempty.all():
+            return sums
+        out[..., nonempty] = sums
+    return out
+
+
+def masked(values, mask):
+    """``values`` where ``mask``, 0 elsewhere (also where a masked-out value is NaN or infinite).
+
+    A product with the mask, which streams; the slower explicit selection runs only
+    when a masked-out value is not finite.
+    """
+    v = np.asarray(values)
+    m = np.asarray(mask, bool)
+    with np.errstate(invalid="ignore"):
+        out = v * m
+    if not np.isfinite(out).all():
+        out = np.where(m, v, 0).astype(out.dtype, copy=False)
+    return out
+
+
+def valid_samples(radiance, irradiance):
+    """(n, C, L) validity of dome samples: all channels' radiance ≥ 0 and not NaN, all E⊥ > 0.
+
+    ``radiance`` is (n, C, L, 3), ``irradiance`` (n, L, 3).  float16 radiance (the
+    capture format) is tested on its bit patterns, without conversion: a
+    half-precision value is ≥ 0 and not NaN exactly when its pattern is at most
+    0x7C00 (+∞) or equals 0x8000 (−0).
+    """
+    r = np.asarray(radiance)
+    if r.dtype == np.float16:
+        u = r.view(np.uint16)
+        high = np.maximum(np.maximum(u[..., 0], u[..., 1]), u[..., 2])
+        ok = high <= 0x7C00
+        maybe = high >= 0x8000  # a negative, NaN or −0 channel: exact test only where −0 occurs
+        if np.any(u[maybe] == 0x8000):
+            exact = (u <= 0x7C00) | (u == 0x8000)
+            ok = exact[..., 0] & exact[..., 1] & exact[..., 2]
+    else:
+        ok = np.minimum(np.minimum(r[..., 0], r[..., 1]), r[..., 2]) >= 0  # NaN compares False
+    e = np.asarray(irradiance)
+    return ok & ((e[..., 0] > 0) & (e[..., 1] > 0) & (e[..., 2] > 0))[:, None, :]
 
 
 @dataclass
 class Samples:
-    """Valid samples of ``n_texels`` lumitexels, sorted by lumitexel.
+    """Valid samples of ``n_texels`` lumitexels, sorted by lumitexel, then camera.
 
     Attributes
     ----------
@@ -36,7 +97,8 @@ class Samples:
     texel : ndarray of int32, shape (S,)
         Lumitexel of each sample (non-decreasing).
     camera, light : ndarray of int32, shape (S,)
-        Index of each sample's outgoing and incident direction in ``wo_grid`` and ``wi_grid``.
+        Index of each sample's outgoing and incident direction in ``wo_grid`` and
+        ``wi_grid`` (cameras non-decreasing within a lumitexel).
     wi_grid : ndarray of float32, shape (n, L, 3)
         Unit directions from each lumitexel towards each light.
     wo_grid : ndarray of float32, shape (n, C, 3)
@@ -45,6 +107,9 @@ class Samples:
         Radiance per channel (RGB).
     irradiance : ndarray of float32, shape (3, S)
         Beam-normal irradiance E⊥ per channel.
+    paired : bool
+        True when ``camera`` and ``light`` index the same per-sample direction
+        pairs (:meth:`from_arrays`) rather than a dome's camera and light grids.
     """
 
     n_texels: int
@@ -55,28 +120,39 @@ class Samples:
     wo_grid: np.ndarray
     radiance: np.ndarray
     irradiance: np.ndarray
+    paired: bool = False
     _cache: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def from_grid(cls, wi, wo, irradiance, radiance, valid):
         """Flatten a dome grid: ``wi`` (n, L, 3), ``wo`` (n, C, 3), ``irradiance`` (n, L, 3),
-        ``radiance`` (n, C, L, 3), ``valid`` (n, C, L)."""
+        ``radiance`` (n, C, L, 3) of any float dtype (float16 as captured), ``valid`` (n, C, L)."""
         v = np.asarray(valid, bool)
         n, n_cam, n_led = v.shape
         if np.shape(radiance)[:3] != v.shape or np.shape(wi)[:2] != (n, n_led) or np.shape(wo)[:2] != (n, n_cam):
             raise ValidationError(
                 f"grid shapes disagree: valid {v.shape}, radiance {np.shape(radiance)}, wi {np.shape(wi)}, wo {np.shape(wo)}"
             )
-        flat = np.flatnonzero(v)  # row-major: sorted by lumitexel, then camera, then light
-        t, rem = np.divmod(flat, n_cam * n_led)
-        c, l = np.divmod(rem, n_led)
-        rad = np.asarray(radiance).reshape(-1, 3)[flat]
-        irr = np.asarray(irradiance).reshape(-1, 3)[t * n_led + l]
-        return cls(
-            n_texels=n, texel=t.astype(np.int32), camera=c.astype(np.int32), light=l.astype(np.int32),
-            wi_grid=np.asarray(wi, np.float32), wo_grid=np.asarray(wo, np.float32),
-            radiance=np.ascontiguousarray(rad.T, dtype=np.float32), irradiance=np.ascontiguousarray(irr.T, dtype=np.float32),
+        # Sample positions in the row-major (lumitexel, camera, light) grid, and the run length of
+        # every (lumitexel, camera): indices follow from repeats, with no division.
+        index_dtype = np.intp  # the index type np.take wants (no conversion per gather)
+        flat = np.flatnonzero(v)
+        per_tc = np.count_nonzero(v.reshape(n * n_cam, n_led), axis=1)
+        tc = np.repeat(np.arange(n * n_cam, dtype=index_dtype), per_tc)
+        per_texel = per_tc.reshape(n, n_cam).sum(1)
+        texel = np.repeat(np.arange(n, dtype=np.int32), per_texel)
+        rad = np.asarray(radiance).reshape(-1, 3).take(flat, axis=0).T.astype(np.float32, order="C")
+        irr_grid = np.ascontiguousarray(np.moveaxis(np.asarray(irradiance, np.float32), -1, 0)).reshape(3, -1)
+        light = (flat - tc * n_led).astype(np.int32)
+        light_index = texel.astype(index_dtype) * n_led + light
+        out = cls(
+            n_texels=n, texel=texel, camera=(tc - texel.astype(index_dtype) * n_cam).astype(np.int32), light=light,
+            wi_grid=np.asarray(wi, np.float32), wo_grid=np.asarray(wo, np.float32), radiance=rad,
+            irradiance=np.stack([irr_grid[c].take(light_index) for c in range(3)]),
         )
+        out._cache.update(counts=per_texel, grid_index=flat, light_index=light_index, camera_index=tc,
+                          camera_runs=per_tc)
+        return out
 
     @classmethod
     def from_arrays(cls, wi, wo, valid, radiance=None, irradiance=None):
@@ -88,48 +164,121 @@ class Samples:
         irr = np.ones((3, n_s), np.float32) if irradiance is None else np.asarray(irradiance, np.float32)[t, s].T
         return cls(n_texels=v.shape[0], texel=t.astype(np.int32), camera=s.astype(np.int32), light=s.astype(np.int32),
                    wi_grid=np.asarray(wi, np.float32), wo_grid=np.asarray(wo, np.float32),
-                   radiance=np.ascontiguousarray(rad), irradiance=np.ascontiguousarray(irr))
+                   radiance=np.ascontiguousarray(rad), irradiance=np.ascontiguousarray(irr), paired=True)
 
+    # -- runs and indices ---------------------------------------------------------------
     @property
     def n(self) -> int:
         """Number of samples."""
         return int(self.texel.shape[0])
 
     @property
+    def counts(self) -> np.ndarray:
+        """Samples per lumitexel, shape (n_texels,)."""
+        if "counts" not in self._cache:
+            # Sorted texel ids: run boundaries by binary search.
+            edges = np.searchsorted(self.texel, np.arange(self.n_texels + 1))
+            self._cache["counts"] = np.diff(edges)
+        return self._cache["counts"]
+
+    @property
+    def starts(self) -> np.ndarray:
+        """Offset of each lumitexel's run of samples, shape (n_texels,)."""
+        if "starts" not in self._cache:
+            c = self.counts
+            self._cache["starts"] = np.concatenate([[0], np.cumsum(c)[:-1]]).astype(np.int64)
+        return self._cache["starts"]
+
+    def _index(self, name):
+        """Flat index of each sample into the (lumitexel, light) or (lumitexel, camera) grid."""
+        if name not in self._cache:
+            grid, idx = (self.wi_grid, self.light) if name == "light_index" else (self.wo_grid, self.camera)
+            self._cache[name] = self.texel.astype(np.int64) * grid.shape[1] + idx
+        return self._cache[name]
+
+    def camera_runs(self):
+        """Runs of the (lumitexel, camera) groups: ``(key, starts, counts)``, empty groups left out.
+
+        ``key`` = lumitexel × C + camera of each run (C = ``wo_grid.shape[1]``).
+        """
+        if "camera_run_triple" not in self._cache:
+            if "camera_runs" in self._cache:  # from a dome grid: one run length per (lumitexel, camera)
+                per_tc = self._cache["camera_runs"]
+                key = np.flatnonzero(per_tc)
+                cnt = per_tc[key]
+            else:
+                k = self._index("camera_index")
+                if k.size and np.any(k[1:] < k[:-1]):
+                    raise ValidationError("samples must be grouped by (lumitexel, camera) for per-camera runs")
+                bound = np.flatnonzero(np.concatenate([[True], k[1:] != k[:-1]])) if k.size else np.zeros(0, np.int64)
+                key = k[bound]
+                cnt = np.diff(np.concatenate([bound, [k.size]]))
+            start = np.concatenate([[0], np.cumsum(cnt)[:-1]]).astype(np.int64)
+            self._cache["camera_run_triple"] = (key.astype(np.int64), start, cnt)
+        return self._cache["camera_run_triple"]
+
+    # -- per-lumitexel reductions and expansions ----------------------------------------
+    def count(self, mask=None) -> np.ndarray:
+        """Samples per lumitexel (optionally only where ``mask``)."""
+        if mask is None:
+            return self.counts
+        return segment_sum(np.asarray(mask, bool).view(np.int8), self.starts, self.counts)
+
+    def sum(self, values, mask=None) -> np.ndarray:
+        """Per-lumitexel sum of per-sample ``values`` (S,) or (K, S) (optionally only where ``mask``), float64.
+
+        Masked-out values may be non-finite (they are excluded, not multiplied by 0).
+        """
+        v = np.asarray(values) if mask is None else masked(values, mask)
+        return segment_sum(v, self.starts, self.counts).astype(np.float64)
+
+    def expand(self, per_texel) -> np.ndarray:
+        """Per-lumitexel values (n_texels, ...) repeated for each sample of the lumitexel, shape (S, ...)."""
+        return np.repeat(np.asarray(per_texel), self.counts, axis=0)
+
+    def at_lights(self, grid) -> np.ndarray:
+        """Per-sample values of a (lumitexel, light) grid (n, L)."""
+        return np.asarray(grid).reshape(-1).take(self._index("light_index"))
+
+    def at_cameras(self, grid) -> np.ndarray:
+        """Per-sample values of a (lumitexel, camera) grid (n, C)."""
+        return np.asarray(grid).reshape(-1).take(self._index("camera_index"))
+
+    # -- geometry ------------------------------------------------------------------------
+    @property
     def wi(self) -> np.ndarray:
         """Per-sample unit directions towards the light, (S, 3) (built on demand)."""
-        return self.wi_grid[self.texel, self.light]
+        return self.wi_grid.reshape(-1, 3).take(self._index("light_index"), axis=0)
 
     @property
     def wo(self) -> np.ndarray:
         """Per-sample unit directions towards the camera, (S, 3) (built on demand)."""
-        return self.wo_grid[self.texel, self.camera]
+        return self.wo_grid.reshape(-1, 3).take(self._index("camera_index"), axis=0)
 
-    def count(self, mask=None) -> np.ndarray:
-        """Samples per lumitexel (optionally only where ``mask``)."""
-        t = self.texel if mask is None else self.texel[mask]
-        return np.bincount(t, minlength=self.n_texels)
-
-    def sum(self, values, mask=None) -> np.ndarray:
-        """Per-lumitexel sum of per-sample ``values`` (S,) (optionally only where ``mask``)."""
-        if mask is None:
-            return np.bincount(self.texel, weights=values, minlength=self.n_texels)
-        return np.bincount(self.texel[mask], weights=values[mask], minlength=self.n_texels)
+    def cos_grids(self, normal, dtype=np.float32):
+        """(N·ωi on the light grid (n, L), N·ωo on the camera grid (n, C)) for normals (n, 3)."""
+        nrm = np.asarray(normal, dtype)
+        ci = np.matmul(self.wi_grid.astype(dtype, copy=False), nrm[:, :, None])[..., 0]
+        co = np.matmul(self.wo_grid.astype(dtype, copy=False), nrm[:, :, None])[..., 0]
+        return ci, co
 
     def cos(self, normal, dtype=np.float32):
         """(N·ωi, N·ωo) per sample for per-lumitexel normals (n, 3)."""
-        nrm = np.asarray(normal, dtype)
-        ci = np.matmul(self.wi_grid.astype(dtype, copy=False), nrm[:, :, None])[..., 0]  # (n, L)
-        co = np.matmul(self.wo_grid.astype(dtype, copy=False), nrm[:, :, None])[..., 0]  # (n, C)
-        return ci[self.texel, self.light], co[self.texel, self.camera]
+        ci, co = self.cos_grids(normal, dtype)
+        return self.at_lights(ci), self.at_cameras(co)
 
     def cos_io(self) -> np.ndarray:
-        """ωi·ωo per sample (float64, cached)."""
+        """ωi·ωo per sample (float32, cached)."""
         if "io" not in self._cache:
-            n = self.n_texels
-            wo = self.wo_grid.astype(np.float64)
-            grid = np.matmul(wo, np.swapaxes(self.wi_grid.astype(np.float64), 1, 2))  # (n, C, L)
-            self._cache["io"] = grid.reshape(n, -1)[self.texel, self.camera * self.wi_grid.shape[1] + self.light]
+            if self.paired:
+                io = np.einsum("sk,sk->s", self.wi, self.wo)
+            else:
+                grid = np.matmul(self.wo_grid, np.swapaxes(self.wi_grid, 1, 2))  # (n, C, L)
+                idx = self._cache.get("grid_index")
+                if idx is None:
+                    idx = self._index("camera_index") * self.wi_grid.shape[1] + self.light
+                io = grid.reshape(-1).take(idx)
+            self._cache["io"] = io.astype(np.float32, copy=False)
         return self._cache["io"]
 
     def grey(self) -> np.ndarray:
@@ -140,6 +289,7 @@ class Samples:
                 self._cache["grey"] = (r[0] + r[1] + r[2]) / (e[0] + e[1] + e[2])
         return self._cache["grey"]
 
+    # -- order statistics ----------------------------------------------------------------
     def ranks(self, mask=None):
         """Position of each kept sample within its lumitexel: ``(texel, rank, counts)``.
 
@@ -147,15 +297,28 @@ class Samples:
         samples kept by ``mask`` (all by default); ``counts`` (n_texels,) is the
         number kept per lumitexel.  Relies on the samples being sorted by lumitexel.
         """
-        t = self.texel if mask is None else self.texel[np.asarray(mask, bool)]
-        counts = np.bincount(t, minlength=self.n_texels)
-        start = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        return t, np.arange(t.size) - start[t], counts
+        if mask is None:
+            t, counts, start = self.texel, self.counts, self.starts
+        else:
+            m = np.asarray(mask, bool)
+            t = self.texel[m]
+            counts = self.count(m)
+            start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        return t, np.arange(t.size) - np.repeat(start, counts), counts
 
     def padded(self, values, fill, mask=None):
         """Per-lumitexel padded view (n_texels, S_max) of ``values`` (S,) (only ``mask`` samples kept)."""
-        t, rank, counts = self.ranks(mask)
         vals = np.asarray(values)
-        out = np.full((self.n_texels, max(int(counts.max(initial=0)), 1)), fill, dtype=vals.dtype)
-        out[t, rank] = vals if mask is None else vals[np.asarray(mask, bool)]
+        if mask is None:
+            counts, start = self.counts, self.starts
+        else:
+            m = np.asarray(mask, bool)
+            vals = vals[m]
+            counts = self.count(m)
+            start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        width = max(int(counts.max(initial=0)), 1)
+        out = np.full((self.n_texels, width), fill, dtype=vals.dtype)
+        # Slot of each sample: its rank plus its row offset (non-decreasing, so the scatter streams).
+        slot = np.arange(vals.shape[0], dtype=np.int64) + np.repeat(np.arange(self.n_texels, dtype=np.int64) * width - start, counts)
+        out.reshape(-1)[slot] = vals
         return out, counts

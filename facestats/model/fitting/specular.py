@@ -115,35 +115,73 @@ class SpecularFit:
         return {"rho_s": self.rho_s, self.lobe_name: self.lobe}
 
 
-def _lobe(model, q, counts, s1, a):
-    """g(p) = A·h and d g/d ln p per sample, for per-texel q = ln p repeated ``counts`` times.
+def _rate(model, p):
+    """Per-texel rate c of the lobe's exponential u = A e^{c z}: −1/m² (TS, z = tan²δ) or n (BP, z = ln cos δ)."""
+    return -1 / (p * p) if model == "torrance_sparrow" else p
 
-    s1 is t = tan²δ (TS) or ln cos δ (BP).  Torrance-Sparrow: g = A e^{−t/m²}/m²,
-    dg/d ln m = 2 g (t/m² − 1); Blinn-Phong: g = A (n+2) e^{n ln cos δ},
-    dg/d ln n = g (n/(n+2) + n ln cos δ).  Per-texel factors are formed before
-    gathering, so each sample costs one exponential and a handful of products.
+
+def _lobe_base(model, q, counts, z, a, out=None):
+    """Per-sample u = A e^{c z} for per-texel q = ln p repeated ``counts`` times (one exponential per sample).
+
+    The lobe is g = s(p) u with s = 1/m² (TS: g = A e^{−t/m²}/m²) or n + 2
+    (BP: g = A (n+2) cosⁿδ); see :func:`_moments`.
     """
-    dt = s1.dtype
-    if model == "torrance_sparrow":
-        ninv = np.repeat((-np.exp(-2 * np.asarray(q, np.float64))).astype(dt), counts)  # −1/m² per sample
-        x = s1 * ninv  # −t/m²
-        e = np.exp(x)
-        e *= a
-        e *= ninv  # e = −g
-        x += 1
-        x *= e
-        x *= 2  # dg = −2 g (1 − t/m²) = 2 e (1 + x)
-        np.negative(e, out=e)
-        return e, x
+    u = np.multiply(z, np.repeat(_rate(model, np.exp(np.asarray(q, np.float64))).astype(z.dtype), counts), out=out)
+    np.exp(u, out=u)
+    u *= a
+    return u
+
+
+def _lobe_sums(model, q, counts, starts, z, a, y, scratch):
+    """Per-texel Σ y u, Σ y u z, Σ u², Σ u² z, Σ u² z² (float64) over runs of samples, for q = ln p.
+
+    One exponential and five products per sample: everything the Gauss-Newton
+    step and E(p) need (:func:`_moments`); float32 sums are pairwise.
+    """
+    u = _lobe_base(model, q, counts, z, a, out=scratch[0])
+    yu = np.multiply(y, u, out=scratch[1])
+    uu = np.multiply(u, u, out=scratch[2])
+
+    def rsum(x):
+        return np.add.reduceat(x, starts).astype(np.float64)
+
+    s_yu, s_uu = rsum(yu), rsum(uu)
+    s_yuz = rsum(np.multiply(yu, z, out=yu))
+    s_uuz = rsum(np.multiply(uu, z, out=uu))
+    s_uuzz = rsum(np.multiply(uu, z, out=uu))
+    return s_yu, s_yuz, s_uu, s_uuz, s_uuzz
+
+
+def _moments(model, q, sums):
+    """Σ y g, Σ g², Σ y g', Σ g g', Σ g'² (g' = ∂g/∂ln p) per texel from :func:`_lobe_sums`.
+
+    Torrance-Sparrow (Weyrich et al. 2006 eq. 12 with the parameter-free factor A):
+    g = w u, w = 1/m², u = A e^{−w t}, and ∂g/∂ln m = 2 g (w t − 1) = 2w² u t − 2w u.
+    Blinn-Phong (eq. 11): g = (n+2) u, u = A e^{n ln cos δ}, and
+    ∂g/∂ln n = g (n/(n+2) + n ln cos δ) = n u (1 + (n+2) z), z = ln cos δ.
+    (Both derivatives checked against finite differences in the tests.)
+    """
+    s_yu, s_yuz, s_uu, s_uuz, s_uuzz = sums
     p = np.exp(np.asarray(q, np.float64))
-    ps = np.repeat(p.astype(dt), counts)
-    x = ps * s1
-    g = np.exp(x)
-    g *= a
-    g *= np.repeat((p + 2).astype(dt), counts)
-    x += np.repeat((p / (p + 2)).astype(dt), counts)
-    x *= g
-    return g, x
+    if model == "torrance_sparrow":
+        w = 1 / (p * p)
+        syg, sgg = w * s_yu, w * w * s_uu
+        sydg = 2 * w * (w * s_yuz - s_yu)
+        sgdg = 2 * w * w * (w * s_uuz - s_uu)
+        sdgdg = 4 * w * w * (w * w * s_uuzz - 2 * w * s_uuz + s_uu)
+    else:
+        k = p + 2
+        syg, sgg = k * s_yu, k * k * s_uu
+        sydg = p * (s_yu + k * s_yuz)
+        sgdg = k * p * (s_uu + k * s_uuz)
+        sdgdg = p * p * (s_uu + 2 * k * s_uuz + k * k * s_uuzz)
+    return syg, sgg, sydg, sgdg, np.maximum(sdgdg, 0)
+
+
+def _lobe_scale(model, q):
+    """s(p) with g = s u: 1/m² (TS) or n + 2 (BP), per texel."""
+    p = np.exp(np.asarray(q, np.float64))
+    return 1 / (p * p) if model == "torrance_sparrow" else p + 2
 
 
 def _ts_factor_kernel(ci, co, io, eta):
@@ -215,10 +253,12 @@ def fit_specular_samples(samples, normal, f_s, use, model, *, factors=None, eta=
         cos = samples.cos(normal)
     s1, a = specular_factors(samples, normal, model, eta, cos) if factors is None else factors
     ci = cos[0]
-    ok = np.asarray(use, bool) & np.isfinite(f_s) & (a > 0)
-    y = (f_s[ok] * ci[ok]).astype(np.float32)
-    return _solve(model, y, s1[ok], a[ok], samples.texel[ok], samples.n_texels, bounds=bounds, min_samples=min_samples,
-                  max_iter=max_iter, tol=tol, max_relative_error=max_relative_error, start=start)
+    with np.errstate(invalid="ignore"):
+        ok = np.asarray(use, bool) & np.isfinite(f_s) & (a > 0)
+    y = np.compress(ok, f_s) * np.compress(ok, ci)
+    return _solve(model, y.astype(np.float32, copy=False), np.compress(ok, s1), np.compress(ok, a), samples.count(ok),
+                  bounds=bounds, min_samples=min_samples, max_iter=max_iter, tol=tol,
+                  max_relative_error=max_relative_error, start=start)
 
 
 def fit_specular(wi, wo, normal, f_s, valid, model, *, bounds=None, eta=1.38, max_angle=np.radians(80.0), min_samples=30,
@@ -275,9 +315,9 @@ def fit_specular(wi, wo, normal, f_s, valid, model, *, bounds=None, eta=1.38, ma
                                 min_samples=min_samples, max_iter=max_iter, tol=tol, max_relative_error=max_relative_error)
 
 
-def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol, max_relative_error, dtype=np.float32,
+def _solve(model, y, s1, a, n_use, *, bounds, min_samples, max_iter, tol, max_relative_error, dtype=np.float32,
            start=None):
-    """Batch bounded Levenberg-Marquardt on flat samples grouped by texel (module docstring)."""
+    """Batch bounded Levenberg-Marquardt on flat samples in per-texel runs of ``n_use`` samples (module docstring)."""
     try:
         (r_lo, r_hi), (p_lo, p_hi) = DEFAULT_BOUNDS[model] if bounds is None else bounds
         ordered = 0 <= r_lo < r_hi and 0 < p_lo < p_hi
@@ -294,7 +334,8 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
     as_finite(max_relative_error, "max_relative_error", 0, None, low_inclusive=False)
     dt = np.dtype(dtype)
     q_lo, q_hi = np.log(p_lo), np.log(p_hi)
-    n_use = np.bincount(texel, minlength=n_tex)
+    n_use = np.asarray(n_use, np.int64)
+    n_tex = n_use.size
     few = n_use < min_samples
     rho = np.full(n_tex, np.nan, dt)
     q = np.full(n_tex, np.nan, dt)
@@ -309,20 +350,21 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
         return np.add.reduceat(x, starts).astype(np.float64)
 
     # Working set: the samples of texels still moving, with texel ids renumbered 0..k-1.
-    if np.any(np.diff(texel) < 0):
-        raise ValidationError("samples must be grouped by texel (non-decreasing texel index)")
     work = np.nonzero(~few)[0]
-    sel = ~few[texel]
-    wy, wa, ws = y[sel], a[sel], s1[sel]
+    if few.any():
+        sel = np.repeat(~few, n_use)
+        wy, wa, ws = np.compress(sel, y), np.compress(sel, a), np.compress(sel, s1)
+    else:
+        wy, wa, ws = y, a, s1
     k = work.size
     cnt_w = n_use[work]
     st_w = segments(cnt_w) if k else None
     swyy = np.zeros(n_tex)
+    scratch = full_scratch = np.empty((3, wy.size), wy.dtype)  # per-sample work buffers of the lobe sums
     if k:
         swyy[work] = rsum(wy * wy, st_w)
     iterations = 0
     if k:
-        swyy_w = swyy[work]
         p0 = np.full(k, np.nan)
         if start is not None:  # a given start wins where it is finite
             st0 = np.asarray(start, np.float64)[work]
@@ -332,12 +374,13 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
             # -- start: weighted log-linear fit over the strongest samples -----------------
             # ln(y/A) = ln ρs − t/m² (TS) or ln(ρs (n+2)) + n ln cos δ (BP): the slope gives p₀.
             ymax = np.maximum.reduceat(wy, st_w)
+            strong = (wy > np.repeat(np.float32(0.25) * ymax.astype(dt), cnt_w)) & (wy > 0)
+            lr = np.log(np.maximum(wy, np.float32(1e-30)) / wa)  # finite: A > 0 on every kept sample
+            wt = wy * wy * strong
+            wx = wt * ws
+            sw_, sx_, sy_ = rsum(wt, st_w), rsum(wx, st_w), rsum(wt * lr, st_w)
+            sxy_, sxx_ = rsum(wx * lr, st_w), rsum(wx * ws, st_w)
             with np.errstate(invalid="ignore", divide="ignore"):
-                strong = (wy > np.repeat(np.float32(0.25) * ymax.astype(dt), cnt_w)) & (wy > 0)
-                lr = np.where(strong, np.log(np.where(strong, wy / wa, 1)), 0).astype(dt)
-                wt = np.where(strong, wy * wy, 0).astype(dt)
-                sw_, sx_, sy_ = rsum(wt, st_w), rsum(wt * ws, st_w), rsum(wt * lr, st_w)
-                sxy_, sxx_ = rsum(wt * ws * lr, st_w), rsum(wt * ws * ws, st_w)
                 slope = (sxy_ - sx_ * sy_ / sw_) / (sxx_ - sx_ * sx_ / sw_)
                 if model == "torrance_sparrow":
                     pc = np.where(slope < 0, 1 / np.sqrt(np.abs(slope)), 0.3)
@@ -346,22 +389,26 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
             pc = np.nan_to_num(pc, nan=0.3 if model == "torrance_sparrow" else 20.0)
             p0 = np.where(cold, pc, p0)
         p0 = np.clip(p0, p_lo, p_hi)
+        factors = (1.0,) if not cold.any() else _COLD_STARTS
         best_e = np.full(k, np.inf)
         best_q = np.log(p0)
         best_r = np.zeros(k)
-        for f in ((1.0,) if not cold.any() else _COLD_STARTS):  # candidate starts
+        best_s = None
+        for f in factors:  # candidate starts
             qq = np.clip(np.log(p0 * np.where(cold, f, 1.0)), q_lo, q_hi)
-            g, _ = _lobe(model, qq, cnt_w, ws, wa)
-            syg, sgg = rsum(wy * g, st_w), rsum(g * g, st_w)
+            sums = _lobe_sums(model, qq, cnt_w, st_w, ws, wa, wy, scratch)
+            syg, sgg = _moments(model, qq, sums)[:2]
             with np.errstate(invalid="ignore", divide="ignore"):
                 rr = np.clip(np.nan_to_num(syg / sgg), r_lo, r_hi)
-            e = swyy_w - 2 * rr * syg + rr * rr * sgg
+            e = swyy[work] - 2 * rr * syg + rr * rr * sgg
             better = e < best_e
             best_e, best_q, best_r = np.where(better, e, best_e), np.where(better, qq, best_q), np.where(better, rr, best_r)
+            best_s = sums if best_s is None else tuple(np.where(better, x, b) for x, b in zip(sums, best_s))
         q[work], rho[work] = best_q, best_r
-        wg, wdg = _lobe(model, q[work], cnt_w, ws, wa)
-        syg, sgg = rsum(wy * wg, st_w), rsum(wg * wg, st_w)
+        sums = best_s  # per-texel lobe sums at the current parameters
         # -- Levenberg-Marquardt, vectorised over the texels still moving ---------------
+        # Every iteration evaluates the lobe once, at the trial point: its five sums give E
+        # there and, if the step is accepted, the gradient and Hessian of the next step.
         for iterations in range(1, int(max_iter) + 1):
             live = ~done[work]
             if not live.any():
@@ -369,13 +416,14 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
             if live.mean() < 0.7:  # compact the working set
                 keep = np.repeat(live, cnt_w)
                 work = work[live]
-                wy, wa, ws, wg, wdg = wy[keep], wa[keep], ws[keep], wg[keep], wdg[keep]
-                syg, sgg = syg[live], sgg[live]
+                wy, wa, ws = (np.compress(keep, x) for x in (wy, wa, ws))
+                sums = tuple(x[live] for x in sums)
                 k = work.size
                 cnt_w = n_use[work]
                 st_w = segments(cnt_w)
+                scratch = scratch[:, : wy.size]
             r0, q0, lm = rho[work], q[work], lam[work]
-            sydg, sgdg, sdgdg = rsum(wy * wdg, st_w), rsum(wg * wdg, st_w), rsum(wdg * wdg, st_w)
+            syg, sgg, sydg, sgdg, sdgdg = _moments(model, q0, sums)
             e0 = swyy[work] - 2 * r0 * syg + r0 * r0 * sgg
             h00, h01, h11 = sgg, r0 * sgdg, r0 * r0 * sdgdg
             b0, b1 = syg - r0 * sgg, r0 * (sydg - r0 * sgdg)
@@ -387,24 +435,21 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
                 dq = (d00 * b1 - h01 * b0) / det
             r1 = np.clip(r0 + np.nan_to_num(dr), r_lo, r_hi)
             q1 = np.clip(q0 + np.nan_to_num(dq), q_lo, q_hi)
-            g1, dg1 = _lobe(model, q1, cnt_w, ws, wa)
-            syg1, sgg1 = rsum(wy * g1, st_w), rsum(g1 * g1, st_w)
+            sums1 = _lobe_sums(model, q1, cnt_w, st_w, ws, wa, wy, scratch)
+            syg1, sgg1 = _moments(model, q1, sums1)[:2]
             e1 = swyy[work] - 2 * r1 * syg1 + r1 * r1 * sgg1
             accept = e1 < e0
             rho[work] = np.where(accept, r1, r0)
             q[work] = np.where(accept, q1, q0)
             lam[work] = np.where(accept, lm / 3, lm * 4)
-            acc_s = np.repeat(accept, cnt_w)
-            np.copyto(wg, g1, where=acc_s)
-            np.copyto(wdg, dg1, where=acc_s)
-            syg, sgg = np.where(accept, syg1, syg), np.where(accept, sgg1, sgg)
+            sums = tuple(np.where(accept, x1, x0) for x1, x0 in zip(sums1, sums))
             rel = (e0 - np.minimum(e1, e0)) / np.maximum(e0, 1e-30)
             # A step this small, accepted or not, means the minimum is reached (to float32 precision).
             small_step = (np.abs(r1 - r0) <= 1e-5 * np.maximum(np.abs(r0), 1e-6)) & (np.abs(q1 - q0) <= 1e-5)
             done[work] |= (accept & (rel < tol)) | small_step | (lam[work] > 1e10)
     not_conv = ~done
 
-    # -- error (in float64), uncertainty and flags -------------------------------------------
+    # -- error, uncertainty and flags (residuals formed explicitly: no cancellation) ------------
     err = np.full(n_tex, np.nan)
     r_std = np.full(n_tex, np.nan)
     p_std = np.full(n_tex, np.nan)
@@ -413,20 +458,25 @@ def _solve(model, y, s1, a, texel, n_tex, *, bounds, min_samples, max_iter, tol,
     rho = rho.astype(np.float64)
     q = q.astype(np.float64)
     if good.any():
-        sel = good[texel]
-        st_g = segments(n_use[good])
+        cnt_g = n_use[good]
+        st_g = segments(cnt_g)
+        sel = np.repeat(good, n_use)
+        yg, sg, ag = (x if good.all() else np.compress(sel, x) for x in (y, s1, a))
 
-        def full(x):  # per-texel sums, accumulated in float64
+        def full(x):  # per-texel sums (pairwise float32, about 1e-7 relative)
             out = np.zeros(n_tex)
-            out[good] = np.add.reduceat(x.astype(np.float64), st_g)
+            out[good] = np.add.reduceat(x, st_g)
             return out
 
-        g, dg = _lobe(model, q[good], n_use[good], s1[sel], a[sel])
-        rho_s = np.repeat(rho[good].astype(dt), n_use[good])
-        res = (y[sel] - rho_s * g).astype(np.float64)
-        e = full(res * res)
-        jq = rho_s * dg
-        h00, h01, h11 = full(g * g), full(g * jq), full(jq * jq)
+        # J = (g, ρs ∂g/∂ln p) from the moments; E from explicit residuals y − ρs g (no cancellation).
+        buf = full_scratch if full_scratch.shape[1] == yg.size else np.empty((3, yg.size), dt)
+        mom = _moments(model, q[good], _lobe_sums(model, q[good], cnt_g, st_g, sg, ag, yg, buf))
+        h00, h01, h11 = (np.zeros(n_tex) for _ in range(3))
+        h00[good], h01[good], h11[good] = mom[1], rho[good] * mom[3], rho[good] ** 2 * mom[4]
+        g = buf[0]  # u of the final parameters, left by _lobe_sums
+        g *= np.repeat((rho[good] * _lobe_scale(model, q[good])).astype(dt), cnt_g)  # ρs g
+        res = np.subtract(yg, g, out=g)
+        e = full(np.multiply(res, res, out=res))
         sw = n_use.astype(np.float64)
         det = h00 * h11 - h01 * h01
         with np.errstate(invalid="ignore", divide="ignore"):

@@ -1,0 +1,172 @@
+"""The fit's data-parallel building blocks against plain per-element loops."""
+
+import numpy as np
+import pytest
+
+from facestats.model.fitting import Samples, push_pull, scatter_to_map
+from facestats.model.fitting.samples import masked, segment_sum, valid_samples
+from facestats.model.fitting.specular import _lobe_base, _lobe_scale, _lobe_sums, _moments
+
+
+def _grid(rng, n=7, n_cam=4, n_led=9, frac=0.4):
+    """A random dome grid: directions, irradiance, float16 radiance with NaN where invalid."""
+    wi = rng.normal(size=(n, n_led, 3))
+    wo = rng.normal(size=(n, n_cam, 3))
+    wi /= np.linalg.norm(wi, axis=-1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=-1, keepdims=True)
+    irr = rng.uniform(0.5, 2, (n, n_led, 3)).astype(np.float32)
+    rad = rng.uniform(0, 1, (n, n_cam, n_led, 3)).astype(np.float16)
+    rad[rng.uniform(size=(n, n_cam, n_led)) > frac] = np.nan
+    rad[2] = np.nan  # a lumitexel without valid samples
+    return wi, wo, irr, rad
+
+
+def test_segment_sum_handles_empty_runs(rng):
+    counts = np.array([3, 0, 2, 0, 0, 4])
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    x = rng.uniform(size=(2, counts.sum())).astype(np.float32)
+    got = segment_sum(x, starts, counts)
+    edges = np.concatenate([[0], np.cumsum(counts)])
+    want = np.stack([[x[k, a:b].sum() for a, b in zip(edges[:-1], edges[1:])] for k in range(2)])
+    np.testing.assert_allclose(got, want, rtol=1e-6)
+    assert got.dtype == np.float32 and np.all(got[:, [1, 3, 4]] == 0)
+    ints = segment_sum(np.ones(counts.sum(), np.int8), starts, counts)
+    np.testing.assert_array_equal(ints, counts)  # integer input: int64 sums, no int8 overflow
+
+
+def test_masked_zeroes_excluded_values_even_when_not_finite():
+    v = np.array([1.0, np.nan, np.inf, -2.0, np.nan], np.float32)
+    m = np.array([True, False, False, True, True])
+    out = masked(v, m)
+    np.testing.assert_array_equal(out[:4], [1, 0, 0, -2])
+    assert np.isnan(out[4])  # a kept NaN stays NaN
+
+
+def test_valid_samples_reads_float16_bit_patterns_like_the_float_test(rng):
+    special = np.array([0.0, -0.0, np.inf, -np.inf, np.nan, -1e-3, 6e-8, -6e-8, 65504, 1.0], np.float16)
+    rad = rng.choice(special, size=(5, 3, 4, 3)).astype(np.float16)
+    irr = rng.uniform(0.1, 1, (5, 4, 3)).astype(np.float32)
+    irr[1, 2, 0] = 0  # a light without irradiance
+    got = valid_samples(rad, irr)
+    r = rad.astype(np.float64)
+    want = np.all(r >= 0, axis=-1) & np.all(irr > 0, axis=-1)[:, None, :]  # NaN >= 0 is False; −0 >= 0 is True
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(valid_samples(rad.astype(np.float32), irr), want)
+    assert want.any() and not want.all()
+
+
+def test_samples_from_grid_match_the_dense_grid(rng):
+    wi, wo, irr, rad = _grid(rng)
+    valid = valid_samples(rad, irr)
+    s = Samples.from_grid(wi, wo, irr, rad, valid)
+    t, c, l = np.nonzero(valid)  # row-major: by lumitexel, camera, light
+    np.testing.assert_array_equal(s.texel, t)
+    np.testing.assert_array_equal(s.camera, c)
+    np.testing.assert_array_equal(s.light, l)
+    np.testing.assert_array_equal(s.radiance.T, rad[t, c, l].astype(np.float32))
+    np.testing.assert_array_equal(s.irradiance.T, irr[t, l])
+    np.testing.assert_array_equal(s.counts, valid.reshape(len(valid), -1).sum(1))
+    np.testing.assert_allclose(s.cos_io(), np.einsum("sk,sk->s", wi[t, l], wo[t, c]), atol=1e-6)
+    normal = rng.normal(size=(len(valid), 3))
+    ci, co = s.cos(normal)
+    np.testing.assert_allclose(ci, np.einsum("sk,sk->s", wi[t, l], normal[t]), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(co, np.einsum("sk,sk->s", wo[t, c], normal[t]), rtol=1e-5, atol=1e-6)
+    key, start, cnt = s.camera_runs()
+    for k, a, n in zip(key, start, cnt):
+        assert np.all(s.texel[a : a + n] * wo.shape[1] + s.camera[a : a + n] == k)
+    assert cnt.sum() == s.n
+    # Masked per-lumitexel sums and counts.
+    mask = rng.uniform(size=s.n) > 0.5
+    vals = rng.normal(size=s.n)
+    vals[~mask & (rng.uniform(size=s.n) > 0.5)] = np.nan  # excluded NaN must not leak
+    want_sum = np.array([vals[(s.texel == i) & mask].sum() for i in range(s.n_texels)])
+    np.testing.assert_allclose(s.sum(vals, mask), want_sum, atol=1e-12)
+    np.testing.assert_array_equal(s.count(mask), [((s.texel == i) & mask).sum() for i in range(s.n_texels)])
+    np.testing.assert_array_equal(s.expand(np.arange(s.n_texels)), s.texel)
+
+
+def test_ranks_follow_sample_order(rng):
+    wi, wo, irr, rad = _grid(rng)
+    s = Samples.from_grid(wi, wo, irr, rad, valid_samples(rad, irr))
+    mask = rng.uniform(size=s.n) > 0.3
+    t, rank, counts = s.ranks(mask)
+    kept = np.flatnonzero(mask)
+    for i in range(s.n_texels):
+        np.testing.assert_array_equal(rank[t == i], np.arange(counts[i]))
+        assert counts[i] == np.count_nonzero(s.texel[kept] == i)
+
+
+@pytest.mark.parametrize("model", ["torrance_sparrow", "blinn_phong"])
+def test_lobe_moments_match_direct_sums_and_finite_differences(rng, model):
+    counts = np.array([40, 25, 60])
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    n = counts.sum()
+    z = (rng.uniform(0, 3, n) if model == "torrance_sparrow" else np.log(rng.uniform(0.2, 1, n))).astype(np.float64)
+    a = rng.uniform(0.1, 1, n)
+    y = rng.uniform(0, 2, n)
+    q = np.log(np.array([0.25, 0.4, 0.3]) if model == "torrance_sparrow" else np.array([15.0, 40.0, 5.0]))
+
+    def g_of(qq):
+        return _lobe_base(model, qq, counts, z, a) * np.repeat(_lobe_scale(model, qq), counts)
+
+    sums = _lobe_sums(model, q, counts, starts, z, a, y, np.empty((3, n)))
+    syg, sgg, sydg, sgdg, sdgdg = _moments(model, q, sums)
+    g = g_of(q)
+    h = 1e-6
+    dg = np.concatenate([(g_of(q + h * np.eye(3)[i]) - g_of(q - h * np.eye(3)[i]))[starts[i] : starts[i] + counts[i]] / (2 * h)
+                         for i in range(3)])
+
+    def per_texel(x):
+        return np.add.reduceat(x, starts)
+
+    np.testing.assert_allclose(syg, per_texel(y * g), rtol=1e-10)
+    np.testing.assert_allclose(sgg, per_texel(g * g), rtol=1e-10)
+    np.testing.assert_allclose(sydg, per_texel(y * dg), rtol=1e-6)
+    np.testing.assert_allclose(sgdg, per_texel(g * dg), rtol=1e-6)
+    np.testing.assert_allclose(sdgdg, per_texel(dg * dg), rtol=1e-6)
+    # The lobe itself is the model of eq. 12 / eq. 11 (with A folded in).
+    p = np.exp(np.repeat(q, counts))
+    if model == "torrance_sparrow":
+        want = a * np.exp(-z / p**2) / p**2
+    else:
+        want = a * (p + 2) * np.exp(z) ** p
+    np.testing.assert_allclose(g, want, rtol=1e-12)
+
+
+def test_scatter_to_map_averages_finite_values_per_texel(rng):
+    size = 6
+    texel = rng.integers(0, size, (50, 2))
+    vals = rng.normal(size=(50, 2)).astype(np.float32)
+    vals[[3, 7], 1] = np.nan
+    mean, count = scatter_to_map(vals, texel, size)
+    assert mean.shape == (size, size, 2) and mean.dtype == np.float32
+    for v in range(size):
+        for u in range(size):
+            at = (texel[:, 0] == v) & (texel[:, 1] == u)
+            assert count[v, u] == at.sum()
+            for c in range(2):
+                x = vals[at, c]
+                x = x[np.isfinite(x)]
+                if x.size:
+                    np.testing.assert_allclose(mean[v, u, c], x.mean(), rtol=1e-6, atol=1e-6)
+                else:
+                    assert np.isnan(mean[v, u, c])
+
+
+@pytest.mark.parametrize("size", [37, 64])
+def test_push_pull_keeps_known_texels_and_fills_smoothly(rng, size):
+    yy, xx = np.mgrid[0:size, 0:size] / size
+    ramp = np.stack([0.3 + 0.5 * xx, 1 - yy], axis=-1)
+    known = rng.uniform(size=(size, size)) > 0.7
+    known[size // 3 : size // 2, size // 3 : size // 2] = False  # a hole
+    img = np.where(known[..., None], ramp, np.nan)
+    out = push_pull(img, known)
+    np.testing.assert_array_equal(out[known], ramp[known])  # known values never change
+    assert np.all(np.isfinite(out))
+    inner = ~known
+    inner[:3], inner[-3:], inner[:, :3], inner[:, -3:] = False, False, False, False
+    assert np.max(np.abs(out[inner] - ramp[inner])) < 0.12  # a smooth field is filled close to itself
+    const = push_pull(np.where(known, 0.7, np.nan), known)
+    np.testing.assert_allclose(const, 0.7, rtol=1e-12)  # a constant is filled exactly
+    # Values stay within the range of the known data (convex weights).
+    assert out[..., 0].min() >= ramp[known][:, 0].min() - 1e-12 and out[..., 0].max() <= ramp[known][:, 0].max() + 1e-12

@@ -362,9 +362,12 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
     maps["normal"] = np.where(face[..., None], nrm, 0)
     micro = None
     if "micro_normal" in res:
-        mn, _ = fitting.scatter_to_map(res["micro_normal"].reshape(res["micro_normal"].shape[0], -1), texel, size)
-        micro = np.moveaxis(mn.reshape(size, size, -1, 3), 2, 0)  # (camera, v, u, 3), NaN where unseen
-        micro = np.where(face[None, ..., None], micro, np.nan)
+        n_cam = res["micro_normal"].shape[1]
+        mn, _ = fitting.scatter_to_map(res.pop("micro_normal").reshape(capture.n_lumitexels, -1), texel, size)
+        # scatter_to_map's (size, size, K) is a view of a (camera, component, v, u) array: reorder as a
+        # view (no copy of what is 0.8 GB at full resolution), NaN where unseen or off the face.
+        micro = np.moveaxis(np.moveaxis(mn, -1, 0).reshape(n_cam, 3, size, size), 1, -1)
+        micro[:, ~face] = np.nan
 
     # Stage 6: sensor profiles.
     tf = fit_sensor(capture, st.eta) if sensor_fit is None else sensor_fit
@@ -396,10 +399,10 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
     for key, map_vars in _MAP_VARS.items():
         if f"{key}_flag" in maps:
             for var in map_vars:
-                data[var] = (("v", "u"), np.where(face, maps[var], 0).astype(np.float32))
+                data[var] = (("v", "u"), maps[var].astype(np.float32, copy=False))  # 0 off the face (stage 5)
             data[f"{key}_flag"] = (("v", "u"), maps[f"{key}_flag"])
     if micro is not None:
-        data["micro_normal"] = (("camera", "v", "u", "component"), micro.astype(np.float32))
+        data["micro_normal"] = (("camera", "v", "u", "component"), micro.astype(np.float32, copy=False))
     meta = capture.metadata
     face_n = int(face.sum())
     prov = {

@@ -92,24 +92,24 @@ def _pull(val, w):
 
 
 def _upsample(coarse, shape):
-    """Bilinear upsampling by 2 of a coarse level, cropped to ``shape`` (cell-centred grids).
+    """Bilinear upsampling by 2 of a coarse level (h, w, K), cropped to ``shape`` (cell-centred grids).
 
-    Fine cell i lies at coarse coordinate i/2 − 1/4: an even cell takes
-    3/4 of its parent and 1/4 of the parent's previous neighbour, an odd cell 3/4
-    and 1/4 of the next one (edges clamped).  The pull step pads odd sizes at the
-    end, so parent j always covers fine cells 2j and 2j + 1.
+    Fine cell i lies at coarse coordinate i/2 − 1/4: along each axis an even
+    cell takes 3/4 of its parent and 1/4 of the parent's previous neighbour, an
+    odd cell 3/4 and 1/4 of the next one (edges clamped).  The pull step pads
+    odd sizes at the end, so parent j always covers fine cells 2j and 2j + 1.
+    Rows are interpolated on the edge-padded coarse grid, then each of the four
+    (row, column) parities is written in one pass.
     """
-    out = coarse
-    for axis in (0, 1):
-        n = out.shape[axis]
-        idx = np.arange(n)
-        prev = np.take(out, np.maximum(idx - 1, 0), axis=axis)
-        nxt = np.take(out, np.minimum(idx + 1, n - 1), axis=axis)
-        even = 0.75 * out + 0.25 * prev
-        odd = 0.75 * out + 0.25 * nxt
-        both = np.stack([even, odd], axis=axis + 1)  # interleave: (..., n, 2, ...) -> (..., 2n, ...)
-        out = both.reshape(out.shape[:axis] + (2 * n,) + out.shape[axis + 1 :])
-    return out[: shape[0], : shape[1]]
+    p = np.pad(coarse, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    h, w = coarse.shape[:2]
+    fine = np.empty((2 * h, 2 * w) + coarse.shape[2:], coarse.dtype)
+    for parity, rows in ((0, p[:-2]), (1, p[2:])):  # previous / next coarse row
+        r = 0.75 * p[1:-1] + 0.25 * rows  # (h, w + 2, K)
+        centre = 0.75 * r[:, 1:-1]
+        np.add(centre, 0.25 * r[:, :-2], out=fine[parity::2, 0::2])
+        np.add(centre, 0.25 * r[:, 2:], out=fine[parity::2, 1::2])
+    return fine[: shape[0], : shape[1]]
 
 
 def push_pull(image, known, fill=None):
@@ -147,8 +147,8 @@ def push_pull(image, known, fill=None):
     # Push: from the coarsest level down, fill every empty cell from the parent.
     cur = levels[-1][0]
     for val_l, w_l in reversed(levels[:-1]):
-        up = _upsample(cur, w_l.shape)
-        cur = w_l[..., None] * val_l + (1 - w_l[..., None]) * up
+        cur = _upsample(cur, w_l.shape)
+        cur += w_l[..., None] * (val_l - cur)  # w val + (1 − w) parent
     out = cur[..., 0] if squeeze else cur
     if fill is not None and np.shape(fill) != k.shape:
         raise ValidationError(f"fill must have shape {k.shape}, got {np.shape(fill)}")

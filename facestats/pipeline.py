@@ -29,7 +29,9 @@ the output maps.
 
 from __future__ import annotations
 
+import functools
 import json
+import os
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -185,35 +187,16 @@ def _fit_piece(lt, st):
     albedo = np.where(np.isfinite(albedo_min), albedo_min, 0).astype(np.float32)
     out["n_samples"] = samples.count(use)
     out["n_grazing"] = samples.count(~use)
-    factors = {}
-
-    def fit(model, alb, start=None):
-        f_s = fitting.specular_residual(samples, f_r, alb, ft2)
-        if model not in factors:
-            factors[model] = fitting.specular_factors(samples, normal, model, st.eta, (cos_i, cos_o))
-        return fitting.fit_specular_samples(samples, normal, f_s, use, model, factors=factors[model], eta=st.eta,
-                                            min_samples=st.min_samples, max_relative_error=st.max_relative_error,
-                                            start=start, cos=(cos_i, cos_o))
-
-    def equivalent_start(model, res):
-        """Start of ``model`` from a fit of the other model (Beckmann-Phong correspondence n = 2/m² − 2)."""
-        if res.model == model:
-            return res.lobe
-        if model == "blinn_phong":
-            return 2 / np.maximum(res.lobe, 1e-3) ** 2 - 2
-        return np.sqrt(2 / (np.maximum(res.lobe, 0) + 2))
-
     if st.refine_albedo:
         # Stage 2b: the mean over specular-free samples removes the noise bias of the minimum.
         cos_half = (cos_i + cos_o) / np.sqrt(np.maximum(2 + 2 * samples.cos_io(), 1e-12))
         refined, n_ref = fitting.refine_albedo(samples, f_r, ft2, cos_half, use)
         ok = np.isfinite(refined).all(1) & (n_ref >= st.min_samples)
         albedo = np.where(ok[:, None], refined, albedo).astype(np.float32)
-    fits = {}
-    first = st.models[0]
-    fits[first] = fit(first, albedo)
-    for model in st.models[1:]:
-        fits[model] = fit(model, albedo, start=equivalent_start(model, fits[first]))
+    # Stages 3-4: the specular residual (eq. 10) and the batch fit of each model (eq. 14).
+    f_s = fitting.specular_residual(samples, f_r, albedo, ft2)
+    fits = fitting.fit_specular_models(samples, normal, f_s, use, st.models, eta=st.eta, min_samples=st.min_samples,
+                                       max_relative_error=st.max_relative_error, cos=(cos_i, cos_o))
     few = out["n_samples"] < st.min_samples
     out["albedo"] = np.where(few[:, None], np.nan, albedo).astype(np.float32)
     out["albedo_min"] = albedo_min.astype(np.float32)
@@ -275,7 +258,19 @@ def _blocks_result(capture, settings, client=None, progress=False, workers=1):
 def _fit_block_from_path(path, a, b, settings):
     from .acquire.capture import open_capture
 
-    return fit_lumitexels(open_capture(path).lumitexels(a, b), settings)
+    try:  # a worker reuses its open capture across blocks while the group on disk is unchanged
+        capture = _open_cached(str(path), os.stat(os.path.join(path, "zarr.json")).st_mtime_ns)
+    except OSError:  # not a local directory store
+        capture = open_capture(path)
+    return fit_lumitexels(capture.lumitexels(a, b), settings)
+
+
+@functools.lru_cache(maxsize=4)
+def _open_cached(path, mtime_ns):
+    """:func:`facestats.acquire.capture.open_capture`, cached per (path, modification time of its zarr.json)."""
+    from .acquire.capture import open_capture
+
+    return open_capture(path)
 
 
 def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None, *, client=None, workers: int = 1,

@@ -1,4 +1,4 @@
-"""Small schema-valid subject Datasets for tests that do not need the fit pipeline."""
+"""Small schema-valid subject Datasets for tests that do not need the fit pipeline, and sample geometry."""
 
 from __future__ import annotations
 
@@ -11,6 +11,14 @@ from facestats.acquire.sensor import default_fiber_distances
 from facestats.conventions import CHANNELS, SITES
 from facestats.io.schema import set_variable_attrs
 from facestats.model import dipole
+
+
+def hemisphere_pairs(rng, texels, samples):
+    """Random (ωi, ωo) pairs above the z = 0 plane, each (texels, samples, 3), unit length."""
+    v = rng.normal(size=(2, texels, samples, 3))
+    v[..., 2] = np.abs(v[..., 2]) + 0.05
+    v /= np.linalg.norm(v, axis=-1, keepdims=True)
+    return v[0], v[1]
 
 
 def region_map(size: int) -> np.ndarray:

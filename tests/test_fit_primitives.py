@@ -6,6 +6,7 @@ import pytest
 from facestats.model.fitting import Samples, push_pull, scatter_to_map
 from facestats.model.fitting.samples import masked, segment_sum, valid_samples
 from facestats.model.fitting.specular import _lobe_base, _lobe_scale, _lobe_sums, _moments
+from tests.factories import hemisphere_pairs
 
 
 def _grid(rng, n=7, n_cam=4, n_led=9, frac=0.4):
@@ -170,3 +171,75 @@ def test_push_pull_keeps_known_texels_and_fills_smoothly(rng, size):
     np.testing.assert_allclose(const, 0.7, rtol=1e-12)  # a constant is filled exactly
     # Values stay within the range of the known data (convex weights).
     assert out[..., 0].min() >= ramp[known][:, 0].min() - 1e-12 and out[..., 0].max() <= ramp[known][:, 0].max() + 1e-12
+
+
+def _specular_problem(rng, t=240, s=500, noise=0.02, model="torrance_sparrow"):
+    """Samples of ``model`` on a hemisphere: the first half of the texels noise-free, the rest noisy."""
+    from facestats.model import brdf
+
+    wi, wo = hemisphere_pairs(rng, t, s)
+    normal = np.tile([0.0, 0.0, 1.0], (t, 1))
+    rho, m = rng.uniform(0.15, 0.35, t), rng.uniform(0.2, 0.45, t)
+    if model == "torrance_sparrow":
+        f = brdf.torrance_sparrow(normal[:, None], wi, wo, rho[:, None], m[:, None])
+    else:  # a Blinn-Phong lobe of similar width and peak
+        rho, m = 0.03 * rho, 2 / m**2 - 2
+        f = brdf.blinn_phong(normal[:, None], wi, wo, rho[:, None], m[:, None])
+    f[t // 2 :] += noise * rng.standard_normal((t - t // 2, s))
+    lim = np.cos(np.radians(80))
+    use = (wi[..., 2] > lim) & (wo[..., 2] > lim)
+    samples = Samples.from_arrays(wi, wo, np.ones((t, s), bool))
+    return samples, normal, f.reshape(-1).astype(np.float32), use.reshape(-1), (wi, wo, f, use), (rho, m)
+
+
+def test_fit_specular_models_reports_the_error_of_its_parameters(rng):
+    from facestats.model import brdf
+    from facestats.model.fitting import fit_specular_models, fit_specular_samples
+
+    samples, normal, f_s, use, (wi, wo, f, use2), _ = _specular_problem(rng)
+    fits = fit_specular_models(samples, normal, f_s, use, ("torrance_sparrow", "blinn_phong"))
+    half = normal.shape[0] // 2
+    ci = wi[..., 2]
+    y = f * ci
+    for model, fn in (("torrance_sparrow", brdf.torrance_sparrow), ("blinn_phong", brdf.blinn_phong)):
+        r = fits[model]
+        pred = fn(normal[:, None], wi, wo, r.rho_s[:, None].astype(float), r.lobe[:, None].astype(float)) * ci
+        e_direct = np.sqrt(np.sum(np.where(use2, (y - pred) ** 2, 0), 1) / use2.sum(1))
+        # Noisy texels: E(p) from the lobe sums equals eq. 14 evaluated directly in float64.
+        np.testing.assert_allclose(r.error[half:], e_direct[half:], rtol=2e-4, err_msg=model)
+    # Noise-free texels: E² would cancel in the sums; the explicit residuals keep it at rounding level.
+    rms = np.sqrt(np.sum(np.where(use2, y * y, 0), 1) / use2.sum(1))
+    assert np.all(fits["torrance_sparrow"].error[:half] < 1e-4 * rms[:half])  # cancelled sums: ~3e-4
+    # The first model is fitted exactly as alone; the second, started from the first, fits at least as well.
+    alone = fit_specular_samples(samples, normal, f_s, use, "torrance_sparrow")
+    np.testing.assert_array_equal(alone.lobe, fits["torrance_sparrow"].lobe)
+    bp_cold = fit_specular_samples(samples, normal, f_s, use, "blinn_phong")
+    assert np.median(fits["blinn_phong"].error / bp_cold.error) <= 1 + 1e-5
+
+
+def test_batch_fit_converges_as_close_as_a_tight_tolerance(rng):
+    from facestats.model.fitting import fit_specular_samples
+
+    for model in ("torrance_sparrow", "blinn_phong"):
+        samples, normal, f_s, use, _, _ = _specular_problem(rng, noise=0.01 if model == "torrance_sparrow" else 0.002,
+                                                            model=model)
+        fit = fit_specular_samples(samples, normal, f_s, use, model)
+        tight = fit_specular_samples(samples, normal, f_s, use, model, tol=1e-13, max_iter=400)
+        ok = (fit.flags == 0) & (tight.flags == 0)
+        assert ok.mean() > 0.9
+        assert np.max(np.abs(fit.lobe[ok] / tight.lobe[ok] - 1)) < 2e-3, model
+        assert np.max(np.abs(fit.rho_s[ok] / tight.rho_s[ok] - 1)) < 2e-3, model
+        assert np.all(fit.error[ok] <= tight.error[ok] * (1 + 1e-5)), model
+
+
+def test_equivalent_lobe_maps_roughness_to_exponent_and_back():
+    from facestats.errors import FacestatsError
+    from facestats.model.fitting import equivalent_lobe
+
+    m = np.array([0.1, 0.3, 0.5])
+    n = equivalent_lobe(m, "torrance_sparrow", "blinn_phong")
+    np.testing.assert_allclose(n, 2 / m**2 - 2)  # Walter et al. 2007: α_p = 2 α_b⁻² − 2
+    np.testing.assert_allclose(equivalent_lobe(n, "blinn_phong", "torrance_sparrow"), m)
+    np.testing.assert_array_equal(equivalent_lobe(m, "blinn_phong", "blinn_phong"), m)
+    with pytest.raises(FacestatsError, match="target must be one of"):
+        equivalent_lobe(m, "torrance_sparrow", "phong")

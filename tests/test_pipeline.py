@@ -14,6 +14,7 @@ from facestats.io.schema import FLAG_BITS, validate_subject
 from facestats.model import brdf
 from facestats.model.fitting import fit_specular
 from facestats.pipeline import FitSettings, fit_lumitexels, fit_population, fit_subject, held_out_camera_error
+from tests.factories import hemisphere_pairs
 
 
 @pytest.fixture(scope="module")
@@ -145,10 +146,7 @@ def test_held_out_camera_is_predicted(pop, geom):
 
 def test_fit_specular_public_api_recovers_parameters(rng):
     t, s = 400, 600
-    v = rng.normal(size=(2, t, s, 3))
-    v[..., 2] = np.abs(v[..., 2]) + 0.05
-    v /= np.linalg.norm(v, axis=-1, keepdims=True)
-    wi, wo = v
+    wi, wo = hemisphere_pairs(rng, t, s)
     n = np.tile([0.0, 0.0, 1.0], (t, 1))
     rho, m = rng.uniform(0.15, 0.35, t), rng.uniform(0.2, 0.45, t)
     f = brdf.torrance_sparrow(n[:, None], wi, wo, rho[:, None], m[:, None])

@@ -217,8 +217,7 @@ class Capture:
         sl = slice(int(start), stop)
         pos = self.array("position", sl).astype(np.float64)
         dome = self.dome
-        wi, _ = dome.incident(pos)
-        wo, _, _ = dome.view(pos)
+        wi, wo = dome.light_directions(pos), dome.view_directions(pos)
         rad = self.array("radiance", sl)  # as stored (float16): the fit converts only the valid samples
         if cameras is not None:
             cams = np.asarray(cameras)

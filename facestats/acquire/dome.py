@@ -169,11 +169,9 @@ class Dome:
             point lies behind the LED's emitting hemisphere.
         """
         sel = slice(None) if leds is None else np.asarray(leds)
-        lp, la, li, lb = self.led_position[sel], self.led_axis[sel], self.led_intensity[sel], self.led_beam[sel]
-        p = np.asarray(points, np.float64)
-        d = p[:, None, :] - lp[None, :, :]  # LED -> point
-        r2 = np.einsum("nlk,nlk->nl", d, d)
-        d_unit = d / np.sqrt(r2)[..., None]
+        la, li, lb = self.led_axis[sel], self.led_intensity[sel], self.led_beam[sel]
+        wi, r2, _ = self._towards(self.led_position[sel], points)
+        d_unit = -wi  # LED -> point
         e1, e2 = _tangent_frames(la)
         ca = np.einsum("nlk,lk->nl", d_unit, la)
         front = ca > 1e-6
@@ -182,7 +180,22 @@ class Dome:
         t = np.einsum("nlk,lk->nl", d_unit, e2) / ca_s
         poly = lb[:, 0] + lb[:, 1] * s + lb[:, 2] * t + lb[:, 3] * s * s + lb[:, 4] * s * t + lb[:, 5] * t * t
         gain = np.where(front, np.maximum(poly, 0), 0) / r2
-        return -d_unit, gain[..., None] * li[None, :, :]
+        return wi, gain[..., None] * li[None, :, :]
+
+    @staticmethod
+    def _towards(targets, points):
+        """Unit directions (N, T, 3) from ``points`` (N, 3) towards ``targets`` (T, 3), squared distances (N, T), offsets (N, T, 3)."""
+        d = targets[None, :, :] - np.asarray(points, np.float64)[:, None, :]
+        r2 = np.einsum("ntk,ntk->nt", d, d)
+        return d / np.sqrt(r2)[..., None], r2, d
+
+    def light_directions(self, points):
+        """Unit directions (N, L, 3) from ``points`` (N, 3, mm) towards every LED (the ``wi`` of :meth:`incident`)."""
+        return self._towards(self.led_position, points)[0]
+
+    def view_directions(self, points):
+        """Unit directions (N, C, 3) from ``points`` (N, 3, mm) towards every camera centre (the ``wo`` of :meth:`view`)."""
+        return self._towards(self.camera_position, points)[0]
 
     def view(self, points, cameras=None):
         """Unit directions from ``points`` towards the camera centres and whether each point is in frame.
@@ -197,9 +210,7 @@ class Dome:
         """
         sel = slice(None) if cameras is None else np.asarray(cameras)
         cp, cr, ck, im = self.camera_position[sel], self.camera_rotation[sel], self.camera_matrix[sel], self.image_size[sel]
-        p = np.asarray(points, np.float64)
-        d = cp[None, :, :] - p[:, None, :]
-        wo = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        wo, _, d = self._towards(cp, points)
         cam = np.einsum("cij,ncj->nci", cr, -d)  # point in camera coordinates
         z = cam[..., 2]
         with np.errstate(divide="ignore", invalid="ignore"):

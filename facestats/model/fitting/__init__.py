@@ -6,8 +6,8 @@ flat arrays, one contiguous run per lumitexel.
 1. :func:`photometric_normals` (3 passes), :func:`micro_normals` (§5.1)
 2. :func:`fresnel_factors`, :func:`albedo_stable_minimum` (eq. 9) and :func:`refine_albedo`
 3. :func:`specular_residual` (eq. 10)
-4. :func:`specular_factors` and :func:`fit_specular_samples` (eq. 11-14, batch
-   Levenberg-Marquardt; :func:`fit_specular` for per-texel sample arrays)
+4. :func:`specular_factors`, :func:`fit_specular_samples` and :func:`fit_specular_models`
+   (eq. 11-14, batch Levenberg-Marquardt; :func:`fit_specular` for per-texel sample arrays)
 5. :func:`scatter_to_map`, :func:`push_pull`, :func:`fill_flagged`
 6. :func:`fit_translucency`, :func:`population_sigma_tr_avg` (§5.4)
 7. :func:`scattering_parameters` (§5.4, eq. 7, eq. 16)
@@ -19,12 +19,14 @@ from .albedo import albedo_stable_minimum, fresnel_factors, refine_albedo, specu
 from .maps import fill_flagged, push_pull, scatter_to_map
 from .normals import micro_normals, photometric_normals
 from .samples import Samples
-from .specular import DEFAULT_BOUNDS, SpecularFit, fit_specular, fit_specular_samples, specular_factors
+from .specular import (DEFAULT_BOUNDS, SpecularFit, equivalent_lobe, fit_specular, fit_specular_models,
+                       fit_specular_samples, specular_factors)
 from .translucency import TranslucencyFit, fit_translucency, population_sigma_tr_avg, scattering_parameters
 
 __all__ = [
     "photometric_normals", "micro_normals", "albedo_stable_minimum", "refine_albedo", "specular_residual",
-    "fresnel_factors", "fit_specular", "fit_specular_samples", "specular_factors", "SpecularFit", "Samples", "DEFAULT_BOUNDS", "scatter_to_map",
+    "fresnel_factors", "fit_specular", "fit_specular_samples", "fit_specular_models", "specular_factors",
+    "equivalent_lobe", "SpecularFit", "Samples", "DEFAULT_BOUNDS", "scatter_to_map",
     "push_pull", "fill_flagged", "fit_translucency", "TranslucencyFit", "population_sigma_tr_avg",
     "scattering_parameters",
 ]

@@ -90,52 +90,43 @@ def photometric_normals(samples, scan_normal, n_cameras, *, eta=1.38, specular_e
     lim = np.float32(np.cos(max_angle))
     with np.errstate(invalid="ignore"):
         use = (cos_h < np.float32(np.cos(specular_exclusion))) & (ci > lim) & (co > lim) & (y > 0) & (y < np.inf)
-    # Per (lumitexel, camera) run of samples: A = Σ ωi ωiᵀ and b = Σ y ωi over the used lights
-    # (segmented sums over the runs; runs without samples are absent).
-    key, start, cnt = samples.camera_runs()
-    m = use.astype(np.float32)
-    wi = [samples.at_lights(np.ascontiguousarray(samples.wi_grid[..., k])) for k in range(3)]
-    wm = [w * m for w in wi]  # ωi where used, 0 elsewhere
-    scratch = np.empty(samples.n, np.float32)
-
-    def run_sum(x, y):
-        """Σ x y over every (lumitexel, camera) run, float64."""
-        return np.add.reduceat(np.multiply(x, y, out=scratch), start).astype(np.float64)
-
-    a = np.empty((key.size, 3, 3))
-    for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)):
-        a[:, i, j] = a[:, j, i] = run_sum(wm[i], wi[j])
-    count = np.add.reduceat(m, start)
-    ok = count >= min_lights
-    det = np.linalg.det(a)
-    ok &= det > 1e-6 * np.maximum(count, 1.0) ** 3
-    a_inv = np.linalg.inv(np.where(ok[:, None, None], a, np.eye(3)))  # A is the same in every pass
-    ym = masked(y, use)
-    wig = samples.wi_grid.astype(np.float64)
-    cam_dir = samples.wo_grid.astype(np.float64).reshape(-1, 3)[key]
+    # Per (lumitexel, camera): A = Σ ωi ωiᵀ and b = Σ y ωi over the used lights, as batched products of
+    # the (lumitexel, camera, light) grids of the mask and of y with the lights' directions.
+    m_grid = samples.on_grid(use.astype(np.float32))  # (n, C, L)
+    y_grid = samples.on_grid(masked(y, use).astype(np.float32, copy=False))
+    wi = samples.wi_grid.astype(np.float32)  # (n, L, 3)
+    i, j = np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2])  # the 6 entries of a symmetric 3×3
+    a = np.moveaxis(np.matmul(m_grid, wi[..., i] * wi[..., j]).astype(np.float64), -1, 0)  # (6, n, C)
+    adj, det = _adjugate_sym3(a)  # A is the same in every pass: g = A⁻¹ b ∝ adj(A) b
+    count = m_grid.sum(-1)
+    ok = (count >= min_lights) & (det > 1e-6 * np.maximum(count, 1.0) ** 3)
+    cam_dir = samples.wo_grid.astype(np.float64)  # (n, C, 3)
     normal = n_scan.astype(np.float64)
-    cam_n = np.full((n * n_cameras, 3), np.nan)
     e32 = np.float32(eta)
     for it in range(int(iterations)):  # refinement passes
-        if it > 0:  # divide out F_t(θi) with the current normal (computed on the light grid)
-            c = np.clip(np.matmul(wig, normal[:, :, None])[..., 0], 0, 1).astype(np.float32)  # (n, L)
+        w_eff = wi
+        if it > 0:  # divide out F_t(θi) with the current normal: y / F_t = Σ_l y_l ωi_l / F_t,l
+            c = np.clip(np.matmul(wi, normal.astype(np.float32)[:, :, None])[..., 0], 0, 1)  # (n, L)
             ft = 1 - _fresnel_reflectance(c, e32)
-            yy = ym / samples.at_lights(np.where(ft > 0, ft, 1))
-        else:
-            yy = ym
-        b = np.stack([run_sum(yy, w) for w in wi], axis=1)
-        g = np.einsum("rij,rj->ri", a_inv, b)
-        run_n = np.where(ok[:, None], _unit(g), np.nan)
-        weight = np.where(ok, np.clip(np.einsum("rk,rk->r", np.nan_to_num(run_n), cam_dir), 0, None), 0)
-        acc = np.zeros((n * n_cameras, 3))
-        acc[key] = weight[:, None] * np.nan_to_num(run_n)
-        acc = acc.reshape(n, n_cameras, 3).sum(1)
-        wsum = np.zeros(n * n_cameras)
-        wsum[key] = weight
-        have = wsum.reshape(n, n_cameras).sum(1) > 0
+            w_eff = wi / np.where(ft > 0, ft, 1)[..., None]
+        b = np.matmul(y_grid, w_eff).astype(np.float64)  # (n, C, 3)
+        g = np.einsum("ijnc,ncj->nci", adj, b)  # det(A) > 0 where ok: the direction of A⁻¹ b
+        cam_n = np.where(ok[..., None], _unit(g), np.nan)
+        weight = np.where(ok, np.clip(np.einsum("nck,nck->nc", np.nan_to_num(cam_n), cam_dir), 0, None), 0)
+        acc = np.einsum("nc,nck->nk", weight, np.nan_to_num(cam_n))
+        have = weight.sum(1) > 0
         normal = np.where(have[:, None], _unit(acc), n_scan)
-        cam_n[key] = run_n
-    return normal.astype(np.float32), cam_n.reshape(n, n_cameras, 3).astype(np.float32)
+    return normal.astype(np.float32), cam_n.astype(np.float32)
+
+
+def _adjugate_sym3(a):
+    """Adjugate (3, 3, ...) and determinant (...) of symmetric 3×3 matrices given as their
+    6 entries (a00, a01, a02, a11, a12, a22) on the first axis: A⁻¹ = adj(A)/det(A) (cofactors)."""
+    a00, a01, a02, a11, a12, a22 = a
+    c00, c11, c22 = a11 * a22 - a12 * a12, a00 * a22 - a02 * a02, a00 * a11 - a01 * a01
+    c01, c02, c12 = a02 * a12 - a01 * a22, a01 * a12 - a02 * a11, a01 * a02 - a00 * a12
+    adj = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]])
+    return adj, a00 * c00 + a01 * c01 + a02 * c02
 
 
 def _check_camera_grid(samples, n_cameras):

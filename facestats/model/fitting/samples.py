@@ -236,6 +236,24 @@ class Samples:
         """Per-lumitexel values (n_texels, ...) repeated for each sample of the lumitexel, shape (S, ...)."""
         return np.repeat(np.asarray(per_texel), self.counts, axis=0)
 
+    def on_grid(self, values) -> np.ndarray:
+        """Per-sample ``values`` (S,) placed on the (lumitexel, camera, light) grid (n, C, L), 0 elsewhere.
+
+        Only for samples on a dome grid (not ``paired``).
+        """
+        if self.paired:
+            raise ValidationError("on_grid needs samples on a dome grid (Samples.from_grid), not paired samples")
+        v = np.asarray(values)
+        out = np.zeros(self.n_texels * self.wo_grid.shape[1] * self.wi_grid.shape[1], v.dtype)
+        out[self._grid_index()] = v
+        return out.reshape(self.n_texels, self.wo_grid.shape[1], self.wi_grid.shape[1])
+
+    def _grid_index(self):
+        """Flat index of each sample into the (lumitexel, camera, light) grid (cached)."""
+        if "grid_index" not in self._cache:
+            self._cache["grid_index"] = self._index("camera_index") * self.wi_grid.shape[1] + self.light
+        return self._cache["grid_index"]
+
     def at_lights(self, grid) -> np.ndarray:
         """Per-sample values of a (lumitexel, light) grid (n, L)."""
         return np.asarray(grid).reshape(-1).take(self._index("light_index"))
@@ -274,10 +292,7 @@ class Samples:
                 io = np.einsum("sk,sk->s", self.wi, self.wo)
             else:
                 grid = np.matmul(self.wo_grid, np.swapaxes(self.wi_grid, 1, 2))  # (n, C, L)
-                idx = self._cache.get("grid_index")
-                if idx is None:
-                    idx = self._index("camera_index") * self.wi_grid.shape[1] + self.light
-                io = grid.reshape(-1).take(idx)
+                io = grid.reshape(-1).take(self._grid_index())
             self._cache["io"] = io.astype(np.float32, copy=False)
         return self._cache["io"]
 

@@ -26,15 +26,21 @@ Levenberg-Marquardt iteration vectorised over texels and samples:
   closed form and p₀ starts the iteration (see ``_COLD_STARTS``), unless a
   start is given (a previous fit: the pipeline refits after refining the albedo,
   and starts Blinn-Phong at the Beckmann-equivalent n = 2/m² − 2).
-* Convergence: a texel stops when an accepted step changes E² by less than
-  ``tol`` relative, when a step (accepted or not) changes ρs by less than 10⁻⁵
-  relative and ln p by less than 10⁻⁵, or when λ exceeds 10¹⁰.
+* Convergence: a texel stops when the Gauss-Newton decrement bᵀH⁻¹b (the most
+  a full step could still lower E²) is below ``tol``/10 of E², when an accepted
+  step changes E² by less than ``tol`` relative, when a step (accepted or not)
+  changes ρs by less than 10⁻⁵ relative and ln p by less than 10⁻⁵, or when λ
+  exceeds 10¹⁰.  (The decrement test saves the confirming evaluation; at
+  ``tol``/10 the parameters stay within 2·10⁻³ relative of a fit run to
+  tol = 10⁻¹³, as close as the E²-change test alone gets.)
 * Only samples with w = 1 are kept, as flat arrays in which every texel's
   samples form one contiguous run (:class:`facestats.model.fitting.samples.Samples`
   is sorted by texel); per-texel sums are ``np.add.reduceat`` over the runs
-  (float32 in the iteration; the final error and standard errors accumulate in
-  float64), and when fewer than 70 % of the texels are still moving the
-  converged ones leave the working set.
+  (pairwise float32 sums, accumulated per texel in float64), and when fewer
+  than 70 % of the texels are still moving the converged ones leave the
+  working set, their sums kept for the final E(p) and standard errors.  E² is
+  Σy² − 2ρs Σyg + ρs² Σg² from those sums, except where that difference is
+  below 1 % of Σy² (it would cancel): there the residuals are formed explicitly.
 
 Flags (:data:`facestats.io.schema.FLAG_BITS`): ``few_samples`` when fewer than
 ``min_samples`` samples remain, ``not_converged`` when ``max_iter`` is reached,
@@ -55,9 +61,10 @@ from ..._validate import as_finite, as_float, check_choice, check_integer, check
 from ...errors import ValidationError
 from ..brdf import torrance_sparrow_cosines
 from ..fresnel import _check_eta
-from .samples import Samples
+from .samples import Samples, segment_sum
 
-__all__ = ["SpecularFit", "fit_specular", "fit_specular_samples", "specular_factors", "DEFAULT_BOUNDS"]
+__all__ = ["SpecularFit", "fit_specular", "fit_specular_samples", "fit_specular_models", "specular_factors", "equivalent_lobe",
+           "DEFAULT_BOUNDS"]
 
 #: Default bounds (ρs, lobe parameter) per model.
 DEFAULT_BOUNDS = {
@@ -204,10 +211,17 @@ def specular_factors(samples, normal, model, eta=1.38, cos=None):
     """
     check_choice(model, "model", DEFAULT_BOUNDS)
     _check_eta(eta)
-    # float32 throughout: the factors' relative error stays below 2e-5 (1e-6 typical), far
-    # below the noise of any measured sample.
     ci, co = samples.cos(normal) if cos is None else cos
-    io = samples.cos_io().astype(np.float32)
+    return _factors(model, ci, co, samples.cos_io(), eta)
+
+
+def _factors(model, ci, co, io, eta):
+    """(s1, A) of :func:`specular_factors` from N·ωi, N·ωo and ωi·ωo per sample (no checks).
+
+    float32 throughout: the factors' relative error stays below 2e-5 (1e-6
+    typical), far below the noise of any measured sample.
+    """
+    io = np.asarray(io, np.float32)
     if model == "torrance_sparrow":
         return blockwise(_ts_factor_kernel, [ci, co, io, np.float32(eta)], np.float32, n_out=2)
     above = (ci > 0) & (co > 0)
@@ -216,8 +230,27 @@ def specular_factors(samples, normal, model, eta=1.38, cos=None):
     return np.log(np.clip(cos_d, 1e-6, 1)).astype(np.float32), np.where(above, ci / (2 * np.pi), 0).astype(np.float32)
 
 
-def fit_specular_samples(samples, normal, f_s, use, model, *, factors=None, eta=1.38, bounds=None, min_samples=30,
-                         max_iter=40, tol=1e-6, max_relative_error=0.25, start=None, cos=None) -> SpecularFit:
+def equivalent_lobe(lobe, source, target):
+    """The ``target`` model's lobe parameter closest to a ``source`` lobe: n = 2/m² − 2, m = sqrt(2/(n + 2)).
+
+    The Beckmann-Phong correspondence α_p = 2 α_b⁻² − 2 under which Walter et al.
+    2007 ("Microfacet models for refraction through rough surfaces", §5.2) find
+    the two distributions very similar.  It is only a starting point: one
+    model's fit starts the other's, which then converges on its own.  ``m`` is
+    clamped at 10⁻³ and ``n`` at 0 so the result stays finite.
+    """
+    check_choice(source, "source", DEFAULT_BOUNDS)
+    check_choice(target, "target", DEFAULT_BOUNDS)
+    lobe = np.asarray(lobe, np.float64)
+    if source == target:
+        return lobe
+    if target == "blinn_phong":
+        return 2 / np.maximum(lobe, 1e-3) ** 2 - 2
+    return np.sqrt(2 / (np.maximum(lobe, 0) + 2))
+
+
+def fit_specular_samples(samples, normal, f_s, use, model, *, eta=1.38, bounds=None, min_samples=30, max_iter=40,
+                         tol=1e-6, max_relative_error=0.25, start=None, cos=None) -> SpecularFit:
     """Fit ``model`` to grey specular samples on flat :class:`Samples` (the pipeline's form of :func:`fit_specular`).
 
     Parameters
@@ -229,8 +262,6 @@ def fit_specular_samples(samples, normal, f_s, use, model, *, factors=None, eta=
     use : ndarray of bool, shape (S,)
         Samples that enter eq. 14 (w = 1).
     model : {"torrance_sparrow", "blinn_phong"}
-    factors : tuple, optional
-        Precomputed :func:`specular_factors` for these samples, normals and model.
     eta, bounds, min_samples, max_iter, tol, max_relative_error
         As :func:`fit_specular`.
     start : ndarray, shape (n,), optional
@@ -244,21 +275,70 @@ def fit_specular_samples(samples, normal, f_s, use, model, *, factors=None, eta=
     SpecularFit
     """
     check_choice(model, "model", DEFAULT_BOUNDS)
+    return fit_specular_models(samples, normal, f_s, use, (model,), eta=eta, bounds={model: bounds},
+                               min_samples=min_samples, max_iter=max_iter, tol=tol,
+                               max_relative_error=max_relative_error, start=start, cos=cos)[model]
+
+
+def fit_specular_models(samples, normal, f_s, use, models, *, eta=1.38, bounds=None, min_samples=30, max_iter=40,
+                        tol=1e-6, max_relative_error=0.25, start=None, cos=None) -> dict:
+    """Fit several models to the same grey specular samples; later models start from the first.
+
+    The samples entering eq. 14 are selected and compacted once for all models
+    (``use``, finite ``f_s``, ωi and ωo above the horizon), and each model's
+    factors (:func:`specular_factors`) are computed on those samples only.  The
+    first model starts from ``start`` (or cold), each later one from the
+    first's fit through :func:`equivalent_lobe`.
+
+    Parameters
+    ----------
+    samples, normal, f_s, use, eta, min_samples, max_iter, tol, max_relative_error, start, cos
+        As :func:`fit_specular_samples`.
+    models : sequence of {"torrance_sparrow", "blinn_phong"}
+    bounds : dict, optional
+        Bounds per model (as :func:`fit_specular`); missing models use :data:`DEFAULT_BOUNDS`.
+
+    Returns
+    -------
+    dict
+        :class:`SpecularFit` per model, in the order of ``models``.
+    """
+    models = tuple(models) if not isinstance(models, str) else (models,)
+    if not models:
+        raise ValidationError("models must name at least one model, got an empty sequence")
+    for m in models:
+        check_choice(m, "models", DEFAULT_BOUNDS)
+    _check_eta(eta)
+    _check_specular_inputs(samples, normal, f_s, use, start)
+    bounds = bounds or {}
+    ci, co = samples.cos(normal) if cos is None else cos
+    with np.errstate(invalid="ignore"):
+        ok = np.asarray(use, bool) & np.isfinite(f_s) & (ci > 0) & (co > 0)
+    ci_u, co_u, io_u, y = (np.compress(ok, x) for x in (ci, co, samples.cos_io(), f_s))
+    factors = {m: _factors(m, ci_u, co_u, io_u, eta) for m in models}
+    keep = np.logical_and.reduce([a > 0 for _, a in factors.values()])  # A underflows only in extreme geometry
+    counts = samples.count(ok)
+    if not keep.all():
+        counts = segment_sum(keep, np.cumsum(counts) - counts, counts)
+        ci_u, y = np.compress(keep, ci_u), np.compress(keep, y)
+        factors = {m: (np.compress(keep, s1), np.compress(keep, a)) for m, (s1, a) in factors.items()}
+    y = (y * ci_u).astype(np.float32, copy=False)
+    fits = {}
+    for m in models:
+        s1, a = factors[m]
+        first = fits[models[0]] if fits else None
+        st = start if first is None else equivalent_lobe(first.lobe, first.model, m)
+        fits[m] = _solve(m, y, s1, a, counts, bounds=bounds.get(m), min_samples=min_samples, max_iter=max_iter,
+                         tol=tol, max_relative_error=max_relative_error, start=st)
+    return fits
+
+
+def _check_specular_inputs(samples, normal, f_s, use, start):
     check_shape(np.asarray(normal), "normal", (samples.n_texels, 3))
     check_shape(np.asarray(f_s), "f_s", (samples.n,))
     check_shape(np.asarray(use), "use", (samples.n,))
     if start is not None:
         check_shape(np.asarray(start), "start", (samples.n_texels,))
-    if cos is None:
-        cos = samples.cos(normal)
-    s1, a = specular_factors(samples, normal, model, eta, cos) if factors is None else factors
-    ci = cos[0]
-    with np.errstate(invalid="ignore"):
-        ok = np.asarray(use, bool) & np.isfinite(f_s) & (a > 0)
-    y = np.compress(ok, f_s) * np.compress(ok, ci)
-    return _solve(model, y.astype(np.float32, copy=False), np.compress(ok, s1), np.compress(ok, a), samples.count(ok),
-                  bounds=bounds, min_samples=min_samples, max_iter=max_iter, tol=tol,
-                  max_relative_error=max_relative_error, start=start)
 
 
 def fit_specular(wi, wo, normal, f_s, valid, model, *, bounds=None, eta=1.38, max_angle=np.radians(80.0), min_samples=30,
@@ -360,7 +440,7 @@ def _solve(model, y, s1, a, n_use, *, bounds, min_samples, max_iter, tol, max_re
     cnt_w = n_use[work]
     st_w = segments(cnt_w) if k else None
     swyy = np.zeros(n_tex)
-    scratch = full_scratch = np.empty((3, wy.size), wy.dtype)  # per-sample work buffers of the lobe sums
+    scratch = np.empty((3, wy.size), wy.dtype)  # per-sample work buffers of the lobe sums
     if k:
         swyy[work] = rsum(wy * wy, st_w)
     iterations = 0
@@ -406,27 +486,34 @@ def _solve(model, y, s1, a, n_use, *, bounds, min_samples, max_iter, tol, max_re
             best_s = sums if best_s is None else tuple(np.where(better, x, b) for x, b in zip(sums, best_s))
         q[work], rho[work] = best_q, best_r
         sums = best_s  # per-texel lobe sums at the current parameters
+        all_sums = np.zeros((5, n_tex))  # ... of every texel, written when it leaves the working set
         # -- Levenberg-Marquardt, vectorised over the texels still moving ---------------
         # Every iteration evaluates the lobe once, at the trial point: its five sums give E
         # there and, if the step is accepted, the gradient and Hessian of the next step.
         for iterations in range(1, int(max_iter) + 1):
-            live = ~done[work]
-            if not live.any():
-                break
-            if live.mean() < 0.7:  # compact the working set
-                keep = np.repeat(live, cnt_w)
-                work = work[live]
-                wy, wa, ws = (np.compress(keep, x) for x in (wy, wa, ws))
-                sums = tuple(x[live] for x in sums)
-                k = work.size
-                cnt_w = n_use[work]
-                st_w = segments(cnt_w)
-                scratch = scratch[:, : wy.size]
             r0, q0, lm = rho[work], q[work], lam[work]
             syg, sgg, sydg, sgdg, sdgdg = _moments(model, q0, sums)
             e0 = swyy[work] - 2 * r0 * syg + r0 * r0 * sgg
             h00, h01, h11 = sgg, r0 * sgdg, r0 * r0 * sdgdg
             b0, b1 = syg - r0 * sgg, r0 * (sydg - r0 * sgdg)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                # Gauss-Newton decrement bᵀH⁻¹b: the most a full step could still lower E².
+                decrement = (h11 * b0 * b0 - 2 * h01 * b0 * b1 + h00 * b1 * b1) / (h00 * h11 - h01 * h01)
+            done[work] |= decrement < 0.1 * tol * e0
+            live = ~done[work]
+            if not live.any():
+                break
+            if live.mean() < 0.7:  # compact the working set
+                all_sums[:, work[~live]] = np.array(sums)[:, ~live]
+                keep = np.repeat(live, cnt_w)
+                work = work[live]
+                wy, wa, ws = (np.compress(keep, x) for x in (wy, wa, ws))
+                sums = tuple(x[live] for x in sums)
+                r0, q0, lm, e0, h00, h01, h11, b0, b1 = (x[live] for x in (r0, q0, lm, e0, h00, h01, h11, b0, b1))
+                k = work.size
+                cnt_w = n_use[work]
+                st_w = segments(cnt_w)
+                scratch = scratch[:, : wy.size]
             d00 = h00 * (1 + lm) + 1e-30
             d11 = h11 * (1 + lm) + 1e-30
             det = d00 * d11 - h01 * h01
@@ -447,9 +534,10 @@ def _solve(model, y, s1, a, n_use, *, bounds, min_samples, max_iter, tol, max_re
             # A step this small, accepted or not, means the minimum is reached (to float32 precision).
             small_step = (np.abs(r1 - r0) <= 1e-5 * np.maximum(np.abs(r0), 1e-6)) & (np.abs(q1 - q0) <= 1e-5)
             done[work] |= (accept & (rel < tol)) | small_step | (lam[work] > 1e10)
+        all_sums[:, work] = sums
     not_conv = ~done
 
-    # -- error, uncertainty and flags (residuals formed explicitly: no cancellation) ------------
+    # -- error, uncertainty and flags --------------------------------------------------------------
     err = np.full(n_tex, np.nan)
     r_std = np.full(n_tex, np.nan)
     p_std = np.full(n_tex, np.nan)
@@ -458,25 +546,23 @@ def _solve(model, y, s1, a, n_use, *, bounds, min_samples, max_iter, tol, max_re
     rho = rho.astype(np.float64)
     q = q.astype(np.float64)
     if good.any():
-        cnt_g = n_use[good]
-        st_g = segments(cnt_g)
-        sel = np.repeat(good, n_use)
-        yg, sg, ag = (x if good.all() else np.compress(sel, x) for x in (y, s1, a))
-
-        def full(x):  # per-texel sums (pairwise float32, about 1e-7 relative)
-            out = np.zeros(n_tex)
-            out[good] = np.add.reduceat(x, st_g)
-            return out
-
-        # J = (g, ρs ∂g/∂ln p) from the moments; E from explicit residuals y − ρs g (no cancellation).
-        buf = full_scratch if full_scratch.shape[1] == yg.size else np.empty((3, yg.size), dt)
-        mom = _moments(model, q[good], _lobe_sums(model, q[good], cnt_g, st_g, sg, ag, yg, buf))
+        # J = (g, ρs ∂g/∂ln p) and E² = Σy² − 2ρs Σyg + ρs² Σg² from the lobe sums at the final
+        # parameters.  Near a perfect fit that difference cancels (float32 sums carry ~1e-7 Σy²):
+        # where E² < 1 % of Σy², E² is recomputed from explicit residuals y − ρs g instead.
+        syg, sgg, _, sgdg, sdgdg = _moments(model, q[good], all_sums[:, good])
         h00, h01, h11 = (np.zeros(n_tex) for _ in range(3))
-        h00[good], h01[good], h11[good] = mom[1], rho[good] * mom[3], rho[good] ** 2 * mom[4]
-        g = buf[0]  # u of the final parameters, left by _lobe_sums
-        g *= np.repeat((rho[good] * _lobe_scale(model, q[good])).astype(dt), cnt_g)  # ρs g
-        res = np.subtract(yg, g, out=g)
-        e = full(np.multiply(res, res, out=res))
+        h00[good], h01[good], h11[good] = sgg, rho[good] * sgdg, rho[good] ** 2 * sdgdg
+        e = np.zeros(n_tex)
+        e[good] = np.maximum(swyy[good] - 2 * rho[good] * syg + rho[good] ** 2 * sgg, 0)
+        exact = good & (e < 1e-2 * swyy)
+        if exact.any():
+            cnt_x = n_use[exact]
+            sel = np.repeat(exact, n_use)
+            yx, sx, ax = (x if exact.all() else np.compress(sel, x) for x in (y, s1, a))
+            g = _lobe_base(model, q[exact], cnt_x, sx, ax)
+            g *= np.repeat((rho[exact] * _lobe_scale(model, q[exact])).astype(dt), cnt_x)  # ρs g
+            res = np.subtract(yx, g, out=g)
+            e[exact] = np.add.reduceat(np.multiply(res, res, out=res), segments(cnt_x))  # pairwise float32
         sw = n_use.astype(np.float64)
         det = h00 * h11 - h01 * h01
         with np.errstate(invalid="ignore", divide="ignore"):

@@ -77,8 +77,7 @@ def valid_samples(radiance, irradiance):
         u = r.view(np.uint16)
         high = np.maximum(np.maximum(u[..., 0], u[..., 1]), u[..., 2])
         ok = high <= 0x7C00
-        maybe = high >= 0x8000  # a negative, NaN or −0 channel: exact test only where −0 occurs
-        if np.any(u[maybe] == 0x8000):
+        if np.any(u == 0x8000):  # a −0 channel (valid, but its pattern is above 0x7C00): exact test
             exact = (u <= 0x7C00) | (u == 0x8000)
             ok = exact[..., 0] & exact[..., 1] & exact[..., 2]
     else:
@@ -96,9 +95,11 @@ class Samples:
     n_texels : int
     texel : ndarray of int32, shape (S,)
         Lumitexel of each sample (non-decreasing).
-    camera, light : ndarray of int32, shape (S,)
-        Index of each sample's outgoing and incident direction in ``wo_grid`` and
-        ``wi_grid`` (cameras non-decreasing within a lumitexel).
+    camera_index, light_index : ndarray of intp, shape (S,)
+        Flat index of each sample's outgoing and incident direction in
+        ``wo_grid.reshape(-1, 3)`` and ``wi_grid.reshape(-1, 3)`` (non-decreasing
+        camera within a lumitexel); :attr:`camera` and :attr:`light` give the
+        per-lumitexel indices.
     wi_grid : ndarray of float32, shape (n, L, 3)
         Unit directions from each lumitexel towards each light.
     wo_grid : ndarray of float32, shape (n, C, 3)
@@ -114,8 +115,8 @@ class Samples:
 
     n_texels: int
     texel: np.ndarray
-    camera: np.ndarray
-    light: np.ndarray
+    camera_index: np.ndarray
+    light_index: np.ndarray
     wi_grid: np.ndarray
     wo_grid: np.ndarray
     radiance: np.ndarray
@@ -143,15 +144,13 @@ class Samples:
         texel = np.repeat(np.arange(n, dtype=np.int32), per_texel)
         rad = np.asarray(radiance).reshape(-1, 3).take(flat, axis=0).T.astype(np.float32, order="C")
         irr_grid = np.ascontiguousarray(np.moveaxis(np.asarray(irradiance, np.float32), -1, 0)).reshape(3, -1)
-        light = (flat - tc * n_led).astype(np.int32)
-        light_index = texel.astype(index_dtype) * n_led + light
+        light_index = flat - (tc - texel) * n_led  # flat = (t C + c) L + l, tc = t C + c: t L + l
         out = cls(
-            n_texels=n, texel=texel, camera=(tc - texel.astype(index_dtype) * n_cam).astype(np.int32), light=light,
+            n_texels=n, texel=texel, camera_index=tc, light_index=light_index,
             wi_grid=np.asarray(wi, np.float32), wo_grid=np.asarray(wo, np.float32), radiance=rad,
             irradiance=np.stack([irr_grid[c].take(light_index) for c in range(3)]),
         )
-        out._cache.update(counts=per_texel, grid_index=flat, light_index=light_index, camera_index=tc,
-                          camera_runs=per_tc)
+        out._cache.update(counts=per_texel, grid_index=flat, camera_runs=per_tc)
         return out
 
     @classmethod
@@ -162,7 +161,8 @@ class Samples:
         n_s = t.size
         rad = np.zeros((3, n_s), np.float32) if radiance is None else np.asarray(radiance, np.float32)[t, s].T
         irr = np.ones((3, n_s), np.float32) if irradiance is None else np.asarray(irradiance, np.float32)[t, s].T
-        return cls(n_texels=v.shape[0], texel=t.astype(np.int32), camera=s.astype(np.int32), light=s.astype(np.int32),
+        flat = (t * v.shape[1] + s).astype(np.intp)
+        return cls(n_texels=v.shape[0], texel=t.astype(np.int32), camera_index=flat, light_index=flat,
                    wi_grid=np.asarray(wi, np.float32), wo_grid=np.asarray(wo, np.float32),
                    radiance=np.ascontiguousarray(rad), irradiance=np.ascontiguousarray(irr), paired=True)
 
@@ -189,12 +189,15 @@ class Samples:
             self._cache["starts"] = np.concatenate([[0], np.cumsum(c)[:-1]]).astype(np.int64)
         return self._cache["starts"]
 
-    def _index(self, name):
-        """Flat index of each sample into the (lumitexel, light) or (lumitexel, camera) grid."""
-        if name not in self._cache:
-            grid, idx = (self.wi_grid, self.light) if name == "light_index" else (self.wo_grid, self.camera)
-            self._cache[name] = self.texel.astype(np.int64) * grid.shape[1] + idx
-        return self._cache[name]
+    @property
+    def camera(self) -> np.ndarray:
+        """Index of each sample's camera (its row of ``wo_grid[texel]``), shape (S,)."""
+        return self.camera_index - self.texel.astype(np.intp) * self.wo_grid.shape[1]
+
+    @property
+    def light(self) -> np.ndarray:
+        """Index of each sample's light (its row of ``wi_grid[texel]``), shape (S,)."""
+        return self.light_index - self.texel.astype(np.intp) * self.wi_grid.shape[1]
 
     def camera_runs(self):
         """Runs of the (lumitexel, camera) groups: ``(key, starts, counts)``, empty groups left out.
@@ -207,7 +210,7 @@ class Samples:
                 key = np.flatnonzero(per_tc)
                 cnt = per_tc[key]
             else:
-                k = self._index("camera_index")
+                k = self.camera_index
                 if k.size and np.any(k[1:] < k[:-1]):
                     raise ValidationError("samples must be grouped by (lumitexel, camera) for per-camera runs")
                 bound = np.flatnonzero(np.concatenate([[True], k[1:] != k[:-1]])) if k.size else np.zeros(0, np.int64)
@@ -251,27 +254,27 @@ class Samples:
     def _grid_index(self):
         """Flat index of each sample into the (lumitexel, camera, light) grid (cached)."""
         if "grid_index" not in self._cache:
-            self._cache["grid_index"] = self._index("camera_index") * self.wi_grid.shape[1] + self.light
+            self._cache["grid_index"] = self.camera_index * self.wi_grid.shape[1] + self.light
         return self._cache["grid_index"]
 
     def at_lights(self, grid) -> np.ndarray:
         """Per-sample values of a (lumitexel, light) grid (n, L)."""
-        return np.asarray(grid).reshape(-1).take(self._index("light_index"))
+        return np.asarray(grid).reshape(-1).take(self.light_index)
 
     def at_cameras(self, grid) -> np.ndarray:
         """Per-sample values of a (lumitexel, camera) grid (n, C)."""
-        return np.asarray(grid).reshape(-1).take(self._index("camera_index"))
+        return np.asarray(grid).reshape(-1).take(self.camera_index)
 
     # -- geometry ------------------------------------------------------------------------
     @property
     def wi(self) -> np.ndarray:
         """Per-sample unit directions towards the light, (S, 3) (built on demand)."""
-        return self.wi_grid.reshape(-1, 3).take(self._index("light_index"), axis=0)
+        return self.wi_grid.reshape(-1, 3).take(self.light_index, axis=0)
 
     @property
     def wo(self) -> np.ndarray:
         """Per-sample unit directions towards the camera, (S, 3) (built on demand)."""
-        return self.wo_grid.reshape(-1, 3).take(self._index("camera_index"), axis=0)
+        return self.wo_grid.reshape(-1, 3).take(self.camera_index, axis=0)
 
     def cos_grids(self, normal, dtype=np.float32):
         """(N·ωi on the light grid (n, L), N·ωo on the camera grid (n, C)) for normals (n, 3)."""

@@ -357,12 +357,13 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
     maps["normal"] = np.where(face[..., None], nrm, 0)
     micro = None
     if "micro_normal" in res:
-        n_cam = res["micro_normal"].shape[1]
-        mn, _ = fitting.scatter_to_map(res.pop("micro_normal").reshape(capture.n_lumitexels, -1), texel, size)
+        mn = res.pop("micro_normal")  # (lumitexel, camera, 3)
+        n_cam = mn.shape[1]
+        mn[~face[texel[:, 0], texel[:, 1]]] = np.nan  # off the face: NaN like texels no camera saw
+        mn, _ = fitting.scatter_to_map(mn.reshape(capture.n_lumitexels, -1), texel, size)
         # scatter_to_map's (size, size, K) is a view of a (camera, component, v, u) array: reorder as a
-        # view (no copy of what is 0.8 GB at full resolution), NaN where unseen or off the face.
+        # view (no copy of what is 0.8 GB at full resolution).
         micro = np.moveaxis(np.moveaxis(mn, -1, 0).reshape(n_cam, 3, size, size), 1, -1)
-        micro[:, ~face] = np.nan
 
     # Stage 6: sensor profiles.
     tf = fit_sensor(capture, st.eta) if sensor_fit is None else sensor_fit

@@ -107,7 +107,7 @@ def v_groove_shadowing(n_h, n_wi, n_wo, wo_h):
     is reciprocal.  Arguments are the cosines N·H, N·ωi, N·ωo and ωo·H (> 0,
     no input checks); G is dimensionless, in (0, 1].
     """
-    return np.minimum(1, np.minimum(2 * n_h * n_wo / wo_h, 2 * n_h * n_wi / wo_h))
+    return np.minimum(1, 2 * n_h * np.minimum(n_wi, n_wo) / wo_h)  # the same min: every factor is positive
 
 
 def blinn_phong_lobe(cos_delta, exponent):
@@ -144,18 +144,19 @@ def torrance_sparrow_cosines(n_wi, n_wo, wi_wo, eta=1.38):
     dtype = np.result_type(n_wi, np.float32)
     one = dtype.type(1)
     above = (n_wi > 0) & (n_wo > 0)
+    everywhere = bool(np.all(above))  # the fitter's samples: no masking needed
+    if not everywhere:  # evaluate below-horizon samples at N·ωi = N·ωo = ωi·ωo = 1 (N·H = 1), K = 0 below
+        n_wi, n_wo, wi_wo = (np.where(above, x, one) for x in (n_wi, n_wo, wi_wo))
     with np.errstate(invalid="ignore", divide="ignore"):
         inv = 1 / np.sqrt(np.maximum(2 + 2 * wi_wo, 0))
-    n_h = (n_wi + n_wo) * inv
-    wo_h = (1 + wi_wo) * inv
     tiny = np.finfo(dtype).tiny
-    n_h = np.where(above, np.clip(n_h, tiny, one), one)
-    wo_h = np.where(above, np.clip(wo_h, tiny, one), one)
-    n_wi = np.where(above, n_wi, one)
-    n_wo = np.where(above, n_wo, one)
+    n_h = np.clip((n_wi + n_wo) * inv, tiny, one)
+    wo_h = np.clip((1 + wi_wo) * inv, tiny, one)
     g = v_groove_shadowing(n_h, n_wi, n_wo, wo_h)
     k = g * _fresnel_reflectance(wo_h, eta) / (np.pi * n_wi * n_wo)
-    return n_h.astype(dtype, copy=False), np.where(above, k, 0).astype(dtype, copy=False)
+    if not everywhere:
+        k = np.where(above, k, 0)
+    return n_h.astype(dtype, copy=False), k.astype(dtype, copy=False)
 
 
 def torrance_sparrow_geometry(normal, wi, wo, eta=1.38):

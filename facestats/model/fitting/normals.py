@@ -170,6 +170,7 @@ def micro_normals(samples, n_cameras):
     hit = np.flatnonzero(y == np.repeat(peak, cnt))
     first = np.concatenate([[True], run[hit][1:] != run[hit][:-1]])
     best = hit[first]  # the first brightest sample of every run
-    t, l, c = samples.texel[best], samples.light[best], samples.camera[best]
-    out[key[run[best]]] = _unit(samples.wi_grid[t, l] + samples.wo_grid[t, c])
+    wi = samples.wi_grid.reshape(-1, 3)[samples.light_index[best]]
+    wo = samples.wo_grid.reshape(-1, 3)[samples.camera_index[best]]
+    out[key[run[best]]] = _unit(wi + wo)
     return out.reshape(n, n_cameras, 3)

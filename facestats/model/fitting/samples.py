@@ -52,15 +52,16 @@ def segment_sum(values, starts, counts):
 def masked(values, mask):
     """``values`` where ``mask``, 0 elsewhere (also where a masked-out value is NaN or infinite).
 
-    A product with the mask, which streams; the slower explicit selection runs only
-    when a masked-out value is not finite.
+    A product with the mask, which streams (``np.where`` is several times slower);
+    masked-out products that are not finite are then zeroed in place.
     """
     v = np.asarray(values)
     m = np.asarray(mask, bool)
     with np.errstate(invalid="ignore"):
         out = v * m
-    if not np.isfinite(out).all():
-        out = np.where(m, v, 0).astype(out.dtype, copy=False)
+    bad = ~np.isfinite(out)
+    if bad.any():  # NaN from inf × 0 (or a NaN) where masked out: zero those only
+        np.putmask(out, bad & ~m, 0)
     return out
 
 

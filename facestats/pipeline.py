@@ -32,6 +32,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -273,6 +274,43 @@ def _open_cached(path, mtime_ns):
     return open_capture(path)
 
 
+def _model_maps(values, flags, texel, face, has_data):
+    """One model's maps with flagged and empty face texels filled from their neighbours (§5.3), and its flag map.
+
+    ``values`` are the model's (size, size) maps (NaN where no lumitexel landed),
+    ``flags`` the per-lumitexel fit flags; off the face everything is 0.
+    """
+    size = face.shape[0]
+    fl = np.zeros((size, size), np.uint8)
+    np.bitwise_or.at(fl, (texel[:, 0], texel[:, 1]), flags.astype(np.uint8))
+    hole = face & ~has_data  # texels no lumitexel maps to (the map is finer than the mesh)
+    bad = face & ((fl != 0) | hole)
+    filled = fitting.fill_flagged(np.stack(values, axis=-1), bad, face)  # filled together: push-pull is linear
+    fl[bad] |= FLAG_BITS["filled"]
+    fl[~face] = 0
+    return [np.where(face, filled[..., i], 0) for i in range(len(values))], fl
+
+
+def _filled_map(values, face, has_data, unit=False):
+    """A (size, size, 3) map push-pull filled over the face (renormalised if ``unit``), 0 off the face."""
+    known = face & has_data & np.all(np.isfinite(values), axis=-1)
+    out = fitting.push_pull(values, known, fill=face)
+    if unit:
+        out = out / np.maximum(np.linalg.norm(out, axis=-1, keepdims=True), 1e-12)
+    return np.where(face[..., None], out, 0)
+
+
+def _micro_normal_map(micro, texel, face):
+    """Per-camera micro-normal maps (camera, v, u, 3) from (lumitexel, camera, 3): NaN where unseen or off the face."""
+    n, n_cam = micro.shape[:2]
+    size = face.shape[0]
+    micro[~face[texel[:, 0], texel[:, 1]]] = np.nan  # off the face: NaN like texels no camera saw
+    mn, _ = fitting.scatter_to_map(micro.reshape(n, -1), texel, size)
+    # scatter_to_map's (size, size, K) is a view of a (camera, component, v, u) array: reorder as a
+    # view (no copy of what is 0.8 GB at full resolution).
+    return np.moveaxis(np.moveaxis(mn, -1, 0).reshape(n_cam, 3, size, size), 1, -1)
+
+
 def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None, *, client=None, workers: int = 1,
                 progress=False, sensor_fit=None):
     """Run the whole pipeline on one capture and return the subject Dataset.
@@ -318,52 +356,43 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
     st = settings or FitSettings()
     res = _blocks_result(capture, st, client=client, progress=progress, workers=workers)
 
-    # Stage 5: maps.
+    # Stage 5: maps.  The independent map jobs (micro-normals, per-model filling, albedo, normals) run
+    # on a pool of ``workers`` threads (numpy releases the GIL in the heavy array work); with one
+    # worker, one job at a time.
     size = capture.map_size
     region_map = capture.array("region_map")
     face = region_map > 0
     texel = uv_to_texel(capture.array("uv").astype(np.float64), size)
-    # Every per-lumitexel float output averaged into the maps by one grouping of the lumitexels.
-    names = [name for name in ("albedo", "normal", *_MAP_VARS["ts"], *_MAP_VARS["bp"], "n_samples") if name in res]
-    columns = [np.asarray(res[name], np.float32).reshape(capture.n_lumitexels, -1) for name in names]
-    stacked, count = fitting.scatter_to_map(np.concatenate(columns, axis=1), texel, size)
-    maps, col = {}, 0
-    for name, c in zip(names, columns):
-        maps[name] = stacked[..., col : col + c.shape[1]]
-        maps[name] = maps[name] if c.shape[1] > 1 and name in ("albedo", "normal") else maps[name][..., 0]
-        col += c.shape[1]
-    n_samples = maps.pop("n_samples")
-    has_data = count > 0
-    for key, map_vars in _MAP_VARS.items():
-        flag_name = f"{key}_flag"
-        if flag_name not in res:
-            continue
-        fl = np.zeros((size, size), np.uint8)
-        np.bitwise_or.at(fl, (texel[:, 0], texel[:, 1]), res[flag_name].astype(np.uint8))
-        hole = face & ~has_data  # texels no lumitexel maps to (the map is finer than the mesh): filled below
-        bad = face & ((fl != 0) | hole)
-        # The model's three maps filled together (push-pull is linear per channel).
-        filled = fitting.fill_flagged(np.stack([maps[var] for var in map_vars], axis=-1), bad, face)
-        for i, var in enumerate(map_vars):
-            maps[var] = np.where(face, filled[..., i], 0)
-        fl[bad] |= FLAG_BITS["filled"]
-        fl[~face] = 0
-        maps[flag_name] = fl
-    alb_known = face & has_data & np.all(np.isfinite(maps["albedo"]), axis=-1)
-    maps["albedo"] = np.where(face[..., None], fitting.push_pull(maps["albedo"], alb_known, fill=face), 0)
-    nrm_known = face & has_data & np.all(np.isfinite(maps["normal"]), axis=-1)
-    nrm = fitting.push_pull(maps["normal"], nrm_known, fill=face)
-    nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=-1, keepdims=True), 1e-12)
-    maps["normal"] = np.where(face[..., None], nrm, 0)
-    micro = None
-    if "micro_normal" in res:
-        mn = res.pop("micro_normal")  # (lumitexel, camera, 3)
-        n_cam = mn.shape[1]
-        mn[~face[texel[:, 0], texel[:, 1]]] = np.nan  # off the face: NaN like texels no camera saw
-        mn, _ = fitting.scatter_to_map(mn.reshape(capture.n_lumitexels, -1), texel, size)
-        # scatter_to_map's (size, size, K) is a view of a (camera, component, v, u) array: reorder as a
-        # view (no copy of what is 0.8 GB at full resolution).
-        micro = np.moveaxis(np.moveaxis(mn, -1, 0).reshape(n_cam, 3, size, size), 1, -1)
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        jobs = {}
+        if "micro_normal" in res and workers > 1:  # alongside the scatter below
+            jobs["micro_normal"] = pool.submit(_micro_normal_map, res.pop("micro_normal"), texel, face)
+        # Every per-lumitexel float output averaged into the maps by one grouping of the lumitexels.
+        names = [name for name in ("albedo", "normal", *_MAP_VARS["ts"], *_MAP_VARS["bp"], "n_samples") if name in res]
+        columns = [np.asarray(res[name], np.float32).reshape(capture.n_lumitexels, -1) for name in names]
+        stacked, count = fitting.scatter_to_map(np.concatenate(columns, axis=1), texel, size)
+        maps, col = {}, 0
+        for name, c in zip(names, columns):
+            maps[name] = stacked[..., col : col + c.shape[1]]
+            maps[name] = maps[name] if c.shape[1] > 1 and name in ("albedo", "normal") else maps[name][..., 0]
+            col += c.shape[1]
+        n_samples = maps.pop("n_samples")
+        has_data = count > 0
+        if "micro_normal" in res:
+            jobs["micro_normal"] = pool.submit(_micro_normal_map, res.pop("micro_normal"), texel, face)
+        for key, map_vars in _MAP_VARS.items():
+            if f"{key}_flag" in res:
+                jobs[key] = pool.submit(_model_maps, [maps[var] for var in map_vars], res[f"{key}_flag"], texel, face,
+                                        has_data)
+        jobs["albedo"] = pool.submit(_filled_map, maps["albedo"], face, has_data)
+        jobs["normal"] = pool.submit(_filled_map, maps["normal"], face, has_data, unit=True)
+        micro = jobs.pop("micro_normal").result() if "micro_normal" in jobs else None
+        for key, job in jobs.items():
+            if key in _MAP_VARS:
+                filled, maps[f"{key}_flag"] = job.result()
+                maps.update(zip(_MAP_VARS[key], filled))
+            else:
+                maps[key] = job.result()
 
     # Stage 6: sensor profiles.
     tf = fit_sensor(capture, st.eta) if sensor_fit is None else sensor_fit

@@ -193,6 +193,7 @@ def _specular_problem(rng, t=240, s=500, noise=0.02, model="torrance_sparrow"):
 
 
 def test_fit_specular_models_reports_the_error_of_its_parameters(rng):
+    from facestats.errors import FacestatsError
     from facestats.model import brdf
     from facestats.model.fitting import fit_specular_models, fit_specular_samples
 
@@ -215,6 +216,8 @@ def test_fit_specular_models_reports_the_error_of_its_parameters(rng):
     np.testing.assert_array_equal(alone.lobe, fits["torrance_sparrow"].lobe)
     bp_cold = fit_specular_samples(samples, normal, f_s, use, "blinn_phong")
     assert np.median(fits["blinn_phong"].error / bp_cold.error) <= 1 + 1e-5
+    with pytest.raises(FacestatsError, match="distinct models"):
+        fit_specular_models(samples, normal, f_s, use, ("blinn_phong", "blinn_phong"))
 
 
 def test_batch_fit_converges_as_close_as_a_tight_tolerance(rng):

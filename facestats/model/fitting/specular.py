@@ -304,8 +304,8 @@ def fit_specular_models(samples, normal, f_s, use, models, *, eta=1.38, bounds=N
         :class:`SpecularFit` per model, in the order of ``models``.
     """
     models = tuple(models) if not isinstance(models, str) else (models,)
-    if not models:
-        raise ValidationError("models must name at least one model, got an empty sequence")
+    if not models or len(set(models)) != len(models):
+        raise ValidationError(f"models must name one or more distinct models, got {models!r}")
     for m in models:
         check_choice(m, "models", DEFAULT_BOUNDS)
     _check_eta(eta)

@@ -134,35 +134,50 @@ def albedo_stable_minimum(samples, brdf, cos_i, cos_o, ft2, use, *, discard=2, g
     have = counts > k
     if not have.any():
         return out, samples.count(use)
-    # Segmented selection over each lumitexel's run of samples: k times, remove the first
-    # smallest penalised value; then the smallest left is the (k+1)-th.  Excluded samples
-    # rank last (+inf).
-    starts = samples.starts[have]
-    size = samples.counts[have]
-    with np.errstate(divide="ignore"):
-        dropped = np.float32(1) / ok.astype(np.float32) - np.float32(1)  # +inf where excluded, 0 elsewhere
+    # Segmented selection over each lumitexel's run: k times, remove the first smallest penalised
+    # value; then the first smallest left is the (k+1)-th.  One int64 key per sample orders by
+    # (value, position) (:func:`_order_keys`), so a segmented minimum gives value and position
+    # at once.  Excluded samples rank last (+inf).  Runs of every non-empty lumitexel.
+    nonempty = samples.counts > 0
+    starts = samples.starts[nonempty]
+    key, high = _order_keys(samples.n)
+    inf_high = np.float32(np.inf).view(np.int32).astype(np.int64) << 32
     for c in range(3):  # loop over channels, vectorised over samples
-        ranked = v[c] * penalty + dropped
+        ranked = v[c] * penalty
+        np.putmask(ranked, ~ok, np.inf)
+        _set_order(high, ranked)
         for step in range(k + 1):
-            low = np.fmin.reduceat(ranked, starts)  # NaN (an excluded sample) never wins
-            at = _first_in_runs(np.flatnonzero(ranked == samples.expand(_spread(low, have))), samples.texel)
+            at = np.minimum.reduceat(key, starts) & 0xFFFFFFFF  # per non-empty lumitexel
             if step < k:
-                ranked[at] = np.inf
-        out[have, c] = v[c].take(at)
+                key[at] = inf_high | at
+        out[have, c] = v[c].take(at[have[nonempty]])
     return out, samples.count(use)
 
 
-def _spread(values, where):
-    """Per-texel values given on the texels ``where``, NaN elsewhere (equal to no sample)."""
-    full = np.full(where.shape, np.nan, values.dtype)
-    full[where] = values
-    return full
+def _order_keys(n):
+    """int64 sort keys for ``n`` samples: (``key``, ``high``), ``high`` an int32 view of their upper words.
+
+    The lower word of key i holds i (n < 2³¹); :func:`_set_order` writes values
+    into the upper words, after which the keys order the samples by (value, i).
+    """
+    if n >= 2**31:
+        raise ValidationError(f"at most 2**31 - 1 samples can be ranked at once, got {n}")
+    key = np.empty(n, np.int64)
+    words = key.view(np.int32).reshape(-1, 2)
+    low, high = (0, 1) if np.little_endian else (1, 0)
+    words[:, low] = np.arange(n, dtype=np.int32)
+    return key, words[:, high]
 
 
-def _first_in_runs(index, texel):
-    """The first of sorted sample indices ``index`` in every texel that has one."""
-    t = texel.take(index)
-    return index[np.concatenate([[True], t[1:] != t[:-1]])]
+def _set_order(high, values):
+    """Write float32 ``values`` (not NaN) into the upper words of :func:`_order_keys` keys, order-preserving.
+
+    A float's bits read as int32 order the non-negative floats; flipping the
+    magnitude bits of the negative ones (``bits ^ ((bits >> 31) & 0x7FFFFFFF)``)
+    extends the order to them, −0 just below +0.
+    """
+    bits = np.ascontiguousarray(values, np.float32).view(np.int32)
+    np.bitwise_xor(bits, (bits >> 31) & np.int32(0x7FFFFFFF), out=high)
 
 
 def specular_residual(samples, brdf, albedo, ft2):

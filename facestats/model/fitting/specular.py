@@ -314,14 +314,16 @@ def fit_specular_models(samples, normal, f_s, use, models, *, eta=1.38, bounds=N
     ci, co = samples.cos(normal) if cos is None else cos
     with np.errstate(invalid="ignore"):
         ok = np.asarray(use, bool) & np.isfinite(f_s) & (ci > 0) & (co > 0)
-    ci_u, co_u, io_u, y = (np.compress(ok, x) for x in (ci, co, samples.cos_io(), f_s))
+    kept = np.flatnonzero(ok)  # one index, several gathers (faster than one compress per array)
+    ci_u, co_u, io_u, y = (np.asarray(x).take(kept) for x in (ci, co, samples.cos_io(), f_s))
     factors = {m: _factors(m, ci_u, co_u, io_u, eta) for m in models}
     keep = np.logical_and.reduce([a > 0 for _, a in factors.values()])  # A underflows only in extreme geometry
     counts = samples.count(ok)
     if not keep.all():
         counts = segment_sum(keep, np.cumsum(counts) - counts, counts)
-        ci_u, y = np.compress(keep, ci_u), np.compress(keep, y)
-        factors = {m: (np.compress(keep, s1), np.compress(keep, a)) for m, (s1, a) in factors.items()}
+        kept = np.flatnonzero(keep)
+        ci_u, y = ci_u.take(kept), y.take(kept)
+        factors = {m: (s1.take(kept), a.take(kept)) for m, (s1, a) in factors.items()}
     y = (y * ci_u).astype(np.float32, copy=False)
     fits = {}
     for m in models:
@@ -433,7 +435,8 @@ def _solve(model, y, s1, a, n_use, *, bounds, min_samples, max_iter, tol, max_re
     work = np.nonzero(~few)[0]
     if few.any():
         sel = np.repeat(~few, n_use)
-        wy, wa, ws = np.compress(sel, y), np.compress(sel, a), np.compress(sel, s1)
+        kept = np.flatnonzero(sel)
+        wy, wa, ws = y.take(kept), a.take(kept), s1.take(kept)
     else:
         wy, wa, ws = y, a, s1
     k = work.size
@@ -507,7 +510,8 @@ def _solve(model, y, s1, a, n_use, *, bounds, min_samples, max_iter, tol, max_re
                 all_sums[:, work[~live]] = np.array(sums)[:, ~live]
                 keep = np.repeat(live, cnt_w)
                 work = work[live]
-                wy, wa, ws = (np.compress(keep, x) for x in (wy, wa, ws))
+                kept = np.flatnonzero(keep)
+                wy, wa, ws = (x.take(kept) for x in (wy, wa, ws))
                 sums = tuple(x[live] for x in sums)
                 r0, q0, lm, e0, h00, h01, h11, b0, b1 = (x[live] for x in (r0, q0, lm, e0, h00, h01, h11, b0, b1))
                 k = work.size
@@ -558,7 +562,8 @@ def _solve(model, y, s1, a, n_use, *, bounds, min_samples, max_iter, tol, max_re
         if exact.any():
             cnt_x = n_use[exact]
             sel = np.repeat(exact, n_use)
-            yx, sx, ax = (x if exact.all() else np.compress(sel, x) for x in (y, s1, a))
+            kept = None if exact.all() else np.flatnonzero(sel)
+            yx, sx, ax = (x if kept is None else x.take(kept) for x in (y, s1, a))
             g = _lobe_base(model, q[exact], cnt_x, sx, ax)
             g *= np.repeat((rho[exact] * _lobe_scale(model, q[exact])).astype(dt), cnt_x)  # ρs g
             res = np.subtract(yx, g, out=g)

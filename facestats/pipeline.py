@@ -274,6 +274,24 @@ def _open_cached(path, mtime_ns):
     return open_capture(path)
 
 
+def _averaged_maps(res, texel, size):
+    """Every per-lumitexel float output of ``res`` averaged into (size, size[, 3]) maps, and where data landed.
+
+    One grouping of the lumitexels by texel for all of them (:func:`facestats.model.fitting.scatter_to_map`);
+    NaN where no lumitexel landed.
+    """
+    names = [name for name in ("albedo", "normal", *_MAP_VARS["ts"], *_MAP_VARS["bp"], "n_samples") if name in res]
+    n = len(texel)
+    columns = [np.asarray(res[name], np.float32).reshape(n, -1) for name in names]
+    stacked, count = fitting.scatter_to_map(np.concatenate(columns, axis=1), texel, size)
+    maps, col = {}, 0
+    for name, c in zip(names, columns):
+        maps[name] = stacked[..., col : col + c.shape[1]]
+        maps[name] = maps[name] if c.shape[1] > 1 and name in ("albedo", "normal") else maps[name][..., 0]
+        col += c.shape[1]
+    return maps, count > 0
+
+
 def _model_maps(values, flags, texel, face, has_data):
     """One model's maps with flagged and empty face texels filled from their neighbours (§5.3), and its flag map.
 
@@ -356,30 +374,18 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
     st = settings or FitSettings()
     res = _blocks_result(capture, st, client=client, progress=progress, workers=workers)
 
-    # Stage 5: maps.  The independent map jobs (micro-normals, per-model filling, albedo, normals) run
-    # on a pool of ``workers`` threads (numpy releases the GIL in the heavy array work); with one
-    # worker, one job at a time.
+    # Stage 5: maps.  The map jobs (micro-normals, the averaged maps, then per-model filling, albedo,
+    # normals) run on a pool of ``workers`` threads (numpy releases the GIL in the heavy array work);
+    # with one worker, one job at a time.
     size = capture.map_size
     region_map = capture.array("region_map")
     face = region_map > 0
     texel = uv_to_texel(capture.array("uv").astype(np.float64), size)
     with ThreadPoolExecutor(max_workers=workers) as pool:
         jobs = {}
-        if "micro_normal" in res and workers > 1:  # alongside the scatter below
-            jobs["micro_normal"] = pool.submit(_micro_normal_map, res.pop("micro_normal"), texel, face)
-        # Every per-lumitexel float output averaged into the maps by one grouping of the lumitexels.
-        names = [name for name in ("albedo", "normal", *_MAP_VARS["ts"], *_MAP_VARS["bp"], "n_samples") if name in res]
-        columns = [np.asarray(res[name], np.float32).reshape(capture.n_lumitexels, -1) for name in names]
-        stacked, count = fitting.scatter_to_map(np.concatenate(columns, axis=1), texel, size)
-        maps, col = {}, 0
-        for name, c in zip(names, columns):
-            maps[name] = stacked[..., col : col + c.shape[1]]
-            maps[name] = maps[name] if c.shape[1] > 1 and name in ("albedo", "normal") else maps[name][..., 0]
-            col += c.shape[1]
-        n_samples = maps.pop("n_samples")
-        has_data = count > 0
         if "micro_normal" in res:
             jobs["micro_normal"] = pool.submit(_micro_normal_map, res.pop("micro_normal"), texel, face)
+        maps, has_data = pool.submit(_averaged_maps, res, texel, size).result()
         for key, map_vars in _MAP_VARS.items():
             if f"{key}_flag" in res:
                 jobs[key] = pool.submit(_model_maps, [maps[var] for var in map_vars], res[f"{key}_flag"], texel, face,
@@ -393,6 +399,7 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
                 maps.update(zip(_MAP_VARS[key], filled))
             else:
                 maps[key] = job.result()
+    n_samples = maps.pop("n_samples")
 
     # Stage 6: sensor profiles.
     tf = fit_sensor(capture, st.eta) if sensor_fit is None else sensor_fit

@@ -44,6 +44,7 @@ import numpy as np
 from ..._validate import as_finite, check_integer, check_shape
 from ...errors import ValidationError
 from ..fresnel import _check_eta, _fresnel_reflectance
+from .samples import order_keys
 
 __all__ = ["fresnel_factors", "albedo_stable_minimum", "specular_residual", "refine_albedo"]
 
@@ -136,48 +137,22 @@ def albedo_stable_minimum(samples, brdf, cos_i, cos_o, ft2, use, *, discard=2, g
         return out, samples.count(use)
     # Segmented selection over each lumitexel's run: k times, remove the first smallest penalised
     # value; then the first smallest left is the (k+1)-th.  One int64 key per sample orders by
-    # (value, position) (:func:`_order_keys`), so a segmented minimum gives value and position
-    # at once.  Excluded samples rank last (+inf).  Runs of every non-empty lumitexel.
+    # (value, position) (:func:`facestats.model.fitting.samples.order_keys`), so a segmented minimum
+    # gives value and position at once.  Excluded samples rank last (+inf).  Runs of every non-empty
+    # lumitexel.
     nonempty = samples.counts > 0
     starts = samples.starts[nonempty]
-    key, high = _order_keys(samples.n)
-    inf_high = np.float32(np.inf).view(np.int32).astype(np.int64) << 32
+    inf_high = order_keys(np.float32([np.inf]))[0]  # +inf at position 0
     for c in range(3):  # loop over channels, vectorised over samples
         ranked = v[c] * penalty
         np.putmask(ranked, ~ok, np.inf)
-        _set_order(high, ranked)
+        key = order_keys(ranked)
         for step in range(k + 1):
             at = np.minimum.reduceat(key, starts) & 0xFFFFFFFF  # per non-empty lumitexel
             if step < k:
                 key[at] = inf_high | at
         out[have, c] = v[c].take(at[have[nonempty]])
     return out, samples.count(use)
-
-
-def _order_keys(n):
-    """int64 sort keys for ``n`` samples: (``key``, ``high``), ``high`` an int32 view of their upper words.
-
-    The lower word of key i holds i (n < 2³¹); :func:`_set_order` writes values
-    into the upper words, after which the keys order the samples by (value, i).
-    """
-    if n >= 2**31:
-        raise ValidationError(f"at most 2**31 - 1 samples can be ranked at once, got {n}")
-    key = np.empty(n, np.int64)
-    words = key.view(np.int32).reshape(-1, 2)
-    low, high = (0, 1) if np.little_endian else (1, 0)
-    words[:, low] = np.arange(n, dtype=np.int32)
-    return key, words[:, high]
-
-
-def _set_order(high, values):
-    """Write float32 ``values`` (not NaN) into the upper words of :func:`_order_keys` keys, order-preserving.
-
-    A float's bits read as int32 order the non-negative floats; flipping the
-    magnitude bits of the negative ones (``bits ^ ((bits >> 31) & 0x7FFFFFFF)``)
-    extends the order to them, −0 just below +0.
-    """
-    bits = np.ascontiguousarray(values, np.float32).view(np.int32)
-    np.bitwise_xor(bits, (bits >> 31) & np.int32(0x7FFFFFFF), out=high)
 
 
 def specular_residual(samples, brdf, albedo, ft2):

@@ -28,7 +28,7 @@ import numpy as np
 from ..._validate import as_finite, check_integer, check_shape
 from ...errors import ValidationError
 from ..fresnel import _check_eta, _fresnel_reflectance
-from .samples import masked
+from .samples import masked, order_keys
 
 __all__ = ["photometric_normals", "micro_normals"]
 
@@ -94,7 +94,7 @@ def photometric_normals(samples, scan_normal, n_cameras, *, eta=1.38, specular_e
     # the (lumitexel, camera, light) grids of the mask and of y with the lights' directions.
     m_grid = samples.on_grid(use.astype(np.float32))  # (n, C, L)
     y_grid = samples.on_grid(masked(y, use).astype(np.float32, copy=False))
-    wi = samples.wi_grid.astype(np.float32)  # (n, L, 3)
+    wi = np.asarray(samples.wi_grid, np.float32)  # (n, L, 3)
     i, j = np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2])  # the 6 entries of a symmetric 3×3
     a = np.moveaxis(np.matmul(m_grid, wi[..., i] * wi[..., j]).astype(np.float64), -1, 0)  # (6, n, C)
     adj, det = _adjugate_sym3(a)  # A is the same in every pass: g = A⁻¹ b ∝ adj(A) b
@@ -163,14 +163,10 @@ def micro_normals(samples, n_cameras):
     out = np.full((n * n_cameras, 3), np.nan, np.float32)
     if samples.n == 0:
         return out.reshape(n, n_cameras, 3)
-    y = np.nan_to_num(samples.grey(), nan=-np.inf)
-    key, start, cnt = samples.camera_runs()
-    peak = np.maximum.reduceat(y, start)
-    run = np.repeat(np.arange(key.size), cnt)  # run of each sample
-    hit = np.flatnonzero(y == np.repeat(peak, cnt))
-    first = np.concatenate([[True], run[hit][1:] != run[hit][:-1]])
-    best = hit[first]  # the first brightest sample of every run
+    darkness = -np.nan_to_num(samples.grey(), nan=-np.inf)  # NaN ranks last
+    key, start, _ = samples.camera_runs()
+    best = np.minimum.reduceat(order_keys(darkness), start) & 0xFFFFFFFF  # first brightest sample of each run
     wi = samples.wi_grid.reshape(-1, 3)[samples.light_index[best]]
     wo = samples.wo_grid.reshape(-1, 3)[samples.camera_index[best]]
-    out[key[run[best]]] = _unit(wi + wo)
+    out[key] = _unit(wi + wo)
     return out.reshape(n, n_cameras, 3)

@@ -65,6 +65,27 @@ def masked(values, mask):
     return out
 
 
+def order_keys(values):
+    """int64 keys that order samples by (float32 value, position): ``np.minimum.reduceat`` over
+    them gives each run's first smallest value and, in the low 32 bits, its position.
+
+    The upper word holds the value's bits read as int32, which order the
+    non-negative floats; flipping the magnitude bits of the negative ones
+    (``bits ^ ((bits >> 31) & 0x7FFFFFFF)``) extends the order to them (−0 just
+    below +0).  The lower word holds the position (fewer than 2³¹ values, none NaN).
+    """
+    v = np.ascontiguousarray(values, np.float32)
+    if v.ndim != 1 or v.size >= 2**31:
+        raise ValidationError(f"values must be 1-D with fewer than 2**31 entries, got shape {v.shape}")
+    key = np.empty(v.size, np.int64)
+    words = key.view(np.int32).reshape(-1, 2)
+    low, high = (0, 1) if np.little_endian else (1, 0)
+    words[:, low] = np.arange(v.size, dtype=np.int32)
+    bits = v.view(np.int32)
+    np.bitwise_xor(bits, (bits >> 31) & np.int32(0x7FFFFFFF), out=words[:, high])
+    return key
+
+
 def valid_samples(radiance, irradiance):
     """(n, C, L) validity of dome samples: all channels' radiance ≥ 0 and not NaN, all E⊥ > 0.
 

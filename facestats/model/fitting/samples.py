@@ -12,12 +12,17 @@ per sample, so no per-sample 3-vector is ever built.
 
 Because the samples of a lumitexel form one contiguous run (and, within it, the
 samples of each camera), every per-lumitexel or per-(lumitexel, camera)
-reduction is a segmented reduction over runs (``np.add.reduceat``), per-lumitexel
-values reach the samples by ``np.repeat`` over the run lengths, and grid values
-by ``np.take`` on precomputed flat indices.  These primitives cost about as much
-as one elementwise operation, where ``np.bincount`` with weights, 2-D fancy
-indexing and ``np.where`` on scattered masks cost 5 to 30 times more
-(``benchmarks/bench_fit.py``); the fit stages use only them.
+reduction is a segmented reduction over runs (``np.add.reduceat``; the first
+smallest value of each run and its position come from ``np.minimum.reduceat``
+over :func:`order_keys`), per-lumitexel values reach the samples by ``np.repeat``
+over the run lengths, and grid values by ``np.take`` on precomputed flat
+indices.  Sums over the lights of every (lumitexel, camera) can also run as
+batched matrix products on the (lumitexel, camera, light) grid
+(:meth:`Samples.on_grid`).  These primitives cost about as much as one
+elementwise operation; ``np.bincount`` with weights, 2-D fancy indexing and
+``np.where`` on scattered masks cost several times more (measured while
+profiling the full-resolution fit, ``benchmarks/bench_fit.py``), so the fit
+stages avoid them.
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ import numpy as np
 
 from ...errors import ValidationError
 
-__all__ = ["Samples", "segment_sum", "masked", "valid_samples"]
+__all__ = ["Samples", "segment_sum", "masked", "order_keys", "valid_samples"]
 
 
 def segment_sum(values, starts, counts):

@@ -21,7 +21,7 @@ batched matrix products on the (lumitexel, camera, light) grid
 (:meth:`Samples.on_grid`).  These primitives cost about as much as one
 elementwise operation; ``np.bincount`` with weights, 2-D fancy indexing and
 ``np.where`` on scattered masks cost several times more (measured while
-profiling the full-resolution fit, ``benchmarks/bench_fit.py``), so the fit
+profiling the full-resolution fit of ``benchmarks/bench_fit.py``), so the fit
 stages avoid them.
 """
 

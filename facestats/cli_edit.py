@@ -50,6 +50,18 @@ def _regions_arg(p, help_text):
     p.add_argument("--regions", nargs="+", metavar="R", default=None, help=help_text)
 
 
+def _t_arg(p):
+    p.add_argument("--t", type=float, default=1.0, help="interpolation weight in [0, 1] (default 1: the target)")
+
+
+def _keep_translucency_arg(p):
+    p.add_argument("--keep-translucency", action="store_true", help="keep albedo_avg, σ's and σa")
+
+
+def _subsample_seed_arg(p):
+    p.add_argument("--seed", type=int, default=None, help="seed of the subsample of a very large target subset")
+
+
 def _target(args, *, stats=False):
     """The API target from --target / --stats / the query options."""
     from .errors import ValidationError
@@ -192,11 +204,11 @@ def add_edit(sub) -> None:
                     "--keep-translucency.")
     a.add_argument("subject", metavar="SUBJECT", help="subject id")
     a.add_argument("skin_type", metavar="TYPE", help="target skin type, I-VI or 1-6")
-    a.add_argument("--t", type=float, default=1.0, help="interpolation weight in [0, 1] (default 1: the target)")
+    _t_arg(a)
     a.add_argument("--no-brdf", action="store_true", help="leave the BRDF maps")
     a.add_argument("--no-colour", action="store_true", help="leave the albedo")
-    a.add_argument("--keep-translucency", action="store_true", help="keep albedo_avg, σ's and σa")
-    a.add_argument("--seed", type=int, default=None, help="seed of the subsample of a very large target subset")
+    _keep_translucency_arg(a)
+    _subsample_seed_arg(a)
     _common(a)
     a.set_defaults(func=_cmd_skin_type)
 
@@ -207,7 +219,7 @@ def add_edit(sub) -> None:
                     "brdf P150-normal --condition lotion --t 0.5.")
     a.add_argument("subject", metavar="SUBJECT", help="subject id")
     _query_args(a, "BRDF")
-    a.add_argument("--t", type=float, default=1.0, help="interpolation weight in [0, 1] (default 1: the target)")
+    _t_arg(a)
     a.add_argument("--model", choices=("both", "ts", "bp"), default="both",
                    help="Torrance-Sparrow (ts), Blinn-Phong (bp) or both (default)")
     _regions_arg(a, "regions to edit, 1-10 or names (default: all with target samples)")
@@ -222,11 +234,11 @@ def add_edit(sub) -> None:
     a.add_argument("subject", metavar="SUBJECT", help="subject id")
     _query_args(a, "albedo")
     a.add_argument("--stats", metavar="FILE", help="... or use the image histograms of saved texture statistics")
-    a.add_argument("--t", type=float, default=1.0, help="interpolation weight in [0, 1] (default 1: the target)")
+    _t_arg(a)
     _regions_arg(a, "regions to edit and take the target albedo from, 1-10 or names (default: the face)")
     a.add_argument("--feather", type=float, default=0.0, help="blend width in texels inside the edge (default 0)")
-    a.add_argument("--keep-translucency", action="store_true", help="keep albedo_avg, σ's and σa")
-    a.add_argument("--seed", type=int, default=None, help="seed of the subsample of a very large target subset")
+    _keep_translucency_arg(a)
+    _subsample_seed_arg(a)
     _common(a)
     a.set_defaults(func=_cmd_colour)
 
@@ -245,7 +257,7 @@ def add_edit(sub) -> None:
     a.add_argument("--bins", type=int, default=256, help="histogram bins for a subject target (default 256)")
     a.add_argument("--noise", type=float, default=0.1, help="start-noise amplitude (default 0.1)")
     a.add_argument("--feather", type=float, default=2.0, help="blend width in texels inside the edge (default 2)")
-    a.add_argument("--keep-translucency", action="store_true", help="keep albedo_avg, σ's and σa")
+    _keep_translucency_arg(a)
     _common(a)
     a.set_defaults(func=_cmd_texture)
 

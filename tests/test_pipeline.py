@@ -1,6 +1,7 @@
 """The fit pipeline against known truth (Weyrich et al. 2006 §4-5) and its robustness."""
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -344,3 +345,46 @@ def test_fit_subject_and_build_store_reject_bad_arguments_early(tmp_path, ts_cas
     with pytest.raises(FacestatsError, match=r"map_size must be an integer in \[8, inf\]"):
         build_store(store, map_size=4)
     assert not store.exists()  # bad arguments leave no empty store behind
+
+
+_DETERMINISM = """
+import hashlib, sys
+import numpy as np
+from facestats.build import _population, _simulator, sensor_fits
+from facestats.pipeline import FitSettings, fit_subject
+pop = _population(2006, 48, False)
+truth = pop["S007"]
+ds = fit_subject(_simulator(48, "torrance_sparrow").simulate(truth), np.array([0.55, 0.98, 1.55]),
+                 FitSettings(micro_normals=False))
+h = hashlib.sha256()
+for v in sorted(ds.data_vars):
+    h.update(np.ascontiguousarray(ds[v].values).tobytes())
+print(h.hexdigest())
+"""
+
+
+@pytest.mark.slow
+def test_fit_does_not_depend_on_the_blas_kernel():
+    """The simulator and the fit give the same bits whichever BLAS kernel the CPU selects.
+
+    OpenBLAS picks its kernels by CPU (Haswell, SkylakeX, Zen, ...) and each sums matrix products in
+    its own order; the default store was once built on a SkylakeX machine and could not be reproduced
+    on a Zen one.  The pipeline therefore keeps BLAS out of the float32 paths (elementwise dot products)
+    and sums over lights in float64.  Both kernels forced here run on any x86-64 CPU with AVX.
+    """
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    cfg = np.show_config(mode="dicts") if hasattr(np, "show_config") else {}
+    blas = str(cfg.get("Build Dependencies", {}).get("blas", {}).get("name", ""))
+    if "openblas" not in blas.lower():
+        pytest.skip(f"numpy is not built with OpenBLAS (blas: {blas!r})")
+    out = {}
+    for core in ("Haswell", "Sandybridge"):
+        env = {**os.environ, "OPENBLAS_CORETYPE": core}
+        res = subprocess.run([sys.executable, "-c", _DETERMINISM], env=env, capture_output=True, text=True, timeout=300)
+        assert res.returncode == 0, res.stderr[-2000:]
+        out[core] = res.stdout.strip().splitlines()[-1]
+    assert out["Haswell"] == out["Sandybridge"]

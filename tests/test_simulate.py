@@ -1,5 +1,7 @@
 """The dome and contact-sensor simulator (Weyrich et al. 2006 §5, §5.4) and captures on disk."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -224,3 +226,35 @@ def test_simulator_and_calibration_reject_bad_arguments():
     d["camera_rotation"][2] = np.diag([1.0, 1.0, 2.0]).tolist()
     with pytest.raises(FacestatsError, match="camera_rotation must hold rotation matrices .*camera 2"):
         Dome.from_dict(d)
+
+
+def test_maps_finer_than_the_lumitexel_grid_simulate_and_fit():
+    """Issue 19 item 0: with maps finer than the lumitexel grid, some lumitexels' own texels lie off the face
+    (zero truth there); they read the nearest face texel instead of producing NaN radiance."""
+    from facestats.pipeline import FitSettings, fit_subject
+
+    geom = procedural_face(24, map_size=96)
+    tex, snapped = geom.texel_index(), geom.face_texel_index()
+    off = geom.region_map[tex[:, 0], tex[:, 1]] == 0
+    assert off.sum() > 0  # the case exists at this size
+    assert np.all(geom.region_map[snapped[:, 0], snapped[:, 1]] > 0)
+    np.testing.assert_array_equal(snapped[~off], tex[~off])
+    assert np.all(np.abs(snapped[off] - tex[off]).max(1) <= 2)  # the nearest face texel is a neighbour
+    pop = synthesize_population(map_size=96, geometry=geom, conditions=False, subjects=["S001"])
+    cap = DomeSimulator(geom).simulate(pop[0])
+    rad = cap.array("radiance").astype(np.float32)
+    n_finite = np.isfinite(rad).all(-1).sum((1, 2))
+    assert np.all(n_finite[off] > 100)
+    ds = fit_subject(cap, np.array([0.55, 0.98, 1.55]), FitSettings(micro_normals=False))
+    face = ds.region.values > 0
+    assert np.all(np.isfinite(ds.ts_m.values[face])) and np.all(ds.ts_m.values[face] > 0)
+
+
+def test_truth_without_skin_at_a_lumitexel_is_a_clear_error(pop32):
+    from facestats.errors import ValidationError
+
+    g = procedural_face(32)
+    truth = pop32[0]
+    bad = dataclasses.replace(truth, ts_m=np.zeros_like(truth.ts_m))
+    with pytest.raises(ValidationError, match=rf"ts_m > 0.*; {g.n_points} lumitexel\(s\) read .*ts_m=0\.0"):
+        DomeSimulator(g).simulate(bad)

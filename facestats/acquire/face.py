@@ -127,6 +127,30 @@ class FaceGeometry:
         s = self.map_size if size is None else int(size)
         return uv_to_texel(self.uv, s)
 
+    def face_texel_index(self) -> np.ndarray:
+        """The ``(v, u)`` texel of each lumitexel in the ``map_size``² maps, on the face, shape (N, 2).
+
+        A lumitexel's own texel (:meth:`texel_index`) can lie just off the face of
+        ``region_map`` when the maps are finer than the lumitexel spacing: the
+        lumitexel's region is that of its centre, the texel's that of the texel
+        centre, and near the face border the two differ.  Such lumitexels take the
+        nearest face texel (Euclidean distance in texels; ties by
+        :func:`scipy.ndimage.distance_transform_edt`), so maps that hold values
+        only on the face (the population's truth, fitted maps) are defined at every
+        lumitexel.  Without a ``region_map`` this is :meth:`texel_index`.
+        """
+        tex = self.texel_index()
+        if self.region_map is None:
+            return tex
+        off = np.asarray(self.region_map)[tex[:, 0], tex[:, 1]] == 0
+        if np.any(off):
+            from scipy.ndimage import distance_transform_edt
+
+            _, (iv, iu) = distance_transform_edt(np.asarray(self.region_map) == 0, return_indices=True)
+            tex = tex.copy()
+            tex[off] = np.stack([iv[tex[off, 0], tex[off, 1]], iu[tex[off, 0], tex[off, 1]]], -1)
+        return tex
+
     def subset(self, index) -> "FaceGeometry":
         """The geometry restricted to some lumitexels (the mesh is kept whole for shadowing)."""
         idx = np.asarray(index)

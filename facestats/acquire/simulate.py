@@ -146,6 +146,7 @@ class DomeSimulator:
         eyes = np.concatenate([self.dome.led_position, self.dome.camera_position])
         self.shadows = ShadowMaps(geometry.mesh_vertices, geometry.mesh_faces, eyes, resolution=self.shadow_resolution)
         self._cache: dict = {}
+        self._texels = None  # face texel of every lumitexel (FaceGeometry.face_texel_index), on first use
 
     @property
     def single_block(self) -> bool:
@@ -200,9 +201,15 @@ class DomeSimulator:
 
     # -- per subject ---------------------------------------------------------------------
     def _truth_at_lumitexels(self, truth, sl):
-        """Albedo (n, 3), ρs and lobe parameter (n,) of the truth maps at lumitexels ``sl``, float32."""
-        tex = self.geometry.texel_index(truth.region_map.shape[0])[sl]
-        v, u = tex[:, 0], tex[:, 1]
+        """Albedo (n, 3), ρs and lobe parameter (n,) of the truth maps at lumitexels ``sl``, float32.
+
+        The maps are read at each lumitexel's face texel (:meth:`FaceGeometry.face_texel_index`):
+        with maps finer than the lumitexel grid, a lumitexel's own texel can lie off the face,
+        where the truth maps hold no skin.
+        """
+        if self._texels is None:
+            self._texels = self.geometry.face_texel_index()
+        v, u = self._texels[sl, 0], self._texels[sl, 1]
         if self.specular == "torrance_sparrow":
             rho, lobe = truth.ts_rho_s[v, u], truth.ts_m[v, u]
         else:
@@ -325,10 +332,20 @@ class DomeSimulator:
         return np.random.default_rng(normals_ss), np.random.default_rng(sensor_ss), [np.random.default_rng(b) for b in blocks]
 
     def _check_truth(self, truth):
-        """Raise unless the truth's maps have the geometry's map size."""
+        """Raise unless the truth's maps have the geometry's map size and skin at every lumitexel."""
         if truth.region_map.shape[0] != self.geometry.map_size:
             raise ValidationError(
                 f"truth maps are {truth.region_map.shape[0]}² but the geometry's map_size is {self.geometry.map_size}"
+            )
+        _, rho, lobe = self._truth_at_lumitexels(truth, slice(None))
+        name = "ts_m" if self.specular == "torrance_sparrow" else "bp_exponent"
+        bad = ~(lobe > 0) if self.specular == "torrance_sparrow" else ~(lobe >= 0)
+        bad |= ~(rho >= 0)
+        if np.any(bad):
+            raise ValidationError(
+                f"truth of {truth.subject_id} must hold skin (rho_s >= 0, {name} > 0 for Torrance-Sparrow, >= 0 "
+                f"for Blinn-Phong) at every lumitexel's texel; {int(bad.sum())} lumitexel(s) read "
+                f"e.g. rho_s={float(rho[bad][0])!r}, {name}={float(lobe[bad][0])!r}"
             )
 
     # -- public -------------------------------------------------------------------------

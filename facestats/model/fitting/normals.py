@@ -93,10 +93,13 @@ def photometric_normals(samples, scan_normal, n_cameras, *, eta=1.38, specular_e
     # Per (lumitexel, camera): A = Σ ωi ωiᵀ and b = Σ y ωi over the used lights, as batched products of
     # the (lumitexel, camera, light) grids of the mask and of y with the lights' directions.
     m_grid = samples.on_grid(use.astype(np.float32))  # (n, C, L)
-    y_grid = samples.on_grid(masked(y, use).astype(np.float32, copy=False))
+    y_grid = samples.on_grid(masked(y, use).astype(np.float64))
     wi = np.asarray(samples.wi_grid, np.float32)  # (n, L, 3)
     i, j = np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2])  # the 6 entries of a symmetric 3×3
-    a = np.moveaxis(np.matmul(m_grid, wi[..., i] * wi[..., j]).astype(np.float64), -1, 0)  # (6, n, C)
+    # The sums over lights run in float64: BLAS kernels (chosen per CPU) sum in different orders, and float32
+    # sums would make the normals, and every fit after them, depend on the machine in the last bits.
+    wi64 = wi.astype(np.float64)
+    a = np.moveaxis(np.matmul(m_grid.astype(np.float64), wi64[..., i] * wi64[..., j]), -1, 0)  # (6, n, C)
     adj, det = _adjugate_sym3(a)  # A is the same in every pass: g = A⁻¹ b ∝ adj(A) b
     count = m_grid.sum(-1)
     ok = (count >= min_lights) & (det > 1e-6 * np.maximum(count, 1.0) ** 3)
@@ -106,10 +109,10 @@ def photometric_normals(samples, scan_normal, n_cameras, *, eta=1.38, specular_e
     for it in range(int(iterations)):  # refinement passes
         w_eff = wi
         if it > 0:  # divide out F_t(θi) with the current normal: y / F_t = Σ_l y_l ωi_l / F_t,l
-            c = np.clip(np.matmul(wi, normal.astype(np.float32)[:, :, None])[..., 0], 0, 1)  # (n, L)
+            c = np.clip(samples.cos_grids(normal)[0], 0, 1)  # (n, L)
             ft = 1 - _fresnel_reflectance(c, e32)
             w_eff = wi / np.where(ft > 0, ft, 1)[..., None]
-        b = np.matmul(y_grid, w_eff).astype(np.float64)  # (n, C, 3)
+        b = np.matmul(y_grid, w_eff.astype(np.float64))  # (n, C, 3)
         g = np.einsum("ijnc,ncj->nci", adj, b)  # det(A) > 0 where ok: the direction of A⁻¹ b
         cam_n = np.where(ok[..., None], _unit(g), np.nan)
         weight = np.where(ok, np.clip(np.einsum("nck,nck->nc", np.nan_to_num(cam_n), cam_dir), 0, None), 0)

@@ -113,6 +113,16 @@ def valid_samples(radiance, irradiance):
     return ok & ((e[..., 0] > 0) & (e[..., 1] > 0) & (e[..., 2] > 0))[:, None, :]
 
 
+def _dot3(a, b):
+    """Dot products of 3-vectors on the last axis, broadcast, as three products and two sums.
+
+    Elementwise IEEE arithmetic gives the same bits on every CPU, where a BLAS product (``matmul``)
+    sums in an order that depends on the kernel the CPU selects: the fit's results would then
+    differ between machines in the last bits, and iterative fits amplify that.
+    """
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
 @dataclass
 class Samples:
     """Valid samples of ``n_texels`` lumitexels, sorted by lumitexel, then camera.
@@ -306,9 +316,7 @@ class Samples:
     def cos_grids(self, normal, dtype=np.float32):
         """(N·ωi on the light grid (n, L), N·ωo on the camera grid (n, C)) for normals (n, 3)."""
         nrm = np.asarray(normal, dtype)
-        ci = np.matmul(self.wi_grid.astype(dtype, copy=False), nrm[:, :, None])[..., 0]
-        co = np.matmul(self.wo_grid.astype(dtype, copy=False), nrm[:, :, None])[..., 0]
-        return ci, co
+        return _dot3(self.wi_grid.astype(dtype, copy=False), nrm[:, None]), _dot3(self.wo_grid.astype(dtype, copy=False), nrm[:, None])
 
     def cos(self, normal, dtype=np.float32):
         """(N·ωi, N·ωo) per sample for per-lumitexel normals (n, 3)."""
@@ -321,7 +329,7 @@ class Samples:
             if self.paired:
                 io = np.einsum("sk,sk->s", self.wi, self.wo)
             else:
-                grid = np.matmul(self.wo_grid, np.swapaxes(self.wi_grid, 1, 2))  # (n, C, L)
+                grid = _dot3(self.wo_grid[:, :, None], self.wi_grid[:, None])  # (n, C, L)
                 io = grid.reshape(-1).take(self._grid_index())
             self._cache["io"] = io.astype(np.float32, copy=False)
         return self._cache["io"]

@@ -225,7 +225,7 @@ def bench_default_store_cli():
     import contextlib
     import tempfile
 
-    from facestats.cli_analyze import add_analyze
+    from facestats.cli.analyze import add_analyze
 
     if _default_store() is None:
         return {"status": "unavailable (the embedded store is not built)"}

@@ -42,9 +42,9 @@ TARGET_FULL_RESOLUTION_S = 120.0
 
 
 def _default_case(index=0, specular="torrance_sparrow"):
-    from facestats.acquire.face import procedural_face
-    from facestats.acquire.population import default_population
-    from facestats.acquire.simulate import DomeSimulator
+    from facestats.acquire.synthetic.face import procedural_face
+    from facestats.acquire.synthetic.population import default_population
+    from facestats.acquire.synthetic.simulate import DomeSimulator
 
     pop = default_population()
     return pop, pop[index], DomeSimulator(procedural_face(48), specular=specular)

@@ -27,9 +27,9 @@ import numpy as np
 
 
 def bench_one_subject():
-    from facestats.acquire.face import procedural_face
-    from facestats.acquire.population import default_population
-    from facestats.acquire.simulate import DomeSimulator
+    from facestats.acquire.synthetic.face import procedural_face
+    from facestats.acquire.synthetic.population import default_population
+    from facestats.acquire.synthetic.simulate import DomeSimulator
 
     pop = default_population()
     t0 = time.perf_counter()
@@ -47,9 +47,9 @@ def bench_one_subject():
 
 
 def _simulate_many(ids):
-    from facestats.acquire.face import procedural_face
-    from facestats.acquire.population import default_population
-    from facestats.acquire.simulate import DomeSimulator
+    from facestats.acquire.synthetic.face import procedural_face
+    from facestats.acquire.synthetic.population import default_population
+    from facestats.acquire.synthetic.simulate import DomeSimulator
 
     pop = default_population()
     sim = DomeSimulator(procedural_face(48))
@@ -61,7 +61,7 @@ def _simulate_many(ids):
 def bench_population():
     from concurrent.futures import ProcessPoolExecutor
 
-    from facestats.acquire.population import default_population
+    from facestats.acquire.synthetic.population import default_population
 
     ids = [s.subject_id for s in default_population().subjects]
     workers = os.cpu_count() or 1
@@ -74,9 +74,9 @@ def bench_population():
 
 _FULL = r"""
 import json, resource, sys, time
-from facestats.acquire.face import procedural_face
-from facestats.acquire.population import synthesize_population
-from facestats.acquire.simulate import DomeSimulator
+from facestats.acquire.synthetic.face import procedural_face
+from facestats.acquire.synthetic.population import synthesize_population
+from facestats.acquire.synthetic.simulate import DomeSimulator
 t0 = time.perf_counter()
 geom = procedural_face(1152, map_size=2048)
 pop = synthesize_population(map_size=2048, geometry=geom, conditions=False, seed=11, subjects=["S001"])

@@ -16,7 +16,7 @@ Heavy modules are imported lazily so the command line starts fast.
 
 from __future__ import annotations
 
-from .errors import FacestatsError
+from facestats.errors import FacestatsError
 
 __version__ = "0.1.0"
 
@@ -28,6 +28,6 @@ def open_store(path=None, mode="r"):
 
     See :func:`facestats.io.store.open_store`.
     """
-    from .io.store import open_store as _open_store
+    from facestats.io.store import open_store as _open_store
 
     return _open_store(path, mode=mode)

@@ -2,7 +2,7 @@
 
 Prints, for a grid of (skin type, gender, age) strengths, the canonical correlations
 of the 149 × 20 region means against (skin type, gender, age), averaged over seeds,
-sorted by distance to the published figures.  ``facestats.acquire.population``
+sorted by distance to the published figures.  ``facestats.acquire.synthetic.population``
 records the chosen values.
 
     python scripts/calibrate_population.py
@@ -14,7 +14,7 @@ import numpy as np
 
 from facestats.acquire import population as pop
 from facestats.analysis.cca import cca
-from facestats.published import CCA_DIRECT, CCA_PRINCIPAL
+from facestats.core.published import CCA_DIRECT, CCA_PRINCIPAL
 
 TARGET = np.array([*CCA_PRINCIPAL, CCA_DIRECT["skin_type"], CCA_DIRECT["gender"], CCA_DIRECT["age"]])
 

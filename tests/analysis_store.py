@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from facestats.conventions import CONDITIONS
+from facestats.core.conventions import CONDITIONS
 from facestats.io.summary import region_samples, summarise_subject
 from tests.factories import make_map_subject
 

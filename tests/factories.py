@@ -8,7 +8,7 @@ import numpy as np
 import xarray as xr
 
 from facestats.acquire.sensor import default_fiber_distances
-from facestats.conventions import CHANNELS, SITES
+from facestats.core.conventions import CHANNELS, SITES
 from facestats.io.schema import set_variable_attrs
 from facestats.model import dipole
 

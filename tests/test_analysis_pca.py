@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from facestats.analysis import condition_differences, principal_axes, region_pca, select_population
-from facestats.conventions import CONDITIONS, REGION_IDS
+from facestats.core.conventions import CONDITIONS, REGION_IDS
 from facestats.errors import ValidationError
 from facestats.io.summary import region_samples
 from tests.analysis_store import make_population

@@ -6,9 +6,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from facestats import published
+from facestats.core import published
 from facestats.analysis import absorption_scattering, translucency_table
-from facestats.conventions import CHANNELS, SITES
+from facestats.core.conventions import CHANNELS, SITES
 from facestats.errors import ValidationError
 from facestats.model import dipole
 from tests.analysis_store import make_population

@@ -3,7 +3,7 @@
 Each action's JSON is checked against a direct call of the analysis API (same
 seeds, so the numbers must agree to rounding), the figures against their file
 formats, and the reproduction of the paper's numbers against
-:mod:`facestats.published` with tolerances stated per test.
+:mod:`facestats.core.published` with tolerances stated per test.
 """
 
 import json
@@ -13,8 +13,8 @@ import pytest
 
 import facestats
 from facestats import analysis as fa
-from facestats import published
-from facestats.conventions import CHANNELS, CONDITIONS, SITES
+from facestats.core import published
+from facestats.core.conventions import CHANNELS, CONDITIONS, SITES
 from facestats.io import open_store
 
 from .cli_helpers import run_cli

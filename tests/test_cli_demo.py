@@ -3,7 +3,7 @@ import re
 import numpy as np
 
 import facestats
-from facestats.published import SIGMA_TR_AVG
+from facestats.core.published import SIGMA_TR_AVG
 
 from .cli_helpers import run_cli
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import facestats
-from facestats import published
-from facestats.build import DEFAULT_MAP_SIZE, DEFAULT_SEED, build_store
+from facestats.core import published
+from facestats.pipeline.build import DEFAULT_MAP_SIZE, DEFAULT_SEED, build_store
 from facestats.io.schema import SCHEMA_VERSION
 from facestats.io.store import default_store_path
 

@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from facestats import FacestatsError, published
+from facestats import FacestatsError
+from facestats.core import published
 from facestats.model import dipole
 
 

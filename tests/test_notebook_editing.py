@@ -37,7 +37,7 @@ def test_every_figure_is_displayed(executed):
 
 def test_edits_and_their_provenance_are_shown(executed):
     import facestats
-    from facestats.acquire.population import default_population
+    from facestats.acquire.synthetic.population import default_population
     from facestats.edit import select_subjects
 
     nb, _ = executed

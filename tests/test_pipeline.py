@@ -8,9 +8,9 @@ import pytest
 
 from facestats import FacestatsError
 from facestats.acquire.capture import open_capture
-from facestats.acquire.face import procedural_face
-from facestats.acquire.population import synthesize_population
-from facestats.acquire.simulate import DomeSimulator
+from facestats.acquire.synthetic.face import procedural_face
+from facestats.acquire.synthetic.population import synthesize_population
+from facestats.acquire.synthetic.simulate import DomeSimulator
 from facestats.io.schema import FLAG_BITS, validate_subject
 from facestats.model import brdf
 from facestats.model.fitting import fit_specular
@@ -328,7 +328,7 @@ def test_fit_settings_validation(kwargs, message):
 
 
 def test_fit_subject_and_build_store_reject_bad_arguments_early(tmp_path, ts_case):
-    from facestats.build import build_store
+    from facestats.pipeline.build import build_store
 
     _, cap, _ = ts_case
     with pytest.raises(FacestatsError, match=r"sigma_tr_avg must have shape \(3\)"):
@@ -350,7 +350,7 @@ def test_fit_subject_and_build_store_reject_bad_arguments_early(tmp_path, ts_cas
 _DETERMINISM = """
 import hashlib, sys
 import numpy as np
-from facestats.build import _population, _simulator, sensor_fits
+from facestats.pipeline.build import _population, _simulator, sensor_fits
 from facestats.pipeline import FitSettings, fit_subject
 pop = _population(2006, 48, False)
 truth = pop["S007"]

@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 
-from facestats import FacestatsError, published
-from facestats.acquire.population import default_population, skin_albedo, synthesize_population
-from facestats.conventions import SITES, age_group
+from facestats import FacestatsError
+from facestats.core import published
+from facestats.acquire.synthetic.population import default_population, skin_albedo, synthesize_population
+from facestats.core.conventions import SITES, age_group
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +35,7 @@ def test_counts_match_table2_and_section7(pop):
 
 
 def published_conditions():
-    from facestats.conventions import CONDITIONS
+    from facestats.core.conventions import CONDITIONS
 
     return CONDITIONS
 
@@ -56,7 +57,7 @@ def test_sigma_tr_matches_table1(pop):
     n = len(subs)
     for k, site in enumerate(SITES):
         mean, spread = published.TABLE1_MEAN[site], published.TABLE1_VAR[site]
-        # "Var." read as a standard deviation (see facestats.acquire.population).
+        # "Var." read as a standard deviation (see facestats.acquire.synthetic.population).
         assert np.all(np.abs(tr[:, k].mean(0) - mean) < 4 * spread / np.sqrt(n))
         np.testing.assert_allclose(tr[:, k].std(0, ddof=1), spread, rtol=0.3)
     np.testing.assert_allclose(pop.sigma_tr_avg, published.SIGMA_TR_AVG, atol=0.06)

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 import facestats
-from facestats.conventions import CHANNELS, REGIONS, SITES
+from facestats.core.conventions import CHANNELS, REGIONS, SITES
 from facestats.errors import SchemaError, StoreError, ValidationError
 from facestats.io import QueryResult, open_store, pack_store
 from facestats.io import store as store_mod

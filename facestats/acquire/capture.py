@@ -43,11 +43,11 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from .._validate import check_integer
-from ..conventions import CHANNELS, SITES
-from ..errors import FormatError, ValidationError
-from .dome import Dome
-from .sensor import ContactSensor
+from facestats.core.validate import check_integer
+from facestats.core.conventions import CHANNELS, SITES
+from facestats.errors import FormatError, ValidationError
+from facestats.acquire.dome import Dome
+from facestats.acquire.sensor import ContactSensor
 
 __all__ = ["Capture", "Lumitexels", "open_capture", "CAPTURE_ARRAYS"]
 
@@ -115,7 +115,7 @@ class Lumitexels:
     @property
     def valid(self) -> np.ndarray:
         """(n, C, L) validity of each sample: finite, non-negative radiance and positive irradiance."""
-        from ..model.fitting.samples import valid_samples
+        from facestats.model.fitting.samples import valid_samples
 
         return valid_samples(self.radiance, self.irradiance)
 

@@ -7,7 +7,7 @@ calibration; real rigs are described with the same object (:meth:`Dome.from_dict
 / :meth:`Dome.load` of a JSON file), the simulator's default rig with
 :func:`default_dome`.
 
-Conventions: world frame of :mod:`facestats.acquire.face` (mm, +y up, +z towards
+Conventions: world frame of :mod:`facestats.acquire.geometry` (mm, +y up, +z towards
 the frontal camera).  Irradiance is in *dome units*: the calibrated LEDs give
 E⊥ ≈ 1 at the head on their axis; radiance is in dome units per sr.  Only
 ratios L/E enter the model, so the unit needs no physical scale.
@@ -31,10 +31,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_finite, as_float, check_range, check_shape
-from ..errors import FormatError, ValidationError
-from ..published import N_CAMERAS, N_LEDS
-from .hdr import CameraResponse
+from facestats.core.validate import as_finite, as_float, check_range, check_shape
+from facestats.errors import FormatError, ValidationError
+from facestats.core.published import N_CAMERAS, N_LEDS
+from facestats.acquire.hdr import CameraResponse
 
 __all__ = ["Dome", "default_dome", "look_at", "geodesic_points"]
 

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_finite
-from ..errors import ValidationError
+from facestats.core.validate import as_finite
+from facestats.errors import ValidationError
 
 __all__ = ["CameraResponse", "expose", "merge_exposures", "merged_std"]
 

@@ -28,10 +28,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import as_finite, check_range, check_shape
-from ..errors import ValidationError
-from ..published import N_FIBERS, SENSOR_BRACKET_IMAGES, SENSOR_BRACKET_STOP
-from .hdr import CameraResponse, expose, merge_exposures, merged_std
+from facestats.core.validate import as_finite, check_range, check_shape
+from facestats.errors import ValidationError
+from facestats.core.published import N_FIBERS, SENSOR_BRACKET_IMAGES, SENSOR_BRACKET_STOP
+from facestats.acquire.hdr import CameraResponse, expose, merge_exposures, merged_std
 
 __all__ = ["ContactSensor", "default_fiber_distances"]
 

@@ -25,11 +25,11 @@ import importlib
 
 # numpy-only modules are imported eagerly (pandas, scipy, matplotlib are imported inside their functions);
 # importing ``cca`` here also keeps ``facestats.analysis.cca`` bound to the function, not the submodule.
-from .cca import CCAResult, brdf_cca, cca
-from .conditions import ConditionDifferences, condition_differences, select_population
-from .pca import RegionEllipse, RegionPCA, principal_axes, region_pca
-from .scatter import AbsorptionScattering, absorption_scattering
-from .translucency import TranslucencyTable, translucency_table
+from facestats.analysis.cca import CCAResult, brdf_cca, cca
+from facestats.analysis.conditions import ConditionDifferences, condition_differences, select_population
+from facestats.analysis.pca import RegionEllipse, RegionPCA, principal_axes, region_pca
+from facestats.analysis.scatter import AbsorptionScattering, absorption_scattering
+from facestats.analysis.translucency import TranslucencyTable, translucency_table
 
 #: Names imported on first use (emcee is imported with the posterior module).
 _LAZY = {

@@ -43,10 +43,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import as_float, check_range
-from ..conventions import REGION_IDS
-from ..errors import ValidationError
-from .conditions import index_columns, select_population
+from facestats.core.validate import as_float, check_range
+from facestats.core.conventions import REGION_IDS
+from facestats.errors import ValidationError
+from facestats.analysis.conditions import index_columns, select_population
 
 __all__ = ["CCAResult", "cca", "brdf_cca", "EXPERIMENTAL_VARIABLES"]
 

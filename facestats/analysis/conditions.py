@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import check_choice
-from ..conventions import CONDITIONS, REGION_IDS, parse_condition
-from ..errors import ValidationError
+from facestats.core.validate import check_choice
+from facestats.core.conventions import CONDITIONS, REGION_IDS, parse_condition
+from facestats.errors import ValidationError
 
 __all__ = ["select_population", "ConditionDifferences", "condition_differences", "LOBE_NAMES", "index_columns"]
 
@@ -140,7 +140,7 @@ class ConditionDifferences:
 
     @property
     def conditions(self) -> tuple[str, ...]:
-        """Conditions measured for the person, in :data:`facestats.conventions.CONDITIONS` order."""
+        """Conditions measured for the person, in :data:`facestats.core.conventions.CONDITIONS` order."""
         present = set(self.values.index.get_level_values("condition"))
         return tuple(c for c in CONDITIONS if c in present)
 

@@ -25,10 +25,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_float, check_choice, check_finite, check_shape
-from ..conventions import REGION_IDS, REGIONS
-from ..errors import ValidationError
-from .conditions import index_columns, select_population
+from facestats.core.validate import as_float, check_choice, check_finite, check_shape
+from facestats.core.conventions import REGION_IDS, REGIONS
+from facestats.errors import ValidationError
+from facestats.analysis.conditions import index_columns, select_population
 
 __all__ = ["principal_axes", "RegionEllipse", "RegionPCA", "region_pca", "region_sample_frame"]
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..conventions import CHANNELS, ROMAN
+from facestats.core.conventions import CHANNELS, ROMAN
 
 __all__ = [
     "skin_type_color",
@@ -212,7 +212,7 @@ def plot_absorption_scattering(result):
 
 def plot_translucency(table, ax=None, published=True):
     """Table 1 as bars: mean σtr per site and channel with ±1 standard deviation; the paper's means as markers."""
-    from ..published import TABLE1_MEAN
+    from facestats.core.published import TABLE1_MEAN
 
     fig, ax = _axes(ax, (7, 4.5))
     sites = list(dict.fromkeys(table.table.columns.get_level_values("site")))

@@ -69,12 +69,12 @@ from dataclasses import dataclass
 import emcee
 import numpy as np
 
-from .._validate import as_float, check_choice, check_finite, check_range, check_shape
-from ..acquire.sensor import ContactSensor
-from ..conventions import CHANNELS
-from ..errors import ConvergenceWarning, ValidationError
-from ..model import dipole
-from .conditions import select_population
+from facestats.core.validate import as_float, check_choice, check_finite, check_range, check_shape
+from facestats.acquire.sensor import ContactSensor
+from facestats.core.conventions import CHANNELS
+from facestats.errors import ConvergenceWarning, ValidationError
+from facestats.model import dipole
+from facestats.analysis.conditions import select_population
 
 __all__ = [
     "DEFAULT_BOUNDS",
@@ -690,7 +690,7 @@ def population_sigma_tr(source, model="hierarchical", subjects=None, conditions=
     import pandas as pd
     from scipy import stats
 
-    from .translucency import subject_sigma_tr
+    from facestats.analysis.translucency import subject_sigma_tr
 
     check_choice(model, "model", ("hierarchical", "independent"))
     level = _check_level(level)

@@ -19,10 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import check_choice
-from ..conventions import CHANNELS, SITES
-from ..errors import ValidationError
-from .conditions import select_population
+from facestats.core.validate import check_choice
+from facestats.core.conventions import CHANNELS, SITES
+from facestats.errors import ValidationError
+from facestats.analysis.conditions import select_population
 
 __all__ = ["AbsorptionScattering", "absorption_scattering"]
 

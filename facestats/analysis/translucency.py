@@ -33,10 +33,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import check_choice
-from ..conventions import CHANNELS, SITES
-from ..errors import ValidationError
-from .conditions import select_population
+from facestats.core.validate import check_choice
+from facestats.core.conventions import CHANNELS, SITES
+from facestats.errors import ValidationError
+from facestats.analysis.conditions import select_population
 
 __all__ = ["TranslucencyTable", "translucency_table", "subject_sigma_tr"]
 
@@ -110,7 +110,7 @@ class TranslucencyTable:
         """Our mean, variance and standard deviation beside Weyrich Table 1 (one row per site and channel)."""
         import pandas as pd
 
-        from ..published import TABLE1_MEAN, TABLE1_VAR
+        from facestats.core.published import TABLE1_MEAN, TABLE1_VAR
 
         rows = []
         for site in SITES:

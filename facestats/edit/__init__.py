@@ -17,11 +17,11 @@ Figures: :mod:`facestats.edit.plots` and :func:`facestats.edit.subjects.plot_sub
 :func:`facestats.edit.subjects.save_edit_images` (import matplotlib when called).
 """
 
-from .brdf import region_histograms, transfer_brdf
-from .colour import ColourBasis, decorrelating_basis, transfer_colour
-from .histogram import Histogram, histogram_distance, interpolate_histograms, match_histogram, match_values
-from .pyramid import SteerablePyramid, band_names, max_levels
-from .subjects import (
+from facestats.edit.brdf import region_histograms, transfer_brdf
+from facestats.edit.colour import ColourBasis, decorrelating_basis, transfer_colour
+from facestats.edit.histogram import Histogram, histogram_distance, interpolate_histograms, match_histogram, match_values
+from facestats.edit.pyramid import SteerablePyramid, band_names, max_levels
+from facestats.edit.subjects import (
     SubjectEdit,
     change_skin_type,
     select_subjects,
@@ -30,7 +30,7 @@ from .subjects import (
     transfer_colour_subject,
     transfer_texture_subject,
 )
-from .texture import TextureStatistics, TextureTransfer, region_statistics, transfer_texture
+from facestats.edit.texture import TextureStatistics, TextureTransfer, region_statistics, transfer_texture
 
 __all__ = [
     "ColourBasis",

@@ -42,9 +42,9 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from .._validate import as_float, check_finite
-from ..errors import ValidationError
-from .histogram import Histogram, _check_t, _empirical_quantile, _ranks
+from facestats.core.validate import as_float, check_finite
+from facestats.errors import ValidationError
+from facestats.edit.histogram import Histogram, _check_t, _empirical_quantile, _ranks
 
 __all__ = ["transfer_brdf", "region_histograms"]
 

@@ -24,9 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_float, check_finite, check_range, check_shape
-from ..errors import ValidationError
-from .histogram import Histogram, _check_t, match_histogram
+from facestats.core.validate import as_float, check_finite, check_range, check_shape
+from facestats.errors import ValidationError
+from facestats.edit.histogram import Histogram, _check_t, match_histogram
 
 __all__ = ["ColourBasis", "decorrelating_basis", "transfer_colour"]
 
@@ -196,7 +196,7 @@ def _blend(source: np.ndarray, edited: np.ndarray, weights: np.ndarray) -> np.nd
 
 def _target_colour(target, target_mask, bins):
     """(ColourBasis, [Histogram × 3]) of a colour-transfer target."""
-    from .texture import TextureStatistics  # texture imports this module
+    from facestats.edit.texture import TextureStatistics  # texture imports this module
 
     if isinstance(target, TextureStatistics):
         return target.basis, [target.histogram(c, 0) for c in range(3)]

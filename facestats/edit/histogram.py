@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_float, check_finite, check_range
-from ..errors import ValidationError
+from facestats.core.validate import as_float, check_finite, check_range
+from facestats.errors import ValidationError
 
 __all__ = [
     "Histogram",

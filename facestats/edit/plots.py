@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ValidationError
-from .histogram import Histogram, interpolate_histograms
-from .pyramid import band_names
+from facestats.errors import ValidationError
+from facestats.edit.histogram import Histogram, interpolate_histograms
+from facestats.edit.pyramid import band_names
 
 __all__ = ["plot_texture_transfer", "plot_histogram_interpolation"]
 

@@ -57,8 +57,8 @@ import math
 
 import numpy as np
 
-from .._validate import as_float, check_finite, check_shape
-from ..errors import ValidationError
+from facestats.core.validate import as_float, check_finite, check_shape
+from facestats.errors import ValidationError
 
 __all__ = ["SteerablePyramid", "band_names", "max_levels"]
 

@@ -97,16 +97,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import __version__
-from .._validate import check_choice
-from ..conventions import CHANNELS, REGIONS, parse_condition, parse_region, parse_skin_type, skin_type_roman
-from ..errors import StoreError, ValidationError
-from .brdf import transfer_brdf
-from .colour import transfer_colour
-from .histogram import _check_t
-from .plots import _display
-from .pyramid import max_levels
-from .texture import TextureStatistics, TextureTransfer, _pad_shape, transfer_texture
+from facestats import __version__
+from facestats.core.validate import check_choice
+from facestats.core.conventions import CHANNELS, REGIONS, parse_condition, parse_region, parse_skin_type, skin_type_roman
+from facestats.errors import StoreError, ValidationError
+from facestats.edit.brdf import transfer_brdf
+from facestats.edit.colour import transfer_colour
+from facestats.edit.histogram import _check_t
+from facestats.edit.plots import _display
+from facestats.edit.pyramid import max_levels
+from facestats.edit.texture import TextureStatistics, TextureTransfer, _pad_shape, transfer_texture
 
 __all__ = [
     "EDIT_SOURCE",
@@ -204,7 +204,7 @@ class SubjectEdit:
 
 
 def _check_store(store, name):
-    from ..io.store import Store
+    from facestats.io.store import Store
 
     if not isinstance(store, Store):
         raise ValidationError(f"{name} must be a facestats Store (facestats.open_store(...)), got {type(store).__name__}")
@@ -227,7 +227,7 @@ def _same_store(a, b) -> bool:
 
 def _load_source(store, subject):
     """``(dataset, region map)`` of a map subject of ``store``."""
-    from ..io.schema import subject_kind
+    from facestats.io.schema import subject_kind
 
     sid = str(subject)
     ds = store.subject(sid)
@@ -392,8 +392,8 @@ def _pooled_albedo(store, ids, regions, max_samples, seed):
 
 
 def _eta(ds) -> float:
-    from ..io.schema import provenance
-    from ..published import ETA_SKIN
+    from facestats.io.schema import provenance
+    from facestats.core.published import ETA_SKIN
 
     try:
         return float(provenance(ds).get("fit_settings", {}).get("eta", ETA_SKIN))
@@ -403,9 +403,9 @@ def _eta(ds) -> float:
 
 def _follow_translucency(ds, keep: bool) -> list[str]:
     """Update the §5.4 scattering of ``ds`` to its (new) albedo in place; return the variables changed."""
-    from ..io.schema import modulation
-    from ..model.fitting import scattering_parameters
-    from ..published import SIGMA_TR_AVG
+    from facestats.io.schema import modulation
+    from facestats.model.fitting import scattering_parameters
+    from facestats.core.published import SIGMA_TR_AVG
 
     changed = []
     if not keep:
@@ -438,7 +438,7 @@ def _output(store, out_store):
 
 def _new_id(store, out, sid, new_id, overwrite, tag, record) -> str:
     """The id of the edited subject: ``new_id`` or ``<sid>.<tag>-<digest of the edit record>``."""
-    from ..io.store import _check_id
+    from facestats.io.store import _check_id
 
     if new_id is None:
         suffix = f".{tag}-{_digest({'source_subject': sid, 'edit': record})}"
@@ -461,7 +461,7 @@ def _set(ds, name, values):
 def _finish(store, src, ds, out, new_id, overwrite, record, variables, targets, target_means=None, texture=None,
             attrs=None):
     """Set id, attributes and provenance of the edited Dataset ``ds``, write it and return the SubjectEdit."""
-    from ..io.schema import provenance, set_provenance, set_variable_attrs
+    from facestats.io.schema import provenance, set_provenance, set_variable_attrs
 
     ds.attrs["subject_id"] = new_id
     ds.attrs.update(attrs or {})

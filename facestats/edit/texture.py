@@ -45,11 +45,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import as_float, check_finite, check_shape
-from ..errors import FormatError, ValidationError
-from .colour import ColourBasis, _blend, _check_feather, _feather_weights, _labels, decorrelating_basis
-from .histogram import SOURCE_BINS, Histogram, _match_flat, _source_histogram, _widen, histogram_distance
-from .pyramid import SteerablePyramid, band_names, max_levels
+from facestats.core.validate import as_float, check_finite, check_shape
+from facestats.errors import FormatError, ValidationError
+from facestats.edit.colour import ColourBasis, _blend, _check_feather, _feather_weights, _labels, decorrelating_basis
+from facestats.edit.histogram import SOURCE_BINS, Histogram, _match_flat, _source_histogram, _widen, histogram_distance
+from facestats.edit.pyramid import SteerablePyramid, band_names, max_levels
 
 __all__ = ["TextureStatistics", "TextureTransfer", "region_statistics", "transfer_texture"]
 

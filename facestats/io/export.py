@@ -40,12 +40,12 @@ import math
 import os
 from pathlib import Path
 
-from .. import __version__
-from ..conventions import CHANNELS, REGIONS, ROMAN, SITES
-from ..errors import ValidationError
-from .index import utc_now
-from .query import SCATTERING, UNITS
-from .summary import HIST_BINS, column
+from facestats import __version__
+from facestats.core.conventions import CHANNELS, REGIONS, ROMAN, SITES
+from facestats.errors import ValidationError
+from facestats.io.index import utc_now
+from facestats.io.query import SCATTERING, UNITS
+from facestats.io.summary import HIST_BINS, column
 
 __all__ = ["EXPORT_FORMAT", "export_statistics"]
 

@@ -38,7 +38,7 @@ import secrets
 
 import numpy as np
 
-from ..errors import StoreError
+from facestats.errors import StoreError
 
 __all__ = [
     "INDEX_NAME",

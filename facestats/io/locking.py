@@ -27,7 +27,7 @@ import fcntl
 import os
 import time
 
-from ..errors import StoreError
+from facestats.errors import StoreError
 
 __all__ = ["FileLock", "is_locked", "try_lock", "create_locked"]
 

@@ -40,9 +40,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
-from ..conventions import CHANNELS, REGIONS, parse_gender, parse_skin_type
-from ..errors import FormatError, ValidationError
+from facestats import __version__
+from facestats.core.conventions import CHANNELS, REGIONS, parse_gender, parse_skin_type
+from facestats.errors import FormatError, ValidationError
 
 __all__ = ["REQUIRED_KEYS", "ALBEDO_KEYS", "MerlData", "read_merl", "import_merl"]
 
@@ -224,7 +224,7 @@ def read_merl(path, *, prefix: str = "merl") -> MerlData:
     import scipy.io
     import xarray as xr
 
-    from .schema import set_provenance, set_variable_attrs
+    from facestats.io.schema import set_provenance, set_variable_attrs
 
     path = Path(path).expanduser().resolve()
     if not path.is_file():
@@ -329,7 +329,7 @@ def import_merl(path, store, *, prefix: str = "merl", overwrite: bool = False) -
     MerlData
         What was read (ids, sample counts, subjects without samples).
     """
-    from .store import Store, open_store
+    from facestats.io.store import Store, open_store
 
     data = read_merl(path, prefix=prefix)
     if not isinstance(store, Store):

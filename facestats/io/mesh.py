@@ -26,8 +26,8 @@ import os
 
 import numpy as np
 
-from ..acquire.face import FaceGeometry, uv_to_texel
-from ..errors import FormatError, ValidationError
+from facestats.acquire.geometry import FaceGeometry, uv_to_texel
+from facestats.errors import FormatError, ValidationError
 
 __all__ = ["load_face_mesh", "read_region_image", "save_face_mesh"]
 
@@ -141,7 +141,7 @@ def load_face_mesh(path, region_image, *, scale=1.0, transform=None, flip_v=True
 def save_face_mesh(geometry: FaceGeometry, path, region_path=None):
     """Write a procedural geometry's shadowing mesh as an OBJ with per-vertex UVs (and its region image as .npy).
 
-    The OBJ holds the triangle mesh of :func:`facestats.acquire.face.procedural_face`
+    The OBJ holds the triangle mesh of :func:`facestats.acquire.synthetic.face.procedural_face`
     (its vertices lie on a regular UV grid of side ``mesh_grid``) with the UV of
     every vertex (v upwards, as files store it), so :func:`load_face_mesh` reads
     it back; the lumitexels it then finds are the mesh vertices on labelled

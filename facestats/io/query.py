@@ -12,7 +12,7 @@ Filters
   types I and II (Table 2), so asking for I or for II matches subjects of both.
 * ``gender``: ``"M"``/``"F"`` (also male/female, 0 = M, 1 = F).
 * ``age``: ``"20s"``, ``"30s"``, ``"40s"``, ``"50s+"``, ``"MIN-MAX"`` or one age (inclusive, years).
-* ``condition``: one of ``facestats.conventions.CONDITIONS``.  ``None`` means
+* ``condition``: one of ``facestats.core.conventions.CONDITIONS``.  ``None`` means
   any condition: records of one person measured under several conditions
   (§7) then count separately (``n_persons`` counts distinct people); pass
   ``condition="normal"`` for the population as the paper analyses it.
@@ -71,7 +71,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..conventions import (
+from facestats.core.conventions import (
     AGE_GROUPS,
     CHANNELS,
     CONDITIONS,
@@ -85,8 +85,8 @@ from ..conventions import (
     parse_region,
     parse_skin_type,
 )
-from ..errors import ValidationError
-from .summary import BRDF_PARAMS, HIST_BINS, column
+from facestats.errors import ValidationError
+from facestats.io.summary import BRDF_PARAMS, HIST_BINS, column
 
 __all__ = ["QUERY_FORMAT", "Stat", "QueryResult", "normalise_filters", "run_query", "histogram_sparkline"]
 

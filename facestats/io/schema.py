@@ -22,8 +22,8 @@ import json
 
 import numpy as np
 
-from ..conventions import CHANNELS, CONDITIONS, GENDERS, REGIONS, SITES
-from ..errors import SchemaError
+from facestats.core.conventions import CHANNELS, CONDITIONS, GENDERS, REGIONS, SITES
+from facestats.errors import SchemaError
 
 __all__ = [
     "SCHEMA_VERSION",

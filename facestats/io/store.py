@@ -81,10 +81,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
-from .._validate import check_choice
-from ..errors import SchemaError, StoreError, ValidationError
-from .index import (
+from facestats import __version__
+from facestats.core.validate import check_choice
+from facestats.errors import SchemaError, StoreError, ValidationError
+from facestats.io.index import (
     INDEX_NAME,
     empty_index,
     index_table,
@@ -95,8 +95,8 @@ from .index import (
     utc_now,
     write_index_file,
 )
-from .locking import FileLock, create_locked, is_lock_temp, is_locked, try_lock
-from .schema import SCHEMA_VERSION, provenance, set_provenance, validate_subject
+from facestats.io.locking import FileLock, create_locked, is_lock_temp, is_locked, try_lock
+from facestats.io.schema import SCHEMA_VERSION, provenance, set_provenance, validate_subject
 
 __all__ = [
     "Store",
@@ -609,7 +609,7 @@ class Store:
         See :mod:`facestats.io.query` for the filters (skin types I and II are
         grouped), the statistics and the JSON form.
         """
-        from .query import run_query
+        from facestats.io.query import run_query
 
         return run_query(self._table(), skin_type=skin_type, gender=gender, age=age, condition=condition,
                          region=region, store=self.label)
@@ -721,7 +721,7 @@ class Store:
         """
         import pandas as pd
 
-        from .summary import MODEL_PARAMS, region_samples
+        from facestats.io.summary import MODEL_PARAMS, region_samples
 
         check_choice(model, "model", MODEL_PARAMS)
         if subjects is None:
@@ -769,7 +769,7 @@ class Store:
         """Write several subjects and commit them together (all or none); return their ids."""
         import xarray as xr
 
-        from .summary import albedo_histogram, summarise_subject
+        from facestats.io.summary import albedo_histogram, summarise_subject
 
         self._require_writable()
         prepared = []
@@ -1041,7 +1041,7 @@ class Store:
 
     def _rebuild_index(self) -> tuple[dict, list[str]]:
         """A new index from the newest intact generation of every subject directory."""
-        from .summary import albedo_histogram, summarise_subject
+        from facestats.io.summary import albedo_histogram, summarise_subject
 
         index = empty_index(SCHEMA_VERSION, __version__)
         notes = []
@@ -1070,7 +1070,7 @@ class Store:
         whose data are broken are dropped from the index; disagreeing rows are
         recomputed; then :meth:`gc` removes orphans.
         """
-        from .summary import albedo_histogram, summarise_subject
+        from facestats.io.summary import albedo_histogram, summarise_subject
 
         if repair:
             self._require_writable()
@@ -1135,7 +1135,7 @@ class Store:
 
     def info(self) -> dict:
         """Summary of the store: versions, counts by skin type/gender/condition/kind/age, size on disk."""
-        from .query import _breakdown
+        from facestats.io.query import _breakdown
 
         index = self._index()
         t = self._table()

@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..conventions import CHANNELS, REGION_IDS, SITES
-from .schema import provenance, subject_kind
+from facestats.core.conventions import CHANNELS, REGION_IDS, SITES
+from facestats.io.schema import provenance, subject_kind
 
 __all__ = [
     "HIST_BINS",

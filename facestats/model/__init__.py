@@ -5,6 +5,6 @@ Modules: :mod:`~facestats.model.fresnel`, :mod:`~facestats.model.brdf`,
 stages in :mod:`~facestats.model.fitting`.
 """
 
-from . import brdf, dipole, fresnel, skin  # noqa: F401
+from facestats.model import brdf, dipole, fresnel, skin  # noqa: F401
 
 __all__ = ["brdf", "dipole", "fresnel", "skin"]

@@ -21,10 +21,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._blocked import blockwise, components
-from .._validate import as_finite, check_shape, result_dtype
-from ..errors import ValidationError
-from .fresnel import _check_eta, _fresnel_reflectance
+from facestats.core.blocked import blockwise, components
+from facestats.core.validate import as_finite, check_shape, result_dtype
+from facestats.errors import ValidationError
+from facestats.model.fresnel import _check_eta, _fresnel_reflectance
 
 __all__ = [
     "half_vector",
@@ -123,7 +123,7 @@ def blinn_phong_lobe(cos_delta, exponent):
 def _ts_geometry_kernel(nx, ny, nz, ix, iy, iz, ox, oy, oz, eta):
     """cos δ and K = G F_r(ωo·H)/(π N·ωi N·ωo) from vector components (no checks).
 
-    Written on components so that :func:`facestats._blocked.blockwise` can stream
+    Written on components so that :func:`facestats.core.blocked.blockwise` can stream
     it through the cache; the geometry itself is :func:`torrance_sparrow_cosines`.
     """
     n_wi = nx * ix + ny * iy + nz * iz

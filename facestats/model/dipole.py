@@ -25,10 +25,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._blocked import blockwise
-from .._validate import as_finite, as_float, check_range, result_dtype
-from ..errors import FitError, ValidationError
-from .fresnel import _check_eta, _fdr_polynomial
+from facestats.core.blocked import blockwise
+from facestats.core.validate import as_finite, as_float, check_range, result_dtype
+from facestats.errors import FitError, ValidationError
+from facestats.model.fresnel import _check_eta, _fdr_polynomial
 
 __all__ = [
     "boundary_coefficient",

@@ -22,9 +22,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._blocked import blockwise
-from .._validate import as_finite, check_range, result_dtype
-from ..errors import ValidationError
+from facestats.core.blocked import blockwise
+from facestats.core.validate import as_finite, check_range, result_dtype
+from facestats.errors import ValidationError
 
 __all__ = ["fresnel_reflectance", "fresnel_transmittance", "diffuse_fresnel_reflectance"]
 

@@ -31,11 +31,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import as_finite, as_float, check_choice, check_integer, check_range, check_shape, result_dtype
-from ..errors import ValidationError
-from . import brdf as _brdf
-from .dipole import _coefficients, _eta, _radial_energy, _total_from_reduced_albedo
-from .fresnel import _fresnel_reflectance
+from facestats.core.validate import as_finite, as_float, check_choice, check_integer, check_range, check_shape, result_dtype
+from facestats.errors import ValidationError
+from facestats.model import brdf as _brdf
+from facestats.model.dipole import _coefficients, _eta, _radial_energy, _total_from_reduced_albedo
+from facestats.model.fresnel import _fresnel_reflectance
 
 __all__ = [
     "SPECULAR_MODELS",

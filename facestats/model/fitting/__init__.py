@@ -15,13 +15,13 @@ flat arrays, one contiguous run per lumitexel.
 :func:`facestats.pipeline.fit_subject` runs them all on a capture.
 """
 
-from .albedo import albedo_stable_minimum, fresnel_factors, refine_albedo, specular_residual
-from .maps import fill_flagged, push_pull, scatter_to_map
-from .normals import micro_normals, photometric_normals
-from .samples import Samples
-from .specular import (DEFAULT_BOUNDS, SpecularFit, equivalent_lobe, fit_specular, fit_specular_models,
+from facestats.model.fitting.albedo import albedo_stable_minimum, fresnel_factors, refine_albedo, specular_residual
+from facestats.model.fitting.maps import fill_flagged, push_pull, scatter_to_map
+from facestats.model.fitting.normals import micro_normals, photometric_normals
+from facestats.model.fitting.samples import Samples
+from facestats.model.fitting.specular import (DEFAULT_BOUNDS, SpecularFit, equivalent_lobe, fit_specular, fit_specular_models,
                        fit_specular_samples, specular_factors)
-from .translucency import TranslucencyFit, fit_translucency, population_sigma_tr_avg, scattering_parameters
+from facestats.model.fitting.translucency import TranslucencyFit, fit_translucency, population_sigma_tr_avg, scattering_parameters
 
 __all__ = [
     "photometric_normals", "micro_normals", "albedo_stable_minimum", "refine_albedo", "specular_residual",

@@ -41,10 +41,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._validate import as_finite, check_integer, check_shape
-from ...errors import ValidationError
-from ..fresnel import _check_eta, _fresnel_reflectance
-from .samples import order_keys
+from facestats.core.validate import as_finite, check_integer, check_shape
+from facestats.errors import ValidationError
+from facestats.model.fresnel import _check_eta, _fresnel_reflectance
+from facestats.model.fitting.samples import order_keys
 
 __all__ = ["fresnel_factors", "albedo_stable_minimum", "specular_residual", "refine_albedo"]
 

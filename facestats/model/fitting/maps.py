@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._validate import check_integer, check_shape
-from ...errors import ValidationError
+from facestats.core.validate import check_integer, check_shape
+from facestats.errors import ValidationError
 
 __all__ = ["scatter_to_map", "push_pull", "fill_flagged"]
 

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...errors import ValidationError
+from facestats.errors import ValidationError
 
 __all__ = ["Samples", "segment_sum", "masked", "order_keys", "valid_samples"]
 

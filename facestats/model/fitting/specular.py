@@ -15,7 +15,7 @@ Levenberg-Marquardt iteration vectorised over texels and samples:
   (K = G F_r/(π cos θi cos θo), :func:`facestats.model.brdf.torrance_sparrow_cosines`)
   and g = A (n+2) cosⁿδ, A = cos θi/(2π) for Blinn-Phong.  The per-sample
   factors A, t (or ln cos δ) are computed once, in float32 and blockwise
-  (:func:`specular_factors`, :func:`facestats._blocked.blockwise`); every
+  (:func:`specular_factors`, :func:`facestats.core.blocked.blockwise`); every
   iteration costs one exponential per sample.
 * Parameters (ρs, q = ln p): the lobe parameter is solved in log space, where
   the problem is well scaled.  Bounds are enforced by projection of each step,
@@ -56,12 +56,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..._blocked import blockwise
-from ..._validate import as_finite, as_float, check_choice, check_integer, check_shape
-from ...errors import ValidationError
-from ..brdf import torrance_sparrow_cosines
-from ..fresnel import _check_eta
-from .samples import Samples, segment_sum
+from facestats.core.blocked import blockwise
+from facestats.core.validate import as_finite, as_float, check_choice, check_integer, check_shape
+from facestats.errors import ValidationError
+from facestats.model.brdf import torrance_sparrow_cosines
+from facestats.model.fresnel import _check_eta
+from facestats.model.fitting.samples import Samples, segment_sum
 
 __all__ = ["SpecularFit", "fit_specular", "fit_specular_samples", "fit_specular_models", "specular_factors", "equivalent_lobe",
            "DEFAULT_BOUNDS"]
@@ -192,7 +192,7 @@ def _lobe_scale(model, q):
 
 
 def _ts_factor_kernel(ci, co, io, eta):
-    """(tan²δ, K cos θi / cos⁴δ) of a block of samples (run through :func:`facestats._blocked.blockwise`)."""
+    """(tan²δ, K cos θi / cos⁴δ) of a block of samples (run through :func:`facestats.core.blocked.blockwise`)."""
     cos_d, k = torrance_sparrow_cosines(ci, co, io, eta)
     c2 = cos_d * cos_d
     return (1 - c2) / c2, np.maximum(k * ci / (c2 * c2), 0)
@@ -204,7 +204,7 @@ def specular_factors(samples, normal, model, eta=1.38, cos=None):
     Torrance-Sparrow (Weyrich et al. 2006 eq. 12-13): s1 = tan²δ,
     A = K cos θi / cos⁴δ (sr⁻¹) with K from
     :func:`facestats.model.brdf.torrance_sparrow_cosines`, evaluated block by
-    block (:func:`facestats._blocked.blockwise`); Blinn-Phong (eq. 11):
+    block (:func:`facestats.core.blocked.blockwise`); Blinn-Phong (eq. 11):
     s1 = ln cos δ, A = cos θi / (2π).  A = 0 where a direction is below the
     horizon.  ``cos`` = (N·ωi, N·ωo) per sample may be passed when already known
     (``normal`` is then not used).

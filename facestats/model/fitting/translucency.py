@@ -40,10 +40,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..._validate import as_finite, as_float, check_integer, check_shape
-from ...errors import ValidationError
-from ..dipole import _eta, _profile, scattering_from_albedo
-from ..skin import modulation_texture
+from facestats.core.validate import as_finite, as_float, check_integer, check_shape
+from facestats.errors import ValidationError
+from facestats.model.dipole import _eta, _profile, scattering_from_albedo
+from facestats.model.skin import modulation_texture
 
 __all__ = ["TranslucencyFit", "fit_translucency", "population_sigma_tr_avg", "scattering_parameters"]
 

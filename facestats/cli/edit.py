@@ -64,7 +64,7 @@ def _subsample_seed_arg(p):
 
 def _target(args, *, stats=False):
     """The API target from --target / --stats / the query options."""
-    from .errors import ValidationError
+    from facestats.errors import ValidationError
 
     query = {k: getattr(args, k) for k in ("skin_type", "condition", "gender", "age") if getattr(args, k, None)}
     given = [name for name, v in (("--target", args.target), ("--stats", getattr(args, "stats", None))) if v]
@@ -86,8 +86,8 @@ def _target(args, *, stats=False):
 
 def _open(args):
     """(source store, output store) from --store / --out-store."""
-    from .errors import StoreError
-    from .io.store import open_store
+    from facestats.errors import StoreError
+    from facestats.io.store import open_store
 
     if args.out_store:
         return open_store(args.store), open_store(args.out_store, mode="a")
@@ -103,7 +103,7 @@ def _open(args):
 
 
 def _report(edit, args) -> int:
-    from .edit.subjects import save_edit_images
+    from facestats.edit.subjects import save_edit_images
 
     files = save_edit_images(edit, args.images)
     src = edit.source.attrs["subject_id"]
@@ -137,7 +137,7 @@ def _run(args, edit_function, target, **kwargs):
 
 
 def _cmd_skin_type(args) -> int:
-    from .edit.subjects import change_skin_type
+    from facestats.edit.subjects import change_skin_type
 
     _, code = _run(args, change_skin_type, args.skin_type, t=args.t, brdf=not args.no_brdf,
                    colour=not args.no_colour, keep_translucency=args.keep_translucency, seed=args.seed)
@@ -145,14 +145,14 @@ def _cmd_skin_type(args) -> int:
 
 
 def _cmd_brdf(args) -> int:
-    from .edit.subjects import transfer_brdf_subject
+    from facestats.edit.subjects import transfer_brdf_subject
 
     _, code = _run(args, transfer_brdf_subject, _target(args), t=args.t, model=args.model, regions=args.regions)
     return code
 
 
 def _cmd_colour(args) -> int:
-    from .edit.subjects import transfer_colour_subject
+    from facestats.edit.subjects import transfer_colour_subject
 
     _, code = _run(args, transfer_colour_subject, _target(args, stats=True), t=args.t, regions=args.regions,
                    feather=args.feather, keep_translucency=args.keep_translucency, seed=args.seed)
@@ -160,7 +160,7 @@ def _cmd_colour(args) -> int:
 
 
 def _cmd_texture(args) -> int:
-    from .edit.subjects import transfer_texture_subject
+    from facestats.edit.subjects import transfer_texture_subject
 
     edit, code = _run(args, transfer_texture_subject, _target(args, stats=True), regions=args.regions,
                       levels=args.levels, bins=args.bins, iterations=args.iterations, seed=args.seed,
@@ -172,8 +172,8 @@ def _cmd_texture(args) -> int:
 
 
 def _cmd_stats(args) -> int:
-    from .edit.subjects import subject_texture_statistics
-    from .io.store import open_store
+    from facestats.edit.subjects import subject_texture_statistics
+    from facestats.io.store import open_store
 
     with open_store(args.store) as store:
         stats = subject_texture_statistics(store, args.subject, regions=args.regions, levels=args.levels,

@@ -1,6 +1,6 @@
 """Simulator of the face-scanning dome and the contact sensor (Weyrich et al. 2006 §5, §5.4).
 
-Turns a subject's ground truth (:class:`facestats.acquire.population.SubjectTruth`)
+Turns a subject's ground truth (:class:`facestats.acquire.synthetic.population.SubjectTruth`)
 into the raw capture the real devices would produce (:class:`Capture`), using
 the skin model of :mod:`facestats.model` as the forward model — no second copy
 of the physics:
@@ -43,20 +43,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import __version__
-from .._validate import as_finite, check_choice, check_integer
-from ..errors import ValidationError
-from ..model import brdf as _brdf
-from ..model.dipole import _eta, dipole_profile
-from ..model.fresnel import _fresnel_reflectance
-from ..model.skin import SPECULAR_MODELS, SubsurfaceTransport, neighbour_pairs
-from ..published import ETA_SKIN
-from .capture import Capture, CaptureWriter, _PER_LUMITEXEL
-from .dome import Dome, default_dome
-from .face import FaceGeometry
-from .hdr import expose, merge_exposures
-from .sensor import ContactSensor
-from .visibility import ShadowMaps
+from facestats import __version__
+from facestats.core.validate import as_finite, check_choice, check_integer
+from facestats.errors import ValidationError
+from facestats.model import brdf as _brdf
+from facestats.model.dipole import _eta, dipole_profile
+from facestats.model.fresnel import _fresnel_reflectance
+from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport, neighbour_pairs
+from facestats.core.published import ETA_SKIN
+from facestats.acquire.capture import Capture, CaptureWriter, _PER_LUMITEXEL
+from facestats.acquire.dome import Dome, default_dome
+from facestats.acquire.geometry import FaceGeometry
+from facestats.acquire.hdr import expose, merge_exposures
+from facestats.acquire.sensor import ContactSensor
+from facestats.acquire.visibility import ShadowMaps
 
 __all__ = ["DomeSimulator", "simulate_capture"]
 
@@ -400,7 +400,7 @@ class DomeSimulator:
 def simulate_capture(truth, geometry: FaceGeometry | None = None, **kwargs) -> Capture:
     """Simulate one subject on ``geometry`` (default: the procedural face at the truth's map size)."""
     if geometry is None:
-        from .face import procedural_face
+        from facestats.acquire.synthetic.face import procedural_face
 
         geometry = procedural_face(truth.region_map.shape[0])
     return DomeSimulator(geometry, **kwargs).simulate(truth)

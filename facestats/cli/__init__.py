@@ -11,17 +11,17 @@ import argparse
 import os
 import sys
 
-from . import __version__
-from .cli_analyze import add_analyze
-from .cli_edit import add_edit
-from .errors import FacestatsError
+from facestats import __version__
+from facestats.cli.analyze import add_analyze
+from facestats.cli.edit import add_edit
+from facestats.errors import FacestatsError
 
 __all__ = ["main", "build_parser"]
 
 
 # -- demo ------------------------------------------------------------------------
 def _cmd_demo(args) -> int:
-    from .physics_demo import physics_demo
+    from facestats.model.demo import physics_demo
 
     report = physics_demo(albedo=args.albedo, sigma_tr=args.sigma_tr, eta=args.eta, plot=args.plot)
     print(report.to_text())
@@ -63,7 +63,7 @@ def _can_encode(text: str) -> bool:
 
 
 def _cmd_query(args) -> int:
-    from .io.store import open_store
+    from facestats.io.store import open_store
 
     with open_store(args.store) as store:
         result = store.query(skin_type=args.skin_type, gender=args.gender, age=args.age,
@@ -104,7 +104,7 @@ def _add_query(sub):
 
 
 def _conditions():
-    from .conventions import CONDITIONS
+    from facestats.core.conventions import CONDITIONS
 
     return CONDITIONS
 
@@ -118,7 +118,7 @@ def _fmt_bytes(n: int) -> str:
 
 
 def _cmd_info(args) -> int:
-    from .io.store import open_store
+    from facestats.io.store import open_store
 
     with open_store(args.store) as store:
         info = store.info()
@@ -150,8 +150,8 @@ def _add_info(sub):
 
 
 def _cmd_validate(args) -> int:
-    from .errors import StoreError
-    from .io.store import open_store
+    from facestats.errors import StoreError
+    from facestats.io.store import open_store
 
     try:
         store = open_store(args.store, mode="r+" if args.repair else "r")
@@ -176,8 +176,8 @@ def _add_validate(sub):
 
 
 def _cmd_export(args) -> int:
-    from .io.export import export_statistics
-    from .io.store import open_store
+    from facestats.io.export import export_statistics
+    from facestats.io.store import open_store
 
     formats = ("csv", "json") if args.format == "both" else (args.format,)
     with open_store(args.store) as store:
@@ -200,7 +200,7 @@ def _add_export(sub):
 
 
 def _cmd_import_merl(args) -> int:
-    from .io.merl import import_merl
+    from facestats.io.merl import import_merl
 
     data = import_merl(args.path, args.store, prefix=args.prefix, overwrite=args.overwrite)
     ids = data.ids
@@ -238,7 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 # -- build -----------------------------------------------------------------------------
 def _cmd_build(args) -> int:
-    from . import build as _build
+    from facestats.pipeline import build as _build
 
     if args.default:
         if args.store:

@@ -11,7 +11,7 @@ from typing import Iterable
 
 import numpy as np
 
-from .errors import ValidationError
+from facestats.errors import ValidationError
 
 __all__ = [
     "as_float",

@@ -37,15 +37,15 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from . import __version__
-from ._validate import as_finite, check_choice, check_integer, check_shape
-from .acquire.face import uv_to_texel
-from .conventions import CHANNELS, SITES
-from .errors import FitError, ValidationError
-from .io.schema import FLAG_BITS, SCHEMA_VERSION, set_variable_attrs
-from .model import fitting
-from .model.dipole import _eta
-from .published import ETA_SKIN, GRAZING_LIMIT_DEG, SIGMA_TR_AVG
+from facestats import __version__
+from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
+from facestats.acquire.geometry import uv_to_texel
+from facestats.core.conventions import CHANNELS, SITES
+from facestats.errors import FitError, ValidationError
+from facestats.io.schema import FLAG_BITS, SCHEMA_VERSION, set_variable_attrs
+from facestats.model import fitting
+from facestats.model.dipole import _eta
+from facestats.core.published import ETA_SKIN, GRAZING_LIMIT_DEG, SIGMA_TR_AVG
 
 __all__ = ["FitSettings", "fit_lumitexels", "fit_sensor", "fit_subject", "fit_population", "predict_radiance",
            "held_out_camera_error", "camera_image", "LUMITEXEL_OUTPUTS"]
@@ -257,7 +257,7 @@ def _blocks_result(capture, settings, client=None, progress=False, workers=1):
 
 
 def _fit_block_from_path(path, a, b, settings):
-    from .acquire.capture import open_capture
+    from facestats.acquire.capture import open_capture
 
     try:  # a worker reuses its open capture across blocks while the group on disk is unchanged
         capture = _open_cached(str(path), os.stat(os.path.join(path, "zarr.json")).st_mtime_ns)
@@ -269,7 +269,7 @@ def _fit_block_from_path(path, a, b, settings):
 @functools.lru_cache(maxsize=4)
 def _open_cached(path, mtime_ns):
     """:func:`facestats.acquire.capture.open_capture`, cached per (path, modification time of its zarr.json)."""
-    from .acquire.capture import open_capture
+    from facestats.acquire.capture import open_capture
 
     return open_capture(path)
 
@@ -361,7 +361,7 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
     """
     import xarray as xr
 
-    from .acquire.capture import Capture, open_capture
+    from facestats.acquire.capture import Capture, open_capture
 
     if not isinstance(capture, Capture):
         capture = open_capture(capture)
@@ -500,7 +500,7 @@ def fit_population(captures, settings: FitSettings | None = None, *, client=None
     datasets : list of xarray.Dataset
     sigma_tr_avg : ndarray, shape (3,)
     """
-    from .acquire.capture import Capture, open_capture
+    from facestats.acquire.capture import Capture, open_capture
 
     check_choice(scheduler, "scheduler", ("processes", "threads", "synchronous"))
     if num_workers is not None:
@@ -573,8 +573,8 @@ def predict_radiance(subject, capture, start: int = 0, stop: int | None = None, 
     predicted, measured : ndarray, shape (n, C, L, 3)
         Radiance in the capture's dome units per sr.
     """
-    from .io.schema import modulation as _modulation
-    from .model.skin import SPECULAR_MODELS, SubsurfaceTransport, skin_radiance
+    from facestats.io.schema import modulation as _modulation
+    from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport, skin_radiance
 
     check_choice(specular, "specular", SPECULAR_MODELS)
     if "normal" not in subject.data_vars:

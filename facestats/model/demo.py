@@ -12,17 +12,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._validate import as_finite, as_float, check_shape
-from .conventions import CHANNELS
-from .model import dipole
-from .published import ETA_SKIN, SIGMA_TR_AVG
+from facestats.core.validate import as_finite, as_float, check_shape
+from facestats.core.conventions import CHANNELS
+from facestats.model import dipole
+from facestats.core.published import ETA_SKIN, SIGMA_TR_AVG
 
 __all__ = ["DemoReport", "physics_demo", "light_skin_albedo", "plot_dipole_profiles"]
 
 
 def light_skin_albedo() -> np.ndarray:
     """Linear sRGB reflectance of the measured ColorChecker 'light skin' patch under D65 (colour-science data)."""
-    from .acquire.population import skin_albedo
+    from facestats.acquire.synthetic.population import skin_albedo
 
     return skin_albedo(0.0)
 

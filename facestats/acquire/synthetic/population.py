@@ -2,7 +2,7 @@
 
 No measured face database can be downloaded, so facestats ships a population
 whose ground truth follows Weyrich et al. 2006 (numbers from
-:mod:`facestats.published`) and pushes it through the real pipeline (simulated
+:mod:`facestats.core.published`) and pushes it through the real pipeline (simulated
 captures, then fitting).  Every number chosen here is listed with the published
 figure it reproduces.
 
@@ -75,11 +75,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import as_finite, check_choice, check_integer
-from ..conventions import CHANNELS, CONDITIONS, REGION_IDS, SITES
-from ..errors import ValidationError
-from ..published import AGE_COUNTS, ETA_SKIN, TABLE1_MEAN, TABLE1_VAR, TABLE2_COUNTS
-from ..model import dipole, fresnel
+from facestats.core.validate import as_finite, check_choice, check_integer
+from facestats.core.conventions import CHANNELS, CONDITIONS, REGION_IDS, SITES
+from facestats.errors import ValidationError
+from facestats.core.published import AGE_COUNTS, ETA_SKIN, TABLE1_MEAN, TABLE1_VAR, TABLE2_COUNTS
+from facestats.model import dipole, fresnel
 
 __all__ = [
     "SKIN_TYPE_MELANIN",
@@ -505,7 +505,7 @@ def synthesize_population(
     if isinstance(subjects, str):
         raise ValidationError(f"subjects must be a collection of subject ids, got the string {subjects!r}")
     if geometry is None:
-        from .face import procedural_face
+        from facestats.acquire.synthetic.face import procedural_face
 
         geometry = procedural_face(map_size)
     region_map = geometry.region_map

@@ -8,7 +8,7 @@ Usage::
 Each action makes one or two calls of :mod:`facestats.analysis`, draws the
 result with :mod:`facestats.analysis.plots`, writes ``<action>.png`` (or
 ``.svg``) and ``<action>.json`` into ``--out`` and prints a short summary
-beside the published values of :mod:`facestats.published`.  ``all`` runs
+beside the published values of :mod:`facestats.core.published`.  ``all`` runs
 every action but ``posterior``.  Heavy modules are imported inside the
 handlers, so registering the command costs nothing at start-up.
 
@@ -114,7 +114,7 @@ def _clean(obj):
 
 
 def _by_channel(values):
-    from .conventions import CHANNELS
+    from facestats.core.conventions import CHANNELS
 
     return {ch: v for ch, v in zip(CHANNELS, values)}
 
@@ -131,9 +131,9 @@ def _records(frame):
 def _pca(store, args):
     import numpy as np
 
-    from .analysis import region_pca
-    from .analysis.plots import plot_region_pca
-    from .published import HIGHEST_RHO_S, LARGEST_VARIANCE, SMALLEST_M
+    from facestats.analysis import region_pca
+    from facestats.analysis.plots import plot_region_pca
+    from facestats.core.published import HIGHEST_RHO_S, LARGEST_VARIANCE, SMALLEST_M
 
     res = region_pca(store, model=args.model)
     k = 1.0
@@ -185,12 +185,12 @@ def _paper(ids):
 
 
 def _cca(store, args):
-    from .analysis import brdf_cca
-    from .analysis.plots import plot_cca
-    from .published import CCA_DIRECT, CCA_PRINCIPAL
+    from facestats.analysis import brdf_cca
+    from facestats.analysis.plots import plot_cca
+    from facestats.core.published import CCA_DIRECT, CCA_PRINCIPAL
 
     if args.permutations < 0:
-        from .errors import ValidationError
+        from facestats.errors import ValidationError
 
         raise ValidationError(f"--permutations must be >= 0, got {args.permutations}")
     res = brdf_cca(store, model=args.model, n_permutations=args.permutations, seed=args.seed)
@@ -232,9 +232,9 @@ def _cca(store, args):
 
 
 def _scatter(store, args):
-    from .analysis import absorption_scattering
-    from .analysis.plots import plot_absorption_scattering
-    from .conventions import CHANNELS, ROMAN
+    from facestats.analysis import absorption_scattering
+    from facestats.analysis.plots import plot_absorption_scattering
+    from facestats.core.conventions import CHANNELS, ROMAN
 
     res = absorption_scattering(store, site=args.site)
     corr = res.correlations()
@@ -269,14 +269,14 @@ def _scatter(store, args):
 
 
 _VAR_NOTE = ("The synthetic population of the default store reads Table 1's 'Var.' column as a standard deviation "
-             "(facestats.acquire.population): compare the paper's 'Var.' with our 'std'.  'var' is the sample "
+             "(facestats.acquire.synthetic.population): compare the paper's 'Var.' with our 'std'.  'var' is the sample "
              "variance of the per-subject sigma_tr.")
 
 
 def _translucency(store, args):
-    from .analysis import translucency_table
-    from .analysis.plots import plot_translucency
-    from .published import ELL_D_MAX, ELL_D_MIN, SIGMA_TR_AVG
+    from facestats.analysis import translucency_table
+    from facestats.analysis.plots import plot_translucency
+    from facestats.core.published import ELL_D_MAX, ELL_D_MIN, SIGMA_TR_AVG
 
     t = translucency_table(store)
     cmp = t.compare_published()
@@ -310,8 +310,8 @@ def _translucency(store, args):
 
 
 def _conditions(store, args):
-    from .analysis import condition_differences
-    from .analysis.plots import plot_conditions
+    from facestats.analysis import condition_differences
+    from facestats.analysis.plots import plot_conditions
 
     res = condition_differences(store, model=args.model)
     diff = res.differences
@@ -341,7 +341,7 @@ def _default_subject(store):
     """The first subject (by id) measured under normal conditions, else the first subject."""
     frame = store.subjects()
     if len(frame) == 0:
-        from .errors import StoreError
+        from facestats.errors import StoreError
 
         raise StoreError(f"store {store.label} holds no subject")
     normal = frame.index[frame["condition"] == "normal"]
@@ -353,9 +353,9 @@ def _posterior(store, args):
 
     import numpy as np
 
-    from .analysis import site_sigma_posterior
-    from .analysis.plots import plot_sigma_posterior
-    from .errors import ConvergenceWarning
+    from facestats.analysis import site_sigma_posterior
+    from facestats.analysis.plots import plot_sigma_posterior
+    from facestats.errors import ConvergenceWarning
 
     sid = args.subject or _default_subject(store)
     site = args.site or "cheek"
@@ -407,9 +407,9 @@ def _posterior(store, args):
 
 
 def _population_posterior(store, args):
-    from .analysis import population_sigma_tr
-    from .analysis.plots import plot_population_sigma_tr
-    from .conventions import CHANNELS, ROMAN
+    from facestats.analysis import population_sigma_tr
+    from facestats.analysis.plots import plot_population_sigma_tr
+    from facestats.core.conventions import CHANNELS, ROMAN
 
     res = population_sigma_tr(store, seed=args.seed)
     summary = _records(res.summary)
@@ -437,7 +437,7 @@ _HANDLERS = {"pca": _pca, "cca": _cca, "scatter": _scatter, "translucency": _tra
 def _out_dir(path):
     from pathlib import Path
 
-    from .errors import ValidationError
+    from facestats.errors import ValidationError
 
     out = Path(path).expanduser()
     if out.exists() and not out.is_dir():
@@ -453,7 +453,7 @@ def _write(out, name, fig, doc, fmt, store):
     """Write ``name.<fmt>`` and ``name.json``; return their paths."""
     import json
 
-    from . import __version__
+    from facestats import __version__
 
     figure = out / f"{name}.{fmt}"
     fig.savefig(figure, format=fmt, dpi=150)
@@ -472,8 +472,8 @@ def _emit(lines, files):
 
 
 def _cmd_analyze(args) -> int:
-    from .errors import ValidationError
-    from .io.store import open_store
+    from facestats.errors import ValidationError
+    from facestats.io.store import open_store
 
     out = _out_dir(args.out)
     with open_store(args.store) as store:

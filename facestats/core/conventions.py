@@ -8,7 +8,7 @@ published MERL/ETH data files use.
 
 from __future__ import annotations
 
-from .errors import ValidationError
+from facestats.errors import ValidationError
 
 __all__ = [
     "CHANNELS",
@@ -33,7 +33,7 @@ CHANNELS = ("R", "G", "B")
 
 #: Face regions of Weyrich et al. 2006 Fig. 15 (left).  The text names all but
 #: region 5; facestats places it below the eyes, between eyelids and cheeks
-#: (an assumption, see ``facestats.acquire.face``).
+#: (an assumption, see ``facestats.acquire.geometry``).
 REGIONS = {
     1: "mustache",
     2: "forehead",

@@ -1,7 +1,7 @@
 """Build a parameter store from a synthetic population: simulate every capture, fit it, store it.
 
 This is how the embedded default is made (Weyrich et al. 2006 pipeline, Fig. 3,
-run on the synthetic population of :mod:`facestats.acquire.population`):
+run on the synthetic population of :mod:`facestats.acquire.synthetic.population`):
 
 1. draw the population (seeded);
 2. simulate every subject's contact-sensor profiles and fit the dipole to them
@@ -30,9 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validate import check_choice, check_integer
-from .conventions import SITES
-from .errors import ValidationError
+from facestats.core.validate import check_choice, check_integer
+from facestats.core.conventions import SITES
+from facestats.errors import ValidationError
 
 __all__ = ["BuildReport", "build_store", "build_default", "DEFAULT_SEED", "DEFAULT_MAP_SIZE"]
 
@@ -92,8 +92,8 @@ def _simulator(map_size: int, specular: str):
     """One simulator per process (shadow maps and geometry are reused across subjects)."""
     key = (map_size, specular)
     if key not in _WORKER_CACHE:
-        from .acquire.face import procedural_face
-        from .acquire.simulate import DomeSimulator
+        from facestats.acquire.synthetic.face import procedural_face
+        from facestats.acquire.synthetic.simulate import DomeSimulator
 
         _WORKER_CACHE[key] = DomeSimulator(procedural_face(map_size), specular=specular)
     return _WORKER_CACHE[key]
@@ -103,7 +103,7 @@ def _population(seed: int, map_size: int, conditions: bool):
     """One population per process (drawn once, reused across subjects)."""
     key = ("population", seed, map_size, conditions)
     if key not in _WORKER_CACHE:
-        from .acquire.population import synthesize_population
+        from facestats.acquire.synthetic.population import synthesize_population
 
         _WORKER_CACHE[key] = synthesize_population(seed=seed, map_size=map_size, conditions=conditions)
     return _WORKER_CACHE[key]
@@ -111,7 +111,7 @@ def _population(seed: int, map_size: int, conditions: bool):
 
 def _settings(micro_normals: bool):
     """The fit settings of a build: the defaults, with or without micro-normal maps."""
-    from .pipeline import FitSettings
+    from facestats.pipeline import FitSettings
 
     return FitSettings(micro_normals=micro_normals)
 
@@ -124,7 +124,7 @@ def sensor_fits(population, map_size: int, specular: str = "torrance_sparrow"):
     dict
         ``subject_id`` -> :class:`facestats.model.fitting.TranslucencyFit` of shape (site, channel).
     """
-    from .model.fitting import fit_translucency
+    from facestats.model.fitting import fit_translucency
 
     sim = _simulator(map_size, specular)
     out = {}
@@ -145,8 +145,8 @@ DERIVED = ("modulation",)
 def _build_one(store_path, seed, map_size, conditions, specular, subject_id, sigma_tr_avg, sensor_fit, micro_normals,
                keep_derived=True):
     """Simulate, fit and store one subject (runs in a worker process)."""
-    from .io.store import open_store
-    from .pipeline import fit_subject
+    from facestats.io.store import open_store
+    from facestats.pipeline import fit_subject
 
     pop = _population(seed, map_size, conditions)
     truth = pop[subject_id]
@@ -169,7 +169,7 @@ def build_store(store_path, *, seed: int = DEFAULT_SEED, map_size: int = DEFAULT
     store_path : str or path-like
         Directory store; created if missing.  Subjects it already holds are skipped.
     seed, map_size, conditions
-        Population settings (:func:`facestats.acquire.population.synthesize_population`);
+        Population settings (:func:`facestats.acquire.synthetic.population.synthesize_population`);
         ``map_size`` ≥ 8 is also the lumitexel grid of the procedural face.
     specular : {"torrance_sparrow", "blinn_phong"}
         BRDF the simulator renders highlights with.
@@ -190,9 +190,9 @@ def build_store(store_path, *, seed: int = DEFAULT_SEED, map_size: int = DEFAULT
     -------
     BuildReport
     """
-    from .io.store import open_store
-    from .model.fitting import population_sigma_tr_avg
-    from .model.skin import SPECULAR_MODELS
+    from facestats.io.store import open_store
+    from facestats.model.fitting import population_sigma_tr_avg
+    from facestats.model.skin import SPECULAR_MODELS
 
     check_integer(seed, "seed", 0)
     check_integer(map_size, "map_size", 8)
@@ -245,7 +245,7 @@ def build_default(*, workers: int | None = None, progress: bool = False, out=Non
     fitted without micro-normal maps (16 × 3 values per texel would triple its size)
     and stored without the derived modulation texture, so it stays under 20 MB.
     """
-    from .io.store import default_store_path, pack_store
+    from facestats.io.store import default_store_path, pack_store
 
     target = Path(out) if out is not None else default_store_path()
     tmp = Path(tempfile.mkdtemp(prefix="facestats-default-"))

@@ -96,9 +96,15 @@ def bench_population():
     fa.cca(X, Y, n_permutations=999)
     batched = time.perf_counter() - t
     return {
-        "total_s": total, **steps, "subjects": res["pca"].n_subjects, "region_samples": n_samples,
-        "cca_r1": cca.correlations[0], "cca_r2": cca.correlations[1],
-        "perm_batched_s": batched, "perm_loop_s": loop_999, "perm_speedup": loop_999 / batched,
+        "total_s": total,
+        **steps,
+        "subjects": res["pca"].n_subjects,
+        "region_samples": n_samples,
+        "cca_r1": cca.correlations[0],
+        "cca_r2": cca.correlations[1],
+        "perm_batched_s": batched,
+        "perm_loop_s": loop_999,
+        "perm_speedup": loop_999 / batched,
     }
 
 
@@ -108,9 +114,14 @@ def bench_figures():
     store = _stand_in()
     res, _ = _analyse(store, n_permutations=0)
     t0 = time.perf_counter()
-    figs = [plots.plot_region_pca(res["pca"]), plots.plot_cca(res["cca"]),
-            plots.plot_absorption_scattering(res["scatter"]), plots.plot_translucency(res["translucency"]),
-            plots.plot_conditions(res["conditions"]), plots.plot_population_sigma_tr(res["population"])]
+    figs = [
+        plots.plot_region_pca(res["pca"]),
+        plots.plot_cca(res["cca"]),
+        plots.plot_absorption_scattering(res["scatter"]),
+        plots.plot_translucency(res["translucency"]),
+        plots.plot_conditions(res["conditions"]),
+        plots.plot_population_sigma_tr(res["population"]),
+    ]
     for f in figs:
         f.savefig(io.BytesIO(), format="png", dpi=80)
     return {"figures_s": time.perf_counter() - t0, "n_figures": len(figs)}
@@ -130,13 +141,13 @@ def _baseline_posterior(sensor, measured, n_walkers=16, min_tau=50):
     """emcee defaults: one stretch-move sampler per channel, vectorised over walkers, run to 50 τ."""
     import emcee
 
-    from facestats.analysis.posterior import _LogPosterior, _initial_walkers, _least_squares_start
+    from facestats.analysis.posterior import _initial_walkers, _least_squares_start, _LogPosterior
 
     r = sensor.fiber_distance
     lo, hi = np.log([0.01, 1e-5]), np.log([100.0, 10.0])
     steps = []
     for c in range(3):
-        y = measured[:, c:c + 1]
+        y = measured[:, c : c + 1]
         mask = np.isfinite(y)
         post = _LogPosterior(r, y, None, mask, sensor, 1.38, lo, hi)
         theta, cov = _least_squares_start(post, y, sensor.profile_std(np.maximum(y, 0)), mask)
@@ -170,9 +181,14 @@ def bench_posterior():
     base_steps = _baseline_posterior(sensor, measured)
     base = time.perf_counter() - t
     return {
-        "median_s": float(np.median(times)), "max_s": float(np.max(times)), "steps": int(np.median(steps)),
-        "tau_max": float(np.max(taus)), "acceptance": float(np.mean(accs)), "min_ess": float(np.min(ess)),
-        "baseline_stretch_per_channel_s": base, "baseline_steps": max(base_steps),
+        "median_s": float(np.median(times)),
+        "max_s": float(np.max(times)),
+        "steps": int(np.median(steps)),
+        "tau_max": float(np.max(taus)),
+        "acceptance": float(np.mean(accs)),
+        "min_ess": float(np.min(ess)),
+        "baseline_stretch_per_channel_s": base,
+        "baseline_steps": max(base_steps),
         "speedup": base / float(np.median(times)),
     }
 
@@ -216,8 +232,13 @@ def bench_default_store():
     if store is None:
         return {"status": "unavailable (the embedded store is not built)"}
     res, steps = _analyse(store)
-    return {"total_s": time.perf_counter() - t0, **steps, "subjects": res["pca"].n_subjects,
-            "cca_r1": res["cca"].correlations[0], "cca_r2": res["cca"].correlations[1]}
+    return {
+        "total_s": time.perf_counter() - t0,
+        **steps,
+        "subjects": res["pca"].n_subjects,
+        "cca_r1": res["cca"].correlations[0],
+        "cca_r2": res["cca"].correlations[1],
+    }
 
 
 def bench_default_store_cli():
@@ -253,8 +274,13 @@ def bench_default_store_posterior():
         times.append(time.perf_counter() - t)
         steps.append(post.n_steps)
         taus.append(post.diagnostics[["tau_sigma_s_prime", "tau_sigma_a"]].to_numpy().max())
-    return {"median_s": float(np.median(times)), "max_s": float(np.max(times)), "steps": int(np.median(steps)),
-            "tau_max": float(np.max(taus)), "profiles": len(cases)}
+    return {
+        "median_s": float(np.median(times)),
+        "max_s": float(np.max(times)),
+        "steps": int(np.median(steps)),
+        "tau_max": float(np.max(taus)),
+        "profiles": len(cases),
+    }
 
 
 BENCHMARKS = [

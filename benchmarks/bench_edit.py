@@ -40,8 +40,9 @@ class PyrtoolsPyramid:
     def decompose(self, image):
         import pyrtools as pt
 
-        self._pyr = pt.pyramids.SteerablePyramidFreq(np.asarray(image, np.float64), height=self.levels,
-                                                     order=self.orientations - 1)
+        self._pyr = pt.pyramids.SteerablePyramidFreq(
+            np.asarray(image, np.float64), height=self.levels, order=self.orientations - 1
+        )
         c = self._pyr.pyr_coeffs
         bands = [c["residual_highpass"]]
         bands += [c[(i, b)] / 4.0**i for i in range(self.levels) for b in range(self.orientations)]
@@ -68,8 +69,9 @@ def _albedos(size, seed=0):
     skin = np.array([0.55, 0.34, 0.25], np.float32)
 
     def noise(sigma):
-        g = np.stack([ndimage.gaussian_filter(rng.standard_normal((size, size), np.float32), sigma)
-                      for _ in range(3)], -1)
+        g = np.stack(
+            [ndimage.gaussian_filter(rng.standard_normal((size, size), np.float32), sigma) for _ in range(3)], -1
+        )
         return g / g.std()
 
     src = np.clip(skin * (1 + 0.03 * noise(3.0)), 0, 1).astype(np.float32)
@@ -82,8 +84,21 @@ def _albedos(size, seed=0):
 
 def _run(src, tgt, pyramid):
     t0 = time.perf_counter()
-    res = _transfer_texture(src, tgt, None, target_mask=None, levels=LEVELS, orientations=4, bins=256,
-                            iterations=ITERATIONS, seed=0, noise=0.1, feather=4.0, workers=2, pyramid=pyramid)
+    res = _transfer_texture(
+        src,
+        tgt,
+        None,
+        target_mask=None,
+        levels=LEVELS,
+        orientations=4,
+        bins=256,
+        iterations=ITERATIONS,
+        seed=0,
+        noise=0.1,
+        feather=4.0,
+        workers=2,
+        pyramid=pyramid,
+    )
     return res, time.perf_counter() - t0
 
 
@@ -102,13 +117,15 @@ def bench_texture_transfer():
         figures["pyrtools_s"] = "pyrtools not installed"
         return figures
     ref, t_ref = _run(src, tgt, PyrtoolsPyramid)
-    figures.update({
-        "ratio": t_ref / t_ours,
-        "pyrtools_s": t_ref,
-        "distance_end_pyrtools": float(ref.distance[-1]),
-        "max_abs_diff": float(np.abs(ours.albedo - ref.albedo).max()),
-        "mean_abs_diff": float(np.abs(ours.albedo - ref.albedo).mean()),
-    })
+    figures.update(
+        {
+            "ratio": t_ref / t_ours,
+            "pyrtools_s": t_ref,
+            "distance_end_pyrtools": float(ref.distance[-1]),
+            "max_abs_diff": float(np.abs(ours.albedo - ref.albedo).max()),
+            "mean_abs_diff": float(np.abs(ours.albedo - ref.albedo).mean()),
+        }
+    )
     return figures
 
 
@@ -131,8 +148,12 @@ def bench_pyramid():
     t0 = time.perf_counter()
     rec = p.reconstruct(p.decompose(img))
     t_ref = time.perf_counter() - t0
-    figures = {"ratio_float32": t_ref / figures["facestats_float32_s"], **figures, "pyrtools_s": t_ref,
-               "pyrtools_recon_rel_err": float(np.abs(rec - img).max() / np.abs(img).max())}
+    figures = {
+        "ratio_float32": t_ref / figures["facestats_float32_s"],
+        **figures,
+        "pyrtools_s": t_ref,
+        "pyrtools_recon_rel_err": float(np.abs(rec - img).max() / np.abs(img).max()),
+    }
     return figures
 
 

@@ -8,7 +8,8 @@ Figures:
   texel's sample directions) — against the batch Levenberg-Marquardt fitter on
   the same Torrance-Sparrow samples of a default subject: texels per second of
   each, the ratio, and the median E(p) of both on the texels the baseline
-  fitted, both evaluated by the same float64 eq. 14.  Also printed: a stronger SLSQP variant with the per-sample geometry
+  fitted, both evaluated by the same float64 eq. 14.  Also printed: a stronger SLSQP variant with
+  the per-sample geometry
   precomputed (it pays only for the optimiser) and the ratio against it.
 * ``accuracy``: the whole pipeline on simulated captures of default-population
   subjects with known truth: median and 90th percentile of the relative errors
@@ -103,8 +104,13 @@ def _slsqp(samples, normal, f_s, use, cos, texels, precomputed, batch=None):
                 return np.mean((y - brdf.torrance_sparrow(n, wi, wo, p[0], p[1]) * c_i) ** 2)
 
         t0 = time.perf_counter()
-        res = minimize(e2, x0=[0.2, 0.3], method="SLSQP", bounds=[(r_lo, r_hi), (m_lo, m_hi)],
-                       options={"ftol": 1e-14, "maxiter": 200})
+        res = minimize(
+            e2,
+            x0=[0.2, 0.3],
+            method="SLSQP",
+            bounds=[(r_lo, r_hi), (m_lo, m_hi)],
+            options={"ftol": 1e-14, "maxiter": 200},
+        )
         t_total += time.perf_counter() - t0
         errors.append(np.sqrt(res.fun))
         if batch is not None:  # E(p) of the batch fit by the same float64 evaluator
@@ -125,16 +131,23 @@ def bench_slsqp_ratio(n_baseline=150):
         runs.append(time.perf_counter() - t0)
     tps_batch = samples.n_texels / min(runs)
     texels = np.sort(np.random.default_rng(0).choice(samples.n_texels, n_baseline, replace=False))
-    tps_direct, e_direct, e_batch_direct = _slsqp(samples, normal, f_s, use, cos, texels, precomputed=False, batch=batch)
+    tps_direct, e_direct, e_batch_direct = _slsqp(
+        samples, normal, f_s, use, cos, texels, precomputed=False, batch=batch
+    )
     tps_pre, _, _ = _slsqp(samples, normal, f_s, use, cos, texels, precomputed=True)
     # Both fits' E(p) evaluated by the same (float64, direct BRDF) eq. 14.
     e_batch = float(np.median(e_batch_direct))
     return {
-        "batch_texels_per_s": tps_batch, "slsqp_texels_per_s": tps_direct, "ratio": tps_batch / tps_direct,
-        "median_E_batch": e_batch, "median_E_slsqp": float(np.median(e_direct)),
+        "batch_texels_per_s": tps_batch,
+        "slsqp_texels_per_s": tps_direct,
+        "ratio": tps_batch / tps_direct,
+        "median_E_batch": e_batch,
+        "median_E_slsqp": float(np.median(e_direct)),
         "E_batch_over_E_slsqp_minus_1": e_batch / float(np.median(e_direct)) - 1,
-        "slsqp_precomputed_texels_per_s": tps_pre, "ratio_vs_precomputed": tps_batch / tps_pre,
-        "texels": samples.n_texels, "baseline_texels": n_baseline,
+        "slsqp_precomputed_texels_per_s": tps_pre,
+        "ratio_vs_precomputed": tps_batch / tps_pre,
+        "texels": samples.n_texels,
+        "baseline_texels": n_baseline,
     }
 
 
@@ -207,7 +220,9 @@ def bench_full_resolution(workers=2, block=2048):
     from facestats.acquire.capture import open_capture
 
     cap = open_capture(path)
-    out = subprocess.run([sys.executable, "-c", _FIT, path, str(workers), str(block)], capture_output=True, text=True, check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", _FIT, path, str(workers), str(block)], capture_output=True, text=True, check=True
+    )
     figures.update(json.loads(out.stdout.strip().splitlines()[-1]))
     figures["lumitexels"] = cap.n_lumitexels
     figures["workers"] = workers
@@ -233,21 +248,36 @@ def bench_dask_scaling(n=12):
         paths = [sim.simulate(pop[i]).to_zarr(os.path.join(tmp, f"{i}.zarr")) for i in range(n)]
         t1 = _fit_paths(paths, 1)
         t2 = _fit_paths(paths, 2)
-        out.update({"subjects_per_min_1_worker": 60 * n / t1, "subjects_per_min_2_local_processes": 60 * n / t2,
-                    "speedup_local": t1 / t2})
+        out.update(
+            {
+                "subjects_per_min_1_worker": 60 * n / t1,
+                "subjects_per_min_2_local_processes": 60 * n / t2,
+                "speedup_local": t1 / t2,
+            }
+        )
         try:
             from distributed import Client, LocalCluster
         except ImportError:
             return out
         for workers in (1, 2):
-            with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
-                    Client(cluster) as client:
+            with (
+                LocalCluster(
+                    n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
+                ) as cluster,
+                Client(cluster) as client,
+            ):
                 _fit_paths(paths[:2], client=client)  # warm the workers (imports)
                 t = _fit_paths(paths, client=client)
             out[f"subjects_per_min_distributed_{workers}_workers"] = 60 * n / t
-        out["speedup_distributed"] = out["subjects_per_min_distributed_2_workers"] / out["subjects_per_min_distributed_1_workers"]
+        out["speedup_distributed"] = (
+            out["subjects_per_min_distributed_2_workers"] / out["subjects_per_min_distributed_1_workers"]
+        )
     return out
 
 
-BENCHMARKS = [("slsqp_ratio", bench_slsqp_ratio), ("accuracy", bench_accuracy), ("dask_scaling", bench_dask_scaling),
-              ("full_resolution", bench_full_resolution)]
+BENCHMARKS = [
+    ("slsqp_ratio", bench_slsqp_ratio),
+    ("accuracy", bench_accuracy),
+    ("dask_scaling", bench_dask_scaling),
+    ("full_resolution", bench_full_resolution),
+]

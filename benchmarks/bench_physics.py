@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 
+from facestats.core.published import ETA_SKIN
 from facestats.model import brdf, dipole
 
 N_VEC = 10_000_000
@@ -25,7 +26,7 @@ def _directions(rng, n):
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
-def _ts_scalar(n, wi, wo, rho, m, eta=1.38):
+def _ts_scalar(n, wi, wo, rho, m, eta=ETA_SKIN):
     nwi = n[0] * wi[0] + n[1] * wi[1] + n[2] * wi[2]
     nwo = n[0] * wo[0] + n[1] * wo[1] + n[2] * wo[2]
     if nwi <= 0 or nwo <= 0:
@@ -46,7 +47,7 @@ def _ts_scalar(n, wi, wo, rho, m, eta=1.38):
     return rho / math.pi * d * g / (nwi * nwo) * f
 
 
-def _dipole_scalar(r, s, a, eta=1.38):
+def _dipole_scalar(r, s, a, eta=ETA_SKIN):
     st = s + a
     alpha = s / st
     tr = math.sqrt(3 * a * st)
@@ -56,7 +57,11 @@ def _dipole_scalar(r, s, a, eta=1.38):
     zv = zr * (1 + 4 * big_a / 3)
     dr = math.sqrt(r * r + zr * zr)
     dv = math.sqrt(r * r + zv * zv)
-    return alpha / (4 * math.pi) * (zr * (1 + tr * dr) * math.exp(-tr * dr) / dr**3 + zv * (1 + tr * dv) * math.exp(-tr * dv) / dv**3)
+    return (
+        alpha
+        / (4 * math.pi)
+        * (zr * (1 + tr * dr) * math.exp(-tr * dr) / dr**3 + zv * (1 + tr * dv) * math.exp(-tr * dv) / dv**3)
+    )
 
 
 def _rate(fn, n, repeat=1):
@@ -88,7 +93,11 @@ def bench_dipole_profile():
     s, a = rng.uniform(0.5, 3, N_VEC), rng.uniform(0.01, 0.5, N_VEC)
     vec = _rate(lambda: dipole.dipole_profile(r, s, a), N_VEC, repeat=2)
     rl, sl, al = r[:N_LOOP].tolist(), s[:N_LOOP].tolist(), a[:N_LOOP].tolist()
-    assert np.allclose([_dipole_scalar(rl[i], sl[i], al[i]) for i in range(100)], dipole.dipole_profile(r[:100], s[:100], a[:100]), rtol=1e-10)
+    assert np.allclose(
+        [_dipole_scalar(rl[i], sl[i], al[i]) for i in range(100)],
+        dipole.dipole_profile(r[:100], s[:100], a[:100]),
+        rtol=1e-10,
+    )
     loop = _rate(lambda: [_dipole_scalar(rl[i], sl[i], al[i]) for i in range(N_LOOP)], N_LOOP, repeat=3)
     return {"vectorised_eval_per_s": vec, "python_loop_eval_per_s": loop, "ratio": vec / loop, "samples": N_VEC}
 

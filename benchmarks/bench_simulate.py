@@ -1,4 +1,6 @@
-"""Simulator speed (issue: embedded default): one default subject, the whole default population, a full-resolution subject.
+"""Simulator speed (issue: embedded default).
+
+One default subject, the whole default population, a full-resolution subject.
 
 Figures:
 
@@ -42,8 +44,12 @@ def bench_one_subject():
         cap = sim.simulate(pop[i])
         times.append(time.perf_counter() - t0)
     n = int(np.isfinite(cap.array("radiance")[..., 0]).sum())
-    return {"seconds_per_subject": float(np.median(times)), "setup_s": setup, "lumitexels": cap.n_lumitexels,
-            "samples": n}
+    return {
+        "seconds_per_subject": float(np.median(times)),
+        "setup_s": setup,
+        "lumitexels": cap.n_lumitexels,
+        "samples": n,
+    }
 
 
 def _simulate_many(ids):
@@ -111,4 +117,8 @@ def bench_full_resolution():
             shutil.rmtree(root, ignore_errors=True)
 
 
-BENCHMARKS = [("one_subject", bench_one_subject), ("population", bench_population), ("full_resolution", bench_full_resolution)]
+BENCHMARKS = [
+    ("one_subject", bench_one_subject),
+    ("population", bench_population),
+    ("full_resolution", bench_full_resolution),
+]

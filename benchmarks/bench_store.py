@@ -36,8 +36,7 @@ def _wall(args) -> float:
     times = []
     for _ in range(RUNS):
         t0 = time.perf_counter()
-        r = subprocess.run(_exe() + [str(a) for a in args], capture_output=True, text=True,
-                           stdin=subprocess.DEVNULL)
+        r = subprocess.run(_exe() + [str(a) for a in args], capture_output=True, text=True, stdin=subprocess.DEVNULL)
         times.append(time.perf_counter() - t0)
         if r.returncode not in (0, 1):
             raise RuntimeError(f"facestats {' '.join(map(str, args))} failed: {r.stderr}")
@@ -50,8 +49,9 @@ def _population():
     types = [2] * 14 + [3] * 67 + [4] * 48 + [5] * 15 + [6] * 5  # Weyrich Table 2 proportions
     types += [4] * (N_SUBJECTS - len(types))
     for k in range(N_SUBJECTS):
-        yield make_map_subject(f"S{k:03d}", size=MAP_SIZE, skin_type=types[k], gender="MF"[k % 4 == 0],
-                               age=20 + (k * 7) % 45, seed=k)
+        yield make_map_subject(
+            f"S{k:03d}", size=MAP_SIZE, skin_type=types[k], gender="MF"[k % 4 == 0], age=20 + (k * 7) % 45, seed=k
+        )
 
 
 def bench_query_cli():

@@ -28,7 +28,7 @@ def _modules():
         mod = importlib.util.module_from_spec(spec)
         sys.modules[path.stem] = mod
         spec.loader.exec_module(mod)
-        yield path.stem[len("bench_"):], mod
+        yield path.stem[len("bench_") :], mod
 
 
 def _fmt(v):

@@ -16,9 +16,8 @@ Heavy modules are imported lazily so the command line starts fast.
 
 from __future__ import annotations
 
+from facestats.core.version import __version__
 from facestats.errors import FacestatsError
-
-__version__ = "0.1.0"
 
 __all__ = ["FacestatsError", "__version__", "open_store"]
 

@@ -21,8 +21,12 @@ TARGET = np.array([*CCA_PRINCIPAL, CCA_DIRECT["skin_type"], CCA_DIRECT["gender"]
 
 def statistics(population):
     subjects = [s for s in population.subjects if s.condition == "normal"]
-    x = np.array([[v for r in range(1, 11) for v in (s.ts_rho_s[s.region_map == r].mean(), s.ts_m[s.region_map == r].mean())]
-                  for s in subjects])
+    x = np.array(
+        [
+            [v for r in range(1, 11) for v in (s.ts_rho_s[s.region_map == r].mean(), s.ts_m[s.region_map == r].mean())]
+            for s in subjects
+        ]
+    )
     y = np.array([[max(s.skin_type, 2), s.gender == "F", s.age] for s in subjects], float)
     return np.r_[cca(x, y).correlations[:2], [cca(x, y[:, [j]]).correlations[0] for j in range(3)]]
 
@@ -31,7 +35,9 @@ def main(seeds=6):
     rows = []
     for ks, kg, ka in itertools.product([0.013, 0.0145, 0.016], [0.009, 0.010, 0.011], [0.006, 0.007, 0.008]):
         pop.EFFECT_STRENGTH.update(skin_type=ks, gender=kg, age=ka)
-        vals = np.mean([statistics(pop.synthesize_population(seed=s, map_size=32, conditions=False)) for s in range(seeds)], 0)
+        vals = np.mean(
+            [statistics(pop.synthesize_population(seed=s, map_size=32, conditions=False)) for s in range(seeds)], 0
+        )
         rows.append((float(np.sqrt(np.mean((vals - TARGET) ** 2))), ks, kg, ka, vals.round(3)))
     for row in sorted(rows, key=lambda r: r[0])[:8]:
         print(row)

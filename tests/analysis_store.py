@@ -59,12 +59,24 @@ def make_population(n=40, seed=0, size=24, conditions=True):
         gender = "F" if rng.uniform() < 0.3 else "M"
         age = int(rng.integers(18, 66))
         shift = 0.02 * (st - 3) + 0.015 * (gender == "F") + 0.004 * rng.standard_normal()
-        ds = make_map_subject(f"S{i:03d}", size=size, skin_type=st, gender=gender, age=age, seed=seed * 1000 + i,
-                              rho_shift=shift)
+        ds = make_map_subject(
+            f"S{i:03d}", size=size, skin_type=st, gender=gender, age=age, seed=seed * 1000 + i, rho_shift=shift
+        )
         ds["site_sigma_tr"] = ds["site_sigma_tr"] * (1 + 0.04 * (st - 3))
         datasets.append(ds)
     if conditions:
         for j, cond in enumerate(CONDITIONS):
-            datasets.append(make_map_subject(f"C{j}", size=size, skin_type=3, gender="M", age=30, condition=cond,
-                                             seed=seed * 1000 + 900 + j, rho_shift=0.03 * j, person_id="P-cond"))
+            datasets.append(
+                make_map_subject(
+                    f"C{j}",
+                    size=size,
+                    skin_type=3,
+                    gender="M",
+                    age=30,
+                    condition=cond,
+                    seed=seed * 1000 + 900 + j,
+                    rho_shift=0.03 * j,
+                    person_id="P-cond",
+                )
+            )
     return MemoryStore(datasets)

@@ -21,5 +21,12 @@ def run_cli(*args, cwd=None, timeout=600, env=None):
     e = dict(os.environ, MPLBACKEND="Agg", PYTHONWARNINGS="ignore")
     if env:
         e.update(env)
-    return subprocess.run(facestats_exe() + [str(a) for a in args], cwd=cwd, capture_output=True, text=True,
-                          timeout=timeout, env=e, stdin=subprocess.DEVNULL)
+    return subprocess.run(
+        facestats_exe() + [str(a) for a in args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=e,
+        stdin=subprocess.DEVNULL,
+    )

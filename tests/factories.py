@@ -26,7 +26,17 @@ def region_map(size: int) -> np.ndarray:
     v, u = np.mgrid[0:size, 0:size] / (size - 1)
     face = ((u - 0.5) / 0.45) ** 2 + ((v - 0.5) / 0.48) ** 2 < 1
     reg = np.zeros((size, size), np.uint8)
-    bands = [(0.0, 0.25, 2), (0.25, 0.32, 3), (0.32, 0.4, 4), (0.4, 0.47, 5), (0.47, 0.62, 7), (0.62, 0.68, 1), (0.68, 0.76, 8), (0.76, 0.88, 9), (0.88, 1.01, 10)]
+    bands = [
+        (0.0, 0.25, 2),
+        (0.25, 0.32, 3),
+        (0.32, 0.4, 4),
+        (0.4, 0.47, 5),
+        (0.47, 0.62, 7),
+        (0.62, 0.68, 1),
+        (0.68, 0.76, 8),
+        (0.76, 0.88, 9),
+        (0.88, 1.01, 10),
+    ]
     for lo, hi, r in bands:
         reg[(v >= lo) & (v < hi)] = r
     reg[(np.abs(u - 0.5) < 0.08) & (v > 0.35) & (v < 0.62)] = 6
@@ -34,8 +44,18 @@ def region_map(size: int) -> np.ndarray:
     return reg
 
 
-def make_map_subject(subject_id="S000", *, size=24, skin_type=3, gender="M", age=25, condition="normal",
-                     seed=0, rho_shift=0.0, person_id=None):
+def make_map_subject(
+    subject_id="S000",
+    *,
+    size=24,
+    skin_type=3,
+    gender="M",
+    age=25,
+    condition="normal",
+    seed=0,
+    rho_shift=0.0,
+    person_id=None,
+):
     rng = np.random.default_rng(seed)
     reg = region_map(size)
     face = reg > 0
@@ -49,10 +69,14 @@ def make_map_subject(subject_id="S000", *, size=24, skin_type=3, gender="M", age
     flags = np.zeros((size, size), np.uint8)
     flags[0, 0] = 1
     fib = default_fiber_distances()
-    sigma_tr = np.array([[0.55, 0.98, 1.55], [0.54, 0.98, 1.55], [0.69, 1.25, 1.92]]) * (1 + 0.05 * rng.standard_normal((3, 3)))
+    sigma_tr = np.array([[0.55, 0.98, 1.55], [0.54, 0.98, 1.55], [0.69, 1.25, 1.92]]) * (
+        1 + 0.05 * rng.standard_normal((3, 3))
+    )
     alb_avg = albedo[face].mean(0).astype(np.float64)
     sp, sa = dipole.scattering_from_albedo(np.broadcast_to(alb_avg, (3, 3)), sigma_tr)
-    prof = np.stack([[dipole.dipole_profile(fib, sp[s, c], sa[s, c]) for c in range(3)] for s in range(3)], 0).transpose(0, 2, 1)
+    prof = np.stack(
+        [[dipole.dipole_profile(fib, sp[s, c], sa[s, c]) for c in range(3)] for s in range(3)], 0
+    ).transpose(0, 2, 1)
     sp0, sa0 = dipole.scattering_from_albedo(alb_avg, np.array([0.5508, 0.9791, 1.5497]))
     ds = xr.Dataset(
         {
@@ -108,7 +132,14 @@ def make_sample_subject(subject_id="M001", *, n_per_region=20, skin_type=3, gend
             "albedo_sample_region": (("albedo_sample",), reg),
         },
         coords={"channel": list(CHANNELS)},
-        attrs={"subject_id": subject_id, "person_id": subject_id, "age": int(age), "gender": gender,
-               "skin_type": int(skin_type), "condition": "normal", "provenance": json.dumps({"source": "tests"})},
+        attrs={
+            "subject_id": subject_id,
+            "person_id": subject_id,
+            "age": int(age),
+            "gender": gender,
+            "skin_type": int(skin_type),
+            "condition": "normal",
+            "provenance": json.dumps({"source": "tests"}),
+        },
     )
     return set_variable_attrs(ds)

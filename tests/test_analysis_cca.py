@@ -173,5 +173,10 @@ def test_brdf_cca_on_store():
     assert direct.loc["age", "p_value"] > 0.01  # R of a noise variable against 20 predictors is large but insignificant
     assert res.correlations[0] > 0.9 and res.permutation_p[0] < 0.01
     assert res.y_loadings[0, 0] > 0.9  # the first dimension is skin type, oriented positively
-    np.testing.assert_allclose(res.correlations, _direct_cca(normal[[f"ts_{p}_mean_r{r}" for r in range(1, 11) for p in ("rho_s", "m")]].to_numpy(),
-                                                             y.to_numpy()), atol=1e-8)
+    np.testing.assert_allclose(
+        res.correlations,
+        _direct_cca(
+            normal[[f"ts_{p}_mean_r{r}" for r in range(1, 11) for p in ("rho_s", "m")]].to_numpy(), y.to_numpy()
+        ),
+        atol=1e-8,
+    )

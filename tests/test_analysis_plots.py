@@ -61,8 +61,9 @@ def test_cca_figure(store, tmp_path):
     n_f = int(res.y_data["gender"].sum())
     sizes = [len(c.get_offsets()) for c in ax.collections]
     assert sorted(sizes) == sorted([n_f, res.n - n_f])
-    np.testing.assert_allclose(np.sort(np.concatenate([c.get_offsets()[:, 0] for c in ax.collections])),
-                               np.sort(res.projections[:, 0]))
+    np.testing.assert_allclose(
+        np.sort(np.concatenate([c.get_offsets()[:, 0] for c in ax.collections])), np.sort(res.projections[:, 0])
+    )
     assert f"{res.correlations[0]:.3f}" in ax.get_xlabel()
     # a single-dimension CCA plots X against Y variate
     one = fa.cca(res.projections[:, :2], res.y_data[["skin_type"]])

@@ -67,10 +67,12 @@ def test_block_move_samples_independent_gaussians():
     x = sampler.get_chain(discard=300, thin=5, flat=True)
     ess = x.shape[0] * 5 / tau.max()
     for k in range(3):
-        xb = x[:, 2 * k:2 * k + 2]
+        xb = x[:, 2 * k : 2 * k + 2]
         se = np.sqrt(np.diag(covs[k]) / ess)
         np.testing.assert_array_less(np.abs(xb.mean(0) - means[k]), 5 * se)
-        np.testing.assert_allclose(np.cov(xb.T), covs[k], rtol=0.1, atol=0.05 * np.sqrt(np.outer(np.diag(covs[k]), np.diag(covs[k]))).max())
+        np.testing.assert_allclose(
+            np.cov(xb.T), covs[k], rtol=0.1, atol=0.05 * np.sqrt(np.outer(np.diag(covs[k]), np.diag(covs[k]))).max()
+        )
     cross = np.corrcoef(x.T)[0:2, 2:6]
     assert np.abs(cross).max() < 0.1  # blocks do not talk to each other
     acc = move.accepted.mean(0) / move.n_proposals
@@ -91,7 +93,9 @@ def test_one_profile_three_channels():
     np.testing.assert_allclose(d["ess_sigma_a"], post.n_walkers * (post.n_steps - d["burn_in"]) / d["tau_sigma_a"])
     for c, ch in enumerate("RGB"):
         s = post.samples[ch]
-        np.testing.assert_allclose(s["sigma_tr"], np.sqrt(3 * s["sigma_a"] * (s["sigma_a"] + s["sigma_s_prime"])), rtol=1e-12)
+        np.testing.assert_allclose(
+            s["sigma_tr"], np.sqrt(3 * s["sigma_a"] * (s["sigma_a"] + s["sigma_s_prime"])), rtol=1e-12
+        )
         np.testing.assert_allclose(s["ell_d"] * s["sigma_tr"], 1.0, rtol=1e-12)
         row = post.summary.loc[(ch, "sigma_s_prime")]
         assert row["lo"] < row["median"] < row["hi"]
@@ -130,10 +134,12 @@ def test_log_posterior_is_the_gaussian_likelihood_of_the_noise_model():
     got = post.blocks(theta)
     for i in range(6):
         for k in range(2):
-            s, a = np.exp(theta[i, 2 * k:2 * k + 2])
+            s, a = np.exp(theta[i, 2 * k : 2 * k + 2])
             mu = dipole.dipole_profile(R, s, a)
             m = mask[:, k]
-            want = stats.norm.logpdf(measured[m, k], mu[m], SENSOR.profile_std(mu)[m]).sum() + 0.5 * m.sum() * np.log(2 * np.pi)
+            want = stats.norm.logpdf(measured[m, k], mu[m], SENSOR.profile_std(mu)[m]).sum() + 0.5 * m.sum() * np.log(
+                2 * np.pi
+            )
             if i == 5 and k == 1:
                 assert got[i, k] == -np.inf
             else:
@@ -225,8 +231,11 @@ def test_population_hierarchical_model_against_mcmc_of_the_full_joint():
         return lp + log_tau  # flat prior on τ: Jacobian of τ = exp(log τ)
 
     rng = np.random.default_rng(0)
-    start = np.c_[ybar + 0.01 * rng.standard_normal((48, 5)), ybar.mean() + 0.01 * rng.standard_normal(48),
-                  np.log(0.05) + 0.1 * rng.standard_normal(48)]
+    start = np.c_[
+        ybar + 0.01 * rng.standard_normal((48, 5)),
+        ybar.mean() + 0.01 * rng.standard_normal(48),
+        np.log(0.05) + 0.1 * rng.standard_normal(48),
+    ]
     sampler = emcee.EnsembleSampler(48, 7, log_prob, vectorize=True)
     sampler.random_state = np.random.RandomState(3).get_state()
     sampler.run_mcmc(start, 6000)

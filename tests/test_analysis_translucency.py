@@ -6,8 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from facestats.core import published
 from facestats.analysis import absorption_scattering, translucency_table
+from facestats.core import published
 from facestats.core.conventions import CHANNELS, SITES
 from facestats.errors import ValidationError
 from facestats.model import dipole
@@ -34,7 +34,9 @@ def test_table_against_datasets(store):
         np.testing.assert_allclose(t.var(site), vals.var(0, ddof=1), rtol=1e-10)
         np.testing.assert_allclose(t.table[(site, "std")], vals.std(0, ddof=1), rtol=1e-10)
         assert (t.table[(site, "n")] == len(vals)).all()
-    assert translucency_table(store, ddof=0).var("neck") == pytest.approx(_site_values(store, "neck")[1].var(0), rel=1e-10)
+    assert translucency_table(store, ddof=0).var("neck") == pytest.approx(
+        _site_values(store, "neck")[1].var(0), rel=1e-10
+    )
 
 
 def test_sigma_tr_avg_and_ell_d_extremes(store):
@@ -113,6 +115,8 @@ def test_absorption_scattering_fig14(store):
     assert red.loc[6] > red.loc[2]
     site = absorption_scattering(store, site="cheek")
     assert site.site == "cheek"
-    np.testing.assert_allclose(site.data.query("channel == 'B'")["sigma_a"].to_numpy(), normal["site_sigma_a_cheek_B"].to_numpy())
+    np.testing.assert_allclose(
+        site.data.query("channel == 'B'")["sigma_a"].to_numpy(), normal["site_sigma_a_cheek_B"].to_numpy()
+    )
     with pytest.raises(ValidationError, match="site"):
         absorption_scattering(store, site="elbow")

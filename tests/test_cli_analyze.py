@@ -176,8 +176,20 @@ def test_conditions_blinn_phong_svg(tmp_path, store):
 
 
 def test_posterior_matches_the_api(tmp_path, store):
-    r = run_cli("analyze", "posterior", "--subject", "S001", "--site", "forehead", "--seed", "3", "--format", "svg",
-                "--out", tmp_path)
+    r = run_cli(
+        "analyze",
+        "posterior",
+        "--subject",
+        "S001",
+        "--site",
+        "forehead",
+        "--seed",
+        "3",
+        "--format",
+        "svg",
+        "--out",
+        tmp_path,
+    )
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "posterior.svg").stat().st_size > 20_000
     doc = _doc(tmp_path, "posterior")
@@ -221,15 +233,20 @@ def test_posterior_defaults_and_population(tmp_path, store):
     assert doc["hyper"]["G"]["mu_median"] == pytest.approx(res.hyper.loc["G", "mu_median"], rel=1e-12)
 
 
-@pytest.mark.parametrize("args, message", [
-    (("posterior", "--subject", "nobody"), "no subject 'nobody'"),
-    (("posterior", "--subject", "S001", "--site", "ear"),
-     "site must be one of ['cheek', 'forehead', 'neck'], got 'ear'"),
-    (("scatter", "--site", "ear"), "site must be one of"),
-    (("posterior", "--population", "--subject", "S001"), "posterior --population takes no --subject or --site"),
-    (("cca", "--permutations", "-1"), "--permutations must be >= 0, got -1"),
-    (("pca", "--store", "/no/such/store.zarr"), "store /no/such/store.zarr does not exist"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (("posterior", "--subject", "nobody"), "no subject 'nobody'"),
+        (
+            ("posterior", "--subject", "S001", "--site", "ear"),
+            "site must be one of ['cheek', 'forehead', 'neck'], got 'ear'",
+        ),
+        (("scatter", "--site", "ear"), "site must be one of"),
+        (("posterior", "--population", "--subject", "S001"), "posterior --population takes no --subject or --site"),
+        (("cca", "--permutations", "-1"), "--permutations must be >= 0, got -1"),
+        (("pca", "--store", "/no/such/store.zarr"), "store /no/such/store.zarr does not exist"),
+    ],
+)
 def test_errors_exit_2_with_a_message(tmp_path, args, message):
     r = run_cli("analyze", *args, "--out", tmp_path)
     assert r.returncode == 2
@@ -250,9 +267,14 @@ def test_bad_out_and_format(tmp_path):
 def test_store_without_condition_series(tmp_path):
     path = tmp_path / "small.zarr"
     with open_store(path, mode="a") as st:
-        st.write_subjects([make_map_subject(f"P{k}", skin_type=t, gender=g, age=a, seed=k)
-                           for k, (t, g, a) in enumerate([(2, "F", 25), (3, "M", 31), (4, "M", 45), (5, "F", 52),
-                                                          (3, "M", 23), (6, "M", 38)])])
+        st.write_subjects(
+            [
+                make_map_subject(f"P{k}", skin_type=t, gender=g, age=a, seed=k)
+                for k, (t, g, a) in enumerate(
+                    [(2, "F", 25), (3, "M", 31), (4, "M", 45), (5, "F", 52), (3, "M", 23), (6, "M", 38)]
+                )
+            ]
+        )
     r = run_cli("analyze", "conditions", "--store", path, "--out", tmp_path / "c")
     assert r.returncode == 2 and "another condition" in r.stderr
     r = run_cli("analyze", "all", "--store", path, "--permutations", "0", "--out", tmp_path / "all")

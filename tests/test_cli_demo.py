@@ -17,7 +17,7 @@ def test_version_and_help():
 
 def _row(text, name):
     line = next(l for l in text.splitlines() if l.startswith(name))
-    return np.array([float(x) for x in re.findall(r"-?\d+\.\d+", line[len(name):])][:3])
+    return np.array([float(x) for x in re.findall(r"-?\d+\.\d+", line[len(name) :])][:3])
 
 
 def test_demo_prints_consistent_parameters_and_writes_plot(tmp_path):

@@ -19,13 +19,16 @@ def pop(tmp_path_factory):
     """A small directory store: a type III face, two type V faces, a lotion record."""
     path = tmp_path_factory.mktemp("cli_edit") / "pop.zarr"
     with open_store(path, mode="a") as st:
-        st.write_subjects([
-            make_map_subject("F3", size=SIZE, skin_type=3, seed=1),
-            make_map_subject("F5a", size=SIZE, skin_type=5, seed=2, rho_shift=0.06),
-            make_map_subject("F5b", size=SIZE, skin_type=5, seed=3, rho_shift=0.07),
-            make_map_subject("F3-lotion", size=SIZE, skin_type=3, seed=4, condition="lotion", rho_shift=0.1,
-                             person_id="F3"),
-        ])
+        st.write_subjects(
+            [
+                make_map_subject("F3", size=SIZE, skin_type=3, seed=1),
+                make_map_subject("F5a", size=SIZE, skin_type=5, seed=2, rho_shift=0.06),
+                make_map_subject("F5b", size=SIZE, skin_type=5, seed=3, rho_shift=0.07),
+                make_map_subject(
+                    "F3-lotion", size=SIZE, skin_type=3, seed=4, condition="lotion", rho_shift=0.1, person_id="F3"
+                ),
+            ]
+        )
     return path
 
 
@@ -62,8 +65,21 @@ def test_skin_type_writes_a_new_subject_and_images(pop, tmp_path):
 
 def test_brdf_lotion_half_way_from_the_default_store(tmp_path):
     out = tmp_path / "edits.zarr"
-    r = run_cli("edit", "brdf", "P150-normal", "--condition", "lotion", "--t", "0.5", "--out-store", out,
-                "--id", "P150-half-lotion", "--images", tmp_path)
+    r = run_cli(
+        "edit",
+        "brdf",
+        "P150-normal",
+        "--condition",
+        "lotion",
+        "--t",
+        "0.5",
+        "--out-store",
+        out,
+        "--id",
+        "P150-half-lotion",
+        "--images",
+        tmp_path,
+    )
     assert r.returncode == 0, r.stderr
     assert _new_id(r.stdout) == "P150-half-lotion" and "target: 1 subject(s): P150-lotion" in r.stdout
     with open_store(out) as st:

@@ -15,8 +15,14 @@ from .cli_helpers import run_cli
 from .factories import make_map_subject, make_sample_subject
 from .test_merl import merl_dict
 
-POP = [("P1", 4, "M", 24), ("P2", 4, "F", 35), ("P3", 4, "M", 52), ("P4", 3, "M", 28), ("P5", 2, "F", 41),
-       ("P6", 1, "M", 22)]
+POP = [
+    ("P1", 4, "M", 24),
+    ("P2", 4, "F", 35),
+    ("P3", 4, "M", 52),
+    ("P4", 3, "M", 28),
+    ("P5", 2, "F", 41),
+    ("P6", 1, "M", 22),
+]
 
 
 @pytest.fixture(scope="module")
@@ -24,8 +30,10 @@ def stores(tmp_path_factory):
     root = tmp_path_factory.mktemp("cli")
     path = root / "pop.zarr"
     with open_store(path, mode="a") as st:
-        st.write_subjects([make_map_subject(s, skin_type=t, gender=g, age=a, seed=k)
-                           for k, (s, t, g, a) in enumerate(POP)] + [make_sample_subject("M1", skin_type=4)])
+        st.write_subjects(
+            [make_map_subject(s, skin_type=t, gender=g, age=a, seed=k) for k, (s, t, g, a) in enumerate(POP)]
+            + [make_sample_subject("M1", skin_type=4)]
+        )
     return path, pack_store(path, root / "pop.zip")
 
 
@@ -41,8 +49,9 @@ def test_query_table(stores):
 
 
 def test_query_json_matches_the_api(stores):
-    r = run_cli("query", "--skin-type", "4", "--gender", "M", "--age", "20-60", "--store", stores[1],
-                "--format", "json")
+    r = run_cli(
+        "query", "--skin-type", "4", "--gender", "M", "--age", "20-60", "--store", stores[1], "--format", "json"
+    )
     assert r.returncode == 0, r.stderr
     doc = json.loads(r.stdout)
     with open_store(stores[1]) as st:
@@ -75,11 +84,13 @@ def test_query_no_match_and_bad_values(stores):
     assert r.returncode == 1 and "no subject matches" in r.stdout
     r = run_cli("query", "--skin-type", "VI", "--store", stores[1], "--format", "json")
     assert r.returncode == 1 and json.loads(r.stdout)["count"] == 0
-    for args, msg in ((("--skin-type", "VII"), "skin type must be I-VI or 1-6, got 'VII'"),
-                      (("--gender", "X"), "gender must be M or F"),
-                      (("--age", "old"), "age must be 20s, 30s, 40s, 50s+, MIN-MAX"),
-                      (("--condition", "wet"), "condition must be one of"),
-                      (("--region", "ear"), "region must be 1-10")):
+    for args, msg in (
+        (("--skin-type", "VII"), "skin type must be I-VI or 1-6, got 'VII'"),
+        (("--gender", "X"), "gender must be M or F"),
+        (("--age", "old"), "age must be 20s, 30s, 40s, 50s+, MIN-MAX"),
+        (("--condition", "wet"), "condition must be one of"),
+        (("--region", "ear"), "region must be 1-10"),
+    ):
         r = run_cli("query", *args, "--store", stores[1])
         assert r.returncode == 2 and r.stderr.startswith("facestats: error: ") and msg in r.stderr, r.stderr
     r = run_cli("query", "--store", stores[0].parent / "nope.zarr")

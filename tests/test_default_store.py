@@ -8,9 +8,9 @@ import pytest
 
 import facestats
 from facestats.core import published
-from facestats.pipeline.build import DEFAULT_MAP_SIZE, DEFAULT_SEED, build_store
 from facestats.io.schema import SCHEMA_VERSION
 from facestats.io.store import default_store_path
+from facestats.pipeline.build import DEFAULT_MAP_SIZE, DEFAULT_SEED, build_store
 
 
 @pytest.fixture(scope="module")
@@ -60,8 +60,14 @@ def _compare(a, b):
 @pytest.mark.slow
 def test_regeneration_equals_what_ships(tmp_path, shipped):
     """`facestats build --default` = build_store(seed, size, no micro-normals, no derived maps) + pack."""
-    report = build_store(tmp_path / "regen.zarr", seed=DEFAULT_SEED, map_size=DEFAULT_MAP_SIZE, micro_normals=False,
-                         keep_derived=False, workers=min(2, os.cpu_count() or 1))
+    report = build_store(
+        tmp_path / "regen.zarr",
+        seed=DEFAULT_SEED,
+        map_size=DEFAULT_MAP_SIZE,
+        micro_normals=False,
+        keep_derived=False,
+        workers=min(2, os.cpu_count() or 1),
+    )
     assert len(report.written) == len(shipped)
     regen = facestats.open_store(tmp_path / "regen.zarr")
     for sid in shipped.ids():

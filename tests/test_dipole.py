@@ -15,9 +15,13 @@ def test_profile_positive_and_decreasing():
         assert np.all(np.diff(p) < 0)
 
 
-@pytest.mark.parametrize("s,a,eta", [(0.74, 0.032, 1.3), (2.29, 0.003, 1.3), (1.69, 0.17, 1.38), (1.0, 1.0, 1.38), (3.0, 0.5, 1.5)])
+@pytest.mark.parametrize(
+    "s,a,eta", [(0.74, 0.032, 1.3), (2.29, 0.003, 1.3), (1.69, 0.17, 1.38), (1.0, 1.0, 1.38), (3.0, 0.5, 1.5)]
+)
 def test_numerical_integral_equals_total_reflectance(s, a, eta):
-    num, _ = quad(lambda r: 2 * np.pi * r * dipole.dipole_profile(r, s, a, eta), 0, np.inf, epsabs=1e-14, epsrel=1e-12, limit=500)
+    num, _ = quad(
+        lambda r: 2 * np.pi * r * dipole.dipole_profile(r, s, a, eta), 0, np.inf, epsabs=1e-14, epsrel=1e-12, limit=500
+    )
     assert num == pytest.approx(float(dipole.total_diffuse_reflectance(s, a, eta)), abs=1e-8)
     assert float(dipole.dipole_radial_energy(np.inf, s, a, eta)) == pytest.approx(num, abs=1e-8)
 
@@ -115,4 +119,6 @@ def test_boundary_coefficient_matches_fresnel_and_validates():
         dipole.boundary_coefficient(0.9)
     with pytest.raises(FacestatsError, match="radius must be a number of mm"):
         dipole.dipole_radial_energy(np.nan, 1.0, 0.1)
-    assert dipole.dipole_radial_energy(np.inf, 1.0, 0.1) == pytest.approx(dipole.total_diffuse_reflectance(1.0, 0.1), rel=1e-12)
+    assert dipole.dipole_radial_energy(np.inf, 1.0, 0.1) == pytest.approx(
+        dipole.total_diffuse_reflectance(1.0, 0.1), rel=1e-12
+    )

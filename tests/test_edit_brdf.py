@@ -49,10 +49,12 @@ def test_rank_dependence_of_rho_s_and_m_is_kept(faces):
         sel = regions == r
         # Marginals matched independently by increasing maps: each parameter's ranks, hence the
         # Spearman correlation of (rho_s, m) inside the region, are the source's.
-        np.testing.assert_array_equal(np.argsort(out["rho_s"][sel], kind="stable"),
-                                      np.argsort(s["rho_s"][sel], kind="stable"))
+        np.testing.assert_array_equal(
+            np.argsort(out["rho_s"][sel], kind="stable"), np.argsort(s["rho_s"][sel], kind="stable")
+        )
         assert _spearman(out["rho_s"][sel], out["m"][sel]) == pytest.approx(
-            _spearman(s["rho_s"][sel], s["m"][sel]), abs=1e-12)
+            _spearman(s["rho_s"][sel], s["m"][sel]), abs=1e-12
+        )
 
 
 def test_interpolation_endpoints_and_monotone_in_t(faces):

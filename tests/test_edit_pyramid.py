@@ -62,7 +62,7 @@ def test_orientation_selectivity():
     pyr = SteerablePyramid(img.shape, 4, 4, dtype=np.float64)
     bands = pyr.decompose(img)
     energy = np.array([np.mean(b**2) for b in bands])
-    level1 = energy[1 + 4 * 1: 1 + 4 * 2]
+    level1 = energy[1 + 4 * 1 : 1 + 4 * 2]
     assert np.argmax(energy) == 1 + 4 * 1  # level 1, orientation 0
     assert level1[2] < 1e-20 * level1[0]
     # The two diagonal filters see cos⁶(π/4) = 1/8 of the energy of orientation 0.

@@ -1,6 +1,5 @@
 """Store-level appearance edits (Weyrich et al. 2006 §8): new subjects with provenance, never the source."""
 
-import json
 
 import numpy as np
 import pytest
@@ -41,8 +40,9 @@ SUBSET_V = ["V1", "V2"]
 def _subjects():
     out = {}
     for sid, st, cond, seed, shift, person in POP:
-        out[sid] = make_map_subject(sid, size=SIZE, skin_type=st, condition=cond, seed=seed, rho_shift=shift,
-                                    person_id=person)
+        out[sid] = make_map_subject(
+            sid, size=SIZE, skin_type=st, condition=cond, seed=seed, rho_shift=shift, person_id=person
+        )
     # An earlier edit of type V with wild values: subsets must never include it.
     e = make_map_subject("E1", size=SIZE, skin_type=5, seed=9, rho_shift=0.5)
     e["albedo"] = e["albedo"] * 0.2
@@ -239,8 +239,9 @@ def test_brdf_transfer_from_a_subject_in_some_regions(store, pop):
     for var in ("ts_rho_s", "ts_m"):
         np.testing.assert_array_equal(e.dataset[var].values[~inside], src[var].values[~inside])
         for r in (2, 7):  # equal region sizes, one flagged texel outside: exactly V1's unflagged values
-            np.testing.assert_allclose(np.sort(e.dataset[var].values[reg == r]),
-                                       np.sort(_pooled(subjects, ["V1"], var, r)), rtol=1e-6)
+            np.testing.assert_allclose(
+                np.sort(e.dataset[var].values[reg == r]), np.sort(_pooled(subjects, ["V1"], var, r)), rtol=1e-6
+            )
 
 
 def test_colour_transfer_within_a_region(store, pop):
@@ -272,8 +273,7 @@ def test_texture_transfer_in_regions_is_deterministic_and_leaves_the_outside(sto
     assert p["parameters"]["seed"] == 11 and p["parameters"]["regions"] == [2, 6, 7]
     assert p["parameters"]["levels"] == 2  # the most a 24 x 24 map supports
     assert a.texture.distance.shape == (3,) and p["final_distance"] == pytest.approx(a.texture.distance[-1])
-    assert a.dataset["albedo_avg"].values == pytest.approx(
-        np.clip(sa[reg > 0], 1e-4, 1 - 1e-4).mean(0), rel=1e-6)
+    assert a.dataset["albedo_avg"].values == pytest.approx(np.clip(sa[reg > 0], 1e-4, 1 - 1e-4).mean(0), rel=1e-6)
 
 
 def test_texture_from_saved_statistics(store, pop, tmp_path):
@@ -289,8 +289,9 @@ def test_texture_from_saved_statistics(store, pop, tmp_path):
     c = transfer_colour_subject(store, "A2", stats, regions=[7], new_id="A2-colour-stats")
     cheek = pop[1]["A2"]["region"].values == 7
     v1 = pop[1]["V1"]
-    np.testing.assert_allclose(c.dataset["albedo"].values[cheek].mean(0),
-                               v1["albedo"].values[v1["region"].values == 7].mean(0), rtol=0.01)
+    np.testing.assert_allclose(
+        c.dataset["albedo"].values[cheek].mean(0), v1["albedo"].values[v1["region"].values == 7].mean(0), rtol=0.01
+    )
     assert c.targets == () and c.edit["target"] == e3.edit["target"]
     with pytest.raises(StoreError, match="neither a subject of store"):
         transfer_texture_subject(store, "A2", str(tmp_path / "missing.npz"))
@@ -356,8 +357,13 @@ def test_default_store_is_read_only_and_edits_go_to_another_store(tmp_path):
     files = save_edit_images(e, tmp_path / "img")
     names = {f.name for f in files}
     sid = e.subject_id
-    assert {f"{sid}_albedo_before.png", f"{sid}_albedo_after.png", f"{sid}_ts_m_after.png",
-            f"{sid}_bp_exponent_before.png", f"{sid}_summary.png"} <= names
+    assert {
+        f"{sid}_albedo_before.png",
+        f"{sid}_albedo_after.png",
+        f"{sid}_ts_m_after.png",
+        f"{sid}_bp_exponent_before.png",
+        f"{sid}_summary.png",
+    } <= names
     img = imread(tmp_path / "img" / f"{sid}_albedo_before.png")[..., :3]
     assert img.shape == (288, 288, 3)  # 48 x 6
     expect = np.clip(colour.cctf_encoding(np.clip(src["albedo"].values.astype(np.float64), 0, 1)), 0, 1)

@@ -52,7 +52,7 @@ def test_statistics_layout_23808():
     np.testing.assert_allclose(blocks.sum(axis=-1), 1.0, rtol=1e-12)
     # Documented order: element (c * 31 + b) * 256 + k is bin k of band b of channel c.
     c, b = 2, 1 + 4 * 5 + 3  # channel 2, level 5 orientation 3
-    np.testing.assert_array_equal(v[(c * 31 + b) * 256:(c * 31 + b + 1) * 256], st.histogram(c, b).pdf)
+    np.testing.assert_array_equal(v[(c * 31 + b) * 256 : (c * 31 + b + 1) * 256], st.histogram(c, b).pdf)
     # Band 0 is the histogram of the decorrelated image itself (an independent computation).
     planes = st.basis.to_decorrelated(img)
     for ch in range(3):
@@ -105,8 +105,9 @@ def test_transfer_moves_statistics_to_target(images):
     # target texture is, and far closer than the source.
     def fine_distance(img):
         st = TextureStatistics.from_image(img, levels=4, basis=target.basis)
-        return np.mean([histogram_distance(st.histogram(c, b), target.histogram(c, b))
-                        for c in range(3) for b in range(1, 10)])
+        return np.mean(
+            [histogram_distance(st.histogram(c, b), target.histogram(c, b)) for c in range(3) for b in range(1, 10)]
+        )
 
     d_res, d_src, d_floor = fine_distance(res.albedo), fine_distance(src), fine_distance(tgt2)
     assert d_src > 0.5
@@ -193,8 +194,9 @@ def test_transfer_colour_changes_skin_type(images):
     np.testing.assert_allclose(out.reshape(-1, 3).std(0), dark.reshape(-1, 3).std(0), rtol=0.05)
     np.testing.assert_array_equal(transfer_colour(src, dark, t=0.0), src)
     half = transfer_colour(src, dark, t=0.5)
-    np.testing.assert_allclose(half.reshape(-1, 3).mean(0),
-                               0.5 * (src.reshape(-1, 3).mean(0) + dark.reshape(-1, 3).mean(0)), rtol=0.01)
+    np.testing.assert_allclose(
+        half.reshape(-1, 3).mean(0), 0.5 * (src.reshape(-1, 3).mean(0) + dark.reshape(-1, 3).mean(0)), rtol=0.01
+    )
     mask = np.zeros(src.shape[:2], bool)
     mask[20:90, 30:100] = True
     part = transfer_colour(src, dark, mask)

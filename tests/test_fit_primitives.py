@@ -114,8 +114,12 @@ def test_lobe_moments_match_direct_sums_and_finite_differences(rng, model):
     syg, sgg, sydg, sgdg, sdgdg = _moments(model, q, sums)
     g = g_of(q)
     h = 1e-6
-    dg = np.concatenate([(g_of(q + h * np.eye(3)[i]) - g_of(q - h * np.eye(3)[i]))[starts[i] : starts[i] + counts[i]] / (2 * h)
-                         for i in range(3)])
+    dg = np.concatenate(
+        [
+            (g_of(q + h * np.eye(3)[i]) - g_of(q - h * np.eye(3)[i]))[starts[i] : starts[i] + counts[i]] / (2 * h)
+            for i in range(3)
+        ]
+    )
 
     def per_texel(x):
         return np.add.reduceat(x, starts)
@@ -224,8 +228,9 @@ def test_batch_fit_converges_as_close_as_a_tight_tolerance(rng):
     from facestats.model.fitting import fit_specular_samples
 
     for model in ("torrance_sparrow", "blinn_phong"):
-        samples, normal, f_s, use, _, _ = _specular_problem(rng, noise=0.01 if model == "torrance_sparrow" else 0.002,
-                                                            model=model)
+        samples, normal, f_s, use, _, _ = _specular_problem(
+            rng, noise=0.01 if model == "torrance_sparrow" else 0.002, model=model
+        )
         fit = fit_specular_samples(samples, normal, f_s, use, model)
         tight = fit_specular_samples(samples, normal, f_s, use, model, tol=1e-13, max_iter=400)
         ok = (fit.flags == 0) & (tight.flags == 0)

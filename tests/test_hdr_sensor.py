@@ -76,4 +76,3 @@ def test_invalid_inputs_name_the_argument(rng):
         CameraResponse(full_well=0.0)
     with pytest.raises(FacestatsError, match=r"profile must have shape \(\.\.\., 28, 3\)"):
         ContactSensor().capture(np.ones((27, 3)), rng)
-

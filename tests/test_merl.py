@@ -100,8 +100,11 @@ def test_liberal_shapes_and_codes(tmp_path):
             np.testing.assert_array_equal(x[name].values, y[name].values)
         for key in ("age", "gender", "skin_type"):
             assert x.attrs[key] == y.attrs[key]
-    for gen in (np.array(["male", "female", "m", "F"], dtype=object), np.array(["M", "F", "M", "F"]),
-                np.array([[0, 1, 0, 1]])):
+    for gen in (
+        np.array(["male", "female", "m", "F"], dtype=object),
+        np.array(["M", "F", "M", "F"]),
+        np.array([[0, 1, 0, 1]]),
+    ):
         d2 = dict(base, subj_gen=gen)
         assert [ds.attrs["gender"] for ds in read_merl(save(tmp_path, d2)).datasets] == ["M", "F", "M", "F"]
 
@@ -132,28 +135,34 @@ def test_subject_without_samples_is_imported_and_reported(tmp_path):
         assert st.query(age="50s+").subject_ids == ("merl-005",)
 
 
-@pytest.mark.parametrize("change, pattern", [
-    (lambda d: d["ts"].__setitem__((2, 0), -0.1), r"ts row 3: m \(column 0\) must be > 0, got -0.1"),
-    (lambda d: d["ts"].__setitem__((5, 1), -1.0), r"ts row 6: rho_s \(column 1\) must be >= 0, got -1"),
-    (lambda d: d["ts"].__setitem__((7, 1), np.nan), r"ts row 8 must be finite"),
-    (lambda d: d["ts_region"].__setitem__((9, 0), 11), r"ts_region\[10\] must be a region 1-10, got 11"),
-    (lambda d: d["ts_subjec"].__setitem__((4, 0), 5), r"ts_subjec\[5\] must be a subject index 1-4, got 5"),
-    (lambda d: d["ts_subjec"].__setitem__((4, 0), 1.5), r"ts_subjec\[5\] must be a subject index 1-4, got 1.5"),
-    (lambda d: d["albedo"].__setitem__((3, 2), 1.2), r"albedo row 4 must lie in \[0, 1\]"),
-    (lambda d: d.__setitem__("albedo", d["albedo"][:, :2]), r"albedo must be a K×1/3 table, got shape \(120, 2\)"),
-    (lambda d: d.__setitem__("ts_region", d["ts_region"][:-1]), r"ts_region must have 200 entries, got 199"),
-    (lambda d: d.__setitem__("ts", d["ts"][:, :1]), r"ts must be a K×2 table"),
-    (lambda d: d.pop("ts_subjec"), r"missing key 'ts_subjec'"),
-    (lambda d: d.pop("albedo_region"), r"albedo data need all of"),
-    (lambda d: d.__setitem__("subj_gen", np.array([[0], [1], [2], [0]])), r"subj_gen\[3\] must be 0/1, M/F"),
-    (lambda d: d.__setitem__("subj_gen", "MFXF"), r"subj_gen\[3\] .* got 'X'"),
-    (lambda d: d.__setitem__("subj_skintype", np.array([[2], [3], [7], [4]])), r"subj_skintype\[3\] must be"),
-    (lambda d: d.__setitem__("subj_age", np.array([[20], [30.5], [40], [50]])), r"subj_age\[2\] must be an integer age"),
-    (lambda d: d.__setitem__("subj_age", np.array([[20], [30], [40]])), r"subj_age must have 4 entries, got 3"),
-    (lambda d: d.__setitem__("s_count", np.array([[0]])), r"s_count must be one positive integer"),
-    (lambda d: d.__setitem__("s_count", np.array([[4, 4]])), r"s_count must be one positive integer"),
-    (lambda d: d.__setitem__("subj_age", np.ones((2, 2))), r"subj_age must be a vector"),
-])
+@pytest.mark.parametrize(
+    "change, pattern",
+    [
+        (lambda d: d["ts"].__setitem__((2, 0), -0.1), r"ts row 3: m \(column 0\) must be > 0, got -0.1"),
+        (lambda d: d["ts"].__setitem__((5, 1), -1.0), r"ts row 6: rho_s \(column 1\) must be >= 0, got -1"),
+        (lambda d: d["ts"].__setitem__((7, 1), np.nan), r"ts row 8 must be finite"),
+        (lambda d: d["ts_region"].__setitem__((9, 0), 11), r"ts_region\[10\] must be a region 1-10, got 11"),
+        (lambda d: d["ts_subjec"].__setitem__((4, 0), 5), r"ts_subjec\[5\] must be a subject index 1-4, got 5"),
+        (lambda d: d["ts_subjec"].__setitem__((4, 0), 1.5), r"ts_subjec\[5\] must be a subject index 1-4, got 1.5"),
+        (lambda d: d["albedo"].__setitem__((3, 2), 1.2), r"albedo row 4 must lie in \[0, 1\]"),
+        (lambda d: d.__setitem__("albedo", d["albedo"][:, :2]), r"albedo must be a K×1/3 table, got shape \(120, 2\)"),
+        (lambda d: d.__setitem__("ts_region", d["ts_region"][:-1]), r"ts_region must have 200 entries, got 199"),
+        (lambda d: d.__setitem__("ts", d["ts"][:, :1]), r"ts must be a K×2 table"),
+        (lambda d: d.pop("ts_subjec"), r"missing key 'ts_subjec'"),
+        (lambda d: d.pop("albedo_region"), r"albedo data need all of"),
+        (lambda d: d.__setitem__("subj_gen", np.array([[0], [1], [2], [0]])), r"subj_gen\[3\] must be 0/1, M/F"),
+        (lambda d: d.__setitem__("subj_gen", "MFXF"), r"subj_gen\[3\] .* got 'X'"),
+        (lambda d: d.__setitem__("subj_skintype", np.array([[2], [3], [7], [4]])), r"subj_skintype\[3\] must be"),
+        (
+            lambda d: d.__setitem__("subj_age", np.array([[20], [30.5], [40], [50]])),
+            r"subj_age\[2\] must be an integer age",
+        ),
+        (lambda d: d.__setitem__("subj_age", np.array([[20], [30], [40]])), r"subj_age must have 4 entries, got 3"),
+        (lambda d: d.__setitem__("s_count", np.array([[0]])), r"s_count must be one positive integer"),
+        (lambda d: d.__setitem__("s_count", np.array([[4, 4]])), r"s_count must be one positive integer"),
+        (lambda d: d.__setitem__("subj_age", np.ones((2, 2))), r"subj_age must be a vector"),
+    ],
+)
 def test_bad_values_are_named(tmp_path, change, pattern):
     d = merl_dict()
     change(d)

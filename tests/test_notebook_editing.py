@@ -7,8 +7,14 @@ from .notebook_helpers import NOTEBOOKS, assert_no_errors, cell_text, execute, r
 NOTEBOOK = NOTEBOOKS / "appearance_editing.ipynb"
 
 #: Cells (by tag) that must display a figure.
-FIGURES = ("freckles-figure", "freckles-before-after", "skin-type", "skin-type-means", "lotion-histograms",
-           "lotion-before-after")
+FIGURES = (
+    "freckles-figure",
+    "freckles-before-after",
+    "skin-type",
+    "skin-type-means",
+    "lotion-histograms",
+    "lotion-before-after",
+)
 
 
 @pytest.fixture(scope="module")
@@ -41,8 +47,11 @@ def test_edits_and_their_provenance_are_shown(executed):
     from facestats.edit import select_subjects
 
     nb, _ = executed
-    freckled = [s.subject_id for s in default_population().subjects
-                if s.features.get("freckles") and s.skin_type == 3 and s.condition == "normal"]
+    freckled = [
+        s.subject_id
+        for s in default_population().subjects
+        if s.features.get("freckles") and s.skin_type == 3 and s.condition == "normal"
+    ]
     text = cell_text(tagged(nb, "freckles"))
     assert f"target (freckled, type III): {freckled[0]}" in text
     assert '"regions_edited": [\n  2,\n  6,\n  7\n ]' in text

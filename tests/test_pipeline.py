@@ -140,7 +140,9 @@ def test_texel_with_too_few_samples_is_flagged_and_filled_never_nan(pop, geom):
 
 def test_held_out_camera_is_predicted(pop, geom):
     cap = DomeSimulator(geom).simulate(pop[8])
-    ds = fit_subject(cap, pop.sigma_tr_avg, FitSettings(exclude_cameras=(5,), models=("torrance_sparrow",), micro_normals=False))
+    ds = fit_subject(
+        cap, pop.sigma_tr_avg, FitSettings(exclude_cameras=(5,), models=("torrance_sparrow",), micro_normals=False)
+    )
     err = held_out_camera_error(ds, cap, 5)
     assert err < 0.05
 
@@ -266,12 +268,17 @@ def test_stable_minimum_and_refined_albedo_against_per_texel_loops(rng):
     for t in (0, 3, 4, 17):
         kept = np.flatnonzero((s.texel == t) & use)
         np.testing.assert_array_equal(pad[t, : counts[t]], kept)
-        assert np.all(pad[t, counts[t]:] == -1)
+        assert np.all(pad[t, counts[t] :] == -1)
 
 
 def test_fit_stages_reject_bad_arguments(rng):
-    from facestats.model.fitting import (albedo_stable_minimum, fit_translucency, micro_normals,
-                                         photometric_normals, scatter_to_map)
+    from facestats.model.fitting import (
+        albedo_stable_minimum,
+        fit_translucency,
+        micro_normals,
+        photometric_normals,
+        scatter_to_map,
+    )
 
     s = _random_samples(rng)
     ones = np.ones(s.n, np.float32)
@@ -309,19 +316,22 @@ def test_photometric_normals_runs_at_least_one_pass(ts_case):
         fitting.photometric_normals(samples, lt.scan_normal, 16, iterations=0)
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"discard": -1}, r"discard must be an integer in \[0, inf\]"),
-    ({"min_samples": 1}, r"min_samples must be an integer in \[2, inf\]"),
-    ({"block": 0}, r"block must be an integer in \[1, inf\]"),
-    ({"models": ()}, "models must name at least one model"),
-    ({"models": "torrance_sparrow"}, "models must be a tuple of model names"),
-    ({"models": ("phong",)}, "models must be among"),
-    ({"exclude_cameras": (-1,)}, r"exclude_cameras must be an integer in \[0, inf\]"),
-    ({"grazing_penalty": -1.0}, r"grazing_penalty must lie in \[0, inf\]"),
-    ({"max_angle_deg": 95.0}, r"max_angle_deg must lie in \(0, 90\] deg"),
-    ({"max_relative_error": 0.0}, r"max_relative_error must lie in \(0, inf\]"),
-    ({"eta": 0.5}, r"eta must lie in \[1, 3\]"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"discard": -1}, r"discard must be an integer in \[0, inf\]"),
+        ({"min_samples": 1}, r"min_samples must be an integer in \[2, inf\]"),
+        ({"block": 0}, r"block must be an integer in \[1, inf\]"),
+        ({"models": ()}, "models must name at least one model"),
+        ({"models": "torrance_sparrow"}, "models must be a tuple of model names"),
+        ({"models": ("phong",)}, "models must be among"),
+        ({"exclude_cameras": (-1,)}, r"exclude_cameras must be an integer in \[0, inf\]"),
+        ({"grazing_penalty": -1.0}, r"grazing_penalty must lie in \[0, inf\]"),
+        ({"max_angle_deg": 95.0}, r"max_angle_deg must lie in \(0, 90\] deg"),
+        ({"max_relative_error": 0.0}, r"max_relative_error must lie in \(0, inf\]"),
+        ({"eta": 0.5}, r"eta must lie in \[1, 3\]"),
+    ],
+)
 def test_fit_settings_validation(kwargs, message):
     with pytest.raises(FacestatsError, match=message):
         FitSettings(**kwargs)

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from facestats import FacestatsError
-from facestats.core import published
 from facestats.acquire.synthetic.population import default_population, skin_albedo, synthesize_population
+from facestats.core import published
 from facestats.core.conventions import SITES, age_group
 
 
@@ -87,7 +87,12 @@ def test_region_orderings_of_section7(pop):
 def test_facial_hair_regions_noisier_for_men(pop):
     subs = _normal(pop)
     for r in (1, 3, 9, 10):
-        cv = {g: np.mean([s.ts_m[s.region_map == r].std() / s.ts_m[s.region_map == r].mean() for s in subs if s.gender == g]) for g in "MF"}
+        cv = {
+            g: np.mean(
+                [s.ts_m[s.region_map == r].std() / s.ts_m[s.region_map == r].mean() for s in subs if s.gender == g]
+            )
+            for g in "MF"
+        }
         assert cv["M"] > 1.3 * cv["F"]
 
 
@@ -95,7 +100,12 @@ def test_cca_of_region_means_reproduces_fig16(pop):
     from facestats.analysis.cca import cca
 
     subs = _normal(pop)
-    x = np.array([[v for r in range(1, 11) for v in (s.ts_rho_s[s.region_map == r].mean(), s.ts_m[s.region_map == r].mean())] for s in subs])
+    x = np.array(
+        [
+            [v for r in range(1, 11) for v in (s.ts_rho_s[s.region_map == r].mean(), s.ts_m[s.region_map == r].mean())]
+            for s in subs
+        ]
+    )
     y = np.array([[max(s.skin_type, 2), s.gender == "F", s.age] for s in subs], float)
     principal = cca(x, y).correlations[:2]
     direct = [cca(x, y[:, [j]]).correlations[0] for j in range(3)]

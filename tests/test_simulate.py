@@ -5,11 +5,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from facestats.acquire.capture import Capture, open_capture
+from facestats.acquire.capture import open_capture
 from facestats.acquire.dome import Dome, default_dome, look_at
 from facestats.acquire.geometry import FaceGeometry
-from facestats.acquire.synthetic.face import procedural_face
 from facestats.acquire.hdr import CameraResponse
+from facestats.acquire.synthetic.face import procedural_face
 from facestats.acquire.synthetic.population import SubjectTruth, synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator
 from facestats.model import brdf, dipole
@@ -60,9 +60,14 @@ def test_noise_free_radiance_is_the_skin_model(pop32):
     wi, e_perp = sim.dome.incident(g.position[200:260])
     cos_i = np.einsum("nk,nlk->nl", normal, wi)
     model = skin.skin_radiance(
-        normal, wi, e_perp * np.maximum(cos_i, 0)[..., None], lt.wo.astype(float),
-        rho_s=truth.ts_rho_s[tex[:, 0], tex[:, 1]], roughness=truth.ts_m[tex[:, 0], tex[:, 1]],
-        modulation=alb / truth.albedo_avg, subsurface=skin.SubsurfaceTransport(sp, sa),
+        normal,
+        wi,
+        e_perp * np.maximum(cos_i, 0)[..., None],
+        lt.wo.astype(float),
+        rho_s=truth.ts_rho_s[tex[:, 0], tex[:, 1]],
+        roughness=truth.ts_m[tex[:, 0], tex[:, 1]],
+        modulation=alb / truth.albedo_avg,
+        subsurface=skin.SubsurfaceTransport(sp, sa),
     )
     valid = lt.valid
     assert valid.sum() > 20000
@@ -74,9 +79,18 @@ def _flat_patch_geometry():
     xx, yy = np.meshgrid(x, x)
     pos = np.stack([xx.ravel(), yy.ravel(), np.zeros(25)], 1)
     verts = np.array([[-60.0, -60, 0], [60, -60, 0], [60, 60, 0], [-60, 60, 0]])
-    return FaceGeometry(position=pos, normal=np.tile([0, 0, 1.0], (25, 1)), area=np.ones(25), uv=(pos[:, :2] + 2.5) / 5,
-                        region=np.full(25, 7), map_size=4, mesh_vertices=verts, mesh_faces=np.array([[0, 1, 2], [0, 2, 3]]),
-                        region_map=np.full((4, 4), 7, np.uint8), meta={"mesh_grid": 32})
+    return FaceGeometry(
+        position=pos,
+        normal=np.tile([0, 0, 1.0], (25, 1)),
+        area=np.ones(25),
+        uv=(pos[:, :2] + 2.5) / 5,
+        region=np.full(25, 7),
+        map_size=4,
+        mesh_vertices=verts,
+        mesh_faces=np.array([[0, 1, 2], [0, 2, 3]]),
+        region_map=np.full((4, 4), 7, np.uint8),
+        meta={"mesh_grid": 32},
+    )
 
 
 def test_energy_conservation_of_simulated_radiance():
@@ -90,18 +104,39 @@ def test_energy_conservation_of_simulated_radiance():
     th = np.radians(40.0)
     led = np.array([[1000 * np.sin(th), 0.0, 1000 * np.cos(th)]])
     f = 64.0
-    dome = Dome(led_position=led, led_axis=-led / 1000, led_intensity=np.array([[1e6, 1e6, 1e6]]),
-                led_beam=np.array([[1.0, 0, 0, 0, 0, 0]]), camera_position=cam_pos, camera_rotation=look_at(cam_pos, [0, 0, 0]),
-                camera_matrix=np.tile([[f, 0, 32], [0, f, 32], [0, 0, 1]], (n_cam, 1, 1)), image_size=np.full((n_cam, 2), 64),
-                exposure_times=np.array([1.0]), camera_scale=1.0, response=CameraResponse())
+    dome = Dome(
+        led_position=led,
+        led_axis=-led / 1000,
+        led_intensity=np.array([[1e6, 1e6, 1e6]]),
+        led_beam=np.array([[1.0, 0, 0, 0, 0, 0]]),
+        camera_position=cam_pos,
+        camera_rotation=look_at(cam_pos, [0, 0, 0]),
+        camera_matrix=np.tile([[f, 0, 32], [0, f, 32], [0, 0, 1]], (n_cam, 1, 1)),
+        image_size=np.full((n_cam, 2), 64),
+        exposure_times=np.array([1.0]),
+        camera_scale=1.0,
+        response=CameraResponse(),
+    )
     g = _flat_patch_geometry()
     albedo = np.array([0.5, 0.3, 0.2])
     full = np.ones((4, 4))
-    truth = SubjectTruth(subject_id="E", person_id="E", age=30, gender="M", skin_type=3, condition="normal",
-                         region_map=g.region_map, albedo=(full[..., None] * albedo).astype(np.float32),
-                         ts_rho_s=(0.25 * full).astype(np.float32), ts_m=(0.3 * full).astype(np.float32),
-                         bp_rho_s=full.astype(np.float32), bp_exponent=full.astype(np.float32),
-                         site_sigma_tr=np.ones((3, 3)), site_albedo=np.tile(albedo, (3, 1)), sigma_tr=np.array([0.55, 0.98, 1.55]))
+    truth = SubjectTruth(
+        subject_id="E",
+        person_id="E",
+        age=30,
+        gender="M",
+        skin_type=3,
+        condition="normal",
+        region_map=g.region_map,
+        albedo=(full[..., None] * albedo).astype(np.float32),
+        ts_rho_s=(0.25 * full).astype(np.float32),
+        ts_m=(0.3 * full).astype(np.float32),
+        bp_rho_s=full.astype(np.float32),
+        bp_exponent=full.astype(np.float32),
+        site_sigma_tr=np.ones((3, 3)),
+        site_albedo=np.tile(albedo, (3, 1)),
+        sigma_tr=np.array([0.55, 0.98, 1.55]),
+    )
     sim = DomeSimulator(g, dome, noise=False, scan_normal_noise_deg=0, shadow_resolution=64)
     cap = sim.simulate(truth)
     lt = cap.lumitexels(12, 13)  # the centre point
@@ -115,7 +150,12 @@ def test_energy_conservation_of_simulated_radiance():
     f_ext = 2 * np.trapezoid(fresnel_reflectance(mu, 1.38) * mu, mu)
     diffuse = albedo * fresnel_transmittance(np.cos(th)) * (1 - f_ext)
     wo = dirs
-    spec = np.sum(brdf.torrance_sparrow([0, 0, 1.0], [np.sin(th), 0, np.cos(th)], wo, 0.25, 0.3) * cos_o) * 2 * np.pi / n_cam
+    spec = (
+        np.sum(brdf.torrance_sparrow([0, 0, 1.0], [np.sin(th), 0, np.cos(th)], wo, 0.25, 0.3) * cos_o)
+        * 2
+        * np.pi
+        / n_cam
+    )
     np.testing.assert_allclose(flux, diffuse + spec, rtol=0.03)
     assert np.all(flux < 1)
 

@@ -3,7 +3,7 @@ import pytest
 from scipy.integrate import quad
 
 from facestats import FacestatsError
-from facestats.model import brdf, dipole, skin
+from facestats.model import dipole, skin
 from facestats.model.fresnel import fresnel_transmittance
 
 SIGMA_S = np.array([2.42, 1.69, 1.83])
@@ -27,24 +27,43 @@ def test_flat_patch_diffuse_equals_total_reflectance_with_fresnel():
     wi, e = skin.directional_lights(normals, wi_dir, [2.0])
     wo = skin.view_directions(pos, cams)
     spec, diff = skin.skin_radiance(
-        normals, wi, e, wo, rho_s=0.0, roughness=0.3, modulation=np.ones((len(pos), 3)),
-        subsurface=transport, components=True,
+        normals,
+        wi,
+        e,
+        wo,
+        rho_s=0.0,
+        roughness=0.3,
+        modulation=np.ones((len(pos), 3)),
+        subsurface=transport,
+        components=True,
     )
     assert np.all(spec == 0)
     centre = np.argmin(np.linalg.norm(pos, axis=1))
     rd = dipole.total_diffuse_reflectance(SIGMA_S, SIGMA_A, 1.38)
-    expected = rd / np.pi * fresnel_transmittance(np.cos(th_i)) * fresnel_transmittance(np.cos(th_o)) * 2.0 * np.cos(th_i)
+    expected = (
+        rd / np.pi * fresnel_transmittance(np.cos(th_i)) * fresnel_transmittance(np.cos(th_o)) * 2.0 * np.cos(th_i)
+    )
     np.testing.assert_allclose(diff[centre, 0, 0], expected, rtol=1e-6)
     # The local (flat-patch) mode gives the same everywhere.
-    local = skin.skin_radiance(normals, wi, e, wo, rho_s=0.0, roughness=0.3, modulation=np.ones((len(pos), 3)),
-                               subsurface=skin.SubsurfaceTransport(SIGMA_S, SIGMA_A, 1.38))
+    local = skin.skin_radiance(
+        normals,
+        wi,
+        e,
+        wo,
+        rho_s=0.0,
+        roughness=0.3,
+        modulation=np.ones((len(pos), 3)),
+        subsurface=skin.SubsurfaceTransport(SIGMA_S, SIGMA_A, 1.38),
+    )
     np.testing.assert_allclose(local[centre, 0, 0], expected, rtol=1e-6)
 
 
 def _half_plane_response(x, s, a):
     """Exitance at signed distance x from the edge of a half-plane lit with unit flux (x > 0: dark side)."""
+
     def strip(u):  # ∫ R_d(sqrt(u² + y²)) dy over the line at distance u
         return 2 * quad(lambda y: dipole.dipole_profile(np.hypot(u, y), s, a), 0, np.inf, limit=200)[0]
+
     if x >= 0:
         return quad(strip, x, np.inf, limit=200)[0]
     return float(dipole.total_diffuse_reflectance(s, a)) - quad(strip, -x, np.inf, limit=200)[0]
@@ -75,7 +94,9 @@ def test_energy_conservation_flat_patch(rng):
     out = transport.apply(flux)
     # Every weight is non-negative and each row sums to R_d: total exitance ≤ entering flux.
     assert np.all(out >= 0)
-    np.testing.assert_allclose(out.sum(0) / flux.sum(0), np.broadcast_to(dipole.total_diffuse_reflectance(SIGMA_S, SIGMA_A), (4, 3)), rtol=0.05)
+    np.testing.assert_allclose(
+        out.sum(0) / flux.sum(0), np.broadcast_to(dipole.total_diffuse_reflectance(SIGMA_S, SIGMA_A), (4, 3)), rtol=0.05
+    )
 
 
 def test_specular_component_is_brdf_times_irradiance(rng):
@@ -90,9 +111,21 @@ def test_specular_component_is_brdf_times_irradiance(rng):
     for model in skin.SPECULAR_MODELS:
         r = rho if model == "torrance_sparrow" else rho
         p = m if model == "torrance_sparrow" else 1 / m**2
-        spec, _ = skin.skin_radiance(normals, wi, e, wo, rho_s=r, roughness=p, modulation=np.ones((n, 3)),
-                                     subsurface=skin.SubsurfaceTransport(SIGMA_S, SIGMA_A), specular=model, components=True)
-        f = skin.specular_brdf(model, normals[:, None, None], wi[:, None], wo[:, :, None], r[:, None, None], p[:, None, None])
+        spec, _ = skin.skin_radiance(
+            normals,
+            wi,
+            e,
+            wo,
+            rho_s=r,
+            roughness=p,
+            modulation=np.ones((n, 3)),
+            subsurface=skin.SubsurfaceTransport(SIGMA_S, SIGMA_A),
+            specular=model,
+            components=True,
+        )
+        f = skin.specular_brdf(
+            model, normals[:, None, None], wi[:, None], wo[:, :, None], r[:, None, None], p[:, None, None]
+        )
         np.testing.assert_allclose(spec, f[..., None] * e[:, None], rtol=1e-12)
         assert spec.shape == (n, 3, 2, 3)
 
@@ -116,11 +149,28 @@ def test_point_light_inverse_square():
 def test_validation():
     n = np.array([[0, 0, 1.0]])
     with pytest.raises(FacestatsError, match="specular must be one of"):
-        skin.skin_radiance(n, n[:, None], np.ones((1, 1, 3)), n[:, None], rho_s=0.1, roughness=0.3,
-                           modulation=np.ones((1, 3)), subsurface=skin.SubsurfaceTransport(SIGMA_S, SIGMA_A), specular="phong")
+        skin.skin_radiance(
+            n,
+            n[:, None],
+            np.ones((1, 1, 3)),
+            n[:, None],
+            rho_s=0.1,
+            roughness=0.3,
+            modulation=np.ones((1, 3)),
+            subsurface=skin.SubsurfaceTransport(SIGMA_S, SIGMA_A),
+            specular="phong",
+        )
     with pytest.raises(FacestatsError, match="irradiance must lie in"):
-        skin.skin_radiance(n, n[:, None], -np.ones((1, 1, 3)), n[:, None], rho_s=0.1, roughness=0.3,
-                           modulation=np.ones((1, 3)), subsurface=skin.SubsurfaceTransport(SIGMA_S, SIGMA_A))
+        skin.skin_radiance(
+            n,
+            n[:, None],
+            -np.ones((1, 1, 3)),
+            n[:, None],
+            rho_s=0.1,
+            roughness=0.3,
+            modulation=np.ones((1, 3)),
+            subsurface=skin.SubsurfaceTransport(SIGMA_S, SIGMA_A),
+        )
     with pytest.raises(FacestatsError, match="areas must lie in"):
         skin.SubsurfaceTransport(SIGMA_S, SIGMA_A, positions=np.zeros((2, 3)), areas=[1.0, 0.0])
 

@@ -22,17 +22,34 @@ from .factories import make_map_subject, make_sample_subject
 
 # A small population: (id, skin type, gender, age, condition).
 POP = [
-    ("A01", 1, "M", 23, "normal"), ("A02", 2, "F", 27, "normal"), ("A03", 3, "M", 31, "normal"),
-    ("A04", 3, "M", 45, "normal"), ("A05", 3, "F", 52, "normal"), ("A06", 4, "M", 24, "normal"),
-    ("A07", 4, "M", 38, "normal"), ("A08", 4, "F", 29, "normal"), ("A09", 5, "M", 41, "normal"),
-    ("A10", 6, "F", 60, "normal"), ("A11", 4, "M", 24, "lotion"),
+    ("A01", 1, "M", 23, "normal"),
+    ("A02", 2, "F", 27, "normal"),
+    ("A03", 3, "M", 31, "normal"),
+    ("A04", 3, "M", 45, "normal"),
+    ("A05", 3, "F", 52, "normal"),
+    ("A06", 4, "M", 24, "normal"),
+    ("A07", 4, "M", 38, "normal"),
+    ("A08", 4, "F", 29, "normal"),
+    ("A09", 5, "M", 41, "normal"),
+    ("A10", 6, "F", 60, "normal"),
+    ("A11", 4, "M", 24, "lotion"),
 ]
 
 
 def population():
-    out = [make_map_subject(sid, skin_type=t, gender=g, age=a, condition=c, seed=k, rho_shift=0.01 * k,
-                            person_id="A06" if sid == "A11" else None)
-           for k, (sid, t, g, a, c) in enumerate(POP)]
+    out = [
+        make_map_subject(
+            sid,
+            skin_type=t,
+            gender=g,
+            age=a,
+            condition=c,
+            seed=k,
+            rho_shift=0.01 * k,
+            person_id="A06" if sid == "A11" else None,
+        )
+        for k, (sid, t, g, a, c) in enumerate(POP)
+    ]
     out.append(make_sample_subject("M001", skin_type=4, gender="F", age=33, seed=3))
     return out
 
@@ -81,7 +98,9 @@ def test_map_subject_round_trip_values_attrs_units_and_chunks(tmp_path):
     assert back.encoding[store_mod.STORE_ATTR]["schema"] == SCHEMA_VERSION
     assert back.sel(channel="G")["albedo"].shape == (80, 80)
     # maps are chunked in 64-row bands of v
-    meta = json.loads((tmp_path / "s.zarr" / "subjects" / "R1").glob("g*").__next__().joinpath("albedo", "zarr.json").read_text())
+    meta = json.loads(
+        (tmp_path / "s.zarr" / "subjects" / "R1").glob("g*").__next__().joinpath("albedo", "zarr.json").read_text()
+    )
     assert meta["chunk_grid"]["configuration"]["chunk_shape"] == [64, 80, 3]
     assert meta["dimension_names"] == ["v", "u", "channel"]
     root = json.loads((tmp_path / "s.zarr" / "zarr.json").read_text())["attributes"]
@@ -219,9 +238,13 @@ def test_query_filters(built):
         assert [r["region"] for r in one.regions] == [6] and one.count == len(subjects)
         # the sample subject has Torrance-Sparrow samples only
         assert one.regions[0]["ts_m"].n == len(subjects) and one.regions[0]["bp_exponent"].n == len(subjects) - 1
-        for bad, msg in ((dict(skin_type="VII"), "skin type"), (dict(gender="X"), "gender"),
-                         (dict(age="old"), "age"), (dict(condition="wet"), "condition"),
-                         (dict(region="ear"), "region")):
+        for bad, msg in (
+            (dict(skin_type="VII"), "skin type"),
+            (dict(gender="X"), "gender"),
+            (dict(age="old"), "age"),
+            (dict(condition="wet"), "condition"),
+            (dict(region="ear"), "region"),
+        ):
             with pytest.raises(ValidationError, match=msg):
                 st.query(**bad)
 
@@ -244,8 +267,22 @@ def test_query_documents_json_csv_and_table(built):
     with open_store(path) as st:
         res = st.query(gender="F")
     doc = json.loads(res.to_json())
-    assert set(doc) == {"format", "store", "n_store_subjects", "filters", "count", "n_persons", "subject_ids",
-                        "breakdown", "units", "regions", "scattering", "sites", "albedo", "albedo_histogram"}
+    assert set(doc) == {
+        "format",
+        "store",
+        "n_store_subjects",
+        "filters",
+        "count",
+        "n_persons",
+        "subject_ids",
+        "breakdown",
+        "units",
+        "regions",
+        "scattering",
+        "sites",
+        "albedo",
+        "albedo_histogram",
+    }
     assert doc["count"] == 5 and len(doc["regions"]) == 10
     assert doc["regions"][5]["name"] == REGIONS[6]
     assert len(doc["albedo_histogram"]["G"]) == 256
@@ -310,7 +347,8 @@ def test_overwrite_and_edits(tmp_path):
         st.delete_subject("S1")
         assert "S1" not in st and st.ids() == ["S1-edit"]
         assert not (tmp_path / "s.zarr" / "subjects" / "S1").exists() or not list(
-            (tmp_path / "s.zarr" / "subjects" / "S1").glob("g*"))
+            (tmp_path / "s.zarr" / "subjects" / "S1").glob("g*")
+        )
         with pytest.raises(StoreError, match="no subject 'S1'"):
             st.subject("S1")
 
@@ -324,7 +362,8 @@ def test_batch_write_is_all_or_nothing(tmp_path):
         with pytest.raises(ValidationError, match="twice"):
             st.write_subjects([make_map_subject("B3"), make_map_subject("B3")])
         assert not (tmp_path / "s.zarr" / "subjects" / "B1").exists() or not list(
-            (tmp_path / "s.zarr" / "subjects" / "B1").glob("g*"))
+            (tmp_path / "s.zarr" / "subjects" / "B1").glob("g*")
+        )
 
 
 # -- bad stores -------------------------------------------------------------------------
@@ -362,15 +401,18 @@ def test_wrong_schema_version_and_not_a_store(built, tmp_path):
         open_store(tmp_path / "x.zarr", mode="w")
 
 
-@pytest.mark.parametrize("damage, pattern", [
-    ("missing_group", r"subject 'A03': group subjects/A03/g\S+ is missing"),
-    ("deleted_chunk", r"subject 'A03': variable 'albedo' does not match its checksum"),
-    ("truncated_chunk", r"subject 'A03': variable 'ts_rho_s' cannot be read \(truncated or corrupt chunk\)"),
-    ("wrong_dims", r"subject 'A03': variable 'ts_m' has dims \('u', 'v'\), expected \('v', 'u'\)"),
-    ("wrong_shape", r"subject 'A03': cannot open group .*conflicting sizes for dimension 'v'.*'bp_flag'"),
-    ("missing_variable", r"subject 'A03': variable\(s\) \['region'\] missing"),
-    ("no_manifest", r"subject 'A03': group .* lacks the 'facestats_store' attribute"),
-])
+@pytest.mark.parametrize(
+    "damage, pattern",
+    [
+        ("missing_group", r"subject 'A03': group subjects/A03/g\S+ is missing"),
+        ("deleted_chunk", r"subject 'A03': variable 'albedo' does not match its checksum"),
+        ("truncated_chunk", r"subject 'A03': variable 'ts_rho_s' cannot be read \(truncated or corrupt chunk\)"),
+        ("wrong_dims", r"subject 'A03': variable 'ts_m' has dims \('u', 'v'\), expected \('v', 'u'\)"),
+        ("wrong_shape", r"subject 'A03': cannot open group .*conflicting sizes for dimension 'v'.*'bp_flag'"),
+        ("missing_variable", r"subject 'A03': variable\(s\) \['region'\] missing"),
+        ("no_manifest", r"subject 'A03': group .* lacks the 'facestats_store' attribute"),
+    ],
+)
 def test_damaged_subjects_give_clear_errors(built, tmp_path, damage, pattern):
     import shutil
 
@@ -463,8 +505,10 @@ def test_pack_store_to_zip_and_read_it(built, tmp_path):
         # The fast path needs the root and index stored first; chunks are stored, JSON metadata deflated.
         assert [i.filename for i in infos[:2]] == ["zarr.json", "index.json"]
         assert all(i.compress_type == zipfile.ZIP_STORED for i in infos[:2])
-        assert all(i.compress_type == (zipfile.ZIP_DEFLATED if i.filename.endswith("zarr.json") else zipfile.ZIP_STORED)
-                   for i in infos[2:])
+        assert all(
+            i.compress_type == (zipfile.ZIP_DEFLATED if i.filename.endswith("zarr.json") else zipfile.ZIP_STORED)
+            for i in infos[2:]
+        )
     assert "index.json" in names and "zarr.json" in names and not any(".lock" in n for n in names)
     with open_store(z) as st:
         assert st.kind == "zip" and st.read_only
@@ -488,8 +532,7 @@ def test_a_zip_made_by_other_tools_opens_too(built, tmp_path):
     zp = shutil.make_archive(str(tmp_path / "plain"), "zip", root_dir=built[0])
     with open_store(zp) as st:
         assert st.ids() == sorted(built[1])
-        np.testing.assert_array_equal(st.subject("M001")["ts_sample_m"].values,
-                                      built[1]["M001"]["ts_sample_m"].values)
+        np.testing.assert_array_equal(st.subject("M001")["ts_sample_m"].values, built[1]["M001"]["ts_sample_m"].values)
 
 
 def test_default_store(built, tmp_path, monkeypatch):

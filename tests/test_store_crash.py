@@ -183,6 +183,7 @@ def test_sigkill_at_each_critical_point(tmp_path, point):
             elif point == "after_commit":
                 store_mod.Store._remove_generation = lambda self, sid, gen: _die()
             else:  # renamed aside and partly deleted
+
                 def remove(self, sid, gen):
                     trash = path / "subjects" / sid / f".trash-{gen}"
                     os.rename(path / "subjects" / sid / gen, trash)

@@ -43,11 +43,11 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from facestats.core.validate import check_integer
-from facestats.core.conventions import CHANNELS, SITES
-from facestats.errors import FormatError, ValidationError
 from facestats.acquire.dome import Dome
 from facestats.acquire.sensor import ContactSensor
+from facestats.core.conventions import CHANNELS, SITES
+from facestats.core.validate import check_integer
+from facestats.errors import FormatError, ValidationError
 
 __all__ = ["Capture", "Lumitexels", "open_capture", "CAPTURE_ARRAYS"]
 
@@ -65,7 +65,7 @@ CAPTURE_ARRAYS = {
     "sensor_profile_std": (("site", "fiber", "channel"), "float64"),
     "fiber_distance": (("fiber",), "float64"),
 }
-_PER_LUMITEXEL = tuple(k for k, (dims, _) in CAPTURE_ARRAYS.items() if dims[0] == "lumitexel")
+PER_LUMITEXEL = tuple(k for k, (dims, _) in CAPTURE_ARRAYS.items() if dims[0] == "lumitexel")
 _META = ("subject_id", "person_id", "age", "gender", "skin_type", "condition")
 
 
@@ -155,7 +155,7 @@ class Capture:
         if missing:
             raise FormatError(f"capture {self.path or ''} is missing arrays {missing}")
         n = self.arrays["position"].shape[0]
-        for k in _PER_LUMITEXEL:
+        for k in PER_LUMITEXEL:
             if self.arrays[k].shape[0] != n:
                 raise FormatError(f"capture array {k!r} has {self.arrays[k].shape[0]} lumitexels, expected {n}")
         for key in ("dome", "sensor", "map_size") + _META:
@@ -213,7 +213,9 @@ class Capture:
         """
         stop = self.n_lumitexels if stop is None else min(int(stop), self.n_lumitexels)
         if not (0 <= start < stop):
-            raise ValidationError(f"lumitexel range must satisfy 0 <= start < stop <= {self.n_lumitexels}, got {start}:{stop}")
+            raise ValidationError(
+                f"lumitexel range must satisfy 0 <= start < stop <= {self.n_lumitexels}, got {start}:{stop}"
+            )
         sl = slice(int(start), stop)
         pos = self.array("position", sl).astype(np.float64)
         dome = self.dome
@@ -248,11 +250,19 @@ class Capture:
     # -- persistence -----------------------------------------------------------------
     def to_zarr(self, path, chunk: int = 2048):
         """Write the capture as a zarr v3 group (``chunk`` lumitexels per chunk); returns the path."""
-        writer = CaptureWriter(path, n_lumitexels=self.n_lumitexels, n_cameras=self.dome.n_cameras, n_lights=self.dome.n_leds,
-                               map_size=self.map_size, n_fibers=self.sensor.n_fibers, attrs=self.attrs, chunk=chunk)
+        writer = CaptureWriter(
+            path,
+            n_lumitexels=self.n_lumitexels,
+            n_cameras=self.dome.n_cameras,
+            n_lights=self.dome.n_leds,
+            map_size=self.map_size,
+            n_fibers=self.sensor.n_fibers,
+            attrs=self.attrs,
+            chunk=chunk,
+        )
         for start, stop in self.blocks(chunk):
-            writer.write_block(start, {k: self.array(k, slice(start, stop)) for k in _PER_LUMITEXEL})
-        writer.write_global({k: self.array(k) for k in CAPTURE_ARRAYS if k not in _PER_LUMITEXEL})
+            writer.write_block(start, {k: self.array(k, slice(start, stop)) for k in PER_LUMITEXEL})
+        writer.write_global({k: self.array(k) for k in CAPTURE_ARRAYS if k not in PER_LUMITEXEL})
         return str(path)
 
 
@@ -265,13 +275,25 @@ class CaptureWriter:
         check_integer(chunk, "chunk", 1)
         self.path = str(path)
         self.group = zarr.open_group(self.path, mode="w")
-        sizes = {"lumitexel": n_lumitexels, "xyz": 3, "uvc": 2, "light": n_lights, "camera": n_cameras, "channel": 3,
-                 "v": map_size, "u": map_size, "site": len(SITES), "fiber": n_fibers}
+        sizes = {
+            "lumitexel": n_lumitexels,
+            "xyz": 3,
+            "uvc": 2,
+            "light": n_lights,
+            "camera": n_cameras,
+            "channel": 3,
+            "v": map_size,
+            "u": map_size,
+            "site": len(SITES),
+            "fiber": n_fibers,
+        }
         for name, (dims, dtype) in CAPTURE_ARRAYS.items():
             shape = tuple(sizes[d] for d in dims)
             chunks = tuple(min(chunk, s) if d == "lumitexel" else s for d, s in zip(dims, shape))
             fill = np.nan if dtype.startswith("float") else 0
-            self.group.create_array(name, shape=shape, chunks=chunks, dtype=dtype, dimension_names=dims, fill_value=fill)
+            self.group.create_array(
+                name, shape=shape, chunks=chunks, dtype=dtype, dimension_names=dims, fill_value=fill
+            )
         self.group.attrs.update({k: (json.dumps(v) if isinstance(v, dict) else v) for k, v in attrs.items()})
         self.group.attrs["channel"] = list(CHANNELS)
         self.group.attrs["site"] = list(SITES)

@@ -31,10 +31,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facestats.acquire.hdr import CameraResponse
+from facestats.core.published import N_CAMERAS, N_LEDS
 from facestats.core.validate import as_finite, as_float, check_range, check_shape
 from facestats.errors import FormatError, ValidationError
-from facestats.core.published import N_CAMERAS, N_LEDS
-from facestats.acquire.hdr import CameraResponse
 
 __all__ = ["Dome", "default_dome", "look_at", "geodesic_points"]
 
@@ -184,7 +184,10 @@ class Dome:
 
     @staticmethod
     def _towards(targets, points):
-        """Unit directions (N, T, 3) from ``points`` (N, 3) towards ``targets`` (T, 3), squared distances (N, T), offsets (N, T, 3)."""
+        """Unit directions (N, T, 3) from ``points`` (N, 3) towards ``targets`` (T, 3).
+
+        Also returns the squared distances (N, T) and the offsets (N, T, 3).
+        """
         d = targets[None, :, :] - np.asarray(points, np.float64)[:, None, :]
         r2 = np.einsum("ntk,ntk->nt", d, d)
         return d / np.sqrt(r2)[..., None], r2, d
@@ -194,7 +197,7 @@ class Dome:
         return self._towards(self.led_position, points)[0]
 
     def view_directions(self, points):
-        """Unit directions (N, C, 3) from ``points`` (N, 3, mm) towards every camera centre (the ``wo`` of :meth:`view`)."""
+        """Unit directions (N, C, 3) from ``points`` (N, 3, mm) towards every camera centre (``wo`` of :meth:`view`)."""
         return self._towards(self.camera_position, points)[0]
 
     def view(self, points, cameras=None):
@@ -209,14 +212,25 @@ class Dome:
             Image coordinates (x, y) in pixels.
         """
         sel = slice(None) if cameras is None else np.asarray(cameras)
-        cp, cr, ck, im = self.camera_position[sel], self.camera_rotation[sel], self.camera_matrix[sel], self.image_size[sel]
+        cp, cr, ck, im = (
+            self.camera_position[sel],
+            self.camera_rotation[sel],
+            self.camera_matrix[sel],
+            self.image_size[sel],
+        )
         wo, _, d = self._towards(cp, points)
         cam = np.einsum("cij,ncj->nci", cr, -d)  # point in camera coordinates
         z = cam[..., 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             uvw = np.einsum("cij,ncj->nci", ck, cam)
             pix = uvw[..., :2] / uvw[..., 2:3]
-        in_frame = (z > 0) & (pix[..., 0] >= 0) & (pix[..., 1] >= 0) & (pix[..., 0] < im[None, :, 0]) & (pix[..., 1] < im[None, :, 1])
+        in_frame = (
+            (z > 0)
+            & (pix[..., 0] >= 0)
+            & (pix[..., 1] >= 0)
+            & (pix[..., 0] < im[None, :, 0])
+            & (pix[..., 1] < im[None, :, 1])
+        )
         return wo, in_frame, pix
 
     # -- serialisation ------------------------------------------------------------
@@ -234,8 +248,13 @@ class Dome:
             "image_size": self.image_size.tolist(),
             "exposure_times_s": self.exposure_times.tolist(),
             "camera_scale": self.camera_scale,
-            "response": {"full_well": r.full_well, "read_noise": r.read_noise, "adc_bits": r.adc_bits, "saturation": r.saturation,
-                         "black_level": r.black_level},
+            "response": {
+                "full_well": r.full_well,
+                "read_noise": r.read_noise,
+                "adc_bits": r.adc_bits,
+                "saturation": r.saturation,
+                "black_level": r.black_level,
+            },
         }
 
     @classmethod
@@ -274,18 +293,58 @@ class Dome:
 
 
 def geodesic_points(frequency: int = 4) -> np.ndarray:
-    """Vertices of a geodesic sphere: an icosahedron with each edge split ``frequency`` times, projected to the unit sphere."""
+    """Vertices of a geodesic sphere: an icosahedron, each edge split ``frequency`` times, on the unit sphere."""
     t = (1 + 5**0.5) / 2
-    v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t], [0, 1, -t],
-                  [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], float)
-    faces = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2],
-                      [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5],
-                      [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]])
+    v = np.array(
+        [
+            [-1, t, 0],
+            [1, t, 0],
+            [-1, -t, 0],
+            [1, -t, 0],
+            [0, -1, t],
+            [0, 1, t],
+            [0, -1, -t],
+            [0, 1, -t],
+            [t, 0, -1],
+            [t, 0, 1],
+            [-t, 0, -1],
+            [-t, 0, 1],
+        ],
+        float,
+    )
+    faces = np.array(
+        [
+            [0, 11, 5],
+            [0, 5, 1],
+            [0, 1, 7],
+            [0, 7, 10],
+            [0, 10, 11],
+            [1, 5, 9],
+            [5, 11, 4],
+            [11, 10, 2],
+            [10, 7, 6],
+            [7, 1, 8],
+            [3, 9, 4],
+            [3, 4, 2],
+            [3, 2, 6],
+            [3, 6, 8],
+            [3, 8, 9],
+            [4, 9, 5],
+            [2, 4, 11],
+            [6, 2, 10],
+            [8, 6, 7],
+            [9, 8, 1],
+        ]
+    )
     f = int(frequency)
     i, j = np.meshgrid(np.arange(f + 1), np.arange(f + 1), indexing="ij")
     keep = (i + j) <= f
     a, b = i[keep] / f, j[keep] / f
-    pts = v[faces[:, 0]][:, None] * (1 - a - b)[None, :, None] + v[faces[:, 1]][:, None] * a[None, :, None] + v[faces[:, 2]][:, None] * b[None, :, None]
+    pts = (
+        v[faces[:, 0]][:, None] * (1 - a - b)[None, :, None]
+        + v[faces[:, 1]][:, None] * a[None, :, None]
+        + v[faces[:, 2]][:, None] * b[None, :, None]
+    )
     pts = pts.reshape(-1, 3)
     pts /= np.linalg.norm(pts, axis=1, keepdims=True)
     _, idx = np.unique(np.round(pts, 9), axis=0, return_index=True)
@@ -333,14 +392,16 @@ def default_dome(seed: int = 2006) -> Dome:
     axis = centre - led_pos
     axis /= np.linalg.norm(axis, axis=1, keepdims=True)
     intensity = np.outer(np.ones(N_LEDS), [1.0, 0.97, 0.92]) * 1e6 * (1 + 0.02 * rng.standard_normal((N_LEDS, 1)))
-    beam = np.column_stack([
-        np.ones(N_LEDS),
-        0.02 * rng.standard_normal(N_LEDS),
-        0.02 * rng.standard_normal(N_LEDS),
-        -0.3 + 0.02 * rng.standard_normal(N_LEDS),
-        0.01 * rng.standard_normal(N_LEDS),
-        -0.3 + 0.02 * rng.standard_normal(N_LEDS),
-    ])
+    beam = np.column_stack(
+        [
+            np.ones(N_LEDS),
+            0.02 * rng.standard_normal(N_LEDS),
+            0.02 * rng.standard_normal(N_LEDS),
+            -0.3 + 0.02 * rng.standard_normal(N_LEDS),
+            0.01 * rng.standard_normal(N_LEDS),
+            -0.3 + 0.02 * rng.standard_normal(N_LEDS),
+        ]
+    )
     el = np.radians(np.repeat([-12.0, 18.0], N_CAMERAS // 2))
     az = np.radians(np.tile(np.linspace(-84, 84, N_CAMERAS // 2), 2) + np.repeat([0.0, 12.0], N_CAMERAS // 2))
     target = np.array([0.0, 0.0, 50.0])
@@ -350,8 +411,15 @@ def default_dome(seed: int = 2006) -> Dome:
     f = 512 / np.tan(np.radians(17.0) / 2)
     k = np.tile(np.array([[f, 0, 512.0], [0, f, 512.0], [0, 0, 1.0]]), (N_CAMERAS, 1, 1))
     return Dome(
-        led_position=led_pos, led_axis=axis, led_intensity=intensity, led_beam=beam,
-        camera_position=cam_pos, camera_rotation=rot, camera_matrix=k,
-        image_size=np.full((N_CAMERAS, 2), 1024), exposure_times=np.array([1 / 60, 1 / 8]),
-        camera_scale=4.0e5, response=CameraResponse(full_well=20000.0, read_noise=5.0, adc_bits=12),
+        led_position=led_pos,
+        led_axis=axis,
+        led_intensity=intensity,
+        led_beam=beam,
+        camera_position=cam_pos,
+        camera_rotation=rot,
+        camera_matrix=k,
+        image_size=np.full((N_CAMERAS, 2), 1024),
+        exposure_times=np.array([1 / 60, 1 / 8]),
+        camera_scale=4.0e5,
+        response=CameraResponse(full_well=20000.0, read_noise=5.0, adc_bits=12),
     )

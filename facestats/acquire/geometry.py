@@ -27,7 +27,6 @@ from facestats.core.validate import as_finite, check_range, check_shape
 from facestats.errors import ValidationError
 
 
-
 def uv_to_texel(uv, size: int) -> np.ndarray:
     """The ``(v, u)`` texel of a ``size``² map that contains each UV coordinate, shape (N, 2).
 
@@ -147,10 +146,18 @@ class FaceGeometry:
         """The geometry restricted to some lumitexels (the mesh is kept whole for shadowing)."""
         idx = np.asarray(index)
         return FaceGeometry(
-            position=self.position[idx], normal=self.normal[idx], area=self.area[idx], uv=self.uv[idx],
-            region=self.region[idx], map_size=self.map_size, mesh_vertices=self.mesh_vertices,
-            mesh_faces=self.mesh_faces, grid_index=None if self.grid_index is None else self.grid_index[idx],
-            region_map=self.region_map, name=self.name, meta=dict(self.meta),
+            position=self.position[idx],
+            normal=self.normal[idx],
+            area=self.area[idx],
+            uv=self.uv[idx],
+            region=self.region[idx],
+            map_size=self.map_size,
+            mesh_vertices=self.mesh_vertices,
+            mesh_faces=self.mesh_faces,
+            grid_index=None if self.grid_index is None else self.grid_index[idx],
+            region_map=self.region_map,
+            name=self.name,
+            meta=dict(self.meta),
         )
 
 

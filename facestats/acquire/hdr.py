@@ -57,8 +57,13 @@ class CameraResponse:
     black_level: float = 64.0
 
     def __post_init__(self):
-        if not (self.full_well > 0 and self.read_noise >= 0 and 1 <= self.adc_bits <= 24 and 0 < self.saturation <= 1
-                and 0 <= self.black_level < 2**self.adc_bits - 1):
+        if not (
+            self.full_well > 0
+            and self.read_noise >= 0
+            and 1 <= self.adc_bits <= 24
+            and 0 < self.saturation <= 1
+            and 0 <= self.black_level < 2**self.adc_bits - 1
+        ):
             raise ValidationError(
                 "CameraResponse needs full_well > 0, read_noise >= 0, adc_bits in [1, 24], saturation in (0, 1] "
                 f"and black_level in [0, 2**adc_bits - 1), got {self!r}"

@@ -28,10 +28,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from facestats.acquire.hdr import CameraResponse, expose, merge_exposures, merged_std
+from facestats.core.published import N_FIBERS, SENSOR_BRACKET_IMAGES, SENSOR_BRACKET_STOP
 from facestats.core.validate import as_finite, check_range, check_shape
 from facestats.errors import ValidationError
-from facestats.core.published import N_FIBERS, SENSOR_BRACKET_IMAGES, SENSOR_BRACKET_STOP
-from facestats.acquire.hdr import CameraResponse, expose, merge_exposures, merged_std
 
 __all__ = ["ContactSensor", "default_fiber_distances"]
 
@@ -67,7 +67,9 @@ class ContactSensor:
     stop: float = SENSOR_BRACKET_STOP
     shortest_exposure: float = 1e-3
     scale: float = 3.2e7
-    camera: CameraResponse = field(default_factory=lambda: CameraResponse(full_well=20000.0, read_noise=3.0, adc_bits=12))
+    camera: CameraResponse = field(
+        default_factory=lambda: CameraResponse(full_well=20000.0, read_noise=3.0, adc_bits=12)
+    )
 
     def __post_init__(self):
         d = as_finite(self.fiber_distance, "fiber_distance")
@@ -131,8 +133,13 @@ class ContactSensor:
             "stop": self.stop,
             "shortest_exposure_s": self.shortest_exposure,
             "scale_e_per_s_per_mm-2": self.scale,
-            "camera": {"full_well": self.camera.full_well, "read_noise": self.camera.read_noise, "adc_bits": self.camera.adc_bits,
-                       "saturation": self.camera.saturation, "black_level": self.camera.black_level},
+            "camera": {
+                "full_well": self.camera.full_well,
+                "read_noise": self.camera.read_noise,
+                "adc_bits": self.camera.adc_bits,
+                "saturation": self.camera.saturation,
+                "black_level": self.camera.black_level,
+            },
         }
 
     @classmethod

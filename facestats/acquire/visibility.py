@@ -84,11 +84,19 @@ def shadow_map(vertices, faces, eye, target, radius, resolution):
             py = y0[t, None, None] + oy[None]
             cxp, cyp = px + 0.5, py + 0.5  # pixel centres
             d = den[t, None, None]
-            l0 = ((by[t, None, None] - cy[t, None, None]) * (cxp - cx[t, None, None]) + (cx[t, None, None] - bx[t, None, None]) * (cyp - cy[t, None, None])) / d
-            l1 = ((cy[t, None, None] - ay[t, None, None]) * (cxp - cx[t, None, None]) + (ax[t, None, None] - cx[t, None, None]) * (cyp - cy[t, None, None])) / d
+            l0 = (
+                (by[t, None, None] - cy[t, None, None]) * (cxp - cx[t, None, None])
+                + (cx[t, None, None] - bx[t, None, None]) * (cyp - cy[t, None, None])
+            ) / d
+            l1 = (
+                (cy[t, None, None] - ay[t, None, None]) * (cxp - cx[t, None, None])
+                + (ax[t, None, None] - cx[t, None, None]) * (cyp - cy[t, None, None])
+            ) / d
             l2 = 1 - l0 - l1
             eps = -1e-6
-            inside = (l0 >= eps) & (l1 >= eps) & (l2 >= eps) & (px >= 0) & (py >= 0) & (px < resolution) & (py < resolution)
+            inside = (
+                (l0 >= eps) & (l1 >= eps) & (l2 >= eps) & (px >= 0) & (py >= 0) & (px < resolution) & (py < resolution)
+            )
             zz = l0 * tz[t, 0, None, None] + l1 * tz[t, 1, None, None] + l2 * tz[t, 2, None, None]
             np.minimum.at(depth, (py * resolution + px)[inside], zz[inside])
     return depth.reshape(resolution, resolution), (eye, rot, focal, resolution)
@@ -141,7 +149,9 @@ class ShadowMaps:
             inb = (ix >= 0) & (iy >= 0) & (ix < res) & (iy < res) & (z > 0)
             buf = np.full(pts.shape[0], np.inf)
             buf[inb] = depth[iy[inb], ix[inb]]
-            tol = self.bias_px * (z / focal) / np.maximum(cos, 0.2)  # pixel footprint at the point's depth, slope-scaled
+            tol = (
+                self.bias_px * (z / focal) / np.maximum(cos, 0.2)
+            )  # pixel footprint at the point's depth, slope-scaled
             out[:, k] = (cos > 0) & inb & (z <= buf + tol)
         return out
 
@@ -151,4 +161,6 @@ def visible_from(points, normals, vertices, faces, eyes, *, target=None, resolut
 
     Convenience for :class:`ShadowMaps` (see there for the parameters).
     """
-    return ShadowMaps(vertices, faces, eyes, target=target, resolution=resolution, bias_px=bias_px).visible(points, normals)
+    return ShadowMaps(vertices, faces, eyes, target=target, resolution=resolution, bias_px=bias_px).visible(
+        points, normals
+    )

@@ -41,12 +41,25 @@ _LAZY = {
 }
 
 __all__ = [
-    "region_pca", "principal_axes", "RegionPCA", "RegionEllipse",
-    "cca", "brdf_cca", "CCAResult",
-    "absorption_scattering", "AbsorptionScattering",
-    "translucency_table", "TranslucencyTable",
-    "condition_differences", "ConditionDifferences", "select_population",
-    "sigma_posterior", "site_sigma_posterior", "SigmaPosterior", "population_sigma_tr", "PopulationSigmaTr",
+    "region_pca",
+    "principal_axes",
+    "RegionPCA",
+    "RegionEllipse",
+    "cca",
+    "brdf_cca",
+    "CCAResult",
+    "absorption_scattering",
+    "AbsorptionScattering",
+    "translucency_table",
+    "TranslucencyTable",
+    "condition_differences",
+    "ConditionDifferences",
+    "select_population",
+    "sigma_posterior",
+    "site_sigma_posterior",
+    "SigmaPosterior",
+    "population_sigma_tr",
+    "PopulationSigmaTr",
     "plots",
 ]
 

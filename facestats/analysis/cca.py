@@ -43,10 +43,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from facestats.core.validate import as_float, check_range
-from facestats.core.conventions import REGION_IDS
-from facestats.errors import ValidationError
 from facestats.analysis.conditions import index_columns, select_population
+from facestats.core.conventions import REGION_IDS
+from facestats.core.validate import as_float, check_range
+from facestats.errors import ValidationError
 
 __all__ = ["CCAResult", "cca", "brdf_cca", "EXPERIMENTAL_VARIABLES"]
 
@@ -138,17 +138,25 @@ class CCAResult:
         """Direct correlations with their F-test p-values, one row per Y variable."""
         import pandas as pd
 
-        return pd.DataFrame({"direct_correlation": self.direct_correlations, "p_value": self.direct_p_value},
-                            index=pd.Index(list(self.y_names), name="variable"))
+        return pd.DataFrame(
+            {"direct_correlation": self.direct_correlations, "p_value": self.direct_p_value},
+            index=pd.Index(list(self.y_names), name="variable"),
+        )
 
     def summary(self):
         """Per-dimension table: correlation, Wilks' Λ, χ², df, asymptotic and permutation p-values."""
         import pandas as pd
 
-        table = pd.DataFrame({
-            "correlation": self.correlations, "wilks_lambda": self.wilks_lambda, "chi2": self.chi2,
-            "df": self.df, "p_value": self.p_value,
-        }, index=pd.RangeIndex(1, len(self.correlations) + 1, name="dimension"))
+        table = pd.DataFrame(
+            {
+                "correlation": self.correlations,
+                "wilks_lambda": self.wilks_lambda,
+                "chi2": self.chi2,
+                "df": self.df,
+                "p_value": self.p_value,
+            },
+            index=pd.RangeIndex(1, len(self.correlations) + 1, name="dimension"),
+        )
         if self.permutation_p is not None:
             table["permutation_p"] = self.permutation_p
         return table
@@ -259,7 +267,9 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
     x, x_names, x_index = _as_block(X, "X")
     y, y_names, _ = _as_block(Y, "Y")
     if x.shape[0] != y.shape[0]:
-        raise ValidationError(f"X and Y must have the same number of rows (subjects), got {x.shape[0]} and {y.shape[0]}")
+        raise ValidationError(
+            f"X and Y must have the same number of rows (subjects), got {x.shape[0]} and {y.shape[0]}"
+        )
     reg = np.broadcast_to(np.asarray(regularization, dtype=np.float64), (2,))
     check_range(reg, "regularization", 0, 1)
     if missing not in ("raise", "drop"):
@@ -268,7 +278,9 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
         raise ValidationError(f"n_permutations must be >= 0, got {n_permutations!r}")
     ok = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(y), axis=1)
     if not ok.all() and missing == "raise":
-        raise ValidationError(f"X and Y must be finite, got {int((~ok).sum())} row(s) with missing values (use missing='drop')")
+        raise ValidationError(
+            f"X and Y must be finite, got {int((~ok).sum())} row(s) with missing values (use missing='drop')"
+        )
     dropped = tuple(lab for lab, k in zip(x_index, ok) if not k)
     x, y = x[ok], y[ok]
     index = tuple(lab for lab, k in zip(x_index, ok) if k)
@@ -301,7 +313,7 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
     # Direct correlations: CCA of the X block with each Y variable alone.
     direct = np.full(q, np.nan)
     for j in range(q):
-        yj = yc[:, j:j + 1]
+        yj = yc[:, j : j + 1]
         wj = _whitener(_shrink(yj.T @ yj / (n - 1), reg[1]), rcond)
         if wj.shape[1]:
             direct[j] = _canonical(xw, yj @ wj, upper)[0][0]
@@ -346,17 +358,42 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
 
     y_data = pd.DataFrame(y, index=pd.Index(list(index)), columns=list(y_names))
     return CCAResult(
-        correlations=r, x_weights=a, y_weights=b, projections=proj_x, y_projections=proj_y,
-        x_loadings=x_load, y_loadings=y_load, direct_correlations=direct, direct_p_value=direct_p,
-        wilks_lambda=lam, chi2=stat, df=df.astype(np.int64), p_value=pval,
-        permutation_p=perm_p, n_permutations=int(n_permutations),
-        x_names=x_names, y_names=y_names, index=index, x_mean=x_mean, y_mean=y_mean,
-        regularization=(float(reg[0]), float(reg[1])), y_data=y_data, dropped=dropped,
+        correlations=r,
+        x_weights=a,
+        y_weights=b,
+        projections=proj_x,
+        y_projections=proj_y,
+        x_loadings=x_load,
+        y_loadings=y_load,
+        direct_correlations=direct,
+        direct_p_value=direct_p,
+        wilks_lambda=lam,
+        chi2=stat,
+        df=df.astype(np.int64),
+        p_value=pval,
+        permutation_p=perm_p,
+        n_permutations=int(n_permutations),
+        x_names=x_names,
+        y_names=y_names,
+        index=index,
+        x_mean=x_mean,
+        y_mean=y_mean,
+        regularization=(float(reg[0]), float(reg[1])),
+        y_data=y_data,
+        dropped=dropped,
     )
 
 
-def brdf_cca(source, model="ts", variables=EXPERIMENTAL_VARIABLES, subjects=None, conditions=("normal",),
-             regularization=0.0, n_permutations=999, seed=0):
+def brdf_cca(
+    source,
+    model="ts",
+    variables=EXPERIMENTAL_VARIABLES,
+    subjects=None,
+    conditions=("normal",),
+    regularization=0.0,
+    n_permutations=999,
+    seed=0,
+):
     """CCA of the per-region BRDF means against skin type, gender and age (Weyrich et al. 2006 §7, Fig. 16).
 
     Builds the subjects × (20 + 3) matrix of the paper from the population

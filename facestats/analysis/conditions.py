@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.core.validate import check_choice
 from facestats.core.conventions import CONDITIONS, REGION_IDS, parse_condition
+from facestats.core.validate import check_choice
 from facestats.errors import ValidationError
 
 __all__ = ["select_population", "ConditionDifferences", "condition_differences", "LOBE_NAMES", "index_columns"]
@@ -59,7 +59,9 @@ def _index(source):
         frame = frame.set_index("subject_id")
     missing = [c for c in ("age", "gender", "skin_type", "condition") if c not in frame.columns]
     if missing:
-        raise ValidationError(f"the population index must have columns age, gender, skin_type, condition; missing {missing}")
+        raise ValidationError(
+            f"the population index must have columns age, gender, skin_type, condition; missing {missing}"
+        )
     return frame
 
 
@@ -231,11 +233,25 @@ def condition_differences(source, person_id=None, model="ts", reference="normal"
             continue
         for r in REGION_IDS:
             rho, lobe, rho_s, lobe_s, n = _combine(
-                sub, f"{rho_stem}_mean_r{r}", f"{lobe_stem}_mean_r{r}", f"{rho_stem}_std_r{r}",
-                f"{lobe_stem}_std_r{r}", f"n_{model}_r{r}",
+                sub,
+                f"{rho_stem}_mean_r{r}",
+                f"{lobe_stem}_mean_r{r}",
+                f"{rho_stem}_std_r{r}",
+                f"{lobe_stem}_std_r{r}",
+                f"n_{model}_r{r}",
             )
-            records.append({"condition": cond, "region": r, "rho_s": rho, "lobe": lobe, "rho_s_std": rho_s,
-                            "lobe_std": lobe_s, "n": n, "subject_id": ",".join(map(str, sub.index))})
+            records.append(
+                {
+                    "condition": cond,
+                    "region": r,
+                    "rho_s": rho,
+                    "lobe": lobe,
+                    "rho_s_std": rho_s,
+                    "lobe_std": lobe_s,
+                    "n": n,
+                    "subject_id": ",".join(map(str, sub.index)),
+                }
+            )
     values = pd.DataFrame.from_records(records).set_index(["condition", "region"])
     conds = [c for c in CONDITIONS if c in set(values.index.get_level_values("condition"))]
 
@@ -254,7 +270,11 @@ def condition_differences(source, person_id=None, model="ts", reference="normal"
         if cond == reference:
             continue
         d_rho, d_lobe, z_rho, z_lobe = effect(cond, reference)
-        diffs.append(pd.DataFrame({"d_rho_s": d_rho, "d_lobe": d_lobe, "z_rho_s": z_rho, "z_lobe": z_lobe}).assign(condition=cond))
+        diffs.append(
+            pd.DataFrame({"d_rho_s": d_rho, "d_lobe": d_lobe, "z_rho_s": z_rho, "z_lobe": z_lobe}).assign(
+                condition=cond
+            )
+        )
     differences = pd.concat(diffs).reset_index().set_index(["condition", "region"])
     dist = np.zeros((len(conds), len(conds)))
     for i, a in enumerate(conds):

@@ -25,10 +25,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.core.validate import as_float, check_choice, check_finite, check_shape
-from facestats.core.conventions import REGION_IDS, REGIONS
-from facestats.errors import ValidationError
 from facestats.analysis.conditions import index_columns, select_population
+from facestats.core.conventions import REGION_IDS, REGIONS
+from facestats.core.validate import as_float, check_choice, check_finite, check_shape
+from facestats.errors import ValidationError
 
 __all__ = ["principal_axes", "RegionEllipse", "RegionPCA", "region_pca", "region_sample_frame"]
 
@@ -162,14 +162,23 @@ class RegionPCA:
         p0, p1 = self.parameters
         rows = []
         for r, e in self.regions.items():
-            rows.append({
-                "region": r, "name": e.name, "n": e.n, "n_subjects": e.n_subjects,
-                f"mean_{p0}": e.mean[0], f"mean_{p1}": e.mean[1],
-                "eigenvalue_1": e.eigenvalues[0], "eigenvalue_2": e.eigenvalues[1],
-                "std_1": e.std[0], "std_2": e.std[1],
-                f"axis_1_{p0}": e.eigenvectors[0, 0], f"axis_1_{p1}": e.eigenvectors[1, 0],
-                "angle": e.angle,
-            })
+            rows.append(
+                {
+                    "region": r,
+                    "name": e.name,
+                    "n": e.n,
+                    "n_subjects": e.n_subjects,
+                    f"mean_{p0}": e.mean[0],
+                    f"mean_{p1}": e.mean[1],
+                    "eigenvalue_1": e.eigenvalues[0],
+                    "eigenvalue_2": e.eigenvalues[1],
+                    "std_1": e.std[0],
+                    "std_2": e.std[1],
+                    f"axis_1_{p0}": e.eigenvectors[0, 0],
+                    f"axis_1_{p1}": e.eigenvectors[1, 0],
+                    "angle": e.angle,
+                }
+            )
         return pd.DataFrame.from_records(rows).set_index("region")
 
 

@@ -75,7 +75,9 @@ def _encoding_legend(ax, skin_types, genders, ages):
 
     handles = []
     for st in sorted(set(int(s) for s in skin_types)):
-        handles.append(Line2D([], [], ls="", marker="s", ms=8, mfc=skin_type_color(st), mec="0.35", label=f"type {ROMAN[st]}"))
+        handles.append(
+            Line2D([], [], ls="", marker="s", ms=8, mfc=skin_type_color(st), mec="0.35", label=f"type {ROMAN[st]}")
+        )
     present = set(np.asarray(genders).astype(str))
     for g, marker in _MARKERS.items():
         if g in present:
@@ -83,7 +85,9 @@ def _encoding_legend(ax, skin_types, genders, ages):
     ages = np.asarray(ages, float)
     if ages.size and np.nanmax(ages) > np.nanmin(ages):
         for a in (np.nanmin(ages), np.nanmax(ages)):
-            handles.append(Line2D([], [], ls="", marker="o", ms=np.sqrt(_age_size(a)), mfc="0.8", mec="0.35", label=f"age {a:.0f}"))
+            handles.append(
+                Line2D([], [], ls="", marker="o", ms=np.sqrt(_age_size(a)), mfc="0.8", mec="0.35", label=f"age {a:.0f}")
+            )
     ax.legend(handles=handles, fontsize=7, loc="best", framealpha=0.8)
 
 
@@ -111,8 +115,18 @@ def plot_region_pca(result, k=1.0, ax=None, annotate=True):
     for r, e in result.regions.items():
         color = cmap[(r - 1) % 10]
         w, h = 2 * e.half_axes(k)
-        ax.add_patch(Ellipse(e.mean, w, h, angle=np.degrees(e.angle), facecolor=(*color, 0.18), edgecolor=color, lw=1.5,
-                             label=f"{r} {e.name}"))
+        ax.add_patch(
+            Ellipse(
+                e.mean,
+                w,
+                h,
+                angle=np.degrees(e.angle),
+                facecolor=(*color, 0.18),
+                edgecolor=color,
+                lw=1.5,
+                label=f"{r} {e.name}",
+            )
+        )
         for i in range(2):
             d = e.eigenvectors[:, i] * e.half_axes(k)[i]
             ax.plot([e.mean[0] - d[0], e.mean[0] + d[0]], [e.mean[1] - d[1], e.mean[1] + d[1]], color=color, lw=0.8)
@@ -127,8 +141,11 @@ def plot_region_pca(result, k=1.0, ax=None, annotate=True):
     ax.set_xlabel(r"$\rho_s$ (specular scale)")
     ax.set_ylabel(lobe)
     model = {"ts": "Torrance-Sparrow", "bp": "Blinn-Phong"}[result.model]
-    ax.set_title(f"{model} parameters per region, {result.n_subjects} subjects\n"
-                 f"ellipses: mean ± {k:g}σ along the principal axes", fontsize=10)
+    ax.set_title(
+        f"{model} parameters per region, {result.n_subjects} subjects\n"
+        f"ellipses: mean ± {k:g}σ along the principal axes",
+        fontsize=10,
+    )
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), title="region", title_fontsize=8)
     return fig
 
@@ -187,8 +204,10 @@ def plot_cca(result, dims=(0, 1), ax=None, skin_type=None, gender=None, age=None
         ax.set_ylabel("experimental canonical variate 1")
     _encoded_scatter(ax, x, y, st, g, a)
     direct = ", ".join(f"{n} {v:.3f}" for n, v in zip(result.y_names, result.direct_correlations))
-    ax.set_title(f"CCA, n = {result.n}; principal r = " + ", ".join(f"{v:.3f}" for v in r[:2])
-                 + f"\ndirect r: {direct}", fontsize=9)
+    ax.set_title(
+        f"CCA, n = {result.n}; principal r = " + ", ".join(f"{v:.3f}" for v in r[:2]) + f"\ndirect r: {direct}",
+        fontsize=9,
+    )
     _encoding_legend(ax, st, g, a)
     return fig
 
@@ -223,14 +242,24 @@ def plot_translucency(table, ax=None, published=True):
         stds = [table.table.loc[ch, (s, "std")] for s in sites]
         ax.bar(x + (c - 1) * width, means, width, yerr=stds, color=_CHANNEL_COLORS[ch], alpha=0.75, capsize=3, label=ch)
         if published:
-            ax.plot(x + (c - 1) * width, [TABLE1_MEAN[s][c] for s in sites], "D", mfc="white", mec="k", ms=6,
-                    label="Weyrich Table 1 mean" if c == 0 else None)
+            ax.plot(
+                x + (c - 1) * width,
+                [TABLE1_MEAN[s][c] for s in sites],
+                "D",
+                mfc="white",
+                mec="k",
+                ms=6,
+                label="Weyrich Table 1 mean" if c == 0 else None,
+            )
     ax.set_xticks(x, sites)
     ax.set_ylabel(r"$\sigma_{tr}$ (mm$^{-1}$)")
     avg = ", ".join(f"{v:.4f}" for v in table.sigma_tr_avg)
     lo, hi = (", ".join(f"{v:.3f}" for v in e) for e in (table.ell_d_min, table.ell_d_max))
-    ax.set_title(f"Translucency per site (mean ± 1 sd); $\\sigma_{{trAvg}}$ = [{avg}]\n"
-                 f"$\\ell_d$ range: {table.min_subject} [{lo}] mm to {table.max_subject} [{hi}] mm", fontsize=9)
+    ax.set_title(
+        f"Translucency per site (mean ± 1 sd); $\\sigma_{{trAvg}}$ = [{avg}]\n"
+        f"$\\ell_d$ range: {table.min_subject} [{lo}] mm to {table.max_subject} [{hi}] mm",
+        fontsize=9,
+    )
     ax.legend(fontsize=8, ncol=2)
     return fig
 
@@ -242,7 +271,10 @@ def plot_conditions(result):
     diff = result.differences
     conds = [c for c in result.conditions if c != result.reference]
     regions = sorted(set(diff.index.get_level_values("region")))
-    for ax, col, label in ((axes[0], "d_rho_s", r"$\Delta\rho_s$"), (axes[1], "d_lobe", f"$\\Delta {result.lobe_name}$")):
+    for ax, col, label in (
+        (axes[0], "d_rho_s", r"$\Delta\rho_s$"),
+        (axes[1], "d_lobe", f"$\\Delta {result.lobe_name}$"),
+    ):
         m = np.array([[diff.loc[(c, r), col] for r in regions] for c in conds], dtype=float)
         lim = np.nanmax(np.abs(m)) if np.isfinite(m).any() else 1.0
         im = ax.imshow(m, cmap="RdBu_r", vmin=-lim, vmax=lim, aspect="auto")
@@ -261,8 +293,12 @@ def plot_conditions(result):
     return fig
 
 
-_LABELS = {"sigma_s_prime": r"$\sigma'_s$ (mm$^{-1}$)", "sigma_a": r"$\sigma_a$ (mm$^{-1}$)",
-           "sigma_tr": r"$\sigma_{tr}$ (mm$^{-1}$)", "ell_d": r"$\ell_d$ (mm)"}
+_LABELS = {
+    "sigma_s_prime": r"$\sigma'_s$ (mm$^{-1}$)",
+    "sigma_a": r"$\sigma_a$ (mm$^{-1}$)",
+    "sigma_tr": r"$\sigma_{tr}$ (mm$^{-1}$)",
+    "ell_d": r"$\ell_d$ (mm)",
+}
 
 
 def plot_sigma_posterior(post, labels=None, parameters=("sigma_s_prime", "sigma_a", "sigma_tr"), truth=None, bins=40):
@@ -330,8 +366,11 @@ def plot_sigma_posterior(post, labels=None, parameters=("sigma_s_prime", "sigma_
         d = post.diagnostics.loc[lab]
         tau = max(d["tau_sigma_s_prime"], d["tau_sigma_a"])
         flag = "" if d["converged"] else "  NOT CONVERGED"
-        sf.suptitle(f"{lab}: τ = {tau:.1f}, acc = {d['acceptance']:.2f}, {post.level:.0%} intervals{flag}",
-                    fontsize=9, color="firebrick" if flag else "k")
+        sf.suptitle(
+            f"{lab}: τ = {tau:.1f}, acc = {d['acceptance']:.2f}, {post.level:.0%} intervals{flag}",
+            fontsize=9,
+            color="firebrick" if flag else "k",
+        )
     return fig
 
 
@@ -343,11 +382,20 @@ def plot_population_sigma_tr(result):
     for ax, ch in zip(axes, CHANNELS):
         t = s.xs(ch, level="channel")
         x = np.arange(len(t))
-        ax.errorbar(x, t["median"], yerr=[t["median"] - t["lo"], t["hi"] - t["median"]], fmt="o",
-                    color=_CHANNEL_COLORS[ch], capsize=4, label=f"posterior median, {result.level:.0%} interval")
+        ax.errorbar(
+            x,
+            t["median"],
+            yerr=[t["median"] - t["lo"], t["hi"] - t["median"]],
+            fmt="o",
+            color=_CHANNEL_COLORS[ch],
+            capsize=4,
+            label=f"posterior median, {result.level:.0%} interval",
+        )
         ax.plot(x, t["sample_mean"], "kx", label="sample mean")
         for xi, n in zip(x, t["n"]):
-            ax.annotate(f"n={n}", (xi, t["hi"].iloc[xi]), textcoords="offset points", xytext=(0, 4), ha="center", fontsize=7)
+            ax.annotate(
+                f"n={n}", (xi, t["hi"].iloc[xi]), textcoords="offset points", xytext=(0, 4), ha="center", fontsize=7
+            )
         if result.hyper is not None:
             h = result.hyper.loc[ch]
             ax.axhspan(h["mu_lo"], h["mu_hi"], color="0.85", zorder=0, label=r"population mean $\mu$")

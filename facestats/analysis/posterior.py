@@ -69,12 +69,13 @@ from dataclasses import dataclass
 import emcee
 import numpy as np
 
-from facestats.core.validate import as_float, check_choice, check_finite, check_range, check_shape
 from facestats.acquire.sensor import ContactSensor
+from facestats.analysis.conditions import select_population
 from facestats.core.conventions import CHANNELS
+from facestats.core.published import ETA_SKIN
+from facestats.core.validate import as_float, check_choice, check_finite, check_range, check_shape
 from facestats.errors import ConvergenceWarning, ValidationError
 from facestats.model import dipole
-from facestats.analysis.conditions import select_population
 
 __all__ = [
     "DEFAULT_BOUNDS",
@@ -227,7 +228,9 @@ def _validate_profiles(r, profile, std):
     if y.ndim == 1:
         y = y[:, None]
     if y.ndim != 2 or y.shape[0] != r_a.shape[0]:
-        raise ValidationError(f"profile must have shape ({r_a.shape[0]},) or ({r_a.shape[0]}, K) to match r, got {np.shape(profile)}")
+        raise ValidationError(
+            f"profile must have shape ({r_a.shape[0]},) or ({r_a.shape[0]}, K) to match r, got {np.shape(profile)}"
+        )
     if np.any(np.isinf(y)):
         raise ValidationError("profile must not hold infinite values (NaN marks a missing fibre)")
     s = None
@@ -239,7 +242,9 @@ def _validate_profiles(r, profile, std):
             raise ValidationError(f"std must have the shape of profile {y.shape}, got {np.shape(std)}")
         bad = np.isfinite(y) & ~(np.isfinite(s) & (s > 0))
         if bad.any():
-            raise ValidationError(f"std must be finite and > 0 where profile is given, got {int(bad.sum())} bad value(s)")
+            raise ValidationError(
+                f"std must be finite and > 0 where profile is given, got {int(bad.sum())} bad value(s)"
+            )
     mask = np.isfinite(y)
     few = mask.sum(axis=0) < 3
     if few.any():
@@ -289,7 +294,7 @@ class _LogPosterior:
         th = np.asarray(theta, dtype=np.float64).reshape(-1, self.k, 2)
         inside = np.all((th >= self.lo) & (th <= self.hi), axis=-1)
         e = np.exp(np.clip(th, self.lo, self.hi))
-        mu = dipole._profile(self.r, e[:, None, :, 0], e[:, None, :, 1], self.eta)  # (n, F, K)
+        mu = dipole.dipole_profile_unchecked(self.r, e[:, None, :, 0], e[:, None, :, 1], self.eta)  # (n, F, K)
         sd = self.sensor.profile_std(mu) if self.std is None else self.std
         with np.errstate(invalid="ignore"):
             return (self.y - mu) / sd, np.log(sd), inside
@@ -342,17 +347,19 @@ def _grid_start(post, y, std_fixed, mask, n_coarse=41, n_fine=11, n_best=8):
         th = _albedo_coordinates(cand[..., 0], cand[..., 1])
         inside = np.all((th >= post.lo) & (th <= post.hi), axis=-1)
         e = np.exp(th)
-        mu = dipole._profile(r, e[..., 0:1], e[..., 1:2], post.eta)  # (..., F)
+        mu = dipole.dipole_profile_unchecked(r, e[..., 0:1], e[..., 1:2], post.eta)  # (..., F)
         yk, sk, mk = y[:, blocks].T, std_fixed[:, blocks].T, mask[:, blocks].T  # (K, F)
         c = np.sum(np.where(mk, ((yk - mu) / sk) ** 2, 0.0), axis=-1)
         return np.where(inside, c, np.inf), th
 
     # blocks in chunks, so the (G, K, F) model array stays near 4 million values
     chunk = max(1, 4_000_000 // (coarse.shape[0] * r.size))
-    best = np.concatenate([
-        np.argsort(chi2(coarse[:, None, :], slice(j, j + chunk))[0], axis=0)[:n_best].T
-        for j in range(0, y.shape[1], chunk)
-    ])  # (K, n_best)
+    best = np.concatenate(
+        [
+            np.argsort(chi2(coarse[:, None, :], slice(j, j + chunk))[0], axis=0)[:n_best].T
+            for j in range(0, y.shape[1], chunk)
+        ]
+    )  # (K, n_best)
     step = np.array([t[1] - t[0], u[1] - u[0]])
     offsets = np.stack(np.meshgrid(*(np.linspace(-1, 1, n_fine),) * 2, indexing="ij"), -1).reshape(-1, 2) * step
     fine = (coarse[best][:, :, None, :] + offsets).reshape(y.shape[1], -1, 2)  # (K, n_best·n_fine², 2)
@@ -375,7 +382,7 @@ def _least_squares_start(post, y, std_fixed, mask):
         rj, yj, sj = r[m], y[m, j], std_fixed[m, j]
 
         def resid(t):
-            return (dipole._profile(rj, np.exp(t[0]), np.exp(t[1]), post.eta) - yj) / sj
+            return (dipole.dipole_profile_unchecked(rj, np.exp(t[0]), np.exp(t[1]), post.eta) - yj) / sj
 
         fit = least_squares(resid, best[j], bounds=(lo, hi), x_scale="jac")
         theta[j] = fit.x
@@ -410,8 +417,23 @@ def _initial_walkers(post, theta, cov, n_walkers, rng):
     return p.reshape(n_walkers, 2 * k)
 
 
-def sigma_posterior(r, profile, std=None, *, sensor=None, eta=1.38, labels=None, bounds=None, n_walkers=16,
-                    min_tau=50.0, burn_in=3.0, max_steps=20000, initial_steps=500, level=0.9, seed=0):
+def sigma_posterior(
+    r,
+    profile,
+    std=None,
+    *,
+    sensor=None,
+    eta=ETA_SKIN,
+    labels=None,
+    bounds=None,
+    n_walkers=16,
+    min_tau=50.0,
+    burn_in=3.0,
+    max_steps=20000,
+    initial_steps=500,
+    level=0.9,
+    seed=0,
+):
     """Posterior of (σ's, σa) per channel of a contact-sensor profile, with σtr and ℓd (Weyrich et al. 2006 §5.4, eq. 15).
 
     See the module docstring for the model, likelihood (sensor noise model,
@@ -518,24 +540,48 @@ def sigma_posterior(r, profile, std=None, *, sensor=None, eta=1.38, labels=None,
         else:
             burn, thin = steps // 2, 1
         burn = min(burn, steps - 1)
-        x = np.exp(chain[burn::thin, :, 2 * j:2 * j + 2].reshape(-1, 2))
+        x = np.exp(chain[burn::thin, :, 2 * j : 2 * j + 2].reshape(-1, 2))
         sig_tr = dipole.transport_coefficient(x[:, 1], x[:, 0])
-        frame = pd.DataFrame({"sigma_s_prime": x[:, 0], "sigma_a": x[:, 1], "sigma_tr": sig_tr,
-                              "ell_d": dipole.diffuse_mean_free_path(sig_tr)})
+        frame = pd.DataFrame(
+            {
+                "sigma_s_prime": x[:, 0],
+                "sigma_a": x[:, 1],
+                "sigma_tr": sig_tr,
+                "ell_d": dipole.diffuse_mean_free_path(sig_tr),
+            }
+        )
         samples[lab] = frame
         for name in PARAMETERS + DERIVED:
             v = frame[name].to_numpy()
             lo_q, med, hi_q = np.quantile(v, q)
-            summary_rows.append({"label": lab, "parameter": name, "median": med, "mean": v.mean(), "std": v.std(ddof=1),
-                                 "lo": lo_q, "hi": hi_q})
+            summary_rows.append(
+                {
+                    "label": lab,
+                    "parameter": name,
+                    "median": med,
+                    "mean": v.mean(),
+                    "std": v.std(ddof=1),
+                    "lo": lo_q,
+                    "hi": hi_q,
+                }
+            )
         n_after = (steps - burn) * int(n_walkers)
         medians[j] = np.log(np.median(x, axis=0))
-        diag_rows.append({
-            "label": lab, "tau_sigma_s_prime": tau_j[0], "tau_sigma_a": tau_j[1], "acceptance": acceptance[j],
-            "burn_in": burn, "thin": thin, "n_samples": len(frame),
-            "ess_sigma_s_prime": n_after / tau_j[0], "ess_sigma_a": n_after / tau_j[1],
-            "steps_over_tau": steps / tmax, "converged": converged,
-        })
+        diag_rows.append(
+            {
+                "label": lab,
+                "tau_sigma_s_prime": tau_j[0],
+                "tau_sigma_a": tau_j[1],
+                "acceptance": acceptance[j],
+                "burn_in": burn,
+                "thin": thin,
+                "n_samples": len(frame),
+                "ess_sigma_s_prime": n_after / tau_j[0],
+                "ess_sigma_a": n_after / tau_j[1],
+                "steps_over_tau": steps / tmax,
+                "converged": converged,
+            }
+        )
     diagnostics = pd.DataFrame.from_records(diag_rows).set_index("label")
     diagnostics["chi2_dof"] = post.chi2(medians.reshape(1, -1))[0] / np.maximum(mask.sum(axis=0) - 2, 1)
     bad = diagnostics.index[~diagnostics["converged"]].tolist()
@@ -544,16 +590,30 @@ def sigma_posterior(r, profile, std=None, *, sensor=None, eta=1.38, labels=None,
             f"sigma_posterior: chains of {bad} are shorter than {min_tau:g} autocorrelation times after {steps} steps "
             f"(steps/tau = {diagnostics.loc[bad, 'steps_over_tau'].round(1).tolist()}); raise max_steps, and treat "
             "their intervals as unreliable",
-            ConvergenceWarning, stacklevel=2,
+            ConvergenceWarning,
+            stacklevel=2,
         )
     low_acc = diagnostics.index[diagnostics["acceptance"] < 0.05].tolist()
     if low_acc:
-        warnings.warn(f"sigma_posterior: acceptance fraction below 0.05 for {low_acc}; the chains hardly move",
-                      ConvergenceWarning, stacklevel=2)
+        warnings.warn(
+            f"sigma_posterior: acceptance fraction below 0.05 for {low_acc}; the chains hardly move",
+            ConvergenceWarning,
+            stacklevel=2,
+        )
     ls = pd.DataFrame(np.exp(theta_ls), index=pd.Index(labels, name="label"), columns=list(PARAMETERS))
     summary = pd.DataFrame.from_records(summary_rows).set_index(["label", "parameter"])
-    return SigmaPosterior(labels, samples, summary, diagnostics, ls, float(level), int(n_walkers), int(steps), b,
-                          "sensor model" if s is None else "explicit std")
+    return SigmaPosterior(
+        labels,
+        samples,
+        summary,
+        diagnostics,
+        ls,
+        float(level),
+        int(n_walkers),
+        int(steps),
+        b,
+        "sensor model" if s is None else "explicit std",
+    )
 
 
 def _sensor_of(ds):
@@ -664,8 +724,16 @@ def _hierarchical_draws(ybar, var, n_draws, rng):
     return theta, mu_d, tau_d
 
 
-def population_sigma_tr(source, model="hierarchical", subjects=None, conditions=("normal",), level=0.9,
-                        n_draws=20000, seed=0, group_i_ii=True):
+def population_sigma_tr(
+    source,
+    model="hierarchical",
+    subjects=None,
+    conditions=("normal",),
+    level=0.9,
+    n_draws=20000,
+    seed=0,
+    group_i_ii=True,
+):
     """Posterior of the mean σtr per skin type and channel (see the module docstring for both models).
 
     Parameters
@@ -724,8 +792,18 @@ def population_sigma_tr(source, model="hierarchical", subjects=None, conditions=
             theta, mu_d, tau_d = _hierarchical_draws(ybar[present], s_w2 / n[present], int(n_draws), rng)
             draws[:, present, c] = theta
             mq, tq = np.quantile(mu_d, q), np.quantile(tau_d, q)
-            hyper_rows.append({"channel": ch, "sigma_w": np.sqrt(s_w2), "mu_median": mq[1], "mu_lo": mq[0], "mu_hi": mq[2],
-                               "tau_median": tq[1], "tau_lo": tq[0], "tau_hi": tq[2]})
+            hyper_rows.append(
+                {
+                    "channel": ch,
+                    "sigma_w": np.sqrt(s_w2),
+                    "mu_median": mq[1],
+                    "mu_lo": mq[0],
+                    "mu_hi": mq[2],
+                    "tau_median": tq[1],
+                    "tau_lo": tq[0],
+                    "tau_hi": tq[2],
+                }
+            )
         else:
             for j, g in enumerate(groups):
                 if g.size >= 2:
@@ -738,8 +816,18 @@ def population_sigma_tr(source, model="hierarchical", subjects=None, conditions=
                 mean = d.mean()
             else:
                 lo_q = med = hi_q = mean = np.nan
-            rows.append({"skin_type": st, "channel": ch, "n": int(n[j]), "sample_mean": ybar[j], "median": med,
-                         "mean": mean, "lo": lo_q, "hi": hi_q})
+            rows.append(
+                {
+                    "skin_type": st,
+                    "channel": ch,
+                    "n": int(n[j]),
+                    "sample_mean": ybar[j],
+                    "median": med,
+                    "mean": mean,
+                    "lo": lo_q,
+                    "hi": hi_q,
+                }
+            )
     summary = pd.DataFrame.from_records(rows).set_index(["skin_type", "channel"])
     hyper = pd.DataFrame.from_records(hyper_rows).set_index("channel") if hyper_rows else None
     return PopulationSigmaTr(summary, draws, skin_types, hyper, model, float(level))

@@ -19,10 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.core.validate import check_choice
-from facestats.core.conventions import CHANNELS, SITES
-from facestats.errors import ValidationError
 from facestats.analysis.conditions import select_population
+from facestats.core.conventions import CHANNELS, SITES
+from facestats.core.validate import check_choice
+from facestats.errors import ValidationError
 
 __all__ = ["AbsorptionScattering", "absorption_scattering"]
 
@@ -96,13 +96,23 @@ def absorption_scattering(source, site=None, subjects=None, conditions=("normal"
             ca, cs = f"site_sigma_a_{site}_{ch}", f"site_sigma_s_prime_{site}_{ch}"
         if ca not in frame.columns or cs not in frame.columns:
             raise ValidationError(f"the population index has no columns {ca!r}/{cs!r}")
-        part = pd.DataFrame({
-            "subject_id": frame.index.astype(str), "channel": ch,
-            "sigma_a": frame[ca].astype(float).to_numpy(), "sigma_s_prime": frame[cs].astype(float).to_numpy(),
-            "skin_type": frame["skin_type"].astype(int).to_numpy(), "gender": frame["gender"].astype(str).to_numpy(),
-            "age": frame["age"].astype(float).to_numpy(),
-        })
-        ok = np.isfinite(part["sigma_a"]) & np.isfinite(part["sigma_s_prime"]) & (part["sigma_a"] > 0) & (part["sigma_s_prime"] > 0)
+        part = pd.DataFrame(
+            {
+                "subject_id": frame.index.astype(str),
+                "channel": ch,
+                "sigma_a": frame[ca].astype(float).to_numpy(),
+                "sigma_s_prime": frame[cs].astype(float).to_numpy(),
+                "skin_type": frame["skin_type"].astype(int).to_numpy(),
+                "gender": frame["gender"].astype(str).to_numpy(),
+                "age": frame["age"].astype(float).to_numpy(),
+            }
+        )
+        ok = (
+            np.isfinite(part["sigma_a"])
+            & np.isfinite(part["sigma_s_prime"])
+            & (part["sigma_a"] > 0)
+            & (part["sigma_s_prime"] > 0)
+        )
         parts.append(part[ok])
     data = pd.concat(parts, ignore_index=True)
     if data.empty:

@@ -33,10 +33,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.core.validate import check_choice
-from facestats.core.conventions import CHANNELS, SITES
-from facestats.errors import ValidationError
 from facestats.analysis.conditions import select_population
+from facestats.core.conventions import CHANNELS, SITES
+from facestats.core.validate import check_choice
+from facestats.errors import ValidationError
 
 __all__ = ["TranslucencyTable", "translucency_table", "subject_sigma_tr"]
 
@@ -117,12 +117,17 @@ class TranslucencyTable:
             if (site, "mean") not in self.table.columns:
                 continue
             for c, ch in enumerate(CHANNELS):
-                rows.append({
-                    "site": site, "channel": ch,
-                    "mean": self.table.loc[ch, (site, "mean")], "paper_mean": TABLE1_MEAN[site][c],
-                    "var": self.table.loc[ch, (site, "var")], "std": self.table.loc[ch, (site, "std")],
-                    "paper_var": TABLE1_VAR[site][c],
-                })
+                rows.append(
+                    {
+                        "site": site,
+                        "channel": ch,
+                        "mean": self.table.loc[ch, (site, "mean")],
+                        "paper_mean": TABLE1_MEAN[site][c],
+                        "var": self.table.loc[ch, (site, "var")],
+                        "std": self.table.loc[ch, (site, "std")],
+                        "paper_var": TABLE1_VAR[site][c],
+                    }
+                )
         return pd.DataFrame.from_records(rows).set_index(["site", "channel"])
 
 
@@ -190,7 +195,13 @@ def translucency_table(source, subjects=None, conditions=("normal",), ddof=1, ra
     lo, hi = key.idxmin(), key.idxmax()
     ell_cols = [f"ell_d_{ch}" for ch in CHANNELS]
     return TranslucencyTable(
-        table=table, sigma_tr_avg=sigma_tr_avg, subjects=per, min_subject=str(lo), max_subject=str(hi),
-        ell_d_min=per.loc[lo, ell_cols].to_numpy(float), ell_d_max=per.loc[hi, ell_cols].to_numpy(float),
-        rank_by=rank_by, ddof=ddof,
+        table=table,
+        sigma_tr_avg=sigma_tr_avg,
+        subjects=per,
+        min_subject=str(lo),
+        max_subject=str(hi),
+        ell_d_min=per.loc[lo, ell_cols].to_numpy(float),
+        ell_d_max=per.loc[hi, ell_cols].to_numpy(float),
+        rank_by=rank_by,
+        ddof=ddof,
     )

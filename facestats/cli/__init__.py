@@ -11,9 +11,9 @@ import argparse
 import os
 import sys
 
-from facestats import __version__
 from facestats.cli.analyze import add_analyze
 from facestats.cli.edit import add_edit
+from facestats.core.version import __version__
 from facestats.errors import FacestatsError
 
 __all__ = ["main", "build_parser"]
@@ -39,10 +39,22 @@ def _add_demo(sub):
             "the total diffuse reflectance per channel (Weyrich et al. 2006 §5.4) and plot the dipole profiles."
         ),
     )
-    p.add_argument("--albedo", nargs=3, type=float, metavar=("R", "G", "B"), default=None,
-                   help="albedo per channel in (0, 1); default: the ColorChecker 'light skin' patch in linear sRGB")
-    p.add_argument("--sigma-tr", nargs=3, type=float, metavar=("R", "G", "B"), default=None,
-                   help="σtr in 1/mm; default: Weyrich's σtrAvg = 0.5508 0.9791 1.5497")
+    p.add_argument(
+        "--albedo",
+        nargs=3,
+        type=float,
+        metavar=("R", "G", "B"),
+        default=None,
+        help="albedo per channel in (0, 1); default: the ColorChecker 'light skin' patch in linear sRGB",
+    )
+    p.add_argument(
+        "--sigma-tr",
+        nargs=3,
+        type=float,
+        metavar=("R", "G", "B"),
+        default=None,
+        help="σtr in 1/mm; default: Weyrich's σtrAvg = 0.5508 0.9791 1.5497",
+    )
     p.add_argument("--eta", type=float, default=1.38, help="relative index of refraction (default 1.38)")
     p.add_argument("--plot", default="dipole_profiles.png", help="where to write the plot (PNG/SVG/PDF); '' for none")
     p.set_defaults(func=_cmd_demo)
@@ -50,8 +62,12 @@ def _add_demo(sub):
 
 # -- store commands ----------------------------------------------------------------
 def _store_option(p):
-    p.add_argument("--store", default=None, metavar="PATH",
-                   help="a store directory (X.zarr) or zip; default: the store embedded in facestats")
+    p.add_argument(
+        "--store",
+        default=None,
+        metavar="PATH",
+        help="a store directory (X.zarr) or zip; default: the store embedded in facestats",
+    )
 
 
 def _can_encode(text: str) -> bool:
@@ -66,8 +82,9 @@ def _cmd_query(args) -> int:
     from facestats.io.store import open_store
 
     with open_store(args.store) as store:
-        result = store.query(skin_type=args.skin_type, gender=args.gender, age=args.age,
-                             condition=args.condition, region=args.region)
+        result = store.query(
+            skin_type=args.skin_type, gender=args.gender, age=args.age, condition=args.condition, region=args.region
+        )
     if args.format == "json":
         print(result.to_json())
     elif args.format == "csv":
@@ -98,8 +115,12 @@ def _add_query(sub):
     p.add_argument("--condition", metavar="NAME", help="one of: " + ", ".join(_conditions()))
     p.add_argument("--region", metavar="NAME|N", help="report the BRDF of one face region (1-10 or a name)")
     _store_option(p)
-    p.add_argument("--format", choices=("table", "json", "csv"), default="table",
-                   help="table (text, histograms drawn), json (documented, stable) or csv")
+    p.add_argument(
+        "--format",
+        choices=("table", "json", "csv"),
+        default="table",
+        help="table (text, histograms drawn), json (documented, stable) or csv",
+    )
     p.set_defaults(func=_cmd_query)
 
 
@@ -132,8 +153,13 @@ def _cmd_info(args) -> int:
     print(f"written by:      facestats {info['writer_version']}")
     print(f"index revision:  {info['index_revision']} (updated {info['updated']})")
     print(f"subjects:        {info['n_subjects']} ({info['n_persons']} persons)")
-    for key, title in (("by_skin_type", "skin type"), ("by_gender", "gender"), ("by_age_group", "age"),
-                       ("by_condition", "condition"), ("by_kind", "kind")):
+    for key, title in (
+        ("by_skin_type", "skin type"),
+        ("by_gender", "gender"),
+        ("by_age_group", "age"),
+        ("by_condition", "condition"),
+        ("by_kind", "kind"),
+    ):
         if info[key]:
             print(f"  {title:<14} " + ", ".join(f"{k} {v}" for k, v in info[key].items()))
     print(f"size on disk:    {_fmt_bytes(info['size_bytes'])}")
@@ -141,9 +167,12 @@ def _cmd_info(args) -> int:
 
 
 def _add_info(sub):
-    p = sub.add_parser("info", help="schema and writer versions, subject counts and size of a store",
-                       description="Describe a parameter store: versions, subject counts by skin type, gender, "
-                                   "age group, condition and kind, and its size on disk.")
+    p = sub.add_parser(
+        "info",
+        help="schema and writer versions, subject counts and size of a store",
+        description="Describe a parameter store: versions, subject counts by skin type, gender, "
+        "age group, condition and kind, and its size on disk.",
+    )
     _store_option(p)
     p.add_argument("--format", choices=("text", "json"), default="text")
     p.set_defaults(func=_cmd_info)
@@ -165,13 +194,19 @@ def _cmd_validate(args) -> int:
 
 
 def _add_validate(sub):
-    p = sub.add_parser("validate", help="check every subject of a store and the index (exit 1 if invalid)",
-                       description="Open and check every subject (group present, dims, checksums, schema) and "
-                                   "compare the population index with the data. Exit 0 if valid, 1 if not.")
+    p = sub.add_parser(
+        "validate",
+        help="check every subject of a store and the index (exit 1 if invalid)",
+        description="Open and check every subject (group present, dims, checksums, schema) and "
+        "compare the population index with the data. Exit 0 if valid, 1 if not.",
+    )
     _store_option(p)
-    p.add_argument("--repair", action="store_true",
-                   help="rebuild a lost index, drop broken subjects from it, recompute stale rows and remove what "
-                        "interrupted writers left (directory stores)")
+    p.add_argument(
+        "--repair",
+        action="store_true",
+        help="rebuild a lost index, drop broken subjects from it, recompute stale rows and remove what "
+        "interrupted writers left (directory stores)",
+    )
     p.set_defaults(func=_cmd_validate)
 
 
@@ -190,9 +225,12 @@ def _cmd_export(args) -> int:
 
 
 def _add_export(sub):
-    p = sub.add_parser("export", help="write the per-subject statistics release (CSV/JSON)",
-                       description="Per subject: metadata, per-region Torrance-Sparrow and Blinn-Phong coefficients, "
-                                   "σa, σ's and σtr per channel and albedo histograms (Weyrich et al. 2006 §7).")
+    p = sub.add_parser(
+        "export",
+        help="write the per-subject statistics release (CSV/JSON)",
+        description="Per subject: metadata, per-region Torrance-Sparrow and Blinn-Phong coefficients, "
+        "σa, σ's and σtr per channel and albedo histograms (Weyrich et al. 2006 §7).",
+    )
     _store_option(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
     p.add_argument("--format", choices=("csv", "json", "both"), default="both")
@@ -205,18 +243,26 @@ def _cmd_import_merl(args) -> int:
     data = import_merl(args.path, args.store, prefix=args.prefix, overwrite=args.overwrite)
     ids = data.ids
     print(f"imported {len(ids)} subjects ({ids[0]} ... {ids[-1]}) from {data.path} into {args.store}")
-    print(f"  {data.n_ts} Torrance-Sparrow samples, {data.n_albedo} albedo samples"
-          + (f" ({data.albedo_channels} channel(s))" if data.albedo_channels else " (no albedo data)"))
+    print(
+        f"  {data.n_ts} Torrance-Sparrow samples, {data.n_albedo} albedo samples"
+        + (f" ({data.albedo_channels} channel(s))" if data.albedo_channels else " (no albedo data)")
+    )
     if data.empty:
-        print(f"  {len(data.empty)} subject(s) without samples (imported with empty statistics): "
-              + ", ".join(data.empty[:10]) + (" ..." if len(data.empty) > 10 else ""))
+        print(
+            f"  {len(data.empty)} subject(s) without samples (imported with empty statistics): "
+            + ", ".join(data.empty[:10])
+            + (" ..." if len(data.empty) > 10 else "")
+        )
     return 0
 
 
 def _add_import_merl(sub):
-    p = sub.add_parser("import-merl", help="import a MERL/ETH ts_data.mat file into a store",
-                       description="Import the Torrance-Sparrow (and albedo) samples of the MERL/ETH Skin "
-                                   "Reflectance Database file ts_data.mat as sample subjects merl-001 ...")
+    p = sub.add_parser(
+        "import-merl",
+        help="import a MERL/ETH ts_data.mat file into a store",
+        description="Import the Torrance-Sparrow (and albedo) samples of the MERL/ETH Skin "
+        "Reflectance Database file ts_data.mat as sample subjects merl-001 ...",
+    )
     p.add_argument("path", help="the ts_data.mat file")
     p.add_argument("--store", required=True, metavar="OUT", help="store directory to write (created if missing)")
     p.add_argument("--prefix", default="merl", help="subject id prefix (default merl)")
@@ -249,9 +295,17 @@ def _cmd_build(args) -> int:
         if not args.store:
             print("facestats: error: pass --store PATH (a directory store) or --default", file=sys.stderr)
             return 2
-        report = _build.build_store(args.store, seed=args.seed, map_size=args.size, conditions=not args.no_conditions,
-                                    specular=args.specular, subjects=args.subjects, workers=args.workers,
-                                    micro_normals=not args.no_micro_normals, progress=not args.quiet)
+        report = _build.build_store(
+            args.store,
+            seed=args.seed,
+            map_size=args.size,
+            conditions=not args.no_conditions,
+            specular=args.specular,
+            subjects=args.subjects,
+            workers=args.workers,
+            micro_normals=not args.no_micro_normals,
+            progress=not args.quiet,
+        )
     print(report.to_text())
     return 0
 
@@ -273,16 +327,29 @@ def _add_build(sub):
     p.add_argument("--size", type=int, default=48, help="UV map / lumitexel grid size (default 48)")
     p.add_argument("--subjects", nargs="+", metavar="ID", help="only these subject ids")
     p.add_argument("--no-conditions", action="store_true", help="leave out the subject measured under seven conditions")
-    p.add_argument("--specular", choices=("torrance_sparrow", "blinn_phong"), default="torrance_sparrow",
-                   help="BRDF the simulator renders highlights with")
+    p.add_argument(
+        "--specular",
+        choices=("torrance_sparrow", "blinn_phong"),
+        default="torrance_sparrow",
+        help="BRDF the simulator renders highlights with",
+    )
     p.add_argument("--no-micro-normals", action="store_true", help="do not store per-camera micro-normal maps")
     p.add_argument("--workers", type=int, default=None, help="worker processes (default: number of cores)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_build)
 
 
-_COMMANDS = [_add_demo, _add_query, _add_info, _add_validate, _add_export, _add_import_merl, _add_build, add_analyze,
-             add_edit]
+_COMMANDS = [
+    _add_demo,
+    _add_query,
+    _add_info,
+    _add_validate,
+    _add_export,
+    _add_import_merl,
+    _add_build,
+    add_analyze,
+    add_edit,
+]
 
 
 def main(argv=None) -> int:

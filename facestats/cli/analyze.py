@@ -139,11 +139,20 @@ def _pca(store, args):
     k = 1.0
     regions = []
     for r, e in res.regions.items():
-        regions.append({
-            "region": r, "name": e.name, "n": e.n, "n_subjects": e.n_subjects, "mean": e.mean,
-            "eigenvalues": e.eigenvalues, "std": e.std, "axes": e.eigenvectors.T, "angle_deg": np.degrees(e.angle),
-            "total_variance": float(e.eigenvalues.sum()),
-        })
+        regions.append(
+            {
+                "region": r,
+                "name": e.name,
+                "n": e.n,
+                "n_subjects": e.n_subjects,
+                "mean": e.mean,
+                "eigenvalues": e.eigenvalues,
+                "std": e.std,
+                "axes": e.eigenvectors.T,
+                "angle_deg": np.degrees(e.angle),
+                "total_variance": float(e.eigenvalues.sum()),
+            }
+        )
     mean_rho = {r: e.mean[0] for r, e in res.regions.items()}
     mean_lobe = {r: e.mean[1] for r, e in res.regions.items()}
     total = {r: float(e.eigenvalues.sum()) for r, e in res.regions.items()}
@@ -155,17 +164,32 @@ def _pca(store, args):
     }
     published = None
     if args.model == "ts":
-        published = {"highest_rho_s": list(HIGHEST_RHO_S), "largest_variance": list(LARGEST_VARIANCE),
-                     "smallest_m": SMALLEST_M}
-    doc = {"model": res.model, "parameters": list(res.parameters), "n_subjects": res.n_subjects, "ddof": res.ddof,
-           "k": k, "regions": regions, "orderings": orderings, "published": published}
+        published = {
+            "highest_rho_s": list(HIGHEST_RHO_S),
+            "largest_variance": list(LARGEST_VARIANCE),
+            "smallest_m": SMALLEST_M,
+        }
+    doc = {
+        "model": res.model,
+        "parameters": list(res.parameters),
+        "n_subjects": res.n_subjects,
+        "ddof": res.ddof,
+        "k": k,
+        "regions": regions,
+        "orderings": orderings,
+        "published": published,
+    }
     lobe = res.parameters[1]
-    lines = [f"Region PCA of the {_MODEL_NAMES[res.model]} parameters (rho_s, {lobe}), {res.n_subjects} subjects "
-             f"(Weyrich Fig. 15)",
-             f"{'region':<13}{'n':>7}  {'rho_s':>7}  {lobe:>8}  {'sd1':>8}  {'sd2':>8}  {'angle':>6}"]
+    lines = [
+        f"Region PCA of the {_MODEL_NAMES[res.model]} parameters (rho_s, {lobe}), {res.n_subjects} subjects "
+        f"(Weyrich Fig. 15)",
+        f"{'region':<13}{'n':>7}  {'rho_s':>7}  {lobe:>8}  {'sd1':>8}  {'sd2':>8}  {'angle':>6}",
+    ]
     for r, e in res.regions.items():
-        lines.append(f"{r:>2} {e.name:<10}{e.n:>7}  {e.mean[0]:7.4f}  {e.mean[1]:8.4f}  {e.std[0]:8.4f}  "
-                     f"{e.std[1]:8.4f}  {np.degrees(e.angle):5.0f}d")
+        lines.append(
+            f"{r:>2} {e.name:<10}{e.n:>7}  {e.mean[0]:7.4f}  {e.mean[1]:8.4f}  {e.std[0]:8.4f}  "
+            f"{e.std[1]:8.4f}  {np.degrees(e.angle):5.0f}d"
+        )
     smooth = "smallest m" if args.model == "ts" else "largest n"
     pub = published or {}
     lines += [
@@ -203,28 +227,43 @@ def _cca(store, args):
     for i in range(k):
         projections[f"dimension_{i + 1}"] = res.projections[:, i]
     doc = {
-        "model": args.model, "n_subjects": res.n, "x_variables": list(res.x_names), "y_variables": list(res.y_names),
-        "coding": {"skin_type": "Fitzpatrick number, type I grouped into II (2-6)", "gender": "0 = M, 1 = F",
-                   "age": "years"},
-        "principal_correlations": res.correlations, "published_principal": list(CCA_PRINCIPAL),
+        "model": args.model,
+        "n_subjects": res.n,
+        "x_variables": list(res.x_names),
+        "y_variables": list(res.y_names),
+        "coding": {
+            "skin_type": "Fitzpatrick number, type I grouped into II (2-6)",
+            "gender": "0 = M, 1 = F",
+            "age": "years",
+        },
+        "principal_correlations": res.correlations,
+        "published_principal": list(CCA_PRINCIPAL),
         "direct_correlations": dict(zip(res.y_names, res.direct_correlations)),
         "direct_p_value": dict(zip(res.y_names, res.direct_p_value)),
-        "published_direct": dict(CCA_DIRECT), "dimensions": dims, "n_permutations": res.n_permutations,
-        "seed": args.seed, "y_loadings": {n: res.y_loadings[j] for j, n in enumerate(res.y_names)},
-        "dropped": [str(s) for s in res.dropped], "projections": projections,
+        "published_direct": dict(CCA_DIRECT),
+        "dimensions": dims,
+        "n_permutations": res.n_permutations,
+        "seed": args.seed,
+        "y_loadings": {n: res.y_loadings[j] for j, n in enumerate(res.y_names)},
+        "dropped": [str(s) for s in res.dropped],
+        "projections": projections,
     }
     paper = "Weyrich 2006" + (" (TS)" if args.model != "ts" else "")
-    lines = [f"CCA of the {_MODEL_NAMES[args.model]} region means ({len(res.x_names)} variables) against "
-             f"{', '.join(res.y_names)}: {res.n} subjects (Weyrich Fig. 16)",
-             f"{'':<22}{'ours':>7}  {paper:>12}"]
+    lines = [
+        f"CCA of the {_MODEL_NAMES[args.model]} region means ({len(res.x_names)} variables) against "
+        f"{', '.join(res.y_names)}: {res.n} subjects (Weyrich Fig. 16)",
+        f"{'':<22}{'ours':>7}  {paper:>12}",
+    ]
     for i, p in enumerate(CCA_PRINCIPAL):
         if i < res.correlations.size:
             lines.append(f"{'principal r' + str(i + 1):<22}{res.correlations[i]:7.3f}  {p:>12.3f}")
     for name, r in zip(res.y_names, res.direct_correlations):
         lines.append(f"{'direct ' + name:<22}{r:7.3f}  {CCA_DIRECT.get(name, float('nan')):>12.3f}")
     if res.permutation_p is not None:
-        lines.append(f"permutation test ({res.n_permutations} permutations): p = "
-                     + ", ".join(f"{p:.3g}" for p in res.permutation_p))
+        lines.append(
+            f"permutation test ({res.n_permutations} permutations): p = "
+            + ", ".join(f"{p:.3g}" for p in res.permutation_p)
+        )
     lines.append("Bartlett chi2 test: p = " + ", ".join(f"{p:.3g}" for p in res.p_value))
     if res.dropped:
         lines.append(f"left out (missing region means): {len(res.dropped)} subject(s)")
@@ -244,33 +283,47 @@ def _scatter(store, args):
         sub = d[d["channel"] == ch]
         channels[ch] = {
             "n": len(sub),
-            **{p: {"mean": sub[p].mean(), "std": sub[p].std(ddof=1), "min": sub[p].min(), "max": sub[p].max()}
-               for p in ("sigma_a", "sigma_s_prime")},
-            "pearson_log": corr.loc[ch, "pearson_log"], "spearman": corr.loc[ch, "spearman"],
+            **{
+                p: {"mean": sub[p].mean(), "std": sub[p].std(ddof=1), "min": sub[p].min(), "max": sub[p].max()}
+                for p in ("sigma_a", "sigma_s_prime")
+            },
+            "pearson_log": corr.loc[ch, "pearson_log"],
+            "spearman": corr.loc[ch, "spearman"],
         }
     g = d.groupby(["skin_type", "channel"])
     means = g[["sigma_a", "sigma_s_prime"]].mean()
     counts = g.size()
     by_type = {}
     for (st, ch), row in means.iterrows():
-        by_type.setdefault(ROMAN[int(st)], {})[ch] = {"n": counts.loc[(st, ch)], "sigma_a_mean": row["sigma_a"],
-                                                      "sigma_s_prime_mean": row["sigma_s_prime"]}
+        by_type.setdefault(ROMAN[int(st)], {})[ch] = {
+            "n": counts.loc[(st, ch)],
+            "sigma_a_mean": row["sigma_a"],
+            "sigma_s_prime_mean": row["sigma_s_prime"],
+        }
     doc = {"site": args.site, "n_subjects": d["subject_id"].nunique(), "channels": channels, "by_skin_type": by_type}
     src = "from albedo and sigma_trAvg" if args.site is None else f"fitted at the {args.site}"
-    lines = [f"Absorption against reduced scattering ({src}), {doc['n_subjects']} subjects (Weyrich Fig. 14)",
-             f"{'channel':<8}{'sigma_a mean':>13}{'sigma_s_prime mean':>20}{'r(ss, ln sa)':>14}{'Spearman':>10}"]
+    lines = [
+        f"Absorption against reduced scattering ({src}), {doc['n_subjects']} subjects (Weyrich Fig. 14)",
+        f"{'channel':<8}{'sigma_a mean':>13}{'sigma_s_prime mean':>20}{'r(ss, ln sa)':>14}{'Spearman':>10}",
+    ]
     for ch in CHANNELS:
         c = channels[ch]
-        lines.append(f"{ch:<8}{c['sigma_a']['mean']:13.4f}{c['sigma_s_prime']['mean']:20.4f}"
-                     f"{c['pearson_log']:14.3f}{c['spearman']:10.3f}")
-    lines.append("sigma_a falls as sigma_s_prime rises (negative correlations), as in the paper; "
-                 "darker skin types absorb more and scatter less")
+        lines.append(
+            f"{ch:<8}{c['sigma_a']['mean']:13.4f}{c['sigma_s_prime']['mean']:20.4f}"
+            f"{c['pearson_log']:14.3f}{c['spearman']:10.3f}"
+        )
+    lines.append(
+        "sigma_a falls as sigma_s_prime rises (negative correlations), as in the paper; "
+        "darker skin types absorb more and scatter less"
+    )
     return plot_absorption_scattering(res), doc, lines
 
 
-_VAR_NOTE = ("The synthetic population of the default store reads Table 1's 'Var.' column as a standard deviation "
-             "(facestats.acquire.synthetic.population): compare the paper's 'Var.' with our 'std'.  'var' is the sample "
-             "variance of the per-subject sigma_tr.")
+_VAR_NOTE = (
+    "The synthetic population of the default store reads Table 1's 'Var.' column as a standard deviation "
+    "(facestats.acquire.synthetic.population): compare the paper's 'Var.' with our 'std'.  'var' is the sample "
+    "variance of the per-subject sigma_tr."
+)
 
 
 def _translucency(store, args):
@@ -280,22 +333,32 @@ def _translucency(store, args):
 
     t = translucency_table(store)
     cmp = t.compare_published()
-    table = [{"site": site, "channel": ch, **row.to_dict(), "n": t.table.loc[ch, (site, "n")]}
-             for (site, ch), row in cmp.iterrows()]
+    table = [
+        {"site": site, "channel": ch, **row.to_dict(), "n": t.table.loc[ch, (site, "n")]}
+        for (site, ch), row in cmp.iterrows()
+    ]
     n = int(len(t.subjects))
     doc = {
-        "n_subjects": n, "ddof": t.ddof, "table": table,
-        "sigma_tr_avg": _by_channel(t.sigma_tr_avg), "published_sigma_tr_avg": _by_channel(SIGMA_TR_AVG),
+        "n_subjects": n,
+        "ddof": t.ddof,
+        "table": table,
+        "sigma_tr_avg": _by_channel(t.sigma_tr_avg),
+        "published_sigma_tr_avg": _by_channel(SIGMA_TR_AVG),
         "ell_d_min": {"subject_id": t.min_subject, **_by_channel(t.ell_d_min)},
         "ell_d_max": {"subject_id": t.max_subject, **_by_channel(t.ell_d_max)},
-        "published_ell_d_min": _by_channel(ELL_D_MIN), "published_ell_d_max": _by_channel(ELL_D_MAX),
+        "published_ell_d_min": _by_channel(ELL_D_MIN),
+        "published_ell_d_max": _by_channel(ELL_D_MAX),
         "var_note": _VAR_NOTE,
     }
-    lines = [f"Table 1: sigma_tr (1/mm) per site and channel, {n} subjects (Weyrich Table 1, §5.4)",
-             f"{'site':<9}{'ch':<3}{'mean':>8}{'paper':>8}   {'var':>7}{'std':>8}{'paper Var.':>12}"]
+    lines = [
+        f"Table 1: sigma_tr (1/mm) per site and channel, {n} subjects (Weyrich Table 1, §5.4)",
+        f"{'site':<9}{'ch':<3}{'mean':>8}{'paper':>8}   {'var':>7}{'std':>8}{'paper Var.':>12}",
+    ]
     for (site, ch), row in cmp.iterrows():
-        lines.append(f"{site:<9}{ch:<3}{row['mean']:8.4f}{row['paper_mean']:8.4f}   {row['var']:7.4f}"
-                     f"{row['std']:8.4f}{row['paper_var']:12.4f}")
+        lines.append(
+            f"{site:<9}{ch:<3}{row['mean']:8.4f}{row['paper_mean']:8.4f}   {row['var']:7.4f}"
+            f"{row['std']:8.4f}{row['paper_var']:12.4f}"
+        )
 
     def rgb(v):
         return " ".join(f"{x:.4f}" for x in v)
@@ -318,22 +381,29 @@ def _conditions(store, args):
     mean_diff = diff.groupby(level="condition", sort=False)[["d_rho_s", "d_lobe"]].mean()
     dist = res.distance
     doc = {
-        "model": args.model, "person_id": res.person_id, "reference": res.reference,
-        "conditions": list(res.conditions), "values": _records(res.values.drop(columns="subject_id")),
+        "model": args.model,
+        "person_id": res.person_id,
+        "reference": res.reference,
+        "conditions": list(res.conditions),
+        "values": _records(res.values.drop(columns="subject_id")),
         "differences": _records(diff),
         "mean_differences": {c: {"d_rho_s": r["d_rho_s"], "d_lobe": r["d_lobe"]} for c, r in mean_diff.iterrows()},
         "distance": {"conditions": list(dist.index), "matrix": dist.to_numpy()},
     }
     lobe = res.lobe_name
-    lines = [f"{_MODEL_NAMES[args.model]} BRDF of person {res.person_id} under {len(res.conditions)} conditions "
-             f"(Weyrich §7), mean over regions against {res.reference!r}",
-             f"{'condition':<10}{'d rho_s':>9}{'d ' + lobe:>11}{'distance':>10}"]
+    lines = [
+        f"{_MODEL_NAMES[args.model]} BRDF of person {res.person_id} under {len(res.conditions)} conditions "
+        f"(Weyrich §7), mean over regions against {res.reference!r}",
+        f"{'condition':<10}{'d rho_s':>9}{'d ' + lobe:>11}{'distance':>10}",
+    ]
     for c, r in mean_diff.iterrows():
         lines.append(f"{c:<10}{r['d_rho_s']:9.4f}{r['d_lobe']:11.4f}{dist.loc[c, res.reference]:10.2f}")
     m = dist.to_numpy()
     i, j = divmod(int(m.argmax()), m.shape[1])
-    lines.append(f"most different pair: {dist.index[i]} / {dist.columns[j]} ({m[i, j]:.1f} within-region sd); "
-                 "the paper notes lotion / hot against cold / powder")
+    lines.append(
+        f"most different pair: {dist.index[i]} / {dist.columns[j]} ({m[i, j]:.1f} within-region sd); "
+        "the paper notes lotion / hot against cold / powder"
+    )
     return plot_conditions(res), doc, lines
 
 
@@ -377,28 +447,47 @@ def _posterior(store, args):
         d = post.diagnostics.loc[lab]
         entry = {p: post.summary.loc[(lab, p)].to_dict() for p in ("sigma_s_prime", "sigma_a", "sigma_tr", "ell_d")}
         entry["diagnostics"] = {
-            "tau": max(d["tau_sigma_s_prime"], d["tau_sigma_a"]), "acceptance": d["acceptance"],
-            "ess": min(d["ess_sigma_s_prime"], d["ess_sigma_a"]), "steps_over_tau": d["steps_over_tau"],
-            "chi2_dof": d["chi2_dof"], "converged": bool(d["converged"]),
+            "tau": max(d["tau_sigma_s_prime"], d["tau_sigma_a"]),
+            "acceptance": d["acceptance"],
+            "ess": min(d["ess_sigma_s_prime"], d["ess_sigma_a"]),
+            "steps_over_tau": d["steps_over_tau"],
+            "chi2_dof": d["chi2_dof"],
+            "converged": bool(d["converged"]),
         }
         entry["least_squares"] = post.least_squares.loc[lab].to_dict()
         entry["stored_fit"] = {p: float(stored[p][j]) for p in stored}
         channels[lab] = entry
-    doc = {"subject_id": sid, "site": site, "seed": args.seed, "noise": post.noise, "level": post.level,
-           "n_walkers": post.n_walkers, "n_steps": post.n_steps, "converged": post.converged, "channels": channels}
-    lines = [f"Posterior of (sigma_s_prime, sigma_a) of {sid}, {site} profile (Weyrich §5.4 with uncertainty): "
-             f"median [{post.level:.0%} interval]",
-             f"{'ch':<3}{'sigma_s_prime (1/mm)':>28}{'sigma_a (1/mm)':>28}{'sigma_tr (1/mm)':>28}{'l_d (mm)':>28}"]
+    doc = {
+        "subject_id": sid,
+        "site": site,
+        "seed": args.seed,
+        "noise": post.noise,
+        "level": post.level,
+        "n_walkers": post.n_walkers,
+        "n_steps": post.n_steps,
+        "converged": post.converged,
+        "channels": channels,
+    }
+    lines = [
+        f"Posterior of (sigma_s_prime, sigma_a) of {sid}, {site} profile (Weyrich §5.4 with uncertainty): "
+        f"median [{post.level:.0%} interval]",
+        f"{'ch':<3}{'sigma_s_prime (1/mm)':>28}{'sigma_a (1/mm)':>28}{'sigma_tr (1/mm)':>28}{'l_d (mm)':>28}",
+    ]
     for lab in post.labels:
         cells = []
         for p in ("sigma_s_prime", "sigma_a", "sigma_tr", "ell_d"):
             s = channels[lab][p]
             cells.append(f"{s['median']:#.4g} [{s['lo']:#.4g}, {s['hi']:#.4g}]".rjust(28))
         lines.append(f"{lab:<3}" + "".join(cells))
-    lines.append(f"{post.n_steps} steps x {post.n_walkers} walkers; "
-                 + ", ".join(f"{lab}: tau {channels[lab]['diagnostics']['tau']:.1f}, "
-                             f"chi2/dof {channels[lab]['diagnostics']['chi2_dof']:.2f}" for lab in post.labels)
-                 + ("" if post.converged else "  (NOT CONVERGED)"))
+    lines.append(
+        f"{post.n_steps} steps x {post.n_walkers} walkers; "
+        + ", ".join(
+            f"{lab}: tau {channels[lab]['diagnostics']['tau']:.1f}, "
+            f"chi2/dof {channels[lab]['diagnostics']['chi2_dof']:.2f}"
+            for lab in post.labels
+        )
+        + ("" if post.converged else "  (NOT CONVERGED)")
+    )
     if np.isfinite(stored["sigma_tr"]).all():
         lines.append("stored point fit sigma_tr: " + " ".join(f"{v:.4g}" for v in stored["sigma_tr"]))
     fig = plot_sigma_posterior(post)
@@ -416,10 +505,17 @@ def _population_posterior(store, args):
     for row in summary:
         row["skin_type"] = ROMAN[int(row["skin_type"])]
     hyper = None if res.hyper is None else {ch: row.to_dict() for ch, row in res.hyper.iterrows()}
-    doc = {"model": res.model, "level": res.level, "skin_types": [ROMAN[t] for t in res.skin_types],
-           "seed": args.seed, "summary": summary, "hyper": hyper}
-    lines = [f"Posterior of the mean sigma_tr (1/mm) per skin type ({res.model} model): median "
-             f"[{res.level:.0%} interval]"]
+    doc = {
+        "model": res.model,
+        "level": res.level,
+        "skin_types": [ROMAN[t] for t in res.skin_types],
+        "seed": args.seed,
+        "summary": summary,
+        "hyper": hyper,
+    }
+    lines = [
+        f"Posterior of the mean sigma_tr (1/mm) per skin type ({res.model} model): median [{res.level:.0%} interval]"
+    ]
     for st in res.skin_types:
         cells = []
         for ch in CHANNELS:
@@ -429,8 +525,7 @@ def _population_posterior(store, args):
     return plot_population_sigma_tr(res), doc, lines
 
 
-_HANDLERS = {"pca": _pca, "cca": _cca, "scatter": _scatter, "translucency": _translucency,
-             "conditions": _conditions}
+_HANDLERS = {"pca": _pca, "cca": _cca, "scatter": _scatter, "translucency": _translucency, "conditions": _conditions}
 
 
 # -- writing ------------------------------------------------------------------------
@@ -453,7 +548,7 @@ def _write(out, name, fig, doc, fmt, store):
     """Write ``name.<fmt>`` and ``name.json``; return their paths."""
     import json
 
-    from facestats import __version__
+    from facestats.core.version import __version__
 
     figure = out / f"{name}.{fmt}"
     fig.savefig(figure, format=fmt, dpi=150)
@@ -505,19 +600,31 @@ def _cmd_analyze(args) -> int:
 
 # -- registration -----------------------------------------------------------------
 def _common(p, model=False):
-    p.add_argument("--store", default=None, metavar="PATH",
-                   help="a store directory (X.zarr) or zip; default: the store embedded in facestats")
+    p.add_argument(
+        "--store",
+        default=None,
+        metavar="PATH",
+        help="a store directory (X.zarr) or zip; default: the store embedded in facestats",
+    )
     p.add_argument("--out", default=".", metavar="DIR", help="output directory (created if missing; default: .)")
     p.add_argument("--format", choices=("png", "svg"), default="png", help="figure format (default png)")
     if model:
-        p.add_argument("--model", choices=("ts", "bp"), default="ts",
-                       help="specular model: ts = Torrance-Sparrow (rho_s, m), as the paper; "
-                            "bp = Blinn-Phong (rho_s, n)")
+        p.add_argument(
+            "--model",
+            choices=("ts", "bp"),
+            default="ts",
+            help="specular model: ts = Torrance-Sparrow (rho_s, m), as the paper; bp = Blinn-Phong (rho_s, n)",
+        )
 
 
 def _permutations(p):
-    p.add_argument("--permutations", type=int, default=999, metavar="N",
-                   help="permutations of the CCA permutation test (default 999; 0 skips it)")
+    p.add_argument(
+        "--permutations",
+        type=int,
+        default=999,
+        metavar="N",
+        help="permutations of the CCA permutation test (default 999; 0 skips it)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the permutations (default 0)")
 
 
@@ -545,52 +652,87 @@ def add_analyze(subparsers):
         ),
     )
     sub = p.add_subparsers(title="actions", metavar="ACTION", dest="action", required=True)
-    a = sub.add_parser("pca", help="region PCA ellipses of the specular parameters (Fig. 15)",
-                       description="PCA of the (rho_s, m) samples of every face region over the subjects measured "
-                                   "under normal conditions; ellipses at ±1 sd (Weyrich Fig. 15).")
+    a = sub.add_parser(
+        "pca",
+        help="region PCA ellipses of the specular parameters (Fig. 15)",
+        description="PCA of the (rho_s, m) samples of every face region over the subjects measured "
+        "under normal conditions; ellipses at ±1 sd (Weyrich Fig. 15).",
+    )
     _common(a, model=True)
-    a = sub.add_parser("cca", help="canonical correlation of region BRDF means with skin type, gender, age (Fig. 16)",
-                       description="CCA of the 20 region means of (rho_s, m) against skin type, gender and age, "
-                                   "with principal and direct correlations, Bartlett and permutation tests "
-                                   "(Weyrich Fig. 16).")
+    a = sub.add_parser(
+        "cca",
+        help="canonical correlation of region BRDF means with skin type, gender, age (Fig. 16)",
+        description="CCA of the 20 region means of (rho_s, m) against skin type, gender and age, "
+        "with principal and direct correlations, Bartlett and permutation tests "
+        "(Weyrich Fig. 16).",
+    )
     _common(a, model=True)
     _permutations(a)
-    a = sub.add_parser("scatter", help="sigma_a against sigma_s' per subject and channel (Fig. 14)",
-                       description="Absorption against reduced scattering of every subject per channel, coloured by "
-                                   "skin type, marker by gender, size by age (Weyrich Fig. 14).")
+    a = sub.add_parser(
+        "scatter",
+        help="sigma_a against sigma_s' per subject and channel (Fig. 14)",
+        description="Absorption against reduced scattering of every subject per channel, coloured by "
+        "skin type, marker by gender, size by age (Weyrich Fig. 14).",
+    )
     _common(a)
-    a.add_argument("--site", default=None, metavar="SITE",
-                   help="cheek, forehead or neck: coefficients fitted at that site (default: subject-level, "
-                        "from the albedo and sigma_trAvg as in the paper)")
-    a = sub.add_parser("translucency", help="mean and spread of sigma_tr per site, sigma_trAvg, l_d extremes (Table 1)",
-                       description="Weyrich Table 1 (mean and variance of sigma_tr per site and channel) with the "
-                                   "published values side by side, sigma_trAvg and the least/most translucent "
-                                   "subjects.")
+    a.add_argument(
+        "--site",
+        default=None,
+        metavar="SITE",
+        help="cheek, forehead or neck: coefficients fitted at that site (default: subject-level, "
+        "from the albedo and sigma_trAvg as in the paper)",
+    )
+    a = sub.add_parser(
+        "translucency",
+        help="mean and spread of sigma_tr per site, sigma_trAvg, l_d extremes (Table 1)",
+        description="Weyrich Table 1 (mean and variance of sigma_tr per site and channel) with the "
+        "published values side by side, sigma_trAvg and the least/most translucent "
+        "subjects.",
+    )
     _common(a)
-    a = sub.add_parser("conditions", help="BRDF differences of the person measured under seven conditions (§7)",
-                       description="Per-region differences of the specular parameters of one person between external "
-                                   "conditions (normal, cold, hot, sweaty, makeup, lotion, powder), Weyrich §7.")
+    a = sub.add_parser(
+        "conditions",
+        help="BRDF differences of the person measured under seven conditions (§7)",
+        description="Per-region differences of the specular parameters of one person between external "
+        "conditions (normal, cold, hot, sweaty, makeup, lotion, powder), Weyrich §7.",
+    )
     _common(a, model=True)
-    a = sub.add_parser("posterior", help="Bayesian posterior of sigma_s', sigma_a, sigma_tr of one sensor profile",
-                       description="emcee posterior of (sigma_s', sigma_a) per channel of one contact-sensor profile, "
-                                   "with sigma_tr and l_d (Weyrich §5.4 with uncertainty). --population instead gives "
-                                   "the posterior of the mean sigma_tr per skin type.")
+    a = sub.add_parser(
+        "posterior",
+        help="Bayesian posterior of sigma_s', sigma_a, sigma_tr of one sensor profile",
+        description="emcee posterior of (sigma_s', sigma_a) per channel of one contact-sensor profile, "
+        "with sigma_tr and l_d (Weyrich §5.4 with uncertainty). --population instead gives "
+        "the posterior of the mean sigma_tr per skin type.",
+    )
     _common(a)
-    a.add_argument("--subject", default=None, metavar="ID",
-                   help="subject id (default: the first subject measured under normal conditions)")
+    a.add_argument(
+        "--subject",
+        default=None,
+        metavar="ID",
+        help="subject id (default: the first subject measured under normal conditions)",
+    )
     a.add_argument("--site", default=None, metavar="SITE", help="cheek, forehead or neck (default cheek)")
-    a.add_argument("--noise", choices=("model", "stored"), default="model",
-                   help="likelihood noise: the sensor noise model (default) or the stored profile std")
+    a.add_argument(
+        "--noise",
+        choices=("model", "stored"),
+        default="model",
+        help="likelihood noise: the sensor noise model (default) or the stored profile std",
+    )
     a.add_argument("--seed", type=int, default=0, help="sampler seed (default 0)")
-    a.add_argument("--population", action="store_true",
-                   help="posterior of the mean sigma_tr per skin type instead (writes posterior_population.*)")
-    a = sub.add_parser("all", help="every analysis but the posterior",
-                       description="Run pca, cca, scatter, translucency and conditions (skipped when the store has "
-                                   "no person measured under several conditions).")
+    a.add_argument(
+        "--population",
+        action="store_true",
+        help="posterior of the mean sigma_tr per skin type instead (writes posterior_population.*)",
+    )
+    a = sub.add_parser(
+        "all",
+        help="every analysis but the posterior",
+        description="Run pca, cca, scatter, translucency and conditions (skipped when the store has "
+        "no person measured under several conditions).",
+    )
     _common(a, model=True)
     _permutations(a)
     a.set_defaults(site=None)
     for action in ACTIONS:
         sub.choices[action].set_defaults(func=_cmd_analyze)
     return p
-

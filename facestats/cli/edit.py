@@ -24,23 +24,43 @@ _DESCRIPTION = (
 
 
 def _common(p, images=True):
-    p.add_argument("--store", default=None, metavar="PATH",
-                   help="store holding the subject and the targets (default: the store embedded in facestats)")
-    p.add_argument("--out-store", default=None, metavar="PATH",
-                   help="directory store for the edited subject (created if missing); default --store, which must "
-                        "then be a writable directory store")
-    p.add_argument("--id", default=None, metavar="NEW_ID", dest="new_id",
-                   help="id of the edited subject (default SUBJECT.<edit>-<digest of the edit>)")
+    p.add_argument(
+        "--store",
+        default=None,
+        metavar="PATH",
+        help="store holding the subject and the targets (default: the store embedded in facestats)",
+    )
+    p.add_argument(
+        "--out-store",
+        default=None,
+        metavar="PATH",
+        help="directory store for the edited subject (created if missing); default --store, which must "
+        "then be a writable directory store",
+    )
+    p.add_argument(
+        "--id",
+        default=None,
+        metavar="NEW_ID",
+        dest="new_id",
+        help="id of the edited subject (default SUBJECT.<edit>-<digest of the edit>)",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace an existing subject NEW_ID in the output store")
     if images:
-        p.add_argument("--images", default=".", metavar="DIR",
-                       help="directory for the before/after PNGs (default: the current directory)")
+        p.add_argument(
+            "--images",
+            default=".",
+            metavar="DIR",
+            help="directory for the before/after PNGs (default: the current directory)",
+        )
 
 
 def _query_args(p, what):
     p.add_argument("--target", metavar="ID", help=f"take the {what} of this subject")
-    p.add_argument("--skin-type", metavar="TYPE",
-                   help="... or of the subjects of this skin type (I-VI or 1-6; condition normal unless --condition)")
+    p.add_argument(
+        "--skin-type",
+        metavar="TYPE",
+        help="... or of the subjects of this skin type (I-VI or 1-6; condition normal unless --condition)",
+    )
     p.add_argument("--condition", metavar="NAME", help="... or of the subjects measured under this condition")
     p.add_argument("--gender", metavar="M|F", help="restrict the subset to one gender")
     p.add_argument("--age", metavar="RANGE", help="restrict the subset to an age range (20s, 30s, MIN-MAX, ...)")
@@ -131,16 +151,25 @@ def _run(args, edit_function, target, **kwargs):
     """Open the stores, make the edit ``edit_function(store, SUBJECT, target, ...)``, report it; (edit, exit code)."""
     store, out = _open(args)
     with store, out:
-        edit = edit_function(store, args.subject, target, out_store=out, new_id=args.new_id,
-                             overwrite=args.overwrite, **kwargs)
+        edit = edit_function(
+            store, args.subject, target, out_store=out, new_id=args.new_id, overwrite=args.overwrite, **kwargs
+        )
         return edit, _report(edit, args)
 
 
 def _cmd_skin_type(args) -> int:
     from facestats.edit.subjects import change_skin_type
 
-    _, code = _run(args, change_skin_type, args.skin_type, t=args.t, brdf=not args.no_brdf,
-                   colour=not args.no_colour, keep_translucency=args.keep_translucency, seed=args.seed)
+    _, code = _run(
+        args,
+        change_skin_type,
+        args.skin_type,
+        t=args.t,
+        brdf=not args.no_brdf,
+        colour=not args.no_colour,
+        keep_translucency=args.keep_translucency,
+        seed=args.seed,
+    )
     return code
 
 
@@ -154,20 +183,40 @@ def _cmd_brdf(args) -> int:
 def _cmd_colour(args) -> int:
     from facestats.edit.subjects import transfer_colour_subject
 
-    _, code = _run(args, transfer_colour_subject, _target(args, stats=True), t=args.t, regions=args.regions,
-                   feather=args.feather, keep_translucency=args.keep_translucency, seed=args.seed)
+    _, code = _run(
+        args,
+        transfer_colour_subject,
+        _target(args, stats=True),
+        t=args.t,
+        regions=args.regions,
+        feather=args.feather,
+        keep_translucency=args.keep_translucency,
+        seed=args.seed,
+    )
     return code
 
 
 def _cmd_texture(args) -> int:
     from facestats.edit.subjects import transfer_texture_subject
 
-    edit, code = _run(args, transfer_texture_subject, _target(args, stats=True), regions=args.regions,
-                      levels=args.levels, bins=args.bins, iterations=args.iterations, seed=args.seed,
-                      noise=args.noise, feather=args.feather, keep_translucency=args.keep_translucency)
+    edit, code = _run(
+        args,
+        transfer_texture_subject,
+        _target(args, stats=True),
+        regions=args.regions,
+        levels=args.levels,
+        bins=args.bins,
+        iterations=args.iterations,
+        seed=args.seed,
+        noise=args.noise,
+        feather=args.feather,
+        keep_translucency=args.keep_translucency,
+    )
     d = edit.texture.distance
-    print(f"histogram distance to the target (mean over bands): {d[0]:.3f} at the start, {d[-1]:.3f} after "
-          f"{edit.texture.iterations} iteration(s)")
+    print(
+        f"histogram distance to the target (mean over bands): {d[0]:.3f} at the start, {d[-1]:.3f} after "
+        f"{edit.texture.iterations} iteration(s)"
+    )
     return code
 
 
@@ -176,18 +225,24 @@ def _cmd_stats(args) -> int:
     from facestats.io.store import open_store
 
     with open_store(args.store) as store:
-        stats = subject_texture_statistics(store, args.subject, regions=args.regions, levels=args.levels,
-                                           bins=args.bins)
+        stats = subject_texture_statistics(
+            store, args.subject, regions=args.regions, levels=args.levels, bins=args.bins
+        )
     path = stats.save(args.out)
-    print(f"wrote the texture statistics of {args.subject} ({stats.n_bands} bands x {stats.bins} bins x 3 channels, "
-          f"{stats.levels} levels, {stats.orientations} orientations) to {path}")
+    print(
+        f"wrote the texture statistics of {args.subject} ({stats.n_bands} bands x {stats.bins} bins x 3 channels, "
+        f"{stats.levels} levels, {stats.orientations} orientations) to {path}"
+    )
     return 0
 
 
 def add_edit(sub) -> None:
     """Register ``facestats edit`` and its actions on the top-level subparsers ``sub``."""
-    p = sub.add_parser("edit", help="appearance edits (§8): skin type, BRDF, colour, texture; writes a new subject",
-                       description=_DESCRIPTION)
+    p = sub.add_parser(
+        "edit",
+        help="appearance edits (§8): skin type, BRDF, colour, texture; writes a new subject",
+        description=_DESCRIPTION,
+    )
     actions = p.add_subparsers(title="actions", metavar="ACTION")
 
     def _help(args) -> int:
@@ -197,11 +252,13 @@ def add_edit(sub) -> None:
     p.set_defaults(func=_help)
 
     a = actions.add_parser(
-        "skin-type", help="change the skin type with the statistics of the subjects of that type",
+        "skin-type",
+        help="change the skin type with the statistics of the subjects of that type",
         description="Match the face albedo (in a decorrelated colour space) and the per-region BRDF histograms to "
-                    "the pooled statistics of the subjects of skin type TYPE (condition normal; I and II grouped). "
-                    "Translucency (albedo_avg, σ's, σa) follows the new albedo through §5.4 unless "
-                    "--keep-translucency.")
+        "the pooled statistics of the subjects of skin type TYPE (condition normal; I and II grouped). "
+        "Translucency (albedo_avg, σ's, σa) follows the new albedo through §5.4 unless "
+        "--keep-translucency.",
+    )
     a.add_argument("subject", metavar="SUBJECT", help="subject id")
     a.add_argument("skin_type", metavar="TYPE", help="target skin type, I-VI or 1-6")
     _t_arg(a)
@@ -213,24 +270,32 @@ def add_edit(sub) -> None:
     a.set_defaults(func=_cmd_skin_type)
 
     a = actions.add_parser(
-        "brdf", help="per-region BRDF histogram transfer / interpolation from a subject or a subset",
+        "brdf",
+        help="per-region BRDF histogram transfer / interpolation from a subject or a subset",
         description="Move each region's Torrance-Sparrow and/or Blinn-Phong parameter histograms to the target's "
-                    "(histogram interpolation of Matusik et al. 2005), e.g. normal -> lotion half-way: "
-                    "brdf P150-normal --condition lotion --t 0.5.")
+        "(histogram interpolation of Matusik et al. 2005), e.g. normal -> lotion half-way: "
+        "brdf P150-normal --condition lotion --t 0.5.",
+    )
     a.add_argument("subject", metavar="SUBJECT", help="subject id")
     _query_args(a, "BRDF")
     _t_arg(a)
-    a.add_argument("--model", choices=("both", "ts", "bp"), default="both",
-                   help="Torrance-Sparrow (ts), Blinn-Phong (bp) or both (default)")
+    a.add_argument(
+        "--model",
+        choices=("both", "ts", "bp"),
+        default="both",
+        help="Torrance-Sparrow (ts), Blinn-Phong (bp) or both (default)",
+    )
     _regions_arg(a, "regions to edit, 1-10 or names (default: all with target samples)")
     _common(a)
     a.set_defaults(func=_cmd_brdf)
 
     a = actions.add_parser(
-        "colour", help="albedo histogram transfer in a decorrelated colour space",
+        "colour",
+        help="albedo histogram transfer in a decorrelated colour space",
         description="Match the albedo histograms of SUBJECT, in the target's PCA colour basis, to those of a "
-                    "subject, a subset or saved texture statistics. Translucency follows the new albedo (§5.4) "
-                    "unless --keep-translucency.")
+        "subject, a subset or saved texture statistics. Translucency follows the new albedo (§5.4) "
+        "unless --keep-translucency.",
+    )
     a.add_argument("subject", metavar="SUBJECT", help="subject id")
     _query_args(a, "albedo")
     a.add_argument("--stats", metavar="FILE", help="... or use the image histograms of saved texture statistics")
@@ -243,10 +308,12 @@ def add_edit(sub) -> None:
     a.set_defaults(func=_cmd_colour)
 
     a = actions.add_parser(
-        "texture", help="Heeger-Bergen texture transfer (e.g. freckles) from a subject or saved statistics",
+        "texture",
+        help="Heeger-Bergen texture transfer (e.g. freckles) from a subject or saved statistics",
         description="Give the albedo of SUBJECT the texture statistics (histograms of the steerable-pyramid bands in "
-                    "a decorrelated colour space) of another subject or of a statistics file, optionally only in "
-                    "some regions (each matched on its own; texels outside are unchanged).")
+        "a decorrelated colour space) of another subject or of a statistics file, optionally only in "
+        "some regions (each matched on its own; texels outside are unchanged).",
+    )
     a.add_argument("subject", metavar="SUBJECT", help="subject id")
     a.add_argument("--target", metavar="ID", help="take the texture of this subject")
     a.add_argument("--stats", metavar="FILE", help="... or of saved statistics (facestats edit stats)")
@@ -262,14 +329,20 @@ def add_edit(sub) -> None:
     a.set_defaults(func=_cmd_texture)
 
     a = actions.add_parser(
-        "stats", help="save the texture statistics of a subject (a target for texture / colour)",
+        "stats",
+        help="save the texture statistics of a subject (a target for texture / colour)",
         description="Compute the §8 texture statistics (256-bin histograms of the albedo and its steerable-pyramid "
-                    "bands in a decorrelated colour space) of a subject's face or regions and save them (.npz).")
+        "bands in a decorrelated colour space) of a subject's face or regions and save them (.npz).",
+    )
     a.add_argument("subject", metavar="SUBJECT", help="subject id")
     a.add_argument("--out", required=True, metavar="FILE", help="output file (.npz appended if missing)")
     _regions_arg(a, "regions to analyse, 1-10 or names (default: the face)")
     a.add_argument("--levels", type=int, default=None, help="pyramid levels (default: the most the map supports, <= 7)")
     a.add_argument("--bins", type=int, default=256, help="histogram bins (default 256)")
-    a.add_argument("--store", default=None, metavar="PATH",
-                   help="store holding the subject (default: the store embedded in facestats)")
+    a.add_argument(
+        "--store",
+        default=None,
+        metavar="PATH",
+        help="store holding the subject (default: the store embedded in facestats)",
+    )
     a.set_defaults(func=_cmd_stats)

@@ -53,14 +53,15 @@ def blockwise(kernel, operands, dtype, n_out=1, block=BLOCK):
         return outs if n_out > 1 else outs[0]
     flags = ["external_loop", "buffered", "zerosize_ok"]
     op_flags = [["readonly"]] * len(ops) + [["writeonly", "allocate"]] * n_out
-    it = np.nditer(ops + [None] * n_out, flags=flags, op_flags=op_flags,
-                   op_dtypes=[dtype] * (len(ops) + n_out), buffersize=block)
+    it = np.nditer(
+        ops + [None] * n_out, flags=flags, op_flags=op_flags, op_dtypes=[dtype] * (len(ops) + n_out), buffersize=block
+    )
     with it:
         for blocks in it:
             res = kernel(*blocks[: len(ops)])
             res = res if isinstance(res, tuple) else (res,)
-            for out, r in zip(blocks[len(ops):], res):
+            for out, r in zip(blocks[len(ops) :], res):
                 out[...] = r
-        outs = tuple(it.operands[len(ops):])
+        outs = tuple(it.operands[len(ops) :])
     outs = tuple(np.asarray(o).reshape(shape) for o in outs)
     return outs if n_out > 1 else outs[0]

@@ -155,7 +155,9 @@ def parse_age(value) -> tuple[int, int]:
             else:
                 lo = hi = int(v)
         except ValueError:
-            raise ValidationError(f"age must be 20s, 30s, 40s, 50s+, MIN-MAX or an age in years, got {value!r}") from None
+            raise ValidationError(
+                f"age must be 20s, 30s, 40s, 50s+, MIN-MAX or an age in years, got {value!r}"
+            ) from None
     if not (0 <= int(lo) <= int(hi) <= 200):
         raise ValidationError(f"age range must satisfy 0 <= MIN <= MAX <= 200, got {value!r}")
     return int(lo), int(hi)

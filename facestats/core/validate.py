@@ -60,7 +60,9 @@ def as_float(value, name: str, dtype=None) -> np.ndarray:
     return arr.astype(dtype, copy=False)
 
 
-def as_finite(value, name: str, low: float | None = None, high: float | None = None, *, dtype=None, **bounds) -> np.ndarray:
+def as_finite(
+    value, name: str, low: float | None = None, high: float | None = None, *, dtype=None, **bounds
+) -> np.ndarray:
     """:func:`as_float`, then :func:`check_finite`, then (if a bound is given) :func:`check_range`.
 
     The common validation of a numeric argument in one call, so the argument's
@@ -122,9 +124,7 @@ def check_shape(arr: np.ndarray, name: str, shape: Iterable) -> np.ndarray:
     pattern = tuple(shape)
     if pattern and pattern[0] is Ellipsis:
         tail = pattern[1:]
-        ok = arr.ndim >= len(tail) and all(
-            p is None or p == s for p, s in zip(tail, arr.shape[arr.ndim - len(tail):])
-        )
+        ok = arr.ndim >= len(tail) and all(p is None or p == s for p, s in zip(tail, arr.shape[arr.ndim - len(tail) :]))
     else:
         ok = arr.ndim == len(pattern) and all(p is None or p == s for p, s in zip(pattern, arr.shape))
     if not ok:

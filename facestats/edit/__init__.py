@@ -19,7 +19,13 @@ Figures: :mod:`facestats.edit.plots` and :func:`facestats.edit.subjects.plot_sub
 
 from facestats.edit.brdf import region_histograms, transfer_brdf
 from facestats.edit.colour import ColourBasis, decorrelating_basis, transfer_colour
-from facestats.edit.histogram import Histogram, histogram_distance, interpolate_histograms, match_histogram, match_values
+from facestats.edit.histogram import (
+    Histogram,
+    histogram_distance,
+    interpolate_histograms,
+    match_histogram,
+    match_values,
+)
 from facestats.edit.pyramid import SteerablePyramid, band_names, max_levels
 from facestats.edit.subjects import (
     SubjectEdit,

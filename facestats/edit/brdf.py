@@ -43,8 +43,8 @@ from collections.abc import Mapping
 import numpy as np
 
 from facestats.core.validate import as_float, check_finite
-from facestats.errors import ValidationError
 from facestats.edit.histogram import Histogram, _check_t, _empirical_quantile, _ranks
+from facestats.errors import ValidationError
 
 __all__ = ["transfer_brdf", "region_histograms"]
 
@@ -80,8 +80,9 @@ def _target_for_region(spec, name, region, target_regions):
     return np.sort(y) if y.size else None
 
 
-def transfer_brdf(source: Mapping, regions, target: Mapping, *, target_regions=None, t: float = 1.0,
-                  edit_regions=None) -> dict:
+def transfer_brdf(
+    source: Mapping, regions, target: Mapping, *, target_regions=None, t: float = 1.0, edit_regions=None
+) -> dict:
     """Match (or interpolate) BRDF parameter distributions per face region.
 
     See the module docstring for the method (Weyrich et al. 2006 §8 with the

@@ -25,8 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.core.validate import as_float, check_finite, check_range, check_shape
-from facestats.errors import ValidationError
 from facestats.edit.histogram import Histogram, _check_t, match_histogram
+from facestats.errors import ValidationError
 
 __all__ = ["ColourBasis", "decorrelating_basis", "transfer_colour"]
 
@@ -208,8 +208,9 @@ def _target_colour(target, target_mask, bins):
     return basis, [Histogram.from_data(planes[c], bins) for c in range(3)]
 
 
-def transfer_colour(source_albedo, target, mask=None, *, target_mask=None, t: float = 1.0, bins: int = 256,
-                    feather: float = 0.0) -> np.ndarray:
+def transfer_colour(
+    source_albedo, target, mask=None, *, target_mask=None, t: float = 1.0, bins: int = 256, feather: float = 0.0
+) -> np.ndarray:
     """Skin-colour transfer: match the albedo histograms in a decorrelated colour space.
 
     Weyrich et al. 2006 §8 transfer skin-colour histograms between subjects

@@ -263,7 +263,7 @@ def _chunk_bins(x: np.ndarray, lo: float, scale: float, bins: int):
     """Chunks of the flat ``x`` as ``(start, p, i)``: ``p = (x - lo) · scale``, ``i = floor(p)`` clipped to bins."""
     lo_, scale_ = x.dtype.type(lo), x.dtype.type(scale)
     for s in range(0, x.size, _CHUNK):
-        p = np.subtract(x[s:s + _CHUNK], lo_)
+        p = np.subtract(x[s : s + _CHUNK], lo_)
         p *= scale_
         i = p.astype(np.intp)
         np.clip(i, 0, bins - 1, out=i)
@@ -281,7 +281,7 @@ def _bin_counts(x: np.ndarray, lo: float, scale: float, bins: int) -> np.ndarray
 def _apply_lut(x: np.ndarray, lo: float, scale: float, intercept, slope, out: np.ndarray) -> None:
     """``out = intercept[i] + slope[i] · p`` with ``p = (x - lo) · scale``, ``i = floor(p)`` (chunked)."""
     for s, p, i in _chunk_bins(x, lo, scale, slope.size):
-        o = out[s:s + _CHUNK]
+        o = out[s : s + _CHUNK]
         np.take(slope, i, out=o)
         o *= p
         o += np.take(intercept, i)

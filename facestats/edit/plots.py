@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.errors import ValidationError
 from facestats.edit.histogram import Histogram, interpolate_histograms
 from facestats.edit.pyramid import band_names
+from facestats.errors import ValidationError
 
 __all__ = ["plot_texture_transfer", "plot_histogram_interpolation"]
 
@@ -78,8 +78,13 @@ def plot_texture_transfer(result, *, target=None, crop=None, title="Texture tran
     cmap = _cmap(levels + 2)
     ax.plot(it, bd[:, 0], color=cmap[0], lw=1, label=names[0])
     for i in range(levels):
-        ax.plot(it, bd[:, 1 + i * orientations: 1 + (i + 1) * orientations].mean(axis=1), color=cmap[i + 1],
-                lw=1, label=f"level {i}")
+        ax.plot(
+            it,
+            bd[:, 1 + i * orientations : 1 + (i + 1) * orientations].mean(axis=1),
+            color=cmap[i + 1],
+            lw=1,
+            label=f"level {i}",
+        )
     ax.plot(it, bd[:, -1], color=cmap[-1], lw=1, label=names[-1])
     ax.plot(it, result.distance, "k-o", lw=2.2, ms=4, label="mean")
     ax.set_xlabel("iteration")
@@ -98,8 +103,15 @@ def _cmap(n):
     return colormaps["viridis"](np.linspace(0.0, 0.9, n))
 
 
-def plot_histogram_interpolation(h0: Histogram, h1: Histogram, ts=(0.0, 0.25, 0.5, 0.75, 1.0), *,
-                                 labels=("source", "target"), xlabel="value", title="Histogram interpolation"):
+def plot_histogram_interpolation(
+    h0: Histogram,
+    h1: Histogram,
+    ts=(0.0, 0.25, 0.5, 0.75, 1.0),
+    *,
+    labels=("source", "target"),
+    xlabel="value",
+    title="Histogram interpolation",
+):
     """Densities of :func:`interpolate_histograms` between two histograms for several ``t``.
 
     Parameters

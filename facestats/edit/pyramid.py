@@ -139,10 +139,12 @@ def _masks(shape, levels, orientations, dtype):
         los.append(_lowpass_mask(r).astype(dtype))
         if i < levels:
             band = _highpass_mask(2.0 * r)
-            oriented.append(tuple(
-                (alpha * np.cos(theta - np.pi * b / orientations) ** order * band).astype(dtype)
-                for b in range(orientations)
-            ))
+            oriented.append(
+                tuple(
+                    (alpha * np.cos(theta - np.pi * b / orientations) ** order * band).astype(dtype)
+                    for b in range(orientations)
+                )
+            )
     for m in [hi0, *los, *(x for lev in oriented for x in lev)]:
         m.setflags(write=False)
     return hi0, tuple(los), tuple(oriented)
@@ -152,7 +154,7 @@ def _crop(spec, small):
     """The central (low-frequency) part of an rfft2 spectrum, for a grid of shape ``small``."""
     ny, nxh = small[0], small[1] // 2 + 1
     top = (ny + 1) // 2
-    return np.concatenate([spec[:top, :nxh], spec[spec.shape[0] - (ny - top):, :nxh]], axis=0)
+    return np.concatenate([spec[:top, :nxh], spec[spec.shape[0] - (ny - top) :, :nxh]], axis=0)
 
 
 def _embed(spec, big_shape, dtype):
@@ -161,7 +163,7 @@ def _embed(spec, big_shape, dtype):
     top = (ny + 1) // 2
     out = np.zeros((big_shape[0], big_shape[1] // 2 + 1), dtype=dtype)
     out[:top, : spec.shape[1]] = spec[:top]
-    out[big_shape[0] - (ny - top):, : spec.shape[1]] = spec[top:]
+    out[big_shape[0] - (ny - top) :, : spec.shape[1]] = spec[top:]
     return out
 
 
@@ -203,9 +205,7 @@ class SteerablePyramid:
                 f"(floor(log2(min side)) - 2), got {levels}"
             )
         if any(s % (1 << levels) for s in shape):
-            raise ValidationError(
-                f"shape must be divisible by 2**levels = {1 << levels} on each side, got {shape}"
-            )
+            raise ValidationError(f"shape must be divisible by 2**levels = {1 << levels} on each side, got {shape}")
         if not isinstance(orientations, (int, np.integer)) or not 1 <= orientations <= 16:
             raise ValidationError(f"orientations must be an int in 1-16, got {orientations!r}")
         dtype = np.dtype(dtype)

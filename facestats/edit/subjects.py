@@ -97,16 +97,23 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from facestats import __version__
+from facestats.core.conventions import (
+    CHANNELS,
+    REGIONS,
+    parse_condition,
+    parse_region,
+    parse_skin_type,
+    skin_type_roman,
+)
 from facestats.core.validate import check_choice
-from facestats.core.conventions import CHANNELS, REGIONS, parse_condition, parse_region, parse_skin_type, skin_type_roman
-from facestats.errors import StoreError, ValidationError
+from facestats.core.version import __version__
 from facestats.edit.brdf import transfer_brdf
 from facestats.edit.colour import transfer_colour
 from facestats.edit.histogram import _check_t
 from facestats.edit.plots import _display
 from facestats.edit.pyramid import max_levels
 from facestats.edit.texture import TextureStatistics, TextureTransfer, _pad_shape, transfer_texture
+from facestats.errors import StoreError, ValidationError
 
 __all__ = [
     "EDIT_SOURCE",
@@ -207,7 +214,9 @@ def _check_store(store, name):
     from facestats.io.store import Store
 
     if not isinstance(store, Store):
-        raise ValidationError(f"{name} must be a facestats Store (facestats.open_store(...)), got {type(store).__name__}")
+        raise ValidationError(
+            f"{name} must be a facestats Store (facestats.open_store(...)), got {type(store).__name__}"
+        )
     return store
 
 
@@ -392,8 +401,8 @@ def _pooled_albedo(store, ids, regions, max_samples, seed):
 
 
 def _eta(ds) -> float:
-    from facestats.io.schema import provenance
     from facestats.core.published import ETA_SKIN
+    from facestats.io.schema import provenance
 
     try:
         return float(provenance(ds).get("fit_settings", {}).get("eta", ETA_SKIN))
@@ -403,9 +412,9 @@ def _eta(ds) -> float:
 
 def _follow_translucency(ds, keep: bool) -> list[str]:
     """Update the §5.4 scattering of ``ds`` to its (new) albedo in place; return the variables changed."""
+    from facestats.core.published import SIGMA_TR_AVG
     from facestats.io.schema import modulation
     from facestats.model.fitting import scattering_parameters
-    from facestats.core.published import SIGMA_TR_AVG
 
     changed = []
     if not keep:
@@ -438,14 +447,16 @@ def _output(store, out_store):
 
 def _new_id(store, out, sid, new_id, overwrite, tag, record) -> str:
     """The id of the edited subject: ``new_id`` or ``<sid>.<tag>-<digest of the edit record>``."""
-    from facestats.io.store import _check_id
+    from facestats.io.ids import check_subject_id
 
     if new_id is None:
         suffix = f".{tag}-{_digest({'source_subject': sid, 'edit': record})}"
         new_id = sid[: 64 - len(suffix)] + suffix
-    new_id = _check_id(new_id)
+    new_id = check_subject_id(new_id)
     if _same_store(store, out) and new_id == sid:
-        raise ValidationError(f"new_id must differ from the source subject {sid!r}: an edit never overwrites its source")
+        raise ValidationError(
+            f"new_id must differ from the source subject {sid!r}: an edit never overwrites its source"
+        )
     if not overwrite and new_id in out:
         raise StoreError(
             f"subject {new_id!r} already exists in store {out.label}; pass overwrite=True to replace it "
@@ -458,21 +469,37 @@ def _set(ds, name, values):
     ds[name] = ds[name].copy(data=np.asarray(values).astype(ds[name].dtype, copy=False))
 
 
-def _finish(store, src, ds, out, new_id, overwrite, record, variables, targets, target_means=None, texture=None,
-            attrs=None):
+def _finish(
+    store, src, ds, out, new_id, overwrite, record, variables, targets, target_means=None, texture=None, attrs=None
+):
     """Set id, attributes and provenance of the edited Dataset ``ds``, write it and return the SubjectEdit."""
     from facestats.io.schema import provenance, set_provenance, set_variable_attrs
 
     ds.attrs["subject_id"] = new_id
     ds.attrs.update(attrs or {})
     ds.attrs["provenance"] = "{}"
-    set_provenance(ds, source=EDIT_SOURCE, source_subject=str(src.attrs["subject_id"]), source_store=store.label,
-                   source_provenance=provenance(src), edit=record, software=f"facestats {__version__}")
+    set_provenance(
+        ds,
+        source=EDIT_SOURCE,
+        source_subject=str(src.attrs["subject_id"]),
+        source_store=store.label,
+        source_provenance=provenance(src),
+        edit=record,
+        software=f"facestats {__version__}",
+    )
     set_variable_attrs(ds)
     out.write_subject(ds, overwrite=overwrite)
-    return SubjectEdit(subject_id=new_id, dataset=ds, source=src, edit=record, store=out.label,
-                       variables=tuple(variables), targets=tuple(targets), target_means=target_means or {},
-                       texture=texture)
+    return SubjectEdit(
+        subject_id=new_id,
+        dataset=ds,
+        source=src,
+        edit=record,
+        store=out.label,
+        variables=tuple(variables),
+        targets=tuple(targets),
+        target_means=target_means or {},
+        texture=texture,
+    )
 
 
 def _apply_brdf(ds, region, targets_by_model, t, regions):
@@ -488,8 +515,13 @@ def _apply_brdf(ds, region, targets_by_model, t, regions):
         edited[model] = wanted
         if not wanted:
             continue
-        new = transfer_brdf({rho_name: ds[rho_name].values, lobe_name: ds[lobe_name].values}, region,
-                            {rho_name: target[rho_name], lobe_name: target[lobe_name]}, t=t, edit_regions=wanted)
+        new = transfer_brdf(
+            {rho_name: ds[rho_name].values, lobe_name: ds[lobe_name].values},
+            region,
+            {rho_name: target[rho_name], lobe_name: target[lobe_name]},
+            t=t,
+            edit_regions=wanted,
+        )
         for name in (rho_name, lobe_name):
             _set(ds, name, new[name])
             changed.append(name)
@@ -506,8 +538,19 @@ def _check_model(model):
 
 # --------------------------------------------------------------------------- edits
 
-def transfer_brdf_subject(store, subject, target, *, t: float = 1.0, model: str = "both", regions=None,
-                          out_store=None, new_id=None, overwrite: bool = False) -> SubjectEdit:
+
+def transfer_brdf_subject(
+    store,
+    subject,
+    target,
+    *,
+    t: float = 1.0,
+    model: str = "both",
+    regions=None,
+    out_store=None,
+    new_id=None,
+    overwrite: bool = False,
+) -> SubjectEdit:
     """BRDF transfer per face region from a subject or a population subset (Weyrich et al. 2006 §8).
 
     Per region and parameter the source texels' values move to the target's
@@ -554,8 +597,7 @@ def transfer_brdf_subject(store, subject, target, *, t: float = 1.0, model: str 
     sid = str(subject)
     regions = _parse_regions(regions, _present(region))
     _, ids, descriptor = _resolve_target(store, target, sid)
-    record = {"name": "transfer_brdf", "parameters": {"t": t, "model": model, "regions": regions},
-              "target": descriptor}
+    record = {"name": "transfer_brdf", "parameters": {"t": t, "model": model, "regions": regions}, "target": descriptor}
     new_id = _new_id(store, out, sid, new_id, overwrite, "brdf", record)
     ds = src.copy(deep=True)
     changed, edited, means = _apply_brdf(ds, region, {m: _brdf_targets(store, ids, m) for m in models}, t, regions)
@@ -566,9 +608,21 @@ def transfer_brdf_subject(store, subject, target, *, t: float = 1.0, model: str 
     return _finish(store, src, ds, out, new_id, overwrite, record, changed, ids, means, attrs=attrs)
 
 
-def transfer_colour_subject(store, subject, target, *, t: float = 1.0, regions=None, feather: float = 0.0,
-                            keep_translucency: bool = False, max_samples: int = MAX_ALBEDO_SAMPLES, seed=None,
-                            out_store=None, new_id=None, overwrite: bool = False) -> SubjectEdit:
+def transfer_colour_subject(
+    store,
+    subject,
+    target,
+    *,
+    t: float = 1.0,
+    regions=None,
+    feather: float = 0.0,
+    keep_translucency: bool = False,
+    max_samples: int = MAX_ALBEDO_SAMPLES,
+    seed=None,
+    out_store=None,
+    new_id=None,
+    overwrite: bool = False,
+) -> SubjectEdit:
     """Skin-colour transfer: albedo histograms in a decorrelated colour space (Weyrich et al. 2006 §8).
 
     The albedo of the face (or of ``regions``) is matched, channel by channel
@@ -617,8 +671,14 @@ def transfer_colour_subject(store, subject, target, *, t: float = 1.0, regions=N
     sid = str(subject)
     regions = _parse_regions(regions, _present(region))
     kind, tgt, descriptor = _resolve_target(store, target, sid, statistics=True)
-    params = {"t": t, "regions": regions, "feather": feather, "keep_translucency": bool(keep_translucency),
-              "max_samples": int(max_samples), "seed": seed}
+    params = {
+        "t": t,
+        "regions": regions,
+        "feather": feather,
+        "keep_translucency": bool(keep_translucency),
+        "max_samples": int(max_samples),
+        "seed": seed,
+    }
     record = {"name": "transfer_colour", "parameters": params, "target": descriptor}
     new_id = _new_id(store, out, sid, new_id, overwrite, "colour", record)
     ids, means = [], {}
@@ -628,17 +688,30 @@ def transfer_colour_subject(store, subject, target, *, t: float = 1.0, regions=N
         descriptor["n_albedo_samples"] = int(tgt.shape[0])
         means["albedo"] = tgt.mean(axis=0)
     ds = src.copy(deep=True)
-    _set(ds, "albedo", transfer_colour(src["albedo"].values, tgt, mask=_face_mask(region, regions), t=t,
-                                       feather=feather))
+    _set(
+        ds, "albedo", transfer_colour(src["albedo"].values, tgt, mask=_face_mask(region, regions), t=t, feather=feather)
+    )
     changed = ["albedo"] + _follow_translucency(ds, keep_translucency)
     record["regions_edited"] = regions or _present(region)
     return _finish(store, src, ds, out, new_id, overwrite, record, changed, ids, means)
 
 
-def change_skin_type(store, subject, skin_type, *, t: float = 1.0, brdf: bool = True, colour: bool = True,
-                     keep_translucency: bool = False, condition: str | None = "normal",
-                     max_samples: int = MAX_ALBEDO_SAMPLES, seed=None, out_store=None, new_id=None,
-                     overwrite: bool = False) -> SubjectEdit:
+def change_skin_type(
+    store,
+    subject,
+    skin_type,
+    *,
+    t: float = 1.0,
+    brdf: bool = True,
+    colour: bool = True,
+    keep_translucency: bool = False,
+    condition: str | None = "normal",
+    max_samples: int = MAX_ALBEDO_SAMPLES,
+    seed=None,
+    out_store=None,
+    new_id=None,
+    overwrite: bool = False,
+) -> SubjectEdit:
     """Change a face's skin type with the statistics of the population subset of that type (§8, e.g. II → V).
 
     The target is the subset of ``store`` with Fitzpatrick type ``skin_type``
@@ -692,9 +765,16 @@ def change_skin_type(store, subject, skin_type, *, t: float = 1.0, brdf: bool = 
     src, region = _load_source(store, subject)
     sid = str(subject)
     _, ids, descriptor = _resolve_target(store, {"skin_type": st, "condition": condition}, sid)
-    params = {"skin_type": st, "t": t, "brdf": bool(brdf), "colour": bool(colour),
-              "keep_translucency": bool(keep_translucency), "condition": condition, "max_samples": int(max_samples),
-              "seed": seed}
+    params = {
+        "skin_type": st,
+        "t": t,
+        "brdf": bool(brdf),
+        "colour": bool(colour),
+        "keep_translucency": bool(keep_translucency),
+        "condition": condition,
+        "max_samples": int(max_samples),
+        "seed": seed,
+    }
     record = {"name": "change_skin_type", "parameters": params, "target": descriptor}
     new_id = _new_id(store, out, sid, new_id, overwrite, f"skin-{skin_type_roman(st)}", record)
     ds = src.copy(deep=True)
@@ -724,10 +804,24 @@ def _levels_for(*shapes) -> int:
     return 0
 
 
-def transfer_texture_subject(store, subject, target, *, regions=None, levels: int | None = None,
-                             orientations: int = 4, bins: int = 256, iterations: int = 5, seed=None,
-                             noise: float = 0.1, feather: float = 2.0, keep_translucency: bool = False,
-                             out_store=None, new_id=None, overwrite: bool = False) -> SubjectEdit:
+def transfer_texture_subject(
+    store,
+    subject,
+    target,
+    *,
+    regions=None,
+    levels: int | None = None,
+    orientations: int = 4,
+    bins: int = 256,
+    iterations: int = 5,
+    seed=None,
+    noise: float = 0.1,
+    feather: float = 2.0,
+    keep_translucency: bool = False,
+    out_store=None,
+    new_id=None,
+    overwrite: bool = False,
+) -> SubjectEdit:
     """Skin-texture transfer by Heeger-Bergen histogram matching (Weyrich et al. 2006 §8), e.g. freckles.
 
     The subject's albedo receives the target's texture statistics
@@ -798,25 +892,38 @@ def transfer_texture_subject(store, subject, target, *, regions=None, levels: in
         levels = _levels_for(region.shape, treg.shape) if levels is None else levels
         kwargs = {"target_mask": tmask, "levels": levels, "orientations": orientations, "bins": bins}
         tgt = np.asarray(tds["albedo"].values)
-    params = {"regions": regions, "levels": levels, "orientations": orientations, "bins": bins,
-              "iterations": iterations, "seed": seed, "noise": noise, "feather": feather,
-              "keep_translucency": bool(keep_translucency)}
+    params = {
+        "regions": regions,
+        "levels": levels,
+        "orientations": orientations,
+        "bins": bins,
+        "iterations": iterations,
+        "seed": seed,
+        "noise": noise,
+        "feather": feather,
+        "keep_translucency": bool(keep_translucency),
+    }
     record = {"name": "transfer_texture", "parameters": params, "target": descriptor}
     new_id = _new_id(store, out, sid, new_id, overwrite, "texture", record)
-    res = transfer_texture(src["albedo"].values, tgt, mask, iterations=iterations, seed=seed, noise=noise,
-                           feather=feather, **kwargs)
+    res = transfer_texture(
+        src["albedo"].values, tgt, mask, iterations=iterations, seed=seed, noise=noise, feather=feather, **kwargs
+    )
     first = next(iter(res.statistics.values()))
     params.update(levels=first.levels, orientations=first.orientations, bins=first.bins)
     ds = src.copy(deep=True)
     _set(ds, "albedo", res.albedo)
     changed = ["albedo"] + _follow_translucency(ds, keep_translucency)
-    record.update(regions_edited=regions or _present(region), start_distance=float(res.distance[0]),
-                  final_distance=float(res.distance[-1]))
+    record.update(
+        regions_edited=regions or _present(region),
+        start_distance=float(res.distance[0]),
+        final_distance=float(res.distance[-1]),
+    )
     return _finish(store, src, ds, out, new_id, overwrite, record, changed, ids, texture=res)
 
 
-def subject_texture_statistics(store, subject, *, regions=None, levels: int | None = None, orientations: int = 4,
-                               bins: int = 256) -> TextureStatistics:
+def subject_texture_statistics(
+    store, subject, *, regions=None, levels: int | None = None, orientations: int = 4, bins: int = 256
+) -> TextureStatistics:
     """The §8 texture statistics of a subject's albedo (its face, or the union of ``regions``).
 
     Parameters
@@ -841,8 +948,9 @@ def subject_texture_statistics(store, subject, *, regions=None, levels: int | No
     ds, region = _load_source(store, subject)
     regions = _parse_regions(regions, _present(region))
     levels = _levels_for(region.shape) if levels is None else levels
-    return TextureStatistics.from_image(ds["albedo"].values, _face_mask(region, regions), levels=levels,
-                                        orientations=orientations, bins=bins)
+    return TextureStatistics.from_image(
+        ds["albedo"].values, _face_mask(region, regions), levels=levels, orientations=orientations, bins=bins
+    )
 
 
 # --------------------------------------------------------------------------- figures

@@ -46,10 +46,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from facestats.core.validate import as_float, check_finite, check_shape
-from facestats.errors import FormatError, ValidationError
 from facestats.edit.colour import ColourBasis, _blend, _check_feather, _feather_weights, _labels, decorrelating_basis
 from facestats.edit.histogram import SOURCE_BINS, Histogram, _match_flat, _source_histogram, _widen, histogram_distance
 from facestats.edit.pyramid import SteerablePyramid, band_names, max_levels
+from facestats.errors import FormatError, ValidationError
 
 __all__ = ["TextureStatistics", "TextureTransfer", "region_statistics", "transfer_texture"]
 
@@ -112,12 +112,16 @@ class TextureStatistics:
             )
         bad = np.argwhere(np.any(np.diff(e, axis=-1) <= 0, axis=-1))
         if bad.size:
-            raise ValidationError(f"edges must be strictly increasing along the last axis, got non-increasing "
-                                  f"edges in channel {bad[0][0]}, band {bad[0][1]}")
+            raise ValidationError(
+                f"edges must be strictly increasing along the last axis, got non-increasing "
+                f"edges in channel {bad[0][0]}, band {bad[0][1]}"
+            )
         bad = np.argwhere(np.any(c < 0, axis=-1) | (c.sum(axis=-1) <= 0))
         if bad.size:
-            raise ValidationError(f"counts must be >= 0 with a positive total per histogram, got a negative count "
-                                  f"or a zero total in channel {bad[0][0]}, band {bad[0][1]}")
+            raise ValidationError(
+                f"counts must be >= 0 with a positive total per histogram, got a negative count "
+                f"or a zero total in channel {bad[0][0]}, band {bad[0][1]}"
+            )
         if not isinstance(self.basis, ColourBasis):
             raise ValidationError(f"basis must be a ColourBasis, got {type(self.basis).__name__}")
         object.__setattr__(self, "edges", e)
@@ -162,10 +166,15 @@ class TextureStatistics:
             path = path.with_name(path.name + ".npz")
         np.savez(
             path,
-            format=np.array(_FORMAT), version=np.array(_VERSION),
-            edges=self.edges, counts=self.counts,
-            basis_mean=self.basis.mean, basis_axes=self.basis.axes, basis_variances=self.basis.variances,
-            levels=np.array(self.levels), orientations=np.array(self.orientations),
+            format=np.array(_FORMAT),
+            version=np.array(_VERSION),
+            edges=self.edges,
+            counts=self.counts,
+            basis_mean=self.basis.mean,
+            basis_axes=self.basis.axes,
+            basis_variances=self.basis.variances,
+            levels=np.array(self.levels),
+            orientations=np.array(self.orientations),
         )
         return path
 
@@ -191,8 +200,17 @@ class TextureStatistics:
             raise FormatError(f"{str(path)!r} holds invalid texture statistics: {exc}") from exc
 
     @classmethod
-    def from_image(cls, albedo, mask=None, *, levels: int = 7, orientations: int = 4, bins: int = 256,
-                   basis: ColourBasis | None = None, workers: int = 2) -> "TextureStatistics":
+    def from_image(
+        cls,
+        albedo,
+        mask=None,
+        *,
+        levels: int = 7,
+        orientations: int = 4,
+        bins: int = 256,
+        basis: ColourBasis | None = None,
+        workers: int = 2,
+    ) -> "TextureStatistics":
         """Statistics of an albedo map, optionally inside a mask.
 
         Parameters
@@ -215,8 +233,17 @@ class TextureStatistics:
         return _statistics(img, inside, [1], levels, orientations, bins, basis, SteerablePyramid, workers)[1]
 
 
-def region_statistics(albedo, labels, regions=None, *, levels: int = 7, orientations: int = 4, bins: int = 256,
-                      basis: ColourBasis | None = None, workers: int = 2) -> dict[int, TextureStatistics]:
+def region_statistics(
+    albedo,
+    labels,
+    regions=None,
+    *,
+    levels: int = 7,
+    orientations: int = 4,
+    bins: int = 256,
+    basis: ColourBasis | None = None,
+    workers: int = 2,
+) -> dict[int, TextureStatistics]:
     """Texture statistics of each region of a label map, in one common colour basis.
 
     §8 may "restrict the analysis/synthesis to certain facial regions".  One
@@ -471,16 +498,31 @@ def _resolve_target(target, target_mask, mask_is_labels, ids, shape_levels, work
             raise ValidationError(
                 "target statistics of all regions must share one colour basis (compute them with region_statistics)"
             )
-    for name, want, have in (("levels", levels, first.levels), ("orientations", orientations, first.orientations),
-                             ("bins", bins, first.bins)):
+    for name, want, have in (
+        ("levels", levels, first.levels),
+        ("orientations", orientations, first.orientations),
+        ("bins", bins, first.bins),
+    ):
         if want is not None and want != have:
             raise ValidationError(f"{name} must match the target statistics ({have}), got {want}")
     return stats
 
 
-def transfer_texture(source_albedo, target, mask=None, *, target_mask=None, levels: int | None = None,
-                     orientations: int | None = None, bins: int | None = None, iterations: int = 5,
-                     seed=None, noise: float = 0.1, feather: float = 4.0, workers: int = 2) -> TextureTransfer:
+def transfer_texture(
+    source_albedo,
+    target,
+    mask=None,
+    *,
+    target_mask=None,
+    levels: int | None = None,
+    orientations: int | None = None,
+    bins: int | None = None,
+    iterations: int = 5,
+    seed=None,
+    noise: float = 0.1,
+    feather: float = 4.0,
+    workers: int = 2,
+) -> TextureTransfer:
     """Transfer skin texture by Heeger-Bergen histogram matching (Weyrich et al. 2006 §8).
 
     The source albedo is expressed in the target's decorrelated colour basis;
@@ -526,13 +568,39 @@ def transfer_texture(source_albedo, target, mask=None, *, target_mask=None, leve
     TextureTransfer
         The edited albedo and the convergence report.
     """
-    return _transfer_texture(source_albedo, target, mask, target_mask=target_mask, levels=levels,
-                             orientations=orientations, bins=bins, iterations=iterations, seed=seed, noise=noise,
-                             feather=feather, workers=workers, pyramid=SteerablePyramid)
+    return _transfer_texture(
+        source_albedo,
+        target,
+        mask,
+        target_mask=target_mask,
+        levels=levels,
+        orientations=orientations,
+        bins=bins,
+        iterations=iterations,
+        seed=seed,
+        noise=noise,
+        feather=feather,
+        workers=workers,
+        pyramid=SteerablePyramid,
+    )
 
 
-def _transfer_texture(source_albedo, target, mask, *, target_mask, levels, orientations, bins, iterations, seed,
-                      noise, feather, workers, pyramid):
+def _transfer_texture(
+    source_albedo,
+    target,
+    mask,
+    *,
+    target_mask,
+    levels,
+    orientations,
+    bins,
+    iterations,
+    seed,
+    noise,
+    feather,
+    workers,
+    pyramid,
+):
     """:func:`transfer_texture` with a pluggable pyramid class (``benchmarks/bench_edit.py`` swaps in pyrtools)."""
     src = check_finite(as_float(source_albedo, "source_albedo"), "source_albedo")
     check_shape(src, "source_albedo", (None, None, 3))
@@ -578,7 +646,14 @@ def _transfer_texture(source_albedo, target, mask, *, target_mask, levels, orien
     weights = np.ones(shape) if inside is None else _feather_weights(inside, feather)
     albedo = _blend(src, edited, weights)
     return TextureTransfer(
-        albedo=albedo, distance=dist.mean(axis=(1, 2)), band_distance=dist, source=src, mask=inside,
-        statistics=stats, seed=None if isinstance(seed, np.random.Generator) else seed, noise=noise_amp,
-        iterations=iterations, feather=feather,
+        albedo=albedo,
+        distance=dist.mean(axis=(1, 2)),
+        band_distance=dist,
+        source=src,
+        mask=inside,
+        statistics=stats,
+        seed=None if isinstance(seed, np.random.Generator) else seed,
+        noise=noise_amp,
+        iterations=iterations,
+        feather=feather,
     )

@@ -40,8 +40,8 @@ import math
 import os
 from pathlib import Path
 
-from facestats import __version__
 from facestats.core.conventions import CHANNELS, REGIONS, ROMAN, SITES
+from facestats.core.version import __version__
 from facestats.errors import ValidationError
 from facestats.io.index import utc_now
 from facestats.io.query import SCATTERING, UNITS
@@ -93,19 +93,26 @@ def _subject_json(sid: str, row: dict, hist) -> dict:
     for k in ("condition", "kind", "source", "flagged_fraction"):
         out[k] = get(k)
     brdf = {}
-    for model, name, lobe in (("ts", "torrance_sparrow", ("ts_m", "m")), ("bp", "blinn_phong", ("bp_exponent", "exponent"))):
+    for model, name, lobe in (
+        ("ts", "torrance_sparrow", ("ts_m", "m")),
+        ("bp", "blinn_phong", ("bp_exponent", "exponent")),
+    ):
         items = []
         for r, rname in REGIONS.items():
             item = {"region": r, "name": rname, "n": get(column("n", model=model, region=r))}
             for param, key in ((f"{model}_rho_s", "rho_s"), lobe):
-                item[key] = {"mean": get(column("mean", param=param, region=r)),
-                             "std": get(column("std", param=param, region=r))}
+                item[key] = {
+                    "mean": get(column("mean", param=param, region=r)),
+                    "std": get(column("std", param=param, region=r)),
+                }
             items.append(item)
         brdf[name] = items
     out["brdf"] = brdf
     out["scattering"] = {p: {ch: get(column("subject", param=p, channel=ch)) for ch in CHANNELS} for p in SCATTERING}
-    out["sites"] = {s: {p: {ch: get(column("site", param=p, site=s, channel=ch)) for ch in CHANNELS}
-                        for p in SCATTERING} for s in SITES}
+    out["sites"] = {
+        s: {p: {ch: get(column("site", param=p, site=s, channel=ch)) for ch in CHANNELS} for p in SCATTERING}
+        for s in SITES
+    }
     out["albedo"] = {stat: {ch: get(f"albedo_{stat}_{ch}") for ch in CHANNELS} for stat in ("mean", "std")}
     out["albedo_histogram"] = {ch: [int(v) for v in hist[c]] for c, ch in enumerate(CHANNELS)}
     return out
@@ -170,7 +177,15 @@ def export_statistics(store, out_dir, formats=("csv", "json")) -> list[Path]:
         os.replace(tmp, path)
         written.append(path)
     path = out / "README.txt"
-    path.write_text(_README.format(fmt=EXPORT_FORMAT, when=when, version=__version__, store=store.label,
-                                   n=len(ids), regions=", ".join(f"{k} {v}" for k, v in REGIONS.items())))
+    path.write_text(
+        _README.format(
+            fmt=EXPORT_FORMAT,
+            when=when,
+            version=__version__,
+            store=store.label,
+            n=len(ids),
+            regions=", ".join(f"{k} {v}" for k, v in REGIONS.items()),
+        )
+    )
     written.append(path)
     return written

@@ -40,8 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
-from facestats import __version__
 from facestats.core.conventions import CHANNELS, REGIONS, parse_gender, parse_skin_type
+from facestats.core.version import __version__
 from facestats.errors import FormatError, ValidationError
 
 __all__ = ["REQUIRED_KEYS", "ALBEDO_KEYS", "MerlData", "read_merl", "import_merl"]
@@ -124,7 +124,10 @@ class _Reader:
             bad |= a > high
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
-            self.fail(f"{key}[{i + 1}] must be {what}, got {_show(a[i])}" + (f" ({int(bad.sum())} bad entries)" if bad.sum() > 1 else ""))
+            self.fail(
+                f"{key}[{i + 1}] must be {what}, got {_show(a[i])}"
+                + (f" ({int(bad.sum())} bad entries)" if bad.sum() > 1 else "")
+            )
         return a.astype(np.int64)
 
     def labels(self, key, n: int) -> list:
@@ -198,7 +201,7 @@ def _split(subj: np.ndarray, n: int):
     """Row indices of each subject 1..n (stable order), via one sort."""
     order = np.argsort(subj, kind="stable")
     bounds = np.searchsorted(subj[order], np.arange(1, n + 2))
-    return [order[bounds[i]:bounds[i + 1]] for i in range(n)]
+    return [order[bounds[i] : bounds[i + 1]] for i in range(n)]
 
 
 def read_merl(path, *, prefix: str = "merl") -> MerlData:
@@ -254,8 +257,12 @@ def read_merl(path, *, prefix: str = "merl") -> MerlData:
     for col, name, ok in ((0, "m", ts[:, 0] > 0), (1, "rho_s", ts[:, 1] >= 0)):
         if not ok.all():
             i = int(np.flatnonzero(~ok)[0])
-            r.fail(f"ts row {i + 1}: {name} (column {col}) must be " + (">" if col == 0 else ">=")
-                   + f" 0, got {_show(ts[i, col])}" + (f" ({int((~ok).sum())} bad rows)" if (~ok).sum() > 1 else ""))
+            r.fail(
+                f"ts row {i + 1}: {name} (column {col}) must be "
+                + (">" if col == 0 else ">=")
+                + f" 0, got {_show(ts[i, col])}"
+                + (f" ({int((~ok).sum())} bad rows)" if (~ok).sum() > 1 else "")
+            )
     ts_region = r.integers("ts_region", k, 1, max(REGIONS), "a region 1-10")
     ts_subj = r.integers("ts_subjec", k, 1, n, f"a subject index 1-{n}")
 
@@ -296,18 +303,38 @@ def read_merl(path, *, prefix: str = "merl") -> MerlData:
         ds = xr.Dataset(
             data,
             coords={"channel": list(CHANNELS)},
-            attrs={"subject_id": sid, "person_id": sid, "age": int(ages[i]), "gender": genders[i],
-                   "skin_type": int(types[i]), "condition": "normal", "provenance": "{}"},
+            attrs={
+                "subject_id": sid,
+                "person_id": sid,
+                "age": int(ages[i]),
+                "gender": genders[i],
+                "skin_type": int(types[i]),
+                "condition": "normal",
+                "provenance": "{}",
+            },
         )
         set_variable_attrs(ds)
-        set_provenance(ds, source=str(path), source_sha256=sha, source_format=SOURCE_FORMAT,
-                       subject_index=i + 1, albedo_channels=albedo_channels, software_version=__version__)
+        set_provenance(
+            ds,
+            source=str(path),
+            source_sha256=sha,
+            source_format=SOURCE_FORMAT,
+            subject_index=i + 1,
+            albedo_channels=albedo_channels,
+            software_version=__version__,
+        )
         if rows.size == 0:
             empty.append(sid)
         datasets.append(ds)
-    return MerlData(path=path, sha256=sha, datasets=datasets, n_ts=k,
-                    n_albedo=int(alb.shape[0]) if albedo_channels else 0,
-                    albedo_channels=albedo_channels, empty=empty)
+    return MerlData(
+        path=path,
+        sha256=sha,
+        datasets=datasets,
+        n_ts=k,
+        n_albedo=int(alb.shape[0]) if albedo_channels else 0,
+        albedo_channels=albedo_channels,
+        empty=empty,
+    )
 
 
 def import_merl(path, store, *, prefix: str = "merl", overwrite: bool = False) -> MerlData:

@@ -49,12 +49,16 @@ def read_region_image(region_image) -> np.ndarray:
         img = np.asarray(region_image)
     if img.ndim == 3:  # a label PNG saved as RGB(A) greyscale
         if not np.all(img[..., :3] == img[..., :1]):
-            raise FormatError(f"region image must hold one label per pixel (greyscale), got shape {img.shape} with colours")
+            raise FormatError(
+                f"region image must hold one label per pixel (greyscale), got shape {img.shape} with colours"
+            )
         img = img[..., 0]
     if img.ndim != 2 or img.shape[0] != img.shape[1]:
         raise FormatError(f"region image must be a square 2-D label image, got shape {img.shape}")
     if not np.issubdtype(img.dtype, np.integer) or img.min() < 0 or img.max() > 10:
-        raise FormatError(f"region image must hold integer labels 0-10, got dtype {img.dtype} and range {img.min()}..{img.max()}")
+        raise FormatError(
+            f"region image must hold integer labels 0-10, got dtype {img.dtype} and range {img.min()}..{img.max()}"
+        )
     return img.astype(np.uint8)
 
 
@@ -132,9 +136,17 @@ def load_face_mesh(path, region_image, *, scale=1.0, transform=None, flip_v=True
     if not keep.any():
         raise FormatError("no mesh vertex falls on a labelled face region of the region image")
     return FaceGeometry(
-        position=verts[keep], normal=normals[keep] / length[keep, None], area=area[keep], uv=uv[keep], region=label[keep],
-        map_size=size, mesh_vertices=verts, mesh_faces=faces, region_map=regions,
-        name=name or os.path.basename(os.fspath(path)), meta={"kind": "mesh", "path": os.fspath(path), "mesh_grid": int(np.sqrt(len(faces) / 2))},
+        position=verts[keep],
+        normal=normals[keep] / length[keep, None],
+        area=area[keep],
+        uv=uv[keep],
+        region=label[keep],
+        map_size=size,
+        mesh_vertices=verts,
+        mesh_faces=faces,
+        region_map=regions,
+        name=name or os.path.basename(os.fspath(path)),
+        meta={"kind": "mesh", "path": os.fspath(path), "mesh_grid": int(np.sqrt(len(faces) / 2))},
     )
 
 

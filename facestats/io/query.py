@@ -257,16 +257,42 @@ class QueryResult:
         """
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
-        w.writerow(["section", "quantity", "region", "region_name", "site", "channel", "n", "mean", "std",
-                    "within_std", "values"])
+        w.writerow(
+            [
+                "section",
+                "quantity",
+                "region",
+                "region_name",
+                "site",
+                "channel",
+                "n",
+                "mean",
+                "std",
+                "within_std",
+                "values",
+            ]
+        )
 
         def f(x):
             x = _num(x)
             return "" if x is None else repr(x)
 
         def stat_row(section, quantity, s: Stat, region="", name="", site="", ch=""):
-            w.writerow([section, quantity, region, name, site, ch, s.n, f(s.mean), f(s.std),
-                        "" if s.within_std is None else f(s.within_std), ""])
+            w.writerow(
+                [
+                    section,
+                    quantity,
+                    region,
+                    name,
+                    site,
+                    ch,
+                    s.n,
+                    f(s.mean),
+                    f(s.std),
+                    "" if s.within_std is None else f(s.within_std),
+                    "",
+                ]
+            )
 
         w.writerow(["meta", "count", "", "", "", "", self.count, "", "", "", ""])
         w.writerow(["meta", "n_persons", "", "", "", "", self.n_persons, "", "", "", ""])
@@ -291,15 +317,19 @@ class QueryResult:
     # -- text ----------------------------------------------------------------------
     def to_table(self, *, ascii: bool = False, columns: int = 32) -> str:
         """A human-readable report; histograms drawn as ``columns``-wide bar strips."""
-        lines = [f"facestats query: {describe_filters(self.filters)}",
-                 f"store: {self.store} ({self.n_store} subjects)"]
+        lines = [f"facestats query: {describe_filters(self.filters)}", f"store: {self.store} ({self.n_store} subjects)"]
         if self.count == 0:
             lines.append("no subject matches these filters")
             return "\n".join(lines) + "\n"
         persons = "" if self.n_persons == self.count else f" ({self.n_persons} distinct persons)"
         lines.append(f"matching subjects: {self.count}{persons}")
-        for key, title in (("gender", "gender"), ("skin_type", "skin type"), ("age_group", "age"),
-                           ("condition", "condition"), ("kind", "kind")):
+        for key, title in (
+            ("gender", "gender"),
+            ("skin_type", "skin type"),
+            ("age_group", "age"),
+            ("condition", "condition"),
+            ("kind", "kind"),
+        ):
             counts = self.breakdown.get(key, {})
             if counts:
                 lines.append(f"  {title:<10} " + ", ".join(f"{k} {v}" for k, v in counts.items()))
@@ -309,8 +339,11 @@ class QueryResult:
         head = ["region", "TS rho_s" if ascii else "TS ρs", "TS m", "BP rho_s" if ascii else "BP ρs", "BP n", "n"]
         rows = []
         for r in self.regions:
-            rows.append([f"{r['region']:>2} {r['name']}"] + [_fmt_stat(r[p], pm) for p in BRDF_PARAMS]
-                        + [str(max(r[p].n for p in BRDF_PARAMS))])
+            rows.append(
+                [f"{r['region']:>2} {r['name']}"]
+                + [_fmt_stat(r[p], pm) for p in BRDF_PARAMS]
+                + [str(max(r[p].n for p in BRDF_PARAMS))]
+            )
         lines += _grid(head, rows)
         lines.append("")
         unit = "1/mm" if ascii else "mm⁻¹"
@@ -330,8 +363,10 @@ class QueryResult:
         if self.albedo_histogram is None:
             lines.append("albedo histograms: no albedo data")
         else:
-            lines.append(f"Albedo histograms ({HIST_BINS} bins over [0, 1] drawn as {columns} columns; "
-                         "mean of the subjects' normalised histograms)")
+            lines.append(
+                f"Albedo histograms ({HIST_BINS} bins over [0, 1] drawn as {columns} columns; "
+                "mean of the subjects' normalised histograms)"
+            )
             lines.append("    0" + " " * (columns - 2) + "1")
             for c, ch in enumerate(CHANNELS):
                 lines.append(f"{ch}  |{histogram_sparkline(self.albedo_histogram[c], columns, ascii=ascii)}|")
@@ -405,8 +440,9 @@ def _breakdown(table, idx) -> dict:
     }
 
 
-def run_query(table, *, skin_type=None, gender=None, age=None, condition=None, region=None,
-              store: str = "") -> QueryResult:
+def run_query(
+    table, *, skin_type=None, gender=None, age=None, condition=None, region=None, store: str = ""
+) -> QueryResult:
     """Filter the index and summarise the matching subjects (see the module docstring).
 
     Parameters
@@ -449,10 +485,13 @@ def run_query(table, *, skin_type=None, gender=None, age=None, condition=None, r
         for p in BRDF_PARAMS:
             entry[p] = _stat(col(column("mean", param=p, region=r)), col(column("std", param=p, region=r)))
         regions.append(entry)
-    scattering = {p: {ch: _stat(col(column("subject", param=p, channel=ch))) for ch in CHANNELS}
-                  for p in SCATTERING}
-    sites = {site: {p: {ch: _stat(col(column("site", param=p, site=site, channel=ch))) for ch in CHANNELS}
-                    for p in SCATTERING} for site in SITES}
+    scattering = {p: {ch: _stat(col(column("subject", param=p, channel=ch))) for ch in CHANNELS} for p in SCATTERING}
+    sites = {
+        site: {
+            p: {ch: _stat(col(column("site", param=p, site=site, channel=ch))) for ch in CHANNELS} for p in SCATTERING
+        }
+        for site in SITES
+    }
     albedo = {ch: _stat(col(f"albedo_mean_{ch}")) for ch in CHANNELS}
 
     hist = None

@@ -155,14 +155,18 @@ def validate_subject(ds, *, name: str | None = None):
     if int(ds.attrs["skin_type"]) not in range(1, 7):
         raise SchemaError(f"subject {label!r}: attribute skin_type must be 1-6, got {ds.attrs['skin_type']!r}")
     if ds.attrs["condition"] not in CONDITIONS:
-        raise SchemaError(f"subject {label!r}: attribute condition must be one of {CONDITIONS}, got {ds.attrs['condition']!r}")
+        raise SchemaError(
+            f"subject {label!r}: attribute condition must be one of {CONDITIONS}, got {ds.attrs['condition']!r}"
+        )
     age = ds.attrs["age"]
     if not (isinstance(age, (int, np.integer)) and 0 <= int(age) <= 200):
         raise SchemaError(f"subject {label!r}: attribute age must be an integer in 0-200 years, got {age!r}")
     kind = subject_kind(ds)
     for var in ds.data_vars:
         if var in VARIABLES and tuple(ds[var].dims) != VARIABLES[var][0]:
-            raise SchemaError(f"subject {label!r}: variable {var!r} must have dims {VARIABLES[var][0]}, got {tuple(ds[var].dims)}")
+            raise SchemaError(
+                f"subject {label!r}: variable {var!r} must have dims {VARIABLES[var][0]}, got {tuple(ds[var].dims)}"
+            )
     if "channel" in ds.dims and tuple(str(c) for c in ds["channel"].values) != CHANNELS:
         raise SchemaError(f"subject {label!r}: channel coords must be {CHANNELS}, got {list(ds['channel'].values)}")
     if "site" in ds.dims and not set(str(s) for s in ds["site"].values) <= set(SITES):
@@ -170,16 +174,22 @@ def validate_subject(ds, *, name: str | None = None):
     if kind == "maps":
         region = np.asarray(ds["region"].values)
         if region.min() < 0 or region.max() > max(REGIONS):
-            raise SchemaError(f"subject {label!r}: region labels must be 0-10, got {int(region.min())}..{int(region.max())}")
+            raise SchemaError(
+                f"subject {label!r}: region labels must be 0-10, got {int(region.min())}..{int(region.max())}"
+            )
         face = region > 0
         if not face.any():
             raise SchemaError(f"subject {label!r}: the region map has no face texel")
         for var in ("albedo", "ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent"):
             vals = np.asarray(ds[var].values)[face]
             if not np.all(np.isfinite(vals)):
-                raise SchemaError(f"subject {label!r}: variable {var!r} has {int((~np.isfinite(vals)).sum())} non-finite face texel(s)")
+                raise SchemaError(
+                    f"subject {label!r}: variable {var!r} has {int((~np.isfinite(vals)).sum())} non-finite face texel(s)"
+                )
     else:
         reg = np.asarray(ds["ts_sample_region"].values)
         if reg.size and (reg.min() < 1 or reg.max() > max(REGIONS)):
-            raise SchemaError(f"subject {label!r}: ts_sample_region must be 1-10, got {int(reg.min())}..{int(reg.max())}")
+            raise SchemaError(
+                f"subject {label!r}: ts_sample_region must be 1-10, got {int(reg.min())}..{int(reg.max())}"
+            )
     return kind

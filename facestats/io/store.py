@@ -81,9 +81,10 @@ from pathlib import Path
 
 import numpy as np
 
-from facestats import __version__
 from facestats.core.validate import check_choice
+from facestats.core.version import __version__
 from facestats.errors import SchemaError, StoreError, ValidationError
+from facestats.io.ids import check_subject_id
 from facestats.io.index import (
     INDEX_NAME,
     empty_index,
@@ -117,7 +118,6 @@ LOCK_NAME = ".lock"
 WRITERS = ".writers"
 ROOT_META = "zarr.json"
 _TRASH = ".trash-"
-_ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
 _GEN_RE = re.compile(r"^g[0-9a-f]{16}-\d+-[0-9a-f]{6}$")
 
 
@@ -127,16 +127,6 @@ def default_store_path() -> Path:
 
 
 # -- helpers -----------------------------------------------------------------------
-def _check_id(sid) -> str:
-    sid = str(sid)
-    if not _ID_RE.match(sid):
-        raise ValidationError(
-            f"subject_id must be 1-64 characters of letters, digits, '.', '_' or '-' starting with a letter "
-            f"or digit, got {sid!r}"
-        )
-    return sid
-
-
 def _new_generation() -> str:
     return f"g{time.time_ns():016x}-{os.getpid()}-{secrets.token_hex(3)}"
 
@@ -500,14 +490,20 @@ class Store:
         except ValueError as exc:
             raise StoreError(f"{self.label}: root {ROOT_META} is not valid JSON ({exc})") from None
         if not isinstance(meta, dict) or meta.get("zarr_format") != 3 or meta.get("node_type") != "group":
-            raise SchemaError(f"{self.label}: the root is not a Zarr v3 group (zarr.json: zarr_format "
-                              f"{meta.get('zarr_format') if isinstance(meta, dict) else '?'!r})")
+            raise SchemaError(
+                f"{self.label}: the root is not a Zarr v3 group (zarr.json: zarr_format "
+                f"{meta.get('zarr_format') if isinstance(meta, dict) else '?'!r})"
+            )
         attrs = meta.get("attributes") or {}
         if "facestats_schema" not in attrs:
             raise StoreError(f"{self.label} is a Zarr group but not a facestats store (no facestats_schema attribute)")
         v = attrs["facestats_schema"]
         if v != SCHEMA_VERSION:
-            hint = " (written by a newer facestats: upgrade facestats)" if isinstance(v, int) and v > SCHEMA_VERSION else ""
+            hint = (
+                " (written by a newer facestats: upgrade facestats)"
+                if isinstance(v, int) and v > SCHEMA_VERSION
+                else ""
+            )
             raise SchemaError(
                 f"store {self.label} has schema version {v!r}; facestats {__version__} reads schema version "
                 f"{SCHEMA_VERSION}{hint}"
@@ -611,8 +607,15 @@ class Store:
         """
         from facestats.io.query import run_query
 
-        return run_query(self._table(), skin_type=skin_type, gender=gender, age=age, condition=condition,
-                         region=region, store=self.label)
+        return run_query(
+            self._table(),
+            skin_type=skin_type,
+            gender=gender,
+            age=age,
+            condition=condition,
+            region=region,
+            store=self.label,
+        )
 
     # -- reading subjects ----------------------------------------------------------
     def _gen_rel(self, sid: str, gen: str) -> str:
@@ -633,7 +636,9 @@ class Store:
         attrs = dict(ds.attrs)
         raw = attrs.pop(STORE_ATTR, None)
         if raw is None:
-            raise SchemaError(f"subject {sid!r}: group {rel} lacks the {STORE_ATTR!r} attribute (not written by facestats)")
+            raise SchemaError(
+                f"subject {sid!r}: group {rel} lacks the {STORE_ATTR!r} attribute (not written by facestats)"
+            )
         try:
             meta = json.loads(raw)
             manifest = meta["manifest"]
@@ -654,11 +659,14 @@ class Store:
         for name, m in manifest.items():
             var = ds.variables[name]
             if list(var.dims) != m["dims"]:
-                raise SchemaError(f"subject {sid!r}: variable {name!r} has dims {tuple(var.dims)}, "
-                                  f"expected {tuple(m['dims'])}")
+                raise SchemaError(
+                    f"subject {sid!r}: variable {name!r} has dims {tuple(var.dims)}, expected {tuple(m['dims'])}"
+                )
             if list(var.shape) != m["shape"]:
-                raise SchemaError(f"subject {sid!r}: variable {name!r} has shape {tuple(var.shape)}, "
-                                  f"expected {tuple(m['shape'])} (truncated array?)")
+                raise SchemaError(
+                    f"subject {sid!r}: variable {name!r} has shape {tuple(var.shape)}, "
+                    f"expected {tuple(m['shape'])} (truncated array?)"
+                )
             dt = "str" if var.dtype.kind in "UOST" else var.dtype.str
             if dt != m["dtype"]:
                 raise SchemaError(f"subject {sid!r}: variable {name!r} has dtype {dt}, expected {m['dtype']}")
@@ -744,13 +752,15 @@ class Store:
                 reg_parts.append(np.full(rho.size, r, dtype=np.int64))
                 rho_parts.append(rho)
                 lobe_parts.append(lobe)
-        cat = (lambda parts, dt: np.concatenate(parts) if parts else np.empty(0, dtype=dt))
-        return pd.DataFrame({
-            "subject_id": cat(sid_parts, object),
-            "region": cat(reg_parts, np.int64),
-            "rho_s": cat(rho_parts, np.float64),
-            "lobe": cat(lobe_parts, np.float64),
-        })
+        cat = lambda parts, dt: np.concatenate(parts) if parts else np.empty(0, dtype=dt)
+        return pd.DataFrame(
+            {
+                "subject_id": cat(sid_parts, object),
+                "region": cat(reg_parts, np.int64),
+                "rho_s": cat(rho_parts, np.float64),
+                "lobe": cat(lobe_parts, np.float64),
+            }
+        )
 
     # -- writing -----------------------------------------------------------------
     def write_subject(self, dataset, *, overwrite: bool = False) -> str:
@@ -778,12 +788,14 @@ class Store:
             if not isinstance(ds, xr.Dataset):
                 raise ValidationError(f"datasets[{k}] must be an xarray.Dataset, got {type(ds).__name__}")
             validate_subject(ds)
-            sid = _check_id(ds.attrs["subject_id"])
+            sid = check_subject_id(ds.attrs["subject_id"])
             try:
                 provenance(ds)
             except (ValueError, TypeError):
-                raise SchemaError(f"subject {sid!r}: attribute provenance must be a JSON object string, "
-                                  f"got {str(ds.attrs['provenance'])[:60]!r}") from None
+                raise SchemaError(
+                    f"subject {sid!r}: attribute provenance must be a JSON object string, "
+                    f"got {str(ds.attrs['provenance'])[:60]!r}"
+                ) from None
             if sid in seen:
                 raise ValidationError(f"subject_id {sid!r} appears twice in one write")
             seen.add(sid)
@@ -894,20 +906,25 @@ class Store:
             var.encoding = {}
             enc = {}
             if "v" in var.dims and var.ndim >= 2:
-                enc["chunks"] = tuple(max(1, min(MAP_CHUNK_ROWS, s)) if d == "v" else max(1, s)
-                                      for d, s in zip(var.dims, var.shape))
+                enc["chunks"] = tuple(
+                    max(1, min(MAP_CHUNK_ROWS, s)) if d == "v" else max(1, s) for d, s in zip(var.dims, var.shape)
+                )
             if var.dtype.kind == "f":  # byte shuffle + zstd: ~20 % smaller than plain zstd on smooth maps
                 enc["compressors"] = [BloscCodec(cname="zstd", clevel=5, shuffle="shuffle")]
             if enc:
                 encoding[name] = enc
         manifest = {name: _manifest_entry(var) for name, var in out.variables.items()}
-        out.attrs[STORE_ATTR] = json.dumps({
-            "schema": SCHEMA_VERSION, "facestats_version": __version__, "written": written,
-            "generation": gen, "manifest": manifest,
-        })
+        out.attrs[STORE_ATTR] = json.dumps(
+            {
+                "schema": SCHEMA_VERSION,
+                "facestats_version": __version__,
+                "written": written,
+                "generation": gen,
+                "manifest": manifest,
+            }
+        )
         try:
-            out.to_zarr(path, mode="w", zarr_format=3, consolidated=False, encoding=encoding,
-                        write_empty_chunks=True)
+            out.to_zarr(path, mode="w", zarr_format=3, consolidated=False, encoding=encoding, write_empty_chunks=True)
         except Exception as exc:
             raise StoreError(f"writing subject {sid!r} to {path} failed: {type(exc).__name__}: {exc}") from exc
         _fsync_tree(path)
@@ -1102,17 +1119,22 @@ class Store:
             row, hist = summarise_subject(ds), albedo_histogram(ds)
             diff = _rows_differ(make_entry(gen, "", row, hist)["row"], entry["row"])
             if diff:
-                report.problems.append(f"subject {sid!r}: index row disagrees with the data in {diff[:5]}"
-                                       + (f" and {len(diff) - 5} more" if len(diff) > 5 else ""))
+                report.problems.append(
+                    f"subject {sid!r}: index row disagrees with the data in {diff[:5]}"
+                    + (f" and {len(diff) - 5} more" if len(diff) > 5 else "")
+                )
                 fix[sid] = (gen, make_entry(gen, entry.get("written", ""), row, hist))
             elif np.asarray(entry["albedo_hist"]).tolist() != hist.tolist():
                 report.problems.append(f"subject {sid!r}: index albedo histogram disagrees with the data")
                 fix[sid] = (gen, make_entry(gen, entry.get("written", ""), row, hist))
         orphans = self._orphans(index)
         if orphans:
-            report.notes.append(f"{len(orphans)} unreferenced item(s) left by interrupted or running writers "
-                                f"(e.g. {orphans[0]}); `facestats validate --repair` removes dead ones")
+            report.notes.append(
+                f"{len(orphans)} unreferenced item(s) left by interrupted or running writers "
+                f"(e.g. {orphans[0]}); `facestats validate --repair` removes dead ones"
+            )
         if repair and (drop or fix):
+
             def mutate(ix):
                 for sid, gen in drop.items():
                     if ix["subjects"].get(sid, {}).get("generation") == gen:

@@ -22,9 +22,10 @@ from __future__ import annotations
 import numpy as np
 
 from facestats.core.blocked import blockwise, components
+from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_shape, result_dtype
 from facestats.errors import ValidationError
-from facestats.model.fresnel import _check_eta, _fresnel_reflectance
+from facestats.model.fresnel import check_eta, fresnel_reflectance_unchecked
 
 __all__ = [
     "half_vector",
@@ -40,7 +41,7 @@ __all__ = [
 _UNIT_TOL = 1e-3
 
 
-def _check_directions(value, name):
+def check_directions(value, name):
     """Validate finite unit 3-vectors on the last axis (norm 1 within ``_UNIT_TOL``)."""
     v = as_finite(value, name)
     check_shape(v, name, (..., 3))
@@ -117,7 +118,7 @@ def blinn_phong_lobe(cos_delta, exponent):
     directions integrate to one: ∫ (n+2)/(2π) cosⁿ δ cos δ dω_H = 1.  ``cos_delta``
     = N·H in [0, 1], ``exponent`` n ≥ 0 (no input checks); the lobe is in sr⁻¹.
     """
-    return (exponent + 2) / (2 * np.pi) * cos_delta ** exponent
+    return (exponent + 2) / (2 * np.pi) * cos_delta**exponent
 
 
 def _ts_geometry_kernel(nx, ny, nz, ix, iy, iz, ox, oy, oz, eta):
@@ -132,7 +133,7 @@ def _ts_geometry_kernel(nx, ny, nz, ix, iy, iz, ox, oy, oz, eta):
     return torrance_sparrow_cosines(n_wi, n_wo, wi_wo, eta)
 
 
-def torrance_sparrow_cosines(n_wi, n_wo, wi_wo, eta=1.38):
+def torrance_sparrow_cosines(n_wi, n_wo, wi_wo, eta=ETA_SKIN):
     """cos δ and K = G F_r(ωo·H)/(π (N·ωi)(N·ωo)) of eq. 12-13 from three cosines (no checks).
 
     With ‖ωi + ωo‖ = sqrt(2 + 2 ωi·ωo), the half vector gives
@@ -153,13 +154,13 @@ def torrance_sparrow_cosines(n_wi, n_wo, wi_wo, eta=1.38):
     n_h = np.clip((n_wi + n_wo) * inv, tiny, one)
     wo_h = np.clip((1 + wi_wo) * inv, tiny, one)
     g = v_groove_shadowing(n_h, n_wi, n_wo, wo_h)
-    k = g * _fresnel_reflectance(wo_h, eta) / (np.pi * n_wi * n_wo)
+    k = g * fresnel_reflectance_unchecked(wo_h, eta) / (np.pi * n_wi * n_wo)
     if not everywhere:
         k = np.where(above, k, 0)
     return n_h.astype(dtype, copy=False), k.astype(dtype, copy=False)
 
 
-def torrance_sparrow_geometry(normal, wi, wo, eta=1.38):
+def torrance_sparrow_geometry(normal, wi, wo, eta=ETA_SKIN):
     """Parameter-free factors of the Torrance-Sparrow BRDF, for fitting and rendering.
 
     Splits Weyrich et al. 2006, eq. 12 as f_sTS = ρs · D(cos δ; m) · K with
@@ -185,9 +186,9 @@ def torrance_sparrow_geometry(normal, wi, wo, eta=1.38):
 def _check_common(normal, wi, wo, rho_s):
     """Validate the arguments both BRDFs take: three unit directions and ρs ≥ 0."""
     return (
-        _check_directions(normal, "normal"),
-        _check_directions(wi, "wi"),
-        _check_directions(wo, "wo"),
+        check_directions(normal, "normal"),
+        check_directions(wi, "wi"),
+        check_directions(wo, "wo"),
         as_finite(rho_s, "rho_s", 0, None),
     )
 
@@ -242,7 +243,7 @@ def _bp_kernel(nx, ny, nz, ix, iy, iz, ox, oy, oz, rho_s, exponent):
     return np.where(above, rho_s * blinn_phong_lobe(n_h, exponent), 0)
 
 
-def torrance_sparrow(normal, wi, wo, rho_s, m, eta=1.38):
+def torrance_sparrow(normal, wi, wo, rho_s, m, eta=ETA_SKIN):
     """Torrance-Sparrow specular BRDF exactly as printed in Weyrich et al. 2006, eq. 12-13.
 
     f_sTS = (ρs/π) · D G / ((N·ωi)(N·ωo)) · F_r(ωo·H)
@@ -279,7 +280,7 @@ def torrance_sparrow(normal, wi, wo, rho_s, m, eta=1.38):
     """
     normal, wi, wo, rho_s = _check_common(normal, wi, wo, rho_s)
     m = as_finite(m, "m", 0, None, low_inclusive=False)
-    eta_a = _check_eta(eta)
+    eta_a = check_eta(eta)
     dtype = result_dtype(normal, wi, wo, rho_s, m, eta)
     ops = [*components(normal), *components(wi), *components(wo), eta_a, rho_s, m]
     return blockwise(_ts_kernel, ops, dtype)

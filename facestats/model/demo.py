@@ -12,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.core.validate import as_finite, as_float, check_shape
 from facestats.core.conventions import CHANNELS
-from facestats.model import dipole
 from facestats.core.published import ETA_SKIN, SIGMA_TR_AVG
+from facestats.core.validate import as_finite, as_float, check_shape
+from facestats.model import dipole
 
 __all__ = ["DemoReport", "physics_demo", "light_skin_albedo", "plot_dipole_profiles"]
 
@@ -63,7 +63,7 @@ class DemoReport:
 
 
 def plot_dipole_profiles(report: DemoReport, r_max: float = 10.0):
-    """Figure of R_d(r) (mm⁻², Jensen et al. 2001 dipole) per channel for r in [0, ``r_max``] mm, log scale, ℓd marked."""
+    """Figure of R_d(r) (mm⁻², Jensen et al. 2001 dipole) per channel, r in [0, ``r_max``] mm, log scale, ℓd marked."""
     as_finite(r_max, "r_max", 0, None, low_inclusive=False, unit="mm")
     import matplotlib
 
@@ -74,7 +74,12 @@ def plot_dipole_profiles(report: DemoReport, r_max: float = 10.0):
     fig, ax = plt.subplots(figsize=(6, 4))
     for c, colour_ in zip(range(3), ("tab:red", "tab:green", "tab:blue")):
         prof = dipole.dipole_profile(r, report.sigma_s_prime[c], report.sigma_a[c], report.eta)
-        ax.semilogy(r, prof, color=colour_, label=f"{CHANNELS[c]}: σ's={report.sigma_s_prime[c]:.3g}, σa={report.sigma_a[c]:.3g} mm⁻¹")
+        ax.semilogy(
+            r,
+            prof,
+            color=colour_,
+            label=f"{CHANNELS[c]}: σ's={report.sigma_s_prime[c]:.3g}, σa={report.sigma_a[c]:.3g} mm⁻¹",
+        )
         ax.axvline(report.ell_d[c], color=colour_, ls=":", lw=1)
     ax.set_xlabel("distance r [mm]  (dotted: ℓd)")
     ax.set_ylabel("R_d(r) [mm⁻²]")

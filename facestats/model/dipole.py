@@ -26,9 +26,10 @@ from __future__ import annotations
 import numpy as np
 
 from facestats.core.blocked import blockwise
+from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, as_float, check_range, result_dtype
 from facestats.errors import FitError, ValidationError
-from facestats.model.fresnel import _check_eta, _fdr_polynomial
+from facestats.model.fresnel import check_eta, diffuse_fresnel_reflectance_unchecked
 
 __all__ = [
     "boundary_coefficient",
@@ -42,30 +43,31 @@ __all__ = [
 ]
 
 
-def _coefficients(sigma_s_prime, sigma_a):
+def dipole_coefficients(sigma_s_prime, sigma_a):
     """Validate (σ's, σa) in mm⁻¹: finite, ≥ 0, and not both 0 anywhere."""
     s = as_finite(sigma_s_prime, "sigma_s_prime", 0, None, unit="mm^-1")
     a = as_finite(sigma_a, "sigma_a", 0, None, unit="mm^-1")
     if np.any((s + a) <= 0):
         raise ValidationError(
-            "sigma_s_prime + sigma_a must be > 0 mm^-1 (a medium that neither scatters nor absorbs has no dipole), got 0"
+            "sigma_s_prime + sigma_a must be > 0 mm^-1 "
+            "(a medium that neither scatters nor absorbs has no dipole), got 0"
         )
     return s, a
 
 
-def _eta(eta):
+def check_dipole_eta(eta):
     """Validate the relative index of the dipole: finite, in [1, 3] (range of the F_dr polynomial)."""
-    e = _check_eta(eta)
+    e = check_eta(eta)
     return check_range(e, "eta", 1.0, 3.0)
 
 
 def _boundary(eta):
     """A = (1 + F_dr)/(1 − F_dr) without input checks (see :func:`boundary_coefficient`)."""
-    fdr = _fdr_polynomial(eta)
+    fdr = diffuse_fresnel_reflectance_unchecked(eta)
     return (1 + fdr) / (1 - fdr)
 
 
-def boundary_coefficient(eta=1.38):
+def boundary_coefficient(eta=ETA_SKIN):
     """Boundary mismatch coefficient A = (1 + F_dr)/(1 − F_dr) (Jensen et al. 2001).
 
     Seed typo resolved: Suzuki et al. eq. 8 prints A = (1 − F_dr)/(1 − F_dv).
@@ -76,7 +78,7 @@ def boundary_coefficient(eta=1.38):
     (:func:`total_diffuse_reflectance`) equal the numerical integral of the
     profile, which ``tests/test_dipole.py`` checks to 1e-8.
     """
-    return _boundary(_eta(eta))
+    return _boundary(check_dipole_eta(eta))
 
 
 def _dipole_terms(sigma_s_prime, sigma_a, eta):
@@ -90,7 +92,7 @@ def _dipole_terms(sigma_s_prime, sigma_a, eta):
     return sigma_tr, z_r, z_v, alpha
 
 
-def _profile(r, sigma_s_prime, sigma_a, eta):
+def dipole_profile_unchecked(r, sigma_s_prime, sigma_a, eta):
     """R_d(r) without input checks (internal fast path; see :func:`dipole_profile`)."""
     sigma_tr, z_r, z_v, alpha = _dipole_terms(sigma_s_prime, sigma_a, eta)
     r2 = r * r
@@ -101,7 +103,7 @@ def _profile(r, sigma_s_prime, sigma_a, eta):
     return alpha / (4 * np.pi) * (real + virtual)
 
 
-def dipole_profile(r, sigma_s_prime, sigma_a, eta=1.38):
+def dipole_profile(r, sigma_s_prime, sigma_a, eta=ETA_SKIN):
     """Diffuse subsurface reflectance profile R_d(r) of the dipole, in mm⁻².
 
     Jensen et al. 2001, as printed in Suzuki, Mukaigawa & Yagi eq. 3-13:
@@ -142,13 +144,13 @@ def dipole_profile(r, sigma_s_prime, sigma_a, eta=1.38):
     0.0220...
     """
     r_a = as_finite(r, "r", 0, None, unit="mm")
-    s, a = _coefficients(sigma_s_prime, sigma_a)
-    e = _eta(eta)
+    s, a = dipole_coefficients(sigma_s_prime, sigma_a)
+    e = check_dipole_eta(eta)
     dtype = result_dtype(r, sigma_s_prime, sigma_a, eta)
-    return blockwise(_profile, [r_a, s, a, e], dtype)
+    return blockwise(dipole_profile_unchecked, [r_a, s, a, e], dtype)
 
 
-def dipole_radial_energy(radius, sigma_s_prime, sigma_a, eta=1.38):
+def dipole_radial_energy(radius, sigma_s_prime, sigma_a, eta=ETA_SKIN):
     """Fraction of incident flux leaving within ``radius`` of the entry point.
 
     Closed form of 2π∫₀^ρ r R_d(r) dr.  With d = sqrt(r² + z²), r dr = d dd and
@@ -174,15 +176,19 @@ def dipole_radial_energy(radius, sigma_s_prime, sigma_a, eta=1.38):
     """
     rad = as_float(radius, "radius")
     if np.any(np.isnan(rad)):
-        raise ValidationError(f"radius must be a number of mm (inf allowed), got {int(np.isnan(rad).sum())} NaN value(s)")
+        raise ValidationError(
+            f"radius must be a number of mm (inf allowed), got {int(np.isnan(rad).sum())} NaN value(s)"
+        )
     check_range(rad, "radius", 0, None, unit="mm")
-    s, a = _coefficients(sigma_s_prime, sigma_a)
-    e = _eta(eta)
+    s, a = dipole_coefficients(sigma_s_prime, sigma_a)
+    e = check_dipole_eta(eta)
     dtype = result_dtype(radius, sigma_s_prime, sigma_a, eta)
-    return np.asarray(_radial_energy(rad.astype(dtype), s.astype(dtype), a.astype(dtype), e.astype(dtype)), dtype)
+    return np.asarray(
+        dipole_radial_energy_unchecked(rad.astype(dtype), s.astype(dtype), a.astype(dtype), e.astype(dtype)), dtype
+    )
 
 
-def _radial_energy(radius, sigma_s_prime, sigma_a, eta):
+def dipole_radial_energy_unchecked(radius, sigma_s_prime, sigma_a, eta):
     """E(ρ) of :func:`dipole_radial_energy` without input checks (E(∞) is handled: the tails vanish)."""
     sigma_tr, z_r, z_v, alpha = _dipole_terms(sigma_s_prime, sigma_a, eta)
     with np.errstate(invalid="ignore", over="ignore"):
@@ -193,14 +199,14 @@ def _radial_energy(radius, sigma_s_prime, sigma_a, eta):
     return alpha / 2 * (np.exp(-sigma_tr * z_r) - tail_r + np.exp(-sigma_tr * z_v) - tail_v)
 
 
-def _total_from_reduced_albedo(alpha, eta):
+def total_from_reduced_albedo_unchecked(alpha, eta):
     """Weyrich et al. 2006 eq. 16 as a total reflectance (no checks)."""
     s = np.sqrt(3 * (1 - alpha))
     a_coef = _boundary(eta)
     return alpha / 2 * (1 + np.exp(-4 / 3 * a_coef * s)) * np.exp(-s)
 
 
-def total_diffuse_reflectance(sigma_s_prime, sigma_a, eta=1.38):
+def total_diffuse_reflectance(sigma_s_prime, sigma_a, eta=ETA_SKIN):
     """Total diffuse reflectance R_d = 2π∫₀^∞ r R_d(r) dr of the dipole, closed form.
 
     Jensen et al. 2001; Weyrich et al. 2006 eq. 16:
@@ -232,11 +238,11 @@ def total_diffuse_reflectance(sigma_s_prime, sigma_a, eta=1.38):
     ndarray
         Dimensionless total diffuse reflectance in [0, 1).
     """
-    s, a = _coefficients(sigma_s_prime, sigma_a)
-    e = _eta(eta)
+    s, a = dipole_coefficients(sigma_s_prime, sigma_a)
+    e = check_dipole_eta(eta)
     dtype = result_dtype(sigma_s_prime, sigma_a, eta)
     alpha = (s / (s + a)).astype(dtype)
-    return np.asarray(_total_from_reduced_albedo(alpha, e.astype(dtype)), dtype=dtype)
+    return np.asarray(total_from_reduced_albedo_unchecked(alpha, e.astype(dtype)), dtype=dtype)
 
 
 def transport_coefficient(sigma_a, sigma_s_prime):
@@ -255,7 +261,7 @@ def transport_coefficient(sigma_a, sigma_s_prime):
     ndarray
         σtr in mm⁻¹.
     """
-    s, a = _coefficients(sigma_s_prime, sigma_a)
+    s, a = dipole_coefficients(sigma_s_prime, sigma_a)
     dtype = result_dtype(sigma_a, sigma_s_prime)
     return np.asarray(np.sqrt(3 * a * (a + s)), dtype=dtype)
 
@@ -315,7 +321,7 @@ def _reduced_albedo(total, eta, tol=1e-13, max_iter=100):
     return alpha.astype(dtype if dtype in (np.float32, np.float64) else np.float64)
 
 
-def reduced_albedo(total_reflectance, eta=1.38):
+def reduced_albedo(total_reflectance, eta=ETA_SKIN):
     """Reduced (apparent) albedo α' from a total diffuse reflectance, inverting Weyrich eq. 16.
 
     Weyrich et al. 2006 §5.4: "Using S_BRDF = α_avg, we compute the apparent albedo
@@ -342,12 +348,12 @@ def reduced_albedo(total_reflectance, eta=1.38):
         If a reflectance lies outside (0, 1): no albedo α' ∈ [0, 1] produces it.
     """
     t = as_finite(total_reflectance, "total_reflectance", 0, 1, low_inclusive=False, high_inclusive=False)
-    e = _eta(eta)
+    e = check_dipole_eta(eta)
     dtype = result_dtype(total_reflectance, eta)
     return np.asarray(_reduced_albedo(t, e), dtype=dtype)
 
 
-def scattering_from_albedo(albedo, sigma_tr, eta=1.38):
+def scattering_from_albedo(albedo, sigma_tr, eta=ETA_SKIN):
     """Reduced scattering and absorption coefficients from albedo and σtr (Weyrich et al. 2006 §5.4).
 
     α' = :func:`reduced_albedo` (albedo) inverts eq. 16, then (Jensen & Buhler 2002)

@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from facestats.core.blocked import blockwise
+from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_range, result_dtype
 from facestats.errors import ValidationError
 
@@ -32,7 +33,7 @@ __all__ = ["fresnel_reflectance", "fresnel_transmittance", "diffuse_fresnel_refl
 _COS_TOL = 1e-6
 
 
-def _fresnel_reflectance(cos_i, eta):
+def fresnel_reflectance_unchecked(cos_i, eta):
     """Unpolarised Fresnel reflectance without input checks (internal fast path).
 
     Uses the equivalent closed form of Cook & Torrance (1982), with
@@ -68,12 +69,12 @@ def _check_cos(cos_theta, name="cos_theta"):
     return np.clip(c, 0, 1)
 
 
-def _check_eta(eta):
+def check_eta(eta):
     """Validate a relative index of refraction: finite and > 0."""
     return as_finite(eta, "eta", 0.0, None, low_inclusive=False)
 
 
-def fresnel_reflectance(cos_theta, eta=1.38):
+def fresnel_reflectance(cos_theta, eta=ETA_SKIN):
     """Unpolarised Fresnel reflectance F_r of a smooth dielectric boundary.
 
     F_r = (r_s² + r_p²) / 2 with r_s = (cos θi − η cos θt)/(cos θi + η cos θt),
@@ -99,11 +100,11 @@ def fresnel_reflectance(cos_theta, eta=1.38):
         inputs are float32, else float64.
     """
     c = _check_cos(cos_theta)
-    e = _check_eta(eta)
-    return blockwise(_fresnel_reflectance, [c, e], result_dtype(c, e))
+    e = check_eta(eta)
+    return blockwise(fresnel_reflectance_unchecked, [c, e], result_dtype(c, e))
 
 
-def fresnel_transmittance(cos_theta, eta=1.38):
+def fresnel_transmittance(cos_theta, eta=ETA_SKIN):
     """Unpolarised Fresnel transmittance F_t = 1 − F_r (energy conservation at the boundary).
 
     This is the F_t(η, ω) of Weyrich et al. 2006, eq. 6, applied at the entry point
@@ -118,13 +119,13 @@ def fresnel_transmittance(cos_theta, eta=1.38):
     return 1 - fresnel_reflectance(cos_theta, eta)
 
 
-def _fdr_polynomial(eta):
+def diffuse_fresnel_reflectance_unchecked(eta):
     """Egan & Hilgeman polynomial for F_dr, valid for η ≥ 1 (no input checks; see
     :func:`diffuse_fresnel_reflectance`, Suzuki et al. eq. 9 with the sign corrected)."""
     return -1.440 / (eta * eta) + 0.710 / eta + 0.668 + 0.0636 * eta
 
 
-def diffuse_fresnel_reflectance(eta=1.38):
+def diffuse_fresnel_reflectance(eta=ETA_SKIN):
     """Diffuse Fresnel reflectance F_dr of the dipole boundary condition.
 
     F_dr = −1.440/η² + 0.710/η + 0.668 + 0.0636 η
@@ -154,6 +155,6 @@ def diffuse_fresnel_reflectance(eta=1.38):
     ndarray
         F_dr in (0, 1) for η > 1.
     """
-    e = _check_eta(eta)
+    e = check_eta(eta)
     check_range(e, "eta", 1.0, 3.0)
-    return _fdr_polynomial(e)
+    return diffuse_fresnel_reflectance_unchecked(e)

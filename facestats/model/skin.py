@@ -31,11 +31,25 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from facestats.core.validate import as_finite, as_float, check_choice, check_integer, check_range, check_shape, result_dtype
+from facestats.core.published import ETA_SKIN
+from facestats.core.validate import (
+    as_finite,
+    as_float,
+    check_choice,
+    check_integer,
+    check_range,
+    check_shape,
+    result_dtype,
+)
 from facestats.errors import ValidationError
 from facestats.model import brdf as _brdf
-from facestats.model.dipole import _coefficients, _eta, _radial_energy, _total_from_reduced_albedo
-from facestats.model.fresnel import _fresnel_reflectance
+from facestats.model.dipole import (
+    check_dipole_eta,
+    dipole_coefficients,
+    dipole_radial_energy_unchecked,
+    total_from_reduced_albedo_unchecked,
+)
+from facestats.model.fresnel import fresnel_reflectance_unchecked
 
 __all__ = [
     "SPECULAR_MODELS",
@@ -159,7 +173,7 @@ def directional_lights(normals, directions, irradiance):
     irradiance : ndarray, shape (N, L, 3)
     """
     n = _points(normals, "normals")
-    w = _brdf._check_directions(directions, "directions")
+    w = _brdf.check_directions(directions, "directions")
     check_shape(w, "directions", (None, 3))
     e = as_finite(irradiance, "irradiance", 0, None)
     if e.ndim == 1:
@@ -251,7 +265,7 @@ class SubsurfaceTransport:
 
     sigma_s_prime: np.ndarray
     sigma_a: np.ndarray
-    eta: float = 1.38
+    eta: float = ETA_SKIN
     positions: np.ndarray | None = None
     areas: np.ndarray | None = None
     radius: float | None = None
@@ -261,13 +275,13 @@ class SubsurfaceTransport:
     _weights: list = field(default=None, init=False, repr=False)
 
     def __post_init__(self):
-        s, a = _coefficients(self.sigma_s_prime, self.sigma_a)
+        s, a = dipole_coefficients(self.sigma_s_prime, self.sigma_a)
         s = np.broadcast_to(s, (3,)).astype(np.float64)
         a = np.broadcast_to(a, (3,)).astype(np.float64)
         self.sigma_s_prime, self.sigma_a = s, a
-        self.eta = float(_eta(self.eta))
+        self.eta = float(check_dipole_eta(self.eta))
         alpha = s / (s + a)
-        self.total_reflectance = _total_from_reduced_albedo(alpha, self.eta)
+        self.total_reflectance = total_from_reduced_albedo_unchecked(alpha, self.eta)
         if self.positions is None:
             return
         p = check_shape(as_finite(self.positions, "positions", dtype=np.float64), "positions", (None, 3))
@@ -288,7 +302,7 @@ class SubsurfaceTransport:
         c = int(np.argmin(sigma_tr))  # most translucent channel
         args = (self.sigma_s_prime[c], self.sigma_a[c], self.eta)
         target = (1 - self.tail) * self.total_reflectance[c]
-        r_energy = brentq(lambda r: _radial_energy(r, *args) - target, 0.0, 1e4)
+        r_energy = brentq(lambda r: dipole_radial_energy_unchecked(r, *args) - target, 0.0, 1e4)
         spacing = np.sqrt(np.median(self.areas))
         r_cap = spacing * np.sqrt(self.max_neighbors / np.pi)
         return float(min(r_energy, max(r_cap, spacing)))
@@ -308,14 +322,14 @@ class SubsurfaceTransport:
         weights = []
         for c in range(3):  # loop over the three channels, not over samples
             args = (self.sigma_s_prime[c], self.sigma_a[c], self.eta)
-            e_foot = _radial_energy(foot, *args)
-            e_ring = _radial_energy(radius, *args) - e_foot  # analytic energy of the ring
+            e_foot = dipole_radial_energy_unchecked(foot, *args)
+            e_ring = dipole_radial_energy_unchecked(radius, *args) - e_foot  # analytic energy of the ring
             # Mean of R_d over the annulus of one sample width around r (exact for
             # the radial energy), times the neighbour's area.
             width = np.sqrt(self.areas[cols])
             r_in = np.maximum(dist - width / 2, foot[rows])
             r_out = np.maximum(dist + width / 2, r_in + 1e-12)
-            ring = _radial_energy(r_out, *args) - _radial_energy(r_in, *args)
+            ring = dipole_radial_energy_unchecked(r_out, *args) - dipole_radial_energy_unchecked(r_in, *args)
             w = ring / (np.pi * (r_out * r_out - r_in * r_in)) * self.areas[cols]
             raw = np.bincount(rows, weights=w, minlength=n)
             with np.errstate(invalid="ignore", divide="ignore"):
@@ -323,7 +337,11 @@ class SubsurfaceTransport:
             w = w * scale[rows]
             # Footprint energy, plus the ring's energy where a sample has no
             # neighbour, plus the tail beyond the radius, stay at the sample itself.
-            self_w = e_foot + np.where(raw > 0, 0, e_ring) + (self.total_reflectance[c] - _radial_energy(radius, *args))
+            self_w = (
+                e_foot
+                + np.where(raw > 0, 0, e_ring)
+                + (self.total_reflectance[c] - dipole_radial_energy_unchecked(radius, *args))
+            )
             m = sparse.csr_matrix((w, (rows, cols)), shape=(n, n)) + sparse.diags(self_w)
             weights.append(m.tocsr())
         self._weights = weights
@@ -362,8 +380,8 @@ class SubsurfaceTransport:
         return out
 
 
-def specular_brdf(model, normal, wi, wo, rho_s, roughness, eta=1.38):
-    """Evaluate the named specular BRDF: ``"torrance_sparrow"`` (roughness = m) or ``"blinn_phong"`` (roughness = exponent)."""
+def specular_brdf(model, normal, wi, wo, rho_s, roughness, eta=ETA_SKIN):
+    """Evaluate the named specular BRDF: ``"torrance_sparrow"`` (roughness m) or ``"blinn_phong"`` (exponent)."""
     check_choice(model, "specular", SPECULAR_MODELS)
     if model == "torrance_sparrow":
         return _brdf.torrance_sparrow(normal, wi, wo, rho_s, roughness, eta)
@@ -389,7 +407,7 @@ def skin_radiance(
     modulation,
     subsurface: SubsurfaceTransport,
     specular: str = "torrance_sparrow",
-    eta: float = 1.38,
+    eta: float = ETA_SKIN,
     components: bool = False,
 ):
     """Outgoing radiance of the skin model, Weyrich et al. 2006 eq. 6 (with eq. 5's 1/π).
@@ -430,11 +448,11 @@ def skin_radiance(
         Outgoing radiance in W mm⁻² sr⁻¹ (irradiance unit per sr).
     """
     check_choice(specular, "specular", SPECULAR_MODELS)
-    n = _brdf._check_directions(normal, "normal")
+    n = _brdf.check_directions(normal, "normal")
     check_shape(n, "normal", (None, 3))
     npts = n.shape[0]
-    wi = check_shape(_brdf._check_directions(wi, "wi"), "wi", (npts, None, 3))
-    wo = check_shape(_brdf._check_directions(wo, "wo"), "wo", (npts, None, 3))
+    wi = check_shape(_brdf.check_directions(wi, "wi"), "wi", (npts, None, 3))
+    wo = check_shape(_brdf.check_directions(wo, "wo"), "wo", (npts, None, 3))
     e = as_finite(irradiance, "irradiance", 0, None)
     check_shape(e, "irradiance", (npts, wi.shape[1], 3))
     mod = as_finite(modulation, "modulation", 0, None)
@@ -445,15 +463,21 @@ def skin_radiance(
 
     # Specular: grey BRDF for every (point, camera, light), times the light's colour.
     f_s = specular_brdf(
-        specular, n[:, None, None, :], wi[:, None, :, :], wo[:, :, None, :], rho[:, None, None], rough[:, None, None], eta
+        specular,
+        n[:, None, None, :],
+        wi[:, None, :, :],
+        wo[:, :, None, :],
+        rho[:, None, None],
+        rough[:, None, None],
+        eta,
     ).astype(dtype, copy=False)
     spec = f_s[..., None] * e[:, None, :, :]
 
     # Diffuse: entering flux, transport, then modulation and exit transmittance.
     cos_i = np.clip(np.einsum("nk,nlk->nl", n, wi), 0, 1)
     cos_o = np.clip(np.einsum("nk,nck->nc", n, wo), 0, 1)
-    t_i = 1 - _fresnel_reflectance(cos_i.astype(dtype), dtype.type(eta))
-    t_o = np.where(cos_o > 0, 1 - _fresnel_reflectance(cos_o.astype(dtype), dtype.type(eta)), 0)
+    t_i = 1 - fresnel_reflectance_unchecked(cos_i.astype(dtype), dtype.type(eta))
+    t_o = np.where(cos_o > 0, 1 - fresnel_reflectance_unchecked(cos_o.astype(dtype), dtype.type(eta)), 0)
     exitance = subsurface.apply((t_i[..., None] * e).astype(dtype, copy=False))  # (N, L, 3)
     diff = (mod[:, None, None, :] * (t_o / np.pi)[:, :, None, None]) * exitance[:, None, :, :]
     diff = diff.astype(dtype, copy=False)

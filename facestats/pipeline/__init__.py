@@ -37,18 +37,27 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from facestats import __version__
-from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
 from facestats.acquire.geometry import uv_to_texel
 from facestats.core.conventions import CHANNELS, SITES
+from facestats.core.published import ETA_SKIN, GRAZING_LIMIT_DEG, SIGMA_TR_AVG
+from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
+from facestats.core.version import __version__
 from facestats.errors import FitError, ValidationError
 from facestats.io.schema import FLAG_BITS, SCHEMA_VERSION, set_variable_attrs
 from facestats.model import fitting
-from facestats.model.dipole import _eta
-from facestats.core.published import ETA_SKIN, GRAZING_LIMIT_DEG, SIGMA_TR_AVG
+from facestats.model.dipole import check_dipole_eta
 
-__all__ = ["FitSettings", "fit_lumitexels", "fit_sensor", "fit_subject", "fit_population", "predict_radiance",
-           "held_out_camera_error", "camera_image", "LUMITEXEL_OUTPUTS"]
+__all__ = [
+    "FitSettings",
+    "fit_lumitexels",
+    "fit_sensor",
+    "fit_subject",
+    "fit_population",
+    "predict_radiance",
+    "held_out_camera_error",
+    "camera_image",
+    "LUMITEXEL_OUTPUTS",
+]
 
 
 @dataclass
@@ -116,13 +125,27 @@ class FitSettings:
         as_finite(self.grazing_penalty, "grazing_penalty", 0, None)
         as_finite(self.max_angle_deg, "max_angle_deg", 0, 90, low_inclusive=False, unit="deg")
         as_finite(self.max_relative_error, "max_relative_error", 0, None, low_inclusive=False)
-        _eta(self.eta)
+        check_dipole_eta(self.eta)
 
 
 #: Per-lumitexel outputs of :func:`fit_lumitexels` (a model's four entries only when it is
 #: fitted; ``micro_normal`` is added when requested).
-LUMITEXEL_OUTPUTS = ("normal", "albedo", "albedo_min", "n_samples", "n_invalid", "n_grazing",
-                     "ts_rho_s", "ts_m", "ts_error", "ts_flag", "bp_rho_s", "bp_exponent", "bp_error", "bp_flag")
+LUMITEXEL_OUTPUTS = (
+    "normal",
+    "albedo",
+    "albedo_min",
+    "n_samples",
+    "n_invalid",
+    "n_grazing",
+    "ts_rho_s",
+    "ts_m",
+    "ts_error",
+    "ts_flag",
+    "bp_rho_s",
+    "bp_exponent",
+    "bp_error",
+    "bp_flag",
+)
 
 #: Prefix of each specular model's outputs, and the (ρs, lobe, error) maps of each prefix.
 _MODEL_PREFIX = {"torrance_sparrow": "ts", "blinn_phong": "bp"}
@@ -183,8 +206,9 @@ def _fit_piece(lt, st):
     use = (cos_i > lim) & (cos_o > lim)
     with np.errstate(invalid="ignore", divide="ignore"):
         f_r = samples.radiance / (samples.irradiance * np.maximum(cos_i, 0))  # eq. 8, channel-major (3, S)
-    albedo_min, _ = fitting.albedo_stable_minimum(samples, f_r, cos_i, cos_o, ft2, use, discard=st.discard,
-                                                  grazing_penalty=st.grazing_penalty)
+    albedo_min, _ = fitting.albedo_stable_minimum(
+        samples, f_r, cos_i, cos_o, ft2, use, discard=st.discard, grazing_penalty=st.grazing_penalty
+    )
     albedo = np.where(np.isfinite(albedo_min), albedo_min, 0).astype(np.float32)
     out["n_samples"] = samples.count(use)
     out["n_grazing"] = samples.count(~use)
@@ -196,8 +220,17 @@ def _fit_piece(lt, st):
         albedo = np.where(ok[:, None], refined, albedo).astype(np.float32)
     # Stages 3-4: the specular residual (eq. 10) and the batch fit of each model (eq. 14).
     f_s = fitting.specular_residual(samples, f_r, albedo, ft2)
-    fits = fitting.fit_specular_models(samples, normal, f_s, use, st.models, eta=st.eta, min_samples=st.min_samples,
-                                       max_relative_error=st.max_relative_error, cos=(cos_i, cos_o))
+    fits = fitting.fit_specular_models(
+        samples,
+        normal,
+        f_s,
+        use,
+        st.models,
+        eta=st.eta,
+        min_samples=st.min_samples,
+        max_relative_error=st.max_relative_error,
+        cos=(cos_i, cos_o),
+    )
     few = out["n_samples"] < st.min_samples
     out["albedo"] = np.where(few[:, None], np.nan, albedo).astype(np.float32)
     out["albedo_min"] = albedo_min.astype(np.float32)
@@ -329,8 +362,16 @@ def _micro_normal_map(micro, texel, face):
     return np.moveaxis(np.moveaxis(mn, -1, 0).reshape(n_cam, 3, size, size), 1, -1)
 
 
-def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None, *, client=None, workers: int = 1,
-                progress=False, sensor_fit=None):
+def fit_subject(
+    capture,
+    sigma_tr_avg=None,
+    settings: FitSettings | None = None,
+    *,
+    client=None,
+    workers: int = 1,
+    progress=False,
+    sensor_fit=None,
+):
     """Run the whole pipeline on one capture and return the subject Dataset.
 
     Parameters
@@ -388,8 +429,9 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
         maps, has_data = pool.submit(_averaged_maps, res, texel, size).result()
         for key, map_vars in _MAP_VARS.items():
             if f"{key}_flag" in res:
-                jobs[key] = pool.submit(_model_maps, [maps[var] for var in map_vars], res[f"{key}_flag"], texel, face,
-                                        has_data)
+                jobs[key] = pool.submit(
+                    _model_maps, [maps[var] for var in map_vars], res[f"{key}_flag"], texel, face, has_data
+                )
         jobs["albedo"] = pool.submit(_filled_map, maps["albedo"], face, has_data)
         jobs["normal"] = pool.submit(_filled_map, maps["normal"], face, has_data, unit=True)
         micro = jobs.pop("micro_normal").result() if "micro_normal" in jobs else None
@@ -457,13 +499,21 @@ def fit_subject(capture, sigma_tr_avg=None, settings: FitSettings | None = None,
     ds = xr.Dataset(
         data,
         coords={
-            "u": (np.arange(n) + 0.5) / n, "v": (np.arange(n) + 0.5) / n, "channel": list(CHANNELS),
-            "site": list(SITES), "component": ["x", "y", "z"], "fiber_distance": ("fiber", capture.array("fiber_distance")),
+            "u": (np.arange(n) + 0.5) / n,
+            "v": (np.arange(n) + 0.5) / n,
+            "channel": list(CHANNELS),
+            "site": list(SITES),
+            "component": ["x", "y", "z"],
+            "fiber_distance": ("fiber", capture.array("fiber_distance")),
         },
         attrs={
-            "subject_id": str(meta["subject_id"]), "person_id": str(meta.get("person_id", meta["subject_id"])),
-            "age": int(meta["age"]), "gender": str(meta["gender"]), "skin_type": int(meta["skin_type"]),
-            "condition": str(meta["condition"]), "provenance": json.dumps(prov, sort_keys=True, default=str),
+            "subject_id": str(meta["subject_id"]),
+            "person_id": str(meta.get("person_id", meta["subject_id"])),
+            "age": int(meta["age"]),
+            "gender": str(meta["gender"]),
+            "skin_type": int(meta["skin_type"]),
+            "condition": str(meta["condition"]),
+            "provenance": json.dumps(prov, sort_keys=True, default=str),
         },
     )
     return set_variable_attrs(ds)
@@ -473,8 +523,15 @@ def _fit_capture_task(capture, sigma_tr_avg, settings, sensor_fit):
     return fit_subject(capture, sigma_tr_avg, settings, sensor_fit=sensor_fit)
 
 
-def fit_population(captures, settings: FitSettings | None = None, *, client=None, scheduler="processes",
-                   num_workers=None, progress=False):
+def fit_population(
+    captures,
+    settings: FitSettings | None = None,
+    *,
+    client=None,
+    scheduler="processes",
+    num_workers=None,
+    progress=False,
+):
     """Fit many captures: σtrAvg from the sensor fits (§5.4), then every subject (in parallel).
 
     σtrAvg is the mean cheek and forehead σtr over the captures of condition
@@ -513,11 +570,16 @@ def fit_population(captures, settings: FitSettings | None = None, *, client=None
     sites = list(SITES)
     condition_normal = [i for i, c in enumerate(caps) if c.attrs.get("condition", "normal") == "normal"]
     if not condition_normal:
-        raise ValidationError("captures must include at least one subject of condition 'normal' (σtrAvg is their mean), got none")
+        raise ValidationError(
+            "captures must include at least one subject of condition 'normal' (σtrAvg is their mean), got none"
+        )
     tr = np.stack([fits[i].sigma_tr for i in condition_normal])
     stra = fitting.population_sigma_tr_avg(tr, sites)
     if client is not None:
-        futs = [client.submit(_fit_capture_task, c.path if c.path else c, stra, st, f, pure=False) for c, f in zip(caps, fits)]
+        futs = [
+            client.submit(_fit_capture_task, c.path if c.path else c, stra, st, f, pure=False)
+            for c, f in zip(caps, fits)
+        ]
         if progress:
             from distributed import progress as dprogress
 
@@ -545,8 +607,15 @@ def fit_population(captures, settings: FitSettings | None = None, *, client=None
     return list(out), stra
 
 
-def predict_radiance(subject, capture, start: int = 0, stop: int | None = None, *, specular: str = "torrance_sparrow",
-                     eta: float = ETA_SKIN):
+def predict_radiance(
+    subject,
+    capture,
+    start: int = 0,
+    stop: int | None = None,
+    *,
+    specular: str = "torrance_sparrow",
+    eta: float = ETA_SKIN,
+):
     """Radiance the fitted skin model predicts for a capture's samples (for validation and rendering).
 
     The fitted maps of ``subject`` (a Dataset from :func:`fit_subject`) are sampled
@@ -591,14 +660,25 @@ def predict_radiance(subject, capture, start: int = 0, stop: int | None = None, 
     cos_i = np.einsum("nk,nlk->nl", normal, lt.wi)
     irr = lt.irradiance * np.maximum(cos_i, 0)[..., None]
     transport = SubsurfaceTransport(subject["sigma_s_prime"].values, subject["sigma_a"].values, eta)
-    pred = skin_radiance(normal, lt.wi.astype(np.float64), irr, lt.wo.astype(np.float64), rho_s=rho, roughness=rough,
-                         modulation=mod, subsurface=transport, specular=specular, eta=eta)
+    pred = skin_radiance(
+        normal,
+        lt.wi.astype(np.float64),
+        irr,
+        lt.wo.astype(np.float64),
+        rho_s=rho,
+        roughness=rough,
+        modulation=mod,
+        subsurface=transport,
+        specular=specular,
+        eta=eta,
+    )
     valid = lt.valid
     return np.where(valid[..., None], pred, np.nan), np.where(valid[..., None], lt.radiance.astype(np.float32), np.nan)
 
 
-def held_out_camera_error(subject, capture, camera: int, *, specular: str = "torrance_sparrow",
-                          max_angle_deg: float = GRAZING_LIMIT_DEG):
+def held_out_camera_error(
+    subject, capture, camera: int, *, specular: str = "torrance_sparrow", max_angle_deg: float = GRAZING_LIMIT_DEG
+):
     """Relative RMSE of the model's prediction against a camera (ideally one left out of the fit).
 
     RMSE over the valid samples of ``camera`` whose θi and θo (about the fitted
@@ -612,7 +692,9 @@ def held_out_camera_error(subject, capture, camera: int, *, specular: str = "tor
     texel = uv_to_texel(lt.uv, int(subject.sizes["u"]))
     normal = np.asarray(subject["normal"].values)[texel[:, 0], texel[:, 1]]
     lim = np.cos(np.radians(max_angle_deg))
-    inside = (np.einsum("nk,nlk->nl", normal, lt.wi) > lim) & (np.einsum("nk,nk->n", normal, lt.wo[:, camera]) > lim)[:, None]
+    inside = (np.einsum("nk,nlk->nl", normal, lt.wi) > lim) & (np.einsum("nk,nk->n", normal, lt.wo[:, camera]) > lim)[
+        :, None
+    ]
     p, m = pred[:, camera], meas[:, camera]
     ok = np.isfinite(p) & np.isfinite(m) & inside[..., None]
     if not ok.any():

@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from facestats.core.validate import check_choice, check_integer
 from facestats.core.conventions import SITES
+from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
 
 __all__ = ["BuildReport", "build_store", "build_default", "DEFAULT_SEED", "DEFAULT_MAP_SIZE"]
@@ -56,8 +56,11 @@ class BuildReport:
 
     def to_text(self) -> str:
         """One line for the command line."""
-        return (f"store {self.store}: {len(self.written)} subject(s) written, {len(self.skipped)} already present; "
-                f"sigma_trAvg = {np.round(self.sigma_tr_avg, 4).tolist()} mm^-1; {self.seconds:.1f} s with {self.workers} worker(s)")
+        return (
+            f"store {self.store}: {len(self.written)} subject(s) written, {len(self.skipped)} already present; "
+            f"sigma_trAvg = {np.round(self.sigma_tr_avg, 4).tolist()} mm^-1; "
+            f"{self.seconds:.1f} s with {self.workers} worker(s)"
+        )
 
 
 class _TaskProgress:
@@ -132,8 +135,9 @@ def sensor_fits(population, map_size: int, specular: str = "torrance_sparrow"):
         _, rng_sensor, _ = sim._streams(truth.seed, 1)
         prof, std = sim._sensor(truth, rng_sensor)
         has = np.any(std > 0)
-        out[truth.subject_id] = fit_translucency(sim.sensor.fiber_distance, np.moveaxis(prof, 1, 2),
-                                                 np.moveaxis(std, 1, 2) if has else None)
+        out[truth.subject_id] = fit_translucency(
+            sim.sensor.fiber_distance, np.moveaxis(prof, 1, 2), np.moveaxis(std, 1, 2) if has else None
+        )
     return out
 
 
@@ -142,8 +146,18 @@ def sensor_fits(population, map_size: int, specular: str = "torrance_sparrow"):
 DERIVED = ("modulation",)
 
 
-def _build_one(store_path, seed, map_size, conditions, specular, subject_id, sigma_tr_avg, sensor_fit, micro_normals,
-               keep_derived=True):
+def _build_one(
+    store_path,
+    seed,
+    map_size,
+    conditions,
+    specular,
+    subject_id,
+    sigma_tr_avg,
+    sensor_fit,
+    micro_normals,
+    keep_derived=True,
+):
     """Simulate, fit and store one subject (runs in a worker process)."""
     from facestats.io.store import open_store
     from facestats.pipeline import fit_subject
@@ -159,9 +173,20 @@ def _build_one(store_path, seed, map_size, conditions, specular, subject_id, sig
     return subject_id
 
 
-def build_store(store_path, *, seed: int = DEFAULT_SEED, map_size: int = DEFAULT_MAP_SIZE, conditions: bool = True,
-                specular: str = "torrance_sparrow", subjects=None, workers: int | None = None, client=None,
-                micro_normals: bool = True, keep_derived: bool = True, progress: bool = False) -> BuildReport:
+def build_store(
+    store_path,
+    *,
+    seed: int = DEFAULT_SEED,
+    map_size: int = DEFAULT_MAP_SIZE,
+    conditions: bool = True,
+    specular: str = "torrance_sparrow",
+    subjects=None,
+    workers: int | None = None,
+    client=None,
+    micro_normals: bool = True,
+    keep_derived: bool = True,
+    progress: bool = False,
+) -> BuildReport:
     """Simulate and fit a synthetic population into a directory store (resumable).
 
     Parameters
@@ -216,8 +241,10 @@ def build_store(store_path, *, seed: int = DEFAULT_SEED, map_size: int = DEFAULT
     todo = [s for s in wanted if s not in present]
     skipped = [s for s in wanted if s in present]
     n_workers = workers or os.cpu_count() or 1
-    args = [(str(store_path), seed, map_size, conditions, specular, sid, stra, fits[sid], micro_normals, keep_derived)
-            for sid in todo]
+    args = [
+        (str(store_path), seed, map_size, conditions, specular, sid, stra, fits[sid], micro_normals, keep_derived)
+        for sid in todo
+    ]
     if client is not None:
         futures = [client.submit(_build_one, *a, pure=False) for a in args]
         done = client.gather(futures)
@@ -234,8 +261,14 @@ def build_store(store_path, *, seed: int = DEFAULT_SEED, map_size: int = DEFAULT
         tasks = [dask.delayed(_build_one, pure=False)(*a) for a in args]
         with _TaskProgress(len(tasks), enabled=progress):
             done = list(dask.compute(*tasks, scheduler="processes", num_workers=n_workers))
-    return BuildReport(store=str(store_path), written=sorted(done), skipped=skipped, sigma_tr_avg=stra,
-                       seconds=time.perf_counter() - t0, workers=1 if client is None and n_workers == 1 else n_workers)
+    return BuildReport(
+        store=str(store_path),
+        written=sorted(done),
+        skipped=skipped,
+        sigma_tr_avg=stra,
+        seconds=time.perf_counter() - t0,
+        workers=1 if client is None and n_workers == 1 else n_workers,
+    )
 
 
 def build_default(*, workers: int | None = None, progress: bool = False, out=None) -> BuildReport:
@@ -250,8 +283,15 @@ def build_default(*, workers: int | None = None, progress: bool = False, out=Non
     target = Path(out) if out is not None else default_store_path()
     tmp = Path(tempfile.mkdtemp(prefix="facestats-default-"))
     try:
-        report = build_store(tmp / "default.zarr", seed=DEFAULT_SEED, map_size=DEFAULT_MAP_SIZE, workers=workers,
-                             micro_normals=False, keep_derived=False, progress=progress)
+        report = build_store(
+            tmp / "default.zarr",
+            seed=DEFAULT_SEED,
+            map_size=DEFAULT_MAP_SIZE,
+            workers=workers,
+            micro_normals=False,
+            keep_derived=False,
+            progress=progress,
+        )
         pack_store(tmp / "default.zarr", target, overwrite=True)
         report.store = str(target)
         return report

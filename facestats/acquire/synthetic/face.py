@@ -36,7 +36,11 @@ def _height(x, y):
     z = _DEPTH * np.sqrt(np.maximum(q, 0.0))
     # Nose: a ridge from the bridge (y = 35) to the tip (y = -25), higher and wider towards the tip.
     t = np.clip((35 - y) / 60, 0, 1)
-    ridge = (8 + 20 * t**1.5) * np.exp(-0.5 * (x / (6 + 6 * t)) ** 2) * np.where(y < -25, np.exp(-0.5 * ((y + 25) / 6) ** 2), 1)
+    ridge = (
+        (8 + 20 * t**1.5)
+        * np.exp(-0.5 * (x / (6 + 6 * t)) ** 2)
+        * np.where(y < -25, np.exp(-0.5 * ((y + 25) / 6) ** 2), 1)
+    )
     z = z + ridge * (y < 40) + ridge * (y >= 40) * np.exp(-0.5 * ((y - 40) / 4) ** 2)
     for sx_ in (-1, 1):
         z = z - 9 * _gauss(x, y, sx_ * 32, 28, 14, 10)  # eye sockets
@@ -79,7 +83,9 @@ def _surface(u, v):
     return x, y, _height(x, y)
 
 
-def procedural_face(lumitexel_grid: int = 48, map_size: int | None = None, mesh_grid: int | None = None) -> FaceGeometry:
+def procedural_face(
+    lumitexel_grid: int = 48, map_size: int | None = None, mesh_grid: int | None = None
+) -> FaceGeometry:
     """The embedded default face: a parametric head with the 10 regions of Weyrich Fig. 15.
 
     Parameters

@@ -75,10 +75,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.core.conventions import CHANNELS, CONDITIONS, REGION_IDS, SITES
-from facestats.errors import ValidationError
 from facestats.core.published import AGE_COUNTS, ETA_SKIN, TABLE1_MEAN, TABLE1_VAR, TABLE2_COUNTS
+from facestats.core.validate import as_finite, check_choice, check_integer
+from facestats.errors import ValidationError
 from facestats.model import dipole, fresnel
 
 __all__ = [
@@ -202,8 +202,14 @@ class SubjectTruth:
 
     def metadata(self) -> dict:
         """The subject's metadata attributes (ids, age, gender, skin type, condition)."""
-        return {"subject_id": self.subject_id, "person_id": self.person_id, "age": int(self.age), "gender": self.gender,
-                "skin_type": int(self.skin_type), "condition": self.condition}
+        return {
+            "subject_id": self.subject_id,
+            "person_id": self.person_id,
+            "age": int(self.age),
+            "gender": self.gender,
+            "skin_type": int(self.skin_type),
+            "condition": self.condition,
+        }
 
     def to_dataset(self):
         """The ground truth as an xarray Dataset on the subject schema's dims."""
@@ -228,8 +234,18 @@ class SubjectTruth:
                 "sigma_s_prime": (("channel",), ssp),
                 "sigma_a": (("channel",), ssa),
             },
-            coords={"u": (np.arange(n) + 0.5) / n, "v": (np.arange(n) + 0.5) / n, "channel": list(CHANNELS), "site": list(SITES)},
-            attrs=dict(self.metadata(), kind="truth", seed=int(self.seed), **{f"feature_{k}": v for k, v in self.features.items()}),
+            coords={
+                "u": (np.arange(n) + 0.5) / n,
+                "v": (np.arange(n) + 0.5) / n,
+                "channel": list(CHANNELS),
+                "site": list(SITES),
+            },
+            attrs=dict(
+                self.metadata(),
+                kind="truth",
+                seed=int(self.seed),
+                **{f"feature_{k}": v for k, v in self.features.items()},
+            ),
         )
         return ds
 
@@ -359,7 +375,13 @@ def albedo_map(region_map, base_rgb, rng, *, texel_mm=2.5, freckles=False, moles
     base = np.asarray(base_rgb, float)
     low = 1 + 0.06 * _smooth_noise(rng, (n, n), max(n / 10, 1.0))
     tint = np.ones((n, n, 3))
-    tints = {8: (1.12, 0.80, 0.85), 6: (1.04, 0.97, 0.97), 7: (1.03, 0.98, 0.98), 3: (0.80, 0.78, 0.78), 5: (0.94, 0.93, 0.95)}
+    tints = {
+        8: (1.12, 0.80, 0.85),
+        6: (1.04, 0.97, 0.97),
+        7: (1.03, 0.98, 0.98),
+        3: (0.80, 0.78, 0.78),
+        5: (0.94, 0.93, 0.95),
+    }
     for r, t in tints.items():
         tint[region_map == r] = t
     from scipy.ndimage import gaussian_filter
@@ -375,10 +397,10 @@ def albedo_map(region_map, base_rgb, rng, *, texel_mm=2.5, freckles=False, moles
         k = int(0.02 * texel_mm**2 * allowed.sum())  # 2 freckles per cm²
         fr = _spots(rng, (n, n), k, 1.0 / texel_mm, lambda k_: rng.uniform(0.15, 0.35, k_)) * allowed
         # Melanin darkens blue and green more than red.
-        alb *= (1 - np.clip(fr, 0, 0.6)[..., None] * np.array([0.45, 0.75, 0.85]))
+        alb *= 1 - np.clip(fr, 0, 0.6)[..., None] * np.array([0.45, 0.75, 0.85])
     if moles:
         mo = _spots(rng, (n, n), int(moles), 2.0 / texel_mm, lambda k_: rng.uniform(0.5, 0.8, k_))
-        alb *= (1 - np.clip(mo, 0, 0.8)[..., None] * np.array([0.6, 0.75, 0.8]))
+        alb *= 1 - np.clip(mo, 0, 0.8)[..., None] * np.array([0.6, 0.75, 0.8])
     if condition == "makeup":  # foundation evens the texture and lightens slightly
         mean = alb[face].mean(axis=0)
         alb = mean + 0.6 * (alb - mean)
@@ -510,7 +532,10 @@ def synthesize_population(
         geometry = procedural_face(map_size)
     region_map = geometry.region_map
     if region_map is None or region_map.shape != (map_size, map_size):
-        raise ValidationError(f"geometry must carry a {map_size}x{map_size} region_map, got {None if region_map is None else region_map.shape}")
+        raise ValidationError(
+            f"geometry must carry a {map_size}x{map_size} region_map, "
+            f"got {None if region_map is None else region_map.shape}"
+        )
     texel_mm = float(np.sqrt(np.median(geometry.area))) * (geometry.meta.get("lumitexel_grid", map_size) / map_size)
     root = np.random.SeedSequence(seed)
     demo_seed, tr_seed, subj_seed = root.spawn(3)
@@ -520,7 +545,11 @@ def synthesize_population(
     st = np.array([d[0] for d in demo])
     gender = np.array([d[1] for d in demo])
     age = np.array([d[2] for d in demo])
-    z_cov = {"skin_type": _standardise(np.where(st == 1, 2, st)), "gender": _standardise(gender == "F"), "age": _standardise(age)}
+    z_cov = {
+        "skin_type": _standardise(np.where(st == 1, 2, st)),
+        "gender": _standardise(gender == "F"),
+        "age": _standardise(age),
+    }
     melanin = np.array([SKIN_TYPE_MELANIN[s] for s in st]) + MELANIN_SPREAD * rng.standard_normal(n)
     melanin -= 0.05 * (gender == "F")
     base_rgb = skin_albedo(melanin)
@@ -542,8 +571,10 @@ def synthesize_population(
         ids = {f"S{i + 1:03d}" for i in range(n)} | ({f"P{n + 1:03d}-{c}" for c in CONDITIONS} if conditions else set())
         unknown = sorted(wanted - ids)
         if unknown:
-            raise ValidationError(f"subjects must be ids of the population (S001-S{n:03d}"
-                                  f"{f', P{n + 1:03d}-<condition>' if conditions else ''}), got unknown {unknown[:5]}")
+            raise ValidationError(
+                f"subjects must be ids of the population (S001-S{n:03d}"
+                f"{f', P{n + 1:03d}-<condition>' if conditions else ''}), got unknown {unknown[:5]}"
+            )
     subjects = []
     for i in range(n):  # loop over subjects (each vectorised over texels)
         if wanted is not None and f"S{i + 1:03d}" not in wanted:
@@ -552,19 +583,38 @@ def synthesize_population(
         means = region_means(i, {c: z_cov[c][i] for c in z_cov})
         freckled = bool(st[i] <= 3 and srng.uniform() < freckle_fraction / 0.57)
         n_moles = int(srng.poisson(1.0))
-        alb = albedo_map(region_map, base_rgb[i], srng, texel_mm=texel_mm, freckles=freckled, moles=n_moles, gender=gender[i])
+        alb = albedo_map(
+            region_map, base_rgb[i], srng, texel_mm=texel_mm, freckles=freckled, moles=n_moles, gender=gender[i]
+        )
         rho, m = _brdf_maps(region_map, means, srng, gender[i])
-        subjects.append(_make_subject(f"S{i + 1:03d}", f"S{i + 1:03d}", int(age[i]), str(gender[i]), int(st[i]), "normal",
-                                      region_map, alb, rho, m, sigma_tr[i], int(subject_seeds[i].generate_state(1)[0]),
-                                      {"freckles": freckled, "moles": n_moles, "melanin": float(melanin[i])}))
+        subjects.append(
+            _make_subject(
+                f"S{i + 1:03d}",
+                f"S{i + 1:03d}",
+                int(age[i]),
+                str(gender[i]),
+                int(st[i]),
+                "normal",
+                region_map,
+                alb,
+                rho,
+                m,
+                sigma_tr[i],
+                int(subject_seeds[i].generate_state(1)[0]),
+                {"freckles": freckled, "moles": n_moles, "melanin": float(melanin[i])},
+            )
+        )
     # σtrAvg: mean over subjects of cheek and forehead (neck excluded), §5.4.
     sigma_tr_avg = sigma_tr[:n, :2].mean(axis=(0, 1))
     if conditions:
         person = f"P{n + 1:03d}"
         crng = np.random.default_rng(subject_seeds[n])
         p_st, p_gender, p_age = 3, "M", 34
-        zs = {"skin_type": (3 - np.mean(np.where(st == 1, 2, st))) / np.std(np.where(st == 1, 2, st)),
-              "gender": float(-np.mean(gender == "F") / np.std(gender == "F")), "age": float((34 - age.mean()) / age.std())}
+        zs = {
+            "skin_type": (3 - np.mean(np.where(st == 1, 2, st))) / np.std(np.where(st == 1, 2, st)),
+            "gender": float(-np.mean(gender == "F") / np.std(gender == "F")),
+            "age": float((34 - age.mean()) / age.std()),
+        }
         means = region_means(n, zs)
         p_melanin = SKIN_TYPE_MELANIN[3]
         state = crng.bit_generator.state  # every condition starts from the same texture
@@ -572,16 +622,37 @@ def synthesize_population(
             if wanted is not None and f"{person}-{cond}" not in wanted:
                 continue
             crng.bit_generator.state = state
-            alb = albedo_map(region_map, skin_albedo(p_melanin), crng, texel_mm=texel_mm, condition=cond, gender=p_gender)
+            alb = albedo_map(
+                region_map, skin_albedo(p_melanin), crng, texel_mm=texel_mm, condition=cond, gender=p_gender
+            )
             f_rho, f_m = CONDITION_EFFECTS[cond]
             cmeans = {r: (v[0] * f_rho, v[1] * f_m) for r, v in means.items()}
             rho, m = _brdf_maps(region_map, cmeans, crng, p_gender)
-            subjects.append(_make_subject(f"{person}-{cond}", person, p_age, p_gender, p_st, cond, region_map, alb, rho, m,
-                                          sigma_tr[n], int(subject_seeds[n + j].generate_state(1)[0]), {"melanin": p_melanin}))
+            subjects.append(
+                _make_subject(
+                    f"{person}-{cond}",
+                    person,
+                    p_age,
+                    p_gender,
+                    p_st,
+                    cond,
+                    region_map,
+                    alb,
+                    rho,
+                    m,
+                    sigma_tr[n],
+                    int(subject_seeds[n + j].generate_state(1)[0]),
+                    {"melanin": p_melanin},
+                )
+            )
     for s in subjects:
         s.sigma_tr = sigma_tr_avg
-    return Population(subjects=subjects, sigma_tr_avg=sigma_tr_avg, seed=int(seed),
-                      settings={"map_size": int(map_size), "table1_spread": table1_spread, "conditions": bool(conditions)})
+    return Population(
+        subjects=subjects,
+        sigma_tr_avg=sigma_tr_avg,
+        seed=int(seed),
+        settings={"map_size": int(map_size), "table1_spread": table1_spread, "conditions": bool(conditions)},
+    )
 
 
 def _make_subject(sid, pid, age, gender, st, cond, region_map, alb, rho, m, sigma_tr_sites, seed, features):
@@ -590,14 +661,31 @@ def _make_subject(sid, pid, age, gender, st, cond, region_map, alb, rho, m, sigm
     bp_rho, bp_n = _bp_from_ts(rho, m)
     for a in (rho, m, bp_rho, bp_n):
         a[~face] = 0
-    site_albedo = np.stack([
-        alb[region_map == 7].mean(axis=0),  # cheek
-        alb[region_map == 2].mean(axis=0),  # forehead
-        alb[face].mean(axis=0),  # neck: not mapped, the face average
-    ]).astype(np.float64)
-    return SubjectTruth(subject_id=sid, person_id=pid, age=age, gender=gender, skin_type=st, condition=cond, region_map=region_map,
-                        albedo=alb, ts_rho_s=rho, ts_m=m, bp_rho_s=bp_rho, bp_exponent=bp_n,
-                        site_sigma_tr=np.asarray(sigma_tr_sites, float), site_albedo=site_albedo, seed=seed, features=features)
+    site_albedo = np.stack(
+        [
+            alb[region_map == 7].mean(axis=0),  # cheek
+            alb[region_map == 2].mean(axis=0),  # forehead
+            alb[face].mean(axis=0),  # neck: not mapped, the face average
+        ]
+    ).astype(np.float64)
+    return SubjectTruth(
+        subject_id=sid,
+        person_id=pid,
+        age=age,
+        gender=gender,
+        skin_type=st,
+        condition=cond,
+        region_map=region_map,
+        albedo=alb,
+        ts_rho_s=rho,
+        ts_m=m,
+        bp_rho_s=bp_rho,
+        bp_exponent=bp_n,
+        site_sigma_tr=np.asarray(sigma_tr_sites, float),
+        site_albedo=site_albedo,
+        seed=seed,
+        features=features,
+    )
 
 
 def default_population(map_size: int = 48, seed: int = 2006) -> Population:

@@ -43,20 +43,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats import __version__
-from facestats.core.validate import as_finite, check_choice, check_integer
-from facestats.errors import ValidationError
-from facestats.model import brdf as _brdf
-from facestats.model.dipole import _eta, dipole_profile
-from facestats.model.fresnel import _fresnel_reflectance
-from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport, neighbour_pairs
-from facestats.core.published import ETA_SKIN
-from facestats.acquire.capture import Capture, CaptureWriter, _PER_LUMITEXEL
+from facestats.acquire.capture import PER_LUMITEXEL, Capture, CaptureWriter
 from facestats.acquire.dome import Dome, default_dome
 from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.hdr import expose, merge_exposures
 from facestats.acquire.sensor import ContactSensor
 from facestats.acquire.visibility import ShadowMaps
+from facestats.core.published import ETA_SKIN
+from facestats.core.validate import as_finite, check_choice, check_integer
+from facestats.core.version import __version__
+from facestats.errors import ValidationError
+from facestats.model import brdf as _brdf
+from facestats.model.dipole import check_dipole_eta, dipole_profile
+from facestats.model.fresnel import fresnel_reflectance_unchecked
+from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport, neighbour_pairs
 
 __all__ = ["DomeSimulator", "simulate_capture"]
 
@@ -113,16 +113,29 @@ class DomeSimulator:
         Relative index of refraction of skin, in [1, 3] (default 1.38).
     """
 
-    def __init__(self, geometry: FaceGeometry, dome: Dome | None = None, sensor: ContactSensor | None = None, *,
-                 specular: str = "torrance_sparrow", noise: bool = True, head_motion_deg: float = 0.0,
-                 scan_normal_noise_deg: float = 2.0, block: int = 8192, subsurface_radius: float = 12.0,
-                 shadow_resolution: int | None = None, eta: float = ETA_SKIN):
+    def __init__(
+        self,
+        geometry: FaceGeometry,
+        dome: Dome | None = None,
+        sensor: ContactSensor | None = None,
+        *,
+        specular: str = "torrance_sparrow",
+        noise: bool = True,
+        head_motion_deg: float = 0.0,
+        scan_normal_noise_deg: float = 2.0,
+        block: int = 8192,
+        subsurface_radius: float = 12.0,
+        shadow_resolution: int | None = None,
+        eta: float = ETA_SKIN,
+    ):
         if not isinstance(geometry, FaceGeometry):
             raise ValidationError(f"geometry must be a FaceGeometry, got {type(geometry).__name__}")
         if dome is not None and not isinstance(dome, Dome):
             raise ValidationError(f"dome must be a Dome (or None for the default), got {type(dome).__name__}")
         if sensor is not None and not isinstance(sensor, ContactSensor):
-            raise ValidationError(f"sensor must be a ContactSensor (or None for the default), got {type(sensor).__name__}")
+            raise ValidationError(
+                f"sensor must be a ContactSensor (or None for the default), got {type(sensor).__name__}"
+            )
         check_choice(specular, "specular", SPECULAR_MODELS)
         as_finite(head_motion_deg, "head_motion_deg", 0, None, unit="deg")
         as_finite(scan_normal_noise_deg, "scan_normal_noise_deg", 0, None, unit="deg")
@@ -130,7 +143,7 @@ class DomeSimulator:
         as_finite(subsurface_radius, "subsurface_radius", 0, None, low_inclusive=False, unit="mm")
         if shadow_resolution is not None:
             check_integer(shadow_resolution, "shadow_resolution", 1)
-        _eta(eta)
+        check_dipole_eta(eta)
         self.geometry = geometry
         self.dome = default_dome() if dome is None else dome
         self.sensor = ContactSensor() if sensor is None else sensor
@@ -174,17 +187,24 @@ class DomeSimulator:
         lit = vis[:, :n_led] & (cos_i > 0) & np.all(e_perp > 0, axis=-1)
         seen = vis[:, n_led:] & in_frame & (cos_o > 0)
         t, c, l = np.nonzero(seen[:, :, None] & lit[:, None, :])
-        cos_delta, k_ts = _brdf.torrance_sparrow_geometry(nrm[t].astype(np.float32), wi[t, l].astype(np.float32),
-                                                          wo[t, c].astype(np.float32), self.eta)
+        cos_delta, k_ts = _brdf.torrance_sparrow_geometry(
+            nrm[t].astype(np.float32), wi[t, l].astype(np.float32), wo[t, c].astype(np.float32), self.eta
+        )
         eta = np.float32(self.eta)
         ci = np.where(lit, cos_i, 0).astype(np.float32)
         blk = _Block(
-            start=start, stop=stop, normal=nrm,
-            e_perp=e_perp.astype(np.float32), cos_i=ci,
-            ft_i=(1 - _fresnel_reflectance(np.clip(ci, 0, 1), eta)).astype(np.float32),
-            ft_o=(1 - _fresnel_reflectance(np.clip(cos_o, 0, 1).astype(np.float32), eta)).astype(np.float32),
-            t=t.astype(np.int32), c=c.astype(np.int32), l=l.astype(np.int32),
-            cos_delta=cos_delta.astype(np.float32), k_ts=k_ts.astype(np.float32),
+            start=start,
+            stop=stop,
+            normal=nrm,
+            e_perp=e_perp.astype(np.float32),
+            cos_i=ci,
+            ft_i=(1 - fresnel_reflectance_unchecked(np.clip(ci, 0, 1), eta)).astype(np.float32),
+            ft_o=(1 - fresnel_reflectance_unchecked(np.clip(cos_o, 0, 1).astype(np.float32), eta)).astype(np.float32),
+            t=t.astype(np.int32),
+            c=c.astype(np.int32),
+            l=l.astype(np.int32),
+            cos_delta=cos_delta.astype(np.float32),
+            k_ts=k_ts.astype(np.float32),
         )
         if self.single_block:
             blk.neighbours = neighbour_pairs(pos, self.subsurface_radius)
@@ -232,18 +252,26 @@ class DomeSimulator:
         # Rotating the head by R equals rotating lights and cameras by Rᵀ about its centre.
         led = centre + np.einsum("lji,lj->li", rot, dome.led_position - centre)
         cams = centre + np.einsum("lji,cj->lci", rot, dome.camera_position - centre)  # (L, C, 3)
-        pos = g.position[blk.start:blk.stop]
+        pos = g.position[blk.start : blk.stop]
         p = pos[blk.t]
         wi = led[blk.l] - p
         wi /= np.linalg.norm(wi, axis=1, keepdims=True)
         wo = cams[blk.l, blk.c] - p
         wo /= np.linalg.norm(wo, axis=1, keepdims=True)
         nrm = blk.normal[blk.t]
-        cos_delta, k_ts = _brdf.torrance_sparrow_geometry(nrm.astype(np.float32), wi.astype(np.float32), wo.astype(np.float32), self.eta)
+        cos_delta, k_ts = _brdf.torrance_sparrow_geometry(
+            nrm.astype(np.float32), wi.astype(np.float32), wo.astype(np.float32), self.eta
+        )
         eta = np.float32(self.eta)
         ci = np.clip(np.einsum("sk,sk->s", nrm, wi), 0, 1).astype(np.float32)
         co = np.clip(np.einsum("sk,sk->s", nrm, wo), 0, 1).astype(np.float32)
-        return cos_delta, k_ts, ci, 1 - _fresnel_reflectance(ci, eta), 1 - _fresnel_reflectance(co, eta)
+        return (
+            cos_delta,
+            k_ts,
+            ci,
+            1 - fresnel_reflectance_unchecked(ci, eta),
+            1 - fresnel_reflectance_unchecked(co, eta),
+        )
 
     def _radiance_block(self, truth, blk: _Block, rng) -> np.ndarray:
         """Simulated HDR radiance of one block, dense (n, C, L, 3) float16 with NaN for invalid samples."""
@@ -267,9 +295,15 @@ class DomeSimulator:
         e_tl = blk.e_perp * blk.cos_i[..., None]
         sp, sa = truth.scattering
         if self.single_block and self.head_motion_deg == 0:
-            transport = SubsurfaceTransport(sp, sa, self.eta, positions=self.geometry.position[blk.start:blk.stop],
-                                            areas=self.geometry.area[blk.start:blk.stop], radius=self.subsurface_radius,
-                                            neighbours=blk.neighbours)
+            transport = SubsurfaceTransport(
+                sp,
+                sa,
+                self.eta,
+                positions=self.geometry.position[blk.start : blk.stop],
+                areas=self.geometry.area[blk.start : blk.stop],
+                radius=self.subsurface_radius,
+                neighbours=blk.neighbours,
+            )
         else:
             transport = SubsurfaceTransport(sp, sa, self.eta)
         exitance = transport.apply((blk.ft_i[..., None] * e_tl).astype(np.float32)).astype(np.float32)  # (n, L, 3)
@@ -291,8 +325,12 @@ class DomeSimulator:
     def _geometry_arrays(self, sl):
         """The capture's per-lumitexel geometry arrays (except ``scan_normal``) of lumitexels ``sl``."""
         g = self.geometry
-        return {"position": g.position[sl].astype(np.float32), "uv": g.uv[sl].astype(np.float32),
-                "area": g.area[sl].astype(np.float32), "region": g.region[sl]}
+        return {
+            "position": g.position[sl].astype(np.float32),
+            "uv": g.uv[sl].astype(np.float32),
+            "area": g.area[sl].astype(np.float32),
+            "region": g.region[sl],
+        }
 
     def _scan_normals(self, sl, rng):
         """Scanner normals of lumitexels ``sl``: the true normals tilted (module docstring, item 5)."""
@@ -316,20 +354,34 @@ class DomeSimulator:
     def _attrs(self, truth, seed):
         """Capture attributes: metadata, calibration and provenance."""
         prov = {
-            "source": "facestats simulator", "software": f"facestats {__version__}", "seed": int(seed),
-            "specular": self.specular, "noise": self.noise, "head_motion_deg": self.head_motion_deg,
-            "scan_normal_noise_deg": self.scan_normal_noise_deg, "geometry": self.geometry.name,
+            "source": "facestats simulator",
+            "software": f"facestats {__version__}",
+            "seed": int(seed),
+            "specular": self.specular,
+            "noise": self.noise,
+            "head_motion_deg": self.head_motion_deg,
+            "scan_normal_noise_deg": self.scan_normal_noise_deg,
+            "geometry": self.geometry.name,
             "subsurface": "dipole" if (self.single_block and self.head_motion_deg == 0) else "local",
             "block": self.block,
         }
-        return dict(truth.metadata(), dome=json.dumps(self.dome.to_dict()), sensor=json.dumps(self.sensor.to_attrs()),
-                    map_size=int(truth.region_map.shape[0]), provenance=json.dumps(prov))
+        return dict(
+            truth.metadata(),
+            dome=json.dumps(self.dome.to_dict()),
+            sensor=json.dumps(self.sensor.to_attrs()),
+            map_size=int(truth.region_map.shape[0]),
+            provenance=json.dumps(prov),
+        )
 
     def _streams(self, seed, n_blocks):
         """Independent generators from ``seed``: scanner normals, sensor, and one per block."""
         ss = np.random.SeedSequence(int(seed))
         normals_ss, sensor_ss, *blocks = ss.spawn(2 + n_blocks)
-        return np.random.default_rng(normals_ss), np.random.default_rng(sensor_ss), [np.random.default_rng(b) for b in blocks]
+        return (
+            np.random.default_rng(normals_ss),
+            np.random.default_rng(sensor_ss),
+            [np.random.default_rng(b) for b in blocks],
+        )
 
     def _check_truth(self, truth):
         """Raise unless the truth's maps have the geometry's map size and skin at every lumitexel."""
@@ -355,13 +407,20 @@ class DomeSimulator:
         seed = truth.seed if seed is None else seed
         ranges = self._ranges()
         rng_n, rng_s, rngs = self._streams(seed, len(ranges))
-        radiance = np.concatenate([self._radiance_block(truth, self._block_geometry(a, b), r) for (a, b), r in zip(ranges, rngs)])
+        radiance = np.concatenate(
+            [self._radiance_block(truth, self._block_geometry(a, b), r) for (a, b), r in zip(ranges, rngs)]
+        )
         irr = np.concatenate([self._block_geometry(a, b).e_perp for a, b in ranges])
         prof, std = self._sensor(truth, rng_s)
         arrays = dict(
-            self._geometry_arrays(slice(None)), scan_normal=self._scan_normals(slice(None), rng_n),
-            irradiance=irr, radiance=radiance, region_map=truth.region_map,
-            sensor_profile=prof, sensor_profile_std=std, fiber_distance=self.sensor.fiber_distance,
+            self._geometry_arrays(slice(None)),
+            scan_normal=self._scan_normals(slice(None), rng_n),
+            irradiance=irr,
+            radiance=radiance,
+            region_map=truth.region_map,
+            sensor_profile=prof,
+            sensor_profile_std=std,
+            fiber_distance=self.sensor.fiber_distance,
         )
         return Capture(arrays=arrays, attrs=self._attrs(truth, seed))
 
@@ -377,8 +436,16 @@ class DomeSimulator:
         g = self.geometry
         ranges = self._ranges()
         rng_n, rng_s, rngs = self._streams(seed, len(ranges))
-        writer = CaptureWriter(path, n_lumitexels=g.n_points, n_cameras=self.dome.n_cameras, n_lights=self.dome.n_leds,
-                               map_size=g.map_size, n_fibers=self.sensor.n_fibers, attrs=self._attrs(truth, seed), chunk=int(chunk))
+        writer = CaptureWriter(
+            path,
+            n_lumitexels=g.n_points,
+            n_cameras=self.dome.n_cameras,
+            n_lights=self.dome.n_leds,
+            map_size=g.map_size,
+            n_fibers=self.sensor.n_fibers,
+            attrs=self._attrs(truth, seed),
+            chunk=int(chunk),
+        )
         it = zip(ranges, rngs)
         if progress:
             from tqdm.auto import tqdm
@@ -387,13 +454,23 @@ class DomeSimulator:
         for (a, b), r in it:
             blk = self._block_geometry(a, b)
             sl = slice(a, b)
-            arrays = dict(self._geometry_arrays(sl), scan_normal=self._scan_normals(sl, rng_n),
-                          irradiance=blk.e_perp, radiance=self._radiance_block(truth, blk, r))
-            assert set(arrays) == set(_PER_LUMITEXEL)
+            arrays = dict(
+                self._geometry_arrays(sl),
+                scan_normal=self._scan_normals(sl, rng_n),
+                irradiance=blk.e_perp,
+                radiance=self._radiance_block(truth, blk, r),
+            )
+            assert set(arrays) == set(PER_LUMITEXEL)
             writer.write_block(a, arrays)
         prof, std = self._sensor(truth, rng_s)
-        writer.write_global({"region_map": truth.region_map, "sensor_profile": prof, "sensor_profile_std": std,
-                             "fiber_distance": self.sensor.fiber_distance})
+        writer.write_global(
+            {
+                "region_map": truth.region_map,
+                "sensor_profile": prof,
+                "sensor_profile_std": std,
+                "fiber_distance": self.sensor.fiber_distance,
+            }
+        )
         return str(path)
 
 

@@ -19,14 +19,42 @@ from facestats.model.fitting.albedo import albedo_stable_minimum, fresnel_factor
 from facestats.model.fitting.maps import fill_flagged, push_pull, scatter_to_map
 from facestats.model.fitting.normals import micro_normals, photometric_normals
 from facestats.model.fitting.samples import Samples
-from facestats.model.fitting.specular import (DEFAULT_BOUNDS, SpecularFit, equivalent_lobe, fit_specular, fit_specular_models,
-                       fit_specular_samples, specular_factors)
-from facestats.model.fitting.translucency import TranslucencyFit, fit_translucency, population_sigma_tr_avg, scattering_parameters
+from facestats.model.fitting.specular import (
+    DEFAULT_BOUNDS,
+    SpecularFit,
+    equivalent_lobe,
+    fit_specular,
+    fit_specular_models,
+    fit_specular_samples,
+    specular_factors,
+)
+from facestats.model.fitting.translucency import (
+    TranslucencyFit,
+    fit_translucency,
+    population_sigma_tr_avg,
+    scattering_parameters,
+)
 
 __all__ = [
-    "photometric_normals", "micro_normals", "albedo_stable_minimum", "refine_albedo", "specular_residual",
-    "fresnel_factors", "fit_specular", "fit_specular_samples", "fit_specular_models", "specular_factors",
-    "equivalent_lobe", "SpecularFit", "Samples", "DEFAULT_BOUNDS", "scatter_to_map",
-    "push_pull", "fill_flagged", "fit_translucency", "TranslucencyFit", "population_sigma_tr_avg",
+    "photometric_normals",
+    "micro_normals",
+    "albedo_stable_minimum",
+    "refine_albedo",
+    "specular_residual",
+    "fresnel_factors",
+    "fit_specular",
+    "fit_specular_samples",
+    "fit_specular_models",
+    "specular_factors",
+    "equivalent_lobe",
+    "SpecularFit",
+    "Samples",
+    "DEFAULT_BOUNDS",
+    "scatter_to_map",
+    "push_pull",
+    "fill_flagged",
+    "fit_translucency",
+    "TranslucencyFit",
+    "population_sigma_tr_avg",
     "scattering_parameters",
 ]

@@ -41,10 +41,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_integer, check_shape
 from facestats.errors import ValidationError
-from facestats.model.fresnel import _check_eta, _fresnel_reflectance
 from facestats.model.fitting.samples import order_keys
+from facestats.model.fresnel import check_eta, fresnel_reflectance_unchecked
 
 __all__ = ["fresnel_factors", "albedo_stable_minimum", "specular_residual", "refine_albedo"]
 
@@ -62,7 +63,7 @@ def _check_angle(value, name):
     return float(as_finite(value, name, 0, np.pi / 2, unit="rad"))
 
 
-def fresnel_factors(samples, normal, eta=1.38):
+def fresnel_factors(samples, normal, eta=ETA_SKIN):
     """Per-sample cos θi, cos θo and F_t(θi) F_t(θo) for per-lumitexel unit normals.
 
     F_t = 1 − F_r is the unpolarised Fresnel transmittance at relative index
@@ -77,16 +78,27 @@ def fresnel_factors(samples, normal, eta=1.38):
     cos_i, cos_o, ft2 : ndarray of float32, shape (S,)
     """
     check_shape(np.asarray(normal), "normal", (samples.n_texels, 3))
-    _check_eta(eta)
+    check_eta(eta)
     ci_g, co_g = samples.cos_grids(normal)
     e = np.float32(eta)
-    ft_i = 1 - _fresnel_reflectance(np.clip(ci_g, 0, 1), e)
-    ft_o = 1 - _fresnel_reflectance(np.clip(co_g, 0, 1), e)
+    ft_i = 1 - fresnel_reflectance_unchecked(np.clip(ci_g, 0, 1), e)
+    ft_o = 1 - fresnel_reflectance_unchecked(np.clip(co_g, 0, 1), e)
     return samples.at_lights(ci_g), samples.at_cameras(co_g), samples.at_lights(ft_i) * samples.at_cameras(ft_o)
 
 
-def albedo_stable_minimum(samples, brdf, cos_i, cos_o, ft2, use, *, discard=2, grazing_penalty=1.0,
-                          grazing_start=np.radians(60.0), grazing_end=np.radians(80.0)):
+def albedo_stable_minimum(
+    samples,
+    brdf,
+    cos_i,
+    cos_o,
+    ft2,
+    use,
+    *,
+    discard=2,
+    grazing_penalty=1.0,
+    grazing_start=np.radians(60.0),
+    grazing_end=np.radians(80.0),
+):
     """Diffuse albedo by the stable minimum of eq. 9 (module docstring).
 
     Samples are ranked per channel by the penalised value v·(1 + γ g) of

@@ -25,10 +25,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_integer, check_shape
 from facestats.errors import ValidationError
-from facestats.model.fresnel import _check_eta, _fresnel_reflectance
 from facestats.model.fitting.samples import masked, order_keys
+from facestats.model.fresnel import check_eta, fresnel_reflectance_unchecked
 
 __all__ = ["photometric_normals", "micro_normals"]
 
@@ -40,8 +41,17 @@ def _unit(v):
         return v / n
 
 
-def photometric_normals(samples, scan_normal, n_cameras, *, eta=1.38, specular_exclusion=np.radians(35.0),
-                        max_angle=np.radians(75.0), iterations=3, min_lights=6):
+def photometric_normals(
+    samples,
+    scan_normal,
+    n_cameras,
+    *,
+    eta=ETA_SKIN,
+    specular_exclusion=np.radians(35.0),
+    max_angle=np.radians(75.0),
+    iterations=3,
+    min_lights=6,
+):
     """Diffuse normals of lumitexels by per-camera photometric stereo (module docstring).
 
     Parameters
@@ -76,13 +86,12 @@ def photometric_normals(samples, scan_normal, n_cameras, *, eta=1.38, specular_e
     """
     n_cameras = _check_camera_grid(samples, n_cameras)
     check_shape(np.asarray(scan_normal), "scan_normal", (samples.n_texels, 3))
-    _check_eta(eta)
+    check_eta(eta)
     as_finite(specular_exclusion, "specular_exclusion", 0, np.pi / 2, unit="rad")
     as_finite(max_angle, "max_angle", 0, np.pi / 2, low_inclusive=False, unit="rad")
     check_integer(iterations, "iterations", 1)
     check_integer(min_lights, "min_lights", 3)
     n_scan = np.asarray(scan_normal, np.float32)
-    n = samples.n_texels
     y = samples.grey()
     ci_g, co_g = samples.cos_grids(n_scan)
     ci, co = samples.at_lights(ci_g), samples.at_cameras(co_g)
@@ -110,7 +119,7 @@ def photometric_normals(samples, scan_normal, n_cameras, *, eta=1.38, specular_e
         w_eff = wi
         if it > 0:  # divide out F_t(θi) with the current normal: y / F_t = Σ_l y_l ωi_l / F_t,l
             c = np.clip(samples.cos_grids(normal)[0], 0, 1)  # (n, L)
-            ft = 1 - _fresnel_reflectance(c, e32)
+            ft = 1 - fresnel_reflectance_unchecked(c, e32)
             w_eff = wi / np.where(ft > 0, ft, 1)[..., None]
         b = np.matmul(y_grid, w_eff.astype(np.float64))  # (n, C, 3)
         g = np.einsum("ijnc,ncj->nci", adj, b)  # det(A) > 0 where ok: the direction of A⁻¹ b

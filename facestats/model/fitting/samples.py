@@ -169,7 +169,8 @@ class Samples:
         n, n_cam, n_led = v.shape
         if np.shape(radiance)[:3] != v.shape or np.shape(wi)[:2] != (n, n_led) or np.shape(wo)[:2] != (n, n_cam):
             raise ValidationError(
-                f"grid shapes disagree: valid {v.shape}, radiance {np.shape(radiance)}, wi {np.shape(wi)}, wo {np.shape(wo)}"
+                f"grid shapes disagree: valid {v.shape}, radiance {np.shape(radiance)}, "
+                f"wi {np.shape(wi)}, wo {np.shape(wo)}"
             )
         # Sample positions in the row-major (lumitexel, camera, light) grid, and the run length of
         # every (lumitexel, camera): indices follow from repeats, with no division.
@@ -183,8 +184,13 @@ class Samples:
         irr_grid = np.ascontiguousarray(np.moveaxis(np.asarray(irradiance, np.float32), -1, 0)).reshape(3, -1)
         light_index = flat - (tc - texel) * n_led  # flat = (t C + c) L + l, tc = t C + c: t L + l
         out = cls(
-            n_texels=n, texel=texel, camera_index=tc, light_index=light_index,
-            wi_grid=np.asarray(wi, np.float32), wo_grid=np.asarray(wo, np.float32), radiance=rad,
+            n_texels=n,
+            texel=texel,
+            camera_index=tc,
+            light_index=light_index,
+            wi_grid=np.asarray(wi, np.float32),
+            wo_grid=np.asarray(wo, np.float32),
+            radiance=rad,
             irradiance=np.stack([irr_grid[c].take(light_index) for c in range(3)]),
         )
         out._cache.update(counts=per_texel, grid_index=flat, camera_runs=per_tc)
@@ -199,9 +205,17 @@ class Samples:
         rad = np.zeros((3, n_s), np.float32) if radiance is None else np.asarray(radiance, np.float32)[t, s].T
         irr = np.ones((3, n_s), np.float32) if irradiance is None else np.asarray(irradiance, np.float32)[t, s].T
         flat = (t * v.shape[1] + s).astype(np.intp)
-        return cls(n_texels=v.shape[0], texel=t.astype(np.int32), camera_index=flat, light_index=flat,
-                   wi_grid=np.asarray(wi, np.float32), wo_grid=np.asarray(wo, np.float32),
-                   radiance=np.ascontiguousarray(rad), irradiance=np.ascontiguousarray(irr), paired=True)
+        return cls(
+            n_texels=v.shape[0],
+            texel=t.astype(np.int32),
+            camera_index=flat,
+            light_index=flat,
+            wi_grid=np.asarray(wi, np.float32),
+            wo_grid=np.asarray(wo, np.float32),
+            radiance=np.ascontiguousarray(rad),
+            irradiance=np.ascontiguousarray(irr),
+            paired=True,
+        )
 
     # -- runs and indices ---------------------------------------------------------------
     @property
@@ -316,7 +330,9 @@ class Samples:
     def cos_grids(self, normal, dtype=np.float32):
         """(N·ωi on the light grid (n, L), N·ωo on the camera grid (n, C)) for normals (n, 3)."""
         nrm = np.asarray(normal, dtype)
-        return _dot3(self.wi_grid.astype(dtype, copy=False), nrm[:, None]), _dot3(self.wo_grid.astype(dtype, copy=False), nrm[:, None])
+        return _dot3(self.wi_grid.astype(dtype, copy=False), nrm[:, None]), _dot3(
+            self.wo_grid.astype(dtype, copy=False), nrm[:, None]
+        )
 
     def cos(self, normal, dtype=np.float32):
         """(N·ωi, N·ωo) per sample for per-lumitexel normals (n, 3)."""
@@ -372,6 +388,8 @@ class Samples:
         width = max(int(counts.max(initial=0)), 1)
         out = np.full((self.n_texels, width), fill, dtype=vals.dtype)
         # Slot of each sample: its rank plus its row offset (non-decreasing, so the scatter streams).
-        slot = np.arange(vals.shape[0], dtype=np.int64) + np.repeat(np.arange(self.n_texels, dtype=np.int64) * width - start, counts)
+        slot = np.arange(vals.shape[0], dtype=np.int64) + np.repeat(
+            np.arange(self.n_texels, dtype=np.int64) * width - start, counts
+        )
         out.reshape(-1)[slot] = vals
         return out, counts

@@ -57,14 +57,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.core.blocked import blockwise
+from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, as_float, check_choice, check_integer, check_shape
 from facestats.errors import ValidationError
 from facestats.model.brdf import torrance_sparrow_cosines
-from facestats.model.fresnel import _check_eta
 from facestats.model.fitting.samples import Samples, segment_sum
+from facestats.model.fresnel import check_eta
 
-__all__ = ["SpecularFit", "fit_specular", "fit_specular_samples", "fit_specular_models", "specular_factors", "equivalent_lobe",
-           "DEFAULT_BOUNDS"]
+__all__ = [
+    "SpecularFit",
+    "fit_specular",
+    "fit_specular_samples",
+    "fit_specular_models",
+    "specular_factors",
+    "equivalent_lobe",
+    "DEFAULT_BOUNDS",
+]
 
 #: Default bounds (ρs, lobe parameter) per model.
 DEFAULT_BOUNDS = {
@@ -198,7 +206,7 @@ def _ts_factor_kernel(ci, co, io, eta):
     return (1 - c2) / c2, np.maximum(k * ci / (c2 * c2), 0)
 
 
-def specular_factors(samples, normal, model, eta=1.38, cos=None):
+def specular_factors(samples, normal, model, eta=ETA_SKIN, cos=None):
     """Parameter-free per-sample factors (s1, A) of ``model`` (module docstring), float32.
 
     Torrance-Sparrow (Weyrich et al. 2006 eq. 12-13): s1 = tan²δ,
@@ -210,7 +218,7 @@ def specular_factors(samples, normal, model, eta=1.38, cos=None):
     (``normal`` is then not used).
     """
     check_choice(model, "model", DEFAULT_BOUNDS)
-    _check_eta(eta)
+    check_eta(eta)
     ci, co = samples.cos(normal) if cos is None else cos
     return _factors(model, ci, co, samples.cos_io(), eta)
 
@@ -249,8 +257,22 @@ def equivalent_lobe(lobe, source, target):
     return np.sqrt(2 / (np.maximum(lobe, 0) + 2))
 
 
-def fit_specular_samples(samples, normal, f_s, use, model, *, eta=1.38, bounds=None, min_samples=30, max_iter=40,
-                         tol=1e-6, max_relative_error=0.25, start=None, cos=None) -> SpecularFit:
+def fit_specular_samples(
+    samples,
+    normal,
+    f_s,
+    use,
+    model,
+    *,
+    eta=ETA_SKIN,
+    bounds=None,
+    min_samples=30,
+    max_iter=40,
+    tol=1e-6,
+    max_relative_error=0.25,
+    start=None,
+    cos=None,
+) -> SpecularFit:
     """Fit ``model`` to grey specular samples on flat :class:`Samples` (the pipeline's form of :func:`fit_specular`).
 
     Parameters
@@ -275,13 +297,39 @@ def fit_specular_samples(samples, normal, f_s, use, model, *, eta=1.38, bounds=N
     SpecularFit
     """
     check_choice(model, "model", DEFAULT_BOUNDS)
-    return fit_specular_models(samples, normal, f_s, use, (model,), eta=eta, bounds={model: bounds},
-                               min_samples=min_samples, max_iter=max_iter, tol=tol,
-                               max_relative_error=max_relative_error, start=start, cos=cos)[model]
+    return fit_specular_models(
+        samples,
+        normal,
+        f_s,
+        use,
+        (model,),
+        eta=eta,
+        bounds={model: bounds},
+        min_samples=min_samples,
+        max_iter=max_iter,
+        tol=tol,
+        max_relative_error=max_relative_error,
+        start=start,
+        cos=cos,
+    )[model]
 
 
-def fit_specular_models(samples, normal, f_s, use, models, *, eta=1.38, bounds=None, min_samples=30, max_iter=40,
-                        tol=1e-6, max_relative_error=0.25, start=None, cos=None) -> dict:
+def fit_specular_models(
+    samples,
+    normal,
+    f_s,
+    use,
+    models,
+    *,
+    eta=ETA_SKIN,
+    bounds=None,
+    min_samples=30,
+    max_iter=40,
+    tol=1e-6,
+    max_relative_error=0.25,
+    start=None,
+    cos=None,
+) -> dict:
     """Fit several models to the same grey specular samples; later models start from the first.
 
     The samples entering eq. 14 are selected and compacted once for all models
@@ -308,7 +356,7 @@ def fit_specular_models(samples, normal, f_s, use, models, *, eta=1.38, bounds=N
         raise ValidationError(f"models must name one or more distinct models, got {models!r}")
     for m in models:
         check_choice(m, "models", DEFAULT_BOUNDS)
-    _check_eta(eta)
+    check_eta(eta)
     _check_specular_inputs(samples, normal, f_s, use, start)
     bounds = bounds or {}
     ci, co = samples.cos(normal) if cos is None else cos
@@ -330,8 +378,19 @@ def fit_specular_models(samples, normal, f_s, use, models, *, eta=1.38, bounds=N
         s1, a = factors[m]
         first = fits[models[0]] if fits else None
         st = start if first is None else equivalent_lobe(first.lobe, first.model, m)
-        fits[m] = _solve(m, y, s1, a, counts, bounds=bounds.get(m), min_samples=min_samples, max_iter=max_iter,
-                         tol=tol, max_relative_error=max_relative_error, start=st)
+        fits[m] = _solve(
+            m,
+            y,
+            s1,
+            a,
+            counts,
+            bounds=bounds.get(m),
+            min_samples=min_samples,
+            max_iter=max_iter,
+            tol=tol,
+            max_relative_error=max_relative_error,
+            start=st,
+        )
     return fits
 
 
@@ -343,8 +402,22 @@ def _check_specular_inputs(samples, normal, f_s, use, start):
         check_shape(np.asarray(start), "start", (samples.n_texels,))
 
 
-def fit_specular(wi, wo, normal, f_s, valid, model, *, bounds=None, eta=1.38, max_angle=np.radians(80.0), min_samples=30,
-                 max_iter=40, tol=1e-6, max_relative_error=0.25):
+def fit_specular(
+    wi,
+    wo,
+    normal,
+    f_s,
+    valid,
+    model,
+    *,
+    bounds=None,
+    eta=ETA_SKIN,
+    max_angle=np.radians(80.0),
+    min_samples=30,
+    max_iter=40,
+    tol=1e-6,
+    max_relative_error=0.25,
+):
     """Fit Torrance-Sparrow or Blinn-Phong to specular samples of every texel at once (eq. 14).
 
     Parameters
@@ -390,15 +463,32 @@ def fit_specular(wi, wo, normal, f_s, valid, model, *, bounds=None, eta=1.38, ma
     check_shape(wo, "wo", (n_tex, n_smp, 3))
     valid = check_shape(np.asarray(valid, bool), "valid", (n_tex, n_smp))
     lim = np.cos(max_angle)
-    valid = valid & np.isfinite(f_s) & (np.einsum("tk,tsk->ts", normal, wi) > lim) & (np.einsum("tk,tsk->ts", normal, wo) > lim)
+    valid = (
+        valid
+        & np.isfinite(f_s)
+        & (np.einsum("tk,tsk->ts", normal, wi) > lim)
+        & (np.einsum("tk,tsk->ts", normal, wo) > lim)
+    )
     samples = Samples.from_arrays(wi, wo, valid)
     fs = f_s[valid].astype(np.float32)
-    return fit_specular_samples(samples, normal, fs, np.ones(samples.n, bool), model, eta=eta, bounds=bounds,
-                                min_samples=min_samples, max_iter=max_iter, tol=tol, max_relative_error=max_relative_error)
+    return fit_specular_samples(
+        samples,
+        normal,
+        fs,
+        np.ones(samples.n, bool),
+        model,
+        eta=eta,
+        bounds=bounds,
+        min_samples=min_samples,
+        max_iter=max_iter,
+        tol=tol,
+        max_relative_error=max_relative_error,
+    )
 
 
-def _solve(model, y, s1, a, n_use, *, bounds, min_samples, max_iter, tol, max_relative_error, dtype=np.float32,
-           start=None):
+def _solve(
+    model, y, s1, a, n_use, *, bounds, min_samples, max_iter, tol, max_relative_error, dtype=np.float32, start=None
+):
     """Batch bounded Levenberg-Marquardt on flat samples in per-texel runs of ``n_use`` samples (module docstring)."""
     try:
         (r_lo, r_hi), (p_lo, p_hi) = DEFAULT_BOUNDS[model] if bounds is None else bounds
@@ -485,7 +575,11 @@ def _solve(model, y, s1, a, n_use, *, bounds, min_samples, max_iter, tol, max_re
                 rr = np.clip(np.nan_to_num(syg / sgg), r_lo, r_hi)
             e = swyy[work] - 2 * rr * syg + rr * rr * sgg
             better = e < best_e
-            best_e, best_q, best_r = np.where(better, e, best_e), np.where(better, qq, best_q), np.where(better, rr, best_r)
+            best_e, best_q, best_r = (
+                np.where(better, e, best_e),
+                np.where(better, qq, best_q),
+                np.where(better, rr, best_r),
+            )
             best_s = sums if best_s is None else tuple(np.where(better, x, b) for x, b in zip(sums, best_s))
         q[work], rho[work] = best_q, best_r
         sums = best_s  # per-texel lobe sums at the current parameters
@@ -586,5 +680,14 @@ def _solve(model, y, s1, a, n_use, *, bounds, min_samples, max_iter, tol, max_re
     flags = (few * FLAG_FEW) | (not_conv * FLAG_NOT_CONVERGED) | (ill * FLAG_ILL) | (at_bound * FLAG_BOUND)
     rho = np.where(few, np.nan, rho)
     p = np.where(few, np.nan, p)
-    return SpecularFit(model=model, rho_s=rho.astype(dt), lobe=p.astype(dt), error=err.astype(dt), flags=flags.astype(np.uint8),
-                       n_samples=n_use, iterations=iterations, rho_s_std=r_std.astype(dt), lobe_std=p_std.astype(dt))
+    return SpecularFit(
+        model=model,
+        rho_s=rho.astype(dt),
+        lobe=p.astype(dt),
+        error=err.astype(dt),
+        flags=flags.astype(np.uint8),
+        n_samples=n_use,
+        iterations=iterations,
+        rho_s_std=r_std.astype(dt),
+        lobe_std=p_std.astype(dt),
+    )

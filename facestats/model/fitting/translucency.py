@@ -40,9 +40,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, as_float, check_integer, check_shape
 from facestats.errors import ValidationError
-from facestats.model.dipole import _eta, _profile, scattering_from_albedo
+from facestats.model.dipole import check_dipole_eta, dipole_profile_unchecked, scattering_from_albedo
 from facestats.model.skin import modulation_texture
 
 __all__ = ["TranslucencyFit", "fit_translucency", "population_sigma_tr_avg", "scattering_parameters"]
@@ -76,10 +77,10 @@ class TranslucencyFit:
 
 def _model(log_s, log_a, r, eta):
     """R_d(r) (mm⁻²) for log-coefficients of the profiles' leading shape, r on a new last axis."""
-    return _profile(r, np.exp(log_s)[..., None], np.exp(log_a)[..., None], eta)
+    return dipole_profile_unchecked(r, np.exp(log_s)[..., None], np.exp(log_a)[..., None], eta)
 
 
-def fit_translucency(r, profile, std=None, *, eta=1.38, max_iter=60):
+def fit_translucency(r, profile, std=None, *, eta=ETA_SKIN, max_iter=60):
     """Fit the dipole (σ's, σa) to diffuse reflectance profiles R(r) (module docstring).
 
     Parameters
@@ -106,7 +107,7 @@ def fit_translucency(r, profile, std=None, *, eta=1.38, max_iter=60):
     p = as_float(profile, "profile", np.float64)
     if p.ndim < 1 or p.shape[-1] != rr.shape[0]:
         raise ValidationError(f"profile must have {rr.shape[0]} distances on its last axis, got shape {p.shape}")
-    _eta(eta)
+    check_dipole_eta(eta)
     check_integer(max_iter, "max_iter", 1)
     lead = p.shape[:-1]
     p = p.reshape(-1, rr.shape[0])
@@ -127,7 +128,10 @@ def fit_translucency(r, profile, std=None, *, eta=1.38, max_iter=60):
         obs = np.log(np.where(use, p, 1.0))
         transform = np.log
     if np.any(use.sum(1) < 3):
-        raise ValidationError("profile must have at least 3 usable (finite; positive without std) readings per profile to fit 2 parameters")
+        raise ValidationError(
+            "profile must have at least 3 usable (finite; positive without std) readings per profile "
+            "to fit 2 parameters"
+        )
     (s_lo, s_hi), (a_lo, a_hi) = _BOUNDS
 
     def cost(ls, la):
@@ -155,7 +159,9 @@ def fit_translucency(r, profile, std=None, *, eta=1.38, max_iter=60):
         nt = tail.sum(1)
         mr = np.where(tail, rr, 0).sum(1) / nt
         my = yy.sum(1) / nt
-        slope = (np.where(tail, (rr - mr[:, None]) * (yy - my[:, None]), 0)).sum(1) / np.where(tail, (rr - mr[:, None]) ** 2, 0).sum(1)
+        slope = (np.where(tail, (rr - mr[:, None]) * (yy - my[:, None]), 0)).sum(1) / np.where(
+            tail, (rr - mr[:, None]) ** 2, 0
+        ).sum(1)
     tr0 = np.where((nt >= 3) & (slope < 0), -np.nan_to_num(slope), 1.0)
     h = 1e-6
 
@@ -163,8 +169,12 @@ def fit_translucency(r, profile, std=None, *, eta=1.38, max_iter=60):
         lam = np.full(u.shape, 1e-2)
         for _ in range(int(max_iter)):  # Levenberg-Marquardt iterations in (ln σtr, logit α')
             c0, d0 = cost_uv(u, v)
-            ju = (transform(_model(*to_coeffs(u + h, v), rr, eta)) - transform(_model(*to_coeffs(u - h, v), rr, eta))) / (2 * h)
-            jv = (transform(_model(*to_coeffs(u, v + h), rr, eta)) - transform(_model(*to_coeffs(u, v - h), rr, eta))) / (2 * h)
+            ju = (
+                transform(_model(*to_coeffs(u + h, v), rr, eta)) - transform(_model(*to_coeffs(u - h, v), rr, eta))
+            ) / (2 * h)
+            jv = (
+                transform(_model(*to_coeffs(u, v + h), rr, eta)) - transform(_model(*to_coeffs(u, v - h), rr, eta))
+            ) / (2 * h)
             ju, jv = np.where(use, ju, 0), np.where(use, jv, 0)
             a00, a01, a11 = np.sum(wgt * ju * ju, -1), np.sum(wgt * ju * jv, -1), np.sum(wgt * jv * jv, -1)
             g0, g1 = np.sum(wgt * ju * d0, -1), np.sum(wgt * jv * d0, -1)
@@ -221,8 +231,14 @@ def fit_translucency(r, profile, std=None, *, eta=1.38, max_iter=60):
     var_tr = gs_ * gs_ * v_ls + ga_ * ga_ * v_la + 2 * gs_ * ga_ * c_sa
     n_pts = use.sum(1)
     out = TranslucencyFit(
-        sigma_s_prime=sp, sigma_a=sa, sigma_s_prime_std=sp * np.sqrt(v_ls), sigma_a_std=sa * np.sqrt(v_la),
-        sigma_tr=tr, sigma_tr_std=np.sqrt(np.maximum(var_tr, 0)), chi2=c, n_points=n_pts,
+        sigma_s_prime=sp,
+        sigma_a=sa,
+        sigma_s_prime_std=sp * np.sqrt(v_ls),
+        sigma_a_std=sa * np.sqrt(v_la),
+        sigma_tr=tr,
+        sigma_tr_std=np.sqrt(np.maximum(var_tr, 0)),
+        chi2=c,
+        n_points=n_pts,
     )
     for k, v in vars(out).items():
         setattr(out, k, np.asarray(v).reshape(lead))
@@ -250,7 +266,9 @@ def population_sigma_tr_avg(site_sigma_tr, sites, use_sites=("cheek", "forehead"
     sites = list(sites)
     idx = [sites.index(s) for s in use_sites if s in sites]
     if t.ndim != 3 or t.shape[1] != len(sites) or t.shape[-1] != 3 or not idx:
-        raise ValidationError(f"site_sigma_tr must have shape (subjects, sites, 3) with sites {use_sites}, got {t.shape} and {sites}")
+        raise ValidationError(
+            f"site_sigma_tr must have shape (subjects, sites, 3) with sites {use_sites}, got {t.shape} and {sites}"
+        )
     vals = t[:, idx, :]
     ok = np.all(np.isfinite(vals), axis=(1, 2))
     if not ok.any():
@@ -258,7 +276,7 @@ def population_sigma_tr_avg(site_sigma_tr, sites, use_sites=("cheek", "forehead"
     return vals[ok].mean(axis=(0, 1))
 
 
-def scattering_parameters(albedo, mask, sigma_tr_avg, eta=1.38):
+def scattering_parameters(albedo, mask, sigma_tr_avg, eta=ETA_SKIN):
     """Stage 7: α_avg, (σ's, σa) from α_avg and σtrAvg (§5.4), and the modulation texture M (eq. 7).
 
     Parameters

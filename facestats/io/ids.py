@@ -1,0 +1,29 @@
+"""Subject identifiers: the one rule every id must pass, whatever its source.
+
+Ids name directories of the store (``subjects/<id>/``), so an id is validated
+before it is used in any path: from the population index, the API, the command
+line or an imported file alike.
+"""
+
+from __future__ import annotations
+
+import re
+
+from facestats.errors import ValidationError
+
+__all__ = ["SUBJECT_ID_PATTERN", "check_subject_id"]
+
+#: 1-64 letters, digits, '.', '_' or '-', starting with a letter or digit (matched in full:
+#: no path separators, no '..' component, no trailing newline).
+SUBJECT_ID_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+
+
+def check_subject_id(sid) -> str:
+    """``sid`` as a str if it is a valid subject id, else :class:`ValidationError` naming it."""
+    text = str(sid)
+    if not SUBJECT_ID_PATTERN.fullmatch(text):
+        raise ValidationError(
+            f"subject_id must be 1-64 characters of letters, digits, '.', '_' or '-' starting with a letter "
+            f"or digit, got {sid!r}"
+        )
+    return text

@@ -26,6 +26,8 @@ __all__ = [
     "parse_condition",
     "parse_age",
     "age_group",
+    "DEFAULT_SEED",
+    "DEFAULT_MAP_SIZE",
 ]
 
 #: Colour channels (linear RGB).
@@ -169,3 +171,8 @@ def age_group(age) -> str:
         if lo <= age <= hi:
             return label
     raise ValidationError(f"age must be in 0-200 years, got {age!r}")
+
+
+#: Seed and map size (= lumitexel grid) of the embedded default store (``facestats build --default``).
+DEFAULT_SEED = 2006
+DEFAULT_MAP_SIZE = 48

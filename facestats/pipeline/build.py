@@ -30,15 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
-from facestats.core.conventions import SITES
+from facestats.core.conventions import DEFAULT_MAP_SIZE, DEFAULT_SEED, SITES
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
 
 __all__ = ["BuildReport", "build_store", "build_default", "DEFAULT_SEED", "DEFAULT_MAP_SIZE"]
 
-#: Seed and map size of the embedded default.
-DEFAULT_SEED = 2006
-DEFAULT_MAP_SIZE = 48
 
 _WORKER_CACHE: dict = {}
 

@@ -1,0 +1,72 @@
+"""``facestats build``: simulate and fit a synthetic population into a store (:mod:`facestats.pipeline.build`)."""
+
+from __future__ import annotations
+
+import sys
+
+from facestats.core.conventions import DEFAULT_MAP_SIZE, DEFAULT_SEED
+
+__all__ = ["add_build"]
+
+
+def _cmd_build(args) -> int:
+    from facestats.pipeline import build as _build
+
+    if args.default:
+        if args.store:
+            print("facestats: error: --default writes the embedded store; do not pass --store", file=sys.stderr)
+            return 2
+        report = _build.build_default(workers=args.workers, progress=not args.quiet)
+    else:
+        if not args.store:
+            print("facestats: error: pass --store PATH (a directory store) or --default", file=sys.stderr)
+            return 2
+        report = _build.build_store(
+            args.store,
+            seed=args.seed,
+            map_size=args.size,
+            conditions=not args.no_conditions,
+            specular=args.specular,
+            subjects=args.subjects,
+            workers=args.workers,
+            micro_normals=not args.no_micro_normals,
+            progress=not args.quiet,
+        )
+    print(report.to_text())
+    return 0
+
+
+def add_build(sub):
+    p = sub.add_parser(
+        "build",
+        help="simulate and fit a synthetic population into a store (resumable)",
+        description=(
+            "Draw the synthetic population (published statistics of Weyrich et al. 2006), simulate every subject's "
+            "dome and contact-sensor captures, fit the skin model and write each subject to the store as soon as it "
+            "is fitted. Rerunning skips subjects already in the store. --default regenerates the store embedded in "
+            "the package."
+        ),
+    )
+    p.add_argument("--default", action="store_true", help="regenerate the embedded default store")
+    p.add_argument("--store", metavar="PATH", help="directory store to build into (created if missing)")
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=DEFAULT_SEED,
+        help=f"population seed (default {DEFAULT_SEED}, the embedded default's)",
+    )
+    p.add_argument(
+        "--size", type=int, default=DEFAULT_MAP_SIZE, help=f"UV map / lumitexel grid size (default {DEFAULT_MAP_SIZE})"
+    )
+    p.add_argument("--subjects", nargs="+", metavar="ID", help="only these subject ids")
+    p.add_argument("--no-conditions", action="store_true", help="leave out the subject measured under seven conditions")
+    p.add_argument(
+        "--specular",
+        choices=("torrance_sparrow", "blinn_phong"),
+        default="torrance_sparrow",
+        help="BRDF the simulator renders highlights with",
+    )
+    p.add_argument("--no-micro-normals", action="store_true", help="do not store per-camera micro-normal maps")
+    p.add_argument("--workers", type=int, default=None, help="worker processes (default: number of cores)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_build)

@@ -1,0 +1,105 @@
+"""Stages 1-4 of the fit pipeline on a block of lumitexels (Weyrich et al. 2006 §5.1-5.3).
+
+Lumitexels are independent, so a block runs in cache-sized pieces: the valid
+samples are flattened into :class:`facestats.model.fitting.Samples`, then
+photometric-stereo normals, the stable-minimum albedo (eq. 9), the specular
+residual (eq. 10) and the batch specular fits (eq. 14).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from facestats.model import fitting
+from facestats.pipeline.settings import MAP_VARS, MODEL_PREFIX, FitSettings
+
+__all__ = ["fit_lumitexels", "PIECE"]
+
+
+#: Lumitexels per piece inside :func:`fit_lumitexels`: about 1 MB per per-sample array, so each
+#: stage's temporaries stay in the CPU cache (0.47 s against 0.60 s per 2048 lumitexels).
+PIECE = 256
+
+
+def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
+    """Stages 1-4 on a block of lumitexels (:class:`facestats.acquire.capture.Lumitexels`).
+
+    The block's valid samples (minus ``settings.exclude_cameras``) are flattened
+    into :class:`facestats.model.fitting.Samples`, one contiguous run per
+    lumitexel; then: diffuse normals by photometric stereo (3 passes) and
+    micro-normals; BRDF samples f_r (eq. 8) with the photometric normal; the
+    albedo by the stable minimum (eq. 9), refined over specular-free samples if
+    ``settings.refine_albedo``; the grey specular residual (eq. 10); and the
+    batch fit of each of ``settings.models`` (eq. 14), the later ones started
+    from the first.  Lumitexels are independent: a block runs in pieces of
+    :data:`PIECE` lumitexels (cache-sized), concatenated.
+
+    Returns
+    -------
+    dict of ndarray
+        ``normal`` (n, 3), ``micro_normal`` (n, C, 3) if requested, ``albedo`` and
+        ``albedo_min`` (n, 3; refined and stable-minimum albedo), ``n_samples``
+        (usable samples), ``n_invalid`` (masked: NaN, negative, unlit, occluded, clipped),
+        ``n_grazing`` (valid but beyond the angle limit of eq. 14), and for each model
+        ``*_rho_s``, ``*_m``/``*_exponent``, ``*_error``, ``*_flag``.
+    """
+    st = settings or FitSettings()
+    if lt.n <= PIECE:
+        return _fit_piece(lt, st)
+    parts = [_fit_piece(lt[a : a + PIECE], st) for a in range(0, lt.n, PIECE)]
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+def _fit_piece(lt, st):
+    """Stages 1-4 on lumitexels ``lt`` (:func:`fit_lumitexels`)."""
+    valid = lt.valid
+    if st.exclude_cameras:
+        valid = valid.copy()
+        valid[:, list(st.exclude_cameras), :] = False
+    n_cam = lt.wo.shape[1]
+    samples = fitting.Samples.from_grid(lt.wi, lt.wo, lt.irradiance, lt.radiance, valid)
+    out = {"n_invalid": (~valid).reshape(lt.n, -1).sum(1)}
+    # Stage 1: normals.
+    normal, _ = fitting.photometric_normals(samples, lt.scan_normal, n_cam, eta=st.eta)
+    out["normal"] = normal
+    if st.micro_normals:
+        out["micro_normal"] = fitting.micro_normals(samples, n_cam)
+    # Stage 2: albedo from BRDF samples with the photometric normal (eq. 8).
+    cos_i, cos_o, ft2 = fitting.fresnel_factors(samples, normal, st.eta)
+    lim = np.float32(np.cos(np.radians(st.max_angle_deg)))
+    use = (cos_i > lim) & (cos_o > lim)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f_r = samples.radiance / (samples.irradiance * np.maximum(cos_i, 0))  # eq. 8, channel-major (3, S)
+    albedo_min, _ = fitting.albedo_stable_minimum(
+        samples, f_r, cos_i, cos_o, ft2, use, discard=st.discard, grazing_penalty=st.grazing_penalty
+    )
+    albedo = np.where(np.isfinite(albedo_min), albedo_min, 0).astype(np.float32)
+    out["n_samples"] = samples.count(use)
+    out["n_grazing"] = samples.count(~use)
+    if st.refine_albedo:
+        # Stage 2b: the mean over specular-free samples removes the noise bias of the minimum.
+        cos_half = (cos_i + cos_o) / np.sqrt(np.maximum(2 + 2 * samples.cos_io(), 1e-12))
+        refined, n_ref = fitting.refine_albedo(samples, f_r, ft2, cos_half, use)
+        ok = np.isfinite(refined).all(1) & (n_ref >= st.min_samples)
+        albedo = np.where(ok[:, None], refined, albedo).astype(np.float32)
+    # Stages 3-4: the specular residual (eq. 10) and the batch fit of each model (eq. 14).
+    f_s = fitting.specular_residual(samples, f_r, albedo, ft2)
+    fits = fitting.fit_specular_models(
+        samples,
+        normal,
+        f_s,
+        use,
+        st.models,
+        eta=st.eta,
+        min_samples=st.min_samples,
+        max_relative_error=st.max_relative_error,
+        cos=(cos_i, cos_o),
+    )
+    few = out["n_samples"] < st.min_samples
+    out["albedo"] = np.where(few[:, None], np.nan, albedo).astype(np.float32)
+    out["albedo_min"] = albedo_min.astype(np.float32)
+    for model, res in fits.items():
+        key = MODEL_PREFIX[model]
+        k_rho, k_lobe, k_err = MAP_VARS[key]
+        out[k_rho], out[k_lobe], out[k_err], out[f"{key}_flag"] = res.rho_s, res.lobe, res.error, res.flags
+    return out

@@ -1,0 +1,107 @@
+"""Settings of the fit pipeline and the names of its per-lumitexel and per-model outputs."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from facestats.core.published import ETA_SKIN, GRAZING_LIMIT_DEG
+from facestats.core.validate import as_finite, check_integer
+from facestats.errors import ValidationError
+from facestats.model import fitting
+from facestats.model.dipole import check_dipole_eta
+
+__all__ = ["FitSettings", "LUMITEXEL_OUTPUTS", "MODEL_PREFIX", "MAP_VARS"]
+
+
+@dataclass
+class FitSettings:
+    """Settings of the fit pipeline (recorded in each subject's provenance).
+
+    Attributes
+    ----------
+    discard : int
+        k of the stable minimum (eq. 9): smallest values discarded (≥ 0).
+    grazing_penalty : float
+        γ ≥ 0 of the grazing penalty of the stable minimum (growing from θ = 60°
+        to 80°, :func:`facestats.model.fitting.albedo_stable_minimum`).
+    refine_albedo : bool
+        Re-estimate the albedo as the mean over specular-free samples (removes
+        the low bias of the minimum of noisy samples; see
+        :func:`facestats.model.fitting.refine_albedo`).
+    max_angle_deg : float
+        Samples with θi or θo beyond this are ignored (eq. 14: 80°), in (0, 90].
+    min_samples : int
+        Texels with fewer usable samples are flagged ``few_samples`` (≥ 2).
+    max_relative_error : float
+        Relative standard error above which a fit is flagged ``ill_conditioned`` (> 0).
+    models : tuple of str
+        Specular models to fit, at least one, each once; the first is fitted from
+        the log-linear start, the others start from its result.
+    exclude_cameras : tuple of int
+        Cameras left out of the fit (e.g. one held out to validate renderings), ≥ 0.
+    micro_normals : bool
+        Keep the per-camera micro-normal maps (16 × 3 values per texel).
+    block : int
+        Lumitexels per block, ≥ 1 (memory per block ≈ block × 0.1 MB); best equal to
+        the capture's zarr chunk (2048 by default), so no chunk is decoded twice.
+    eta : float
+        Relative index of refraction, in [1, 3].
+    """
+
+    discard: int = 2
+    grazing_penalty: float = 1.0
+    refine_albedo: bool = True
+    max_angle_deg: float = GRAZING_LIMIT_DEG
+    min_samples: int = 30
+    max_relative_error: float = 0.25
+    models: tuple = ("torrance_sparrow", "blinn_phong")
+    exclude_cameras: tuple = ()
+    micro_normals: bool = True
+    block: int = 2048
+    eta: float = ETA_SKIN
+
+    def __post_init__(self):
+        if isinstance(self.models, str):
+            raise ValidationError(f"models must be a tuple of model names, got the string {self.models!r}")
+        self.models = tuple(self.models)
+        if isinstance(self.exclude_cameras, (int, np.integer)):
+            raise ValidationError(f"exclude_cameras must be a tuple of camera indices, got {self.exclude_cameras!r}")
+        self.exclude_cameras = tuple(check_integer(c, "exclude_cameras", 0) for c in self.exclude_cameras)
+        if not self.models or len(set(self.models)) != len(self.models):
+            raise ValidationError(f"models must name at least one model, each once, got {self.models!r}")
+        for m in self.models:
+            if m not in fitting.DEFAULT_BOUNDS:
+                raise ValidationError(f"models must be among {list(fitting.DEFAULT_BOUNDS)}, got {m!r}")
+        check_integer(self.discard, "discard", 0)
+        check_integer(self.min_samples, "min_samples", 2)
+        check_integer(self.block, "block", 1)
+        as_finite(self.grazing_penalty, "grazing_penalty", 0, None)
+        as_finite(self.max_angle_deg, "max_angle_deg", 0, 90, low_inclusive=False, unit="deg")
+        as_finite(self.max_relative_error, "max_relative_error", 0, None, low_inclusive=False)
+        check_dipole_eta(self.eta)
+
+
+#: Per-lumitexel outputs of :func:`fit_lumitexels` (a model's four entries only when it is
+#: fitted; ``micro_normal`` is added when requested).
+LUMITEXEL_OUTPUTS = (
+    "normal",
+    "albedo",
+    "albedo_min",
+    "n_samples",
+    "n_invalid",
+    "n_grazing",
+    "ts_rho_s",
+    "ts_m",
+    "ts_error",
+    "ts_flag",
+    "bp_rho_s",
+    "bp_exponent",
+    "bp_error",
+    "bp_flag",
+)
+
+#: Prefix of each specular model's outputs, and the (ρs, lobe, error) maps of each prefix.
+MODEL_PREFIX = {"torrance_sparrow": "ts", "blinn_phong": "bp"}
+MAP_VARS = {"ts": ("ts_rho_s", "ts_m", "ts_error"), "bp": ("bp_rho_s", "bp_exponent", "bp_error")}

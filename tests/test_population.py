@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 
 from facestats import FacestatsError
-from facestats.acquire.synthetic.population import default_population, skin_albedo, synthesize_population
+from facestats.acquire.synthetic.population import default_population, synthesize_population
 from facestats.core import published
 from facestats.core.conventions import SITES, age_group
+from facestats.model.skin_colour import skin_albedo
 
 
 @pytest.fixture(scope="module")

@@ -16,14 +16,13 @@ from facestats.core.conventions import CHANNELS
 from facestats.core.published import ETA_SKIN, SIGMA_TR_AVG
 from facestats.core.validate import as_finite, as_float, check_shape
 from facestats.model import dipole
+from facestats.model.skin_colour import skin_albedo
 
 __all__ = ["DemoReport", "physics_demo", "light_skin_albedo", "plot_dipole_profiles"]
 
 
 def light_skin_albedo() -> np.ndarray:
     """Linear sRGB reflectance of the measured ColorChecker 'light skin' patch under D65 (colour-science data)."""
-    from facestats.acquire.synthetic.population import skin_albedo
-
     return skin_albedo(0.0)
 
 

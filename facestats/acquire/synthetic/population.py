@@ -80,6 +80,7 @@ from facestats.core.published import AGE_COUNTS, ETA_SKIN, TABLE1_MEAN, TABLE1_V
 from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.errors import ValidationError
 from facestats.model import dipole, fresnel
+from facestats.model.skin_colour import skin_albedo
 
 __all__ = [
     "SKIN_TYPE_MELANIN",
@@ -89,7 +90,6 @@ __all__ = [
     "CONDITION_EFFECTS",
     "SubjectTruth",
     "Population",
-    "skin_albedo",
     "albedo_map",
     "synthesize_population",
     "default_population",
@@ -275,54 +275,6 @@ class Population:
         import pandas as pd
 
         return pd.DataFrame([s.metadata() for s in self.subjects]).set_index("subject_id")
-
-
-# -- colour ------------------------------------------------------------------------------
-_ANCHORS = None
-
-
-def _anchor_spectra():
-    """The ColorChecker "light skin" and "dark skin" reflectance spectra, 380-730 nm in 10 nm steps (cached)."""
-    global _ANCHORS
-    if _ANCHORS is None:
-        import colour
-
-        sds = colour.characterisation.SDS_COLOURCHECKERS["BabelColor Average"]
-        shape = colour.SpectralShape(380, 730, 10)
-        light = sds["light skin"].copy().align(shape)
-        dark = sds["dark skin"].copy().align(shape)
-        _ANCHORS = (light, dark)
-    return _ANCHORS
-
-
-def skin_albedo(melanin) -> np.ndarray:
-    """Linear sRGB albedo (D65) of the spectral mix R_light^(1-t) R_dark^t of the ColorChecker skin patches.
-
-    Parameters
-    ----------
-    melanin : array_like
-        Melanin index t (0: "light skin" patch, 1: "dark skin" patch; values
-        outside [0, 1] extrapolate in log-reflectance).
-
-    Returns
-    -------
-    ndarray, shape (..., 3)
-        Linear RGB in (0, 1).
-    """
-    import colour
-
-    light, dark = _anchor_spectra()
-    t = np.atleast_1d(np.asarray(melanin, float))
-    rl, rd = np.maximum(light.values, 1e-4), np.maximum(dark.values, 1e-4)
-    spectra = np.exp((1 - t[:, None]) * np.log(rl) + t[:, None] * np.log(rd))
-    # Integrate R(λ) against the CIE 1931 observer under D65 (colour-science data), vectorised over subjects.
-    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(light.shape)
-    ill = colour.SDS_ILLUMINANTS["D65"].copy().align(light.shape)
-    w = cmfs.values * ill.values[:, None]
-    xyz = spectra @ w / w[:, 1].sum()
-    rgb = colour.XYZ_to_RGB(xyz, colour.RGB_COLOURSPACES["sRGB"], apply_cctf_encoding=False)
-    out = np.clip(rgb, 0.005, 0.95)
-    return out.reshape(np.shape(melanin) + (3,))
 
 
 def _smooth_noise(rng, shape, sigma_px):

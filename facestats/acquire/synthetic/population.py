@@ -489,6 +489,51 @@ def synthesize_population(
             f"got {None if region_map is None else region_map.shape}"
         )
     texel_mm = float(np.sqrt(np.median(geometry.area))) * (geometry.meta.get("lumitexel_grid", map_size) / map_size)
+    draws = _population_draws(seed, conditions, table1_spread)
+    wanted = None if subjects is None else set(subjects)
+    _check_wanted(wanted, len(draws.skin_type), conditions)
+    found = _normal_subjects(draws, region_map, texel_mm, freckle_fraction, wanted)
+    if conditions:
+        found += _condition_subjects(draws, region_map, texel_mm, wanted)
+    # σtrAvg: mean over subjects of cheek and forehead (neck excluded), §5.4.
+    sigma_tr_avg = draws.sigma_tr[: len(draws.skin_type), :2].mean(axis=(0, 1))
+    for s in found:
+        s.sigma_tr = sigma_tr_avg
+    return Population(
+        subjects=found,
+        sigma_tr_avg=sigma_tr_avg,
+        seed=int(seed),
+        settings={"map_size": int(map_size), "table1_spread": table1_spread, "conditions": bool(conditions)},
+    )
+
+
+@dataclass
+class _Draws:
+    """The population-level random draws, in the order the streams are consumed."""
+
+    skin_type: np.ndarray
+    gender: np.ndarray
+    age: np.ndarray
+    z_cov: dict
+    melanin: np.ndarray
+    base_rgb: np.ndarray
+    sigma_tr: np.ndarray
+    between: np.ndarray
+    subject_seeds: list
+
+    def region_means(self, i, zs):
+        """(ρs, m) means per region of subject ``i`` with standardised covariates ``zs`` (module docstring)."""
+        out = {}
+        for k, r in enumerate(REGION_IDS):
+            rho0, m0 = TS_REGION_MEAN[r]
+            drho = sum(EFFECT_STRENGTH[c] * LOADINGS[c][r][0] * zs[c] for c in EFFECT_STRENGTH)
+            dm = sum(EFFECT_STRENGTH[c] * LOADINGS[c][r][1] * zs[c] for c in EFFECT_STRENGTH)
+            out[r] = (rho0 * np.exp(drho + self.between[i, k, 0]), m0 * np.exp(dm + self.between[i, k, 1]))
+        return out
+
+
+def _population_draws(seed, conditions, table1_spread) -> _Draws:
+    """Demographics, covariates, skin colours, σtr per site and between-subject BRDF offsets of the population."""
     root = np.random.SeedSequence(seed)
     demo_seed, tr_seed, subj_seed = root.spawn(3)
     demo = _demographics(np.random.default_rng(demo_seed))
@@ -504,111 +549,120 @@ def synthesize_population(
     }
     melanin = np.array([SKIN_TYPE_MELANIN[s] for s in st]) + MELANIN_SPREAD * rng.standard_normal(n)
     melanin -= 0.05 * (gender == "F")
-    base_rgb = skin_albedo(melanin)
-    sigma_tr = _sigma_tr_draws(rng, n + (1 if conditions else 0), table1_spread)
-    between = rng.standard_normal((n + 1, len(REGION_IDS), 2)) * BETWEEN_SUBJECT_CV
+    return _Draws(
+        skin_type=st,
+        gender=gender,
+        age=age,
+        z_cov=z_cov,
+        melanin=melanin,
+        base_rgb=skin_albedo(melanin),
+        sigma_tr=_sigma_tr_draws(rng, n + (1 if conditions else 0), table1_spread),
+        between=rng.standard_normal((n + 1, len(REGION_IDS), 2)) * BETWEEN_SUBJECT_CV,
+        subject_seeds=subj_seed.spawn(n + len(CONDITIONS)),
+    )
 
-    def region_means(i, zs):
-        out = {}
-        for k, r in enumerate(REGION_IDS):
-            rho0, m0 = TS_REGION_MEAN[r]
-            drho = sum(EFFECT_STRENGTH[c] * LOADINGS[c][r][0] * zs[c] for c in EFFECT_STRENGTH)
-            dm = sum(EFFECT_STRENGTH[c] * LOADINGS[c][r][1] * zs[c] for c in EFFECT_STRENGTH)
-            out[r] = (rho0 * np.exp(drho + between[i, k, 0]), m0 * np.exp(dm + between[i, k, 1]))
-        return out
 
-    subject_seeds = subj_seed.spawn(n + len(CONDITIONS))
-    wanted = None if subjects is None else set(subjects)
-    if wanted is not None:
-        ids = {f"S{i + 1:03d}" for i in range(n)} | ({f"P{n + 1:03d}-{c}" for c in CONDITIONS} if conditions else set())
-        unknown = sorted(wanted - ids)
-        if unknown:
-            raise ValidationError(
-                f"subjects must be ids of the population (S001-S{n:03d}"
-                f"{f', P{n + 1:03d}-<condition>' if conditions else ''}), got unknown {unknown[:5]}"
-            )
-    subjects = []
-    for i in range(n):  # loop over subjects (each vectorised over texels)
-        if wanted is not None and f"S{i + 1:03d}" not in wanted:
-            continue
-        srng = np.random.default_rng(subject_seeds[i])
-        means = region_means(i, {c: z_cov[c][i] for c in z_cov})
-        freckled = bool(st[i] <= 3 and srng.uniform() < freckle_fraction / 0.57)
-        n_moles = int(srng.poisson(1.0))
-        alb = albedo_map(
-            region_map, base_rgb[i], srng, texel_mm=texel_mm, freckles=freckled, moles=n_moles, gender=gender[i]
+def _check_wanted(wanted, n, conditions):
+    """Raise unless every wanted id is an id of the population."""
+    if wanted is None:
+        return
+    ids = {f"S{i + 1:03d}" for i in range(n)} | ({f"P{n + 1:03d}-{c}" for c in CONDITIONS} if conditions else set())
+    unknown = sorted(wanted - ids)
+    if unknown:
+        raise ValidationError(
+            f"subjects must be ids of the population (S001-S{n:03d}"
+            f"{f', P{n + 1:03d}-<condition>' if conditions else ''}), got unknown {unknown[:5]}"
         )
-        rho, m = _brdf_maps(region_map, means, srng, gender[i])
-        subjects.append(
+
+
+def _normal_subjects(draws, region_map, texel_mm, freckle_fraction, wanted):
+    """The subjects S001... of the population (those in ``wanted`` if given), each from its own stream."""
+    out = []
+    for i in range(len(draws.skin_type)):  # loop over subjects (each vectorised over texels)
+        sid = f"S{i + 1:03d}"
+        if wanted is not None and sid not in wanted:
+            continue
+        srng = np.random.default_rng(draws.subject_seeds[i])
+        means = draws.region_means(i, {c: draws.z_cov[c][i] for c in draws.z_cov})
+        freckled = bool(draws.skin_type[i] <= 3 and srng.uniform() < freckle_fraction / 0.57)
+        n_moles = int(srng.poisson(1.0))
+        gender = str(draws.gender[i])
+        alb = albedo_map(
+            region_map, draws.base_rgb[i], srng, texel_mm=texel_mm, freckles=freckled, moles=n_moles, gender=gender
+        )
+        rho, m = _brdf_maps(region_map, means, srng, gender)
+        meta = {
+            "subject_id": sid,
+            "person_id": sid,
+            "age": int(draws.age[i]),
+            "gender": gender,
+            "skin_type": int(draws.skin_type[i]),
+            "condition": "normal",
+        }
+        out.append(
             _make_subject(
-                f"S{i + 1:03d}",
-                f"S{i + 1:03d}",
-                int(age[i]),
-                str(gender[i]),
-                int(st[i]),
-                "normal",
+                meta,
                 region_map,
                 alb,
                 rho,
                 m,
-                sigma_tr[i],
-                int(subject_seeds[i].generate_state(1)[0]),
-                {"freckles": freckled, "moles": n_moles, "melanin": float(melanin[i])},
+                draws.sigma_tr[i],
+                seed=int(draws.subject_seeds[i].generate_state(1)[0]),
+                features={"freckles": freckled, "moles": n_moles, "melanin": float(draws.melanin[i])},
             )
         )
-    # σtrAvg: mean over subjects of cheek and forehead (neck excluded), §5.4.
-    sigma_tr_avg = sigma_tr[:n, :2].mean(axis=(0, 1))
-    if conditions:
-        person = f"P{n + 1:03d}"
-        crng = np.random.default_rng(subject_seeds[n])
-        p_st, p_gender, p_age = 3, "M", 34
-        zs = {
-            "skin_type": (3 - np.mean(np.where(st == 1, 2, st))) / np.std(np.where(st == 1, 2, st)),
-            "gender": float(-np.mean(gender == "F") / np.std(gender == "F")),
-            "age": float((34 - age.mean()) / age.std()),
+    return out
+
+
+def _condition_subjects(draws, region_map, texel_mm, wanted):
+    """One person (type III man, 34) under the seven conditions of §7, every condition from the same texture."""
+    st, gender, age = draws.skin_type, draws.gender, draws.age
+    n = len(st)
+    person = f"P{n + 1:03d}"
+    crng = np.random.default_rng(draws.subject_seeds[n])
+    p_st, p_gender, p_age = 3, "M", 34
+    zs = {
+        "skin_type": (3 - np.mean(np.where(st == 1, 2, st))) / np.std(np.where(st == 1, 2, st)),
+        "gender": float(-np.mean(gender == "F") / np.std(gender == "F")),
+        "age": float((34 - age.mean()) / age.std()),
+    }
+    means = draws.region_means(n, zs)
+    p_melanin = SKIN_TYPE_MELANIN[3]
+    state = crng.bit_generator.state  # every condition starts from the same texture
+    out = []
+    for j, cond in enumerate(CONDITIONS):
+        if wanted is not None and f"{person}-{cond}" not in wanted:
+            continue
+        crng.bit_generator.state = state
+        alb = albedo_map(region_map, skin_albedo(p_melanin), crng, texel_mm=texel_mm, condition=cond, gender=p_gender)
+        f_rho, f_m = CONDITION_EFFECTS[cond]
+        cmeans = {r: (v[0] * f_rho, v[1] * f_m) for r, v in means.items()}
+        rho, m = _brdf_maps(region_map, cmeans, crng, p_gender)
+        meta = {
+            "subject_id": f"{person}-{cond}",
+            "person_id": person,
+            "age": p_age,
+            "gender": p_gender,
+            "skin_type": p_st,
+            "condition": cond,
         }
-        means = region_means(n, zs)
-        p_melanin = SKIN_TYPE_MELANIN[3]
-        state = crng.bit_generator.state  # every condition starts from the same texture
-        for j, cond in enumerate(CONDITIONS):
-            if wanted is not None and f"{person}-{cond}" not in wanted:
-                continue
-            crng.bit_generator.state = state
-            alb = albedo_map(
-                region_map, skin_albedo(p_melanin), crng, texel_mm=texel_mm, condition=cond, gender=p_gender
+        out.append(
+            _make_subject(
+                meta,
+                region_map,
+                alb,
+                rho,
+                m,
+                draws.sigma_tr[n],
+                seed=int(draws.subject_seeds[n + j].generate_state(1)[0]),
+                features={"melanin": p_melanin},
             )
-            f_rho, f_m = CONDITION_EFFECTS[cond]
-            cmeans = {r: (v[0] * f_rho, v[1] * f_m) for r, v in means.items()}
-            rho, m = _brdf_maps(region_map, cmeans, crng, p_gender)
-            subjects.append(
-                _make_subject(
-                    f"{person}-{cond}",
-                    person,
-                    p_age,
-                    p_gender,
-                    p_st,
-                    cond,
-                    region_map,
-                    alb,
-                    rho,
-                    m,
-                    sigma_tr[n],
-                    int(subject_seeds[n + j].generate_state(1)[0]),
-                    {"melanin": p_melanin},
-                )
-            )
-    for s in subjects:
-        s.sigma_tr = sigma_tr_avg
-    return Population(
-        subjects=subjects,
-        sigma_tr_avg=sigma_tr_avg,
-        seed=int(seed),
-        settings={"map_size": int(map_size), "table1_spread": table1_spread, "conditions": bool(conditions)},
-    )
+        )
+    return out
 
 
-def _make_subject(sid, pid, age, gender, st, cond, region_map, alb, rho, m, sigma_tr_sites, seed, features):
-    """A :class:`SubjectTruth` from its maps: Blinn-Phong truth, zeros off the face, site albedos."""
+def _make_subject(meta, region_map, alb, rho, m, sigma_tr_sites, *, seed, features):
+    """A :class:`SubjectTruth` from its metadata and maps: Blinn-Phong truth, zeros off the face, site albedos."""
     face = region_map > 0
     bp_rho, bp_n = _bp_from_ts(rho, m)
     for a in (rho, m, bp_rho, bp_n):
@@ -621,12 +675,7 @@ def _make_subject(sid, pid, age, gender, st, cond, region_map, alb, rho, m, sigm
         ]
     ).astype(np.float64)
     return SubjectTruth(
-        subject_id=sid,
-        person_id=pid,
-        age=age,
-        gender=gender,
-        skin_type=st,
-        condition=cond,
+        **meta,
         region_map=region_map,
         albedo=alb,
         ts_rho_s=rho,

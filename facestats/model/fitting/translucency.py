@@ -80,6 +80,154 @@ def _model(log_s, log_a, r, eta):
     return dipole_profile_unchecked(r, np.exp(log_s)[..., None], np.exp(log_a)[..., None], eta)
 
 
+#: The iteration's coordinates (ln σtr, logit α') are kept in these ranges (module docstring):
+#: σtr in [0.02, 20] mm⁻¹, α' in [0.0067, 0.99988].
+_LN_SIGMA_TR_RANGE = (np.log(0.02), np.log(20.0))
+_LOGIT_ALBEDO_RANGE = (-5.0, 9.0)
+#: Central-difference step of the Jacobians.
+_H = 1e-6
+#: Levels of α' of the three start bands, and the factors on the far-field decay rate.
+_START_BANDS = ((0.3, 0.6, 0.8), (0.88, 0.93, 0.96), (0.98, 0.99, 0.997))
+_START_FACTORS = (0.5, 0.7, 0.85, 1.0, 1.2, 1.5)
+
+
+class _Profiles:
+    """The least-squares problem of :func:`fit_translucency` on flat profiles (P, F)."""
+
+    def __init__(self, r, p, std, eta):
+        self.r, self.p, self.eta = r, p, eta
+        use = np.isfinite(p)
+        self.linear = std is not None
+        if self.linear:  # Gaussian likelihood of R with the readings' std
+            use &= np.isfinite(std) & (std > 0)
+            self.wgt = np.where(use, 1 / np.where(use, std, 1.0) ** 2, 0)
+            self.obs = np.where(use, p, 0.0)
+            self.snr_scale = np.where(use, std, np.inf)
+        else:  # log-space fit (Suzuki eq. 36)
+            use &= p > 0
+            self.wgt = use.astype(np.float64)
+            self.obs = np.log(np.where(use, p, 1.0))
+            self.snr_scale = 1e-3 * np.abs(p) + 1e-300
+        self.use = use
+
+    def transform(self, x):
+        """The observation space: R itself (with std) or ln R."""
+        return x if self.linear else np.log(x)
+
+    def predict(self, ls, la):
+        """The model in observation space for log-coefficients (ln σ's, ln σa)."""
+        return self.transform(_model(ls, la, self.r, self.eta))
+
+    def cost(self, ls, la):
+        """(weighted squared error per profile, residuals) at (ln σ's, ln σa)."""
+        d = np.where(self.use, self.obs - self.predict(ls, la), 0)
+        return np.sum(self.wgt * d * d, axis=-1), d
+
+    @staticmethod
+    def to_coeffs(u, v):
+        """(ln σ's, ln σa) from (ln σtr, logit α'), clipped to the bounds of σ's and σa."""
+        (s_lo, s_hi), (a_lo, a_hi) = _BOUNDS
+        tr = np.exp(u)
+        al = 1 / (1 + np.exp(-v))
+        st = tr / np.sqrt(3 * (1 - al))
+        return np.log(np.clip(al * st, s_lo, s_hi)), np.log(np.clip((1 - al) * st, a_lo, a_hi))
+
+    def cost_uv(self, u, v):
+        return self.cost(*self.to_coeffs(u, v))
+
+    def far_field_decay(self):
+        """σtr estimate per profile: the slope of ln R + 2 ln r against r over the clear readings beyond 1.5 mm."""
+        p, rr, use = self.p, self.r, self.use
+        with np.errstate(invalid="ignore", divide="ignore"):
+            snr = np.where(use, p / self.snr_scale, 0)
+            tail = use & (p > 0) & (snr > 5) & (rr[None, :] >= 1.5)
+            yy = np.where(tail, np.log(np.where(tail, p, 1)) + 2 * np.log(rr)[None, :], 0)
+            nt = tail.sum(1)
+            mr = np.where(tail, rr, 0).sum(1) / nt
+            my = yy.sum(1) / nt
+            slope = (np.where(tail, (rr - mr[:, None]) * (yy - my[:, None]), 0)).sum(1) / np.where(
+                tail, (rr - mr[:, None]) ** 2, 0
+            ).sum(1)
+        return np.where((nt >= 3) & (slope < 0), -np.nan_to_num(slope), 1.0)
+
+    def best_start(self, tr0, band):
+        """The best of the starts (decay rates around ``tr0`` × the α' levels of ``band``) of each profile."""
+        st_lo, st_hi = _LN_SIGMA_TR_RANGE
+        n = self.p.shape[0]
+        bu = bv = None
+        bc = np.full(n, np.inf)
+        for f in _START_FACTORS:
+            for a0 in band:
+                uu = np.clip(np.log(np.maximum(tr0 * f, 1e-3)), st_lo, st_hi)
+                vv = np.full(n, np.log(a0 / (1 - a0)))
+                c, _ = self.cost_uv(uu, vv)
+                better = c < bc
+                bc = np.where(better, c, bc)
+                bu = uu if bu is None else np.where(better, uu, bu)
+                bv = vv if bv is None else np.where(better, vv, bv)
+        return bu, bv
+
+    def jacobian_uv(self, u, v):
+        """Central-difference derivatives of the model in observation space with respect to u and v."""
+        h = _H
+        ju = (self.predict(*self.to_coeffs(u + h, v)) - self.predict(*self.to_coeffs(u - h, v))) / (2 * h)
+        jv = (self.predict(*self.to_coeffs(u, v + h)) - self.predict(*self.to_coeffs(u, v - h))) / (2 * h)
+        return np.where(self.use, ju, 0), np.where(self.use, jv, 0)
+
+    def levenberg_marquardt(self, u, v, max_iter):
+        """Levenberg-Marquardt iterations in (ln σtr, logit α'), vectorised over profiles."""
+        (st_lo, st_hi), (al_lo, al_hi) = _LN_SIGMA_TR_RANGE, _LOGIT_ALBEDO_RANGE
+        wgt = self.wgt
+        lam = np.full(u.shape, 1e-2)
+        for _ in range(int(max_iter)):
+            c0, d0 = self.cost_uv(u, v)
+            ju, jv = self.jacobian_uv(u, v)
+            a00, a01, a11 = np.sum(wgt * ju * ju, -1), np.sum(wgt * ju * jv, -1), np.sum(wgt * jv * jv, -1)
+            g0, g1 = np.sum(wgt * ju * d0, -1), np.sum(wgt * jv * d0, -1)
+            m00, m11 = a00 * (1 + lam) + 1e-300, a11 * (1 + lam) + 1e-300
+            det = m00 * m11 - a01 * a01
+            with np.errstate(invalid="ignore", divide="ignore"):
+                du = np.nan_to_num((m11 * g0 - a01 * g1) / det)
+                dv = np.nan_to_num((m00 * g1 - a01 * g0) / det)
+            u1, v1 = np.clip(u + du, st_lo, st_hi), np.clip(v + dv, al_lo, al_hi)
+            c1, _ = self.cost_uv(u1, v1)
+            acc = c1 < c0
+            u, v = np.where(acc, u1, u), np.where(acc, v1, v)
+            lam = np.where(acc, lam / 3, lam * 4)
+            small = (np.abs(du) < 1e-10) & (np.abs(dv) < 1e-10)
+            if np.all((acc & (np.abs(c0 - c1) <= 1e-12 * (1 + c0))) | small | (lam > 1e10)):
+                break
+        return u, v, self.cost_uv(u, v)[0]
+
+    def result(self, u, v) -> TranslucencyFit:
+        """Coefficients at (u, v) with standard errors from (JᵀWJ)⁻¹ in (ln σ's, ln σa), σtr by the delta method."""
+        h, wgt = _H, self.wgt
+        ls, la = self.to_coeffs(u, v)
+        c, _ = self.cost(ls, la)
+        js = (self.predict(ls + h, la) - self.predict(ls - h, la)) / (2 * h)
+        ja = (self.predict(ls, la + h) - self.predict(ls, la - h)) / (2 * h)
+        js, ja = np.where(self.use, js, 0), np.where(self.use, ja, 0)
+        a00, a01, a11 = np.sum(wgt * js * js, -1), np.sum(wgt * js * ja, -1), np.sum(wgt * ja * ja, -1)
+        det = a00 * a11 - a01 * a01
+        with np.errstate(invalid="ignore", divide="ignore"):
+            v_ls, v_la, c_sa = a11 / det, a00 / det, -a01 / det  # covariance of (ln σ's, ln σa)
+        sp, sa = np.exp(ls), np.exp(la)
+        tr = np.sqrt(3 * sa * (sa + sp))
+        # Delta method: ∂σtr/∂ln σ's = 3 σa σ's/(2σtr), ∂σtr/∂ln σa = 3 σa (2σa + σ's)/(2σtr).
+        gs_, ga_ = 3 * sa * sp / (2 * tr), 3 * sa * (2 * sa + sp) / (2 * tr)
+        var_tr = gs_ * gs_ * v_ls + ga_ * ga_ * v_la + 2 * gs_ * ga_ * c_sa
+        return TranslucencyFit(
+            sigma_s_prime=sp,
+            sigma_a=sa,
+            sigma_s_prime_std=sp * np.sqrt(v_ls),
+            sigma_a_std=sa * np.sqrt(v_la),
+            sigma_tr=tr,
+            sigma_tr_std=np.sqrt(np.maximum(var_tr, 0)),
+            chi2=c,
+            n_points=self.use.sum(1),
+        )
+
+
 def fit_translucency(r, profile, std=None, *, eta=ETA_SKIN, max_iter=60):
     """Fit the dipole (σ's, σa) to diffuse reflectance profiles R(r) (module docstring).
 
@@ -110,138 +258,32 @@ def fit_translucency(r, profile, std=None, *, eta=ETA_SKIN, max_iter=60):
     check_dipole_eta(eta)
     check_integer(max_iter, "max_iter", 1)
     lead = p.shape[:-1]
-    p = p.reshape(-1, rr.shape[0])
-    use = np.isfinite(p)
-    linear = std is not None
-    if linear:
+    s = None
+    if std is not None:
         s = as_float(std, "std", np.float64)
         if s.shape != lead + rr.shape:
             raise ValidationError(f"std must have the shape of profile, {lead + rr.shape}, got {s.shape}")
-        s = s.reshape(p.shape)
-        use &= np.isfinite(s) & (s > 0)
-        wgt = np.where(use, 1 / np.where(use, s, 1.0) ** 2, 0)
-        obs = np.where(use, p, 0.0)
-        transform = lambda x: x  # noqa: E731
-    else:
-        use &= p > 0
-        wgt = use.astype(np.float64)
-        obs = np.log(np.where(use, p, 1.0))
-        transform = np.log
-    if np.any(use.sum(1) < 3):
+        s = s.reshape(-1, rr.shape[0])
+    prob = _Profiles(rr, p.reshape(-1, rr.shape[0]), s, eta)
+    if np.any(prob.use.sum(1) < 3):
         raise ValidationError(
             "profile must have at least 3 usable (finite; positive without std) readings per profile "
             "to fit 2 parameters"
         )
-    (s_lo, s_hi), (a_lo, a_hi) = _BOUNDS
-
-    def cost(ls, la):
-        d = np.where(use, obs - transform(_model(ls, la, rr, eta)), 0)
-        return np.sum(wgt * d * d, axis=-1), d
-
-    # The iteration runs in (ln σtr, logit α') (module docstring).
-    st_lo, st_hi = np.log(0.02), np.log(20.0)
-    al_lo, al_hi = -5.0, 9.0  # logit α' in [0.0067, 0.99988]
-
-    def to_coeffs(u, v):
-        tr = np.exp(u)
-        al = 1 / (1 + np.exp(-v))
-        st = tr / np.sqrt(3 * (1 - al))
-        return np.log(np.clip(al * st, s_lo, s_hi)), np.log(np.clip((1 - al) * st, a_lo, a_hi))
-
-    def cost_uv(u, v):
-        return cost(*to_coeffs(u, v))
-
-    # Far-field decay: ln R + 2 ln r ≈ const − σtr r where the signal is clear.
-    with np.errstate(invalid="ignore", divide="ignore"):
-        snr = np.where(use, p / (np.where(use, s, np.inf) if linear else 1e-3 * np.abs(p) + 1e-300), 0)
-        tail = use & (p > 0) & (snr > 5) & (rr[None, :] >= 1.5)
-        yy = np.where(tail, np.log(np.where(tail, p, 1)) + 2 * np.log(rr)[None, :], 0)
-        nt = tail.sum(1)
-        mr = np.where(tail, rr, 0).sum(1) / nt
-        my = yy.sum(1) / nt
-        slope = (np.where(tail, (rr - mr[:, None]) * (yy - my[:, None]), 0)).sum(1) / np.where(
-            tail, (rr - mr[:, None]) ** 2, 0
-        ).sum(1)
-    tr0 = np.where((nt >= 3) & (slope < 0), -np.nan_to_num(slope), 1.0)
-    h = 1e-6
-
-    def lm(u, v):
-        lam = np.full(u.shape, 1e-2)
-        for _ in range(int(max_iter)):  # Levenberg-Marquardt iterations in (ln σtr, logit α')
-            c0, d0 = cost_uv(u, v)
-            ju = (
-                transform(_model(*to_coeffs(u + h, v), rr, eta)) - transform(_model(*to_coeffs(u - h, v), rr, eta))
-            ) / (2 * h)
-            jv = (
-                transform(_model(*to_coeffs(u, v + h), rr, eta)) - transform(_model(*to_coeffs(u, v - h), rr, eta))
-            ) / (2 * h)
-            ju, jv = np.where(use, ju, 0), np.where(use, jv, 0)
-            a00, a01, a11 = np.sum(wgt * ju * ju, -1), np.sum(wgt * ju * jv, -1), np.sum(wgt * jv * jv, -1)
-            g0, g1 = np.sum(wgt * ju * d0, -1), np.sum(wgt * jv * d0, -1)
-            m00, m11 = a00 * (1 + lam) + 1e-300, a11 * (1 + lam) + 1e-300
-            det = m00 * m11 - a01 * a01
-            with np.errstate(invalid="ignore", divide="ignore"):
-                du = np.nan_to_num((m11 * g0 - a01 * g1) / det)
-                dv = np.nan_to_num((m00 * g1 - a01 * g0) / det)
-            u1, v1 = np.clip(u + du, st_lo, st_hi), np.clip(v + dv, al_lo, al_hi)
-            c1, _ = cost_uv(u1, v1)
-            acc = c1 < c0
-            u, v = np.where(acc, u1, u), np.where(acc, v1, v)
-            lam = np.where(acc, lam / 3, lam * 4)
-            small = (np.abs(du) < 1e-10) & (np.abs(dv) < 1e-10)
-            if np.all((acc & (np.abs(c0 - c1) <= 1e-12 * (1 + c0))) | small | (lam > 1e10)):
-                break
-        return u, v, cost_uv(u, v)[0]
-
     # Starts: decay rates around the far-field estimate × levels of α'; the iteration
     # runs from the best start of each α' band (low, middle, high), the best result wins.
-    bands = ((0.3, 0.6, 0.8), (0.88, 0.93, 0.96), (0.98, 0.99, 0.997))
+    tr0 = prob.far_field_decay()
     u = v = best = None
-    for band in bands:  # loop over three start bands, vectorised over profiles
-        bu = bv = None
-        bc = np.full(p.shape[0], np.inf)
-        for f in (0.5, 0.7, 0.85, 1.0, 1.2, 1.5):
-            for a0 in band:
-                uu = np.clip(np.log(np.maximum(tr0 * f, 1e-3)), st_lo, st_hi)
-                vv = np.full(p.shape[0], np.log(a0 / (1 - a0)))
-                c, _ = cost_uv(uu, vv)
-                better = c < bc
-                bc = np.where(better, c, bc)
-                bu = uu if bu is None else np.where(better, uu, bu)
-                bv = vv if bv is None else np.where(better, vv, bv)
-        fu, fv, fc = lm(bu, bv)
+    for band in _START_BANDS:  # loop over three start bands, vectorised over profiles
+        fu, fv, fc = prob.levenberg_marquardt(*prob.best_start(tr0, band), max_iter)
         if best is None:
             u, v, best = fu, fv, fc
         else:
             better = fc < best
             u, v, best = np.where(better, fu, u), np.where(better, fv, v), np.where(better, fc, best)
-    ls, la = to_coeffs(u, v)
-    c, _ = cost(ls, la)
-    js = (transform(_model(ls + h, la, rr, eta)) - transform(_model(ls - h, la, rr, eta))) / (2 * h)
-    ja = (transform(_model(ls, la + h, rr, eta)) - transform(_model(ls, la - h, rr, eta))) / (2 * h)
-    js, ja = np.where(use, js, 0), np.where(use, ja, 0)
-    a00, a01, a11 = np.sum(wgt * js * js, -1), np.sum(wgt * js * ja, -1), np.sum(wgt * ja * ja, -1)
-    det = a00 * a11 - a01 * a01
-    with np.errstate(invalid="ignore", divide="ignore"):
-        v_ls, v_la, c_sa = a11 / det, a00 / det, -a01 / det  # covariance of (ln σ's, ln σa)
-    sp, sa = np.exp(ls), np.exp(la)
-    tr = np.sqrt(3 * sa * (sa + sp))
-    # Delta method: ∂σtr/∂ln σ's = 3 σa σ's/(2σtr), ∂σtr/∂ln σa = 3 σa (2σa + σ's)/(2σtr).
-    gs_, ga_ = 3 * sa * sp / (2 * tr), 3 * sa * (2 * sa + sp) / (2 * tr)
-    var_tr = gs_ * gs_ * v_ls + ga_ * ga_ * v_la + 2 * gs_ * ga_ * c_sa
-    n_pts = use.sum(1)
-    out = TranslucencyFit(
-        sigma_s_prime=sp,
-        sigma_a=sa,
-        sigma_s_prime_std=sp * np.sqrt(v_ls),
-        sigma_a_std=sa * np.sqrt(v_la),
-        sigma_tr=tr,
-        sigma_tr_std=np.sqrt(np.maximum(var_tr, 0)),
-        chi2=c,
-        n_points=n_pts,
-    )
-    for k, v in vars(out).items():
-        setattr(out, k, np.asarray(v).reshape(lead))
+    out = prob.result(u, v)
+    for k, val in vars(out).items():
+        setattr(out, k, np.asarray(val).reshape(lead))
     return out
 
 

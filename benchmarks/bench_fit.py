@@ -17,13 +17,16 @@ Figures:
   rendered with that model), σtr, the flagged fraction, and the relative RMSE of
   a camera held out of the fit.
 * ``full_resolution``: a full-resolution capture (about 900,000 lumitexels ×
-  ~940 samples, simulated by ``bench_simulate.full_resolution_capture`` into
-  ``FACESTATS_BENCH_DIR`` if not there) fitted from zarr block by block on two
-  local worker processes; wall time against the 120 s target, and peak resident
-  memory (main process and workers).
+  ~940 samples, from ``bench_simulate.full_resolution_capture``: simulated into
+  ``FACESTATS_BENCH_DIR`` when absent or made by other code) fitted from zarr
+  block by block on two local worker processes; wall time against the 120 s
+  target, and peak resident memory (main process and workers).
 * ``dask_scaling``: subjects per minute fitting twelve captures from disk in one
   process, on Dask's local process scheduler with 2 workers, and on a
   ``distributed`` cluster of 1 and 2 workers (warmed up), with the speed-ups.
+
+Every benchmark takes its sizes as arguments; ``SMOKE`` gives tiny ones that the
+test suite runs (``tests/test_benchmarks.py``) so that no benchmark can rot.
 """
 
 from __future__ import annotations
@@ -42,13 +45,14 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 TARGET_FULL_RESOLUTION_S = 120.0
 
 
-def _default_case(index=0, specular="torrance_sparrow"):
+def _default_case(index=0, specular="torrance_sparrow", grid=48):
+    """The default population (at ``grid``), subject ``index`` and a dome simulator of the procedural face."""
     from facestats.acquire.synthetic.face import procedural_face
-    from facestats.acquire.synthetic.population import default_population
+    from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
 
-    pop = default_population()
-    return pop, pop[index], DomeSimulator(procedural_face(48), specular=specular)
+    pop = synthesize_population(map_size=grid)
+    return pop, pop[index], DomeSimulator(procedural_face(grid), specular=specular)
 
 
 def _specular_problem(capture):
@@ -118,10 +122,10 @@ def _slsqp(samples, normal, f_s, use, cos, texels, precomputed, batch=None):
     return len(texels) / t_total, np.asarray(errors), np.asarray(batch_errors)
 
 
-def bench_slsqp_ratio(n_baseline=150):
+def bench_slsqp_ratio(n_baseline=150, grid=48):
     from facestats.model import fitting
 
-    pop, truth, sim = _default_case(3)
+    pop, truth, sim = _default_case(3, grid=grid)
     cap = sim.simulate(truth)
     samples, normal, f_s, use, cos = _specular_problem(cap)
     runs = []
@@ -155,11 +159,11 @@ def _rel(a, b, mask):
     return np.abs(a[mask] / b[mask] - 1)
 
 
-def bench_accuracy(n_subjects=12):
+def bench_accuracy(n_subjects=12, grid=48):
     from facestats.pipeline import FitSettings, fit_subject, held_out_camera_error
 
-    pop, _, sim = _default_case()
-    _, _, sim_bp = _default_case(specular="blinn_phong")
+    pop, _, sim = _default_case(grid=grid)
+    _, _, sim_bp = _default_case(specular="blinn_phong", grid=grid)
     picks = np.linspace(0, len(pop.subjects) - 1, n_subjects).astype(int)
     acc = {k: [] for k in ("albedo", "ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent", "sigma_tr")}
     flagged, held = [], []
@@ -208,17 +212,14 @@ print(json.dumps({"fit_s": t1 - t0, "peak_rss_main_mb": resource.getrusage(resou
 """
 
 
-def bench_full_resolution(workers=2, block=2048):
+def bench_full_resolution(workers=2, block=2048, grid=None, map_size=None):
     sys.path.insert(0, HERE)
-    from bench_simulate import full_resolution_capture
+    from bench_simulate import FULL_GRID, FULL_MAP_SIZE, full_resolution_capture
 
-    root = os.environ.get("FACESTATS_BENCH_DIR") or tempfile.mkdtemp(prefix="facestats-bench-")
-    path = os.path.join(root, "full_resolution.zarr")
-    figures = {}
-    if not os.path.exists(os.path.join(path, "zarr.json")):
-        figures.update({f"simulate_{k}": v for k, v in full_resolution_capture(path).items()})
     from facestats.acquire.capture import open_capture
 
+    path, simulated = full_resolution_capture(grid or FULL_GRID, map_size or FULL_MAP_SIZE)
+    figures = {f"simulate_{k}": v for k, v in simulated.items()}
     cap = open_capture(path)
     out = subprocess.run(
         [sys.executable, "-c", _FIT, path, str(workers), str(block)], capture_output=True, text=True, check=True
@@ -240,9 +241,9 @@ def _fit_paths(paths, workers=1, client=None):
     return time.perf_counter() - t0
 
 
-def bench_dask_scaling(n=12):
+def bench_dask_scaling(n=12, grid=48):
     """Subjects per minute fitting ``n`` captures from disk: 1 worker, Dask's local processes, a distributed cluster."""
-    pop, _, sim = _default_case()
+    pop, _, sim = _default_case(grid=grid)
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         paths = [sim.simulate(pop[i]).to_zarr(os.path.join(tmp, f"{i}.zarr")) for i in range(n)]
@@ -281,3 +282,11 @@ BENCHMARKS = [
     ("dask_scaling", bench_dask_scaling),
     ("full_resolution", bench_full_resolution),
 ]
+
+#: Tiny sizes for the test suite (the full-resolution case keeps its maps finer than its grid).
+SMOKE = {
+    "slsqp_ratio": {"n_baseline": 3, "grid": 16},
+    "accuracy": {"n_subjects": 1, "grid": 16},
+    "dask_scaling": {"n": 2, "grid": 16},
+    "full_resolution": {"workers": 1, "block": 256, "grid": 24, "map_size": 64},
+}

@@ -73,33 +73,39 @@ def _rate(fn, n, repeat=1):
     return n / best
 
 
-def bench_torrance_sparrow():
+def bench_torrance_sparrow(n_vec=N_VEC, n_loop=N_LOOP):
     rng = np.random.default_rng(0)
     normal = np.array([0.0, 0.0, 1.0])
-    wi, wo = _directions(rng, N_VEC), _directions(rng, N_VEC)
-    rho, m = rng.uniform(0.1, 0.3, N_VEC), rng.uniform(0.2, 0.5, N_VEC)
-    vec = _rate(lambda: brdf.torrance_sparrow(normal, wi, wo, rho, m), N_VEC, repeat=2)
+    wi, wo = _directions(rng, n_vec), _directions(rng, n_vec)
+    rho, m = rng.uniform(0.1, 0.3, n_vec), rng.uniform(0.2, 0.5, n_vec)
+    vec = _rate(lambda: brdf.torrance_sparrow(normal, wi, wo, rho, m), n_vec, repeat=2)
     nl = [0.0, 0.0, 1.0]
-    wil, wol, rl, ml = wi[:N_LOOP].tolist(), wo[:N_LOOP].tolist(), rho[:N_LOOP].tolist(), m[:N_LOOP].tolist()
+    wil, wol, rl, ml = wi[:n_loop].tolist(), wo[:n_loop].tolist(), rho[:n_loop].tolist(), m[:n_loop].tolist()
     ref = brdf.torrance_sparrow(normal, wi[:100], wo[:100], rho[:100], m[:100])
     assert np.allclose([_ts_scalar(nl, wil[i], wol[i], rl[i], ml[i]) for i in range(100)], ref, rtol=1e-9)
-    loop = _rate(lambda: [_ts_scalar(nl, wil[i], wol[i], rl[i], ml[i]) for i in range(N_LOOP)], N_LOOP, repeat=3)
-    return {"vectorised_eval_per_s": vec, "python_loop_eval_per_s": loop, "ratio": vec / loop, "samples": N_VEC}
+    loop = _rate(lambda: [_ts_scalar(nl, wil[i], wol[i], rl[i], ml[i]) for i in range(n_loop)], n_loop, repeat=3)
+    return {"vectorised_eval_per_s": vec, "python_loop_eval_per_s": loop, "ratio": vec / loop, "samples": n_vec}
 
 
-def bench_dipole_profile():
+def bench_dipole_profile(n_vec=N_VEC, n_loop=N_LOOP):
     rng = np.random.default_rng(1)
-    r = rng.uniform(0, 10, N_VEC)
-    s, a = rng.uniform(0.5, 3, N_VEC), rng.uniform(0.01, 0.5, N_VEC)
-    vec = _rate(lambda: dipole.dipole_profile(r, s, a), N_VEC, repeat=2)
-    rl, sl, al = r[:N_LOOP].tolist(), s[:N_LOOP].tolist(), a[:N_LOOP].tolist()
+    r = rng.uniform(0, 10, n_vec)
+    s, a = rng.uniform(0.5, 3, n_vec), rng.uniform(0.01, 0.5, n_vec)
+    vec = _rate(lambda: dipole.dipole_profile(r, s, a), n_vec, repeat=2)
+    rl, sl, al = r[:n_loop].tolist(), s[:n_loop].tolist(), a[:n_loop].tolist()
     assert np.allclose(
         [_dipole_scalar(rl[i], sl[i], al[i]) for i in range(100)],
         dipole.dipole_profile(r[:100], s[:100], a[:100]),
         rtol=1e-10,
     )
-    loop = _rate(lambda: [_dipole_scalar(rl[i], sl[i], al[i]) for i in range(N_LOOP)], N_LOOP, repeat=3)
-    return {"vectorised_eval_per_s": vec, "python_loop_eval_per_s": loop, "ratio": vec / loop, "samples": N_VEC}
+    loop = _rate(lambda: [_dipole_scalar(rl[i], sl[i], al[i]) for i in range(n_loop)], n_loop, repeat=3)
+    return {"vectorised_eval_per_s": vec, "python_loop_eval_per_s": loop, "ratio": vec / loop, "samples": n_vec}
 
 
 BENCHMARKS = [("torrance_sparrow", bench_torrance_sparrow), ("dipole_profile", bench_dipole_profile)]
+
+#: Tiny sizes for the test suite (tests/test_benchmarks.py).
+SMOKE = {
+    "torrance_sparrow": {"n_vec": 2000, "n_loop": 200},
+    "dipole_profile": {"n_vec": 2000, "n_loop": 200},
+}

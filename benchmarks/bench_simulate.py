@@ -10,10 +10,14 @@ Figures:
 * ``population``: wall time of simulating the whole default population (156
   captures) on this machine's cores (target: under a minute).
 * ``full_resolution``: a subject at the paper's full resolution (lumitexel grid
-  1,152², about 900,000 lumitexels, 2,048² maps) streamed block by block into a
-  zarr capture in ``FACESTATS_BENCH_DIR`` (default: a temporary directory, removed
-  afterwards unless the variable is set), with the peak resident memory of the
-  process (it runs in a subprocess so the peak is its own).
+  1,152², about 900,000 lumitexels, 2,048² maps, finer than the grid) streamed
+  block by block into a zarr capture kept in ``FACESTATS_BENCH_DIR``
+  (:mod:`inputs`: the fit benchmark reuses it while the code is unchanged), with
+  the peak resident memory of the process (it runs in a subprocess so the peak
+  is its own).
+
+Every benchmark takes its sizes as arguments; ``SMOKE`` gives tiny ones that the
+test suite runs (``tests/test_benchmarks.py``) so that no benchmark can rot.
 """
 
 from __future__ import annotations
@@ -22,24 +26,26 @@ import json
 import os
 import subprocess
 import sys
-import tempfile
 import time
 
 import numpy as np
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from inputs import cached_input  # noqa: E402
 
-def bench_one_subject():
+
+def bench_one_subject(grid=48, repeats=5):
     from facestats.acquire.synthetic.face import procedural_face
-    from facestats.acquire.synthetic.population import default_population
+    from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
 
-    pop = default_population()
+    pop = synthesize_population(map_size=grid)
     t0 = time.perf_counter()
-    sim = DomeSimulator(procedural_face(48))
+    sim = DomeSimulator(procedural_face(grid))
     sim.simulate(pop[0])  # builds the geometry cache
     setup = time.perf_counter() - t0
     times = []
-    for i in range(1, 6):
+    for i in range(1, repeats + 1):
         t0 = time.perf_counter()
         cap = sim.simulate(pop[i])
         times.append(time.perf_counter() - t0)
@@ -52,29 +58,29 @@ def bench_one_subject():
     }
 
 
-def _simulate_many(ids):
+def _simulate_many(ids, grid):
     from facestats.acquire.synthetic.face import procedural_face
-    from facestats.acquire.synthetic.population import default_population
+    from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
 
-    pop = default_population()
-    sim = DomeSimulator(procedural_face(48))
+    pop = synthesize_population(map_size=grid)
+    sim = DomeSimulator(procedural_face(grid))
     for sid in ids:
         sim.simulate(pop[sid])
     return len(ids)
 
 
-def bench_population():
+def bench_population(grid=48, n_subjects=None):
     from concurrent.futures import ProcessPoolExecutor
 
-    from facestats.acquire.synthetic.population import default_population
+    from facestats.acquire.synthetic.population import synthesize_population
 
-    ids = [s.subject_id for s in default_population().subjects]
+    ids = [s.subject_id for s in synthesize_population(map_size=grid).subjects][:n_subjects]
     workers = os.cpu_count() or 1
     chunks = [ids[k::workers] for k in range(workers)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(workers) as ex:
-        done = sum(ex.map(_simulate_many, chunks))
+        done = sum(ex.map(_simulate_many, chunks, [grid] * workers))
     return {"seconds": time.perf_counter() - t0, "subjects": done, "workers": workers}
 
 
@@ -84,8 +90,9 @@ from facestats.acquire.synthetic.face import procedural_face
 from facestats.acquire.synthetic.population import synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator
 t0 = time.perf_counter()
-geom = procedural_face(1152, map_size=2048)
-pop = synthesize_population(map_size=2048, geometry=geom, conditions=False, seed=11, subjects=["S001"])
+grid, size = int(sys.argv[2]), int(sys.argv[3])
+geom = procedural_face(grid, map_size=size)
+pop = synthesize_population(map_size=size, geometry=geom, conditions=False, seed=11, subjects=["S001"])
 t1 = time.perf_counter()
 sim = DomeSimulator(geom, block=8192)
 sim.simulate_to_zarr(pop[0], sys.argv[1])
@@ -95,26 +102,32 @@ print(json.dumps({"lumitexels": geom.n_points, "setup_s": t1 - t0, "simulate_s":
 """
 
 
-def full_resolution_capture(path):
-    """Simulate the full-resolution capture into ``path`` (subprocess); return its figures."""
-    out = subprocess.run([sys.executable, "-c", _FULL, str(path)], capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+#: The paper's full resolution: a 1,152² lumitexel grid (about 900,000 lumitexels) and 2,048² maps.
+FULL_GRID, FULL_MAP_SIZE = 1152, 2048
 
 
-def bench_full_resolution():
-    keep = os.environ.get("FACESTATS_BENCH_DIR")
-    root = keep or tempfile.mkdtemp(prefix="facestats-bench-")
-    path = os.path.join(root, "full_resolution.zarr")
-    try:
-        fig = full_resolution_capture(path)
-        size = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(path) for f in fs)
-        fig["capture_gb"] = size / 1e9
-        return fig
-    finally:
-        if not keep:
-            import shutil
+def full_resolution_capture(grid=FULL_GRID, map_size=FULL_MAP_SIZE, *, rebuild=False):
+    """The full-resolution capture (path) and, when it was simulated now, the simulator's figures.
 
-            shutil.rmtree(root, ignore_errors=True)
+    Kept in the benchmark directory and reused while the facestats source and the
+    sizes are unchanged (:func:`inputs.cached_input`); simulated in a subprocess.
+    """
+
+    def make(path):
+        out = subprocess.run(
+            [sys.executable, "-c", _FULL, path, str(grid), str(map_size)], capture_output=True, text=True, check=True
+        )
+        return json.loads(out.stdout.strip().splitlines()[-1])
+
+    name = f"capture_{grid}_{map_size}.zarr"
+    return cached_input(name, {"grid": grid, "map_size": map_size, "seed": 11}, make, rebuild=rebuild)
+
+
+def bench_full_resolution(grid=FULL_GRID, map_size=FULL_MAP_SIZE):
+    path, fig = full_resolution_capture(grid, map_size, rebuild=True)
+    size = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(path) for f in fs)
+    fig["capture_gb"] = size / 1e9
+    return fig
 
 
 BENCHMARKS = [
@@ -122,3 +135,10 @@ BENCHMARKS = [
     ("population", bench_population),
     ("full_resolution", bench_full_resolution),
 ]
+
+#: Tiny sizes for the test suite (the full-resolution case keeps its maps finer than its grid).
+SMOKE = {
+    "one_subject": {"grid": 16, "repeats": 1},
+    "population": {"grid": 16, "n_subjects": 4},
+    "full_resolution": {"grid": 24, "map_size": 64},
+}

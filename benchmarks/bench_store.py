@@ -32,9 +32,9 @@ def _exe():
     return [str(exe)] if exe.exists() else [sys.executable, "-m", "facestats"]
 
 
-def _wall(args) -> float:
+def _wall(args, runs=RUNS) -> float:
     times = []
-    for _ in range(RUNS):
+    for _ in range(runs):
         t0 = time.perf_counter()
         r = subprocess.run(_exe() + [str(a) for a in args], capture_output=True, text=True, stdin=subprocess.DEVNULL)
         times.append(time.perf_counter() - t0)
@@ -43,18 +43,18 @@ def _wall(args) -> float:
     return statistics.median(times)
 
 
-def _population():
+def _population(n_subjects=N_SUBJECTS):
     from tests.factories import make_map_subject
 
     types = [2] * 14 + [3] * 67 + [4] * 48 + [5] * 15 + [6] * 5  # Weyrich Table 2 proportions
-    types += [4] * (N_SUBJECTS - len(types))
-    for k in range(N_SUBJECTS):
+    types += [4] * (n_subjects - len(types))
+    for k in range(n_subjects):
         yield make_map_subject(
             f"S{k:03d}", size=MAP_SIZE, skin_type=types[k], gender="MF"[k % 4 == 0], age=20 + (k * 7) % 45, seed=k
         )
 
 
-def bench_query_cli():
+def bench_query_cli(n_subjects=N_SUBJECTS, runs=RUNS):
     from facestats.io import open_store, pack_store
 
     tmp = pathlib.Path(tempfile.mkdtemp(prefix="facestats-bench-"))
@@ -63,22 +63,25 @@ def bench_query_cli():
         t0 = time.perf_counter()
         with open_store(store, mode="a") as st:
             batch = []
-            for ds in _population():
+            for ds in _population(n_subjects):
                 batch.append(ds)
                 if len(batch) == 20:
                     st.write_subjects(batch)
                     batch = []
+            if batch:  # the last, partial batch
+                st.write_subjects(batch)
         write_s = time.perf_counter() - t0
         zp = pack_store(store, tmp / "pop.zip")
-        q = _wall(["query", "--skin-type", "IV", "--store", zp])
-        qj = _wall(["query", "--skin-type", "IV", "--store", zp, "--format", "json"])
-        qd = _wall(["query", "--skin-type", "IV", "--store", store])
-        base = _wall(["--version"])
+        q = _wall(["query", "--skin-type", "IV", "--store", zp], runs)
+        qj = _wall(["query", "--skin-type", "IV", "--store", zp, "--format", "json"], runs)
+        qd = _wall(["query", "--skin-type", "IV", "--store", store], runs)
+        base = _wall(["--version"], runs)
         with open_store(zp) as st:
             t0 = time.perf_counter()
-            for sid in st.ids()[:20]:
+            ids = st.ids()[:20]
+            for sid in ids:
                 st.subject(sid)
-            read_ms = (time.perf_counter() - t0) / 20 * 1e3
+            read_ms = (time.perf_counter() - t0) / len(ids) * 1e3
             t0 = time.perf_counter()
             st.query(skin_type="IV")
             api_ms = (time.perf_counter() - t0) * 1e3
@@ -89,8 +92,8 @@ def bench_query_cli():
             "query_cli_directory_s": qd,
             "cli_startup_s": base,
             "query_api_ms": api_ms,
-            "subjects": N_SUBJECTS,
-            "write_subjects_per_s": N_SUBJECTS / write_s,
+            "subjects": n_subjects,
+            "write_subjects_per_s": n_subjects / write_s,
             "read_subject_ms": read_ms,
             "zip_MB": zp.stat().st_size / 1e6,
             "index_kB": (store / "index.json").stat().st_size / 1e3,
@@ -100,6 +103,9 @@ def bench_query_cli():
 
 
 BENCHMARKS = [("query_cli", bench_query_cli)]
+
+#: Tiny sizes for the test suite (tests/test_benchmarks.py).
+SMOKE = {"query_cli": {"n_subjects": 4, "runs": 1}}
 
 if __name__ == "__main__":
     for name, fn in BENCHMARKS:

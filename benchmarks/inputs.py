@@ -1,0 +1,79 @@
+"""Inputs the benchmarks build once and reuse, rebuilt when absent or stale.
+
+A benchmark input (e.g. the full-resolution capture, ~10 min to simulate) lives
+in ``FACESTATS_BENCH_DIR`` (default: ``facestats-bench`` in the system's temporary
+directory) next to a key file recording the facestats source it was made with
+(a SHA-256 of every ``facestats/**/*.py``) and the parameters it was made from.
+An input whose key differs from the current one is deleted and rebuilt, so a
+benchmark can never measure data that an older version of the code produced.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import os
+import pathlib
+import shutil
+import tempfile
+
+import facestats
+
+__all__ = ["bench_dir", "code_fingerprint", "cached_input"]
+
+
+def bench_dir() -> pathlib.Path:
+    """Where benchmark inputs live: ``$FACESTATS_BENCH_DIR`` or ``<tmp>/facestats-bench`` (created)."""
+    root = pathlib.Path(
+        os.environ.get("FACESTATS_BENCH_DIR") or pathlib.Path(tempfile.gettempdir()) / "facestats-bench"
+    )
+    root.mkdir(parents=True, exist_ok=True)
+    return root
+
+
+@functools.lru_cache(maxsize=1)
+def code_fingerprint() -> str:
+    """SHA-256 of the facestats sources (relative path and content of every ``.py``, in sorted order)."""
+    package = pathlib.Path(facestats.__file__).resolve().parent
+    h = hashlib.sha256()
+    for path in sorted(package.rglob("*.py")):
+        h.update(str(path.relative_to(package)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def cached_input(name: str, params: dict, make, *, rebuild: bool = False):
+    """The path of input ``name``, made by ``make(path)`` unless a current copy exists.
+
+    Parameters
+    ----------
+    name : str
+        File or directory name of the input inside :func:`bench_dir`.
+    params : dict
+        JSON-serialisable parameters the input is made from (part of its key).
+    make : callable
+        ``make(path)`` writes the input at ``path`` and may return a dict of figures.
+    rebuild : bool
+        Rebuild even if a current copy exists (a benchmark that measures the making).
+
+    Returns
+    -------
+    path : str
+    figures : dict
+        What ``make`` returned, or ``{}`` when a current copy was reused.
+    """
+    root = bench_dir()
+    path, key_file = root / name, root / f"{name}.key.json"
+    key = {"code": code_fingerprint(), "params": params}
+    if not rebuild and path.exists() and key_file.exists():
+        try:
+            if json.loads(key_file.read_text()) == key:
+                return str(path), {}
+        except ValueError:
+            pass
+    key_file.unlink(missing_ok=True)
+    shutil.rmtree(path, ignore_errors=True)
+    figures = make(str(path)) or {}
+    key_file.write_text(json.dumps(key))
+    return str(path), figures

@@ -1,0 +1,55 @@
+"""Every benchmark runs at a tiny size, so that none can rot unnoticed.
+
+Each ``benchmarks/bench_*.py`` lists its benchmarks in ``BENCHMARKS`` and tiny
+arguments for each in ``SMOKE``; this runs every one with its smoke arguments
+(inputs rebuilt in a temporary ``FACESTATS_BENCH_DIR``) and checks the figures
+it returns.  Timings are not asserted: they belong to the benchmarks.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import pathlib
+import sys
+
+import pytest
+
+BENCH = pathlib.Path(__file__).resolve().parents[1] / "benchmarks"
+MODULES = sorted(BENCH.glob("bench_*.py"))
+
+
+def _load(path):
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[path.stem] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def _cases():
+    for path in MODULES:
+        module = _load(path)
+        for name, fn in module.BENCHMARKS:
+            yield pytest.param(module, name, fn, id=f"{path.stem[len('bench_'):]}.{name}")
+
+
+def test_every_benchmark_has_smoke_arguments():
+    assert MODULES
+    for path in MODULES:
+        module = _load(path)
+        missing = [name for name, _ in module.BENCHMARKS if name not in getattr(module, "SMOKE", {})]
+        assert not missing, f"{path.name}: no SMOKE arguments for {missing}"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("module, name, fn", list(_cases()))
+def test_benchmark_runs_at_a_tiny_size(module, name, fn, tmp_path, monkeypatch):
+    monkeypatch.setenv("FACESTATS_BENCH_DIR", str(tmp_path))
+    monkeypatch.syspath_prepend(str(BENCH))
+    figures = fn(**module.SMOKE[name])
+    assert isinstance(figures, dict) and figures
+    for key, value in figures.items():
+        assert isinstance(key, str)
+        if isinstance(value, (int, float)):
+            assert math.isfinite(value), (key, value)

@@ -1,0 +1,406 @@
+"""Image files: high-dynamic-range (OpenEXR, Radiance RGBE, PFM) and integer (PNG, JPEG, TIFF) readers and writers.
+
+Every reader returns an array indexed ``[row, column, channel]`` with row 0 the
+top of the image (the PFM format stores rows bottom-up; the reader flips them).
+High-dynamic-range data are returned as stored, in linear radiometry, as
+float32: they are never normalised.  Integer images are returned either raw
+(:func:`read_integer_image`, for camera-response work) or scaled to [0, 1] by
+the largest code value of their bit depth, optionally decoded from sRGB to
+linear (:func:`read_image` with ``srgb=True``; the sRGB transfer function of
+IEC 61966-2-1 as implemented by colour-science).
+
+Formats, by extension:
+
+* ``.exr`` — OpenEXR through the OpenEXR package: half or float channels,
+  ``R, G, B[, A]`` read as one image; other channel sets through
+  :func:`read_exr` / :func:`write_exr`, which also carry string header attributes
+  (units, colour space);
+* ``.hdr``, ``.pic`` — Radiance RGBE (Ward 1991): flat and run-length-encoded
+  scanlines; a pixel (r, g, b, e) is ((r, g, b) + 0.5) · 2^(e − 136) as in
+  Radiance's ``colr_color`` (e = 0 is black); only the ``-Y H +X W`` orientation
+  (the standard one) is accepted; written as flat scanlines;
+* ``.pfm`` — Portable Float Map, grey (``Pf``) or colour (``PF``), either byte order;
+* ``.png``, ``.jpg``, ``.jpeg``, ``.tif``, ``.tiff`` — through OpenCV (8- and 16-bit,
+  grey or RGB(A); Pillow, under imageio, reads 16-bit RGB PNG as 8-bit).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import pathlib
+import re
+
+import numpy as np
+
+from facestats.errors import ValidationError
+
+__all__ = [
+    "HDR_EXTENSIONS",
+    "INTEGER_EXTENSIONS",
+    "read_image",
+    "read_integer_image",
+    "write_image",
+    "read_exr",
+    "write_exr",
+    "read_rgbe",
+    "write_rgbe",
+    "read_pfm",
+    "write_pfm",
+    "srgb_to_linear",
+    "linear_to_srgb",
+]
+
+HDR_EXTENSIONS = (".exr", ".hdr", ".pic", ".pfm")
+INTEGER_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
+
+
+class ImageFormatError(ValidationError):
+    """A file is not a valid image of the format its extension names."""
+
+
+def _path(path, *, must_exist=True) -> pathlib.Path:
+    p = pathlib.Path(os.fspath(path))
+    if must_exist and not p.is_file():
+        raise ValidationError(f"path must name an existing image file, got {str(p)!r}")
+    return p
+
+
+def _extension(p: pathlib.Path) -> str:
+    ext = p.suffix.lower()
+    if ext not in HDR_EXTENSIONS + INTEGER_EXTENSIONS:
+        known = ", ".join(HDR_EXTENSIONS + INTEGER_EXTENSIONS)
+        raise ValidationError(f"image file {str(p)!r} has an unknown extension {ext!r} (expected one of {known})")
+    return ext
+
+
+# -- colour transfer ------------------------------------------------------------------------
+def srgb_to_linear(values) -> np.ndarray:
+    """Linear values from sRGB-encoded values in [0, 1] (IEC 61966-2-1, via colour-science), float32."""
+    import colour
+
+    return np.asarray(colour.cctf_decoding(np.asarray(values, np.float64), function="sRGB"), np.float32)
+
+
+def linear_to_srgb(values) -> np.ndarray:
+    """sRGB-encoded values in [0, 1] from linear values (clipped to [0, 1] first), float32."""
+    import colour
+
+    v = np.clip(np.asarray(values, np.float64), 0, 1)
+    return np.asarray(colour.cctf_encoding(v, function="sRGB"), np.float32)
+
+
+# -- public entry points --------------------------------------------------------------------
+def read_image(path, *, srgb: bool = False) -> np.ndarray:
+    """An image as float32 ``(H, W, C)``, row 0 at the top.
+
+    Parameters
+    ----------
+    path : str or path-like
+        An ``.exr``, ``.hdr``/``.pic``, ``.pfm``, ``.png``, ``.jpg``/``.jpeg`` or ``.tif``/``.tiff`` file.
+    srgb : bool
+        For integer images: decode the sRGB transfer function to linear values.
+        Must be False for high-dynamic-range files (they are linear already).
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W, C)
+        HDR files as stored (never normalised); integer files divided by the
+        largest code of their bit depth (255 or 65535).
+    """
+    p = _path(path)
+    ext = _extension(p)
+    if ext in HDR_EXTENSIONS:
+        if srgb:
+            raise ValidationError(f"srgb must be False for a high-dynamic-range file ({str(p)!r} is linear), got True")
+        if ext == ".exr":
+            channels, _ = read_exr(p)
+            return _stack_rgb(channels, p)
+        return read_pfm(p) if ext == ".pfm" else read_rgbe(p)
+    raw, bits = read_integer_image(p)
+    out = raw.astype(np.float32) / np.float32(2**bits - 1)
+    return srgb_to_linear(out) if srgb else out
+
+
+def read_integer_image(path):
+    """An integer image as stored: ``(array (H, W, C) of uint8 or uint16, bits per sample)``, RGB order."""
+    import cv2
+
+    p = _path(path)
+    if _extension(p) not in INTEGER_EXTENSIONS:
+        raise ValidationError(f"path must name an integer image ({', '.join(INTEGER_EXTENSIONS)}), got {str(p)!r}")
+    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)  # no EXIF rotation, no conversion of the bit depth
+    if img is None:
+        raise ImageFormatError(f"image file {str(p)!r} could not be read (not a valid {p.suffix} file)")
+    if img.dtype == np.uint8:
+        bits = 8
+    elif img.dtype == np.uint16:
+        bits = 16
+    else:
+        raise ImageFormatError(f"image file {str(p)!r} must hold 8- or 16-bit integer samples, got dtype {img.dtype}")
+    if img.ndim == 2:
+        return img[..., None], bits
+    rgb = img[..., [2, 1, 0, 3][: img.shape[2]]] if img.shape[2] in (3, 4) else img  # OpenCV stores BGR(A)
+    return np.ascontiguousarray(rgb), bits
+
+
+def write_image(path, image, *, half: bool = False, bits: int = 8, srgb: bool = False, attributes=None):
+    """Write ``image`` (H, W[, C]) in the format of the extension of ``path``.
+
+    Parameters
+    ----------
+    path : str or path-like
+    image : array_like, shape (H, W) or (H, W, C)
+        Row 0 at the top.  HDR formats take any finite float values; integer
+        formats take values in [0, 1] (clipped), quantised to ``bits``.
+    half : bool
+        EXR only: store half floats instead of float32.
+    bits : {8, 16}
+        PNG/TIFF bit depth (JPEG is always 8).
+    srgb : bool
+        Integer formats: encode linear values with the sRGB transfer function.
+    attributes : dict of str, optional
+        EXR only: string header attributes (e.g. units, colour space).
+
+    Returns
+    -------
+    pathlib.Path
+    """
+    p = _path(path, must_exist=False)
+    ext = _extension(p)
+    img = np.asarray(image)
+    if img.ndim == 2:
+        img = img[..., None]
+    if img.ndim != 3 or img.shape[0] < 1 or img.shape[1] < 1:
+        raise ValidationError(f"image must have shape (H, W) or (H, W, C), got {np.shape(image)}")
+    if ext == ".exr":
+        names = "RGBA"[: img.shape[2]] if img.shape[2] in (3, 4) else ("Y",) if img.shape[2] == 1 else None
+        if names is None:
+            raise ValidationError(f"image for EXR must have 1, 3 or 4 channels, got {img.shape[2]} (use write_exr)")
+        write_exr(p, {n: img[..., i] for i, n in enumerate(names)}, half=half, attributes=attributes)
+    elif ext == ".pfm":
+        write_pfm(p, img)
+    elif ext in (".hdr", ".pic"):
+        write_rgbe(p, img)
+    else:
+        _write_integer(p, img, bits=bits, srgb=srgb)
+    return p
+
+
+def _write_integer(p, img, *, bits, srgb):
+    import cv2
+
+    if bits not in (8, 16) or (bits == 16 and p.suffix.lower() in (".jpg", ".jpeg")):
+        raise ValidationError(f"bits must be 8 or 16 (8 for JPEG), got {bits!r} for {str(p)!r}")
+    if img.shape[2] not in (1, 3, 4):
+        raise ValidationError(f"image for {p.suffix} must have 1, 3 or 4 channels, got {img.shape[2]}")
+    v = np.asarray(img, np.float64)
+    if not np.all(np.isfinite(v)):
+        raise ValidationError(f"image must be finite to write {str(p)!r}, got NaN or inf")
+    v = linear_to_srgb(v) if srgb else np.clip(v, 0, 1)
+    q = np.round(v * (2**bits - 1)).astype(np.uint8 if bits == 8 else np.uint16)
+    q = q[..., 0] if q.shape[2] == 1 else q[..., [2, 1, 0, 3][: q.shape[2]]]  # OpenCV writes BGR(A)
+    if not cv2.imwrite(str(p), q):
+        raise ValidationError(f"path must be a writable {p.suffix} file, could not write {str(p)!r}")
+
+
+def _stack_rgb(channels, p):
+    """(H, W, C) float32 from the channels of an EXR: R, G, B[, A] or a single channel."""
+    if all(c in channels for c in "RGB"):
+        names = ["R", "G", "B"] + (["A"] if "A" in channels else [])
+    elif len(channels) == 1:
+        names = list(channels)
+    else:
+        raise ImageFormatError(
+            f"EXR file {str(p)!r} must hold R, G, B channels or a single channel to read as an image, "
+            f"got channels {sorted(channels)} (use read_exr)"
+        )
+    return np.stack([channels[n] for n in names], axis=-1).astype(np.float32)
+
+
+# -- OpenEXR ---------------------------------------------------------------------------------
+def read_exr(path):
+    """All channels of an EXR file and its string header attributes.
+
+    Returns
+    -------
+    channels : dict of str to ndarray (H, W)
+        As stored (float16 or float32; uint32 channels as uint32).
+    attributes : dict of str to str
+        Header attributes whose values are strings.
+    """
+    import OpenEXR
+
+    p = _path(path)
+    try:
+        with OpenEXR.File(str(p), separate_channels=True) as f:
+            channels = {name: np.array(ch.pixels) for name, ch in f.channels().items()}
+            attrs = {k: v for k, v in f.header().items() if isinstance(v, str)}  # the header empties on close
+    except Exception as exc:  # the bindings raise RuntimeError and others for bad files
+        raise ImageFormatError(f"EXR file {str(p)!r} could not be read: {exc}") from exc
+    return channels, attrs
+
+
+def write_exr(path, channels: dict, *, half: bool = False, attributes=None):
+    """Write named 2-D channels (same shape) to an EXR file, ZIP-compressed.
+
+    ``half`` stores float channels as half floats; ``attributes`` are string header
+    attributes.  Integer channels are stored as uint32.
+    """
+    import OpenEXR
+
+    p = _path(path, must_exist=False)
+    if not channels:
+        raise ValidationError("channels must name at least one channel, got none")
+    shapes = {np.shape(v) for v in channels.values()}
+    if len(shapes) != 1 or len(next(iter(shapes))) != 2:
+        raise ValidationError(f"channels must be 2-D arrays of one shape, got shapes {sorted(shapes)}")
+    data = {}
+    for name, v in channels.items():
+        a = np.asarray(v)
+        if a.dtype.kind in "iub":
+            data[name] = np.ascontiguousarray(a.astype(np.uint32))
+        else:
+            if not np.all(np.isfinite(a)):
+                raise ValidationError(f"channel {name!r} must be finite to write {str(p)!r}, got NaN or inf")
+            data[name] = np.ascontiguousarray(a.astype(np.float16 if half else np.float32))
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    for key, value in (attributes or {}).items():
+        header[str(key)] = str(value)
+    with OpenEXR.File(header, data) as f:
+        f.write(str(p))
+    return p
+
+
+# -- Radiance RGBE ---------------------------------------------------------------------------
+_RGBE_SIZE = re.compile(rb"^-Y (\d+) \+X (\d+)$")
+
+
+def _rgbe_header(data: bytes, p):
+    """(height, width, offset of the pixel data) of a Radiance file's bytes."""
+    if not (data.startswith(b"#?RADIANCE") or data.startswith(b"#?RGBE")):
+        raise ImageFormatError(f"Radiance file {str(p)!r} must start with '#?RADIANCE' or '#?RGBE'")
+    end = data.find(b"\n\n")
+    if end < 0:
+        raise ImageFormatError(f"Radiance file {str(p)!r} has no end of header (empty line)")
+    for line in data[:end].split(b"\n"):
+        if line.startswith(b"FORMAT=") and line.strip() != b"FORMAT=32-bit_rle_rgbe":
+            raise ImageFormatError(f"Radiance file {str(p)!r} must be FORMAT=32-bit_rle_rgbe, got {line.decode()!r}")
+    nl = data.find(b"\n", end + 2)
+    size_line = data[end + 2 : nl if nl >= 0 else len(data)].strip()
+    m = _RGBE_SIZE.match(size_line)
+    if not m:
+        raise ImageFormatError(
+            f"Radiance file {str(p)!r} must have the resolution line '-Y H +X W', got {size_line[:40]!r}"
+        )
+    return int(m.group(1)), int(m.group(2)), nl + 1
+
+
+def _rle_scanline(buf, pos, width, p, row):
+    """Decode one new-style run-length-encoded scanline at ``pos``: (width, 4) uint8 and the next position."""
+    out = np.empty((4, width), np.uint8)
+    for c in range(4):  # four components, each run-length encoded on its own
+        x = 0
+        while x < width:  # loop over runs (not pixels): a run fills many pixels at once
+            if pos >= len(buf):
+                raise ImageFormatError(f"Radiance file {str(p)!r} is truncated in scanline {row}")
+            count = buf[pos]
+            if count > 128:  # a run of one value
+                n = count - 128
+                if x + n > width or pos + 1 >= len(buf):
+                    raise ImageFormatError(f"Radiance file {str(p)!r} has a bad run in scanline {row}")
+                out[c, x : x + n] = buf[pos + 1]
+                pos += 2
+            else:  # a literal stretch
+                n = count
+                if n == 0 or x + n > width or pos + 1 + n > len(buf):
+                    raise ImageFormatError(f"Radiance file {str(p)!r} has a bad literal run in scanline {row}")
+                out[c, x : x + n] = np.frombuffer(buf, np.uint8, n, pos + 1)
+                pos += 1 + n
+            x += n
+    return out.T, pos
+
+
+def read_rgbe(path) -> np.ndarray:
+    """A Radiance RGBE file as float32 (H, W, 3) (module docstring for the decoding)."""
+    p = _path(path)
+    data = p.read_bytes()
+    height, width, pos = _rgbe_header(data, p)
+    rgbe = np.empty((height, width, 4), np.uint8)
+    rle = 8 <= width < 32768
+    for row in range(height):  # loop over scanlines; each is decoded with array operations per run
+        if rle and data[pos : pos + 2] == b"\x02\x02" and not data[pos + 2] & 0x80:
+            if (data[pos + 2] << 8 | data[pos + 3]) != width:
+                raise ImageFormatError(f"Radiance file {str(p)!r} has a scanline of the wrong width at row {row}")
+            rgbe[row], pos = _rle_scanline(data, pos + 4, width, p, row)
+        else:  # flat scanline
+            if pos + 4 * width > len(data):
+                raise ImageFormatError(f"Radiance file {str(p)!r} is truncated in scanline {row}")
+            flat = np.frombuffer(data, np.uint8, 4 * width, pos).reshape(width, 4)
+            if np.any((flat[:, 0] == 1) & (flat[:, 1] == 1) & (flat[:, 2] == 1)):
+                raise ImageFormatError(f"Radiance file {str(p)!r} uses old-style run-length encoding (unsupported)")
+            rgbe[row] = flat
+            pos += 4 * width
+    e = rgbe[..., 3].astype(np.int32)
+    scale = np.where(e > 0, np.ldexp(np.float32(1), e - 136), 0).astype(np.float32)
+    return (rgbe[..., :3].astype(np.float32) + np.float32(0.5)) * scale[..., None]
+
+
+def write_rgbe(path, image):
+    """Write a float (H, W, 3) image (finite, ≥ 0) as a Radiance RGBE file with flat scanlines."""
+    p = _path(path, must_exist=False)
+    img = np.asarray(image, np.float64)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise ValidationError(f"image for a Radiance file must have shape (H, W, 3), got {img.shape}")
+    if not np.all(np.isfinite(img)) or np.any(img < 0):
+        raise ValidationError(f"image for a Radiance file must be finite and >= 0 ({str(p)!r})")
+    v = img.max(axis=-1)
+    mant, exp = np.frexp(v)  # v = mant · 2^exp, mant in [0.5, 1)
+    ok = v >= 1e-32
+    scale = np.where(ok, mant * 256.0 / np.where(ok, v, 1), 0)
+    rgbe = np.zeros(img.shape[:2] + (4,), np.uint8)
+    rgbe[..., :3] = np.clip(np.floor(img * scale[..., None]), 0, 255).astype(np.uint8)
+    rgbe[..., 3] = np.where(ok, exp + 128, 0).astype(np.uint8)
+    header = f"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y {img.shape[0]} +X {img.shape[1]}\n".encode()
+    p.write_bytes(header + rgbe.tobytes())
+    return p
+
+
+# -- PFM -------------------------------------------------------------------------------------
+_PFM_HEADER = re.compile(rb"(P[Ff])\s+(\d+)\s+(\d+)\s+(\S+)\s")
+
+
+def read_pfm(path) -> np.ndarray:
+    """A Portable Float Map as float32 (H, W, C), row 0 at the top (PFM stores rows bottom-up)."""
+    p = _path(path)
+    data = p.read_bytes()
+    m = _PFM_HEADER.match(data)
+    if not m:
+        raise ImageFormatError(f"PFM file {str(p)!r} must start with 'PF' or 'Pf', width, height and scale")
+    try:
+        width, height, scale = int(m.group(2)), int(m.group(3)), float(m.group(4))
+    except ValueError as exc:
+        raise ImageFormatError(f"PFM file {str(p)!r} has a bad header: {exc}") from exc
+    if width < 1 or height < 1 or scale == 0 or not math.isfinite(scale):
+        raise ImageFormatError(f"PFM file {str(p)!r} has a bad header: width {width}, height {height}, scale {scale}")
+    n_ch = 3 if m.group(1) == b"PF" else 1
+    offset = m.end()  # the header ends with exactly one whitespace byte after the scale
+    count = width * height * n_ch
+    if len(data) - offset < 4 * count:
+        raise ImageFormatError(f"PFM file {str(p)!r} is truncated: {count} samples expected")
+    arr = np.frombuffer(data, "<f4" if scale < 0 else ">f4", count, offset).astype(np.float32)
+    return arr.reshape(height, width, n_ch)[::-1].copy()
+
+
+def write_pfm(path, image):
+    """Write a float (H, W, 1|3) image as a little-endian PFM file (rows stored bottom-up)."""
+    p = _path(path, must_exist=False)
+    img = np.asarray(image, np.float32)
+    if img.ndim == 2:
+        img = img[..., None]
+    if img.ndim != 3 or img.shape[2] not in (1, 3):
+        raise ValidationError(f"image for PFM must have shape (H, W), (H, W, 1) or (H, W, 3), got {img.shape}")
+    kind = b"PF" if img.shape[2] == 3 else b"Pf"
+    header = kind + f"\n{img.shape[1]} {img.shape[0]}\n-1.0\n".encode()
+    p.write_bytes(header + np.ascontiguousarray(img[::-1]).astype("<f4").tobytes())
+    return p

@@ -130,6 +130,19 @@ class Histogram:
 
         ``range`` defaults to ``(min, max)`` of the values (widened by 1e-6 if the
         values are constant); values outside an explicit range are not counted.
+
+        Parameters
+        ----------
+        values : array_like
+            Finite values, any shape.
+        bins : int
+            Number of bins.
+        range : (float, float), optional
+            Lower and upper edge.
+
+        Returns
+        -------
+        Histogram
         """
         x = check_finite(as_float(values, "values"), "values").ravel()
         if x.size == 0:
@@ -210,6 +223,18 @@ def histogram_distance(histogram: Histogram, target: Histogram) -> float:
     ``D = ½ (Σ_k |p_k - q_k| + p_outside)``, in [0, 1] (0 for equal
     distributions, 1 for disjoint ones).  Scale-free, so distances of pyramid
     bands of different magnitude can be averaged.
+
+    Parameters
+    ----------
+    histogram : Histogram
+        The histogram to compare.
+    target : Histogram
+        The reference, whose bins are used.
+
+    Returns
+    -------
+    float
+        D in [0, 1].
     """
     h = _as_histogram(histogram, "histogram")
     g = _as_histogram(target, "target")

@@ -78,6 +78,10 @@ class SubjectEdit:
         row per channel (``albedo_R``…) over the edited regions (``region`` 0,
         ``name`` "edited").  ``target`` is the mean of the target samples (NaN
         when the edit had no sample target, e.g. a texture transfer).
+
+        Returns
+        -------
+        pandas.DataFrame
         """
         import pandas as pd
 

@@ -175,7 +175,18 @@ class EditSession:
         self.new_id, self.overwrite = None, False
 
     def open(self, subject) -> EditSession:
-        """Read the source (a map subject of :attr:`store`) and make the working copy; returns the session."""
+        """Read the source (a map subject of :attr:`store`) and make the working copy.
+
+        Parameters
+        ----------
+        subject : str
+            Id of the subject to edit.
+
+        Returns
+        -------
+        EditSession
+            The session itself.
+        """
         self.source, self.region = read_map_subject(self.store, subject)
         self.source_id = str(subject)
         self.present = present_regions(self.region)
@@ -183,7 +194,20 @@ class EditSession:
         return self
 
     def regions(self, regions, name="regions"):
-        """Regions of the source by number or name, checked present (:func:`facestats.edit.masks.parse_regions`)."""
+        """Regions of the source by number or name, checked present.
+
+        Parameters
+        ----------
+        regions : None, int, str or iterable of int or str
+            Regions 1-10 or names (:func:`facestats.edit.masks.parse_regions`).
+        name : str
+            Name of the argument in error messages.
+
+        Returns
+        -------
+        list of int or None
+            Sorted region numbers; None for None (the whole face).
+        """
         return parse_regions(regions, self.present, name)
 
     def assign_id(self, tag, record, *, new_id=None, overwrite=False) -> str:
@@ -226,7 +250,15 @@ class EditSession:
         return new_id
 
     def set(self, name, values) -> None:
-        """Replace the values of a variable of the working copy (:func:`replace_values`)."""
+        """Replace the values of a variable of the working copy (:func:`replace_values`).
+
+        Parameters
+        ----------
+        name : str
+            Variable of :attr:`dataset`.
+        values : array_like
+            New values, the variable's shape (cast to its dtype).
+        """
         replace_values(self.dataset, name, values)
 
     def write(self, record, *, variables, targets=(), target_means=None, texture=None, attrs=None) -> SubjectEdit:

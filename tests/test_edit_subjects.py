@@ -16,7 +16,8 @@ from facestats.edit import (
     transfer_colour_subject,
     transfer_texture_subject,
 )
-from facestats.edit.subjects import EDIT_SOURCE, plot_subject_edit, save_edit_images
+from facestats.edit.plots import plot_subject_edit, save_edit_images
+from facestats.edit.subjects import EDIT_SOURCE
 from facestats.errors import StoreError, ValidationError
 from facestats.io import open_store
 from facestats.io.schema import provenance, set_provenance
@@ -260,8 +261,8 @@ def test_texture_transfer_in_regions_is_deterministic_and_leaves_the_outside(sto
     src = pop[1]["A2"]
     kw = dict(regions=[2, 6, 7], iterations=2, seed=11)
     a = transfer_texture_subject(store, "A2", "V1", new_id="A2-tex-a", **kw)
-    b = transfer_texture_subject(store, "A2", "V1", new_id="A2-tex-b", **kw)
-    c = transfer_texture_subject(store, "A2", "V1", new_id="A2-tex-c", **{**kw, "seed": 12})
+    transfer_texture_subject(store, "A2", "V1", new_id="A2-tex-b", **kw)
+    transfer_texture_subject(store, "A2", "V1", new_id="A2-tex-c", **{**kw, "seed": 12})
     sa, sb, sc = (store.subject(x)["albedo"].values for x in ("A2-tex-a", "A2-tex-b", "A2-tex-c"))
     np.testing.assert_array_equal(sa, sb)  # same seed, same subject bit for bit
     assert not np.array_equal(sa, sc)

@@ -1,9 +1,12 @@
 """``facestats edit``: appearance edits of store subjects (Weyrich et al. 2006 §8).
 
-Each action makes one call to :mod:`facestats.edit.subjects`, which writes the
-edited subject under a new id with its provenance, then saves before/after
-PNGs (:func:`facestats.edit.subjects.save_edit_images`) and prints the new id
-and the files.  Heavy modules are imported inside the commands.
+Parsing and printing only.  Each action makes one call to
+:mod:`facestats.edit.subjects`, which writes the edited subject under a new id
+with its provenance, then saves before/after PNGs
+(:func:`facestats.edit.plots.save_edit_images`) and prints the report of the
+result (:meth:`facestats.edit.SubjectEdit.to_text`).  The target options
+become an API target through :func:`facestats.edit.targets.target_from_options`.
+Heavy modules are imported inside the commands.
 
 Registered in :mod:`facestats.cli` with :func:`add_edit`.
 """
@@ -84,24 +87,14 @@ def _subsample_seed_arg(p):
 
 def _target(args, *, stats=False):
     """The API target from --target / --stats / the query options."""
-    from facestats.errors import ValidationError
+    from facestats.edit.targets import target_from_options
 
-    query = {k: getattr(args, k) for k in ("skin_type", "condition", "gender", "age") if getattr(args, k, None)}
-    given = [name for name, v in (("--target", args.target), ("--stats", getattr(args, "stats", None))) if v]
-    if query:
-        given.append("--skin-type/--condition/--gender/--age")
-    if len(given) != 1:
-        opts = "--target ID" + (", --stats FILE" if stats else "") + " or a subset (--skin-type, --condition, ...)"
-        raise ValidationError(f"give exactly one target: {opts}, got {given or 'none'}")
-    if args.target:
-        return args.target
-    if getattr(args, "stats", None):
-        import pathlib
-
-        return pathlib.Path(args.stats)
-    if "condition" not in query:
-        query["condition"] = "normal"
-    return query
+    return target_from_options(
+        target=args.target,
+        stats=getattr(args, "stats", None),
+        query={k: getattr(args, k, None) for k in ("skin_type", "condition", "gender", "age")},
+        stats_allowed=stats,
+    )
 
 
 def _open(args):
@@ -123,44 +116,27 @@ def _open(args):
 
 
 def _report(edit, args) -> int:
-    from facestats.edit.subjects import save_edit_images
+    from facestats.edit.plots import save_edit_images
 
     files = save_edit_images(edit, args.images)
-    src = edit.source.attrs["subject_id"]
-    n = len(edit.targets)
-    target = edit.edit.get("target", {})
-    if "file" in target:
-        what = f"statistics {target['file']}"
-    elif "statistics" in target:
-        what = "texture statistics"
-    else:
-        what = f"{n} subject(s): " + ", ".join(edit.targets[:6]) + (" ..." if n > 6 else "")
-    params = ", ".join(f"{k}={v}" for k, v in edit.edit["parameters"].items() if v is not None)
-    print(edit.subject_id)
-    print(f"wrote subject {edit.subject_id} to store {edit.store}")
-    print(f"  edit {edit.edit['name']} of {src} ({params})")
-    print(f"  target: {what}")
-    print(f"  variables changed: {', '.join(edit.variables)}")
-    print(f"images ({len(files)}) in {os.path.abspath(args.images)}:")
-    for f in files:
-        print(f"  {f.name}")
+    print(edit.to_text(images=files, directory=args.images))
     return 0
 
 
-def _run(args, edit_function, target, **kwargs):
-    """Open the stores, make the edit ``edit_function(store, SUBJECT, target, ...)``, report it; (edit, exit code)."""
+def _run(args, edit_function, target, **kwargs) -> int:
+    """Open the stores, make the edit ``edit_function(store, SUBJECT, target, ...)``, report it; the exit code."""
     store, out = _open(args)
     with store, out:
         edit = edit_function(
             store, args.subject, target, out_store=out, new_id=args.new_id, overwrite=args.overwrite, **kwargs
         )
-        return edit, _report(edit, args)
+        return _report(edit, args)
 
 
 def _cmd_skin_type(args) -> int:
     from facestats.edit.subjects import change_skin_type
 
-    _, code = _run(
+    return _run(
         args,
         change_skin_type,
         args.skin_type,
@@ -170,20 +146,18 @@ def _cmd_skin_type(args) -> int:
         keep_translucency=args.keep_translucency,
         seed=args.seed,
     )
-    return code
 
 
 def _cmd_brdf(args) -> int:
     from facestats.edit.subjects import transfer_brdf_subject
 
-    _, code = _run(args, transfer_brdf_subject, _target(args), t=args.t, model=args.model, regions=args.regions)
-    return code
+    return _run(args, transfer_brdf_subject, _target(args), t=args.t, model=args.model, regions=args.regions)
 
 
 def _cmd_colour(args) -> int:
     from facestats.edit.subjects import transfer_colour_subject
 
-    _, code = _run(
+    return _run(
         args,
         transfer_colour_subject,
         _target(args, stats=True),
@@ -193,13 +167,12 @@ def _cmd_colour(args) -> int:
         keep_translucency=args.keep_translucency,
         seed=args.seed,
     )
-    return code
 
 
 def _cmd_texture(args) -> int:
     from facestats.edit.subjects import transfer_texture_subject
 
-    edit, code = _run(
+    return _run(
         args,
         transfer_texture_subject,
         _target(args, stats=True),
@@ -212,12 +185,6 @@ def _cmd_texture(args) -> int:
         feather=args.feather,
         keep_translucency=args.keep_translucency,
     )
-    d = edit.texture.distance
-    print(
-        f"histogram distance to the target (mean over bands): {d[0]:.3f} at the start, {d[-1]:.3f} after "
-        f"{edit.texture.iterations} iteration(s)"
-    )
-    return code
 
 
 def _cmd_stats(args) -> int:

@@ -1,24 +1,40 @@
-"""Appearance editing on arrays (Weyrich et al. 2006 §8).
+"""Appearance editing (Weyrich et al. 2006 §8): array-level edits and store-level edits of subjects.
+
+Array-level edits (numpy in, numpy out):
 
 * BRDF transfer per face region with histogram interpolation (Matusik et al.
-  2005): :func:`transfer_brdf`, :func:`interpolate_histograms`;
-* skin-colour transfer in a decorrelated colour space: :func:`transfer_colour`;
+  2005): :func:`transfer_brdf`, :func:`interpolate_histograms`
+  (:mod:`~facestats.edit.brdf`, :mod:`~facestats.edit.histogram`);
+* skin-colour transfer in a decorrelated colour space: :func:`transfer_colour`
+  (:mod:`~facestats.edit.colour`, :mod:`~facestats.edit.colourspace`);
 * skin-texture transfer by Heeger & Bergen 1995 histogram matching on a
   steerable pyramid: :class:`TextureStatistics` (the 256 × 31 × 3 histogram
-  vector of §8), :func:`transfer_texture`;
-* store-level edits that write a new subject with its provenance
-  (:mod:`facestats.edit.subjects`): :func:`change_skin_type`,
-  :func:`transfer_brdf_subject`, :func:`transfer_colour_subject`,
-  :func:`transfer_texture_subject`, :func:`subject_texture_statistics`;
+  vector of §8, :mod:`~facestats.edit.statistics`), :func:`transfer_texture`
+  (:mod:`~facestats.edit.texture`);
 * the building blocks: :class:`Histogram`, :func:`match_histogram`,
   :func:`match_values`, :class:`SteerablePyramid`, :class:`ColourBasis`.
 
-Figures: :mod:`facestats.edit.plots` and :func:`facestats.edit.subjects.plot_subject_edit`,
-:func:`facestats.edit.subjects.save_edit_images` (import matplotlib when called).
+Store-level edits that write a new subject with its provenance
+(:mod:`facestats.edit.subjects`): :func:`change_skin_type`,
+:func:`transfer_brdf_subject`, :func:`transfer_colour_subject`,
+:func:`transfer_texture_subject`, :func:`subject_texture_statistics`; their
+targets (:func:`select_subjects`, :mod:`~facestats.edit.targets`), the edit
+session that reads the source and writes the result
+(:mod:`~facestats.edit.session`), the result :class:`SubjectEdit`
+(:mod:`~facestats.edit.result`) and the translucency that follows the albedo
+(:mod:`~facestats.edit.translucency`).
+
+Shared helpers of the modules: region masks and blending
+(:mod:`~facestats.edit.masks`), pyramid grids of maps of any size
+(:mod:`~facestats.edit.grids`).
+
+Figures: :mod:`facestats.edit.plots` (:func:`~facestats.edit.plots.plot_subject_edit`,
+:func:`~facestats.edit.plots.save_edit_images`, …; import matplotlib when called).
 """
 
 from facestats.edit.brdf import region_histograms, transfer_brdf
-from facestats.edit.colour import ColourBasis, decorrelating_basis, transfer_colour
+from facestats.edit.colour import transfer_colour
+from facestats.edit.colourspace import ColourBasis, decorrelating_basis
 from facestats.edit.histogram import (
     Histogram,
     histogram_distance,
@@ -27,16 +43,17 @@ from facestats.edit.histogram import (
     match_values,
 )
 from facestats.edit.pyramid import SteerablePyramid, band_names, max_levels
+from facestats.edit.result import SubjectEdit
+from facestats.edit.statistics import TextureStatistics, region_statistics
 from facestats.edit.subjects import (
-    SubjectEdit,
     change_skin_type,
-    select_subjects,
     subject_texture_statistics,
     transfer_brdf_subject,
     transfer_colour_subject,
     transfer_texture_subject,
 )
-from facestats.edit.texture import TextureStatistics, TextureTransfer, region_statistics, transfer_texture
+from facestats.edit.targets import select_subjects
+from facestats.edit.texture import TextureTransfer, transfer_texture
 
 __all__ = [
     "ColourBasis",

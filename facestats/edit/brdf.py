@@ -43,7 +43,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from facestats.core.validate import as_float, check_finite
-from facestats.edit.histogram import Histogram, _check_t, _empirical_quantile, _ranks
+from facestats.edit.histogram import Histogram, check_t, empirical_quantile, stable_ranks
 from facestats.errors import ValidationError
 
 __all__ = ["transfer_brdf", "region_histograms"]
@@ -78,6 +78,65 @@ def _target_for_region(spec, name, region, target_regions):
         )
     y = y[(target_regions == region) & np.isfinite(y)]
     return np.sort(y) if y.size else None
+
+
+def _check_mappings(source, target):
+    if not isinstance(source, Mapping) or not source:
+        got = "an empty mapping" if isinstance(source, Mapping) else type(source).__name__
+        raise ValidationError(f"source must be a non-empty mapping of parameter name to map, got {got}")
+    if not isinstance(target, Mapping):
+        raise ValidationError(f"target must be a mapping of parameter name to target data, got {type(target).__name__}")
+
+
+def _source_maps(source, target) -> dict:
+    """The source maps as float arrays of one shape, each with target data."""
+    maps = {k: as_float(v, f"source[{k!r}]") for k, v in source.items()}
+    shape = next(iter(maps.values())).shape
+    for k, v in maps.items():
+        if v.shape != shape:
+            raise ValidationError(f"source[{k!r}] must have the shape {shape} of the other maps, got {v.shape}")
+    missing = [k for k in maps if k not in target]
+    if missing:
+        raise ValidationError(f"target must provide every source parameter, missing {missing}")
+    return maps
+
+
+def _target_labels(target_regions):
+    if target_regions is None:
+        return None
+    tlab = np.asarray(target_regions)
+    if tlab.dtype.kind not in "iu":
+        raise ValidationError(f"target_regions must be an integer label map, got dtype {tlab.dtype}")
+    return tlab
+
+
+def _regions_to_edit(lab, edit_regions):
+    """``(regions, explicit)``: ``edit_regions`` (checked present) or every nonzero region of ``lab``."""
+    present = [int(r) for r in np.unique(lab) if r != 0]
+    if edit_regions is None:
+        return present, False
+    wanted = [int(r) for r in edit_regions]
+    absent = [r for r in wanted if r not in present]
+    if absent:
+        raise ValidationError(f"edit_regions must be regions present in regions, got {absent} (present: {present})")
+    return wanted, True
+
+
+def _transfer_region(out, maps, in_region, tgt, t):
+    """Move the finite values of each map inside ``in_region`` to its target quantiles (into ``out``)."""
+    for k, x_map in maps.items():
+        sel = in_region & np.isfinite(x_map)
+        x = x_map[sel].astype(np.float64)
+        if x.size == 0:
+            continue
+        ranks = stable_ranks(x)
+        y = tgt[k]
+        if isinstance(y, Histogram):
+            q = y.quantile(np.clip((ranks + 0.5) / x.size, 0.0, 1.0))
+        else:
+            q = empirical_quantile(y, ranks, x.size)
+        new = q if t == 1.0 else (1 - t) * x + t * q
+        out[k][sel] = new.astype(out[k].dtype)
 
 
 def transfer_brdf(
@@ -115,36 +174,12 @@ def transfer_brdf(
     dict of str to numpy.ndarray
         New maps (copies, the source dtype) for the parameters of ``source``.
     """
-    if not isinstance(source, Mapping) or not source:
-        got = "an empty mapping" if isinstance(source, Mapping) else type(source).__name__
-        raise ValidationError(f"source must be a non-empty mapping of parameter name to map, got {got}")
-    if not isinstance(target, Mapping):
-        raise ValidationError(f"target must be a mapping of parameter name to target data, got {type(target).__name__}")
-    t = _check_t(t)
-    maps = {k: as_float(v, f"source[{k!r}]") for k, v in source.items()}
-    shape = next(iter(maps.values())).shape
-    for k, v in maps.items():
-        if v.shape != shape:
-            raise ValidationError(f"source[{k!r}] must have the shape {shape} of the other maps, got {v.shape}")
-    missing = [k for k in maps if k not in target]
-    if missing:
-        raise ValidationError(f"target must provide every source parameter, missing {missing}")
-    lab = _label_map(regions, shape, "regions")
-    tlab = None
-    if target_regions is not None:
-        tlab = np.asarray(target_regions)
-        if tlab.dtype.kind not in "iu":
-            raise ValidationError(f"target_regions must be an integer label map, got dtype {tlab.dtype}")
-
-    present = [int(r) for r in np.unique(lab) if r != 0]
-    if edit_regions is None:
-        wanted, explicit = present, False
-    else:
-        wanted, explicit = [int(r) for r in edit_regions], True
-        absent = [r for r in wanted if r not in present]
-        if absent:
-            raise ValidationError(f"edit_regions must be regions present in regions, got {absent} (present: {present})")
-
+    _check_mappings(source, target)
+    t = check_t(t)
+    maps = _source_maps(source, target)
+    lab = _label_map(regions, next(iter(maps.values())).shape, "regions")
+    tlab = _target_labels(target_regions)
+    wanted, explicit = _regions_to_edit(lab, edit_regions)
     out = {k: v.copy() for k, v in maps.items()}
     if t == 0.0:
         return out
@@ -155,20 +190,7 @@ def transfer_brdf(
             if explicit:
                 raise ValidationError(f"target has no data for region {r} and parameter(s) {lacking}")
             continue
-        in_region = lab == r
-        for k, x_map in maps.items():
-            sel = in_region & np.isfinite(x_map)
-            x = x_map[sel].astype(np.float64)
-            if x.size == 0:
-                continue
-            ranks = _ranks(x)
-            y = tgt[k]
-            if isinstance(y, Histogram):
-                q = y.quantile(np.clip((ranks + 0.5) / x.size, 0.0, 1.0))
-            else:
-                q = _empirical_quantile(y, ranks, x.size)
-            new = q if t == 1.0 else (1 - t) * x + t * q
-            out[k][sel] = new.astype(out[k].dtype)
+        _transfer_region(out, maps, lab == r, tgt, t)
     return out
 
 

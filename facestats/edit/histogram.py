@@ -18,6 +18,14 @@ jump across empty bins).
 * :func:`interpolate_histograms` - displacement interpolation through the
   quantile functions, ``Q_t = (1 - t) Q_0 + t Q_1`` (Matusik et al. 2005);
 * :func:`histogram_distance` - total-variation distance on a target's bins.
+
+Building blocks shared with the other edit modules (public within the package,
+not re-exported by :mod:`facestats.edit`): :func:`check_t` (the interpolation
+weight), :func:`widen_range` (a histogram range for constant data),
+:func:`source_histogram` and :func:`match_flat` (the two passes of
+:func:`match_histogram` on a flat array, used by the texture synthesis), and
+:func:`stable_ranks` / :func:`empirical_quantile` (the sort-based matching of
+:func:`match_values`, used per region by the BRDF transfer).
 """
 
 from __future__ import annotations
@@ -43,7 +51,18 @@ _CHUNK = 1 << 16
 SOURCE_BINS = 16384
 
 
-def _check_t(t) -> float:
+def check_t(t) -> float:
+    """Validate an interpolation weight.
+
+    Parameters
+    ----------
+    t : float
+        Weight in [0, 1] (0: the source, 1: the target).
+
+    Returns
+    -------
+    float
+    """
     tt = as_float(t, "t", np.float64)
     if tt.ndim != 0:
         raise ValidationError(f"t must be a scalar in [0, 1], got an array of shape {tt.shape}")
@@ -51,8 +70,18 @@ def _check_t(t) -> float:
     return float(tt)
 
 
-def _widen(lo: float, hi: float) -> tuple[float, float]:
-    """A non-empty range for constant data (half-width 1e-6·max(1, |lo|))."""
+def widen_range(lo: float, hi: float) -> tuple[float, float]:
+    """A non-empty histogram range: ``(lo, hi)``, or for constant data (``hi <= lo``) half-width 1e-6·max(1, |lo|).
+
+    Parameters
+    ----------
+    lo, hi : float
+        Smallest and largest value of the data.
+
+    Returns
+    -------
+    (float, float)
+    """
     if hi > lo:
         return lo, hi
     half = 1e-6 * max(1.0, abs(lo))
@@ -101,6 +130,19 @@ class Histogram:
 
         ``range`` defaults to ``(min, max)`` of the values (widened by 1e-6 if the
         values are constant); values outside an explicit range are not counted.
+
+        Parameters
+        ----------
+        values : array_like
+            Finite values, any shape.
+        bins : int
+            Number of bins.
+        range : (float, float), optional
+            Lower and upper edge.
+
+        Returns
+        -------
+        Histogram
         """
         x = check_finite(as_float(values, "values"), "values").ravel()
         if x.size == 0:
@@ -108,7 +150,7 @@ class Histogram:
         if not isinstance(bins, (int, np.integer)) or bins < 1:
             raise ValidationError(f"bins must be a positive int, got {bins!r}")
         if range is None:
-            range = _widen(float(x.min()), float(x.max()))
+            range = widen_range(float(x.min()), float(x.max()))
         lo, hi = float(range[0]), float(range[1])
         if not hi > lo:
             raise ValidationError(f"range must have high > low, got {range!r}")
@@ -181,6 +223,18 @@ def histogram_distance(histogram: Histogram, target: Histogram) -> float:
     ``D = ½ (Σ_k |p_k - q_k| + p_outside)``, in [0, 1] (0 for equal
     distributions, 1 for disjoint ones).  Scale-free, so distances of pyramid
     bands of different magnitude can be averaged.
+
+    Parameters
+    ----------
+    histogram : Histogram
+        The histogram to compare.
+    target : Histogram
+        The reference, whose bins are used.
+
+    Returns
+    -------
+    float
+        D in [0, 1].
     """
     h = _as_histogram(histogram, "histogram")
     g = _as_histogram(target, "target")
@@ -221,7 +275,7 @@ def interpolate_histograms(h0: Histogram, h1: Histogram, t: float, edges=None) -
     """
     h0 = _as_histogram(h0, "h0")
     h1 = _as_histogram(h1, "h1")
-    t = _check_t(t)
+    t = check_t(t)
     if edges is None:
         if h0.bins == h1.bins:
             edges = (1 - t) * h0.edges + t * h1.edges
@@ -287,17 +341,49 @@ def _apply_lut(x: np.ndarray, lo: float, scale: float, intercept, slope, out: np
         o += np.take(intercept, i)
 
 
-def _source_histogram(x: np.ndarray, source_bins: int) -> tuple[Histogram, float]:
-    """The fine histogram of ``x`` (flat) used to estimate F_source, and its ``scale``."""
-    lo, hi = _widen(float(x.min()), float(x.max()))
+def source_histogram(x: np.ndarray, source_bins: int) -> tuple[Histogram, float]:
+    """The fine histogram of a flat array used to estimate F_source in :func:`match_histogram`.
+
+    Parameters
+    ----------
+    x : numpy.ndarray, 1-D
+        Finite values.
+    source_bins : int
+        Uniform bins over ``widen_range(min, max)``.
+
+    Returns
+    -------
+    histogram : Histogram
+    scale : float
+        Bins per unit of ``x`` (``source_bins / (hi - lo)``).
+    """
+    lo, hi = widen_range(float(x.min()), float(x.max()))
     scale = source_bins / (hi - lo)
     counts = _bin_counts(x, lo, scale, source_bins)
     return Histogram(np.linspace(lo, hi, source_bins + 1), counts.astype(np.float64)), scale
 
 
-def _match_flat(x: np.ndarray, target: Histogram, t: float, source_bins: int, out: np.ndarray) -> float:
-    """Match the flat array ``x`` into ``out``; returns the distance of ``x`` to ``target`` before matching."""
-    src, scale = _source_histogram(x, source_bins)
+def match_flat(x: np.ndarray, target: Histogram, t: float, source_bins: int, out: np.ndarray) -> float:
+    """:func:`match_histogram` of a flat array into ``out``, without input checks.
+
+    Parameters
+    ----------
+    x : numpy.ndarray, 1-D
+        Finite values (float32 or float64).
+    target : Histogram
+    t : float
+        Interpolation weight in [0, 1] (checked by the caller).
+    source_bins : int
+        Bins of the source histogram (:func:`source_histogram`).
+    out : numpy.ndarray
+        Output, shape and dtype of ``x`` (may be ``x`` itself).
+
+    Returns
+    -------
+    float
+        :func:`histogram_distance` of ``x`` to ``target`` before matching.
+    """
+    src, scale = source_histogram(x, source_bins)
     distance = histogram_distance(src, target)
     # T at the source edges, linear in between: y_k = (1 - t) e_k + t Q(F(e_k)).
     y = target.quantile(np.clip(src.cdf, 0.0, 1.0))
@@ -344,7 +430,7 @@ def match_histogram(values, target: Histogram, *, t: float = 1.0, source_bins: i
         Matched values, same shape.
     """
     target = _as_histogram(target, "target")
-    t = _check_t(t)
+    t = check_t(t)
     x = check_finite(as_float(values, "values"), "values")
     if x.size == 0:
         raise ValidationError("values must not be empty")
@@ -354,15 +440,28 @@ def match_histogram(values, target: Histogram, *, t: float = 1.0, source_bins: i
         return x.copy()
     flat = np.ascontiguousarray(x).ravel()
     out = np.empty_like(flat)
-    _match_flat(flat, target, t, int(source_bins), out)
+    match_flat(flat, target, t, int(source_bins), out)
     return out.reshape(x.shape)
 
 
-def _empirical_quantile(sorted_values: np.ndarray, ranks: np.ndarray, n: int) -> np.ndarray:
+def empirical_quantile(sorted_values: np.ndarray, ranks: np.ndarray, n: int) -> np.ndarray:
     """Quantiles of a sorted sample at the rank levels (rank + ½)/n, linear in between.
 
     The position in the target is ``(rank + ½) · m/n - ½`` (m = its size); for
     m = n it is ``rank`` exactly, so the result is a permutation of the target.
+
+    Parameters
+    ----------
+    sorted_values : numpy.ndarray, shape (m,)
+        The target sample, sorted, finite.
+    ranks : numpy.ndarray, shape (n,)
+        Ranks 0 … n-1 of the values to match (:func:`stable_ranks`).
+    n : int
+        Size of the matched sample.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
     """
     m = sorted_values.size
     pos = np.clip((ranks + 0.5) * (m / n) - 0.5, 0.0, m - 1)
@@ -373,7 +472,17 @@ def _empirical_quantile(sorted_values: np.ndarray, ranks: np.ndarray, n: int) ->
     return np.where(frac > 0, lo + frac * (sorted_values[j] - lo), lo)
 
 
-def _ranks(x: np.ndarray) -> np.ndarray:
+def stable_ranks(x: np.ndarray) -> np.ndarray:
+    """Ranks 0 … n-1 of the values of a 1-D array, ties broken by position.
+
+    Parameters
+    ----------
+    x : numpy.ndarray, 1-D
+
+    Returns
+    -------
+    numpy.ndarray of float64
+    """
     order = np.argsort(x, kind="stable")
     ranks = np.empty(x.size, np.float64)
     ranks[order] = np.arange(x.size)
@@ -405,12 +514,12 @@ def match_values(values, target_values, *, t: float = 1.0) -> np.ndarray:
     numpy.ndarray
         Same shape as ``values``, in the float dtype of ``values``.
     """
-    t = _check_t(t)
+    t = check_t(t)
     x = check_finite(as_float(values, "values"), "values")
     y = check_finite(as_float(target_values, "target_values"), "target_values").ravel()
     if x.size == 0 or y.size == 0:
         raise ValidationError("values and target_values must not be empty")
     flat = x.ravel().astype(np.float64)
-    q = _empirical_quantile(np.sort(y.astype(np.float64)), _ranks(flat), flat.size)
+    q = empirical_quantile(np.sort(y.astype(np.float64)), stable_ranks(flat), flat.size)
     out = q if t == 1.0 else (1 - t) * flat + t * q
     return out.astype(x.dtype).reshape(x.shape)

@@ -1,19 +1,23 @@
-"""Figures of appearance edits: before/after albedo, convergence, histogram interpolation.
+"""Figures of appearance edits: before/after maps, convergence, histogram interpolation, PNG export.
 
-Each function returns a :class:`matplotlib.figure.Figure` (no pyplot state, no
-``show``).  Linear-RGB albedo is displayed with the sRGB transfer function
-(colour-science's ``cctf_encoding``).
+Each ``plot_*`` function returns a :class:`matplotlib.figure.Figure` (no pyplot
+state, no ``show``); :func:`save_edit_images` writes PNGs.  matplotlib is
+imported when a function is called.  Linear-RGB albedo is displayed with the
+sRGB transfer function (colour-science's ``cctf_encoding``).
 """
 
 from __future__ import annotations
+
+import pathlib
 
 import numpy as np
 
 from facestats.edit.histogram import Histogram, interpolate_histograms
 from facestats.edit.pyramid import band_names
+from facestats.edit.result import SubjectEdit
 from facestats.errors import ValidationError
 
-__all__ = ["plot_texture_transfer", "plot_histogram_interpolation"]
+__all__ = ["plot_texture_transfer", "plot_histogram_interpolation", "plot_subject_edit", "save_edit_images"]
 
 
 def _figure(**kwargs):
@@ -29,7 +33,7 @@ def _display(rgb):
     return np.clip(colour.cctf_encoding(np.clip(np.asarray(rgb, np.float64), 0.0, 1.0)), 0.0, 1.0)
 
 
-def _crop(img, crop):
+def _window(img, crop):
     if crop is None:
         return img
     (r0, r1), (c0, c1) = crop
@@ -66,7 +70,7 @@ def plot_texture_transfer(result, *, target=None, crop=None, title="Texture tran
     gs = fig.add_gridspec(1, len(panels) + 1, width_ratios=[1] * len(panels) + [1.3])
     for k, (name, img) in enumerate(panels):
         ax = fig.add_subplot(gs[0, k])
-        ax.imshow(_display(_crop(np.asarray(img), crop)), interpolation="nearest")
+        ax.imshow(_display(_window(np.asarray(img), crop)), interpolation="nearest")
         ax.set_title(name)
         ax.set_axis_off()
     ax = fig.add_subplot(gs[0, -1])
@@ -142,3 +146,136 @@ def plot_histogram_interpolation(
     ax.legend(fontsize=8)
     ax.set_title(title)
     return fig
+
+
+# --------------------------------------------------------------------------- store-level edits
+
+
+def _check_edit(edit):
+    if not isinstance(edit, SubjectEdit):
+        raise ValidationError(f"edit must be a SubjectEdit, got {type(edit).__name__}")
+    return edit
+
+
+def _map_range(before, after, face):
+    vals = np.concatenate([before[face], after[face]])
+    lo, hi = np.percentile(vals, [1, 99])
+    return (float(lo), float(hi)) if hi > lo else (float(lo) - 1e-6, float(hi) + 1e-6)
+
+
+def _edit_row(fig, grid, k, var, before, after, face):
+    """Row ``k`` of :func:`plot_subject_edit`: before, after, their colour bar, difference, its colour bar."""
+    ax_b, ax_a, cax, ax_d, dax = (fig.add_subplot(grid[k, j]) for j in range(5))
+    if var == "albedo":
+        ax_b.imshow(_display(before), interpolation="nearest")
+        ax_a.imshow(_display(after), interpolation="nearest")
+        cax.set_axis_off()
+        diff = (after - before).mean(axis=-1)
+    else:
+        lo, hi = _map_range(before, after, face)
+        for ax, img in ((ax_b, before), (ax_a, after)):
+            im = ax.imshow(np.where(face, img, np.nan), vmin=lo, vmax=hi, cmap="viridis", interpolation="nearest")
+        fig.colorbar(im, cax=cax, label=var)
+        diff = after - before
+    lim = float(np.percentile(np.abs(diff[face]), 99)) or 1e-6  # robust: a few texels may jump further
+    im = ax_d.imshow(np.where(face, diff, np.nan), vmin=-lim, vmax=lim, cmap="RdBu_r", interpolation="nearest")
+    fig.colorbar(im, cax=dax, label="after − before" + (" (mean RGB)" if var == "albedo" else ""))
+    ax_b.set_title(f"{var}: before")
+    ax_a.set_title(f"{var}: after")
+    ax_d.set_title("difference")
+    for ax in (ax_b, ax_a, ax_d):
+        ax.set_axis_off()
+
+
+def plot_subject_edit(edit: SubjectEdit, *, title: str | None = None):
+    """Before, after and difference of the albedo and of every edited BRDF map.
+
+    Parameters
+    ----------
+    edit : SubjectEdit
+        Result of one of the subject edits.
+    title : str, optional
+        Figure title (default: the new id and the edit's name).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        One row per map: before, after (albedo sRGB-encoded for display, BRDF
+        maps on one colour scale), and after − before (albedo: mean over the
+        channels; diverging scale clipped at the 99th percentile of the
+        absolute change).  Texels outside the face are blank.
+    """
+    _check_edit(edit)
+    face = np.asarray(edit.source["region"].values) > 0
+    rows = (["albedo"] if "albedo" in edit.variables else []) + edit.brdf_variables
+    if not rows:
+        rows = ["albedo"]
+    fig = _figure(figsize=(10.0, 3.0 * len(rows)), layout="constrained")
+    # Columns: before, after, their colour bar, difference, its colour bar (same widths in every row).
+    grid = fig.add_gridspec(len(rows), 5, width_ratios=[1, 1, 0.05, 1, 0.05])
+    for k, var in enumerate(rows):
+        before = np.asarray(edit.source[var].values, np.float64)
+        after = np.asarray(edit.dataset[var].values, np.float64)
+        _edit_row(fig, grid, k, var, before, after, face)
+    fig.suptitle(title or f"{edit.subject_id} ({edit.edit['name']} of {edit.source.attrs['subject_id']})")
+    return fig
+
+
+def _upscale(img, min_side=256):
+    k = max(1, -(-min_side // max(img.shape[:2])))
+    return np.repeat(np.repeat(img, k, axis=0), k, axis=1)
+
+
+def save_edit_images(edit: SubjectEdit, directory=".") -> list[pathlib.Path]:
+    """Write before/after PNGs of an edit.
+
+    Files (``<id>`` the new subject id), in ``directory`` (created if missing):
+    ``<id>_albedo_before.png`` and ``<id>_albedo_after.png`` (linear albedo
+    sRGB-encoded for display), ``<id>_<map>_before.png`` /
+    ``<id>_<map>_after.png`` for every edited BRDF map (viridis on one scale
+    for both, 1st-99th percentile of the face texels; black outside the face),
+    and ``<id>_summary.png`` (:func:`plot_subject_edit`, with colour bars).
+    Small maps are enlarged by pixel repetition to at least 256 pixels a side.
+
+    Parameters
+    ----------
+    edit : SubjectEdit
+        Result of one of the subject edits.
+    directory : str or pathlib.Path
+        Output directory.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The files written.
+    """
+    from matplotlib import colormaps
+    from matplotlib.image import imsave
+
+    _check_edit(edit)
+    d = pathlib.Path(directory)
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValidationError(f"directory must be a writable directory, got {str(d)!r} ({exc.strerror})") from None
+    face = np.asarray(edit.source["region"].values) > 0
+    written = []
+    for when, ds in (("before", edit.source), ("after", edit.dataset)):
+        path = d / f"{edit.subject_id}_albedo_{when}.png"
+        imsave(path, _upscale(_display(np.asarray(ds["albedo"].values))))
+        written.append(path)
+    cmap = colormaps["viridis"]
+    for var in edit.brdf_variables:
+        before = np.asarray(edit.source[var].values, np.float64)
+        after = np.asarray(edit.dataset[var].values, np.float64)
+        lo, hi = _map_range(before, after, face)
+        for when, img in (("before", before), ("after", after)):
+            rgb = cmap(np.clip((img - lo) / (hi - lo), 0.0, 1.0))[..., :3]
+            rgb[~face] = 0.0
+            path = d / f"{edit.subject_id}_{var}_{when}.png"
+            imsave(path, _upscale(rgb))
+            written.append(path)
+    path = d / f"{edit.subject_id}_summary.png"
+    plot_subject_edit(edit).savefig(path, dpi=100)
+    written.append(path)
+    return written

@@ -68,12 +68,33 @@ def max_levels(shape) -> int:
 
     This is the limit of pyrtools' ``SteerablePyramidFreq`` (the low-pass residual
     keeps at least 4 samples on its shorter side).
+
+    Parameters
+    ----------
+    shape : tuple of int
+        Image shape.
+
+    Returns
+    -------
+    int
+        0 for images smaller than 8 pixels a side.
     """
     return max(int(math.floor(math.log2(min(shape)))) - 2, 0)
 
 
 def band_names(levels: int = 7, orientations: int = 4) -> list[str]:
-    """Names of the bands in pyramid order: ``highpass``, ``level{i}_orient{b}``…, ``lowpass``."""
+    """Names of the bands in pyramid order: ``highpass``, ``level{i}_orient{b}``…, ``lowpass``.
+
+    Parameters
+    ----------
+    levels, orientations : int
+        Pyramid settings (§8: 7, 4).
+
+    Returns
+    -------
+    list of str
+        ``2 + levels * orientations`` names.
+    """
     names = ["highpass"]
     names += [f"level{i}_orient{b}" for i in range(levels) for b in range(orientations)]
     names.append("lowpass")

@@ -1,0 +1,314 @@
+"""One edit of one store subject, from reading the source to writing the new subject (:class:`EditSession`).
+
+Every store-level edit (:mod:`facestats.edit.subjects`) follows the same steps,
+which :class:`EditSession` holds once:
+
+1. check the stores: ``store`` holds the source and the targets, the new
+   subject goes to ``out_store`` (default ``store``), which must be writable
+   (the embedded default store is read-only: pass
+   ``open_store(PATH, mode="a")``);
+2. :meth:`~EditSession.open` the source, a *map* subject (fitted maps; a sample
+   subject imported from a statistics file has no maps to edit), and make the
+   working copy :attr:`~EditSession.dataset` (all variables and attributes);
+3. :meth:`~EditSession.assign_id`: the new id is ``new_id`` or
+   ``<source id>.<edit>-<digest>``, the digest being the first 8 hex digits of
+   the SHA-256 of the edit record (so the same edit of the same subject gets
+   the same id, and is refused the second time unless ``overwrite=True``).  The
+   source is never modified: an edit refuses to write the source's own id into
+   the source's store, even with ``overwrite=True``;
+4. the edit replaces variables of the working copy (:meth:`~EditSession.set`);
+5. :meth:`~EditSession.write` sets, in ``attrs``, ``subject_id``, any changed
+   metadata (e.g. ``skin_type``) and ``provenance`` (JSON): ``source`` =
+   :data:`EDIT_SOURCE`, ``source_subject``, ``source_store``,
+   ``source_provenance`` (the source's own provenance), ``edit`` (``name``,
+   ``parameters``, ``target``, ``regions_edited``) and ``software``; writes the
+   subject with :meth:`facestats.io.Store.write_subject` and returns a
+   :class:`~facestats.edit.result.SubjectEdit`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+
+import numpy as np
+
+from facestats.core.version import __version__
+from facestats.edit.masks import parse_regions, present_regions
+from facestats.edit.result import SubjectEdit
+from facestats.errors import StoreError, ValidationError
+
+__all__ = ["EDIT_SOURCE", "EditSession", "check_store", "read_map_subject", "replace_values"]
+
+#: Provenance ``source`` of subjects written by an edit (excluded from target subsets).
+EDIT_SOURCE = "facestats.edit"
+#: Longest subject id (:func:`facestats.io.ids.check_subject_id`); a derived id keeps its suffix.
+_MAX_ID = 64
+
+
+def check_store(store, name):
+    """Raise unless ``store`` is a :class:`facestats.io.Store`.
+
+    Parameters
+    ----------
+    store : object
+    name : str
+        Name of the argument in error messages.
+
+    Returns
+    -------
+    facestats.io.Store
+    """
+    from facestats.io.store import Store
+
+    if not isinstance(store, Store):
+        raise ValidationError(
+            f"{name} must be a facestats Store (facestats.open_store(...)), got {type(store).__name__}"
+        )
+    return store
+
+
+def read_map_subject(store, subject):
+    """A map subject (fitted maps) of a store and its region map.
+
+    Parameters
+    ----------
+    store : facestats.io.Store
+    subject : str
+        Subject id.
+
+    Returns
+    -------
+    dataset : xarray.Dataset
+    region : numpy.ndarray of int
+        The region map (0 outside the face, 1-10 the regions of Weyrich Fig. 15).
+    """
+    from facestats.io.schema import subject_kind
+
+    sid = str(subject)
+    ds = store.subject(sid)
+    if subject_kind(ds) != "maps":
+        raise ValidationError(
+            f"subject must be a map subject (fitted maps), got {sid!r}, a sample subject imported from a "
+            "statistics file: it has no maps to edit"
+        )
+    return ds, np.asarray(ds["region"].values)
+
+
+def replace_values(ds, name, values):
+    """Replace the values of variable ``name`` of ``ds`` in place, keeping its dims, attrs and dtype.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+    name : str
+    values : array_like
+        New values, the variable's shape (cast to its dtype).
+    """
+    ds[name] = ds[name].copy(data=np.asarray(values).astype(ds[name].dtype, copy=False))
+
+
+def _writable(out, name="out_store"):
+    if out.read_only:
+        what = "the embedded default store" if out.label == "default" else f"store {out.label}"
+        raise StoreError(
+            f"{what} is read-only and an edit writes a new subject: pass {name}=open_store(PATH, mode='a') "
+            "(a directory store, created if missing; CLI: --out-store PATH)"
+        )
+    return out
+
+
+def _same_store(a, b) -> bool:
+    return a is b or os.path.realpath(a.path) == os.path.realpath(b.path)
+
+
+def _record_digest(record) -> str:
+    """First 8 hex digits of the SHA-256 of a JSON record (keys sorted)."""
+    text = json.dumps(record, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:8]
+
+
+class EditSession:
+    """One edit of one subject of ``store``, written as a new subject of ``out_store``.
+
+    Parameters
+    ----------
+    store : facestats.io.Store
+        Store holding the source subject (and the targets).
+    out_store : facestats.io.Store, optional
+        Where the new subject goes (default ``store``); must be writable.  Both
+        are checked here, before any work.
+
+    Attributes
+    ----------
+    store, out : facestats.io.Store
+        Source and output stores.
+    source : xarray.Dataset
+        The source subject as read (set by :meth:`open`; never modified).
+    source_id : str
+        Its id.
+    region : numpy.ndarray of int
+        Its region map.
+    present : list of int
+        The regions of its region map.
+    dataset : xarray.Dataset
+        The working copy the edit changes (a deep copy of :attr:`source`).
+    new_id : str
+        Id of the new subject (set by :meth:`assign_id`).
+
+    Examples
+    --------
+    The steps of an edit (:func:`facestats.edit.transfer_colour_subject` in short)::
+
+        session = EditSession(store, out_store).open("S012")
+        record = {"name": "transfer_colour", "parameters": {...}, "target": {...}}
+        session.assign_id("colour", record, new_id=None, overwrite=False)
+        session.set("albedo", new_albedo)
+        edit = session.write(record, variables=["albedo"], targets=["S007"])
+    """
+
+    def __init__(self, store, out_store=None):
+        self.store = check_store(store, "store")
+        self.out = _writable(check_store(store if out_store is None else out_store, "out_store"))
+        self.source = self.source_id = self.region = self.present = self.dataset = None
+        self.new_id, self.overwrite = None, False
+
+    def open(self, subject) -> EditSession:
+        """Read the source (a map subject of :attr:`store`) and make the working copy.
+
+        Parameters
+        ----------
+        subject : str
+            Id of the subject to edit.
+
+        Returns
+        -------
+        EditSession
+            The session itself.
+        """
+        self.source, self.region = read_map_subject(self.store, subject)
+        self.source_id = str(subject)
+        self.present = present_regions(self.region)
+        self.dataset = self.source.copy(deep=True)
+        return self
+
+    def regions(self, regions, name="regions"):
+        """Regions of the source by number or name, checked present.
+
+        Parameters
+        ----------
+        regions : None, int, str or iterable of int or str
+            Regions 1-10 or names (:func:`facestats.edit.masks.parse_regions`).
+        name : str
+            Name of the argument in error messages.
+
+        Returns
+        -------
+        list of int or None
+            Sorted region numbers; None for None (the whole face).
+        """
+        return parse_regions(regions, self.present, name)
+
+    def assign_id(self, tag, record, *, new_id=None, overwrite=False) -> str:
+        """Choose and check the id of the new subject.
+
+        Parameters
+        ----------
+        tag : str
+            Short name of the edit in a derived id, e.g. ``"brdf"``, ``"skin-V"``.
+        record : dict
+            The edit record as far as known (``name``, ``parameters``,
+            ``target``); its digest names a derived id.
+        new_id : str, optional
+            Explicit id; default ``<source id>.<tag>-<digest>`` (the source id
+            shortened so the id has at most 64 characters).
+        overwrite : bool
+            Replace an existing subject of :attr:`out` (never the source itself).
+
+        Returns
+        -------
+        str
+        """
+        from facestats.io.ids import check_subject_id
+
+        sid = self.source_id
+        if new_id is None:
+            suffix = f".{tag}-{_record_digest({'source_subject': sid, 'edit': record})}"
+            new_id = sid[: _MAX_ID - len(suffix)] + suffix
+        new_id = check_subject_id(new_id)
+        if _same_store(self.store, self.out) and new_id == sid:
+            raise ValidationError(
+                f"new_id must differ from the source subject {sid!r}: an edit never overwrites its source"
+            )
+        if not overwrite and new_id in self.out:
+            raise StoreError(
+                f"subject {new_id!r} already exists in store {self.out.label}; pass overwrite=True to replace it "
+                "or choose another new_id"
+            )
+        self.new_id, self.overwrite = new_id, overwrite
+        return new_id
+
+    def set(self, name, values) -> None:
+        """Replace the values of a variable of the working copy (:func:`replace_values`).
+
+        Parameters
+        ----------
+        name : str
+            Variable of :attr:`dataset`.
+        values : array_like
+            New values, the variable's shape (cast to its dtype).
+        """
+        replace_values(self.dataset, name, values)
+
+    def write(self, record, *, variables, targets=(), target_means=None, texture=None, attrs=None) -> SubjectEdit:
+        """Set id, attributes and provenance of the working copy, write it to :attr:`out` and return the result.
+
+        Parameters
+        ----------
+        record : dict
+            The complete edit record (``name``, ``parameters``, ``target``,
+            ``regions_edited``, …), stored as provenance ``edit``.
+        variables : iterable of str
+            Variables the edit changed.
+        targets : iterable of str
+            Subjects whose statistics formed the target.
+        target_means : dict, optional
+            Means of the target samples (:attr:`SubjectEdit.target_means`).
+        texture : facestats.edit.TextureTransfer, optional
+            Convergence report of a texture transfer.
+        attrs : dict, optional
+            Attributes that change with the edit (e.g. ``skin_type``).
+
+        Returns
+        -------
+        SubjectEdit
+        """
+        from facestats.io.schema import provenance, set_provenance, set_variable_attrs
+
+        ds = self.dataset
+        ds.attrs["subject_id"] = self.new_id
+        ds.attrs.update(attrs or {})
+        ds.attrs["provenance"] = "{}"
+        set_provenance(
+            ds,
+            source=EDIT_SOURCE,
+            source_subject=str(self.source.attrs["subject_id"]),
+            source_store=self.store.label,
+            source_provenance=provenance(self.source),
+            edit=record,
+            software=f"facestats {__version__}",
+        )
+        set_variable_attrs(ds)
+        self.out.write_subject(ds, overwrite=self.overwrite)
+        return SubjectEdit(
+            subject_id=self.new_id,
+            dataset=ds,
+            source=self.source,
+            edit=record,
+            store=self.out.label,
+            variables=tuple(variables),
+            targets=tuple(targets),
+            target_means=target_means or {},
+            texture=texture,
+        )

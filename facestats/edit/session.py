@@ -44,7 +44,6 @@ __all__ = ["EDIT_SOURCE", "EditSession", "check_store", "read_map_subject", "rep
 #: Provenance ``source`` of subjects written by an edit (excluded from target subsets).
 EDIT_SOURCE = "facestats.edit"
 #: Longest subject id (:func:`facestats.io.ids.check_subject_id`); a derived id keeps its suffix.
-_MAX_ID = 64
 
 
 def check_store(store, name):
@@ -230,12 +229,12 @@ class EditSession:
         -------
         str
         """
-        from facestats.io.ids import check_subject_id
+        from facestats.io.ids import MAX_SUBJECT_ID_LENGTH, check_subject_id
 
         sid = self.source_id
         if new_id is None:
             suffix = f".{tag}-{_record_digest({'source_subject': sid, 'edit': record})}"
-            new_id = sid[: _MAX_ID - len(suffix)] + suffix
+            new_id = sid[: MAX_SUBJECT_ID_LENGTH - len(suffix)] + suffix
         new_id = check_subject_id(new_id)
         if _same_store(self.store, self.out) and new_id == sid:
             raise ValidationError(

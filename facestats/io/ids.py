@@ -11,11 +11,12 @@ import re
 
 from facestats.errors import ValidationError
 
-__all__ = ["SUBJECT_ID_PATTERN", "check_subject_id"]
+__all__ = ["SUBJECT_ID_PATTERN", "MAX_SUBJECT_ID_LENGTH", "check_subject_id"]
 
 #: 1-64 letters, digits, '.', '_' or '-', starting with a letter or digit (matched in full:
 #: no path separators, no '..' component, no trailing newline).
-SUBJECT_ID_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+MAX_SUBJECT_ID_LENGTH = 64
+SUBJECT_ID_PATTERN = re.compile(rf"[A-Za-z0-9][A-Za-z0-9._-]{{0,{MAX_SUBJECT_ID_LENGTH - 1}}}")
 
 
 def check_subject_id(sid) -> str:

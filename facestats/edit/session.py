@@ -43,7 +43,6 @@ __all__ = ["EDIT_SOURCE", "EditSession", "check_store", "read_map_subject", "rep
 
 #: Provenance ``source`` of subjects written by an edit (excluded from target subsets).
 EDIT_SOURCE = "facestats.edit"
-#: Longest subject id (:func:`facestats.io.ids.check_subject_id`); a derived id keeps its suffix.
 
 
 def check_store(store, name):

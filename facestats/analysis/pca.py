@@ -167,7 +167,7 @@ class RegionPCA:
         return self.regions[region]
 
     def to_frame(self):
-        """One row per region: name, n, n_subjects, mean, eigenvalues, σ, major-axis direction, angle, total variance."""
+        """One row per region: name, n, n_subjects, mean, eigenvalues, σ, major axis, angle and total variance."""
         import pandas as pd
 
         p0, p1 = self.parameters

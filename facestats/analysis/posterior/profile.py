@@ -252,11 +252,13 @@ def _check_labels(labels, k):
 
 
 def _check_walkers(n_walkers):
+    """Raise unless ``n_walkers`` is even and at least 8."""
     if int(n_walkers) < 8 or int(n_walkers) % 2:
         raise ValidationError(f"n_walkers must be an even number >= 8, got {n_walkers!r}")
 
 
 def _check_run_length(min_tau, burn_in, initial_steps, max_steps):
+    """Raise unless min_tau > 0, burn_in >= 0, initial_steps >= 50 and max_steps >= initial_steps."""
     if min_tau <= 0 or burn_in < 0 or int(max_steps) < int(initial_steps) or int(initial_steps) < 50:
         raise ValidationError(
             f"need min_tau > 0, burn_in >= 0, initial_steps >= 50 and max_steps >= initial_steps, got "
@@ -294,7 +296,7 @@ def _summarise_chain(chain, tau, steps, labels, acceptance, n_walkers, q, min_ta
         tau_j = tau[j]
         x, burn, thin, converged = block_chain(chain, j, tau_j, min_tau, burn_in)
         x = np.exp(x)
-        sig_tr = dipole.transport_coefficient(x[:, 1], x[:, 0])
+        sig_tr = dipole.transport_coefficient(x[:, 1], x[:, 0])  # σtr = sqrt(3σa(σa + σ's)), eq. 15; ℓd = 1/σtr
         frame = pd.DataFrame(
             {
                 "sigma_s_prime": x[:, 0],

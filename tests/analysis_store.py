@@ -1,8 +1,8 @@
 """In-memory stand-in of the parameter store for the analysis tests and benchmark.
 
 :class:`MemoryStore` implements the part of the store interface that
-:mod:`facestats.analysis` uses (``subjects()``, ``subject(id)``,
-``region_samples(model, subjects)``) over subjects built by
+:mod:`facestats.analysis` uses (``subjects()``, ``subject(id, lazy=...)``)
+over subjects built by
 ``tests/factories.py``; :func:`make_population` builds a small population
 with known structure.
 """
@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from facestats.core.conventions import CONDITIONS
-from facestats.io.summary import region_samples, summarise_subject
+from facestats.io.summary import summarise_subject
 from tests.factories import make_map_subject
 
 __all__ = ["MemoryStore", "make_population"]
@@ -32,16 +32,8 @@ class MemoryStore:
     def subjects(self):
         return self._index.copy()
 
-    def subject(self, subject_id):
+    def subject(self, subject_id, *, lazy=False):
         return self._ds[subject_id]
-
-    def region_samples(self, model="ts", subjects=None):
-        ids = list(self._ds) if subjects is None else [str(s) for s in subjects]
-        parts = []
-        for sid in ids:
-            for r, (rho, lobe) in region_samples(self._ds[sid], model).items():
-                parts.append(pd.DataFrame({"subject_id": sid, "region": r, "rho_s": rho, "lobe": lobe}))
-        return pd.concat(parts, ignore_index=True)
 
 
 def make_population(n=40, seed=0, size=24, conditions=True):

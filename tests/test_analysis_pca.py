@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from facestats.analysis import condition_differences, principal_axes, region_pca, select_population
+from facestats.analysis.population import region_samples as store_region_samples
 from facestats.core.conventions import CONDITIONS, REGION_IDS
 from facestats.errors import ValidationError
 from facestats.io.summary import region_samples
@@ -74,7 +75,7 @@ def test_region_ellipse_geometry(store):
 
 def test_region_pca_dataframe_and_blinn_phong(store):
     ids = list(select_population(store).index)
-    df = store.region_samples("ts", ids)
+    df = store_region_samples(store, "ts", ids)
     a, b = region_pca(store), region_pca(df)
     for r in REGION_IDS:
         np.testing.assert_allclose(a[r].eigenvalues, b[r].eigenvalues, rtol=1e-12)

@@ -121,7 +121,7 @@ def test_one_profile_three_channels():
 
 def test_log_posterior_is_the_gaussian_likelihood_of_the_noise_model():
     """The sampled density equals Σ log N(y | R(θ), s(R(θ))) from scipy, up to the constant F/2 ln 2π."""
-    from facestats.analysis.posterior import _LogPosterior
+    from facestats.analysis.posterior.likelihood import LogPosterior as _LogPosterior
 
     rng = np.random.default_rng(9)
     measured, *_ = simulate(2, rng)

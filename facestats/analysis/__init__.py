@@ -13,7 +13,14 @@ index as a DataFrame, and returns a small result object; the functions of
 * :func:`condition_differences`: BRDF differences between external conditions (§7);
 * :func:`sigma_posterior`, :func:`site_sigma_posterior`: Bayesian (σ's, σa, σtr, ℓd) of a
   contact-sensor profile (§5.4, with uncertainty);
-* :func:`population_sigma_tr`: posterior of the mean σtr per skin type (§5.4, with uncertainty).
+* :func:`store_sigma_posterior`: the same for a subject and site of a store (defaults: first normal subject, cheek);
+* :func:`population_sigma_tr`: posterior of the mean σtr per skin type (§5.4, with uncertainty);
+* :func:`select_population`, :func:`region_samples`, :func:`default_subject`: which subjects and samples
+  enter an analysis (:mod:`facestats.analysis.population`).
+
+Every result object has ``to_dict()`` (its JSON document: what ``facestats analyze``
+writes; conventions in :mod:`facestats.analysis.serialize`), ``compare_published()``
+(our numbers beside the paper's, as data) and ``to_text()`` (the printed summary).
 
 The posterior (emcee) and plotting (matplotlib) modules are imported on first use and
 pandas/scipy inside the functions, so ``import facestats.analysis`` is cheap.
@@ -24,10 +31,13 @@ from __future__ import annotations
 import importlib
 
 # numpy-only modules are imported eagerly (pandas, scipy, matplotlib are imported inside their functions);
-# importing ``cca`` here also keeps ``facestats.analysis.cca`` bound to the function, not the submodule.
-from facestats.analysis.cca import CCAResult, brdf_cca, cca
-from facestats.analysis.conditions import ConditionDifferences, condition_differences, select_population
+# importing ``cca`` and ``brdf_cca`` here also keeps ``facestats.analysis.cca`` and ``.brdf_cca`` bound to the
+# functions, not the submodules.
+from facestats.analysis.brdf_cca import brdf_cca
+from facestats.analysis.cca import CCAResult, cca
+from facestats.analysis.conditions import ConditionDifferences, condition_differences
 from facestats.analysis.pca import RegionEllipse, RegionPCA, principal_axes, region_pca
+from facestats.analysis.population import default_subject, region_samples, select_population
 from facestats.analysis.scatter import AbsorptionScattering, absorption_scattering
 from facestats.analysis.translucency import TranslucencyTable, translucency_table
 
@@ -35,6 +45,7 @@ from facestats.analysis.translucency import TranslucencyTable, translucency_tabl
 _LAZY = {
     "sigma_posterior": "posterior",
     "site_sigma_posterior": "posterior",
+    "store_sigma_posterior": "posterior",
     "SigmaPosterior": "posterior",
     "population_sigma_tr": "posterior",
     "PopulationSigmaTr": "posterior",
@@ -55,8 +66,11 @@ __all__ = [
     "condition_differences",
     "ConditionDifferences",
     "select_population",
+    "region_samples",
+    "default_subject",
     "sigma_posterior",
     "site_sigma_posterior",
+    "store_sigma_posterior",
     "SigmaPosterior",
     "population_sigma_tr",
     "PopulationSigmaTr",

@@ -1,4 +1,9 @@
-"""Canonical correlation analysis of BRDF parameters against experimental variables (Weyrich et al. 2006 §7, Fig. 16).
+"""Canonical correlation analysis of two blocks of variables (Weyrich et al. 2006 §7, Fig. 16).
+
+This module holds the method (:func:`cca`) and its result
+(:class:`CCAResult`, with its JSON document and summary); the paper's
+application to the BRDF and the experimental variables is
+:func:`facestats.analysis.brdf_cca.brdf_cca`.
 
 Weyrich et al. store, per subject, the region means of the Torrance-Sparrow
 parameters (10 regions × (ρs, m)) with gender [0 = M, 1 = F], age and skin
@@ -43,15 +48,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from facestats.analysis.conditions import index_columns, select_population
-from facestats.core.conventions import REGION_IDS
+from facestats.analysis.population import MODEL_NAMES
+from facestats.analysis.serialize import json_ready, records
 from facestats.core.validate import as_float, check_range
 from facestats.errors import ValidationError
 
-__all__ = ["CCAResult", "cca", "brdf_cca", "EXPERIMENTAL_VARIABLES"]
-
-#: Experimental variables of Weyrich Fig. 16 (population index columns; :func:`brdf_cca` codes them).
-EXPERIMENTAL_VARIABLES = ("skin_type", "gender", "age")
+__all__ = ["CCAResult", "cca"]
 
 
 @dataclass(frozen=True)
@@ -92,6 +94,13 @@ class CCAResult:
         The Y block as given (for plotting colour/marker/size encodings).
     dropped : tuple
         Row labels left out for missing values.
+    seed : int
+        Seed of the permutations.
+    model : str or None
+        Specular model of the BRDF block (``brdf_cca``; None for a plain :func:`cca`).
+    coding : dict or None
+        How ``brdf_cca`` coded the Y variables
+        (:data:`facestats.analysis.brdf_cca.CODING`), else None.
     """
 
     correlations: np.ndarray
@@ -117,6 +126,9 @@ class CCAResult:
     regularization: tuple
     y_data: object = None
     dropped: tuple = field(default_factory=tuple)
+    seed: int = 0
+    model: str | None = None
+    coding: dict | None = None
 
     @property
     def n(self) -> int:
@@ -167,6 +179,97 @@ class CCAResult:
         if Y is None:
             return x @ self.x_weights
         return x @ self.x_weights, (_as_block(Y, "Y")[0] - self.y_mean) @ self.y_weights
+
+    def compare_published(self):
+        """Principal and direct correlations beside Weyrich Fig. 16 (:mod:`facestats.core.published`).
+
+        Returns
+        -------
+        pandas.DataFrame
+            Index ``quantity``: ``principal r1``, ``principal r2`` (as far as
+            there are canonical dimensions), then ``direct <variable>`` per Y
+            variable; columns ``ours`` and ``paper`` (NaN for a variable the
+            paper does not report).  The paper's values are those of its
+            Torrance-Sparrow fit, whatever :attr:`model`.
+        """
+        import pandas as pd
+
+        from facestats.core.published import CCA_DIRECT, CCA_PRINCIPAL
+
+        rows = [
+            {"quantity": f"principal r{i + 1}", "ours": self.correlations[i], "paper": p}
+            for i, p in enumerate(CCA_PRINCIPAL)
+            if i < self.correlations.size
+        ]
+        rows += [
+            {"quantity": f"direct {name}", "ours": r, "paper": CCA_DIRECT.get(name, float("nan"))}
+            for name, r in zip(self.y_names, self.direct_correlations)
+        ]
+        return pd.DataFrame.from_records(rows).set_index("quantity")
+
+    def to_dict(self) -> dict:
+        """The JSON document of the analysis (``facestats analyze cca`` writes it as ``cca.json``).
+
+        Keys (conventions: :mod:`facestats.analysis.serialize`): ``model``,
+        ``n_subjects``, ``x_variables``, ``y_variables``, ``coding``,
+        ``principal_correlations`` (all, descending), ``published_principal``,
+        ``direct_correlations`` and ``direct_p_value`` (by variable),
+        ``published_direct``, ``dimensions`` (per canonical dimension:
+        ``dimension, correlation, wilks_lambda, chi2, df, p_value,
+        permutation_p``), ``n_permutations``, ``seed``, ``y_loadings`` (by
+        variable, per dimension), ``dropped`` (subjects left out),
+        ``projections`` (``subject_id`` and the canonical variates
+        ``dimension_1``, ``dimension_2``: the points of Fig. 16).
+        """
+        from facestats.core.published import CCA_DIRECT, CCA_PRINCIPAL
+
+        dims = records(self.summary())
+        if self.permutation_p is None:
+            for d in dims:
+                d["permutation_p"] = None
+        projections = {"subject_id": [str(s) for s in self.index]}
+        for i in range(min(2, self.projections.shape[1])):
+            projections[f"dimension_{i + 1}"] = self.projections[:, i]
+        doc = {
+            "model": self.model,
+            "n_subjects": self.n,
+            "x_variables": list(self.x_names),
+            "y_variables": list(self.y_names),
+            "coding": self.coding,
+            "principal_correlations": self.correlations,
+            "published_principal": list(CCA_PRINCIPAL),
+            "direct_correlations": dict(zip(self.y_names, self.direct_correlations)),
+            "direct_p_value": dict(zip(self.y_names, self.direct_p_value)),
+            "published_direct": dict(CCA_DIRECT),
+            "dimensions": dims,
+            "n_permutations": self.n_permutations,
+            "seed": self.seed,
+            "y_loadings": {n: self.y_loadings[j] for j, n in enumerate(self.y_names)},
+            "dropped": [str(s) for s in self.dropped],
+            "projections": projections,
+        }
+        return json_ready(doc)
+
+    def to_text(self) -> str:
+        """Correlations beside Fig. 16 and the tests' p-values (what ``facestats analyze cca`` prints)."""
+        what = f"the {MODEL_NAMES[self.model]} region means" if self.model else "X"
+        paper = "Weyrich 2006" + (" (TS)" if self.model != "ts" else "")
+        lines = [
+            f"CCA of {what} ({len(self.x_names)} variables) against {', '.join(self.y_names)}: {self.n} subjects "
+            "(Weyrich Fig. 16)",
+            f"{'':<22}{'ours':>7}  {paper:>12}",
+        ]
+        for name, row in self.compare_published().iterrows():
+            lines.append(f"{name:<22}{row['ours']:7.3f}  {row['paper']:>12.3f}")
+        if self.permutation_p is not None:
+            lines.append(
+                f"permutation test ({self.n_permutations} permutations): p = "
+                + ", ".join(f"{p:.3g}" for p in self.permutation_p)
+            )
+        lines.append("Bartlett chi2 test: p = " + ", ".join(f"{p:.3g}" for p in self.p_value))
+        if self.dropped:
+            lines.append(f"left out (missing region means): {len(self.dropped)} subject(s)")
+        return "\n".join(lines)
 
 
 def _as_block(a, name):
@@ -264,30 +367,8 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
     """
     import pandas as pd
 
-    x, x_names, x_index = _as_block(X, "X")
-    y, y_names, _ = _as_block(Y, "Y")
-    if x.shape[0] != y.shape[0]:
-        raise ValidationError(
-            f"X and Y must have the same number of rows (subjects), got {x.shape[0]} and {y.shape[0]}"
-        )
-    reg = np.broadcast_to(np.asarray(regularization, dtype=np.float64), (2,))
-    check_range(reg, "regularization", 0, 1)
-    if missing not in ("raise", "drop"):
-        raise ValidationError(f"missing must be 'raise' or 'drop', got {missing!r}")
-    if int(n_permutations) < 0:
-        raise ValidationError(f"n_permutations must be >= 0, got {n_permutations!r}")
-    ok = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(y), axis=1)
-    if not ok.all() and missing == "raise":
-        raise ValidationError(
-            f"X and Y must be finite, got {int((~ok).sum())} row(s) with missing values (use missing='drop')"
-        )
-    dropped = tuple(lab for lab, k in zip(x_index, ok) if not k)
-    x, y = x[ok], y[ok]
-    index = tuple(lab for lab, k in zip(x_index, ok) if k)
+    x, y, x_names, y_names, index, dropped, reg = _complete_blocks(X, Y, regularization, n_permutations, missing)
     n, q = x.shape[0], y.shape[1]
-    if n < 3:
-        raise ValidationError(f"cca needs at least 3 complete rows, got {n}")
-
     x_mean, y_mean = x.mean(axis=0), y.mean(axis=0)
     xc, yc = x - x_mean, y - y_mean
     sxx = _shrink(xc.T @ xc / (n - 1), reg[0])
@@ -297,18 +378,7 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
     plain = not reg.any()
     upper = 1.0 if plain else np.inf
     r, u, v = _canonical(xw, yw, upper)
-    a, b = wx @ u, wy @ v
-    proj_x, proj_y = xc @ a, yc @ b
-    sd_x, sd_y = xc.std(axis=0, ddof=1), yc.std(axis=0, ddof=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        x_load = (xc.T @ proj_x / (n - 1)) / sd_x[:, None] / proj_x.std(axis=0, ddof=1)
-        y_load = (yc.T @ proj_y / (n - 1)) / sd_y[:, None] / proj_y.std(axis=0, ddof=1)
-    # Orientation: the Y variable that loads most on each dimension loads positively.
-    lead = np.argmax(np.abs(np.nan_to_num(y_load)), axis=0)
-    sign = np.sign(y_load[lead, np.arange(y_load.shape[1])])
-    sign[~np.isfinite(sign) | (sign == 0)] = 1.0
-    a, b, proj_x, proj_y = a * sign, b * sign, proj_x * sign, proj_y * sign
-    x_load, y_load = x_load * sign, y_load * sign
+    a, b, proj_x, proj_y, x_load, y_load = _oriented(xc, yc, wx @ u, wy @ v)
 
     # Direct correlations: CCA of the X block with each Y variable alone.
     direct = np.full(q, np.nan)
@@ -317,44 +387,10 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
         wj = _whitener(_shrink(yj.T @ yj / (n - 1), reg[1]), rcond)
         if wj.shape[1]:
             direct[j] = _canonical(xw, yj @ wj, upper)[0][0]
-    # F test of each multiple correlation (exact under normality): (R²/p) / ((1 − R²)/(n − p − 1)).
-    from scipy.stats import chi2 as chi2_dist
-    from scipy.stats import f as f_dist
-
     rx, ry = wx.shape[1], wy.shape[1]
-    dof2 = n - rx - 1
-    direct_p = np.full(q, np.nan)
-    if dof2 > 0 and plain:
-        r2 = direct**2
-        with np.errstate(divide="ignore", invalid="ignore"):
-            direct_p = f_dist.sf((r2 / rx) / ((1 - r2) / dof2), rx, dof2)
-
-    # Bartlett's chi-square approximation to Wilks' lambda (plain CCA only).
-    k = r.size
-    dims = np.arange(k)
-    df = (rx - dims) * (ry - dims)
-    factor = n - 1 - (rx + ry + 1) / 2
-    lam = _wilks(r) if plain else np.full(k, np.nan)
-    stat, pval = np.full(k, np.nan), np.full(k, np.nan)
-    if plain and factor > 0:
-        with np.errstate(divide="ignore"):
-            stat = -factor * np.log(lam)
-        pval = chi2_dist.sf(stat, df)
-
-    perm_p = None
-    if n_permutations:
-        rng = np.random.default_rng(seed)
-        observed = _dependence(r, plain)
-        count = np.zeros(k)
-        done = 0
-        while done < n_permutations:
-            b_n = min(256, n_permutations - done)
-            perms = rng.permuted(np.tile(np.arange(n), (b_n, 1)), axis=1)
-            kb = np.einsum("ni,bnj->bij", xw, yw[perms]) / (n - 1)
-            rb = np.clip(np.linalg.svd(kb, compute_uv=False), 0.0, upper)[:, :k]
-            count += np.sum(_dependence(rb, plain) >= observed * (1 - 1e-12), axis=0)
-            done += b_n
-        perm_p = (1 + count) / (n_permutations + 1)
+    direct_p = _direct_p_value(direct, rx, n, plain)
+    lam, stat, pval, df = _bartlett(r, rx, ry, n, plain)
+    perm_p = _permutation_p(xw, yw, r, plain, upper, n_permutations, seed) if n_permutations else None
 
     y_data = pd.DataFrame(y, index=pd.Index(list(index)), columns=list(y_names))
     return CCAResult(
@@ -381,69 +417,100 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
         regularization=(float(reg[0]), float(reg[1])),
         y_data=y_data,
         dropped=dropped,
+        seed=seed,
     )
 
 
-def brdf_cca(
-    source,
-    model="ts",
-    variables=EXPERIMENTAL_VARIABLES,
-    subjects=None,
-    conditions=("normal",),
-    regularization=0.0,
-    n_permutations=999,
-    seed=0,
-):
-    """CCA of the per-region BRDF means against skin type, gender and age (Weyrich et al. 2006 §7, Fig. 16).
+def _complete_blocks(X, Y, regularization, n_permutations, missing):
+    """Checked blocks without incomplete rows: x, y, x_names, y_names, row labels kept and dropped, (λx, λy)."""
+    x, x_names, x_index = _as_block(X, "X")
+    y, y_names, _ = _as_block(Y, "Y")
+    if x.shape[0] != y.shape[0]:
+        raise ValidationError(
+            f"X and Y must have the same number of rows (subjects), got {x.shape[0]} and {y.shape[0]}"
+        )
+    reg = np.broadcast_to(np.asarray(regularization, dtype=np.float64), (2,))
+    check_range(reg, "regularization", 0, 1)
+    if missing not in ("raise", "drop"):
+        raise ValidationError(f"missing must be 'raise' or 'drop', got {missing!r}")
+    if int(n_permutations) < 0:
+        raise ValidationError(f"n_permutations must be >= 0, got {n_permutations!r}")
+    ok = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(y), axis=1)
+    if not ok.all() and missing == "raise":
+        raise ValidationError(
+            f"X and Y must be finite, got {int((~ok).sum())} row(s) with missing values (use missing='drop')"
+        )
+    dropped = tuple(lab for lab, k in zip(x_index, ok) if not k)
+    x, y = x[ok], y[ok]
+    index = tuple(lab for lab, k in zip(x_index, ok) if k)
+    if x.shape[0] < 3:
+        raise ValidationError(f"cca needs at least 3 complete rows, got {x.shape[0]}")
+    return x, y, x_names, y_names, index, dropped, reg
 
-    Builds the subjects × (20 + 3) matrix of the paper from the population
-    index: X = region means (``{model}_rho_s_mean_r{r}``, lobe mean) of the 10
-    regions, Y = the experimental variables coded as in the paper: skin type
-    as its Fitzpatrick number with I grouped into II (the paper's "II-VI"),
-    gender 0 = M / 1 = F, age in years.  Regions without samples in any
-    subject are dropped; subjects with a missing region mean are left out
-    (listed in ``dropped``).  Then :func:`cca`.
 
-    Parameters
-    ----------
-    source : store or pandas.DataFrame
-        Parameter store or its population index.
-    model : {"ts", "bp"}
-        Specular model (the paper uses Torrance-Sparrow).
-    variables : sequence of str
-        Experimental variables among ``skin_type``, ``gender``, ``age``.
-    subjects, conditions
-        Population selection, see :func:`facestats.analysis.conditions.select_population`.
-    regularization, n_permutations, seed
-        As :func:`cca`.
+def _oriented(xc, yc, a, b):
+    """Canonical weights, variates and structure correlations, oriented.
 
-    Returns
-    -------
-    CCAResult
-        ``index`` holds subject ids; ``y_data`` the coded experimental variables.
+    Each dimension is signed so that the Y variable loading most on it loads
+    positively.  Returns (a, b, x variates, y variates, x loadings, y loadings).
     """
-    import pandas as pd
+    n = xc.shape[0]
+    proj_x, proj_y = xc @ a, yc @ b
+    sd_x, sd_y = xc.std(axis=0, ddof=1), yc.std(axis=0, ddof=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        x_load = (xc.T @ proj_x / (n - 1)) / sd_x[:, None] / proj_x.std(axis=0, ddof=1)
+        y_load = (yc.T @ proj_y / (n - 1)) / sd_y[:, None] / proj_y.std(axis=0, ddof=1)
+    lead = np.argmax(np.abs(np.nan_to_num(y_load)), axis=0)
+    sign = np.sign(y_load[lead, np.arange(y_load.shape[1])])
+    sign[~np.isfinite(sign) | (sign == 0)] = 1.0
+    return a * sign, b * sign, proj_x * sign, proj_y * sign, x_load * sign, y_load * sign
 
-    rho_stem, lobe_stem, lobe_name = index_columns(model)
-    variables = tuple(variables)
-    for v in variables:
-        if v not in EXPERIMENTAL_VARIABLES:
-            raise ValidationError(f"variables must be among {EXPERIMENTAL_VARIABLES}, got {v!r}")
-    frame = select_population(source, subjects, conditions)
-    cols, names = [], []
-    for r in REGION_IDS:
-        for stem, short in ((rho_stem, "rho_s"), (lobe_stem, lobe_name)):
-            c = f"{stem}_mean_r{r}"
-            if c in frame.columns and frame[c].notna().any():
-                cols.append(c)
-                names.append(f"{short}_r{r}")
-    if not cols:
-        raise ValidationError(f"the population index has no {model} region means")
-    X = frame[cols].astype(float).set_axis(names, axis=1)
-    coded = {
-        "skin_type": np.maximum(frame["skin_type"].astype(int), 2),
-        "gender": (frame["gender"].astype(str) == "F").astype(float),
-        "age": frame["age"].astype(float),
-    }
-    Y = pd.DataFrame({v: coded[v] for v in variables}, index=frame.index).astype(float)
-    return cca(X, Y, regularization=regularization, n_permutations=n_permutations, seed=seed, missing="drop")
+
+def _direct_p_value(direct, rx, n, plain):
+    """F-test p-value of each multiple correlation (exact under normality), NaN where undefined.
+
+    F = (R²/p) / ((1 − R²)/(n − p − 1)) on (p, n − p − 1) degrees of freedom.
+    """
+    from scipy.stats import f as f_dist
+
+    dof2 = n - rx - 1
+    direct_p = np.full(direct.size, np.nan)
+    if dof2 > 0 and plain:
+        r2 = direct**2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            direct_p = f_dist.sf((r2 / rx) / ((1 - r2) / dof2), rx, dof2)
+    return direct_p
+
+
+def _bartlett(r, rx, ry, n, plain):
+    """Bartlett's chi-square approximation to Wilks' lambda per dimension: (Λ, χ², p, df) (NaN unless plain CCA)."""
+    from scipy.stats import chi2 as chi2_dist
+
+    k = r.size
+    dims = np.arange(k)
+    df = (rx - dims) * (ry - dims)
+    factor = n - 1 - (rx + ry + 1) / 2
+    lam = _wilks(r) if plain else np.full(k, np.nan)
+    stat, pval = np.full(k, np.nan), np.full(k, np.nan)
+    if plain and factor > 0:
+        with np.errstate(divide="ignore"):
+            stat = -factor * np.log(lam)
+        pval = chi2_dist.sf(stat, df)
+    return lam, stat, pval, df
+
+
+def _permutation_p(xw, yw, r, plain, upper, n_permutations, seed):
+    """Permutation p-values per dimension: (1 + #{statistic of permuted Y rows ≥ observed}) / (B + 1)."""
+    n, k = xw.shape[0], r.size
+    rng = np.random.default_rng(seed)
+    observed = _dependence(r, plain)
+    count = np.zeros(k)
+    done = 0
+    while done < n_permutations:
+        b_n = min(256, n_permutations - done)
+        perms = rng.permuted(np.tile(np.arange(n), (b_n, 1)), axis=1)
+        kb = np.einsum("ni,bnj->bij", xw, yw[perms]) / (n - 1)
+        rb = np.clip(np.linalg.svd(kb, compute_uv=False), 0.0, upper)[:, :k]
+        count += np.sum(_dependence(rb, plain) >= observed * (1 - 1e-12), axis=0)
+        done += b_n
+    return (1 + count) / (n_permutations + 1)

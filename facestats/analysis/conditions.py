@@ -1,23 +1,15 @@
-"""Which subjects enter a population analysis, and BRDF differences between external conditions.
+"""BRDF differences of one person between external conditions (Weyrich et al. 2006 §7).
 
-Weyrich et al. 2006 §7 analyse 149 subjects measured once under normal
-conditions, and one male subject measured under seven external conditions
-(normal, cold, hot, sweaty, makeup, lotion, powder): "there are noticeable
+Weyrich et al. measured one male subject under seven external conditions
+(normal, cold, hot, sweaty, makeup, lotion, powder) and report "noticeable
 differences between these BRDFs, especially between lotion / hot and cold /
-powder".  This module holds both halves of that split:
+powder".  :func:`condition_differences` compares, region by region, the mean
+specular parameters of one person across conditions, relative to the
+reference condition (``"normal"``); :class:`ConditionDifferences` holds the
+result, its JSON document and its summary.
 
-* :func:`select_population` picks the rows of the population index that a
-  population statistic uses (by default the subjects measured under normal
-  conditions, so the repeated measurements of one person do not count seven
-  times);
-* :func:`condition_differences` compares, region by region, the mean
-  specular parameters of one person across conditions, relative to the
-  reference condition (``"normal"``).
-
-Every function takes a *source*: a parameter store (anything with a
-``subjects()`` method returning the population index, see
-:mod:`facestats.io.summary` for its columns) or that index as a
-:class:`pandas.DataFrame` indexed by ``subject_id``.
+The function takes a *source*: a parameter store or its population index
+(:func:`facestats.analysis.population.population_index`).
 """
 
 from __future__ import annotations
@@ -26,84 +18,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facestats.analysis.population import LOBE_NAMES, MODEL_NAMES, index_columns, population_index
+from facestats.analysis.serialize import json_ready, records
 from facestats.core.conventions import CONDITIONS, REGION_IDS, parse_condition
-from facestats.core.validate import check_choice
 from facestats.errors import ValidationError
 
-__all__ = ["select_population", "ConditionDifferences", "condition_differences", "LOBE_NAMES", "index_columns"]
+__all__ = ["ConditionDifferences", "condition_differences", "PUBLISHED_PAIRS"]
 
-#: model -> (scale column stem, lobe column stem, short lobe name used in results).
-LOBE_NAMES = {"ts": ("ts_rho_s", "ts_m", "m"), "bp": ("bp_rho_s", "bp_exponent", "exponent")}
-
-
-def index_columns(model: str) -> tuple[str, str, str]:
-    """Column stems of a specular model in the population index: (scale, lobe, lobe short name)."""
-    check_choice(model, "model", tuple(LOBE_NAMES))
-    return LOBE_NAMES[model]
-
-
-def _index(source):
-    """The population index (one row per subject, indexed by ``subject_id``) of a store or a DataFrame."""
-    import pandas as pd
-
-    if isinstance(source, pd.DataFrame):
-        frame = source
-    elif callable(getattr(source, "subjects", None)):
-        frame = source.subjects()
-    else:
-        raise ValidationError(
-            f"source must be a parameter store (with a subjects() method) or its population index DataFrame, "
-            f"got {type(source).__name__}"
-        )
-    if "subject_id" in frame.columns and frame.index.name != "subject_id":
-        frame = frame.set_index("subject_id")
-    missing = [c for c in ("age", "gender", "skin_type", "condition") if c not in frame.columns]
-    if missing:
-        raise ValidationError(
-            f"the population index must have columns age, gender, skin_type, condition; missing {missing}"
-        )
-    return frame
-
-
-def select_population(source, subjects=None, conditions=("normal",)):
-    """Rows of the population index that enter a population statistic.
-
-    Parameters
-    ----------
-    source : store or pandas.DataFrame
-        A parameter store (``subjects()`` returns its index) or the index itself.
-    subjects : sequence of str, optional
-        Subject ids to keep (default: all).  Unknown ids raise.
-    conditions : sequence of str or None, optional
-        Measurement conditions to keep, default ``("normal",)`` as in Weyrich
-        §7, where the population statistics use one normal measurement per
-        subject.  ``None`` keeps every condition.
-
-    Returns
-    -------
-    pandas.DataFrame
-        The selected rows, indexed by ``subject_id``.
-
-    Raises
-    ------
-    ValidationError
-        If an id is unknown or nothing is left.
-    """
-    frame = _index(source)
-    if subjects is not None:
-        ids = [str(s) for s in ([subjects] if isinstance(subjects, str) else subjects)]
-        unknown = [s for s in ids if s not in frame.index]
-        if unknown:
-            raise ValidationError(f"subjects must be ids of the store, got unknown id(s) {unknown[:5]}")
-        frame = frame.loc[ids]
-    if conditions is not None:
-        conds = [parse_condition(c) for c in ([conditions] if isinstance(conditions, str) else conditions)]
-        frame = frame[frame["condition"].isin(conds)]
-    if len(frame) == 0:
-        raise ValidationError(
-            f"the selection (subjects={subjects!r}, conditions={conditions!r}) leaves no subject in the population"
-        )
-    return frame
+#: Weyrich §7: the condition pairs the paper singles out ("especially between lotion / hot and cold / powder").
+PUBLISHED_PAIRS = (("lotion", "hot"), ("cold", "powder"))
 
 
 @dataclass(frozen=True)
@@ -150,6 +73,70 @@ class ConditionDifferences:
     def lobe_name(self) -> str:
         return LOBE_NAMES[self.model][2]
 
+    def mean_differences(self):
+        """Region-averaged ``d_rho_s`` and ``d_lobe`` per non-reference condition (DataFrame indexed by condition)."""
+        return self.differences.groupby(level="condition", sort=False)[["d_rho_s", "d_lobe"]].mean()
+
+    def most_different_pair(self) -> tuple[str, str, float]:
+        """The two conditions furthest apart in :attr:`distance`: (condition, condition, distance)."""
+        m = self.distance.to_numpy()
+        i, j = divmod(int(m.argmax()), m.shape[1])
+        return str(self.distance.index[i]), str(self.distance.columns[j]), float(m[i, j])
+
+    def compare_published(self):
+        """Per condition the region-averaged differences and the distance to the reference.
+
+        The paper gives no numbers for §7, only the pairs it singles out
+        (:data:`PUBLISHED_PAIRS`); :meth:`most_different_pair` is ours.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Index ``condition`` (non-reference conditions); columns
+            ``d_rho_s``, ``d_lobe`` (:meth:`mean_differences`) and ``distance``
+            (to the reference, in within-region standard deviations).
+        """
+        table = self.mean_differences()
+        return table.assign(distance=[self.distance.loc[c, self.reference] for c in table.index])
+
+    def to_dict(self) -> dict:
+        """The JSON document of the analysis (``facestats analyze conditions`` writes it as ``conditions.json``).
+
+        Keys (conventions: :mod:`facestats.analysis.serialize`): ``model``,
+        ``person_id``, ``reference``, ``conditions``; ``values``: a list of
+        ``{condition, region, rho_s, lobe, rho_s_std, lobe_std, n}``;
+        ``differences``: a list of ``{condition, region, d_rho_s, d_lobe,
+        z_rho_s, z_lobe}`` against the reference; ``mean_differences``: by
+        condition the region-averaged ``{d_rho_s, d_lobe}``; ``distance``:
+        ``{conditions, matrix}`` (in within-region standard deviations).
+        """
+        mean_diff = self.mean_differences()
+        doc = {
+            "model": self.model,
+            "person_id": self.person_id,
+            "reference": self.reference,
+            "conditions": list(self.conditions),
+            "values": records(self.values.drop(columns="subject_id")),
+            "differences": records(self.differences),
+            "mean_differences": {c: {"d_rho_s": r["d_rho_s"], "d_lobe": r["d_lobe"]} for c, r in mean_diff.iterrows()},
+            "distance": {"conditions": list(self.distance.index), "matrix": self.distance.to_numpy()},
+        }
+        return json_ready(doc)
+
+    def to_text(self) -> str:
+        """Differences and distances per condition and the most different pair (``facestats analyze conditions``)."""
+        lines = [
+            f"{MODEL_NAMES[self.model]} BRDF of person {self.person_id} under {len(self.conditions)} conditions "
+            f"(Weyrich §7), mean over regions against {self.reference!r}",
+            f"{'condition':<10}{'d rho_s':>9}{'d ' + self.lobe_name:>11}{'distance':>10}",
+        ]
+        for c, r in self.compare_published().iterrows():
+            lines.append(f"{c:<10}{r['d_rho_s']:9.4f}{r['d_lobe']:11.4f}{r['distance']:10.2f}")
+        a, b, d = self.most_different_pair()
+        paper = " against ".join(" / ".join(p) for p in PUBLISHED_PAIRS)
+        lines.append(f"most different pair: {a} / {b} ({d:.1f} within-region sd); the paper notes {paper}")
+        return "\n".join(lines)
+
 
 def _combine(rows, rho_col, lobe_col, rho_std_col, lobe_std_col, n_col):
     """n-weighted mean and pooled spread of repeated measurements of one condition and region."""
@@ -166,6 +153,104 @@ def _combine(rows, rho_col, lobe_col, rho_std_col, lobe_std_col, n_col):
         var = np.sum(n * (s * s + (m - mean) ** 2)) / n.sum()  # law of total variance
         out += [mean, np.sqrt(var)]
     return out[0], out[2], out[1], out[3], int(n.sum())
+
+
+def _pick_person(frame, person_id, reference):
+    """(person id, their index rows): ``person_id``, or the person measured under the most conditions."""
+    if person_id is None:
+        n_cond = frame.groupby("person_id")["condition"].nunique()
+        has_ref = frame.loc[frame["condition"] == reference, "person_id"].unique()
+        candidates = n_cond[n_cond.index.isin(has_ref) & (n_cond > 1)]
+        if candidates.empty:
+            raise ValidationError(
+                f"no person in the store was measured under {reference!r} and another condition; "
+                "condition_differences needs one (Weyrich §7 measured one subject under seven conditions)"
+            )
+        person_id = str(candidates.sort_values(ascending=False, kind="stable").index[0])
+    rows = frame[frame["person_id"].astype(str) == str(person_id)]
+    if rows.empty:
+        raise ValidationError(f"person_id must be a person of the store, got {person_id!r}")
+    if reference not in set(rows["condition"]) or rows["condition"].nunique() < 2:
+        raise ValidationError(
+            f"person {person_id!r} must be measured under {reference!r} and at least one other condition, "
+            f"got conditions {sorted(set(rows['condition']))}"
+        )
+    return str(person_id), rows
+
+
+def _condition_values(rows, model):
+    """Region means and spreads per condition of one person's rows (the ``values`` table)."""
+    import pandas as pd
+
+    rho_stem, lobe_stem, _ = index_columns(model)
+    out = []
+    for cond in CONDITIONS:
+        sub = rows[rows["condition"] == cond]
+        if sub.empty:
+            continue
+        for r in REGION_IDS:
+            rho, lobe, rho_s, lobe_s, n = _combine(
+                sub,
+                f"{rho_stem}_mean_r{r}",
+                f"{lobe_stem}_mean_r{r}",
+                f"{rho_stem}_std_r{r}",
+                f"{lobe_stem}_std_r{r}",
+                f"n_{model}_r{r}",
+            )
+            out.append(
+                {
+                    "condition": cond,
+                    "region": r,
+                    "rho_s": rho,
+                    "lobe": lobe,
+                    "rho_s_std": rho_s,
+                    "lobe_std": lobe_s,
+                    "n": n,
+                    "subject_id": ",".join(map(str, sub.index)),
+                }
+            )
+    return pd.DataFrame.from_records(out).set_index(["condition", "region"])
+
+
+def _effect(values, a, b):
+    """Per region: Δρs, Δlobe of condition a minus b, and both over the pooled spread sqrt((s_a² + s_b²)/2)."""
+    va, vb = values.loc[a], values.loc[b]
+    d_rho = va["rho_s"] - vb["rho_s"]
+    d_lobe = va["lobe"] - vb["lobe"]
+    s_rho = np.sqrt((va["rho_s_std"] ** 2 + vb["rho_s_std"] ** 2) / 2)
+    s_lobe = np.sqrt((va["lobe_std"] ** 2 + vb["lobe_std"] ** 2) / 2)
+    z_rho = d_rho / s_rho.where(s_rho > 0)
+    z_lobe = d_lobe / s_lobe.where(s_lobe > 0)
+    return d_rho, d_lobe, z_rho, z_lobe
+
+
+def _differences(values, conds, reference):
+    """The ``differences`` table: every non-reference condition against the reference."""
+    import pandas as pd
+
+    diffs = []
+    for cond in conds:
+        if cond == reference:
+            continue
+        d_rho, d_lobe, z_rho, z_lobe = _effect(values, cond, reference)
+        diffs.append(
+            pd.DataFrame({"d_rho_s": d_rho, "d_lobe": d_lobe, "z_rho_s": z_rho, "z_lobe": z_lobe}).assign(
+                condition=cond
+            )
+        )
+    return pd.concat(diffs).reset_index().set_index(["condition", "region"])
+
+
+def _distance(values, conds):
+    """Condition × condition matrix of sqrt(mean over regions of z_ρs² + z_lobe²)."""
+    import pandas as pd
+
+    dist = np.zeros((len(conds), len(conds)))
+    for i, a in enumerate(conds):
+        for j, b in enumerate(conds[:i]):
+            _, _, z_rho, z_lobe = _effect(values, a, b)
+            dist[i, j] = dist[j, i] = float(np.sqrt((z_rho**2 + z_lobe**2).mean()))  # pandas: skips NaN regions
+    return pd.DataFrame(dist, index=pd.Index(conds, name="condition"), columns=pd.Index(conds, name="condition"))
 
 
 def condition_differences(source, person_id=None, model="ts", reference="normal"):
@@ -201,85 +286,14 @@ def condition_differences(source, person_id=None, model="ts", reference="normal"
         If no person (or not ``person_id``) was measured under the reference
         and at least one other condition.
     """
-    import pandas as pd
-
-    rho_stem, lobe_stem, _ = index_columns(model)
+    index_columns(model)  # validates the model before anything is read
     reference = parse_condition(reference)
-    frame = _index(source)
+    frame = population_index(source)
     if "person_id" not in frame.columns:
         frame = frame.assign(person_id=frame.index.astype(str))
-    n_cond = frame.groupby("person_id")["condition"].nunique()
-    if person_id is None:
-        has_ref = frame.loc[frame["condition"] == reference, "person_id"].unique()
-        candidates = n_cond[n_cond.index.isin(has_ref) & (n_cond > 1)]
-        if candidates.empty:
-            raise ValidationError(
-                f"no person in the store was measured under {reference!r} and another condition; "
-                "condition_differences needs one (Weyrich §7 measured one subject under seven conditions)"
-            )
-        person_id = str(candidates.sort_values(ascending=False, kind="stable").index[0])
-    rows = frame[frame["person_id"].astype(str) == str(person_id)]
-    if rows.empty:
-        raise ValidationError(f"person_id must be a person of the store, got {person_id!r}")
-    if reference not in set(rows["condition"]) or rows["condition"].nunique() < 2:
-        raise ValidationError(
-            f"person {person_id!r} must be measured under {reference!r} and at least one other condition, "
-            f"got conditions {sorted(set(rows['condition']))}"
-        )
-    records = []
-    for cond in CONDITIONS:
-        sub = rows[rows["condition"] == cond]
-        if sub.empty:
-            continue
-        for r in REGION_IDS:
-            rho, lobe, rho_s, lobe_s, n = _combine(
-                sub,
-                f"{rho_stem}_mean_r{r}",
-                f"{lobe_stem}_mean_r{r}",
-                f"{rho_stem}_std_r{r}",
-                f"{lobe_stem}_std_r{r}",
-                f"n_{model}_r{r}",
-            )
-            records.append(
-                {
-                    "condition": cond,
-                    "region": r,
-                    "rho_s": rho,
-                    "lobe": lobe,
-                    "rho_s_std": rho_s,
-                    "lobe_std": lobe_s,
-                    "n": n,
-                    "subject_id": ",".join(map(str, sub.index)),
-                }
-            )
-    values = pd.DataFrame.from_records(records).set_index(["condition", "region"])
+    person_id, rows = _pick_person(frame, person_id, reference)
+    values = _condition_values(rows, model)
     conds = [c for c in CONDITIONS if c in set(values.index.get_level_values("condition"))]
-
-    def effect(a, b):
-        va, vb = values.loc[a], values.loc[b]
-        d_rho = va["rho_s"] - vb["rho_s"]
-        d_lobe = va["lobe"] - vb["lobe"]
-        s_rho = np.sqrt((va["rho_s_std"] ** 2 + vb["rho_s_std"] ** 2) / 2)
-        s_lobe = np.sqrt((va["lobe_std"] ** 2 + vb["lobe_std"] ** 2) / 2)
-        z_rho = d_rho / s_rho.where(s_rho > 0)
-        z_lobe = d_lobe / s_lobe.where(s_lobe > 0)
-        return d_rho, d_lobe, z_rho, z_lobe
-
-    diffs = []
-    for cond in conds:
-        if cond == reference:
-            continue
-        d_rho, d_lobe, z_rho, z_lobe = effect(cond, reference)
-        diffs.append(
-            pd.DataFrame({"d_rho_s": d_rho, "d_lobe": d_lobe, "z_rho_s": z_rho, "z_lobe": z_lobe}).assign(
-                condition=cond
-            )
-        )
-    differences = pd.concat(diffs).reset_index().set_index(["condition", "region"])
-    dist = np.zeros((len(conds), len(conds)))
-    for i, a in enumerate(conds):
-        for j, b in enumerate(conds[:i]):
-            _, _, z_rho, z_lobe = effect(a, b)
-            dist[i, j] = dist[j, i] = float(np.sqrt((z_rho**2 + z_lobe**2).mean()))  # pandas: skips NaN regions
-    distance = pd.DataFrame(dist, index=pd.Index(conds, name="condition"), columns=pd.Index(conds, name="condition"))
-    return ConditionDifferences(str(person_id), model, reference, values, differences, distance)
+    differences = _differences(values, conds, reference)
+    distance = _distance(values, conds)
+    return ConditionDifferences(person_id, model, reference, values, differences, distance)

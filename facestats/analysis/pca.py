@@ -17,6 +17,11 @@ Conventions
 * Drawn ellipses have half-axes k·σ_i = k·sqrt(λ_i) along the eigenvectors,
   **k = 1 by default** (the paper does not say whether it drew σ or a multiple
   of it); :meth:`RegionEllipse.half_axes` and the plot take ``k``.
+
+:class:`RegionPCA` also gives the region orderings the paper discusses
+(:meth:`RegionPCA.orderings`, beside the paper's in
+:meth:`RegionPCA.compare_published`), the JSON document and the summary of
+``facestats analyze pca``.
 """
 
 from __future__ import annotations
@@ -25,7 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.analysis.conditions import index_columns, select_population
+from facestats.analysis.population import MODEL_NAMES, index_columns, region_samples, select_population
+from facestats.analysis.serialize import json_ready
 from facestats.core.conventions import REGION_IDS, REGIONS
 from facestats.core.validate import as_float, check_choice, check_finite, check_shape
 from facestats.errors import ValidationError
@@ -107,6 +113,11 @@ class RegionEllipse:
         """Standard deviations σ_i = sqrt(λ_i) along the principal axes."""
         return np.sqrt(self.eigenvalues)
 
+    @property
+    def total_variance(self) -> float:
+        """Total variance λ1 + λ2 of the region's samples (the size of its ellipse)."""
+        return float(self.eigenvalues.sum())
+
     def half_axes(self, k=1.0) -> np.ndarray:
         """Half-axis lengths k·σ_i of the drawn ellipse (k = 1: one standard deviation)."""
         return k * self.std
@@ -156,7 +167,7 @@ class RegionPCA:
         return self.regions[region]
 
     def to_frame(self):
-        """One row per region: name, n, n_subjects, mean, eigenvalues, σ, major-axis direction and angle."""
+        """One row per region: name, n, n_subjects, mean, eigenvalues, σ, major axis, angle and total variance."""
         import pandas as pd
 
         p0, p1 = self.parameters
@@ -177,15 +188,152 @@ class RegionPCA:
                     f"axis_1_{p0}": e.eigenvectors[0, 0],
                     f"axis_1_{p1}": e.eigenvectors[1, 0],
                     "angle": e.angle,
+                    "total_variance": e.total_variance,
                 }
             )
         return pd.DataFrame.from_records(rows).set_index("region")
+
+    def orderings(self) -> dict:
+        """The region orderings Weyrich et al. discuss in §7, from this population.
+
+        Returns
+        -------
+        dict
+            ``highest_rho_s``: the five regions of highest mean ρs, descending;
+            ``largest_variance``: the five regions of largest total variance
+            λ1 + λ2, descending; ``smallest_lobe``: the region of the smoothest
+            lobe, i.e. the smallest mean m (Torrance-Sparrow) or the largest
+            mean exponent n (Blinn-Phong).
+        """
+        mean_rho = {r: e.mean[0] for r, e in self.regions.items()}
+        mean_lobe = {r: e.mean[1] for r, e in self.regions.items()}
+        total = {r: e.total_variance for r, e in self.regions.items()}
+        return {
+            "highest_rho_s": sorted(mean_rho, key=mean_rho.get, reverse=True)[:5],
+            "largest_variance": sorted(total, key=total.get, reverse=True)[:5],
+            "smallest_lobe": (min if self.model == "ts" else max)(mean_lobe, key=mean_lobe.get),
+        }
+
+    def published_orderings(self) -> dict | None:
+        """The §7 orderings of the paper's Torrance-Sparrow fit (:mod:`facestats.core.published`); None for bp."""
+        if self.model != "ts":
+            return None
+        from facestats.core.published import HIGHEST_RHO_S, LARGEST_VARIANCE, SMALLEST_M
+
+        return {
+            "highest_rho_s": list(HIGHEST_RHO_S),
+            "largest_variance": list(LARGEST_VARIANCE),
+            "smallest_m": SMALLEST_M,
+        }
+
+    def compare_published(self, as_sets=False):
+        """Our §7 orderings (:meth:`orderings`) beside the paper's.
+
+        Parameters
+        ----------
+        as_sets : bool
+            List each ordering's regions sorted by number (the comparison as
+            sets of regions; the single smoothest region as a one-element list)
+            instead of in rank order (ours) and the paper's order.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Index ``ordering`` (``highest_rho_s``, ``largest_variance``,
+            ``smallest_lobe``); columns ``ours`` and ``paper`` (None for
+            Blinn-Phong, which the paper does not analyse).
+        """
+        import pandas as pd
+
+        ours = self.orderings()
+        pub = self.published_orderings()
+        keys = ("highest_rho_s", "largest_variance", "smallest_lobe")
+        paper = [None] * 3 if pub is None else [pub["highest_rho_s"], pub["largest_variance"], pub["smallest_m"]]
+        ours = [ours[k] for k in keys]
+        if as_sets:
+            ours = [sorted(np.atleast_1d(v).tolist()) for v in ours]
+            paper = [None if v is None else sorted(np.atleast_1d(v).tolist()) for v in paper]
+        return pd.DataFrame({"ours": ours, "paper": paper}, index=pd.Index(keys, name="ordering"))
+
+    def to_dict(self, k=1.0) -> dict:
+        """The JSON document of the analysis (``facestats analyze pca`` writes it as ``pca.json``).
+
+        Keys (conventions: :mod:`facestats.analysis.serialize`): ``model``
+        (``"ts"``/``"bp"``), ``parameters`` (``["rho_s", "m"]`` or
+        ``["rho_s", "exponent"]``), ``n_subjects``, ``ddof``, ``k`` (ellipse
+        half-axes in standard deviations); ``regions``: a list of
+        ``{region, name, n, n_subjects, mean: [ρs, lobe], eigenvalues: [λ1, λ2],
+        std: [σ1, σ2], axes: [[major], [minor]] (unit directions in (ρs, lobe)),
+        angle_deg (major axis from the ρs axis), total_variance (λ1 + λ2)}``;
+        ``orderings``: ``{highest_rho_s: 5 regions, largest_variance: 5 regions
+        (by total variance), smallest_lobe: region}`` (:meth:`orderings`) and
+        ``published`` (the §7 orderings of the Torrance-Sparrow fit, ``null``
+        for Blinn-Phong).
+
+        Parameters
+        ----------
+        k : float
+            Half-axes of the drawn ellipses in standard deviations (recorded as ``k``).
+        """
+        regions = [
+            {
+                "region": r,
+                "name": e.name,
+                "n": e.n,
+                "n_subjects": e.n_subjects,
+                "mean": e.mean,
+                "eigenvalues": e.eigenvalues,
+                "std": e.std,
+                "axes": e.eigenvectors.T,
+                "angle_deg": np.degrees(e.angle),
+                "total_variance": e.total_variance,
+            }
+            for r, e in self.regions.items()
+        ]
+        doc = {
+            "model": self.model,
+            "parameters": list(self.parameters),
+            "n_subjects": self.n_subjects,
+            "ddof": self.ddof,
+            "k": k,
+            "regions": regions,
+            "orderings": self.orderings(),
+            "published": self.published_orderings(),
+        }
+        return json_ready(doc)
+
+    def to_text(self) -> str:
+        """Summary table per region and the §7 orderings beside the paper's (what ``facestats analyze pca`` prints)."""
+        lobe = self.parameters[1]
+        lines = [
+            f"Region PCA of the {MODEL_NAMES[self.model]} parameters (rho_s, {lobe}), {self.n_subjects} subjects "
+            f"(Weyrich Fig. 15)",
+            f"{'region':<13}{'n':>7}  {'rho_s':>7}  {lobe:>8}  {'sd1':>8}  {'sd2':>8}  {'angle':>6}",
+        ]
+        for r, e in self.regions.items():
+            lines.append(
+                f"{r:>2} {e.name:<10}{e.n:>7}  {e.mean[0]:7.4f}  {e.mean[1]:8.4f}  {e.std[0]:8.4f}  "
+                f"{e.std[1]:8.4f}  {np.degrees(e.angle):5.0f}d"
+            )
+        cmp = self.compare_published()
+        smooth = "smallest m" if self.model == "ts" else "largest n"
+        for key, label in (("highest_rho_s", "highest rho_s:"), ("largest_variance", "largest variance:")):
+            ours, paper = cmp.loc[key, "ours"], cmp.loc[key, "paper"]
+            lines.append(f"{label:<18}{_regions(ours)}" + (f"   (paper: {_regions(paper)})" if paper else ""))
+        ours, paper = cmp.loc["smallest_lobe", "ours"], cmp.loc["smallest_lobe", "paper"]
+        lines.append(f"{smooth + ':':<18}{ours}" + ("" if paper is None else f"   (paper: {paper})"))
+        return "\n".join(lines)
+
+
+def _regions(ids):
+    """Region numbers separated by spaces."""
+    return " ".join(str(r) for r in ids)
 
 
 def region_sample_frame(source, model="ts", subjects=None):
     """Long-form per-region samples (``subject_id, region, rho_s, lobe``) of a store or a DataFrame.
 
-    A store is asked for ``source.region_samples(model=model, subjects=subjects)``;
+    A store's samples come from :func:`facestats.analysis.population.region_samples`;
     a DataFrame with those columns is filtered to ``subjects``.
     """
     import pandas as pd
@@ -194,11 +342,11 @@ def region_sample_frame(source, model="ts", subjects=None):
         frame = source
         if subjects is not None:
             frame = frame[frame["subject_id"].isin(list(subjects))]
-    elif callable(getattr(source, "region_samples", None)):
-        frame = source.region_samples(model=model, subjects=None if subjects is None else list(subjects))
+    elif callable(getattr(source, "subject", None)):
+        frame = region_samples(source, model=model, subjects=None if subjects is None else list(subjects))
     else:
         raise ValidationError(
-            f"source must be a parameter store (with a region_samples() method) or a DataFrame of samples, "
+            f"source must be a parameter store (with a subject() method) or a DataFrame of samples, "
             f"got {type(source).__name__}"
         )
     missing = [c for c in ("subject_id", "region", "rho_s", "lobe") if c not in frame.columns]
@@ -219,7 +367,7 @@ def region_pca(source, model="ts", subjects=None, conditions=("normal",), ddof=1
     Parameters
     ----------
     source : store or pandas.DataFrame
-        A parameter store (``region_samples`` and ``subjects``), or a long-form
+        A parameter store (``subjects`` and ``subject``), or a long-form
         DataFrame of samples with columns ``subject_id, region, rho_s, lobe``
         (then ``subjects``/``conditions`` filtering uses only ``subjects``).
     model : {"ts", "bp"}

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from facestats.analysis.population import MODEL_NAMES
 from facestats.core.conventions import CHANNELS, ROMAN
 
 __all__ = [
@@ -24,6 +25,7 @@ __all__ = [
     "plot_translucency",
     "plot_conditions",
     "plot_sigma_posterior",
+    "plot_site_posterior",
     "plot_population_sigma_tr",
 ]
 
@@ -140,9 +142,8 @@ def plot_region_pca(result, k=1.0, ax=None, annotate=True):
     lobe = {"m": "m (Beckmann roughness)", "exponent": "n (Blinn-Phong exponent)"}[result.parameters[1]]
     ax.set_xlabel(r"$\rho_s$ (specular scale)")
     ax.set_ylabel(lobe)
-    model = {"ts": "Torrance-Sparrow", "bp": "Blinn-Phong"}[result.model]
     ax.set_title(
-        f"{model} parameters per region, {result.n_subjects} subjects\n"
+        f"{MODEL_NAMES[result.model]} parameters per region, {result.n_subjects} subjects\n"
         f"ellipses: mean ± {k:g}σ along the principal axes",
         fontsize=10,
     )
@@ -319,59 +320,86 @@ def plot_sigma_posterior(post, labels=None, parameters=("sigma_s_prime", "sigma_
         ``{label: {parameter: value}}`` drawn as black lines (simulations).
     bins : int
     """
-    from matplotlib.ticker import MaxNLocator
-
     labels = list(post.labels if labels is None else labels)
     p = len(parameters)
     fig = _new_figure((1.7 * p * len(labels) + 0.5, 1.7 * p + 0.5))
     subfigs = np.atleast_1d(fig.subfigures(1, len(labels)))
+    diag = post.channel_diagnostics()
     for sf, lab in zip(subfigs, labels):
-        s = post.samples[lab]
-        color = _CHANNEL_COLORS.get(lab, "tab:purple")
-        axes = sf.subplots(p, p, squeeze=False)
-        for i, pi in enumerate(parameters):
-            for j, pj in enumerate(parameters):
-                ax = axes[i, j]
-                if j > i:
-                    ax.set_visible(False)
-                    continue
-                if i == j:
-                    ax.hist(s[pi], bins=bins, color=color, alpha=0.6, density=True)
-                    row = post.summary.loc[(lab, pi)]
-                    ax.axvline(row["median"], color="k", lw=1)
-                    for v in (row["lo"], row["hi"]):
-                        ax.axvline(v, color="k", lw=0.8, ls="--")
-                    ax.set_yticks([])
-                else:
-                    ax.plot(s[pj], s[pi], ",", color=color, alpha=0.4)
-                if truth and lab in truth:
-                    t = truth[lab]
-                    if pj in t:
-                        ax.axvline(t[pj], color="k", lw=1.2, alpha=0.7)
-                    if i != j and pi in t:
-                        ax.axhline(t[pi], color="k", lw=1.2, alpha=0.7)
-                ax.tick_params(labelsize=6)
-                ax.ticklabel_format(useOffset=False, style="plain")
-                ax.xaxis.set_major_locator(MaxNLocator(4))  # narrow posteriors have long tick labels
-                if i != j:
-                    ax.yaxis.set_major_locator(MaxNLocator(4))
-                if i == p - 1:
-                    ax.set_xlabel(_LABELS[pj], fontsize=8)
-                else:
-                    ax.set_xticklabels([])
-                if j == 0 and i > 0:
-                    ax.set_ylabel(_LABELS[pi], fontsize=8)
-                elif j > 0:
-                    ax.set_yticklabels([])
-        d = post.diagnostics.loc[lab]
-        tau = max(d["tau_sigma_s_prime"], d["tau_sigma_a"])
+        _corner(sf, post, lab, parameters, truth[lab] if truth and lab in truth else None, bins)
+        d = diag.loc[lab]
         flag = "" if d["converged"] else "  NOT CONVERGED"
         sf.suptitle(
-            f"{lab}: τ = {tau:.1f}, acc = {d['acceptance']:.2f}, {post.level:.0%} intervals{flag}",
+            f"{lab}: τ = {d['tau']:.1f}, acc = {d['acceptance']:.2f}, {post.level:.0%} intervals{flag}",
             fontsize=9,
             color="firebrick" if flag else "k",
         )
     return fig
+
+
+def plot_site_posterior(post):
+    """:func:`plot_sigma_posterior` of a site's profile, titled with its subject and site (``facestats analyze``)."""
+    fig = plot_sigma_posterior(post)
+    fig.suptitle(f"Posterior of the scattering coefficients: {post.subject_id}, {post.site} profile", fontsize=10)
+    return fig
+
+
+def _corner(sf, post, lab, parameters, truth, bins):
+    """One channel's corner: marginals on the diagonal, sample clouds below, ``truth`` lines if given."""
+    s = post.samples[lab]
+    color = _CHANNEL_COLORS.get(lab, "tab:purple")
+    p = len(parameters)
+    axes = sf.subplots(p, p, squeeze=False)
+    for i, pi in enumerate(parameters):
+        for j, pj in enumerate(parameters):
+            ax = axes[i, j]
+            if j > i:
+                ax.set_visible(False)
+                continue
+            if i == j:
+                _marginal(ax, s[pi], post.summary.loc[(lab, pi)], color, bins)
+            else:
+                ax.plot(s[pj], s[pi], ",", color=color, alpha=0.4)
+            _truth_lines(ax, truth, pi, pj, i != j)
+            _corner_axes(ax, i, j, p, pi, pj)
+
+
+def _marginal(ax, values, row, color, bins):
+    """Histogram with the median (solid) and the credible interval (dashed)."""
+    ax.hist(values, bins=bins, color=color, alpha=0.6, density=True)
+    ax.axvline(row["median"], color="k", lw=1)
+    for v in (row["lo"], row["hi"]):
+        ax.axvline(v, color="k", lw=0.8, ls="--")
+    ax.set_yticks([])
+
+
+def _truth_lines(ax, truth, pi, pj, joint):
+    """Black lines at the true values (x: ``pj``; y: ``pi`` on joint panels)."""
+    if truth is None:
+        return
+    if pj in truth:
+        ax.axvline(truth[pj], color="k", lw=1.2, alpha=0.7)
+    if joint and pi in truth:
+        ax.axhline(truth[pi], color="k", lw=1.2, alpha=0.7)
+
+
+def _corner_axes(ax, i, j, p, pi, pj):
+    """Ticks and labels of panel (i, j) of a p × p corner: labels on the outer panels only."""
+    from matplotlib.ticker import MaxNLocator
+
+    ax.tick_params(labelsize=6)
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.xaxis.set_major_locator(MaxNLocator(4))  # narrow posteriors have long tick labels
+    if i != j:
+        ax.yaxis.set_major_locator(MaxNLocator(4))
+    if i == p - 1:
+        ax.set_xlabel(_LABELS[pj], fontsize=8)
+    else:
+        ax.set_xticklabels([])
+    if j == 0 and i > 0:
+        ax.set_ylabel(_LABELS[pi], fontsize=8)
+    elif j > 0:
+        ax.set_yticklabels([])
 
 
 def plot_population_sigma_tr(result):

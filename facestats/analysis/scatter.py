@@ -10,7 +10,9 @@ can be analysed instead with ``site=``.
 
 The paper observes that σa falls as σ's rises, "near-exponential" because both
 come through eq. 16 from one albedo at fixed σtr; :meth:`AbsorptionScattering.correlations`
-quantifies it per channel (Pearson on log σa vs σ's, and Spearman rank).
+quantifies it per channel (Pearson on log σa vs σ's, and Spearman rank);
+:meth:`AbsorptionScattering.to_dict` and :meth:`AbsorptionScattering.to_text`
+give the numbers and the summary of ``facestats analyze scatter``.
 """
 
 from __future__ import annotations
@@ -19,8 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.analysis.conditions import select_population
-from facestats.core.conventions import CHANNELS, SITES
+from facestats.analysis.population import select_population
+from facestats.analysis.serialize import json_ready
+from facestats.core.conventions import CHANNELS, ROMAN, SITES
 from facestats.core.validate import check_choice
 from facestats.errors import ValidationError
 
@@ -61,6 +64,108 @@ class AbsorptionScattering:
         """Mean, standard deviation and count of σa and σ's per skin type and channel."""
         g = self.data.groupby(["skin_type", "channel"])[["sigma_a", "sigma_s_prime"]]
         return g.agg(["mean", "std", "count"])
+
+    @property
+    def n_subjects(self) -> int:
+        """Subjects with a value in at least one channel."""
+        return int(self.data["subject_id"].nunique())
+
+    def compare_published(self):
+        """Per channel our means and correlations, and whether σa falls as σ's rises, as the paper observes.
+
+        Fig. 14 gives no numbers; the paper's observation is the falling,
+        "near-exponential" relation, i.e. negative correlations.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Index ``channel``; columns ``n``, ``sigma_a_mean``,
+            ``sigma_s_prime_mean``, ``pearson_log``, ``spearman`` (as
+            :meth:`correlations`) and ``falls`` (both correlations negative).
+        """
+        import pandas as pd
+
+        rows = [
+            {
+                "channel": ch,
+                "n": c["n"],
+                "sigma_a_mean": c["sigma_a"]["mean"],
+                "sigma_s_prime_mean": c["sigma_s_prime"]["mean"],
+                "pearson_log": c["pearson_log"],
+                "spearman": c["spearman"],
+            }
+            for ch, c in self._channel_stats(self.correlations()).items()
+        ]
+        table = pd.DataFrame.from_records(rows).set_index("channel")
+        table["falls"] = (table["pearson_log"] < 0) & (table["spearman"] < 0)
+        return table
+
+    def _channel_stats(self, corr):
+        """The ``channels`` entry of :meth:`to_dict` (raw values)."""
+        d = self.data
+        channels = {}
+        for ch in CHANNELS:
+            sub = d[d["channel"] == ch]
+            channels[ch] = {
+                "n": len(sub),
+                **{
+                    p: {"mean": sub[p].mean(), "std": sub[p].std(ddof=1), "min": sub[p].min(), "max": sub[p].max()}
+                    for p in ("sigma_a", "sigma_s_prime")
+                },
+                "pearson_log": corr.loc[ch, "pearson_log"],
+                "spearman": corr.loc[ch, "spearman"],
+            }
+        return channels
+
+    def _type_means(self):
+        """The ``by_skin_type`` entry of :meth:`to_dict` (raw values)."""
+        g = self.data.groupby(["skin_type", "channel"])
+        means = g[["sigma_a", "sigma_s_prime"]].mean()
+        counts = g.size()
+        by_type = {}
+        for (st, ch), row in means.iterrows():
+            by_type.setdefault(ROMAN[int(st)], {})[ch] = {
+                "n": counts.loc[(st, ch)],
+                "sigma_a_mean": row["sigma_a"],
+                "sigma_s_prime_mean": row["sigma_s_prime"],
+            }
+        return by_type
+
+    def to_dict(self) -> dict:
+        """The JSON document of the analysis (``facestats analyze scatter`` writes it as ``scatter.json``).
+
+        Keys (conventions: :mod:`facestats.analysis.serialize`): ``site``
+        (``null``: subject-level σ from α_avg and σtrAvg, as the paper),
+        ``n_subjects``; ``channels``: by channel ``{n, sigma_a: {mean, std, min,
+        max}, sigma_s_prime: {...}, pearson_log, spearman}`` (Pearson r of
+        (σ's, ln σa), Spearman ρ of (σ's, σa)); ``by_skin_type``: by skin type
+        (Roman numeral) and channel ``{n, sigma_a_mean, sigma_s_prime_mean}``.
+        """
+        doc = {
+            "site": self.site,
+            "n_subjects": self.n_subjects,
+            "channels": self._channel_stats(self.correlations()),
+            "by_skin_type": self._type_means(),
+        }
+        return json_ready(doc)
+
+    def to_text(self) -> str:
+        """Means and correlations per channel (what ``facestats analyze scatter`` prints)."""
+        src = "from albedo and sigma_trAvg" if self.site is None else f"fitted at the {self.site}"
+        lines = [
+            f"Absorption against reduced scattering ({src}), {self.n_subjects} subjects (Weyrich Fig. 14)",
+            f"{'channel':<8}{'sigma_a mean':>13}{'sigma_s_prime mean':>20}{'r(ss, ln sa)':>14}{'Spearman':>10}",
+        ]
+        for ch, c in self.compare_published().iterrows():
+            lines.append(
+                f"{ch:<8}{c['sigma_a_mean']:13.4f}{c['sigma_s_prime_mean']:20.4f}"
+                f"{c['pearson_log']:14.3f}{c['spearman']:10.3f}"
+            )
+        lines.append(
+            "sigma_a falls as sigma_s_prime rises (negative correlations), as in the paper; "
+            "darker skin types absorb more and scatter less"
+        )
+        return "\n".join(lines)
 
 
 def absorption_scattering(source, site=None, subjects=None, conditions=("normal",)):

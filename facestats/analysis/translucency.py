@@ -25,6 +25,11 @@ Reproduction choices (stated because the paper does not fix them):
 * ℓd per subject is 1/σtr of that same per-subject cheek/forehead σtr; the
   least and most translucent subjects are ranked by the mean ℓd over the
   three channels by default (or one channel, ``rank_by``).
+
+:meth:`TranslucencyTable.compare_published` and
+:meth:`TranslucencyTable.compare_published_extremes` put the numbers beside the
+paper's; :meth:`TranslucencyTable.to_dict` and :meth:`TranslucencyTable.to_text`
+give the numbers and the summary of ``facestats analyze translucency``.
 """
 
 from __future__ import annotations
@@ -33,7 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.analysis.conditions import select_population
+from facestats.analysis.population import select_population
+from facestats.analysis.serialize import by_channel, json_ready
 from facestats.core.conventions import CHANNELS, SITES
 from facestats.core.validate import check_choice
 from facestats.errors import ValidationError
@@ -42,6 +48,13 @@ __all__ = ["TranslucencyTable", "translucency_table", "subject_sigma_tr"]
 
 #: Sites whose σtr define σtrAvg and each subject's ℓd (§5.4: "ignoring the neck").
 AVERAGE_SITES = ("cheek", "forehead")
+
+#: How to read the "Var." column beside ours (see the module docstring).
+VAR_NOTE = (
+    "The synthetic population of the default store reads Table 1's 'Var.' column as a standard deviation "
+    "(facestats.acquire.synthetic.population): compare the paper's 'Var.' with our 'std'.  'var' is the sample "
+    "variance of the per-subject sigma_tr."
+)
 
 
 def subject_sigma_tr(frame, sites=AVERAGE_SITES):
@@ -129,6 +142,89 @@ class TranslucencyTable:
                     }
                 )
         return pd.DataFrame.from_records(rows).set_index(["site", "channel"])
+
+    def compare_published_extremes(self):
+        """σtrAvg and the ℓd of the least and most translucent subject beside Weyrich §5.4.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Index (``quantity``, ``source``): quantities ``sigma_tr_avg`` (mm⁻¹),
+            ``ell_d_min``, ``ell_d_max`` (mm), each from ``ours`` and ``paper``;
+            columns ``subject_id`` (ours: the subject; else None), ``R``,
+            ``G``, ``B``.
+        """
+        import pandas as pd
+
+        from facestats.core.published import ELL_D_MAX, ELL_D_MIN, SIGMA_TR_AVG
+
+        rows = []
+        for quantity, subject, ours, paper in (
+            ("sigma_tr_avg", None, self.sigma_tr_avg, SIGMA_TR_AVG),
+            ("ell_d_min", self.min_subject, self.ell_d_min, ELL_D_MIN),
+            ("ell_d_max", self.max_subject, self.ell_d_max, ELL_D_MAX),
+        ):
+            rows.append({"quantity": quantity, "source": "ours", "subject_id": subject, **by_channel(ours)})
+            rows.append({"quantity": quantity, "source": "paper", "subject_id": None, **by_channel(paper)})
+        return pd.DataFrame.from_records(rows).set_index(["quantity", "source"])
+
+    def to_dict(self) -> dict:
+        """The JSON document of the analysis (``facestats analyze translucency`` writes it as ``translucency.json``).
+
+        Keys (conventions: :mod:`facestats.analysis.serialize`):
+        ``n_subjects``, ``ddof``; ``table``: a list of ``{site, channel, mean,
+        var, std, n, paper_mean, paper_var}`` (:meth:`compare_published` and
+        the subject count); ``sigma_tr_avg`` and ``published_sigma_tr_avg``
+        (by channel); ``ell_d_min`` and ``ell_d_max`` (``{subject_id, R, G,
+        B}``: least and most translucent subject) with
+        ``published_ell_d_min``/``published_ell_d_max``; ``var_note``
+        (:data:`VAR_NOTE`).
+        """
+        from facestats.core.published import ELL_D_MAX, ELL_D_MIN, SIGMA_TR_AVG
+
+        table = [
+            {"site": site, "channel": ch, **row.to_dict(), "n": self.table.loc[ch, (site, "n")]}
+            for (site, ch), row in self.compare_published().iterrows()
+        ]
+        doc = {
+            "n_subjects": int(len(self.subjects)),
+            "ddof": self.ddof,
+            "table": table,
+            "sigma_tr_avg": by_channel(self.sigma_tr_avg),
+            "published_sigma_tr_avg": by_channel(SIGMA_TR_AVG),
+            "ell_d_min": {"subject_id": self.min_subject, **by_channel(self.ell_d_min)},
+            "ell_d_max": {"subject_id": self.max_subject, **by_channel(self.ell_d_max)},
+            "published_ell_d_min": by_channel(ELL_D_MIN),
+            "published_ell_d_max": by_channel(ELL_D_MAX),
+            "var_note": VAR_NOTE,
+        }
+        return json_ready(doc)
+
+    def to_text(self) -> str:
+        """Table 1, σtrAvg and the ℓd extremes beside the paper's (what ``facestats analyze translucency`` prints)."""
+        lines = [
+            f"Table 1: sigma_tr (1/mm) per site and channel, {len(self.subjects)} subjects (Weyrich Table 1, §5.4)",
+            f"{'site':<9}{'ch':<3}{'mean':>8}{'paper':>8}   {'var':>7}{'std':>8}{'paper Var.':>12}",
+        ]
+        for (site, ch), row in self.compare_published().iterrows():
+            lines.append(
+                f"{site:<9}{ch:<3}{row['mean']:8.4f}{row['paper_mean']:8.4f}   {row['var']:7.4f}"
+                f"{row['std']:8.4f}{row['paper_var']:12.4f}"
+            )
+        ext = self.compare_published_extremes()
+
+        def rgb(quantity, source):
+            return " ".join(f"{x:.4f}" for x in ext.loc[(quantity, source), list(CHANNELS)])
+
+        lines += [
+            f"sigma_trAvg (cheek and forehead): {rgb('sigma_tr_avg', 'ours')}   (paper {rgb('sigma_tr_avg', 'paper')})",
+            f"l_d least translucent {self.min_subject}: {rgb('ell_d_min', 'ours')} mm   "
+            f"(paper {rgb('ell_d_min', 'paper')})",
+            f"l_d most translucent {self.max_subject}: {rgb('ell_d_max', 'ours')} mm   "
+            f"(paper {rgb('ell_d_max', 'paper')})",
+            "note: " + VAR_NOTE,
+        ]
+        return "\n".join(lines)
 
 
 def translucency_table(source, subjects=None, conditions=("normal",), ddof=1, rank_by="mean"):

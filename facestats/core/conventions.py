@@ -28,6 +28,7 @@ __all__ = [
     "age_group",
     "DEFAULT_SEED",
     "DEFAULT_MAP_SIZE",
+    "FLAG_BITS",
 ]
 
 #: Colour channels (linear RGB).
@@ -176,3 +177,12 @@ def age_group(age) -> str:
 #: Seed and map size (= lumitexel grid) of the embedded default store (``facestats build --default``).
 DEFAULT_SEED = 2006
 DEFAULT_MAP_SIZE = 48
+
+#: Bit flags of the fits of a texel (the ``ts_flag`` / ``bp_flag`` maps of a subject).
+FLAG_BITS = {
+    "few_samples": 1,  # fewer valid samples than the fit needs
+    "not_converged": 2,  # the solver hit its iteration limit
+    "ill_conditioned": 4,  # JᵀJ is (near) singular or a parameter's relative standard error is too large
+    "at_bound": 8,  # a parameter ended on its bound
+    "filled": 16,  # value interpolated from neighbours in UV (§5.3)
+}

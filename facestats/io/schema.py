@@ -22,7 +22,7 @@ import json
 
 import numpy as np
 
-from facestats.core.conventions import CHANNELS, CONDITIONS, GENDERS, REGIONS, SITES
+from facestats.core.conventions import CHANNELS, CONDITIONS, FLAG_BITS, GENDERS, REGIONS, SITES
 from facestats.errors import SchemaError
 
 __all__ = [
@@ -41,15 +41,6 @@ __all__ = [
 
 #: Version of this schema; stores record it and readers refuse versions they do not know.
 SCHEMA_VERSION = 1
-
-#: Bit flags of the ``ts_flag`` / ``bp_flag`` maps.
-FLAG_BITS = {
-    "few_samples": 1,  # fewer valid samples than the fit needs
-    "not_converged": 2,  # the solver hit its iteration limit
-    "ill_conditioned": 4,  # JᵀJ is (near) singular or a parameter's relative standard error is too large
-    "at_bound": 8,  # a parameter ended on its bound
-    "filled": 16,  # value interpolated from neighbours in UV (§5.3)
-}
 
 #: name -> (dims, units, long name)
 VARIABLES = {

@@ -10,58 +10,28 @@ constrained sequential quadratic programming per lumitexel (the baseline of
 ``benchmarks/bench_fit.py``).  Here every texel is solved at once by a bounded
 Levenberg-Marquardt iteration vectorised over texels and samples:
 
-* Both models are ρs times a lobe: f_sM cos θi = ρs · g(p), with
-  g = A exp(−t/m²)/m², A = K cos θi / cos⁴δ, t = tan²δ for Torrance-Sparrow
-  (K = G F_r/(π cos θi cos θo), :func:`facestats.model.brdf.torrance_sparrow_cosines`)
-  and g = A (n+2) cosⁿδ, A = cos θi/(2π) for Blinn-Phong.  The per-sample
-  factors A, t (or ln cos δ) are computed once, in float32 and blockwise
-  (:func:`specular_factors`, :func:`facestats.core.blocked.blockwise`); every
-  iteration costs one exponential per sample.
-* Parameters (ρs, q = ln p): the lobe parameter is solved in log space, where
-  the problem is well scaled.  Bounds are enforced by projection of each step,
-  with per-texel damping λ (accepted steps divide it by 3, rejected ones
-  multiply it by 4).
-* Start: a weighted log-linear fit of ln(y/A) against t (or ln cos δ) over the
-  strongest samples gives p₀ (the slope is −1/m², or n); ρs₀ then follows in
-  closed form and p₀ starts the iteration (see ``_COLD_STARTS``), unless a
-  start is given (a previous fit: the pipeline refits after refining the albedo,
-  and starts Blinn-Phong at the Beckmann-equivalent n = 2/m² − 2).
-* Convergence: a texel stops when the Gauss-Newton decrement bᵀH⁻¹b (the most
-  a full step could still lower E²) is below ``tol``/10 of E², when an accepted
-  step changes E² by less than ``tol`` relative, when a step (accepted or not)
-  changes ρs by less than 10⁻⁵ relative and ln p by less than 10⁻⁵, or when λ
-  exceeds 10¹⁰.  (The decrement test saves the confirming evaluation; at
-  ``tol``/10 the parameters stay within 2·10⁻³ relative of a fit run to
-  tol = 10⁻¹³, as close as the E²-change test alone gets.)
-* Only samples with w = 1 are kept, as flat arrays in which every texel's
-  samples form one contiguous run (:class:`facestats.model.fitting.samples.Samples`
-  is sorted by texel); per-texel sums are ``np.add.reduceat`` over the runs
-  (pairwise float32 sums, accumulated per texel in float64), and when fewer
-  than 70 % of the texels are still moving the converged ones leave the
-  working set, their sums kept for the final E(p) and standard errors.  E² is
-  Σy² − 2ρs Σyg + ρs² Σg² from those sums, except where that difference is
-  below 1 % of Σy² (it would cancel): there the residuals are formed explicitly.
-
-Flags (:data:`facestats.io.schema.FLAG_BITS`): ``few_samples`` when fewer than
-``min_samples`` samples remain, ``not_converged`` when ``max_iter`` is reached,
-``ill_conditioned`` when the normal matrix is singular or a parameter's relative
-standard error (from σ² (JᵀJ)⁻¹) exceeds ``max_relative_error``, ``at_bound``
-when the lobe parameter ends on a bound.  Flagged texels keep their values but
-are meant to be filled from neighbours (:func:`facestats.model.fitting.maps.fill_flagged`).
+* The per-sample factors A, z of both models (:mod:`facestats.model.fitting.lobes`)
+  are computed once, in float32 and blockwise (:func:`specular_factors`,
+  :func:`facestats.core.blocked.blockwise`); every iteration of the solver
+  (:mod:`facestats.model.fitting.solver`: parameters, start, convergence, flags)
+  costs one exponential per sample.
+* Only samples with w = 1 are kept, compacted once for all models
+  (:func:`fit_specular_models`), as flat arrays in which every texel's samples
+  form one contiguous run (:class:`facestats.model.fitting.samples.Samples` is
+  sorted by texel).
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 
 from facestats.core.blocked import blockwise
 from facestats.core.published import ETA_SKIN
-from facestats.core.validate import as_finite, as_float, check_choice, check_integer, check_shape
+from facestats.core.validate import as_finite, as_float, check_choice, check_shape
 from facestats.errors import ValidationError
 from facestats.model.brdf import torrance_sparrow_cosines
 from facestats.model.fitting.samples import Samples, segment_sum
+from facestats.model.fitting.solver import DEFAULT_BOUNDS, SpecularFit, solve_specular
 from facestats.model.fresnel import check_eta
 
 __all__ = [
@@ -73,130 +43,6 @@ __all__ = [
     "equivalent_lobe",
     "DEFAULT_BOUNDS",
 ]
-
-#: Default bounds (ρs, lobe parameter) per model.
-DEFAULT_BOUNDS = {
-    "torrance_sparrow": ((0.0, 5.0), (0.03, 1.0)),
-    "blinn_phong": ((0.0, 1.0), (0.5, 5000.0)),
-}
-_LOBE_NAME = {"torrance_sparrow": "m", "blinn_phong": "exponent"}
-FLAG_FEW, FLAG_NOT_CONVERGED, FLAG_ILL, FLAG_BOUND = 1, 2, 4, 8
-#: Multiples of the log-linear estimate tried as cold starts (the best one starts the iteration);
-#: one suffices on skin-like lobes (extra starts at 0.625× and 1.6× changed 0.1 % of texels).
-_COLD_STARTS = (1.0,)
-
-
-@dataclass
-class SpecularFit:
-    """Result of :func:`fit_specular` (one entry per texel).
-
-    Attributes
-    ----------
-    model : str
-    rho_s : ndarray
-        ρs.
-    lobe : ndarray
-        m (Torrance-Sparrow) or n (Blinn-Phong).
-    error : ndarray
-        E(p) of eq. 14 (sr⁻¹).
-    flags : ndarray of uint8
-        Bit flags (module docstring).
-    n_samples : ndarray of int
-        Samples that entered the fit (w = 1).
-    iterations : int
-        Levenberg-Marquardt iterations run.
-    rho_s_std, lobe_std : ndarray
-        Standard errors from σ² (JᵀJ)⁻¹.
-    """
-
-    model: str
-    rho_s: np.ndarray
-    lobe: np.ndarray
-    error: np.ndarray
-    flags: np.ndarray
-    n_samples: np.ndarray
-    iterations: int
-    rho_s_std: np.ndarray
-    lobe_std: np.ndarray
-
-    @property
-    def lobe_name(self) -> str:
-        """Name of the lobe parameter: ``"m"`` (Torrance-Sparrow) or ``"exponent"`` (Blinn-Phong)."""
-        return _LOBE_NAME[self.model]
-
-    @property
-    def params(self) -> dict:
-        """``{"rho_s": ..., lobe_name: ...}``, keyword arguments of the model's BRDF."""
-        return {"rho_s": self.rho_s, self.lobe_name: self.lobe}
-
-
-def _rate(model, p):
-    """Per-texel rate c of the lobe's exponential u = A e^{c z}: −1/m² (TS, z = tan²δ) or n (BP, z = ln cos δ)."""
-    return -1 / (p * p) if model == "torrance_sparrow" else p
-
-
-def _lobe_base(model, q, counts, z, a, out=None):
-    """Per-sample u = A e^{c z} for per-texel q = ln p repeated ``counts`` times (one exponential per sample).
-
-    The lobe is g = s(p) u with s = 1/m² (TS: g = A e^{−t/m²}/m²) or n + 2
-    (BP: g = A (n+2) cosⁿδ); see :func:`_moments`.
-    """
-    u = np.multiply(z, np.repeat(_rate(model, np.exp(np.asarray(q, np.float64))).astype(z.dtype), counts), out=out)
-    np.exp(u, out=u)
-    u *= a
-    return u
-
-
-def _lobe_sums(model, q, counts, starts, z, a, y, scratch):
-    """Per-texel Σ y u, Σ y u z, Σ u², Σ u² z, Σ u² z² (float64) over runs of samples, for q = ln p.
-
-    One exponential and five products per sample: everything the Gauss-Newton
-    step and E(p) need (:func:`_moments`); float32 sums are pairwise.
-    """
-    u = _lobe_base(model, q, counts, z, a, out=scratch[0])
-    yu = np.multiply(y, u, out=scratch[1])
-    uu = np.multiply(u, u, out=scratch[2])
-
-    def rsum(x):
-        return np.add.reduceat(x, starts).astype(np.float64)
-
-    s_yu, s_uu = rsum(yu), rsum(uu)
-    s_yuz = rsum(np.multiply(yu, z, out=yu))
-    s_uuz = rsum(np.multiply(uu, z, out=uu))
-    s_uuzz = rsum(np.multiply(uu, z, out=uu))
-    return s_yu, s_yuz, s_uu, s_uuz, s_uuzz
-
-
-def _moments(model, q, sums):
-    """Σ y g, Σ g², Σ y g', Σ g g', Σ g'² (g' = ∂g/∂ln p) per texel from :func:`_lobe_sums`.
-
-    Torrance-Sparrow (Weyrich et al. 2006 eq. 12 with the parameter-free factor A):
-    g = w u, w = 1/m², u = A e^{−w t}, and ∂g/∂ln m = 2 g (w t − 1) = 2w² u t − 2w u.
-    Blinn-Phong (eq. 11): g = (n+2) u, u = A e^{n ln cos δ}, and
-    ∂g/∂ln n = g (n/(n+2) + n ln cos δ) = n u (1 + (n+2) z), z = ln cos δ.
-    (Both derivatives checked against finite differences in the tests.)
-    """
-    s_yu, s_yuz, s_uu, s_uuz, s_uuzz = sums
-    p = np.exp(np.asarray(q, np.float64))
-    if model == "torrance_sparrow":
-        w = 1 / (p * p)
-        syg, sgg = w * s_yu, w * w * s_uu
-        sydg = 2 * w * (w * s_yuz - s_yu)
-        sgdg = 2 * w * w * (w * s_uuz - s_uu)
-        sdgdg = 4 * w * w * (w * w * s_uuzz - 2 * w * s_uuz + s_uu)
-    else:
-        k = p + 2
-        syg, sgg = k * s_yu, k * k * s_uu
-        sydg = p * (s_yu + k * s_yuz)
-        sgdg = k * p * (s_uu + k * s_uuz)
-        sdgdg = p * p * (s_uu + 2 * k * s_uuz + k * k * s_uuzz)
-    return syg, sgg, sydg, sgdg, np.maximum(sdgdg, 0)
-
-
-def _lobe_scale(model, q):
-    """s(p) with g = s u: 1/m² (TS) or n + 2 (BP), per texel."""
-    p = np.exp(np.asarray(q, np.float64))
-    return 1 / (p * p) if model == "torrance_sparrow" else p + 2
 
 
 def _ts_factor_kernel(ci, co, io, eta):
@@ -378,7 +224,7 @@ def fit_specular_models(
         s1, a = factors[m]
         first = fits[models[0]] if fits else None
         st = start if first is None else equivalent_lobe(first.lobe, first.model, m)
-        fits[m] = _solve(
+        fits[m] = solve_specular(
             m,
             y,
             s1,
@@ -483,273 +329,4 @@ def fit_specular(
         max_iter=max_iter,
         tol=tol,
         max_relative_error=max_relative_error,
-    )
-
-
-def _check_solver_args(model, bounds, min_samples, max_iter, tol, max_relative_error):
-    """The bounds ((ρ_lo, ρ_hi), (p_lo, p_hi)) of ``model``, after checking every solver argument."""
-    try:
-        (r_lo, r_hi), (p_lo, p_hi) = DEFAULT_BOUNDS[model] if bounds is None else bounds
-        ordered = 0 <= r_lo < r_hi and 0 < p_lo < p_hi
-    except (TypeError, ValueError):
-        ordered = False
-    if not ordered:
-        raise ValidationError(
-            "bounds must be ((rho_lo, rho_hi), (lobe_lo, lobe_hi)) with 0 <= rho_lo < rho_hi and "
-            f"0 < lobe_lo < lobe_hi, got {bounds!r}"
-        )
-    check_integer(min_samples, "min_samples", 2)
-    check_integer(max_iter, "max_iter", 0)
-    as_finite(tol, "tol", 0, None)
-    as_finite(max_relative_error, "max_relative_error", 0, None, low_inclusive=False)
-    return (r_lo, r_hi), (p_lo, p_hi)
-
-
-def _segments(counts):
-    """Start offsets of contiguous per-texel runs with these (non-zero) sample counts."""
-    return np.concatenate([[0], np.cumsum(counts)[:-1]])
-
-
-def _rsum(x, starts):
-    """Per-run sums of ``x`` (float32 pairwise within a run), as float64."""
-    return np.add.reduceat(x, starts).astype(np.float64)
-
-
-class _WorkingSet:
-    """The samples of the texels still moving, with their runs renumbered 0..k-1 (module docstring)."""
-
-    def __init__(self, moving, n_use, y, a, s1, dtype):
-        self.work, self.n_use = np.nonzero(moving)[0], n_use
-        if not moving.all():
-            kept = np.flatnonzero(np.repeat(moving, n_use))
-            self.y, self.a, self.s = y.take(kept), a.take(kept), s1.take(kept)
-        else:
-            self.y, self.a, self.s = y, a, s1
-        self.counts = n_use[self.work]
-        self.starts = _segments(self.counts) if self.work.size else None
-        self.scratch = np.empty((3, self.y.size), dtype)  # per-sample work buffers of the lobe sums
-
-    def lobe_sums(self, model, q):
-        """The five lobe sums of every texel of the set at log-lobe ``q`` (:func:`_lobe_sums`)."""
-        return _lobe_sums(model, q, self.counts, self.starts, self.s, self.a, self.y, self.scratch)
-
-    def keep(self, live):
-        """Drop the texels that stopped moving (``~live``)."""
-        kept = np.flatnonzero(np.repeat(live, self.counts))
-        self.y, self.a, self.s = (x.take(kept) for x in (self.y, self.a, self.s))
-        self.work = self.work[live]
-        self.counts = self.n_use[self.work]
-        self.starts = _segments(self.counts)
-        self.scratch = self.scratch[:, : self.y.size]
-
-
-def _log_linear_start(model, ws, dt):
-    """Lobe starts p₀ from a weighted log-linear fit over each texel's strongest samples.
-
-    ln(y/A) = ln ρs − t/m² (Torrance-Sparrow) or ln(ρs (n+2)) + n ln cos δ
-    (Blinn-Phong): the slope against the per-sample abscissa gives p₀.
-    """
-    wy, wa, st_w = ws.y, ws.a, ws.starts
-    ymax = np.maximum.reduceat(wy, st_w)
-    strong = (wy > np.repeat(np.float32(0.25) * ymax.astype(dt), ws.counts)) & (wy > 0)
-    lr = np.log(np.maximum(wy, np.float32(1e-30)) / wa)  # finite: A > 0 on every kept sample
-    wt = wy * wy * strong
-    wx = wt * ws.s
-    sw_, sx_, sy_ = _rsum(wt, st_w), _rsum(wx, st_w), _rsum(wt * lr, st_w)
-    sxy_, sxx_ = _rsum(wx * lr, st_w), _rsum(wx * ws.s, st_w)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        slope = (sxy_ - sx_ * sy_ / sw_) / (sxx_ - sx_ * sx_ / sw_)
-        if model == "torrance_sparrow":
-            pc = np.where(slope < 0, 1 / np.sqrt(np.abs(slope)), 0.3)
-        else:
-            pc = np.where(slope > 0, slope, 20.0)
-    return np.nan_to_num(pc, nan=0.3 if model == "torrance_sparrow" else 20.0)
-
-
-def _best_start(model, ws, swyy_w, p0, cold, r_bounds, q_bounds):
-    """(log-lobe, ρs, lobe sums) of the best of the candidate starts of each texel (least E)."""
-    (r_lo, r_hi), (q_lo, q_hi) = r_bounds, q_bounds
-    k = ws.work.size
-    factors = (1.0,) if not cold.any() else _COLD_STARTS
-    best_e = np.full(k, np.inf)
-    best_q = np.log(p0)
-    best_r = np.zeros(k)
-    best_s = None
-    for f in factors:  # candidate starts
-        qq = np.clip(np.log(p0 * np.where(cold, f, 1.0)), q_lo, q_hi)
-        sums = ws.lobe_sums(model, qq)
-        syg, sgg = _moments(model, qq, sums)[:2]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            rr = np.clip(np.nan_to_num(syg / sgg), r_lo, r_hi)
-        e = swyy_w - 2 * rr * syg + rr * rr * sgg
-        better = e < best_e
-        best_e, best_q, best_r = (
-            np.where(better, e, best_e),
-            np.where(better, qq, best_q),
-            np.where(better, rr, best_r),
-        )
-        best_s = sums if best_s is None else tuple(np.where(better, x, b) for x, b in zip(sums, best_s))
-    return best_q, best_r, best_s
-
-
-def _lm_iterations(model, ws, state, sums, swyy, r_bounds, q_bounds, max_iter, tol):
-    """Levenberg-Marquardt, vectorised over the texels still moving; returns (all lobe sums, iterations).
-
-    ``state`` holds per-texel ``rho``, ``q``, ``lam`` and ``done`` arrays, updated in
-    place.  Every iteration evaluates the lobe once, at the trial point: its five sums
-    give E there and, if the step is accepted, the gradient and Hessian of the next step.
-    """
-    (r_lo, r_hi), (q_lo, q_hi) = r_bounds, q_bounds
-    rho, q, lam, done = state["rho"], state["q"], state["lam"], state["done"]
-    all_sums = np.zeros((5, rho.size))  # lobe sums of every texel, written when it leaves the working set
-    iterations = 0
-    for iterations in range(1, int(max_iter) + 1):
-        work = ws.work
-        r0, q0, lm = rho[work], q[work], lam[work]
-        syg, sgg, sydg, sgdg, sdgdg = _moments(model, q0, sums)
-        e0 = swyy[work] - 2 * r0 * syg + r0 * r0 * sgg
-        h00, h01, h11 = sgg, r0 * sgdg, r0 * r0 * sdgdg
-        b0, b1 = syg - r0 * sgg, r0 * (sydg - r0 * sgdg)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            # Gauss-Newton decrement bᵀH⁻¹b: the most a full step could still lower E².
-            decrement = (h11 * b0 * b0 - 2 * h01 * b0 * b1 + h00 * b1 * b1) / (h00 * h11 - h01 * h01)
-        done[work] |= decrement < 0.1 * tol * e0
-        live = ~done[work]
-        if not live.any():
-            break
-        if live.mean() < 0.7:  # compact the working set
-            all_sums[:, work[~live]] = np.array(sums)[:, ~live]
-            ws.keep(live)
-            work = ws.work
-            sums = tuple(x[live] for x in sums)
-            r0, q0, lm, e0, h00, h01, h11, b0, b1 = (x[live] for x in (r0, q0, lm, e0, h00, h01, h11, b0, b1))
-        d00 = h00 * (1 + lm) + 1e-30
-        d11 = h11 * (1 + lm) + 1e-30
-        det = d00 * d11 - h01 * h01
-        with np.errstate(invalid="ignore", divide="ignore"):
-            dr = (d11 * b0 - h01 * b1) / det
-            dq = (d00 * b1 - h01 * b0) / det
-        r1 = np.clip(r0 + np.nan_to_num(dr), r_lo, r_hi)
-        q1 = np.clip(q0 + np.nan_to_num(dq), q_lo, q_hi)
-        sums1 = ws.lobe_sums(model, q1)
-        syg1, sgg1 = _moments(model, q1, sums1)[:2]
-        e1 = swyy[work] - 2 * r1 * syg1 + r1 * r1 * sgg1
-        accept = e1 < e0
-        rho[work] = np.where(accept, r1, r0)
-        q[work] = np.where(accept, q1, q0)
-        lam[work] = np.where(accept, lm / 3, lm * 4)
-        sums = tuple(np.where(accept, x1, x0) for x1, x0 in zip(sums1, sums))
-        rel = (e0 - np.minimum(e1, e0)) / np.maximum(e0, 1e-30)
-        # A step this small, accepted or not, means the minimum is reached (to float32 precision).
-        small_step = (np.abs(r1 - r0) <= 1e-5 * np.maximum(np.abs(r0), 1e-6)) & (np.abs(q1 - q0) <= 1e-5)
-        done[work] |= (accept & (rel < tol)) | small_step | (lam[work] > 1e10)
-    all_sums[:, ws.work] = sums
-    return all_sums, iterations
-
-
-def _squared_error(model, y, s1, a, n_use, good, rho, q, swyy, syg, sgg, dt):
-    """E² per texel from the lobe sums; where they would cancel (E² < 1 % of Σy²), from explicit residuals.
-
-    E² = Σy² − 2ρs Σyg + ρs² Σg².  Near a perfect fit that difference cancels
-    (float32 sums carry ~1e-7 Σy²), so there E² is recomputed as Σ (y − ρs g)².
-    """
-    e = np.zeros(n_use.size)
-    e[good] = np.maximum(swyy[good] - 2 * rho[good] * syg + rho[good] ** 2 * sgg, 0)
-    exact = good & (e < 1e-2 * swyy)
-    if exact.any():
-        cnt_x = n_use[exact]
-        sel = np.repeat(exact, n_use)
-        kept = None if exact.all() else np.flatnonzero(sel)
-        yx, sx, ax = (x if kept is None else x.take(kept) for x in (y, s1, a))
-        g = _lobe_base(model, q[exact], cnt_x, sx, ax)
-        g *= np.repeat((rho[exact] * _lobe_scale(model, q[exact])).astype(dt), cnt_x)  # ρs g
-        res = np.subtract(yx, g, out=g)
-        e[exact] = np.add.reduceat(np.multiply(res, res, out=res), _segments(cnt_x))  # pairwise float32
-    return e
-
-
-def _uncertainty(model, y, s1, a, n_use, good, rho, q, all_sums, swyy, max_relative_error, dt):
-    """(RMS error, std of ρs, std of the lobe, ill-conditioned) per texel from J = (g, ρs ∂g/∂ln p).
-
-    The covariance is σ²(JᵀJ)⁻¹ with σ² = E²/(n − 2) (module docstring).
-    """
-    n_tex = n_use.size
-    err, r_std, p_std = (np.full(n_tex, np.nan) for _ in range(3))
-    ill = np.zeros(n_tex, bool)
-    if not good.any():
-        return err, r_std, p_std, ill
-    syg, sgg, _, sgdg, sdgdg = _moments(model, q[good], all_sums[:, good])
-    h00, h01, h11 = (np.zeros(n_tex) for _ in range(3))
-    h00[good], h01[good], h11[good] = sgg, rho[good] * sgdg, rho[good] ** 2 * sdgdg
-    e = _squared_error(model, y, s1, a, n_use, good, rho, q, swyy, syg, sgg, dt)
-    sw = n_use.astype(np.float64)
-    det = h00 * h11 - h01 * h01
-    with np.errstate(invalid="ignore", divide="ignore"):
-        err = np.where(good, np.sqrt(e / sw), np.nan)
-        sigma2 = e / np.maximum(sw - 2, 1)
-        var_r = sigma2 * h11 / det
-        var_q = sigma2 * h00 / det
-        r_std = np.where(good, np.sqrt(var_r), np.nan)
-        p_std = np.where(good, np.exp(q) * np.sqrt(var_q), np.nan)  # std of ln p times p
-        rel_r = np.sqrt(var_r) / rho
-        rel_q = np.sqrt(var_q)
-        singular = ~(det > 1e-12 * np.maximum(h00 * h11, 1e-300))
-        ill = good & (singular | ~(rel_r <= max_relative_error) | ~(rel_q <= max_relative_error))
-    return err, r_std, p_std, ill
-
-
-def _solve(
-    model, y, s1, a, n_use, *, bounds, min_samples, max_iter, tol, max_relative_error, dtype=np.float32, start=None
-):
-    """Batch bounded Levenberg-Marquardt on flat samples in per-texel runs of ``n_use`` samples (module docstring)."""
-    (r_lo, r_hi), (p_lo, p_hi) = _check_solver_args(model, bounds, min_samples, max_iter, tol, max_relative_error)
-    dt = np.dtype(dtype)
-    q_lo, q_hi = np.log(p_lo), np.log(p_hi)
-    n_use = np.asarray(n_use, np.int64)
-    n_tex = n_use.size
-    few = n_use < min_samples
-    state = {
-        "rho": np.full(n_tex, np.nan, dt),
-        "q": np.full(n_tex, np.nan, dt),
-        "lam": np.full(n_tex, 1e-3, dt),
-        "done": few.copy(),
-    }
-    ws = _WorkingSet(~few, n_use, y, a, s1, y.dtype)
-    swyy = np.zeros(n_tex)
-    iterations = 0
-    all_sums = np.zeros((5, n_tex))
-    if ws.work.size:
-        work = ws.work
-        swyy[work] = _rsum(ws.y * ws.y, ws.starts)
-        p0 = np.full(work.size, np.nan)
-        if start is not None:  # a given start wins where it is finite
-            st0 = np.asarray(start, np.float64)[work]
-            p0 = np.where(np.isfinite(st0) & (st0 > 0), st0, np.nan)
-        cold = ~np.isfinite(p0)
-        if cold.any():
-            p0 = np.where(cold, _log_linear_start(model, ws, dt), p0)
-        p0 = np.clip(p0, p_lo, p_hi)
-        q0, r0, sums = _best_start(model, ws, swyy[work], p0, cold, (r_lo, r_hi), (q_lo, q_hi))
-        state["q"][work], state["rho"][work] = q0, r0
-        all_sums, iterations = _lm_iterations(model, ws, state, sums, swyy, (r_lo, r_hi), (q_lo, q_hi), max_iter, tol)
-    not_conv = ~state["done"]
-    good = ~few
-    rho = state["rho"].astype(np.float64)
-    q = state["q"].astype(np.float64)
-    err, r_std, p_std, ill = _uncertainty(model, y, s1, a, n_use, good, rho, q, all_sums, swyy, max_relative_error, dt)
-    p = np.exp(q)
-    at_bound = good & ((q <= q_lo + 1e-6) | (q >= q_hi - 1e-6))
-    flags = (few * FLAG_FEW) | (not_conv * FLAG_NOT_CONVERGED) | (ill * FLAG_ILL) | (at_bound * FLAG_BOUND)
-    rho = np.where(few, np.nan, rho)
-    p = np.where(few, np.nan, p)
-    return SpecularFit(
-        model=model,
-        rho_s=rho.astype(dt),
-        lobe=p.astype(dt),
-        error=err.astype(dt),
-        flags=flags.astype(np.uint8),
-        n_samples=n_use,
-        iterations=iterations,
-        rho_s_std=r_std.astype(dt),
-        lobe_std=p_std.astype(dt),
     )

@@ -15,7 +15,8 @@ Importing this package loads numpy only; xarray, zarr and pandas are imported
 when a subject or a DataFrame is needed.
 """
 
+from facestats.io.packing import pack_store
 from facestats.io.query import QueryResult
-from facestats.io.store import Store, open_store, pack_store
+from facestats.io.store import Store, open_store
 
 __all__ = ["open_store", "Store", "QueryResult", "pack_store"]

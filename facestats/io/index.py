@@ -39,6 +39,7 @@ import secrets
 import numpy as np
 
 from facestats.errors import StoreError
+from facestats.io.layout import fsync_path
 
 __all__ = [
     "INDEX_NAME",
@@ -134,14 +135,6 @@ def read_index_file(root) -> dict:
     return parse_index(data, where=path)
 
 
-def _fsync_dir(path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 def write_index_file(root, index: dict) -> None:
     """Replace ``<root>/index.json`` atomically and durably (the caller holds the store lock)."""
     root = os.fspath(root)
@@ -159,7 +152,7 @@ def write_index_file(root, index: dict) -> None:
         except OSError:
             pass
         raise
-    _fsync_dir(root)
+    fsync_path(root, directory=True)
 
 
 def is_index_temp(name: str) -> bool:

@@ -88,7 +88,15 @@ from facestats.core.conventions import (
 from facestats.errors import ValidationError
 from facestats.io.summary import BRDF_PARAMS, HIST_BINS, column
 
-__all__ = ["QUERY_FORMAT", "Stat", "QueryResult", "normalise_filters", "run_query", "histogram_sparkline"]
+__all__ = [
+    "QUERY_FORMAT",
+    "Stat",
+    "QueryResult",
+    "normalise_filters",
+    "breakdown",
+    "run_query",
+    "histogram_sparkline",
+]
 
 #: Version tag of the JSON document.
 QUERY_FORMAT = "facestats.query/1"
@@ -425,8 +433,22 @@ def _counts(values, order) -> dict:
     return {k: int(d[k]) for k in keys}
 
 
-def _breakdown(table, idx) -> dict:
-    """Counts of the index rows ``idx`` by gender, skin type (Roman), age group, condition and kind."""
+def breakdown(table, idx) -> dict:
+    """Counts of the index rows ``idx`` by gender, skin type (Roman), age group, condition and kind.
+
+    Parameters
+    ----------
+    table : facestats.io.index.IndexTable
+        The population index as columns.
+    idx : array_like of int
+        Rows to count.
+
+    Returns
+    -------
+    dict
+        ``{"gender" | "skin_type" | "age_group" | "condition" | "kind": {value: count}}``, known
+        values first in their conventional order, then any others sorted.
+    """
     if len(idx) == 0:
         return {"gender": {}, "skin_type": {}, "age_group": {}, "condition": {}, "kind": {}}
     ages = table["age"][idx].tolist()
@@ -509,7 +531,7 @@ def run_query(
         n_persons=n_persons,
         subject_ids=tuple(table.ids[i] for i in idx),
         n_store=n_all,
-        breakdown=_breakdown(table, idx),
+        breakdown=breakdown(table, idx),
         regions=tuple(regions),
         scattering=scattering,
         sites=sites,

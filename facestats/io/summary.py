@@ -115,7 +115,18 @@ def _mean_std(x):
 
 
 def summarise_subject(ds) -> dict:
-    """The population-index row of a subject (see the module docstring for the columns)."""
+    """The population-index row of a subject (see the module docstring for the columns).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A subject of either kind.
+
+    Returns
+    -------
+    dict
+        ``{column: value}`` in a fixed column order; missing quantities are NaN.
+    """
     a = ds.attrs
     row = {
         "subject_id": str(a["subject_id"]),
@@ -127,6 +138,19 @@ def summarise_subject(ds) -> dict:
         "kind": subject_kind(ds),
     }
     row["source"] = str(provenance(ds).get("source", ""))
+    _add_brdf_columns(row, ds)
+    _add_scattering_columns(row, ds)
+    alb = _albedo_values(ds)
+    for c, ch in enumerate(CHANNELS):
+        mean, std = _mean_std(alb[:, c])
+        row[f"albedo_mean_{ch}"] = mean
+        row[f"albedo_std_{ch}"] = std
+    row["flagged_fraction"] = _flagged_fraction(ds)
+    return row
+
+
+def _add_brdf_columns(row: dict, ds) -> None:
+    """Per model and region: sample count, mean and spread of both BRDF parameters."""
     for model in ("ts", "bp"):
         rho_name, lobe_name, _ = MODEL_PARAMS[model]
         samples = region_samples(ds, model)
@@ -137,6 +161,10 @@ def summarise_subject(ds) -> dict:
                 mean, std = _mean_std(x)
                 row[column("mean", param=name, region=r)] = mean
                 row[column("std", param=name, region=r)] = std
+
+
+def _add_scattering_columns(row: dict, ds) -> None:
+    """Per-site, then per-subject scattering coefficients per channel (NaN where missing)."""
     sites = [str(s) for s in ds["site"].values] if "site" in ds.dims else []
     for param in ("sigma_tr", "sigma_s_prime", "sigma_a"):
         var = f"site_{param}"
@@ -150,15 +178,12 @@ def summarise_subject(ds) -> dict:
         vals = np.asarray(ds[param].values, float) if param in ds.data_vars else np.full(3, np.nan)
         for c, ch in enumerate(CHANNELS):
             row[column("subject", param=param, channel=ch)] = float(vals[c])
-    alb = _albedo_values(ds)
-    for c, ch in enumerate(CHANNELS):
-        mean, std = _mean_std(alb[:, c])
-        row[f"albedo_mean_{ch}"] = mean
-        row[f"albedo_std_{ch}"] = std
+
+
+def _flagged_fraction(ds) -> float:
+    """Fraction of face texels whose Torrance-Sparrow fit was flagged (NaN for sample subjects)."""
     if subject_kind(ds) == "maps":
         face = np.asarray(ds["region"].values) > 0
         flags = np.asarray(ds["ts_flag"].values)[face]
-        row["flagged_fraction"] = float(np.mean(flags != 0))
-    else:
-        row["flagged_fraction"] = np.nan
-    return row
+        return float(np.mean(flags != 0))
+    return np.nan

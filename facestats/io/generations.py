@@ -134,6 +134,16 @@ def zarr_encoding(ds) -> dict:
     """The ``to_zarr`` encoding of a subject: map chunks of :data:`MAP_CHUNK_ROWS` rows, Blosc for floats.
 
     Resets every variable's own ``encoding`` (in place) so only this one applies.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        The Dataset about to be written.
+
+    Returns
+    -------
+    dict
+        ``{variable: {"chunks": ..., "compressors": ...}}`` for the variables that need either.
     """
     from zarr.codecs import BloscCodec
 
@@ -155,9 +165,15 @@ def zarr_encoding(ds) -> dict:
 def abandon_generations(root, written) -> None:
     """Clean up after a failed write: delete the generations the index does not reference, drop their locks.
 
-    ``written`` lists ``(sid, gen, lock, ...)`` of the generations reserved.
     An interrupt may land after the commit, so the index is re-read and a
     generation it references is never deleted.
+
+    Parameters
+    ----------
+    root : str
+        The store directory.
+    written : list of tuple
+        ``(sid, gen, lock, ...)`` of the generations reserved.
     """
     try:
         current = read_index_file(root)["subjects"]
@@ -170,7 +186,17 @@ def abandon_generations(root, written) -> None:
 
 
 def remove_generation(root, sid: str, gen: str) -> None:
-    """Delete an unreferenced generation: rename it aside (atomic), then remove it."""
+    """Delete an unreferenced generation: rename it aside (atomic), then remove it.
+
+    A generation that cannot be renamed (already gone) is left alone.
+
+    Parameters
+    ----------
+    root : str
+        The store directory.
+    sid, gen : str
+        Subject id and generation.
+    """
     src = os.path.join(root, generation_rel(sid, gen))
     dst = os.path.join(root, SUBJECTS, sid, f"{TRASH_PREFIX}{gen}")
     try:

@@ -201,7 +201,20 @@ def _remove_paths(root, paths) -> list[str]:
 
 # -- validation -----------------------------------------------------------------------
 def list_orphans(root, index) -> list[str]:
-    """Unreferenced generation directories and index temporary files, relative paths."""
+    """Unreferenced generation directories and index temporary files, relative paths.
+
+    Parameters
+    ----------
+    root : str
+        The store directory.
+    index : dict
+        The index document.
+
+    Returns
+    -------
+    list of str
+        Paths relative to ``root``, by subject id.
+    """
     live = _live(index)
     out = []
     for sid, sdir in _subject_dirs(root):
@@ -285,10 +298,21 @@ def _entry_problem(sid: str, entry: dict, gen: str, ds):
 
 
 def index_repairs(drop: dict, fix: dict, report: ValidationReport):
-    """The index mutation (for ``Store._commit``) applying the repairs of :func:`check_subjects`.
+    """The index mutation applying the repairs of :func:`check_subjects` (committed by the store).
 
     Entries are changed only if the index still names the generation that
     was checked; each change is appended to ``report.repaired``.
+
+    Parameters
+    ----------
+    drop, fix : dict
+        From :func:`check_subjects`.
+    report : ValidationReport
+
+    Returns
+    -------
+    callable
+        ``mutate(index)``, changing the index document in place.
     """
 
     def mutate(ix):

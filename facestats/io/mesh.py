@@ -33,7 +33,22 @@ __all__ = ["load_face_mesh", "read_region_image", "save_face_mesh"]
 
 
 def read_region_image(region_image) -> np.ndarray:
-    """A square label image (uint8, 0-10) from a path (PNG, TIFF, .npy) or an array."""
+    """A square label image (uint8, 0-10) from a path (PNG, TIFF, .npy) or an array.
+
+    Parameters
+    ----------
+    region_image : str, os.PathLike or array_like
+        The image; an RGB(A) image must be greyscale (one label per pixel).
+
+    Returns
+    -------
+    ndarray of uint8, shape (n, n)
+
+    Raises
+    ------
+    FormatError
+        Unreadable, not square, colours, or labels outside 0-10.
+    """
     if isinstance(region_image, (str, os.PathLike)):
         path = os.fspath(region_image)
         try:
@@ -188,6 +203,20 @@ def save_face_mesh(geometry: FaceGeometry, path, region_path=None):
     it back; the lumitexels it then finds are the mesh vertices on labelled
     texels, which are the geometry's own lumitexels when ``mesh_grid`` equals the
     lumitexel grid.  Use it to hand a procedural face to other tools.
+
+    Parameters
+    ----------
+    geometry : FaceGeometry
+        A procedural geometry.
+    path : str or os.PathLike
+        The OBJ file to write.
+    region_path : str or os.PathLike, optional
+        Where to save the region label image (``.npy``).
+
+    Returns
+    -------
+    str
+        ``path``.
 
     Raises
     ------

@@ -145,8 +145,16 @@ def _stat(x: np.ndarray, within: np.ndarray | None = None) -> Stat:
 def normalise_filters(skin_type=None, gender=None, age=None, condition=None, region=None) -> dict:
     """Parse the query filters (raises :class:`facestats.errors.ValidationError` on a bad value).
 
-    Returns the JSON-ready form used in :attr:`QueryResult.filters`: skin types
-    as a list of ints (I and II are grouped), age as ``[min, max]``.
+    Parameters
+    ----------
+    skin_type, gender, age, condition, region
+        The filters of :func:`run_query` (None: no filter).
+
+    Returns
+    -------
+    dict
+        The JSON-ready form used in :attr:`QueryResult.filters`: skin types as
+        a list of ints (I and II are grouped), age as ``[min, max]``.
     """
     out = {"skin_type": None, "gender": None, "age": None, "condition": None, "region": None}
     if skin_type is not None:
@@ -164,7 +172,17 @@ def normalise_filters(skin_type=None, gender=None, age=None, condition=None, reg
 
 
 def describe_filters(filters: dict) -> str:
-    """A one-line human description of normalised filters."""
+    """A one-line human description of normalised filters.
+
+    Parameters
+    ----------
+    filters : dict
+        From :func:`normalise_filters`.
+
+    Returns
+    -------
+    str
+    """
     parts = []
     st = filters.get("skin_type")
     parts.append("skin type " + ("any" if st is None else "/".join(ROMAN[t] for t in st)))
@@ -421,6 +439,19 @@ def histogram_sparkline(hist, columns: int = 32, *, ascii: bool = False) -> str:
 
     ``len(hist)`` must be a multiple of ``columns``.  Empty bins print as a
     space, any non-empty bin as at least the lowest bar.
+
+    Parameters
+    ----------
+    hist : array_like
+        Bin counts or weights.
+    columns : int
+        Characters to draw.
+    ascii : bool
+        Use ``" .:-=+*#@"`` instead of Unicode block characters.
+
+    Returns
+    -------
+    str
     """
     h = np.asarray(hist, dtype=np.float64)
     if h.size % columns:

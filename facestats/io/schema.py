@@ -97,7 +97,19 @@ REQUIRED_ATTRS = ("subject_id", "age", "gender", "skin_type", "condition", "prov
 
 
 def set_variable_attrs(ds):
-    """Attach ``units`` and ``long_name`` from :data:`VARIABLES` to every known variable (in place)."""
+    """Attach ``units`` and ``long_name`` from :data:`VARIABLES` to every known variable (in place).
+
+    Existing attributes are kept.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+
+    Returns
+    -------
+    xarray.Dataset
+        ``ds``.
+    """
     for name in ds.data_vars:
         if name in VARIABLES:
             _, units, long_name = VARIABLES[name]
@@ -107,7 +119,22 @@ def set_variable_attrs(ds):
 
 
 def subject_kind(ds) -> str:
-    """``"maps"`` or ``"samples"`` (raises :class:`SchemaError` if neither)."""
+    """The kind of a subject, from the variables it has.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+
+    Returns
+    -------
+    str
+        ``"maps"`` (all of :data:`MAP_REQUIRED`) or ``"samples"`` (all of :data:`SAMPLE_REQUIRED`).
+
+    Raises
+    ------
+    SchemaError
+        If it is neither.
+    """
     if all(v in ds.data_vars for v in MAP_REQUIRED):
         return "maps"
     if all(v in ds.data_vars for v in SAMPLE_REQUIRED):
@@ -120,13 +147,35 @@ def subject_kind(ds) -> str:
 
 
 def provenance(ds) -> dict:
-    """The provenance attribute of a subject as a dict (stored as a JSON string)."""
+    """The provenance attribute of a subject as a dict (stored as a JSON string).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+
+    Returns
+    -------
+    dict
+        Empty if the subject has no provenance.
+    """
     p = ds.attrs.get("provenance", "{}")
     return json.loads(p) if isinstance(p, str) else dict(p)
 
 
 def set_provenance(ds, **entries):
-    """Merge ``entries`` into the subject's provenance (in place; JSON-serialisable values)."""
+    """Merge ``entries`` into the subject's provenance (in place; JSON-serialisable values).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+    **entries
+        Keys and values to set (values that JSON cannot encode are stored as ``str``).
+
+    Returns
+    -------
+    xarray.Dataset
+        ``ds``.
+    """
     p = provenance(ds)
     p.update(entries)
     ds.attrs["provenance"] = json.dumps(p, sort_keys=True, default=str)

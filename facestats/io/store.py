@@ -66,22 +66,9 @@ from facestats.io.generations import (
     reserve_generation,
     write_generation,
 )
-from facestats.io.index import (
-    INDEX_NAME,
-    index_table,
-    parse_index,
-    read_index_file,
-    utc_now,
-    write_index_file,
-)
+from facestats.io.index import INDEX_NAME, index_table, parse_index, read_index_file, utc_now, write_index_file
 from facestats.io.integrity import STORE_ATTR, open_generation
-from facestats.io.layout import (
-    ROOT_META,
-    SUBJECTS,
-    group_meta,
-    store_lock,
-    write_json_atomic,
-)
+from facestats.io.layout import ROOT_META, SUBJECTS, group_meta, store_lock, write_json_atomic
 from facestats.io.locking import FileLock
 from facestats.io.maintenance import (
     ValidationReport,
@@ -412,7 +399,20 @@ class Store:
         return self.write_subjects([dataset], overwrite=overwrite)[0]
 
     def write_subjects(self, datasets, *, overwrite: bool = False) -> list[str]:
-        """Write several subjects and commit them together (all or none); return their ids."""
+        """Write several subjects and commit them together (all or none); return their ids.
+
+        Parameters
+        ----------
+        datasets : iterable of xarray.Dataset
+            Valid subjects with distinct ids; all are checked before anything is written.
+        overwrite : bool
+            Replace subjects that exist (otherwise :class:`StoreError`, nothing written).
+
+        Returns
+        -------
+        list of str
+            The subject ids, in order.
+        """
         self._require_writable()
         prepared = prepare_batch(datasets)
         if not prepared:
@@ -496,6 +496,16 @@ class Store:
         is rebuilt from the newest intact generation of each subject; subjects
         whose data are broken are dropped from the index; disagreeing rows are
         recomputed; then :meth:`gc` removes orphans.
+
+        Parameters
+        ----------
+        repair : bool
+            Repair what can be repaired (directory stores opened read-write).
+
+        Returns
+        -------
+        ValidationReport
+            After a repair, the problems and notes of a second validation.
         """
         if repair:
             self._require_writable()

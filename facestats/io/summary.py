@@ -48,7 +48,20 @@ MODEL_PARAMS = {"ts": ("ts_rho_s", "ts_m", "ts_flag"), "bp": ("bp_rho_s", "bp_ex
 
 
 def column(kind: str, **keys) -> str:
-    """Build an index column name, e.g. ``column("mean", param="ts_m", region=6)`` -> ``"ts_m_mean_r6"``."""
+    """Build an index column name, e.g. ``column("mean", param="ts_m", region=6)`` -> ``"ts_m_mean_r6"``.
+
+    Parameters
+    ----------
+    kind : {"mean", "std", "n", "site", "subject"}
+        The column family (see the module docstring).
+    **keys
+        ``param`` and ``region`` (mean, std), ``model`` and ``region`` (n),
+        ``param``, ``site`` and ``channel`` (site), ``param`` and ``channel`` (subject).
+
+    Returns
+    -------
+    str
+    """
     if kind in ("mean", "std"):
         return f"{keys['param']}_{kind}_r{keys['region']}"
     if kind == "n":
@@ -67,6 +80,18 @@ def region_samples(ds, model: str = "ts") -> dict:
     flagged (texels filled from neighbours are excluded: they are not
     measurements).  For sample subjects (published files) they are the stored
     samples; sample subjects carry Torrance-Sparrow samples only.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A subject of either kind.
+    model : {"ts", "bp"}
+        Torrance-Sparrow or Blinn-Phong (:data:`MODEL_PARAMS`).
+
+    Returns
+    -------
+    dict
+        ``{region 1-10: (rho_s, lobe)}`` float64 arrays (empty for a region without samples).
     """
     rho_name, lobe_name, flag_name = MODEL_PARAMS[model]
     out = {}
@@ -101,7 +126,20 @@ def _albedo_values(ds) -> np.ndarray:
 
 
 def albedo_histogram(ds, bins: int = HIST_BINS) -> np.ndarray:
-    """Counts of albedo values per channel in ``bins`` equal bins over [0, 1], shape (3, bins)."""
+    """Counts of albedo values per channel in ``bins`` equal bins over [0, 1].
+
+    Values are the face texels of a map subject or the stored albedo samples,
+    clipped to [0, 1].
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+    bins : int
+
+    Returns
+    -------
+    ndarray of int64, shape (3, bins)
+    """
     vals = np.clip(_albedo_values(ds), 0, 1)
     idx = np.minimum((vals * bins).astype(np.int64), bins - 1)
     return np.stack([np.bincount(idx[:, c], minlength=bins) for c in range(3)]).astype(np.int64)

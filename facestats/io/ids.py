@@ -20,7 +20,23 @@ SUBJECT_ID_PATTERN = re.compile(rf"[A-Za-z0-9][A-Za-z0-9._-]{{0,{MAX_SUBJECT_ID_
 
 
 def check_subject_id(sid) -> str:
-    """``sid`` as a str if it is a valid subject id, else :class:`ValidationError` naming it."""
+    """``sid`` as a str if it is a valid subject id, else :class:`ValidationError` naming it.
+
+    Parameters
+    ----------
+    sid : object
+        A candidate id (converted with ``str``).
+
+    Returns
+    -------
+    str
+        The id.
+
+    Raises
+    ------
+    ValidationError
+        If it does not match :data:`SUBJECT_ID_PATTERN` in full.
+    """
     text = str(sid)
     if not SUBJECT_ID_PATTERN.fullmatch(text):
         raise ValidationError(

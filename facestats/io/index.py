@@ -39,6 +39,7 @@ import secrets
 import numpy as np
 
 from facestats.errors import StoreError
+from facestats.io.layout import fsync_path
 
 __all__ = [
     "INDEX_NAME",
@@ -67,7 +68,20 @@ def utc_now() -> str:
 
 
 def empty_index(schema_version: int, facestats_version: str) -> dict:
-    """An index with no subjects."""
+    """An index with no subjects.
+
+    Parameters
+    ----------
+    schema_version : int
+        :data:`facestats.io.schema.SCHEMA_VERSION` of the store.
+    facestats_version : str
+        The facestats writing it.
+
+    Returns
+    -------
+    dict
+        The index document, revision 0.
+    """
     return {
         "format": INDEX_FORMAT,
         "facestats_schema": int(schema_version),
@@ -88,7 +102,22 @@ def _json_value(v):
 
 
 def make_entry(generation: str, written: str, row: dict, hist) -> dict:
-    """The index entry of one subject generation (``row`` from ``summarise_subject``)."""
+    """The index entry of one subject generation.
+
+    Parameters
+    ----------
+    generation, written : str
+        The generation and when it was written (UTC, ISO 8601).
+    row : dict
+        :func:`facestats.io.summary.summarise_subject` of the subject (NaN and inf become None).
+    hist : array_like, shape (3, bins)
+        :func:`facestats.io.summary.albedo_histogram` of the subject.
+
+    Returns
+    -------
+    dict
+        ``{"generation", "written", "row", "albedo_hist"}`` (JSON-ready).
+    """
     hist = np.asarray(hist)
     if hist.ndim != 2 or hist.shape[0] != 3:
         raise StoreError(f"albedo histogram must have shape (3, bins), got {hist.shape}")
@@ -101,7 +130,20 @@ def make_entry(generation: str, written: str, row: dict, hist) -> dict:
 
 
 def parse_index(data: bytes | str, *, where: str = INDEX_NAME) -> dict:
-    """Decode and check an index document; :class:`StoreError` naming ``where`` if it is not one."""
+    """Decode and check an index document; :class:`StoreError` naming ``where`` if it is not one.
+
+    Parameters
+    ----------
+    data : bytes or str
+        The JSON text.
+    where : str
+        Its name in messages.
+
+    Returns
+    -------
+    dict
+        The index document (format :data:`INDEX_FORMAT`, complete entries).
+    """
     try:
         index = json.loads(data)
     except (ValueError, UnicodeDecodeError) as exc:
@@ -121,7 +163,18 @@ def parse_index(data: bytes | str, *, where: str = INDEX_NAME) -> dict:
 
 
 def read_index_file(root) -> dict:
-    """Read ``<root>/index.json``; :class:`StoreError` if it is missing or unreadable."""
+    """Read ``<root>/index.json``; :class:`StoreError` if it is missing or unreadable.
+
+    Parameters
+    ----------
+    root : str or os.PathLike
+        The store directory.
+
+    Returns
+    -------
+    dict
+        The index document (:func:`parse_index`).
+    """
     path = os.path.join(os.fspath(root), INDEX_NAME)
     try:
         with open(path, "rb") as fh:
@@ -134,16 +187,16 @@ def read_index_file(root) -> dict:
     return parse_index(data, where=path)
 
 
-def _fsync_dir(path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 def write_index_file(root, index: dict) -> None:
-    """Replace ``<root>/index.json`` atomically and durably (the caller holds the store lock)."""
+    """Replace ``<root>/index.json`` atomically and durably (the caller holds the store lock).
+
+    Parameters
+    ----------
+    root : str or os.PathLike
+        The store directory.
+    index : dict
+        The index document (no NaN: :func:`make_entry` entries).
+    """
     root = os.fspath(root)
     data = json.dumps(index, separators=(",", ":"), allow_nan=False).encode()
     tmp = os.path.join(root, f"{_TMP_PREFIX}{os.getpid()}-{secrets.token_hex(4)}")
@@ -159,7 +212,7 @@ def write_index_file(root, index: dict) -> None:
         except OSError:
             pass
         raise
-    _fsync_dir(root)
+    fsync_path(root, directory=True)
 
 
 def is_index_temp(name: str) -> bool:
@@ -191,7 +244,17 @@ class IndexTable:
 
 
 def index_table(index: dict) -> IndexTable:
-    """Column arrays of an index document, subjects sorted by id."""
+    """Column arrays of an index document, subjects sorted by id.
+
+    Parameters
+    ----------
+    index : dict
+        The index document.
+
+    Returns
+    -------
+    IndexTable
+    """
     ids = sorted(index["subjects"])
     entries = [index["subjects"][i] for i in ids]
     names = dict.fromkeys(k for e in entries for k in e["row"])  # every column, in first-seen order

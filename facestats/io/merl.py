@@ -224,30 +224,70 @@ def read_merl(path, *, prefix: str = "merl") -> MerlData:
         The file cannot be read as MATLAB data, a key is missing, or a value
         is out of range (the message names the key, row and value).
     """
-    import scipy.io
-    import xarray as xr
-
-    from facestats.io.schema import set_provenance, set_variable_attrs
-
     path = Path(path).expanduser().resolve()
+    r = _Reader(path, _load_mat(path))
+    n = _subject_count(r)
+    ages = r.integers("subj_age", n, 0, 200, "an integer age in 0-200 years")
+    genders = r.parsed("subj_gen", n, parse_gender, "0/1, M/F or male/female")
+    types = r.parsed("subj_skintype", n, parse_skin_type, "a Fitzpatrick type 1-6 or I-VI")
+    ts, ts_region, ts_subj = _read_ts(r, n)
+    albedo = _read_albedo(r, n)
+    albedo_channels = albedo.channels if albedo is not None else 0
+    ts_rows = _split(ts_subj, n)
+
+    sha = _sha256(path)
+    width = max(3, len(str(n)))
+    datasets, empty = [], []
+    for i in range(n):
+        sid = f"{prefix}-{i + 1:0{width}d}"
+        rows = ts_rows[i]
+        data = {
+            "ts_sample_m": (("sample",), ts[rows, 0]),
+            "ts_sample_rho_s": (("sample",), ts[rows, 1]),
+            "ts_sample_region": (("sample",), ts_region[rows].astype(np.int16)),
+        }
+        if albedo is not None:
+            data.update(albedo.variables(i))
+        meta = {"age": int(ages[i]), "gender": genders[i], "skin_type": int(types[i])}
+        source = {"source": str(path), "source_sha256": sha, "subject_index": i + 1, "albedo_channels": albedo_channels}
+        if rows.size == 0:
+            empty.append(sid)
+        datasets.append(_sample_subject(sid, data, meta, source))
+    return MerlData(
+        path=path,
+        sha256=sha,
+        datasets=datasets,
+        n_ts=ts.shape[0],
+        n_albedo=int(albedo.values.shape[0]) if albedo is not None else 0,
+        albedo_channels=albedo_channels,
+        empty=empty,
+    )
+
+
+def _load_mat(path: Path) -> dict:
+    """The variables of a MATLAB file (:class:`FormatError` if it cannot be read)."""
+    import scipy.io
+
     if not path.is_file():
         raise FormatError(f"{path}: no such file")
     try:
-        mat = scipy.io.loadmat(str(path), squeeze_me=False, chars_as_strings=True)
+        return scipy.io.loadmat(str(path), squeeze_me=False, chars_as_strings=True)
     except NotImplementedError as exc:  # MATLAB v7.3 (HDF5) files
         raise FormatError(f"{path}: {exc}; save it with `save -v7` to read it") from None
     except Exception as exc:
         raise FormatError(f"{path}: not a readable MATLAB file ({type(exc).__name__}: {exc})") from None
-    r = _Reader(path, mat)
 
+
+def _subject_count(r: _Reader) -> int:
+    """``s_count``, one positive integer."""
     s = r.numeric("s_count").reshape(-1)
     if s.size != 1 or not np.isfinite(s[0]) or s[0] != round(s[0]) or s[0] < 1:
         r.fail(f"s_count must be one positive integer, got {r.get('s_count')!r}")
-    n = int(s[0])
-    ages = r.integers("subj_age", n, 0, 200, "an integer age in 0-200 years")
-    genders = r.parsed("subj_gen", n, parse_gender, "0/1, M/F or male/female")
-    types = r.parsed("subj_skintype", n, parse_skin_type, "a Fitzpatrick type 1-6 or I-VI")
+    return int(s[0])
 
+
+def _read_ts(r: _Reader, n: int):
+    """The checked Torrance-Sparrow samples: ``ts`` (K, 2) [m, rho_s], their regions and 1-based subjects."""
     ts = r.columns("ts", (2,))
     k = ts.shape[0]
     bad = ~np.isfinite(ts).all(axis=1)
@@ -265,76 +305,62 @@ def read_merl(path, *, prefix: str = "merl") -> MerlData:
             )
     ts_region = r.integers("ts_region", k, 1, max(REGIONS), "a region 1-10")
     ts_subj = r.integers("ts_subjec", k, 1, n, f"a subject index 1-{n}")
+    return ts, ts_region, ts_subj
 
-    present = [key for key in ALBEDO_KEYS if key in mat]
+
+@dataclass
+class _Albedo:
+    """The albedo samples of a file: values (K', 3), regions, rows of each subject, channels in the file."""
+
+    values: np.ndarray
+    region: np.ndarray
+    rows: list
+    channels: int
+
+    def variables(self, i: int) -> dict:
+        """The albedo variables of subject ``i`` (0-based)."""
+        rows = self.rows[i]
+        return {
+            "albedo_sample": (("albedo_sample", "channel"), self.values[rows]),
+            "albedo_sample_region": (("albedo_sample",), self.region[rows].astype(np.int16)),
+        }
+
+
+def _read_albedo(r: _Reader, n: int) -> _Albedo | None:
+    """The checked albedo samples, or None if the file has none (all three keys or none)."""
+    present = [key for key in ALBEDO_KEYS if key in r.mat]
     if present and len(present) != len(ALBEDO_KEYS):
         r.fail(f"albedo data need all of {list(ALBEDO_KEYS)}, got only {present}")
-    albedo_channels = 0
-    if present:
-        alb = r.columns("albedo", (1, 3))
-        albedo_channels = alb.shape[1]
-        ka = alb.shape[0]
-        ok = np.isfinite(alb).all(axis=1) & (alb >= 0).all(axis=1) & (alb <= 1).all(axis=1)
-        if not ok.all():
-            i = int(np.flatnonzero(~ok)[0])
-            r.fail(f"albedo row {i + 1} must lie in [0, 1], got {alb[i].tolist()}")
-        if albedo_channels == 1:
-            alb = np.repeat(alb, 3, axis=1)
-        alb_region = r.integers("albedo_region", ka, 1, max(REGIONS), "a region 1-10")
-        alb_subj = r.integers("albedo_subjec", ka, 1, n, f"a subject index 1-{n}")
-        alb_rows = _split(alb_subj, n)
-    ts_rows = _split(ts_subj, n)
+    if not present:
+        return None
+    alb = r.columns("albedo", (1, 3))
+    channels = alb.shape[1]
+    ka = alb.shape[0]
+    ok = np.isfinite(alb).all(axis=1) & (alb >= 0).all(axis=1) & (alb <= 1).all(axis=1)
+    if not ok.all():
+        i = int(np.flatnonzero(~ok)[0])
+        r.fail(f"albedo row {i + 1} must lie in [0, 1], got {alb[i].tolist()}")
+    if channels == 1:
+        alb = np.repeat(alb, 3, axis=1)
+    alb_region = r.integers("albedo_region", ka, 1, max(REGIONS), "a region 1-10")
+    alb_subj = r.integers("albedo_subjec", ka, 1, n, f"a subject index 1-{n}")
+    return _Albedo(alb, alb_region, _split(alb_subj, n), channels)
 
-    sha = _sha256(path)
-    width = max(3, len(str(n)))
-    datasets, empty = [], []
-    for i in range(n):
-        sid = f"{prefix}-{i + 1:0{width}d}"
-        rows = ts_rows[i]
-        data = {
-            "ts_sample_m": (("sample",), ts[rows, 0]),
-            "ts_sample_rho_s": (("sample",), ts[rows, 1]),
-            "ts_sample_region": (("sample",), ts_region[rows].astype(np.int16)),
-        }
-        if albedo_channels:
-            arows = alb_rows[i]
-            data["albedo_sample"] = (("albedo_sample", "channel"), alb[arows])
-            data["albedo_sample_region"] = (("albedo_sample",), alb_region[arows].astype(np.int16))
-        ds = xr.Dataset(
-            data,
-            coords={"channel": list(CHANNELS)},
-            attrs={
-                "subject_id": sid,
-                "person_id": sid,
-                "age": int(ages[i]),
-                "gender": genders[i],
-                "skin_type": int(types[i]),
-                "condition": "normal",
-                "provenance": "{}",
-            },
-        )
-        set_variable_attrs(ds)
-        set_provenance(
-            ds,
-            source=str(path),
-            source_sha256=sha,
-            source_format=SOURCE_FORMAT,
-            subject_index=i + 1,
-            albedo_channels=albedo_channels,
-            software_version=__version__,
-        )
-        if rows.size == 0:
-            empty.append(sid)
-        datasets.append(ds)
-    return MerlData(
-        path=path,
-        sha256=sha,
-        datasets=datasets,
-        n_ts=k,
-        n_albedo=int(alb.shape[0]) if albedo_channels else 0,
-        albedo_channels=albedo_channels,
-        empty=empty,
+
+def _sample_subject(sid: str, data: dict, meta: dict, source: dict):
+    """A sample subject: ``data`` variables, ``meta`` (age, gender, skin type), provenance from ``source``."""
+    import xarray as xr
+
+    from facestats.io.schema import set_provenance, set_variable_attrs
+
+    ds = xr.Dataset(
+        data,
+        coords={"channel": list(CHANNELS)},
+        attrs={"subject_id": sid, "person_id": sid, **meta, "condition": "normal", "provenance": "{}"},
     )
+    set_variable_attrs(ds)
+    set_provenance(ds, **source, source_format=SOURCE_FORMAT, software_version=__version__)
+    return ds
 
 
 def import_merl(path, store, *, prefix: str = "merl", overwrite: bool = False) -> MerlData:

@@ -33,7 +33,22 @@ __all__ = ["load_face_mesh", "read_region_image", "save_face_mesh"]
 
 
 def read_region_image(region_image) -> np.ndarray:
-    """A square label image (uint8, 0-10) from a path (PNG, TIFF, .npy) or an array."""
+    """A square label image (uint8, 0-10) from a path (PNG, TIFF, .npy) or an array.
+
+    Parameters
+    ----------
+    region_image : str, os.PathLike or array_like
+        The image; an RGB(A) image must be greyscale (one label per pixel).
+
+    Returns
+    -------
+    ndarray of uint8, shape (n, n)
+
+    Raises
+    ------
+    FormatError
+        Unreadable, not square, colours, or labels outside 0-10.
+    """
     if isinstance(region_image, (str, os.PathLike)):
         path = os.fspath(region_image)
         try:
@@ -85,48 +100,11 @@ def load_face_mesh(path, region_image, *, scale=1.0, transform=None, flip_v=True
     FaceGeometry
         Lumitexels at the labelled vertices; map size = side of the region image.
     """
-    import trimesh
-
-    try:
-        mesh = trimesh.load(os.fspath(path), force="mesh", process=False)
-    except Exception as exc:  # trimesh raises many types for unreadable files
-        raise FormatError(f"cannot read the mesh {os.fspath(path)}: {exc}") from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise FormatError(f"{os.fspath(path)} holds no triangle mesh")
-    uv = getattr(mesh.visual, "uv", None)
-    if uv is None and "ply_raw" in mesh.metadata:
-        props = mesh.metadata["ply_raw"]["vertex"]["data"]
-        names = props.dtype.names or ()
-        for a, b in (("s", "t"), ("u", "v"), ("texture_u", "texture_v")):
-            if a in names and b in names:
-                uv = np.stack([props[a], props[b]], 1).astype(np.float64)
-                break
-    if uv is None or len(uv) != len(mesh.vertices):
-        raise FormatError(f"{os.fspath(path)} has no per-vertex UV coordinates (OBJ 'vt' or PLY s/t, u/v properties)")
-    uv = np.asarray(uv, np.float64).copy()
-    if flip_v:
-        uv[:, 1] = 1 - uv[:, 1]
-    if np.any(~np.isfinite(uv)) or uv.min() < -1e-6 or uv.max() > 1 + 1e-6:
-        raise FormatError(f"UV coordinates of {os.fspath(path)} must lie in [0, 1], got {uv.min():.3g}..{uv.max():.3g}")
-    uv = np.clip(uv, 0, 1)
-    if not float(scale) > 0:
-        raise ValidationError(f"scale must be > 0, got {scale!r}")
-    verts = np.asarray(mesh.vertices, np.float64) * float(scale)
-    if transform is not None:
-        t = np.asarray(transform, np.float64)
-        if t.shape != (4, 4):
-            raise ValidationError(f"transform must be a 4x4 matrix, got shape {t.shape}")
-        verts = verts @ t[:3, :3].T + t[:3, 3]
+    mesh = _read_mesh(path)
+    uv = _vertex_uv(mesh, path, flip_v)
+    verts = _placed_vertices(mesh, scale, transform)
     faces = np.asarray(mesh.faces, np.int64)
-    # Vertex normals (area-weighted face normals) and areas (one third of each triangle).
-    tri = verts[faces]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    tri_area = 0.5 * np.linalg.norm(cross, axis=1)
-    normals = np.zeros_like(verts)
-    area = np.zeros(len(verts))
-    for k in range(3):  # loop over the three corners, vectorised over faces
-        np.add.at(normals, faces[:, k], cross)
-        np.add.at(area, faces[:, k], tri_area / 3)
+    normals, area = _vertex_normals_and_areas(verts, faces)
     length = np.linalg.norm(normals, axis=1)
     regions = read_region_image(region_image)
     size = regions.shape[0]
@@ -150,6 +128,72 @@ def load_face_mesh(path, region_image, *, scale=1.0, transform=None, flip_v=True
     )
 
 
+def _read_mesh(path):
+    """The triangle mesh in ``path`` (:class:`FormatError` if unreadable or without triangles)."""
+    import trimesh
+
+    try:
+        mesh = trimesh.load(os.fspath(path), force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many types for unreadable files
+        raise FormatError(f"cannot read the mesh {os.fspath(path)}: {exc}") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise FormatError(f"{os.fspath(path)} holds no triangle mesh")
+    return mesh
+
+
+def _ply_uv(mesh):
+    """Per-vertex UVs from the raw PLY vertex properties (s/t, u/v or texture_u/texture_v), or None."""
+    if "ply_raw" not in mesh.metadata:
+        return None
+    props = mesh.metadata["ply_raw"]["vertex"]["data"]
+    names = props.dtype.names or ()
+    for a, b in (("s", "t"), ("u", "v"), ("texture_u", "texture_v")):
+        if a in names and b in names:
+            return np.stack([props[a], props[b]], 1).astype(np.float64)
+    return None
+
+
+def _vertex_uv(mesh, path, flip_v: bool) -> np.ndarray:
+    """The checked per-vertex UVs in [0, 1] (v flipped to the image convention if ``flip_v``)."""
+    uv = getattr(mesh.visual, "uv", None)
+    if uv is None:
+        uv = _ply_uv(mesh)
+    if uv is None or len(uv) != len(mesh.vertices):
+        raise FormatError(f"{os.fspath(path)} has no per-vertex UV coordinates (OBJ 'vt' or PLY s/t, u/v properties)")
+    uv = np.asarray(uv, np.float64).copy()
+    if flip_v:
+        uv[:, 1] = 1 - uv[:, 1]
+    if np.any(~np.isfinite(uv)) or uv.min() < -1e-6 or uv.max() > 1 + 1e-6:
+        raise FormatError(f"UV coordinates of {os.fspath(path)} must lie in [0, 1], got {uv.min():.3g}..{uv.max():.3g}")
+    return np.clip(uv, 0, 1)
+
+
+def _placed_vertices(mesh, scale, transform) -> np.ndarray:
+    """Mesh vertices scaled to mm and moved by ``transform`` (4 × 4) into the world frame."""
+    if not float(scale) > 0:
+        raise ValidationError(f"scale must be > 0, got {scale!r}")
+    verts = np.asarray(mesh.vertices, np.float64) * float(scale)
+    if transform is not None:
+        t = np.asarray(transform, np.float64)
+        if t.shape != (4, 4):
+            raise ValidationError(f"transform must be a 4x4 matrix, got shape {t.shape}")
+        verts = verts @ t[:3, :3].T + t[:3, 3]
+    return verts
+
+
+def _vertex_normals_and_areas(verts: np.ndarray, faces: np.ndarray):
+    """Vertex normals (area-weighted face normals, not normalised) and areas (one third of each triangle)."""
+    tri = verts[faces]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    tri_area = 0.5 * np.linalg.norm(cross, axis=1)
+    normals = np.zeros_like(verts)
+    area = np.zeros(len(verts))
+    for k in range(3):  # loop over the three corners, vectorised over faces
+        np.add.at(normals, faces[:, k], cross)
+        np.add.at(area, faces[:, k], tri_area / 3)
+    return normals, area
+
+
 def save_face_mesh(geometry: FaceGeometry, path, region_path=None):
     """Write a procedural geometry's shadowing mesh as an OBJ with per-vertex UVs (and its region image as .npy).
 
@@ -159,6 +203,20 @@ def save_face_mesh(geometry: FaceGeometry, path, region_path=None):
     it back; the lumitexels it then finds are the mesh vertices on labelled
     texels, which are the geometry's own lumitexels when ``mesh_grid`` equals the
     lumitexel grid.  Use it to hand a procedural face to other tools.
+
+    Parameters
+    ----------
+    geometry : FaceGeometry
+        A procedural geometry.
+    path : str or os.PathLike
+        The OBJ file to write.
+    region_path : str or os.PathLike, optional
+        Where to save the region label image (``.npy``).
+
+    Returns
+    -------
+    str
+        ``path``.
 
     Raises
     ------

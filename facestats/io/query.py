@@ -88,7 +88,15 @@ from facestats.core.conventions import (
 from facestats.errors import ValidationError
 from facestats.io.summary import BRDF_PARAMS, HIST_BINS, column
 
-__all__ = ["QUERY_FORMAT", "Stat", "QueryResult", "normalise_filters", "run_query", "histogram_sparkline"]
+__all__ = [
+    "QUERY_FORMAT",
+    "Stat",
+    "QueryResult",
+    "normalise_filters",
+    "breakdown",
+    "run_query",
+    "histogram_sparkline",
+]
 
 #: Version tag of the JSON document.
 QUERY_FORMAT = "facestats.query/1"
@@ -137,8 +145,16 @@ def _stat(x: np.ndarray, within: np.ndarray | None = None) -> Stat:
 def normalise_filters(skin_type=None, gender=None, age=None, condition=None, region=None) -> dict:
     """Parse the query filters (raises :class:`facestats.errors.ValidationError` on a bad value).
 
-    Returns the JSON-ready form used in :attr:`QueryResult.filters`: skin types
-    as a list of ints (I and II are grouped), age as ``[min, max]``.
+    Parameters
+    ----------
+    skin_type, gender, age, condition, region
+        The filters of :func:`run_query` (None: no filter).
+
+    Returns
+    -------
+    dict
+        The JSON-ready form used in :attr:`QueryResult.filters`: skin types as
+        a list of ints (I and II are grouped), age as ``[min, max]``.
     """
     out = {"skin_type": None, "gender": None, "age": None, "condition": None, "region": None}
     if skin_type is not None:
@@ -156,7 +172,17 @@ def normalise_filters(skin_type=None, gender=None, age=None, condition=None, reg
 
 
 def describe_filters(filters: dict) -> str:
-    """A one-line human description of normalised filters."""
+    """A one-line human description of normalised filters.
+
+    Parameters
+    ----------
+    filters : dict
+        From :func:`normalise_filters`.
+
+    Returns
+    -------
+    str
+    """
     parts = []
     st = filters.get("skin_type")
     parts.append("skin type " + ("any" if st is None else "/".join(ROMAN[t] for t in st)))
@@ -257,62 +283,31 @@ class QueryResult:
         """
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
-        w.writerow(
-            [
-                "section",
-                "quantity",
-                "region",
-                "region_name",
-                "site",
-                "channel",
-                "n",
-                "mean",
-                "std",
-                "within_std",
-                "values",
-            ]
-        )
-
-        def f(x):
-            x = _num(x)
-            return "" if x is None else repr(x)
-
-        def stat_row(section, quantity, s: Stat, region="", name="", site="", ch=""):
-            w.writerow(
-                [
-                    section,
-                    quantity,
-                    region,
-                    name,
-                    site,
-                    ch,
-                    s.n,
-                    f(s.mean),
-                    f(s.std),
-                    "" if s.within_std is None else f(s.within_std),
-                    "",
-                ]
-            )
-
+        w.writerow(_CSV_COLUMNS)
         w.writerow(["meta", "count", "", "", "", "", self.count, "", "", "", ""])
         w.writerow(["meta", "n_persons", "", "", "", "", self.n_persons, "", "", "", ""])
         w.writerow(["meta", "subject_ids", "", "", "", "", self.count, "", "", "", " ".join(self.subject_ids)])
-        for r in self.regions:
-            for p in BRDF_PARAMS:
-                stat_row("brdf", p, r[p], r["region"], r["name"])
-        for p, d in self.scattering.items():
-            for ch, s in d.items():
-                stat_row("scattering", p, s, ch=ch)
-        for site, params in self.sites.items():
-            for p, d in params.items():
-                for ch, s in d.items():
-                    stat_row("site", p, s, site=site, ch=ch)
-        for ch, s in self.albedo.items():
-            stat_row("albedo", "albedo", s, ch=ch)
+        for section, quantity, s, where in self._stats():
+            w.writerow(_csv_stat_row(section, quantity, s, **where))
         for c, ch in enumerate(CHANNELS):
             vals = "" if self.albedo_histogram is None else " ".join(repr(float(v)) for v in self.albedo_histogram[c])
             w.writerow(["histogram", "albedo_histogram", "", "", "", ch, self.count, "", "", "", vals])
         return buf.getvalue()
+
+    def _stats(self):
+        """Every statistic as ``(section, quantity, Stat, where)`` in CSV order (``where``: region, name, site, ch)."""
+        for r in self.regions:
+            for p in BRDF_PARAMS:
+                yield "brdf", p, r[p], {"region": r["region"], "name": r["name"]}
+        for p, d in self.scattering.items():
+            for ch, s in d.items():
+                yield "scattering", p, s, {"ch": ch}
+        for site, params in self.sites.items():
+            for p, d in params.items():
+                for ch, s in d.items():
+                    yield "site", p, s, {"site": site, "ch": ch}
+        for ch, s in self.albedo.items():
+            yield "albedo", "albedo", s, {"ch": ch}
 
     # -- text ----------------------------------------------------------------------
     def to_table(self, *, ascii: bool = False, columns: int = 32) -> str:
@@ -323,6 +318,18 @@ class QueryResult:
             return "\n".join(lines) + "\n"
         persons = "" if self.n_persons == self.count else f" ({self.n_persons} distinct persons)"
         lines.append(f"matching subjects: {self.count}{persons}")
+        lines += self._breakdown_lines()
+        pm = "+-" if ascii else "±"
+        lines.append("")
+        lines += self._brdf_lines(pm, ascii)
+        lines.append("")
+        lines += self._scattering_lines(pm, ascii)
+        lines.append("")
+        lines += self._histogram_lines(columns, ascii)
+        return "\n".join(lines) + "\n"
+
+    def _breakdown_lines(self) -> list[str]:
+        lines = []
         for key, title in (
             ("gender", "gender"),
             ("skin_type", "skin type"),
@@ -333,9 +340,10 @@ class QueryResult:
             counts = self.breakdown.get(key, {})
             if counts:
                 lines.append(f"  {title:<10} " + ", ".join(f"{k} {v}" for k, v in counts.items()))
-        pm = "+-" if ascii else "±"
-        lines.append("")
-        lines.append(f"Specular BRDF per region: mean {pm} std across subjects (n = subjects with samples)")
+        return lines
+
+    def _brdf_lines(self, pm: str, ascii: bool) -> list[str]:
+        lines = [f"Specular BRDF per region: mean {pm} std across subjects (n = subjects with samples)"]
         head = ["region", "TS rho_s" if ascii else "TS ρs", "TS m", "BP rho_s" if ascii else "BP ρs", "BP n", "n"]
         rows = []
         for r in self.regions:
@@ -344,10 +352,11 @@ class QueryResult:
                 + [_fmt_stat(r[p], pm) for p in BRDF_PARAMS]
                 + [str(max(r[p].n for p in BRDF_PARAMS))]
             )
-        lines += _grid(head, rows)
-        lines.append("")
+        return lines + _grid(head, rows)
+
+    def _scattering_lines(self, pm: str, ascii: bool) -> list[str]:
         unit = "1/mm" if ascii else "mm⁻¹"
-        lines.append(f"Scattering ({unit}) and albedo: mean {pm} std across subjects")
+        lines = [f"Scattering ({unit}) and albedo: mean {pm} std across subjects"]
         sym = _ASCII_SYMBOL if ascii else _SYMBOL
         rows = []
         for p in SCATTERING:
@@ -358,19 +367,45 @@ class QueryResult:
                 if any(s.n for s in stats):
                     rows.append([f"{sym[p]} {site}"] + [_fmt_stat(s, pm) for s in stats])
         rows.append(["albedo"] + [_fmt_stat(self.albedo[ch], pm) for ch in CHANNELS])
-        lines += _grid(["", *CHANNELS], rows)
-        lines.append("")
+        return lines + _grid(["", *CHANNELS], rows)
+
+    def _histogram_lines(self, columns: int, ascii: bool) -> list[str]:
         if self.albedo_histogram is None:
-            lines.append("albedo histograms: no albedo data")
-        else:
-            lines.append(
-                f"Albedo histograms ({HIST_BINS} bins over [0, 1] drawn as {columns} columns; "
-                "mean of the subjects' normalised histograms)"
-            )
-            lines.append("    0" + " " * (columns - 2) + "1")
-            for c, ch in enumerate(CHANNELS):
-                lines.append(f"{ch}  |{histogram_sparkline(self.albedo_histogram[c], columns, ascii=ascii)}|")
-        return "\n".join(lines) + "\n"
+            return ["albedo histograms: no albedo data"]
+        lines = [
+            f"Albedo histograms ({HIST_BINS} bins over [0, 1] drawn as {columns} columns; "
+            "mean of the subjects' normalised histograms)"
+        ]
+        lines.append("    0" + " " * (columns - 2) + "1")
+        for c, ch in enumerate(CHANNELS):
+            lines.append(f"{ch}  |{histogram_sparkline(self.albedo_histogram[c], columns, ascii=ascii)}|")
+        return lines
+
+
+_CSV_COLUMNS = (
+    "section",
+    "quantity",
+    "region",
+    "region_name",
+    "site",
+    "channel",
+    "n",
+    "mean",
+    "std",
+    "within_std",
+    "values",
+)
+
+
+def _csv_num(x) -> str:
+    x = _num(x)
+    return "" if x is None else repr(x)
+
+
+def _csv_stat_row(section, quantity, s: Stat, region="", name="", site="", ch="") -> list:
+    """One CSV row of a statistic."""
+    within = "" if s.within_std is None else _csv_num(s.within_std)
+    return [section, quantity, region, name, site, ch, s.n, _csv_num(s.mean), _csv_num(s.std), within, ""]
 
 
 def _fmt_num(x: float) -> str:
@@ -404,6 +439,19 @@ def histogram_sparkline(hist, columns: int = 32, *, ascii: bool = False) -> str:
 
     ``len(hist)`` must be a multiple of ``columns``.  Empty bins print as a
     space, any non-empty bin as at least the lowest bar.
+
+    Parameters
+    ----------
+    hist : array_like
+        Bin counts or weights.
+    columns : int
+        Characters to draw.
+    ascii : bool
+        Use ``" .:-=+*#@"`` instead of Unicode block characters.
+
+    Returns
+    -------
+    str
     """
     h = np.asarray(hist, dtype=np.float64)
     if h.size % columns:
@@ -425,8 +473,22 @@ def _counts(values, order) -> dict:
     return {k: int(d[k]) for k in keys}
 
 
-def _breakdown(table, idx) -> dict:
-    """Counts of the index rows ``idx`` by gender, skin type (Roman), age group, condition and kind."""
+def breakdown(table, idx) -> dict:
+    """Counts of the index rows ``idx`` by gender, skin type (Roman), age group, condition and kind.
+
+    Parameters
+    ----------
+    table : facestats.io.index.IndexTable
+        The population index as columns.
+    idx : array_like of int
+        Rows to count.
+
+    Returns
+    -------
+    dict
+        ``{"gender" | "skin_type" | "age_group" | "condition" | "kind": {value: count}}``, known
+        values first in their conventional order, then any others sorted.
+    """
     if len(idx) == 0:
         return {"gender": {}, "skin_type": {}, "age_group": {}, "condition": {}, "kind": {}}
     ages = table["age"][idx].tolist()
@@ -454,37 +516,19 @@ def run_query(
         :class:`facestats.errors.ValidationError`.
     store : str
         Label of the store for the report.
+
+    Returns
+    -------
+    QueryResult
     """
     filters = normalise_filters(skin_type, gender, age, condition, region)
-    n_all = len(table)
-    mask = np.ones(n_all, dtype=bool)
-    if n_all:
-        if filters["skin_type"] is not None:
-            mask &= np.isin(table["skin_type"], filters["skin_type"])
-        if filters["gender"] is not None:
-            mask &= table["gender"] == filters["gender"]
-        if filters["age"] is not None:
-            lo, hi = filters["age"]
-            mask &= (table["age"] >= lo) & (table["age"] <= hi)
-        if filters["condition"] is not None:
-            mask &= table["condition"] == filters["condition"]
-    idx = np.flatnonzero(mask)
+    idx = np.flatnonzero(_filter_mask(table, filters))
     count = int(idx.size)
 
     def col(name):
-        if name in table.columns:
-            return np.asarray(table[name][idx], dtype=np.float64)
-        return np.full(count, np.nan)
-
-    n_persons = len(set(table["person_id"][idx].tolist())) if count else 0
+        return _column_values(table, idx, name)
 
     region_ids = [filters["region"]] if filters["region"] is not None else list(REGIONS)
-    regions = []
-    for r in region_ids:
-        entry = {"region": r, "name": REGIONS[r]}
-        for p in BRDF_PARAMS:
-            entry[p] = _stat(col(column("mean", param=p, region=r)), col(column("std", param=p, region=r)))
-        regions.append(entry)
     scattering = {p: {ch: _stat(col(column("subject", param=p, channel=ch))) for ch in CHANNELS} for p in SCATTERING}
     sites = {
         site: {
@@ -492,28 +536,61 @@ def run_query(
         }
         for site in SITES
     }
-    albedo = {ch: _stat(col(f"albedo_mean_{ch}")) for ch in CHANNELS}
-
-    hist = None
-    if count:
-        h = table.hists[idx].astype(np.float64)  # (n, 3, bins)
-        tot = h.sum(axis=2, keepdims=True)
-        has = tot[..., 0] > 0  # (n, 3)
-        norm = np.divide(h, tot, out=np.zeros_like(h), where=tot > 0)
-        k = has.sum(axis=0)  # subjects with albedo data per channel
-        if np.all(k > 0):
-            hist = norm.sum(axis=0) / k[:, None]
     return QueryResult(
         filters=filters,
         count=count,
-        n_persons=n_persons,
+        n_persons=len(set(table["person_id"][idx].tolist())) if count else 0,
         subject_ids=tuple(table.ids[i] for i in idx),
-        n_store=n_all,
-        breakdown=_breakdown(table, idx),
-        regions=tuple(regions),
+        n_store=len(table),
+        breakdown=breakdown(table, idx),
+        regions=tuple(_region_entry(r, col) for r in region_ids),
         scattering=scattering,
         sites=sites,
-        albedo=albedo,
-        albedo_histogram=hist,
+        albedo={ch: _stat(col(f"albedo_mean_{ch}")) for ch in CHANNELS},
+        albedo_histogram=_mean_histogram(table.hists[idx]) if count else None,
         store=store,
     )
+
+
+def _filter_mask(table, filters: dict) -> np.ndarray:
+    """The index rows matching the normalised filters (``region`` selects no subject)."""
+    mask = np.ones(len(table), dtype=bool)
+    if not len(table):
+        return mask
+    if filters["skin_type"] is not None:
+        mask &= np.isin(table["skin_type"], filters["skin_type"])
+    if filters["gender"] is not None:
+        mask &= table["gender"] == filters["gender"]
+    if filters["age"] is not None:
+        lo, hi = filters["age"]
+        mask &= (table["age"] >= lo) & (table["age"] <= hi)
+    if filters["condition"] is not None:
+        mask &= table["condition"] == filters["condition"]
+    return mask
+
+
+def _column_values(table, idx, name: str) -> np.ndarray:
+    """Column ``name`` at the rows ``idx`` as float64 (all NaN if the index has no such column)."""
+    if name in table.columns:
+        return np.asarray(table[name][idx], dtype=np.float64)
+    return np.full(idx.size, np.nan)
+
+
+def _region_entry(r: int, col) -> dict:
+    """The BRDF statistics of region ``r`` (``col(name)``: the matching subjects' column values)."""
+    entry = {"region": r, "name": REGIONS[r]}
+    for p in BRDF_PARAMS:
+        entry[p] = _stat(col(column("mean", param=p, region=r)), col(column("std", param=p, region=r)))
+    return entry
+
+
+def _mean_histogram(hists: np.ndarray):
+    """Mean of the normalised (n, 3, bins) histograms per channel, or None if a channel has no data."""
+    h = hists.astype(np.float64)  # (n, 3, bins)
+    tot = h.sum(axis=2, keepdims=True)
+    has = tot[..., 0] > 0  # (n, 3)
+    norm = np.divide(h, tot, out=np.zeros_like(h), where=tot > 0)
+    k = has.sum(axis=0)  # subjects with albedo data per channel
+    if np.all(k > 0):
+        return norm.sum(axis=0) / k[:, None]
+    return None

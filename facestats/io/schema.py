@@ -88,7 +88,19 @@ REQUIRED_ATTRS = ("subject_id", "age", "gender", "skin_type", "condition", "prov
 
 
 def set_variable_attrs(ds):
-    """Attach ``units`` and ``long_name`` from :data:`VARIABLES` to every known variable (in place)."""
+    """Attach ``units`` and ``long_name`` from :data:`VARIABLES` to every known variable (in place).
+
+    Existing attributes are kept.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+
+    Returns
+    -------
+    xarray.Dataset
+        ``ds``.
+    """
     for name in ds.data_vars:
         if name in VARIABLES:
             _, units, long_name = VARIABLES[name]
@@ -98,7 +110,22 @@ def set_variable_attrs(ds):
 
 
 def subject_kind(ds) -> str:
-    """``"maps"`` or ``"samples"`` (raises :class:`SchemaError` if neither)."""
+    """The kind of a subject, from the variables it has.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+
+    Returns
+    -------
+    str
+        ``"maps"`` (all of :data:`MAP_REQUIRED`) or ``"samples"`` (all of :data:`SAMPLE_REQUIRED`).
+
+    Raises
+    ------
+    SchemaError
+        If it is neither.
+    """
     if all(v in ds.data_vars for v in MAP_REQUIRED):
         return "maps"
     if all(v in ds.data_vars for v in SAMPLE_REQUIRED):
@@ -111,13 +138,35 @@ def subject_kind(ds) -> str:
 
 
 def provenance(ds) -> dict:
-    """The provenance attribute of a subject as a dict (stored as a JSON string)."""
+    """The provenance attribute of a subject as a dict (stored as a JSON string).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+
+    Returns
+    -------
+    dict
+        Empty if the subject has no provenance.
+    """
     p = ds.attrs.get("provenance", "{}")
     return json.loads(p) if isinstance(p, str) else dict(p)
 
 
 def set_provenance(ds, **entries):
-    """Merge ``entries`` into the subject's provenance (in place; JSON-serialisable values)."""
+    """Merge ``entries`` into the subject's provenance (in place; JSON-serialisable values).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+    **entries
+        Keys and values to set (values that JSON cannot encode are stored as ``str``).
+
+    Returns
+    -------
+    xarray.Dataset
+        ``ds``.
+    """
     p = provenance(ds)
     p.update(entries)
     ds.attrs["provenance"] = json.dumps(p, sort_keys=True, default=str)
@@ -125,7 +174,23 @@ def set_provenance(ds, **entries):
 
 
 def modulation(ds):
-    """Modulation texture M = albedo / albedo_avg (Weyrich eq. 7) of a map subject, 0 outside the face."""
+    """Modulation texture M = albedo / albedo_avg (Weyrich eq. 7) of a map subject, 0 outside the face.
+
+    α_avg is the subject's stored ``albedo_avg`` (fitted from the clipped
+    albedo, or kept by an edit), not recomputed from the map as
+    :func:`facestats.model.skin.modulation_texture` does, so the two differ
+    in general.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A map subject (``albedo``, ``albedo_avg``, ``region``).
+
+    Returns
+    -------
+    xarray.DataArray
+        M on the dims of ``albedo``.
+    """
     face = ds["region"] > 0
     return (ds["albedo"] / ds["albedo_avg"]).where(face, 0.0)
 
@@ -136,8 +201,33 @@ def validate_subject(ds, *, name: str | None = None):
     Checks: required attributes and their values, the variables of its kind, the
     dims of every known variable, coords of ``channel``/``site``, finite values in
     the face for the fitted maps, region labels in 0-10.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A subject.
+    name : str, optional
+        The subject's name in messages (default: its ``subject_id`` attribute).
+
+    Returns
+    -------
+    str
+        Its kind, ``"maps"`` or ``"samples"`` (:func:`subject_kind`).
     """
     label = name or ds.attrs.get("subject_id", "?")
+    _check_attrs(ds, label)
+    kind = subject_kind(ds)
+    _check_dims(ds, label)
+    _check_coords(ds, label)
+    if kind == "maps":
+        _check_maps(ds, label)
+    else:
+        _check_samples(ds, label)
+    return kind
+
+
+def _check_attrs(ds, label) -> None:
+    """The required attributes are present and valid."""
     for key in REQUIRED_ATTRS:
         if key not in ds.attrs:
             raise SchemaError(f"subject {label!r}: missing attribute {key!r}")
@@ -152,35 +242,45 @@ def validate_subject(ds, *, name: str | None = None):
     age = ds.attrs["age"]
     if not (isinstance(age, (int, np.integer)) and 0 <= int(age) <= 200):
         raise SchemaError(f"subject {label!r}: attribute age must be an integer in 0-200 years, got {age!r}")
-    kind = subject_kind(ds)
+
+
+def _check_dims(ds, label) -> None:
+    """Every known variable has the dims of :data:`VARIABLES`."""
     for var in ds.data_vars:
         if var in VARIABLES and tuple(ds[var].dims) != VARIABLES[var][0]:
             raise SchemaError(
                 f"subject {label!r}: variable {var!r} must have dims {VARIABLES[var][0]}, got {tuple(ds[var].dims)}"
             )
+
+
+def _check_coords(ds, label) -> None:
+    """``channel`` coords are R, G, B; ``site`` coords are known sites."""
     if "channel" in ds.dims and tuple(str(c) for c in ds["channel"].values) != CHANNELS:
         raise SchemaError(f"subject {label!r}: channel coords must be {CHANNELS}, got {list(ds['channel'].values)}")
     if "site" in ds.dims and not set(str(s) for s in ds["site"].values) <= set(SITES):
         raise SchemaError(f"subject {label!r}: site coords must be among {SITES}, got {list(ds['site'].values)}")
-    if kind == "maps":
-        region = np.asarray(ds["region"].values)
-        if region.min() < 0 or region.max() > max(REGIONS):
+
+
+def _check_maps(ds, label) -> None:
+    """Region labels 0-10 with at least one face texel; finite fitted maps in the face."""
+    region = np.asarray(ds["region"].values)
+    if region.min() < 0 or region.max() > max(REGIONS):
+        raise SchemaError(
+            f"subject {label!r}: region labels must be 0-10, got {int(region.min())}..{int(region.max())}"
+        )
+    face = region > 0
+    if not face.any():
+        raise SchemaError(f"subject {label!r}: the region map has no face texel")
+    for var in ("albedo", "ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent"):
+        vals = np.asarray(ds[var].values)[face]
+        if not np.all(np.isfinite(vals)):
             raise SchemaError(
-                f"subject {label!r}: region labels must be 0-10, got {int(region.min())}..{int(region.max())}"
+                f"subject {label!r}: variable {var!r} has {int((~np.isfinite(vals)).sum())} non-finite face texel(s)"
             )
-        face = region > 0
-        if not face.any():
-            raise SchemaError(f"subject {label!r}: the region map has no face texel")
-        for var in ("albedo", "ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent"):
-            vals = np.asarray(ds[var].values)[face]
-            if not np.all(np.isfinite(vals)):
-                raise SchemaError(
-                    f"subject {label!r}: variable {var!r} has {int((~np.isfinite(vals)).sum())} non-finite face texel(s)"
-                )
-    else:
-        reg = np.asarray(ds["ts_sample_region"].values)
-        if reg.size and (reg.min() < 1 or reg.max() > max(REGIONS)):
-            raise SchemaError(
-                f"subject {label!r}: ts_sample_region must be 1-10, got {int(reg.min())}..{int(reg.max())}"
-            )
-    return kind
+
+
+def _check_samples(ds, label) -> None:
+    """Sample regions are 1-10."""
+    reg = np.asarray(ds["ts_sample_region"].values)
+    if reg.size and (reg.min() < 1 or reg.max() > max(REGIONS)):
+        raise SchemaError(f"subject {label!r}: ts_sample_region must be 1-10, got {int(reg.min())}..{int(reg.max())}")

@@ -48,7 +48,20 @@ MODEL_PARAMS = {"ts": ("ts_rho_s", "ts_m", "ts_flag"), "bp": ("bp_rho_s", "bp_ex
 
 
 def column(kind: str, **keys) -> str:
-    """Build an index column name, e.g. ``column("mean", param="ts_m", region=6)`` -> ``"ts_m_mean_r6"``."""
+    """Build an index column name, e.g. ``column("mean", param="ts_m", region=6)`` -> ``"ts_m_mean_r6"``.
+
+    Parameters
+    ----------
+    kind : {"mean", "std", "n", "site", "subject"}
+        The column family (see the module docstring).
+    **keys
+        ``param`` and ``region`` (mean, std), ``model`` and ``region`` (n),
+        ``param``, ``site`` and ``channel`` (site), ``param`` and ``channel`` (subject).
+
+    Returns
+    -------
+    str
+    """
     if kind in ("mean", "std"):
         return f"{keys['param']}_{kind}_r{keys['region']}"
     if kind == "n":
@@ -67,6 +80,18 @@ def region_samples(ds, model: str = "ts") -> dict:
     flagged (texels filled from neighbours are excluded: they are not
     measurements).  For sample subjects (published files) they are the stored
     samples; sample subjects carry Torrance-Sparrow samples only.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A subject of either kind.
+    model : {"ts", "bp"}
+        Torrance-Sparrow or Blinn-Phong (:data:`MODEL_PARAMS`).
+
+    Returns
+    -------
+    dict
+        ``{region 1-10: (rho_s, lobe)}`` float64 arrays (empty for a region without samples).
     """
     rho_name, lobe_name, flag_name = MODEL_PARAMS[model]
     out = {}
@@ -101,7 +126,20 @@ def _albedo_values(ds) -> np.ndarray:
 
 
 def albedo_histogram(ds, bins: int = HIST_BINS) -> np.ndarray:
-    """Counts of albedo values per channel in ``bins`` equal bins over [0, 1], shape (3, bins)."""
+    """Counts of albedo values per channel in ``bins`` equal bins over [0, 1].
+
+    Values are the face texels of a map subject or the stored albedo samples,
+    clipped to [0, 1].
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+    bins : int
+
+    Returns
+    -------
+    ndarray of int64, shape (3, bins)
+    """
     vals = np.clip(_albedo_values(ds), 0, 1)
     idx = np.minimum((vals * bins).astype(np.int64), bins - 1)
     return np.stack([np.bincount(idx[:, c], minlength=bins) for c in range(3)]).astype(np.int64)
@@ -115,7 +153,18 @@ def _mean_std(x):
 
 
 def summarise_subject(ds) -> dict:
-    """The population-index row of a subject (see the module docstring for the columns)."""
+    """The population-index row of a subject (see the module docstring for the columns).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A subject of either kind.
+
+    Returns
+    -------
+    dict
+        ``{column: value}`` in a fixed column order; missing quantities are NaN.
+    """
     a = ds.attrs
     row = {
         "subject_id": str(a["subject_id"]),
@@ -127,6 +176,19 @@ def summarise_subject(ds) -> dict:
         "kind": subject_kind(ds),
     }
     row["source"] = str(provenance(ds).get("source", ""))
+    _add_brdf_columns(row, ds)
+    _add_scattering_columns(row, ds)
+    alb = _albedo_values(ds)
+    for c, ch in enumerate(CHANNELS):
+        mean, std = _mean_std(alb[:, c])
+        row[f"albedo_mean_{ch}"] = mean
+        row[f"albedo_std_{ch}"] = std
+    row["flagged_fraction"] = _flagged_fraction(ds)
+    return row
+
+
+def _add_brdf_columns(row: dict, ds) -> None:
+    """Per model and region: sample count, mean and spread of both BRDF parameters."""
     for model in ("ts", "bp"):
         rho_name, lobe_name, _ = MODEL_PARAMS[model]
         samples = region_samples(ds, model)
@@ -137,6 +199,10 @@ def summarise_subject(ds) -> dict:
                 mean, std = _mean_std(x)
                 row[column("mean", param=name, region=r)] = mean
                 row[column("std", param=name, region=r)] = std
+
+
+def _add_scattering_columns(row: dict, ds) -> None:
+    """Per-site, then per-subject scattering coefficients per channel (NaN where missing)."""
     sites = [str(s) for s in ds["site"].values] if "site" in ds.dims else []
     for param in ("sigma_tr", "sigma_s_prime", "sigma_a"):
         var = f"site_{param}"
@@ -150,15 +216,12 @@ def summarise_subject(ds) -> dict:
         vals = np.asarray(ds[param].values, float) if param in ds.data_vars else np.full(3, np.nan)
         for c, ch in enumerate(CHANNELS):
             row[column("subject", param=param, channel=ch)] = float(vals[c])
-    alb = _albedo_values(ds)
-    for c, ch in enumerate(CHANNELS):
-        mean, std = _mean_std(alb[:, c])
-        row[f"albedo_mean_{ch}"] = mean
-        row[f"albedo_std_{ch}"] = std
+
+
+def _flagged_fraction(ds) -> float:
+    """Fraction of face texels whose Torrance-Sparrow fit was flagged (NaN for sample subjects)."""
     if subject_kind(ds) == "maps":
         face = np.asarray(ds["region"].values) > 0
         flags = np.asarray(ds["ts_flag"].values)[face]
-        row["flagged_fraction"] = float(np.mean(flags != 0))
-    else:
-        row["flagged_fraction"] = np.nan
-    return row
+        return float(np.mean(flags != 0))
+    return np.nan

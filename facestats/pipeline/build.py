@@ -275,7 +275,8 @@ def build_default(*, workers: int | None = None, progress: bool = False, out=Non
     fitted without micro-normal maps (16 × 3 values per texel would triple its size)
     and stored without the derived modulation texture, so it stays under 20 MB.
     """
-    from facestats.io.store import default_store_path, pack_store
+    from facestats.io.packing import pack_store
+    from facestats.io.store import default_store_path
 
     target = Path(out) if out is not None else default_store_path()
     tmp = Path(tempfile.mkdtemp(prefix="facestats-default-"))

@@ -1,0 +1,98 @@
+"""The root group of a store: creating an empty directory store, and checking the root of any store.
+
+The root ``zarr.json`` is a Zarr v3 group whose attributes say it is a
+facestats store: ``facestats_schema`` (:data:`facestats.io.schema.SCHEMA_VERSION`),
+``facestats_version`` (the facestats that last wrote) and ``created``.  It is
+written last when a store is created, so its presence marks a complete store.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from facestats.core.version import __version__
+from facestats.errors import SchemaError, StoreError
+from facestats.io.index import INDEX_NAME, empty_index, is_index_temp, utc_now, write_index_file
+from facestats.io.layout import LOCK_NAME, ROOT_META, SUBJECTS, WRITERS, fsync_path, group_meta, write_json_atomic
+from facestats.io.locking import FileLock
+from facestats.io.schema import SCHEMA_VERSION
+
+__all__ = ["create_store", "read_root_attrs"]
+
+_CREATION_LEFTOVERS = {LOCK_NAME, WRITERS, SUBJECTS, INDEX_NAME}
+
+
+def create_store(p: Path) -> None:
+    """Create an empty directory store at ``p`` (safe against concurrent creators).
+
+    Parameters
+    ----------
+    p : pathlib.Path
+        A missing or empty directory (or one left by an interrupted creation).
+
+    Raises
+    ------
+    StoreError
+        ``p`` cannot be created, or holds files that are not a store's.
+    """
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise StoreError(f"cannot create store directory {p}: {exc.strerror}") from None
+    with FileLock(p / LOCK_NAME):
+        if (p / ROOT_META).exists():
+            return
+        extra = [n for n in os.listdir(p) if n not in _CREATION_LEFTOVERS and not is_index_temp(n)]
+        if extra:
+            raise StoreError(f"{p} exists, is not empty and is not a facestats store (contains {sorted(extra)[:5]})")
+        (p / WRITERS).mkdir(exist_ok=True)
+        (p / SUBJECTS).mkdir(exist_ok=True)
+        write_json_atomic(p / SUBJECTS / ROOT_META, group_meta())
+        if not (p / INDEX_NAME).exists():
+            write_index_file(p, empty_index(SCHEMA_VERSION, __version__))
+        attrs = {"facestats_schema": SCHEMA_VERSION, "facestats_version": __version__, "created": utc_now()}
+        write_json_atomic(p / ROOT_META, group_meta(attrs))  # last: its presence marks a complete store
+        fsync_path(p, directory=True)
+
+
+def read_root_attrs(backend, label: str) -> dict:
+    """The attributes of the root group, checked.
+
+    Parameters
+    ----------
+    backend : facestats.io.backends.DirectoryBackend or ZipBackend
+        The store's files.
+    label : str
+        The store's name in messages.
+
+    Raises
+    ------
+    StoreError
+        No root ``zarr.json``, invalid JSON, or a Zarr group that is not a facestats store.
+    SchemaError
+        Not a Zarr v3 group, or a schema version this facestats cannot read.
+    """
+    try:
+        meta = json.loads(backend.read(ROOT_META))
+    except FileNotFoundError:
+        raise StoreError(f"{label} is not a facestats store: no root {ROOT_META}") from None
+    except ValueError as exc:
+        raise StoreError(f"{label}: root {ROOT_META} is not valid JSON ({exc})") from None
+    if not isinstance(meta, dict) or meta.get("zarr_format") != 3 or meta.get("node_type") != "group":
+        raise SchemaError(
+            f"{label}: the root is not a Zarr v3 group (zarr.json: zarr_format "
+            f"{meta.get('zarr_format') if isinstance(meta, dict) else '?'!r})"
+        )
+    attrs = meta.get("attributes") or {}
+    if "facestats_schema" not in attrs:
+        raise StoreError(f"{label} is a Zarr group but not a facestats store (no facestats_schema attribute)")
+    v = attrs["facestats_schema"]
+    if v != SCHEMA_VERSION:
+        hint = " (written by a newer facestats: upgrade facestats)" if isinstance(v, int) and v > SCHEMA_VERSION else ""
+        raise SchemaError(
+            f"store {label} has schema version {v!r}; facestats {__version__} reads schema version "
+            f"{SCHEMA_VERSION}{hint}"
+        )
+    return attrs

@@ -1,7 +1,7 @@
 """In-memory stand-in of the parameter store for the analysis tests and benchmark.
 
 :class:`MemoryStore` implements the part of the store interface that
-:mod:`facestats.analysis` uses (``subjects()``, ``subject(id, lazy=...)``)
+:mod:`facestats.analysis` uses (``subjects()``, ``subject(id, lazy=..., variables=...)``)
 over subjects built by
 ``tests/factories.py``; :func:`make_population` builds a small population
 with known structure.
@@ -32,7 +32,7 @@ class MemoryStore:
     def subjects(self):
         return self._index.copy()
 
-    def subject(self, subject_id, *, lazy=False):
+    def subject(self, subject_id, *, lazy=False, variables=None):
         return self._ds[subject_id]
 
 

@@ -31,7 +31,7 @@ def _cases():
     for path in MODULES:
         module = _load(path)
         for name, fn in module.BENCHMARKS:
-            yield pytest.param(module, name, fn, id=f"{path.stem[len('bench_'):]}.{name}")
+            yield pytest.param(module, name, fn, id=f"{path.stem[len('bench_') :]}.{name}")
 
 
 def test_every_benchmark_has_smoke_arguments():

@@ -1,6 +1,5 @@
 """Store-level appearance edits (Weyrich et al. 2006 §8): new subjects with provenance, never the source."""
 
-
 import numpy as np
 import pytest
 import xarray as xr

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from facestats.model.fitting import Samples, push_pull, scatter_to_map
-from facestats.model.fitting.samples import masked, segment_sum, valid_samples
 from facestats.model.fitting.lobes import lobe_base as _lobe_base
 from facestats.model.fitting.lobes import lobe_moments as _moments
 from facestats.model.fitting.lobes import lobe_scale as _lobe_scale
 from facestats.model.fitting.lobes import lobe_sums as _lobe_sums
+from facestats.model.fitting.samples import masked, segment_sum, valid_samples
 from tests.factories import hemisphere_pairs
 
 

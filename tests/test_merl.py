@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import scipy.io
 
+from facestats.analysis.population import region_samples as store_region_samples
 from facestats.errors import FormatError
 from facestats.io import open_store
 from facestats.io.merl import import_merl, read_merl
@@ -75,7 +76,7 @@ def test_import_round_trip_and_index(tmp_path):
         means = [df.loc[s, "ts_m_mean_r6"] for s in q.subject_ids]
         assert q.regions[5]["ts_m"].mean == pytest.approx(np.nanmean(means), rel=1e-12)
         assert q.regions[5]["bp_exponent"].n == 0  # no Blinn-Phong data in the file
-        samples = st.region_samples("ts")
+        samples = store_region_samples(st, "ts")
         assert len(samples) == 200
         np.testing.assert_allclose(np.sort(samples.lobe.values), np.sort(ts[:, 0]))
     with pytest.raises(Exception, match="already exist"):

@@ -133,14 +133,14 @@ def region_samples(store, model="ts", subjects=None):
     The samples of one subject are those of
     :func:`facestats.io.summary.region_samples` (unflagged texels of map
     subjects, stored samples of imported subjects); each subject is opened
-    with ``store.subject(id, lazy=True)``, so only the variables the samples
-    come from are read.
+    lazily with only the variables the samples come from loaded (and, in a
+    store, checksum-verified: ``store.subject(id, lazy=True, variables=...)``).
 
     Parameters
     ----------
     store : parameter store
         Anything with ``subjects()`` (the population index, rows sorted by
-        id) and ``subject(id, lazy=...)``.
+        id, with a ``kind`` column) and ``subject(id, lazy=..., variables=...)``.
     model : {"ts", "bp"}
         Torrance-Sparrow (ρs, m) or Blinn-Phong (ρs, exponent n).
     subjects : str or sequence of str, optional
@@ -155,7 +155,7 @@ def region_samples(store, model="ts", subjects=None):
     """
     import pandas as pd
 
-    from facestats.io.summary import MODEL_PARAMS
+    from facestats.io.summary import MODEL_PARAMS, region_sample_variables
     from facestats.io.summary import region_samples as subject_region_samples
 
     check_choice(model, "model", MODEL_PARAMS)
@@ -163,9 +163,12 @@ def region_samples(store, model="ts", subjects=None):
         ids = [str(s) for s in store.subjects().index]
     else:
         ids = [str(s) for s in ([subjects] if isinstance(subjects, str) else subjects)]
+    table = store.subjects()
+    kind_of = dict(zip(table.index.astype(str), table["kind"].tolist())) if "kind" in table else {}
     sid_parts, reg_parts, rho_parts, lobe_parts = [], [], [], []
     for sid in ids:
-        for r, (rho, lobe) in subject_region_samples(store.subject(sid, lazy=True), model).items():
+        needed = region_sample_variables(kind_of.get(sid, "maps"), model)
+        for r, (rho, lobe) in subject_region_samples(store.subject(sid, lazy=True, variables=needed), model).items():
             sid_parts.append(np.full(rho.size, sid, dtype=object))
             reg_parts.append(np.full(rho.size, r, dtype=np.int64))
             rho_parts.append(rho)

@@ -13,7 +13,7 @@ never feed later targets: :func:`select_subjects`.  Colour and texture edits
 also take texture statistics or a file of them: :func:`resolve_target`.
 
 * BRDF samples of a target are its *unflagged* texels per region
-  (:meth:`facestats.io.Store.region_samples`; filled texels are not
+  (:func:`facestats.analysis.population.region_samples`; filled texels are not
   measurements), pooled over the subset: every texel (or stored sample) is one
   draw (:func:`brdf_samples`).
 * Albedo samples of a target are the linear-RGB albedo values of its face
@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from facestats.analysis.population import region_samples
 from facestats.core.conventions import parse_condition, parse_skin_type
 from facestats.edit.masks import face_mask
 from facestats.edit.session import EDIT_SOURCE, check_store
@@ -208,7 +209,7 @@ def brdf_samples(store, ids, model) -> dict:
         ``{map name: {region: samples}}`` for the model's two maps
         (:data:`MODEL_VARIABLES`).
     """
-    df = store.region_samples(model, subjects=ids)
+    df = region_samples(store, model, subjects=ids)
     rho_name, lobe_name = MODEL_VARIABLES[model]
     out = {rho_name: {}, lobe_name: {}}
     region = df["region"].to_numpy()

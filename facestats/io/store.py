@@ -55,7 +55,7 @@ import numpy as np
 
 from facestats.core.validate import check_choice
 from facestats.core.version import __version__
-from facestats.errors import SchemaError, StoreError
+from facestats.errors import SchemaError, StoreError, ValidationError
 from facestats.io.backends import DirectoryBackend, ZipBackend
 from facestats.io.batch import batch_commit, prepare_batch, refuse_existing
 from facestats.io.generations import (
@@ -329,7 +329,7 @@ class Store:
                 err = exc
         raise err
 
-    def subject(self, subject_id, *, lazy: bool = False):
+    def subject(self, subject_id, *, lazy: bool = False, variables=None):
         """One subject as an :class:`xarray.Dataset`.
 
         With ``lazy=False`` (default) every variable is loaded, checked
@@ -337,53 +337,13 @@ class Store:
         schema.  With ``lazy=True`` only metadata are checked (dims, shapes,
         dtypes) and variables are read on access, chunk by chunk (e.g. a
         64-row band of a map); a lazy Dataset may fail if a concurrent writer
-        replaces the subject before it is read.
+        replaces the subject before it is read.  ``variables`` (with
+        ``lazy=True``) names variables to load and CRC-verify now; the others
+        stay lazy.
         """
-        return self._load(str(subject_id), lazy=lazy)
-
-    def region_samples(self, model: str = "ts", subjects=None):
-        """Per-region BRDF samples of many subjects as a long :class:`pandas.DataFrame`.
-
-        Columns ``subject_id, region, rho_s, lobe`` (``lobe`` is m for
-        ``model="ts"``, the Blinn-Phong exponent for ``"bp"``); samples are
-        those of :func:`facestats.io.summary.region_samples` (unflagged
-        texels of map subjects, stored samples of imported subjects).  Only
-        the needed variables are read (and checksum-verified).
-        """
-        import pandas as pd
-
-        from facestats.io.summary import MODEL_PARAMS, region_samples
-
-        check_choice(model, "model", MODEL_PARAMS)
-        if subjects is None:
-            ids = self.ids()
-        else:
-            ids = [str(s) for s in ([subjects] if isinstance(subjects, str) else subjects)]
-            for s in ids:
-                self._entry(s)
-        kinds = self._table()
-        kind_of = dict(zip(kinds.ids, kinds["kind"].tolist())) if len(kinds) else {}
-        sid_parts, reg_parts, rho_parts, lobe_parts = [], [], [], []
-        for sid in ids:
-            if kind_of.get(sid) == "maps":
-                needed = ["region", *MODEL_PARAMS[model]]
-            else:
-                needed = ["ts_sample_region", "ts_sample_rho_s", "ts_sample_m"]
-            ds = self._load(sid, lazy=True, variables=needed)
-            for r, (rho, lobe) in region_samples(ds, model).items():
-                sid_parts.append(np.full(rho.size, sid, dtype=object))
-                reg_parts.append(np.full(rho.size, r, dtype=np.int64))
-                rho_parts.append(rho)
-                lobe_parts.append(lobe)
-        cat = lambda parts, dt: np.concatenate(parts) if parts else np.empty(0, dtype=dt)  # noqa: E731
-        return pd.DataFrame(
-            {
-                "subject_id": cat(sid_parts, object),
-                "region": cat(reg_parts, np.int64),
-                "rho_s": cat(rho_parts, np.float64),
-                "lobe": cat(lobe_parts, np.float64),
-            }
-        )
+        if variables is not None and not lazy:
+            raise ValidationError("variables requires lazy=True (without it every variable is loaded and verified)")
+        return self._load(str(subject_id), lazy=lazy, variables=variables)
 
     # -- writing -----------------------------------------------------------------
     def write_subject(self, dataset, *, overwrite: bool = False) -> str:

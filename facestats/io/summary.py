@@ -34,6 +34,7 @@ __all__ = [
     "BRDF_PARAMS",
     "MODEL_PARAMS",
     "region_samples",
+    "region_sample_variables",
     "albedo_histogram",
     "summarise_subject",
     "column",
@@ -71,6 +72,13 @@ def column(kind: str, **keys) -> str:
     if kind == "subject":
         return f"{keys['param']}_{keys['channel']}"
     raise KeyError(kind)
+
+
+def region_sample_variables(kind: str, model: str = "ts") -> list:
+    """The variables :func:`region_samples` reads from a subject of ``kind`` ("maps" or "samples")."""
+    if kind == "maps":
+        return ["region", *MODEL_PARAMS[model]]
+    return ["ts_sample_region", "ts_sample_rho_s", "ts_sample_m"]
 
 
 def region_samples(ds, model: str = "ts") -> dict:

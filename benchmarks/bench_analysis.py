@@ -5,7 +5,7 @@ Benchmarks
 * ``population``: region PCA, CCA (999 permutations), Fig. 14 data, Table 1,
   condition differences and the population σtr posterior on a stand-in store of
   156 normal-condition subjects (plus one person under the seven conditions),
-  built from ``tests/factories.py`` subjects with 96 × 96 maps (about 7,000
+  built from ``tests/helpers.py`` subjects with 96 × 96 maps (about 7,000
   face texels each, 1.1 million region samples in all).  Target: ≤ 10 s.  The
   store calls (``subjects()``, ``region_samples()``) of the stand-in are
   included in the time; building the stand-in is not.  Baseline for the CCA
@@ -49,7 +49,7 @@ _STORE = {}
 
 def _stand_in():
     if "store" not in _STORE:
-        from tests.analysis_store import make_population
+        from tests.helpers import make_population
 
         _STORE["store"] = make_population(n=156, seed=1, size=96)
     return _STORE["store"]

@@ -44,7 +44,7 @@ def _wall(args, runs=RUNS) -> float:
 
 
 def _population(n_subjects=N_SUBJECTS):
-    from tests.factories import make_map_subject
+    from tests.helpers import make_map_subject
 
     types = [2] * 14 + [3] * 67 + [4] * 48 + [5] * 15 + [6] * 5  # Weyrich Table 2 proportions
     types += [4] * (n_subjects - len(types))

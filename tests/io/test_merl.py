@@ -11,38 +11,12 @@ from facestats.errors import FormatError
 from facestats.io import open_store
 from facestats.io.merl import import_merl, read_merl
 from facestats.io.schema import provenance, validate_subject
-
-
-def merl_dict(rng=None, n=4, k=200, ka=120, albedo_cols=3):
-    """A valid ts_data.mat content: column vectors, numeric codes."""
-    rng = rng or np.random.default_rng(7)
-    subj = np.concatenate([np.arange(1, n + 1), rng.integers(1, n + 1, k - n)])
-    asubj = np.concatenate([np.arange(1, n + 1), rng.integers(1, n + 1, ka - n)])
-    d = {
-        "s_count": np.array([[n]], dtype=float),
-        "subj_age": (np.arange(n) * 9 + 21).reshape(-1, 1).astype(float),
-        "subj_gen": (np.arange(n) % 2).reshape(-1, 1).astype(float),
-        "subj_skintype": (np.arange(n) % 5 + 2).reshape(-1, 1).astype(float),
-        "ts": np.column_stack([rng.uniform(0.2, 0.5, k), rng.uniform(0.05, 0.4, k)]),
-        "ts_region": rng.integers(1, 11, (k, 1)).astype(float),
-        "ts_subjec": subj.reshape(-1, 1).astype(float),
-    }
-    if albedo_cols:
-        d["albedo"] = rng.uniform(0.05, 0.7, (ka, albedo_cols))
-        d["albedo_region"] = rng.integers(1, 11, (ka, 1)).astype(float)
-        d["albedo_subjec"] = asubj.reshape(-1, 1).astype(float)
-    return d
-
-
-def save(tmp_path, d, name="ts_data.mat"):
-    p = tmp_path / name
-    scipy.io.savemat(p, d)
-    return p
+from tests.helpers import merl_dict, save_mat
 
 
 def test_import_round_trip_and_index(tmp_path):
     d = merl_dict()
-    mat = save(tmp_path, d)
+    mat = save_mat(tmp_path, d)
     data = import_merl(mat, tmp_path / "m.zarr")
     assert data.ids == ["merl-001", "merl-002", "merl-003", "merl-004"]
     assert data.n_ts == 200 and data.n_albedo == 120 and data.albedo_channels == 3 and data.empty == []
@@ -94,8 +68,8 @@ def test_liberal_shapes_and_codes(tmp_path):
     d["ts"] = base["ts"].T  # 2×K
     d["ts_region"] = base["ts_region"].ravel()
     d["albedo"] = base["albedo"].T  # 3×K'
-    a = read_merl(save(tmp_path, d))
-    ref = read_merl(save(tmp_path, base, "ref.mat"))
+    a = read_merl(save_mat(tmp_path, d))
+    ref = read_merl(save_mat(tmp_path, base, "ref.mat"))
     for x, y in zip(a.datasets, ref.datasets):
         for name in ("ts_sample_m", "ts_sample_rho_s", "ts_sample_region", "albedo_sample"):
             np.testing.assert_array_equal(x[name].values, y[name].values)
@@ -107,17 +81,17 @@ def test_liberal_shapes_and_codes(tmp_path):
         np.array([[0, 1, 0, 1]]),
     ):
         d2 = dict(base, subj_gen=gen)
-        assert [ds.attrs["gender"] for ds in read_merl(save(tmp_path, d2)).datasets] == ["M", "F", "M", "F"]
+        assert [ds.attrs["gender"] for ds in read_merl(save_mat(tmp_path, d2)).datasets] == ["M", "F", "M", "F"]
 
 
 def test_single_channel_albedo_and_no_albedo(tmp_path):
     d = merl_dict(albedo_cols=1)
-    data = read_merl(save(tmp_path, d))
+    data = read_merl(save_mat(tmp_path, d))
     ds = data.datasets[0]
     assert data.albedo_channels == 1 and provenance(ds)["albedo_channels"] == 1
     v = ds["albedo_sample"].values
     np.testing.assert_array_equal(v[:, 0], v[:, 2])
-    data = read_merl(save(tmp_path, merl_dict(albedo_cols=0)))
+    data = read_merl(save_mat(tmp_path, merl_dict(albedo_cols=0)))
     assert data.albedo_channels == 0 and "albedo_sample" not in data.datasets[0]
 
 
@@ -127,7 +101,7 @@ def test_subject_without_samples_is_imported_and_reported(tmp_path):
     d["subj_age"] = np.vstack([d["subj_age"], [[55]]])
     d["subj_gen"] = np.vstack([d["subj_gen"], [[1]]])
     d["subj_skintype"] = np.vstack([d["subj_skintype"], [[3]]])
-    data = import_merl(save(tmp_path, d), tmp_path / "m.zarr")
+    data = import_merl(save_mat(tmp_path, d), tmp_path / "m.zarr")
     assert data.empty == ["merl-005"]
     with open_store(tmp_path / "m.zarr") as st:
         row = st.subjects().loc["merl-005"]
@@ -168,7 +142,7 @@ def test_bad_values_are_named(tmp_path, change, pattern):
     d = merl_dict()
     change(d)
     with pytest.raises(FormatError, match=pattern):
-        import_merl(save(tmp_path, d), tmp_path / "m.zarr")
+        import_merl(save_mat(tmp_path, d), tmp_path / "m.zarr")
     assert not (tmp_path / "m.zarr").exists()  # nothing written
 
 

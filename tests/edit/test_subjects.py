@@ -21,8 +21,7 @@ from facestats.errors import StoreError, ValidationError
 from facestats.io import open_store
 from facestats.io.schema import provenance, set_provenance
 from facestats.model import dipole
-
-from .factories import make_map_subject, make_sample_subject
+from tests.helpers import make_map_subject, make_sample_subject
 
 SIZE = 24
 # (id, skin type, condition, seed, rho_shift, person)

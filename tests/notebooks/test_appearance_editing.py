@@ -2,7 +2,7 @@
 
 import pytest
 
-from .notebook_helpers import NOTEBOOKS, assert_no_errors, cell_text, execute, read_committed, shows_figure, tagged
+from tests.helpers import NOTEBOOKS, assert_no_errors, cell_text, execute, read_committed, shows_figure, tagged
 
 NOTEBOOK = NOTEBOOKS / "appearance_editing.ipynb"
 

@@ -4,8 +4,7 @@ import pytest
 from facestats import FacestatsError
 from facestats.model import brdf
 from facestats.model.fresnel import fresnel_reflectance
-
-from .conftest import random_hemisphere
+from tests.helpers import random_hemisphere
 
 N = np.array([0.0, 0.0, 1.0])
 

@@ -5,7 +5,7 @@ import pytest
 import facestats
 from facestats import analysis as fa
 
-from .notebook_helpers import NOTEBOOKS, assert_no_errors, cell_text, execute, read_committed, shows_figure, tagged
+from tests.helpers import NOTEBOOKS, assert_no_errors, cell_text, execute, read_committed, shows_figure, tagged
 
 NOTEBOOK = NOTEBOOKS / "population_analysis.ipynb"
 

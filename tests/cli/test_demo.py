@@ -4,8 +4,7 @@ import numpy as np
 
 import facestats
 from facestats.core.published import SIGMA_TR_AVG
-
-from .cli_helpers import run_cli
+from tests.helpers import run_cli
 
 
 def test_version_and_help():

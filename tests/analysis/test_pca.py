@@ -10,7 +10,7 @@ from facestats.analysis.population import region_samples as store_region_samples
 from facestats.core.conventions import CONDITIONS, REGION_IDS
 from facestats.errors import ValidationError
 from facestats.io.summary import region_samples
-from tests.analysis_store import make_population
+from tests.helpers import make_population
 
 
 @pytest.fixture(scope="module")

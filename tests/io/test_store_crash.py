@@ -19,8 +19,7 @@ import pytest
 
 from facestats.io import open_store
 from facestats.io.schema import provenance, set_provenance
-
-from .factories import make_map_subject, make_sample_subject
+from tests.helpers import make_map_subject, make_sample_subject
 
 MAP_IDS = ("C1", "C2", "C3")
 SAMPLE_IDS = ("CS1", "CS2")

@@ -7,9 +7,7 @@ from matplotlib.image import imread
 from facestats.edit import TextureStatistics
 from facestats.io import open_store
 from facestats.io.schema import provenance
-
-from .cli_helpers import run_cli
-from .factories import make_map_subject
+from tests.helpers import make_map_subject, run_cli
 
 SIZE = 24
 

@@ -18,8 +18,7 @@ from facestats.io import store as store_mod
 from facestats.io.locking import create_locked
 from facestats.io.schema import SCHEMA_VERSION, provenance, set_provenance
 from facestats.io.summary import albedo_histogram, region_samples, summarise_subject
-
-from .factories import make_map_subject, make_sample_subject
+from tests.helpers import make_map_subject, make_sample_subject
 
 # A small population: (id, skin type, gender, age, condition).
 POP = [

@@ -5,7 +5,7 @@ import pytest
 
 from facestats.edit import Histogram, region_histograms, transfer_brdf
 from facestats.errors import ValidationError
-from tests.factories import make_map_subject
+from tests.helpers import make_map_subject
 
 
 def _maps(ds, model="ts"):

@@ -10,10 +10,7 @@ import scipy.io
 
 from facestats.io import open_store, pack_store
 from facestats.io.store import default_store_path
-
-from .cli_helpers import run_cli
-from .factories import make_map_subject, make_sample_subject
-from .test_merl import merl_dict
+from tests.helpers import make_map_subject, make_sample_subject, merl_dict, run_cli
 
 POP = [
     ("P1", 4, "M", 24),

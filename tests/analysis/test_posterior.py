@@ -13,7 +13,7 @@ from facestats.analysis.posterior import BlockDEMove
 from facestats.analysis.translucency import subject_sigma_tr
 from facestats.errors import ConvergenceWarning, ValidationError
 from facestats.model import dipole
-from tests.analysis_store import make_population
+from tests.helpers import make_population
 
 SENSOR = ContactSensor()
 R = SENSOR.fiber_distance

@@ -11,7 +11,7 @@ from facestats.core import published
 from facestats.core.conventions import CHANNELS, SITES
 from facestats.errors import ValidationError
 from facestats.model import dipole
-from tests.analysis_store import make_population
+from tests.helpers import make_population
 
 
 @pytest.fixture(scope="module")

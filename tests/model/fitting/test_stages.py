@@ -9,7 +9,7 @@ from facestats.model.fitting.lobes import lobe_moments as _moments
 from facestats.model.fitting.lobes import lobe_scale as _lobe_scale
 from facestats.model.fitting.lobes import lobe_sums as _lobe_sums
 from facestats.model.fitting.samples import masked, segment_sum, valid_samples
-from tests.factories import hemisphere_pairs
+from tests.helpers import hemisphere_pairs
 
 
 def _grid(rng, n=7, n_cam=4, n_led=9, frac=0.4):

@@ -20,8 +20,7 @@ import pytest
 from facestats.errors import StoreError
 from facestats.io import open_store
 from facestats.io.schema import provenance, set_provenance
-
-from .factories import make_map_subject, make_sample_subject
+from tests.helpers import make_map_subject, make_sample_subject
 
 N_WRITERS = 4
 ROUNDS = 5

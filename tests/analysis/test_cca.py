@@ -10,7 +10,7 @@ from sklearn.datasets import load_linnerud
 
 from facestats.analysis import brdf_cca, cca
 from facestats.errors import ValidationError
-from tests.analysis_store import make_population
+from tests.helpers import make_population
 
 # SAS/STAT User's Guide, PROC CANCORR Example "Canonical Correlation Analysis of Fitness Club Data"
 # (Linnerud data: Weight, Waist, Pulse against Chins, Situps, Jumps).

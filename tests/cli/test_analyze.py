@@ -16,9 +16,7 @@ from facestats import analysis as fa
 from facestats.core import published
 from facestats.core.conventions import CHANNELS, CONDITIONS, SITES
 from facestats.io import open_store
-
-from .cli_helpers import run_cli
-from .factories import make_map_subject
+from tests.helpers import make_map_subject, run_cli
 
 BATCH = ("pca", "cca", "scatter", "translucency", "conditions")
 

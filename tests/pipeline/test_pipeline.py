@@ -15,7 +15,7 @@ from facestats.io.schema import FLAG_BITS, validate_subject
 from facestats.model import brdf
 from facestats.model.fitting import fit_specular
 from facestats.pipeline import FitSettings, fit_lumitexels, fit_population, fit_subject, held_out_camera_error
-from tests.factories import hemisphere_pairs
+from tests.helpers import hemisphere_pairs
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from facestats import analysis as fa
 from facestats.acquire.sensor import ContactSensor
 from facestats.analysis import plots
 from facestats.model import dipole
-from tests.analysis_store import make_population
+from tests.helpers import make_population
 
 
 @pytest.fixture(scope="module")

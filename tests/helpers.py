@@ -1,0 +1,340 @@
+"""Helpers shared by the tests: geometry samples, small subjects and populations, the CLI, notebooks, MERL files.
+
+One module, imported as ``from tests.helpers import ...`` everywhere.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import shutil
+import subprocess
+import sys
+
+import nbformat
+import numpy as np
+import pandas as pd
+import scipy.io
+import xarray as xr
+from nbclient import NotebookClient
+
+from facestats.acquire.sensor import default_fiber_distances
+from facestats.core.conventions import CHANNELS, CONDITIONS, SITES
+from facestats.io.schema import set_variable_attrs
+from facestats.io.summary import summarise_subject
+from facestats.model import dipole
+
+NOTEBOOKS = pathlib.Path(__file__).resolve().parent.parent / "notebooks"
+
+
+# -- directions ------------------------------------------------------------------------------
+def random_hemisphere(rng, n, normal=(0.0, 0.0, 1.0), min_cos=0.05):
+    """Uniform random unit vectors with N·ω ≥ min_cos around ``normal``."""
+    normal = np.asarray(normal, float)
+    normal = normal / np.linalg.norm(normal)
+    out = np.empty((0, 3))
+    while len(out) < n:
+        v = rng.normal(size=(4 * n, 3))
+        v /= np.linalg.norm(v, axis=1, keepdims=True)
+        out = np.concatenate([out, v[v @ normal >= min_cos]])
+    return out[:n]
+
+
+def hemisphere_pairs(rng, texels, samples):
+    """Random (ωi, ωo) pairs above the z = 0 plane, each (texels, samples, 3), unit length.
+
+    Not uniform (unlike :func:`random_hemisphere`): normal draws folded to z > 0 and lifted by 0.05
+    before normalising, which favours directions near the pole as a dome's cameras and lights do.
+    The fit tests' tolerances were set on this distribution.
+    """
+    v = rng.normal(size=(2, texels, samples, 3))
+    v[..., 2] = np.abs(v[..., 2]) + 0.05
+    v /= np.linalg.norm(v, axis=-1, keepdims=True)
+    return v[0], v[1]
+
+
+# -- subjects and populations ----------------------------------------------------------------
+def region_map(size: int) -> np.ndarray:
+    """A crude 10-region layout on a size×size grid (0 outside an ellipse)."""
+    v, u = np.mgrid[0:size, 0:size] / (size - 1)
+    face = ((u - 0.5) / 0.45) ** 2 + ((v - 0.5) / 0.48) ** 2 < 1
+    reg = np.zeros((size, size), np.uint8)
+    bands = [
+        (0.0, 0.25, 2),
+        (0.25, 0.32, 3),
+        (0.32, 0.4, 4),
+        (0.4, 0.47, 5),
+        (0.47, 0.62, 7),
+        (0.62, 0.68, 1),
+        (0.68, 0.76, 8),
+        (0.76, 0.88, 9),
+        (0.88, 1.01, 10),
+    ]
+    for lo, hi, r in bands:
+        reg[(v >= lo) & (v < hi)] = r
+    reg[(np.abs(u - 0.5) < 0.08) & (v > 0.35) & (v < 0.62)] = 6
+    reg[~face] = 0
+    return reg
+
+
+def make_map_subject(
+    subject_id="S000",
+    *,
+    size=24,
+    skin_type=3,
+    gender="M",
+    age=25,
+    condition="normal",
+    seed=0,
+    rho_shift=0.0,
+    person_id=None,
+):
+    rng = np.random.default_rng(seed)
+    reg = region_map(size)
+    face = reg > 0
+    base = np.array([0.55, 0.32, 0.24]) * (1.0 - 0.12 * (skin_type - 2))
+    albedo = np.clip(base * (1 + 0.05 * rng.standard_normal((size, size, 3))), 0.01, 0.95).astype(np.float32)
+    albedo[~face] = 0
+    rho = (0.18 + rho_shift + 0.01 * reg + 0.01 * rng.standard_normal((size, size))).astype(np.float32)
+    m = (0.35 - 0.01 * (reg == 6) + 0.02 * rng.standard_normal((size, size))).astype(np.float32)
+    expo = (2 / m**2 - 2).astype(np.float32)
+    zeros = np.zeros((size, size), np.float32)
+    flags = np.zeros((size, size), np.uint8)
+    flags[0, 0] = 1
+    fib = default_fiber_distances()
+    sigma_tr = np.array([[0.55, 0.98, 1.55], [0.54, 0.98, 1.55], [0.69, 1.25, 1.92]]) * (
+        1 + 0.05 * rng.standard_normal((3, 3))
+    )
+    alb_avg = albedo[face].mean(0).astype(np.float64)
+    sp, sa = dipole.scattering_from_albedo(np.broadcast_to(alb_avg, (3, 3)), sigma_tr)
+    prof = np.stack(
+        [[dipole.dipole_profile(fib, sp[s, c], sa[s, c]) for c in range(3)] for s in range(3)], 0
+    ).transpose(0, 2, 1)
+    sp0, sa0 = dipole.scattering_from_albedo(alb_avg, np.array([0.5508, 0.9791, 1.5497]))
+    ds = xr.Dataset(
+        {
+            "region": (("v", "u"), reg),
+            "albedo": (("v", "u", "channel"), albedo),
+            "ts_rho_s": (("v", "u"), np.where(face, rho, 0).astype(np.float32)),
+            "ts_m": (("v", "u"), np.where(face, m, 0).astype(np.float32)),
+            "ts_error": (("v", "u"), zeros + 0.01),
+            "ts_flag": (("v", "u"), flags),
+            "bp_rho_s": (("v", "u"), np.where(face, rho * 0.9, 0).astype(np.float32)),
+            "bp_exponent": (("v", "u"), np.where(face, expo, 0).astype(np.float32)),
+            "bp_error": (("v", "u"), zeros + 0.01),
+            "bp_flag": (("v", "u"), flags.copy()),
+            "sensor_profile": (("site", "fiber", "channel"), prof),
+            "sensor_profile_std": (("site", "fiber", "channel"), prof * 0.01),
+            "site_sigma_s_prime": (("site", "channel"), sp),
+            "site_sigma_a": (("site", "channel"), sa),
+            "site_sigma_tr": (("site", "channel"), sigma_tr),
+            "albedo_avg": (("channel",), alb_avg),
+            "sigma_s_prime": (("channel",), sp0),
+            "sigma_a": (("channel",), sa0),
+            "sigma_tr": (("channel",), np.array([0.5508, 0.9791, 1.5497])),
+        },
+        coords={
+            "u": (np.arange(size) + 0.5) / size,
+            "v": (np.arange(size) + 0.5) / size,
+            "channel": list(CHANNELS),
+            "site": list(SITES),
+            "fiber_distance": ("fiber", fib),
+        },
+        attrs={
+            "subject_id": subject_id,
+            "person_id": person_id or subject_id,
+            "age": int(age),
+            "gender": gender,
+            "skin_type": int(skin_type),
+            "condition": condition,
+            "provenance": json.dumps({"source": "tests.helpers", "seed": seed}),
+        },
+    )
+    return set_variable_attrs(ds)
+
+
+def make_sample_subject(subject_id="M001", *, n_per_region=20, skin_type=3, gender="F", age=31, seed=0):
+    rng = np.random.default_rng(seed)
+    reg = np.repeat(np.arange(1, 11), n_per_region).astype(np.int16)
+    ds = xr.Dataset(
+        {
+            "ts_sample_m": (("sample",), rng.uniform(0.25, 0.45, reg.size)),
+            "ts_sample_rho_s": (("sample",), rng.uniform(0.1, 0.3, reg.size)),
+            "ts_sample_region": (("sample",), reg),
+            "albedo_sample": (("albedo_sample", "channel"), rng.uniform(0.1, 0.6, (reg.size, 3))),
+            "albedo_sample_region": (("albedo_sample",), reg),
+        },
+        coords={"channel": list(CHANNELS)},
+        attrs={
+            "subject_id": subject_id,
+            "person_id": subject_id,
+            "age": int(age),
+            "gender": gender,
+            "skin_type": int(skin_type),
+            "condition": "normal",
+            "provenance": json.dumps({"source": "tests"}),
+        },
+    )
+    return set_variable_attrs(ds)
+
+
+#: Skin-type frequencies of Weyrich Table 2 (types II-VI).
+_TYPE_P = np.array([14, 67, 48, 15, 5]) / 149
+
+
+class MemoryStore:
+    """In-memory stand-in of the store interface used by :mod:`facestats.analysis`."""
+
+    def __init__(self, datasets):
+        self._ds = {str(ds.attrs["subject_id"]): ds for ds in datasets}
+        self._index = pd.DataFrame.from_records([summarise_subject(ds) for ds in datasets]).set_index("subject_id")
+
+    def subjects(self):
+        return self._index.copy()
+
+    def subject(self, subject_id, *, lazy=False, variables=None):
+        return self._ds[subject_id]
+
+
+def make_population(n=40, seed=0, size=24, conditions=True):
+    """``n`` normal-condition subjects (skin types as Table 2) plus one person under the seven conditions.
+
+    ρs rises with skin type and is higher for women (so CCA has something to
+    find); σtr rises 4 % per skin type.
+    """
+    rng = np.random.default_rng(seed)
+    datasets = []
+    for i in range(n):
+        st = int(rng.choice([2, 3, 4, 5, 6], p=_TYPE_P)) if i >= 5 else 2 + i  # every type present
+        if st == 2 and rng.uniform() < 0.3:
+            st = 1  # some type I subjects (grouped with II)
+        gender = "F" if rng.uniform() < 0.3 else "M"
+        age = int(rng.integers(18, 66))
+        shift = 0.02 * (st - 3) + 0.015 * (gender == "F") + 0.004 * rng.standard_normal()
+        ds = make_map_subject(
+            f"S{i:03d}", size=size, skin_type=st, gender=gender, age=age, seed=seed * 1000 + i, rho_shift=shift
+        )
+        ds["site_sigma_tr"] = ds["site_sigma_tr"] * (1 + 0.04 * (st - 3))
+        datasets.append(ds)
+    if conditions:
+        for j, cond in enumerate(CONDITIONS):
+            datasets.append(
+                make_map_subject(
+                    f"C{j}",
+                    size=size,
+                    skin_type=3,
+                    gender="M",
+                    age=30,
+                    condition=cond,
+                    seed=seed * 1000 + 900 + j,
+                    rho_shift=0.03 * j,
+                    person_id="P-cond",
+                )
+            )
+    return MemoryStore(datasets)
+
+
+# -- MERL/ETH files --------------------------------------------------------------------------
+def merl_dict(rng=None, n=4, k=200, ka=120, albedo_cols=3):
+    """A valid ts_data.mat content: column vectors, numeric codes."""
+    rng = rng or np.random.default_rng(7)
+    subj = np.concatenate([np.arange(1, n + 1), rng.integers(1, n + 1, k - n)])
+    asubj = np.concatenate([np.arange(1, n + 1), rng.integers(1, n + 1, ka - n)])
+    d = {
+        "s_count": np.array([[n]], dtype=float),
+        "subj_age": (np.arange(n) * 9 + 21).reshape(-1, 1).astype(float),
+        "subj_gen": (np.arange(n) % 2).reshape(-1, 1).astype(float),
+        "subj_skintype": (np.arange(n) % 5 + 2).reshape(-1, 1).astype(float),
+        "ts": np.column_stack([rng.uniform(0.2, 0.5, k), rng.uniform(0.05, 0.4, k)]),
+        "ts_region": rng.integers(1, 11, (k, 1)).astype(float),
+        "ts_subjec": subj.reshape(-1, 1).astype(float),
+    }
+    if albedo_cols:
+        d["albedo"] = rng.uniform(0.05, 0.7, (ka, albedo_cols))
+        d["albedo_region"] = rng.integers(1, 11, (ka, 1)).astype(float)
+        d["albedo_subjec"] = asubj.reshape(-1, 1).astype(float)
+    return d
+
+
+def save_mat(tmp_path, d, name="ts_data.mat"):
+    p = tmp_path / name
+    scipy.io.savemat(p, d)
+    return p
+
+
+# -- the command line ------------------------------------------------------------------------
+def facestats_exe():
+    exe = pathlib.Path(sys.executable).parent / "facestats"
+    if exe.exists():
+        return [str(exe)]
+    found = shutil.which("facestats")
+    if found:
+        return [found]
+    return [sys.executable, "-m", "facestats"]
+
+
+def run_cli(*args, cwd=None, timeout=600, env=None):
+    e = dict(os.environ, MPLBACKEND="Agg", PYTHONWARNINGS="ignore")
+    if env:
+        e.update(env)
+    return subprocess.run(
+        facestats_exe() + [str(a) for a in args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=e,
+        stdin=subprocess.DEVNULL,
+    )
+
+
+# -- notebooks -------------------------------------------------------------------------------
+
+
+def read_committed(path):
+    """The notebook as committed, asserted to be valid nbformat 4 with code cells and no outputs."""
+    nb = nbformat.read(path, as_version=4)
+    nbformat.validate(nb)
+    code = [c for c in nb.cells if c.cell_type == "code"]
+    assert code and all(c.outputs == [] and c.execution_count is None for c in code)
+    return nb
+
+
+def execute(path, workdir):
+    """The notebook at ``path`` after running every cell with ``workdir`` as the working directory."""
+    nb = nbformat.read(path, as_version=4)
+    NotebookClient(nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(workdir)}}).execute()
+    return nb
+
+
+def cell_text(cell):
+    """All text a cell displayed (streams and text/plain results)."""
+    parts = []
+    for o in cell.outputs:
+        if o.output_type == "stream":
+            parts.append(o.text)
+        elif "data" in o:
+            parts.append(o.data.get("text/plain", ""))
+    return "\n".join(parts)
+
+
+def tagged(nb, tag):
+    """The one cell carrying ``tag`` in its metadata."""
+    cells = [c for c in nb.cells if tag in c.metadata.get("tags", [])]
+    assert len(cells) == 1, f"expected one cell tagged {tag!r}"
+    return cells[0]
+
+
+def assert_no_errors(nb):
+    """Assert that every code cell of an executed notebook ran and none displayed an error."""
+    for cell in nb.cells:
+        if cell.cell_type == "code":
+            assert cell.execution_count is not None
+            errors = [o for o in cell.outputs if o.output_type == "error"]
+            assert not errors, f"{errors[0].ename}: {errors[0].evalue}"
+
+
+def shows_figure(cell):
+    """True if the cell displayed a PNG image."""
+    return any("image/png" in o.get("data", {}) for o in cell.outputs)

@@ -41,18 +41,20 @@ if str(ROOT) not in sys.path:
 
 from facestats import analysis as fa  # noqa: E402
 from facestats.acquire.sensor import ContactSensor  # noqa: E402
+from facestats.core.published import ETA_SKIN  # noqa: E402
 from facestats.errors import ValidationError  # noqa: E402
 from facestats.model import dipole  # noqa: E402
 
 _STORE = {}
 
 
-def _stand_in():
-    if "store" not in _STORE:
+def _stand_in(n=156, size=96):
+    key = ("store", n, size)
+    if key not in _STORE:
         from tests.helpers import make_population
 
-        _STORE["store"] = make_population(n=156, seed=1, size=96)
-    return _STORE["store"]
+        _STORE[key] = make_population(n=n, seed=1, size=size)
+    return _STORE[key]
 
 
 def _analyse(store, n_permutations=999):
@@ -76,10 +78,10 @@ def _analyse(store, n_permutations=999):
     return out, steps
 
 
-def bench_population():
-    store = _stand_in()
+def bench_population(n_subjects=156, size=96, n_permutations=999):
+    store = _stand_in(n_subjects, size)
     t0 = time.perf_counter()
-    res, steps = _analyse(store)
+    res, steps = _analyse(store, n_permutations)
     total = time.perf_counter() - t0
     n_samples = sum(e.n for e in res["pca"].regions.values())
     cca = res["cca"]
@@ -88,12 +90,13 @@ def bench_population():
     X = frame[[f"ts_{p}_mean_r{r}" for r in range(1, 11) for p in ("rho_s", "m")]].to_numpy(float)
     Y = cca.y_data.loc[frame.index].to_numpy()
     rng = np.random.default_rng(0)
+    n_loop = min(100, n_permutations)
     t = time.perf_counter()
-    for _ in range(100):
+    for _ in range(n_loop):
         fa.cca(X, Y[rng.permutation(len(Y))])
-    loop_999 = (time.perf_counter() - t) * 999 / 100
+    loop_999 = (time.perf_counter() - t) * n_permutations / n_loop
     t = time.perf_counter()
-    fa.cca(X, Y, n_permutations=999)
+    fa.cca(X, Y, n_permutations=n_permutations)
     batched = time.perf_counter() - t
     return {
         "total_s": total,
@@ -108,10 +111,10 @@ def bench_population():
     }
 
 
-def bench_figures():
+def bench_figures(n_subjects=156, size=96):
     from facestats.analysis import plots
 
-    store = _stand_in()
+    store = _stand_in(n_subjects, size)
     res, _ = _analyse(store, n_permutations=0)
     t0 = time.perf_counter()
     figs = [
@@ -141,7 +144,8 @@ def _baseline_posterior(sensor, measured, n_walkers=16, min_tau=50):
     """emcee defaults: one stretch-move sampler per channel, vectorised over walkers, run to 50 τ."""
     import emcee
 
-    from facestats.analysis.posterior import _initial_walkers, _least_squares_start, _LogPosterior
+    from facestats.analysis.posterior.likelihood import LogPosterior
+    from facestats.analysis.posterior.start import initial_walkers, least_squares_start
 
     r = sensor.fiber_distance
     lo, hi = np.log([0.01, 1e-5]), np.log([100.0, 10.0])
@@ -149,9 +153,9 @@ def _baseline_posterior(sensor, measured, n_walkers=16, min_tau=50):
     for c in range(3):
         y = measured[:, c : c + 1]
         mask = np.isfinite(y)
-        post = _LogPosterior(r, y, None, mask, sensor, 1.38, lo, hi)
-        theta, cov = _least_squares_start(post, y, sensor.profile_std(np.maximum(y, 0)), mask)
-        p0 = _initial_walkers(post, theta, cov, n_walkers, np.random.default_rng(c))
+        post = LogPosterior(r, y, None, mask, sensor, ETA_SKIN, lo, hi)
+        theta, cov = least_squares_start(post, y, sensor.profile_std(np.maximum(y, 0)), mask)
+        p0 = initial_walkers(post, theta, cov, n_walkers, np.random.default_rng(c))
         sampler = emcee.EnsembleSampler(n_walkers, 2, lambda th: post(th)[:, 0], vectorize=True)
         state, n = p0, 0
         while True:
@@ -164,9 +168,9 @@ def _baseline_posterior(sensor, measured, n_walkers=16, min_tau=50):
     return steps
 
 
-def bench_posterior():
+def bench_posterior(n_seeds=5):
     times, taus, accs, ess, steps = [], [], [], [], []
-    for seed in range(5):
+    for seed in range(n_seeds):
         sensor, measured = _profile(seed)
         t = time.perf_counter()
         post = fa.sigma_posterior(sensor.fiber_distance, measured, seed=seed)
@@ -193,10 +197,9 @@ def bench_posterior():
     }
 
 
-def bench_calibration():
+def bench_calibration(n=600):
     sensor = ContactSensor()
     rng = np.random.default_rng(99)
-    n = 600
     sigma_tr = rng.uniform(0.4, 2.0, n)
     albedo = rng.uniform(0.1, 0.7, n)
     sp, sa = dipole.scattering_from_albedo(albedo, sigma_tr)
@@ -205,7 +208,7 @@ def bench_calibration():
     t = time.perf_counter()
     cover = {}
     for start in range(0, n, 200):
-        sl = slice(start, start + 200)
+        sl = slice(start, min(start + 200, n))
         post = fa.sigma_posterior(sensor.fiber_distance, measured[:, sl], seed=start)
         for name, tr in (("sigma_s_prime", sp), ("sigma_a", sa), ("sigma_tr", sigma_tr)):
             iv = post.interval(name)
@@ -226,12 +229,12 @@ def _default_store():
         return None
 
 
-def bench_default_store():
+def bench_default_store(n_permutations=999):
     t0 = time.perf_counter()
     store = _default_store()
     if store is None:
         return {"status": "unavailable (the embedded store is not built)"}
-    res, steps = _analyse(store)
+    res, steps = _analyse(store, n_permutations)
     return {
         "total_s": time.perf_counter() - t0,
         **steps,
@@ -241,7 +244,7 @@ def bench_default_store():
     }
 
 
-def bench_default_store_cli():
+def bench_default_store_cli(n_permutations=999):
     import argparse
     import contextlib
     import tempfile
@@ -253,7 +256,7 @@ def bench_default_store_cli():
     parser = argparse.ArgumentParser(prog="facestats")
     add_analyze(parser.add_subparsers())
     with tempfile.TemporaryDirectory() as out:
-        args = parser.parse_args(["analyze", "all", "--out", out])
+        args = parser.parse_args(["analyze", "all", "--out", out, "--permutations", str(n_permutations)])
         t0 = time.perf_counter()
         with contextlib.redirect_stdout(io.StringIO()):
             args.func(args)
@@ -262,11 +265,12 @@ def bench_default_store_cli():
     return {"total_s": total, "files": n_files}
 
 
-def bench_default_store_posterior():
+def bench_default_store_posterior(n_profiles=5):
     store = _default_store()
     if store is None:
         return {"status": "unavailable (the embedded store is not built)"}
     cases = [("S001", "cheek"), ("S040", "forehead"), ("S080", "neck"), ("S120", "cheek"), ("P150-normal", "forehead")]
+    cases = cases[:n_profiles]
     times, steps, taus = [], [], []
     for seed, (sid, site) in enumerate(cases):
         t = time.perf_counter()
@@ -292,3 +296,14 @@ BENCHMARKS = [
     ("default_store_cli", bench_default_store_cli),
     ("default_store_posterior", bench_default_store_posterior),
 ]
+
+#: Tiny sizes for the test suite (tests/test_benchmarks.py).
+SMOKE = {
+    "population": {"n_subjects": 12, "size": 24, "n_permutations": 9},
+    "figures": {"n_subjects": 12, "size": 24},
+    "posterior": {"n_seeds": 1},
+    "calibration": {"n": 20},
+    "default_store": {"n_permutations": 9},
+    "default_store_cli": {"n_permutations": 9},
+    "default_store_posterior": {"n_profiles": 1},
+}

@@ -3,8 +3,8 @@
 The baseline is the same Heeger-Bergen transfer (same histogram matching, same
 statistics, same iterations) with the pyramid swapped for pyrtools'
 ``SteerablePyramidFreq`` (the reference Python implementation, float64, full
-complex FFTs, tabulated masks), through the pluggable pyramid of
-``facestats.edit.texture._transfer_texture``.  Both run on one 2048×2048 RGB
+complex FFTs, tabulated masks), through the ``pyramid`` argument of
+:func:`facestats.edit.transfer_texture`.  Both run on one 2048×2048 RGB
 albedo with 7 levels, 4 orientations, 256 bins and 5 iterations, with the
 target given as an albedo map (its statistics are computed inside the timed
 call).  Requirement: ours ≤ 30 s and ≥ 5× faster.  The pyrtools run takes a few
@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from facestats.edit.pyramid import SteerablePyramid
-from facestats.edit.texture import _transfer_texture
+from facestats.edit.texture import transfer_texture
 
 SIZE = 2048
 LEVELS = 7
@@ -82,17 +82,17 @@ def _albedos(size, seed=0):
     return src, tgt
 
 
-def _run(src, tgt, pyramid):
+def _run(src, tgt, pyramid, levels=LEVELS, iterations=ITERATIONS):
     t0 = time.perf_counter()
-    res = _transfer_texture(
+    res = transfer_texture(
         src,
         tgt,
         None,
         target_mask=None,
-        levels=LEVELS,
+        levels=levels,
         orientations=4,
         bins=256,
-        iterations=ITERATIONS,
+        iterations=iterations,
         seed=0,
         noise=0.1,
         feather=4.0,
@@ -102,9 +102,9 @@ def _run(src, tgt, pyramid):
     return res, time.perf_counter() - t0
 
 
-def bench_texture_transfer():
-    src, tgt = _albedos(SIZE)
-    ours, t_ours = _run(src, tgt, SteerablePyramid)
+def bench_texture_transfer(size=SIZE, levels=LEVELS, iterations=ITERATIONS):
+    src, tgt = _albedos(size)
+    ours, t_ours = _run(src, tgt, SteerablePyramid, levels, iterations)
     figures = {
         "ratio": "n/a",
         "facestats_s": t_ours,
@@ -116,7 +116,7 @@ def bench_texture_transfer():
     except ImportError:
         figures["pyrtools_s"] = "pyrtools not installed"
         return figures
-    ref, t_ref = _run(src, tgt, PyrtoolsPyramid)
+    ref, t_ref = _run(src, tgt, PyrtoolsPyramid, levels, iterations)
     figures.update(
         {
             "ratio": t_ref / t_ours,
@@ -129,12 +129,12 @@ def bench_texture_transfer():
     return figures
 
 
-def bench_pyramid():
+def bench_pyramid(size=SIZE, levels=LEVELS):
     """One 2048² channel: decompose + reconstruct, facestats float32/float64 against pyrtools."""
-    img = np.random.default_rng(1).uniform(0.1, 0.6, (SIZE, SIZE))
+    img = np.random.default_rng(1).uniform(0.1, 0.6, (size, size))
     figures = {}
     for name, dtype in (("float32", np.float32), ("float64", np.float64)):
-        pyr = SteerablePyramid(img.shape, LEVELS, 4, dtype=dtype)
+        pyr = SteerablePyramid(img.shape, levels, 4, dtype=dtype)
         pyr.reconstruct(pyr.decompose(img))  # warm the mask cache
         t0 = time.perf_counter()
         rec = pyr.reconstruct(pyr.decompose(img))
@@ -144,7 +144,7 @@ def bench_pyramid():
         import pyrtools  # noqa: F401
     except ImportError:
         return figures
-    p = PyrtoolsPyramid(img.shape, LEVELS, 4)
+    p = PyrtoolsPyramid(img.shape, levels, 4)
     t0 = time.perf_counter()
     rec = p.reconstruct(p.decompose(img))
     t_ref = time.perf_counter() - t0
@@ -161,3 +161,9 @@ BENCHMARKS = [
     ("pyramid_2048", bench_pyramid),
     ("texture_transfer_2048", bench_texture_transfer),
 ]
+
+#: Tiny sizes for the test suite (tests/test_benchmarks.py).
+SMOKE = {
+    "pyramid_2048": {"size": 64, "levels": 3},
+    "texture_transfer_2048": {"size": 64, "levels": 3, "iterations": 1},
+}

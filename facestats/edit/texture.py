@@ -267,6 +267,7 @@ def transfer_texture(
     noise: float = 0.1,
     feather: float = 4.0,
     workers: int = 2,
+    pyramid=None,
 ) -> TextureTransfer:
     """Transfer skin texture by Heeger-Bergen histogram matching (Weyrich et al. 2006 §8).
 
@@ -307,6 +308,11 @@ def transfer_texture(
         Blend width in pixels inside the mask edge (default 4; 0 for a hard edge).
     workers : int
         FFT threads.
+    pyramid : class, optional
+        The steerable pyramid: :class:`facestats.edit.pyramid.SteerablePyramid`
+        (default) or any class with its constructor ``(shape, levels,
+        orientations, *, dtype, workers)`` and ``decompose``/``reconstruct``
+        methods (``benchmarks/bench_edit.py`` plugs in pyrtools' to compare).
 
     Returns
     -------
@@ -326,7 +332,7 @@ def transfer_texture(
         noise=noise,
         feather=feather,
         workers=workers,
-        pyramid=SteerablePyramid,
+        pyramid=SteerablePyramid if pyramid is None else pyramid,
     )
 
 
@@ -346,7 +352,7 @@ def _transfer_texture(
     workers,
     pyramid,
 ):
-    """:func:`transfer_texture` with a pluggable pyramid class (``benchmarks/bench_edit.py`` swaps in pyrtools)."""
+    """:func:`transfer_texture` after its defaults are resolved."""
     src = check_finite(as_float(source_albedo, "source_albedo"), "source_albedo")
     check_shape(src, "source_albedo", (None, None, 3))
     iterations = check_int(iterations, "iterations", 0)

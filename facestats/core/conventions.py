@@ -1,6 +1,6 @@
 """Vocabulary shared across facestats: channels, regions, sites, conditions, skin types, genders.
 
-Names follow Weyrich et al. 2006 and ``design.md``: Fitzpatrick skin types are the
+Names follow Weyrich et al. 2006 and docs/architecture.md: Fitzpatrick skin types are the
 integers 1-6 inside the library and Roman numerals at the boundary (the paper
 groups I and II); face regions keep the numbering of Weyrich Fig. 15, which the
 published MERL/ETH data files use.

@@ -10,7 +10,7 @@ A subject is an :class:`xarray.Dataset`.  Two kinds exist:
   ``ts_data.mat``): region-level parameter samples on a ``sample`` dim and
   albedo samples on an ``albedo_sample`` dim, with no maps.
 
-Conventions follow ``design.md``: lengths in mm, σ in mm⁻¹, profiles in mm⁻²,
+Conventions follow docs/architecture.md: lengths in mm, σ in mm⁻¹, profiles in mm⁻²,
 linear RGB on a ``channel`` dim with coords R, G, B; regions numbered as in
 Weyrich et al. 2006 Fig. 15 (0 = not face).  Every variable carries ``units``
 and ``long_name`` attributes.

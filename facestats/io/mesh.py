@@ -23,13 +23,23 @@ Conventions and checks:
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 
 import numpy as np
 
 from facestats.acquire.geometry import FaceGeometry, uv_to_texel
+from facestats.core.validate import as_finite, check_integer, check_shape
 from facestats.errors import FormatError, ValidationError
 
-__all__ = ["load_face_mesh", "read_region_image", "save_face_mesh"]
+__all__ = [
+    "load_face_mesh",
+    "read_region_image",
+    "save_face_mesh",
+    "procedural_mesh",
+    "write_mesh",
+    "FaceMesh",
+    "subject_mesh",
+]
 
 
 def read_region_image(region_image) -> np.ndarray:
@@ -194,22 +204,110 @@ def _vertex_normals_and_areas(verts: np.ndarray, faces: np.ndarray):
     return normals, area
 
 
+def procedural_mesh(geometry: FaceGeometry):
+    """The triangle mesh of a procedural geometry with the UV of every vertex (unused grid vertices dropped).
+
+    The vertices of :func:`facestats.acquire.synthetic.face.procedural_face`'s
+    mesh lie on a regular ``mesh_grid``² grid in UV: vertex ``(i, j)`` sits at
+    u = (j + 0.5)/n, v = (i + 0.5)/n (facestats' UV convention, v down).
+
+    Parameters
+    ----------
+    geometry : FaceGeometry
+        A procedural geometry.
+
+    Returns
+    -------
+    vertices : ndarray, shape (V, 3)
+        mm, world frame.
+    faces : ndarray of int64, shape (F, 3)
+    uv : ndarray, shape (V, 2)
+        (u, v) in facestats' convention (v down).
+
+    Raises
+    ------
+    ValidationError
+        For geometries that are not procedural (their mesh vertices have no UV grid).
+    """
+    if geometry.grid_index is None or geometry.meta.get("kind") != "procedural":
+        raise ValidationError(f"geometry must be procedural (mesh vertices on the UV grid), got {geometry.name!r}")
+    verts = np.asarray(geometry.mesh_vertices)
+    faces = np.asarray(geometry.mesh_faces)
+    n = int(round(np.sqrt(len(verts))))
+    c = (np.arange(n) + 0.5) / n
+    uu, vv = np.meshgrid(c, c)
+    uv = np.stack([uu.ravel(), vv.ravel()], 1)
+    used = np.unique(faces)
+    remap = np.full(len(verts), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return verts[used], remap[faces], uv[used]
+
+
+def write_mesh(path, vertices, faces, uv, normals=None) -> str:
+    """Write a triangle mesh with per-vertex UVs as OBJ (``vt``) or PLY (``s``/``t``), by extension.
+
+    Files store v upwards (OBJ/PLY convention), so ``1 - v`` is written;
+    :func:`load_face_mesh` flips it back.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.obj`` or ``.ply``.
+    vertices : array_like, shape (V, 3)
+    faces : array_like of int, shape (F, 3)
+    uv : array_like, shape (V, 2)
+        (u, v) in facestats' convention (v down), in [0, 1].
+    normals : array_like, shape (V, 3), optional
+        Per-vertex unit normals to write (OBJ ``vn``, PLY ``nx ny nz``).
+
+    Returns
+    -------
+    str
+        ``path``.
+    """
+    import trimesh
+
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in (".obj", ".ply"):
+        raise ValidationError(f"mesh path must end in .obj or .ply, got {path!r}")
+    v = as_finite(vertices, "vertices", dtype=np.float64)
+    check_shape(v, "vertices", (None, 3))
+    f = np.asarray(faces, np.int64)
+    check_shape(f, "faces", (None, 3))
+    if f.size and (f.min() < 0 or f.max() >= len(v)):
+        raise ValidationError(f"faces must index 0..{len(v) - 1}, got {f.min()}..{f.max()}")
+    t = check_shape(as_finite(uv, "uv", dtype=np.float64), "uv", (len(v), 2))
+    kw = {}
+    if normals is not None:
+        kw["vertex_normals"] = check_shape(as_finite(normals, "normals", dtype=np.float64), "normals", (len(v), 3))
+    mesh = trimesh.Trimesh(v, f, process=False, **kw)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.stack([t[:, 0], 1 - t[:, 1]], 1))
+    if ext == ".obj":
+        text = mesh.export(file_type="obj", include_normals=normals is not None, include_texture=False)
+        with open(path, "w", encoding="utf-8") as fh:
+            fh.write(text)
+    else:
+        mesh.export(path, file_type="ply")
+    return path
+
+
 def save_face_mesh(geometry: FaceGeometry, path, region_path=None):
     """Write a procedural geometry's shadowing mesh as an OBJ with per-vertex UVs (and its region image as .npy).
 
     The OBJ holds the triangle mesh of :func:`facestats.acquire.synthetic.face.procedural_face`
-    (its vertices lie on a regular UV grid of side ``mesh_grid``) with the UV of
-    every vertex (v upwards, as files store it), so :func:`load_face_mesh` reads
-    it back; the lumitexels it then finds are the mesh vertices on labelled
-    texels, which are the geometry's own lumitexels when ``mesh_grid`` equals the
-    lumitexel grid.  Use it to hand a procedural face to other tools.
+    (:func:`procedural_mesh`) with the UV of every vertex (v upwards, as files
+    store it), so :func:`load_face_mesh` reads it back; the lumitexels it then
+    finds are the mesh vertices on labelled texels, which are the geometry's own
+    lumitexels when ``mesh_grid`` equals the lumitexel grid.  Use it to hand a
+    procedural face to other tools.
 
     Parameters
     ----------
     geometry : FaceGeometry
         A procedural geometry.
     path : str or os.PathLike
-        The OBJ file to write.
+        The OBJ (or PLY) file to write.
     region_path : str or os.PathLike, optional
         Where to save the region label image (``.npy``).
 
@@ -223,18 +321,146 @@ def save_face_mesh(geometry: FaceGeometry, path, region_path=None):
     ValidationError
         For geometries that are not procedural (their mesh vertices have no UV grid).
     """
-    import trimesh
-
-    if geometry.grid_index is None or geometry.meta.get("kind") != "procedural":
-        raise ValidationError(f"geometry must be procedural (mesh vertices on the UV grid), got {geometry.name!r}")
-    verts = np.asarray(geometry.mesh_vertices)
-    faces = np.asarray(geometry.mesh_faces)
-    mesh = trimesh.Trimesh(verts, faces, process=False)
-    n = int(round(np.sqrt(len(verts))))
-    c = (np.arange(n) + 0.5) / n
-    uu, vv = np.meshgrid(c, c)
-    mesh.visual = trimesh.visual.TextureVisuals(uv=np.stack([uu.ravel(), 1 - vv.ravel()], 1))
-    mesh.export(os.fspath(path))
+    verts, faces, uv = procedural_mesh(geometry)
+    write_mesh(path, verts, faces, uv)
     if region_path is not None and geometry.region_map is not None:
         np.save(os.fspath(region_path), geometry.region_map)
     return os.fspath(path)
+
+
+@dataclass
+class FaceMesh:
+    """A face mesh ready for export: vertices (mm), triangles, per-vertex UVs and normals, and where it came from.
+
+    Attributes
+    ----------
+    vertices : ndarray, shape (V, 3)
+        mm, facestats' world frame (+x subject's left, +y up, +z out of the face).
+    faces : ndarray of int64, shape (F, 3)
+        Counter-clockwise seen from outside (normals point out of the face).
+    uv : ndarray, shape (V, 2)
+        (u, v) in facestats' convention (v down, maps indexed ``[v, u]``).
+    normals : ndarray, shape (V, 3)
+        Unit vertex normals (area-weighted triangle normals).
+    geometry : dict
+        What geometry was used: ``kind`` (``procedural`` or ``mesh``), ``name``
+        and its parameters or source file; written into every export.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    uv: np.ndarray
+    normals: np.ndarray
+    geometry: dict
+
+    def tangent_frames(self, size: int):
+        """Tangent frames (T, B, N) at the texel centres of a ``size``² map, each shape (size, size, 3).
+
+        Per-vertex tangents follow Lengyel (2001, "Computing tangent space basis
+        vectors for an arbitrary mesh"): per triangle T = ∂p/∂u and B = −∂p/∂v
+        (v down in facestats, so −∂p/∂v points up the texture, the "+Y up"
+        convention of glTF 2.0 and OpenGL normal maps), summed at the vertices,
+        then T is made orthogonal to N (Gram-Schmidt) and B = N × T · w with w = ±1
+        the handedness.  Each texel takes the frame of the vertex nearest to it
+        in UV.
+
+        Returns
+        -------
+        tangent, bitangent, normal : ndarray, shape (size, size, 3)
+            Orthonormal, right-handed up to ``w`` (B = w N × T).
+        """
+        from scipy.spatial import cKDTree
+
+        check_integer(size, "size", 1)
+        t, b = _vertex_tangents(self.vertices, self.faces, self.uv)
+        n = self.normals
+        t = t - n * np.einsum("ij,ij->i", t, n)[:, None]
+        t = _unit_or(t, np.cross(np.array([0.0, 1.0, 0.0]), n))
+        w = np.where(np.einsum("ij,ij->i", np.cross(n, t), b) < 0, -1.0, 1.0)
+        b = np.cross(n, t) * w[:, None]
+        c = (np.arange(size) + 0.5) / size
+        uu, vv = np.meshgrid(c, c)
+        _, idx = cKDTree(self.uv).query(np.stack([uu.ravel(), vv.ravel()], 1), workers=-1)
+        shape = (size, size, 3)
+        return t[idx].reshape(shape), b[idx].reshape(shape), n[idx].reshape(shape)
+
+
+def _vertex_tangents(verts, faces, uv):
+    """Per-vertex sums of the triangles' ∂p/∂u and −∂p/∂v (Lengyel 2001), not normalised."""
+    p0, p1, p2 = (verts[faces[:, k]] for k in range(3))
+    t0, t1, t2 = (uv[faces[:, k]] for k in range(3))
+    e1, e2 = p1 - p0, p2 - p0
+    d1, d2 = t1 - t0, t2 - t0
+    det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
+    r = np.where(np.abs(det) > 1e-20, 1.0 / np.where(det == 0, 1, det), 0.0)[:, None]
+    dpdu = (e1 * d2[:, 1:2] - e2 * d1[:, 1:2]) * r
+    dpdv = (e2 * d1[:, 0:1] - e1 * d2[:, 0:1]) * r
+    t = np.zeros_like(verts)
+    b = np.zeros_like(verts)
+    for k in range(3):  # the three corners, vectorised over triangles
+        np.add.at(t, faces[:, k], dpdu)
+        np.add.at(b, faces[:, k], -dpdv)
+    return t, b
+
+
+def _unit_or(v, fallback):
+    """Rows of ``v`` normalised; rows of length 0 replaced by the normalised ``fallback`` rows."""
+    length = np.linalg.norm(v, axis=1)
+    v = np.where(length[:, None] > 1e-12, v, fallback)
+    return v / np.maximum(np.linalg.norm(v, axis=1), 1e-300)[:, None]
+
+
+def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = None) -> FaceMesh:
+    """The face mesh a subject's maps belong to, for export (which one is recorded in ``geometry``).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A map subject.  Without ``mesh``, its provenance must name the procedural
+        geometry it was captured on (``capture_provenance.geometry`` =
+        ``procedural-N``, every subject of the embedded default): that head is
+        rebuilt with :func:`facestats.acquire.synthetic.face.procedural_face`.
+    mesh : str or os.PathLike, optional
+        An OBJ/PLY scan with per-vertex UVs (v up in the file) whose UV layout
+        the subject's maps follow.
+    scale : float
+        Factor from the mesh file's unit to mm (with ``mesh``).
+    mesh_grid : int, optional
+        Grid of the procedural mesh (default 128: 2 × 127² triangles over the head).
+
+    Returns
+    -------
+    FaceMesh
+    """
+    if mesh is not None:
+        m = _read_mesh(mesh)
+        verts = _placed_vertices(m, scale, None)
+        faces = np.asarray(m.faces, np.int64)
+        geometry = {"kind": "mesh", "name": os.path.basename(os.fspath(mesh)), "path": os.fspath(mesh), "scale": scale}
+        return _face_mesh(verts, faces, _vertex_uv(m, mesh, True), geometry)
+    from facestats.acquire.synthetic.face import procedural_face
+    from facestats.io.schema import provenance
+
+    name = provenance(ds).get("capture_provenance", {}).get("geometry", "")
+    if not str(name).startswith("procedural-"):
+        raise ValidationError(
+            f"subject {ds.attrs.get('subject_id', '?')!r} does not record a procedural geometry "
+            f"(capture_provenance.geometry = {name!r}); pass mesh=PATH (--mesh) with the scan its maps belong to"
+        )
+    grid = 128 if mesh_grid is None else check_integer(mesh_grid, "mesh_grid", 8, 4096)
+    size = int(ds.sizes["u"])
+    geom = procedural_face(8, map_size=size, mesh_grid=grid)
+    verts, faces, uv = procedural_mesh(geom)
+    geometry = {
+        "kind": "procedural",
+        "name": name,
+        "function": "facestats.acquire.synthetic.face.procedural_face",
+        "mesh_grid": int(grid),
+    }
+    return _face_mesh(verts, faces, uv, geometry)
+
+
+def _face_mesh(verts, faces, uv, geometry) -> FaceMesh:
+    normals, _ = _vertex_normals_and_areas(verts, faces)
+    normals = _unit_or(normals, np.array([[0.0, 0.0, 1.0]]))
+    return FaceMesh(verts, faces, uv, normals, geometry)

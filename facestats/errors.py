@@ -14,6 +14,7 @@ __all__ = [
     "SchemaError",
     "FitError",
     "FormatError",
+    "DependencyError",
     "ConvergenceWarning",
 ]
 
@@ -40,6 +41,10 @@ class FitError(FacestatsError):
 
 class FormatError(FacestatsError):
     """A file in an external format (mesh, MATLAB, capture) cannot be read."""
+
+
+class DependencyError(FacestatsError, ImportError):
+    """An optional dependency a feature needs is not installed (the message says how to install it)."""
 
 
 class ConvergenceWarning(UserWarning):

@@ -1,0 +1,367 @@
+"""A subject as a Mitsuba 3 scene (XML file and Python dict), and rendering it.
+
+Mitsuba 3 (``pip install mitsuba``; the CPU variant ``scalar_rgb`` is used) is
+an optional dependency: building the XML needs nothing, building the dict and
+rendering raise :class:`facestats.errors.DependencyError` without it.
+
+The scene (units: **mm** for lengths, so **mm⁻¹** for σ; world frame of
+facestats, +y up, +z towards the camera) holds the subject's face mesh
+(:func:`facestats.io.mesh.subject_mesh`), a perspective camera, a light probe
+as ``envmap`` and one of two materials:
+
+``material="surface"`` — the fitted maps.  Weyrich et al. 2006 eq. 12-13 with
+D printed without 1/π, D_W = π D_B where D_B = exp(−tan²δ/m²)/(π m² cos⁴δ) is
+the normalised Beckmann distribution Mitsuba uses with α = m, so
+
+    f_TS = ρs/π · D_W G F/((N·ωi)(N·ωo)) = 4 ρs · D_B G F/(4 (N·ωi)(N·ωo)),
+
+i.e. 4ρs times Mitsuba's ``roughconductor`` with ``distribution="beckmann"``,
+``alpha`` = the m map (a texture: no per-region shapes are needed) and
+Fresnel of a dielectric (``eta`` = 1.38, ``k`` = 0 makes the conductor Fresnel
+the dielectric one).  Differences, stated: Mitsuba's G is Smith's, eq. 13's is
+the V-cavity term (both 1 near normal incidence); the diffuse term is the
+Lambertian α/π without the F_t(ωi) F_t(ωo) of eq. 10 (≥ 0.95 below 45°).
+Mitsuba has no additive BSDF, so the sum is ``blendbsdf`` with weight 0.5 of
+a ``diffuse`` with reflectance 2α and the specular with ``specular_reflectance``
+8ρs (0.5·2α + 0.5·8ρs·f = α + 4ρs·f exactly); these two scaled maps are
+written as ``mitsuba_diffuse.exr`` and ``mitsuba_specular.exr``.
+
+``material="subsurface"`` — Mitsuba 3 has no dipole; its recommended
+replacement is volumetric path tracing: a ``roughdielectric`` boundary
+(``int_ior`` 1.38, Beckmann α = the m map) around a ``homogeneous`` medium
+with σt = σa + σ's and single-scattering albedo σ's/σt per channel and an
+isotropic phase function (the similarity relation that the dipole's reduced
+coefficients assume).  Mitsuba takes RGB values in [0, 1], so ``sigma_t`` is
+σt / max(σt) with ``scale`` = max(σt) in mm⁻¹ (the scene is in mm).  The medium
+is homogeneous per subject (§5.4): the modulation texture M is not
+represented, and the boundary's Fresnel reflection stands for the specular
+lobe (it equals eq. 12 with ρs = 1/4).  The face mesh is an open shell, so the
+medium is a half-space under the face (a few mm of diffusion against a head
+75 mm deep).
+
+Light probe: a latitude-longitude HDR file (EXR or Radiance ``.hdr``; Mitsuba
+reads it itself), :mod:`facestats.io.latlong`'s convention, which is
+Mitsuba's; without one a studio probe is written (:func:`facestats.io.latlong.write_studio_probe`).
+"""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+
+import numpy as np
+
+from facestats.core.published import ETA_SKIN
+from facestats.core.validate import as_finite, check_choice, check_integer
+from facestats.errors import DependencyError, ValidationError
+
+__all__ = [
+    "MATERIALS",
+    "MITSUBA_VARIANT",
+    "require_mitsuba",
+    "scene_spec",
+    "spec_to_dict",
+    "spec_to_xml",
+    "write_mitsuba_scene",
+    "render_scene",
+]
+
+MATERIALS = ("surface", "subsurface")
+MITSUBA_VARIANT = "scalar_rgb"
+#: Tag of each plugin type in the XML format.
+_TAGS = {
+    "scene": "scene",
+    "diffuse": "bsdf",
+    "roughconductor": "bsdf",
+    "roughdielectric": "bsdf",
+    "blendbsdf": "bsdf",
+    "obj": "shape",
+    "ply": "shape",
+    "envmap": "emitter",
+    "perspective": "sensor",
+    "hdrfilm": "film",
+    "independent": "sampler",
+    "path": "integrator",
+    "volpath": "integrator",
+    "bitmap": "texture",
+    "homogeneous": "medium",
+    "isotropic": "phase",
+    "gaussian": "rfilter",
+}
+
+
+def require_mitsuba():
+    """The ``mitsuba`` module with the ``scalar_rgb`` variant set, or :class:`DependencyError`."""
+    try:
+        import mitsuba as mi
+    except ImportError as exc:
+        raise DependencyError(
+            "Mitsuba 3 is not installed (needed to build the scene dict and to render): "
+            f"pip install mitsuba, or pip install 'facestats[render]' ({exc})"
+        ) from None
+    if mi.variant() != MITSUBA_VARIANT:
+        mi.set_variant(MITSUBA_VARIANT)
+    return mi
+
+
+def _bitmap(filename, raw=True):
+    return {"type": "bitmap", "filename": filename, "raw": raw}
+
+
+def _rgb(values):
+    return {"type": "rgb", "value": [float(v) for v in values]}
+
+
+def _material(material, files, coefficients, eta):
+    """The shape's BSDF (and interior medium) for ``material`` (module docstring)."""
+    if material == "surface":
+        bsdf = {
+            "type": "blendbsdf",
+            "weight": 0.5,
+            "diffuse": {"type": "diffuse", "reflectance": _bitmap(files["mitsuba_diffuse"], raw=False)},
+            "specular": {
+                "type": "roughconductor",
+                "distribution": "beckmann",
+                "alpha": _bitmap(files["ts_m"]),
+                "eta": float(eta),
+                "k": 0.0,
+                "specular_reflectance": _bitmap(files["mitsuba_specular"]),
+            },
+        }
+        return bsdf, None
+    sa = np.asarray(coefficients["sigma_a"], np.float64)
+    sp = np.asarray(coefficients["sigma_s_prime"], np.float64)
+    bsdf = {
+        "type": "roughdielectric",
+        "distribution": "beckmann",
+        "alpha": _bitmap(files["ts_m"]),
+        "int_ior": float(eta),
+        "ext_ior": 1.0,
+    }
+    st = sa + sp
+    medium = {  # Mitsuba takes RGB in [0, 1]: σt = rgb · scale, with scale = max σt (mm⁻¹, the scene unit)
+        "type": "homogeneous",
+        "sigma_t": _rgb(st / st.max()),
+        "albedo": _rgb(sp / st),
+        "scale": float(st.max()),
+        "phase": {"type": "isotropic"},
+    }
+    return bsdf, medium
+
+
+def scene_spec(
+    files,
+    coefficients,
+    *,
+    material="surface",
+    origin=(0.0, 0.0, 700.0),
+    target=(0.0, 0.0, 0.0),
+    fov=22.0,
+    width=256,
+    height=256,
+    spp=64,
+    max_depth=64,
+    eta=ETA_SKIN,
+    probe_scale=1.0,
+):
+    """The scene as a plain dict in Mitsuba's dict layout, with transforms as ``{"type": "look_at", ...}``.
+
+    Parameters
+    ----------
+    files : dict
+        File names: ``mesh``, ``probe``, ``ts_m``, ``mitsuba_diffuse``, ``mitsuba_specular``.
+    coefficients : dict
+        ``sigma_a`` and ``sigma_s_prime`` per channel (mm⁻¹).
+    material : {"surface", "subsurface"}
+    origin, target : array_like, shape (3,)
+        Camera centre and aim point, mm (default: frontal, 70 cm away).
+    fov : float
+        Horizontal field of view, degrees.
+    width, height, spp : int
+        Image size and samples per pixel.
+    max_depth : int
+        Longest path (``volpath`` for the subsurface material).
+    eta : float
+        Relative index of refraction of skin.
+    probe_scale : float
+        Factor on the probe's radiance.
+
+    Returns
+    -------
+    dict
+    """
+    check_choice(material, "material", MATERIALS)
+    as_finite(fov, "fov", 1, 170, unit="deg")
+    for name, value in (("width", width), ("height", height), ("spp", spp)):
+        check_integer(value, name, 1, 1 << 14)
+    check_integer(max_depth, "max_depth", 1, 100000)
+    o = as_finite(origin, "origin")
+    t = as_finite(target, "target")
+    if o.shape != (3,) or t.shape != (3,) or np.allclose(o, t):
+        raise ValidationError(f"origin and target must be distinct 3-vectors (mm), got {list(o)} and {list(t)}")
+    bsdf, medium = _material(material, files, coefficients, eta)
+    shape = {"type": os.path.splitext(files["mesh"])[1][1:], "filename": files["mesh"], "bsdf": bsdf}
+    if medium is not None:
+        shape["interior"] = medium
+    return {
+        "type": "scene",
+        "integrator": {"type": "volpath" if medium is not None else "path", "max_depth": int(max_depth)},
+        "sensor": {
+            "type": "perspective",
+            "fov": float(fov),
+            "to_world": {
+                "type": "look_at",
+                "origin": list(map(float, o)),
+                "target": list(map(float, t)),
+                "up": [0.0, 1.0, 0.0],
+            },
+            "film": {"type": "hdrfilm", "width": int(width), "height": int(height), "rfilter": {"type": "gaussian"}},
+            "sampler": {"type": "independent", "sample_count": int(spp)},
+        },  # fmt: skip
+        "face": shape,
+        "probe": {"type": "envmap", "filename": files["probe"], "scale": float(probe_scale)},
+    }
+
+
+def spec_to_dict(spec, base_dir=None):
+    """A :func:`scene_spec` as the dict ``mitsuba.load_dict`` takes (file names joined to ``base_dir``)."""
+    mi = require_mitsuba()
+
+    def convert(key, value):
+        if isinstance(value, dict):
+            if value.get("type") == "look_at":
+                return mi.ScalarTransform4f().look_at(origin=value["origin"], target=value["target"], up=value["up"])
+            return {k: convert(k, v) for k, v in value.items()}
+        if key == "filename" and base_dir is not None:
+            return os.path.join(os.fspath(base_dir), value)
+        return value
+
+    return convert("", spec)
+
+
+def _xml_value(parent, name, value):
+    """One property of a plugin as an XML element."""
+    if isinstance(value, dict):
+        kind = value["type"]
+        if kind == "rgb":
+            ET.SubElement(parent, "rgb", name=name, value=", ".join(repr(float(v)) for v in value["value"]))
+        elif kind == "look_at":
+            tr = ET.SubElement(parent, "transform", name=name)
+            ET.SubElement(
+                tr, "lookat", **{k: ", ".join(repr(float(x)) for x in value[k]) for k in ("origin", "target", "up")}
+            )
+        else:
+            _xml_plugin(parent, value, name=name)
+    elif isinstance(value, bool):
+        ET.SubElement(parent, "boolean", name=name, value=str(value).lower())
+    elif isinstance(value, (int, np.integer)):
+        ET.SubElement(parent, "integer", name=name, value=str(int(value)))
+    elif isinstance(value, (float, np.floating)):
+        ET.SubElement(parent, "float", name=name, value=repr(float(value)))
+    else:
+        ET.SubElement(parent, "string", name=name, value=str(value))
+
+
+def _xml_plugin(parent, spec, name=None, ident=None):
+    attrs = {"type": spec["type"]}
+    if ident is not None:
+        attrs["id"] = ident
+    elif name is not None and _TAGS[spec["type"]] not in ("bsdf", "film", "sampler", "rfilter", "phase"):
+        attrs["name"] = name
+    el = ET.SubElement(parent, _TAGS[spec["type"]], **attrs)
+    for key, value in spec.items():
+        if key != "type":
+            _xml_value(el, key, value)
+    return el
+
+
+def spec_to_xml(spec) -> str:
+    """A :func:`scene_spec` as Mitsuba 3 scene XML (``version="3.0.0"``); needs no Mitsuba installed."""
+    root = ET.Element("scene", version="3.0.0")
+    for key, value in spec.items():
+        if key != "type":
+            _xml_plugin(root, value, ident=key)
+    ET.indent(root)
+    return ET.tostring(root, encoding="unicode") + "\n"
+
+
+def write_mitsuba_scene(ds, out_dir, *, probe=None, material="surface", mesh=None, **view):
+    """Write a subject's Mitsuba 3 scene: EXR set, Mitsuba textures, probe, ``scene.xml`` and ``scene.json``.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A map subject.
+    out_dir : str or os.PathLike
+        Existing directory to write into.
+    probe : str or os.PathLike, optional
+        Lat-long HDR light probe (copied beside the scene); default: a studio probe.
+    material : {"surface", "subsurface"}
+        See the module docstring.
+    mesh : str or os.PathLike, optional
+        The scan the maps belong to (default: the recorded procedural head).
+    **view
+        Camera and film settings of :func:`scene_spec`.
+
+    Returns
+    -------
+    dict
+        The :func:`scene_spec` (file names relative to ``out_dir``), also saved as
+        ``scene.json``; ``scene.xml`` is the same scene as Mitsuba XML.
+    """
+    import json
+    import shutil
+
+    from facestats.io.exr_set import write_exr_set
+    from facestats.io.images import write_exr
+    from facestats.io.latlong import read_latlong_probe, write_studio_probe
+
+    check_choice(material, "material", MATERIALS)
+    out = os.fspath(out_dir)
+    if probe is not None:
+        read_latlong_probe(probe)  # checked before anything is written
+    manifest = write_exr_set(ds, out, mesh=mesh)
+    alb = np.nan_to_num(np.asarray(ds["albedo"].values, np.float32))
+    rho = np.nan_to_num(np.asarray(ds["ts_rho_s"].values, np.float32))
+    write_exr(os.path.join(out, "mitsuba_diffuse.exr"), {c: 2 * alb[..., i] for i, c in enumerate("RGB")})
+    write_exr(os.path.join(out, "mitsuba_specular.exr"), {"Y": 8 * rho})
+    if probe is None:
+        probe_name = write_studio_probe(os.path.join(out, "probe.exr"))
+    else:
+        probe_name = os.path.join(out, "probe" + os.path.splitext(os.fspath(probe))[1].lower())
+        shutil.copyfile(probe, probe_name)
+    files = {
+        "mesh": manifest["mesh"]["file"],
+        "probe": os.path.basename(probe_name),
+        "ts_m": "ts_m.exr",
+        "mitsuba_diffuse": "mitsuba_diffuse.exr",
+        "mitsuba_specular": "mitsuba_specular.exr",
+    }
+    spec = scene_spec(files, manifest["coefficients"], material=material, **view)
+    with open(os.path.join(out, "scene.xml"), "w", encoding="utf-8") as fh:
+        fh.write(spec_to_xml(spec))
+    with open(os.path.join(out, "scene.json"), "w", encoding="utf-8") as fh:
+        json.dump(spec, fh, indent=2)
+    return spec
+
+
+def render_scene(scene, *, base_dir=None, spp=None, seed=0) -> np.ndarray:
+    """Render a scene with Mitsuba 3 (``scalar_rgb``): a :func:`scene_spec` dict or a ``scene.xml`` path.
+
+    Returns
+    -------
+    ndarray of float32, shape (height, width, 3)
+        Linear RGB radiance, row 0 at the top.
+    """
+    mi = require_mitsuba()
+    if isinstance(scene, dict):
+        loaded = mi.load_dict(spec_to_dict(scene, base_dir))
+    else:
+        path = os.fspath(scene)
+        if not os.path.isfile(path):
+            raise ValidationError(f"scene must be a scene dict or an existing scene.xml, got {path!r}")
+        loaded = mi.load_file(path)
+    kw = {"seed": int(seed)}
+    if spp is not None:
+        kw["spp"] = check_integer(spp, "spp", 1, 1 << 16)
+    return np.asarray(mi.render(loaded, **kw), np.float32)[..., :3]

@@ -353,6 +353,26 @@ class FaceMesh:
     normals: np.ndarray
     geometry: dict
 
+    def vertex_tangents(self):
+        """Unit tangents orthogonal to the vertex normals and their handedness w (glTF ``TANGENT``).
+
+        Lengyel (2001): per triangle T = ∂p/∂u and B = −∂p/∂v (up the texture),
+        summed at the vertices; T made orthogonal to N; w = sign((N × T)·B), so
+        the bitangent is B = w N × T (glTF 2.0 §3.7.2.1).
+
+        Returns
+        -------
+        tangent : ndarray, shape (V, 3)
+        w : ndarray, shape (V,)
+            ±1.
+        """
+        t, b = _vertex_tangents(self.vertices, self.faces, self.uv)
+        n = self.normals
+        t = t - n * np.einsum("ij,ij->i", t, n)[:, None]
+        t = _unit_or(t, np.cross(np.array([0.0, 1.0, 0.0]), n))
+        w = np.where(np.einsum("ij,ij->i", np.cross(n, t), b) < 0, -1.0, 1.0)
+        return t, w
+
     def tangent_frames(self, size: int):
         """Tangent frames (T, B, N) at the texel centres of a ``size``² map, each shape (size, size, 3).
 
@@ -372,12 +392,9 @@ class FaceMesh:
         from scipy.spatial import cKDTree
 
         check_integer(size, "size", 1)
-        t, b = _vertex_tangents(self.vertices, self.faces, self.uv)
+        t, w = self.vertex_tangents()
+        b = np.cross(self.normals, t) * w[:, None]
         n = self.normals
-        t = t - n * np.einsum("ij,ij->i", t, n)[:, None]
-        t = _unit_or(t, np.cross(np.array([0.0, 1.0, 0.0]), n))
-        w = np.where(np.einsum("ij,ij->i", np.cross(n, t), b) < 0, -1.0, 1.0)
-        b = np.cross(n, t) * w[:, None]
         c = (np.arange(size) + 0.5) / size
         uu, vv = np.meshgrid(c, c)
         _, idx = cKDTree(self.uv).query(np.stack([uu.ravel(), vv.ravel()], 1), workers=-1)

@@ -1,0 +1,60 @@
+"""``facestats export-subject``: one subject out to a renderer (EXR texture set, Mitsuba 3 scene or glTF 2.0).
+
+Parses, calls :func:`facestats.io.subject_export.export_subject` and prints what was written.
+"""
+
+from __future__ import annotations
+
+from facestats.cli.options import add_store_option
+
+__all__ = ["add_export_subject"]
+
+
+def _cmd_export_subject(args) -> int:
+    from facestats.io.subject_export import export_subject
+
+    res = export_subject(
+        args.subject_id,
+        args.out,
+        args.format,
+        store=args.store,
+        overwrite=args.overwrite,
+        mesh=args.mesh,
+        mesh_format=args.mesh_format,
+        probe=args.probe,
+        material=args.material,
+        width=args.width,
+        height=args.height,
+        spp=args.spp,
+    )
+    print(f"exported {res['subject_id']} as {res['format']} to {res['out']}: {len(res['files'])} files")
+    for name in res["files"]:
+        print(f"  {name}")
+    return 0
+
+
+def add_export_subject(sub):
+    p = sub.add_parser(
+        "export-subject",
+        help="write one subject for a renderer: EXR texture set, Mitsuba 3 scene or glTF 2.0",
+        description=(
+            "Export a map subject: 'exr' writes one OpenEXR file per map (albedo, normals in object and tangent "
+            "space, rho_s, m, Blinn-Phong exponent, sigma_a, sigma_s', sigma_tr, modulation, regions, flags, any "
+            "*_std maps) with units and colour space in the headers, the face mesh (OBJ/PLY with UVs) and a "
+            "manifest; 'mitsuba' adds a Mitsuba 3 scene (scene.xml, scene.json) with a light probe; 'gltf' writes "
+            "a glTF 2.0 asset with a metallic-roughness material. The directory appears whole or not at all."
+        ),
+    )
+    p.add_argument("subject_id", metavar="ID", help="subject id (see facestats query)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory (must not exist or be empty)")
+    p.add_argument("--format", choices=("exr", "mitsuba", "gltf"), default="exr")
+    add_store_option(p)
+    p.add_argument("--mesh", metavar="PATH", help="OBJ/PLY scan the maps belong to (default: the recorded geometry)")
+    p.add_argument("--mesh-format", choices=("obj", "ply"), default="obj", help="mesh file of the EXR set")
+    p.add_argument("--probe", metavar="FILE", help="Mitsuba: lat-long HDR light probe (default: a studio probe)")
+    p.add_argument("--material", choices=("surface", "subsurface"), default="surface", help="Mitsuba material")
+    p.add_argument("--width", type=int, default=None, help="Mitsuba: image width (default 256)")
+    p.add_argument("--height", type=int, default=None, help="Mitsuba: image height (default 256)")
+    p.add_argument("--spp", type=int, default=None, help="Mitsuba: samples per pixel (default 64)")
+    p.add_argument("--overwrite", action="store_true", help="replace a non-empty output directory")
+    p.set_defaults(func=_cmd_export_subject)

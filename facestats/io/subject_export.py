@@ -15,9 +15,9 @@ import shutil
 import tempfile
 
 from facestats.core.validate import check_choice
-from facestats.errors import ValidationError
+from facestats.errors import StoreError, ValidationError
 
-__all__ = ["EXPORT_FORMATS", "export_subject"]
+__all__ = ["EXPORT_FORMATS", "UnknownSubjectError", "export_subject", "store_subject"]
 
 EXPORT_FORMATS = ("exr", "mitsuba", "gltf")
 
@@ -26,20 +26,34 @@ def _dataset(subject, store):
     """The subject Dataset: given, or read (fully verified) from ``store`` (a Store, a path or None = default)."""
     if hasattr(subject, "data_vars"):
         return subject
-    from facestats.io.ids import check_subject_id
     from facestats.io.store import Store, open_store
 
-    sid = check_subject_id(subject)
     if isinstance(store, Store):
-        return store.subject(sid) if sid in store else _unknown(sid, store)
+        return store_subject(store, subject)
     with open_store(store) as st:
-        return st.subject(sid) if sid in st else _unknown(sid, st)
+        return store_subject(st, subject)
 
 
-def _unknown(sid, store):
-    from facestats.errors import StoreError
+def store_subject(store, subject_id):
+    """``store.subject(id)`` after checking the id (:func:`facestats.io.ids.check_subject_id`) and its presence.
 
-    raise StoreError(f"subject {sid!r} is not in store {store.label} ({len(store)} subjects)")
+    Raises
+    ------
+    ValidationError
+        A malformed id (never used in a path).
+    UnknownSubjectError
+        An id the store does not hold (the message the CLI prints and the web app returns with 404).
+    """
+    from facestats.io.ids import check_subject_id
+
+    sid = check_subject_id(subject_id)
+    if sid not in store:
+        raise UnknownSubjectError(f"subject {sid!r} is not in store {store.label} ({len(store)} subjects)")
+    return store.subject(sid)
+
+
+class UnknownSubjectError(StoreError):
+    """A subject id that the store does not hold."""
 
 
 def _write(fmt, ds, tmp, options):

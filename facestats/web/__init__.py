@@ -1,0 +1,59 @@
+"""facestats.web: the population statistics in a browser — the interactive applet of Weyrich et al. 2006 §7.
+
+:func:`create_app` (:mod:`facestats.web.app`) builds a Flask application over a
+read-only store: filters by skin type, gender, age, condition and region; the
+``facestats query`` statistics as tables and SVG plots (albedo histograms,
+per-region BRDF bars, the PCA ellipses of Fig. 15, the σa–σ's scatter of Fig.
+14); subject pages with maps and a relit preview; JSON, CSV and EXR downloads.
+:func:`serve` runs it on a local port (``facestats serve``).  Flask is an
+optional dependency: ``pip install 'facestats[web]'``.
+"""
+
+from __future__ import annotations
+
+__all__ = ["create_app", "serve", "make_server"]
+
+
+def create_app(store=None, *, preload=True):
+    """See :func:`facestats.web.app.create_app`."""
+    from facestats.web.app import create_app as _create_app
+
+    return _create_app(store, preload=preload)
+
+
+def make_server(app, host: str = "127.0.0.1", port: int = 8000):
+    """A threaded WSGI server (werkzeug) for ``app`` bound to ``host:port`` (port 0: any free port).
+
+    Returns
+    -------
+    werkzeug.serving.BaseWSGIServer
+        ``server.server_port`` is the bound port; call ``serve_forever()`` / ``shutdown()``.
+    """
+    from werkzeug.serving import make_server as _make_server
+
+    from facestats.core.validate import check_integer
+
+    check_integer(port, "port", 0, 65535)
+    return _make_server(host, port, app, threaded=True)
+
+
+def serve(store=None, *, host: str = "127.0.0.1", port: int = 8000, ready=None):
+    """Serve the web app until interrupted (binds to 127.0.0.1 unless ``host`` is given).
+
+    Parameters
+    ----------
+    store : str, os.PathLike or None
+        Store to serve read-only (None: the embedded default).
+    host, port
+        Where to listen.
+    ready : callable, optional
+        Called with the URL once the server listens.
+    """
+    server = make_server(create_app(store), host, port)
+    url = f"http://{host}:{server.server_port}/"
+    if ready is not None:
+        ready(url)
+    try:
+        server.serve_forever()
+    finally:
+        server.server_close()

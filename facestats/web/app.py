@@ -1,0 +1,266 @@
+"""The Flask application of ``facestats serve``: the §7 applet over a read-only store.
+
+Routes (GET only; every other method is 405):
+
+* ``/`` — the population page (filters, tables, plots; static JS/CSS shipped in the package);
+* ``/api/query`` — the ``facestats.query/1`` document of ``facestats query --format json``
+  (the same call, :meth:`facestats.io.store.Store.query` → ``to_dict``); ``/api/query.csv`` its CSV;
+* ``/api/pca``, ``/api/scatter`` — Fig. 15 ellipses and Fig. 14 points of the matching subjects;
+* ``/subject/<id>`` — a subject page; ``/api/subject/<id>``, ``/subject/<id>/map/<name>.png``,
+  ``/subject/<id>/preview.png``, ``/subject/<id>/exr.zip`` (the EXR texture set).
+
+Safety: the store is opened read-only; filter names are whitelisted and values
+bounded in length; subject ids pass :func:`facestats.io.ids.check_subject_id`
+before any use (no path is ever built from a request); query strings are at
+most :data:`MAX_QUERY_STRING` bytes and bodies :data:`MAX_BODY` bytes.  Errors
+are JSON (API) or a short page: the text is the one the CLI prints
+(``facestats: error: ...``), with 400 (bad value), 404 (unknown subject or
+page), 409 (store fails its checks), 424 (missing optional dependency); an
+unexpected exception is logged on the server and answered with a generic 500,
+never a traceback.
+"""
+
+from __future__ import annotations
+
+import io
+import logging
+import os
+import shutil
+import tempfile
+import threading
+import zipfile
+from collections import OrderedDict
+
+from facestats.errors import DependencyError, FacestatsError, StoreError
+
+__all__ = ["create_app", "FILTERS", "MAX_QUERY_STRING", "MAX_BODY", "error_text"]
+
+FILTERS = ("skin_type", "gender", "age", "condition", "region")
+MAX_QUERY_STRING = 1024
+MAX_BODY = 1024
+MAX_VALUE = 32
+_LOG = logging.getLogger("facestats.web")
+
+
+def error_text(exc) -> str:
+    """The message the CLI prints for a :class:`FacestatsError` (``facestats: error: ...``)."""
+    return f"facestats: error: {exc}"
+
+
+def _status(exc) -> int:
+    from facestats.io.subject_export import UnknownSubjectError
+
+    if isinstance(exc, UnknownSubjectError):
+        return 404
+    if isinstance(exc, DependencyError):
+        return 424
+    if isinstance(exc, StoreError):
+        return 409
+    return 400
+
+
+class _SubjectCache:
+    """The last few subjects read (a page asks for several maps of one subject)."""
+
+    def __init__(self, store, lock, size=8):
+        self._store, self._lock, self._size = store, lock, size
+        self._items = OrderedDict()
+
+    def get(self, sid):
+        from facestats.io.subject_export import store_subject
+
+        with self._lock:
+            if sid in self._items:
+                self._items.move_to_end(sid)
+                return self._items[sid]
+            ds = store_subject(self._store, sid)
+            self._items[sid] = ds
+            while len(self._items) > self._size:
+                self._items.popitem(last=False)
+            return ds
+
+
+def _filters(args) -> dict:
+    """The whitelisted, length-bounded filters of a request (empty values mean "any")."""
+    from facestats.errors import ValidationError
+
+    unknown = sorted(set(args) - set(FILTERS))
+    if unknown:
+        raise ValidationError(f"unknown filter(s) {unknown}; expected some of {list(FILTERS)}")
+    out = {}
+    for key in FILTERS:
+        value = args.get(key, "").strip()
+        if len(value) > MAX_VALUE:
+            raise ValidationError(f"{key} must be at most {MAX_VALUE} characters, got {len(value)}")
+        out[key] = value or None
+    return out
+
+
+def create_app(store=None, *, preload=True):
+    """The Flask app over ``store`` (a path, a read-only :class:`~facestats.io.store.Store` or None: the default).
+
+    Parameters
+    ----------
+    store : str, os.PathLike, Store or None
+    preload : bool
+        Start reading the region samples for Fig. 15 in the background now.
+
+    Returns
+    -------
+    flask.Flask
+        ``app.config["FACESTATS_STORE"]`` holds the open store.
+    """
+    try:
+        from flask import Flask
+    except ImportError as exc:
+        raise DependencyError(
+            f"Flask is not installed (needed by facestats serve): pip install 'facestats[web]' ({exc})"
+        )
+    from facestats.io.store import Store, open_store
+    from facestats.web.data import RegionSamples
+
+    st = store if isinstance(store, Store) else open_store(store, mode="r")
+    if not st.read_only:
+        raise StoreError(f"the web app serves read-only stores; open {st.label} with mode='r'")
+    here = os.path.dirname(os.path.abspath(__file__))
+    app = Flask(__name__, static_folder=os.path.join(here, "static"), template_folder=os.path.join(here, "templates"))
+    app.config.update(MAX_CONTENT_LENGTH=MAX_BODY, FACESTATS_STORE=st)
+    app.json.sort_keys = False  # keep the documented key order of facestats.query/1
+    lock = threading.RLock()
+    ctx = {
+        "store": st,
+        "lock": lock,
+        "samples": RegionSamples(st, start=preload),
+        "subjects": _SubjectCache(st, lock),
+    }
+    app.config["FACESTATS"] = ctx
+    _register_guards(app)
+    _register_routes(app, ctx)
+    return app
+
+
+def _register_guards(app):
+    from flask import jsonify, render_template, request
+    from werkzeug.exceptions import HTTPException
+
+    @app.before_request
+    def _limits():
+        from flask import abort
+
+        if request.method not in ("GET", "HEAD"):
+            abort(405)
+        if len(request.query_string) > MAX_QUERY_STRING:
+            abort(414)
+
+    def _reply(status, message):
+        if request.path.startswith("/api/"):
+            return jsonify({"error": message, "status": status}), status
+        return render_template("error.html", status=status, message=message), status
+
+    @app.errorhandler(FacestatsError)
+    def _facestats_error(exc):
+        return _reply(_status(exc), error_text(exc))
+
+    @app.errorhandler(HTTPException)
+    def _http_error(exc):
+        return _reply(exc.code, f"facestats: error: {exc.name}: {exc.description}")
+
+    @app.errorhandler(Exception)
+    def _unexpected(exc):
+        _LOG.exception("unexpected error serving %s", request.path)
+        return _reply(500, "facestats: error: internal error (the server log has the details)")
+
+
+def _register_routes(app, ctx):
+    from flask import Response, jsonify, render_template, request
+
+    from facestats.core.conventions import CONDITIONS, REGIONS, ROMAN
+
+    st, lock = ctx["store"], ctx["lock"]
+
+    def query():
+        with lock:
+            return st.query(**_filters(request.args))
+
+    @app.get("/")
+    def index():
+        return render_template(
+            "index.html", store=st.label, n=len(st), conditions=CONDITIONS, regions=REGIONS, roman=ROMAN
+        )
+
+    @app.get("/api/query")
+    def api_query():
+        return jsonify(query().to_dict())
+
+    @app.get("/api/query.csv")
+    def api_query_csv():
+        return Response(
+            query().to_csv(), mimetype="text/csv",
+            headers={"Content-Disposition": "attachment; filename=facestats-query.csv"},
+        )  # fmt: skip
+
+    @app.get("/api/pca")
+    def api_pca():
+        from facestats.web.data import pca_document
+
+        doc = pca_document(ctx["samples"], query().subject_ids)
+        return jsonify(doc), (202 if doc["status"] == "pending" else 200)
+
+    @app.get("/api/scatter")
+    def api_scatter():
+        from facestats.web.data import scatter_document
+
+        ids = query().subject_ids
+        with lock:
+            return jsonify(scatter_document(st, ids))
+
+    _register_subject_routes(app, ctx)
+
+
+def _register_subject_routes(app, ctx):
+    from flask import Response, jsonify, render_template
+
+    from facestats.web.data import map_png, preview_png, subject_document
+
+    cache = ctx["subjects"]
+
+    @app.get("/api/subject/<sid>")
+    def api_subject(sid):
+        return jsonify(subject_document(cache.get(sid)))
+
+    @app.get("/subject/<sid>")
+    def subject_page(sid):
+        doc = subject_document(cache.get(sid))
+        return render_template("subject.html", doc=doc, sid=doc["subject"]["subject_id"])
+
+    @app.get("/subject/<sid>/map/<name>.png")
+    def subject_map(sid, name):
+        return Response(map_png(cache.get(sid), name), mimetype="image/png")
+
+    @app.get("/subject/<sid>/preview.png")
+    def subject_preview(sid):
+        return Response(preview_png(cache.get(sid)), mimetype="image/png")
+
+    @app.get("/subject/<sid>/exr.zip")
+    def subject_exr(sid):
+        ds = cache.get(sid)
+        return Response(
+            _exr_zip(ds), mimetype="application/zip",
+            headers={"Content-Disposition": f"attachment; filename={ds.attrs['subject_id']}-exr.zip"},
+        )  # fmt: skip
+
+
+def _exr_zip(ds) -> bytes:
+    """The subject's EXR texture set (:func:`facestats.io.exr_set.write_exr_set`) as zip bytes."""
+    from facestats.io.exr_set import write_exr_set
+
+    tmp = tempfile.mkdtemp(prefix="facestats-web-")
+    try:
+        write_exr_set(ds, tmp)
+        buf = io.BytesIO()
+        with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+            for name in sorted(os.listdir(tmp)):
+                zf.write(os.path.join(tmp, name), arcname=name)
+        return buf.getvalue()
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)

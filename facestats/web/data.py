@@ -1,0 +1,228 @@
+"""What the web app shows beyond the query document: Fig. 15 ellipses, Fig. 14 scatter, map images, a relit preview.
+
+Every function takes store data and returns JSON-ready dicts or PNG bytes; the
+Flask layer (:mod:`facestats.web.app`) only routes.  The statistics come from
+:mod:`facestats.analysis` (:func:`~facestats.analysis.pca.region_pca` on the
+region samples, :func:`~facestats.analysis.scatter.absorption_scattering`), the
+preview from :func:`facestats.model.skin.skin_radiance`.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+from facestats.core.conventions import CHANNELS, REGIONS
+
+__all__ = ["RegionSamples", "pca_document", "scatter_document", "map_names", "map_png", "preview_png", "PREVIEW_LIGHTS"]
+
+#: Directions towards the three preview lights (key, fill, rim) and their irradiance (relative units).
+PREVIEW_LIGHTS = (
+    ((0.5, 0.45, 0.74), 1.0),
+    ((-0.6, 0.1, 0.8), 0.35),
+    ((0.0, 0.8, -0.2), 0.25),
+)
+
+
+class RegionSamples:
+    """The Torrance-Sparrow region samples of every subject, loaded once in a background thread.
+
+    Fig. 15's PCA needs per-texel samples of every subject (opening each
+    subject: about 15 s for the 156 subjects of the default store), read through
+    a store handle of its own so that requests never wait for it; the page
+    asks again until :attr:`ready`.
+    """
+
+    def __init__(self, store, start=True):
+        self._store = store
+        self.frame = None
+        self.error = None
+        self._thread = threading.Thread(target=self._load, name="facestats-region-samples", daemon=True)
+        if start:
+            self._thread.start()
+
+    def _load(self):
+        from facestats.analysis.population import region_samples
+
+        from facestats.io.store import open_store
+
+        try:  # a store handle of its own: requests never wait for this thread
+            with open_store(self._store.path if self._store.label != "default" else None) as st:
+                self.frame = region_samples(st, model="ts")
+        except Exception as exc:  # reported to the page, never raised in the thread
+            self.error = f"region samples could not be read: {exc}"
+
+    @property
+    def ready(self) -> bool:
+        return self.frame is not None or self.error is not None
+
+    def wait(self, timeout=None) -> bool:
+        self._thread.join(timeout)
+        return self.ready
+
+
+def pca_document(samples: RegionSamples, subject_ids) -> dict:
+    """Fig. 15 ellipses (centre, σ half-axes, angle) of the matching subjects, or a pending/error status."""
+    from facestats.analysis.pca import region_pca
+    from facestats.errors import ValidationError
+
+    if not samples.ready:
+        return {"status": "pending"}
+    if samples.error:
+        return {"status": "error", "error": samples.error}
+    try:
+        res = region_pca(samples.frame, model="ts", subjects=list(subject_ids))
+    except ValidationError as exc:
+        return {"status": "empty", "error": str(exc)}
+    out = []
+    for r, e in sorted(res.regions.items()):
+        vec = np.asarray(e.eigenvectors)
+        out.append(
+            {
+                "region": int(r),
+                "name": REGIONS[int(r)],
+                "mean": [float(x) for x in e.mean],
+                "half_axes": [float(x) for x in e.half_axes()],
+                "axis": [float(vec[0, 0]), float(vec[1, 0])],
+                "n_samples": int(e.n),
+            }
+        )
+    return {"status": "ok", "variables": ["rho_s", "m"], "k": 1, "n_subjects": int(res.n_subjects), "regions": out}
+
+
+def scatter_document(store, subject_ids) -> dict:
+    """Fig. 14: σa and σ's (mm⁻¹) of the matching subjects per channel, with skin type, gender and age."""
+    from facestats.analysis.scatter import absorption_scattering
+    from facestats.errors import ValidationError
+
+    ids = list(subject_ids)
+    if not ids:
+        return {"points": [], "units": "mm-1"}
+    try:
+        res = absorption_scattering(store.subjects(), subjects=ids, conditions=None)
+    except ValidationError as exc:
+        return {"points": [], "units": "mm-1", "error": str(exc)}
+    d = res.data
+    pts = [
+        {"subject_id": s, "channel": c, "sigma_a": float(a), "sigma_s_prime": float(p), "skin_type": int(t),
+         "gender": g, "age": float(age)}
+        for s, c, a, p, t, g, age in zip(d["subject_id"], d["channel"], d["sigma_a"], d["sigma_s_prime"],
+                                          d["skin_type"], d["gender"], d["age"])
+    ]  # fmt: skip
+    return {"points": pts, "units": "mm-1"}
+
+
+def map_names(ds) -> list:
+    """Names of the maps a subject page shows: every (v, u[, 3]) variable plus ``modulation``."""
+    names = [v for v in sorted(ds.data_vars) if tuple(ds[v].dims[:2]) == ("v", "u") and ds[v].ndim in (2, 3)]
+    return names + (["modulation"] if "albedo" in names and "modulation" not in names else [])
+
+
+def _scalar_rgb(values, face, name):
+    """A scalar map as colour: viridis over the 2-98 % range of the face (regions: tab10), outside black."""
+    from matplotlib import colormaps
+
+    if name == "region":
+        rgb = colormaps["tab10"]((values.astype(int) - 1) % 10)[..., :3]
+    else:
+        v = values[face]
+        lo, hi = (np.percentile(v, [2, 98]) if v.size else (0.0, 1.0)) if name.find("flag") < 0 else (0, 8)
+        rgb = colormaps["viridis"](np.clip((values - lo) / max(hi - lo, 1e-12), 0, 1))[..., :3]
+    rgb[~face] = 0
+    return rgb
+
+
+def _encode_png(rgb, scale: int) -> bytes:
+    import cv2
+
+    img = np.clip(np.asarray(rgb, np.float64), 0, 1)
+    if scale > 1:
+        img = np.repeat(np.repeat(img, scale, 0), scale, 1)
+    q = np.round(img * 255).astype(np.uint8)[..., ::-1]
+    ok, buf = cv2.imencode(".png", q)
+    return buf.tobytes()
+
+
+def map_png(ds, name: str, scale: int = 4) -> bytes:
+    """One map of a subject as a PNG (albedo and modulation sRGB-encoded, normals as (n + 1)/2, others colour-mapped).
+
+    Raises
+    ------
+    ValidationError
+        ``name`` is not one of :func:`map_names`.
+    """
+    from facestats.core.validate import check_choice
+    from facestats.io.images import linear_to_srgb
+    from facestats.io.schema import modulation
+
+    check_choice(name, "map", tuple(map_names(ds)))
+    face = np.asarray(ds["region"].values) > 0
+    if name == "modulation":
+        vals = np.asarray(modulation(ds).values) * 0.5
+    else:
+        vals = np.nan_to_num(np.asarray(ds[name].values, np.float64))
+    if name in ("albedo", "modulation"):
+        rgb = linear_to_srgb(vals)
+    elif vals.ndim == 3 and vals.shape[2] == 3:
+        rgb = (vals + 1) / 2
+    elif vals.ndim == 3:
+        rgb = _scalar_rgb(vals[..., 0], face, name)
+    else:
+        rgb = _scalar_rgb(vals, face, name)
+    rgb = np.array(rgb, np.float64)
+    rgb[~face] = 0
+    return _encode_png(rgb, scale)
+
+
+def preview_radiance(ds, lights=PREVIEW_LIGHTS, view=(0.0, 0.0, 1.0)):
+    """The subject relit by directional lights and seen from ``view``, in UV layout (v, u, 3), linear.
+
+    Weyrich et al. 2006 eq. 6 through :func:`facestats.model.skin.skin_radiance`:
+    Torrance-Sparrow specular with the fitted (ρs, m) and diffuse normal, diffuse
+    from the modulation texture and the subject's σ's, σa (flat-patch dipole
+    transport, no shadows); irradiance E = E⊥ (N·ωi).
+    """
+    from facestats.io.schema import modulation
+    from facestats.model.skin import SubsurfaceTransport, skin_radiance
+
+    face = np.asarray(ds["region"].values) > 0
+    n = np.asarray(ds["normal"].values, np.float64)[face]
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    bad = ~np.all(np.isfinite(n), axis=1) | (np.linalg.norm(n, axis=1) < 0.5)
+    n[bad] = (0.0, 0.0, 1.0)
+    dirs = np.array([np.asarray(d, np.float64) / np.linalg.norm(d) for d, _ in lights])
+    power = np.array([p for _, p in lights])
+    wi = np.broadcast_to(dirs, (len(n), len(dirs), 3))
+    irr = (np.clip(n @ dirs.T, 0, None) * power)[..., None] * np.ones(3)
+    wo = np.broadcast_to(np.asarray(view, np.float64) / np.linalg.norm(view), (len(n), 1, 3))
+    mod = np.nan_to_num(np.asarray(modulation(ds).values, np.float64))[face]
+    transport = SubsurfaceTransport(ds["sigma_s_prime"].values, ds["sigma_a"].values)
+    rad = skin_radiance(
+        n, wi, irr, wo, rho_s=np.asarray(ds["ts_rho_s"].values)[face], roughness=np.asarray(ds["ts_m"].values)[face],
+        modulation=mod, subsurface=transport,
+    )  # fmt: skip
+    img = np.zeros(face.shape + (3,))
+    img[face] = rad[:, 0].sum(axis=1)
+    return img
+
+
+def preview_png(ds, scale: int = 4) -> bytes:
+    """:func:`preview_radiance` tone-mapped (99th percentile to white, sRGB) as a PNG."""
+    from facestats.io.images import linear_to_srgb
+
+    img = preview_radiance(ds)
+    face = np.asarray(ds["region"].values) > 0
+    white = np.percentile(img[face], 99) if face.any() else 1.0
+    return _encode_png(linear_to_srgb(img / max(white, 1e-12)), scale)
+
+
+def subject_document(ds) -> dict:
+    """Metadata, coefficients and map names of a subject (JSON-ready)."""
+    meta = {k: (v.item() if hasattr(v, "item") else v) for k, v in ds.attrs.items() if k != "provenance"}
+    coeffs = {
+        v: dict(zip(CHANNELS, (float(x) for x in np.asarray(ds[v].values))))
+        for v in ("albedo_avg", "sigma_a", "sigma_s_prime", "sigma_tr")
+        if v in ds.data_vars
+    }
+    return {"subject": meta, "coefficients": coeffs, "units": {"sigma": "mm-1", "albedo": "1"}, "maps": map_names(ds)}

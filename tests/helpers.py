@@ -338,3 +338,12 @@ def assert_no_errors(nb):
 def shows_figure(cell):
     """True if the cell displayed a PNG image."""
     return any("image/png" in o.get("data", {}) for o in cell.outputs)
+
+
+def store_from_default(path, ids=("S001", "S002", "S003", "S004", "S005", "S006", "S007", "S008")):
+    """A small directory store at ``path`` holding copies of some subjects of the embedded default store."""
+    from facestats.io.store import open_store
+
+    with open_store(None) as src, open_store(path, mode="a") as dst:
+        dst.write_subjects([src.subject(sid) for sid in ids])
+    return str(path)

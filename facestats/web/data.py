@@ -187,7 +187,10 @@ def preview_radiance(ds, lights=PREVIEW_LIGHTS, view=(0.0, 0.0, 1.0)):
     from facestats.model.skin import SubsurfaceTransport, skin_radiance
 
     face = np.asarray(ds["region"].values) > 0
-    n = np.asarray(ds["normal"].values, np.float64)[face]
+    if "normal" in ds.data_vars:
+        n = np.asarray(ds["normal"].values, np.float64)[face]
+    else:  # a subject without a normal map is shown as a flat patch facing the viewer
+        n = np.tile([0.0, 0.0, 1.0], (int(face.sum()), 1))
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     bad = ~np.all(np.isfinite(n), axis=1) | (np.linalg.norm(n, axis=1) < 0.5)
     n[bad] = (0.0, 0.0, 1.0)

@@ -67,6 +67,8 @@ def read_latlong_probe(path) -> np.ndarray:
     from facestats.io.images import HDR_EXTENSIONS, read_image
 
     p = os.fspath(path)
+    if not os.path.isfile(p):
+        raise ValidationError(f"probe must name an existing latitude-longitude HDR file, got {p!r}")
     if os.path.splitext(p)[1].lower() not in HDR_EXTENSIONS:
         raise ValidationError(f"probe must be a high-dynamic-range file ({', '.join(HDR_EXTENSIONS)}), got {p!r}")
     img = read_image(p)

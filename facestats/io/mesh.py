@@ -284,9 +284,7 @@ def write_mesh(path, vertices, faces, uv, normals=None) -> str:
     mesh = trimesh.Trimesh(v, f, process=False, **kw)
     mesh.visual = trimesh.visual.TextureVisuals(uv=np.stack([t[:, 0], 1 - t[:, 1]], 1))
     if ext == ".obj":
-        text = mesh.export(file_type="obj", include_normals=normals is not None, include_texture=False)
-        with open(path, "w", encoding="utf-8") as fh:
-            fh.write(text)
+        mesh.export(path, file_type="obj", include_normals=normals is not None)
     else:
         mesh.export(path, file_type="ply")
     return path

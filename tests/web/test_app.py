@@ -1,0 +1,98 @@
+"""The web app's HTTP behaviour through Flask's test client: same JSON as the CLI, safe errors, limits."""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+
+import pytest
+
+from facestats.cli import main as cli_main
+
+pytest.importorskip("flask", reason="Flask is not installed (web extra)")
+
+
+@pytest.fixture(scope="module")
+def store_path(tmp_path_factory):
+    from tests.helpers import store_from_default
+
+    return store_from_default(tmp_path_factory.mktemp("webapi") / "small.zarr", ids=("S001", "S002", "S003"))
+
+
+@pytest.fixture(scope="module")
+def client(store_path):
+    from facestats.web import create_app
+
+    app = create_app(store_path)
+    app.config["FACESTATS"]["samples"].wait(60)
+    return app.test_client()
+
+
+def test_query_json_is_the_cli_json(client, store_path, capsys):
+    capsys.readouterr()
+    assert cli_main(["query", "--store", store_path, "--format", "json", "--gender", "M", "--age", "20-40"]) == 0
+    cli = json.loads(capsys.readouterr().out)
+    r = client.get("/api/query?gender=M&age=20-40")
+    assert r.status_code == 200 and r.get_json() == cli
+    assert list(r.get_json()) == list(cli)  # the documented key order
+    csv = client.get("/api/query.csv?gender=M&age=20-40")
+    assert csv.status_code == 200 and csv.mimetype == "text/csv" and csv.data.decode().startswith("section,")
+
+
+def test_errors_carry_the_cli_text_and_4xx_never_a_traceback(client, store_path, capsys, monkeypatch):
+    capsys.readouterr()
+    assert cli_main(["query", "--store", store_path, "--skin-type", "VII"]) == 2
+    cli_err = capsys.readouterr().err.strip()
+    r = client.get("/api/query?skin_type=VII")
+    assert r.status_code == 400 and r.get_json()["error"] == cli_err
+    assert client.get("/api/query?evil=1").status_code == 400
+    assert client.get("/api/query?age=" + "1" * 40).status_code == 400
+    assert client.get("/api/query?gender=M&x=" + "a" * 2000).status_code == 414
+    assert client.post("/api/query").status_code == 405
+    r = client.get("/api/subject/S999")
+    assert r.status_code == 404 and "is not in store" in r.get_json()["error"]
+    for bad in ("/subject/..%2F..%2Fetc", "/subject/%2Fetc%2Fpasswd/exr.zip", "/subject/.hidden"):
+        r = client.get(bad)
+        assert r.status_code in (400, 404) and b"Traceback" not in r.data
+    assert client.get("/subject/S001/map/..%2Fzarr.json.png").status_code in (400, 404)
+    import facestats.web.data as data
+
+    monkeypatch.setattr(data, "preview_radiance", lambda ds: 1 / 0)
+    r = client.get("/subject/S001/preview.png")
+    assert r.status_code == 500 and b"ZeroDivisionError" not in r.data and b"internal error" in r.data
+
+
+def test_subject_pages_maps_and_exr_download(client):
+    assert client.get("/subject/S002").status_code == 200
+    doc = client.get("/api/subject/S002").get_json()
+    assert {"albedo", "normal", "ts_m", "modulation"} <= set(doc["maps"])
+    png = client.get("/subject/S002/map/albedo.png")
+    assert png.status_code == 200 and png.data[:8] == b"\x89PNG\r\n\x1a\n"
+    z = zipfile.ZipFile(io.BytesIO(client.get("/subject/S002/exr.zip").data))
+    names = set(z.namelist())
+    assert {"albedo.exr", "ts_m.exr", "region.exr", "mesh.obj", "manifest.json"} <= names
+    assert json.loads(z.read("manifest.json"))["subject"]["subject_id"] == "S002"
+
+
+def test_pca_and_scatter_documents(client):
+    pca = client.get("/api/pca?skin_type=IV").get_json()
+    assert pca["status"] == "ok" and len(pca["regions"]) == 10
+    for r in pca["regions"]:
+        assert r["half_axes"][0] >= r["half_axes"][1] > 0 and abs(r["axis"][0] ** 2 + r["axis"][1] ** 2 - 1) < 1e-9
+    q = client.get("/api/query?skin_type=IV").get_json()
+    sc = client.get("/api/scatter?skin_type=IV").get_json()
+    assert len(sc["points"]) == 3 * q["count"]
+    by_ch = {p["channel"]: p["sigma_a"] for p in sc["points"] if p["subject_id"] == q["subject_ids"][0]}
+    assert by_ch["B"] > by_ch["R"]  # blue is absorbed most (Fig. 14)
+
+
+def test_a_store_that_cannot_be_opened_is_a_cli_error(tmp_path, capsys):
+    from facestats.web import create_app
+
+    bad = tmp_path / "not-a-store"
+    bad.mkdir()
+    with pytest.raises(Exception, match="is not a facestats store"):
+        create_app(bad)
+    assert cli_main(["serve", "--store", str(bad), "--port", "0"]) == 2
+    assert "facestats: error: store" in capsys.readouterr().err

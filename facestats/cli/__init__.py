@@ -10,7 +10,8 @@ prints.  Heavy modules are imported inside the commands so that ``facestats
 * :mod:`~facestats.cli.edit` — ``edit``;
 * :mod:`~facestats.cli.demo` — ``demo``;
 * :mod:`~facestats.cli.export` — ``export-subject``;
-* :mod:`~facestats.cli.serve` — ``serve``.
+* :mod:`~facestats.cli.serve` — ``serve``;
+* :mod:`~facestats.cli.render` — ``render``.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from facestats.cli.build import add_build
 from facestats.cli.demo import add_demo
 from facestats.cli.edit import add_edit
 from facestats.cli.export import add_export_subject
+from facestats.cli.render import add_render
 from facestats.cli.serve import add_serve
 from facestats.cli.store import add_export, add_import_merl, add_info, add_query, add_validate
 from facestats.core.version import __version__
@@ -44,6 +46,7 @@ COMMANDS = [
     add_edit,
     add_export_subject,
     add_serve,
+    add_render,
 ]
 
 

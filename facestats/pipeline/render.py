@@ -119,8 +119,9 @@ def camera_image(values, capture, camera: int, light: int, channel=None):
 
     Parameters
     ----------
-    values : ndarray, shape (n, C, L, 3)
-        E.g. the output of :func:`predict_radiance`.
+    values : ndarray, shape (n, C, L, 3) or (n, 3)
+        E.g. the output of :func:`predict_radiance`, or values already taken
+        for this camera and light (one RGB value per lumitexel).
     capture : Capture
     camera, light : int
     channel : int, optional
@@ -146,7 +147,8 @@ def camera_image(values, capture, camera: int, light: int, channel=None):
     res = n_px / max(x1 - x0, y1 - y0)
     ix = np.clip(((x - x0) * res).astype(np.int64), 0, n_px - 1)
     iy = np.clip(((y - y0) * res).astype(np.int64), 0, n_px - 1)
-    vals = values[:, camera, light, :] if channel is None else values[:, camera, light, channel : channel + 1]
+    sel = values if values.ndim == 2 else values[:, camera, light, :]
+    vals = sel if channel is None else sel[:, channel : channel + 1]
     img = np.full((n_px, n_px, vals.shape[-1]), np.nan)
     img[iy[ok], ix[ok]] = vals[ok]
     return img if channel is None else img[..., 0]

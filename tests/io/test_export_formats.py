@@ -108,7 +108,7 @@ def test_beckmann_to_ggx_factor_is_the_least_squares_match():
     w = np.sin(th) * np.cos(th)
 
     def beckmann(a):
-        return np.exp(-np.tan(th) ** 2 / a**2) / (np.pi * a**2 * np.cos(th) ** 4)
+        return np.exp(-(np.tan(th) ** 2) / a**2) / (np.pi * a**2 * np.cos(th) ** 4)
 
     def ggx(a):
         return a**2 / (np.pi * np.cos(th) ** 4 * (a**2 + np.tan(th) ** 2) ** 2)

@@ -26,7 +26,9 @@ pytestmark = pytest.mark.skipif(
     not (CHROMIUM and CHROMEDRIVER),
     reason="headless Chromium and its driver are not installed (apt-get install chromium chromium-driver)",
 )
-ARTEFACTS = pathlib.Path(os.environ.get("FACESTATS_ARTEFACTS", pathlib.Path(__file__).resolve().parents[2] / "test-artefacts"))
+ARTEFACTS = pathlib.Path(
+    os.environ.get("FACESTATS_ARTEFACTS", pathlib.Path(__file__).resolve().parents[2] / "test-artefacts")
+)
 
 
 @pytest.fixture(scope="module")
@@ -56,9 +58,18 @@ def driver(tmp_path_factory):
 
     opts = Options()
     opts.binary_location = CHROMIUM
-    for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                 "--window-size=1400,2400", f"--user-data-dir={tmp_path_factory.mktemp('chromium-profile')}"):
+    for flag in (
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--window-size=1400,2400",
+        f"--user-data-dir={tmp_path_factory.mktemp('chromium-profile')}",
+    ):
         opts.add_argument(flag)  # fmt: skip
     drv = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
     drv.set_page_load_timeout(60)

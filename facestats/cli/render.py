@@ -1,4 +1,4 @@
-"""``facestats render``: a validation render of a fitted subject beside its capture (:mod:`facestats.pipeline.validation`)."""
+"""``facestats render``: a fitted subject rendered beside its capture (:mod:`facestats.pipeline.validation`)."""
 
 from __future__ import annotations
 
@@ -36,7 +36,8 @@ def _cmd_render(args) -> int:
     res.figure().savefig(stem + ".png", dpi=120)
     if res.relative_rmse is not None:
         print(
-            f"{args.subject_id} camera {args.camera} {res.light}: RMSE {res.rmse:.4g}, relative {100 * res.relative_rmse:.2f} %"
+            f"{args.subject_id} camera {args.camera} {res.light}: "
+            f"RMSE {res.rmse:.4g}, relative {100 * res.relative_rmse:.2f} %"
         )
     print(f"wrote {stem}.png and the EXR images beside it")
     return 0

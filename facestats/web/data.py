@@ -44,7 +44,6 @@ class RegionSamples:
 
     def _load(self):
         from facestats.analysis.population import region_samples
-
         from facestats.io.store import open_store
 
         try:  # a store handle of its own: requests never wait for this thread

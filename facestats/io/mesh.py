@@ -380,7 +380,9 @@ class FaceMesh:
         convention of glTF 2.0 and OpenGL normal maps), summed at the vertices,
         then T is made orthogonal to N (Gram-Schmidt) and B = N × T · w with w = ±1
         the handedness.  Each texel takes the frame of the vertex nearest to it
-        in UV.
+        in UV, looked up on a grid of side min(size, max(512, 4 √V)) (V vertices:
+        at least four lookups per vertex spacing) and repeated to ``size``, so a
+        2048² map of a 128² mesh costs a 512² lookup.
 
         Returns
         -------
@@ -393,11 +395,15 @@ class FaceMesh:
         t, w = self.vertex_tangents()
         b = np.cross(self.normals, t) * w[:, None]
         n = self.normals
-        c = (np.arange(size) + 0.5) / size
+        res = int(min(size, max(512, 4 * np.sqrt(len(self.uv)))))
+        c = (np.arange(res) + 0.5) / res
         uu, vv = np.meshgrid(c, c)
         _, idx = cKDTree(self.uv).query(np.stack([uu.ravel(), vv.ravel()], 1), workers=-1)
-        shape = (size, size, 3)
-        return t[idx].reshape(shape), b[idx].reshape(shape), n[idx].reshape(shape)
+        idx = idx.reshape(res, res)
+        if res != size:
+            cell = (np.arange(size) * res) // size
+            idx = idx[cell[:, None], cell[None, :]]
+        return t[idx], b[idx], n[idx]
 
 
 def _vertex_tangents(verts, faces, uv):

@@ -33,8 +33,13 @@ def make_server(app, host: str = "127.0.0.1", port: int = 8000):
 
     from facestats.core.validate import check_integer
 
+    from facestats.errors import ValidationError
+
     check_integer(port, "port", 0, 65535)
-    return _make_server(host, port, app, threaded=True)
+    try:
+        return _make_server(host, port, app, threaded=True)
+    except SystemExit:  # werkzeug exits when the address is taken; say so as every facestats error does
+        raise ValidationError(f"cannot listen on {host}:{port}: the address is in use or not available") from None
 
 
 def serve(store=None, *, host: str = "127.0.0.1", port: int = 8000, ready=None):

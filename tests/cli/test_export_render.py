@@ -1,0 +1,37 @@
+"""``facestats export-subject``, ``render`` and ``serve`` on the command line."""
+
+import os
+
+from facestats.cli import main
+
+
+def test_export_subject_writes_the_set_and_reports_errors_like_every_command(tmp_path, capsys):
+    out = tmp_path / "S004"
+    assert main(["export-subject", "S004", "--out", str(out), "--format", "exr", "--mesh-format", "ply"]) == 0
+    text = capsys.readouterr().out
+    assert "exported S004 as exr" in text and "mesh.ply" in text and (out / "manifest.json").exists()
+    assert main(["export-subject", "S004", "--out", str(out)]) == 2
+    assert "is not empty" in capsys.readouterr().err
+    assert main(["export-subject", "S404", "--out", str(tmp_path / "x")]) == 2
+    assert capsys.readouterr().err.strip() == "facestats: error: subject 'S404' is not in store default (156 subjects)"
+    assert not (tmp_path / "x").exists()
+
+
+def test_render_prints_the_relative_rmse_and_writes_images(tmp_path, capsys):
+    assert main(["render", "S003", "--out", str(tmp_path), "--camera", "5", "--light", "20"]) == 0
+    line = capsys.readouterr().out.splitlines()[0]
+    assert float(line.split("relative ")[1].split(" %")[0]) < 5
+    assert sorted(os.listdir(tmp_path)) == [
+        "S003-cam05-capture.exr", "S003-cam05-error.exr", "S003-cam05-rendered.exr", "S003-cam05.png",
+    ]  # fmt: skip
+
+
+def test_serve_refuses_a_port_it_cannot_bind(capsys):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        assert main(["serve", "--port", str(port)]) == 2
+    assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err

@@ -32,7 +32,6 @@ def make_server(app, host: str = "127.0.0.1", port: int = 8000):
     from werkzeug.serving import make_server as _make_server
 
     from facestats.core.validate import check_integer
-
     from facestats.errors import ValidationError
 
     check_integer(port, "port", 0, 65535)

@@ -26,6 +26,7 @@ relative RMSE = RMSE / RMS(reference) over the pixels valid in both, all channel
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -258,8 +259,12 @@ def camera_rmse(
     return float(np.sqrt(num / den))
 
 
+@functools.lru_cache(maxsize=2)
 def default_capture(subject_id: str):
-    """Re-simulate the capture of a subject of the embedded default store (same truth, seed and dome)."""
+    """Re-simulate the capture of a subject of the embedded default store (same truth, seed and dome).
+
+    The last two are cached (a simulation takes seconds); treat the capture as read-only.
+    """
     from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.population import DEFAULT_MAP_SIZE, default_population
     from facestats.acquire.synthetic.simulate import DomeSimulator

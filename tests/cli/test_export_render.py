@@ -2,6 +2,8 @@
 
 import os
 
+import pytest
+
 from facestats.cli import main
 
 
@@ -17,6 +19,7 @@ def test_export_subject_writes_the_set_and_reports_errors_like_every_command(tmp
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.slow  # re-simulates a default capture (about 10 s); tests/pipeline/test_validation.py covers the API
 def test_render_prints_the_relative_rmse_and_writes_images(tmp_path, capsys):
     assert main(["render", "S003", "--out", str(tmp_path), "--camera", "5", "--light", "20"]) == 0
     line = capsys.readouterr().out.splitlines()[0]

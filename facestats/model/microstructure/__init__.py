@@ -1,0 +1,1 @@
+"""Dynamic skin microstructure: strain-driven displacement-map convolution (Nagano et al. 2015)."""

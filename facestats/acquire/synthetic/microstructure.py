@@ -71,7 +71,7 @@ FURROW_FAMILIES = (0.0, np.pi / 4, np.pi / 2, 3 * np.pi / 4)
 #: Half-width of the wave-vector fan of a furrow family, radians.
 FURROW_SPREAD = np.deg2rad(20.0)
 #: Waves per field.
-N_WAVES = 96
+N_WAVES = 1024
 #: Width (texels) over which the bottom of a furrow is rounded.
 RIDGE_ROUNDING_PX = 1.0
 #: Shortest wavelength a map holds, in texels (finer waves are moved up to it).

@@ -220,12 +220,13 @@ if HAVE_NUMBA:
         return (1.0 - a) * centre + a * (acc / wsum)
 
     # Explicit signatures: C-contiguous maps, read-only any-layout ("A") parameters, so one compiled
-    # version per map dtype serves any mix of arrays and (read-only) broadcast views.
+    # version per map dtype serves any mix of arrays and (read-only) broadcast views.  Each dtype's
+    # version is compiled on first use (and cached on disk by numba).
     def _ro(dtype):
         return numba.types.Array(dtype, 2, "A", readonly=True)
 
-    _PASS_SIGNATURES = [
-        numba.void(
+    def _pass_signature(t):
+        return numba.void(
             numba.types.Array(t, 2, "C", readonly=True),
             numba.types.Array(t, 2, "C"),
             *[_ro(numba.float32)] * 5,
@@ -235,14 +236,11 @@ if HAVE_NUMBA:
             numba.float64,
             numba.int64,
         )
-        for t in (numba.float32, numba.float64)
-    ]
 
     #: Columns per strip: the rows a strip's taps touch stay in the L2 cache.
     STRIP = 256
 
-    @numba.njit(_PASS_SIGNATURES, cache=True, parallel=True, fastmath=_FAST)
-    def _convolve_pass_numba(src, out, au, av, alpha, sigma_um, texel_um, island, reach, use_islands, truncate, rmax):
+    def _convolve_pass_py(src, out, au, av, alpha, sigma_um, texel_um, island, reach, use_islands, truncate, rmax):
         h, w = src.shape
         flat = src.ravel()
         for c0 in range(0, w, STRIP):  # column strips (serial), rows in parallel
@@ -263,6 +261,16 @@ if HAVE_NUMBA:
                     du = au[r, c]
                     dv = av[r, c]
                     out[r, c] = _texel(src, flat, gw, r, c, a, sp, du, dv, label, island, use_islands, fast, truncate)
+
+    _PASS_KERNELS = {}
+
+    def _pass_kernel(dtype):
+        """The compiled pass for maps of ``dtype`` (compiled on first use)."""
+        key = np.dtype(dtype).name
+        if key not in _PASS_KERNELS:
+            sig = _pass_signature(numba.from_dtype(np.dtype(dtype)))
+            _PASS_KERNELS[key] = numba.njit(sig, cache=True, parallel=True, fastmath=_FAST)(_convolve_pass_py)
+        return _PASS_KERNELS[key]
 
 
 def convolve_pass(src, out, au, av, alpha, sigma_um, texel_um, island, reach, *, truncate, backend):
@@ -292,7 +300,7 @@ def convolve_pass(src, out, au, av, alpha, sigma_um, texel_um, island, reach, *,
         reach = np.zeros((1, 1), np.float32)
     src = np.ascontiguousarray(src)
     rmax = int(np.ceil(truncate * float(np.max(sigma_um)) / float(np.min(texel_um)))) + 1  # bounds every radius
-    _convolve_pass_numba(src, out, au, av, alpha, sigma_um, texel_um, island, reach, use, float(truncate), rmax)
+    _pass_kernel(src.dtype)(src, out, au, av, alpha, sigma_um, texel_um, island, reach, use, float(truncate), rmax)
     return out
 
 
@@ -316,12 +324,7 @@ def _histogram_tv_numpy(g0x, g0y, dgx, dgy, alphas, target, lo, scale, nb):
 
 if HAVE_NUMBA:
 
-    @numba.njit(
-        "float64[:](float64[:], float64[:], float64[:], float64[:], float64[:], float64[:], float64, float64, int64)",
-        cache=True,
-        parallel=True,
-    )
-    def _histogram_tv_numba(g0x, g0y, dgx, dgy, alphas, target, lo, scale, nb):
+    def _histogram_tv_py(g0x, g0y, dgx, dgy, alphas, target, lo, scale, nb):
         n = g0x.size
         tv = np.empty(alphas.size)
         for k in numba.prange(alphas.size):
@@ -340,6 +343,15 @@ if HAVE_NUMBA:
                 s += abs(hist[b] / n - target[b])
             tv[k] = s
         return tv
+
+    _TV_KERNEL = []
+
+    def _tv_kernel():
+        """The compiled histogram kernel (compiled on first use, cached on disk by numba)."""
+        if not _TV_KERNEL:
+            sig = "float64[:](float64[:], float64[:], float64[:], float64[:], float64[:], float64[:], float64, float64, int64)"
+            _TV_KERNEL.append(numba.njit(sig, cache=True, parallel=True)(_histogram_tv_py))
+        return _TV_KERNEL[0]
 
 
 def histogram_tv(g0x, g0y, dgx, dgy, alphas, target, lo, scale, nb, *, backend):
@@ -361,4 +373,4 @@ def histogram_tv(g0x, g0y, dgx, dgy, alphas, target, lo, scale, nb, *, backend):
     args = (g0x, g0y, dgx, dgy, np.asarray(alphas, np.float64), target, float(lo), float(scale), int(nb))
     if backend == "numpy":
         return _histogram_tv_numpy(*args)
-    return _histogram_tv_numba(*args)
+    return _tv_kernel()(*args)

@@ -24,14 +24,19 @@ How it is computed (same result as convolving every candidate, much faster):
   uniform deformation and free of the smoothing an interpolating resampler adds.
   Without it, the pure slope change of a stretch would be absorbed into α.
 * Coarse-to-fine: the coarse grid (α step 0.1, σ step 5 µm, a subset of the
-  fine grid) is evaluated first; every coarse cell with a corner within
-  ``max(ridge tolerance, largest TV step around the coarse minimum)`` of the
-  coarse minimum is then searched on the fine grid.  The tests check it returns
+  fine grid) is evaluated first; every coarse cell with a corner within the
+  largest TV step between the coarse minimum and its neighbours of the coarse
+  minimum is then searched on the fine grid.  The tests check it returns
   the brute-force argmin on the test cases; it is a heuristic, not a proof.
 * The ridge: TV is flat along a curve of (α, σ) trading strength against width
   (both set the slope variance).  The fit reports every evaluated grid point
   within ``ridge_tolerance`` of the minimum (default: the TV noise level of the
-  target histogram, :func:`~facestats.model.microstructure.surface.tv_noise`).
+  target histogram, :func:`~facestats.model.microstructure.surface.tv_noise`);
+  with coarse-to-fine, of the points it evaluated.  The profiles
+  :meth:`KernelFit.alpha_given_sigma` and :meth:`KernelFit.sigma_given_alpha`
+  are the conditional minima along the grid lines: with one parameter known
+  they recover the other even where the ridge makes the joint argmin slide
+  (see the documentation's figures).
 """
 
 from __future__ import annotations
@@ -97,6 +102,20 @@ class KernelFit:
     extent: float
     method: str
     meta: dict = field(default_factory=dict)
+
+    def alpha_given_sigma(self, sigma_um: float) -> float:
+        """The α minimising TV on the grid column nearest ``sigma_um`` (the profile of the landscape)."""
+        col = self.tv_grid[:, int(np.argmin(np.abs(self.sigmas_um - sigma_um)))]
+        if np.all(np.isnan(col)):
+            raise ValidationError(f"sigma_um={sigma_um} was not evaluated (coarse-to-fine); use method='brute'")
+        return float(self.alphas[np.nanargmin(col)])
+
+    def sigma_given_alpha(self, alpha: float) -> float:
+        """The σ (µm) minimising TV on the grid row nearest ``alpha``."""
+        row = self.tv_grid[int(np.argmin(np.abs(self.alphas - alpha)))]
+        if np.all(np.isnan(row)):
+            raise ValidationError(f"alpha={alpha} was not evaluated (coarse-to-fine); use method='brute'")
+        return float(self.sigmas_um[np.nanargmin(row)])
 
 
 def deformation_matrix(axis, r, r_t=1.0) -> np.ndarray:
@@ -200,14 +219,14 @@ def _search(problem, alphas, sigmas_px, cells, progress):
     return grid
 
 
-def _refine_cells(coarse, tol):
-    """Fine-grid cells to search around the coarse points within ``tol`` of the coarse minimum."""
+def _refine_cells(coarse):
+    """Fine-grid cells to search: around every coarse point within the largest TV step around the coarse minimum."""
     cells = np.zeros((len(ALPHA_GRID), len(SIGMA_GRID_UM)), bool)
     sub = coarse[np.ix_(_COARSE_A, _COARSE_S)]
     i0, j0 = np.unravel_index(np.nanargmin(sub), sub.shape)
     best = sub[i0, j0]
     around = sub[max(i0 - 1, 0) : i0 + 2, max(j0 - 1, 0) : j0 + 2]
-    tol = max(tol, float(np.nanmax(around) - best))
+    tol = float(np.nanmax(around) - best)
     for i, j in zip(*np.nonzero(sub <= best + tol)):  # loop over selected coarse points
         a0, a1 = _COARSE_A[max(i - 1, 0)], _COARSE_A[min(i + 1, len(_COARSE_A) - 1)]
         s0, s1 = _COARSE_S[max(j - 1, 0)], _COARSE_S[min(j + 1, len(_COARSE_S) - 1)]
@@ -227,6 +246,8 @@ def fit_kernel(
     bins=64,
     extent=None,
     method="brute",
+    alphas=None,
+    sigmas_um=None,
     ridge_tolerance=None,
     backend="auto",
     progress=False,
@@ -252,6 +273,8 @@ def fit_kernel(
     extent : float, optional
         Histogram half-width in normal components (default: 1.1 × the 99.9th percentile of both patches).
     method : {"brute", "coarse-to-fine"}
+    alphas, sigmas_um : array_like, optional
+        Other search grids (brute force only); default the paper's (``ALPHA_GRID``, ``SIGMA_GRID_UM``).
     ridge_tolerance : float, optional
         TV tolerance of the reported ridge (default: the target's TV noise level).
     backend : {"auto", "numba", "numpy"}
@@ -283,33 +306,37 @@ def fit_kernel(
             )
     jac_n = np.linalg.inv(deformation_matrix(a, r, r_t)).T / texel  # chain rule: slopes of the deformed shape
     problem = _Problem(n, d, a, jac_n, np.eye(2) / texel_d, margin, bins, extent, backend)
-    sig_px = SIGMA_GRID_UM / texel
+    a_grid = ALPHA_GRID if alphas is None else np.sort(as_finite(alphas, "alphas", *ALPHA_RANGE).reshape(-1))
+    s_grid = SIGMA_GRID_UM if sigmas_um is None else np.sort(as_finite(sigmas_um, "sigmas_um", *SIGMA_RANGE_UM).reshape(-1))
+    if method == "coarse-to-fine" and (alphas is not None or sigmas_um is not None):
+        raise ValidationError("alphas and sigmas_um must be None for method='coarse-to-fine' (it refines the paper's grid)")
+    sig_px = s_grid / texel
     noise = tv_noise(problem.target, problem.n_target)
     tol = noise if ridge_tolerance is None else float(as_finite(ridge_tolerance, "ridge_tolerance", 0.0))
     if method == "brute":
-        grid = _search(problem, ALPHA_GRID, sig_px, np.ones((len(ALPHA_GRID), len(sig_px)), bool), progress)
+        grid = _search(problem, a_grid, sig_px, np.ones((len(a_grid), len(sig_px)), bool), progress)
     else:
-        coarse_cells = np.zeros((len(ALPHA_GRID), len(sig_px)), bool)
+        coarse_cells = np.zeros((len(a_grid), len(sig_px)), bool)
         coarse_cells[np.ix_(_COARSE_A, _COARSE_S)] = True
-        grid = _search(problem, ALPHA_GRID, sig_px, coarse_cells, False)
-        fine = _refine_cells(grid, tol) & np.isnan(grid)
-        grid = np.where(np.isnan(grid), _search(problem, ALPHA_GRID, sig_px, fine, progress), grid)
+        grid = _search(problem, a_grid, sig_px, coarse_cells, False)
+        fine = _refine_cells(grid) & np.isnan(grid)
+        grid = np.where(np.isnan(grid), _search(problem, a_grid, sig_px, fine, progress), grid)
     i, j = np.unravel_index(np.nanargmin(grid), grid.shape)
     best = float(grid[i, j])
     ri, rj = np.nonzero(grid <= best + tol)
     return KernelFit(
-        alpha=float(ALPHA_GRID[i]),
-        sigma_um=float(SIGMA_GRID_UM[j]),
+        alpha=float(a_grid[i]),
+        sigma_um=float(s_grid[j]),
         tv=best,
-        alphas=ALPHA_GRID.copy(),
-        sigmas_um=SIGMA_GRID_UM.copy(),
+        alphas=a_grid.copy(),
+        sigmas_um=s_grid.copy(),
         tv_grid=grid,
-        ridge=np.stack([ALPHA_GRID[ri], SIGMA_GRID_UM[rj]], -1),
+        ridge=np.stack([a_grid[ri], s_grid[rj]], -1),
         ridge_tolerance=tol,
         tv_noise=noise,
         n_evaluated=int(np.count_nonzero(~np.isnan(grid))),
         target_histogram=problem.target,
-        fitted_histogram=problem.histogram(ALPHA_GRID[i], sig_px[j]),
+        fitted_histogram=problem.histogram(a_grid[i], sig_px[j]),
         extent=problem.extent,
         method=method,
         meta={"r": r, "r_t": r_t, "axis": a.tolist(), "texel_um": texel, "margin": margin, "bins": int(bins)},

@@ -34,9 +34,12 @@ unit 2-vectors ``(a_u, a_v)``; in a texel grid of W × H texels the axes are
 given in texel units (``(W a_u, H a_v)`` normalised; identical to UV axes for
 square maps) with ``texel_um_s``/``texel_um_t`` the µm of skin per texel step
 along them.  Quads are split into two triangles.  Triangles of (near) zero
-area in 3-D (rest or deformed) or in UV, with non-finite data, or inverted by
-the deformation (``det T ≤ 0``) are *degenerate*: masked, counted, excluded
-from vertex averages, and given T = I, never NaN.
+area in 3-D (rest or deformed) or in UV, or with non-finite data, are
+*degenerate*: masked, counted, excluded from vertex averages, and given T = I,
+never NaN.  The construction is orientation-blind: both tangent frames are
+built from the same UV layout, so ``det T = area'/area > 0`` always and a
+triangle turned over by the deformation gives the T of its mirror image (the
+paper's recipe has no notion of inversion; facestats does not add one).
 """
 
 from __future__ import annotations
@@ -236,9 +239,7 @@ class Strain:
     valid : ndarray of bool, shape (...)
         False at degenerate sites (and texels no triangle covers).
     n_degenerate : int
-        Number of degenerate triangles (inverted ones included).
-    n_inverted : int
-        Number of triangles the deformation turned over (``det T ≤ 0``).
+        Number of degenerate triangles.
     """
 
     t: np.ndarray
@@ -251,7 +252,6 @@ class Strain:
     uv_per_um_t: np.ndarray
     valid: np.ndarray
     n_degenerate: int = 0
-    n_inverted: int = 0
 
     @property
     def area_ratio(self) -> np.ndarray:
@@ -309,7 +309,7 @@ def principal_strain(t, m) -> tuple:
     return s[..., 0], s[..., 1], a_s, a_t, n_s / 1000.0, n_t / 1000.0
 
 
-def _strain(t, m, valid, n_degenerate, n_inverted, cls=Strain, **extra):
+def _strain(t, m, valid, n_degenerate, cls=Strain, **extra):
     t = np.where(valid[..., None, None], t, np.eye(2))
     r_s, r_t, a_s, a_t, k_s, k_t = principal_strain(t, m)
     return cls(
@@ -323,7 +323,6 @@ def _strain(t, m, valid, n_degenerate, n_inverted, cls=Strain, **extra):
         uv_per_um_t=k_t,
         valid=valid,
         n_degenerate=int(n_degenerate),
-        n_inverted=int(n_inverted),
         **extra,
     )
 
@@ -392,21 +391,18 @@ class MeshStrain:
         return d
 
     def triangle_t(self, deformed_vertices):
-        """``(T (F, 2, 2), valid (F,), n_degenerate, n_inverted)`` of a deformed frame (eq. 10)."""
+        """``(T (F, 2, 2), valid (F,), n_degenerate)`` of a deformed frame (eq. 10)."""
         d = self._deformed(deformed_vertices)
         m2, deg2 = uv_metric(d, self.triangles, self.uv_corners, self.uv_edges)
         m2_inv, _ = _inv2(m2)
         t = m2_inv @ self.m  # T = M'⁻¹ M (module docstring)
-        det = t[:, 0, 0] * t[:, 1, 1] - t[:, 0, 1] * t[:, 1, 0]
-        degenerate = self.rest_degenerate | deg2
-        inverted = ~degenerate & ~(det > 0)
-        valid = ~(degenerate | inverted)
-        return t, valid, int(np.sum(~valid)), int(np.sum(inverted))
+        valid = ~(self.rest_degenerate | deg2)
+        return t, valid, int(np.sum(~valid))
 
     def triangles_strain(self, deformed_vertices) -> Strain:
         """Per-triangle :class:`Strain` of a deformed frame."""
-        t, valid, n_deg, n_inv = self.triangle_t(deformed_vertices)
-        return _strain(t, self.m, valid, n_deg, n_inv)
+        t, valid, n_deg = self.triangle_t(deformed_vertices)
+        return _strain(t, self.m, valid, n_deg)
 
     def _uv_vertex_average(self, field, valid):
         """Mean of a (F, 2, 2) tensor over the ``valid`` triangles around each UV vertex: ((U, 2, 2), has any (U,))."""
@@ -428,9 +424,9 @@ class MeshStrain:
 
     def vertices_strain(self, deformed_vertices) -> Strain:
         """Per-UV-vertex :class:`Strain` (T and M averaged over the valid triangles around the UV vertex)."""
-        t, valid, n_deg, n_inv = self.triangle_t(deformed_vertices)
+        t, valid, n_deg = self.triangle_t(deformed_vertices)
         tv, ok = self._uv_vertex_average(t, valid)
-        return _strain(tv, self.vertex_m, ok, n_deg, n_inv)
+        return _strain(tv, self.vertex_m, ok, n_deg)
 
     def raster(self, map_shape, window):
         """Triangle covering each texel of a window, (h, w) int32, -1 where none (cached per map and window).
@@ -482,7 +478,7 @@ class MeshStrain:
             Texels to rasterise (default: the whole map), e.g. a tile of a 16K map.
         """
         map_shape, window = _window(map_shape, window)
-        t, valid, n_deg, n_inv = self.triangle_t(deformed_vertices)
+        t, valid, n_deg = self.triangle_t(deformed_vertices)
         tv, _ = self._uv_vertex_average(t, valid)
         tri_map = self.raster(map_shape, window).reshape(-1)
         texels = np.nonzero(tri_map >= 0)[0]
@@ -500,7 +496,7 @@ class MeshStrain:
         covered = (tri_map >= 0).reshape(h, w)
         island = np.zeros(h * w, np.int32)
         island[texels] = self.islands()[tri]
-        res = _strain(interpolate(tv), interpolate(self.vertex_m), covered, n_deg, n_inv, cls=TexelStrain)
+        res = _strain(interpolate(tv), interpolate(self.vertex_m), covered, n_deg, cls=TexelStrain)
         # Axes and lengths in texel units: S_texel = diag(W, H) S.
         scale = np.array([map_shape[1], map_shape[0]], float)
         s_tex_s = scale * res.axis_s * (1000.0 * res.uv_per_um_s)[..., None]

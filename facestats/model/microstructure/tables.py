@@ -15,7 +15,9 @@ knots, constant beyond the end knots) and σ by its two lines; both are clamped
 to the fitted ranges α ∈ [−2, 1], σ ∈ [1, 100] µm.  :data:`FOREHEAD` is eq. 8-9
 exactly: its α knots are the points where the lines of eq. 8 meet each other
 and the clamp (15.4 r − 13.8 = −2 at r = 0.76623; = 3.09 (r − 1) at
-r = 10.71/12.31 = 0.87002; 3.09 (r − 1) = 1 at r = 1.32362).  Note Fig. 11's
+r = 10.71/12.31 = 0.87002; 3.09 (r − 1) = 1 at r = 1.32362) and (1, 0), so
+that α(1) is exactly 0 (every table has that knot: the neutral kernel is the
+identity and the convolution skips it).  Note Fig. 11's
 published points scatter about eq. 8-9 (e.g. r = 1.22: fitted α = 1, table
 0.68): the table is a fit, not an interpolation.
 """
@@ -88,8 +90,8 @@ def _forehead() -> KernelTable:
     r_meet = (13.8 - 3.09) / (15.4 - 3.09)  # 15.4 r - 13.8 = 3.09 (r - 1)
     r_top = 1 + 1 / 3.09  # 3.09 (r - 1) = 1
     return KernelTable(
-        alpha_knots=(r_clamp, r_meet, r_top),
-        alpha_values=(ALPHA_RANGE[0], 3.09 * (r_meet - 1), 1.0),
+        alpha_knots=(r_clamp, r_meet, 1.0, r_top),
+        alpha_values=(ALPHA_RANGE[0], 3.09 * (r_meet - 1), 0.0, 1.0),
         sigma_compress=(70.5, -46.9),
         sigma_stretch=(38.2, -26.5),
         name="forehead",
@@ -176,6 +178,10 @@ def fit_kernel_table(r, alpha, sigma_um, alpha_knots, *, name="custom") -> Kerne
     kkt = np.block([[basis.T @ basis, at_one[:, None]], [at_one[None, :], np.zeros((1, 1))]])
     rhs = np.concatenate([basis.T @ a, [0.0]])
     values = np.linalg.lstsq(kkt, rhs, rcond=None)[0][:-1]
+    if not np.any(knots == 1.0):  # a knot at (1, 0) makes the neutral kernel the identity exactly
+        at = np.searchsorted(knots, 1.0)
+        knots, values = np.insert(knots, at, 1.0), np.insert(values, at, 0.0)
+    values[knots == 1.0] = 0.0
     lines = []
     for side, sel in (("compression (r < 1)", r < 1), ("stretch (r >= 1)", r >= 1)):
         if np.count_nonzero(sel) < 2:

@@ -8,7 +8,8 @@ paper's measurements), the sum of
 
 * a **base** roughness: an isotropic band-limited Gaussian field, a sum of
   cosines of random directions and wavelengths log-uniform in
-  ``BASE_WAVELENGTH_UM`` with amplitude ∝ wavelength (a flat slope spectrum);
+  ``BASE_WAVELENGTH_UM`` (both stratified, so that seeds share the spectrum and
+  differ in phases) with amplitude ∝ wavelength (a flat slope spectrum);
 * **furrows**: ridged fields −√(n² + c²) (V-shaped grooves along the zero lines
   of a smooth field n, their bottoms rounded over about one texel) in four orientation families (0°, 45°, 90°, 135° in UV;
   each family's wave vectors lie within ±20° of the family's normal, so its
@@ -71,7 +72,7 @@ FURROW_FAMILIES = (0.0, np.pi / 4, np.pi / 2, 3 * np.pi / 4)
 #: Half-width of the wave-vector fan of a furrow family, radians.
 FURROW_SPREAD = np.deg2rad(20.0)
 #: Waves per field.
-N_WAVES = 1024
+N_WAVES = 256
 #: Width (texels) over which the bottom of a furrow is rounded.
 RIDGE_ROUNDING_PX = 1.0
 #: Shortest wavelength a map holds, in texels (finer waves are moved up to it).
@@ -134,15 +135,23 @@ REGION_DEFAULTS = {
 }
 
 
+def _stratified(rng, n):
+    """n samples of U(0, 1), one in each of n equal strata, in random order (a low-variance spectrum)."""
+    return rng.permutation((np.arange(n) + rng.uniform(0, 1, n)) / n)
+
+
 def _waves(rng, n, wavelengths, texel_um, angle=None, spread=None):
     """Random wave vectors (n, 2) in cycles/µm and phases; directions uniform, or within ±spread of ``angle``.
 
-    Wavelengths below MIN_WAVELENGTH_PX texels are raised to it (the map cannot hold them).
+    Log-wavelengths and directions are stratified (one wave per stratum, paired at
+    random), so two seeds have nearly the same spectrum and differ in phases: realisations
+    of the same statistics.  Wavelengths below MIN_WAVELENGTH_PX texels are raised to it.
     """
     lo = max(wavelengths[0], MIN_WAVELENGTH_PX * texel_um)
     hi = max(wavelengths[1], 2 * lo)
-    lam = np.exp(rng.uniform(np.log(lo), np.log(hi), n))
-    theta = rng.uniform(0, np.pi, n) if angle is None else angle + rng.uniform(-spread, spread, n)
+    lam = np.exp(np.log(lo) + (np.log(hi) - np.log(lo)) * _stratified(rng, n))
+    u = _stratified(rng, n)
+    theta = np.pi * u if angle is None else angle + spread * (2 * u - 1)
     f = np.stack([np.cos(theta), np.sin(theta)], -1) / lam[:, None]
     return f, rng.uniform(0, 2 * np.pi, n), lam
 
@@ -195,10 +204,10 @@ _PIT_TABLE = (_PIT_RADII_PX, np.array([_pit_msq_factor(r) if r < 50 else 1.0 for
 
 
 def _region_maps(shape, params, region_map):
-    """Per-texel parameter maps (blended across region borders) from a region map resampled to ``shape``."""
+    """Per-region parameters, and the labels at the map's texels (nearest) and as given: (dict, full, source)."""
     if region_map is None:
         p = params if isinstance(params, SkinMicrostructure) else SkinMicrostructure()
-        return {None: p}, None
+        return {None: p}, None, None
     lab = np.asarray(region_map)
     if lab.ndim != 2 or lab.dtype.kind not in "iu":
         raise ValidationError(f"region_map must be a 2-D integer label map, got {lab.dtype} {lab.shape}")
@@ -206,22 +215,31 @@ def _region_maps(shape, params, region_map):
     cols = np.minimum((np.arange(shape[1]) + 0.5) * lab.shape[1] / shape[1], lab.shape[1] - 1).astype(int)
     full = lab[np.ix_(rows, cols)]
     table = dict(REGION_DEFAULTS) if params is None else dict(params)
-    present = [int(k) for k in np.unique(full) if int(k) in table]
+    present = [int(k) for k in np.unique(lab) if int(k) in table]
     if not present:
-        raise ValidationError(f"region_map must contain a region with parameters ({sorted(table)}), got {np.unique(full)}")
+        raise ValidationError(f"region_map must contain a region with parameters ({sorted(table)}), got {np.unique(lab)}")
     fallback = table[present[0]] if 0 not in table else table[0]
-    return {k: table.get(k, fallback) for k in np.unique(full).tolist()}, full
+    return {k: table.get(k, fallback) for k in np.unique(lab).tolist()}, full, lab
 
 
-def _weights(full, per_region, getter, shape, smooth_px):
-    """A per-texel value map from per-region values, blurred across region borders."""
-    if full is None:
+def _weights(regions, getter, shape, smooth_px):
+    """A per-texel value map from per-region values, blurred across region borders.
+
+    The blur runs on the region map as given (cheap: it is coarse) and the result
+    is interpolated bilinearly onto the texels.
+    """
+    per_region, _, lab = regions
+    if lab is None:
         return np.full(shape, float(getter(per_region[None])))
-    from scipy.ndimage import gaussian_filter
+    from scipy.ndimage import gaussian_filter, map_coordinates
 
-    lut = {k: float(getter(v)) for k, v in per_region.items()}
-    m = np.vectorize(lut.get, otypes=[float])(full)
-    return gaussian_filter(m, smooth_px) if smooth_px > 0 else m
+    values = _lookup(per_region, getter)[lab]
+    if smooth_px > 0:
+        values = gaussian_filter(values, smooth_px * lab.shape[0] / shape[0], mode="nearest")
+    rows = (np.arange(shape[0]) + 0.5) * lab.shape[0] / shape[0] - 0.5
+    cols = (np.arange(shape[1]) + 0.5) * lab.shape[1] / shape[1] - 0.5
+    rr, cc = np.meshgrid(rows, cols, indexing="ij")
+    return map_coordinates(values, [rr, cc], order=1, mode="nearest")
 
 
 def _family_weight(p: SkinMicrostructure, k: int) -> float:
@@ -332,13 +350,14 @@ def procedural_microstructure(
     if a.shape != (2, 2) or not np.linalg.det(a) > 0:
         raise ValidationError(f"deformation must be a 2x2 matrix with a positive determinant, got {a.tolist()}")
     a_inv = np.linalg.inv(a)
-    per_region, full = _region_maps(shape, params, region_map)
+    regions = _region_maps(shape, params, region_map)
+    per_region, full, _ = regions
     smooth_px = float(smooth_mm) * 1000 / texel
     xs, ys = (np.arange(shape[1]) + 0.5) * texel, (np.arange(shape[0]) + 0.5) * texel
     rng = np.random.default_rng(seed)
 
     def msq(getter):
-        return _weights(full, per_region, lambda p: p.roughness**2 * getter(p), shape, smooth_px)
+        return _weights(regions, lambda p: p.roughness**2 * getter(p), shape, smooth_px)
 
     # Base roughness: isotropic waves, amplitude ∝ wavelength.
     f, ph, lam = _waves(rng, N_WAVES, BASE_WAVELENGTH_UM, texel)
@@ -346,11 +365,11 @@ def procedural_microstructure(
     out = np.sqrt(msq(lambda p: 1 - p.furrow_share - p.pore_share)) * _cosine_field(f @ a_inv, ph, amp, xs, ys)
     # Furrows: four orientation families of ridged fields, blended towards each region's direction.
     furrow_scale = np.sqrt(msq(lambda p: p.furrow_share))
-    norm = _weights(full, per_region, lambda p: sum(_family_weight(p, k) ** 2 for k in range(4)), shape, smooth_px)
+    norm = _weights(regions, lambda p: sum(_family_weight(p, k) ** 2 for k in range(4)), shape, smooth_px)
     for k, fam in enumerate(FURROW_FAMILIES):  # four families
         f, ph, lam = _waves(rng, N_WAVES, FURROW_WAVELENGTH_UM, texel, fam + np.pi / 2, FURROW_SPREAD)
         amp = lam / np.sqrt(_unit_msq(f, lam, texel))
-        wk = _weights(full, per_region, lambda p, k=k: _family_weight(p, k), shape, smooth_px)
+        wk = _weights(regions, lambda p, k=k: _family_weight(p, k), shape, smooth_px)
         if np.any(wk > 0):
             ridged = _ridged(_cosine_field(f @ a_inv, ph, amp, xs, ys), amp, texel)
             out += furrow_scale * wk / np.sqrt(np.maximum(norm, 1e-12)) * ridged

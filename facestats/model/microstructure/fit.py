@@ -24,10 +24,12 @@ How it is computed (same result as convolving every candidate, much faster):
   uniform deformation and free of the smoothing an interpolating resampler adds.
   Without it, the pure slope change of a stretch would be absorbed into α.
 * Coarse-to-fine: the coarse grid (α step 0.1, σ step 5 µm, a subset of the
-  fine grid) is evaluated first; every coarse cell with a corner within the
-  largest TV step between the coarse minimum and its neighbours of the coarse
-  minimum is then searched on the fine grid.  The tests check it returns
-  the brute-force argmin on the test cases; it is a heuristic, not a proof.
+  fine grid, 651 points) is evaluated first, then the full-resolution grid
+  within one coarse step of the N_STARTS = 3 best coarse points (≤ 3 × 21 × 21
+  points).  Where the minimum is distinct (e.g. a target made from the same
+  patch) it returns the brute-force argmin (tested); on a flat ridge it returns a
+  point of the ridge, not necessarily the brute-force argmin, which is itself
+  arbitrary there.
 * The ridge: TV is flat along a curve of (α, σ) trading strength against width
   (both set the slope variance).  The fit reports every evaluated grid point
   within ``ridge_tolerance`` of the minimum (default: the TV noise level of the
@@ -59,6 +61,8 @@ SIGMA_GRID_UM = np.round(np.linspace(SIGMA_RANGE_UM[0], SIGMA_RANGE_UM[1], 199),
 #: Coarse grid of the coarse-to-fine search (every 10th α, every 10th σ, and the last σ).
 _COARSE_A = np.arange(0, 301, 10)
 _COARSE_S = np.unique(np.append(np.arange(0, 199, 10), 198))
+#: Coarse points whose neighbourhoods coarse-to-fine searches at full resolution.
+N_STARTS = 3
 
 
 @dataclass
@@ -219,15 +223,12 @@ def _search(problem, alphas, sigmas_px, cells, progress):
     return grid
 
 
-def _refine_cells(coarse):
-    """Fine-grid cells to search: around every coarse point within the largest TV step around the coarse minimum."""
-    cells = np.zeros((len(ALPHA_GRID), len(SIGMA_GRID_UM)), bool)
+def _refine_cells(coarse, n_starts=N_STARTS):
+    """Fine-grid cells around the ``n_starts`` best coarse points: ± one coarse step in α and σ, at full resolution."""
+    cells = np.zeros(coarse.shape, bool)
     sub = coarse[np.ix_(_COARSE_A, _COARSE_S)]
-    i0, j0 = np.unravel_index(np.nanargmin(sub), sub.shape)
-    best = sub[i0, j0]
-    around = sub[max(i0 - 1, 0) : i0 + 2, max(j0 - 1, 0) : j0 + 2]
-    tol = float(np.nanmax(around) - best)
-    for i, j in zip(*np.nonzero(sub <= best + tol)):  # loop over selected coarse points
+    order = np.argsort(np.where(np.isnan(sub), np.inf, sub), axis=None)[:n_starts]
+    for i, j in zip(*np.unravel_index(order, sub.shape)):  # loop over the starts
         a0, a1 = _COARSE_A[max(i - 1, 0)], _COARSE_A[min(i + 1, len(_COARSE_A) - 1)]
         s0, s1 = _COARSE_S[max(j - 1, 0)], _COARSE_S[min(j + 1, len(_COARSE_S) - 1)]
         cells[a0 : a1 + 1, s0 : s1 + 1] = True

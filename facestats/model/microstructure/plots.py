@@ -1,7 +1,7 @@
 """Figures of the microstructure subsystem: kernel tables and fits (Nagano et al. 2015 Fig. 11-12), strain fields (Fig. 13), normals.
 
-Every function takes result objects, imports matplotlib itself and returns the
-figure (nothing is shown or saved here).
+Every function takes result objects, imports matplotlib itself and returns a
+:class:`matplotlib.figure.Figure` (no pyplot state: nothing is shown or saved here).
 """
 
 from __future__ import annotations
@@ -13,21 +13,28 @@ from facestats.model.microstructure.tables import FIG11, FOREHEAD
 __all__ = ["plot_kernel_table", "plot_fit", "plot_strain", "plot_before_after"]
 
 
-def plot_kernel_table(table=FOREHEAD, fits=None, *, published=True, r_range=(0.7, 1.35)):
+def _figure(rows, cols, figsize):
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(rows, cols)
+
+
+def plot_kernel_table(table=FOREHEAD, fits=None, *, profiles=None, published=True, r_range=(0.7, 1.35)):
     """α(r) and σ(r) of a kernel table with fitted points (Nagano et al. 2015 Fig. 12).
 
     Parameters
     ----------
     table : KernelTable
     fits : sequence of (r, α, σ_µm) or of (r, KernelFit), optional
-        Points to plot (e.g. fits of synthetic patch pairs).
+        Fitted points (the argmin of each fit, e.g. of synthetic patch pairs).
+    profiles : sequence of (r, α, σ_µm), optional
+        Profile points: α fitted with σ fixed to the table's, σ with α fixed.
     published : bool
         Also plot the published Fig. 11 points.
     """
-    import matplotlib.pyplot as plt
-
     r = np.linspace(*r_range, 400)
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    fig, axes = _figure(1, 2, (10, 3.8))
     below, above = r < 1, r >= 1
     axes[0].plot(r, table.alpha(r), "k-", label=f"table ({table.name})")
     axes[1].plot(r[below], table.sigma(r[below]), "k-", label=f"table ({table.name})")
@@ -38,23 +45,25 @@ def plot_kernel_table(table=FOREHEAD, fits=None, *, published=True, r_range=(0.7
         axes[1].plot(pts[:, 0], pts[:, 2], "s", mfc="none", color="tab:gray", label="Nagano Fig. 11")
     if fits:
         pts = np.array([(f[0], f[1].alpha, f[1].sigma_um) if len(f) == 2 else f for f in fits], float)
-        axes[0].plot(pts[:, 0], pts[:, 1], "o", color="tab:red", label="fitted")
-        axes[1].plot(pts[:, 0], pts[:, 2], "o", color="tab:red", label="fitted")
+        axes[0].plot(pts[:, 0], pts[:, 1], "o", color="tab:red", label="fitted (argmin)")
+        axes[1].plot(pts[:, 0], pts[:, 2], "o", color="tab:red", label="fitted (argmin)")
+    if profiles:
+        pts = np.asarray(profiles, float)
+        axes[0].plot(pts[:, 0], pts[:, 1], "^", color="tab:blue", label="α given the table's σ")
+        axes[1].plot(pts[:, 0], pts[:, 2], "v", color="tab:blue", label="σ given the table's α")
     for ax, name in zip(axes, ("α", "σ (µm)")):
         ax.axvline(1, color="0.8", lw=0.8)
         ax.set_xlabel("stretch ratio r")
         ax.set_ylabel(name)
         ax.legend(fontsize=8)
     axes[0].axhline(0, color="0.8", lw=0.8)
-    fig.tight_layout()
+    fig.set_layout_engine("tight")
     return fig
 
 
 def plot_fit(fit):
     """TV landscape of a :class:`~facestats.model.microstructure.fit.KernelFit` with its ridge, and the two histograms."""
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    fig, axes = _figure(1, 3, (13, 3.8))
     grid = np.ma.masked_invalid(fit.tv_grid)
     im = axes[0].pcolormesh(fit.sigmas_um, fit.alphas, grid, shading="auto", cmap="viridis")
     fig.colorbar(im, ax=axes[0], label="total variation (eq. 7)")
@@ -69,7 +78,7 @@ def plot_fit(fit):
         ax.set_title(title)
         ax.set_xlabel("n_u")
         ax.set_ylabel("n_v")
-    fig.tight_layout()
+    fig.set_layout_engine("tight")
     return fig
 
 
@@ -78,12 +87,11 @@ def plot_strain(strain, *, step=None, limits=(0.8, 1.25)):
 
     Axes are drawn as headless segments (their sign is meaningless), coloured by r_s.
     """
-    import matplotlib.pyplot as plt
     from matplotlib.colors import TwoSlopeNorm
 
     h, w = strain.r_s.shape
     norm = TwoSlopeNorm(vmin=limits[0], vcenter=1.0, vmax=limits[1])
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4.6))
+    fig, axes = _figure(1, 3, (14, 4.6))
     for ax, field, title in ((axes[0], strain.r_s, "r_s (largest stretch)"), (axes[1], strain.r_t, "r_t (smallest)")):
         im = ax.imshow(np.ma.masked_where(~strain.valid, field), cmap="RdBu_r", norm=norm)
         ax.set_title(title)
@@ -101,7 +109,7 @@ def plot_strain(strain, *, step=None, limits=(0.8, 1.25)):
     for ax in axes:
         ax.set_xlabel("u (texels)")
         ax.set_ylabel("v (texels)")
-    fig.tight_layout()
+    fig.set_layout_engine("tight")
     return fig
 
 
@@ -116,15 +124,13 @@ def plot_before_after(neutral, deformed, neutral_normals, *, bins=64, extent=Non
     crop : (slice, slice), optional
         Part of the maps to show (histograms use the whole maps).
     """
-    import matplotlib.pyplot as plt
-
     from facestats.model.microstructure.surface import normal_histogram
 
     crop = crop or (slice(None), slice(None))
     nn, dn = neutral_normals, deformed.normals
     if extent is None:
         extent = float(np.quantile(np.abs(np.concatenate([nn[..., :2].ravel(), dn[..., :2].ravel()])), 0.999)) * 1.1
-    fig, axes = plt.subplots(2, 3, figsize=(12, 8))
+    fig, axes = _figure(2, 3, (12, 8))
     lo, hi = np.percentile(neutral, [1, 99])
     for row, (disp, nrm, label) in enumerate(((neutral, nn, "neutral"), (deformed.displacement, dn, "deformed"))):
         axes[row, 0].imshow(disp[crop], cmap="gray", vmin=lo, vmax=hi)
@@ -137,5 +143,5 @@ def plot_before_after(neutral, deformed, neutral_normals, *, bins=64, extent=Non
         axes[row, 2].set_title(f"{label} normal histogram")
         axes[row, 2].set_xlabel("n_u")
         axes[row, 2].set_ylabel("n_v")
-    fig.tight_layout()
+    fig.set_layout_engine("tight")
     return fig

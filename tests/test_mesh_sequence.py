@@ -50,7 +50,9 @@ def test_frames_and_topology_checks(tmp_path):
     moved = QUAD_OBJ.replace("v 2 1 0", "v 2.5 1 0")
     seq = FrameSequence(neutral, [_write(tmp_path / "f0.obj", QUAD_OBJ), _write(tmp_path / "f1.obj", moved)])
     assert len(seq) == 2 and seq.frame(1)[5].tolist() == [2.5, 1, 0]
-    bad = FrameSequence(neutral, [_write(tmp_path / "b.obj", QUAD_OBJ.replace("f 2/5 5/6 6/7 3/8", "f 2/5 6/6 5/7 3/8"))])
+    bad = FrameSequence(
+        neutral, [_write(tmp_path / "b.obj", QUAD_OBJ.replace("f 2/5 5/6 6/7 3/8", "f 2/5 6/6 5/7 3/8"))]
+    )
     with pytest.raises(FacestatsError, match="topology differs.*faces differ"):
         bad.frame(0)
     short = FrameSequence(neutral, [_write(tmp_path / "s.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\n")])

@@ -113,7 +113,9 @@ def test_bad_render_input(tmp_path, smile, neutral_map):
 
 
 def test_command_line_generates_and_renders(tmp_path, capsys):
-    assert main(["microstructure", "generate", "--out", str(tmp_path / "n.exr"), "--size", "64", "--subject", "S003"]) == 0
+    assert (
+        main(["microstructure", "generate", "--out", str(tmp_path / "n.exr"), "--size", "64", "--subject", "S003"]) == 0
+    )
     (tmp_path / "w.csv").write_text("mouthSmile_L,mouthSmile_R\n0,0\n1,1\n")
     args = ["microstructure", "render", "--neutral", str(DATA), "--weights", str(tmp_path / "w.csv"),
             "--map", str(tmp_path / "n.exr"), "--size", "16384", "--window", "9050", "4200", "64", "64",

@@ -86,7 +86,10 @@ def test_rigid_motion_has_no_strain_and_det_t_is_the_area_ratio():
     assert np.abs(st.r_s - 1).max() < 1e-12 and np.abs(st.r_t - 1).max() < 1e-12
     deformed = v + rng.normal(0, 0.5, v.shape)
     st = triangle_strain(v, deformed, tri, uv)
-    area = [0.5 * np.linalg.norm(np.cross(p[tri][:, 1] - p[tri][:, 0], p[tri][:, 2] - p[tri][:, 0]), axis=1) for p in (v, deformed)]
+    area = [
+        0.5 * np.linalg.norm(np.cross(p[tri][:, 1] - p[tri][:, 0], p[tri][:, 2] - p[tri][:, 0]), axis=1)
+        for p in (v, deformed)
+    ]
     assert np.abs(st.area_ratio - area[1] / area[0]).max() < 1e-12
     assert np.abs(st.r_s * st.r_t - st.area_ratio).max() < 1e-12
 

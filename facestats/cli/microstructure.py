@@ -1,4 +1,4 @@
-"""``facestats microstructure``: dynamic skin microstructure of a mesh sequence (Nagano et al. 2015; :mod:`facestats.pipeline.microstructure`)."""
+"""``facestats microstructure``: dynamic skin microstructure of mesh sequences (facestats.pipeline.microstructure)."""
 
 from __future__ import annotations
 
@@ -58,7 +58,9 @@ def add_microstructure(sub):
             "neutral displacement map accordingly. Rerunning with the same inputs continues an interrupted render."
         ),
     )
-    r.add_argument("--neutral", required=True, metavar="MESH", help="neutral mesh (OBJ/PLY with UVs) or ICT-FaceKit dir")
+    r.add_argument(
+        "--neutral", required=True, metavar="MESH", help="neutral mesh (OBJ/PLY with UVs) or ICT-FaceKit dir"
+    )
     frames = r.add_mutually_exclusive_group(required=True)
     frames.add_argument("--frames", nargs="+", metavar="MESH", help="one OBJ/PLY per frame, in order")
     frames.add_argument("--weights", metavar="CSV", help="per-frame blendshape weights (header: target names)")

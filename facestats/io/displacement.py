@@ -69,11 +69,15 @@ def read_displacement(path, *, height_range_um=None, midpoint=0.5) -> np.ndarray
             _, attrs = read_exr(p)
             unit = attrs.get("units", "um").strip().lower()
             if unit not in _UNITS_TO_UM:
-                raise FormatError(f"displacement map {str(p)!r} has units {unit!r}; expected one of {sorted(_UNITS_TO_UM)}")
+                raise FormatError(
+                    f"displacement map {str(p)!r} has units {unit!r}; expected one of {sorted(_UNITS_TO_UM)}"
+                )
             factor = _UNITS_TO_UM[unit]
         h = _one_channel(read_image(p), p) * np.float32(factor)
     if not np.all(np.isfinite(h)):
-        raise FormatError(f"displacement map {str(p)!r} must be finite, got {int(np.sum(~np.isfinite(h)))} NaN/inf texels")
+        raise FormatError(
+            f"displacement map {str(p)!r} must be finite, got {int(np.sum(~np.isfinite(h)))} NaN/inf texels"
+        )
     return np.ascontiguousarray(h, np.float32)
 
 

@@ -99,7 +99,9 @@ def _config(sequence, neutral, map_shape, window, table, names):
         "n_vertices": sequence.neutral.n_vertices,
         "frames": names,
         "frame_positions": hashlib.sha1(
-            np.ascontiguousarray([sequence.frame(i)[:: max(1, sequence.neutral.n_vertices // 64)] for i in (0, len(sequence) - 1)]).tobytes()
+            np.ascontiguousarray(
+                [sequence.frame(i)[:: max(1, sequence.neutral.n_vertices // 64)] for i in (0, len(sequence) - 1)]
+            ).tobytes()
         ).hexdigest(),
         "neutral_map_sha1": hashlib.sha1(np.ascontiguousarray(neutral).tobytes()).hexdigest(),
         "map_shape": list(map_shape),
@@ -117,7 +119,9 @@ def _open_group(out, config, n, window, tile, overwrite):
             g = zarr.open_group(path, mode="a")
             old = json.loads(g.attrs.get("config", "null"))
         except Exception as exc:  # zarr raises several types for what is not a group
-            raise StoreError(f"out {path!r} exists and is not a microstructure render ({exc}); pass overwrite=True") from None
+            raise StoreError(
+                f"out {path!r} exists and is not a microstructure render ({exc}); pass overwrite=True"
+            ) from None
         if old != config:
             diff = sorted(k for k in config if (old or {}).get(k) != config[k])
             raise StoreError(
@@ -313,13 +317,15 @@ def open_sequence(neutral, *, frames=None, targets=None, weights=None, scale=1.0
     if frames is not None:
         return FrameSequence(mesh, frames, scale=scale)
     names_w, w = read_weights(weights)
-    shapes = {os.path.splitext(os.path.basename(os.fspath(t)))[0]: read_vertices(t, mesh, scale=scale) for t in targets or []}
+    shapes = {
+        os.path.splitext(os.path.basename(os.fspath(t)))[0]: read_vertices(t, mesh, scale=scale) for t in targets or []
+    }
     return BlendshapeSequence(mesh, shapes, w, names=names_w)
 
 
 def render_files(neutral, neutral_map, out, *, frames=None, targets=None, weights=None, scale=1.0,
                  height_range_um=None, **options) -> SequenceReport:  # fmt: skip
-    """:func:`render_sequence` from files (:func:`open_sequence`, :func:`facestats.io.displacement.read_displacement`)."""
+    """:func:`render_sequence` of files (:func:`open_sequence`, read_displacement)."""
     from facestats.io.displacement import read_displacement
 
     sequence = open_sequence(neutral, frames=frames, targets=targets, weights=weights, scale=scale)
@@ -338,7 +344,8 @@ def generate_neutral_map(out, size, *, texel_um=15.0, subject=None, store=None, 
     texel_um : float
         µm per texel.
     subject : str, optional
-        Store subject id: regions and roughness from its maps (:func:`facestats.acquire.synthetic.microstructure.subject_microstructure`).
+        Store subject id: regions and roughness from its maps
+        (:func:`facestats.acquire.synthetic.microstructure.subject_microstructure`).
     store : path-like, optional
         Store to read the subject from (default: the embedded store).
     seed : int, optional

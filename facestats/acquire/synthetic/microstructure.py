@@ -11,7 +11,8 @@ paper's measurements), the sum of
   ``BASE_WAVELENGTH_UM`` (both stratified, so that seeds share the spectrum and
   differ in phases) with amplitude ∝ wavelength (a flat slope spectrum);
 * **furrows**: ridged fields −√(n² + c²) (V-shaped grooves along the zero lines
-  of a smooth field n, their bottoms rounded over about one texel) in four orientation families (0°, 45°, 90°, 135° in UV;
+  of a smooth field n, their bottoms rounded over about one texel) in four
+  orientation families (0°, 45°, 90°, 135° in UV;
   each family's wave vectors lie within ±20° of the family's normal, so its
   grooves run along the family angle), wavelengths in ``FURROW_WAVELENGTH_UM``,
   blended per texel with weights max(0, cos 2(θ − θ_k))² towards the region's
@@ -217,7 +218,9 @@ def _region_maps(shape, params, region_map):
     table = dict(REGION_DEFAULTS) if params is None else dict(params)
     present = [int(k) for k in np.unique(lab) if int(k) in table]
     if not present:
-        raise ValidationError(f"region_map must contain a region with parameters ({sorted(table)}), got {np.unique(lab)}")
+        raise ValidationError(
+            f"region_map must contain a region with parameters ({sorted(table)}), got {np.unique(lab)}"
+        )
     fallback = table[present[0]] if 0 not in table else table[0]
     return {k: table.get(k, fallback) for k in np.unique(lab).tolist()}, full, lab
 
@@ -268,7 +271,9 @@ def _add_pores(out, rng, per_region, full, texel, a_inv):
     thin, jitter = rng.uniform(0, 1, n), rng.uniform(0.7, 1.3, n)
     if full is None:
         p = per_region[None]
-        dens, share, rough, radius = (np.full(n, v) for v in (p.pore_density_mm2, p.pore_share, p.roughness, p.pore_radius_um))
+        dens, share, rough, radius = (
+            np.full(n, v) for v in (p.pore_density_mm2, p.pore_share, p.roughness, p.pore_radius_um)
+        )
     else:
         lab = full[
             np.clip((centres[:, 1] / texel).astype(int), 0, shape[0] - 1),

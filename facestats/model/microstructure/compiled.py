@@ -349,7 +349,7 @@ if HAVE_NUMBA:
     def _tv_kernel():
         """The compiled histogram kernel (compiled on first use, cached on disk by numba)."""
         if not _TV_KERNEL:
-            sig = "float64[:](float64[:], float64[:], float64[:], float64[:], float64[:], float64[:], float64, float64, int64)"
+            sig = "float64[:](" + ", ".join(["float64[:]"] * 6) + ", float64, float64, int64)"
             _TV_KERNEL.append(numba.njit(sig, cache=True, parallel=True)(_histogram_tv_py))
         return _TV_KERNEL[0]
 

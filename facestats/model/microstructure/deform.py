@@ -1,4 +1,4 @@
-"""Deform a neutral microstructure map by the strain of a mesh frame (Nagano et al. 2015 §5 "Applying to a Novel Surface Animation").
+"""Deform a neutral microstructure map by the strain of a mesh frame (Nagano et al. 2015 §5).
 
 The last step of the paper's method: at every texel the principal stretches
 ``r_s ≥ r_t`` and axes of the per-texel strain (eq. 11-13,
@@ -97,7 +97,9 @@ def deform_microstructure(neutral, strain, table="forehead", *, backend="auto") 
     if d.shape != strain.r_s.shape:
         raise ValidationError(f"neutral must cover the strain's texels, shape {strain.r_s.shape}, got shape {d.shape}")
     a_s, s_s, a_t, s_t = strain_kernels(strain, table)
-    texel = np.stack([np.where(strain.valid, strain.texel_um_s, 1.0), np.where(strain.valid, strain.texel_um_t, 1.0)], -1)
+    texel = np.stack(
+        [np.where(strain.valid, strain.texel_um_s, 1.0), np.where(strain.valid, strain.texel_um_t, 1.0)], -1
+    )
     out = convolve_displacement(
         d, strain.axis_s, a_s, s_s, a_t, s_t, texel, axis_t=strain.axis_t, islands=strain.island, backend=backend
     )

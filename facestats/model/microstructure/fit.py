@@ -1,4 +1,4 @@
-"""Fit a kernel (α, σ) to a neutral/deformed skin patch pair by normal-histogram total variation (Nagano et al. 2015 eq. 7).
+"""Fit a kernel (α, σ) to a neutral/deformed patch pair by normal-histogram total variation (Nagano et al. 2015 eq. 7).
 
 Nagano et al. 2015 §5 "Parameter Fitting": brute force over α ∈ [−2, 1] step
 0.01 and σ ∈ [1, 100] µm step 0.5 (301 × 199 = 59,899 combinations) of the
@@ -50,7 +50,7 @@ import numpy as np
 from facestats.core.validate import as_finite, check_choice
 from facestats.errors import ValidationError
 from facestats.model.microstructure.compiled import histogram_tv, resolve_backend
-from facestats.model.microstructure.kernel import ALPHA_RANGE, SIGMA_RANGE_UM, TRUNCATE, kernel_radius
+from facestats.model.microstructure.kernel import ALPHA_RANGE, SIGMA_RANGE_UM, kernel_radius
 from facestats.model.microstructure.surface import histogram_extent, normal_histogram, slopes, tv_noise
 
 __all__ = ["KernelFit", "fit_kernel", "ALPHA_GRID", "SIGMA_GRID_UM", "gaussian_stencil", "deformation_matrix"]
@@ -308,9 +308,13 @@ def fit_kernel(
     jac_n = np.linalg.inv(deformation_matrix(a, r, r_t)).T / texel  # chain rule: slopes of the deformed shape
     problem = _Problem(n, d, a, jac_n, np.eye(2) / texel_d, margin, bins, extent, backend)
     a_grid = ALPHA_GRID if alphas is None else np.sort(as_finite(alphas, "alphas", *ALPHA_RANGE).reshape(-1))
-    s_grid = SIGMA_GRID_UM if sigmas_um is None else np.sort(as_finite(sigmas_um, "sigmas_um", *SIGMA_RANGE_UM).reshape(-1))
+    s_grid = (
+        SIGMA_GRID_UM if sigmas_um is None else np.sort(as_finite(sigmas_um, "sigmas_um", *SIGMA_RANGE_UM).reshape(-1))
+    )
     if method == "coarse-to-fine" and (alphas is not None or sigmas_um is not None):
-        raise ValidationError("alphas and sigmas_um must be None for method='coarse-to-fine' (it refines the paper's grid)")
+        raise ValidationError(
+            "alphas and sigmas_um must be None for method='coarse-to-fine' (it refines the paper's grid)"
+        )
     sig_px = s_grid / texel
     noise = tv_noise(problem.target, problem.n_target)
     tol = noise if ridge_tolerance is None else float(as_finite(ridge_tolerance, "ridge_tolerance", 0.0))

@@ -1,4 +1,4 @@
-"""Figures of the microstructure subsystem: kernel tables and fits (Nagano et al. 2015 Fig. 11-12), strain fields (Fig. 13), normals.
+"""Figures of microstructure deformation: kernel tables and fits (Nagano et al. 2015 Fig. 11-12), strain, normals.
 
 Every function takes result objects, imports matplotlib itself and returns a
 :class:`matplotlib.figure.Figure` (no pyplot state: nothing is shown or saved here).
@@ -62,7 +62,7 @@ def plot_kernel_table(table=FOREHEAD, fits=None, *, profiles=None, published=Tru
 
 
 def plot_fit(fit):
-    """TV landscape of a :class:`~facestats.model.microstructure.fit.KernelFit` with its ridge, and the two histograms."""
+    """TV landscape of a :class:`~facestats.model.microstructure.fit.KernelFit` with its ridge, and both histograms."""
     fig, axes = _figure(1, 3, (13, 3.8))
     grid = np.ma.masked_invalid(fit.tv_grid)
     im = axes[0].pcolormesh(fit.sigmas_um, fit.alphas, grid, shading="auto", cmap="viridis")
@@ -73,7 +73,10 @@ def plot_fit(fit):
     axes[0].set_ylabel("α")
     axes[0].legend(fontsize=7, loc="lower right")
     e = fit.extent
-    for ax, h, title in ((axes[1], fit.target_histogram, "target (deformed)"), (axes[2], fit.fitted_histogram, "fitted")):
+    for ax, h, title in (
+        (axes[1], fit.target_histogram, "target (deformed)"),
+        (axes[2], fit.fitted_histogram, "fitted"),
+    ):
         ax.imshow(h, extent=(-e, e, e, -e), cmap="magma")
         ax.set_title(title)
         ax.set_xlabel("n_u")
@@ -83,7 +86,7 @@ def plot_fit(fit):
 
 
 def plot_strain(strain, *, step=None, limits=(0.8, 1.25)):
-    """Principal stretches r_s, r_t and the stretch axis field of a :class:`~facestats.model.strain.TexelStrain` (Fig. 13).
+    """Stretches r_s, r_t and the stretch axis field of a :class:`~facestats.model.strain.TexelStrain` (Fig. 13).
 
     Axes are drawn as headless segments (their sign is meaningless), coloured by r_s.
     """

@@ -1,4 +1,4 @@
-"""Kernel tables: filter parameters (α, σ) as piecewise-linear functions of the stretch ratio (Nagano et al. 2015 eq. 8-9).
+"""Kernel tables: filter parameters (α, σ) as piecewise-linear functions of the stretch ratio (Nagano 2015 eq. 8-9).
 
 Nagano et al. 2015 §5 "Kernel Table Construction": the fitted (α, σ) of skin
 patches under stretch ratios r (> 1 stretch, < 1 compression) are summarised by

@@ -23,12 +23,27 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.core.validate import as_float, check_finite
+from facestats.core.validate import as_finite, as_float
 from facestats.errors import ValidationError
 from facestats.model.microstructure.compiled import convolve_pass, resolve_backend
-from facestats.model.microstructure.kernel import TRUNCATE, check_alpha, check_sigma
+from facestats.model.microstructure.kernel import ALPHA_RANGE, SIGMA_RANGE_UM, TRUNCATE
 
 __all__ = ["convolve_displacement", "island_reach"]
+
+
+def _bounded(arr, name, low=None, high=None, unit=""):
+    """Check finiteness and range by a min and a max (no temporaries the size of a 4K map).
+
+    Only when the check fails is the array handed to :func:`facestats.core.validate.as_finite`,
+    which raises the standard message naming the argument and the offending value.
+    """
+    if arr.size:
+        lo, hi = float(np.min(arr)), float(np.max(arr))  # NaN propagates through min and max
+        ok = np.isfinite(lo) and np.isfinite(hi)
+        ok = ok and (low is None or lo >= low) and (high is None or hi <= high)
+        if not ok:
+            as_finite(arr, name, low, high, unit=unit)
+    return arr
 
 
 def _map(displacement):
@@ -37,15 +52,15 @@ def _map(displacement):
         raise ValidationError(f"displacement must be a float32 or float64 map, got dtype {d.dtype}")
     if d.ndim != 2 or min(d.shape) < 1:
         raise ValidationError(f"displacement must be a 2-D map (v, u), got shape {d.shape}")
-    return check_finite(d, "displacement")
+    return _bounded(d, "displacement")
 
 
-def _field(value, name, shape, checker=None):
-    """A per-texel float32 parameter (a broadcast view for scalars), validated."""
+def _field(value, name, shape, bounds, unit=""):
+    """A per-texel float32 parameter (a broadcast view for scalars), validated against ``bounds``."""
     arr = as_float(value, name)
     if arr.ndim not in (0, 2) or (arr.ndim == 2 and arr.shape != shape):
         raise ValidationError(f"{name} must be a scalar or a map of shape {shape}, got shape {arr.shape}")
-    arr = checker(arr, name) if checker is not None else check_finite(arr, name)
+    arr = _bounded(arr, name, *bounds, unit=unit)
     return np.broadcast_to(arr.astype(np.float32, copy=False), shape)
 
 
@@ -53,17 +68,16 @@ def _axes(axis_s, axis_t, shape):
     """Unit s and t axes as (au, av) float32 pairs of (H, W) views."""
 
     def unit(a, name):
-        a = check_finite(as_float(a, name, np.float32), name)
+        a = _bounded(as_float(a, name, np.float32), name)
         if a.shape not in ((2,), shape + (2,)):
             raise ValidationError(f"{name} must have shape (2,) or {shape + (2,)}, got {a.shape}")
         au, av = a[..., 0], a[..., 1]
         n2 = au * au + av * av
-        off = np.abs(n2 - 1) > 2e-3  # |norm - 1| > 1e-3
-        if np.any(off):
-            raise ValidationError(
-                f"{name} must hold unit vectors (norm 1 ± 1e-3), got norm {np.sqrt(n2[off]).reshape(-1)[0]:.6g}"
-            )
-        if np.any(np.abs(n2 - 1) > 1e-6):  # renormalise what float32 rounding cannot explain
+        lo, hi = float(np.min(n2)), float(np.max(n2))
+        if lo < 1 - 2e-3 or hi > 1 + 2e-3:  # |norm - 1| > 1e-3
+            bad = lo if lo < 1 - 2e-3 else hi
+            raise ValidationError(f"{name} must hold unit vectors (norm 1 ± 1e-3), got norm {np.sqrt(bad):.6g}")
+        if lo < 1 - 1e-6 or hi > 1 + 1e-6:  # renormalise what float32 rounding cannot explain
             n = np.sqrt(n2)
             au, av = au / n, av / n
         return np.broadcast_to(au, shape), np.broadcast_to(av, shape)
@@ -75,16 +89,17 @@ def _axes(axis_s, axis_t, shape):
 
 
 def _texel_sizes(texel_um, shape):
-    t = check_finite(as_float(texel_um, "texel_um", np.float64), "texel_um")
+    t = as_float(texel_um, "texel_um")
+    t = _bounded(t, "texel_um")
     if t.shape in ((), shape):
         pair = (t, t)
     elif t.shape in ((2,), shape + (2,)):
         pair = (t[..., 0], t[..., 1])
     else:
         raise ValidationError(f"texel_um must be a scalar, (2,), {shape} or {shape + (2,)}, got shape {t.shape}")
-    if np.any(t <= 0):
-        raise ValidationError(f"texel_um must be > 0 um, got {t[t <= 0].reshape(-1)[0]!r}")
-    return tuple(np.broadcast_to(p.astype(np.float32), shape) for p in pair)
+    if t.size and float(np.min(t)) <= 0:
+        raise ValidationError(f"texel_um must be > 0 um, got {float(np.min(t))!r}")
+    return tuple(np.broadcast_to(p.astype(np.float32, copy=False), shape) for p in pair)
 
 
 def island_reach(islands) -> np.ndarray:
@@ -155,8 +170,9 @@ def convolve_displacement(
     shape = d.shape
     backend = resolve_backend(backend)
     (su, sv), (tu, tv) = _axes(axis_s, axis_t, shape)
-    a_s, a_t = _field(alpha_s, "alpha_s", shape, check_alpha), _field(alpha_t, "alpha_t", shape, check_alpha)
-    s_s, s_t = _field(sigma_s, "sigma_s", shape, check_sigma), _field(sigma_t, "sigma_t", shape, check_sigma)
+    a_s, a_t = _field(alpha_s, "alpha_s", shape, ALPHA_RANGE), _field(alpha_t, "alpha_t", shape, ALPHA_RANGE)
+    s_s = _field(sigma_s, "sigma_s", shape, SIGMA_RANGE_UM, "um")
+    s_t = _field(sigma_t, "sigma_t", shape, SIGMA_RANGE_UM, "um")
     px_s, px_t = _texel_sizes(texel_um, shape)
     lab, reach = _islands(islands, shape)
     d_s = np.empty_like(d)

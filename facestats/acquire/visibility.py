@@ -8,8 +8,8 @@ visible when it faces the viewpoint and its own depth is not behind the buffer b
 more than a bias of ``bias_px`` pixel footprints (slope-scaled), which absorbs the
 discretisation of the buffer.
 
-The rasteriser is vectorised over triangles: triangles are grouped by the size of
-their pixel bounding box, each group tests all its candidate pixels at once, and
+The triangles are rasterised by :func:`facestats.core.raster.triangle_coverage`
+(vectorised over triangles, grouped by the size of their pixel bounding box) and
 the nearest depth per pixel is kept with ``numpy.minimum.at``.  The loop runs over
 viewpoints and size groups, never over triangles or points.
 """
@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from facestats.acquire.dome import look_at
+from facestats.core.raster import triangle_coverage
 
 __all__ = ["shadow_map", "ShadowMaps", "visible_from"]
 
@@ -60,45 +61,12 @@ def shadow_map(vertices, faces, eye, target, radius, resolution):
     focal = (resolution / 2) / np.tan(half)
     x, y, z = _project(vertices, eye, rot, focal, resolution)
     depth = np.full(resolution * resolution, np.inf)
-    tx, ty, tz = x[faces], y[faces], z[faces]  # (F, 3)
-    good = np.all(np.isfinite(tx) & np.isfinite(ty) & (tz > 0), axis=1)
-    tx, ty, tz = tx[good], ty[good], tz[good]
-    x0 = np.floor(tx.min(1) - 0.5).astype(np.int64)
-    y0 = np.floor(ty.min(1) - 0.5).astype(np.int64)
-    w = np.ceil(tx.max(1) - 0.5).astype(np.int64) - x0 + 1
-    h = np.ceil(ty.max(1) - 0.5).astype(np.int64) - y0 + 1
-    size = np.maximum(w, h)
-    # Barycentric set-up (edge functions) of every triangle.
-    ax, ay, bx, by, cx, cy = tx[:, 0], ty[:, 0], tx[:, 1], ty[:, 1], tx[:, 2], ty[:, 2]
-    den = (by - cy) * (ax - cx) + (cx - bx) * (ay - cy)
-    nondeg = np.abs(den) > 1e-12
-    classes = 2 ** np.ceil(np.log2(np.maximum(size, 1))).astype(np.int64)
-    for s in np.unique(classes[nondeg]):
-        sel = np.nonzero((classes == s) & nondeg)[0]
-        # Bound the candidates per pass to keep memory small.
-        step = max(1, 2_000_000 // int(s * s))
-        for start in range(0, sel.size, step):
-            t = sel[start : start + step]
-            oy, ox = np.mgrid[0:s, 0:s]
-            px = x0[t, None, None] + ox[None]  # pixel indices
-            py = y0[t, None, None] + oy[None]
-            cxp, cyp = px + 0.5, py + 0.5  # pixel centres
-            d = den[t, None, None]
-            l0 = (
-                (by[t, None, None] - cy[t, None, None]) * (cxp - cx[t, None, None])
-                + (cx[t, None, None] - bx[t, None, None]) * (cyp - cy[t, None, None])
-            ) / d
-            l1 = (
-                (cy[t, None, None] - ay[t, None, None]) * (cxp - cx[t, None, None])
-                + (ax[t, None, None] - cx[t, None, None]) * (cyp - cy[t, None, None])
-            ) / d
-            l2 = 1 - l0 - l1
-            eps = -1e-6
-            inside = (
-                (l0 >= eps) & (l1 >= eps) & (l2 >= eps) & (px >= 0) & (py >= 0) & (px < resolution) & (py < resolution)
-            )
-            zz = l0 * tz[t, 0, None, None] + l1 * tz[t, 1, None, None] + l2 * tz[t, 2, None, None]
-            np.minimum.at(depth, (py * resolution + px)[inside], zz[inside])
+    tz = z[faces]
+    good = np.all(np.isfinite(x[faces]) & np.isfinite(y[faces]) & (tz > 0), axis=1)
+    tz = tz[good]
+    for tri, py, px, l0, l1, l2 in triangle_coverage(x, y, faces[good], resolution, resolution):
+        t = tz[tri]
+        np.minimum.at(depth, py * resolution + px, l0 * t[:, 0] + l1 * t[:, 1] + l2 * t[:, 2])
     return depth.reshape(resolution, resolution), (eye, rot, focal, resolution)
 
 

@@ -12,6 +12,7 @@ prints.  Heavy modules are imported inside the commands so that ``facestats
 * :mod:`~facestats.cli.export` — ``export-subject``;
 * :mod:`~facestats.cli.serve` — ``serve``;
 * :mod:`~facestats.cli.render` — ``render``.
+* :mod:`~facestats.cli.microstructure` — ``microstructure render``, ``microstructure generate``.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from facestats.cli.build import add_build
 from facestats.cli.demo import add_demo
 from facestats.cli.edit import add_edit
 from facestats.cli.export import add_export_subject
+from facestats.cli.microstructure import add_microstructure
 from facestats.cli.render import add_render
 from facestats.cli.serve import add_serve
 from facestats.cli.store import add_export, add_import_merl, add_info, add_query, add_validate
@@ -47,6 +49,7 @@ COMMANDS = [
     add_export_subject,
     add_serve,
     add_render,
+    add_microstructure,
 ]
 
 

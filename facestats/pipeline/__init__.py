@@ -26,7 +26,9 @@ Modules, one job each:
 * :mod:`~facestats.pipeline.population` — many captures, σtrAvg first (:func:`fit_population`);
 * :mod:`~facestats.pipeline.render` — the fitted model rendered into a capture's cameras;
 * :mod:`~facestats.pipeline.build` — simulate and fit a synthetic population into a store
-  (how the embedded default is made).
+  (how the embedded default is made);
+* :mod:`~facestats.pipeline.microstructure` — dynamic skin microstructure of a mesh sequence
+  (Nagano et al. 2015), streamed to zarr/EXR, resumable.
 """
 
 from facestats.pipeline.lumitexels import fit_lumitexels

@@ -1,0 +1,428 @@
+"""Procedural skin microstructure: seeded displacement maps with pores and fine anisotropic furrows, per face region.
+
+Nagano et al. 2015 §5: the neutral microstructure displacement map "can come
+from any source, such as noise functions [von der Pahlen et al. 2014]".  This
+module is facestats' source when no measured map exists: a random height
+field h (µm) on a grid of ``texel_um`` (10-20 µm/texel is the scale of the
+paper's measurements), the sum of
+
+* a **base** roughness: an isotropic band-limited Gaussian field, a sum of
+  cosines of random directions and wavelengths log-uniform in
+  ``BASE_WAVELENGTH_UM`` (both stratified, so that seeds share the spectrum and
+  differ in phases) with amplitude ∝ wavelength (a flat slope spectrum);
+* **furrows**: ridged fields −√(n² + c²) (V-shaped grooves along the zero lines
+  of a smooth field n, their bottoms rounded over about one texel) in four
+  orientation families (0°, 45°, 90°, 135° in UV;
+  each family's wave vectors lie within ±20° of the family's normal, so its
+  grooves run along the family angle), wavelengths in ``FURROW_WAVELENGTH_UM``,
+  blended per texel with weights max(0, cos 2(θ − θ_k))² towards the region's
+  furrow direction θ, or equally (a crossing network, as on the cheeks) for
+  regions without one;
+* **pores**: Gaussian pits ``−d exp(−|x − c|² / (2 ρ²))`` at Poisson-distributed
+  centres.
+
+Scale: the mean-square slope ⟨|∇h|²⟩ of each region equals its ``roughness``²,
+split between the components by ``furrow_share`` and ``pore_share``, from
+closed forms (no measurement of the map): a cosine sum Σ a_k cos(2π f_k·x + φ)
+has ⟨|∇h|²⟩ = Σ a_k² (2π|f_k|)² / 2 — with 2π f replaced by sin(2π f h)/h, the
+central differences over texels h that measure the map's slopes; the ridged
+furrows keep a known fraction of it (:func:`_ridged`); a Poisson field of pits of density λ and depth d has
+⟨|∇h|²⟩ = π λ d² (∫|∇ exp(−r²/2ρ²)|² dA = π, independent of ρ; central differences of a pit of
+a few texels see less, tabulated numerically).  With a store
+subject (:func:`subject_microstructure_parameters`) the roughness of a region is
+the subject's median Torrance-Sparrow m there: Beckmann's m is the rms slope of
+the microfacets (Weyrich et al. 2006 eq. 13), so the generated microstructure
+has the subject's fitted specular roughness.  Orientation, shares and pore
+statistics per region (``REGION_DEFAULTS``) are facestats' choices, stated, not
+measurements.
+
+Deformation: ``deformation = A`` (2 × 2, µm → µm) renders the same realisation
+deformed by A, h'(x) = h(A⁻¹ x) — cosines with wave vectors A⁻ᵀ f, pits moved to
+A c and sheared — exactly, with no resampling: the ground truth of a purely
+geometric stretch for the kernel fit (:func:`facestats.model.microstructure.fit_kernel`).
+
+Speed: the cosine sums are separable (cos(a + b) = cos a cos b − sin a sin b),
+so a field is two matrix products (rows × waves)·(waves × columns) per family.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from facestats.core.validate import as_finite, check_integer
+from facestats.errors import ValidationError
+
+__all__ = [
+    "SkinMicrostructure",
+    "REGION_DEFAULTS",
+    "BASE_WAVELENGTH_UM",
+    "FURROW_WAVELENGTH_UM",
+    "procedural_microstructure",
+    "subject_microstructure_parameters",
+    "subject_microstructure",
+]
+
+#: Wavelength range of the base roughness, µm.
+BASE_WAVELENGTH_UM = (40.0, 400.0)
+#: Wavelength range of the furrow fields, µm (groove spacing is about half a wavelength).
+FURROW_WAVELENGTH_UM = (200.0, 800.0)
+#: Orientation families of the furrows (radians in UV, u towards v).
+FURROW_FAMILIES = (0.0, np.pi / 4, np.pi / 2, 3 * np.pi / 4)
+#: Half-width of the wave-vector fan of a furrow family, radians.
+FURROW_SPREAD = np.deg2rad(20.0)
+#: Waves per field.
+N_WAVES = 256
+#: Width (texels) over which the bottom of a furrow is rounded.
+RIDGE_ROUNDING_PX = 1.0
+#: Shortest wavelength a map holds, in texels (finer waves are moved up to it).
+MIN_WAVELENGTH_PX = 6.0
+
+
+@dataclass(frozen=True)
+class SkinMicrostructure:
+    """Statistics of the microstructure of one face region.
+
+    Attributes
+    ----------
+    roughness : float
+        rms slope √⟨|∇h|²⟩ (dimensionless; Beckmann m).
+    furrow_angle : float or None
+        Direction of the furrow lines in UV, radians from +u towards +v; None: a crossing network.
+    furrow_share, pore_share : float
+        Fractions of ⟨|∇h|²⟩ carried by furrows and pores (the rest is base roughness).
+    pore_density_mm2 : float
+        Pores per mm².
+    pore_radius_um : float
+        Gaussian radius ρ of a pore, µm.
+    """
+
+    roughness: float = 0.27
+    furrow_angle: float | None = None
+    furrow_share: float = 0.4
+    pore_share: float = 0.2
+    pore_density_mm2: float = 1.0
+    pore_radius_um: float = 35.0
+
+    def __post_init__(self):
+        as_finite(self.roughness, "roughness", 0.0, 2.0)
+        as_finite(self.furrow_share, "furrow_share", 0.0, 1.0)
+        as_finite(self.pore_share, "pore_share", 0.0, 1.0)
+        if self.furrow_share + self.pore_share > 1:
+            raise ValidationError(
+                f"furrow_share + pore_share must be <= 1, got {self.furrow_share} + {self.pore_share}"
+            )
+        as_finite(self.pore_density_mm2, "pore_density_mm2", 0.0, 100.0)
+        as_finite(self.pore_radius_um, "pore_radius_um", 1.0, 1000.0, unit="um")
+        if self.pore_share > 0 and self.pore_density_mm2 <= 0:
+            raise ValidationError(f"pore_density_mm2 must be > 0 when pore_share > 0, got {self.pore_density_mm2}")
+
+
+#: Per-region defaults (regions of Weyrich Fig. 15); roughness is replaced by a subject's m.
+#: Forehead, eyebrows and eyelids furrow along u (horizontal lines); lips and the mustache
+#: area along v; under the eyes and on the cheeks obliquely; nose, chin and beard form networks.
+REGION_DEFAULTS = {
+    1: SkinMicrostructure(furrow_angle=np.pi / 2, furrow_share=0.4, pore_share=0.2, pore_density_mm2=1.0),
+    2: SkinMicrostructure(furrow_angle=0.0, furrow_share=0.55, pore_share=0.15, pore_density_mm2=1.0),
+    3: SkinMicrostructure(furrow_angle=0.0, furrow_share=0.5, pore_share=0.1, pore_density_mm2=0.6),
+    4: SkinMicrostructure(furrow_angle=0.0, furrow_share=0.6, pore_share=0.05, pore_density_mm2=0.3),
+    5: SkinMicrostructure(furrow_angle=np.pi / 8, furrow_share=0.5, pore_share=0.1, pore_density_mm2=0.6),
+    6: SkinMicrostructure(furrow_angle=None, furrow_share=0.2, pore_share=0.45, pore_density_mm2=2.5),
+    7: SkinMicrostructure(furrow_angle=np.pi / 4, furrow_share=0.35, pore_share=0.3, pore_density_mm2=1.5),
+    8: SkinMicrostructure(furrow_angle=np.pi / 2, furrow_share=0.6, pore_share=0.0, pore_density_mm2=0.0),
+    9: SkinMicrostructure(furrow_angle=None, furrow_share=0.3, pore_share=0.3, pore_density_mm2=1.5),
+    10: SkinMicrostructure(furrow_angle=None, furrow_share=0.3, pore_share=0.25, pore_density_mm2=1.2),
+}
+
+
+def _stratified(rng, n):
+    """n samples of U(0, 1), one in each of n equal strata, in random order (a low-variance spectrum)."""
+    return rng.permutation((np.arange(n) + rng.uniform(0, 1, n)) / n)
+
+
+def _waves(rng, n, wavelengths, texel_um, angle=None, spread=None):
+    """Random wave vectors (n, 2) in cycles/µm and phases; directions uniform, or within ±spread of ``angle``.
+
+    Log-wavelengths and directions are stratified (one wave per stratum, paired at
+    random), so two seeds have nearly the same spectrum and differ in phases: realisations
+    of the same statistics.  Wavelengths below MIN_WAVELENGTH_PX texels are raised to it.
+    """
+    lo = max(wavelengths[0], MIN_WAVELENGTH_PX * texel_um)
+    hi = max(wavelengths[1], 2 * lo)
+    lam = np.exp(np.log(lo) + (np.log(hi) - np.log(lo)) * _stratified(rng, n))
+    u = _stratified(rng, n)
+    theta = np.pi * u if angle is None else angle + spread * (2 * u - 1)
+    f = np.stack([np.cos(theta), np.sin(theta)], -1) / lam[:, None]
+    return f, rng.uniform(0, 2 * np.pi, n), lam
+
+
+def _cosine_field(f, phase, amp, xs, ys):
+    """Σ_k amp_k cos(2π (f_k,x x + f_k,y y) + φ_k) on the grid xs (columns) × ys (rows), by two matrix products."""
+    ax = 2 * np.pi * np.outer(xs, f[:, 0]) + phase  # (W, K)
+    ay = 2 * np.pi * np.outer(ys, f[:, 1])  # (H, K)
+    return (np.cos(ay) * amp) @ np.cos(ax).T - (np.sin(ay) * amp) @ np.sin(ax).T
+
+
+def _unit_msq(f, amp, texel_um):
+    """Mean-square slope of a cosine sum as central differences at ``texel_um`` measure it.
+
+    A cosine of wave vector f has the continuous slope energy a² (2π f_x)² / 2 along x; a
+    central difference over ±1 texel h scales 2π f_x to sin(2π f_x h) / h, likewise along y.
+    """
+    d = np.sin(2 * np.pi * f * texel_um) / texel_um
+    return float(np.sum(amp**2 * np.sum(d * d, 1)) / 2)
+
+
+def _pit_msq_factor(radius_px):
+    """Slope energy of a sampled Gaussian pit (central differences) relative to the continuous π (per unit depth)."""
+    half = int(np.ceil(5 * radius_px)) + 2
+    x = np.arange(-half, half + 1, dtype=float)
+    pit = np.exp(-(x[:, None] ** 2 + x[None, :] ** 2) / (2 * radius_px**2))
+    gy, gx = np.gradient(pit)
+    return float(np.sum(gx * gx + gy * gy)) / np.pi
+
+
+def _ridged(n, amp, texel_um):
+    """Furrows −√(n² + c²) of a unit-slope-energy Gaussian field n, scaled back to unit slope energy.
+
+    c rounds the groove bottom over about RIDGE_ROUNDING_PX texels (c = that width × rms|∇n|),
+    so central differences resolve it.  For Gaussian n (value independent of gradient at a point)
+    ⟨|∇√(n² + c²)|²⟩ = ⟨|∇n|²⟩ E[n² / (n² + c²)] and, with s² = Var n,
+    E[n² / (n² + c²)] = 1 − √(π/2) (c/s) exp(c²/2s²) erfc(c/(s√2)).
+    """
+    from scipy.special import erfcx
+
+    s = np.sqrt(np.sum(amp**2) / 2)
+    c = RIDGE_ROUNDING_PX * texel_um  # × rms|∇n| = 1
+    k = c / s
+    factor = 1 - np.sqrt(np.pi / 2) * k * erfcx(k / np.sqrt(2))
+    return -np.sqrt(n * n + c * c) / np.sqrt(factor)
+
+
+_PIT_RADII_PX = np.geomspace(0.3, 200.0, 60)
+_PIT_TABLE = (_PIT_RADII_PX, np.array([_pit_msq_factor(r) if r < 50 else 1.0 for r in _PIT_RADII_PX]))
+
+
+def _region_maps(shape, params, region_map):
+    """Per-region parameters, and the labels at the map's texels (nearest) and as given: (dict, full, source)."""
+    if region_map is None:
+        p = params if isinstance(params, SkinMicrostructure) else SkinMicrostructure()
+        return {None: p}, None, None
+    lab = np.asarray(region_map)
+    if lab.ndim != 2 or lab.dtype.kind not in "iu":
+        raise ValidationError(f"region_map must be a 2-D integer label map, got {lab.dtype} {lab.shape}")
+    rows = np.minimum((np.arange(shape[0]) + 0.5) * lab.shape[0] / shape[0], lab.shape[0] - 1).astype(int)
+    cols = np.minimum((np.arange(shape[1]) + 0.5) * lab.shape[1] / shape[1], lab.shape[1] - 1).astype(int)
+    full = lab[np.ix_(rows, cols)]
+    table = dict(REGION_DEFAULTS) if params is None else dict(params)
+    present = [int(k) for k in np.unique(lab) if int(k) in table]
+    if not present:
+        raise ValidationError(
+            f"region_map must contain a region with parameters ({sorted(table)}), got {np.unique(lab)}"
+        )
+    fallback = table[present[0]] if 0 not in table else table[0]
+    return {k: table.get(k, fallback) for k in np.unique(lab).tolist()}, full, lab
+
+
+def _weights(regions, getter, shape, smooth_px):
+    """A per-texel value map from per-region values, blurred across region borders.
+
+    The blur runs on the region map as given (cheap: it is coarse) and the result
+    is interpolated bilinearly onto the texels.
+    """
+    per_region, _, lab = regions
+    if lab is None:
+        return np.full(shape, float(getter(per_region[None])))
+    from scipy.ndimage import gaussian_filter, map_coordinates
+
+    values = _lookup(per_region, getter)[lab]
+    if smooth_px > 0:
+        values = gaussian_filter(values, smooth_px * lab.shape[0] / shape[0], mode="nearest")
+    rows = (np.arange(shape[0]) + 0.5) * lab.shape[0] / shape[0] - 0.5
+    cols = (np.arange(shape[1]) + 0.5) * lab.shape[1] / shape[1] - 0.5
+    rr, cc = np.meshgrid(rows, cols, indexing="ij")
+    return map_coordinates(values, [rr, cc], order=1, mode="nearest")
+
+
+def _family_weight(p: SkinMicrostructure, k: int) -> float:
+    if p.furrow_angle is None:
+        return 0.5  # equal weights: Σ w² = 1 over the four families
+    return max(0.0, np.cos(2 * (p.furrow_angle - FURROW_FAMILIES[k]))) ** 2
+
+
+def _lookup(per_region, getter):
+    """Per-region values as an array indexed by label (labels absent from the map give 0)."""
+    keys = [k for k in per_region if k is not None]
+    table = np.zeros(max(keys, default=0) + 1)
+    for k in keys:  # at most the ten regions
+        table[k] = getter(per_region[k])
+    return table
+
+
+def _add_pores(out, rng, per_region, full, texel, a_inv):
+    """Poisson pits at the largest region density, thinned to each region's density (vectorised over pores)."""
+    shape = out.shape
+    dmax = max(p.pore_density_mm2 for p in per_region.values())
+    if dmax <= 0:
+        return
+    n = rng.poisson(dmax * 1e-6 * shape[0] * shape[1] * texel * texel)
+    centres = rng.uniform(0, 1, (n, 2)) * np.array([shape[1] * texel, shape[0] * texel])
+    thin, jitter = rng.uniform(0, 1, n), rng.uniform(0.7, 1.3, n)
+    if full is None:
+        p = per_region[None]
+        dens, share, rough, radius = (
+            np.full(n, v) for v in (p.pore_density_mm2, p.pore_share, p.roughness, p.pore_radius_um)
+        )
+    else:
+        lab = full[
+            np.clip((centres[:, 1] / texel).astype(int), 0, shape[0] - 1),
+            np.clip((centres[:, 0] / texel).astype(int), 0, shape[1] - 1),
+        ]
+        dens, share, rough, radius = (
+            _lookup(per_region, g)[lab]
+            for g in (
+                lambda p: p.pore_density_mm2,
+                lambda p: p.pore_share,
+                lambda p: p.roughness,
+                lambda p: p.pore_radius_um,
+            )
+        )
+    keep = (thin * dmax < dens) & (share > 0)
+    radius = jitter[keep] * radius[keep]
+    # π λ d² = share · m², with π corrected for central differences at the pit's size in texels.
+    factor = np.interp(radius / texel, *_PIT_TABLE)
+    depth = rough[keep] * np.sqrt(share[keep] / (np.pi * factor * dens[keep] * 1e-6))
+    _render_pores(out, centres[keep], radius, depth, texel, a_inv, 0.0, 0.0)
+
+
+def _render_pores(out, centres, radii, depth, texel_um, a_inv, xs0, ys0):
+    """Subtract Gaussian pits (depth per pore) into ``out``; each pore touches a window of ±3.5 ρ (deformed)."""
+    h, w = out.shape
+    if centres.size == 0:
+        return
+    stretch = np.linalg.norm(np.linalg.inv(a_inv), 2)
+    half = int(np.ceil(3.5 * radii.max() * stretch / texel_um)) + 1
+    off = np.arange(-half, half + 1)
+    for start in range(0, len(centres), 2048):  # blocks of pores, vectorised within
+        c = centres[start : start + 2048] @ np.linalg.inv(a_inv).T  # deformed centres, µm
+        cc = np.floor((c[:, 0] - xs0) / texel_um).astype(int)
+        cr = np.floor((c[:, 1] - ys0) / texel_um).astype(int)
+        rr = cr[:, None, None] + off[None, :, None]
+        rr, ccc = np.broadcast_arrays(rr, cc[:, None, None] + off[None, None, :])
+        dx = xs0 + (ccc + 0.5) * texel_um - c[:, 0, None, None]
+        dy = ys0 + (rr + 0.5) * texel_um - c[:, 1, None, None]
+        ux = a_inv[0, 0] * dx + a_inv[0, 1] * dy
+        uy = a_inv[1, 0] * dx + a_inv[1, 1] * dy
+        rho = radii[start : start + 2048, None, None]
+        val = depth[start : start + 2048, None, None] * np.exp(-(ux * ux + uy * uy) / (2 * rho * rho))
+        ok = (rr >= 0) & (rr < h) & (ccc >= 0) & (ccc < w)
+        np.subtract.at(out, (rr[ok], ccc[ok]), val[ok])
+
+
+def procedural_microstructure(
+    shape, texel_um=15.0, *, params=None, region_map=None, seed=0, deformation=None, smooth_mm=0.5
+) -> np.ndarray:
+    """A seeded procedural skin microstructure displacement map (module docstring).
+
+    Parameters
+    ----------
+    shape : int or (int, int)
+        Map size in texels ``(height, width)``.
+    texel_um : float
+        µm of skin per texel (10-20 in Nagano et al. 2015's measurements).
+    params : SkinMicrostructure or dict of int to SkinMicrostructure, optional
+        One set of statistics, or statistics per region label (default ``REGION_DEFAULTS``).
+    region_map : ndarray of int, optional
+        Region labels over the same UV area (any resolution, resampled nearest); None: one region.
+    seed : int
+        Seed of the realisation.
+    deformation : array_like (2, 2), optional
+        Render the realisation deformed by A, h(A⁻¹ x) (x in µm from the map's corner).
+    smooth_mm : float
+        Width (Gaussian σ, mm) of the blend between regions.
+
+    Returns
+    -------
+    ndarray of float32, shape (height, width)
+        Heights in µm, indexed ``[v, u]``.
+    """
+    shape = (shape, shape) if np.ndim(shape) == 0 else tuple(shape)
+    shape = (check_integer(shape[0], "shape height", 2), check_integer(shape[1], "shape width", 2))
+    texel = float(as_finite(texel_um, "texel_um", 0.0, 1000.0, low_inclusive=False, unit="um"))
+    seed = check_integer(seed, "seed", 0)
+    a = np.eye(2) if deformation is None else as_finite(deformation, "deformation", dtype=np.float64)
+    if a.shape != (2, 2) or not np.linalg.det(a) > 0:
+        raise ValidationError(f"deformation must be a 2x2 matrix with a positive determinant, got {a.tolist()}")
+    a_inv = np.linalg.inv(a)
+    regions = _region_maps(shape, params, region_map)
+    per_region, full, _ = regions
+    smooth_px = float(smooth_mm) * 1000 / texel
+    xs, ys = (np.arange(shape[1]) + 0.5) * texel, (np.arange(shape[0]) + 0.5) * texel
+    rng = np.random.default_rng(seed)
+
+    def msq(getter):
+        return _weights(regions, lambda p: p.roughness**2 * getter(p), shape, smooth_px)
+
+    # Base roughness: isotropic waves, amplitude ∝ wavelength.
+    f, ph, lam = _waves(rng, N_WAVES, BASE_WAVELENGTH_UM, texel)
+    amp = lam / np.sqrt(_unit_msq(f, lam, texel))
+    out = np.sqrt(msq(lambda p: 1 - p.furrow_share - p.pore_share)) * _cosine_field(f @ a_inv, ph, amp, xs, ys)
+    # Furrows: four orientation families of ridged fields, blended towards each region's direction.
+    furrow_scale = np.sqrt(msq(lambda p: p.furrow_share))
+    norm = _weights(regions, lambda p: sum(_family_weight(p, k) ** 2 for k in range(4)), shape, smooth_px)
+    for k, fam in enumerate(FURROW_FAMILIES):  # four families
+        f, ph, lam = _waves(rng, N_WAVES, FURROW_WAVELENGTH_UM, texel, fam + np.pi / 2, FURROW_SPREAD)
+        amp = lam / np.sqrt(_unit_msq(f, lam, texel))
+        wk = _weights(regions, lambda p, k=k: _family_weight(p, k), shape, smooth_px)
+        if np.any(wk > 0):
+            ridged = _ridged(_cosine_field(f @ a_inv, ph, amp, xs, ys), amp, texel)
+            out += furrow_scale * wk / np.sqrt(np.maximum(norm, 1e-12)) * ridged
+    # Pores: Poisson pits at the largest density, thinned per region; depth from π λ d² = pore share · m².
+    _add_pores(out, rng, per_region, full, texel, a_inv)
+    return out.astype(np.float32)
+
+
+def subject_microstructure_parameters(subject, defaults=None) -> dict:
+    """Per-region :class:`SkinMicrostructure` of a store subject: roughness = its median Torrance-Sparrow m per region.
+
+    Parameters
+    ----------
+    subject : xarray.Dataset
+        A map subject of the store (``region`` and ``ts_m`` maps).
+    defaults : dict of int to SkinMicrostructure, optional
+        The other statistics per region (default ``REGION_DEFAULTS``).
+    """
+    if "region" not in subject or "ts_m" not in subject:
+        raise ValidationError(
+            f"subject must be a map subject with 'region' and 'ts_m', got variables {sorted(subject.data_vars)}"
+        )
+    region = np.asarray(subject["region"].values)
+    m = np.asarray(subject["ts_m"].values, np.float64)
+    ok = (region > 0) & np.isfinite(m)
+    if not ok.any():
+        raise ValidationError(f"subject {subject.attrs.get('subject_id', '?')!r} has no finite ts_m on the face")
+    face = float(np.median(m[ok]))
+    table = dict(REGION_DEFAULTS if defaults is None else defaults)
+    out = {}
+    for k, p in table.items():  # loop over the ten regions
+        sel = ok & (region == k)
+        out[k] = replace(p, roughness=float(np.median(m[sel])) if sel.any() else face)
+    return out
+
+
+def subject_microstructure(subject, shape, texel_um=15.0, *, seed=None, deformation=None) -> np.ndarray:
+    """:func:`procedural_microstructure` over a store subject's UV layout, per region from its parameters.
+
+    The subject's region map (upsampled) places the regions; the seed defaults
+    to one derived from the subject id, so a subject always gets the same skin.
+    """
+    import zlib
+
+    params = subject_microstructure_parameters(subject)
+    if seed is None:
+        seed = zlib.crc32(str(subject.attrs.get("subject_id", "")).encode())
+    region = np.asarray(subject["region"].values).astype(np.int64)
+    return procedural_microstructure(
+        shape, texel_um, params=params, region_map=region, seed=seed, deformation=deformation
+    )

@@ -1,0 +1,92 @@
+"""``facestats microstructure``: dynamic skin microstructure of mesh sequences (facestats.pipeline.microstructure)."""
+
+from __future__ import annotations
+
+__all__ = ["add_microstructure"]
+
+
+def _cmd_render(args) -> int:
+    from facestats.pipeline.microstructure import render_files
+
+    report = render_files(
+        args.neutral,
+        args.map,
+        args.out,
+        frames=args.frames,
+        targets=args.targets,
+        weights=args.weights,
+        scale=args.scale,
+        height_range_um=args.height_range_um,
+        map_shape=None if args.size is None else (args.size, args.size),
+        window=args.window,
+        table=args.table,
+        exr_dir=args.exr_dir,
+        tile=args.tile,
+        progress=not args.quiet,
+        overwrite=args.overwrite,
+    )
+    print(report.to_text())
+    return 0
+
+
+def _cmd_generate(args) -> int:
+    from facestats.pipeline.microstructure import generate_neutral_map
+
+    path = generate_neutral_map(
+        args.out, args.size, texel_um=args.texel_um, subject=args.subject, store=args.store, seed=args.seed
+    )
+    print(f"wrote {path}")
+    return 0
+
+
+def add_microstructure(sub):
+    p = sub.add_parser(
+        "microstructure",
+        help="dynamic skin microstructure: strain-driven displacement-map convolution (Nagano et al. 2015)",
+        description=(
+            "Blur skin microstructure along stretch and sharpen it along compression: per-frame displacement and "
+            "normal maps of a mesh sequence from a neutral displacement map (Nagano et al. 2015)."
+        ),
+    )
+    commands = p.add_subparsers(title="subcommands", metavar="SUBCOMMAND")
+    r = commands.add_parser(
+        "render",
+        help="render a sequence's deformed displacement and normal maps to zarr (and EXR); resumable",
+        description=(
+            "Read a neutral mesh with UVs (OBJ/PLY, or an ICT-FaceKit checkout) and its frames (one mesh per frame, "
+            "or blendshape targets with a CSV of per-frame weights), measure each frame's strain and convolve the "
+            "neutral displacement map accordingly. Rerunning with the same inputs continues an interrupted render."
+        ),
+    )
+    r.add_argument(
+        "--neutral", required=True, metavar="MESH", help="neutral mesh (OBJ/PLY with UVs) or ICT-FaceKit dir"
+    )
+    frames = r.add_mutually_exclusive_group(required=True)
+    frames.add_argument("--frames", nargs="+", metavar="MESH", help="one OBJ/PLY per frame, in order")
+    frames.add_argument("--weights", metavar="CSV", help="per-frame blendshape weights (header: target names)")
+    r.add_argument("--targets", nargs="+", metavar="MESH", help="blendshape target meshes (stems name the columns)")
+    r.add_argument("--map", required=True, metavar="IMAGE", help="neutral displacement map (EXR/PFM in um, PNG16/TIFF)")
+    r.add_argument("--height-range-um", type=float, help="um spanned by an integer map's code range")
+    r.add_argument("--out", required=True, metavar="ZARR", help="output zarr group")
+    r.add_argument("--exr-dir", metavar="DIR", help="also write per-frame EXR files here")
+    r.add_argument("--size", type=int, help="side of the whole UV map in texels (default: the map's)")
+    r.add_argument("--window", type=int, nargs=4, metavar=("ROW0", "COL0", "H", "W"), help="render part of the map")
+    r.add_argument("--table", default="forehead", help="kernel table (default: forehead, Nagano eq. 8-9)")
+    r.add_argument("--scale", type=float, default=1.0, help="mesh units to mm (e.g. 10 for cm)")
+    r.add_argument("--tile", type=int, default=512, help="tile side in texels (memory bound)")
+    r.add_argument("--overwrite", action="store_true", help="replace an output holding another render")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.set_defaults(func=_cmd_render)
+    g = commands.add_parser(
+        "generate",
+        help="write a procedural neutral microstructure map (EXR, um), per region from a store subject",
+        description="Pores and fine anisotropic furrows, seeded; with --subject, per region from its maps.",
+    )
+    g.add_argument("--out", required=True, metavar="EXR", help="output .exr file")
+    g.add_argument("--size", type=int, default=1024, help="map side in texels (default 1024)")
+    g.add_argument("--texel-um", type=float, default=15.0, help="um per texel (default 15)")
+    g.add_argument("--subject", help="store subject id (e.g. S001)")
+    g.add_argument("--store", help="store path (default: the embedded store)")
+    g.add_argument("--seed", type=int, help="seed (default: from the subject id)")
+    g.set_defaults(func=_cmd_generate)
+    p.set_defaults(func=lambda args: (p.print_help(), 0)[1])

@@ -1,0 +1,92 @@
+"""Displacement (height) maps as files: user-supplied neutral microstructure maps and rendered frames.
+
+Nagano et al. 2015 §5: the neutral microstructure map "can come from any
+source".  :func:`read_displacement` reads one through :mod:`facestats.io.images`:
+
+* float files (``.exr``, ``.pfm``, ``.hdr``): heights as stored, in µm, unless
+  an EXR carries a ``units`` attribute of ``mm`` or ``m`` (converted);
+* integer files (16-bit ``.png``, ``.tif``/``.tiff``; 8-bit accepted): codes
+  scaled to [0, 1] by :func:`facestats.io.images.read_image`, then mapped to
+  ``(value − midpoint) · height_range_um`` — the range must be given, an integer
+  image carries no unit.
+
+A map must have one channel (or identical R, G, B); it is returned as float32
+``[v, u]`` (row 0 at the top, the image convention facestats' UV maps share).
+:func:`write_displacement` writes a map to EXR with ``units = um``.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+
+import numpy as np
+
+from facestats.errors import FormatError, ValidationError
+from facestats.io.images import INTEGER_EXTENSIONS, read_exr, read_image, write_exr
+
+__all__ = ["read_displacement", "write_displacement"]
+
+_UNITS_TO_UM = {"um": 1.0, "µm": 1.0, "micron": 1.0, "mm": 1000.0, "m": 1e6}
+
+
+def _one_channel(img, path):
+    if img.ndim == 3 and img.shape[2] > 1:
+        if not np.allclose(img[..., 1:3], img[..., :1]):
+            raise FormatError(f"displacement map {path} must have one channel (or equal R, G, B), got {img.shape[2]}")
+    return img[..., 0] if img.ndim == 3 else img
+
+
+def read_displacement(path, *, height_range_um=None, midpoint=0.5) -> np.ndarray:
+    """A displacement map in µm from an EXR/PFM/HDR or 8/16-bit PNG/TIFF file (module docstring).
+
+    Parameters
+    ----------
+    path : path-like
+    height_range_um : float, optional
+        Integer files: µm spanned by the code range 0 … max (required for them).
+    midpoint : float
+        Integer files: the code fraction that means height 0.
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W)
+    """
+    p = pathlib.Path(os.fspath(path))
+    ext = p.suffix.lower()
+    if ext in INTEGER_EXTENSIONS:
+        if height_range_um is None:
+            raise ValidationError(
+                f"height_range_um must be given for the integer image {str(p)!r} (its codes carry no unit), got None"
+            )
+        rng = float(height_range_um)
+        if not (np.isfinite(rng) and rng > 0):
+            raise ValidationError(f"height_range_um must be > 0, got {height_range_um!r}")
+        h = (_one_channel(read_image(p), p) - np.float32(midpoint)) * np.float32(rng)
+    else:
+        factor = 1.0
+        if ext == ".exr":
+            _, attrs = read_exr(p)
+            unit = attrs.get("units", "um").strip().lower()
+            if unit not in _UNITS_TO_UM:
+                raise FormatError(
+                    f"displacement map {str(p)!r} has units {unit!r}; expected one of {sorted(_UNITS_TO_UM)}"
+                )
+            factor = _UNITS_TO_UM[unit]
+        h = _one_channel(read_image(p), p) * np.float32(factor)
+    if not np.all(np.isfinite(h)):
+        raise FormatError(
+            f"displacement map {str(p)!r} must be finite, got {int(np.sum(~np.isfinite(h)))} NaN/inf texels"
+        )
+    return np.ascontiguousarray(h, np.float32)
+
+
+def write_displacement(path, displacement, *, attributes=None):
+    """Write a displacement map (µm) to an EXR file (single channel ``Y``, ``units = um``)."""
+    p = pathlib.Path(os.fspath(path))
+    if p.suffix.lower() != ".exr":
+        raise ValidationError(f"path must end in .exr, got {str(p)!r}")
+    d = np.asarray(displacement, np.float32)
+    if d.ndim != 2:
+        raise ValidationError(f"displacement must be a 2-D map, got shape {d.shape}")
+    return write_exr(p, {"Y": d}, attributes={"units": "um", **(attributes or {})})

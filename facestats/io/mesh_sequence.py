@@ -1,0 +1,363 @@
+"""Animated meshes with texture coordinates: OBJ/PLY frames and blendshape targets with per-frame weights.
+
+A sequence is a neutral (rest) :class:`UVMesh` plus, for every frame, new
+vertex positions on the same topology.  Two kinds:
+
+* :class:`FrameSequence` — one OBJ or PLY file per frame (read when the frame
+  is asked for, so long sequences stream);
+* :class:`BlendshapeSequence` — blendshape targets (full meshes on the neutral's
+  topology, e.g. the ICT-FaceKit expressions of :mod:`facestats.io.ict_facekit`)
+  and a weight per target and frame (:func:`read_weights`): frame = neutral +
+  Σ_k w_k (target_k − neutral).
+
+OBJ files are read by :func:`read_obj`, which keeps the per-corner texture
+indices (``f v/vt``) so that UV seams stay seams (trimesh would split the
+vertices and renumber them); PLY files through trimesh with per-vertex UVs.
+Conventions: positions in mm (``scale`` converts, e.g. 10 for cm), the world
+frame of facestats (pass ``transform``), UV with v down (files store v up, so v
+is flipped unless ``flip_v=False``).  Every frame must have the neutral's vertex
+count and, where the file holds faces, the same faces; otherwise a
+:class:`~facestats.errors.FormatError` names the file and what differs.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from facestats.core.validate import as_finite, check_shape
+from facestats.errors import FormatError, ValidationError
+from facestats.model.strain import triangulate
+
+__all__ = [
+    "UVMesh",
+    "read_obj",
+    "read_mesh",
+    "read_vertices",
+    "FrameSequence",
+    "BlendshapeSequence",
+    "read_weights",
+]
+
+
+@dataclass
+class UVMesh:
+    """A triangle mesh with per-corner texture coordinates.
+
+    Attributes
+    ----------
+    vertices : ndarray, shape (V, 3)
+        Positions, mm.
+    triangles : ndarray of int, shape (F, 3)
+        Vertex indices (polygons of the file split into triangles).
+    uv : ndarray, shape (T, 2) or None
+        Texture coordinates in [0, 1], u right, v down.
+    uv_triangles : ndarray of int, shape (F, 3) or None
+        Index into ``uv`` of every corner.
+    polygon : ndarray of int, shape (F,)
+        Index of the file's polygon each triangle comes from.
+    name : str
+    """
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    uv: np.ndarray | None
+    uv_triangles: np.ndarray | None
+    polygon: np.ndarray
+    name: str = "mesh"
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def n_vertices(self) -> int:
+        return int(len(self.vertices))
+
+    def require_uv(self):
+        """Raise unless the mesh has texture coordinates."""
+        if self.uv is None or self.uv_triangles is None:
+            raise FormatError(f"mesh {self.name!r} has no texture coordinates (OBJ 'vt' or PLY s/t, u/v), got none")
+        return self
+
+
+def _place(vertices, scale, transform, name):
+    if not float(scale) > 0:
+        raise ValidationError(f"scale must be > 0, got {scale!r}")
+    v = np.asarray(vertices, np.float64) * float(scale)
+    if transform is not None:
+        t = np.asarray(transform, np.float64)
+        if t.shape != (4, 4):
+            raise ValidationError(f"transform must be a 4x4 matrix, got shape {t.shape}")
+        v = v @ t[:3, :3].T + t[:3, 3]
+    if not np.all(np.isfinite(v)):
+        bad = int(np.nonzero(~np.all(np.isfinite(v), axis=1))[0][0])
+        raise FormatError(f"vertices of {name} must be finite, got {v[bad].tolist()} at vertex {bad}")
+    return v
+
+
+def _fan(corners):
+    """Triangles (fan from the first corner) of one polygon's corner list."""
+    return [(corners[0], corners[k], corners[k + 1]) for k in range(1, len(corners) - 1)]
+
+
+def _parse_faces(face_lines, n_v, n_vt, name):
+    """Vertex and texture indices of the 'f' lines, fan-triangulated: (tri (F,3), uv_tri (F,3) or None, polygon)."""
+    tris, uv_tris, poly = [], [], []
+    has_vt = None
+    for k, line in enumerate(face_lines):  # loop over polygons: OBJ face syntax is per token
+        toks = [t.split("/") for t in line.split()[1:]]
+        if len(toks) < 3:
+            raise FormatError(f"{name}: face {k} must have at least 3 corners, got {line.strip()!r}")
+        vi = [int(t[0]) for t in toks]
+        ti = [int(t[1]) if len(t) > 1 and t[1] else None for t in toks]
+        this_vt = all(t is not None for t in ti)
+        has_vt = this_vt if has_vt is None else (has_vt and this_vt)
+        vi = [i - 1 if i > 0 else n_v + i for i in vi]  # OBJ is 1-based; negative = relative
+        for tri in _fan(vi):
+            tris.append(tri)
+            poly.append(k)
+        if this_vt:
+            ti = [i - 1 if i > 0 else n_vt + i for i in ti]
+            uv_tris.extend(_fan(ti))
+    tri = np.asarray(tris, np.int64).reshape(-1, 3)
+    uv_tri = np.asarray(uv_tris, np.int64).reshape(-1, 3) if has_vt else None
+    return tri, uv_tri, np.asarray(poly, np.int64)
+
+
+def _numbers(lines, width, name, what):
+    """The first ``width`` numbers after the keyword of each line, (n, width) float64."""
+    rest = [ln.split(None, 1)[1] if " " in ln.strip() else "" for ln in lines]
+    counts = {len(r.split()) for r in rest[:1000]}
+    n = counts.pop() if len(counts) == 1 else None
+    try:
+        if n is not None and n >= width:
+            return np.array(" ".join(rest).split(), dtype=np.float64).reshape(len(rest), n)[:, :width]
+        return np.array([r.split()[:width] for r in rest], dtype=np.float64)
+    except ValueError as exc:
+        raise FormatError(f"{name}: cannot read the {what} lines: {exc}") from None
+
+
+def read_obj(path, *, scale=1.0, transform=None, flip_v=True, faces=True) -> UVMesh:
+    """Read a Wavefront OBJ with its per-corner texture coordinates.
+
+    Parameters
+    ----------
+    path : str or path-like
+    scale : float
+        Factor to mm (e.g. 10 for cm).
+    transform : array_like (4, 4), optional
+        Rigid transform applied after scaling.
+    flip_v : bool
+        Flip v (OBJ stores v up; facestats has v down).
+    faces : bool
+        False reads only the vertices (a blendshape target or frame; faces are then not checked).
+
+    Returns
+    -------
+    UVMesh
+        Polygons fan-triangulated (quads into two triangles); ``uv`` None when
+        the file has no ``vt`` or a face lacks texture indices.
+    """
+    name = os.fspath(path)
+    try:
+        with open(name, encoding="utf-8", errors="replace") as f:
+            lines = f.read().splitlines()
+    except OSError as exc:
+        raise FormatError(f"cannot read the mesh {name}: {exc}") from None
+    v_lines = [ln for ln in lines if ln.startswith("v ")]
+    if not v_lines:
+        raise FormatError(f"{name} holds no vertices ('v' lines)")
+    verts = _place(_numbers(v_lines, 3, name, "v"), scale, transform, name)
+    if not faces:
+        empty = np.zeros((0, 3), np.int64)
+        return UVMesh(verts, empty, None, None, np.zeros(0, np.int64), name=os.path.basename(name))
+    vt_lines = [ln for ln in lines if ln.startswith("vt ")]
+    uv = _numbers(vt_lines, 2, name, "vt") if vt_lines else None
+    tri, uv_tri, poly = _parse_faces([ln for ln in lines if ln.startswith("f ")], len(verts), len(vt_lines), name)
+    if tri.size and (tri.min() < 0 or tri.max() >= len(verts)):
+        raise FormatError(f"{name}: faces must index the {len(verts)} vertices, got {tri.min() + 1}..{tri.max() + 1}")
+    if uv is not None and uv_tri is not None:
+        if uv_tri.size and (uv_tri.min() < 0 or uv_tri.max() >= len(uv)):
+            raise FormatError(f"{name}: faces must index the {len(uv)} texture coordinates")
+        uv = uv.copy()
+        if flip_v:
+            uv[:, 1] = 1 - uv[:, 1]
+        if not np.all(np.isfinite(uv)):
+            raise FormatError(f"{name}: texture coordinates must be finite")
+    else:
+        uv, uv_tri = None, None
+    return UVMesh(verts, tri, uv, uv_tri, poly, name=os.path.basename(name))
+
+
+def _read_ply(path, scale, transform, flip_v) -> UVMesh:
+    import trimesh
+
+    name = os.fspath(path)
+    try:
+        mesh = trimesh.load(name, force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many types for unreadable files
+        raise FormatError(f"cannot read the mesh {name}: {exc}") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.vertices) == 0:
+        raise FormatError(f"{name} holds no mesh")
+    uv = getattr(mesh.visual, "uv", None)
+    if uv is None and "ply_raw" in mesh.metadata:
+        props = mesh.metadata["ply_raw"]["vertex"]["data"]
+        names = props.dtype.names or ()
+        for a, b in (("s", "t"), ("u", "v"), ("texture_u", "texture_v")):
+            if a in names and b in names:
+                uv = np.stack([props[a], props[b]], 1)
+                break
+    tri, poly = triangulate(np.asarray(mesh.faces, np.int64).reshape(-1, 3))
+    verts = _place(mesh.vertices, scale, transform, name)
+    if uv is not None:
+        uv = np.asarray(uv, np.float64).copy()
+        if flip_v:
+            uv[:, 1] = 1 - uv[:, 1]
+    return UVMesh(verts, tri, uv, None if uv is None else tri, poly, name=os.path.basename(name))
+
+
+def read_mesh(path, *, scale=1.0, transform=None, flip_v=True) -> UVMesh:
+    """Read an OBJ (:func:`read_obj`) or PLY (through trimesh, per-vertex UVs) mesh."""
+    ext = os.path.splitext(os.fspath(path))[1].lower()
+    if ext == ".obj":
+        return read_obj(path, scale=scale, transform=transform, flip_v=flip_v)
+    if ext == ".ply":
+        return _read_ply(path, scale, transform, flip_v)
+    raise FormatError(f"mesh file must be .obj or .ply, got {os.fspath(path)!r}")
+
+
+def read_vertices(path, neutral: UVMesh, *, scale=1.0, transform=None) -> np.ndarray:
+    """The vertex positions of a frame or target file, checked against the neutral's topology.
+
+    Raises
+    ------
+    FormatError
+        If the vertex count differs, or the file's faces differ from the neutral's.
+    """
+    name = os.fspath(path)
+    ext = os.path.splitext(name)[1].lower()
+    mesh = (
+        read_obj(path, scale=scale, transform=transform, flip_v=False)
+        if ext == ".obj"
+        else read_mesh(path, scale=scale, transform=transform, flip_v=False)
+    )
+    if mesh.n_vertices != neutral.n_vertices:
+        raise FormatError(
+            f"{name}: topology differs from the neutral {neutral.name!r}: "
+            f"{mesh.n_vertices} vertices, expected {neutral.n_vertices}"
+        )
+    if len(mesh.triangles) and not np.array_equal(mesh.triangles, neutral.triangles):
+        n_diff = (
+            int(np.sum(np.any(mesh.triangles != neutral.triangles, axis=1)))
+            if mesh.triangles.shape == neutral.triangles.shape
+            else f"{len(mesh.triangles)} vs {len(neutral.triangles)} triangles"
+        )
+        raise FormatError(f"{name}: topology differs from the neutral {neutral.name!r}: faces differ ({n_diff})")
+    return mesh.vertices
+
+
+class FrameSequence:
+    """Frames read from one OBJ/PLY file each, on the topology of a neutral mesh.
+
+    Parameters
+    ----------
+    neutral : UVMesh
+        The rest mesh (with UVs).
+    paths : sequence of path-like
+        One file per frame, in order.
+    scale, transform
+        As for :func:`read_obj` (applied to every frame).
+    """
+
+    def __init__(self, neutral: UVMesh, paths, *, scale=1.0, transform=None):
+        self.neutral = neutral.require_uv()
+        self.paths = [os.fspath(p) for p in paths]
+        if not self.paths:
+            raise ValidationError("paths must name at least one frame file, got none")
+        missing = [p for p in self.paths if not os.path.isfile(p)]
+        if missing:
+            raise ValidationError(f"paths must name existing frame files, got missing {missing[0]!r}")
+        self.scale, self.transform = scale, transform
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def frame(self, index: int) -> np.ndarray:
+        """Vertex positions of frame ``index`` (mm)."""
+        return read_vertices(self.paths[index], self.neutral, scale=self.scale, transform=self.transform)
+
+    def frame_names(self) -> list[str]:
+        return [os.path.basename(p) for p in self.paths]
+
+
+class BlendshapeSequence:
+    """Frames as the neutral plus weighted blendshape deltas.
+
+    Parameters
+    ----------
+    neutral : UVMesh
+    targets : dict of str to ndarray (V, 3)
+        Target positions (mm) by name, on the neutral's topology.
+    weights : array_like, shape (n_frames, n_targets)
+        Weight of each target (columns in the order of ``names``) in each frame.
+    names : sequence of str, optional
+        Target names of the weight columns (default: the order of ``targets``).
+    """
+
+    def __init__(self, neutral: UVMesh, targets: dict, weights, names=None):
+        self.neutral = neutral.require_uv()
+        self.names = list(targets) if names is None else list(names)
+        unknown = [n for n in self.names if n not in targets]
+        if unknown:
+            raise ValidationError(f"names must be targets {sorted(targets)}, got unknown {unknown}")
+        for n in self.names:
+            t = np.asarray(targets[n])
+            if t.shape != neutral.vertices.shape:
+                raise FormatError(
+                    f"target {n!r}: topology differs from the neutral: shape {t.shape}, "
+                    f"expected {neutral.vertices.shape}"
+                )
+        self.deltas = np.stack([np.asarray(targets[n], np.float64) - neutral.vertices for n in self.names])
+        w = as_finite(weights, "weights", dtype=np.float64)
+        if w.ndim == 1 and len(self.names) == 1:
+            w = w[:, None]
+        self.weights = check_shape(w, "weights", (None, len(self.names)))
+
+    def __len__(self) -> int:
+        return int(self.weights.shape[0])
+
+    def frame(self, index: int) -> np.ndarray:
+        """Vertex positions of frame ``index``: neutral + Σ_k w_k Δ_k (mm)."""
+        return self.neutral.vertices + np.tensordot(self.weights[index], self.deltas, axes=1)
+
+    def frame_names(self) -> list[str]:
+        return [f"frame{i:05d}" for i in range(len(self))]
+
+
+def read_weights(path) -> tuple[list[str], np.ndarray]:
+    """Per-frame blendshape weights from a CSV file: a header of target names, one row per frame.
+
+    A first column named ``frame`` (frame numbers) is ignored.
+
+    Returns
+    -------
+    names : list of str
+    weights : ndarray, shape (n_frames, n_targets)
+    """
+    import pandas as pd
+
+    try:
+        table = pd.read_csv(os.fspath(path))
+    except (OSError, ValueError) as exc:
+        raise FormatError(f"cannot read the weights {os.fspath(path)}: {exc}") from None
+    if table.columns[0].strip().lower() == "frame":
+        table = table.iloc[:, 1:]
+    if table.shape[1] == 0 or table.shape[0] == 0:
+        raise FormatError(f"weights {os.fspath(path)} must have a header of target names and one row per frame")
+    try:
+        w = table.to_numpy(np.float64)
+    except ValueError as exc:
+        raise FormatError(f"weights {os.fspath(path)} must be numbers: {exc}") from None
+    if not np.all(np.isfinite(w)):
+        raise FormatError(f"weights {os.fspath(path)} must be finite numbers, got NaN or empty cells")
+    return [str(c).strip() for c in table.columns], w

@@ -1,0 +1,182 @@
+"""Spatially varying two-pass convolution of a displacement map (Nagano et al. 2015 eq. 1-5).
+
+Nagano et al. 2015 §5 "Deformation Model": the deformed microdisplacement map
+is ``D' = D * K_{u,v}`` (eq. 1-2), approximated by two spatially varying 1-D
+passes, first along the per-texel axis s (eq. 5: ``D^s = D *[s] k^s``), then
+along t (eq. 4: ``D' = D^s *[t] k^t``), where ``*[a]`` samples ``D(u − i a_u,
+v − i a_v)`` (eq. 3) and ``k = (1 − α) δ + α G(σ)`` (eq. 6, see
+:mod:`~facestats.model.microstructure.kernel`).  The kernel of each texel is
+the one of the output texel (a gather).
+
+Conventions: ``displacement`` is indexed ``[v, u]`` (u indexes columns), heights
+in µm (any unit works: the filter is linear); axes are unit vectors ``(a_u,
+a_v)`` in texel units (u right, v down), t ⟂ s unless given; σ in µm of skin,
+converted to texels by ``texel_um`` (µm per texel along each axis: a scalar,
+(H, W), a pair ``(s, t)`` or (H, W, 2)).  Taps are bilinear samples at 1-texel
+spacing.  Borders: taps stop at the first one whose footprint leaves the map or
+the texel's UV island (``islands``; island 0 = gutter, copied unchanged) and the
+Gaussian is renormalised over the taps used, so nothing is read across a gutter
+or from outside the map.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from facestats.core.validate import as_finite, as_float
+from facestats.errors import ValidationError
+from facestats.model.microstructure.compiled import convolve_pass, resolve_backend
+from facestats.model.microstructure.kernel import ALPHA_RANGE, SIGMA_RANGE_UM, TRUNCATE
+
+__all__ = ["convolve_displacement", "island_reach"]
+
+
+def _bounded(arr, name, low=None, high=None, unit=""):
+    """Check finiteness and range by a min and a max (no temporaries the size of a 4K map).
+
+    Only when the check fails is the array handed to :func:`facestats.core.validate.as_finite`,
+    which raises the standard message naming the argument and the offending value.
+    """
+    if arr.size:
+        lo, hi = float(np.min(arr)), float(np.max(arr))  # NaN propagates through min and max
+        ok = np.isfinite(lo) and np.isfinite(hi)
+        ok = ok and (low is None or lo >= low) and (high is None or hi <= high)
+        if not ok:
+            as_finite(arr, name, low, high, unit=unit)
+    return arr
+
+
+def _map(displacement):
+    d = np.asarray(displacement)
+    if d.dtype not in (np.float32, np.float64):
+        raise ValidationError(f"displacement must be a float32 or float64 map, got dtype {d.dtype}")
+    if d.ndim != 2 or min(d.shape) < 1:
+        raise ValidationError(f"displacement must be a 2-D map (v, u), got shape {d.shape}")
+    return _bounded(d, "displacement")
+
+
+def _field(value, name, shape, bounds, unit=""):
+    """A per-texel float32 parameter (a broadcast view for scalars), validated against ``bounds``."""
+    arr = as_float(value, name)
+    if arr.ndim not in (0, 2) or (arr.ndim == 2 and arr.shape != shape):
+        raise ValidationError(f"{name} must be a scalar or a map of shape {shape}, got shape {arr.shape}")
+    arr = _bounded(arr, name, *bounds, unit=unit)
+    return np.broadcast_to(arr.astype(np.float32, copy=False), shape)
+
+
+def _axes(axis_s, axis_t, shape):
+    """Unit s and t axes as (au, av) float32 pairs of (H, W) views."""
+
+    def unit(a, name):
+        a = _bounded(as_float(a, name, np.float32), name)
+        if a.shape not in ((2,), shape + (2,)):
+            raise ValidationError(f"{name} must have shape (2,) or {shape + (2,)}, got {a.shape}")
+        au, av = a[..., 0], a[..., 1]
+        n2 = au * au + av * av
+        lo, hi = float(np.min(n2)), float(np.max(n2))
+        if lo < 1 - 2e-3 or hi > 1 + 2e-3:  # |norm - 1| > 1e-3
+            bad = lo if lo < 1 - 2e-3 else hi
+            raise ValidationError(f"{name} must hold unit vectors (norm 1 ± 1e-3), got norm {np.sqrt(bad):.6g}")
+        if lo < 1 - 1e-6 or hi > 1 + 1e-6:  # renormalise what float32 rounding cannot explain
+            n = np.sqrt(n2)
+            au, av = au / n, av / n
+        return np.broadcast_to(au, shape), np.broadcast_to(av, shape)
+
+    su, sv = unit(axis_s, "axis_s")
+    if axis_t is None:
+        return (su, sv), (-sv, su)  # t = s rotated by 90 degrees
+    return (su, sv), unit(axis_t, "axis_t")
+
+
+def _texel_sizes(texel_um, shape):
+    t = as_float(texel_um, "texel_um")
+    t = _bounded(t, "texel_um")
+    if t.shape in ((), shape):
+        pair = (t, t)
+    elif t.shape in ((2,), shape + (2,)):
+        pair = (t[..., 0], t[..., 1])
+    else:
+        raise ValidationError(f"texel_um must be a scalar, (2,), {shape} or {shape + (2,)}, got shape {t.shape}")
+    if t.size and float(np.min(t)) <= 0:
+        raise ValidationError(f"texel_um must be > 0 um, got {float(np.min(t))!r}")
+    return tuple(np.broadcast_to(p.astype(np.float32, copy=False), shape) for p in pair)
+
+
+def island_reach(islands) -> np.ndarray:
+    """Distance (texels, float32) from each texel to the nearest texel with another island in its 3 × 3 block.
+
+    Texels next to the map border count as next to another island.  A texel whose
+    reach exceeds R + 3 has every bilinear corner of its taps up to R texels away
+    inside its own island, so the compiled pass skips the per-tap checks there.
+    """
+    from scipy.ndimage import distance_transform_edt, maximum_filter, minimum_filter
+
+    lab = np.pad(np.asarray(islands, np.int64), 1, constant_values=-1)
+    boundary = (maximum_filter(lab, 3) != lab) | (minimum_filter(lab, 3) != lab)
+    return distance_transform_edt(~boundary)[1:-1, 1:-1].astype(np.float32)
+
+
+def _islands(islands, shape):
+    if islands is None:
+        return None, None
+    lab = np.asarray(islands)
+    if lab.shape != shape or lab.dtype.kind not in "iub":
+        raise ValidationError(f"islands must be an integer map of shape {shape}, got {lab.dtype} {lab.shape}")
+    lab = lab.astype(np.int32)
+    return lab, island_reach(lab)
+
+
+def convolve_displacement(
+    displacement,
+    axis_s,
+    alpha_s,
+    sigma_s,
+    alpha_t,
+    sigma_t,
+    texel_um,
+    *,
+    axis_t=None,
+    islands=None,
+    backend="auto",
+):
+    """Convolve a displacement map along per-texel strain axes (Nagano et al. 2015 eq. 1-6).
+
+    Parameters
+    ----------
+    displacement : ndarray, shape (H, W), float32 or float64
+        Neutral displacement map D, indexed ``[v, u]``.
+    axis_s : array_like, shape (2,) or (H, W, 2)
+        Unit direction ``(a_u, a_v)`` of the first pass (the stretch axis), texel units.
+    alpha_s, sigma_s : float or ndarray (H, W)
+        Kernel k^s: strength α ∈ [−2, 1] and Gaussian σ ∈ [1, 100] µm.
+    alpha_t, sigma_t : float or ndarray (H, W)
+        Kernel k^t of the second pass, along t.
+    texel_um : float or ndarray
+        µm of skin per texel step: scalar or (H, W) for both axes, (2,) or
+        (H, W, 2) for the s and t axes separately.
+    axis_t : array_like, optional
+        Direction of the second pass; default s rotated by 90° (t ⟂ s).
+    islands : ndarray of int, shape (H, W), optional
+        UV island of each texel (0 = gutter, left unchanged); taps never leave their island.
+    backend : {"auto", "numba", "numpy"}
+        Compiled kernel (default when numba is installed) or the pure-numpy fallback.
+
+    Returns
+    -------
+    ndarray, shape (H, W), dtype of ``displacement``
+        The deformed displacement map D'.
+    """
+    d = _map(displacement)
+    shape = d.shape
+    backend = resolve_backend(backend)
+    (su, sv), (tu, tv) = _axes(axis_s, axis_t, shape)
+    a_s, a_t = _field(alpha_s, "alpha_s", shape, ALPHA_RANGE), _field(alpha_t, "alpha_t", shape, ALPHA_RANGE)
+    s_s = _field(sigma_s, "sigma_s", shape, SIGMA_RANGE_UM, "um")
+    s_t = _field(sigma_t, "sigma_t", shape, SIGMA_RANGE_UM, "um")
+    px_s, px_t = _texel_sizes(texel_um, shape)
+    lab, reach = _islands(islands, shape)
+    d_s = np.empty_like(d)
+    convolve_pass(d, d_s, su, sv, a_s, s_s, px_s, lab, reach, truncate=TRUNCATE, backend=backend)  # eq. 5
+    out = np.empty_like(d)
+    convolve_pass(d_s, out, tu, tv, a_t, s_t, px_t, lab, reach, truncate=TRUNCATE, backend=backend)  # eq. 4
+    return out

@@ -1,0 +1,114 @@
+"""The kernel family of displacement-map convolution: k = (1 − α) δ + α G(σ) (Nagano et al. 2015 eq. 6).
+
+Nagano, Fyffe, Alexander, Barbič, Li, Ghosh, Debevec 2015, *Skin Microstructure
+Deformation with Displacement Map Convolution*, §5 "Deformation Model": a
+two-parameter family of 1-D kernels from sharpening (α < 0) through the
+identity (α = 0) to blurring (α > 0), −2 ≤ α ≤ 1, with G the normalised
+discrete Gaussian of standard deviation σ.
+
+Discretisation pinned down here (the paper leaves it open):
+
+* σ is given in µm of skin and becomes texels through the texel size:
+  ``σ_px = σ_µm / texel_µm``.
+* Taps at integer steps i = −R … R along the axis (1-texel spacing), with
+  ``R = ceil(TRUNCATE · σ_px)``, TRUNCATE = 3; ``G_i = exp(−i² / (2 σ_px²)) /
+  Σ_j exp(−j² / (2 σ_px²))`` (renormalised after truncation), so Σ k = 1 for
+  every α and α = 0 is the identity exactly.  σ_px = 0 gives G = δ.
+* Frequency response (real, the kernel is symmetric): ``K(ω) = 1 − α + α Ĝ(ω)``
+  with ``Ĝ(ω) = Σ_i G_i cos(ω i)``, Ĝ(0) = 1.  The truncated Gaussian's Ĝ dips
+  slightly below 0 (measured with :func:`frequency_response`: minimum −1.35e-3
+  over σ_px ∈ [0.1, 150]; GAUSSIAN_RESPONSE_FLOOR = 2e-3 bounds it), so blurring kernels
+  (0 ≤ α ≤ 1) satisfy ``1 − α − α·floor ≤ K(ω) ≤ 1`` and sharpening ones
+  (α < 0) ``1 ≤ K(ω) ≤ 1 − α (1 + floor)``: blurs never amplify and sharpening
+  gains at most 1 + |α|.
+* For 0 ≤ α ≤ 1 every tap is ≥ 0 and they sum to 1: the output lies between the
+  minimum and maximum of the input (maximum principle); sharpening kernels have
+  negative side taps and can overshoot.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from facestats.core.validate import as_finite
+from facestats.errors import ValidationError
+
+__all__ = [
+    "ALPHA_RANGE",
+    "SIGMA_RANGE_UM",
+    "TRUNCATE",
+    "GAUSSIAN_RESPONSE_FLOOR",
+    "kernel_radius",
+    "gaussian_taps",
+    "kernel_taps",
+    "frequency_response",
+    "check_alpha",
+    "check_sigma",
+]
+
+#: Filter strength range of eq. 6 (−2 sharpest, 0 identity, 1 pure Gaussian).
+ALPHA_RANGE = (-2.0, 1.0)
+#: Gaussian standard deviations searched by the paper's fit (§5 "Parameter Fitting"), µm.
+SIGMA_RANGE_UM = (1.0, 100.0)
+#: The Gaussian is truncated at TRUNCATE standard deviations (then renormalised).
+TRUNCATE = 3.0
+#: Bound of how far below 0 the truncated, renormalised Gaussian's response dips (see module docstring).
+GAUSSIAN_RESPONSE_FLOOR = 2e-3
+
+
+def check_alpha(alpha, name="alpha") -> np.ndarray:
+    """α as a finite float array in [−2, 1] (eq. 6), else a ValidationError naming ``name``."""
+    return as_finite(alpha, name, *ALPHA_RANGE)
+
+
+def check_sigma(sigma_um, name="sigma") -> np.ndarray:
+    """σ as a finite float array in [1, 100] µm (the fitted range of §5), else a ValidationError."""
+    return as_finite(sigma_um, name, *SIGMA_RANGE_UM, unit="um")
+
+
+def kernel_radius(sigma_px) -> np.ndarray:
+    """Half-width R = ceil(TRUNCATE · σ_px) of the discrete Gaussian, in taps (int)."""
+    return np.ceil(TRUNCATE * np.asarray(sigma_px, np.float64)).astype(np.int64)
+
+
+def gaussian_taps(sigma_px: float) -> np.ndarray:
+    """The truncated, renormalised discrete Gaussian G (eq. 6) of ``sigma_px`` texels, taps −R … R."""
+    s = float(sigma_px)
+    if not (math.isfinite(s) and s >= 0):
+        raise ValidationError(f"sigma_px must be finite and >= 0, got {sigma_px!r}")
+    if s == 0:
+        return np.ones(1)
+    r = int(kernel_radius(s))
+    i = np.arange(-r, r + 1, dtype=np.float64)
+    g = np.exp(-(i * i) / (2 * s * s))
+    return g / g.sum()
+
+
+def kernel_taps(alpha: float, sigma_um: float, texel_um: float) -> np.ndarray:
+    """The 1-D kernel k = (1 − α) δ + α G(σ) of eq. 6, taps −R … R (they sum to 1).
+
+    Parameters
+    ----------
+    alpha : float
+        Filter strength, −2 ≤ α ≤ 1 (< 0 sharpens, 0 identity, > 0 blurs).
+    sigma_um : float
+        Gaussian standard deviation, µm of skin (any value ≥ 0 here; the
+        fitting range [1, 100] µm is enforced by the map-level functions).
+    texel_um : float
+        Texel size along the kernel's axis, µm.
+    """
+    a = float(check_alpha(alpha))
+    s = float(as_finite(sigma_um, "sigma_um", 0.0, unit="um"))
+    t = float(as_finite(texel_um, "texel_um", 0.0, low_inclusive=False, unit="um"))
+    k = a * gaussian_taps(s / t)
+    k[len(k) // 2] += 1.0 - a
+    return k
+
+
+def frequency_response(taps, omega) -> np.ndarray:
+    """Real frequency response Σ_i k_i cos(ω i) of a symmetric kernel (taps −R … R), ω in rad/texel."""
+    k = np.asarray(taps, np.float64)
+    i = np.arange(len(k)) - len(k) // 2
+    return np.cos(np.multiply.outer(np.asarray(omega, np.float64), i)) @ k

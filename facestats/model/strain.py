@@ -1,0 +1,598 @@
+"""Principal stretches and strain axes of a deforming triangle mesh, in texture space (Nagano et al. 2015 §5).
+
+Nagano, Fyffe, Alexander, Barbič, Li, Ghosh, Debevec 2015, *Skin Microstructure
+Deformation with Displacement Map Convolution*, §5 "Applying to a Novel Surface
+Animation", eq. 10-13:
+
+1. Per triangle, Q (2 × 3) is the affine map from world to UV coordinates and
+   R (2 × 3) the closest rotation to it, truncated to its first two rows (the
+   tangent frame).  R is the polar factor of Q: the 3 × 3 matrix
+   ``[q1; q2; q1 × q2]`` has ``A Aᵀ = diag(Q Qᵀ, |q1 × q2|²)`` and a positive
+   determinant, so its closest rotation is ``[(Q Qᵀ)^(-1/2) Q; n̂]`` and
+   ``R = (Q Qᵀ)^(-1/2) Q`` in closed form (no 3 × 3 SVD).  ``M = Q Rᵀ =
+   (Q Qᵀ)^(1/2)`` is the symmetric positive definite map from tangent
+   coordinates (mm) to UV.
+2. T (2 × 2) maps the rest triangle's tangent-frame edges onto the deformed
+   triangle's (eq. 10): ``[e1' e2'] = T [e1 e2]``, ``e_i = R (v_i − v_0)``,
+   ``e_i' = R' (v_i' − v_0')``.  With E the 3-D edges and W the (shared) UV
+   edges, Q = W (EᵀE)⁻¹ Eᵀ, so ``R E = M⁻¹ Q E = M⁻¹ W`` and ``T = (M'⁻¹ W)
+   (M⁻¹ W)⁻¹ = M'⁻¹ M``: only 2 × 2 algebra per triangle and frame.  ``det T``
+   is the ratio of the triangle areas.
+3. T and M are averaged over the triangles around each UV vertex (plain mean,
+   as the paper; UV vertices, not 3-D vertices, because tangent frames follow
+   the UV layout and differ across a seam) and interpolated as tensors into the
+   texels (barycentric rasterisation by :func:`facestats.core.raster.triangle_coverage`);
+   vectors are never interpolated (their sign is ambiguous).
+4. At each site the closed-form SVD ``T = U Σ Vᵀ`` (eq. 11-12) gives the
+   principal stretches ``r_s ≥ r_t`` (> 1 stretch, < 1 compression) and
+   ``S = Q Rᵀ V = M V`` (eq. 13): its normalised columns are the UV directions
+   of the strain axes s and t in the rest (neutral) texture, its column norms
+   the UV length per mm of skin along them (×1e-3 per µm).
+
+Conventions: positions in mm; UV in [0, 1] with u right and v down; axes are
+unit 2-vectors ``(a_u, a_v)``; in a texel grid of W × H texels the axes are
+given in texel units (``(W a_u, H a_v)`` normalised; identical to UV axes for
+square maps) with ``texel_um_s``/``texel_um_t`` the µm of skin per texel step
+along them.  Quads are split into two triangles.  Triangles of (near) zero
+area in 3-D (rest or deformed) or in UV, or with non-finite data, are
+*degenerate*: masked, counted, excluded from vertex averages, and given T = I,
+never NaN.  The construction is orientation-blind: both tangent frames are
+built from the same UV layout, so ``det T = area'/area > 0`` always and a
+triangle turned over by the deformation gives the T of its mirror image (the
+paper's recipe has no notion of inversion; facestats does not add one).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from facestats.core.raster import triangle_coverage
+from facestats.core.validate import as_finite, check_integer, check_shape
+from facestats.errors import ValidationError
+
+__all__ = [
+    "Strain",
+    "TexelStrain",
+    "MeshStrain",
+    "triangulate",
+    "svd2x2",
+    "tangent_frames",
+    "principal_strain",
+    "triangle_strain",
+    "vertex_strain",
+    "texel_strain",
+    "uv_islands",
+]
+
+#: A triangle is degenerate when |e1 × e2| ≤ DEGENERATE_SINE · |e1| |e2| (rest, deformed or UV).
+DEGENERATE_SINE = 1e-9
+
+
+def triangulate(polygons) -> tuple[np.ndarray, np.ndarray]:
+    """Split triangles or quads into triangles: ``(triangles (F', 3), source polygon (F',))``.
+
+    A quad ``(a, b, c, d)`` becomes ``(a, b, c)`` and ``(a, c, d)`` (fan split;
+    the winding is kept).
+    """
+    p = np.asarray(polygons)
+    if p.ndim != 2 or p.shape[1] not in (3, 4) or p.dtype.kind not in "iu":
+        raise ValidationError(f"polygons must be an integer array of shape (F, 3) or (F, 4), got {p.dtype} {p.shape}")
+    p = p.astype(np.int64)
+    idx = np.arange(len(p))
+    if p.shape[1] == 3:
+        return p, idx
+    tri = np.concatenate([p[:, [0, 1, 2]], p[:, [0, 2, 3]]])
+    src = np.concatenate([idx, idx])
+    order = np.argsort(src, kind="stable")  # the two halves of a quad next to each other
+    return tri[order], src[order]
+
+
+def svd2x2(a, compute_u=True):
+    """Closed-form SVD of 2 × 2 matrices: ``a = U diag(s1, s2) Vᵀ`` (Nagano et al. 2015 eq. 11-12).
+
+    With E = (a00 + a11)/2, F = (a00 − a11)/2, G = (a10 + a01)/2,
+    H = (a10 − a01)/2: s1 = √(E² + H²) + √(F² + G²) ≥ |s2|,
+    s2 = √(E² + H²) − √(F² + G²) (negative when det a < 0), and with
+    θ = (atan2(H, E) − atan2(G, F))/2, φ = (atan2(H, E) + atan2(G, F))/2,
+    ``a = Rot(φ) diag(s1, s2) Rot(θ)``, so U = Rot(φ), V = Rot(−θ).
+
+    Parameters
+    ----------
+    a : ndarray, shape (..., 2, 2)
+    compute_u : bool
+        False skips U (returned as None).
+
+    Returns
+    -------
+    u : ndarray, shape (..., 2, 2) or None
+        Rotation (left singular vectors in its columns).
+    s : ndarray, shape (..., 2)
+        ``s1 ≥ |s2|``; ``s2 < 0`` for a reflection.
+    v : ndarray, shape (..., 2, 2)
+        Rotation (right singular vectors in its columns).
+    """
+    a = np.asarray(a, np.float64)
+    e = 0.5 * (a[..., 0, 0] + a[..., 1, 1])
+    f = 0.5 * (a[..., 0, 0] - a[..., 1, 1])
+    g = 0.5 * (a[..., 1, 0] + a[..., 0, 1])
+    h = 0.5 * (a[..., 1, 0] - a[..., 0, 1])
+    q, r = np.hypot(e, h), np.hypot(f, g)
+    a1, a2 = np.arctan2(g, f), np.arctan2(h, e)
+    u = _rot(0.5 * (a2 + a1)) if compute_u else None
+    return u, np.stack([q + r, q - r], -1), _rot(0.5 * (a1 - a2))
+
+
+def _rot(angle):
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+
+def _sqrt_spd2(b):
+    """Square root of symmetric positive definite 2 × 2 matrices: (B + √det I)/√(tr B + 2√det)."""
+    sdet = np.sqrt(np.maximum(b[..., 0, 0] * b[..., 1, 1] - b[..., 0, 1] * b[..., 1, 0], 0.0))
+    t = np.sqrt(np.maximum(b[..., 0, 0] + b[..., 1, 1] + 2 * sdet, 1e-300))
+    out = b.copy()
+    out[..., 0, 0] += sdet
+    out[..., 1, 1] += sdet
+    return out / t[..., None, None]
+
+
+def _inv2(m):
+    det = m[..., 0, 0] * m[..., 1, 1] - m[..., 0, 1] * m[..., 1, 0]
+    inv = np.stack([np.stack([m[..., 1, 1], -m[..., 0, 1]], -1), np.stack([-m[..., 1, 0], m[..., 0, 0]], -1)], -2)
+    return inv / det[..., None, None], det
+
+
+def _gram(vertices, triangles):
+    """Edges ``v1 − v0``, ``v2 − v0`` as (F, 3, 2) columns and their Gram matrix EᵀE (F, 2, 2)."""
+    p = vertices[triangles]
+    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    g11, g12, g22 = np.einsum("fi,fi->f", e1, e1), np.einsum("fi,fi->f", e1, e2), np.einsum("fi,fi->f", e2, e2)
+    return np.stack([e1, e2], -1), np.stack([np.stack([g11, g12], -1), np.stack([g12, g22], -1)], -2)
+
+
+def _thin(gram):
+    """|e1 × e2| ≤ DEGENERATE_SINE |e1| |e2| from the Gram matrix (det G = |e1 × e2|²); NaN counts as thin."""
+    g11, g12, g22 = gram[:, 0, 0], gram[:, 0, 1], gram[:, 1, 1]
+    return ~(g11 * g22 - g12 * g12 > DEGENERATE_SINE**2 * g11 * g22)
+
+
+def _uv_edges(uv_corners):
+    """UV edges as columns W (F, 2, 2) and the degenerate (zero UV area) flags."""
+    w = np.stack([uv_corners[:, 1] - uv_corners[:, 0], uv_corners[:, 2] - uv_corners[:, 0]], -1)
+    return w, _thin(np.swapaxes(w, -1, -2) @ w)
+
+
+def uv_metric(vertices, triangles, uv_corners, uv_edges=None):
+    """``M = Q Rᵀ = (Q Qᵀ)^(1/2)`` per triangle: tangent coordinates (mm) → UV (Nagano et al. 2015 §5, eq. 13).
+
+    Q = W (EᵀE)⁻¹ Eᵀ maps the triangle's 3-D edges E onto its UV edges W (and
+    its normal to 0), so Q Qᵀ = W (EᵀE)⁻¹ Wᵀ needs only 2 × 2 algebra.
+
+    Returns
+    -------
+    m : ndarray, shape (F, 2, 2)
+        Symmetric positive definite; the identity for degenerate triangles.
+    degenerate : ndarray of bool, shape (F,)
+        Zero 3-D or UV area, or non-finite data.
+    """
+    w, deg_uv = _uv_edges(uv_corners) if uv_edges is None else uv_edges
+    _, gram = _gram(vertices, triangles)
+    degenerate = _thin(gram) | deg_uv
+    gram = np.where(degenerate[:, None, None], np.eye(2), gram)
+    w = np.where(degenerate[:, None, None], np.eye(2), w)
+    g_inv, _ = _inv2(gram)
+    m = _sqrt_spd2(w @ g_inv @ np.swapaxes(w, -1, -2))
+    return m, degenerate
+
+
+def tangent_frames(vertices, triangles, uv_corners):
+    """World → UV maps Q and tangent frames R of triangles (Nagano et al. 2015 §5, before eq. 10).
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+        Positions, mm.
+    triangles : ndarray of int, shape (F, 3)
+    uv_corners : ndarray, shape (F, 3, 2)
+        UV of each triangle corner.
+
+    Returns
+    -------
+    q : ndarray, shape (F, 2, 3)
+        The affine world → UV map (its linear part).
+    r : ndarray, shape (F, 2, 3)
+        ``R = (Q Qᵀ)^(-1/2) Q``: orthonormal rows, the closest rotation to Q truncated to two rows.
+    degenerate : ndarray of bool, shape (F,)
+    """
+    w, deg_uv = _uv_edges(uv_corners)
+    e, gram = _gram(vertices, triangles)
+    degenerate = _thin(gram) | deg_uv
+    gram = np.where(degenerate[:, None, None], np.eye(2), gram)
+    w = np.where(degenerate[:, None, None], np.eye(2), w)
+    e = np.where(degenerate[:, None, None], np.eye(3, 2), e)
+    g_inv, _ = _inv2(gram)
+    q = w @ g_inv @ np.swapaxes(e, -1, -2)
+    m = _sqrt_spd2(q @ np.swapaxes(q, -1, -2))
+    m_inv, _ = _inv2(m)
+    return q, m_inv @ q, degenerate
+
+
+@dataclass
+class Strain:
+    """Deformation, principal stretches and strain axes at a set of sites (triangles, UV vertices or texels).
+
+    Attributes
+    ----------
+    t : ndarray, shape (..., 2, 2)
+        Deformation in tangent frames (eq. 10); identity where not valid.
+    m : ndarray, shape (..., 2, 2)
+        ``M = Q Rᵀ``: rest tangent coordinates (mm) → UV.
+    r_s, r_t : ndarray, shape (...)
+        Principal stretch ratios, ``r_s ≥ r_t`` (eq. 12); 1 where not valid.
+    axis_s, axis_t : ndarray, shape (..., 2)
+        Unit UV directions ``(a_u, a_v)`` of the strain axes in the rest texture (eq. 13).
+    uv_per_um_s, uv_per_um_t : ndarray, shape (...)
+        UV length per µm of skin along the axes (the column norms of S = Q Rᵀ V, /1000).
+    valid : ndarray of bool, shape (...)
+        False at degenerate sites (and texels no triangle covers).
+    n_degenerate : int
+        Number of degenerate triangles.
+    """
+
+    t: np.ndarray
+    m: np.ndarray
+    r_s: np.ndarray
+    r_t: np.ndarray
+    axis_s: np.ndarray
+    axis_t: np.ndarray
+    uv_per_um_s: np.ndarray
+    uv_per_um_t: np.ndarray
+    valid: np.ndarray
+    n_degenerate: int = 0
+
+    @property
+    def area_ratio(self) -> np.ndarray:
+        """``det T``: deformed over rest area."""
+        return self.t[..., 0, 0] * self.t[..., 1, 1] - self.t[..., 0, 1] * self.t[..., 1, 0]
+
+
+@dataclass
+class TexelStrain(Strain):
+    """:class:`Strain` rasterised into texels of a map (or a window of it); arrays indexed ``[v, u]``.
+
+    Additional attributes
+    ---------------------
+    axis_s, axis_t : ndarray, shape (H, W, 2)
+        Here in texel units (equal to UV directions for square maps).
+    texel_um_s, texel_um_t : ndarray, shape (H, W)
+        µm of rest skin per texel step along ``axis_s`` / ``axis_t``.
+    island : ndarray of int32, shape (H, W)
+        UV island (1, 2, ...) of each texel, 0 where no triangle covers it.
+    map_shape : tuple of int
+        ``(height, width)`` of the whole map in texels.
+    window : tuple of int
+        ``(row0, col0, height, width)`` of the rasterised window.
+    """
+
+    texel_um_s: np.ndarray | None = None
+    texel_um_t: np.ndarray | None = None
+    island: np.ndarray | None = None
+    map_shape: tuple = ()
+    window: tuple = ()
+
+
+def principal_strain(t, m) -> tuple:
+    """Principal stretches and UV strain axes from T and M = Q Rᵀ (Nagano et al. 2015 eq. 11-13).
+
+    Parameters
+    ----------
+    t, m : ndarray, shape (..., 2, 2)
+
+    Returns
+    -------
+    r_s, r_t : ndarray, shape (...)
+        Singular values of T, ``r_s ≥ r_t`` (r_t < 0 for a reflection).
+    axis_s, axis_t : ndarray, shape (..., 2)
+        Normalised columns of ``S = M V``, unit UV vectors.
+    uv_per_um_s, uv_per_um_t : ndarray, shape (...)
+        Column norms of S divided by 1000 (UV per µm).
+    """
+    _, s, v = svd2x2(t, compute_u=False)
+    big_s = m @ v
+    n_s, n_t = np.linalg.norm(big_s[..., :, 0], axis=-1), np.linalg.norm(big_s[..., :, 1], axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a_s = big_s[..., :, 0] / n_s[..., None]
+        a_t = big_s[..., :, 1] / n_t[..., None]
+    return s[..., 0], s[..., 1], a_s, a_t, n_s / 1000.0, n_t / 1000.0
+
+
+def _strain(t, m, valid, n_degenerate, cls=Strain, **extra):
+    t = np.where(valid[..., None, None], t, np.eye(2))
+    r_s, r_t, a_s, a_t, k_s, k_t = principal_strain(t, m)
+    return cls(
+        t=t,
+        m=m,
+        r_s=r_s,
+        r_t=r_t,
+        axis_s=a_s,
+        axis_t=a_t,
+        uv_per_um_s=k_s,
+        uv_per_um_t=k_t,
+        valid=valid,
+        n_degenerate=int(n_degenerate),
+        **extra,
+    )
+
+
+def _check_mesh(rest_vertices, triangles, uv, uv_triangles):
+    rest = check_shape(as_finite(rest_vertices, "rest_vertices", dtype=np.float64), "rest_vertices", (None, 3))
+    tri, src = triangulate(triangles)
+    if tri.size and (tri.min() < 0 or tri.max() >= len(rest)):
+        raise ValidationError(f"triangles must index the {len(rest)} vertices, got indices {tri.min()}..{tri.max()}")
+    if uv is None:
+        raise ValidationError("uv must hold texture coordinates (the mesh has no UVs), got None")
+    uvs = check_shape(as_finite(uv, "uv", dtype=np.float64), "uv", (None, 2))
+    if uv_triangles is None:
+        if len(uvs) != len(rest):
+            raise ValidationError(
+                f"uv must hold one coordinate per vertex ({len(rest)}) unless uv_triangles is given, got {len(uvs)}"
+            )
+        uv_tri = tri
+    else:
+        uv_tri, _ = triangulate(uv_triangles)
+        if uv_tri.shape != tri.shape:
+            raise ValidationError(f"uv_triangles must match triangles in shape, got {uv_tri.shape} vs {tri.shape}")
+        if uv_tri.size and (uv_tri.min() < 0 or uv_tri.max() >= len(uvs)):
+            raise ValidationError(f"uv_triangles must index the {len(uvs)} UVs, got {uv_tri.min()}..{uv_tri.max()}")
+    return rest, tri, uvs, uv_tri
+
+
+class MeshStrain:
+    """The rest (neutral) mesh with its UV layout, ready to measure the strain of deformed frames.
+
+    Everything that depends only on the rest mesh (tangent frames, rest edges,
+    UV-vertex incidence, the rasterisation of a texture window) is computed
+    once; each frame then costs one pass over its triangles.
+
+    Parameters
+    ----------
+    rest_vertices : array_like, shape (V, 3)
+        Rest positions, mm.
+    triangles : array_like of int, shape (F, 3) or (F, 4)
+        Triangles or quads (split by :func:`triangulate`).
+    uv : array_like, shape (V, 2) or (T, 2)
+        Texture coordinates in [0, 1] (u right, v down); per vertex, or indexed by ``uv_triangles``.
+    uv_triangles : array_like of int, optional
+        UV index of every corner, shape of ``triangles`` (OBJ ``vt`` indices), for meshes with seams.
+    """
+
+    def __init__(self, rest_vertices, triangles, uv, uv_triangles=None):
+        self.rest, self.triangles, self.uv, self.uv_triangles = _check_mesh(rest_vertices, triangles, uv, uv_triangles)
+        self.uv_corners = self.uv[self.uv_triangles]
+        self.uv_edges = _uv_edges(self.uv_corners)
+        self.m, self.rest_degenerate = uv_metric(self.rest, self.triangles, self.uv_corners, self.uv_edges)
+        self._rasters = {}
+
+    @property
+    def n_vertices(self) -> int:
+        return len(self.rest)
+
+    def _deformed(self, deformed_vertices):
+        d = check_shape(
+            as_finite(deformed_vertices, "deformed_vertices", dtype=np.float64), "deformed_vertices", (None, 3)
+        )
+        if len(d) != len(self.rest):
+            raise ValidationError(
+                f"deformed_vertices must have the rest mesh's {len(self.rest)} vertices (same topology), got {len(d)}"
+            )
+        return d
+
+    def triangle_t(self, deformed_vertices):
+        """``(T (F, 2, 2), valid (F,), n_degenerate)`` of a deformed frame (eq. 10)."""
+        d = self._deformed(deformed_vertices)
+        m2, deg2 = uv_metric(d, self.triangles, self.uv_corners, self.uv_edges)
+        m2_inv, _ = _inv2(m2)
+        t = m2_inv @ self.m  # T = M'⁻¹ M (module docstring)
+        valid = ~(self.rest_degenerate | deg2)
+        return t, valid, int(np.sum(~valid))
+
+    def triangles_strain(self, deformed_vertices) -> Strain:
+        """Per-triangle :class:`Strain` of a deformed frame."""
+        t, valid, n_deg = self.triangle_t(deformed_vertices)
+        return _strain(t, self.m, valid, n_deg)
+
+    def _uv_vertex_average(self, field, valid):
+        """Mean of a (F, 2, 2) tensor over the ``valid`` triangles around each UV vertex: ((U, 2, 2), has any (U,))."""
+        n_uv = len(self.uv)
+        idx = self.uv_triangles[valid].reshape(-1)
+        count = np.bincount(idx, minlength=n_uv).astype(np.float64)
+        vals = np.repeat(field[valid].reshape(-1, 4), 3, axis=0)
+        sums = np.stack([np.bincount(idx, vals[:, k], minlength=n_uv) for k in range(4)], -1)  # 4 entries
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = sums / count[:, None]
+        return np.where(count[:, None] > 0, mean, np.eye(2).reshape(4)).reshape(-1, 2, 2), count > 0
+
+    @property
+    def vertex_m(self):
+        """M = Q Rᵀ averaged over the rest triangles around each UV vertex, (U, 2, 2)."""
+        if not hasattr(self, "_vertex_m"):
+            self._vertex_m, _ = self._uv_vertex_average(self.m, ~self.rest_degenerate)
+        return self._vertex_m
+
+    def vertices_strain(self, deformed_vertices) -> Strain:
+        """Per-UV-vertex :class:`Strain` (T and M averaged over the valid triangles around the UV vertex)."""
+        t, valid, n_deg = self.triangle_t(deformed_vertices)
+        tv, ok = self._uv_vertex_average(t, valid)
+        return _strain(tv, self.vertex_m, ok, n_deg)
+
+    def raster(self, map_shape, window):
+        """Triangle covering each texel of a window, (h, w) int32, -1 where none (cached per map and window).
+
+        Where triangles overlap in UV the last one wins.
+        """
+        key = (tuple(map_shape), tuple(window))
+        if key not in self._rasters:
+            x, y = self._pixel_corners(map_shape, window)
+            h, w = window[2], window[3]
+            corners = np.arange(3 * len(self.triangles)).reshape(-1, 3)
+            sel = np.nonzero(~self.rest_degenerate)[0]
+            tri_map = np.full(h * w, -1, np.int32)
+            for tri, row, col, *_ in triangle_coverage(x.reshape(-1), y.reshape(-1), corners[sel], w, h):
+                tri_map[row * w + col] = sel[tri]
+            self._rasters[key] = tri_map.reshape(h, w)
+        return self._rasters[key]
+
+    def _pixel_corners(self, map_shape, window):
+        """Triangle corners in the window's pixel units: x, y (F, 3)."""
+        (height, width), (row0, col0) = map_shape, window[:2]
+        return self.uv_corners[..., 0] * width - col0, self.uv_corners[..., 1] * height - row0
+
+    def _barycentric(self, map_shape, window, texels, tri):
+        """Barycentric coordinates (K, 3) of texel centres (flat indices in the window) in their triangles."""
+        x, y = self._pixel_corners(map_shape, window)
+        x, y = x[tri], y[tri]
+        px, py = texels % window[3] + 0.5, texels // window[3] + 0.5
+        den = (y[:, 1] - y[:, 2]) * (x[:, 0] - x[:, 2]) + (x[:, 2] - x[:, 1]) * (y[:, 0] - y[:, 2])
+        l0 = ((y[:, 1] - y[:, 2]) * (px - x[:, 2]) + (x[:, 2] - x[:, 1]) * (py - y[:, 2])) / den
+        l1 = ((y[:, 2] - y[:, 0]) * (px - x[:, 2]) + (x[:, 0] - x[:, 2]) * (py - y[:, 2])) / den
+        return np.stack([l0, l1, 1 - l0 - l1], -1)
+
+    def islands(self) -> np.ndarray:
+        """UV island (1, 2, ...) of each triangle (see :func:`uv_islands`)."""
+        if not hasattr(self, "_islands"):
+            self._islands = uv_islands(self.uv_triangles, len(self.uv))
+        return self._islands
+
+    def texels_strain(self, deformed_vertices, map_shape, window=None) -> TexelStrain:
+        """Per-texel :class:`TexelStrain` of a deformed frame in a map (or a window of it).
+
+        Parameters
+        ----------
+        deformed_vertices : array_like, shape (V, 3)
+        map_shape : int or (int, int)
+            Size of the whole map in texels, ``(height, width)`` (an int for a square map).
+        window : (row0, col0, height, width), optional
+            Texels to rasterise (default: the whole map), e.g. a tile of a 16K map.
+        """
+        map_shape, window = _window(map_shape, window)
+        t, valid, n_deg = self.triangle_t(deformed_vertices)
+        tv, _ = self._uv_vertex_average(t, valid)
+        tri_map = self.raster(map_shape, window).reshape(-1)
+        texels = np.nonzero(tri_map >= 0)[0]
+        tri = tri_map[texels]
+        bary = self._barycentric(map_shape, window, texels, tri)
+        corner_uv = self.uv_triangles[tri]  # (K, 3) UV-vertex index of each corner
+        h, w = window[2], window[3]
+
+        def interpolate(field):  # (U, 2, 2) per UV vertex -> (h, w, 2, 2) tensors per texel, identity off the mesh
+            out = np.empty((h * w, 2, 2))
+            out[:] = np.eye(2)
+            out[texels] = np.einsum("kc,kcij->kij", bary, field[corner_uv])
+            return out.reshape(h, w, 2, 2)
+
+        covered = (tri_map >= 0).reshape(h, w)
+        island = np.zeros(h * w, np.int32)
+        island[texels] = self.islands()[tri]
+        res = _strain(interpolate(tv), interpolate(self.vertex_m), covered, n_deg, cls=TexelStrain)
+        # Axes and lengths in texel units: S_texel = diag(W, H) S.
+        scale = np.array([map_shape[1], map_shape[0]], float)
+        s_tex_s = scale * res.axis_s * (1000.0 * res.uv_per_um_s)[..., None]
+        s_tex_t = scale * res.axis_t * (1000.0 * res.uv_per_um_t)[..., None]
+        n_s, n_t = np.linalg.norm(s_tex_s, axis=-1), np.linalg.norm(s_tex_t, axis=-1)
+        res.axis_s, res.axis_t = s_tex_s / n_s[..., None], s_tex_t / n_t[..., None]
+        res.texel_um_s, res.texel_um_t = 1000.0 / n_s, 1000.0 / n_t
+        res.island = island.reshape(h, w)
+        res.map_shape, res.window = map_shape, window
+        return res
+
+
+def _window(map_shape, window):
+    if np.ndim(map_shape) == 0:
+        map_shape = (map_shape, map_shape)
+    if len(map_shape) != 2:
+        raise ValidationError(f"map_shape must be an int or (height, width), got {map_shape!r}")
+    height = check_integer(map_shape[0], "map_shape height", 1)
+    width = check_integer(map_shape[1], "map_shape width", 1)
+    if window is None:
+        window = (0, 0, height, width)
+    if len(window) != 4:
+        raise ValidationError(f"window must be (row0, col0, height, width), got {window!r}")
+    r0, c0 = check_integer(window[0], "window row0", 0), check_integer(window[1], "window col0", 0)
+    h, w = check_integer(window[2], "window height", 1), check_integer(window[3], "window width", 1)
+    if r0 + h > height or c0 + w > width:
+        raise ValidationError(f"window must lie inside the {height} x {width} map, got {window!r}")
+    return (height, width), (r0, c0, h, w)
+
+
+def uv_islands(uv_triangles, n_uv=None) -> np.ndarray:
+    """Connected components (1, 2, ...) of triangles that share a UV vertex: the UV islands.
+
+    Parameters
+    ----------
+    uv_triangles : ndarray of int, shape (F, 3)
+        UV index of every corner.
+    n_uv : int, optional
+        Number of UV coordinates (default: largest index + 1).
+
+    Returns
+    -------
+    ndarray of int32, shape (F,)
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    uvt = np.asarray(uv_triangles, np.int64)
+    n_uv = int(uvt.max()) + 1 if n_uv is None else int(n_uv)
+    f = len(uvt)
+    rows = np.repeat(np.arange(f), 3)
+    graph = coo_matrix((np.ones(3 * f), (rows, f + uvt.reshape(-1))), shape=(f + n_uv, f + n_uv))
+    _, labels = connected_components(graph, directed=False)
+    _, island = np.unique(labels[:f], return_inverse=True)
+    return (island + 1).astype(np.int32)
+
+
+def triangle_strain(rest_vertices, deformed_vertices, triangles, uv, *, uv_triangles=None) -> Strain:
+    """Per-triangle principal stretches and strain axes (Nagano et al. 2015 eq. 10-13).
+
+    Parameters
+    ----------
+    rest_vertices, deformed_vertices : array_like, shape (V, 3)
+        Rest (neutral) and deformed positions, mm, same topology.
+    triangles : array_like of int, shape (F, 3) or (F, 4)
+        Triangles or quads (quads are split in two, so the result has one entry per triangle).
+    uv : array_like, shape (V, 2) or (T, 2)
+        Texture coordinates in [0, 1], u right, v down.
+    uv_triangles : array_like of int, optional
+        Per-corner UV indices (meshes with UV seams).
+
+    Returns
+    -------
+    Strain
+        ``r_s, r_t`` (F,), ``axis_s, axis_t`` (F, 2) unit UV vectors, ``uv_per_um_s, uv_per_um_t``,
+        ``t`` (F, 2, 2), ``valid`` and the count of degenerate triangles.
+    """
+    return MeshStrain(rest_vertices, triangles, uv, uv_triangles).triangles_strain(deformed_vertices)
+
+
+def vertex_strain(rest_vertices, deformed_vertices, triangles, uv, *, uv_triangles=None) -> Strain:
+    """Per-UV-vertex strain: T and M averaged over the triangles around each UV vertex, then eq. 11-13.
+
+    Parameters as :func:`triangle_strain`; the result has one entry per UV
+    coordinate (per vertex when ``uv_triangles`` is None).
+    """
+    return MeshStrain(rest_vertices, triangles, uv, uv_triangles).vertices_strain(deformed_vertices)
+
+
+def texel_strain(
+    rest_vertices, deformed_vertices, triangles, uv, map_shape, *, uv_triangles=None, window=None
+) -> TexelStrain:
+    """Per-texel strain: per-UV-vertex T and M interpolated as tensors into texels, then eq. 11-13.
+
+    Parameters as :func:`triangle_strain`, plus ``map_shape`` (int or
+    ``(height, width)``) and an optional ``window = (row0, col0, height, width)``
+    of it.  Texels no triangle covers have ``valid`` False, ``island`` 0 and r = 1.
+    """
+    return MeshStrain(rest_vertices, triangles, uv, uv_triangles).texels_strain(deformed_vertices, map_shape, window)

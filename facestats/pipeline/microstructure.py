@@ -1,0 +1,372 @@
+"""Render dynamic skin microstructure for a mesh sequence: per-frame displacement and normal maps, resumable.
+
+Nagano et al. 2015 §5-6 on an animation: for every frame of a sequence
+(:mod:`facestats.io.mesh_sequence`: OBJ/PLY frames or blendshape weights), the
+per-texel strain of the frame against the neutral mesh
+(:class:`facestats.model.strain.MeshStrain`) drives the convolution of the
+neutral microstructure map (:func:`facestats.model.microstructure.deform_microstructure`).
+
+This is a pipeline stage (not an edit of store subjects) because it streams a
+sequence to files, in tiles, and resumes after an interruption — the same job
+as :mod:`facestats.pipeline.build` for populations.
+
+Output: a zarr group at ``out`` with ``displacement`` (frame, v, u) float32 in
+µm, ``normal`` (frame, v, u, 3) float32 tangent-space normals, ``stretch``
+(frame, 7) — percentiles 1/50/99 of r_s and r_t over the mesh's texels and the
+count of degenerate triangles —, and ``done`` (frame,) bool; optionally
+``displacement.NNNNN.exr`` (channel Y, units um) and ``normal.NNNNN.exr`` (R, G,
+B = n_u, n_v, n_n) per frame in ``exr_dir``.  A frame is marked done only after
+all its outputs are written (EXR files through a temporary name and an atomic
+rename), so an interrupted run leaves the finished frames intact and the next
+run with the same inputs continues where it stopped; different inputs at the
+same path raise instead of mixing renders.
+
+Tiling: the window is processed in tiles of ``tile`` texels with a halo of
+2 (⌈3 · 100 µm / smallest rest texel⌉ + 2) + 2 texels (the reach of both passes
+at the largest σ of the tables), so any map size runs in bounded memory and the
+result does not depend on the tiling.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from facestats.core.validate import check_integer
+from facestats.core.version import __version__
+from facestats.errors import StoreError, ValidationError
+from facestats.model.microstructure.deform import deform_microstructure
+from facestats.model.microstructure.kernel import SIGMA_RANGE_UM, TRUNCATE
+from facestats.model.microstructure.tables import KernelTable
+from facestats.model.strain import MeshStrain
+
+__all__ = ["SequenceReport", "render_sequence", "tile_halo"]
+
+STRETCH_STATS = ("r_s_p1", "r_s_p50", "r_s_p99", "r_t_p1", "r_t_p50", "r_t_p99", "n_degenerate")
+
+
+@dataclass
+class SequenceReport:
+    """What :func:`render_sequence` did."""
+
+    path: str
+    n_frames: int
+    rendered: list = field(default_factory=list)
+    skipped: list = field(default_factory=list)
+    seconds: float = 0.0
+    map_shape: tuple = ()
+    window: tuple = ()
+
+    def to_text(self) -> str:
+        per = self.seconds / max(len(self.rendered), 1)
+        return (
+            f"{self.path}: {self.n_frames} frames, window {self.window} of a {self.map_shape[0]} x {self.map_shape[1]} "
+            f"map; rendered {len(self.rendered)} ({per:.2f} s/frame), already done {len(self.skipped)}"
+        )
+
+
+def tile_halo(mesh_strain: MeshStrain, map_shape) -> int:
+    """Halo (texels) around a tile so that both passes at σ = 100 µm see only real neighbours (module docstring)."""
+    h, w = map_shape
+    m = mesh_strain.m[~mesh_strain.rest_degenerate] * np.array([w, h], float)[None, :, None]  # diag(W, H) M
+    largest = float(np.max(np.linalg.norm(m, ord=2, axis=(1, 2)))) if len(m) else 1.0  # texels per mm, worst axis
+    smallest_texel_um = 1000.0 / largest
+    return 2 * (int(np.ceil(TRUNCATE * SIGMA_RANGE_UM[1] / smallest_texel_um)) + 2) + 2
+
+
+def _neutral_map(neutral_map):
+    if isinstance(neutral_map, (str, os.PathLike)):
+        from facestats.io.displacement import read_displacement
+
+        return read_displacement(neutral_map)
+    d = np.asarray(neutral_map)
+    if d.dtype not in (np.float32, np.float64) or d.ndim != 2:
+        raise ValidationError(f"neutral_map must be a 2-D float32/float64 map (µm), got {d.dtype} {d.shape}")
+    if not np.all(np.isfinite(d)):
+        raise ValidationError(f"neutral_map must be finite, got {int(np.sum(~np.isfinite(d)))} NaN/inf texels")
+    return d.astype(np.float32)
+
+
+def _config(sequence, neutral, map_shape, window, table, names):
+    tab = table if isinstance(table, str) else repr(table)
+    return {
+        "neutral_mesh": sequence.neutral.name,
+        "n_vertices": sequence.neutral.n_vertices,
+        "frames": names,
+        "frame_positions": hashlib.sha1(
+            np.ascontiguousarray(
+                [sequence.frame(i)[:: max(1, sequence.neutral.n_vertices // 64)] for i in (0, len(sequence) - 1)]
+            ).tobytes()
+        ).hexdigest(),
+        "neutral_map_sha1": hashlib.sha1(np.ascontiguousarray(neutral).tobytes()).hexdigest(),
+        "map_shape": list(map_shape),
+        "window": list(window),
+        "table": tab,
+    }
+
+
+def _open_group(out, config, n, window, tile, overwrite):
+    import zarr
+
+    path = os.fspath(out)
+    if os.path.exists(path) and not overwrite:
+        try:
+            g = zarr.open_group(path, mode="a")
+            old = json.loads(g.attrs.get("config", "null"))
+        except Exception as exc:  # zarr raises several types for what is not a group
+            raise StoreError(
+                f"out {path!r} exists and is not a microstructure render ({exc}); pass overwrite=True"
+            ) from None
+        if old != config:
+            diff = sorted(k for k in config if (old or {}).get(k) != config[k])
+            raise StoreError(
+                f"out {path!r} holds a render of other inputs (differing: {diff}); use another path or overwrite=True"
+            )
+        return g
+    h, w = window[2], window[3]
+    g = zarr.open_group(path, mode="w")
+    ch, cw = min(tile, h), min(tile, w)
+    g.create_array("displacement", shape=(n, h, w), chunks=(1, ch, cw), dtype="float32", fill_value=np.nan,
+                   dimension_names=("frame", "v", "u"))  # fmt: skip
+    g.create_array("normal", shape=(n, h, w, 3), chunks=(1, ch, cw, 3), dtype="float32", fill_value=np.nan,
+                   dimension_names=("frame", "v", "u", "component"))  # fmt: skip
+    g.create_array("stretch", shape=(n, len(STRETCH_STATS)), chunks=(n, len(STRETCH_STATS)), dtype="float64",
+                   fill_value=np.nan, dimension_names=("frame", "stat"))  # fmt: skip
+    g.create_array("done", shape=(n,), chunks=(n,), dtype="bool", fill_value=False, dimension_names=("frame",))
+    g.attrs.update(
+        {
+            "config": json.dumps(config),
+            "stat": list(STRETCH_STATS),
+            "units": json.dumps({"displacement": "um", "normal": "1"}),
+            "method": "Nagano et al. 2015 eq. 1-13 (facestats.pipeline.microstructure)",
+            "facestats_version": __version__,
+        }
+    )
+    return g
+
+
+def _tiles(window, tile):
+    r0, c0, h, w = window
+    for tr in range(0, h, tile):  # tiles of the window
+        for tc in range(0, w, tile):
+            yield tr, tc, min(tile, h - tr), min(tile, w - tc)
+
+
+def _render_frame(ms, vertices, neutral, map_shape, window, table, tile, halo, backend, group, index):
+    r0, c0, h, w = window
+    stats = []
+    for tr, tc, th, tw in _tiles(window, tile):
+        er0, ec0 = max(0, r0 + tr - halo), max(0, c0 + tc - halo)
+        er1, ec1 = min(map_shape[0], r0 + tr + th + halo), min(map_shape[1], c0 + tc + tw + halo)
+        # The expanded tile, clipped to the window (the neutral map covers only the window).
+        er0, ec0, er1, ec1 = max(er0, r0), max(ec0, c0), min(er1, r0 + h), min(ec1, c0 + w)
+        strain = ms.texels_strain(vertices, map_shape, (er0, ec0, er1 - er0, ec1 - ec0))
+        res = deform_microstructure(neutral[er0 - r0 : er1 - r0, ec0 - c0 : ec1 - c0], strain, table, backend=backend)
+        ir, ic = r0 + tr - er0, c0 + tc - ec0
+        sl = (slice(ir, ir + th), slice(ic, ic + tw))
+        group["displacement"][index, tr : tr + th, tc : tc + tw] = res.displacement[sl]
+        group["normal"][index, tr : tr + th, tc : tc + tw] = res.normals[sl]
+        ok = strain.valid[sl]
+        stats.append((strain.r_s[sl][ok], strain.r_t[sl][ok], strain.n_degenerate))
+    r_s = np.concatenate([s[0] for s in stats])
+    r_t = np.concatenate([s[1] for s in stats])
+    pct = (np.percentile(r_s, [1, 50, 99]), np.percentile(r_t, [1, 50, 99])) if r_s.size else (np.ones(3), np.ones(3))
+    group["stretch"][index] = np.concatenate([*pct, [stats[0][2] if stats else 0]])
+
+
+def _write_exr(group, index, exr_dir, name):
+    from facestats.io.displacement import write_displacement
+    from facestats.io.images import write_exr
+
+    os.makedirs(exr_dir, exist_ok=True)
+    targets = {
+        "displacement": os.path.join(exr_dir, f"displacement.{index:05d}.exr"),
+        "normal": os.path.join(exr_dir, f"normal.{index:05d}.exr"),
+    }
+    for kind, target in targets.items():  # write to a temporary name, then rename atomically
+        if os.path.exists(target):
+            continue
+        tmp = target[:-4] + ".partial.exr"
+        data = np.asarray(group[kind][index])
+        if kind == "displacement":
+            write_displacement(tmp, data, attributes={"frame": name})
+        else:
+            write_exr(tmp, {"R": data[..., 0], "G": data[..., 1], "B": data[..., 2]}, attributes={"frame": name})
+        os.replace(tmp, target)
+
+
+def render_sequence(
+    sequence,
+    neutral_map,
+    out,
+    *,
+    map_shape=None,
+    window=None,
+    table="forehead",
+    exr_dir=None,
+    tile=512,
+    backend="auto",
+    progress=True,
+    overwrite=False,
+) -> SequenceReport:
+    """Render per-frame deformed displacement and normal maps of a mesh sequence (module docstring).
+
+    Parameters
+    ----------
+    sequence : FrameSequence or BlendshapeSequence
+        Frames on the topology of ``sequence.neutral`` (a mesh with UVs).
+    neutral_map : ndarray (H, W) or path-like
+        Neutral displacement map in µm over ``window`` (a path is read by
+        :func:`facestats.io.displacement.read_displacement`).
+    out : path-like
+        Zarr group to write (created; reopened and continued if it holds the same render).
+    map_shape : (int, int), optional
+        Size of the whole UV map in texels (default: the neutral map's shape).
+    window : (row0, col0, height, width), optional
+        Part of the map to render (default: all); the neutral map covers exactly it.
+    table : str or KernelTable
+        Kernel table (default the forehead table, eq. 8-9).
+    exr_dir : path-like, optional
+        Also write one displacement and one normal EXR per frame there.
+    tile : int
+        Tile side in texels (memory bound; the result does not depend on it).
+    backend : {"auto", "numba", "numpy"}
+    progress : bool
+        Progress bar over frames.
+    overwrite : bool
+        Replace ``out`` if it holds another render.
+
+    Returns
+    -------
+    SequenceReport
+    """
+    neutral = _neutral_map(neutral_map)
+    tile = check_integer(tile, "tile", 16)
+    if map_shape is None:
+        map_shape = neutral.shape
+    if window is None:
+        window = (0, 0, int(map_shape[0]), int(map_shape[1]))
+    window = tuple(int(x) for x in window)
+    if neutral.shape != (window[2], window[3]):
+        raise ValidationError(f"neutral_map must cover the window {window[2]} x {window[3]}, got shape {neutral.shape}")
+    if not isinstance(table, (str, KernelTable)):
+        raise ValidationError(f"table must be a table name or a KernelTable, got {type(table).__name__}")
+    mesh = sequence.neutral.require_uv()
+    ms = MeshStrain(mesh.vertices, mesh.triangles, mesh.uv, mesh.uv_triangles)
+    map_shape = (int(map_shape[0]), int(map_shape[1]))
+    n = len(sequence)
+    names = sequence.frame_names()
+    group = _open_group(out, _config(sequence, neutral, map_shape, window, table, names), n, window, tile, overwrite)
+    halo = tile_halo(ms, map_shape)
+    report = SequenceReport(os.fspath(out), n, map_shape=map_shape, window=window)
+    done = np.asarray(group["done"][:])
+    start = time.perf_counter()
+    frames = range(n)
+    if progress:
+        from tqdm.auto import tqdm
+
+        frames = tqdm(frames, desc="microstructure", unit="frame", disable=None)
+    for i in frames:  # loop over frames
+        if done[i]:
+            report.skipped.append(i)
+        else:
+            vertices = sequence.frame(i)
+            _render_frame(ms, vertices, neutral, map_shape, window, table, tile, halo, backend, group, i)
+            report.rendered.append(i)
+        if exr_dir is not None:
+            _write_exr(group, i, os.fspath(exr_dir), names[i])
+        group["done"][i] = True
+    report.seconds = time.perf_counter() - start
+    return report
+
+
+def open_sequence(neutral, *, frames=None, targets=None, weights=None, scale=1.0):
+    """A mesh sequence from files: a neutral OBJ/PLY and either frame files or blendshape targets with a weights CSV.
+
+    Parameters
+    ----------
+    neutral : path-like
+        Neutral mesh with UVs, or an ICT-FaceKit checkout directory (face area, expressions as targets).
+    frames : sequence of path-like, optional
+        One OBJ/PLY per frame.
+    targets : sequence of path-like, optional
+        Blendshape target meshes (their file stems name the weight columns); with an
+        ICT-FaceKit directory, expression names.
+    weights : path-like, optional
+        CSV of per-frame weights (:func:`facestats.io.mesh_sequence.read_weights`).
+    scale : float
+        Factor of the mesh units to mm (ignored for ICT-FaceKit, which is read in mm).
+    """
+    from facestats.io.ict_facekit import read_ict_facekit
+    from facestats.io.mesh_sequence import BlendshapeSequence, FrameSequence, read_mesh, read_vertices, read_weights
+
+    if (frames is None) == (weights is None):
+        raise ValidationError("pass either frames or weights (with targets), got " + ("both" if frames else "neither"))
+    if os.path.isdir(os.fspath(neutral)):
+        names_w, w = read_weights(weights) if weights is not None else (None, None)
+        mesh, shapes = read_ict_facekit(neutral, names_w if targets is None else list(targets))
+        if frames is not None:
+            return FrameSequence(mesh, frames, scale=scale)
+        return BlendshapeSequence(mesh, shapes, w, names=names_w)
+    mesh = read_mesh(neutral, scale=scale).require_uv()
+    if frames is not None:
+        return FrameSequence(mesh, frames, scale=scale)
+    names_w, w = read_weights(weights)
+    shapes = {
+        os.path.splitext(os.path.basename(os.fspath(t)))[0]: read_vertices(t, mesh, scale=scale) for t in targets or []
+    }
+    return BlendshapeSequence(mesh, shapes, w, names=names_w)
+
+
+def render_files(neutral, neutral_map, out, *, frames=None, targets=None, weights=None, scale=1.0,
+                 height_range_um=None, **options) -> SequenceReport:  # fmt: skip
+    """:func:`render_sequence` of files (:func:`open_sequence`, read_displacement)."""
+    from facestats.io.displacement import read_displacement
+
+    sequence = open_sequence(neutral, frames=frames, targets=targets, weights=weights, scale=scale)
+    return render_sequence(sequence, read_displacement(neutral_map, height_range_um=height_range_um), out, **options)
+
+
+def generate_neutral_map(out, size, *, texel_um=15.0, subject=None, store=None, seed=None):
+    """Write a procedural neutral microstructure map (EXR, µm) for a store subject or generic skin.
+
+    Parameters
+    ----------
+    out : path-like
+        ``.exr`` file to write.
+    size : int
+        Map side in texels.
+    texel_um : float
+        µm per texel.
+    subject : str, optional
+        Store subject id: regions and roughness from its maps
+        (:func:`facestats.acquire.synthetic.microstructure.subject_microstructure`).
+    store : path-like, optional
+        Store to read the subject from (default: the embedded store).
+    seed : int, optional
+        Seed (default: from the subject id, or 0).
+
+    Returns
+    -------
+    str
+        The path written.
+    """
+    import facestats
+    from facestats.acquire.synthetic.microstructure import procedural_microstructure, subject_microstructure
+    from facestats.io.displacement import write_displacement
+
+    if subject is None:
+        h = procedural_microstructure(size, texel_um, seed=0 if seed is None else seed)
+        attrs = {"source": "facestats procedural microstructure (REGION_DEFAULTS, one region)"}
+    else:
+        with facestats.open_store(store) as st:
+            ds = st.subject(subject)
+            h = subject_microstructure(ds, size, texel_um, seed=seed)
+        attrs = {"source": f"facestats procedural microstructure of subject {subject}"}
+    attrs["texel_um"] = f"{float(texel_um):g}"
+    return os.fspath(write_displacement(out, h, attributes=attrs))

@@ -1,0 +1,98 @@
+"""Mesh sequences: OBJ with per-corner UVs, PLY, frame files, blendshapes with weights; bad input."""
+
+import pathlib
+
+import numpy as np
+import pytest
+
+from facestats.errors import FacestatsError
+from facestats.io.ict_facekit import read_ict_facekit
+from facestats.io.mesh_sequence import BlendshapeSequence, FrameSequence, read_mesh, read_obj, read_weights
+
+DATA = pathlib.Path(__file__).parent / "data" / "ict-facekit"
+
+QUAD_OBJ = """# two quads sharing an edge, with a UV seam on the shared edge
+v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 0
+v 2 0 0
+v 2 1 0
+vt 0.0 0.0
+vt 0.4 0.0
+vt 0.4 0.5
+vt 0.0 0.5
+vt 0.6 0.0
+vt 1.0 0.0
+vt 1.0 0.5
+vt 0.6 0.5
+f 1/1 2/2 3/3 4/4
+f 2/5 5/6 6/7 3/8
+"""
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path
+
+
+def test_obj_keeps_per_corner_uvs_and_splits_quads(tmp_path):
+    m = read_obj(_write(tmp_path / "q.obj", QUAD_OBJ), scale=10)
+    assert m.vertices.shape == (6, 3) and m.vertices[4, 0] == 20  # scaled to mm
+    assert m.triangles.tolist() == [[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2]]
+    assert m.uv_triangles.tolist() == [[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]]  # the seam is kept
+    assert m.polygon.tolist() == [0, 0, 1, 1]
+    assert np.allclose(m.uv[2], [0.4, 0.5])  # v flipped: 1 - 0.5
+
+
+def test_frames_and_topology_checks(tmp_path):
+    neutral = read_obj(_write(tmp_path / "n.obj", QUAD_OBJ))
+    moved = QUAD_OBJ.replace("v 2 1 0", "v 2.5 1 0")
+    seq = FrameSequence(neutral, [_write(tmp_path / "f0.obj", QUAD_OBJ), _write(tmp_path / "f1.obj", moved)])
+    assert len(seq) == 2 and seq.frame(1)[5].tolist() == [2.5, 1, 0]
+    bad = FrameSequence(
+        neutral, [_write(tmp_path / "b.obj", QUAD_OBJ.replace("f 2/5 5/6 6/7 3/8", "f 2/5 6/6 5/7 3/8"))]
+    )
+    with pytest.raises(FacestatsError, match="topology differs.*faces differ"):
+        bad.frame(0)
+    short = FrameSequence(neutral, [_write(tmp_path / "s.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\n")])
+    with pytest.raises(FacestatsError, match="topology differs.*3 vertices, expected 6"):
+        short.frame(0)
+    nan = FrameSequence(neutral, [_write(tmp_path / "nan.obj", QUAD_OBJ.replace("v 1 1 0", "v nan 1 0"))])
+    with pytest.raises(FacestatsError, match="must be finite"):
+        nan.frame(0)
+    no_uv = read_obj(_write(tmp_path / "nouv.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\n"))
+    with pytest.raises(FacestatsError, match="no texture coordinates"):
+        FrameSequence(no_uv, [tmp_path / "nouv.obj"])
+    with pytest.raises(FacestatsError, match="existing frame files"):
+        FrameSequence(neutral, [tmp_path / "missing.obj"])
+
+
+def test_ply_reads_per_vertex_uvs(tmp_path):
+    import trimesh
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    mesh = trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3]], process=False)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float))
+    mesh.export(tmp_path / "m.ply")
+    m = read_mesh(tmp_path / "m.ply")
+    assert m.triangles.tolist() == [[0, 1, 2], [0, 2, 3]] and np.allclose(m.uv[2], [1, 0])  # v flipped
+
+
+def test_blendshapes_and_weights(tmp_path):
+    neutral, targets = read_ict_facekit(DATA, ["mouthSmile_L", "jawOpen"])
+    (tmp_path / "w.csv").write_text("frame,jawOpen,mouthSmile_L\n0,0,0\n1,0.5,1\n")
+    names, w = read_weights(tmp_path / "w.csv")
+    assert names == ["jawOpen", "mouthSmile_L"] and w.tolist() == [[0, 0], [0.5, 1]]
+    seq = BlendshapeSequence(neutral, targets, w, names=names)
+    expect = 0.5 * targets["jawOpen"] + targets["mouthSmile_L"] - 0.5 * neutral.vertices
+    assert np.abs(seq.frame(1) - expect).max() < 1e-12 and np.array_equal(seq.frame(0), neutral.vertices)
+    with pytest.raises(FacestatsError, match="weights must have shape"):
+        BlendshapeSequence(neutral, targets, np.ones((3, 3)), names=names)
+    with pytest.raises(FacestatsError, match="topology differs"):
+        BlendshapeSequence(neutral, {"x": neutral.vertices[:-1]}, np.ones((1, 1)))
+    (tmp_path / "bad.csv").write_text("jawOpen\n0.5\n\n,\n")
+    with pytest.raises(FacestatsError, match="weights"):
+        read_weights(tmp_path / "bad.csv")
+    with pytest.raises(FacestatsError, match="ICT-FaceKit checkout"):
+        read_ict_facekit(tmp_path)

@@ -1,0 +1,144 @@
+"""Kernel family and two-pass convolution of displacement maps (Nagano et al. 2015 eq. 1-6)."""
+
+import numpy as np
+import pytest
+from scipy.ndimage import convolve1d
+
+from facestats.errors import FacestatsError
+from facestats.model.microstructure import convolve_displacement, kernel_taps
+from facestats.model.microstructure.kernel import GAUSSIAN_RESPONSE_FLOOR, frequency_response, gaussian_taps
+
+OMEGA = np.linspace(0, np.pi, 513)
+
+
+@pytest.mark.parametrize("alpha", [-2.0, -1.0, 0.0, 0.5, 1.0])
+@pytest.mark.parametrize("sigma_um", [1.0, 7.3, 25.0, 100.0])
+def test_kernel_sums_to_one_and_alpha_zero_is_the_identity(alpha, sigma_um):
+    k = kernel_taps(alpha, sigma_um, 10.0)
+    assert abs(k.sum() - 1) < 1e-12
+    assert len(k) % 2 == 1 and np.allclose(k, k[::-1], atol=0, rtol=0)
+    if alpha == 0:
+        assert np.array_equal(k, np.eye(1, len(k), len(k) // 2)[0])
+
+
+@pytest.mark.parametrize("sigma_px", [0.3, 1.0, 2.5, 10.0, 40.0])
+def test_frequency_response_bounds(sigma_px):
+    g = frequency_response(gaussian_taps(sigma_px), OMEGA)
+    assert abs(g[0] - 1) < 1e-12 and g.max() <= 1 + 1e-12 and g.min() >= -GAUSSIAN_RESPONSE_FLOOR
+    for alpha in (0.25, 0.5, 1.0):  # blurs never amplify
+        k = frequency_response(kernel_taps(alpha, 10 * sigma_px, 10.0), OMEGA)
+        assert k.max() <= 1 + 1e-12 and k.min() >= 1 - alpha * (1 + GAUSSIAN_RESPONSE_FLOOR) - 1e-12
+    for alpha in (-2.0, -0.5):  # sharpening gains at most 1 + |alpha|
+        k = frequency_response(kernel_taps(alpha, 10 * sigma_px, 10.0), OMEGA)
+        assert k.min() >= 1 - 1e-12 and k.max() <= 1 - alpha * (1 + GAUSSIAN_RESPONSE_FLOOR) + 1e-12
+    # Where the Gaussian has cut off high frequencies, a full sharpening gains 1 - alpha.
+    if sigma_px >= 2.5:
+        assert abs(frequency_response(kernel_taps(-2.0, 10 * sigma_px, 10.0), np.pi)[()] - 3) < 1e-3
+
+
+def _random_fields(rng, shape):
+    theta = rng.uniform(0, np.pi, shape)
+    return (
+        np.stack([np.cos(theta), np.sin(theta)], -1),
+        rng.uniform(-2, 1, shape),
+        rng.uniform(1, 100, shape),
+        rng.uniform(-2, 1, shape),
+        rng.uniform(1, 100, shape),
+    )
+
+
+def test_blurring_obeys_the_maximum_principle():
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(80, 90)).astype(np.float32)
+    axis, _, s_s, _, s_t = _random_fields(rng, d.shape)
+    out = convolve_displacement(d, axis, rng.uniform(0, 1, d.shape), s_s, rng.uniform(0, 1, d.shape), s_t, 8.0)
+    assert out.min() >= d.min() - 1e-6 and out.max() <= d.max() + 1e-6
+    sharp = convolve_displacement(d, axis, -1.0, 30.0, -1.0, 30.0, 8.0)  # sharpening overshoots
+    assert sharp.max() > d.max() + 0.5
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_two_passes_along_u_equal_scipy_convolve1d(backend):
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(96, 120)).astype(np.float32)
+    out = convolve_displacement(d, (1.0, 0.0), 0.6, 25.0, -0.7, 13.0, 10.0, backend=backend)
+    k_s, k_t = kernel_taps(0.6, 25.0, 10.0), kernel_taps(-0.7, 13.0, 10.0)
+    ref = convolve1d(convolve1d(d.astype(np.float64), k_s, axis=1), k_t, axis=0)
+    m = len(k_s) // 2 + len(k_t) // 2 + 1  # away from the borders (renormalised there)
+    assert np.abs(out - ref)[m:-m, m:-m].max() <= 1e-6
+    # Per-axis texel sizes: sigma in texels is sigma_um / texel_um along each axis.
+    out2 = convolve_displacement(d, (1.0, 0.0), 0.6, 50.0, -0.7, 13.0, (20.0, 10.0), backend=backend)
+    assert np.abs(out2 - out)[m:-m, m:-m].max() <= 1e-6
+
+
+def test_rotating_input_and_axes_by_90_degrees_rotates_the_output():
+    rng = np.random.default_rng(2)
+    d = rng.normal(size=(70, 50)).astype(np.float32)
+    axis, a_s, s_s, a_t, s_t = _random_fields(rng, d.shape)
+    out = convolve_displacement(d, axis, a_s, s_s, a_t, s_t, 10.0)
+    # np.rot90: new[i, j] = old[j, W-1-i]; a vector (du, dv) becomes (dv, -du).
+    rot_axis = np.rot90(np.stack([axis[..., 1], -axis[..., 0]], -1))
+    rot = [np.ascontiguousarray(np.rot90(x)) for x in (d, a_s, s_s, a_t, s_t)]
+    out90 = convolve_displacement(rot[0], np.ascontiguousarray(rot_axis), *rot[1:], 10.0)
+    assert np.abs(np.rot90(out) - out90).max() <= 1e-5
+
+
+def test_slope_variance_law_on_white_noise():
+    """Var(∂x D') = s² Σ (k_x * d)² Σ k_y² for unit white noise D (d: the central difference stencil, s = 1/texel)."""
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(600, 600))
+    texel = 10.0
+    out = convolve_displacement(d, (1.0, 0.0), -0.8, 23.0, 0.7, 41.0, texel)
+    gx = (out[:, 2:] - out[:, :-2]) / (2 * texel)
+    k_x, k_y = kernel_taps(-0.8, 23.0, texel), kernel_taps(0.7, 41.0, texel)
+    expected = np.sum(np.convolve(k_x, [0.5, 0, -0.5]) ** 2) * np.sum(k_y**2) / texel**2
+    m = 20
+    assert abs(gx[m:-m, m:-m].var() / expected - 1) < 0.02
+
+
+def test_compiled_and_numpy_backends_agree_with_islands_and_borders():
+    rng = np.random.default_rng(4)
+    d = rng.normal(size=(60, 75))
+    islands = np.ones(d.shape, int)
+    islands[:, 40:] = 2
+    islands[:, 37:40] = 0  # gutter
+    islands[50:, :10] = 3
+    fields = _random_fields(rng, d.shape)
+    a = convolve_displacement(d, *fields, (9.0, 6.0), islands=islands, backend="numba")
+    b = convolve_displacement(d, *fields, (9.0, 6.0), islands=islands, backend="numpy")
+    assert np.abs(a - b).max() <= 1e-5
+    assert np.array_equal(a[:, 37:40], d[:, 37:40])  # gutter copied
+    # Nothing is read across the gutter: changing island 2 leaves island 1 unchanged.
+    d2 = d.copy()
+    d2[islands == 2] += 50
+    a2 = convolve_displacement(d2, *fields, (9.0, 6.0), islands=islands)
+    assert np.array_equal(a2[islands == 1], a[islands == 1])
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"displacement": np.full((8, 8), np.nan, np.float32)}, "displacement must be finite"),
+        ({"displacement": np.zeros((8, 8), np.int16)}, "displacement must be a float32 or float64 map"),
+        ({"alpha_s": 1.5}, r"alpha_s must lie in \[-2, 1\]"),
+        ({"alpha_t": np.full((8, 8), -2.5)}, r"alpha_t must lie in \[-2, 1\]"),
+        ({"sigma_s": 0.5}, r"sigma_s must lie in \[1, 100\] um"),
+        ({"sigma_t": 250.0}, r"sigma_t must lie in \[1, 100\] um"),
+        ({"axis_s": (1.0, 1.0)}, "axis_s must hold unit vectors"),
+        ({"texel_um": -3.0}, "texel_um must be > 0"),
+        ({"alpha_s": np.zeros((4, 4))}, "alpha_s must be a scalar or a map of shape"),
+    ],
+)
+def test_bad_input_names_the_argument(kwargs, match):
+    args = dict(
+        displacement=np.zeros((8, 8), np.float32),
+        axis_s=(1.0, 0.0),
+        alpha_s=0.5,
+        sigma_s=10.0,
+        alpha_t=0.0,
+        sigma_t=10.0,
+        texel_um=10.0,
+    )
+    args.update(kwargs)
+    with pytest.raises(FacestatsError, match=match):
+        convolve_displacement(**args)

@@ -1,0 +1,82 @@
+"""Kernel fitting by normal-histogram total variation (Nagano et al. 2015 eq. 7)."""
+
+import numpy as np
+import pytest
+
+from facestats.acquire.synthetic.microstructure import SkinMicrostructure, procedural_microstructure
+from facestats.errors import FacestatsError
+from facestats.model.microstructure import convolve_displacement, fit_kernel
+from facestats.model.microstructure.compiled import histogram_tv
+from facestats.model.microstructure.fit import ALPHA_GRID, SIGMA_GRID_UM, deformation_matrix
+
+TEXEL = 10.0
+SKIN = SkinMicrostructure(roughness=0.3, furrow_angle=None, furrow_share=0.3, pore_share=0.3, pore_density_mm2=3.0,
+                          pore_radius_um=30.0)  # fmt: skip
+
+
+def _patch(n, seed, **kw):
+    return procedural_microstructure(n, TEXEL, params=SKIN, seed=seed, **kw).astype(np.float64)
+
+
+def test_paper_grid_has_59899_combinations():
+    assert len(ALPHA_GRID) * len(SIGMA_GRID_UM) == 59899
+    assert ALPHA_GRID[[0, 1, -1]].tolist() == [-2.0, -1.99, 1.0] and SIGMA_GRID_UM[[0, 1, -1]].tolist() == [1, 1.5, 100]
+
+
+@pytest.mark.parametrize("alpha, sigma, brute", [(0.47, 30.5, True), (-1.23, 17.0, False)])
+def test_target_made_from_the_same_patch_is_recovered_exactly(alpha, sigma, brute):
+    neutral = _patch(136, 1)
+    target = convolve_displacement(neutral, (0.6, 0.8), alpha, sigma, 0.0, 1.0, TEXEL)
+    fast = fit_kernel(neutral, target, (0.6, 0.8), 1.0, TEXEL, method="coarse-to-fine")
+    assert (fast.alpha, fast.sigma_um) == (alpha, sigma) and fast.tv == 0.0 and fast.n_evaluated < 59899 / 20
+    if brute:  # the full search of the paper returns the same argmin
+        full = fit_kernel(neutral, target, (0.6, 0.8), 1.0, TEXEL)
+        assert (full.alpha, full.sigma_um) == (alpha, sigma) and full.tv == 0.0 and full.n_evaluated == 59899
+        assert (alpha, sigma) in map(tuple, full.ridge)
+
+
+def test_independent_realisation_lies_on_the_ridge_and_profiles_recover_each_parameter():
+    neutral, other = _patch(384, 1), _patch(384, 2)
+    alphas, sigmas = np.round(np.arange(-2, 1.0001, 0.05), 2), np.arange(5.0, 100.1, 5.0)  # coarser than the paper's
+    for alpha, sigma in ((0.5, 30.0), (-1.0, 20.0)):
+        target = convolve_displacement(other, (1.0, 0.0), alpha, sigma, 0.0, 1.0, TEXEL)
+        fit = fit_kernel(neutral, target, (1.0, 0.0), 1.0, TEXEL, alphas=alphas, sigmas_um=sigmas)
+        i, j = np.argmin(np.abs(fit.alphas - alpha)), np.argmin(np.abs(fit.sigmas_um - sigma))
+        assert fit.tv_grid[i, j] <= fit.tv + fit.ridge_tolerance  # the truth is on the reported ridge
+        assert abs(fit.alpha_given_sigma(sigma) - alpha) <= 0.1
+        assert abs(fit.sigma_given_alpha(alpha) - sigma) <= TEXEL  # 1 texel
+
+
+def test_pure_geometric_stretch_fits_no_kernel():
+    neutral = _patch(320, 1)
+    # sigma >= 2 texels: below about a texel the kernel is nearly the identity for every alpha (alpha is not defined)
+    alphas, sigmas = np.round(np.arange(-2, 1.0001, 0.05), 2), np.arange(20.0, 100.1, 5.0)
+    for r, angle in ((1.2, 0.0), (0.85, np.pi / 3)):
+        axis = np.array([np.cos(angle), np.sin(angle)])
+        deformed = _patch(320, 1, deformation=deformation_matrix(axis, r))  # the same skin, stretched exactly
+        fit = fit_kernel(neutral, deformed, axis, r, TEXEL, alphas=alphas, sigmas_um=sigmas)
+        assert abs(fit.alpha) <= 0.05, (r, fit.alpha)
+        naive = fit_kernel(neutral, deformed, axis, 1.0, TEXEL, alphas=alphas, sigmas_um=sigmas)
+        assert abs(naive.alpha) >= 0.15  # without resampling the slope change is absorbed into alpha
+
+
+def test_compiled_and_numpy_histograms_agree():
+    rng = np.random.default_rng(0)
+    g = [rng.normal(0, 0.2, 5000) for _ in range(4)]
+    target = np.bincount(rng.integers(0, 64 * 64, 5000), minlength=64 * 64) / 5000
+    args = (*g, np.linspace(-2, 1, 13), target, -0.6, 64 / 1.2, 64)
+    assert np.allclose(histogram_tv(*args, backend="numba"), histogram_tv(*args, backend="numpy"), rtol=0, atol=1e-12)
+
+
+def test_bad_input():
+    p = np.zeros((120, 120))
+    with pytest.raises(FacestatsError, match="neutral must be at least 74 texels"):
+        fit_kernel(np.zeros((40, 40)), p, (1, 0), 1.0, TEXEL)
+    with pytest.raises(FacestatsError, match="axis must be a unit 2-vector"):
+        fit_kernel(p, p, (1, 1), 1.0, TEXEL)
+    with pytest.raises(FacestatsError, match="r must lie in"):
+        fit_kernel(p, p, (1, 0), 0.0, TEXEL)
+    with pytest.raises(FacestatsError, match="deformed must be finite"):
+        fit_kernel(p, np.full((120, 120), np.nan), (1, 0), 1.0, TEXEL)
+    with pytest.raises(FacestatsError, match="method must be one of"):
+        fit_kernel(p, p, (1, 0), 1.0, TEXEL, method="random")

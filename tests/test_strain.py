@@ -1,0 +1,142 @@
+"""Strain of a deforming mesh in texture space (Nagano et al. 2015 eq. 10-13)."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from facestats.acquire.geometry import grid_triangles
+from facestats.errors import FacestatsError
+from facestats.model.strain import (
+    MeshStrain,
+    svd2x2,
+    tangent_frames,
+    texel_strain,
+    triangle_strain,
+    triangulate,
+    vertex_strain,
+)
+
+ROT3 = Rotation.from_euler("xyz", [20, -35, 50], degrees=True).as_matrix()
+
+
+def _plane(n=12, size=(50.0, 40.0)):
+    x, y = np.meshgrid(np.linspace(0, size[0], n), np.linspace(0, size[1], n))
+    v = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], 1)
+    uv = np.stack([x.ravel() / 100 + 0.2, y.ravel() / 100 + 0.3], 1)  # 1 UV = 100 mm, u along x, v along y
+    return v, grid_triangles(np.ones((n, n), bool)), uv
+
+
+def _stretch(theta_deg, rs, rt):
+    th = np.deg2rad(theta_deg)
+    rot = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    a = np.eye(3)
+    a[:2, :2] = rot @ np.diag([rs, rt]) @ rot.T
+    return a
+
+
+def _angle(axis):
+    return np.degrees(np.arctan2(axis[..., 1], axis[..., 0])) % 180
+
+
+def test_svd2x2_matches_numpy():
+    a = np.random.default_rng(0).normal(size=(500, 2, 2))
+    u, s, v = svd2x2(a)
+    assert np.abs(u @ (s[..., None] * np.swapaxes(v, -1, -2)) - a).max() < 1e-13
+    assert np.abs(np.abs(s) - np.linalg.svd(a, compute_uv=False)).max() < 1e-13
+    assert np.all(s[:, 0] >= np.abs(s[:, 1]))
+
+
+def test_tangent_frame_is_the_closest_rotation_of_the_uv_map():
+    v, tri, uv = _plane(5)
+    v = (v + np.random.default_rng(1).normal(0, 1.0, v.shape)) @ ROT3.T  # a bumpy, rotated sheet
+    q, r, deg = tangent_frames(v, tri, uv[tri])
+    assert not deg.any()
+    for f in range(0, len(tri), 7):  # SVD of [Q; q1 x q2], the paper's recipe
+        a = np.vstack([q[f], np.cross(q[f][0], q[f][1])])
+        uu, _, vt = np.linalg.svd(a)
+        assert np.abs((uu @ vt)[:2] - r[f]).max() < 1e-12
+
+
+@pytest.mark.parametrize("level", ["triangle", "vertex", "texel"])
+def test_known_stretch_and_rotation_is_recovered(level):
+    v, tri, uv = _plane()
+    deformed = (v @ _stretch(30, 1.2, 0.9).T) @ ROT3.T + np.array([3.0, 4.0, 5.0])
+    if level == "triangle":
+        st = triangle_strain(v, deformed, tri, uv)
+        ok = st.valid
+    elif level == "vertex":
+        st = vertex_strain(v, deformed, tri, uv)
+        ok = st.valid
+    else:
+        st = texel_strain(v, deformed, tri, uv, 64)
+        ok = st.valid
+        assert ok.sum() > 600
+        # texel size along the axes: 1 UV = 100 mm over 64 texels
+        assert np.abs(st.texel_um_s[ok] - 100e3 / 64).max() < 1e-6
+    assert np.abs(st.r_s[ok] - 1.2).max() < 1e-12 and np.abs(st.r_t[ok] - 0.9).max() < 1e-12
+    assert np.abs(_angle(st.axis_s[ok]) - 30).max() < 1e-9
+    assert np.abs(_angle(st.axis_t[ok]) - 120).max() < 1e-9
+
+
+def test_rigid_motion_has_no_strain_and_det_t_is_the_area_ratio():
+    v, tri, uv = _plane(9)
+    rng = np.random.default_rng(2)
+    v = v + rng.normal(0, 0.8, v.shape)  # not planar
+    st = triangle_strain(v, v @ ROT3.T - 7.0, tri, uv)
+    assert np.abs(st.r_s - 1).max() < 1e-12 and np.abs(st.r_t - 1).max() < 1e-12
+    deformed = v + rng.normal(0, 0.5, v.shape)
+    st = triangle_strain(v, deformed, tri, uv)
+    area = [
+        0.5 * np.linalg.norm(np.cross(p[tri][:, 1] - p[tri][:, 0], p[tri][:, 2] - p[tri][:, 0]), axis=1)
+        for p in (v, deformed)
+    ]
+    assert np.abs(st.area_ratio - area[1] / area[0]).max() < 1e-12
+    assert np.abs(st.r_s * st.r_t - st.area_ratio).max() < 1e-12
+
+
+def test_degenerate_triangles_are_masked_and_counted_never_nan():
+    v, tri, uv = _plane(6)
+    deformed = v.copy()
+    deformed[tri[3]] = deformed[tri[3][0]]  # collapse a triangle (and its neighbours' corners move)
+    uv2 = uv.copy()
+    uv2[tri[10][1]] = uv2[tri[10][0]]  # zero UV area
+    st = triangle_strain(v, deformed, tri, uv2)
+    assert st.n_degenerate >= 2 and not st.valid[3] and not st.valid[10]
+    assert np.all(np.isfinite(st.r_s)) and np.all(np.isfinite(st.axis_s)) and np.all(np.isfinite(st.t))
+    # Orientation-blind (module docstring): a mirrored mesh has the strain of the original.
+    st = triangle_strain(v, v * np.array([1.0, -1.0, 1.0]), tri, uv)
+    assert np.abs(st.r_s - 1).max() < 1e-12 and st.valid.all()
+    ts = texel_strain(v, deformed, tri, uv2, 32)
+    assert np.all(np.isfinite(ts.r_s)) and np.all(np.isfinite(ts.texel_um_s))
+
+
+def test_quads_are_split_and_a_window_is_a_crop_of_the_map():
+    tri, src = triangulate(np.array([[0, 1, 2, 3], [4, 5, 6, 7]]))
+    assert tri.tolist() == [[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]] and src.tolist() == [0, 0, 1, 1]
+    v, t, uv = _plane(10)
+    rng = np.random.default_rng(3)
+    deformed = v + rng.normal(0, 0.6, v.shape)
+    ms = MeshStrain(v, t, uv)
+    full = ms.texels_strain(deformed, (96, 128))
+    win = ms.texels_strain(deformed, (96, 128), window=(30, 40, 25, 33))
+    crop = (slice(30, 55), slice(40, 73))
+    for name in ("r_s", "r_t", "texel_um_s", "valid", "island"):
+        assert np.allclose(getattr(win, name), getattr(full, name)[crop], rtol=0, atol=1e-12), name
+
+
+def test_bad_meshes_raise_naming_the_field():
+    v, tri, uv = _plane(4)
+    with pytest.raises(FacestatsError, match="deformed_vertices must have the rest mesh's 16 vertices"):
+        triangle_strain(v, v[:-1], tri, uv)
+    with pytest.raises(FacestatsError, match="uv must hold texture coordinates"):
+        triangle_strain(v, v, tri, None)
+    bad = v.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(FacestatsError, match="deformed_vertices must be finite"):
+        triangle_strain(v, bad, tri, uv)
+    with pytest.raises(FacestatsError, match="rest_vertices must be finite"):
+        triangle_strain(bad, v, tri, uv)
+    with pytest.raises(FacestatsError, match="triangles must index the 16 vertices"):
+        triangle_strain(v, v, tri + 10, uv)
+    with pytest.raises(FacestatsError, match="window must lie inside"):
+        texel_strain(v, v, tri, uv, 32, window=(20, 20, 20, 20))

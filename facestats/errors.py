@@ -15,6 +15,8 @@ __all__ = [
     "FitError",
     "FormatError",
     "ConvergenceWarning",
+    "FacestatsWarning",
+    "QuantisationWarning",
 ]
 
 
@@ -44,3 +46,14 @@ class FormatError(FacestatsError):
 
 class ConvergenceWarning(UserWarning):
     """A sampler or solver finished without meeting its convergence criterion."""
+
+
+class FacestatsWarning(UserWarning):
+    """Root of the warnings facestats issues about results it still returns."""
+
+
+class QuantisationWarning(FacestatsWarning):
+    """A quantised-distance system (Suzuki et al. eq. 33) had unsupported levels or lacked rank.
+
+    The result records what was done (levels merged, numerical rank, condition number).
+    """

@@ -29,7 +29,7 @@ import numpy as np
 from facestats.acquire.geometry import FaceGeometry, uv_to_texel
 from facestats.errors import FormatError, ValidationError
 
-__all__ = ["load_face_mesh", "read_region_image", "save_face_mesh"]
+__all__ = ["load_face_mesh", "read_region_image", "read_triangle_mesh", "save_face_mesh"]
 
 
 def read_region_image(region_image) -> np.ndarray:
@@ -62,6 +62,62 @@ def read_region_image(region_image) -> np.ndarray:
     return img.astype(np.uint8)
 
 
+def read_triangle_mesh(path, *, scale=1.0, transform=None, uv=False):
+    """Read a triangle mesh (OBJ, PLY, anything trimesh reads) in mm, in the world frame.
+
+    Parameters
+    ----------
+    path : str or path-like
+        Mesh file.
+    scale : float
+        Factor to mm (1 if the mesh is in mm).
+    transform : array_like, shape (4, 4), optional
+        Rigid transform applied after scaling (module docstring).
+    uv : bool
+        Also return the per-vertex UV coordinates as stored (v upwards), or None
+        if the file has none (OBJ ``vt``, PLY ``s``/``t``, ``u``/``v`` or
+        ``texture_u``/``texture_v`` vertex properties).
+
+    Returns
+    -------
+    vertices : ndarray, shape (V, 3)
+        mm.
+    faces : ndarray of int, shape (F, 3)
+    uv : ndarray, shape (V, 2) or None
+        Only when ``uv=True``.
+    """
+    import trimesh
+
+    try:
+        mesh = trimesh.load(os.fspath(path), force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many types for unreadable files
+        raise FormatError(f"cannot read the mesh {os.fspath(path)}: {exc}") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise FormatError(f"{os.fspath(path)} holds no triangle mesh")
+    if not float(scale) > 0:
+        raise ValidationError(f"scale must be > 0, got {scale!r}")
+    verts = np.asarray(mesh.vertices, np.float64) * float(scale)
+    if transform is not None:
+        t = np.asarray(transform, np.float64)
+        if t.shape != (4, 4):
+            raise ValidationError(f"transform must be a 4x4 matrix, got shape {t.shape}")
+        verts = verts @ t[:3, :3].T + t[:3, 3]
+    faces = np.asarray(mesh.faces, np.int64)
+    if not uv:
+        return verts, faces
+    tex = getattr(mesh.visual, "uv", None)
+    if tex is None and "ply_raw" in mesh.metadata:
+        props = mesh.metadata["ply_raw"]["vertex"]["data"]
+        names = props.dtype.names or ()
+        for a, b in (("s", "t"), ("u", "v"), ("texture_u", "texture_v")):
+            if a in names and b in names:
+                tex = np.stack([props[a], props[b]], 1).astype(np.float64)
+                break
+    if tex is not None:
+        tex = np.asarray(tex, np.float64).copy()
+    return verts, faces, tex
+
+
 def load_face_mesh(path, region_image, *, scale=1.0, transform=None, flip_v=True, name=None) -> FaceGeometry:
     """Load a face scan with UVs and its region label image as a :class:`FaceGeometry`.
 
@@ -85,39 +141,14 @@ def load_face_mesh(path, region_image, *, scale=1.0, transform=None, flip_v=True
     FaceGeometry
         Lumitexels at the labelled vertices; map size = side of the region image.
     """
-    import trimesh
-
-    try:
-        mesh = trimesh.load(os.fspath(path), force="mesh", process=False)
-    except Exception as exc:  # trimesh raises many types for unreadable files
-        raise FormatError(f"cannot read the mesh {os.fspath(path)}: {exc}") from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise FormatError(f"{os.fspath(path)} holds no triangle mesh")
-    uv = getattr(mesh.visual, "uv", None)
-    if uv is None and "ply_raw" in mesh.metadata:
-        props = mesh.metadata["ply_raw"]["vertex"]["data"]
-        names = props.dtype.names or ()
-        for a, b in (("s", "t"), ("u", "v"), ("texture_u", "texture_v")):
-            if a in names and b in names:
-                uv = np.stack([props[a], props[b]], 1).astype(np.float64)
-                break
-    if uv is None or len(uv) != len(mesh.vertices):
+    verts, faces, uv = read_triangle_mesh(path, scale=scale, transform=transform, uv=True)
+    if uv is None or len(uv) != len(verts):
         raise FormatError(f"{os.fspath(path)} has no per-vertex UV coordinates (OBJ 'vt' or PLY s/t, u/v properties)")
-    uv = np.asarray(uv, np.float64).copy()
     if flip_v:
         uv[:, 1] = 1 - uv[:, 1]
     if np.any(~np.isfinite(uv)) or uv.min() < -1e-6 or uv.max() > 1 + 1e-6:
         raise FormatError(f"UV coordinates of {os.fspath(path)} must lie in [0, 1], got {uv.min():.3g}..{uv.max():.3g}")
     uv = np.clip(uv, 0, 1)
-    if not float(scale) > 0:
-        raise ValidationError(f"scale must be > 0, got {scale!r}")
-    verts = np.asarray(mesh.vertices, np.float64) * float(scale)
-    if transform is not None:
-        t = np.asarray(transform, np.float64)
-        if t.shape != (4, 4):
-            raise ValidationError(f"transform must be a 4x4 matrix, got shape {t.shape}")
-        verts = verts @ t[:3, :3].T + t[:3, 3]
-    faces = np.asarray(mesh.faces, np.int64)
     # Vertex normals (area-weighted face normals) and areas (one third of each triangle).
     tri = verts[faces]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])

@@ -25,7 +25,7 @@ import numpy as np
 from facestats.core.validate import as_finite, check_range, check_shape
 from facestats.errors import ValidationError
 
-__all__ = ["Patches", "mesh_patches", "read_mesh_patches"]
+__all__ = ["Patches", "mesh_patches", "read_mesh_patches", "subdivide_triangles"]
 
 
 @dataclass
@@ -63,7 +63,9 @@ class Patches:
             raise ValidationError(f"normal must have the shape of centre, {c.shape}, got {n.shape}")
         norm = np.linalg.norm(n, axis=1)
         if np.any(np.abs(norm - 1) > 1e-6):
-            raise ValidationError(f"normal must hold unit vectors, got a vector of norm {norm[np.abs(norm - 1) > 1e-6][0]:.6g}")
+            raise ValidationError(
+                f"normal must hold unit vectors, got a vector of norm {norm[np.abs(norm - 1) > 1e-6][0]:.6g}"
+            )
         a = check_shape(as_finite(self.area, "area", dtype=np.float64), "area", (m,))
         check_range(a, "area", 0, None, low_inclusive=False, unit="mm^2")
         if self.corners is not None:
@@ -100,8 +102,11 @@ class Patches:
         )
 
 
-def _subdivide(tri, k):
-    """The k² sub-triangles (…, 3 corners, 3) of triangles ``tri`` (T, 3, 3) split uniformly k times per edge."""
+def subdivide_triangles(tri, k):
+    """The k² congruent sub-triangles, shape (T, k², 3, 3), of triangles ``tri`` (T, 3, 3) split k times per edge.
+
+    Corners keep the orientation of their triangle; all k² have its area / k².
+    """
     i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
     up = (i + j) <= k - 1
     down = (i + j) <= k - 2
@@ -126,8 +131,9 @@ def mesh_patches(vertices, faces, *, spacing, occluder=True) -> Patches:
         Mesh vertices, mm.
     faces : array_like of int, shape (F, 3)
         Triangles, counter-clockwise seen from outside (the normal is (b − a) × (c − a)).
-    spacing : float
-        Target patch edge length in mm (> 0): k = ⌈longest edge / spacing⌉ per triangle.
+    spacing : float or None
+        Target patch edge length in mm (> 0): k = ⌈longest edge / spacing⌉ per
+        triangle; ``None`` makes every triangle one patch (k = 1).
     occluder : bool
         Keep the mesh as the occluder for shadow maps.
 
@@ -141,7 +147,7 @@ def mesh_patches(vertices, faces, *, spacing, occluder=True) -> Patches:
         raise ValidationError(f"faces must be a non-empty (F, 3) integer array, got shape {f.shape} dtype {f.dtype}")
     if f.min() < 0 or f.max() >= v.shape[0]:
         raise ValidationError(f"faces must index vertices 0..{v.shape[0] - 1}, got {int(f.min())}..{int(f.max())}")
-    h = float(as_finite(spacing, "spacing", 0, None, low_inclusive=False, unit="mm"))
+    h = None if spacing is None else float(as_finite(spacing, "spacing", 0, None, low_inclusive=False, unit="mm"))
     tri = v[f]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     area2 = np.linalg.norm(cross, axis=1)
@@ -150,11 +156,11 @@ def mesh_patches(vertices, faces, *, spacing, occluder=True) -> Patches:
         raise ValidationError("faces must include at least one triangle of positive area, got only degenerate ones")
     tri, cross, area2 = tri[ok], cross[ok], area2[ok]
     edges = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(1)
-    ks = np.maximum(1, np.ceil(edges / h - 1e-9).astype(np.int64))
+    ks = np.ones(tri.shape[0], np.int64) if h is None else np.maximum(1, np.ceil(edges / h - 1e-9).astype(np.int64))
     centres, normals, areas, corners = [], [], [], []
     for k in np.unique(ks):  # one vectorised subdivision per distinct k
         sel = ks == k
-        sub = _subdivide(tri[sel], int(k)).reshape(-1, 3, 3)
+        sub = subdivide_triangles(tri[sel], int(k)).reshape(-1, 3, 3)
         nrm = np.repeat(cross[sel] / area2[sel, None], int(k) * int(k), axis=0)
         centres.append(sub.mean(1))
         normals.append(nrm)

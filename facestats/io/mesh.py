@@ -62,6 +62,19 @@ def read_region_image(region_image) -> np.ndarray:
     return img.astype(np.uint8)
 
 
+def _vertex_uv(mesh):
+    """Per-vertex UVs of a trimesh mesh (texture visuals or PLY properties), a float64 copy, or None."""
+    tex = getattr(mesh.visual, "uv", None)
+    if tex is None and "ply_raw" in mesh.metadata:
+        props = mesh.metadata["ply_raw"]["vertex"]["data"]
+        names = props.dtype.names or ()
+        for a, b in (("s", "t"), ("u", "v"), ("texture_u", "texture_v")):
+            if a in names and b in names:
+                tex = np.stack([props[a], props[b]], 1)
+                break
+    return None if tex is None else np.array(tex, np.float64)
+
+
 def read_triangle_mesh(path, *, scale=1.0, transform=None, uv=False):
     """Read a triangle mesh (OBJ, PLY, anything trimesh reads) in mm, in the world frame.
 
@@ -105,16 +118,7 @@ def read_triangle_mesh(path, *, scale=1.0, transform=None, uv=False):
     faces = np.asarray(mesh.faces, np.int64)
     if not uv:
         return verts, faces
-    tex = getattr(mesh.visual, "uv", None)
-    if tex is None and "ply_raw" in mesh.metadata:
-        props = mesh.metadata["ply_raw"]["vertex"]["data"]
-        names = props.dtype.names or ()
-        for a, b in (("s", "t"), ("u", "v"), ("texture_u", "texture_v")):
-            if a in names and b in names:
-                tex = np.stack([props[a], props[b]], 1).astype(np.float64)
-                break
-    if tex is not None:
-        tex = np.asarray(tex, np.float64).copy()
+    tex = _vertex_uv(mesh)
     return verts, faces, tex
 
 

@@ -18,7 +18,8 @@ best grid model with a bounded least-squares solve in (ln σ's, ln σa)
 Interval (profile likelihood over the grid): treating the log residuals as
 independent with a common variance estimated from the best fit,
 s² = cost_min / (n − 2), the statistic Δ(σ's, σa) = (cost − cost_min)/s² is
-compared with the χ² quantile of 2 degrees of freedom at ``level``; the
+compared with the χ² quantile of 2 degrees of freedom at ``level``,
+−2 ln(1 − level) (5.99 at 95 %); the
 interval of each parameter is the range of grid values inside that joint
 region (the projection of the joint region, so each interval is at least as
 wide as a one-parameter profile interval).  The grid bounds the interval: an
@@ -190,8 +191,6 @@ def fit_profile_grid(
     -------
     ProfileFit
     """
-    from scipy.stats import chi2
-
     d = check_shape(as_finite(levels, "levels", 0, None, unit="mm", dtype=np.float64), "levels", (None,))
     r = check_shape(as_finite(profile, "profile", dtype=np.float64), "profile", d.shape)
     eta = float(check_dipole_eta(eta))
@@ -218,13 +217,11 @@ def fit_profile_grid(
         s, a, c = _refine(du, y, gs, ga, eta, grid)
         c = min(c, cmin)
     s2 = max(cmin, 1e-300) / max(n_used - 2, 1)
-    inside = (cost - cmin) / s2 <= chi2.ppf(lvl, 2)
+    inside = (cost - cmin) / s2 <= -2 * np.log1p(-lvl)  # χ² quantile of 2 degrees of freedom
     si, ai = np.nonzero(inside)
     ss, aa = grid.sigma_s_prime[si], grid.sigma_a[ai]
     tr = np.sqrt(3 * aa * (aa + ss))
-    edge = bool(
-        si.min() == 0 or si.max() == grid.shape[0] - 1 or ai.min() == 0 or ai.max() == grid.shape[1] - 1
-    )
+    edge = bool(si.min() == 0 or si.max() == grid.shape[0] - 1 or ai.min() == 0 or ai.max() == grid.shape[1] - 1)
     fit = ProfileFit(
         sigma_s_prime=s,
         sigma_a=a,

@@ -44,8 +44,10 @@ Solves (eq. 35 and beyond the paper), on the rows of the visible patches:
   r non-negative and non-increasing in distance, r = U u with u ≥ 0 and
   U_ik = 1 for k ≥ i (r_i = Σ_{k ≥ i} u_k), rows weighted by 1/l_j (relative
   residuals, right for multiplicative image noise): min ‖D (W U u − l)‖, u ≥ 0,
-  D = diag(1/l), solved by a QR factorisation of D W U and non-negative least
-  squares (Lawson-Hanson, :func:`scipy.optimize.nnls`) on the n × n triangle.
+  D = diag(1/l), reduced to an n × n triangle (Cholesky factor of the Gram
+  matrix of D W U, columns scaled to unit norm; a QR factorisation when that is
+  numerically singular) and solved by non-negative least squares (Lawson-Hanson,
+  :func:`scipy.optimize.nnls`).
   Rows with l_j = 0 carry no relative information and are left out.
 """
 
@@ -69,7 +71,7 @@ __all__ = [
     "conditioning",
     "solve_pinv",
     "solve_monotone",
-    "monotone_basis_covariance",
+    "profile_covariance",
 ]
 
 #: Default memory budget of one row block of :func:`quantised_system` (bytes).
@@ -335,9 +337,11 @@ def conditioning(matrix, row_weights=None, rcond=1e-10) -> Conditioning:
     rcond : float
         Relative threshold of the numerical rank, in (0, 1).
     """
+    from scipy.linalg import svdvals
+
     rc = float(as_finite(rcond, "rcond", 0, 1, low_inclusive=False, high_inclusive=False))
     a, _ = _scaled(np.asarray(matrix, np.float64), row_weights)
-    s = np.linalg.svd(a, compute_uv=False)
+    s = svdvals(a, check_finite=False)
     smax = float(s[0]) if s.size else 0.0
     rank = int(np.sum(s > rc * smax)) if smax > 0 else 0
     with np.errstate(divide="ignore"):
@@ -372,14 +376,32 @@ def solve_pinv(system: QuantisedSystem, exitance, rcond=1e-10) -> np.ndarray:
 
 
 def _monotone_problem(system, l):
-    """The relative-residual problem in the monotone basis: (rows used, A = D W U with scaled columns, scale)."""
+    """The relative-residual problem in the monotone basis (module docstring), reduced to n × n.
+
+    Returns the rows used (l > 0), the column scale of A = D W U, and the upper
+    triangle T with right-hand side z such that ‖A u − 1‖² = ‖T u' − z‖² + const
+    for the scaled unknowns u' = u · scale: the Cholesky factor of AᵀA (the
+    Gram matrix is n × n, one matrix product), or, if AᵀA is numerically
+    singular, the triangle of a QR factorisation of [A | 1].
+    """
+    from scipy.linalg import LinAlgError, cho_factor, qr, solve_triangular
+
     use = l > 0
     if not use.any():
         raise FitError("exitance is 0 on every visible row: the monotone solve has no relative information")
     a = np.cumsum(system.matrix[use], axis=1) / l[use, None]  # (W U)_jk = Σ_{i ≤ k} W_ji
     norm = np.linalg.norm(a, axis=0)
     scale = np.where(norm > 0, norm, 1.0)
-    return use, a / scale, scale
+    a /= scale
+    n = a.shape[1]
+    try:
+        tri, _ = cho_factor(a.T @ a, lower=False, check_finite=False)
+        tri = np.triu(tri)
+        z = solve_triangular(tri, a.sum(0), trans="T", check_finite=False)
+    except LinAlgError:
+        (full,) = qr(np.column_stack([a, np.ones(a.shape[0])]), mode="r", check_finite=False)
+        tri, z = full[:n, :n], full[:n, n]
+    return use, scale, tri, z
 
 
 def solve_monotone(system: QuantisedSystem, exitance) -> tuple[np.ndarray, np.ndarray]:
@@ -401,25 +423,27 @@ def solve_monotone(system: QuantisedSystem, exitance) -> tuple[np.ndarray, np.nd
     from scipy.optimize import nnls
 
     l = _check_exitance(exitance, system.matrix.shape[0])
-    use, a, scale = _monotone_problem(system, l)
-    q, r_tri = np.linalg.qr(a)
-    u, _ = nnls(r_tri, q.T @ np.ones(a.shape[0]), maxiter=50 * a.shape[1])
+    use, scale, tri, z = _monotone_problem(system, l)
+    u, _ = nnls(tri, z, maxiter=50 * tri.shape[1])
     u = u / scale
     return np.cumsum(u[::-1])[::-1], use
 
 
-def monotone_basis_covariance(system: QuantisedSystem, exitance, profile) -> np.ndarray:
-    """Covariance of r from the unconstrained relative-residual problem, σ̂² U (AᵀA)⁺ Uᵀ.
+def profile_covariance(system: QuantisedSystem, exitance, profile) -> np.ndarray:
+    """Covariance of r from the unconstrained relative-residual problem, σ̂² U (AᵀA)⁻¹ Uᵀ.
 
-    σ̂² is the mean squared relative residual of ``profile`` (degrees of freedom
-    rows − n).  Used to judge which levels the data determine (the constraints
-    of the monotone solve are ignored: this is the local, unconstrained spread).
+    σ̂² is the mean squared relative residual of ``profile`` over the rows with
+    l_j > 0 (degrees of freedom rows − n).  Used to judge which levels the data
+    determine; the constraints of the monotone solve are ignored (the local,
+    unconstrained spread).
     """
+    from scipy.linalg import solve_triangular
+
     l = _check_exitance(exitance, system.matrix.shape[0])
-    use, a, scale = _monotone_problem(system, l)
+    use, scale, tri, _ = _monotone_problem(system, l)
     resid = system.matrix[use] @ profile / l[use] - 1
     dof = max(int(use.sum()) - system.n_levels, 1)
     s2 = float(resid @ resid) / dof
-    cov_u = np.linalg.pinv(a.T @ a) / np.outer(scale, scale)
-    upper = np.triu(np.ones((system.n_levels, system.n_levels)))
-    return s2 * upper @ cov_u @ upper.T
+    tinv = solve_triangular(tri, np.eye(tri.shape[0]), check_finite=False) / scale[:, None]  # (AᵀA)⁻¹ = T⁻¹T⁻ᵀ
+    upper_tinv = np.cumsum(tinv[::-1], axis=0)[::-1]  # U T⁻¹, U_ik = 1 for k ≥ i
+    return s2 * upper_tinv @ upper_tinv.T

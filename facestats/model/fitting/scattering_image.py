@@ -1,0 +1,547 @@
+"""Translucency from one image: Suzuki, Mukaigawa & Yagi's quantised-distance solve and dipole fit, made robust.
+
+:func:`fit_scattering_image` takes per-patch centres, areas, the irradiance c_k
+of eq. 16 and the exitance l_j of eq. 15 (see :mod:`facestats.model.irradiance`)
+and returns (σ's, σa) of the dipole with an interval and the diagnostics of the
+linear system:
+
+1. **Levels** (eq. 22-24): a width in mm, or ``"auto"`` (below).
+2. **W** (eq. 33) over the visible rows, streamed in row blocks
+   (:func:`facestats.model.fitting.quantised.quantised_system`).
+3. **Unsupported levels** — levels that fewer than ``min_pairs`` (visible, lit)
+   patch pairs support (hat-weighted count) cannot be solved for; they are
+   merged into their neighbours (:func:`~facestats.model.fitting.quantised.merge_levels`)
+   with a :class:`facestats.errors.QuantisationWarning`.  Then the numerical rank
+   and condition number of W (columns scaled to unit norm, rows weighted as the
+   solve weights them) are computed; while the rank is below the number of
+   levels, the level whose column is least independent (last pivot of a
+   column-pivoted QR) is merged away, with a warning.  Everything done is
+   recorded in the result (``merged_levels``, ``rank``, ``condition``,
+   ``notes``); nothing is solved silently.
+4. **Solve** for r = (R'_1 … R'_n): ``"pinv"`` — the paper's r = W⁺ l (eq. 35);
+   ``"monotone"`` (default) — r ≥ 0 and non-increasing, rows weighted by 1/l
+   (:func:`~facestats.model.fitting.quantised.solve_monotone`).
+5. **Fit** eq. 36 on a grid, default Suzuki Table 2
+   (:func:`facestats.model.fitting.profile_grid.fit_profile_grid`), over the
+   levels up to ``max_distance``, with a profile-likelihood interval.
+
+Maximum distance (``max_distance="auto"``): the fit uses the levels up to the
+first level (beyond d'_1 = 0) whose profile value the data do not determine to
+within ``MAX_RELATIVE_ERROR`` = 25 %: the relative standard error of R'_i from
+the unconstrained relative-residual problem
+(:func:`~facestats.model.fitting.quantised.profile_covariance`), with the
+relative noise taken as the residual of the solve but at least
+``NOISE_FLOOR`` = 1 % (so noise-free synthetic data are treated like a
+well-calibrated HDR image, not as exact).  Far levels, supported by few pairs
+and carrying little of any row's light, are where both the paper's solve and
+the interpolation error go wrong first.
+
+Automatic width (``width="auto"``, the open problem of Suzuki §4.1): with h the
+patches' spacing (median nearest-neighbour distance), candidate widths
+h × 2^(k/2), k = −2, −1, 0, 1, … are tried from the finest.  A candidate is
+accepted when the levels it makes are supported: over the levels up to the
+median (visible, lit) pair distance, the median support is at least
+``AUTO_MEDIAN_SUPPORT`` = 100 pairs and at most a quarter of them fall below
+``min_pairs`` (estimated from the distances of at most 2,000 sampled rows);
+after W is built, a rank deficit that merging cannot resolve moves on to the next
+candidate.  Finer widths shrink the interpolation error of eq. 28 (∝ w²) but
+leave levels without pairs (Table 3's failure at 0.03125 mm); h/2 is the finest
+candidate because no pair lies closer than about h apart except a patch and
+itself, so only the first level below h can go unsupported there and merging
+resolves it.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
+from facestats.errors import FitError, QuantisationWarning, ValidationError
+from facestats.model.fitting.profile_grid import TABLE2_GRID, ProfileFit, ProfileGrid, fit_profile_grid
+from facestats.model.fitting.quantised import (
+    DEFAULT_BLOCK_BYTES,
+    QuantisedSystem,
+    conditioning,
+    merge_levels,
+    profile_covariance,
+    quantised_system,
+    solve_monotone,
+    solve_pinv,
+)
+
+__all__ = [
+    "METHODS",
+    "MAX_RELATIVE_ERROR",
+    "NOISE_FLOOR",
+    "ScatteringImageFit",
+    "fit_scattering_image",
+    "fit_scattering_system",
+    "auto_width",
+    "fit_distance",
+]
+
+#: The solves of eq. 34: the paper's pseudo-inverse and the constrained default.
+METHODS = ("pinv", "monotone")
+#: Relative standard error of R'_i up to which a level enters the fit (``max_distance="auto"``).
+MAX_RELATIVE_ERROR = 0.25
+#: Smallest relative radiance noise assumed when judging which levels the data determine.
+NOISE_FLOOR = 0.01
+#: Median level support (pairs) a width must reach to be chosen by ``width="auto"``.
+AUTO_MEDIAN_SUPPORT = 100
+#: Rows sampled to estimate the level support of candidate widths.
+_AUTO_SAMPLE_ROWS = 2000
+#: Default relative singular-value threshold of the numerical rank.
+DEFAULT_RCOND = 1e-6
+
+
+@dataclass
+class ScatteringImageFit:
+    """Result of :func:`fit_scattering_image`.
+
+    Attributes
+    ----------
+    sigma_s_prime, sigma_a : float
+        Reduced scattering and absorption coefficients, mm⁻¹.
+    sigma_s_prime_interval, sigma_a_interval, sigma_tr_interval : tuple of float
+        (low, high) at ``interval_level`` (profile likelihood over the grid).
+    levels : ndarray
+        The quantised distances d'_i after merging, mm.
+    profile : ndarray
+        R'_i at the levels, mm⁻².
+    support : ndarray
+        Hat-weighted (visible, lit) pair count of each level.
+    width : float
+        The quantisation width used (before merging), mm.
+    method : str
+    rank, n_levels : int
+        Numerical rank of W and its number of columns (after merging).
+    condition : float
+        Condition number of W (columns scaled to unit norm, rows weighted as solved).
+    merged_levels : tuple of float
+        Levels merged away (unsupported or rank-deficient), mm.
+    max_distance : float
+        Largest level distance that entered the fit, mm.
+    n_rows : int
+        Visible rows that entered the solve.
+    profile_fit : ProfileFit
+        The eq. 36 fit (cost surface, levels used, grid).
+    rank_deficient : bool
+        W lacked numerical rank before (or after) the least independent levels were merged.
+    notes : list of str
+        What was done about rank, support, non-positive levels and the fit range.
+    """
+
+    sigma_s_prime: float
+    sigma_a: float
+    sigma_s_prime_interval: tuple
+    sigma_a_interval: tuple
+    sigma_tr_interval: tuple
+    interval_level: float
+    levels: np.ndarray
+    profile: np.ndarray
+    support: np.ndarray
+    width: float
+    method: str
+    rank: int
+    n_levels: int
+    condition: float
+    merged_levels: tuple
+    max_distance: float
+    n_rows: int
+    eta: float
+    profile_fit: ProfileFit
+    rank_deficient: bool = False
+    notes: list = field(default_factory=list)
+
+    @property
+    def sigma_tr(self) -> float:
+        """σtr = sqrt(3 σa (σa + σ's)), mm⁻¹ (Suzuki eq. 10-11)."""
+        return float(np.sqrt(3 * self.sigma_a * (self.sigma_a + self.sigma_s_prime)))
+
+    def summary(self) -> dict:
+        """The estimate, interval and diagnostics as plain Python values (for JSON, provenance, printing)."""
+        return {
+            "sigma_s_prime": self.sigma_s_prime,
+            "sigma_a": self.sigma_a,
+            "sigma_tr": self.sigma_tr,
+            "sigma_s_prime_interval": list(self.sigma_s_prime_interval),
+            "sigma_a_interval": list(self.sigma_a_interval),
+            "sigma_tr_interval": list(self.sigma_tr_interval),
+            "interval_level": self.interval_level,
+            "method": self.method,
+            "width_mm": self.width,
+            "n_levels": self.n_levels,
+            "rank": self.rank,
+            "condition": self.condition,
+            "merged_levels_mm": [round(x, 6) for x in self.merged_levels],
+            "max_distance_mm": self.max_distance,
+            "n_rows": self.n_rows,
+            "eta": self.eta,
+            "notes": list(self.notes),
+        }
+
+
+def _check_inputs(points, areas, irradiance, radiance, visible):
+    p = check_shape(as_finite(points, "points", dtype=np.float64), "points", (None, 3))
+    m = p.shape[0]
+    if m == 0:
+        raise ValidationError("points must hold at least one patch, got 0")
+    a = as_finite(areas, "areas", dtype=np.float64)
+    if a.shape != (m,):
+        raise ValidationError(f"areas must have one value per point, shape ({m},), got {a.shape}")
+    if np.any(a <= 0):
+        raise ValidationError(f"areas must be > 0 mm^2, got {a[a <= 0][0]!r}")
+    c = as_finite(irradiance, "irradiance", 0, None, dtype=np.float64)
+    if c.shape != (m,):
+        raise ValidationError(f"irradiance must have one value per point, shape ({m},), got {c.shape}")
+    l = as_finite(radiance, "radiance", 0, None, dtype=np.float64)
+    if l.shape != (m,):
+        raise ValidationError(f"radiance must have one value per point, shape ({m},), got {l.shape}")
+    if visible is None:
+        vis = np.ones(m, bool)
+    else:
+        vis = np.asarray(visible)
+        if vis.dtype != bool or vis.shape != (m,):
+            raise ValidationError(
+                f"visible must be a bool array of shape ({m},), got dtype {vis.dtype} shape {vis.shape}"
+            )
+    if not vis.any():
+        raise ValidationError("visible must select at least one patch (no visible rows), got none")
+    if not np.any(c > 0):
+        raise ValidationError("irradiance must be > 0 on at least one patch (nothing is lit), got all 0")
+    return p, a, c, l, vis
+
+
+def _pair_distances_sample(points, weights, rows, seed=0):
+    """Distances between at most ``_AUTO_SAMPLE_ROWS`` sampled rows and as many sampled lit patches.
+
+    Returns the distances and the factor (pairs / sampled pairs) that scales
+    counts of the sample to counts of all (visible, lit) pairs.
+    """
+    rng = np.random.default_rng(seed)
+    lit = np.nonzero(weights > 0)[0]
+    rs = rows if rows.size <= _AUTO_SAMPLE_ROWS else rng.choice(rows, _AUTO_SAMPLE_ROWS, replace=False)
+    ls = lit if lit.size <= _AUTO_SAMPLE_ROWS else rng.choice(lit, _AUTO_SAMPLE_ROWS, replace=False)
+    a, b = points[rs], points[ls]
+    d2 = (a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2 * a @ b.T
+    factor = (rows.size / rs.size) * (lit.size / ls.size)
+    return np.sqrt(np.maximum(d2, 0)).ravel(), factor
+
+
+def _support_of(d, width, n):
+    """Hat-weighted pair count per uniform level of a sample of distances."""
+    x = d / width
+    i = x.astype(np.int64)
+    t = x - i
+    s = np.bincount(i, weights=1 - t, minlength=n + 1)[: n + 1]
+    s[1:] += np.bincount(i, weights=t, minlength=n + 1)[:n]
+    return s[:n]
+
+
+def auto_width(points, weights, rows, *, spacing=None, min_pairs=30) -> list:
+    """Candidate widths for ``width="auto"`` (module docstring), finest acceptable first, in mm.
+
+    Parameters
+    ----------
+    points : ndarray, shape (m, 3)
+    weights : ndarray, shape (m,)
+        c_k A_k (lit patches > 0).
+    rows : ndarray of int
+        Visible patches.
+    spacing : float, optional
+        Patch spacing h (mm); default the median nearest-neighbour distance.
+    min_pairs : int
+        Support below which a level is merged.
+
+    Returns
+    -------
+    list of float
+        Acceptable candidate widths, finest first (at least one: the coarsest tried).
+    """
+    from scipy.spatial import cKDTree
+
+    used = np.union1d(rows, np.nonzero(weights > 0)[0])
+    if spacing is None:
+        dist, _ = cKDTree(points[used]).query(points[used], k=2)
+        spacing = float(np.median(dist[:, 1]))
+    d, scale = _pair_distances_sample(points, weights, rows)
+    median_d = float(np.median(d))
+    out = []
+    for k in range(-2, 9):  # the ladder h·2^(k/2), finest first
+        w = spacing * 2 ** (k / 2)
+        n = int(np.floor(d.max() / w)) + 2
+        sup = _support_of(d, w, n) * scale
+        near = sup[1 : max(2, int(np.floor(median_d / w)) + 1)]
+        if np.median(near) >= AUTO_MEDIAN_SUPPORT and np.mean(near < min_pairs) <= 0.25:
+            out.append(float(w))
+    return out or [float(spacing * 2**4)]
+
+
+def fit_distance(system: QuantisedSystem, exitance, profile) -> float:
+    """The ``max_distance="auto"`` rule (module docstring): last level before R' is undetermined to 25 %, mm."""
+    cov = profile_covariance(system, exitance, profile)
+    use = exitance > 0
+    resid = system.matrix[use] @ profile / exitance[use] - 1
+    s2 = float(resid @ resid) / max(int(use.sum()) - system.n_levels, 1)
+    floor = max(1.0, NOISE_FLOOR**2 / max(s2, 1e-300))  # inflate to the noise floor
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rse = np.where(profile > 0, np.sqrt(np.maximum(np.diag(cov), 0) * floor) / profile, np.inf)
+    bad = np.nonzero(~(rse[1:] <= MAX_RELATIVE_ERROR))[0] + 1
+    return float(system.levels[bad[0] - 1] if bad.size else system.levels[-1])
+
+
+def _row_weights(method, exitance):
+    if method == "pinv":
+        return None
+    return np.where(exitance > 0, 1 / np.where(exitance > 0, exitance, 1.0), 0.0)
+
+
+def _resolve_rank(system, exitance, method, rcond, notes):
+    """Merge the least independent levels until W has full numerical rank (module docstring)."""
+    from scipy.linalg import qr
+
+    cond = conditioning(system.matrix, _row_weights(method, exitance), rcond)
+    merged = 0
+    while cond.rank < system.n_levels and system.n_levels > 3:
+        a = system.matrix if method == "pinv" else system.matrix * _row_weights(method, exitance)[:, None]
+        norm = np.linalg.norm(a, axis=0)
+        _, _, piv = qr(a / np.where(norm > 0, norm, 1.0), mode="economic", pivoting=True, check_finite=False)
+        drop = [int(j) for j in piv[cond.rank :] if 0 < j < system.n_levels - 1]
+        if not drop:
+            break
+        keep = np.ones(system.n_levels, bool)
+        keep[drop] = False
+        notes.append(
+            f"W had numerical rank {cond.rank} < {system.n_levels} levels (rcond {rcond:g}); merged the "
+            f"least independent levels at {np.round(system.levels[drop], 4).tolist()} mm"
+        )
+        system = merge_levels(system, keep)
+        merged += len(drop)
+        cond = conditioning(system.matrix, _row_weights(method, exitance), rcond)
+    return system, cond, merged
+
+
+def _merge_unsupported(system, min_pairs, notes):
+    weak = system.support < min_pairs
+    weak[0] = weak[-1] = False
+    if weak.any():
+        notes.append(
+            f"{int(weak.sum())} level(s) supported by fewer than {min_pairs} patch pairs merged into their "
+            f"neighbours (first at {system.levels[weak][0]:.4g} mm)"
+        )
+        system = merge_levels(system, ~weak)
+    return system
+
+
+def _solve(system, l, method, rcond, notes):
+    """r by the chosen method and the number of rows that entered the solve."""
+    if method == "pinv":
+        return solve_pinv(system, l, rcond=rcond), int(system.rows.size)
+    r, used = solve_monotone(system, l)
+    if used.sum() < l.size:
+        notes.append(f"{l.size - int(used.sum())} visible row(s) with zero radiance left out of the weighted solve")
+    return r, int(used.sum())
+
+
+def _fit_range(system, l, r, method, max_distance):
+    """The largest level distance of the fit, mm (``max_distance`` of :func:`fit_scattering_image`)."""
+    if max_distance == "auto" and method == "monotone":
+        return fit_distance(system, l, r)
+    if max_distance is None or max_distance == "auto":  # the paper fits every level
+        return float(system.levels[-1])
+    dmax = float(as_finite(max_distance, "max_distance", 0, None, low_inclusive=False, unit="mm"))
+    if dmax > system.max_distance:
+        raise ValidationError(
+            f"max_distance must not exceed the largest patch distance {system.max_distance:.6g} mm "
+            f"(no pair lies beyond it), got {dmax:g}"
+        )
+    return dmax
+
+
+def fit_scattering_system(
+    system: QuantisedSystem,
+    exitance,
+    *,
+    method="monotone",
+    eta=1.3,
+    grid=None,
+    max_distance="auto",
+    min_pairs=30,
+    rcond=DEFAULT_RCOND,
+    refine=False,
+    level=0.95,
+    width=None,
+) -> ScatteringImageFit:
+    """Steps 3-5 of :func:`fit_scattering_image` on a built system (reuse W for many images of one scene).
+
+    ``exitance`` holds l_j for the system's rows (``system.rows``).  Other
+    parameters as :func:`fit_scattering_image`; ``width`` is only recorded.
+    """
+    check_choice(method, "method", METHODS)
+    check_integer(min_pairs, "min_pairs", 1)
+    l = check_shape(as_finite(exitance, "radiance", 0, None, dtype=np.float64), "radiance", (system.rows.size,))
+    notes: list = []
+    system = _merge_unsupported(system, int(min_pairs), notes)
+    system, cond, n_rank_merged = _resolve_rank(system, l, method, float(rcond), notes)
+    if cond.rank < system.n_levels:
+        notes.append(f"W keeps numerical rank {cond.rank} < {system.n_levels}: the pseudo-inverse truncates")
+    if system.n_levels < 3:
+        raise FitError(f"only {system.n_levels} supported levels remain; at least 3 are needed to fit 2 parameters")
+    r, n_rows = _solve(system, l, method, rcond, notes)
+    dmax = _fit_range(system, l, r, method, max_distance)
+    pf = fit_profile_grid(
+        system.levels,
+        r,
+        grid=TABLE2_GRID if grid is None else grid,
+        eta=eta,
+        max_distance=dmax,
+        refine=refine,
+        level=level,
+    )
+    if pf.n_nonpositive:
+        notes.append(f"{pf.n_nonpositive} level(s) within the fit range with R' ≤ 0 left out of eq. 36 (log undefined)")
+    if pf.at_grid_edge:
+        notes.append("the interval reaches the edge of the grid: the grid bounds it")
+    for note in notes:
+        if "merged" in note or "rank" in note:
+            warnings.warn(note, QuantisationWarning, stacklevel=3)
+    deficient = n_rank_merged > 0 or cond.rank < system.n_levels
+    return ScatteringImageFit(
+        sigma_s_prime=pf.sigma_s_prime,
+        sigma_a=pf.sigma_a,
+        sigma_s_prime_interval=pf.sigma_s_prime_interval,
+        sigma_a_interval=pf.sigma_a_interval,
+        sigma_tr_interval=pf.sigma_tr_interval,
+        interval_level=pf.interval_level,
+        levels=system.levels,
+        profile=r,
+        support=system.support,
+        width=float(width) if width is not None else float(system.levels[1]),
+        method=method,
+        rank=cond.rank,
+        n_levels=system.n_levels,
+        condition=cond.condition,
+        merged_levels=system.merged,
+        max_distance=pf.max_distance,
+        n_rows=n_rows,
+        eta=pf.eta,
+        profile_fit=pf,
+        rank_deficient=deficient,
+        notes=notes,
+    )
+
+
+def fit_scattering_image(
+    points,
+    areas,
+    irradiance,
+    radiance,
+    *,
+    width,
+    visible=None,
+    eta=1.3,
+    grid: ProfileGrid | None = None,
+    method="monotone",
+    max_distance="auto",
+    min_pairs=30,
+    rcond=DEFAULT_RCOND,
+    refine=False,
+    level=0.95,
+    block_bytes=DEFAULT_BLOCK_BYTES,
+    progress=False,
+) -> ScatteringImageFit:
+    """Dipole (σ's, σa) of a homogeneous translucent object from one image (module docstring).
+
+    Suzuki, Mukaigawa & Yagi eq. 15-36: l ≈ W r (eq. 34), r from the visible rows,
+    then eq. 36 on a grid.
+
+    Parameters
+    ----------
+    points : array_like, shape (m, 3)
+        Patch centres, mm.
+    areas : array_like, shape (m,)
+        Patch areas, mm² (> 0); they multiply c_k because R is in mm⁻² (see
+        :mod:`facestats.model.fitting.quantised`).
+    irradiance : array_like, shape (m,)
+        c_k of eq. 16 (light entering each patch per unit area, ≥ 0; e.g. W mm⁻²).
+    radiance : array_like, shape (m,)
+        l_j = π L_o / F_t,o of eq. 15 (≥ 0, same unit as ``irradiance``); only
+        visible entries are used.
+    width : float or "auto"
+        Quantisation width in mm (> 0), or ``"auto"``.
+    visible : array_like of bool, shape (m,), optional
+        Patches the camera sees (rows of eq. 35); default all.
+    eta : float
+        Relative index of refraction of the dipole (Suzuki: 1.3).
+    grid : ProfileGrid, optional
+        Models searched by eq. 36; default Suzuki Table 2.
+    method : {"monotone", "pinv"}
+        Constrained relative-residual solve (default) or the paper's pseudo-inverse.
+    max_distance : "auto", float or None
+        Largest level distance in the fit (mm); ``None``: all levels (the paper);
+        ``"auto"``: the rule of the module docstring for ``"monotone"``, all
+        levels for ``"pinv"`` (the paper's method unchanged).
+    min_pairs : int
+        Levels with fewer (hat-weighted) supporting pairs are merged.
+    rcond : float
+        Relative singular-value threshold of the numerical rank.
+    refine : bool
+        Refine the best grid model by continuous least squares.
+    level : float
+        Confidence level of the interval.
+    block_bytes : int
+        Memory budget of a row block of W.
+    progress : bool
+        Progress bar while W is built.
+
+    Returns
+    -------
+    ScatteringImageFit
+    """
+    p, a, c, l, vis = _check_inputs(points, areas, irradiance, radiance, visible)
+    rows = np.nonzero(vis)[0]
+    weights = c * a
+    if isinstance(width, str):
+        check_choice(width, "width", ("auto",))
+        candidates = auto_width(p, weights, rows, min_pairs=min_pairs)
+    else:
+        candidates = [float(as_finite(width, "width", 0, None, low_inclusive=False, unit="mm"))]
+    last_error, skipped = None, []
+    for w in candidates:  # loop over candidate widths (one unless width="auto" meets a rank deficit)
+        system = quantised_system(p, weights, rows, width=w, block_bytes=block_bytes, progress=progress)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", QuantisationWarning)
+            try:
+                fit = fit_scattering_system(
+                    system,
+                    l[rows],
+                    method=method,
+                    eta=eta,
+                    grid=grid,
+                    max_distance=max_distance,
+                    min_pairs=min_pairs,
+                    rcond=rcond,
+                    refine=refine,
+                    level=level,
+                    width=w,
+                )
+            except FitError as exc:
+                last_error = exc
+                continue
+        if isinstance(width, str) and fit.rank_deficient and w != candidates[-1]:
+            skipped.append(f"{w:.4g} mm (rank {fit.rank} of {fit.n_levels}, condition {fit.condition:.3g})")
+            continue  # width="auto": a rank deficit moves on to the next candidate
+        if isinstance(width, str):
+            fit.notes.insert(0, f"width='auto' chose {w:.4g} mm (candidates {np.round(candidates, 4).tolist()})")
+            if skipped:
+                note = f"width='auto' skipped rank-deficient widths: {'; '.join(skipped)}"
+                fit.notes.insert(1, note)
+                fit.rank_deficient = True
+                warnings.warn(note, QuantisationWarning, stacklevel=2)
+        for x in caught:
+            warnings.warn(x.message, x.category, stacklevel=2)
+        return fit
+    raise FitError(f"no width gave a solvable system: {last_error}")

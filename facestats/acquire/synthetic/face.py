@@ -16,7 +16,7 @@ import numpy as np
 from facestats.acquire.geometry import FaceGeometry, grid_triangles
 from facestats.errors import ValidationError
 
-__all__ = ["procedural_face", "face_window", "SITE_CENTRES"]
+__all__ = ["procedural_face", "face_window", "face_uv", "SITE_CENTRES"]
 
 
 #: Face coordinates (x, y) in mm of the contact-sensor sites on the procedural face: the cheek on the
@@ -79,6 +79,11 @@ def _regions(x, y):
     reg[_inside(x, y, 0, -57, 25, 9.5)] = 8  # lips
     reg[~face] = 0
     return reg
+
+
+def face_uv(x, y):
+    """Texture coordinates (u, v) in [0, 1] of face coordinates x, y (mm): the inverse of the UV → surface map."""
+    return np.clip(np.asarray(x) / _UV_WIDTH + 0.5, 0, 1), np.clip(0.5 - np.asarray(y) / _UV_HEIGHT, 0, 1)
 
 
 def _surface(u, v):

@@ -38,8 +38,9 @@ Conventions and choices (stated once here, used by every function):
 Solves (eq. 35 and beyond the paper), on the rows of the visible patches:
 
 * ``"pinv"`` — r = W⁺ l, the paper's pseudo-inverse (computed on W with columns
-  scaled to unit norm, which leaves a full-rank solution unchanged), singular
-  values below ``rcond`` × the largest treated as zero (numerical rank).
+  scaled to unit norm, which leaves a full-rank solution unchanged): the
+  minimum-norm least-squares solution by a complete orthogonal factorisation
+  (LAPACK ``gelsy``), with the numerical rank at ``rcond``.
 * ``"monotone"`` — the default of :func:`facestats.model.fitting.fit_scattering_image`:
   r non-negative and non-increasing in distance, r = U u with u ≥ 0 and
   U_ik = 1 for k ≥ i (r_i = Σ_{k ≥ i} u_k), rows weighted by 1/l_j (relative
@@ -69,6 +70,7 @@ __all__ = [
     "interpolation_matrix",
     "merge_levels",
     "conditioning",
+    "dependent_levels",
     "solve_pinv",
     "solve_monotone",
     "profile_covariance",
@@ -329,6 +331,13 @@ def _scaled(matrix, row_weights=None):
 def conditioning(matrix, row_weights=None, rcond=1e-10) -> Conditioning:
     """Numerical rank and condition number of W (see :class:`Conditioning`).
 
+    The singular values are the square roots of the eigenvalues of the Gram
+    matrix of the scaled W (one matrix product and an n × n eigen-decomposition,
+    instead of an SVD of the rows × n matrix): exact to rounding for singular
+    values above about 10⁻⁷ s_max, so ranks at ``rcond`` ≥ 10⁻⁷ and condition
+    numbers up to about 10⁷ are resolved; larger condition numbers are reported
+    as at least that.
+
     Parameters
     ----------
     matrix : ndarray, shape (rows, n)
@@ -337,16 +346,33 @@ def conditioning(matrix, row_weights=None, rcond=1e-10) -> Conditioning:
     rcond : float
         Relative threshold of the numerical rank, in (0, 1).
     """
-    from scipy.linalg import svdvals
+    from scipy.linalg import eigvalsh
 
     rc = float(as_finite(rcond, "rcond", 0, 1, low_inclusive=False, high_inclusive=False))
     a, _ = _scaled(np.asarray(matrix, np.float64), row_weights)
-    s = svdvals(a, check_finite=False)
+    ev = eigvalsh(a.T @ a, check_finite=False)[::-1]
+    s = np.sqrt(np.maximum(ev, 0))
     smax = float(s[0]) if s.size else 0.0
     rank = int(np.sum(s > rc * smax)) if smax > 0 else 0
     with np.errstate(divide="ignore"):
         cond = float(smax / s[-1]) if s.size and s[-1] > 0 else np.inf
     return Conditioning(singular_values=s, rank=rank, condition=cond, rcond=rc)
+
+
+def dependent_levels(matrix, row_weights=None, rcond=1e-10) -> np.ndarray:
+    """Indices of the columns of W beyond its numerical rank, least independent last (pivoted Cholesky).
+
+    The pivoted Cholesky factorisation of the Gram matrix of the scaled W
+    (LAPACK ``dpstrf``, tolerance rcond²) orders the columns as a column-pivoted
+    QR of W would; the columns after the rank are the ones a rank-revealing
+    solve drops.
+    """
+    from scipy.linalg.lapack import dpstrf
+
+    a, _ = _scaled(np.asarray(matrix, np.float64), row_weights)
+    gram = a.T @ a
+    _, piv, rank, info = dpstrf(gram, lower=0, tol=float(rcond) ** 2 * float(np.max(np.diag(gram))))
+    return np.asarray(piv[rank:], np.int64) - 1  # LAPACK pivots are 1-based
 
 
 def _check_exitance(exitance, n_rows):
@@ -369,9 +395,11 @@ def solve_pinv(system: QuantisedSystem, exitance, rcond=1e-10) -> np.ndarray:
     ndarray, shape (n,)
         R'_i in mm⁻² (may be negative: the paper's solve has no constraint).
     """
+    from scipy.linalg import lstsq
+
     l = _check_exitance(exitance, system.matrix.shape[0])
     a, norm = _scaled(system.matrix)
-    sol, *_ = np.linalg.lstsq(a, l, rcond=rcond)
+    sol, *_ = lstsq(a, l, cond=rcond, lapack_driver="gelsy", check_finite=False)
     return np.where(norm > 0, sol / np.where(norm > 0, norm, 1.0), 0.0)
 
 

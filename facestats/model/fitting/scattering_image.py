@@ -14,8 +14,9 @@ linear system:
    with a :class:`facestats.errors.QuantisationWarning`.  Then the numerical rank
    and condition number of W (columns scaled to unit norm, rows weighted as the
    solve weights them) are computed; while the rank is below the number of
-   levels, the level whose column is least independent (last pivot of a
-   column-pivoted QR) is merged away, with a warning.  Everything done is
+   levels, the levels whose columns are least independent (the pivots beyond
+   the rank of a pivoted Cholesky factorisation of the Gram matrix, which
+   orders columns as a column-pivoted QR would) are merged away, with a warning.  Everything done is
    recorded in the result (``merged_levels``, ``rank``, ``condition``,
    ``notes``); nothing is solved silently.
 4. **Solve** for r = (R'_1 … R'_n): ``"pinv"`` — the paper's r = W⁺ l (eq. 35);
@@ -26,9 +27,11 @@ linear system:
    levels up to ``max_distance``, with a profile-likelihood interval.
 
 Maximum distance (``max_distance="auto"``): the fit uses the levels up to the
-first level (beyond d'_1 = 0) whose profile value the data do not determine to
-within ``MAX_RELATIVE_ERROR`` = 25 %: the relative standard error of R'_i from
-the unconstrained relative-residual problem
+first level (beyond d'_1 = 0) where the data do not determine the profile to
+within ``MAX_RELATIVE_ERROR`` = 25 %, judged at the resolution of the patches
+(levels thinned to about one per patch spacing when the width is finer, so the
+range does not shrink as the width does): the relative standard error of R'_i
+from the unconstrained relative-residual problem
 (:func:`~facestats.model.fitting.quantised.profile_covariance`), with the
 relative noise taken as the residual of the solve but at least
 ``NOISE_FLOOR`` = 1 % (so noise-free synthetic data are treated like a
@@ -65,6 +68,7 @@ from facestats.model.fitting.quantised import (
     DEFAULT_BLOCK_BYTES,
     QuantisedSystem,
     conditioning,
+    dependent_levels,
     merge_levels,
     profile_covariance,
     quantised_system,
@@ -281,16 +285,30 @@ def auto_width(points, weights, rows, *, spacing=None, min_pairs=30) -> list:
 
 
 def fit_distance(system: QuantisedSystem, exitance, profile) -> float:
-    """The ``max_distance="auto"`` rule (module docstring): last level before R' is undetermined to 25 %, mm."""
-    cov = profile_covariance(system, exitance, profile)
+    """The ``max_distance="auto"`` rule (module docstring): last distance before R' is undetermined to 25 %, mm.
+
+    Judged at the resolution of the patches: the levels are thinned to about
+    one per d'_2 (the first level beyond 0 after merging, about the patch
+    spacing when the width is finer; the system itself otherwise), the thinned
+    system is solved (monotone), and the relative standard errors of its R'
+    come from :func:`~facestats.model.fitting.quantised.profile_covariance`
+    with the noise floored at ``NOISE_FLOOR``.
+    """
+    lev = system.levels
+    step = lev[1]
+    keep = np.zeros(lev.size, bool)
+    keep[np.searchsorted(lev, np.arange(0, lev[-1], step) - 1e-9 * step)] = True
+    coarse = merge_levels(system, keep)
+    r = profile if coarse.n_levels == system.n_levels else solve_monotone(coarse, exitance)[0]
+    cov = profile_covariance(coarse, exitance, r)
     use = exitance > 0
-    resid = system.matrix[use] @ profile / exitance[use] - 1
-    s2 = float(resid @ resid) / max(int(use.sum()) - system.n_levels, 1)
-    floor = max(1.0, NOISE_FLOOR**2 / max(s2, 1e-300))  # inflate to the noise floor
+    resid = coarse.matrix[use] @ r / exitance[use] - 1
+    s2 = float(resid @ resid) / max(int(use.sum()) - coarse.n_levels, 1)
+    inflate = max(1.0, NOISE_FLOOR**2 / max(s2, 1e-300))
     with np.errstate(invalid="ignore", divide="ignore"):
-        rse = np.where(profile > 0, np.sqrt(np.maximum(np.diag(cov), 0) * floor) / profile, np.inf)
+        rse = np.where(r > 0, np.sqrt(np.maximum(np.diag(cov), 0) * inflate) / r, np.inf)
     bad = np.nonzero(~(rse[1:] <= MAX_RELATIVE_ERROR))[0] + 1
-    return float(system.levels[bad[0] - 1] if bad.size else system.levels[-1])
+    return float(coarse.levels[bad[0] - 1] if bad.size else coarse.levels[-1])
 
 
 def _row_weights(method, exitance):
@@ -301,27 +319,21 @@ def _row_weights(method, exitance):
 
 def _resolve_rank(system, exitance, method, rcond, notes):
     """Merge the least independent levels until W has full numerical rank (module docstring)."""
-    from scipy.linalg import qr
-
-    cond = conditioning(system.matrix, _row_weights(method, exitance), rcond)
+    weights = _row_weights(method, exitance)
     merged = 0
-    while cond.rank < system.n_levels and system.n_levels > 3:
-        a = system.matrix if method == "pinv" else system.matrix * _row_weights(method, exitance)[:, None]
-        norm = np.linalg.norm(a, axis=0)
-        _, _, piv = qr(a / np.where(norm > 0, norm, 1.0), mode="economic", pivoting=True, check_finite=False)
-        drop = [int(j) for j in piv[cond.rank :] if 0 < j < system.n_levels - 1]
-        if not drop:
+    for _ in range(8):  # a few rounds: merging changes the neighbours' columns
+        drop = [int(j) for j in dependent_levels(system.matrix, weights, rcond) if 0 < j < system.n_levels - 1]
+        if not drop or system.n_levels - len(drop) < 3:
             break
         keep = np.ones(system.n_levels, bool)
         keep[drop] = False
         notes.append(
-            f"W had numerical rank {cond.rank} < {system.n_levels} levels (rcond {rcond:g}); merged the "
-            f"least independent levels at {np.round(system.levels[drop], 4).tolist()} mm"
+            f"W had numerical rank {system.n_levels - len(drop)} < {system.n_levels} levels (rcond {rcond:g}); "
+            f"merged the least independent levels at {np.round(system.levels[drop], 4).tolist()} mm"
         )
         system = merge_levels(system, keep)
         merged += len(drop)
-        cond = conditioning(system.matrix, _row_weights(method, exitance), rcond)
-    return system, cond, merged
+    return system, conditioning(system.matrix, weights, rcond), merged
 
 
 def _merge_unsupported(system, min_pairs, notes):

@@ -224,7 +224,7 @@ def _far_eyes(directions, patches):
     return centre + 100 * radius * np.asarray(directions)
 
 
-def light_masks(patches, lights, *, shadows=True, resolution=1024) -> list:
+def light_masks(patches, lights, *, shadows=True, resolution=512) -> list:
     """Per light, the (m, K) bool visibility of the patches (K = 1, or directions for an environment).
 
     Combines each light's cuts and cone with self-shadowing from shadow maps of
@@ -252,7 +252,7 @@ def light_masks(patches, lights, *, shadows=True, resolution=1024) -> list:
     return out
 
 
-def patch_irradiance(patches, lights, *, eta=SUZUKI_ETA, shadows=True, resolution=1024) -> np.ndarray:
+def patch_irradiance(patches, lights, *, eta=SUZUKI_ETA, shadows=True, resolution=512) -> np.ndarray:
     """c_k of Suzuki eq. 16 for every patch, summed over the lights, shape (m, 3) (module docstring).
 
     Parameters

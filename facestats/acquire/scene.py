@@ -67,7 +67,7 @@ def write_radiance_image(path, image) -> str:
     return p
 
 
-def camera_sees(camera: PinholeCamera, patches, *, shadow_resolution=1024) -> np.ndarray:
+def camera_sees(camera: PinholeCamera, patches, *, shadow_resolution=512) -> np.ndarray:
     """(m,) bool: patches facing the camera, in frame and (with a mesh) not occluded (shadow map)."""
     to_cam = camera.position - patches.centre
     seen = (np.einsum("mk,mk->m", patches.normal, to_cam) > 0) & camera.in_frame(patches.centre)
@@ -81,7 +81,7 @@ def camera_sees(camera: PinholeCamera, patches, *, shadow_resolution=1024) -> np
     return seen
 
 
-def patch_radiance(image, camera: PinholeCamera, patches, *, eta=1.3, shadow_resolution=1024):
+def patch_radiance(image, camera: PinholeCamera, patches, *, eta=1.3, shadow_resolution=512):
     """Exitance l_j (Suzuki eq. 15) of the patches a camera sees in a radiance image (module docstring).
 
     Parameters

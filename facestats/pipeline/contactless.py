@@ -64,7 +64,7 @@ def estimate_site(scene, image, *, modulation_map=None, width="auto", grid=SKIN_
     from facestats.acquire.lights import patch_irradiance
     from facestats.acquire.scene import patch_radiance
     from facestats.acquire.synthetic.contactless import patch_modulation
-    from facestats.model.fitting.scattering_image import fit_scattering_image
+    from facestats.model.fitting.scattering_image import fit_scattering_channels
 
     p = scene.patches
     c = patch_irradiance(p, scene.lights, eta=eta)
@@ -76,12 +76,7 @@ def estimate_site(scene, image, *, modulation_map=None, width="auto", grid=SKIN_
         ok = np.all(m > 0, axis=1)
         seen &= ok
         l = np.where(ok[:, None], l / np.where(m > 0, m, 1.0), 0.0)
-    return [
-        fit_scattering_image(
-            p.centre, p.area, c[:, ch], l[:, ch], width=width, visible=seen, eta=eta, grid=grid, refine=refine
-        )
-        for ch in range(3)  # loop over the three channels
-    ]
+    return fit_scattering_channels(p.centre, p.area, c, l, width=width, visible=seen, eta=eta, grid=grid, refine=refine)
 
 
 def fit_contactless(subject, images: dict, *, light="stripe", use_modulation=True, **options):

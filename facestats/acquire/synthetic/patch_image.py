@@ -27,7 +27,7 @@ __all__ = ["render_patch_image"]
 _BLOCK_SAMPLES = 2_000_000
 
 
-def render_patch_image(camera: PinholeCamera, patches, radiance, *, samples=4, shadow_resolution=1024) -> np.ndarray:
+def render_patch_image(camera: PinholeCamera, patches, radiance, *, samples=4, shadow_resolution=512) -> np.ndarray:
     """Radiance image (H, W, C) float32 of patches of known radiance (module docstring).
 
     Parameters

@@ -46,9 +46,12 @@ Solves (eq. 35 and beyond the paper), on the rows of the visible patches:
   U_ik = 1 for k ≥ i (r_i = Σ_{k ≥ i} u_k), rows weighted by 1/l_j (relative
   residuals, right for multiplicative image noise): min ‖D (W U u − l)‖, u ≥ 0,
   D = diag(1/l), reduced to an n × n triangle (Cholesky factor of the Gram
-  matrix of D W U, columns scaled to unit norm; a QR factorisation when that is
-  numerically singular) and solved by non-negative least squares (Lawson-Hanson,
-  :func:`scipy.optimize.nnls`).
+  matrix of D W U, columns scaled to unit norm) and solved by non-negative
+  least squares (Lawson-Hanson, :func:`scipy.optimize.nnls`).
+
+The solves, ranks and covariances work on the normal equations (G = AᵀA, Aᵀy:
+:class:`NormalEquations`), formed once per image by one matrix product; merging
+levels maps them exactly (Pᵀ G P), so the rows × n matrix is touched once.
   Rows with l_j = 0 carry no relative information and are left out.
 """
 
@@ -69,10 +72,13 @@ __all__ = [
     "quantised_system",
     "interpolation_matrix",
     "merge_levels",
+    "NormalEquations",
+    "normal_equations",
     "conditioning",
     "dependent_levels",
     "solve_pinv",
     "solve_monotone",
+    "solve_monotone_normal",
     "profile_covariance",
 ]
 
@@ -309,8 +315,51 @@ def merge_levels(system: QuantisedSystem, keep) -> QuantisedSystem:
 
 
 @dataclass
+class NormalEquations:
+    """The least-squares problem ‖A r − y‖² of a system in n × n form: G = AᵀA, g = Aᵀy, yy = yᵀy.
+
+    ``weighted``: A = D W with D = diag(1/l_j) over the rows with l_j > 0 and
+    y = 1 (relative residuals, the monotone solve); otherwise A = W and y = l
+    (the paper's solve).  Everything the solves, the rank and the covariance
+    need follows from (G, g, yy), and merging levels maps it exactly:
+    G ← Pᵀ G P, g ← Pᵀ g (:func:`merge_levels`), so W is multiplied once.
+    """
+
+    gram: np.ndarray
+    rhs: np.ndarray
+    yy: float
+    n_rows: int
+    weighted: bool
+
+    def merged(self, p) -> "NormalEquations":
+        """The problem in the coarser basis r = P r_coarse."""
+        return NormalEquations(p.T @ self.gram @ p, p.T @ self.rhs, self.yy, self.n_rows, self.weighted)
+
+    def residual(self, r) -> float:
+        """‖A r − y‖² from the normal equations."""
+        return float(max(r @ self.gram @ r - 2 * r @ self.rhs + self.yy, 0.0))
+
+
+def _check_exitance(exitance, n_rows):
+    return check_shape(as_finite(exitance, "exitance", 0, None, dtype=np.float64), "exitance", (n_rows,))
+
+
+def normal_equations(system: QuantisedSystem, exitance, *, weighted=True) -> NormalEquations:
+    """(G, g, yy) of the weighted (relative, rows with l_j > 0) or plain problem (see :class:`NormalEquations`)."""
+    l = _check_exitance(exitance, system.matrix.shape[0])
+    if weighted:
+        use = l > 0
+        if not use.any():
+            raise FitError("exitance is 0 on every visible row: the weighted solve has no relative information")
+        a = system.matrix[use] / l[use, None]
+        return NormalEquations(a.T @ a, a.sum(0), float(use.sum()), int(use.sum()), True)
+    a = system.matrix
+    return NormalEquations(a.T @ a, a.T @ l, float(l @ l), int(l.size), False)
+
+
+@dataclass
 class Conditioning:
-    """Singular values of W (columns scaled to unit norm, rows optionally weighted), numerical rank and condition.
+    """Singular values of W (columns scaled to unit norm, rows weighted as solved), numerical rank and condition.
 
     ``condition`` is s_max / s_min (inf if a singular value is 0); ``rank`` counts
     singular values above ``rcond`` × s_max.
@@ -322,36 +371,24 @@ class Conditioning:
     rcond: float
 
 
-def _scaled(matrix, row_weights=None):
-    a = matrix if row_weights is None else matrix * row_weights[:, None]
-    norm = np.linalg.norm(a, axis=0)
-    return a / np.where(norm > 0, norm, 1.0), norm
+def _scaled_gram(neq: NormalEquations):
+    d = np.sqrt(np.diag(neq.gram))
+    d = np.where(d > 0, d, 1.0)
+    return neq.gram / np.outer(d, d)
 
 
-def conditioning(matrix, row_weights=None, rcond=1e-10) -> Conditioning:
-    """Numerical rank and condition number of W (see :class:`Conditioning`).
+def conditioning(neq: NormalEquations, rcond=1e-10) -> Conditioning:
+    """Numerical rank and condition number of the problem's matrix A with columns scaled to unit norm.
 
-    The singular values are the square roots of the eigenvalues of the Gram
-    matrix of the scaled W (one matrix product and an n × n eigen-decomposition,
-    instead of an SVD of the rows × n matrix): exact to rounding for singular
-    values above about 10⁻⁷ s_max, so ranks at ``rcond`` ≥ 10⁻⁷ and condition
-    numbers up to about 10⁷ are resolved; larger condition numbers are reported
-    as at least that.
-
-    Parameters
-    ----------
-    matrix : ndarray, shape (rows, n)
-    row_weights : ndarray, shape (rows,), optional
-        Row weights of the solve (1/l for the monotone solve).
-    rcond : float
-        Relative threshold of the numerical rank, in (0, 1).
+    The singular values are the square roots of the eigenvalues of the scaled
+    Gram matrix: exact to rounding for singular values above about 10⁻⁷ s_max,
+    so ranks at ``rcond`` ≥ 10⁻⁷ and condition numbers up to about 10⁷ are
+    resolved; larger condition numbers are reported as at least that.
     """
     from scipy.linalg import eigvalsh
 
     rc = float(as_finite(rcond, "rcond", 0, 1, low_inclusive=False, high_inclusive=False))
-    a, _ = _scaled(np.asarray(matrix, np.float64), row_weights)
-    ev = eigvalsh(a.T @ a, check_finite=False)[::-1]
-    s = np.sqrt(np.maximum(ev, 0))
+    s = np.sqrt(np.maximum(eigvalsh(_scaled_gram(neq), check_finite=False)[::-1], 0))
     smax = float(s[0]) if s.size else 0.0
     rank = int(np.sum(s > rc * smax)) if smax > 0 else 0
     with np.errstate(divide="ignore"):
@@ -359,24 +396,17 @@ def conditioning(matrix, row_weights=None, rcond=1e-10) -> Conditioning:
     return Conditioning(singular_values=s, rank=rank, condition=cond, rcond=rc)
 
 
-def dependent_levels(matrix, row_weights=None, rcond=1e-10) -> np.ndarray:
-    """Indices of the columns of W beyond its numerical rank, least independent last (pivoted Cholesky).
+def dependent_levels(neq: NormalEquations, rcond=1e-10) -> np.ndarray:
+    """Indices of the columns beyond the numerical rank, least independent last (pivoted Cholesky).
 
-    The pivoted Cholesky factorisation of the Gram matrix of the scaled W
-    (LAPACK ``dpstrf``, tolerance rcond²) orders the columns as a column-pivoted
-    QR of W would; the columns after the rank are the ones a rank-revealing
-    solve drops.
+    The pivoted Cholesky factorisation of the scaled Gram matrix (LAPACK
+    ``dpstrf``, tolerance rcond²) orders the columns as a column-pivoted QR of
+    A would; the columns after the rank are those a rank-revealing solve drops.
     """
     from scipy.linalg.lapack import dpstrf
 
-    a, _ = _scaled(np.asarray(matrix, np.float64), row_weights)
-    gram = a.T @ a
-    _, piv, rank, info = dpstrf(gram, lower=0, tol=float(rcond) ** 2 * float(np.max(np.diag(gram))))
+    _, piv, rank, _ = dpstrf(_scaled_gram(neq), lower=0, tol=float(rcond) ** 2)
     return np.asarray(piv[rank:], np.int64) - 1  # LAPACK pivots are 1-based
-
-
-def _check_exitance(exitance, n_rows):
-    return check_shape(as_finite(exitance, "exitance", 0, None, dtype=np.float64), "exitance", (n_rows,))
 
 
 def solve_pinv(system: QuantisedSystem, exitance, rcond=1e-10) -> np.ndarray:
@@ -398,38 +428,44 @@ def solve_pinv(system: QuantisedSystem, exitance, rcond=1e-10) -> np.ndarray:
     from scipy.linalg import lstsq
 
     l = _check_exitance(exitance, system.matrix.shape[0])
-    a, norm = _scaled(system.matrix)
-    sol, *_ = lstsq(a, l, cond=rcond, lapack_driver="gelsy", check_finite=False)
-    return np.where(norm > 0, sol / np.where(norm > 0, norm, 1.0), 0.0)
+    norm = np.linalg.norm(system.matrix, axis=0)
+    norm = np.where(norm > 0, norm, 1.0)
+    sol, *_ = lstsq(system.matrix / norm, l, cond=rcond, lapack_driver="gelsy", check_finite=False)
+    return sol / norm
 
 
-def _monotone_problem(system, l):
-    """The relative-residual problem in the monotone basis (module docstring), reduced to n × n.
+def _monotone_triangle(neq: NormalEquations):
+    """The n × n least-squares problem of the monotone basis: triangle, right-hand side and column scale.
 
-    Returns the rows used (l > 0), the column scale of A = D W U, and the upper
-    triangle T with right-hand side z such that ‖A u − 1‖² = ‖T u' − z‖² + const
-    for the scaled unknowns u' = u · scale: the Cholesky factor of AᵀA (the
-    Gram matrix is n × n, one matrix product), or, if AᵀA is numerically
-    singular, the triangle of a QR factorisation of [A | 1].
+    With T_ik = 1 for i ≤ k (r = T u), the Gram matrix of A T is Tᵀ G T =
+    cumsum(cumsum(G, 1), 0) and Tᵀ g = cumsum(g); scaled to unit columns, its
+    Cholesky factor R and z = R⁻ᵀ Tᵀ g give ‖A T u − y‖² = ‖R u' − z‖² + const.
     """
-    from scipy.linalg import LinAlgError, cho_factor, qr, solve_triangular
+    from scipy.linalg import LinAlgError, cholesky, eigh, solve_triangular
 
-    use = l > 0
-    if not use.any():
-        raise FitError("exitance is 0 on every visible row: the monotone solve has no relative information")
-    a = np.cumsum(system.matrix[use], axis=1) / l[use, None]  # (W U)_jk = Σ_{i ≤ k} W_ji
-    norm = np.linalg.norm(a, axis=0)
-    scale = np.where(norm > 0, norm, 1.0)
-    a /= scale
-    n = a.shape[1]
+    gu = np.cumsum(np.cumsum(neq.gram, axis=1), axis=0)
+    gu = 0.5 * (gu + gu.T)
+    bu = np.cumsum(neq.rhs)
+    d = np.sqrt(np.maximum(np.diag(gu), 0))
+    scale = np.where(d > 0, d, 1.0)
+    gs = gu / np.outer(scale, scale)
     try:
-        tri, _ = cho_factor(a.T @ a, lower=False, check_finite=False)
-        tri = np.triu(tri)
-        z = solve_triangular(tri, a.sum(0), trans="T", check_finite=False)
-    except LinAlgError:
-        (full,) = qr(np.column_stack([a, np.ones(a.shape[0])]), mode="r", check_finite=False)
-        tri, z = full[:n, :n], full[:n, n]
-    return use, scale, tri, z
+        tri = cholesky(gs, lower=False, check_finite=False)
+    except LinAlgError:  # numerically singular: the PSD square root keeps what the data determine
+        w, v = eigh(gs, check_finite=False)
+        tri = np.sqrt(np.maximum(w, 0))[:, None] * v.T
+        z = np.where(w > 0, (v.T @ (bu / scale)) / np.sqrt(np.where(w > 0, w, 1.0)), 0.0)
+        return tri, z, scale
+    return tri, solve_triangular(tri, bu / scale, trans="T", check_finite=False), scale
+
+
+def solve_monotone_normal(neq: NormalEquations) -> np.ndarray:
+    """r ≥ 0, non-increasing, minimising ‖A r − y‖ for weighted normal equations (module docstring)."""
+    from scipy.optimize import nnls
+
+    tri, z, scale = _monotone_triangle(neq)
+    u, _ = nnls(tri, z, maxiter=50 * tri.shape[1])
+    return np.cumsum((u / scale)[::-1])[::-1]
 
 
 def solve_monotone(system: QuantisedSystem, exitance) -> tuple[np.ndarray, np.ndarray]:
@@ -448,30 +484,20 @@ def solve_monotone(system: QuantisedSystem, exitance) -> tuple[np.ndarray, np.nd
     used : ndarray of bool, shape (rows,)
         The rows that entered the solve (l_j > 0).
     """
-    from scipy.optimize import nnls
-
     l = _check_exitance(exitance, system.matrix.shape[0])
-    use, scale, tri, z = _monotone_problem(system, l)
-    u, _ = nnls(tri, z, maxiter=50 * tri.shape[1])
-    u = u / scale
-    return np.cumsum(u[::-1])[::-1], use
+    return solve_monotone_normal(normal_equations(system, l)), l > 0
 
 
-def profile_covariance(system: QuantisedSystem, exitance, profile) -> np.ndarray:
-    """Covariance of r from the unconstrained relative-residual problem, σ̂² U (AᵀA)⁻¹ Uᵀ.
+def profile_covariance(neq: NormalEquations, profile) -> np.ndarray:
+    """Covariance σ̂² (AᵀA)⁺ of r in the unconstrained problem, σ̂² = ‖A r − y‖² / (rows − n).
 
-    σ̂² is the mean squared relative residual of ``profile`` over the rows with
-    l_j > 0 (degrees of freedom rows − n).  Used to judge which levels the data
-    determine; the constraints of the monotone solve are ignored (the local,
-    unconstrained spread).
+    Used to judge which levels the data determine; the constraints of the
+    monotone solve are ignored (the local, unconstrained spread).
     """
-    from scipy.linalg import solve_triangular
+    from scipy.linalg import pinvh
 
-    l = _check_exitance(exitance, system.matrix.shape[0])
-    use, scale, tri, _ = _monotone_problem(system, l)
-    resid = system.matrix[use] @ profile / l[use] - 1
-    dof = max(int(use.sum()) - system.n_levels, 1)
-    s2 = float(resid @ resid) / dof
-    tinv = solve_triangular(tri, np.eye(tri.shape[0]), check_finite=False) / scale[:, None]  # (AᵀA)⁻¹ = T⁻¹T⁻ᵀ
-    upper_tinv = np.cumsum(tinv[::-1], axis=0)[::-1]  # U T⁻¹, U_ik = 1 for k ≥ i
-    return s2 * upper_tinv @ upper_tinv.T
+    n = neq.gram.shape[0]
+    s2 = neq.residual(np.asarray(profile, np.float64)) / max(neq.n_rows - n, 1)
+    d = np.sqrt(np.diag(neq.gram))
+    d = np.where(d > 0, d, 1.0)
+    return s2 * pinvh(neq.gram / np.outer(d, d), check_finite=False) / np.outer(d, d)

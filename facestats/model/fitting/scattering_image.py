@@ -66,13 +66,16 @@ from facestats.errors import FitError, QuantisationWarning, ValidationError
 from facestats.model.fitting.profile_grid import TABLE2_GRID, ProfileFit, ProfileGrid, fit_profile_grid
 from facestats.model.fitting.quantised import (
     DEFAULT_BLOCK_BYTES,
+    NormalEquations,
     QuantisedSystem,
     conditioning,
     dependent_levels,
+    interpolation_matrix,
     merge_levels,
+    normal_equations,
     profile_covariance,
     quantised_system,
-    solve_monotone,
+    solve_monotone_normal,
     solve_pinv,
 )
 
@@ -83,6 +86,7 @@ __all__ = [
     "ScatteringImageFit",
     "fit_scattering_image",
     "fit_scattering_system",
+    "fit_scattering_channels",
     "auto_width",
     "fit_distance",
 ]
@@ -284,45 +288,39 @@ def auto_width(points, weights, rows, *, spacing=None, min_pairs=30) -> list:
     return out or [float(spacing * 2**4)]
 
 
-def fit_distance(system: QuantisedSystem, exitance, profile) -> float:
+def fit_distance(system: QuantisedSystem, neq: NormalEquations, profile) -> float:
     """The ``max_distance="auto"`` rule (module docstring): last distance before R' is undetermined to 25 %, mm.
 
     Judged at the resolution of the patches: the levels are thinned to about
     one per d'_2 (the first level beyond 0 after merging, about the patch
     spacing when the width is finer; the system itself otherwise), the thinned
-    system is solved (monotone), and the relative standard errors of its R'
+    problem is solved (monotone), and the relative standard errors of its R'
     come from :func:`~facestats.model.fitting.quantised.profile_covariance`
-    with the noise floored at ``NOISE_FLOOR``.
+    with the noise floored at ``NOISE_FLOOR``.  ``neq`` are the weighted
+    normal equations of ``system``.
     """
     lev = system.levels
-    step = lev[1]
     keep = np.zeros(lev.size, bool)
-    keep[np.searchsorted(lev, np.arange(0, lev[-1], step) - 1e-9 * step)] = True
-    coarse = merge_levels(system, keep)
-    r = profile if coarse.n_levels == system.n_levels else solve_monotone(coarse, exitance)[0]
-    cov = profile_covariance(coarse, exitance, r)
-    use = exitance > 0
-    resid = coarse.matrix[use] @ r / exitance[use] - 1
-    s2 = float(resid @ resid) / max(int(use.sum()) - coarse.n_levels, 1)
+    keep[np.searchsorted(lev, np.arange(0, lev[-1], lev[1]) - 1e-9 * lev[1])] = True
+    keep[0] = keep[-1] = True
+    coarse = lev[keep]
+    if coarse.size < lev.size:
+        neq = neq.merged(interpolation_matrix(lev, coarse))
+        profile = solve_monotone_normal(neq)
+    cov = profile_covariance(neq, profile)
+    s2 = neq.residual(profile) / max(neq.n_rows - coarse.size, 1)
     inflate = max(1.0, NOISE_FLOOR**2 / max(s2, 1e-300))
     with np.errstate(invalid="ignore", divide="ignore"):
-        rse = np.where(r > 0, np.sqrt(np.maximum(np.diag(cov), 0) * inflate) / r, np.inf)
+        rse = np.where(profile > 0, np.sqrt(np.maximum(np.diag(cov), 0) * inflate) / profile, np.inf)
     bad = np.nonzero(~(rse[1:] <= MAX_RELATIVE_ERROR))[0] + 1
-    return float(coarse.levels[bad[0] - 1] if bad.size else coarse.levels[-1])
+    return float(coarse[bad[0] - 1] if bad.size else coarse[-1])
 
 
-def _row_weights(method, exitance):
-    if method == "pinv":
-        return None
-    return np.where(exitance > 0, 1 / np.where(exitance > 0, exitance, 1.0), 0.0)
-
-
-def _resolve_rank(system, exitance, method, rcond, notes):
+def _resolve_rank(system, neq, rcond, notes):
     """Merge the least independent levels until W has full numerical rank (module docstring)."""
-    weights = _row_weights(method, exitance)
     merged = 0
     for _ in range(8):  # a few rounds: merging changes the neighbours' columns
-        drop = [int(j) for j in dependent_levels(system.matrix, weights, rcond) if 0 < j < system.n_levels - 1]
+        drop = [int(j) for j in dependent_levels(neq, rcond) if 0 < j < system.n_levels - 1]
         if not drop or system.n_levels - len(drop) < 3:
             break
         keep = np.ones(system.n_levels, bool)
@@ -331,9 +329,10 @@ def _resolve_rank(system, exitance, method, rcond, notes):
             f"W had numerical rank {system.n_levels - len(drop)} < {system.n_levels} levels (rcond {rcond:g}); "
             f"merged the least independent levels at {np.round(system.levels[drop], 4).tolist()} mm"
         )
+        neq = neq.merged(interpolation_matrix(system.levels, system.levels[keep]))
         system = merge_levels(system, keep)
         merged += len(drop)
-    return system, conditioning(system.matrix, weights, rcond), merged
+    return system, neq, conditioning(neq, rcond), merged
 
 
 def _merge_unsupported(system, min_pairs, notes):
@@ -348,20 +347,19 @@ def _merge_unsupported(system, min_pairs, notes):
     return system
 
 
-def _solve(system, l, method, rcond, notes):
+def _solve(system, neq, l, method, rcond, notes):
     """r by the chosen method and the number of rows that entered the solve."""
     if method == "pinv":
         return solve_pinv(system, l, rcond=rcond), int(system.rows.size)
-    r, used = solve_monotone(system, l)
-    if used.sum() < l.size:
-        notes.append(f"{l.size - int(used.sum())} visible row(s) with zero radiance left out of the weighted solve")
-    return r, int(used.sum())
+    if neq.n_rows < l.size:
+        notes.append(f"{l.size - neq.n_rows} visible row(s) with zero radiance left out of the weighted solve")
+    return solve_monotone_normal(neq), neq.n_rows
 
 
-def _fit_range(system, l, r, method, max_distance):
+def _fit_range(system, neq, l, r, method, max_distance):
     """The largest level distance of the fit, mm (``max_distance`` of :func:`fit_scattering_image`)."""
     if max_distance == "auto" and method == "monotone":
-        return fit_distance(system, l, r)
+        return fit_distance(system, neq, r)
     if max_distance is None or max_distance == "auto":  # the paper fits every level
         return float(system.levels[-1])
     dmax = float(as_finite(max_distance, "max_distance", 0, None, low_inclusive=False, unit="mm"))
@@ -397,13 +395,14 @@ def fit_scattering_system(
     l = check_shape(as_finite(exitance, "radiance", 0, None, dtype=np.float64), "radiance", (system.rows.size,))
     notes: list = []
     system = _merge_unsupported(system, int(min_pairs), notes)
-    system, cond, n_rank_merged = _resolve_rank(system, l, method, float(rcond), notes)
+    neq = normal_equations(system, l, weighted=method == "monotone")
+    system, neq, cond, n_rank_merged = _resolve_rank(system, neq, float(rcond), notes)
     if cond.rank < system.n_levels:
         notes.append(f"W keeps numerical rank {cond.rank} < {system.n_levels}: the pseudo-inverse truncates")
     if system.n_levels < 3:
         raise FitError(f"only {system.n_levels} supported levels remain; at least 3 are needed to fit 2 parameters")
-    r, n_rows = _solve(system, l, method, rcond, notes)
-    dmax = _fit_range(system, l, r, method, max_distance)
+    r, n_rows = _solve(system, neq, l, method, rcond, notes)
+    dmax = _fit_range(system, neq, l, r, method, max_distance)
     pf = fit_profile_grid(
         system.levels,
         r,
@@ -515,45 +514,94 @@ def fit_scattering_image(
     """
     p, a, c, l, vis = _check_inputs(points, areas, irradiance, radiance, visible)
     rows = np.nonzero(vis)[0]
-    weights = c * a
-    if isinstance(width, str):
+    options = dict(
+        method=method,
+        eta=eta,
+        grid=grid,
+        max_distance=max_distance,
+        min_pairs=min_pairs,
+        rcond=rcond,
+        refine=refine,
+        level=level,
+    )
+    return _fit_over_widths(p, c * a, rows, [l[rows]], width, options, block_bytes, progress)[0]
+
+
+def fit_scattering_channels(points, areas, irradiance, radiance, *, width, visible=None, **options) -> list:
+    """:func:`fit_scattering_image` for each channel of (m, C) radiance, building W once per distinct irradiance.
+
+    ``irradiance`` is (m,) (one light colour for all channels) or (m, C); channels
+    whose irradiance columns are equal share one W (a white light: one build for
+    R, G and B).  Other parameters as :func:`fit_scattering_image`.
+
+    Returns
+    -------
+    list of ScatteringImageFit
+        One per channel.
+    """
+    lv = as_finite(radiance, "radiance", 0, None, dtype=np.float64)
+    if lv.ndim != 2:
+        raise ValidationError(f"radiance must have shape (m, C), got {lv.shape}")
+    cv = as_finite(irradiance, "irradiance", 0, None, dtype=np.float64)
+    cv = np.repeat(cv[:, None], lv.shape[1], axis=1) if cv.ndim == 1 else cv
+    if cv.shape != lv.shape:
+        raise ValidationError(f"irradiance must have shape ({lv.shape[0]},) or {lv.shape}, got {cv.shape}")
+    block_bytes = options.pop("block_bytes", DEFAULT_BLOCK_BYTES)
+    progress = options.pop("progress", False)
+    out = [None] * lv.shape[1]
+    for ch in range(lv.shape[1]):  # loop over channels; equal irradiance columns share one group
+        if out[ch] is not None:
+            continue
+        group = [k for k in range(lv.shape[1]) if out[k] is None and np.array_equal(cv[:, k], cv[:, ch])]
+        p, a, c, _, vis = _check_inputs(points, areas, cv[:, ch], lv[:, ch], visible)
+        rows = np.nonzero(vis)[0]
+        fits = _fit_over_widths(p, c * a, rows, [lv[rows, k] for k in group], width, options, block_bytes, progress)
+        for k, fit in zip(group, fits):
+            out[k] = fit
+    return out
+
+
+def _try_width(system, exitance, w, options, candidates, skipped, auto):
+    """One image at one width: the fit, or None when ``width="auto"`` should try the next candidate."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", QuantisationWarning)
+        fit = fit_scattering_system(system, exitance, width=w, **options)
+    if auto and fit.rank_deficient and w != candidates[-1]:
+        skipped.append(f"{w:.4g} mm (rank {fit.rank} of {fit.n_levels}, condition {fit.condition:.3g})")
+        return None  # a rank deficit moves on to the next candidate
+    if auto:
+        fit.notes.insert(0, f"width='auto' chose {w:.4g} mm (candidates {np.round(candidates, 4).tolist()})")
+        if skipped:
+            note = f"width='auto' skipped rank-deficient widths: {'; '.join(skipped)}"
+            fit.notes.insert(1, note)
+            fit.rank_deficient = True
+            warnings.warn(note, QuantisationWarning, stacklevel=4)
+    for x in caught:
+        warnings.warn(x.message, x.category, stacklevel=4)
+    return fit
+
+
+def _fit_over_widths(p, weights, rows, exitances, width, options, block_bytes, progress) -> list:
+    """Fit each exitance vector (rows) with W built at the width, or at the ``"auto"`` candidates in turn."""
+    auto = isinstance(width, str)
+    if auto:
         check_choice(width, "width", ("auto",))
-        candidates = auto_width(p, weights, rows, min_pairs=min_pairs)
+        candidates = auto_width(p, weights, rows, min_pairs=options.get("min_pairs", 30))
     else:
         candidates = [float(as_finite(width, "width", 0, None, low_inclusive=False, unit="mm"))]
-    last_error, skipped = None, []
+    n = len(exitances)
+    results, skipped, errors = [None] * n, [[] for _ in range(n)], [None] * n
     for w in candidates:  # loop over candidate widths (one unless width="auto" meets a rank deficit)
+        pending = [i for i in range(n) if results[i] is None]
+        if not pending:
+            break
         system = quantised_system(p, weights, rows, width=w, block_bytes=block_bytes, progress=progress)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", QuantisationWarning)
+        for i in pending:  # the images sharing this W
             try:
-                fit = fit_scattering_system(
-                    system,
-                    l[rows],
-                    method=method,
-                    eta=eta,
-                    grid=grid,
-                    max_distance=max_distance,
-                    min_pairs=min_pairs,
-                    rcond=rcond,
-                    refine=refine,
-                    level=level,
-                    width=w,
-                )
+                results[i] = _try_width(system, exitances[i], w, options, candidates, skipped[i], auto)
             except FitError as exc:
-                last_error = exc
-                continue
-        if isinstance(width, str) and fit.rank_deficient and w != candidates[-1]:
-            skipped.append(f"{w:.4g} mm (rank {fit.rank} of {fit.n_levels}, condition {fit.condition:.3g})")
-            continue  # width="auto": a rank deficit moves on to the next candidate
-        if isinstance(width, str):
-            fit.notes.insert(0, f"width='auto' chose {w:.4g} mm (candidates {np.round(candidates, 4).tolist()})")
-            if skipped:
-                note = f"width='auto' skipped rank-deficient widths: {'; '.join(skipped)}"
-                fit.notes.insert(1, note)
-                fit.rank_deficient = True
-                warnings.warn(note, QuantisationWarning, stacklevel=2)
-        for x in caught:
-            warnings.warn(x.message, x.category, stacklevel=2)
-        return fit
-    raise FitError(f"no width gave a solvable system: {last_error}")
+                errors[i] = exc
+    for i, fit in enumerate(results):
+        if fit is None:
+            raise FitError(f"no width gave a solvable system: {errors[i]}")
+    return results

@@ -19,7 +19,10 @@ Interval (profile likelihood over the grid): treating the log residuals as
 independent with a common variance estimated from the best fit,
 s² = cost_min / (n − 2), the statistic Δ(σ's, σa) = (cost − cost_min)/s² is
 compared with the χ² quantile of 2 degrees of freedom at ``level``,
-−2 ln(1 − level) (5.99 at 95 %); the
+−2 ln(1 − level) (5.99 at 95 %); the region is grown by one grid step in every
+direction, because the continuous optimum of a grid model can lie up to a step
+away (with little noise the statistical region holds a single model, and the
+grid's resolution is the honest uncertainty); the
 interval of each parameter is the range of grid values inside that joint
 region (the projection of the joint region, so each interval is at least as
 wide as a one-parameter profile interval).  The grid bounds the interval: an
@@ -151,6 +154,13 @@ class ProfileFit:
         return float(np.sqrt(3 * self.sigma_a * (self.sigma_a + self.sigma_s_prime)))
 
 
+def _dilate(mask):
+    """A boolean grid mask grown by one grid step in each direction (3 × 3 neighbourhood)."""
+    from scipy.ndimage import binary_dilation
+
+    return binary_dilation(mask, structure=np.ones((3, 3), bool))
+
+
 def _refine(d, y, s0, a0, eta, grid):
     """Continuous least squares of eq. 36 in (ln σ's, ln σa) from the grid model, within the grid's range."""
     from scipy.optimize import least_squares
@@ -218,6 +228,7 @@ def fit_profile_grid(
         c = min(c, cmin)
     s2 = max(cmin, 1e-300) / max(n_used - 2, 1)
     inside = (cost - cmin) / s2 <= -2 * np.log1p(-lvl)  # χ² quantile of 2 degrees of freedom
+    inside = _dilate(inside)  # the grid's own resolution: the optimum may lie a step beyond a grid model
     si, ai = np.nonzero(inside)
     ss, aa = grid.sigma_s_prime[si], grid.sigma_a[ai]
     tr = np.sqrt(3 * aa * (aa + ss))

@@ -170,11 +170,14 @@ def _accumulate_block(rows_xyz, cols_xyz, sq_c, cols_w, levels, width):
     """One row block: its rows of W, its level support and its largest pair distance (module docstring)."""
     n = levels.shape[0]
     b, nc = rows_xyz.shape[0], cols_xyz.shape[0]
+    sq_r = np.einsum("ij,ij->i", rows_xyz, rows_xyz)
     d2 = rows_xyz @ cols_xyz.T
     d2 *= -2
-    d2 += np.einsum("ij,ij->i", rows_xyz, rows_xyz)[:, None]
+    d2 += sq_r[:, None]
     d2 += sq_c[None, :]
-    np.maximum(d2, 0, out=d2)
+    # ‖p‖² + ‖q‖² − 2 p·q cancels: below its rounding error (a few eps of ‖p‖² + ‖q‖²) the pair is
+    # one point (a patch and itself), whose distance must be exactly 0 to support level 0 only.
+    d2[d2 <= 1e-14 * (sq_r[:, None] + sq_c[None, :])] = 0
     d = np.sqrt(d2, out=d2)
     dmax = float(d.max(initial=0.0))
     if dmax >= levels[-1]:

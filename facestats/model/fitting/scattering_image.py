@@ -398,7 +398,10 @@ def fit_scattering_system(
     neq = normal_equations(system, l, weighted=method == "monotone")
     system, neq, cond, n_rank_merged = _resolve_rank(system, neq, float(rcond), notes)
     if cond.rank < system.n_levels:
-        notes.append(f"W keeps numerical rank {cond.rank} < {system.n_levels}: the pseudo-inverse truncates")
+        notes.append(
+            f"W keeps numerical rank {cond.rank} < {system.n_levels} (the dependent levels include the first or "
+            "the last, which eq. 22-23 keep): r is not unique; pinv truncates, the monotone constraints choose"
+        )
     if system.n_levels < 3:
         raise FitError(f"only {system.n_levels} supported levels remain; at least 3 are needed to fit 2 parameters")
     r, n_rows = _solve(system, neq, l, method, rcond, notes)

@@ -1,4 +1,4 @@
-"""Translucency from one image (Suzuki, Mukaigawa & Yagi): the eq. 36 fit, Table 3, noise, auto width, rank, bad input."""
+"""Translucency from one image (Suzuki, Mukaigawa & Yagi): eq. 36 fit, Table 3, noise, auto width, rank, bad input."""
 
 import warnings
 
@@ -59,7 +59,9 @@ def test_grid_fit_finds_grid_models_and_refinement_finds_the_rest():
     off = fit_profile_grid(d, dipole_profile(d, 1.234, 0.00173, 1.3), eta=1.3, refine=True)
     assert off.sigma_s_prime == pytest.approx(1.234, rel=1e-5) and off.sigma_a == pytest.approx(0.00173, rel=1e-5)
     assert abs(off.grid_sigma_s_prime - 1.234) <= 0.01 + 1e-9 and abs(off.grid_sigma_a - 0.00173) <= 1e-4 + 1e-12
-    skin = fit_profile_grid(d[:40], dipole_profile(d[:40], 0.94, 0.0875, 1.38), grid=ProfileGrid.log_spaced(), eta=1.38, refine=True)
+    skin = fit_profile_grid(
+        d[:40], dipole_profile(d[:40], 0.94, 0.0875, 1.38), grid=ProfileGrid.log_spaced(), eta=1.38, refine=True
+    )
     assert skin.sigma_s_prime == pytest.approx(0.94, rel=1e-4) and skin.sigma_a == pytest.approx(0.0875, rel=1e-4)
 
 

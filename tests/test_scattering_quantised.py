@@ -61,7 +61,9 @@ def test_explicit_levels_and_their_checks(cloud):
     lev = np.concatenate([[0, 0.3, 0.7], np.arange(1.0, s.levels[-1] + 1.0, 0.5)])
     e = quantised_system(p, c, rows, levels=lev)
     np.testing.assert_allclose(e.matrix, _dense_w(p, c, rows, lev), rtol=1e-12, atol=1e-12)
-    with pytest.raises(ValidationError, match=r"levels must extend beyond the largest patch distance \(Suzuki eq. 23\)"):
+    with pytest.raises(
+        ValidationError, match=r"levels must extend beyond the largest patch distance \(Suzuki eq. 23\)"
+    ):
         quantised_system(p, c, rows, levels=[0.0, 0.5, 1.0])
     with pytest.raises(ValidationError, match=r"levels must start at 0 \(Suzuki eq. 22\)"):
         quantised_system(p, c, rows, levels=[0.1, 0.5, 20.0])

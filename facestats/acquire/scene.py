@@ -11,7 +11,8 @@ l_j = π L_o / F_t,o (eq. 15, :func:`facestats.model.irradiance.exitance_from_ra
 Radiance images are linear: OpenEXR or PFM through
 :func:`facestats.io.images.read_image` (as stored, never normalised), or
 ``.npz`` holding an array ``radiance`` (H, W[, C]); NaN marks pixels where
-nothing was recorded.
+nothing was recorded (in OpenEXR, which holds finite values only, an alpha
+channel of 0 marks them: RGBA files are read with A as coverage).
 """
 
 from __future__ import annotations
@@ -45,6 +46,8 @@ def read_radiance_image(path) -> np.ndarray:
         if not p.lower().endswith((".exr", ".pfm")):
             raise ValidationError(f"image must be a linear HDR image (.exr, .pfm or .npz), got {p!r}")
         img = np.asarray(read_image(p), np.float64)
+        if p.lower().endswith(".exr") and img.ndim == 3 and img.shape[2] == 4:  # coverage in alpha
+            img = np.where(img[..., 3:] > 0, img[..., :3], np.nan)
     if img.ndim == 2:
         img = img[..., None]
     if img.ndim != 3:
@@ -63,7 +66,12 @@ def write_radiance_image(path, image) -> str:
 
     if not p.lower().endswith((".exr", ".pfm")):
         raise ValidationError(f"path must end in .exr, .pfm or .npz, got {p!r}")
-    write_image(p, img.astype(np.float32))
+    img = img.astype(np.float32)
+    if p.lower().endswith(".exr") and not np.all(np.isfinite(img)):  # OpenEXR: pixels nothing reached → alpha 0
+        covered = np.all(np.isfinite(img if img.ndim == 3 else img[..., None]), axis=-1, keepdims=True)
+        img = np.concatenate([np.where(covered, img if img.ndim == 3 else img[..., None], 0), covered], axis=-1)
+        img = img.astype(np.float32)
+    write_image(p, img)
     return p
 
 

@@ -23,7 +23,14 @@ Translucency from one image (Suzuki, Mukaigawa & Yagi): :func:`fit_scattering_im
 from facestats.model.fitting.albedo import albedo_stable_minimum, fresnel_factors, refine_albedo, specular_residual
 from facestats.model.fitting.maps import fill_flagged, push_pull, scatter_to_map
 from facestats.model.fitting.normals import micro_normals, photometric_normals
+from facestats.model.fitting.profile_grid import TABLE2_GRID, ProfileGrid
 from facestats.model.fitting.samples import Samples
+from facestats.model.fitting.scattering_image import (
+    ScatteringImageFit,
+    fit_scattering_channels,
+    fit_scattering_image,
+    fit_scattering_system,
+)
 from facestats.model.fitting.specular import (
     DEFAULT_BOUNDS,
     SpecularFit,
@@ -32,13 +39,6 @@ from facestats.model.fitting.specular import (
     fit_specular_models,
     fit_specular_samples,
     specular_factors,
-)
-from facestats.model.fitting.profile_grid import TABLE2_GRID, ProfileGrid
-from facestats.model.fitting.scattering_image import (
-    ScatteringImageFit,
-    fit_scattering_channels,
-    fit_scattering_image,
-    fit_scattering_system,
 )
 from facestats.model.fitting.translucency import (
     TranslucencyFit,

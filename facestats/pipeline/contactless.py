@@ -29,6 +29,7 @@ import warnings
 
 import numpy as np
 
+from facestats.acquire.synthetic.contactless import CONTACTLESS_SITES, simulate_site_image
 from facestats.core.conventions import CHANNELS, SITES
 from facestats.core.published import ETA_SKIN
 from facestats.errors import QuantisationWarning, ValidationError
@@ -156,8 +157,6 @@ def contactless_population(
     list of str
         The subject ids written.
     """
-    from facestats.acquire.synthetic.contactless import CONTACTLESS_SITES, simulate_site_image
-
     it = list(ids)
     if progress:
         from tqdm.auto import tqdm
@@ -171,7 +170,7 @@ def contactless_population(
             for k, site in enumerate(CONTACTLESS_SITES)
         }
         ds = fit_contactless(store.subject(sid), images, light=light, **options)
-        store.write_subject(ds)
+        store.write_subject(ds, overwrite=True)  # same subject, the new variables beside the sensor values
         written.append(sid)
     return written
 
@@ -187,8 +186,6 @@ def contactless_study(ids, store, population, *, light="stripe", noise=0.01, spa
         ``error_vs_truth`` and ``error_vs_sensor`` of the image estimate.
     """
     import pandas as pd
-
-    from facestats.acquire.synthetic.contactless import CONTACTLESS_SITES, simulate_site_image
 
     it = list(ids)
     if progress:

@@ -175,8 +175,21 @@ def contactless_population(
     return written
 
 
-def contactless_study(ids, store, population, *, light="stripe", noise=0.01, spacing=0.3, progress=False, **options):
+def contactless_study(
+    ids,
+    store,
+    population,
+    *,
+    light="stripe",
+    noise=0.01,
+    spacing=0.3,
+    sites=CONTACTLESS_SITES,
+    progress=False,
+    **options,
+):
     """σtr from images against the truth and the contact-sensor fit, per subject, site and channel (no writing).
+
+    ``sites`` are among cheek and forehead (default both).
 
     Returns
     -------
@@ -198,10 +211,10 @@ def contactless_study(ids, store, population, *, light="stripe", noise=0.01, spa
         subject = store.subject(sid)
         images = {
             site: simulate_site_image(truth, site, light, spacing=spacing, noise=noise, seed=truth.seed + k)
-            for k, site in enumerate(CONTACTLESS_SITES)
+            for k, site in enumerate(sites)
         }
         ds = fit_contactless(subject, images, light=light, **options)
-        for site in CONTACTLESS_SITES:
+        for site in sites:
             i = SITES.index(site)
             for ch, name in enumerate(CHANNELS):
                 t = float(truth.site_sigma_tr[i, ch])

@@ -18,7 +18,9 @@ linear system:
    the rank of a pivoted Cholesky factorisation of the Gram matrix, which
    orders columns as a column-pivoted QR would) are merged away, with a warning.  Everything done is
    recorded in the result (``merged_levels``, ``rank``, ``condition``,
-   ``notes``); nothing is solved silently.
+   ``notes``); a condition number above ``CONDITION_WARNING`` = 10⁴ (well-posed
+   scenes stay near 10³; nearly uniform light reaches 10⁵-10⁸) is warned about
+   too.  Nothing is solved silently.
 4. **Solve** for r = (R'_1 … R'_n): ``"pinv"`` — the paper's r = W⁺ l (eq. 35);
    ``"monotone"`` (default) — r ≥ 0 and non-increasing, rows weighted by 1/l
    (:func:`~facestats.model.fitting.quantised.solve_monotone`).
@@ -103,6 +105,8 @@ AUTO_MEDIAN_SUPPORT = 100
 _AUTO_SAMPLE_ROWS = 2000
 #: Default relative singular-value threshold of the numerical rank.
 DEFAULT_RCOND = 1e-6
+#: Condition number of W above which the result carries a warning (well-posed scenes stay near 10³).
+CONDITION_WARNING = 1e4
 
 
 @dataclass
@@ -397,6 +401,11 @@ def fit_scattering_system(
     system = _merge_unsupported(system, int(min_pairs), notes)
     neq = normal_equations(system, l, weighted=method == "monotone")
     system, neq, cond, n_rank_merged = _resolve_rank(system, neq, float(rcond), notes)
+    if cond.condition > CONDITION_WARNING:
+        notes.append(
+            f"W is ill-conditioned: condition number {cond.condition:.3g} > {CONDITION_WARNING:g} (columns scaled to "
+            "unit norm, rows weighted as solved); the profile is sensitive to noise, e.g. under nearly uniform light"
+        )
     if cond.rank < system.n_levels:
         notes.append(
             f"W keeps numerical rank {cond.rank} < {system.n_levels} (the dependent levels include the first or "
@@ -404,6 +413,8 @@ def fit_scattering_system(
         )
     if system.n_levels < 3:
         raise FitError(f"only {system.n_levels} supported levels remain; at least 3 are needed to fit 2 parameters")
+    for note in notes:  # warned before the fit, which may still fail on what they describe
+        warnings.warn(note, QuantisationWarning, stacklevel=3)
     r, n_rows = _solve(system, neq, l, method, rcond, notes)
     dmax = _fit_range(system, neq, l, r, method, max_distance)
     pf = fit_profile_grid(
@@ -419,9 +430,6 @@ def fit_scattering_system(
         notes.append(f"{pf.n_nonpositive} level(s) within the fit range with R' ≤ 0 left out of eq. 36 (log undefined)")
     if pf.at_grid_edge:
         notes.append("the interval reaches the edge of the grid: the grid bounds it")
-    for note in notes:
-        if "merged" in note or "rank" in note:
-            warnings.warn(note, QuantisationWarning, stacklevel=3)
     deficient = n_rank_merged > 0 or cond.rank < system.n_levels
     return ScatteringImageFit(
         sigma_s_prime=pf.sigma_s_prime,
@@ -568,7 +576,15 @@ def _try_width(system, exitance, w, options, candidates, skipped, auto):
     """One image at one width: the fit, or None when ``width="auto"`` should try the next candidate."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", QuantisationWarning)
-        fit = fit_scattering_system(system, exitance, width=w, **options)
+        error = None
+        try:
+            fit = fit_scattering_system(system, exitance, width=w, **options)
+        except FitError as exc:
+            error = exc
+    if error is not None:  # what was found about the system is still reported, then the error propagates
+        for x in caught:
+            warnings.warn(x.message, x.category, stacklevel=4)
+        raise error
     if auto and fit.rank_deficient and w != candidates[-1]:
         skipped.append(f"{w:.4g} mm (rank {fit.rank} of {fit.n_levels}, condition {fit.condition:.3g})")
         return None  # a rank deficit moves on to the next candidate
@@ -606,5 +622,7 @@ def _fit_over_widths(p, weights, rows, exitances, width, options, block_bytes, p
                 errors[i] = exc
     for i, fit in enumerate(results):
         if fit is None:
-            raise FitError(f"no width gave a solvable system: {errors[i]}")
+            if not auto:
+                raise errors[i]
+            raise FitError(f"no candidate width gave a solvable system; the last said: {errors[i]}")
     return results

@@ -16,7 +16,16 @@ def _cmd_translucency(args) -> int:
     eta = args.eta if args.eta is not None else eta
     width = args.width if args.width == "auto" else float(args.width)
     fits = fit_image_translucency(
-        patches, lights, camera, image, eta=eta, width=width, method=args.method, grid=args.grid, refine=args.refine
+        patches,
+        lights,
+        camera,
+        image,
+        eta=eta,
+        width=width,
+        method=args.method,
+        grid=args.grid,
+        refine=args.refine,
+        progress=True,
     )
     names = ["R", "G", "B"] if len(fits) == 3 else [f"channel {k}" for k in range(len(fits))]
     print(f"patches: {len(patches)} (spacing {patches.spacing:.4g} mm), eta {eta:g}, method {args.method}")

@@ -156,28 +156,36 @@ def _bounding_distance(a, b) -> float:
 
 
 def _levels_of(d, levels, width):
-    """Level index i (d'_i ≤ d < d'_{i+1}) and fraction t = 1 − β (eq. 25-27) of each distance."""
+    """Level index i (d'_i ≤ d < d'_{i+1}) and fraction t = 1 − β (eq. 25-27) of each distance.
+
+    With a uniform width the distances' buffer is reused for t (``d`` is overwritten).
+    """
     if width is not None:
-        x = d * (1.0 / width)
-        i = x.astype(np.int64)
-        return i, x - i
+        d *= 1.0 / width
+        i = d.astype(np.int64)
+        np.subtract(d, i, out=d)
+        return i, d
     i = np.searchsorted(levels, d, side="right") - 1
     t = (d - levels[i]) / (levels[i + 1] - levels[i])
     return i, t
 
 
-def _accumulate_block(rows_xyz, cols_xyz, sq_c, cols_w, levels, width):
-    """One row block: its rows of W, its level support and its largest pair distance (module docstring)."""
+def _accumulate_block(rows_xyz, self_cols, cols_xyz, sq_c, cols_w, levels, width):
+    """One row block: its rows of W, its level support and its largest pair distance (module docstring).
+
+    ``self_cols`` holds, per row, the column of the same patch among the lit ones (−1 if unlit).
+    """
     n = levels.shape[0]
     b, nc = rows_xyz.shape[0], cols_xyz.shape[0]
-    sq_r = np.einsum("ij,ij->i", rows_xyz, rows_xyz)
     d2 = rows_xyz @ cols_xyz.T
     d2 *= -2
-    d2 += sq_r[:, None]
+    d2 += np.einsum("ij,ij->i", rows_xyz, rows_xyz)[:, None]
     d2 += sq_c[None, :]
-    # ‖p‖² + ‖q‖² − 2 p·q cancels: below its rounding error (a few eps of ‖p‖² + ‖q‖²) the pair is
-    # one point (a patch and itself), whose distance must be exactly 0 to support level 0 only.
-    d2[d2 <= 1e-14 * (sq_r[:, None] + sq_c[None, :])] = 0
+    np.maximum(d2, 0, out=d2)
+    # ‖p‖² + ‖q‖² − 2 p·q leaves a rounding residue where p = q: a patch and itself must lie exactly
+    # 0 apart, so that they support level 0 only.
+    own = np.nonzero(self_cols >= 0)[0]
+    d2[own, self_cols[own]] = 0
     d = np.sqrt(d2, out=d2)
     dmax = float(d.max(initial=0.0))
     if dmax >= levels[-1]:
@@ -186,17 +194,18 @@ def _accumulate_block(rows_xyz, cols_xyz, sq_c, cols_w, levels, width):
             f"{levels[-1]:.6g} mm, but a pair lies {dmax:.6g} mm apart"
         )
     i, t = _levels_of(d, levels, width)
-    flat = (i + (np.arange(b) * (n + 1))[:, None]).ravel()
-    s_c = np.bincount(flat, weights=np.broadcast_to(cols_w, (b, nc)).ravel(), minlength=b * (n + 1))
-    s_ct = np.bincount(flat, weights=(t * cols_w).ravel(), minlength=b * (n + 1))
-    s_c, s_ct = s_c.reshape(b, n + 1), s_ct.reshape(b, n + 1)
-    w_block = s_c[:, :n] - s_ct[:, :n]
-    w_block[:, 1:] += s_ct[:, : n - 1]
     i_flat, t_flat = i.ravel(), t.ravel()
     cnt = np.bincount(i_flat, minlength=n + 1)
     cnt_t = np.bincount(i_flat, weights=t_flat, minlength=n + 1)
     support = cnt[:n] - cnt_t[:n]
     support[1:] += cnt_t[: n - 1]
+    i += (np.arange(b) * (n + 1))[:, None]  # flat (row, level) bins
+    s_c = np.bincount(i_flat, weights=np.broadcast_to(cols_w, (b, nc)).ravel(), minlength=b * (n + 1))
+    t *= cols_w
+    s_ct = np.bincount(i_flat, weights=t_flat, minlength=b * (n + 1))
+    s_c, s_ct = s_c.reshape(b, n + 1), s_ct.reshape(b, n + 1)
+    w_block = s_c[:, :n] - s_ct[:, :n]
+    w_block[:, 1:] += s_ct[:, : n - 1]
     return w_block, support, dmax
 
 
@@ -257,11 +266,14 @@ def quantised_system(
 
         starts = tqdm(starts, desc="W (Suzuki eq. 33)", unit="block")
     sq_c = np.einsum("ij,ij->i", cols_xyz, cols_xyz)
+    lit_pos = np.full(m, -1)
+    lit_pos[lit] = np.arange(lit.size)
+    self_cols = lit_pos[idx]
     w_mat = np.empty((idx.size, lev.size))
     support, dmax = np.zeros(lev.size), 0.0
     for start in starts:  # loop over row blocks, vectorised over the pairs of a block
         sub = slice(start, min(start + block, idx.size))
-        w_mat[sub], sb, db = _accumulate_block(rows_xyz[sub], cols_xyz, sq_c, wk[lit], lev, w)
+        w_mat[sub], sb, db = _accumulate_block(rows_xyz[sub], self_cols[sub], cols_xyz, sq_c, wk[lit], lev, w)
         support += sb
         dmax = max(dmax, db)
     if w is not None:  # trim to the levels eq. 23 needs: d'_n is the first level beyond the largest distance

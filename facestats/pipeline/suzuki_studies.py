@@ -177,7 +177,8 @@ def noise_study(rendered: RenderedScene, *, noise=0.01, seeds=20, width="auto", 
     With ``width="auto"`` the width is chosen once (on the first image) and the
     system reused: the choice depends on the geometry, not on the noise.
     """
-    from facestats.model.fitting.scattering_image import auto_width, fit_scattering_system
+    from facestats.model.fitting.quantisation_choice import auto_width
+    from facestats.model.fitting.scattering_image import fit_scattering_system
 
     check_integer(seeds, "seeds", 1)
     nz = float(as_finite(noise, "noise", 0, 1))

@@ -172,26 +172,21 @@ class PinholeCamera:
 
 
 def sample_image(image, pixels) -> np.ndarray:
-    """Bilinear samples (N, C) of an image (H, W, C) at pixel coordinates (N, 2); NaN outside or next to NaN pixels."""
+    """Bilinear samples (N, C) of an image (H, W, C) at pixel coordinates (N, 2), by scipy.ndimage.map_coordinates.
+
+    Pixel centres lie at integer + 0.5; samples outside the image, or touching a
+    NaN pixel, are NaN.
+    """
+    from scipy.ndimage import map_coordinates
+
     img = np.asarray(image, np.float64)
     if img.ndim == 2:
         img = img[..., None]
     h, w = img.shape[:2]
-    x = np.asarray(pixels, np.float64)[:, 0] - 0.5  # pixel centres at integer + 0.5
-    y = np.asarray(pixels, np.float64)[:, 1] - 0.5
+    pix = np.asarray(pixels, np.float64)
+    x, y = pix[:, 0] - 0.5, pix[:, 1] - 0.5
     ok = np.isfinite(x) & np.isfinite(y) & (x >= -0.5) & (y >= -0.5) & (x <= w - 0.5) & (y <= h - 0.5)
-    xc, yc = np.clip(np.where(ok, x, 0), 0, w - 1), np.clip(np.where(ok, y, 0), 0, h - 1)
-    x0, y0 = (
-        np.minimum(np.floor(xc).astype(np.int64), w - 2 if w > 1 else 0),
-        np.minimum(np.floor(yc).astype(np.int64), h - 2 if h > 1 else 0),
-    )
-    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
-    fx, fy = (xc - x0)[:, None], (yc - y0)[:, None]
-    out = (
-        img[y0, x0] * (1 - fx) * (1 - fy)
-        + img[y0, x1] * fx * (1 - fy)
-        + img[y1, x0] * (1 - fx) * fy
-        + img[y1, x1] * fx * fy
-    )
+    coords = np.stack([np.where(ok, y, 0), np.where(ok, x, 0)])
+    out = np.stack([map_coordinates(img[..., c], coords, order=1, mode="nearest") for c in range(img.shape[2])], -1)
     out[~ok] = np.nan
     return out

@@ -16,6 +16,8 @@ __all__ = [
     "FormatError",
     "DependencyError",
     "ConvergenceWarning",
+    "FacestatsWarning",
+    "QuantisationWarning",
 ]
 
 
@@ -49,3 +51,14 @@ class DependencyError(FacestatsError, ImportError):
 
 class ConvergenceWarning(UserWarning):
     """A sampler or solver finished without meeting its convergence criterion."""
+
+
+class FacestatsWarning(UserWarning):
+    """Root of the warnings facestats issues about results it still returns."""
+
+
+class QuantisationWarning(FacestatsWarning):
+    """A quantised-distance system (Suzuki et al. eq. 33) had unsupported levels or lacked rank.
+
+    The result records what was done (levels merged, numerical rank, condition number).
+    """

@@ -31,26 +31,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facestats.acquire.camera import look_at, project_points
 from facestats.acquire.hdr import CameraResponse
 from facestats.core.published import N_CAMERAS, N_LEDS
 from facestats.core.validate import as_finite, as_float, check_range, check_shape
 from facestats.errors import FormatError, ValidationError
 
 __all__ = ["Dome", "default_dome", "look_at", "geodesic_points"]
-
-
-def look_at(position, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
-    """World-to-camera rotation (rows: camera x right, y down, z forward) looking from ``position`` at ``target``."""
-    p = np.asarray(position, float)
-    fwd = np.asarray(target, float) - p
-    fwd /= np.linalg.norm(fwd, axis=-1, keepdims=True)
-    up = np.broadcast_to(np.asarray(up, float), fwd.shape)
-    right = np.cross(fwd, up)
-    bad = np.linalg.norm(right, axis=-1) < 1e-6
-    right = np.where(bad[..., None], np.cross(fwd, [1.0, 0.0, 0.0]), right)
-    right /= np.linalg.norm(right, axis=-1, keepdims=True)
-    down = np.cross(fwd, right)
-    return np.stack([right, down, fwd], axis=-2)
 
 
 def _tangent_frames(axis):
@@ -218,12 +205,8 @@ class Dome:
             self.camera_matrix[sel],
             self.image_size[sel],
         )
-        wo, _, d = self._towards(cp, points)
-        cam = np.einsum("cij,ncj->nci", cr, -d)  # point in camera coordinates
-        z = cam[..., 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            uvw = np.einsum("cij,ncj->nci", ck, cam)
-            pix = uvw[..., :2] / uvw[..., 2:3]
+        wo = self._towards(cp, points)[0]
+        pix, z = project_points(points, cp, cr, ck)
         in_frame = (
             (z > 0)
             & (pix[..., 0] >= 0)

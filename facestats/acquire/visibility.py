@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.acquire.dome import look_at
+from facestats.acquire.camera import look_at
 from facestats.core.raster import triangle_coverage
 
 __all__ = ["shadow_map", "ShadowMaps", "visible_from"]

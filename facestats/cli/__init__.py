@@ -13,6 +13,7 @@ prints.  Heavy modules are imported inside the commands so that ``facestats
 * :mod:`~facestats.cli.serve` — ``serve``;
 * :mod:`~facestats.cli.render` — ``render``.
 * :mod:`~facestats.cli.microstructure` — ``microstructure render``, ``microstructure generate``.
+* :mod:`~facestats.cli.translucency` — ``translucency``.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from facestats.cli.microstructure import add_microstructure
 from facestats.cli.render import add_render
 from facestats.cli.serve import add_serve
 from facestats.cli.store import add_export, add_import_merl, add_info, add_query, add_validate
+from facestats.cli.translucency import add_translucency
 from facestats.core.version import __version__
 from facestats.errors import FacestatsError
 
@@ -50,6 +52,7 @@ COMMANDS = [
     add_serve,
     add_render,
     add_microstructure,
+    add_translucency,
 ]
 
 

@@ -6,7 +6,8 @@ against a published figure imports it from this module.
 Weyrich et al. 2006 = *Analysis of Human Faces using a Measurement-Based Skin
 Reflectance Model*, SIGGRAPH 2006.  Jensen et al. 2001 = *A Practical Model for
 Subsurface Light Transport*, SIGGRAPH 2001 (parameters quoted in Suzuki,
-Mukaigawa & Yagi, Fig. 3).
+Mukaigawa & Yagi, Fig. 3).  Suzuki, Mukaigawa & Yagi = *Fitting of Subsurface
+Scattering Model to Translucent Object* (Osaka University; in Japanese).
 """
 
 from __future__ import annotations
@@ -67,3 +68,20 @@ SENSOR_BRACKET_STOP = 2.0 / 3.0
 LUMITEXEL_SAMPLES_TYPICAL = 900
 LUMITEXEL_SAMPLES_MAX = 1200
 GRAZING_LIMIT_DEG = 80.0
+
+#: Suzuki, Mukaigawa & Yagi Table 1: the simulated object (σs is the reduced σ's, g = 0; mm⁻¹).
+SUZUKI_TABLE1 = {"sigma_s_prime": 2.19, "sigma_a": 0.0021, "eta": 1.3}
+#: Suzuki et al. Table 3: (σ's, σa) estimated per quantisation width (mm) in their simulation.
+SUZUKI_TABLE3 = {
+    8.0: (0.28, 0.0001),
+    4.0: (0.55, 0.0001),
+    2.0: (1.49, 0.0028),
+    1.0: (0.49, 0.0030),
+    0.5: (2.63, 0.0001),
+    0.25: (2.19, 0.0021),
+    0.125: (2.09, 0.0025),
+    0.0625: (2.05, 0.0030),
+    0.03125: (0.36, 0.0001),
+}
+#: Suzuki et al. Table 4: (σ's, σa) in mm⁻¹ of real cubes (η = 1.3).
+SUZUKI_TABLE4 = {"PP": (0.14, 0.0030), "PE": (0.34, 0.0001), "POM": (0.46, 0.0001)}

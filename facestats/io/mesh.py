@@ -34,6 +34,7 @@ from facestats.errors import FormatError, ValidationError
 __all__ = [
     "load_face_mesh",
     "read_region_image",
+    "read_triangle_mesh",
     "save_face_mesh",
     "procedural_mesh",
     "write_mesh",
@@ -87,6 +88,38 @@ def read_region_image(region_image) -> np.ndarray:
     return img.astype(np.uint8)
 
 
+def read_triangle_mesh(path, *, scale=1.0, transform=None, uv=False):
+    """Read a triangle mesh (OBJ, PLY, anything trimesh reads) in mm, in the world frame.
+
+    Parameters
+    ----------
+    path : str or path-like
+        Mesh file.
+    scale : float
+        Factor to mm (1 if the mesh is in mm).
+    transform : array_like, shape (4, 4), optional
+        Rigid transform applied after scaling (module docstring).
+    uv : bool
+        Also return the per-vertex UV coordinates as stored (v upwards), or None
+        if the file has none (OBJ ``vt``, PLY ``s``/``t``, ``u``/``v`` or
+        ``texture_u``/``texture_v`` vertex properties).
+
+    Returns
+    -------
+    vertices : ndarray, shape (V, 3)
+        mm.
+    faces : ndarray of int, shape (F, 3)
+    uv : ndarray, shape (V, 2) or None
+        Only when ``uv=True``.
+    """
+    mesh = _read_mesh(path)
+    verts = _placed_vertices(mesh, scale, transform)
+    faces = np.asarray(mesh.faces, np.int64)
+    if not uv:
+        return verts, faces
+    return verts, faces, _stored_uv(mesh)
+
+
 def load_face_mesh(path, region_image, *, scale=1.0, transform=None, flip_v=True, name=None) -> FaceGeometry:
     """Load a face scan with UVs and its region label image as a :class:`FaceGeometry`.
 
@@ -110,10 +143,8 @@ def load_face_mesh(path, region_image, *, scale=1.0, transform=None, flip_v=True
     FaceGeometry
         Lumitexels at the labelled vertices; map size = side of the region image.
     """
-    mesh = _read_mesh(path)
-    uv = _vertex_uv(mesh, path, flip_v)
-    verts = _placed_vertices(mesh, scale, transform)
-    faces = np.asarray(mesh.faces, np.int64)
+    verts, faces, stored = read_triangle_mesh(path, scale=scale, transform=transform, uv=True)
+    uv = _checked_uv(stored, len(verts), path, flip_v)
     normals, area = _vertex_normals_and_areas(verts, faces)
     length = np.linalg.norm(normals, axis=1)
     regions = read_region_image(region_image)
@@ -163,14 +194,18 @@ def _ply_uv(mesh):
     return None
 
 
-def _vertex_uv(mesh, path, flip_v: bool) -> np.ndarray:
-    """The checked per-vertex UVs in [0, 1] (v flipped to the image convention if ``flip_v``)."""
+def _stored_uv(mesh):
+    """Per-vertex UVs as stored (texture visuals or PLY properties), a float64 copy, or None."""
     uv = getattr(mesh.visual, "uv", None)
     if uv is None:
         uv = _ply_uv(mesh)
-    if uv is None or len(uv) != len(mesh.vertices):
+    return None if uv is None else np.array(uv, np.float64)
+
+
+def _checked_uv(uv, n_vertices, path, flip_v: bool) -> np.ndarray:
+    """The per-vertex UVs checked to lie in [0, 1] (v flipped to the image convention if ``flip_v``)."""
+    if uv is None or len(uv) != n_vertices:
         raise FormatError(f"{os.fspath(path)} has no per-vertex UV coordinates (OBJ 'vt' or PLY s/t, u/v properties)")
-    uv = np.asarray(uv, np.float64).copy()
     if flip_v:
         uv[:, 1] = 1 - uv[:, 1]
     if np.any(~np.isfinite(uv)) or uv.min() < -1e-6 or uv.max() > 1 + 1e-6:
@@ -454,11 +489,9 @@ def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = N
     FaceMesh
     """
     if mesh is not None:
-        m = _read_mesh(mesh)
-        verts = _placed_vertices(m, scale, None)
-        faces = np.asarray(m.faces, np.int64)
+        verts, faces, stored = read_triangle_mesh(mesh, scale=scale, uv=True)
         geometry = {"kind": "mesh", "name": os.path.basename(os.fspath(mesh)), "path": os.fspath(mesh), "scale": scale}
-        return _face_mesh(verts, faces, _vertex_uv(m, mesh, True), geometry)
+        return _face_mesh(verts, faces, _checked_uv(stored, len(verts), mesh, True), geometry)
     from facestats.acquire.synthetic.face import procedural_face
     from facestats.io.schema import provenance
 

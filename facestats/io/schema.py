@@ -5,7 +5,9 @@ A subject is an :class:`xarray.Dataset`.  Two kinds exist:
 * **map subjects** (from the fit pipeline or an edit): parameter maps on dims
   (``v``, ``u``[, ``channel`` | ``component``]) in UV space, the region label map,
   contact-sensor data on (``site``, ``fiber``, ``channel``) and per-site /
-  per-subject scattering coefficients;
+  per-subject scattering coefficients, optionally with the contactless
+  ``image_*`` estimates of the same sites (Suzuki et al. from one image; the
+  provenance entry ``contactless_translucency`` says how they were made);
 * **sample subjects** (imported from published files such as the MERL/ETH
   ``ts_data.mat``): region-level parameter samples on a ``sample`` dim and
   albedo samples on an ``albedo_sample`` dim, with no maps.
@@ -66,6 +68,11 @@ VARIABLES = {
     "site_sigma_s_prime_std": (("site", "channel"), "mm-1", "1-sigma uncertainty of site_sigma_s_prime"),
     "site_sigma_a_std": (("site", "channel"), "mm-1", "1-sigma uncertainty of site_sigma_a"),
     "site_sigma_tr_std": (("site", "channel"), "mm-1", "1-sigma uncertainty of site_sigma_tr"),
+    "image_sigma_s_prime": (("site", "channel"), "mm-1", "reduced scattering from one image under known light"),
+    "image_sigma_a": (("site", "channel"), "mm-1", "absorption coefficient from one image under known light"),
+    "image_sigma_tr": (("site", "channel"), "mm-1", "effective transport coefficient from one image"),
+    "image_sigma_tr_low": (("site", "channel"), "mm-1", "lower end of the interval of image_sigma_tr"),
+    "image_sigma_tr_high": (("site", "channel"), "mm-1", "upper end of the interval of image_sigma_tr"),
     "albedo_avg": (("channel",), "1", "average albedo alpha_avg over the face (Weyrich §5.4)"),
     "sigma_s_prime": (("channel",), "mm-1", "subject reduced scattering from alpha_avg and sigma_tr (Weyrich §5.4)"),
     "sigma_a": (("channel",), "mm-1", "subject absorption from alpha_avg and sigma_tr (Weyrich §5.4)"),

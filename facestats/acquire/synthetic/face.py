@@ -16,8 +16,12 @@ import numpy as np
 from facestats.acquire.geometry import FaceGeometry, grid_triangles
 from facestats.errors import ValidationError
 
-__all__ = ["procedural_face"]
+__all__ = ["procedural_face", "face_window", "face_uv", "SITE_CENTRES"]
 
+
+#: Face coordinates (x, y) in mm of the contact-sensor sites on the procedural face: the cheek on the
+#: cheekbone (region 7), the forehead on the midline above the brows (region 2).  (The neck is not modelled.)
+SITE_CENTRES = {"cheek": (46.0, 2.0), "forehead": (0.0, 80.0)}
 
 # -- the procedural head --------------------------------------------------------------
 #: Half-axes of the ellipsoidal cap (mm): width, height, depth.
@@ -75,6 +79,11 @@ def _regions(x, y):
     reg[_inside(x, y, 0, -57, 25, 9.5)] = 8  # lips
     reg[~face] = 0
     return reg
+
+
+def face_uv(x, y):
+    """Texture coordinates (u, v) in [0, 1] of face coordinates x, y (mm): the inverse of the UV → surface map."""
+    return np.clip(np.asarray(x) / _UV_WIDTH + 0.5, 0, 1), np.clip(0.5 - np.asarray(y) / _UV_HEIGHT, 0, 1)
 
 
 def _surface(u, v):
@@ -153,3 +162,38 @@ def procedural_face(
         name=f"procedural-{n}",
         meta={"kind": "procedural", "lumitexel_grid": n, "mesh_grid": mesh_n},
     )
+
+
+def face_window(site, *, half_width=9.0, spacing=0.3):
+    """A square window of the procedural face's surface around a sensor site, as a triangle mesh.
+
+    The window is the height field z(x, y) of the procedural head over
+    |x − x₀|, |y − y₀| ≤ ``half_width`` around the site (:data:`SITE_CENTRES`),
+    sampled every ``spacing`` mm, two triangles per grid cell, normals towards +z.
+
+    Returns
+    -------
+    vertices : ndarray, shape (V, 3)
+    faces : ndarray of int, shape (F, 3)
+    centre : ndarray, shape (3,)
+        The site's surface point, mm.
+    normal : ndarray, shape (3,)
+        The unit surface normal there.
+    """
+    if site not in SITE_CENTRES:
+        raise ValidationError(f"site must be one of {sorted(SITE_CENTRES)}, got {site!r}")
+    hw, h = float(half_width), float(spacing)
+    if not (hw > 0 and h > 0 and hw / h <= 2000):
+        raise ValidationError(f"half_width and spacing must be > 0 with at most 4000 samples a side, got {hw}, {h}")
+    x0, y0 = SITE_CENTRES[site]
+    n = int(np.ceil(2 * hw / h)) + 1
+    xs = x0 + np.linspace(-hw, hw, n)
+    ys = y0 + np.linspace(hw, -hw, n)  # rows go down in y, like v, so grid_triangles faces +z
+    xx, yy = np.meshgrid(xs, ys)
+    verts = np.stack([xx, yy, _height(xx, yy)], -1).reshape(-1, 3)
+    faces = grid_triangles(np.ones((n, n), bool))
+    e = 1e-4
+    gx = (_height(x0 + e, y0) - _height(x0 - e, y0)) / (2 * e)
+    gy = (_height(x0, y0 + e) - _height(x0, y0 - e)) / (2 * e)
+    normal = np.array([-gx, -gy, 1.0]) / np.sqrt(gx * gx + gy * gy + 1)
+    return verts, faces, np.array([x0, y0, float(_height(x0, y0))]), normal

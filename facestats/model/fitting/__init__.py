@@ -12,13 +12,25 @@ flat arrays, one contiguous run per lumitexel.
 6. :func:`fit_translucency`, :func:`population_sigma_tr_avg` (§5.4)
 7. :func:`scattering_parameters` (§5.4, eq. 7, eq. 16)
 
+Translucency from one image (Suzuki, Mukaigawa & Yagi): :func:`fit_scattering_image`
+(quantised-distance solve, eq. 22-35, and the log-space dipole fit, eq. 36),
+:func:`fit_scattering_channels` (R, G, B sharing one W), :class:`ProfileGrid`
+(Table 2 by default).
+
 :func:`facestats.pipeline.fit_subject` runs them all on a capture.
 """
 
 from facestats.model.fitting.albedo import albedo_stable_minimum, fresnel_factors, refine_albedo, specular_residual
 from facestats.model.fitting.maps import fill_flagged, push_pull, scatter_to_map
 from facestats.model.fitting.normals import micro_normals, photometric_normals
+from facestats.model.fitting.profile_grid import TABLE2_GRID, ProfileGrid
 from facestats.model.fitting.samples import Samples
+from facestats.model.fitting.scattering_image import (
+    ScatteringImageFit,
+    fit_scattering_channels,
+    fit_scattering_image,
+    fit_scattering_system,
+)
 from facestats.model.fitting.specular import (
     DEFAULT_BOUNDS,
     SpecularFit,
@@ -57,4 +69,10 @@ __all__ = [
     "TranslucencyFit",
     "population_sigma_tr_avg",
     "scattering_parameters",
+    "fit_scattering_image",
+    "fit_scattering_channels",
+    "fit_scattering_system",
+    "ScatteringImageFit",
+    "ProfileGrid",
+    "TABLE2_GRID",
 ]

@@ -1,0 +1,181 @@
+"""Translucency from one image (Suzuki, Mukaigawa & Yagi; issue 13): speed, memory and the studies' figures.
+
+* ``w_build`` — W of eq. 33 for 20,000 patches (4·10⁸ visible × lit pairs) at
+  0.25 mm: time and peak traced memory (requirement ≤ 30 s, ≤ 1 GB), and the
+  ratio against the straightforward dense implementation (full distance matrix,
+  eq. 25-27 per pair, ``np.add.at``) on the largest size the dense one holds
+  comfortably here (3,000 patches, 9·10⁶ pairs; its m × m temporaries would need
+  ~13 GB at 20,000).  Both run in the same process, one after the other.
+* ``grid_fit`` — the eq. 36 grid search over Suzuki Table 2's 9,000 models
+  (requirement ≤ 1 s), against a Python loop over the models (the same numpy
+  profile per model).
+* ``table3`` — Suzuki Table 3 on the pyramid (patch spacing ``spacing``, edge
+  light, point-kernel truth): the paper's row, the paper's solve (pinv) and
+  the default (monotone), printed side by side.
+* ``noise`` — 1 % multiplicative radiance noise over 20 seeds with
+  ``width="auto"``: largest errors, spread, interval coverage.
+* ``contactless`` — σtr of cheek and forehead from one simulated image each for
+  the default population's first ``n_subjects`` subjects: median relative error
+  against the truth and against the contact-sensor fit (requirement ≤ 10 %).
+"""
+
+from __future__ import annotations
+
+import time
+import tracemalloc
+import warnings
+
+import numpy as np
+
+from facestats.errors import QuantisationWarning
+
+
+def _points(m, seed=0):
+    """m patch centres on a 100 × 100 mm sheet with gentle relief (a surface, not a volume)."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0, 100, (m, 2))
+    z = 5 * np.sin(xy[:, 0] / 15) * np.cos(xy[:, 1] / 20)
+    return np.column_stack([xy, z]), rng.uniform(0.2, 1.0, m)
+
+
+def _dense_w(points, weights, width):
+    """The straightforward implementation: the full m × m distance matrix and np.add.at (eq. 25-27, 33)."""
+    d = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=-1)
+    n = int(np.floor(d.max() / width)) + 2
+    x = d / width
+    i = x.astype(np.int64)
+    t = x - i
+    w = np.zeros((points.shape[0], n))
+    jj = np.broadcast_to(np.arange(points.shape[0])[:, None], d.shape)
+    np.add.at(w, (jj, i), weights[None, :] * (1 - t))
+    np.add.at(w, (jj, i + 1), weights[None, :] * t)
+    return w
+
+
+def _traced(fn):
+    tracemalloc.start()
+    t0 = time.perf_counter()
+    out = fn()
+    dt = time.perf_counter() - t0
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return out, dt, peak
+
+
+def bench_w_build(m=20_000, width=0.25, dense_m=3_000):
+    from facestats.model.fitting.quantised import quantised_system
+
+    p, c = _points(m)
+    big, t_big, peak_big = _traced(lambda: quantised_system(p, c, np.arange(m), width=width))
+    ps, cs = _points(dense_m, seed=1)
+    small, t_small, peak_small = _traced(lambda: quantised_system(ps, cs, np.arange(dense_m), width=width))
+    ref, t_dense, peak_dense = _traced(lambda: _dense_w(ps, cs, width))
+    assert np.allclose(small.matrix, ref[:, : small.n_levels], rtol=1e-9, atol=1e-9)
+    return {
+        "seconds_20k": t_big,
+        "pairs_20k": float(m) * m,
+        "peak_MB_20k": peak_big / 2**20,
+        "levels_20k": big.n_levels,
+        "target_s": 30.0,
+        "target_MB": 1024.0,
+        f"streamed_s_{dense_m}": t_small,
+        f"dense_s_{dense_m}": t_dense,
+        "speedup_vs_dense": t_dense / t_small,
+        f"streamed_peak_MB_{dense_m}": peak_small / 2**20,
+        f"dense_peak_MB_{dense_m}": peak_dense / 2**20,
+    }
+
+
+def bench_grid_fit(n_levels=150, loop_models=300):
+    from facestats.model.dipole import dipole_profile
+    from facestats.model.fitting.profile_grid import TABLE2_GRID, fit_profile_grid
+
+    d = np.linspace(0, 40, n_levels)
+    r = dipole_profile(d, 2.19, 0.0021, 1.3)
+    fit_profile_grid(d, r, eta=1.3)  # warm up (imports)
+    t0 = time.perf_counter()
+    fit = fit_profile_grid(d, r, eta=1.3)
+    t_grid = time.perf_counter() - t0
+    y = np.log(r)
+    t0 = time.perf_counter()
+    for k in range(loop_models):  # the baseline: one model at a time
+        s = TABLE2_GRID.sigma_s_prime[k % 300]
+        a = TABLE2_GRID.sigma_a[k % 30]
+        float(np.sum((y - np.log(dipole_profile(d, s, a, 1.3))) ** 2))
+    t_loop = (time.perf_counter() - t0) * 9000 / loop_models
+    return {
+        "grid_fit_s": t_grid,
+        "models": 9000,
+        "levels": n_levels,
+        "target_s": 1.0,
+        "loop_s_extrapolated": t_loop,
+        "speedup": t_loop / t_grid,
+        "found": f"({fit.sigma_s_prime}, {fit.sigma_a})",
+    }
+
+
+def bench_table3(spacing=1.8, widths=(8.0, 4.0, 2.0, 1.0, 0.5, 0.25, 0.125, 0.0625, 0.03125)):
+    from facestats.acquire.synthetic.scenes import pyramid_scene
+    from facestats.pipeline.suzuki_studies import format_table3, render_scene, table3
+
+    t0 = time.perf_counter()
+    r = render_scene(pyramid_scene(spacing, "edge"))
+    rows = table3(r, widths=widths)
+    print(format_table3(rows))
+    row = next((x for x in rows if x["width"] == 0.25), rows[0])
+    return {
+        "row_025_monotone": str(row["monotone"]),
+        "row_025_pinv": str(row["pinv"]),
+        "seconds": time.perf_counter() - t0,
+    }
+
+
+def bench_noise(spacing=1.8, seeds=20):
+    from facestats.acquire.synthetic.scenes import pyramid_scene
+    from facestats.pipeline.suzuki_studies import noise_study, render_scene
+
+    t0 = time.perf_counter()
+    st = noise_study(render_scene(pyramid_scene(spacing, "edge")), noise=0.01, seeds=seeds, width="auto")
+    return dict(st.summary(), width_mm=float(st.widths[0]), seconds=time.perf_counter() - t0)
+
+
+def bench_contactless(n_subjects=20, spacing=0.3, sites=("cheek", "forehead")):
+    import facestats
+    from facestats.acquire.synthetic.population import default_population
+    from facestats.pipeline.contactless import contactless_study
+
+    pop = default_population()
+    t0 = time.perf_counter()
+    with facestats.open_store() as store, warnings.catch_warnings():
+        warnings.simplefilter("ignore", QuantisationWarning)
+        ids = [s for s in store.ids() if s.startswith("S")][: int(n_subjects)]
+        df = contactless_study(ids, store, pop, spacing=spacing, sites=tuple(sites), progress=True)
+    dt = time.perf_counter() - t0
+    covered = (df["image_low"] <= df["truth"]) & (df["truth"] <= df["image_high"])
+    return {
+        "median_rel_error_vs_truth": float(df["error_vs_truth"].abs().median()),
+        "max_rel_error_vs_truth": float(df["error_vs_truth"].abs().max()),
+        "median_rel_error_vs_sensor": float(df["error_vs_sensor"].abs().median()),
+        "target": 0.10,
+        "interval_coverage": float(covered.mean()),
+        "subjects": len(ids),
+        "seconds_per_subject": dt / max(len(ids), 1),
+    }
+
+
+BENCHMARKS = [
+    ("w_build", bench_w_build),
+    ("grid_fit", bench_grid_fit),
+    ("table3", bench_table3),
+    ("noise", bench_noise),
+    ("contactless", bench_contactless),
+]
+
+#: Tiny sizes for the test suite (tests/test_benchmarks.py).
+SMOKE = {
+    "w_build": {"m": 400, "width": 1.0, "dense_m": 200},
+    "grid_fit": {"n_levels": 20, "loop_models": 10},
+    "table3": {"spacing": 6.0, "widths": (2.0,)},
+    "noise": {"spacing": 6.0, "seeds": 2},
+    "contactless": {"n_subjects": 1, "spacing": 0.8, "sites": ("cheek",)},
+}

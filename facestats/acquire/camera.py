@@ -1,0 +1,192 @@
+"""A calibrated pinhole camera: projection, which patches it sees, and the radiance it records at them.
+
+The camera model is the dome's (:class:`facestats.acquire.dome.Dome`): a point
+x (mm, world frame) has camera coordinates R (x − C) (rows of R: x right, y down,
+z forward), and pixel coordinates (u, v) = (K R (x − C))[:2] / z with
+intrinsics K; pixel (0, 0) is the top-left corner of the top-left pixel, whose
+centre is (0.5, 0.5), and images are indexed [row, column] = [v, u].
+:func:`project_points` and :func:`look_at` are the one implementation, used by
+the dome as well.
+
+For Suzuki, Mukaigawa & Yagi §3.3 only the patches the camera sees give rows:
+a patch is *seen* if it faces the camera, projects inside the image, is not
+occluded (shadow map of the patches' mesh from the camera centre,
+:class:`facestats.acquire.visibility.ShadowMaps`) and the image holds a finite
+value there.  Its radiance is the image sampled bilinearly at its projected
+centre, and its exitance l_j = π L_o / F_t,o (eq. 15,
+:func:`facestats.model.irradiance.exitance_from_radiance`).
+
+Camera files are JSON: ``{"matrix": 3×3 K, "rotation": 3×3 world-to-camera R,
+"position_mm": [x, y, z], "image_size": [width, height]}`` (or ``"look_at"``
+with ``"target_mm"`` and ``"focal_px"`` instead of ``"rotation"`` and
+``"matrix"``).  Radiance images: OpenEXR or PFM through
+:func:`facestats.io.images.read_image` (linear, as stored), or ``.npz`` with an
+array ``radiance`` (H, W[, C]).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from facestats.core.validate import as_finite, check_shape
+from facestats.errors import FormatError, ValidationError
+
+__all__ = [
+    "PinholeCamera",
+    "look_at",
+    "project_points",
+    "sample_image",
+]
+
+
+def look_at(position, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """World-to-camera rotation (rows: camera x right, y down, z forward) looking from ``position`` at ``target``."""
+    p = np.asarray(position, float)
+    fwd = np.asarray(target, float) - p
+    fwd /= np.linalg.norm(fwd, axis=-1, keepdims=True)
+    up = np.broadcast_to(np.asarray(up, float), fwd.shape)
+    right = np.cross(fwd, up)
+    bad = np.linalg.norm(right, axis=-1) < 1e-6
+    right = np.where(bad[..., None], np.cross(fwd, [1.0, 0.0, 0.0]), right)
+    right /= np.linalg.norm(right, axis=-1, keepdims=True)
+    down = np.cross(fwd, right)
+    return np.stack([right, down, fwd], axis=-2)
+
+
+def project_points(points, position, rotation, matrix):
+    """Pixel coordinates (N, C, 2) and depths (N, C) of points (N, 3) in cameras (C) given as stacked arrays.
+
+    ``position`` (C, 3) mm, ``rotation`` (C, 3, 3) world-to-camera, ``matrix`` (C, 3, 3) intrinsics
+    (module docstring).  Points behind a camera get depth ≤ 0 and non-finite pixels are possible there.
+    """
+    d = np.asarray(points, np.float64)[:, None, :] - np.asarray(position, np.float64)[None, :, :]
+    cam = np.einsum("cij,ncj->nci", np.asarray(rotation, np.float64), d)
+    uvw = np.einsum("cij,ncj->nci", np.asarray(matrix, np.float64), cam)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pix = uvw[..., :2] / uvw[..., 2:3]
+    return pix, cam[..., 2]
+
+
+@dataclass
+class PinholeCamera:
+    """One calibrated camera (module docstring).
+
+    Attributes
+    ----------
+    matrix : ndarray, shape (3, 3)
+        Intrinsics K, pixels.
+    rotation : ndarray, shape (3, 3)
+        World-to-camera rotation (rows: x right, y down, z forward).
+    position : ndarray, shape (3,)
+        Camera centre, mm.
+    image_size : tuple of int
+        (width, height) in pixels.
+    """
+
+    matrix: np.ndarray
+    rotation: np.ndarray
+    position: np.ndarray
+    image_size: tuple
+
+    def __post_init__(self):
+        k = check_shape(as_finite(self.matrix, "matrix", dtype=np.float64), "matrix", (3, 3))
+        r = check_shape(as_finite(self.rotation, "rotation", dtype=np.float64), "rotation", (3, 3))
+        if not np.allclose(r @ r.T, np.eye(3), atol=1e-6):
+            raise ValidationError("rotation must be a rotation matrix (R Rᵀ = I), got a matrix that is not orthonormal")
+        c = check_shape(as_finite(self.position, "position", dtype=np.float64), "position", (3,))
+        size = tuple(int(x) for x in np.asarray(self.image_size).reshape(-1))
+        if len(size) != 2 or min(size) <= 0:
+            raise ValidationError(f"image_size must be (width, height) positive pixels, got {self.image_size!r}")
+        self.matrix, self.rotation, self.position, self.image_size = k, r, c, size
+
+    @classmethod
+    def looking_at(cls, position, target, *, focal_px, image_size) -> "PinholeCamera":
+        """A camera at ``position`` (mm) looking at ``target``, focal length ``focal_px``, principal point centred."""
+        w, h = (int(x) for x in image_size)
+        f = float(as_finite(focal_px, "focal_px", 0, None, low_inclusive=False))
+        k = np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1.0]])
+        return cls(k, look_at(position, target), np.asarray(position, float), (w, h))
+
+    @classmethod
+    def from_dome(cls, dome, index: int) -> "PinholeCamera":
+        """Camera ``index`` of a :class:`facestats.acquire.dome.Dome` calibration."""
+        i = int(index)
+        if not 0 <= i < dome.n_cameras:
+            raise ValidationError(f"index must name one of the dome's {dome.n_cameras} cameras, got {index!r}")
+        return cls(dome.camera_matrix[i], dome.camera_rotation[i], dome.camera_position[i], tuple(dome.image_size[i]))
+
+    def project(self, points):
+        """Pixel coordinates (N, 2) and depths along the optical axis (N,) of points (N, 3), mm."""
+        pix, depth = project_points(points, self.position[None], self.rotation[None], self.matrix[None])
+        return pix[:, 0], depth[:, 0]
+
+    def in_frame(self, points) -> np.ndarray:
+        """(N,) bool: in front of the camera and inside the image."""
+        pix, depth = self.project(points)
+        w, h = self.image_size
+        with np.errstate(invalid="ignore"):
+            return (depth > 0) & (pix[:, 0] >= 0) & (pix[:, 1] >= 0) & (pix[:, 0] < w) & (pix[:, 1] < h)
+
+    def pixel_footprint(self, points) -> np.ndarray:
+        """Side of a pixel at each point's depth, mm (depth / focal length)."""
+        _, depth = self.project(points)
+        return np.abs(depth) / float(np.sqrt(self.matrix[0, 0] * self.matrix[1, 1]))
+
+    def to_dict(self) -> dict:
+        return {
+            "matrix": self.matrix.tolist(),
+            "rotation": self.rotation.tolist(),
+            "position_mm": self.position.tolist(),
+            "image_size": list(self.image_size),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "PinholeCamera":
+        """Inverse of :meth:`to_dict`; ``look_at`` form accepted (module docstring)."""
+        try:
+            if "look_at" in d or "target_mm" in d:
+                return cls.looking_at(
+                    d["position_mm"], d["target_mm"], focal_px=d["focal_px"], image_size=d["image_size"]
+                )
+            return cls(
+                np.asarray(d["matrix"], float), np.asarray(d["rotation"], float), d["position_mm"], d["image_size"]
+            )
+        except KeyError as exc:
+            raise FormatError(f"camera description is missing the key {exc.args[0]!r}") from None
+
+    def save(self, path):
+        with open(path, "w") as f:
+            json.dump(self.to_dict(), f, indent=1)
+
+    @classmethod
+    def load(cls, path) -> "PinholeCamera":
+        try:
+            with open(path) as f:
+                return cls.from_dict(json.load(f))
+        except (OSError, json.JSONDecodeError) as exc:
+            raise FormatError(f"cannot read the camera file {os.fspath(path)}: {exc}") from None
+
+
+def sample_image(image, pixels) -> np.ndarray:
+    """Bilinear samples (N, C) of an image (H, W, C) at pixel coordinates (N, 2), by scipy.ndimage.map_coordinates.
+
+    Pixel centres lie at integer + 0.5; samples outside the image, or touching a
+    NaN pixel, are NaN.
+    """
+    from scipy.ndimage import map_coordinates
+
+    img = np.asarray(image, np.float64)
+    if img.ndim == 2:
+        img = img[..., None]
+    h, w = img.shape[:2]
+    pix = np.asarray(pixels, np.float64)
+    x, y = pix[:, 0] - 0.5, pix[:, 1] - 0.5
+    ok = np.isfinite(x) & np.isfinite(y) & (x >= -0.5) & (y >= -0.5) & (x <= w - 0.5) & (y <= h - 0.5)
+    coords = np.stack([np.where(ok, y, 0), np.where(ok, x, 0)])
+    out = np.stack([map_coordinates(img[..., c], coords, order=1, mode="nearest") for c in range(img.shape[2])], -1)
+    out[~ok] = np.nan
+    return out

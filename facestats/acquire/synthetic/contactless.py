@@ -1,0 +1,96 @@
+"""Simulated images for contactless translucency: a face site lit by a projected pattern, seen by a close-up camera.
+
+For a subject's ground truth (:class:`facestats.acquire.synthetic.population.SubjectTruth`)
+and a site (cheek or forehead), :func:`simulate_site_image` renders the window
+of :func:`facestats.acquire.synthetic.scenes.face_site_scene`:
+
+1. the projector's irradiance c_k per patch and channel (eq. 16, η = 1.38;
+   :func:`facestats.acquire.lights.patch_irradiance`);
+2. the exitance l_j = Σ_k R(d_jk) c_k A_k with the site's true (σ's, σa) per
+   channel (:func:`facestats.acquire.synthetic.subsurface.render_exitance`,
+   the point kernel with its documented radius cut-off): the skin under the
+   window is homogeneous with the site's coefficients, as the contact sensor
+   assumes;
+3. the radiance L = M F_t,o l / π with the modulation texture M = α/α_avg of
+   the truth's albedo map at each patch (Weyrich et al. 2006 eq. 6-7: the
+   dome-fitted albedo varies across the site), or M = 1;
+4. the image (:func:`facestats.acquire.synthetic.patch_image.render_patch_image`)
+   with multiplicative Gaussian pixel noise of relative std ``noise``.
+
+Specular reflection is left out: a cross-polarised projector and camera (as in
+the dome's diffuse pass) remove it; the image holds subsurface light only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from facestats.core.conventions import SITES
+from facestats.core.published import ETA_SKIN
+from facestats.core.validate import as_finite, check_choice
+
+__all__ = ["CONTACTLESS_SITES", "patch_modulation", "simulate_site_image"]
+
+#: Sites of the procedural face the contactless study images (the neck is not modelled).
+CONTACTLESS_SITES = ("cheek", "forehead")
+
+
+def patch_modulation(patches, modulation_map) -> np.ndarray:
+    """M (m, 3) at the patches of a procedural-face window from a modulation map [v, u, channel]."""
+    from facestats.acquire.geometry import uv_to_texel
+    from facestats.acquire.synthetic.face import face_uv
+
+    mod = np.asarray(modulation_map, np.float64)
+    u, v = face_uv(patches.centre[:, 0], patches.centre[:, 1])
+    tex = uv_to_texel(np.stack([u, v], -1), mod.shape[0])
+    return mod[tex[:, 0], tex[:, 1]]
+
+
+def simulate_site_image(truth, site="cheek", light="stripe", *, spacing=0.3, modulation=True, noise=0.01, seed=0):
+    """A radiance image of a face site under a projected pattern (module docstring).
+
+    Parameters
+    ----------
+    truth : SubjectTruth
+    site : {"cheek", "forehead"}
+    light : {"stripe", "spot"}
+    spacing : float
+        Grid spacing of the window mesh, mm.
+    modulation : bool
+        Modulate the exitance by the truth's M = α/α_avg.
+    noise : float
+        Relative std of multiplicative pixel noise, in [0, 1).
+    seed : int
+        Seed of the noise.
+
+    Returns
+    -------
+    scene : PatchScene
+    image : ndarray, shape (H, W, 3)
+        Linear radiance (irradiance unit of the projector per sr), NaN off the window.
+    """
+    from facestats.acquire.lights import patch_irradiance
+    from facestats.acquire.synthetic.patch_image import render_patch_image
+    from facestats.acquire.synthetic.scenes import face_site_scene
+    from facestats.acquire.synthetic.subsurface import render_exitance
+    from facestats.model.irradiance import radiance_from_exitance
+
+    check_choice(site, "site", CONTACTLESS_SITES)
+    nz = float(as_finite(noise, "noise", 0, 1, high_inclusive=False))
+    scene = face_site_scene(site, light, spacing=spacing)
+    p = scene.patches
+    c = patch_irradiance(p, scene.lights, eta=ETA_SKIN)
+    sp, sa = truth.site_scattering
+    i = SITES.index(site)
+    l = render_exitance(p.centre, p.area, c, sp[i], sa[i], eta=ETA_SKIN)
+    if modulation:
+        face = truth.region_map > 0
+        avg = truth.albedo[face].mean(axis=0)
+        l = l * patch_modulation(p, np.where(face[..., None], truth.albedo / avg, 1.0))
+    to_cam = scene.camera.position - p.centre
+    cos_o = np.clip(np.einsum("mk,mk->m", p.normal, to_cam) / np.linalg.norm(to_cam, axis=1), 0, 1)
+    image = render_patch_image(scene.camera, p, radiance_from_exitance(l, cos_o, ETA_SKIN), samples=2)
+    if nz > 0:
+        rng = np.random.default_rng(seed)
+        image = np.maximum(image * (1 + nz * rng.standard_normal(image.shape)), 0).astype(np.float32)
+    return scene, image

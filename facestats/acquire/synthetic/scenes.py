@@ -1,0 +1,125 @@
+"""Known scenes for translucency from one image: Suzuki's pyramid and patches of the procedural face.
+
+* :func:`square_pyramid` and :func:`pyramid_scene` — Suzuki, Mukaigawa & Yagi
+  §4.1: "a square pyramid under one light" (Fig. 4), rendered with the dipole of
+  Table 1.  The paper gives neither its size nor its light; facestats uses a
+  pyramid of base 50 mm and height 25 mm (45° faces, apex towards +z, the
+  camera), patches of edge ``spacing`` (:func:`facestats.acquire.patches.mesh_patches`),
+  and one distant light: ``"edge"`` from (1, 0, −0.1), which lights only the +x
+  face so the other three see light only through the medium (edge-like
+  lighting: a lit half and a shadowed half), ``"oblique"`` from (1, 0.5, 0.5),
+  lighting two faces unequally, or ``"uniform"`` from +z, which lights all four
+  faces equally (the ill-posed case).  The camera looks down −z from 400 mm.
+* :func:`face_site_scene` — a window of the procedural face
+  (:func:`facestats.acquire.synthetic.face.face_window`) around the cheek or
+  forehead site, lit by a projector (a point light 300 mm away along the site
+  normal with planar cuts, :class:`facestats.acquire.lights.PointLight`): a
+  ``"stripe"`` 4 mm wide and 10 mm long, or a ``"spot"`` of 3 mm radius, both
+  entirely inside the window so that the window holds all the light that enters
+  the skin; a close-up camera 250 mm away along the normal with pixels of a quarter of the
+  grid spacing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from facestats.acquire.camera import PinholeCamera
+from facestats.acquire.lights import DirectionalLight, PointLight
+from facestats.acquire.patches import Patches, mesh_patches
+from facestats.core.validate import as_finite, check_choice
+from facestats.errors import ValidationError
+
+__all__ = ["PatchScene", "square_pyramid", "pyramid_scene", "face_site_scene", "PYRAMID_LIGHTS", "SITE_LIGHTS"]
+
+#: Directions towards the distant light of :func:`pyramid_scene`.
+PYRAMID_LIGHTS = {"edge": (1.0, 0.0, -0.1), "oblique": (1.0, 0.5, 0.5), "uniform": (0.0, 0.0, 1.0)}
+#: Projector patterns of :func:`face_site_scene`.
+SITE_LIGHTS = ("stripe", "spot")
+
+
+@dataclass
+class PatchScene:
+    """Patches, lights and a camera of a known scene (all mm; lights as :mod:`facestats.acquire.lights`)."""
+
+    patches: Patches
+    lights: list
+    camera: PinholeCamera
+    eta: float
+    name: str = "scene"
+
+
+def square_pyramid(base=50.0, height=25.0):
+    """A square pyramid (vertices (5, 3) mm, faces (6, 3)): base on z = 0, apex at (0, 0, height), outward normals."""
+    b = float(as_finite(base, "base", 0, None, low_inclusive=False, unit="mm")) / 2
+    h = float(as_finite(height, "height", 0, None, low_inclusive=False, unit="mm"))
+    v = np.array([[b, b, 0], [-b, b, 0], [-b, -b, 0], [b, -b, 0], [0, 0, h]], float)
+    f = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4], [0, 2, 1], [0, 3, 2]])
+    return v, f
+
+
+def pyramid_scene(spacing=1.8, light="edge", *, base=50.0, height=25.0, image_size=400) -> PatchScene:
+    """Suzuki §4.1's scene (module docstring): pyramid patches, one distant light, a camera above.
+
+    Only the four lateral faces become patches (the base faces away from light
+    and camera); the whole pyramid is the occluder.
+    """
+    check_choice(light, "light", PYRAMID_LIGHTS)
+    v, f = square_pyramid(base, height)
+    patches = mesh_patches(v, f[:4], spacing=spacing, occluder=False)
+    patches = Patches(patches.centre, patches.normal, patches.area, patches.corners, v, f)
+    lights = [DirectionalLight(PYRAMID_LIGHTS[light], 1.0)]
+    size = int(image_size)
+    focal = size / 2 / (0.6 * float(base)) * 400.0  # the base spans ~80 % of the image
+    camera = PinholeCamera.looking_at((0.0, 0.0, 400.0), (0.0, 0.0, 0.0), focal_px=focal, image_size=(size, size))
+    return PatchScene(patches, lights, camera, 1.3, name=f"pyramid-{light}")
+
+
+def face_site_scene(site="cheek", light="stripe", *, spacing=0.3, half_width=9.0, pixel_fraction=0.25) -> PatchScene:
+    """A window of the procedural face around a sensor site, a projector pattern and a close-up camera.
+
+    Parameters
+    ----------
+    site : {"cheek", "forehead"}
+    light : {"stripe", "spot"}
+    spacing : float
+        Grid spacing of the window's mesh in x and y, mm; each triangle (two per
+        grid cell) is a patch.
+    half_width : float
+        Half side of the window, mm (≥ 6: the pattern must fit with a margin).
+    pixel_fraction : float
+        Camera pixel size as a fraction of ``spacing``.
+    """
+    from facestats.acquire.synthetic.face import SITE_CENTRES, face_window
+
+    check_choice(site, "site", tuple(SITE_CENTRES))
+    check_choice(light, "light", SITE_LIGHTS)
+    hw = float(as_finite(half_width, "half_width", 6.0, None, unit="mm"))
+    v, f, centre, normal = face_window(site, half_width=hw, spacing=spacing)
+    patches = mesh_patches(v, f, spacing=None)  # one patch per triangle of the window's grid
+    # Projector frame: e1, e2 span the tangent plane at the site centre.
+    e1 = np.cross([0.0, 1.0, 0.0], normal)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(normal, e1)
+    pos = centre + 300.0 * normal
+    if light == "stripe":  # 4 mm × 10 mm at the site: four planes through the projector
+        cuts = []
+        for axis, half in ((e1, 2.0), (e2, 5.0)):
+            t = np.cross(normal, axis)  # direction of the pattern's edges across this axis
+            for sign in (1.0, -1.0):
+                n = np.cross(centre + sign * half * axis - pos, t)  # plane through projector and edge
+                n *= np.sign(np.dot(centre - pos, n))  # the site centre is on the lit side
+                cuts.append(n / np.linalg.norm(n))
+        lights = [PointLight(pos, 300.0**2, tuple(cuts))]
+    else:
+        half = np.arctan2(3.0, 300.0)
+        lights = [PointLight(pos, 300.0**2, (), (-normal, half))]
+    pix = pixel_fraction * spacing
+    cam_pos = centre + 250.0 * normal
+    size = int(np.ceil(3.0 * hw / pix))  # the window's corners lie √2 hw from its centre
+    camera = PinholeCamera.looking_at(cam_pos, centre, focal_px=250.0 / pix, image_size=(size, size))
+    if not np.all(camera.in_frame(patches.centre)):
+        raise ValidationError("the close-up camera does not frame the whole window; lower half_width")
+    return PatchScene(patches, lights, camera, 1.38, name=f"face-{site}-{light}")

@@ -1,0 +1,148 @@
+"""Spatial subsurface rendering over surface patches: the forward model l = R c of Suzuki et al. eq. 17-21.
+
+For patches with centres x_k, areas A_k and entering irradiance c_k (eq. 16),
+the exitance of patch j is
+
+    l_j = Σ_k R(‖x_j − x_k‖) c_k A_k                                   (eq. 17, with areas)
+
+with R the dipole profile (:func:`facestats.model.dipole.dipole_profile`, mm⁻²,
+Suzuki eq. 3-13) evaluated at the patch-centre distances: the point kernel,
+not the quantised model (the patch itself contributes R(0) c_j A_j).  The radiance
+a camera sees is L_o = F_t,o l / π (eq. 14-15,
+:func:`facestats.model.irradiance.radiance_from_exitance`).
+
+Radius cut-off: pairs farther apart than ``radius`` are left out.  The default
+radius is where the dipole's radial energy
+(:func:`facestats.model.dipole.dipole_radial_energy`) reaches all but
+``tail`` = 10⁻⁴ of the total diffuse reflectance in the most translucent
+channel, so the light dropped is below 10⁻⁴ of the light transported; pass
+``radius=numpy.inf`` for none.
+
+Blocked evaluation: rows (exiting patches) in blocks whose distances to all lit
+patches fit ``block_bytes``; only pairs within the radius are evaluated
+(compressed), and summed per row with ``numpy.bincount``.  No m × m array exists.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from facestats.core.validate import as_finite, check_integer, check_shape
+from facestats.errors import ValidationError
+from facestats.model.dipole import (
+    check_dipole_eta,
+    dipole_coefficients,
+    dipole_profile_unchecked,
+    dipole_radial_energy_unchecked,
+    total_diffuse_reflectance,
+)
+
+__all__ = ["cutoff_radius", "render_exitance"]
+
+#: Energy fraction left beyond the default cut-off radius.
+DEFAULT_TAIL = 1e-4
+_BYTES_PER_PAIR = 40
+
+
+def cutoff_radius(sigma_s_prime, sigma_a, eta, tail=DEFAULT_TAIL) -> float:
+    """Radius (mm) holding all but ``tail`` of the dipole's total diffuse reflectance, in the most translucent channel.
+
+    Solves E(ρ) = (1 − tail) R_total with E the closed-form radial energy
+    (:func:`facestats.model.dipole.dipole_radial_energy`) by bracketing.
+    """
+    from scipy.optimize import brentq
+
+    s, a = dipole_coefficients(sigma_s_prime, sigma_a)
+    s, a = np.broadcast_arrays(np.atleast_1d(s), np.atleast_1d(a))
+    t = float(as_finite(tail, "tail", 0, 1, low_inclusive=False, high_inclusive=False))
+    total = total_diffuse_reflectance(s, a, eta)
+    radius = 0.0
+    for c in range(s.size):  # loop over channels (≤ 3)
+        args = (s.flat[c], a.flat[c], float(eta))
+        target = (1 - t) * float(total.flat[c])
+        hi = 1.0
+        while dipole_radial_energy_unchecked(hi, *args) < target:  # doubling bracket, ~10 steps
+            hi *= 2
+        radius = max(radius, brentq(lambda r: dipole_radial_energy_unchecked(r, *args) - target, 0.0, hi))
+    return float(radius)
+
+
+def render_exitance(
+    points,
+    areas,
+    irradiance,
+    sigma_s_prime,
+    sigma_a,
+    *,
+    eta=1.3,
+    rows=None,
+    radius=None,
+    block_bytes=64 * 2**20,
+):
+    """Exitance l_j = Σ_k R(d_jk) c_k A_k of every row patch (module docstring), per channel.
+
+    Parameters
+    ----------
+    points : array_like, shape (m, 3)
+        Patch centres, mm.
+    areas : array_like, shape (m,)
+        Patch areas, mm², > 0.
+    irradiance : array_like, shape (m,) or (m, C)
+        c_k of eq. 16 per patch (and channel), ≥ 0.
+    sigma_s_prime, sigma_a : float or array_like, shape (C,)
+        Reduced scattering and absorption coefficients, mm⁻¹ (per channel).
+    eta : float
+        Relative index of refraction of the dipole (default 1.3, Suzuki §3.2).
+    rows : array_like of int, optional
+        Patches whose exitance is wanted (default all).
+    radius : float, optional
+        Cut-off distance in mm (> 0; ``inf`` for none); default :func:`cutoff_radius`.
+    block_bytes : int
+        Memory budget of a row block (≥ 1 MiB).
+
+    Returns
+    -------
+    ndarray, shape (rows,) or (rows, C)
+        l_j in the unit of c (e.g. W mm⁻²).
+    """
+    p = check_shape(as_finite(points, "points", dtype=np.float64), "points", (None, 3))
+    m = p.shape[0]
+    ar = check_shape(as_finite(areas, "areas", dtype=np.float64), "areas", (m,))
+    if np.any(ar <= 0):
+        raise ValidationError(f"areas must be > 0 mm^2, got {ar[ar <= 0][0]!r}")
+    c = as_finite(irradiance, "irradiance", 0, None, dtype=np.float64)
+    if c.shape[:1] != (m,) or c.ndim > 2:
+        raise ValidationError(f"irradiance must have shape ({m},) or ({m}, C), got {c.shape}")
+    flat = c.ndim == 1
+    c2 = c[:, None] if flat else c
+    n_ch = c2.shape[1]
+    s, a = dipole_coefficients(sigma_s_prime, sigma_a)
+    s = np.broadcast_to(s, (n_ch,)) if s.ndim == 0 or s.size == 1 else check_shape(s, "sigma_s_prime", (n_ch,))
+    a = np.broadcast_to(a, (n_ch,)) if a.ndim == 0 or a.size == 1 else check_shape(a, "sigma_a", (n_ch,))
+    eta = float(check_dipole_eta(eta))
+    if radius is None:
+        rad = cutoff_radius(s, a, eta)
+    else:
+        rad = float(radius)
+        if not rad > 0:  # inf allowed (no cut-off); NaN and ≤ 0 are not
+            raise ValidationError(f"radius must be > 0 mm (inf for no cut-off), got {radius!r}")
+    check_integer(block_bytes, "block_bytes", 2**20)
+    idx = np.arange(m) if rows is None else np.asarray(rows, np.int64)
+    lit = np.nonzero(np.any(c2 > 0, axis=1))[0]
+    out = np.zeros((idx.size, n_ch))
+    if lit.size == 0:
+        return out[:, 0] if flat else out
+    centre = p.mean(0)
+    q = p[lit] - centre
+    ca = c2[lit] * ar[lit, None]
+    sq = np.einsum("ij,ij->i", q, q)
+    block = max(1, int(block_bytes) // (_BYTES_PER_PAIR * lit.size))
+    for start in range(0, idx.size, block):  # loop over row blocks, vectorised over their pairs
+        rp = p[idx[start : start + block]] - centre
+        d2 = np.maximum(np.einsum("ij,ij->i", rp, rp)[:, None] + sq[None, :] - 2 * rp @ q.T, 0)
+        jj, kk = np.nonzero(d2 < rad * rad)
+        d = np.sqrt(d2[jj, kk])
+        for ch in range(n_ch):  # loop over channels (≤ 3)
+            kern = dipole_profile_unchecked(d, s[ch], a[ch], eta)
+            out[start : start + rp.shape[0], ch] = np.bincount(jj, weights=kern * ca[kk, ch], minlength=rp.shape[0])
+    return out[:, 0] if flat else out

@@ -1,0 +1,518 @@
+"""The quantised-distance linear system of Suzuki, Mukaigawa & Yagi §3.3 (eq. 22-35), built in row blocks.
+
+One image of a homogeneous translucent object gives, per visible patch j, the
+exitance l_j = Σ_k R(d_jk) c_k A_k (eq. 17, with the patch area A_k, see below).
+Quantising the distances d_jk to levels d'_1 = 0 < … < d'_n (eq. 22-24) and
+interpolating R linearly between them (eq. 26-28),
+
+    R(d_jk) ≈ β_jk R'_i + (1 − β_jk) R'_{i+1},   β_jk = (d'_{i+1} − d_jk)/(d'_{i+1} − d'_i),   d'_i ≤ d_jk < d'_{i+1},
+
+turns the m² unknowns R(d_jk) into n unknowns r = (R'_1 … R'_n):
+l ≈ W r with W_j = Σ_k c_k A_k w_jk (eq. 29-34).
+
+Conventions and choices (stated once here, used by every function):
+
+* **Patch area.**  Suzuki eq. 14 sums R(d_jk) times the per-area integral c_k of
+  eq. 16; R has units mm⁻² (exitance per unit incident flux per unit area), so the
+  sum is the quadrature of ∫ R(‖x_o − x_i‖) E(x_i) dA(x_i) and each term carries
+  the patch area A_k (mm²).  The weights passed here are c_k A_k.  The paper's
+  patches have equal areas, where A only scales r.
+* **Rows and columns.**  Only visible patches give rows (§3.3, last paragraph);
+  only lit patches (c_k A_k ≠ 0) contribute to W, so the distances computed are
+  those of (visible, lit) pairs.  ``support`` counts those pairs per level,
+  each pair split by its hat weights (β, 1 − β), so a pair at exactly d'_i
+  (e.g. the patch itself at d = 0) supports level i only.
+* **Streaming.**  W is accumulated over blocks of rows: a block's distances to
+  all lit patches, the level index i and the fraction t = 1 − β of each pair,
+  then two ``numpy.bincount`` reductions over (row, level) — Σ c A and Σ c A t —
+  give the block's rows of W.  No m × m matrix exists; memory is bounded by
+  ``block_bytes`` (about 48 bytes per pair of a block) plus W itself.
+* **Levels.**  From a width w: d'_i = (i − 1) w, as many as needed for
+  d'_n > max d_jk (eq. 23) and no more.  Explicit levels must satisfy eq. 22-24.
+* **Merging.**  A level that no pair supports (or fewer than a threshold) is
+  removed and its neighbours' hats widened: the coarser piecewise-linear basis is
+  a subspace of the finer one, so W_coarse = W P with P the linear interpolation
+  from the coarse levels to the fine ones (:func:`interpolation_matrix`); no
+  distance is recomputed.
+
+Solves (eq. 35 and beyond the paper), on the rows of the visible patches:
+
+* ``"pinv"`` — r = W⁺ l, the paper's pseudo-inverse (computed on W with columns
+  scaled to unit norm, which leaves a full-rank solution unchanged): the
+  minimum-norm least-squares solution by a complete orthogonal factorisation
+  (LAPACK ``gelsy``), with the numerical rank at ``rcond``.
+* ``"monotone"`` — the default of :func:`facestats.model.fitting.fit_scattering_image`:
+  r non-negative and non-increasing in distance, r = U u with u ≥ 0 and
+  U_ik = 1 for k ≥ i (r_i = Σ_{k ≥ i} u_k), rows weighted by 1/l_j (relative
+  residuals, right for multiplicative image noise): min ‖D (W U u − l)‖, u ≥ 0,
+  D = diag(1/l), reduced to an n × n triangle (Cholesky factor of the Gram
+  matrix of D W U, columns scaled to unit norm) and solved by non-negative
+  least squares (Lawson-Hanson, :func:`scipy.optimize.nnls`).
+
+The solves, ranks and covariances work on the normal equations (G = AᵀA, Aᵀy:
+:class:`NormalEquations`), formed once per image by one matrix product; merging
+levels maps them exactly (Pᵀ G P), so the rows × n matrix is touched once.
+  Rows with l_j = 0 carry no relative information and are left out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from facestats.core.validate import as_finite, check_integer, check_shape
+from facestats.errors import FitError, ValidationError
+
+__all__ = [
+    "DEFAULT_BLOCK_BYTES",
+    "QuantisedSystem",
+    "Conditioning",
+    "uniform_levels",
+    "quantised_system",
+    "interpolation_matrix",
+    "merge_levels",
+    "NormalEquations",
+    "normal_equations",
+    "conditioning",
+    "dependent_levels",
+    "solve_pinv",
+    "solve_monotone",
+    "solve_monotone_normal",
+    "profile_covariance",
+]
+
+#: Default memory budget of one row block of :func:`quantised_system` (bytes).
+DEFAULT_BLOCK_BYTES = 128 * 2**20
+#: Bytes of temporaries per (row, lit patch) pair of a block.
+_BYTES_PER_PAIR = 48
+
+
+@dataclass
+class QuantisedSystem:
+    """The matrix W of Suzuki eq. 33 on the visible rows, with its levels and their support.
+
+    Attributes
+    ----------
+    matrix : ndarray, shape (rows, n)
+        W (units of c A: irradiance × mm²); row j is Σ_k c_k A_k w_jk.
+    levels : ndarray, shape (n,)
+        Quantised distances d'_i in mm (d'_1 = 0).
+    rows : ndarray of int, shape (rows,)
+        Indices of the visible patches the rows belong to.
+    support : ndarray, shape (n,)
+        Hat-weighted number of (visible, lit) patch pairs per level.
+    max_distance : float
+        Largest distance of a (visible, lit) pair, mm.
+    n_pairs : int
+        Number of (visible, lit) pairs.
+    merged : tuple of float
+        Levels (mm) removed by :func:`merge_levels`, in the order they were removed.
+    """
+
+    matrix: np.ndarray
+    levels: np.ndarray
+    rows: np.ndarray
+    support: np.ndarray
+    max_distance: float
+    n_pairs: int
+    merged: tuple = field(default=())
+
+    @property
+    def n_levels(self) -> int:
+        return int(self.levels.shape[0])
+
+
+def uniform_levels(width, max_distance) -> np.ndarray:
+    """Levels d'_i = (i − 1) w, i = 1 … n, with n the smallest count giving d'_n > ``max_distance`` (eq. 22-24).
+
+    Parameters
+    ----------
+    width : float
+        Quantisation width w in mm, > 0.
+    max_distance : float
+        Largest patch distance to cover, mm, ≥ 0.
+    """
+    w = float(as_finite(width, "width", 0, None, low_inclusive=False, unit="mm"))
+    dmax = float(as_finite(max_distance, "max_distance", 0, None, unit="mm"))
+    n = int(np.floor(dmax / w)) + 2
+    return np.arange(n) * w
+
+
+def _check_levels(levels) -> np.ndarray:
+    lev = check_shape(as_finite(levels, "levels", 0, None, unit="mm", dtype=np.float64), "levels", (None,))
+    if lev.size < 2 or lev[0] != 0 or np.any(np.diff(lev) <= 0):
+        raise ValidationError(
+            "levels must start at 0 (Suzuki eq. 22) and increase strictly (eq. 24) with at least 2 entries, "
+            f"got {np.array2string(lev[:6], precision=4)}{' …' if lev.size > 6 else ''}"
+        )
+    return lev
+
+
+def _bounding_distance(a, b) -> float:
+    """An upper bound of the distances between two point sets: the diagonal of their joint bounding box."""
+    both = np.concatenate([a, b])
+    return float(np.linalg.norm(both.max(0) - both.min(0)))
+
+
+def _levels_of(d, levels, width):
+    """Level index i (d'_i ≤ d < d'_{i+1}) and fraction t = 1 − β (eq. 25-27) of each distance.
+
+    With a uniform width the distances' buffer is reused for t (``d`` is overwritten).
+    """
+    if width is not None:
+        d *= 1.0 / width
+        i = d.astype(np.int64)
+        np.subtract(d, i, out=d)
+        return i, d
+    i = np.searchsorted(levels, d, side="right") - 1
+    t = (d - levels[i]) / (levels[i + 1] - levels[i])
+    return i, t
+
+
+def _accumulate_block(rows_xyz, self_cols, cols_xyz, sq_c, cols_w, levels, width):
+    """One row block: its rows of W, its level support and its largest pair distance (module docstring).
+
+    ``self_cols`` holds, per row, the column of the same patch among the lit ones (−1 if unlit).
+    """
+    n = levels.shape[0]
+    b, nc = rows_xyz.shape[0], cols_xyz.shape[0]
+    d2 = rows_xyz @ cols_xyz.T
+    d2 *= -2
+    d2 += np.einsum("ij,ij->i", rows_xyz, rows_xyz)[:, None]
+    d2 += sq_c[None, :]
+    np.maximum(d2, 0, out=d2)
+    # ‖p‖² + ‖q‖² − 2 p·q leaves a rounding residue where p = q: a patch and itself must lie exactly
+    # 0 apart, so that they support level 0 only.
+    own = np.nonzero(self_cols >= 0)[0]
+    d2[own, self_cols[own]] = 0
+    d = np.sqrt(d2, out=d2)
+    dmax = float(d.max(initial=0.0))
+    if dmax >= levels[-1]:
+        raise ValidationError(
+            f"levels must extend beyond the largest patch distance (Suzuki eq. 23): last level "
+            f"{levels[-1]:.6g} mm, but a pair lies {dmax:.6g} mm apart"
+        )
+    i, t = _levels_of(d, levels, width)
+    i_flat, t_flat = i.ravel(), t.ravel()
+    cnt = np.bincount(i_flat, minlength=n + 1)
+    cnt_t = np.bincount(i_flat, weights=t_flat, minlength=n + 1)
+    support = cnt[:n] - cnt_t[:n]
+    support[1:] += cnt_t[: n - 1]
+    i += (np.arange(b) * (n + 1))[:, None]  # flat (row, level) bins
+    s_c = np.bincount(i_flat, weights=np.broadcast_to(cols_w, (b, nc)).ravel(), minlength=b * (n + 1))
+    t *= cols_w
+    s_ct = np.bincount(i_flat, weights=t_flat, minlength=b * (n + 1))
+    s_c, s_ct = s_c.reshape(b, n + 1), s_ct.reshape(b, n + 1)
+    w_block = s_c[:, :n] - s_ct[:, :n]
+    w_block[:, 1:] += s_ct[:, : n - 1]
+    return w_block, support, dmax
+
+
+def quantised_system(
+    points, weights, rows=None, *, width=None, levels=None, block_bytes=DEFAULT_BLOCK_BYTES, progress=False
+) -> QuantisedSystem:
+    """Build W of Suzuki eq. 33 for the visible rows, streaming row blocks (module docstring).
+
+    Parameters
+    ----------
+    points : array_like, shape (m, 3)
+        Patch centres, mm.
+    weights : array_like, shape (m,)
+        c_k A_k: the per-area irradiance integral of eq. 16 times the patch area
+        (mm²), ≥ 0; patches with weight 0 (unlit) contribute nothing and are skipped.
+    rows : array_like of int, optional
+        Indices of the visible patches (default: all).
+    width : float, optional
+        Quantisation width in mm (> 0): levels 0, w, 2w, … just beyond the
+        largest (visible, lit) distance (eq. 22-24).
+    levels : array_like, optional
+        Explicit levels instead of ``width`` (eq. 22-24; the last must exceed
+        the largest distance, eq. 23).
+    block_bytes : int
+        Memory budget of a row block (≥ 1 MiB).
+    progress : bool
+        Show a progress bar over the row blocks (tqdm).
+
+    Returns
+    -------
+    QuantisedSystem
+    """
+    p = check_shape(as_finite(points, "points", dtype=np.float64), "points", (None, 3))
+    m = p.shape[0]
+    wk = check_shape(as_finite(weights, "weights", 0, None, dtype=np.float64), "weights", (m,))
+    idx = np.arange(m) if rows is None else np.asarray(rows)
+    if idx.ndim != 1 or idx.dtype.kind not in "iu" or (idx.size and (idx.min() < 0 or idx.max() >= m)):
+        raise ValidationError(f"rows must be a 1-D array of patch indices in [0, {m}), got {idx!r}")
+    if idx.size == 0:
+        raise ValidationError("rows must select at least one visible patch, got none")
+    lit = np.nonzero(wk > 0)[0]
+    if lit.size == 0:
+        raise ValidationError("weights must be positive for at least one patch (no patch is lit), got all 0")
+    if (width is None) == (levels is None):
+        raise ValidationError(f"give exactly one of width and levels, got width={width!r} and levels={levels!r}")
+    check_integer(block_bytes, "block_bytes", 2**20)
+    centre = p[np.concatenate([idx, lit])].mean(0)
+    rows_xyz, cols_xyz = p[idx] - centre, p[lit] - centre
+    if width is not None:
+        w = float(as_finite(width, "width", 0, None, low_inclusive=False, unit="mm"))
+        lev = uniform_levels(w, _bounding_distance(rows_xyz, cols_xyz))
+    else:
+        w, lev = None, _check_levels(levels)
+    block = max(1, int(block_bytes) // (_BYTES_PER_PAIR * lit.size))
+    starts = range(0, idx.size, block)
+    if progress:
+        from tqdm.auto import tqdm
+
+        starts = tqdm(starts, desc="W (Suzuki eq. 33)", unit="block")
+    sq_c = np.einsum("ij,ij->i", cols_xyz, cols_xyz)
+    lit_pos = np.full(m, -1)
+    lit_pos[lit] = np.arange(lit.size)
+    self_cols = lit_pos[idx]
+    w_mat = np.empty((idx.size, lev.size))
+    support, dmax = np.zeros(lev.size), 0.0
+    for start in starts:  # loop over row blocks, vectorised over the pairs of a block
+        sub = slice(start, min(start + block, idx.size))
+        w_mat[sub], sb, db = _accumulate_block(rows_xyz[sub], self_cols[sub], cols_xyz, sq_c, wk[lit], lev, w)
+        support += sb
+        dmax = max(dmax, db)
+    if w is not None:  # trim to the levels eq. 23 needs: d'_n is the first level beyond the largest distance
+        n = int(np.floor(dmax / w)) + 2
+        w_mat, lev, support = w_mat[:, :n], lev[:n], support[:n]
+    return QuantisedSystem(
+        matrix=w_mat,
+        levels=lev,
+        rows=idx,
+        support=np.asarray(support, np.float64),
+        max_distance=dmax,
+        n_pairs=int(idx.size) * int(lit.size),
+    )
+
+
+def interpolation_matrix(levels, coarse) -> np.ndarray:
+    """P (n_fine, n_coarse): values at ``levels`` of the piecewise-linear function with nodal values at ``coarse``.
+
+    ``coarse`` must be a subset of ``levels`` holding its first and last entry, so
+    that every hat function of the coarse levels is a combination of the fine
+    ones and W_coarse = W_fine P exactly.
+    """
+    lev = np.asarray(levels, np.float64)
+    cl = np.asarray(coarse, np.float64)
+    j = np.clip(np.searchsorted(cl, lev, side="right") - 1, 0, cl.size - 2)
+    t = np.clip((lev - cl[j]) / (cl[j + 1] - cl[j]), 0, 1)
+    out = np.zeros((lev.size, cl.size))
+    rows = np.arange(lev.size)
+    out[rows, j] = 1 - t
+    out[rows, j + 1] += t
+    return out
+
+
+def merge_levels(system: QuantisedSystem, keep) -> QuantisedSystem:
+    """Remove the levels not in ``keep`` (bool mask), widening their neighbours' hats (module docstring).
+
+    The first level (d'_1 = 0, eq. 22) and the last (eq. 23) are always kept.
+    """
+    k = np.asarray(keep, bool).copy()
+    if k.shape != system.levels.shape:
+        raise ValidationError(f"keep must have one entry per level, shape {system.levels.shape}, got {k.shape}")
+    k[0] = k[-1] = True
+    if k.all():
+        return system
+    cl = system.levels[k]
+    p = interpolation_matrix(system.levels, cl)
+    return replace(
+        system,
+        matrix=system.matrix @ p,
+        levels=cl,
+        support=system.support @ p,
+        merged=system.merged + tuple(float(x) for x in system.levels[~k]),
+    )
+
+
+@dataclass
+class NormalEquations:
+    """The least-squares problem ‖A r − y‖² of a system in n × n form: G = AᵀA, g = Aᵀy, yy = yᵀy.
+
+    ``weighted``: A = D W with D = diag(1/l_j) over the rows with l_j > 0 and
+    y = 1 (relative residuals, the monotone solve); otherwise A = W and y = l
+    (the paper's solve).  Everything the solves, the rank and the covariance
+    need follows from (G, g, yy), and merging levels maps it exactly:
+    G ← Pᵀ G P, g ← Pᵀ g (:func:`merge_levels`), so W is multiplied once.
+    """
+
+    gram: np.ndarray
+    rhs: np.ndarray
+    yy: float
+    n_rows: int
+    weighted: bool
+
+    def merged(self, p) -> "NormalEquations":
+        """The problem in the coarser basis r = P r_coarse."""
+        return NormalEquations(p.T @ self.gram @ p, p.T @ self.rhs, self.yy, self.n_rows, self.weighted)
+
+    def residual(self, r) -> float:
+        """‖A r − y‖² from the normal equations."""
+        return float(max(r @ self.gram @ r - 2 * r @ self.rhs + self.yy, 0.0))
+
+
+def _check_exitance(exitance, n_rows):
+    return check_shape(as_finite(exitance, "exitance", 0, None, dtype=np.float64), "exitance", (n_rows,))
+
+
+def normal_equations(system: QuantisedSystem, exitance, *, weighted=True) -> NormalEquations:
+    """(G, g, yy) of the weighted (relative, rows with l_j > 0) or plain problem (see :class:`NormalEquations`)."""
+    l = _check_exitance(exitance, system.matrix.shape[0])
+    if weighted:
+        use = l > 0
+        if not use.any():
+            raise FitError("exitance is 0 on every visible row: the weighted solve has no relative information")
+        a = system.matrix[use] / l[use, None]
+        return NormalEquations(a.T @ a, a.sum(0), float(use.sum()), int(use.sum()), True)
+    a = system.matrix
+    return NormalEquations(a.T @ a, a.T @ l, float(l @ l), int(l.size), False)
+
+
+@dataclass
+class Conditioning:
+    """Singular values of W (columns scaled to unit norm, rows weighted as solved), numerical rank and condition.
+
+    ``condition`` is s_max / s_min (inf if a singular value is 0); ``rank`` counts
+    singular values above ``rcond`` × s_max.
+    """
+
+    singular_values: np.ndarray
+    rank: int
+    condition: float
+    rcond: float
+
+
+def _scaled_gram(neq: NormalEquations):
+    d = np.sqrt(np.diag(neq.gram))
+    d = np.where(d > 0, d, 1.0)
+    return neq.gram / np.outer(d, d)
+
+
+def conditioning(neq: NormalEquations, rcond=1e-10) -> Conditioning:
+    """Numerical rank and condition number of the problem's matrix A with columns scaled to unit norm.
+
+    The singular values are the square roots of the eigenvalues of the scaled
+    Gram matrix: exact to rounding for singular values above about 10⁻⁷ s_max,
+    so ranks at ``rcond`` ≥ 10⁻⁷ and condition numbers up to about 10⁷ are
+    resolved; larger condition numbers are reported as at least that.
+    """
+    from scipy.linalg import eigvalsh
+
+    rc = float(as_finite(rcond, "rcond", 0, 1, low_inclusive=False, high_inclusive=False))
+    s = np.sqrt(np.maximum(eigvalsh(_scaled_gram(neq), check_finite=False)[::-1], 0))
+    smax = float(s[0]) if s.size else 0.0
+    rank = int(np.sum(s > rc * smax)) if smax > 0 else 0
+    with np.errstate(divide="ignore"):
+        cond = float(smax / s[-1]) if s.size and s[-1] > 0 else np.inf
+    return Conditioning(singular_values=s, rank=rank, condition=cond, rcond=rc)
+
+
+def dependent_levels(neq: NormalEquations, rcond=1e-10) -> np.ndarray:
+    """Indices of the columns beyond the numerical rank, least independent last (pivoted Cholesky).
+
+    The pivoted Cholesky factorisation of the scaled Gram matrix (LAPACK
+    ``dpstrf``, tolerance rcond²) orders the columns as a column-pivoted QR of
+    A would; the columns after the rank are those a rank-revealing solve drops.
+    """
+    from scipy.linalg.lapack import dpstrf
+
+    _, piv, rank, _ = dpstrf(_scaled_gram(neq), lower=0, tol=float(rcond) ** 2)
+    return np.asarray(piv[rank:], np.int64) - 1  # LAPACK pivots are 1-based
+
+
+def solve_pinv(system: QuantisedSystem, exitance, rcond=1e-10) -> np.ndarray:
+    """r = W⁺ l on the visible rows (Suzuki eq. 35), singular values below ``rcond`` × s_max dropped.
+
+    Parameters
+    ----------
+    system : QuantisedSystem
+    exitance : array_like, shape (rows,)
+        l_j of eq. 15 for the system's rows (≥ 0).
+    rcond : float
+        Relative singular-value threshold of the pseudo-inverse.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        R'_i in mm⁻² (may be negative: the paper's solve has no constraint).
+    """
+    from scipy.linalg import lstsq
+
+    l = _check_exitance(exitance, system.matrix.shape[0])
+    norm = np.linalg.norm(system.matrix, axis=0)
+    norm = np.where(norm > 0, norm, 1.0)
+    sol, *_ = lstsq(system.matrix / norm, l, cond=rcond, lapack_driver="gelsy", check_finite=False)
+    return sol / norm
+
+
+def _monotone_triangle(neq: NormalEquations):
+    """The n × n least-squares problem of the monotone basis: triangle, right-hand side and column scale.
+
+    With T_ik = 1 for i ≤ k (r = T u), the Gram matrix of A T is Tᵀ G T =
+    cumsum(cumsum(G, 1), 0) and Tᵀ g = cumsum(g); scaled to unit columns, its
+    Cholesky factor R and z = R⁻ᵀ Tᵀ g give ‖A T u − y‖² = ‖R u' − z‖² + const.
+    """
+    from scipy.linalg import LinAlgError, cholesky, eigh, solve_triangular
+
+    gu = np.cumsum(np.cumsum(neq.gram, axis=1), axis=0)
+    gu = 0.5 * (gu + gu.T)
+    bu = np.cumsum(neq.rhs)
+    d = np.sqrt(np.maximum(np.diag(gu), 0))
+    scale = np.where(d > 0, d, 1.0)
+    gs = gu / np.outer(scale, scale)
+    try:
+        tri = cholesky(gs, lower=False, check_finite=False)
+    except LinAlgError:  # numerically singular: the PSD square root keeps what the data determine
+        w, v = eigh(gs, check_finite=False)
+        tri = np.sqrt(np.maximum(w, 0))[:, None] * v.T
+        z = np.where(w > 0, (v.T @ (bu / scale)) / np.sqrt(np.where(w > 0, w, 1.0)), 0.0)
+        return tri, z, scale
+    return tri, solve_triangular(tri, bu / scale, trans="T", check_finite=False), scale
+
+
+def solve_monotone_normal(neq: NormalEquations) -> np.ndarray:
+    """r ≥ 0, non-increasing, minimising ‖A r − y‖ for weighted normal equations (module docstring)."""
+    from scipy.optimize import nnls
+
+    tri, z, scale = _monotone_triangle(neq)
+    u, _ = nnls(tri, z, maxiter=50 * tri.shape[1])
+    return np.cumsum((u / scale)[::-1])[::-1]
+
+
+def solve_monotone(system: QuantisedSystem, exitance) -> tuple[np.ndarray, np.ndarray]:
+    """r ≥ 0, non-increasing, minimising the relative residual ‖D (W r − l)‖ (module docstring).
+
+    Parameters
+    ----------
+    system : QuantisedSystem
+    exitance : array_like, shape (rows,)
+        l_j of eq. 15 for the system's rows (≥ 0); rows with l_j = 0 are left out.
+
+    Returns
+    -------
+    r : ndarray, shape (n,)
+        R'_i in mm⁻², non-negative and non-increasing.
+    used : ndarray of bool, shape (rows,)
+        The rows that entered the solve (l_j > 0).
+    """
+    l = _check_exitance(exitance, system.matrix.shape[0])
+    return solve_monotone_normal(normal_equations(system, l)), l > 0
+
+
+def profile_covariance(neq: NormalEquations, profile) -> np.ndarray:
+    """Covariance σ̂² (AᵀA)⁺ of r in the unconstrained problem, σ̂² = ‖A r − y‖² / (rows − n).
+
+    Used to judge which levels the data determine; the constraints of the
+    monotone solve are ignored (the local, unconstrained spread).
+    """
+    from scipy.linalg import pinvh
+
+    n = neq.gram.shape[0]
+    s2 = neq.residual(np.asarray(profile, np.float64)) / max(neq.n_rows - n, 1)
+    d = np.sqrt(np.diag(neq.gram))
+    d = np.where(d > 0, d, 1.0)
+    return s2 * pinvh(neq.gram / np.outer(d, d), check_finite=False) / np.outer(d, d)

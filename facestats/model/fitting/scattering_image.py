@@ -1,0 +1,498 @@
+"""Translucency from one image: Suzuki, Mukaigawa & Yagi's quantised-distance solve and dipole fit, made robust.
+
+:func:`fit_scattering_image` takes per-patch centres, areas, the irradiance c_k
+of eq. 16 and the exitance l_j of eq. 15 (see :mod:`facestats.model.irradiance`)
+and returns (σ's, σa) of the dipole with an interval and the diagnostics of the
+linear system:
+
+1. **Levels** (eq. 22-24): a width in mm, or ``"auto"`` (below).
+2. **W** (eq. 33) over the visible rows, streamed in row blocks
+   (:func:`facestats.model.fitting.quantised.quantised_system`).
+3. **Unsupported levels** — levels that fewer than ``min_pairs`` (visible, lit)
+   patch pairs support (hat-weighted count) cannot be solved for; they are
+   merged into their neighbours (:func:`~facestats.model.fitting.quantised.merge_levels`)
+   with a :class:`facestats.errors.QuantisationWarning`.  Then the numerical rank
+   and condition number of W (columns scaled to unit norm, rows weighted as the
+   solve weights them) are computed; while the rank is below the number of
+   levels, the levels whose columns are least independent (the pivots beyond
+   the rank of a pivoted Cholesky factorisation of the Gram matrix, which
+   orders columns as a column-pivoted QR would) are merged away, with a warning.  Everything done is
+   recorded in the result (``merged_levels``, ``rank``, ``condition``,
+   ``notes``); a condition number above ``CONDITION_WARNING`` = 10⁴ (well-posed
+   scenes stay near 10³; nearly uniform light reaches 10⁵-10⁸) is warned about
+   too.  Nothing is solved silently.
+4. **Solve** for r = (R'_1 … R'_n): ``"pinv"`` — the paper's r = W⁺ l (eq. 35);
+   ``"monotone"`` (default) — r ≥ 0 and non-increasing, rows weighted by 1/l
+   (:func:`~facestats.model.fitting.quantised.solve_monotone`).
+5. **Fit** eq. 36 on a grid, default Suzuki Table 2
+   (:func:`facestats.model.fitting.profile_grid.fit_profile_grid`), over the
+   levels up to ``max_distance``, with a profile-likelihood interval.
+
+Maximum distance (``max_distance="auto"``) and automatic width (``width="auto"``,
+the open problem of Suzuki §4.1): see :mod:`facestats.model.fitting.quantisation_choice`.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
+from facestats.errors import FitError, QuantisationWarning, ValidationError
+from facestats.model.fitting.profile_grid import TABLE2_GRID, ProfileFit, ProfileGrid, fit_profile_grid
+from facestats.model.fitting.quantisation_choice import auto_width, fit_distance
+from facestats.model.fitting.quantised import (
+    DEFAULT_BLOCK_BYTES,
+    QuantisedSystem,
+    conditioning,
+    dependent_levels,
+    interpolation_matrix,
+    merge_levels,
+    normal_equations,
+    quantised_system,
+    solve_monotone_normal,
+    solve_pinv,
+)
+
+__all__ = [
+    "METHODS",
+    "ScatteringImageFit",
+    "fit_scattering_image",
+    "fit_scattering_system",
+    "fit_scattering_channels",
+]
+
+#: The solves of eq. 34: the paper's pseudo-inverse and the constrained default.
+METHODS = ("pinv", "monotone")
+#: Default relative singular-value threshold of the numerical rank.
+DEFAULT_RCOND = 1e-6
+#: Condition number of W above which the result carries a warning (well-posed scenes stay near 10³).
+CONDITION_WARNING = 1e4
+
+
+@dataclass
+class ScatteringImageFit:
+    """Result of :func:`fit_scattering_image`.
+
+    Attributes
+    ----------
+    sigma_s_prime, sigma_a : float
+        Reduced scattering and absorption coefficients, mm⁻¹.
+    sigma_s_prime_interval, sigma_a_interval, sigma_tr_interval : tuple of float
+        (low, high) at ``interval_level`` (profile likelihood over the grid).
+    levels : ndarray
+        The quantised distances d'_i after merging, mm.
+    profile : ndarray
+        R'_i at the levels, mm⁻².
+    support : ndarray
+        Hat-weighted (visible, lit) pair count of each level.
+    width : float
+        The quantisation width used (before merging), mm.
+    method : str
+    rank, n_levels : int
+        Numerical rank of W and its number of columns (after merging).
+    condition : float
+        Condition number of W (columns scaled to unit norm, rows weighted as solved).
+    merged_levels : tuple of float
+        Levels merged away (unsupported or rank-deficient), mm.
+    max_distance : float
+        Largest level distance that entered the fit, mm.
+    n_rows : int
+        Visible rows that entered the solve.
+    profile_fit : ProfileFit
+        The eq. 36 fit (cost surface, levels used, grid).
+    rank_deficient : bool
+        W lacked numerical rank before (or after) the least independent levels were merged.
+    notes : list of str
+        What was done about rank, support, non-positive levels and the fit range.
+    """
+
+    sigma_s_prime: float
+    sigma_a: float
+    sigma_s_prime_interval: tuple
+    sigma_a_interval: tuple
+    sigma_tr_interval: tuple
+    interval_level: float
+    levels: np.ndarray
+    profile: np.ndarray
+    support: np.ndarray
+    width: float
+    method: str
+    rank: int
+    n_levels: int
+    condition: float
+    merged_levels: tuple
+    max_distance: float
+    n_rows: int
+    eta: float
+    profile_fit: ProfileFit
+    rank_deficient: bool = False
+    notes: list = field(default_factory=list)
+
+    @property
+    def sigma_tr(self) -> float:
+        """σtr = sqrt(3 σa (σa + σ's)), mm⁻¹ (Suzuki eq. 10-11)."""
+        return float(np.sqrt(3 * self.sigma_a * (self.sigma_a + self.sigma_s_prime)))
+
+    def summary(self) -> dict:
+        """The estimate, interval and diagnostics as plain Python values (for JSON, provenance, printing)."""
+        return {
+            "sigma_s_prime": self.sigma_s_prime,
+            "sigma_a": self.sigma_a,
+            "sigma_tr": self.sigma_tr,
+            "sigma_s_prime_interval": list(self.sigma_s_prime_interval),
+            "sigma_a_interval": list(self.sigma_a_interval),
+            "sigma_tr_interval": list(self.sigma_tr_interval),
+            "interval_level": self.interval_level,
+            "method": self.method,
+            "width_mm": self.width,
+            "n_levels": self.n_levels,
+            "rank": self.rank,
+            "condition": self.condition,
+            "merged_levels_mm": [round(x, 6) for x in self.merged_levels],
+            "max_distance_mm": self.max_distance,
+            "n_rows": self.n_rows,
+            "eta": self.eta,
+            "notes": list(self.notes),
+        }
+
+
+def _check_inputs(points, areas, irradiance, radiance, visible):
+    p = check_shape(as_finite(points, "points", dtype=np.float64), "points", (None, 3))
+    m = p.shape[0]
+    if m == 0:
+        raise ValidationError("points must hold at least one patch, got 0")
+    a = as_finite(areas, "areas", dtype=np.float64)
+    if a.shape != (m,):
+        raise ValidationError(f"areas must have one value per point, shape ({m},), got {a.shape}")
+    if np.any(a <= 0):
+        raise ValidationError(f"areas must be > 0 mm^2, got {a[a <= 0][0]!r}")
+    c = as_finite(irradiance, "irradiance", 0, None, dtype=np.float64)
+    if c.shape != (m,):
+        raise ValidationError(f"irradiance must have one value per point, shape ({m},), got {c.shape}")
+    l = as_finite(radiance, "radiance", 0, None, dtype=np.float64)
+    if l.shape != (m,):
+        raise ValidationError(f"radiance must have one value per point, shape ({m},), got {l.shape}")
+    if visible is None:
+        vis = np.ones(m, bool)
+    else:
+        vis = np.asarray(visible)
+        if vis.dtype != bool or vis.shape != (m,):
+            raise ValidationError(
+                f"visible must be a bool array of shape ({m},), got dtype {vis.dtype} shape {vis.shape}"
+            )
+    if not vis.any():
+        raise ValidationError("visible must select at least one patch (no visible rows), got none")
+    if not np.any(c > 0):
+        raise ValidationError("irradiance must be > 0 on at least one patch (nothing is lit), got all 0")
+    return p, a, c, l, vis
+
+
+def _resolve_rank(system, neq, rcond, notes):
+    """Merge the least independent levels until W has full numerical rank (module docstring)."""
+    merged = 0
+    for _ in range(8):  # a few rounds: merging changes the neighbours' columns
+        drop = [int(j) for j in dependent_levels(neq, rcond) if 0 < j < system.n_levels - 1]
+        if not drop or system.n_levels - len(drop) < 3:
+            break
+        keep = np.ones(system.n_levels, bool)
+        keep[drop] = False
+        notes.append(
+            f"W had numerical rank {system.n_levels - len(drop)} < {system.n_levels} levels (rcond {rcond:g}); "
+            f"merged the least independent levels at {np.round(system.levels[drop], 4).tolist()} mm"
+        )
+        neq = neq.merged(interpolation_matrix(system.levels, system.levels[keep]))
+        system = merge_levels(system, keep)
+        merged += len(drop)
+    return system, neq, conditioning(neq, rcond), merged
+
+
+def _merge_unsupported(system, min_pairs, notes):
+    weak = system.support < min_pairs
+    weak[0] = weak[-1] = False
+    if weak.any():
+        notes.append(
+            f"{int(weak.sum())} level(s) supported by fewer than {min_pairs} patch pairs merged into their "
+            f"neighbours (first at {system.levels[weak][0]:.4g} mm)"
+        )
+        system = merge_levels(system, ~weak)
+    return system
+
+
+def _solve(system, neq, l, method, rcond, notes):
+    """r by the chosen method and the number of rows that entered the solve."""
+    if method == "pinv":
+        return solve_pinv(system, l, rcond=rcond), int(system.rows.size)
+    if neq.n_rows < l.size:
+        notes.append(f"{l.size - neq.n_rows} visible row(s) with zero radiance left out of the weighted solve")
+    return solve_monotone_normal(neq), neq.n_rows
+
+
+def _fit_range(system, neq, l, r, method, max_distance):
+    """The largest level distance of the fit, mm (``max_distance`` of :func:`fit_scattering_image`)."""
+    if max_distance == "auto" and method == "monotone":
+        return fit_distance(system, neq, r)
+    if max_distance is None or max_distance == "auto":  # the paper fits every level
+        return float(system.levels[-1])
+    dmax = float(as_finite(max_distance, "max_distance", 0, None, low_inclusive=False, unit="mm"))
+    if dmax > system.max_distance:
+        raise ValidationError(
+            f"max_distance must not exceed the largest patch distance {system.max_distance:.6g} mm "
+            f"(no pair lies beyond it), got {dmax:g}"
+        )
+    return dmax
+
+
+def fit_scattering_system(
+    system: QuantisedSystem,
+    exitance,
+    *,
+    method="monotone",
+    eta=1.3,
+    grid=None,
+    max_distance="auto",
+    min_pairs=30,
+    rcond=DEFAULT_RCOND,
+    refine=False,
+    level=0.95,
+    width=None,
+) -> ScatteringImageFit:
+    """Steps 3-5 of :func:`fit_scattering_image` on a built system (reuse W for many images of one scene).
+
+    ``exitance`` holds l_j for the system's rows (``system.rows``).  Other
+    parameters as :func:`fit_scattering_image`; ``width`` is only recorded.
+    """
+    check_choice(method, "method", METHODS)
+    check_integer(min_pairs, "min_pairs", 1)
+    l = check_shape(as_finite(exitance, "radiance", 0, None, dtype=np.float64), "radiance", (system.rows.size,))
+    notes: list = []
+    system = _merge_unsupported(system, int(min_pairs), notes)
+    neq = normal_equations(system, l, weighted=method == "monotone")
+    system, neq, cond, n_rank_merged = _resolve_rank(system, neq, float(rcond), notes)
+    if cond.condition > CONDITION_WARNING:
+        notes.append(
+            f"W is ill-conditioned: condition number {cond.condition:.3g} > {CONDITION_WARNING:g} (columns scaled to "
+            "unit norm, rows weighted as solved); the profile is sensitive to noise, e.g. under nearly uniform light"
+        )
+    if cond.rank < system.n_levels:
+        notes.append(
+            f"W keeps numerical rank {cond.rank} < {system.n_levels} (the dependent levels include the first or "
+            "the last, which eq. 22-23 keep): r is not unique; pinv truncates, the monotone constraints choose"
+        )
+    if system.n_levels < 3:
+        raise FitError(f"only {system.n_levels} supported levels remain; at least 3 are needed to fit 2 parameters")
+    for note in notes:  # warned before the fit, which may still fail on what they describe
+        warnings.warn(note, QuantisationWarning, stacklevel=3)
+    r, n_rows = _solve(system, neq, l, method, rcond, notes)
+    dmax = _fit_range(system, neq, l, r, method, max_distance)
+    pf = fit_profile_grid(
+        system.levels,
+        r,
+        grid=TABLE2_GRID if grid is None else grid,
+        eta=eta,
+        max_distance=dmax,
+        refine=refine,
+        level=level,
+    )
+    if pf.n_nonpositive:
+        notes.append(f"{pf.n_nonpositive} level(s) within the fit range with R' ≤ 0 left out of eq. 36 (log undefined)")
+    if pf.at_grid_edge:
+        notes.append("the interval reaches the edge of the grid: the grid bounds it")
+    deficient = n_rank_merged > 0 or cond.rank < system.n_levels
+    return ScatteringImageFit(
+        sigma_s_prime=pf.sigma_s_prime,
+        sigma_a=pf.sigma_a,
+        sigma_s_prime_interval=pf.sigma_s_prime_interval,
+        sigma_a_interval=pf.sigma_a_interval,
+        sigma_tr_interval=pf.sigma_tr_interval,
+        interval_level=pf.interval_level,
+        levels=system.levels,
+        profile=r,
+        support=system.support,
+        width=float(width) if width is not None else float(system.levels[1]),
+        method=method,
+        rank=cond.rank,
+        n_levels=system.n_levels,
+        condition=cond.condition,
+        merged_levels=system.merged,
+        max_distance=pf.max_distance,
+        n_rows=n_rows,
+        eta=pf.eta,
+        profile_fit=pf,
+        rank_deficient=deficient,
+        notes=notes,
+    )
+
+
+def fit_scattering_image(
+    points,
+    areas,
+    irradiance,
+    radiance,
+    *,
+    width,
+    visible=None,
+    eta=1.3,
+    grid: ProfileGrid | None = None,
+    method="monotone",
+    max_distance="auto",
+    min_pairs=30,
+    rcond=DEFAULT_RCOND,
+    refine=False,
+    level=0.95,
+    block_bytes=DEFAULT_BLOCK_BYTES,
+    progress=False,
+) -> ScatteringImageFit:
+    """Dipole (σ's, σa) of a homogeneous translucent object from one image (module docstring).
+
+    Suzuki, Mukaigawa & Yagi eq. 15-36: l ≈ W r (eq. 34), r from the visible rows,
+    then eq. 36 on a grid.
+
+    Parameters
+    ----------
+    points : array_like, shape (m, 3)
+        Patch centres, mm.
+    areas : array_like, shape (m,)
+        Patch areas, mm² (> 0); they multiply c_k because R is in mm⁻² (see
+        :mod:`facestats.model.fitting.quantised`).
+    irradiance : array_like, shape (m,)
+        c_k of eq. 16 (light entering each patch per unit area, ≥ 0; e.g. W mm⁻²).
+    radiance : array_like, shape (m,)
+        l_j = π L_o / F_t,o of eq. 15 (≥ 0, same unit as ``irradiance``); only
+        visible entries are used.
+    width : float or "auto"
+        Quantisation width in mm (> 0), or ``"auto"``.
+    visible : array_like of bool, shape (m,), optional
+        Patches the camera sees (rows of eq. 35); default all.
+    eta : float
+        Relative index of refraction of the dipole (Suzuki: 1.3).
+    grid : ProfileGrid, optional
+        Models searched by eq. 36; default Suzuki Table 2.
+    method : {"monotone", "pinv"}
+        Constrained relative-residual solve (default) or the paper's pseudo-inverse.
+    max_distance : "auto", float or None
+        Largest level distance in the fit (mm); ``None``: all levels (the paper);
+        ``"auto"``: the rule of the module docstring for ``"monotone"``, all
+        levels for ``"pinv"`` (the paper's method unchanged).
+    min_pairs : int
+        Levels with fewer (hat-weighted) supporting pairs are merged.
+    rcond : float
+        Relative singular-value threshold of the numerical rank.
+    refine : bool
+        Refine the best grid model by continuous least squares.
+    level : float
+        Confidence level of the interval.
+    block_bytes : int
+        Memory budget of a row block of W.
+    progress : bool
+        Progress bar while W is built.
+
+    Returns
+    -------
+    ScatteringImageFit
+    """
+    p, a, c, l, vis = _check_inputs(points, areas, irradiance, radiance, visible)
+    rows = np.nonzero(vis)[0]
+    options = dict(
+        method=method,
+        eta=eta,
+        grid=grid,
+        max_distance=max_distance,
+        min_pairs=min_pairs,
+        rcond=rcond,
+        refine=refine,
+        level=level,
+    )
+    return _fit_over_widths(p, c * a, rows, [l[rows]], width, options, block_bytes, progress)[0]
+
+
+def fit_scattering_channels(points, areas, irradiance, radiance, *, width, visible=None, **options) -> list:
+    """:func:`fit_scattering_image` for each channel of (m, C) radiance, building W once per distinct irradiance.
+
+    ``irradiance`` is (m,) (one light colour for all channels) or (m, C); channels
+    whose irradiance columns are equal share one W (a white light: one build for
+    R, G and B).  Other parameters as :func:`fit_scattering_image`.
+
+    Returns
+    -------
+    list of ScatteringImageFit
+        One per channel.
+    """
+    lv = as_finite(radiance, "radiance", 0, None, dtype=np.float64)
+    if lv.ndim != 2:
+        raise ValidationError(f"radiance must have shape (m, C), got {lv.shape}")
+    cv = as_finite(irradiance, "irradiance", 0, None, dtype=np.float64)
+    cv = np.repeat(cv[:, None], lv.shape[1], axis=1) if cv.ndim == 1 else cv
+    if cv.shape != lv.shape:
+        raise ValidationError(f"irradiance must have shape ({lv.shape[0]},) or {lv.shape}, got {cv.shape}")
+    block_bytes = options.pop("block_bytes", DEFAULT_BLOCK_BYTES)
+    progress = options.pop("progress", False)
+    out = [None] * lv.shape[1]
+    for ch in range(lv.shape[1]):  # loop over channels; equal irradiance columns share one group
+        if out[ch] is not None:
+            continue
+        group = [k for k in range(lv.shape[1]) if out[k] is None and np.array_equal(cv[:, k], cv[:, ch])]
+        p, a, c, _, vis = _check_inputs(points, areas, cv[:, ch], lv[:, ch], visible)
+        rows = np.nonzero(vis)[0]
+        fits = _fit_over_widths(p, c * a, rows, [lv[rows, k] for k in group], width, options, block_bytes, progress)
+        for k, fit in zip(group, fits):
+            out[k] = fit
+    return out
+
+
+def _try_width(system, exitance, w, options, candidates, skipped, auto):
+    """One image at one width: the fit, or None when ``width="auto"`` should try the next candidate."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", QuantisationWarning)
+        error = None
+        try:
+            fit = fit_scattering_system(system, exitance, width=w, **options)
+        except FitError as exc:
+            error = exc
+    if error is not None:  # what was found about the system is still reported, then the error propagates
+        for x in caught:
+            warnings.warn(x.message, x.category, stacklevel=4)
+        raise error
+    if auto and fit.rank_deficient and w != candidates[-1]:
+        skipped.append(f"{w:.4g} mm (rank {fit.rank} of {fit.n_levels}, condition {fit.condition:.3g})")
+        return None  # a rank deficit moves on to the next candidate
+    if auto:
+        fit.notes.insert(0, f"width='auto' chose {w:.4g} mm (candidates {np.round(candidates, 4).tolist()})")
+        if skipped:
+            note = f"width='auto' skipped rank-deficient widths: {'; '.join(skipped)}"
+            fit.notes.insert(1, note)
+            fit.rank_deficient = True
+            warnings.warn(note, QuantisationWarning, stacklevel=4)
+    for x in caught:
+        warnings.warn(x.message, x.category, stacklevel=4)
+    return fit
+
+
+def _fit_over_widths(p, weights, rows, exitances, width, options, block_bytes, progress) -> list:
+    """Fit each exitance vector (rows) with W built at the width, or at the ``"auto"`` candidates in turn."""
+    auto = isinstance(width, str)
+    if auto:
+        check_choice(width, "width", ("auto",))
+        candidates = auto_width(p, weights, rows, min_pairs=options.get("min_pairs", 30))
+    else:
+        candidates = [float(as_finite(width, "width", 0, None, low_inclusive=False, unit="mm"))]
+    n = len(exitances)
+    results, skipped, errors = [None] * n, [[] for _ in range(n)], [None] * n
+    for w in candidates:  # loop over candidate widths (one unless width="auto" meets a rank deficit)
+        pending = [i for i in range(n) if results[i] is None]
+        if not pending:
+            break
+        system = quantised_system(p, weights, rows, width=w, block_bytes=block_bytes, progress=progress)
+        for i in pending:  # the images sharing this W
+            try:
+                results[i] = _try_width(system, exitances[i], w, options, candidates, skipped[i], auto)
+            except FitError as exc:
+                errors[i] = exc
+    for i, fit in enumerate(results):
+        if fit is None:
+            if not auto:
+                raise errors[i]
+            raise FitError(f"no candidate width gave a solvable system; the last said: {errors[i]}")
+    return results

@@ -1,0 +1,78 @@
+"""Translucency from one image of a known scene: mesh, lights and camera in, (σ's, σa) per channel out.
+
+The stage behind ``facestats translucency``: the patches of the mesh
+(:func:`facestats.acquire.patches.read_mesh_patches` or given), c_k from the
+lights (eq. 16, :func:`facestats.acquire.lights.patch_irradiance`, with shadow
+maps), l_j and the seen patches from the radiance image (eq. 15,
+:func:`facestats.acquire.scene.patch_radiance`), then
+:func:`facestats.model.fitting.fit_scattering_channels` per image channel
+(channels lit alike share one W).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from facestats.core.validate import check_choice
+from facestats.model.fitting.profile_grid import TABLE2_GRID, ProfileGrid
+
+__all__ = ["GRIDS", "fit_image_translucency", "load_scene_inputs"]
+
+#: Named grids of the command line: Suzuki Table 2, or log-spaced for skin-like media.
+GRIDS = {"table2": TABLE2_GRID, "skin": ProfileGrid.log_spaced((0.05, 20.0), (1e-3, 5.0), (160, 160))}
+
+
+def load_scene_inputs(mesh, lights, camera, image, *, spacing=1.0, scale=1.0):
+    """``(patches, lights, eta, camera, image)`` from a mesh (OBJ/PLY), lights and camera (JSON) and an HDR image."""
+    from facestats.acquire.camera import PinholeCamera
+    from facestats.acquire.lights import load_lights
+    from facestats.acquire.patches import read_mesh_patches
+    from facestats.acquire.scene import read_radiance_image
+
+    light_list, eta = load_lights(lights)
+    cam = PinholeCamera.load(camera)
+    img = read_radiance_image(image)
+    patches = read_mesh_patches(mesh, spacing=spacing, scale=scale)
+    return patches, light_list, eta, cam, img
+
+
+def fit_image_translucency(
+    patches, lights, camera, image, *, eta=1.3, width="auto", method="monotone", grid="table2", **options
+) -> list:
+    """Fit the dipole to one radiance image of known patches, lights and camera (module docstring).
+
+    Parameters
+    ----------
+    patches : Patches
+    lights : list of lights (:mod:`facestats.acquire.lights`)
+    camera : PinholeCamera
+    image : ndarray, shape (H, W[, C])
+        Linear radiance.
+    eta : float
+        Relative index of refraction (Suzuki: 1.3).
+    width, method
+        As :func:`facestats.model.fitting.fit_scattering_image`.
+    grid : str or ProfileGrid
+        ``"table2"``, ``"skin"`` (:data:`GRIDS`) or a grid.
+    **options
+        Passed to :func:`facestats.model.fitting.fit_scattering_channels`.
+
+    Returns
+    -------
+    list of ScatteringImageFit
+        One per image channel.
+    """
+    from facestats.acquire.lights import patch_irradiance
+    from facestats.acquire.scene import patch_radiance
+    from facestats.model.fitting.scattering_image import fit_scattering_channels
+
+    if isinstance(grid, str):
+        check_choice(grid, "grid", GRIDS)
+        grid = GRIDS[grid]
+    c = patch_irradiance(patches, lights, eta=eta)
+    l, seen = patch_radiance(image, camera, patches, eta=eta)
+    n_ch = l.shape[1]
+    c = c[:, :n_ch] if n_ch <= 3 else np.repeat(c[:, :1], n_ch, axis=1)
+    return fit_scattering_channels(
+        patches.centre, patches.area, c, l, width=width, visible=seen, eta=eta, method=method, grid=grid, **options
+    )

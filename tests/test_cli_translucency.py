@@ -1,0 +1,80 @@
+"""``facestats translucency``: a pyramid rendered to an OpenEXR image, estimated from the files."""
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from facestats.acquire.lights import save_lights
+from facestats.acquire.scene import write_radiance_image
+from facestats.acquire.synthetic.patch_image import render_patch_image
+from facestats.acquire.synthetic.scenes import pyramid_scene, square_pyramid
+from facestats.model.irradiance import radiance_from_exitance
+from facestats.pipeline.suzuki_studies import render_scene
+
+from .cli_helpers import run_cli
+
+
+@pytest.fixture(scope="module")
+def scene_files(tmp_path_factory):
+    import trimesh
+
+    d = tmp_path_factory.mktemp("translucency")
+    scene = pyramid_scene(2.5, "edge", image_size=300)
+    r = render_scene(scene)
+    p = r.patches
+    to_cam = scene.camera.position - p.centre
+    cos = np.clip(np.einsum("mk,mk->m", p.normal, to_cam) / np.linalg.norm(to_cam, axis=1), 0, 1)
+    lo = radiance_from_exitance(np.repeat(r.exitance[:, None], 3, 1), cos, 1.3)
+    write_radiance_image(d / "pyramid.exr", render_patch_image(scene.camera, p, lo))
+    v, f = square_pyramid(50, 25)
+    trimesh.Trimesh(v, f[:4], process=False).export(d / "pyramid.obj")  # the four faces the scene patches
+    save_lights(d / "lights.json", scene.lights, eta=1.3)
+    scene.camera.save(d / "camera.json")
+    return d
+
+
+def test_cli_prints_the_estimate_interval_and_rank_and_plots(scene_files):
+    d = scene_files
+    plot, out = d / "fig5.png", d / "fit.json"
+    r = run_cli(
+        "translucency",
+        d / "pyramid.obj",
+        "--lights",
+        d / "lights.json",
+        "--camera",
+        d / "camera.json",
+        "--image",
+        d / "pyramid.exr",
+        "--spacing",
+        "2.5",
+        "--plot",
+        plot,
+        "--json",
+        out,
+    )
+    assert r.returncode == 0, r.stderr
+    line = next(x for x in r.stdout.splitlines() if x.startswith("R:"))
+    s, a = (float(x) for x in re.findall(r"sigma_s' = ([\d.]+).*sigma_a = ([\d.]+)", line)[0])
+    assert abs(s - 2.19) <= 0.05 and abs(a - 0.0021) <= 0.0003
+    assert "rank" in r.stdout and "condition" in r.stdout and "width" in r.stdout
+    fits = json.loads(out.read_text())
+    assert set(fits) == {"R", "G", "B"} and fits["R"]["rank"] <= fits["R"]["n_levels"]
+    assert plot.exists() and plot.stat().st_size > 10_000
+
+
+def test_cli_rejects_a_missing_image_and_a_bad_width(scene_files, capsys):
+    from facestats.cli import main
+
+    d = scene_files
+    base = ["translucency", str(d / "pyramid.obj"), "--lights", str(d / "lights.json")]
+    base += ["--camera", str(d / "camera.json")]
+    assert main(base + ["--image", str(d / "missing.exr")]) == 2
+    assert "image must name an existing file" in capsys.readouterr().err
+    out, plot = d / "failed.json", d / "failed.png"
+    assert (
+        main(base + ["--image", str(d / "pyramid.exr"), "--width", "-1", "--json", str(out), "--plot", str(plot)]) == 2
+    )
+    assert "width must lie in" in capsys.readouterr().err
+    assert not out.exists() and not plot.exists()  # a failed command writes nothing

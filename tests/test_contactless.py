@@ -1,0 +1,79 @@
+"""Contactless skin translucency: σ's, σa of cheek and forehead from one image each (pipeline.contactless)."""
+
+import numpy as np
+import pytest
+
+import facestats
+from facestats.acquire.synthetic.contactless import simulate_site_image
+from facestats.acquire.synthetic.population import default_population
+from facestats.core.conventions import SITES
+from facestats.errors import FitError
+from facestats.io.schema import provenance, validate_subject
+from facestats.pipeline import contactless
+from facestats.pipeline.contactless import contactless_population, fit_contactless
+
+SPACING = 0.5  # coarse window mesh for speed; the study uses 0.3 mm
+
+
+@pytest.fixture(scope="module")
+def subject_and_fit():
+    pop = default_population()
+    truth = pop["S001"]
+    with facestats.open_store() as store:
+        subject = store.subject("S001")
+    images = {
+        s: simulate_site_image(truth, s, "stripe", spacing=SPACING, seed=k) for k, s in enumerate(("cheek", "forehead"))
+    }
+    return pop, truth, subject, images, fit_contactless(subject, images)
+
+
+def test_image_estimates_match_the_truth_and_the_sensor(subject_and_fit):
+    _, truth, subject, _, ds = subject_and_fit
+    est = ds["image_sigma_tr"].values
+    for site in ("cheek", "forehead"):
+        i = SITES.index(site)
+        rel_truth = est[i] / truth.site_sigma_tr[i] - 1
+        rel_sensor = est[i] / subject["site_sigma_tr"].values[i] - 1
+        assert np.all(np.abs(rel_truth) <= 0.10) and np.all(np.abs(rel_sensor) <= 0.10), (site, rel_truth, rel_sensor)
+        s_true, a_true = (x[i] for x in truth.site_scattering)
+        np.testing.assert_allclose(ds["image_sigma_s_prime"].values[i], s_true, rtol=0.10)
+        np.testing.assert_allclose(ds["image_sigma_a"].values[i], a_true, rtol=0.10)
+        lo, hi = ds["image_sigma_tr_low"].values[i], ds["image_sigma_tr_high"].values[i]
+        assert np.all(lo <= est[i]) and np.all(est[i] <= hi)
+    assert np.all(np.isnan(est[SITES.index("neck")]))  # no image of the neck
+
+
+def test_result_sits_beside_the_sensor_values_with_provenance(subject_and_fit):
+    _, _, subject, _, ds = subject_and_fit
+    assert validate_subject(ds) == "maps"
+    np.testing.assert_array_equal(ds["site_sigma_tr"].values, subject["site_sigma_tr"].values)
+    assert ds["image_sigma_tr"].dims == ("site", "channel") and ds["image_sigma_tr"].attrs["units"] == "mm-1"
+    prov = provenance(ds)["contactless_translucency"]
+    assert "Suzuki" in prov["method"] and prov["light"] == "stripe" and prov["modulation_corrected"]
+    assert set(prov["sites"]) == {"cheek", "forehead"}
+    assert prov["sites"]["cheek"]["channels"]["R"]["rank"] <= prov["sites"]["cheek"]["channels"]["R"]["n_levels"]
+
+
+def test_store_gets_the_subject_only_when_every_fit_completed(subject_and_fit, tmp_path, monkeypatch):
+    pop, _, subject, _, fitted = subject_and_fit
+    path = tmp_path / "st.zarr"
+    with facestats.open_store(path, mode="a") as st:
+        st.write_subject(subject)
+
+    def fail(*args, **kwargs):
+        raise FitError("no level supported")
+
+    monkeypatch.setattr(contactless, "estimate_site", fail)
+    with facestats.open_store(path, mode="r+") as st, pytest.raises(FitError):
+        contactless_population(st, ["S001"], pop, spacing=SPACING, progress=False)
+    with facestats.open_store(path) as st:
+        assert "image_sigma_tr" not in st.subject("S001").data_vars  # untouched
+    monkeypatch.undo()
+    monkeypatch.setattr(contactless, "simulate_site_image", lambda *a, **k: (None, None))
+    monkeypatch.setattr(contactless, "fit_contactless", lambda subject, images, **k: fitted)  # fitted above
+    with facestats.open_store(path, mode="r+") as st:
+        assert contactless_population(st, ["S001"], pop, spacing=SPACING, progress=False) == ["S001"]
+    with facestats.open_store(path) as st:
+        back = st.subject("S001")
+        assert np.isfinite(back["image_sigma_tr"].values[:2]).all()
+        assert "contactless_translucency" in provenance(back)

@@ -1,0 +1,160 @@
+"""The quantised-distance system of Suzuki et al. eq. 22-35 (facestats.model.fitting.quantised)."""
+
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from facestats.errors import FacestatsError, ValidationError
+from facestats.model.fitting.quantised import (
+    conditioning,
+    dependent_levels,
+    interpolation_matrix,
+    merge_levels,
+    normal_equations,
+    quantised_system,
+    solve_monotone,
+    solve_pinv,
+    uniform_levels,
+)
+
+
+def _dense_w(points, weights, rows, levels):
+    """Straightforward reference: the full distance matrix, eq. 25-27 per pair, np.add.at into W (eq. 33)."""
+    d = np.linalg.norm(points[rows][:, None, :] - points[None, :, :], axis=-1)
+    i = np.searchsorted(levels, d, side="right") - 1
+    beta = (levels[i + 1] - d) / (levels[i + 1] - levels[i])
+    w = np.zeros((rows.size, levels.size))
+    jj = np.broadcast_to(np.arange(rows.size)[:, None], d.shape)
+    cw = np.broadcast_to(weights[None, :], d.shape)
+    np.add.at(w, (jj, i), cw * beta)
+    np.add.at(w, (jj, i + 1), cw * (1 - beta))
+    return w
+
+
+@pytest.fixture
+def cloud():
+    rng = np.random.default_rng(3)
+    p = rng.uniform(0, 6, (300, 3))
+    p[:, 2] *= 0.1
+    c = rng.uniform(0.2, 1.0, 300) * (rng.uniform(size=300) < 0.6)
+    rows = np.sort(rng.choice(300, 200, replace=False))
+    return p, c, rows
+
+
+@pytest.mark.parametrize("block_bytes", [2**20, 64 * 2**20])
+def test_streamed_w_equals_the_dense_reference(cloud, block_bytes):
+    p, c, rows = cloud
+    s = quantised_system(p, c, rows, width=0.25, block_bytes=block_bytes)
+    ref = _dense_w(p, c, rows, s.levels)
+    np.testing.assert_allclose(s.matrix, ref, rtol=1e-12, atol=1e-12)
+    # eq. 23: the last level lies beyond the largest distance, the one before does not.
+    assert s.levels[-1] > s.max_distance >= s.levels[-2]
+    assert s.n_pairs == rows.size * int(np.sum(c > 0))
+    # Each (visible, lit) pair's hat weights sum to one: the support adds up to the pair count.
+    assert s.support.sum() == pytest.approx(s.n_pairs, rel=1e-12)
+
+
+def test_explicit_levels_and_their_checks(cloud):
+    p, c, rows = cloud
+    s = quantised_system(p, c, rows, width=0.5)
+    lev = np.concatenate([[0, 0.3, 0.7], np.arange(1.0, s.levels[-1] + 1.0, 0.5)])
+    e = quantised_system(p, c, rows, levels=lev)
+    np.testing.assert_allclose(e.matrix, _dense_w(p, c, rows, lev), rtol=1e-12, atol=1e-12)
+    with pytest.raises(
+        ValidationError, match=r"levels must extend beyond the largest patch distance \(Suzuki eq. 23\)"
+    ):
+        quantised_system(p, c, rows, levels=[0.0, 0.5, 1.0])
+    with pytest.raises(ValidationError, match=r"levels must start at 0 \(Suzuki eq. 22\)"):
+        quantised_system(p, c, rows, levels=[0.1, 0.5, 20.0])
+    with pytest.raises(ValidationError, match="width must lie in"):
+        quantised_system(p, c, rows, width=0.0)
+    with pytest.raises(ValidationError, match="no patch is lit"):
+        quantised_system(p, np.zeros(300), rows, width=0.5)
+    with pytest.raises(ValidationError, match="rows must select at least one"):
+        quantised_system(p, c, np.array([], int), width=0.5)
+
+
+def test_a_patch_and_itself_support_only_the_first_level():
+    p = np.array([[0.0, 0, 0], [1.0, 0, 0]])
+    s = quantised_system(p, np.array([1.0, 0.0]), np.array([0, 1]), width=0.4)
+    # pairs: (0,0) at d = 0 -> level 0 only; (1,0) at d = 1 = 2.5 w -> levels 2 and 3, half each.
+    np.testing.assert_allclose(s.support, [1, 0, 0.5, 0.5])
+    np.testing.assert_allclose(s.matrix, [[1, 0, 0, 0], [0, 0, 0.5, 0.5]])
+
+
+def test_merging_levels_equals_building_on_the_coarser_levels(cloud):
+    p, c, rows = cloud
+    fine = quantised_system(p, c, rows, width=0.25)
+    keep = np.zeros(fine.n_levels, bool)
+    keep[::2] = True
+    merged = merge_levels(fine, keep)
+    coarse = quantised_system(p, c, rows, levels=merged.levels)
+    np.testing.assert_allclose(merged.matrix, coarse.matrix, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(merged.support, coarse.support, rtol=1e-10)
+    assert len(merged.merged) == fine.n_levels - merged.n_levels
+    # Normal equations merge exactly too: Pᵀ G P.
+    l = np.abs(fine.matrix @ np.exp(-fine.levels)) + 1e-3
+    pm = interpolation_matrix(fine.levels, merged.levels)
+    a = normal_equations(fine, l).merged(pm)
+    b = normal_equations(merged, l)
+    np.testing.assert_allclose(a.gram, b.gram, rtol=1e-9)
+    np.testing.assert_allclose(a.rhs, b.rhs, rtol=1e-9)
+
+
+def test_quantised_data_are_solved_exactly(cloud):
+    p, c, rows = cloud
+    s = quantised_system(p, c, rows, width=0.6)
+    s = merge_levels(s, s.support >= 5)
+    r_true = 0.3 * np.exp(-0.8 * s.levels) / (1 + s.levels)  # positive, decreasing
+    l = s.matrix @ r_true
+    np.testing.assert_allclose(solve_pinv(s, l), r_true, rtol=1e-6, atol=1e-12)
+    r, used = solve_monotone(s, l)
+    assert used.all()
+    np.testing.assert_allclose(r, r_true, rtol=1e-5)
+
+
+def test_monotone_solution_is_non_negative_and_non_increasing(cloud):
+    p, c, rows = cloud
+    s = quantised_system(p, c, rows, width=0.5)
+    s = merge_levels(s, s.support >= 5)
+    rng = np.random.default_rng(0)
+    l = (s.matrix @ (0.3 * np.exp(-s.levels))) * (1 + 0.2 * rng.standard_normal(rows.size))
+    r, _ = solve_monotone(s, np.maximum(l, 0))
+    assert np.all(r >= 0) and np.all(np.diff(r) <= 1e-15)
+    # The pseudo-inverse of the same noisy data does not respect the physics.
+    assert np.any(np.diff(solve_pinv(s, np.maximum(l, 0))) > 0)
+
+
+def test_rank_and_dependent_levels_are_detected():
+    rng = np.random.default_rng(1)
+    from facestats.model.fitting.quantised import QuantisedSystem
+
+    w = rng.uniform(size=(50, 6))
+    w[:, 4] = 2 * w[:, 2] + 1e-12 * rng.uniform(size=50)  # level 4 repeats level 2
+    s = QuantisedSystem(w, np.arange(6.0), np.arange(50), np.full(6, 10.0), 5.5, 300)
+    neq = normal_equations(s, np.ones(50), weighted=False)
+    cond = conditioning(neq, rcond=1e-6)
+    assert cond.rank == 5 and cond.condition > 1e6
+    assert set(dependent_levels(neq, rcond=1e-6)) & {2, 4}
+
+
+def test_memory_is_bounded_by_the_block_size_not_by_m_squared():
+    rng = np.random.default_rng(2)
+    m = 3000
+    p = rng.uniform(0, 30, (m, 3))
+    c = np.ones(m)
+    tracemalloc.start()
+    s = quantised_system(p, c, np.arange(m), width=1.0, block_bytes=2**20)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    dense = m * m * 8  # one float64 m × m distance matrix: 72 MB
+    assert peak < dense / 4, peak
+    assert peak < 2**20 * 3 + s.matrix.nbytes * 3
+
+
+def test_uniform_levels_follow_eq_22_to_24():
+    lev = uniform_levels(0.25, 1.0)
+    np.testing.assert_allclose(lev, [0, 0.25, 0.5, 0.75, 1.0, 1.25])
+    with pytest.raises(FacestatsError, match="max_distance"):
+        uniform_levels(0.25, -1)

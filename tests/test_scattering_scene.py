@@ -1,0 +1,210 @@
+"""Suzuki et al. S1: patches, per-patch irradiance (eq. 16) and exitance (eq. 15), lights, camera, images, renderer."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy.integrate import quad
+
+from facestats.acquire.camera import PinholeCamera
+from facestats.acquire.dome import default_dome
+from facestats.acquire.lights import (
+    DirectionalLight,
+    EnvironmentLight,
+    PointLight,
+    load_lights,
+    patch_irradiance,
+    save_lights,
+)
+from facestats.acquire.patches import Patches, mesh_patches, read_mesh_patches
+from facestats.acquire.scene import camera_sees, patch_radiance, read_radiance_image, write_radiance_image
+from facestats.acquire.synthetic.patch_image import render_patch_image
+from facestats.acquire.synthetic.scenes import pyramid_scene, square_pyramid
+from facestats.acquire.synthetic.subsurface import cutoff_radius, render_exitance
+from facestats.errors import FacestatsError, ValidationError
+from facestats.model.dipole import dipole_profile, dipole_radial_energy, total_diffuse_reflectance
+from facestats.model.fresnel import fresnel_transmittance
+from facestats.model.irradiance import (
+    directional_light_irradiance,
+    environment_irradiance,
+    exitance_from_radiance,
+    point_light_irradiance,
+    radiance_from_exitance,
+)
+
+
+def _plane(n=20, size=2.0, z=0.0):
+    x = np.linspace(-size / 2, size / 2, n)
+    xx, yy = np.meshgrid(x, -x)
+    v = np.stack([xx.ravel(), yy.ravel(), np.full(n * n, z)], 1)
+    from facestats.acquire.geometry import grid_triangles
+
+    return v, grid_triangles(np.ones((n, n), bool))
+
+
+def test_mesh_patches_are_equal_area_and_cover_the_mesh():
+    v, f = square_pyramid(50, 25)
+    p = mesh_patches(v, f[:4], spacing=5.0)
+    tri = v[f[:4]]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    assert p.area.sum() == pytest.approx(area, rel=1e-12)
+    assert np.ptp(p.area) < 1e-12  # congruent faces: all patches equal
+    assert np.allclose(np.linalg.norm(p.normal, axis=1), 1) and np.all(p.normal[:, 2] > 0)
+    c = p.corners
+    np.testing.assert_allclose(c.mean(1), p.centre)
+    assert np.all(np.einsum("mk,mk->m", np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), p.normal) > 0)
+    with pytest.raises(ValidationError, match="normal must have the shape of centre"):
+        Patches(p.centre, p.normal[:-1], p.area)
+    with pytest.raises(ValidationError, match="area must lie in"):
+        Patches(p.centre, p.normal, np.where(np.arange(len(p)) == 0, 0.0, p.area))
+
+
+def test_mesh_files_become_patches(tmp_path):
+    import trimesh
+
+    v, f = square_pyramid(50, 25)
+    path = tmp_path / "pyramid.obj"
+    trimesh.Trimesh(v, f, process=False).export(path)
+    p = read_mesh_patches(path, spacing=5.0)
+    q = mesh_patches(v, f, spacing=5.0)
+    np.testing.assert_allclose(np.sort(p.area), np.sort(q.area))
+    assert p.has_mesh and len(p) == len(q)
+    ply = tmp_path / "pyramid.ply"
+    trimesh.Trimesh(v * 1e-3, f, process=False).export(ply)
+    assert read_mesh_patches(ply, spacing=5.0, scale=1000).area.sum() == pytest.approx(q.area.sum(), rel=1e-6)
+
+
+def test_point_and_directional_irradiance_follow_eq_16():
+    pts = np.array([[0.0, 0, 0], [3.0, 0, 0], [0, 0, 0]])
+    nrm = np.array([[0.0, 0, 1], [0, 0, 1], [0, 0, -1]])
+    c = point_light_irradiance(pts, nrm, [[0.0, 0, 10]], 100.0, eta=1.3)
+    for k, expect_lit in enumerate([True, True, False]):
+        d = np.array([0.0, 0, 10]) - pts[k]
+        cos = max(nrm[k] @ d / np.linalg.norm(d), 0)
+        ref = 100 * cos / (d @ d) * float(fresnel_transmittance(cos, 1.3)) if expect_lit else 0.0
+        np.testing.assert_allclose(c[k], ref, rtol=1e-12)
+    w = np.array([1.0, 0, 1]) / np.sqrt(2)
+    cd = directional_light_irradiance(nrm, w[None], [[2.0, 1.0, 0.5]], eta=1.3)
+    np.testing.assert_allclose(cd[0], np.array([2, 1, 0.5]) * w[2] * float(fresnel_transmittance(w[2], 1.3)))
+    assert np.all(cd[2] == 0)
+    with pytest.raises(ValidationError, match="normals must have the shape of points"):
+        point_light_irradiance(pts, nrm[:2], [[0.0, 0, 10]], 1.0)
+    with pytest.raises(ValidationError, match="visible must have shape"):
+        directional_light_irradiance(nrm, w[None], 1.0, visible=np.ones((2, 1), bool))
+
+
+def test_uniform_sky_irradiance_matches_the_hemispherical_integral():
+    # L = 1 over the upper hemisphere, quadrature by equal-area directions: c = 2π ∫ F_t(μ) μ dμ.
+    n = 200_000
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d[:, 2] = np.abs(d[:, 2])
+    c = environment_irradiance(np.array([[0.0, 0, 1]]), d, np.full(n, 2 * np.pi / n), eta=1.3)
+    ref = 2 * np.pi * quad(lambda mu: float(fresnel_transmittance(mu, 1.3)) * mu, 0, 1)[0]
+    assert c[0, 0] == pytest.approx(ref, rel=5e-3)
+    # One direction of an environment is a directional light.
+    one = environment_irradiance(np.array([[0.0, 0, 1]]), d[:1], [[1.0, 1, 1]])
+    np.testing.assert_allclose(one, directional_light_irradiance(np.array([[0.0, 0, 1]]), d[:1], 1.0))
+
+
+def test_eq_15_exitance_and_its_inverse():
+    lo = np.array([0.1, 0.2])
+    cos = np.array([1.0, 0.5])
+    l = exitance_from_radiance(lo, cos, 1.3)
+    np.testing.assert_allclose(l, np.pi * lo / fresnel_transmittance(cos, 1.3))
+    np.testing.assert_allclose(radiance_from_exitance(l, cos, 1.3), lo)
+
+
+def test_lights_masks_shadows_and_json(tmp_path):
+    v, f = _plane(30, 10.0)
+    floor = mesh_patches(v, f, spacing=None)
+    # An occluding square 2 mm above the floor's centre, with the light straight above: its shadow.
+    ov = np.array([[-1.0, -1, 2], [1, -1, 2], [1, 1, 2], [-1, 1, 2]])
+    of = np.array([[0, 1, 2], [0, 2, 3]])
+    mesh_v = np.concatenate([v, ov])
+    mesh_f = np.concatenate([f, of + len(v)])
+    p = Patches(floor.centre, floor.normal, floor.area, floor.corners, mesh_v, mesh_f)
+    light = PointLight([0.0, 0, 200], 200.0**2)
+    c = patch_irradiance(p, [light], eta=1.3)
+    under = np.all(np.abs(p.centre[:, :2]) < 0.8, axis=1)
+    outside = np.any(np.abs(p.centre[:, :2]) > 1.3, axis=1)
+    assert np.all(c[under] == 0) and np.all(c[outside] > 0)
+    # An edge: the plane through the light with normal +x lights x ≥ 0 only.
+    edge = PointLight([0.0, 0, 200], 1.0, ([1.0, 0, 0],))
+    ce = patch_irradiance(p, [edge], shadows=False)
+    assert np.all(ce[p.centre[:, 0] < -0.1] == 0) and np.all(ce[p.centre[:, 0] > 0.1] > 0)
+    spot = PointLight([0.0, 0, 200], 1.0, (), ([0, 0, -1.0], np.arctan2(2.0, 200)))
+    cs = patch_irradiance(p, [spot], shadows=False)
+    assert np.all(cs[np.linalg.norm(p.centre[:, :2], axis=1) > 2.1] == 0)
+    lights = [edge, spot, DirectionalLight([0, 1, 1], [1, 2, 3]), EnvironmentLight([[0, 0, 1.0]], [0.5])]
+    path = tmp_path / "lights.json"
+    save_lights(path, lights, eta=1.3)
+    back, eta = load_lights(path)
+    assert eta == 1.3 and [type(x) for x in back] == [type(x) for x in lights]
+    np.testing.assert_allclose(patch_irradiance(p, back, shadows=False), patch_irradiance(p, lights, shadows=False))
+    path.write_text(json.dumps({"lights": [{"type": "laser"}]}))
+    with pytest.raises(FacestatsError, match="light type must be one of"):
+        load_lights(path)
+
+
+def test_camera_matches_the_dome_and_round_trips(tmp_path):
+    dome = default_dome()
+    cam = PinholeCamera.from_dome(dome, 3)
+    pts = np.random.default_rng(1).uniform(-50, 50, (20, 3))
+    _, in_frame, pix = dome.view(pts, cameras=[3])
+    np.testing.assert_allclose(cam.project(pts)[0], pix[:, 0])
+    np.testing.assert_array_equal(cam.in_frame(pts), in_frame[:, 0])
+    cam.save(tmp_path / "cam.json")
+    back = PinholeCamera.load(tmp_path / "cam.json")
+    np.testing.assert_allclose(back.project(pts)[0], cam.project(pts)[0])
+    with pytest.raises(ValidationError, match="rotation must be a rotation matrix"):
+        PinholeCamera(cam.matrix, 2 * cam.rotation, cam.position, cam.image_size)
+
+
+@pytest.mark.parametrize("ext", [".npz", ".exr", ".pfm"])
+def test_patch_radiance_reads_back_a_rendered_image(tmp_path, ext):
+    scene = pyramid_scene(5.0, "edge", image_size=200)
+    p = scene.patches
+    rng = np.random.default_rng(2)
+    lo = rng.uniform(0.5, 1.5, (len(p), 3))
+    img = render_patch_image(scene.camera, p, lo)
+    path = write_radiance_image(tmp_path / f"img{ext}", img)
+    back = read_radiance_image(path)
+    l, seen = patch_radiance(back, scene.camera, p, eta=1.3)
+    assert seen.sum() > 0.9 * len(p) and np.array_equal(seen, seen & camera_sees(scene.camera, p))
+    to_cam = scene.camera.position - p.centre
+    cos = np.einsum("mk,mk->m", p.normal, to_cam) / np.linalg.norm(to_cam, axis=1)
+    ref = exitance_from_radiance(lo[seen], cos[seen], 1.3)
+    np.testing.assert_allclose(l[seen], ref, rtol=1e-3 if ext == ".exr" else 1e-5)
+    with pytest.raises(ValidationError, match="to match the camera's image_size"):
+        patch_radiance(back[:-1], scene.camera, p)
+
+
+def test_renderer_is_the_point_kernel_and_reciprocal():
+    rng = np.random.default_rng(4)
+    pts = rng.uniform(0, 5, (60, 3))
+    area = rng.uniform(0.05, 0.2, 60)
+    c = np.zeros(60)
+    c[7] = 1.0
+    l = render_exitance(pts, area, c, 1.1, 0.05, eta=1.38, radius=np.inf)
+    d = np.linalg.norm(pts - pts[7], axis=1)
+    np.testing.assert_allclose(l, dipole_profile(d, 1.1, 0.05, 1.38) * area[7], rtol=1e-10)
+    c2 = np.zeros(60)
+    c2[11] = 1.0
+    l2 = render_exitance(pts, area, c2, 1.1, 0.05, eta=1.38, radius=np.inf)
+    # Reciprocity: light from 7 seen at 11, per unit source area, equals light from 11 seen at 7.
+    assert l[11] / area[7] == pytest.approx(l2[7] / area[11], rel=1e-12)
+
+
+def test_renderer_conserves_energy_on_a_uniformly_lit_plane():
+    v, f = _plane(121, 24.0)
+    p = mesh_patches(v, f, spacing=None)
+    c = np.ones(len(p))
+    s, a = 1.2, 0.12
+    centre = np.linalg.norm(p.centre[:, :2], axis=1) < 0.5
+    l = render_exitance(p.centre, p.area, c, s, a, eta=1.38, rows=np.nonzero(centre)[0])
+    total = float(total_diffuse_reflectance(s, a, 1.38))
+    assert np.median(l) == pytest.approx(total, rel=0.03)  # point-kernel quadrature of ∫ R dA over the plane
+    r = cutoff_radius(s, a, 1.38)
+    assert float(dipole_radial_energy(r, s, a, 1.38)) == pytest.approx((1 - 1e-4) * total, rel=1e-9)

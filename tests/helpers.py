@@ -26,6 +26,7 @@ from facestats.io.summary import summarise_subject
 from facestats.model import dipole
 
 NOTEBOOKS = pathlib.Path(__file__).resolve().parent.parent / "notebooks"
+TEST_DATA = pathlib.Path(__file__).resolve().parent / "data"
 
 
 # -- directions ------------------------------------------------------------------------------

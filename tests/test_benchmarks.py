@@ -8,6 +8,7 @@ it returns.  Timings are not asserted: they belong to the benchmarks.
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import math
 import pathlib
@@ -19,7 +20,9 @@ BENCH = pathlib.Path(__file__).resolve().parents[1] / "benchmarks"
 MODULES = sorted(BENCH.glob("bench_*.py"))
 
 
+@functools.cache
 def _load(path):
+    """Import a benchmark script once, under its own name (process pools pickle its functions by name)."""
     spec = importlib.util.spec_from_file_location(path.stem, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[path.stem] = module

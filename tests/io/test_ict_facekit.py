@@ -5,15 +5,14 @@ Landmark vertices from ICT-FaceKit's README (Multi-PIE 68 points): 0 = upper lip
 area above y = 70 mm.
 """
 
-import pathlib
-
 import numpy as np
 import pytest
 
 from facestats.io.ict_facekit import FACE_VERTICES, read_ict_facekit
 from facestats.model.strain import MeshStrain
+from tests.helpers import TEST_DATA
 
-DATA = pathlib.Path(__file__).parent / "data" / "ict-facekit"
+DATA = TEST_DATA / "ict-facekit"
 UPPER_LIP, LOWER_LIP, CORNERS = 0, 5518, (5708, 6213)
 
 

@@ -12,8 +12,7 @@ from facestats.acquire.synthetic.patch_image import render_patch_image
 from facestats.acquire.synthetic.scenes import pyramid_scene, square_pyramid
 from facestats.model.irradiance import radiance_from_exitance
 from facestats.pipeline.suzuki_studies import render_scene
-
-from .cli_helpers import run_cli
+from tests.helpers import run_cli
 
 
 @pytest.fixture(scope="module")

@@ -4,7 +4,7 @@ import re
 
 import pytest
 
-from .notebook_helpers import NOTEBOOKS, assert_no_errors, cell_text, execute, read_committed, shows_figure, tagged
+from tests.helpers import NOTEBOOKS, assert_no_errors, cell_text, execute, read_committed, shows_figure, tagged
 
 NOTEBOOK = NOTEBOOKS / "translucency_from_image.ipynb"
 FIGURES = ("fig5", "noise", "face-image", "face-fit", "face-study")

@@ -1,7 +1,5 @@
 """Rendering a sequence (zarr/EXR, resumable), reading user maps, and the ``facestats microstructure`` command."""
 
-import pathlib
-
 import numpy as np
 import pytest
 import zarr
@@ -14,8 +12,9 @@ from facestats.io.ict_facekit import read_ict_facekit
 from facestats.io.images import read_exr, write_image
 from facestats.io.mesh_sequence import BlendshapeSequence
 from facestats.pipeline.microstructure import render_sequence
+from tests.helpers import TEST_DATA
 
-DATA = pathlib.Path(__file__).parent / "data" / "ict-facekit"
+DATA = TEST_DATA / "ict-facekit"
 MAP = (16384, 16384)  # the paper's 16K texture: ICT-FaceKit texels are about 15 um there
 WINDOW = (9050, 4200, 96, 128)  # the cheek beside the right mouth corner
 

@@ -1,15 +1,14 @@
 """Mesh sequences: OBJ with per-corner UVs, PLY, frame files, blendshapes with weights; bad input."""
 
-import pathlib
-
 import numpy as np
 import pytest
 
 from facestats.errors import FacestatsError
 from facestats.io.ict_facekit import read_ict_facekit
 from facestats.io.mesh_sequence import BlendshapeSequence, FrameSequence, read_mesh, read_obj, read_weights
+from tests.helpers import TEST_DATA
 
-DATA = pathlib.Path(__file__).parent / "data" / "ict-facekit"
+DATA = TEST_DATA / "ict-facekit"
 
 QUAD_OBJ = """# two quads sharing an edge, with a UV seam on the shared edge
 v 0 0 0

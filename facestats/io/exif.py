@@ -27,7 +27,7 @@ from fractions import Fraction
 
 from facestats.errors import FormatError
 
-__all__ = ["read_exif", "read_exposure_time", "exif_payload", "embed_exif", "EXIF_TAGS"]
+__all__ = ["read_exif", "parse_exif", "read_exposure_time", "exif_payload", "embed_exif", "EXIF_TAGS"]
 
 #: Tags read, by number.
 EXIF_TAGS = {
@@ -132,6 +132,11 @@ def read_exif(path) -> dict:
             data = f.read(1 << 20)  # EXIF blocks precede the image data: the first MiB holds them
     except OSError as exc:
         raise FormatError(f"cannot read EXIF data of {p}: {exc}") from None
+    return parse_exif(data, p)
+
+
+def parse_exif(data: bytes, name: str = "<bytes>") -> dict:
+    """:func:`read_exif` of the bytes of a file (``name`` for messages)."""
     try:
         if data[:2] == b"\xff\xd8":
             base = _jpeg_app1(data)
@@ -140,10 +145,12 @@ def read_exif(path) -> dict:
         elif data[:8] == b"\x89PNG\r\n\x1a\n":
             base = _png_exif(data)
         else:
-            raise FormatError(f"{p} is not a JPEG, TIFF or PNG file (no EXIF reader for it)")
+            raise FormatError(f"{name} is not a JPEG, TIFF or PNG file (no EXIF reader for it)")
         return {} if base is None else _parse_tiff(data, base)
     except (struct.error, FormatError, ValueError, ZeroDivisionError) as exc:
-        raise FormatError(f"EXIF data of {p} is corrupt: {exc}") from None
+        if isinstance(exc, FormatError) and str(exc).startswith(name):
+            raise
+        raise FormatError(f"EXIF data of {name} is corrupt: {exc}") from None
 
 
 def read_exposure_time(path) -> float | None:

@@ -48,7 +48,7 @@ from facestats.acquire.dome import Dome, default_dome
 from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.hdr import expose, merge_exposures
 from facestats.acquire.sensor import ContactSensor
-from facestats.acquire.visibility import ShadowMaps
+from facestats.acquire.visibility import dome_shadow_maps, sample_visibility
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.core.version import __version__
@@ -156,8 +156,7 @@ class DomeSimulator:
         self.eta = float(eta)
         mesh_grid = int(geometry.meta.get("mesh_grid", 128))
         self.shadow_resolution = int(shadow_resolution or 2 * mesh_grid)
-        eyes = np.concatenate([self.dome.led_position, self.dome.camera_position])
-        self.shadows = ShadowMaps(geometry.mesh_vertices, geometry.mesh_faces, eyes, resolution=self.shadow_resolution)
+        self.shadows = dome_shadow_maps(geometry, self.dome, self.shadow_resolution)
         self._cache: dict = {}
         self._texels = None  # face texel of every lumitexel (FaceGeometry.face_texel_index), on first use
 
@@ -176,17 +175,11 @@ class DomeSimulator:
         key = (start, stop)
         if key in self._cache:
             return self._cache[key]
-        g, dome = self.geometry, self.dome
+        g = self.geometry
         pos, nrm = g.position[start:stop], g.normal[start:stop]
-        vis = self.shadows.visible(pos, nrm)
-        n_led = dome.n_leds
-        wi, e_perp = dome.incident(pos)
-        wo, in_frame, _ = dome.view(pos)
-        cos_i = np.einsum("nk,nlk->nl", nrm, wi)
-        cos_o = np.einsum("nk,nck->nc", nrm, wo)
-        lit = vis[:, :n_led] & (cos_i > 0) & np.all(e_perp > 0, axis=-1)
-        seen = vis[:, n_led:] & in_frame & (cos_o > 0)
-        t, c, l = np.nonzero(seen[:, :, None] & lit[:, None, :])
+        sv = sample_visibility(self.dome, self.shadows, pos, nrm)
+        wi, wo, e_perp, cos_i, cos_o, lit = sv.wi, sv.wo, sv.e_perp, sv.cos_i, sv.cos_o, sv.lit
+        t, c, l = np.nonzero(sv.seen[:, :, None] & lit[:, None, :])
         cos_delta, k_ts = _brdf.torrance_sparrow_geometry(
             nrm[t].astype(np.float32), wi[t, l].astype(np.float32), wo[t, c].astype(np.float32), self.eta
         )

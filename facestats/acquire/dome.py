@@ -45,13 +45,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facestats.acquire.geodesic import farthest_point_subset, geodesic_points
 from facestats.acquire.hdr import CameraResponse
 from facestats.acquire.lens import distort_normalised, undistort_normalised
 from facestats.core.published import N_CAMERAS, N_LEDS
 from facestats.core.validate import as_finite, as_float, check_range, check_shape
 from facestats.errors import FormatError, ValidationError
 
-__all__ = ["Dome", "default_dome", "look_at", "geodesic_points"]
+__all__ = ["Dome", "default_dome", "look_at", "beam_terms"]
 
 
 def look_at(position, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
@@ -66,6 +67,11 @@ def look_at(position, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
     right /= np.linalg.norm(right, axis=-1, keepdims=True)
     down = np.cross(fwd, right)
     return np.stack([right, down, fwd], axis=-2)
+
+
+def beam_terms(s, t) -> np.ndarray:
+    """The monomials (1, s, t, s², s t, t²) of the LED beam polynomial (module docstring), last axis of length 6."""
+    return np.stack([np.ones_like(s), s, t, s * s, s * t, t * t], axis=-1)
 
 
 def _tangent_frames(axis):
@@ -208,6 +214,32 @@ class Dome:
         return int(self.camera_position.shape[0])
 
     # -- photometry -------------------------------------------------------------
+    def beam_coordinates(self, points, leds=None):
+        """Where ``points`` lie in the LEDs' beams (module docstring).
+
+        Returns
+        -------
+        wi : ndarray, shape (N, L, 3)
+            Unit directions from the points towards the LEDs.
+        r2 : ndarray, shape (N, L)
+            Squared distances, mm².
+        s, t : ndarray, shape (N, L)
+            Beam-plane coordinates (d·e₁, d·e₂)/(d·a) of the direction d from the LED.
+        front : ndarray of bool, shape (N, L)
+            The point lies in front of the LED (d·a > 0).
+        """
+        sel = slice(None) if leds is None else np.asarray(leds)
+        la = self.led_axis[sel]
+        wi, r2, _ = self._towards(self.led_position[sel], points)
+        d_unit = -wi  # LED -> point
+        e1, e2 = _tangent_frames(la)
+        ca = np.einsum("nlk,lk->nl", d_unit, la)
+        front = ca > 1e-6
+        ca_s = np.where(front, ca, 1.0)
+        s = np.einsum("nlk,lk->nl", d_unit, e1) / ca_s
+        t = np.einsum("nlk,lk->nl", d_unit, e2) / ca_s
+        return wi, r2, s, t, front
+
     def incident(self, points, leds=None):
         """Directions towards the LEDs and the beam-normal irradiance E⊥ = I(d)/r² at ``points``.
 
@@ -227,18 +259,31 @@ class Dome:
             point lies behind the LED's emitting hemisphere.
         """
         sel = slice(None) if leds is None else np.asarray(leds)
-        la, li, lb = self.led_axis[sel], self.led_intensity[sel], self.led_beam[sel]
-        wi, r2, _ = self._towards(self.led_position[sel], points)
-        d_unit = -wi  # LED -> point
-        e1, e2 = _tangent_frames(la)
-        ca = np.einsum("nlk,lk->nl", d_unit, la)
-        front = ca > 1e-6
-        ca_s = np.where(front, ca, 1.0)
-        s = np.einsum("nlk,lk->nl", d_unit, e1) / ca_s
-        t = np.einsum("nlk,lk->nl", d_unit, e2) / ca_s
-        poly = lb[:, 0] + lb[:, 1] * s + lb[:, 2] * t + lb[:, 3] * s * s + lb[:, 4] * s * t + lb[:, 5] * t * t
+        wi, r2, s, t, front = self.beam_coordinates(points, leds)
+        poly = np.einsum("nlk,lk->nl", beam_terms(s, t), self.led_beam[sel])
         gain = np.where(front, np.maximum(poly, 0), 0) / r2
-        return wi, gain[..., None] * li[None, :, :]
+        return wi, gain[..., None] * self.led_intensity[sel][None, :, :]
+
+    def select(self, leds=None, cameras=None) -> "Dome":
+        """The rig restricted to some LEDs and/or cameras (indices; default all)."""
+        from dataclasses import replace
+
+        lsel = slice(None) if leds is None else np.asarray(leds)
+        csel = slice(None) if cameras is None else np.asarray(cameras)
+        return replace(
+            self,
+            led_position=self.led_position[lsel],
+            led_axis=self.led_axis[lsel],
+            led_intensity=self.led_intensity[lsel],
+            led_beam=self.led_beam[lsel],
+            camera_position=self.camera_position[csel],
+            camera_rotation=self.camera_rotation[csel],
+            camera_matrix=self.camera_matrix[csel],
+            image_size=self.image_size[csel],
+            camera_distortion=self.camera_distortion[csel],
+            camera_gain=self.camera_gain[csel],
+            camera_log_response=None if self.camera_log_response is None else self.camera_log_response[csel],
+        )
 
     @staticmethod
     def _towards(targets, points):
@@ -257,6 +302,21 @@ class Dome:
     def view_directions(self, points):
         """Unit directions (N, C, 3) from ``points`` (N, 3, mm) towards every camera centre (``wo`` of :meth:`view`)."""
         return self._towards(self.camera_position, points)[0]
+
+    def resized(self, width: int, height: int) -> "Dome":
+        """The same rig with every camera's image resampled to ``width`` × ``height`` pixels (K scaled, pixel
+        centres at integers: u' = (u + ½)·s − ½)."""
+        from dataclasses import replace
+
+        sx = int(width) / self.image_size[:, 0]
+        sy = int(height) / self.image_size[:, 1]
+        k = self.camera_matrix.copy()
+        k[:, 0, :] *= sx[:, None]
+        k[:, 1, :] *= sy[:, None]
+        k[:, 0, 2] += 0.5 * sx - 0.5
+        k[:, 1, 2] += 0.5 * sy - 0.5
+        size = np.tile([int(width), int(height)], (self.n_cameras, 1))
+        return replace(self, camera_matrix=k, image_size=size)
 
     @property
     def camera_translation(self) -> np.ndarray:
@@ -439,76 +499,6 @@ class Dome:
             raise FormatError(f"cannot read dome calibration {path!s}: {exc}") from None
 
 
-def geodesic_points(frequency: int = 4) -> np.ndarray:
-    """Vertices of a geodesic sphere: an icosahedron, each edge split ``frequency`` times, on the unit sphere."""
-    t = (1 + 5**0.5) / 2
-    v = np.array(
-        [
-            [-1, t, 0],
-            [1, t, 0],
-            [-1, -t, 0],
-            [1, -t, 0],
-            [0, -1, t],
-            [0, 1, t],
-            [0, -1, -t],
-            [0, 1, -t],
-            [t, 0, -1],
-            [t, 0, 1],
-            [-t, 0, -1],
-            [-t, 0, 1],
-        ],
-        float,
-    )
-    faces = np.array(
-        [
-            [0, 11, 5],
-            [0, 5, 1],
-            [0, 1, 7],
-            [0, 7, 10],
-            [0, 10, 11],
-            [1, 5, 9],
-            [5, 11, 4],
-            [11, 10, 2],
-            [10, 7, 6],
-            [7, 1, 8],
-            [3, 9, 4],
-            [3, 4, 2],
-            [3, 2, 6],
-            [3, 6, 8],
-            [3, 8, 9],
-            [4, 9, 5],
-            [2, 4, 11],
-            [6, 2, 10],
-            [8, 6, 7],
-            [9, 8, 1],
-        ]
-    )
-    f = int(frequency)
-    i, j = np.meshgrid(np.arange(f + 1), np.arange(f + 1), indexing="ij")
-    keep = (i + j) <= f
-    a, b = i[keep] / f, j[keep] / f
-    pts = (
-        v[faces[:, 0]][:, None] * (1 - a - b)[None, :, None]
-        + v[faces[:, 1]][:, None] * a[None, :, None]
-        + v[faces[:, 2]][:, None] * b[None, :, None]
-    )
-    pts = pts.reshape(-1, 3)
-    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
-    _, idx = np.unique(np.round(pts, 9), axis=0, return_index=True)
-    return pts[np.sort(idx)]
-
-
-def _farthest_point_subset(points, k, start):
-    """Deterministic farthest-point sampling of ``k`` points (loop over the k picks)."""
-    chosen = [start]
-    d = np.linalg.norm(points - points[start], axis=1)
-    for _ in range(k - 1):
-        nxt = int(np.argmax(d))
-        chosen.append(nxt)
-        d = np.minimum(d, np.linalg.norm(points - points[nxt], axis=1))
-    return np.array(chosen)
-
-
 def default_dome(seed: int = 2006) -> Dome:
     """The simulator's dome: 150 LEDs and 16 cameras (Weyrich §5), documented choices.
 
@@ -533,7 +523,7 @@ def default_dome(seed: int = 2006) -> Dome:
     ok = (sphere[:, 1] >= np.sin(np.radians(-40))) & (sphere[:, 2] >= -0.8)
     cand = sphere[ok]
     start = int(np.argmax(cand[:, 2]))
-    dirs = cand[_farthest_point_subset(cand, N_LEDS, start)]
+    dirs = cand[farthest_point_subset(cand, N_LEDS, start)]
     centre = np.array([0.0, 0.0, 40.0])
     led_pos = centre + 1000.0 * dirs
     axis = centre - led_pos

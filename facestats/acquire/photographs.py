@@ -44,6 +44,7 @@ import hashlib
 import json
 import os
 import pathlib
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,17 +58,34 @@ __all__ = [
     "CaptureFolder",
     "open_folder",
     "write_manifest",
+    "write_sensor_file",
     "frame_entry",
     "bilinear_taps",
     "merge_at",
     "exposure_consistency",
+    "prefetch",
 ]
 
 FORMAT = "facestats.capture-folder/1"
+SENSOR_FORMAT = "facestats.sensor-profiles/1"
 MANIFEST = "manifest.json"
+SUBJECT_FIELDS = ("subject_id", "person_id", "age", "gender", "skin_type", "condition")
 _FRAME_FIELDS = ("camera", "led", "exposure", "exposure_s", "file", "sha256")
 #: Relative tolerance between a frame's EXIF ExposureTime and its manifest ``exposure_s``.
 EXIF_TOLERANCE = 0.01
+
+
+def write_sensor_file(path, sensor, profile, profile_std) -> pathlib.Path:
+    """Write contact-sensor profiles (site, fiber, channel; mm⁻²) and the sensor's description as JSON."""
+    doc = {
+        "format": SENSOR_FORMAT,
+        "sensor": sensor.to_attrs(),
+        "profile": np.asarray(profile, np.float64).tolist(),
+        "profile_std": np.asarray(profile_std, np.float64).tolist(),
+    }
+    p = pathlib.Path(path)
+    p.write_text(json.dumps(doc))
+    return p
 
 
 def frame_entry(folder, file, camera: int, led: int, exposure: int, exposure_s: float, pose: int = 0) -> dict:
@@ -116,8 +134,11 @@ class CaptureFolder:
     manifest : dict
     bits : int
     n_cameras, n_leds, n_poses, n_exposures : int
+    cameras : list of int
+        Cameras with frames (manifest field ``cameras``, default all; a subset is
+        allowed for target folders only).
     files : ndarray of object, shape (n_poses, n_cameras, n_leds, n_exposures)
-        Relative file of each frame.
+        Relative file of each frame (None for cameras without frames).
     sha256 : ndarray of object, same shape
     exposure_s : ndarray, same shape
         Exposure times, s.
@@ -130,6 +151,7 @@ class CaptureFolder:
     n_leds: int
     n_poses: int
     n_exposures: int
+    cameras: list
     files: np.ndarray
     sha256: np.ndarray
     exposure_s: np.ndarray
@@ -199,6 +221,42 @@ class CaptureFolder:
             camera, led, pose
         )
 
+    def subject(self) -> dict:
+        """The subject metadata of a face capture (manifest field ``subject``), checked."""
+        sub = self.manifest.get("subject")
+        if not isinstance(sub, dict):
+            raise FormatError(f"{MANIFEST} of a face capture needs the field 'subject' (an object), got {sub!r:.60}")
+        missing = [k for k in SUBJECT_FIELDS if k not in sub]
+        if missing:
+            raise FormatError(f"{MANIFEST} field 'subject' is missing {missing}")
+        return {k: sub[k] for k in SUBJECT_FIELDS}
+
+    def sensor(self):
+        """``(ContactSensor, profile, profile_std)`` of the manifest's ``sensor`` file (format ``SENSOR_FORMAT``)."""
+        from facestats.acquire.sensor import ContactSensor
+
+        name = self.manifest.get("sensor")
+        if not isinstance(name, str):
+            raise FormatError(f"{MANIFEST} needs the field 'sensor' naming the contact-sensor file, got {name!r:.60}")
+        try:
+            doc = json.loads((self.path / name).read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise FormatError(f"sensor file {name} of {self.path} cannot be read: {exc}") from None
+        if not isinstance(doc, dict) or doc.get("format") != SENSOR_FORMAT:
+            raise FormatError(f"sensor file {name} field 'format' must be {SENSOR_FORMAT!r}")
+        try:
+            sensor = ContactSensor.from_attrs(doc["sensor"])
+            prof = np.asarray(doc["profile"], np.float64)
+            std = np.asarray(doc["profile_std"], np.float64)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise FormatError(f"sensor file {name} has a missing or malformed field: {exc}") from None
+        if prof.shape != (3, sensor.n_fibers, 3) or std.shape != prof.shape:
+            raise FormatError(
+                f"sensor file {name} fields 'profile' and 'profile_std' must be (site 3, fiber {sensor.n_fibers}, "
+                f"channel 3), got {prof.shape} and {std.shape}"
+            )
+        return sensor, prof, std
+
     def fingerprint(self) -> str:
         """SHA-256 of the manifest file (identifies the capture an ingest was made from)."""
         return hashlib.sha256((self.path / MANIFEST).read_bytes()).hexdigest()
@@ -224,7 +282,7 @@ def _parse_frames(frames, n_cameras, n_leds):
     return {k: np.asarray(v, dtype=object if k in ("file", "sha256") else None) for k, v in cols.items()}
 
 
-def _frame_table(path, cols, n_cameras, n_leds):
+def _frame_table(path, cols, n_cameras, n_leds, cameras):
     """The (pose, camera, led, exposure) tables, checking completeness, duplicates and monotonic times."""
     n_poses = int(cols["pose"].max()) + 1
     n_exp = int(cols["exposure"].max()) + 1
@@ -234,8 +292,13 @@ def _frame_table(path, cols, n_cameras, n_leds):
     if np.any(counts > 1):
         dup = cols["file"][first[np.argmax(counts > 1)]]
         raise FormatError(f"{MANIFEST} lists the frame of {dup} twice (same pose, camera, LED and exposure)")
-    if uniq.size != np.prod(shape):
-        missing = np.setdiff1d(np.arange(np.prod(shape)), uniq)[0]
+    expected = np.zeros(shape, bool)
+    expected[:, cameras] = True
+    if np.any(~np.isin(cols["camera"], cameras)):
+        bad = cols["file"][np.argmax(~np.isin(cols["camera"], cameras))]
+        raise FormatError(f"frame {bad} is of a camera not in {MANIFEST} field 'cameras' {cameras}")
+    if uniq.size != expected.sum():
+        missing = np.setdiff1d(np.flatnonzero(expected), uniq)[0]
         p, c, l, e = np.unravel_index(missing, shape)
         raise FormatError(
             f"{MANIFEST} lists no frame for pose {p}, camera {c}, LED {l}, exposure {e} "
@@ -248,14 +311,16 @@ def _frame_table(path, cols, n_cameras, n_leds):
     files[idx], sha[idx], times[idx] = cols["file"], cols["sha256"], cols["exposure_s"]
     if n_exp < 2:
         raise FormatError(f"{MANIFEST} frames have a single exposure: an HDR merge needs at least two")
-    bad = np.diff(times, axis=-1) <= 0
+    times[~expected] = np.nan
+    with np.errstate(invalid="ignore"):
+        bad = np.diff(times, axis=-1) <= 0
     if np.any(bad):
         p, c, l, e = np.argwhere(bad)[0]
         raise FormatError(
             f"frame {files[p, c, l, e + 1]}: field 'exposure_s' {times[p, c, l, e + 1]:.6g} s is not longer than "
             f"exposure {e}'s {times[p, c, l, e]:.6g} s (exposure times must increase with the exposure index)"
         )
-    absent = [f for f in files.reshape(-1) if not (path / f).is_file()]
+    absent = [f for f in files[expected] if not (path / f).is_file()]
     if absent:
         more = f" ({len(absent)} frames missing)" if len(absent) > 1 else ""
         raise FormatError(f"frame {absent[0]} listed in {MANIFEST} is missing from {path}{more}")
@@ -277,9 +342,39 @@ def open_folder(path) -> CaptureFolder:
     bits = _field(doc, "bits", int, MANIFEST, lambda v: 8 <= v <= 16)
     n_cam = _field(doc, "n_cameras", int, MANIFEST, lambda v: v >= 1)
     n_led = _field(doc, "n_leds", int, MANIFEST, lambda v: v >= 1)
+    cameras = doc.get("cameras", list(range(n_cam)))
+    if (
+        not isinstance(cameras, list)
+        or not cameras
+        or any(isinstance(c, bool) or not isinstance(c, int) or not 0 <= c < n_cam for c in cameras)
+        or (len(cameras) < n_cam and doc.get("kind", "face") != "target")
+    ):
+        raise FormatError(
+            f"{MANIFEST} field 'cameras' must list camera indices in [0, {n_cam}) (a subset for targets only), "
+            f"got {cameras!r:.60}"
+        )
     cols = _parse_frames(doc.get("frames"), n_cam, n_led)
-    n_poses, n_exp, files, sha, times = _frame_table(p, cols, n_cam, n_led)
-    return CaptureFolder(p, doc, bits, n_cam, n_led, n_poses, n_exp, files, sha, times)
+    n_poses, n_exp, files, sha, times = _frame_table(p, cols, n_cam, n_led, sorted(set(cameras)))
+    return CaptureFolder(p, doc, bits, n_cam, n_led, n_poses, n_exp, sorted(set(cameras)), files, sha, times)
+
+
+def prefetch(fn, items, workers: int):
+    """``fn(item)`` for each item in order on ``workers`` threads, at most ``workers + 1`` ahead (bounded memory).
+
+    Frames are decoded and hashed this way: both release the GIL.
+    """
+    if workers <= 1:
+        yield from map(fn, items)
+        return
+    items = list(items)
+    with ThreadPoolExecutor(workers) as ex:
+        pending = [ex.submit(fn, it) for it in items[: workers + 1]]
+        for k in range(len(items)):
+            result = pending[k].result()
+            pending[k] = None
+            if k + workers + 1 < len(items):
+                pending.append(ex.submit(fn, items[k + workers + 1]))
+            yield result
 
 
 # -- HDR samples at sub-pixel positions ----------------------------------------------------------------

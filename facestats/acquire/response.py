@@ -382,7 +382,10 @@ def merge_photographs(images, exposure_times, response, *, return_weight: bool =
 def _bt709_oetf(x):
     """ITU-R BT.709 opto-electronic transfer function: 4.5x below 0.018, 1.099 x^0.45 − 0.099 above."""
     x = np.clip(x, 0, 1)
-    return np.where(x < 0.018, 4.5 * x, 1.099 * np.power(x, 0.45) - 0.099)
+    y = 4.5 * x
+    hi = x >= 0.018
+    y[hi] = 1.099 * np.power(x[hi], 0.45) - 0.099  # the power only where it applies (dark pixels dominate frames)
+    return y
 
 
 def _bt709_inverse(v):

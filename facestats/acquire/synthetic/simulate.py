@@ -111,6 +111,11 @@ class DomeSimulator:
         pixel per half triangle edge).
     eta : float
         Relative index of refraction of skin, in [1, 3] (default 1.38).
+    camera_visibility : bool
+        Keep only samples the camera sees (shadow map, in frame).  False renders
+        every front-facing (lumitexel, camera) pair that is lit — the radiance a
+        renderer needs, which resolves occlusion itself
+        (:mod:`facestats.acquire.synthetic.photographs`).
     """
 
     def __init__(
@@ -127,6 +132,7 @@ class DomeSimulator:
         subsurface_radius: float = 12.0,
         shadow_resolution: int | None = None,
         eta: float = ETA_SKIN,
+        camera_visibility: bool = True,
     ):
         if not isinstance(geometry, FaceGeometry):
             raise ValidationError(f"geometry must be a FaceGeometry, got {type(geometry).__name__}")
@@ -154,6 +160,7 @@ class DomeSimulator:
         self.block = int(block)
         self.subsurface_radius = float(subsurface_radius)
         self.eta = float(eta)
+        self.camera_visibility = bool(camera_visibility)
         mesh_grid = int(geometry.meta.get("mesh_grid", 128))
         self.shadow_resolution = int(shadow_resolution or 2 * mesh_grid)
         self.shadows = dome_shadow_maps(geometry, self.dome, self.shadow_resolution)
@@ -179,7 +186,8 @@ class DomeSimulator:
         pos, nrm = g.position[start:stop], g.normal[start:stop]
         sv = sample_visibility(self.dome, self.shadows, pos, nrm)
         wi, wo, e_perp, cos_i, cos_o, lit = sv.wi, sv.wo, sv.e_perp, sv.cos_i, sv.cos_o, sv.lit
-        t, c, l = np.nonzero(sv.seen[:, :, None] & lit[:, None, :])
+        seen = sv.seen if self.camera_visibility else cos_o > 0
+        t, c, l = np.nonzero(seen[:, :, None] & lit[:, None, :])
         cos_delta, k_ts = _brdf.torrance_sparrow_geometry(
             nrm[t].astype(np.float32), wi[t, l].astype(np.float32), wo[t, c].astype(np.float32), self.eta
         )

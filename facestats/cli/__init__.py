@@ -8,7 +8,9 @@ prints.  Heavy modules are imported inside the commands so that ``facestats
 * :mod:`~facestats.cli.build` — ``build``;
 * :mod:`~facestats.cli.analyze` — ``analyze``;
 * :mod:`~facestats.cli.edit` — ``edit``;
-* :mod:`~facestats.cli.demo` — ``demo``.
+* :mod:`~facestats.cli.demo` — ``demo``;
+* :mod:`~facestats.cli.ingest` — ``ingest``;
+* :mod:`~facestats.cli.calibrate` — ``calibrate leds``.
 """
 
 from __future__ import annotations
@@ -19,8 +21,10 @@ import sys
 
 from facestats.cli.analyze import add_analyze
 from facestats.cli.build import add_build
+from facestats.cli.calibrate import add_calibrate
 from facestats.cli.demo import add_demo
 from facestats.cli.edit import add_edit
+from facestats.cli.ingest import add_ingest
 from facestats.cli.store import add_export, add_import_merl, add_info, add_query, add_validate
 from facestats.core.version import __version__
 from facestats.errors import FacestatsError
@@ -28,7 +32,19 @@ from facestats.errors import FacestatsError
 __all__ = ["main", "build_parser"]
 
 #: The command groups, in the order ``facestats --help`` lists them.
-COMMANDS = [add_demo, add_query, add_info, add_validate, add_export, add_import_merl, add_build, add_analyze, add_edit]
+COMMANDS = [
+    add_demo,
+    add_query,
+    add_info,
+    add_validate,
+    add_export,
+    add_import_merl,
+    add_build,
+    add_analyze,
+    add_edit,
+    add_ingest,
+    add_calibrate,
+]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -74,7 +74,7 @@ def test_ingest_recovers_the_simulated_radiance(tiny, tmp_path):
     root, pc, truth = tiny
     folder = pc.folder.parent
     dome = Dome.load(pc.calibration)
-    path = ingest_photographs(folder, _geometry(folder), dome, tmp_path / "cap.zarr", workers=1)
+    path = ingest_photographs(folder, _geometry(folder), dome, tmp_path / "cap.zarr", workers=1, min_footprint_px=1)
     cap = open_ingested(path)
     assert cap.metadata["subject_id"] == truth.subject_id and cap.provenance["source"] == "photographs"
     clean = DomeSimulator(procedural_face(16), pc.true_dome, noise=False, scan_normal_noise_deg=0).simulate(truth)
@@ -216,7 +216,7 @@ def test_interrupted_ingest_leaves_no_subject_and_resumes(tiny, tmp_path, monkey
     args = (folder, folder / "face.obj", pc.calibration, store, "PH001")
     few = FitSettings(min_samples=4, micro_normals=False)  # 4 cameras × 6 LEDs: at most 24 samples a lumitexel
     with pytest.raises(KeyboardInterrupt):
-        ingest_subject(*args, workers=1, settings=few)
+        ingest_subject(*args, workers=1, settings=few, min_footprint_px=1)
     with open_store(store) as st:
         assert "PH001" not in st  # a partial ingest never becomes a subject
     work = tmp_path / "s.zarr.ingest" / "PH001" / "capture.zarr"
@@ -230,7 +230,7 @@ def test_interrupted_ingest_leaves_no_subject_and_resumes(tiny, tmp_path, monkey
         "read_stack",
         lambda self, c, l, pose=0, size=None: calls.append(c) or read(self, c, l, pose, size),
     )
-    report = ingest_subject(*args, workers=1, settings=few)
+    report = ingest_subject(*args, workers=1, settings=few, min_footprint_px=1)
     assert sorted(set(calls)) == [2, 3]  # finished cameras are skipped
     assert report.subject_id == "PH001" and "ingested PH001" in report.to_text()
     with open_store(store) as st:

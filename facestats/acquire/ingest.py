@@ -11,6 +11,11 @@ and gather, at every mesh vertex, a lumitexel of BRDF samples.
    from the shadow maps of every LED and camera, front-facing and in frame
    (:func:`facestats.acquire.visibility.sample_visibility`, the simulator's rule);
    the irradiance E⊥ of every LED from its calibration (:meth:`Dome.incident`).
+   A sample is kept only where the camera resolves the lumitexel: its surface
+   patch (``area``) must span at least ``min_footprint_px`` pixels along its
+   foreshortened axis (:func:`footprint_px`), otherwise the bilinear taps read
+   the neighbouring surface — the registration problem of grazing views that
+   makes Weyrich et al. exclude samples beyond 80° (§5.3).
 2. **HDR per (camera, LED)**: the frame's exposures are decoded once (checksums,
    bit depth and size checked), merged with the camera's response (Debevec &
    Malik 1997 eq. 6) at the four pixels around each lumitexel's projection and
@@ -55,10 +60,20 @@ from facestats.core.validate import as_finite, check_integer
 from facestats.core.version import __version__
 from facestats.errors import FormatError, ValidationError
 
-__all__ = ["ingest_photographs", "open_ingested", "ingest_state", "MOTION_TOLERANCE"]
+__all__ = [
+    "ingest_photographs",
+    "open_ingested",
+    "ingest_state",
+    "footprint_px",
+    "MOTION_TOLERANCE",
+    "MIN_FOOTPRINT_PX",
+]
 
 #: Default head-motion threshold: 90th percentile of |ln(long/short)| over well-exposed taps (ln units).
 MOTION_TOLERANCE = 0.15
+#: Default resolution limit: a lumitexel must span 2 pixels along its foreshortened axis, so that the four
+#: bilinear taps around its projection (±1 pixel) stay on its own surface patch.
+MIN_FOOTPRINT_PX = 2.0
 _ATTR = "ingest"
 
 
@@ -170,11 +185,26 @@ def _start(path, folder, geometry, dome, fingerprint, chunk, subject_id):
     return writer, state
 
 
-def _camera_samples(folder, dome, vis, camera, motion_tolerance, workers):
+def footprint_px(dome, geometry, camera: int) -> np.ndarray:
+    """Shortest axis (pixels) of each lumitexel's surface patch as camera ``camera`` sees it, shape (N,).
+
+    A lumitexel represents ``area`` mm² of surface; seen at depth z under the
+    angle θo its patch spans √area · f/z pixels across and √area · cos θo · f/z
+    along the foreshortened axis (f the camera's mean focal length in pixels).
+    """
+    _, z = dome.project(geometry.position, [camera])
+    wo = dome.view_directions(geometry.position)[:, camera]
+    cos_o = np.maximum(np.einsum("nk,nk->n", geometry.normal, wo), 0)
+    f = 0.5 * (dome.camera_matrix[camera, 0, 0] + dome.camera_matrix[camera, 1, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(z[:, 0] > 0, np.sqrt(geometry.area) * cos_o * f / z[:, 0], 0.0)
+
+
+def _camera_samples(folder, dome, vis, camera, motion_tolerance, workers, resolved):
     """Radiance (N, L, 3) float32 of one camera (NaN where invalid) and its motion scores (L,)."""
     n, n_led = vis.seen.shape[0], dome.n_leds
     out = np.full((n, n_led, 3), np.nan, np.float32)
-    sel = np.nonzero(vis.seen[:, camera])[0]
+    sel = np.nonzero(vis.seen[:, camera] & resolved)[0]
     scores = np.full(n_led, np.nan)
     if sel.size == 0:
         return out, scores, []
@@ -208,6 +238,7 @@ def ingest_photographs(
     chunk: int = 2048,
     workers: int = 2,
     motion_tolerance: float = MOTION_TOLERANCE,
+    min_footprint_px: float = MIN_FOOTPRINT_PX,
     progress: bool = False,
 ) -> str:
     """Turn a capture folder into a capture on disk (module docstring); rerunning resumes an interrupted ingest.
@@ -231,6 +262,9 @@ def ingest_photographs(
         Threads decoding frames (≥ 1; decoding and hashing release the GIL).
     motion_tolerance : float
         Head-motion threshold (ln units, > 0; module docstring).
+    min_footprint_px : float
+        Samples whose lumitexel patch spans fewer pixels along its shortest axis
+        (:func:`footprint_px`) are invalid (≥ 0; module docstring).
     progress : bool
         Show a progress bar over cameras.
 
@@ -248,6 +282,7 @@ def ingest_photographs(
     chunk = check_integer(chunk, "chunk", 1)
     workers = check_integer(workers, "workers", 1)
     motion_tolerance = float(as_finite(motion_tolerance, "motion_tolerance", 0, None, low_inclusive=False))
+    min_footprint_px = float(as_finite(min_footprint_px, "min_footprint_px", 0, None))
     folder = folder if isinstance(folder, CaptureFolder) else open_folder(folder)
     _check_inputs(folder, dome, geometry)
     writer, state = _start(path, folder, geometry, dome, _fingerprint(folder, dome, geometry), chunk, subject_id)
@@ -261,7 +296,8 @@ def ingest_photographs(
 
         it = tqdm(todo, desc=f"ingest {folder.path.name}", unit="camera", initial=dome.n_cameras - len(todo))
     for cam in it:  # loop over cameras: one camera's samples in memory at a time
-        rad, _, flags = _camera_samples(folder, dome, vis, cam, motion_tolerance, workers)
+        resolved = footprint_px(dome, geometry, cam) >= min_footprint_px
+        rad, _, flags = _camera_samples(folder, dome, vis, cam, motion_tolerance, workers, resolved)
         writer.group["radiance"][:, cam] = rad.astype(np.float16)
         state["cameras_done"].append(int(cam))
         state["motion_flags"].extend(flags)

@@ -413,13 +413,14 @@ def _gather(stack, index):
     return [img.reshape(-1, img.shape[-1])[index] for img in stack]
 
 
-def merge_at(stack, times, response, index, weight) -> np.ndarray:
+def merge_at(stack, times, response, index, weight, weighting: str = "hat_time") -> np.ndarray:
     """HDR radiance (N, 3) of a frame at the taps of :func:`bilinear_taps` (NaN if a tap is saturated).
 
     Debevec & Malik 1997 eq. 6 at each of the four pixels
-    (:func:`facestats.acquire.response.merge_photographs`), then bilinear interpolation.
+    (:func:`facestats.acquire.response.merge_photographs`, by default with the
+    shot-noise weights w(z)·Δt), then bilinear interpolation.
     """
-    e = merge_photographs(_gather(stack, index), times, response)  # (N, 4, 3)
+    e = merge_photographs(_gather(stack, index), times, response, weighting=weighting)  # (N, 4, 3)
     return np.einsum("nk,nkc->nc", weight, e)
 
 

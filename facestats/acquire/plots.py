@@ -35,7 +35,7 @@ def plot_hdr_frame(radiance, *, title="HDR frame"):
 
     e = np.asarray(radiance, np.float64)
     pos = e[np.isfinite(e) & (e > 0)]
-    lo, hi = (np.percentile(pos, [1, 99.9]) if pos.size else (1.0, 10.0))
+    lo, hi = np.percentile(pos, [1, 99.9]) if pos.size else (1.0, 10.0)
     img = np.clip((np.log(np.maximum(e, lo)) - np.log(lo)) / max(np.log(hi / lo), 1e-9), 0, 1)
     img[~np.isfinite(e).all(-1)] = [1, 0, 1]
     fig, ax = plt.subplots(figsize=(4, 4))

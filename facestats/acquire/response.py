@@ -324,7 +324,7 @@ def _check_response(response, channels):
     return g
 
 
-def merge_photographs(images, exposure_times, response, *, return_weight: bool = False):
+def merge_photographs(images, exposure_times, response, *, weighting: str = "hat", return_weight: bool = False):
     """Radiance from a bracket of non-linear photographs, Debevec & Malik 1997 eq. 6 (module docstring).
 
     Parameters
@@ -335,6 +335,12 @@ def merge_photographs(images, exposure_times, response, *, return_weight: bool =
         Seconds, any order, at least two distinct.
     response : ndarray, shape (levels, C) or (levels,)
         g = ln f⁻¹ per channel (:func:`recover_response`, or a calibration file).
+    weighting : {"hat", "hat_time"}
+        ``"hat"``: Debevec & Malik's w(z) (eq. 4, as OpenCV's ``MergeDebevec``);
+        ``"hat_time"``: w(z)·Δt_j — still zero at the clipping ends, and
+        proportional to the inverse variance of ln(E Δt_j) of a shot-noise-limited
+        pixel (Var ln X ≈ 1/X for X electrons ∝ E Δt_j), so long exposures count
+        more where both are usable (the photograph ingest uses it).
     return_weight : bool
         Also return the total weight Σ_j w(Z_ij) per pixel and channel (0 = no usable exposure).
 
@@ -344,6 +350,7 @@ def merge_photographs(images, exposure_times, response, *, return_weight: bool =
         Linear radiance exp(ln E) in the units of exp(g)/s; NaN where every exposure
         is saturated (module docstring).
     """
+    check_choice(weighting, "weighting", ("hat", "hat_time"))
     stack, t, _ = _check_stack(images, exposure_times, None)
     channels = stack[0].shape[-1]
     g = _check_response(response, channels)
@@ -360,12 +367,13 @@ def merge_photographs(images, exposure_times, response, *, return_weight: bool =
     shape = stack[0].shape
     num = np.zeros(shape, np.float32)
     den = np.zeros(shape, np.float32)
-    for tj, z in zip(np.log(t).astype(np.float32), stack):  # loop over exposures, vectorised over pixels
-        lut = w[:, None] * (g32 - tj)  # (levels, C): w(z)(g(z) − ln Δt)
+    for tj, z in zip(t, stack):  # loop over exposures, vectorised over pixels
+        wj = w * np.float32(tj / t[-1]) if weighting == "hat_time" else w
+        lut = wj[:, None] * (g32 - np.float32(np.log(tj)))  # (levels, C): w(z)(g(z) − ln Δt)
         for c in range(channels):
             zc = z[..., c]
             num[..., c] += lut[:, c][zc]
-            den[..., c] += w[zc]
+            den[..., c] += wj[zc]
     with np.errstate(invalid="ignore", divide="ignore"):
         log_e = num / den
     none = den == 0

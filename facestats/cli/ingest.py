@@ -18,6 +18,7 @@ def _cmd_ingest(args) -> int:
         work=args.work,
         workers=args.workers,
         motion_tolerance=args.motion_tolerance,
+        min_footprint_px=args.min_footprint,
         progress=not args.quiet,
     )
     print(report.to_text())
@@ -49,6 +50,12 @@ def add_ingest(sub):
         type=float,
         default=None,
         help="head-motion threshold: 90th percentile of |ln(long/short exposure)| (default 0.15)",
+    )
+    p.add_argument(
+        "--min-footprint",
+        type=float,
+        default=None,
+        help="pixels a lumitexel must span along its foreshortened axis to give a sample (default 2)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_ingest)

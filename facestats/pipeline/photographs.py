@@ -75,6 +75,7 @@ def ingest_subject(
     settings=None,
     workers: int = 2,
     motion_tolerance: float | None = None,
+    min_footprint_px: float | None = None,
     progress: bool = False,
 ) -> IngestReport:
     """Photographs → capture → fit → store (module docstring).
@@ -101,11 +102,13 @@ def ingest_subject(
         Threads decoding frames.
     motion_tolerance : float, optional
         Head-motion threshold (default :data:`facestats.acquire.ingest.MOTION_TOLERANCE`).
+    min_footprint_px : float, optional
+        Resolution limit of a sample (default :data:`facestats.acquire.ingest.MIN_FOOTPRINT_PX`).
     progress : bool
         Progress bars.
     """
     from facestats.acquire.dome import Dome
-    from facestats.acquire.ingest import MOTION_TOLERANCE, ingest_photographs, open_ingested
+    from facestats.acquire.ingest import MIN_FOOTPRINT_PX, MOTION_TOLERANCE, ingest_photographs, open_ingested
     from facestats.io import open_store
     from facestats.io.ids import check_subject_id
     from facestats.io.mesh import load_face_mesh
@@ -127,6 +130,7 @@ def ingest_subject(
         subject_id=sid,
         workers=workers,
         motion_tolerance=MOTION_TOLERANCE if motion_tolerance is None else motion_tolerance,
+        min_footprint_px=MIN_FOOTPRINT_PX if min_footprint_px is None else min_footprint_px,
         progress=progress,
     )
     capture = open_ingested(work)

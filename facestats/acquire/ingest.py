@@ -23,12 +23,13 @@ and gather, at every mesh vertex, a lumitexel of BRDF samples.
    radiance in dome units; samples with a saturated tap are invalid (NaN).
 3. **Head motion**: the two exposures are two passes through the light sequence
    (§5); a head that moved between them makes them disagree.  Each frame's
-   :func:`facestats.acquire.photographs.exposure_consistency` (90th percentile
-   of |ln ratio| of the two exposures' radiance over well-exposed taps) above
-   ``motion_tolerance`` flags the frame: its samples become invalid and the flag
-   is recorded in the capture's provenance (``motion_flags``).  Motion within one
-   pass, between consecutive LEDs, is not detected here; the stable minimum of
-   the albedo fit (§5.2) discards such outliers.
+   :func:`facestats.acquire.photographs.exposure_consistency` (the fraction of
+   well-exposed pixels over the face whose two exposures disagree by more than
+   a factor e^0.5) above ``motion_tolerance`` flags the frame: its samples become
+   invalid and the flag is recorded in the capture's provenance
+   (``motion_flags``).  Motion within one pass, between consecutive LEDs, is not
+   detected here; the stable minimum of the albedo fit (§5.2) discards such
+   outliers.
 4. **Streaming and resuming**: the capture (:mod:`facestats.acquire.capture`
    layout) is created on disk first, with ``radiance`` chunked per camera; one
    camera at a time is filled (memory: one camera's samples, N × L × 3 float32,
@@ -69,8 +70,10 @@ __all__ = [
     "MIN_FOOTPRINT_PX",
 ]
 
-#: Default head-motion threshold: 90th percentile of |ln(long/short)| over well-exposed taps (ln units).
-MOTION_TOLERANCE = 0.15
+#: Default head-motion threshold: fraction of well-exposed face pixels whose two exposures disagree by more than a
+#: factor e^0.5 (:func:`facestats.acquire.photographs.exposure_consistency`).  Still frames of simulated captures
+#: score 0 (noise alone never reaches the factor); a 1° head rotation between the passes scores 0.7-2.5 %.
+MOTION_TOLERANCE = 0.002
 #: Default resolution limit: a lumitexel must span 2 pixels along its foreshortened axis, so that the four
 #: bilinear taps around its projection (±1 pixel) stay on its own surface patch.
 MIN_FOOTPRINT_PX = 2.0
@@ -210,6 +213,9 @@ def _camera_samples(folder, dome, vis, camera, motion_tolerance, workers, resolv
         return out, scores, []
     size = dome.image_size[camera]
     index, weight = bilinear_taps(vis.pixel[sel, camera], size)
+    lo = np.clip(np.floor(vis.pixel[sel, camera].min(0)).astype(int), 0, size - 1)
+    hi = np.clip(np.ceil(vis.pixel[sel, camera].max(0)).astype(int) + 1, 1, size)
+    box = (lo[0], lo[1], hi[0], hi[1])  # the face in this camera
     g = dome.camera_log_response[camera]
     scale = (dome.camera_scale * dome.camera_gain[camera]).astype(np.float32)
 
@@ -221,8 +227,8 @@ def _camera_samples(folder, dome, vis, camera, motion_tolerance, workers, resolv
         rad = merge_at(stack, times, g, index, weight) / scale
         lit = vis.lit[sel, led]
         out[sel[lit], led] = rad[lit]
-        scores[led], n_used = exposure_consistency(stack, times, g, index)
-        if n_used >= 20 and scores[led] > motion_tolerance:
+        scores[led], n_used = exposure_consistency(stack, times, g, box)
+        if n_used >= 100 and scores[led] > motion_tolerance:
             out[:, led] = np.nan
             flags.append({"camera": int(camera), "led": int(led), "score": round(float(scores[led]), 4)})
     return out, scores, flags

@@ -9,7 +9,9 @@ and gather, at every mesh vertex, a lumitexel of BRDF samples.
    (:class:`facestats.acquire.geometry.FaceGeometry`), projected into every
    calibrated camera with lens distortion (:meth:`Dome.project`); valid samples
    from the shadow maps of every LED and camera, front-facing and in frame
-   (:func:`facestats.acquire.visibility.sample_visibility`, the simulator's rule);
+   (:func:`facestats.acquire.visibility.sample_visibility`, the simulator's rule;
+   the cameras' shadow maps at the cameras' own resolution, since a photograph
+   shows occlusion edges at pixel scale);
    the irradiance E⊥ of every LED from its calibration (:meth:`Dome.incident`).
    A sample is kept only where the camera resolves the lumitexel: its surface
    patch (``area``) must span at least ``min_footprint_px`` pixels along its
@@ -294,7 +296,8 @@ def ingest_photographs(
     writer, state = _start(path, folder, geometry, dome, _fingerprint(folder, dome, geometry), chunk, subject_id)
     if state["complete"]:
         return str(path)
-    vis = sample_visibility(dome, dome_shadow_maps(geometry, dome), geometry.position, geometry.normal)
+    shadows = dome_shadow_maps(geometry, dome, camera_pixels=True)
+    vis = sample_visibility(dome, shadows, geometry.position, geometry.normal)
     todo = [c for c in range(dome.n_cameras) if c not in state["cameras_done"]]
     it = todo
     if progress:

@@ -115,8 +115,10 @@ class ShadowMaps:
         Viewpoints (LED or camera positions), mm.
     target : array_like, optional
         Point the buffers look at; default the centre of the mesh's bounding box.
-    resolution : int
-        Buffer side in pixels; choose it so a pixel is about the mesh's edge length.
+    resolution : int or sequence of int
+        Buffer side in pixels, one for all viewpoints or one per viewpoint; choose it
+        so a pixel is about the mesh's edge length (LEDs), or the camera's own pixel
+        (cameras whose images are finer than the mesh).
     bias_px : float
         Depth tolerance in pixel footprints (slope-scaled).
     """
@@ -129,8 +131,10 @@ class ShadowMaps:
         radius = 1.05 * np.max(np.linalg.norm(verts - self.target, axis=1))
         self.bias_px = float(bias_px)
         self.maps = []
-        for eye in np.asarray(eyes, float):  # loop over viewpoints
-            depth, cam = shadow_map(verts, faces, eye, self.target, radius, int(resolution))
+        eyes = np.asarray(eyes, float)
+        res = np.broadcast_to(np.asarray(resolution, np.int64), (len(eyes),))
+        for eye, r in zip(eyes, res):  # loop over viewpoints
+            depth, cam = shadow_map(verts, faces, eye, self.target, radius, int(r))
             self.maps.append((depth.astype(np.float32), cam))
 
     def __len__(self):
@@ -168,15 +172,26 @@ def visible_from(points, normals, vertices, faces, eyes, *, target=None, resolut
     )
 
 
-def dome_shadow_maps(geometry, dome, resolution: int | None = None) -> ShadowMaps:
+def dome_shadow_maps(geometry, dome, resolution: int | None = None, *, camera_pixels: bool = False) -> ShadowMaps:
     """Shadow maps of a face geometry's mesh from every LED, then every camera, of a dome.
 
     ``resolution`` defaults to twice the mesh grid (``geometry.meta["mesh_grid"]``,
-    128 if unknown): about one buffer pixel per half triangle edge.
+    128 if unknown): about one buffer pixel per half triangle edge.  With
+    ``camera_pixels`` the cameras' buffers have the cameras' own resolution over
+    the mesh (capped at 2,048): photographs show occlusion edges at image
+    resolution, and a lumitexel next to an edge must be tested at that scale.
     """
     res = int(resolution or 2 * int(geometry.meta.get("mesh_grid", 128)))
     eyes = np.concatenate([dome.led_position, dome.camera_position])
-    return ShadowMaps(geometry.mesh_vertices, geometry.mesh_faces, eyes, resolution=res)
+    per_eye = np.full(len(eyes), res)
+    if camera_pixels:
+        verts = np.asarray(geometry.mesh_vertices, float)
+        centre = 0.5 * (verts.min(0) + verts.max(0))
+        radius = 1.05 * np.max(np.linalg.norm(verts - centre, axis=1))
+        dist = np.linalg.norm(dome.camera_position - centre, axis=1)
+        across = 2 * dome.camera_matrix[:, 0, 0] * np.tan(np.arcsin(np.minimum(radius / dist, 0.99)))
+        per_eye[dome.n_leds :] = np.clip(np.ceil(across), res, 2048)
+    return ShadowMaps(geometry.mesh_vertices, geometry.mesh_faces, eyes, resolution=per_eye)
 
 
 @dataclass

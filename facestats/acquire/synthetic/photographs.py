@@ -3,11 +3,15 @@
 :func:`write_capture_photographs` turns a subject's truth into the inputs of
 :func:`facestats.acquire.ingest.ingest_photographs`:
 
+* **Truth geometry**: the procedural face's mesh is written as the lab's mesh
+  (OBJ with UVs and a region image) and read back; its vertices and their mesh
+  normals are the simulated face, so the ingest sees the surface it was given.
 * **Radiance** of every lumitexel, camera and LED from the simulator's forward
   model (:class:`facestats.acquire.synthetic.simulate.DomeSimulator`, noise-free).
 * **Images**: the face mesh is sampled densely (barycentric grids, ≤ ½ pixel
   apart), projected into each camera with its lens distortion and z-buffered
-  (nearest sample per pixel); each covered pixel shows the radiance of the
+  (the visible surface of a pixel: samples within ``FRONT_MM`` of its nearest;
+  of those the one closest to the pixel centre); each covered pixel shows the radiance of the
   lumitexel whose texel holds its surface point — the truth maps are constant
   per texel, and the shading is that of the lumitexel (so the image is the
   texel-resolution rendering of the truth, and a lumitexel's projection falls
@@ -46,6 +50,9 @@ from facestats.acquire.photographs import MANIFEST, write_manifest, write_sensor
 from facestats.acquire.response import ResponseCurve
 from facestats.core.validate import as_finite, check_choice
 from facestats.errors import ValidationError
+
+#: Depth band (mm) behind the nearest surface sample of a pixel that still counts as the visible surface.
+FRONT_MM = 1.0
 
 __all__ = ["CalibrationErrors", "PhotoCapture", "write_capture_photographs", "write_target_photographs", "TargetPose"]
 
@@ -114,28 +121,17 @@ class PhotoCapture:
     regions: pathlib.Path
     true_dome: Dome
     moved_frames: list
+    geometry: FaceGeometry
 
 
 # -- rendering --------------------------------------------------------------------------------------------
-def _mesh_uv(geometry: FaceGeometry) -> np.ndarray:
-    """UV of each vertex of a procedural face's mesh (vertices on a regular grid, :func:`procedural_face`)."""
-    n = int(geometry.meta.get("mesh_grid", 0))
-    if geometry.meta.get("kind") != "procedural" or n * n != len(geometry.mesh_vertices):
-        raise ValidationError(
-            f"geometry must be a procedural face (mesh vertices on its UV grid), got {geometry.name!r}"
-        )
-    c = (np.arange(n) + 0.5) / n
-    uu, vv = np.meshgrid(c, c)
-    return np.stack([uu.ravel(), vv.ravel()], 1)
-
-
 def _surface_samples(geometry, m):
     """Points (S, 3) and UVs (S, 2) on a barycentric grid of ``m`` steps in every mesh triangle."""
     i, j = np.meshgrid(np.arange(m + 1), np.arange(m + 1), indexing="ij")
     keep = i + j <= m
     b = np.stack([i[keep], j[keep], m - i[keep] - j[keep]], 1) / m  # (K, 3) barycentric weights
     f = geometry.mesh_faces
-    uv = _mesh_uv(geometry)
+    uv = geometry.mesh_uv
     pts = np.einsum("kb,fbd->fkd", b, geometry.mesh_vertices[f]).reshape(-1, 3)
     uvs = np.einsum("kb,fbd->fkd", b, uv[f]).reshape(-1, 2)
     return pts, uvs
@@ -150,11 +146,13 @@ class _Renderer:
         dist = np.linalg.norm(dome.camera_position - geometry.mesh_vertices.mean(0), axis=1).min()
         px_per_mm = dome.camera_matrix[:, 0, 0].max() / dist
         self.steps = max(2, int(np.ceil(2.5 * edge.max() * px_per_mm)))
+        if geometry.mesh_uv is None:
+            raise ValidationError(f"geometry {geometry.name!r} needs UVs of its mesh vertices (mesh_uv) to be rendered")
         self.points, self.uvs = _surface_samples(geometry, self.steps)
-        n = int(geometry.meta["lumitexel_grid"])
-        self.grid = np.full((n, n), -1, np.int64)  # lumitexel index of each grid node
-        gi = geometry.grid_index
-        self.grid[gi[:, 0], gi[:, 1]] = np.arange(geometry.n_points)
+        n = geometry.map_size
+        self.grid = np.full((n, n), -1, np.int64)  # the lumitexel of each texel
+        tex = geometry.texel_index()
+        self.grid[tex[:, 0], tex[:, 1]] = np.arange(geometry.n_points)
 
     def pixels(self, camera, motion=None):
         """(flat pixel index (P,), lumitexel of each pixel (P,), −1 off the face) of the pixels the face covers."""
@@ -167,10 +165,17 @@ class _Renderer:
         with np.errstate(invalid="ignore"):
             u, v = np.rint(pix[:, 0, 0]), np.rint(pix[:, 0, 1])
             ok = (z[:, 0] > 0) & (u >= 0) & (v >= 0) & (u < w) & (v < h)
+        keep = np.nonzero(ok)[0]
         flat = (v[ok] * w + u[ok]).astype(np.int64)
-        order = np.lexsort((z[ok, 0], flat))  # nearest sample first within each pixel
+        zk = z[ok, 0]
+        zmin = np.full(w * h, np.inf)
+        np.minimum.at(zmin, flat, zk)
+        front = zk <= zmin[flat] + FRONT_MM  # the visible surface in each pixel (z-buffer)
+        keep, flat = keep[front], flat[front]
+        d2 = np.sum((pix[keep, 0] - np.stack([u[keep], v[keep]], 1)) ** 2, axis=1)
+        order = np.lexsort((d2, flat))  # within each pixel, the visible sample closest to the pixel centre
         flat, first = np.unique(flat[order], return_index=True)
-        uv = self.uvs[np.nonzero(ok)[0][order[first]]]
+        uv = self.uvs[keep[order[first]]]
         n = self.grid.shape[0]
         texel = np.clip((uv[:, ::-1] * n).astype(np.int64), 0, n - 1)  # (v, u) texel of the surface point
         return flat, self.grid[texel[:, 0], texel[:, 1]]
@@ -264,7 +269,9 @@ def write_capture_photographs(
     folder : str or path-like
         Output folder (created).
     geometry : FaceGeometry, optional
-        A procedural face; default :func:`procedural_face` at the truth's map size.
+        A procedural face (its mesh grid equal to its lumitexel grid); default
+        :func:`procedural_face` at the truth's map size.  The simulated truth is its
+        mesh as written and read back (``PhotoCapture.geometry``).
     dome : Dome, optional
         The true rig; default :func:`default_dome` (1024² cameras; use :meth:`Dome.resized`).
     camera : ResponseCurve, optional
@@ -286,7 +293,7 @@ def write_capture_photographs(
     """
     from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.simulate import DomeSimulator
-    from facestats.io.mesh import save_face_mesh
+    from facestats.io.mesh import load_face_mesh, save_face_mesh
 
     check_choice(extension, "extension", (".png", ".tif"))
     as_finite(motion_deg, "motion_deg", 0, None, unit="deg")
@@ -296,6 +303,10 @@ def write_capture_photographs(
     dome = default_dome() if dome is None else dome
     camera = camera or ResponseCurve(12, dome.response.full_well, dome.response.read_noise)
     rng = np.random.default_rng(seed)
+    mesh = save_face_mesh(geometry, folder / "face.obj")
+    regions = folder / "face.regions.png"
+    _write_regions(regions, geometry.region_map)
+    geometry = load_face_mesh(mesh, regions)  # the truth is the mesh the lab has: its vertices and normals
     clean = DomeSimulator(geometry, dome, noise=False, scan_normal_noise_deg=0.0, camera_visibility=False).simulate(
         truth
     )
@@ -326,9 +337,6 @@ def write_capture_photographs(
     calib = replace(calib, camera_log_response=_true_response(camera))
     calibration = folder / "dome.json"
     calib.save(calibration)
-    mesh = save_face_mesh(geometry, folder / "face.obj")
-    regions = folder / "face.regions.png"
-    _write_regions(regions, geometry.region_map)
     write_sensor_file(
         folder / "sensor.json",
         noisy_sensor.sensor,
@@ -345,7 +353,7 @@ def write_capture_photographs(
         subject=dict(truth.metadata()),
         sensor="sensor.json",
     )
-    return PhotoCapture(folder / MANIFEST, calibration, pathlib.Path(mesh), regions, dome, sorted(moved))
+    return PhotoCapture(folder / MANIFEST, calibration, pathlib.Path(mesh), regions, dome, sorted(moved), geometry)
 
 
 def _write_regions(path, region_map):

@@ -82,7 +82,7 @@ def test_ingest_recovers_the_simulated_radiance(tiny, tmp_path):
     flags = cap.provenance["motion_flags"]
     assert [(f["camera"], f["led"]) for f in flags] == [(1, 2)]  # the one frame whose head moved, no other
     assert np.all(np.isnan(cap.array("radiance")[:, 1, 2]))  # its samples are invalid
-    clean = DomeSimulator(procedural_face(16), pc.true_dome, noise=False, scan_normal_noise_deg=0).simulate(truth)
+    clean = DomeSimulator(pc.geometry, pc.true_dome, noise=False, scan_normal_noise_deg=0).simulate(truth)
     a, b = cap.array("radiance").astype(np.float64), clean.array("radiance").astype(np.float64)
     b[:, 1, 2] = np.nan  # the moved frame
     both = np.isfinite(a) & np.isfinite(b) & (b > 0.01)

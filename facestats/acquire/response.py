@@ -62,6 +62,7 @@ known.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -81,6 +82,8 @@ __all__ = [
 
 #: Largest number of unknowns g is solved for; finer codes are interpolated (module docstring).
 MAX_KNOTS = 1024
+#: Rows per block of the merge (blocks stay in the CPU cache and run on a thread per core).
+MERGE_ROWS = 64
 
 
 def hat_weights(levels: int) -> np.ndarray:
@@ -115,7 +118,11 @@ def _check_stack(images, exposure_times, bits, name="images"):
     if bits is None:
         bits = 8 if dtype.itemsize == 1 else 16
     bits = check_integer(bits, "bits", 1, 16)
-    for j, a in enumerate(arrays):
+    if dtype.kind == "u" and np.iinfo(dtype).max <= 2**bits - 1:
+        arrays_to_check = []  # every value of the dtype is a valid code
+    else:
+        arrays_to_check = arrays
+    for j, a in enumerate(arrays_to_check):
         lo, hi = int(a.min(initial=0)), int(a.max(initial=0))
         if lo < 0 or hi > 2**bits - 1:
             raise ValidationError(
@@ -172,12 +179,17 @@ def histogram_samples(codes, n: int) -> np.ndarray:
     """Grossberg & Nayar 2003 §5 "virtual pixels": codes at ``n`` equal quantiles of each exposure, (n, P).
 
     ``codes`` is (P, npix) of one channel; the quantile (k + ½)/n of exposure j is
-    the (k + ½)/n-th smallest code, so row k pairs codes of equal rank.
+    the code of rank ⌊(k + ½) npix / n⌋ in its cumulative histogram, so row k pairs
+    codes of equal rank (an O(npix) histogram per exposure, no sort).
     """
-    c = np.sort(np.asarray(codes).reshape(codes.shape[0], -1), axis=1)
+    c = np.asarray(codes).reshape(np.shape(codes)[0], -1)
     npix = c.shape[1]
-    ranks = ((np.arange(n) + 0.5) / n * npix).astype(np.int64)
-    return c[:, np.clip(ranks, 0, npix - 1)].T
+    ranks = np.clip(((np.arange(n) + 0.5) / n * npix).astype(np.int64), 0, npix - 1)
+    out = np.empty((n, c.shape[0]), np.int64)
+    for j, row in enumerate(c):  # loop over exposures (a handful)
+        cum = np.cumsum(np.bincount(row.astype(np.int64, copy=False)))
+        out[:, j] = np.searchsorted(cum, ranks, side="right")
+    return out
 
 
 def _sample_codes(stack, channel, samples, levels, n):
@@ -237,10 +249,13 @@ def _solve_channel(codes, log_t, levels, smoothness):
     e = np.zeros(knots)
     e[km], e[km + 1] = 1 - am, am
     h += np.outer(e, e)
-    try:
-        g = np.linalg.solve(h, b)
-    except np.linalg.LinAlgError:
-        g = np.linalg.lstsq(h, b, rcond=None)[0]
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1):  # a K ≤ 1024 system: threads cost more than they save
+        try:
+            g = np.linalg.solve(h, b)
+        except np.linalg.LinAlgError:
+            g = np.linalg.lstsq(h, b, rcond=None)[0]
     kz, az = _interpolation(np.arange(levels), levels, knots)
     out = (1 - az) * g[kz] + az * g[kz + 1]
     return out - out[levels // 2]
@@ -324,6 +339,18 @@ def _check_response(response, channels):
     return g
 
 
+def _add_lookup(acc, z, lut):
+    """acc[..., c] += lut[z[..., c], c]: one table look-up per sample (OpenCV's LUT for 8-bit 3-channel codes)."""
+    if z.dtype == np.uint8 and lut.shape == (256, 3) and z.ndim == 3 and z.shape[-1] == 3:
+        import cv2
+
+        acc += cv2.LUT(np.ascontiguousarray(z), np.ascontiguousarray(lut, np.float32).reshape(1, 256, 3))
+        return
+    flat = np.ascontiguousarray(lut, np.float32).reshape(-1)
+    idx = z.astype(np.intp) * lut.shape[1] + np.arange(lut.shape[1])
+    acc += flat[idx]
+
+
 def merge_photographs(images, exposure_times, response, *, weighting: str = "hat", return_weight: bool = False):
     """Radiance from a bracket of non-linear photographs, Debevec & Malik 1997 eq. 6 (module docstring).
 
@@ -356,7 +383,7 @@ def merge_photographs(images, exposure_times, response, *, weighting: str = "hat
     g = _check_response(response, channels)
     levels = g.shape[0]
     bits = levels.bit_length() - 1
-    top = max(int(a.max(initial=0)) for a in stack)
+    top = 0 if np.iinfo(stack[0].dtype).max <= levels - 1 else max(int(a.max(initial=0)) for a in stack)
     if top > levels - 1:
         raise ValidationError(
             f"images must hold codes below {levels} (the response has {levels} levels, {bits} bits), got {top}"
@@ -364,26 +391,44 @@ def merge_photographs(images, exposure_times, response, *, weighting: str = "hat
     g = np.broadcast_to(g, (levels, channels))
     w = hat_weights(levels).astype(np.float32)
     g32 = np.where(np.isfinite(g), g, g[1]).astype(np.float32)  # code 0 has weight 0; keep it finite
-    shape = stack[0].shape
-    num = np.zeros(shape, np.float32)
-    den = np.zeros(shape, np.float32)
-    for tj, z in zip(t, stack):  # loop over exposures, vectorised over pixels
+    tables = []
+    for tj in t:  # per exposure: the tables w(z)(g(z) − ln Δt) and w(z)
         wj = w * np.float32(tj / t[-1]) if weighting == "hat_time" else w
-        lut = wj[:, None] * (g32 - np.float32(np.log(tj)))  # (levels, C): w(z)(g(z) − ln Δt)
-        for c in range(channels):
-            zc = z[..., c]
-            num[..., c] += lut[:, c][zc]
-            den[..., c] += wj[zc]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        log_e = num / den
-    none = den == 0
-    if np.any(none):
-        longest, tl = stack[-1], np.float32(np.log(t[-1]))
-        bright = np.all(np.stack([a >= levels // 2 for a in stack]), axis=0)
-        dark = np.stack([g32[:, c][longest[..., c]] for c in range(channels)], -1) - tl
-        log_e = np.where(none, np.where(bright, np.nan, dark), log_e)
-    out = np.exp(log_e, dtype=np.float32)
+        tables.append((wj[:, None] * (g32 - np.float32(np.log(tj))), np.repeat(wj[:, None], channels, axis=1)))
+    out = np.empty(stack[0].shape, np.float32)
+    den = np.empty(stack[0].shape, np.float32)
+    rows = stack[0].shape[0] if stack[0].ndim == 3 else 1
+    blocks = [slice(a, min(a + MERGE_ROWS, rows)) for a in range(0, rows, MERGE_ROWS)] if rows > 1 else [slice(None)]
+
+    def run(sl):
+        _merge_block([a[sl] for a in stack], t, tables, g32, levels, out[sl], den[sl])
+
+    if len(blocks) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(min(len(blocks), os.cpu_count() or 1)) as ex:  # look-ups and ufuncs release the GIL
+            list(ex.map(run, blocks))
+    else:
+        run(blocks[0])
     return (out, den) if return_weight else out
+
+
+def _merge_block(stack, t, tables, g32, levels, out, den):
+    """eq. 6 on one block of rows (views), written into ``out`` and ``den`` (:func:`merge_photographs`)."""
+    num = out
+    num[...] = 0
+    den[...] = 0
+    for z, (lut, wlut) in zip(stack, tables):  # loop over exposures, vectorised over pixels
+        _add_lookup(num, z, lut)
+        _add_lookup(den, z, wlut)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        np.divide(num, den, out=num)
+    none = np.nonzero(den == 0)  # no usable exposure: treated on these pixels only
+    if none[0].size:
+        bright = np.all([a[none] >= levels // 2 for a in stack], axis=0)
+        dark = g32[stack[-1][none], none[-1]] - np.float32(np.log(t[-1]))
+        num[none] = np.where(bright, np.nan, dark)
+    np.exp(num, out=num)
 
 
 # -- a known non-linear camera (simulation) -----------------------------------------------------------------

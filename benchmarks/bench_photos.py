@@ -137,7 +137,8 @@ from facestats.pipeline import fit_subject
 folder, out = sys.argv[1], sys.argv[2]
 t0 = time.perf_counter()
 geometry = load_face_mesh(folder + "/face.obj", folder + "/face.regions.png")
-ingest_photographs(folder, geometry, Dome.load(folder + "/dome.json"), out, workers=int(sys.argv[3]))
+ingest_photographs(folder, geometry, Dome.load(folder + "/dome.json"), out, workers=int(sys.argv[3]),
+                   min_footprint_px=float(sys.argv[6]))
 t1 = time.perf_counter()
 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 cap = open_ingested(out)
@@ -158,7 +159,7 @@ def _errors(ds, truth):
     return out
 
 
-def bench_ingest(grid=48, side=1024, leds=None, workers=2):
+def bench_ingest(grid=48, side=1024, leds=None, workers=2, min_footprint_px=2.0):
     """Whole-capture ingest and fit of the default subject S001 (module docstring)."""
     import shutil
 
@@ -188,7 +189,7 @@ def bench_ingest(grid=48, side=1024, leds=None, workers=2):
     out_path = os.path.join(os.path.dirname(folder), "photos-S001-capture.zarr")
     shutil.rmtree(out_path, ignore_errors=True)
     run = subprocess.run(
-        [sys.executable, "-c", _INGEST, folder, out_path, str(workers), str(grid), HERE],
+        [sys.executable, "-c", _INGEST, folder, out_path, str(workers), str(grid), HERE, str(min_footprint_px)],
         capture_output=True,
         text=True,
         check=True,
@@ -213,5 +214,5 @@ BENCHMARKS = [("merge", bench_merge), ("recover", bench_recover), ("ingest", ben
 SMOKE = {
     "merge": {"side": 64, "repeat": 1},
     "recover": {"side": 64, "repeat": 1},
-    "ingest": {"grid": 16, "side": 64, "leds": 8, "workers": 1},
+    "ingest": {"grid": 16, "side": 64, "leds": 8, "workers": 1, "min_footprint_px": 0.5},
 }

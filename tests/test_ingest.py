@@ -244,3 +244,20 @@ def test_interrupted_ingest_leaves_no_subject_and_resumes(tiny, tmp_path, monkey
     prov = json.loads(ds.attrs["provenance"])
     assert prov["capture_provenance"]["source"] == "photographs" and ds.attrs["age"] == truth.age
     assert ingest_subject(*args).skipped  # rerunning a finished ingest does nothing
+
+
+def test_8_bit_jpeg_frames_with_exif(tmp_path):
+    """The simulator's 8-bit JPEG option: frames decode as 8-bit, carry their exposure time, and ingest."""
+    from facestats.io.exif import read_exposure_time
+
+    truth = synthesize_population(map_size=16, conditions=False, subjects=["S011"])["S011"]
+    dome = default_dome().select(leds=[0, 1, 5], cameras=[3, 11]).resized(96, 96)
+    pc = write_capture_photographs(truth, tmp_path / "jpg", geometry=procedural_face(16), dome=dome, extension=".jpg")
+    f = open_folder(tmp_path / "jpg")
+    assert f.bits == 8 and f.files[0, 1, 2, 1].endswith(".jpg")
+    assert read_exposure_time(tmp_path / "jpg" / f.files[0, 1, 2, 1]) == 0.125
+    assert f.read_codes(1, 2, 1).dtype == np.uint8
+    dome_cal = Dome.load(pc.calibration)
+    assert dome_cal.camera_log_response.shape == (2, 256, 3)
+    cap = open_ingested(ingest_photographs(f, pc.geometry, dome_cal, tmp_path / "c.zarr", min_footprint_px=1))
+    assert np.isfinite(cap.array("radiance")).mean() > 0.05

@@ -49,7 +49,7 @@ def add_ingest(sub):
         "--motion-tolerance",
         type=float,
         default=None,
-        help="head-motion threshold: fraction of face pixels whose two exposures disagree by > e^0.5 (default 0.002)",
+        help="head-motion threshold: fraction of face pixels whose two exposures disagree by > e^0.5 (default 0.001)",
     )
     p.add_argument(
         "--min-footprint",

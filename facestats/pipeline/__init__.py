@@ -26,7 +26,8 @@ Modules, one job each:
 * :mod:`~facestats.pipeline.population` — many captures, σtrAvg first (:func:`fit_population`);
 * :mod:`~facestats.pipeline.render` — the fitted model rendered into a capture's cameras;
 * :mod:`~facestats.pipeline.build` — simulate and fit a synthetic population into a store
-  (how the embedded default is made).
+  (how the embedded default is made);
+* :mod:`~facestats.pipeline.photographs` — a folder of dome photographs to a fitted subject in a store.
 """
 
 from facestats.pipeline.lumitexels import fit_lumitexels

@@ -20,8 +20,8 @@
   the z-buffer; unlit lumitexels are dark, pixels off the face black.
 * **Camera**: electrons = radiance × ``camera_scale`` × Δt, shot and read noise,
   the known non-linear response of :class:`facestats.acquire.response.ResponseCurve`
-  (BT.709 curve, 12-bit codes by default), written as 16-bit PNG (or TIFF) with
-  the exposure time in EXIF; the two exposures of the dome (§5).
+  (BT.709 curve, 12-bit codes by default), written as 16-bit PNG (or TIFF, or
+  8-bit PNG/JPEG) with the exposure time in EXIF; the two exposures of the dome (§5).
 * **Head motion** (optional): chosen frames see the head rotated between the two
   passes, so their long exposure is rendered with the moved head.
 * **Calibration with small errors**: the dome JSON the lab would have —
@@ -196,11 +196,12 @@ def _encode(path, codes, exposure_s):
 
     from facestats.io.exif import embed_exif, exif_payload
 
-    ok, buf = cv2.imencode(path.suffix, np.ascontiguousarray(codes[..., ::-1]))
+    params = [cv2.IMWRITE_JPEG_QUALITY, 95] if path.suffix == ".jpg" else []
+    ok, buf = cv2.imencode(path.suffix, np.ascontiguousarray(codes[..., ::-1]), params)
     if not ok:
         raise ValidationError(f"could not encode the frame {path}")
     data = buf.tobytes()
-    if path.suffix == ".png":
+    if path.suffix in (".png", ".jpg"):
         data = embed_exif(data, exif_payload(exposure_s, make="facestats", model="simulated dome camera"))
     path.write_bytes(data)
     return hashlib.sha256(data).hexdigest()
@@ -276,8 +277,8 @@ def write_capture_photographs(
         The true rig; default :func:`default_dome` (1024² cameras; use :meth:`Dome.resized`).
     camera : ResponseCurve, optional
         The cameras' non-linear response; default 12-bit BT.709 with the dome's full well and read noise.
-    extension : {".png", ".tif"}
-        16-bit PNG (with EXIF) or TIFF frames.
+    extension : {".png", ".tif", ".jpg"}
+        PNG (8- or 16-bit, with EXIF), TIFF, or 8-bit JPEG (with EXIF; quality 95) frames.
     errors : CalibrationErrors or None
         Errors of the written calibration (None: the true calibration).
     moved_frames : sequence of (camera, led)
@@ -295,13 +296,17 @@ def write_capture_photographs(
     from facestats.acquire.synthetic.simulate import DomeSimulator
     from facestats.io.mesh import load_face_mesh, save_face_mesh
 
-    check_choice(extension, "extension", (".png", ".tif"))
+    check_choice(extension, "extension", (".png", ".tif", ".jpg"))
     as_finite(motion_deg, "motion_deg", 0, None, unit="deg")
     folder = pathlib.Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     geometry = procedural_face(truth.region_map.shape[0]) if geometry is None else geometry
     dome = default_dome() if dome is None else dome
-    camera = camera or ResponseCurve(12, dome.response.full_well, dome.response.read_noise)
+    camera = camera or ResponseCurve(
+        8 if extension == ".jpg" else 12, dome.response.full_well, dome.response.read_noise
+    )
+    if extension == ".jpg" and camera.bits != 8:
+        raise ValidationError(f"camera must have 8-bit codes for JPEG frames, got bits={camera.bits}")
     rng = np.random.default_rng(seed)
     mesh = save_face_mesh(geometry, folder / "face.obj")
     regions = folder / "face.regions.png"

@@ -82,8 +82,10 @@ __all__ = [
 
 #: Largest number of unknowns g is solved for; finer codes are interpolated (module docstring).
 MAX_KNOTS = 1024
-#: Rows per block of the merge (blocks stay in the CPU cache and run on a thread per core).
+#: Rows per block of the merge (blocks stay in the CPU cache and run on a thread per core) and the number of
+#: samples from which the blocks are spread over threads.
 MERGE_ROWS = 64
+MERGE_THREADED = 1 << 18
 
 
 def hat_weights(levels: int) -> np.ndarray:
@@ -403,13 +405,14 @@ def merge_photographs(images, exposure_times, response, *, weighting: str = "hat
     def run(sl):
         _merge_block([a[sl] for a in stack], t, tables, g32, levels, out[sl], den[sl])
 
-    if len(blocks) > 1:
+    if len(blocks) > 1 and stack[0].size >= MERGE_THREADED:
         from concurrent.futures import ThreadPoolExecutor
 
         with ThreadPoolExecutor(min(len(blocks), os.cpu_count() or 1)) as ex:  # look-ups and ufuncs release the GIL
             list(ex.map(run, blocks))
     else:
-        run(blocks[0])
+        for sl in blocks:
+            run(sl)
     return (out, den) if return_weight else out
 
 

@@ -267,12 +267,21 @@ class Capture:
 
 
 class CaptureWriter:
-    """Create a capture group on disk and fill it block by block (bounded memory)."""
+    """Create a capture group on disk and fill it block by block (bounded memory).
 
-    def __init__(self, path, *, n_lumitexels, n_cameras, n_lights, map_size, n_fibers, attrs, chunk=2048):
+    ``camera_chunk`` (default: all cameras in one chunk) chunks ``radiance`` along
+    ``camera`` too, so a writer that fills one camera at a time (the photograph
+    ingest) writes whole chunks; :meth:`reopen` continues filling an existing group.
+    """
+
+    def __init__(
+        self, path, *, n_lumitexels, n_cameras, n_lights, map_size, n_fibers, attrs, chunk=2048, camera_chunk=None
+    ):
         import zarr
 
         check_integer(chunk, "chunk", 1)
+        if camera_chunk is not None:
+            check_integer(camera_chunk, "camera_chunk", 1)
         self.path = str(path)
         self.group = zarr.open_group(self.path, mode="w")
         sizes = {
@@ -289,7 +298,10 @@ class CaptureWriter:
         }
         for name, (dims, dtype) in CAPTURE_ARRAYS.items():
             shape = tuple(sizes[d] for d in dims)
-            chunks = tuple(min(chunk, s) if d == "lumitexel" else s for d, s in zip(dims, shape))
+            chunks = tuple(
+                min(chunk, s) if d == "lumitexel" else min(camera_chunk or s, s) if d == "camera" else s
+                for d, s in zip(dims, shape)
+            )
             fill = np.nan if dtype.startswith("float") else 0
             self.group.create_array(
                 name, shape=shape, chunks=chunks, dtype=dtype, dimension_names=dims, fill_value=fill
@@ -297,6 +309,19 @@ class CaptureWriter:
         self.group.attrs.update({k: (json.dumps(v) if isinstance(v, dict) else v) for k, v in attrs.items()})
         self.group.attrs["channel"] = list(CHANNELS)
         self.group.attrs["site"] = list(SITES)
+
+    @classmethod
+    def reopen(cls, path) -> "CaptureWriter":
+        """A writer on an existing capture group (to continue an interrupted fill)."""
+        import zarr
+
+        self = cls.__new__(cls)
+        self.path = str(path)
+        try:
+            self.group = zarr.open_group(self.path, mode="r+")
+        except Exception as exc:  # zarr raises several types for a missing/invalid group
+            raise FormatError(f"cannot reopen capture {path!s}: {exc}") from None
+        return self
 
     def write_block(self, start, arrays: dict):
         """Write per-lumitexel arrays for the lumitexels from ``start`` on."""

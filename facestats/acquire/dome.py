@@ -22,6 +22,20 @@ in an orthonormal frame (e₁, e₂, a) of the LED, and I₀ is the RGB intensit
 The irradiance on a surface with normal N at distance r is E = I(d) (N·ωi)/r²
 (point source, inverse-square law); E⊥ = I(d)/r² is the irradiance normal to
 the beam.
+
+Camera model: OpenCV's pinhole camera with Brown-Conrady distortion (the layout
+and equations of OpenCV's ``calib3d`` module, so calibrations made with
+``cv2.calibrateCamera`` load unchanged).  A world point X (mm) has camera
+coordinates x_c = R X + t with R the world-to-camera rotation (rows: camera x
+right, y down, z forward) and t = −R C for the camera centre C; its normalised
+coordinates (x_c/z_c, y_c/z_c) are distorted to (x'', y'') by
+:func:`facestats.acquire.lens.distort_normalised` with ``dist`` =
+(k₁, k₂, p₁, p₂[, k₃[, k₄, k₅, k₆]]), and the pixel is (u, v) = K (x'', y'', 1)
+(pixel centres at integer coordinates, as in OpenCV).  ``camera_gain`` (C, 3)
+converts a camera's merged photograph values to the reference camera's units
+(1 for the reference; :mod:`facestats.acquire.calibration` fits it), and
+``camera_log_response`` holds the Debevec-Malik response g of the cameras'
+photographs (:mod:`facestats.acquire.response`), when they are not linear raw.
 """
 
 from __future__ import annotations
@@ -31,13 +45,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.acquire.camera import look_at, project_points
+from facestats.acquire.camera import look_at
+from facestats.acquire.geodesic import farthest_point_subset, geodesic_points
 from facestats.acquire.hdr import CameraResponse
+from facestats.acquire.lens import distort_normalised, undistort_normalised
 from facestats.core.published import N_CAMERAS, N_LEDS
 from facestats.core.validate import as_finite, as_float, check_range, check_shape
 from facestats.errors import FormatError, ValidationError
 
-__all__ = ["Dome", "default_dome", "look_at", "geodesic_points"]
+__all__ = ["Dome", "default_dome", "beam_terms"]
+
+
+def beam_terms(s, t) -> np.ndarray:
+    """The monomials (1, s, t, s², s t, t²) of the LED beam polynomial (module docstring), last axis of length 6."""
+    return np.stack([np.ones_like(s), s, t, s * s, s * t, t * t], axis=-1)
 
 
 def _tangent_frames(axis):
@@ -74,9 +95,18 @@ class Dome:
     exposure_times : ndarray, shape (E,)
         HDR exposure times (s) of the two passes (§5).
     camera_scale : float
-        Electrons per second of exposure per (dome unit / sr) of radiance.
+        Electrons per second of exposure per (dome unit / sr) of radiance; for
+        photographs, merged value exp(g)/s per dome unit of the reference camera.
     response : CameraResponse
         Camera noise and ADC model.
+    camera_distortion : ndarray, shape (C, 8), optional
+        OpenCV distortion (k₁, k₂, p₁, p₂, k₃, k₄, k₅, k₆) (module docstring);
+        default none.  4 or 5 coefficients are padded with zeros.
+    camera_gain : ndarray, shape (C, 3), optional
+        Radiometric gain of each camera and channel relative to the reference
+        camera (default 1).
+    camera_log_response : ndarray, shape (C, levels, 3), optional
+        Debevec-Malik g = ln f⁻¹ of each camera's photographs (levels = 2^bits).
     """
 
     led_position: np.ndarray
@@ -90,6 +120,9 @@ class Dome:
     exposure_times: np.ndarray
     camera_scale: float
     response: CameraResponse = CameraResponse()
+    camera_distortion: np.ndarray | None = None
+    camera_gain: np.ndarray | None = None
+    camera_log_response: np.ndarray | None = None
 
     def __post_init__(self):
         def array(name, shape):
@@ -127,6 +160,37 @@ class Dome:
         self.camera_position, self.camera_rotation, self.camera_matrix = cp, cr, ck
         self.image_size, self.exposure_times = im, et
         self.camera_scale = float(self.camera_scale)
+        self._check_camera_extras(n_cam)
+
+    def _check_camera_extras(self, n_cam):
+        """Validate and normalise ``camera_distortion``, ``camera_gain`` and ``camera_log_response``."""
+        if self.camera_distortion is None:
+            dist = np.zeros((n_cam, 8))
+        else:
+            dist = as_finite(self.camera_distortion, "camera_distortion", dtype=np.float64)
+            if dist.ndim != 2 or dist.shape[0] != n_cam or dist.shape[1] not in (4, 5, 8):
+                raise ValidationError(
+                    f"camera_distortion must have shape ({n_cam}, 4|5|8) (OpenCV k1, k2, p1, p2[, k3[, k4, k5, k6]]), "
+                    f"got shape {dist.shape}"
+                )
+            dist = np.pad(dist, ((0, 0), (0, 8 - dist.shape[1])))
+        gain = np.ones((n_cam, 3)) if self.camera_gain is None else np.asarray(self.camera_gain, np.float64)
+        check_shape(gain, "camera_gain", (n_cam, 3))
+        check_range(as_finite(gain, "camera_gain"), "camera_gain", 0, None, low_inclusive=False)
+        resp = self.camera_log_response
+        if resp is not None:
+            resp = np.asarray(resp, np.float64)
+            if resp.ndim == 2:
+                resp = np.broadcast_to(resp, (n_cam,) + resp.shape)
+            levels = resp.shape[1] if resp.ndim == 3 else 0
+            if resp.ndim != 3 or resp.shape[0] != n_cam or resp.shape[2] != 3 or levels < 2 or levels & (levels - 1):
+                raise ValidationError(
+                    f"camera_log_response must have shape ({n_cam}, levels, 3) with levels = 2^bits, "
+                    f"got shape {np.shape(self.camera_log_response)}"
+                )
+            if not np.all(np.isfinite(resp)):
+                raise ValidationError("camera_log_response must be finite, got NaN or inf")
+        self.camera_distortion, self.camera_gain, self.camera_log_response = dist, gain, resp
 
     @property
     def n_leds(self) -> int:
@@ -137,6 +201,32 @@ class Dome:
         return int(self.camera_position.shape[0])
 
     # -- photometry -------------------------------------------------------------
+    def beam_coordinates(self, points, leds=None):
+        """Where ``points`` lie in the LEDs' beams (module docstring).
+
+        Returns
+        -------
+        wi : ndarray, shape (N, L, 3)
+            Unit directions from the points towards the LEDs.
+        r2 : ndarray, shape (N, L)
+            Squared distances, mm².
+        s, t : ndarray, shape (N, L)
+            Beam-plane coordinates (d·e₁, d·e₂)/(d·a) of the direction d from the LED.
+        front : ndarray of bool, shape (N, L)
+            The point lies in front of the LED (d·a > 0).
+        """
+        sel = slice(None) if leds is None else np.asarray(leds)
+        la = self.led_axis[sel]
+        wi, r2, _ = self._towards(self.led_position[sel], points)
+        d_unit = -wi  # LED -> point
+        e1, e2 = _tangent_frames(la)
+        ca = np.einsum("nlk,lk->nl", d_unit, la)
+        front = ca > 1e-6
+        ca_s = np.where(front, ca, 1.0)
+        s = np.einsum("nlk,lk->nl", d_unit, e1) / ca_s
+        t = np.einsum("nlk,lk->nl", d_unit, e2) / ca_s
+        return wi, r2, s, t, front
+
     def incident(self, points, leds=None):
         """Directions towards the LEDs and the beam-normal irradiance E⊥ = I(d)/r² at ``points``.
 
@@ -156,18 +246,31 @@ class Dome:
             point lies behind the LED's emitting hemisphere.
         """
         sel = slice(None) if leds is None else np.asarray(leds)
-        la, li, lb = self.led_axis[sel], self.led_intensity[sel], self.led_beam[sel]
-        wi, r2, _ = self._towards(self.led_position[sel], points)
-        d_unit = -wi  # LED -> point
-        e1, e2 = _tangent_frames(la)
-        ca = np.einsum("nlk,lk->nl", d_unit, la)
-        front = ca > 1e-6
-        ca_s = np.where(front, ca, 1.0)
-        s = np.einsum("nlk,lk->nl", d_unit, e1) / ca_s
-        t = np.einsum("nlk,lk->nl", d_unit, e2) / ca_s
-        poly = lb[:, 0] + lb[:, 1] * s + lb[:, 2] * t + lb[:, 3] * s * s + lb[:, 4] * s * t + lb[:, 5] * t * t
+        wi, r2, s, t, front = self.beam_coordinates(points, leds)
+        poly = np.einsum("nlk,lk->nl", beam_terms(s, t), self.led_beam[sel])
         gain = np.where(front, np.maximum(poly, 0), 0) / r2
-        return wi, gain[..., None] * li[None, :, :]
+        return wi, gain[..., None] * self.led_intensity[sel][None, :, :]
+
+    def select(self, leds=None, cameras=None) -> "Dome":
+        """The rig restricted to some LEDs and/or cameras (indices; default all)."""
+        from dataclasses import replace
+
+        lsel = slice(None) if leds is None else np.asarray(leds)
+        csel = slice(None) if cameras is None else np.asarray(cameras)
+        return replace(
+            self,
+            led_position=self.led_position[lsel],
+            led_axis=self.led_axis[lsel],
+            led_intensity=self.led_intensity[lsel],
+            led_beam=self.led_beam[lsel],
+            camera_position=self.camera_position[csel],
+            camera_rotation=self.camera_rotation[csel],
+            camera_matrix=self.camera_matrix[csel],
+            image_size=self.image_size[csel],
+            camera_distortion=self.camera_distortion[csel],
+            camera_gain=self.camera_gain[csel],
+            camera_log_response=None if self.camera_log_response is None else self.camera_log_response[csel],
+        )
 
     @staticmethod
     def _towards(targets, points):
@@ -187,6 +290,57 @@ class Dome:
         """Unit directions (N, C, 3) from ``points`` (N, 3, mm) towards every camera centre (``wo`` of :meth:`view`)."""
         return self._towards(self.camera_position, points)[0]
 
+    def resized(self, width: int, height: int) -> "Dome":
+        """The same rig with every camera's image resampled to ``width`` × ``height`` pixels (K scaled, pixel
+        centres at integers: u' = (u + ½)·s − ½)."""
+        from dataclasses import replace
+
+        sx = int(width) / self.image_size[:, 0]
+        sy = int(height) / self.image_size[:, 1]
+        k = self.camera_matrix.copy()
+        k[:, 0, :] *= sx[:, None]
+        k[:, 1, :] *= sy[:, None]
+        k[:, 0, 2] += 0.5 * sx - 0.5
+        k[:, 1, 2] += 0.5 * sy - 0.5
+        size = np.tile([int(width), int(height)], (self.n_cameras, 1))
+        return replace(self, camera_matrix=k, image_size=size)
+
+    @property
+    def camera_translation(self) -> np.ndarray:
+        """OpenCV extrinsic translations t = −R C, shape (C, 3), mm."""
+        return -np.einsum("cij,cj->ci", self.camera_rotation, self.camera_position)
+
+    def project(self, points, cameras=None):
+        """Pixel coordinates of world points in the cameras, with lens distortion (module docstring).
+
+        Parameters
+        ----------
+        points : ndarray, shape (N, 3)
+            World points, mm.
+        cameras : array_like of int, optional
+            Subset of cameras (default all).
+
+        Returns
+        -------
+        pixel : ndarray, shape (N, C, 2)
+            (u, v) in pixels, OpenCV convention (pixel centres at integers); NaN
+            behind the camera.
+        depth : ndarray, shape (N, C)
+            z in camera coordinates, mm (≤ 0 behind the camera).
+        """
+        sel = slice(None) if cameras is None else np.asarray(cameras)
+        rot, pos = self.camera_rotation[sel], self.camera_position[sel]
+        k, dist = self.camera_matrix[sel], self.camera_distortion[sel]
+        cam = np.einsum("cij,ncj->nci", rot, np.asarray(points, np.float64)[:, None, :] - pos[None])
+        z = cam[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xd, yd = distort_normalised(cam[..., 0] / z, cam[..., 1] / z, dist[None])
+        u = k[None, :, 0, 0] * xd + k[None, :, 0, 1] * yd + k[None, :, 0, 2]
+        v = k[None, :, 1, 1] * yd + k[None, :, 1, 2]
+        pix = np.stack([u, v], -1)
+        pix[z <= 0] = np.nan
+        return pix, z
+
     def view(self, points, cameras=None):
         """Unit directions from ``points`` towards the camera centres and whether each point is in frame.
 
@@ -194,41 +348,45 @@ class Dome:
         -------
         wo : ndarray, shape (N, C, 3)
         in_frame : ndarray of bool, shape (N, C)
-            In front of the camera and inside its image.
+            In front of the camera and inside its image (pixel centres at integer
+            coordinates: the image spans [−½, W − ½) × [−½, H − ½)).
         pixel : ndarray, shape (N, C, 2)
-            Image coordinates (x, y) in pixels.
+            Image coordinates (u, v) in pixels (:meth:`project`).
         """
         sel = slice(None) if cameras is None else np.asarray(cameras)
-        cp, cr, ck, im = (
-            self.camera_position[sel],
-            self.camera_rotation[sel],
-            self.camera_matrix[sel],
-            self.image_size[sel],
-        )
-        wo = self._towards(cp, points)[0]
-        pix, z = project_points(points, cp, cr, ck)
-        in_frame = (
-            (z > 0)
-            & (pix[..., 0] >= 0)
-            & (pix[..., 1] >= 0)
-            & (pix[..., 0] < im[None, :, 0])
-            & (pix[..., 1] < im[None, :, 1])
-        )
+        wo, _, _ = self._towards(self.camera_position[sel], points)
+        pix, z = self.project(points, cameras)
+        im = self.image_size[sel]
+        with np.errstate(invalid="ignore"):
+            in_frame = (
+                (z > 0)
+                & (pix[..., 0] >= -0.5)
+                & (pix[..., 1] >= -0.5)
+                & (pix[..., 0] < im[None, :, 0] - 0.5)
+                & (pix[..., 1] < im[None, :, 1] - 0.5)
+            )
         return wo, in_frame, pix
+
+    def pixel_rays(self, camera: int, pixels) -> np.ndarray:
+        """Unit world directions (N, 3) of the rays through ``pixels`` (N, 2) of one camera (distortion undone)."""
+        k = self.camera_matrix[camera]
+        px = np.asarray(pixels, np.float64)
+        yd = (px[:, 1] - k[1, 2]) / k[1, 1]
+        xd = (px[:, 0] - k[0, 2] - k[0, 1] * yd) / k[0, 0]
+        x, y = undistort_normalised(xd, yd, self.camera_distortion[camera])
+        d = np.stack([x, y, np.ones_like(x)], -1) @ self.camera_rotation[camera]  # Rᵀ (x, y, 1)
+        return d / np.linalg.norm(d, axis=1, keepdims=True)
 
     # -- serialisation ------------------------------------------------------------
     def to_dict(self) -> dict:
-        """JSON-serialisable calibration."""
+        """JSON-serialisable calibration; cameras in OpenCV's layout (``K``, ``dist``, ``R``, ``t``)."""
         r = self.response
-        return {
+        out = {
             "led_position_mm": self.led_position.tolist(),
             "led_axis": self.led_axis.tolist(),
             "led_intensity": self.led_intensity.tolist(),
             "led_beam_polynomial": self.led_beam.tolist(),
-            "camera_position_mm": self.camera_position.tolist(),
-            "camera_rotation": self.camera_rotation.tolist(),
-            "camera_matrix": self.camera_matrix.tolist(),
-            "image_size": self.image_size.tolist(),
+            "cameras": [self.camera_dict(c) for c in range(self.n_cameras)],
             "exposure_times_s": self.exposure_times.tolist(),
             "camera_scale": self.camera_scale,
             "response": {
@@ -239,26 +397,79 @@ class Dome:
                 "black_level": r.black_level,
             },
         }
+        if self.camera_log_response is not None:
+            g = self.camera_log_response
+            shared = bool(np.all(g == g[:1]))
+            out["camera_log_response"] = (g[0] if shared else g).tolist()
+        return out
+
+    def camera_dict(self, c: int) -> dict:
+        """Camera ``c`` as OpenCV names it: ``K``, ``dist`` (5 or 8), ``R``, ``t`` (mm), image size, gain."""
+        dist = self.camera_distortion[c]
+        return {
+            "K": self.camera_matrix[c].tolist(),
+            "dist": (dist if np.any(dist[5:]) else dist[:5]).tolist(),
+            "R": self.camera_rotation[c].tolist(),
+            "t": self.camera_translation[c].tolist(),
+            "image_width": int(self.image_size[c, 0]),
+            "image_height": int(self.image_size[c, 1]),
+            "gain": self.camera_gain[c].tolist(),
+        }
+
+    @staticmethod
+    def _cameras_from_dict(d: dict) -> dict:
+        """Camera arrays from the OpenCV layout (``cameras``) or the legacy arrays of facestats < 0.5."""
+        if "cameras" not in d:
+            return {
+                "camera_position": np.asarray(d["camera_position_mm"], float),
+                "camera_rotation": np.asarray(d["camera_rotation"], float),
+                "camera_matrix": np.asarray(d["camera_matrix"], float),
+                "image_size": np.asarray(d["image_size"], int),
+            }
+        cams = d["cameras"]
+        if not isinstance(cams, list) or not cams:
+            raise FormatError(f"dome calibration field 'cameras' must be a non-empty list, got {cams!r:.60}")
+        for i, c in enumerate(cams):
+            missing = [k for k in ("K", "R", "t", "image_width", "image_height") if k not in c]
+            if missing:
+                raise FormatError(f"dome calibration camera {i} is missing the field(s) {missing}")
+        rot = np.asarray([c["R"] for c in cams], float)
+        t = np.asarray([c["t"] for c in cams], float)
+        dists = [np.asarray(c.get("dist", np.zeros(5)), float).reshape(-1) for c in cams]
+        bad = [i for i, x in enumerate(dists) if x.size not in (4, 5, 8)]
+        if bad:
+            raise FormatError(f"dome calibration camera {bad[0]} field 'dist' must hold 4, 5 or 8 coefficients")
+        return {
+            "camera_position": -np.einsum("cji,cj->ci", rot, t),  # C = −Rᵀ t
+            "camera_rotation": rot,
+            "camera_matrix": np.asarray([c["K"] for c in cams], float),
+            "image_size": np.asarray([[c["image_width"], c["image_height"]] for c in cams], int),
+            "camera_distortion": np.asarray([np.pad(x, (0, 8 - x.size)) for x in dists]),
+            "camera_gain": np.asarray([c.get("gain", [1.0, 1.0, 1.0]) for c in cams], float),
+        }
 
     @classmethod
     def from_dict(cls, d: dict) -> "Dome":
-        """Inverse of :meth:`to_dict` (e.g. a real rig's calibration file)."""
+        """Inverse of :meth:`to_dict` (e.g. a real rig's calibration file; legacy camera arrays accepted)."""
         try:
+            resp = d.get("camera_log_response")
             return cls(
                 led_position=np.asarray(d["led_position_mm"], float),
                 led_axis=np.asarray(d["led_axis"], float),
                 led_intensity=np.asarray(d["led_intensity"], float),
                 led_beam=np.asarray(d["led_beam_polynomial"], float),
-                camera_position=np.asarray(d["camera_position_mm"], float),
-                camera_rotation=np.asarray(d["camera_rotation"], float),
-                camera_matrix=np.asarray(d["camera_matrix"], float),
-                image_size=np.asarray(d["image_size"], int),
                 exposure_times=np.asarray(d["exposure_times_s"], float),
                 camera_scale=float(d["camera_scale"]),
                 response=CameraResponse(**d.get("response", {})),
+                camera_log_response=None if resp is None else np.asarray(resp, float),
+                **cls._cameras_from_dict(d),
             )
         except KeyError as exc:
             raise FormatError(f"dome calibration is missing the key {exc.args[0]!r}") from None
+        except (TypeError, ValueError) as exc:
+            if isinstance(exc, ValidationError):
+                raise
+            raise FormatError(f"dome calibration has a malformed field: {exc}") from None
 
     def save(self, path):
         """Write the calibration as JSON."""
@@ -273,76 +484,6 @@ class Dome:
                 return cls.from_dict(json.load(f))
         except (OSError, json.JSONDecodeError) as exc:
             raise FormatError(f"cannot read dome calibration {path!s}: {exc}") from None
-
-
-def geodesic_points(frequency: int = 4) -> np.ndarray:
-    """Vertices of a geodesic sphere: an icosahedron, each edge split ``frequency`` times, on the unit sphere."""
-    t = (1 + 5**0.5) / 2
-    v = np.array(
-        [
-            [-1, t, 0],
-            [1, t, 0],
-            [-1, -t, 0],
-            [1, -t, 0],
-            [0, -1, t],
-            [0, 1, t],
-            [0, -1, -t],
-            [0, 1, -t],
-            [t, 0, -1],
-            [t, 0, 1],
-            [-t, 0, -1],
-            [-t, 0, 1],
-        ],
-        float,
-    )
-    faces = np.array(
-        [
-            [0, 11, 5],
-            [0, 5, 1],
-            [0, 1, 7],
-            [0, 7, 10],
-            [0, 10, 11],
-            [1, 5, 9],
-            [5, 11, 4],
-            [11, 10, 2],
-            [10, 7, 6],
-            [7, 1, 8],
-            [3, 9, 4],
-            [3, 4, 2],
-            [3, 2, 6],
-            [3, 6, 8],
-            [3, 8, 9],
-            [4, 9, 5],
-            [2, 4, 11],
-            [6, 2, 10],
-            [8, 6, 7],
-            [9, 8, 1],
-        ]
-    )
-    f = int(frequency)
-    i, j = np.meshgrid(np.arange(f + 1), np.arange(f + 1), indexing="ij")
-    keep = (i + j) <= f
-    a, b = i[keep] / f, j[keep] / f
-    pts = (
-        v[faces[:, 0]][:, None] * (1 - a - b)[None, :, None]
-        + v[faces[:, 1]][:, None] * a[None, :, None]
-        + v[faces[:, 2]][:, None] * b[None, :, None]
-    )
-    pts = pts.reshape(-1, 3)
-    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
-    _, idx = np.unique(np.round(pts, 9), axis=0, return_index=True)
-    return pts[np.sort(idx)]
-
-
-def _farthest_point_subset(points, k, start):
-    """Deterministic farthest-point sampling of ``k`` points (loop over the k picks)."""
-    chosen = [start]
-    d = np.linalg.norm(points - points[start], axis=1)
-    for _ in range(k - 1):
-        nxt = int(np.argmax(d))
-        chosen.append(nxt)
-        d = np.minimum(d, np.linalg.norm(points - points[nxt], axis=1))
-    return np.array(chosen)
 
 
 def default_dome(seed: int = 2006) -> Dome:
@@ -369,7 +510,7 @@ def default_dome(seed: int = 2006) -> Dome:
     ok = (sphere[:, 1] >= np.sin(np.radians(-40))) & (sphere[:, 2] >= -0.8)
     cand = sphere[ok]
     start = int(np.argmax(cand[:, 2]))
-    dirs = cand[_farthest_point_subset(cand, N_LEDS, start)]
+    dirs = cand[farthest_point_subset(cand, N_LEDS, start)]
     centre = np.array([0.0, 0.0, 40.0])
     led_pos = centre + 1000.0 * dirs
     axis = centre - led_pos

@@ -69,6 +69,8 @@ class FaceGeometry:
         ``(v, u)`` texel of each lumitexel when lumitexels lie on the UV grid.
     region_map : ndarray of uint8, shape (map_size, map_size), optional
         Region label image in UV (0 = not face).
+    mesh_uv : ndarray, shape (V, 2), optional
+        UV (u right, v down) of every mesh vertex, when the mesh has them.
     """
 
     position: np.ndarray
@@ -82,6 +84,7 @@ class FaceGeometry:
     grid_index: np.ndarray | None = None
     region_map: np.ndarray | None = None
     name: str = "face"
+    mesh_uv: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self):
@@ -108,6 +111,8 @@ class FaceGeometry:
         self.map_size = int(self.map_size)
         self.mesh_vertices = np.asarray(self.mesh_vertices, np.float64)
         self.mesh_faces = np.asarray(self.mesh_faces, np.int64)
+        if self.mesh_uv is not None:
+            self.mesh_uv = check_shape(np.asarray(self.mesh_uv, np.float64), "mesh_uv", (len(self.mesh_vertices), 2))
 
     @property
     def n_points(self) -> int:
@@ -158,6 +163,7 @@ class FaceGeometry:
             region_map=self.region_map,
             name=self.name,
             meta=dict(self.meta),
+            mesh_uv=self.mesh_uv,
         )
 
 

@@ -18,6 +18,12 @@ model both use:
   unclipped exposure gives an estimate DN·g/t of the rate; estimates are combined
   with weights 1/Var, Var = (rate·t + σ_read² + g²/12)/t², evaluated at a first
   time-weighted estimate so the weights do not depend on the noise of each value.
+
+Photographs from cameras with an unknown or non-linear response (8-bit JPEG/PNG,
+16-bit PNG/TIFF) go through Debevec & Malik's response recovery and weighted
+radiance merge instead: :func:`recover_response` and :func:`merge_photographs`,
+implemented in :mod:`facestats.acquire.response` and exposed here beside the
+linear-raw merge.
 """
 
 from __future__ import annotations
@@ -26,10 +32,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facestats.acquire.response import merge_photographs, recover_response
 from facestats.core.validate import as_finite
 from facestats.errors import ValidationError
 
-__all__ = ["CameraResponse", "expose", "merge_exposures", "merged_std"]
+__all__ = ["CameraResponse", "expose", "merge_exposures", "merged_std", "recover_response", "merge_photographs"]
 
 
 @dataclass(frozen=True)

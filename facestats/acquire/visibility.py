@@ -16,12 +16,14 @@ viewpoints and size groups, never over triangles or points.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from facestats.acquire.camera import look_at
 from facestats.core.raster import triangle_coverage
 
-__all__ = ["shadow_map", "ShadowMaps", "visible_from"]
+__all__ = ["shadow_map", "ShadowMaps", "visible_from", "SampleVisibility", "sample_visibility", "dome_shadow_maps"]
 
 
 def _project(points, eye, rot, focal, res):
@@ -81,8 +83,10 @@ class ShadowMaps:
         Viewpoints (LED or camera positions), mm.
     target : array_like, optional
         Point the buffers look at; default the centre of the mesh's bounding box.
-    resolution : int
-        Buffer side in pixels; choose it so a pixel is about the mesh's edge length.
+    resolution : int or sequence of int
+        Buffer side in pixels, one for all viewpoints or one per viewpoint; choose it
+        so a pixel is about the mesh's edge length (LEDs), or the camera's own pixel
+        (cameras whose images are finer than the mesh).
     bias_px : float
         Depth tolerance in pixel footprints (slope-scaled).
     """
@@ -95,8 +99,10 @@ class ShadowMaps:
         radius = 1.05 * np.max(np.linalg.norm(verts - self.target, axis=1))
         self.bias_px = float(bias_px)
         self.maps = []
-        for eye in np.asarray(eyes, float):  # loop over viewpoints
-            depth, cam = shadow_map(verts, faces, eye, self.target, radius, int(resolution))
+        eyes = np.asarray(eyes, float)
+        res = np.broadcast_to(np.asarray(resolution, np.int64), (len(eyes),))
+        for eye, r in zip(eyes, res):  # loop over viewpoints
+            depth, cam = shadow_map(verts, faces, eye, self.target, radius, int(r))
             self.maps.append((depth.astype(np.float32), cam))
 
     def __len__(self):
@@ -132,3 +138,76 @@ def visible_from(points, normals, vertices, faces, eyes, *, target=None, resolut
     return ShadowMaps(vertices, faces, eyes, target=target, resolution=resolution, bias_px=bias_px).visible(
         points, normals
     )
+
+
+def dome_shadow_maps(geometry, dome, resolution: int | None = None, *, camera_pixels: bool = False) -> ShadowMaps:
+    """Shadow maps of a face geometry's mesh from every LED, then every camera, of a dome.
+
+    ``resolution`` defaults to twice the mesh grid (``geometry.meta["mesh_grid"]``,
+    128 if unknown): about one buffer pixel per half triangle edge.  With
+    ``camera_pixels`` the cameras' buffers have the cameras' own resolution over
+    the mesh (capped at 2,048): photographs show occlusion edges at image
+    resolution, and a lumitexel next to an edge must be tested at that scale.
+    """
+    res = int(resolution or 2 * int(geometry.meta.get("mesh_grid", 128)))
+    eyes = np.concatenate([dome.led_position, dome.camera_position])
+    per_eye = np.full(len(eyes), res)
+    if camera_pixels:
+        verts = np.asarray(geometry.mesh_vertices, float)
+        centre = 0.5 * (verts.min(0) + verts.max(0))
+        radius = 1.05 * np.max(np.linalg.norm(verts - centre, axis=1))
+        dist = np.linalg.norm(dome.camera_position - centre, axis=1)
+        across = 2 * dome.camera_matrix[:, 0, 0] * np.tan(np.arcsin(np.minimum(radius / dist, 0.99)))
+        per_eye[dome.n_leds :] = np.clip(np.ceil(across), res, 2048)
+    return ShadowMaps(geometry.mesh_vertices, geometry.mesh_faces, eyes, resolution=per_eye)
+
+
+@dataclass
+class SampleVisibility:
+    """Which (light, camera) samples of surface points are valid, with the directions and irradiance.
+
+    Attributes
+    ----------
+    wi, e_perp : ndarray, shape (N, L, 3)
+        Directions towards the LEDs and beam-normal irradiance (:meth:`Dome.incident`).
+    cos_i : ndarray, shape (N, L)
+        N·ωi.
+    lit : ndarray of bool, shape (N, L)
+        The LED's shadow map sees the point, it faces the LED and the LED's beam reaches it.
+    wo : ndarray, shape (N, C, 3)
+        Directions towards the cameras.
+    cos_o : ndarray, shape (N, C)
+        N·ωo.
+    seen : ndarray of bool, shape (N, C)
+        The camera's shadow map sees the point, it faces the camera and projects inside the image.
+    pixel : ndarray, shape (N, C, 2)
+        Image coordinates (:meth:`Dome.project`).
+    """
+
+    wi: np.ndarray
+    e_perp: np.ndarray
+    cos_i: np.ndarray
+    lit: np.ndarray
+    wo: np.ndarray
+    cos_o: np.ndarray
+    seen: np.ndarray
+    pixel: np.ndarray
+
+
+def sample_visibility(dome, shadows: ShadowMaps, points, normals) -> SampleVisibility:
+    """Valid samples of points with ``normals`` (Weyrich et al. 2006 §5: shadow maps per light and camera).
+
+    ``shadows`` holds the maps of the LEDs then the cameras (:func:`dome_shadow_maps`).
+    The simulator renders exactly these samples and the photograph ingest keeps
+    exactly these, so both paths agree on what a valid sample is.
+    """
+    pts, nrm = np.asarray(points, np.float64), np.asarray(normals, np.float64)
+    n_led = dome.n_leds
+    vis = shadows.visible(pts, nrm)
+    wi, e_perp = dome.incident(pts)
+    wo, in_frame, pix = dome.view(pts)
+    cos_i = np.einsum("nk,nlk->nl", nrm, wi)
+    cos_o = np.einsum("nk,nck->nc", nrm, wo)
+    lit = vis[:, :n_led] & (cos_i > 0) & np.all(e_perp > 0, axis=-1)
+    seen = vis[:, n_led:] & in_frame & (cos_o > 0)
+    return SampleVisibility(wi, e_perp, cos_i, lit, wo, cos_o, seen, pix)

@@ -11,9 +11,11 @@ prints.  Heavy modules are imported inside the commands so that ``facestats
 * :mod:`~facestats.cli.demo` — ``demo``;
 * :mod:`~facestats.cli.export` — ``export-subject``;
 * :mod:`~facestats.cli.serve` — ``serve``;
-* :mod:`~facestats.cli.render` — ``render``.
-* :mod:`~facestats.cli.microstructure` — ``microstructure render``, ``microstructure generate``.
-* :mod:`~facestats.cli.translucency` — ``translucency``.
+* :mod:`~facestats.cli.render` — ``render``;
+* :mod:`~facestats.cli.microstructure` — ``microstructure render``, ``microstructure generate``;
+* :mod:`~facestats.cli.translucency` — ``translucency``;
+* :mod:`~facestats.cli.ingest` — ``ingest``;
+* :mod:`~facestats.cli.calibrate` — ``calibrate leds``.
 """
 
 from __future__ import annotations
@@ -24,9 +26,11 @@ import sys
 
 from facestats.cli.analyze import add_analyze
 from facestats.cli.build import add_build
+from facestats.cli.calibrate import add_calibrate
 from facestats.cli.demo import add_demo
 from facestats.cli.edit import add_edit
 from facestats.cli.export import add_export_subject
+from facestats.cli.ingest import add_ingest
 from facestats.cli.microstructure import add_microstructure
 from facestats.cli.render import add_render
 from facestats.cli.serve import add_serve
@@ -53,6 +57,8 @@ COMMANDS = [
     add_render,
     add_microstructure,
     add_translucency,
+    add_ingest,
+    add_calibrate,
 ]
 
 

@@ -40,6 +40,7 @@ __all__ = [
     "INTEGER_EXTENSIONS",
     "read_image",
     "read_integer_image",
+    "decode_integer_image",
     "write_image",
     "read_exr",
     "write_exr",
@@ -124,20 +125,25 @@ def read_image(path, *, srgb: bool = False) -> np.ndarray:
 
 def read_integer_image(path):
     """An integer image as stored: ``(array (H, W, C) of uint8 or uint16, bits per sample)``, RGB order."""
-    import cv2
-
     p = _path(path)
     if _extension(p) not in INTEGER_EXTENSIONS:
         raise ValidationError(f"path must name an integer image ({', '.join(INTEGER_EXTENSIONS)}), got {str(p)!r}")
-    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)  # no EXIF rotation, no conversion of the bit depth
+    return decode_integer_image(p.read_bytes(), str(p))
+
+
+def decode_integer_image(data: bytes, name: str = "<bytes>"):
+    """:func:`read_integer_image` of a file's bytes (read once, e.g. to check a checksum first); ``name`` for errors."""
+    import cv2
+
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)  # no EXIF rotation, no depth change
     if img is None:
-        raise ImageFormatError(f"image file {str(p)!r} could not be read (not a valid {p.suffix} file)")
+        raise ImageFormatError(f"image file {name!r} could not be decoded (not a valid PNG, JPEG or TIFF file)")
     if img.dtype == np.uint8:
         bits = 8
     elif img.dtype == np.uint16:
         bits = 16
     else:
-        raise ImageFormatError(f"image file {str(p)!r} must hold 8- or 16-bit integer samples, got dtype {img.dtype}")
+        raise ImageFormatError(f"image file {name!r} must hold 8- or 16-bit integer samples, got dtype {img.dtype}")
     if img.ndim == 2:
         return img[..., None], bits
     rgb = img[..., [2, 1, 0, 3][: img.shape[2]]] if img.shape[2] in (3, 4) else img  # OpenCV stores BGR(A)

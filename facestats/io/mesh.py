@@ -166,6 +166,7 @@ def load_face_mesh(path, region_image, *, scale=1.0, transform=None, flip_v=True
         region_map=regions,
         name=name or os.path.basename(os.fspath(path)),
         meta={"kind": "mesh", "path": os.fspath(path), "mesh_grid": int(np.sqrt(len(faces) / 2))},
+        mesh_uv=uv,
     )
 
 

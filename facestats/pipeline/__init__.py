@@ -28,7 +28,8 @@ Modules, one job each:
 * :mod:`~facestats.pipeline.build` — simulate and fit a synthetic population into a store
   (how the embedded default is made);
 * :mod:`~facestats.pipeline.microstructure` — dynamic skin microstructure of a mesh sequence
-  (Nagano et al. 2015), streamed to zarr/EXR, resumable.
+  (Nagano et al. 2015), streamed to zarr/EXR, resumable;
+* :mod:`~facestats.pipeline.photographs` — a folder of dome photographs to a fitted subject in a store.
 """
 
 from facestats.pipeline.lumitexels import fit_lumitexels

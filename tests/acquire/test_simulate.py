@@ -264,7 +264,7 @@ def test_simulator_and_calibration_reject_bad_arguments():
     with pytest.raises(FacestatsError, match=r"led_intensity must lie in \[0, inf\], got -1"):
         Dome.from_dict(d)
     d = default_dome().to_dict()
-    d["camera_rotation"][2] = np.diag([1.0, 1.0, 2.0]).tolist()
+    d["cameras"][2]["R"] = np.diag([1.0, 1.0, 2.0]).tolist()
     with pytest.raises(FacestatsError, match="camera_rotation must hold rotation matrices .*camera 2"):
         Dome.from_dict(d)
 

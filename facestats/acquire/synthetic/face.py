@@ -161,6 +161,7 @@ def procedural_face(
         region_map=_regions(rx, ry),
         name=f"procedural-{n}",
         meta={"kind": "procedural", "lumitexel_grid": n, "mesh_grid": mesh_n},
+        mesh_uv=np.stack([mu.ravel(), mv.ravel()], 1),
     )
 
 

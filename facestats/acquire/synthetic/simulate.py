@@ -48,7 +48,7 @@ from facestats.acquire.dome import Dome, default_dome
 from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.hdr import expose, merge_exposures
 from facestats.acquire.sensor import ContactSensor
-from facestats.acquire.visibility import ShadowMaps
+from facestats.acquire.visibility import dome_shadow_maps, sample_visibility
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.core.version import __version__
@@ -111,6 +111,11 @@ class DomeSimulator:
         pixel per half triangle edge).
     eta : float
         Relative index of refraction of skin, in [1, 3] (default 1.38).
+    camera_visibility : bool
+        Keep only samples the camera sees (shadow map, in frame).  False renders
+        every front-facing (lumitexel, camera) pair that is lit — the radiance a
+        renderer needs, which resolves occlusion itself
+        (:mod:`facestats.acquire.synthetic.photographs`).
     """
 
     def __init__(
@@ -127,6 +132,7 @@ class DomeSimulator:
         subsurface_radius: float = 12.0,
         shadow_resolution: int | None = None,
         eta: float = ETA_SKIN,
+        camera_visibility: bool = True,
     ):
         if not isinstance(geometry, FaceGeometry):
             raise ValidationError(f"geometry must be a FaceGeometry, got {type(geometry).__name__}")
@@ -154,10 +160,10 @@ class DomeSimulator:
         self.block = int(block)
         self.subsurface_radius = float(subsurface_radius)
         self.eta = float(eta)
+        self.camera_visibility = bool(camera_visibility)
         mesh_grid = int(geometry.meta.get("mesh_grid", 128))
         self.shadow_resolution = int(shadow_resolution or 2 * mesh_grid)
-        eyes = np.concatenate([self.dome.led_position, self.dome.camera_position])
-        self.shadows = ShadowMaps(geometry.mesh_vertices, geometry.mesh_faces, eyes, resolution=self.shadow_resolution)
+        self.shadows = dome_shadow_maps(geometry, self.dome, self.shadow_resolution)
         self._cache: dict = {}
         self._texels = None  # face texel of every lumitexel (FaceGeometry.face_texel_index), on first use
 
@@ -176,16 +182,11 @@ class DomeSimulator:
         key = (start, stop)
         if key in self._cache:
             return self._cache[key]
-        g, dome = self.geometry, self.dome
+        g = self.geometry
         pos, nrm = g.position[start:stop], g.normal[start:stop]
-        vis = self.shadows.visible(pos, nrm)
-        n_led = dome.n_leds
-        wi, e_perp = dome.incident(pos)
-        wo, in_frame, _ = dome.view(pos)
-        cos_i = np.einsum("nk,nlk->nl", nrm, wi)
-        cos_o = np.einsum("nk,nck->nc", nrm, wo)
-        lit = vis[:, :n_led] & (cos_i > 0) & np.all(e_perp > 0, axis=-1)
-        seen = vis[:, n_led:] & in_frame & (cos_o > 0)
+        sv = sample_visibility(self.dome, self.shadows, pos, nrm)
+        wi, wo, e_perp, cos_i, cos_o, lit = sv.wi, sv.wo, sv.e_perp, sv.cos_i, sv.cos_o, sv.lit
+        seen = sv.seen if self.camera_visibility else cos_o > 0
         t, c, l = np.nonzero(seen[:, :, None] & lit[:, None, :])
         cos_delta, k_ts = _brdf.torrance_sparrow_geometry(
             nrm[t].astype(np.float32), wi[t, l].astype(np.float32), wo[t, c].astype(np.float32), self.eta

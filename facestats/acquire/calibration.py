@@ -1,0 +1,401 @@
+"""Calibration files of a dome and the photometric calibration of its LEDs from photographs of a diffuse target.
+
+**Camera files** in the layout OpenCV writes (``cv2.FileStorage``, YAML or JSON
+by extension): ``K`` (3 × 3), ``dist`` (1 × 4|5|8), ``R`` (3 × 3, world to
+camera), ``t`` (3 × 1, mm), ``image_width``, ``image_height``; the names
+``camera_matrix`` and ``distortion_coefficients`` of OpenCV's calibration sample
+are read too.  :func:`write_opencv_camera` / :func:`read_opencv_camera` move one
+camera between such a file and a :class:`facestats.acquire.dome.Dome`, whose own
+JSON (:meth:`Dome.save`) holds the same fields per camera.
+
+**LED files** (``facestats.led-calibration/1``, JSON): per LED its position (mm),
+beam axis, RGB intensity I₀ and beam polynomial c₀..c₅ (module docstring of
+:mod:`facestats.acquire.dome`), the RMS relative residual and number of
+observations of its fit, and the cameras' radiometric gains.
+
+**Photometric LED calibration** (Weyrich et al. 2006 §5: the radiance of each
+light source is calibrated "using a white ideal diffuse reflector (Fluorilon)",
+the beam spread modelled "by a bi-variate 2nd degree polynomial"): a planar
+Lambertian target of albedo ρ (per channel) is photographed at known poses under
+every LED.  A target point x with normal n seen by camera c under LED l has
+radiance (Lambert's law with the point-source irradiance of the dome model)
+
+    V = G_c · (ρ/π) · I₀ · P(s, t) · max(n·ωi, 0) / r²,
+
+with G_c the camera's gain relative to the reference camera (G = 1 there).
+For fixed G this is linear in the six products a_k = I₀ c_k, so each LED is a
+linear least-squares fit per channel of y = V r² π / (G ρ max(n·ωi, 0)) on the
+monomials (1, s, t, s², s t, t²); the beam shape is shared by the channels
+(c = Σ_ch a_ch / Σ_ch a_ch,0, so c₀ = 1) and each channel's I₀ is then the
+least-squares scale of that shape.  The gains G_c are the median ratio of a
+camera's observations to the model, starting from the reference camera alone;
+the fit alternates LEDs and gains (:data:`ITERATIONS` rounds).  Target values
+come from the HDR merge of the target's frames (:mod:`facestats.acquire.photographs`),
+so I₀ is in the units of the cameras' merged values per ``camera_scale``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from facestats.acquire.dome import Dome, beam_terms
+from facestats.acquire.photographs import CaptureFolder, bilinear_taps, merge_at, open_folder, prefetch
+from facestats.core.validate import check_integer
+from facestats.errors import FormatError, ValidationError
+
+__all__ = [
+    "read_opencv_camera",
+    "write_opencv_camera",
+    "LedCalibration",
+    "read_led_calibration",
+    "target_observations",
+    "fit_leds",
+    "calibrate_leds",
+    "LED_FORMAT",
+    "ITERATIONS",
+]
+
+LED_FORMAT = "facestats.led-calibration/1"
+#: Rounds of the alternating LED / camera-gain fit.
+ITERATIONS = 3
+
+
+# -- OpenCV camera files ---------------------------------------------------------------------------------------
+def write_opencv_camera(path, dome: Dome, camera: int):
+    """Write camera ``camera`` of ``dome`` as an OpenCV FileStorage file (.yml, .yaml or .json)."""
+    import cv2
+
+    p = os.fspath(path)
+    d = dome.camera_dict(camera)
+    fs = cv2.FileStorage(p, cv2.FILE_STORAGE_WRITE)
+    if not fs.isOpened():
+        raise FormatError(f"cannot write the camera file {p}")
+    try:
+        fs.write("image_width", d["image_width"])
+        fs.write("image_height", d["image_height"])
+        fs.write("K", np.asarray(d["K"], np.float64))
+        fs.write("dist", np.asarray(d["dist"], np.float64).reshape(1, -1))
+        fs.write("R", np.asarray(d["R"], np.float64))
+        fs.write("t", np.asarray(d["t"], np.float64).reshape(3, 1))
+    finally:
+        fs.release()
+    return p
+
+
+def read_opencv_camera(path) -> dict:
+    """One camera from an OpenCV FileStorage file: the ``camera_dict`` fields of :class:`Dome` (K, dist, R, t, size).
+
+    Raises
+    ------
+    FormatError
+        The file cannot be parsed or lacks a field (the message names both).
+    """
+    import cv2
+
+    p = os.fspath(path)
+    if not pathlib.Path(p).is_file():
+        raise FormatError(f"camera file {p} does not exist")
+    try:
+        fs = cv2.FileStorage(p, cv2.FILE_STORAGE_READ)
+    except cv2.error as exc:
+        raise FormatError(f"camera file {p} cannot be parsed: {exc.err}") from None
+
+    def mat(*names):
+        for name in names:
+            node = fs.getNode(name)
+            if not node.empty():
+                m = node.mat()
+                if m is None:
+                    raise FormatError(f"camera file {p} field {name!r} is not an OpenCV matrix")
+                return m
+        raise FormatError(f"camera file {p} is missing the field {names[0]!r}")
+
+    def num(name):
+        node = fs.getNode(name)
+        if node.empty():
+            raise FormatError(f"camera file {p} is missing the field {name!r}")
+        return int(node.real())
+
+    try:
+        out = {
+            "K": np.asarray(mat("K", "camera_matrix"), np.float64).tolist(),
+            "dist": np.asarray(mat("dist", "distortion_coefficients"), np.float64).reshape(-1).tolist(),
+            "R": np.asarray(mat("R"), np.float64).tolist(),
+            "t": np.asarray(mat("t", "T"), np.float64).reshape(-1).tolist(),
+            "image_width": num("image_width"),
+            "image_height": num("image_height"),
+        }
+    finally:
+        fs.release()
+    if np.shape(out["K"]) != (3, 3) or np.shape(out["R"]) != (3, 3) or len(out["t"]) != 3:
+        raise FormatError(f"camera file {p}: K and R must be 3×3 and t 3×1, got {np.shape(out['K'])}, ...")
+    return out
+
+
+# -- LED calibration ---------------------------------------------------------------------------------------------
+@dataclass
+class LedCalibration:
+    """Result of :func:`fit_leds`: per-LED intensity and beam, camera gains, residuals.
+
+    Attributes
+    ----------
+    intensity : ndarray, shape (L, 3)
+        On-axis RGB intensity I₀ (dome units · mm²); NaN for LEDs without observations.
+    beam : ndarray, shape (L, 6)
+        Beam polynomial c₀..c₅ with c₀ = 1.
+    camera_gain : ndarray, shape (C, 3)
+        Gain of each camera relative to ``reference_camera`` (NaN for cameras without observations).
+    rms_residual : ndarray, shape (L,)
+        RMS relative residual of each LED's observations.
+    n_observations : ndarray of int, shape (L,)
+    reference_camera : int
+    """
+
+    intensity: np.ndarray
+    beam: np.ndarray
+    camera_gain: np.ndarray
+    rms_residual: np.ndarray
+    n_observations: np.ndarray
+    reference_camera: int
+
+    def apply(self, dome: Dome) -> Dome:
+        """``dome`` with these LED intensities, beams and camera gains (LEDs or cameras without data keep theirs)."""
+        ok = np.isfinite(self.intensity).all(1)
+        gain_ok = np.isfinite(self.camera_gain).all(1)
+        return replace(
+            dome,
+            led_intensity=np.where(ok[:, None], self.intensity, dome.led_intensity),
+            led_beam=np.where(ok[:, None], self.beam, dome.led_beam),
+            camera_gain=np.where(gain_ok[:, None], self.camera_gain, dome.camera_gain),
+        )
+
+    def to_dict(self, dome: Dome) -> dict:
+        """The LED file (``facestats.led-calibration/1``) with ``dome``'s LED positions and axes."""
+        leds = [
+            {
+                "index": i,
+                "position_mm": dome.led_position[i].tolist(),
+                "axis": dome.led_axis[i].tolist(),
+                "intensity": _list(self.intensity[i]),
+                "beam_polynomial": _list(self.beam[i]),
+                "rms_residual": _num(self.rms_residual[i]),
+                "n_observations": int(self.n_observations[i]),
+            }
+            for i in range(len(self.intensity))
+        ]
+        return {
+            "format": LED_FORMAT,
+            "reference_camera": int(self.reference_camera),
+            "camera_gain": [_list(g) for g in self.camera_gain],
+            "leds": leds,
+        }
+
+    def save(self, path, dome: Dome):
+        """Write :meth:`to_dict` as JSON."""
+        pathlib.Path(path).write_text(json.dumps(self.to_dict(dome), indent=1))
+
+    def to_text(self) -> str:
+        """One line per LED: intensity, beam curvature, residual and observations; the camera gains."""
+        lines = [f"{'LED':>4} {'I0 R':>10} {'I0 G':>10} {'I0 B':>10} {'c3':>7} {'c5':>7} {'rms res':>8} {'n':>6}"]
+        for i, (it, b, r, n) in enumerate(zip(self.intensity, self.beam, self.rms_residual, self.n_observations)):
+            lines.append(f"{i:4d} {it[0]:10.4g} {it[1]:10.4g} {it[2]:10.4g} {b[3]:7.3f} {b[5]:7.3f} {r:8.2%} {n:6d}")
+        lines.append(f"camera gains relative to camera {self.reference_camera}:")
+        for c, g in enumerate(self.camera_gain):
+            if np.all(np.isfinite(g)):
+                lines.append(f"  camera {c:2d}: {g[0]:.4f} {g[1]:.4f} {g[2]:.4f}")
+        return "\n".join(lines)
+
+
+def _list(a):
+    return [_num(x) for x in np.asarray(a).reshape(-1)]
+
+
+def _num(x):
+    return None if not np.isfinite(x) else float(x)
+
+
+def read_led_calibration(path) -> dict:
+    """Arrays of an LED file: ``position``, ``axis``, ``intensity``, ``beam`` (L, ·), ``camera_gain`` (C, 3)."""
+    p = pathlib.Path(path)
+    try:
+        doc = json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise FormatError(f"cannot read the LED calibration {p}: {exc}") from None
+    if not isinstance(doc, dict) or doc.get("format") != LED_FORMAT:
+        raise FormatError(f"{p} field 'format' must be {LED_FORMAT!r}")
+    try:
+        leds = doc["leds"]
+
+        def col(key):
+            return np.asarray([[np.nan if v is None else v for v in np.atleast_1d(led[key])] for led in leds], float)
+
+        return {
+            "position": col("position_mm"),
+            "axis": col("axis"),
+            "intensity": col("intensity"),
+            "beam": col("beam_polynomial"),
+            "camera_gain": np.asarray([[np.nan if v is None else v for v in g] for g in doc["camera_gain"]], float),
+        }
+    except (KeyError, TypeError, ValueError) as exc:
+        raise FormatError(f"{p} has a missing or malformed field: {exc}") from None
+
+
+# -- observations of the target ----------------------------------------------------------------------------------
+def _target(folder: CaptureFolder):
+    """Albedo (3,) and poses (centre, normal, u axis, size) of a target folder's manifest."""
+    t = folder.manifest.get("target")
+    try:
+        rho = np.asarray(t["albedo"], float)
+        poses = [
+            (
+                np.asarray(p["centre_mm"], float),
+                np.asarray(p["normal"], float) / np.linalg.norm(p["normal"]),
+                np.asarray(p["u_axis"], float),
+                np.asarray(p["size_mm"], float),
+            )
+            for p in t["poses"]
+        ]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise FormatError(f"manifest.json field 'target' is missing or malformed ({exc!r})") from None
+    if rho.shape != (3,) or np.any(rho <= 0) or len(poses) != folder.n_poses:
+        raise FormatError(
+            f"manifest.json field 'target' needs albedo [r, g, b] > 0 and {folder.n_poses} pose(s), got albedo "
+            f"{rho.tolist()} and {len(poses)} pose(s)"
+        )
+    return rho, poses
+
+
+def target_observations(folder, dome: Dome, *, grid: int = 24, cameras=None, workers: int = 2) -> dict:
+    """HDR values of a target folder at a grid of points on each pose, for every camera and LED.
+
+    Points: a ``grid`` × ``grid`` lattice over the central 90 % of each target;
+    each camera keeps those in frame and on the side of the target it faces;
+    values are the HDR merge (:func:`facestats.acquire.photographs.merge_at`)
+    divided by ``camera_scale``; saturated or unlit observations are dropped.
+
+    Returns
+    -------
+    dict
+        ``point`` (M, 3), ``normal`` (M, 3), ``camera`` (M,), ``led`` (M,), ``value`` (M, 3), ``albedo`` (3,).
+    """
+    folder = folder if isinstance(folder, CaptureFolder) else open_folder(folder)
+    if folder.kind != "target":
+        raise FormatError(f"manifest.json field 'kind' must be 'target' for an LED calibration, got {folder.kind!r}")
+    if folder.n_cameras != dome.n_cameras or folder.n_leds != dome.n_leds:
+        raise FormatError(
+            f"manifest.json fields 'n_cameras', 'n_leds' are {folder.n_cameras}, {folder.n_leds}; the calibration "
+            f"has {dome.n_cameras} cameras and {dome.n_leds} LEDs"
+        )
+    if dome.camera_log_response is None:
+        raise FormatError("the calibration has no field 'camera_log_response' to merge the target's photographs")
+    rho, poses = _target(folder)
+    check_integer(grid, "grid", 2)
+    cams = folder.cameras if cameras is None else [int(c) for c in cameras]
+    out = {k: [] for k in ("point", "normal", "camera", "led", "value")}
+    f = (np.arange(grid) + 0.5) / grid * 0.9 - 0.45
+    for p, (centre, normal, u_axis, size) in enumerate(poses):  # loop over poses and cameras; arrays inside
+        a, b = np.meshgrid(f * size[0], f * size[1])
+        pts = centre + a.reshape(-1, 1) * u_axis + b.reshape(-1, 1) * np.cross(normal, u_axis)
+        for cam in cams:
+            if (dome.camera_position[cam] - centre) @ normal > 0:  # the camera faces the target's front
+                _observe(folder, dome, p, cam, pts, normal, workers, out)
+    if not out["point"]:
+        raise FormatError("no camera sees a target pose: check the poses and the camera calibration")
+    res = {k: np.concatenate(v) for k, v in out.items()}
+    res["albedo"] = rho
+    return res
+
+
+def _observe(folder, dome, pose, cam, pts, normal, workers, out):
+    """Append the observations of target points ``pts`` in camera ``cam`` under every LED to ``out``."""
+    _, in_frame, pix = dome.view(pts, [cam])
+    keep = np.nonzero(in_frame[:, 0])[0]
+    if keep.size == 0:
+        return
+    index, weight = bilinear_taps(pix[keep, 0], dome.image_size[cam])
+    g = dome.camera_log_response[cam]
+
+    def read(led):
+        return led, folder.read_stack(cam, led, pose=pose, size=dome.image_size[cam])
+
+    for led, (stack, times) in prefetch(read, range(dome.n_leds), workers):  # loop over LEDs; arrays inside
+        val = merge_at(stack, times, g, index, weight) / dome.camera_scale
+        ok = np.all(np.isfinite(val) & (val > 0), axis=1)
+        out["point"].append(pts[keep[ok]])
+        out["normal"].append(np.broadcast_to(normal, (int(ok.sum()), 3)))
+        out["camera"].append(np.full(ok.sum(), cam))
+        out["led"].append(np.full(ok.sum(), led))
+        out["value"].append(val[ok])
+
+
+# -- the fit ------------------------------------------------------------------------------------------------------
+def _led_fit(dome, obs, rows, led, gain):
+    """Intensity (3,), beam (6,), residual of one LED from its observation rows (module docstring)."""
+    wi, r2, s, t, front = dome.beam_coordinates(obs["point"][rows], [led])
+    cos = np.einsum("nk,nk->n", wi[:, 0], obs["normal"][rows])
+    use = front[:, 0] & (cos > 0.05)
+    if use.sum() < 12:
+        return np.full(3, np.nan), np.full(6, np.nan), np.nan, int(use.sum())
+    geo = (obs["albedo"] / np.pi) * (cos[use] / r2[use, 0])[:, None] * gain[obs["camera"][rows][use]]
+    y = obs["value"][rows][use] / geo  # I₀ P(s, t) per channel
+    x = beam_terms(s[use, 0], t[use, 0])
+    a = np.linalg.lstsq(x, y, rcond=None)[0]  # (6, 3)
+    beam = a.sum(1) / a[0].sum()
+    shape = x @ beam
+    intensity = (shape @ y) / (shape @ shape)
+    model = shape[:, None] * intensity
+    rms = float(np.sqrt(np.mean((y / model - 1) ** 2)))
+    return intensity, beam, rms, int(use.sum())
+
+
+def _gains(dome, obs, intensity, beam, reference):
+    """Median ratio of each camera's observations to the gain-free model, relative to ``reference`` (C, 3)."""
+    gains = np.full((dome.n_cameras, 3), np.nan)
+    for cam in np.unique(obs["camera"]):  # loop over cameras, vectorised over observations
+        rows = np.nonzero(obs["camera"] == cam)[0]
+        leds = obs["led"][rows]
+        ratios = []
+        for led in np.unique(leds):
+            if not np.all(np.isfinite(intensity[led])):
+                continue
+            r = rows[leds == led]
+            wi, r2, s, t, front = dome.beam_coordinates(obs["point"][r], [led])
+            cos = np.maximum(np.einsum("nk,nk->n", wi[:, 0], obs["normal"][r]), 0)
+            model = (obs["albedo"] / np.pi) * ((beam_terms(s, t)[:, 0] @ beam[led]) * cos / r2[:, 0])[:, None]
+            ok = front[:, 0] & (cos > 0.05)
+            ratios.append(obs["value"][r][ok] / (model[ok] * intensity[led]))
+        if ratios:
+            gains[cam] = np.median(np.concatenate(ratios), axis=0)
+    return gains / gains[reference]
+
+
+def fit_leds(dome: Dome, obs: dict, *, reference_camera: int | None = None) -> LedCalibration:
+    """The photometric LED calibration (module docstring) from :func:`target_observations`."""
+    counts = np.bincount(obs["camera"], minlength=dome.n_cameras)
+    ref = int(np.argmax(counts)) if reference_camera is None else check_integer(reference_camera, "reference_camera")
+    if not 0 <= ref < dome.n_cameras or counts[ref] == 0:
+        raise ValidationError(f"reference_camera must be a camera that sees the target, got {reference_camera!r}")
+    n_led = dome.n_leds
+    by_led = [np.nonzero(obs["led"] == led)[0] for led in range(n_led)]
+    ref_only = [r[obs["camera"][r] == ref] for r in by_led]
+    gain = np.ones((dome.n_cameras, 3))
+    intensity, beam = np.full((n_led, 3), np.nan), np.full((n_led, 6), np.nan)
+    rms, nobs = np.full(n_led, np.nan), np.zeros(n_led, np.int64)
+    for it in range(ITERATIONS):  # alternate LEDs (linear) and camera gains (medians)
+        rows = ref_only if it == 0 else by_led
+        for led in range(n_led):  # loop over LEDs: one small linear fit each
+            intensity[led], beam[led], rms[led], nobs[led] = _led_fit(dome, obs, rows[led], led, np.nan_to_num(gain))
+        gain = _gains(dome, obs, intensity, beam, ref)
+    return LedCalibration(intensity, beam, gain, rms, nobs, ref)
+
+
+def calibrate_leds(folder, dome: Dome, *, grid: int = 24, reference_camera: int | None = None, workers: int = 2):
+    """Fit every LED's intensity and beam polynomial, and the camera gains, from a target folder (module docstring)."""
+    return fit_leds(
+        dome, target_observations(folder, dome, grid=grid, workers=workers), reference_camera=reference_camera
+    )

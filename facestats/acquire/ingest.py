@@ -1,0 +1,346 @@
+"""Photographs → lumitexels: a capture folder, a face mesh and a calibration into a capture on disk (Weyrich §5).
+
+Weyrich et al. 2006 §5 register the dome's photographs to the scanned geometry
+and gather, at every mesh vertex, a lumitexel of BRDF samples.
+:func:`ingest_photographs` does that for a capture folder
+(:mod:`facestats.acquire.photographs`):
+
+1. **Geometry and visibility**: lumitexels from the mesh
+   (:class:`facestats.acquire.geometry.FaceGeometry`), projected into every
+   calibrated camera with lens distortion (:meth:`Dome.project`); valid samples
+   from the shadow maps of every LED and camera, front-facing and in frame
+   (:func:`facestats.acquire.visibility.sample_visibility`, the simulator's rule;
+   the cameras' shadow maps at the cameras' own resolution, since a photograph
+   shows occlusion edges at pixel scale);
+   the irradiance E⊥ of every LED from its calibration (:meth:`Dome.incident`).
+   A sample is kept only where the camera resolves the lumitexel: its surface
+   patch (``area``) must span at least ``min_footprint_px`` pixels along its
+   foreshortened axis (:func:`footprint_px`), otherwise the bilinear taps read
+   the neighbouring surface — the registration problem of grazing views that
+   makes Weyrich et al. exclude samples beyond 80° (§5.3).
+2. **HDR per (camera, LED)**: the frame's exposures are decoded once (checksums,
+   bit depth and size checked), merged with the camera's response (Debevec &
+   Malik 1997 eq. 6) at the four pixels around each lumitexel's projection and
+   interpolated bilinearly; divided by ``camera_scale × camera_gain`` this is the
+   radiance in dome units; samples with a saturated tap are invalid (NaN).
+3. **Head motion**: the two exposures are two passes through the light sequence
+   (§5); a head that moved between them makes them disagree.  Each frame's
+   :func:`facestats.acquire.photographs.exposure_consistency` (the fraction of
+   well-exposed pixels over the face whose two exposures disagree by more than
+   a factor e^0.5) above ``motion_tolerance`` flags the frame: its samples become
+   invalid and the flag is recorded in the capture's provenance
+   (``motion_flags``).  Motion within one pass, between consecutive LEDs, is not
+   detected here; the stable minimum of the albedo fit (§5.2) discards such
+   outliers.
+4. **Streaming and resuming**: the capture (:mod:`facestats.acquire.capture`
+   layout) is created on disk first, with ``radiance`` chunked per camera; one
+   camera at a time is filled (memory: one camera's samples, N × L × 3 float32,
+   plus the frames being decoded) and recorded in the group's ``ingest``
+   attribute, so an interrupted ingest restarts at the first unfinished camera.
+   Only when every camera is done is the capture marked complete; a partial
+   capture cannot be opened for fitting (:func:`open_ingested`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+
+import numpy as np
+
+from facestats.acquire.capture import PER_LUMITEXEL, CaptureWriter, open_capture
+from facestats.acquire.geometry import FaceGeometry
+from facestats.acquire.photographs import (
+    CaptureFolder,
+    bilinear_taps,
+    exposure_consistency,
+    merge_at,
+    open_folder,
+    prefetch,
+)
+from facestats.acquire.visibility import dome_shadow_maps, sample_visibility
+from facestats.core.validate import as_finite, check_integer
+from facestats.core.version import __version__
+from facestats.errors import FormatError, ValidationError
+
+__all__ = [
+    "ingest_photographs",
+    "open_ingested",
+    "ingest_state",
+    "footprint_px",
+    "MOTION_TOLERANCE",
+    "MIN_FOOTPRINT_PX",
+]
+
+#: Default head-motion threshold: fraction of well-exposed face pixels whose two exposures disagree by more than a
+#: factor e^0.5 (:func:`facestats.acquire.photographs.exposure_consistency`).  Still frames of simulated 12-bit PNG
+#: and 8-bit JPEG captures score 0 (noise alone never reaches the factor); 1° head rotations between the passes
+#: scored 0.2-1.5 %.
+MOTION_TOLERANCE = 0.001
+#: Default resolution limit: a lumitexel must span 2 pixels along its foreshortened axis, so that the four
+#: bilinear taps around its projection (±1 pixel) stay on its own surface patch.
+MIN_FOOTPRINT_PX = 2.0
+_ATTR = "ingest"
+
+
+def _fingerprint(folder: CaptureFolder, dome, geometry: FaceGeometry) -> dict:
+    """What an ingest was made from: manifest, calibration and geometry digests."""
+    geo = hashlib.sha256()
+    for a in (geometry.position, geometry.normal, geometry.uv, geometry.mesh_vertices, geometry.mesh_faces):
+        geo.update(np.ascontiguousarray(a).tobytes())
+    calib = hashlib.sha256(json.dumps(dome.to_dict(), sort_keys=True).encode()).hexdigest()
+    return {"manifest": folder.fingerprint(), "calibration": calib, "geometry": geo.hexdigest()}
+
+
+def _check_inputs(folder: CaptureFolder, dome, geometry):
+    """Raise unless the folder and the calibration describe the same rig and bit depth."""
+    if folder.kind != "face":
+        raise FormatError(f"manifest.json field 'kind' must be 'face' to ingest a subject, got {folder.kind!r}")
+    if folder.n_cameras != dome.n_cameras:
+        raise FormatError(
+            f"manifest.json field 'n_cameras' is {folder.n_cameras}, the calibration has {dome.n_cameras} cameras "
+            "(field 'cameras')"
+        )
+    if folder.n_leds != dome.n_leds:
+        raise FormatError(
+            f"manifest.json field 'n_leds' is {folder.n_leds}, the calibration has {dome.n_leds} LEDs "
+            "(field 'led_position_mm')"
+        )
+    if geometry.region_map is None:
+        raise FormatError(f"geometry {geometry.name!r} has no face-region image (region_map): the maps need it")
+    if dome.camera_log_response is None:
+        raise FormatError(
+            "the calibration has no field 'camera_log_response' (the cameras' Debevec-Malik response g); "
+            "recover it from a bracket with facestats.acquire.hdr.recover_response"
+        )
+    levels = dome.camera_log_response.shape[1]
+    if levels != 2**folder.bits:
+        raise FormatError(
+            f"the calibration's camera_log_response has {levels} levels, manifest.json field 'bits' is {folder.bits} "
+            f"({2**folder.bits} levels)"
+        )
+
+
+def ingest_state(path) -> dict | None:
+    """The ``ingest`` attribute of a capture being (or made by) an ingest, or None if there is none."""
+    import zarr
+
+    try:
+        g = zarr.open_group(str(path), mode="r")
+    except Exception:  # zarr raises several types for a missing/invalid group
+        return None
+    st = g.attrs.get(_ATTR)
+    return json.loads(st) if isinstance(st, str) else st
+
+
+def _start(path, folder, geometry, dome, fingerprint, chunk, subject_id):
+    """Create the capture group with its per-lumitexel geometry and irradiance, or reopen a matching one."""
+    state = ingest_state(path)
+    if state is not None:
+        if state.get("fingerprint") != fingerprint:
+            changed = [k for k in fingerprint if state.get("fingerprint", {}).get(k) != fingerprint[k]]
+            raise FormatError(
+                f"{path} holds an ingest of other inputs ({', '.join(changed)} differ); remove it or choose another "
+                "work directory"
+            )
+        return CaptureWriter.reopen(path), state
+    sensor, _, _ = folder.sensor()
+    meta = dict(folder.subject(), **({"subject_id": subject_id} if subject_id else {}))
+    if subject_id and meta.get("person_id") in (None, folder.subject()["subject_id"]):
+        meta["person_id"] = subject_id
+    state = {"fingerprint": fingerprint, "cameras_done": [], "complete": False, "motion_flags": []}
+    attrs = dict(
+        meta,
+        dome=json.dumps(dome.to_dict()),
+        sensor=json.dumps(sensor.to_attrs()),
+        map_size=int(geometry.map_size),
+        provenance=json.dumps(
+            {
+                "source": "photographs",
+                "software": f"facestats {__version__}",
+                "folder": str(folder.path),
+                "manifest_sha256": fingerprint["manifest"],
+                "geometry": geometry.name,
+            }
+        ),
+    )
+    attrs[_ATTR] = json.dumps(state)
+    writer = CaptureWriter(
+        path,
+        n_lumitexels=geometry.n_points,
+        n_cameras=dome.n_cameras,
+        n_lights=dome.n_leds,
+        map_size=geometry.map_size,
+        n_fibers=sensor.n_fibers,
+        attrs=attrs,
+        chunk=chunk,
+        camera_chunk=1,
+    )
+    for a in range(0, geometry.n_points, chunk):  # per-lumitexel arrays block by block (bounded memory)
+        sl = slice(a, min(a + chunk, geometry.n_points))
+        _, e_perp = dome.incident(geometry.position[sl])
+        arrays = {
+            "position": geometry.position[sl].astype(np.float32),
+            "scan_normal": geometry.normal[sl].astype(np.float32),
+            "uv": geometry.uv[sl].astype(np.float32),
+            "area": geometry.area[sl].astype(np.float32),
+            "region": geometry.region[sl],
+            "irradiance": e_perp.astype(np.float32),
+        }
+        writer.write_block(a, {k: arrays[k] for k in PER_LUMITEXEL if k != "radiance"})
+    return writer, state
+
+
+def footprint_px(dome, geometry, camera: int) -> np.ndarray:
+    """Shortest axis (pixels) of each lumitexel's surface patch as camera ``camera`` sees it, shape (N,).
+
+    A lumitexel represents ``area`` mm² of surface; seen at depth z under the
+    angle θo its patch spans √area · f/z pixels across and √area · cos θo · f/z
+    along the foreshortened axis (f the camera's mean focal length in pixels).
+    """
+    _, z = dome.project(geometry.position, [camera])
+    wo = dome.view_directions(geometry.position)[:, camera]
+    cos_o = np.maximum(np.einsum("nk,nk->n", geometry.normal, wo), 0)
+    f = 0.5 * (dome.camera_matrix[camera, 0, 0] + dome.camera_matrix[camera, 1, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(z[:, 0] > 0, np.sqrt(geometry.area) * cos_o * f / z[:, 0], 0.0)
+
+
+def _camera_samples(folder, dome, vis, camera, motion_tolerance, workers, resolved):
+    """Radiance (N, L, 3) float32 of one camera (NaN where invalid) and its motion scores (L,)."""
+    n, n_led = vis.seen.shape[0], dome.n_leds
+    out = np.full((n, n_led, 3), np.nan, np.float32)
+    sel = np.nonzero(vis.seen[:, camera] & resolved)[0]
+    scores = np.full(n_led, np.nan)
+    if sel.size == 0:
+        return out, scores, []
+    size = dome.image_size[camera]
+    index, weight = bilinear_taps(vis.pixel[sel, camera], size)
+    lo = np.clip(np.floor(vis.pixel[sel, camera].min(0)).astype(int), 0, size - 1)
+    hi = np.clip(np.ceil(vis.pixel[sel, camera].max(0)).astype(int) + 1, 1, size)
+    box = (lo[0], lo[1], hi[0], hi[1])  # the face in this camera
+    g = dome.camera_log_response[camera]
+    scale = (dome.camera_scale * dome.camera_gain[camera]).astype(np.float32)
+
+    def read(led):
+        return led, folder.read_stack(camera, led, size=size)
+
+    flags = []
+    for led, (stack, times) in prefetch(read, range(n_led), workers):  # loop over LEDs, vectorised over lumitexels
+        rad = merge_at(stack, times, g, index, weight) / scale
+        lit = vis.lit[sel, led]
+        out[sel[lit], led] = rad[lit]
+        scores[led], n_used = exposure_consistency(stack, times, g, box)
+        if n_used >= 100 and scores[led] > motion_tolerance:
+            out[:, led] = np.nan
+            flags.append({"camera": int(camera), "led": int(led), "score": round(float(scores[led]), 4)})
+    return out, scores, flags
+
+
+def ingest_photographs(
+    folder,
+    geometry: FaceGeometry,
+    dome,
+    path,
+    *,
+    subject_id: str | None = None,
+    chunk: int = 2048,
+    workers: int = 2,
+    motion_tolerance: float = MOTION_TOLERANCE,
+    min_footprint_px: float = MIN_FOOTPRINT_PX,
+    progress: bool = False,
+) -> str:
+    """Turn a capture folder into a capture on disk (module docstring); rerunning resumes an interrupted ingest.
+
+    Parameters
+    ----------
+    folder : str, path-like or CaptureFolder
+        The photographs (:mod:`facestats.acquire.photographs`).
+    geometry : FaceGeometry
+        The face mesh's lumitexels (:func:`facestats.io.mesh.load_face_mesh`), mm, world frame.
+    dome : Dome
+        The calibration: cameras (K, dist, R, t), LEDs, ``camera_log_response``,
+        ``camera_scale`` and ``camera_gain``.
+    path : str or path-like
+        Where the capture (a zarr group) is written.
+    subject_id : str, optional
+        Overrides the manifest's ``subject.subject_id``.
+    chunk : int
+        Lumitexels per zarr chunk (≥ 1).
+    workers : int
+        Threads decoding frames (≥ 1; decoding and hashing release the GIL).
+    motion_tolerance : float
+        Head-motion threshold (ln units, > 0; module docstring).
+    min_footprint_px : float
+        Samples whose lumitexel patch spans fewer pixels along its shortest axis
+        (:func:`footprint_px`) are invalid (≥ 0; module docstring).
+    progress : bool
+        Show a progress bar over cameras.
+
+    Returns
+    -------
+    str
+        ``path``; open it with :func:`open_ingested`.
+    """
+    from facestats.acquire.dome import Dome
+
+    if not isinstance(geometry, FaceGeometry):
+        raise ValidationError(f"geometry must be a FaceGeometry, got {type(geometry).__name__}")
+    if not isinstance(dome, Dome):
+        raise ValidationError(f"dome must be a Dome calibration, got {type(dome).__name__}")
+    chunk = check_integer(chunk, "chunk", 1)
+    workers = check_integer(workers, "workers", 1)
+    motion_tolerance = float(as_finite(motion_tolerance, "motion_tolerance", 0, None, low_inclusive=False))
+    min_footprint_px = float(as_finite(min_footprint_px, "min_footprint_px", 0, None))
+    folder = folder if isinstance(folder, CaptureFolder) else open_folder(folder)
+    _check_inputs(folder, dome, geometry)
+    writer, state = _start(path, folder, geometry, dome, _fingerprint(folder, dome, geometry), chunk, subject_id)
+    if state["complete"]:
+        return str(path)
+    shadows = dome_shadow_maps(geometry, dome, camera_pixels=True)
+    vis = sample_visibility(dome, shadows, geometry.position, geometry.normal)
+    todo = [c for c in range(dome.n_cameras) if c not in state["cameras_done"]]
+    it = todo
+    if progress:
+        from tqdm.auto import tqdm
+
+        it = tqdm(todo, desc=f"ingest {folder.path.name}", unit="camera", initial=dome.n_cameras - len(todo))
+    for cam in it:  # loop over cameras: one camera's samples in memory at a time
+        resolved = footprint_px(dome, geometry, cam) >= min_footprint_px
+        rad, _, flags = _camera_samples(folder, dome, vis, cam, motion_tolerance, workers, resolved)
+        writer.group["radiance"][:, cam] = rad.astype(np.float16)
+        state["cameras_done"].append(int(cam))
+        state["motion_flags"].extend(flags)
+        writer.group.attrs[_ATTR] = json.dumps(state)  # the camera is on disk: record it
+    sensor, prof, std = folder.sensor()
+    writer.write_global(
+        {
+            "region_map": geometry.region_map,
+            "sensor_profile": prof,
+            "sensor_profile_std": std,
+            "fiber_distance": sensor.fiber_distance,
+        }
+    )
+    prov = json.loads(writer.group.attrs["provenance"])
+    prov["motion_flags"] = state["motion_flags"]
+    writer.group.attrs["provenance"] = json.dumps(prov)
+    state["complete"] = True
+    writer.group.attrs[_ATTR] = json.dumps(state)
+    return str(path)
+
+
+def open_ingested(path):
+    """Open a capture made by :func:`ingest_photographs`; a partial ingest is refused.
+
+    Raises
+    ------
+    FormatError
+        The capture is not complete (the message says how many cameras are done).
+    """
+    state = ingest_state(path)
+    if state is not None and not state.get("complete"):
+        done = len(state.get("cameras_done", []))
+        raise FormatError(
+            f"capture {path} is a partial ingest ({done} camera(s) done); rerun the ingest to complete it"
+        )
+    return open_capture(path)

@@ -1,0 +1,464 @@
+"""A folder of dome photographs: its manifest (format ``facestats.capture-folder/1``), checked frames, HDR samples.
+
+A lab's capture arrives as a folder of photographs, one per (camera, LED,
+exposure) — per target pose for calibration captures — and a ``manifest.json``
+that lists them (the layout is documented in ``docs/photographs.md``)::
+
+    {
+      "format": "facestats.capture-folder/1",
+      "kind": "face",                      # or "target" (LED calibration photographs)
+      "bits": 12,                          # code depth of the frames (8-16)
+      "n_cameras": 16, "n_leds": 150,
+      "subject": {...},                    # face: subject_id, person_id, age, gender, skin_type, condition
+      "sensor": "sensor.json",             # face: contact-sensor profiles (optional)
+      "target": {...},                     # target: albedo, poses (calibration.py)
+      "frames": [
+        {"camera": 0, "led": 0, "exposure": 0, "exposure_s": 0.016667,
+         "file": "cam00/led000_e0.png", "sha256": "…", "pose": 0},
+        …
+      ]
+    }
+
+Rules checked on opening (:func:`open_folder`; each violation is a
+:class:`facestats.errors.FormatError` naming the file, the field and the value):
+every listed file exists; every (pose, camera, LED) has the same exposures
+0..E−1 and no frame twice; exposure times increase strictly with the exposure
+index.  Rules checked on reading a frame (:meth:`CaptureFolder.read_codes`): the
+SHA-256 of the file's bytes matches; the image decodes as 8- or 16-bit RGB with
+codes below 2^bits (an 8-bit file in a 12-bit manifest is refused); its size is
+the calibration's; an EXIF ``ExposureTime``, when present, agrees with
+``exposure_s`` within 1 %.
+
+HDR samples: :func:`bilinear_taps` gives, for sub-pixel positions (OpenCV
+convention: pixel centres at integer coordinates), the four neighbouring pixels
+and their bilinear weights; :func:`merge_at` merges a frame's exposures at those
+pixels with :func:`facestats.acquire.response.merge_photographs` and
+interpolates, so a 1-megapixel frame is decoded once and merged only where
+lumitexels fall; :func:`exposure_consistency` measures how often the exposures
+of a frame disagree over the face (the head-motion test of
+:mod:`facestats.acquire.ingest`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import pathlib
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from facestats.acquire.response import hat_weights, merge_photographs
+from facestats.errors import FormatError
+
+__all__ = [
+    "FORMAT",
+    "MANIFEST",
+    "CaptureFolder",
+    "open_folder",
+    "write_manifest",
+    "write_sensor_file",
+    "frame_entry",
+    "bilinear_taps",
+    "merge_at",
+    "exposure_consistency",
+    "prefetch",
+]
+
+FORMAT = "facestats.capture-folder/1"
+SENSOR_FORMAT = "facestats.sensor-profiles/1"
+MANIFEST = "manifest.json"
+SUBJECT_FIELDS = ("subject_id", "person_id", "age", "gender", "skin_type", "condition")
+_FRAME_FIELDS = ("camera", "led", "exposure", "exposure_s", "file", "sha256")
+#: Relative tolerance between a frame's EXIF ExposureTime and its manifest ``exposure_s``.
+EXIF_TOLERANCE = 0.01
+
+
+def write_sensor_file(path, sensor, profile, profile_std) -> pathlib.Path:
+    """Write contact-sensor profiles (site, fiber, channel; mm⁻²) and the sensor's description as JSON."""
+    doc = {
+        "format": SENSOR_FORMAT,
+        "sensor": sensor.to_attrs(),
+        "profile": np.asarray(profile, np.float64).tolist(),
+        "profile_std": np.asarray(profile_std, np.float64).tolist(),
+    }
+    p = pathlib.Path(path)
+    p.write_text(json.dumps(doc))
+    return p
+
+
+def frame_entry(folder, file, camera: int, led: int, exposure: int, exposure_s: float, pose: int = 0) -> dict:
+    """The manifest entry of one frame already written at ``folder/file`` (its SHA-256 computed here)."""
+    data = (pathlib.Path(folder) / file).read_bytes()
+    return {
+        "camera": int(camera),
+        "led": int(led),
+        "exposure": int(exposure),
+        "exposure_s": float(exposure_s),
+        "file": str(file),
+        "sha256": hashlib.sha256(data).hexdigest(),
+        "pose": int(pose),
+    }
+
+
+def write_manifest(folder, frames, *, kind="face", bits, n_cameras, n_leds, **fields) -> pathlib.Path:
+    """Write ``manifest.json`` (module docstring) into ``folder``; ``fields`` add e.g. ``subject``, ``target``."""
+    doc = {"format": FORMAT, "kind": kind, "bits": int(bits), "n_cameras": int(n_cameras), "n_leds": int(n_leds)}
+    doc.update(fields)
+    doc["frames"] = list(frames)
+    p = pathlib.Path(folder) / MANIFEST
+    tmp = p.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(doc, indent=1))
+    os.replace(tmp, p)
+    return p
+
+
+def _field(doc, key, kind, where, check=None):
+    """``doc[key]`` of type ``kind`` (and passing ``check``), else a FormatError naming ``where`` and the field."""
+    if key not in doc:
+        raise FormatError(f"{where} is missing the field {key!r}")
+    v = doc[key]
+    if isinstance(v, bool) or not isinstance(v, kind) or (check is not None and not check(v)):
+        raise FormatError(f"{where} field {key!r} has an invalid value {v!r}")
+    return v
+
+
+@dataclass
+class CaptureFolder:
+    """An opened capture folder (module docstring): the manifest and the frame table.
+
+    Attributes
+    ----------
+    path : pathlib.Path
+    manifest : dict
+    bits : int
+    n_cameras, n_leds, n_poses, n_exposures : int
+    cameras : list of int
+        Cameras with frames (manifest field ``cameras``, default all; a subset is
+        allowed for target folders only).
+    files : ndarray of object, shape (n_poses, n_cameras, n_leds, n_exposures)
+        Relative file of each frame (None for cameras without frames).
+    sha256 : ndarray of object, same shape
+    exposure_s : ndarray, same shape
+        Exposure times, s.
+    """
+
+    path: pathlib.Path
+    manifest: dict
+    bits: int
+    n_cameras: int
+    n_leds: int
+    n_poses: int
+    n_exposures: int
+    cameras: list
+    files: np.ndarray
+    sha256: np.ndarray
+    exposure_s: np.ndarray
+
+    @property
+    def kind(self) -> str:
+        return self.manifest.get("kind", "face")
+
+    def times(self, camera: int, led: int, pose: int = 0) -> np.ndarray:
+        """Exposure times (E,) of one frame, s."""
+        return self.exposure_s[pose, camera, led]
+
+    def read_codes(self, camera: int, led: int, exposure: int, pose: int = 0, size=None) -> np.ndarray:
+        """The codes (H, W, 3) of one frame, after the checks of the module docstring.
+
+        ``size`` is the calibration's (width, height) of the camera.
+        """
+        from facestats.io.exif import parse_exif
+        from facestats.io.images import decode_integer_image
+
+        rel = self.files[pose, camera, led, exposure]
+        p = self.path / rel
+        try:
+            data = p.read_bytes()
+        except OSError as exc:
+            raise FormatError(f"frame {rel} listed in {MANIFEST} cannot be read: {exc.strerror}") from None
+        digest = hashlib.sha256(data).hexdigest()
+        if digest != self.sha256[pose, camera, led, exposure]:
+            raise FormatError(
+                f"frame {rel}: field 'sha256' of {MANIFEST} is {self.sha256[pose, camera, led, exposure]}, "
+                f"the file's checksum is {digest} (corrupt or replaced file)"
+            )
+        try:
+            codes, file_bits = decode_integer_image(data, str(rel))
+        except Exception as exc:  # any decoding failure names the frame
+            raise FormatError(f"frame {rel} cannot be decoded: {exc}") from None
+        self._check_frame(rel, codes, file_bits, size)
+        t_exif = parse_exif(data, str(rel)).get("ExposureTime")
+        t = self.exposure_s[pose, camera, led, exposure]
+        if t_exif is not None and abs(t_exif / t - 1) > EXIF_TOLERANCE:
+            raise FormatError(
+                f"frame {rel}: EXIF ExposureTime {t_exif:.6g} s disagrees with field 'exposure_s' {t:.6g} s"
+            )
+        return codes
+
+    def _check_frame(self, rel, codes, file_bits, size):
+        """Raise unless a decoded frame is RGB, of the manifest's bit depth and the calibration's size."""
+        if codes.shape[2] != 3:
+            raise FormatError(f"frame {rel} must be an RGB image, got {codes.shape[2]} channel(s)")
+        if file_bits < self.bits:
+            raise FormatError(f"frame {rel} is a {file_bits}-bit file, field 'bits' of {MANIFEST} is {self.bits}")
+        top = int(codes.max())
+        if top > 2**self.bits - 1:
+            raise FormatError(
+                f"frame {rel} holds code {top}, above {2**self.bits - 1} of field 'bits' = {self.bits} of {MANIFEST} "
+                "(wrong bit depth)"
+            )
+        if size is not None and (codes.shape[1], codes.shape[0]) != (int(size[0]), int(size[1])):
+            raise FormatError(
+                f"frame {rel} is {codes.shape[1]}×{codes.shape[0]} pixels, the calibration's image_width×image_height "
+                f"is {int(size[0])}×{int(size[1])}"
+            )
+
+    def read_stack(self, camera: int, led: int, pose: int = 0, size=None):
+        """``(codes of each exposure, exposure times)`` of one (pose, camera, LED)."""
+        return [self.read_codes(camera, led, e, pose, size) for e in range(self.n_exposures)], self.times(
+            camera, led, pose
+        )
+
+    def subject(self) -> dict:
+        """The subject metadata of a face capture (manifest field ``subject``), checked."""
+        sub = self.manifest.get("subject")
+        if not isinstance(sub, dict):
+            raise FormatError(f"{MANIFEST} of a face capture needs the field 'subject' (an object), got {sub!r:.60}")
+        missing = [k for k in SUBJECT_FIELDS if k not in sub]
+        if missing:
+            raise FormatError(f"{MANIFEST} field 'subject' is missing {missing}")
+        return {k: sub[k] for k in SUBJECT_FIELDS}
+
+    def sensor(self):
+        """``(ContactSensor, profile, profile_std)`` of the manifest's ``sensor`` file (format ``SENSOR_FORMAT``)."""
+        from facestats.acquire.sensor import ContactSensor
+
+        name = self.manifest.get("sensor")
+        if not isinstance(name, str):
+            raise FormatError(f"{MANIFEST} needs the field 'sensor' naming the contact-sensor file, got {name!r:.60}")
+        try:
+            doc = json.loads((self.path / name).read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise FormatError(f"sensor file {name} of {self.path} cannot be read: {exc}") from None
+        if not isinstance(doc, dict) or doc.get("format") != SENSOR_FORMAT:
+            raise FormatError(f"sensor file {name} field 'format' must be {SENSOR_FORMAT!r}")
+        try:
+            sensor = ContactSensor.from_attrs(doc["sensor"])
+            prof = np.asarray(doc["profile"], np.float64)
+            std = np.asarray(doc["profile_std"], np.float64)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise FormatError(f"sensor file {name} has a missing or malformed field: {exc}") from None
+        if prof.shape != (3, sensor.n_fibers, 3) or std.shape != prof.shape:
+            raise FormatError(
+                f"sensor file {name} fields 'profile' and 'profile_std' must be (site 3, fiber {sensor.n_fibers}, "
+                f"channel 3), got {prof.shape} and {std.shape}"
+            )
+        return sensor, prof, std
+
+    def fingerprint(self) -> str:
+        """SHA-256 of the manifest file (identifies the capture an ingest was made from)."""
+        return hashlib.sha256((self.path / MANIFEST).read_bytes()).hexdigest()
+
+
+def _parse_frames(frames, n_cameras, n_leds):
+    """Columns of the frame list (vectorised checks follow in :func:`_frame_table`)."""
+    if not isinstance(frames, list) or not frames:
+        raise FormatError(f"{MANIFEST} field 'frames' must be a non-empty list")
+    cols = {k: [] for k in _FRAME_FIELDS + ("pose",)}
+    for i, f in enumerate(frames):  # loop over manifest entries (metadata, not pixels)
+        where = f"{MANIFEST} frames[{i}]"
+        if not isinstance(f, dict):
+            raise FormatError(f"{where} must be an object, got {f!r:.60}")
+        cols["camera"].append(_field(f, "camera", int, where, lambda v: 0 <= v < n_cameras))
+        cols["led"].append(_field(f, "led", int, where, lambda v: 0 <= v < n_leds))
+        cols["exposure"].append(_field(f, "exposure", int, where, lambda v: v >= 0))
+        cols["exposure_s"].append(_field(f, "exposure_s", (int, float), where, lambda v: v > 0 and np.isfinite(v)))
+        name = _field(f, "file", str, where, lambda v: v and ".." not in pathlib.PurePosixPath(v).parts)
+        cols["file"].append(name)
+        cols["sha256"].append(_field(f, "sha256", str, where, lambda v: len(v) == 64))
+        cols["pose"].append(_field(f, "pose", int, where, lambda v: v >= 0) if "pose" in f else 0)
+    return {k: np.asarray(v, dtype=object if k in ("file", "sha256") else None) for k, v in cols.items()}
+
+
+def _frame_table(path, cols, n_cameras, n_leds, cameras):
+    """The (pose, camera, led, exposure) tables, checking completeness, duplicates and monotonic times."""
+    n_poses = int(cols["pose"].max()) + 1
+    n_exp = int(cols["exposure"].max()) + 1
+    shape = (n_poses, n_cameras, n_leds, n_exp)
+    flat = np.ravel_multi_index((cols["pose"], cols["camera"], cols["led"], cols["exposure"]), shape)
+    uniq, first, counts = np.unique(flat, return_index=True, return_counts=True)
+    if np.any(counts > 1):
+        dup = cols["file"][first[np.argmax(counts > 1)]]
+        raise FormatError(f"{MANIFEST} lists the frame of {dup} twice (same pose, camera, LED and exposure)")
+    expected = np.zeros(shape, bool)
+    expected[:, cameras] = True
+    if np.any(~np.isin(cols["camera"], cameras)):
+        bad = cols["file"][np.argmax(~np.isin(cols["camera"], cameras))]
+        raise FormatError(f"frame {bad} is of a camera not in {MANIFEST} field 'cameras' {cameras}")
+    if uniq.size != expected.sum():
+        missing = np.setdiff1d(np.flatnonzero(expected), uniq)[0]
+        p, c, l, e = np.unravel_index(missing, shape)
+        raise FormatError(
+            f"{MANIFEST} lists no frame for pose {p}, camera {c}, LED {l}, exposure {e} "
+            f"(every camera and LED needs exposures 0..{n_exp - 1})"
+        )
+    files = np.empty(shape, object)
+    sha = np.empty(shape, object)
+    times = np.empty(shape)
+    idx = np.unravel_index(flat, shape)
+    files[idx], sha[idx], times[idx] = cols["file"], cols["sha256"], cols["exposure_s"]
+    if n_exp < 2:
+        raise FormatError(f"{MANIFEST} frames have a single exposure: an HDR merge needs at least two")
+    times[~expected] = np.nan
+    with np.errstate(invalid="ignore"):
+        bad = np.diff(times, axis=-1) <= 0
+    if np.any(bad):
+        p, c, l, e = np.argwhere(bad)[0]
+        raise FormatError(
+            f"frame {files[p, c, l, e + 1]}: field 'exposure_s' {times[p, c, l, e + 1]:.6g} s is not longer than "
+            f"exposure {e}'s {times[p, c, l, e]:.6g} s (exposure times must increase with the exposure index)"
+        )
+    absent = [f for f in files[expected] if not (path / f).is_file()]
+    if absent:
+        more = f" ({len(absent)} frames missing)" if len(absent) > 1 else ""
+        raise FormatError(f"frame {absent[0]} listed in {MANIFEST} is missing from {path}{more}")
+    return n_poses, n_exp, files, sha, times
+
+
+def open_folder(path) -> CaptureFolder:
+    """Open and check a capture folder (module docstring); raises :class:`FormatError` on any violation."""
+    p = pathlib.Path(os.fspath(path))
+    try:
+        doc = json.loads((p / MANIFEST).read_text())
+    except OSError as exc:
+        raise FormatError(f"capture folder {p} has no readable {MANIFEST}: {exc.strerror}") from None
+    except json.JSONDecodeError as exc:
+        raise FormatError(f"{p / MANIFEST} is not valid JSON: {exc}") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        got = doc.get("format") if isinstance(doc, dict) else doc
+        raise FormatError(f"{MANIFEST} field 'format' must be {FORMAT!r}, got {got!r:.60}")
+    bits = _field(doc, "bits", int, MANIFEST, lambda v: 8 <= v <= 16)
+    n_cam = _field(doc, "n_cameras", int, MANIFEST, lambda v: v >= 1)
+    n_led = _field(doc, "n_leds", int, MANIFEST, lambda v: v >= 1)
+    cameras = doc.get("cameras", list(range(n_cam)))
+    if (
+        not isinstance(cameras, list)
+        or not cameras
+        or any(isinstance(c, bool) or not isinstance(c, int) or not 0 <= c < n_cam for c in cameras)
+        or (len(cameras) < n_cam and doc.get("kind", "face") != "target")
+    ):
+        raise FormatError(
+            f"{MANIFEST} field 'cameras' must list camera indices in [0, {n_cam}) (a subset for targets only), "
+            f"got {cameras!r:.60}"
+        )
+    cols = _parse_frames(doc.get("frames"), n_cam, n_led)
+    n_poses, n_exp, files, sha, times = _frame_table(p, cols, n_cam, n_led, sorted(set(cameras)))
+    return CaptureFolder(p, doc, bits, n_cam, n_led, n_poses, n_exp, sorted(set(cameras)), files, sha, times)
+
+
+def prefetch(fn, items, workers: int):
+    """``fn(item)`` for each item in order on ``workers`` threads, at most ``workers + 1`` ahead (bounded memory).
+
+    Frames are decoded and hashed this way: both release the GIL.
+    """
+    if workers <= 1:
+        yield from map(fn, items)
+        return
+    items = list(items)
+    with ThreadPoolExecutor(workers) as ex:
+        pending = [ex.submit(fn, it) for it in items[: workers + 1]]
+        for k in range(len(items)):
+            result = pending[k].result()
+            pending[k] = None
+            if k + workers + 1 < len(items):
+                pending.append(ex.submit(fn, items[k + workers + 1]))
+            yield result
+
+
+# -- HDR samples at sub-pixel positions ----------------------------------------------------------------
+def bilinear_taps(pixels, size):
+    """Four neighbouring pixels and bilinear weights of sub-pixel positions (pixel centres at integers).
+
+    Parameters
+    ----------
+    pixels : ndarray, shape (N, 2)
+        (u, v) positions inside the image.
+    size : (int, int)
+        Image width and height.
+
+    Returns
+    -------
+    index : ndarray of int64, shape (N, 4)
+        Flat pixel indices (row-major), clamped to the image.
+    weight : ndarray of float32, shape (N, 4)
+        Bilinear weights, summing to 1.
+    """
+    w, h = int(size[0]), int(size[1])
+    u, v = np.asarray(pixels, np.float64)[:, 0], np.asarray(pixels, np.float64)[:, 1]
+    u0, v0 = np.floor(u), np.floor(v)
+    fu, fv = u - u0, v - v0
+    x0 = np.clip(u0.astype(np.int64), 0, w - 1)
+    x1 = np.clip(x0 + 1, 0, w - 1)
+    y0 = np.clip(v0.astype(np.int64), 0, h - 1)
+    y1 = np.clip(y0 + 1, 0, h - 1)
+    index = np.stack([y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1], -1)
+    weight = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], -1).astype(np.float32)
+    return index, weight
+
+
+def _gather(stack, index):
+    """Codes of each exposure at flat pixel ``index`` (N, 4): list of (N, 4, 3) arrays."""
+    return [img.reshape(-1, img.shape[-1])[index] for img in stack]
+
+
+def merge_at(stack, times, response, index, weight, weighting: str = "hat_time") -> np.ndarray:
+    """HDR radiance (N, 3) of a frame at the taps of :func:`bilinear_taps` (NaN if a tap is saturated).
+
+    Debevec & Malik 1997 eq. 6 at each of the four pixels
+    (:func:`facestats.acquire.response.merge_photographs`, by default with the
+    shot-noise weights w(z)·Δt), then bilinear interpolation.
+    """
+    e = merge_photographs(_gather(stack, index), times, response, weighting=weighting)  # (N, 4, 3)
+    return np.einsum("nk,nkc->nc", weight, e)
+
+
+def exposure_consistency(stack, times, response, box, *, min_weight: float = 0.2, jump: float = 0.5):
+    """How often a frame's shortest and longest exposures disagree inside ``box``: the head-motion statistic.
+
+    For each pixel and channel of ``box`` well exposed (hat weight ≥ ``min_weight``
+    of its peak) in both exposures, d = (g(Z_long) − ln Δt_long) − (g(Z_short) −
+    ln Δt_short) is the log ratio of the two radiance estimates (Debevec & Malik
+    1997 eq. 2 per exposure).  Noise keeps |d| at a few hundredths; a head that
+    moved between the two passes (Weyrich et al. 2006 §5: the exposures are two
+    passes through the light sequence) puts shadow, highlight and texture edges in
+    different places, where |d| is of order one.  ``min_weight`` 0.2 keeps the
+    darkest and brightest fifth of the codes out, where quantisation and JPEG
+    ringing alone can reach |d| > ``jump``.
+
+    Parameters
+    ----------
+    box : (x0, y0, x1, y1)
+        Pixel bounds (end exclusive) of the face in the frame.
+    jump : float
+        |d| counted as a disagreement (0.5: a factor e^0.5 ≈ 1.65).
+
+    Returns
+    -------
+    score : float
+        Fraction of the usable samples with |d| > ``jump`` (NaN without usable samples).
+    n : int
+        Number of usable samples.
+    """
+    g = np.asarray(response, np.float64)
+    w = hat_weights(g.shape[0])
+    w = w / w.max()
+    order = np.argsort(times)
+    x0, y0, x1, y1 = (int(v) for v in box)
+    zs, zl = (stack[k][y0:y1, x0:x1].reshape(-1, stack[k].shape[-1]) for k in (order[0], order[-1]))
+    ch = np.arange(zs.shape[1])
+    ok = (w[zs] >= min_weight) & (w[zl] >= min_weight)
+    d = np.abs((g[zl, ch] - np.log(times[order[-1]])) - (g[zs, ch] - np.log(times[order[0]])))[ok]
+    return (float(np.mean(d > jump)) if d.size else float("nan")), int(d.size)

@@ -1,0 +1,263 @@
+"""The capture folder, the photograph ingest and its bad inputs, on a tiny simulated capture (4 cameras, 6 LEDs)."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from facestats import FacestatsError
+from facestats.acquire.dome import Dome, default_dome
+from facestats.acquire.ingest import ingest_photographs, ingest_state, open_ingested
+from facestats.acquire.photographs import CaptureFolder, bilinear_taps, open_folder
+from facestats.acquire.synthetic.face import procedural_face
+from facestats.acquire.synthetic.photographs import write_capture_photographs
+from facestats.acquire.synthetic.population import synthesize_population
+from facestats.io.mesh import load_face_mesh
+
+CAMERAS = [3, 4, 11, 12]
+LEDS = [0, 1, 2, 5, 9, 14]
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """A 16-grid subject photographed by 4 cameras under 6 LEDs at 96² pixels, 12-bit PNG."""
+    pop = synthesize_population(map_size=16, conditions=False, subjects=["S011"])
+    truth = pop["S011"]
+    dome = default_dome().select(leds=LEDS, cameras=CAMERAS).resized(96, 96)
+    root = tmp_path_factory.mktemp("tiny")
+    pc = write_capture_photographs(
+        truth, root / "photos", geometry=procedural_face(16), dome=dome, seed=1, moved_frames=[(1, 2)], motion_deg=1.5
+    )
+    return root, pc, truth
+
+
+@pytest.fixture
+def copy(tiny, tmp_path):
+    """A fresh copy of the tiny capture folder to damage."""
+    root, pc, _ = tiny
+    shutil.copytree(pc.folder.parent, tmp_path / "photos")
+    return tmp_path / "photos"
+
+
+def _geometry(folder):
+    return load_face_mesh(folder / "face.obj", folder / "face.regions.png")
+
+
+def _edit_manifest(folder, fn):
+    doc = json.loads((folder / "manifest.json").read_text())
+    fn(doc)
+    (folder / "manifest.json").write_text(json.dumps(doc))
+
+
+def test_folder_layout_and_frames(tiny):
+    _, pc, truth = tiny
+    f = open_folder(pc.folder.parent)
+    assert isinstance(f, CaptureFolder) and f.kind == "face" and f.bits == 12
+    assert (f.n_cameras, f.n_leds, f.n_exposures, f.n_poses) == (4, 6, 2, 1)
+    np.testing.assert_allclose(f.times(2, 3), [1 / 60, 1 / 8])
+    codes = f.read_codes(2, 3, 1, size=(96, 96))
+    assert codes.dtype == np.uint16 and codes.shape == (96, 96, 3) and 0 < codes.max() <= 4095
+    assert f.subject()["subject_id"] == truth.subject_id
+    sensor, prof, std = f.sensor()
+    assert prof.shape == (3, sensor.n_fibers, 3) and np.all(std > 0)
+
+
+def test_bilinear_taps_interpolate_a_linear_ramp():
+    img = np.add.outer(np.arange(5.0), 10 * np.arange(7.0))  # value = row + 10 col
+    index, weight = bilinear_taps(np.array([[2.25, 1.5], [0.0, 0.0], [6.0, 4.0]]), (7, 5))
+    vals = np.sum(img.reshape(-1)[index] * weight, axis=1)
+    np.testing.assert_allclose(vals, [1.5 + 22.5, 0.0, 4.0 + 60.0])
+
+
+def test_ingest_recovers_the_simulated_radiance(tiny, tmp_path):
+    from facestats.acquire.synthetic.simulate import DomeSimulator
+
+    root, pc, truth = tiny
+    folder = pc.folder.parent
+    dome = Dome.load(pc.calibration)
+    path = ingest_photographs(folder, _geometry(folder), dome, tmp_path / "cap.zarr", workers=1, min_footprint_px=1)
+    cap = open_ingested(path)
+    assert cap.metadata["subject_id"] == truth.subject_id and cap.provenance["source"] == "photographs"
+    flags = cap.provenance["motion_flags"]
+    assert [(f["camera"], f["led"]) for f in flags] == [(1, 2)]  # the one frame whose head moved, no other
+    assert np.all(np.isnan(cap.array("radiance")[:, 1, 2]))  # its samples are invalid
+    clean = DomeSimulator(pc.geometry, pc.true_dome, noise=False, scan_normal_noise_deg=0).simulate(truth)
+    a, b = cap.array("radiance").astype(np.float64), clean.array("radiance").astype(np.float64)
+    b[:, 1, 2] = np.nan  # the moved frame
+    both = np.isfinite(a) & np.isfinite(b) & (b > 0.01)
+    assert both.sum() > 0.75 * np.isfinite(b).sum()  # grazing and unresolved samples are dropped
+    ratio = a[both] / b[both]
+    assert abs(np.median(ratio) - 1) < 0.01 and np.percentile(np.abs(ratio - 1), 75) < 0.05
+    np.testing.assert_allclose(cap.array("irradiance"), clean.array("irradiance"), rtol=0.03)  # calibration errors
+    np.testing.assert_array_equal(cap.array("sensor_profile"), json_profile(folder))
+
+
+def json_profile(folder):
+    return np.asarray(json.loads((folder / "sensor.json").read_text())["profile"])
+
+
+# -- bad input -------------------------------------------------------------------------------------------------
+def test_missing_frame(copy):
+    (copy / "cam02" / "led003_e1.png").unlink()
+    with pytest.raises(FacestatsError, match=r"frame cam02/led003_e1\.png listed in manifest\.json is missing"):
+        open_folder(copy)
+
+
+def test_checksum_mismatch_names_the_file(copy, tiny):
+    _, pc, _ = tiny
+    shutil.copy(copy / "cam01" / "led000_e0.png", copy / "cam01" / "led004_e0.png")
+    f = open_folder(copy)
+    with pytest.raises(
+        FacestatsError, match=r"frame cam01/led004_e0\.png: field 'sha256' of manifest\.json is [0-9a-f]{64}"
+    ):
+        f.read_codes(1, 4, 0)
+    with pytest.raises(FacestatsError, match=r"led004_e0\.png: field 'sha256'"):
+        ingest_photographs(copy, _geometry(copy), Dome.load(pc.calibration), copy.parent / "c.zarr", workers=1)
+
+
+def test_wrong_image_size_and_camera_count(copy, tiny):
+    _, pc, _ = tiny
+    dome = Dome.load(pc.calibration)
+    with pytest.raises(
+        FacestatsError, match=r"frame cam00/led000_e0\.png is 96×96 pixels, the calibration's .* 128×128"
+    ):
+        ingest_photographs(copy, _geometry(copy), dome.resized(128, 128), copy.parent / "a.zarr", workers=1)
+    with pytest.raises(FacestatsError, match=r"field 'n_cameras' is 4, the calibration has 3 cameras"):
+        ingest_photographs(copy, _geometry(copy), dome.select(cameras=[0, 1, 2]), copy.parent / "b.zarr")
+
+
+def test_wrong_bit_depth(copy, tiny):
+    _, pc, _ = tiny
+    _edit_manifest(copy, lambda d: d.update(bits=10))
+    f = open_folder(copy)
+    with pytest.raises(
+        FacestatsError, match=r"frame cam\d\d/led\d{3}_e\d\.png holds code \d+, above 1023 of field 'bits' = 10"
+    ):
+        for led in range(6):
+            f.read_codes(0, led, 1)
+    with pytest.raises(FacestatsError, match="camera_log_response has 4096 levels, manifest.json field 'bits' is 10"):
+        ingest_photographs(copy, _geometry(copy), Dome.load(pc.calibration), copy.parent / "a.zarr")
+    import cv2
+
+    cv2.imwrite(str(copy / "cam00" / "led001_e0.png"), np.zeros((96, 96, 3), np.uint8))
+    f = open_folder(copy)
+    f.sha256[0, 0, 1, 0] = __import__("hashlib").sha256((copy / "cam00" / "led001_e0.png").read_bytes()).hexdigest()
+    f.bits = 12
+    with pytest.raises(
+        FacestatsError, match=r"frame cam00/led001_e0\.png is a 8-bit file, field 'bits' of manifest\.json is 12"
+    ):
+        f.read_codes(0, 1, 0)
+
+
+def test_non_monotonic_exposure_times_and_exif_disagreement(copy):
+    def swap(d):
+        for fr in d["frames"]:
+            if fr["camera"] == 1 and fr["led"] == 2:
+                fr["exposure_s"] = {0: 0.2, 1: 0.1}[fr["exposure"]]
+
+    _edit_manifest(copy, swap)
+    with pytest.raises(
+        FacestatsError, match=r"frame cam01/led002_e1\.png: field 'exposure_s' 0\.1 s is not longer than"
+    ):
+        open_folder(copy)
+
+    def stretch(d):
+        for fr in d["frames"]:
+            if fr["camera"] == 1 and fr["led"] == 2:
+                fr["exposure_s"] = {0: 1 / 60, 1: 0.15}[fr["exposure"]]
+
+    _edit_manifest(copy, stretch)
+    with pytest.raises(
+        FacestatsError, match=r"led002_e1\.png: EXIF ExposureTime 0\.125 s disagrees with field 'exposure_s' 0\.15"
+    ):
+        open_folder(copy).read_codes(1, 2, 1)
+
+
+def test_bad_manifests(copy):
+    _edit_manifest(copy, lambda d: d.update(format="something/2"))
+    with pytest.raises(FacestatsError, match=r"field 'format' must be 'facestats.capture-folder/1', got 'something/2'"):
+        open_folder(copy)
+    _edit_manifest(copy, lambda d: d.update(format="facestats.capture-folder/1", frames=d["frames"][:-1]))
+    with pytest.raises(FacestatsError, match=r"lists no frame for pose 0, camera 3, LED 5, exposure 1"):
+        open_folder(copy)
+    _edit_manifest(copy, lambda d: d["frames"].append(dict(d["frames"][0], led=9)))
+    with pytest.raises(FacestatsError, match=r"frames\[\d+\] field 'led' has an invalid value 9"):
+        open_folder(copy)
+    with pytest.raises(FacestatsError, match="has no readable manifest.json"):
+        open_folder(copy / "cam00")
+
+
+def test_mesh_without_face_region(copy):
+    from facestats.pipeline.photographs import find_region_image
+
+    np.save(copy / "empty.npy", np.zeros((16, 16), np.uint8))
+    with pytest.raises(FacestatsError, match="no mesh vertex falls on a labelled face region"):
+        load_face_mesh(copy / "face.obj", copy / "empty.npy")
+    (copy / "face.regions.png").unlink()
+    with pytest.raises(
+        FacestatsError, match=r"mesh .*face\.obj has no face-region image \(looked for face\.regions\.png"
+    ):
+        find_region_image(copy / "face.obj")
+
+
+def test_interrupted_ingest_leaves_no_subject_and_resumes(tiny, tmp_path, monkeypatch):
+    from facestats.io import open_store
+    from facestats.pipeline import FitSettings
+    from facestats.pipeline.photographs import ingest_subject
+
+    _, pc, truth = tiny
+    folder = pc.folder.parent
+    store = tmp_path / "s.zarr"
+    read = CaptureFolder.read_stack
+    calls = []
+
+    def failing(self, camera, led, pose=0, size=None):
+        calls.append(camera)
+        if camera == 2 and led == 3:
+            raise KeyboardInterrupt("power cut")
+        return read(self, camera, led, pose, size)
+
+    monkeypatch.setattr(CaptureFolder, "read_stack", failing)
+    args = (folder, folder / "face.obj", pc.calibration, store, "PH001")
+    few = FitSettings(min_samples=4, micro_normals=False)  # 4 cameras × 6 LEDs: at most 24 samples a lumitexel
+    with pytest.raises(KeyboardInterrupt):
+        ingest_subject(*args, workers=1, settings=few, min_footprint_px=1)
+    with open_store(store) as st:
+        assert "PH001" not in st  # a partial ingest never becomes a subject
+    work = tmp_path / "s.zarr.ingest" / "PH001" / "capture.zarr"
+    state = ingest_state(work)
+    assert state["cameras_done"] == [0, 1] and not state["complete"]
+    with pytest.raises(FacestatsError, match=r"is a partial ingest \(2 camera\(s\) done\); rerun the ingest"):
+        open_ingested(work)
+    calls.clear()
+    monkeypatch.setattr(
+        CaptureFolder,
+        "read_stack",
+        lambda self, c, l, pose=0, size=None: calls.append(c) or read(self, c, l, pose, size),
+    )
+    report = ingest_subject(*args, workers=1, settings=few, min_footprint_px=1)
+    assert sorted(set(calls)) == [2, 3]  # finished cameras are skipped
+    assert report.subject_id == "PH001" and "ingested PH001" in report.to_text()
+    with open_store(store) as st:
+        ds = st.subject("PH001")
+    prov = json.loads(ds.attrs["provenance"])
+    assert prov["capture_provenance"]["source"] == "photographs" and ds.attrs["age"] == truth.age
+    assert ingest_subject(*args).skipped  # rerunning a finished ingest does nothing
+
+
+def test_8_bit_jpeg_frames_with_exif(tmp_path):
+    """The simulator's 8-bit JPEG option: frames decode as 8-bit, carry their exposure time, and ingest."""
+    from facestats.io.exif import read_exposure_time
+
+    truth = synthesize_population(map_size=16, conditions=False, subjects=["S011"])["S011"]
+    dome = default_dome().select(leds=[0, 1, 5], cameras=[3, 11]).resized(96, 96)
+    pc = write_capture_photographs(truth, tmp_path / "jpg", geometry=procedural_face(16), dome=dome, extension=".jpg")
+    f = open_folder(tmp_path / "jpg")
+    assert f.bits == 8 and f.files[0, 1, 2, 1].endswith(".jpg")
+    assert read_exposure_time(tmp_path / "jpg" / f.files[0, 1, 2, 1]) == 0.125
+    assert f.read_codes(1, 2, 1).dtype == np.uint8
+    dome_cal = Dome.load(pc.calibration)
+    assert dome_cal.camera_log_response.shape == (2, 256, 3)
+    cap = open_ingested(ingest_photographs(f, pc.geometry, dome_cal, tmp_path / "c.zarr", min_footprint_px=1))
+    assert np.isfinite(cap.array("radiance")).mean() > 0.05

@@ -1,0 +1,34 @@
+"""``facestats calibrate leds`` through the console script (``facestats ingest``: tests/test_photographs_e2e.py)."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from tests.helpers import run_cli
+
+
+@pytest.mark.slow
+def test_calibrate_leds_prints_the_fitted_leds(tmp_path):
+    from facestats.acquire.dome import default_dome
+    from facestats.acquire.response import ResponseCurve
+    from facestats.acquire.synthetic.photographs import TargetPose, write_target_photographs
+
+    camera = ResponseCurve(12)
+    dome = default_dome().select(leds=[0, 41, 101]).resized(96, 96)
+    dome = replace(dome, camera_log_response=np.repeat(camera.log_exposure()[:, None], 3, axis=1))
+    poses = [
+        TargetPose((0.0, 0.0, 40.0), (0.0, 0.0, 1.0), (1.0, 0.0, 0.0)),
+        TargetPose((0.0, 0.0, 40.0), (0.6, 0.0, 0.8), (0.8, 0.0, -0.6)),
+    ]
+    write_target_photographs(tmp_path / "target", dome, poses, cameras=[4, 11], camera=camera)
+    dome.save(tmp_path / "target" / "dome.json")
+    r = run_cli("calibrate", "leds", tmp_path / "target", "--output", tmp_path / "leds.json")
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert lines[0].split() == ["LED", "I0", "R", "I0", "G", "I0", "B", "c3", "c5", "rms", "res", "n"]
+    rows = [line.split() for line in lines[1:4]]
+    np.testing.assert_allclose([float(x[1]) for x in rows], dome.led_intensity[:, 0], rtol=0.01)
+    assert all(x[6].endswith("%") for x in rows)
+    assert json.loads((tmp_path / "leds.json").read_text())["format"] == "facestats.led-calibration/1"

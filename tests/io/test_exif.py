@@ -1,0 +1,74 @@
+"""The EXIF exposure reader against Pillow and on JPEG, PNG and TIFF files; corrupt input."""
+
+import numpy as np
+import pytest
+
+from facestats import FacestatsError
+from facestats.io.exif import embed_exif, exif_payload, read_exif, read_exposure_time
+
+
+def _png16(tmp_path, exif=None):
+    import cv2
+
+    ok, buf = cv2.imencode(".png", np.arange(48, dtype=np.uint16).reshape(4, 4, 3) * 80)
+    data = buf.tobytes() if exif is None else embed_exif(buf.tobytes(), exif)
+    p = tmp_path / "f.png"
+    p.write_bytes(data)
+    return p
+
+
+def test_png16_round_trip_and_pillow_reads_what_we_write(tmp_path):
+    from PIL import Image
+
+    from facestats.io.images import read_integer_image
+
+    p = _png16(tmp_path, exif_payload(1 / 60, f_number=5.6, iso=200, make="facestats", model="dome"))
+    tags = read_exif(p)
+    assert tags == {
+        "Make": "facestats",
+        "Model": "dome",
+        "ExposureTime": 1 / 60,
+        "FNumber": 5.6,
+        "ISOSpeedRatings": 200,
+    }
+    im = Image.open(p)
+    im.load()
+    assert im.getexif().get_ifd(0x8769)[0x829A] == pytest.approx(1 / 60)  # an independent reader agrees
+    img, bits = read_integer_image(p)  # the pixels are untouched
+    assert bits == 16 and img.shape == (4, 4, 3) and int(img.max()) == 47 * 80
+
+
+def test_jpeg_written_by_pillow_and_by_us(tmp_path):
+    from PIL import Image, TiffImagePlugin
+
+    exif = Image.Exif()
+    exif.get_ifd(0x8769)[0x829A] = TiffImagePlugin.IFDRational(1, 250)
+    Image.fromarray(np.zeros((8, 8, 3), np.uint8)).save(tmp_path / "pil.jpg", exif=exif)
+    assert read_exposure_time(tmp_path / "pil.jpg") == pytest.approx(0.004)
+    import cv2
+
+    ok, buf = cv2.imencode(".jpg", np.full((8, 8, 3), 100, np.uint8))
+    (tmp_path / "ours.jpg").write_bytes(embed_exif(buf.tobytes(), exif_payload(2.5)))
+    assert read_exposure_time(tmp_path / "ours.jpg") == 2.5
+    assert Image.open(tmp_path / "ours.jpg").getexif().get_ifd(0x8769)[0x829A] == 2.5
+
+
+def test_big_endian_tiff_with_the_tag_in_ifd0(tmp_path):
+    tifffile = pytest.importorskip("tifffile")
+    p = tmp_path / "f.tif"
+    tifffile.imwrite(p, np.zeros((4, 4, 3), np.uint16), byteorder=">", extratags=[(33434, 5, 1, (1, 30), True)])
+    assert read_exposure_time(p) == pytest.approx(1 / 30)
+
+
+def test_files_without_exif_and_corrupt_files(tmp_path):
+    assert read_exposure_time(_png16(tmp_path)) is None
+    bad = tmp_path / "bad.jpg"
+    bad.write_bytes(b"\xff\xd8\xff\xe1\x00\x20Exif\x00\x00II*\x00\xff\xff\xff\x00" + b"\x00" * 20)
+    with pytest.raises(FacestatsError, match=r"EXIF data of .*bad\.jpg is corrupt"):
+        read_exif(bad)
+    txt = tmp_path / "notes.txt"
+    txt.write_text("hello")
+    with pytest.raises(FacestatsError, match=r"notes\.txt is not a JPEG, TIFF or PNG file"):
+        read_exif(txt)
+    with pytest.raises(FacestatsError, match="cannot read EXIF data"):
+        read_exif(tmp_path / "missing.png")

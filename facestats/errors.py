@@ -14,6 +14,10 @@ __all__ = [
     "SchemaError",
     "FitError",
     "FormatError",
+    "DeviceError",
+    "DeviceTimeout",
+    "DeviceReplyError",
+    "SessionError",
     "ConvergenceWarning",
 ]
 
@@ -40,6 +44,26 @@ class FitError(FacestatsError):
 
 class FormatError(FacestatsError):
     """A file in an external format (mesh, MATLAB, capture) cannot be read."""
+
+
+class DeviceError(FacestatsError):
+    """A serial device cannot be opened, does not speak the facestats protocol, or was wired differently."""
+
+
+class DeviceTimeout(DeviceError):
+    """A device did not answer a command within its retries (silent, disconnected or too noisy a line)."""
+
+
+class DeviceReplyError(DeviceError):
+    """A device answered a command with a numbered error (``code``: the protocol's error number)."""
+
+    def __init__(self, message: str, code: int = 0):
+        super().__init__(message)
+        self.code = int(code)
+
+
+class SessionError(FacestatsError):
+    """A capture session cannot start or resume: its directory, plan or journal does not fit the request."""
 
 
 class ConvergenceWarning(UserWarning):

@@ -20,6 +20,7 @@ to an earlier program's request can never be mistaken for a new one.
 
 from __future__ import annotations
 
+import collections
 import errno
 import os
 import time
@@ -161,6 +162,7 @@ class SerialLink:
         self._next_id = 1 + int.from_bytes(os.urandom(4), "big") % (2**30)
         self._last = None  # (seq, id) of the last accepted frame
         self._reader = FrameReader()
+        self._backlog = collections.deque()  # frames read but not yet examined
         self._ser = open_port(port, **self.settings)
 
     # -- life cycle ----------------------------------------------------------------------------
@@ -201,6 +203,7 @@ class SerialLink:
                 pause = min(2 * pause, max(self.max_backoff, 0.05))
                 continue
             self._reader = FrameReader()
+            self._backlog.clear()
             self.stats.reconnects += 1
             self.log(f"port {self.port} reopened")
             return
@@ -265,6 +268,8 @@ class SerialLink:
 
     def _exchange(self, line: bytes, rid: int, wait: float):
         """Write ``line`` and read until the reply to ``rid``: a Reply, None (timeout, garbled) or "reboot"."""
+        while self._backlog:  # frames that came after an earlier reply: late, duplicated, or a BOOT
+            self._accept(self._backlog.popleft(), None)
         try:
             self._ser.write(line)
             self._ser.flush()
@@ -273,8 +278,9 @@ class SerialLink:
         self.stats.sent += 1
         deadline = time.monotonic() + wait
         while True:
-            for item in self._read(deadline):
-                outcome = self._accept(item, rid)
+            self._backlog.extend(self._read(deadline))
+            while self._backlog:
+                outcome = self._accept(self._backlog.popleft(), rid)
                 if outcome is not _SKIP:
                     return outcome
             if time.monotonic() >= deadline:
@@ -303,7 +309,7 @@ class SerialLink:
         return self._reader.feed(data)
 
     def _accept(self, item, rid):
-        """What one incoming item means for the request ``rid`` (module docstring of the protocol)."""
+        """What one incoming item means for the request ``rid`` (None: no request waiting; protocol docstring)."""
         if isinstance(item, FrameError):
             if item.kind == "garbled":
                 self.stats.garbled += 1

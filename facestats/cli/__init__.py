@@ -10,7 +10,9 @@ prints.  Heavy modules are imported inside the commands so that ``facestats
 * :mod:`~facestats.cli.edit` — ``edit``;
 * :mod:`~facestats.cli.demo` — ``demo``;
 * :mod:`~facestats.cli.ingest` — ``ingest``;
-* :mod:`~facestats.cli.calibrate` — ``calibrate leds``.
+* :mod:`~facestats.cli.calibrate` — ``calibrate leds``;
+* :mod:`~facestats.cli.emulate` — ``emulate dome|sensor``;
+* :mod:`~facestats.cli.capture` — ``capture dome|sensor``.
 """
 
 from __future__ import annotations
@@ -22,8 +24,10 @@ import sys
 from facestats.cli.analyze import add_analyze
 from facestats.cli.build import add_build
 from facestats.cli.calibrate import add_calibrate
+from facestats.cli.capture import add_capture
 from facestats.cli.demo import add_demo
 from facestats.cli.edit import add_edit
+from facestats.cli.emulate import add_emulate
 from facestats.cli.ingest import add_ingest
 from facestats.cli.store import add_export, add_import_merl, add_info, add_query, add_validate
 from facestats.core.version import __version__
@@ -44,6 +48,8 @@ COMMANDS = [
     add_edit,
     add_ingest,
     add_calibrate,
+    add_emulate,
+    add_capture,
 ]
 
 

@@ -59,7 +59,7 @@ class _Refused(Exception):
 
 def _clean(text: str) -> str:
     """Text fit for a frame's payload: printable ASCII without '@' or '*'."""
-    return re.sub(r"[^ -)+-?A-~]", "_", text)[:160]
+    return re.sub(r"[^ -)+-?A-~]", "_", text)
 
 
 def _request_id(line: bytes) -> int:

@@ -171,11 +171,24 @@ class DomeScene:
         Seeds every frame's noise (with the frame's camera, LED, exposure and drive).
     progress : bool
         Progress bar while the cameras' pixel maps are computed.
+    cache : path-like, optional
+        A directory keeping the cameras' pixel maps (``pixels-<key>.npz``, keyed by
+        the SHA-256 of the mesh file and the rig): at 1024² pixels they take minutes
+        to compute and depend on neither the subject nor the seed.
     """
 
-    def __init__(self, truth, dome, workdir, *, camera: ResponseCurve | None = None, seed: int = 0, progress=False):
+    def __init__(
+        self,
+        truth,
+        dome,
+        workdir,
+        *,
+        camera: ResponseCurve | None = None,
+        seed: int = 0,
+        progress: bool = False,
+        cache=None,
+    ):
         from facestats.acquire.synthetic.face import procedural_face
-        from facestats.acquire.synthetic.photographs import FrameRenderer
         from facestats.acquire.synthetic.simulate import DomeSimulator
         from facestats.io.mesh import load_face_mesh, save_face_mesh
 
@@ -189,14 +202,34 @@ class DomeScene:
         self.geometry = load_face_mesh(self.mesh, self.regions)  # the truth is the mesh the lab has
         sim = DomeSimulator(self.geometry, dome, noise=False, scan_normal_noise_deg=0.0, camera_visibility=False)
         self.radiance = sim.simulate(truth).array("radiance")  # (N, C, L, 3) float16, NaN: not rendered
-        renderer = FrameRenderer(self.geometry, dome)
-        cams = range(dome.n_cameras)
+        self.pixels = self._pixel_maps(cache, progress)
+        self.dark = dark_code_table(self.camera)
+
+    def _pixel_maps(self, cache, progress):
+        """Each camera's (flat pixel index, lumitexel) arrays (:meth:`FrameRenderer.pixels`), cached if asked."""
+        import hashlib
+        import json
+
+        from facestats.acquire.synthetic.photographs import FrameRenderer
+
+        key = hashlib.sha256(self.mesh.read_bytes() + json.dumps(self.dome.to_dict()).encode()).hexdigest()[:24]
+        path = None if cache is None else pathlib.Path(cache) / f"pixels-{key}.npz"
+        if path is not None and path.exists():
+            with np.load(path) as z:
+                return [(z[f"flat{c}"], z[f"node{c}"]) for c in range(self.dome.n_cameras)]
+        renderer = FrameRenderer(self.geometry, self.dome)
+        cams = range(self.dome.n_cameras)
         if progress:
             from tqdm.auto import tqdm
 
             cams = tqdm(cams, desc="emulated cameras", unit="camera")
-        self.pixels = [renderer.pixels(c) for c in cams]
-        self.dark = dark_code_table(self.camera)
+        maps = [renderer.pixels(c) for c in cams]
+        if path is not None:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_name(path.stem + ".part.npz")
+            np.savez(tmp, **{f"{n}{c}": a for c, m in enumerate(maps) for n, a in zip(("flat", "node"), m)})
+            tmp.replace(path)
+        return maps
 
     @property
     def cameras(self) -> tuple:

@@ -136,7 +136,8 @@ class DomeController(Controller):
         got = np.asarray(st.exposure_s, float)
         if got.shape != want.shape or np.any(np.abs(got / want - 1) > 0.01):
             raise DeviceError(
-                f"{where} exposes for {list(got)} s, the calibration for {list(want)} s (agreement within 1 % "
+                f"{where} exposes for {[round(float(v), 6) for v in got]} s, the calibration for "
+                f"{[round(float(v), 6) for v in want]} s (agreement within 1 % "
                 f"needed): {fix}"
             )
         if bits is not None and st.bits != bits:

@@ -248,8 +248,9 @@ class SensorController(Controller):
         want, got = np.asarray(exposure_s, float), np.asarray(st.exposure_s, float)
         if got.shape != want.shape or np.any(np.abs(got / want - 1) > 0.01):
             raise DeviceError(
-                f"{where} brackets {got.size} exposures {got[:3]}… s, the calibration {want.size} exposures "
-                f"{want[:3]}… s (agreement within 1 % needed): {fix}"
+                f"{where} brackets {got.size} exposures {[round(float(v), 6) for v in got[:3]]}… s, the calibration "
+                f"{want.size} exposures {[round(float(v), 6) for v in want[:3]]}… s (agreement within 1 % needed): "
+                f"{fix}"
             )
         if tuple(st.image_size) != tuple(image_size):
             raise DeviceError(

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import pathlib
+import shutil
 
 import numpy as np
 
@@ -73,21 +74,29 @@ def emulated_dome(
     cache=None,
     progress: bool = False,
     log=None,
+    scene: DomeScene | None = None,
 ) -> PtyServer:
     """Build and start the emulated dome of ``subject_id`` (module docstring); returns the running server.
 
     ``store``: None for the synthetic population (at ``map_size``), a store path
     or ``"default"`` for a store subject.  ``wired_leds`` makes a mis-wired
     controller (it reports and drives that many LEDs).  ``cache``: where the
-    cameras' pixel maps are kept between runs.
+    cameras' pixel maps are kept between runs.  ``scene``: a scene built before
+    (``server.scene`` of an earlier emulator), reused instead of the subject and rig arguments.
     """
     lab = pathlib.Path(lab)
     lab.mkdir(parents=True, exist_ok=True)
-    truth = subject_truth(subject_id, store=store, map_size=map_size)
-    dome = emulated_rig(resolution, leds, cameras)
-    scene = DomeScene(truth, dome, lab, seed=seed, progress=progress, cache=cache)
+    if scene is None:
+        truth = subject_truth(subject_id, store=store, map_size=map_size)
+        scene = DomeScene(
+            truth, emulated_rig(resolution, leds, cameras), lab, seed=seed, progress=progress, cache=cache
+        )
+    dome = scene.dome
+    for f in (scene.mesh, scene.regions):  # the scanner's mesh, when the scene was made in another lab
+        if f.parent.resolve() != lab.resolve():
+            shutil.copyfile(f, lab / f.name)
     scene.calibration().save(lab / "dome.json")
-    _write_subject(lab, truth)
+    _write_subject(lab, scene.truth)
     writer = HotFolderWriter(EmulatedCameras(scene, workers=workers), hot_folder, log=log)
     device = DomeDevice(
         dome.n_leds,

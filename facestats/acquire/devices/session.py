@@ -235,7 +235,7 @@ class _Journal:
             f.flush()
             if durable:
                 os.fsync(f.fileno())
-        self.done[step] = entries
+        self.done[step] = json.loads(line)["frames"]  # as a resumed run reads it: the product is the same
 
     def finish(self):
         """Rewrite the journal in step order (every run of the plan ends with the same journal)."""

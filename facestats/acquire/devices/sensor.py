@@ -45,6 +45,8 @@ from facestats.errors import DeviceError, FormatError, ValidationError
 __all__ = [
     "FiberLayout",
     "merge_bracket",
+    "SensorBracket",
+    "read_bracket",
     "SensorController",
     "SensorStatus",
     "save_sensor_calibration",
@@ -132,6 +134,62 @@ def merge_bracket(stack, times, sensor, layout: FiberLayout):
     total = np.stack([np.bincount(k, rate[spot][:, c], layout.n_fibers) for c in range(3)], 1)
     var = np.stack([np.bincount(k, std[spot][:, c] ** 2, layout.n_fibers) for c in range(3)], 1)
     return total / count / sensor.scale, np.sqrt(var) / count / sensor.scale
+
+
+@dataclass
+class SensorBracket:
+    """A sensor session's result: the raw bracket per site and the merged profiles (:func:`read_bracket`).
+
+    Attributes
+    ----------
+    sites : tuple of str
+    fiber_distance : ndarray, shape (F,)
+        mm.
+    exposure_s : ndarray, shape (E,)
+    readings : ndarray, shape (site, E, F, 3)
+        Mean code of each fibre's spot in each frame, DN (black level included).
+    profile, profile_std : ndarray, shape (site, F, 3)
+        Merged R(r), mm⁻², and its standard deviation.
+    max_dn : int
+        The camera's largest code (saturation).
+    """
+
+    sites: tuple
+    fiber_distance: np.ndarray
+    exposure_s: np.ndarray
+    readings: np.ndarray
+    profile: np.ndarray
+    profile_std: np.ndarray
+    max_dn: int
+
+
+def read_bracket(folder) -> SensorBracket:
+    """The sensor session of a capture folder: its ``sensor.json`` and the raw frames it lists."""
+    from facestats.acquire.sensor import ContactSensor
+    from facestats.io.images import decode_integer_image
+
+    folder = pathlib.Path(folder)
+    try:
+        doc = json.loads((folder / "sensor.json").read_text())
+        frames = doc["frames"]
+    except (OSError, json.JSONDecodeError, KeyError) as exc:
+        raise FormatError(f"{folder} holds no completed sensor session (sensor.json with its frames): {exc}") from None
+    sensor = ContactSensor.from_attrs(doc["sensor"])
+    profile, std = np.asarray(doc["profile"], np.float64), np.asarray(doc["profile_std"], np.float64)
+    labels = FiberLayout(sensor.n_fibers).labels()
+    spot = labels >= 0
+    count = np.bincount(labels[spot], minlength=sensor.n_fibers)[:, None]
+    sites = tuple(dict.fromkeys(f["site"] for f in frames))
+    n_exp = sensor.n_exposures
+    readings = np.zeros((len(sites), n_exp, sensor.n_fibers, 3))
+    for f in frames:
+        codes = decode_integer_image((folder / f["file"]).read_bytes(), f["file"])[0].astype(np.float64)
+        k = labels[spot]
+        sums = np.stack([np.bincount(k, codes[spot][:, c], sensor.n_fibers) for c in range(3)], 1)
+        readings[sites.index(f["site"]), f["exposure"]] = sums / count
+    return SensorBracket(
+        sites, sensor.fiber_distance, sensor.exposure_times, readings, profile, std, sensor.camera.max_dn
+    )
 
 
 def save_sensor_calibration(path, sensor, layout: FiberLayout) -> pathlib.Path:

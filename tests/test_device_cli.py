@@ -104,6 +104,19 @@ def test_bad_input_gets_a_message_and_no_traceback(emulator, tmp_path):
     assert missing.returncode == 2 and "needs the subject's age, gender, skin_type" in missing.stderr
 
 
+def test_sensor_dry_run_prints_the_bracket_and_its_duration(tmp_path):
+    from facestats.acquire.devices.sensor import FiberLayout, save_sensor_calibration
+    from facestats.acquire.sensor import ContactSensor
+
+    save_sensor_calibration(tmp_path / "sensor.json", ContactSensor(), FiberLayout())
+    r = run_cli("capture", "sensor", "--port", "/dev/null", "--subject", "S001", "--out", tmp_path / "cap",
+                "--calibration", tmp_path / "sensor.json", "--hot-folder", tmp_path, "--age", "31", "--gender", "F",
+                "--skin-type", "3", "--dry-run")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "3 sites (cheek, forehead, neck) × 23 exposures = 69 frames" in r.stdout
+    assert "88 s per site" in r.stdout and not (tmp_path / "cap").exists()
+
+
 def _capture_port(root, port):
     lab = root / "lab"
     return run_cli("capture", "dome", "--port", port, "--subject", "S003", "--out", root / "b", "--calibration",

@@ -169,16 +169,26 @@ def test_ports_that_cannot_be_opened_say_why(tmp_path):
         SerialLink(str(plain))
     with pytest.raises(DeviceError, match="loop://, socket://, rfc2217://"):
         SerialLink("rfc2217://127.0.0.1:9")  # nothing listens on the discard port
-    if os.geteuid() != 0:
-        master, slave = pty.openpty()
-        name = os.ttyname(slave)
-        os.chmod(name, stat.S_IRUSR)
-        try:
+    master, slave = pty.openpty()
+    name = os.ttyname(slave)
+    try:
+        if os.geteuid() != 0:
+            os.chmod(name, stat.S_IRUSR)
             with pytest.raises(DeviceError, match="permission denied.*dialout"):
                 SerialLink(name)
-        finally:
-            os.close(master)
-            os.close(slave)
+        else:  # root opens anything: raise what pyserial raises for EACCES (serialposix.Serial.open)
+            import serial
+
+            def refuse(url, **kw):
+                raise serial.SerialException(13, f"could not open port {url}: [Errno 13] Permission denied: {url!r}")
+
+            with pytest.MonkeyPatch.context() as mp:
+                mp.setattr(serial, "serial_for_url", refuse)
+                with pytest.raises(DeviceError, match="permission denied.*dialout"):
+                    SerialLink(name)
+    finally:
+        os.close(master)
+        os.close(slave)
 
 
 def test_socket_urls_reach_a_device_over_tcp():

@@ -95,11 +95,14 @@ def test_the_dome_firmware_answers_each_request_id_once_and_reports_its_state():
     line = Request("tr", (99,), 7).encode()[:-1]
     first = dev.handle(line)
     assert dev.handle(line) == first  # a retried trigger is answered from the stored frame…
-    assert triggers == [Trigger(99, 37, 1, 255, (255, 255, 255))]  # …and takes no second picture
+    assert triggers == [Trigger(99, 37, 1, 255, (255, 255, 255), lines=65535)]  # …and takes no second picture
     assert Trigger.from_fields(parse_reply(first[: -len(TERMINATOR)]).fields()) == triggers[0]
     assert _ask(dev, "l", 150).error_code == 4 and _ask(dev, "zz").error_code == 1 and _ask(dev, "l").error_code == 3
     st = _ask(dev, "st").fields()
     assert (st["leds"], st["led"], st["exposure"], st["exposure_us"]) == ("150", "37", "1", "16667,125000")
+    assert _ask(dev, "tm", 5).ok and _ask(dev, "tm", 65536).error_code == 4
+    masked = Trigger.from_fields(_ask(dev, "tr", 100, rid=8).fields())
+    assert masked.lines == 5 and [masked.fires(c) for c in range(4)] == [True, False, True, False]
     boot = parse_reply(dev.boot()[: -len(TERMINATOR)])
     assert (boot.seq, boot.status) == (1, "BOOT") and _ask(dev, "st").fields()["led"] == "-1"  # state lost
     assert _ask(dev, "st").seq == 3  # sequence numbers restarted

@@ -2,6 +2,7 @@
 
 import json
 import shutil
+import time
 
 import numpy as np
 import pytest
@@ -257,3 +258,58 @@ def test_dry_run_durations_follow_the_paper():
     assert sensor.duration_s() / 3 == pytest.approx(exposure + 23 * 0.8)
     assert 85 < sensor.duration_s() / 3 < 91  # Weyrich §5.4: "about 88 seconds"
     assert sensor.file(68) == "sensor/neck_e22.png" and sensor.n_steps == 69
+
+
+def test_a_disconnect_that_outlasts_the_link_ends_the_run_and_resume_completes(small, tmp_path):
+    root, _ = small
+    server = _serve(small, tmp_path, faults=Faults(disconnect_after=(20,)), link=tmp_path / "tty")
+    server.reconnect_delay = 3.0  # the cable stays out longer than the link waits
+    try:
+        with pytest.raises(DeviceError, match="disconnected and did not come back.*continues with --resume"):
+            run_capture(server, tmp_path / "lab", tmp_path / "hot", tmp_path / "out",
+                        link_options={"reconnect_timeout": 0.5})  # fmt: skip
+        assert not (tmp_path / "out" / "manifest.json").exists()
+        for _ in range(1000):  # the cable is plugged back in
+            if (tmp_path / "tty").exists():
+                break
+            time.sleep(0.01)
+        report = run_capture(server, tmp_path / "lab", tmp_path / "hot", tmp_path / "out", resume=True)
+    finally:
+        server.stop()
+    assert report.complete and 0 < report.steps_before < 20
+    assert tree(tmp_path / "out") == tree(root / "clean")
+
+
+def test_trigger_lines_choose_the_cameras_that_take_a_picture(small, tmp_path):
+    from facestats.acquire.devices.dome import DomeController
+
+    server = _serve(small, tmp_path)
+    try:
+        with DomeController(server.port) as c:
+            assert c.n_cameras == 4
+            c.ensure(3, 1, cameras=[0, 2])
+            trig = c.trigger(77)
+            cams = HotFolderCameras(tmp_path / "hot", range(4))
+            frames = cams.collect(trig, 30)
+            c.ensure(3, 1)  # every line again
+            assert c.trigger(78).lines == 15
+    finally:
+        server.stop()
+    assert trig.lines == 5 and [f.camera for f in frames] == [0, 2]
+    assert not cams.path(1, 77).exists()  # camera 1 took no picture
+    plan, _ = dome_plan(tmp_path / "lab" / "dome.json", record(tmp_path / "lab"))
+    assert not plan.matches(13, trig) and plan.matches(13, Trigger(77, 3, 1, lines=15))  # a session needs every camera
+
+
+def test_the_sensor_driver_runs_a_bracket(tmp_path):
+    from facestats.acquire.devices.sensor import SensorController
+
+    server = emulated_sensor("S001", tmp_path / "hot", tmp_path / "lab")
+    try:
+        with SensorController(server.port) as c:
+            triggers = list(c.bracket(1, range(23), range(500, 523)))
+            assert server.device.lamp == 1 and server.device.shutter == 1
+        assert server.device.lamp == 0 and server.device.shutter == 0  # lamp off, shutter closed on leaving
+    finally:
+        server.stop()
+    assert [(t.site, t.exposure, t.lamp, t.shutter) for t in triggers] == [(1, j, 1, 1) for j in range(23)]

@@ -47,7 +47,8 @@ class Trigger:
     """A device's report of one trigger: the frame id and the state the cameras exposed under.
 
     Dome triggers use ``led`` (−1: none lit), ``exposure`` (index of the
-    calibration's exposure times), ``brightness`` and ``colour`` (0-255); sensor
+    calibration's exposure times), ``brightness`` and ``colour`` (0-255) and
+    ``lines`` (bit c set: camera c's trigger line pulsed; −1: every line); sensor
     triggers use ``exposure`` (index in the bracket), ``lamp``, ``shutter`` and
     ``site`` (index of :data:`facestats.core.conventions.SITES`).
     """
@@ -60,6 +61,11 @@ class Trigger:
     lamp: int = 0
     shutter: int = 0
     site: int = 0
+    lines: int = -1
+
+    def fires(self, camera: int) -> bool:
+        """True if ``camera``'s trigger line was pulsed."""
+        return self.lines < 0 or bool(self.lines >> int(camera) & 1)
 
     @classmethod
     def from_fields(cls, fields: dict) -> "Trigger":
@@ -67,7 +73,7 @@ class Trigger:
         try:
             kw = {
                 k: int(fields[k])
-                for k in ("frame", "led", "exposure", "brightness", "lamp", "shutter", "site")
+                for k in ("frame", "led", "exposure", "brightness", "lamp", "shutter", "site", "lines")
                 if k in fields
             }
             if "colour" in fields:
@@ -131,7 +137,7 @@ class EmulatedCameras(CameraBackend):
         return Frame(camera, data, hashlib.sha256(data).hexdigest(), t, self.extension)
 
     def collect(self, trigger: Trigger, timeout: float = 0.0) -> list:
-        return list(self._pool.map(lambda c: self.frame(c, trigger), self.cameras))
+        return list(self._pool.map(lambda c: self.frame(c, trigger), [c for c in self.cameras if trigger.fires(c)]))
 
     def close(self):
         self._pool.shutdown()
@@ -199,7 +205,7 @@ class HotFolderCameras(CameraBackend):
             )
 
     def collect(self, trigger: Trigger, timeout: float) -> list:
-        return [self._wait(c, trigger.frame, timeout) for c in self.cameras]
+        return [self._wait(c, trigger.frame, timeout) for c in self.cameras if trigger.fires(c)]
 
     def _wait(self, camera, frame, timeout):
         p = self.path(camera, frame)

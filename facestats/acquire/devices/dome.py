@@ -7,15 +7,16 @@ Commands (:mod:`facestats.acquire.devices.protocol`; every reply is a frame):
 ``ver``                    identity: ``facestats-dome <model> <version> protocol=1``
 ``st``                     status: ``leds=150 cameras=16 exposures=2 exposure_us=16667,125000
                            bits=12 frame_us=83333 led=-1 exposure=0 brightness=255
-                           colour=255,255,255``
+                           colour=255,255,255 lines=65535``
 ``l.<i>``                  light LED i alone (0-based; the others go off)
 ``x``                      every LED off
 ``sb.<v>``                 brightness 0-255 of the lit LED
 ``sc.<r>.<g>.<b>``         colour 0-255 per channel (white LEDs: a per-channel drive)
 ``se.<k>``                 exposure setting k of the cameras (index of ``exposure_us``)
-``tr.<frame>``             pulse every camera's trigger line; the cameras expose under the present
+``tm.<mask>``              which camera trigger lines pulse: bit c for camera c (power-up: all)
+``tr.<frame>``             pulse the enabled trigger lines; the cameras expose under the present
                            light; answered after the exposure with ``frame=… led=… exposure=…
-                           brightness=… colour=…``: the state the picture was taken under
+                           brightness=… colour=… lines=…``: the state the pictures were taken under
 ``reboot``                 restart (the state is lost; a ``BOOT`` frame follows)
 =========================  ===================================================================
 
@@ -81,6 +82,14 @@ class DomeController(Controller):
     def dome_status(self) -> DomeStatus:
         return DomeStatus.from_fields(self.status(), self.port)
 
+    def __init__(self, port: str | None = None, **kwargs):
+        super().__init__(port, **kwargs)
+        try:
+            self.n_cameras = self.dome_status().n_cameras
+        except BaseException:
+            self.link.close()
+            raise
+
     def light(self, led: int):
         """Light LED ``led`` alone."""
         self.link.request("l", check_integer(led, "led", 0))
@@ -101,10 +110,24 @@ class DomeController(Controller):
         self.link.request("se", check_integer(k, "exposure", 0))
         self.remember("exposure", int(k))
 
-    def ensure(self, led: int, exposure: int, brightness: int = 255, colour=(255, 255, 255)):
-        """Bring the device to this state, sending only what it is not known to hold (again after a reboot)."""
+    def set_trigger_lines(self, cameras):
+        """Pulse only these cameras' trigger lines at the next triggers."""
+        mask = sum(1 << check_integer(c, "camera", 0, 62) for c in set(cameras))
+        if not mask:
+            raise DeviceError("set_trigger_lines needs at least one camera")
+        self.link.request("tm", mask)
+        self.remember("lines", mask)
+
+    def ensure(self, led: int, exposure: int, brightness: int = 255, colour=(255, 255, 255), cameras=None):
+        """Bring the device to this state, sending only what it is not known to hold (again after a reboot).
+
+        ``cameras``: the trigger lines to enable (default: every camera of the status).
+        """
         for _ in range(3):  # a reboot on the way loses what was set before it: set everything again
             epoch = self.epoch
+            lines = cameras if cameras is not None else range(self.n_cameras)
+            if self.changed("lines", sum(1 << c for c in set(lines))):
+                self.set_trigger_lines(lines)
             if self.changed("exposure", exposure):
                 self.set_exposure(exposure)
             if self.changed("brightness", brightness):

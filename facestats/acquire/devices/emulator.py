@@ -192,18 +192,20 @@ class DomeDevice(EmulatedDevice):
             "sb": (self._brightness, (1,), "brightness 0-255"),
             "sc": (self._colour, (3,), "colour r.g.b 0-255"),
             "se": (self._exposure, (1,), "exposure setting k"),
-            "tr": (self._trigger, (1,), "trigger every camera: frame id"),
+            "tm": (self._mask, (1,), "trigger lines to pulse: bit c for camera c"),
+            "tr": (self._trigger, (1,), "pulse the trigger lines: frame id"),
         }
 
     def reset(self):
         self.led, self.exposure, self.brightness, self.colour = -1, 0, 255, (255, 255, 255)
+        self.lines = (1 << self.n_cameras) - 1
 
     def status(self):
         us = ",".join(str(round(t * 1e6)) for t in self.exposure_s)
         return (
             f"leds={self.wired} cameras={self.n_cameras} exposures={len(self.exposure_s)} exposure_us={us} "
             f"bits={self.bits} frame_us={round(self.frame_interval_s * 1e6)} led={self.led} exposure={self.exposure} "
-            f"brightness={self.brightness} colour={','.join(map(str, self.colour))}"
+            f"brightness={self.brightness} colour={','.join(map(str, self.colour))} lines={self.lines}"
         )
 
     def _off(self):
@@ -225,14 +227,18 @@ class DomeDevice(EmulatedDevice):
         self.exposure = self._index(k, len(self.exposure_s), "exposure setting")
         return f"exposure={k}"
 
+    def _mask(self, mask):
+        self.lines = self._index(mask, 1 << self.n_cameras, "trigger mask")
+        return f"lines={mask}"
+
     def _trigger(self, frame):
-        trig = Trigger(frame, self.led, self.exposure, self.brightness, self.colour)
+        trig = Trigger(frame, self.led, self.exposure, self.brightness, self.colour, lines=self.lines)
         if self.on_trigger is not None:
             self.on_trigger(trig)
         self.busy_s = max(self.exposure_s[self.exposure], self.frame_interval_s)
         return (
             f"frame={frame} led={self.led} exposure={self.exposure} brightness={self.brightness} "
-            f"colour={','.join(map(str, self.colour))}"
+            f"colour={','.join(map(str, self.colour))} lines={self.lines}"
         )
 
 

@@ -154,12 +154,9 @@ class DomePlan(_Plan):
     def matches(self, s: int, trigger) -> bool:
         """True if the device reports the state of step ``s`` for ``trigger``."""
         st = self.step(s)
-        return (trigger.led, trigger.exposure, trigger.brightness, tuple(trigger.colour)) == (
-            st["led"],
-            st["exposure"],
-            self.brightness,
-            tuple(self.colour),
-        )
+        state = (trigger.led, trigger.exposure, trigger.brightness, tuple(trigger.colour))
+        every = all(trigger.fires(c) for c in range(self.n_cameras))  # every camera's trigger line pulsed
+        return every and state == (st["led"], st["exposure"], self.brightness, tuple(self.colour))
 
     def check_device(self, controller):
         """Raise before any picture unless the dome is wired and set up as planned."""

@@ -143,6 +143,14 @@ class EmulatedCameras(CameraBackend):
         self._pool.shutdown()
 
 
+def _size(path):
+    """The size of ``path`` in bytes, None while it does not exist."""
+    try:
+        return path.stat().st_size
+    except FileNotFoundError:
+        return None
+
+
 def _png_size(data: bytes):
     """(width, height) from a PNG's IHDR chunk, or None for other formats."""
     if data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR":
@@ -213,11 +221,14 @@ class HotFolderCameras(CameraBackend):
         deadline = time.monotonic() + timeout
         pause, last = 0.001, None
         while True:
-            size = p.stat().st_size if p.exists() else None
-            if size is not None and side.exists():
-                return self._checked(camera, p, side)
-            if size is not None and size == last and not self.require_checksum:
-                return self._checked(camera, p, None)
+            size = _size(p)
+            try:
+                if size is not None and side.exists():
+                    return self._checked(camera, p, side)
+                if size is not None and size == last and not self.require_checksum:
+                    return self._checked(camera, p, None)
+            except (OSError, ValueError) as exc:  # the file went away or its sidecar is unreadable
+                raise DeviceError(f"frame {p} could not be read from the hot folder: {exc}") from None
             if time.monotonic() > deadline:
                 raise DeviceTimeout(
                     f"camera {camera} delivered no frame {p.name} into {p.parent} within {timeout:g} s: check that "

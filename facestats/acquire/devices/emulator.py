@@ -44,7 +44,7 @@ import numpy as np
 from facestats.acquire.devices.cameras import Trigger
 from facestats.acquire.devices.protocol import MAX_LINE, TERMINATOR, ProtocolViolation, Reply, parse_request
 from facestats.core.validate import as_finite, check_integer
-from facestats.errors import ValidationError
+from facestats.errors import DeviceError, ValidationError
 
 __all__ = ["EmulatedDevice", "DomeDevice", "SensorDevice", "Faults", "PtyServer"]
 
@@ -400,10 +400,14 @@ class PtyServer:
         self.slave_name = os.ttyname(slave)
         if self.link:
             tmp = f"{self.link}.{os.getpid()}.tmp"
-            if os.path.lexists(tmp):
-                os.unlink(tmp)
-            os.symlink(self.slave_name, tmp)
-            os.replace(tmp, self.link)
+            try:
+                if os.path.lexists(tmp):
+                    os.unlink(tmp)
+                os.symlink(self.slave_name, tmp)
+                os.replace(tmp, self.link)
+            except OSError as exc:
+                self._close()
+                raise DeviceError(f"cannot create the link {self.link} to the pty: {exc.strerror}") from None
 
     def _close(self):
         if self._fds:

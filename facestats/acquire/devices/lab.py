@@ -24,6 +24,7 @@ from facestats.acquire.devices.cameras import EmulatedCameras, HotFolderWriter
 from facestats.acquire.devices.emulator import DomeDevice, Faults, PtyServer, SensorDevice
 from facestats.acquire.devices.scene import DomeScene, SensorScene, subject_truth
 from facestats.core.validate import check_integer
+from facestats.errors import DeviceError
 
 __all__ = ["emulated_rig", "emulated_dome", "emulated_sensor"]
 
@@ -49,6 +50,16 @@ def emulated_rig(resolution: int | None = None, leds: int | None = None, cameras
         check_integer(resolution, "resolution", 8, 8192)
         dome = dome.resized(resolution, resolution)
     return dome
+
+
+def _directory(path, what) -> pathlib.Path:
+    """``path`` created if needed; a :class:`DeviceError` naming ``what`` if it cannot be."""
+    p = pathlib.Path(path)
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DeviceError(f"cannot create the {what} {p}: {exc.strerror}") from None
+    return p
 
 
 def _write_subject(lab: pathlib.Path, truth):
@@ -84,8 +95,8 @@ def emulated_dome(
     cameras' pixel maps are kept between runs.  ``scene``: a scene built before
     (``server.scene`` of an earlier emulator), reused instead of the subject and rig arguments.
     """
-    lab = pathlib.Path(lab)
-    lab.mkdir(parents=True, exist_ok=True)
+    lab = _directory(lab, "lab directory")
+    _directory(hot_folder, "hot folder")
     if scene is None:
         truth = subject_truth(subject_id, store=store, map_size=map_size)
         scene = DomeScene(
@@ -128,8 +139,8 @@ def emulated_sensor(
     """Build and start the emulated contact sensor on ``subject_id``'s three sites; returns the running server."""
     from facestats.acquire.devices.sensor import save_sensor_calibration
 
-    lab = pathlib.Path(lab)
-    lab.mkdir(parents=True, exist_ok=True)
+    lab = _directory(lab, "lab directory")
+    _directory(hot_folder, "hot folder")
     truth = subject_truth(subject_id, store=store, map_size=map_size)
     scene = SensorScene.of(truth, seed=seed)
     save_sensor_calibration(lab / "sensor-calibration.json", scene.sensor, scene.layout)

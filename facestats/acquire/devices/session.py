@@ -418,7 +418,10 @@ def run_session(
     cameras.prepare()
     journal = _Journal(out, plan, log)
     if state == "new":
-        journal.create(calibration)
+        try:
+            journal.create(calibration)
+        except OSError as exc:
+            raise SessionError(f"cannot create the capture directory {out}: {exc.strerror or exc}") from None
     if isinstance(log, SessionLog):
         log.attach(journal.sdir / "log.txt")
     log(f"{state} {plan.kind} session of {plan.subject_id} (pid {os.getpid()}, device {controller.identity!r})")
@@ -449,6 +452,11 @@ def run_session(
     t0 = time.perf_counter()
     try:
         runner.run(pending)
+    except OSError as exc:  # the capture directory failed under the session (disk full, removed, read-only)
+        raise SessionError(
+            f"cannot write the capture into {out}: {exc.strerror or exc} ({exc.filename or ''}); fix it, then rerun "
+            "with --resume (completed steps are kept)"
+        ) from None
     finally:
         bar.close()
         report.steps_taken, report.frames, report.retakes = runner.taken, runner.frames, runner.retakes

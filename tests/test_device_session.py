@@ -313,3 +313,33 @@ def test_the_sensor_driver_runs_a_bracket(tmp_path):
     finally:
         server.stop()
     assert [(t.site, t.exposure, t.lamp, t.shutter) for t in triggers] == [(1, j, 1, 1) for j in range(23)]
+
+
+def test_a_lamp_switched_off_behind_the_drivers_back_is_noticed_and_set_again(tmp_path):
+    """The sensor's watchdog (or an operator) turns the lamp off mid-bracket: the trigger's report shows it, the
+    step is taken again with the lamp set again, and the session is the same as an undisturbed one."""
+    from facestats.acquire.devices.sensor import SensorController
+    from facestats.acquire.devices.session import run_session
+
+    server = emulated_sensor("S001", tmp_path / "hot", tmp_path / "lab")
+    lab = tmp_path / "lab"
+
+    class Watchdog(HotFolderCameras):
+        def collect(self, trigger, timeout):
+            if (trigger.site, trigger.exposure) == (1, 5):
+                server.device.idle()  # lamp off, shutter closed, without a word to the host
+            return super().collect(trigger, timeout)
+
+    try:
+        run_capture(server, lab, tmp_path / "hot", tmp_path / "clean", kind="sensor")
+        from facestats.acquire.devices.capture import sensor_plan
+
+        plan, calibration = sensor_plan(lab / "sensor-calibration.json", record(lab))
+        with SensorController(server.port) as c:
+            report = run_session(plan, c, Watchdog(tmp_path / "hot", [0]), tmp_path / "out",
+                                 calibration=calibration, progress=False, durable=False)  # fmt: skip
+    finally:
+        server.stop()
+    assert report.retakes == 1 and report.complete
+    assert tree(tmp_path / "out") == tree(tmp_path / "clean")
+    assert "lamp=0" in (tmp_path / "out" / "session" / "log.txt").read_text()

@@ -83,6 +83,10 @@ class Controller:
     def remember(self, key, value):
         self._state[key] = value
 
+    def forget(self):
+        """Forget the remembered state: the next :meth:`ensure` sets everything (the device changed on its own)."""
+        self._state.clear()
+
     # -- shutdown ------------------------------------------------------------------------------------
     def close(self):
         """Switch every light off (a few quick attempts), then close the port."""

@@ -316,6 +316,7 @@ class _Runner:
             self.retakes += 1
             self.log(f"step {s} {self.plan.step(s)}: the device took frame {frame} under {trig}; taking it again")
             self.cameras.release(trig)
+            self.controller.forget()  # e.g. its watchdog switched the light off: set everything again
         raise SessionError(
             f"step {s} {self.plan.step(s)}: the device did not reach the planned state in {self.attempts} triggers "
             f"(last report: {trig}); check the controller, then rerun with --resume"

@@ -55,6 +55,7 @@ class DomeStatus:
     exposure: int
     brightness: int
     colour: tuple
+    lines: int = -1
 
     @classmethod
     def from_fields(cls, f: dict, port: str = "") -> "DomeStatus":
@@ -69,6 +70,7 @@ class DomeStatus:
                 exposure=int(f["exposure"]),
                 brightness=int(f["brightness"]),
                 colour=_ints(f["colour"]),
+                lines=int(f.get("lines", -1)),  # firmware without trigger masks pulses every line
             )
         except (KeyError, ValueError) as exc:
             raise DeviceError(f"the dome on {port} sent a status without a valid field {exc}: {f!r:.120}") from None
@@ -85,10 +87,12 @@ class DomeController(Controller):
     def __init__(self, port: str | None = None, **kwargs):
         super().__init__(port, **kwargs)
         try:
-            self.n_cameras = self.dome_status().n_cameras
+            st = self.dome_status()
         except BaseException:
             self.link.close()
             raise
+        self.n_cameras = st.n_cameras
+        self.remember("lines", st.lines if st.lines >= 0 else (1 << st.n_cameras) - 1)
 
     def light(self, led: int):
         """Light LED ``led`` alone."""

@@ -127,7 +127,8 @@ class EmulatedCameras(CameraBackend):
     def __init__(self, scene, *, extension: str = ".png", workers: int = 2, model: str = "emulated camera"):
         self.scene, self.extension, self.model = scene, extension, model
         self.cameras = tuple(scene.cameras)
-        self._pool = ThreadPoolExecutor(max(1, int(workers)))
+        self.workers = max(1, int(workers))
+        self._pool = ThreadPoolExecutor(self.workers)
 
     def frame(self, camera: int, trigger: Trigger) -> Frame:
         from facestats.acquire.synthetic.photographs import encode_frame
@@ -271,8 +272,10 @@ class HotFolderCameras(CameraBackend):
 class HotFolderWriter:
     """Vendor software for emulated cameras: writes each trigger's frames into a hot folder (module docstring).
 
-    ``submit`` returns at once; at most ``depth`` triggers are rendered at a time
-    (the device's trigger waits beyond that, as a camera that is not ready).
+    ``submit`` returns at once; every frame is rendered, encoded and written by one
+    task on a pool of ``workers`` threads (frames of consecutive triggers overlap).
+    At most ``depth`` triggers are in progress; beyond that ``submit`` waits, as a
+    camera that is not ready yet.
     """
 
     def __init__(self, cameras: EmulatedCameras, folder, *, pattern=DEFAULT_PATTERN, depth: int = 2, log=None):
@@ -280,29 +283,44 @@ class HotFolderWriter:
         self.folder = pathlib.Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         self._slots = threading.BoundedSemaphore(max(1, int(depth)))
-        self._pool = ThreadPoolExecutor(1)
+        self._pool = ThreadPoolExecutor(cameras.workers)
+        self._lock = threading.Lock()
+        self._left = {}
         self.log = log or (lambda line: None)
         self.written = 0
 
     def submit(self, trigger: Trigger):
+        cams = [c for c in self.cameras.cameras if trigger.fires(c)]
+        if not cams:
+            return
         self._slots.acquire()
-        self._pool.submit(self._write, trigger)
+        with self._lock:
+            self._left[trigger.frame] = len(cams)
+        for c in cams:
+            self._pool.submit(self._write, trigger, c)
 
-    def _write(self, trigger):
+    def _write(self, trigger, camera):
         try:
-            for frame in self.cameras.collect(trigger):
-                p = self.folder / self.pattern.format(camera=frame.camera, frame=trigger.frame, ext=frame.extension)
-                p.parent.mkdir(parents=True, exist_ok=True)
-                side = p.with_name(p.name + ".sha256")
-                tmp = p.with_name(p.name + ".part")
-                side.write_text(f"{frame.sha256} {len(frame.data)}\n")
-                tmp.write_bytes(frame.data)
-                os.replace(tmp, p)
+            frame = self.cameras.frame(camera, trigger)
+            p = self.folder / self.pattern.format(camera=camera, frame=trigger.frame, ext=frame.extension)
+            p.parent.mkdir(parents=True, exist_ok=True)
+            side = p.with_name(p.name + ".sha256")
+            tmp = p.with_name(p.name + ".part")
+            side.write_text(f"{frame.sha256} {len(frame.data)}\n")
+            tmp.write_bytes(frame.data)
+            os.replace(tmp, p)
+            with self._lock:
                 self.written += 1
         except Exception as exc:  # a camera system that fails writes nothing; the host times out and says so
-            self.log(f"camera system failed on frame {trigger.frame}: {exc}")
+            self.log(f"camera {camera} failed on frame {trigger.frame}: {exc}")
         finally:
-            self._slots.release()
+            with self._lock:
+                self._left[trigger.frame] -= 1
+                done = not self._left[trigger.frame]
+                if done:
+                    del self._left[trigger.frame]
+            if done:
+                self._slots.release()
 
     def close(self):
         self._pool.shutdown(wait=True)

@@ -204,6 +204,9 @@ class DomeScene:
         self.radiance = sim.simulate(truth).array("radiance")  # (N, C, L, 3) float16, NaN: not rendered
         self.pixels = self._pixel_maps(cache, progress)
         self.dark = dark_code_table(self.camera)
+        # per camera: the lumitexel of each face pixel and the flat indices of its three channels
+        self._face = [(node[node >= 0], flat[node >= 0][:, None] * 3 + np.arange(3)) for flat, node in self.pixels]
+        self._radiance = np.nan_to_num(self.radiance.astype(np.float32))  # NaN (not rendered): dark
 
     def _pixel_maps(self, cache, progress):
         """Each camera's (flat pixel index, lumitexel) arrays (:meth:`FrameRenderer.pixels`), cached if asked."""
@@ -252,13 +255,10 @@ class DomeScene:
         rng = np.random.default_rng([self.seed, camera, trigger.led + 1, exposure, trigger.brightness, *trigger.colour])
         codes = self.dark[rng.integers(0, TABLE_SIZE, h * w * 3, dtype=np.uint16)]
         if 0 <= trigger.led < self.dome.n_leds and np.any(drive > 0):
-            flat, node = self.pixels[camera]
-            on = node >= 0
-            rad = np.nan_to_num(self.radiance[node[on], camera, trigger.led].astype(np.float32))
-            e = rad * (drive * np.float32(self.dome.camera_scale * t))
+            node, index = self._face[camera]
+            e = self._radiance[node, camera, trigger.led] * (drive * np.float32(self.dome.camera_scale * t))
             lit = e > 0
-            index = (flat[on][:, None] * 3 + np.arange(3))[lit]
-            codes[index] = self.camera.encode(e[lit], rng)
+            codes[index[lit]] = self.camera.encode(e[lit], rng)
         return codes.reshape(h, w, 3), t
 
 

@@ -12,7 +12,9 @@
   defaults (fsync of every frame and journal line); target ≤ 120 s, beside the
   paper's 25 s on the real dome (Weyrich et al. 2006 §5).  The emulator's
   start-up is timed apart (its cameras' pixel maps are cached in the benchmark
-  directory); peak resident memory of both processes and the data volume.
+  directory); the CPU seconds of both processes during the session and their sum
+  over two cores (the session's length on two otherwise idle cores, when the
+  machine is shared); peak resident memory of both processes and the data volume.
 * ``sensor_session``: the contact-sensor sequence (3 sites × 23 exposures).
 """
 
@@ -85,6 +87,15 @@ def bench_round_trips(n=5000):
     }
 
 
+def _cpu_s(pid):
+    """User + system CPU seconds of process ``pid`` so far (Linux /proc)."""
+    try:
+        fields = pathlib.Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return float("nan")
+
+
 def _peak_kib(pid):
     try:
         for line in pathlib.Path(f"/proc/{pid}/status").read_text().splitlines():
@@ -131,16 +142,17 @@ def _session(kind, root, extra, durable=True):
             plan, calibration = sensor_plan(lab / "sensor-calibration.json", record)
         out = root / f"{kind}-capture"
         shutil.rmtree(out, ignore_errors=True)
-        t0 = time.perf_counter()
+        t0, e0, c0 = time.perf_counter(), _cpu_s(proc.pid), time.process_time()
         report = capture(plan, calibration, port, out, root / f"{kind}-hot", durable=durable, progress=False)
         wall = time.perf_counter() - t0
+        cpu = (_cpu_s(proc.pid) - e0, time.process_time() - c0)
         emulator_kib = _peak_kib(proc.pid)
     finally:
         proc.terminate()
         proc.wait(timeout=60)
     size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
     shutil.rmtree(out, ignore_errors=True)
-    return report, wall, startup, emulator_kib, size
+    return report, wall, startup, emulator_kib, size, cpu
 
 
 def bench_dome_session(resolution=1024, leds=150, cameras=16, durable=True):
@@ -149,13 +161,16 @@ def bench_dome_session(resolution=1024, leds=150, cameras=16, durable=True):
     root = bench_dir() / "devices"
     root.mkdir(parents=True, exist_ok=True)
     extra = ["--resolution", resolution, "--leds", leds, "--cameras", cameras, "--cache", root / "pixel-maps"]
-    report, wall, startup, emulator_kib, size = _session("dome", root, extra, durable)
+    report, wall, startup, emulator_kib, size, (emulator_cpu, capture_cpu) = _session("dome", root, extra, durable)
     return {
         "session_s": wall,
         "target_s": TARGET_SESSION_S,
         "paper_hardware_s": PAPER_SESSION_S,
         "frames": report.frames,
         "frames_per_s": report.frames / wall,
+        "emulator_cpu_s": emulator_cpu,
+        "capture_cpu_s": capture_cpu,
+        "two_idle_cores_s": (emulator_cpu + capture_cpu) / 2,  # the same work on two otherwise idle cores
         "emulator_startup_s": startup,
         "capture_peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         "emulator_peak_mib": emulator_kib / 1024,
@@ -169,7 +184,7 @@ def bench_sensor_session(durable=True):
 
     root = bench_dir() / "devices"
     root.mkdir(parents=True, exist_ok=True)
-    report, wall, startup, _, size = _session("sensor", root, [], durable)
+    report, wall, startup, _, size, _ = _session("sensor", root, [], durable)
     return {"session_s": wall, "frames": report.frames, "emulator_startup_s": startup, "data_mb": size / 1e6}
 
 

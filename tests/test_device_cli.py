@@ -114,7 +114,7 @@ def test_sensor_dry_run_prints_the_bracket_and_its_duration(tmp_path):
                 "--skin-type", "3", "--dry-run")  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert "3 sites (cheek, forehead, neck) × 23 exposures = 69 frames" in r.stdout
-    assert "88 s per site" in r.stdout and not (tmp_path / "cap").exists()
+    assert "89 s per site" in r.stdout and not (tmp_path / "cap").exists()
 
 
 def _capture_port(root, port):

@@ -22,12 +22,21 @@ def _server(faults=Faults(), link=None, **device):
     return PtyServer(DomeDevice(150, 16, EXPOSURES, **device), faults, link=link, reconnect_delay=0.1).start()
 
 
-def _sweep(c, n):
-    """n steps of light + trigger, each checked against the state the device reports."""
+def _sweep(c, n, retakes=0):
+    """n steps of light + trigger, each checked against the state the device reports.
+
+    A step whose trigger reports another state (a reboot lost it between the light and the
+    trigger) is taken again, at most ``retakes`` times in all, as a session does.
+    """
     for i in range(n):
-        c.ensure(i % 150, i % 2)
-        trig = c.trigger(i)
-        assert (trig.led, trig.exposure) == (i % 150, i % 2), (i, trig)
+        while True:
+            c.ensure(i % 150, i % 2)
+            trig = c.trigger(i)
+            if (trig.led, trig.exposure) == (i % 150, i % 2):
+                break
+            assert retakes > 0, (i, trig)
+            retakes -= 1
+            c.forget()
 
 
 @pytest.mark.parametrize(
@@ -77,7 +86,9 @@ def test_a_reboot_and_a_disconnect_mid_sequence_are_survived(tmp_path):
     server = _server(Faults(reboot_after=(25,), disconnect_after=(50,)), link=link)
     try:
         with DomeController(str(link), timeout=0.3, backoff=0.01) as c:
-            _sweep(c, 60)  # every trigger is taken under the planned LED and exposure
+            _sweep(
+                c, 60, retakes=1
+            )  # every trigger under the planned LED and exposure; one retake if the reboot hit it
             assert (c.epoch, c.link.stats.reboots, c.link.stats.reconnects) == (1, 1, 1)
             assert server.injected["reboot"] == 1 and server.injected["disconnect"] == 1
     finally:

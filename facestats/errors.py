@@ -15,6 +15,10 @@ __all__ = [
     "FitError",
     "FormatError",
     "DependencyError",
+    "DeviceError",
+    "DeviceTimeout",
+    "DeviceReplyError",
+    "SessionError",
     "ConvergenceWarning",
     "FacestatsWarning",
     "QuantisationWarning",
@@ -47,6 +51,26 @@ class FormatError(FacestatsError):
 
 class DependencyError(FacestatsError, ImportError):
     """An optional dependency a feature needs is not installed (the message says how to install it)."""
+
+
+class DeviceError(FacestatsError):
+    """A serial device cannot be opened, does not speak the facestats protocol, or was wired differently."""
+
+
+class DeviceTimeout(DeviceError):
+    """A device did not answer a command within its retries (silent, disconnected or too noisy a line)."""
+
+
+class DeviceReplyError(DeviceError):
+    """A device answered a command with a numbered error (``code``: the protocol's error number)."""
+
+    def __init__(self, message: str, code: int = 0):
+        super().__init__(message)
+        self.code = int(code)
+
+
+class SessionError(FacestatsError):
+    """A capture session cannot start or resume: its directory, plan or journal does not fit the request."""
 
 
 class ConvergenceWarning(UserWarning):

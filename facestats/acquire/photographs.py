@@ -76,13 +76,17 @@ _FRAME_FIELDS = ("camera", "led", "exposure", "exposure_s", "file", "sha256")
 EXIF_TOLERANCE = 0.01
 
 
-def write_sensor_file(path, sensor, profile, profile_std) -> pathlib.Path:
-    """Write contact-sensor profiles (site, fiber, channel; mm⁻²) and the sensor's description as JSON."""
+def write_sensor_file(path, sensor, profile, profile_std, **fields) -> pathlib.Path:
+    """Write contact-sensor profiles (site, fiber, channel; mm⁻²) and the sensor's description as JSON.
+
+    ``fields`` add entries (e.g. the raw bracket frames of a device capture); readers ignore them.
+    """
     doc = {
         "format": SENSOR_FORMAT,
         "sensor": sensor.to_attrs(),
         "profile": np.asarray(profile, np.float64).tolist(),
         "profile_std": np.asarray(profile_std, np.float64).tolist(),
+        **fields,
     }
     p = pathlib.Path(path)
     p.write_text(json.dumps(doc))

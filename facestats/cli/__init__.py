@@ -15,7 +15,9 @@ prints.  Heavy modules are imported inside the commands so that ``facestats
 * :mod:`~facestats.cli.microstructure` — ``microstructure render``, ``microstructure generate``;
 * :mod:`~facestats.cli.translucency` — ``translucency``;
 * :mod:`~facestats.cli.ingest` — ``ingest``;
-* :mod:`~facestats.cli.calibrate` — ``calibrate leds``.
+* :mod:`~facestats.cli.calibrate` — ``calibrate leds``;
+* :mod:`~facestats.cli.emulate` — ``emulate dome|sensor``;
+* :mod:`~facestats.cli.capture` — ``capture dome|sensor``.
 """
 
 from __future__ import annotations
@@ -27,8 +29,10 @@ import sys
 from facestats.cli.analyze import add_analyze
 from facestats.cli.build import add_build
 from facestats.cli.calibrate import add_calibrate
+from facestats.cli.capture import add_capture
 from facestats.cli.demo import add_demo
 from facestats.cli.edit import add_edit
+from facestats.cli.emulate import add_emulate
 from facestats.cli.export import add_export_subject
 from facestats.cli.ingest import add_ingest
 from facestats.cli.microstructure import add_microstructure
@@ -59,6 +63,8 @@ COMMANDS = [
     add_translucency,
     add_ingest,
     add_calibrate,
+    add_emulate,
+    add_capture,
 ]
 
 

@@ -1,0 +1,327 @@
+"""Cameras behind one small interface: emulated cameras, and a hot folder that vendor software fills.
+
+A :class:`CameraBackend` delivers the frames of one trigger (:class:`Trigger`, the
+device's report of the light state the cameras exposed under) as :class:`Frame`
+objects: the encoded file's bytes and their SHA-256.  Two backends:
+
+* :class:`EmulatedCameras` renders the frames from a scene
+  (:mod:`facestats.acquire.devices.scene`) for the LED, exposure and drive the
+  trigger reports, encoded as the simulator encodes photographs
+  (:func:`facestats.acquire.synthetic.photographs.encode_frame`: 16-bit PNG with the
+  exposure time in EXIF).
+* :class:`HotFolderCameras` waits for the files that a camera vendor's software
+  drops into a directory, one per camera and trigger, named by ``pattern``
+  (default ``cam{camera:02d}/{frame:012d}.png``): each file is awaited with a
+  timeout, then checked against its sidecar ``<file>.sha256`` (``"<hex digest>
+  <size in bytes>"``) when there is one, or else read once its size has stopped
+  changing, and a PNG's header is checked against the calibration's image size.
+  Files are removed once the session has stored them (:meth:`CameraBackend.release`).
+
+:class:`HotFolderWriter` is the other side of a hot folder: it writes an
+emulated camera system's frames the way vendor software would (sidecar first,
+then the image by an atomic rename), on a pool of threads so that frames are
+encoded while the device goes on with the sequence.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import pathlib
+import struct
+import threading
+import time
+from abc import ABC, abstractmethod
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+from facestats.errors import DeviceError, DeviceTimeout
+
+__all__ = ["Trigger", "Frame", "CameraBackend", "EmulatedCameras", "HotFolderCameras", "HotFolderWriter"]
+
+DEFAULT_PATTERN = "cam{camera:02d}/{frame:012d}{ext}"
+
+
+@dataclass(frozen=True)
+class Trigger:
+    """A device's report of one trigger: the frame id and the state the cameras exposed under.
+
+    Dome triggers use ``led`` (−1: none lit), ``exposure`` (index of the
+    calibration's exposure times), ``brightness`` and ``colour`` (0-255) and
+    ``lines`` (bit c set: camera c's trigger line pulsed; −1: every line); sensor
+    triggers use ``exposure`` (index in the bracket), ``lamp``, ``shutter`` and
+    ``site`` (index of :data:`facestats.core.conventions.SITES`).
+    """
+
+    frame: int
+    led: int = -1
+    exposure: int = 0
+    brightness: int = 255
+    colour: tuple = (255, 255, 255)
+    lamp: int = 0
+    shutter: int = 0
+    site: int = 0
+    lines: int = -1
+
+    def fires(self, camera: int) -> bool:
+        """True if ``camera``'s trigger line was pulsed."""
+        return self.lines < 0 or bool(self.lines >> int(camera) & 1)
+
+    @classmethod
+    def from_fields(cls, fields: dict) -> "Trigger":
+        """The trigger of a ``tr`` reply's payload (``frame=… led=… exposure=…``)."""
+        try:
+            kw = {
+                k: int(fields[k])
+                for k in ("frame", "led", "exposure", "brightness", "lamp", "shutter", "site", "lines")
+                if k in fields
+            }
+            if "colour" in fields:
+                kw["colour"] = tuple(int(v) for v in fields["colour"].split(","))
+            return cls(**kw)
+        except (KeyError, ValueError) as exc:
+            raise DeviceError(f"trigger reply with a malformed field: {fields!r} ({exc})") from None
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One camera's picture of a trigger: file bytes, their SHA-256, the exposure time (s), the file's extension.
+
+    ``path`` is the file the bytes were read from (a hot folder's), if any.
+    """
+
+    camera: int
+    data: bytes
+    sha256: str
+    exposure_s: float
+    extension: str = ".png"
+    path: pathlib.Path | None = None
+
+
+class CameraBackend(ABC):
+    """The frames of each trigger, from real or emulated cameras (module docstring)."""
+
+    cameras: tuple = ()
+
+    def prepare(self):
+        """Get ready for a session (called once before the first trigger)."""
+
+    @abstractmethod
+    def collect(self, trigger: Trigger, timeout: float) -> list:
+        """The :class:`Frame` of every camera for ``trigger``, waiting at most ``timeout`` s per frame."""
+
+    def release(self, trigger: Trigger):
+        """Forget the frames of ``trigger`` (stored, or taken under a wrong state)."""
+
+    def close(self):
+        """Release the backend's resources."""
+
+
+class EmulatedCameras(CameraBackend):
+    """Frames rendered from a scene (``scene.render(camera, trigger) -> (codes, exposure_s)``, ``scene.cameras``).
+
+    ``workers`` threads encode the cameras' frames of a trigger in parallel
+    (noise generation and PNG encoding release the GIL).
+    """
+
+    def __init__(self, scene, *, extension: str = ".png", workers: int = 2, model: str = "emulated camera"):
+        self.scene, self.extension, self.model = scene, extension, model
+        self.cameras = tuple(scene.cameras)
+        self.workers = max(1, int(workers))
+        self._pool = ThreadPoolExecutor(self.workers)
+
+    def frame(self, camera: int, trigger: Trigger) -> Frame:
+        from facestats.acquire.synthetic.photographs import encode_frame
+
+        codes, t = self.scene.render(camera, trigger)
+        data = encode_frame(codes, t, self.extension, model=self.model)
+        return Frame(camera, data, hashlib.sha256(data).hexdigest(), t, self.extension)
+
+    def collect(self, trigger: Trigger, timeout: float = 0.0) -> list:
+        return list(self._pool.map(lambda c: self.frame(c, trigger), [c for c in self.cameras if trigger.fires(c)]))
+
+    def close(self):
+        self._pool.shutdown()
+
+
+def _size(path):
+    """The size of ``path`` in bytes, None while it does not exist."""
+    try:
+        return path.stat().st_size
+    except FileNotFoundError:
+        return None
+
+
+def _png_size(data: bytes):
+    """(width, height) from a PNG's IHDR chunk, or None for other formats."""
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR":
+        return struct.unpack(">II", data[16:24])
+    return None
+
+
+class HotFolderCameras(CameraBackend):
+    """Frames that vendor software writes into ``folder`` (module docstring).
+
+    Parameters
+    ----------
+    folder : path-like
+        The hot folder (must exist).
+    cameras : sequence of int
+        The cameras to expect a file from on every trigger.
+    pattern : str
+        File name of a frame relative to ``folder``, with ``{camera}``, ``{frame}`` and ``{ext}``.
+    extension : str
+        ``{ext}`` of the pattern.
+    sizes : dict, optional
+        Expected (width, height) of each camera's frames (checked for PNG files).
+    settle : float
+        Without a sidecar, a file is read when its size has not changed for this long, s.
+    require_checksum : bool
+        Wait for every frame's sidecar (vendor software that always writes one);
+        otherwise a frame without a sidecar is read once its size has settled.
+    """
+
+    def __init__(
+        self,
+        folder,
+        cameras,
+        *,
+        pattern=DEFAULT_PATTERN,
+        extension=".png",
+        sizes=None,
+        settle=0.05,
+        require_checksum=False,
+    ):
+        self.folder = pathlib.Path(folder)
+        self.cameras = tuple(int(c) for c in cameras)
+        self.pattern, self.extension = pattern, extension
+        self.sizes = dict(sizes or {})
+        self.settle = float(settle)
+        self.require_checksum = bool(require_checksum)
+        try:
+            pattern.format(camera=0, frame=0, ext=extension)
+        except (KeyError, IndexError, ValueError) as exc:
+            raise DeviceError(f"hot-folder pattern {pattern!r} is invalid ({exc}); use {{camera}}, {{frame}}, {{ext}}")
+
+    def path(self, camera: int, frame: int) -> pathlib.Path:
+        return self.folder / self.pattern.format(camera=camera, frame=frame, ext=self.extension)
+
+    def prepare(self):
+        if not self.folder.is_dir():
+            raise DeviceError(
+                f"hot folder {self.folder} does not exist: point --hot-folder at the directory the camera software "
+                "(or `facestats emulate`) writes frames into"
+            )
+
+    def collect(self, trigger: Trigger, timeout: float) -> list:
+        return [self._wait(c, trigger.frame, timeout) for c in self.cameras if trigger.fires(c)]
+
+    def _wait(self, camera, frame, timeout):
+        p = self.path(camera, frame)
+        side = p.with_name(p.name + ".sha256")
+        deadline = time.monotonic() + timeout
+        pause, last = 0.001, None
+        while True:
+            size = _size(p)
+            try:
+                if size is not None and side.exists():
+                    return self._checked(camera, p, side)
+                if size is not None and size == last and not self.require_checksum:
+                    return self._checked(camera, p, None)
+            except (OSError, ValueError) as exc:  # the file went away or its sidecar is unreadable
+                raise DeviceError(f"frame {p} could not be read from the hot folder: {exc}") from None
+            if time.monotonic() > deadline:
+                raise DeviceTimeout(
+                    f"camera {camera} delivered no frame {p.name} into {p.parent} within {timeout:g} s: check that "
+                    "the camera software is running and writing there (--hot-folder), or raise --frame-timeout"
+                )
+            last = size
+            time.sleep(pause if size is None else max(pause, self.settle))
+            pause = min(2 * pause, 0.02)
+
+    def _checked(self, camera, p, side):
+        data = p.read_bytes()
+        digest = hashlib.sha256(data).hexdigest()
+        if side is not None:
+            want = side.read_text().split()
+            if len(want) != 2 or want[0] != digest or int(want[1]) != len(data):
+                raise DeviceError(
+                    f"frame {p} does not match its checksum file {side.name} ({len(data)} bytes, sha256 "
+                    f"{digest[:12]}…, expected {' '.join(want)[:40]}): the transfer was corrupted; rerun with --resume "
+                    "to take it again"
+                )
+        size = _png_size(data)
+        want_size = self.sizes.get(camera)
+        if size is not None and want_size is not None and tuple(size) != tuple(want_size):
+            raise DeviceError(
+                f"frame {p} is {size[0]}×{size[1]} pixels, the calibration's camera {camera} is "
+                f"{want_size[0]}×{want_size[1]}: is the camera software set to the calibrated resolution?"
+            )
+        return Frame(camera, data, digest, float("nan"), p.suffix, p)
+
+    def release(self, trigger: Trigger):
+        for c in self.cameras:
+            p = self.path(c, trigger.frame)
+            for q in (p.with_name(p.name + ".sha256"), p):
+                try:
+                    q.unlink()
+                except FileNotFoundError:
+                    pass
+
+
+class HotFolderWriter:
+    """Vendor software for emulated cameras: writes each trigger's frames into a hot folder (module docstring).
+
+    ``submit`` returns at once; every frame is rendered, encoded and written by one
+    task on a pool of ``workers`` threads (frames of consecutive triggers overlap).
+    At most ``depth`` triggers are in progress; beyond that ``submit`` waits, as a
+    camera that is not ready yet.
+    """
+
+    def __init__(self, cameras: EmulatedCameras, folder, *, pattern=DEFAULT_PATTERN, depth: int = 2, log=None):
+        self.cameras, self.pattern = cameras, pattern
+        self.folder = pathlib.Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self._slots = threading.BoundedSemaphore(max(1, int(depth)))
+        self._pool = ThreadPoolExecutor(cameras.workers)
+        self._lock = threading.Lock()
+        self._left = {}
+        self.log = log or (lambda line: None)
+        self.written = 0
+
+    def submit(self, trigger: Trigger):
+        cams = [c for c in self.cameras.cameras if trigger.fires(c)]
+        if not cams:
+            return
+        self._slots.acquire()
+        with self._lock:
+            self._left[trigger.frame] = len(cams)
+        for c in cams:
+            self._pool.submit(self._write, trigger, c)
+
+    def _write(self, trigger, camera):
+        try:
+            frame = self.cameras.frame(camera, trigger)
+            p = self.folder / self.pattern.format(camera=camera, frame=trigger.frame, ext=frame.extension)
+            p.parent.mkdir(parents=True, exist_ok=True)
+            side = p.with_name(p.name + ".sha256")
+            tmp = p.with_name(p.name + ".part")
+            side.write_text(f"{frame.sha256} {len(frame.data)}\n")
+            tmp.write_bytes(frame.data)
+            os.replace(tmp, p)
+            with self._lock:
+                self.written += 1
+        except Exception as exc:  # a camera system that fails writes nothing; the host times out and says so
+            self.log(f"camera {camera} failed on frame {trigger.frame}: {exc}")
+        finally:
+            with self._lock:
+                self._left[trigger.frame] -= 1
+                done = not self._left[trigger.frame]
+                if done:
+                    del self._left[trigger.frame]
+            if done:
+                self._slots.release()
+
+    def close(self):
+        self._pool.shutdown(wait=True)
+        self.cameras.close()

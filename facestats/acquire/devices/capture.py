@@ -1,0 +1,114 @@
+"""Capture from the lab's devices: calibration → plan → controller and hot-folder cameras → session.
+
+:func:`dome_plan` and :func:`sensor_plan` make the plan of a calibration file and
+a subject record (no device needed: the dry run prints it); :func:`capture` opens
+the controller on ``port`` (a device path or pyserial URL), checks it against
+the plan, waits for the cameras' frames in the hot folder and runs the session
+(:func:`facestats.acquire.devices.session.run_session`).  Everything that can be
+refused without the device (a directory of another subject, a journal of another
+plan, a missing hot folder) is refused before the port is opened.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+
+from facestats.acquire.devices.cameras import DEFAULT_PATTERN, HotFolderCameras
+from facestats.acquire.devices.plans import DomePlan, SensorPlan
+from facestats.acquire.devices.session import SessionLog, SessionReport, run_session, session_state
+from facestats.errors import FormatError
+
+__all__ = ["dome_plan", "sensor_plan", "capture", "read_subject_record"]
+
+
+def _read(path) -> bytes:
+    try:
+        return pathlib.Path(path).read_bytes()
+    except OSError as exc:
+        raise FormatError(f"cannot read calibration {path}: {exc.strerror}") from None
+
+
+def read_subject_record(path) -> dict:
+    """The subject record of a JSON file (fields of :func:`~facestats.acquire.devices.plans.subject_record`)."""
+    try:
+        doc = json.loads(pathlib.Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise FormatError(f"cannot read the subject record {path}: {exc}") from None
+    if not isinstance(doc, dict):
+        raise FormatError(f"subject record {path} must be a JSON object, got {type(doc).__name__}")
+    return doc
+
+
+def dome_plan(calibration, subject: dict, **options) -> tuple:
+    """``(DomePlan, calibration bytes)`` of a dome calibration file (:meth:`facestats.acquire.dome.Dome.load`)."""
+    from facestats.acquire.dome import Dome
+
+    data = _read(calibration)
+    try:
+        doc = json.loads(data)
+    except json.JSONDecodeError as exc:
+        raise FormatError(f"dome calibration {calibration} is not valid JSON: {exc}") from None
+    return DomePlan.from_calibration(Dome.from_dict(doc), data, subject, **options), data
+
+
+def sensor_plan(calibration, subject: dict, **options) -> tuple:
+    """``(SensorPlan, calibration bytes)`` of a sensor calibration file (``facestats.sensor-calibration/1``)."""
+    from facestats.acquire.devices.sensor import load_sensor_calibration
+
+    data = _read(calibration)
+    sensor, layout = load_sensor_calibration(calibration)
+    return SensorPlan.from_calibration(sensor, layout, data, subject, **options), data
+
+
+def capture(
+    plan,
+    calibration: bytes,
+    port: str,
+    out,
+    hot_folder,
+    *,
+    resume: bool = False,
+    link_options: dict | None = None,
+    pattern: str = DEFAULT_PATTERN,
+    frame_timeout: float = 60.0,
+    durable: bool = True,
+    verify: bool = False,
+    progress: bool = True,
+    on_site=None,
+    echo=None,
+) -> SessionReport:
+    """Run ``plan`` on the device at ``port`` with the frames of ``hot_folder`` into ``out`` (module docstring).
+
+    ``link_options`` are keyword arguments of
+    :class:`~facestats.acquire.devices.serial_link.SerialLink` (baudrate, bytesize,
+    parity, stopbits, timeout, retries); ``echo`` receives the session's log lines
+    as they happen.
+    """
+    from facestats.acquire.devices.dome import DomeController
+    from facestats.acquire.devices.sensor import SensorController
+
+    if session_state(out, plan, resume=resume) == "complete":
+        return SessionReport(plan.kind, plan.subject_id, pathlib.Path(out), plan.n_steps, plan.n_steps, complete=True)
+    if plan.kind == "dome":
+        cams, sizes, controller = range(plan.n_cameras), dict(enumerate(plan.image_size)), DomeController
+    else:
+        cams, sizes, controller = (0,), {0: plan.image_size}, SensorController
+    cameras = HotFolderCameras(hot_folder, cams, pattern=pattern, extension=plan.extension, sizes=sizes)
+    cameras.prepare()
+    log = SessionLog(echo)
+    with controller(port, log=log, **(link_options or {})) as device:
+        return run_session(
+            plan,
+            device,
+            cameras,
+            out,
+            calibration=calibration,
+            resume=resume,
+            progress=progress,
+            frame_timeout=frame_timeout,
+            durable=durable,
+            verify=verify,
+            log=log,
+            on_site=on_site,
+        )

@@ -1,0 +1,110 @@
+"""What every device driver shares: the link, the identity handshake, status, and a clean shutdown.
+
+A driver opens a :class:`~facestats.acquire.devices.serial_link.SerialLink`, asks
+the device ``ver`` and refuses a device of another kind (a dome driver on the
+sensor's port, a modem, a device of another protocol) before it sends anything
+else.  As a context manager it switches every light off when it leaves — also
+after an error or Ctrl-C — and then closes the port; if the device cannot be
+reached any more, the failure is logged and the port closed anyway.
+
+Drivers remember the state they have set on the device (:meth:`Controller.remember`)
+and send only what differs (:meth:`Controller.changed`); a reboot of the device
+(:attr:`Controller.epoch` changes) forgets it, so the next step sets everything again.
+"""
+
+from __future__ import annotations
+
+from facestats.acquire.devices.serial_link import SerialLink
+from facestats.errors import DeviceError
+
+__all__ = ["Controller"]
+
+
+class Controller:
+    """Base of :class:`DomeController` and :class:`SensorController` (module docstring).
+
+    Parameters
+    ----------
+    port : str
+        Device path or pyserial URL (``loop://``, ``socket://host:port``, ``rfc2217://host:port``).
+    link : SerialLink, optional
+        An open link to use instead of opening ``port``.
+    log : callable, optional
+        Receives one line per irregular event.
+    **link_options
+        Keyword arguments of :class:`SerialLink` (baudrate, parity, timeout, retries, …).
+    """
+
+    #: "dome" or "sensor": the device's identity must start with ``facestats-<kind>``.
+    kind = ""
+
+    def __init__(self, port: str | None = None, *, link: SerialLink | None = None, log=None, **link_options):
+        self.link = link if link is not None else SerialLink(port, log=log, **link_options)
+        self._state: dict = {}
+        self._state_epoch = self.link.epoch
+        try:
+            self.identity = self.link.request("ver").payload
+        except BaseException:
+            self.link.close()
+            raise
+        if not self.identity.startswith(f"facestats-{self.kind}"):
+            self.link.close()
+            raise DeviceError(
+                f"the device on {self.link.port} identifies itself as {self.identity!r}, not as a facestats "
+                f"{self.kind} controller: check --port"
+            )
+
+    @property
+    def port(self) -> str:
+        return self.link.port
+
+    @property
+    def epoch(self) -> int:
+        """Reboots of the device seen so far (its state is lost at each)."""
+        return self.link.epoch
+
+    def status(self) -> dict:
+        """The device's ``st`` reply as a dict of strings."""
+        return self.link.request("st").fields()
+
+    def all_off(self):
+        """Switch every light off (``x``)."""
+        self.link.request("x")
+        self._state.clear()
+
+    # -- remembered device state -------------------------------------------------------------------
+    def changed(self, key, value) -> bool:
+        """True unless the device is known to hold ``value`` for ``key`` since its last reboot."""
+        if self._state_epoch != self.link.epoch:
+            self._state.clear()
+            self._state_epoch = self.link.epoch
+        return self._state.get(key) != value
+
+    def remember(self, key, value):
+        self._state[key] = value
+
+    def forget(self):
+        """Forget the remembered state: the next :meth:`ensure` sets everything (the device changed on its own)."""
+        self._state.clear()
+
+    # -- shutdown ------------------------------------------------------------------------------------
+    def close(self):
+        """Switch every light off (a few quick attempts), then close the port."""
+        if not self.link.is_open:
+            return
+        retries, timeout = self.link.retries, self.link.timeout
+        self.link.retries, self.link.timeout = min(retries, 2), min(timeout, 0.5)
+        self.link.reconnect_timeout = min(self.link.reconnect_timeout, 1.0)
+        try:
+            self.all_off()
+        except DeviceError as exc:
+            self.link.log(f"could not switch the lights off on closing: {exc}")
+        finally:
+            self.link.retries, self.link.timeout = retries, timeout
+            self.link.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

@@ -1,0 +1,317 @@
+"""The contact sensor's controller (Weyrich et al. 2006 §5.4): source lamp, shutter, the 23-image HDR bracket.
+
+Commands (:mod:`facestats.acquire.devices.protocol`; every reply is a frame):
+
+=========================  ===================================================================
+``?``, ``ver``, ``reboot``  as on the dome (identity ``facestats-sensor …``)
+``st``                     status: ``fibers=28 exposures=23 exposure_us=1000,1587,…
+                           image=233x17 lamp=0 shutter=0 exposure=0 site=0``
+``lamp.<0|1>``             the white LED coupled into the source fibre
+``sh.<0|1>``               the camera's shutter (closed: dark frames)
+``se.<j>``                 exposure j of the bracket (t_j = t₀ 2^(stop·j), ``exposure_us``)
+``pos.<s>``                placement label: the site the operator has put the head on
+                           (0 cheek, 1 forehead, 2 neck), recorded with every frame
+``tr.<frame>``             take one picture of the detector fibres; answered with ``frame=…
+                           exposure=… lamp=… shutter=… site=…``
+``x``                      lamp off, shutter closed
+=========================  ===================================================================
+
+The camera images the 28 detector fibres as a row of round spots (:class:`FiberLayout`;
+a documented choice: the paper's Fig. 9 shows such a row).  :func:`merge_bracket`
+turns one site's bracket into the profile R(r) the fit reads: per pixel the
+inverse-variance HDR merge of :func:`facestats.acquire.hdr.merge_exposures`,
+then per fibre the mean over its spot (each spot pixel collects ``scale`` · R(r)
+electrons per second, :class:`facestats.acquire.sensor.ContactSensor`) and the
+standard deviation of that mean.
+
+The sensor's calibration file (``facestats.sensor-calibration/1``, JSON) holds the
+:meth:`ContactSensor.to_attrs` description and the fibre layout.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from facestats.acquire.devices.cameras import Trigger
+from facestats.acquire.devices.controller import Controller
+from facestats.core.published import N_FIBERS
+from facestats.core.validate import check_integer
+from facestats.errors import DeviceError, FormatError, ValidationError
+
+__all__ = [
+    "FiberLayout",
+    "merge_bracket",
+    "SensorBracket",
+    "read_bracket",
+    "SensorController",
+    "SensorStatus",
+    "save_sensor_calibration",
+    "load_sensor_calibration",
+    "CALIBRATION_FORMAT",
+]
+
+CALIBRATION_FORMAT = "facestats.sensor-calibration/1"
+
+
+@dataclass(frozen=True)
+class FiberLayout:
+    """Where the detector fibres appear in the sensor camera's image: a row of round spots.
+
+    Fibre k's spot is centred at pixel (margin + k·pitch, margin) (pixel centres at
+    integers) and holds the pixels within ``radius_px`` of it; the image is
+    (2·margin + (n − 1)·pitch + 1) × (2·margin + 1) pixels.
+    """
+
+    n_fibers: int = N_FIBERS
+    pitch_px: int = 8
+    radius_px: float = 2.5
+    margin_px: int = 8
+
+    def __post_init__(self):
+        check_integer(self.n_fibers, "n_fibers", 1)
+        check_integer(self.pitch_px, "pitch_px", 1)
+        check_integer(self.margin_px, "margin_px", 1)
+        if not 0.5 <= self.radius_px < min(self.pitch_px / 2, self.margin_px + 0.5):
+            raise ValidationError(
+                f"radius_px must lie in [0.5, {min(self.pitch_px / 2, self.margin_px + 0.5):g}) so spots stay apart "
+                f"and inside the image, got {self.radius_px!r}"
+            )
+
+    @property
+    def size(self) -> tuple:
+        """(width, height) of the image, pixels."""
+        return 2 * self.margin_px + (self.n_fibers - 1) * self.pitch_px + 1, 2 * self.margin_px + 1
+
+    def labels(self) -> np.ndarray:
+        """(H, W) int64: the fibre each pixel belongs to, −1 between the spots."""
+        w, h = self.size
+        v, u = np.mgrid[0:h, 0:w]
+        k = np.rint((u - self.margin_px) / self.pitch_px).astype(np.int64)
+        du = u - (self.margin_px + k * self.pitch_px)
+        inside = (k >= 0) & (k < self.n_fibers) & (du**2 + (v - self.margin_px) ** 2 <= self.radius_px**2)
+        return np.where(inside, k, -1)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def merge_bracket(stack, times, sensor, layout: FiberLayout):
+    """R(r) per fibre (mm⁻²) and its standard deviation from one site's bracket of sensor frames.
+
+    Parameters
+    ----------
+    stack : array_like, shape (E, H, W, 3)
+        Linear raw codes (DN) of the E exposures.
+    times : array_like, shape (E,)
+        Exposure times, s.
+    sensor : ContactSensor
+        Its ``camera`` (noise model) and ``scale`` (electrons s⁻¹ per mm⁻² of R, per spot pixel).
+    layout : FiberLayout
+
+    Returns
+    -------
+    profile, std : ndarray, shape (F, 3)
+        Mean over each fibre's spot of the merged rate / ``scale``, and
+        sqrt(Σ σ²)/P / ``scale`` for its P pixels; NaN where a spot pixel clipped
+        in every exposure.
+    """
+    from facestats.acquire.hdr import merge_exposures
+
+    dn = np.moveaxis(np.asarray(stack, np.float64), 0, -1)  # (H, W, 3, E)
+    labels = layout.labels()
+    if dn.shape[:2] != labels.shape or dn.shape[2] != 3:
+        raise ValidationError(
+            f"stack must hold (E, {labels.shape[0]}, {labels.shape[1]}, 3) frames, got {np.shape(stack)}"
+        )
+    rate, std, _ = merge_exposures(dn, times, sensor.camera)
+    spot = labels >= 0
+    k = labels[spot]
+    count = np.bincount(k, minlength=layout.n_fibers)[:, None]
+    total = np.stack([np.bincount(k, rate[spot][:, c], layout.n_fibers) for c in range(3)], 1)
+    var = np.stack([np.bincount(k, std[spot][:, c] ** 2, layout.n_fibers) for c in range(3)], 1)
+    return total / count / sensor.scale, np.sqrt(var) / count / sensor.scale
+
+
+@dataclass
+class SensorBracket:
+    """A sensor session's result: the raw bracket per site and the merged profiles (:func:`read_bracket`).
+
+    Attributes
+    ----------
+    sites : tuple of str
+    fiber_distance : ndarray, shape (F,)
+        mm.
+    exposure_s : ndarray, shape (E,)
+    readings : ndarray, shape (site, E, F, 3)
+        Mean code of each fibre's spot in each frame, DN (black level included).
+    profile, profile_std : ndarray, shape (site, F, 3)
+        Merged R(r), mm⁻², and its standard deviation.
+    max_dn : int
+        The camera's largest code (saturation).
+    """
+
+    sites: tuple
+    fiber_distance: np.ndarray
+    exposure_s: np.ndarray
+    readings: np.ndarray
+    profile: np.ndarray
+    profile_std: np.ndarray
+    max_dn: int
+
+
+def read_bracket(folder) -> SensorBracket:
+    """The sensor session of a capture folder: its ``sensor.json`` and the raw frames it lists."""
+    from facestats.acquire.sensor import ContactSensor
+    from facestats.io.images import decode_integer_image
+
+    folder = pathlib.Path(folder)
+    try:
+        doc = json.loads((folder / "sensor.json").read_text())
+        frames = doc["frames"]
+    except (OSError, json.JSONDecodeError, KeyError) as exc:
+        raise FormatError(f"{folder} holds no completed sensor session (sensor.json with its frames): {exc}") from None
+    sensor = ContactSensor.from_attrs(doc["sensor"])
+    profile, std = np.asarray(doc["profile"], np.float64), np.asarray(doc["profile_std"], np.float64)
+    labels = FiberLayout(sensor.n_fibers).labels()
+    spot = labels >= 0
+    count = np.bincount(labels[spot], minlength=sensor.n_fibers)[:, None]
+    sites = tuple(dict.fromkeys(f["site"] for f in frames))
+    n_exp = sensor.n_exposures
+    readings = np.zeros((len(sites), n_exp, sensor.n_fibers, 3))
+    for f in frames:
+        codes = decode_integer_image((folder / f["file"]).read_bytes(), f["file"])[0].astype(np.float64)
+        k = labels[spot]
+        sums = np.stack([np.bincount(k, codes[spot][:, c], sensor.n_fibers) for c in range(3)], 1)
+        readings[sites.index(f["site"]), f["exposure"]] = sums / count
+    return SensorBracket(
+        sites, sensor.fiber_distance, sensor.exposure_times, readings, profile, std, sensor.camera.max_dn
+    )
+
+
+def save_sensor_calibration(path, sensor, layout: FiberLayout) -> pathlib.Path:
+    """Write the sensor's calibration (module docstring) as JSON."""
+    p = pathlib.Path(path)
+    doc = {"format": CALIBRATION_FORMAT, "sensor": sensor.to_attrs(), "fiber_layout": layout.to_dict()}
+    p.write_text(json.dumps(doc, indent=1))
+    return p
+
+
+def load_sensor_calibration(path):
+    """``(ContactSensor, FiberLayout)`` of a sensor calibration file; :class:`FormatError` naming what is wrong."""
+    from facestats.acquire.sensor import ContactSensor
+
+    try:
+        doc = json.loads(pathlib.Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise FormatError(f"cannot read sensor calibration {path}: {exc}") from None
+    if not isinstance(doc, dict) or doc.get("format") != CALIBRATION_FORMAT:
+        raise FormatError(f"sensor calibration {path} field 'format' must be {CALIBRATION_FORMAT!r}")
+    try:
+        return ContactSensor.from_attrs(doc["sensor"]), FiberLayout(**doc["fiber_layout"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise FormatError(f"sensor calibration {path} has a missing or malformed field: {exc}") from None
+
+
+@dataclass(frozen=True)
+class SensorStatus:
+    """A sensor controller's ``st`` reply."""
+
+    n_fibers: int
+    exposure_s: tuple
+    image_size: tuple
+    lamp: int
+    shutter: int
+    exposure: int
+    site: int
+
+    @classmethod
+    def from_fields(cls, f: dict, port: str = "") -> "SensorStatus":
+        try:
+            w, h = (int(v) for v in f["image"].split("x"))
+            return cls(
+                n_fibers=int(f["fibers"]),
+                exposure_s=tuple(int(v) / 1e6 for v in f["exposure_us"].split(",")),
+                image_size=(w, h),
+                lamp=int(f["lamp"]),
+                shutter=int(f["shutter"]),
+                exposure=int(f["exposure"]),
+                site=int(f["site"]),
+            )
+        except (KeyError, ValueError) as exc:
+            raise DeviceError(f"the sensor on {port} sent a status without a valid field {exc}: {f!r:.120}") from None
+
+
+class SensorController(Controller):
+    """Driver of the contact sensor (module docstring); a context manager that turns the lamp off on leaving."""
+
+    kind = "sensor"
+
+    def sensor_status(self) -> SensorStatus:
+        return SensorStatus.from_fields(self.status(), self.port)
+
+    def lamp(self, on: bool):
+        self.link.request("lamp", int(bool(on)))
+        self.remember("lamp", int(bool(on)))
+
+    def shutter(self, open_: bool):
+        self.link.request("sh", int(bool(open_)))
+        self.remember("shutter", int(bool(open_)))
+
+    def set_exposure(self, j: int):
+        self.link.request("se", check_integer(j, "exposure", 0))
+        self.remember("exposure", int(j))
+
+    def place(self, site: int):
+        """Record the site the head now sits on (0 cheek, 1 forehead, 2 neck)."""
+        self.link.request("pos", check_integer(site, "site", 0, 2))
+        self.remember("site", int(site))
+
+    def ensure(self, site: int, exposure: int, lamp: bool = True, shutter: bool = True):
+        """Bring the device to this state, sending only what it is not known to hold (again after a reboot)."""
+        for _ in range(3):  # a reboot on the way loses what was set before it: set everything again
+            epoch = self.epoch
+            if self.changed("site", site):
+                self.place(site)
+            if self.changed("exposure", exposure):
+                self.set_exposure(exposure)
+            if self.changed("lamp", int(lamp)):
+                self.lamp(lamp)
+            if self.changed("shutter", int(shutter)):
+                self.shutter(shutter)
+            if self.epoch == epoch:
+                return
+
+    def trigger(self, frame: int, timeout: float | None = None) -> Trigger:
+        """Take one picture; the state the device reports it was taken under."""
+        reply = self.link.request("tr", check_integer(frame, "frame", 0), timeout=timeout)
+        return Trigger.from_fields(reply.fields())
+
+    def bracket(self, site: int, exposures, frames, timeout: float | None = None):
+        """The :class:`Trigger` of each exposure index of ``exposures`` at ``site``, frame ids from ``frames``."""
+        for j, frame in zip(exposures, frames):
+            self.ensure(site, j)
+            yield self.trigger(frame, timeout)
+
+    def check(self, n_fibers: int, exposure_s, image_size) -> SensorStatus:
+        """Raise :class:`DeviceError` unless the sensor matches its calibration (fibres, bracket, image size)."""
+        st = self.sensor_status()
+        where = f"the sensor on {self.port}"
+        fix = "fix the sensor's configuration or use its calibration file; no picture was taken"
+        if st.n_fibers != n_fibers:
+            raise DeviceError(f"{where} reports {st.n_fibers} detector fibres, the calibration has {n_fibers}: {fix}")
+        want, got = np.asarray(exposure_s, float), np.asarray(st.exposure_s, float)
+        if got.shape != want.shape or np.any(np.abs(got / want - 1) > 0.01):
+            raise DeviceError(
+                f"{where} brackets {got.size} exposures {[round(float(v), 6) for v in got[:3]]}… s, the calibration "
+                f"{want.size} exposures {[round(float(v), 6) for v in want[:3]]}… s (agreement within 1 % needed): "
+                f"{fix}"
+            )
+        if tuple(st.image_size) != tuple(image_size):
+            raise DeviceError(
+                f"{where} images {st.image_size} pixels, the calibration's fibre layout {image_size}: {fix}"
+            )
+        return st

@@ -1,0 +1,165 @@
+"""``facestats emulate dome|sensor``: an emulated controller on a pseudo-terminal
+(:mod:`facestats.acquire.devices.lab`)."""
+
+from __future__ import annotations
+
+import signal
+import sys
+import tempfile
+import threading
+
+__all__ = ["add_emulate"]
+
+
+def _faults(args):
+    from facestats.acquire.devices.emulator import Faults
+
+    return Faults(
+        drop=args.drop / 100,
+        garble=args.garble / 100,
+        truncate=args.truncate / 100,
+        duplicate=args.duplicate / 100,
+        stall=args.stall / 100,
+        stall_s=args.stall_seconds,
+        disconnect_after=tuple(args.disconnect_after),
+        reboot_after=tuple(args.reboot_after),
+        seed=args.fault_seed,
+    )
+
+
+def _serve(server, args, what):
+    """Print where the device is, serve until Ctrl-C, SIGTERM or --duration, print what happened."""
+    print(what)
+    print(f"port: {server.slave_name}")
+    if args.link:
+        print(f"link: {args.link} (follows reconnections)")
+    print(f"hot folder: {args.hot_folder}")
+    print(f"lab files: {args.lab}")
+    print("ready (Ctrl-C to stop)", flush=True)
+    done = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *a: done.set())
+    done.wait(args.duration)
+    server.stop()
+    injected = {k: v for k, v in server.injected.items() if v}
+    print(
+        f"stopped after {server.commands} commands; frames written {server.writer.written}; faults {injected or 'none'}"
+    )
+    return 0
+
+
+def _dirs(args, kind):
+    base = None
+    if args.hot_folder is None or args.lab is None:
+        base = tempfile.mkdtemp(prefix=f"facestats-emulate-{kind}-")
+    args.hot_folder = args.hot_folder or f"{base}/hot"
+    args.lab = args.lab or f"{base}/lab"
+
+
+def _log(args):
+    return None if args.quiet else (lambda line: print(f"[emulator] {line}", file=sys.stderr, flush=True))
+
+
+def _cmd_dome(args) -> int:
+    from facestats.acquire.devices.lab import emulated_dome
+
+    _dirs(args, "dome")
+    server = emulated_dome(
+        args.subject,
+        args.hot_folder,
+        args.lab,
+        store=args.store,
+        map_size=args.map_size,
+        resolution=args.resolution,
+        leds=args.leds,
+        cameras=args.cameras,
+        faults=_faults(args),
+        link=args.link,
+        wired_leds=args.wired_leds,
+        realtime=args.realtime,
+        seed=args.seed,
+        workers=args.workers,
+        cache=args.cache,
+        progress=not args.quiet,
+        log=_log(args),
+    )
+    dome = server.scene.dome
+    w, h = dome.image_size[0]
+    what = f"dome emulator for {args.subject}: {dome.n_leds} LEDs, {dome.n_cameras} cameras, {w}×{h} px frames"
+    return _serve(server, args, what)
+
+
+def _cmd_sensor(args) -> int:
+    from facestats.acquire.devices.lab import emulated_sensor
+
+    _dirs(args, "sensor")
+    server = emulated_sensor(
+        args.subject,
+        args.hot_folder,
+        args.lab,
+        store=args.store,
+        map_size=args.map_size,
+        faults=_faults(args),
+        link=args.link,
+        realtime=args.realtime,
+        seed=args.seed,
+        log=_log(args),
+    )
+    s = server.scene.sensor
+    what = f"contact-sensor emulator for {args.subject}: {s.n_fibers} fibres, {s.n_exposures}-image bracket"
+    return _serve(server, args, what)
+
+
+def _common(p):
+    p.add_argument("--subject", default="S001", help="subject to emulate (default S001)")
+    p.add_argument(
+        "--store", help="take the subject from this store ('default': the embedded one); default: the synthetic truth"
+    )
+    p.add_argument("--map-size", type=int, default=16, help="map side of a synthetic subject (default 16)")
+    p.add_argument("--hot-folder", help="where the emulated cameras drop frames (default: a new temporary directory)")
+    p.add_argument("--lab", help="where the calibration, mesh and subject record are written (default: temporary)")
+    p.add_argument("--link", help="a symlink kept pointing at the pty (stable across injected disconnects)")
+    p.add_argument("--realtime", action="store_true", help="answer triggers only after the exposure time")
+    p.add_argument("--seed", type=int, default=0, help="seed of the frames' noise (default 0)")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar, no fault log")
+    f = p.add_argument_group("fault injection (fractions in per cent of replies or commands)")
+    f.add_argument("--drop", type=float, default=0.0, metavar="PCT", help="replies not sent")
+    f.add_argument("--garble", type=float, default=0.0, metavar="PCT", help="replies with one byte changed")
+    f.add_argument("--truncate", type=float, default=0.0, metavar="PCT", help="replies cut short")
+    f.add_argument("--duplicate", type=float, default=0.0, metavar="PCT", help="replies sent twice")
+    f.add_argument("--stall", type=float, default=0.0, metavar="PCT", help="commands before which the device freezes")
+    f.add_argument("--stall-seconds", type=float, default=1.5, help="length of a stall (default 1.5 s)")
+    f.add_argument(
+        "--disconnect-after", type=int, nargs="*", default=[], metavar="K", help="drop the line after command K"
+    )
+    f.add_argument("--reboot-after", type=int, nargs="*", default=[], metavar="K", help="reboot at command K")
+    f.add_argument("--fault-seed", type=int, default=0, help="seed of the fault draws (default 0)")
+
+
+def add_emulate(sub):
+    p = sub.add_parser(
+        "emulate",
+        help="emulate the dome or the contact sensor on a pseudo-terminal (for capture without hardware)",
+        description=(
+            "Open a pseudo-terminal and speak the facestats device protocol on it as the dome's LED/trigger controller "
+            "or the contact sensor would, with emulated cameras that render the subject (synthetic population or a "
+            "store subject) for the state the controller is in and drop the frames into a hot folder. Prints the "
+            "port to pass to `facestats capture --port`; writes the lab's calibration, mesh and subject record. "
+            "Faults can be injected into the replies."
+        ),
+    )
+    esub = p.add_subparsers(title="device", metavar="DEVICE")
+    dome = esub.add_parser("dome", help="the dome: LEDs, camera triggers, two exposure settings")
+    _common(dome)
+    dome.add_argument("--resolution", type=int, default=None, help="frame side in pixels (default: the rig's 1024)")
+    dome.add_argument("--leds", type=int, default=None, help="a smaller rig: keep N LEDs evenly spread (default 150)")
+    dome.add_argument("--cameras", type=int, default=None, help="a smaller rig: keep N cameras (default 16)")
+    dome.add_argument("--wired-leds", type=int, default=None, help="a mis-wired controller reporting N LEDs")
+    dome.add_argument("--workers", type=int, default=2, help="threads rendering frames (default 2)")
+    dome.add_argument("--cache", help="directory keeping the cameras' pixel maps between runs")
+    dome.set_defaults(func=_cmd_dome)
+    sensor = esub.add_parser("sensor", help="the contact sensor: lamp, shutter, 23-image bracket")
+    _common(sensor)
+    sensor.set_defaults(func=_cmd_sensor)
+    p.set_defaults(func=lambda args: p.print_help() or 2)

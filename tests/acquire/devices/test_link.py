@@ -1,0 +1,227 @@
+"""The serial link and the drivers over a real pseudo-terminal: faults are detected, retried and counted."""
+
+import os
+import pty
+import socket
+import stat
+import threading
+import time
+
+import pytest
+
+from facestats.acquire.devices.dome import DomeController
+from facestats.acquire.devices.emulator import DomeDevice, Faults, PtyServer, SensorDevice
+from facestats.acquire.devices.protocol import parse_request
+from facestats.acquire.devices.serial_link import SerialLink
+from facestats.errors import DeviceError, DeviceReplyError, DeviceTimeout
+
+EXPOSURES = [1 / 60, 1 / 8]
+
+
+def _server(faults=Faults(), link=None, **device):
+    return PtyServer(DomeDevice(150, 16, EXPOSURES, **device), faults, link=link, reconnect_delay=0.1).start()
+
+
+def _sweep(c, n, retakes=0):
+    """n steps of light + trigger, each checked against the state the device reports.
+
+    A step whose trigger reports another state (a reboot lost it between the light and the
+    trigger) is taken again, at most ``retakes`` times in all, as a session does.
+    """
+    for i in range(n):
+        while True:
+            c.ensure(i % 150, i % 2)
+            trig = c.trigger(i)
+            if (trig.led, trig.exposure) == (i % 150, i % 2):
+                break
+            assert retakes > 0, (i, trig)
+            retakes -= 1
+            c.forget()
+
+
+@pytest.mark.parametrize(
+    "kind, faults",
+    [
+        ("garbled", Faults(garble=0.15, seed=1)),
+        ("truncated", Faults(truncate=0.15, seed=2)),
+        ("duplicates", Faults(duplicate=0.15, seed=3)),
+        ("timeouts", Faults(drop=0.15, seed=4)),
+    ],
+)
+def test_each_kind_of_damaged_reply_is_detected_counted_and_retried(kind, faults):
+    server = _server(faults)
+    try:
+        with DomeController(server.port, timeout=0.15, backoff=0.005) as c:
+            _sweep(c, 40)
+            c.link.request("st")  # the duplicate of the last reply, if any, is seen on the next request
+            stats = c.link.stats
+        injected = {"garbled": "garble", "truncated": "truncate", "duplicates": "duplicate", "timeouts": "drop"}[kind]
+        assert server.injected[injected] >= 5
+        if kind == "timeouts":  # a reply late under heavy load also counts as a timeout
+            assert stats.timeouts >= server.injected[injected]
+        else:
+            assert getattr(stats, kind) == server.injected[injected]  # every damaged reply detected, none invented
+        if kind != "duplicates":
+            assert stats.retries >= server.injected[injected]  # a retry per damaged reply, answered from the cache
+    finally:
+        server.stop()
+
+
+def test_late_replies_after_a_stall_are_discarded_as_out_of_order():
+    server = _server(Faults(stall=0.1, stall_s=0.3, seed=5))
+    try:
+        with DomeController(server.port, timeout=0.1, backoff=0.005) as c:
+            _sweep(c, 20)
+            for _ in range(5):
+                c.link.request("st")
+            assert server.injected["stall"] >= 2
+            assert c.link.stats.timeouts >= server.injected["stall"]
+            assert c.link.stats.out_of_order + c.link.stats.duplicates >= server.injected["stall"]
+    finally:
+        server.stop()
+
+
+def test_a_reboot_and_a_disconnect_mid_sequence_are_survived(tmp_path):
+    link = tmp_path / "dome.tty"
+    server = _server(Faults(reboot_after=(25,), disconnect_after=(50,)), link=link)
+    try:
+        with DomeController(str(link), timeout=0.3, backoff=0.01) as c:
+            _sweep(
+                c, 60, retakes=1
+            )  # every trigger under the planned LED and exposure; one retake if the reboot hit it
+            assert (c.epoch, c.link.stats.reboots, c.link.stats.reconnects) == (1, 1, 1)
+            assert server.injected["reboot"] == 1 and server.injected["disconnect"] == 1
+    finally:
+        server.stop()
+
+
+def test_the_driver_switches_the_lights_off_on_leaving_even_after_an_error():
+    server = _server()
+    try:
+        with pytest.raises(RuntimeError, match="operator"):
+            with DomeController(server.port) as c:
+                c.light(42)
+                assert server.device.led == 42
+                raise RuntimeError("operator pressed the wrong key")
+        assert server.device.led == -1
+    finally:
+        server.stop()
+
+
+def test_a_device_that_never_answers_times_out_with_advice():
+    master, slave = pty.openpty()  # nobody serves the master
+    try:
+        t0 = time.monotonic()
+        with pytest.raises(DeviceTimeout, match=r"did not answer 'ver' after 3 attempt\(s\) .*check its power"):
+            SerialLink(os.ttyname(slave), timeout=0.1, retries=2, backoff=0.01).request("ver")
+        assert time.monotonic() - t0 < 2.0  # bounded: 3 × 0.1 s plus 0.03 s of backoff
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+def _answer_forever(master, text):
+    """A device of another protocol: answers every line with ``text``."""
+    buf = b""
+    while True:
+        try:
+            data = os.read(master, 1024)
+        except OSError:
+            return
+        buf += data
+        while b"\n" in buf:
+            _, _, buf = buf.partition(b"\n")
+            os.write(master, text)
+
+
+def test_a_device_of_another_protocol_is_named_as_such():
+    master, slave = pty.openpty()
+    threading.Thread(target=_answer_forever, args=(master, b"OK\r\n"), daemon=True).start()
+    try:
+        with pytest.raises(DeviceTimeout, match="not facestats protocol frames .*: it speaks another protocol"):
+            DomeController(os.ttyname(slave), timeout=0.1, retries=1)
+    finally:
+        os.close(slave)
+        os.close(master)
+    with pytest.raises(DeviceTimeout, match="another protocol"):  # pyserial URL: the request comes back unanswered
+        DomeController("loop://", timeout=0.1, retries=1)
+
+
+def test_another_kind_of_device_and_a_miswired_dome_are_refused():
+    sensor = PtyServer(SensorDevice(28, [1e-3, 2e-3], (233, 17))).start()
+    try:
+        with pytest.raises(DeviceError, match="identifies itself as 'facestats-sensor.*not as a facestats dome"):
+            DomeController(sensor.port)
+    finally:
+        sensor.stop()
+    server = _server(wired_leds=149)
+    try:
+        with DomeController(server.port) as c:
+            with pytest.raises(DeviceError, match="reports 149 LEDs, the calibration has 150: fix the wiring"):
+                c.check(150, 16, EXPOSURES)
+            with pytest.raises(
+                DeviceError, match=r"exposes for \[0.016667, 0.125\] s, the calibration for \[0.033333, 0.125\]"
+            ):
+                c.check(149, 16, [1 / 30, 1 / 8])
+            with pytest.raises(DeviceReplyError, match=r"error 4 \(argument out of range\)") as exc:
+                c.light(149)
+            assert exc.value.code == 4
+            assert c.check(149, 16, EXPOSURES).n_leds == 149
+    finally:
+        server.stop()
+
+
+def test_ports_that_cannot_be_opened_say_why(tmp_path):
+    with pytest.raises(DeviceError, match="no such device.*list_ports"):
+        SerialLink(str(tmp_path / "ttyUSB9"))
+    plain = tmp_path / "notes.txt"
+    plain.write_text("hello")
+    with pytest.raises(DeviceError, match="not a serial port"):
+        SerialLink(str(plain))
+    with pytest.raises(DeviceError, match="loop://, socket://, rfc2217://"):
+        SerialLink("rfc2217://127.0.0.1:9")  # nothing listens on the discard port
+    master, slave = pty.openpty()
+    name = os.ttyname(slave)
+    try:
+        if os.geteuid() != 0:
+            os.chmod(name, stat.S_IRUSR)
+            with pytest.raises(DeviceError, match="permission denied.*dialout"):
+                SerialLink(name)
+        else:  # root opens anything: raise what pyserial raises for EACCES (serialposix.Serial.open)
+            import serial
+
+            def refuse(url, **kw):
+                raise serial.SerialException(13, f"could not open port {url}: [Errno 13] Permission denied: {url!r}")
+
+            with pytest.MonkeyPatch.context() as mp:
+                mp.setattr(serial, "serial_for_url", refuse)
+                with pytest.raises(DeviceError, match="permission denied.*dialout"):
+                    SerialLink(name)
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+def test_socket_urls_reach_a_device_over_tcp():
+    dev = DomeDevice(150, 16, EXPOSURES)
+    srv = socket.create_server(("127.0.0.1", 0))
+
+    def serve():
+        conn, _ = srv.accept()
+        buf = b""
+        while data := conn.recv(1024):
+            buf += data
+            while b"\n" in buf:
+                line, _, buf = buf.partition(b"\n")
+                conn.sendall(dev.handle(line) or b"")
+        conn.close()
+
+    threading.Thread(target=serve, daemon=True).start()
+    try:
+        with DomeController(f"socket://127.0.0.1:{srv.getsockname()[1]}") as c:
+            c.ensure(7, 1)
+            assert c.trigger(3).led == 7 and c.dome_status().exposure == 1
+        assert dev.led == -1  # switched off on leaving
+    finally:
+        srv.close()
+    assert parse_request(b"x").name == "x"

@@ -1,0 +1,130 @@
+"""The device protocol (framing, CRC, detection of damaged frames) and the emulated firmware, without a port."""
+
+import numpy as np
+import pytest
+
+from facestats.acquire.devices.cameras import Trigger
+from facestats.acquire.devices.emulator import DomeDevice, Faults, SensorDevice
+from facestats.acquire.devices.protocol import (
+    TERMINATOR,
+    FrameError,
+    FrameReader,
+    ProtocolViolation,
+    Reply,
+    Request,
+    crc16,
+    parse_reply,
+    parse_request,
+)
+from facestats.errors import DeviceError, FacestatsError, ValidationError
+
+
+def _crc16_bitwise(data: bytes) -> int:
+    """CRC-16/CCITT-FALSE bit by bit (Williams 1993): an independent check of :func:`crc16`."""
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else (crc << 1)
+            crc &= 0xFFFF
+    return crc
+
+
+def test_crc16_has_the_catalogued_check_value_and_agrees_with_a_bitwise_implementation():
+    assert crc16(b"123456789") == 0x29B1  # CRC catalogue, CRC-16/CCITT-FALSE (IBM-3740)
+    rng = np.random.default_rng(0)
+    for n in (0, 1, 7, 64, 301):
+        data = bytes(rng.integers(0, 256, n, dtype=np.uint8))
+        assert crc16(data) == _crc16_bitwise(data)
+
+
+def test_requests_round_trip_and_bad_requests_get_their_error_numbers():
+    req = Request("sc", (255, 200, 0), 1048577)
+    line = req.encode()
+    assert line.startswith(b"sc.255.200.0 #1048577*") and line.endswith(b"\n")
+    assert parse_request(line[:-1]) == req
+    assert parse_request(b"l.37\r") == Request("l", (37,), 0)  # typed at a terminal
+    bad = bytearray(line[:-1])
+    bad[3] ^= 0x01  # one flipped bit in the body
+    with pytest.raises(ProtocolViolation) as exc:
+        parse_request(bytes(bad))
+    assert exc.value.code == 2  # bad checksum
+    for text, code in ((b"L.37", 7), (b"l.3x", 7), (b"l." + b"1" * 300, 7)):
+        with pytest.raises(ProtocolViolation) as exc:
+            parse_request(text)
+        assert exc.value.code == code
+    with pytest.raises(DeviceError, match="command arguments must be integers"):
+        Request("l", ("37",))
+    assert isinstance(ProtocolViolation("x", 1), FacestatsError)
+
+
+def test_every_single_bit_error_and_every_truncation_of_a_frame_is_detected():
+    payload = "frame=9 led=37 exposure=1 brightness=255 colour=255,255,255"
+    frame = Reply(4711, 123456, "OK", payload).encode()
+    body = len(frame) - len(TERMINATOR)
+    assert FrameReader().feed(frame) == [Reply(4711, 123456, "OK", payload)]
+    for i in range(body):  # CRC-16 detects every single-bit error; a damaged '@' or '*' breaks the syntax
+        for bit in range(8):
+            items = FrameReader().feed(frame[:i] + bytes([frame[i] ^ (1 << bit)]) + frame[i + 1 :])
+            assert items and all(isinstance(x, FrameError) for x in items), (i, bit)
+    for cut in range(1, len(frame)):  # a frame cut short yields nothing but pending bytes reported as truncated
+        reader = FrameReader()
+        assert reader.feed(frame[:cut]) == []
+        assert reader.flush().kind == "truncated"
+
+
+def test_a_truncated_frame_followed_by_a_whole_one_gives_both_items():
+    a, b = Reply(1, 7, "OK", "x=1").encode(), Reply(2, 8, "E04", "LED 151 out of range 0..149").encode()
+    items = FrameReader().feed(a[:6] + b)
+    assert isinstance(items[0], FrameError) and items[0].kind == "truncated"
+    assert items[1] == Reply(2, 8, "E04", "LED 151 out of range 0..149") and items[1].error_code == 4
+    assert Reply(3, 9, "OK", "leds=150 colour=1,2,3 ready").fields() == {"leds": "150", "colour": "1,2,3", "ready": ""}
+
+
+def _ask(device, name, *args, rid=0):
+    items = FrameReader().feed(device.handle(Request(name, args, rid).encode()[:-1]))
+    assert len(items) == 1
+    return items[0]
+
+
+def test_the_dome_firmware_answers_each_request_id_once_and_reports_its_state():
+    triggers = []
+    dev = DomeDevice(150, 16, [1 / 60, 1 / 8], on_trigger=triggers.append)
+    assert _ask(dev, "ver").payload.startswith("facestats-dome")
+    assert _ask(dev, "l", 37, rid=5).ok and _ask(dev, "se", 1, rid=6).ok
+    line = Request("tr", (99,), 7).encode()[:-1]
+    first = dev.handle(line)
+    assert dev.handle(line) == first  # a retried trigger is answered from the stored frame…
+    assert triggers == [Trigger(99, 37, 1, 255, (255, 255, 255), lines=65535)]  # …and takes no second picture
+    assert Trigger.from_fields(parse_reply(first[: -len(TERMINATOR)]).fields()) == triggers[0]
+    assert _ask(dev, "l", 150).error_code == 4 and _ask(dev, "zz").error_code == 1 and _ask(dev, "l").error_code == 3
+    st = _ask(dev, "st").fields()
+    assert (st["leds"], st["led"], st["exposure"], st["exposure_us"]) == ("150", "37", "1", "16667,125000")
+    assert _ask(dev, "tm", 5).ok and _ask(dev, "tm", 65536).error_code == 4
+    masked = Trigger.from_fields(_ask(dev, "tr", 100, rid=8).fields())
+    assert masked.lines == 5 and [masked.fires(c) for c in range(4)] == [True, False, True, False]
+    boot = parse_reply(dev.boot()[: -len(TERMINATOR)])
+    assert (boot.seq, boot.status) == (1, "BOOT") and _ask(dev, "st").fields()["led"] == "-1"  # state lost
+    assert _ask(dev, "st").seq == 3  # sequence numbers restarted
+
+
+def test_the_sensor_firmware_and_a_miswired_dome():
+    dev = SensorDevice(28, 1e-3 * 2.0 ** (2 / 3 * np.arange(23)), (233, 17))
+    for cmd, arg in (("pos", 2), ("se", 22), ("lamp", 1), ("sh", 1)):
+        assert _ask(dev, cmd, arg).ok
+    trig = Trigger.from_fields(_ask(dev, "tr", 5).fields())
+    assert (trig.site, trig.exposure, trig.lamp, trig.shutter) == (2, 22, 1, 1)
+    assert _ask(dev, "x").ok and _ask(dev, "st").fields()["lamp"] == "0"
+    assert _ask(dev, "pos", 3).error_code == 4
+    miswired = DomeDevice(150, 16, [1 / 60, 1 / 8], wired_leds=149)
+    assert _ask(miswired, "st").fields()["leds"] == "149" and _ask(miswired, "l", 149).error_code == 4
+
+
+def test_fault_settings_are_checked():
+    with pytest.raises(ValidationError, match="garble must lie in"):
+        Faults(garble=1.5)
+    with pytest.raises(ValidationError, match="must not exceed 1"):
+        Faults(drop=0.6, garble=0.6)
+    with pytest.raises(ValidationError, match="reboot_after"):
+        Faults(reboot_after=(0,))
+    assert not Faults().any and Faults(disconnect_after=(3,)).any

@@ -1,0 +1,344 @@
+"""Capture sessions against the emulated devices over a real pty: full sequences, faults, resume, refusals."""
+
+import json
+import shutil
+import time
+
+import numpy as np
+import pytest
+
+from facestats.acquire.devices.cameras import EmulatedCameras, HotFolderCameras, Trigger
+from facestats.acquire.devices.capture import capture, dome_plan
+from facestats.acquire.devices.emulator import Faults
+from facestats.acquire.devices.lab import emulated_dome, emulated_sensor
+from facestats.acquire.devices.plans import DomePlan, SensorPlan
+from facestats.acquire.photographs import open_folder
+from facestats.errors import DeviceError, SessionError
+from tests.acquire.devices.helpers import record, run_capture, tree
+
+
+@pytest.fixture(scope="module")
+def full(tmp_path_factory):
+    """The full dome sequence (150 LEDs × 16 cameras × 2 exposures) at 24² pixels, captured once without faults."""
+    root = tmp_path_factory.mktemp("full")
+    server = emulated_dome("S001", root / "hot", root / "lab", resolution=24)
+    try:
+        report = run_capture(server, root / "lab", root / "hot", root / "clean")
+    finally:
+        server.stop()
+    return root, server.scene, report
+
+
+@pytest.mark.slow
+def test_the_full_dome_sequence_writes_the_capture_folder_the_ingest_reads(full):
+    root, scene, report = full
+    assert report.complete and (report.steps_taken, report.frames, report.retakes) == (300, 4800, 0)
+    folder = open_folder(root / "clean")
+    assert (folder.n_cameras, folder.n_leds, folder.n_exposures) == (16, 150, 2)
+    assert folder.subject() == record(root / "lab") and folder.bits == 12
+    assert (root / "clean" / "dome.json").read_bytes() == (root / "lab" / "dome.json").read_bytes()
+    journal = (root / "clean" / "session" / "dome.journal").read_text().splitlines()
+    assert [json.loads(line)["step"] for line in journal] == list(range(300))
+    cams = EmulatedCameras(scene)
+    for camera, led, exposure in ((0, 0, 0), (7, 75, 1), (15, 149, 1), (3, 12, 0)):  # each file is its own frame
+        stored = (root / "clean" / folder.files[0, camera, led, exposure]).read_bytes()
+        assert stored == cams.frame(camera, Trigger(0, led, exposure)).data
+    codes = folder.read_codes(7, 75, 1, size=(24, 24))  # checksum, size and EXIF exposure time checked
+    assert codes.shape == (24, 24, 3) and codes.max() > 100
+
+
+@pytest.mark.slow
+def test_garbled_replies_a_disconnect_and_a_reboot_leave_the_session_identical(full, tmp_path):
+    root, scene, _ = full
+    faults = Faults(garble=0.01, disconnect_after=(200,), reboot_after=(400,), seed=7)
+    server = emulated_dome(
+        "S001", tmp_path / "hot", tmp_path / "lab", scene=scene, faults=faults, link=tmp_path / "tty"
+    )
+    try:
+        report = run_capture(server, tmp_path / "lab", tmp_path / "hot", tmp_path / "faulty")
+    finally:
+        server.stop()
+    assert server.injected["garble"] >= 3 and server.injected["disconnect"] == 1 and server.injected["reboot"] == 1
+    link = report.link
+    assert link["garbled"] == server.injected["garble"] and link["reboots"] == 1 and link["reconnects"] == 1
+    assert tree(tmp_path / "faulty") == tree(root / "clean")  # byte for byte, journal included
+    log = (tmp_path / "faulty" / "session" / "log.txt").read_text()
+    assert "rebooted" in log and "reconnecting" in log and "garbled reply frame" in log
+
+
+@pytest.mark.slow
+def test_the_full_sensor_sequence_measures_the_profiles_within_their_noise(full, tmp_path):
+    root, _, _ = full
+    out = tmp_path / "capture"
+    shutil.copytree(root / "clean", out)  # the sensor session joins the dome session's folder
+    server = emulated_sensor("S001", tmp_path / "hot", tmp_path / "lab")
+    try:
+        report = run_capture(server, tmp_path / "lab", tmp_path / "hot", out, kind="sensor", on_site=print)
+    finally:
+        server.stop()
+    assert report.complete and report.frames == 69
+    sensor, profile, std = open_folder(out).sensor()
+    truth = server.scene.profile
+    z = (profile - truth) / std
+    assert np.all(np.abs(z) < 5) and 0.8 < np.std(z) < 1.2  # the merged profile and its noise model agree
+    strong = truth > 1e-4
+    assert np.abs(profile[strong] / truth[strong] - 1).max() < 0.01  # the paper's dynamic range: 1 % where it matters
+    entries = json.loads((out / "sensor.json").read_text())["frames"]
+    assert [e["file"] for e in entries[:2]] == ["sensor/cheek_e00.png", "sensor/cheek_e01.png"] and len(entries) == 69
+    assert tree(root / "clean").items() <= tree(out).items()  # the dome session is untouched
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    """A smaller rig (10 LEDs, 4 cameras, 24²) and its clean session, for the resume and refusal tests."""
+    root = tmp_path_factory.mktemp("small")
+    server = emulated_dome("S002", root / "hot", root / "lab", resolution=24, leds=10, cameras=4)
+    try:
+        run_capture(server, root / "lab", root / "hot", root / "clean", durable=True)
+    finally:
+        server.stop()
+    return root, server.scene
+
+
+def _serve(small, tmp_path, **kw):
+    _, scene = small
+    return emulated_dome("S002", tmp_path / "hot", tmp_path / "lab", scene=scene, **kw)
+
+
+class _Crash(HotFolderCameras):
+    """Cameras of a process that dies (KeyboardInterrupt) while collecting its ``at``-th trigger."""
+
+    def __init__(self, *a, at, **kw):
+        super().__init__(*a, **kw)
+        self.at, self.calls = at, 0
+
+    def collect(self, trigger, timeout):
+        self.calls += 1
+        if self.calls == self.at:
+            raise KeyboardInterrupt("power cut")
+        return super().collect(trigger, timeout)
+
+
+def test_an_interrupted_session_resumes_to_the_identical_folder(small, tmp_path):
+    root, _ = small
+    server = _serve(small, tmp_path)
+    out = tmp_path / "out"
+    try:
+        plan, calibration = dome_plan(tmp_path / "lab" / "dome.json", record(tmp_path / "lab"))
+        from facestats.acquire.devices.dome import DomeController
+
+        with DomeController(server.port) as c:
+            from facestats.acquire.devices.session import run_session
+
+            cams = _Crash(tmp_path / "hot", range(4), at=8)
+            with pytest.raises(KeyboardInterrupt):
+                run_session(plan, c, cams, out, calibration=calibration, progress=False)
+        assert server.device.led == -1  # the driver switched the LEDs off on the way out
+        assert not (out / "manifest.json").exists()  # an interrupted session is never marked complete
+        journal = out / "session" / "dome.journal"
+        assert len(journal.read_text().splitlines()) == 7  # steps 0-6 committed; step 7 triggered, never collected
+        with open(journal, "ab") as f:  # a line cut short by the crash
+            f.write(b'{"frames":[{"cam')
+        (out / "cam02" / "led003_e0.png").unlink()  # a committed frame lost afterwards
+        with pytest.raises(SessionError, match="pass --resume to continue it"):
+            run_capture(server, tmp_path / "lab", tmp_path / "hot", out)
+        report = run_capture(server, tmp_path / "lab", tmp_path / "hot", out, resume=True)
+    finally:
+        server.stop()
+    assert report.complete and report.steps_before == 6 and report.steps_taken == 14
+    assert tree(out) == tree(root / "clean")
+    log = (out / "session" / "log.txt").read_text()
+    assert "removed a line cut short" in log and "step 3 has missing or altered frames" in log
+    again = run_capture(server, tmp_path / "lab", tmp_path / "hot", out, resume=True)
+    assert again.complete and again.steps_taken == 0 and "nothing to do" in again.to_text()
+
+
+class _BadChecksum(HotFolderCameras):
+    """A transfer that corrupts one frame's checksum file once."""
+
+    done = False
+
+    def collect(self, trigger, timeout):
+        if not self.done:
+            side = self.path(1, trigger.frame).with_name(self.path(1, trigger.frame).name + ".sha256")
+            while not side.exists():
+                pass
+            side.write_text("0" * 64 + " 1\n")
+            self.done = True
+        return super().collect(trigger, timeout)
+
+
+def test_a_corrupted_transfer_is_taken_again(small, tmp_path):
+    root, _ = small
+    from facestats.acquire.devices.dome import DomeController
+    from facestats.acquire.devices.session import run_session
+
+    server = _serve(small, tmp_path)
+    try:
+        plan, calibration = dome_plan(tmp_path / "lab" / "dome.json", record(tmp_path / "lab"))
+        with DomeController(server.port) as c:
+            cams = _BadChecksum(tmp_path / "hot", range(4), sizes={i: (24, 24) for i in range(4)})
+            report = run_session(plan, c, cams, tmp_path / "out", calibration=calibration, progress=False)
+    finally:
+        server.stop()
+    assert report.retakes == 1 and tree(tmp_path / "out") == tree(root / "clean")
+    assert "does not match its checksum file" in (tmp_path / "out" / "session" / "log.txt").read_text()
+
+
+def test_a_miswired_dome_is_refused_before_anything_is_written(small, tmp_path):
+    server = _serve(small, tmp_path, wired_leds=9)
+    try:
+        with pytest.raises(DeviceError, match="reports 9 LEDs, the calibration has 10.*no picture was taken"):
+            run_capture(server, tmp_path / "lab", tmp_path / "hot", tmp_path / "out")
+    finally:
+        server.stop()
+    assert not (tmp_path / "out").exists() and server.writer.written == 0
+    assert server.device.led == -1
+
+
+def test_sessions_that_do_not_fit_are_refused_and_nothing_changes(small, tmp_path):
+    root, _ = small
+    lab = root / "lab"
+    done = tmp_path / "done"
+    shutil.copytree(root / "clean", done)
+    before = tree(done, skip=())
+    plan, calibration = dome_plan(lab / "dome.json", record(lab))
+    other = DomePlan(**{**plan.__dict__, "subject": {**plan.subject, "subject_id": "S999", "person_id": "S999"}})
+    dimmer = DomePlan(**{**plan.__dict__, "brightness": 200})
+    cases = [
+        (other, {}, "belongs to subject S002 .*not S999: choose another --out"),
+        (dimmer, {"resume": True}, r"written for a different dome plan \(differs in: brightness\)"),
+    ]
+    for p, kw, message in cases:
+        with pytest.raises(SessionError, match=message):
+            capture(p, calibration, "/dev/null", done, root / "hot", **kw)
+    assert tree(done, skip=()) == before
+    report = capture(plan, calibration, "/nonexistent", done, root / "hot")  # complete: the port is not even opened
+    assert report.complete and "nothing to do" in report.to_text()
+    with pytest.raises(SessionError, match="nothing to resume in .*run without --resume"):
+        capture(plan, calibration, "/dev/null", tmp_path / "new", root / "hot", resume=True)
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "thesis.tex").write_text("…")
+    with pytest.raises(SessionError, match="not empty and holds no capture session"):
+        capture(plan, calibration, "/dev/null", foreign, root / "hot")
+    with pytest.raises(DeviceError, match="hot folder .* does not exist"):
+        capture(plan, calibration, "/dev/null", tmp_path / "new", tmp_path / "nowhere")
+    with pytest.raises(DeviceError, match="cannot open serial port /dev/ttyNOPE: no such device"):
+        capture(plan, calibration, "/dev/ttyNOPE", tmp_path / "new", root / "hot")
+    assert not (tmp_path / "new").exists()
+
+
+def test_dry_run_durations_follow_the_paper():
+    from facestats.acquire.devices.sensor import FiberLayout
+    from facestats.acquire.dome import default_dome
+    from facestats.acquire.sensor import ContactSensor
+
+    subject = {
+        "subject_id": "S001",
+        "person_id": "S001",
+        "age": 30,
+        "gender": "F",
+        "skin_type": 3,
+        "condition": "normal",
+    }
+    dome = DomePlan.from_calibration(default_dome(), b"{}", subject)
+    assert (dome.n_steps, dome.frames_per_step) == (300, 16)
+    assert dome.duration_s() == pytest.approx(150 * (1 / 12) + 150 * (1 / 8))  # frame interval, then the 1/8 s pass
+    assert "300 triggers × 16 cameras = 4800 frames" in dome.describe() and "31.2 s" in dome.describe()
+    assert [dome.step(s) for s in (0, 149, 150, 299)] == [
+        {"exposure": 0, "led": 0},
+        {"exposure": 0, "led": 149},
+        {"exposure": 1, "led": 0},
+        {"exposure": 1, "led": 149},
+    ]  # two passes through the LEDs (Weyrich §5)
+    sensor = SensorPlan.from_calibration(ContactSensor(), FiberLayout(), b"{}", subject)
+    exposure = 1e-3 * (2 ** (2 / 3 * 23) - 1) / (2 ** (2 / 3) - 1)  # geometric bracket, 23 images at 2/3 stop
+    assert sensor.duration_s() / 3 == pytest.approx(exposure + 23 * 0.8)
+    assert 85 < sensor.duration_s() / 3 < 91  # Weyrich §5.4: "about 88 seconds"
+    assert sensor.file(68) == "sensor/neck_e22.png" and sensor.n_steps == 69
+
+
+def test_a_disconnect_that_outlasts_the_link_ends_the_run_and_resume_completes(small, tmp_path):
+    root, _ = small
+    server = _serve(small, tmp_path, faults=Faults(disconnect_after=(20,)), link=tmp_path / "tty")
+    server.reconnect_delay = 3.0  # the cable stays out longer than the link waits
+    try:
+        with pytest.raises(DeviceError, match="disconnected and did not come back.*continues with --resume"):
+            run_capture(server, tmp_path / "lab", tmp_path / "hot", tmp_path / "out",
+                        link_options={"reconnect_timeout": 0.5})  # fmt: skip
+        assert not (tmp_path / "out" / "manifest.json").exists()
+        for _ in range(1000):  # the cable is plugged back in
+            if (tmp_path / "tty").exists():
+                break
+            time.sleep(0.01)
+        report = run_capture(server, tmp_path / "lab", tmp_path / "hot", tmp_path / "out", resume=True)
+    finally:
+        server.stop()
+    assert report.complete and 0 < report.steps_before < 20
+    assert tree(tmp_path / "out") == tree(root / "clean")
+
+
+def test_trigger_lines_choose_the_cameras_that_take_a_picture(small, tmp_path):
+    from facestats.acquire.devices.dome import DomeController
+
+    server = _serve(small, tmp_path)
+    try:
+        with DomeController(server.port) as c:
+            assert c.n_cameras == 4
+            c.ensure(3, 1, cameras=[0, 2])
+            trig = c.trigger(77)
+            cams = HotFolderCameras(tmp_path / "hot", range(4))
+            frames = cams.collect(trig, 30)
+            c.ensure(3, 1)  # every line again
+            assert c.trigger(78).lines == 15
+    finally:
+        server.stop()
+    assert trig.lines == 5 and [f.camera for f in frames] == [0, 2]
+    assert not cams.path(1, 77).exists()  # camera 1 took no picture
+    plan, _ = dome_plan(tmp_path / "lab" / "dome.json", record(tmp_path / "lab"))
+    assert not plan.matches(13, trig) and plan.matches(13, Trigger(77, 3, 1, lines=15))  # a session needs every camera
+
+
+def test_the_sensor_driver_runs_a_bracket(tmp_path):
+    from facestats.acquire.devices.sensor import SensorController
+
+    server = emulated_sensor("S001", tmp_path / "hot", tmp_path / "lab")
+    try:
+        with SensorController(server.port) as c:
+            triggers = list(c.bracket(1, range(23), range(500, 523)))
+            assert server.device.lamp == 1 and server.device.shutter == 1
+        assert server.device.lamp == 0 and server.device.shutter == 0  # lamp off, shutter closed on leaving
+    finally:
+        server.stop()
+    assert [(t.site, t.exposure, t.lamp, t.shutter) for t in triggers] == [(1, j, 1, 1) for j in range(23)]
+
+
+def test_a_lamp_switched_off_behind_the_drivers_back_is_noticed_and_set_again(tmp_path):
+    """The sensor's watchdog (or an operator) turns the lamp off mid-bracket: the trigger's report shows it, the
+    step is taken again with the lamp set again, and the session is the same as an undisturbed one."""
+    from facestats.acquire.devices.sensor import SensorController
+    from facestats.acquire.devices.session import run_session
+
+    server = emulated_sensor("S001", tmp_path / "hot", tmp_path / "lab")
+    lab = tmp_path / "lab"
+
+    class Watchdog(HotFolderCameras):
+        def collect(self, trigger, timeout):
+            if (trigger.site, trigger.exposure) == (1, 5):
+                server.device.idle()  # lamp off, shutter closed, without a word to the host
+            return super().collect(trigger, timeout)
+
+    try:
+        run_capture(server, lab, tmp_path / "hot", tmp_path / "clean", kind="sensor")
+        from facestats.acquire.devices.capture import sensor_plan
+
+        plan, calibration = sensor_plan(lab / "sensor-calibration.json", record(lab))
+        with SensorController(server.port) as c:
+            report = run_session(plan, c, Watchdog(tmp_path / "hot", [0]), tmp_path / "out",
+                                 calibration=calibration, progress=False, durable=False)  # fmt: skip
+    finally:
+        server.stop()
+    assert report.retakes == 1 and report.complete
+    assert tree(tmp_path / "out") == tree(tmp_path / "clean")
+    assert "lamp=0" in (tmp_path / "out" / "session" / "log.txt").read_text()

@@ -1,0 +1,164 @@
+"""``facestats emulate`` and ``facestats capture`` through the console script; SIGKILL of the capture and --resume."""
+
+import os
+import pty
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+
+from facestats.acquire.devices.lab import emulated_dome
+from facestats.acquire.photographs import open_folder
+from tests.acquire.devices.helpers import run_capture, tree
+from tests.helpers import facestats_exe, run_cli
+
+
+@pytest.fixture(scope="module")
+def emulator(tmp_path_factory):
+    """``facestats emulate dome`` in a subprocess (6 LEDs, 2 cameras, 24² frames); yields (port, root)."""
+    root = tmp_path_factory.mktemp("cli")
+    args = ["emulate", "dome", "--leds", "6", "--cameras", "2", "--resolution", "24", "--subject", "S003"]
+    args += ["--hot-folder", root / "hot", "--lab", root / "lab", "--link", root / "dome.tty", "--quiet"]
+    proc = subprocess.Popen(
+        facestats_exe() + [str(a) for a in args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=dict(os.environ, PYTHONWARNINGS="ignore"),
+    )
+    lines = []
+    while not lines or lines[-1] != "ready (Ctrl-C to stop)":
+        line = proc.stdout.readline()
+        assert line, proc.stderr.read()
+        lines.append(line.rstrip("\n"))
+    yield root, lines
+    proc.send_signal(signal.SIGTERM)
+    out, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 0 and "stopped after" in out
+
+
+def _capture(root, *extra, out="cap", subject="S003"):
+    return run_cli(
+        "capture",
+        "dome",
+        "--port",
+        root / "dome.tty",
+        "--subject",
+        subject,
+        "--out",
+        root / out,
+        "--calibration",
+        root / "lab" / "dome.json",
+        "--hot-folder",
+        root / "hot",
+        "--metadata",
+        root / "lab" / "subject.json",
+        "--timeout",
+        "0.3",
+        *extra,
+    )
+
+
+def test_emulate_prints_its_port_and_capture_runs_the_plan(emulator):
+    root, lines = emulator
+    assert lines[0] == "dome emulator for S003: 6 LEDs, 2 cameras, 24×24 px frames"
+    assert lines[1].startswith("port: /dev/pts/") and os.path.realpath(root / "dome.tty") == lines[1][6:]
+    dry = _capture(root, "--dry-run")
+    assert dry.returncode == 0 and "12 triggers × 2 cameras = 24 frames" in dry.stdout
+    assert "estimated duration on the hardware: 1.2 s" in dry.stdout and not (root / "cap").exists()
+    r = _capture(root)
+    assert r.returncode == 0, r.stderr
+    assert "dome session of S003 in" in r.stdout and "complete: 12/12 steps" in r.stdout
+    assert "capture dome S003" in r.stderr and "step/s]" in r.stderr  # the progress bar, with its ETA
+    assert open_folder(root / "cap").subject()["subject_id"] == "S003"
+    again = _capture(root, "--resume")
+    assert again.returncode == 0 and "nothing to do" in again.stdout
+
+
+def test_bad_input_gets_a_message_and_no_traceback(emulator, tmp_path):
+    root, _ = emulator
+    master, slave = pty.openpty()  # a device that never answers
+    try:
+        silent = run_cli("capture", "dome", "--port", os.ttyname(slave), "--subject", "S003", "--out", tmp_path / "a",
+                         "--calibration", root / "lab" / "dome.json", "--hot-folder", root / "hot", "--metadata",
+                         root / "lab" / "subject.json", "--timeout", "0.1", "--retries", "1")  # fmt: skip
+    finally:
+        os.close(master)
+        os.close(slave)
+    cases = [
+        (silent, "did not answer 'ver' after 2 attempt(s)"),
+        (_capture_port(root, "/dev/ttyNOPE"), "no such device"),
+        (_capture_port(root, "loop://"), "it speaks another protocol"),
+        (_capture(root, out="cap", subject="S004"), "belongs to subject S003"),
+        (_capture(root, "--brightness", "200", "--resume"), "different dome plan (differs in: brightness)"),
+    ]
+    for r, message in cases:
+        assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+        assert message in r.stderr, r.stderr
+    assert not (tmp_path / "a").exists() and not (root / "b").exists()
+    missing = run_cli("capture", "dome", "--port", "x", "--subject", "S9", "--out", tmp_path / "c", "--calibration",
+                      root / "lab" / "dome.json", "--hot-folder", root / "hot", "--dry-run")  # fmt: skip
+    assert missing.returncode == 2 and "needs the subject's age, gender, skin_type" in missing.stderr
+
+
+def test_sensor_dry_run_prints_the_bracket_and_its_duration(tmp_path):
+    from facestats.acquire.devices.sensor import FiberLayout, save_sensor_calibration
+    from facestats.acquire.sensor import ContactSensor
+
+    save_sensor_calibration(tmp_path / "sensor.json", ContactSensor(), FiberLayout())
+    r = run_cli("capture", "sensor", "--port", "/dev/null", "--subject", "S001", "--out", tmp_path / "cap",
+                "--calibration", tmp_path / "sensor.json", "--hot-folder", tmp_path, "--age", "31", "--gender", "F",
+                "--skin-type", "3", "--dry-run")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "3 sites (cheek, forehead, neck) × 23 exposures = 69 frames" in r.stdout
+    assert "89 s per site" in r.stdout and not (tmp_path / "cap").exists()
+
+
+def _capture_port(root, port):
+    lab = root / "lab"
+    return run_cli("capture", "dome", "--port", port, "--subject", "S003", "--out", root / "b", "--calibration",
+                   lab / "dome.json", "--hot-folder", root / "hot", "--metadata", lab / "subject.json",
+                   "--timeout", "0.1", "--retries", "1")  # fmt: skip
+
+
+@pytest.mark.slow
+def test_sigkill_at_ten_random_points_then_resume_loses_and_duplicates_nothing(tmp_path):
+    """The capture process is killed ten times (at random committed-step counts plus a random delay)."""
+    server = emulated_dome("S005", tmp_path / "hot", tmp_path / "lab", resolution=24, leds=12, cameras=3)
+    try:
+        run_capture(server, tmp_path / "lab", tmp_path / "hot", tmp_path / "clean")
+        rng = np.random.default_rng(2006)
+        targets = np.sort(rng.choice(np.arange(1, 20), 10, replace=False))  # at least 4 steps left after a kill
+        journal = tmp_path / "out" / "session" / "dome.journal"
+        args = ["capture", "dome", "--port", server.port, "--subject", "S005", "--out", tmp_path / "out",
+                "--calibration", tmp_path / "lab" / "dome.json", "--hot-folder", tmp_path / "hot", "--metadata",
+                tmp_path / "lab" / "subject.json", "--timeout", "0.3", "--quiet"]  # fmt: skip
+        killed_at = []
+        for k, target in enumerate(targets):
+            proc = subprocess.Popen(facestats_exe() + [str(a) for a in args + (["--resume"] if k else [])],
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+            while proc.poll() is None and _lines(journal) < target:
+                time.sleep(0.002)
+            time.sleep(rng.uniform(0, 0.004))  # somewhere inside the next step (a step of this small dome takes ms)
+            proc.send_signal(signal.SIGKILL)
+            proc.wait()
+            assert proc.returncode == -signal.SIGKILL, proc.stderr.read()
+            killed_at.append(_lines(journal))
+            assert not (tmp_path / "out" / "manifest.json").exists(), (k, killed_at, proc.stderr.read()[-2000:])
+        final = run_cli(*args, "--resume")
+        assert final.returncode == 0 and "complete: 24/24 steps" in final.stdout, final.stderr
+    finally:
+        server.stop()
+    assert len(set(killed_at)) >= 5  # the kills landed at different points of the sequence
+    assert tree(tmp_path / "out") == tree(tmp_path / "clean")  # nothing lost, nothing twice, byte for byte
+    folder = open_folder(tmp_path / "out")
+    assert folder.files.size == 3 * 12 * 2 and len(set(folder.files.ravel())) == 72
+
+
+def _lines(path):
+    try:
+        return path.read_bytes().count(b"\n")
+    except FileNotFoundError:
+        return 0

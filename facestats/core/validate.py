@@ -28,10 +28,23 @@ _FLOAT_TYPES = (np.float32, np.float64)
 
 
 def _describe(a: np.ndarray) -> str:
-    """A short description of the offending values of an array for messages."""
+    """A short description of the offending values of an array for messages.
+
+    Works for any dtype: an object array holds arbitrary Python objects
+    (``None``, dicts, ...), which have no ``.item()``.
+    """
     if a.size == 1:
-        return repr(a.reshape(-1)[0].item())  # plain Python value, not np.float64(...)
+        x = a.reshape(-1)[0]
+        x = x.item() if isinstance(x, np.generic) else x  # plain Python value, not np.float64(...)
+        text = repr(x)
+        return text if len(text) <= 80 else text[:77] + "..."
     return f"an array of shape {a.shape}"
+
+
+def _short(value) -> str:
+    """``repr(value)`` cut to 80 characters for messages."""
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def result_dtype(*arrays) -> np.dtype:
@@ -51,10 +64,11 @@ def as_float(value, name: str, dtype=None) -> np.ndarray:
     """Convert ``value`` to a float array (float32 or float64), rejecting non-numeric input."""
     try:
         arr = np.asarray(value)
-    except Exception as exc:  # pragma: no cover - numpy raises many types here
-        raise ValidationError(f"{name} must be numeric, got {value!r}") from exc
+    except Exception:  # numpy raises many types here (ragged lists, objects with broken __array__)
+        raise ValidationError(f"{name} must be numeric, got {_short(value)}") from None
     if arr.dtype.kind not in "fiub":
-        raise ValidationError(f"{name} must be numeric, got dtype {arr.dtype} ({_describe(arr)})")
+        what = type(value).__name__ if arr.dtype.kind == "O" else f"dtype {arr.dtype}"
+        raise ValidationError(f"{name} must be numeric, got {what} ({_describe(arr)})")
     if dtype is None:
         dtype = arr.dtype if arr.dtype in _FLOAT_TYPES else np.float64
     return arr.astype(dtype, copy=False)

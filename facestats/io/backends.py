@@ -21,7 +21,7 @@ import zlib
 
 from facestats.errors import StoreError
 from facestats.io.index import INDEX_NAME
-from facestats.io.layout import ROOT_META
+from facestats.io.layout import ROOT_META, read_regular_file
 
 __all__ = ["DirectoryBackend", "ZipBackend", "read_leading_entries"]
 
@@ -41,9 +41,8 @@ class DirectoryBackend:
         self.root = root
 
     def read(self, rel: str) -> bytes:
-        """The bytes of the file ``rel`` (:class:`FileNotFoundError` if missing)."""
-        with open(os.path.join(self.root, rel), "rb") as fh:
-            return fh.read()
+        """The bytes of the regular file ``rel`` (:class:`OSError` if missing or not a regular file)."""
+        return read_regular_file(os.path.join(self.root, rel))
 
     def exists(self, rel: str) -> bool:
         """True if ``rel`` exists."""

@@ -8,18 +8,20 @@ written last when a store is created, so its presence marks a complete store.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import shutil
 from pathlib import Path
 
 from facestats.core.version import __version__
 from facestats.errors import SchemaError, StoreError
-from facestats.io.index import INDEX_NAME, empty_index, is_index_temp, utc_now, write_index_file
+from facestats.io.index import INDEX_NAME, empty_index, is_index_temp, read_index_file, utc_now, write_index_file
 from facestats.io.layout import LOCK_NAME, RECORDS, ROOT_META, SUBJECTS, WRITERS, fsync_path, group_meta, write_json_atomic
 from facestats.io.locking import FileLock
 from facestats.io.schema import SCHEMA_VERSION
 
-__all__ = ["create_store", "read_root_attrs"]
+__all__ = ["create_store", "read_root_attrs", "remove_empty_store", "new_store_guard"]
 
 _CREATION_LEFTOVERS = {LOCK_NAME, WRITERS, RECORDS, SUBJECTS, INDEX_NAME}
 
@@ -125,3 +127,50 @@ def read_root_attrs(backend, label: str) -> dict:
             f"{SCHEMA_VERSION}{hint}"
         )
     return attrs
+
+
+def remove_empty_store(p) -> bool:
+    """Remove the store at ``p`` if it is exactly an empty store (no subject, nothing but its own files).
+
+    Used to undo the creation of a store by a command that then failed.
+    Returns True if it was removed.
+    """
+    p = Path(p)
+    own = {ROOT_META, INDEX_NAME, LOCK_NAME, WRITERS, RECORDS, SUBJECTS}
+    try:
+        names = set(os.listdir(p))
+        if not names <= own or not (p / ROOT_META).is_file():
+            return False
+        with FileLock(p / LOCK_NAME, timeout=1):
+            if (p / INDEX_NAME).exists() and read_index_file(p)["subjects"]:
+                return False
+            for folder in (WRITERS, RECORDS):
+                if (p / folder).exists() and os.listdir(p / folder):
+                    return False
+            if (p / SUBJECTS).exists() and set(os.listdir(p / SUBJECTS)) - {ROOT_META}:
+                return False
+            for name in names - {LOCK_NAME}:
+                target = p / name
+                shutil.rmtree(target) if target.is_dir() and not target.is_symlink() else target.unlink()
+        (p / LOCK_NAME).unlink()
+        p.rmdir()
+    except (OSError, StoreError):
+        return False
+    return True
+
+
+@contextlib.contextmanager
+def new_store_guard(path):
+    """Undo the creation of the store at ``path`` if the block creates it and then fails while it is still empty.
+
+    A command that fails must leave no side effects; a store it created and
+    wrote nothing into is one (e.g. ``facestats edit ... --out-store NEW``
+    with an invalid argument found late).
+    """
+    existed = path is None or os.path.lexists(os.fspath(path))
+    try:
+        yield
+    except BaseException:
+        if not existed:
+            remove_empty_store(path)
+        raise

@@ -15,7 +15,6 @@ from facestats.core.conventions import CHANNELS, REGIONS, SITES
 from facestats.errors import SchemaError, StoreError, ValidationError
 from facestats.io import QueryResult, open_store, pack_store
 from facestats.io import store as store_mod
-from facestats.io.locking import create_locked
 from facestats.io.schema import SCHEMA_VERSION, provenance, set_provenance
 from facestats.io.summary import albedo_histogram, region_samples, summarise_subject
 

@@ -43,7 +43,9 @@ def _creatable(p: pathlib.Path, name: str) -> None:
     while not os.path.lexists(parent) and parent != parent.parent:
         parent = parent.parent
     if not parent.is_dir():
-        raise ValidationError(f"{name} must be a path that can be created, got {str(p)!r} ({parent} is not a directory)")
+        raise ValidationError(
+            f"{name} must be a path that can be created, got {str(p)!r} ({parent} is not a directory)"
+        )
     if not os.access(parent, os.W_OK | os.X_OK):
         raise ValidationError(f"{name} must be a path that can be created, got {str(p)!r} ({parent} is not writable)")
 

@@ -251,10 +251,9 @@ def save_edit_images(edit: SubjectEdit, directory=".") -> list[pathlib.Path]:
     list of pathlib.Path
         The files written.
     """
+    import matplotlib.pyplot as plt
     from matplotlib import colormaps
     from matplotlib.image import imsave
-
-    import matplotlib.pyplot as plt
 
     _check_edit(edit)
     d = check_output_dir(directory, "directory")
@@ -262,7 +261,9 @@ def save_edit_images(edit: SubjectEdit, directory=".") -> list[pathlib.Path]:
     cmap = colormaps["viridis"]
     with OutputSet(d) as out:  # all files or none
         for when, ds in (("before", edit.source), ("after", edit.dataset)):
-            imsave(out.path(f"{edit.subject_id}_albedo_{when}.png"), _upscale(_display(np.asarray(ds["albedo"].values))))
+            imsave(
+                out.path(f"{edit.subject_id}_albedo_{when}.png"), _upscale(_display(np.asarray(ds["albedo"].values)))
+            )
         for var in edit.brdf_variables:
             before = np.asarray(edit.source[var].values, np.float64)
             after = np.asarray(edit.dataset[var].values, np.float64)

@@ -58,6 +58,7 @@ __all__ = [
     "remove_generation",
 ]
 
+
 def store_folder(root, rel: str) -> str:
     """The folder ``rel`` of the store at ``root``, created if missing.
 

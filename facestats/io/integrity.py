@@ -167,7 +167,9 @@ def read_failure(exc: BaseException, sid: str, what: str) -> StoreError:
             f"subject {sid!r}: {what} could not be read just now ({type(exc).__name__}: {exc}); the data may be "
             "intact, so nothing was changed: check the disk and try again"
         )
-    return SchemaError(f"subject {sid!r}: {what} cannot be read (truncated or corrupt chunk): {type(exc).__name__}: {exc}")
+    return SchemaError(
+        f"subject {sid!r}: {what} cannot be read (truncated or corrupt chunk): {type(exc).__name__}: {exc}"
+    )
 
 
 def _open_group(backend, sid: str, rel: str, label: str):

@@ -90,7 +90,9 @@ QUARANTINE = "quarantine"
 #: Names :func:`new_generation` makes (always matched in full: a trailing newline is not a name).
 GENERATION_PATTERN = re.compile(r"g[0-9a-f]{16}-[0-9]{1,10}-[0-9a-f]{6}")
 #: Temporary files of :func:`write_json_atomic` beside a ``zarr.json`` or a generation record.
-_JSON_TEMP = re.compile(r"(?:zarr\.json|[A-Za-z0-9._-]{1,64}~g[0-9a-f]{16}-[0-9]{1,10}-[0-9a-f]{6}\.json)\.tmp-[0-9]{1,10}-[0-9a-f]{6}")
+_JSON_TEMP = re.compile(
+    r"(?:zarr\.json|[A-Za-z0-9._-]{1,64}~g[0-9a-f]{16}-[0-9]{1,10}-[0-9a-f]{6}\.json)\.tmp-[0-9]{1,10}-[0-9a-f]{6}"
+)
 #: Rows of ``v`` per chunk of a map variable.
 MAP_CHUNK_ROWS = 64
 

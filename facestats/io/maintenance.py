@@ -155,9 +155,7 @@ class Survey:
                 f"(e.g. {self.newer[0]})"
             )
         if self.foreign:
-            out.append(
-                f"{len(self.foreign)} item(s) not created by facestats were left alone (e.g. {self.foreign[0]})"
-            )
+            out.append(f"{len(self.foreign)} item(s) not created by facestats were left alone (e.g. {self.foreign[0]})")
         return out
 
 
@@ -185,20 +183,7 @@ def survey(root, index: dict) -> Survey:
         elif name not in _ROOT_NAMES:
             s.foreign.append(name)
     _survey_writers(s, root)
-    pairs = _survey_records(s, root)
-    sub_root = os.path.join(root, SUBJECTS)
-    if is_plain_dir(sub_root):
-        for name in _listdir(sub_root):
-            path = os.path.join(sub_root, name)
-            if name == ROOT_META:
-                continue
-            if is_meta_temp(name) and is_plain_file(path):
-                s.garbage.append(f"{SUBJECTS}/{name}")
-            elif _valid_id(name) and is_plain_dir(path):
-                s.subject_dirs.append(name)
-                pairs |= _survey_subject(s, root, name)
-            else:
-                s.foreign.append(f"{SUBJECTS}/{name}")
+    pairs = _survey_records(s, root) | _survey_subjects(s, root)
     kept = set()
     for sid, gen in sorted(pairs):
         if _survey_generation(s, root, sid, gen, index):
@@ -207,6 +192,24 @@ def survey(root, index: dict) -> Survey:
         sid for sid in s.subject_dirs if sid not in kept and sid not in index["subjects"] and sid not in s.adoptable
     ]
     return s
+
+
+def _survey_subjects(s: Survey, root) -> set:
+    """Sort the entries of ``subjects/``; the ``(sid, gen)`` of the generation folders found."""
+    sub_root = os.path.join(root, SUBJECTS)
+    pairs = set()
+    for name in _listdir(sub_root) if is_plain_dir(sub_root) else []:
+        path = os.path.join(sub_root, name)
+        if name == ROOT_META:
+            continue
+        if is_meta_temp(name) and is_plain_file(path):
+            s.garbage.append(f"{SUBJECTS}/{name}")
+        elif _valid_id(name) and is_plain_dir(path):
+            s.subject_dirs.append(name)
+            pairs |= _survey_subject(s, root, name)
+        else:
+            s.foreign.append(f"{SUBJECTS}/{name}")
+    return pairs
 
 
 def _valid_id(name: str) -> bool:
@@ -287,21 +290,30 @@ def _survey_generation(s: Survey, root, sid: str, gen: str, index: dict) -> bool
             if os.path.lexists(os.path.join(root, item)):
                 s.foreign.append(item)
         return True
-    if has_dir and rec["state"] != "writing" and _live_missing(root, sid, live):
-        s.newer.append(rel)  # the generation the index names is missing: this one may be what repair recovers
+    if has_dir and _keep_committed(s, root, sid, gen, rec, live, index):
         return True
-    if has_dir and rec["state"] == "committed":
-        rev = int(rec.get("committed_revision", 0))
-        if live is None:
-            s.adoptable.setdefault(sid, []).append((rev, gen))
-            s.adoptable[sid].sort(reverse=True)
-            return True
-        if rev > int(index.get("revision", 0)):
-            s.newer.append(rel)
-            return True
     if has_dir:
         s.garbage.append(rel)
     s.garbage.append(rec_rel)
+    return False
+
+
+def _keep_committed(s: Survey, root, sid: str, gen: str, rec: dict, live, index: dict) -> bool:
+    """True (and noted) for a committed generation the index does not name but that must be kept."""
+    rel = generation_rel(sid, gen)
+    if rec["state"] != "writing" and _live_missing(root, sid, live):
+        s.newer.append(rel)  # the generation the index names is missing: this one may be what repair recovers
+        return True
+    if rec["state"] != "committed":
+        return False
+    rev = int(rec.get("committed_revision", 0))
+    if live is None:
+        s.adoptable.setdefault(sid, []).append((rev, gen))
+        s.adoptable[sid].sort(reverse=True)
+        return True
+    if rev > int(index.get("revision", 0)):
+        s.newer.append(rel)
+        return True
     return False
 
 

@@ -402,10 +402,9 @@ def import_merl(path, store, *, prefix: str = "merl", overwrite: bool = False) -
     MerlData
         What was read (ids, sample counts, subjects without samples).
     """
-    from facestats.io.store import Store, open_store
-
     from facestats.io.batch import prepare_batch
     from facestats.io.root import new_store_guard
+    from facestats.io.store import Store, open_store
 
     data = read_merl(path, prefix=prefix)
     prepare_batch(data.datasets)  # every subject checked before a store is created or touched

@@ -31,7 +31,14 @@ import time
 from facestats.errors import StoreError
 from facestats.io.layout import QUARANTINE, confined, fsync_tree, is_plain_dir, read_regular_file, write_json_atomic
 
-__all__ = ["MANIFEST", "open_quarantine", "quarantine_move", "write_quarantine_json", "list_quarantine", "purge_quarantine"]
+__all__ = [
+    "MANIFEST",
+    "open_quarantine",
+    "quarantine_move",
+    "write_quarantine_json",
+    "list_quarantine",
+    "purge_quarantine",
+]
 
 #: The description file of a quarantine folder.
 MANIFEST = "QUARANTINE.json"
@@ -54,7 +61,9 @@ def open_quarantine(root, reason: str) -> str:
         os.makedirs(path)
         if not is_plain_dir(base):
             raise StoreError(f"{base} must be a folder of the store")
-        write_json_atomic(os.path.join(path, MANIFEST), {"format": 1, "created": name[:16], "reason": reason, "items": []})
+        write_json_atomic(
+            os.path.join(path, MANIFEST), {"format": 1, "created": name[:16], "reason": reason, "items": []}
+        )
     except OSError as exc:
         raise StoreError(f"cannot create a quarantine folder in {base}: {exc.strerror}; nothing was changed") from None
     return path

@@ -35,7 +35,16 @@ import os
 
 from facestats.io.layout import RECORDS, is_generation, is_plain_file, write_json_atomic
 
-__all__ = ["RECORD_FORMAT", "STATES", "record_name", "parse_record_name", "record_path", "read_record", "write_record", "mark_record"]
+__all__ = [
+    "RECORD_FORMAT",
+    "STATES",
+    "record_name",
+    "parse_record_name",
+    "record_path",
+    "read_record",
+    "write_record",
+    "mark_record",
+]
 
 #: Layout version of a record.
 RECORD_FORMAT = 1
@@ -44,7 +53,7 @@ STATES = ("writing", "committed", "retired")
 
 
 def record_name(sid: str, gen: str) -> str:
-    """The file name of the record of generation ``gen`` of subject ``sid`` (in :data:`~facestats.io.layout.RECORDS`)."""
+    """The file name of the record of generation ``gen`` of subject ``sid`` (in ``.records/``)."""
     return f"{sid}~{gen}.json"
 
 

@@ -399,7 +399,9 @@ def _plan_indexed(plan: RepairPlan, root, index: dict, open_generation) -> None:
             continue
         rev, src, ds = found
         why = f"its generation {gen} is {'damaged' if damaged else 'missing'}; that one was {_recovered_why(rev)}"
-        plan.actions.append(RepairAction("recover", sid, expect=gen, source=src, entry=_entry(sid, src, ds), reason=why))
+        plan.actions.append(
+            RepairAction("recover", sid, expect=gen, source=src, entry=_entry(sid, src, ds), reason=why)
+        )
     for sid, (gen, entry, msg) in sorted(checked.stale.items()):
         plan.actions.append(RepairAction("recompute", sid, expect=gen, source=gen, entry=entry, reason=msg))
 

@@ -17,7 +17,16 @@ from pathlib import Path
 from facestats.core.version import __version__
 from facestats.errors import SchemaError, StoreError
 from facestats.io.index import INDEX_NAME, empty_index, is_index_temp, read_index_file, utc_now, write_index_file
-from facestats.io.layout import LOCK_NAME, RECORDS, ROOT_META, SUBJECTS, WRITERS, fsync_path, group_meta, write_json_atomic
+from facestats.io.layout import (
+    LOCK_NAME,
+    RECORDS,
+    ROOT_META,
+    SUBJECTS,
+    WRITERS,
+    fsync_path,
+    group_meta,
+    write_json_atomic,
+)
 from facestats.io.locking import FileLock
 from facestats.io.schema import SCHEMA_VERSION
 
@@ -108,7 +117,9 @@ def read_root_attrs(backend, label: str) -> dict:
     except FileNotFoundError:
         raise StoreError(f"{label} is not a facestats store: no root {ROOT_META}") from None
     except OSError as exc:
-        raise StoreError(f"{label}: cannot read the root {ROOT_META} ({exc.strerror or exc}); it must be a regular file") from None
+        raise StoreError(
+            f"{label}: cannot read the root {ROOT_META} ({exc.strerror or exc}); it must be a regular file"
+        ) from None
     except (ValueError, UnicodeDecodeError, RecursionError) as exc:
         raise StoreError(f"{label}: root {ROOT_META} is not valid JSON ({exc})") from None
     if not isinstance(meta, dict) or meta.get("zarr_format") != 3 or meta.get("node_type") != "group":

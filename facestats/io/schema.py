@@ -109,6 +109,7 @@ VARIABLES = {
     "albedo_sample_region": (("albedo_sample",), "1", "region of the albedo sample"),
 }
 
+
 @dataclass(frozen=True)
 class Domain:
     """The values a variable may hold: ``low``/``high`` bounds (None: unbounded), open or closed, NaN or not."""
@@ -121,7 +122,11 @@ class Domain:
     def describe(self) -> str:
         lo = "-inf" if self.low is None else f"{self.low:g}"
         hi = "inf" if self.high is None else f"{self.high:g}"
-        return ("(" if self.low_open or self.low is None else "[") + f"{lo}, {hi}" + ("]" if self.high is not None else ")")
+        return (
+            ("(" if self.low_open or self.low is None else "[")
+            + f"{lo}, {hi}"
+            + ("]" if self.high is not None else ")")
+        )
 
     def outside(self, values: np.ndarray) -> np.ndarray:
         """Boolean mask of the values outside the domain (inf always; NaN unless allowed)."""

@@ -54,7 +54,6 @@ from pathlib import Path
 import numpy as np
 
 from facestats.core.validate import check_choice
-from facestats.core.version import __version__
 from facestats.errors import SchemaError, StoreError, ValidationError
 from facestats.io.backends import DirectoryBackend, ZipBackend
 from facestats.io.batch import batch_commit, prepare_batch, refuse_existing
@@ -119,26 +118,12 @@ def open_store(path=None, mode: str = "r", *, lock_timeout: float = 60.0) -> "St
     """
     check_choice(mode, "mode", ("r", "r+", "a"))
     if path is None:
-        zp = default_store_path()
-        if not zp.is_file():
-            raise StoreError(
-                f"the embedded default store has not been built ({zp} is missing); build it with "
-                "`facestats build` or pass --store PATH to use another store"
-            )
-        if mode != "r":
-            raise StoreError("the embedded default store is read-only; pass --store PATH to write to a directory store")
-        return Store(ZipBackend(str(zp)), read_only=True, label="default", lock_timeout=lock_timeout)
+        return _open_default(mode, lock_timeout)
     p = _store_path(path)
     if p.exists() and not (p.is_file() or p.is_dir()):
         raise StoreError(f"store {p} is neither a directory nor a zip file (it is a FIFO, socket or device)")
     if p.is_file():
-        if not zipfile.is_zipfile(p):
-            raise StoreError(f"{p} is neither a store directory nor a zip store")
-        if mode != "r":
-            raise StoreError(
-                f"zip store {p} is read-only; write to a directory store (e.g. --store {p.with_suffix('.zarr')})"
-            )
-        return Store(ZipBackend(str(p)), read_only=True, label=str(p), lock_timeout=lock_timeout)
+        return _open_zip(p, mode, lock_timeout)
     if not p.exists() or (p.is_dir() and not (p / ROOT_META).exists()):
         if mode != "a":
             what = "does not exist" if not p.exists() else "is not a facestats store (no zarr.json)"
@@ -147,6 +132,28 @@ def open_store(path=None, mode: str = "r", *, lock_timeout: float = 60.0) -> "St
             raise StoreError(f"cannot create zip store {p}: create a directory store and pack it with pack_store")
         create_store(p)
     return Store(DirectoryBackend(str(p)), read_only=(mode == "r"), label=str(p), lock_timeout=lock_timeout)
+
+
+def _open_default(mode: str, lock_timeout: float) -> "Store":
+    zp = default_store_path()
+    if not zp.is_file():
+        raise StoreError(
+            f"the embedded default store has not been built ({zp} is missing); build it with "
+            "`facestats build` or pass --store PATH to use another store"
+        )
+    if mode != "r":
+        raise StoreError("the embedded default store is read-only; pass --store PATH to write to a directory store")
+    return Store(ZipBackend(str(zp)), read_only=True, label="default", lock_timeout=lock_timeout)
+
+
+def _open_zip(p: Path, mode: str, lock_timeout: float) -> "Store":
+    if not zipfile.is_zipfile(p):
+        raise StoreError(f"{p} is neither a store directory nor a zip store")
+    if mode != "r":
+        raise StoreError(
+            f"zip store {p} is read-only; write to a directory store (e.g. --store {p.with_suffix('.zarr')})"
+        )
+    return Store(ZipBackend(str(p)), read_only=True, label=str(p), lock_timeout=lock_timeout)
 
 
 def _store_path(path) -> Path:
@@ -423,7 +430,7 @@ class Store:
         self._remove_generation(sid, gone[0])
 
     def _commit(self, mutate):
-        """Apply ``mutate(index)`` to a fresh copy of the index and commit it (:func:`facestats.io.commit.commit_index`)."""
+        """Apply ``mutate(index)`` to a fresh copy of the index and commit it (:mod:`facestats.io.commit`)."""
         with self._lock():
             index = read_index_file(self.path)
             before = generations_of(index)
@@ -487,10 +494,13 @@ class Store:
         report.n_subjects = len(index["subjects"])
         exists = None
         if self.kind == "directory":
+
             def exists(sid, gen):
                 return is_plain_dir(os.path.join(self.path, generation_rel(sid, gen)))
 
-        check_subjects(index, self._open_generation, report, reread=lambda: self._fresh_entries(), generation_exists=exists)
+        check_subjects(
+            index, self._open_generation, report, reread=lambda: self._fresh_entries(), generation_exists=exists
+        )
         self._directory_notes(report, index)
         return report
 
@@ -536,7 +546,9 @@ class Store:
         """
         if self.kind != "directory":
             raise StoreError(f"store {self.label} is a read-only zip store: it cannot be repaired")
-        return plan_repair(self.path, label=self.label, open_generation=self._open_generation, allow_missing=allow_missing)
+        return plan_repair(
+            self.path, label=self.label, open_generation=self._open_generation, allow_missing=allow_missing
+        )
 
     def repair(self, plan: RepairPlan | None = None, *, allow_missing: bool = False) -> ValidationReport:
         """Apply a repair plan (default: :meth:`plan_repair` now), collect garbage, and validate again.

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.core.conventions import CHANNELS
-from facestats.core.published import ETA_SKIN, SIGMA_TR_AVG
 from facestats.core.outputs import OutputSet, check_output_file
+from facestats.core.published import ETA_SKIN, SIGMA_TR_AVG
 from facestats.core.validate import as_finite, as_float, check_shape
 from facestats.model import dipole
 from facestats.model.skin_colour import skin_albedo

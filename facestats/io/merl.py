@@ -319,9 +319,10 @@ def _read_ts(r: _Reader, n: int):
         if not ok.all():
             i = int(np.flatnonzero(~ok)[0])
             r.fail(
-                f"ts row {i + 1}: {name} (column {col}) must lie in {DOMAINS[var].describe()} "
-                f"(facestats.io.schema.DOMAINS), got {_show(ts[i, col])}"
+                f"ts row {i + 1}: {name} (column {col}) must be {DOMAINS[var].violated(ts[i, col])}, "
+                f"got {_show(ts[i, col])}"
                 + (f" ({int((~ok).sum())} bad rows)" if (~ok).sum() > 1 else "")
+                + f" (physical domain {DOMAINS[var].describe()}, facestats.io.schema.DOMAINS)"
             )
     ts_region = r.integers("ts_region", k, 1, max(REGIONS), "a region 1-10")
     ts_subj = r.integers("ts_subjec", k, 1, n, f"a subject index 1-{n}")

@@ -128,6 +128,14 @@ class Domain:
             + ("]" if self.high is not None else ")")
         )
 
+    def violated(self, value: float) -> str:
+        """The bound a single value outside the domain breaks, as text: ``"> 0"``, ``">= 0"`` or ``"<= 9.8"``."""
+        if self.low is not None and (value <= self.low if self.low_open else value < self.low):
+            return f"{'>' if self.low_open else '>='} {self.low:g}"
+        if self.high is not None and value > self.high:
+            return f"<= {self.high:g}"
+        return "finite" if not np.isnan(value) or not self.nan else self.describe()
+
     def outside(self, values: np.ndarray) -> np.ndarray:
         """Boolean mask of the values outside the domain (inf always; NaN unless allowed)."""
         v = np.asarray(values)

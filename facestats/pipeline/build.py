@@ -348,7 +348,10 @@ def build_store(
         raise ValidationError(f"subjects must be ids of the population, got unknown {unknown[:5]}")
     store = open_store(store_path, mode="a")  # only now: bad arguments leave no empty store behind
     store.gc()  # the leftovers of a killed build, if any (never a live writer's data)
-    fits = sensor_fits(pop, map_size, specular)
+    key = ("sensor_fits", seed, map_size, conditions, specular)
+    if key not in _WORKER_CACHE:  # the same draws every time: computed once per process
+        _WORKER_CACHE[key] = sensor_fits(pop, map_size, specular)
+    fits = _WORKER_CACHE[key]
     normal = [s.subject_id for s in pop.subjects if s.condition == "normal"]
     stra = population_sigma_tr_avg(np.stack([fits[s].sigma_tr for s in normal]), SITES)
     present = set(store.ids())

@@ -100,5 +100,5 @@ def _mark(root, pairs, state: str, revision: int) -> None:
             continue  # gone (e.g. moved to the quarantine): no record to keep
         try:
             mark_record(root, sid, gen, state, revision)
-        except (OSError, ValueError):
+        except (OSError, ValueError, StoreError):
             pass

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import functools
 import json
+import warnings
 import zlib
 
 import numpy as np
@@ -178,9 +179,20 @@ def _open_group(backend, sid: str, rel: str, label: str):
 
     if not backend.exists(f"{rel}/{ROOT_META}"):
         raise SchemaError(f"subject {sid!r}: group {rel} is missing from store {label}")
+    try:
+        strange = backend.strange_entry(rel)
+    except OSError as exc:
+        raise read_failure(exc, sid, f"group {rel}") from None
+    if strange is not None:
+        raise SchemaError(
+            f"subject {sid!r}: {strange} is not a regular file or folder (a FIFO, device or symbolic link); "
+            "it was not written by facestats"
+        )
     target, group = backend.zarr_target(rel)
     try:
-        return xr.open_zarr(target, group=group, consolidated=False, zarr_format=3, chunks=None)
+        with warnings.catch_warnings():  # a damaged group: the manifest check names what is missing
+            warnings.filterwarnings("ignore", message=".*not recognized as a component of a Zarr hierarchy")
+            return xr.open_zarr(target, group=group, consolidated=False, zarr_format=3, chunks=None)
     except Exception as exc:
         err = read_failure(exc, sid, f"group {rel}")
         if isinstance(err, SchemaError):

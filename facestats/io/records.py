@@ -33,7 +33,8 @@ from __future__ import annotations
 import json
 import os
 
-from facestats.io.layout import RECORDS, is_generation, is_plain_file, write_json_atomic
+from facestats.errors import StoreError
+from facestats.io.layout import RECORDS, confined, is_generation, is_plain_file, write_json_atomic
 
 __all__ = [
     "RECORD_FORMAT",
@@ -77,6 +78,10 @@ def read_record(root, sid: str, gen: str) -> dict | None:
     names this very subject and generation in the current format.
     """
     path = record_path(root, sid, gen)
+    try:
+        confined(root, path)  # a record read through a link planted in the store proves nothing
+    except StoreError:
+        return None
     if not is_plain_file(path):
         return None
     try:
@@ -111,7 +116,7 @@ def write_record(root, sid: str, gen: str, state: str, **fields) -> dict:
     if state not in STATES or not is_generation(gen):
         raise ValueError(f"bad record state {state!r} or generation {gen!r}")  # a bug, not bad input
     rec = {"facestats_generation": RECORD_FORMAT, "subject": sid, "generation": gen, "state": state, **fields}
-    write_json_atomic(record_path(root, sid, gen), rec, durable=False)
+    write_json_atomic(confined(root, record_path(root, sid, gen)), rec, durable=False)
     return rec
 
 

@@ -226,7 +226,7 @@ def _preflight(root) -> None:
             f"refusing to repair {root}: {SUBJECTS} is not a folder of the store (a file or a symbolic link); "
             "nothing was changed"
         )
-    for name, ok in ((INDEX_NAME, is_plain_file), (WRITERS, is_plain_dir)):
+    for name, ok in ((INDEX_NAME, is_plain_file), (WRITERS, is_plain_dir), (RECORDS, is_plain_dir)):
         path = os.path.join(root, name)
         if os.path.lexists(path) and not ok(path):
             kind = "a regular file" if ok is is_plain_file else "a folder"
@@ -408,7 +408,7 @@ def _plan_indexed(plan: RepairPlan, root, index: dict, open_generation) -> None:
 
 def _plan_adoptions(plan: RepairPlan, s, open_generation) -> None:
     """Committed generations of subjects the index does not list: add the newest intact one back."""
-    planned = {a.subject for a in plan.actions if a.kind in ("adopt", "drop-entry")}
+    planned = {a.subject for a in plan.actions if a.kind == "adopt"}
     for sid, cands in sorted(s.adoptable.items()):
         if sid in planned:
             continue

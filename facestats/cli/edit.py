@@ -135,10 +135,13 @@ def _report(edit, args) -> int:
 def _check_outputs(args) -> None:
     """The new id and the images folder, checked before any work (a failed command leaves no side effects)."""
     from facestats.core.outputs import check_output_dir
+    from facestats.errors import ValidationError
     from facestats.io.ids import check_subject_id
 
     if args.new_id is not None:
         check_subject_id(args.new_id)
+    if args.out_store is not None and not args.out_store.strip():
+        raise ValidationError("--out-store must name a directory store, got ''")
     check_output_dir(args.images, "--images")
 
 

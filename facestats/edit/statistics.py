@@ -105,9 +105,10 @@ def statistics_path(path) -> pathlib.Path:
         The path cannot be written (a folder, a device, an uncreatable folder:
         :func:`facestats.core.outputs.check_output_file`).
     """
-    path = pathlib.Path(os.fspath(path)) if isinstance(path, (str, os.PathLike)) else path
-    if isinstance(path, pathlib.Path) and path.suffix != ".npz":
-        path = path.with_name(path.name + ".npz")
+    if isinstance(path, (str, os.PathLike)) and os.fspath(path).strip() and pathlib.Path(os.fspath(path)).name:
+        path = pathlib.Path(os.fspath(path))
+        if path.suffix != ".npz":
+            path = path.with_name(path.name + ".npz")
     return check_output_file(path, "path", suffixes=(".npz",))
 
 
@@ -227,6 +228,9 @@ class TextureStatistics:
     def load(cls, path) -> "TextureStatistics":
         """Read statistics written by :meth:`save`."""
         path = pathlib.Path(path)
+        if not path.is_file():  # a FIFO would block np.load forever; a folder or nothing is no statistics file
+            what = "does not exist" if not os.path.lexists(path) else "is not a regular file"
+            raise FormatError(f"cannot read texture statistics from {str(path)!r}: it {what}")
         try:
             with np.load(path, allow_pickle=False) as z:
                 data = {k: z[k] for k in z.files}

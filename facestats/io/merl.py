@@ -38,6 +38,7 @@ imported all the same (their index summaries are NaN) and listed in
 from __future__ import annotations
 
 import hashlib
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -288,8 +289,9 @@ def _load_mat(path: Path) -> dict:
     """The variables of a MATLAB file (:class:`FormatError` if it cannot be read)."""
     import scipy.io
 
-    if not path.is_file():
-        raise FormatError(f"{path}: no such file")
+    if not path.is_file():  # (a FIFO would make loadmat block forever)
+        what = "no such file" if not os.path.lexists(path) else "not a regular file (a folder, FIFO or device?)"
+        raise FormatError(f"{path}: {what}")
     try:
         return scipy.io.loadmat(str(path), squeeze_me=False, chars_as_strings=True)
     except NotImplementedError as exc:  # MATLAB v7.3 (HDF5) files

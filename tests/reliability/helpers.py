@@ -19,6 +19,7 @@ import hashlib
 import io
 import os
 import shutil
+import signal
 import stat
 from pathlib import Path
 
@@ -85,10 +86,23 @@ def snapshot(path: Path) -> dict:
     return out
 
 
-def run(*argv, cwd=None) -> tuple[int, str]:
-    """``facestats ARGV`` in this process: (exit code, stdout + stderr).  argparse errors exit 2."""
+class Hung(Exception):
+    """A command ran longer than the test allows (e.g. blocked on a FIFO)."""
+
+
+def _alarm(signum, frame):
+    raise Hung("the command did not finish in time (blocked on a FIFO or a lock?)")
+
+
+def run(*argv, cwd=None, timeout: float = 120.0) -> tuple[int, str]:
+    """``facestats ARGV`` in this process: (exit code, stdout + stderr).  argparse errors exit 2.
+
+    A command still running after ``timeout`` seconds raises :class:`Hung` (a test failure, not a hang).
+    """
     out, err = io.StringIO(), io.StringIO()
     old = os.getcwd()
+    previous = signal.signal(signal.SIGALRM, _alarm)
+    signal.setitimer(signal.ITIMER_REAL, timeout)
     try:
         if cwd is not None:
             os.chdir(cwd)
@@ -98,6 +112,8 @@ def run(*argv, cwd=None) -> tuple[int, str]:
             except SystemExit as exc:  # argparse
                 code = exc.code if isinstance(exc.code, int) else 2
     finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
         os.chdir(old)
     return code, out.getvalue() + err.getvalue()
 

@@ -178,10 +178,19 @@ def new_store_guard(path):
     wrote nothing into is one (e.g. ``facestats edit ... --out-store NEW``
     with an invalid argument found late).
     """
-    existed = path is None or os.path.lexists(os.fspath(path))
+    created = []  # the store folder and the missing folders above it, innermost first
+    if path is not None:
+        p = Path(os.fspath(path)).absolute()
+        while not os.path.lexists(p) and p != p.parent:
+            created.append(p)
+            p = p.parent
     try:
         yield
     except BaseException:
-        if not existed:
-            remove_empty_store(path)
+        if created and remove_empty_store(created[0]):
+            for folder in created[1:]:
+                try:
+                    folder.rmdir()
+                except OSError:
+                    break
         raise

@@ -43,7 +43,9 @@ CASES = (
     + _case("export", "--out", OUT_DIRS, ["out"])
     + _case("export", "--store", STORES, ["store", "path"], base=("--out", "{new}"))
     + _case("export", "--format", ["bogus", ""], ["--format"], base=("--out", "{new}"))
-    + _case("import-merl", "PATH", ["{missing}", "{emptydir}", "{fifo}", "{file}", "/dev/null"], ["ts_data", "/", "file"])
+    + _case(
+        "import-merl", "PATH", ["{missing}", "{emptydir}", "{fifo}", "{file}", "/dev/null"], ["ts_data", "/", "file"]
+    )
     + _case("import-merl", "--prefix", IDS[:2] + ["", "x" * 70, "a b"], ["prefix"])
     + _case("import-merl", "--store", ["/dev/null/x", "{file}", "{fifo}", ""], ["store", "path"])
     + _case("import-merl", "--store", ["{emptydir}/../file/x"], ["store", "path"])

@@ -71,7 +71,10 @@ FILE_CASES = {
     "not-an-object": (lambda text: "[1, 2, 3]", ("index.json", "subjects")),
     "subjects-list": (lambda text: '{"format": 1, "subjects": []}', ("index.json", "subjects")),
     "format-2": (lambda text: text.replace('"format": 1', '"format": 2', 1), ("index.json", "format")),
-    "revision-text": (lambda text: text.replace('"revision": ', '"revision": "x", "r": ', 1), ("index.json", "revision")),
+    "revision-text": (
+        lambda text: text.replace('"revision": ', '"revision": "x", "r": ', 1),
+        ("index.json", "revision"),
+    ),
     "deep-nesting": (lambda text: "[" * 100000 + "]" * 100000, ("index.json",)),
     "binary": (lambda text: "\x00\xff\xfe" * 50, ("index.json",)),
 }

@@ -112,7 +112,9 @@ def test_ids_from_the_api_cli_and_merl_prefixes_follow_one_rule(store, tmp_path,
         read_merl(tmp_path / "missing.mat", prefix=bad)
     code, out = run("import-merl", tmp_path / "missing.mat", "--store", tmp_path / "new.zarr", "--prefix", bad)
     assert code == 2 and "prefix" in out and not (tmp_path / "new.zarr").exists()
-    code, out = run("edit", "colour", "R1", "--store", store, "--target", "R2", "--id", bad, "--out-store", tmp_path / "e.zarr")
+    code, out = run(
+        "edit", "colour", "R1", "--store", store, "--target", "R2", "--id", bad, "--out-store", tmp_path / "e.zarr"
+    )
     assert code == 2 and "subject_id must be" in out and not (tmp_path / "e.zarr").exists()
 
 
@@ -192,7 +194,19 @@ def test_edits_never_use_corrupt_targets(store, tmp_path, damage):
         data[-9] ^= 0x01
         chunk.write_bytes(bytes(data))
     out_store = tmp_path / "edits.zarr"
-    code, out = run("edit", "colour", "R1", "--store", store, "--target", "R2", "--out-store", out_store, "--images", tmp_path / "img")
+    code, out = run(
+        "edit",
+        "colour",
+        "R1",
+        "--store",
+        store,
+        "--target",
+        "R2",
+        "--out-store",
+        out_store,
+        "--images",
+        tmp_path / "img",
+    )
     assert code == 2 and "subject 'R2'" in out and "'albedo'" in out, out
     assert not out_store.exists() and not (tmp_path / "img").exists()  # no side effect
     with open_store(store) as st:

@@ -15,7 +15,8 @@ failure while writing (a full disk) must leave nothing half-written:
 * :class:`OutputSet` writes several files each under a temporary name beside
   its target and renames them into place only when all were written; on any
   failure it removes the temporaries and the folders it created, so the
-  previous files (if any) stay as they were.
+  previous files (if any) stay as they were; an :class:`OSError` (a full
+  disk) becomes a :class:`~facestats.errors.FacestatsError` naming the folder.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import os
 import pathlib
 import secrets
 
-from facestats.errors import ValidationError
+from facestats.errors import FacestatsError, ValidationError
 
 __all__ = ["check_output_dir", "check_output_file", "OutputSet"]
 
@@ -151,10 +152,13 @@ class OutputSet:
                     os.replace(tmp, final)
                     self.written.append(final)
                 return False
-            except OSError:
-                self._cleanup()
-                raise
+            except OSError as err:
+                exc = err
         self._cleanup()
+        if isinstance(exc, OSError):  # e.g. a full disk: say where, and that nothing was left behind
+            raise FacestatsError(
+                f"cannot write the output files in {self.directory}: {exc.strerror or exc}; nothing was written"
+            ) from None
         return False
 
     def _cleanup(self) -> None:

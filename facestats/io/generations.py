@@ -93,7 +93,10 @@ def reserve_generation(root, sid: str, when: str = ""):
         ``subjects/``, ``subjects/<sid>/`` or ``.writers/`` is not a real folder
         inside the store, or no lock could be created.
     """
-    store_folder(root, SUBJECTS)
+    if not is_plain_dir(os.path.join(root, SUBJECTS)):
+        raise StoreError(
+            f"store {root}: its {SUBJECTS}/ folder is missing or not a folder (an unmounted volume?); nothing written"
+        )
     store_folder(root, RECORDS)
     writers = store_folder(root, WRITERS)
     for _ in range(10):

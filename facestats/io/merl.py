@@ -191,7 +191,7 @@ class _Reader:
 def _show(x) -> str:
     """A value for a message: ``11`` rather than ``np.float64(11.0)``."""
     x = float(x)
-    return repr(int(x)) if x.is_integer() else repr(x)
+    return repr(int(x)) if x.is_integer() and abs(x) < 1e15 else repr(x)
 
 
 def _sha256(path: Path) -> str:

@@ -30,7 +30,10 @@ says so (a quantity that may be missing).  The bounds and where they come from:
   (numerical integral: 1.000 at m = 0.1, 1.002 at m = 0.3, less for rougher
   lobes; ``tests/reliability/test_physics_domains.py``), so ρs,max reflects all
   incident light;
-* ``ts_m``, ``ts_sample_m`` > 0: the Beckmann RMS slope (eq. 13) is positive;
+* ``ts_m``, ``ts_sample_m`` in (0, 10]: the Beckmann RMS slope (eq. 13) is
+  positive; 10 (a mean facet slope of 84°) is far beyond skin (fitted 0.1-0.7,
+  the fitter's bound is 1) and beyond where V-groove facets mean anything, so
+  larger values are refused as corrupt rather than physics;
 * ``bp_rho_s`` in [0, 1]: eq. 11's normalisation is chosen so that ρs = 1
   reflects 100 % of the energy (Weyrich §5.3); ``bp_exponent`` n ≥ 0 (cosⁿ δ
   diverges at δ = 90° for n < 0);
@@ -61,6 +64,7 @@ __all__ = [
     "Domain",
     "DOMAINS",
     "TS_RHO_S_MAX",
+    "M_MAX",
     "check_domain",
     "subject_kind",
     "validate_subject",
@@ -154,6 +158,9 @@ class Domain:
 #: Torrance-Sparrow ρs that reflects all light at normal incidence: 1/(4 F_r(0)), F_r(0) = ((η−1)/(η+1))², η = 1.38.
 TS_RHO_S_MAX = 1.0 / (4.0 * ((ETA_SKIN - 1.0) / (ETA_SKIN + 1.0)) ** 2)
 
+#: Largest Beckmann roughness m a store accepts (module docstring).
+M_MAX = 10.0
+
 _NONNEG = Domain(0.0)
 _NONNEG_OR_MISSING = Domain(0.0, nan=True)
 _FLAGS = Domain(0, sum(FLAG_BITS.values()))
@@ -170,7 +177,7 @@ DOMAINS = {
     "micro_normal": _UNIT_COMPONENT,
     "n_samples": _NONNEG,
     "ts_rho_s": Domain(0.0, TS_RHO_S_MAX),
-    "ts_m": Domain(0.0, low_open=True),
+    "ts_m": Domain(0.0, M_MAX, low_open=True),
     "ts_error": _NONNEG_OR_MISSING,
     "ts_flag": _FLAGS,
     "bp_rho_s": Domain(0.0, 1.0),
@@ -189,7 +196,7 @@ DOMAINS = {
     "sigma_s_prime": _NONNEG,
     "sigma_a": _NONNEG,
     "sigma_tr": Domain(0.0, low_open=True),
-    "ts_sample_m": Domain(0.0, low_open=True),
+    "ts_sample_m": Domain(0.0, M_MAX, low_open=True),
     "ts_sample_rho_s": Domain(0.0, TS_RHO_S_MAX),
     "ts_sample_region": _SAMPLE_REGION,
     "albedo_sample": Domain(0.0, 1.0),

@@ -325,6 +325,7 @@ def build_store(
     -------
     BuildReport
     """
+    from facestats.io.ids import check_subject_id
     from facestats.io.store import open_store
     from facestats.model.fitting import population_sigma_tr_avg
     from facestats.model.skin import SPECULAR_MODELS
@@ -339,6 +340,8 @@ def build_store(
         _check_memory(map_size, n_workers)
     if isinstance(subjects, str):
         raise ValidationError(f"subjects must be a sequence of subject ids, got the string {subjects!r}")
+    for sid in subjects or ():  # the id rule first: cheap, before the population is drawn
+        check_subject_id(sid)
     t0 = time.perf_counter()
     pop = _population(seed, map_size, conditions)
     wanted = [s.subject_id for s in pop.subjects] if subjects is None else list(subjects)

@@ -21,7 +21,7 @@ import pytest
 from ..cli_helpers import facestats_exe
 from .helpers import subject_digests
 
-SUBJECTS = ["S001", "S002", "S003", "S004", "S005", "S006", "S007", "S008"]
+SUBJECTS = ["S001", "S002", "S003", "S004", "S005"]
 
 
 def _tagged(tag: str) -> list[int]:

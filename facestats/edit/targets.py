@@ -39,9 +39,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from facestats.core.validate import check_seed
 from facestats.analysis.population import region_samples
 from facestats.core.conventions import parse_condition, parse_skin_type
+from facestats.core.validate import check_seed
 from facestats.edit.masks import face_mask
 from facestats.edit.session import EDIT_SOURCE, check_store
 from facestats.edit.statistics import TextureStatistics

@@ -57,6 +57,7 @@ from facestats.io.layout import (
     writer_lock_path,
 )
 from facestats.io.locking import is_lock_temp, is_locked, try_lock
+from facestats.io.quarantine import list_quarantine
 from facestats.io.records import parse_record_name, read_record, record_name
 from facestats.io.summary import albedo_histogram, summarise_subject
 
@@ -67,6 +68,7 @@ __all__ = [
     "survey",
     "collect_garbage",
     "check_subjects",
+    "directory_notes",
 ]
 
 _ROOT_NAMES = {ROOT_META, "index.json", LOCK_NAME, WRITERS, RECORDS, SUBJECTS, QUARANTINE}
@@ -496,3 +498,32 @@ def entry_disagreement(sid: str, entry: dict, gen: str, ds):
     else:
         return None
     return message, make_entry(gen, entry.get("written", ""), row, hist)
+
+
+def directory_notes(root, label: str, index) -> tuple[list[str], list[str]]:
+    """``(problems, notes)`` of a directory store beyond its subjects: ``subjects/`` missing, survey, quarantine.
+
+    Parameters
+    ----------
+    root : str
+        The store directory.
+    label : str
+        The store's name in messages.
+    index : dict or None
+        The index document (None if it cannot be read: no survey then).
+    """
+    problems, notes = [], []
+    if not os.path.lexists(os.path.join(root, SUBJECTS)):
+        problems.append(
+            f"store {label}: its subjects/ folder is missing (an unmounted volume?); no subject can be read"
+        )
+    if index is not None:
+        notes += survey(root, index).notes()
+    q = list_quarantine(root)
+    if q:
+        n, size = sum(len(e["items"]) for e in q), sum(e["bytes"] for e in q)
+        notes.append(
+            f"quarantine: {len(q)} folder(s), {n} item(s), {size / 1e6:.1f} MB moved aside by repairs "
+            f"({', '.join(e['name'] for e in q[:3])}); `facestats validate --purge --yes` deletes them"
+        )
+    return problems, notes

@@ -71,7 +71,7 @@ from facestats.io.index import INDEX_NAME, index_table, parse_index, read_index_
 from facestats.io.integrity import STORE_ATTR, open_generation
 from facestats.io.layout import ROOT_META, generation_rel, is_plain_dir, store_lock
 from facestats.io.locking import FileLock
-from facestats.io.maintenance import ValidationReport, check_subjects, collect_garbage, survey
+from facestats.io.maintenance import ValidationReport, check_subjects, collect_garbage, directory_notes
 from facestats.io.quarantine import list_quarantine, purge_quarantine
 from facestats.io.repair import RepairPlan, apply_repair, plan_repair
 from facestats.io.root import create_store, read_root_attrs
@@ -512,23 +512,11 @@ class Store:
             return {}
 
     def _directory_notes(self, report: ValidationReport, index) -> None:
-        """Notes from the survey of a directory store (leftovers, foreign items, quarantine)."""
-        if self.kind != "directory":
-            return
-        if not os.path.lexists(os.path.join(self.path, "subjects")):
-            report.problems.append(
-                f"store {self.label}: its subjects/ folder is missing (an unmounted volume?); no subject can be read"
-            )
-        if index is not None:
-            report.notes += survey(self.path, index).notes()
-        q = list_quarantine(self.path)
-        if q:
-            n = sum(len(e["items"]) for e in q)
-            size = sum(e["bytes"] for e in q)
-            report.notes.append(
-                f"quarantine: {len(q)} folder(s), {n} item(s), {size / 1e6:.1f} MB moved aside by repairs "
-                f"({', '.join(e['name'] for e in q[:3])}); `facestats validate --purge --yes` deletes them"
-            )
+        """Problems and notes of a directory store beyond its subjects (:mod:`facestats.io.maintenance`)."""
+        if self.kind == "directory":
+            problems, notes = directory_notes(self.path, self.label, index)
+            report.problems += problems
+            report.notes += notes
 
     def plan_repair(self, *, allow_missing: bool = False) -> RepairPlan:
         """What :meth:`repair` would do, without changing anything (:mod:`facestats.io.repair`).

@@ -80,52 +80,63 @@ def api(call):
     return run
 
 
-def main(root: Path, source: Path) -> None:
+def damaged(store):
+    gen = next((store / "subjects" / "R2").glob("g*"))
+    chunk = gen / "ts_m" / "c" / "0" / "0"
+    chunk.write_bytes(chunk.read_bytes()[:7])
+
+
+def export(store, work):
+    return cli("export", "--store", store, "--out", work / "out")
+
+
+def repair(store, work):
+    return cli("validate", "--store", store, "--repair", "--yes")
+
+
+def edit(store, work):
+    return cli("edit", "brdf", "R1", "--target", "R2", "--store", store, "--images", work / "img")
+
+
+def write(store):
     from facestats.io import open_store
     from tests.factories import make_map_subject
 
-    def damaged(store):
-        gen = next((store / "subjects" / "R2").glob("g*"))
-        chunk = gen / "ts_m" / "c" / "0" / "0"
-        chunk.write_bytes(chunk.read_bytes()[:7])
+    with open_store(store, mode="r+") as st:
+        st.write_subject(make_map_subject("NEW", size=16))
 
-    def export(store, work):
-        return cli("export", "--store", store, "--out", work / "out")
 
-    def repair(store, work):
-        return cli("validate", "--store", store, "--repair", "--yes")
+def delete(store):
+    from facestats.io import open_store
 
-    def edit(store, work):
-        return cli("edit", "brdf", "R1", "--target", "R2", "--store", store, "--images", work / "img")
+    with open_store(store, mode="r+") as st:
+        st.delete_subject("R1")
 
-    def still_repairable(store, work, before):
-        code, _ = cli("validate", "--store", store, "--repair", "--yes")
-        after = digests(store)
-        return {
-            "repair works once space is back": code == 0,
-            "intact subjects kept": all(after.get(k) == v for k, v in before.items() if k != "R2"),
-            "damaged data not deleted": bool(
-                list(store.glob("subjects/R2/g*")) or list(store.glob("quarantine/*/subjects/R2/g*"))
-            ),
-        }
 
-    def unchanged(store, work, before):
-        return {"data unchanged": digests(store) == before, "store valid": cli("validate", "--store", store)[0] == 0}
+def still_repairable(store, work, before):
+    code, _ = cli("validate", "--store", store, "--repair", "--yes")
+    after = digests(store)
+    kept = list(store.glob("subjects/R2/g*")) or list(store.glob("quarantine/*/subjects/R2/g*"))
+    return {
+        "repair works once space is back": code == 0,
+        "intact subjects kept": all(after.get(k) == v for k, v in before.items() if k != "R2"),
+        "damaged data not deleted": bool(kept),
+    }
 
-    def no_export(store, work, before):
-        return {**unchanged(store, work, before), "no half-written export": not (work / "out").exists()}
 
-    def no_images(store, work, before):
-        return {**unchanged(store, work, before), "no images": not (work / "img").exists()}
+def unchanged(store, work, before):
+    return {"data unchanged": digests(store) == before, "store valid": cli("validate", "--store", store)[0] == 0}
 
-    def write(store):
-        with open_store(store, mode="r+") as st:
-            st.write_subject(make_map_subject("NEW", size=16))
 
-    def delete(store):
-        with open_store(store, mode="r+") as st:
-            st.delete_subject("R1")
+def no_export(store, work, before):
+    return {**unchanged(store, work, before), "no half-written export": not (work / "out").exists()}
 
+
+def no_images(store, work, before):
+    return {**unchanged(store, work, before), "no images": not (work / "img").exists()}
+
+
+def main(root: Path, source: Path) -> None:
     scenario("export", root, source, export, no_export)
     damaged_source = root / "damaged" / "s.zarr"
     shutil.copytree(source, damaged_source)

@@ -1,4 +1,4 @@
-"""API misuse and silent wrong results: clear errors, finite physics over the documented domains, defined degenerate cases.
+"""API misuse and silent wrong results: clear errors, finite physics over the documented domains, degenerate cases.
 
 * Every public physics function (``fresnel``, ``brdf``, ``dipole``) given ``None``, an object, a dict
   or a string for any argument raises :class:`ValidationError` naming it (generated from signatures).

@@ -19,6 +19,53 @@ from ..test_merl import merl_dict
 from .helpers import make_store, snapshot
 
 
+def _dir_at(rel):
+    def change(path):
+        (path / rel).unlink()
+        (path / rel).mkdir()
+
+    return change
+
+
+def _file_at(rel):
+    def change(path):
+        shutil.rmtree(path / rel)
+        (path / rel).write_text("a file")
+
+    return change
+
+
+def _row(field, value=None, raw=None):
+    """Tamper with the index row of R1 (``raw`` replaces the text of its age instead)."""
+
+    def change(path):
+        ix = json.loads((path / "index.json").read_text())
+        entry = ix["subjects"]["R1"]
+        entry["row"]["age"] = 28
+        if field == "albedo_hist":
+            entry["albedo_hist"][1].pop()
+        elif field == "row":
+            entry["row"] = {}
+        elif raw is None:
+            entry["row"][field] = value
+        text = json.dumps(ix)
+        (path / "index.json").write_text(text.replace('"age": 28', raw) if raw else text)
+
+    return change
+
+
+VARIANTS = {
+    "zarr-dir": _dir_at("zarr.json"),
+    "index-dir": _dir_at("index.json"),
+    "age-text": _row("age", "thirty"),
+    "age-nan": _row("age", raw='"age": NaN'),
+    "ragged": _row("albedo_hist"),
+    "empty-row": _row("row"),
+    "writers-file": _file_at(".writers"),
+    "subjects-file": _file_at("subjects"),
+}
+
+
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
     root = tmp_path_factory.mktemp("named")
@@ -28,52 +75,11 @@ def env(tmp_path_factory):
     (root / "foreign").mkdir()
     (root / "foreign" / "mine.txt").write_text("someone's")
     scipy.io.savemat(root / "ts_data.mat", merl_dict(n=2, k=20, ka=10, albedo_cols=0))
-
-    def variant(name, change):
-        path = root / name
-        shutil.copytree(store, path)
-        change(path)
-        return path
-
-    def dir_at(rel):
-        def change(path):
-            (path / rel).unlink()
-            (path / rel).mkdir()
-
-        return change
-
-    def row(field, value=None, raw=None):
-        def change(path):
-            ix = json.loads((path / "index.json").read_text())
-            ix["subjects"]["R1"]["row"]["age"] = 28
-            if field == "albedo_hist":
-                ix["subjects"]["R1"]["albedo_hist"][1].pop()
-            elif field == "row":
-                ix["subjects"]["R1"]["row"] = {}
-            elif raw is None:
-                ix["subjects"]["R1"]["row"][field] = value
-            text = json.dumps(ix)
-            (path / "index.json").write_text(text.replace('"age": 28', raw) if raw else text)
-
-        return change
-
-    def file_at(rel):
-        def change(path):
-            shutil.rmtree(path / rel)
-            (path / rel).write_text("a file")
-
-        return change
-
-    stores = {
-        "zarr-dir": variant("zarr-dir.zarr", dir_at("zarr.json")),
-        "index-dir": variant("index-dir.zarr", dir_at("index.json")),
-        "age-text": variant("age-text.zarr", row("age", "thirty")),
-        "age-nan": variant("age-nan.zarr", row("age", raw='"age": NaN')),
-        "ragged": variant("ragged.zarr", row("albedo_hist")),
-        "empty-row": variant("empty-row.zarr", row("row")),
-        "writers-file": variant("writers-file.zarr", file_at(".writers")),
-        "subjects-file": variant("subjects-file.zarr", file_at("subjects")),
-    }
+    stores = {}
+    for name, change in VARIANTS.items():
+        stores[name] = root / f"{name}.zarr"
+        shutil.copytree(store, stores[name])
+        change(stores[name])
     return root, store, stores
 
 

@@ -264,7 +264,8 @@ def test_full_disk(base, tmp_path):
     disk.mkdir()
     repo = Path(__file__).resolve().parents[2]
     env = dict(os.environ, PYTHONPATH=str(repo), MPLBACKEND="Agg")
-    script = f"mount -t tmpfs -o size=6m tmpfs {disk} && exec {sys.executable} -m tests.reliability.full_disk {disk} {base[0]}"
+    script = f"mount -t tmpfs -o size=6m tmpfs {disk} && exec {sys.executable} -m tests.reliability.full_disk "
+    script += f"{disk} {base[0]}"
     r = subprocess.run(
         ["unshare", "-rm", "sh", "-c", script], capture_output=True, text=True, env=env, cwd=repo, timeout=600
     )

@@ -21,7 +21,6 @@ with Zarr's default zstd.  zarr is imported when a generation is written.
 from __future__ import annotations
 
 import os
-import shutil
 
 import numpy as np
 
@@ -41,6 +40,7 @@ from facestats.io.layout import (
     is_plain_dir,
     map_chunk_rows,
     new_generation,
+    remove_tree,
     writer_lock_path,
 )
 from facestats.io.locking import create_locked
@@ -267,7 +267,8 @@ def _delete_generation(root, sid: str, gen: str) -> None:
         if is_plain_dir(confined(root, src)):
             os.rename(src, confined(root, dst))
         if is_plain_dir(dst):
-            shutil.rmtree(dst)
-        os.remove(confined(root, record_path(root, sid, gen)))
+            remove_tree(dst)
+        if not os.path.lexists(src) and not os.path.lexists(dst):  # the record goes last: it proves ownership
+            os.remove(confined(root, record_path(root, sid, gen)))
     except (OSError, StoreError):
         return  # already gone, or not ours to touch: left for gc to judge

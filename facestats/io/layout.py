@@ -40,6 +40,7 @@ import json
 import os
 import re
 import secrets
+import shutil
 import stat
 import time
 
@@ -67,6 +68,7 @@ __all__ = [
     "is_plain_file",
     "confined",
     "read_regular_file",
+    "remove_tree",
     "group_meta",
     "fsync_path",
     "fsync_tree",
@@ -173,6 +175,21 @@ def read_regular_file(path) -> bytes:
             return fh.read()
     finally:
         os.close(fd)
+
+
+def remove_tree(path) -> None:
+    """Delete the folder ``path`` and everything in it, without following links.
+
+    Entries that vanish meanwhile (another process removing the same leftover)
+    are fine; any other failure raises :class:`OSError`.  Whether the folder is
+    gone afterwards is the caller's to check.
+    """
+
+    def gone_already(function, p, exc_info):
+        if not issubclass(exc_info[0], FileNotFoundError):
+            raise exc_info[1]
+
+    shutil.rmtree(path, onerror=gone_already)
 
 
 def confined(root, path) -> str:

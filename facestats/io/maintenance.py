@@ -32,7 +32,6 @@ new version.  What repair does with these findings is :mod:`facestats.io.repair`
 from __future__ import annotations
 
 import os
-import shutil
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -54,6 +53,7 @@ from facestats.io.layout import (
     is_meta_temp,
     is_plain_dir,
     is_plain_file,
+    remove_tree,
     writer_lock_path,
 )
 from facestats.io.locking import is_lock_temp, is_locked, try_lock
@@ -350,7 +350,7 @@ def collect_garbage(root, lock) -> list[str]:
             else:
                 held.append(lk)
     try:
-        removed = _remove(root, _deletion_order(s.garbage))
+        removed = _remove(root, s.garbage)
     finally:
         for lk in held:
             lk.release()
@@ -359,19 +359,27 @@ def collect_garbage(root, lock) -> list[str]:
     return removed
 
 
-def _deletion_order(paths) -> list[str]:
-    """Generation folders before their records (a crash in between leaves the record, still proving ownership)."""
-    return sorted(paths, key=lambda p: (p.startswith(RECORDS + "/"), p))
-
-
 def _remove(root, rels) -> list[str]:
+    """Delete files and folder trees (the generation folders before any record); those removed.
+
+    A record is removed only once its generation folder and trash folder are both gone, so a
+    leftover never loses the record that proves it is the store's own (another process may be
+    deleting the same leftover at the same time).
+    """
     removed = []
-    for rel in rels:
+    for rel in sorted(rels, key=lambda p: (p.startswith(RECORDS + "/"), p)):
         path = os.path.join(root, rel)
         try:
             confined(root, path)
+            if rel.startswith(RECORDS + "/"):
+                sid, gen = parse_record_name(os.path.basename(rel))
+                folder = os.path.join(root, SUBJECTS, sid)
+                if os.path.lexists(os.path.join(folder, gen)) or os.path.lexists(
+                    os.path.join(folder, TRASH_PREFIX + gen)
+                ):
+                    continue
             if is_plain_dir(path):
-                shutil.rmtree(path)
+                remove_tree(path)
             else:
                 os.remove(path)
         except (OSError, StoreError):

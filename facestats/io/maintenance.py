@@ -371,8 +371,9 @@ def _remove(root, rels) -> list[str]:
         path = os.path.join(root, rel)
         try:
             confined(root, path)
-            if rel.startswith(RECORDS + "/"):
-                sid, gen = parse_record_name(os.path.basename(rel))
+            pair = parse_record_name(os.path.basename(rel)) if rel.startswith(RECORDS + "/") else None
+            if pair is not None:
+                sid, gen = pair
                 folder = os.path.join(root, SUBJECTS, sid)
                 if os.path.lexists(os.path.join(folder, gen)) or os.path.lexists(
                     os.path.join(folder, TRASH_PREFIX + gen)

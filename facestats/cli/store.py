@@ -138,10 +138,13 @@ def _cmd_validate(args) -> int:
         if args.purge:
             return _purge(store, args.yes)
         if args.repair and not args.yes:
-            plan = store.plan_repair(allow_missing=args.allow_missing)
+            plan = store.plan_repair(allow_missing=args.allow_missing, progress=True)
             sys.stdout.write(plan.to_text())
             return 1 if plan.fixes_problems or plan.problems else 0
-        report = store.repair(allow_missing=args.allow_missing) if args.repair else store.validate()
+        if args.repair:
+            report = store.repair(allow_missing=args.allow_missing, progress=True)
+        else:
+            report = store.validate(progress=True)
     sys.stdout.write(report.to_text())
     return 0 if report.ok else 1
 

@@ -431,7 +431,9 @@ class Checked:
     current: dict = field(default_factory=dict)
 
 
-def check_subjects(index, open_generation, report: ValidationReport, *, reread=None, generation_exists=None) -> Checked:
+def check_subjects(
+    index, open_generation, report: ValidationReport, *, reread=None, generation_exists=None, progress=False
+) -> Checked:
     """Open every indexed subject and compare its index entry with its data.
 
     Parameters
@@ -449,13 +451,20 @@ def check_subjects(index, open_generation, report: ValidationReport, *, reread=N
         version.
     generation_exists : callable, optional
         ``generation_exists(sid, gen)``: tells a missing generation from a damaged one.
+    progress : bool
+        Show a progress bar (tqdm; silent when not on a terminal).
 
     Returns
     -------
     Checked
     """
     out = Checked()
-    for sid in sorted(index["subjects"]):
+    ids = sorted(index["subjects"])
+    if progress:
+        from tqdm.auto import tqdm
+
+        ids = tqdm(ids, desc="check", unit="subject", disable=None)
+    for sid in ids:
         entry = index["subjects"][sid]
         for _ in range(5):
             gen = entry["generation"]

@@ -172,7 +172,9 @@ class RepairPlan:
 
 
 # -- planning ----------------------------------------------------------------------------------
-def plan_repair(root, *, label: str, open_generation, allow_missing: bool = False) -> RepairPlan:
+def plan_repair(
+    root, *, label: str, open_generation, allow_missing: bool = False, progress: bool = False
+) -> RepairPlan:
     """The repair plan of the directory store at ``root`` (module docstring); nothing is changed.
 
     Parameters
@@ -185,6 +187,8 @@ def plan_repair(root, *, label: str, open_generation, allow_missing: bool = Fals
         ``open_generation(sid, gen)``: a fully verified subject (:func:`facestats.io.integrity.open_generation`).
     allow_missing : bool
         Plan even if the folders of most indexed subjects are missing (the data are really gone).
+    progress : bool
+        Show a progress bar while the subjects are checked.
 
     Raises
     ------
@@ -201,7 +205,7 @@ def plan_repair(root, *, label: str, open_generation, allow_missing: bool = Fals
     plan.base_revision = int(index.get("revision", 0))
     _refuse_half_present(root, index, bad, allow_missing)
     _plan_bad_entries(plan, root, bad, open_generation)
-    _plan_indexed(plan, root, index, open_generation)
+    _plan_indexed(plan, root, index, open_generation, progress)
     s = survey(root, index)
     _plan_adoptions(plan, s, open_generation)
     plan.garbage = list(s.garbage)
@@ -379,13 +383,14 @@ def _plan_bad_entries(plan: RepairPlan, root, bad: dict, open_generation) -> Non
             plan.actions.append(RepairAction("drop-entry", str(sid), entry=entry, reason=problem))
 
 
-def _plan_indexed(plan: RepairPlan, root, index: dict, open_generation) -> None:
+def _plan_indexed(plan: RepairPlan, root, index: dict, open_generation, progress: bool = False) -> None:
     """Check every indexed subject and plan what its findings call for."""
 
     def exists(sid, gen):
         return is_plain_dir(os.path.join(root, generation_rel(sid, gen)))
 
-    checked = check_subjects(index, open_generation, ValidationReport(path=plan.store), generation_exists=exists)
+    report = ValidationReport(path=plan.store)
+    checked = check_subjects(index, open_generation, report, generation_exists=exists, progress=progress)
     plan.problems += list(checked.unreadable.values())
     for sid, (gen, msg) in sorted({**checked.damaged, **checked.missing}.items()):
         damaged = sid in checked.damaged

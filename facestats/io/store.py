@@ -13,31 +13,27 @@ alone (``store.subject(id, lazy=True).isel(v=slice(0, 64))``).
 
 Writes
 ------
-Each write of a subject creates a *fresh generation* directory
-``subjects/<id>/<generation>/``, fills and ``fsync``-s it
-(:mod:`facestats.io.generations`), and only then commits by replacing
-``index.json`` atomically under the store lock.  The index names the current
-generation of each subject, so a reader never sees a generation that is being
-written, and a writer killed at any moment leaves the previous index, i.e. the
-old subject (or none) or the new one, never half of one.  Superseded
-generations are deleted after the commit (renamed aside first, so they vanish
-atomically); generations left by crashed writers are *orphans*, removed by
-:meth:`Store.gc` / ``facestats validate --repair`` (:mod:`facestats.io.maintenance`),
-which never touch a generation whose writer is still alive (each writer holds
-a lock on ``.writers/<id>~<generation>.lock`` until its commit is done).
-Several processes may write at once: data are written in parallel, commits are
-serialised by the store lock, and each commit re-reads the index so no
-writer's update is lost.  A batch (:meth:`Store.write_subjects`) commits all of
-its subjects at once.
+Each write creates a *fresh generation* ``subjects/<id>/<generation>/`` with
+its record (:mod:`facestats.io.generations`, :mod:`facestats.io.records`) and
+commits by replacing ``index.json`` atomically under the store lock
+(:mod:`facestats.io.commit`): a writer killed at any moment leaves the old
+subject (or none) or the new one.  Writers write in parallel, commits are
+serialised and re-read the index (no lost update); a batch
+(:meth:`Store.write_subjects`) commits all its subjects at once.
+:meth:`Store.gc`, :meth:`Store.validate`, :meth:`Store.plan_repair`,
+:meth:`Store.repair` and the quarantine (:mod:`facestats.io.maintenance`,
+:mod:`facestats.io.repair`, :mod:`facestats.io.quarantine`) never touch a live
+writer's data, what the store did not create, or anything outside it; repair
+never deletes data.  Design: ``docs/store.md``.
 
 Reads
 -----
-Readers take the current index, then open the generation it names; if that
-generation disappears under them (a concurrent writer replaced the subject)
-they retry with the new index.  Every subject read is checked
+Readers take the current index (every entry checked) and open the generation it
+names, retrying if a concurrent writer replaced it.  Every read verifies
 (:func:`facestats.io.integrity.open_generation`): manifest, dims, shapes,
-dtypes, CRC-32 of the bytes unless ``lazy=True``, then the schema.  Problems
-raise :class:`~facestats.errors.SchemaError` naming the subject and the variable.
+dtypes, CRC-32 of the bytes (lazy reads chunk by chunk as they load), the
+schema and its physical domains; problems raise
+:class:`~facestats.errors.SchemaError` naming the subject and the variable.
 
 ``open_store(None)`` opens the embedded default, ``facestats/data/default_store.zip``.
 ``open_store``, :meth:`Store.query`, :meth:`Store.info` and the index import
@@ -460,7 +456,9 @@ class Store:
         self._require_writable()
         return collect_garbage(self.path, self._lock())
 
-    def validate(self, *, repair: bool = False, allow_missing: bool = False) -> ValidationReport:
+    def validate(
+        self, *, repair: bool = False, allow_missing: bool = False, progress: bool = False
+    ) -> ValidationReport:
         """Check every subject and the agreement of the index with the data.
 
         Each indexed subject is opened (group present, manifest, dims, CRC-32,
@@ -476,6 +474,8 @@ class Store:
             Apply the repair (directory stores opened read-write).
         allow_missing : bool
             With ``repair``: act even if most subject folders are missing (:meth:`plan_repair`).
+        progress : bool
+            Show a progress bar while the subjects are checked.
 
         Returns
         -------
@@ -483,7 +483,7 @@ class Store:
             After a repair, the problems and notes of a second validation.
         """
         if repair:
-            return self.repair(allow_missing=allow_missing)
+            return self.repair(allow_missing=allow_missing, progress=progress)
         report = ValidationReport(path=self.label)
         try:
             index = self._index()
@@ -498,9 +498,8 @@ class Store:
             def exists(sid, gen):
                 return is_plain_dir(os.path.join(self.path, generation_rel(sid, gen)))
 
-        check_subjects(
-            index, self._open_generation, report, reread=lambda: self._fresh_entries(), generation_exists=exists
-        )
+        reread = self._fresh_entries
+        check_subjects(index, self._open_generation, report, reread=reread, generation_exists=exists, progress=progress)
         self._directory_notes(report, index)
         return report
 
@@ -518,7 +517,7 @@ class Store:
             report.problems += problems
             report.notes += notes
 
-    def plan_repair(self, *, allow_missing: bool = False) -> RepairPlan:
+    def plan_repair(self, *, allow_missing: bool = False, progress: bool = False) -> RepairPlan:
         """What :meth:`repair` would do, without changing anything (:mod:`facestats.io.repair`).
 
         Parameters
@@ -526,6 +525,8 @@ class Store:
         allow_missing : bool
             Plan even if the folders of most indexed subjects are missing (otherwise the store looks
             unmounted or half-present and repair refuses).
+        progress : bool
+            Show a progress bar while the subjects are checked.
 
         Raises
         ------
@@ -535,10 +536,16 @@ class Store:
         if self.kind != "directory":
             raise StoreError(f"store {self.label} is a read-only zip store: it cannot be repaired")
         return plan_repair(
-            self.path, label=self.label, open_generation=self._open_generation, allow_missing=allow_missing
+            self.path,
+            label=self.label,
+            open_generation=self._open_generation,
+            allow_missing=allow_missing,
+            progress=progress,
         )
 
-    def repair(self, plan: RepairPlan | None = None, *, allow_missing: bool = False) -> ValidationReport:
+    def repair(
+        self, plan: RepairPlan | None = None, *, allow_missing: bool = False, progress: bool = False
+    ) -> ValidationReport:
         """Apply a repair plan (default: :meth:`plan_repair` now), collect garbage, and validate again.
 
         Damaged data are moved to the quarantine (``quarantine/``, listed by
@@ -551,7 +558,7 @@ class Store:
             ``repaired`` lists what was done; problems and notes are those of the validation after it.
         """
         self._require_writable()
-        plan = self.plan_repair(allow_missing=allow_missing) if plan is None else plan
+        plan = self.plan_repair(allow_missing=allow_missing, progress=progress) if plan is None else plan
         done, attrs = apply_repair(self.path, plan, label=self.label, lock=self._lock(), root_attrs=self.root_attrs)
         self._set_root_attrs(attrs)
         removed = self.gc()

@@ -84,12 +84,15 @@ def boundary_coefficient(eta=ETA_SKIN):
 def _dipole_terms(sigma_s_prime, sigma_a, eta):
     """σtr, z_r, z_v and α' of the dipole (Suzuki eq. 6-12); no checks.
 
-    σtr = sqrt(3 σa) sqrt(σ't) rather than sqrt(3 σa σ't): the same number, but the
-    product cannot overflow for coefficients up to the float range.
+    Where the product 3 σa σ't overflows (coefficients near the float range), σtr
+    is formed as sqrt(3 σa) sqrt(σ't) instead: the same number without the
+    overflow (elsewhere the product form, bit for bit as before).
     """
     sigma_t = sigma_s_prime + sigma_a
     alpha = sigma_s_prime / sigma_t
-    sigma_tr = np.sqrt(3 * sigma_a) * np.sqrt(sigma_t)
+    sigma_tr = np.sqrt(3 * sigma_a * sigma_t)
+    if not np.all(np.isfinite(sigma_tr)):
+        sigma_tr = np.where(np.isfinite(sigma_tr), sigma_tr, np.sqrt(3 * sigma_a) * np.sqrt(sigma_t))
     a_coef = _boundary(eta)
     z_r = 1 / sigma_t
     z_v = z_r * (1 + 4 * a_coef / 3)

@@ -27,7 +27,7 @@ from facestats.io import open_store
 
 from ..factories import make_map_subject
 from ..test_merl import merl_dict
-from .helpers import copy_store, make_store, quarantined_generations, snapshot, subject_digests
+from .helpers import copy_store, make_sentinel, make_store, quarantined_generations, snapshot, subject_digests
 
 N_KILLS = 20
 
@@ -93,7 +93,7 @@ def test_sigkill_during_build(tmp_path):
     reference = subject_digests(ref)
     rng = random.Random(12)
     sentinel_root = tmp_path / "k"
-    sentinel_root.mkdir()
+    sentinel = snapshot(make_sentinel(sentinel_root / "sentinel"))
     duration = _duration(
         lambda: build_store(tmp_path / "t.zarr", map_size=8, subjects=ids, workers=1, conditions=False)
     )
@@ -114,6 +114,7 @@ def test_sigkill_during_build(tmp_path):
             with open_store(store) as st:
                 assert st.validate().ok and not st.validate().notes  # the killed writers' leftovers were collected
     assert killed >= N_KILLS // 2
+    assert snapshot(sentinel_root / "sentinel") == sentinel
 
 
 def _merl_file(path, version):

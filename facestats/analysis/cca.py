@@ -50,7 +50,7 @@ import numpy as np
 
 from facestats.analysis.population import MODEL_NAMES
 from facestats.analysis.serialize import json_ready, records
-from facestats.core.validate import as_float, check_range
+from facestats.core.validate import as_float, check_range, check_seed
 from facestats.errors import ValidationError
 
 __all__ = ["CCAResult", "cca"]
@@ -502,7 +502,7 @@ def _bartlett(r, rx, ry, n, plain):
 def _permutation_p(xw, yw, r, plain, upper, n_permutations, seed):
     """Permutation p-values per dimension: (1 + #{statistic of permuted Y rows ≥ observed}) / (B + 1)."""
     n, k = xw.shape[0], r.size
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(check_seed(seed))
     observed = _dependence(r, plain)
     count = np.zeros(k)
     done = 0

@@ -91,7 +91,7 @@ def main(argv=None) -> int:
     except FacestatsError as exc:
         print(f"facestats: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:  # pragma: no cover - interactive
+    except KeyboardInterrupt:
         print("facestats: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # output piped into e.g. `head`, which closed early
@@ -100,6 +100,24 @@ def main(argv=None) -> int:
         except OSError:  # pragma: no cover
             pass
         return 0
+    except Exception as exc:  # the last line of defence: no command ends in a traceback
+        if os.environ.get("FACESTATS_DEBUG"):
+            raise
+        print(f"facestats: error: {_describe_failure(exc)}", file=sys.stderr)
+        return 2 if isinstance(exc, (OSError, MemoryError)) else 3
+
+
+def _describe_failure(exc: BaseException) -> str:
+    """One line about an error no command turned into a FacestatsError."""
+    if isinstance(exc, OSError):
+        where = f": {exc.filename}" if exc.filename else ""
+        return f"{exc.strerror or exc}{where}"
+    if isinstance(exc, MemoryError):
+        return f"out of memory ({exc or 'the computation needs more memory than this machine has'})"
+    return (
+        f"unexpected {type(exc).__name__}: {exc} — this is a bug in facestats; rerun with FACESTATS_DEBUG=1 "
+        "for the traceback and report it"
+    )
 
 
 if __name__ == "__main__":  # pragma: no cover

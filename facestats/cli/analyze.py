@@ -128,18 +128,10 @@ _HANDLERS = {"pca": _pca, "cca": _cca, "scatter": _scatter, "translucency": _tra
 
 # -- writing ------------------------------------------------------------------------
 def _out_dir(path):
-    from pathlib import Path
+    """``--out``, checked before any work (created when the first file is written)."""
+    from facestats.core.outputs import check_output_dir
 
-    from facestats.errors import ValidationError
-
-    out = Path(path).expanduser()
-    if out.exists() and not out.is_dir():
-        raise ValidationError(f"--out must be a directory, got the file {str(out)!r}")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ValidationError(f"--out: cannot create directory {str(out)!r}: {exc.strerror}") from None
-    return out
+    return check_output_dir(path, "--out")
 
 
 def _write(out, name, fig, doc, fmt, store):
@@ -148,6 +140,7 @@ def _write(out, name, fig, doc, fmt, store):
 
     from facestats.core.version import __version__
 
+    out.mkdir(parents=True, exist_ok=True)
     figure = out / f"{name}.{fmt}"
     fig.savefig(figure, format=fmt, dpi=150)
     head = {"action": name, "facestats_version": __version__, "store": store.label, "figure": figure.name}

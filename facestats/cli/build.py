@@ -10,6 +10,18 @@ __all__ = ["add_build"]
 
 
 def _cmd_build(args) -> int:
+    try:
+        return _build_command(args)
+    except KeyboardInterrupt:
+        print(
+            "facestats: build interrupted; the subjects finished so far are stored (each write is atomic): rerun "
+            "the same command to resume",
+            file=sys.stderr,
+        )
+        return 130
+
+
+def _build_command(args) -> int:
     from facestats.pipeline import build as _build
 
     if args.default:

@@ -117,20 +117,49 @@ def _open(args):
 
 def _report(edit, args) -> int:
     from facestats.edit.plots import save_edit_images
+    from facestats.errors import FacestatsError
 
-    files = save_edit_images(edit, args.images)
+    try:
+        files = save_edit_images(edit, args.images)
+    except (OSError, FacestatsError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) else str(exc)
+        raise FacestatsError(
+            f"the edited subject {edit.subject_id!r} was written to store {edit.store}, but its images could not be "
+            f"saved in {args.images} ({reason}); free space or choose another --images folder and rerun the same "
+            "command with --overwrite"
+        ) from None
     print(edit.to_text(images=files, directory=args.images))
     return 0
 
 
+def _check_outputs(args) -> None:
+    """The new id and the images folder, checked before any work (a failed command leaves no side effects)."""
+    from facestats.core.outputs import check_output_dir
+    from facestats.errors import ValidationError
+    from facestats.io.ids import check_subject_id
+
+    if args.new_id is not None:
+        check_subject_id(args.new_id)
+    if args.out_store is not None and not args.out_store.strip():
+        raise ValidationError("--out-store must name a directory store, got ''")
+    check_output_dir(args.images, "--images")
+
+
 def _run(args, edit_function, target, **kwargs) -> int:
-    """Open the stores, make the edit ``edit_function(store, SUBJECT, target, ...)``, report it; the exit code."""
-    store, out = _open(args)
-    with store, out:
-        edit = edit_function(
-            store, args.subject, target, out_store=out, new_id=args.new_id, overwrite=args.overwrite, **kwargs
-        )
-        return _report(edit, args)
+    """Open the stores, make the edit ``edit_function(store, SUBJECT, target, ...)``, report it; the exit code.
+
+    A store created by ``--out-store`` is removed again if the edit fails before writing into it.
+    """
+    from facestats.io.root import new_store_guard
+
+    _check_outputs(args)
+    with new_store_guard(args.out_store):
+        store, out = _open(args)
+        with store, out:
+            edit = edit_function(
+                store, args.subject, target, out_store=out, new_id=args.new_id, overwrite=args.overwrite, **kwargs
+            )
+            return _report(edit, args)
 
 
 def _cmd_skin_type(args) -> int:
@@ -188,9 +217,11 @@ def _cmd_texture(args) -> int:
 
 
 def _cmd_stats(args) -> int:
+    from facestats.edit.statistics import statistics_path
     from facestats.edit.subjects import subject_texture_statistics
     from facestats.io.store import open_store
 
+    statistics_path(args.out)  # checked before the work
     with open_store(args.store) as store:
         stats = subject_texture_statistics(
             store, args.subject, regions=args.regions, levels=args.levels, bins=args.bins

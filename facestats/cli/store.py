@@ -124,30 +124,69 @@ def _cmd_validate(args) -> int:
     from facestats.errors import StoreError
     from facestats.io.store import open_store
 
+    if args.repair and args.purge:
+        raise StoreError("--repair and --purge are separate steps: run one, check the result, then the other")
+    if (args.yes or args.allow_missing) and not (args.repair or args.purge):
+        raise StoreError("--yes and --allow-missing go with --repair (or --yes with --purge)")
+    writes = (args.repair or args.purge) and args.yes
     try:
-        store = open_store(args.store, mode="r+" if args.repair else "r")
+        store = open_store(args.store, mode="r+" if writes else "r")
     except StoreError as exc:  # includes SchemaError: an unopenable store is invalid
         print(f"problem: {exc}\nstore is INVALID (1 problem(s))")
         return 1
     with store:
-        report = store.validate(repair=args.repair)
+        if args.purge:
+            return _purge(store, args.yes)
+        if args.repair and not args.yes:
+            plan = store.plan_repair(allow_missing=args.allow_missing, progress=True)
+            sys.stdout.write(plan.to_text())
+            return 1 if plan.fixes_problems or plan.problems else 0
+        if args.repair:
+            report = store.repair(allow_missing=args.allow_missing, progress=True)
+        else:
+            report = store.validate(progress=True)
     sys.stdout.write(report.to_text())
     return 0 if report.ok else 1
+
+
+def _purge(store, yes: bool) -> int:
+    """List the quarantine (dry run) or delete it (``--yes``)."""
+    entries = store.quarantine()
+    if not entries:
+        print(f"store {store.label}: the quarantine is empty")
+        return 0
+    for e in entries:
+        state = "" if e["valid"] else " (no QUARANTINE.json: not created by a repair, never purged)"
+        print(f"quarantine/{e['name']}: {len(e['items'])} item(s), {e['bytes'] / 1e6:.1f} MB{state}")
+        for item in e["items"][:10]:
+            print(f"  {item['path']}: {item['why']}")
+    if not yes:
+        print("dry run: nothing was deleted; add --yes to delete the quarantine for good")
+        return 0
+    removed = store.purge_quarantine()
+    print(f"deleted {len(removed)} quarantine folder(s)")
+    return 0
 
 
 def add_validate(sub):
     p = sub.add_parser(
         "validate",
-        help="check every subject of a store and the index (exit 1 if invalid)",
-        description="Open and check every subject (group present, dims, checksums, schema) and "
-        "compare the population index with the data. Exit 0 if valid, 1 if not.",
+        help="check every subject of a store and the index (exit 1 if invalid); repair with a plan first",
+        description="Open and check every subject (group present, dims, checksums, schema, physical domains) and "
+        "compare the population index with the data. Exit 0 if valid, 1 if not. --repair prints what a repair "
+        "would do (nothing is changed); --repair --yes does it: damaged data are moved to the store's "
+        "quarantine/ folder (never deleted), subjects are recovered from their newest intact committed "
+        "version, stale index rows recomputed, leftovers of interrupted writes removed. --purge --yes deletes "
+        "the quarantine.",
     )
     add_store_option(p)
+    p.add_argument("--repair", action="store_true", help="plan a repair of a directory store (a dry run without --yes)")
+    p.add_argument("--purge", action="store_true", help="list the quarantine (delete it with --yes)")
+    p.add_argument("--yes", action="store_true", help="apply the repair (or the purge) instead of printing the plan")
     p.add_argument(
-        "--repair",
+        "--allow-missing",
         action="store_true",
-        help="rebuild a lost index, drop broken subjects from it, recompute stale rows and remove what "
-        "interrupted writers left (directory stores)",
+        help="repair even if most subject folders are missing (otherwise the store looks unmounted and repair refuses)",
     )
     p.set_defaults(func=_cmd_validate)
 

@@ -8,6 +8,8 @@ published MERL/ETH data files use.
 
 from __future__ import annotations
 
+import re
+
 from facestats.errors import ValidationError
 
 __all__ = [
@@ -65,6 +67,15 @@ _FROM_ROMAN = {v: k for k, v in ROMAN.items()}
 #: Age groups of §7: (label, min age, max age) inclusive.
 AGE_GROUPS = (("20s", 0, 29), ("30s", 30, 39), ("40s", 40, 49), ("50s+", 50, 200))
 
+#: Decimal numbers as typed on the command line: ASCII digits only.  ``str.isdigit`` and
+#: ``int`` accept superscripts ('²') or other scripts' digits ('٣'), which no user means.
+_ASCII_INT = re.compile(r"[0-9]{1,9}")
+
+
+def _ascii_int(text: str):
+    """``int(text)`` if ``text`` is 1-9 ASCII digits (matched in full), else None."""
+    return int(text) if _ASCII_INT.fullmatch(text) else None
+
 
 def parse_skin_type(value) -> int:
     """Fitzpatrick skin type as an int 1-6 from ``3``, ``"3"``, ``"III"`` or ``"iii"``."""
@@ -72,13 +83,12 @@ def parse_skin_type(value) -> int:
         v = value.strip().upper()
         if v in _FROM_ROMAN:
             return _FROM_ROMAN[v]
-        if v.isdigit():
-            value = int(v)
-        else:
+        if _ascii_int(v) is None:
             raise ValidationError(f"skin type must be I-VI or 1-6, got {value!r}")
+        value = _ascii_int(v)
     try:
         iv = int(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValidationError(f"skin type must be I-VI or 1-6, got {value!r}") from None
     if iv != value or iv not in ROMAN:
         raise ValidationError(f"skin type must be I-VI or 1-6, got {value!r}")
@@ -106,7 +116,7 @@ def parse_gender(value) -> str:
                 return "M"
             if float(value) == 1:
                 return "F"
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             pass
     raise ValidationError(f"gender must be M or F (or 0 = M, 1 = F), got {value!r}")
 
@@ -115,8 +125,8 @@ def parse_region(value) -> int:
     """Region number 1-10 from a number or a name of :data:`REGIONS` (singular accepted)."""
     if isinstance(value, str):
         v = value.strip().lower()
-        if v.isdigit():
-            value = int(v)
+        if _ascii_int(v) is not None:
+            value = _ascii_int(v)
         else:
             for k, name in REGIONS.items():
                 if v in (name, name.rstrip("s"), name.replace("-", ""), name.replace("-", " ")):
@@ -124,7 +134,7 @@ def parse_region(value) -> int:
             raise ValidationError(f"region must be 1-10 or one of {list(REGIONS.values())}, got {value!r}")
     try:
         iv = int(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValidationError(f"region must be 1-10 or a region name, got {value!r}") from None
     if iv not in REGIONS or iv != value:
         raise ValidationError(f"region must be 1-10 or a region name, got {value!r}")
@@ -142,28 +152,32 @@ def parse_condition(value) -> str:
 def parse_age(value) -> tuple[int, int]:
     """An inclusive age range from ``"20s"``, ``"30s"``, ``"40s"``, ``"50s+"``, ``"MIN-MAX"`` or one age."""
     if isinstance(value, (tuple, list)) and len(value) == 2:
-        try:
-            lo, hi = int(value[0]), int(value[1])
-        except (TypeError, ValueError):
-            raise ValidationError(f"age range must be two ages in years (MIN, MAX), got {value!r}") from None
+        lo, hi = (_age_number(x) for x in value)
+        if lo is None or hi is None:
+            raise ValidationError(f"age range must be two ages in years (MIN, MAX), got {value!r}")
     else:
         v = str(value).strip().lower()
         for label, lo_, hi_ in AGE_GROUPS:
             if v == label.lower() or (label == "50s+" and v in ("50s", "50+")):
                 return lo_, hi_
-        try:
-            if "-" in v:
-                a, b = v.split("-", 1)
-                lo, hi = int(a), int(b)
-            else:
-                lo = hi = int(v)
-        except ValueError:
-            raise ValidationError(
-                f"age must be 20s, 30s, 40s, 50s+, MIN-MAX or an age in years, got {value!r}"
-            ) from None
+        a, _, b = v.partition("-")
+        lo, hi = _ascii_int(a.strip()), _ascii_int((b if _ else a).strip())
+        if lo is None or hi is None:
+            raise ValidationError(f"age must be 20s, 30s, 40s, 50s+, MIN-MAX or an age in years, got {value!r}")
     if not (0 <= int(lo) <= int(hi) <= 200):
         raise ValidationError(f"age range must satisfy 0 <= MIN <= MAX <= 200, got {value!r}")
     return int(lo), int(hi)
+
+
+def _age_number(x):
+    """An age bound: an integer (Python or numpy, not bool) or ASCII digits; None otherwise."""
+    if isinstance(x, str):
+        return _ascii_int(x.strip())
+    try:
+        iv = int(x)
+    except (TypeError, ValueError, OverflowError):
+        return None
+    return iv if iv == x and not isinstance(x, bool) else None
 
 
 def age_group(age) -> str:

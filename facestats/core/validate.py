@@ -21,6 +21,8 @@ __all__ = [
     "check_shape",
     "check_choice",
     "check_integer",
+    "check_seed",
+    "finite_result",
     "result_dtype",
 ]
 
@@ -28,10 +30,23 @@ _FLOAT_TYPES = (np.float32, np.float64)
 
 
 def _describe(a: np.ndarray) -> str:
-    """A short description of the offending values of an array for messages."""
+    """A short description of the offending values of an array for messages.
+
+    Works for any dtype: an object array holds arbitrary Python objects
+    (``None``, dicts, ...), which have no ``.item()``.
+    """
     if a.size == 1:
-        return repr(a.reshape(-1)[0].item())  # plain Python value, not np.float64(...)
+        x = a.reshape(-1)[0]
+        x = x.item() if isinstance(x, np.generic) else x  # plain Python value, not np.float64(...)
+        text = repr(x)
+        return text if len(text) <= 80 else text[:77] + "..."
     return f"an array of shape {a.shape}"
+
+
+def _short(value) -> str:
+    """``repr(value)`` cut to 80 characters for messages."""
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def result_dtype(*arrays) -> np.dtype:
@@ -51,10 +66,11 @@ def as_float(value, name: str, dtype=None) -> np.ndarray:
     """Convert ``value`` to a float array (float32 or float64), rejecting non-numeric input."""
     try:
         arr = np.asarray(value)
-    except Exception as exc:  # pragma: no cover - numpy raises many types here
-        raise ValidationError(f"{name} must be numeric, got {value!r}") from exc
+    except Exception:  # numpy raises many types here (ragged lists, objects with broken __array__)
+        raise ValidationError(f"{name} must be numeric, got {_short(value)}") from None
     if arr.dtype.kind not in "fiub":
-        raise ValidationError(f"{name} must be numeric, got dtype {arr.dtype} ({_describe(arr)})")
+        what = type(value).__name__ if arr.dtype.kind == "O" else f"dtype {arr.dtype}"
+        raise ValidationError(f"{name} must be numeric, got {what} ({_describe(arr)})")
     if dtype is None:
         dtype = arr.dtype if arr.dtype in _FLOAT_TYPES else np.float64
     return arr.astype(dtype, copy=False)
@@ -150,3 +166,42 @@ def check_integer(value, name: str, low: int | None = None, high: int | None = N
         hi = "inf" if high is None else str(high)
         raise ValidationError(f"{name} must be an integer in [{lo}, {hi}], got {value!r}")
     return iv
+
+
+def check_seed(seed, name: str = "seed"):
+    """Raise unless ``seed`` is None, an integer >= 0 or a :class:`numpy.random.Generator`; return it.
+
+    These are what :func:`numpy.random.default_rng` accepts as a reproducible seed
+    (a negative integer or a string would fail there with a bare ``ValueError``/``TypeError``).
+    """
+    if seed is None or isinstance(seed, np.random.Generator):
+        return seed
+    return check_integer(seed, name, 0)
+
+
+def _span(name: str, value) -> str:
+    """``name = value`` for a scalar, ``name in [min, max]`` for an array, for messages."""
+    a = np.asarray(value)
+    if a.dtype.kind not in "fiub" or a.size == 0:
+        return f"{name} = {_describe(a)}"
+    if a.size == 1:
+        return f"{name} = {a.reshape(-1)[0].item()!r}"
+    return f"{name} in [{a.min().item()!r}, {a.max().item()!r}]"
+
+
+def finite_result(out, what: str, **inputs) -> np.ndarray:
+    """Return ``out`` if all its values are finite; else :class:`ValidationError` naming ``what`` and the inputs.
+
+    For functions whose finite inputs can still overflow the float range (a
+    BRDF with ρs = 1e308, a lobe so sharp its peak 1/m² exceeds it): a clear
+    error instead of a silent inf or NaN.
+    """
+    arr = np.asarray(out)
+    if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+        bad = int(np.count_nonzero(~np.isfinite(arr)))
+        args = ", ".join(_span(k, v) for k, v in inputs.items())
+        raise ValidationError(
+            f"{what} is not finite for {bad} value(s) with {args}: the inputs exceed the range "
+            f"{arr.dtype} can represent (use physically sized values)"
+        )
+    return out

@@ -385,6 +385,13 @@ def match_flat(x: np.ndarray, target: Histogram, t: float, source_bins: int, out
     """
     src, scale = source_histogram(x, source_bins)
     distance = histogram_distance(src, target)
+    if not x.max() > x.min():
+        # A constant source has no distribution to match: its CDF is a step, and Q(F(x)) would
+        # land on an end of the target (its minimum or maximum, by rounding), outside the
+        # target's typical values.  Defined instead: the constant moves to the target's mean
+        # (t-weighted), which lies inside the target's range.
+        out[...] = (1 - t) * x + t * target.mean()
+        return distance
     # T at the source edges, linear in between: y_k = (1 - t) e_k + t Q(F(e_k)).
     y = target.quantile(np.clip(src.cdf, 0.0, 1.0))
     if t < 1.0:
@@ -410,6 +417,10 @@ def match_histogram(values, target: Histogram, *, t: float = 1.0, source_bins: i
     ``(1 - t) x + t T(x)``: the values then follow the displacement
     interpolation (:func:`interpolate_histograms`) between their own
     distribution and the target's; ``t = 0`` returns the values unchanged.
+
+    Degenerate case: constant values have no distribution to match (F_source
+    is a step, and T would send them to an end of the target's range); they
+    move to the target's mean, ``(1 - t) x + t mean(target)``.
 
     Parameters
     ----------

@@ -12,6 +12,7 @@ import pathlib
 
 import numpy as np
 
+from facestats.core.outputs import OutputSet, check_output_dir
 from facestats.edit.histogram import Histogram, interpolate_histograms
 from facestats.edit.pyramid import band_names
 from facestats.edit.result import SubjectEdit
@@ -242,40 +243,38 @@ def save_edit_images(edit: SubjectEdit, directory=".") -> list[pathlib.Path]:
     edit : SubjectEdit
         Result of one of the subject edits.
     directory : str or pathlib.Path
-        Output directory.
+        Output directory (checked first: :func:`facestats.core.outputs.check_output_dir`;
+        the files are written all or none).
 
     Returns
     -------
     list of pathlib.Path
         The files written.
     """
+    import matplotlib.pyplot as plt
     from matplotlib import colormaps
     from matplotlib.image import imsave
 
     _check_edit(edit)
-    d = pathlib.Path(directory)
-    try:
-        d.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ValidationError(f"directory must be a writable directory, got {str(d)!r} ({exc.strerror})") from None
+    d = check_output_dir(directory, "directory")
     face = np.asarray(edit.source["region"].values) > 0
-    written = []
-    for when, ds in (("before", edit.source), ("after", edit.dataset)):
-        path = d / f"{edit.subject_id}_albedo_{when}.png"
-        imsave(path, _upscale(_display(np.asarray(ds["albedo"].values))))
-        written.append(path)
     cmap = colormaps["viridis"]
-    for var in edit.brdf_variables:
-        before = np.asarray(edit.source[var].values, np.float64)
-        after = np.asarray(edit.dataset[var].values, np.float64)
-        lo, hi = _map_range(before, after, face)
-        for when, img in (("before", before), ("after", after)):
-            rgb = cmap(np.clip((img - lo) / (hi - lo), 0.0, 1.0))[..., :3]
-            rgb[~face] = 0.0
-            path = d / f"{edit.subject_id}_{var}_{when}.png"
-            imsave(path, _upscale(rgb))
-            written.append(path)
-    path = d / f"{edit.subject_id}_summary.png"
-    plot_subject_edit(edit).savefig(path, dpi=100)
-    written.append(path)
-    return written
+    with OutputSet(d) as out:  # all files or none
+        for when, ds in (("before", edit.source), ("after", edit.dataset)):
+            imsave(
+                out.path(f"{edit.subject_id}_albedo_{when}.png"), _upscale(_display(np.asarray(ds["albedo"].values)))
+            )
+        for var in edit.brdf_variables:
+            before = np.asarray(edit.source[var].values, np.float64)
+            after = np.asarray(edit.dataset[var].values, np.float64)
+            lo, hi = _map_range(before, after, face)
+            for when, img in (("before", before), ("after", after)):
+                rgb = cmap(np.clip((img - lo) / (hi - lo), 0.0, 1.0))[..., :3]
+                rgb[~face] = 0.0
+                imsave(out.path(f"{edit.subject_id}_{var}_{when}.png"), _upscale(rgb))
+        fig = plot_subject_edit(edit)
+        try:
+            fig.savefig(out.path(f"{edit.subject_id}_summary.png"), dpi=100)
+        finally:
+            plt.close(fig)
+    return out.written

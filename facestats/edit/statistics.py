@@ -24,11 +24,13 @@ float64).
 
 from __future__ import annotations
 
+import os
 import pathlib
 from dataclasses import dataclass
 
 import numpy as np
 
+from facestats.core.outputs import OutputSet, check_output_file
 from facestats.core.validate import as_float, check_finite, check_shape
 from facestats.edit.colourspace import ColourBasis, decorrelating_basis
 from facestats.edit.grids import band_grids, grid_values, pad_plane, padded_shape, region_index
@@ -37,13 +39,26 @@ from facestats.edit.masks import mask_labels
 from facestats.edit.pyramid import SteerablePyramid, band_names
 from facestats.errors import FormatError, ValidationError
 
-__all__ = ["TextureStatistics", "region_statistics", "image_statistics", "check_int", "check_settings"]
+__all__ = [
+    "TextureStatistics",
+    "MAX_BINS",
+    "statistics_path",
+    "region_statistics",
+    "image_statistics",
+    "check_int",
+    "check_settings",
+]
 
 _FORMAT = "facestats.TextureStatistics"
 _VERSION = 1
 
 
-def check_int(value, name, low):
+#: Most histogram bins a setting may ask for: 2¹⁶ (finer than 16-bit data; 31 bands × 3 channels of
+#: float64 counts stay under 50 MB, where 10⁹ bins would need 335 GiB).
+MAX_BINS = 65536
+
+
+def check_int(value, name, low, high=None):
     """Validate an integer setting (levels, orientations, bins, iterations).
 
     Parameters
@@ -53,13 +68,19 @@ def check_int(value, name, low):
         Name of the argument in error messages.
     low : int
         Smallest allowed value.
+    high : int, optional
+        Largest allowed value (``bins``: :data:`MAX_BINS`).
 
     Returns
     -------
     int
     """
-    if not isinstance(value, (int, np.integer)) or value < low:
+    if name == "bins" and high is None:
+        high = MAX_BINS
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < low:
         raise ValidationError(f"{name} must be an int >= {low}, got {value!r}")
+    if high is not None and value > high:
+        raise ValidationError(f"{name} must be an int in [{low}, {high}], got {value!r}")
     return int(value)
 
 
@@ -73,6 +94,22 @@ def check_settings(levels, orientations, bins):
     check_int(levels, "levels", 0)
     check_int(orientations, "orientations", 1)
     check_int(bins, "bins", 2)
+
+
+def statistics_path(path) -> pathlib.Path:
+    """The file :meth:`TextureStatistics.save` writes for ``path``: ``.npz`` appended if missing, checked writable.
+
+    Raises
+    ------
+    ValidationError
+        The path cannot be written (a folder, a device, an uncreatable folder:
+        :func:`facestats.core.outputs.check_output_file`).
+    """
+    if isinstance(path, (str, os.PathLike)) and os.fspath(path).strip() and pathlib.Path(os.fspath(path)).name:
+        path = pathlib.Path(os.fspath(path))
+        if path.suffix != ".npz":
+            path = path.with_name(path.name + ".npz")
+    return check_output_file(path, "path", suffixes=(".npz",))
 
 
 @dataclass(frozen=True)
@@ -167,10 +204,13 @@ class TextureStatistics:
         return (self.counts / self.counts.sum(axis=-1, keepdims=True)).ravel()
 
     def save(self, path) -> pathlib.Path:
-        """Write the statistics to an ``.npz`` file (``.npz`` is appended if missing)."""
-        path = pathlib.Path(path)
-        if path.suffix != ".npz":
-            path = path.with_name(path.name + ".npz")
+        """Write the statistics to an ``.npz`` file (:func:`statistics_path`; written all or nothing)."""
+        path = statistics_path(path)
+        with OutputSet(path.parent) as out:
+            self._savez(out.path(path.name))
+        return path
+
+    def _savez(self, path) -> None:
         np.savez(
             path,
             format=np.array(_FORMAT),
@@ -183,12 +223,14 @@ class TextureStatistics:
             levels=np.array(self.levels),
             orientations=np.array(self.orientations),
         )
-        return path
 
     @classmethod
     def load(cls, path) -> "TextureStatistics":
         """Read statistics written by :meth:`save`."""
         path = pathlib.Path(path)
+        if not path.is_file():  # a FIFO would block np.load forever; a folder or nothing is no statistics file
+            what = "does not exist" if not os.path.lexists(path) else "is not a regular file"
+            raise FormatError(f"cannot read texture statistics from {str(path)!r}: it {what}")
         try:
             with np.load(path, allow_pickle=False) as z:
                 data = {k: z[k] for k in z.files}

@@ -41,6 +41,7 @@ import numpy as np
 
 from facestats.analysis.population import region_samples
 from facestats.core.conventions import parse_condition, parse_skin_type
+from facestats.core.validate import check_seed
 from facestats.edit.masks import face_mask
 from facestats.edit.session import EDIT_SOURCE, check_store
 from facestats.edit.statistics import TextureStatistics
@@ -243,7 +244,7 @@ def pooled_albedo(store, ids, regions, max_samples, seed):
     """
     entries = store.index_entries()
     per = max(1, int(max_samples) // len(ids))
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(check_seed(seed))
     parts = []
     for sid in ids:  # loop over subjects; each is vectorised over texels
         ds = store.subject(sid, lazy=True)

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from facestats.core.validate import as_float, check_finite, check_shape
+from facestats.core.validate import as_float, check_finite, check_seed, check_shape
 from facestats.edit.grids import band_grids, grid_values, pad_plane, padded_shape, region_index
 from facestats.edit.histogram import SOURCE_BINS, histogram_distance, match_flat, source_histogram
 from facestats.edit.masks import blend, check_feather, feather_weights, mask_labels
@@ -355,6 +355,9 @@ def _transfer_texture(
     """:func:`transfer_texture` after its defaults are resolved."""
     src = check_finite(as_float(source_albedo, "source_albedo"), "source_albedo")
     check_shape(src, "source_albedo", (None, None, 3))
+    if min(src.shape[:2]) < 1:
+        raise ValidationError(f"source_albedo must hold at least one pixel, got shape {src.shape}")
+    check_seed(seed)
     iterations = check_int(iterations, "iterations", 0)
     feather = check_feather(feather)
     noise_amp = _check_noise(noise)

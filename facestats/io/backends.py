@@ -15,13 +15,14 @@ stays fast; subject groups are opened through ``zarr.storage.ZipStore``.
 from __future__ import annotations
 
 import os
+import stat
 import struct
 import zipfile
 import zlib
 
 from facestats.errors import StoreError
 from facestats.io.index import INDEX_NAME
-from facestats.io.layout import ROOT_META
+from facestats.io.layout import ROOT_META, confined, read_regular_file
 
 __all__ = ["DirectoryBackend", "ZipBackend", "read_leading_entries"]
 
@@ -41,9 +42,8 @@ class DirectoryBackend:
         self.root = root
 
     def read(self, rel: str) -> bytes:
-        """The bytes of the file ``rel`` (:class:`FileNotFoundError` if missing)."""
-        with open(os.path.join(self.root, rel), "rb") as fh:
-            return fh.read()
+        """The bytes of the regular file ``rel`` (:class:`OSError` if missing or not a regular file)."""
+        return read_regular_file(os.path.join(self.root, rel))
 
     def exists(self, rel: str) -> bool:
         """True if ``rel`` exists."""
@@ -60,6 +60,25 @@ class DirectoryBackend:
     def zarr_target(self, rel: str):
         """``(store, group)`` arguments for :func:`xarray.open_zarr` of the group ``rel``."""
         return os.path.join(self.root, rel), None
+
+    def strange_entry(self, rel: str) -> str | None:
+        """The first entry under the group ``rel`` that is neither a regular file nor a folder, or None.
+
+        A FIFO planted where a chunk should be would make Zarr block forever on
+        reading it, and a link could lead reads out of the store; such entries
+        are found (without following links) before the group is opened.
+        """
+        top = os.path.join(self.root, rel)
+        try:
+            confined(self.root, top)  # the group itself, or a folder above it, is a link out of the store
+        except StoreError:
+            return rel
+        for base, dirs, files in os.walk(top):
+            for name in dirs + files:
+                mode = os.lstat(os.path.join(base, name)).st_mode
+                if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+                    return os.path.relpath(os.path.join(base, name), self.root)
+        return None
 
     def size(self) -> int:
         """Bytes on disk of every file of the store."""
@@ -158,6 +177,10 @@ class ZipBackend:
     def index_key(self):
         """``"zip"`` if the zip has an index (it never changes), else None."""
         return "zip" if self.exists(INDEX_NAME) else None
+
+    def strange_entry(self, rel: str) -> None:
+        """Entries of a zip are bytes: never a FIFO or a link (None)."""
+        return None
 
     def zarr_target(self, rel: str):
         """``(store, group)`` arguments for :func:`xarray.open_zarr` of the group ``rel``."""

@@ -37,10 +37,10 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 from pathlib import Path
 
 from facestats.core.conventions import CHANNELS, REGIONS, ROMAN, SITES
+from facestats.core.outputs import OutputSet, check_output_dir
 from facestats.core.version import __version__
 from facestats.errors import ValidationError
 from facestats.io.index import utc_now
@@ -126,6 +126,9 @@ def export_statistics(store, out_dir, formats=("csv", "json")) -> list[Path]:
     store : facestats.io.store.Store
     out_dir : str or os.PathLike
         Created if missing; existing files of the same names are replaced.
+        Checked before anything is written, and the files are written all or
+        none (:class:`facestats.core.outputs.OutputSet`): a failure (e.g. a
+        full disk) leaves the folder as it was.
     formats : iterable of {"csv", "json"}
 
     Returns
@@ -136,30 +139,31 @@ def export_statistics(store, out_dir, formats=("csv", "json")) -> list[Path]:
     formats = tuple(formats)
     if not formats or any(f not in ("csv", "json") for f in formats):
         raise ValidationError(f"formats must be a non-empty subset of ['csv', 'json'], got {list(formats)!r}")
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out_dir = check_output_dir(out_dir, "out_dir")
+    with OutputSet(out_dir) as out:
+        _write_release(store, out, formats)
+    return out.written
+
+
+def _write_release(store, out: OutputSet, formats) -> None:
+    """Write the release files through ``out`` (temporary names, renamed together at the end)."""
     entries = store.index_entries()
     ids = sorted(entries)
     rows = [entries[i]["row"] for i in ids]
     hists = [entries[i]["albedo_hist"] for i in ids]
-    written = []
     if "csv" in formats:
         cols = list(dict.fromkeys(k for r in rows for k in r))  # every column, in first-seen order
-        path = out / "subjects.csv"
-        with open(path, "w", newline="") as fh:
+        with open(out.path("subjects.csv"), "w", newline="") as fh:
             w = csv.writer(fh)
             w.writerow(cols)
             for r in rows:
                 w.writerow(["" if _num(r.get(c)) is None else r.get(c) for c in cols])
-        written.append(path)
-        path = out / "albedo_histograms.csv"
-        with open(path, "w", newline="") as fh:
+        with open(out.path("albedo_histograms.csv"), "w", newline="") as fh:
             w = csv.writer(fh)
             w.writerow(["subject_id", "channel"] + [f"bin_{b:03d}" for b in range(HIST_BINS)])
             for sid, h in zip(ids, hists):
                 for c, ch in enumerate(CHANNELS):
                     w.writerow([sid, ch] + [int(v) for v in h[c]])
-        written.append(path)
     when = utc_now()
     if "json" in formats:
         doc = {
@@ -171,13 +175,8 @@ def export_statistics(store, out_dir, formats=("csv", "json")) -> list[Path]:
             "histogram": {"bins": HIST_BINS, "range": [0.0, 1.0]},
             "subjects": [_subject_json(sid, r, h) for sid, r, h in zip(ids, rows, hists)],
         }
-        path = out / "statistics.json"
-        tmp = out / f".statistics.json.tmp-{os.getpid()}"
-        tmp.write_text(json.dumps(doc, indent=1, allow_nan=False))
-        os.replace(tmp, path)
-        written.append(path)
-    path = out / "README.txt"
-    path.write_text(
+        out.path("statistics.json").write_text(json.dumps(doc, indent=1, allow_nan=False))
+    out.path("README.txt").write_text(
         _README.format(
             fmt=EXPORT_FORMAT,
             when=when,
@@ -187,5 +186,3 @@ def export_statistics(store, out_dir, formats=("csv", "json")) -> list[Path]:
             regions=", ".join(f"{k} {v}" for k, v in REGIONS.items()),
         )
     )
-    written.append(path)
-    return written

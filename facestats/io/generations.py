@@ -2,11 +2,15 @@
 
 Each write of a subject creates a *fresh generation* directory
 ``subjects/<id>/<generation>/`` (:mod:`facestats.io.layout`).  Its writer first
-takes the writer lock ``.writers/<id>~<generation>.lock``
-(:func:`reserve_generation`), then writes the Dataset as Zarr v3 with its
-manifest and ``fsync``-s it (:func:`write_generation`); the store commits it
-by replacing the index, then drops the lock (:func:`drop_writer_lock`).
-Garbage collection never deletes a generation whose writer lock is held.
+takes the writer lock ``.writers/<id>~<generation>.lock`` and writes the
+generation's record (state ``writing``, :mod:`facestats.io.records`: the mark
+that the generation is the store's own) (:func:`reserve_generation`), then
+writes the Dataset as Zarr v3 with its manifest and ``fsync``-s it
+(:func:`write_generation`); the store commits it by replacing the index, then
+drops the lock (:func:`drop_writer_lock`).  Garbage collection never deletes a
+generation whose writer lock is held.  Every folder a writer creates or enters
+is checked to be a real folder inside the store (:func:`facestats.io.layout.confined`),
+so a symbolic link planted in the store cannot make it write elsewhere.
 
 Map variables are chunked in blocks of :data:`MAP_CHUNK_ROWS` rows of ``v``
 (all of ``u`` and the trailing dims), so a texel range of any map can be read
@@ -17,7 +21,6 @@ with Zarr's default zstd.  zarr is imported when a generation is written.
 from __future__ import annotations
 
 import os
-import shutil
 
 import numpy as np
 
@@ -26,19 +29,27 @@ from facestats.errors import StoreError
 from facestats.io.index import read_index_file
 from facestats.io.integrity import STORE_ATTR, manifest_entry, store_attr_json
 from facestats.io.layout import (
+    MAP_CHUNK_ROWS,
+    RECORDS,
     SUBJECTS,
     TRASH_PREFIX,
     WRITERS,
+    confined,
     fsync_tree,
     generation_rel,
+    is_plain_dir,
+    map_chunk_rows,
     new_generation,
+    remove_tree,
     writer_lock_path,
 )
 from facestats.io.locking import create_locked
+from facestats.io.records import record_path, write_record
 from facestats.io.schema import provenance, set_provenance
 
 __all__ = [
     "MAP_CHUNK_ROWS",
+    "store_folder",
     "reserve_generation",
     "drop_writer_lock",
     "write_generation",
@@ -47,27 +58,63 @@ __all__ = [
     "remove_generation",
 ]
 
-#: Rows of ``v`` per chunk of a map variable.
-MAP_CHUNK_ROWS = 64
+
+def store_folder(root, rel: str) -> str:
+    """The folder ``rel`` of the store at ``root``, created if missing.
+
+    Raises :class:`StoreError` unless it is a real folder inside the store (not
+    a file, not a symbolic link, not reached through one).
+    """
+    path = os.path.join(root, rel)
+    confined(root, path)
+    try:
+        os.mkdir(path)
+    except FileExistsError:
+        pass
+    except OSError as exc:
+        raise StoreError(f"cannot create {path}: {exc.strerror}") from None
+    if not is_plain_dir(path):
+        raise StoreError(f"{path} must be a folder of the store, but it is not a directory (or is a symbolic link)")
+    return path
 
 
-def reserve_generation(root, sid: str):
-    """Pick a new generation name for ``sid`` and take its writer lock (before any data exist).
+def reserve_generation(root, sid: str, when: str = ""):
+    """Pick a new generation name for ``sid``, take its writer lock and write its record (before any data exist).
 
     Returns
     -------
     gen : str
     lock : facestats.io.locking.FileLock
         The held writer lock.
+
+    Raises
+    ------
+    StoreError
+        ``subjects/``, ``subjects/<sid>/`` or ``.writers/`` is not a real folder
+        inside the store, or no lock could be created.
     """
-    writers = os.path.join(root, WRITERS)
+    if not is_plain_dir(os.path.join(root, SUBJECTS)):
+        raise StoreError(
+            f"store {root}: its {SUBJECTS}/ folder is missing or not a folder (an unmounted volume?); nothing written"
+        )
+    store_folder(root, RECORDS)
+    writers = store_folder(root, WRITERS)
     for _ in range(10):
+        store_folder(root, f"{SUBJECTS}/{sid}")  # again each time: gc may remove an empty subject folder meanwhile
         gen = new_generation()
         try:
-            os.makedirs(writers, exist_ok=True)
-            return gen, create_locked(writer_lock_path(root, sid, gen))
+            lock = create_locked(writer_lock_path(root, sid, gen))
         except (FileNotFoundError, StoreError):
             continue  # raced with gc removing a temporary lock file: try another name
+        try:
+            write_record(root, sid, gen, "writing", created=when)
+        except FileNotFoundError:
+            drop_writer_lock(lock)
+            continue
+        except OSError as exc:
+            drop_writer_lock(lock)
+            raise StoreError(f"cannot write the record of a new generation of {sid!r}: {exc.strerror}") from None
+        return gen, lock
     raise StoreError(f"cannot create a writer lock in {writers}")
 
 
@@ -95,25 +142,31 @@ def write_generation(root, sid: str, gen: str, ds, written: str) -> None:
         The write time recorded in the bookkeeping attribute.
     """
     path = os.path.join(root, generation_rel(sid, gen))
-    _make_generation_dir(path)
+    _make_generation_dir(root, sid, path)
     out = _zarr_ready(ds)
     encoding = zarr_encoding(out)
     manifest = {name: manifest_entry(var) for name, var in out.variables.items()}
     out.attrs[STORE_ATTR] = store_attr_json(gen, written, manifest)
     try:
         out.to_zarr(path, mode="w", zarr_format=3, consolidated=False, encoding=encoding, write_empty_chunks=True)
+        fsync_tree(path)
     except Exception as exc:
-        raise StoreError(f"writing subject {sid!r} to {path} failed: {type(exc).__name__}: {exc}") from exc
-    fsync_tree(path)
+        raise StoreError(f"writing subject {sid!r} to {path} failed: {type(exc).__name__}: {exc}") from None
 
 
-def _make_generation_dir(path: str) -> None:
+def _make_generation_dir(root, sid: str, path: str) -> None:
+    """Create the (new) generation folder ``path``; :class:`StoreError` if that keeps failing."""
+    err = None
     for _ in range(10):
         try:
-            os.makedirs(path)
-            break
-        except FileNotFoundError:  # gc removed an empty subject directory meanwhile
-            continue
+            store_folder(root, f"{SUBJECTS}/{sid}")
+            os.mkdir(confined(root, path))
+            return
+        except FileNotFoundError as exc:  # gc removed an empty subject directory meanwhile: create it again
+            err = exc
+        except OSError as exc:
+            raise StoreError(f"cannot create the generation folder {path}: {exc.strerror}") from None
+    raise StoreError(f"cannot create the generation folder {path}: {err}")
 
 
 def _zarr_ready(ds):
@@ -151,10 +204,9 @@ def zarr_encoding(ds) -> dict:
     for name, var in ds.variables.items():
         var.encoding = {}
         enc = {}
-        if "v" in var.dims and var.ndim >= 2:
-            enc["chunks"] = tuple(
-                max(1, min(MAP_CHUNK_ROWS, s)) if d == "v" else max(1, s) for d, s in zip(var.dims, var.shape)
-            )
+        rows = map_chunk_rows(var.dims, var.shape)
+        if rows is not None:
+            enc["chunks"] = tuple(rows if d == "v" else max(1, s) for d, s in zip(var.dims, var.shape))
         if var.dtype.kind == "f":  # byte shuffle + zstd: ~20 % smaller than plain zstd on smooth maps
             enc["compressors"] = [BloscCodec(cname="zstd", clevel=5, shuffle="shuffle")]
         if enc:
@@ -178,10 +230,17 @@ def abandon_generations(root, written) -> None:
     try:
         current = read_index_file(root)["subjects"]
     except (StoreError, OSError):
-        current = {}
+        current = None  # cannot tell what was committed: keep every generation (gc decides later)
     for sid, gen, lock, *_ in written:
+        if current is None:
+            drop_writer_lock(lock)
+            continue
         if current.get(sid, {}).get("generation") != gen:
-            shutil.rmtree(os.path.join(root, generation_rel(sid, gen)), ignore_errors=True)
+            _delete_generation(root, sid, gen)
+            try:  # the folder of a subject that never existed, now empty (no group metadata yet)
+                os.rmdir(confined(root, os.path.join(root, SUBJECTS, sid)))
+            except (OSError, StoreError):
+                pass
         drop_writer_lock(lock)
 
 
@@ -197,10 +256,19 @@ def remove_generation(root, sid: str, gen: str) -> None:
     sid, gen : str
         Subject id and generation.
     """
+    _delete_generation(root, sid, gen)
+
+
+def _delete_generation(root, sid: str, gen: str) -> None:
+    """Rename a generation to trash, delete it, then its record (each step checked to stay inside the store)."""
     src = os.path.join(root, generation_rel(sid, gen))
     dst = os.path.join(root, SUBJECTS, sid, f"{TRASH_PREFIX}{gen}")
     try:
-        os.rename(src, dst)
-    except OSError:
-        return
-    shutil.rmtree(dst, ignore_errors=True)
+        if is_plain_dir(confined(root, src)):
+            os.rename(src, confined(root, dst))
+        if is_plain_dir(dst):
+            remove_tree(dst)
+        if not os.path.lexists(src) and not os.path.lexists(dst):  # the record goes last: it proves ownership
+            os.remove(confined(root, record_path(root, sid, gen)))
+    except (OSError, StoreError):
+        return  # already gone, or not ours to touch: left for gc to judge

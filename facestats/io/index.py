@@ -24,6 +24,15 @@ Writers replace the file as a whole (write a temporary file, ``fsync``,
 reader sees one complete revision or the next, and a crash at any point
 leaves the previous revision in place.
 
+Nothing read from the file is trusted: :func:`parse_index` checks every entry
+(:func:`entry_problem`) — the subject id by the one id rule
+(:func:`facestats.io.ids.check_subject_id`, since ids name folders), the
+generation name, the row's metadata types and values, numbers finite (the
+file is written without NaN, and ``NaN``/``Infinity`` literals are refused),
+the histogram's shape and counts — and refuses a tampered index with a
+:class:`~facestats.errors.StoreError` naming the subject and the field.
+:func:`split_index` keeps the good entries and lists the bad ones for repair.
+
 This module only needs :mod:`json` and numpy, so ``facestats query`` can read
 an index without importing xarray, zarr or pandas.
 """
@@ -38,15 +47,20 @@ import secrets
 
 import numpy as np
 
-from facestats.errors import StoreError
-from facestats.io.layout import fsync_path
+from facestats.core.conventions import CONDITIONS, GENDERS
+from facestats.errors import StoreError, ValidationError
+from facestats.io.ids import check_subject_id
+from facestats.io.layout import fsync_path, is_generation, read_regular_file
 
 __all__ = [
     "INDEX_NAME",
     "INDEX_FORMAT",
     "empty_index",
     "parse_index",
+    "split_index",
+    "entry_problem",
     "read_index_file",
+    "read_index_bytes",
     "write_index_file",
     "make_entry",
     "IndexTable",
@@ -60,6 +74,39 @@ INDEX_NAME = "index.json"
 #: Layout version of the index file.
 INDEX_FORMAT = 1
 _TMP_PREFIX = INDEX_NAME + ".tmp-"
+#: Albedo histogram bins of an entry (:data:`facestats.io.summary.HIST_BINS`).
+_HIST_BINS = 256
+#: Row metadata: column -> check of its value (the rest of a row are numbers or null).
+_META = {
+    "subject_id": lambda v: isinstance(v, str),
+    "person_id": lambda v: isinstance(v, str),
+    "age": lambda v: _is_int(v) and 0 <= v <= 200,
+    "gender": lambda v: v in GENDERS,
+    "skin_type": lambda v: _is_int(v) and 1 <= v <= 6,
+    "condition": lambda v: v in CONDITIONS,
+    "kind": lambda v: v in ("maps", "samples"),
+}
+_META_EXPECTED = {
+    "subject_id": "a string",
+    "person_id": "a string",
+    "age": "an integer 0-200",
+    "gender": f"one of {list(GENDERS)}",
+    "skin_type": "an integer 1-6",
+    "condition": f"one of {list(CONDITIONS)}",
+    "kind": "'maps' or 'samples'",
+}
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_number(v) -> bool:
+    return v is None or (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v))
+
+
+def _no_constants(name):
+    raise ValueError(f"{name} is not a JSON number")
 
 
 def utc_now() -> str:
@@ -129,6 +176,79 @@ def make_entry(generation: str, written: str, row: dict, hist) -> dict:
     }
 
 
+def entry_problem(sid, entry) -> str | None:
+    """Why the index entry ``entry`` of ``sid`` is not a valid entry, or None if it is.
+
+    Checks the id (:func:`facestats.io.ids.check_subject_id`), the generation
+    name, ``written``, the row (metadata of :data:`_META`, ``subject_id`` equal
+    to the id, ``source`` a string, every other value a finite number or null)
+    and the histogram (3 lists of 256 non-negative integers).
+    """
+    try:
+        check_subject_id(sid)
+    except ValidationError as exc:
+        return f"invalid subject id: {exc}"
+    if not isinstance(entry, dict):
+        return f"the entry must be an object, got {type(entry).__name__}"
+    gen = entry.get("generation")
+    if not isinstance(gen, str) or not is_generation(gen):
+        return f"field 'generation' must be a generation name, got {gen!r}"
+    if not isinstance(entry.get("written", ""), str):
+        return f"field 'written' must be a string, got {entry.get('written')!r}"
+    return _row_problem(sid, entry.get("row")) or _hist_problem(entry.get("albedo_hist"))
+
+
+def _row_problem(sid, row) -> str | None:
+    if not isinstance(row, dict):
+        return f"field 'row' must be an object, got {type(row).__name__}"
+    for key, ok in _META.items():
+        if key not in row:
+            return f"row field {key!r} is missing"
+        if not ok(row[key]):
+            return f"row field {key!r} must be {_META_EXPECTED[key]}, got {row[key]!r}"
+    if row["subject_id"] != sid:
+        return f"row field 'subject_id' must be {sid!r}, got {row['subject_id']!r}"
+    for key, v in row.items():
+        if key in _META:
+            continue
+        if key == "source" and isinstance(v, str):
+            continue
+        if not _is_number(v):
+            return f"row field {key!r} must be a finite number or null, got {v!r}"
+    return None
+
+
+def _hist_problem(hist) -> str | None:
+    ok = isinstance(hist, list) and len(hist) == 3
+    ok = ok and all(isinstance(h, list) and len(h) == _HIST_BINS for h in hist)
+    ok = ok and all(_is_int(c) and c >= 0 for h in hist for c in h)
+    if not ok:
+        return f"field 'albedo_hist' must be 3 lists of {_HIST_BINS} counts (integers >= 0)"
+    return None
+
+
+def _load_document(data, where: str) -> dict:
+    """The JSON document of an index, checked as far as its top level."""
+    try:
+        index = json.loads(data, parse_constant=_no_constants)
+    except (ValueError, UnicodeDecodeError, RecursionError) as exc:
+        raise StoreError(
+            f"{where} is not valid JSON ({exc}); run `facestats validate --repair` to rebuild it"
+        ) from None
+    if not isinstance(index, dict) or not isinstance(index.get("subjects"), dict):
+        raise StoreError(
+            f"{where} is not a facestats index (no 'subjects' mapping); run `facestats validate --repair` to rebuild it"
+        )
+    if index.get("format") != INDEX_FORMAT:
+        raise StoreError(
+            f"{where} has index format {index.get('format')!r}; this facestats reads format {INDEX_FORMAT}"
+        )
+    rev = index.get("revision", 0)
+    if not _is_int(rev) or rev < 0:
+        raise StoreError(f"{where}: 'revision' must be an integer >= 0, got {rev!r}; run `facestats validate --repair`")
+    return index
+
+
 def parse_index(data: bytes | str, *, where: str = INDEX_NAME) -> dict:
     """Decode and check an index document; :class:`StoreError` naming ``where`` if it is not one.
 
@@ -142,24 +262,36 @@ def parse_index(data: bytes | str, *, where: str = INDEX_NAME) -> dict:
     Returns
     -------
     dict
-        The index document (format :data:`INDEX_FORMAT`, complete entries).
+        The index document (format :data:`INDEX_FORMAT`, every entry valid: :func:`entry_problem`).
     """
-    try:
-        index = json.loads(data)
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise StoreError(
-            f"{where} is not valid JSON ({exc}); run `facestats validate --repair` to rebuild it"
-        ) from None
-    if not isinstance(index, dict) or not isinstance(index.get("subjects"), dict):
-        raise StoreError(f"{where} is not a facestats index (no 'subjects' mapping)")
-    if index.get("format") != INDEX_FORMAT:
-        raise StoreError(
-            f"{where} has index format {index.get('format')!r}; this facestats reads format {INDEX_FORMAT}"
-        )
+    index = _load_document(data, where)
     for sid, entry in index["subjects"].items():
-        if not isinstance(entry, dict) or not {"generation", "row", "albedo_hist"} <= set(entry):
-            raise StoreError(f"{where}: the entry of subject {sid!r} is incomplete")
+        problem = entry_problem(sid, entry)
+        if problem:
+            raise StoreError(
+                f"{where}: the entry of subject {sid!r} is invalid: {problem}; "
+                "run `facestats validate --repair` to recompute or drop it"
+            )
     return index
+
+
+def split_index(data: bytes | str, *, where: str = INDEX_NAME) -> tuple[dict, dict]:
+    """Like :func:`parse_index`, but keep the valid entries and return the invalid ones apart.
+
+    Returns
+    -------
+    index : dict
+        The document with its valid entries only.
+    bad : dict
+        ``{subject id: (entry, problem)}`` of the invalid entries.
+    """
+    index = _load_document(data, where)
+    bad = {}
+    for sid in list(index["subjects"]):
+        problem = entry_problem(sid, index["subjects"][sid])
+        if problem:
+            bad[sid] = (index["subjects"].pop(sid), problem)
+    return index, bad
 
 
 def read_index_file(root) -> dict:
@@ -175,16 +307,23 @@ def read_index_file(root) -> dict:
     dict
         The index document (:func:`parse_index`).
     """
+    return parse_index(read_index_bytes(root), where=os.path.join(os.fspath(root), INDEX_NAME))
+
+
+def read_index_bytes(root) -> bytes:
+    """The bytes of ``<root>/index.json``; :class:`StoreError` if it is missing or not a readable file."""
     path = os.path.join(os.fspath(root), INDEX_NAME)
     try:
-        with open(path, "rb") as fh:
-            data = fh.read()
+        return read_regular_file(path)
     except FileNotFoundError:
         raise StoreError(
             f"store {os.fspath(root)} has no {INDEX_NAME}; run `facestats validate --repair --store "
             f"{os.fspath(root)}` to rebuild it from the subject groups"
         ) from None
-    return parse_index(data, where=path)
+    except OSError as exc:
+        raise StoreError(
+            f"cannot read {path}: {exc.strerror or exc}; it must be the store's index file (a regular file)"
+        ) from None
 
 
 def write_index_file(root, index: dict) -> None:

@@ -2,30 +2,46 @@
 
 Every subject group carries one bookkeeping attribute, :data:`STORE_ATTR`
 (JSON: schema version, writer version, write time, generation and a
-*manifest* of every variable's dims, shape, dtype and CRC-32 of its bytes).
-:func:`open_generation` reads a generation back and checks it: the group
-must exist, carry the manifest, have the recorded variables with the recorded
-dims, shapes and dtypes, and (unless ``lazy=True``) bytes whose CRC-32 matches
-(a deleted chunk file would otherwise read silently as fill values); finally
-:func:`facestats.io.schema.validate_subject` runs.  Problems raise
-:class:`~facestats.errors.SchemaError` naming the subject and the variable.
+*manifest* of every variable's dims, shape, dtype and CRC-32 of its bytes, and
+for map variables the CRC-32 of each chunk of :data:`~facestats.io.layout.MAP_CHUNK_ROWS`
+rows of ``v``).  :func:`open_generation` reads a generation back and checks
+it: the group must exist, carry the manifest, have the recorded variables with
+the recorded dims, shapes and dtypes, and bytes whose CRC-32 matches (a
+deleted chunk file would otherwise read silently as fill values); finally
+:func:`facestats.io.schema.validate_subject` runs.  With ``lazy=True`` the
+bytes are checked when they are read: every variable left on disk is wrapped
+so that each chunk is verified as it is loaded (a band of rows of a map reads
+and verifies only its own chunks; generations written before chunk checksums
+existed verify the whole variable on its first read).  So *every* read path
+verifies.
+
+Two kinds of failure are kept apart, because repair acts on one only:
+
+* :class:`~facestats.errors.SchemaError` — the data are damaged (checksum
+  mismatch, undecodable or missing chunk, wrong metadata), naming the subject
+  and the variable;
+* :class:`~facestats.errors.StoreError` (not a SchemaError) — the data could
+  not be read just now (an I/O error such as EIO or EACCES): they may well be
+  intact, so nothing may be moved or dropped because of it.
 
 xarray is imported when a generation is opened, not with this module.
 """
 
 from __future__ import annotations
 
+import functools
 import json
+import warnings
 import zlib
 
 import numpy as np
 
 from facestats.core.version import __version__
-from facestats.errors import SchemaError
-from facestats.io.layout import ROOT_META, generation_rel
+from facestats.errors import SchemaError, StoreError
+from facestats.io.layout import ROOT_META, generation_rel, map_chunk_rows
 from facestats.io.schema import SCHEMA_VERSION, validate_subject
 
-__all__ = ["STORE_ATTR", "digest", "manifest_entry", "store_attr_json", "open_generation"]
+__all__ = ["STORE_ATTR", "digest", "manifest_entry", "store_attr_json", "open_generation", "read_failure"]
 
 #: Group attribute holding the store's bookkeeping (removed from ``Dataset.attrs`` on read).
 STORE_ATTR = "facestats_store"
@@ -55,10 +71,29 @@ def digest(values) -> tuple[str, int]:
     return a.dtype.str, zlib.crc32(a.reshape(-1).view(np.uint8))
 
 
+def _band(values: np.ndarray, axis: int, lo: int, hi: int) -> np.ndarray:
+    """Rows ``lo:hi`` of ``values`` along ``axis``."""
+    index = [slice(None)] * values.ndim
+    index[axis] = slice(lo, hi)
+    return values[tuple(index)]
+
+
 def manifest_entry(var) -> dict:
-    """The manifest entry of one variable: ``{"dims", "shape", "dtype", "crc32"}``."""
-    dtype, crc = digest(var.values)
-    return {"dims": list(var.dims), "shape": list(var.shape), "dtype": dtype, "crc32": crc}
+    """The manifest entry of one variable: ``{"dims", "shape", "dtype", "crc32"}``.
+
+    Map variables (chunked along ``v``, :func:`facestats.io.layout.map_chunk_rows`)
+    also get ``chunk_rows`` and ``chunk_crc32``: the CRC-32 of each band of
+    ``chunk_rows`` rows of ``v``, the unit a lazy read verifies.
+    """
+    values = np.asarray(var.values)
+    dtype, crc = digest(values)
+    entry = {"dims": list(var.dims), "shape": list(var.shape), "dtype": dtype, "crc32": crc}
+    rows = map_chunk_rows(var.dims, var.shape)
+    if rows is not None and dtype != "str":
+        axis, n = list(var.dims).index("v"), var.shape[list(var.dims).index("v")]
+        entry["chunk_rows"] = rows
+        entry["chunk_crc32"] = [digest(_band(values, axis, lo, lo + rows))[1] for lo in range(0, n, rows)]
+    return entry
 
 
 def store_attr_json(generation: str, written: str, manifest: dict) -> str:
@@ -106,12 +141,36 @@ def open_generation(backend, sid: str, gen: str, *, label: str, lazy: bool = Fal
     ds = _open_group(backend, sid, rel, label)
     manifest = _take_store_attr(ds, sid, rel)
     _check_variables(ds, manifest, sid, rel)
-    check = list(manifest) if not lazy else list(variables or [])
+    if lazy:  # small, in memory anyway: index coordinates and strings are verified now
+        now = set(variables or []) | {n for n, v in ds.variables.items() if n in ds.indexes or v.dtype.kind in "OTUS"}
+        check = [n for n in manifest if n in now] + [n for n in (variables or []) if n not in manifest]
+    else:
+        check = list(manifest)
     _verify_checksums(ds, manifest, check, sid)
     ds = _strings_to_str(ds, set(check) | set(ds.indexes))
-    if not lazy:
-        validate_subject(ds, name=sid)
+    if lazy:
+        return _verify_on_read(ds, manifest, set(check), sid)
+    validate_subject(ds, name=sid)
     return ds
+
+
+def read_failure(exc: BaseException, sid: str, what: str) -> StoreError:
+    """The error to raise when reading ``what`` of subject ``sid`` failed with ``exc``.
+
+    An I/O error (other than a missing file or a wrong file type) says nothing
+    about the data, so it becomes a plain :class:`StoreError` ("could not be
+    read now"); anything else (undecodable bytes, missing chunk files, bad
+    metadata) means damaged data and becomes a :class:`SchemaError`.
+    """
+    structural = (FileNotFoundError, IsADirectoryError, NotADirectoryError)
+    if isinstance(exc, OSError) and not isinstance(exc, structural):
+        return StoreError(
+            f"subject {sid!r}: {what} could not be read just now ({type(exc).__name__}: {exc}); the data may be "
+            "intact, so nothing was changed: check the disk and try again"
+        )
+    return SchemaError(
+        f"subject {sid!r}: {what} cannot be read (truncated or corrupt chunk): {type(exc).__name__}: {exc}"
+    )
 
 
 def _open_group(backend, sid: str, rel: str, label: str):
@@ -120,11 +179,25 @@ def _open_group(backend, sid: str, rel: str, label: str):
 
     if not backend.exists(f"{rel}/{ROOT_META}"):
         raise SchemaError(f"subject {sid!r}: group {rel} is missing from store {label}")
+    try:
+        strange = backend.strange_entry(rel)
+    except OSError as exc:
+        raise read_failure(exc, sid, f"group {rel}") from None
+    if strange is not None:
+        raise SchemaError(
+            f"subject {sid!r}: {strange} is not a regular file or folder (a FIFO, device or symbolic link); "
+            "it was not written by facestats"
+        )
     target, group = backend.zarr_target(rel)
     try:
-        return xr.open_zarr(target, group=group, consolidated=False, zarr_format=3, chunks=None)
+        with warnings.catch_warnings():  # a damaged group: the manifest check names what is missing
+            warnings.filterwarnings("ignore", message=".*not recognized as a component of a Zarr hierarchy")
+            return xr.open_zarr(target, group=group, consolidated=False, zarr_format=3, chunks=None)
     except Exception as exc:
-        raise SchemaError(f"subject {sid!r}: cannot open group {rel}: {type(exc).__name__}: {exc}") from None
+        err = read_failure(exc, sid, f"group {rel}")
+        if isinstance(err, SchemaError):
+            err = SchemaError(f"subject {sid!r}: cannot open group {rel}: {type(exc).__name__}: {exc}")
+        raise err from None
 
 
 def _take_store_attr(ds, sid: str, rel: str) -> dict:
@@ -181,10 +254,7 @@ def _verify_checksums(ds, manifest: dict, names, sid: str) -> None:
         try:
             var.load()
         except Exception as exc:
-            raise SchemaError(
-                f"subject {sid!r}: variable {name!r} cannot be read (truncated or corrupt chunk): "
-                f"{type(exc).__name__}: {exc}"
-            ) from None
+            raise read_failure(exc, sid, f"variable {name!r}") from None
         if digest(var.values)[1] != manifest[name]["crc32"]:
             raise SchemaError(
                 f"subject {sid!r}: variable {name!r} does not match its checksum "
@@ -200,3 +270,101 @@ def _strings_to_str(ds, names):
             new = ds[name].copy(data=np.asarray(var.values).astype(object).astype(str))
             ds = ds.assign_coords({name: new}) if name in ds.coords else ds.assign({name: new})
     return ds
+
+
+def _verify_on_read(ds, manifest: dict, verified: set, sid: str):
+    """``ds`` with every variable not in ``verified`` wrapped so that its chunks are verified as they are read."""
+    import xarray as xr
+    from xarray.core import indexing
+
+    coords, data = {}, {}
+    for name, var in ds.variables.items():
+        if name in verified:
+            continue
+        lazy = indexing.LazilyIndexedArray(_verified_chunks_class()(var, manifest[name], sid, name))
+        new = xr.Variable(var.dims, lazy, var.attrs, var.encoding)
+        (coords if name in ds.coords else data)[name] = new
+    out = ds.assign_coords(coords) if coords else ds
+    return out.assign(data) if data else out
+
+
+@functools.cache
+def _verified_chunks_class():
+    """:class:`_VerifiedChunks` as an :class:`xarray.backends.BackendArray` (built on first use: xarray loads late)."""
+    from xarray.backends import BackendArray
+
+    return type("VerifiedChunks", (_VerifiedChunks, BackendArray), {})
+
+
+class _VerifiedChunks:
+    """A variable left on disk whose chunks are CRC-checked against the manifest each time they are read.
+
+    Indexing (basic: integers and slices per dim) loads the whole chunks of
+    ``v`` the request touches through the unverified lazy variable, checks
+    each against its ``chunk_crc32`` entry, then cuts the request out of them.
+    Without chunk checksums (older generations, variables without ``v``) the
+    variable is one chunk checked against its ``crc32``.  Raises
+    :class:`SchemaError` (damaged) or :class:`StoreError` (I/O) naming the
+    subject, the variable and the rows.
+    """
+
+    def __init__(self, raw, entry: dict, sid: str, name: str):
+        self.raw, self.sid, self.name = raw, sid, name
+        self.shape, self.dtype = tuple(raw.shape), raw.dtype
+        dims = list(raw.dims)
+        rows, crcs = entry.get("chunk_rows"), entry.get("chunk_crc32")
+        n = self.shape[dims.index("v")] if "v" in dims else 0
+        if rows and crcs and "v" in dims and len(crcs) == -(-n // int(rows)):
+            self.axis, self.rows, self.crcs = dims.index("v"), int(rows), [int(c) for c in crcs]
+        else:
+            self.axis, self.rows, self.crcs = None, None, [int(entry["crc32"])]
+
+    def __getitem__(self, key):
+        from xarray.core import indexing
+
+        return indexing.explicit_indexing_adapter(key, self.shape, indexing.IndexingSupport.BASIC, self._basic)
+
+    def _basic(self, key: tuple):
+        if self.axis is None:
+            return self._load(None)[key]
+        k, n = key[self.axis], self.shape[self.axis]
+        idx = np.arange(n)[k] if isinstance(k, slice) else np.array([int(k) % n])
+        if idx.size == 0:
+            return np.empty(self.shape, self.dtype)[key] if np.prod(self.shape) == 0 else self._empty(key)
+        lo = int(idx.min()) // self.rows * self.rows
+        hi = min((int(idx.max()) // self.rows + 1) * self.rows, n)
+        band = np.take(self._load((lo, hi)), idx - lo, axis=self.axis)
+        rest = list(key)
+        rest[self.axis] = slice(None) if isinstance(k, slice) else 0
+        return band[tuple(rest)]
+
+    def _empty(self, key: tuple):
+        """The (empty) result of a request selecting no row of ``v``."""
+        shape = list(self.shape)
+        shape[self.axis] = 0
+        return np.empty(shape, self.dtype)[key]
+
+    def _load(self, rows):
+        """Rows ``lo:hi`` of ``v`` (all of the variable for None), every chunk in them verified."""
+        what = f"variable {self.name!r}" + ("" if rows is None else f" (rows {rows[0]}-{rows[1] - 1} of v)")
+        try:
+            part = self.raw if rows is None else self.raw.isel(v=slice(*rows))
+            values = np.asarray(part.values)
+        except Exception as exc:
+            raise read_failure(exc, self.sid, what) from None
+        if rows is None:
+            bad = [0] if digest(values)[1] != self.crcs[0] else []
+        else:
+            first = rows[0] // self.rows
+            bad = [
+                j
+                for j, lo in enumerate(range(0, values.shape[self.axis], self.rows), start=first)
+                if digest(_band(values, self.axis, lo, lo + self.rows))[1] != self.crcs[j]
+            ]
+        if bad:
+            where = "" if rows is None else f", chunk(s) {bad} of {self.rows} rows of v"
+            raise SchemaError(
+                f"subject {self.sid!r}: variable {self.name!r} does not match its checksum{where} "
+                "(a chunk file is missing, truncated or altered)"
+            )
+        return values

@@ -1,4 +1,4 @@
-"""Where things live in a directory store, how generations are named, and durable writes of its files.
+"""Where things live in a directory store, how its own files are named, confinement checks and durable writes.
 
 Layout of a directory store ``X.zarr/``::
 
@@ -8,6 +8,9 @@ Layout of a directory store ``X.zarr/``::
       index.json                   population index and commit point (facestats.io.index)
       .lock                        store lock (facestats.io.locking)
       .writers/                    one lock file per generation being written
+      .records/<id>~<generation>.json   each generation's record: its owner mark and commit state
+                                        (facestats.io.records)
+      quarantine/                  what repair moved aside (facestats.io.quarantine), removed only by a purge
       subjects/zarr.json           group
       subjects/<id>/zarr.json      group
       subjects/<id>/<generation>/  the subject: an xarray Dataset written by ``to_zarr`` (Zarr v3)
@@ -17,33 +20,55 @@ so names sort by creation time and never collide between processes; its writer
 holds ``.writers/<id>~<generation>.lock`` while it writes.  Generations being
 deleted are first renamed to ``subjects/<id>/.trash-<generation>``.
 
-Small files the store replaces (group metadata) are written atomically and
-durably by :func:`write_json_atomic`; whole directories are flushed with
+**Ownership.** Maintenance (gc, repair) only ever deletes or moves what this
+module's names describe *and* what is proven to be facestats' own: a
+generation by its name and its record, a temporary file by its name, a lock by
+its name and folder.  Before touching a path it checks, with :func:`confined`,
+that the path is not a symbolic link and that its parent resolves inside the
+store root, so a link planted under ``subjects/`` can never lead maintenance
+out of the store.
+
+Small files the store replaces (group metadata, records) are written
+atomically by :func:`write_json_atomic`; whole directories are flushed with
 :func:`fsync_tree`.  Only the standard library is needed here.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import re
 import secrets
+import shutil
+import stat
 import time
 
+from facestats.errors import StoreError
 from facestats.io.locking import FileLock
 
 __all__ = [
     "SUBJECTS",
     "LOCK_NAME",
     "WRITERS",
+    "RECORDS",
     "ROOT_META",
     "TRASH_PREFIX",
+    "QUARANTINE",
     "GENERATION_PATTERN",
+    "MAP_CHUNK_ROWS",
+    "map_chunk_rows",
+    "is_generation",
     "new_generation",
     "generation_rel",
     "writer_lock_path",
     "store_lock",
     "is_meta_temp",
+    "is_plain_dir",
+    "is_plain_file",
+    "confined",
+    "read_regular_file",
+    "remove_tree",
     "group_meta",
     "fsync_path",
     "fsync_tree",
@@ -56,13 +81,38 @@ SUBJECTS = "subjects"
 LOCK_NAME = ".lock"
 #: Folder of the writer locks.
 WRITERS = ".writers"
+#: Folder of the generation records.
+RECORDS = ".records"
 #: Zarr v3 group metadata file (of the root, ``subjects/`` and every subject).
 ROOT_META = "zarr.json"
 #: Prefix a generation is renamed to before it is deleted.
 TRASH_PREFIX = ".trash-"
-#: Names :func:`new_generation` makes.
-GENERATION_PATTERN = re.compile(r"^g[0-9a-f]{16}-\d+-[0-9a-f]{6}$")
-_META_TEMP = ROOT_META + ".tmp-"
+#: Folder (under the root) of what repair moved aside.
+QUARANTINE = "quarantine"
+#: Names :func:`new_generation` makes (always matched in full: a trailing newline is not a name).
+GENERATION_PATTERN = re.compile(r"g[0-9a-f]{16}-[0-9]{1,10}-[0-9a-f]{6}")
+#: Temporary files of :func:`write_json_atomic` beside a ``zarr.json`` or a generation record.
+_JSON_TEMP = re.compile(
+    r"(?:zarr\.json|[A-Za-z0-9._-]{1,64}~g[0-9a-f]{16}-[0-9]{1,10}-[0-9a-f]{6}\.json)\.tmp-[0-9]{1,10}-[0-9a-f]{6}"
+)
+#: Rows of ``v`` per chunk of a map variable.
+MAP_CHUNK_ROWS = 64
+
+
+def map_chunk_rows(dims, shape) -> int | None:
+    """Rows of ``v`` per chunk of a variable with ``dims`` and ``shape``: None unless it is a map (``v`` and ≥ 2 dims).
+
+    Map variables are chunked along ``v`` only (all of ``u`` and the trailing dims in each chunk).
+    """
+    dims = tuple(dims)
+    if "v" not in dims or len(dims) < 2:
+        return None
+    return max(1, min(MAP_CHUNK_ROWS, int(shape[dims.index("v")])))
+
+
+def is_generation(name: str) -> bool:
+    """True if ``name`` is a generation name (:data:`GENERATION_PATTERN`, matched in full)."""
+    return GENERATION_PATTERN.fullmatch(name) is not None
 
 
 def new_generation() -> str:
@@ -86,8 +136,84 @@ def store_lock(root, timeout: float) -> FileLock:
 
 
 def is_meta_temp(name: str) -> bool:
-    """True for the temporary files :func:`write_json_atomic` leaves beside a ``zarr.json``."""
-    return name.startswith(_META_TEMP)
+    """True for the temporary files :func:`write_json_atomic` leaves beside a ``zarr.json`` or a record."""
+    return _JSON_TEMP.fullmatch(name) is not None
+
+
+def is_plain_dir(path) -> bool:
+    """True if ``path`` is a directory and not a symbolic link (``lstat``)."""
+    try:
+        return stat.S_ISDIR(os.lstat(path).st_mode)
+    except OSError:
+        return False
+
+
+def is_plain_file(path) -> bool:
+    """True if ``path`` is a regular file and not a symbolic link (``lstat``)."""
+    try:
+        return stat.S_ISREG(os.lstat(path).st_mode)
+    except OSError:
+        return False
+
+
+def read_regular_file(path) -> bytes:
+    """The bytes of the regular file ``path`` (links followed).
+
+    Opens without blocking and checks the type first, so a FIFO or a device
+    planted where a store file should be raises :class:`OSError` (EINVAL,
+    "not a regular file") instead of hanging or reading forever; a directory
+    raises :class:`IsADirectoryError`, a missing file :class:`FileNotFoundError`.
+    """
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    try:
+        mode = os.fstat(fd).st_mode
+        if stat.S_ISDIR(mode):
+            raise IsADirectoryError(errno.EISDIR, "is a directory", os.fspath(path))
+        if not stat.S_ISREG(mode):
+            raise OSError(errno.EINVAL, "not a regular file (a FIFO, socket or device?)", os.fspath(path))
+        with os.fdopen(os.dup(fd), "rb") as fh:
+            return fh.read()
+    finally:
+        os.close(fd)
+
+
+def remove_tree(path) -> None:
+    """Delete the folder ``path`` and everything in it, without following links.
+
+    Entries that vanish meanwhile (another process removing the same leftover)
+    are fine; any other failure raises :class:`OSError`.  Whether the folder is
+    gone afterwards is the caller's to check.
+    """
+
+    def gone_already(function, p, exc_info):
+        if not issubclass(exc_info[0], FileNotFoundError):
+            raise exc_info[1]
+
+    shutil.rmtree(path, onerror=gone_already)
+
+
+def confined(root, path) -> str:
+    """``path``, after checking it is safe for the store at ``root`` to change or remove.
+
+    The path must not be a symbolic link itself and its parent must resolve
+    (all links followed) to the store root or a folder inside it; what it
+    names need not exist.
+
+    Raises
+    ------
+    StoreError
+        Naming the path and what leads out of the store.
+    """
+    path = os.fspath(path)
+    real_root = os.path.realpath(root)
+    parent = os.path.realpath(os.path.dirname(path) or ".")
+    if parent != real_root and not parent.startswith(real_root + os.sep):
+        raise StoreError(
+            f"refusing to touch {path}: it resolves to {parent}, outside the store {real_root} (a symbolic link?)"
+        )
+    if os.path.islink(path):
+        raise StoreError(f"refusing to touch {path}: it is a symbolic link, not something the store created")
+    return path
 
 
 def group_meta(attributes=None) -> dict:
@@ -112,11 +238,22 @@ def fsync_tree(path) -> None:
         fsync_path(root, directory=True)
 
 
-def write_json_atomic(path, obj) -> None:
-    """Replace ``path`` by ``obj`` as indented JSON: temporary file, ``fsync``, ``os.replace``."""
+def write_json_atomic(path, obj, *, durable: bool = True) -> None:
+    """Replace ``path`` by ``obj`` as indented JSON: temporary file, ``fsync`` (if ``durable``), ``os.replace``.
+
+    A failure (e.g. a full disk) removes the temporary file and leaves ``path`` as it was.
+    """
     tmp = f"{path}.tmp-{os.getpid()}-{secrets.token_hex(3)}"
-    with open(tmp, "w") as fh:
-        json.dump(obj, fh, indent=2)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w") as fh:
+            json.dump(obj, fh, indent=2)
+            fh.flush()
+            if durable:
+                os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        raise

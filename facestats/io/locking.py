@@ -29,11 +29,11 @@ import time
 
 from facestats.errors import StoreError
 
-__all__ = ["FileLock", "is_locked", "try_lock", "create_locked"]
+__all__ = ["FileLock", "is_locked", "try_lock", "create_locked", "is_lock_temp"]
 
 
 class FileLock:
-    """An exclusive ``flock`` on ``path`` (created if missing), with a timeout.
+    """An exclusive ``flock`` on ``path`` (created if missing, never through a symbolic link), with a timeout.
 
     Use as a context manager::
 
@@ -46,11 +46,15 @@ class FileLock:
         The lock file.
     timeout : float
         Seconds to wait for the lock before raising :class:`StoreError`.
+    create : bool
+        Create the lock file if it is missing (otherwise a missing file raises
+        :class:`FileNotFoundError`, which :func:`is_locked` relies on).
     """
 
-    def __init__(self, path, timeout: float = 60.0):
+    def __init__(self, path, timeout: float = 60.0, *, create: bool = True):
         self.path = os.fspath(path)
         self.timeout = float(timeout)
+        self.create = create
         self._fd: int | None = None
 
     @property
@@ -61,10 +65,16 @@ class FileLock:
         """Take the lock; return False (non-blocking) or raise :class:`StoreError` (timeout) if busy."""
         if self._fd is not None:
             raise StoreError(f"lock {self.path} is already held by this object")
+        flags = os.O_RDWR | os.O_NOFOLLOW | (os.O_CREAT if self.create else 0)
         try:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            fd = os.open(self.path, flags, 0o644)
+        except FileNotFoundError:
+            if not self.create:
+                raise
+            raise StoreError(f"cannot open lock file {self.path}: its folder does not exist") from None
         except OSError as exc:
-            raise StoreError(f"cannot open lock file {self.path}: {exc.strerror}") from exc
+            what = "it is a symbolic link" if exc.errno == errno.ELOOP else exc.strerror
+            raise StoreError(f"cannot open lock file {self.path}: {what}") from None
         deadline = time.monotonic() + self.timeout
         delay = 0.0005
         while True:
@@ -109,17 +119,25 @@ class FileLock:
         self.release()
 
 
-def try_lock(path) -> FileLock | None:
-    """Take the lock on ``path`` without waiting; the held :class:`FileLock`, or None if busy."""
-    lock = FileLock(path, timeout=0)
+def try_lock(path, *, create: bool = True) -> FileLock | None:
+    """Take the lock on ``path`` without waiting; the held :class:`FileLock`, or None if busy.
+
+    With ``create=False`` a missing file raises :class:`FileNotFoundError` instead of being created.
+    """
+    lock = FileLock(path, timeout=0, create=create)
     return lock if lock.acquire(blocking=False) else None
 
 
 def is_locked(path) -> bool:
-    """True if another open file description holds a lock on the existing file ``path``."""
-    if not os.path.exists(path):
+    """True if another open file description holds a lock on the existing file ``path``.
+
+    Never creates ``path``: a file that is missing (or vanishes while it is
+    checked) is not locked.
+    """
+    try:
+        lock = try_lock(path, create=False)
+    except FileNotFoundError:
         return False
-    lock = try_lock(path)
     if lock is None:
         return True
     lock.release()

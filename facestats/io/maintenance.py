@@ -1,49 +1,77 @@
-"""Upkeep of a directory store: garbage collection, validation against the data, rebuilding the index.
+"""Upkeep of a directory store: one survey of its files, garbage collection, and the check of every subject.
 
-Generations left by crashed writers are *orphans*: :func:`collect_garbage`
-removes them (with temporary files and stale writer locks) but never a
-generation the index references or one whose writer is still alive (its writer
-lock is held).  :func:`check_subjects` opens every indexed subject and compares
-its index entry with the data; :func:`rebuild_index` makes a new index from
-the newest intact generation of every subject when the index is lost.
-:meth:`facestats.io.store.Store.validate` and :meth:`~facestats.io.store.Store.gc`
-run these under the store lock and commit the repairs.
+:func:`survey` is maintenance's single view of a directory store: it walks the
+layout (:mod:`facestats.io.layout`) without following links and sorts every
+entry into
+
+* **garbage** — provably the store's own and of no use: generations whose
+  record (``.records/``, :mod:`facestats.io.records`) says they were never
+  committed or were retired, once their writer is dead; trash folders and
+  records of such generations; temporary files of interrupted atomic writes
+  (``index.json``, ``zarr.json`` and records, also under ``subjects/``);
+  writer locks no live writer holds;
+* **kept** — the generations the index names, those whose writer is alive,
+  and committed generations the index does not name (``adoptable`` when their
+  subject is not in the index: ``facestats validate --repair`` recovers them;
+  never deleted);
+* **foreign** — anything the store did not provably create: symbolic links
+  (e.g. ``subjects/X1 -> /elsewhere``), files and folders of other names,
+  generations without a record (written before records existed).  They are
+  reported and never touched.
+
+:func:`collect_garbage` deletes exactly the survey's garbage (decided under the
+store lock), and ``facestats validate`` reports exactly it, so the two always
+agree.  :func:`check_subjects` opens every indexed subject and sorts the
+failures: *damaged* data (:class:`~facestats.errors.SchemaError`), a *missing*
+generation, an index row that disagrees with the data, or data that could not
+be read just now (an I/O error: no action may follow from it).  A subject
+replaced by a concurrent writer while it is checked is checked again in its
+new version.  What repair does with these findings is :mod:`facestats.io.repair`.
 """
 
 from __future__ import annotations
 
 import os
-import shutil
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from facestats.core.version import __version__
-from facestats.errors import StoreError
-from facestats.io.index import empty_index, is_index_temp, make_entry, read_index_file
-from facestats.io.integrity import STORE_ATTR
+from facestats.errors import SchemaError, StoreError, ValidationError
+from facestats.io.ids import check_subject_id
+from facestats.io.index import is_index_temp, make_entry, read_index_file
 from facestats.io.layout import (
-    GENERATION_PATTERN,
+    LOCK_NAME,
+    QUARANTINE,
+    RECORDS,
     ROOT_META,
     SUBJECTS,
     TRASH_PREFIX,
     WRITERS,
+    confined,
+    generation_rel,
+    is_generation,
     is_meta_temp,
+    is_plain_dir,
+    is_plain_file,
+    remove_tree,
     writer_lock_path,
 )
 from facestats.io.locking import is_lock_temp, is_locked, try_lock
-from facestats.io.schema import SCHEMA_VERSION
+from facestats.io.quarantine import list_quarantine
+from facestats.io.records import parse_record_name, read_record, record_name
 from facestats.io.summary import albedo_histogram, summarise_subject
 
 __all__ = [
     "ValidationReport",
+    "Survey",
+    "Checked",
+    "survey",
     "collect_garbage",
-    "list_orphans",
-    "orphan_note",
-    "rebuild_index",
     "check_subjects",
-    "index_repairs",
+    "directory_notes",
 ]
+
+_ROOT_NAMES = {ROOT_META, "index.json", LOCK_NAME, WRITERS, RECORDS, SUBJECTS, QUARANTINE}
 
 
 @dataclass
@@ -51,8 +79,8 @@ class ValidationReport:
     """Outcome of :meth:`facestats.io.store.Store.validate`.
 
     ``problems`` make the store invalid (``ok`` is False); ``notes`` are
-    harmless findings (orphaned data of interrupted writes); ``repaired``
-    lists what ``repair=True`` changed.
+    harmless findings (leftovers of interrupted writes, items that are not
+    the store's, the quarantine); ``repaired`` lists what a repair changed.
     """
 
     path: str
@@ -75,162 +103,393 @@ class ValidationReport:
         return "\n".join(lines) + "\n"
 
 
-def _subject_dirs(root):
-    """``(subject id, directory)`` of every directory under ``subjects/``, by id."""
-    sub_root = os.path.join(root, SUBJECTS)
-    for sid in sorted(os.listdir(sub_root)) if os.path.isdir(sub_root) else []:
-        sdir = os.path.join(sub_root, sid)
-        if os.path.isdir(sdir):
-            yield sid, sdir
-
-
-def _live(index) -> set:
-    """``(subject id, generation)`` pairs the index references."""
-    return {(sid, e["generation"]) for sid, e in index["subjects"].items()}
-
-
-# -- garbage collection ---------------------------------------------------------------
+# -- the survey --------------------------------------------------------------------------
 @dataclass
-class _Sweep:
-    """What garbage collection decided under the store lock."""
+class Survey:
+    """What is in a directory store, sorted against an index (module docstring).
 
-    doomed: list = field(default_factory=list)  # paths to delete
-    held: list = field(default_factory=list)  # writer locks of dead writers, held until the deletion is done
-    emptied: list = field(default_factory=list)  # subject directories to remove if empty
-
-
-def collect_garbage(root, lock) -> list[str]:
-    """Remove what interrupted writers left (orphaned generations, temporary files, stale locks).
-
-    Parameters
+    Attributes
     ----------
-    root : str
-        The store directory.
-    lock : facestats.io.locking.FileLock
-        The store lock (not held); decisions are taken while holding it, so no
-        commit can reference a generation being removed.
-
-    Returns
-    -------
-    list of str
-        The removed paths, relative to ``root``.
+    garbage : list of str
+        Paths (relative to the root) :func:`collect_garbage` deletes.
+    stale_locks : list of str
+        The writer locks among ``garbage`` (to be held while they are deleted).
+    adoptable : dict
+        ``{subject id: [(revision, generation)]}``: committed, unretired generations of subjects the
+        index does not list (newest first).
+    newer : list of str
+        Committed generations kept although the index names another: committed after the index
+        revision (an index restored from an old copy?), or of a subject whose current generation is
+        missing (what repair may recover).
+    foreign : list of str
+        Entries the store did not create: reported, never touched.
+    subject_dirs : list of str
+        Ids of the real subject folders.
+    empty_subjects : list of str
+        Subject folders (not in the index) that hold nothing of value once the garbage is gone.
     """
-    sweep = _Sweep()
-    with lock:
-        index = read_index_file(root)
-        live = _live(index)
-        for sid, sdir in _subject_dirs(root):
-            if not _sweep_subject(sweep, root, sid, sdir, live) and sid not in index["subjects"]:
-                sweep.emptied.append(sdir)
-                try:
-                    os.remove(os.path.join(sdir, ROOT_META))
-                except OSError:
-                    pass
-        _sweep_writers(sweep, os.path.join(root, WRITERS))
-        for name in os.listdir(root):
-            if is_index_temp(name) or is_meta_temp(name):
-                sweep.doomed.append(os.path.join(root, name))
-    removed = _remove_paths(root, sweep.doomed)
-    for lk in sweep.held:
-        lk.release()
-    for sdir in sweep.emptied:
-        try:  # fails harmlessly if a writer has started a new generation in it meanwhile
-            os.rmdir(sdir)
-            removed.append(os.path.relpath(sdir, root))
-        except OSError:
-            pass
-    return removed
+
+    garbage: list = field(default_factory=list)
+    stale_locks: list = field(default_factory=list)
+    adoptable: dict = field(default_factory=dict)
+    newer: list = field(default_factory=list)
+    foreign: list = field(default_factory=list)
+    subject_dirs: list = field(default_factory=list)
+    empty_subjects: list = field(default_factory=list)
+
+    def notes(self) -> list[str]:
+        """The report notes of this survey (none if there is nothing to say)."""
+        out = []
+        if self.garbage:
+            out.append(
+                f"{len(self.garbage)} leftover item(s) of interrupted writes (e.g. {self.garbage[0]}); "
+                "`facestats validate --repair --yes` removes them"
+            )
+        if self.adoptable:
+            ids = sorted(self.adoptable)
+            out.append(
+                f"{len(ids)} subject(s) with committed data are missing from the index ({', '.join(ids[:5])}); "
+                "`facestats validate --repair` recovers them"
+            )
+        if self.newer:
+            out.append(
+                f"{len(self.newer)} committed generation(s) the index does not name were kept for repair to judge "
+                f"(e.g. {self.newer[0]})"
+            )
+        if self.foreign:
+            out.append(f"{len(self.foreign)} item(s) not created by facestats were left alone (e.g. {self.foreign[0]})")
+        return out
 
 
-def _sweep_subject(sweep: _Sweep, root, sid: str, sdir: str, live: set) -> bool:
-    """Doom the leftovers in one subject directory; True if a generation there must be kept."""
-    keep = False
-    for name in os.listdir(sdir):
-        p = os.path.join(sdir, name)
-        if name.startswith(TRASH_PREFIX) or is_meta_temp(name):
-            sweep.doomed.append(p)
-        elif not os.path.isdir(p):
-            continue
-        elif (sid, name) in live:
-            keep = True
-        elif not _claim_orphan(sweep, writer_lock_path(root, sid, name), p):
-            keep = True  # its writer is alive
-    return keep
+def _listdir(path) -> list[str]:
+    try:
+        return sorted(os.listdir(path))
+    except OSError:
+        return []
 
 
-def _claim_orphan(sweep: _Sweep, lock_path: str, path: str) -> bool:
-    """Doom an unreferenced generation unless its writer is alive (then False)."""
-    # The writer lock exists before the generation directory is created and
-    # stays held until the writer is done: check it *after* seeing the directory.
-    if os.path.exists(lock_path):
-        lk = try_lock(lock_path)
-        if lk is None:
-            return False
-        sweep.held.append(lk)
-        sweep.doomed.append(lock_path)
-    sweep.doomed.append(path)
-    return True
-
-
-def _sweep_writers(sweep: _Sweep, writers: str) -> None:
-    """Doom the writer locks (and temporary lock files) no live writer holds."""
-    for name in sorted(os.listdir(writers)) if os.path.isdir(writers) else []:
-        p = os.path.join(writers, name)
-        if p in sweep.doomed or not (is_lock_temp(name) or name.endswith(".lock")):
-            continue
-        lk = try_lock(p)  # free: its writer is dead or done
-        if lk is not None:
-            sweep.held.append(lk)
-            sweep.doomed.append(p)
-
-
-def _remove_paths(root, paths) -> list[str]:
-    """Delete files and directory trees; the ones removed, relative to ``root``."""
-    removed = []
-    for p in paths:
-        if os.path.isdir(p):
-            shutil.rmtree(p, ignore_errors=True)
-        else:
-            try:
-                os.remove(p)
-            except OSError:
-                continue
-        removed.append(os.path.relpath(p, root))
-    return removed
-
-
-# -- validation -----------------------------------------------------------------------
-def list_orphans(root, index) -> list[str]:
-    """Unreferenced generation directories and index temporary files, relative paths.
+def survey(root, index: dict) -> Survey:
+    """Walk the store at ``root`` (no link followed) and sort its entries against ``index`` (module docstring).
 
     Parameters
     ----------
     root : str
         The store directory.
     index : dict
+        A valid index document (:func:`facestats.io.index.parse_index`).
+    """
+    s = Survey()
+    for name in _listdir(root):
+        if is_index_temp(name) or is_meta_temp(name):
+            (s.garbage if is_plain_file(os.path.join(root, name)) else s.foreign).append(name)
+        elif name not in _ROOT_NAMES:
+            s.foreign.append(name)
+    _survey_writers(s, root)
+    pairs = _survey_records(s, root) | _survey_subjects(s, root)
+    kept = set()
+    for sid, gen in sorted(pairs):
+        if _survey_generation(s, root, sid, gen, index):
+            kept.add(sid)
+    s.empty_subjects = [
+        sid for sid in s.subject_dirs if sid not in kept and sid not in index["subjects"] and sid not in s.adoptable
+    ]
+    return s
+
+
+def _survey_subjects(s: Survey, root) -> set:
+    """Sort the entries of ``subjects/``; the ``(sid, gen)`` of the generation folders found."""
+    sub_root = os.path.join(root, SUBJECTS)
+    pairs = set()
+    for name in _listdir(sub_root) if is_plain_dir(sub_root) else []:
+        path = os.path.join(sub_root, name)
+        if name == ROOT_META:
+            continue
+        if is_meta_temp(name) and is_plain_file(path):
+            s.garbage.append(f"{SUBJECTS}/{name}")
+        elif _valid_id(name) and is_plain_dir(path):
+            s.subject_dirs.append(name)
+            pairs |= _survey_subject(s, root, name)
+        else:
+            s.foreign.append(f"{SUBJECTS}/{name}")
+    return pairs
+
+
+def _valid_id(name: str) -> bool:
+    try:
+        check_subject_id(name)
+    except ValidationError:
+        return False
+    return True
+
+
+def _survey_writers(s: Survey, root) -> None:
+    """Writer locks no live writer holds (and temporary lock files) are garbage; other entries foreign."""
+    writers = os.path.join(root, WRITERS)
+    for name in _listdir(writers) if is_plain_dir(writers) else []:
+        path = os.path.join(writers, name)
+        sid, _, rest = name.partition("~")
+        ours = is_lock_temp(name) or (rest.endswith(".lock") and _valid_id(sid) and is_generation(rest[:-5]))
+        if not ours or not is_plain_file(path):
+            s.foreign.append(f"{WRITERS}/{name}")
+        elif not is_locked(path):
+            s.garbage.append(f"{WRITERS}/{name}")
+            s.stale_locks.append(f"{WRITERS}/{name}")
+
+
+def _survey_records(s: Survey, root) -> set:
+    """``(sid, gen)`` of the record files; temporary files are garbage, other entries foreign."""
+    folder = os.path.join(root, RECORDS)
+    pairs = set()
+    for name in _listdir(folder) if is_plain_dir(folder) else []:
+        path = os.path.join(folder, name)
+        parsed = parse_record_name(name)
+        if is_meta_temp(name) and is_plain_file(path):
+            s.garbage.append(f"{RECORDS}/{name}")
+        elif parsed is not None and _valid_id(parsed[0]):
+            pairs.add(parsed)
+        else:
+            s.foreign.append(f"{RECORDS}/{name}")
+    return pairs
+
+
+def _survey_subject(s: Survey, root, sid: str) -> set:
+    """Sort the entries of one subject folder; the ``(sid, gen)`` of its generation folders."""
+    sdir = os.path.join(root, SUBJECTS, sid)
+    pairs = set()
+    for name in _listdir(sdir):
+        path = os.path.join(sdir, name)
+        rel = f"{SUBJECTS}/{sid}/{name}"
+        trash = name.startswith(TRASH_PREFIX) and is_generation(name[len(TRASH_PREFIX) :])
+        if name == ROOT_META:
+            continue
+        if is_generation(name):
+            pairs.add((sid, name))
+        elif is_meta_temp(name) and is_plain_file(path):
+            s.garbage.append(rel)
+        elif trash and is_plain_dir(path) and read_record(root, sid, name[len(TRASH_PREFIX) :]) is not None:
+            s.garbage.append(rel)
+            pairs.add((sid, name[len(TRASH_PREFIX) :]))
+        else:
+            s.foreign.append(rel)
+    return pairs
+
+
+def _survey_generation(s: Survey, root, sid: str, gen: str, index: dict) -> bool:
+    """Sort one generation (its folder and/or record); True if something of it is kept."""
+    rel = generation_rel(sid, gen)
+    rec_rel = f"{RECORDS}/{record_name(sid, gen)}"
+    path = os.path.join(root, rel)
+    has_dir = is_plain_dir(path)
+    live = index["subjects"].get(sid, {}).get("generation")
+    if os.path.lexists(path) and not has_dir:
+        s.foreign.append(rel)
+        return True
+    if gen == live or is_locked(writer_lock_path(root, sid, gen)):
+        return True
+    rec = read_record(root, sid, gen)
+    if rec is None:  # no record: not provably ours (or written before records existed)
+        for item in (rel, rec_rel):
+            if os.path.lexists(os.path.join(root, item)):
+                s.foreign.append(item)
+        return True
+    if has_dir and _keep_committed(s, root, sid, gen, rec, live, index):
+        return True
+    if has_dir:
+        s.garbage.append(rel)
+    s.garbage.append(rec_rel)
+    return False
+
+
+def _keep_committed(s: Survey, root, sid: str, gen: str, rec: dict, live, index: dict) -> bool:
+    """True (and noted) for a committed generation the index does not name but that must be kept."""
+    rel = generation_rel(sid, gen)
+    if rec["state"] != "writing" and _live_missing(root, sid, live):
+        s.newer.append(rel)  # the generation the index names is missing: this one may be what repair recovers
+        return True
+    if rec["state"] != "committed":
+        return False
+    rev = int(rec.get("committed_revision", 0))
+    if live is None:
+        s.adoptable.setdefault(sid, []).append((rev, gen))
+        s.adoptable[sid].sort(reverse=True)
+        return True
+    if rev > int(index.get("revision", 0)):
+        s.newer.append(rel)
+        return True
+    return False
+
+
+def _live_missing(root, sid: str, live) -> bool:
+    """True if the index names a generation of ``sid`` whose folder is missing."""
+    return live is not None and not is_plain_dir(os.path.join(root, generation_rel(sid, live)))
+
+
+# -- garbage collection ---------------------------------------------------------------------
+def collect_garbage(root, lock) -> list[str]:
+    """Delete the survey's garbage (module docstring); the paths removed, relative to ``root``.
+
+    Decisions are taken holding the store ``lock`` (not yet held), so no commit
+    can name a generation being removed; stale writer locks are held while
+    they are deleted.  Every path is checked to stay inside the store
+    (:func:`facestats.io.layout.confined`) before it is removed; directory
+    trees are removed without following links.
+
+    Raises
+    ------
+    StoreError
+        The index cannot be read (garbage is judged against it: repair first).
+    """
+    held = []
+    with lock:
+        index = read_index_file(root)
+        s = survey(root, index)
+        for rel in s.stale_locks:
+            lk = try_lock(os.path.join(root, rel), create=False) if os.path.exists(os.path.join(root, rel)) else None
+            if lk is None:  # taken again meanwhile (cannot happen for a dead writer's name): keep it
+                s.garbage.remove(rel)
+            else:
+                held.append(lk)
+    try:
+        removed = _remove(root, s.garbage)
+    finally:
+        for lk in held:
+            lk.release()
+    for sid in s.empty_subjects:
+        removed += _remove_empty_subject(root, sid)
+    return removed
+
+
+def _remove(root, rels) -> list[str]:
+    """Delete files and folder trees (the generation folders before any record); those removed.
+
+    A record is removed only once its generation folder and trash folder are both gone, so a
+    leftover never loses the record that proves it is the store's own (another process may be
+    deleting the same leftover at the same time).
+    """
+    removed = []
+    for rel in sorted(rels, key=lambda p: (p.startswith(RECORDS + "/"), p)):
+        path = os.path.join(root, rel)
+        try:
+            confined(root, path)
+            pair = parse_record_name(os.path.basename(rel)) if rel.startswith(RECORDS + "/") else None
+            if pair is not None:
+                sid, gen = pair
+                folder = os.path.join(root, SUBJECTS, sid)
+                if os.path.lexists(os.path.join(folder, gen)) or os.path.lexists(
+                    os.path.join(folder, TRASH_PREFIX + gen)
+                ):
+                    continue
+            if is_plain_dir(path):
+                remove_tree(path)
+            else:
+                os.remove(path)
+        except (OSError, StoreError):
+            continue
+        removed.append(rel)
+    return removed
+
+
+def _remove_empty_subject(root, sid: str) -> list[str]:
+    """Remove a subject folder that holds only its group metadata (fails harmlessly if a writer started)."""
+    sdir = os.path.join(root, SUBJECTS, sid)
+    try:
+        confined(root, sdir)
+        if set(os.listdir(sdir)) - {ROOT_META}:
+            return []
+        meta = os.path.join(sdir, ROOT_META)
+        if is_plain_file(meta):
+            os.remove(meta)
+        os.rmdir(sdir)
+    except (OSError, StoreError):
+        return []
+    return [f"{SUBJECTS}/{sid}"]
+
+
+# -- checking the subjects -------------------------------------------------------------------
+@dataclass
+class Checked:
+    """What :func:`check_subjects` found, per subject id.
+
+    Attributes
+    ----------
+    damaged : dict
+        ``{sid: (generation, message)}``: the generation exists but its data are damaged.
+    missing : dict
+        ``{sid: (generation, message)}``: the generation the index names is not there.
+    stale : dict
+        ``{sid: (generation, recomputed entry, message)}``: the index entry disagrees with the data.
+    unreadable : dict
+        ``{sid: message}``: an I/O error; the data may be intact, nothing may be done about it.
+    current : dict
+        ``{sid: generation}`` checked (after following concurrent replacements).
+    """
+
+    damaged: dict = field(default_factory=dict)
+    missing: dict = field(default_factory=dict)
+    stale: dict = field(default_factory=dict)
+    unreadable: dict = field(default_factory=dict)
+    current: dict = field(default_factory=dict)
+
+
+def check_subjects(
+    index, open_generation, report: ValidationReport, *, reread=None, generation_exists=None, progress=False
+) -> Checked:
+    """Open every indexed subject and compare its index entry with its data.
+
+    Parameters
+    ----------
+    index : dict
         The index document.
+    open_generation : callable
+        ``open_generation(sid, gen)``: the checked subject
+        (:func:`facestats.io.integrity.open_generation`).
+    report : ValidationReport
+        Problems are appended; ``n_checked`` counts the subjects opened.
+    reread : callable, optional
+        ``reread()``: the current index entries; a subject that fails is looked
+        up again and, if a concurrent writer replaced it, checked in its new
+        version.
+    generation_exists : callable, optional
+        ``generation_exists(sid, gen)``: tells a missing generation from a damaged one.
+    progress : bool
+        Show a progress bar (tqdm; silent when not on a terminal).
 
     Returns
     -------
-    list of str
-        Paths relative to ``root``, by subject id.
+    Checked
     """
-    live = _live(index)
-    out = []
-    for sid, sdir in _subject_dirs(root):
-        for name in sorted(os.listdir(sdir)):
-            if os.path.isdir(os.path.join(sdir, name)) and (sid, name) not in live:
-                out.append(f"{SUBJECTS}/{sid}/{name}")
-    out += [n for n in os.listdir(root) if is_index_temp(n)]
+    out = Checked()
+    ids = sorted(index["subjects"])
+    if progress:
+        from tqdm.auto import tqdm
+
+        ids = tqdm(ids, desc="check", unit="subject", disable=None)
+    for sid in ids:
+        entry = index["subjects"][sid]
+        for _ in range(5):
+            gen = entry["generation"]
+            try:
+                ds = open_generation(sid, gen)
+            except SchemaError as exc:
+                fresh = reread().get(sid) if reread is not None else None
+                if fresh is not None and fresh["generation"] != gen:
+                    entry = fresh  # replaced meanwhile: check the new version
+                    continue
+                gone = generation_exists is not None and not generation_exists(sid, gen)
+                (out.missing if gone else out.damaged)[sid] = (gen, str(exc))
+                report.problems.append(str(exc))
+            except StoreError as exc:  # an I/O error: the data may be intact
+                out.unreadable[sid] = str(exc)
+                report.problems.append(str(exc))
+            else:
+                out.current[sid] = gen
+                report.n_checked += 1
+                problem = entry_disagreement(sid, entry, gen, ds)
+                if problem:
+                    report.problems.append(problem[0])
+                    out.stale[sid] = (gen, problem[1], problem[0])
+            break
     return out
-
-
-def orphan_note(orphans) -> str:
-    """The report note about unreferenced items (``orphans`` from :func:`list_orphans`, not empty)."""
-    return (
-        f"{len(orphans)} unreferenced item(s) left by interrupted or running writers "
-        f"(e.g. {orphans[0]}); `facestats validate --repair` removes dead ones"
-    )
 
 
 def _rows_differ(a: dict, b: dict) -> list[str]:
@@ -244,45 +503,7 @@ def _rows_differ(a: dict, b: dict) -> list[str]:
     return sorted(k for k in set(a) | set(b) if norm(a.get(k)) != norm(b.get(k)))
 
 
-def check_subjects(index, open_generation, report: ValidationReport):
-    """Open every indexed subject and compare its index entry with its data.
-
-    Parameters
-    ----------
-    index : dict
-        The index document.
-    open_generation : callable
-        ``open_generation(sid, gen)``: the checked subject
-        (:func:`facestats.io.integrity.open_generation`).
-    report : ValidationReport
-        Problems are appended; ``n_checked`` counts the subjects opened.
-
-    Returns
-    -------
-    drop : dict
-        ``{sid: generation}`` of the subjects whose data are broken.
-    fix : dict
-        ``{sid: (generation, new index entry)}`` of the entries that disagree with the data.
-    """
-    drop, fix = {}, {}
-    for sid in sorted(index["subjects"]):
-        entry = index["subjects"][sid]
-        gen = entry["generation"]
-        try:
-            ds = open_generation(sid, gen)
-        except StoreError as exc:
-            report.problems.append(str(exc))
-            drop[sid] = gen
-            continue
-        report.n_checked += 1
-        problem = _entry_problem(sid, entry, gen, ds)
-        if problem:
-            report.problems.append(problem[0])
-            fix[sid] = (gen, problem[1])
-    return drop, fix
-
-
-def _entry_problem(sid: str, entry: dict, gen: str, ds):
+def entry_disagreement(sid: str, entry: dict, gen: str, ds):
     """``(message, recomputed entry)`` if the index entry disagrees with the subject ``ds``, else None."""
     row, hist = summarise_subject(ds), albedo_histogram(ds)
     diff = _rows_differ(make_entry(gen, "", row, hist)["row"], entry["row"])
@@ -297,62 +518,30 @@ def _entry_problem(sid: str, entry: dict, gen: str, ds):
     return message, make_entry(gen, entry.get("written", ""), row, hist)
 
 
-def index_repairs(drop: dict, fix: dict, report: ValidationReport):
-    """The index mutation applying the repairs of :func:`check_subjects` (committed by the store).
-
-    Entries are changed only if the index still names the generation that
-    was checked; each change is appended to ``report.repaired``.
+def directory_notes(root, label: str, index) -> tuple[list[str], list[str]]:
+    """``(problems, notes)`` of a directory store beyond its subjects: ``subjects/`` missing, survey, quarantine.
 
     Parameters
     ----------
-    drop, fix : dict
-        From :func:`check_subjects`.
-    report : ValidationReport
-
-    Returns
-    -------
-    callable
-        ``mutate(index)``, changing the index document in place.
+    root : str
+        The store directory.
+    label : str
+        The store's name in messages.
+    index : dict or None
+        The index document (None if it cannot be read: no survey then).
     """
-
-    def mutate(ix):
-        for sid, gen in drop.items():
-            if ix["subjects"].get(sid, {}).get("generation") == gen:
-                del ix["subjects"][sid]
-                report.repaired.append(f"removed broken subject {sid!r} from the index")
-        for sid, (gen, entry) in fix.items():
-            if ix["subjects"].get(sid, {}).get("generation") == gen:
-                ix["subjects"][sid] = entry
-                report.repaired.append(f"recomputed the index entry of subject {sid!r}")
-
-    return mutate
-
-
-def rebuild_index(root, open_generation) -> tuple[dict, list[str]]:
-    """A new index from the newest intact generation of every subject directory.
-
-    Generations whose writer is still running are skipped, and so are those
-    ``open_generation(sid, gen)`` refuses (:class:`StoreError`).
-
-    Returns
-    -------
-    index : dict
-    notes : list of str
-        One line per subject recovered.
-    """
-    index = empty_index(SCHEMA_VERSION, __version__)
-    notes = []
-    for sid, sdir in _subject_dirs(root):
-        gens = sorted((n for n in os.listdir(sdir) if GENERATION_PATTERN.match(n)), reverse=True)
-        for gen in gens:
-            if is_locked(writer_lock_path(root, sid, gen)):
-                continue  # its writer is still running
-            try:
-                ds = open_generation(sid, gen)
-            except StoreError:
-                continue
-            when = ds.encoding[STORE_ATTR].get("written", "")
-            index["subjects"][sid] = make_entry(gen, when, summarise_subject(ds), albedo_histogram(ds))
-            notes.append(f"recovered subject {sid!r} from generation {gen}")
-            break
-    return index, notes
+    problems, notes = [], []
+    if not os.path.lexists(os.path.join(root, SUBJECTS)):
+        problems.append(
+            f"store {label}: its subjects/ folder is missing (an unmounted volume?); no subject can be read"
+        )
+    if index is not None:
+        notes += survey(root, index).notes()
+    q = list_quarantine(root)
+    if q:
+        n, size = sum(len(e["items"]) for e in q), sum(e["bytes"] for e in q)
+        notes.append(
+            f"quarantine: {len(q)} folder(s), {n} item(s), {size / 1e6:.1f} MB moved aside by repairs "
+            f"({', '.join(e['name'] for e in q[:3])}); `facestats validate --purge --yes` deletes them"
+        )
+    return problems, notes

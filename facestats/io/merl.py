@@ -22,7 +22,10 @@ strings for the labels.  Values are checked strictly and a
 :class:`~facestats.errors.FormatError` names the key, the 1-based row and the
 value: m > 0 and ρs ≥ 0 (finite), regions 1-10, subject indices 1..S, integer
 ages 0-200, albedo in [0, 1] with 1 or 3 columns (one column is replicated
-to R, G, B and recorded in the provenance), consistent lengths.
+to R, G, B and recorded in the provenance), consistent lengths; m and ρs are
+checked against the physical domains of the store's schema
+(:data:`facestats.io.schema.DOMAINS`: m > 0, 0 ≤ ρs ≤ 1/(4 F_r(0))), so a file
+with m = ρs = 1e300 is refused, naming the row.
 
 Every subject becomes a *sample subject* (:mod:`facestats.io.schema`) with id
 ``<prefix>-NNN`` (``merl-001`` ...), condition "normal", no maps, and
@@ -35,6 +38,7 @@ imported all the same (their index summaries are NaN) and listed in
 from __future__ import annotations
 
 import hashlib
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -43,6 +47,7 @@ import numpy as np
 from facestats.core.conventions import CHANNELS, REGIONS, parse_gender, parse_skin_type
 from facestats.core.version import __version__
 from facestats.errors import FormatError, ValidationError
+from facestats.io.schema import DOMAINS
 
 __all__ = ["REQUIRED_KEYS", "ALBEDO_KEYS", "MerlData", "read_merl", "import_merl"]
 
@@ -186,7 +191,7 @@ class _Reader:
 def _show(x) -> str:
     """A value for a message: ``11`` rather than ``np.float64(11.0)``."""
     x = float(x)
-    return repr(int(x)) if x.is_integer() else repr(x)
+    return repr(int(x)) if x.is_integer() and abs(x) < 1e15 else repr(x)
 
 
 def _sha256(path: Path) -> str:
@@ -224,6 +229,7 @@ def read_merl(path, *, prefix: str = "merl") -> MerlData:
         The file cannot be read as MATLAB data, a key is missing, or a value
         is out of range (the message names the key, row and value).
     """
+    _check_prefix(prefix)
     path = Path(path).expanduser().resolve()
     r = _Reader(path, _load_mat(path))
     n = _subject_count(r)
@@ -264,12 +270,28 @@ def read_merl(path, *, prefix: str = "merl") -> MerlData:
     )
 
 
+def _check_prefix(prefix) -> None:
+    """The id prefix must make valid subject ids (:func:`facestats.io.ids.check_subject_id`)."""
+    from facestats.io.ids import MAX_SUBJECT_ID_LENGTH, check_subject_id
+
+    try:
+        if not isinstance(prefix, str) or len(prefix) > MAX_SUBJECT_ID_LENGTH - 4:
+            raise ValidationError("too long or not a string")
+        check_subject_id(f"{prefix}-001")
+    except ValidationError:
+        raise ValidationError(
+            f"prefix must make subject ids '<prefix>-001' ...: 1-{MAX_SUBJECT_ID_LENGTH - 4} letters, digits, '.', "
+            f"'_' or '-' starting with a letter or digit, got {prefix!r}"
+        ) from None
+
+
 def _load_mat(path: Path) -> dict:
     """The variables of a MATLAB file (:class:`FormatError` if it cannot be read)."""
     import scipy.io
 
-    if not path.is_file():
-        raise FormatError(f"{path}: no such file")
+    if not path.is_file():  # (a FIFO would make loadmat block forever)
+        what = "no such file" if not os.path.lexists(path) else "not a regular file (a folder, FIFO or device?)"
+        raise FormatError(f"{path}: {what}")
     try:
         return scipy.io.loadmat(str(path), squeeze_me=False, chars_as_strings=True)
     except NotImplementedError as exc:  # MATLAB v7.3 (HDF5) files
@@ -294,14 +316,15 @@ def _read_ts(r: _Reader, n: int):
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         r.fail(f"ts row {i + 1} must be finite, got {ts[i].tolist()}")
-    for col, name, ok in ((0, "m", ts[:, 0] > 0), (1, "rho_s", ts[:, 1] >= 0)):
+    for col, name, var in ((0, "m", "ts_sample_m"), (1, "rho_s", "ts_sample_rho_s")):
+        ok = ~DOMAINS[var].outside(ts[:, col])
         if not ok.all():
             i = int(np.flatnonzero(~ok)[0])
             r.fail(
-                f"ts row {i + 1}: {name} (column {col}) must be "
-                + (">" if col == 0 else ">=")
-                + f" 0, got {_show(ts[i, col])}"
+                f"ts row {i + 1}: {name} (column {col}) must be {DOMAINS[var].violated(ts[i, col])}, "
+                f"got {_show(ts[i, col])}"
                 + (f" ({int((~ok).sum())} bad rows)" if (~ok).sum() > 1 else "")
+                + f" (physical domain {DOMAINS[var].describe()}, facestats.io.schema.DOMAINS)"
             )
     ts_region = r.integers("ts_region", k, 1, max(REGIONS), "a region 1-10")
     ts_subj = r.integers("ts_subjec", k, 1, n, f"a subject index 1-{n}")
@@ -382,11 +405,14 @@ def import_merl(path, store, *, prefix: str = "merl", overwrite: bool = False) -
     MerlData
         What was read (ids, sample counts, subjects without samples).
     """
+    from facestats.io.batch import prepare_batch
+    from facestats.io.root import new_store_guard
     from facestats.io.store import Store, open_store
 
     data = read_merl(path, prefix=prefix)
+    prepare_batch(data.datasets)  # every subject checked before a store is created or touched
     if not isinstance(store, Store):
-        with open_store(store, mode="a") as st:
+        with new_store_guard(store), open_store(store, mode="a") as st:
             st.write_subjects(data.datasets, overwrite=overwrite)
     else:
         store.write_subjects(data.datasets, overwrite=overwrite)

@@ -8,20 +8,31 @@ written last when a store is created, so its presence marks a complete store.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import shutil
 from pathlib import Path
 
 from facestats.core.version import __version__
 from facestats.errors import SchemaError, StoreError
-from facestats.io.index import INDEX_NAME, empty_index, is_index_temp, utc_now, write_index_file
-from facestats.io.layout import LOCK_NAME, ROOT_META, SUBJECTS, WRITERS, fsync_path, group_meta, write_json_atomic
+from facestats.io.index import INDEX_NAME, empty_index, is_index_temp, read_index_file, utc_now, write_index_file
+from facestats.io.layout import (
+    LOCK_NAME,
+    RECORDS,
+    ROOT_META,
+    SUBJECTS,
+    WRITERS,
+    fsync_path,
+    group_meta,
+    write_json_atomic,
+)
 from facestats.io.locking import FileLock
 from facestats.io.schema import SCHEMA_VERSION
 
-__all__ = ["create_store", "read_root_attrs"]
+__all__ = ["create_store", "read_root_attrs", "remove_empty_store", "new_store_guard"]
 
-_CREATION_LEFTOVERS = {LOCK_NAME, WRITERS, SUBJECTS, INDEX_NAME}
+_CREATION_LEFTOVERS = {LOCK_NAME, WRITERS, RECORDS, SUBJECTS, INDEX_NAME}
 
 
 def create_store(p: Path) -> None:
@@ -35,26 +46,53 @@ def create_store(p: Path) -> None:
     Raises
     ------
     StoreError
-        ``p`` cannot be created, or holds files that are not a store's.
+        ``p`` cannot be created, or holds files that are not a store's.  The
+        contents of an existing directory are checked *before* anything is
+        written to it, so a foreign directory never gets a lock file.
     """
+    _refuse_foreign(p)
     try:
         p.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise StoreError(f"cannot create store directory {p}: {exc.strerror}") from None
-    with FileLock(p / LOCK_NAME):
-        if (p / ROOT_META).exists():
-            return
-        extra = [n for n in os.listdir(p) if n not in _CREATION_LEFTOVERS and not is_index_temp(n)]
-        if extra:
-            raise StoreError(f"{p} exists, is not empty and is not a facestats store (contains {sorted(extra)[:5]})")
-        (p / WRITERS).mkdir(exist_ok=True)
-        (p / SUBJECTS).mkdir(exist_ok=True)
-        write_json_atomic(p / SUBJECTS / ROOT_META, group_meta())
-        if not (p / INDEX_NAME).exists():
-            write_index_file(p, empty_index(SCHEMA_VERSION, __version__))
-        attrs = {"facestats_schema": SCHEMA_VERSION, "facestats_version": __version__, "created": utc_now()}
-        write_json_atomic(p / ROOT_META, group_meta(attrs))  # last: its presence marks a complete store
-        fsync_path(p, directory=True)
+    try:
+        with FileLock(p / LOCK_NAME):
+            if (p / ROOT_META).exists():
+                return
+            _refuse_foreign(p)
+            _populate(p)
+    except OSError as exc:
+        raise StoreError(f"cannot create store {p}: {exc.strerror or exc}") from None
+
+
+def _refuse_foreign(p: Path) -> None:
+    """:class:`StoreError` if ``p`` exists and is not a directory, or holds anything but store-creation leftovers."""
+    if not p.exists() and not p.is_symlink():
+        return
+    if not p.is_dir():
+        raise StoreError(f"cannot create a store at {p}: it exists and is not a directory")
+    try:
+        names = os.listdir(p)
+    except OSError as exc:
+        raise StoreError(f"cannot create a store at {p}: {exc.strerror}") from None
+    if ROOT_META in names:
+        return
+    extra = [n for n in names if n not in _CREATION_LEFTOVERS and not is_index_temp(n)]
+    if extra:
+        raise StoreError(f"{p} exists, is not empty and is not a facestats store (contains {sorted(extra)[:5]})")
+
+
+def _populate(p: Path) -> None:
+    """Write the folders, the empty index and (last) the root group of a new store at ``p``."""
+    (p / WRITERS).mkdir(exist_ok=True)
+    (p / RECORDS).mkdir(exist_ok=True)
+    (p / SUBJECTS).mkdir(exist_ok=True)
+    write_json_atomic(p / SUBJECTS / ROOT_META, group_meta())
+    if not (p / INDEX_NAME).exists():
+        write_index_file(p, empty_index(SCHEMA_VERSION, __version__))
+    attrs = {"facestats_schema": SCHEMA_VERSION, "facestats_version": __version__, "created": utc_now()}
+    write_json_atomic(p / ROOT_META, group_meta(attrs))  # last: its presence marks a complete store
+    fsync_path(p, directory=True)
 
 
 def read_root_attrs(backend, label: str) -> dict:
@@ -78,7 +116,11 @@ def read_root_attrs(backend, label: str) -> dict:
         meta = json.loads(backend.read(ROOT_META))
     except FileNotFoundError:
         raise StoreError(f"{label} is not a facestats store: no root {ROOT_META}") from None
-    except ValueError as exc:
+    except OSError as exc:
+        raise StoreError(
+            f"{label}: cannot read the root {ROOT_META} ({exc.strerror or exc}); it must be a regular file"
+        ) from None
+    except (ValueError, UnicodeDecodeError, RecursionError) as exc:
         raise StoreError(f"{label}: root {ROOT_META} is not valid JSON ({exc})") from None
     if not isinstance(meta, dict) or meta.get("zarr_format") != 3 or meta.get("node_type") != "group":
         raise SchemaError(
@@ -86,7 +128,7 @@ def read_root_attrs(backend, label: str) -> dict:
             f"{meta.get('zarr_format') if isinstance(meta, dict) else '?'!r})"
         )
     attrs = meta.get("attributes") or {}
-    if "facestats_schema" not in attrs:
+    if not isinstance(attrs, dict) or "facestats_schema" not in attrs:
         raise StoreError(f"{label} is a Zarr group but not a facestats store (no facestats_schema attribute)")
     v = attrs["facestats_schema"]
     if v != SCHEMA_VERSION:
@@ -96,3 +138,59 @@ def read_root_attrs(backend, label: str) -> dict:
             f"{SCHEMA_VERSION}{hint}"
         )
     return attrs
+
+
+def remove_empty_store(p) -> bool:
+    """Remove the store at ``p`` if it is exactly an empty store (no subject, nothing but its own files).
+
+    Used to undo the creation of a store by a command that then failed.
+    Returns True if it was removed.
+    """
+    p = Path(p)
+    own = {ROOT_META, INDEX_NAME, LOCK_NAME, WRITERS, RECORDS, SUBJECTS}
+    try:
+        names = set(os.listdir(p))
+        if not names <= own or not (p / ROOT_META).is_file():
+            return False
+        with FileLock(p / LOCK_NAME, timeout=1):
+            if (p / INDEX_NAME).exists() and read_index_file(p)["subjects"]:
+                return False
+            for folder in (WRITERS, RECORDS):
+                if (p / folder).exists() and os.listdir(p / folder):
+                    return False
+            if (p / SUBJECTS).exists() and set(os.listdir(p / SUBJECTS)) - {ROOT_META}:
+                return False
+            for name in names - {LOCK_NAME}:
+                target = p / name
+                shutil.rmtree(target) if target.is_dir() and not target.is_symlink() else target.unlink()
+        (p / LOCK_NAME).unlink()
+        p.rmdir()
+    except (OSError, StoreError):
+        return False
+    return True
+
+
+@contextlib.contextmanager
+def new_store_guard(path):
+    """Undo the creation of the store at ``path`` if the block creates it and then fails while it is still empty.
+
+    A command that fails must leave no side effects; a store it created and
+    wrote nothing into is one (e.g. ``facestats edit ... --out-store NEW``
+    with an invalid argument found late).
+    """
+    created = []  # the store folder and the missing folders above it, innermost first
+    if path is not None:
+        p = Path(os.fspath(path)).absolute()
+        while not os.path.lexists(p) and p != p.parent:
+            created.append(p)
+            p = p.parent
+    try:
+        yield
+    except BaseException:
+        if created and remove_empty_store(created[0]):
+            for folder in created[1:]:
+                try:
+                    folder.rmdir()
+                except OSError:
+                    break
+        raise

@@ -16,15 +16,45 @@ Conventions follow docs/architecture.md: lengths in mm, σ in mm⁻¹, profiles 
 linear RGB on a ``channel`` dim with coords R, G, B; regions numbered as in
 Weyrich et al. 2006 Fig. 15 (0 = not face).  Every variable carries ``units``
 and ``long_name`` attributes.
+
+Every variable also has a **physical domain** (:data:`DOMAINS`), checked when a
+subject is written and by ``facestats validate``: map variables on the face
+texels (``region`` > 0; outside the face values carry no meaning), the others
+everywhere.  Infinite values are never in a domain; NaN only where a domain
+says so (a quantity that may be missing).  The bounds and where they come from:
+
+* ``albedo``, ``albedo_avg``, ``albedo_sample`` in [0, 1]: α is a total
+  diffuse reflectance (Weyrich eq. 9), which cannot exceed the incident energy;
+* ``ts_rho_s``, ``ts_sample_rho_s`` in [0, ρs,max] with ρs,max = 1/(4 F_r(0))
+  = 9.807 at η = 1.38: in the convention of eq. 12-13 as printed (D without
+  1/π, see :func:`facestats.model.brdf.torrance_sparrow`) the lobe's
+  directional albedo at normal incidence is 4 ρs F_r(0) for m ≲ 0.3
+  (numerical integral: 1.000 at m = 0.1, 1.002 at m = 0.3, less for rougher
+  lobes; ``tests/reliability/test_physics_domains.py``), so ρs,max reflects all
+  incident light;
+* ``ts_m``, ``ts_sample_m`` in (0, 10]: the Beckmann RMS slope (eq. 13) is
+  positive; 10 (a mean facet slope of 84°) is far beyond skin (fitted 0.1-0.7,
+  the fitter's bound is 1) and beyond where V-groove facets mean anything, so
+  larger values are refused as corrupt rather than physics;
+* ``bp_rho_s`` in [0, 1]: eq. 11's normalisation is chosen so that ρs = 1
+  reflects 100 % of the energy (Weyrich §5.3); ``bp_exponent`` n ≥ 0 (cosⁿ δ
+  diverges at δ = 90° for n < 0);
+* σ's, σa ≥ 0 and σtr > 0 (mm⁻¹; eq. 15 with σa, σ's ≥ 0), their standard
+  errors ≥ 0; normals have components in [-1, 1]; fit errors E(p) ≥ 0 (eq.
+  14); flags hold the bits of :data:`FLAG_BITS`; sample counts ≥ 0;
+* ``sensor_profile`` is only required to be finite: a dark-subtracted HDR
+  profile may dip slightly below zero in its noise.
 """
 
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 
 import numpy as np
 
 from facestats.core.conventions import CHANNELS, CONDITIONS, FLAG_BITS, GENDERS, REGIONS, SITES
+from facestats.core.published import ETA_SKIN
 from facestats.errors import SchemaError
 
 __all__ = [
@@ -33,6 +63,11 @@ __all__ = [
     "MAP_REQUIRED",
     "SAMPLE_REQUIRED",
     "FLAG_BITS",
+    "Domain",
+    "DOMAINS",
+    "TS_RHO_S_MAX",
+    "M_MAX",
+    "check_domain",
     "subject_kind",
     "validate_subject",
     "set_variable_attrs",
@@ -84,6 +119,125 @@ VARIABLES = {
     "albedo_sample": (("albedo_sample", "channel"), "1", "albedo of one sampled vertex"),
     "albedo_sample_region": (("albedo_sample",), "1", "region of the albedo sample"),
 }
+
+
+@dataclass(frozen=True)
+class Domain:
+    """The values a variable may hold: ``low``/``high`` bounds (None: unbounded), open or closed, NaN or not."""
+
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    nan: bool = False
+
+    def describe(self) -> str:
+        lo = "-inf" if self.low is None else f"{self.low:g}"
+        hi = "inf" if self.high is None else f"{self.high:g}"
+        return (
+            ("(" if self.low_open or self.low is None else "[")
+            + f"{lo}, {hi}"
+            + ("]" if self.high is not None else ")")
+        )
+
+    def violated(self, value: float) -> str:
+        """The bound a single value outside the domain breaks, as text: ``"> 0"``, ``">= 0"`` or ``"<= 9.8"``."""
+        if self.low is not None and (value <= self.low if self.low_open else value < self.low):
+            return f"{'>' if self.low_open else '>='} {self.low:g}"
+        if self.high is not None and value > self.high:
+            return f"<= {self.high:g}"
+        return "finite" if not np.isnan(value) or not self.nan else self.describe()
+
+    def outside(self, values: np.ndarray) -> np.ndarray:
+        """Boolean mask of the values outside the domain (inf always; NaN unless allowed)."""
+        v = np.asarray(values)
+        if v.dtype.kind not in "fiub":
+            return np.zeros(v.shape, bool)
+        v = v.astype(np.float64, copy=False)
+        bad = np.isinf(v) | (np.isnan(v) & (not self.nan))
+        with np.errstate(invalid="ignore"):
+            if self.low is not None:
+                bad |= (v <= self.low) if self.low_open else (v < self.low)
+            if self.high is not None:
+                bad |= v > self.high
+        return bad
+
+
+#: Torrance-Sparrow ρs that reflects all light at normal incidence: 1/(4 F_r(0)), F_r(0) = ((η−1)/(η+1))², η = 1.38.
+TS_RHO_S_MAX = 1.0 / (4.0 * ((ETA_SKIN - 1.0) / (ETA_SKIN + 1.0)) ** 2)
+
+#: Largest Beckmann roughness m a store accepts (module docstring).
+M_MAX = 10.0
+
+_NONNEG = Domain(0.0)
+_NONNEG_OR_MISSING = Domain(0.0, nan=True)
+_FLAGS = Domain(0, sum(FLAG_BITS.values()))
+_REGION = Domain(0, max(REGIONS))
+_SAMPLE_REGION = Domain(1, max(REGIONS))
+_UNIT_COMPONENT = Domain(-1.0 - 1e-6, 1.0 + 1e-6, nan=True)
+
+#: Physical domain of every variable of :data:`VARIABLES` (module docstring: where each bound comes from).
+DOMAINS = {
+    "region": _REGION,
+    "albedo": Domain(0.0, 1.0),
+    "modulation": _NONNEG,
+    "normal": _UNIT_COMPONENT,
+    "micro_normal": _UNIT_COMPONENT,
+    "n_samples": _NONNEG,
+    "ts_rho_s": Domain(0.0, TS_RHO_S_MAX),
+    "ts_m": Domain(0.0, M_MAX, low_open=True),
+    "ts_error": _NONNEG_OR_MISSING,
+    "ts_flag": _FLAGS,
+    "bp_rho_s": Domain(0.0, 1.0),
+    "bp_exponent": _NONNEG,
+    "bp_error": _NONNEG_OR_MISSING,
+    "bp_flag": _FLAGS,
+    "sensor_profile": Domain(nan=True),
+    "sensor_profile_std": _NONNEG_OR_MISSING,
+    "site_sigma_s_prime": _NONNEG_OR_MISSING,
+    "site_sigma_a": _NONNEG_OR_MISSING,
+    "site_sigma_tr": _NONNEG_OR_MISSING,
+    "site_sigma_s_prime_std": _NONNEG_OR_MISSING,
+    "site_sigma_a_std": _NONNEG_OR_MISSING,
+    "site_sigma_tr_std": _NONNEG_OR_MISSING,
+    "albedo_avg": Domain(0.0, 1.0),
+    "sigma_s_prime": _NONNEG,
+    "sigma_a": _NONNEG,
+    "sigma_tr": Domain(0.0, low_open=True),
+    "ts_sample_m": Domain(0.0, M_MAX, low_open=True),
+    "ts_sample_rho_s": Domain(0.0, TS_RHO_S_MAX),
+    "ts_sample_region": _SAMPLE_REGION,
+    "albedo_sample": Domain(0.0, 1.0),
+    "albedo_sample_region": _SAMPLE_REGION,
+}
+
+
+def check_domain(name: str, values, *, what: str, unit: str | None = None) -> None:
+    """Raise :class:`SchemaError` if ``values`` of variable ``name`` leave its domain (:data:`DOMAINS`).
+
+    Parameters
+    ----------
+    name : str
+        A variable of :data:`DOMAINS`.
+    values : array_like
+        The values to check (for maps: the face texels).
+    what : str
+        Whose values they are, for the message (e.g. ``"subject 'S001'"``).
+    unit : str, optional
+        Units for the message (default: the variable's).
+    """
+    domain = DOMAINS[name]
+    v = np.asarray(values)
+    bad = domain.outside(v)
+    if bad.any():
+        first = v[bad].reshape(-1)[0].item()
+        unit = VARIABLES[name][1] if unit is None else unit
+        unit_s = "" if unit == "1" else f" {unit}"
+        raise SchemaError(
+            f"{what}: variable {name!r} must lie in {domain.describe()}{unit_s}"
+            + (" or be NaN (missing)" if domain.nan else "")
+            + f", got {first!r} ({int(bad.sum())} value(s) outside)"
+        )
+
 
 #: Variables a map subject must have.
 MAP_REQUIRED = ("region", "albedo", "ts_rho_s", "ts_m", "ts_flag", "bp_rho_s", "bp_exponent", "bp_flag", "albedo_avg")
@@ -207,7 +361,8 @@ def validate_subject(ds, *, name: str | None = None):
 
     Checks: required attributes and their values, the variables of its kind, the
     dims of every known variable, coords of ``channel``/``site``, finite values in
-    the face for the fitted maps, region labels in 0-10.
+    the face for the fitted maps, region labels in 0-10, and every known
+    variable inside its physical domain (:data:`DOMAINS`; maps on the face).
 
     Parameters
     ----------
@@ -230,6 +385,7 @@ def validate_subject(ds, *, name: str | None = None):
         _check_maps(ds, label)
     else:
         _check_samples(ds, label)
+    _check_domains(ds, label, kind)
     return kind
 
 
@@ -238,16 +394,17 @@ def _check_attrs(ds, label) -> None:
     for key in REQUIRED_ATTRS:
         if key not in ds.attrs:
             raise SchemaError(f"subject {label!r}: missing attribute {key!r}")
-    if ds.attrs["gender"] not in GENDERS:
+    if not isinstance(ds.attrs["gender"], str) or ds.attrs["gender"] not in GENDERS:
         raise SchemaError(f"subject {label!r}: attribute gender must be one of {GENDERS}, got {ds.attrs['gender']!r}")
-    if int(ds.attrs["skin_type"]) not in range(1, 7):
-        raise SchemaError(f"subject {label!r}: attribute skin_type must be 1-6, got {ds.attrs['skin_type']!r}")
-    if ds.attrs["condition"] not in CONDITIONS:
+    st = ds.attrs["skin_type"]
+    if isinstance(st, (bool, np.bool_)) or not isinstance(st, (int, np.integer)) or int(st) not in range(1, 7):
+        raise SchemaError(f"subject {label!r}: attribute skin_type must be an integer 1-6, got {st!r}")
+    if not isinstance(ds.attrs["condition"], str) or ds.attrs["condition"] not in CONDITIONS:
         raise SchemaError(
             f"subject {label!r}: attribute condition must be one of {CONDITIONS}, got {ds.attrs['condition']!r}"
         )
     age = ds.attrs["age"]
-    if not (isinstance(age, (int, np.integer)) and 0 <= int(age) <= 200):
+    if isinstance(age, (bool, np.bool_)) or not (isinstance(age, (int, np.integer)) and 0 <= int(age) <= 200):
         raise SchemaError(f"subject {label!r}: attribute age must be an integer in 0-200 years, got {age!r}")
 
 
@@ -291,3 +448,16 @@ def _check_samples(ds, label) -> None:
     reg = np.asarray(ds["ts_sample_region"].values)
     if reg.size and (reg.min() < 1 or reg.max() > max(REGIONS)):
         raise SchemaError(f"subject {label!r}: ts_sample_region must be 1-10, got {int(reg.min())}..{int(reg.max())}")
+
+
+def _check_domains(ds, label, kind) -> None:
+    """Every known variable inside its physical domain (:data:`DOMAINS`); maps on the face texels only."""
+    face = np.asarray(ds["region"].values) > 0 if kind == "maps" else None
+    for name in ds.variables:
+        if name not in DOMAINS or name == "region":
+            continue
+        values = np.asarray(ds[name].values)
+        dims = tuple(ds[name].dims)
+        if face is not None and "v" in dims and "u" in dims:
+            values = np.moveaxis(values, [dims.index("v"), dims.index("u")], [0, 1])[face]
+        check_domain(name, values, what=f"subject {label!r}")

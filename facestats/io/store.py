@@ -13,31 +13,27 @@ alone (``store.subject(id, lazy=True).isel(v=slice(0, 64))``).
 
 Writes
 ------
-Each write of a subject creates a *fresh generation* directory
-``subjects/<id>/<generation>/``, fills and ``fsync``-s it
-(:mod:`facestats.io.generations`), and only then commits by replacing
-``index.json`` atomically under the store lock.  The index names the current
-generation of each subject, so a reader never sees a generation that is being
-written, and a writer killed at any moment leaves the previous index, i.e. the
-old subject (or none) or the new one, never half of one.  Superseded
-generations are deleted after the commit (renamed aside first, so they vanish
-atomically); generations left by crashed writers are *orphans*, removed by
-:meth:`Store.gc` / ``facestats validate --repair`` (:mod:`facestats.io.maintenance`),
-which never touch a generation whose writer is still alive (each writer holds
-a lock on ``.writers/<id>~<generation>.lock`` until its commit is done).
-Several processes may write at once: data are written in parallel, commits are
-serialised by the store lock, and each commit re-reads the index so no
-writer's update is lost.  A batch (:meth:`Store.write_subjects`) commits all of
-its subjects at once.
+Each write creates a *fresh generation* ``subjects/<id>/<generation>/`` with
+its record (:mod:`facestats.io.generations`, :mod:`facestats.io.records`) and
+commits by replacing ``index.json`` atomically under the store lock
+(:mod:`facestats.io.commit`): a writer killed at any moment leaves the old
+subject (or none) or the new one.  Writers write in parallel, commits are
+serialised and re-read the index (no lost update); a batch
+(:meth:`Store.write_subjects`) commits all its subjects at once.
+:meth:`Store.gc`, :meth:`Store.validate`, :meth:`Store.plan_repair`,
+:meth:`Store.repair` and the quarantine (:mod:`facestats.io.maintenance`,
+:mod:`facestats.io.repair`, :mod:`facestats.io.quarantine`) never touch a live
+writer's data, what the store did not create, or anything outside it; repair
+never deletes data.  Design: ``docs/store.md``.
 
 Reads
 -----
-Readers take the current index, then open the generation it names; if that
-generation disappears under them (a concurrent writer replaced the subject)
-they retry with the new index.  Every subject read is checked
+Readers take the current index (every entry checked) and open the generation it
+names, retrying if a concurrent writer replaced it.  Every read verifies
 (:func:`facestats.io.integrity.open_generation`): manifest, dims, shapes,
-dtypes, CRC-32 of the bytes unless ``lazy=True``, then the schema.  Problems
-raise :class:`~facestats.errors.SchemaError` naming the subject and the variable.
+dtypes, CRC-32 of the bytes (lazy reads chunk by chunk as they load), the
+schema and its physical domains; problems raise
+:class:`~facestats.errors.SchemaError` naming the subject and the variable.
 
 ``open_store(None)`` opens the embedded default, ``facestats/data/default_store.zip``.
 ``open_store``, :meth:`Store.query`, :meth:`Store.info` and the index import
@@ -54,10 +50,10 @@ from pathlib import Path
 import numpy as np
 
 from facestats.core.validate import check_choice
-from facestats.core.version import __version__
 from facestats.errors import SchemaError, StoreError, ValidationError
 from facestats.io.backends import DirectoryBackend, ZipBackend
 from facestats.io.batch import batch_commit, prepare_batch, refuse_existing
+from facestats.io.commit import commit_index, generations_of
 from facestats.io.generations import (
     MAP_CHUNK_ROWS,
     abandon_generations,
@@ -66,25 +62,21 @@ from facestats.io.generations import (
     reserve_generation,
     write_generation,
 )
-from facestats.io.index import INDEX_NAME, index_table, parse_index, read_index_file, utc_now, write_index_file
+from facestats.io.ids import check_subject_id
+from facestats.io.index import INDEX_NAME, index_table, parse_index, read_index_file, utc_now
 from facestats.io.integrity import STORE_ATTR, open_generation
-from facestats.io.layout import ROOT_META, SUBJECTS, group_meta, store_lock, write_json_atomic
+from facestats.io.layout import ROOT_META, generation_rel, is_plain_dir, store_lock
 from facestats.io.locking import FileLock
-from facestats.io.maintenance import (
-    ValidationReport,
-    check_subjects,
-    collect_garbage,
-    index_repairs,
-    list_orphans,
-    orphan_note,
-    rebuild_index,
-)
+from facestats.io.maintenance import ValidationReport, check_subjects, collect_garbage, directory_notes
+from facestats.io.quarantine import list_quarantine, purge_quarantine
+from facestats.io.repair import RepairPlan, apply_repair, plan_repair
 from facestats.io.root import create_store, read_root_attrs
 from facestats.io.schema import SCHEMA_VERSION
 
 __all__ = [
     "Store",
     "ValidationReport",
+    "RepairPlan",
     "open_store",
     "default_store_path",
     "MAP_CHUNK_ROWS",
@@ -122,24 +114,12 @@ def open_store(path=None, mode: str = "r", *, lock_timeout: float = 60.0) -> "St
     """
     check_choice(mode, "mode", ("r", "r+", "a"))
     if path is None:
-        zp = default_store_path()
-        if not zp.is_file():
-            raise StoreError(
-                f"the embedded default store has not been built ({zp} is missing); build it with "
-                "`facestats build` or pass --store PATH to use another store"
-            )
-        if mode != "r":
-            raise StoreError("the embedded default store is read-only; pass --store PATH to write to a directory store")
-        return Store(ZipBackend(str(zp)), read_only=True, label="default", lock_timeout=lock_timeout)
-    p = Path(path).expanduser()
+        return _open_default(mode, lock_timeout)
+    p = _store_path(path)
+    if p.exists() and not (p.is_file() or p.is_dir()):
+        raise StoreError(f"store {p} is neither a directory nor a zip file (it is a FIFO, socket or device)")
     if p.is_file():
-        if not zipfile.is_zipfile(p):
-            raise StoreError(f"{p} is neither a store directory nor a zip store")
-        if mode != "r":
-            raise StoreError(
-                f"zip store {p} is read-only; write to a directory store (e.g. --store {p.with_suffix('.zarr')})"
-            )
-        return Store(ZipBackend(str(p)), read_only=True, label=str(p), lock_timeout=lock_timeout)
+        return _open_zip(p, mode, lock_timeout)
     if not p.exists() or (p.is_dir() and not (p / ROOT_META).exists()):
         if mode != "a":
             what = "does not exist" if not p.exists() else "is not a facestats store (no zarr.json)"
@@ -148,6 +128,40 @@ def open_store(path=None, mode: str = "r", *, lock_timeout: float = 60.0) -> "St
             raise StoreError(f"cannot create zip store {p}: create a directory store and pack it with pack_store")
         create_store(p)
     return Store(DirectoryBackend(str(p)), read_only=(mode == "r"), label=str(p), lock_timeout=lock_timeout)
+
+
+def _open_default(mode: str, lock_timeout: float) -> "Store":
+    zp = default_store_path()
+    if not zp.is_file():
+        raise StoreError(
+            f"the embedded default store has not been built ({zp} is missing); build it with "
+            "`facestats build` or pass --store PATH to use another store"
+        )
+    if mode != "r":
+        raise StoreError("the embedded default store is read-only; pass --store PATH to write to a directory store")
+    return Store(ZipBackend(str(zp)), read_only=True, label="default", lock_timeout=lock_timeout)
+
+
+def _open_zip(p: Path, mode: str, lock_timeout: float) -> "Store":
+    if not zipfile.is_zipfile(p):
+        raise StoreError(f"{p} is neither a store directory nor a zip store")
+    if mode != "r":
+        raise StoreError(
+            f"zip store {p} is read-only; write to a directory store (e.g. --store {p.with_suffix('.zarr')})"
+        )
+    return Store(ZipBackend(str(p)), read_only=True, label=str(p), lock_timeout=lock_timeout)
+
+
+def _store_path(path) -> Path:
+    """``path`` as a :class:`~pathlib.Path`; :class:`ValidationError` unless it is a non-empty str or path-like."""
+    if isinstance(path, bytes):
+        path = os.fsdecode(path)
+    if not isinstance(path, (str, os.PathLike)):
+        raise ValidationError(f"path must be a store path (str or os.PathLike) or None, got {type(path).__name__}")
+    text = os.fspath(path)
+    if not text.strip() or "\x00" in text:
+        raise ValidationError(f"path must name a store (a directory or a zip file), got {text!r}")
+    return Path(text).expanduser()
 
 
 # -- the store ---------------------------------------------------------------------
@@ -383,9 +397,10 @@ class Store:
         superseded = []
         try:
             for sid, ds, _, _ in prepared:
-                gen, lock = reserve_generation(self.path, sid)
-                written.append((sid, gen, lock, utc_now()))
-                write_generation(self.path, sid, gen, ds, written[-1][3])
+                when = utc_now()
+                gen, lock = reserve_generation(self.path, sid, when)
+                written.append((sid, gen, lock, when))
+                write_generation(self.path, sid, gen, ds, when)
             self._commit(batch_commit(prepared, written, overwrite, superseded))
         except BaseException:
             abandon_generations(self.path, written)
@@ -399,7 +414,7 @@ class Store:
     def delete_subject(self, subject_id) -> None:
         """Remove a subject (atomic: the index drops it, then its data are deleted)."""
         self._require_writable()
-        sid = str(subject_id)
+        sid = check_subject_id(subject_id)
         gone = []
 
         def mutate(index):
@@ -411,25 +426,17 @@ class Store:
         self._remove_generation(sid, gone[0])
 
     def _commit(self, mutate):
-        """Apply ``mutate(index)`` to a fresh copy of the index and replace it atomically, under the lock."""
-        root = self.path
+        """Apply ``mutate(index)`` to a fresh copy of the index and commit it (:mod:`facestats.io.commit`)."""
         with self._lock():
-            index = read_index_file(root)
+            index = read_index_file(self.path)
+            before = generations_of(index)
             result = mutate(index)
-            for sid in index["subjects"]:
-                node = os.path.join(root, SUBJECTS, sid, ROOT_META)
-                if not os.path.exists(node):
-                    write_json_atomic(node, group_meta())
-            index["revision"] = int(index.get("revision", 0)) + 1
-            index["updated"] = utc_now()
-            index["facestats_version"] = __version__
-            write_index_file(root, index)
-            if self.root_attrs.get("facestats_version") != __version__:
-                attrs = dict(self.root_attrs, facestats_version=__version__)
-                write_json_atomic(os.path.join(root, ROOT_META), group_meta(attrs))
-                self.root_attrs = attrs
-                self.writer_version = __version__
+            self._set_root_attrs(commit_index(self.path, index, before, self.root_attrs, label=self.label))
         return result
+
+    def _set_root_attrs(self, attrs: dict) -> None:
+        self.root_attrs = attrs
+        self.writer_version = str(attrs.get("facestats_version", "unknown"))
 
     def _remove_generation(self, sid: str, gen: str) -> None:
         """Delete an unreferenced generation: rename it aside (atomic), then remove it."""
@@ -437,30 +444,38 @@ class Store:
 
     # -- maintenance ---------------------------------------------------------------
     def gc(self) -> list[str]:
-        """Remove what interrupted writers left (orphaned generations, temporary files, stale locks).
+        """Remove what interrupted writers left (their generations, temporary files, stale locks).
 
-        Never removes a generation the index references or one whose writer
-        is still running (its writer lock is held).  Decisions are taken under
-        the store lock, so no commit can reference a generation being removed.
+        Removes only what is provably the store's own and of no use
+        (:func:`facestats.io.maintenance.survey`): never a generation the
+        index names, one whose writer is still running, a committed one the
+        index lost (repair recovers it), nor anything the store did not
+        create (links, other files); decisions are taken under the store lock.
         Returns the removed paths relative to the store.
         """
         self._require_writable()
         return collect_garbage(self.path, self._lock())
 
-    def validate(self, *, repair: bool = False) -> ValidationReport:
+    def validate(
+        self, *, repair: bool = False, allow_missing: bool = False, progress: bool = False
+    ) -> ValidationReport:
         """Check every subject and the agreement of the index with the data.
 
         Each indexed subject is opened (group present, manifest, dims, CRC-32,
-        schema) and its index row and histograms are recomputed and compared.
-        With ``repair=True`` (directory stores): a missing or unreadable index
-        is rebuilt from the newest intact generation of each subject; subjects
-        whose data are broken are dropped from the index; disagreeing rows are
-        recomputed; then :meth:`gc` removes orphans.
+        schema and physical domains) and its index row and histograms are
+        recomputed and compared; leftovers, items that are not the store's and
+        the quarantine are reported as notes.  ``repair=True`` applies the
+        repair plan (:meth:`plan_repair`, :meth:`repair`) and reports the state
+        after it.
 
         Parameters
         ----------
         repair : bool
-            Repair what can be repaired (directory stores opened read-write).
+            Apply the repair (directory stores opened read-write).
+        allow_missing : bool
+            With ``repair``: act even if most subject folders are missing (:meth:`plan_repair`).
+        progress : bool
+            Show a progress bar while the subjects are checked.
 
         Returns
         -------
@@ -468,43 +483,99 @@ class Store:
             After a repair, the problems and notes of a second validation.
         """
         if repair:
-            self._require_writable()
+            return self.repair(allow_missing=allow_missing, progress=progress)
         report = ValidationReport(path=self.label)
         try:
             index = self._index()
-        except StoreError as exc:
+        except StoreError as exc:  # includes SchemaError
             report.problems.append(str(exc))
-            if not repair:
-                return report
-            index = self._rebuild_index(report)
+            self._directory_notes(report, None)
+            return report
         report.n_subjects = len(index["subjects"])
-        drop, fix = check_subjects(index, self._open_generation, report)
-        orphans = list_orphans(self.path, index) if self.kind == "directory" else []
-        if orphans:
-            report.notes.append(orphan_note(orphans))
-        if repair:
-            self._repair(report, drop, fix)
+        exists = None
+        if self.kind == "directory":
+
+            def exists(sid, gen):
+                return is_plain_dir(os.path.join(self.path, generation_rel(sid, gen)))
+
+        reread = self._fresh_entries
+        check_subjects(index, self._open_generation, report, reread=reread, generation_exists=exists, progress=progress)
+        self._directory_notes(report, index)
         return report
 
-    def _rebuild_index(self, report: ValidationReport) -> dict:
-        """Replace a lost index by one rebuilt from the subject groups; the new index."""
-        with self._lock():
-            index, notes = rebuild_index(self.path, self._open_generation)
-            write_index_file(self.path, index)
-        report.repaired.append(f"rebuilt {INDEX_NAME} with {len(index['subjects'])} subject(s)")
-        report.repaired += notes
-        return self._index()
+    def _fresh_entries(self) -> dict:
+        """The entries of the index as it is now (empty if it cannot be read)."""
+        try:
+            return self._index()["subjects"]
+        except StoreError:
+            return {}
 
-    def _repair(self, report: ValidationReport, drop: dict, fix: dict) -> None:
-        """Commit the repairs :meth:`validate` found, collect garbage, and report the state after."""
-        if drop or fix:
-            self._commit(index_repairs(drop, fix, report))
+    def _directory_notes(self, report: ValidationReport, index) -> None:
+        """Problems and notes of a directory store beyond its subjects (:mod:`facestats.io.maintenance`)."""
+        if self.kind == "directory":
+            problems, notes = directory_notes(self.path, self.label, index)
+            report.problems += problems
+            report.notes += notes
+
+    def plan_repair(self, *, allow_missing: bool = False, progress: bool = False) -> RepairPlan:
+        """What :meth:`repair` would do, without changing anything (:mod:`facestats.io.repair`).
+
+        Parameters
+        ----------
+        allow_missing : bool
+            Plan even if the folders of most indexed subjects are missing (otherwise the store looks
+            unmounted or half-present and repair refuses).
+        progress : bool
+            Show a progress bar while the subjects are checked.
+
+        Raises
+        ------
+        StoreError
+            A zip store, or a store repair refuses to act on (the message says why).
+        """
+        if self.kind != "directory":
+            raise StoreError(f"store {self.label} is a read-only zip store: it cannot be repaired")
+        return plan_repair(
+            self.path,
+            label=self.label,
+            open_generation=self._open_generation,
+            allow_missing=allow_missing,
+            progress=progress,
+        )
+
+    def repair(
+        self, plan: RepairPlan | None = None, *, allow_missing: bool = False, progress: bool = False
+    ) -> ValidationReport:
+        """Apply a repair plan (default: :meth:`plan_repair` now), collect garbage, and validate again.
+
+        Damaged data are moved to the quarantine (``quarantine/``, listed by
+        :meth:`validate`, deleted only by :meth:`purge_quarantine`), never
+        deleted; see :mod:`facestats.io.repair` for the rules.
+
+        Returns
+        -------
+        ValidationReport
+            ``repaired`` lists what was done; problems and notes are those of the validation after it.
+        """
+        self._require_writable()
+        plan = self.plan_repair(allow_missing=allow_missing, progress=progress) if plan is None else plan
+        done, attrs = apply_repair(self.path, plan, label=self.label, lock=self._lock(), root_attrs=self.root_attrs)
+        self._set_root_attrs(attrs)
         removed = self.gc()
         if removed:
-            report.repaired.append(f"removed {len(removed)} orphaned item(s)")
-        after = self.validate()
-        report.problems, report.notes = after.problems, after.notes
-        report.n_subjects, report.n_checked = after.n_subjects, after.n_checked
+            done.append(f"removed {len(removed)} leftover item(s) of interrupted writes")
+        report = self.validate()
+        report.repaired = done
+        return report
+
+    def quarantine(self) -> list[dict]:
+        """The folders repairs moved data into (:func:`facestats.io.quarantine.list_quarantine`)."""
+        return list_quarantine(self.path) if self.kind == "directory" else []
+
+    def purge_quarantine(self, names=None) -> list[str]:
+        """Delete the quarantine (all folders, or those named); the folders removed."""
+        self._require_writable()
+        return purge_quarantine(self.path, names)
 
     def info(self) -> dict:
         """Summary of the store: versions, counts by skin type/gender/condition/kind/age, size on disk."""

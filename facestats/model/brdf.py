@@ -23,7 +23,7 @@ import numpy as np
 
 from facestats.core.blocked import blockwise, components
 from facestats.core.published import ETA_SKIN
-from facestats.core.validate import as_finite, check_shape, result_dtype
+from facestats.core.validate import as_finite, as_float, check_shape, finite_result, result_dtype
 from facestats.errors import ValidationError
 from facestats.model.fresnel import check_eta, fresnel_reflectance_unchecked
 
@@ -64,7 +64,7 @@ def half_vector(wi, wo):
     above the horizon, where it is always defined.  No input checks: ``wi`` and
     ``wo`` are unit vectors on the last axis, broadcast against each other.
     """
-    h = np.asarray(wi) + np.asarray(wo)
+    h = as_float(wi, "wi") + as_float(wo, "wo")
     with np.errstate(invalid="ignore", divide="ignore"):
         return h / np.sqrt(_dot(h, h))[..., None]
 
@@ -169,7 +169,8 @@ def torrance_sparrow_geometry(normal, wi, wo, eta=ETA_SKIN):
 
     so a fitter can evaluate the model for many (ρs, m) at the cost of one
     exponential per sample.  K = 0 where ωi or ωo is at or below the horizon.
-    No input checks: callers pass unit vectors (see :func:`torrance_sparrow`).
+    Only the types are checked (numeric arrays, :class:`~facestats.errors.ValidationError`
+    otherwise): callers pass unit vectors (see :func:`torrance_sparrow`).
 
     Returns
     -------
@@ -178,6 +179,8 @@ def torrance_sparrow_geometry(normal, wi, wo, eta=ETA_SKIN):
     k : ndarray
         The factor K in sr⁻¹ (before multiplication by D), same broadcast shape.
     """
+    normal, wi, wo = (as_float(v, name) for v, name in ((normal, "normal"), (wi, "wi"), (wo, "wo")))
+    eta = as_float(eta, "eta")
     dtype = result_dtype(normal, wi, wo)
     ops = [*components(normal), *components(wi), *components(wo), eta]
     return blockwise(_ts_geometry_kernel, ops, dtype, n_out=2)
@@ -223,12 +226,20 @@ def blinn_phong(normal, wi, wo, rho_s, exponent):
     -------
     ndarray
         BRDF in sr⁻¹, broadcast shape of the inputs without the vector axis.
+
+    Raises
+    ------
+    ValidationError
+        Invalid arguments, or finite arguments whose BRDF leaves the float range
+        (e.g. ρs = 1e308): every finite input gives a finite BRDF or this error.
     """
     normal, wi, wo, rho_s = _check_common(normal, wi, wo, rho_s)
     exponent = as_finite(exponent, "exponent", 0, None)
     dtype = result_dtype(normal, wi, wo, rho_s, exponent)
     ops = [*components(normal), *components(wi), *components(wo), rho_s, exponent]
-    return blockwise(_bp_kernel, ops, dtype)
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = blockwise(_bp_kernel, ops, dtype)
+    return finite_result(out, "blinn_phong", rho_s=rho_s, exponent=exponent)
 
 
 def _bp_kernel(nx, ny, nz, ix, iy, iz, ox, oy, oz, rho_s, exponent):
@@ -277,13 +288,22 @@ def torrance_sparrow(normal, wi, wo, rho_s, m, eta=ETA_SKIN):
     -------
     ndarray
         BRDF in sr⁻¹, broadcast shape of the inputs without the vector axis.
+
+    Raises
+    ------
+    ValidationError
+        Invalid arguments, or finite arguments whose BRDF leaves the float range
+        (e.g. ρs = 1e308, or m = 1e-200, whose peak 1/m² no float holds):
+        every finite input gives a finite BRDF or this error, never inf or NaN.
     """
     normal, wi, wo, rho_s = _check_common(normal, wi, wo, rho_s)
     m = as_finite(m, "m", 0, None, low_inclusive=False)
     eta_a = check_eta(eta)
     dtype = result_dtype(normal, wi, wo, rho_s, m, eta)
     ops = [*components(normal), *components(wi), *components(wo), eta_a, rho_s, m]
-    return blockwise(_ts_kernel, ops, dtype)
+    with np.errstate(over="ignore", invalid="ignore", under="ignore", divide="ignore"):
+        out = blockwise(_ts_kernel, ops, dtype)
+    return finite_result(out, "torrance_sparrow", rho_s=rho_s, m=m)
 
 
 def _ts_kernel(nx, ny, nz, ix, iy, iz, ox, oy, oz, eta, rho_s, m):

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.core.conventions import CHANNELS
+from facestats.core.outputs import OutputSet, check_output_file
 from facestats.core.published import ETA_SKIN, SIGMA_TR_AVG
 from facestats.core.validate import as_finite, as_float, check_shape
 from facestats.model import dipole
@@ -102,12 +103,20 @@ def physics_demo(albedo=None, sigma_tr=None, eta: float = ETA_SKIN, plot: str | 
     eta : float
         Relative index of refraction.
     plot : str, optional
-        Path of an image file for :func:`plot_dipole_profiles`.
+        Path of an image file for :func:`plot_dipole_profiles`, with a suffix
+        matplotlib can write (``.png``, ``.svg``, ``.pdf``, ...); checked
+        before anything is computed, written all or nothing
+        (:mod:`facestats.core.outputs`).
 
     Returns
     -------
     DemoReport
     """
+    if plot:
+        from matplotlib.backend_bases import FigureCanvasBase
+
+        formats = [f".{k}" for k in FigureCanvasBase.get_supported_filetypes()]
+        plot = check_output_file(plot, "plot", suffixes=formats)
     a = light_skin_albedo() if albedo is None else check_shape(as_float(albedo, "albedo"), "albedo", (3,))
     t = SIGMA_TR_AVG.copy() if sigma_tr is None else check_shape(as_float(sigma_tr, "sigma_tr"), "sigma_tr", (3,))
     s_prime, s_a = dipole.scattering_from_albedo(a, t, eta)
@@ -121,9 +130,12 @@ def physics_demo(albedo=None, sigma_tr=None, eta: float = ETA_SKIN, plot: str | 
         total_reflectance=dipole.total_diffuse_reflectance(s_prime, s_a, eta),
     )
     if plot:
-        fig = plot_dipole_profiles(report)
-        fig.savefig(plot, dpi=120)
         import matplotlib.pyplot as plt
 
-        plt.close(fig)
+        fig = plot_dipole_profiles(report)
+        try:
+            with OutputSet(plot.parent) as out:
+                fig.savefig(out.path(plot.name), dpi=120)
+        finally:
+            plt.close(fig)
     return report

@@ -27,7 +27,7 @@ import numpy as np
 
 from facestats.core.blocked import blockwise
 from facestats.core.published import ETA_SKIN
-from facestats.core.validate import as_finite, as_float, check_range, result_dtype
+from facestats.core.validate import as_finite, as_float, check_range, finite_result, result_dtype
 from facestats.errors import FitError, ValidationError
 from facestats.model.fresnel import check_eta, diffuse_fresnel_reflectance_unchecked
 
@@ -47,7 +47,7 @@ def dipole_coefficients(sigma_s_prime, sigma_a):
     """Validate (σ's, σa) in mm⁻¹: finite, ≥ 0, and not both 0 anywhere."""
     s = as_finite(sigma_s_prime, "sigma_s_prime", 0, None, unit="mm^-1")
     a = as_finite(sigma_a, "sigma_a", 0, None, unit="mm^-1")
-    if np.any((s + a) <= 0):
+    if np.any((s <= 0) & (a <= 0)):
         raise ValidationError(
             "sigma_s_prime + sigma_a must be > 0 mm^-1 "
             "(a medium that neither scatters nor absorbs has no dipole), got 0"
@@ -82,10 +82,17 @@ def boundary_coefficient(eta=ETA_SKIN):
 
 
 def _dipole_terms(sigma_s_prime, sigma_a, eta):
-    """σtr, z_r, z_v and α' of the dipole (Suzuki eq. 6-12); no checks."""
+    """σtr, z_r, z_v and α' of the dipole (Suzuki eq. 6-12); no checks.
+
+    Where the product 3 σa σ't overflows (coefficients near the float range), σtr
+    is formed as sqrt(3 σa) sqrt(σ't) instead: the same number without the
+    overflow (elsewhere the product form, bit for bit as before).
+    """
     sigma_t = sigma_s_prime + sigma_a
     alpha = sigma_s_prime / sigma_t
     sigma_tr = np.sqrt(3 * sigma_a * sigma_t)
+    if not np.all(np.isfinite(sigma_tr)):
+        sigma_tr = np.where(np.isfinite(sigma_tr), sigma_tr, np.sqrt(3 * sigma_a) * np.sqrt(sigma_t))
     a_coef = _boundary(eta)
     z_r = 1 / sigma_t
     z_v = z_r * (1 + 4 * a_coef / 3)
@@ -119,7 +126,10 @@ def dipole_profile(r, sigma_s_prime, sigma_a, eta=ETA_SKIN):
     :func:`facestats.model.fresnel.diffuse_fresnel_reflectance`.
 
     R_d is positive and strictly decreasing in r, and 2π∫₀^∞ r R_d(r) dr equals
-    :func:`total_diffuse_reflectance`.  This is the R(r) the contact sensor
+    :func:`total_diffuse_reflectance`.  Every finite input gives a finite
+    profile (σtr is formed without overflow; a profile that underflows is 0)
+    or, when the coefficients exceed the float range (σ's + σa overflowing),
+    a :class:`~facestats.errors.ValidationError`.  This is the R(r) the contact sensor
     measures and the R_d(‖xo − xi‖) of Weyrich et al. 2006 eq. 6.
 
     Parameters
@@ -147,7 +157,9 @@ def dipole_profile(r, sigma_s_prime, sigma_a, eta=ETA_SKIN):
     s, a = dipole_coefficients(sigma_s_prime, sigma_a)
     e = check_dipole_eta(eta)
     dtype = result_dtype(r, sigma_s_prime, sigma_a, eta)
-    return blockwise(dipole_profile_unchecked, [r_a, s, a, e], dtype)
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = blockwise(dipole_profile_unchecked, [r_a, s, a, e], dtype)
+    return finite_result(out, "dipole_profile", sigma_s_prime=s, sigma_a=a)
 
 
 def dipole_radial_energy(radius, sigma_s_prime, sigma_a, eta=ETA_SKIN):
@@ -280,16 +292,17 @@ def diffuse_mean_free_path(sigma_tr):
 _S_MAX = np.sqrt(3.0)
 
 
-def _reduced_albedo(total, eta, tol=1e-13, max_iter=100):
-    """Invert eq. 16 by a bracketing secant (Illinois) iteration, vectorised (no checks).
+def _solve_s(total, eta, tol=1e-13, max_iter=100):
+    """s = sqrt(3(1 − α')) of a total reflectance, inverting eq. 16 by a bracketing secant (Illinois), in float64.
 
-    Solved in s = sqrt(3(1 − α')) ∈ [0, √3], where eq. 16 becomes
+    Solved in s ∈ [0, √3], where eq. 16 becomes
     g(s) = (1 − s²/3)/2 · (1 + e^{−4As/3}) e^{−s}: smooth and strictly decreasing
     from g(0) = 1 to g(√3) = 0, unlike the α' form whose slope is infinite at α' = 1.
     The Illinois modification of regula falsi keeps the root bracketed while
-    converging superlinearly like the secant method.
+    converging superlinearly like the secant method.  No input checks; the
+    result is float64 whatever the input (callers that need 1 − α' use s²/3,
+    which does not cancel as α' → 1).
     """
-    dtype = np.result_type(total, np.float32)
     total = np.asarray(total, dtype=np.float64)
     eta = np.asarray(eta, dtype=np.float64)
     total, eta = np.broadcast_arrays(total, eta)
@@ -317,8 +330,14 @@ def _reduced_albedo(total, eta, tol=1e-13, max_iter=100):
             break
     else:  # pragma: no cover - the bracket always converges for total in (0, 1)
         raise FitError("reduced_albedo: secant iteration did not converge")
-    alpha = 1 - s * s / 3
-    return alpha.astype(dtype if dtype in (np.float32, np.float64) else np.float64)
+    return s
+
+
+def _reduced_albedo(total, eta):
+    """α' = 1 − s²/3 of :func:`_solve_s`, in the float dtype of ``total`` (no checks)."""
+    dtype = np.result_type(total, np.float32)
+    s = _solve_s(total, eta)
+    return (1 - s * s / 3).astype(dtype if dtype in (np.float32, np.float64) else np.float64)
 
 
 def reduced_albedo(total_reflectance, eta=ETA_SKIN):
@@ -364,6 +383,14 @@ def scattering_from_albedo(albedo, sigma_tr, eta=ETA_SKIN):
     al. use the average albedo α_avg and the population's
     σtrAvg = [0.5508, 0.9791, 1.5497] mm⁻¹.
 
+    Numerics: computed in float64 whatever the input dtype, and written in
+    s = sqrt(3(1 − α')) — σ't = σtr/s, σ's = (1 − s²/3) σtr/s, σa = σtr s/3 — so
+    nothing cancels as α' → 1.  (Forming 1 − α' from a float32 α' gave σ's = inf
+    and σa = NaN for albedo ≥ 0.9995, and the float64 form did so from 1 − 1e-8.)
+    Results are finite over the whole open interval (0, 1) in float64: σ's grows
+    as (albedo → 1) like σtr/s with s ≥ 3·10⁻¹⁷, i.e. at most ~10¹⁷ σtr; a float32
+    result is rounded from the float64 one (and overflow-checked).
+
     Parameters
     ----------
     albedo : array_like
@@ -378,9 +405,13 @@ def scattering_from_albedo(albedo, sigma_tr, eta=ETA_SKIN):
     sigma_s_prime, sigma_a : ndarray
         In mm⁻¹, broadcast shape of the inputs.
     """
-    alpha = reduced_albedo(albedo, eta)
+    a = as_finite(albedo, "albedo", 0, 1, low_inclusive=False, high_inclusive=False)
+    e = check_dipole_eta(eta)
     t = as_finite(sigma_tr, "sigma_tr", 0, None, low_inclusive=False, unit="mm^-1")
     dtype = result_dtype(albedo, sigma_tr, eta)
-    sigma_t = t / np.sqrt(3 * (1 - alpha))
-    sigma_s_prime = alpha * sigma_t
-    return np.asarray(sigma_s_prime, dtype), np.asarray(sigma_t - sigma_s_prime, dtype)
+    s = np.maximum(_solve_s(a, e), np.finfo(np.float64).eps * 1e-3)
+    t = t.astype(np.float64)
+    sigma_s_prime = np.asarray((1 - s * s / 3) * t / s, dtype)
+    sigma_a = np.asarray(t * s / 3, dtype)
+    finite_result(sigma_s_prime, "scattering_from_albedo (sigma_s_prime)", albedo=a, sigma_tr=t)
+    return sigma_s_prime, sigma_a

@@ -17,13 +17,28 @@ run on the synthetic population of :mod:`facestats.acquire.synthetic.population`
 Everything is deterministic for a seed: the simulator draws its noise from each
 subject's seed and the fit has no randomness, so a rebuild reproduces the same
 subjects (tested in ``tests/test_default_store.py``).
+
+Interruption and worker lifetime (issue #12): local worker processes die with
+the build — each sets the Linux parent-death signal (SIGKILL) and watches its
+parent and a stop event every 0.25 s — so a build killed with SIGKILL leaves no
+worker committing subjects behind it; SIGINT and SIGTERM stop a build cleanly
+(the workers are stopped, what they were writing is never committed, and the
+call raises :class:`KeyboardInterrupt`).  Every write is atomic, so a killed
+build leaves only whole subjects, and rerunning it resumes: subjects already
+stored are skipped and the leftovers of the killed writers are collected first
+(:meth:`facestats.io.Store.gc`).  Sizes whose memory would exceed the machine
+are refused before anything starts (:func:`estimated_memory`).
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import os
 import shutil
+import signal
 import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,10 +49,108 @@ from facestats.core.conventions import DEFAULT_MAP_SIZE, DEFAULT_SEED, SITES
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
 
-__all__ = ["BuildReport", "build_store", "build_default", "DEFAULT_SEED", "DEFAULT_MAP_SIZE"]
+__all__ = ["BuildReport", "build_store", "build_default", "estimated_memory", "DEFAULT_SEED", "DEFAULT_MAP_SIZE"]
 
 
 _WORKER_CACHE: dict = {}
+
+#: Peak memory of one worker simulating and fitting one subject: a fixed part and a part per texel of
+#: the map_size² grid (bytes), measured with ``ru_maxrss`` at map sizes 16-96 (203, 316, 775 and 1549 MB;
+#: the capture is simulated in memory, about 2,400 samples per lumitexel).
+_MEMORY_FIXED = 160e6
+_MEMORY_PER_TEXEL = 0.16e6
+
+
+def estimated_memory(map_size: int, workers: int = 1) -> float:
+    """Bytes a build of ``map_size``² maps needs with ``workers`` processes (:data:`_MEMORY_PER_TEXEL`)."""
+    return workers * (_MEMORY_FIXED + _MEMORY_PER_TEXEL * float(map_size) ** 2)
+
+
+def _available_memory() -> float | None:
+    """Bytes of memory available now (Linux ``MemAvailable``; else physical memory; None if unknown)."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _check_memory(map_size: int, workers: int) -> None:
+    need, have = estimated_memory(map_size, workers), _available_memory()
+    if have is not None and need > have:
+        raise ValidationError(
+            f"map_size {map_size} needs about {need / 2**30:.1f} GiB with {workers} worker(s) (the capture of "
+            f"every subject is simulated in memory: {_MEMORY_PER_TEXEL / 1e6:.2f} MB per texel), but this machine "
+            f"has {have / 2**30:.1f} GiB available; use a smaller --size or fewer --workers"
+        )
+
+
+def _set_parent_death_signal() -> None:
+    """Ask Linux to SIGKILL this process when its parent dies (prctl PR_SET_PDEATHSIG); no-op elsewhere."""
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
+def _watch_parent(parent: int, stop) -> None:
+    """Exit this worker as soon as the build asks (``stop``) or its parent is gone."""
+    while not stop.wait(0.25):
+        if os.getppid() != parent:
+            break
+    os._exit(1)
+
+
+def _worker_init(parent: int, stop) -> None:
+    """Initializer of a local build worker: die with the parent and on request (module docstring)."""
+    _set_parent_death_signal()
+    if os.getppid() != parent:  # the parent died before this worker started
+        os._exit(1)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides; Ctrl-C reaches the whole group
+    threading.Thread(target=_watch_parent, args=(parent, stop), daemon=True).start()
+
+
+@contextlib.contextmanager
+def _stop_on_sigterm():
+    """Turn SIGTERM into :class:`KeyboardInterrupt` (like SIGINT) while a build runs in the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt(f"stopped by signal {signum}")
+
+    old = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+def _run_local(tasks, n_workers: int, progress: bool) -> list:
+    """Run the build tasks on a local process pool whose workers die with this process (module docstring)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    import dask
+
+    ctx = multiprocessing.get_context("spawn")
+    stop = ctx.Event()
+    pool = ProcessPoolExecutor(n_workers, mp_context=ctx, initializer=_worker_init, initargs=(os.getpid(), stop))
+    try:
+        with _TaskProgress(len(tasks), enabled=progress):
+            return list(dask.compute(*tasks, scheduler="processes", pool=pool))
+    except BaseException:
+        stop.set()  # the workers exit within 0.25 s; nothing they were writing gets committed
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 @dataclass
@@ -212,6 +325,7 @@ def build_store(
     -------
     BuildReport
     """
+    from facestats.io.ids import check_subject_id
     from facestats.io.store import open_store
     from facestats.model.fitting import population_sigma_tr_avg
     from facestats.model.skin import SPECULAR_MODELS
@@ -221,8 +335,13 @@ def build_store(
     check_choice(specular, "specular", SPECULAR_MODELS)
     if workers is not None:
         check_integer(workers, "workers", 1)
+    n_workers = workers or os.cpu_count() or 1
+    if client is None:
+        _check_memory(map_size, n_workers)
     if isinstance(subjects, str):
         raise ValidationError(f"subjects must be a sequence of subject ids, got the string {subjects!r}")
+    for sid in subjects or ():  # the id rule first: cheap, before the population is drawn
+        check_subject_id(sid)
     t0 = time.perf_counter()
     pop = _population(seed, map_size, conditions)
     wanted = [s.subject_id for s in pop.subjects] if subjects is None else list(subjects)
@@ -231,33 +350,22 @@ def build_store(
     if unknown:
         raise ValidationError(f"subjects must be ids of the population, got unknown {unknown[:5]}")
     store = open_store(store_path, mode="a")  # only now: bad arguments leave no empty store behind
-    fits = sensor_fits(pop, map_size, specular)
+    store.gc()  # the leftovers of a killed build, if any (never a live writer's data)
+    key = ("sensor_fits", seed, map_size, conditions, specular)
+    if key not in _WORKER_CACHE:  # the same draws every time: computed once per process
+        _WORKER_CACHE[key] = sensor_fits(pop, map_size, specular)
+    fits = _WORKER_CACHE[key]
     normal = [s.subject_id for s in pop.subjects if s.condition == "normal"]
     stra = population_sigma_tr_avg(np.stack([fits[s].sigma_tr for s in normal]), SITES)
     present = set(store.ids())
     todo = [s for s in wanted if s not in present]
     skipped = [s for s in wanted if s in present]
-    n_workers = workers or os.cpu_count() or 1
     args = [
         (str(store_path), seed, map_size, conditions, specular, sid, stra, fits[sid], micro_normals, keep_derived)
         for sid in todo
     ]
-    if client is not None:
-        futures = [client.submit(_build_one, *a, pure=False) for a in args]
-        done = client.gather(futures)
-    elif n_workers == 1 or len(todo) <= 1:
-        it = args
-        if progress:
-            from tqdm.auto import tqdm
-
-            it = tqdm(args, desc="build", unit="subject", disable=None)
-        done = [_build_one(*a) for a in it]
-    else:
-        import dask
-
-        tasks = [dask.delayed(_build_one, pure=False)(*a) for a in args]
-        with _TaskProgress(len(tasks), enabled=progress):
-            done = list(dask.compute(*tasks, scheduler="processes", num_workers=n_workers))
+    with _stop_on_sigterm():
+        done = _run(args, client, n_workers, progress)
     return BuildReport(
         store=str(store_path),
         written=sorted(done),
@@ -266,6 +374,27 @@ def build_store(
         seconds=time.perf_counter() - t0,
         workers=1 if client is None and n_workers == 1 else n_workers,
     )
+
+
+def _run(args, client, n_workers: int, progress: bool) -> list:
+    """Build the subjects of ``args`` on a client, locally in-process, or on local worker processes."""
+    if client is not None:
+        futures = [client.submit(_build_one, *a, pure=False) for a in args]
+        try:
+            return client.gather(futures)
+        except BaseException:
+            client.cancel(futures)
+            raise
+    if n_workers == 1 or len(args) <= 1:
+        it = args
+        if progress:
+            from tqdm.auto import tqdm
+
+            it = tqdm(args, desc="build", unit="subject", disable=None)
+        return [_build_one(*a) for a in it]
+    import dask
+
+    return _run_local([dask.delayed(_build_one, pure=False)(*a) for a in args], n_workers, progress)
 
 
 def build_default(*, workers: int | None = None, progress: bool = False, out=None) -> BuildReport:

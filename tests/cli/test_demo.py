@@ -33,4 +33,4 @@ def test_demo_prints_consistent_parameters_and_writes_plot(tmp_path):
 def test_demo_rejects_bad_albedo():
     r = run_cli("demo", "--albedo", "1.5", "0.3", "0.2", "--plot", "")
     assert r.returncode == 2
-    assert "total_reflectance must lie in (0, 1), got 1.5" in r.stderr
+    assert "albedo must lie in (0, 1), got 1.5" in r.stderr  # named as the argument it came from

@@ -123,8 +123,12 @@ def test_validate_and_repair(stores, tmp_path):
     chunk.write_bytes(chunk.read_bytes()[:10])
     r = run_cli("validate", "--store", path)
     assert r.returncode == 1 and "problem: subject 'P2': variable 'ts_m' cannot be read" in r.stdout
-    r = run_cli("validate", "--store", path, "--repair")
-    assert r.returncode == 0 and "removed broken subject 'P2'" in r.stdout
+    r = run_cli("validate", "--store", path, "--repair")  # a dry run: the plan, nothing changed
+    assert r.returncode == 1 and "drop subject 'P2' from the index" in r.stdout and "dry run" in r.stdout
+    assert (path / "subjects" / "P2").exists()
+    r = run_cli("validate", "--store", path, "--repair", "--yes")  # damaged data go to the quarantine
+    assert r.returncode == 0 and "drop subject 'P2' from the index" in r.stdout and "store is valid" in r.stdout
+    assert len(list((path / "quarantine").glob("*/subjects/P2/g*"))) == 1
     r = run_cli("validate", "--store", tmp_path / "missing")
     assert r.returncode == 1 and "INVALID" in r.stdout
 

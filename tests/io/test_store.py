@@ -15,7 +15,6 @@ from facestats.core.conventions import CHANNELS, REGIONS, SITES
 from facestats.errors import SchemaError, StoreError, ValidationError
 from facestats.io import QueryResult, open_store, pack_store
 from facestats.io import store as store_mod
-from facestats.io.locking import create_locked
 from facestats.io.schema import SCHEMA_VERSION, provenance, set_provenance
 from facestats.io.summary import albedo_histogram, region_samples, summarise_subject
 from tests.helpers import make_map_subject, make_sample_subject
@@ -570,32 +569,43 @@ def test_info(built):
 
 
 def test_gc_removes_dead_writers_leftovers_but_not_live_ones(tmp_path):
+    from facestats.io.generations import reserve_generation
+
     path = tmp_path / "s.zarr"
     with open_store(path, mode="a") as st:
         st.write_subject(make_map_subject("G1"))
         keep = _gen_dir(path, "G1")
         subj = path / "subjects" / "G1"
-        # a dead writer: generation directory, its lock file unlocked
-        dead = subj / "g0000000000000001-1-aaaaaa"
+        # a dead writer: generation directory and record, its lock file unlocked
+        gen, lock = reserve_generation(str(path), "G1")
+        dead = subj / gen
         dead.mkdir()
         (dead / "zarr.json").write_text("{}")
-        (path / ".writers" / "G1~g0000000000000001-1-aaaaaa.lock").write_text("")
-        # a crashed writer of a new subject, without lock file
-        (path / "subjects" / "G9" / "g0000000000000002-1-bbbbbb").mkdir(parents=True)
+        lock.release()
+        # a crashed writer of a new subject, its lock file gone too
+        gen9, lock9 = reserve_generation(str(path), "G9")
+        (path / "subjects" / "G9" / gen9).mkdir(parents=True)
+        os.remove(lock9.path)
+        lock9.release()
         # a live writer: its lock is held
-        live_lock = create_locked(path / ".writers" / "G1~g0000000000000003-1-cccccc.lock")
-        live = subj / "g0000000000000003-1-cccccc"
+        live_gen, live_lock = reserve_generation(str(path), "G1")
+        live = subj / live_gen
         live.mkdir()
+        # a generation without a record is not provably the store's: it is left alone (issue #12)
+        unowned = subj / "g0000000000000001-1-aaaaaa"
+        unowned.mkdir()
         (path / "index.json.tmp-99-deadbeef").write_text("partial")
-        assert len(st.validate().notes) == 1
+        notes = st.validate().notes
+        assert len(notes) == 2 and "6 leftover item(s)" in notes[0] and "not created by facestats" in notes[1]
         removed = st.gc()
         assert not dead.exists() and not (path / "subjects" / "G9").exists()
         assert not (path / "index.json.tmp-99-deadbeef").exists()
-        assert not (path / ".writers" / "G1~g0000000000000001-1-aaaaaa.lock").exists()
-        assert live.exists() and keep.exists()
-        assert "subjects/G1/g0000000000000001-1-aaaaaa" in removed
+        assert not (path / ".writers" / f"G1~{gen}.lock").exists()
+        assert live.exists() and keep.exists() and unowned.exists()
+        assert f"subjects/G1/{gen}" in removed and f".records/G1~{gen}.json" in removed
         live_lock.release()  # the writer died
         st.gc()
-        assert not live.exists() and keep.exists()
+        assert not live.exists() and keep.exists() and unowned.exists()
+        unowned.rmdir()
         assert st.validate().ok and not st.validate().notes
         assert sorted(os.listdir(path / ".writers")) == []

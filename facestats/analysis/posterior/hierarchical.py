@@ -31,7 +31,7 @@ from facestats.analysis.population import select_population
 from facestats.analysis.posterior.credible import check_level, interval_quantiles
 from facestats.analysis.serialize import json_ready, records
 from facestats.core.conventions import CHANNELS, ROMAN
-from facestats.core.validate import check_choice
+from facestats.core.validate import check_choice, check_seed
 from facestats.errors import ValidationError
 
 __all__ = ["PopulationSigmaTr", "population_sigma_tr", "hierarchical_draws"]
@@ -193,7 +193,7 @@ def population_sigma_tr(
     types = frame["skin_type"].astype(int)
     if group_i_ii:
         types = types.clip(lower=2)
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(check_seed(seed))
     skin_types = tuple(int(t) for t in sorted(types[sig.notna().all(axis=1)].unique()))
     if not skin_types:
         raise ValidationError("no selected subject has cheek or forehead sigma_tr in all channels")

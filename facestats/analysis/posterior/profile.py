@@ -51,7 +51,7 @@ from facestats.analysis.posterior.start import initial_walkers, least_squares_st
 from facestats.analysis.serialize import json_ready
 from facestats.core.conventions import CHANNELS
 from facestats.core.published import ETA_SKIN
-from facestats.core.validate import check_choice
+from facestats.core.validate import check_choice, check_seed
 from facestats.errors import ConvergenceWarning, ValidationError
 from facestats.model import dipole
 
@@ -430,7 +430,7 @@ def sigma_posterior(
     post = LogPosterior(r_a, y, s, mask, sensor, float(eta), lo, hi)
     std_fixed = s if s is not None else np.where(mask, sensor.profile_std(np.maximum(np.nan_to_num(y), 0.0)), 1.0)
     theta_ls, cov_ls = least_squares_start(post, np.where(mask, y, 0.0), std_fixed, mask)
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(check_seed(seed))
     p0 = initial_walkers(post, theta_ls, cov_ls, int(n_walkers), rng)
 
     move = BlockDEMove(k, 2)

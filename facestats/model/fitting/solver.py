@@ -27,12 +27,24 @@ Flags (:data:`facestats.core.conventions.FLAG_BITS`): ``few_samples`` when fewer
 ``min_samples`` samples remain, ``not_converged`` when ``max_iter`` is reached,
 ``ill_conditioned`` when the normal matrix is singular or a parameter's relative
 standard error (from σ² (JᵀJ)⁻¹) exceeds ``max_relative_error``, ``at_bound``
-when the lobe parameter ends on a bound.  Flagged texels keep their values but
-are meant to be filled from neighbours (:func:`facestats.model.fitting.maps.fill_flagged`).
+when the lobe parameter ends on a bound, or when the data ask for a ρs beyond
+its bounds: the unconstrained optimum ρs* = Σyg/Σg² at the final lobe lies
+outside [ρ_lo, ρ_hi] by more than ``max_relative_error`` × ρ_hi (a ρs clamped
+a little at its bound, as on 46 Blinn-Phong texels of the default store, is
+an ordinary fit; data a thousand times too bright are not).  Flagged texels
+keep their values but are meant to be filled from neighbours
+(:func:`facestats.model.fitting.maps.fill_flagged`).
+
+Scale: E(p) is quadratic in y and the sums run in float32, so samples of
+magnitude beyond 2³² (or below 2⁻³²) sr⁻¹ would overflow (underflow) them; such
+inputs are divided by a power of two (exact) and ρs, its bounds, E(p) and the
+standard error of ρs scaled back, which gives the fit of the unscaled problem.
+Data of ordinary magnitude are not scaled (the same numbers as without).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -282,17 +294,29 @@ def _squared_error(model, y, s1, a, n_use, good, rho, q, swyy, syg, sgg, dt):
     return e
 
 
+def _y_scale(y) -> float:
+    """The power of two samples are divided by before the fit (module docstring: Scale); 1.0 for ordinary data."""
+    ymax = float(np.max(np.abs(y))) if y.size else 0.0
+    if not np.isfinite(ymax) or 2.0**-32 <= ymax <= 2.0**32 or ymax == 0.0:
+        return 1.0
+    return 2.0 ** math.ceil(math.log2(ymax))
+
+
 def _uncertainty(model, y, s1, a, n_use, good, rho, q, all_sums, swyy, max_relative_error, dt):
-    """(RMS error, std of ρs, std of the lobe, ill-conditioned) per texel from J = (g, ρs ∂g/∂ln p).
+    """(RMS error, std of ρs, std of the lobe, ill-conditioned, ρs*) per texel from J = (g, ρs ∂g/∂ln p).
+
+    ρs* = Σyg/Σg² is the unconstrained optimum of ρs at the final lobe.
 
     The covariance is σ²(JᵀJ)⁻¹ with σ² = E²/(n − 2) (module docstring).
     """
     n_tex = n_use.size
-    err, r_std, p_std = (np.full(n_tex, np.nan) for _ in range(3))
+    err, r_std, p_std, rho_star = (np.full(n_tex, np.nan) for _ in range(4))
     ill = np.zeros(n_tex, bool)
     if not good.any():
-        return err, r_std, p_std, ill
+        return err, r_std, p_std, ill, rho_star
     syg, sgg, _, sgdg, sdgdg = lobe_moments(model, q[good], all_sums[:, good])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rho_star[good] = syg / sgg
     h00, h01, h11 = (np.zeros(n_tex) for _ in range(3))
     h00[good], h01[good], h11[good] = sgg, rho[good] * sgdg, rho[good] ** 2 * sdgdg
     e = _squared_error(model, y, s1, a, n_use, good, rho, q, swyy, syg, sgg, dt)
@@ -309,7 +333,7 @@ def _uncertainty(model, y, s1, a, n_use, good, rho, q, all_sums, swyy, max_relat
         rel_q = np.sqrt(var_q)
         singular = ~(det > 1e-12 * np.maximum(h00 * h11, 1e-300))
         ill = good & (singular | ~(rel_r <= max_relative_error) | ~(rel_q <= max_relative_error))
-    return err, r_std, p_std, ill
+    return err, r_std, p_std, ill, rho_star
 
 
 def solve_specular(
@@ -318,6 +342,10 @@ def solve_specular(
     """Batch bounded Levenberg-Marquardt on flat samples in per-texel runs of ``n_use`` samples (module docstring)."""
     (r_lo, r_hi), (p_lo, p_hi) = _check_solver_args(model, bounds, min_samples, max_iter, tol, max_relative_error)
     dt = np.dtype(dtype)
+    scale = _y_scale(y)
+    if scale != 1.0:
+        y = y / y.dtype.type(scale)
+        r_lo, r_hi = r_lo / scale, r_hi / scale
     q_lo, q_hi = np.log(p_lo), np.log(p_hi)
     n_use = np.asarray(n_use, np.int64)
     n_tex = n_use.size
@@ -350,9 +378,15 @@ def solve_specular(
     good = ~few
     rho = state["rho"].astype(np.float64)
     q = state["q"].astype(np.float64)
-    err, r_std, p_std, ill = _uncertainty(model, y, s1, a, n_use, good, rho, q, all_sums, swyy, max_relative_error, dt)
+    err, r_std, p_std, ill, rho_star = _uncertainty(
+        model, y, s1, a, n_use, good, rho, q, all_sums, swyy, max_relative_error, dt
+    )
     p = np.exp(q)
-    at_bound = good & ((q <= q_lo + 1e-6) | (q >= q_hi - 1e-6))
+    margin = max_relative_error * r_hi
+    with np.errstate(invalid="ignore"):
+        rho_out = (rho_star > r_hi + margin) | (rho_star < r_lo - margin)
+    at_bound = good & ((q <= q_lo + 1e-6) | (q >= q_hi - 1e-6) | rho_out)
+    rho, err, r_std = rho * scale, err * scale, r_std * scale
     bit = FLAG_BITS
     flags = (
         (few * bit["few_samples"])

@@ -29,7 +29,7 @@ from facestats.core.blocked import blockwise
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, as_float, check_choice, check_shape
 from facestats.errors import ValidationError
-from facestats.model.brdf import torrance_sparrow_cosines
+from facestats.model.brdf import check_directions, torrance_sparrow_cosines
 from facestats.model.fitting.samples import Samples, segment_sum
 from facestats.model.fitting.solver import DEFAULT_BOUNDS, SpecularFit, solve_specular
 from facestats.model.fresnel import check_eta
@@ -248,6 +248,19 @@ def _check_specular_inputs(samples, normal, f_s, use, start):
         check_shape(np.asarray(start), "start", (samples.n_texels,))
 
 
+def _check_unit_samples(w, valid, name) -> None:
+    """Directions of the valid samples must be finite unit vectors (norm 1 ± 1e-3), like the BRDFs require."""
+    with np.errstate(invalid="ignore"):
+        norm = np.sqrt(np.einsum("tsk,tsk->ts", w, w))
+    bad = valid & ~(np.abs(norm - 1) <= 1e-3)
+    if bad.any():
+        t, k = np.argwhere(bad)[0]
+        raise ValidationError(
+            f"{name} must hold unit vectors (norm 1 ± 0.001) for the valid samples, got norm {norm[t, k]:.6g} at "
+            f"texel {t}, sample {k}"
+        )
+
+
 def fit_specular(
     wi,
     wo,
@@ -308,6 +321,16 @@ def fit_specular(
     check_shape(wi, "wi", (n_tex, n_smp, 3))
     check_shape(wo, "wo", (n_tex, n_smp, 3))
     valid = check_shape(np.asarray(valid, bool), "valid", (n_tex, n_smp))
+    check_directions(normal, "normal")
+    for name, w in (("wi", wi), ("wo", wo)):
+        _check_unit_samples(w, valid, name)
+    big = valid & np.isfinite(f_s) & (np.abs(f_s) > np.finfo(np.float32).max)
+    if big.any():
+        t, k = np.argwhere(big)[0]
+        raise ValidationError(
+            f"f_s must be a BRDF in sr^-1 within the float32 range the fit works in, got {f_s[t, k]!r} at "
+            f"texel {t}, sample {k}"
+        )
     lim = np.cos(max_angle)
     valid = (
         valid

@@ -1,0 +1,174 @@
+"""Output files: checked before any work, written all or none.
+
+Commands write results (plots, statistics, exports, images) only after they
+have done their work, so a bad output path must be caught *first*, and a
+failure while writing (a full disk) must leave nothing half-written:
+
+* :func:`check_output_dir` / :func:`check_output_file` look at a path without
+  changing anything: an existing directory must be writable, an existing
+  file must be a regular file (for a file output) or absent (for a folder),
+  and a path that does not exist yet must be creatable (its nearest existing
+  ancestor a writable directory), with an accepted suffix if the caller has a
+  list — so ``/dev/null/x``, a folder where a file is due, a file where a
+  folder is due, or ``plot.xyz`` fail with a :class:`~facestats.errors.ValidationError`
+  naming the argument and the path before any work is done;
+* :class:`OutputSet` writes several files each under a temporary name beside
+  its target and renames them into place only when all were written; on any
+  failure it removes the temporaries and the folders it created, so the
+  previous files (if any) stay as they were; an :class:`OSError` (a full
+  disk) becomes a :class:`~facestats.errors.FacestatsError` naming the folder.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import secrets
+
+from facestats.errors import FacestatsError, ValidationError
+
+__all__ = ["check_output_dir", "check_output_file", "OutputSet"]
+
+
+def _as_path(path, name: str) -> pathlib.Path:
+    if isinstance(path, bytes):
+        path = os.fsdecode(path)
+    if not isinstance(path, (str, os.PathLike)) or not os.fspath(path).strip() or "\x00" in os.fspath(path):
+        raise ValidationError(f"{name} must be a file system path, got {path!r}")
+    return pathlib.Path(os.fspath(path)).expanduser()
+
+
+def _creatable(p: pathlib.Path, name: str) -> None:
+    """The nearest existing ancestor of ``p`` must be a writable directory (nothing is created)."""
+    parent = p.absolute().parent
+    while not os.path.lexists(parent) and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ValidationError(
+            f"{name} must be a path that can be created, got {str(p)!r} ({parent} is not a directory)"
+        )
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ValidationError(f"{name} must be a path that can be created, got {str(p)!r} ({parent} is not writable)")
+
+
+def check_output_dir(path, name: str = "out") -> pathlib.Path:
+    """``path`` as an output folder: an existing writable directory, or a path that can be created.
+
+    Raises
+    ------
+    ValidationError
+        Naming ``name`` and the path (a file, a device, an unwritable or uncreatable path).
+    """
+    p = _as_path(path, name)
+    if os.path.lexists(p):
+        if not p.is_dir():
+            raise ValidationError(f"{name} must be a directory, got {str(p)!r}, which exists and is not one")
+        if not os.access(p, os.W_OK | os.X_OK):
+            raise ValidationError(f"{name} must be a writable directory, got {str(p)!r}")
+        return p
+    _creatable(p, name)
+    return p
+
+
+def check_output_file(path, name: str = "out", suffixes=None) -> pathlib.Path:
+    """``path`` as an output file: absent (creatable) or an existing regular file, with one of ``suffixes``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    name : str
+        The argument's name in messages.
+    suffixes : iterable of str, optional
+        Accepted suffixes, lower case with the dot (e.g. ``(".png", ".svg")``).
+
+    Raises
+    ------
+    ValidationError
+        Naming ``name`` and the path.
+    """
+    p = _as_path(path, name)
+    if suffixes is not None:
+        accepted = sorted(set(suffixes))
+        if p.suffix.lower() not in accepted:
+            raise ValidationError(f"{name} must end in one of {accepted}, got {str(p)!r}")
+    if os.path.lexists(p):
+        if not p.is_file():
+            raise ValidationError(f"{name} must be a file, got {str(p)!r}, which exists and is not a regular file")
+        if not os.access(p, os.W_OK) or not os.access(p.parent, os.W_OK | os.X_OK):
+            raise ValidationError(f"{name} must be writable, got {str(p)!r}")
+        return p
+    _creatable(p, name)
+    return p
+
+
+class OutputSet:
+    """Files written all or none (module docstring).
+
+    Use as a context manager; :meth:`path` gives the temporary path to write
+    each target to; leaving the block without an exception renames them all
+    into place::
+
+        with OutputSet(out_dir) as out:
+            fig.savefig(out.path("plot.png"))
+            out.path("data.json").write_text(...)
+        out.written  # the final paths
+
+    Parameters
+    ----------
+    directory : str or os.PathLike
+        The folder of the files (created if missing, removed again on failure if it was created).
+    """
+
+    def __init__(self, directory):
+        self.directory = pathlib.Path(directory)
+        self.written: list[pathlib.Path] = []
+        self._temps: list[tuple[pathlib.Path, pathlib.Path]] = []
+        self._created: list[pathlib.Path] = []
+
+    def __enter__(self):
+        missing = []
+        d = self.directory.absolute()
+        while not os.path.lexists(d):
+            missing.append(d)
+            d = d.parent
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ValidationError(f"cannot create the output folder {self.directory}: {exc.strerror}") from None
+        self._created = missing
+        return self
+
+    def path(self, name: str) -> pathlib.Path:
+        """The temporary path to write the file ``name`` (of :attr:`directory`) to."""
+        final = self.directory / name
+        tmp = final.with_name(f".{final.name}.tmp-{os.getpid()}-{secrets.token_hex(3)}{final.suffix}")
+        self._temps.append((tmp, final))
+        return tmp
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            try:
+                for tmp, final in self._temps:
+                    os.replace(tmp, final)
+                    self.written.append(final)
+                return False
+            except OSError as err:
+                exc = err
+        self._cleanup()
+        if isinstance(exc, OSError):  # e.g. a full disk: say where, and that nothing was left behind
+            raise FacestatsError(
+                f"cannot write the output files in {self.directory}: {exc.strerror or exc}; nothing was written"
+            ) from None
+        return False
+
+    def _cleanup(self) -> None:
+        for tmp, _ in self._temps:
+            try:
+                os.remove(tmp)
+            except OSError:
+                pass
+        for d in self._created:  # innermost first; a folder someone else filled meanwhile stays
+            try:
+                os.rmdir(d)
+            except OSError:
+                pass

@@ -1,0 +1,190 @@
+"""The quarantine of a directory store: where repair puts what it takes out of the store, instead of deleting it.
+
+Repair never deletes data.  What it must take away — a damaged generation, an
+unreadable index file, the index entries it drops — goes into one folder per
+repair under ``quarantine/`` in the store::
+
+    quarantine/<UTC time>-<6 hex>/
+      QUARANTINE.json              what is here and why (format 1)
+      subjects/<id>/<generation>/  a moved generation, with its record <generation>.json
+      index.json                   a moved index file
+      dropped-entries.json         index entries repair removed ({id: entry})
+
+Items are moved with :func:`os.rename` (atomic, no copy); if the data live on
+another volume than the store root (``subjects/`` a mount point) they are
+copied, flushed and only then removed from their place.  ``facestats
+validate`` lists the quarantine; only an explicit purge (``facestats validate
+--purge --yes``, :meth:`facestats.io.store.Store.purge_quarantine`) removes
+it, and it removes only folders that carry a valid ``QUARANTINE.json``.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import re
+import secrets
+import shutil
+import time
+
+from facestats.errors import StoreError
+from facestats.io.layout import QUARANTINE, confined, fsync_tree, is_plain_dir, read_regular_file, write_json_atomic
+
+__all__ = [
+    "MANIFEST",
+    "open_quarantine",
+    "quarantine_move",
+    "write_quarantine_json",
+    "list_quarantine",
+    "purge_quarantine",
+]
+
+#: The description file of a quarantine folder.
+MANIFEST = "QUARANTINE.json"
+_FOLDER = re.compile(r"[0-9]{8}T[0-9]{6}Z-[0-9a-f]{6}")
+
+
+def open_quarantine(root, reason: str) -> str:
+    """Create a new quarantine folder in the store at ``root`` and describe it; its absolute path.
+
+    Raises
+    ------
+    StoreError
+        It cannot be created (e.g. a full disk): nothing was moved yet.
+    """
+    base = os.path.join(root, QUARANTINE)
+    name = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + "-" + secrets.token_hex(3)
+    path = os.path.join(base, name)
+    try:
+        confined(root, base)
+        os.makedirs(path)
+        if not is_plain_dir(base):
+            raise StoreError(f"{base} must be a folder of the store")
+        write_json_atomic(
+            os.path.join(path, MANIFEST), {"format": 1, "created": name[:16], "reason": reason, "items": []}
+        )
+    except OSError as exc:
+        raise StoreError(f"cannot create a quarantine folder in {base}: {exc.strerror}; nothing was changed") from None
+    return path
+
+
+def quarantine_move(root, qdir: str, rel: str, why: str) -> None:
+    """Move ``rel`` (a path of the store) into the quarantine folder ``qdir``, keeping its relative path.
+
+    Raises
+    ------
+    StoreError
+        It could not be moved (it stays where it was).
+    """
+    src = confined(root, os.path.join(root, rel))
+    dst = os.path.join(qdir, rel)
+    try:
+        os.makedirs(os.path.dirname(dst), exist_ok=True)
+        try:
+            os.rename(src, dst)
+        except OSError as exc:
+            if exc.errno != errno.EXDEV:
+                raise
+            _copy_then_remove(src, dst)
+    except OSError as exc:
+        raise StoreError(f"cannot move {rel} into the quarantine: {exc.strerror}; it was left in place") from None
+    _add_item(qdir, rel, why)
+
+
+def _copy_then_remove(src: str, dst: str) -> None:
+    """Move across volumes: copy (links kept as links), flush the copy, then remove the original."""
+    if is_plain_dir(src):
+        shutil.copytree(src, dst, symlinks=True)
+        fsync_tree(dst)
+        shutil.rmtree(src)
+    else:
+        shutil.copy2(src, dst, follow_symlinks=False)
+        fsync_tree(os.path.dirname(dst))
+        os.remove(src)
+
+
+def write_quarantine_json(qdir: str, name: str, obj, why: str) -> None:
+    """Save ``obj`` as ``<qdir>/<name>`` (e.g. the index entries a repair dropped) and list it."""
+    try:
+        write_json_atomic(os.path.join(qdir, name), obj)
+    except OSError as exc:
+        raise StoreError(f"cannot save {name} in the quarantine: {exc.strerror}") from None
+    _add_item(qdir, name, why)
+
+
+def _manifest(qdir: str) -> dict | None:
+    try:
+        doc = json.loads(read_regular_file(os.path.join(qdir, MANIFEST)))
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) and doc.get("format") == 1 and isinstance(doc.get("items"), list) else None
+
+
+def _add_item(qdir: str, rel: str, why: str) -> None:
+    doc = _manifest(qdir) or {"format": 1, "items": []}
+    doc["items"].append({"path": rel, "why": why})
+    try:
+        write_json_atomic(os.path.join(qdir, MANIFEST), doc)
+    except OSError:
+        pass  # the item is in the folder all the same
+
+
+def _size(path: str) -> int:
+    total = 0
+    for base, _, files in os.walk(path):
+        for f in files:
+            try:
+                total += os.lstat(os.path.join(base, f)).st_size
+            except OSError:
+                pass
+    return total
+
+
+def list_quarantine(root) -> list[dict]:
+    """The quarantine folders of the store at ``root``, oldest first.
+
+    Returns
+    -------
+    list of dict
+        ``{"name", "reason", "items": [{"path", "why"}], "bytes", "valid"}``; ``valid`` is False for a
+        folder without a readable ``QUARANTINE.json`` (listed, never purged).
+    """
+    base = os.path.join(root, QUARANTINE)
+    if not is_plain_dir(base):
+        return []
+    out = []
+    for name in sorted(os.listdir(base)):
+        path = os.path.join(base, name)
+        doc = _manifest(path) if _FOLDER.fullmatch(name) and is_plain_dir(path) else None
+        out.append(
+            {
+                "name": name,
+                "reason": (doc or {}).get("reason", ""),
+                "items": (doc or {}).get("items", []),
+                "bytes": _size(path) if is_plain_dir(path) else 0,
+                "valid": doc is not None,
+            }
+        )
+    return out
+
+
+def purge_quarantine(root, names=None) -> list[str]:
+    """Delete quarantine folders (all, or those in ``names``) that carry a valid ``QUARANTINE.json``.
+
+    Returns
+    -------
+    list of str
+        The folders removed, relative to the store root.
+    """
+    removed = []
+    for entry in list_quarantine(root):
+        if not entry["valid"] or (names is not None and entry["name"] not in names):
+            continue
+        path = os.path.join(root, QUARANTINE, entry["name"])
+        try:
+            shutil.rmtree(confined(root, path))
+        except OSError as exc:
+            raise StoreError(f"cannot remove {path}: {exc.strerror}") from None
+        removed.append(f"{QUARANTINE}/{entry['name']}")
+    return removed

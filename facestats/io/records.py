@@ -1,0 +1,133 @@
+"""Generation records: the mark that a generation is facestats' own, and whether (and when) it was committed.
+
+For every generation directory ``subjects/<id>/<generation>/`` its writer
+keeps a small JSON record ``.records/<id>~<generation>.json``::
+
+    {"facestats_generation": 1, "subject": "S001", "generation": "g...",
+     "state": "writing" | "committed" | "retired",
+     "created": "<UTC>", "committed_revision": 17, "retired_revision": 18}
+
+* ``writing``: written by the writer *before* the generation directory exists
+  (so even a writer killed in its first instant leaves an owner mark);
+* ``committed``: set under the store lock right after the index revision
+  ``committed_revision`` named the generation;
+* ``retired``: set under the store lock right after the index revision
+  ``retired_revision`` stopped naming it (the subject was replaced or deleted).
+
+The index (:mod:`facestats.io.index`) remains the one commit point: readers
+never look at records.  Records serve maintenance only: garbage collection
+removes a generation only if its record proves it is the store's own and was
+never committed or was retired; repair recovers a subject only from a
+generation whose record says it was committed, so a crashed write or a deleted
+subject is never revived.  The order of the updates (index first, then
+``committed``, then ``retired``) means a crash between them can only leave a
+committed generation marked ``writing`` (healed by ``facestats validate
+--repair``, which sees the index name it) or a replaced generation not yet
+marked ``retired`` (its subject is in the index with a newer generation, so it
+is still superseded).  Record updates are atomic (rename) but not ``fsync``-ed:
+after a power loss a record may lag the index, never lead it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+from facestats.errors import StoreError
+from facestats.io.layout import RECORDS, confined, is_generation, is_plain_file, write_json_atomic
+
+__all__ = [
+    "RECORD_FORMAT",
+    "STATES",
+    "record_name",
+    "parse_record_name",
+    "record_path",
+    "read_record",
+    "write_record",
+    "mark_record",
+]
+
+#: Layout version of a record.
+RECORD_FORMAT = 1
+#: The states a record can be in.
+STATES = ("writing", "committed", "retired")
+
+
+def record_name(sid: str, gen: str) -> str:
+    """The file name of the record of generation ``gen`` of subject ``sid`` (in ``.records/``)."""
+    return f"{sid}~{gen}.json"
+
+
+def parse_record_name(name: str):
+    """``(sid, gen)`` of a record file name, or None if ``name`` is not one (the id is not checked here)."""
+    if not name.endswith(".json") or "~" not in name:
+        return None
+    sid, _, gen = name[:-5].rpartition("~")
+    return (sid, gen) if sid and is_generation(gen) else None
+
+
+def record_path(root, sid: str, gen: str) -> str:
+    """The record file of generation ``gen`` of subject ``sid`` in the store at ``root``."""
+    return os.path.join(os.fspath(root), RECORDS, record_name(sid, gen))
+
+
+def read_record(root, sid: str, gen: str) -> dict | None:
+    """The record of a generation, or None if it is missing, unreadable or not a record of this generation.
+
+    A record counts only if it is a regular file (not a link) whose content
+    names this very subject and generation in the current format.
+    """
+    path = record_path(root, sid, gen)
+    try:
+        confined(root, path)  # a record read through a link planted in the store proves nothing
+    except StoreError:
+        return None
+    if not is_plain_file(path):
+        return None
+    try:
+        with open(path, "rb") as fh:
+            rec = json.loads(fh.read(65536))
+    except (OSError, ValueError):
+        return None
+    if (
+        not isinstance(rec, dict)
+        or rec.get("facestats_generation") != RECORD_FORMAT
+        or rec.get("subject") != sid
+        or rec.get("generation") != gen
+        or rec.get("state") not in STATES
+    ):
+        return None
+    return rec
+
+
+def write_record(root, sid: str, gen: str, state: str, **fields) -> dict:
+    """Write (replace) the record of a generation atomically; the record written.
+
+    Parameters
+    ----------
+    root : str
+        The store directory.
+    sid, gen : str
+        Subject id and generation name (checked).
+    state : {"writing", "committed", "retired"}
+    **fields
+        Further entries (``created``, ``committed_revision``, ``retired_revision``).
+    """
+    if state not in STATES or not is_generation(gen):
+        raise ValueError(f"bad record state {state!r} or generation {gen!r}")  # a bug, not bad input
+    rec = {"facestats_generation": RECORD_FORMAT, "subject": sid, "generation": gen, "state": state, **fields}
+    write_json_atomic(confined(root, record_path(root, sid, gen)), rec, durable=False)
+    return rec
+
+
+def mark_record(root, sid: str, gen: str, state: str, revision: int) -> None:
+    """Set a generation's record to ``committed`` or ``retired`` at index ``revision``, keeping its other entries.
+
+    A missing record (a generation written before records existed) is created.
+    Called under the store lock by the commit; failures are left to
+    ``facestats validate --repair`` to heal (the index is the commit point).
+    """
+    rec = read_record(root, sid, gen) or {}
+    fields = {k: v for k, v in rec.items() if k not in ("facestats_generation", "subject", "generation", "state")}
+    fields[f"{state}_revision"] = int(revision)
+    write_record(root, sid, gen, state, **fields)

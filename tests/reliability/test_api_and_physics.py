@@ -1,0 +1,223 @@
+"""API misuse and silent wrong results: clear errors, finite physics over the documented domains, degenerate cases.
+
+* Every public physics function (``fresnel``, ``brdf``, ``dipole``) given ``None``, an object, a dict
+  or a string for any argument raises :class:`ValidationError` naming it (generated from signatures).
+* The issue's API cases: ``skin_type`` 'abc'/None on write, ``open_store(123)``, ``transfer_texture``
+  with an empty image, ``seed='abc'``, ``bins=10**9``.
+* Numerics: ``scattering_from_albedo`` finite up to albedo → 1 in float32 and float64 with σtr
+  reproduced; ``torrance_sparrow(m=1e-200)`` and ``blinn_phong(rho_s=1e308)`` raise;
+  ``dipole_profile(1, 1e200, 1e200)`` is finite.
+* Degenerate transfers: a constant source goes to the target's mean (inside its range).
+* ``fit_specular``: non-unit directions refused; f_s × 1e30 ends at the ρs bound flagged ``at_bound``;
+  f_s × 1e-30 is fitted exactly (ρs × 1e-30).
+* Physical domains of stored variables, on write and in validate, and in MERL imports; the ρs bound
+  of Torrance-Sparrow checked by a numerical integral.
+"""
+
+import inspect
+
+import numpy as np
+import pytest
+import scipy.io
+
+from facestats.core.conventions import FLAG_BITS
+from facestats.errors import FacestatsError, FormatError, SchemaError, StoreError, ValidationError
+from facestats.io import batch, open_store
+from facestats.io.merl import read_merl
+from facestats.io.schema import TS_RHO_S_MAX
+from facestats.model import brdf, dipole, fresnel
+
+from ..factories import hemisphere_pairs, make_map_subject
+from ..test_merl import merl_dict
+
+GOOD = {
+    "normal": np.array([0.0, 0.0, 1.0]),
+    "wi": np.array([0.6, 0.0, 0.8]),
+    "wo": np.array([-0.6, 0.0, 0.8]),
+    "rho_s": 0.3,
+    "m": 0.3,
+    "exponent": 20.0,
+    "eta": 1.38,
+    "cos_i": 0.7,
+    "cos_theta": 0.7,
+    "r": 1.0,
+    "radius": 1.0,
+    "sigma_s_prime": 1.0,
+    "sigma_a": 0.05,
+    "sigma_tr": 0.55,
+    "albedo": 0.5,
+    "total_reflectance": 0.5,
+}
+BAD = [None, object(), {"a": 1}, {}, "abc", [1, "a"], [[1, 2], [3]]]
+
+
+def _physics():
+    for module in (fresnel, brdf, dipole):
+        for name in module.__all__:
+            fn = getattr(module, name)
+            params = [p for p in inspect.signature(fn).parameters.values() if p.name in GOOD]
+            if params and all(p.name in GOOD for p in inspect.signature(fn).parameters.values()):
+                yield fn, [p.name for p in params]
+
+
+CALLS = [(fn, arg) for fn, args in _physics() for arg in args]
+
+
+@pytest.mark.parametrize("fn, arg", CALLS, ids=[f"{f.__name__}-{a}" for f, a in CALLS])
+def test_physics_functions_name_non_numeric_arguments(fn, arg):
+    params = inspect.signature(fn).parameters
+    for bad in BAD:
+        kwargs = {p: GOOD[p] for p in params}
+        kwargs[arg] = bad
+        with pytest.raises(ValidationError, match=arg):
+            fn(**kwargs)
+
+
+def test_the_api_cases(tmp_path):
+    from facestats.edit import transfer_texture
+
+    with open_store(tmp_path / "s.zarr", mode="a") as st:
+        for bad in ("abc", None, 3.5, True):
+            ds = make_map_subject("A1", size=16)
+            ds.attrs["skin_type"] = bad
+            with pytest.raises(SchemaError, match="skin_type must be an integer 1-6"):
+                st.write_subject(ds)
+        assert len(st) == 0
+    for bad in (123, 1.5, ["x"], b"", "", "\0"):
+        with pytest.raises(ValidationError, match="path must"):
+            open_store(bad)
+    rng = np.random.default_rng(0)
+    target = rng.uniform(0.2, 0.7, (64, 64, 3))
+    with pytest.raises(ValidationError, match="source_albedo must hold at least one pixel"):
+        transfer_texture(np.zeros((0, 0, 3)), target)
+    for seed, pattern in (("abc", "seed must be an integer"), (-1, r"seed must be an integer in \[0")):
+        with pytest.raises(ValidationError, match=pattern):
+            transfer_texture(target, target, seed=seed)
+    with pytest.raises(ValidationError, match=r"bins must be an int in \[1, 65536\]"):
+        transfer_texture(target, target, bins=10**9)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_scattering_from_albedo_is_finite_up_to_one(dtype):
+    top = np.nextafter(dtype(1), dtype(0))  # the largest albedo below 1 of the dtype
+    albedo = np.array([0.01, 0.5, 0.9995, 1 - 1e-7, top], dtype=dtype)
+    sigma_tr = np.full(albedo.shape, 0.55, dtype)
+    sp, sa = dipole.scattering_from_albedo(albedo, sigma_tr)
+    assert sp.dtype == dtype and np.all(np.isfinite(sp)) and np.all(np.isfinite(sa)) and np.all(sa > 0)
+    assert np.all(np.diff(sp) > 0)  # more albedo, more scattering
+    np.testing.assert_allclose(dipole.transport_coefficient(sa.astype(float), sp.astype(float)), 0.55, rtol=1e-6)
+    back = dipole.total_diffuse_reflectance(sp.astype(float), sa.astype(float))
+    np.testing.assert_allclose(back[:3], albedo[:3].astype(float), rtol=1e-6)
+
+
+def test_extreme_parameters_give_finite_results_or_errors():
+    n, wi, wo = GOOD["normal"], GOOD["wi"], GOOD["wo"]
+    with pytest.raises(ValidationError, match="torrance_sparrow is not finite.*m = 1e-200"):
+        brdf.torrance_sparrow(n, n, n, 0.3, 1e-200)
+    with pytest.raises(ValidationError, match="m = 1e-200"):  # 1/m² underflows m²: an error, not NaN
+        brdf.torrance_sparrow(n, wi, wo, 0.3, 1e-200)
+    assert np.isfinite(brdf.torrance_sparrow(n, wi, wo, 0.3, 1e-6))
+    with pytest.raises(ValidationError, match="blinn_phong is not finite.*rho_s = 1e\\+308"):
+        brdf.blinn_phong(n, wi, wo, 1e308, 20.0)
+    assert dipole.dipole_profile(1.0, 1e200, 1e200) == 0.0  # an opaque medium: no light 1 mm away
+    with pytest.raises(ValidationError, match="dipole_profile is not finite"):
+        dipole.dipole_profile(1.0, 1e308, 1e308)
+
+
+def test_a_constant_source_moves_to_the_targets_mean():
+    from facestats.edit import transfer_colour, transfer_texture
+
+    rng = np.random.default_rng(1)
+    target = rng.uniform(0.2, 0.7, (64, 64, 3))
+    const = np.full((64, 64, 3), 0.05)
+    for out in (transfer_colour(const, target), transfer_texture(const, target, levels=3, seed=0).albedo):
+        px = out.reshape(-1, 3)
+        assert np.all(px >= 0.2) and np.all(px <= 0.7)
+        np.testing.assert_allclose(px.mean(0), target.reshape(-1, 3).mean(0), atol=0.02)
+    half = transfer_colour(const, target, t=0.5).reshape(-1, 3).mean(0)
+    np.testing.assert_allclose(half, 0.5 * (0.05 + target.reshape(-1, 3).mean(0)), atol=0.02)
+
+
+def test_fit_specular_checks_units_and_flags_bounds():
+    from facestats.model.fitting import fit_specular
+
+    rng = np.random.default_rng(2)
+    wi, wo = hemisphere_pairs(rng, 8, 150)
+    normal = np.tile([0.0, 0.0, 1.0], (8, 1))
+    fs = brdf.torrance_sparrow(normal[:, None, :], wi, wo, 0.3, 0.35)
+    valid = np.ones(fs.shape, bool)
+    with pytest.raises(ValidationError, match="normal must hold unit vectors"):
+        fit_specular(wi, wo, normal * 1.1, fs, valid, "torrance_sparrow")
+    with pytest.raises(ValidationError, match="wo must hold unit vectors .* texel 0, sample 0"):
+        fit_specular(wi, wo * 0.5, normal, fs, valid, "torrance_sparrow")
+    plain = fit_specular(wi, wo, normal, fs, valid, "torrance_sparrow")
+    np.testing.assert_allclose(plain.rho_s, 0.3, rtol=1e-3)
+    assert np.all(plain.flags == 0)
+    huge = fit_specular(wi, wo, normal, fs * 1e30, valid, "torrance_sparrow")
+    assert np.all(huge.rho_s == 5.0) and np.all(huge.flags & FLAG_BITS["at_bound"])  # the ρs bound of DEFAULT_BOUNDS
+    tiny = fit_specular(wi, wo, normal, fs * 1e-30, valid, "torrance_sparrow")
+    np.testing.assert_allclose(tiny.rho_s, plain.rho_s * 1e-30, rtol=1e-5)
+    np.testing.assert_allclose(tiny.lobe, plain.lobe, rtol=1e-5)
+    assert np.all(tiny.flags == 0)
+
+
+def _normal_incidence_albedo(m, rho_s, n=900):
+    """∫ f_s cos θo dωo at normal incidence (midpoint rule in (cos θo, φ))."""
+    mu = (np.arange(n) + 0.5) / n
+    phi = (np.arange(2 * n) + 0.5) / (2 * n) * 2 * np.pi
+    mu_g, phi_g = np.meshgrid(mu, phi, indexing="ij")
+    s = np.sqrt(1 - mu_g**2)
+    wo = np.stack([s * np.cos(phi_g), s * np.sin(phi_g), mu_g], -1)
+    n_ = np.array([0.0, 0.0, 1.0])
+    f = brdf.torrance_sparrow(n_, n_, wo, rho_s, m)
+    return float((f * mu_g).sum() / n * np.pi / n)
+
+
+def test_the_torrance_sparrow_rho_bound_reflects_all_light():
+    assert TS_RHO_S_MAX == pytest.approx(9.8068, abs=1e-4)
+    assert _normal_incidence_albedo(0.1, TS_RHO_S_MAX) == pytest.approx(1.0, abs=2e-3)
+    assert _normal_incidence_albedo(0.3, TS_RHO_S_MAX) == pytest.approx(1.0, abs=5e-3)
+    assert _normal_incidence_albedo(0.6, TS_RHO_S_MAX) < 1.0
+
+
+BAD_VALUES = {
+    "ts_m": (lambda ds: ds["ts_m"].values.__imul__(-1), "'ts_m' must lie in \\(0, 10\\]"),
+    "albedo": (lambda ds: ds["albedo"].values.__imul__(50), "'albedo' must lie in \\[0, 1\\]"),
+    "sigma_a": (lambda ds: ds["sigma_a"].values.__setitem__(0, np.inf), "'sigma_a' must lie in \\[0, inf\\)"),
+    "bp_exponent": (lambda ds: ds["bp_exponent"].values.__imul__(-1), "'bp_exponent' must lie in \\[0, inf\\)"),
+    "ts_rho_s": (lambda ds: ds["ts_rho_s"].values.__iadd__(20), "'ts_rho_s' must lie in \\[0, 9.80679\\]"),
+    "bp_rho_s": (lambda ds: ds["bp_rho_s"].values.__iadd__(1), "'bp_rho_s' must lie in \\[0, 1\\]"),
+    "ts_flag": (lambda ds: ds["ts_flag"].values.__iadd__(64), "'ts_flag' must lie in \\[0, 31\\]"),
+}
+
+
+@pytest.mark.parametrize("name", list(BAD_VALUES))
+def test_impossible_physics_is_refused_on_write_and_in_validate(tmp_path, monkeypatch, name):
+    change, pattern = BAD_VALUES[name]
+    ds = make_map_subject("P1", size=16)
+    change(ds)
+    with open_store(tmp_path / "s.zarr", mode="a") as st:
+        with pytest.raises(SchemaError, match="subject 'P1': variable " + pattern):
+            st.write_subject(ds)
+        assert len(st) == 0
+        monkeypatch.setattr(batch, "validate_subject", lambda ds, name=None: "maps")  # a store written without checks
+        st.write_subject(ds)
+        monkeypatch.undo()
+        report = st.validate()
+        assert not report.ok and "subject 'P1': variable " in report.problems[0] and name in report.problems[0]
+        with pytest.raises(SchemaError, match=name):
+            st.subject("P1")
+
+
+@pytest.mark.parametrize("col, name", [(0, "m"), (1, "rho_s")])
+def test_merl_import_refuses_impossible_values(tmp_path, col, name):
+    d = merl_dict()
+    d["ts"][4, col] = 1e300
+    scipy.io.savemat(tmp_path / "ts.mat", d)
+    with pytest.raises(FormatError, match=f"ts row 5: {name} \\(column {col}\\) must be <= .*got 1e\\+300"):
+        read_merl(tmp_path / "ts.mat")
+
+
+def test_every_error_is_a_facestats_error():
+    for exc in (ValidationError, SchemaError, StoreError, FormatError):
+        assert issubclass(exc, FacestatsError)

@@ -1,0 +1,111 @@
+"""``facestats build --workers 2`` killed with SIGKILL or SIGTERM: no worker survives, nothing is committed after, and
+the build resumes.
+
+Both builds run at once (different stores) through the console script, tagged with an environment
+variable that every worker inherits, so their processes can be found in ``/proc`` whoever their
+parent is afterwards.  Each is killed once it has committed a subject (its workers are then
+simulating and fitting); within 3 s of the kill no tagged process may be left, the index must not
+change over the following 3 s, and rerunning the same command must complete the store.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+
+from ..cli_helpers import facestats_exe
+from .helpers import subject_digests
+
+SUBJECTS = ["S001", "S002", "S003", "S004", "S005"]
+
+
+def _tagged(tag: str) -> list[int]:
+    """Pids of the processes whose environment carries ``FACESTATS_TEST_TAG=tag`` (not this one)."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            env = (entry / "environ").read_bytes()
+            state = (entry / "stat").read_text().split(")")[-1].split()[0]
+        except OSError:
+            continue
+        if f"FACESTATS_TEST_TAG={tag}".encode() in env.split(b"\0") and state != "Z":
+            out.append(int(entry.name))
+    return out
+
+
+def _count(store: Path) -> int:
+    try:
+        return len(json.loads((store / "index.json").read_text())["subjects"])
+    except (OSError, ValueError):
+        return 0
+
+
+def _start(store: Path, tag: str):
+    env = dict(os.environ, FACESTATS_TEST_TAG=tag, MPLBACKEND="Agg")
+    argv = [*facestats_exe(), "build", "--store", str(store), "--size", "8", "--workers", "2", "--quiet"]
+    argv += ["--no-conditions", "--subjects", *SUBJECTS]
+    return subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/environ").exists(), reason="needs /proc to find the worker processes")
+def test_killed_build_leaves_no_worker_and_resumes(tmp_path):
+    runs = {sig: (tmp_path / f"{sig.name}.zarr", uuid.uuid4().hex) for sig in (signal.SIGKILL, signal.SIGTERM)}
+    procs = {sig: _start(store, tag) for sig, (store, tag) in runs.items()}
+    try:
+        deadline = time.monotonic() + 600
+        pending = dict(procs)
+        while pending and time.monotonic() < deadline:
+            for sig in list(pending):
+                if _count(runs[sig][0]) >= 1 and len(_tagged(runs[sig][1])) >= 3:  # working: parent + 2 workers
+                    pending.pop(sig).send_signal(sig)
+            time.sleep(0.05)
+        assert not pending, "the builds did not get going"
+        outputs = {sig: p.communicate(timeout=120) for sig, p in procs.items()}
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.kill()
+    time.sleep(3)
+    for sig, (_, tag) in runs.items():
+        assert _tagged(tag) == [], f"{sig.name}: worker processes survived their build"
+    assert procs[signal.SIGTERM].returncode == 130 and "rerun the same command to resume" in outputs[signal.SIGTERM][1]
+    assert "Traceback" not in outputs[signal.SIGTERM][1]
+    assert procs[signal.SIGKILL].returncode == -signal.SIGKILL
+    counts = {sig: _count(store) for sig, (store, _) in runs.items()}
+    time.sleep(3)
+    assert counts == {sig: _count(store) for sig, (store, _) in runs.items()}, "subjects were committed after the kill"
+    # a killed build resumes: the same command completes the store, skipping what is there
+    store = runs[signal.SIGKILL][0]
+    before = subject_digests(store)
+    r = subprocess.run(
+        [
+            *facestats_exe(),
+            "build",
+            "--store",
+            str(store),
+            "--size",
+            "8",
+            "--workers",
+            "1",
+            "--quiet",
+            "--no-conditions",
+            "--subjects",
+            *SUBJECTS,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=900,
+        env=dict(os.environ, MPLBACKEND="Agg"),
+    )
+    assert r.returncode == 0, r.stderr
+    after = subject_digests(store)
+    assert sorted(after) == SUBJECTS and all(after[s] == d for s, d in before.items())
+    assert f"{len(before)} already present" in r.stdout

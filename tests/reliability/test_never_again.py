@@ -1,0 +1,352 @@
+"""Issue #12, "must never happen again": each case reproduced first, then the fixed behaviour asserted.
+
+Also the defects found when the store was split (rebuild reviving uncommitted data, no re-check under
+the lock, a passing read error deleting data, no retry on a concurrent replacement, gc and validate
+disagreeing, lock checks creating files, generation folders failing silently).
+"""
+
+import errno
+import json
+import os
+import shutil
+
+import numpy as np
+import pytest
+import zarr
+
+from facestats.errors import SchemaError, StoreError, ValidationError
+from facestats.io import open_store
+from facestats.io import store as store_mod
+from facestats.io.generations import reserve_generation
+from facestats.io.locking import FileLock, is_locked
+from facestats.io.maintenance import ValidationReport, check_subjects
+
+from ..factories import make_map_subject
+from .helpers import (
+    copy_store,
+    digest_dataset,
+    generation_dir,
+    make_store,
+    quarantined_generations,
+    run,
+    snapshot,
+    subject_digests,
+)
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    path = make_store(tmp_path_factory.mktemp("base") / "s.zarr")
+    return path, subject_digests(path)
+
+
+@pytest.fixture
+def store(base, tmp_path):
+    return copy_store(base[0], tmp_path)
+
+
+# -- 1. deleting outside the store ----------------------------------------------------------------
+def test_links_under_subjects_are_never_followed(store, base, tmp_path):
+    sentinel = tmp_path / "sentinel"
+    (store / "subjects" / "X1").symlink_to(sentinel)  # the issue's `ln -s /some/dir X.zarr/subjects/X1`
+    gen_link = store / "subjects" / "R1" / "g0000000000000002-1-bbbbbb"
+    gen_link.symlink_to(sentinel / "g0000000000000001-1-aaaaaa")  # a "generation" that leads out
+    (store / ".records" / "R1~g0000000000000002-1-bbbbbb.json").symlink_to(sentinel / "notes.txt")
+    before = snapshot(sentinel)
+    code, out = run("validate", "--store", store)
+    assert code == 0 and "not created by facestats were left alone" in out
+    code, out = run("validate", "--store", store, "--repair", "--yes")
+    assert code == 0, out
+    with open_store(store, mode="r+") as st:
+        st.gc()
+    assert snapshot(sentinel) == before  # nothing outside the store touched
+    assert (store / "subjects" / "X1").is_symlink() and gen_link.is_symlink()  # nor the links themselves
+    assert subject_digests(store) == base[1]
+
+
+def test_a_link_planted_as_a_subject_folder_is_never_written_through(store, tmp_path):
+    sentinel = tmp_path / "sentinel"
+    (store / "subjects" / "NEW").symlink_to(sentinel)
+    before = snapshot(sentinel)
+    with open_store(store, mode="r+") as st:
+        with pytest.raises(StoreError, match=r"subjects/NEW.*(symbolic link|outside the store)"):
+            st.write_subject(make_map_subject("NEW", size=16))
+    assert snapshot(sentinel) == before
+
+
+# -- 2. writing outside the store ------------------------------------------------------------------
+@pytest.mark.parametrize("bad", ["../../victim", "S9\n", "a/b", "..", ".hidden", "x" * 65, ""])
+def test_ids_read_from_the_index_are_validated(store, tmp_path, bad):
+    index = json.loads((store / "index.json").read_text())
+    index["subjects"][bad] = dict(index["subjects"]["R1"])
+    (store / "index.json").write_text(json.dumps(index))
+    outside = snapshot(tmp_path)
+    for argv in (("query", "--store", store), ("info", "--store", store)):
+        code, out = run(*argv)
+        assert code == 2 and repr(bad) in out and "invalid subject id" in out, out
+    with open_store(store, mode="r+") as st:  # the next commit refuses: it would write where the id points
+        with pytest.raises(StoreError, match="invalid subject id"):
+            st.write_subject(make_map_subject("R9", size=16))
+    assert {k: v for k, v in snapshot(tmp_path).items() if not k.startswith("s.zarr")} == {
+        k: v for k, v in outside.items() if not k.startswith("s.zarr")
+    }
+    assert not (tmp_path.parent / "victim").exists() and not (tmp_path / "victim").exists()
+    code, out = run("validate", "--store", store, "--repair", "--yes")  # the entry is dropped (kept in quarantine)
+    assert code == 0 and "drop subject" in out, out
+    dropped = json.loads(next(store.glob("quarantine/*/dropped-entries.json")).read_text())
+    assert bad in dropped
+
+
+@pytest.mark.parametrize("bad", ["../../victim", "S9\n", "a b", "é"])
+def test_ids_from_the_api_cli_and_merl_prefixes_follow_one_rule(store, tmp_path, bad):
+    ds = make_map_subject("R9", size=16)
+    ds.attrs["subject_id"] = bad
+    with open_store(store, mode="r+") as st:
+        with pytest.raises(ValidationError, match="subject_id must be"):
+            st.write_subject(ds)
+        with pytest.raises(ValidationError, match="subject_id must be"):
+            st.delete_subject(bad)
+    from facestats.io.merl import read_merl
+
+    with pytest.raises(ValidationError, match="prefix must make subject ids"):
+        read_merl(tmp_path / "missing.mat", prefix=bad)
+    code, out = run("import-merl", tmp_path / "missing.mat", "--store", tmp_path / "new.zarr", "--prefix", bad)
+    assert code == 2 and "prefix" in out and not (tmp_path / "new.zarr").exists()
+    code, out = run(
+        "edit", "colour", "R1", "--store", store, "--target", "R2", "--id", bad, "--out-store", tmp_path / "e.zarr"
+    )
+    assert code == 2 and "subject_id must be" in out and not (tmp_path / "e.zarr").exists()
+
+
+# -- 3. repair that destroys --------------------------------------------------------------------------
+def test_repair_refuses_an_unmounted_or_half_present_store(store, base, tmp_path):
+    shutil.move(store / "subjects", tmp_path / "away")
+    index_before = (store / "index.json").read_bytes()
+    code, out = run("validate", "--store", store)
+    assert code == 1 and "subjects/ folder is missing" in out
+    code, out = run("validate", "--store", store, "--repair", "--yes")
+    assert code == 2 and "refusing to repair" in out and "unmounted" in out
+    (store / "subjects").mkdir()  # an empty mount point
+    code, out = run("validate", "--store", store, "--repair", "--yes")
+    assert code == 2 and "refusing to repair" in out and "half-present" in out
+    assert (store / "index.json").read_bytes() == index_before  # the index was not emptied
+    (store / "subjects").rmdir()
+    shutil.move(tmp_path / "away", store / "subjects")  # the volume comes back: everything is there
+    code, out = run("validate", "--store", store, "--repair", "--yes")
+    assert code == 0 and subject_digests(store) == base[1]
+
+
+def test_repair_recovers_the_newest_intact_generation(store, monkeypatch):
+    with open_store(store, mode="r+") as st:
+        old = st.index_entries()["R1"]["generation"]
+        old_digest = digest_dataset(st.subject("R1"))
+        monkeypatch.setattr(store_mod.Store, "_remove_generation", lambda self, sid, gen: None)  # crash before removal
+        st.write_subject(make_map_subject("R1", size=16, seed=9), overwrite=True)
+        new = st.index_entries()["R1"]["generation"]
+    monkeypatch.undo()
+    shutil.rmtree(store / "subjects" / "R1" / new)  # the generation the index names goes missing
+    code, out = run("validate", "--store", store)
+    assert code == 1 and f"subjects/R1/{new} is missing" in out and "kept for repair to judge" in out
+    with open_store(store, mode="r+") as st:
+        assert not any("R1" in p for p in st.gc())  # gc alone does not delete the recovery candidate
+    code, out = run("validate", "--store", store, "--repair")
+    assert code == 1 and f"recover subject 'R1' from generation {old}" in out
+    code, out = run("validate", "--store", store, "--repair", "--yes")
+    assert code == 0, out
+    with open_store(store) as st:
+        assert st.index_entries()["R1"]["generation"] == old and digest_dataset(st.subject("R1")) == old_digest
+
+
+def test_one_flipped_bit_moves_the_generation_to_the_quarantine(store, base):
+    gen = generation_dir(store, "R2")
+    chunk = gen / "albedo" / "c" / "0" / "0" / "0"
+    data = bytearray(chunk.read_bytes())
+    data[len(data) // 2] ^= 0x10
+    chunk.write_bytes(bytes(data))
+    whole = snapshot(store)
+    code, out = run("validate", "--store", store, "--repair")  # a dry run: the plan, nothing changed
+    assert code == 1 and f"move subjects/R2/{gen.name} to the quarantine" in out and "dry run" in out
+    assert snapshot(store) == whole
+    code, out = run("validate", "--store", store, "--repair", "--yes")
+    assert code == 0 and "store is valid" in out and "quarantine: 1 folder(s)" in out, out
+    assert gen.name in quarantined_generations(store)  # moved, not deleted: the damaged bytes are still there
+    assert next(store.glob(f"quarantine/*/subjects/R2/{gen.name}/albedo/c/0/0/0")).read_bytes() == bytes(data)
+    assert subject_digests(store) == {k: v for k, v in base[1].items() if k != "R2"}
+    code, out = run("validate", "--store", store, "--purge")
+    assert code == 0 and "dry run" in out and quarantined_generations(store)
+    code, out = run("validate", "--store", store, "--purge", "--yes")
+    assert code == 0 and not quarantined_generations(store)
+    code, out = run("validate", "--store", store)
+    assert code == 0 and "quarantine" not in out
+
+
+# -- 4. using corrupt data -----------------------------------------------------------------------
+@pytest.mark.parametrize("damage", ["re-encoded", "flipped"])
+def test_edits_never_use_corrupt_targets(store, tmp_path, damage):
+    gen = generation_dir(store, "R2")
+    if damage == "re-encoded":  # valid chunk, other values: only the checksum can tell
+        arr = zarr.open_array(str(gen / "albedo"), mode="r+")
+        arr[0, 0, 0] = np.float32(0.123)
+        arr[8, 8, 1] = np.float32(0.456)
+    else:
+        chunk = gen / "albedo" / "c" / "0" / "0" / "0"
+        data = bytearray(chunk.read_bytes())
+        data[-9] ^= 0x01
+        chunk.write_bytes(bytes(data))
+    out_store = tmp_path / "edits.zarr"
+    code, out = run(
+        "edit",
+        "colour",
+        "R1",
+        "--store",
+        store,
+        "--target",
+        "R2",
+        "--out-store",
+        out_store,
+        "--images",
+        tmp_path / "img",
+    )
+    assert code == 2 and "subject 'R2'" in out and "'albedo'" in out, out
+    assert not out_store.exists() and not (tmp_path / "img").exists()  # no side effect
+    with open_store(store) as st:
+        lazy = st.subject("R2", lazy=True)
+        with pytest.raises(SchemaError, match="'R2'.*'albedo'"):
+            lazy["albedo"].values  # every read path verifies, lazy ones when the chunk is loaded
+
+
+# -- defects of the split: rebuild, re-checks, read errors ---------------------------------------------
+def _die_before_commit(store, datasets):
+    """Write ``datasets`` in a forked child killed before its commit: data on disk, never committed."""
+    pid = os.fork()
+    if pid == 0:
+        try:
+            store_mod.Store._commit = lambda self, mutate: os.kill(os.getpid(), 9)
+            with open_store(store, mode="r+") as st:
+                st.write_subjects(datasets, overwrite=True)
+        finally:
+            os._exit(0)
+    os.waitpid(pid, 0)
+
+
+def test_a_lost_index_is_rebuilt_from_committed_generations_only(store, base, monkeypatch):
+    with open_store(store, mode="r+") as st:
+        st.write_subject(make_map_subject("GONE", size=16, seed=5))
+        monkeypatch.setattr(store_mod.Store, "_remove_generation", lambda self, sid, gen: None)
+        st.delete_subject("GONE")  # deleted; its data stay on disk (crash before the removal)
+        monkeypatch.undo()
+        revision = st.revision
+    _die_before_commit(store, [make_map_subject("R1", size=16, seed=7)])  # a crashed overwrite
+    _die_before_commit(store, [make_map_subject("B1", size=16, seed=1), make_map_subject("B2", size=16, seed=2)])
+    assert len(list((store / "subjects" / "R1").glob("g*"))) == 2 and (store / "subjects" / "B1").exists()
+    (store / "index.json").unlink()
+    code, out = run("validate", "--store", store, "--repair", "--yes")
+    assert code == 0, out
+    with open_store(store) as st:
+        assert sorted(st.ids()) == sorted(base[1])  # no deleted subject, no crashed batch came back
+        assert st.revision > revision  # the revision count continues
+        assert subject_digests(store) == base[1]  # the committed R1, not the crashed overwrite
+
+
+def test_repair_rechecks_under_the_lock(store):
+    (store / "index.json").unlink()
+    with open_store(store, mode="r+") as st:
+        plan = st.plan_repair()
+        assert plan.index_lost
+        st.repair()  # another process repairs meanwhile
+        revision = st.revision
+        with pytest.raises(StoreError, match="changed while the repair was planned.*nothing was changed"):
+            st.repair(plan)
+        assert st.revision == revision
+
+
+def test_checksum_checks_run_without_the_store_lock(store):
+    gen = generation_dir(store, "R1")
+    (gen / "ts_m" / "c" / "0" / "0").write_bytes(b"garbage")
+    with open_store(store, mode="r+", lock_timeout=0.2) as st, FileLock(store / ".lock"):  # a writer commits
+        plan = st.plan_repair()  # reads and checks everything without waiting for the lock
+        assert any(a.kind == "quarantine-generation" for a in plan.actions)
+        with pytest.raises(StoreError, match="timed out"):
+            st.repair(plan)
+    assert gen.exists()
+
+
+def test_a_passing_read_error_changes_nothing(store, base, monkeypatch):
+    from zarr.storage import _local
+
+    real = _local._get
+    target = str(generation_dir(store, "R1") / "albedo" / "c")
+
+    def flaky(path, prototype, byte_range):
+        if str(path).startswith(target):
+            raise OSError(errno.EIO, "Input/output error", str(path))
+        return real(path, prototype, byte_range)
+
+    monkeypatch.setattr(_local, "_get", flaky)
+    with open_store(store, mode="r+") as st:
+        report = st.validate()
+        assert not report.ok and "could not be read just now" in report.problems[0] and "'R1'" in report.problems[0]
+        plan = st.plan_repair()
+        assert not [a for a in plan.actions if a.subject == "R1"] and plan.problems
+        st.repair(plan)
+    monkeypatch.undo()
+    assert subject_digests(store) == base[1]  # the subject was neither dropped nor moved
+
+
+def test_a_subject_replaced_while_it_is_checked_is_checked_again(store):
+    with open_store(store, mode="r+") as st, open_store(store, mode="r+") as other:
+        index = json.loads((store / "index.json").read_text())
+        calls = []
+
+        def open_generation(sid, gen):
+            if sid == "R1" and not calls:
+                calls.append(gen)
+                other.write_subject(make_map_subject("R1", size=16, seed=3), overwrite=True)  # replaced meanwhile
+            return st._open_generation(sid, gen)
+
+        report = ValidationReport(path=str(store))
+        checked = check_subjects(index, open_generation, report, reread=lambda: st.index_entries())
+        assert report.ok, report.problems
+        assert checked.current["R1"] != calls[0]
+
+
+def test_validate_reports_exactly_what_gc_removes(store):
+    with open_store(store, mode="r+") as st:
+        gen, lock = reserve_generation(str(store), "R1")  # a dead writer's generation
+        (store / "subjects" / "R1" / gen).mkdir()
+        lock.release()
+        (store / "subjects" / "zarr.json.tmp-12-abcdef").write_text("{")  # interrupted root creation
+        (store / "zarr.json.tmp-13-abcdef").write_text("{")
+        (store / "index.json.tmp-14-deadbeef").write_text("{")
+        (store / ".writers" / ".tmp-15-R2~g0000000000000009-1-cccccc.lock").write_text("")
+        notes = st.validate().notes
+        n = int(notes[0].split()[0])
+        removed = st.gc()
+        assert len(removed) == n == 7 and not st.validate().notes
+
+
+def test_lock_checks_never_create_files(tmp_path):
+    path = tmp_path / "nothing.lock"
+    assert not is_locked(path) and not path.exists()
+
+
+def test_a_generation_folder_that_cannot_be_made_is_an_error(store, monkeypatch):
+    from facestats.io import generations
+
+    def no_mkdir(path, *a, **k):
+        raise FileNotFoundError(errno.ENOENT, "vanished", str(path))
+
+    with open_store(store, mode="r+") as st:
+        monkeypatch.setattr(generations.os, "mkdir", no_mkdir)
+        with pytest.raises(StoreError, match="cannot create"):
+            st.write_subject(make_map_subject("NEW", size=16))
+    monkeypatch.undo()
+    assert not (store / "subjects" / "NEW").exists() and not list((store / ".records").glob("NEW~*"))
+
+
+def test_a_writer_that_times_out_leaves_no_empty_folders(store):
+    with open_store(store, mode="r+", lock_timeout=0.2) as st, FileLock(store / ".lock"):
+        with pytest.raises(StoreError, match="timed out"):
+            st.write_subject(make_map_subject("LATE", size=16))
+    assert not (store / "subjects" / "LATE").exists()
+    assert not list((store / ".records").glob("LATE~*")) and not list((store / ".writers").glob("LATE~*"))

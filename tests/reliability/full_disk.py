@@ -100,7 +100,7 @@ def edit(store, work):
 
 def write(store):
     from facestats.io import open_store
-    from tests.factories import make_map_subject
+    from tests.helpers import make_map_subject
 
     with open_store(store, mode="r+") as st:
         st.write_subject(make_map_subject("NEW", size=16))

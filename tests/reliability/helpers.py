@@ -28,8 +28,7 @@ import numpy as np
 from facestats.cli import main
 from facestats.errors import StoreError
 from facestats.io import open_store
-
-from ..factories import make_map_subject, make_sample_subject
+from tests.helpers import make_map_subject, make_sample_subject
 
 MAP_IDS = ("R1", "R2")
 SAMPLE_IDS = ("RM",)

@@ -26,9 +26,7 @@ from facestats.io import batch, open_store
 from facestats.io.merl import read_merl
 from facestats.io.schema import TS_RHO_S_MAX
 from facestats.model import brdf, dipole, fresnel
-
-from ..factories import hemisphere_pairs, make_map_subject
-from ..test_merl import merl_dict
+from tests.helpers import hemisphere_pairs, make_map_subject, merl_dict
 
 GOOD = {
     "normal": np.array([0.0, 0.0, 1.0]),

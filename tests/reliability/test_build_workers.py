@@ -18,7 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from ..cli_helpers import facestats_exe
+from tests.helpers import facestats_exe
+
 from .helpers import subject_digests
 
 SUBJECTS = ["S001", "S002", "S003", "S004", "S005"]

@@ -14,7 +14,8 @@ import os
 import pytest
 import scipy.io
 
-from ..test_merl import merl_dict
+from tests.helpers import merl_dict
+
 from .helpers import make_store, run, snapshot
 
 NUMBERS = ["abc", "nan", "inf", "-inf", "1e999", "²", "", "0x10"]

@@ -14,8 +14,8 @@ from concurrent.futures import ThreadPoolExecutor
 import pytest
 import scipy.io
 
-from ..cli_helpers import run_cli
-from ..test_merl import merl_dict
+from tests.helpers import merl_dict, run_cli
+
 from .helpers import make_store, snapshot
 
 

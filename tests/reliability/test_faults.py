@@ -24,9 +24,8 @@ import scipy.io
 
 from facestats.errors import StoreError
 from facestats.io import open_store
+from tests.helpers import make_map_subject, merl_dict
 
-from ..factories import make_map_subject
-from ..test_merl import merl_dict
 from .helpers import copy_store, make_sentinel, make_store, quarantined_generations, snapshot, subject_digests
 
 N_KILLS = 20

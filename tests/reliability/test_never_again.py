@@ -20,8 +20,8 @@ from facestats.io import store as store_mod
 from facestats.io.generations import reserve_generation
 from facestats.io.locking import FileLock, is_locked
 from facestats.io.maintenance import ValidationReport, check_subjects
+from tests.helpers import make_map_subject
 
-from ..factories import make_map_subject
 from .helpers import (
     copy_store,
     digest_dataset,

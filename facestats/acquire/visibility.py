@@ -11,7 +11,8 @@ discretisation of the buffer.
 The rasteriser is vectorised over triangles: triangles are grouped by the size of
 their pixel bounding box, each group tests all its candidate pixels at once, and
 the nearest depth per pixel is kept with ``numpy.minimum.at``.  The loop runs over
-viewpoints and size groups, never over triangles or points.
+viewpoints and size groups, never over triangles or points.  :func:`rasterize`
+keeps the nearest triangle per pixel instead, to render a camera view of a mesh.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import numpy as np
 
 from facestats.acquire.dome import look_at
 
-__all__ = ["shadow_map", "ShadowMaps", "visible_from"]
+__all__ = ["shadow_map", "rasterize", "ShadowMaps", "visible_from"]
 
 
 def _project(points, eye, rot, focal, res):
@@ -32,36 +33,20 @@ def _project(points, eye, rot, focal, res):
     return x, y, z
 
 
-def shadow_map(vertices, faces, eye, target, radius, resolution):
-    """Depth buffer of a mesh seen from ``eye`` looking at ``target``.
+def _fragments(vertices, faces, eye, rot, focal, resolution, triangles=False):
+    """Covered pixel centres of a mesh seen through a pinhole camera, one batch at a time.
 
-    Parameters
-    ----------
-    vertices : ndarray, shape (V, 3)
-    faces : ndarray of int, shape (F, 3)
-    eye, target : array_like, shape (3,)
-        Viewpoint and the point it looks at, mm.
-    radius : float
-        Radius (mm) around ``target`` the buffer must cover.
-    resolution : int
-        Buffer side in pixels.
-
-    Returns
-    -------
-    depth : ndarray, shape (resolution, resolution)
-        Nearest depth along the view axis per pixel (inf where empty).
-    camera : tuple
-        ``(eye, rot, focal, resolution)`` to project points into the buffer.
+    Yields ``(pixel, depth, triangle)`` arrays for every (triangle, pixel) pair
+    whose pixel centre the triangle covers: the flat pixel index
+    (row · resolution + column), the depth along the view axis interpolated with
+    screen-space barycentrics, and the index of the triangle (None unless
+    ``triangles``).  Shared by :func:`shadow_map` (nearest depth) and
+    :func:`rasterize` (nearest triangle).
     """
-    eye = np.asarray(eye, float)
-    rot = look_at(eye, target)
-    dist = np.linalg.norm(np.asarray(target, float) - eye)
-    half = np.arcsin(min(radius / dist, 0.99))
-    focal = (resolution / 2) / np.tan(half)
     x, y, z = _project(vertices, eye, rot, focal, resolution)
-    depth = np.full(resolution * resolution, np.inf)
     tx, ty, tz = x[faces], y[faces], z[faces]  # (F, 3)
     good = np.all(np.isfinite(tx) & np.isfinite(ty) & (tz > 0), axis=1)
+    tri_index = np.nonzero(good)[0]
     tx, ty, tz = tx[good], ty[good], tz[good]
     x0 = np.floor(tx.min(1) - 0.5).astype(np.int64)
     y0 = np.floor(ty.min(1) - 0.5).astype(np.int64)
@@ -98,8 +83,73 @@ def shadow_map(vertices, faces, eye, target, radius, resolution):
                 (l0 >= eps) & (l1 >= eps) & (l2 >= eps) & (px >= 0) & (py >= 0) & (px < resolution) & (py < resolution)
             )
             zz = l0 * tz[t, 0, None, None] + l1 * tz[t, 1, None, None] + l2 * tz[t, 2, None, None]
-            np.minimum.at(depth, (py * resolution + px)[inside], zz[inside])
+            tri = np.broadcast_to(tri_index[t, None, None], inside.shape)[inside] if triangles else None
+            yield (py * resolution + px)[inside], zz[inside], tri
+
+
+def shadow_map(vertices, faces, eye, target, radius, resolution):
+    """Depth buffer of a mesh seen from ``eye`` looking at ``target``.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+    faces : ndarray of int, shape (F, 3)
+    eye, target : array_like, shape (3,)
+        Viewpoint and the point it looks at, mm.
+    radius : float
+        Radius (mm) around ``target`` the buffer must cover.
+    resolution : int
+        Buffer side in pixels.
+
+    Returns
+    -------
+    depth : ndarray, shape (resolution, resolution)
+        Nearest depth along the view axis per pixel (inf where empty).
+    camera : tuple
+        ``(eye, rot, focal, resolution)`` to project points into the buffer.
+    """
+    eye = np.asarray(eye, float)
+    rot = look_at(eye, target)
+    dist = np.linalg.norm(np.asarray(target, float) - eye)
+    half = np.arcsin(min(radius / dist, 0.99))
+    focal = (resolution / 2) / np.tan(half)
+    depth = np.full(resolution * resolution, np.inf)
+    for pix, zz, _ in _fragments(vertices, faces, eye, rot, focal, resolution):
+        np.minimum.at(depth, pix, zz)
     return depth.reshape(resolution, resolution), (eye, rot, focal, resolution)
+
+
+def rasterize(vertices, faces, eye, rot, focal, resolution):
+    """Nearest triangle and its depth at every pixel centre of a square pinhole image.
+
+    The camera is the one :func:`shadow_map` returns: centre ``eye``, world-to-camera
+    rotation ``rot`` (rows x right, y down, z forward, :func:`facestats.acquire.dome.look_at`),
+    focal length ``focal`` in pixels and the principal point at the image centre.
+    Depths are compared in float32 (as the shadow maps store them); ties go to
+    the smaller triangle index.
+
+    Returns
+    -------
+    triangle : ndarray of int64, shape (resolution, resolution)
+        Index into ``faces`` of the visible triangle, −1 where the pixel sees no triangle.
+    depth : ndarray of float32, shape (resolution, resolution)
+        Its depth along the view axis (inf where empty).
+    """
+    res = int(resolution)
+    n = res * res
+    empty = np.iinfo(np.int64).max
+    key = np.full(n, empty, np.int64)
+    eye = np.asarray(eye, float)
+    frags = _fragments(np.asarray(vertices, float), np.asarray(faces), eye, rot, focal, res, triangles=True)
+    for pix, zz, tri in frags:
+        # Positive float32 bit patterns order like the floats: (depth bits, triangle) in one int64 key.
+        bits = zz.astype(np.float32).view(np.int32).astype(np.int64)
+        np.minimum.at(key, pix, (bits << 32) | tri.astype(np.int64))
+    hit = key != empty
+    triangle = np.where(hit, key & 0xFFFFFFFF, -1)
+    depth = np.full(n, np.inf, np.float32)
+    depth[hit] = (key[hit] >> 32).astype(np.int32).view(np.float32)
+    return triangle.reshape(res, res), depth.reshape(res, res)
 
 
 class ShadowMaps:

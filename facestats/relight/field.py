@@ -56,6 +56,7 @@ __all__ = [
     "light_table",
     "write_field",
     "open_field",
+    "FieldStore",
     "image_tiles",
 ]
 
@@ -215,6 +216,22 @@ def flatten_lights(field):
 
 
 # -- zarr ------------------------------------------------------------------------------------
+def _strings_as_objects(ds):
+    """String coordinates as object arrays (zarr stores those as variable-length strings, a stable v3 type)."""
+    for name in list(ds.coords):
+        if ds[name].dtype.kind in "US":
+            ds = ds.assign_coords({name: ds[name].copy(data=np.asarray(ds[name].values).astype(object))})
+    return ds
+
+
+def _strings_as_str(ds):
+    """Variable-length strings read back from zarr as numpy ``str`` coordinates."""
+    for name in list(ds.coords):
+        if ds[name].dtype.kind in "OT":
+            ds = ds.assign_coords({name: ds[name].copy(data=np.asarray(ds[name].values).astype(object).astype(str))})
+    return ds
+
+
 def write_field(path, field, *, dtype="float32", tile: int = 64, overwrite: bool = False):
     """Write a reflectance field to a zarr store, chunked as all lights × ``tile`` × ``tile`` × 3.
 
@@ -251,7 +268,7 @@ def write_field(path, field, *, dtype="float32", tile: int = 64, overwrite: bool
             raise ValidationError(f"field values up to {big:g} overflow float16 (max 65504); write it as float32")
     ldims = light_dims(f)
     chunks = tuple(f.sizes[d] for d in ldims) + (min(t, f.sizes["y"]), min(t, f.sizes["x"]), 3)
-    out = f.copy()
+    out = _strings_as_objects(f.copy())
     out["reflectance"] = out["reflectance"].astype(dtype)
     encoding = {"reflectance": {"chunks": chunks}}
     for name in out.data_vars:
@@ -274,6 +291,86 @@ def write_field(path, field, *, dtype="float32", tile: int = 64, overwrite: bool
     return p
 
 
+class FieldStore:
+    """A field written to zarr tile by tile (for fields larger than memory); see :func:`write_field`.
+
+    The store is created in a temporary sibling directory with every light
+    coordinate and per-pixel variable; :meth:`write` fills ``reflectance`` one
+    image tile (all lights) at a time; :meth:`close` moves the complete store
+    into place and returns it opened lazily; :meth:`abort` removes it.  Tiles
+    never written stay 0.
+
+    Parameters
+    ----------
+    path : str or path-like
+    directions : ndarray, shape (L, 3) or (n_phi, n_theta, 3)
+    image_shape : (int, int)
+    per_pixel : dict, optional
+        ``mask``, ``view``, ``normal``, ``position`` images (:func:`make_field`).
+    solid_angles, intensity, attrs : optional
+        As :func:`make_field`.
+    dtype : {"float32", "float16"}
+    tile : int
+    overwrite : bool
+    """
+
+    def __init__(self, path, directions, image_shape, *, per_pixel=None, solid_angles=None, intensity=None,
+                 attrs=None, dtype="float32", tile=64, overwrite=False):  # fmt: skip
+        import dask.array as da
+
+        check_choice(dtype, "dtype", ("float32", "float16"))
+        t = check_integer(tile, "tile", 1)
+        self.path = pathlib.Path(os.fspath(path))
+        if self.path.exists() and not overwrite:
+            raise StoreError(f"field store {str(self.path)!r} already exists (pass overwrite=True to replace it)")
+        h, w = (check_integer(n, "image_shape", 1) for n in image_shape)
+        d = np.asarray(directions, np.float64)
+        lshape = d.shape[:-1]
+        one = np.zeros(lshape + (1, 1, 3), np.float32)
+        small = {k: np.asarray(v)[:1, :1] for k, v in (per_pixel or {}).items()}
+        tmpl = make_field(one, d, solid_angles, intensity, attrs=attrs, **small)
+        ldims = light_dims(tmpl)
+        chunks = lshape + (min(t, h), min(t, w), 3)
+        ds = tmpl.drop_vars(list(small)).isel(y=slice(0, 0), x=slice(0, 0))
+        ds = ds.drop_vars("reflectance")
+        ds["reflectance"] = (ldims + ("y", "x", "channel"), da.zeros(lshape + (h, w, 3), dtype=dtype, chunks=chunks))
+        ds["reflectance"].attrs.update(tmpl["reflectance"].attrs)
+        for k, v in (per_pixel or {}).items():
+            ds[k] = (tmpl[k].dims, np.asarray(v))
+        ds = _strings_as_objects(ds)
+        self._dtype = np.dtype(dtype)
+        self._tmp = self.path.with_name(f".{self.path.name}.tmp-{uuid.uuid4().hex[:8]}")
+        encoding = {"reflectance": {"chunks": chunks}}
+        ds.to_zarr(self._tmp, mode="w", compute=False, encoding=encoding, consolidated=False, zarr_format=3)
+        import zarr
+
+        self._array = zarr.open_group(self._tmp, mode="r+")["reflectance"]
+        self._nl = len(ldims)
+
+    def write(self, ys: slice, xs: slice, block):
+        """Store the values of all lights on the image tile ``[ys, xs]`` (block: light dims + (ty, tx, 3))."""
+        b = np.asarray(block)
+        if b.dtype == np.float32 and self._dtype == np.float16 and b.size and b.max() > np.finfo(np.float16).max:
+            raise ValidationError(f"field values up to {float(b.max()):g} overflow float16; write float32")
+        b = b.reshape(tuple(self._array.shape[: self._nl]) + b.shape[-3:])
+        self._array[(slice(None),) * self._nl + (ys, xs, slice(None))] = b.astype(self._dtype)
+
+    def close(self):
+        """Move the finished store into place (replacing an old one) and open it lazily."""
+        if self.path.exists():
+            old = self.path.with_name(f".{self.path.name}.old-{uuid.uuid4().hex[:8]}")
+            self.path.rename(old)
+            self._tmp.rename(self.path)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            self._tmp.rename(self.path)
+        return open_field(self.path)
+
+    def abort(self):
+        """Remove the unfinished store (nothing at ``path`` changes)."""
+        shutil.rmtree(self._tmp, ignore_errors=True)
+
+
 def open_field(path):
     """Open a field written by :func:`write_field`, lazily (dask arrays: tiles are read on demand).
 
@@ -289,7 +386,7 @@ def open_field(path):
         ds = xr.open_zarr(p, consolidated=False, zarr_format=3)
     except Exception as exc:  # zarr raises many types for a directory that is not a store
         raise StoreError(f"field store {str(p)!r} cannot be opened: {exc}") from exc
-    return as_field(ds)
+    return as_field(_strings_as_str(ds))
 
 
 def image_tiles(field, tile: int | None = None):

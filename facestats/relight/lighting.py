@@ -304,8 +304,10 @@ def sky_probe(
     physical sky model.  Radiances are relative (sky ≈ 0.5, sun ``sun_radiance``).
     """
     h = check_integer(height, "height", 2)
-    sun = unit_directions(sun_direction, "sun_direction")
-    check_shape(sun, "sun_direction", (3,))
+    sun = check_shape(as_finite(sun_direction, "sun_direction", dtype=np.float64), "sun_direction", (3,))
+    if np.linalg.norm(sun) == 0:
+        raise ValidationError("sun_direction must be a non-zero vector, got (0, 0, 0)")
+    sun = sun / np.linalg.norm(sun)
     d = latlong_directions(h, 2 * h)
     up = np.clip(d[..., 1:2], 0, 1)
     env = np.where(d[..., 1:2] >= 0, np.asarray(sky) * (0.6 + 0.4 * up), np.asarray(ground))

@@ -1,0 +1,669 @@
+"""The virtual light stage: a fitted store subject imaged under every light of a light stage → a reflectance field.
+
+Debevec et al. 2000 §3.1-3.2 record a face under 64 × 32 directions of a
+distant light and stack the images into reflectance functions (eq. 2).  Here a
+subject of the store (a Weyrich et al. 2006 skin model: albedo/modulation map,
+diffuse normal map, Torrance-Sparrow or Blinn-Phong maps, σ's and σa) is
+imaged the same way through the skin model, so every face of the population
+can be relit under measured light (:func:`facestats.relight.relight.relight`).
+
+Pipeline for one camera (:class:`StageCamera`, pinhole, square image):
+
+1. **Surface per pixel.**  The face mesh (:func:`subject_geometry`) is
+   rasterised into the camera (:func:`facestats.acquire.visibility.rasterize`);
+   each covered pixel's ray is intersected with its triangle (Möller-Trumbore),
+   giving the surface point, its barycentric coordinates and, through the
+   mesh's UV coordinates, the texture coordinate where the subject's maps are
+   read (bilinear, over face texels only).  Pixels whose UV falls off the
+   face region are background (``mask`` False, reflectance 0).
+2. **Visibility.**  Every light is a distant source: its shadow map is that of
+   :class:`facestats.acquire.visibility.ShadowMaps` from a viewpoint 10⁵ mm away
+   along the light direction (an orthographic map to 10⁻³).  Visibility is
+   evaluated at the mesh vertices and interpolated to pixels with the
+   barycentric coordinates (a fraction in [0, 1]: shadow edges are as sharp as
+   the mesh, about one shadow-map texel).  Lights that reach no pixel's front
+   side are skipped.
+3. **Skin model per (pixel, light)** — Weyrich et al. 2006 eq. 6 with eq. 5's
+   1/π (:mod:`facestats.model.skin`), per unit irradiance L·δA of a white light:
+
+       R = f_s(N, l, v) (N·l) V + M F_t(N·v)/π · R_tot F_t(N·l) (N·l) V
+
+   with f_s = ρs D(N·H; m) K (eq. 12-13, :func:`facestats.model.brdf.torrance_sparrow_cosines`,
+   :func:`~facestats.model.brdf.beckmann_distribution`) or ρs (n+2)/(2π) (N·H)ⁿ
+   (eq. 11), F_t = 1 − F_r (:func:`facestats.model.fresnel.fresnel_reflectance`),
+   V the visibility, M = α/α_avg, and R_tot the total diffuse reflectance of the
+   subject's (σ's, σa) through :class:`facestats.model.skin.SubsurfaceTransport`
+   in its local (flat-patch) mode, as :func:`facestats.pipeline.render.predict_radiance`
+   renders fitted subjects.  The diffuse term factors into a per-(pixel, channel)
+   colour times a per-(pixel, light) shape, so it is evaluated once per sample
+   instead of per channel; ``tests/test_relight_stage.py`` checks the result
+   against :func:`facestats.model.skin.skin_radiance` sample by sample.
+
+The same per-sample evaluation, summed over lights with weights L·δA instead of
+stored per light, is :func:`render_subject`, the direct render that relighting
+a stage field must reproduce.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from facestats.acquire.dome import look_at
+from facestats.acquire.geometry import FaceGeometry
+from facestats.core.blocked import blockwise
+from facestats.core.published import ETA_SKIN
+from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
+from facestats.errors import ValidationError
+from facestats.model.brdf import beckmann_distribution, blinn_phong_lobe, torrance_sparrow_cosines
+from facestats.model.fresnel import fresnel_reflectance_unchecked
+from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport
+from facestats.model.sphere import light_stage_directions, unit_directions
+from facestats.relight.field import make_field
+
+__all__ = [
+    "StageCamera",
+    "stage_camera",
+    "subject_geometry",
+    "mesh_uv",
+    "ViewSurface",
+    "view_surface",
+    "SubjectShading",
+    "light_stage_field",
+    "render_subject",
+]
+
+#: Distance (mm) of the viewpoint of a distant light's shadow map.
+LIGHT_DISTANCE = 1e5
+
+
+@dataclass
+class StageCamera:
+    """A square pinhole camera of the virtual light stage.
+
+    Attributes
+    ----------
+    position : ndarray, shape (3,)
+        Camera centre, mm (world frame).
+    target : ndarray, shape (3,)
+        Point at the image centre, mm.
+    fov_deg : float
+        Full field of view, degrees, in (0, 180).
+    size : int
+        Image side, pixels.
+    """
+
+    position: np.ndarray
+    target: np.ndarray
+    fov_deg: float
+    size: int
+
+    def __post_init__(self):
+        self.position = check_shape(as_finite(self.position, "position", dtype=np.float64), "position", (3,))
+        self.target = check_shape(as_finite(self.target, "target", dtype=np.float64), "target", (3,))
+        if np.linalg.norm(self.target - self.position) <= 0:
+            raise ValidationError("target must differ from the camera position, got the same point")
+        self.fov_deg = float(as_finite(self.fov_deg, "fov_deg", 0, 180, low_inclusive=False, high_inclusive=False))
+        self.size = check_integer(self.size, "size", 1, 8192)
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """World-to-camera rotation (rows x right, y down, z forward)."""
+        return look_at(self.position, self.target)
+
+    @property
+    def focal(self) -> float:
+        """Focal length in pixels."""
+        return (self.size / 2) / np.tan(np.radians(self.fov_deg) / 2)
+
+    def pinhole(self):
+        """``(eye, rot, focal, size)`` as :func:`facestats.acquire.visibility.rasterize` takes it."""
+        return self.position, self.rotation, self.focal, self.size
+
+    def rays(self) -> np.ndarray:
+        """Unit world directions from the camera centre through every pixel centre, (size, size, 3), [row, col]."""
+        c = (np.arange(self.size) + 0.5 - self.size / 2) / self.focal
+        cam = np.stack(np.broadcast_arrays(c[None, :], c[:, None], np.ones((1, 1))), axis=-1)
+        world = cam @ self.rotation  # rows of rot are the camera axes: rotᵀ · d
+        return world / np.linalg.norm(world, axis=-1, keepdims=True)
+
+
+def stage_camera(
+    azimuth_deg: float = 0.0,
+    elevation_deg: float = 0.0,
+    *,
+    distance: float = 1200.0,
+    size: int = 256,
+    fov_deg: float = 13.0,
+    target=(0.0, 0.0, 40.0),
+) -> StageCamera:
+    """A camera on a sphere around the head, looking at ``target``.
+
+    Azimuth 0 is the frontal camera on +z; positive azimuths turn towards +x
+    (the subject's left), positive elevations upwards: the camera sits at
+    ``target + distance (cos e sin a, sin e, cos e cos a)``.  The default field
+    of view frames the procedural head at 1.2 m.
+    """
+    a = np.radians(float(as_finite(azimuth_deg, "azimuth_deg")))
+    e = np.radians(float(as_finite(elevation_deg, "elevation_deg", -90, 90)))
+    dist = float(as_finite(distance, "distance", 0, None, low_inclusive=False, unit="mm"))
+    t = np.asarray(as_finite(target, "target", dtype=np.float64))
+    pos = t + dist * np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
+    return StageCamera(pos, t, fov_deg, size)
+
+
+_PROCEDURAL = re.compile(r"^procedural-(\d+)$")
+
+
+def subject_geometry(subject, *, mesh_grid: int = 96) -> FaceGeometry:
+    """The face geometry a store subject was captured on, from its provenance.
+
+    Subjects of the synthetic population record ``capture_provenance.geometry =
+    "procedural-N"``: the procedural head of lumitexel grid N
+    (:func:`facestats.acquire.synthetic.face.procedural_face`), rebuilt here with a
+    ``mesh_grid``² rendering mesh.  Subjects fitted on a real scan must be
+    rendered with that scan's geometry (pass it to :func:`light_stage_field`).
+    """
+    from facestats.acquire.synthetic.face import procedural_face
+    from facestats.io.schema import provenance
+
+    prov = provenance(subject)
+    name = (prov.get("capture_provenance") or {}).get("geometry")
+    m = _PROCEDURAL.match(str(name))
+    if not m:
+        raise ValidationError(
+            f"subject {subject.attrs.get('subject_id', '?')!r} records geometry {name!r}, not a procedural head: "
+            "pass its FaceGeometry (e.g. facestats.io.mesh.load_face_mesh) as geometry="
+        )
+    return procedural_face(int(m.group(1)), mesh_grid=check_integer(mesh_grid, "mesh_grid", 8, 1024))
+
+
+def mesh_uv(geometry: FaceGeometry) -> np.ndarray:
+    """UV coordinates of every mesh vertex, (V, 2).
+
+    Procedural heads: their mesh is a regular grid in UV (vertex i·n + j at
+    ((j + ½)/n, (i + ½)/n)).  Loaded scans: the lumitexels are mesh vertices, so
+    each vertex takes the UV of the nearest lumitexel (exact on the face; off-face
+    vertices only matter as background).
+    """
+    verts = np.asarray(geometry.mesh_vertices)
+    if geometry.meta.get("kind") == "procedural":
+        n = int(round(np.sqrt(len(verts))))
+        if n * n != len(verts):
+            raise ValidationError(f"procedural mesh must be a square grid of vertices, got {len(verts)} vertices")
+        c = (np.arange(n) + 0.5) / n
+        uu, vv = np.meshgrid(c, c)
+        return np.stack([uu.ravel(), vv.ravel()], axis=1)
+    from scipy.spatial import cKDTree
+
+    _, idx = cKDTree(geometry.position).query(verts)
+    return geometry.uv[idx]
+
+
+def _vertex_normals(verts, faces):
+    """Area-weighted vertex normals of a triangle mesh (zero-area vertices get +z)."""
+    tri = verts[faces]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    out = np.zeros_like(verts)
+    for k in range(3):  # the three corners, vectorised over faces
+        np.add.at(out, faces[:, k], cross)
+    norm = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.where(norm > 0, out / np.where(norm > 0, norm, 1), np.array([0.0, 0.0, 1.0]))
+
+
+@dataclass
+class ViewSurface:
+    """The surface seen by each covered pixel of a camera (:func:`view_surface`).
+
+    Attributes
+    ----------
+    pixel : ndarray of int, shape (N,)
+        Flat pixel index (row · size + column) of each covered pixel.
+    position : ndarray, shape (N, 3)
+        Ray-triangle intersection, mm.
+    view : ndarray, shape (N, 3)
+        Unit direction towards the camera.
+    uv : ndarray, shape (N, 2)
+        Texture coordinates.
+    vertices : ndarray of int, shape (N, 3)
+        Mesh vertices of the pixel's triangle.
+    bary : ndarray, shape (N, 3)
+        Barycentric weights of those vertices at the intersection.
+    size : int
+        Image side.
+    """
+
+    pixel: np.ndarray
+    position: np.ndarray
+    view: np.ndarray
+    uv: np.ndarray
+    vertices: np.ndarray
+    bary: np.ndarray
+    size: int
+
+    def subset(self, keep):
+        """The pixels selected by a boolean mask or index."""
+        return ViewSurface(
+            self.pixel[keep], self.position[keep], self.view[keep], self.uv[keep], self.vertices[keep],
+            self.bary[keep], self.size,
+        )  # fmt: skip
+
+
+def view_surface(geometry: FaceGeometry, camera: StageCamera) -> ViewSurface:
+    """Rasterise the geometry's mesh into ``camera`` and intersect every covered pixel's ray with its triangle."""
+    from facestats.acquire.visibility import rasterize
+
+    verts = np.asarray(geometry.mesh_vertices, np.float64)
+    faces = np.asarray(geometry.mesh_faces, np.int64)
+    tri, _ = rasterize(verts, faces, *camera.pinhole())
+    pix = np.nonzero(tri.reshape(-1) >= 0)[0]
+    t_idx = tri.reshape(-1)[pix]
+    rays = camera.rays().reshape(-1, 3)[pix]
+    a, b, c = (verts[faces[t_idx, k]] for k in range(3))
+    # Möller-Trumbore: eye + t·ray = a + b1 (b − a) + b2 (c − a).
+    e1, e2 = b - a, c - a
+    p = np.cross(rays, e2)
+    det = np.einsum("nk,nk->n", e1, p)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / det
+        s = camera.position - a
+        b1 = np.einsum("nk,nk->n", s, p) * inv
+        q = np.cross(s, e1)
+        b2 = np.einsum("nk,nk->n", rays, q) * inv
+        t = np.einsum("nk,nk->n", e2, q) * inv
+    ok = np.isfinite(t) & (t > 0)
+    b1, b2 = np.clip(b1, 0, 1), np.clip(b2, 0, 1)  # the rasteriser's pixel centres lie inside up to 1e-6
+    bary = np.stack([1 - b1 - b2, b1, b2], axis=1)
+    pos = camera.position + t[:, None] * rays
+    uvs = mesh_uv(geometry)[faces[t_idx]]  # (N, 3, 2)
+    uv = np.einsum("nk,nkj->nj", bary, uvs)
+    surf = ViewSurface(pix, pos, -rays, np.clip(uv, 0, 1), faces[t_idx], bary, camera.size)
+    return surf.subset(ok)
+
+
+def _map_weights(uv, size):
+    """Bilinear neighbours and weights of UV coordinates in a size² map indexed [v, u] (texel centres at (i+½)/size)."""
+    x = uv[:, 0] * size - 0.5
+    y = uv[:, 1] * size - 0.5
+    x0 = np.floor(x).astype(np.int64)
+    y0 = np.floor(y).astype(np.int64)
+    fx, fy = x - x0, y - y0
+    iv = np.clip(np.stack([y0, y0, y0 + 1, y0 + 1], 1), 0, size - 1)
+    iu = np.clip(np.stack([x0, x0 + 1, x0, x0 + 1], 1), 0, size - 1)
+    w = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], 1)
+    return iv, iu, w
+
+
+@dataclass
+class SubjectShading:
+    """The skin-model parameters of a subject at each pixel of a view (:meth:`from_subject`).
+
+    Attributes
+    ----------
+    normal : ndarray, shape (N, 3)
+        Unit diffuse normals (the subject's fitted normal map, bilinear, renormalised).
+    colour : ndarray, shape (N, 3)
+        M F_t(N·v)/π R_tot per channel: the diffuse radiance per unit entering
+        flux F_t(N·l)(N·l) (Weyrich eq. 6, local transport).
+    rho_s, roughness : ndarray, shape (N,)
+        Specular parameters of ``specular``.
+    cos_o : ndarray, shape (N,)
+        N·v.
+    specular : str
+    eta : float
+    """
+
+    normal: np.ndarray
+    colour: np.ndarray
+    rho_s: np.ndarray
+    roughness: np.ndarray
+    cos_o: np.ndarray
+    specular: str
+    eta: float
+
+    @classmethod
+    def from_subject(cls, subject, surface: ViewSurface, *, specular="torrance_sparrow", eta=ETA_SKIN):
+        """Sample a map subject at the surface's UVs; returns ``(shading, on_face)`` (on_face: (N,) bool).
+
+        A pixel is on the face when at least half of its bilinear weight falls
+        on face texels (region > 0); its parameters are the bilinear mean over
+        the face texels only.
+        """
+        from facestats.io.schema import modulation
+
+        check_choice(specular, "specular", SPECULAR_MODELS)
+        needed = ("region", "normal", "albedo", "albedo_avg", "sigma_s_prime", "sigma_a")
+        missing = [v for v in needed if v not in subject.data_vars]
+        if missing:
+            raise ValidationError(f"subject must be a fitted map subject with {list(needed)}, missing {missing}")
+        size = int(subject.sizes["u"])
+        iv, iu, w = _map_weights(surface.uv, size)
+        face = (np.asarray(subject["region"].values) > 0)[iv, iu]
+        wf = w * face
+        tot = wf.sum(1)
+        on_face = tot >= 0.5
+        wf = wf / np.where(tot > 0, tot, 1)[:, None]
+
+        def sample(name, values=None):
+            a = np.asarray(subject[name].values if values is None else values, np.float64)
+            return np.einsum("nk,nk...->n...", wf, a[iv, iu])
+
+        normal = sample("normal")
+        norm = np.linalg.norm(normal, axis=1, keepdims=True)
+        normal = np.where(norm > 1e-6, normal / np.where(norm > 1e-6, norm, 1), surface.view)
+        rho_var, lobe_var = ("ts_rho_s", "ts_m") if specular == "torrance_sparrow" else ("bp_rho_s", "bp_exponent")
+        rho, rough = sample(rho_var), sample(lobe_var)
+        if specular == "torrance_sparrow":
+            rough = np.maximum(rough, 1e-3)  # m > 0 off the face, where the maps hold 0
+        transport = SubsurfaceTransport(subject["sigma_s_prime"].values, subject["sigma_a"].values, eta)
+        mod = sample("albedo", modulation(subject).values)
+        cos_o = np.clip(np.einsum("nk,nk->n", normal, surface.view), 0, 1)
+        t_o = np.where(cos_o > 0, 1 - fresnel_reflectance_unchecked(cos_o, eta), 0.0)
+        colour = mod * (t_o / np.pi)[:, None] * transport.total_reflectance[None, :]
+        return cls(normal, colour, rho, rough, cos_o, specular, float(eta)), on_face
+
+    def subset(self, keep):
+        """The pixels selected by a mask or index."""
+        return SubjectShading(
+            self.normal[keep], self.colour[keep], self.rho_s[keep], self.roughness[keep], self.cos_o[keep],
+            self.specular, self.eta,
+        )  # fmt: skip
+
+    def factors(self, directions, view, visibility):
+        """Per (pixel, light): specular radiance and the diffuse shape, per unit irradiance L·δA.
+
+        Parameters
+        ----------
+        directions : ndarray, shape (L, 3)
+            Unit vectors towards the lights.
+        view : ndarray, shape (N, 3)
+            Unit vectors towards the camera.
+        visibility : ndarray, shape (N, L)
+            Fraction of each light reaching each pixel, [0, 1].
+
+        Returns
+        -------
+        specular, shape : ndarray of float32, shape (N, L)
+            f_s (N·l) V and F_t(N·l) (N·l) V; the reflectance is
+            ``specular + shape · colour`` per channel (module docstring).
+        """
+        d = directions.astype(np.float32)
+        ci = self.normal.astype(np.float32) @ d.T
+        io = view.astype(np.float32) @ d.T
+        co = np.broadcast_to(self.cos_o.astype(np.float32)[:, None], ci.shape)
+        rho = np.broadcast_to(self.rho_s.astype(np.float32)[:, None], ci.shape)
+        rough = np.broadcast_to(self.roughness.astype(np.float32)[:, None], ci.shape)
+        kernel = _ts_kernel if self.specular == "torrance_sparrow" else _bp_kernel
+        ops = [ci, co, io, rho, rough, np.asarray(visibility, np.float32), np.float32(self.eta)]
+        return blockwise(kernel, ops, np.float32, n_out=2)
+
+
+def _shape(ci, vis, eta):
+    """F_t(N·l) (N·l) V, 0 below the horizon."""
+    c = np.maximum(ci, 0)
+    return (1 - fresnel_reflectance_unchecked(np.minimum(c, 1), eta)) * c * vis
+
+
+def _ts_kernel(ci, co, io, rho, m, vis, eta):
+    """Torrance-Sparrow f_s (N·l) V (Weyrich eq. 12-13) and the diffuse shape, per sample (no checks)."""
+    cos_delta, k = torrance_sparrow_cosines(ci, co, io, eta)
+    spec = rho * beckmann_distribution(cos_delta, m) * k * np.maximum(ci, 0) * vis
+    return spec, _shape(ci, vis, eta)
+
+
+def _bp_kernel(ci, co, io, rho, n, vis, eta):
+    """Blinn-Phong f_s (N·l) V (Weyrich eq. 11) and the diffuse shape, per sample (no checks)."""
+    cos_delta, k = torrance_sparrow_cosines(ci, co, io, eta)  # N·H, and K = 0 below the horizon
+    spec = np.where(k > 0, rho * blinn_phong_lobe(cos_delta, n), 0) * np.maximum(ci, 0) * vis
+    return spec, _shape(ci, vis, eta)
+
+
+def _visibility_setup(geometry, surface, normals, directions, shadow_resolution, shadows):
+    """Vertex visibility (V_used, L_active) of the lights that reach some pixel, and those lights' indices."""
+    from facestats.acquire.visibility import ShadowMaps
+
+    active = np.nonzero((normals @ directions.T > 0).any(axis=0))[0]
+    used, inverse = np.unique(surface.vertices, return_inverse=True)
+    if not shadows or active.size == 0:
+        return np.ones((used.size, active.size), np.float32), active, inverse.reshape(surface.vertices.shape)
+    verts = np.asarray(geometry.mesh_vertices, np.float64)
+    faces = np.asarray(geometry.mesh_faces, np.int64)
+    vn = _vertex_normals(verts, faces)
+    target = 0.5 * (verts.min(0) + verts.max(0))
+    eyes = target + LIGHT_DISTANCE * directions[active]
+    maps = ShadowMaps(verts, faces, eyes, target=target, resolution=shadow_resolution)
+    vis = maps.visible(verts[used], vn[used])
+    return vis.astype(np.float32), active, inverse.reshape(surface.vertices.shape)
+
+
+def _prepare(subject, geometry, camera, directions, *, specular, eta, shadows, shadow_resolution):
+    """Shared set-up of the stage and of the direct render: surface, shading, visibility."""
+    if geometry is None:
+        geometry = subject_geometry(subject)
+    if not isinstance(geometry, FaceGeometry):
+        raise ValidationError(f"geometry must be a FaceGeometry, got {type(geometry).__name__}")
+    if not isinstance(camera, StageCamera):
+        raise ValidationError(f"camera must be a StageCamera (facestats.relight.stage_camera), got {camera!r}")
+    surface = view_surface(geometry, camera)
+    shading, on_face = SubjectShading.from_subject(subject, surface, specular=specular, eta=eta)
+    surface, shading = surface.subset(on_face), shading.subset(on_face)
+    res = check_integer(shadow_resolution, "shadow_resolution", 8, 4096)
+    vis_v, active, vidx = _visibility_setup(geometry, surface, shading.normal, directions, res, shadows)
+    return surface, shading, vis_v, active, vidx
+
+
+def _pixel_visibility(vis_v, vidx, bary, rows):
+    """Barycentric interpolation of vertex visibility to the pixels ``rows``: (n, L_active) float32."""
+    b = bary[rows].astype(np.float32)
+    v = vidx[rows]
+    return b[:, 0:1] * vis_v[v[:, 0]] + b[:, 1:2] * vis_v[v[:, 1]] + b[:, 2:3] * vis_v[v[:, 2]]
+
+
+def _light_set(directions):
+    """(flat unit directions (L, 3), grid shape or None) of the stage's lights (default 64 × 32)."""
+    if directions is None:
+        directions, _ = light_stage_directions()
+    d = unit_directions(directions)
+    if d.ndim == 3:
+        return d.reshape(-1, 3), d.shape[:2]
+    check_shape(d, "directions", (None, 3))
+    return d, None
+
+
+def _tiles_of(pixel, size, tile):
+    """Pixels grouped by image tile: ``[(tile row, tile col, indices into pixel)]``."""
+    rows, cols = pixel // size, pixel % size
+    key = (rows // tile) * ((size + tile - 1) // tile) + cols // tile
+    order = np.argsort(key, kind="stable")
+    bounds = np.flatnonzero(np.diff(key[order])) + 1
+    n_tx = (size + tile - 1) // tile
+    return [(int(key[g[0]] // n_tx), int(key[g[0]] % n_tx), g) for g in np.split(order, bounds) if g.size]
+
+
+def light_stage_field(
+    subject,
+    camera: StageCamera | None = None,
+    *,
+    geometry: FaceGeometry | None = None,
+    directions=None,
+    specular: str = "torrance_sparrow",
+    eta: float = ETA_SKIN,
+    shadows: bool = True,
+    shadow_resolution: int = 128,
+    tile: int = 64,
+    out=None,
+    dtype: str = "float32",
+    overwrite: bool = False,
+    progress: bool = False,
+):
+    """Image a fitted subject under every light of a light stage: its reflectance field (module docstring).
+
+    Parameters
+    ----------
+    subject : xarray.Dataset
+        A map subject of the store (fitted maps, σ's, σa).
+    camera : StageCamera, optional
+        Default: the frontal camera of :func:`stage_camera` (256²).
+    geometry : FaceGeometry, optional
+        Default: the subject's recorded procedural head (:func:`subject_geometry`).
+    directions : array_like, optional
+        Light directions: a lat-long grid (n_phi, n_theta, 3) (default Debevec's
+        64 × 32, :func:`facestats.model.sphere.light_stage_directions`) or any
+        list (L, 3) (solid angles then from spherical Voronoi cells).
+    specular : {"torrance_sparrow", "blinn_phong"}
+        Which fitted specular model renders highlights.
+    eta : float
+        Relative index of refraction (Fresnel terms).
+    shadows : bool
+        Cast shadows from the face mesh (False: only the N·l > 0 test).
+    shadow_resolution : int
+        Side of each light's shadow map, pixels.
+    tile : int
+        Image tile side: the unit of work and the zarr chunk.
+    out : str or path-like, optional
+        Write the field to this zarr store tile by tile (memory: one tile under
+        all lights) and return it opened lazily; default: in memory.
+    dtype : {"float32", "float16"}
+        Storage type when writing to ``out``.
+    overwrite : bool
+        Replace an existing store at ``out``.
+    progress : bool
+        Show a progress bar over tiles.
+
+    Returns
+    -------
+    xarray.Dataset
+        The field (:mod:`facestats.relight.field`) with ``mask``, ``view``,
+        ``normal`` and ``position`` per pixel; attributes record the subject,
+        camera and model.
+    """
+    from tqdm.auto import tqdm
+
+    from facestats.relight.field import FieldStore
+
+    camera = stage_camera() if camera is None else camera
+    flat, grid = _light_set(directions)
+    surface, shading, vis_v, active, vidx = _prepare(
+        subject, geometry, camera, flat, specular=specular, eta=eta, shadows=shadows,
+        shadow_resolution=shadow_resolution,
+    )  # fmt: skip
+    size = camera.size
+    t = check_integer(tile, "tile", 1)
+    per_pixel = _per_pixel_maps(surface, shading, size)
+    lshape = grid if grid is not None else (flat.shape[0],)
+    attrs = {
+        "source": "facestats virtual light stage",
+        "subject_id": str(subject.attrs.get("subject_id", "?")),
+        "specular": specular,
+        "eta": float(eta),
+        "shadows": bool(shadows),
+        "camera_position_mm": camera.position.tolist(),
+        "camera_target_mm": camera.target.tolist(),
+        "camera_fov_deg": camera.fov_deg,
+    }
+    dirs = flat.reshape(lshape + (3,))
+    store = None
+    if out is None:
+        values = np.zeros((flat.shape[0], size, size, 3), np.float32)
+    else:
+        store = FieldStore(out, dirs, (size, size), per_pixel=per_pixel, attrs=attrs, dtype=dtype, tile=t,
+                           overwrite=overwrite)  # fmt: skip
+    tiles = _tiles_of(surface.pixel, size, t)
+    try:
+        for ti, tj, rows in tqdm(tiles, desc="light stage tiles", disable=not progress, leave=False):
+            vis = _pixel_visibility(vis_v, vidx, surface.bary, rows)
+            spec, shape = shading.subset(rows).factors(flat[active], surface.view[rows], vis)
+            refl = spec[..., None] + shape[..., None] * shading.colour[rows, None, :].astype(np.float32)  # (n, La, 3)
+            r, c = surface.pixel[rows] // size, surface.pixel[rows] % size
+            if store is None:
+                values[active[:, None], r[None, :], c[None, :], :] = np.swapaxes(refl, 0, 1)
+            else:
+                y0, x0 = ti * t, tj * t
+                block = np.zeros((flat.shape[0], min(t, size - y0), min(t, size - x0), 3), np.float32)
+                block[active[:, None], (r - y0)[None, :], (c - x0)[None, :], :] = np.swapaxes(refl, 0, 1)
+                store.write(slice(y0, y0 + block.shape[1]), slice(x0, x0 + block.shape[2]), block)
+        if store is not None:
+            return store.close()
+    except BaseException:
+        if store is not None:
+            store.abort()
+        raise
+    return make_field(values.reshape(lshape + (size, size, 3)), dirs, attrs=attrs, **per_pixel)
+
+
+def _per_pixel_maps(surface, shading, size):
+    """``mask``, ``view``, ``normal``, ``position`` images of the covered face pixels (0 elsewhere)."""
+    n = size * size
+    mask = np.zeros(n, bool)
+    mask[surface.pixel] = True
+    out = {"mask": mask.reshape(size, size)}
+    for name, vals in (("view", surface.view), ("normal", shading.normal), ("position", surface.position)):
+        img = np.zeros((n, 3), np.float32)
+        img[surface.pixel] = vals
+        out[name] = img.reshape(size, size, 3)
+    return out
+
+
+def render_subject(
+    subject,
+    lighting,
+    directions=None,
+    camera: StageCamera | None = None,
+    *,
+    geometry: FaceGeometry | None = None,
+    specular: str = "torrance_sparrow",
+    eta: float = ETA_SKIN,
+    shadows: bool = True,
+    shadow_resolution: int = 128,
+    chunk: int = 4096,
+):
+    """Render a subject directly under distant lights with weights L·δA: Σ_l R_l L_l δA_l without a stored field.
+
+    The same surface, shading and visibility as :func:`light_stage_field`; each
+    chunk of pixels is summed over the lights at once.  Relighting a stage field
+    with the same lights must give this image (the cross-check of both paths).
+
+    Parameters
+    ----------
+    subject : xarray.Dataset
+    lighting : array_like, shape (L, 3) or directions.shape[:-1] + (3,)
+        L·δA per light and channel (:func:`facestats.relight.lighting.resample_probe`), ≥ 0.
+    directions : array_like, optional
+        Light directions (default the 64 × 32 stage).  For a full-resolution
+        probe pass :func:`facestats.model.sphere.latlong_directions` of its size
+        and the probe times :func:`~facestats.model.sphere.latlong_solid_angles`.
+    camera, geometry, specular, eta, shadows, shadow_resolution
+        As :func:`light_stage_field`.
+    chunk : int
+        Pixels per chunk.
+
+    Returns
+    -------
+    image : ndarray of float32, shape (size, size, 3)
+        Radiance in the unit of ``lighting`` per sr (0 off the face).
+    mask : ndarray of bool, shape (size, size)
+    """
+    camera = stage_camera() if camera is None else camera
+    flat, _ = _light_set(directions)
+    w = as_finite(lighting, "lighting", 0, None, dtype=np.float64).reshape(-1, 3)
+    if w.shape[0] != flat.shape[0]:
+        raise ValidationError(f"lighting must hold one RGB weight per light ({flat.shape[0]}), got {w.shape[0]}")
+    surface, shading, vis_v, active, vidx = _prepare(
+        subject, geometry, camera, flat, specular=specular, eta=eta, shadows=shadows,
+        shadow_resolution=shadow_resolution,
+    )  # fmt: skip
+    wa = w[active].astype(np.float32)
+    step = check_integer(chunk, "chunk", 1)
+    out = np.zeros((surface.pixel.size, 3), np.float32)
+    for a in range(0, surface.pixel.size, step):  # loop over chunks of pixels
+        rows = np.arange(a, min(a + step, surface.pixel.size))
+        vis = _pixel_visibility(vis_v, vidx, surface.bary, rows)
+        spec, shape = shading.subset(rows).factors(flat[active], surface.view[rows], vis)
+        out[rows] = (spec @ wa) + (shape @ wa) * shading.colour[rows].astype(np.float32)
+    img = np.zeros((camera.size * camera.size, 3), np.float32)
+    img[surface.pixel] = out
+    mask = np.zeros(camera.size * camera.size, bool)
+    mask[surface.pixel] = True
+    return img.reshape(camera.size, camera.size, 3), mask.reshape(camera.size, camera.size)

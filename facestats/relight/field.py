@@ -269,16 +269,14 @@ def write_field(path, field, *, dtype="float32", tile: int = 64, overwrite: bool
     ldims = light_dims(f)
     chunks = tuple(f.sizes[d] for d in ldims) + (min(t, f.sizes["y"]), min(t, f.sizes["x"]), 3)
     out = _strings_as_objects(f.copy())
-    out["reflectance"] = out["reflectance"].astype(dtype)
+    out["reflectance"] = out["reflectance"].astype(dtype).chunk(dict(zip(ldims + ("y", "x", "channel"), chunks)))
     encoding = {"reflectance": {"chunks": chunks}}
     for name in out.data_vars:
         if name != "reflectance":
             encoding[name] = {"chunks": tuple(out[name].shape)}
     tmp = p.with_name(f".{p.name}.tmp-{uuid.uuid4().hex[:8]}")
     try:
-        out.chunk(dict(zip(ldims + ("y", "x", "channel"), chunks))).to_zarr(
-            tmp, mode="w", encoding=encoding, consolidated=False, zarr_format=3
-        )
+        out.to_zarr(tmp, mode="w", encoding=encoding, consolidated=False, zarr_format=3)
         if p.exists():
             old = p.with_name(f".{p.name}.old-{uuid.uuid4().hex[:8]}")
             p.rename(old)

@@ -76,7 +76,7 @@ def check_probe(probe, layout: str = "latlong", name: str = "probe") -> np.ndarr
     if bad.any():
         i = np.argwhere(bad)[0]
         raise ValidationError(
-            f"{name}: radiance must be finite, got {p[tuple(i)]!r} at row {i[0]}, column {i[1]}, channel {i[2]} "
+            f"{name}: radiance must be finite, got {float(p[tuple(i)])!r} at row {i[0]}, column {i[1]}, channel {i[2]} "
             f"({int(bad.sum())} non-finite value(s))"
         )
     neg = p < 0

@@ -350,19 +350,35 @@ class SubjectShading:
             a = np.asarray(subject[name].values if values is None else values, np.float64)
             return np.einsum("nk,nk...->n...", wf, a[iv, iu])
 
-        normal = sample("normal")
-        norm = np.linalg.norm(normal, axis=1, keepdims=True)
-        normal = np.where(norm > 1e-6, normal / np.where(norm > 1e-6, norm, 1), surface.view)
         rho_var, lobe_var = ("ts_rho_s", "ts_m") if specular == "torrance_sparrow" else ("bp_rho_s", "bp_exponent")
-        rho, rough = sample(rho_var), sample(lobe_var)
+        transport = SubsurfaceTransport(subject["sigma_s_prime"].values, subject["sigma_a"].values, eta)
+        shading = cls.from_parameters(
+            sample("normal"), surface.view, sample("albedo", modulation(subject).values), sample(rho_var),
+            sample(lobe_var), transport, specular=specular, eta=eta,
+        )  # fmt: skip
+        return shading, on_face
+
+    @classmethod
+    def from_parameters(cls, normal, view, modulation, rho_s, roughness, transport: SubsurfaceTransport, *,
+                        specular="torrance_sparrow", eta=ETA_SKIN):  # fmt: skip
+        """Shading from per-pixel skin-model parameters (normals need not be unit: they are normalised).
+
+        ``modulation`` is M (N, 3), ``transport`` a local-mode
+        :class:`~facestats.model.skin.SubsurfaceTransport` whose total reflectance
+        R_tot enters the diffuse colour; pixels with a zero normal take the view direction.
+        """
+        check_choice(specular, "specular", SPECULAR_MODELS)
+        view = np.asarray(view, np.float64)
+        normal = np.asarray(normal, np.float64)
+        norm = np.linalg.norm(normal, axis=1, keepdims=True)
+        normal = np.where(norm > 1e-6, normal / np.where(norm > 1e-6, norm, 1), view)
+        rough = np.asarray(roughness, np.float64)
         if specular == "torrance_sparrow":
             rough = np.maximum(rough, 1e-3)  # m > 0 off the face, where the maps hold 0
-        transport = SubsurfaceTransport(subject["sigma_s_prime"].values, subject["sigma_a"].values, eta)
-        mod = sample("albedo", modulation(subject).values)
-        cos_o = np.clip(np.einsum("nk,nk->n", normal, surface.view), 0, 1)
+        cos_o = np.clip(np.einsum("nk,nk->n", normal, view), 0, 1)
         t_o = np.where(cos_o > 0, 1 - fresnel_reflectance_unchecked(cos_o, eta), 0.0)
-        colour = mod * (t_o / np.pi)[:, None] * transport.total_reflectance[None, :]
-        return cls(normal, colour, rho, rough, cos_o, specular, float(eta)), on_face
+        colour = np.asarray(modulation, np.float64) * (t_o / np.pi)[:, None] * transport.total_reflectance[None, :]
+        return cls(normal, colour, np.asarray(rho_s, np.float64), rough, cos_o, specular, float(eta))
 
     def subset(self, keep):
         """The pixels selected by a mask or index."""

@@ -154,35 +154,43 @@ def fit_chromaticity_ramp(values, cos_i, cos_r, d0, s=WHITE, weights=None):
     return alpha0, alpha1
 
 
-def diffuse_chromaticity(values, low: float = 0.2, high: float = 0.8):
+def diffuse_chromaticity(values, low: float = 25.0, high: float = 75.0):
     """Representative diffuse chromaticity d₀ of each reflectance function (Debevec et al. 2000 §4.2).
 
     "the median of the red-green and green-blue ratios over reflectance function
-    values falling in a certain brightness range": samples whose luminance lies
-    in [``low``, ``high``] × the function's maximum (mid-bright: above noise and
-    shadow, below the specular peak).  With a = median R/G and b = median G/B,
-    d₀ = normalize(a b, b, 1).
+    values falling in a certain brightness range".  The paper does not give the
+    range; facestats takes the samples whose luminance lies between the
+    ``low`` and ``high`` percentiles of the function's lit (non-zero) samples —
+    a range relative to the function itself that excludes shadows and noise
+    below and the specular lobe above whatever its height (a range relative to
+    the maximum would be emptied by one strong highlight).  With a = median R/G
+    and b = median G/B, d₀ = normalize(a b, b, 1).
 
     Parameters
     ----------
     values : array_like, shape (L, N, 3)
+    low, high : float
+        Percentiles, 0 ≤ low < high ≤ 100.
 
     Returns
     -------
     ndarray, shape (N, 3)
         Unit RGB; NaN for functions without a usable sample.
     """
-    r = check_shape(as_finite(values, "values", dtype=np.float64), "values", (None, None, 3))
-    lum = r.sum(-1)
-    peak = lum.max(0)
-    use = (lum >= low * peak) & (lum <= high * peak) & (r[..., 1] > 0) & (r[..., 2] > 0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rg = np.where(use, r[..., 0] / r[..., 1], np.nan)
-        gb = np.where(use, r[..., 1] / r[..., 2], np.nan)
     import warnings
 
+    r = check_shape(as_finite(values, "values", dtype=np.float64), "values", (None, None, 3))
+    lo = float(as_finite(low, "low", 0, 100))
+    hi = float(as_finite(high, "high", lo, 100, low_inclusive=False))
+    lum = r.sum(-1)
+    lit = (lum > 0) & (r[..., 1] > 0) & (r[..., 2] > 0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns give NaN, reported as such
+        q = np.nanpercentile(np.where(lit, lum, np.nan), [lo, hi], axis=0)
+        use = lit & (lum >= q[0]) & (lum <= q[1])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rg = np.where(use, r[..., 0] / r[..., 1], np.nan)
+            gb = np.where(use, r[..., 1] / r[..., 2], np.nan)
         a, b = np.nanmedian(rg, axis=0), np.nanmedian(gb, axis=0)
     d = np.stack([a * b, b, np.ones_like(a)], axis=-1)
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
@@ -221,7 +229,8 @@ def separate_colour(values, d, s=WHITE):
     mu : ndarray, shape of ``values``
         (μd, μs, μe) before clamping.
     clamped : ndarray of bool, shape ``values.shape[:-1]``
-        Samples whose μs was negative and set to 0.
+        Samples whose μs was negative beyond rounding (below −10⁻⁶ ‖R‖); every
+        negative μs is set to 0.
     """
     r = check_shape(as_finite(values, "values", dtype=np.float64), "values", (..., 3))
     dd = np.broadcast_to(unit_rgb(d, "d"), r.shape)
@@ -233,13 +242,13 @@ def separate_colour(values, d, s=WHITE):
         raise ValidationError("d and s must not be parallel (the separation matrix is singular); check its condition")
     rows = np.stack([np.cross(np.broadcast_to(ss, r.shape), e), np.cross(e, dd), np.cross(dd, ss)], axis=-2)
     mu = np.einsum("...ij,...j->...i", rows, r) / det[..., None]
-    clamped = mu[..., 1] < 0
+    clamped = mu[..., 1] < -1e-6 * np.linalg.norm(r, axis=-1)  # rounding-level negatives are not counted
     spec = np.maximum(mu[..., 1], 0)[..., None] * ss
     return r - spec, spec, mu, clamped
 
 
-def separate_field(field, s=WHITE, *, view=None, mirror_deg: float = 20.0, shadow_threshold: float = 0.05,
-                   max_condition: float = 50.0, d0=None):  # fmt: skip
+def separate_field(field, s=WHITE, *, view=None, ramp: bool = True, mirror_deg: float = 45.0,
+                   shadow_threshold: float = 0.05, max_condition: float = 50.0, d0=None):  # fmt: skip
     """The colour-space separation of §4.2 applied to every pixel of a reflectance field.
 
     Steps per pixel: d₀ (:func:`diffuse_chromaticity`, or given), rough
@@ -258,6 +267,13 @@ def separate_field(field, s=WHITE, *, view=None, mirror_deg: float = 20.0, shado
     s : array_like, shape (3,)
         Light chromaticity.
     view : array_like, shape (y, x, 3), optional
+    ramp : bool
+        Fit the chromaticity ramp (§4.1-4.2).  False: the diffuse colour is d₀
+        for every sample (the separation of D4 with a known skin colour).
+        Colour alone cannot tell a ramp shift towards s from specular light
+        (both lie in the plane of d₀ and s), so the ramp is fitted only on
+        samples farther than ``mirror_deg`` from the mirror direction; broad
+        lobes (skin's m ≈ 0.3-0.4) need a wide exclusion.
     mirror_deg, shadow_threshold, max_condition : float
     d0 : array_like, shape (y, x, 3) or (3,), optional
         Known diffuse chromaticity instead of the median-ratio estimate.
@@ -296,7 +312,10 @@ def separate_field(field, s=WHITE, *, view=None, mirror_deg: float = 20.0, shado
     mirror = 2 * cos_r[:, None] * n_safe - v  # (N, 3)
     far_from_mirror = (dirs @ mirror.T) < np.cos(np.radians(mirror_deg))
     wts = lum * lit * far_from_mirror * (cos_i > 0)
-    a0, a1 = fit_chromaticity_ramp(r, np.clip(cos_i, 0, 1), cos_r, d_safe, s_unit, weights=wts)
+    if ramp:
+        a0, a1 = fit_chromaticity_ramp(r, np.clip(cos_i, 0, 1), cos_r, d_safe, s_unit, weights=wts)
+    else:
+        a0 = a1 = np.zeros(h * w)
     fr = ramp_factor(np.clip(cos_i, 0, 1), cos_r[None, :], np.nan_to_num(a0)[None, :], np.nan_to_num(a1)[None, :])
     d_ramp = ramp_chromaticity(np.broadcast_to(d_safe, r.shape), s_unit, fr)
     diffuse, spec, mu, clamped = separate_colour(r, d_ramp, s_unit)

@@ -11,6 +11,7 @@ from facestats.relight import stage
 from facestats.relight.field import open_field
 from facestats.relight.lighting import resample_probe, sky_probe
 from facestats.relight.relight import relight
+from facestats.relight.shadows import shadow_agreement, threshold_shadow_maps
 
 from .conftest import random_hemisphere
 
@@ -27,6 +28,13 @@ def subject():
 @pytest.fixture(scope="module")
 def geometry(subject):
     return stage.subject_geometry(subject, mesh_grid=32)
+
+
+@pytest.fixture(scope="module")
+def stage_field(subject, geometry):
+    d, _ = light_stage_directions(*LIGHTS)
+    return stage.light_stage_field(subject, stage.stage_camera(size=SIZE), geometry=geometry, directions=d,
+                                   visibility=True)  # fmt: skip
 
 
 @pytest.mark.parametrize("model", ["torrance_sparrow", "blinn_phong"])
@@ -51,10 +59,10 @@ def test_factored_evaluation_equals_skin_radiance_sample_by_sample(rng, model):
     assert np.allclose(ours, ref, rtol=2e-5, atol=1e-7)
 
 
-def test_stage_field_relit_equals_the_direct_render(subject, geometry, tmp_path):
+def test_stage_field_relit_equals_the_direct_render(subject, geometry, stage_field, tmp_path):
     d, _ = light_stage_directions(*LIGHTS)
     cam = stage.stage_camera(size=SIZE)
-    field = stage.light_stage_field(subject, cam, geometry=geometry, directions=d)
+    field = stage_field
     assert field["reflectance"].shape == (8, 16, SIZE, SIZE, 3)
     m = field["mask"].values
     assert 0.2 < m.mean() < 0.6
@@ -68,6 +76,17 @@ def test_stage_field_relit_equals_the_direct_render(subject, geometry, tmp_path)
     on_disk = stage.light_stage_field(subject, cam, geometry=geometry, directions=d, out=tmp_path / "s.zarr", tile=8)
     assert np.array_equal(open_field(tmp_path / "s.zarr")["reflectance"].values, field["reflectance"].values)
     assert np.allclose(relight(on_disk, lw), relit, rtol=1e-6)
+
+
+def test_threshold_shadow_maps_match_the_geometric_visibility_off_boundaries(stage_field):
+    # D6 (Debevec §4.4): brightness thresholding of each reflectance function against its maximum.
+    visible = stage_field["visibility"].values > 0.5
+    mask = stage_field["mask"].values
+    lit = threshold_shadow_maps(stage_field, 0.02)
+    away = shadow_agreement(lit, visible, band=1, mask=mask)
+    assert away["agreement"] >= 0.99
+    assert shadow_agreement(lit, visible, band=0, mask=mask)["agreement"] < away["agreement"]  # edges differ
+    assert not (stage_field["visibility"].values[:, :, ~mask] > 0).any()
 
 
 def test_camera_and_view_surface_conventions(geometry):

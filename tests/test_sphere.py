@@ -88,13 +88,17 @@ def test_voronoi_cells_tile_the_sphere():
     d = rng.normal(size=(150, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     assert sphere.voronoi_solid_angles(d).sum() == pytest.approx(4 * np.pi, rel=1e-9)
+    # Sets SphericalVoronoi cannot tessellate are measured on a grid: one light owns the sphere; two
+    # opposite lights own a hemisphere each; three on the equator a third each.
+    assert sphere.voronoi_solid_angles([[0, 1.0, 0]]) == pytest.approx([4 * np.pi])
+    assert np.allclose(sphere.voronoi_solid_angles([[0, 1.0, 0], [0, -1.0, 0]]), 2 * np.pi, rtol=1e-12)
+    eq = sphere.direction_from_angles(np.pi / 2, np.array([0.1, 0.1 + 2 * np.pi / 3, 0.1 + 4 * np.pi / 3]))
+    assert np.allclose(sphere.voronoi_solid_angles(eq), 4 * np.pi / 3, rtol=0.01)
 
 
 def test_bad_directions_are_refused():
     with pytest.raises(ValidationError, match="unit vectors"):
         sphere.unit_directions([[0, 0, 2.0]])
-    with pytest.raises(ValidationError, match="at least 4"):
-        sphere.voronoi_solid_angles([[1, 0, 0], [0, 1, 0], [0, 0, 1]])
     with pytest.raises(ValidationError, match="distinct"):
         sphere.voronoi_solid_angles([[1, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0, 0, -1]])
     with pytest.raises(ValidationError, match="height"):

@@ -260,28 +260,38 @@ def unit_directions(value, name: str = "directions", tol: float = 1e-3) -> np.nd
     return d / norm[..., None]
 
 
-def voronoi_solid_angles(directions) -> np.ndarray:
+def voronoi_solid_angles(directions, *, grid: int = 256) -> np.ndarray:
     """Solid angle of the spherical Voronoi cell of each direction of an arbitrary light set, (L,), sr.
 
     The cell of light k is the part of the sphere closer to it than to any other
     light; the cells tile the sphere, so the solid angles sum to 4π.  This is the
     δA of eq. 4 (Debevec et al. 2000) for a dome whose lights are not on a
     lat-long grid (e.g. Weyrich's 150 LEDs).  Exact cell areas from
-    :class:`scipy.spatial.SphericalVoronoi`.
+    :class:`scipy.spatial.SphericalVoronoi`; for sets it cannot tessellate (fewer
+    than 4 lights, all lights on one great circle) the cells are measured on a
+    ``grid`` × 2 ``grid`` lat-long grid (each exact cell to its nearest light; the
+    sum is still 4π, each share exact to about a cell row).
 
     Parameters
     ----------
     directions : array_like, shape (L, 3)
-        Distinct unit vectors, L ≥ 4, not all on one great circle.
+        Distinct unit vectors.
+    grid : int
+        Rows of the fallback grid.
     """
-    from scipy.spatial import SphericalVoronoi
+    from scipy.spatial import SphericalVoronoi, cKDTree
 
     d = unit_directions(directions)
     check_shape(d, "directions", (None, 3))
-    if d.shape[0] < 4:
-        raise ValidationError(f"directions must hold at least 4 lights for Voronoi cells, got {d.shape[0]}")
+    if d.shape[0] == 0:
+        raise ValidationError("directions must hold at least one light, got none")
+    if np.unique(np.round(d, 12), axis=0).shape[0] != d.shape[0]:
+        raise ValidationError("directions must be distinct, got the same direction twice")
     try:
-        sv = SphericalVoronoi(d, radius=1.0, center=np.zeros(3), threshold=1e-9)
-    except ValueError as exc:  # duplicate or degenerate generators
-        raise ValidationError(f"directions must be distinct and span the sphere: {exc}") from None
-    return sv.calculate_areas()
+        if d.shape[0] < 4 or np.linalg.matrix_rank(d, tol=1e-9) < 3:
+            raise ValueError("degenerate")
+        return SphericalVoronoi(d, radius=1.0, center=np.zeros(3), threshold=1e-9).calculate_areas()
+    except ValueError:
+        g = check_integer(grid, "grid", 8, 4096)
+        _, idx = cKDTree(d).query(latlong_directions(g, 2 * g).reshape(-1, 3))
+        return np.bincount(idx, weights=latlong_solid_angles(g, 2 * g).reshape(-1), minlength=d.shape[0])

@@ -38,7 +38,7 @@ def _wrap_morphology(lit, op, iterations):
     return y[pad:-pad, pad:-pad]
 
 
-def threshold_shadow_maps(field, threshold: float = 0.05, *, clean: int = 1):
+def threshold_shadow_maps(field, threshold: float = 0.02, *, clean: int = 1):
     """Lit/shadowed map of every reflectance function: luminance > ``threshold`` × its maximum, cleaned.
 
     Parameters

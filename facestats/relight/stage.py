@@ -513,6 +513,7 @@ def light_stage_field(
     dtype: str = "float32",
     overwrite: bool = False,
     progress: bool = False,
+    visibility: bool = False,
 ):
     """Image a fitted subject under every light of a light stage: its reflectance field (module docstring).
 
@@ -547,6 +548,11 @@ def light_stage_field(
         Replace an existing store at ``out``.
     progress : bool
         Show a progress bar over tiles.
+    visibility : bool
+        Also return the geometric visibility (in memory only): a ``visibility``
+        variable (light dims, y, x), the fraction of each light reaching each
+        pixel's front side (N·l > 0, unoccluded) — the truth that the
+        thresholded shadow maps of :mod:`facestats.relight.shadows` estimate.
 
     Returns
     -------
@@ -581,6 +587,9 @@ def light_stage_field(
     }
     dirs = flat.reshape(lshape + (3,))
     store = None
+    if visibility and out is not None:
+        raise ValidationError("visibility=True keeps the field in memory: it cannot be combined with out=")
+    vis_img = np.zeros((flat.shape[0], size, size), np.float32) if visibility else None
     if out is None:
         values = np.zeros((flat.shape[0], size, size, 3), np.float32)
     else:
@@ -593,6 +602,9 @@ def light_stage_field(
             spec, shape = shading.subset(rows).factors(flat[active], surface.view[rows], vis)
             refl = spec[..., None] + shape[..., None] * shading.colour[rows, None, :].astype(np.float32)  # (n, La, 3)
             r, c = surface.pixel[rows] // size, surface.pixel[rows] % size
+            if vis_img is not None:
+                facing = (shading.normal[rows] @ flat[active].T) > 0
+                vis_img[active[:, None], r[None, :], c[None, :]] = (vis * facing).T
             if store is None:
                 values[active[:, None], r[None, :], c[None, :], :] = np.swapaxes(refl, 0, 1)
             else:
@@ -606,7 +618,11 @@ def light_stage_field(
         if store is not None:
             store.abort()
         raise
-    return make_field(values.reshape(lshape + (size, size, 3)), dirs, attrs=attrs, **per_pixel)
+    ds = make_field(values.reshape(lshape + (size, size, 3)), dirs, attrs=attrs, **per_pixel)
+    if vis_img is not None:
+        ldims = ("light_phi", "light_theta") if grid is not None else ("light",)
+        ds["visibility"] = (ldims + ("y", "x"), vis_img.reshape(lshape + (size, size)))
+    return ds
 
 
 def _per_pixel_maps(surface, shading, size):

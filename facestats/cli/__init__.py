@@ -8,7 +8,8 @@ prints.  Heavy modules are imported inside the commands so that ``facestats
 * :mod:`~facestats.cli.build` — ``build``;
 * :mod:`~facestats.cli.analyze` — ``analyze``;
 * :mod:`~facestats.cli.edit` — ``edit``;
-* :mod:`~facestats.cli.demo` — ``demo``.
+* :mod:`~facestats.cli.demo` — ``demo``;
+* :mod:`~facestats.cli.relight` — ``relight``.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from facestats.cli.analyze import add_analyze
 from facestats.cli.build import add_build
 from facestats.cli.demo import add_demo
 from facestats.cli.edit import add_edit
+from facestats.cli.relight import add_relight
 from facestats.cli.store import add_export, add_import_merl, add_info, add_query, add_validate
 from facestats.core.version import __version__
 from facestats.errors import FacestatsError
@@ -28,7 +30,18 @@ from facestats.errors import FacestatsError
 __all__ = ["main", "build_parser"]
 
 #: The command groups, in the order ``facestats --help`` lists them.
-COMMANDS = [add_demo, add_query, add_info, add_validate, add_export, add_import_merl, add_build, add_analyze, add_edit]
+COMMANDS = [
+    add_demo,
+    add_query,
+    add_info,
+    add_validate,
+    add_export,
+    add_import_merl,
+    add_build,
+    add_analyze,
+    add_edit,
+    add_relight,
+]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -73,6 +73,7 @@ __all__ = [
     "SubjectShading",
     "light_stage_field",
     "render_subject",
+    "relight_subject",
 ]
 
 #: Distance (mm) of the viewpoint of a distant light's shadow map.
@@ -157,7 +158,7 @@ def stage_camera(
 _PROCEDURAL = re.compile(r"^procedural-(\d+)$")
 
 
-def subject_geometry(subject, *, mesh_grid: int = 96) -> FaceGeometry:
+def subject_geometry(subject, *, mesh_grid: int = 64) -> FaceGeometry:
     """The face geometry a store subject was captured on, from its provenance.
 
     Subjects of the synthetic population record ``capture_provenance.geometry =
@@ -699,3 +700,37 @@ def render_subject(
     mask = np.zeros(camera.size * camera.size, bool)
     mask[surface.pixel] = True
     return img.reshape(camera.size, camera.size, 3), mask.reshape(camera.size, camera.size)
+
+
+def relight_subject(
+    subject,
+    probe,
+    *,
+    layout: str = "latlong",
+    rotate: float = 0.0,
+    camera: StageCamera | None = None,
+    lights: tuple = (64, 32),
+    geometry: FaceGeometry | None = None,
+    specular: str = "torrance_sparrow",
+    shadows: bool = True,
+):
+    """A store subject relit under a light probe through the virtual light stage (Debevec et al. 2000 eq. 4).
+
+    The probe is resampled to the stage's ``lights`` = (n_theta, n_phi) lat-long
+    directions (:func:`facestats.relight.lighting.resample_probe`, exact cell
+    integrals) and the subject rendered under those lights
+    (:func:`render_subject`); this equals relighting the subject's stage field
+    (:func:`light_stage_field`) with the same probe, without storing the field.
+
+    Returns
+    -------
+    image : ndarray of float32, shape (size, size, 3)
+        Linear radiance in the probe's unit.
+    mask : ndarray of bool, shape (size, size)
+    """
+    from facestats.relight.lighting import resample_probe
+
+    n_theta, n_phi = lights
+    d, _ = light_stage_directions(n_theta, n_phi)
+    w = resample_probe(probe, d, layout=layout, rotate=rotate)
+    return render_subject(subject, w, d, camera, geometry=geometry, specular=specular, shadows=shadows)

@@ -78,6 +78,10 @@ __all__ = [
 
 #: Distance (mm) of the viewpoint of a distant light's shadow map.
 LIGHT_DISTANCE = 1e5
+#: Lights whose shadow maps are held in memory at once.
+SHADOW_BATCH = 256
+#: Samples (pixels × lights) evaluated per chunk of the direct render.
+RENDER_SAMPLES = 1 << 22
 
 
 @dataclass
@@ -450,9 +454,11 @@ def _visibility_setup(geometry, surface, normals, directions, shadow_resolution,
     vn = _vertex_normals(verts, faces)
     target = 0.5 * (verts.min(0) + verts.max(0))
     eyes = target + LIGHT_DISTANCE * directions[active]
-    maps = ShadowMaps(verts, faces, eyes, target=target, resolution=shadow_resolution)
-    vis = maps.visible(verts[used], vn[used])
-    return vis.astype(np.float32), active, inverse.reshape(surface.vertices.shape)
+    vis = np.empty((used.size, active.size), np.float32)
+    for a in range(0, active.size, SHADOW_BATCH):  # batches of lights: bounded memory for many lights
+        maps = ShadowMaps(verts, faces, eyes[a : a + SHADOW_BATCH], target=target, resolution=shadow_resolution)
+        vis[:, a : a + SHADOW_BATCH] = maps.visible(verts[used], vn[used])
+    return vis, active, inverse.reshape(surface.vertices.shape)
 
 
 def _prepare(subject, geometry, camera, directions, *, specular, eta, shadows, shadow_resolution):
@@ -650,7 +656,7 @@ def render_subject(
     eta: float = ETA_SKIN,
     shadows: bool = True,
     shadow_resolution: int = 128,
-    chunk: int = 4096,
+    chunk: int | None = None,
 ):
     """Render a subject directly under distant lights with weights L·δA: Σ_l R_l L_l δA_l without a stored field.
 
@@ -669,8 +675,8 @@ def render_subject(
         and the probe times :func:`~facestats.model.sphere.latlong_solid_angles`.
     camera, geometry, specular, eta, shadows, shadow_resolution
         As :func:`light_stage_field`.
-    chunk : int
-        Pixels per chunk.
+    chunk : int, optional
+        Pixels per chunk (default: about 4 million pixel-light samples per chunk).
 
     Returns
     -------
@@ -688,7 +694,7 @@ def render_subject(
         shadow_resolution=shadow_resolution,
     )  # fmt: skip
     wa = w[active].astype(np.float32)
-    step = check_integer(chunk, "chunk", 1)
+    step = max(1, RENDER_SAMPLES // max(active.size, 1)) if chunk is None else check_integer(chunk, "chunk", 1)
     out = np.zeros((surface.pixel.size, 3), np.float32)
     for a in range(0, surface.pixel.size, step):  # loop over chunks of pixels
         rows = np.arange(a, min(a + step, surface.pixel.size))

@@ -63,8 +63,9 @@ def test_separate_field_with_known_colours_recovers_components_normals_and_maps(
     f, spec_true, diff_true = ts_lambert_field(7, 7, albedo=albedo, rho_s=0.25, m=0.35)
     m = f["mask"].values
     out = sep.separate_field(f, [1, 1, 1], ramp=False, d0=albedo)
-    assert np.allclose(out["specular"].values.mean(-1), spec_true, rtol=1e-5, atol=1e-7)  # float32 field
-    assert np.allclose(out["diffuse"].values, diff_true, rtol=1e-5, atol=1e-7)
+    assert np.allclose(out["specular"].values.mean(-1)[..., m], spec_true[..., m], rtol=1e-5, atol=1e-7)  # float32
+    assert np.allclose(out["diffuse"].values[..., m, :], diff_true[..., m, :], rtol=1e-5, atol=1e-7)
+    assert np.all(out["specular"].values[..., ~m, :] == 0)  # pixels off the mask are not separated
     n_true, _ = sphere_normals(7, 7)
     ang = np.degrees(np.arccos(np.clip(np.einsum("yxk,yxk->yx", out["normal"].values, n_true), -1, 1)))
     assert ang[m].max() < 0.02  # degrees (float32 field)
@@ -88,3 +89,5 @@ def test_near_parallel_skin_and_light_colours_are_flagged():
                       view=f["view"].values)  # fmt: skip
     flagged = sep.separate_field(grey, [1, 1, 1], d0=[1, 1, 1.001], ramp=False)
     assert flagged["ill_conditioned"].values.all() and (flagged["condition"].values > 1e3).all()
+    parallel = sep.separate_field(grey, [1, 1, 1], d0=[1, 1, 1], ramp=False)  # singular: flagged, not separated
+    assert parallel["ill_conditioned"].values.all() and np.all(parallel["specular"].values == 0)

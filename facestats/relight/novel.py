@@ -251,7 +251,9 @@ def novel_view_field(separation, view_new, *, eta=ETA_SKIN, shadow=None, s=None)
     a1 = np.nan_to_num(np.asarray(sep["alpha1"].values, np.float64).reshape(n))
     new_diff = shift_diffuse_chromaticity(diff, cos_i, cr0, crn, a0, a1, s)
     vals = new_spec.reshape(n_phi, n_theta, h, w, 3) + new_diff.reshape(n_phi, n_theta, h, w, 3)
-    extra = {k: sep[k].values for k in ("mask", "position", "normal") if k in sep.data_vars}
+    extra = {k: np.nan_to_num(sep[k].values) for k in ("position", "normal") if k in sep.data_vars}
+    if "mask" in sep.data_vars:
+        extra["mask"] = sep["mask"].values
     return make_field(np.maximum(vals, 0), latlong_directions(n_phi, n_theta), view=vn.reshape(h, w, 3),
                       attrs={"source": "novel-view resynthesis, Debevec et al. 2000 §4.3"}, **extra)  # fmt: skip
 

@@ -300,60 +300,83 @@ def separate_field(field, s=WHITE, *, view=None, ramp: bool = True, mirror_deg: 
         view = f["view"].values
     v = np.asarray(view, np.float64).reshape(h * w, 3)
     s_unit = unit_rgb(s, "s")
+    d0_est = diffuse_chromaticity(r) if d0 is None else np.broadcast_to(unit_rgb(d0, "d0"), (h, w, 3)).reshape(-1, 3)
+    finite = np.all(np.isfinite(d0_est), axis=-1)
+    cond = np.full(h * w, np.inf)
+    cond[finite] = separation_matrix_condition(d0_est[finite], s_unit)
+    sel = finite & (cond < 1e6) & (r.sum(-1).max(0) > 0)  # separable pixels (the others keep D = R, S = 0)
+    if "mask" in f.data_vars:
+        sel &= np.asarray(f["mask"].values, bool).reshape(h * w)
+    out = _separate_pixels(r[:, sel], dirs, sa, v[sel], d0_est[sel], s_unit, ramp, mirror_deg, shadow_threshold)
+    full = {
+        "diffuse": r.copy(), "specular": np.zeros_like(r), "normal": np.full((h * w, 3), np.nan),
+        "specular_normal": np.full((h * w, 3), np.nan), "albedo": np.full((h * w, 3), np.nan),
+        "rho_s": np.zeros(h * w), "alpha0": np.full(h * w, np.nan), "alpha1": np.full(h * w, np.nan),
+        "clamped": np.zeros((n_l, h * w), bool),
+    }  # fmt: skip
+    for key, val in out.items():
+        if full[key].shape[0] == n_l:
+            full[key][:, sel] = val
+        else:
+            full[key][sel] = val
+    return _separation_dataset(f, nl, h, w, full, d0_est, cond, max_condition)
+
+
+def _separate_pixels(r, dirs, sa, v, d0, s_unit, ramp, mirror_deg, shadow_threshold):
+    """The §4.2 procedure on separable pixels: r (L, N, 3), v (N, 3), d0 (N, 3) → dict of results."""
+    n = r.shape[1]
     lum = r.sum(-1)
     lit = lum >= shadow_threshold * lum.max(0)
-    d0_est = diffuse_chromaticity(r) if d0 is None else np.broadcast_to(unit_rgb(d0, "d0"), (h, w, 3)).reshape(-1, 3)
-    d_safe = np.where(np.isfinite(d0_est), d0_est, s_unit)
-    rough_d, _, _, _ = separate_colour(r, d_safe[None], s_unit)
+    rough_d, _, _, _ = separate_colour(r, d0[None], s_unit)
     normal0, _ = lambertian_fit(rough_d, dirs, lit * 1.0)
     n_safe = np.where(np.isfinite(normal0), normal0, v)
     cos_i = dirs @ n_safe.T
     cos_r = np.clip(np.einsum("nk,nk->n", n_safe, v), 0, 1)
     mirror = 2 * cos_r[:, None] * n_safe - v  # (N, 3)
     far_from_mirror = (dirs @ mirror.T) < np.cos(np.radians(mirror_deg))
-    wts = lum * lit * far_from_mirror * (cos_i > 0)
     if ramp:
-        a0, a1 = fit_chromaticity_ramp(r, np.clip(cos_i, 0, 1), cos_r, d_safe, s_unit, weights=wts)
+        wts = lum * lit * far_from_mirror * (cos_i > 0)
+        a0, a1 = fit_chromaticity_ramp(r, np.clip(cos_i, 0, 1), cos_r, d0, s_unit, weights=wts)
     else:
-        a0 = a1 = np.zeros(h * w)
+        a0 = a1 = np.zeros(n)
     fr = ramp_factor(np.clip(cos_i, 0, 1), cos_r[None, :], np.nan_to_num(a0)[None, :], np.nan_to_num(a1)[None, :])
-    d_ramp = ramp_chromaticity(np.broadcast_to(d_safe, r.shape), s_unit, fr)
-    diffuse, spec, mu, clamped = separate_colour(r, d_ramp, s_unit)
+    d_ramp = ramp_chromaticity(np.broadcast_to(d0, r.shape), s_unit, fr)
+    diffuse, spec, _, clamped = separate_colour(r, d_ramp, s_unit)
     normal, albedo = lambertian_fit(diffuse, dirs, lit * 1.0)
-    rho_s = np.einsum("ln,l->n", spec.mean(-1), sa)
     peak = np.argmax(np.linalg.norm(spec, axis=-1), axis=0)
     hv = dirs[peak] + v
-    spec_normal = hv / np.linalg.norm(hv, axis=-1, keepdims=True)
-    cond = separation_matrix_condition(d_safe, s_unit)
-    return _separation_dataset(f, nl, h, w, diffuse, spec, normal, spec_normal, albedo, rho_s, a0, a1, d0_est,
-                               cond, max_condition, clamped)  # fmt: skip
+    return {
+        "diffuse": diffuse, "specular": spec, "normal": normal,
+        "specular_normal": hv / np.linalg.norm(hv, axis=-1, keepdims=True), "albedo": albedo,
+        "rho_s": np.einsum("ln,l->n", spec.mean(-1), sa), "alpha0": a0, "alpha1": a1, "clamped": clamped,
+    }  # fmt: skip
 
 
-def _separation_dataset(f, nl, h, w, diffuse, spec, normal, spec_normal, albedo, rho_s, a0, a1, d0, cond,
-                        max_condition, clamped):  # fmt: skip
+def _separation_dataset(f, nl, h, w, full, d0, cond, max_condition):
     import xarray as xr
 
     ldims = tuple(f["reflectance"].dims[:nl])
     lshape = tuple(f["reflectance"].shape[:nl])
     dims = ldims + ("y", "x", "channel")
 
-    def img(a, extra=()):
-        return (("y", "x") + extra, np.asarray(a, np.float32).reshape((h, w) + np.shape(a)[1:]))
+    def img(name, extra=()):
+        a = np.asarray(full[name] if isinstance(name, str) else name, np.float32)
+        return (("y", "x") + extra, a.reshape((h, w) + a.shape[1:]))
 
     ds = xr.Dataset(
         {
-            "diffuse": (dims, diffuse.reshape(lshape + (h, w, 3)).astype(np.float32)),
-            "specular": (dims, spec.reshape(lshape + (h, w, 3)).astype(np.float32)),
-            "normal": img(normal, ("component",)),
-            "specular_normal": img(spec_normal, ("component",)),
-            "albedo": img(albedo, ("channel",)),
-            "rho_s": img(rho_s),
-            "alpha0": img(a0),
-            "alpha1": img(a1),
+            "diffuse": (dims, full["diffuse"].reshape(lshape + (h, w, 3)).astype(np.float32)),
+            "specular": (dims, full["specular"].reshape(lshape + (h, w, 3)).astype(np.float32)),
+            "normal": img("normal", ("component",)),
+            "specular_normal": img("specular_normal", ("component",)),
+            "albedo": img("albedo", ("channel",)),
+            "rho_s": img("rho_s"),
+            "alpha0": img("alpha0"),
+            "alpha1": img("alpha1"),
             "d0": img(d0, ("channel",)),
             "condition": img(cond),
             "ill_conditioned": (("y", "x"), (cond > max_condition).reshape(h, w)),
-            "n_clamped": (("y", "x"), clamped.sum(0).reshape(h, w).astype(np.int32)),
+            "n_clamped": (("y", "x"), full["clamped"].sum(0).reshape(h, w).astype(np.int32)),
         },
         coords={k: f.coords[k] for k in f.coords},
     )

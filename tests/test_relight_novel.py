@@ -6,7 +6,7 @@ import pytest
 from facestats.model.brdf import torrance_sparrow
 from facestats.model.sphere import light_stage_directions
 from facestats.relight import novel, separate
-from facestats.relight.stage import stage_camera
+from facestats.relight.camera import stage_camera
 
 NORMALS = np.array([[0, 0, 1.0], [0.3, 0.5, 0.81], [-0.6, 0.2, 0.77], [0.0, 0.8, 0.6]])
 NORMALS /= np.linalg.norm(NORMALS, axis=1, keepdims=True)

@@ -103,6 +103,15 @@ def test_camera_and_view_surface_conventions(geometry):
     assert np.allclose(surf.bary.sum(1), 1)
     side = stage.stage_camera(90, size=8)
     assert np.allclose(side.position, [1200, 0, 40])
+    assert np.allclose(stage.stage_camera(-30, size=8).position[0], -600)  # negative azimuth: the subject's right
+
+
+def test_several_cameras_give_one_field_each(subject, geometry):
+    d, _ = light_stage_directions(8, 4)
+    cams = [stage.stage_camera(-25, size=10), stage.stage_camera(25, size=10)]  # Debevec's left and right cameras
+    left, right = stage.light_stage_field(subject, cams, geometry=geometry, directions=d, shadows=False)
+    assert left["view"].values[5, 5, 0] < 0 < right["view"].values[5, 5, 0]
+    assert left.attrs["camera_position_mm"] != right.attrs["camera_position_mm"]
 
 
 def test_subjects_without_a_known_geometry_are_refused(subject):

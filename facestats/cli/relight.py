@@ -59,7 +59,8 @@ def _cmd_relight(args) -> int:
         image = relight(field, probe=probe, layout=args.layout, rotate=rotate, progress=True)
         mask = field["mask"].values if "mask" in field.data_vars else None
     else:
-        from facestats.relight.stage import relight_subject, stage_camera
+        from facestats.relight.camera import stage_camera
+        from facestats.relight.stage import relight_subject
 
         with facestats.open_store(args.store) as store:
             subject = store.subject(args.source).load()

@@ -36,6 +36,7 @@ from facestats.model.sphere import (
     rotation_y,
     voronoi_solid_angles,
 )
+from facestats.relight.camera import stage_camera
 from facestats.relight.compress import CompressedField, compress
 from facestats.relight.field import make_field, open_field, write_field
 from facestats.relight.lighting import angular_to_latlong, latlong_to_angular, resample_probe, rotate_probe
@@ -44,7 +45,7 @@ from facestats.relight.photometric import photometric_stereo
 from facestats.relight.relight import lighting_for, relight, tint_indirect
 from facestats.relight.separate import separate_field
 from facestats.relight.shadows import threshold_shadow_maps
-from facestats.relight.stage import light_stage_field, relight_subject, render_subject, stage_camera
+from facestats.relight.stage import light_stage_field, relight_subject, render_subject
 
 __all__ = [
     "latlong_directions",

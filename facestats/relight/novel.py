@@ -271,7 +271,7 @@ def reproject(image, position, mask, camera):
     position : array_like, shape (H, W, 3)
         Surface point of every source pixel, mm.
     mask : array_like of bool, shape (H, W)
-    camera : facestats.relight.stage.StageCamera
+    camera : facestats.relight.camera.StageCamera
 
     Returns
     -------
@@ -280,6 +280,7 @@ def reproject(image, position, mask, camera):
     """
     from facestats.acquire.geometry import grid_triangles
     from facestats.acquire.visibility import rasterize
+    from facestats.relight.camera import ray_triangle
 
     img = as_finite(image, "image", dtype=np.float64)
     pos = as_finite(position, "position", dtype=np.float64)
@@ -293,16 +294,7 @@ def reproject(image, position, mask, camera):
     out = np.zeros((camera.size, camera.size, 3))
     if hit.any():
         t = tri[hit]
-        rays = camera.rays()[hit]
-        a, b, c = (verts[faces[t, k]] for k in range(3))
-        e1, e2 = b - a, c - a
-        p = np.cross(rays, e2)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            inv = 1 / _dot(e1, p)
-            sv = camera.position - a
-            b1 = np.clip(_dot(sv, p) * inv, 0, 1)
-            b2 = np.clip(_dot(rays, np.cross(sv, e1)) * inv, 0, 1)
+        _, bary = ray_triangle(camera.position, camera.rays()[hit], *(verts[faces[t, k]] for k in range(3)))
         cols = img.reshape(-1, 3)[faces[t]]  # (n, 3 corners, 3)
-        bary = np.stack([1 - b1 - b2, b1, b2], axis=1)
         out[hit] = np.nan_to_num(np.einsum("nk,nkc->nc", bary, cols))
     return out.astype(np.float32), hit

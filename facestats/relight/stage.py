@@ -46,12 +46,10 @@ a stage field must reproduce.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.acquire.dome import look_at
 from facestats.acquire.geometry import FaceGeometry
 from facestats.core.blocked import blockwise
 from facestats.core.published import ETA_SKIN
@@ -61,14 +59,20 @@ from facestats.model.brdf import beckmann_distribution, blinn_phong_lobe, torran
 from facestats.model.fresnel import fresnel_reflectance_unchecked
 from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport
 from facestats.model.sphere import light_stage_directions, unit_directions
+from facestats.relight.camera import (
+    StageCamera,
+    ViewSurface,
+    stage_camera,
+    subject_geometry,
+    vertex_normals,
+    view_surface,
+)
 from facestats.relight.field import make_field
 
 __all__ = [
     "StageCamera",
     "stage_camera",
     "subject_geometry",
-    "mesh_uv",
-    "ViewSurface",
     "view_surface",
     "SubjectShading",
     "light_stage_field",
@@ -82,210 +86,6 @@ LIGHT_DISTANCE = 1e5
 SHADOW_BATCH = 256
 #: Samples (pixels × lights) evaluated per chunk of the direct render.
 RENDER_SAMPLES = 1 << 22
-
-
-@dataclass
-class StageCamera:
-    """A square pinhole camera of the virtual light stage.
-
-    Attributes
-    ----------
-    position : ndarray, shape (3,)
-        Camera centre, mm (world frame).
-    target : ndarray, shape (3,)
-        Point at the image centre, mm.
-    fov_deg : float
-        Full field of view, degrees, in (0, 180).
-    size : int
-        Image side, pixels.
-    """
-
-    position: np.ndarray
-    target: np.ndarray
-    fov_deg: float
-    size: int
-
-    def __post_init__(self):
-        self.position = check_shape(as_finite(self.position, "position", dtype=np.float64), "position", (3,))
-        self.target = check_shape(as_finite(self.target, "target", dtype=np.float64), "target", (3,))
-        if np.linalg.norm(self.target - self.position) <= 0:
-            raise ValidationError("target must differ from the camera position, got the same point")
-        self.fov_deg = float(as_finite(self.fov_deg, "fov_deg", 0, 180, low_inclusive=False, high_inclusive=False))
-        self.size = check_integer(self.size, "size", 1, 8192)
-
-    @property
-    def rotation(self) -> np.ndarray:
-        """World-to-camera rotation (rows x right, y down, z forward)."""
-        return look_at(self.position, self.target)
-
-    @property
-    def focal(self) -> float:
-        """Focal length in pixels."""
-        return (self.size / 2) / np.tan(np.radians(self.fov_deg) / 2)
-
-    def pinhole(self):
-        """``(eye, rot, focal, size)`` as :func:`facestats.acquire.visibility.rasterize` takes it."""
-        return self.position, self.rotation, self.focal, self.size
-
-    def rays(self) -> np.ndarray:
-        """Unit world directions from the camera centre through every pixel centre, (size, size, 3), [row, col]."""
-        c = (np.arange(self.size) + 0.5 - self.size / 2) / self.focal
-        cam = np.stack(np.broadcast_arrays(c[None, :], c[:, None], np.ones((1, 1))), axis=-1)
-        world = cam @ self.rotation  # rows of rot are the camera axes: rotᵀ · d
-        return world / np.linalg.norm(world, axis=-1, keepdims=True)
-
-
-def stage_camera(
-    azimuth_deg: float = 0.0,
-    elevation_deg: float = 0.0,
-    *,
-    distance: float = 1200.0,
-    size: int = 256,
-    fov_deg: float = 13.0,
-    target=(0.0, 0.0, 40.0),
-) -> StageCamera:
-    """A camera on a sphere around the head, looking at ``target``.
-
-    Azimuth 0 is the frontal camera on +z; positive azimuths turn towards +x
-    (the subject's left), positive elevations upwards: the camera sits at
-    ``target + distance (cos e sin a, sin e, cos e cos a)``.  The default field
-    of view frames the procedural head at 1.2 m.
-    """
-    a = np.radians(float(as_finite(azimuth_deg, "azimuth_deg")))
-    e = np.radians(float(as_finite(elevation_deg, "elevation_deg", -90, 90)))
-    dist = float(as_finite(distance, "distance", 0, None, low_inclusive=False, unit="mm"))
-    t = np.asarray(as_finite(target, "target", dtype=np.float64))
-    pos = t + dist * np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
-    return StageCamera(pos, t, fov_deg, size)
-
-
-_PROCEDURAL = re.compile(r"^procedural-(\d+)$")
-
-
-def subject_geometry(subject, *, mesh_grid: int = 64) -> FaceGeometry:
-    """The face geometry a store subject was captured on, from its provenance.
-
-    Subjects of the synthetic population record ``capture_provenance.geometry =
-    "procedural-N"``: the procedural head of lumitexel grid N
-    (:func:`facestats.acquire.synthetic.face.procedural_face`), rebuilt here with a
-    ``mesh_grid``² rendering mesh.  Subjects fitted on a real scan must be
-    rendered with that scan's geometry (pass it to :func:`light_stage_field`).
-    """
-    from facestats.acquire.synthetic.face import procedural_face
-    from facestats.io.schema import provenance
-
-    prov = provenance(subject)
-    name = (prov.get("capture_provenance") or {}).get("geometry")
-    m = _PROCEDURAL.match(str(name))
-    if not m:
-        raise ValidationError(
-            f"subject {subject.attrs.get('subject_id', '?')!r} records geometry {name!r}, not a procedural head: "
-            "pass its FaceGeometry (e.g. facestats.io.mesh.load_face_mesh) as geometry="
-        )
-    return procedural_face(int(m.group(1)), mesh_grid=check_integer(mesh_grid, "mesh_grid", 8, 1024))
-
-
-def mesh_uv(geometry: FaceGeometry) -> np.ndarray:
-    """UV coordinates of every mesh vertex, (V, 2).
-
-    Procedural heads: their mesh is a regular grid in UV (vertex i·n + j at
-    ((j + ½)/n, (i + ½)/n)).  Loaded scans: the lumitexels are mesh vertices, so
-    each vertex takes the UV of the nearest lumitexel (exact on the face; off-face
-    vertices only matter as background).
-    """
-    verts = np.asarray(geometry.mesh_vertices)
-    if geometry.meta.get("kind") == "procedural":
-        n = int(round(np.sqrt(len(verts))))
-        if n * n != len(verts):
-            raise ValidationError(f"procedural mesh must be a square grid of vertices, got {len(verts)} vertices")
-        c = (np.arange(n) + 0.5) / n
-        uu, vv = np.meshgrid(c, c)
-        return np.stack([uu.ravel(), vv.ravel()], axis=1)
-    from scipy.spatial import cKDTree
-
-    _, idx = cKDTree(geometry.position).query(verts)
-    return geometry.uv[idx]
-
-
-def _vertex_normals(verts, faces):
-    """Area-weighted vertex normals of a triangle mesh (zero-area vertices get +z)."""
-    tri = verts[faces]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    out = np.zeros_like(verts)
-    for k in range(3):  # the three corners, vectorised over faces
-        np.add.at(out, faces[:, k], cross)
-    norm = np.linalg.norm(out, axis=1, keepdims=True)
-    return np.where(norm > 0, out / np.where(norm > 0, norm, 1), np.array([0.0, 0.0, 1.0]))
-
-
-@dataclass
-class ViewSurface:
-    """The surface seen by each covered pixel of a camera (:func:`view_surface`).
-
-    Attributes
-    ----------
-    pixel : ndarray of int, shape (N,)
-        Flat pixel index (row · size + column) of each covered pixel.
-    position : ndarray, shape (N, 3)
-        Ray-triangle intersection, mm.
-    view : ndarray, shape (N, 3)
-        Unit direction towards the camera.
-    uv : ndarray, shape (N, 2)
-        Texture coordinates.
-    vertices : ndarray of int, shape (N, 3)
-        Mesh vertices of the pixel's triangle.
-    bary : ndarray, shape (N, 3)
-        Barycentric weights of those vertices at the intersection.
-    size : int
-        Image side.
-    """
-
-    pixel: np.ndarray
-    position: np.ndarray
-    view: np.ndarray
-    uv: np.ndarray
-    vertices: np.ndarray
-    bary: np.ndarray
-    size: int
-
-    def subset(self, keep):
-        """The pixels selected by a boolean mask or index."""
-        return ViewSurface(
-            self.pixel[keep], self.position[keep], self.view[keep], self.uv[keep], self.vertices[keep],
-            self.bary[keep], self.size,
-        )  # fmt: skip
-
-
-def view_surface(geometry: FaceGeometry, camera: StageCamera) -> ViewSurface:
-    """Rasterise the geometry's mesh into ``camera`` and intersect every covered pixel's ray with its triangle."""
-    from facestats.acquire.visibility import rasterize
-
-    verts = np.asarray(geometry.mesh_vertices, np.float64)
-    faces = np.asarray(geometry.mesh_faces, np.int64)
-    tri, _ = rasterize(verts, faces, *camera.pinhole())
-    pix = np.nonzero(tri.reshape(-1) >= 0)[0]
-    t_idx = tri.reshape(-1)[pix]
-    rays = camera.rays().reshape(-1, 3)[pix]
-    a, b, c = (verts[faces[t_idx, k]] for k in range(3))
-    # Möller-Trumbore: eye + t·ray = a + b1 (b − a) + b2 (c − a).
-    e1, e2 = b - a, c - a
-    p = np.cross(rays, e2)
-    det = np.einsum("nk,nk->n", e1, p)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / det
-        s = camera.position - a
-        b1 = np.einsum("nk,nk->n", s, p) * inv
-        q = np.cross(s, e1)
-        b2 = np.einsum("nk,nk->n", rays, q) * inv
-        t = np.einsum("nk,nk->n", e2, q) * inv
-    ok = np.isfinite(t) & (t > 0)
-    b1, b2 = np.clip(b1, 0, 1), np.clip(b2, 0, 1)  # the rasteriser's pixel centres lie inside up to 1e-6
-    bary = np.stack([1 - b1 - b2, b1, b2], axis=1)
-    pos = camera.position + t[:, None] * rays
-    uvs = mesh_uv(geometry)[faces[t_idx]]  # (N, 3, 2)
-    uv = np.einsum("nk,nkj->nj", bary, uvs)
-    surf = ViewSurface(pix, pos, -rays, np.clip(uv, 0, 1), faces[t_idx], bary, camera.size)
-    return surf.subset(ok)
 
 
 def _map_weights(uv, size):
@@ -451,7 +251,7 @@ def _visibility_setup(geometry, surface, normals, directions, shadow_resolution,
         return np.ones((used.size, active.size), np.float32), active, inverse.reshape(surface.vertices.shape)
     verts = np.asarray(geometry.mesh_vertices, np.float64)
     faces = np.asarray(geometry.mesh_faces, np.int64)
-    vn = _vertex_normals(verts, faces)
+    vn = vertex_normals(verts, faces)
     target = 0.5 * (verts.min(0) + verts.max(0))
     eyes = target + LIGHT_DISTANCE * directions[active]
     vis = np.empty((used.size, active.size), np.float32)
@@ -528,8 +328,9 @@ def light_stage_field(
     ----------
     subject : xarray.Dataset
         A map subject of the store (fitted maps, σ's, σa).
-    camera : StageCamera, optional
-        Default: the frontal camera of :func:`stage_camera` (256²).
+    camera : StageCamera or list of StageCamera, optional
+        Default: the frontal camera of :func:`stage_camera` (256²).  A list gives
+        one field per camera (``out`` then lists one store per camera).
     geometry : FaceGeometry, optional
         Default: the subject's recorded procedural head (:func:`subject_geometry`).
     directions : array_like, optional
@@ -563,7 +364,7 @@ def light_stage_field(
 
     Returns
     -------
-    xarray.Dataset
+    xarray.Dataset (or a list of them, one per camera)
         The field (:mod:`facestats.relight.field`) with ``mask``, ``view``,
         ``normal`` and ``position`` per pixel; attributes record the subject,
         camera and model.
@@ -572,6 +373,14 @@ def light_stage_field(
 
     from facestats.relight.field import FieldStore
 
+    if isinstance(camera, (list, tuple)):  # several cameras: one field each (Debevec used two)
+        outs = [None] * len(camera) if out is None else list(out)
+        if len(outs) != len(camera):
+            raise ValidationError(f"out must list one store per camera ({len(camera)}), got {len(outs)}")
+        kw = dict(geometry=geometry, directions=directions, specular=specular, eta=eta, shadows=shadows,
+                  shadow_resolution=shadow_resolution, tile=tile, dtype=dtype, overwrite=overwrite,
+                  progress=progress, visibility=visibility)  # fmt: skip
+        return [light_stage_field(subject, cam, out=o, **kw) for cam, o in zip(camera, outs)]
     camera = stage_camera() if camera is None else camera
     flat, grid = _light_set(directions)
     surface, shading, vis_v, active, vidx = _prepare(
@@ -593,43 +402,55 @@ def light_stage_field(
         "camera_fov_deg": camera.fov_deg,
     }
     dirs = flat.reshape(lshape + (3,))
-    store = None
     if visibility and out is not None:
         raise ValidationError("visibility=True keeps the field in memory: it cannot be combined with out=")
-    vis_img = np.zeros((flat.shape[0], size, size), np.float32) if visibility else None
-    if out is None:
-        values = np.zeros((flat.shape[0], size, size, 3), np.float32)
-    else:
+    store = None
+    if out is not None:
         store = FieldStore(out, dirs, (size, size), per_pixel=per_pixel, attrs=attrs, dtype=dtype, tile=t,
                            overwrite=overwrite)  # fmt: skip
-    tiles = _tiles_of(surface.pixel, size, t)
+    sink = _Sink(flat.shape[0], size, t, active, store, visibility)
     try:
-        for ti, tj, rows in tqdm(tiles, desc="light stage tiles", disable=not progress, leave=False):
+        for ti, tj, rows in tqdm(_tiles_of(surface.pixel, size, t), desc="light stage tiles", disable=not progress,
+                                 leave=False):  # fmt: skip
             vis = _pixel_visibility(vis_v, vidx, surface.bary, rows)
             spec, shape = shading.subset(rows).factors(flat[active], surface.view[rows], vis)
             refl = spec[..., None] + shape[..., None] * shading.colour[rows, None, :].astype(np.float32)  # (n, La, 3)
-            r, c = surface.pixel[rows] // size, surface.pixel[rows] % size
-            if vis_img is not None:
-                facing = (shading.normal[rows] @ flat[active].T) > 0
-                vis_img[active[:, None], r[None, :], c[None, :]] = (vis * facing).T
-            if store is None:
-                values[active[:, None], r[None, :], c[None, :], :] = np.swapaxes(refl, 0, 1)
-            else:
-                y0, x0 = ti * t, tj * t
-                block = np.zeros((flat.shape[0], min(t, size - y0), min(t, size - x0), 3), np.float32)
-                block[active[:, None], (r - y0)[None, :], (c - x0)[None, :], :] = np.swapaxes(refl, 0, 1)
-                store.write(slice(y0, y0 + block.shape[1]), slice(x0, x0 + block.shape[2]), block)
+            facing = (shading.normal[rows] @ flat[active].T) > 0
+            sink.put(ti, tj, surface.pixel[rows], refl, vis * facing)
         if store is not None:
             return store.close()
     except BaseException:
         if store is not None:
             store.abort()
         raise
-    ds = make_field(values.reshape(lshape + (size, size, 3)), dirs, attrs=attrs, **per_pixel)
-    if vis_img is not None:
+    ds = make_field(sink.values.reshape(lshape + (size, size, 3)), dirs, attrs=attrs, **per_pixel)
+    if visibility:
         ldims = ("light_phi", "light_theta") if grid is not None else ("light",)
-        ds["visibility"] = (ldims + ("y", "x"), vis_img.reshape(lshape + (size, size)))
+        ds["visibility"] = (ldims + ("y", "x"), sink.visibility.reshape(lshape + (size, size)))
     return ds
+
+
+class _Sink:
+    """Where the stage's tiles go: in-memory arrays, or tile by tile into a :class:`FieldStore`."""
+
+    def __init__(self, n_lights, size, tile, active, store, visibility):
+        self.n, self.size, self.tile, self.active, self.store = n_lights, size, tile, active, store
+        self.values = np.zeros((n_lights, size, size, 3), np.float32) if store is None else None
+        self.visibility = np.zeros((n_lights, size, size), np.float32) if visibility else None
+
+    def put(self, ti, tj, pixels, refl, vis):
+        """Reflectance (n, La, 3) and visibility (n, La) of the tile's face pixels (flat indices)."""
+        r, c = pixels // self.size, pixels % self.size
+        a = self.active[:, None]
+        if self.visibility is not None:
+            self.visibility[a, r[None, :], c[None, :]] = vis.T
+        if self.store is None:
+            self.values[a, r[None, :], c[None, :], :] = np.swapaxes(refl, 0, 1)
+            return
+        t, y0, x0 = self.tile, ti * self.tile, tj * self.tile
+        block = np.zeros((self.n, min(t, self.size - y0), min(t, self.size - x0), 3), np.float32)
+        block[a, (r - y0)[None, :], (c - x0)[None, :], :] = np.swapaxes(refl, 0, 1)
+        self.store.write(slice(y0, y0 + block.shape[1]), slice(x0, x0 + block.shape[2]), block)
 
 
 def _per_pixel_maps(surface, shading, size):

@@ -2,8 +2,8 @@
 
 * ``relight`` — a 512 × 512 field of 2,048 directions (a store subject through the
   virtual light stage) relit under the test probes: the baseline is the dense
-  float32 BLAS product (one pass over the field, :func:`facestats.relight.relight.relight_block`),
-  side by side with the compressed path (:func:`facestats.relight.compress.compress`):
+  float32 BLAS product (one pass over the field, :func:`facestats.relight.relighting.relight_block`),
+  side by side with the compressed path (:func:`facestats.relight.compression.compress`):
   milliseconds per relight, speed-up, frames per second, compression ratio and
   the maximum relative error against the dense result.
 * ``stage`` — rendering the virtual light stage for a 512² view (target ≤ 60 s),
@@ -91,9 +91,9 @@ def bench_relight(size=512, n_theta=64, n_phi=32, repeat=5, ratio=20.0):
     """Dense float32 BLAS relight (baseline) vs the compressed path on a size² field of n_theta·n_phi lights."""
     import resource
 
-    from facestats.relight.compress import compress
+    from facestats.relight.compression import compress
     from facestats.relight.field import open_field
-    from facestats.relight.relight import lighting_for, relight_block
+    from facestats.relight.relighting import lighting_for, relight_block
 
     path, built = _stage_input(size, n_theta, n_phi)
     field = open_field(path)
@@ -191,7 +191,7 @@ def bench_discretisation(size=64, probe_height=None, n_theta=64, n_phi=32):
 def bench_stream(size=256, n_theta=64, n_phi=32, tile=None):
     """Relight a zarr field tile by tile: Python-heap peak (tracemalloc) against the field's float32 size."""
     from facestats.relight.field import open_field
-    from facestats.relight.relight import relight
+    from facestats.relight.relighting import relight
 
     path, _ = _stage_input(size, n_theta, n_phi)
     field = open_field(path)

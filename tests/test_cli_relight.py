@@ -6,7 +6,7 @@ from facestats.io.images import read_exr, read_image, write_pfm
 from facestats.io.probes import write_light_probe
 from facestats.relight.field import write_field
 from facestats.relight.lighting import sky_probe
-from facestats.relight.relight import relight
+from facestats.relight.relighting import relight
 
 from .cli_helpers import run_cli
 from .relight_fields import lambertian_field

@@ -10,7 +10,7 @@ from facestats.model.sphere import light_stage_directions
 from facestats.relight import stage
 from facestats.relight.field import open_field
 from facestats.relight.lighting import resample_probe, sky_probe
-from facestats.relight.relight import relight
+from facestats.relight.relighting import relight
 from facestats.relight.shadows import shadow_agreement, threshold_shadow_maps
 
 from .conftest import random_hemisphere

@@ -2,7 +2,7 @@
 
 One API call — :func:`facestats.relight.stage.relight_subject` for a subject of
 the store (through the virtual light stage) or
-:func:`facestats.relight.relight.relight` for a field store (``*.zarr`` written by
+:func:`facestats.relight.relighting.relight` for a field store (``*.zarr`` written by
 :func:`facestats.relight.field.write_field`) — then the linear image is written
 as OpenEXR and a tone-mapped sRGB PNG next to it.  Outputs are written to
 temporary files and renamed only when both are complete: a failed command
@@ -53,7 +53,7 @@ def _cmd_relight(args) -> int:
     source = pathlib.Path(args.source)
     if source.is_dir():
         from facestats.relight.field import open_field
-        from facestats.relight.relight import relight
+        from facestats.relight.relighting import relight
 
         field = open_field(source)
         image = relight(field, probe=probe, layout=args.layout, rotate=rotate, progress=True)

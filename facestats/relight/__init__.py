@@ -8,9 +8,9 @@ One module per job:
   directions, solid angles and intensities as coordinates) and its tiled zarr store;
 * :mod:`~facestats.relight.lighting` — light probes as per-light L·δA (exact cell
   integrals, spherical Voronoi cells), rotation, lat-long/angular layouts;
-* :mod:`~facestats.relight.relight` — relighting (eq. 4), tile by tile for fields on
+* :mod:`~facestats.relight.relighting` — relighting (eq. 4), tile by tile for fields on
   disk, and the clothing tint of §3.4;
-* :mod:`~facestats.relight.compress` — compressed relighting (clustered PCA);
+* :mod:`~facestats.relight.compression` — compressed relighting (clustered PCA);
 * :mod:`~facestats.relight.stage` — the virtual light stage: any store subject
   rendered through the skin model into a field, and the direct render;
 * :mod:`~facestats.relight.separate` — colour-space diffuse/specular separation and
@@ -37,12 +37,12 @@ from facestats.model.sphere import (
     voronoi_solid_angles,
 )
 from facestats.relight.camera import stage_camera
-from facestats.relight.compress import CompressedField, compress
+from facestats.relight.compression import CompressedField, compress
 from facestats.relight.field import make_field, open_field, write_field
 from facestats.relight.lighting import angular_to_latlong, latlong_to_angular, resample_probe, rotate_probe
 from facestats.relight.novel import novel_view_field, reproject
 from facestats.relight.photometric import photometric_stereo
-from facestats.relight.relight import lighting_for, relight, tint_indirect
+from facestats.relight.relighting import lighting_for, relight, tint_indirect
 from facestats.relight.separate import separate_field
 from facestats.relight.shadows import threshold_shadow_maps
 from facestats.relight.stage import light_stage_field, relight_subject, render_subject

@@ -5,7 +5,7 @@ distant light and stack the images into reflectance functions (eq. 2).  Here a
 subject of the store (a Weyrich et al. 2006 skin model: albedo/modulation map,
 diffuse normal map, Torrance-Sparrow or Blinn-Phong maps, σ's and σa) is
 imaged the same way through the skin model, so every face of the population
-can be relit under measured light (:func:`facestats.relight.relight.relight`).
+can be relit under measured light (:func:`facestats.relight.relighting.relight`).
 
 Pipeline for one camera (:class:`StageCamera`, pinhole, square image):
 

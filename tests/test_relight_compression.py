@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from facestats.errors import ValidationError
-from facestats.relight import compress as cmp
+from facestats.relight import compression as cmp
 from facestats.relight.field import open_field, write_field
 from facestats.relight.lighting import resample_probe, sky_probe
-from facestats.relight.relight import relight
+from facestats.relight.relighting import relight
 
 from .relight_fields import ts_lambert_field
 

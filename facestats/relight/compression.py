@@ -156,7 +156,7 @@ class CompressedField:
 
         Per cluster: base = μ_k·(W/√δA), proj = B_k (W/√δA), then pixel value =
         C_p · proj + base per channel.  ``lighting`` is L·δA per light (as
-        :func:`facestats.relight.relight.relight`); or pass a ``probe`` (with
+        :func:`facestats.relight.relighting.relight`); or pass a ``probe`` (with
         ``layout``, ``rotate``) to resample.
         """
         from facestats.relight.lighting import resample_probe

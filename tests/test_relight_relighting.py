@@ -6,7 +6,7 @@ import pytest
 from facestats.errors import ValidationError
 from facestats.relight import field as fld
 from facestats.relight.lighting import resample_probe, rotate_probe, sky_probe, uniform_probe
-from facestats.relight.relight import indirect_field, lighting_for, relight, tint_indirect
+from facestats.relight.relighting import indirect_field, lighting_for, relight, tint_indirect
 
 from .relight_fields import lambertian_field
 

@@ -62,6 +62,18 @@ def test_arbitrary_light_sets_use_voronoi_cells_and_conserve_energy(rng):
     assert np.allclose(w1[:, 0], sphere.voronoi_solid_angles(d), rtol=0.03, atol=2e-3)
 
 
+def test_the_weyrich_dome_leds_are_a_voronoi_light_set(rng):
+    from facestats.acquire.dome import default_dome
+
+    dome = default_dome()
+    d = dome.led_position - [0, 0, 40.0]  # from the head centre towards each of the 150 LEDs
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    p = _probe(rng, 32)
+    w = lighting.resample_probe(p, d, supersample=2)
+    assert w.shape == (150, 3) and np.allclose(w.sum(0), _total(p), rtol=1e-10)
+    assert sphere.voronoi_solid_angles(d).sum() == pytest.approx(4 * np.pi, rel=1e-9)
+
+
 def test_rotation_by_whole_columns_is_a_roll_and_fractions_conserve(rng):
     p = _probe(rng, 16)
     r = lighting.rotate_probe(p, 2 * np.pi / 32)

@@ -131,7 +131,7 @@ def bench_relight(size=512, n_theta=64, n_phi=32, repeat=5, ratio=20.0):
         **out,
         "probes": probe_source,
         "field_MB_float32": dense_vals.nbytes / 2**20,
-        "compressed_MB": (comp.coefficients.nbytes + comp.bases.nbytes + comp.means.nbytes) / 2**20,
+        "compressed_MB": (comp.coefficients.nbytes + comp.scale.nbytes + comp.bases.nbytes + comp.means.nbytes) / 2**20,
         "compress_wall_s": compress_wall,
         "compress_cpu_s": compress_cpu,
         "load_s": load_s,

@@ -21,7 +21,7 @@ def field():
 def test_ratio_counts_every_stored_value(field):
     c = cmp.compress(field, ratio=8, clusters=2)
     p, n = int(field["mask"].sum()), 32 * 16
-    stored = c.coefficients.size + c.bases.size + c.means.size
+    stored = c.coefficients.size + c.scale.size + c.bases.size + c.means.size
     assert c.ratio == pytest.approx(3 * n * p / stored) and c.ratio >= 8
     assert cmp.rank_for_ratio(n, p, 8, 2) == c.rank
     assert cmp.rank_for_ratio(2048, 86000, 20, cmp.default_clusters(86000)) >= 40  # a 512² face at ratio 20

@@ -358,7 +358,7 @@ def compress(
     clusters: int | None = None,
     rank: int | None = None,
     features: int = 32,
-    sample: int = 512,
+    sample: int = 256,
     seed: int = 0,
     progress: bool = False,
 ) -> CompressedField:

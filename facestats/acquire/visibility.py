@@ -11,7 +11,8 @@ discretisation of the buffer.
 The triangles are rasterised by :func:`facestats.core.raster.triangle_coverage`
 (vectorised over triangles, grouped by the size of their pixel bounding box) and
 the nearest depth per pixel is kept with ``numpy.minimum.at``.  The loop runs over
-viewpoints and size groups, never over triangles or points.
+viewpoints and size groups, never over triangles or points.  :func:`rasterize`
+keeps the nearest triangle per pixel instead, to render a camera view of a mesh.
 """
 
 from __future__ import annotations
@@ -23,7 +24,15 @@ import numpy as np
 from facestats.acquire.camera import look_at
 from facestats.core.raster import triangle_coverage
 
-__all__ = ["shadow_map", "ShadowMaps", "visible_from", "SampleVisibility", "sample_visibility", "dome_shadow_maps"]
+__all__ = [
+    "shadow_map",
+    "rasterize",
+    "ShadowMaps",
+    "visible_from",
+    "SampleVisibility",
+    "sample_visibility",
+    "dome_shadow_maps",
+]
 
 
 def _project(points, eye, rot, focal, res):
@@ -33,6 +42,27 @@ def _project(points, eye, rot, focal, res):
         x = focal * cam[:, 0] / z + res / 2
         y = focal * cam[:, 1] / z + res / 2
     return x, y, z
+
+
+def _fragments(vertices, faces, eye, rot, focal, resolution, triangles=False):
+    """Covered pixel centres of a mesh seen through a pinhole camera, one batch at a time.
+
+    Yields ``(pixel, depth, triangle)`` arrays for every (triangle, pixel) pair
+    whose pixel centre the triangle covers: the flat pixel index
+    (row · resolution + column), the depth along the view axis interpolated with
+    screen-space barycentrics, and the index of the triangle (None unless
+    ``triangles``).  Shared by :func:`shadow_map` (nearest depth) and
+    :func:`rasterize` (nearest triangle).
+    """
+    x, y, z = _project(vertices, eye, rot, focal, resolution)
+    tz = z[faces]
+    good = np.all(np.isfinite(x[faces]) & np.isfinite(y[faces]) & (tz > 0), axis=1)
+    tri_index = np.nonzero(good)[0]
+    tz = tz[good]
+    for tri, py, px, l0, l1, l2 in triangle_coverage(x, y, faces[good], resolution, resolution):
+        t = tz[tri]
+        depth = l0 * t[:, 0] + l1 * t[:, 1] + l2 * t[:, 2]
+        yield py * resolution + px, depth, (tri_index[tri] if triangles else None)
 
 
 def shadow_map(vertices, faces, eye, target, radius, resolution):
@@ -61,15 +91,43 @@ def shadow_map(vertices, faces, eye, target, radius, resolution):
     dist = np.linalg.norm(np.asarray(target, float) - eye)
     half = np.arcsin(min(radius / dist, 0.99))
     focal = (resolution / 2) / np.tan(half)
-    x, y, z = _project(vertices, eye, rot, focal, resolution)
     depth = np.full(resolution * resolution, np.inf)
-    tz = z[faces]
-    good = np.all(np.isfinite(x[faces]) & np.isfinite(y[faces]) & (tz > 0), axis=1)
-    tz = tz[good]
-    for tri, py, px, l0, l1, l2 in triangle_coverage(x, y, faces[good], resolution, resolution):
-        t = tz[tri]
-        np.minimum.at(depth, py * resolution + px, l0 * t[:, 0] + l1 * t[:, 1] + l2 * t[:, 2])
+    for pix, zz, _ in _fragments(vertices, faces, eye, rot, focal, resolution):
+        np.minimum.at(depth, pix, zz)
     return depth.reshape(resolution, resolution), (eye, rot, focal, resolution)
+
+
+def rasterize(vertices, faces, eye, rot, focal, resolution):
+    """Nearest triangle and its depth at every pixel centre of a square pinhole image.
+
+    The camera is the one :func:`shadow_map` returns: centre ``eye``, world-to-camera
+    rotation ``rot`` (rows x right, y down, z forward, :func:`facestats.acquire.camera.look_at`),
+    focal length ``focal`` in pixels and the principal point at the image centre.
+    Depths are compared in float32 (as the shadow maps store them); ties go to
+    the smaller triangle index.
+
+    Returns
+    -------
+    triangle : ndarray of int64, shape (resolution, resolution)
+        Index into ``faces`` of the visible triangle, −1 where the pixel sees no triangle.
+    depth : ndarray of float32, shape (resolution, resolution)
+        Its depth along the view axis (inf where empty).
+    """
+    res = int(resolution)
+    n = res * res
+    empty = np.iinfo(np.int64).max
+    key = np.full(n, empty, np.int64)
+    eye = np.asarray(eye, float)
+    frags = _fragments(np.asarray(vertices, float), np.asarray(faces), eye, rot, focal, res, triangles=True)
+    for pix, zz, tri in frags:
+        # Positive float32 bit patterns order like the floats: (depth bits, triangle) in one int64 key.
+        bits = zz.astype(np.float32).view(np.int32).astype(np.int64)
+        np.minimum.at(key, pix, (bits << 32) | tri.astype(np.int64))
+    hit = key != empty
+    triangle = np.where(hit, key & 0xFFFFFFFF, -1)
+    depth = np.full(n, np.inf, np.float32)
+    depth[hit] = (key[hit] >> 32).astype(np.int32).view(np.float32)
+    return triangle.reshape(res, res), depth.reshape(res, res)
 
 
 class ShadowMaps:

@@ -17,7 +17,8 @@ prints.  Heavy modules are imported inside the commands so that ``facestats
 * :mod:`~facestats.cli.ingest` — ``ingest``;
 * :mod:`~facestats.cli.calibrate` — ``calibrate leds``;
 * :mod:`~facestats.cli.emulate` — ``emulate dome|sensor``;
-* :mod:`~facestats.cli.capture` — ``capture dome|sensor``.
+* :mod:`~facestats.cli.capture` — ``capture dome|sensor``;
+* :mod:`~facestats.cli.relight` — ``relight``.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from facestats.cli.emulate import add_emulate
 from facestats.cli.export import add_export_subject
 from facestats.cli.ingest import add_ingest
 from facestats.cli.microstructure import add_microstructure
+from facestats.cli.relight import add_relight
 from facestats.cli.render import add_render
 from facestats.cli.serve import add_serve
 from facestats.cli.store import add_export, add_import_merl, add_info, add_query, add_validate
@@ -65,6 +67,7 @@ COMMANDS = [
     add_calibrate,
     add_emulate,
     add_capture,
+    add_relight,
 ]
 
 

@@ -20,13 +20,18 @@
 * :mod:`facestats.io.export`: the public statistics release (CSV/JSON).
 * :mod:`facestats.io.merl`: the MERL/ETH Skin Reflectance Database ``ts_data.mat``.
 * :mod:`facestats.io.mesh`: real face scans (OBJ/PLY with UVs) as geometries.
+* :func:`read_light_probe` (:mod:`facestats.io.probes`): light probes (Radiance,
+  OpenEXR, PFM) in lat-long or angular layout; :mod:`facestats.io.olat`:
+  one-light-at-a-time folders (DiLiGenT layout or a JSON manifest) as
+  reflectance fields.
 
 Importing this package loads numpy only; xarray, zarr and pandas are imported
 when a subject or a DataFrame is needed.
 """
 
 from facestats.io.packing import pack_store
+from facestats.io.probes import read_light_probe
 from facestats.io.query import QueryResult
 from facestats.io.store import Store, open_store
 
-__all__ = ["open_store", "Store", "QueryResult", "pack_store"]
+__all__ = ["open_store", "Store", "QueryResult", "pack_store", "read_light_probe"]

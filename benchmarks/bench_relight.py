@@ -1,0 +1,224 @@
+"""Relighting (issue 15, Debevec et al. 2000): dense BLAS baseline vs compressed relighting, the virtual stage.
+
+* ``relight`` — a 512 × 512 field of 2,048 directions (a store subject through the
+  virtual light stage) relit under the test probes: the baseline is the dense
+  float32 BLAS product (one pass over the field, :func:`facestats.relight.relighting.relight_block`),
+  side by side with the compressed path (:func:`facestats.relight.compression.compress`):
+  milliseconds per relight, speed-up, frames per second, compression ratio and
+  the maximum relative error against the dense result.
+* ``stage`` — rendering the virtual light stage for a 512² view (target ≤ 60 s),
+  wall and CPU seconds (CPU time is what a quiet 2-core machine would take for
+  this single-threaded code).
+* ``discretisation`` — a subject rendered directly under the full-resolution
+  probe (every probe pixel a light) against the 64 × 32 stage.
+* ``stream`` — relighting a field from its zarr store tile by tile: peak memory
+  against the field's size.
+
+Inputs (the fields) are built once per code version under ``FACESTATS_BENCH_DIR``
+(:mod:`inputs`).  The real probes are ``kayru/Probulator`` ``Data/Probes/{pisa,ennis,wells}.hdr``,
+looked up in ``$FACESTATS_TEST_DATA/probulator`` (default ``tests/data/external/probulator``);
+without them the synthetic :func:`facestats.relight.lighting.sky_probe` is used and reported.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import pathlib
+import time
+import tracemalloc
+
+import numpy as np
+
+PROBES = ("pisa", "ennis", "wells")
+PROBE_DIR = (
+    pathlib.Path(
+        os.environ.get(
+            "FACESTATS_TEST_DATA", pathlib.Path(__file__).resolve().parents[1] / "tests" / "data" / "external"
+        )
+    )
+    / "probulator"
+)
+
+
+def _probes(height=None):
+    from facestats.io.probes import read_light_probe
+    from facestats.relight.lighting import sky_probe
+
+    if all((PROBE_DIR / f"{p}.hdr").is_file() for p in PROBES):
+        return {p: read_light_probe(PROBE_DIR / f"{p}.hdr") for p in PROBES}, "probulator"
+    return {"sky": sky_probe(height or 64)}, "synthetic sky"
+
+
+def _subject():
+    import facestats
+
+    with facestats.open_store() as store:
+        return store.subject("S001").load()
+
+
+def _stage_input(size, n_theta, n_phi):
+    """Path of the cached float16 zarr field of S001 at ``size``² and n_theta × n_phi lights."""
+    from inputs import cached_input
+
+    from facestats.model.sphere import light_stage_directions
+    from facestats.relight.stage import light_stage_field, stage_camera
+
+    def make(path):
+        d, _ = light_stage_directions(n_theta, n_phi)
+        t0, c0 = time.perf_counter(), time.process_time()
+        light_stage_field(_subject(), stage_camera(size=size), directions=d, out=path, dtype="float16")
+        return {"stage_wall_s": time.perf_counter() - t0, "stage_cpu_s": time.process_time() - c0}
+
+    return cached_input(f"relight_field_{size}_{n_theta}x{n_phi}.zarr", {"size": size, "lights": [n_theta, n_phi]},
+                        make)  # fmt: skip
+
+
+def _best_ms(fn, repeat):
+    best = math.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return 1e3 * best
+
+
+def _max_rel(img, ref, mask):
+    return float((np.abs(img - ref)[mask] / np.maximum(ref[mask], 1e-30)).max())
+
+
+def bench_relight(size=512, n_theta=64, n_phi=32, repeat=5, ratio=20.0):
+    """Dense float32 BLAS relight (baseline) vs the compressed path on a size² field of n_theta·n_phi lights."""
+    import resource
+
+    from facestats.relight.compression import compress
+    from facestats.relight.field import open_field
+    from facestats.relight.relighting import lighting_for, relight_block
+
+    path, built = _stage_input(size, n_theta, n_phi)
+    field = open_field(path)
+    mask = field["mask"].values
+    probes, probe_source = _probes()
+    n = n_theta * n_phi
+    t0 = time.perf_counter()
+    dense_vals = np.asarray(field["reflectance"].values, np.float32).reshape(n, size, size, 3)
+    load_s = time.perf_counter() - t0
+    weights = {p: lighting_for(field, pr).reshape(n, 3).astype(np.float32) for p, pr in probes.items()}
+    t0, c0 = time.perf_counter(), time.process_time()
+    comp = compress(field, ratio=ratio)
+    compress_wall, compress_cpu = time.perf_counter() - t0, time.process_time() - c0
+    out = {}
+    errors = []
+    for p, w in weights.items():
+        ref = relight_block(dense_vals, w)
+        errors.append(_max_rel(comp.relight(w), ref, mask))
+        out[f"max_rel_error_{p}"] = errors[-1]
+        lum = ref.mean(-1)
+        bright = mask & (lum >= 0.1 * np.median(lum[mask]))
+        out[f"max_rel_error_{p}_above_10pct_median"] = _max_rel(comp.relight(w), ref, bright)
+    w0 = next(iter(weights.values()))
+    dense_ms = _best_ms(lambda: relight_block(dense_vals, w0), repeat)
+    comp_ms = _best_ms(lambda: comp.relight(w0), repeat)
+    return {
+        "speedup_compressed_vs_dense_blas": dense_ms / comp_ms,
+        "dense_blas_ms": dense_ms,
+        "compressed_ms": comp_ms,
+        "compressed_fps": 1e3 / comp_ms,
+        "ratio": comp.ratio,
+        "rank": comp.rank,
+        "clusters": comp.clusters,
+        "max_rel_error": max(errors),
+        **out,
+        "probes": probe_source,
+        "field_MB_float32": dense_vals.nbytes / 2**20,
+        "compressed_MB": (comp.coefficients.nbytes + comp.scale.nbytes + comp.bases.nbytes + comp.means.nbytes) / 2**20,
+        "compress_wall_s": compress_wall,
+        "compress_cpu_s": compress_cpu,
+        "load_s": load_s,
+        "peak_rss_MB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "face_pixels": int(mask.sum()),
+        **{k: v for k, v in built.items()},
+    }
+
+
+def bench_stage(size=512, n_theta=64, n_phi=32):
+    """Render the virtual light stage for a size² view (to a float16 zarr store); target ≤ 60 s."""
+    import tempfile
+
+    from facestats.model.sphere import light_stage_directions
+    from facestats.relight.stage import light_stage_field, stage_camera
+
+    subject = _subject()
+    d, _ = light_stage_directions(n_theta, n_phi)
+    with tempfile.TemporaryDirectory() as tmp:
+        t0, c0 = time.perf_counter(), time.process_time()
+        f = light_stage_field(subject, stage_camera(size=size), directions=d, out=pathlib.Path(tmp) / "f.zarr",
+                              dtype="float16")  # fmt: skip
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        pixels = int(f["mask"].sum())
+    return {"stage_wall_s": wall, "stage_cpu_s": cpu, "target_s": 60.0, "face_pixels": pixels,
+            "lights": n_theta * n_phi}  # fmt: skip
+
+
+def bench_discretisation(size=64, probe_height=None, n_theta=64, n_phi=32):
+    """A subject under the full-resolution probe (every pixel a light) vs the n_theta × n_phi stage."""
+    from facestats.model.sphere import latlong_directions, latlong_solid_angles, light_stage_directions
+    from facestats.relight.lighting import resample_probe
+    from facestats.relight.stage import render_subject, stage_camera
+
+    subject = _subject()
+    cam = stage_camera(size=size)
+    probes, source = _probes(probe_height)
+    d_stage, _ = light_stage_directions(n_theta, n_phi)
+    out = {"probes": source}
+    t0 = time.perf_counter()
+    for name, pr in probes.items():
+        if probe_height and pr.shape[0] != probe_height:
+            step = pr.shape[0] // probe_height
+            pr = pr.reshape(probe_height, step, 2 * probe_height, step, 3).mean((1, 3))
+        h, w = pr.shape[:2]
+        full, mask = render_subject(subject, pr * latlong_solid_angles(h, w)[..., None], latlong_directions(h, w), cam)
+        stage, _ = render_subject(subject, resample_probe(pr, d_stage), d_stage, cam)
+        rel = np.abs(stage - full)[mask] / np.maximum(full[mask], 1e-30)
+        out[f"{name}_median_rel"] = float(np.median(rel))
+        out[f"{name}_p99_rel"] = float(np.percentile(rel, 99))
+        out[f"{name}_max_rel"] = float(rel.max())
+        out["probe_lights"] = h * w
+    out["wall_s"] = time.perf_counter() - t0
+    return out
+
+
+def bench_stream(size=256, n_theta=64, n_phi=32, tile=None):
+    """Relight a zarr field tile by tile: Python-heap peak (tracemalloc) against the field's float32 size."""
+    from facestats.relight.field import open_field
+    from facestats.relight.relighting import relight
+
+    path, _ = _stage_input(size, n_theta, n_phi)
+    field = open_field(path)
+    probes, _ = _probes()
+    probe = next(iter(probes.values()))
+    tracemalloc.start()
+    t0 = time.perf_counter()
+    relight(field, probe=probe)
+    wall = time.perf_counter() - t0
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    full = n_theta * n_phi * size * size * 3 * 4
+    return {"peak_MB": peak / 2**20, "field_MB_float32": full / 2**20, "peak_fraction": peak / full,
+            "wall_s": wall}  # fmt: skip
+
+
+BENCHMARKS = [
+    ("relight", bench_relight),
+    ("stage", bench_stage),
+    ("discretisation", bench_discretisation),
+    ("stream", bench_stream),
+]
+
+#: Tiny sizes for the test suite (tests/test_benchmarks.py).
+SMOKE = {
+    "relight": {"size": 16, "n_theta": 16, "n_phi": 8, "repeat": 1, "ratio": 2.0},
+    "stage": {"size": 12, "n_theta": 8, "n_phi": 4},
+    "discretisation": {"size": 8, "probe_height": 8, "n_theta": 8, "n_phi": 4},
+    "stream": {"size": 12, "n_theta": 8, "n_phi": 4},
+}

@@ -1,0 +1,299 @@
+"""One-light-at-a-time (OLAT) and photometric-stereo folders read as reflectance fields.
+
+One job: turn a folder of images, each lit by one known distant light, into a
+reflectance field (:mod:`facestats.relight.field`): each image divided by its
+light's RGB intensity, in linear radiometry.  Two layouts:
+
+**DiLiGenT** (Shi et al. 2016): ``filenames.txt`` (one image per line),
+``light_directions.txt`` (one unit vector per line, same order),
+optional ``light_intensities.txt`` (RGB per line), ``mask.png`` and ground-truth
+normals (``Normal_gt.mat`` variable ``Normal_gt``, ``normal.txt`` with one vector
+per pixel in row-major order, or ``normals.npy``).  DiLiGenT's frame — x right,
+y up, z towards the camera — is facestats's world frame seen by the frontal
+camera, so directions and normals are used as given.
+
+**facestats OLAT manifest** (``olat.json``, for light stages)::
+
+    {
+      "format": "facestats-olat/1",
+      "encoding": "srgb",                     # 8-bit images: "srgb" (default) or "linear"
+      "mask": "mask.png",                     # optional
+      "view": [0, 0, 1],                      # optional: unit vector to the camera
+      "frames": [
+        {"file": "l000.exr", "direction": [0.1, 0.9, 0.4], "intensity": [1, 0.97, 0.92]},
+        {"file": "l001.exr", "phi_deg": 2.8, "theta_deg": -177.2},
+        {"file": "full.png", "kind": "full_on"},
+        {"file": "track.png", "kind": "tracking"}
+      ]
+    }
+
+A frame is a light image (``"kind": "olat"``, the default) or an auxiliary
+frame (``"full_on"``, ``"tracking"``, anything else) that is skipped and listed
+in the field's ``skipped_frames`` attribute.  A light is given by ``direction``
+(world frame of :mod:`facestats.model.sphere`, towards the light) or by
+Debevec's angles ``phi_deg`` (polar from +y) and ``theta_deg`` (azimuth from −z
+towards +x).  When the lights are exactly a lat-long light stage in row-major
+order the field is a grid field (``light_phi``, ``light_theta``); otherwise a
+list field with spherical-Voronoi solid angles.
+
+Images: 16-bit PNG/TIFF and HDR files are linear; 8-bit images are decoded from
+sRGB unless the encoding says linear (:func:`facestats.io.images.read_image`).
+Errors name the file, the field and the value: a light list whose length
+differs from the images, images of different sizes, missing files, bad
+directions.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+
+import numpy as np
+
+from facestats.core.validate import check_choice
+from facestats.errors import FormatError, ValidationError
+
+__all__ = ["MANIFEST_NAME", "read_olat_folder", "write_olat_manifest", "read_ground_truth_normals"]
+
+MANIFEST_NAME = "olat.json"
+_GRID_TOL = 1e-6
+
+
+def _read_rows(path: pathlib.Path, width: int) -> np.ndarray:
+    try:
+        a = np.loadtxt(path, ndmin=2, dtype=np.float64)
+    except ValueError as exc:
+        raise FormatError(f"{str(path)!r}: cannot read numbers: {exc}") from None
+    if a.shape[1] != width:
+        raise FormatError(f"{str(path)!r}: each line must hold {width} numbers, got {a.shape[1]}")
+    return a
+
+
+def _load_images(folder, names, srgb):
+    """Stack of images (L, H, W, 3) float32, checked for existence and a common size (loop over files)."""
+    from facestats.io.images import INTEGER_EXTENSIONS, read_image, read_integer_image
+
+    stack = None
+    for k, name in enumerate(names):
+        p = folder / name
+        if not p.is_file():
+            raise ValidationError(f"image {str(p)!r} listed for light {k} does not exist")
+        if p.suffix.lower() in INTEGER_EXTENSIONS:
+            bits = read_integer_image(p)[1]
+            img = read_image(p, srgb=bool(srgb) and bits == 8)
+        else:
+            img = read_image(p)
+        if img.shape[2] == 1:
+            img = np.repeat(img, 3, axis=2)
+        img = img[..., :3]
+        if stack is None:
+            stack = np.empty((len(names),) + img.shape, np.float32)
+        elif img.shape != stack.shape[1:]:
+            raise ValidationError(
+                f"image {str(p)!r} has size {img.shape[1]} x {img.shape[0]}, but {str(folder / names[0])!r} has "
+                f"{stack.shape[2]} x {stack.shape[1]}: all images of a folder must have one size"
+            )
+        stack[k] = img
+    return stack
+
+
+def _read_mask(path: pathlib.Path, shape):
+    from facestats.io.images import read_integer_image
+
+    raw, _ = read_integer_image(path)
+    m = raw[..., 0] > 0
+    if m.shape != shape:
+        raise ValidationError(f"mask {str(path)!r} has shape {m.shape}, images have {shape}")
+    return m
+
+
+def read_ground_truth_normals(folder, shape=None):
+    """Ground-truth normals of a DiLiGenT-style folder (H, W, 3), or None if the folder has none."""
+    folder = pathlib.Path(os.fspath(folder))
+    mat, txt, npy = folder / "Normal_gt.mat", folder / "normal.txt", folder / "normals.npy"
+    if mat.is_file():
+        from scipy.io import loadmat
+
+        n = np.asarray(loadmat(mat)["Normal_gt"], np.float64)
+    elif npy.is_file():
+        n = np.asarray(np.load(npy), np.float64)
+    elif txt.is_file() and shape is not None:
+        n = _read_rows(txt, 3).reshape(tuple(shape) + (3,))
+    else:
+        return None
+    if shape is not None and n.shape[:2] != tuple(shape):
+        raise ValidationError(f"ground-truth normals of {str(folder)!r} have shape {n.shape[:2]}, images have {shape}")
+    return n
+
+
+def _diligent(folder: pathlib.Path, srgb):
+    names_file = folder / "filenames.txt"
+    if not names_file.is_file():
+        raise ValidationError(f"DiLiGenT folder {str(folder)!r} must hold filenames.txt")
+    names = [ln.strip() for ln in names_file.read_text().splitlines() if ln.strip()]
+    dirs = _read_rows(folder / "light_directions.txt", 3)
+    if dirs.shape[0] != len(names):
+        raise ValidationError(
+            f"{str(folder / 'light_directions.txt')!r} lists {dirs.shape[0]} lights but "
+            f"{str(names_file)!r} lists {len(names)} images"
+        )
+    inten_file = folder / "light_intensities.txt"
+    inten = _read_rows(inten_file, 3) if inten_file.is_file() else np.ones((len(names), 3))
+    if inten.shape[0] != len(names):
+        raise ValidationError(
+            f"{str(inten_file)!r} lists {inten.shape[0]} intensities but there are {len(names)} images"
+        )
+    return {"names": names, "directions": dirs, "intensity": inten, "mask": "mask.png", "srgb": srgb, "view": None,
+            "skipped": [], "layout": "diligent"}  # fmt: skip
+
+
+def _frame_direction(fr, k, path):
+    from facestats.model.sphere import direction_from_angles
+
+    if "direction" in fr:
+        d = np.asarray(fr["direction"], np.float64)
+    elif "phi_deg" in fr and "theta_deg" in fr:
+        d = direction_from_angles(np.radians(float(fr["phi_deg"])), np.radians(float(fr["theta_deg"])))
+    else:
+        raise ValidationError(
+            f"{str(path)!r}: frame {k} ({fr.get('file')!r}) needs 'direction' or 'phi_deg'+'theta_deg'"
+        )
+    if d.shape != (3,) or not np.all(np.isfinite(d)) or abs(np.linalg.norm(d) - 1) > 1e-3:
+        raise ValidationError(f"{str(path)!r}: frame {k} direction must be a unit 3-vector, got {fr.get('direction')}")
+    return d / np.linalg.norm(d)
+
+
+def _manifest(path: pathlib.Path, srgb):
+    try:
+        man = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise FormatError(f"cannot read the OLAT manifest {str(path)!r}: {exc}") from None
+    if man.get("format", "facestats-olat/1") != "facestats-olat/1":
+        raise ValidationError(f"{str(path)!r}: format must be 'facestats-olat/1', got {man.get('format')!r}")
+    enc = man.get("encoding", "srgb")
+    check_choice(enc, f"{path.name}: encoding", ("srgb", "linear"))
+    frames = man.get("frames")
+    if not isinstance(frames, list) or not frames:
+        raise ValidationError(f"{str(path)!r}: 'frames' must be a non-empty list")
+    names, dirs, inten, skipped = [], [], [], []
+    for k, fr in enumerate(frames):
+        if not isinstance(fr, dict) or "file" not in fr:
+            raise ValidationError(f"{str(path)!r}: frame {k} must be an object with a 'file'")
+        if fr.get("kind", "olat") != "olat":
+            skipped.append(str(fr["file"]))
+            continue
+        names.append(str(fr["file"]))
+        dirs.append(_frame_direction(fr, k, path))
+        it = np.asarray(fr.get("intensity", [1.0, 1.0, 1.0]), np.float64)
+        it = np.repeat(it, 3) if it.shape == (1,) or it.ndim == 0 else it
+        if it.shape != (3,) or not np.all(np.isfinite(it)) or np.any(it <= 0):
+            raise ValidationError(f"{str(path)!r}: frame {k} intensity must be 1 or 3 positive numbers, got {it}")
+        inten.append(it)
+    if not names:
+        raise ValidationError(f"{str(path)!r}: no light frame (every frame is of another kind)")
+    srgb_eff = (enc == "srgb") if srgb is None else srgb
+    view = man.get("view")
+    return {"names": names, "directions": np.array(dirs), "intensity": np.array(inten), "mask": man.get("mask"),
+            "srgb": srgb_eff, "view": view, "skipped": skipped, "layout": "manifest"}  # fmt: skip
+
+
+def _as_grid(dirs):
+    """(n_phi, n_theta) when ``dirs`` is a lat-long light stage in row-major order, else None."""
+    from facestats.model.sphere import latlong_directions
+
+    n = dirs.shape[0]
+    for n_phi in range(1, int(np.sqrt(n / 2)) + 2):
+        if n % n_phi == 0:
+            n_theta = n // n_phi
+            ref = latlong_directions(n_phi, n_theta).reshape(-1, 3)
+            if np.allclose(ref, dirs, atol=_GRID_TOL):
+                return n_phi, n_theta
+    return None
+
+
+def read_olat_folder(path, *, srgb=None):
+    """Read an OLAT / photometric-stereo folder as a reflectance field (module docstring).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The folder: with ``olat.json`` it is read as a facestats manifest,
+        otherwise as DiLiGenT (``filenames.txt``, ``light_directions.txt``, ...).
+    srgb : bool, optional
+        Decode 8-bit images from sRGB (default: yes for DiLiGenT 8-bit images and
+        per the manifest's ``encoding``); 16-bit and HDR images are always linear.
+
+    Returns
+    -------
+    xarray.Dataset
+        A reflectance field: images / intensities (the raw intensities kept as the
+        ``intensity`` coordinate), ``mask``, ``normal_gt`` when the folder has
+        ground truth, and attributes ``source``, ``layout``, ``files`` and
+        ``skipped_frames``.
+    """
+    from facestats.relight.field import make_field
+
+    folder = pathlib.Path(os.fspath(path))
+    if not folder.is_dir():
+        raise ValidationError(f"OLAT folder {str(folder)!r} does not exist")
+    man = folder / MANIFEST_NAME
+    spec = _manifest(man, srgb) if man.is_file() else _diligent(folder, True if srgb is None else srgb)
+    dirs = spec["directions"]
+    norm = np.linalg.norm(dirs, axis=1)
+    if np.any(np.abs(norm - 1) > 1e-2):
+        k = int(np.argmax(np.abs(norm - 1)))
+        raise ValidationError(f"light direction {k} of {str(folder)!r} must be a unit vector, got norm {norm[k]:.4g}")
+    dirs = dirs / norm[:, None]
+    stack = _load_images(folder, spec["names"], spec["srgb"])
+    values = stack / spec["intensity"][:, None, None, :].astype(np.float32)
+    h, w = stack.shape[1:3]
+    mask = None
+    if spec["mask"] and (folder / spec["mask"]).is_file():
+        mask = _read_mask(folder / spec["mask"], (h, w))
+    view = None
+    if spec["view"] is not None:
+        v = np.asarray(spec["view"], np.float64)
+        view = np.broadcast_to(v / np.linalg.norm(v), (h, w, 3))
+    grid = _as_grid(dirs)
+    attrs = {"source": f"OLAT folder {folder.name}", "layout": spec["layout"], "files": list(spec["names"]),
+             "skipped_frames": list(spec["skipped"]), "srgb_decoded": bool(spec["srgb"])}  # fmt: skip
+    if grid is not None:
+        values = values.reshape(grid + (h, w, 3))
+        d_in, inten = dirs.reshape(grid + (3,)), spec["intensity"].reshape(grid + (3,))
+    else:
+        d_in, inten = dirs, spec["intensity"]
+    ds = make_field(values, d_in, intensity=inten, mask=mask, view=view, attrs=attrs)
+    if grid is not None:
+        ds.attrs["layout_lights"] = "latlong"
+    gt = read_ground_truth_normals(folder, (h, w)) if spec["layout"] == "diligent" else None
+    if gt is not None:
+        ds["normal_gt"] = (("y", "x", "component"), gt.astype(np.float32))
+    return ds
+
+
+def write_olat_manifest(folder, files, directions, intensities=None, *, encoding="linear", mask=None, view=None,
+                        extra_frames=None):  # fmt: skip
+    """Write ``olat.json`` for images already in ``folder`` (lights in the facestats world frame).
+
+    ``extra_frames`` are ``(file, kind)`` pairs of auxiliary frames (full-on,
+    tracking) that readers skip.  Returns the manifest path.
+    """
+    folder = pathlib.Path(os.fspath(folder))
+    d = np.asarray(directions, np.float64).reshape(-1, 3)
+    if len(files) != d.shape[0]:
+        raise ValidationError(f"directions must hold one vector per file ({len(files)}), got {d.shape[0]}")
+    it = np.ones_like(d) if intensities is None else np.asarray(intensities, np.float64).reshape(-1, 3)
+    if it.shape != d.shape:
+        raise ValidationError(f"intensities must hold one RGB triple per file, got shape {it.shape}")
+    check_choice(encoding, "encoding", ("srgb", "linear"))
+    frames = [{"file": str(f), "direction": dv.tolist(), "intensity": iv.tolist()} for f, dv, iv in zip(files, d, it)]
+    frames += [{"file": str(f), "kind": str(k)} for f, k in (extra_frames or [])]
+    man = {"format": "facestats-olat/1", "encoding": encoding, "frames": frames}
+    if mask is not None:
+        man["mask"] = str(mask)
+    if view is not None:
+        man["view"] = [float(x) for x in view]
+    path = folder / MANIFEST_NAME
+    path.write_text(json.dumps(man, indent=1))
+    return path

@@ -1,0 +1,91 @@
+"""Light-probe files: Radiance ``.hdr`` (flat and RLE), OpenEXR and PFM, in lat-long or angular layout.
+
+One job: read and write environment maps as linear radiance, checked for the
+layout they claim.  Decoding is :mod:`facestats.io.images`; the layouts, the
+direction convention (+y up, the image centre looks at −z, light directions
+point from the surface towards the light) and the rotation convention are those
+of :mod:`facestats.model.sphere`; resampling to a light stage is
+:func:`facestats.relight.lighting.resample_probe`.
+
+Values are returned as stored (float32, linear): high-dynamic-range data are
+never normalised.  A probe with NaN, inf or negative values, the wrong aspect
+ratio for its layout, an unknown layout or extension is refused with a
+:class:`facestats.errors.ValidationError` naming the file, the field and the value.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+
+import numpy as np
+
+from facestats.core.validate import check_choice
+from facestats.errors import ValidationError
+
+__all__ = ["PROBE_EXTENSIONS", "PROBE_LAYOUTS", "read_light_probe", "write_light_probe"]
+
+#: File types a probe can be read from (high dynamic range only: an 8-bit image is not a measurement of light).
+PROBE_EXTENSIONS = (".hdr", ".pic", ".exr", ".pfm")
+#: The layouts of :mod:`facestats.model.sphere`.
+PROBE_LAYOUTS = ("latlong", "angular")
+
+
+def _probe_path(path, must_exist=True) -> pathlib.Path:
+    p = pathlib.Path(os.fspath(path))
+    if p.suffix.lower() not in PROBE_EXTENSIONS:
+        raise ValidationError(
+            f"light probe {str(p)!r} must be one of {', '.join(PROBE_EXTENSIONS)} (high dynamic range), "
+            f"got extension {p.suffix!r}"
+        )
+    if must_exist and not p.is_file():
+        raise ValidationError(f"light probe {str(p)!r} does not exist")
+    return p
+
+
+def read_light_probe(path, layout: str = "latlong") -> np.ndarray:
+    """A light probe as float32 (H, W, 3) linear radiance, row 0 at the top.
+
+    Parameters
+    ----------
+    path : str or path-like
+        ``.hdr``/``.pic`` (Radiance RGBE, flat or run-length encoded), ``.exr``
+        (R, G, B channels, or one grey channel) or ``.pfm``.
+    layout : {"latlong", "angular"}
+        The file's layout: lat-long (W = 2H; row 0 at +y, centre column at −z)
+        or angular (W = H; the light-probe disc, centre at −z, rim at +z).
+        Convert with :func:`facestats.relight.lighting.angular_to_latlong`.
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W, 3)
+        As stored (never rescaled).  Grey files are repeated to three channels;
+        an alpha channel is dropped.
+    """
+    from facestats.io.images import read_image
+    from facestats.relight.lighting import check_probe
+
+    check_choice(layout, "layout", PROBE_LAYOUTS)
+    p = _probe_path(path)
+    img = read_image(p)
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = np.repeat(img, 3, axis=2)
+    elif img.ndim == 3 and img.shape[2] == 4:
+        img = img[..., :3]
+    return check_probe(img, layout, name=f"light probe {str(p)!r}")
+
+
+def write_light_probe(path, probe, layout: str = "latlong", *, half: bool = False) -> pathlib.Path:
+    """Write a probe (H, W, 3) in the format of the extension of ``path`` (``.hdr``, ``.exr``, ``.pfm``).
+
+    The probe is checked as :func:`read_light_probe` checks it (finite, ≥ 0, the
+    aspect ratio of ``layout``).  ``half`` stores half floats in EXR.  The layout
+    is recorded in an EXR ``layout`` attribute (other formats cannot carry it).
+    """
+    from facestats.io.images import write_image
+    from facestats.relight.lighting import check_probe
+
+    p = _probe_path(path, must_exist=False)
+    img = check_probe(probe, layout, name=f"light probe for {str(p)!r}")
+    attrs = {"layout": layout, "units": "radiance (linear)"} if p.suffix.lower() == ".exr" else None
+    return write_image(p, img, half=half, attributes=attrs)

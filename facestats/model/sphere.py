@@ -1,0 +1,297 @@
+"""Directions on the sphere of incident light: lat-long and angular layouts, exact solid angles, rotations.
+
+One job: the spherical geometry shared by light probes, light stages and
+relighting (Debevec et al. 2000 §3.3, eq. 4: each illumination direction
+carries the solid angle δA it stands for).  Pure functions of arrays, no I/O.
+
+Convention (the one facestats uses everywhere)
+----------------------------------------------
+* World frame of :mod:`facestats.acquire.geometry`: right-handed, +y up, +z out of
+  the face towards the frontal camera, +x to the subject's left (the frontal
+  camera's right).
+* A *light direction* is the unit vector from the surface **towards** the light
+  (the ``wi`` of :mod:`facestats.model.brdf`).
+* Debevec's angles: φ is the **polar** angle from +y (φ = 0 straight up, π
+  straight down; the light stage lowers φ by 180°/32 per turn), θ the
+  **azimuth** about +y, measured from −z towards +x::
+
+      d(φ, θ) = (sin φ sin θ, cos φ, −sin φ cos θ)
+
+  θ = 0 is −z (behind the subject, what the frontal camera sees beyond the
+  head: the "forward" centre of Debevec's light-probe images), θ = +π/2 is +x,
+  θ = ±π is +z (the frontal camera).
+* **Lat-long layout** (H rows × W columns, the light stage is H = 32, W = 64):
+  pixel (i, j) is the cell φ ∈ [π i/H, π (i+1)/H], θ ∈ [2π j/W − π, 2π (j+1)/W − π];
+  row 0 touches +y, the centre column looks at −z, the panorama is not mirrored
+  (moving right in the image turns from −z towards +x, as for a viewer inside
+  the sphere facing −z with +y up).  Its exact solid angle is
+  ΔΩ_ij = (2π/W)(cos φ_i − cos φ_{i+1}); the sum over the image is 4π exactly.
+  Debevec's δA = sin φ (§3.3) is this cell area to first order, up to the
+  constant factor Δθ Δφ.
+* **Angular layout** (S × S, Debevec's light-probe images): pixel centre (i, j)
+  has (u, v) = (2(j + ½)/S − 1, 1 − 2(i + ½)/S) (v up); r = √(u² + v²) ≤ 1 maps
+  linearly to the angle α = π r from the centre direction −z, towards the
+  in-image direction (u, v)/r::
+
+      d = (sin α · u/r, sin α · v/r, −cos α)
+
+  Source check: Debevec's light-probe page states in words "the center of the
+  image is straight forward" and rotates (0, 0, −1); the formula printed below
+  it, r = (1/π) acos(Dz)/√(Dx² + Dy²), would put +z at the centre, so it has the
+  sign of Dz flipped.  We follow the words, which also agree with the
+  lat-long images of the same authors (centre = −z).  The solid angle of an
+  angular pixel is ∫∫ π sin(π r)/r du dv (Jacobian of the map), integrated here
+  by Gauss-Legendre quadrature inside the pixel (0 outside the disc).
+* **Rotation** about +y by β (radians) is right-handed (counter-clockwise seen
+  from above): R_y(β) d = (cos β dx + sin β dz, dy, −sin β dx + cos β dz), which
+  maps azimuth θ to θ − β.  Rotating an *environment* by β moves its content
+  β W/(2π) columns towards smaller column indices.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from facestats.core.validate import as_finite, check_integer, check_shape
+from facestats.errors import ValidationError
+
+__all__ = [
+    "direction_from_angles",
+    "angles_from_direction",
+    "latlong_edges",
+    "latlong_directions",
+    "latlong_solid_angles",
+    "latlong_coordinates",
+    "light_stage_directions",
+    "angular_directions",
+    "angular_solid_angles",
+    "angular_coordinates",
+    "rotation_y",
+    "rotate_directions",
+    "voronoi_solid_angles",
+    "unit_directions",
+]
+
+
+def direction_from_angles(phi, theta):
+    """Unit light direction d(φ, θ) = (sin φ sin θ, cos φ, −sin φ cos θ) (module docstring).
+
+    Parameters
+    ----------
+    phi : array_like
+        Polar angle from +y, radians.
+    theta : array_like
+        Azimuth about +y from −z towards +x, radians.
+
+    Returns
+    -------
+    ndarray, shape broadcast(phi, theta) + (3,)
+    """
+    phi = np.asarray(phi, np.float64)
+    theta = np.asarray(theta, np.float64)
+    s = np.sin(phi)
+    return np.stack(np.broadcast_arrays(s * np.sin(theta), np.cos(phi), -s * np.cos(theta)), axis=-1)
+
+
+def angles_from_direction(directions):
+    """(φ, θ) of unit directions: φ ∈ [0, π] from +y, θ ∈ (−π, π] from −z towards +x (inverse of
+    :func:`direction_from_angles`)."""
+    d = np.asarray(directions, np.float64)
+    phi = np.arccos(np.clip(d[..., 1], -1.0, 1.0))
+    theta = np.arctan2(d[..., 0], -d[..., 2])
+    return phi, theta
+
+
+def _check_size(height, width):
+    h = check_integer(height, "height", 1)
+    w = check_integer(width, "width", 1)
+    return h, w
+
+
+def latlong_edges(height: int, width: int):
+    """Cell edges of the lat-long layout: polar edges φ (H + 1,) and azimuth edges θ (W + 1,), radians."""
+    h, w = _check_size(height, width)
+    return np.linspace(0.0, np.pi, h + 1), np.linspace(-np.pi, np.pi, w + 1)
+
+
+def latlong_directions(height: int, width: int) -> np.ndarray:
+    """Unit directions of the pixel centres of a lat-long image, shape (H, W, 3); row 0 is nearest +y.
+
+    Pixel (i, j) has φ = π (i + ½)/H and θ = 2π (j + ½)/W − π (module docstring).
+    """
+    h, w = _check_size(height, width)
+    phi = np.pi * (np.arange(h) + 0.5) / h
+    theta = 2 * np.pi * (np.arange(w) + 0.5) / w - np.pi
+    return direction_from_angles(phi[:, None], theta[None, :])
+
+
+def latlong_solid_angles(height: int, width: int) -> np.ndarray:
+    """Exact solid angle of every lat-long pixel, (H, W), steradians; they sum to 4π.
+
+    ΔΩ_ij = (2π/W)(cos φ_i − cos φ_{i+1}) with φ_i = π i/H: rows are equally
+    spaced in polar angle, so the area of a cell is its azimuth width times the
+    difference of the cosines of its polar edges (Debevec et al. 2000 eq. 4, δA;
+    the paper's δA = sin φ is its first-order form).
+    """
+    phi_e, _ = latlong_edges(height, width)
+    w = int(width)
+    rows = (2 * np.pi / w) * (np.cos(phi_e[:-1]) - np.cos(phi_e[1:]))
+    return np.repeat(rows[:, None], w, axis=1)
+
+
+def latlong_coordinates(directions, height: int, width: int):
+    """Continuous (row, column) of directions in a lat-long image (pixel centres at integers).
+
+    Row = H φ/π − ½, column = W (θ + π)/(2π) − ½, with θ ∈ (−π, π]; columns
+    wrap (a caller interpolating must take them modulo W).
+    """
+    h, w = _check_size(height, width)
+    phi, theta = angles_from_direction(directions)
+    return h * phi / np.pi - 0.5, w * (theta + np.pi) / (2 * np.pi) - 0.5
+
+
+def light_stage_directions(n_theta: int = 64, n_phi: int = 32):
+    """The light stage's directions and their solid angles (Debevec et al. 2000 §3.1-3.3).
+
+    The light sits at the centre of each cell of an ``n_phi`` × ``n_theta``
+    lat-long grid (64 azimuths θ × 32 inclinations φ, steps of 360/64° and
+    180/32°): it is :func:`latlong_directions` ``(n_phi, n_theta)``, so a light
+    probe in the lat-long layout resamples to it by exact cell overlaps.
+
+    Returns
+    -------
+    directions : ndarray, shape (n_phi, n_theta, 3)
+        Unit vectors towards the lights.
+    solid_angles : ndarray, shape (n_phi, n_theta)
+        Exact cell solid angles δA (sr), summing to 4π.
+    """
+    n_t = check_integer(n_theta, "n_theta", 1)
+    n_p = check_integer(n_phi, "n_phi", 1)
+    return latlong_directions(n_p, n_t), latlong_solid_angles(n_p, n_t)
+
+
+def _angular_uv(size):
+    c = 2 * (np.arange(size) + 0.5) / size - 1
+    return c[None, :], -c[:, None]  # u grows to the right, v upwards
+
+
+def _angular_map(u, v):
+    """Directions of angular-map coordinates (u, v) (arrays), NaN outside the unit disc."""
+    r = np.sqrt(u * u + v * v)
+    alpha = np.pi * r
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = np.where(r > 0, np.sin(alpha) / np.where(r > 0, r, 1), np.pi)
+    d = np.stack(np.broadcast_arrays(s * u, s * v, -np.cos(alpha)), axis=-1)
+    return np.where((r <= 1)[..., None], d, np.nan)
+
+
+def angular_directions(size: int):
+    """Unit directions of the pixel centres of an angular (light-probe) image.
+
+    Returns
+    -------
+    directions : ndarray, shape (S, S, 3)
+        NaN outside the unit disc.
+    inside : ndarray of bool, shape (S, S)
+        Pixel centres inside the disc.
+    """
+    s = check_integer(size, "size", 1)
+    u, v = _angular_uv(s)
+    d = _angular_map(u, v)
+    return d, np.isfinite(d[..., 0])
+
+
+def angular_solid_angles(size: int, order: int = 8) -> np.ndarray:
+    """Solid angle of every angular-map pixel, (S, S), sr (Gauss-Legendre quadrature of the Jacobian).
+
+    ∫∫_pixel π sin(π r)/r du dv over the part of the pixel inside the unit disc,
+    with an ``order`` × ``order`` Gauss-Legendre rule per pixel (the Jacobian is
+    smooth and vanishes at r = 1, so the sum is 4π to about 1e-4 at order 8).
+    """
+    s = check_integer(size, "size", 1)
+    n = check_integer(order, "order", 1, 64)
+    x, wq = np.polynomial.legendre.leggauss(n)
+    half = 1.0 / s  # half a pixel in (u, v) units (pixel side 2/S)
+    u0, v0 = _angular_uv(s)
+    uu = u0[..., None, None] + half * x[None, None, :, None]
+    vv = v0[..., None, None] + half * x[None, None, None, :]
+    r = np.sqrt(uu * uu + vv * vv)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        jac = np.where(r > 0, np.pi * np.sin(np.pi * np.minimum(r, 1)) / np.where(r > 0, r, 1), np.pi * np.pi)
+    jac = np.where(r <= 1, jac, 0.0)
+    return (jac * (wq[:, None] * wq[None, :])).sum(axis=(-2, -1)) * half * half
+
+
+def angular_coordinates(directions, size: int):
+    """Continuous (row, column) of directions in an angular image of side ``size`` (inverse of
+    :func:`angular_directions`; the direction +z maps to the disc's rim)."""
+    s = check_integer(size, "size", 1)
+    d = np.asarray(directions, np.float64)
+    alpha = np.arccos(np.clip(-d[..., 2], -1.0, 1.0))
+    rho = np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        k = np.where(rho > 1e-12, alpha / np.pi / np.where(rho > 1e-12, rho, 1), 0.0)
+    u, v = d[..., 0] * k, d[..., 1] * k
+    return (1 - v) * s / 2 - 0.5, (u + 1) * s / 2 - 0.5
+
+
+def rotation_y(angle) -> np.ndarray:
+    """Right-handed rotation matrix about +y by ``angle`` radians (module docstring), shape (3, 3)."""
+    b = float(as_finite(angle, "angle"))
+    c, s = np.cos(b), np.sin(b)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rotate_directions(directions, angle) -> np.ndarray:
+    """Directions rotated about +y by ``angle`` radians (right-handed): R_y(angle) d on the last axis."""
+    d = check_shape(as_finite(directions, "directions", dtype=np.float64), "directions", (..., 3))
+    return d @ rotation_y(angle).T
+
+
+def unit_directions(value, name: str = "directions", tol: float = 1e-3) -> np.ndarray:
+    """Validate finite 3-vectors of norm 1 ± ``tol`` on the last axis; returned normalised, float64."""
+    d = check_shape(as_finite(value, name, dtype=np.float64), name, (..., 3))
+    norm = np.linalg.norm(d, axis=-1)
+    bad = np.abs(norm - 1) > tol
+    if np.any(bad):
+        raise ValidationError(
+            f"{name} must hold unit vectors (norm 1 ± {tol:g}), got a vector of norm {norm[bad][0]:.6g}"
+        )
+    return d / norm[..., None]
+
+
+def voronoi_solid_angles(directions, *, grid: int = 256) -> np.ndarray:
+    """Solid angle of the spherical Voronoi cell of each direction of an arbitrary light set, (L,), sr.
+
+    The cell of light k is the part of the sphere closer to it than to any other
+    light; the cells tile the sphere, so the solid angles sum to 4π.  This is the
+    δA of eq. 4 (Debevec et al. 2000) for a dome whose lights are not on a
+    lat-long grid (e.g. Weyrich's 150 LEDs).  Exact cell areas from
+    :class:`scipy.spatial.SphericalVoronoi`; for sets it cannot tessellate (fewer
+    than 4 lights, all lights on one great circle) the cells are measured on a
+    ``grid`` × 2 ``grid`` lat-long grid (each exact cell to its nearest light; the
+    sum is still 4π, each share exact to about a cell row).
+
+    Parameters
+    ----------
+    directions : array_like, shape (L, 3)
+        Distinct unit vectors.
+    grid : int
+        Rows of the fallback grid.
+    """
+    from scipy.spatial import SphericalVoronoi, cKDTree
+
+    d = unit_directions(directions)
+    check_shape(d, "directions", (None, 3))
+    if d.shape[0] == 0:
+        raise ValidationError("directions must hold at least one light, got none")
+    if np.unique(np.round(d, 12), axis=0).shape[0] != d.shape[0]:
+        raise ValidationError("directions must be distinct, got the same direction twice")
+    try:
+        if d.shape[0] < 4 or np.linalg.matrix_rank(d, tol=1e-9) < 3:
+            raise ValueError("degenerate")
+        return SphericalVoronoi(d, radius=1.0, center=np.zeros(3), threshold=1e-9).calculate_areas()
+    except ValueError:
+        g = check_integer(grid, "grid", 8, 4096)
+        _, idx = cKDTree(d).query(latlong_directions(g, 2 * g).reshape(-1, 3))
+        return np.bincount(idx, weights=latlong_solid_angles(g, 2 * g).reshape(-1), minlength=d.shape[0])

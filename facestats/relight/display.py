@@ -1,0 +1,29 @@
+"""Display of relit images: exposure for tone-mapped previews (the EXR keeps the linear radiance).
+
+One job: choose the exposure that maps a high-dynamic-range relit image into
+[0, 1] for an sRGB PNG without min-max normalising the data itself: a single
+scale factor puts the ``percentile``-th percentile of the luminance of the
+subject's pixels at ``target`` (highlights above it clip), and the sRGB
+transfer function is applied by :func:`facestats.io.images.write_image`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from facestats.core.validate import as_finite
+
+__all__ = ["exposure_scale"]
+
+
+def exposure_scale(image, mask=None, *, percentile: float = 99.0, target: float = 0.9) -> float:
+    """Scale factor s so that the ``percentile`` of luminance over ``mask`` becomes ``target`` (1 for black images)."""
+    img = as_finite(image, "image", dtype=np.float64)
+    p = float(as_finite(percentile, "percentile", 0, 100))
+    t = float(as_finite(target, "target", 0, 1, low_inclusive=False))
+    lum = img[..., :3].mean(-1)
+    vals = lum[np.asarray(mask, bool)] if mask is not None else lum.reshape(-1)
+    vals = vals[vals > 0]
+    if vals.size == 0:
+        return 1.0
+    return t / float(np.percentile(vals, p))

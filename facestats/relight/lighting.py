@@ -1,0 +1,318 @@
+"""Light probes as lighting: validation, rotation, layout conversion and resampling to a light set (L·δA per light).
+
+One job: turn an environment map into the per-light weights L(θ, φ) δA(θ, φ) of
+Debevec et al. 2000 eq. 4.  Directions, layouts and the rotation convention are
+those of :mod:`facestats.model.sphere`.
+
+Resampling conserves Σ L·δΩ exactly:
+
+* lat-long probe → lat-long light stage: the integral of the (piecewise
+  constant) probe over each light-stage cell, from the exact overlap areas of
+  probe pixels and cells.  Cells of the lat-long grid are products of a polar
+  interval and an azimuth interval, so an overlap's solid angle is the product
+  of its azimuth length and the difference of the cosines of its polar
+  bounds; the resampling is two small matrix products.  (A block mean of
+  pixels weighted by sin φ at pixel centres errs by percents near the poles.)
+* any probe → an arbitrary light set (a real dome's LEDs): every probe
+  pixel, subdivided ``supersample`` × ``supersample`` into sub-cells with exact
+  solid angles, is given to its nearest light, i.e. the probe is integrated
+  over the spherical Voronoi cells of the lights
+  (:func:`facestats.model.sphere.voronoi_solid_angles`).  Every sub-cell goes to
+  exactly one light, so the total is conserved exactly; each light's share is
+  exact up to the sub-cells cut by a Voronoi edge.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
+from facestats.errors import ValidationError
+from facestats.model.sphere import (
+    angles_from_direction,
+    angular_coordinates,
+    angular_directions,
+    angular_solid_angles,
+    latlong_coordinates,
+    latlong_directions,
+    latlong_edges,
+    rotate_directions,
+    unit_directions,
+)
+
+__all__ = [
+    "LAYOUTS",
+    "check_probe",
+    "probe_samples",
+    "resample_probe",
+    "rotate_probe",
+    "latlong_to_angular",
+    "angular_to_latlong",
+    "uniform_probe",
+    "sky_probe",
+]
+
+LAYOUTS = ("latlong", "angular")
+
+
+def check_probe(probe, layout: str = "latlong", name: str = "probe") -> np.ndarray:
+    """A light probe as float32 (H, W, 3): finite, ≥ 0, with the aspect ratio of its layout.
+
+    Raises :class:`ValidationError` naming ``name`` (e.g. the file), the field
+    and the value: unknown layout, wrong shape or aspect ratio (lat-long W = 2H,
+    angular W = H), NaN/inf or negative radiance.  Values are never rescaled.
+    """
+    check_choice(layout, "layout", LAYOUTS)
+    p = np.asarray(probe)
+    if p.ndim != 3 or p.shape[2] != 3:
+        raise ValidationError(f"{name}: a light probe must have shape (H, W, 3), got {p.shape}")
+    h, w = p.shape[:2]
+    if layout == "latlong" and w != 2 * h:
+        raise ValidationError(f"{name}: a lat-long probe must be twice as wide as high, got {h} x {w} (H x W)")
+    if layout == "angular" and w != h:
+        raise ValidationError(f"{name}: an angular probe must be square, got {h} x {w} (H x W)")
+    p = np.asarray(p, np.float32)
+    bad = ~np.isfinite(p)
+    if bad.any():
+        i = np.argwhere(bad)[0]
+        raise ValidationError(
+            f"{name}: radiance must be finite, got {float(p[tuple(i)])!r} at row {i[0]}, column {i[1]}, channel {i[2]} "
+            f"({int(bad.sum())} non-finite value(s))"
+        )
+    neg = p < 0
+    if neg.any():
+        i = np.argwhere(neg)[0]
+        raise ValidationError(
+            f"{name}: radiance must be >= 0, got {float(p[tuple(i)])!r} at row {i[0]}, column {i[1]}, "
+            f"channel {i[2]} ({int(neg.sum())} negative value(s))"
+        )
+    return p
+
+
+def _overlap_1d(target_edges, source_edges, measure):
+    """Matrix (T, S) of measure(overlap of target interval t and source interval s)."""
+    lo = np.maximum(target_edges[:-1, None], source_edges[None, :-1])
+    hi = np.minimum(target_edges[1:, None], source_edges[None, 1:])
+    return np.where(hi > lo, measure(lo, hi), 0.0)
+
+
+def _latlong_to_grid(probe, n_phi, n_theta):
+    """Exact ∫ L dΩ of a lat-long probe over the cells of an n_phi × n_theta lat-long grid, (n_phi, n_theta, 3)."""
+    h, w = probe.shape[:2]
+    sp, st = latlong_edges(h, w)
+    tp, tt = latlong_edges(n_phi, n_theta)
+    rows = _overlap_1d(tp, sp, lambda a, b: np.cos(a) - np.cos(b))  # (n_phi, H)
+    cols = _overlap_1d(tt, st, lambda a, b: b - a)  # (n_theta, W)
+    p = probe.astype(np.float64)
+    return np.einsum("ah,hwc,bw->abc", rows, p, cols, optimize=True)
+
+
+def probe_samples(probe, layout: str = "latlong", supersample: int = 1):
+    """The probe as weighted direction samples: ``(directions (N, 3), L·δΩ (N, 3))``.
+
+    Each pixel is split into ``supersample``² sub-cells: exact lat-long sub-cells
+    (equal steps in φ and θ, exact areas), or for angular probes quadrature
+    sub-cells of equal (u, v) size weighted by the Jacobian.  Radiance is
+    constant over a pixel, so Σ L·δΩ equals that of the pixels exactly.
+    """
+    p = check_probe(probe, layout)
+    s = check_integer(supersample, "supersample", 1, 16)
+    h, w = p.shape[:2]
+    if layout == "latlong":
+        sub_d = latlong_directions(h * s, w * s).reshape(h, s, w, s, 3)
+        phi_e, _ = latlong_edges(h * s, w * s)
+        sub_sa = (2 * np.pi / (w * s)) * (np.cos(phi_e[:-1]) - np.cos(phi_e[1:]))
+        sa = np.broadcast_to(sub_sa.reshape(h, s, 1, 1), (h, s, w, s))
+        rad = np.broadcast_to(p[:, None, :, None, :], (h, s, w, s, 3))
+    else:
+        sub_d, inside = angular_directions(h * s)
+        sa = angular_solid_angles(h * s).reshape(h, s, w, s)
+        sub_d = np.where(inside[..., None], sub_d, np.array([0.0, 0.0, 1.0])).reshape(h, s, w, s, 3)
+        rad = np.broadcast_to(p[:, None, :, None, :], (h, s, w, s, 3))
+    keep = sa.reshape(-1) > 0
+    d = sub_d.reshape(-1, 3)[keep]
+    lw = (rad.reshape(-1, 3) * sa.reshape(-1, 1))[keep]
+    return d, lw
+
+
+def _grid_cells(directions, n_phi, n_theta):
+    """Flat index of the lat-long grid cell containing each direction."""
+    phi, theta = angles_from_direction(directions)
+    i = np.clip((phi / np.pi * n_phi).astype(np.int64), 0, n_phi - 1)
+    j = np.clip(((theta + np.pi) / (2 * np.pi) * n_theta).astype(np.int64), 0, n_theta - 1)
+    return i * n_theta + j
+
+
+def _is_latlong_grid(d):
+    return d.ndim == 3 and d.shape[2] == 3 and np.allclose(d, latlong_directions(d.shape[0], d.shape[1]), atol=1e-6)
+
+
+def resample_probe(probe, directions=None, *, layout: str = "latlong", rotate: float = 0.0, supersample: int = 4):
+    """Per-light L·δA of a light probe for a light set (Debevec et al. 2000 eq. 4), conserving Σ L·δΩ exactly.
+
+    Parameters
+    ----------
+    probe : array_like, shape (H, W, 3)
+        Linear radiance (any unit; the result is in that unit × sr), in the
+        lat-long (W = 2H) or angular (W = H) layout of :mod:`facestats.model.sphere`.
+    directions : array_like, shape (..., 3), optional
+        Unit vectors towards the lights.  Default: Debevec's 64 × 32 light
+        stage, :func:`facestats.model.sphere.light_stage_directions`.  A lat-long
+        grid of directions (n_phi, n_theta, 3) is integrated over its exact
+        cells; any other set over its spherical Voronoi cells (module docstring).
+    layout : {"latlong", "angular"}
+    rotate : float
+        Rotate the environment about +y by this angle first (radians, right-handed,
+        :func:`rotate_probe`).
+    supersample : int
+        Sub-cells per pixel side for the Voronoi integration (and for angular
+        probes), 1-16.
+
+    Returns
+    -------
+    ndarray of float64, shape directions.shape[:-1] + (3,)
+        ∫_cell L dΩ per light and channel.  Their sum over lights equals
+        Σ_pixels L ΔΩ of the probe (exactly, up to rounding).
+    """
+    p = check_probe(probe, layout)
+    if rotate:
+        p = rotate_probe(p, rotate, layout=layout)
+    if directions is None:
+        d = latlong_directions(32, 64)
+    else:
+        d = unit_directions(directions)
+    if layout == "latlong" and _is_latlong_grid(d):
+        return _latlong_to_grid(p, d.shape[0], d.shape[1])
+    samples, weights = probe_samples(p, layout, supersample)
+    flat = d.reshape(-1, 3)
+    if _is_latlong_grid(d):  # an angular probe onto a lat-long grid: its cells, not Voronoi cells
+        idx = _grid_cells(samples, d.shape[0], d.shape[1])
+    else:
+        from scipy.spatial import cKDTree
+
+        _, idx = cKDTree(flat).query(samples)  # nearest light on the unit sphere = its Voronoi cell
+    out = np.stack([np.bincount(idx, weights=weights[:, c], minlength=flat.shape[0]) for c in range(3)], axis=-1)
+    return out.reshape(d.shape[:-1] + (3,))
+
+
+def _bilinear_latlong(probe, directions):
+    """Bilinear lookup of a lat-long probe at directions (columns wrap, rows clamp)."""
+    from scipy.ndimage import map_coordinates
+
+    h, w = probe.shape[:2]
+    r, c = latlong_coordinates(directions, h, w)
+    padded = np.concatenate([probe[:, -1:], probe, probe[:, :1]], axis=1)  # one wrapped column each side
+    c = np.mod(c + 0.5, w) - 0.5 + 1  # into the padded image
+    coords = np.stack([r.reshape(-1), c.reshape(-1)])
+    out = [map_coordinates(padded[..., k], coords, order=1, mode="nearest") for k in range(3)]
+    return np.stack(out, axis=-1).reshape(np.shape(directions)[:-1] + (3,))
+
+
+def _bilinear_angular(probe, directions):
+    """Bilinear lookup of an angular probe at directions, weighting only pixels inside the disc."""
+    from scipy.ndimage import map_coordinates
+
+    s = probe.shape[0]
+    _, inside = angular_directions(s)
+    r, c = angular_coordinates(directions, s)
+    coords = np.stack([r.reshape(-1), c.reshape(-1)])
+    m = map_coordinates(inside.astype(np.float64), coords, order=1, mode="constant")
+    out = [map_coordinates(probe[..., k] * inside, coords, order=1, mode="constant") for k in range(3)]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        v = np.stack(out, axis=-1) / m[:, None]
+    return np.where(m[:, None] > 0, v, 0.0).reshape(np.shape(directions)[:-1] + (3,))
+
+
+def _lookup(probe, layout, directions):
+    return _bilinear_latlong(probe, directions) if layout == "latlong" else _bilinear_angular(probe, directions)
+
+
+def rotate_probe(probe, angle: float, *, layout: str = "latlong") -> np.ndarray:
+    """The environment rotated about +y by ``angle`` radians (right-handed): L'(d) = L(R_y(−angle) d).
+
+    Lat-long probes are shifted by ``angle`` W/(2π) columns towards smaller column
+    indices with exact area weights (the shifted pixel j covers parts of two
+    source pixels), so Σ L·δΩ is conserved exactly and a shift by whole
+    columns is a roll.  Angular probes are resampled bilinearly.
+
+    Returns
+    -------
+    ndarray of float32, shape of ``probe``
+    """
+    p = check_probe(probe, layout)
+    a = float(as_finite(angle, "angle"))
+    if layout == "latlong":
+        w = p.shape[1]
+        s = a * w / (2 * np.pi)
+        n = int(np.floor(s))
+        f = s - n
+        a0 = np.roll(p, -n, axis=1)
+        return ((1 - f) * a0 + f * np.roll(a0, -1, axis=1)).astype(np.float32)
+    d, inside = angular_directions(p.shape[0])
+    src = rotate_directions(np.where(inside[..., None], d, 0.0), -a)
+    out = _lookup(p, layout, np.where(inside[..., None], src, np.array([0.0, 0.0, -1.0])))
+    return np.where(inside[..., None], out, 0.0).astype(np.float32)
+
+
+def latlong_to_angular(probe, size: int | None = None, *, supersample: int = 2) -> np.ndarray:
+    """An angular (light-probe) image of side ``size`` (default H) from a lat-long probe.
+
+    Each output pixel is the mean of ``supersample``² bilinear lookups at its
+    sub-pixel directions; pixels outside the disc are 0.
+    """
+    p = check_probe(probe, "latlong")
+    n = p.shape[0] if size is None else check_integer(size, "size", 1)
+    s = check_integer(supersample, "supersample", 1, 8)
+    d, inside = angular_directions(n * s)
+    vals = _lookup(p, "latlong", np.where(inside[..., None], d, np.array([0.0, 0.0, -1.0])))
+    vals = np.where(inside[..., None], vals, 0.0).reshape(n, s, n, s, 3)
+    cover = inside.reshape(n, s, n, s).mean(axis=(1, 3))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = vals.sum(axis=(1, 3)) / (s * s * cover)[..., None]
+    return np.where(cover[..., None] > 0, out, 0.0).astype(np.float32)
+
+
+def angular_to_latlong(probe, height: int | None = None, *, supersample: int = 2) -> np.ndarray:
+    """A lat-long probe (``height`` × 2 ``height``, default S/2 rows) from an angular probe (bilinear, supersampled)."""
+    p = check_probe(probe, "angular")
+    h = max(1, p.shape[0] // 2) if height is None else check_integer(height, "height", 1)
+    s = check_integer(supersample, "supersample", 1, 8)
+    d = latlong_directions(h * s, 2 * h * s)
+    vals = _lookup(p, "angular", d).reshape(h, s, 2 * h, s, 3)
+    return vals.mean(axis=(1, 3)).astype(np.float32)
+
+
+def uniform_probe(height: int = 32, radiance=1.0) -> np.ndarray:
+    """A constant lat-long environment of the given RGB radiance, (H, 2H, 3) float32 (tests, white furnace)."""
+    h = check_integer(height, "height", 1)
+    r = np.broadcast_to(as_finite(radiance, "radiance", 0, None), (3,))
+    return np.broadcast_to(r.astype(np.float32), (h, 2 * h, 3)).copy()
+
+
+def sky_probe(
+    height: int = 64,
+    sun_direction=(0.3, 0.8, 0.5),
+    *,
+    sun_radiance=2000.0,
+    sun_radius_deg=2.0,
+    sky=(0.35, 0.5, 0.8),
+    ground=(0.15, 0.12, 0.1),
+) -> np.ndarray:
+    """A synthetic outdoor lat-long probe: blue sky above, brown ground below, a small bright disc sun.
+
+    For demonstrations and tests when no measured probe is at hand; not a
+    physical sky model.  Radiances are relative (sky ≈ 0.5, sun ``sun_radiance``).
+    """
+    h = check_integer(height, "height", 2)
+    sun = check_shape(as_finite(sun_direction, "sun_direction", dtype=np.float64), "sun_direction", (3,))
+    if np.linalg.norm(sun) == 0:
+        raise ValidationError("sun_direction must be a non-zero vector, got (0, 0, 0)")
+    sun = sun / np.linalg.norm(sun)
+    d = latlong_directions(h, 2 * h)
+    up = np.clip(d[..., 1:2], 0, 1)
+    env = np.where(d[..., 1:2] >= 0, np.asarray(sky) * (0.6 + 0.4 * up), np.asarray(ground))
+    cos_r = np.cos(np.radians(as_finite(sun_radius_deg, "sun_radius_deg", 0, 90, low_inclusive=False)))
+    cos_sun = d @ sun
+    disc = (cos_sun >= cos_r) | (cos_sun == cos_sun.max())  # at least the pixel nearest the sun
+    env = np.where(disc[..., None], float(sun_radiance), env)
+    return env.astype(np.float32)

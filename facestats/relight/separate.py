@@ -1,0 +1,384 @@
+"""Diffuse/specular separation of reflectance functions by colour (Debevec et al. 2000 §4.1-4.2, eq. 6-7).
+
+Every reflectance-function sample R (RGB) is written as
+
+    R = μd d + μs s + μe (d × s)                                    (§4.2)
+
+with d the diffuse chromaticity, s the light's chromaticity (the specular
+colour) and e = d × s an error direction; μ = [d s e]⁻¹ R.  The specular part
+is S = max(μs, 0) s and the diffuse part D = R − S, so D + S = R exactly.
+Chromaticities are unit RGB vectors.  When d and s are nearly parallel the
+matrix is ill-conditioned: its condition number is returned and pixels above
+``max_condition`` are flagged; negative μs are clamped to 0 and counted.
+
+The diffuse chromaticity is not constant (§4.1): it desaturates towards the
+light colour as θi and θr grow, which eq. 6-7 model as
+
+    d(θi, θr) = normalize(d₀ + f (d₀ − s)),  f = α₀ cos θi cos θr + α₁ (1 − cos θi cos θr)
+
+Source check (eq. 6): as printed, d₀ + f (d₀ − s) moves *away* from s for f > 0;
+desaturation towards s at grazing angles means f < 0 there, i.e. α₁ < α₀ ≤ 0 for
+skin.  We keep the printed sign; fitted α then carry it.  Also note that
+(d₀, α₀, α₁) are identifiable only with d₀ fixed: moving d₀ along its own ramp
+rescales f, so d₀ must be given or estimated by a fixed rule.
+
+Fitting (facestats's deviation from the paper's coarse-to-fine direct search):
+for a sample of chromaticity c on the ramp, c ∥ d₀ + f (d₀ − s), so
+c × d₀ + f (c × (d₀ − s)) = 0 gives f in closed form (least squares in the
+direction of c × (d₀ − s)); f is linear in (α₀, α₁), so a weighted linear least
+squares per pixel recovers them exactly from noise-free data.  As in the paper,
+samples near the mirror direction are down-weighted so that specular colour
+does not bias the ramp, and only lit samples count.
+
+The full per-pixel procedure of §4.2 is :func:`separate_field`: d₀ from the
+median R/G and G/B ratios of mid-bright samples, a rough separation with d₀, a
+Lambertian fit of the rough diffuse part for the normal, the ramp fit, the final
+separation with the fitted ramp, and the final normal, diffuse albedo ρd and
+specular energy ρs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from facestats.core.validate import as_finite, check_shape
+from facestats.errors import ValidationError
+from facestats.relight.photometric import lambertian_fit
+
+__all__ = [
+    "unit_rgb",
+    "ramp_factor",
+    "ramp_chromaticity",
+    "ramp_factor_from_chromaticity",
+    "fit_chromaticity_ramp",
+    "diffuse_chromaticity",
+    "separation_matrix_condition",
+    "separate_colour",
+    "separate_field",
+]
+
+WHITE = np.full(3, 1 / np.sqrt(3))
+
+
+def unit_rgb(value, name: str = "colour") -> np.ndarray:
+    """RGB vectors scaled to unit length (chromaticities as unit vectors, §4.1), float64; zero vectors refused."""
+    v = check_shape(as_finite(value, name, dtype=np.float64), name, (..., 3))
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    if np.any(n == 0):
+        raise ValidationError(f"{name} must be non-zero RGB vectors, got (0, 0, 0)")
+    return v / n
+
+
+def ramp_factor(cos_i, cos_r, alpha0, alpha1):
+    """f(θi, θr) = α₀ cos θi cos θr + α₁ (1 − cos θi cos θr) (Debevec et al. 2000 eq. 7), broadcast."""
+    x = np.asarray(cos_i, np.float64) * np.asarray(cos_r, np.float64)
+    return np.asarray(alpha0) * x + np.asarray(alpha1) * (1 - x)
+
+
+def ramp_chromaticity(d0, s, f):
+    """Diffuse chromaticity normalize(d₀ + f (d₀ − s)) (eq. 6), unit RGB vectors on the last axis.
+
+    ``d0`` and ``s`` are normalised first; ``f`` broadcasts against them without
+    their last axis.
+    """
+    d0 = unit_rgb(d0, "d0")
+    s = unit_rgb(s, "s")
+    v = d0 + np.asarray(f, np.float64)[..., None] * (d0 - s)
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    if np.any(n == 0):
+        raise ValidationError("f must not reach the value where d0 + f (d0 - s) vanishes")
+    return v / n
+
+
+def ramp_factor_from_chromaticity(c, d0, s):
+    """The f of eq. 6 that a chromaticity ``c`` lies at on the ramp of (d₀, s); least squares off the ramp.
+
+    From c × (d₀ + f (d₀ − s)) = 0: f = −(c × d₀)·(c × u)/‖c × u‖² with u = d₀ − s.
+    NaN where c × u = 0 (c parallel to d₀ − s).
+    """
+    c = np.asarray(c, np.float64)
+    d0 = unit_rgb(d0, "d0")
+    u = d0 - unit_rgb(s, "s")
+    a = np.cross(c, d0)
+    b = np.cross(c, np.broadcast_to(u, c.shape))
+    den = np.einsum("...k,...k->...", b, b)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 0, -np.einsum("...k,...k->...", a, b) / den, np.nan)
+
+
+def fit_chromaticity_ramp(values, cos_i, cos_r, d0, s=WHITE, weights=None):
+    """Fit α₀, α₁ of eq. 6-7 per pixel from sample chromaticities (closed-form weighted least squares).
+
+    Parameters
+    ----------
+    values : array_like, shape (L, N, 3)
+        RGB samples of N reflectance functions (diffuse parts, or the original
+        functions with ``weights`` that suppress the specular samples).
+    cos_i : array_like, shape (L, N)
+        cos θi of each sample (N·l).
+    cos_r : array_like, shape (N,)
+        cos θr of each pixel (N·v).
+    d0 : array_like, shape (N, 3) or (3,)
+        Representative diffuse chromaticity per pixel (normalised).
+    s : array_like, shape (3,)
+        Light chromaticity (default white).
+    weights : array_like, shape (L, N), optional
+        Sample weights ≥ 0 (default: the sample's brightness where cos θi > 0).
+
+    Returns
+    -------
+    alpha0, alpha1 : ndarray, shape (N,)
+        NaN where fewer than two usable samples with distinct cos θi cos θr exist.
+    """
+    r = check_shape(as_finite(values, "values", dtype=np.float64), "values", (None, None, 3))
+    ci = check_shape(as_finite(cos_i, "cos_i", dtype=np.float64), "cos_i", r.shape[:2])
+    cr = check_shape(as_finite(cos_r, "cos_r", dtype=np.float64), "cos_r", r.shape[1:2])
+    norm = np.linalg.norm(r, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = r / norm[..., None]
+    f = ramp_factor_from_chromaticity(c, np.broadcast_to(unit_rgb(d0, "d0"), r.shape[1:]), s)
+    w = norm * (ci > 0) if weights is None else as_finite(weights, "weights", 0, None, dtype=np.float64)
+    w = np.where(np.isfinite(f) & (norm > 0), w, 0.0)
+    f = np.where(w > 0, f, 0.0)
+    x = ci * cr[None, :]
+    # f = α₁ + (α₀ − α₁) x: weighted line fit of f against x per pixel.
+    sw, sx, sf = w.sum(0), (w * x).sum(0), (w * f).sum(0)
+    sxx, sxf = (w * x * x).sum(0), (w * x * f).sum(0)
+    det = sw * sxx - sx * sx
+    ok = det > 1e-12 * np.maximum(sw * sxx, 1e-300)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        slope = (sw * sxf - sx * sf) / det
+        icpt = (sf - slope * sx) / sw
+    alpha1 = np.where(ok, icpt, np.nan)
+    alpha0 = np.where(ok, icpt + slope, np.nan)
+    return alpha0, alpha1
+
+
+def diffuse_chromaticity(values, low: float = 25.0, high: float = 75.0):
+    """Representative diffuse chromaticity d₀ of each reflectance function (Debevec et al. 2000 §4.2).
+
+    "the median of the red-green and green-blue ratios over reflectance function
+    values falling in a certain brightness range".  The paper does not give the
+    range; facestats takes the samples whose luminance lies between the
+    ``low`` and ``high`` percentiles of the function's lit (non-zero) samples —
+    a range relative to the function itself that excludes shadows and noise
+    below and the specular lobe above whatever its height (a range relative to
+    the maximum would be emptied by one strong highlight).  With a = median R/G
+    and b = median G/B, d₀ = normalize(a b, b, 1).
+
+    Parameters
+    ----------
+    values : array_like, shape (L, N, 3)
+    low, high : float
+        Percentiles, 0 ≤ low < high ≤ 100.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        Unit RGB; NaN for functions without a usable sample.
+    """
+    import warnings
+
+    r = check_shape(as_finite(values, "values", dtype=np.float64), "values", (None, None, 3))
+    lo = float(as_finite(low, "low", 0, 100))
+    hi = float(as_finite(high, "high", lo, 100, low_inclusive=False))
+    lum = r.sum(-1)
+    lit = (lum > 0) & (r[..., 1] > 0) & (r[..., 2] > 0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns give NaN, reported as such
+        q = np.nanpercentile(np.where(lit, lum, np.nan), [lo, hi], axis=0)
+        use = lit & (lum >= q[0]) & (lum <= q[1])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rg = np.where(use, r[..., 0] / r[..., 1], np.nan)
+            gb = np.where(use, r[..., 1] / r[..., 2], np.nan)
+        a, b = np.nanmedian(rg, axis=0), np.nanmedian(gb, axis=0)
+    d = np.stack([a * b, b, np.ones_like(a)], axis=-1)
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def _basis(d, s):
+    """The matrices [d s d×s] (..., 3, 3), columns d, s, e."""
+    s = np.broadcast_to(s, d.shape)
+    return np.stack([d, s, np.cross(d, s)], axis=-1)
+
+
+def separation_matrix_condition(d, s=WHITE) -> np.ndarray:
+    """2-norm condition number of [d s d×s] per chromaticity (∞ when d ∥ s)."""
+    m = _basis(unit_rgb(d, "d"), unit_rgb(s, "s"))
+    sv = np.linalg.svd(m, compute_uv=False)
+    with np.errstate(divide="ignore"):
+        return np.where(sv[..., -1] > 0, sv[..., 0] / sv[..., -1], np.inf)
+
+
+def separate_colour(values, d, s=WHITE):
+    """Split RGB samples into diffuse and specular parts: μ = [d s d×s]⁻¹ R, S = max(μs, 0) s, D = R − S (§4.2).
+
+    Parameters
+    ----------
+    values : array_like, shape (..., 3)
+        Samples R.
+    d : array_like, shape broadcastable to ``values``
+        Diffuse chromaticity per sample (unit after normalisation).
+    s : array_like, shape (3,)
+        Light (specular) chromaticity.
+
+    Returns
+    -------
+    diffuse, specular : ndarray, shape of ``values``
+        D + S = R exactly.
+    mu : ndarray, shape of ``values``
+        (μd, μs, μe) before clamping.
+    clamped : ndarray of bool, shape ``values.shape[:-1]``
+        Samples whose μs was negative beyond rounding (below −10⁻⁶ ‖R‖); every
+        negative μs is set to 0.
+    """
+    r = check_shape(as_finite(values, "values", dtype=np.float64), "values", (..., 3))
+    dd = np.broadcast_to(unit_rgb(d, "d"), r.shape)
+    ss = unit_rgb(s, "s")
+    e = np.cross(dd, np.broadcast_to(ss, r.shape))
+    # Inverse of [d s e] by cross products: rows (s × e, e × d, d × s) / det.
+    det = np.einsum("...k,...k->...", dd, np.cross(np.broadcast_to(ss, r.shape), e))
+    if np.any(np.abs(det) < 1e-12):
+        raise ValidationError("d and s must not be parallel (the separation matrix is singular); check its condition")
+    rows = np.stack([np.cross(np.broadcast_to(ss, r.shape), e), np.cross(e, dd), np.cross(dd, ss)], axis=-2)
+    mu = np.einsum("...ij,...j->...i", rows, r) / det[..., None]
+    clamped = mu[..., 1] < -1e-6 * np.linalg.norm(r, axis=-1)  # rounding-level negatives are not counted
+    spec = np.maximum(mu[..., 1], 0)[..., None] * ss
+    return r - spec, spec, mu, clamped
+
+
+def separate_field(field, s=WHITE, *, view=None, ramp: bool = True, mirror_deg: float = 45.0,
+                   shadow_threshold: float = 0.05, max_condition: float = 50.0, d0=None):  # fmt: skip
+    """The colour-space separation of §4.2 applied to every pixel of a reflectance field.
+
+    Steps per pixel: d₀ (:func:`diffuse_chromaticity`, or given), rough
+    separation with d₀, Lambertian normal of the rough diffuse part over lit
+    samples (luminance ≥ ``shadow_threshold`` × the pixel's maximum, the
+    brightness thresholding of §4.4), ramp fit (α₀, α₁) on the original
+    samples with those within ``mirror_deg`` of the mirror direction of the view
+    left out, final separation with the ramp chromaticity, final normal, diffuse
+    albedo ρd (Lambertian fit of D) and specular energy ρs = Σ_l mean_c(S) δA (the
+    specular radiance per channel under uniform unit white light, a grey reflectance).
+
+    Parameters
+    ----------
+    field : xarray.Dataset
+        In memory; needs ``view`` per pixel (the stage stores it) unless given.
+    s : array_like, shape (3,)
+        Light chromaticity.
+    view : array_like, shape (y, x, 3), optional
+    ramp : bool
+        Fit the chromaticity ramp (§4.1-4.2).  False: the diffuse colour is d₀
+        for every sample (the separation of D4 with a known skin colour).
+        Colour alone cannot tell a ramp shift towards s from specular light
+        (both lie in the plane of d₀ and s), so the ramp is fitted only on
+        samples farther than ``mirror_deg`` from the mirror direction; broad
+        lobes (skin's m ≈ 0.3-0.4) need a wide exclusion.
+    mirror_deg, shadow_threshold, max_condition : float
+    d0 : array_like, shape (y, x, 3) or (3,), optional
+        Known diffuse chromaticity instead of the median-ratio estimate.
+
+    Returns
+    -------
+    xarray.Dataset
+        ``diffuse`` and ``specular`` (dims of the field's reflectance), per pixel
+        ``normal``, ``specular_normal`` (half vector of the specular peak),
+        ``albedo`` (ρd, RGB), ``rho_s``, ``alpha0``, ``alpha1``, ``d0``,
+        ``condition`` and ``ill_conditioned``, ``n_clamped`` (negative μs clamped).
+    """
+    from facestats.relight.field import as_field, light_dims, light_table
+
+    f = as_field(field)
+    nl = len(light_dims(f))
+    dirs, sa, _ = light_table(f)
+    n_l = dirs.shape[0]
+    h, w = f.sizes["y"], f.sizes["x"]
+    r = np.asarray(f["reflectance"].values, np.float64).reshape(n_l, h * w, 3)
+    if view is None:
+        if "view" not in f.data_vars:
+            raise ValidationError("field must carry a 'view' variable (unit vectors to the camera) or pass view=")
+        view = f["view"].values
+    v = np.asarray(view, np.float64).reshape(h * w, 3)
+    s_unit = unit_rgb(s, "s")
+    d0_est = diffuse_chromaticity(r) if d0 is None else np.broadcast_to(unit_rgb(d0, "d0"), (h, w, 3)).reshape(-1, 3)
+    finite = np.all(np.isfinite(d0_est), axis=-1)
+    cond = np.full(h * w, np.inf)
+    cond[finite] = separation_matrix_condition(d0_est[finite], s_unit)
+    sel = finite & (cond < 1e6) & (r.sum(-1).max(0) > 0)  # separable pixels (the others keep D = R, S = 0)
+    if "mask" in f.data_vars:
+        sel &= np.asarray(f["mask"].values, bool).reshape(h * w)
+    out = _separate_pixels(r[:, sel], dirs, sa, v[sel], d0_est[sel], s_unit, ramp, mirror_deg, shadow_threshold)
+    full = {
+        "diffuse": r.copy(), "specular": np.zeros_like(r), "normal": np.full((h * w, 3), np.nan),
+        "specular_normal": np.full((h * w, 3), np.nan), "albedo": np.full((h * w, 3), np.nan),
+        "rho_s": np.zeros(h * w), "alpha0": np.full(h * w, np.nan), "alpha1": np.full(h * w, np.nan),
+        "clamped": np.zeros((n_l, h * w), bool),
+    }  # fmt: skip
+    for key, val in out.items():
+        if full[key].shape[0] == n_l:
+            full[key][:, sel] = val
+        else:
+            full[key][sel] = val
+    return _separation_dataset(f, nl, h, w, full, d0_est, cond, max_condition)
+
+
+def _separate_pixels(r, dirs, sa, v, d0, s_unit, ramp, mirror_deg, shadow_threshold):
+    """The §4.2 procedure on separable pixels: r (L, N, 3), v (N, 3), d0 (N, 3) → dict of results."""
+    n = r.shape[1]
+    lum = r.sum(-1)
+    lit = lum >= shadow_threshold * lum.max(0)
+    rough_d, _, _, _ = separate_colour(r, d0[None], s_unit)
+    normal0, _ = lambertian_fit(rough_d, dirs, lit * 1.0)
+    n_safe = np.where(np.isfinite(normal0), normal0, v)
+    cos_i = dirs @ n_safe.T
+    cos_r = np.clip(np.einsum("nk,nk->n", n_safe, v), 0, 1)
+    mirror = 2 * cos_r[:, None] * n_safe - v  # (N, 3)
+    far_from_mirror = (dirs @ mirror.T) < np.cos(np.radians(mirror_deg))
+    if ramp:
+        wts = lum * lit * far_from_mirror * (cos_i > 0)
+        a0, a1 = fit_chromaticity_ramp(r, np.clip(cos_i, 0, 1), cos_r, d0, s_unit, weights=wts)
+    else:
+        a0 = a1 = np.zeros(n)
+    fr = ramp_factor(np.clip(cos_i, 0, 1), cos_r[None, :], np.nan_to_num(a0)[None, :], np.nan_to_num(a1)[None, :])
+    d_ramp = ramp_chromaticity(np.broadcast_to(d0, r.shape), s_unit, fr)
+    diffuse, spec, _, clamped = separate_colour(r, d_ramp, s_unit)
+    normal, albedo = lambertian_fit(diffuse, dirs, lit * 1.0)
+    peak = np.argmax(np.linalg.norm(spec, axis=-1), axis=0)
+    hv = dirs[peak] + v
+    return {
+        "diffuse": diffuse, "specular": spec, "normal": normal,
+        "specular_normal": hv / np.linalg.norm(hv, axis=-1, keepdims=True), "albedo": albedo,
+        "rho_s": np.einsum("ln,l->n", spec.mean(-1), sa), "alpha0": a0, "alpha1": a1, "clamped": clamped,
+    }  # fmt: skip
+
+
+def _separation_dataset(f, nl, h, w, full, d0, cond, max_condition):
+    import xarray as xr
+
+    ldims = tuple(f["reflectance"].dims[:nl])
+    lshape = tuple(f["reflectance"].shape[:nl])
+    dims = ldims + ("y", "x", "channel")
+
+    def img(name, extra=()):
+        a = np.asarray(full[name] if isinstance(name, str) else name, np.float32)
+        return (("y", "x") + extra, a.reshape((h, w) + a.shape[1:]))
+
+    ds = xr.Dataset(
+        {
+            "diffuse": (dims, full["diffuse"].reshape(lshape + (h, w, 3)).astype(np.float32)),
+            "specular": (dims, full["specular"].reshape(lshape + (h, w, 3)).astype(np.float32)),
+            "normal": img("normal", ("component",)),
+            "specular_normal": img("specular_normal", ("component",)),
+            "albedo": img("albedo", ("channel",)),
+            "rho_s": img("rho_s"),
+            "alpha0": img("alpha0"),
+            "alpha1": img("alpha1"),
+            "d0": img(d0, ("channel",)),
+            "condition": img(cond),
+            "ill_conditioned": (("y", "x"), (cond > max_condition).reshape(h, w)),
+            "n_clamped": (("y", "x"), full["clamped"].sum(0).reshape(h, w).astype(np.int32)),
+        },
+        coords={k: f.coords[k] for k in f.coords},
+    )
+    ds.attrs.update(source="colour-space separation, Debevec et al. 2000 §4.2", max_condition=float(max_condition))
+    return ds

@@ -1,0 +1,105 @@
+"""Spherical geometry of light probes and light stages: directions, exact solid angles, rotation, Voronoi cells."""
+
+import numpy as np
+import pytest
+
+from facestats.errors import ValidationError
+from facestats.model import sphere
+
+
+def test_latlong_solid_angles_are_exact_cells_summing_to_four_pi():
+    for h, w in ((1, 2), (32, 64), (7, 10), (128, 256)):
+        sa = sphere.latlong_solid_angles(h, w)
+        assert sa.shape == (h, w)
+        assert sa.sum() == pytest.approx(4 * np.pi, rel=1e-13)
+    sa = sphere.latlong_solid_angles(32, 64)
+    assert sa[:16].sum() == pytest.approx(2 * np.pi, rel=1e-13)  # upper hemisphere: rows split at the equator
+    # Row 0 is the cap φ ∈ [0, π/32]: 2π(1 − cos(π/32)) shared by 64 cells.
+    assert sa[0, 0] == pytest.approx(2 * np.pi * (1 - np.cos(np.pi / 32)) / 64, rel=1e-13)
+
+
+def test_debevec_delta_a_is_the_first_order_cell_area():
+    # Debevec §3.3: δA(θ, φ) = sin φ, up to the constant ΔθΔφ; exact cells differ by O(Δφ²).
+    h, w = 32, 64
+    phi = np.pi * (np.arange(h) + 0.5) / h
+    ratio = sphere.latlong_solid_angles(h, w)[:, 0] / ((2 * np.pi / w) * (np.pi / h) * np.sin(phi))
+    assert np.allclose(ratio, 1, atol=(np.pi / h) ** 2 / 20)
+    assert not np.allclose(ratio, 1, atol=1e-6)
+
+
+def test_latlong_direction_convention():
+    d = sphere.latlong_directions(32, 64)
+    assert d.shape == (32, 64, 3)
+    assert np.allclose(np.linalg.norm(d, axis=-1), 1)
+    assert d[0, 0, 1] > 0.99 and d[-1, 0, 1] < -0.99  # row 0 at +y
+    centre = 0.5 * (d[15, 31] + d[16, 32])  # the centre of the image looks at −z
+    assert np.allclose(centre / np.linalg.norm(centre), [0, 0, -1], atol=0.01)
+    assert d[16, 48, 0] > 0.99  # a quarter turn to the right of the centre: +x
+    edge = 0.5 * (d[16, 0] + d[16, -1])
+    assert edge[2] > 0.99  # the left/right edges: +z, the frontal camera
+
+
+def test_latlong_coordinates_invert_the_directions(rng):
+    d = sphere.latlong_directions(16, 32)
+    r, c = sphere.latlong_coordinates(d, 16, 32)
+    rr, cc = np.mgrid[0:16, 0:32]
+    assert np.allclose(r, rr) and np.allclose(c, cc)
+    phi, theta = sphere.angles_from_direction(d)
+    assert np.allclose(sphere.direction_from_angles(phi, theta), d)
+
+
+def test_light_stage_is_the_64_by_32_lat_long_grid():
+    d, sa = sphere.light_stage_directions()
+    assert d.shape == (32, 64, 3) and sa.shape == (32, 64)
+    assert np.array_equal(d, sphere.latlong_directions(32, 64))
+    assert sa.sum() == pytest.approx(4 * np.pi)
+
+
+def test_angular_layout_centre_rim_and_solid_angles():
+    d, inside = sphere.angular_directions(64)
+    assert np.allclose(0.5 * (d[31, 31] + d[32, 32]) / np.linalg.norm(0.5 * (d[31, 31] + d[32, 32])), [0, 0, -1],
+                       atol=1e-3)  # fmt: skip
+    assert d[31, 63, 2] > 0.9  # near the right rim: towards +z (backwards)
+    assert d[0, 31, 1] > 0 and d[63, 31, 1] < 0  # top of the image is +y
+    assert np.isnan(d[0, 0]).all() and not inside[0, 0]
+    sa = sphere.angular_solid_angles(64)
+    assert sa.sum() == pytest.approx(4 * np.pi, rel=2e-4)
+    r, c = sphere.angular_coordinates(d[inside], 64)
+    rr, cc = np.mgrid[0:64, 0:64]
+    assert np.allclose(r, rr[inside], atol=1e-9) and np.allclose(c, cc[inside], atol=1e-9)
+
+
+def test_rotation_about_y_is_right_handed_and_shifts_azimuth():
+    rot = sphere.rotation_y(np.pi / 2)
+    assert np.allclose(rot @ [0, 0, 1], [1, 0, 0])  # +z to +x: counter-clockwise seen from +y
+    assert np.allclose(rot @ [0, 1, 0], [0, 1, 0])
+    d = sphere.latlong_directions(8, 16)
+    beta = 2 * np.pi / 16
+    rd = sphere.rotate_directions(d, beta)
+    _, theta = sphere.angles_from_direction(rd)
+    _, theta0 = sphere.angles_from_direction(d)
+    assert np.allclose(np.angle(np.exp(1j * (theta - (theta0 - beta)))), 0, atol=1e-12)  # θ → θ − β
+
+
+def test_voronoi_cells_tile_the_sphere():
+    octa = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+    assert np.allclose(sphere.voronoi_solid_angles(octa), 4 * np.pi / 6)
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(150, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    assert sphere.voronoi_solid_angles(d).sum() == pytest.approx(4 * np.pi, rel=1e-9)
+    # Sets SphericalVoronoi cannot tessellate are measured on a grid: one light owns the sphere; two
+    # opposite lights own a hemisphere each; three on the equator a third each.
+    assert sphere.voronoi_solid_angles([[0, 1.0, 0]]) == pytest.approx([4 * np.pi])
+    assert np.allclose(sphere.voronoi_solid_angles([[0, 1.0, 0], [0, -1.0, 0]]), 2 * np.pi, rtol=1e-12)
+    eq = sphere.direction_from_angles(np.pi / 2, np.array([0.1, 0.1 + 2 * np.pi / 3, 0.1 + 4 * np.pi / 3]))
+    assert np.allclose(sphere.voronoi_solid_angles(eq), 4 * np.pi / 3, rtol=0.01)
+
+
+def test_bad_directions_are_refused():
+    with pytest.raises(ValidationError, match="unit vectors"):
+        sphere.unit_directions([[0, 0, 2.0]])
+    with pytest.raises(ValidationError, match="distinct"):
+        sphere.voronoi_solid_angles([[1, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0, 0, -1]])
+    with pytest.raises(ValidationError, match="height"):
+        sphere.latlong_directions(0, 4)

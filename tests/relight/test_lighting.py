@@ -1,0 +1,127 @@
+"""Light probes as lighting: exact resampling to the light stage, Voronoi cells, rotation, layouts, bad input."""
+
+import numpy as np
+import pytest
+
+from facestats.errors import ValidationError
+from facestats.model import sphere
+from facestats.relight import lighting
+
+
+def _probe(rng, h=64):
+    p = rng.gamma(0.5, 1.0, size=(h, 2 * h, 3)).astype(np.float32)
+    p[3, 7] = 500.0  # a sun near the pole
+    return p
+
+
+def _total(probe):
+    return (probe.astype(np.float64) * sphere.latlong_solid_angles(*probe.shape[:2])[..., None]).sum((0, 1))
+
+
+def test_resampling_to_the_light_stage_conserves_the_integral_exactly(rng):
+    for h in (64, 48, 20):  # integer and fractional ratios of probe to stage rows/columns
+        p = _probe(rng, h)
+        w = lighting.resample_probe(p)
+        assert w.shape == (32, 64, 3)
+        assert np.allclose(w.sum((0, 1)), _total(p), rtol=1e-12)
+
+
+def test_exact_cells_not_block_means():
+    # A probe of one constant value in the top rows: the cell integral is L · (exact cell area).
+    h = 64
+    p = np.zeros((h, 2 * h, 3), np.float32)
+    p[:2] = 1.0  # exactly the first light-stage row
+    w = lighting.resample_probe(p)
+    assert np.allclose(w[0, :, 0], sphere.latlong_solid_angles(32, 64)[0], rtol=1e-12)
+    assert np.all(w[1:] == 0)
+    # Light in the probe's first row only: the cell integral weights that row by its own (small) area; the
+    # block mean of the 2 × 2 pixels times the cell area weights both rows equally and errs by far more.
+    q = np.zeros((h, 2 * h, 3), np.float32)
+    q[0] = 1.0
+    wq = lighting.resample_probe(q)
+    exact = sphere.latlong_solid_angles(h, 2 * h)[0, :2].sum()
+    assert wq[0, 0, 0] == pytest.approx(exact, rel=1e-12)
+    block_mean = q[:2, :2, 0].mean() * sphere.latlong_solid_angles(32, 64)[0, 0]
+    assert block_mean / exact - 1 > 0.5
+
+
+def test_constant_environment_gives_the_cell_solid_angles():
+    w = lighting.resample_probe(lighting.uniform_probe(16, 2.0))
+    assert np.allclose(w[..., 1], 2.0 * sphere.latlong_solid_angles(32, 64), rtol=1e-12)
+
+
+def test_arbitrary_light_sets_use_voronoi_cells_and_conserve_energy(rng):
+    d = rng.normal(size=(150, 3))
+    d[:, 1] = np.abs(d[:, 1])  # a dome: lights above the horizon only
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    p = _probe(rng, 32)
+    w = lighting.resample_probe(p, d)
+    assert w.shape == (150, 3)
+    assert np.allclose(w.sum(0), _total(p), rtol=1e-10)
+    w1 = lighting.resample_probe(lighting.uniform_probe(64), d, supersample=4)
+    assert np.allclose(w1[:, 0], sphere.voronoi_solid_angles(d), rtol=0.03, atol=2e-3)
+
+
+def test_the_weyrich_dome_leds_are_a_voronoi_light_set(rng):
+    from facestats.acquire.dome import default_dome
+
+    dome = default_dome()
+    d = dome.led_position - [0, 0, 40.0]  # from the head centre towards each of the 150 LEDs
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    p = _probe(rng, 32)
+    w = lighting.resample_probe(p, d, supersample=2)
+    assert w.shape == (150, 3) and np.allclose(w.sum(0), _total(p), rtol=1e-10)
+    assert sphere.voronoi_solid_angles(d).sum() == pytest.approx(4 * np.pi, rel=1e-9)
+
+
+def test_rotation_by_whole_columns_is_a_roll_and_fractions_conserve(rng):
+    p = _probe(rng, 16)
+    r = lighting.rotate_probe(p, 2 * np.pi / 32)
+    assert np.array_equal(r, np.roll(p, -1, axis=1))  # content moves one column left
+    r = lighting.rotate_probe(p, 0.123)
+    assert np.allclose(_total(r), _total(p), rtol=1e-6)
+    # The environment rotates with the directions: a feature at d moves to R_y(β) d.
+    q = np.zeros((32, 64, 3), np.float32)
+    q[10, 20] = 1
+    beta = 2 * np.pi * 5 / 64
+    d = sphere.latlong_directions(32, 64)
+    moved = lighting.rotate_probe(q, beta)
+    i = np.unravel_index(np.argmax(moved[..., 0]), (32, 64))
+    assert np.allclose(d[i], sphere.rotate_directions(d[10, 20], beta), atol=1e-9)
+
+
+def test_layout_conversions_keep_directions_and_constants():
+    q = np.zeros((32, 64, 3), np.float32)
+    q[8, 40] = 100.0
+    ang = lighting.latlong_to_angular(q, 64, supersample=2)
+    dirs, inside = sphere.angular_directions(64)
+    i = np.unravel_index(np.argmax(ang[..., 0]), ang.shape[:2])
+    target = sphere.latlong_directions(32, 64)[8, 40]
+    assert np.degrees(np.arccos(np.clip(dirs[i] @ target, -1, 1))) < 6
+    back = lighting.angular_to_latlong(lighting.latlong_to_angular(lighting.uniform_probe(32, 3.0), 128), 32)
+    assert np.allclose(back, 3.0, rtol=1e-5)
+    # Resampling an angular probe conserves its own quadrature integral.
+    a = lighting.latlong_to_angular(lighting.sky_probe(32), 64)
+    w = lighting.resample_probe(a, layout="angular", supersample=2)
+    sa = sphere.angular_solid_angles(128).reshape(64, 2, 64, 2).sum((1, 3))
+    assert np.allclose(w.sum((0, 1)), (a * sa[..., None]).sum((0, 1)), rtol=1e-6)
+
+
+def test_bad_probes_are_refused_with_the_field_and_value():
+    good = lighting.uniform_probe(8)
+    bad = good.copy()
+    bad[2, 3, 1] = np.nan
+    with pytest.raises(ValidationError, match=r"finite, got nan at row 2, column 3, channel 1"):
+        lighting.check_probe(bad)
+    bad = good.copy()
+    bad[1, 1, 0] = -0.5
+    with pytest.raises(ValidationError, match=r">= 0, got -0.5"):
+        lighting.resample_probe(bad)
+    with pytest.raises(ValidationError, match="twice as wide"):
+        lighting.check_probe(np.ones((8, 8, 3)), "latlong")
+    with pytest.raises(ValidationError, match="square"):
+        lighting.check_probe(np.ones((8, 16, 3)), "angular")
+    with pytest.raises(ValidationError, match="layout must be one of"):
+        lighting.check_probe(good, "cubemap")
+    with pytest.raises(ValidationError, match=r"shape \(H, W, 3\)"):
+        lighting.check_probe(np.ones((8, 16)))

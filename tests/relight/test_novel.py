@@ -1,0 +1,81 @@
+"""D5: novel views — specular remap of eq. 8-9 on a Torrance-Sparrow field, diffuse chroma shift, re-projection."""
+
+import numpy as np
+import pytest
+
+from facestats.model.brdf import torrance_sparrow
+from facestats.model.sphere import light_stage_directions
+from facestats.relight import novel, separate
+from facestats.relight.camera import stage_camera
+
+NORMALS = np.array([[0, 0, 1.0], [0.3, 0.5, 0.81], [-0.6, 0.2, 0.77], [0.0, 0.8, 0.6]])
+NORMALS /= np.linalg.norm(NORMALS, axis=1, keepdims=True)
+
+
+def _turned(n, deg):
+    axis = np.cross(n, [0.3, 0.1, 0.95])
+    axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+    a = np.radians(deg)
+    return n * np.cos(a) + np.cross(axis, n) * np.sin(a)
+
+
+@pytest.mark.parametrize("deg", [15, 30, 45])
+def test_torrance_sparrow_lobe_remapped_from_0_degrees(deg):
+    d, sa = light_stage_directions()
+    n, v0 = NORMALS, NORMALS  # original view along the normal (0°)
+    vn = _turned(n, deg)
+    cos = np.clip(np.einsum("abk,nk->abn", d, n), 0, None)
+    s0 = torrance_sparrow(n, d[:, :, None], v0, 1.0, 0.35) * cos
+    truth = torrance_sparrow(n, d[:, :, None], vn, 1.0, 0.35) * cos
+    out = novel.remap_specular(s0, n, v0, vn)
+    for k in range(len(n)):
+        t, o = truth[..., k], out[..., k]
+        lobe = t > 0.1 * t.max()
+        assert np.median(np.abs(o[lobe] - t[lobe]) / t[lobe]) <= 0.01
+        assert (o * sa).sum() == pytest.approx((t * sa).sum(), rel=0.01)
+    assert np.allclose(novel.remap_specular(s0, n, v0, v0), s0, rtol=0.02, atol=1e-6 * s0.max())  # same view
+
+
+def test_below_horizon_mirror_lights_are_dropped_and_shadows_respected():
+    d, _ = light_stage_directions(32, 16)
+    n = np.array([[0, 0, 1.0]])
+    v0 = _turned(n, 70)
+    vn = _turned(n, -70)
+    s0 = torrance_sparrow(n, d[:, :, None], v0, 1.0, 0.35) * np.clip(d @ n[0], 0, None)[..., None]
+    out = novel.remap_specular(s0, n, v0, vn)
+    assert np.all(out[(d @ n[0]) <= 0] == 0) and np.all(np.isfinite(out))
+    shadow = np.ones(s0.shape, bool)
+    shadow[:, :16] = False
+    assert np.all(novel.remap_specular(s0, n, v0, vn, shadow=shadow)[:, :16] == 0)
+
+
+def test_diffuse_chroma_shift_follows_the_ramp_exactly(rng):
+    n_l, n_pix = 40, 12
+    d0 = separate.unit_rgb(rng.uniform(0.2, 0.9, (n_pix, 3)))
+    s = np.array([1.0, 1.0, 1.0])
+    a0, a1 = rng.uniform(-0.2, 0.2, n_pix), rng.uniform(-0.5, 0.0, n_pix)
+    cos_i = rng.uniform(0.05, 1, (n_l, n_pix))
+    cr0, crn = rng.uniform(0.3, 1, n_pix), rng.uniform(0.3, 1, n_pix)
+    mag = rng.uniform(0.1, 2, (n_l, n_pix, 1))
+
+    def diffuse(cos_r):
+        f = separate.ramp_factor(cos_i, cos_r[None], a0[None], a1[None])
+        return mag * separate.ramp_chromaticity(np.broadcast_to(d0, (n_l, n_pix, 3)), s, f)
+
+    moved = novel.shift_diffuse_chromaticity(diffuse(cr0), cos_i, cr0, crn, a0, a1, s)
+    assert np.allclose(moved, diffuse(crn), atol=1e-12)
+    same = novel.shift_diffuse_chromaticity(diffuse(cr0), cos_i, cr0, cr0, a0, a1, s)
+    assert np.allclose(same, diffuse(cr0), atol=1e-12)
+
+
+def test_reprojection_into_the_same_camera_returns_the_image():
+    cam = stage_camera(size=16, distance=300.0, fov_deg=40.0, target=(0, 0, 0))
+    rays = cam.rays()
+    t = (0.0 - cam.position[2]) / rays[..., 2]  # a plane z = 0 facing the camera
+    pos = cam.position + t[..., None] * rays
+    img = np.random.default_rng(1).uniform(0, 1, (16, 16, 3))
+    out, covered = novel.reproject(img, pos, np.ones((16, 16), bool), cam)
+    inner = covered.copy()
+    inner[[0, -1]] = inner[:, [0, -1]] = False
+    assert covered.sum() >= 14 * 14
+    assert np.allclose(out[inner], img[inner], atol=1e-5)

@@ -1,0 +1,92 @@
+"""D3/D4: the diffuse chromaticity ramp (eq. 6-7) and the colour-space separation of §4.2."""
+
+import numpy as np
+import pytest
+
+from facestats.errors import ValidationError
+from facestats.model.sphere import light_stage_directions
+from facestats.relight import separate as sep
+from facestats.relight.field import make_field
+from tests.relight.fields import sphere_normals, ts_lambert_field
+
+SKIN = np.array([0.62, 0.42, 0.33])
+
+
+def test_ramp_recovers_alpha_to_1e10_from_noise_free_samples(rng):
+    n_l, n_pix = 60, 30
+    d0 = rng.uniform(0.2, 0.8, (n_pix, 3))
+    s = np.array([1.0, 0.97, 0.92])
+    a0, a1 = rng.uniform(-0.3, 0.3, n_pix), rng.uniform(-0.6, 0.1, n_pix)
+    cos_i = rng.uniform(0.05, 1, (n_l, n_pix))
+    cos_r = rng.uniform(0.2, 1, n_pix)
+    f = sep.ramp_factor(cos_i, cos_r[None], a0[None], a1[None])
+    chroma = sep.ramp_chromaticity(np.broadcast_to(sep.unit_rgb(d0), (n_l, n_pix, 3)), s, f)
+    values = chroma * rng.uniform(0.01, 3, (n_l, n_pix, 1))  # any brightness
+    f_back = sep.ramp_factor_from_chromaticity(chroma, d0, s)
+    assert np.allclose(f_back, f, atol=1e-12)
+    b0, b1 = sep.fit_chromaticity_ramp(values, cos_i, cos_r, d0, s)
+    assert np.abs(b0 - a0).max() < 1e-10 and np.abs(b1 - a1).max() < 1e-10
+
+
+def test_separation_is_exact_and_sums_back(rng):
+    n = 200
+    d = sep.unit_rgb(SKIN)
+    s = sep.unit_rgb([1, 1, 1])
+    mu_d, mu_s = rng.uniform(0, 2, n), rng.uniform(0, 1, n)
+    r = mu_d[:, None] * d + mu_s[:, None] * s
+    diffuse, spec, mu, clamped = sep.separate_colour(r, d, s)
+    assert np.allclose(mu[:, 0], mu_d) and np.allclose(mu[:, 1], mu_s) and np.allclose(mu[:, 2], 0, atol=1e-12)
+    assert np.allclose(diffuse, mu_d[:, None] * d) and np.allclose(spec + diffuse, r)
+    assert not clamped.any()
+    # A sample more saturated than the skin colour (noise) has negative μs: clamped to 0 and counted.
+    _, spec2, mu2, clamped2 = sep.separate_colour([d - 0.2 * s], d, s)
+    assert mu2[0, 1] < 0 and clamped2[0] and np.all(spec2 == 0)
+
+
+def test_near_parallel_colours_are_flagged_by_the_condition_number():
+    cond = sep.separation_matrix_condition(np.array([SKIN, [1, 1, 0.999], [1, 0, 0]]), [1, 1, 1])
+    assert cond[0] < 10 and cond[1] > 1e3 and cond[2] < 3
+    with pytest.raises(ValidationError, match="parallel"):
+        sep.separate_colour([[1.0, 1.0, 1.0]], [1, 1, 1], [1, 1, 1])
+
+
+def test_diffuse_chromaticity_is_the_median_ratio_colour():
+    d, _ = light_stage_directions(16, 8)
+    vals = np.clip(d[..., 2:3], 0, None).reshape(-1, 1, 1) * SKIN  # (L, 1, 3)
+    vals[60:63, 0] += 10  # a specular lobe far above the mid-bright range
+    assert np.allclose(sep.diffuse_chromaticity(vals)[0], sep.unit_rgb(SKIN))
+
+
+def test_separate_field_with_known_colours_recovers_components_normals_and_maps():
+    albedo = SKIN * 0.8
+    f, spec_true, diff_true = ts_lambert_field(7, 7, albedo=albedo, rho_s=0.25, m=0.35)
+    m = f["mask"].values
+    out = sep.separate_field(f, [1, 1, 1], ramp=False, d0=albedo)
+    assert np.allclose(out["specular"].values.mean(-1)[..., m], spec_true[..., m], rtol=1e-5, atol=1e-7)  # float32
+    assert np.allclose(out["diffuse"].values[..., m, :], diff_true[..., m, :], rtol=1e-5, atol=1e-7)
+    assert np.all(out["specular"].values[..., ~m, :] == 0)  # pixels off the mask are not separated
+    n_true, _ = sphere_normals(7, 7)
+    ang = np.degrees(np.arccos(np.clip(np.einsum("yxk,yxk->yx", out["normal"].values, n_true), -1, 1)))
+    assert ang[m].max() < 0.02  # degrees (float32 field)
+    assert np.allclose(out["albedo"].values[m], albedo, rtol=1e-6)
+    sa = f["solid_angle"].values
+    rho_true = (spec_true * sa[..., None, None]).sum((0, 1))
+    assert np.allclose(out["rho_s"].values[m], rho_true[m], rtol=1e-5)
+    assert not out["ill_conditioned"].values.any() and out["n_clamped"].values.max() == 0
+    # The paper's procedure (median-ratio d₀, fitted ramp) comes close on the same data.
+    paper = sep.separate_field(f, [1, 1, 1])
+    big = spec_true > 0.1 * spec_true.max()
+    ratio = paper["specular"].values.mean(-1)[big] / spec_true[big]
+    assert 0.85 < np.median(ratio) < 1.1
+    ang = np.degrees(np.arccos(np.clip(np.einsum("yxk,yxk->yx", paper["normal"].values, n_true), -1, 1)))
+    assert np.nanmax(ang[m]) < 3
+
+
+def test_near_parallel_skin_and_light_colours_are_flagged():
+    f, _, _ = ts_lambert_field(4, 4)
+    grey = make_field(np.repeat(f["reflectance"].values.mean(-1, keepdims=True), 3, -1), f["direction"].values,
+                      view=f["view"].values)  # fmt: skip
+    flagged = sep.separate_field(grey, [1, 1, 1], d0=[1, 1, 1.001], ramp=False)
+    assert flagged["ill_conditioned"].values.all() and (flagged["condition"].values > 1e3).all()
+    parallel = sep.separate_field(grey, [1, 1, 1], d0=[1, 1, 1], ramp=False)  # singular: flagged, not separated
+    assert parallel["ill_conditioned"].values.all() and np.all(parallel["specular"].values == 0)

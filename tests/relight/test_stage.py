@@ -1,0 +1,124 @@
+"""The virtual light stage: the skin model per sample, stage field relit = direct render, camera and geometry."""
+
+import numpy as np
+import pytest
+
+import facestats
+from facestats.errors import ValidationError
+from facestats.model.skin import SubsurfaceTransport, skin_radiance
+from facestats.model.sphere import light_stage_directions
+from facestats.relight import stage
+from facestats.relight.field import open_field
+from facestats.relight.lighting import resample_probe, sky_probe
+from facestats.relight.relighting import relight
+from facestats.relight.shadows import shadow_agreement, threshold_shadow_maps
+from tests.helpers import random_hemisphere
+
+SIZE = 24  # image side of the small stage renders
+LIGHTS = (16, 8)  # n_theta, n_phi
+
+
+@pytest.fixture(scope="module")
+def subject():
+    with facestats.open_store() as store:
+        return store.subject("S001").load()
+
+
+@pytest.fixture(scope="module")
+def geometry(subject):
+    return stage.subject_geometry(subject, mesh_grid=32)
+
+
+@pytest.fixture(scope="module")
+def stage_field(subject, geometry):
+    d, _ = light_stage_directions(*LIGHTS)
+    return stage.light_stage_field(subject, stage.stage_camera(size=SIZE), geometry=geometry, directions=d,
+                                   visibility=True)  # fmt: skip
+
+
+@pytest.mark.parametrize("model", ["torrance_sparrow", "blinn_phong"])
+def test_factored_evaluation_equals_skin_radiance_sample_by_sample(rng, model):
+    n_pix, n_l = 40, 25
+    normal = random_hemisphere(rng, n_pix)
+    view = random_hemisphere(rng, n_pix, min_cos=0.3)
+    lights = rng.normal(size=(n_l, 3))
+    lights /= np.linalg.norm(lights, axis=1, keepdims=True)
+    mod = rng.uniform(0.5, 1.5, (n_pix, 3))
+    rho = rng.uniform(0.05, 0.4, n_pix)
+    rough = rng.uniform(0.15, 0.5, n_pix) if model == "torrance_sparrow" else rng.uniform(5, 60, n_pix)
+    vis = rng.uniform(0, 1, (n_pix, n_l))
+    transport = SubsurfaceTransport([1.0, 0.8, 0.9], [0.09, 0.3, 0.55])
+    sh = stage.SubjectShading.from_parameters(normal, view, mod, rho, rough, transport, specular=model)
+    spec, shape = sh.factors(lights, view, vis)
+    ours = spec[..., None] + shape[..., None] * sh.colour[:, None, :]
+    cos = np.clip(normal @ lights.T, 0, None) * vis
+    ref = skin_radiance(normal, np.broadcast_to(lights, (n_pix, n_l, 3)), np.repeat(cos[..., None], 3, -1),
+                        view[:, None, :], rho_s=rho, roughness=rough, modulation=mod, subsurface=transport,
+                        specular=model)[:, 0]  # fmt: skip
+    assert np.allclose(ours, ref, rtol=2e-5, atol=1e-7)
+
+
+def test_stage_field_relit_equals_the_direct_render(subject, geometry, stage_field, tmp_path):
+    d, _ = light_stage_directions(*LIGHTS)
+    cam = stage.stage_camera(size=SIZE)
+    field = stage_field
+    assert field["reflectance"].shape == (8, 16, SIZE, SIZE, 3)
+    m = field["mask"].values
+    assert 0.2 < m.mean() < 0.6
+    lw = resample_probe(sky_probe(32), d)
+    direct, mask = stage.render_subject(subject, lw, d, cam, geometry=geometry)
+    assert np.array_equal(mask, m)
+    relit = relight(field, lw)
+    rel = np.abs(relit - direct)[m] / direct[m]
+    assert rel.max() <= 1e-3
+    # The same field streamed tile by tile into zarr (float32) is identical.
+    on_disk = stage.light_stage_field(subject, cam, geometry=geometry, directions=d, out=tmp_path / "s.zarr", tile=8)
+    assert np.array_equal(open_field(tmp_path / "s.zarr")["reflectance"].values, field["reflectance"].values)
+    assert np.allclose(relight(on_disk, lw), relit, rtol=1e-6)
+
+
+def test_threshold_shadow_maps_match_the_geometric_visibility_off_boundaries(stage_field):
+    # D6 (Debevec §4.4): brightness thresholding of each reflectance function against its maximum.
+    visible = stage_field["visibility"].values > 0.5
+    mask = stage_field["mask"].values
+    lit = threshold_shadow_maps(stage_field, 0.02)
+    away = shadow_agreement(lit, visible, band=1, mask=mask)
+    assert away["agreement"] >= 0.99
+    assert shadow_agreement(lit, visible, band=0, mask=mask)["agreement"] < away["agreement"]  # edges differ
+    assert not (stage_field["visibility"].values[:, :, ~mask] > 0).any()
+
+
+def test_camera_and_view_surface_conventions(geometry):
+    cam = stage.stage_camera(size=32)
+    assert np.allclose(cam.position, [0, 0, 1240])  # frontal camera on +z
+    rays = cam.rays()
+    centre = rays[15:17, 15:17].mean((0, 1))
+    assert np.allclose(centre / np.linalg.norm(centre), [0, 0, -1], atol=1e-3)
+    assert rays[16, 31, 0] > rays[16, 0, 0]  # image right is +x for the frontal camera
+    assert rays[0, 16, 1] > rays[31, 16, 1]  # image top is +y
+    surf = stage.view_surface(geometry, cam)
+    assert np.allclose(np.linalg.norm(surf.view, axis=1), 1) and surf.view[:, 2].min() > 0.99
+    assert surf.uv.min() >= 0 and surf.uv.max() <= 1
+    assert np.allclose(surf.bary.sum(1), 1)
+    side = stage.stage_camera(90, size=8)
+    assert np.allclose(side.position, [1200, 0, 40])
+    assert np.allclose(stage.stage_camera(-30, size=8).position[0], -600)  # negative azimuth: the subject's right
+
+
+def test_several_cameras_give_one_field_each(subject, geometry):
+    d, _ = light_stage_directions(8, 4)
+    cams = [stage.stage_camera(-25, size=10), stage.stage_camera(25, size=10)]  # Debevec's left and right cameras
+    left, right = stage.light_stage_field(subject, cams, geometry=geometry, directions=d, shadows=False)
+    assert left["view"].values[5, 5, 0] < 0 < right["view"].values[5, 5, 0]
+    assert left.attrs["camera_position_mm"] != right.attrs["camera_position_mm"]
+
+
+def test_subjects_without_a_known_geometry_are_refused(subject):
+    other = subject.copy()
+    other.attrs["provenance"] = '{"capture_provenance": {"geometry": "scan-7"}}'
+    with pytest.raises(ValidationError, match="'scan-7', not a procedural head"):
+        stage.subject_geometry(other)
+    with pytest.raises(ValidationError, match="StageCamera"):
+        stage.light_stage_field(subject, camera="front")
+    with pytest.raises(ValidationError, match="one RGB weight per light"):
+        stage.render_subject(subject, np.ones((5, 3)), camera=stage.stage_camera(size=8))

@@ -40,8 +40,13 @@ medium is a half-space under the face (a few mm of diffusion against a head
 75 mm deep).
 
 Light probe: a latitude-longitude HDR file (EXR or Radiance ``.hdr``; Mitsuba
-reads it itself), :mod:`facestats.io.latlong`'s convention, which is
-Mitsuba's; without one a studio probe is written (:func:`facestats.io.latlong.write_studio_probe`).
+reads it itself) in facestats' one lat-long convention
+(:mod:`facestats.model.sphere`: centre column towards −z, Debevec's).  Mitsuba's
+``envmap`` puts its centre column at +z (u = atan2(x, −z)/2π, ``envmap.cpp``),
+so the emitter gets ``to_world`` = a 180° turn about +y: the same file then
+means the same lighting in Mitsuba, in :mod:`facestats.relight` and in
+:func:`facestats.pipeline.validation.render_probe`.  Without a probe a studio
+probe is written (:func:`facestats.io.probes.write_studio_probe`).
 """
 
 from __future__ import annotations
@@ -219,7 +224,12 @@ def scene_spec(
             "sampler": {"type": "independent", "sample_count": int(spp)},
         },  # fmt: skip
         "face": shape,
-        "probe": {"type": "envmap", "filename": files["probe"], "scale": float(probe_scale)},
+        "probe": {
+            "type": "envmap",
+            "filename": files["probe"],
+            "scale": float(probe_scale),
+            "to_world": {"type": "rotate", "axis": [0.0, 1.0, 0.0], "angle": 180.0},  # module docstring
+        },
     }
 
 
@@ -231,6 +241,8 @@ def spec_to_dict(spec, base_dir=None):
         if isinstance(value, dict):
             if value.get("type") == "look_at":
                 return mi.ScalarTransform4f().look_at(origin=value["origin"], target=value["target"], up=value["up"])
+            if value.get("type") == "rotate":
+                return mi.ScalarTransform4f().rotate(axis=value["axis"], angle=value["angle"])
             return {k: convert(k, v) for k, v in value.items()}
         if key == "filename" and base_dir is not None:
             return os.path.join(os.fspath(base_dir), value)
@@ -250,6 +262,10 @@ def _xml_value(parent, name, value):
             ET.SubElement(
                 tr, "lookat", **{k: ", ".join(repr(float(x)) for x in value[k]) for k in ("origin", "target", "up")}
             )
+        elif kind == "rotate":
+            tr = ET.SubElement(parent, "transform", name=name)
+            ax = dict(zip("xyz", (repr(float(a)) for a in value["axis"])))
+            ET.SubElement(tr, "rotate", **ax, angle=repr(float(value["angle"])))
         else:
             _xml_plugin(parent, value, name=name)
     elif isinstance(value, bool):
@@ -314,12 +330,12 @@ def write_mitsuba_scene(ds, out_dir, *, probe=None, material="surface", mesh=Non
 
     from facestats.io.exr_set import write_exr_set
     from facestats.io.images import write_exr
-    from facestats.io.latlong import read_latlong_probe, write_studio_probe
+    from facestats.io.probes import read_light_probe, write_studio_probe
 
     check_choice(material, "material", MATERIALS)
     out = os.fspath(out_dir)
     if probe is not None:
-        read_latlong_probe(probe)  # checked before anything is written
+        read_light_probe(probe)  # checked before anything is written
     manifest = write_exr_set(ds, out, mesh=mesh)
     alb = np.nan_to_num(np.asarray(ds["albedo"].values, np.float32))
     rho = np.nan_to_num(np.asarray(ds["ts_rho_s"].values, np.float32))

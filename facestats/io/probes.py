@@ -23,7 +23,14 @@ import numpy as np
 from facestats.core.validate import check_choice
 from facestats.errors import ValidationError
 
-__all__ = ["PROBE_EXTENSIONS", "PROBE_LAYOUTS", "read_light_probe", "write_light_probe"]
+__all__ = [
+    "PROBE_EXTENSIONS",
+    "PROBE_LAYOUTS",
+    "read_light_probe",
+    "write_light_probe",
+    "studio_probe",
+    "write_studio_probe",
+]
 
 #: File types a probe can be read from (high dynamic range only: an 8-bit image is not a measurement of light).
 PROBE_EXTENSIONS = (".hdr", ".pic", ".exr", ".pfm")
@@ -89,3 +96,41 @@ def write_light_probe(path, probe, layout: str = "latlong", *, half: bool = Fals
     img = check_probe(probe, layout, name=f"light probe for {str(p)!r}")
     attrs = {"layout": layout, "units": "radiance (linear)"} if p.suffix.lower() == ".exr" else None
     return write_image(p, img, half=half, attributes=attrs)
+
+
+def studio_probe(height: int = 32, *, key=(0.45, 0.5, 0.77), key_radiance=40.0, ambient=0.6) -> np.ndarray:
+    """A simple studio probe: a uniform ambient sphere plus a soft key light (lat-long, linear RGB).
+
+    Parameters
+    ----------
+    height : int
+        Rows (width is twice this).
+    key : array_like, shape (3,)
+        World direction towards the key light (default: up, to the subject's left and in front, +z
+        being the front of the face).
+    key_radiance : float
+        Peak radiance of the key light, a lobe exp((ω·k − 1)/(1 − cos 15°)) of about 15° width.
+    ambient : float
+        Radiance of the uniform ambient light.
+
+    Returns
+    -------
+    ndarray of float32, shape (height, 2 height, 3)
+        In the lat-long layout of :func:`facestats.model.sphere.latlong_directions`.
+    """
+    from facestats.core.validate import check_integer
+    from facestats.model.sphere import latlong_directions
+
+    h = check_integer(height, "height", 1)
+    d = latlong_directions(h, 2 * h)
+    k = np.asarray(key, np.float64)
+    k = k / np.linalg.norm(k)
+    lobe = np.exp((d @ k - 1) / (1 - np.cos(np.radians(15.0))))
+    warm = np.array([1.0, 0.95, 0.88])
+    return (ambient + key_radiance * lobe[..., None] * warm).astype(np.float32)
+
+
+def write_studio_probe(path, height: int = 32) -> str:
+    """Write :func:`studio_probe` as an EXR (layout recorded in its header); returns ``path`` as a string."""
+    write_light_probe(path, studio_probe(height))
+    return os.fspath(path)

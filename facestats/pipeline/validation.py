@@ -5,7 +5,7 @@ LED with the capture's calibration and compares it with the capture's
 radiance (the photograph, or the simulation for synthetic subjects):
 rendered image, reference image, error image and RMSE.  :func:`render_probe`
 renders the same camera under a latitude-longitude light probe
-(:mod:`facestats.io.latlong`), with mesh shadows
+(:mod:`facestats.model.sphere`), with mesh shadows
 (:class:`facestats.acquire.visibility.ShadowMaps`); there is no reference then.
 :func:`camera_rmse` is the held-out-camera figure over every LED.
 
@@ -183,14 +183,14 @@ def render_probe(subject, capture, camera: int, probe, *, samples=(8, 16), specu
 
     The probe is averaged down to ``samples`` = (rows, columns) directions
     (area-weighted block means), each a directional light of irradiance
-    E = L Δω (N·ω) (:func:`facestats.io.latlong.latlong_directions`), occluded
+    E = L Δω (N·ω) (:func:`facestats.model.sphere.latlong_directions`), occluded
     where the subject's face mesh (:func:`facestats.io.mesh.subject_mesh`)
     shadows it.
 
     Parameters
     ----------
     probe : str, os.PathLike or ndarray (H, W, 3)
-        Lat-long probe (a file is read with :func:`facestats.io.latlong.read_latlong_probe`).
+        Lat-long probe (a file is read with :func:`facestats.io.probes.read_light_probe`).
     samples : (int, int)
         Light directions (rows, columns); must divide the probe's size.
 
@@ -200,16 +200,18 @@ def render_probe(subject, capture, camera: int, probe, *, samples=(8, 16), specu
         Without a reference.
     """
     from facestats.acquire.visibility import ShadowMaps
-    from facestats.io.latlong import latlong_directions, read_latlong_probe
     from facestats.io.mesh import subject_mesh
+    from facestats.io.probes import read_light_probe
+    from facestats.model.sphere import latlong_directions, latlong_solid_angles
     from facestats.pipeline.render import camera_image
 
     check_integer(camera, "camera", 0, capture.dome.n_cameras - 1)
-    img = read_latlong_probe(probe) if not isinstance(probe, np.ndarray) else np.asarray(probe, np.float64)
+    img = read_light_probe(probe) if not isinstance(probe, np.ndarray) else np.asarray(probe, np.float64)
     h, w = (check_integer(s, "samples", 1) for s in samples)
     if img.shape[0] % h or img.shape[1] % w:
         raise ValidationError(f"samples {samples} must divide the probe size {img.shape[:2]}")
-    dirs, dw = latlong_directions(img.shape[0], img.shape[1])
+    dirs = latlong_directions(img.shape[0], img.shape[1])
+    dw = latlong_solid_angles(img.shape[0], img.shape[1])
     bh, bw = img.shape[0] // h, img.shape[1] // w
     blocks = (h, bh, w, bw)
     power = (img * dw[..., None]).reshape(*blocks, 3).sum(axis=(1, 3))  # L Δω summed per block

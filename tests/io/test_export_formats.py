@@ -198,6 +198,24 @@ def test_mitsuba_surface_scene_renders_albedo_under_uniform_light(tmp_path, subj
     np.testing.assert_allclose(np.median(img[face], axis=0), [0.6, 0.4, 0.2], rtol=0.08)
 
 
+def test_mitsuba_sees_the_probe_in_facestats_lat_long_convention(tmp_path, subject, mesh):
+    """Light from behind the head (−z, the centre column of a facestats probe) is what the frontal camera's
+    background shows; in Mitsuba's own convention (centre column at +z) the background would be black."""
+    from facestats.io.mitsuba import render_scene, write_mitsuba_scene
+    from facestats.io.probes import write_light_probe
+    from facestats.model.sphere import latlong_directions
+
+    d = latlong_directions(32, 64)
+    back = np.where((d[..., 2] < -0.3)[..., None], 1.0, 0.0) * np.ones(3)
+    probe = write_light_probe(tmp_path / "back.exr", back.astype(np.float32))
+    out = tmp_path / "scene"
+    out.mkdir()
+    spec = write_mitsuba_scene(subject, out, probe=probe, mesh=mesh, width=48, height=48, spp=4, max_depth=2)
+    for img in (render_scene(spec, base_dir=out), render_scene(out / "scene.xml")):
+        corners = np.concatenate([img[:6, :6], img[:6, -6:], img[-6:, :6], img[-6:, -6:]]).reshape(-1, 3)
+        np.testing.assert_allclose(corners, 1.0, atol=1e-3)
+
+
 def test_mitsuba_subsurface_scene_renders(tmp_path, subject, mesh):
     from facestats.io.mitsuba import render_scene, write_mitsuba_scene
 

@@ -41,14 +41,15 @@ def test_micro_normals_are_used_for_the_specular_of_their_camera(case):
 
 
 def test_probe_render_is_lit_and_shadowed(case):
-    from facestats.io.latlong import latlong_directions, studio_probe
+    from facestats.io.probes import studio_probe
+    from facestats.model.sphere import latlong_directions
 
     ds, cap = case
     probe = studio_probe(16)
     lit = render_probe(ds, cap, 5, probe)
     assert lit.reference is None and np.nanmin(lit.rendered) >= 0 and np.nanmean(lit.rendered) > 0
     # A probe dark everywhere but behind the head lights almost nothing the camera sees (rims only).
-    d, _ = latlong_directions(16, 32)
+    d = latlong_directions(16, 32)
     back = np.where((d[..., 2] < -0.5)[..., None], probe, 0)
     assert np.nansum(render_probe(ds, cap, 5, back).rendered) < 0.05 * np.nansum(lit.rendered)
     with pytest.raises(FacestatsError, match="camera must be"):

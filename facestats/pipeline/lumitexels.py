@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from facestats.errors import ValidationError
 from facestats.model import fitting
 from facestats.pipeline.settings import MAP_VARS, MODEL_PREFIX, FitSettings
 
@@ -52,13 +53,15 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
 
 def _fit_piece(lt, st):
     """Stages 1-4 on lumitexels ``lt`` (:func:`fit_lumitexels`)."""
-    valid = lt.valid
-    if st.exclude_cameras:
-        valid = valid.copy()
-        valid[:, list(st.exclude_cameras), :] = False
     n_cam = lt.wo.shape[1]
-    samples = fitting.Samples.from_grid(lt.wi, lt.wo, lt.irradiance, lt.radiance, valid)
-    out = {"n_invalid": (~valid).reshape(lt.n, -1).sum(1)}
+    if any(c >= n_cam for c in st.exclude_cameras):
+        raise ValidationError(f"exclude_cameras must be camera indices below {n_cam}, got {st.exclude_cameras!r}")
+    keep = np.ones(n_cam, bool)
+    keep[list(st.exclude_cameras)] = False
+    samples, n_invalid = fitting.Samples.from_dome(
+        lt.wi, lt.wo, lt.irradiance, lt.radiance, keep_cameras=keep, engine=st.engine
+    )
+    out = {"n_invalid": n_invalid}
     # Stage 1: normals.
     normal, _ = fitting.photometric_normals(samples, lt.scan_normal, n_cam, eta=st.eta)
     out["normal"] = normal
@@ -94,6 +97,7 @@ def _fit_piece(lt, st):
         min_samples=st.min_samples,
         max_relative_error=st.max_relative_error,
         cos=(cos_i, cos_o),
+        engine=st.engine,
     )
     few = out["n_samples"] < st.min_samples
     out["albedo"] = np.where(few[:, None], np.nan, albedo).astype(np.float32)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -11,6 +11,7 @@ from facestats.core.validate import as_finite, check_integer
 from facestats.errors import ValidationError
 from facestats.model import fitting
 from facestats.model.dipole import check_dipole_eta
+from facestats.model.fitting.engine import default_engine, resolve_engine
 
 __all__ = ["FitSettings", "LUMITEXEL_OUTPUTS", "MODEL_PREFIX", "MAP_VARS"]
 
@@ -48,6 +49,10 @@ class FitSettings:
         the capture's zarr chunk (2048 by default), so no chunk is decoded twice.
     eta : float
         Relative index of refraction, in [1, 3].
+    engine : {"numba", "numpy"}
+        Implementation of the hot loops (:mod:`facestats.model.fitting.engine`): compiled
+        kernels or pure numpy, same results to float32 rounding.  Default: ``$FACESTATS_ENGINE``,
+        else numba when it imports.
     """
 
     discard: int = 2
@@ -61,6 +66,7 @@ class FitSettings:
     micro_normals: bool = True
     block: int = 2048
     eta: float = ETA_SKIN
+    engine: str = field(default_factory=default_engine)
 
     def __post_init__(self):
         if isinstance(self.models, str):
@@ -81,6 +87,7 @@ class FitSettings:
         as_finite(self.max_angle_deg, "max_angle_deg", 0, 90, low_inclusive=False, unit="deg")
         as_finite(self.max_relative_error, "max_relative_error", 0, None, low_inclusive=False)
         check_dipole_eta(self.eta)
+        self.engine = resolve_engine(self.engine)
 
 
 #: Per-lumitexel outputs of :func:`fit_lumitexels` (a model's four entries only when it is

@@ -137,6 +137,23 @@ def albedo_stable_minimum(
     if not _check_angle(grazing_start, "grazing_start") < _check_angle(grazing_end, "grazing_end"):
         raise ValidationError(f"grazing_start must be < grazing_end, got {grazing_start!r} >= {grazing_end!r} rad")
     c0, c1 = np.cos(grazing_start), np.cos(grazing_end)
+    if samples.resolved_engine == "numba":
+        from facestats.model.fitting.kernels.runs import stable_minimum
+
+        out, _ = stable_minimum(
+            samples.starts,
+            samples.counts,
+            np.ascontiguousarray(brdf, np.float32),
+            np.ascontiguousarray(ft2, np.float32),
+            np.ascontiguousarray(cos_i, np.float32),
+            np.ascontiguousarray(cos_o, np.float32),
+            np.ascontiguousarray(use, bool),
+            k,
+            float(np.float32(grazing_penalty)),
+            float(c0),
+            float(c0 - c1),
+        )
+        return out, samples.count(use)
     graze = np.clip((c0 - np.minimum(cos_i, cos_o)) / (c0 - c1), 0, 1)
     penalty = (1 + np.float32(grazing_penalty) * graze).astype(np.float32)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -207,6 +224,18 @@ def refine_albedo(samples, brdf, ft2, cos_half, use, *, min_half_angle=np.radian
     """
     _check_per_sample(samples, brdf, ft2=ft2, cos_half=cos_half, use=use)
     _check_angle(min_half_angle, "min_half_angle")
+    if samples.resolved_engine == "numba":
+        from facestats.model.fitting.kernels.runs import refine_sums
+
+        return refine_sums(
+            samples.starts,
+            samples.counts,
+            np.ascontiguousarray(brdf, np.float32),
+            np.ascontiguousarray(ft2, np.float32),
+            np.ascontiguousarray(cos_half, np.float32),
+            np.ascontiguousarray(use, bool),
+            float(np.cos(min_half_angle)),
+        )
     with np.errstate(invalid="ignore", divide="ignore"):
         v = np.float32(np.pi) * brdf / ft2
     sel = use & (cos_half < np.cos(min_half_angle)) & np.isfinite(v[0] + v[1] + v[2])

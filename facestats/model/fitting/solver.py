@@ -40,6 +40,7 @@ import numpy as np
 from facestats.core.conventions import FLAG_BITS
 from facestats.core.validate import as_finite, check_integer
 from facestats.errors import ValidationError
+from facestats.model.fitting.engine import resolve_engine
 from facestats.model.fitting.lobes import lobe_base, lobe_moments, lobe_scale, lobe_sums
 
 __all__ = ["SpecularFit", "DEFAULT_BOUNDS", "solve_specular"]
@@ -282,20 +283,20 @@ def _squared_error(model, y, s1, a, n_use, good, rho, q, swyy, syg, sgg, dt):
     return e
 
 
-def _uncertainty(model, y, s1, a, n_use, good, rho, q, all_sums, swyy, max_relative_error, dt):
+def _uncertainty(model, n_use, good, rho, q, all_sums, e, max_relative_error):
     """(RMS error, std of ρs, std of the lobe, ill-conditioned) per texel from J = (g, ρs ∂g/∂ln p).
 
-    The covariance is σ²(JᵀJ)⁻¹ with σ² = E²/(n − 2) (module docstring).
+    ``e`` is E² per texel.  The covariance is σ²(JᵀJ)⁻¹ with σ² = E²/(n − 2)
+    (module docstring).
     """
     n_tex = n_use.size
     err, r_std, p_std = (np.full(n_tex, np.nan) for _ in range(3))
     ill = np.zeros(n_tex, bool)
     if not good.any():
         return err, r_std, p_std, ill
-    syg, sgg, _, sgdg, sdgdg = lobe_moments(model, q[good], all_sums[:, good])
+    _, sgg, _, sgdg, sdgdg = lobe_moments(model, q[good], all_sums[:, good])
     h00, h01, h11 = (np.zeros(n_tex) for _ in range(3))
     h00[good], h01[good], h11[good] = sgg, rho[good] * sgdg, rho[good] ** 2 * sdgdg
-    e = _squared_error(model, y, s1, a, n_use, good, rho, q, swyy, syg, sgg, dt)
     sw = n_use.astype(np.float64)
     det = h00 * h11 - h01 * h01
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -313,22 +314,54 @@ def _uncertainty(model, y, s1, a, n_use, good, rho, q, all_sums, swyy, max_relat
 
 
 def solve_specular(
-    model, y, s1, a, n_use, *, bounds, min_samples, max_iter, tol, max_relative_error, dtype=np.float32, start=None
+    model,
+    y,
+    s1,
+    a,
+    n_use,
+    *,
+    bounds,
+    min_samples,
+    max_iter,
+    tol,
+    max_relative_error,
+    dtype=np.float32,
+    start=None,
+    engine=None,
 ):
-    """Batch bounded Levenberg-Marquardt on flat samples in per-texel runs of ``n_use`` samples (module docstring)."""
+    """Batch bounded Levenberg-Marquardt on flat samples in per-texel runs of ``n_use`` samples (module docstring).
+
+    ``engine`` (:mod:`facestats.model.fitting.engine`) picks the numpy iteration
+    below or the compiled per-texel solve of :mod:`facestats.model.fitting.kernels.lm`.
+    """
     (r_lo, r_hi), (p_lo, p_hi) = _check_solver_args(model, bounds, min_samples, max_iter, tol, max_relative_error)
+    engine = resolve_engine(engine)
     dt = np.dtype(dtype)
-    q_lo, q_hi = np.log(p_lo), np.log(p_hi)
     n_use = np.asarray(n_use, np.int64)
-    n_tex = n_use.size
     few = n_use < min_samples
+    p0 = None if start is None else np.asarray(start, np.float64)
+    bnd = ((r_lo, r_hi), (p_lo, p_hi))
+    if engine == "numba":
+        rho, q, done, iterations, all_sums, e = _solve_compiled(model, y, s1, a, n_use, ~few, p0, bnd, max_iter, tol)
+    else:
+        rho, q, done, iterations, all_sums, e = _solve_numpy(model, y, s1, a, n_use, ~few, p0, bnd, max_iter, tol, dt)
+    return _result(
+        model, n_use, few, rho, q, done, iterations, all_sums, e, max_relative_error, np.log(p_lo), np.log(p_hi), dt
+    )
+
+
+def _solve_numpy(model, y, s1, a, n_use, solve, p_start, bounds, max_iter, tol, dt):
+    """The numpy iteration: (ρs, ln p, converged, iterations, lobe sums, E²) per texel (module docstring)."""
+    (r_lo, r_hi), (p_lo, p_hi) = bounds
+    q_lo, q_hi = np.log(p_lo), np.log(p_hi)
+    n_tex = n_use.size
     state = {
         "rho": np.full(n_tex, np.nan, dt),
         "q": np.full(n_tex, np.nan, dt),
         "lam": np.full(n_tex, 1e-3, dt),
-        "done": few.copy(),
+        "done": ~solve,
     }
-    ws = _WorkingSet(~few, n_use, y, a, s1, y.dtype)
+    ws = _WorkingSet(solve, n_use, y, a, s1, y.dtype)
     swyy = np.zeros(n_tex)
     iterations = 0
     all_sums = np.zeros((5, n_tex))
@@ -336,8 +369,8 @@ def solve_specular(
         work = ws.work
         swyy[work] = _rsum(ws.y * ws.y, ws.starts)
         p0 = np.full(work.size, np.nan)
-        if start is not None:  # a given start wins where it is finite
-            st0 = np.asarray(start, np.float64)[work]
+        if p_start is not None:  # a given start wins where it is finite
+            st0 = p_start[work]
             p0 = np.where(np.isfinite(st0) & (st0 > 0), st0, np.nan)
         cold = ~np.isfinite(p0)
         if cold.any():
@@ -346,26 +379,55 @@ def solve_specular(
         q0, r0, sums = _best_start(model, ws, swyy[work], p0, cold, (r_lo, r_hi), (q_lo, q_hi))
         state["q"][work], state["rho"][work] = q0, r0
         all_sums, iterations = _lm_iterations(model, ws, state, sums, swyy, (r_lo, r_hi), (q_lo, q_hi), max_iter, tol)
-    not_conv = ~state["done"]
-    good = ~few
     rho = state["rho"].astype(np.float64)
     q = state["q"].astype(np.float64)
-    err, r_std, p_std, ill = _uncertainty(model, y, s1, a, n_use, good, rho, q, all_sums, swyy, max_relative_error, dt)
+    syg, sgg = lobe_moments(model, q[solve], all_sums[:, solve])[:2]
+    e = _squared_error(model, y, s1, a, n_use, solve, rho, q, swyy, syg, sgg, dt)
+    return rho, q, state["done"] & solve, iterations, all_sums, e
+
+
+def _solve_compiled(model, y, s1, a, n_use, solve, p_start, bounds, max_iter, tol):
+    """The compiled per-texel solve (:func:`facestats.model.fitting.kernels.lm.solve_runs`), same outputs."""
+    from facestats.model.fitting.kernels import lm
+
+    (r_lo, r_hi), (p_lo, p_hi) = bounds
+    n_tex = n_use.size
+    p0 = np.full(n_tex, np.nan) if p_start is None else np.where(np.isfinite(p_start) & (p_start > 0), p_start, np.nan)
+    code = lm.TORRANCE_SPARROW if model == "torrance_sparrow" else lm.BLINN_PHONG
+    limits = np.array([r_lo, r_hi, np.log(p_lo), np.log(p_hi), p_lo, p_hi], np.float64)
+    rho, q, done, its, all_sums, _, e = lm.solve_runs(
+        code,
+        np.ascontiguousarray(y, np.float32),
+        np.ascontiguousarray(s1, np.float32),
+        np.ascontiguousarray(a, np.float32),
+        _segments(n_use).astype(np.int64),
+        n_use,
+        solve,
+        p0,
+        limits,
+        int(max_iter),
+        float(tol),
+    )
+    return rho, q, done, int(its.max(initial=0)), all_sums, np.where(solve, e, 0.0)
+
+
+def _result(model, n_use, few, rho, q, done, iterations, all_sums, e, max_relative_error, q_lo, q_hi, dt):
+    """The :class:`SpecularFit` of a solve: standard errors, flags, NaN where too few samples."""
+    good = ~few
+    err, r_std, p_std, ill = _uncertainty(model, n_use, good, rho, q, all_sums, e, max_relative_error)
     p = np.exp(q)
     at_bound = good & ((q <= q_lo + 1e-6) | (q >= q_hi - 1e-6))
     bit = FLAG_BITS
     flags = (
         (few * bit["few_samples"])
-        | (not_conv * bit["not_converged"])
+        | ((good & ~done) * bit["not_converged"])
         | (ill * bit["ill_conditioned"])
         | (at_bound * bit["at_bound"])
     )
-    rho = np.where(few, np.nan, rho)
-    p = np.where(few, np.nan, p)
     return SpecularFit(
         model=model,
-        rho_s=rho.astype(dt),
-        lobe=p.astype(dt),
+        rho_s=np.where(few, np.nan, rho).astype(dt),
+        lobe=np.where(few, np.nan, p).astype(dt),
         error=err.astype(dt),
         flags=flags.astype(np.uint8),
         n_samples=n_use,

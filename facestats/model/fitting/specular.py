@@ -30,6 +30,7 @@ from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, as_float, check_choice, check_shape
 from facestats.errors import ValidationError
 from facestats.model.brdf import torrance_sparrow_cosines
+from facestats.model.fitting.engine import resolve_engine
 from facestats.model.fitting.samples import Samples, segment_sum
 from facestats.model.fitting.solver import DEFAULT_BOUNDS, SpecularFit, solve_specular
 from facestats.model.fresnel import check_eta
@@ -118,6 +119,7 @@ def fit_specular_samples(
     max_relative_error=0.25,
     start=None,
     cos=None,
+    engine=None,
 ) -> SpecularFit:
     """Fit ``model`` to grey specular samples on flat :class:`Samples` (the pipeline's form of :func:`fit_specular`).
 
@@ -137,6 +139,8 @@ def fit_specular_samples(
         the log-linear start.
     cos : tuple of ndarray, optional
         (N·ωi, N·ωo) per sample, when already known.
+    engine : {"numba", "numpy"}, optional
+        Implementation of the solve (:mod:`facestats.model.fitting.engine`; default: the configured one).
 
     Returns
     -------
@@ -157,6 +161,7 @@ def fit_specular_samples(
         max_relative_error=max_relative_error,
         start=start,
         cos=cos,
+        engine=engine,
     )[model]
 
 
@@ -175,6 +180,7 @@ def fit_specular_models(
     max_relative_error=0.25,
     start=None,
     cos=None,
+    engine=None,
 ) -> dict:
     """Fit several models to the same grey specular samples; later models start from the first.
 
@@ -186,7 +192,7 @@ def fit_specular_models(
 
     Parameters
     ----------
-    samples, normal, f_s, use, eta, min_samples, max_iter, tol, max_relative_error, start, cos
+    samples, normal, f_s, use, eta, min_samples, max_iter, tol, max_relative_error, start, cos, engine
         As :func:`fit_specular_samples`.
     models : sequence of {"torrance_sparrow", "blinn_phong"}
     bounds : dict, optional
@@ -203,22 +209,14 @@ def fit_specular_models(
     for m in models:
         check_choice(m, "models", DEFAULT_BOUNDS)
     check_eta(eta)
+    engine = resolve_engine(samples.engine if engine is None else engine)
     _check_specular_inputs(samples, normal, f_s, use, start)
     bounds = bounds or {}
     ci, co = samples.cos(normal) if cos is None else cos
-    with np.errstate(invalid="ignore"):
-        ok = np.asarray(use, bool) & np.isfinite(f_s) & (ci > 0) & (co > 0)
-    kept = np.flatnonzero(ok)  # one index, several gathers (faster than one compress per array)
-    ci_u, co_u, io_u, y = (np.asarray(x).take(kept) for x in (ci, co, samples.cos_io(), f_s))
-    factors = {m: _factors(m, ci_u, co_u, io_u, eta) for m in models}
-    keep = np.logical_and.reduce([a > 0 for _, a in factors.values()])  # A underflows only in extreme geometry
-    counts = samples.count(ok)
-    if not keep.all():
-        counts = segment_sum(keep, np.cumsum(counts) - counts, counts)
-        kept = np.flatnonzero(keep)
-        ci_u, y = ci_u.take(kept), y.take(kept)
-        factors = {m: (s1.take(kept), a.take(kept)) for m, (s1, a) in factors.items()}
-    y = (y * ci_u).astype(np.float32, copy=False)
+    if engine == "numba":
+        y, factors, counts = _kept_factors_compiled(samples, ci, co, f_s, use, models, eta)
+    else:
+        y, factors, counts = _kept_factors(samples, ci, co, f_s, use, models, eta)
     fits = {}
     for m in models:
         s1, a = factors[m]
@@ -236,8 +234,50 @@ def fit_specular_models(
             tol=tol,
             max_relative_error=max_relative_error,
             start=st,
+            engine=engine,
         )
     return fits
+
+
+def _kept_factors(samples, ci, co, f_s, use, models, eta):
+    """y = f_s cos θi, the factors (s1, A) per model and the kept count per texel, of the samples of eq. 14.
+
+    Kept: ``use``, finite ``f_s``, ωi and ωo above the horizon and A > 0 for every model
+    (compacted once for all models, one contiguous run per texel).
+    """
+    with np.errstate(invalid="ignore"):
+        ok = np.asarray(use, bool) & np.isfinite(f_s) & (ci > 0) & (co > 0)
+    kept = np.flatnonzero(ok)  # one index, several gathers (faster than one compress per array)
+    ci_u, co_u, io_u, y = (np.asarray(x).take(kept) for x in (ci, co, samples.cos_io(), f_s))
+    factors = {m: _factors(m, ci_u, co_u, io_u, eta) for m in models}
+    keep = np.logical_and.reduce([a > 0 for _, a in factors.values()])  # A underflows only in extreme geometry
+    counts = samples.count(ok)
+    if not keep.all():
+        counts = segment_sum(keep, np.cumsum(counts) - counts, counts)
+        kept = np.flatnonzero(keep)
+        ci_u, y = ci_u.take(kept), y.take(kept)
+        factors = {m: (s1.take(kept), a.take(kept)) for m, (s1, a) in factors.items()}
+    return (y * ci_u).astype(np.float32, copy=False), factors, counts
+
+
+def _kept_factors_compiled(samples, ci, co, f_s, use, models, eta):
+    """:func:`_kept_factors` in one compiled pass (:func:`facestats.model.fitting.kernels.factors.specular_inputs`)."""
+    from facestats.model.fitting.kernels.factors import specular_inputs
+
+    counts, y, ts_z, ts_a, bp_z, bp_a = specular_inputs(
+        np.ascontiguousarray(ci, np.float32),
+        np.ascontiguousarray(co, np.float32),
+        np.ascontiguousarray(samples.cos_io(), np.float32),
+        np.ascontiguousarray(f_s, np.float32),
+        np.ascontiguousarray(use, bool),
+        samples.starts,
+        samples.counts,
+        np.float32(eta),
+        "torrance_sparrow" in models,
+        "blinn_phong" in models,
+    )
+    all_factors = {"torrance_sparrow": (ts_z, ts_a), "blinn_phong": (bp_z, bp_a)}
+    return y, {m: all_factors[m] for m in models}, counts
 
 
 def _check_specular_inputs(samples, normal, f_s, use, start):
@@ -263,6 +303,7 @@ def fit_specular(
     max_iter=40,
     tol=1e-6,
     max_relative_error=0.25,
+    engine=None,
 ):
     """Fit Torrance-Sparrow or Blinn-Phong to specular samples of every texel at once (eq. 14).
 
@@ -290,6 +331,8 @@ def fit_specular(
         Iteration cap and relative convergence tolerance on E(p)².
     max_relative_error : float
         Relative standard error above which a texel is flagged ``ill_conditioned``.
+    engine : {"numba", "numpy"}, optional
+        Implementation (:mod:`facestats.model.fitting.engine`; default: the configured one).
 
     Returns
     -------
@@ -329,4 +372,5 @@ def fit_specular(
         max_iter=max_iter,
         tol=tol,
         max_relative_error=max_relative_error,
+        engine=engine,
     )

@@ -246,7 +246,7 @@ class Samples:
         return out, (~valid).reshape(n, -1).sum(1)
 
     @classmethod
-    def from_arrays(cls, wi, wo, valid, radiance=None, irradiance=None):
+    def from_arrays(cls, wi, wo, valid, radiance=None, irradiance=None, engine=None):
         """From per-texel sample arrays ``wi``, ``wo`` (T, S, 3) and ``valid`` (T, S)."""
         v = np.asarray(valid, bool)
         t, s = np.nonzero(v)
@@ -264,6 +264,7 @@ class Samples:
             radiance=np.ascontiguousarray(rad),
             irradiance=np.ascontiguousarray(irr),
             paired=True,
+            engine=engine,
         )
 
     # -- runs and indices ---------------------------------------------------------------

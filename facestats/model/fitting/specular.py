@@ -214,9 +214,18 @@ def fit_specular_models(
     bounds = bounds or {}
     ci, co = samples.cos(normal) if cos is None else cos
     if engine == "numba":
-        y, factors, counts = _kept_factors_compiled(samples, ci, co, f_s, use, models, eta)
+        y, factors, counts = _kept_factors_compiled(
+            samples.starts, samples.counts, ci, co, samples.cos_io(), f_s, use, models, eta
+        )
     else:
         y, factors, counts = _kept_factors(samples, ci, co, f_s, use, models, eta)
+    return _solve_models(
+        models, y, factors, counts, bounds, min_samples, max_iter, tol, max_relative_error, start, engine
+    )
+
+
+def _solve_models(models, y, factors, counts, bounds, min_samples, max_iter, tol, max_relative_error, start, engine):
+    """Solve eq. 14 for each model on the kept samples; later models start from the first's fit."""
     fits = {}
     for m in models:
         s1, a = factors[m]
@@ -260,24 +269,24 @@ def _kept_factors(samples, ci, co, f_s, use, models, eta):
     return (y * ci_u).astype(np.float32, copy=False), factors, counts
 
 
-def _kept_factors_compiled(samples, ci, co, f_s, use, models, eta):
+def _kept_factors_compiled(starts, counts, ci, co, io, f_s, use, models, eta):
     """:func:`_kept_factors` in one compiled pass (:func:`facestats.model.fitting.kernels.factors.specular_inputs`)."""
     from facestats.model.fitting.kernels.factors import specular_inputs
 
-    counts, y, ts_z, ts_a, bp_z, bp_a = specular_inputs(
+    kept, y, ts_z, ts_a, bp_z, bp_a = specular_inputs(
         np.ascontiguousarray(ci, np.float32),
         np.ascontiguousarray(co, np.float32),
-        np.ascontiguousarray(samples.cos_io(), np.float32),
+        np.ascontiguousarray(io, np.float32),
         np.ascontiguousarray(f_s, np.float32),
         np.ascontiguousarray(use, bool),
-        samples.starts,
-        samples.counts,
+        starts,
+        counts,
         np.float32(eta),
         "torrance_sparrow" in models,
         "blinn_phong" in models,
     )
     all_factors = {"torrance_sparrow": (ts_z, ts_a), "blinn_phong": (bp_z, bp_a)}
-    return y, {m: all_factors[m] for m in models}, counts
+    return y, {m: all_factors[m] for m in models}, kept
 
 
 def _check_specular_inputs(samples, normal, f_s, use, start):
@@ -352,25 +361,30 @@ def fit_specular(
     check_shape(wo, "wo", (n_tex, n_smp, 3))
     valid = check_shape(np.asarray(valid, bool), "valid", (n_tex, n_smp))
     lim = np.cos(max_angle)
+    kwargs = dict(min_samples=min_samples, max_iter=max_iter, tol=tol, max_relative_error=max_relative_error)
+    if resolve_engine(engine) == "numba":
+        return _fit_dense_compiled(wi, wo, normal, f_s, valid, model, lim, eta, bounds, kwargs)
     valid = (
         valid
         & np.isfinite(f_s)
         & (np.einsum("tk,tsk->ts", normal, wi) > lim)
         & (np.einsum("tk,tsk->ts", normal, wo) > lim)
     )
-    samples = Samples.from_arrays(wi, wo, valid)
+    samples = Samples.from_arrays(wi, wo, valid, engine="numpy")
     fs = f_s[valid].astype(np.float32)
     return fit_specular_samples(
-        samples,
-        normal,
-        fs,
-        np.ones(samples.n, bool),
-        model,
-        eta=eta,
-        bounds=bounds,
-        min_samples=min_samples,
-        max_iter=max_iter,
-        tol=tol,
-        max_relative_error=max_relative_error,
-        engine=engine,
+        samples, normal, fs, np.ones(samples.n, bool), model, eta=eta, bounds=bounds, engine="numpy", **kwargs
     )
+
+
+def _fit_dense_compiled(wi, wo, normal, f_s, valid, model, lim, eta, bounds, kwargs):
+    """:func:`fit_specular` with the numba engine: the dense arrays are read once by a kernel, never copied."""
+    from facestats.model.fitting.kernels.samples import dense_samples
+
+    counts, ci, co, io, fs = dense_samples(
+        np.ascontiguousarray(wi), np.ascontiguousarray(wo), np.ascontiguousarray(normal), f_s, valid, float(lim)
+    )
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    y, factors, kept = _kept_factors_compiled(starts, counts, ci, co, io, fs, np.ones(fs.size, bool), (model,), eta)
+    fits = _solve_models((model,), y, factors, kept, {model: bounds}, start=None, engine="numba", **kwargs)
+    return fits[model]

@@ -22,8 +22,8 @@ The Blinn-Phong abscissa z = ln cos δ needs a logarithm of every sample;
 :func:`fill_log` writes x = m 2^e with m in [√½, √2) from the bits of x and
 evaluates ln m by the degree-9 polynomial of the Cephes ``logf`` (Moshier 1992;
 peak relative error 7.6e-8 over its range), plus e ln 2 with ln 2 split as
-above.  For x in (0, 1]; measured against float64 ``numpy.log`` the absolute
-error is below 2e-7 on [1e-6, 1] (the same test).
+above.  For x in (0, 1]; measured against float64 ``numpy.log`` on [1e-6, 1] the
+error is below 1.5e-7 + 6e-8 |ln x|, about one float32 ulp of the result (the same test).
 """
 
 from __future__ import annotations

@@ -8,7 +8,10 @@
 * :func:`sample_cosines` — N·ωi, N·ωo and ωi·ωo per sample straight from the
   direction grids (three products and two sums each, in float32 and in the
   order of :func:`facestats.model.fitting.samples._dot3`, so the bits equal
-  numpy's), without the (lumitexel, camera, light) grid numpy goes through.
+  numpy's), without the (lumitexel, camera, light) grid numpy goes through;
+* :func:`dense_samples` — the usable samples of dense per-texel arrays (the
+  public :func:`facestats.model.fitting.fit_specular`), compacted into runs
+  with their cosines, without copying the arrays.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["flatten_grid", "sample_cosines"]
+__all__ = ["flatten_grid", "sample_cosines", "dense_samples"]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -138,3 +141,43 @@ def sample_cosines(texel, light_index, camera_index, wi_flat, wo_flat, normal, w
             ci[s] = ix * nx + iy * ny + iz * nz
             co[s] = ox * nx + oy * ny + oz * nz
     return ci, co, io
+
+
+@numba.njit(cache=True, nogil=True)
+def dense_samples(wi, wo, normal, f_s, valid, cos_limit):
+    """Usable samples of dense arrays: ``valid``, finite f_s, θi and θo within the angle limit.
+
+    ``wi``, ``wo`` (T, S, 3) and ``normal`` (T, 3) of any float dtype, ``f_s`` (T, S),
+    ``valid`` (T, S) bool; the limit is tested in float64 (N·ω > ``cos_limit``), as the
+    numpy path does.
+
+    Returns
+    -------
+    counts : int64 (T,)
+    ci, co, io, fs : float32 (S',)
+        N·ωi, N·ωo, ωi·ωo and f_s of the kept samples, in per-texel runs.
+    """
+    n_t, n_s = f_s.shape[0], f_s.shape[1]
+    size = n_t * n_s
+    ci = np.empty(size, np.float32)
+    co = np.empty(size, np.float32)
+    io = np.empty(size, np.float32)
+    fs = np.empty(size, np.float32)
+    counts = np.zeros(n_t, np.int64)
+    m = 0
+    for t in range(n_t):
+        nx, ny, nz = np.float64(normal[t, 0]), np.float64(normal[t, 1]), np.float64(normal[t, 2])
+        m0 = m
+        for s in range(n_s):
+            ix, iy, iz = np.float64(wi[t, s, 0]), np.float64(wi[t, s, 1]), np.float64(wi[t, s, 2])
+            ox, oy, oz = np.float64(wo[t, s, 0]), np.float64(wo[t, s, 1]), np.float64(wo[t, s, 2])
+            c_i = nx * ix + ny * iy + nz * iz
+            c_o = nx * ox + ny * oy + nz * oz
+            f = f_s[t, s]
+            ci[m] = c_i
+            co[m] = c_o
+            io[m] = ix * ox + iy * oy + iz * oz
+            fs[m] = f
+            m += valid[t, s] & np.isfinite(f) & (c_i > cos_limit) & (c_o > cos_limit)
+        counts[t] = m - m0
+    return counts, ci[:m], co[:m], io[:m], fs[:m]

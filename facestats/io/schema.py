@@ -29,6 +29,7 @@ __all__ = [
     "SCHEMA_VERSION",
     "VARIABLES",
     "MAP_REQUIRED",
+    "STANDARD_ERRORS",
     "SAMPLE_REQUIRED",
     "FLAG_BITS",
     "subject_kind",
@@ -54,10 +55,14 @@ VARIABLES = {
     "ts_m": (("v", "u"), "1", "Torrance-Sparrow Beckmann roughness m (Weyrich eq. 13)"),
     "ts_error": (("v", "u"), "sr-1", "Torrance-Sparrow fit error E(p) (Weyrich eq. 14)"),
     "ts_flag": (("v", "u"), "1", "Torrance-Sparrow fit flags (bits: facestats.io.schema.FLAG_BITS)"),
+    "ts_rho_s_std": (("v", "u"), "1", "standard error of ts_rho_s, sigma^2 (J^T J)^-1 of the eq. 14 fit (NaN: filled)"),
+    "ts_m_std": (("v", "u"), "1", "standard error of ts_m, sigma^2 (J^T J)^-1 of the eq. 14 fit (NaN: filled)"),
     "bp_rho_s": (("v", "u"), "1", "Blinn-Phong specular scale rho_s (Weyrich eq. 11)"),
     "bp_exponent": (("v", "u"), "1", "Blinn-Phong exponent n (Weyrich eq. 11)"),
     "bp_error": (("v", "u"), "sr-1", "Blinn-Phong fit error E(p) (Weyrich eq. 14)"),
     "bp_flag": (("v", "u"), "1", "Blinn-Phong fit flags (bits: facestats.io.schema.FLAG_BITS)"),
+    "bp_rho_s_std": (("v", "u"), "1", "standard error of bp_rho_s, sigma^2 (J^T J)^-1 of the eq. 14 fit (NaN: filled)"),
+    "bp_exponent_std": (("v", "u"), "1", "standard error of bp_exponent, sigma^2 (J^T J)^-1 of eq. 14 (NaN: filled)"),
     "sensor_profile": (("site", "fiber", "channel"), "mm-2", "contact-sensor profile R(r) (HDR merged)"),
     "sensor_profile_std": (("site", "fiber", "channel"), "mm-2", "standard deviation of sensor_profile (noise model)"),
     "site_sigma_s_prime": (("site", "channel"), "mm-1", "reduced scattering coefficient fitted to the profile"),
@@ -76,6 +81,15 @@ VARIABLES = {
     "ts_sample_region": (("sample",), "1", "region of the sampled vertex"),
     "albedo_sample": (("albedo_sample", "channel"), "1", "albedo of one sampled vertex"),
     "albedo_sample_region": (("albedo_sample",), "1", "region of the albedo sample"),
+}
+
+#: Standard-error map of each BRDF parameter map (optional: stores written before they existed,
+#: and edited subjects, whose edited parameters are no measurements, have none).
+STANDARD_ERRORS = {
+    "ts_rho_s": "ts_rho_s_std",
+    "ts_m": "ts_m_std",
+    "bp_rho_s": "bp_rho_s_std",
+    "bp_exponent": "bp_exponent_std",
 }
 
 #: Variables a map subject must have.

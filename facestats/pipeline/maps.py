@@ -4,6 +4,12 @@ Every per-lumitexel output is averaged into the texels its lumitexels fall in;
 texels of the face that no lumitexel reached (maps finer than the mesh) and
 texels whose fit is flagged are filled from their neighbours by push-pull, and
 the flag maps record it.
+
+The standard errors of the BRDF parameters are the standard errors of those
+averages: a texel holding the mean of k lumitexel fits with standard errors
+σ_i has σ = sqrt(Σ σ_i²)/k (independent fits).  They are not filled: a filled
+texel is not a measurement, so its standard error is NaN (0 off the face, like
+every map).
 """
 
 from __future__ import annotations
@@ -14,7 +20,7 @@ import numpy as np
 
 from facestats.io.schema import FLAG_BITS
 from facestats.model import fitting
-from facestats.pipeline.settings import MAP_VARS
+from facestats.pipeline.settings import MAP_VARS, STD_VARS
 
 __all__ = ["subject_maps"]
 
@@ -42,7 +48,8 @@ def subject_maps(res, texel, face, workers=1):
     -------
     maps : dict of ndarray
         ``albedo``, ``normal``, ``n_samples`` and, per fitted model, its three maps
-        and ``<prefix>_flag``; filled over the face, 0 off it.
+        and ``<prefix>_flag``, filled over the face, 0 off it; and its two
+        standard-error maps (module docstring), NaN where filled.
     micro : ndarray or None
         Per-camera micro-normal maps (camera, v, u, 3), if they were fitted.
     """
@@ -66,6 +73,11 @@ def subject_maps(res, texel, face, workers=1):
                 maps.update(zip(MAP_VARS[key], filled))
             else:
                 maps[key] = job.result()
+    for key, names in STD_VARS.items():
+        if f"{key}_flag" in maps:
+            measured = face & ((maps[f"{key}_flag"] & FLAG_BITS["filled"]) == 0)
+            for name in names:
+                maps[name] = np.where(measured, np.sqrt(maps[name]), np.where(face, np.nan, 0)).astype(np.float32)
     return maps, micro
 
 
@@ -75,15 +87,20 @@ def _averaged_maps(res, texel, size):
     One grouping of the lumitexels by texel for all of them (:func:`facestats.model.fitting.scatter_to_map`);
     NaN where no lumitexel landed.
     """
+    stds = [name for key in ("ts", "bp") for name in STD_VARS[key] if name in res]
     names = [name for name in ("albedo", "normal", *MAP_VARS["ts"], *MAP_VARS["bp"], "n_samples") if name in res]
     n = len(texel)
     columns = [np.asarray(res[name], np.float32).reshape(n, -1) for name in names]
+    columns += [np.square(np.asarray(res[name], np.float32)).reshape(n, -1) for name in stds]  # σ², averaged
     stacked, count = fitting.scatter_to_map(np.concatenate(columns, axis=1), texel, size)
     maps, col = {}, 0
-    for name, c in zip(names, columns):
+    for name, c in zip(names + stds, columns):
         maps[name] = stacked[..., col : col + c.shape[1]]
         maps[name] = maps[name] if c.shape[1] > 1 and name in ("albedo", "normal") else maps[name][..., 0]
         col += c.shape[1]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for name in stds:  # mean σ² / k = Σσ²/k² (module docstring); the square root is taken by subject_maps
+            maps[name] = maps[name] / count
     return maps, count > 0
 
 

@@ -13,7 +13,7 @@ from facestats.model import fitting
 from facestats.model.dipole import check_dipole_eta
 from facestats.model.fitting.engine import default_engine, resolve_engine
 
-__all__ = ["FitSettings", "LUMITEXEL_OUTPUTS", "MODEL_PREFIX", "MAP_VARS"]
+__all__ = ["FitSettings", "LUMITEXEL_OUTPUTS", "MODEL_PREFIX", "MAP_VARS", "STD_VARS"]
 
 
 @dataclass
@@ -103,12 +103,18 @@ LUMITEXEL_OUTPUTS = (
     "ts_m",
     "ts_error",
     "ts_flag",
+    "ts_rho_s_std",
+    "ts_m_std",
     "bp_rho_s",
     "bp_exponent",
     "bp_error",
     "bp_flag",
+    "bp_rho_s_std",
+    "bp_exponent_std",
 )
 
 #: Prefix of each specular model's outputs, and the (ρs, lobe, error) maps of each prefix.
 MODEL_PREFIX = {"torrance_sparrow": "ts", "blinn_phong": "bp"}
 MAP_VARS = {"ts": ("ts_rho_s", "ts_m", "ts_error"), "bp": ("bp_rho_s", "bp_exponent", "bp_error")}
+#: The standard-error maps (ρs, lobe) of each prefix: σ² (JᵀJ)⁻¹ of the eq. 14 fit.
+STD_VARS = {"ts": ("ts_rho_s_std", "ts_m_std"), "bp": ("bp_rho_s_std", "bp_exponent_std")}

@@ -257,7 +257,8 @@ def test_query_with_no_match_gives_an_empty_valid_document(built):
     doc = json.loads(res.to_json())
     assert doc["format"] == "facestats.query/1" and doc["count"] == 0 and doc["subject_ids"] == []
     assert doc["filters"] == {"skin_type": [6], "gender": "M", "age": None, "condition": None, "region": None}
-    assert all(r["ts_m"] == {"mean": None, "std": None, "n": 0, "within_std": None} for r in doc["regions"])
+    empty = {"mean": None, "std": None, "n": 0, "within_std": None, "mean_se": None, "texel_se": None}
+    assert all(r["ts_m"] == empty for r in doc["regions"])
     assert doc["albedo_histogram"]["R"] is None
     assert "no subject matches" in res.to_table()
 

@@ -196,7 +196,7 @@ def specular_residual(samples, brdf, albedo, ft2):
     return ((total - grey_albedo * (ft2 / np.float32(np.pi))) / np.float32(3)).astype(np.float32)
 
 
-def refine_albedo(samples, brdf, ft2, cos_half, use, *, min_half_angle=np.radians(50.0)):
+def refine_albedo(samples, brdf, ft2, cos_half, use, *, min_half_angle=np.radians(50.0), with_std=False):
     """Unbiased albedo from the specular-free samples (module docstring).
 
     α = mean of π f_r/(F_t F_t) over the usable samples whose half vector makes an
@@ -215,19 +215,25 @@ def refine_albedo(samples, brdf, ft2, cos_half, use, *, min_half_angle=np.radian
     min_half_angle : float
         Angle (rad, in [0, π/2]) between normal and half vector beyond which a
         sample counts as specular-free (default 50°).
+    with_std : bool
+        Also return the standard error of the grey albedo α_R + α_G + α_B (the
+        spread of the samples' v_R + v_G + v_B over sqrt(n), n − 1 in the variance),
+        which :mod:`facestats.model.fitting.uncertainty` propagates into the BRDF's.
 
     Returns
     -------
     albedo : ndarray of float32, shape (n, 3)
         NaN where no sample qualifies.
     n_used : ndarray of int, shape (n,)
+    grey_std : ndarray of float64, shape (n,)
+        Only with ``with_std``; NaN for fewer than two samples.
     """
     _check_per_sample(samples, brdf, ft2=ft2, cos_half=cos_half, use=use)
     _check_angle(min_half_angle, "min_half_angle")
     if samples.resolved_engine == "numba":
         from facestats.model.fitting.kernels.runs import refine_sums
 
-        return refine_sums(
+        alb, cnt, grey_std = refine_sums(
             samples.starts,
             samples.counts,
             np.ascontiguousarray(brdf, np.float32),
@@ -236,10 +242,18 @@ def refine_albedo(samples, brdf, ft2, cos_half, use, *, min_half_angle=np.radian
             np.ascontiguousarray(use, bool),
             float(np.cos(min_half_angle)),
         )
+        return (alb, cnt, grey_std) if with_std else (alb, cnt)
     with np.errstate(invalid="ignore", divide="ignore"):
         v = np.float32(np.pi) * brdf / ft2
     sel = use & (cos_half < np.cos(min_half_angle)) & np.isfinite(v[0] + v[1] + v[2])
     cnt = samples.count(sel)
     with np.errstate(invalid="ignore", divide="ignore"):
         alb = samples.sum(v, sel).T / cnt[:, None]
-    return np.where(cnt[:, None] > 0, alb, np.nan).astype(np.float32), cnt
+    alb = np.where(cnt[:, None] > 0, alb, np.nan).astype(np.float32)
+    if not with_std:
+        return alb, cnt
+    grey = v[0].astype(np.float64) + v[1] + v[2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean, mean_sq = samples.sum(grey, sel) / cnt, samples.sum(grey * grey, sel) / cnt
+        grey_std = np.sqrt(np.maximum(mean_sq - mean * mean, 0) / (cnt - 1))
+    return alb, cnt, np.where(cnt > 1, grey_std, np.nan)

@@ -19,9 +19,9 @@ samples of eq. 14 (w = 1), for the lobes of :mod:`facestats.model.fitting.lobes`
   ``tol``/10 the parameters stay within 2·10⁻³ relative of a fit run to
   tol = 10⁻¹³, as close as the E²-change test alone gets.)
 * When fewer than 70 % of the texels are still moving the converged ones leave
-  the working set, their sums kept for the final E(p) and standard errors.  E²
-  is Σy² − 2ρs Σyg + ρs² Σg² from those sums, except where that difference is
-  below 1 % of Σy² (it would cancel): there the residuals are formed explicitly.
+  the working set, their sums kept for the standard errors.  E² and the sums of
+  the standard errors come from explicit residuals at the solution
+  (:mod:`facestats.model.fitting.uncertainty`).
 
 Flags (:data:`facestats.core.conventions.FLAG_BITS`): ``few_samples`` when fewer than
 ``min_samples`` samples remain, ``not_converged`` when ``max_iter`` is reached,
@@ -41,7 +41,8 @@ from facestats.core.conventions import FLAG_BITS
 from facestats.core.validate import as_finite, check_integer
 from facestats.errors import ValidationError
 from facestats.model.fitting.engine import resolve_engine
-from facestats.model.fitting.lobes import lobe_base, lobe_moments, lobe_scale, lobe_sums
+from facestats.model.fitting.lobes import lobe_moments, lobe_sums
+from facestats.model.fitting.uncertainty import residual_sums, standard_errors
 
 __all__ = ["SpecularFit", "DEFAULT_BOUNDS", "solve_specular"]
 
@@ -77,7 +78,8 @@ class SpecularFit:
     iterations : int
         Levenberg-Marquardt iterations run.
     rho_s_std, lobe_std : ndarray
-        Standard errors from σ² (JᵀJ)⁻¹.
+        Standard errors: the robust (sandwich) covariance plus the albedo's
+        uncertainty (:mod:`facestats.model.fitting.uncertainty`).
     """
 
     model: str
@@ -262,57 +264,6 @@ def _lm_iterations(model, ws, state, sums, swyy, r_bounds, q_bounds, max_iter, t
     return all_sums, iterations
 
 
-def _squared_error(model, y, s1, a, n_use, good, rho, q, swyy, syg, sgg, dt):
-    """E² per texel from the lobe sums; where they would cancel (E² < 1 % of Σy²), from explicit residuals.
-
-    E² = Σy² − 2ρs Σyg + ρs² Σg².  Near a perfect fit that difference cancels
-    (float32 sums carry ~1e-7 Σy²), so there E² is recomputed as Σ (y − ρs g)².
-    """
-    e = np.zeros(n_use.size)
-    e[good] = np.maximum(swyy[good] - 2 * rho[good] * syg + rho[good] ** 2 * sgg, 0)
-    exact = good & (e < 1e-2 * swyy)
-    if exact.any():
-        cnt_x = n_use[exact]
-        sel = np.repeat(exact, n_use)
-        kept = None if exact.all() else np.flatnonzero(sel)
-        yx, sx, ax = (x if kept is None else x.take(kept) for x in (y, s1, a))
-        g = lobe_base(model, q[exact], cnt_x, sx, ax)
-        g *= np.repeat((rho[exact] * lobe_scale(model, q[exact])).astype(dt), cnt_x)  # ρs g
-        res = np.subtract(yx, g, out=g)
-        e[exact] = np.add.reduceat(np.multiply(res, res, out=res), _segments(cnt_x))  # pairwise float32
-    return e
-
-
-def _uncertainty(model, n_use, good, rho, q, all_sums, e, max_relative_error):
-    """(RMS error, std of ρs, std of the lobe, ill-conditioned) per texel from J = (g, ρs ∂g/∂ln p).
-
-    ``e`` is E² per texel.  The covariance is σ²(JᵀJ)⁻¹ with σ² = E²/(n − 2)
-    (module docstring).
-    """
-    n_tex = n_use.size
-    err, r_std, p_std = (np.full(n_tex, np.nan) for _ in range(3))
-    ill = np.zeros(n_tex, bool)
-    if not good.any():
-        return err, r_std, p_std, ill
-    _, sgg, _, sgdg, sdgdg = lobe_moments(model, q[good], all_sums[:, good])
-    h00, h01, h11 = (np.zeros(n_tex) for _ in range(3))
-    h00[good], h01[good], h11[good] = sgg, rho[good] * sgdg, rho[good] ** 2 * sdgdg
-    sw = n_use.astype(np.float64)
-    det = h00 * h11 - h01 * h01
-    with np.errstate(invalid="ignore", divide="ignore"):
-        err = np.where(good, np.sqrt(e / sw), np.nan)
-        sigma2 = e / np.maximum(sw - 2, 1)
-        var_r = sigma2 * h11 / det
-        var_q = sigma2 * h00 / det
-        r_std = np.where(good, np.sqrt(var_r), np.nan)
-        p_std = np.where(good, np.exp(q) * np.sqrt(var_q), np.nan)  # std of ln p times p
-        rel_r = np.sqrt(var_r) / rho
-        rel_q = np.sqrt(var_q)
-        singular = ~(det > 1e-12 * np.maximum(h00 * h11, 1e-300))
-        ill = good & (singular | ~(rel_r <= max_relative_error) | ~(rel_q <= max_relative_error))
-    return err, r_std, p_std, ill
-
-
 def solve_specular(
     model,
     y,
@@ -328,11 +279,15 @@ def solve_specular(
     dtype=np.float32,
     start=None,
     engine=None,
+    d=None,
+    albedo_std=None,
 ):
     """Batch bounded Levenberg-Marquardt on flat samples in per-texel runs of ``n_use`` samples (module docstring).
 
     ``engine`` (:mod:`facestats.model.fitting.engine`) picks the numpy iteration
     below or the compiled per-texel solve of :mod:`facestats.model.fitting.kernels.lm`.
+    ``d`` (per sample, ∂y/∂α of the grey albedo) and ``albedo_std`` (per texel) add the
+    albedo's uncertainty to the standard errors (:mod:`facestats.model.fitting.uncertainty`).
     """
     (r_lo, r_hi), (p_lo, p_hi) = _check_solver_args(model, bounds, min_samples, max_iter, tol, max_relative_error)
     engine = resolve_engine(engine)
@@ -342,16 +297,18 @@ def solve_specular(
     p0 = None if start is None else np.asarray(start, np.float64)
     bnd = ((r_lo, r_hi), (p_lo, p_hi))
     if engine == "numba":
-        rho, q, done, iterations, all_sums, e = _solve_compiled(model, y, s1, a, n_use, ~few, p0, bnd, max_iter, tol)
+        rho, q, done, iterations, all_sums, sums = _solve_compiled(
+            model, y, s1, a, d, n_use, ~few, p0, bnd, max_iter, tol
+        )
     else:
-        rho, q, done, iterations, all_sums, e = _solve_numpy(model, y, s1, a, n_use, ~few, p0, bnd, max_iter, tol, dt)
-    return _result(
-        model, n_use, few, rho, q, done, iterations, all_sums, e, max_relative_error, np.log(p_lo), np.log(p_hi), dt
-    )
+        rho, q, done, iterations, all_sums = _solve_numpy(model, y, s1, a, n_use, ~few, p0, bnd, max_iter, tol, dt)
+        sums = residual_sums(model, y, s1, a, d, n_use, ~few, rho, q, all_sums)
+    fit = (rho, q, done, iterations, all_sums, sums)
+    return _result(model, n_use, few, fit, albedo_std, max_relative_error, np.log(p_lo), np.log(p_hi), dt)
 
 
 def _solve_numpy(model, y, s1, a, n_use, solve, p_start, bounds, max_iter, tol, dt):
-    """The numpy iteration: (ρs, ln p, converged, iterations, lobe sums, E²) per texel (module docstring)."""
+    """The numpy iteration: (ρs, ln p, converged, iterations, lobe sums) per texel (module docstring)."""
     (r_lo, r_hi), (p_lo, p_hi) = bounds
     q_lo, q_hi = np.log(p_lo), np.log(p_hi)
     n_tex = n_use.size
@@ -381,13 +338,11 @@ def _solve_numpy(model, y, s1, a, n_use, solve, p_start, bounds, max_iter, tol, 
         all_sums, iterations = _lm_iterations(model, ws, state, sums, swyy, (r_lo, r_hi), (q_lo, q_hi), max_iter, tol)
     rho = state["rho"].astype(np.float64)
     q = state["q"].astype(np.float64)
-    syg, sgg = lobe_moments(model, q[solve], all_sums[:, solve])[:2]
-    e = _squared_error(model, y, s1, a, n_use, solve, rho, q, swyy, syg, sgg, dt)
-    return rho, q, state["done"] & solve, iterations, all_sums, e
+    return rho, q, state["done"] & solve, iterations, all_sums
 
 
-def _solve_compiled(model, y, s1, a, n_use, solve, p_start, bounds, max_iter, tol):
-    """The compiled per-texel solve (:func:`facestats.model.fitting.kernels.lm.solve_runs`), same outputs."""
+def _solve_compiled(model, y, s1, a, d, n_use, solve, p_start, bounds, max_iter, tol):
+    """The compiled per-texel solve (:func:`facestats.model.fitting.kernels.lm.solve_runs`), and its residual sums."""
     from facestats.model.fitting.kernels import lm
 
     (r_lo, r_hi), (p_lo, p_hi) = bounds
@@ -395,11 +350,12 @@ def _solve_compiled(model, y, s1, a, n_use, solve, p_start, bounds, max_iter, to
     p0 = np.full(n_tex, np.nan) if p_start is None else np.where(np.isfinite(p_start) & (p_start > 0), p_start, np.nan)
     code = lm.TORRANCE_SPARROW if model == "torrance_sparrow" else lm.BLINN_PHONG
     limits = np.array([r_lo, r_hi, np.log(p_lo), np.log(p_hi), p_lo, p_hi], np.float64)
-    rho, q, done, its, all_sums, _, e = lm.solve_runs(
+    rho, q, done, its, all_sums, sums = lm.solve_runs(
         code,
         np.ascontiguousarray(y, np.float32),
         np.ascontiguousarray(s1, np.float32),
         np.ascontiguousarray(a, np.float32),
+        np.zeros(0, np.float32) if d is None else np.ascontiguousarray(d, np.float32),
         _segments(n_use).astype(np.int64),
         n_use,
         solve,
@@ -408,13 +364,14 @@ def _solve_compiled(model, y, s1, a, n_use, solve, p_start, bounds, max_iter, to
         int(max_iter),
         float(tol),
     )
-    return rho, q, done, int(its.max(initial=0)), all_sums, np.where(solve, e, 0.0)
+    return rho, q, done, int(its.max(initial=0)), all_sums, sums
 
 
-def _result(model, n_use, few, rho, q, done, iterations, all_sums, e, max_relative_error, q_lo, q_hi, dt):
+def _result(model, n_use, few, fit, albedo_std, max_relative_error, q_lo, q_hi, dt):
     """The :class:`SpecularFit` of a solve: standard errors, flags, NaN where too few samples."""
+    rho, q, done, iterations, all_sums, sums = fit
     good = ~few
-    err, r_std, p_std, ill = _uncertainty(model, n_use, good, rho, q, all_sums, e, max_relative_error)
+    err, r_std, p_std, ill = standard_errors(model, n_use, good, rho, q, all_sums, sums, albedo_std, max_relative_error)
     p = np.exp(q)
     at_bound = good & ((q <= q_lo + 1e-6) | (q >= q_hi - 1e-6))
     bit = FLAG_BITS

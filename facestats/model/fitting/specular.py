@@ -181,6 +181,8 @@ def fit_specular_models(
     start=None,
     cos=None,
     engine=None,
+    ft2=None,
+    albedo_std=None,
 ) -> dict:
     """Fit several models to the same grey specular samples; later models start from the first.
 
@@ -197,6 +199,11 @@ def fit_specular_models(
     models : sequence of {"torrance_sparrow", "blinn_phong"}
     bounds : dict, optional
         Bounds per model (as :func:`fit_specular`); missing models use :data:`DEFAULT_BOUNDS`.
+    ft2 : ndarray, shape (S,), optional
+        F_t(θi) F_t(θo) per sample and
+    albedo_std : ndarray, shape (n,), optional
+        the standard error of the grey albedo α_R + α_G + α_B per texel: with both, the
+        albedo's uncertainty enters the standard errors (:mod:`facestats.model.fitting.uncertainty`).
 
     Returns
     -------
@@ -214,18 +221,23 @@ def fit_specular_models(
     bounds = bounds or {}
     ci, co = samples.cos(normal) if cos is None else cos
     if engine == "numba":
-        y, factors, counts = _kept_factors_compiled(
-            samples.starts, samples.counts, ci, co, samples.cos_io(), f_s, use, models, eta
+        y, factors, counts, d = _kept_factors_compiled(
+            samples.starts, samples.counts, ci, co, samples.cos_io(), f_s, use, models, eta, ft2
         )
     else:
-        y, factors, counts = _kept_factors(samples, ci, co, f_s, use, models, eta)
-    return _solve_models(
-        models, y, factors, counts, bounds, min_samples, max_iter, tol, max_relative_error, start, engine
-    )
+        y, factors, counts, d = _kept_factors(samples, ci, co, f_s, use, models, eta, ft2)
+    albedo = None if ft2 is None or albedo_std is None else (d, albedo_std)
+    settings = dict(min_samples=min_samples, max_iter=max_iter, tol=tol, max_relative_error=max_relative_error)
+    return _solve_models(models, y, factors, counts, bounds, start, engine, albedo, settings)
 
 
-def _solve_models(models, y, factors, counts, bounds, min_samples, max_iter, tol, max_relative_error, start, engine):
-    """Solve eq. 14 for each model on the kept samples; later models start from the first's fit."""
+def _solve_models(models, y, factors, counts, bounds, start, engine, albedo, settings):
+    """Solve eq. 14 for each model on the kept samples; later models start from the first's fit.
+
+    ``albedo`` is None or (d per kept sample, the grey albedo's standard error per texel);
+    ``settings`` the solver's ``min_samples``, ``max_iter``, ``tol``, ``max_relative_error``.
+    """
+    d, albedo_std = (None, None) if albedo is None else albedo
     fits = {}
     for m in models:
         s1, a = factors[m]
@@ -238,26 +250,27 @@ def _solve_models(models, y, factors, counts, bounds, min_samples, max_iter, tol
             a,
             counts,
             bounds=bounds.get(m),
-            min_samples=min_samples,
-            max_iter=max_iter,
-            tol=tol,
-            max_relative_error=max_relative_error,
             start=st,
             engine=engine,
+            d=d,
+            albedo_std=albedo_std,
+            **settings,
         )
     return fits
 
 
-def _kept_factors(samples, ci, co, f_s, use, models, eta):
-    """y = f_s cos θi, the factors (s1, A) per model and the kept count per texel, of the samples of eq. 14.
+def _kept_factors(samples, ci, co, f_s, use, models, eta, ft2=None):
+    """y = f_s cos θi, the factors (s1, A) per model, the kept count per texel and d = ∂y/∂α of the samples of eq. 14.
 
     Kept: ``use``, finite ``f_s``, ωi and ωo above the horizon and A > 0 for every model
-    (compacted once for all models, one contiguous run per texel).
+    (compacted once for all models, one contiguous run per texel).  d = −F_t F_t cos θi/(3π)
+    (eq. 10 subtracts (α/π) F_t F_t, averaged over three channels), None without ``ft2``.
     """
     with np.errstate(invalid="ignore"):
         ok = np.asarray(use, bool) & np.isfinite(f_s) & (ci > 0) & (co > 0)
     kept = np.flatnonzero(ok)  # one index, several gathers (faster than one compress per array)
     ci_u, co_u, io_u, y = (np.asarray(x).take(kept) for x in (ci, co, samples.cos_io(), f_s))
+    ft_u = None if ft2 is None else np.asarray(ft2).take(kept)
     factors = {m: _factors(m, ci_u, co_u, io_u, eta) for m in models}
     keep = np.logical_and.reduce([a > 0 for _, a in factors.values()])  # A underflows only in extreme geometry
     counts = samples.count(ok)
@@ -265,20 +278,23 @@ def _kept_factors(samples, ci, co, f_s, use, models, eta):
         counts = segment_sum(keep, np.cumsum(counts) - counts, counts)
         kept = np.flatnonzero(keep)
         ci_u, y = ci_u.take(kept), y.take(kept)
+        ft_u = None if ft_u is None else ft_u.take(kept)
         factors = {m: (s1.take(kept), a.take(kept)) for m, (s1, a) in factors.items()}
-    return (y * ci_u).astype(np.float32, copy=False), factors, counts
+    d = None if ft_u is None else (-(ft_u * ci_u) / np.float32(3 * np.pi)).astype(np.float32)
+    return (y * ci_u).astype(np.float32, copy=False), factors, counts, d
 
 
-def _kept_factors_compiled(starts, counts, ci, co, io, f_s, use, models, eta):
+def _kept_factors_compiled(starts, counts, ci, co, io, f_s, use, models, eta, ft2=None):
     """:func:`_kept_factors` in one compiled pass (:func:`facestats.model.fitting.kernels.factors.specular_inputs`)."""
     from facestats.model.fitting.kernels.factors import specular_inputs
 
-    kept, y, ts_z, ts_a, bp_z, bp_a = specular_inputs(
+    kept, y, ts_z, ts_a, bp_z, bp_a, d = specular_inputs(
         np.ascontiguousarray(ci, np.float32),
         np.ascontiguousarray(co, np.float32),
         np.ascontiguousarray(io, np.float32),
         np.ascontiguousarray(f_s, np.float32),
         np.ascontiguousarray(use, bool),
+        np.zeros(0, np.float32) if ft2 is None else np.ascontiguousarray(ft2, np.float32),
         starts,
         counts,
         np.float32(eta),
@@ -286,7 +302,7 @@ def _kept_factors_compiled(starts, counts, ci, co, io, f_s, use, models, eta):
         "blinn_phong" in models,
     )
     all_factors = {"torrance_sparrow": (ts_z, ts_a), "blinn_phong": (bp_z, bp_a)}
-    return y, {m: all_factors[m] for m in models}, kept
+    return y, {m: all_factors[m] for m in models}, kept, (None if ft2 is None else d)
 
 
 def _check_specular_inputs(samples, normal, f_s, use, start):
@@ -385,6 +401,5 @@ def _fit_dense_compiled(wi, wo, normal, f_s, valid, model, lim, eta, bounds, kwa
         np.ascontiguousarray(wi), np.ascontiguousarray(wo), np.ascontiguousarray(normal), f_s, valid, float(lim)
     )
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    y, factors, kept = _kept_factors_compiled(starts, counts, ci, co, io, fs, np.ones(fs.size, bool), (model,), eta)
-    fits = _solve_models((model,), y, factors, kept, {model: bounds}, start=None, engine="numba", **kwargs)
-    return fits[model]
+    y, factors, kept, _ = _kept_factors_compiled(starts, counts, ci, co, io, fs, np.ones(fs.size, bool), (model,), eta)
+    return _solve_models((model,), y, factors, kept, {model: bounds}, None, "numba", None, kwargs)[model]

@@ -31,6 +31,7 @@ _TWO = np.float32(2.0)
 _HALF = np.float32(0.5)
 _PI = np.float32(np.pi)
 _TWO_PI = np.float32(2 * np.pi)
+_THREE_PI = np.float32(3 * np.pi)
 _TINY = np.float32(np.finfo(np.float32).tiny)
 
 
@@ -67,37 +68,22 @@ def _ts_factors(ci, co, io, eta):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def specular_inputs(ci, co, io, f_s, use, starts, counts, eta, want_ts, want_bp):
-    """Kept samples of eq. 14 and their factors, in per-texel runs (module docstring).
-
-    Parameters
-    ----------
-    ci, co, io, f_s : ndarray of float32, shape (S,)
-        N·ωi, N·ωo, ωi·ωo and the grey specular residual per sample.
-    use : ndarray of bool, shape (S,)
-    starts, counts : ndarray of int64
-        Every texel's run of samples.
-    eta : float32
-    want_ts, want_bp : bool
-        Models whose factors are wanted (a sample is kept only where every wanted A > 0).
-
-    Returns
-    -------
-    kept : int64 (T,)
-        Kept samples per texel.
-    y, ts_z, ts_a, bp_z, bp_a : float32 (S',)
-        Compacted; a model's factors are empty when not wanted.
-    """
+def _all_factors(ci, co, io, f_s, use, ft2, eta, want_ts, want_bp):
+    """Every sample's keep flag, y, TS (z, A), clipped cos δ (BP) and d, uncompacted (a vectorised loop)."""
     n_s = ci.shape[0]
     keep = np.empty(n_s, np.bool_)
     y = np.empty(n_s, np.float32)
     ts_z = np.empty(n_s if want_ts else 0, np.float32)
     ts_a = np.empty(n_s if want_ts else 0, np.float32)
     cos_d = np.empty(n_s if want_bp else 0, np.float32)
+    with_d = ft2.shape[0] > 0
+    d = np.empty(n_s if with_d else 0, np.float32)
     for s in range(n_s):  # every sample, no branches out of the loop: vectorised
         c_i, c_o, fs, io_s = ci[s], co[s], f_s[s], io[s]
         ok = use[s] & np.isfinite(fs) & (c_i > 0) & (c_o > 0)
         y[s] = fs * c_i
+        if with_d:
+            d[s] = -(ft2[s] * c_i) / _THREE_PI
         if want_ts:
             tz, ta = _ts_factors(c_i, c_o, io_s, eta)
             ts_z[s] = tz
@@ -108,15 +94,47 @@ def specular_inputs(ci, co, io, f_s, use, starts, counts, eta, want_ts, want_bp)
             cos_d[s] = min(max(cd, np.float32(1e-6)), _ONE)
             ok = ok & (c_i / _TWO_PI > 0)
         keep[s] = ok
+    return keep, y, ts_z, ts_a, cos_d, d
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def specular_inputs(ci, co, io, f_s, use, ft2, starts, counts, eta, want_ts, want_bp):
+    """Kept samples of eq. 14 and their factors, in per-texel runs (module docstring).
+
+    Parameters
+    ----------
+    ci, co, io, f_s : ndarray of float32, shape (S,)
+        N·ωi, N·ωo, ωi·ωo and the grey specular residual per sample.
+    use : ndarray of bool, shape (S,)
+    ft2 : ndarray of float32, shape (S,) or (0,)
+        F_t(θi) F_t(θo) per sample, for d = ∂y/∂α = −F_t F_t cos θi/(3π) (empty: no d).
+    starts, counts : ndarray of int64
+        Every texel's run of samples.
+    eta : float32
+    want_ts, want_bp : bool
+        Models whose factors are wanted (a sample is kept only where every wanted A > 0).
+
+    Returns
+    -------
+    kept : int64 (T,)
+        Kept samples per texel.
+    y, ts_z, ts_a, bp_z, bp_a, d : float32 (S',)
+        Compacted; a model's factors (or d) are empty when not wanted.
+    """
+    n_s = ci.shape[0]
+    keep, y, ts_z, ts_a, cos_d, d = _all_factors(ci, co, io, f_s, use, ft2, eta, want_ts, want_bp)
     bp_z = np.empty(n_s if want_bp else 0, np.float32)
     if want_bp:
         fill_log(cos_d, bp_z, np.empty(n_s, np.int32))
+    with_d = d.shape[0] > 0
     kept = np.zeros(starts.shape[0], np.int64)
     m = 0
     for t in range(starts.shape[0]):  # compaction into per-texel runs, in place and branch-free
         m0 = m
         for s in range(starts[t], starts[t] + counts[t]):
             y[m] = y[s]
+            if with_d:
+                d[m] = d[s]
             if want_ts:
                 ts_z[m] = ts_z[s]
                 ts_a[m] = ts_a[s]
@@ -125,4 +143,4 @@ def specular_inputs(ci, co, io, f_s, use, starts, counts, eta, want_ts, want_bp)
                 cos_d[m] = ci[s] / _TWO_PI
             m += keep[s]
         kept[t] = m - m0
-    return kept, y[:m], ts_z[:m], ts_a[:m], bp_z[:m], cos_d[:m]
+    return kept, y[:m], ts_z[:m], ts_a[:m], bp_z[:m], cos_d[:m], d[:m]

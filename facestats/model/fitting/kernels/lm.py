@@ -7,8 +7,9 @@ texels: every evaluation of a texel's lobe (:func:`_lobe_sums`) makes two
 passes over its samples while they sit in the CPU cache — the lobe values
 (vectorised, :func:`facestats.model.fitting.kernels.fastexp.fill_lobe`) and the
 five sums of :func:`facestats.model.fitting.lobes.lobe_sums` (float64, in
-sample order) — and a texel stops as soon as it converges.  At the end E² is
-formed from explicit residuals, Σ (y − ρs g)², for every texel.
+sample order) — and a texel stops as soon as it converges.  At the end one
+pass over explicit residuals r = y − ρs g forms E² and the sums of the
+standard errors (:func:`facestats.model.fitting.uncertainty.residual_sums`).
 
 Differences from the numpy solver, all below float32 resolution of the
 parameters: sums are float64 in sample order (numpy: pairwise float32), and a
@@ -24,6 +25,7 @@ import numba
 import numpy as np
 
 from facestats.model.fitting.kernels.fastexp import fill_lobe
+from facestats.model.fitting.uncertainty import LEVERAGE_CAP
 
 __all__ = ["solve_runs", "TORRANCE_SPARROW", "BLINN_PHONG"]
 
@@ -131,21 +133,49 @@ def _log_linear_start(model, y, z, a, start, n):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _squared_error(model, q, rho, y, z, a, start, n, u, bits):
-    """Σ (y − ρs g)² of one texel from explicit residuals (float64)."""
+def _residual_sums(model, q, rho, y, z, a, d, start, n, u, bits, sums, out):
+    """E², Σ r²/(1 − h)² (J00, J01, J11) and Jᵀd of one texel (float64) into ``out[0:6]``.
+
+    As :func:`facestats.model.fitting.uncertainty.residual_sums`: J = (g, ρs ∂g/∂q), leverages
+    h from JᵀJ of the lobe sums ``sums`` at the solution; ``d`` empty: Jᵀd = 0.
+    """
+    _, sgg, _, sgdg, sdgdg = _moments(model, q, sums)
+    h00, h01, h11 = sgg, rho * sgdg, rho * rho * sdgdg
+    det = h00 * h11 - h01 * h01
+    i00, i01, i11 = h11 / det, -h01 / det, h00 / det
     fill_lobe(_rate(model, q), z, a, start, n, u, bits)
     p = math.exp(q)
-    scale = np.float32(rho * (1.0 / (p * p) if model == TORRANCE_SPARROW else p + 2))
-    e = 0.0
+    w = 1.0 / (p * p)
+    scale32 = np.float32(rho * (w if model == TORRANCE_SPARROW else p + 2))
+    e = m00 = m01 = m11 = b0 = b1 = 0.0
+    with_d = d.shape[0] > 0
     for j in range(n):
-        r = np.float64(y[start + j] - scale * u[j])
-        e += r * r
-    return e
+        uj = np.float64(u[j])
+        zj = np.float64(z[start + j])
+        r = np.float64(y[start + j] - scale32 * u[j])
+        if model == TORRANCE_SPARROW:
+            g = w * uj
+            j1 = rho * 2 * w * uj * (w * zj - 1)
+        else:
+            g = (p + 2) * uj
+            j1 = rho * p * uj * (1 + (p + 2) * zj)
+        rr = r * r
+        lev = min(max(_finite(i00 * g * g + 2 * i01 * g * j1 + i11 * j1 * j1), 0.0), LEVERAGE_CAP)
+        wr = rr / ((1 - lev) * (1 - lev))
+        e += rr
+        m00 += wr * g * g
+        m01 += wr * g * j1
+        m11 += wr * j1 * j1
+        if with_d:
+            dj = np.float64(d[start + j])
+            b0 += g * dj
+            b1 += j1 * dj
+    out[0], out[1], out[2], out[3], out[4], out[5] = e, m00, m01, m11, b0, b1
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _solve_one(model, y, z, a, start, n, p0, bounds, max_iter, tol, u, bits, sums, trial, out):
-    """The whole solve of one texel; ``out`` receives (ρs, q, converged, iterations, Σy², E²)."""
+def _solve_one(model, y, z, a, d, start, n, p0, bounds, max_iter, tol, u, bits, sums, trial, out):
+    """The whole solve of one texel; ``out`` receives (ρs, q, converged, iterations, then the six residual sums)."""
     r_lo, r_hi, q_lo, q_hi, p_lo, p_hi = bounds[0], bounds[1], bounds[2], bounds[3], bounds[4], bounds[5]
     swyy = 0.0
     for j in range(n):
@@ -200,12 +230,11 @@ def _solve_one(model, y, z, a, start, n, p0, bounds, max_iter, tol, u, bits, sum
     out[1] = q
     out[2] = 1.0 if done else 0.0
     out[3] = it
-    out[4] = swyy
-    out[5] = _squared_error(model, q, rho, y, z, a, start, n, u, bits)
+    _residual_sums(model, q, rho, y, z, a, d, start, n, u, bits, sums, out[4:])
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def solve_runs(model, y, z, a, starts, counts, solve, p_start, bounds, max_iter, tol):
+def solve_runs(model, y, z, a, d, starts, counts, solve, p_start, bounds, max_iter, tol):
     """Solve eq. 14 for every texel with ``solve[t]`` (module docstring).
 
     Parameters
@@ -214,6 +243,8 @@ def solve_runs(model, y, z, a, starts, counts, solve, p_start, bounds, max_iter,
         :data:`TORRANCE_SPARROW` or :data:`BLINN_PHONG`.
     y, z, a : ndarray of float32, shape (S,)
         y = f_s cos θi, and the lobe factors (z, A) of every kept sample, in per-texel runs.
+    d : ndarray of float32, shape (S,) or (0,)
+        ∂y/∂α of the grey albedo per sample (empty: no albedo term).
     starts, counts : ndarray of int64, shape (T,)
         The runs.
     solve : ndarray of bool, shape (T,)
@@ -233,8 +264,9 @@ def solve_runs(model, y, z, a, starts, counts, solve, p_start, bounds, max_iter,
     iterations : ndarray of int32
     sums : ndarray of float64, shape (5, T)
         The lobe sums at the solution (:func:`facestats.model.fitting.lobes.lobe_sums`).
-    swyy, e2 : ndarray of float64
-        Σ y² and E² = Σ (y − ρs g)².
+    residual : ndarray of float64, shape (6, T)
+        E² = Σ (y − ρs g)², Σ r² J J (three entries) and Jᵀd
+        (:func:`facestats.model.fitting.uncertainty.residual_sums`).
     """
     n_tex = starts.shape[0]
     rho = np.full(n_tex, np.nan)
@@ -242,8 +274,7 @@ def solve_runs(model, y, z, a, starts, counts, solve, p_start, bounds, max_iter,
     converged = np.zeros(n_tex, np.bool_)
     iterations = np.zeros(n_tex, np.int32)
     all_sums = np.zeros((5, n_tex))
-    swyy = np.zeros(n_tex)
-    e2 = np.zeros(n_tex)
+    residual = np.zeros((6, n_tex))
     width = 1
     for t in range(n_tex):
         width = max(width, counts[t])
@@ -251,16 +282,17 @@ def solve_runs(model, y, z, a, starts, counts, solve, p_start, bounds, max_iter,
     bits = np.empty(width, np.int32)
     sums = np.zeros(5)
     trial = np.zeros(5)
-    out = np.zeros(6)
+    out = np.zeros(10)
     for t in range(n_tex):
         if not solve[t]:
             continue
-        _solve_one(model, y, z, a, starts[t], counts[t], p_start[t], bounds, max_iter, tol, u, bits, sums, trial, out)
+        _solve_one(
+            model, y, z, a, d, starts[t], counts[t], p_start[t], bounds, max_iter, tol, u, bits, sums, trial, out
+        )
         rho[t] = out[0]
         q[t] = out[1]
         converged[t] = out[2] > 0
         iterations[t] = np.int32(out[3])
-        swyy[t] = out[4]
-        e2[t] = out[5]
+        residual[:, t] = out[4:]
         all_sums[:, t] = sums
-    return rho, q, converged, iterations, all_sums, swyy, e2
+    return rho, q, converged, iterations, all_sums, residual

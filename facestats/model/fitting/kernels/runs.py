@@ -264,25 +264,34 @@ def refine_sums(starts, counts, brdf, ft2, cos_half, use, cos_max):
     -------
     albedo : float32 (n, 3)
     count : int64 (n,)
+    grey_std : float64 (n,)
+        Standard error of the mean of v_R + v_G + v_B (NaN for fewer than two samples).
     """
     n = starts.shape[0]
     out = np.full((n, 3), np.nan, np.float32)
     cnt = np.zeros(n, np.int64)
+    grey_std = np.full(n, np.nan)
     pi32 = np.float32(np.pi)
     for t in range(n):
         s0 = 0.0
         s1 = 0.0
         s2 = 0.0
+        sq = 0.0
         k = 0
         for s in range(starts[t], starts[t] + counts[t]):  # branch-free: selects, no jumps
             f = ft2[s]
             v0, v1, v2 = (pi32 * brdf[0, s]) / f, (pi32 * brdf[1, s]) / f, (pi32 * brdf[2, s]) / f
             ok = use[s] & (np.float64(cos_half[s]) < cos_max) & np.isfinite(v0 + v1 + v2)
+            g = np.float64(v0) + np.float64(v1) + np.float64(v2)
             s0 += v0 if ok else 0.0
             s1 += v1 if ok else 0.0
             s2 += v2 if ok else 0.0
+            sq += g * g if ok else 0.0
             k += ok
         cnt[t] = k
         if k:
             out[t, 0], out[t, 1], out[t, 2] = s0 / k, s1 / k, s2 / k
-    return out, cnt
+        if k > 1:
+            mean = (s0 + s1 + s2) / k
+            grey_std[t] = np.sqrt(max(sq / k - mean * mean, 0.0) * k / (k - 1) / k)
+    return out, cnt, grey_std

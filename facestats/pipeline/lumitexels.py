@@ -103,6 +103,7 @@ def _fit_piece(lt, st):
         engine=st.engine,
         ft2=ft2,
         albedo_std=albedo_std,
+        max_angle=_model_angles(st),
     )
     few = out["n_samples"] < st.min_samples
     out["albedo"] = np.where(few[:, None], np.nan, albedo).astype(np.float32)
@@ -113,3 +114,10 @@ def _fit_piece(lt, st):
         out[k_rho], out[k_lobe], out[k_err], out[f"{key}_flag"] = res.rho_s, res.lobe, res.error, res.flags
         out[STD_VARS[key][0]], out[STD_VARS[key][1]] = res.rho_s_std, res.lobe_std
     return out
+
+
+def _model_angles(st):
+    """Per-model angle limits (rad) stricter than ``max_angle_deg``: Blinn-Phong's ``bp_max_angle_deg``."""
+    if "blinn_phong" in st.models and st.bp_max_angle_deg < st.max_angle_deg:
+        return {"blinn_phong": np.radians(st.bp_max_angle_deg)}
+    return None

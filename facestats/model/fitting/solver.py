@@ -27,8 +27,9 @@ Flags (:data:`facestats.core.conventions.FLAG_BITS`): ``few_samples`` when fewer
 ``min_samples`` samples remain, ``not_converged`` when ``max_iter`` is reached,
 ``ill_conditioned`` when the normal matrix is singular or a parameter's relative
 standard error (from σ² (JᵀJ)⁻¹) exceeds ``max_relative_error``, ``at_bound``
-when the lobe parameter ends on a bound.  Flagged texels keep their values but
-are meant to be filled from neighbours (:func:`facestats.model.fitting.maps.fill_flagged`).
+when the lobe parameter ends on a bound, ``implausible`` when it lies outside
+:data:`PLAUSIBLE_LOBE`.  Flagged texels keep their values but are meant to be
+filled from neighbours (:func:`facestats.model.fitting.maps.fill_flagged`).
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ from facestats.model.fitting.engine import resolve_engine
 from facestats.model.fitting.lobes import lobe_moments, lobe_sums
 from facestats.model.fitting.uncertainty import residual_sums, standard_errors
 
-__all__ = ["SpecularFit", "DEFAULT_BOUNDS", "solve_specular"]
+__all__ = ["SpecularFit", "DEFAULT_BOUNDS", "PLAUSIBLE_LOBE", "solve_specular"]
 
 
 #: Default bounds (ρs, lobe parameter) per model.
@@ -52,6 +53,15 @@ DEFAULT_BOUNDS = {
     "torrance_sparrow": ((0.0, 5.0), (0.03, 1.0)),
     "blinn_phong": ((0.0, 1.0), (0.5, 5000.0)),
 }
+#: The range of the lobe parameter that skin can have; a fit outside it is flagged ``implausible``.
+#: Torrance-Sparrow m in [0.1, 1]: Weyrich et al. 2006 Fig. 15 puts the region means at m = 0.23-0.31,
+#: the widest regional spread (lips) within ±0.1, and the synthetic population spans 0.14-0.68
+#: (0.18-0.49 for 99.8 % of texels); m = 0.1 is a lobe of about 6° half-width, sharper than any region.
+#: Blinn-Phong n in [0, 198]: the same lobes by the Beckmann-Phong correspondence n = 2/m² − 2 (Walter et
+#: al. 2007 §5.2).  Wider than the fit's bounds allow would make no difference; narrower lobes are
+#: fits of a few bright samples (a Blinn-Phong lobe fitted to Torrance-Sparrow data at grazing angles,
+#: ``docs/scale.md``), not skin.
+PLAUSIBLE_LOBE = {"torrance_sparrow": (0.1, 1.0), "blinn_phong": (0.0, 198.0)}
 _LOBE_NAME = {"torrance_sparrow": "m", "blinn_phong": "exponent"}
 #: Multiples of the log-linear estimate tried as cold starts (the best one starts the iteration);
 #: one suffices on skin-like lobes (extra starts at 0.625× and 1.6× changed 0.1 % of texels).
@@ -374,12 +384,15 @@ def _result(model, n_use, few, fit, albedo_std, max_relative_error, q_lo, q_hi, 
     err, r_std, p_std, ill = standard_errors(model, n_use, good, rho, q, all_sums, sums, albedo_std, max_relative_error)
     p = np.exp(q)
     at_bound = good & ((q <= q_lo + 1e-6) | (q >= q_hi - 1e-6))
+    p_lo, p_hi = PLAUSIBLE_LOBE[model]
+    implausible = good & ((p < p_lo) | (p > p_hi))
     bit = FLAG_BITS
     flags = (
         (few * bit["few_samples"])
         | ((good & ~done) * bit["not_converged"])
         | (ill * bit["ill_conditioned"])
         | (at_bound * bit["at_bound"])
+        | (implausible * bit["implausible"])
     )
     return SpecularFit(
         model=model,

@@ -33,6 +33,7 @@ from facestats.model.brdf import torrance_sparrow_cosines
 from facestats.model.fitting.engine import resolve_engine
 from facestats.model.fitting.samples import Samples, segment_sum
 from facestats.model.fitting.solver import DEFAULT_BOUNDS, SpecularFit, solve_specular
+from facestats.model.fitting.uncertainty import rms_error
 from facestats.model.fresnel import check_eta
 
 __all__ = [
@@ -183,6 +184,7 @@ def fit_specular_models(
     engine=None,
     ft2=None,
     albedo_std=None,
+    max_angle=None,
 ) -> dict:
     """Fit several models to the same grey specular samples; later models start from the first.
 
@@ -204,6 +206,11 @@ def fit_specular_models(
     albedo_std : ndarray, shape (n,), optional
         the standard error of the grey albedo α_R + α_G + α_B per texel: with both, the
         albedo's uncertainty enters the standard errors (:mod:`facestats.model.fitting.uncertainty`).
+    max_angle : dict, optional
+        ``{model: angle}`` (rad): a model's samples are further limited to θi and θo below
+        its angle (e.g. Blinn-Phong at 70°, :class:`facestats.pipeline.FitSettings`); the
+        samples are then compacted per distinct limit.  Its E(p) (``error``) is still
+        reported over all of ``use``, the domain the other models are scored on.
 
     Returns
     -------
@@ -220,27 +227,54 @@ def fit_specular_models(
     _check_specular_inputs(samples, normal, f_s, use, start)
     bounds = bounds or {}
     ci, co = samples.cos(normal) if cos is None else cos
-    if engine == "numba":
-        y, factors, counts, d = _kept_factors_compiled(
-            samples.starts, samples.counts, ci, co, samples.cos_io(), f_s, use, models, eta, ft2
-        )
-    else:
-        y, factors, counts, d = _kept_factors(samples, ci, co, f_s, use, models, eta, ft2)
-    albedo = None if ft2 is None or albedo_std is None else (d, albedo_std)
+    groups = {}  # models by the samples they use (one compaction per distinct angle limit)
+    for m in models:
+        groups.setdefault(None if not max_angle or m not in max_angle else float(max_angle[m]), []).append(m)
+    kept = {}
+    for limit, group in groups.items():
+        use_g = use
+        if limit is not None:
+            c = np.float32(np.cos(as_finite(limit, "max_angle", 0, np.pi / 2, low_inclusive=False, unit="rad")))
+            use_g = np.asarray(use, bool) & (ci > c) & (co > c)
+        if engine == "numba":
+            args = (samples.starts, samples.counts, ci, co, samples.cos_io(), f_s, use_g, tuple(group), eta, ft2)
+            y, factors, counts, d = _kept_factors_compiled(*args)
+        else:
+            y, factors, counts, d = _kept_factors(samples, ci, co, f_s, use_g, tuple(group), eta, ft2)
+        albedo = None if ft2 is None or albedo_std is None else (d, albedo_std)
+        kept.update({m: (y, factors[m], counts, albedo) for m in group})
     settings = dict(min_samples=min_samples, max_iter=max_iter, tol=tol, max_relative_error=max_relative_error)
-    return _solve_models(models, y, factors, counts, bounds, start, engine, albedo, settings)
+    fits = _solve_models(models, kept, bounds, start, engine, settings)
+    for limit, group in groups.items():
+        if limit is not None:  # scored on the full domain of eq. 14, as the other models
+            _rescore(fits, group, samples, ci, co, f_s, use, eta, engine)
+    return fits
 
 
-def _solve_models(models, y, factors, counts, bounds, start, engine, albedo, settings):
-    """Solve eq. 14 for each model on the kept samples; later models start from the first's fit.
+def _rescore(fits, group, samples, ci, co, f_s, use, eta, engine):
+    """Replace the ``error`` of the fits of ``group`` by E(p) over the samples of ``use``."""
+    if engine == "numba":
+        args = (samples.starts, samples.counts, ci, co, samples.cos_io(), f_s, use, tuple(group), eta)
+        y, factors, counts, _ = _kept_factors_compiled(*args)
+    else:
+        y, factors, counts, _ = _kept_factors(samples, ci, co, f_s, use, tuple(group), eta)
+    for m in group:
+        fit = fits[m]
+        err = rms_error(m, y, *factors[m], counts, fit.rho_s, fit.lobe)
+        fit.error = np.where(np.isfinite(fit.error), err, np.nan).astype(fit.error.dtype)
 
-    ``albedo`` is None or (d per kept sample, the grey albedo's standard error per texel);
-    ``settings`` the solver's ``min_samples``, ``max_iter``, ``tol``, ``max_relative_error``.
+
+def _solve_models(models, kept, bounds, start, engine, settings):
+    """Solve eq. 14 for each model on its kept samples; later models start from the first's fit.
+
+    ``kept[model]`` = (y, (s1, A), counts, albedo) with ``albedo`` None or (d per kept sample,
+    the grey albedo's standard error per texel); ``settings`` the solver's ``min_samples``,
+    ``max_iter``, ``tol``, ``max_relative_error``.
     """
-    d, albedo_std = (None, None) if albedo is None else albedo
     fits = {}
     for m in models:
-        s1, a = factors[m]
+        y, (s1, a), counts, albedo = kept[m]
+        d, albedo_std = (None, None) if albedo is None else albedo
         first = fits[models[0]] if fits else None
         st = start if first is None else equivalent_lobe(first.lobe, first.model, m)
         fits[m] = solve_specular(
@@ -402,4 +436,6 @@ def _fit_dense_compiled(wi, wo, normal, f_s, valid, model, lim, eta, bounds, kwa
     )
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
     y, factors, kept, _ = _kept_factors_compiled(starts, counts, ci, co, io, fs, np.ones(fs.size, bool), (model,), eta)
-    return _solve_models((model,), y, factors, kept, {model: bounds}, None, "numba", None, kwargs)[model]
+    return _solve_models((model,), {model: (y, factors[model], kept, None)}, {model: bounds}, None, "numba", kwargs)[
+        model
+    ]

@@ -38,7 +38,7 @@ import numpy as np
 
 from facestats.model.fitting.lobes import lobe_base, lobe_moments, lobe_scale
 
-__all__ = ["residual_sums", "standard_errors", "lobe_jacobian", "LEVERAGE_CAP"]
+__all__ = ["residual_sums", "standard_errors", "lobe_jacobian", "rms_error", "LEVERAGE_CAP"]
 
 #: Largest leverage used in the HC3 weights 1/(1 − h)² (a texel of two samples has h = 1).
 LEVERAGE_CAP = 0.99
@@ -88,6 +88,28 @@ def residual_sums(model, y, s1, a, d, n_use, good, rho, q, all_sums):
         dx = np.asarray(d).take(kept).astype(np.float64)
         cols += [g * dx, j1 * dx]
     out[: len(cols), good] = np.add.reduceat(np.stack(cols), starts, axis=1)
+    return out
+
+
+def rms_error(model, y, s1, a, n_use, rho, lobe):
+    """E(p) of eq. 14 per texel for given parameters on samples in runs of ``n_use`` (NaN for texels without).
+
+    For scoring a fit on other samples than it was made on (a Blinn-Phong fit made within
+    70° scored on the 80° domain of the Torrance-Sparrow fit).
+    """
+    n_use = np.asarray(n_use, np.int64)
+    out = np.full(n_use.size, np.nan)
+    good = (n_use > 0) & np.isfinite(rho) & np.isfinite(lobe) & (lobe > 0)
+    if not good.any():
+        return out
+    q = np.log(np.where(good, lobe, 1.0).astype(np.float64))
+    cnt = n_use[good]
+    kept = np.flatnonzero(np.repeat(good, n_use))
+    s1k, ak = np.asarray(s1).take(kept), np.asarray(a).take(kept)
+    u = lobe_base(model, q[good], cnt, s1k, ak).astype(np.float64)
+    model_y = np.repeat(np.asarray(rho, np.float64)[good] * lobe_scale(model, q[good]), cnt) * u
+    r = np.asarray(y).take(kept).astype(np.float64) - model_y
+    out[good] = np.sqrt(np.add.reduceat(r * r, np.concatenate([[0], np.cumsum(cnt)[:-1]])) / cnt)
     return out
 
 

@@ -100,6 +100,9 @@ class ModelErrors:
             f"{'BP n':>8}{'n p95':>8}{'n out':>8}",
         ]
         for k, r in enumerate(self.regions):
+            if not np.isfinite(self.error_ratio[k]) and not np.isfinite(self.bp_flagged[k]):
+                lines.append(f"{r:>2} {REGIONS[r]:<13}{'-':>10}  (no texels)")
+                continue
             lo, hi = self.error_ratio_iqr[k]
             lines.append(
                 f"{r:>2} {REGIONS[r]:<13}{self.error_ratio[k]:>10.1f}{f'{lo:.1f}-{hi:.1f}':>14}"

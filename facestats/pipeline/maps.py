@@ -7,9 +7,10 @@ the flag maps record it.
 
 The standard errors of the BRDF parameters are the standard errors of those
 averages: a texel holding the mean of k lumitexel fits with standard errors
-σ_i has σ = sqrt(Σ σ_i²)/k (independent fits).  They are not filled: a filled
-texel is not a measurement, so its standard error is NaN (0 off the face, like
-every map).
+σ_i has σ = sqrt(Σ σ_i²)/k (independent fits).  Flagged and empty texels get
+them filled from their neighbours like their values (the variances are filled,
+then square-rooted); the ``filled`` bit of the flag map says which texels are
+no measurements.
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ def subject_maps(res, texel, face, workers=1):
     maps : dict of ndarray
         ``albedo``, ``normal``, ``n_samples`` and, per fitted model, its three maps
         and ``<prefix>_flag``, filled over the face, 0 off it; and its two
-        standard-error maps (module docstring), NaN where filled.
+        standard-error maps (module docstring), filled like the values.
     micro : ndarray or None
         Per-camera micro-normal maps (camera, v, u, 3), if they were fitted.
     """
@@ -61,8 +62,9 @@ def subject_maps(res, texel, face, workers=1):
         maps, has_data = pool.submit(_averaged_maps, res, texel, size).result()
         for key, map_vars in MAP_VARS.items():
             if f"{key}_flag" in res:
+                names = map_vars + tuple(v for v in STD_VARS[key] if v in maps)
                 jobs[key] = pool.submit(
-                    _model_maps, [maps[var] for var in map_vars], res[f"{key}_flag"], texel, face, has_data
+                    _model_maps, [maps[v] for v in names], res[f"{key}_flag"], texel, face, has_data
                 )
         jobs["albedo"] = pool.submit(_filled_map, maps["albedo"], face, has_data)
         jobs["normal"] = pool.submit(_filled_map, maps["normal"], face, has_data, unit=True)
@@ -70,14 +72,12 @@ def subject_maps(res, texel, face, workers=1):
         for key, job in jobs.items():
             if key in MAP_VARS:
                 filled, maps[f"{key}_flag"] = job.result()
-                maps.update(zip(MAP_VARS[key], filled))
+                names = MAP_VARS[key] + tuple(v for v in STD_VARS[key] if v in maps)
+                maps.update(zip(names, filled))
             else:
                 maps[key] = job.result()
-    for key, names in STD_VARS.items():
-        if f"{key}_flag" in maps:
-            measured = face & ((maps[f"{key}_flag"] & FLAG_BITS["filled"]) == 0)
-            for name in names:
-                maps[name] = np.where(measured, np.sqrt(maps[name]), np.where(face, np.nan, 0)).astype(np.float32)
+    for name in (v for key in STD_VARS for v in STD_VARS[key] if v in maps):  # filled variances -> errors
+        maps[name] = np.sqrt(np.maximum(maps[name], 0)).astype(np.float32)
     return maps, micro
 
 

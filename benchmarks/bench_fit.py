@@ -16,14 +16,15 @@ Figures:
   of albedo, Torrance-Sparrow and Blinn-Phong parameters (each on captures
   rendered with that model), σtr, the flagged fraction, and the relative RMSE of
   a camera held out of the fit.
-* ``full_resolution``: a full-resolution capture (about 900,000 lumitexels ×
-  ~940 samples, from ``bench_simulate.full_resolution_capture``: simulated into
-  ``FACESTATS_BENCH_DIR`` when absent or made by other code) fitted from zarr
-  block by block on two local worker processes; wall time against the 120 s
-  target, and peak resident memory (main process and workers).
-* ``dask_scaling``: subjects per minute fitting twelve captures from disk in one
-  process, on Dask's local process scheduler with 2 workers, and on a
-  ``distributed`` cluster of 1 and 2 workers (warmed up), with the speed-ups.
+* ``public_api_ratio``: the public ``fit_specular`` on dense (texels, samples)
+  arrays against per-texel SLSQP on eq. 14 whose objective evaluates the
+  library's Torrance-Sparrow BRDF on the texel's directions at every call, at
+  300 and 900 samples per texel: texels/s of both and the ratio (target ≥ 200),
+  median E(p) of both (same float64 evaluator).
+* ``dask_scaling``: subjects per minute fitting twelve default-size captures
+  from disk in one process, on Dask's local process scheduler with 2 workers,
+  and on a ``distributed`` cluster of 1 and 2 workers (warmed up), with the
+  speed-ups.  (Full resolution: ``bench_scale.py``.)
 
 Every benchmark takes its sizes as arguments; ``SMOKE`` gives tiny ones that the
 test suite runs (``tests/test_benchmarks.py``) so that no benchmark can rot.
@@ -31,18 +32,11 @@ test suite runs (``tests/test_benchmarks.py``) so that no benchmark can rot.
 
 from __future__ import annotations
 
-import json
 import os
-import subprocess
-import sys
 import tempfile
 import time
 
 import numpy as np
-
-HERE = os.path.dirname(os.path.abspath(__file__))
-#: The issue's bound for one full-resolution subject on this 2-core machine ("at most 2 minutes").
-TARGET_FULL_RESOLUTION_S = 120.0
 
 
 def _default_case(index=0, specular="torrance_sparrow", grid=48):
@@ -155,6 +149,88 @@ def bench_slsqp_ratio(n_baseline=150, grid=48):
     }
 
 
+def _dense_problem(samples_per_texel, grid, n_texels, seed=0):
+    """Dense per-texel arrays for the public :func:`facestats.model.fitting.fit_specular`.
+
+    Stages 1-3 on a default subject's capture (:func:`_specular_problem`); of the texels with
+    at least ``samples_per_texel`` usable samples, ``n_texels`` are drawn, and of each, that many
+    samples: ``wi``, ``wo`` (T, S, 3), ``normal`` (T, 3), ``f_s`` (T, S), all valid.
+    """
+    rng = np.random.default_rng(seed)
+    _, truth, sim = _default_case(3, grid=grid)
+    samples, normal, f_s, use, (ci, co) = _specular_problem(sim.simulate(truth))
+    ok = use & np.isfinite(f_s) & (ci > 0) & (co > 0)
+    counts = samples.count(ok)
+    rich = np.flatnonzero(counts >= samples_per_texel)
+    texels = np.sort(rng.choice(rich, min(n_texels, rich.size), replace=False))
+    idx = np.stack(
+        [rng.choice(np.flatnonzero(ok & (samples.texel == t)), samples_per_texel, replace=False) for t in texels]
+    )
+    wi, wo = samples.wi.astype(np.float64)[idx], samples.wo.astype(np.float64)[idx]
+    wi /= np.linalg.norm(wi, axis=-1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=-1, keepdims=True)
+    nrm = normal[texels].astype(np.float64)
+    nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
+    return wi, wo, nrm, f_s[idx].astype(np.float64), np.ones(idx.shape, bool)
+
+
+def _slsqp_dense(wi, wo, normal, f_s, texels, batch):
+    """Per-texel SLSQP on eq. 14 whose objective recomputes the geometry from the directions at every call.
+
+    What a straightforward user writes: the Torrance-Sparrow BRDF of the library
+    (:func:`facestats.model.brdf.torrance_sparrow`) evaluated on the texel's (S, 3)
+    directions inside the objective.  Returns texels/s, and E(p) of SLSQP and of the
+    batch fit on those texels from the same float64 evaluator.
+    """
+    from scipy.optimize import minimize
+
+    from facestats.model import brdf, fitting
+
+    (r_lo, r_hi), (m_lo, m_hi) = fitting.DEFAULT_BOUNDS["torrance_sparrow"]
+    e_slsqp, e_batch, t_total = [], [], 0.0
+    for t in texels:  # the baseline: one optimiser call per texel
+        n, a, b = normal[t], wi[t], wo[t]
+        ci = a @ n
+        y = f_s[t] * ci
+
+        def e2(p):
+            return np.mean((y - brdf.torrance_sparrow(n, a, b, p[0], p[1]) * ci) ** 2)
+
+        t0 = time.perf_counter()
+        res = minimize(e2, x0=[0.2, 0.3], method="SLSQP", bounds=[(r_lo, r_hi), (m_lo, m_hi)], options={"ftol": 1e-14})
+        t_total += time.perf_counter() - t0
+        e_slsqp.append(np.sqrt(res.fun))
+        e_batch.append(np.sqrt(e2([batch.rho_s[t], batch.lobe[t]])))
+    return len(texels) / t_total, np.asarray(e_slsqp), np.asarray(e_batch)
+
+
+def bench_public_api_ratio(samples=(300, 900), n_texels=2000, n_baseline=100, grid=96):
+    """Public ``fit_specular`` on dense (T, S) arrays against per-texel SLSQP, at each S in ``samples``."""
+    from facestats.model import fitting
+
+    out = {}
+    for s in samples:
+        wi, wo, nrm, f_s, valid = _dense_problem(s, grid, n_texels)
+        fitting.fit_specular(wi[:8], wo[:8], nrm[:8], f_s[:8], valid[:8], "torrance_sparrow")  # compile/warm
+        runs = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            batch = fitting.fit_specular(wi, wo, nrm, f_s, valid, "torrance_sparrow")
+            runs.append(time.perf_counter() - t0)
+        tps_batch = len(nrm) / min(runs)
+        base = np.sort(np.random.default_rng(1).choice(len(nrm), min(n_baseline, len(nrm)), replace=False))
+        tps_slsqp, e_slsqp, e_batch = _slsqp_dense(wi, wo, nrm, f_s, base, batch)
+        out[f"ratio_{s}"] = tps_batch / tps_slsqp
+        out[f"batch_texels_per_s_{s}"] = tps_batch
+        out[f"slsqp_texels_per_s_{s}"] = tps_slsqp
+        out[f"batch_ns_per_sample_{s}"] = 1e9 / (tps_batch * s)
+        out[f"median_E_batch_{s}"] = float(np.median(e_batch))
+        out[f"median_E_slsqp_{s}"] = float(np.median(e_slsqp))
+        out[f"texels_{s}"] = len(nrm)
+    out["target_ratio"] = 200.0
+    return out
+
+
 def _rel(a, b, mask):
     return np.abs(a[mask] / b[mask] - 1)
 
@@ -193,43 +269,6 @@ def bench_accuracy(n_subjects=12, grid=48):
     out["held_out_rmse_median"] = float(np.median(held))
     out["subjects"] = int(n_subjects)
     return out
-
-
-_FIT = r"""
-import json, resource, sys, time
-from facestats.pipeline import FitSettings, fit_subject
-from facestats.io.schema import FLAG_BITS
-FILLED = FLAG_BITS["filled"]
-t0 = time.perf_counter()
-ds = fit_subject(sys.argv[1], settings=FitSettings(block=int(sys.argv[3])), workers=int(sys.argv[2]))
-t1 = time.perf_counter()
-face = (ds.region.values > 0).sum()
-print(json.dumps({"fit_s": t1 - t0, "peak_rss_main_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-                  "peak_rss_workers_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024,
-                  "map_size": int(ds.sizes["u"]), "face_texels": int(face),
-                  "flagged_fits": float(((ds.ts_flag.values[ds.region.values > 0] & (0xFF ^ FILLED)) != 0).mean()),
-                  "filled_texels": float((ds.ts_flag.values[ds.region.values > 0] != 0).mean())}))
-"""
-
-
-def bench_full_resolution(workers=2, block=2048, grid=None, map_size=None):
-    sys.path.insert(0, HERE)
-    from bench_simulate import FULL_GRID, FULL_MAP_SIZE, full_resolution_capture
-
-    from facestats.acquire.capture import open_capture
-
-    path, simulated = full_resolution_capture(grid or FULL_GRID, map_size or FULL_MAP_SIZE)
-    figures = {f"simulate_{k}": v for k, v in simulated.items()}
-    cap = open_capture(path)
-    out = subprocess.run(
-        [sys.executable, "-c", _FIT, path, str(workers), str(block)], capture_output=True, text=True, check=True
-    )
-    figures.update(json.loads(out.stdout.strip().splitlines()[-1]))
-    figures["lumitexels"] = cap.n_lumitexels
-    figures["workers"] = workers
-    figures["target_s"] = TARGET_FULL_RESOLUTION_S
-    figures["fit_over_target"] = figures["fit_s"] / TARGET_FULL_RESOLUTION_S
-    return figures
 
 
 def _fit_paths(paths, workers=1, client=None):
@@ -277,16 +316,16 @@ def bench_dask_scaling(n=12, grid=48):
 
 
 BENCHMARKS = [
+    ("public_api_ratio", bench_public_api_ratio),
     ("slsqp_ratio", bench_slsqp_ratio),
     ("accuracy", bench_accuracy),
     ("dask_scaling", bench_dask_scaling),
-    ("full_resolution", bench_full_resolution),
 ]
 
 #: Tiny sizes for the test suite (the full-resolution case keeps its maps finer than its grid).
 SMOKE = {
+    "public_api_ratio": {"samples": (40,), "n_texels": 30, "n_baseline": 2, "grid": 16},
     "slsqp_ratio": {"n_baseline": 3, "grid": 16},
     "accuracy": {"n_subjects": 1, "grid": 16},
     "dask_scaling": {"n": 2, "grid": 16},
-    "full_resolution": {"workers": 1, "block": 256, "grid": 24, "map_size": 64},
 }

@@ -197,6 +197,10 @@ class MemoryStore:
     def subject(self, subject_id, *, lazy=False, variables=None):
         return self._ds[subject_id]
 
+    def datasets(self):
+        """The subject Datasets, in the order given."""
+        return list(self._ds.values())
+
 
 def make_population(n=40, seed=0, size=24, conditions=True):
     """``n`` normal-condition subjects (skin types as Table 2) plus one person under the seven conditions.

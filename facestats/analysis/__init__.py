@@ -11,6 +11,7 @@ index as a DataFrame, and returns a small result object; the functions of
 * :func:`absorption_scattering`: σa against σ's per subject and channel (§7, Fig. 14);
 * :func:`translucency_table`: mean and variance of σtr per site, σtrAvg, ℓd extremes (§5.4, Table 1);
 * :func:`condition_differences`: BRDF differences between external conditions (§7);
+* :func:`model_errors`: Blinn-Phong against Torrance-Sparrow fit errors per region (§5.3, Fig. 7);
 * :func:`sigma_posterior`, :func:`site_sigma_posterior`: Bayesian (σ's, σa, σtr, ℓd) of a
   contact-sensor profile (§5.4, with uncertainty);
 * :func:`store_sigma_posterior`: the same for a subject and site of a store (defaults: first normal subject, cheek);
@@ -36,6 +37,7 @@ import importlib
 from facestats.analysis.brdf_cca import brdf_cca
 from facestats.analysis.cca import CCAResult, cca
 from facestats.analysis.conditions import ConditionDifferences, condition_differences
+from facestats.analysis.models import ModelErrors, model_errors
 from facestats.analysis.pca import RegionEllipse, RegionPCA, principal_axes, region_pca
 from facestats.analysis.population import default_subject, region_samples, select_population
 from facestats.analysis.scatter import AbsorptionScattering, absorption_scattering
@@ -65,6 +67,8 @@ __all__ = [
     "TranslucencyTable",
     "condition_differences",
     "ConditionDifferences",
+    "model_errors",
+    "ModelErrors",
     "select_population",
     "region_samples",
     "default_subject",

@@ -27,6 +27,7 @@ __all__ = [
     "plot_sigma_posterior",
     "plot_site_posterior",
     "plot_population_sigma_tr",
+    "plot_model_errors",
 ]
 
 #: Skin type colours from light (I, II) to black (VI).
@@ -437,4 +438,31 @@ def plot_population_sigma_tr(result):
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside lower center", ncol=len(labels), fontsize=8, frameon=False)
     fig.suptitle(f"Posterior of the mean translucency per skin type ({result.model} model)", fontsize=10)
+    return fig
+
+
+def plot_model_errors(result):
+    """Blinn-Phong / Torrance-Sparrow error ratio per region (median and IQR over subjects), flagged shares beside.
+
+    ``result`` is a :class:`facestats.analysis.models.ModelErrors`.
+    """
+    from facestats.core.conventions import REGIONS
+
+    fig = _new_figure((8.0, 3.6))
+    ax, ax2 = fig.subplots(1, 2, width_ratios=(3, 2))
+    x = np.arange(len(result.regions))
+    lo, hi = result.error_ratio_iqr[:, 0], result.error_ratio_iqr[:, 1]
+    ax.bar(x, result.error_ratio, color="tab:red", alpha=0.7)
+    ax.errorbar(x, result.error_ratio, yerr=[result.error_ratio - lo, hi - result.error_ratio], fmt="none", color="k")
+    ax.axhline(1, color="0.5", lw=0.8)
+    ax.set_xticks(x, [f"{r} {REGIONS[r]}" for r in result.regions], rotation=60, ha="right", fontsize=7)
+    ax.set_ylabel("E(p) Blinn-Phong / Torrance-Sparrow")
+    ax.set_title(f"fit error ratio, median and IQR over {result.overall['subjects']} subjects", fontsize=9)
+    w = 0.4
+    ax2.bar(x - w / 2, 100 * result.ts_flagged, w, label="Torrance-Sparrow", color="tab:blue")
+    ax2.bar(x + w / 2, 100 * result.bp_flagged, w, label="Blinn-Phong", color="tab:red")
+    ax2.set_xticks(x, [str(r) for r in result.regions])
+    ax2.set_xlabel("region")
+    ax2.set_ylabel("flagged texels (%)")
+    ax2.legend(fontsize=7)
     return fig

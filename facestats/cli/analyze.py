@@ -2,7 +2,7 @@
 
 Usage::
 
-    facestats analyze pca|cca|scatter|translucency|conditions|posterior|all [--store PATH] [--out DIR]
+    facestats analyze pca|cca|scatter|translucency|conditions|models|posterior|all [--store PATH] [--out DIR]
                       [--format png|svg] [options]
 
 Each action makes one call of :mod:`facestats.analysis`, draws the result
@@ -30,6 +30,8 @@ file name of the figure written beside it), then the keys of the result's
     :meth:`facestats.analysis.translucency.TranslucencyTable.to_dict`
 ``conditions.json`` (§7)
     :meth:`facestats.analysis.conditions.ConditionDifferences.to_dict`
+``models.json`` (§5.3, Fig. 7)
+    :meth:`facestats.analysis.models.ModelErrors.to_dict`
 ``posterior.json`` (§5.4 with uncertainty)
     :meth:`facestats.analysis.posterior.profile.SigmaPosterior.to_dict`
 ``posterior_population.json`` (``posterior --population``)
@@ -45,9 +47,9 @@ import sys
 __all__ = ["add_analyze", "ACTIONS", "BATCH_ACTIONS"]
 
 #: Sub-actions of ``facestats analyze``.
-ACTIONS = ("pca", "cca", "scatter", "translucency", "conditions", "posterior", "all")
+ACTIONS = ("pca", "cca", "scatter", "translucency", "conditions", "models", "posterior", "all")
 #: What ``all`` runs (every analysis but the per-profile posterior).
-BATCH_ACTIONS = ("pca", "cca", "scatter", "translucency", "conditions")
+BATCH_ACTIONS = ("pca", "cca", "scatter", "translucency", "conditions", "models")
 
 # -- the actions ------------------------------------------------------------------
 # Each returns (figure, JSON document, summary text).
@@ -97,6 +99,14 @@ def _conditions(store, args):
     return plot_conditions(res), res.to_dict(), res.to_text()
 
 
+def _models(store, args):
+    from facestats.analysis import model_errors
+    from facestats.analysis.plots import plot_model_errors
+
+    res = model_errors(store)
+    return plot_model_errors(res), res.to_dict(), res.to_text()
+
+
 def _posterior(store, args):
     import warnings
 
@@ -123,7 +133,14 @@ def _population_posterior(store, args):
     return plot_population_sigma_tr(res), res.to_dict(), res.to_text()
 
 
-_HANDLERS = {"pca": _pca, "cca": _cca, "scatter": _scatter, "translucency": _translucency, "conditions": _conditions}
+_HANDLERS = {
+    "pca": _pca,
+    "cca": _cca,
+    "scatter": _scatter,
+    "translucency": _translucency,
+    "conditions": _conditions,
+    "models": _models,
+}
 
 
 # -- writing ------------------------------------------------------------------------
@@ -179,9 +196,9 @@ def _cmd_analyze(args) -> int:
             try:
                 fig, doc, text = _HANDLERS[action](store, args)
             except ValidationError as exc:
-                # ``all`` on a store without a condition series: skip that analysis, run the others.
-                if args.action == "all" and action == "conditions":
-                    print(f"conditions: skipped ({exc})")
+                # ``all`` on a store without a condition series (or without maps): skip that analysis.
+                if args.action == "all" and action in ("conditions", "models"):
+                    print(f"{action}: skipped ({exc})")
                     continue
                 raise
             _emit(text, _write(out, action, fig, doc, args.format, store))
@@ -288,6 +305,14 @@ def add_analyze(subparsers):
     )
     _common(a, model=True)
     a = sub.add_parser(
+        "models",
+        help="Blinn-Phong against Torrance-Sparrow fit error per region, flags, exponents (§5.3, Fig. 7)",
+        description="Per face region: median ratio of the Blinn-Phong to the Torrance-Sparrow fit error E(p) "
+        "(eq. 14, on the same samples) over the subjects measured under normal conditions, the flagged share "
+        "of each model and the Blinn-Phong exponents (Weyrich §5.3, Fig. 7).",
+    )
+    _common(a)
+    a = sub.add_parser(
         "posterior",
         help="Bayesian posterior of sigma_s', sigma_a, sigma_tr of one sensor profile",
         description="emcee posterior of (sigma_s', sigma_a) per channel of one contact-sensor profile, "
@@ -317,8 +342,8 @@ def add_analyze(subparsers):
     a = sub.add_parser(
         "all",
         help="every analysis but the posterior",
-        description="Run pca, cca, scatter, translucency and conditions (skipped when the store has "
-        "no person measured under several conditions).",
+        description="Run pca, cca, scatter, translucency, conditions (skipped when the store has "
+        "no person measured under several conditions) and models (skipped without fitted maps).",
     )
     _common(a, model=True)
     _permutations(a)

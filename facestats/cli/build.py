@@ -24,6 +24,12 @@ def _cmd_build(args) -> int:
 def _build_command(args) -> int:
     from facestats.pipeline import build as _build
 
+    if args.status:
+        from facestats.pipeline.journal import build_status
+
+        status = build_status(args.status)
+        print(status.to_text())
+        return 1 if status.failed else 0
     if args.default:
         if args.store:
             print("facestats: error: --default writes the embedded store; do not pass --store", file=sys.stderr)
@@ -43,9 +49,11 @@ def _build_command(args) -> int:
             workers=args.workers,
             micro_normals=not args.no_micro_normals,
             progress=not args.quiet,
+            scheduler=args.scheduler,
+            retries=args.retries,
         )
     print(report.to_text())
-    return 0
+    return 1 if report.failed else 0
 
 
 def add_build(sub):
@@ -56,10 +64,26 @@ def add_build(sub):
             "Draw the synthetic population (published statistics of Weyrich et al. 2006), simulate every subject's "
             "dome and contact-sensor captures, fit the skin model and write each subject to the store as soon as it "
             "is fitted. Rerunning skips subjects already in the store. --default regenerates the store embedded in "
-            "the package."
+            "the package. Failed subjects are retried, then reported (exit status 1); --status STORE shows what "
+            "is done, running and failed."
         ),
     )
     p.add_argument("--default", action="store_true", help="regenerate the embedded default store")
+    p.add_argument(
+        "--status",
+        metavar="STORE",
+        help="report what builds into STORE have done, what is running and what failed (exit 1 if any failed)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        default=None,
+        help="run on the Dask distributed scheduler at ADDRESS (tcp://host:8786; default $DASK_SCHEDULER_ADDRESS "
+        "when set); its workers must see --store on a shared POSIX file system",
+    )
+    p.add_argument(
+        "--retries", type=int, default=2, help="retries of a subject that fails before it is reported (default 2)"
+    )
     p.add_argument("--store", metavar="PATH", help="directory store to build into (created if missing)")
     p.add_argument(
         "--seed",

@@ -199,4 +199,5 @@ FLAG_BITS = {
     "ill_conditioned": 4,  # JᵀJ is (near) singular or a parameter's relative standard error is too large
     "at_bound": 8,  # a parameter ended on its bound
     "filled": 16,  # value interpolated from neighbours in UV (§5.3)
+    "implausible": 32,  # the lobe parameter lies outside the range skin can have (model.fitting.solver.PLAUSIBLE_LOBE)
 }

@@ -282,9 +282,13 @@ class EditSession:
         -------
         SubjectEdit
         """
-        from facestats.io.schema import provenance, set_provenance, set_variable_attrs
+        from facestats.io.schema import STANDARD_ERRORS, provenance, set_provenance, set_variable_attrs
 
         ds = self.dataset
+        # An edited parameter is no measurement: its standard-error map would describe the source.
+        stale = [STANDARD_ERRORS[v] for v in variables if STANDARD_ERRORS.get(v) in ds.data_vars]
+        if stale:
+            ds = self.dataset = ds.drop_vars(stale)
         ds.attrs["subject_id"] = self.new_id
         ds.attrs.update(attrs or {})
         ds.attrs["provenance"] = "{}"

@@ -22,14 +22,17 @@ JSON (``formats`` contains ``"json"``)
     "person_id", "age", "gender", "skin_type", "skin_type_roman",
     "condition", "kind", "source", "flagged_fraction",
     "brdf": {"torrance_sparrow": [{"region", "name", "n", "rho_s": {"mean",
-    "std"}, "m": {...}}], "blinn_phong": [{"region", "name", "n", "rho_s",
+    "std", "se", "mean_se"}, "m": {...}}], "blinn_phong": [{"region", "name", "n", "rho_s",
     "exponent"}]}, "scattering": {"sigma_a"|"sigma_s_prime"|"sigma_tr":
     {"R", "G", "B"}}, "sites": {site: {param: {"R", "G", "B"}}},
     "albedo": {"mean": {"R", "G", "B"}, "std": {...}}, "albedo_histogram":
     {"R": [256 counts], "G": [...], "B": [...]}}``; missing values are null.
 
 A ``README.txt`` describing the files and units is written beside them.
-Units: ρs, m, n, albedo dimensionless; σ in mm⁻¹.
+Units: ρs, m, n, albedo dimensionless; σ in mm⁻¹.  ``se`` is the root mean
+square of the fit's per-texel standard errors over the region and ``mean_se``
+the standard error of the region mean (:mod:`facestats.io.summary`); null
+where the subject has no standard-error maps.
 """
 
 from __future__ import annotations
@@ -65,6 +68,9 @@ subjects.csv          one row per subject
                       and the Blinn-Phong rho_s and exponent n (dimensionless); regions as in
                       Weyrich Fig. 15: {regions}
   n_ts_r*, n_bp_r*    number of texels/samples behind each region statistic
+  {{...}}_se_r*, {{...}}_mean_se_r*
+                      the fit's uncertainty: RMS of the per-texel standard errors (sigma^2 (J^T J)^-1
+                      of the eq. 14 fit) over the region, and the standard error of the region mean
   site_{{sigma_tr,sigma_s_prime,sigma_a}}_{{cheek,forehead,neck}}_{{R,G,B}}
                       contact-sensor coefficients per site (1/mm)
   {{sigma_s_prime,sigma_a,sigma_tr}}_{{R,G,B}}
@@ -102,8 +108,7 @@ def _subject_json(sid: str, row: dict, hist) -> dict:
             item = {"region": r, "name": rname, "n": get(column("n", model=model, region=r))}
             for param, key in ((f"{model}_rho_s", "rho_s"), lobe):
                 item[key] = {
-                    "mean": get(column("mean", param=param, region=r)),
-                    "std": get(column("std", param=param, region=r)),
+                    stat: get(column(stat, param=param, region=r)) for stat in ("mean", "std", "se", "mean_se")
                 }
             items.append(item)
         brdf[name] = items

@@ -26,7 +26,13 @@ null for fewer than two values) are taken *across the matching subjects* of
 each subject's own value, and ``n`` counts the subjects that have the quantity
 (imported subjects have no sensor data, for instance).  Per-region BRDF
 entries also give ``within_std``: the mean over subjects of the spread of the
-parameter inside the region of one subject.  Albedo statistics and
+parameter inside the region of one subject; and the fit's own uncertainty
+(the standard errors σ² (JᵀJ)⁻¹ of eq. 14 that the pipeline stores per
+texel, :mod:`facestats.io.summary`): ``mean_se``, the standard error of one
+subject's region mean — the within-subject uncertainty to set beside the
+between-subject ``std`` —, and ``texel_se``, the typical standard error of one
+texel; both are root mean squares over the subjects that have them (null when
+none has: older stores, imported or edited parameters).  Albedo statistics and
 histograms are over the whole face.  The albedo histogram (256 bins over
 [0, 1] per channel) is the mean of the matching subjects' normalised
 histograms, so every subject weighs the same whatever its texel count.
@@ -35,7 +41,7 @@ JSON document (``QueryResult.to_dict()``, ``facestats query --format json``)
 -------------------------------------------------------------------------
 Format ``"facestats.query/1"``; keys are only ever added within a format
 version.  ``stat`` below is ``{"mean": float|null, "std": float|null,
-"n": int}`` (BRDF stats also carry ``"within_std"``)::
+"n": int}`` (BRDF stats also carry ``"within_std"``, ``"mean_se"`` and ``"texel_se"``)::
 
     {
       "format": "facestats.query/1",
@@ -109,22 +115,36 @@ _ASCII_SYMBOL = {"sigma_a": "sigma_a", "sigma_s_prime": "sigma_s'", "sigma_tr": 
 
 @dataclass(frozen=True)
 class Stat:
-    """Mean and sample standard deviation of ``n`` values (NaN when undefined)."""
+    """Mean and sample standard deviation of ``n`` values (NaN when undefined).
+
+    BRDF statistics also carry ``within_std`` (spread inside a subject's region),
+    ``mean_se`` and ``texel_se`` (the fit's standard errors; module docstring).
+    """
 
     mean: float
     std: float
     n: int
     within_std: float | None = None
+    mean_se: float | None = None
+    texel_se: float | None = None
 
     def to_dict(self) -> dict:
         d = {"mean": _num(self.mean), "std": _num(self.std), "n": int(self.n)}
-        if self.within_std is not None:
-            d["within_std"] = _num(self.within_std)
+        for key in ("within_std", "mean_se", "texel_se"):
+            if getattr(self, key) is not None:
+                d[key] = _num(getattr(self, key))
         return d
 
 
 def _num(x):
     return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _rms(x: np.ndarray) -> float:
+    """Root mean square of the finite values of ``x`` (NaN if none)."""
+    x = np.asarray(x, dtype=np.float64)
+    x = x[np.isfinite(x)]
+    return float(np.sqrt(np.mean(np.square(x)))) if x.size else math.nan
 
 
 def _stat(x: np.ndarray, within: np.ndarray | None = None) -> Stat:
@@ -277,21 +297,23 @@ class QueryResult:
         """Long CSV: one row per statistic, arrays (ids, histograms) space-separated in ``values``.
 
         Columns: ``section, quantity, region, region_name, site, channel, n,
-        mean, std, within_std, values``.  Sections: ``meta`` (count,
+        mean, std, within_std, values, mean_se, texel_se`` (the last two: the
+        fit's standard errors of BRDF statistics, added last so older readers
+        of the first eleven keep working).  Sections: ``meta`` (count,
         n_persons, subject_ids), ``brdf``, ``scattering``, ``site``,
         ``albedo``, ``histogram``.
         """
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
         w.writerow(_CSV_COLUMNS)
-        w.writerow(["meta", "count", "", "", "", "", self.count, "", "", "", ""])
-        w.writerow(["meta", "n_persons", "", "", "", "", self.n_persons, "", "", "", ""])
-        w.writerow(["meta", "subject_ids", "", "", "", "", self.count, "", "", "", " ".join(self.subject_ids)])
+        w.writerow(["meta", "count", "", "", "", "", self.count, "", "", "", "", "", ""])
+        w.writerow(["meta", "n_persons", "", "", "", "", self.n_persons, "", "", "", "", "", ""])
+        w.writerow(["meta", "subject_ids", "", "", "", "", self.count, "", "", "", " ".join(self.subject_ids), "", ""])
         for section, quantity, s, where in self._stats():
             w.writerow(_csv_stat_row(section, quantity, s, **where))
         for c, ch in enumerate(CHANNELS):
             vals = "" if self.albedo_histogram is None else " ".join(repr(float(v)) for v in self.albedo_histogram[c])
-            w.writerow(["histogram", "albedo_histogram", "", "", "", ch, self.count, "", "", "", vals])
+            w.writerow(["histogram", "albedo_histogram", "", "", "", ch, self.count, "", "", "", vals, "", ""])
         return buf.getvalue()
 
     def _stats(self):
@@ -352,7 +374,15 @@ class QueryResult:
                 + [_fmt_stat(r[p], pm) for p in BRDF_PARAMS]
                 + [str(max(r[p].n for p in BRDF_PARAMS))]
             )
-        return lines + _grid(head, rows)
+        lines += _grid(head, rows)
+        if any(r[p].mean_se is not None and math.isfinite(r[p].mean_se) for r in self.regions for p in BRDF_PARAMS):
+            lines += [
+                "",
+                "Within-subject uncertainty (fit standard errors, RMS over subjects): region mean / one texel",
+            ]
+            unc = [[f"{r['region']:>2} {r['name']}"] + [_fmt_se(r[p]) for p in BRDF_PARAMS] for r in self.regions]
+            lines += _grid(head[:-1], unc)
+        return lines
 
     def _scattering_lines(self, pm: str, ascii: bool) -> list[str]:
         unit = "1/mm" if ascii else "mm⁻¹"
@@ -394,6 +424,8 @@ _CSV_COLUMNS = (
     "std",
     "within_std",
     "values",
+    "mean_se",
+    "texel_se",
 )
 
 
@@ -404,14 +436,35 @@ def _csv_num(x) -> str:
 
 def _csv_stat_row(section, quantity, s: Stat, region="", name="", site="", ch="") -> list:
     """One CSV row of a statistic."""
-    within = "" if s.within_std is None else _csv_num(s.within_std)
-    return [section, quantity, region, name, site, ch, s.n, _csv_num(s.mean), _csv_num(s.std), within, ""]
+    within, mean_se, texel_se = ("" if v is None else _csv_num(v) for v in (s.within_std, s.mean_se, s.texel_se))
+    return [
+        section,
+        quantity,
+        region,
+        name,
+        site,
+        ch,
+        s.n,
+        _csv_num(s.mean),
+        _csv_num(s.std),
+        within,
+        "",
+        mean_se,
+        texel_se,
+    ]
 
 
 def _fmt_num(x: float) -> str:
     if not math.isfinite(x):
         return "-"
     return f"{x:.4g}"
+
+
+def _fmt_se(s: Stat) -> str:
+    """``mean_se / texel_se`` of a BRDF statistic (``-`` where undefined)."""
+    if s.mean_se is None or not math.isfinite(s.mean_se):
+        return "-"
+    return f"{s.mean_se:.2g} / {_fmt_num(s.texel_se)}"
 
 
 def _fmt_stat(s: Stat, pm: str) -> str:
@@ -580,7 +633,9 @@ def _region_entry(r: int, col) -> dict:
     """The BRDF statistics of region ``r`` (``col(name)``: the matching subjects' column values)."""
     entry = {"region": r, "name": REGIONS[r]}
     for p in BRDF_PARAMS:
-        entry[p] = _stat(col(column("mean", param=p, region=r)), col(column("std", param=p, region=r)))
+        s = _stat(col(column("mean", param=p, region=r)), col(column("std", param=p, region=r)))
+        se = {k: _rms(col(column(k, param=p, region=r))) for k in ("mean_se", "se")}
+        entry[p] = Stat(s.mean, s.std, s.n, s.within_std, mean_se=se["mean_se"], texel_se=se["se"])
     return entry
 
 

@@ -61,6 +61,7 @@ __all__ = [
     "SCHEMA_VERSION",
     "VARIABLES",
     "MAP_REQUIRED",
+    "STANDARD_ERRORS",
     "SAMPLE_REQUIRED",
     "FLAG_BITS",
     "Domain",
@@ -91,10 +92,14 @@ VARIABLES = {
     "ts_m": (("v", "u"), "1", "Torrance-Sparrow Beckmann roughness m (Weyrich eq. 13)"),
     "ts_error": (("v", "u"), "sr-1", "Torrance-Sparrow fit error E(p) (Weyrich eq. 14)"),
     "ts_flag": (("v", "u"), "1", "Torrance-Sparrow fit flags (bits: facestats.io.schema.FLAG_BITS)"),
+    "ts_rho_s_std": (("v", "u"), "1", "standard error of ts_rho_s (robust covariance of the eq. 14 fit)"),
+    "ts_m_std": (("v", "u"), "1", "standard error of ts_m (robust covariance of the eq. 14 fit)"),
     "bp_rho_s": (("v", "u"), "1", "Blinn-Phong specular scale rho_s (Weyrich eq. 11)"),
     "bp_exponent": (("v", "u"), "1", "Blinn-Phong exponent n (Weyrich eq. 11)"),
     "bp_error": (("v", "u"), "sr-1", "Blinn-Phong fit error E(p) (Weyrich eq. 14)"),
     "bp_flag": (("v", "u"), "1", "Blinn-Phong fit flags (bits: facestats.io.schema.FLAG_BITS)"),
+    "bp_rho_s_std": (("v", "u"), "1", "standard error of bp_rho_s (robust covariance of the eq. 14 fit)"),
+    "bp_exponent_std": (("v", "u"), "1", "standard error of bp_exponent (robust covariance of the eq. 14 fit)"),
     "sensor_profile": (("site", "fiber", "channel"), "mm-2", "contact-sensor profile R(r) (HDR merged)"),
     "sensor_profile_std": (("site", "fiber", "channel"), "mm-2", "standard deviation of sensor_profile (noise model)"),
     "site_sigma_s_prime": (("site", "channel"), "mm-1", "reduced scattering coefficient fitted to the profile"),
@@ -208,6 +213,15 @@ DOMAINS = {
     "ts_sample_region": _SAMPLE_REGION,
     "albedo_sample": Domain(0.0, 1.0),
     "albedo_sample_region": _SAMPLE_REGION,
+    "ts_rho_s_std": _NONNEG_OR_MISSING,
+    "ts_m_std": _NONNEG_OR_MISSING,
+    "bp_rho_s_std": _NONNEG_OR_MISSING,
+    "bp_exponent_std": _NONNEG_OR_MISSING,
+    "image_sigma_s_prime": _NONNEG_OR_MISSING,
+    "image_sigma_a": _NONNEG_OR_MISSING,
+    "image_sigma_tr": _NONNEG_OR_MISSING,
+    "image_sigma_tr_low": _NONNEG_OR_MISSING,
+    "image_sigma_tr_high": _NONNEG_OR_MISSING,
 }
 
 
@@ -238,6 +252,15 @@ def check_domain(name: str, values, *, what: str, unit: str | None = None) -> No
             + f", got {first!r} ({int(bad.sum())} value(s) outside)"
         )
 
+
+#: Standard-error map of each BRDF parameter map (optional: stores written before they existed,
+#: and edited subjects, whose edited parameters are no measurements, have none).
+STANDARD_ERRORS = {
+    "ts_rho_s": "ts_rho_s_std",
+    "ts_m": "ts_m_std",
+    "bp_rho_s": "bp_rho_s_std",
+    "bp_exponent": "bp_exponent_std",
+}
 
 #: Variables a map subject must have.
 MAP_REQUIRED = ("region", "albedo", "ts_rho_s", "ts_m", "ts_flag", "bp_rho_s", "bp_exponent", "bp_flag", "albedo_avg")

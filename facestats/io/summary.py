@@ -13,6 +13,11 @@ Column names (``r`` = region 1-10, ``ch`` = R/G/B, ``site`` = cheek/forehead/nec
   ``condition``, ``kind`` (``maps``/``samples``), ``source``;
 * ``{p}_mean_r{r}``, ``{p}_std_r{r}`` for p in ``ts_rho_s``, ``ts_m``,
   ``bp_rho_s``, ``bp_exponent``, and ``n_ts_r{r}``, ``n_bp_r{r}`` (sample counts);
+* ``{p}_se_r{r}``: the root mean square of the per-texel standard errors of p
+  (the ``*_std`` maps, σ² (JᵀJ)⁻¹ of the eq. 14 fit) over the same texels, and
+  ``{p}_mean_se_r{r}``: the standard error of the region mean, sqrt(Σ σ²)/n
+  (texel fits are independent) — the within-subject uncertainty; NaN for
+  subjects without standard-error maps (older stores, imported or edited parameters);
 * ``site_sigma_tr_{site}_{ch}``, ``site_sigma_s_prime_{site}_{ch}``,
   ``site_sigma_a_{site}_{ch}``;
 * ``sigma_s_prime_{ch}``, ``sigma_a_{ch}``, ``sigma_tr_{ch}``;
@@ -34,6 +39,7 @@ __all__ = [
     "BRDF_PARAMS",
     "MODEL_PARAMS",
     "region_samples",
+    "region_standard_errors",
     "region_sample_variables",
     "albedo_histogram",
     "summarise_subject",
@@ -46,6 +52,8 @@ HIST_BINS = 256
 BRDF_PARAMS = ("ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent")
 #: model -> (scale parameter, lobe parameter, flag variable).
 MODEL_PARAMS = {"ts": ("ts_rho_s", "ts_m", "ts_flag"), "bp": ("bp_rho_s", "bp_exponent", "bp_flag")}
+#: model -> the standard-error maps of its (scale, lobe) parameters.
+MODEL_STD = {"ts": ("ts_rho_s_std", "ts_m_std"), "bp": ("bp_rho_s_std", "bp_exponent_std")}
 
 
 def column(kind: str, **keys) -> str:
@@ -53,17 +61,17 @@ def column(kind: str, **keys) -> str:
 
     Parameters
     ----------
-    kind : {"mean", "std", "n", "site", "subject"}
+    kind : {"mean", "std", "se", "mean_se", "n", "site", "subject"}
         The column family (see the module docstring).
     **keys
-        ``param`` and ``region`` (mean, std), ``model`` and ``region`` (n),
+        ``param`` and ``region`` (mean, std, se, mean_se), ``model`` and ``region`` (n),
         ``param``, ``site`` and ``channel`` (site), ``param`` and ``channel`` (subject).
 
     Returns
     -------
     str
     """
-    if kind in ("mean", "std"):
+    if kind in ("mean", "std", "se", "mean_se"):
         return f"{keys['param']}_{kind}_r{keys['region']}"
     if kind == "n":
         return f"n_{keys['model']}_r{keys['region']}"
@@ -121,6 +129,42 @@ def region_samples(ds, model: str = "ts") -> dict:
         sel = reg == r
         out[r] = (rho[sel], m[sel])
     return out
+
+
+def region_standard_errors(ds, model: str = "ts"):
+    """Per-region standard errors of the texels :func:`region_samples` returns: ``{region: (rho_s_std, lobe_std)}``.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+    model : {"ts", "bp"}
+
+    Returns
+    -------
+    dict or None
+        float64 arrays per region 1-10; None when the subject has no standard-error maps
+        (a sample subject, a store written before they existed, an edited parameter).
+    """
+    names = MODEL_STD[model]
+    if subject_kind(ds) != "maps" or not all(n in ds.data_vars for n in names):
+        return None
+    region = np.asarray(ds["region"].values)
+    good = np.asarray(ds[MODEL_PARAMS[model][2]].values) == 0
+    rho_std, lobe_std = (np.asarray(ds[n].values) for n in names)
+    out = {}
+    for r in REGION_IDS:
+        sel = (region == r) & good
+        out[r] = (rho_std[sel].astype(np.float64), lobe_std[sel].astype(np.float64))
+    return out
+
+
+def _standard_errors(sd):
+    """(RMS of the per-texel standard errors, standard error of the mean sqrt(Σσ²)/n) of the finite ``sd``."""
+    sd = sd[np.isfinite(sd)]
+    if sd.size == 0:
+        return np.nan, np.nan
+    var = np.square(sd)
+    return float(np.sqrt(var.mean())), float(np.sqrt(var.sum()) / sd.size)
 
 
 def _albedo_values(ds) -> np.ndarray:
@@ -196,17 +240,21 @@ def summarise_subject(ds) -> dict:
 
 
 def _add_brdf_columns(row: dict, ds) -> None:
-    """Per model and region: sample count, mean and spread of both BRDF parameters."""
+    """Per model and region: sample count, mean, spread and standard errors of both BRDF parameters."""
     for model in ("ts", "bp"):
         rho_name, lobe_name, _ = MODEL_PARAMS[model]
         samples = region_samples(ds, model)
+        errors = region_standard_errors(ds, model)
         for r in REGION_IDS:
             rho, lobe = samples[r]
             row[column("n", model=model, region=r)] = int(rho.size)
-            for name, x in ((rho_name, rho), (lobe_name, lobe)):
+            for k, (name, x) in enumerate(((rho_name, rho), (lobe_name, lobe))):
                 mean, std = _mean_std(x)
                 row[column("mean", param=name, region=r)] = mean
                 row[column("std", param=name, region=r)] = std
+                se, mean_se = (np.nan, np.nan) if errors is None else _standard_errors(errors[r][k])
+                row[column("se", param=name, region=r)] = se
+                row[column("mean_se", param=name, region=r)] = mean_se
 
 
 def _add_scattering_columns(row: dict, ds) -> None:

@@ -8,10 +8,14 @@ run on the synthetic population of :mod:`facestats.acquire.synthetic.population`
    (cheap), giving the population's σtrAvg over the normal-condition subjects,
    cheek and forehead (§5.4);
 3. for every subject, in parallel on Dask's local process scheduler (or a
-   ``distributed`` client; worker processes keep their simulator and population
-   between subjects): simulate the dome capture, run the fit pipeline with
-   that σtrAvg, and write the subject to the store at once — so an interrupted
-   build keeps what it finished, and a rerun skips subjects already stored;
+   ``distributed`` cluster, :mod:`facestats.pipeline.cluster`; worker processes
+   keep their simulator and population between subjects): simulate the dome
+   capture, run the fit pipeline with that σtrAvg, and write the subject to the
+   store at once — so an interrupted build keeps what it finished, and a rerun
+   skips subjects already stored.  A subject that fails is retried, then
+   reported (:class:`BuildReport`, ``facestats build --status``), never skipped
+   silently: the build journal (:mod:`facestats.pipeline.journal`) records what
+   is running and what failed;
 4. for the default, pack the store into ``facestats/data/default_store.zip``.
 
 Everything is deterministic for a seed: the simulator draws its noise from each
@@ -40,7 +44,7 @@ import signal
 import tempfile
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +52,9 @@ import numpy as np
 from facestats.core.conventions import DEFAULT_MAP_SIZE, DEFAULT_SEED, SITES
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
+from facestats.pipeline.cluster import connect, scheduler_address, store_directory
+from facestats.pipeline.journal import BuildJournal
+from facestats.pipeline.progress import TaskProgress, progress_bar
 
 __all__ = ["BuildReport", "build_store", "build_default", "estimated_memory", "DEFAULT_SEED", "DEFAULT_MAP_SIZE"]
 
@@ -144,7 +151,7 @@ def _run_local(tasks, n_workers: int, progress: bool) -> list:
     stop = ctx.Event()
     pool = ProcessPoolExecutor(n_workers, mp_context=ctx, initializer=_worker_init, initargs=(os.getpid(), stop))
     try:
-        with _TaskProgress(len(tasks), enabled=progress):
+        with TaskProgress(len(tasks), enabled=progress):
             return list(dask.compute(*tasks, scheduler="processes", pool=pool))
     except BaseException:
         stop.set()  # the workers exit within 0.25 s; nothing they were writing gets committed
@@ -155,7 +162,7 @@ def _run_local(tasks, n_workers: int, progress: bool) -> list:
 
 @dataclass
 class BuildReport:
-    """What a build did."""
+    """What a build did; ``failed`` maps the subjects that failed every attempt to their last error."""
 
     store: str
     written: list
@@ -163,42 +170,17 @@ class BuildReport:
     sigma_tr_avg: np.ndarray
     seconds: float
     workers: int
+    failed: dict = field(default_factory=dict)
 
     def to_text(self) -> str:
-        """One line for the command line."""
-        return (
-            f"store {self.store}: {len(self.written)} subject(s) written, {len(self.skipped)} already present; "
-            f"sigma_trAvg = {np.round(self.sigma_tr_avg, 4).tolist()} mm^-1; "
+        """One line for the command line, then one line per failed subject."""
+        text = (
+            f"store {self.store}: {len(self.written)} subject(s) written, {len(self.skipped)} already present"
+            + (f", {len(self.failed)} FAILED" if self.failed else "")
+            + f"; sigma_trAvg = {np.round(self.sigma_tr_avg, 4).tolist()} mm^-1; "
             f"{self.seconds:.1f} s with {self.workers} worker(s)"
         )
-
-
-class _TaskProgress:
-    """A tqdm bar advanced by Dask's local scheduler as tasks finish (silent when not on a terminal)."""
-
-    def __init__(self, total, enabled=True):
-        self.total, self.enabled = total, enabled
-
-    def __enter__(self):
-        if not self.enabled:
-            return self
-        from dask.callbacks import Callback
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=self.total, desc="build", unit="subject", disable=None)
-
-        class _CB(Callback):
-            def _posttask(self, key, result, dsk, state, id):
-                bar.update(1)
-
-        self.bar, self.cb = bar, _CB()
-        self.cb.__enter__()
-        return self
-
-    def __exit__(self, *exc):
-        if self.enabled:
-            self.cb.__exit__(*exc)
-            self.bar.close()
+        return "\n".join([text] + [f"  failed {sid}: {err}" for sid, err in sorted(self.failed.items())])
 
 
 def _simulator(map_size: int, specular: str):
@@ -283,6 +265,15 @@ def _build_one(
     return subject_id
 
 
+def _build_task(retries, *args):
+    """:func:`_build_one` with retries, journalled in the store: ``(subject_id, "done" | "failed", error)``."""
+    from facestats.pipeline.journal import run_journalled
+
+    sid = args[5]
+    state, info = run_journalled(BuildJournal(args[0]), sid, lambda: _build_one(*args), retries)
+    return sid, state, None if state == "done" else info
+
+
 def build_store(
     store_path,
     *,
@@ -296,6 +287,8 @@ def build_store(
     micro_normals: bool = True,
     keep_derived: bool = True,
     progress: bool = False,
+    scheduler: str | None = None,
+    retries: int = 2,
 ) -> BuildReport:
     """Simulate and fit a synthetic population into a directory store (resumable).
 
@@ -314,12 +307,18 @@ def build_store(
         Local worker processes, ≥ 1 (default: the number of cores); 1 runs in-process.
     client : dask.distributed.Client, optional
         Run on a cluster instead (workers must see ``store_path``).
+    scheduler : str, optional
+        Address of a Dask scheduler (``tcp://host:8786``) to run on instead; default
+        ``$DASK_SCHEDULER_ADDRESS`` when set (:mod:`facestats.pipeline.cluster`).
     micro_normals : bool
         Keep per-camera micro-normal maps (the default store drops them to stay small).
     keep_derived : bool
         Keep variables derived from others (:data:`DERIVED`; the default store drops them).
     progress : bool
-        Show a progress bar.
+        Show a progress bar with ETA.
+    retries : int
+        Attempts after the first for a subject that fails (≥ 0); it is then reported in
+        :attr:`BuildReport.failed` and the journal (``facestats build --status``).
 
     Returns
     -------
@@ -332,6 +331,9 @@ def build_store(
 
     check_integer(seed, "seed", 0)
     check_integer(map_size, "map_size", 8)
+    check_integer(retries, "retries", 0)
+    store_path = store_directory(store_path)
+    address = scheduler_address(scheduler) if client is None else None
     check_choice(specular, "specular", SPECULAR_MODELS)
     if workers is not None:
         check_integer(workers, "workers", 1)
@@ -364,37 +366,48 @@ def build_store(
         (str(store_path), seed, map_size, conditions, specular, sid, stra, fits[sid], micro_normals, keep_derived)
         for sid in todo
     ]
-    with _stop_on_sigterm():
-        done = _run(args, client, n_workers, progress)
+    own = connect(address) if address is not None else None
+    try:
+        with _stop_on_sigterm():
+            results = _run_tasks(args, retries, own or client, n_workers, progress)
+        size = n_workers if own is None and client is None else len((own or client).scheduler_info()["workers"])
+    finally:
+        if own is not None:
+            own.close()
+    BuildJournal(store_path).prune()
     return BuildReport(
         store=str(store_path),
-        written=sorted(done),
+        written=sorted(sid for sid, state, _ in results if state == "done"),
         skipped=skipped,
         sigma_tr_avg=stra,
         seconds=time.perf_counter() - t0,
-        workers=1 if client is None and n_workers == 1 else n_workers,
+        workers=size,
+        failed={sid: err for sid, state, err in results if state != "done"},
     )
 
 
-def _run(args, client, n_workers: int, progress: bool) -> list:
-    """Build the subjects of ``args`` on a client, locally in-process, or on local worker processes."""
+def _run_tasks(args, retries, client, n_workers, progress):
+    """Run :func:`_build_task` on every argument tuple: on ``client``, local processes or in-process."""
     if client is not None:
-        futures = [client.submit(_build_one, *a, pure=False) for a in args]
-        try:
-            return client.gather(futures)
-        except BaseException:
-            client.cancel(futures)
-            raise
-    if n_workers == 1 or len(args) <= 1:
-        it = args
-        if progress:
-            from tqdm.auto import tqdm
+        from distributed import as_completed
 
-            it = tqdm(args, desc="build", unit="subject", disable=None)
-        return [_build_one(*a) for a in it]
+        # Task failures are retried inside the task; Dask's retries cover a lost worker.
+        futures = {client.submit(_build_task, retries, *a, pure=False, retries=retries): a for a in args}
+        return [_gathered(f, futures[f]) for f in progress_bar(as_completed(futures), len(futures), progress)]
+    if n_workers == 1 or len(args) <= 1:
+        return [_build_task(retries, *a) for a in progress_bar(args, len(args), progress)]
     import dask
 
-    return _run_local([dask.delayed(_build_one, pure=False)(*a) for a in args], n_workers, progress)
+    return _run_local([dask.delayed(_build_task, pure=False)(retries, *a) for a in args], n_workers, progress)
+
+
+def _gathered(future, args):
+    """The result of a build future; a task lost with its workers is recorded as failed, not raised."""
+    try:
+        return future.result()
+    except Exception as exc:  # e.g. KilledWorker after Dask's retries
+        BuildJournal(args[0]).fail(args[5], 1, exc)
+        return args[5], "failed", f"{type(exc).__name__}: {exc}"
 
 
 def build_default(*, workers: int | None = None, progress: bool = False, out=None) -> BuildReport:

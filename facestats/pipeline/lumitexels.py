@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from facestats.errors import ValidationError
 from facestats.model import fitting
-from facestats.pipeline.settings import MAP_VARS, MODEL_PREFIX, FitSettings
+from facestats.pipeline.settings import MAP_VARS, MODEL_PREFIX, STD_VARS, FitSettings
 
 __all__ = ["fit_lumitexels", "PIECE"]
 
@@ -41,7 +42,8 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
         ``albedo_min`` (n, 3; refined and stable-minimum albedo), ``n_samples``
         (usable samples), ``n_invalid`` (masked: NaN, negative, unlit, occluded, clipped),
         ``n_grazing`` (valid but beyond the angle limit of eq. 14), and for each model
-        ``*_rho_s``, ``*_m``/``*_exponent``, ``*_error``, ``*_flag``.
+        ``*_rho_s``, ``*_m``/``*_exponent``, ``*_error``, ``*_flag`` and the standard errors
+        ``*_rho_s_std``, ``*_m_std``/``*_exponent_std`` (σ² (JᵀJ)⁻¹ of the fit).
     """
     st = settings or FitSettings()
     if lt.n <= PIECE:
@@ -52,13 +54,15 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
 
 def _fit_piece(lt, st):
     """Stages 1-4 on lumitexels ``lt`` (:func:`fit_lumitexels`)."""
-    valid = lt.valid
-    if st.exclude_cameras:
-        valid = valid.copy()
-        valid[:, list(st.exclude_cameras), :] = False
     n_cam = lt.wo.shape[1]
-    samples = fitting.Samples.from_grid(lt.wi, lt.wo, lt.irradiance, lt.radiance, valid)
-    out = {"n_invalid": (~valid).reshape(lt.n, -1).sum(1)}
+    if any(c >= n_cam for c in st.exclude_cameras):
+        raise ValidationError(f"exclude_cameras must be camera indices below {n_cam}, got {st.exclude_cameras!r}")
+    keep = np.ones(n_cam, bool)
+    keep[list(st.exclude_cameras)] = False
+    samples, n_invalid = fitting.Samples.from_dome(
+        lt.wi, lt.wo, lt.irradiance, lt.radiance, keep_cameras=keep, engine=st.engine
+    )
+    out = {"n_invalid": n_invalid}
     # Stage 1: normals.
     normal, _ = fitting.photometric_normals(samples, lt.scan_normal, n_cam, eta=st.eta)
     out["normal"] = normal
@@ -76,12 +80,14 @@ def _fit_piece(lt, st):
     albedo = np.where(np.isfinite(albedo_min), albedo_min, 0).astype(np.float32)
     out["n_samples"] = samples.count(use)
     out["n_grazing"] = samples.count(~use)
+    albedo_std = None  # standard error of the grey albedo (unknown for the stable minimum)
     if st.refine_albedo:
         # Stage 2b: the mean over specular-free samples removes the noise bias of the minimum.
         cos_half = (cos_i + cos_o) / np.sqrt(np.maximum(2 + 2 * samples.cos_io(), 1e-12))
-        refined, n_ref = fitting.refine_albedo(samples, f_r, ft2, cos_half, use)
+        refined, n_ref, grey_std = fitting.refine_albedo(samples, f_r, ft2, cos_half, use, with_std=True)
         ok = np.isfinite(refined).all(1) & (n_ref >= st.min_samples)
         albedo = np.where(ok[:, None], refined, albedo).astype(np.float32)
+        albedo_std = np.where(ok, grey_std, np.nan)
     # Stages 3-4: the specular residual (eq. 10) and the batch fit of each model (eq. 14).
     f_s = fitting.specular_residual(samples, f_r, albedo, ft2)
     fits = fitting.fit_specular_models(
@@ -94,6 +100,10 @@ def _fit_piece(lt, st):
         min_samples=st.min_samples,
         max_relative_error=st.max_relative_error,
         cos=(cos_i, cos_o),
+        engine=st.engine,
+        ft2=ft2,
+        albedo_std=albedo_std,
+        max_angle=_model_angles(st),
     )
     few = out["n_samples"] < st.min_samples
     out["albedo"] = np.where(few[:, None], np.nan, albedo).astype(np.float32)
@@ -102,4 +112,12 @@ def _fit_piece(lt, st):
         key = MODEL_PREFIX[model]
         k_rho, k_lobe, k_err = MAP_VARS[key]
         out[k_rho], out[k_lobe], out[k_err], out[f"{key}_flag"] = res.rho_s, res.lobe, res.error, res.flags
+        out[STD_VARS[key][0]], out[STD_VARS[key][1]] = res.rho_s_std, res.lobe_std
     return out
+
+
+def _model_angles(st):
+    """Per-model angle limits (rad) stricter than ``max_angle_deg``: Blinn-Phong's ``bp_max_angle_deg``."""
+    if "blinn_phong" in st.models and st.bp_max_angle_deg < st.max_angle_deg:
+        return {"blinn_phong": np.radians(st.bp_max_angle_deg)}
+    return None

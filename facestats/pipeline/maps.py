@@ -4,6 +4,13 @@ Every per-lumitexel output is averaged into the texels its lumitexels fall in;
 texels of the face that no lumitexel reached (maps finer than the mesh) and
 texels whose fit is flagged are filled from their neighbours by push-pull, and
 the flag maps record it.
+
+The standard errors of the BRDF parameters are the standard errors of those
+averages: a texel holding the mean of k lumitexel fits with standard errors
+σ_i has σ = sqrt(Σ σ_i²)/k (independent fits).  Flagged and empty texels get
+them filled from their neighbours like their values (the variances are filled,
+then square-rooted); the ``filled`` bit of the flag map says which texels are
+no measurements.
 """
 
 from __future__ import annotations
@@ -14,7 +21,7 @@ import numpy as np
 
 from facestats.io.schema import FLAG_BITS
 from facestats.model import fitting
-from facestats.pipeline.settings import MAP_VARS
+from facestats.pipeline.settings import MAP_VARS, STD_VARS
 
 __all__ = ["subject_maps"]
 
@@ -42,7 +49,8 @@ def subject_maps(res, texel, face, workers=1):
     -------
     maps : dict of ndarray
         ``albedo``, ``normal``, ``n_samples`` and, per fitted model, its three maps
-        and ``<prefix>_flag``; filled over the face, 0 off it.
+        and ``<prefix>_flag``, filled over the face, 0 off it; and its two
+        standard-error maps (module docstring), filled like the values.
     micro : ndarray or None
         Per-camera micro-normal maps (camera, v, u, 3), if they were fitted.
     """
@@ -54,8 +62,9 @@ def subject_maps(res, texel, face, workers=1):
         maps, has_data = pool.submit(_averaged_maps, res, texel, size).result()
         for key, map_vars in MAP_VARS.items():
             if f"{key}_flag" in res:
+                names = map_vars + tuple(v for v in STD_VARS[key] if v in maps)
                 jobs[key] = pool.submit(
-                    _model_maps, [maps[var] for var in map_vars], res[f"{key}_flag"], texel, face, has_data
+                    _model_maps, [maps[v] for v in names], res[f"{key}_flag"], texel, face, has_data
                 )
         jobs["albedo"] = pool.submit(_filled_map, maps["albedo"], face, has_data)
         jobs["normal"] = pool.submit(_filled_map, maps["normal"], face, has_data, unit=True)
@@ -63,18 +72,22 @@ def subject_maps(res, texel, face, workers=1):
         for key, job in jobs.items():
             if key in MAP_VARS:
                 filled, maps[f"{key}_flag"] = job.result()
-                maps.update(zip(MAP_VARS[key], filled))
+                names = MAP_VARS[key] + tuple(v for v in STD_VARS[key] if v in maps)
+                maps.update(zip(names, filled))
             else:
                 maps[key] = job.result()
+    for name in (v for key in STD_VARS for v in STD_VARS[key] if v in maps):  # filled variances -> errors
+        maps[name] = np.sqrt(np.maximum(maps[name], 0)).astype(np.float32)
     return maps, micro
 
 
 def _averaged_maps(res, texel, size):
     """Every per-lumitexel float output of ``res`` averaged into (size, size[, 3]) maps, and where data landed.
 
-    One grouping of the lumitexels by texel for all of them (:func:`facestats.model.fitting.scatter_to_map`);
+    One grouping of the lumitexels by texel for all values and one for the variances (:func:`facestats.model.fitting.scatter_to_map`);
     NaN where no lumitexel landed.
     """
+    stds = [name for key in ("ts", "bp") for name in STD_VARS[key] if name in res]
     names = [name for name in ("albedo", "normal", *MAP_VARS["ts"], *MAP_VARS["bp"], "n_samples") if name in res]
     n = len(texel)
     columns = [np.asarray(res[name], np.float32).reshape(n, -1) for name in names]
@@ -84,6 +97,13 @@ def _averaged_maps(res, texel, size):
         maps[name] = stacked[..., col : col + c.shape[1]]
         maps[name] = maps[name] if c.shape[1] > 1 and name in ("albedo", "normal") else maps[name][..., 0]
         col += c.shape[1]
+    if stds:  # σ², averaged, in float64: the σ of an ill-conditioned texel can exceed float32's square root range
+        squares = np.stack([np.square(np.asarray(res[name], np.float64)).reshape(n) for name in stds], axis=1)
+        var, _ = fitting.scatter_to_map(squares, texel, size)
+        maps.update({name: var[..., k] for k, name in enumerate(stds)})
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for name in stds:  # mean σ² / k = Σσ²/k² (module docstring); the square root is taken by subject_maps
+            maps[name] = maps[name] / count
     return maps, count > 0
 
 

@@ -1,4 +1,13 @@
-"""The fit pipeline on a population: σtrAvg from every subject's sensor fits (§5.4), then every subject."""
+"""The fit pipeline on a population: σtrAvg from every subject's sensor fits (§5.4), then every subject.
+
+Subjects run in parallel: on Dask's local scheduler, or on a ``distributed``
+cluster (a client, or a scheduler address / ``$DASK_SCHEDULER_ADDRESS``,
+:mod:`facestats.pipeline.cluster`).  With a ``store`` every subject is written
+to it by the worker that fitted it, as soon as it is fitted (captures and store
+on storage every worker reaches); a subject that fails is retried, and the
+subjects that still fail are reported together at the end, after every other
+subject is stored (:class:`facestats.errors.FitError`), never skipped silently.
+"""
 
 from __future__ import annotations
 
@@ -8,14 +17,32 @@ from facestats.core.conventions import SITES
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import FitError, ValidationError
 from facestats.model import fitting
+from facestats.pipeline.cluster import connect, scheduler_address, store_directory
+from facestats.pipeline.journal import BuildJournal, run_journalled
+from facestats.pipeline.progress import TaskProgress, progress_bar
 from facestats.pipeline.settings import FitSettings
 from facestats.pipeline.subject import fit_sensor, fit_subject
 
 __all__ = ["fit_population"]
 
+_LOCAL = ("processes", "threads", "synchronous")
 
-def _fit_capture_task(capture, sigma_tr_avg, settings, sensor_fit):
-    return fit_subject(capture, sigma_tr_avg, settings, sensor_fit=sensor_fit)
+
+def _fit_capture_task(sid, capture, sigma_tr_avg, settings, sensor_fit, store, retries):
+    """Fit one capture (with retries), write it to ``store`` if given: ``(id, "done"/"failed", dataset/id/error)``."""
+
+    def run():
+        ds = fit_subject(capture, sigma_tr_avg, settings, sensor_fit=sensor_fit)
+        if store is None:
+            return ds
+        from facestats.io.store import open_store
+
+        with open_store(store, mode="r+") as st:
+            return st.write_subject(ds, overwrite=True)
+
+    journal = None if store is None else BuildJournal(store)
+    state, result = run_journalled(journal, sid, run, retries)
+    return sid, state, result
 
 
 def fit_population(
@@ -23,9 +50,11 @@ def fit_population(
     settings: FitSettings | None = None,
     *,
     client=None,
-    scheduler="processes",
+    scheduler=None,
     num_workers=None,
     progress=False,
+    store=None,
+    retries: int = 2,
 ):
     """Fit many captures: σtrAvg from the sensor fits (§5.4), then every subject (in parallel).
 
@@ -35,68 +64,103 @@ def fit_population(
     Parameters
     ----------
     captures : sequence of Capture or str
-        Captures or paths of captures on disk.
+        Captures, or paths or URLs (any location zarr opens through fsspec) of captures.
     settings : FitSettings, optional
     client : dask.distributed.Client, optional
-        Run subjects on a distributed cluster (captures must be paths, readable by
-        the workers).
-    scheduler : {"processes", "threads", "synchronous"}
-        Dask's local scheduler when no client is given.
+        Run subjects on a distributed cluster (captures must be paths or URLs the
+        workers can read).
+    scheduler : str, optional
+        ``"processes"``, ``"threads"`` or ``"synchronous"`` (Dask's local schedulers),
+        or the address of a distributed scheduler (``tcp://host:8786``).  Default:
+        ``$DASK_SCHEDULER_ADDRESS`` if set, else ``"processes"``.
     num_workers : int, optional
         Local workers (default: number of cores).
     progress : bool
-        Show a progress bar over subjects.
+        Show a progress bar over subjects, with ETA.
+    store : str or path-like, optional
+        A directory store (created if missing) every worker can write: each subject is
+        written there as soon as it is fitted, and the datasets are not returned.
+        Object-store URLs are refused (:func:`facestats.pipeline.cluster.store_directory`).
+    retries : int
+        Attempts after the first for a subject that fails (≥ 0).
 
     Returns
     -------
-    datasets : list of xarray.Dataset
+    datasets : list of xarray.Dataset, or list of str
+        The subjects' Datasets in the order of ``captures``; with ``store``, the ids written.
     sigma_tr_avg : ndarray, shape (3,)
+
+    Raises
+    ------
+    FitError
+        If some subjects still fail after their retries (raised after every other
+        subject is done, and stored when ``store`` is given), naming each with its error.
     """
     from facestats.acquire.capture import Capture, open_capture
 
-    check_choice(scheduler, "scheduler", ("processes", "threads", "synchronous"))
+    local, address = _where(scheduler, client)
     if num_workers is not None:
         check_integer(num_workers, "num_workers", 1)
+    check_integer(retries, "retries", 0)
     st = settings or FitSettings()
     caps = [c if isinstance(c, Capture) else open_capture(c) for c in captures]
     if not caps:
         raise ValidationError("captures must contain at least one capture, got none")
+    if store is not None:
+        from facestats.io.store import open_store
+
+        store = store_directory(store)
+        open_store(store, mode="a").close()
     fits = [fit_sensor(c, st.eta) for c in caps]
-    sites = list(SITES)
     condition_normal = [i for i, c in enumerate(caps) if c.attrs.get("condition", "normal") == "normal"]
     if not condition_normal:
         raise ValidationError(
             "captures must include at least one subject of condition 'normal' (σtrAvg is their mean), got none"
         )
-    tr = np.stack([fits[i].sigma_tr for i in condition_normal])
-    stra = fitting.population_sigma_tr_avg(tr, sites)
+    stra = fitting.population_sigma_tr_avg(np.stack([fits[i].sigma_tr for i in condition_normal]), list(SITES))
+    tasks = [(str(c.metadata["subject_id"]), c.path or c, stra, st, f, store, retries) for c, f in zip(caps, fits)]
+    own = connect(address) if address is not None else None
+    try:
+        results = _run(tasks, own or client, local, num_workers, progress)
+    finally:
+        if own is not None:
+            own.close()
+    failed = {sid: err for sid, state, err in results if state != "done"}
+    if failed:
+        lines = "; ".join(f"{sid}: {err}" for sid, err in failed.items())
+        raise FitError(f"{len(failed)} of {len(results)} subject(s) failed after {retries} retries: {lines}")
+    if store is not None:
+        BuildJournal(store).prune()
+    return [res for _, _, res in results], stra
+
+
+def _where(scheduler, client):
+    """(local Dask scheduler name or None, distributed address or None) of the arguments."""
+    if scheduler is not None and str(scheduler) in _LOCAL:
+        return str(scheduler), None
     if client is not None:
-        futs = [
-            client.submit(_fit_capture_task, c.path if c.path else c, stra, st, f, pure=False)
-            for c, f in zip(caps, fits)
-        ]
-        if progress:
-            from distributed import progress as dprogress
+        if scheduler is not None:
+            raise ValidationError("pass either client or a scheduler address, not both")
+        return None, None
+    address = scheduler_address(scheduler)
+    if scheduler is not None and address is None:  # pragma: no cover - scheduler_address raises first
+        check_choice(scheduler, "scheduler", _LOCAL)
+    return ("processes" if address is None else None), address
 
-            dprogress(futs)
-        return client.gather(futs), stra
-    if scheduler == "synchronous" or len(caps) == 1:
-        it = zip(caps, fits)
-        if progress:
-            from tqdm.auto import tqdm
 
-            it = tqdm(list(it), desc="fit", unit="subject")
-        return [fit_subject(c, stra, st, sensor_fit=f) for c, f in it], stra
+def _run(tasks, client, local, num_workers, progress):
+    """Every subject task on the client, or Dask's local scheduler, in the order of ``tasks``."""
+    if client is not None:
+        from distributed import as_completed
+
+        futures = [client.submit(_fit_capture_task, *t, pure=False) for t in tasks]
+        for _ in progress_bar(as_completed(futures), len(futures), progress, desc="fit"):
+            pass
+        return [f.result() for f in futures]
+    if local == "synchronous" or len(tasks) == 1:
+        return [_fit_capture_task(*t) for t in progress_bar(tasks, len(tasks), progress, desc="fit")]
     import dask
 
-    tasks = [dask.delayed(_fit_capture_task)(c.path if c.path else c, stra, st, f) for c, f in zip(caps, fits)]
-    if progress:
-        from dask.diagnostics import ProgressBar
-
-        with ProgressBar():
-            out = dask.compute(*tasks, scheduler=scheduler, num_workers=num_workers)
-    else:
-        out = dask.compute(*tasks, scheduler=scheduler, num_workers=num_workers)
-    if any(o is None for o in out):
-        raise FitError("a subject fit returned nothing")
-    return list(out), stra
+    delayed = [dask.delayed(_fit_capture_task, pure=False)(*t) for t in tasks]
+    with TaskProgress(len(delayed), enabled=progress, desc="fit"):
+        return list(dask.compute(*delayed, scheduler=local, num_workers=num_workers))

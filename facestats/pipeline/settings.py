@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -11,8 +11,9 @@ from facestats.core.validate import as_finite, check_integer
 from facestats.errors import ValidationError
 from facestats.model import fitting
 from facestats.model.dipole import check_dipole_eta
+from facestats.model.fitting.engine import default_engine, resolve_engine
 
-__all__ = ["FitSettings", "LUMITEXEL_OUTPUTS", "MODEL_PREFIX", "MAP_VARS"]
+__all__ = ["FitSettings", "LUMITEXEL_OUTPUTS", "MODEL_PREFIX", "MAP_VARS", "STD_VARS"]
 
 
 @dataclass
@@ -32,6 +33,13 @@ class FitSettings:
         :func:`facestats.model.fitting.refine_albedo`).
     max_angle_deg : float
         Samples with θi or θo beyond this are ignored (eq. 14: 80°), in (0, 90].
+    bp_max_angle_deg : float
+        The Blinn-Phong fit ignores samples beyond this angle too, in (0, 90] (default 70°).
+        Beyond 70° Torrance-Sparrow's G F/(N·ωi N·ωo) rises (×2 to ×6 at 80°) where a Blinn-Phong
+        lobe cannot follow: on Torrance-Sparrow captures the 70-80° samples hold 29 % of the
+        samples but 86 % of Blinn-Phong's E², and make 8 % of its fits ill-conditioned (0 % at 70°,
+        with E over the 80° domain 1 % higher); ``docs/scale.md``.  Set it to ``max_angle_deg``
+        for eq. 14 as printed.
     min_samples : int
         Texels with fewer usable samples are flagged ``few_samples`` (≥ 2).
     max_relative_error : float
@@ -48,12 +56,17 @@ class FitSettings:
         the capture's zarr chunk (2048 by default), so no chunk is decoded twice.
     eta : float
         Relative index of refraction, in [1, 3].
+    engine : {"numba", "numpy"}
+        Implementation of the hot loops (:mod:`facestats.model.fitting.engine`): compiled
+        kernels or pure numpy, same results to float32 rounding.  Default: ``$FACESTATS_ENGINE``,
+        else numba when it imports.
     """
 
     discard: int = 2
     grazing_penalty: float = 1.0
     refine_albedo: bool = True
     max_angle_deg: float = GRAZING_LIMIT_DEG
+    bp_max_angle_deg: float = 70.0
     min_samples: int = 30
     max_relative_error: float = 0.25
     models: tuple = ("torrance_sparrow", "blinn_phong")
@@ -61,6 +74,7 @@ class FitSettings:
     micro_normals: bool = True
     block: int = 2048
     eta: float = ETA_SKIN
+    engine: str = field(default_factory=default_engine)
 
     def __post_init__(self):
         if isinstance(self.models, str):
@@ -79,8 +93,10 @@ class FitSettings:
         check_integer(self.block, "block", 1)
         as_finite(self.grazing_penalty, "grazing_penalty", 0, None)
         as_finite(self.max_angle_deg, "max_angle_deg", 0, 90, low_inclusive=False, unit="deg")
+        as_finite(self.bp_max_angle_deg, "bp_max_angle_deg", 0, 90, low_inclusive=False, unit="deg")
         as_finite(self.max_relative_error, "max_relative_error", 0, None, low_inclusive=False)
         check_dipole_eta(self.eta)
+        self.engine = resolve_engine(self.engine)
 
 
 #: Per-lumitexel outputs of :func:`fit_lumitexels` (a model's four entries only when it is
@@ -96,12 +112,18 @@ LUMITEXEL_OUTPUTS = (
     "ts_m",
     "ts_error",
     "ts_flag",
+    "ts_rho_s_std",
+    "ts_m_std",
     "bp_rho_s",
     "bp_exponent",
     "bp_error",
     "bp_flag",
+    "bp_rho_s_std",
+    "bp_exponent_std",
 )
 
 #: Prefix of each specular model's outputs, and the (ρs, lobe, error) maps of each prefix.
 MODEL_PREFIX = {"torrance_sparrow": "ts", "blinn_phong": "bp"}
 MAP_VARS = {"ts": ("ts_rho_s", "ts_m", "ts_error"), "bp": ("bp_rho_s", "bp_exponent", "bp_error")}
+#: The standard-error maps (ρs, lobe) of each prefix: σ² (JᵀJ)⁻¹ of the eq. 14 fit.
+STD_VARS = {"ts": ("ts_rho_s_std", "ts_m_std"), "bp": ("bp_rho_s_std", "bp_exponent_std")}

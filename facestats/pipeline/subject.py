@@ -27,7 +27,7 @@ from facestats.io.schema import SCHEMA_VERSION, set_variable_attrs
 from facestats.model import fitting
 from facestats.pipeline.lumitexels import fit_lumitexels
 from facestats.pipeline.maps import subject_maps
-from facestats.pipeline.settings import MAP_VARS, FitSettings
+from facestats.pipeline.settings import MAP_VARS, STD_VARS, FitSettings
 
 __all__ = ["fit_subject", "fit_sensor"]
 
@@ -215,7 +215,7 @@ def _subject_dataset(capture, maps, micro, tf, scattering, provenance):
     }
     for key, map_vars in MAP_VARS.items():
         if f"{key}_flag" in maps:
-            for var in map_vars:
+            for var in map_vars + STD_VARS[key]:
                 data[var] = (("v", "u"), maps[var].astype(np.float32, copy=False))  # 0 off the face (stage 5)
             data[f"{key}_flag"] = (("v", "u"), maps[f"{key}_flag"])
     if micro is not None:

@@ -279,6 +279,7 @@ def test_store_without_condition_series(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "conditions: skipped" in r.stdout
     written = sorted(p.name for p in (tmp_path / "all").iterdir())
-    assert written == sorted(f"{a}.{e}" for a in BATCH[:-1] for e in ("json", "png"))
+    # models: the factories store fitted error maps, so §5.3's model comparison runs too
+    assert written == sorted(f"{a}.{e}" for a in (*BATCH[:-1], "models") for e in ("json", "png"))
     doc = _doc(tmp_path / "all", "translucency")
     assert doc["n_subjects"] == 6 and doc["store"] == str(path)

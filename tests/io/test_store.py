@@ -256,7 +256,8 @@ def test_query_with_no_match_gives_an_empty_valid_document(built):
     doc = json.loads(res.to_json())
     assert doc["format"] == "facestats.query/1" and doc["count"] == 0 and doc["subject_ids"] == []
     assert doc["filters"] == {"skin_type": [6], "gender": "M", "age": None, "condition": None, "region": None}
-    assert all(r["ts_m"] == {"mean": None, "std": None, "n": 0, "within_std": None} for r in doc["regions"])
+    empty = {"mean": None, "std": None, "n": 0, "within_std": None, "mean_se": None, "texel_se": None}
+    assert all(r["ts_m"] == empty for r in doc["regions"])
     assert doc["albedo_histogram"]["R"] is None
     assert "no subject matches" in res.to_table()
 
@@ -609,3 +610,9 @@ def test_gc_removes_dead_writers_leftovers_but_not_live_ones(tmp_path):
         unowned.rmdir()
         assert st.validate().ok and not st.validate().notes
         assert sorted(os.listdir(path / ".writers")) == []
+
+
+def test_every_stored_variable_has_a_physical_domain():
+    from facestats.io.schema import DOMAINS, VARIABLES
+
+    assert set(DOMAINS) == set(VARIABLES)

@@ -185,7 +185,7 @@ BAD_VALUES = {
     "bp_exponent": (lambda ds: ds["bp_exponent"].values.__imul__(-1), "'bp_exponent' must lie in \\[0, inf\\)"),
     "ts_rho_s": (lambda ds: ds["ts_rho_s"].values.__iadd__(20), "'ts_rho_s' must lie in \\[0, 9.80679\\]"),
     "bp_rho_s": (lambda ds: ds["bp_rho_s"].values.__iadd__(1), "'bp_rho_s' must lie in \\[0, 1\\]"),
-    "ts_flag": (lambda ds: ds["ts_flag"].values.__iadd__(64), "'ts_flag' must lie in \\[0, 31\\]"),
+    "ts_flag": (lambda ds: ds["ts_flag"].values.__iadd__(64), "'ts_flag' must lie in \\[0, 63\\]"),  # the six FLAG_BITS
 }
 
 

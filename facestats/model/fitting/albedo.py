@@ -137,6 +137,23 @@ def albedo_stable_minimum(
     if not _check_angle(grazing_start, "grazing_start") < _check_angle(grazing_end, "grazing_end"):
         raise ValidationError(f"grazing_start must be < grazing_end, got {grazing_start!r} >= {grazing_end!r} rad")
     c0, c1 = np.cos(grazing_start), np.cos(grazing_end)
+    if samples.resolved_engine == "numba":
+        from facestats.model.fitting.kernels.runs import stable_minimum
+
+        out, _ = stable_minimum(
+            samples.starts,
+            samples.counts,
+            np.ascontiguousarray(brdf, np.float32),
+            np.ascontiguousarray(ft2, np.float32),
+            np.ascontiguousarray(cos_i, np.float32),
+            np.ascontiguousarray(cos_o, np.float32),
+            np.ascontiguousarray(use, bool),
+            k,
+            float(np.float32(grazing_penalty)),
+            float(c0),
+            float(c0 - c1),
+        )
+        return out, samples.count(use)
     graze = np.clip((c0 - np.minimum(cos_i, cos_o)) / (c0 - c1), 0, 1)
     penalty = (1 + np.float32(grazing_penalty) * graze).astype(np.float32)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -179,7 +196,7 @@ def specular_residual(samples, brdf, albedo, ft2):
     return ((total - grey_albedo * (ft2 / np.float32(np.pi))) / np.float32(3)).astype(np.float32)
 
 
-def refine_albedo(samples, brdf, ft2, cos_half, use, *, min_half_angle=np.radians(50.0)):
+def refine_albedo(samples, brdf, ft2, cos_half, use, *, min_half_angle=np.radians(50.0), with_std=False):
     """Unbiased albedo from the specular-free samples (module docstring).
 
     α = mean of π f_r/(F_t F_t) over the usable samples whose half vector makes an
@@ -198,19 +215,45 @@ def refine_albedo(samples, brdf, ft2, cos_half, use, *, min_half_angle=np.radian
     min_half_angle : float
         Angle (rad, in [0, π/2]) between normal and half vector beyond which a
         sample counts as specular-free (default 50°).
+    with_std : bool
+        Also return the standard error of the grey albedo α_R + α_G + α_B (the
+        spread of the samples' v_R + v_G + v_B over sqrt(n), n − 1 in the variance),
+        which :mod:`facestats.model.fitting.uncertainty` propagates into the BRDF's.
 
     Returns
     -------
     albedo : ndarray of float32, shape (n, 3)
         NaN where no sample qualifies.
     n_used : ndarray of int, shape (n,)
+    grey_std : ndarray of float64, shape (n,)
+        Only with ``with_std``; NaN for fewer than two samples.
     """
     _check_per_sample(samples, brdf, ft2=ft2, cos_half=cos_half, use=use)
     _check_angle(min_half_angle, "min_half_angle")
+    if samples.resolved_engine == "numba":
+        from facestats.model.fitting.kernels.runs import refine_sums
+
+        alb, cnt, grey_std = refine_sums(
+            samples.starts,
+            samples.counts,
+            np.ascontiguousarray(brdf, np.float32),
+            np.ascontiguousarray(ft2, np.float32),
+            np.ascontiguousarray(cos_half, np.float32),
+            np.ascontiguousarray(use, bool),
+            float(np.cos(min_half_angle)),
+        )
+        return (alb, cnt, grey_std) if with_std else (alb, cnt)
     with np.errstate(invalid="ignore", divide="ignore"):
         v = np.float32(np.pi) * brdf / ft2
     sel = use & (cos_half < np.cos(min_half_angle)) & np.isfinite(v[0] + v[1] + v[2])
     cnt = samples.count(sel)
     with np.errstate(invalid="ignore", divide="ignore"):
         alb = samples.sum(v, sel).T / cnt[:, None]
-    return np.where(cnt[:, None] > 0, alb, np.nan).astype(np.float32), cnt
+    alb = np.where(cnt[:, None] > 0, alb, np.nan).astype(np.float32)
+    if not with_std:
+        return alb, cnt
+    grey = v[0].astype(np.float64) + v[1] + v[2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean, mean_sq = samples.sum(grey, sel) / cnt, samples.sum(grey * grey, sel) / cnt
+        grey_std = np.sqrt(np.maximum(mean_sq - mean * mean, 0) / (cnt - 1))
+    return alb, cnt, np.where(cnt > 1, grey_std, np.nan)

@@ -93,24 +93,15 @@ def photometric_normals(
     check_integer(min_lights, "min_lights", 3)
     n_scan = np.asarray(scan_normal, np.float32)
     y = samples.grey()
-    ci_g, co_g = samples.cos_grids(n_scan)
-    ci, co = samples.at_lights(ci_g), samples.at_cameras(co_g)
-    cos_h = (ci + co) / np.sqrt(np.maximum(2 + 2 * samples.cos_io(), 1e-12))  # N·H with ‖ωi + ωo‖² = 2 + 2 ωi·ωo
     lim = np.float32(np.cos(max_angle))
-    with np.errstate(invalid="ignore"):
-        use = (cos_h < np.float32(np.cos(specular_exclusion))) & (ci > lim) & (co > lim) & (y > 0) & (y < np.inf)
-    # Per (lumitexel, camera): A = Σ ωi ωiᵀ and b = Σ y ωi over the used lights, as batched products of
-    # the (lumitexel, camera, light) grids of the mask and of y with the lights' directions.
-    m_grid = samples.on_grid(use.astype(np.float32))  # (n, C, L)
-    y_grid = samples.on_grid(masked(y, use).astype(np.float64))
+    cos_spec = np.float32(np.cos(specular_exclusion))
+    compiled = samples.resolved_engine == "numba"
     wi = np.asarray(samples.wi_grid, np.float32)  # (n, L, 3)
-    i, j = np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2])  # the 6 entries of a symmetric 3×3
-    # The sums over lights run in float64: BLAS kernels (chosen per CPU) sum in different orders, and float32
-    # sums would make the normals, and every fit after them, depend on the machine in the last bits.
-    wi64 = wi.astype(np.float64)
-    a = np.moveaxis(np.matmul(m_grid.astype(np.float64), wi64[..., i] * wi64[..., j]), -1, 0)  # (6, n, C)
+    if compiled:
+        a, count, rhs = _compiled_system(samples, n_scan, y, cos_spec, lim)
+    else:
+        a, count, rhs = _numpy_system(samples, n_scan, y, cos_spec, lim)
     adj, det = _adjugate_sym3(a)  # A is the same in every pass: g = A⁻¹ b ∝ adj(A) b
-    count = m_grid.sum(-1)
     ok = (count >= min_lights) & (det > 1e-6 * np.maximum(count, 1.0) ** 3)
     cam_dir = samples.wo_grid.astype(np.float64)  # (n, C, 3)
     normal = n_scan.astype(np.float64)
@@ -121,7 +112,7 @@ def photometric_normals(
             c = np.clip(samples.cos_grids(normal)[0], 0, 1)  # (n, L)
             ft = 1 - fresnel_reflectance_unchecked(c, e32)
             w_eff = wi / np.where(ft > 0, ft, 1)[..., None]
-        b = np.matmul(y_grid, w_eff.astype(np.float64))  # (n, C, 3)
+        b = rhs(w_eff)  # (n, C, 3)
         g = np.einsum("ijnc,ncj->nci", adj, b)  # det(A) > 0 where ok: the direction of A⁻¹ b
         cam_n = np.where(ok[..., None], _unit(g), np.nan)
         weight = np.where(ok, np.clip(np.einsum("nck,nck->nc", np.nan_to_num(cam_n), cam_dir), 0, None), 0)
@@ -129,6 +120,58 @@ def photometric_normals(
         have = weight.sum(1) > 0
         normal = np.where(have[:, None], _unit(acc), n_scan)
     return normal.astype(np.float32), cam_n.astype(np.float32)
+
+
+def _numpy_system(samples, n_scan, y, cos_spec, lim):
+    """Per-(lumitexel, camera) A (6, n, C), light count (n, C) and b(w) over the used samples, in numpy.
+
+    A = Σ ωi ωiᵀ and b = Σ y w over the used lights, as batched products of the
+    (lumitexel, camera, light) grids of the mask and of y with the lights' directions.
+    """
+    ci_g, co_g = samples.cos_grids(n_scan)
+    ci, co = samples.at_lights(ci_g), samples.at_cameras(co_g)
+    cos_h = (ci + co) / np.sqrt(np.maximum(2 + 2 * samples.cos_io(), 1e-12))  # N·H with ‖ωi + ωo‖² = 2 + 2 ωi·ωo
+    with np.errstate(invalid="ignore"):
+        use = (cos_h < cos_spec) & (ci > lim) & (co > lim) & (y > 0) & (y < np.inf)
+    m_grid = samples.on_grid(use.astype(np.float32))  # (n, C, L)
+    y_grid = samples.on_grid(masked(y, use).astype(np.float64))
+    wi64 = np.asarray(samples.wi_grid, np.float64)
+    i, j = np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2])  # the 6 entries of a symmetric 3×3
+    # The sums over lights run in float64: BLAS kernels (chosen per CPU) sum in different orders, and float32
+    # sums would make the normals, and every fit after them, depend on the machine in the last bits.
+    a = np.moveaxis(np.matmul(m_grid.astype(np.float64), wi64[..., i] * wi64[..., j]), -1, 0)  # (6, n, C)
+
+    def rhs(w):
+        return np.matmul(y_grid, np.asarray(w).astype(np.float64))
+
+    return a, m_grid.sum(-1), rhs
+
+
+def _compiled_system(samples, n_scan, y, cos_spec, lim):
+    """As :func:`_numpy_system`, by one pass over the samples (:mod:`facestats.model.fitting.kernels.runs`)."""
+    from facestats.model.fitting.kernels.runs import camera_rhs, camera_system
+
+    n, n_cam = samples.n_texels, samples.wo_grid.shape[1]
+    wo_flat = np.ascontiguousarray(samples.wo_grid, np.float32).reshape(-1, 3)
+    runs = samples.camera_runs()
+    y_used, a, count = camera_system(
+        samples.texel,
+        samples.light_index,
+        samples.camera_index,
+        *runs,
+        np.ascontiguousarray(samples.wi_grid, np.float32).reshape(-1, 3),
+        wo_flat,
+        n_scan,
+        np.ascontiguousarray(y, np.float32),
+        cos_spec,
+        lim,
+    )
+
+    def rhs(w):
+        w_flat = np.ascontiguousarray(w, np.float32).reshape(-1, 3)
+        return camera_rhs(samples.light_index, *runs, y_used, w_flat, n * n_cam).reshape(n, n_cam, 3)
+
+    return a.reshape(6, n, n_cam), count.reshape(n, n_cam), rhs
 
 
 def _adjugate_sym3(a):
@@ -175,9 +218,14 @@ def micro_normals(samples, n_cameras):
     out = np.full((n * n_cameras, 3), np.nan, np.float32)
     if samples.n == 0:
         return out.reshape(n, n_cameras, 3)
-    darkness = -np.nan_to_num(samples.grey(), nan=-np.inf)  # NaN ranks last
-    key, start, _ = samples.camera_runs()
-    best = np.minimum.reduceat(order_keys(darkness), start) & 0xFFFFFFFF  # first brightest sample of each run
+    key, start, cnt = samples.camera_runs()
+    if samples.resolved_engine == "numba":
+        from facestats.model.fitting.kernels.runs import run_argmax
+
+        best = run_argmax(samples.grey(), start, cnt)
+    else:
+        darkness = -np.nan_to_num(samples.grey(), nan=-np.inf)  # NaN ranks last
+        best = np.minimum.reduceat(order_keys(darkness), start) & 0xFFFFFFFF  # first brightest sample of each run
     wi = samples.wi_grid.reshape(-1, 3)[samples.light_index[best]]
     wo = samples.wo_grid.reshape(-1, 3)[samples.camera_index[best]]
     out[key] = _unit(wi + wo)

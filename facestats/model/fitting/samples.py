@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from facestats.errors import ValidationError
+from facestats.model.fitting.engine import resolve_engine
 
 __all__ = ["Samples", "segment_sum", "masked", "order_keys", "valid_samples"]
 
@@ -148,6 +149,9 @@ class Samples:
     paired : bool
         True when ``camera`` and ``light`` index the same per-sample direction
         pairs (:meth:`from_arrays`) rather than a dome's camera and light grids.
+    engine : {"numba", "numpy"} or None
+        Implementation of the per-sample primitives and of the stages that take these
+        samples (:mod:`facestats.model.fitting.engine`); None: the configured default.
     """
 
     n_texels: int
@@ -159,6 +163,7 @@ class Samples:
     radiance: np.ndarray
     irradiance: np.ndarray
     paired: bool = False
+    engine: str | None = None
     _cache: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -197,7 +202,51 @@ class Samples:
         return out
 
     @classmethod
-    def from_arrays(cls, wi, wo, valid, radiance=None, irradiance=None):
+    def from_dome(cls, wi, wo, irradiance, radiance, *, keep_cameras=None, engine=None):
+        """The valid samples of a dome grid (:func:`valid_samples`, minus cameras left out), and the invalid count.
+
+        ``wi`` (n, L, 3), ``wo`` (n, C, 3), ``irradiance`` (n, L, 3), ``radiance``
+        (n, C, L, 3) as :meth:`from_grid`; ``keep_cameras`` (C,) bool marks the
+        cameras whose samples may be used (default all).  With the numba engine
+        and float16 radiance (the capture format) one compiled pass
+        (:func:`facestats.model.fitting.kernels.samples.flatten_grid`) does both.
+
+        Returns
+        -------
+        samples : Samples
+        n_invalid : ndarray of int64, shape (n,)
+            Grid entries per lumitexel that are not used: invalid or of a camera left out.
+        """
+        engine = resolve_engine(engine)
+        n, n_cam, n_led = np.shape(radiance)[:3]
+        keep = np.ones(n_cam, bool) if keep_cameras is None else np.asarray(keep_cameras, bool)
+        if engine == "numba" and np.asarray(radiance).dtype == np.float16 and np.shape(irradiance) == (n, n_led, 3):
+            from facestats.model.fitting.kernels.samples import flatten_grid
+
+            rad = np.ascontiguousarray(radiance).view(np.uint16)
+            irr = np.ascontiguousarray(irradiance, np.float32)
+            texel, cam_i, light_i, grid_i, bits, irr_s, per_tc = flatten_grid(rad, irr, keep)
+            out = cls(
+                n_texels=n,
+                texel=texel,
+                camera_index=cam_i,
+                light_index=light_i,
+                wi_grid=np.asarray(wi, np.float32),
+                wo_grid=np.asarray(wo, np.float32),
+                radiance=bits.view(np.float16).astype(np.float32),
+                irradiance=irr_s,
+                engine=engine,
+            )
+            per_texel = per_tc.reshape(n, n_cam).sum(1)
+            out._cache.update(counts=per_texel, grid_index=grid_i, camera_runs=per_tc)
+            return out, n_cam * n_led - per_texel
+        valid = valid_samples(radiance, irradiance) & keep[None, :, None]
+        out = cls.from_grid(wi, wo, irradiance, radiance, valid)
+        out.engine = engine
+        return out, (~valid).reshape(n, -1).sum(1)
+
+    @classmethod
+    def from_arrays(cls, wi, wo, valid, radiance=None, irradiance=None, engine=None):
         """From per-texel sample arrays ``wi``, ``wo`` (T, S, 3) and ``valid`` (T, S)."""
         v = np.asarray(valid, bool)
         t, s = np.nonzero(v)
@@ -215,6 +264,7 @@ class Samples:
             radiance=np.ascontiguousarray(rad),
             irradiance=np.ascontiguousarray(irr),
             paired=True,
+            engine=engine,
         )
 
     # -- runs and indices ---------------------------------------------------------------
@@ -336,13 +386,43 @@ class Samples:
 
     def cos(self, normal, dtype=np.float32):
         """(N·ωi, N·ωo) per sample for per-lumitexel normals (n, 3)."""
+        if self._compiled() and np.dtype(dtype) == np.float32:
+            ci, co, io = self._kernel_cosines(normal)
+            self._cache.setdefault("io", io)
+            return ci, co
         ci, co = self.cos_grids(normal, dtype)
         return self.at_lights(ci), self.at_cameras(co)
+
+    @property
+    def resolved_engine(self) -> str:
+        """The engine these samples run with (:attr:`engine`, or the configured default)."""
+        return resolve_engine(self.engine)
+
+    def _compiled(self) -> bool:
+        """True when the per-sample primitives run as compiled kernels (numba engine, dome grid)."""
+        return not self.paired and self.resolved_engine == "numba"
+
+    def _kernel_cosines(self, normal=None):
+        """(N·ωi, N·ωo, ωi·ωo) per sample from one compiled pass (the first two empty without ``normal``)."""
+        from facestats.model.fitting.kernels.samples import sample_cosines
+
+        nrm = np.zeros((0, 3), np.float32) if normal is None else np.ascontiguousarray(normal, np.float32)
+        return sample_cosines(
+            self.texel,
+            self.light_index,
+            self.camera_index,
+            np.ascontiguousarray(self.wi_grid).reshape(-1, 3),
+            np.ascontiguousarray(self.wo_grid).reshape(-1, 3),
+            nrm,
+            normal is not None,
+        )
 
     def cos_io(self) -> np.ndarray:
         """ωi·ωo per sample (float32, cached)."""
         if "io" not in self._cache:
-            if self.paired:
+            if self._compiled():
+                io = self._kernel_cosines()[2]
+            elif self.paired:
                 io = np.einsum("sk,sk->s", self.wi, self.wo)
             else:
                 grid = _dot3(self.wo_grid[:, :, None], self.wi_grid[:, None])  # (n, C, L)

@@ -19,9 +19,9 @@ samples of eq. 14 (w = 1), for the lobes of :mod:`facestats.model.fitting.lobes`
   ``tol``/10 the parameters stay within 2·10⁻³ relative of a fit run to
   tol = 10⁻¹³, as close as the E²-change test alone gets.)
 * When fewer than 70 % of the texels are still moving the converged ones leave
-  the working set, their sums kept for the final E(p) and standard errors.  E²
-  is Σy² − 2ρs Σyg + ρs² Σg² from those sums, except where that difference is
-  below 1 % of Σy² (it would cancel): there the residuals are formed explicitly.
+  the working set, their sums kept for the standard errors.  E² and the sums of
+  the standard errors come from explicit residuals at the solution
+  (:mod:`facestats.model.fitting.uncertainty`).
 
 Flags (:data:`facestats.core.conventions.FLAG_BITS`): ``few_samples`` when fewer than
 ``min_samples`` samples remain, ``not_converged`` when ``max_iter`` is reached,
@@ -30,16 +30,16 @@ standard error (from σ² (JᵀJ)⁻¹) exceeds ``max_relative_error``, ``at_bou
 when the lobe parameter ends on a bound, or when the data ask for a ρs beyond
 its bounds: the unconstrained optimum ρs* = Σyg/Σg² at the final lobe lies
 outside [ρ_lo, ρ_hi] by more than ``max_relative_error`` × ρ_hi (a ρs clamped
-a little at its bound, as on 46 Blinn-Phong texels of the default store, is
-an ordinary fit; data a thousand times too bright are not).  Flagged texels
-keep their values but are meant to be filled from neighbours
+a little at its bound is an ordinary fit; data a thousand times too bright are
+not), ``implausible`` when the lobe lies outside :data:`PLAUSIBLE_LOBE`.
+Flagged texels keep their values but are meant to be filled from neighbours
 (:func:`facestats.model.fitting.maps.fill_flagged`).
 
 Scale: E(p) is quadratic in y and the sums run in float32, so samples of
 magnitude beyond 2³² (or below 2⁻³²) sr⁻¹ would overflow (underflow) them; such
-inputs are divided by a power of two (exact) and ρs, its bounds, E(p) and the
-standard error of ρs scaled back, which gives the fit of the unscaled problem.
-Data of ordinary magnitude are not scaled (the same numbers as without).
+inputs (and ∂y/∂α with them) are divided by a power of two (exact) and ρs, its
+bounds, E(p) and the standard error of ρs scaled back, which gives the fit of
+the unscaled problem.  Data of ordinary magnitude are not scaled.
 """
 
 from __future__ import annotations
@@ -52,9 +52,11 @@ import numpy as np
 from facestats.core.conventions import FLAG_BITS
 from facestats.core.validate import as_finite, check_integer
 from facestats.errors import ValidationError
-from facestats.model.fitting.lobes import lobe_base, lobe_moments, lobe_scale, lobe_sums
+from facestats.model.fitting.engine import resolve_engine
+from facestats.model.fitting.lobes import lobe_moments, lobe_sums
+from facestats.model.fitting.uncertainty import residual_sums, standard_errors
 
-__all__ = ["SpecularFit", "DEFAULT_BOUNDS", "solve_specular"]
+__all__ = ["SpecularFit", "DEFAULT_BOUNDS", "PLAUSIBLE_LOBE", "solve_specular"]
 
 
 #: Default bounds (ρs, lobe parameter) per model.
@@ -62,6 +64,15 @@ DEFAULT_BOUNDS = {
     "torrance_sparrow": ((0.0, 5.0), (0.03, 1.0)),
     "blinn_phong": ((0.0, 1.0), (0.5, 5000.0)),
 }
+#: The range of the lobe parameter that skin can have; a fit outside it is flagged ``implausible``.
+#: Torrance-Sparrow m in [0.1, 1]: Weyrich et al. 2006 Fig. 15 puts the region means at m = 0.23-0.31,
+#: the widest regional spread (lips) within ±0.1, and the synthetic population spans 0.14-0.68
+#: (0.18-0.49 for 99.8 % of texels); m = 0.1 is a lobe of about 6° half-width, sharper than any region.
+#: Blinn-Phong n in [0, 198]: the same lobes by the Beckmann-Phong correspondence n = 2/m² − 2 (Walter et
+#: al. 2007 §5.2).  Wider than the fit's bounds allow would make no difference; narrower lobes are
+#: fits of a few bright samples (a Blinn-Phong lobe fitted to Torrance-Sparrow data at grazing angles,
+#: ``docs/scale.md``), not skin.
+PLAUSIBLE_LOBE = {"torrance_sparrow": (0.1, 1.0), "blinn_phong": (0.0, 198.0)}
 _LOBE_NAME = {"torrance_sparrow": "m", "blinn_phong": "exponent"}
 #: Multiples of the log-linear estimate tried as cold starts (the best one starts the iteration);
 #: one suffices on skin-like lobes (extra starts at 0.625× and 1.6× changed 0.1 % of texels).
@@ -88,7 +99,8 @@ class SpecularFit:
     iterations : int
         Levenberg-Marquardt iterations run.
     rho_s_std, lobe_std : ndarray
-        Standard errors from σ² (JᵀJ)⁻¹.
+        Standard errors: the robust (sandwich) covariance plus the albedo's
+        uncertainty (:mod:`facestats.model.fitting.uncertainty`).
     """
 
     model: str
@@ -273,25 +285,52 @@ def _lm_iterations(model, ws, state, sums, swyy, r_bounds, q_bounds, max_iter, t
     return all_sums, iterations
 
 
-def _squared_error(model, y, s1, a, n_use, good, rho, q, swyy, syg, sgg, dt):
-    """E² per texel from the lobe sums; where they would cancel (E² < 1 % of Σy²), from explicit residuals.
+def solve_specular(
+    model,
+    y,
+    s1,
+    a,
+    n_use,
+    *,
+    bounds,
+    min_samples,
+    max_iter,
+    tol,
+    max_relative_error,
+    dtype=np.float32,
+    start=None,
+    engine=None,
+    d=None,
+    albedo_std=None,
+):
+    """Batch bounded Levenberg-Marquardt on flat samples in per-texel runs of ``n_use`` samples (module docstring).
 
-    E² = Σy² − 2ρs Σyg + ρs² Σg².  Near a perfect fit that difference cancels
-    (float32 sums carry ~1e-7 Σy²), so there E² is recomputed as Σ (y − ρs g)².
+    ``engine`` (:mod:`facestats.model.fitting.engine`) picks the numpy iteration
+    below or the compiled per-texel solve of :mod:`facestats.model.fitting.kernels.lm`.
+    ``d`` (per sample, ∂y/∂α of the grey albedo) and ``albedo_std`` (per texel) add the
+    albedo's uncertainty to the standard errors (:mod:`facestats.model.fitting.uncertainty`).
     """
-    e = np.zeros(n_use.size)
-    e[good] = np.maximum(swyy[good] - 2 * rho[good] * syg + rho[good] ** 2 * sgg, 0)
-    exact = good & (e < 1e-2 * swyy)
-    if exact.any():
-        cnt_x = n_use[exact]
-        sel = np.repeat(exact, n_use)
-        kept = None if exact.all() else np.flatnonzero(sel)
-        yx, sx, ax = (x if kept is None else x.take(kept) for x in (y, s1, a))
-        g = lobe_base(model, q[exact], cnt_x, sx, ax)
-        g *= np.repeat((rho[exact] * lobe_scale(model, q[exact])).astype(dt), cnt_x)  # ρs g
-        res = np.subtract(yx, g, out=g)
-        e[exact] = np.add.reduceat(np.multiply(res, res, out=res), _segments(cnt_x))  # pairwise float32
-    return e
+    (r_lo, r_hi), (p_lo, p_hi) = _check_solver_args(model, bounds, min_samples, max_iter, tol, max_relative_error)
+    engine = resolve_engine(engine)
+    dt = np.dtype(dtype)
+    scale = _y_scale(y)
+    if scale != 1.0:
+        y = y / y.dtype.type(scale)
+        d = None if d is None else d / np.asarray(d).dtype.type(scale)
+        r_lo, r_hi = r_lo / scale, r_hi / scale
+    n_use = np.asarray(n_use, np.int64)
+    few = n_use < min_samples
+    p0 = None if start is None else np.asarray(start, np.float64)
+    bnd = ((r_lo, r_hi), (p_lo, p_hi))
+    if engine == "numba":
+        rho, q, done, iterations, all_sums, sums = _solve_compiled(
+            model, y, s1, a, d, n_use, ~few, p0, bnd, max_iter, tol
+        )
+    else:
+        rho, q, done, iterations, all_sums = _solve_numpy(model, y, s1, a, n_use, ~few, p0, bnd, max_iter, tol, dt)
+        sums = residual_sums(model, y, s1, a, d, n_use, ~few, rho, q, all_sums)
+    fit = (rho, q, done, iterations, all_sums, sums)
+    return _result(model, n_use, few, fit, albedo_std, max_relative_error, (r_lo, r_hi, p_lo, p_hi), scale, dt)
 
 
 def _y_scale(y) -> float:
@@ -302,61 +341,31 @@ def _y_scale(y) -> float:
     return 2.0 ** math.ceil(math.log2(ymax))
 
 
-def _uncertainty(model, y, s1, a, n_use, good, rho, q, all_sums, swyy, max_relative_error, dt):
-    """(RMS error, std of ρs, std of the lobe, ill-conditioned, ρs*) per texel from J = (g, ρs ∂g/∂ln p).
-
-    ρs* = Σyg/Σg² is the unconstrained optimum of ρs at the final lobe.
-
-    The covariance is σ²(JᵀJ)⁻¹ with σ² = E²/(n − 2) (module docstring).
-    """
-    n_tex = n_use.size
-    err, r_std, p_std, rho_star = (np.full(n_tex, np.nan) for _ in range(4))
-    ill = np.zeros(n_tex, bool)
-    if not good.any():
-        return err, r_std, p_std, ill, rho_star
-    syg, sgg, _, sgdg, sdgdg = lobe_moments(model, q[good], all_sums[:, good])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rho_star[good] = syg / sgg
-    h00, h01, h11 = (np.zeros(n_tex) for _ in range(3))
-    h00[good], h01[good], h11[good] = sgg, rho[good] * sgdg, rho[good] ** 2 * sdgdg
-    e = _squared_error(model, y, s1, a, n_use, good, rho, q, swyy, syg, sgg, dt)
-    sw = n_use.astype(np.float64)
-    det = h00 * h11 - h01 * h01
-    with np.errstate(invalid="ignore", divide="ignore"):
-        err = np.where(good, np.sqrt(e / sw), np.nan)
-        sigma2 = e / np.maximum(sw - 2, 1)
-        var_r = sigma2 * h11 / det
-        var_q = sigma2 * h00 / det
-        r_std = np.where(good, np.sqrt(var_r), np.nan)
-        p_std = np.where(good, np.exp(q) * np.sqrt(var_q), np.nan)  # std of ln p times p
-        rel_r = np.sqrt(var_r) / rho
-        rel_q = np.sqrt(var_q)
-        singular = ~(det > 1e-12 * np.maximum(h00 * h11, 1e-300))
-        ill = good & (singular | ~(rel_r <= max_relative_error) | ~(rel_q <= max_relative_error))
-    return err, r_std, p_std, ill, rho_star
+def _rho_outside(model, good, q, all_sums, r_lo, r_hi, max_relative_error):
+    """Texels whose unconstrained optimum ρs* = Σyg/Σg² at the final lobe leaves [ρ_lo, ρ_hi] by more than the
+    margin ``max_relative_error`` × ρ_hi (module docstring)."""
+    out = np.zeros(good.size, bool)
+    if good.any():
+        syg, sgg = lobe_moments(model, q[good], all_sums[:, good])[:2]
+        margin = max_relative_error * r_hi
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rho_star = syg / sgg
+            out[good] = (rho_star > r_hi + margin) | (rho_star < r_lo - margin)
+    return out
 
 
-def solve_specular(
-    model, y, s1, a, n_use, *, bounds, min_samples, max_iter, tol, max_relative_error, dtype=np.float32, start=None
-):
-    """Batch bounded Levenberg-Marquardt on flat samples in per-texel runs of ``n_use`` samples (module docstring)."""
-    (r_lo, r_hi), (p_lo, p_hi) = _check_solver_args(model, bounds, min_samples, max_iter, tol, max_relative_error)
-    dt = np.dtype(dtype)
-    scale = _y_scale(y)
-    if scale != 1.0:
-        y = y / y.dtype.type(scale)
-        r_lo, r_hi = r_lo / scale, r_hi / scale
+def _solve_numpy(model, y, s1, a, n_use, solve, p_start, bounds, max_iter, tol, dt):
+    """The numpy iteration: (ρs, ln p, converged, iterations, lobe sums) per texel (module docstring)."""
+    (r_lo, r_hi), (p_lo, p_hi) = bounds
     q_lo, q_hi = np.log(p_lo), np.log(p_hi)
-    n_use = np.asarray(n_use, np.int64)
     n_tex = n_use.size
-    few = n_use < min_samples
     state = {
         "rho": np.full(n_tex, np.nan, dt),
         "q": np.full(n_tex, np.nan, dt),
         "lam": np.full(n_tex, 1e-3, dt),
-        "done": few.copy(),
+        "done": ~solve,
     }
-    ws = _WorkingSet(~few, n_use, y, a, s1, y.dtype)
+    ws = _WorkingSet(solve, n_use, y, a, s1, y.dtype)
     swyy = np.zeros(n_tex)
     iterations = 0
     all_sums = np.zeros((5, n_tex))
@@ -364,8 +373,8 @@ def solve_specular(
         work = ws.work
         swyy[work] = _rsum(ws.y * ws.y, ws.starts)
         p0 = np.full(work.size, np.nan)
-        if start is not None:  # a given start wins where it is finite
-            st0 = np.asarray(start, np.float64)[work]
+        if p_start is not None:  # a given start wins where it is finite
+            st0 = p_start[work]
             p0 = np.where(np.isfinite(st0) & (st0 > 0), st0, np.nan)
         cold = ~np.isfinite(p0)
         if cold.any():
@@ -374,32 +383,63 @@ def solve_specular(
         q0, r0, sums = _best_start(model, ws, swyy[work], p0, cold, (r_lo, r_hi), (q_lo, q_hi))
         state["q"][work], state["rho"][work] = q0, r0
         all_sums, iterations = _lm_iterations(model, ws, state, sums, swyy, (r_lo, r_hi), (q_lo, q_hi), max_iter, tol)
-    not_conv = ~state["done"]
-    good = ~few
     rho = state["rho"].astype(np.float64)
     q = state["q"].astype(np.float64)
-    err, r_std, p_std, ill, rho_star = _uncertainty(
-        model, y, s1, a, n_use, good, rho, q, all_sums, swyy, max_relative_error, dt
+    return rho, q, state["done"] & solve, iterations, all_sums
+
+
+def _solve_compiled(model, y, s1, a, d, n_use, solve, p_start, bounds, max_iter, tol):
+    """The compiled per-texel solve (:func:`facestats.model.fitting.kernels.lm.solve_runs`), and its residual sums."""
+    from facestats.model.fitting.kernels import lm
+
+    (r_lo, r_hi), (p_lo, p_hi) = bounds
+    n_tex = n_use.size
+    p0 = np.full(n_tex, np.nan) if p_start is None else np.where(np.isfinite(p_start) & (p_start > 0), p_start, np.nan)
+    code = lm.TORRANCE_SPARROW if model == "torrance_sparrow" else lm.BLINN_PHONG
+    limits = np.array([r_lo, r_hi, np.log(p_lo), np.log(p_hi), p_lo, p_hi], np.float64)
+    rho, q, done, its, all_sums, sums = lm.solve_runs(
+        code,
+        np.ascontiguousarray(y, np.float32),
+        np.ascontiguousarray(s1, np.float32),
+        np.ascontiguousarray(a, np.float32),
+        np.zeros(0, np.float32) if d is None else np.ascontiguousarray(d, np.float32),
+        _segments(n_use).astype(np.int64),
+        n_use,
+        solve,
+        p0,
+        limits,
+        int(max_iter),
+        float(tol),
     )
-    p = np.exp(q)
-    margin = max_relative_error * r_hi
-    with np.errstate(invalid="ignore"):
-        rho_out = (rho_star > r_hi + margin) | (rho_star < r_lo - margin)
-    at_bound = good & ((q <= q_lo + 1e-6) | (q >= q_hi - 1e-6) | rho_out)
+    return rho, q, done, int(its.max(initial=0)), all_sums, sums
+
+
+def _result(model, n_use, few, fit, albedo_std, max_relative_error, limits, scale, dt):
+    """The :class:`SpecularFit` of a solve: standard errors, flags, NaN where too few samples; ρs, E and the
+    standard error of ρs scaled back by ``scale`` (module docstring: Scale)."""
+    rho, q, done, iterations, all_sums, sums = fit
+    r_lo, r_hi, p_lo, p_hi = limits
+    q_lo, q_hi = np.log(p_lo), np.log(p_hi)
+    good = ~few
+    err, r_std, p_std, ill = standard_errors(model, n_use, good, rho, q, all_sums, sums, albedo_std, max_relative_error)
+    rho_out = _rho_outside(model, good, q, all_sums, r_lo, r_hi, max_relative_error)
     rho, err, r_std = rho * scale, err * scale, r_std * scale
+    p = np.exp(q)
+    at_bound = good & ((q <= q_lo + 1e-6) | (q >= q_hi - 1e-6) | rho_out)
+    plausible_lo, plausible_hi = PLAUSIBLE_LOBE[model]
+    implausible = good & ((p < plausible_lo) | (p > plausible_hi))
     bit = FLAG_BITS
     flags = (
         (few * bit["few_samples"])
-        | (not_conv * bit["not_converged"])
+        | ((good & ~done) * bit["not_converged"])
         | (ill * bit["ill_conditioned"])
         | (at_bound * bit["at_bound"])
+        | (implausible * bit["implausible"])
     )
-    rho = np.where(few, np.nan, rho)
-    p = np.where(few, np.nan, p)
     return SpecularFit(
         model=model,
-        rho_s=rho.astype(dt),
-        lobe=p.astype(dt),
+        rho_s=np.where(few, np.nan, rho).astype(dt),
+        lobe=np.where(few, np.nan, p).astype(dt),
         error=err.astype(dt),
         flags=flags.astype(np.uint8),
         n_samples=n_use,

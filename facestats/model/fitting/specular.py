@@ -30,8 +30,10 @@ from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, as_float, check_choice, check_shape
 from facestats.errors import ValidationError
 from facestats.model.brdf import check_directions, torrance_sparrow_cosines
+from facestats.model.fitting.engine import resolve_engine
 from facestats.model.fitting.samples import Samples, segment_sum
 from facestats.model.fitting.solver import DEFAULT_BOUNDS, SpecularFit, solve_specular
+from facestats.model.fitting.uncertainty import rms_error
 from facestats.model.fresnel import check_eta
 
 __all__ = [
@@ -118,6 +120,7 @@ def fit_specular_samples(
     max_relative_error=0.25,
     start=None,
     cos=None,
+    engine=None,
 ) -> SpecularFit:
     """Fit ``model`` to grey specular samples on flat :class:`Samples` (the pipeline's form of :func:`fit_specular`).
 
@@ -137,6 +140,8 @@ def fit_specular_samples(
         the log-linear start.
     cos : tuple of ndarray, optional
         (N·ωi, N·ωo) per sample, when already known.
+    engine : {"numba", "numpy"}, optional
+        Implementation of the solve (:mod:`facestats.model.fitting.engine`; default: the configured one).
 
     Returns
     -------
@@ -157,6 +162,7 @@ def fit_specular_samples(
         max_relative_error=max_relative_error,
         start=start,
         cos=cos,
+        engine=engine,
     )[model]
 
 
@@ -175,6 +181,10 @@ def fit_specular_models(
     max_relative_error=0.25,
     start=None,
     cos=None,
+    engine=None,
+    ft2=None,
+    albedo_std=None,
+    max_angle=None,
 ) -> dict:
     """Fit several models to the same grey specular samples; later models start from the first.
 
@@ -186,11 +196,21 @@ def fit_specular_models(
 
     Parameters
     ----------
-    samples, normal, f_s, use, eta, min_samples, max_iter, tol, max_relative_error, start, cos
+    samples, normal, f_s, use, eta, min_samples, max_iter, tol, max_relative_error, start, cos, engine
         As :func:`fit_specular_samples`.
     models : sequence of {"torrance_sparrow", "blinn_phong"}
     bounds : dict, optional
         Bounds per model (as :func:`fit_specular`); missing models use :data:`DEFAULT_BOUNDS`.
+    ft2 : ndarray, shape (S,), optional
+        F_t(θi) F_t(θo) per sample and
+    albedo_std : ndarray, shape (n,), optional
+        the standard error of the grey albedo α_R + α_G + α_B per texel: with both, the
+        albedo's uncertainty enters the standard errors (:mod:`facestats.model.fitting.uncertainty`).
+    max_angle : dict, optional
+        ``{model: angle}`` (rad): a model's samples are further limited to θi and θo below
+        its angle (e.g. Blinn-Phong at 70°, :class:`facestats.pipeline.FitSettings`); the
+        samples are then compacted per distinct limit.  Its E(p) (``error``) is still
+        reported over all of ``use``, the domain the other models are scored on.
 
     Returns
     -------
@@ -203,25 +223,58 @@ def fit_specular_models(
     for m in models:
         check_choice(m, "models", DEFAULT_BOUNDS)
     check_eta(eta)
+    engine = resolve_engine(samples.engine if engine is None else engine)
     _check_specular_inputs(samples, normal, f_s, use, start)
     bounds = bounds or {}
     ci, co = samples.cos(normal) if cos is None else cos
-    with np.errstate(invalid="ignore"):
-        ok = np.asarray(use, bool) & np.isfinite(f_s) & (ci > 0) & (co > 0)
-    kept = np.flatnonzero(ok)  # one index, several gathers (faster than one compress per array)
-    ci_u, co_u, io_u, y = (np.asarray(x).take(kept) for x in (ci, co, samples.cos_io(), f_s))
-    factors = {m: _factors(m, ci_u, co_u, io_u, eta) for m in models}
-    keep = np.logical_and.reduce([a > 0 for _, a in factors.values()])  # A underflows only in extreme geometry
-    counts = samples.count(ok)
-    if not keep.all():
-        counts = segment_sum(keep, np.cumsum(counts) - counts, counts)
-        kept = np.flatnonzero(keep)
-        ci_u, y = ci_u.take(kept), y.take(kept)
-        factors = {m: (s1.take(kept), a.take(kept)) for m, (s1, a) in factors.items()}
-    y = (y * ci_u).astype(np.float32, copy=False)
+    groups = {}  # models by the samples they use (one compaction per distinct angle limit)
+    for m in models:
+        groups.setdefault(None if not max_angle or m not in max_angle else float(max_angle[m]), []).append(m)
+    kept = {}
+    for limit, group in groups.items():
+        use_g = use
+        if limit is not None:
+            c = np.float32(np.cos(as_finite(limit, "max_angle", 0, np.pi / 2, low_inclusive=False, unit="rad")))
+            use_g = np.asarray(use, bool) & (ci > c) & (co > c)
+        if engine == "numba":
+            args = (samples.starts, samples.counts, ci, co, samples.cos_io(), f_s, use_g, tuple(group), eta, ft2)
+            y, factors, counts, d = _kept_factors_compiled(*args)
+        else:
+            y, factors, counts, d = _kept_factors(samples, ci, co, f_s, use_g, tuple(group), eta, ft2)
+        albedo = None if ft2 is None or albedo_std is None else (d, albedo_std)
+        kept.update({m: (y, factors[m], counts, albedo) for m in group})
+    settings = dict(min_samples=min_samples, max_iter=max_iter, tol=tol, max_relative_error=max_relative_error)
+    fits = _solve_models(models, kept, bounds, start, engine, settings)
+    for limit, group in groups.items():
+        if limit is not None:  # scored on the full domain of eq. 14, as the other models
+            _rescore(fits, group, samples, ci, co, f_s, use, eta, engine)
+    return fits
+
+
+def _rescore(fits, group, samples, ci, co, f_s, use, eta, engine):
+    """Replace the ``error`` of the fits of ``group`` by E(p) over the samples of ``use``."""
+    if engine == "numba":
+        args = (samples.starts, samples.counts, ci, co, samples.cos_io(), f_s, use, tuple(group), eta)
+        y, factors, counts, _ = _kept_factors_compiled(*args)
+    else:
+        y, factors, counts, _ = _kept_factors(samples, ci, co, f_s, use, tuple(group), eta)
+    for m in group:
+        fit = fits[m]
+        err = rms_error(m, y, *factors[m], counts, fit.rho_s, fit.lobe)
+        fit.error = np.where(np.isfinite(fit.error), err, np.nan).astype(fit.error.dtype)
+
+
+def _solve_models(models, kept, bounds, start, engine, settings):
+    """Solve eq. 14 for each model on its kept samples; later models start from the first's fit.
+
+    ``kept[model]`` = (y, (s1, A), counts, albedo) with ``albedo`` None or (d per kept sample,
+    the grey albedo's standard error per texel); ``settings`` the solver's ``min_samples``,
+    ``max_iter``, ``tol``, ``max_relative_error``.
+    """
     fits = {}
     for m in models:
-        s1, a = factors[m]
+        y, (s1, a), counts, albedo = kept[m]
+        d, albedo_std = (None, None) if albedo is None else albedo
         first = fits[models[0]] if fits else None
         st = start if first is None else equivalent_lobe(first.lobe, first.model, m)
         fits[m] = solve_specular(
@@ -231,13 +284,59 @@ def fit_specular_models(
             a,
             counts,
             bounds=bounds.get(m),
-            min_samples=min_samples,
-            max_iter=max_iter,
-            tol=tol,
-            max_relative_error=max_relative_error,
             start=st,
+            engine=engine,
+            d=d,
+            albedo_std=albedo_std,
+            **settings,
         )
     return fits
+
+
+def _kept_factors(samples, ci, co, f_s, use, models, eta, ft2=None):
+    """y = f_s cos θi, the factors (s1, A) per model, the kept count per texel and d = ∂y/∂α of the samples of eq. 14.
+
+    Kept: ``use``, finite ``f_s``, ωi and ωo above the horizon and A > 0 for every model
+    (compacted once for all models, one contiguous run per texel).  d = −F_t F_t cos θi/(3π)
+    (eq. 10 subtracts (α/π) F_t F_t, averaged over three channels), None without ``ft2``.
+    """
+    with np.errstate(invalid="ignore"):
+        ok = np.asarray(use, bool) & np.isfinite(f_s) & (ci > 0) & (co > 0)
+    kept = np.flatnonzero(ok)  # one index, several gathers (faster than one compress per array)
+    ci_u, co_u, io_u, y = (np.asarray(x).take(kept) for x in (ci, co, samples.cos_io(), f_s))
+    ft_u = None if ft2 is None else np.asarray(ft2).take(kept)
+    factors = {m: _factors(m, ci_u, co_u, io_u, eta) for m in models}
+    keep = np.logical_and.reduce([a > 0 for _, a in factors.values()])  # A underflows only in extreme geometry
+    counts = samples.count(ok)
+    if not keep.all():
+        counts = segment_sum(keep, np.cumsum(counts) - counts, counts)
+        kept = np.flatnonzero(keep)
+        ci_u, y = ci_u.take(kept), y.take(kept)
+        ft_u = None if ft_u is None else ft_u.take(kept)
+        factors = {m: (s1.take(kept), a.take(kept)) for m, (s1, a) in factors.items()}
+    d = None if ft_u is None else (-(ft_u * ci_u) / np.float32(3 * np.pi)).astype(np.float32)
+    return (y * ci_u).astype(np.float32, copy=False), factors, counts, d
+
+
+def _kept_factors_compiled(starts, counts, ci, co, io, f_s, use, models, eta, ft2=None):
+    """:func:`_kept_factors` in one compiled pass (:func:`facestats.model.fitting.kernels.factors.specular_inputs`)."""
+    from facestats.model.fitting.kernels.factors import specular_inputs
+
+    kept, y, ts_z, ts_a, bp_z, bp_a, d = specular_inputs(
+        np.ascontiguousarray(ci, np.float32),
+        np.ascontiguousarray(co, np.float32),
+        np.ascontiguousarray(io, np.float32),
+        np.ascontiguousarray(f_s, np.float32),
+        np.ascontiguousarray(use, bool),
+        np.zeros(0, np.float32) if ft2 is None else np.ascontiguousarray(ft2, np.float32),
+        starts,
+        counts,
+        np.float32(eta),
+        "torrance_sparrow" in models,
+        "blinn_phong" in models,
+    )
+    all_factors = {"torrance_sparrow": (ts_z, ts_a), "blinn_phong": (bp_z, bp_a)}
+    return y, {m: all_factors[m] for m in models}, kept, (None if ft2 is None else d)
 
 
 def _check_specular_inputs(samples, normal, f_s, use, start):
@@ -276,6 +375,7 @@ def fit_specular(
     max_iter=40,
     tol=1e-6,
     max_relative_error=0.25,
+    engine=None,
 ):
     """Fit Torrance-Sparrow or Blinn-Phong to specular samples of every texel at once (eq. 14).
 
@@ -303,6 +403,8 @@ def fit_specular(
         Iteration cap and relative convergence tolerance on E(p)².
     max_relative_error : float
         Relative standard error above which a texel is flagged ``ill_conditioned``.
+    engine : {"numba", "numpy"}, optional
+        Implementation (:mod:`facestats.model.fitting.engine`; default: the configured one).
 
     Returns
     -------
@@ -332,24 +434,31 @@ def fit_specular(
             f"texel {t}, sample {k}"
         )
     lim = np.cos(max_angle)
+    kwargs = dict(min_samples=min_samples, max_iter=max_iter, tol=tol, max_relative_error=max_relative_error)
+    if resolve_engine(engine) == "numba":
+        return _fit_dense_compiled(wi, wo, normal, f_s, valid, model, lim, eta, bounds, kwargs)
     valid = (
         valid
         & np.isfinite(f_s)
         & (np.einsum("tk,tsk->ts", normal, wi) > lim)
         & (np.einsum("tk,tsk->ts", normal, wo) > lim)
     )
-    samples = Samples.from_arrays(wi, wo, valid)
+    samples = Samples.from_arrays(wi, wo, valid, engine="numpy")
     fs = f_s[valid].astype(np.float32)
     return fit_specular_samples(
-        samples,
-        normal,
-        fs,
-        np.ones(samples.n, bool),
-        model,
-        eta=eta,
-        bounds=bounds,
-        min_samples=min_samples,
-        max_iter=max_iter,
-        tol=tol,
-        max_relative_error=max_relative_error,
+        samples, normal, fs, np.ones(samples.n, bool), model, eta=eta, bounds=bounds, engine="numpy", **kwargs
     )
+
+
+def _fit_dense_compiled(wi, wo, normal, f_s, valid, model, lim, eta, bounds, kwargs):
+    """:func:`fit_specular` with the numba engine: the dense arrays are read once by a kernel, never copied."""
+    from facestats.model.fitting.kernels.samples import dense_samples
+
+    counts, ci, co, io, fs = dense_samples(
+        np.ascontiguousarray(wi), np.ascontiguousarray(wo), np.ascontiguousarray(normal), f_s, valid, float(lim)
+    )
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    y, factors, kept, _ = _kept_factors_compiled(starts, counts, ci, co, io, fs, np.ones(fs.size, bool), (model,), eta)
+    return _solve_models((model,), {model: (y, factors[model], kept, None)}, {model: bounds}, None, "numba", kwargs)[
+        model
+    ]

@@ -1,0 +1,146 @@
+"""Compiled per-sample inputs of the specular fit: y and the lobe factors (z, A) of eq. 11-13, compacted.
+
+One pass over the samples does what
+:func:`facestats.model.fitting.fit_specular_models` does in numpy before the
+solve: keep the samples of eq. 14 (``use``, finite f_s, ωi and ωo above the
+horizon, A > 0 for every model), and write, in per-texel runs,
+
+* y = f_s cos θi;
+* Torrance-Sparrow (eq. 12-13): z = tan²δ, A = K cos θi / cos⁴δ with
+  K = G F_r(ωo·H)/(π N·ωi N·ωo) (:func:`facestats.model.brdf.torrance_sparrow_cosines`:
+  N·H = (N·ωi + N·ωo)/‖ωi + ωo‖, ωo·H = (1 + ωi·ωo)/‖ωi + ωo‖, G the V-groove term,
+  F_r the unpolarised Fresnel reflectance in Cook & Torrance's closed form);
+* Blinn-Phong (eq. 11): z = ln cos δ, A = cos θi/(2π).
+
+The arithmetic is float32 in the order of the numpy functions, so the factors
+agree with theirs to the last bit, except z of Blinn-Phong, whose logarithm is
+:func:`facestats.model.fitting.kernels.fastexp.fill_log` (within 2e-7 of numpy's).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from facestats.model.fitting.kernels.fastexp import fill_log
+
+__all__ = ["fresnel_reflectance", "specular_inputs"]
+
+_ONE = np.float32(1.0)
+_TWO = np.float32(2.0)
+_HALF = np.float32(0.5)
+_PI = np.float32(np.pi)
+_TWO_PI = np.float32(2 * np.pi)
+_THREE_PI = np.float32(3 * np.pi)
+_TINY = np.float32(np.finfo(np.float32).tiny)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def fresnel_reflectance(c, eta):
+    """Unpolarised Fresnel reflectance at cos θ = ``c`` in [0, 1], relative index ``eta`` (float32).
+
+    Cook & Torrance (1982) closed form, g = sqrt(η² − 1 + c²):
+    F_r = ½ ((g − c)/(g + c))² [1 + ((c(g + c) − 1)/(c(g − c) + 1))²]; 1 for total
+    internal reflection (g² ≤ 0) — :func:`facestats.model.fresnel.fresnel_reflectance_unchecked`.
+    """
+    g2 = (eta * eta - _ONE) + c * c
+    g = np.sqrt(max(g2, np.float32(0.0)))
+    gpc = g + c
+    gmc = g - c
+    a = gmc / gpc
+    b = (c * gpc - _ONE) / (c * gmc + _ONE)
+    out = (_HALF * a) * a * (_ONE + b * b)
+    if g2 <= 0 or not np.isfinite(out):
+        return _ONE
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _ts_factors(ci, co, io, eta):
+    """(tan²δ, K cos θi / cos⁴δ) of one sample above the horizon (float32, eq. 12-13)."""
+    inv = _ONE / np.sqrt(max(_TWO + _TWO * io, np.float32(0.0)))
+    n_h = min(max((ci + co) * inv, _TINY), _ONE)
+    wo_h = min(max((_ONE + io) * inv, _TINY), _ONE)
+    g = min(_ONE, (_TWO * n_h) * min(ci, co) / wo_h)
+    k = (g * fresnel_reflectance(wo_h, eta)) / ((_PI * ci) * co)
+    c2 = n_h * n_h
+    return (_ONE - c2) / c2, max((k * ci) / (c2 * c2), np.float32(0.0))
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _all_factors(ci, co, io, f_s, use, ft2, eta, want_ts, want_bp):
+    """Every sample's keep flag, y, TS (z, A), clipped cos δ (BP) and d, uncompacted (a vectorised loop)."""
+    n_s = ci.shape[0]
+    keep = np.empty(n_s, np.bool_)
+    y = np.empty(n_s, np.float32)
+    ts_z = np.empty(n_s if want_ts else 0, np.float32)
+    ts_a = np.empty(n_s if want_ts else 0, np.float32)
+    cos_d = np.empty(n_s if want_bp else 0, np.float32)
+    with_d = ft2.shape[0] > 0
+    d = np.empty(n_s if with_d else 0, np.float32)
+    for s in range(n_s):  # every sample, no branches out of the loop: vectorised
+        c_i, c_o, fs, io_s = ci[s], co[s], f_s[s], io[s]
+        ok = use[s] & np.isfinite(fs) & (c_i > 0) & (c_o > 0)
+        y[s] = fs * c_i
+        if with_d:
+            d[s] = -(ft2[s] * c_i) / _THREE_PI
+        if want_ts:
+            tz, ta = _ts_factors(c_i, c_o, io_s, eta)
+            ts_z[s] = tz
+            ts_a[s] = ta
+            ok = ok & (ta > 0)  # A underflows only in extreme geometry
+        if want_bp:
+            cd = (c_i + c_o) / np.sqrt(max(_TWO + _TWO * io_s, np.float32(1e-12)))
+            cos_d[s] = min(max(cd, np.float32(1e-6)), _ONE)
+            ok = ok & (c_i / _TWO_PI > 0)
+        keep[s] = ok
+    return keep, y, ts_z, ts_a, cos_d, d
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def specular_inputs(ci, co, io, f_s, use, ft2, starts, counts, eta, want_ts, want_bp):
+    """Kept samples of eq. 14 and their factors, in per-texel runs (module docstring).
+
+    Parameters
+    ----------
+    ci, co, io, f_s : ndarray of float32, shape (S,)
+        N·ωi, N·ωo, ωi·ωo and the grey specular residual per sample.
+    use : ndarray of bool, shape (S,)
+    ft2 : ndarray of float32, shape (S,) or (0,)
+        F_t(θi) F_t(θo) per sample, for d = ∂y/∂α = −F_t F_t cos θi/(3π) (empty: no d).
+    starts, counts : ndarray of int64
+        Every texel's run of samples.
+    eta : float32
+    want_ts, want_bp : bool
+        Models whose factors are wanted (a sample is kept only where every wanted A > 0).
+
+    Returns
+    -------
+    kept : int64 (T,)
+        Kept samples per texel.
+    y, ts_z, ts_a, bp_z, bp_a, d : float32 (S',)
+        Compacted; a model's factors (or d) are empty when not wanted.
+    """
+    n_s = ci.shape[0]
+    keep, y, ts_z, ts_a, cos_d, d = _all_factors(ci, co, io, f_s, use, ft2, eta, want_ts, want_bp)
+    bp_z = np.empty(n_s if want_bp else 0, np.float32)
+    if want_bp:
+        fill_log(cos_d, bp_z, np.empty(n_s, np.int32))
+    with_d = d.shape[0] > 0
+    kept = np.zeros(starts.shape[0], np.int64)
+    m = 0
+    for t in range(starts.shape[0]):  # compaction into per-texel runs, in place and branch-free
+        m0 = m
+        for s in range(starts[t], starts[t] + counts[t]):
+            y[m] = y[s]
+            if with_d:
+                d[m] = d[s]
+            if want_ts:
+                ts_z[m] = ts_z[s]
+                ts_a[m] = ts_a[s]
+            if want_bp:
+                bp_z[m] = bp_z[s]
+                cos_d[m] = ci[s] / _TWO_PI
+            m += keep[s]
+        kept[t] = m - m0
+    return kept, y[:m], ts_z[:m], ts_a[:m], bp_z[:m], cos_d[:m], d[:m]

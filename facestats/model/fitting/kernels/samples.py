@@ -1,0 +1,183 @@
+"""Compiled kernels of :mod:`facestats.model.fitting.samples`: the dome grid flattened, per-sample cosines.
+
+* :func:`flatten_grid` — the valid samples of a (lumitexel, camera, light)
+  grid in one pass: validity exactly as
+  :func:`facestats.model.fitting.samples.valid_samples` (float16 radiance tested
+  on its bit patterns, every E⊥ channel > 0), minus the cameras left out, then
+  the flat arrays of :meth:`facestats.model.fitting.Samples.from_grid`.
+* :func:`sample_cosines` — N·ωi, N·ωo and ωi·ωo per sample straight from the
+  direction grids (three products and two sums each, in float32 and in the
+  order of :func:`facestats.model.fitting.samples._dot3`, so the bits equal
+  numpy's), without the (lumitexel, camera, light) grid numpy goes through;
+* :func:`dense_samples` — the usable samples of dense per-texel arrays (the
+  public :func:`facestats.model.fitting.fit_specular`), compacted into runs
+  with their cosines, without copying the arrays.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+__all__ = ["flatten_grid", "sample_cosines", "dense_samples"]
+
+
+@numba.njit(cache=True, nogil=True)
+def _valid_bits(u0, u1, u2):
+    """A float16 RGB triple (as uint16 patterns) is ≥ 0 and not NaN in every channel."""
+    ok0 = (u0 <= 0x7C00) | (u0 == 0x8000)
+    ok1 = (u1 <= 0x7C00) | (u1 == 0x8000)
+    ok2 = (u2 <= 0x7C00) | (u2 == 0x8000)
+    return ok0 & ok1 & ok2
+
+
+@numba.njit(cache=True, nogil=True)
+def _lit(irradiance):
+    """(n, L): every channel of E⊥ is > 0."""
+    n, n_led = irradiance.shape[0], irradiance.shape[1]
+    lit = np.empty((n, n_led), np.bool_)
+    for t in range(n):
+        for l in range(n_led):
+            lit[t, l] = (irradiance[t, l, 0] > 0) & (irradiance[t, l, 1] > 0) & (irradiance[t, l, 2] > 0)
+    return lit
+
+
+@numba.njit(cache=True, nogil=True)
+def _run_lengths(valid, lit, keep_camera, n_cam):
+    """Valid and lit samples of every (lumitexel, camera) of a kept camera, shape (n C,)."""
+    n, n_led = lit.shape[0], lit.shape[1]
+    per_camera = np.zeros(n * n_cam, np.int64)
+    for t in range(n):
+        for c in range(n_cam):
+            if keep_camera[c]:
+                base = (t * n_cam + c) * n_led
+                k = 0
+                for l in range(n_led):
+                    k += valid[base + l] & lit[t, l]
+                per_camera[t * n_cam + c] = k
+    return per_camera
+
+
+@numba.njit(cache=True, nogil=True)
+def flatten_grid(rad_bits, irradiance, keep_camera):
+    """The valid samples of a dome grid, sorted by lumitexel, camera, light.
+
+    Parameters
+    ----------
+    rad_bits : ndarray of uint16, shape (n, C, L, 3)
+        float16 radiance read as its bit patterns.
+    irradiance : ndarray of float32, shape (n, L, 3)
+        E⊥ per light and channel.
+    keep_camera : ndarray of bool, shape (C,)
+        Cameras whose samples may be used.
+
+    Returns
+    -------
+    texel : int32 (S,); camera_index, light_index, grid_index : intp (S,)
+        t, t C + c, t L + l and (t C + c) L + l of every sample.
+    rad : uint16 (3, S)
+        Radiance bit patterns, channel-major.
+    irr : float32 (3, S)
+        E⊥ per sample, channel-major.
+    per_camera : int64 (n C,)
+        Valid samples of every (lumitexel, camera).
+    """
+    n, n_cam, n_led = rad_bits.shape[0], rad_bits.shape[1], rad_bits.shape[2]
+    lit = _lit(irradiance)
+    flat = rad_bits.reshape(n * n_cam * n_led, 3)
+    valid = np.empty(n * n_cam * n_led, np.bool_)
+    for g in range(n * n_cam * n_led):  # the validity of every grid entry: no reductions, vectorised
+        valid[g] = _valid_bits(flat[g, 0], flat[g, 1], flat[g, 2])
+    per_camera = _run_lengths(valid, lit, keep_camera, n_cam)
+    total = per_camera.sum()
+    texel = np.empty(total, np.int32)
+    camera_index = np.empty(total, np.intp)
+    light_index = np.empty(total, np.intp)
+    grid_index = np.empty(total, np.intp)
+    rad = np.empty((3, total), np.uint16)
+    irr = np.empty((3, total), np.float32)
+    s = 0
+    for t in range(n):
+        for c in range(n_cam):
+            if per_camera[t * n_cam + c] == 0:
+                continue
+            base = (t * n_cam + c) * n_led
+            for l in range(n_led):
+                if valid[base + l] & lit[t, l]:
+                    texel[s] = t
+                    camera_index[s] = t * n_cam + c
+                    light_index[s] = t * n_led + l
+                    grid_index[s] = base + l
+                    rad[0, s] = flat[base + l, 0]
+                    rad[1, s] = flat[base + l, 1]
+                    rad[2, s] = flat[base + l, 2]
+                    irr[0, s] = irradiance[t, l, 0]
+                    irr[1, s] = irradiance[t, l, 1]
+                    irr[2, s] = irradiance[t, l, 2]
+                    s += 1
+    return texel, camera_index, light_index, grid_index, rad, irr, per_camera
+
+
+@numba.njit(cache=True, nogil=True)
+def sample_cosines(texel, light_index, camera_index, wi_flat, wo_flat, normal, with_normal):
+    """(N·ωi, N·ωo, ωi·ωo) per sample, float32; the first two only if ``with_normal``.
+
+    ``wi_flat``/``wo_flat`` are the (n L, 3)/(n C, 3) direction grids, ``normal``
+    (n, 3) float32.
+    """
+    n_s = texel.shape[0]
+    io = np.empty(n_s, np.float32)
+    ci = np.empty(n_s if with_normal else 0, np.float32)
+    co = np.empty(n_s if with_normal else 0, np.float32)
+    for s in range(n_s):
+        li = light_index[s]
+        cj = camera_index[s]
+        ix, iy, iz = wi_flat[li, 0], wi_flat[li, 1], wi_flat[li, 2]
+        ox, oy, oz = wo_flat[cj, 0], wo_flat[cj, 1], wo_flat[cj, 2]
+        io[s] = ox * ix + oy * iy + oz * iz
+        if with_normal:
+            t = texel[s]
+            nx, ny, nz = normal[t, 0], normal[t, 1], normal[t, 2]
+            ci[s] = ix * nx + iy * ny + iz * nz
+            co[s] = ox * nx + oy * ny + oz * nz
+    return ci, co, io
+
+
+@numba.njit(cache=True, nogil=True)
+def dense_samples(wi, wo, normal, f_s, valid, cos_limit):
+    """Usable samples of dense arrays: ``valid``, finite f_s, θi and θo within the angle limit.
+
+    ``wi``, ``wo`` (T, S, 3) and ``normal`` (T, 3) of any float dtype, ``f_s`` (T, S),
+    ``valid`` (T, S) bool; the limit is tested in float64 (N·ω > ``cos_limit``), as the
+    numpy path does.
+
+    Returns
+    -------
+    counts : int64 (T,)
+    ci, co, io, fs : float32 (S',)
+        N·ωi, N·ωo, ωi·ωo and f_s of the kept samples, in per-texel runs.
+    """
+    n_t, n_s = f_s.shape[0], f_s.shape[1]
+    size = n_t * n_s
+    ci = np.empty(size, np.float32)
+    co = np.empty(size, np.float32)
+    io = np.empty(size, np.float32)
+    fs = np.empty(size, np.float32)
+    counts = np.zeros(n_t, np.int64)
+    m = 0
+    for t in range(n_t):
+        nx, ny, nz = np.float64(normal[t, 0]), np.float64(normal[t, 1]), np.float64(normal[t, 2])
+        m0 = m
+        for s in range(n_s):
+            ix, iy, iz = np.float64(wi[t, s, 0]), np.float64(wi[t, s, 1]), np.float64(wi[t, s, 2])
+            ox, oy, oz = np.float64(wo[t, s, 0]), np.float64(wo[t, s, 1]), np.float64(wo[t, s, 2])
+            c_i = nx * ix + ny * iy + nz * iz
+            c_o = nx * ox + ny * oy + nz * oz
+            f = f_s[t, s]
+            ci[m] = c_i
+            co[m] = c_o
+            io[m] = ix * ox + iy * oy + iz * oz
+            fs[m] = f
+            m += valid[t, s] & np.isfinite(f) & (c_i > cos_limit) & (c_o > cos_limit)
+        counts[t] = m - m0
+    return counts, ci[:m], co[:m], io[:m], fs[:m]

@@ -1,0 +1,98 @@
+"""Where a population fit runs and where it writes: a Dask distributed cluster or this machine, a shared store.
+
+* :func:`scheduler_address` — the ``tcp://…`` (or ``tls://``, ``ucx://``,
+  ``inproc://``) address of a running Dask scheduler, given explicitly
+  (``facestats build --scheduler``) or by the environment variable
+  ``DASK_SCHEDULER_ADDRESS`` (Dask's own name for it), or None: run locally;
+* :func:`connect` — a :class:`distributed.Client` for such an address;
+* :func:`store_directory` — the directory of a store the workers write to.
+
+Commit guarantees.  A store commits a subject by replacing ``index.json``
+atomically under a POSIX ``flock`` (:mod:`facestats.io.store`), so workers
+on several machines may write to one store only on a shared POSIX file
+system with working ``flock`` (a local disk, NFSv4, Lustre, CephFS,
+GPFS); each worker then writes its subject's data in parallel and commits
+under the lock, as concurrent local writers do.  Object stores (``s3://``,
+``gs://``, ``az://``, … — anything fsspec reaches) have no locks and no
+atomic rename of a directory: facestats **refuses** to write a store there
+(:class:`facestats.errors.StoreError` naming the URL) rather than risk two
+workers' index updates overwriting each other.  Captures, which are only
+read, may be at any URL that zarr and fsspec open (``s3://…/S001.zarr``,
+``file://…``); a built local store can be uploaded to an object store
+afterwards and read from there by whoever downloads it.
+"""
+
+from __future__ import annotations
+
+import os
+from urllib.parse import urlparse
+
+from facestats.errors import StoreError, ValidationError
+
+__all__ = ["SCHEDULER_VARIABLE", "scheduler_address", "connect", "store_directory", "is_url"]
+
+#: Environment variable naming the scheduler (read by Dask too).
+SCHEDULER_VARIABLE = "DASK_SCHEDULER_ADDRESS"
+_SCHEMES = ("tcp", "tls", "ucx", "inproc", "ws", "wss")
+
+
+def scheduler_address(scheduler=None):
+    """The distributed scheduler to use: ``scheduler`` if it is an address, else ``$DASK_SCHEDULER_ADDRESS``, else None.
+
+    Raises
+    ------
+    ValidationError
+        If ``scheduler`` (or the variable) is not an address of a known protocol.
+    """
+    for value, name in ((scheduler, "scheduler"), (os.environ.get(SCHEDULER_VARIABLE) or None, SCHEDULER_VARIABLE)):
+        if value is None:
+            continue
+        value = str(value).strip()
+        if urlparse(value).scheme not in _SCHEMES or "://" not in value:
+            raise ValidationError(
+                f"{name} must be a Dask scheduler address such as tcp://host:8786 "
+                f"(protocols {', '.join(_SCHEMES)}), got {value!r}"
+            )
+        return value
+    return None
+
+
+def connect(address, timeout: float = 30.0):
+    """A :class:`distributed.Client` connected to the scheduler at ``address``.
+
+    Raises
+    ------
+    ValidationError
+        If the ``distributed`` package is missing or no scheduler answers.
+    """
+    try:
+        from distributed import Client
+    except ImportError:  # pragma: no cover - distributed is in the test extra
+        raise ValidationError(
+            f"scheduler {address!r} needs the 'distributed' package: pip install 'facestats[distributed]'"
+        ) from None
+    try:
+        return Client(address, timeout=timeout)
+    except (OSError, TimeoutError) as exc:
+        raise ValidationError(f"scheduler {address!r} did not answer within {timeout:g} s: {exc}") from None
+
+
+def is_url(path) -> bool:
+    """True for ``scheme://…`` locations other than plain local paths (and other than ``file://``)."""
+    scheme = urlparse(str(path)).scheme
+    return "://" in str(path) and len(scheme) > 1 and scheme != "file"
+
+
+def store_directory(path, name="store") -> str:
+    """The local directory of a store location for writing (``file://`` URLs accepted; object stores refused)."""
+    text = str(path)
+    if is_url(text):
+        raise StoreError(
+            f"{name} {text!r} is on an object store: a store commits subjects by an atomic rename under a POSIX "
+            "lock, which object stores do not have, so facestats does not write stores there (two workers' "
+            "commits could overwrite each other). Build into a directory on a shared POSIX file system and "
+            "upload it afterwards."
+        )
+    if text.startswith("file://"):
+        text = urlparse(text).path
+    return text

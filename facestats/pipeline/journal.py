@@ -1,0 +1,204 @@
+"""The journal of a population build: which subjects are done, running or failed (``facestats build --status``).
+
+A build (:func:`facestats.pipeline.build.build_store`,
+:func:`facestats.pipeline.population.fit_population` with a store) records
+every subject it works on in ``<store>/.build/<subject>.json``::
+
+    {"subject_id": "S001", "state": "running" | "failed",
+     "attempts": 2, "host": "node7", "pid": 1234,
+     "started": "2026-...", "updated": "2026-...", "error": "ValueError: ..." | null}
+
+Each record is replaced atomically (temporary file, ``os.replace``) by the
+process working on the subject, so a reader sees the previous state or the
+next; the record is removed when the subject is committed to the store.
+*Done* is not journalled: it is being in the store's index, the store's own
+commit point.  A subject is retried up to ``retries`` times in its task; if it
+still fails its record stays ``failed``, with the last error, until a later
+build writes it.  A ``running`` record whose process no longer exists on this
+host is reported as *interrupted* (its host and pid say where it ran).
+
+The journal lives in the store directory, so every worker of a cluster that
+shares the store (a POSIX file system) writes to the same one; it is advisory
+bookkeeping, never read to decide what to build (that is the store's index),
+and :meth:`facestats.io.store.Store.gc` leaves it alone.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import secrets
+import socket
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+
+__all__ = ["JOURNAL_DIR", "BuildJournal", "BuildStatus", "build_status", "run_journalled"]
+
+#: Folder of the journal inside a directory store.
+JOURNAL_DIR = ".build"
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+class BuildJournal:
+    """The per-subject records of builds into the directory store at ``store_path`` (module docstring)."""
+
+    def __init__(self, store_path):
+        self.root = Path(store_path) / JOURNAL_DIR
+
+    def _path(self, sid: str) -> Path:
+        return self.root / f"{sid}.json"
+
+    def _write(self, sid: str, record: dict) -> None:
+        self.root.mkdir(parents=True, exist_ok=True)
+        tmp = self.root / f".{sid}.json.tmp-{os.getpid()}-{secrets.token_hex(3)}"
+        tmp.write_text(json.dumps(record, sort_keys=True))
+        os.replace(tmp, self._path(sid))
+
+    def read(self, sid: str) -> dict | None:
+        """The record of ``sid``, or None."""
+        try:
+            return json.loads(self._path(sid).read_text())
+        except (FileNotFoundError, ValueError):
+            return None
+
+    def records(self) -> dict:
+        """Every record, by subject id."""
+        if not self.root.is_dir():
+            return {}
+        out = {}
+        for p in sorted(self.root.glob("*.json")):
+            rec = self.read(p.stem)
+            if rec is not None:
+                out[p.stem] = rec
+        return out
+
+    def start(self, sid: str, attempt: int) -> None:
+        """``sid`` is being worked on (attempt ``attempt``, from 1)."""
+        prev = self.read(sid) or {}
+        self._write(
+            sid,
+            {
+                "subject_id": sid,
+                "state": "running",
+                "attempts": int(attempt),
+                "host": socket.gethostname(),
+                "pid": os.getpid(),
+                "started": _now() if attempt == 1 else prev.get("started", _now()),
+                "updated": _now(),
+                "error": prev.get("error") if attempt > 1 else None,
+            },
+        )
+
+    def fail(self, sid: str, attempt: int, exc: BaseException) -> None:
+        """Attempt ``attempt`` of ``sid`` raised ``exc``."""
+        rec = self.read(sid) or {"subject_id": sid, "host": socket.gethostname(), "pid": os.getpid()}
+        last = traceback.format_exception_only(type(exc), exc)[-1].strip()
+        rec.update(state="failed", attempts=int(attempt), updated=_now(), error=last)
+        self._write(sid, rec)
+
+    def finish(self, sid: str) -> None:
+        """``sid`` is committed to the store: its record goes."""
+        self._path(sid).unlink(missing_ok=True)
+
+    def prune(self) -> None:
+        """Remove the journal folder if no record is left in it."""
+        try:
+            self.root.rmdir()
+        except OSError:  # missing, or records left
+            pass
+
+
+def run_journalled(journal, sid, fn, retries):
+    """``fn()`` for subject ``sid`` with up to ``retries`` retries, recorded in ``journal`` (None: not recorded).
+
+    Returns
+    -------
+    tuple
+        ``("done", result)`` or ``("failed", last error text)``: a failure is reported,
+        never raised, so the other subjects of a build go on.
+    """
+    for attempt in range(1, int(retries) + 2):
+        if journal is not None:
+            journal.start(sid, attempt)
+        try:
+            result = fn()
+        except Exception as exc:  # every failure is recorded and retried, then reported
+            if journal is not None:
+                journal.fail(sid, attempt, exc)
+            error = f"{type(exc).__name__}: {exc}"
+            continue
+        if journal is not None:
+            journal.finish(sid)
+        return "done", result
+    return "failed", error
+
+
+@dataclass
+class BuildStatus:
+    """What :func:`build_status` finds: subjects done (in the store), running, interrupted, failed."""
+
+    store: str
+    done: list
+    running: list = field(default_factory=list)
+    interrupted: list = field(default_factory=list)
+    failed: dict = field(default_factory=dict)
+    records: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """JSON-ready: counts and ids per state, the failed subjects' last errors."""
+        return {
+            "store": self.store,
+            "done": len(self.done),
+            "running": self.running,
+            "interrupted": self.interrupted,
+            "failed": self.failed,
+        }
+
+    def to_text(self) -> str:
+        """Counts per state, then one line per running, interrupted and failed subject."""
+        lines = [
+            f"store {self.store}: {len(self.done)} done, {len(self.running)} running, "
+            f"{len(self.interrupted)} interrupted, {len(self.failed)} failed"
+        ]
+        for sid in self.running:
+            r = self.records[sid]
+            lines.append(
+                f"  running      {sid}  attempt {r['attempts']} on {r['host']} (pid {r['pid']}) since {r['started']}"
+            )
+        for sid in self.interrupted:
+            r = self.records[sid]
+            lines.append(f"  interrupted  {sid}  attempt {r['attempts']} on {r['host']} (pid {r['pid']} is gone)")
+        for sid, err in self.failed.items():
+            lines.append(f"  failed       {sid}  after {self.records[sid]['attempts']} attempt(s): {err}")
+        return "\n".join(lines)
+
+
+def _alive(record) -> bool:
+    """False when the record's process is known to be gone (on this host); True if it cannot be told."""
+    if record.get("host") != socket.gethostname():
+        return True
+    try:
+        os.kill(int(record["pid"]), 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError, ValueError, KeyError):
+        return True
+    return True
+
+
+def build_status(store_path) -> BuildStatus:
+    """Done, running, interrupted and failed subjects of builds into the store at ``store_path``."""
+    from facestats.io.store import open_store
+
+    with open_store(store_path, mode="r") as store:
+        done = sorted(store.ids())
+    records = {sid: rec for sid, rec in BuildJournal(store_path).records().items() if sid not in done}
+    running = sorted(s for s, r in records.items() if r.get("state") == "running" and _alive(r))
+    interrupted = sorted(s for s, r in records.items() if r.get("state") == "running" and s not in running)
+    failed = {s: r.get("error") for s, r in sorted(records.items()) if r.get("state") == "failed"}
+    return BuildStatus(str(store_path), done, running, interrupted, failed, records)

@@ -1,0 +1,188 @@
+"""The numba engine against the numpy engine and independent references (:mod:`facestats.model.fitting.kernels`)."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from facestats import FacestatsError
+from facestats.model import brdf, fitting
+from facestats.model.fitting import engine as engines
+from tests.helpers import hemisphere_pairs
+
+pytest.importorskip("numba")
+
+
+def _grid(rng, n=40, n_cam=5, n_led=30, frac=0.6):
+    """A random dome grid with float16 radiance (NaN, negative, −0 and +inf entries) and some unlit lights."""
+    wi = rng.normal(size=(n, n_led, 3))
+    wo = rng.normal(size=(n, n_cam, 3))
+    wi[..., 2], wo[..., 2] = np.abs(wi[..., 2]) + 0.3, np.abs(wo[..., 2]) + 0.3
+    wi /= np.linalg.norm(wi, axis=-1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=-1, keepdims=True)
+    irr = rng.uniform(0.5, 2, (n, n_led, 3)).astype(np.float32)
+    irr[3, :4, 1] = 0  # unlit
+    rad = rng.uniform(0.01, 1, (n, n_cam, n_led, 3)).astype(np.float16)
+    rad[rng.uniform(size=(n, n_cam, n_led)) > frac] = np.nan
+    rad[5, 1, 2, 0] = -0.5  # negative: invalid
+    rad[6, 0, 1, 2] = -0.0  # −0: valid
+    rad[7, 2, 3, 1] = np.inf  # +inf: valid (clipped bright sample)
+    rad[2] = np.nan  # a lumitexel without samples
+    return wi.astype(np.float32), wo.astype(np.float32), irr, rad
+
+
+def test_engine_selection(monkeypatch):
+    monkeypatch.delenv(engines.ENGINE_VARIABLE, raising=False)
+    assert engines.default_engine() == "numba"
+    monkeypatch.setenv(engines.ENGINE_VARIABLE, "numpy")
+    assert engines.default_engine() == "numpy" and engines.resolve_engine() == "numpy"
+    assert engines.resolve_engine("numba") == "numba"  # an explicit choice wins over the variable
+    monkeypatch.setenv(engines.ENGINE_VARIABLE, "cuda")
+    with pytest.raises(FacestatsError, match="FACESTATS_ENGINE must be one of"):
+        engines.default_engine()
+    with pytest.raises(FacestatsError, match=r"engine must be one of \['numba', 'numpy'\], got 'fortran'"):
+        engines.resolve_engine("fortran")
+
+
+def test_fast_exponential_and_logarithm_against_numpy(rng):
+    from facestats.model.fitting.kernels.fastexp import fill_lobe, fill_log
+
+    x = np.concatenate([np.linspace(-87, 0, 200_001), rng.uniform(-87, 0, 100_000)]).astype(np.float32)
+    out = np.empty_like(x)
+    fill_lobe(np.float32(1.0), x, np.ones_like(x), 0, x.size, out, np.empty(x.size, np.int32))
+    ref = np.exp(x.astype(np.float64))
+    assert np.max(np.abs(out / ref - 1)) < 3e-7
+    c = np.concatenate([np.geomspace(1e-6, 1, 200_001), rng.uniform(1e-6, 1, 100_000)]).astype(np.float32)
+    lg = np.empty_like(c)
+    fill_log(c, lg, np.empty(c.size, np.int32))
+    ref = np.log(c.astype(np.float64))
+    assert np.all(np.abs(lg - ref) <= 1.5e-7 + 6e-8 * np.abs(ref))  # about one float32 ulp of the result
+
+
+def test_flattened_grid_and_cosines_are_the_numpy_ones(rng):
+    wi, wo, irr, rad = _grid(rng)
+    keep = np.array([True, False, True, True, True])
+    a, inv_a = fitting.Samples.from_dome(wi, wo, irr, rad, keep_cameras=keep, engine="numpy")
+    b, inv_b = fitting.Samples.from_dome(wi, wo, irr, rad, keep_cameras=keep, engine="numba")
+    np.testing.assert_array_equal(inv_a, inv_b)
+    for name in ("texel", "camera_index", "light_index", "radiance", "irradiance"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    np.testing.assert_array_equal(a.counts, b.counts)
+    np.testing.assert_array_equal(a._grid_index(), b._grid_index())
+    for x, y in zip(a.camera_runs(), b.camera_runs()):
+        np.testing.assert_array_equal(x, y)
+    normal = rng.normal(size=(a.n_texels, 3)).astype(np.float32)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    for x, y in zip(a.cos(normal), b.cos(normal)):  # the same float32 operations in the same order
+        np.testing.assert_array_equal(x, y)
+    np.testing.assert_array_equal(a.cos_io(), b.cos_io())
+
+
+def test_stages_agree_between_engines(rng):
+    """Normals, micro-normals and the stable minimum are the same bits; the refined albedo to float32 rounding."""
+    wi, wo, irr, rad = _grid(rng, n=60, n_cam=6, n_led=40, frac=0.8)
+    scan = np.tile(np.float32([0, 0, 1]), (60, 1))
+    out = {}
+    for eng in ("numpy", "numba"):
+        s, _ = fitting.Samples.from_dome(wi, wo, irr, rad, engine=eng)
+        normal, cam = fitting.photometric_normals(s, scan, 6, min_lights=4)
+        micro = fitting.micro_normals(s, 6)
+        ci, co, ft2 = fitting.fresnel_factors(s, normal)
+        use = (ci > 0.17) & (co > 0.17)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f_r = s.radiance / (s.irradiance * np.maximum(ci, 0))
+        alb, n_used = fitting.albedo_stable_minimum(s, f_r, ci, co, ft2, use, discard=2, grazing_penalty=1.5)
+        cos_half = (ci + co) / np.sqrt(np.maximum(2 + 2 * s.cos_io(), 1e-12))
+        ref, n_ref = fitting.refine_albedo(s, f_r, ft2, cos_half, use, min_half_angle=0.3)
+        out[eng] = (normal, cam, micro, alb, n_used, ref, n_ref)
+    (n0, c0, m0, a0, u0, r0, k0), (n1, c1, m1, a1, u1, r1, k1) = out["numpy"], out["numba"]
+    assert np.isfinite(n0).all() and np.isfinite(a0[:, 0]).sum() > 40
+    for x, y in ((n0, n1), (c0, c1), (m0, m1), (a0, a1), (u0, u1), (k0, k1)):
+        np.testing.assert_array_equal(x, y)
+    np.testing.assert_allclose(r1, r0, rtol=2e-6, equal_nan=True)
+
+
+def test_specular_fits_agree_between_engines_and_recover_the_truth(rng):
+    t, s = 300, 500
+    wi, wo = hemisphere_pairs(rng, t, s)
+    n = np.tile([0.0, 0.0, 1.0], (t, 1))
+    rho, m = rng.uniform(0.15, 0.35, t), rng.uniform(0.2, 0.45, t)
+    f = brdf.torrance_sparrow(n[:, None], wi, wo, rho[:, None], m[:, None]) + 0.01 * rng.standard_normal((t, s))
+    valid = rng.uniform(size=(t, s)) > 0.2
+    fits = {e: fitting.fit_specular(wi, wo, n, f, valid, "torrance_sparrow", engine=e) for e in ("numpy", "numba")}
+    a, b = fits["numpy"], fits["numba"]
+    # float64 (numba) and float32 (numpy) sums can end a rare texel on either side of max_iter.
+    assert np.mean(a.flags == b.flags) >= 0.99
+    ok = (a.flags == 0) & (b.flags == 0)
+    assert ok.mean() > 0.95
+    # Both stop within the solver's tolerance of the same minimum: tol = 1e-6 on E² bounds parameter changes ~1e-3.
+    for name in ("rho_s", "lobe"):
+        np.testing.assert_allclose(getattr(b, name)[ok], getattr(a, name)[ok], rtol=1e-3, err_msg=name)
+    for name in ("rho_s_std", "lobe_std"):  # formed from the residuals at those parameters
+        np.testing.assert_allclose(getattr(b, name)[ok], getattr(a, name)[ok], rtol=2e-2, err_msg=name)
+    # numpy forms E² from float32 sums where it does not cancel (≥ 1 % of Σy²): ~1e-5 relative.
+    np.testing.assert_allclose(b.error[ok], a.error[ok], rtol=1e-4)
+    # Both recover the truth to within a few standard errors.
+    z = (b.lobe[ok] - m[ok]) / b.lobe_std[ok]
+    assert np.percentile(np.abs(z), 95) < 3
+
+
+def test_numba_engine_rejects_bad_input_like_numpy():
+    with pytest.raises(FacestatsError, match="wi must have shape"):
+        fitting.fit_specular(
+            np.zeros((2, 3, 3)),
+            np.zeros((2, 4, 3)),
+            np.zeros((2, 3)),
+            np.zeros((2, 4)),
+            np.ones((2, 4), bool),
+            "torrance_sparrow",
+            engine="numba",
+        )
+
+
+_BITS = """
+import hashlib, numpy as np
+from facestats.model import fitting
+from tests.model.fitting.test_engines import _grid
+rng = np.random.default_rng(7)
+wi, wo, irr, rad = _grid(rng, n=80, n_cam=6, n_led=60, frac=0.8)
+s, _ = fitting.Samples.from_dome(wi, wo, irr, rad, engine="numba")
+normal, _ = fitting.photometric_normals(s, np.tile(np.float32([0, 0, 1]), (80, 1)), 6, min_lights=4)
+ci, co, ft2 = fitting.fresnel_factors(s, normal)
+f_r = s.radiance / (s.irradiance * np.maximum(ci, 0))
+use = (ci > 0.17) & (co > 0.17)
+alb, _ = fitting.albedo_stable_minimum(s, f_r, ci, co, ft2, use)
+f_s = fitting.specular_residual(s, f_r, alb, ft2)
+fits = fitting.fit_specular_models(s, normal, f_s, use, ("torrance_sparrow", "blinn_phong"), min_samples=10)
+h = hashlib.sha256()
+for a in (normal, alb, *(getattr(f, k) for f in fits.values() for k in ("rho_s", "lobe", "error", "rho_s_std"))):
+    h.update(np.ascontiguousarray(a).tobytes())
+print(h.hexdigest())
+"""
+
+
+@pytest.mark.slow
+def test_compiled_kernels_give_the_same_bits_on_any_cpu(tmp_path):
+    """Kernels compiled for a generic x86-64 CPU (no AVX) and for this host's CPU give the same bits.
+
+    LLVM vectorises the kernels with the widest vectors the CPU has; without fastmath it may not
+    reorder sums or fuse multiply-adds, so the results must not change.
+    """
+    import platform
+
+    if platform.machine() not in ("x86_64", "AMD64"):
+        pytest.skip("the generic CPU name used here is x86-64's")
+    out = {}
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+    for cpu in ("host", "x86-64"):
+        env = {**os.environ, "PYTHONPATH": root}
+        if cpu != "host":  # compiled afresh into a temporary cache (the host's kernels come from its cache)
+            env.update(NUMBA_CPU_NAME=cpu, NUMBA_CPU_FEATURES="", NUMBA_CACHE_DIR=str(tmp_path))
+        res = subprocess.run(
+            [sys.executable, "-c", _BITS], env=env, cwd=root, capture_output=True, text=True, timeout=900
+        )
+        assert res.returncode == 0, res.stderr[-2000:]
+        out[cpu] = res.stdout.strip().splitlines()[-1]
+    assert out["host"] == out["x86-64"]

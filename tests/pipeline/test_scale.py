@@ -1,0 +1,152 @@
+"""Population builds at scale: distributed runs, the build journal, retries and reports, store locations."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from facestats import FacestatsError, open_store
+from facestats.acquire.capture import open_capture
+from facestats.acquire.synthetic.face import procedural_face
+from facestats.acquire.synthetic.population import synthesize_population
+from facestats.acquire.synthetic.simulate import DomeSimulator
+from facestats.errors import FitError, StoreError
+from facestats.pipeline import FitSettings, fit_population, fit_subject
+from facestats.pipeline import build as build_module
+from facestats.pipeline.cluster import SCHEDULER_VARIABLE, scheduler_address, store_directory
+from facestats.pipeline.journal import JOURNAL_DIR, BuildJournal, build_status
+from tests.helpers import run_cli
+
+SIZE = 16
+QUICK = FitSettings(micro_normals=False, block=128)
+
+
+@pytest.fixture(scope="module")
+def captures(tmp_path_factory):
+    root = tmp_path_factory.mktemp("captures")
+    pop = synthesize_population(map_size=SIZE, conditions=False)
+    sim = DomeSimulator(procedural_face(SIZE))
+    return [sim.simulate(pop[i]).to_zarr(root / f"{i}.zarr", chunk=128) for i in (0, 1, 2)]
+
+
+def test_scheduler_address_from_argument_or_environment(monkeypatch):
+    monkeypatch.delenv(SCHEDULER_VARIABLE, raising=False)
+    assert scheduler_address() is None
+    assert scheduler_address("tcp://10.0.0.5:8786") == "tcp://10.0.0.5:8786"
+    monkeypatch.setenv(SCHEDULER_VARIABLE, "tls://head:8786")
+    assert scheduler_address() == "tls://head:8786"
+    assert scheduler_address("tcp://other:1") == "tcp://other:1"  # the argument wins
+    with pytest.raises(FacestatsError, match="scheduler must be a Dask scheduler address"):
+        scheduler_address("head:8786")
+    monkeypatch.setenv(SCHEDULER_VARIABLE, "nonsense")
+    with pytest.raises(FacestatsError, match="DASK_SCHEDULER_ADDRESS must be a Dask scheduler address"):
+        scheduler_address()
+
+
+def test_object_stores_are_refused_before_anything_runs(tmp_path, captures):
+    with pytest.raises(StoreError, match=r"'s3://bucket/pop.zarr' is on an object store"):
+        build_module.build_store("s3://bucket/pop.zarr", map_size=SIZE, workers=1)
+    with pytest.raises(StoreError, match="object store"):
+        fit_population(captures[:1], QUICK, scheduler="synchronous", store="gs://bucket/pop.zarr")
+    assert store_directory(f"file://{tmp_path}/x.zarr") == f"{tmp_path}/x.zarr"
+    assert not (tmp_path / "x.zarr").exists()
+
+
+def test_population_fit_into_a_store_on_a_distributed_cluster_from_capture_urls(tmp_path, captures):
+    distributed = pytest.importorskip("distributed")
+    urls = [f"file://{p}" for p in captures]  # captures at fsspec URLs
+    store = tmp_path / "pop.zarr"
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as lc:
+        ids, stra = fit_population(urls, QUICK, scheduler=lc.scheduler_address, store=store)
+    assert sorted(ids) == sorted(open_capture(p).metadata["subject_id"] for p in captures)
+    st = open_store(store)
+    assert sorted(st.ids()) == sorted(ids)
+    assert not (store / JOURNAL_DIR).exists()  # every record removed, the folder pruned
+    # The same subject as a plain in-process fit with that σtrAvg.
+    ref = fit_subject(captures[1], stra, QUICK, sensor_fit=None)
+    got = st.subject(ref.attrs["subject_id"])
+    np.testing.assert_array_equal(got.ts_m.values, ref.ts_m.values)
+
+
+def test_captures_from_an_in_memory_fsspec_location(captures):
+    cap = open_capture(captures[0])
+    url = cap.to_zarr("memory://facestats-test/cap.zarr", chunk=128)
+    datasets, _ = fit_population([url], QUICK, scheduler="synchronous")
+    ref = fit_subject(captures[0], settings=QUICK)
+    np.testing.assert_array_equal(datasets[0].ts_rho_s.values, ref.ts_rho_s.values)
+
+
+def test_failed_subjects_are_retried_then_reported_never_skipped(tmp_path, monkeypatch):
+    calls = {}
+    real = build_module._build_one
+
+    def flaky(*args):
+        sid = args[5]
+        calls[sid] = calls.get(sid, 0) + 1
+        if sid == "S002" or (sid == "S003" and calls[sid] == 1):  # S002 always fails, S003 once
+            raise RuntimeError(f"simulated failure of {sid}")
+        return real(*args)
+
+    monkeypatch.setattr(build_module, "_build_one", flaky)
+    store = tmp_path / "b.zarr"
+    report = build_module.build_store(
+        store, map_size=SIZE, subjects=["S001", "S002", "S003"], workers=1, retries=1, micro_normals=False
+    )
+    assert report.written == ["S001", "S003"] and list(report.failed) == ["S002"]
+    assert calls == {"S001": 1, "S002": 2, "S003": 2}
+    assert "simulated failure of S002" in report.failed["S002"] and "1 FAILED" in report.to_text()
+    rec = json.loads((store / JOURNAL_DIR / "S002.json").read_text())
+    assert rec["state"] == "failed" and rec["attempts"] == 2 and "RuntimeError" in rec["error"]
+    status = build_status(store)
+    assert status.done == ["S001", "S003"] and list(status.failed) == ["S002"] and not status.running
+    # The command line: --status lists the failure and exits 1.
+    res = run_cli("build", "--status", str(store))
+    assert res.returncode == 1 and "failed       S002  after 2 attempt(s): RuntimeError" in res.stdout
+
+
+def test_status_reports_running_and_interrupted_subjects(tmp_path):
+    store = tmp_path / "s.zarr"
+    open_store(store, mode="a").close()
+    journal = BuildJournal(store)
+    journal.start("S010", 1)  # this process: alive
+    journal.start("S011", 1)
+    rec = json.loads((store / JOURNAL_DIR / "S011.json").read_text())
+    rec["pid"] = 2**22 + 12345  # no such process on this host
+    (store / JOURNAL_DIR / "S011.json").write_text(json.dumps(rec))
+    status = build_status(store)
+    assert status.running == ["S010"] and status.interrupted == ["S011"] and status.done == []
+    assert "interrupted  S011" in status.to_text()
+    journal.finish("S010")
+    assert build_status(store).running == []
+
+
+@pytest.mark.slow
+def test_build_on_a_distributed_cluster_given_by_the_environment(tmp_path, monkeypatch):
+    distributed = pytest.importorskip("distributed")
+    store = tmp_path / "d.zarr"
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as lc:
+        monkeypatch.setenv(SCHEDULER_VARIABLE, lc.scheduler_address)
+        report = build_module.build_store(store, map_size=SIZE, subjects=["S004", "S005"], micro_normals=False)
+    assert report.written == ["S004", "S005"] and report.workers == 1 and not report.failed
+    assert sorted(open_store(store).ids()) == ["S004", "S005"]
+    assert os.listdir(store).count(JOURNAL_DIR) == 0
+
+
+def test_fit_population_reports_subjects_that_keep_failing(tmp_path, captures):
+    broken = _broken_capture(tmp_path, captures[0])
+    with pytest.raises(FitError, match=r"1 of 2 subject\(s\) failed after 1 retries: S\d+: "):
+        fit_population([captures[1], broken], QUICK, scheduler="synchronous", retries=1)
+
+
+def _broken_capture(tmp_path, source):
+    """A copy of ``source`` whose radiance chunks are garbage: its sensor data read, its dome fit fails."""
+    import shutil
+
+    path = tmp_path / "broken.zarr"
+    shutil.copytree(source, path)
+    for root, _, files in os.walk(path / "radiance" / "c"):
+        for f in files:
+            with open(os.path.join(root, f), "wb") as fh:
+                fh.write(b"not a blosc frame")
+    return str(path)

@@ -41,7 +41,7 @@ def _best(fn, repeat):
 
 def _store(name, n_subjects, size):
     from facestats.io import open_store
-    from tests.factories import make_map_subject
+    from tests.helpers import make_map_subject
 
     def make(path):
         with open_store(path, mode="a") as st:

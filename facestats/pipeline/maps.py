@@ -84,7 +84,8 @@ def subject_maps(res, texel, face, workers=1):
 def _averaged_maps(res, texel, size):
     """Every per-lumitexel float output of ``res`` averaged into (size, size[, 3]) maps, and where data landed.
 
-    One grouping of the lumitexels by texel for all values and one for the variances (:func:`facestats.model.fitting.scatter_to_map`);
+    One grouping of the lumitexels by texel for all values and one for the variances
+    (:func:`facestats.model.fitting.scatter_to_map`);
     NaN where no lumitexel landed.
     """
     stds = [name for key in ("ts", "bp") for name in STD_VARS[key] if name in res]

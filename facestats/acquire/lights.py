@@ -162,6 +162,21 @@ class EnvironmentLight:
         e = np.repeat(e[:, None], 3, axis=1) if e.ndim == 1 else e
         self.radiance_solid_angle = check_shape(e, "radiance_solid_angle", (d.shape[0], 3))
 
+    @classmethod
+    def from_probe(cls, probe, samples=(16, 32), *, shadows: bool = True) -> "EnvironmentLight":
+        """Environment lighting from a lat-long light probe (an (H, W, 3) array or an HDR file).
+
+        The probe follows :mod:`facestats.model.sphere`'s convention and is read with
+        :func:`facestats.io.probes.read_light_probe`; it becomes ``samples`` = (rows, columns)
+        directional lights of L·δΩ each (:func:`facestats.model.sphere.latlong_light_samples`).
+        """
+        from facestats.io.probes import read_light_probe
+        from facestats.model.sphere import latlong_light_samples
+
+        img = probe if isinstance(probe, np.ndarray) else read_light_probe(probe)
+        directions, power = latlong_light_samples(img, *samples)
+        return cls(directions, power, shadows)
+
     def to_dict(self) -> dict:
         return {
             "type": "environment",

@@ -16,7 +16,7 @@ Roughness conversion.  glTF's specular lobe is GGX (Trowbridge-Reitz) with
 α = roughness²; the fitted lobe is Beckmann with width m (eq. 13).  α_GGX =
 c·m with c = :data:`GGX_PER_BECKMANN` = 0.92, the least-squares match of the
 projected distributions D(θ) cos θ over the hemisphere (the optimum is
-0.913-0.923 for m in 0.2-0.4, the range of skin; ``tests/io/test_gltf.py``
+0.913-0.923 for m in 0.2-0.4, the range of skin; ``tests/io/test_export_formats.py``
 recomputes it), so roughness = sqrt(0.92 m).  What glTF cannot carry: ρs
 (glTF's dielectric specular has a fixed strength; the skin's index 1.38 is
 given by ``KHR_materials_ior``), the Blinn-Phong fit, and subsurface scattering.

@@ -30,7 +30,7 @@ says so (a quantity that may be missing).  The bounds and where they come from:
   1/π, see :func:`facestats.model.brdf.torrance_sparrow`) the lobe's
   directional albedo at normal incidence is 4 ρs F_r(0) for m ≲ 0.3
   (numerical integral: 1.000 at m = 0.1, 1.002 at m = 0.3, less for rougher
-  lobes; ``tests/reliability/test_physics_domains.py``), so ρs,max reflects all
+  lobes; ``tests/reliability/test_api_and_physics.py``), so ρs,max reflects all
   incident light;
 * ``ts_m``, ``ts_sample_m`` in (0, 10]: the Beckmann RMS slope (eq. 13) is
   positive; 10 (a mean facet slope of 84°) is far beyond skin (fitted 0.1-0.7,

@@ -207,7 +207,7 @@ def blinn_phong(normal, wi, wo, rho_s, exponent):
     Seed check (energy): Weyrich et al. state that (n + 2)/(2π) makes "the cosine
     lobe integrate to one" so that ρs = 1 reflects 100 % of the energy.  The lobe
     does integrate to one over *half-vector* directions (∫ lobe · cos δ dω_H = 1,
-    checked in ``tests/test_brdf.py``), but over outgoing directions
+    checked in ``tests/model/test_brdf.py``), but over outgoing directions
     dωo = 4 (ωo·H) dω_H, and the numerically integrated directional albedo at
     normal incidence is 2.30 ρs at n = 5 and 3.85 ρs at n = 100 (→ 4 ρs).  The
     formula is implemented as printed; energy conservation needs ρs ≲ 1/4, which

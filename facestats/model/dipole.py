@@ -76,7 +76,7 @@ def boundary_coefficient(eta=ETA_SKIN):
     is also the factor (1 + μ_r)/(1 − μ_r) of Weyrich et al. 2006 eq. 16 with
     μ_r = F_dr.  Only this form makes the closed-form total reflectance
     (:func:`total_diffuse_reflectance`) equal the numerical integral of the
-    profile, which ``tests/test_dipole.py`` checks to 1e-8.
+    profile, which ``tests/model/test_dipole.py`` checks to 1e-8.
     """
     return _boundary(check_dipole_eta(eta))
 
@@ -231,7 +231,7 @@ def total_diffuse_reflectance(sigma_s_prime, sigma_a, eta=ETA_SKIN):
     exponent (1 + μ_r)/(1 − μ_r) is the boundary coefficient A with μ_r = F_dr.
     Derivation: integrating each source term of :func:`dipole_profile` over the
     plane gives (α'/2) e^{−σtr z}, and σtr z_r = sqrt(3(1 − α')),
-    σtr z_v = sqrt(3(1 − α'))(1 + 4A/3).  ``tests/test_dipole.py`` checks the
+    σtr z_v = sqrt(3(1 − α'))(1 + 4A/3).  ``tests/model/test_dipole.py`` checks the
     closed form against a numerical integral to 1e-8.
 
     Published check: Skin1 of Jensen et al. 2001 (σ's = 0.74, σa = 0.032 mm⁻¹,

@@ -141,7 +141,7 @@ def diffuse_fresnel_reflectance(eta=ETA_SKIN):
     negative for all η in [1, 2] (−0.906 at η = 1.38), which is impossible for a
     reflectance; with ``+ 0.710/η`` the polynomial matches the numerical integral
     2∫ F_r(μ, 1/η) μ dμ to within 0.3 % over η ∈ [1.2, 1.6] (checked in
-    ``tests/test_fresnel.py``).  The dipole uses it through
+    ``tests/model/test_fresnel.py``).  The dipole uses it through
     A = (1 + F_dr)/(1 − F_dr) (Jensen et al. 2001; see :mod:`facestats.model.dipole`).
 
     Parameters

@@ -12,7 +12,7 @@ Seed check (factor 1/π): eq. 6 as printed omits the 1/π of the BSSRDF
 decomposition eq. 5 (S_d ≈ (1/π) f_i R_d f_o, Jensen et al. 2001).  With the
 1/π, a flat homogeneous patch under uniform light reflects the diffuse BRDF
 (α/π) F_t(ωi) F_t(ωo) that eq. 9-10 subtract; without it eq. 6 and eq. 10 would
-disagree by π.  ``tests/test_skin.py`` integrates the diffuse term over a flat
+disagree by π.  ``tests/model/test_skin.py`` integrates the diffuse term over a flat
 patch and checks it against :func:`facestats.model.dipole.total_diffuse_reflectance`.
 
 Conventions: positions in mm, areas in mm², directions unit vectors pointing away

@@ -62,6 +62,7 @@ __all__ = [
     "latlong_directions",
     "latlong_solid_angles",
     "latlong_coordinates",
+    "latlong_light_samples",
     "light_stage_directions",
     "angular_directions",
     "angular_solid_angles",
@@ -148,6 +149,44 @@ def latlong_coordinates(directions, height: int, width: int):
     h, w = _check_size(height, width)
     phi, theta = angles_from_direction(directions)
     return h * phi / np.pi - 0.5, w * (theta + np.pi) / (2 * np.pi) - 0.5
+
+
+def latlong_light_samples(probe, rows: int, columns: int):
+    """A lat-long probe as ``rows`` × ``columns`` directional lights: direction and Σ L δΩ per block of pixels.
+
+    The probe's pixels are grouped in equal blocks; each block becomes one light carrying the block's
+    radiance integrated over its solid angle, Σ L_ij ΔΩ_ij (W mm⁻² for radiance in W mm⁻² sr⁻¹; Debevec
+    et al. 2000 eq. 4 with the exact ΔΩ of :func:`latlong_solid_angles`), from the block's solid-angle
+    weighted mean direction.  Irradiance on a surface of normal n is then Σ_b max(0, n·d_b) P_b, exact
+    for uniform light up to the blocks' cosine spread.
+
+    Parameters
+    ----------
+    probe : array_like, shape (H, W, 3)
+        Linear radiance in the lat-long layout of this module (W = 2H).
+    rows, columns : int
+        Blocks; must divide H and W.
+
+    Returns
+    -------
+    directions : ndarray, shape (rows · columns, 3)
+        Unit directions towards the lights.
+    radiance_solid_angle : ndarray, shape (rows · columns, 3)
+        Σ L δΩ per light.
+    """
+    img = check_shape(as_finite(probe, "probe", 0, None, dtype=np.float64), "probe", (None, None, 3))
+    h, w = img.shape[:2]
+    if w != 2 * h:
+        raise ValidationError(f"probe must be a lat-long map of width 2 x height, got {h} x {w} (H x W)")
+    r = check_integer(rows, "rows", 1)
+    c = check_integer(columns, "columns", 1)
+    if h % r or w % c:
+        raise ValidationError(f"rows x columns {r} x {c} must divide the probe size {h} x {w}")
+    dw = latlong_solid_angles(h, w)
+    blocks = (r, h // r, c, w // c)
+    power = (img * dw[..., None]).reshape(*blocks, 3).sum(axis=(1, 3)).reshape(-1, 3)
+    d = (latlong_directions(h, w) * dw[..., None]).reshape(*blocks, 3).sum(axis=(1, 3)).reshape(-1, 3)
+    return d / np.linalg.norm(d, axis=1, keepdims=True), power
 
 
 def light_stage_directions(n_theta: int = 64, n_phi: int = 32):

@@ -20,7 +20,7 @@ run on the synthetic population of :mod:`facestats.acquire.synthetic.population`
 
 Everything is deterministic for a seed: the simulator draws its noise from each
 subject's seed and the fit has no randomness, so a rebuild reproduces the same
-subjects (tested in ``tests/test_default_store.py``).
+subjects (tested in ``tests/pipeline/test_default_store.py``).
 
 Interruption and worker lifetime (issue #12): local worker processes die with
 the build — each sets the Linux parent-death signal (SIGKILL) and watches its

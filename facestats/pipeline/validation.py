@@ -183,7 +183,7 @@ def render_probe(subject, capture, camera: int, probe, *, samples=(8, 16), specu
 
     The probe is averaged down to ``samples`` = (rows, columns) directions
     (area-weighted block means), each a directional light of irradiance
-    E = L Δω (N·ω) (:func:`facestats.model.sphere.latlong_directions`), occluded
+    E = L Δω (N·ω) (:func:`facestats.model.sphere.latlong_light_samples`), occluded
     where the subject's face mesh (:func:`facestats.io.mesh.subject_mesh`)
     shadows it.
 
@@ -202,21 +202,13 @@ def render_probe(subject, capture, camera: int, probe, *, samples=(8, 16), specu
     from facestats.acquire.visibility import ShadowMaps
     from facestats.io.mesh import subject_mesh
     from facestats.io.probes import read_light_probe
-    from facestats.model.sphere import latlong_directions, latlong_solid_angles
+    from facestats.model.sphere import latlong_light_samples
     from facestats.pipeline.render import camera_image
 
     check_integer(camera, "camera", 0, capture.dome.n_cameras - 1)
     img = read_light_probe(probe) if not isinstance(probe, np.ndarray) else np.asarray(probe, np.float64)
     h, w = (check_integer(s, "samples", 1) for s in samples)
-    if img.shape[0] % h or img.shape[1] % w:
-        raise ValidationError(f"samples {samples} must divide the probe size {img.shape[:2]}")
-    dirs = latlong_directions(img.shape[0], img.shape[1])
-    dw = latlong_solid_angles(img.shape[0], img.shape[1])
-    bh, bw = img.shape[0] // h, img.shape[1] // w
-    blocks = (h, bh, w, bw)
-    power = (img * dw[..., None]).reshape(*blocks, 3).sum(axis=(1, 3))  # L Δω summed per block
-    d = _unit((dirs * dw[..., None]).reshape(*blocks, 3).sum(axis=(1, 3)).reshape(-1, 3))
-    power = power.reshape(-1, 3)
+    d, power = latlong_light_samples(img, h, w)
     lt, v, u = _texels(subject, capture)
     normal = _unit(np.asarray(subject["normal"].values)[v, u])
     mesh = subject_mesh(subject, mesh_grid=64)

@@ -36,7 +36,7 @@ Pipeline for one camera (:class:`StageCamera`, pinhole, square image):
    in its local (flat-patch) mode, as :func:`facestats.pipeline.render.predict_radiance`
    renders fitted subjects.  The diffuse term factors into a per-(pixel, channel)
    colour times a per-(pixel, light) shape, so it is evaluated once per sample
-   instead of per channel; ``tests/test_relight_stage.py`` checks the result
+   instead of per channel; ``tests/relight/test_stage.py`` checks the result
    against :func:`facestats.model.skin.skin_radiance` sample by sample.
 
 The same per-sample evaluation, summed over lights with weights L·δA instead of

@@ -9,6 +9,7 @@ import pytest
 from facestats import FacestatsError
 from facestats.acquire.hdr import merge_photographs, recover_response
 from facestats.acquire.response import ResponseCurve, hat_weights, histogram_samples, stratified_samples
+from tests.helpers import colour_hdri_merge
 
 TIMES = np.array([1 / 30, 1 / 8, 1 / 2, 2.0])
 
@@ -167,25 +168,10 @@ def test_agrees_with_opencv_debevec(bracket8):
     assert _scaled_rel(merge_photographs(imgs, TIMES, recover_response(imgs, TIMES)), e_cv) < 0.02
 
 
-def _colour_hdri_merge(imgs, times):
-    """colour-hdri's Debevec 1997 response and HDRI merge of 8-bit images (values scaled to [0, 1])."""
-    from colour_hdri import Image, ImageStack, camera_response_functions_Debevec1997, image_stack_to_HDRI
-    from colour_hdri.utilities.image import Metadata
-
-    stack = ImageStack()
-    for img, t in zip(imgs, times):
-        im = Image()
-        im.data = img.astype(np.float64) / 255
-        im.metadata = Metadata(8.0, float(t), 100.0)
-        stack.append(im)
-    crfs = camera_response_functions_Debevec1997(stack, sampling_function_kwargs={"samples": 200})
-    return image_stack_to_HDRI(stack, camera_response_functions=crfs)
-
-
 def test_agrees_with_colour_hdri(bracket8):
     pytest.importorskip("colour_hdri")
     cam, rate, imgs = bracket8
-    e_ch = _colour_hdri_merge(imgs, TIMES)
+    e_ch = colour_hdri_merge(imgs, TIMES)
     ours = merge_photographs(imgs, TIMES, recover_response(imgs, TIMES))
     # colour-hdri merges in the linear domain with its own weights: a few per cent apart, both near the truth.
     assert _scaled_rel(ours, e_ch) < 0.05

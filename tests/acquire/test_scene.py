@@ -208,3 +208,20 @@ def test_renderer_conserves_energy_on_a_uniformly_lit_plane():
     assert np.median(l) == pytest.approx(total, rel=0.03)  # point-kernel quadrature of ∫ R dA over the plane
     r = cutoff_radius(s, a, 1.38)
     assert float(dipole_radial_energy(r, s, a, 1.38)) == pytest.approx((1 - 1e-4) * total, rel=1e-9)
+
+
+def test_an_environment_probe_lights_patches_as_its_directional_lights_do():
+    """A probe dark but for one block is the directional light of that block's direction and Σ L δΩ."""
+    from facestats.model.sphere import latlong_light_samples
+
+    v, f = _plane(12, 10.0)
+    p = mesh_patches(v, f, spacing=None)
+    probe = np.zeros((16, 32, 3), np.float32)
+    probe[4:6, 0:2] = [3.0, 2.0, 1.0]  # sky in front of the plane (columns at the edges look towards +z)
+    env = EnvironmentLight.from_probe(probe, (8, 16))
+    d, power = latlong_light_samples(probe, 8, 16)
+    k = int(np.argmax(power[:, 0]))
+    sun = DirectionalLight(d[k], power[k])
+    c = patch_irradiance(p, [env], shadows=False)
+    assert np.all(c > 0)
+    np.testing.assert_allclose(c, patch_irradiance(p, [sun], shadows=False), rtol=1e-6)

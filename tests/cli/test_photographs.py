@@ -1,4 +1,4 @@
-"""``facestats calibrate leds`` through the console script (``facestats ingest``: tests/test_photographs_e2e.py)."""
+"""``facestats calibrate leds`` through the console script (``facestats ingest``: tests/pipeline/test_photographs)."""
 
 import json
 from dataclasses import replace

@@ -103,3 +103,26 @@ def test_bad_directions_are_refused():
         sphere.voronoi_solid_angles([[1, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0, 0, -1]])
     with pytest.raises(ValidationError, match="height"):
         sphere.latlong_directions(0, 4)
+
+
+def test_latlong_light_samples_conserve_power_and_give_pi_l_irradiance():
+    """A uniform probe of radiance L carries 4π L; on any surface its blocks give E = π L (cosine integral)."""
+    L = np.array([1.0, 2.0, 0.5])
+    d, power = sphere.latlong_light_samples(np.broadcast_to(L, (32, 64, 3)), 16, 32)
+    np.testing.assert_allclose(power.sum(0), 4 * np.pi * L, rtol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, rtol=1e-12)
+    for n in ([0.0, 0, 1], [0.0, 1, 0], [0.6, 0, -0.8]):
+        e = np.clip(d @ np.array(n), 0, None) @ power
+        np.testing.assert_allclose(e, np.pi * L, rtol=0.01)  # the blocks' cosine spread: < 1 % at 16 x 32
+
+
+def test_latlong_light_samples_put_the_centre_column_behind_the_head():
+    probe = np.zeros((16, 32, 3))
+    probe[7:9, 15:17] = 1.0  # the four pixels around the image centre
+    d, power = sphere.latlong_light_samples(probe, 8, 16)
+    brightest = d[np.argmax(power[:, 0])]
+    np.testing.assert_allclose(brightest, [0.0, 0.0, -1.0], atol=0.2)
+    with pytest.raises(ValidationError, match="must divide"):
+        sphere.latlong_light_samples(probe, 5, 16)
+    with pytest.raises(ValidationError, match="width 2 x height"):
+        sphere.latlong_light_samples(np.zeros((16, 16, 3)), 4, 4)

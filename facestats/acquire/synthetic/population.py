@@ -39,7 +39,7 @@ Specular BRDF (Fig. 15, Fig. 16)
     (``LOADINGS``), scaled so that the canonical correlation analysis of the
     149 × 23 matrix reproduces Fig. 16 (principal correlations 0.768 and 0.585,
     direct correlations 0.766 skin type, 0.573 gender, 0.537 age; see
-    ``tests/test_population.py``).  The directions of the effects are our
+    ``tests/acquire/test_population.py``).  The directions of the effects are our
     choice (the paper publishes strengths only): darker types shinier (higher
     ρs), women smoother in the facial-hair regions, older skin rougher; the
     patterns are orthogonal, so CCA improves little on the direct correlations.  Blinn-Phong truth follows

@@ -12,9 +12,13 @@ from facestats.io.probes import write_light_probe
 from facestats.model import sphere
 from tests.helpers import TEST_DATA
 
-EXTERNAL = pathlib.Path(os.environ.get("FACESTATS_TEST_DATA", TEST_DATA / "external"))
-PROBULATOR = EXTERNAL / "probulator"
-REAL_PROBES = ("pisa", "ennis", "wells")
+# Real probes: the committed Poly Haven sample (CC0, resampled; tests/data/polyhaven-probes/README.md), or any
+# directory of lat-long Radiance probes named by FACESTATS_PROBES (e.g. kayru/Probulator's Data/Probes).
+SAMPLE = TEST_DATA / "polyhaven-probes"
+PROBES = pathlib.Path(os.environ.get("FACESTATS_PROBES", SAMPLE))
+REAL_PROBES = sorted(PROBES.glob("*.hdr")) or [
+    pytest.param(None, marks=pytest.mark.skip(reason=f"no real .hdr probes in {PROBES} (FACESTATS_PROBES)"))
+]
 
 
 @pytest.mark.parametrize("ext", [".hdr", ".exr", ".pfm"])
@@ -42,19 +46,42 @@ def test_one_bright_texel_keeps_its_direction_through_write_and_read(tmp_path, e
         assert (r, c) == pytest.approx((i, j))
 
 
-@pytest.mark.skipif(not PROBULATOR.is_dir(), reason=f"real probes absent: copy kayru/Probulator Data/Probes/*.hdr "
-                    f"to {PROBULATOR} (or set FACESTATS_TEST_DATA)")  # fmt: skip
-@pytest.mark.parametrize("name", REAL_PROBES)
-def test_real_probes_read_as_opencv_decodes_them(name):
+@pytest.mark.parametrize("path", REAL_PROBES, ids=lambda p: getattr(p, "stem", "none"))
+def test_real_probes_read_as_opencv_decodes_them(path):
     import cv2
 
-    path = PROBULATOR / f"{name}.hdr"
     p = read_light_probe(path)
-    assert p.shape == (128, 256, 3)
+    h, w, _ = p.shape
+    assert p.dtype == np.float32 and w == 2 * h  # lat-long
     ref = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)[..., ::-1]  # an independent RGBE decoder (BGR)
+    assert ref.shape == p.shape
     # OpenCV decodes a mantissa m as m·2^(e−136), Radiance (and facestats) as (m + ½)·2^(e−136): half a code.
     assert np.all(np.abs(p - ref) <= ref.max(-1, keepdims=True) / 128 + 1e-6)
-    assert p.min() >= 0 and p.max() > 1  # high dynamic range, never normalised
+    assert np.all(p >= ref)  # … and never below OpenCV's value: the same codes, the half code added
+    # Radiance, never normalised: light sources far above the median scene radiance (more than five stops).
+    assert p.min() >= 0 and p.max() > 1 and p.max() > 32 * np.median(p)
+
+
+@pytest.mark.parametrize("ext", [".hdr", ".exr", ".pfm"])
+@pytest.mark.parametrize("path", REAL_PROBES, ids=lambda p: getattr(p, "stem", "none"))
+def test_real_probes_survive_every_writer_unchanged(tmp_path, path, ext):
+    p = read_light_probe(path)
+    back = read_light_probe(write_light_probe(tmp_path / f"copy{ext}", p))
+    # EXR and PFM keep float32 exactly; a decoded RGBE value, (m + ½)·2^(e−136), encodes back to the same (m, e).
+    np.testing.assert_array_equal(back, p)
+
+
+def test_outdoor_probe_has_its_sun_above_the_horizon_and_its_sky_above_the_ground():
+    """``park.hdr`` of the committed sample: daylight, the sun in view (its README)."""
+    p = read_light_probe(SAMPLE / "park.hdr").astype(np.float64)
+    h, w, _ = p.shape
+    lum = p @ [0.2126, 0.7152, 0.0722]
+    d = sphere.latlong_directions(h, w)
+    sun = np.unravel_index(np.argmax(lum), lum.shape)
+    assert d[sun][1] > 0  # +y is up: row 0 of the file is the zenith
+    assert lum[sun] > 1000 * np.median(lum)  # the sun's disc, orders of magnitude above the sky
+    power = lum * sphere.latlong_solid_angles(h, w)
+    assert power[: h // 2].sum() > 2 * power[h // 2 :].sum()  # the sky half gives more light than the ground half
 
 
 def test_bad_probe_files_name_file_field_and_value(tmp_path):

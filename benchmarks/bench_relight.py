@@ -15,9 +15,10 @@
   against the field's size.
 
 Inputs (the fields) are built once per code version under ``FACESTATS_BENCH_DIR``
-(:mod:`inputs`).  The real probes are ``kayru/Probulator`` ``Data/Probes/{pisa,ennis,wells}.hdr``,
-looked up in ``$FACESTATS_TEST_DATA/probulator`` (default ``tests/data/external/probulator``);
-without them the synthetic :func:`facestats.relight.lighting.sky_probe` is used and reported.
+(:mod:`inputs`).  The real probes are the committed CC0 Poly Haven samples
+``tests/data/polyhaven-probes/{park,lobby,studio}.hdr`` (256 × 128), or ``kayru/Probulator``'s
+``Data/Probes/{pisa,ennis,wells}.hdr`` when they are found in ``$FACESTATS_TEST_DATA/probulator``
+(not committed: no redistribution licence); which set was used is reported.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ import tracemalloc
 import numpy as np
 
 PROBES = ("pisa", "ennis", "wells")
+COMMITTED = pathlib.Path(__file__).resolve().parents[1] / "tests" / "data" / "polyhaven-probes"
 PROBE_DIR = (
     pathlib.Path(
         os.environ.get(
@@ -41,13 +43,12 @@ PROBE_DIR = (
 )
 
 
-def _probes(height=None):
+def _probes():
     from facestats.io.probes import read_light_probe
-    from facestats.relight.lighting import sky_probe
 
     if all((PROBE_DIR / f"{p}.hdr").is_file() for p in PROBES):
         return {p: read_light_probe(PROBE_DIR / f"{p}.hdr") for p in PROBES}, "probulator"
-    return {"sky": sky_probe(height or 64)}, "synthetic sky"
+    return {p.stem: read_light_probe(p) for p in sorted(COMMITTED.glob("*.hdr"))}, "polyhaven (committed)"
 
 
 def _subject():
@@ -168,7 +169,7 @@ def bench_discretisation(size=64, probe_height=None, n_theta=64, n_phi=32):
 
     subject = _subject()
     cam = stage_camera(size=size)
-    probes, source = _probes(probe_height)
+    probes, source = _probes()
     d_stage, _ = light_stage_directions(n_theta, n_phi)
     out = {"probes": source}
     t0 = time.perf_counter()

@@ -118,7 +118,8 @@ def bench_full_resolution(workers=2, block=2048, grid=None, map_size=None, basel
             face = a["region"] > 0
             for var in ("albedo", "ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent"):
                 ok = face if var == "albedo" else face & (a[f"{var[:2]}_flag"] == 0) & (b[f"{var[:2]}_flag"] == 0)
-                mx, p99, med = _max_relative(a[var], b[var], ok[..., None] if a[var].ndim == 3 else ok)
+                mask = np.broadcast_to(ok[..., None], a[var].shape) if a[var].ndim == 3 else ok
+                mx, p99, med = _max_relative(a[var], b[var], mask)
                 figures[f"max_rel_diff_{var}"] = mx
                 figures[f"p99_rel_diff_{var}"] = p99
                 figures[f"median_rel_diff_{var}"] = med

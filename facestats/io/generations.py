@@ -67,15 +67,18 @@ def store_folder(root, rel: str) -> str:
     """
     path = os.path.join(root, rel)
     confined(root, path)
-    try:
-        os.mkdir(path)
-    except FileExistsError:
-        pass
-    except OSError as exc:
-        raise StoreError(f"cannot create {path}: {exc.strerror}") from None
-    if not is_plain_dir(path):
-        raise StoreError(f"{path} must be a folder of the store, but it is not a directory (or is a symbolic link)")
-    return path
+    for _ in range(10):  # gc may remove an empty subject folder between our mkdir and our check: create it again
+        try:
+            os.mkdir(path)
+        except FileExistsError:
+            pass
+        except OSError as exc:
+            raise StoreError(f"cannot create {path}: {exc.strerror}") from None
+        if is_plain_dir(path):
+            return path
+        if os.path.lexists(path):
+            raise StoreError(f"{path} must be a folder of the store, but it is not a directory (or is a symbolic link)")
+    raise StoreError(f"cannot create {path}: it was removed again each time (a concurrent gc)")
 
 
 def reserve_generation(root, sid: str, when: str = ""):

@@ -168,6 +168,7 @@ def test_agrees_with_opencv_debevec(bracket8):
     assert _scaled_rel(merge_photographs(imgs, TIMES, recover_response(imgs, TIMES)), e_cv) < 0.02
 
 
+@pytest.mark.slow
 def test_agrees_with_colour_hdri(bracket8):
     pytest.importorskip("colour_hdri")
     cam, rate, imgs = bracket8

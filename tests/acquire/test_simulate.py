@@ -209,6 +209,7 @@ def test_dome_calibration_round_trip(tmp_path):
     assert d.n_leds == 150 and d.n_cameras == 16
 
 
+@pytest.mark.slow
 def test_real_mesh_loader_round_trip(tmp_path):
     from facestats.io.mesh import load_face_mesh, save_face_mesh
 

@@ -104,6 +104,7 @@ def test_conditions_figure(store, tmp_path):
     np.testing.assert_allclose(images[2].get_array(), res.distance.to_numpy())
 
 
+@pytest.mark.slow
 def test_posterior_figures(store, tmp_path):
     sensor = ContactSensor()
     sp, sa = dipole.scattering_from_albedo(np.array([0.5, 0.3, 0.2]), np.array([0.6, 1.0, 1.6]))

@@ -29,6 +29,7 @@ def simulate(n, rng):
     return measured, truth, sp, sa, sigma_tr
 
 
+@pytest.mark.slow
 def test_credible_intervals_are_calibrated():
     """90 % intervals of 200 simulated profiles (one channel each) cover the truth 85-95 % of the time."""
     measured, _, sp, sa, sigma_tr = simulate(200, np.random.default_rng(2024))

@@ -69,6 +69,7 @@ def _half_plane_response(x, s, a):
     return float(dipole.total_diffuse_reflectance(s, a)) - quad(strip, -x, np.inf, limit=200)[0]
 
 
+@pytest.mark.slow
 def test_shadow_edge_blur_matches_half_plane_integral():
     h = 0.25
     pos, area = _plane(h, 6.0)

@@ -12,6 +12,8 @@ from facestats.io.schema import provenance, validate_subject
 from facestats.pipeline import contactless
 from facestats.pipeline.contactless import contactless_population, fit_contactless
 
+pytestmark = pytest.mark.slow  # end to end: a whole subject through the pipeline
+
 SPACING = 0.5  # coarse window mesh for speed; the study uses 0.3 mm
 
 

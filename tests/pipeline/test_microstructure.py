@@ -53,6 +53,7 @@ class _Failing:
         return self.seq.frame_names()
 
 
+@pytest.mark.slow
 def test_render_is_resumable_and_tiling_free(tmp_path, smile, neutral_map):
     opts = dict(map_shape=MAP, window=WINDOW, progress=False)
     ref = render_sequence(smile, neutral_map, tmp_path / "ref.zarr", tile=512, **opts)

@@ -111,6 +111,7 @@ def test_stores_without_standard_errors_still_open_and_query(tmp_path):
     assert store.validate().ok
 
 
+@pytest.mark.slow
 def test_model_errors_per_region(tmp_path):
     pop = make_population(n=6, conditions=False)
     datasets = pop.datasets()

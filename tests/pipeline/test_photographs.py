@@ -14,6 +14,8 @@ import pytest
 
 from tests.helpers import run_cli
 
+pytestmark = pytest.mark.slow  # end to end: a whole subject through the pipeline
+
 MOVED = [(4, 7), (11, 3)]
 
 

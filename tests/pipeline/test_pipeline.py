@@ -185,6 +185,7 @@ def test_streaming_from_zarr_blocks_equals_in_memory(tmp_path, pop, geom):
     assert np.median(rel) < 1e-4 and rel.max() < 0.02
 
 
+@pytest.mark.slow
 def test_two_workers_give_the_one_worker_dataset(tmp_path, pop, geom):
     """Blocks on two worker processes and the stage-5 map jobs on two threads change nothing."""
     path = DomeSimulator(geom).simulate(pop[5]).to_zarr(tmp_path / "c.zarr", chunk=256)
@@ -196,6 +197,7 @@ def test_two_workers_give_the_one_worker_dataset(tmp_path, pop, geom):
         np.testing.assert_array_equal(two[var].values, one[var].values, err_msg=var)
 
 
+@pytest.mark.slow
 def test_population_fit_sigma_tr_avg_and_dask_parity(tmp_path, pop, geom):
     sim = DomeSimulator(geom)
     paths = [sim.simulate(pop[i]).to_zarr(tmp_path / f"{i}.zarr") for i in (0, 1, 2)]

@@ -77,6 +77,7 @@ def test_captures_from_an_in_memory_fsspec_location(captures):
     np.testing.assert_array_equal(datasets[0].ts_rho_s.values, ref.ts_rho_s.values)
 
 
+@pytest.mark.slow
 def test_failed_subjects_are_retried_then_reported_never_skipped(tmp_path, monkeypatch):
     calls = {}
     real = build_module._build_one

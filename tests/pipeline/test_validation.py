@@ -17,6 +17,7 @@ def case():
     return ds, default_capture("S003")
 
 
+@pytest.mark.slow
 def test_default_subject_matches_its_capture_within_the_fit_figures(case):
     ds, cap = case
     # Relative RMSE over a third of the LEDs in camera 5 (fit domain θ ≤ 80°); the fit issue reported ≈ 3 %.

@@ -48,6 +48,7 @@ def _sweep(c, n, retakes=0):
         ("timeouts", Faults(drop=0.15, seed=4)),
     ],
 )
+@pytest.mark.slow
 def test_each_kind_of_damaged_reply_is_detected_counted_and_retried(kind, faults):
     server = _server(faults)
     try:
@@ -67,6 +68,7 @@ def test_each_kind_of_damaged_reply_is_detected_counted_and_retried(kind, faults
         server.stop()
 
 
+@pytest.mark.slow
 def test_late_replies_after_a_stall_are_discarded_as_out_of_order():
     server = _server(Faults(stall=0.1, stall_s=0.3, seed=5))
     try:

@@ -259,6 +259,7 @@ def test_dry_run_durations_follow_the_paper():
     assert sensor.file(68) == "sensor/neck_e22.png" and sensor.n_steps == 69
 
 
+@pytest.mark.slow
 def test_a_disconnect_that_outlasts_the_link_ends_the_run_and_resume_completes(small, tmp_path):
     root, _ = small
     server = _serve(small, tmp_path, faults=Faults(disconnect_after=(20,)), link=tmp_path / "tty")

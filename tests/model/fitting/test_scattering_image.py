@@ -82,6 +82,7 @@ def test_quantised_truth_is_recovered_exactly_and_so_is_the_point_kernel(edge):
 
 
 @pytest.mark.parametrize("scene", ["edge", "oblique"])
+@pytest.mark.slow
 def test_one_percent_noise_over_20_seeds_with_auto_width(scene, request):
     st = noise_study(request.getfixturevalue(scene), noise=0.01, seeds=20, width="auto")
     s = st.summary()

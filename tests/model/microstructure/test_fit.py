@@ -23,6 +23,7 @@ def test_paper_grid_has_59899_combinations():
     assert ALPHA_GRID[[0, 1, -1]].tolist() == [-2.0, -1.99, 1.0] and SIGMA_GRID_UM[[0, 1, -1]].tolist() == [1, 1.5, 100]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("alpha, sigma, brute", [(0.47, 30.5, True), (-1.23, 17.0, False)])
 def test_target_made_from_the_same_patch_is_recovered_exactly(alpha, sigma, brute):
     neutral = _patch(136, 1)
@@ -47,6 +48,7 @@ def test_independent_realisation_lies_on_the_ridge_and_profiles_recover_each_par
         assert abs(fit.sigma_given_alpha(alpha) - sigma) <= TEXEL  # 1 texel
 
 
+@pytest.mark.slow
 def test_pure_geometric_stretch_fits_no_kernel():
     neutral = _patch(320, 1)
     # sigma >= 2 texels: below about a texel the kernel is nearly the identity for every alpha (alpha is not defined)

@@ -25,6 +25,7 @@ from facestats.io.layout import (
     WRITERS,
     fsync_path,
     group_meta,
+    is_meta_temp,
     write_json_atomic,
 )
 from facestats.io.locking import FileLock
@@ -77,7 +78,7 @@ def _refuse_foreign(p: Path) -> None:
         raise StoreError(f"cannot create a store at {p}: {exc.strerror}") from None
     if ROOT_META in names:
         return
-    extra = [n for n in names if n not in _CREATION_LEFTOVERS and not is_index_temp(n)]
+    extra = [n for n in names if n not in _CREATION_LEFTOVERS and not is_index_temp(n) and not is_meta_temp(n)]
     if extra:
         raise StoreError(f"{p} exists, is not empty and is not a facestats store (contains {sorted(extra)[:5]})")
 

@@ -350,3 +350,21 @@ def test_a_writer_that_times_out_leaves_no_empty_folders(store):
             st.write_subject(make_map_subject("LATE", size=16))
     assert not (store / "subjects" / "LATE").exists()
     assert not list((store / ".records").glob("LATE~*")) and not list((store / ".writers").glob("LATE~*"))
+
+
+def test_a_creation_killed_while_writing_the_root_group_resumes(tmp_path):
+    """SIGKILL between the temporary root ``zarr.json`` and its rename left only that file: a rerun creates the
+    store (the leftover is the store's own) and gc collects it."""
+    p = tmp_path / "s.zarr"
+    p.mkdir()
+    (p / "zarr.json.tmp-5046-771628").write_text("{")
+    (p / "subjects").mkdir()
+    with open_store(p, mode="a") as st:
+        assert st.ids() == []
+        st.gc()
+        assert st.validate().ok
+    assert not (p / "zarr.json.tmp-5046-771628").exists()
+    (tmp_path / "foreign").mkdir()
+    (tmp_path / "foreign" / "notes.txt").write_text("mine")
+    with pytest.raises(StoreError, match="is not a facestats store"):
+        open_store(tmp_path / "foreign", mode="a")

@@ -27,6 +27,7 @@ def open_store(path=None, mode="r"):
 
     See :func:`facestats.io.store.open_store`.
     """
+    # local import: keeps numpy out of this module's import
     from facestats.io.store import open_store as _open_store
 
     return _open_store(path, mode=mode)

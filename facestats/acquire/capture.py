@@ -120,6 +120,7 @@ class Lumitexels:
     @property
     def valid(self) -> np.ndarray:
         """(n, C, L) validity of each sample: finite, non-negative radiance and positive irradiance."""
+        # local import: keeps facestats.model (21 modules) out of this module's import
         from facestats.model.fitting.samples import valid_samples
 
         return valid_samples(self.radiance, self.irradiance)

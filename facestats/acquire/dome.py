@@ -41,7 +41,7 @@ photographs (:mod:`facestats.acquire.response`), when they are not linear raw.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -253,7 +253,6 @@ class Dome:
 
     def select(self, leds=None, cameras=None) -> "Dome":
         """The rig restricted to some LEDs and/or cameras (indices; default all)."""
-        from dataclasses import replace
 
         lsel = slice(None) if leds is None else np.asarray(leds)
         csel = slice(None) if cameras is None else np.asarray(cameras)
@@ -293,7 +292,6 @@ class Dome:
     def resized(self, width: int, height: int) -> "Dome":
         """The same rig with every camera's image resampled to ``width`` × ``height`` pixels (K scaled, pixel
         centres at integers: u' = (u + ½)·s − ½)."""
-        from dataclasses import replace
 
         sx = int(width) / self.image_size[:, 0]
         sy = int(height) / self.image_size[:, 1]

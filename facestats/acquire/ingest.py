@@ -49,6 +49,7 @@ import json
 import numpy as np
 
 from facestats.acquire.capture import PER_LUMITEXEL, CaptureWriter, open_capture
+from facestats.acquire.dome import Dome
 from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.photographs import (
     CaptureFolder,
@@ -282,7 +283,6 @@ def ingest_photographs(
     str
         ``path``; open it with :func:`open_ingested`.
     """
-    from facestats.acquire.dome import Dome
 
     if not isinstance(geometry, FaceGeometry):
         raise ValidationError(f"geometry must be a FaceGeometry, got {type(geometry).__name__}")

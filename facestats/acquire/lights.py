@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from facestats.acquire.visibility import ShadowMaps
 from facestats.core.validate import as_finite, check_shape
 from facestats.errors import FormatError, ValidationError
 from facestats.model.irradiance import (
@@ -46,6 +47,7 @@ from facestats.model.irradiance import (
     environment_irradiance,
     point_light_irradiance,
 )
+from facestats.model.sphere import latlong_light_samples
 
 __all__ = [
     "PointLight",
@@ -170,8 +172,8 @@ class EnvironmentLight:
         :func:`facestats.io.probes.read_light_probe`; it becomes ``samples`` = (rows, columns)
         directional lights of L·δΩ each (:func:`facestats.model.sphere.latlong_light_samples`).
         """
+        # local import: keeps facestats.io (22 modules) out of this module's import
         from facestats.io.probes import read_light_probe
-        from facestats.model.sphere import latlong_light_samples
 
         img = probe if isinstance(probe, np.ndarray) else read_light_probe(probe)
         directions, power = latlong_light_samples(img, *samples)
@@ -245,7 +247,6 @@ def light_masks(patches, lights, *, shadows=True, resolution=512) -> list:
     Combines each light's cuts and cone with self-shadowing from shadow maps of
     the patches' mesh (when ``shadows`` and the patches carry a mesh).
     """
-    from facestats.acquire.visibility import ShadowMaps
 
     out = []
     use_maps = shadows and patches.has_mesh

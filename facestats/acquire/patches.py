@@ -178,6 +178,7 @@ def mesh_patches(vertices, faces, *, spacing, occluder=True) -> Patches:
 
 def read_mesh_patches(path, *, spacing, scale=1.0, transform=None) -> Patches:
     """Patches of a mesh file (OBJ, PLY; :func:`facestats.io.mesh.read_triangle_mesh`), see :func:`mesh_patches`."""
+    # local import: keeps facestats.io (25 modules) out of this module's import
     from facestats.io.mesh import read_triangle_mesh
 
     vertices, faces = read_triangle_mesh(path, scale=scale, transform=transform)

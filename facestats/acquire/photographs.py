@@ -51,6 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.acquire.response import hat_weights, merge_photographs
+from facestats.acquire.sensor import ContactSensor
 from facestats.errors import FormatError
 
 __all__ = [
@@ -174,6 +175,7 @@ class CaptureFolder:
 
         ``size`` is the calibration's (width, height) of the camera.
         """
+        # local import: keeps facestats.io (24 modules) out of this module's import
         from facestats.io.exif import parse_exif
         from facestats.io.images import decode_integer_image
 
@@ -238,7 +240,6 @@ class CaptureFolder:
 
     def sensor(self):
         """``(ContactSensor, profile, profile_std)`` of the manifest's ``sensor`` file (format ``SENSOR_FORMAT``)."""
-        from facestats.acquire.sensor import ContactSensor
 
         name = self.manifest.get("sensor")
         if not isinstance(name, str):

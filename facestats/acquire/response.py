@@ -63,6 +63,7 @@ known.
 from __future__ import annotations
 
 import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -406,8 +407,6 @@ def merge_photographs(images, exposure_times, response, *, weighting: str = "hat
         _merge_block([a[sl] for a in stack], t, tables, g32, levels, out[sl], den[sl])
 
     if len(blocks) > 1 and stack[0].size >= MERGE_THREADED:
-        from concurrent.futures import ThreadPoolExecutor
-
         with ThreadPoolExecutor(min(len(blocks), os.cpu_count() or 1)) as ex:  # look-ups and ufuncs release the GIL
             list(ex.map(run, blocks))
     else:

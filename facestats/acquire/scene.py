@@ -22,7 +22,9 @@ import os
 import numpy as np
 
 from facestats.acquire.camera import PinholeCamera, sample_image
+from facestats.acquire.visibility import ShadowMaps
 from facestats.errors import FormatError, ValidationError
+from facestats.model.irradiance import exitance_from_radiance
 
 __all__ = ["camera_sees", "patch_radiance", "read_radiance_image", "write_radiance_image"]
 
@@ -41,6 +43,7 @@ def read_radiance_image(path) -> np.ndarray:
         except (OSError, ValueError) as exc:
             raise FormatError(f"cannot read the radiance image {p}: {exc}") from None
     else:
+        # local import: keeps facestats.io (24 modules) out of this module's import
         from facestats.io.images import read_image
 
         if not p.lower().endswith((".exr", ".pfm")):
@@ -62,6 +65,7 @@ def write_radiance_image(path, image) -> str:
     if p.lower().endswith(".npz"):
         np.savez_compressed(p, radiance=img)
         return p
+    # local import: keeps facestats.io (24 modules) out of this module's import
     from facestats.io.images import write_image
 
     if not p.lower().endswith((".exr", ".pfm")):
@@ -80,8 +84,6 @@ def camera_sees(camera: PinholeCamera, patches, *, shadow_resolution=512) -> np.
     to_cam = camera.position - patches.centre
     seen = (np.einsum("mk,mk->m", patches.normal, to_cam) > 0) & camera.in_frame(patches.centre)
     if patches.has_mesh:
-        from facestats.acquire.visibility import ShadowMaps
-
         maps = ShadowMaps(
             patches.mesh_vertices, patches.mesh_faces, camera.position[None], resolution=shadow_resolution
         )
@@ -110,7 +112,6 @@ def patch_radiance(image, camera: PinholeCamera, patches, *, eta=1.3, shadow_res
         l_j, 0 where not seen.
     seen : ndarray of bool, shape (m,)
     """
-    from facestats.model.irradiance import exitance_from_radiance
 
     img = np.asarray(image, np.float64)
     if img.ndim == 2:

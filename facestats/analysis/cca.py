@@ -50,6 +50,7 @@ import numpy as np
 
 from facestats.analysis.population import MODEL_NAMES
 from facestats.analysis.serialize import json_ready, records
+from facestats.core.published import CCA_DIRECT, CCA_PRINCIPAL
 from facestats.core.validate import as_float, check_range, check_seed
 from facestats.errors import ValidationError
 
@@ -194,8 +195,6 @@ class CCAResult:
         """
         import pandas as pd
 
-        from facestats.core.published import CCA_DIRECT, CCA_PRINCIPAL
-
         rows = [
             {"quantity": f"principal r{i + 1}", "ours": self.correlations[i], "paper": p}
             for i, p in enumerate(CCA_PRINCIPAL)
@@ -221,7 +220,6 @@ class CCAResult:
         ``projections`` (``subject_id`` and the canonical variates
         ``dimension_1``, ``dimension_2``: the points of Fig. 16).
         """
-        from facestats.core.published import CCA_DIRECT, CCA_PRINCIPAL
 
         dims = records(self.summary())
         if self.permutation_p is None:

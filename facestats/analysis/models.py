@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.analysis.population import select_population
+from facestats.analysis.serialize import json_ready
 from facestats.core.conventions import FLAG_BITS, REGION_IDS, REGIONS
 from facestats.errors import ValidationError
 
@@ -66,7 +67,6 @@ class ModelErrors:
 
     def to_dict(self) -> dict:
         """JSON document: ``overall`` and ``regions`` (one entry per region with the attributes above)."""
-        from facestats.analysis.serialize import json_ready
 
         rows = []
         for k, r in enumerate(self.regions):

@@ -33,6 +33,7 @@ import numpy as np
 from facestats.analysis.population import MODEL_NAMES, index_columns, region_samples, select_population
 from facestats.analysis.serialize import json_ready
 from facestats.core.conventions import REGION_IDS, REGIONS
+from facestats.core.published import HIGHEST_RHO_S, LARGEST_VARIANCE, SMALLEST_M
 from facestats.core.validate import as_float, check_choice, check_finite, check_shape
 from facestats.errors import ValidationError
 
@@ -218,7 +219,6 @@ class RegionPCA:
         """The §7 orderings of the paper's Torrance-Sparrow fit (:mod:`facestats.core.published`); None for bp."""
         if self.model != "ts":
             return None
-        from facestats.core.published import HIGHEST_RHO_S, LARGEST_VARIANCE, SMALLEST_M
 
         return {
             "highest_rho_s": list(HIGHEST_RHO_S),

@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from facestats.analysis.population import MODEL_NAMES
-from facestats.core.conventions import CHANNELS, ROMAN
+from facestats.core.conventions import CHANNELS, REGIONS, ROMAN
+from facestats.core.published import TABLE1_MEAN
 
 __all__ = [
     "skin_type_color",
@@ -233,7 +234,6 @@ def plot_absorption_scattering(result):
 
 def plot_translucency(table, ax=None, published=True):
     """Table 1 as bars: mean σtr per site and channel with ±1 standard deviation; the paper's means as markers."""
-    from facestats.core.published import TABLE1_MEAN
 
     fig, ax = _axes(ax, (7, 4.5))
     sites = list(dict.fromkeys(table.table.columns.get_level_values("site")))
@@ -446,7 +446,6 @@ def plot_model_errors(result):
 
     ``result`` is a :class:`facestats.analysis.models.ModelErrors`.
     """
-    from facestats.core.conventions import REGIONS
 
     fig = _new_figure((8.0, 3.6))
     ax, ax2 = fig.subplots(1, 2, width_ratios=(3, 2))

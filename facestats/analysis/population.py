@@ -155,6 +155,7 @@ def region_samples(store, model="ts", subjects=None):
     """
     import pandas as pd
 
+    # local import: keeps facestats.io (22 modules) out of this module's import
     from facestats.io.summary import MODEL_PARAMS, region_sample_variables
     from facestats.io.summary import region_samples as subject_region_samples
 

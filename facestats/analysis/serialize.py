@@ -20,6 +20,8 @@ import math
 
 import numpy as np
 
+from facestats.core.conventions import CHANNELS
+
 __all__ = ["json_ready", "by_channel", "records"]
 
 
@@ -54,7 +56,6 @@ def json_ready(obj):
 
 def by_channel(values) -> dict:
     """``{"R": v0, "G": v1, "B": v2}`` of three values."""
-    from facestats.core.conventions import CHANNELS
 
     return {ch: v for ch, v in zip(CHANNELS, values)}
 

@@ -41,6 +41,7 @@ import numpy as np
 from facestats.analysis.population import select_population
 from facestats.analysis.serialize import by_channel, json_ready
 from facestats.core.conventions import CHANNELS, SITES
+from facestats.core.published import ELL_D_MAX, ELL_D_MIN, SIGMA_TR_AVG, TABLE1_MEAN, TABLE1_VAR
 from facestats.core.validate import check_choice
 from facestats.errors import ValidationError
 
@@ -123,8 +124,6 @@ class TranslucencyTable:
         """Our mean, variance and standard deviation beside Weyrich Table 1 (one row per site and channel)."""
         import pandas as pd
 
-        from facestats.core.published import TABLE1_MEAN, TABLE1_VAR
-
         rows = []
         for site in SITES:
             if (site, "mean") not in self.table.columns:
@@ -156,8 +155,6 @@ class TranslucencyTable:
         """
         import pandas as pd
 
-        from facestats.core.published import ELL_D_MAX, ELL_D_MIN, SIGMA_TR_AVG
-
         rows = []
         for quantity, subject, ours, paper in (
             ("sigma_tr_avg", None, self.sigma_tr_avg, SIGMA_TR_AVG),
@@ -180,7 +177,6 @@ class TranslucencyTable:
         ``published_ell_d_min``/``published_ell_d_max``; ``var_note``
         (:data:`VAR_NOTE`).
         """
-        from facestats.core.published import ELL_D_MAX, ELL_D_MIN, SIGMA_TR_AVG
 
         table = [
             {"site": site, "channel": ch, **row.to_dict(), "n": self.table.loc[ch, (site, "n")]}

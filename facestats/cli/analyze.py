@@ -42,7 +42,9 @@ The printed summaries are the results' ``to_text()``.
 
 from __future__ import annotations
 
+import json
 import sys
+import warnings
 
 __all__ = ["add_analyze", "ACTIONS", "BATCH_ACTIONS"]
 
@@ -108,8 +110,6 @@ def _models(store, args):
 
 
 def _posterior(store, args):
-    import warnings
-
     from facestats.analysis import store_sigma_posterior
     from facestats.analysis.plots import plot_site_posterior
     from facestats.errors import ConvergenceWarning
@@ -153,7 +153,6 @@ def _out_dir(path):
 
 def _write(out, name, fig, doc, fmt, store):
     """Write ``name.<fmt>`` and ``name.json`` (the header keys, then ``doc``, JSON-ready); return their paths."""
-    import json
 
     from facestats.core.version import __version__
 

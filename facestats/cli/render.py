@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
+import os
+
 from facestats.cli.options import add_store_option
 
 __all__ = ["add_render"]
 
 
 def _cmd_render(args) -> int:
-    import os
-
     import matplotlib
     import numpy as np
 

@@ -5,6 +5,7 @@ Each parses its arguments, makes one call to :mod:`facestats.io` and prints.
 
 from __future__ import annotations
 
+import json
 import sys
 
 from facestats.cli.options import add_store_option
@@ -86,8 +87,6 @@ def _cmd_info(args) -> int:
     with open_store(args.store) as store:
         info = store.info()
     if args.format == "json":
-        import json
-
         print(json.dumps(info, indent=2))
         return 0
     print(f"store:           {info['store']} ({info['kind']}, {'read-only' if info['read_only'] else 'read-write'})")

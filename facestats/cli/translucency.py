@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
+import json
+
 __all__ = ["add_translucency"]
 
 
 def _cmd_translucency(args) -> int:
-    import json
-
     from facestats.pipeline.image_translucency import fit_image_translucency, load_scene_inputs
 
     patches, lights, eta, camera, image = load_scene_inputs(

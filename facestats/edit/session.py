@@ -58,6 +58,7 @@ def check_store(store, name):
     -------
     facestats.io.Store
     """
+    # local import: keeps facestats.io (22 modules) out of this module's import
     from facestats.io.store import Store
 
     if not isinstance(store, Store):
@@ -82,6 +83,7 @@ def read_map_subject(store, subject):
     region : numpy.ndarray of int
         The region map (0 outside the face, 1-10 the regions of Weyrich Fig. 15).
     """
+    # local import: keeps facestats.io (22 modules) out of this module's import
     from facestats.io.schema import subject_kind
 
     sid = str(subject)
@@ -228,6 +230,7 @@ class EditSession:
         -------
         str
         """
+        # local import: keeps facestats.io (22 modules) out of this module's import
         from facestats.io.ids import MAX_SUBJECT_ID_LENGTH, check_subject_id
 
         sid = self.source_id
@@ -282,6 +285,7 @@ class EditSession:
         -------
         SubjectEdit
         """
+        # local import: keeps facestats.io (22 modules) out of this module's import
         from facestats.io.schema import STANDARD_ERRORS, provenance, set_provenance, set_variable_attrs
 
         ds = self.dataset

@@ -23,16 +23,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from facestats.core.published import ETA_SKIN, SIGMA_TR_AVG
 from facestats.edit.session import replace_values
+from facestats.model.dipole import check_dipole_eta
 
 __all__ = ["follow_translucency"]
 
 
 def _fit_eta(ds) -> float:
     """The relative index of refraction of the subject's fit (provenance ``fit_settings.eta``), else ETA_SKIN."""
-    from facestats.core.published import ETA_SKIN
+    # local import: keeps facestats.io (22 modules) out of this module's import
     from facestats.io.schema import provenance
-    from facestats.model.dipole import check_dipole_eta
 
     try:
         eta = float(provenance(ds).get("fit_settings", {}).get("eta", ETA_SKIN))
@@ -58,7 +59,7 @@ def follow_translucency(ds, keep: bool) -> list[str]:
         The variables changed, in the order ``sigma_tr`` (if added),
         ``albedo_avg``, ``sigma_s_prime``, ``sigma_a``, ``modulation``.
     """
-    from facestats.core.published import SIGMA_TR_AVG
+    # local import: keeps facestats.io (22 modules) out of this module's import
     from facestats.io.schema import modulation
     from facestats.model.fitting import scattering_parameters
 

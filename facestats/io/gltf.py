@@ -35,6 +35,7 @@ import numpy as np
 
 from facestats.errors import DependencyError, ValidationError
 from facestats.io.images import write_image
+from facestats.io.mesh import FaceMesh, subject_mesh
 
 __all__ = ["GGX_PER_BECKMANN", "beckmann_to_gltf_roughness", "write_gltf", "read_gltf_summary"]
 
@@ -130,7 +131,6 @@ def write_gltf(ds, out_dir, *, mesh=None, name="face"):
     str
         Path of the ``.gltf`` file.
     """
-    from facestats.io.mesh import FaceMesh, subject_mesh
 
     g = _pygltflib()
     missing = [v for v in ("albedo", "normal", "ts_m", "region") if v not in ds.data_vars]

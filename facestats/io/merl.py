@@ -47,7 +47,11 @@ import numpy as np
 from facestats.core.conventions import CHANNELS, REGIONS, parse_gender, parse_skin_type
 from facestats.core.version import __version__
 from facestats.errors import FormatError, ValidationError
-from facestats.io.schema import DOMAINS
+from facestats.io.batch import prepare_batch
+from facestats.io.ids import MAX_SUBJECT_ID_LENGTH, check_subject_id
+from facestats.io.root import new_store_guard
+from facestats.io.schema import DOMAINS, set_provenance, set_variable_attrs
+from facestats.io.store import Store, open_store
 
 __all__ = ["REQUIRED_KEYS", "ALBEDO_KEYS", "MerlData", "read_merl", "import_merl"]
 
@@ -272,7 +276,6 @@ def read_merl(path, *, prefix: str = "merl") -> MerlData:
 
 def _check_prefix(prefix) -> None:
     """The id prefix must make valid subject ids (:func:`facestats.io.ids.check_subject_id`)."""
-    from facestats.io.ids import MAX_SUBJECT_ID_LENGTH, check_subject_id
 
     try:
         if not isinstance(prefix, str) or len(prefix) > MAX_SUBJECT_ID_LENGTH - 4:
@@ -374,8 +377,6 @@ def _sample_subject(sid: str, data: dict, meta: dict, source: dict):
     """A sample subject: ``data`` variables, ``meta`` (age, gender, skin type), provenance from ``source``."""
     import xarray as xr
 
-    from facestats.io.schema import set_provenance, set_variable_attrs
-
     ds = xr.Dataset(
         data,
         coords={"channel": list(CHANNELS)},
@@ -405,9 +406,6 @@ def import_merl(path, store, *, prefix: str = "merl", overwrite: bool = False) -
     MerlData
         What was read (ids, sample counts, subjects without samples).
     """
-    from facestats.io.batch import prepare_batch
-    from facestats.io.root import new_store_guard
-    from facestats.io.store import Store, open_store
 
     data = read_merl(path, prefix=prefix)
     prepare_batch(data.datasets)  # every subject checked before a store is created or touched

@@ -28,8 +28,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.acquire.geometry import FaceGeometry, uv_to_texel
+from facestats.acquire.synthetic.face import procedural_face
 from facestats.core.validate import as_finite, check_integer, check_shape
 from facestats.errors import FormatError, ValidationError
+from facestats.io.schema import provenance
 
 __all__ = [
     "load_face_mesh",
@@ -493,8 +495,6 @@ def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = N
         verts, faces, stored = read_triangle_mesh(mesh, scale=scale, uv=True)
         geometry = {"kind": "mesh", "name": os.path.basename(os.fspath(mesh)), "path": os.fspath(mesh), "scale": scale}
         return _face_mesh(verts, faces, _checked_uv(stored, len(verts), mesh, True), geometry)
-    from facestats.acquire.synthetic.face import procedural_face
-    from facestats.io.schema import provenance
 
     name = provenance(ds).get("capture_provenance", {}).get("geometry", "")
     if not str(name).startswith("procedural-"):

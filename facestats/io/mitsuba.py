@@ -51,7 +51,9 @@ probe is written (:func:`facestats.io.probes.write_studio_probe`).
 
 from __future__ import annotations
 
+import json
 import os
+import shutil
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -59,6 +61,8 @@ import numpy as np
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.errors import DependencyError, ValidationError
+from facestats.io.images import write_exr
+from facestats.io.probes import read_light_probe, write_studio_probe
 
 __all__ = [
     "MATERIALS",
@@ -325,12 +329,9 @@ def write_mitsuba_scene(ds, out_dir, *, probe=None, material="surface", mesh=Non
         The :func:`scene_spec` (file names relative to ``out_dir``), also saved as
         ``scene.json``; ``scene.xml`` is the same scene as Mitsuba XML.
     """
-    import json
-    import shutil
 
+    # local import: keeps facestats.acquire (5 modules) out of this module's import
     from facestats.io.exr_set import write_exr_set
-    from facestats.io.images import write_exr
-    from facestats.io.probes import read_light_probe, write_studio_probe
 
     check_choice(material, "material", MATERIALS)
     out = os.fspath(out_dir)

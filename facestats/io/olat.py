@@ -53,6 +53,8 @@ import numpy as np
 
 from facestats.core.validate import check_choice
 from facestats.errors import FormatError, ValidationError
+from facestats.io.images import INTEGER_EXTENSIONS, read_image, read_integer_image
+from facestats.model.sphere import direction_from_angles, latlong_directions
 
 __all__ = ["MANIFEST_NAME", "read_olat_folder", "write_olat_manifest", "read_ground_truth_normals"]
 
@@ -72,7 +74,6 @@ def _read_rows(path: pathlib.Path, width: int) -> np.ndarray:
 
 def _load_images(folder, names, srgb):
     """Stack of images (L, H, W, 3) float32, checked for existence and a common size (loop over files)."""
-    from facestats.io.images import INTEGER_EXTENSIONS, read_image, read_integer_image
 
     stack = None
     for k, name in enumerate(names):
@@ -99,8 +100,6 @@ def _load_images(folder, names, srgb):
 
 
 def _read_mask(path: pathlib.Path, shape):
-    from facestats.io.images import read_integer_image
-
     raw, _ = read_integer_image(path)
     m = raw[..., 0] > 0
     if m.shape != shape:
@@ -149,8 +148,6 @@ def _diligent(folder: pathlib.Path, srgb):
 
 
 def _frame_direction(fr, k, path):
-    from facestats.model.sphere import direction_from_angles
-
     if "direction" in fr:
         d = np.asarray(fr["direction"], np.float64)
     elif "phi_deg" in fr and "theta_deg" in fr:
@@ -200,7 +197,6 @@ def _manifest(path: pathlib.Path, srgb):
 
 def _as_grid(dirs):
     """(n_phi, n_theta) when ``dirs`` is a lat-long light stage in row-major order, else None."""
-    from facestats.model.sphere import latlong_directions
 
     n = dirs.shape[0]
     for n_phi in range(1, int(np.sqrt(n / 2)) + 2):
@@ -232,6 +228,7 @@ def read_olat_folder(path, *, srgb=None):
         ground truth, and attributes ``source``, ``layout``, ``files`` and
         ``skipped_frames``.
     """
+    # local import: keeps facestats.acquire and facestats.model (26 modules) out of this module's import
     from facestats.relight.field import make_field
 
     folder = pathlib.Path(os.fspath(path))

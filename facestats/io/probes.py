@@ -20,7 +20,7 @@ import pathlib
 
 import numpy as np
 
-from facestats.core.validate import check_choice
+from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
 
 __all__ = [
@@ -69,6 +69,7 @@ def read_light_probe(path, layout: str = "latlong") -> np.ndarray:
         As stored (never rescaled).  Grey files are repeated to three channels;
         an alpha channel is dropped.
     """
+    # local imports: facestats.io imports this module, so `facestats query` would load them (and facestats.model)
     from facestats.io.images import read_image
     from facestats.relight.lighting import check_probe
 
@@ -89,6 +90,7 @@ def write_light_probe(path, probe, layout: str = "latlong", *, half: bool = Fals
     aspect ratio of ``layout``).  ``half`` stores half floats in EXR.  The layout
     is recorded in an EXR ``layout`` attribute (other formats cannot carry it).
     """
+    # local imports: facestats.io imports this module, so `facestats query` would load them (and facestats.model)
     from facestats.io.images import write_image
     from facestats.relight.lighting import check_probe
 
@@ -118,7 +120,7 @@ def studio_probe(height: int = 32, *, key=(0.45, 0.5, 0.77), key_radiance=40.0, 
     ndarray of float32, shape (height, 2 height, 3)
         In the lat-long layout of :func:`facestats.model.sphere.latlong_directions`.
     """
-    from facestats.core.validate import check_integer
+    # local import: facestats.io imports this module, so `facestats query` would load facestats.model
     from facestats.model.sphere import latlong_directions
 
     h = check_integer(height, "height", 1)

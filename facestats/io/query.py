@@ -72,6 +72,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 from dataclasses import dataclass, field
 
@@ -288,8 +289,6 @@ class QueryResult:
         }
 
     def to_json(self, indent: int | None = 2) -> str:
-        import json
-
         return json.dumps(self.to_dict(), indent=indent, allow_nan=False)
 
     # -- CSV -----------------------------------------------------------------------

@@ -69,6 +69,7 @@ from facestats.io.layout import ROOT_META, generation_rel, is_plain_dir, store_l
 from facestats.io.locking import FileLock
 from facestats.io.maintenance import ValidationReport, check_subjects, collect_garbage, directory_notes
 from facestats.io.quarantine import list_quarantine, purge_quarantine
+from facestats.io.query import breakdown, run_query
 from facestats.io.repair import RepairPlan, apply_repair, plan_repair
 from facestats.io.root import create_store, read_root_attrs
 from facestats.io.schema import SCHEMA_VERSION
@@ -312,7 +313,6 @@ class Store:
         See :mod:`facestats.io.query` for the filters (skin types I and II are
         grouped), the statistics and the JSON form.
         """
-        from facestats.io.query import run_query
 
         return run_query(
             self._table(),
@@ -579,7 +579,6 @@ class Store:
 
     def info(self) -> dict:
         """Summary of the store: versions, counts by skin type/gender/condition/kind/age, size on disk."""
-        from facestats.io.query import breakdown
 
         index = self._index()
         t = self._table()

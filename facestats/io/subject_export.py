@@ -16,6 +16,9 @@ import tempfile
 
 from facestats.core.validate import check_choice
 from facestats.errors import StoreError, ValidationError
+from facestats.io.gltf import write_gltf
+from facestats.io.ids import check_subject_id
+from facestats.io.store import Store, open_store
 
 __all__ = ["EXPORT_FORMATS", "UnknownSubjectError", "export_subject", "store_subject"]
 
@@ -26,7 +29,6 @@ def _dataset(subject, store):
     """The subject Dataset: given, or read (fully verified) from ``store`` (a Store, a path or None = default)."""
     if hasattr(subject, "data_vars"):
         return subject
-    from facestats.io.store import Store, open_store
 
     if isinstance(store, Store):
         return store_subject(store, subject)
@@ -44,7 +46,6 @@ def store_subject(store, subject_id):
     UnknownSubjectError
         An id the store does not hold (the message the CLI prints and the web app returns with 404).
     """
-    from facestats.io.ids import check_subject_id
 
     sid = check_subject_id(subject_id)
     if sid not in store:
@@ -58,10 +59,12 @@ class UnknownSubjectError(StoreError):
 
 def _write(fmt, ds, tmp, options):
     if fmt == "exr":
+        # local import: keeps facestats.acquire (5 modules) out of this module's import
         from facestats.io.exr_set import write_exr_set
 
         write_exr_set(ds, tmp, mesh=options.get("mesh"), mesh_format=options.get("mesh_format", "obj"))
     elif fmt == "mitsuba":
+        # local import: keeps 8 modules out of this module's import
         from facestats.io.mitsuba import write_mitsuba_scene
 
         view = {k: options[k] for k in ("width", "height", "spp", "fov") if options.get(k) is not None}
@@ -70,8 +73,6 @@ def _write(fmt, ds, tmp, options):
             mesh=options.get("mesh"), **view,
         )  # fmt: skip
     else:
-        from facestats.io.gltf import write_gltf
-
         write_gltf(ds, tmp, mesh=options.get("mesh"))
 
 

@@ -38,22 +38,33 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import multiprocessing
 import os
 import shutil
 import signal
 import tempfile
 import threading
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from facestats.acquire.synthetic.face import procedural_face
+from facestats.acquire.synthetic.population import synthesize_population
+from facestats.acquire.synthetic.simulate import DomeSimulator
 from facestats.core.conventions import DEFAULT_MAP_SIZE, DEFAULT_SEED, SITES
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
+from facestats.io.ids import check_subject_id
+from facestats.io.packing import pack_store
+from facestats.io.store import default_store_path, open_store
+from facestats.model.fitting import fit_translucency, population_sigma_tr_avg
+from facestats.model.skin import SPECULAR_MODELS
+from facestats.pipeline import FitSettings, fit_subject
 from facestats.pipeline.cluster import connect, scheduler_address, store_directory
-from facestats.pipeline.journal import BuildJournal
+from facestats.pipeline.journal import BuildJournal, run_journalled
 from facestats.pipeline.progress import TaskProgress, progress_bar
 
 __all__ = ["BuildReport", "build_store", "build_default", "estimated_memory", "DEFAULT_SEED", "DEFAULT_MAP_SIZE"]
@@ -142,8 +153,6 @@ def _stop_on_sigterm():
 
 def _run_local(tasks, n_workers: int, progress: bool) -> list:
     """Run the build tasks on a local process pool whose workers die with this process (module docstring)."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
 
     import dask
 
@@ -187,9 +196,6 @@ def _simulator(map_size: int, specular: str):
     """One simulator per process (shadow maps and geometry are reused across subjects)."""
     key = (map_size, specular)
     if key not in _WORKER_CACHE:
-        from facestats.acquire.synthetic.face import procedural_face
-        from facestats.acquire.synthetic.simulate import DomeSimulator
-
         _WORKER_CACHE[key] = DomeSimulator(procedural_face(map_size), specular=specular)
     return _WORKER_CACHE[key]
 
@@ -198,15 +204,12 @@ def _population(seed: int, map_size: int, conditions: bool):
     """One population per process (drawn once, reused across subjects)."""
     key = ("population", seed, map_size, conditions)
     if key not in _WORKER_CACHE:
-        from facestats.acquire.synthetic.population import synthesize_population
-
         _WORKER_CACHE[key] = synthesize_population(seed=seed, map_size=map_size, conditions=conditions)
     return _WORKER_CACHE[key]
 
 
 def _settings(micro_normals: bool):
     """The fit settings of a build: the defaults, with or without micro-normal maps."""
-    from facestats.pipeline import FitSettings
 
     return FitSettings(micro_normals=micro_normals)
 
@@ -219,7 +222,6 @@ def sensor_fits(population, map_size: int, specular: str = "torrance_sparrow"):
     dict
         ``subject_id`` -> :class:`facestats.model.fitting.TranslucencyFit` of shape (site, channel).
     """
-    from facestats.model.fitting import fit_translucency
 
     sim = _simulator(map_size, specular)
     out = {}
@@ -251,8 +253,6 @@ def _build_one(
     keep_derived=True,
 ):
     """Simulate, fit and store one subject (runs in a worker process)."""
-    from facestats.io.store import open_store
-    from facestats.pipeline import fit_subject
 
     pop = _population(seed, map_size, conditions)
     truth = pop[subject_id]
@@ -267,7 +267,6 @@ def _build_one(
 
 def _build_task(retries, *args):
     """:func:`_build_one` with retries, journalled in the store: ``(subject_id, "done" | "failed", error)``."""
-    from facestats.pipeline.journal import run_journalled
 
     sid = args[5]
     state, info = run_journalled(BuildJournal(args[0]), sid, lambda: _build_one(*args), retries)
@@ -324,10 +323,6 @@ def build_store(
     -------
     BuildReport
     """
-    from facestats.io.ids import check_subject_id
-    from facestats.io.store import open_store
-    from facestats.model.fitting import population_sigma_tr_avg
-    from facestats.model.skin import SPECULAR_MODELS
 
     check_integer(seed, "seed", 0)
     check_integer(map_size, "map_size", 8)
@@ -417,8 +412,6 @@ def build_default(*, workers: int | None = None, progress: bool = False, out=Non
     fitted without micro-normal maps (16 × 3 values per texel would triple its size)
     and stored without the derived modulation texture, so it stays under 20 MB.
     """
-    from facestats.io.packing import pack_store
-    from facestats.io.store import default_store_path
 
     target = Path(out) if out is not None else default_store_path()
     tmp = Path(tempfile.mkdtemp(prefix="facestats-default-"))

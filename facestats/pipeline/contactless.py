@@ -29,11 +29,15 @@ import warnings
 
 import numpy as np
 
-from facestats.acquire.synthetic.contactless import CONTACTLESS_SITES, simulate_site_image
+from facestats.acquire.lights import patch_irradiance
+from facestats.acquire.scene import patch_radiance
+from facestats.acquire.synthetic.contactless import CONTACTLESS_SITES, patch_modulation, simulate_site_image
 from facestats.core.conventions import CHANNELS, SITES
 from facestats.core.published import ETA_SKIN
 from facestats.errors import QuantisationWarning, ValidationError
+from facestats.io.schema import modulation, provenance, set_provenance, set_variable_attrs
 from facestats.model.fitting.profile_grid import ProfileGrid
+from facestats.model.fitting.scattering_image import fit_scattering_channels
 
 __all__ = ["SKIN_GRID", "estimate_site", "fit_contactless", "contactless_population", "contactless_study"]
 
@@ -62,10 +66,6 @@ def estimate_site(scene, image, *, modulation_map=None, width="auto", grid=SKIN_
     list of ScatteringImageFit
         One per channel.
     """
-    from facestats.acquire.lights import patch_irradiance
-    from facestats.acquire.scene import patch_radiance
-    from facestats.acquire.synthetic.contactless import patch_modulation
-    from facestats.model.fitting.scattering_image import fit_scattering_channels
 
     p = scene.patches
     c = patch_irradiance(p, scene.lights, eta=eta)
@@ -100,7 +100,6 @@ def fit_contactless(subject, images: dict, *, light="stripe", use_modulation=Tru
     -------
     xarray.Dataset
     """
-    from facestats.io.schema import modulation, provenance, set_provenance, set_variable_attrs
 
     unknown = sorted(set(images) - set(SITES))
     if unknown or not images:

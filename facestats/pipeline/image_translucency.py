@@ -13,8 +13,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from facestats.acquire.camera import PinholeCamera
+from facestats.acquire.lights import load_lights, patch_irradiance
+from facestats.acquire.patches import read_mesh_patches
+from facestats.acquire.scene import patch_radiance, read_radiance_image
 from facestats.core.validate import check_choice
 from facestats.model.fitting.profile_grid import TABLE2_GRID, ProfileGrid
+from facestats.model.fitting.scattering_image import fit_scattering_channels
 
 __all__ = ["GRIDS", "fit_image_translucency", "load_scene_inputs"]
 
@@ -24,10 +29,6 @@ GRIDS = {"table2": TABLE2_GRID, "skin": ProfileGrid.log_spaced((0.05, 20.0), (1e
 
 def load_scene_inputs(mesh, lights, camera, image, *, spacing=1.0, scale=1.0):
     """``(patches, lights, eta, camera, image)`` from a mesh (OBJ/PLY), lights and camera (JSON) and an HDR image."""
-    from facestats.acquire.camera import PinholeCamera
-    from facestats.acquire.lights import load_lights
-    from facestats.acquire.patches import read_mesh_patches
-    from facestats.acquire.scene import read_radiance_image
 
     light_list, eta = load_lights(lights)
     cam = PinholeCamera.load(camera)
@@ -62,9 +63,6 @@ def fit_image_translucency(
     list of ScatteringImageFit
         One per image channel.
     """
-    from facestats.acquire.lights import patch_irradiance
-    from facestats.acquire.scene import patch_radiance
-    from facestats.model.fitting.scattering_image import fit_scattering_channels
 
     if isinstance(grid, str):
         check_choice(grid, "grid", GRIDS)

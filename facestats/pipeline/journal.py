@@ -34,6 +34,8 @@ import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from facestats.io.store import open_store
+
 __all__ = ["JOURNAL_DIR", "BuildJournal", "BuildStatus", "build_status", "run_journalled"]
 
 #: Folder of the journal inside a directory store.
@@ -193,7 +195,6 @@ def _alive(record) -> bool:
 
 def build_status(store_path) -> BuildStatus:
     """Done, running, interrupted and failed subjects of builds into the store at ``store_path``."""
-    from facestats.io.store import open_store
 
     with open_store(store_path, mode="r") as store:
         done = sorted(store.ids())

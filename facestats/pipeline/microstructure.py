@@ -37,9 +37,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+import facestats
+from facestats.acquire.synthetic.microstructure import procedural_microstructure, subject_microstructure
 from facestats.core.validate import check_integer
 from facestats.core.version import __version__
 from facestats.errors import StoreError, ValidationError
+from facestats.io.displacement import read_displacement, write_displacement
+from facestats.io.ict_facekit import read_ict_facekit
+from facestats.io.images import write_exr
+from facestats.io.mesh_sequence import BlendshapeSequence, FrameSequence, read_mesh, read_vertices, read_weights
 from facestats.model.microstructure.deform import deform_microstructure
 from facestats.model.microstructure.kernel import SIGMA_RANGE_UM, TRUNCATE
 from facestats.model.microstructure.tables import KernelTable
@@ -81,8 +87,6 @@ def tile_halo(mesh_strain: MeshStrain, map_shape) -> int:
 
 def _neutral_map(neutral_map):
     if isinstance(neutral_map, (str, os.PathLike)):
-        from facestats.io.displacement import read_displacement
-
         return read_displacement(neutral_map)
     d = np.asarray(neutral_map)
     if d.dtype not in (np.float32, np.float64) or d.ndim != 2:
@@ -180,9 +184,6 @@ def _render_frame(ms, vertices, neutral, map_shape, window, table, tile, halo, b
 
 
 def _write_exr(group, index, exr_dir, name):
-    from facestats.io.displacement import write_displacement
-    from facestats.io.images import write_exr
-
     os.makedirs(exr_dir, exist_ok=True)
     targets = {
         "displacement": os.path.join(exr_dir, f"displacement.{index:05d}.exr"),
@@ -302,8 +303,6 @@ def open_sequence(neutral, *, frames=None, targets=None, weights=None, scale=1.0
     scale : float
         Factor of the mesh units to mm (ignored for ICT-FaceKit, which is read in mm).
     """
-    from facestats.io.ict_facekit import read_ict_facekit
-    from facestats.io.mesh_sequence import BlendshapeSequence, FrameSequence, read_mesh, read_vertices, read_weights
 
     if (frames is None) == (weights is None):
         raise ValidationError("pass either frames or weights (with targets), got " + ("both" if frames else "neither"))
@@ -326,7 +325,6 @@ def open_sequence(neutral, *, frames=None, targets=None, weights=None, scale=1.0
 def render_files(neutral, neutral_map, out, *, frames=None, targets=None, weights=None, scale=1.0,
                  height_range_um=None, **options) -> SequenceReport:  # fmt: skip
     """:func:`render_sequence` of files (:func:`open_sequence`, read_displacement)."""
-    from facestats.io.displacement import read_displacement
 
     sequence = open_sequence(neutral, frames=frames, targets=targets, weights=weights, scale=scale)
     return render_sequence(sequence, read_displacement(neutral_map, height_range_um=height_range_um), out, **options)
@@ -356,9 +354,6 @@ def generate_neutral_map(out, size, *, texel_um=15.0, subject=None, store=None, 
     str
         The path written.
     """
-    import facestats
-    from facestats.acquire.synthetic.microstructure import procedural_microstructure, subject_microstructure
-    from facestats.io.displacement import write_displacement
 
     if subject is None:
         h = procedural_microstructure(size, texel_um, seed=0 if seed is None else seed)

@@ -14,7 +14,13 @@ import json
 import pathlib
 from dataclasses import dataclass, field
 
+from facestats.acquire.dome import Dome
+from facestats.acquire.ingest import MIN_FOOTPRINT_PX, MOTION_TOLERANCE, ingest_photographs, open_ingested
 from facestats.errors import FormatError
+from facestats.io import open_store
+from facestats.io.ids import check_subject_id
+from facestats.io.mesh import load_face_mesh
+from facestats.pipeline.subject import fit_subject
 
 __all__ = ["ingest_subject", "IngestReport", "default_work_path", "find_region_image"]
 
@@ -107,12 +113,6 @@ def ingest_subject(
     progress : bool
         Progress bars.
     """
-    from facestats.acquire.dome import Dome
-    from facestats.acquire.ingest import MIN_FOOTPRINT_PX, MOTION_TOLERANCE, ingest_photographs, open_ingested
-    from facestats.io import open_store
-    from facestats.io.ids import check_subject_id
-    from facestats.io.mesh import load_face_mesh
-    from facestats.pipeline.subject import fit_subject
 
     sid = check_subject_id(subject_id)
     with open_store(store, "a") as st:

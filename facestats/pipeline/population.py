@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from facestats.acquire.capture import Capture, open_capture
 from facestats.core.conventions import SITES
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import FitError, ValidationError
+from facestats.io.store import open_store
 from facestats.model import fitting
 from facestats.pipeline.cluster import connect, scheduler_address, store_directory
 from facestats.pipeline.journal import BuildJournal, run_journalled
@@ -35,7 +37,6 @@ def _fit_capture_task(sid, capture, sigma_tr_avg, settings, sensor_fit, store, r
         ds = fit_subject(capture, sigma_tr_avg, settings, sensor_fit=sensor_fit)
         if store is None:
             return ds
-        from facestats.io.store import open_store
 
         with open_store(store, mode="r+") as st:
             return st.write_subject(ds, overwrite=True)
@@ -96,7 +97,6 @@ def fit_population(
         If some subjects still fail after their retries (raised after every other
         subject is done, and stored when ``store`` is given), naming each with its error.
     """
-    from facestats.acquire.capture import Capture, open_capture
 
     local, address = _where(scheduler, client)
     if num_workers is not None:
@@ -107,8 +107,6 @@ def fit_population(
     if not caps:
         raise ValidationError("captures must contain at least one capture, got none")
     if store is not None:
-        from facestats.io.store import open_store
-
         store = store_directory(store)
         open_store(store, mode="a").close()
     fits = [fit_sensor(c, st.eta) for c in caps]

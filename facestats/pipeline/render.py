@@ -14,6 +14,8 @@ from facestats.acquire.geometry import uv_to_texel
 from facestats.core.published import ETA_SKIN, GRAZING_LIMIT_DEG
 from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.errors import ValidationError
+from facestats.io.schema import modulation as _modulation
+from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport, skin_radiance
 from facestats.pipeline.settings import MAP_VARS, MODEL_PREFIX
 
 __all__ = ["predict_radiance", "held_out_camera_error", "camera_image"]
@@ -54,8 +56,6 @@ def predict_radiance(
     predicted, measured : ndarray, shape (n, C, L, 3)
         Radiance in the capture's dome units per sr.
     """
-    from facestats.io.schema import modulation as _modulation
-    from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport, skin_radiance
 
     check_choice(specular, "specular", SPECULAR_MODELS)
     if "normal" not in subject.data_vars:

@@ -20,9 +20,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facestats.acquire.geometry import uv_to_texel
 from facestats.core.published import GRAZING_LIMIT_DEG
 from facestats.core.validate import as_finite, check_integer
 from facestats.errors import ValidationError
+from facestats.pipeline.render import predict_radiance
 from facestats.pipeline.settings import MAP_VARS, MODEL_PREFIX
 
 __all__ = ["AngleResiduals", "residuals_by_angle", "plot_residual_by_angle"]
@@ -104,7 +106,6 @@ def residuals_by_angle(subject, capture, *, models=None, edges=None, max_angle_d
     -------
     AngleResiduals
     """
-    from facestats.pipeline.render import predict_radiance
 
     as_finite(max_angle_deg, "max_angle_deg", 0, 90, low_inclusive=False, unit="deg")
     edges = np.asarray([0, 20, 40, 50, 60, 65, 70, 75, max_angle_deg] if edges is None else edges, np.float64)
@@ -138,7 +139,6 @@ def residuals_by_angle(subject, capture, *, models=None, edges=None, max_angle_d
 
 def _samples(subject, capture, models, cameras, predict_radiance):
     """max(θi, θo) (deg), grey measured radiance and each model's grey prediction of the valid samples."""
-    from facestats.acquire.geometry import uv_to_texel
 
     preds, meas = {}, None
     for m in models:

@@ -17,6 +17,7 @@ from dataclasses import asdict
 
 import numpy as np
 
+from facestats.acquire.capture import Capture, open_capture
 from facestats.acquire.geometry import uv_to_texel
 from facestats.core.conventions import CHANNELS, SITES
 from facestats.core.published import ETA_SKIN, SIGMA_TR_AVG
@@ -81,8 +82,6 @@ def _blocks_result(capture, settings, client=None, progress=False, workers=1):
 
 
 def _fit_block_from_path(path, a, b, settings):
-    from facestats.acquire.capture import open_capture
-
     try:  # a worker reuses its open capture across blocks while the group on disk is unchanged
         capture = _open_cached(str(path), os.stat(os.path.join(path, "zarr.json")).st_mtime_ns)
     except OSError:  # not a local directory store
@@ -93,7 +92,6 @@ def _fit_block_from_path(path, a, b, settings):
 @functools.lru_cache(maxsize=4)
 def _open_cached(path, mtime_ns):
     """:func:`facestats.acquire.capture.open_capture`, cached per (path, modification time of its zarr.json)."""
-    from facestats.acquire.capture import open_capture
 
     return open_capture(path)
 
@@ -136,7 +134,6 @@ def fit_subject(
         Maps on (v, u[, channel | component]) at the capture's map size, sensor data
         and fits per site, subject-level scattering coefficients; provenance in attrs.
     """
-    from facestats.acquire.capture import Capture, open_capture
 
     if not isinstance(capture, Capture):
         capture = open_capture(capture)

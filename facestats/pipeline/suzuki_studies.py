@@ -22,9 +22,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facestats.acquire.lights import patch_irradiance
+from facestats.acquire.scene import camera_sees
+from facestats.acquire.synthetic.subsurface import render_exitance
 from facestats.core.published import SUZUKI_TABLE1, SUZUKI_TABLE3
 from facestats.core.validate import as_finite, check_choice, check_integer
-from facestats.errors import QuantisationWarning
+from facestats.errors import FitError, QuantisationWarning
+from facestats.model.dipole import dipole_profile
+from facestats.model.fitting.quantisation_choice import auto_width
+from facestats.model.fitting.quantised import quantised_system
+from facestats.model.fitting.scattering_image import fit_scattering_system
 
 __all__ = ["RenderedScene", "render_scene", "table3", "format_table3", "noise_study", "NoiseStudy"]
 
@@ -58,11 +65,6 @@ def render_scene(scene, sigma_s_prime=None, sigma_a=None, *, kernel="point", wid
     channel : int
         Channel of the lights used (0-2).
     """
-    from facestats.acquire.lights import patch_irradiance
-    from facestats.acquire.scene import camera_sees
-    from facestats.acquire.synthetic.subsurface import render_exitance
-    from facestats.model.dipole import dipole_profile
-    from facestats.model.fitting.quantised import quantised_system
 
     check_choice(kernel, "kernel", ("point", "quantised"))
     s = SUZUKI_TABLE1["sigma_s_prime"] if sigma_s_prime is None else float(sigma_s_prime)
@@ -80,8 +82,6 @@ def render_scene(scene, sigma_s_prime=None, sigma_a=None, *, kernel="point", wid
 
 
 def _system(rendered, width):
-    from facestats.model.fitting.quantised import quantised_system
-
     p = rendered.patches
     return quantised_system(p.centre, rendered.irradiance * p.area, np.nonzero(rendered.visible)[0], width=width)
 
@@ -95,8 +95,6 @@ def table3(rendered: RenderedScene, widths=tuple(SUZUKI_TABLE3), methods=("pinv"
         ``{"width": w, "paper": (σ's, σa), method: (σ's, σa) or None, method + "_fit": fit}``
         (None where the fit failed: fewer than 3 usable levels).
     """
-    from facestats.errors import FitError
-    from facestats.model.fitting.scattering_image import fit_scattering_system
 
     rows = []
     l = rendered.exitance[rendered.visible]
@@ -177,8 +175,6 @@ def noise_study(rendered: RenderedScene, *, noise=0.01, seeds=20, width="auto", 
     With ``width="auto"`` the width is chosen once (on the first image) and the
     system reused: the choice depends on the geometry, not on the noise.
     """
-    from facestats.model.fitting.quantisation_choice import auto_width
-    from facestats.model.fitting.scattering_image import fit_scattering_system
 
     check_integer(seeds, "seeds", 1)
     nz = float(as_finite(noise, "noise", 0, 1))

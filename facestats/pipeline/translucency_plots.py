@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from facestats.model.dipole import dipole_profile
+
 __all__ = ["plot_profile_fit", "plot_noise_study", "plot_contactless"]
 
 _COLOURS = ("tab:red", "tab:green", "tab:blue", "k")
@@ -20,8 +22,6 @@ def plot_profile_fit(fits, labels=None, *, title=None):
     the dashed line marks the fit range.
     """
     import matplotlib.pyplot as plt
-
-    from facestats.model.dipole import dipole_profile
 
     fits = list(fits) if isinstance(fits, (list, tuple)) else [fits]
     labels = labels or [f"fit {k + 1}" for k in range(len(fits))]

@@ -32,9 +32,20 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.acquire.geometry import uv_to_texel
+from facestats.acquire.synthetic.face import procedural_face
+from facestats.acquire.synthetic.population import DEFAULT_MAP_SIZE, default_population
+from facestats.acquire.synthetic.simulate import DomeSimulator
+from facestats.acquire.visibility import ShadowMaps
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
+from facestats.io.mesh import subject_mesh
+from facestats.io.probes import read_light_probe
+from facestats.io.schema import modulation
+from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport, skin_radiance
+from facestats.model.sphere import latlong_light_samples
+from facestats.pipeline.render import camera_image
+from facestats.pipeline.settings import MAP_VARS, MODEL_PREFIX
 
 __all__ = ["Render", "render_led", "render_probe", "camera_rmse", "default_capture"]
 
@@ -91,9 +102,6 @@ def _unit(v):
 
 def _radiance(subject, capture, camera, wi, irr, *, specular, eta):
     """Model radiance (N, L, 3) of every lumitexel seen by ``camera`` for lights (wi, irr of shape (N, L, 3))."""
-    from facestats.io.schema import modulation
-    from facestats.model.skin import SubsurfaceTransport, skin_radiance
-    from facestats.pipeline.settings import MAP_VARS, MODEL_PREFIX
 
     lt, v, u = _texels(subject, capture)
     normal = _unit(np.asarray(subject["normal"].values)[v, u])
@@ -153,7 +161,6 @@ def render_led(subject, capture, camera: int, light: int, *, specular="torrance_
     -------
     Render
     """
-    from facestats.pipeline.render import camera_image
 
     _check(subject, capture, camera, light, specular)
     pred, meas = _led_samples(subject, capture, camera, light, specular, eta)
@@ -168,8 +175,6 @@ def render_led(subject, capture, camera: int, light: int, *, specular="torrance_
 
 
 def _check(subject, capture, camera, light, specular):
-    from facestats.model.skin import SPECULAR_MODELS
-
     check_choice(specular, "specular", SPECULAR_MODELS)
     check_integer(camera, "camera", 0, capture.dome.n_cameras - 1)
     if light is not None:
@@ -199,11 +204,6 @@ def render_probe(subject, capture, camera: int, probe, *, samples=(8, 16), specu
     Render
         Without a reference.
     """
-    from facestats.acquire.visibility import ShadowMaps
-    from facestats.io.mesh import subject_mesh
-    from facestats.io.probes import read_light_probe
-    from facestats.model.sphere import latlong_light_samples
-    from facestats.pipeline.render import camera_image
 
     check_integer(camera, "camera", 0, capture.dome.n_cameras - 1)
     img = read_light_probe(probe) if not isinstance(probe, np.ndarray) else np.asarray(probe, np.float64)
@@ -259,9 +259,6 @@ def default_capture(subject_id: str):
 
     The last two are cached (a simulation takes seconds); treat the capture as read-only.
     """
-    from facestats.acquire.synthetic.face import procedural_face
-    from facestats.acquire.synthetic.population import DEFAULT_MAP_SIZE, default_population
-    from facestats.acquire.synthetic.simulate import DomeSimulator
 
     pop = default_population()
     try:

@@ -17,6 +17,8 @@ import numpy as np
 
 from facestats.acquire.dome import look_at
 from facestats.acquire.geometry import FaceGeometry
+from facestats.acquire.synthetic.face import procedural_face
+from facestats.acquire.visibility import rasterize
 from facestats.core.validate import as_finite, check_integer, check_shape
 from facestats.errors import ValidationError
 
@@ -111,7 +113,7 @@ def subject_geometry(subject, *, mesh_grid: int = 64) -> FaceGeometry:
     ``mesh_grid``² rendering mesh.  Subjects fitted on a real scan must be
     rendered with that scan's geometry (pass it to :func:`light_stage_field`).
     """
-    from facestats.acquire.synthetic.face import procedural_face
+    # local import: keeps facestats.io (21 modules) out of this module's import
     from facestats.io.schema import provenance
 
     prov = provenance(subject)
@@ -198,7 +200,6 @@ class ViewSurface:
 
 def view_surface(geometry: FaceGeometry, camera: StageCamera) -> ViewSurface:
     """Rasterise the geometry's mesh into ``camera`` and intersect every covered pixel's ray with its triangle."""
-    from facestats.acquire.visibility import rasterize
 
     verts = np.asarray(geometry.mesh_vertices, np.float64)
     faces = np.asarray(geometry.mesh_faces, np.int64)

@@ -59,6 +59,7 @@ import numpy as np
 from facestats.core.validate import as_finite, check_integer
 from facestats.errors import ValidationError
 from facestats.relight.field import as_field, image_tiles, light_dims, light_table
+from facestats.relight.lighting import resample_probe
 
 __all__ = ["CompressedField", "compress", "rank_for_ratio", "default_clusters"]
 
@@ -168,7 +169,6 @@ class CompressedField:
         :func:`facestats.relight.relighting.relight`); or pass a ``probe`` (with
         ``layout``, ``rotate``) to resample.
         """
-        from facestats.relight.lighting import resample_probe
 
         if (lighting is None) == (probe is None):
             raise ValidationError("pass exactly one of lighting (L·δA per light) and probe")

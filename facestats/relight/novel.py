@@ -41,12 +41,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from facestats.acquire.geometry import grid_triangles
+from facestats.acquire.visibility import rasterize
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_shape
 from facestats.errors import ValidationError
 from facestats.model.brdf import v_groove_shadowing
 from facestats.model.fresnel import fresnel_reflectance_unchecked
 from facestats.model.sphere import latlong_coordinates, latlong_directions
+from facestats.relight.camera import ray_triangle
+from facestats.relight.field import make_field
 from facestats.relight.separate import ramp_chromaticity, ramp_factor, unit_rgb
 
 __all__ = [
@@ -227,7 +231,6 @@ def novel_view_field(separation, view_new, *, eta=ETA_SKIN, shadow=None, s=None)
     xarray.Dataset
         A field (``reflectance`` = remapped specular + shifted diffuse) with ``view`` = ``view_new``.
     """
-    from facestats.relight.field import make_field
 
     sep = separation
     if "light_phi" not in sep["diffuse"].dims or "view" not in sep.data_vars:
@@ -278,9 +281,6 @@ def reproject(image, position, mask, camera):
     image : ndarray of float32, shape (size, size, 3)
     covered : ndarray of bool, shape (size, size)
     """
-    from facestats.acquire.geometry import grid_triangles
-    from facestats.acquire.visibility import rasterize
-    from facestats.relight.camera import ray_triangle
 
     img = as_finite(image, "image", dtype=np.float64)
     pos = as_finite(position, "position", dtype=np.float64)

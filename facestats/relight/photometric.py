@@ -17,6 +17,7 @@ import numpy as np
 
 from facestats.core.validate import as_finite
 from facestats.errors import ValidationError
+from facestats.relight.field import as_field, light_table
 
 __all__ = ["lambertian_fit", "rank_weights", "photometric_stereo", "angular_error_deg"]
 
@@ -99,7 +100,6 @@ def photometric_stereo(field, *, dark: float = 0.25, bright: float = 0.1, mask=N
     albedo : ndarray, shape (y, x, 3)
         ρ per channel, in the field's unit (relative when the light intensities are).
     """
-    from facestats.relight.field import as_field, light_table
 
     f = as_field(field)
     dirs, _, _ = light_table(f)

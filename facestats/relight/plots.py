@@ -23,6 +23,7 @@ def _figure(**kwargs):
 
 
 def _srgb(image, mask=None, scale=None):
+    # local import: keeps facestats.io (22 modules) out of this module's import
     from facestats.io.images import linear_to_srgb
 
     s = exposure_scale(image, mask) if scale is None else scale

@@ -39,10 +39,13 @@ specular energy ρs.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from facestats.core.validate import as_finite, check_shape
 from facestats.errors import ValidationError
+from facestats.relight.field import as_field, light_dims, light_table
 from facestats.relight.photometric import lambertian_fit
 
 __all__ = [
@@ -177,7 +180,6 @@ def diffuse_chromaticity(values, low: float = 25.0, high: float = 75.0):
     ndarray, shape (N, 3)
         Unit RGB; NaN for functions without a usable sample.
     """
-    import warnings
 
     r = check_shape(as_finite(values, "values", dtype=np.float64), "values", (None, None, 3))
     lo = float(as_finite(low, "low", 0, 100))
@@ -286,7 +288,6 @@ def separate_field(field, s=WHITE, *, view=None, ramp: bool = True, mirror_deg: 
         ``albedo`` (ρd, RGB), ``rho_s``, ``alpha0``, ``alpha1``, ``d0``,
         ``condition`` and ``ill_conditioned``, ``n_clamped`` (negative μs clamped).
     """
-    from facestats.relight.field import as_field, light_dims, light_table
 
     f = as_field(field)
     nl = len(light_dims(f))

@@ -21,6 +21,7 @@ import numpy as np
 
 from facestats.core.validate import as_finite, check_integer
 from facestats.errors import ValidationError
+from facestats.relight.field import as_field, is_grid
 
 __all__ = ["threshold_shadow_maps", "shadow_agreement"]
 
@@ -56,7 +57,6 @@ def threshold_shadow_maps(field, threshold: float = 0.02, *, clean: int = 1):
     ndarray of bool, shape (light dims..., y, x)
         True where the light reaches the pixel.
     """
-    from facestats.relight.field import as_field, is_grid
 
     grid = True
     if hasattr(field, "data_vars") or hasattr(field, "dims"):

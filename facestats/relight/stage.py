@@ -51,6 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.acquire.geometry import FaceGeometry
+from facestats.acquire.visibility import ShadowMaps
 from facestats.core.blocked import blockwise
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
@@ -67,7 +68,8 @@ from facestats.relight.camera import (
     vertex_normals,
     view_surface,
 )
-from facestats.relight.field import make_field
+from facestats.relight.field import FieldStore, make_field
+from facestats.relight.lighting import resample_probe
 
 __all__ = [
     "StageCamera",
@@ -136,6 +138,7 @@ class SubjectShading:
         on face texels (region > 0); its parameters are the bilinear mean over
         the face texels only.
         """
+        # local import: keeps facestats.io (21 modules) out of this module's import
         from facestats.io.schema import modulation
 
         check_choice(specular, "specular", SPECULAR_MODELS)
@@ -243,7 +246,6 @@ def _bp_kernel(ci, co, io, rho, n, vis, eta):
 
 def _visibility_setup(geometry, surface, normals, directions, shadow_resolution, shadows):
     """Vertex visibility (V_used, L_active) of the lights that reach some pixel, and those lights' indices."""
-    from facestats.acquire.visibility import ShadowMaps
 
     active = np.nonzero((normals @ directions.T > 0).any(axis=0))[0]
     used, inverse = np.unique(surface.vertices, return_inverse=True)
@@ -370,8 +372,6 @@ def light_stage_field(
         camera and model.
     """
     from tqdm.auto import tqdm
-
-    from facestats.relight.field import FieldStore
 
     if isinstance(camera, (list, tuple)):  # several cameras: one field each (Debevec used two)
         outs = [None] * len(camera) if out is None else list(out)
@@ -555,7 +555,6 @@ def relight_subject(
         Linear radiance in the probe's unit.
     mask : ndarray of bool, shape (size, size)
     """
-    from facestats.relight.lighting import resample_probe
 
     n_theta, n_phi = lights
     d, _ = light_stage_directions(n_theta, n_phi)

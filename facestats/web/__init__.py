@@ -11,11 +11,14 @@ optional dependency: ``pip install 'facestats[web]'``.
 
 from __future__ import annotations
 
+from facestats.errors import ValidationError
+
 __all__ = ["create_app", "serve", "make_server"]
 
 
 def create_app(store=None, *, preload=True):
     """See :func:`facestats.web.app.create_app`."""
+    # local import: keeps 23 modules out of this module's import
     from facestats.web.app import create_app as _create_app
 
     return _create_app(store, preload=preload)
@@ -31,8 +34,8 @@ def make_server(app, host: str = "127.0.0.1", port: int = 8000):
     """
     from werkzeug.serving import make_server as _make_server
 
+    # local import: keeps numpy out of this module's import
     from facestats.core.validate import check_integer
-    from facestats.errors import ValidationError
 
     check_integer(port, "port", 0, 65535)
     try:

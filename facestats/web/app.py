@@ -31,7 +31,8 @@ import threading
 import zipfile
 from collections import OrderedDict
 
-from facestats.errors import DependencyError, FacestatsError, StoreError
+from facestats.core.conventions import CONDITIONS, REGIONS, ROMAN
+from facestats.errors import DependencyError, FacestatsError, StoreError, ValidationError
 
 __all__ = ["create_app", "FILTERS", "MAX_QUERY_STRING", "MAX_BODY", "error_text"]
 
@@ -48,6 +49,7 @@ def error_text(exc) -> str:
 
 
 def _status(exc) -> int:
+    # local import: keeps numpy out of this module's import
     from facestats.io.subject_export import UnknownSubjectError
 
     if isinstance(exc, UnknownSubjectError):
@@ -67,6 +69,7 @@ class _SubjectCache:
         self._items = OrderedDict()
 
     def get(self, sid):
+        # local import: keeps numpy out of this module's import
         from facestats.io.subject_export import store_subject
 
         with self._lock:
@@ -82,7 +85,6 @@ class _SubjectCache:
 
 def _filters(args) -> dict:
     """The whitelisted, length-bounded filters of a request (empty values mean "any")."""
-    from facestats.errors import ValidationError
 
     unknown = sorted(set(args) - set(FILTERS))
     if unknown:
@@ -116,6 +118,7 @@ def create_app(store=None, *, preload=True):
         raise DependencyError(
             f"Flask is not installed (needed by facestats serve): pip install 'facestats[web]' ({exc})"
         )
+    # local import: keeps numpy out of this module's import
     from facestats.io.store import Store, open_store
     from facestats.web.data import RegionSamples
 
@@ -174,8 +177,6 @@ def _register_guards(app):
 def _register_routes(app, ctx):
     from flask import Response, jsonify, render_template, request
 
-    from facestats.core.conventions import CONDITIONS, REGIONS, ROMAN
-
     st, lock = ctx["store"], ctx["lock"]
 
     def query():
@@ -201,6 +202,7 @@ def _register_routes(app, ctx):
 
     @app.get("/api/pca")
     def api_pca():
+        # local import: keeps numpy out of this module's import
         from facestats.web.data import pca_document
 
         doc = pca_document(ctx["samples"], query().subject_ids)
@@ -208,6 +210,7 @@ def _register_routes(app, ctx):
 
     @app.get("/api/scatter")
     def api_scatter():
+        # local import: keeps numpy out of this module's import
         from facestats.web.data import scatter_document
 
         ids = query().subject_ids
@@ -220,6 +223,7 @@ def _register_routes(app, ctx):
 def _register_subject_routes(app, ctx):
     from flask import Response, jsonify, render_template
 
+    # local import: keeps numpy out of this module's import
     from facestats.web.data import map_png, preview_png, subject_document
 
     cache = ctx["subjects"]
@@ -252,6 +256,7 @@ def _register_subject_routes(app, ctx):
 
 def _exr_zip(ds) -> bytes:
     """The subject's EXR texture set (:func:`facestats.io.exr_set.write_exr_set`) as zip bytes."""
+    # local import: keeps numpy out of this module's import
     from facestats.io.exr_set import write_exr_set
 
     tmp = tempfile.mkdtemp(prefix="facestats-web-")

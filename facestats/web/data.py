@@ -13,7 +13,13 @@ import threading
 
 import numpy as np
 
+from facestats.analysis.pca import region_pca
+from facestats.analysis.population import region_samples
+from facestats.analysis.scatter import absorption_scattering
 from facestats.core.conventions import CHANNELS, REGIONS
+from facestats.core.validate import check_choice
+from facestats.errors import ValidationError
+from facestats.model.skin import SubsurfaceTransport, skin_radiance
 
 __all__ = ["RegionSamples", "pca_document", "scatter_document", "map_names", "map_png", "preview_png", "PREVIEW_LIGHTS"]
 
@@ -43,7 +49,7 @@ class RegionSamples:
             self._thread.start()
 
     def _load(self):
-        from facestats.analysis.population import region_samples
+        # local import: keeps facestats.io (23 modules) out of this module's import
         from facestats.io.store import open_store
 
         try:  # a store handle of its own: requests never wait for this thread
@@ -63,8 +69,6 @@ class RegionSamples:
 
 def pca_document(samples: RegionSamples, subject_ids) -> dict:
     """Fig. 15 ellipses (centre, σ half-axes, angle) of the matching subjects, or a pending/error status."""
-    from facestats.analysis.pca import region_pca
-    from facestats.errors import ValidationError
 
     if not samples.ready:
         return {"status": "pending"}
@@ -92,8 +96,6 @@ def pca_document(samples: RegionSamples, subject_ids) -> dict:
 
 def scatter_document(store, subject_ids) -> dict:
     """Fig. 14: σa and σ's (mm⁻¹) of the matching subjects per channel, with skin type, gender and age."""
-    from facestats.analysis.scatter import absorption_scattering
-    from facestats.errors import ValidationError
 
     ids = list(subject_ids)
     if not ids:
@@ -151,7 +153,7 @@ def map_png(ds, name: str, scale: int = 4) -> bytes:
     ValidationError
         ``name`` is not one of :func:`map_names`.
     """
-    from facestats.core.validate import check_choice
+    # local import: keeps facestats.io (24 modules) out of this module's import
     from facestats.io.images import linear_to_srgb
     from facestats.io.schema import modulation
 
@@ -182,8 +184,8 @@ def preview_radiance(ds, lights=PREVIEW_LIGHTS, view=(0.0, 0.0, 1.0)):
     from the modulation texture and the subject's σ's, σa (flat-patch dipole
     transport, no shadows); irradiance E = E⊥ (N·ωi).
     """
+    # local import: keeps facestats.io (23 modules) out of this module's import
     from facestats.io.schema import modulation
-    from facestats.model.skin import SubsurfaceTransport, skin_radiance
 
     face = np.asarray(ds["region"].values) > 0
     if "normal" in ds.data_vars:
@@ -211,6 +213,7 @@ def preview_radiance(ds, lights=PREVIEW_LIGHTS, view=(0.0, 0.0, 1.0)):
 
 def preview_png(ds, scale: int = 4) -> bytes:
     """:func:`preview_radiance` tone-mapped (99th percentile to white, sRGB) as a PNG."""
+    # local import: keeps facestats.io (24 modules) out of this module's import
     from facestats.io.images import linear_to_srgb
 
     img = preview_radiance(ds)

@@ -131,6 +131,7 @@ class EmulatedCameras(CameraBackend):
         self._pool = ThreadPoolExecutor(self.workers)
 
     def frame(self, camera: int, trigger: Trigger) -> Frame:
+        # local import: keeps numpy out of this module's import
         from facestats.acquire.synthetic.photographs import encode_frame
 
         codes, t = self.scene.render(camera, trigger)

@@ -15,8 +15,11 @@ import json
 import pathlib
 
 from facestats.acquire.devices.cameras import DEFAULT_PATTERN, HotFolderCameras
+from facestats.acquire.devices.dome import DomeController
 from facestats.acquire.devices.plans import DomePlan, SensorPlan
+from facestats.acquire.devices.sensor import SensorController, load_sensor_calibration
 from facestats.acquire.devices.session import SessionLog, SessionReport, run_session, session_state
+from facestats.acquire.dome import Dome
 from facestats.errors import FormatError
 
 __all__ = ["dome_plan", "sensor_plan", "capture", "read_subject_record"]
@@ -42,7 +45,6 @@ def read_subject_record(path) -> dict:
 
 def dome_plan(calibration, subject: dict, **options) -> tuple:
     """``(DomePlan, calibration bytes)`` of a dome calibration file (:meth:`facestats.acquire.dome.Dome.load`)."""
-    from facestats.acquire.dome import Dome
 
     data = _read(calibration)
     try:
@@ -54,7 +56,6 @@ def dome_plan(calibration, subject: dict, **options) -> tuple:
 
 def sensor_plan(calibration, subject: dict, **options) -> tuple:
     """``(SensorPlan, calibration bytes)`` of a sensor calibration file (``facestats.sensor-calibration/1``)."""
-    from facestats.acquire.devices.sensor import load_sensor_calibration
 
     data = _read(calibration)
     sensor, layout = load_sensor_calibration(calibration)
@@ -85,8 +86,6 @@ def capture(
     parity, stopbits, timeout, retries); ``echo`` receives the session's log lines
     as they happen.
     """
-    from facestats.acquire.devices.dome import DomeController
-    from facestats.acquire.devices.sensor import SensorController
 
     if session_state(out, plan, resume=resume) == "complete":
         return SessionReport(plan.kind, plan.subject_id, pathlib.Path(out), plan.n_steps, plan.n_steps, complete=True)

@@ -23,6 +23,8 @@ import numpy as np
 from facestats.acquire.devices.cameras import EmulatedCameras, HotFolderWriter
 from facestats.acquire.devices.emulator import DomeDevice, Faults, PtyServer, SensorDevice
 from facestats.acquire.devices.scene import DomeScene, SensorScene, subject_truth
+from facestats.acquire.devices.sensor import save_sensor_calibration
+from facestats.acquire.dome import default_dome
 from facestats.core.validate import check_integer
 from facestats.errors import DeviceError
 
@@ -36,7 +38,6 @@ def emulated_rig(resolution: int | None = None, leds: int | None = None, cameras
     indices; ``resolution`` resamples every camera to ``resolution``² pixels
     (default: the rig's 1024²).
     """
-    from facestats.acquire.dome import default_dome
 
     dome = default_dome()
     pick = {}
@@ -137,7 +138,6 @@ def emulated_sensor(
     log=None,
 ) -> PtyServer:
     """Build and start the emulated contact sensor on ``subject_id``'s three sites; returns the running server."""
-    from facestats.acquire.devices.sensor import save_sensor_calibration
 
     lab = _directory(lab, "lab directory")
     _directory(hot_folder, "hot folder")

@@ -42,6 +42,7 @@ SUBJECT_FIELDS = ("subject_id", "person_id", "age", "gender", "skin_type", "cond
 
 def subject_record(subject_id, *, person_id=None, age, gender, skin_type, condition="normal") -> dict:
     """The subject metadata a capture folder's manifest holds, checked."""
+    # local import: keeps facestats.io (22 modules) out of this module's import
     from facestats.io.ids import check_subject_id
 
     sid = check_subject_id(subject_id)
@@ -167,6 +168,7 @@ class DomePlan(_Plan):
         return max(self.exposure_s[self.step(s)["exposure"]], self.frame_interval_s) + link_timeout
 
     def file(self, s: int, camera: int) -> str:
+        # local import: keeps 22 modules out of this module's import
         from facestats.acquire.synthetic.photographs import frame_name
 
         st = self.step(s)

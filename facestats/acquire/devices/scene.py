@@ -34,15 +34,24 @@ while the lamp is off or the shutter closed.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import pathlib
+from dataclasses import replace
 
 import numpy as np
 
 from facestats.acquire.devices.sensor import FiberLayout
+from facestats.acquire.hdr import expose
 from facestats.acquire.response import ResponseCurve
+from facestats.acquire.sensor import ContactSensor
+from facestats.acquire.synthetic.face import procedural_face
+from facestats.acquire.synthetic.photographs import FrameRenderer
+from facestats.acquire.synthetic.population import SubjectTruth, synthesize_population
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import check_integer
 from facestats.errors import ValidationError
+from facestats.model.dipole import dipole_profile, total_diffuse_reflectance, transport_coefficient
 
 __all__ = ["subject_truth", "DomeScene", "SensorScene", "dark_code_table"]
 
@@ -72,7 +81,6 @@ def subject_truth(subject_id: str, *, store=None, map_size: int = 16, seed: int 
     site scattering reproduces the stored coefficients; σtr is the subject's
     (Weyrich eq. 15).
     """
-    from facestats.acquire.synthetic.population import synthesize_population
 
     if store is None:
         return synthesize_population(seed=seed, map_size=map_size, subjects=[subject_id])[subject_id]
@@ -80,9 +88,8 @@ def subject_truth(subject_id: str, *, store=None, map_size: int = 16, seed: int 
 
 
 def _truth_from_store(store, subject_id):
-    from facestats.acquire.synthetic.population import SubjectTruth
+    # local import: keeps facestats.io (22 modules) out of this module's import
     from facestats.io import open_store
-    from facestats.model.dipole import total_diffuse_reflectance, transport_coefficient
 
     st = open_store() if store == "default" else open_store(store) if isinstance(store, (str, pathlib.Path)) else store
     ds = st.subject(subject_id)
@@ -188,7 +195,7 @@ class DomeScene:
         progress: bool = False,
         cache=None,
     ):
-        from facestats.acquire.synthetic.face import procedural_face
+        # local import: keeps facestats.model (19 modules) out of this module's import
         from facestats.acquire.synthetic.simulate import DomeSimulator
         from facestats.io.mesh import load_face_mesh, save_face_mesh
 
@@ -210,10 +217,6 @@ class DomeScene:
 
     def _pixel_maps(self, cache, progress):
         """Each camera's (flat pixel index, lumitexel) arrays (:meth:`FrameRenderer.pixels`), cached if asked."""
-        import hashlib
-        import json
-
-        from facestats.acquire.synthetic.photographs import FrameRenderer
 
         key = hashlib.sha256(self.mesh.read_bytes() + json.dumps(self.dome.to_dict()).encode()).hexdigest()[:24]
         path = None if cache is None else pathlib.Path(cache) / f"pixels-{key}.npz"
@@ -240,7 +243,6 @@ class DomeScene:
 
     def calibration(self):
         """The rig as the lab's calibration file holds it: the true dome with the cameras' true response g."""
-        from dataclasses import replace
 
         g = np.repeat(self.camera.log_exposure()[:, None], 3, axis=1)
         return replace(self.dome, camera_log_response=g)
@@ -276,9 +278,6 @@ class SensorScene:
     """
 
     def __init__(self, sigma_s_prime, sigma_a, sensor=None, layout=None, *, eta: float = ETA_SKIN, seed: int = 0):
-        from facestats.acquire.sensor import ContactSensor
-        from facestats.model.dipole import dipole_profile
-
         self.sensor = ContactSensor() if sensor is None else sensor
         self.layout = FiberLayout(self.sensor.n_fibers) if layout is None else layout
         if self.layout.n_fibers != self.sensor.n_fibers:
@@ -311,7 +310,6 @@ class SensorScene:
         if trigger.lamp and trigger.shutter:
             spot = self._labels >= 0
             rate[spot] = self.profile[site, self._labels[spot]] * self.sensor.scale
-        from facestats.acquire.hdr import expose
 
         rng = np.random.default_rng([self.seed, site, j, int(trigger.lamp), int(trigger.shutter)])
         dn = expose(rate, times[j : j + 1], self.sensor.camera, rng)[..., 0]

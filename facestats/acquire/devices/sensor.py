@@ -38,6 +38,8 @@ import numpy as np
 
 from facestats.acquire.devices.cameras import Trigger
 from facestats.acquire.devices.controller import Controller
+from facestats.acquire.hdr import merge_exposures
+from facestats.acquire.sensor import ContactSensor
 from facestats.core.published import N_FIBERS
 from facestats.core.validate import check_integer
 from facestats.errors import DeviceError, FormatError, ValidationError
@@ -119,7 +121,6 @@ def merge_bracket(stack, times, sensor, layout: FiberLayout):
         sqrt(Σ σ²)/P / ``scale`` for its P pixels; NaN where a spot pixel clipped
         in every exposure.
     """
-    from facestats.acquire.hdr import merge_exposures
 
     dn = np.moveaxis(np.asarray(stack, np.float64), 0, -1)  # (H, W, 3, E)
     labels = layout.labels()
@@ -165,7 +166,7 @@ class SensorBracket:
 
 def read_bracket(folder) -> SensorBracket:
     """The sensor session of a capture folder: its ``sensor.json`` and the raw frames it lists."""
-    from facestats.acquire.sensor import ContactSensor
+    # local import: keeps facestats.io (23 modules) out of this module's import
     from facestats.io.images import decode_integer_image
 
     folder = pathlib.Path(folder)
@@ -202,7 +203,6 @@ def save_sensor_calibration(path, sensor, layout: FiberLayout) -> pathlib.Path:
 
 def load_sensor_calibration(path):
     """``(ContactSensor, FiberLayout)`` of a sensor calibration file; :class:`FormatError` naming what is wrong."""
-    from facestats.acquire.sensor import ContactSensor
 
     try:
         doc = json.loads(pathlib.Path(path).read_text())

@@ -342,6 +342,7 @@ class _Runner:
         self.bar.update(1)
 
     def _entry(self, s, frame):
+        # local import: keeps numpy out of this module's import
         from facestats.acquire.photographs import frame_entry
 
         out, plan = self.journal.out, self.plan
@@ -475,6 +476,7 @@ def _finish(plan, out, done):
     """Write the session's product atomically: the manifest (dome) or the merged sensor file (sensor)."""
     entries = [e for s in range(plan.n_steps) for e in done[s]]
     if plan.kind == "dome":
+        # local import: keeps numpy out of this module's import
         from facestats.acquire.photographs import write_manifest
 
         write_manifest(
@@ -490,6 +492,7 @@ def _finish(plan, out, done):
         return
     import numpy as np
 
+    # local import: keeps numpy out of this module's import
     from facestats.acquire.devices.sensor import FiberLayout, merge_bracket
     from facestats.acquire.photographs import write_sensor_file
     from facestats.acquire.sensor import ContactSensor

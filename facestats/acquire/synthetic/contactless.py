@@ -25,9 +25,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from facestats.acquire.geometry import uv_to_texel
+from facestats.acquire.lights import patch_irradiance
+from facestats.acquire.synthetic.face import face_uv
+from facestats.acquire.synthetic.patch_image import render_patch_image
+from facestats.acquire.synthetic.scenes import face_site_scene
+from facestats.acquire.synthetic.subsurface import render_exitance
 from facestats.core.conventions import SITES
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_choice
+from facestats.model.irradiance import radiance_from_exitance
 
 __all__ = ["CONTACTLESS_SITES", "patch_modulation", "simulate_site_image"]
 
@@ -37,8 +44,6 @@ CONTACTLESS_SITES = ("cheek", "forehead")
 
 def patch_modulation(patches, modulation_map) -> np.ndarray:
     """M (m, 3) at the patches of a procedural-face window from a modulation map [v, u, channel]."""
-    from facestats.acquire.geometry import uv_to_texel
-    from facestats.acquire.synthetic.face import face_uv
 
     mod = np.asarray(modulation_map, np.float64)
     u, v = face_uv(patches.centre[:, 0], patches.centre[:, 1])
@@ -69,11 +74,6 @@ def simulate_site_image(truth, site="cheek", light="stripe", *, spacing=0.3, mod
     image : ndarray, shape (H, W, 3)
         Linear radiance (irradiance unit of the projector per sr), NaN off the window.
     """
-    from facestats.acquire.lights import patch_irradiance
-    from facestats.acquire.synthetic.patch_image import render_patch_image
-    from facestats.acquire.synthetic.scenes import face_site_scene
-    from facestats.acquire.synthetic.subsurface import render_exitance
-    from facestats.model.irradiance import radiance_from_exitance
 
     check_choice(site, "site", CONTACTLESS_SITES)
     nz = float(as_finite(noise, "noise", 0, 1, high_inclusive=False))

@@ -47,6 +47,7 @@ so a field is two matrix products (rows × waves)·(waves × columns) per family
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -417,7 +418,6 @@ def subject_microstructure(subject, shape, texel_um=15.0, *, seed=None, deformat
     The subject's region map (upsampled) places the regions; the seed defaults
     to one derived from the subject id, so a subject always gets the same skin.
     """
-    import zlib
 
     params = subject_microstructure_parameters(subject)
     if seed is None:

@@ -18,6 +18,7 @@ import numpy as np
 
 from facestats.acquire.camera import PinholeCamera
 from facestats.acquire.patches import subdivide_triangles
+from facestats.acquire.visibility import ShadowMaps
 from facestats.core.validate import as_finite, check_integer
 from facestats.errors import ValidationError
 
@@ -47,7 +48,6 @@ def render_patch_image(camera: PinholeCamera, patches, radiance, *, samples=4, s
     ndarray, shape (H, W, C)
         Mean radiance per pixel; NaN where no patch is seen.
     """
-    from facestats.acquire.visibility import ShadowMaps
 
     if patches.corners is None:
         raise ValidationError("patches must carry their triangles (corners) to be rendered into an image")

@@ -48,6 +48,8 @@ from facestats.acquire.dome import Dome, default_dome
 from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.photographs import MANIFEST, write_manifest, write_sensor_file
 from facestats.acquire.response import ResponseCurve
+from facestats.acquire.synthetic.face import procedural_face
+from facestats.acquire.synthetic.simulate import DomeSimulator
 from facestats.core.validate import as_finite, check_choice
 from facestats.errors import ValidationError
 
@@ -209,6 +211,7 @@ def encode_frame(codes, exposure_s, extension=".png", *, model="simulated dome c
     """
     import cv2
 
+    # local import: keeps facestats.io (23 modules) out of this module's import
     from facestats.io.exif import embed_exif, exif_payload
 
     params = [cv2.IMWRITE_JPEG_QUALITY, 95] if extension == ".jpg" else []
@@ -317,8 +320,7 @@ def write_capture_photographs(
     progress : bool
         Progress bar over cameras.
     """
-    from facestats.acquire.synthetic.face import procedural_face
-    from facestats.acquire.synthetic.simulate import DomeSimulator
+    # local import: keeps facestats.io (23 modules) out of this module's import
     from facestats.io.mesh import load_face_mesh, save_face_mesh
 
     check_choice(extension, "extension", (".png", ".tif", ".jpg"))

@@ -75,6 +75,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from facestats.acquire.synthetic.face import procedural_face
 from facestats.acquire.synthetic.texture import albedo_map, smooth_noise
 from facestats.core.conventions import CHANNELS, CONDITIONS, DEFAULT_MAP_SIZE, DEFAULT_SEED, REGION_IDS, SITES
 from facestats.core.published import AGE_COUNTS, ETA_SKIN, TABLE1_MEAN, TABLE1_VAR, TABLE2_COUNTS
@@ -390,8 +391,6 @@ def synthesize_population(
     if isinstance(subjects, str):
         raise ValidationError(f"subjects must be a collection of subject ids, got the string {subjects!r}")
     if geometry is None:
-        from facestats.acquire.synthetic.face import procedural_face
-
         geometry = procedural_face(map_size)
     region_map = geometry.region_map
     if region_map is None or region_map.shape != (map_size, map_size):

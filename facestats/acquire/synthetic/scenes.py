@@ -29,6 +29,7 @@ import numpy as np
 from facestats.acquire.camera import PinholeCamera
 from facestats.acquire.lights import DirectionalLight, PointLight
 from facestats.acquire.patches import Patches, mesh_patches
+from facestats.acquire.synthetic.face import SITE_CENTRES, face_window
 from facestats.core.validate import as_finite, check_choice
 from facestats.errors import ValidationError
 
@@ -92,7 +93,6 @@ def face_site_scene(site="cheek", light="stripe", *, spacing=0.3, half_width=9.0
     pixel_fraction : float
         Camera pixel size as a fraction of ``spacing``.
     """
-    from facestats.acquire.synthetic.face import SITE_CENTRES, face_window
 
     check_choice(site, "site", tuple(SITE_CENTRES))
     check_choice(light, "light", SITE_LIGHTS)

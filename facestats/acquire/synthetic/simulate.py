@@ -48,6 +48,7 @@ from facestats.acquire.dome import Dome, default_dome
 from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.hdr import expose, merge_exposures
 from facestats.acquire.sensor import ContactSensor
+from facestats.acquire.synthetic.face import procedural_face
 from facestats.acquire.visibility import dome_shadow_maps, sample_visibility
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_choice, check_integer
@@ -478,7 +479,5 @@ class DomeSimulator:
 def simulate_capture(truth, geometry: FaceGeometry | None = None, **kwargs) -> Capture:
     """Simulate one subject on ``geometry`` (default: the procedural face at the truth's map size)."""
     if geometry is None:
-        from facestats.acquire.synthetic.face import procedural_face
-
         geometry = procedural_face(truth.region_map.shape[0])
     return DomeSimulator(geometry, **kwargs).simulate(truth)

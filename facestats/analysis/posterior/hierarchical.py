@@ -26,11 +26,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
 
 from facestats.analysis.population import select_population
 from facestats.analysis.posterior.credible import check_level, interval_quantiles
 from facestats.analysis.serialize import json_ready, records
+from facestats.analysis.translucency import subject_sigma_tr
 from facestats.core.conventions import CHANNELS, ROMAN
+from facestats.core.published import SIGMA_TR_AVG
 from facestats.core.validate import check_choice, check_seed
 from facestats.errors import ValidationError
 
@@ -79,7 +82,6 @@ class PopulationSigmaTr:
             Index (``skin_type``, ``channel``); columns ``n``, ``median``,
             ``lo``, ``hi`` and ``paper_sigma_tr_avg`` (mm⁻¹).
         """
-        from facestats.core.published import SIGMA_TR_AVG
 
         table = self.summary[["n", "median", "lo", "hi"]]
         avg = dict(zip(CHANNELS, SIGMA_TR_AVG))
@@ -184,8 +186,6 @@ def population_sigma_tr(
     """
     import pandas as pd
 
-    from facestats.analysis.translucency import subject_sigma_tr
-
     check_choice(model, "model", ("hierarchical", "independent"))
     level = check_level(level)
     frame = select_population(source, subjects, conditions)
@@ -254,7 +254,6 @@ def _independent_channel(groups, n_draws, rng):
 
     θ_j ~ ȳ_j + s_j/√n_j · t_{n_j−1}.
     """
-    from scipy import stats
 
     out = np.full((n_draws, len(groups)), np.nan)
     for j, g in enumerate(groups):

@@ -43,6 +43,7 @@ import emcee
 import numpy as np
 
 from facestats.acquire.sensor import ContactSensor
+from facestats.analysis.population import default_subject
 from facestats.analysis.posterior.chains import block_chain, run_to_convergence
 from facestats.analysis.posterior.credible import check_level, interval_quantiles
 from facestats.analysis.posterior.likelihood import DERIVED, PARAMETERS, LogPosterior, prior_bounds, validate_profiles
@@ -556,7 +557,6 @@ def store_sigma_posterior(store, subject_id=None, site=None, **kwargs):
     -------
     SigmaPosterior
     """
-    from facestats.analysis.population import default_subject
 
     sid = subject_id or default_subject(store)
     return site_sigma_posterior(store.subject(sid), site or DEFAULT_SITE, **kwargs)

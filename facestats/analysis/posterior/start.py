@@ -9,6 +9,7 @@ space) with the fit's covariance.  ``post`` is a
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from facestats.errors import ValidationError
 from facestats.model import dipole
@@ -74,7 +75,6 @@ def least_squares_start(post, y, std_fixed, mask):
     (:func:`scipy.optimize.least_squares`) in log space; the covariance is
     (JᵀJ)⁻¹ of the standardised residuals.
     """
-    from scipy.optimize import least_squares
 
     lo, hi = post.lo, post.hi
     k = y.shape[1]

@@ -138,6 +138,7 @@ def albedo_stable_minimum(
         raise ValidationError(f"grazing_start must be < grazing_end, got {grazing_start!r} >= {grazing_end!r} rad")
     c0, c1 = np.cos(grazing_start), np.cos(grazing_end)
     if samples.resolved_engine == "numba":
+        # local import: the kernels import numba
         from facestats.model.fitting.kernels.runs import stable_minimum
 
         out, _ = stable_minimum(
@@ -231,6 +232,7 @@ def refine_albedo(samples, brdf, ft2, cos_half, use, *, min_half_angle=np.radian
     _check_per_sample(samples, brdf, ft2=ft2, cos_half=cos_half, use=use)
     _check_angle(min_half_angle, "min_half_angle")
     if samples.resolved_engine == "numba":
+        # local import: the kernels import numba
         from facestats.model.fitting.kernels.runs import refine_sums
 
         alb, cnt, grey_std = refine_sums(

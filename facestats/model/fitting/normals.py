@@ -149,6 +149,7 @@ def _numpy_system(samples, n_scan, y, cos_spec, lim):
 
 def _compiled_system(samples, n_scan, y, cos_spec, lim):
     """As :func:`_numpy_system`, by one pass over the samples (:mod:`facestats.model.fitting.kernels.runs`)."""
+    # local import: the kernels import numba
     from facestats.model.fitting.kernels.runs import camera_rhs, camera_system
 
     n, n_cam = samples.n_texels, samples.wo_grid.shape[1]
@@ -220,6 +221,7 @@ def micro_normals(samples, n_cameras):
         return out.reshape(n, n_cameras, 3)
     key, start, cnt = samples.camera_runs()
     if samples.resolved_engine == "numba":
+        # local import: the kernels import numba
         from facestats.model.fitting.kernels.runs import run_argmax
 
         best = run_argmax(samples.grey(), start, cnt)

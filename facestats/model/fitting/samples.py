@@ -221,6 +221,7 @@ class Samples:
         n, n_cam, n_led = np.shape(radiance)[:3]
         keep = np.ones(n_cam, bool) if keep_cameras is None else np.asarray(keep_cameras, bool)
         if engine == "numba" and np.asarray(radiance).dtype == np.float16 and np.shape(irradiance) == (n, n_led, 3):
+            # local import: the kernels import numba
             from facestats.model.fitting.kernels.samples import flatten_grid
 
             rad = np.ascontiguousarray(radiance).view(np.uint16)
@@ -404,6 +405,7 @@ class Samples:
 
     def _kernel_cosines(self, normal=None):
         """(N·ωi, N·ωo, ωi·ωo) per sample from one compiled pass (the first two empty without ``normal``)."""
+        # local import: the kernels import numba
         from facestats.model.fitting.kernels.samples import sample_cosines
 
         nrm = np.zeros((0, 3), np.float32) if normal is None else np.ascontiguousarray(normal, np.float32)

@@ -390,6 +390,7 @@ def _solve_numpy(model, y, s1, a, n_use, solve, p_start, bounds, max_iter, tol, 
 
 def _solve_compiled(model, y, s1, a, d, n_use, solve, p_start, bounds, max_iter, tol):
     """The compiled per-texel solve (:func:`facestats.model.fitting.kernels.lm.solve_runs`), and its residual sums."""
+    # local import: the kernels import numba
     from facestats.model.fitting.kernels import lm
 
     (r_lo, r_hi), (p_lo, p_hi) = bounds

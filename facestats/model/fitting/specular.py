@@ -320,6 +320,7 @@ def _kept_factors(samples, ci, co, f_s, use, models, eta, ft2=None):
 
 def _kept_factors_compiled(starts, counts, ci, co, io, f_s, use, models, eta, ft2=None):
     """:func:`_kept_factors` in one compiled pass (:func:`facestats.model.fitting.kernels.factors.specular_inputs`)."""
+    # local import: the kernels import numba
     from facestats.model.fitting.kernels.factors import specular_inputs
 
     kept, y, ts_z, ts_a, bp_z, bp_a, d = specular_inputs(
@@ -452,6 +453,7 @@ def fit_specular(
 
 def _fit_dense_compiled(wi, wo, normal, f_s, valid, model, lim, eta, bounds, kwargs):
     """:func:`fit_specular` with the numba engine: the dense arrays are read once by a kernel, never copied."""
+    # local import: the kernels import numba
     from facestats.model.fitting.kernels.samples import dense_samples
 
     counts, ci, co, io, fs = dense_samples(

@@ -25,6 +25,9 @@ import math
 
 import numpy as np
 
+from facestats.core.validate import check_choice
+from facestats.errors import ValidationError
+
 __all__ = ["HAVE_NUMBA", "convolve_pass", "histogram_tv", "resolve_backend"]
 
 try:  # numba is a declared dependency; the numpy path keeps facestats usable without it
@@ -38,8 +41,6 @@ except ImportError:  # pragma: no cover - exercised only where numba is missing
 
 def resolve_backend(backend: str) -> str:
     """``"numba"`` or ``"numpy"`` from ``"auto"``, ``"numba"`` or ``"numpy"``."""
-    from facestats.core.validate import check_choice
-    from facestats.errors import ValidationError
 
     check_choice(backend, "backend", ("auto", "numba", "numpy"))
     if backend == "numba" and not HAVE_NUMBA:

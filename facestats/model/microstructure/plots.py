@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from facestats.model.microstructure.surface import normal_histogram
 from facestats.model.microstructure.tables import FIG11, FOREHEAD
 
 __all__ = ["plot_kernel_table", "plot_fit", "plot_strain", "plot_before_after"]
@@ -127,7 +128,6 @@ def plot_before_after(neutral, deformed, neutral_normals, *, bins=64, extent=Non
     crop : (slice, slice), optional
         Part of the maps to show (histograms use the whole maps).
     """
-    from facestats.model.microstructure.surface import normal_histogram
 
     crop = crop or (slice(None), slice(None))
     nn, dn = neutral_normals, deformed.normals

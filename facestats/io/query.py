@@ -6,6 +6,10 @@ and histograms based on user choice for gender, age, and skin type".
 :mod:`facestats.io.summary`), without opening any subject, using numpy only
 (no xarray, zarr or pandas: ``facestats query`` must start fast).
 
+The module is longer than most (~650 lines) because the query and its three
+renderings of one document (JSON, CSV, the terminal table) stay together, so
+that their fields cannot drift apart.
+
 Filters
 -------
 * ``skin_type``: Fitzpatrick type, Roman (``"IV"``) or 1-6.  The paper groups
@@ -27,8 +31,9 @@ each subject's own value, and ``n`` counts the subjects that have the quantity
 (imported subjects have no sensor data, for instance).  Per-region BRDF
 entries also give ``within_std``: the mean over subjects of the spread of the
 parameter inside the region of one subject; and the fit's own uncertainty
-(the standard errors σ² (JᵀJ)⁻¹ of eq. 14 that the pipeline stores per
-texel, :mod:`facestats.io.summary`): ``mean_se``, the standard error of one
+(the robust HC3 standard errors of the eq. 14 fit, with the albedo's propagated
+uncertainty, that the pipeline stores per texel; ``docs/scale.md``,
+:mod:`facestats.io.summary`): ``mean_se``, the standard error of one
 subject's region mean — the within-subject uncertainty to set beside the
 between-subject ``std`` —, and ``texel_se``, the typical standard error of one
 texel; both are root mean squares over the subjects that have them (null when

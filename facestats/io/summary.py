@@ -14,7 +14,7 @@ Column names (``r`` = region 1-10, ``ch`` = R/G/B, ``site`` = cheek/forehead/nec
 * ``{p}_mean_r{r}``, ``{p}_std_r{r}`` for p in ``ts_rho_s``, ``ts_m``,
   ``bp_rho_s``, ``bp_exponent``, and ``n_ts_r{r}``, ``n_bp_r{r}`` (sample counts);
 * ``{p}_se_r{r}``: the root mean square of the per-texel standard errors of p
-  (the ``*_std`` maps, σ² (JᵀJ)⁻¹ of the eq. 14 fit) over the same texels, and
+  (the ``*_std`` maps: robust HC3 standard errors of the eq. 14 fit) over the same texels, and
   ``{p}_mean_se_r{r}``: the standard error of the region mean, sqrt(Σ σ²)/n
   (texel fits are independent) — the within-subject uncertainty; NaN for
   subjects without standard-error maps (older stores, imported or edited parameters);

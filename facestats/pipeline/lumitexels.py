@@ -43,7 +43,7 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
         (usable samples), ``n_invalid`` (masked: NaN, negative, unlit, occluded, clipped),
         ``n_grazing`` (valid but beyond the angle limit of eq. 14), and for each model
         ``*_rho_s``, ``*_m``/``*_exponent``, ``*_error``, ``*_flag`` and the standard errors
-        ``*_rho_s_std``, ``*_m_std``/``*_exponent_std`` (σ² (JᵀJ)⁻¹ of the fit).
+        ``*_rho_s_std``, ``*_m_std``/``*_exponent_std`` (robust HC3 standard errors of the fit).
     """
     st = settings or FitSettings()
     if lt.n <= PIECE:

@@ -58,8 +58,8 @@ class FitSettings:
         Relative index of refraction, in [1, 3].
     engine : {"numba", "numpy"}
         Implementation of the hot loops (:mod:`facestats.model.fitting.engine`): compiled
-        kernels or pure numpy, same results to float32 rounding.  Default: ``$FACESTATS_ENGINE``,
-        else numba when it imports.
+        kernels or pure numpy, close but not bit-identical results.  Default:
+        ``$FACESTATS_ENGINE``, else numba when it imports.
     """
 
     discard: int = 2
@@ -125,5 +125,6 @@ LUMITEXEL_OUTPUTS = (
 #: Prefix of each specular model's outputs, and the (ρs, lobe, error) maps of each prefix.
 MODEL_PREFIX = {"torrance_sparrow": "ts", "blinn_phong": "bp"}
 MAP_VARS = {"ts": ("ts_rho_s", "ts_m", "ts_error"), "bp": ("bp_rho_s", "bp_exponent", "bp_error")}
-#: The standard-error maps (ρs, lobe) of each prefix: σ² (JᵀJ)⁻¹ of the eq. 14 fit.
+#: The standard-error maps (ρs, lobe) of each prefix: robust HC3 standard errors of the eq. 14 fit
+#: (:mod:`facestats.model.fitting.uncertainty`).
 STD_VARS = {"ts": ("ts_rho_s_std", "ts_m_std"), "bp": ("bp_rho_s_std", "bp_exponent_std")}

@@ -4,10 +4,13 @@ Each kernel does the per-sample work of one numpy function of the fit in a
 single pass over every lumitexel's contiguous run of samples (see
 :mod:`facestats.model.fitting.samples`), while the run sits in the CPU cache:
 
-* :mod:`~facestats.model.fitting.kernels.grid` — the dome grid flattened into
-  valid samples (:meth:`facestats.model.fitting.Samples.from_grid`), and sums
-  and arg-extrema over runs (photometric stereo's per-camera sums,
-  micro-normals, the stable minimum of eq. 9);
+* :mod:`~facestats.model.fitting.kernels.samples` — the dome grid flattened into
+  valid samples (:meth:`facestats.model.fitting.Samples.from_grid`) and the
+  per-sample cosines;
+* :mod:`~facestats.model.fitting.kernels.runs` — sums and arg-extrema over runs
+  (photometric stereo's per-camera sums, micro-normals, the stable minimum of eq. 9);
+* :mod:`~facestats.model.fitting.kernels.factors` — the specular factors of the
+  samples that enter eq. 14;
 * :mod:`~facestats.model.fitting.kernels.lm` — the bounded Levenberg-Marquardt
   solve of eq. 14 (:mod:`facestats.model.fitting.solver`), texel by texel;
 * :mod:`~facestats.model.fitting.kernels.fastexp` — the exponential of the

@@ -1,11 +1,12 @@
 """``notebooks/relighting.ipynb`` runs at small size: a store subject relit under three probes and rotated,
 compression error against ratio, separation maps, a novel view and shadow maps."""
 
+import os
 import re
 
 import pytest
 
-from tests.helpers import NOTEBOOKS, assert_no_errors, cell_text, execute, read_committed, shows_figure, tagged
+from tests.helpers import NOTEBOOKS, TEST_DATA, assert_no_errors, cell_text, execute, read_committed, shows_figure, tagged
 
 NOTEBOOK = NOTEBOOKS / "relighting.ipynb"
 FIGURES = ("stage", "relit", "compression", "separation", "novel")
@@ -14,7 +15,15 @@ FIGURES = ("stage", "relit", "compression", "separation", "novel")
 @pytest.fixture(scope="module")
 def executed(tmp_path_factory):
     workdir = tmp_path_factory.mktemp("notebook")
-    return execute(NOTEBOOK, workdir), workdir
+    before = os.environ.get("FACESTATS_PROBES")
+    os.environ["FACESTATS_PROBES"] = str(TEST_DATA / "polyhaven-probes")  # the kernel runs in the temporary workdir
+    try:
+        return execute(NOTEBOOK, workdir), workdir
+    finally:
+        if before is None:
+            del os.environ["FACESTATS_PROBES"]
+        else:
+            os.environ["FACESTATS_PROBES"] = before
 
 
 def test_committed_notebook_is_valid_small_and_has_no_outputs():

@@ -31,6 +31,7 @@ answers a trigger only after the exposure time.
 
 from __future__ import annotations
 
+import abc
 import os
 import re
 import select
@@ -67,8 +68,11 @@ def _request_id(line: bytes) -> int:
     return int(m.group(1)) % 2**31 if m else 0
 
 
-class EmulatedDevice:
-    """Firmware shared by the emulated controllers: framing, the request-id cache, ``? ver st x reboot``."""
+class EmulatedDevice(abc.ABC):
+    """Firmware shared by the emulated controllers: framing, the request-id cache, ``? ver st x reboot``.
+
+    A device (:class:`DomeDevice`, :class:`SensorDevice`) supplies :meth:`status` and :meth:`_off`.
+    """
 
     kind = ""
 
@@ -99,8 +103,9 @@ class EmulatedDevice:
         """What the watchdog does after a long silence: lights off."""
         self._off()
 
+    @abc.abstractmethod
     def status(self) -> str:
-        raise NotImplementedError
+        """The ``st`` reply: the device's state as ``key=value`` words."""
 
     def boot(self) -> bytes:
         """Power up: state reset, sequence numbers restart, the ``BOOT`` frame."""
@@ -141,8 +146,9 @@ class EmulatedDevice:
     def _help(self):
         return " ".join(sorted(self.commands))
 
+    @abc.abstractmethod
     def _off(self):
-        raise NotImplementedError
+        """The ``x`` command: every light off."""
 
     def _reboot(self):
         self.reboot_requested = True

@@ -306,10 +306,23 @@ def read_committed(path):
     return nb
 
 
-def execute(path, workdir):
-    """The notebook at ``path`` after running every cell with ``workdir`` as the working directory."""
+def execute(path, workdir, env=None):
+    """The notebook at ``path`` after running every cell with ``workdir`` as the working directory.
+
+    ``env`` (name -> value) is set for the kernel, which inherits this process's environment, and
+    restored afterwards.
+    """
     nb = nbformat.read(path, as_version=4)
-    NotebookClient(nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(workdir)}}).execute()
+    before = {name: os.environ.get(name) for name in env or {}}
+    os.environ.update({name: str(value) for name, value in (env or {}).items()})
+    try:
+        NotebookClient(nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(workdir)}}).execute()
+    finally:
+        for name, value in before.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
     return nb
 
 

@@ -1,6 +1,5 @@
 """``notebooks/microstructure.ipynb`` runs at small size: Fig. 11/12, the strain of a smile, before/after normals."""
 
-import os
 import re
 
 import pytest
@@ -16,15 +15,8 @@ FIGURES = ("fig12", "fit-landscape", "table-fit", "strain", "before-after")
 @pytest.fixture(scope="module")
 def executed(tmp_path_factory):
     workdir = tmp_path_factory.mktemp("notebook")
-    before = os.environ.get("ICT_FACEKIT")
-    os.environ["ICT_FACEKIT"] = str(TEST_DATA / "ict-facekit")  # the kernel runs in the temporary workdir
-    try:
-        return execute(NOTEBOOK, workdir), workdir
-    finally:
-        if before is None:
-            del os.environ["ICT_FACEKIT"]
-        else:
-            os.environ["ICT_FACEKIT"] = before
+    env = {"ICT_FACEKIT": TEST_DATA / "ict-facekit"}  # the kernel runs in the temporary workdir
+    return execute(NOTEBOOK, workdir, env=env), workdir
 
 
 def test_committed_notebook_is_valid_small_and_has_no_outputs():

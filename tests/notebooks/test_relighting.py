@@ -1,7 +1,6 @@
 """``notebooks/relighting.ipynb`` runs at small size: a store subject relit under three probes and rotated,
 compression error against ratio, separation maps, a novel view and shadow maps."""
 
-import os
 import re
 
 import pytest
@@ -15,15 +14,8 @@ FIGURES = ("stage", "relit", "compression", "separation", "novel")
 @pytest.fixture(scope="module")
 def executed(tmp_path_factory):
     workdir = tmp_path_factory.mktemp("notebook")
-    before = os.environ.get("FACESTATS_PROBES")
-    os.environ["FACESTATS_PROBES"] = str(TEST_DATA / "polyhaven-probes")  # the kernel runs in the temporary workdir
-    try:
-        return execute(NOTEBOOK, workdir), workdir
-    finally:
-        if before is None:
-            del os.environ["FACESTATS_PROBES"]
-        else:
-            os.environ["FACESTATS_PROBES"] = before
+    env = {"FACESTATS_PROBES": TEST_DATA / "polyhaven-probes"}  # the kernel runs in the temporary workdir
+    return execute(NOTEBOOK, workdir, env=env), workdir
 
 
 def test_committed_notebook_is_valid_small_and_has_no_outputs():

@@ -542,6 +542,10 @@ class PtyServer:
     def _disconnect(self, n):
         self.injected["disconnect"] += 1
         self.log(f"fault: line dropped after command {n}; back in {self.reconnect_delay:g} s")
+        # The cable is out: the link goes first, or a client could open the closed pty's name after the
+        # kernel has handed it to another process's pty.
+        if self.link and os.path.islink(self.link):
+            os.unlink(self.link)
         self._close()
         time.sleep(self.reconnect_delay)
         if not self._stop.is_set():

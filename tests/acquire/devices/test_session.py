@@ -1,6 +1,7 @@
 """Capture sessions against the emulated devices over a real pty: full sequences, faults, resume, refusals."""
 
 import json
+import os
 import shutil
 import time
 
@@ -269,6 +270,8 @@ def test_a_disconnect_that_outlasts_the_link_ends_the_run_and_resume_completes(s
             run_capture(server, tmp_path / "lab", tmp_path / "hot", tmp_path / "out",
                         link_options={"reconnect_timeout": 0.5})  # fmt: skip
         assert not (tmp_path / "out" / "manifest.json").exists()
+        # While the cable is out the link is gone: its old pty name may already belong to another process's pty.
+        assert not os.path.lexists(tmp_path / "tty")
         for _ in range(1000):  # the cable is plugged back in
             if (tmp_path / "tty").exists():
                 break

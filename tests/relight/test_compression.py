@@ -56,5 +56,9 @@ def test_exact_at_full_rank_and_identical_from_zarr_tiles(field, tmp_path):
     write_field(tmp_path / "f.zarr", field, tile=5)
     a = cmp.compress(field, rank=6, clusters=3, seed=2)
     b = cmp.compress(open_field(tmp_path / "f.zarr"), rank=6, clusters=3, seed=2)
-    assert np.allclose(a.relight(lw), b.relight(lw), rtol=1e-5, atol=1e-8)
+    # float32 products sum in an order that depends on the block width (the BLAS kernel), so tiles and the
+    # whole differ by rounding (observed 1.5e-7 in the coefficients, 8e-7 of a peak of 2.1 in the image);
+    # a misplaced tile or weight would differ by O(1).
+    ya, yb = a.relight(lw), b.relight(lw)
+    assert np.allclose(ya, yb, rtol=1e-5, atol=1e-6 * np.abs(ya).max())
     assert np.allclose(a.relight(probe=sky_probe(32)), a.relight(lw), rtol=1e-6)

@@ -46,7 +46,9 @@ def test_fields_on_disk_are_relit_tile_by_tile_identically(tmp_path):
     g = fld.open_field(path)
     assert g["reflectance"].chunks is not None
     lw = lighting_for(f, sky_probe(16))
-    assert np.allclose(relight(g, lw), relight(f, lw), rtol=1e-6, atol=1e-9)
+    # Same sums over the lights in float32; the BLAS kernel's order depends on the block width, so tiles and
+    # the whole agree to rounding (≤ L·u ≈ 1e-4 relative in the worst case; 2e-6 observed), not bit for bit.
+    assert np.allclose(relight(g, lw), relight(f, lw), rtol=1e-5, atol=1e-9)
 
 
 def test_clothing_tint_is_an_additive_linear_term():

@@ -10,17 +10,15 @@ benchmark can never measure data that an older version of the code produced.
 
 from __future__ import annotations
 
-import functools
-import hashlib
 import json
 import os
 import pathlib
 import shutil
 import tempfile
 
-import facestats
+from facestats.core.version import source_fingerprint
 
-__all__ = ["bench_dir", "code_fingerprint", "cached_input"]
+__all__ = ["bench_dir", "cached_input"]
 
 
 def bench_dir() -> pathlib.Path:
@@ -30,17 +28,6 @@ def bench_dir() -> pathlib.Path:
     )
     root.mkdir(parents=True, exist_ok=True)
     return root
-
-
-@functools.lru_cache(maxsize=1)
-def code_fingerprint() -> str:
-    """SHA-256 of the facestats sources (relative path and content of every ``.py``, in sorted order)."""
-    package = pathlib.Path(facestats.__file__).resolve().parent
-    h = hashlib.sha256()
-    for path in sorted(package.rglob("*.py")):
-        h.update(str(path.relative_to(package)).encode())
-        h.update(path.read_bytes())
-    return h.hexdigest()
 
 
 def cached_input(name: str, params: dict, make, *, rebuild: bool = False):
@@ -65,7 +52,7 @@ def cached_input(name: str, params: dict, make, *, rebuild: bool = False):
     """
     root = bench_dir()
     path, key_file = root / name, root / f"{name}.key.json"
-    key = {"code": code_fingerprint(), "params": params}
+    key = {"code": source_fingerprint(), "params": params}
     if not rebuild and path.exists() and key_file.exists():
         try:
             if json.loads(key_file.read_text()) == key:

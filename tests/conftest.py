@@ -19,9 +19,17 @@ def rng():
 END_TO_END = ("tests/notebooks/", "tests/cli/", "tests/reliability/", "tests/web/test_browser.py")
 
 
+#: Modules with one test of minutes: run first, so that under ``-n 2`` the other worker's queue fills
+#: the time instead of the suite waiting for a long test that started last (order within a module kept).
+LONG_FIRST = ("tests/pipeline/test_default_store.py", "tests/reliability/test_build_workers.py")
+
+
 def pytest_collection_modifyitems(config, items):
     root = str(config.rootpath) + os.sep
+    rank = {}
     for item in items:
         rel = str(item.path).removeprefix(root).replace(os.sep, "/")
         if rel.startswith(END_TO_END):
             item.add_marker(pytest.mark.slow)
+        rank[item.nodeid] = 0 if rel in LONG_FIRST else 1
+    items.sort(key=lambda item: rank[item.nodeid])  # stable: the order within each group is kept

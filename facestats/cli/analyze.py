@@ -46,6 +46,8 @@ import json
 import sys
 import warnings
 
+from facestats.cli.options import add_store_option, open_store_option
+
 __all__ = ["add_analyze", "ACTIONS", "BATCH_ACTIONS"]
 
 #: Sub-actions of ``facestats analyze``.
@@ -174,10 +176,9 @@ def _emit(text, files):
 
 def _cmd_analyze(args) -> int:
     from facestats.errors import ValidationError
-    from facestats.io.store import open_store
 
     out = _out_dir(args.out)
-    with open_store(args.store) as store:
+    with open_store_option(args.store) as store:
         if args.action == "posterior":
             if args.population:
                 if args.subject or args.site:
@@ -206,12 +207,7 @@ def _cmd_analyze(args) -> int:
 
 # -- registration -----------------------------------------------------------------
 def _common(p, model=False):
-    p.add_argument(
-        "--store",
-        default=None,
-        metavar="PATH",
-        help="a store directory (X.zarr) or zip; default: the store embedded in facestats",
-    )
+    add_store_option(p)
     p.add_argument("--out", default=".", metavar="DIR", help="output directory (created if missing; default: .)")
     p.add_argument("--format", choices=("png", "svg"), default="png", help="figure format (default png)")
     if model:

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import os
 
+from facestats.cli.options import add_store_option, open_store_option, store_path_option
+
 __all__ = ["add_edit"]
 
 _DESCRIPTION = (
@@ -27,11 +29,11 @@ _DESCRIPTION = (
 
 
 def _common(p, images=True):
-    p.add_argument(
-        "--store",
-        default=None,
-        metavar="PATH",
-        help="store holding the subject and the targets (default: the store embedded in facestats)",
+    add_store_option(
+        p,
+        help="store holding the subject and the targets: a directory (X.zarr), a zip, or "
+        "texture-sample (six subjects with 512² maps for 7-level texture transfer, built once "
+        "into the cache); default: the store embedded in facestats",
     )
     p.add_argument(
         "--out-store",
@@ -103,15 +105,16 @@ def _open(args):
     from facestats.io.store import open_store
 
     if args.out_store:
-        return open_store(args.store), open_store(args.out_store, mode="a")
+        return open_store_option(args.store), open_store(args.out_store, mode="a")
     if args.store is None:
         raise StoreError(
             "the embedded default store is read-only: pass --out-store PATH (a directory store, created if "
             "missing) for the edited subject"
         )
-    if os.path.isfile(args.store):
+    path = store_path_option(args.store)
+    if os.path.isfile(path):
         raise StoreError(f"store {args.store} is a read-only zip store: pass --out-store PATH for the edited subject")
-    store = open_store(args.store, mode="r+")
+    store = open_store(path, mode="r+")
     return store, store
 
 
@@ -219,10 +222,9 @@ def _cmd_texture(args) -> int:
 def _cmd_stats(args) -> int:
     from facestats.edit.statistics import statistics_path
     from facestats.edit.subjects import subject_texture_statistics
-    from facestats.io.store import open_store
 
     statistics_path(args.out)  # checked before the work
-    with open_store(args.store) as store:
+    with open_store_option(args.store) as store:
         stats = subject_texture_statistics(
             store, args.subject, regions=args.regions, levels=args.levels, bins=args.bins
         )
@@ -337,10 +339,9 @@ def add_edit(sub) -> None:
     _regions_arg(a, "regions to analyse, 1-10 or names (default: the face)")
     a.add_argument("--levels", type=int, default=None, help="pyramid levels (default: the most the map supports, <= 7)")
     a.add_argument("--bins", type=int, default=256, help="histogram bins (default 256)")
-    a.add_argument(
-        "--store",
-        default=None,
-        metavar="PATH",
-        help="store holding the subject (default: the store embedded in facestats)",
+    add_store_option(
+        a,
+        help="store holding the subject (a directory, a zip or texture-sample); default: the "
+        "store embedded in facestats",
     )
     a.set_defaults(func=_cmd_stats)

@@ -5,7 +5,7 @@ Parses, calls :func:`facestats.io.subject_export.export_subject` and prints what
 
 from __future__ import annotations
 
-from facestats.cli.options import add_store_option
+from facestats.cli.options import add_store_option, store_path_option
 
 __all__ = ["add_export_subject"]
 
@@ -17,7 +17,7 @@ def _cmd_export_subject(args) -> int:
         args.subject_id,
         args.out,
         args.format,
-        store=args.store,
+        store=store_path_option(args.store),
         overwrite=args.overwrite,
         mesh=args.mesh,
         mesh_format=args.mesh_format,

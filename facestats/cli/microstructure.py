@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from facestats.cli.options import store_path_option
+
 __all__ = ["add_microstructure"]
 
 
@@ -33,7 +35,12 @@ def _cmd_generate(args) -> int:
     from facestats.pipeline.microstructure import generate_neutral_map
 
     path = generate_neutral_map(
-        args.out, args.size, texel_um=args.texel_um, subject=args.subject, store=args.store, seed=args.seed
+        args.out,
+        args.size,
+        texel_um=args.texel_um,
+        subject=args.subject,
+        store=store_path_option(args.store),
+        seed=args.seed,
     )
     print(f"wrote {path}")
     return 0

@@ -17,7 +17,7 @@ import math
 import os
 import pathlib
 
-from facestats.cli.options import add_store_option
+from facestats.cli.options import add_store_option, open_store_option
 
 __all__ = ["add_relight"]
 
@@ -35,7 +35,6 @@ def _lights(text):
 def _cmd_relight(args) -> int:
     import numpy as np
 
-    import facestats
     from facestats.errors import ValidationError
     from facestats.io.images import write_image
     from facestats.io.probes import read_light_probe
@@ -62,7 +61,7 @@ def _cmd_relight(args) -> int:
         from facestats.relight.camera import stage_camera
         from facestats.relight.stage import relight_subject
 
-        with facestats.open_store(args.store) as store:
+        with open_store_option(args.store) as store:
             subject = store.subject(args.source).load()
         camera = stage_camera(args.azimuth, args.elevation, size=args.size)
         image, mask = relight_subject(subject, probe, layout=args.layout, rotate=rotate, camera=camera,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 
-from facestats.cli.options import add_store_option
+from facestats.cli.options import add_store_option, open_store_option
 
 __all__ = ["add_render"]
 
@@ -16,11 +16,10 @@ def _cmd_render(args) -> int:
     matplotlib.use("Agg")
     from facestats.acquire.capture import open_capture
     from facestats.io.images import write_image
-    from facestats.io.store import open_store
     from facestats.io.subject_export import store_subject
     from facestats.pipeline.validation import default_capture, render_led, render_probe
 
-    with open_store(args.store) as st:
+    with open_store_option(args.store) as st:
         ds = store_subject(st, args.subject_id)
     cap = open_capture(args.capture) if args.capture else default_capture(args.subject_id)
     if args.probe:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 import sys
 
-from facestats.cli.options import add_store_option
+from facestats.cli.options import add_store_option, open_store_option
 
 __all__ = ["add_query", "add_info", "add_validate", "add_export", "add_import_merl"]
 
@@ -22,9 +22,8 @@ def _can_encode(text: str) -> bool:
 
 
 def _cmd_query(args) -> int:
-    from facestats.io.store import open_store
 
-    with open_store(args.store) as store:
+    with open_store_option(args.store) as store:
         result = store.query(
             skin_type=args.skin_type, gender=args.gender, age=args.age, condition=args.condition, region=args.region
         )
@@ -82,9 +81,8 @@ def _fmt_bytes(n: int) -> str:
 
 
 def _cmd_info(args) -> int:
-    from facestats.io.store import open_store
 
-    with open_store(args.store) as store:
+    with open_store_option(args.store) as store:
         info = store.info()
     if args.format == "json":
         print(json.dumps(info, indent=2))
@@ -121,7 +119,6 @@ def add_info(sub):
 
 def _cmd_validate(args) -> int:
     from facestats.errors import StoreError
-    from facestats.io.store import open_store
 
     if args.repair and args.purge:
         raise StoreError("--repair and --purge are separate steps: run one, check the result, then the other")
@@ -129,7 +126,7 @@ def _cmd_validate(args) -> int:
         raise StoreError("--yes and --allow-missing go with --repair (or --yes with --purge)")
     writes = (args.repair or args.purge) and args.yes
     try:
-        store = open_store(args.store, mode="r+" if writes else "r")
+        store = open_store_option(args.store, mode="r+" if writes else "r")
     except StoreError as exc:  # includes SchemaError: an unopenable store is invalid
         print(f"problem: {exc}\nstore is INVALID (1 problem(s))")
         return 1
@@ -192,10 +189,9 @@ def add_validate(sub):
 
 def _cmd_export(args) -> int:
     from facestats.io.export import export_statistics
-    from facestats.io.store import open_store
 
     formats = ("csv", "json") if args.format == "both" else (args.format,)
-    with open_store(args.store) as store:
+    with open_store_option(args.store) as store:
         files = export_statistics(store, args.out, formats=formats)
         n = len(store)
     print(f"exported the statistics of {n} subjects:")

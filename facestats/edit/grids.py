@@ -77,7 +77,9 @@ def padded_shape(shape, levels):
     if levels > max_levels(padded):
         raise ValidationError(
             f"levels must be at most {max_levels(padded)} for a map of shape {tuple(shape)} "
-            f"(the low-pass residual needs at least 4 pixels a side), got {levels}"
+            f"(the low-pass residual needs at least 4 pixels a side), got {levels}; the paper's 7 levels need "
+            "maps of at least 256 x 256, e.g. those of the texture sample (512 x 512: --store texture-sample, "
+            "facestats.pipeline.texture_sample)"
         )
     return padded
 

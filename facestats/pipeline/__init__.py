@@ -30,6 +30,8 @@ Modules, one job each:
 * :mod:`~facestats.pipeline.microstructure` — dynamic skin microstructure of a mesh sequence
   (Nagano et al. 2015), streamed to zarr/EXR, resumable;
 * :mod:`~facestats.pipeline.photographs` — a folder of dome photographs to a fitted subject in a store.
+* :mod:`~facestats.pipeline.texture_sample` — six population subjects at 512² (generator truth) for
+  7-level texture transfer, built once into the user's cache.
 """
 
 from facestats.pipeline.lumitexels import fit_lumitexels

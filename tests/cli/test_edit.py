@@ -138,3 +138,20 @@ def test_errors_exit_2_with_clear_messages(pop, tmp_path):
     assert r.returncode == 2 and "skin-type" in r.stdout
     with open_store(pop) as st:  # failed edits wrote nothing
         assert not [s for s in st.ids() if s.startswith("F3.brdf")]
+
+
+def test_the_papers_seven_levels_from_a_fresh_install_with_the_texture_sample(tmp_path):
+    env = {"FACESTATS_CACHE_DIR": str(tmp_path / "cache")}
+    common = ("--out-store", tmp_path / "out.zarr", "--images", tmp_path / "img", "--seed", "1")
+    r = run_cli("edit", "texture", "S001", "--target", "S030", "--levels", "7", *common, env=env)
+    assert r.returncode == 2 and "levels must be at most 5" in r.stderr and "--store texture-sample" in r.stderr
+    assert not (tmp_path / "cache").exists()  # the default store's error builds nothing
+    args = ("edit", "texture", "S001", "--target", "S030", "--levels", "7", "--store", "texture-sample", "--id", "T7")
+    r = run_cli(*args, *common, env=env)
+    assert r.returncode == 0, r.stderr
+    assert "building the texture sample" in r.stderr and "levels=7" in r.stdout
+    with open_store(tmp_path / "out.zarr") as st:
+        ds = st.subject("T7")
+        assert ds["albedo"].shape == (512, 512, 3) and provenance(ds)["edit"]["parameters"]["levels"] == 7
+    r = run_cli("query", "--store", "texture-sample", "--skin-type", "VI", env=env)  # reused: built once
+    assert r.returncode == 0 and "building" not in r.stderr and "matching subjects: 1" in r.stdout, r.stdout + r.stderr

@@ -33,7 +33,7 @@ import re
 
 import numpy as np
 
-from facestats.errors import ValidationError
+from facestats.errors import DependencyError, ValidationError
 
 __all__ = [
     "HDR_EXTENSIONS",
@@ -225,6 +225,17 @@ def _stack_rgb(channels, p):
 
 
 # -- OpenEXR ---------------------------------------------------------------------------------
+def _openexr():
+    """The OpenEXR module, or :class:`DependencyError` saying how to install it (a broken environment)."""
+    try:
+        import OpenEXR
+    except ImportError as exc:
+        raise DependencyError(
+            f"the OpenEXR package is not installed (needed to read and write .exr files): pip install OpenEXR ({exc})"
+        ) from None
+    return OpenEXR
+
+
 def read_exr(path):
     """All channels of an EXR file and its string header attributes.
 
@@ -235,7 +246,7 @@ def read_exr(path):
     attributes : dict of str to str
         Header attributes whose values are strings.
     """
-    import OpenEXR
+    OpenEXR = _openexr()
 
     p = _path(path)
     try:
@@ -253,7 +264,7 @@ def write_exr(path, channels: dict, *, half: bool = False, attributes=None):
     ``half`` stores float channels as half floats; ``attributes`` are string header
     attributes.  Integer channels are stored as uint32.
     """
-    import OpenEXR
+    OpenEXR = _openexr()
 
     p = _path(path, must_exist=False)
     if not channels:

@@ -96,3 +96,30 @@ def test_a_store_that_cannot_be_opened_is_a_cli_error(tmp_path, capsys):
         create_app(bad)
     assert cli_main(["serve", "--store", str(bad), "--port", "0"]) == 2
     assert "facestats: error: store" in capsys.readouterr().err
+
+
+def test_missing_openexr_is_424_with_the_install_hint(client, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "OpenEXR", None)  # import OpenEXR now raises ImportError
+    r = client.get("/subject/S002/exr.zip")
+    assert r.status_code == 424  # an HTML page (not under /api/) with the CLI's text
+    assert b"facestats: error: the OpenEXR package is not installed" in r.data and b"pip install OpenEXR" in r.data
+    assert b"Traceback" not in r.data
+    assert client.get("/subject/S002/map/albedo.png").status_code == 200  # the rest of the app works
+
+
+def test_a_damaged_subject_is_409_and_the_others_still_serve(tmp_path):
+    import pathlib
+
+    from facestats.web import create_app
+    from tests.helpers import store_from_default
+
+    path = store_from_default(tmp_path / "damaged.zarr", ids=("S001", "S002"))
+    gen = next((pathlib.Path(path) / "subjects" / "S002").glob("g*"))
+    (gen / "albedo" / "c" / "0" / "0" / "0").unlink()  # a lost chunk
+    client = create_app(path, preload=False).test_client()
+    r = client.get("/api/subject/S002")
+    assert r.status_code == 409 and "variable 'albedo' does not match its checksum" in r.get_json()["error"]
+    assert b"Traceback" not in r.data
+    assert client.get("/api/subject/S001").status_code == 200

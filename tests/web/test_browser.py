@@ -118,7 +118,10 @@ def test_population_page_numbers_equal_cli_json_and_plots_render(driver, server,
         _, doc = _cli_json(store_path, "--skin-type", skin, *(["--gender", gender] if gender else []), capsys=capsys)
         assert driver.find_element(By.TAG_NAME, "body").get_attribute("data-count") == str(doc["count"])
         cells = driver.find_elements(By.CSS_SELECTOR, "td[data-value]")
-        assert len(cells) >= 10 * 8 + 3 * 2 + 9
+        assert len(cells) >= 10 * 12 + 3 * 2 + 9
+        # Within-subject uncertainty beside the between-subject spread: every region and BRDF parameter.
+        se = driver.find_elements(By.CSS_SELECTOR, "td[data-key$='.mean_se'][data-value]")
+        assert len(se) == 10 * 4 and all(float(c.get_attribute("data-value")) > 0 for c in se)
         for cell in cells:
             expected = _lookup(doc, cell.get_attribute("data-key"))
             assert float(cell.get_attribute("data-value")) == expected  # exactly the CLI's number

@@ -153,13 +153,19 @@ function fillTables(doc) {
   rt.replaceChildren();
   const head = el("tr");
   head.append(el("th", {}, "region"));
-  for (const p of ["ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent"]) head.append(el("th", {}, p + " mean"), el("th", {}, p + " std"));
+  // Between-subject spread (std of the subjects' region means) beside the within-subject uncertainty
+  // (the fit's standard error of a subject's region mean, RMS over the subjects; absent without std maps).
+  for (const p of ["ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent"]) {
+    head.append(el("th", {}, p + " mean"), el("th", { title: "between subjects" }, p + " std"),
+      el("th", { title: "fit standard error of a subject's region mean (within subject)" }, p + " se"));
+  }
   rt.appendChild(head);
   for (const r of doc.regions) {
     const tr = el("tr");
     tr.append(el("th", {}, r.region + " " + r.name));
     for (const p of ["ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent"]) {
-      tr.append(valueCell("regions." + r.region + "." + p + ".mean", r[p].mean), valueCell("regions." + r.region + "." + p + ".std", r[p].std));
+      tr.append(valueCell("regions." + r.region + "." + p + ".mean", r[p].mean), valueCell("regions." + r.region + "." + p + ".std", r[p].std),
+        valueCell("regions." + r.region + "." + p + ".mean_se", r[p].mean_se));
     }
     rt.appendChild(tr);
   }

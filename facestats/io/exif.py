@@ -22,10 +22,10 @@ from __future__ import annotations
 
 import os
 import struct
-import zlib
 from fractions import Fraction
 
 from facestats.errors import FormatError
+from facestats.io.png import PNG_SIGNATURE, png_chunk
 
 __all__ = ["read_exif", "parse_exif", "read_exposure_time", "exif_payload", "embed_exif", "EXIF_TAGS"]
 
@@ -142,7 +142,7 @@ def parse_exif(data: bytes, name: str = "<bytes>") -> dict:
             base = _jpeg_app1(data)
         elif data[:4] in (b"II*\0", b"MM\0*"):
             base = 0
-        elif data[:8] == b"\x89PNG\r\n\x1a\n":
+        elif data[:8] == PNG_SIGNATURE:
             base = _png_exif(data)
         else:
             raise FormatError(f"{name} is not a JPEG, TIFF or PNG file (no EXIF reader for it)")
@@ -213,12 +213,10 @@ def embed_exif(encoded: bytes, payload: bytes) -> bytes:
 
     PNG: an ``eXIf`` chunk after ``IHDR``; JPEG: an APP1 ``Exif`` segment after SOI.
     """
-    if encoded[:8] == b"\x89PNG\r\n\x1a\n":
+    if encoded[:8] == PNG_SIGNATURE:
         (ihdr_len,) = struct.unpack(">I", encoded[8:12])
         cut = 8 + 12 + ihdr_len
-        chunk = struct.pack(">I", len(payload)) + b"eXIf" + payload
-        chunk += struct.pack(">I", zlib.crc32(chunk[4:]) & 0xFFFFFFFF)
-        return encoded[:cut] + chunk + encoded[cut:]
+        return encoded[:cut] + png_chunk(b"eXIf", payload) + encoded[cut:]
     if encoded[:2] == b"\xff\xd8":
         body = b"Exif\0\0" + payload
         return encoded[:2] + b"\xff\xe1" + struct.pack(">H", len(body) + 2) + body + encoded[2:]

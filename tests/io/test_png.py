@@ -1,0 +1,66 @@
+"""The PNG writer: any decoder reads back the exact samples; chunks are well formed."""
+
+import struct
+import zlib
+
+import cv2
+import numpy as np
+import pytest
+
+from facestats.errors import ValidationError
+from facestats.io.exif import exif_payload, parse_exif
+from facestats.io.png import PNG_SIGNATURE, encode_png, png_chunk
+
+
+def _chunks(data):
+    """[(type, data)] of a PNG file, every CRC checked."""
+    assert data[:8] == PNG_SIGNATURE
+    out, i = [], 8
+    while i < len(data):
+        (n,) = struct.unpack(">I", data[i : i + 4])
+        tag, body = data[i + 4 : i + 8], data[i + 8 : i + 8 + n]
+        (crc,) = struct.unpack(">I", data[i + 8 + n : i + 12 + n])
+        assert crc == zlib.crc32(tag + body) & 0xFFFFFFFF, tag
+        out.append((tag, body))
+        i += 12 + n
+    return out
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+@pytest.mark.parametrize("channels", [None, 1, 3, 4])
+def test_opencv_decodes_the_exact_samples(dtype, channels, rng):
+    shape = (37, 53) if channels is None else (37, 53, channels)
+    img = rng.integers(0, np.iinfo(dtype).max + 1, shape, dtype=dtype)
+    img[0, 0] = np.iinfo(dtype).max  # both byte halves of 16-bit samples matter
+    back = cv2.imdecode(np.frombuffer(encode_png(img), np.uint8), cv2.IMREAD_UNCHANGED)
+    want = img.reshape(37, 53) if channels in (None, 1) else img[..., [2, 1, 0, 3][:channels]]  # OpenCV: BGR(A)
+    assert back.dtype == dtype
+    np.testing.assert_array_equal(back, want)
+
+
+def test_layout_chunks_and_exif(rng):
+    codes = rng.integers(0, 4096, (16, 24, 3), dtype=np.uint16)
+    payload = exif_payload(1 / 8, make="facestats", model="test")
+    data = encode_png(codes[:, ::-1], chunks=[(b"eXIf", payload)])  # a non-contiguous view is fine
+    chunks = _chunks(data)
+    assert [t for t, _ in chunks] == [b"IHDR", b"eXIf", b"IDAT", b"IEND"]
+    assert struct.unpack(">IIBBBBB", chunks[0][1]) == (24, 16, 16, 2, 0, 0, 0)
+    rows = np.frombuffer(zlib.decompress(chunks[2][1]), np.uint8).reshape(16, 1 + 24 * 6)
+    assert np.all(rows[:, 0] == 0)  # filter type None on every row
+    np.testing.assert_array_equal(rows[:, 1:].view(">u2").reshape(16, 24, 3), codes[:, ::-1])
+    assert float(parse_exif(data)["ExposureTime"]) == pytest.approx(1 / 8)
+    assert png_chunk(b"IEND", b"") == b"\x00\x00\x00\x00IEND\xaeB`\x82"  # the constant every PNG ends with
+
+
+@pytest.mark.parametrize(
+    "image, kw, match",
+    [
+        (np.zeros((4, 4), np.float32), {}, "image must hold uint8 or uint16 samples, got dtype float32"),
+        (np.zeros((4, 4, 2), np.uint8), {}, r"image must have shape \(H, W\) or \(H, W, 1\|3\|4\), got \(4, 4, 2\)"),
+        (np.zeros((0, 4), np.uint8), {}, "image must have shape"),
+        (np.zeros((4, 4), np.uint8), {"level": 0}, "level must be an integer in"),
+    ],
+)
+def test_bad_input_names_the_field(image, kw, match):
+    with pytest.raises(ValidationError, match=match):
+        encode_png(image, **kw)

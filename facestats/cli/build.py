@@ -51,6 +51,7 @@ def _build_command(args) -> int:
             progress=not args.quiet,
             scheduler=args.scheduler,
             retries=args.retries,
+            face=args.face,
         )
     print(report.to_text())
     return 1 if report.failed else 0
@@ -95,6 +96,13 @@ def add_build(sub):
         "--size", type=int, default=DEFAULT_MAP_SIZE, help=f"UV map / lumitexel grid size (default {DEFAULT_MAP_SIZE})"
     )
     p.add_argument("--subjects", nargs="+", metavar="ID", help="only these subject ids")
+    p.add_argument(
+        "--face",
+        choices=("procedural", "ict"),
+        default="procedural",
+        help="the face the population lives on: the procedural head (default, as the embedded store) or ict, "
+        "the face area of ICT-FaceKit's neutral head (a real face, MIT licence)",
+    )
     p.add_argument("--no-conditions", action="store_true", help="leave out the subject measured under seven conditions")
     p.add_argument(
         "--specular",

@@ -51,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facestats.acquire.synthetic.face import procedural_face
+from facestats.acquire.synthetic.faces import FACES, face_geometry
 from facestats.acquire.synthetic.population import synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator
 from facestats.core.conventions import DEFAULT_MAP_SIZE, DEFAULT_SEED, SITES
@@ -192,19 +192,22 @@ class BuildReport:
         return "\n".join([text] + [f"  failed {sid}: {err}" for sid, err in sorted(self.failed.items())])
 
 
-def _simulator(map_size: int, specular: str):
+def _simulator(map_size: int, specular: str, face: str = "procedural"):
     """One simulator per process (shadow maps and geometry are reused across subjects)."""
-    key = (map_size, specular)
+    key = (map_size, specular, face)
     if key not in _WORKER_CACHE:
-        _WORKER_CACHE[key] = DomeSimulator(procedural_face(map_size), specular=specular)
+        _WORKER_CACHE[key] = DomeSimulator(face_geometry(face, map_size), specular=specular)
     return _WORKER_CACHE[key]
 
 
-def _population(seed: int, map_size: int, conditions: bool):
+def _population(seed: int, map_size: int, conditions: bool, face: str = "procedural"):
     """One population per process (drawn once, reused across subjects)."""
-    key = ("population", seed, map_size, conditions)
+    key = ("population", seed, map_size, conditions, face)
     if key not in _WORKER_CACHE:
-        _WORKER_CACHE[key] = synthesize_population(seed=seed, map_size=map_size, conditions=conditions)
+        geometry = face_geometry(face, map_size)
+        _WORKER_CACHE[key] = synthesize_population(
+            seed=seed, map_size=map_size, geometry=geometry, conditions=conditions
+        )
     return _WORKER_CACHE[key]
 
 
@@ -214,7 +217,7 @@ def _settings(micro_normals: bool):
     return FitSettings(micro_normals=micro_normals)
 
 
-def sensor_fits(population, map_size: int, specular: str = "torrance_sparrow"):
+def sensor_fits(population, map_size: int, specular: str = "torrance_sparrow", face: str = "procedural"):
     """Stage 6 for every subject from its simulated sensor profiles (the same draws as the full simulation).
 
     Returns
@@ -223,7 +226,7 @@ def sensor_fits(population, map_size: int, specular: str = "torrance_sparrow"):
         ``subject_id`` -> :class:`facestats.model.fitting.TranslucencyFit` of shape (site, channel).
     """
 
-    sim = _simulator(map_size, specular)
+    sim = _simulator(map_size, specular, face)
     out = {}
     for truth in population.subjects:  # loop over subjects; each fit is vectorised over sites and channels
         _, rng_sensor, _ = sim._streams(truth.seed, 1)
@@ -251,12 +254,13 @@ def _build_one(
     sensor_fit,
     micro_normals,
     keep_derived=True,
+    face="procedural",
 ):
     """Simulate, fit and store one subject (runs in a worker process)."""
 
-    pop = _population(seed, map_size, conditions)
+    pop = _population(seed, map_size, conditions, face)
     truth = pop[subject_id]
-    capture = _simulator(map_size, specular).simulate(truth)
+    capture = _simulator(map_size, specular, face).simulate(truth)
     ds = fit_subject(capture, sigma_tr_avg, _settings(micro_normals), sensor_fit=sensor_fit)
     if not keep_derived:
         ds = ds.drop_vars([v for v in DERIVED if v in ds.data_vars])
@@ -288,6 +292,7 @@ def build_store(
     progress: bool = False,
     scheduler: str | None = None,
     retries: int = 2,
+    face: str = "procedural",
 ) -> BuildReport:
     """Simulate and fit a synthetic population into a directory store (resumable).
 
@@ -297,7 +302,7 @@ def build_store(
         Directory store; created if missing.  Subjects it already holds are skipped.
     seed, map_size, conditions
         Population settings (:func:`facestats.acquire.synthetic.population.synthesize_population`);
-        ``map_size`` ≥ 8 is also the lumitexel grid of the procedural face.
+        ``map_size`` ≥ 8 is also the lumitexel grid of the face.
     specular : {"torrance_sparrow", "blinn_phong"}
         BRDF the simulator renders highlights with.
     subjects : sequence of str, optional
@@ -318,6 +323,9 @@ def build_store(
     retries : int
         Attempts after the first for a subject that fails (≥ 0); it is then reported in
         :attr:`BuildReport.failed` and the journal (``facestats build --status``).
+    face : {"procedural", "ict"}
+        The face the population lives on (:func:`facestats.acquire.synthetic.faces.face_geometry`):
+        the procedural head of the embedded default, or ICT-FaceKit's real face.
 
     Returns
     -------
@@ -325,6 +333,7 @@ def build_store(
     """
 
     check_integer(seed, "seed", 0)
+    check_choice(face, "face", FACES)
     check_integer(map_size, "map_size", 8)
     check_integer(retries, "retries", 0)
     store_path = store_directory(store_path)
@@ -340,7 +349,7 @@ def build_store(
     for sid in subjects or ():  # the id rule first: cheap, before the population is drawn
         check_subject_id(sid)
     t0 = time.perf_counter()
-    pop = _population(seed, map_size, conditions)
+    pop = _population(seed, map_size, conditions, face)
     wanted = [s.subject_id for s in pop.subjects] if subjects is None else list(subjects)
     ids = {t.subject_id for t in pop.subjects}
     unknown = [s for s in wanted if s not in ids]
@@ -348,9 +357,9 @@ def build_store(
         raise ValidationError(f"subjects must be ids of the population, got unknown {unknown[:5]}")
     store = open_store(store_path, mode="a")  # only now: bad arguments leave no empty store behind
     store.gc()  # the leftovers of a killed build, if any (never a live writer's data)
-    key = ("sensor_fits", seed, map_size, conditions, specular)
+    key = ("sensor_fits", seed, map_size, conditions, specular, face)
     if key not in _WORKER_CACHE:  # the same draws every time: computed once per process
-        _WORKER_CACHE[key] = sensor_fits(pop, map_size, specular)
+        _WORKER_CACHE[key] = sensor_fits(pop, map_size, specular, face)
     fits = _WORKER_CACHE[key]
     normal = [s.subject_id for s in pop.subjects if s.condition == "normal"]
     stra = population_sigma_tr_avg(np.stack([fits[s].sigma_tr for s in normal]), SITES)
@@ -358,7 +367,7 @@ def build_store(
     todo = [s for s in wanted if s not in present]
     skipped = [s for s in wanted if s in present]
     args = [
-        (str(store_path), seed, map_size, conditions, specular, sid, stra, fits[sid], micro_normals, keep_derived)
+        (str(store_path), seed, map_size, conditions, specular, sid, stra, fits[sid], micro_normals, keep_derived, face)
         for sid in todo
     ]
     own = connect(address) if address is not None else None

@@ -1,0 +1,89 @@
+"""The ICT-FaceKit face under the synthetic population: shipped mesh, lumitexels, regions, a build on it."""
+
+import json
+
+import numpy as np
+import pytest
+
+import facestats
+from facestats.acquire.synthetic.face import SITE_CENTRES
+from facestats.acquire.synthetic.faces import face_geometry
+from facestats.acquire.synthetic.ict_face import ICT_OFFSET_MM, ict_face, ict_face_mesh, ict_regions
+from facestats.errors import ValidationError
+from facestats.io.ict_facekit import read_ict_facekit
+from tests.helpers import TEST_DATA
+
+
+@pytest.fixture(scope="module")
+def face48():
+    return ict_face(48)
+
+
+def test_shipped_mesh_is_the_face_area_of_the_ict_facekit_sample():
+    mesh, _ = read_ict_facekit(TEST_DATA / "ict-facekit", expressions=[])
+    vertices, triangles, uv, uv_triangles = ict_face_mesh()
+    np.testing.assert_allclose(vertices - np.asarray(ICT_OFFSET_MM), mesh.vertices, atol=1e-5 * 165)  # float32
+    np.testing.assert_array_equal(triangles, mesh.triangles)
+    np.testing.assert_array_equal(uv_triangles, mesh.uv_triangles)
+    np.testing.assert_allclose(uv, mesh.uv, atol=1e-7)
+    assert vertices.shape == (9409, 3) and not vertices.flags.writeable
+
+
+def test_lumitexels_lie_on_the_mesh_facing_out(face48):
+    g = face48
+    assert 850 < g.n_points < 1100 and g.name == "ict-48" and g.meta["kind"] == "ict-facekit"
+    assert np.all(np.abs(np.linalg.norm(g.normal, axis=1) - 1) < 1e-9)
+    assert np.all(np.einsum("kd,kd->k", g.normal, g.position) > 0)  # outward from the head's centre
+    assert g.normal[np.argmax(g.position[:, 2])][2] > 0.9  # the nose tip looks at the frontal camera
+    # On the mesh: every lumitexel is within a hair of a vertex-interpolated point (its nearest vertex < 5 mm).
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(ict_face_mesh()[0]).query(g.position)
+    assert d.max() < 5.0
+    texels = g.grid_index
+    assert np.array_equal(g.region, g.region_map[texels[:, 0], texels[:, 1]])
+
+
+def test_texel_areas_integrate_the_surface():
+    # The area a texel represents is the triangle's 3-D area over its UV area: the face's total converges.
+    a96, a192 = ict_face(96).area.sum(), ict_face(192).area.sum()
+    assert abs(a96 / a192 - 1) < 0.02
+    assert 250e2 < a192 < 450e2  # an adult face: 250-450 cm²
+
+
+def test_regions_follow_fig_15(face48):
+    g = ict_face(48, map_size=256)
+    counts = np.bincount(g.region_map.ravel(), minlength=11)
+    assert np.all(counts[1:] > 0)  # all ten regions painted
+    assert counts[7] == max(counts[1:])  # cheeks are the largest region
+    # Left-right symmetric labels: mirror texels (u -> 1 - u) carry the same region almost everywhere.
+    assert np.mean(g.region_map == g.region_map[:, ::-1]) > 0.97
+    # The contact-sensor sites lie in their regions.
+    assert ict_regions(*SITE_CENTRES["cheek"]) == 7 and ict_regions(*SITE_CENTRES["forehead"]) == 2
+    # Above the eyes forehead, below the mouth chin.
+    assert ict_regions(0.0, 80.0) == 2 and ict_regions(0.0, -64.0) == 9 and ict_regions(0.0, -34.0) == 8
+    assert ict_regions(0.0, -150.0) == 0  # the neck is not face
+
+
+def test_faces_by_name():
+    assert face_geometry("ict", 16).name == "ict-16"
+    assert face_geometry("procedural", 16).name == "procedural-16"
+    with pytest.raises(ValidationError, match="face must be one of"):
+        face_geometry("mannequin", 16)
+
+
+@pytest.mark.slow
+def test_a_population_builds_and_fits_on_the_real_face(tmp_path):
+    from facestats.acquire.synthetic.population import synthesize_population
+    from facestats.pipeline.build import build_store
+
+    report = build_store(tmp_path / "ict.zarr", map_size=24, subjects=["S001"], workers=1, conditions=False, face="ict")
+    assert report.written == ["S001"] and not report.failed
+    with facestats.open_store(tmp_path / "ict.zarr") as st:
+        ds = st.subject("S001")
+    np.testing.assert_array_equal(ds["region"].values, ict_face(24).region_map)
+    assert json.loads(ds.attrs["provenance"])["capture_provenance"]["geometry"] == "ict-24"
+    truth = synthesize_population(map_size=24, geometry=ict_face(24), conditions=False, subjects=["S001"])["S001"]
+    face = ds["region"].values > 0
+    rel = np.abs(ds["albedo"].values[face] / truth.albedo[face] - 1)
+    assert np.median(rel) < 0.02  # the fit recovers the truth on the real face as on the procedural one

@@ -19,9 +19,8 @@ def rng():
 END_TO_END = ("tests/notebooks/", "tests/cli/", "tests/reliability/", "tests/web/test_browser.py")
 
 
-#: Modules with one test of minutes: run first, so that under ``-n 2`` (``--dist loadscope``: whole
-#: modules per worker) the other worker's queue fills the time instead of the suite waiting for a long
-#: test that started last (order within a module kept).
+#: Modules with one test of minutes: run first, so that under ``-n 2`` the other worker's queue fills
+#: the time instead of the suite waiting for a long test that started last (order within a module kept).
 LONG_FIRST = ("tests/pipeline/test_default_store.py", "tests/reliability/test_build_workers.py")
 
 

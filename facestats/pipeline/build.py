@@ -192,11 +192,19 @@ class BuildReport:
         return "\n".join([text] + [f"  failed {sid}: {err}" for sid, err in sorted(self.failed.items())])
 
 
+def _geometry(map_size: int, face: str):
+    """One face geometry per process, shared by the simulator and the population."""
+    key = ("geometry", map_size, face)
+    if key not in _WORKER_CACHE:
+        _WORKER_CACHE[key] = face_geometry(face, map_size)
+    return _WORKER_CACHE[key]
+
+
 def _simulator(map_size: int, specular: str, face: str = "procedural"):
     """One simulator per process (shadow maps and geometry are reused across subjects)."""
     key = (map_size, specular, face)
     if key not in _WORKER_CACHE:
-        _WORKER_CACHE[key] = DomeSimulator(face_geometry(face, map_size), specular=specular)
+        _WORKER_CACHE[key] = DomeSimulator(_geometry(map_size, face), specular=specular)
     return _WORKER_CACHE[key]
 
 
@@ -204,9 +212,8 @@ def _population(seed: int, map_size: int, conditions: bool, face: str = "procedu
     """One population per process (drawn once, reused across subjects)."""
     key = ("population", seed, map_size, conditions, face)
     if key not in _WORKER_CACHE:
-        geometry = face_geometry(face, map_size)
         _WORKER_CACHE[key] = synthesize_population(
-            seed=seed, map_size=map_size, geometry=geometry, conditions=conditions
+            seed=seed, map_size=map_size, geometry=_geometry(map_size, face), conditions=conditions
         )
     return _WORKER_CACHE[key]
 

@@ -106,7 +106,7 @@ def texture_sample_datasets(*, size: int = TEXTURE_SAMPLE_SIZE, subjects=TEXTURE
                 "seed": int(seed),
                 "map_size": int(size),
                 "geometry": "procedural face",
-                "features": {k: v for k, v in truth.features.items()},
+                "features": dict(truth.features),
                 "software": f"facestats {__version__}",
             },
             sort_keys=True,

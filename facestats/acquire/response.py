@@ -62,12 +62,11 @@ known.
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
+from facestats.acquire.merge_kernel import log_radiance
 from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.errors import ValidationError
 
@@ -83,10 +82,6 @@ __all__ = [
 
 #: Largest number of unknowns g is solved for; finer codes are interpolated (module docstring).
 MAX_KNOTS = 1024
-#: Rows per block of the merge (blocks stay in the CPU cache and run on a thread per core) and the number of
-#: samples from which the blocks are spread over threads.
-MERGE_ROWS = 64
-MERGE_THREADED = 1 << 18
 
 
 def hat_weights(levels: int) -> np.ndarray:
@@ -342,19 +337,9 @@ def _check_response(response, channels):
     return g
 
 
-def _add_lookup(acc, z, lut):
-    """acc[..., c] += lut[z[..., c], c]: one table look-up per sample (OpenCV's LUT for 8-bit 3-channel codes)."""
-    if z.dtype == np.uint8 and lut.shape == (256, 3) and z.ndim == 3 and z.shape[-1] == 3:
-        import cv2
-
-        acc += cv2.LUT(np.ascontiguousarray(z), np.ascontiguousarray(lut, np.float32).reshape(1, 256, 3))
-        return
-    flat = np.ascontiguousarray(lut, np.float32).reshape(-1)
-    idx = z.astype(np.intp) * lut.shape[1] + np.arange(lut.shape[1])
-    acc += flat[idx]
-
-
-def merge_photographs(images, exposure_times, response, *, weighting: str = "hat", return_weight: bool = False):
+def merge_photographs(
+    images, exposure_times, response, *, weighting: str = "hat", return_weight: bool = False, backend: str = "auto"
+):
     """Radiance from a bracket of non-linear photographs, Debevec & Malik 1997 eq. 6 (module docstring).
 
     Parameters
@@ -373,6 +358,9 @@ def merge_photographs(images, exposure_times, response, *, weighting: str = "hat
         more where both are usable (the photograph ingest uses it).
     return_weight : bool
         Also return the total weight Σ_j w(Z_ij) per pixel and channel (0 = no usable exposure).
+    backend : {"auto", "numba", "numpy"}
+        The look-ups compiled (default where numba is installed) or in numpy
+        (:mod:`facestats.acquire.merge_kernel`); the results agree to float32 rounding.
 
     Returns
     -------
@@ -394,43 +382,16 @@ def merge_photographs(images, exposure_times, response, *, weighting: str = "hat
     g = np.broadcast_to(g, (levels, channels))
     w = hat_weights(levels).astype(np.float32)
     g32 = np.where(np.isfinite(g), g, g[1]).astype(np.float32)  # code 0 has weight 0; keep it finite
-    tables = []
-    for tj in t:  # per exposure: the tables w(z)(g(z) − ln Δt) and w(z)
+    tables = np.empty((len(t), levels, channels), np.float32)
+    weights = np.empty((len(t), levels, channels), np.float32)
+    for j, tj in enumerate(t):  # per exposure: the tables w(z)(g(z) − ln Δt) and w(z)
         wj = w * np.float32(tj / t[-1]) if weighting == "hat_time" else w
-        tables.append((wj[:, None] * (g32 - np.float32(np.log(tj))), np.repeat(wj[:, None], channels, axis=1)))
-    out = np.empty(stack[0].shape, np.float32)
-    den = np.empty(stack[0].shape, np.float32)
-    rows = stack[0].shape[0] if stack[0].ndim == 3 else 1
-    blocks = [slice(a, min(a + MERGE_ROWS, rows)) for a in range(0, rows, MERGE_ROWS)] if rows > 1 else [slice(None)]
-
-    def run(sl):
-        _merge_block([a[sl] for a in stack], t, tables, g32, levels, out[sl], den[sl])
-
-    if len(blocks) > 1 and stack[0].size >= MERGE_THREADED:
-        with ThreadPoolExecutor(min(len(blocks), os.cpu_count() or 1)) as ex:  # look-ups and ufuncs release the GIL
-            list(ex.map(run, blocks))
-    else:
-        for sl in blocks:
-            run(sl)
-    return (out, den) if return_weight else out
-
-
-def _merge_block(stack, t, tables, g32, levels, out, den):
-    """eq. 6 on one block of rows (views), written into ``out`` and ``den`` (:func:`merge_photographs`)."""
-    num = out
-    num[...] = 0
-    den[...] = 0
-    for z, (lut, wlut) in zip(stack, tables):  # loop over exposures, vectorised over pixels
-        _add_lookup(num, z, lut)
-        _add_lookup(den, z, wlut)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        np.divide(num, den, out=num)
-    none = np.nonzero(den == 0)  # no usable exposure: treated on these pixels only
-    if none[0].size:
-        bright = np.all([a[none] >= levels // 2 for a in stack], axis=0)
-        dark = g32[stack[-1][none], none[-1]] - np.float32(np.log(t[-1]))
-        num[none] = np.where(bright, np.nan, dark)
-    np.exp(num, out=num)
+        tables[j] = wj[:, None] * (g32 - np.float32(np.log(tj)))
+        weights[j] = wj[:, None]
+    dark = g32 - np.float32(np.log(t[-1]))  # the longest exposure's estimate, where no exposure is usable
+    ln_e, den = log_radiance(stack, tables, weights, dark, backend=backend)
+    np.exp(ln_e, out=ln_e)
+    return (ln_e, den) if return_weight else ln_e
 
 
 # -- a known non-linear camera (simulation) -----------------------------------------------------------------

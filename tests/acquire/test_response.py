@@ -107,6 +107,38 @@ def test_saturated_darkest_frame_and_all_dark_pixels():
     assert _scaled_rel(e[20:-20], rate[20:-20]) < 0.015
 
 
+@pytest.mark.parametrize("bits", [8, 12])
+def test_compiled_and_numpy_merges_are_identical(bits):
+    """Both look-up paths of :mod:`facestats.acquire.merge_kernel` (the same float32 sums in the same
+    order) give the same bits: mid-range pixels, saturated ones (NaN), all-dark ones (the longest
+    exposure's floor), 8-bit three-channel codes (OpenCV's LUT in numpy) and 12-bit codes in uint16,
+    unsorted times, the "hat_time" weighting and a (N, C) image shape."""
+    cam = ResponseCurve(bits=bits)
+    scene = _scene()
+    scene[:10] = 1e9
+    rate, imgs = _bracket(cam, scene=scene)
+    for img in imgs:
+        img[-10:] = 0
+    g = recover_response(imgs, TIMES, bits=bits)
+    order = [2, 0, 3, 1]
+    for weighting in ("hat", "hat_time"):
+        a, wa = merge_photographs(imgs, TIMES, g, weighting=weighting, return_weight=True, backend="numba")
+        b, wb = merge_photographs(imgs, TIMES, g, weighting=weighting, return_weight=True, backend="numpy")
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(wa, wb)
+        assert np.isnan(a[:10]).all() and (wa[:10] == 0).all()  # saturated in every exposure
+        assert (wa[-10:] == 0).all() and np.isfinite(a[-10:]).all()  # dark in every exposure: the floor
+        assert np.isfinite(a[10:-10, :100]).all()  # the darker part of the scene is measured
+        shuffled = merge_photographs([imgs[j] for j in order], TIMES[order], g, weighting=weighting)
+        np.testing.assert_array_equal(shuffled, a)
+    flat = [img.reshape(-1, 3) for img in imgs]
+    np.testing.assert_array_equal(
+        merge_photographs(flat, TIMES, g, backend="numba"), merge_photographs(flat, TIMES, g, backend="numpy")
+    )
+    with pytest.raises(FacestatsError, match="backend must be one of"):
+        merge_photographs(imgs, TIMES, g, backend="gpu")
+
+
 @pytest.mark.parametrize("times", [[0.1], [0.1, 0.1], [0.1, 0.1, 0.1]])
 def test_fewer_than_two_distinct_exposures_is_an_error(times, bracket8):
     _, _, imgs = bracket8

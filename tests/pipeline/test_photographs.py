@@ -94,3 +94,36 @@ def test_ingest_command_reports_bad_input_without_a_traceback(case, tmp_path):
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "frame cam05/led003_e1.png listed in manifest.json is missing" in r.stderr
     assert not any((tmp_path / "s.zarr.ingest").rglob("zarr.json"))  # nothing was started
+
+
+def test_16_bit_tiff_frames_hold_the_png_codes_and_ingest(case, tmp_path):
+    """The same capture written as 16-bit TIFF: an independent reader (tifffile) sees the PNG frames' codes
+    exactly, and ``facestats ingest`` fits the TIFF folder within the issue's 3 % median error."""
+    import cv2
+    import tifffile
+
+    from facestats.acquire.dome import default_dome
+    from facestats.acquire.synthetic.face import procedural_face
+    from facestats.acquire.synthetic.photographs import write_capture_photographs
+    from facestats.io import open_store
+
+    _, pc, truth, _ = case
+    dome = default_dome().select(leds=np.arange(0, 150, 5)).resized(160, 160)
+    tif = write_capture_photographs(
+        truth, tmp_path / "photos", geometry=procedural_face(16), dome=dome, moved_frames=MOVED, extension=".tif"
+    )
+    manifest = json.loads((tif.folder.parent / "manifest.json").read_text())
+    frames = manifest["frames"]
+    assert frames and all(f["file"].endswith(".tif") for f in frames)
+    for f in frames[:: max(1, len(frames) // 40)]:  # 40 frames spread over cameras, LEDs and exposures
+        codes = tifffile.imread(tif.folder.parent / f["file"])
+        png = cv2.imread(str(pc.folder.parent / f["file"].replace(".tif", ".png")), cv2.IMREAD_UNCHANGED)
+        assert codes.dtype == np.uint16 and 0 < codes.max() < 4096  # 12-bit codes in 16-bit samples
+        np.testing.assert_array_equal(codes, png[..., ::-1], err_msg=f["file"])  # OpenCV reads BGR
+    args = ["ingest", tif.folder.parent, "--mesh", tif.mesh, "--calibration", tif.calibration]
+    r = run_cli(*args, "--store", tmp_path / "s.zarr", "--subject", "S001", "--quiet")
+    assert r.returncode == 0, r.stderr
+    with open_store(tmp_path / "s.zarr") as st:
+        errors = _errors(st.subject("S001"), truth)
+    for name, (median, p90) in errors.items():
+        assert median <= 0.03 and p90 <= 0.08, (name, median, p90)

@@ -224,3 +224,38 @@ def test_mitsuba_subsurface_scene_renders(tmp_path, subject, mesh):
     assert img.shape == (64, 64, 3) and np.all(np.isfinite(img)) and img.min() >= 0
     centre = img[24:40, 24:40].mean(axis=(0, 1))
     assert centre[0] > centre[2] > 0  # skin: red diffuses most, blue least
+
+
+def _khronos_validator():
+    """The Khronos glTF-Validator's module folder and ``node``, or None (the README's test command installs
+    it with npm into ``.gltf-validator/`` where npm is available)."""
+    import pathlib
+    import shutil
+
+    node = shutil.which("node")
+    root = pathlib.Path(__file__).resolve().parents[2]
+    module = pathlib.Path(os.environ.get("FACESTATS_GLTF_VALIDATOR", root / ".gltf-validator/node_modules/gltf-validator"))
+    return (node, module) if node and (module / "package.json").exists() else None
+
+
+@pytest.mark.parametrize("grid", [64, 256])
+def test_gltf_passes_the_khronos_validator(tmp_path, subject, grid):
+    """An independent check of the glTF file: the Khronos glTF-Validator reports no error and no warning
+    (infos such as non-power-of-two 48² textures are allowed by glTF 2.0)."""
+    import subprocess
+
+    from facestats.io.gltf import write_gltf
+
+    found = _khronos_validator()
+    if found is None:
+        pytest.skip("Khronos glTF-Validator absent: `npm install --prefix .gltf-validator gltf-validator` (needs node)")
+    node, module = found
+    path = write_gltf(subject, tmp_path, mesh=subject_mesh(subject, mesh_grid=grid))
+    script = os.path.join(os.path.dirname(__file__), "gltf_validate.js")
+    res = subprocess.run([node, script, str(module), str(path)], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    report = json.loads(res.stdout)
+    issues = report["issues"]
+    assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"]
+    assert report["info"]["version"] == "2.0" and report["info"]["generator"] == "facestats"
+    assert report["info"]["totalVertexCount"] > (grid + 1) ** 2 // 2  # the mesh was read, not just the JSON

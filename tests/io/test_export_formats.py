@@ -234,7 +234,8 @@ def _khronos_validator():
 
     node = shutil.which("node")
     root = pathlib.Path(__file__).resolve().parents[2]
-    module = pathlib.Path(os.environ.get("FACESTATS_GLTF_VALIDATOR", root / ".gltf-validator/node_modules/gltf-validator"))
+    default = root / ".gltf-validator" / "node_modules" / "gltf-validator"
+    module = pathlib.Path(os.environ.get("FACESTATS_GLTF_VALIDATOR", default))
     return (node, module) if node and (module / "package.json").exists() else None
 
 

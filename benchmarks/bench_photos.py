@@ -125,7 +125,7 @@ def bench_recover(side=1024, repeat=2):
 
 
 _INGEST = r"""
-import json, resource, sys, time
+import json, sys, time
 sys.path.insert(0, sys.argv[5])
 from bench_photos import _errors
 from facestats.acquire.dome import Dome
@@ -139,7 +139,8 @@ geometry = load_face_mesh(folder + "/face.obj", folder + "/face.regions.png")
 ingest_photographs(folder, geometry, Dome.load(folder + "/dome.json"), out, workers=int(sys.argv[3]),
                    min_footprint_px=float(sys.argv[6]))
 t1 = time.perf_counter()
-peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+# VmHWM: this process's own peak (ru_maxrss would carry the parent's peak over fork and exec)
+peak = next(int(l.split()[1]) for l in open("/proc/self/status") if l.startswith("VmHWM")) / 1024
 cap = open_ingested(out)
 ds = fit_subject(cap)
 truth = synthesize_population(map_size=int(sys.argv[4]), subjects=["S001"])["S001"]

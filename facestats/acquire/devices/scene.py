@@ -213,7 +213,8 @@ class DomeScene:
         self.dark = dark_code_table(self.camera)
         # per camera: the lumitexel of each face pixel and the flat indices of its three channels
         self._face = [(node[node >= 0], flat[node >= 0][:, None] * 3 + np.arange(3)) for flat, node in self.pixels]
-        self._radiance = np.nan_to_num(self.radiance.astype(np.float32))  # NaN (not rendered): dark
+        # (camera, LED, lumitexel, channel): one frame's radiance is a contiguous block (NaN, not rendered: dark)
+        self._radiance = np.ascontiguousarray(np.moveaxis(np.nan_to_num(self.radiance.astype(np.float32)), 0, 2))
 
     def _pixel_maps(self, cache, progress):
         """Each camera's (flat pixel index, lumitexel) arrays (:meth:`FrameRenderer.pixels`), cached if asked."""
@@ -260,7 +261,7 @@ class DomeScene:
         codes = np.take(self.dark, u)
         if 0 <= trigger.led < self.dome.n_leds and np.any(drive > 0):
             node, index = self._face[camera]
-            e = self._radiance[node, camera, trigger.led] * (drive * np.float32(self.dome.camera_scale * t))
+            e = self._radiance[camera, trigger.led][node] * (drive * np.float32(self.dome.camera_scale * t))
             lit = e > 0
             codes[index[lit]] = self.camera.encode(e[lit], rng)
         return codes.reshape(h, w, 3), t

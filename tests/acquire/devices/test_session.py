@@ -162,8 +162,9 @@ class _BadChecksum(HotFolderCameras):
     def collect(self, trigger, timeout):
         if not self.done:
             side = self.path(1, trigger.frame).with_name(self.path(1, trigger.frame).name + ".sha256")
-            while not side.exists():
-                pass
+            # wait for the camera's whole checksum line: overwriting a file it is still writing could be undone
+            while not (side.exists() and side.read_text().endswith("\n")):
+                time.sleep(0.001)
             side.write_text("0" * 64 + " 1\n")
             self.done = True
         return super().collect(trigger, timeout)

@@ -33,23 +33,3 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.slow)
         rank[item.nodeid] = 0 if rel in LONG_FIRST else 1
     items.sort(key=lambda item: rank[item.nodeid])  # stable: the order within each group is kept
-
-
-def pytest_configure(config):
-    """Under ``-n N`` (N > 1), compile the fit's numba kernels once before the workers start.
-
-    numba compiles a kernel on its first call and caches it on disk; on a fresh install the workers and
-    the processes they spawn (the default-store regeneration's two build workers, the build-worker
-    test's three builds of three processes each) would otherwise all compile the same kernels at the
-    same time: about 16 CPU-seconds each, some 150 in all, for nothing.  One small fit here (17 s
-    with an empty cache, 3 s with a warm one) fills the cache for all of them.
-    """
-    if hasattr(config, "workerinput") or (config.getoption("numprocesses", default=None) or 0) in (0, 1):
-        return  # an xdist worker, or a run in one process: nothing to share
-    from facestats.acquire.synthetic.face import procedural_face
-    from facestats.acquire.synthetic.population import synthesize_population
-    from facestats.acquire.synthetic.simulate import DomeSimulator
-    from facestats.pipeline import fit_subject
-
-    truth = synthesize_population(map_size=8, subjects=["S001"], conditions=False)["S001"]
-    fit_subject(DomeSimulator(procedural_face(8)).simulate(truth))

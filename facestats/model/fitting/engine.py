@@ -24,9 +24,9 @@ benchmark that prints them.
 
 from __future__ import annotations
 
-import functools
 import os
 
+from facestats.core.compiled import numba_available
 from facestats.errors import ValidationError
 
 __all__ = ["ENGINES", "ENGINE_VARIABLE", "default_engine", "resolve_engine", "numba_available"]
@@ -35,16 +35,6 @@ __all__ = ["ENGINES", "ENGINE_VARIABLE", "default_engine", "resolve_engine", "nu
 ENGINES = ("numba", "numpy")
 #: Environment variable that sets the default engine.
 ENGINE_VARIABLE = "FACESTATS_ENGINE"
-
-
-@functools.lru_cache(maxsize=1)
-def numba_available() -> bool:
-    """True when numba imports (it is a dependency, but a broken LLVM install should not stop a fit)."""
-    try:
-        import numba  # noqa: F401
-    except Exception:  # ImportError, or an llvmlite that fails to load
-        return False
-    return True
 
 
 def default_engine() -> str:

@@ -25,29 +25,14 @@ import math
 
 import numpy as np
 
-from facestats.core.validate import check_choice
-from facestats.errors import ValidationError
+from facestats.core.compiled import numba_available, resolve_backend
 
 __all__ = ["HAVE_NUMBA", "convolve_pass", "histogram_tv", "resolve_backend"]
 
-try:  # numba is a declared dependency; the numpy path keeps facestats usable without it
+#: numba's kernels are defined below only where numba imports (:mod:`facestats.core.compiled`).
+HAVE_NUMBA = numba_available()
+if HAVE_NUMBA:
     import numba
-
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover - exercised only where numba is missing
-    numba = None
-    HAVE_NUMBA = False
-
-
-def resolve_backend(backend: str) -> str:
-    """``"numba"`` or ``"numpy"`` from ``"auto"``, ``"numba"`` or ``"numpy"``."""
-
-    check_choice(backend, "backend", ("auto", "numba", "numpy"))
-    if backend == "numba" and not HAVE_NUMBA:
-        raise ValidationError("backend 'numba' needs the numba package, which is not installed")
-    if backend == "auto":
-        return "numba" if HAVE_NUMBA else "numpy"
-    return backend
 
 
 # -- one convolution pass ------------------------------------------------------------------------

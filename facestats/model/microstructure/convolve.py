@@ -23,9 +23,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from facestats.core.compiled import resolve_backend
 from facestats.core.validate import as_finite, as_float
 from facestats.errors import ValidationError
-from facestats.model.microstructure.compiled import convolve_pass, resolve_backend
+from facestats.model.microstructure.compiled import convolve_pass
 from facestats.model.microstructure.kernel import ALPHA_RANGE, SIGMA_RANGE_UM, TRUNCATE
 
 __all__ = ["convolve_displacement", "island_reach"]

@@ -47,9 +47,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from facestats.core.compiled import resolve_backend
 from facestats.core.validate import as_finite, check_choice
 from facestats.errors import ValidationError
-from facestats.model.microstructure.compiled import histogram_tv, resolve_backend
+from facestats.model.microstructure.compiled import histogram_tv
 from facestats.model.microstructure.kernel import ALPHA_RANGE, SIGMA_RANGE_UM, kernel_radius
 from facestats.model.microstructure.surface import histogram_extent, normal_histogram, slopes, tv_noise
 

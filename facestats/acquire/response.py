@@ -360,7 +360,7 @@ def merge_photographs(
         Also return the total weight Σ_j w(Z_ij) per pixel and channel (0 = no usable exposure).
     backend : {"auto", "numba", "numpy"}
         The look-ups compiled (default where numba is installed) or in numpy
-        (:mod:`facestats.acquire.merge_kernel`); the results agree to float32 rounding.
+        (:mod:`facestats.acquire.merge_kernel`); both give the same bits.
 
     Returns
     -------

@@ -25,9 +25,9 @@ import math
 
 import numpy as np
 
-from facestats.core.compiled import numba_available, resolve_backend
+from facestats.core.compiled import numba_available
 
-__all__ = ["HAVE_NUMBA", "convolve_pass", "histogram_tv", "resolve_backend"]
+__all__ = ["HAVE_NUMBA", "convolve_pass", "histogram_tv"]
 
 #: numba's kernels are defined below only where numba imports (:mod:`facestats.core.compiled`).
 HAVE_NUMBA = numba_available()

@@ -22,7 +22,9 @@ from tests.helpers import facestats_exe
 
 from .helpers import subject_digests
 
-SUBJECTS = ["S001", "S002", "S003", "S004", "S005"]
+#: Enough that work is left when the first subject is committed: with five, a build whose kernels were
+#: already compiled could finish before the signal arrived (a SIGINT'd build then exited 0, done).
+SUBJECTS = [f"S{k:03d}" for k in range(1, 11)]
 
 
 def _tagged(tag: str) -> list[int]:
@@ -52,7 +54,16 @@ def _start(store: Path, tag: str):
     env = dict(os.environ, FACESTATS_TEST_TAG=tag, MPLBACKEND="Agg")
     argv = [*facestats_exe(), "build", "--store", str(store), "--size", "8", "--workers", "2", "--quiet"]
     argv += ["--no-conditions", "--subjects", *SUBJECTS]
-    return subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # SIGINT as in a terminal: a shell ignores it in the commands it starts in the background (``pytest &``),
+    # and a Python started with SIGINT ignored keeps ignoring it (the build would then, correctly, run on).
+    return subprocess.Popen(
+        argv,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
 
 
 @pytest.mark.slow
@@ -78,6 +89,7 @@ def test_killed_build_leaves_no_worker_and_resumes(tmp_path):
     time.sleep(3)
     for sig, (_, tag) in runs.items():
         assert _tagged(tag) == [], f"{sig.name}: worker processes survived their build"
+    assert all(_count(store) < len(SUBJECTS) for store, _ in runs.values()), "a build finished before its signal"
     for sig in (signal.SIGTERM, signal.SIGINT):  # both stop the build cleanly, with advice and no traceback
         assert procs[sig].returncode == 130 and "rerun the same command to resume" in outputs[sig][1], sig.name
         assert "Traceback" not in outputs[sig][1], sig.name

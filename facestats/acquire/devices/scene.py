@@ -48,6 +48,7 @@ from facestats.acquire.sensor import ContactSensor
 from facestats.acquire.synthetic.face import procedural_face
 from facestats.acquire.synthetic.photographs import FrameRenderer
 from facestats.acquire.synthetic.population import SubjectTruth, synthesize_population
+from facestats.core.compiled import resolve_backend
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import check_integer
 from facestats.errors import ValidationError
@@ -162,6 +163,17 @@ def dark_code_table(camera: ResponseCurve) -> np.ndarray:
     return table.astype(np.uint16 if camera.bits > 8 else np.uint8)
 
 
+def _table_lookup(table, index, backend):
+    """``table[index]`` for a 1-D ``index`` of unsigned integers (compiled or ``numpy.take``: the same values)."""
+    if backend == "numpy":
+        return np.take(table, index)
+    from facestats.acquire.devices.scene_numba import table_lookup
+
+    out = np.empty(index.shape, table.dtype)
+    table_lookup(table, index, out)
+    return out
+
+
 class DomeScene:
     """A subject in the emulated dome: the frames its cameras take (module docstring).
 
@@ -182,6 +194,9 @@ class DomeScene:
         A directory keeping the cameras' pixel maps (``pixels-<key>.npz``, keyed by
         the SHA-256 of the mesh file and the rig): at 1024² pixels they take minutes
         to compute and depend on neither the subject nor the seed.
+    backend : {"auto", "numba", "numpy"}
+        The dark pixels' table look-up compiled (:mod:`facestats.acquire.devices.scene_numba`;
+        default where numba is installed) or ``numpy.take``: the same frames.
     """
 
     def __init__(
@@ -194,6 +209,7 @@ class DomeScene:
         seed: int = 0,
         progress: bool = False,
         cache=None,
+        backend: str = "auto",
     ):
         # local import: keeps facestats.model (19 modules) out of this module's import
         from facestats.acquire.synthetic.simulate import DomeSimulator
@@ -202,6 +218,7 @@ class DomeScene:
         workdir = pathlib.Path(workdir)
         workdir.mkdir(parents=True, exist_ok=True)
         self.truth, self.dome, self.seed = truth, dome, int(seed)
+        self.backend = resolve_backend(backend)
         self.camera = camera or ResponseCurve(12, dome.response.full_well, dome.response.read_noise)
         self.mesh = pathlib.Path(save_face_mesh(procedural_face(truth.region_map.shape[0]), workdir / "face.obj"))
         self.regions = workdir / "face.regions.npy"
@@ -258,7 +275,7 @@ class DomeScene:
         rng = np.random.default_rng([self.seed, camera, trigger.led + 1, exposure, trigger.brightness, *trigger.colour])
         n = h * w * 3  # uniform 16-bit table indices: four per raw 64-bit draw (3x faster than rng.integers)
         u = rng.bit_generator.random_raw(-(-n // 4)).view(np.uint16)[:n]
-        codes = np.take(self.dark, u)
+        codes = _table_lookup(self.dark, u, self.backend)
         if 0 <= trigger.led < self.dome.n_leds and np.any(drive > 0):
             node, index = self._face[camera]
             e = self._radiance[camera, trigger.led][node] * (drive * np.float32(self.dome.camera_scale * t))

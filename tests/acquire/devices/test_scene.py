@@ -57,6 +57,15 @@ def test_emulated_frames_merge_back_to_the_simulated_radiance(scene):
     assert checked > 300
 
 
+def test_compiled_and_numpy_renders_give_the_same_frames(scene, tmp_path):
+    twin = DomeScene(scene.truth, scene.dome, tmp_path, seed=3, backend="numpy")
+    assert scene.backend == "numba" and twin.backend == "numpy"
+    for camera, trigger in ((1, Trigger(0, 2, 0)), (3, Trigger(0, 7, 1, brightness=90)), (0, Trigger(0, -1, 1))):
+        np.testing.assert_array_equal(scene.render(camera, trigger)[0], twin.render(camera, trigger)[0])
+    with pytest.raises(ValidationError, match="backend"):
+        DomeScene(scene.truth, scene.dome, tmp_path, backend="gpu")
+
+
 def test_led_drive_scales_the_exposure(scene):
     g = scene.camera.log_exposure()
     full = scene.render(2, Trigger(0, 5, 1))[0].astype(np.int64)

@@ -1,6 +1,6 @@
-"""The compiled dark-code look-up of the emulated dome's frames (:meth:`facestats.acquire.devices.scene.DomeScene.render`,
-whose numpy twin is ``numpy.take``).  Imported only when a dome scene renders with numba: importing numba costs
-about a second."""
+"""The compiled dark-code look-up of the emulated dome's frames
+(:meth:`facestats.acquire.devices.scene.DomeScene.render`, whose numpy twin is ``numpy.take``).
+Imported only when a dome scene renders with numba: importing numba costs about a second."""
 
 from __future__ import annotations
 

@@ -264,12 +264,14 @@ def _verify_checksums(ds, manifest: dict, names, sid: str) -> None:
 
 def _strings_to_str(ds, names):
     """Turn string variables read back from Zarr (StringDType/object) into numpy ``str`` arrays."""
+    coords, data = {}, {}
     for name in names:
         var = ds.variables[name]
         if var.dtype.kind in "OT":
             new = ds[name].copy(data=np.asarray(var.values).astype(object).astype(str))
-            ds = ds.assign_coords({name: new}) if name in ds.coords else ds.assign({name: new})
-    return ds
+            (coords if name in ds.coords else data)[name] = new
+    ds = ds.assign_coords(coords) if coords else ds  # one call each: every call rebuilds the indexes
+    return ds.assign(data) if data else ds
 
 
 def _verify_on_read(ds, manifest: dict, verified: set, sid: str):

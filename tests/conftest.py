@@ -38,7 +38,8 @@ def pytest_collection_modifyitems(config, items):
 #: The checkout under test, first on the path of every process the tests start (console scripts,
 #: notebook kernels, build workers): they then run the same files as the tests themselves, and share
 #: their numba cache (kept beside the sources), instead of compiling every kernel a second time for the
-#: copy that ``pip install .`` put in site-packages.
+#: copy that ``pip install .`` put in site-packages (the console scripts stay the installed ones; that
+#: the installed package holds every file of the checkout is tests/test_packaging.py's job).
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (REPO, os.environ.get("PYTHONPATH")) if p)
 

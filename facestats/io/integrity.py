@@ -268,7 +268,7 @@ def _strings_to_str(ds, names):
     for name in names:
         var = ds.variables[name]
         if var.dtype.kind in "OT":
-            new = ds[name].copy(data=np.asarray(var.values).astype(object).astype(str))
+            new = var.copy(data=np.asarray(var.values).astype(object).astype(str))  # a Variable: no old coords
             (coords if name in ds.coords else data)[name] = new
     ds = ds.assign_coords(coords) if coords else ds  # one call each: every call rebuilds the indexes
     return ds.assign(data) if data else ds

@@ -12,6 +12,7 @@ import json
 import os
 import signal
 import subprocess
+import sys
 import time
 import uuid
 from pathlib import Path
@@ -56,14 +57,12 @@ def _start(store: Path, tag: str):
     argv += ["--no-conditions", "--subjects", *SUBJECTS]
     # SIGINT as in a terminal: a shell ignores it in the commands it starts in the background (``pytest &``),
     # and a Python started with SIGINT ignored keeps ignoring it (the build would then, correctly, run on).
-    return subprocess.Popen(
-        argv,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    # A default disposition survives exec, so a small launcher restores it and becomes the console script.
+    launcher = (
+        "import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); os.execv(sys.argv[1], sys.argv[1:])"
     )
+    argv = [sys.executable, "-c", launcher, *argv]
+    return subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 @pytest.mark.slow

@@ -164,7 +164,14 @@ def dark_code_table(camera: ResponseCurve) -> np.ndarray:
 
 
 def _table_lookup(table, index, backend):
-    """``table[index]`` for a 1-D ``index`` of unsigned integers (compiled or ``numpy.take``: the same values)."""
+    """``table[index]`` for a 1-D ``index`` of unsigned integers (compiled or ``numpy.take``: the same values).
+
+    The table must cover every value of the index's dtype (the compiled loop does not check bounds).
+    """
+    if table.size <= np.iinfo(index.dtype).max:
+        raise ValidationError(
+            f"table must have {np.iinfo(index.dtype).max + 1} entries for {index.dtype} indices, got {table.size}"
+        )
     if backend == "numpy":
         return np.take(table, index)
     from facestats.acquire.devices.scene_numba import table_lookup

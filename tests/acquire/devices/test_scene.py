@@ -64,6 +64,12 @@ def test_compiled_and_numpy_renders_give_the_same_frames(scene, tmp_path):
         np.testing.assert_array_equal(scene.render(camera, trigger)[0], twin.render(camera, trigger)[0])
     with pytest.raises(ValidationError, match="backend"):
         DomeScene(scene.truth, scene.dome, tmp_path, backend="gpu")
+    eight = ResponseCurve(8, 20000.0, 5.0)  # an 8-bit camera: a table of uint8 codes
+    a = DomeScene(scene.truth, scene.dome, tmp_path / "a", camera=eight, seed=3)
+    b = DomeScene(scene.truth, scene.dome, tmp_path / "b", camera=eight, seed=3, backend="numpy")
+    frame_a, frame_b = a.render(2, Trigger(0, 5, 1))[0], b.render(2, Trigger(0, 5, 1))[0]
+    assert frame_a.dtype == np.uint8 and frame_a.max() > 100
+    np.testing.assert_array_equal(frame_a, frame_b)
 
 
 def test_led_drive_scales_the_exposure(scene):

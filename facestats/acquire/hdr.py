@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.acquire.response import merge_photographs, recover_response
+from facestats.core.compiled import resolve_backend
 from facestats.core.validate import as_finite
 from facestats.errors import ValidationError
 
@@ -98,7 +99,7 @@ class CameraResponse:
         return np.maximum(e, 0) + self.read_noise**2 + self.gain**2 / 12
 
 
-def expose(rate, times, response: CameraResponse, rng: np.random.Generator, dtype=np.float32):
+def expose(rate, times, response: CameraResponse, rng: np.random.Generator, dtype=np.float32, backend: str = "auto"):
     """Simulate readings (digital numbers) of a signal for each exposure time.
 
     Parameters
@@ -112,6 +113,10 @@ def expose(rate, times, response: CameraResponse, rng: np.random.Generator, dtyp
         Source of the noise (seed it for reproducible captures).
     dtype : {numpy.float32, numpy.float64}
         Computation and output dtype (float32 draws float32 normals).
+    backend : {"auto", "numba", "numpy"}
+        Where the readings are formed from the normal draws: one compiled sweep
+        (:func:`facestats.acquire.hdr_numba.expose_pass`) or whole-array passes; the draws
+        and the bits of the readings are the same either way.
 
     Returns
     -------
@@ -131,19 +136,35 @@ def expose(rate, times, response: CameraResponse, rng: np.random.Generator, dtyp
     out = np.empty((t.size,) + r.shape, dtype)
     read2 = dtype.type(response.read_noise**2)
     inv_gain = dtype.type(1 / response.gain)
+    black = dtype.type(response.black_level)
+    compiled = resolve_backend(backend) == "numba"
+    if compiled:
+        from facestats.acquire.hdr_numba import expose_pass  # imports numba: only when a capture is exposed
     for j, tj in enumerate(t):  # loop over exposures, vectorised over samples
-        mean = r * dtype.type(tj)
         e = rng.standard_normal(r.shape, dtype=np.float32 if dtype == np.float32 else np.float64)
+        if compiled:
+            expose_pass(
+                r.ravel(),
+                dtype.type(tj),
+                e.ravel(),
+                read2,
+                inv_gain,
+                black,
+                dtype.type(response.max_dn),
+                out[j].reshape(-1),
+            )
+            continue
+        mean = r * dtype.type(tj)
         e *= np.sqrt(mean + read2)
         e += mean
         e *= inv_gain
-        e += dtype.type(response.black_level)
+        e += black
         np.rint(e, out=e)
         np.clip(e, 0, response.max_dn, out=out[j])
     return np.moveaxis(out, 0, -1)
 
 
-def merge_exposures(dn, times, response: CameraResponse):
+def merge_exposures(dn, times, response: CameraResponse, backend: str = "auto"):
     """Merge bracketed readings into an HDR rate estimate with its noise.
 
     Parameters
@@ -153,6 +174,10 @@ def merge_exposures(dn, times, response: CameraResponse):
     times : array_like, shape (E,)
         Exposure times.
     response : CameraResponse
+    backend : {"auto", "numba", "numpy"}
+        ``"numba"`` (:mod:`facestats.acquire.hdr_numba`): one sweep over the readings, about
+        five times faster; ``"numpy"``: whole-array passes.  Both give the same bits
+        (the same float operations in the same order); ``"auto"`` takes numba where it imports.
 
     Returns
     -------
@@ -170,8 +195,33 @@ def merge_exposures(dn, times, response: CameraResponse):
     if d.ndim < 1 or d.shape[-1] != t.shape[0]:
         raise ValidationError(f"dn must have {t.shape[0]} exposures on its last axis, got shape {d.shape}")
     dtype = d.dtype if d.dtype in (np.float32, np.float64) else np.dtype(np.float64)
-    d = np.moveaxis(d, -1, 0)  # loop over exposures below; each slice is a whole-array operation
+    d = np.moveaxis(d, -1, 0)  # (E, ...): each exposure's slice is a whole array
     sat = response.saturation * response.max_dn
+    if resolve_backend(backend) == "numba":
+        from facestats.acquire.hdr_numba import merge_pass  # imports numba: only when a merge runs
+
+        flat = np.ascontiguousarray(d, dtype).reshape(t.size, -1)
+        rate, std = np.empty(flat.shape[1], dtype), np.empty(flat.shape[1], dtype)
+        n_used = np.empty(flat.shape[1], np.int16)
+        var0 = response.variance(np.zeros((), dtype))  # σ_read² + g²/12 in the readings' dtype
+        merge_pass(
+            flat,
+            t.astype(dtype),
+            dtype.type(sat),
+            dtype.type(response.gain),
+            dtype.type(response.black_level),
+            var0,
+            rate,
+            std,
+            n_used,
+        )
+        shape = d.shape[1:]
+        return rate.reshape(shape), std.reshape(shape), n_used.reshape(shape)
+    return _merge_numpy(d, t, response, dtype, sat)
+
+
+def _merge_numpy(d, t, response, dtype, sat):
+    """The numpy twin of :func:`facestats.acquire.hdr_numba.merge_pass` for readings ``d`` of shape (E, ...)."""
     gain = dtype.type(response.gain)
     black = dtype.type(response.black_level)
     shape = d.shape[1:]

@@ -616,3 +616,51 @@ def test_every_stored_variable_has_a_physical_domain():
     from facestats.io.schema import DOMAINS, VARIABLES
 
     assert set(DOMAINS) == set(VARIABLES)
+
+
+def _tree(root):
+    (root / "g" / "a").mkdir(parents=True)
+    for name in ("g/zarr.json", "g/a/c0", "g/a/c1"):
+        (root / name).write_bytes(b"x" * 100)
+    return root / "g"
+
+
+def test_fsync_tree_flushes_with_one_syncfs_where_there_is_one(tmp_path, monkeypatch):
+    from facestats.io import layout
+
+    calls, fsyncs = [], []
+    monkeypatch.setattr(layout, "_syncfs", lambda: lambda fd: calls.append(fd) or 0)
+    monkeypatch.setattr(layout, "fsync_path", lambda *a, **k: fsyncs.append(a))
+    layout.fsync_tree(_tree(tmp_path))
+    assert len(calls) == 1 and fsyncs == []
+    layout.fsync_tree(tmp_path / "g" / "zarr.json")  # a file: its folder is flushed, the file is never opened
+    assert len(calls) == 2
+
+
+def test_fsync_tree_falls_back_to_every_file_and_reports_syncfs_errors(tmp_path, monkeypatch):
+    import ctypes
+    import errno
+
+    from facestats.io import layout
+
+    g, fsyncs = _tree(tmp_path), []
+    real = layout.fsync_path
+    monkeypatch.setattr(layout, "fsync_path", lambda p, directory=False: fsyncs.append(p) or real(p, directory))
+    monkeypatch.setattr(layout, "_syncfs", lambda: None)
+    layout.fsync_tree(g)
+    assert len(fsyncs) == 5  # three files and two folders
+
+    def failing(err):
+        def fn(fd):
+            ctypes.set_errno(err)
+            return -1
+
+        return lambda: fn
+
+    fsyncs.clear()
+    monkeypatch.setattr(layout, "_syncfs", failing(errno.ENOSYS))  # not supported here: file by file
+    layout.fsync_tree(g)
+    assert len(fsyncs) == 5
+    monkeypatch.setattr(layout, "_syncfs", failing(errno.EIO))  # a write-back error is an error
+    with pytest.raises(OSError, match="syncfs failed"):
+        layout.fsync_tree(g)

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 
 import numpy as np
 
@@ -52,6 +53,7 @@ from facestats.acquire.capture import PER_LUMITEXEL, CaptureWriter, open_capture
 from facestats.acquire.dome import Dome
 from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.photographs import (
+    MANIFEST,
     CaptureFolder,
     bilinear_taps,
     exposure_consistency,
@@ -93,32 +95,45 @@ def _fingerprint(folder: CaptureFolder, dome, geometry: FaceGeometry) -> dict:
     return {"manifest": folder.fingerprint(), "calibration": calib, "geometry": geo.hexdigest()}
 
 
-def _check_inputs(folder: CaptureFolder, dome, geometry):
-    """Raise unless the folder and the calibration describe the same rig and bit depth."""
+def _calibration(dome):
+    """``(Dome, how messages name it)`` of a Dome or of its calibration file (:meth:`Dome.load`)."""
+    if isinstance(dome, Dome):
+        return dome, "the calibration"
+    if isinstance(dome, (str, os.PathLike)):
+        return Dome.load(dome), f"the calibration {os.fspath(dome)}"
+    raise ValidationError(f"dome must be a Dome calibration or the path of its file, got {type(dome).__name__}")
+
+
+def _check_inputs(folder: CaptureFolder, dome, geometry, calibration="the calibration"):
+    """Raise unless the folder and the calibration describe the same rig and bit depth.
+
+    ``calibration`` names the calibration in messages (its file when known).
+    """
+    manifest = folder.path / MANIFEST
     if folder.kind != "face":
-        raise FormatError(f"manifest.json field 'kind' must be 'face' to ingest a subject, got {folder.kind!r}")
+        raise FormatError(f"{manifest} field 'kind' must be 'face' to ingest a subject, got {folder.kind!r}")
     if folder.n_cameras != dome.n_cameras:
         raise FormatError(
-            f"manifest.json field 'n_cameras' is {folder.n_cameras}, the calibration has {dome.n_cameras} cameras "
+            f"{manifest} field 'n_cameras' is {folder.n_cameras}, {calibration} has {dome.n_cameras} cameras "
             "(field 'cameras')"
         )
     if folder.n_leds != dome.n_leds:
         raise FormatError(
-            f"manifest.json field 'n_leds' is {folder.n_leds}, the calibration has {dome.n_leds} LEDs "
+            f"{manifest} field 'n_leds' is {folder.n_leds}, {calibration} has {dome.n_leds} LEDs "
             "(field 'led_position_mm')"
         )
     if geometry.region_map is None:
         raise FormatError(f"geometry {geometry.name!r} has no face-region image (region_map): the maps need it")
     if dome.camera_log_response is None:
         raise FormatError(
-            "the calibration has no field 'camera_log_response' (the cameras' Debevec-Malik response g); "
+            f"{calibration} has no field 'camera_log_response' (the cameras' Debevec-Malik response g); "
             "recover it from a bracket with facestats.acquire.hdr.recover_response"
         )
     levels = dome.camera_log_response.shape[1]
     if levels != 2**folder.bits:
         raise FormatError(
-            f"the calibration's camera_log_response has {levels} levels, manifest.json field 'bits' is {folder.bits} "
-            f"({2**folder.bits} levels)"
+            f"field 'camera_log_response' of {calibration} has {levels} levels, {manifest} field 'bits' is "
+            f"{folder.bits} ({2**folder.bits} levels)"
         )
 
 
@@ -259,9 +274,10 @@ def ingest_photographs(
         The photographs (:mod:`facestats.acquire.photographs`).
     geometry : FaceGeometry
         The face mesh's lumitexels (:func:`facestats.io.mesh.load_face_mesh`), mm, world frame.
-    dome : Dome
+    dome : Dome, str or path-like
         The calibration: cameras (K, dist, R, t), LEDs, ``camera_log_response``,
-        ``camera_scale`` and ``camera_gain``.
+        ``camera_scale`` and ``camera_gain``; or its JSON file (:meth:`Dome.load`),
+        which the errors about it then name.
     path : str or path-like
         Where the capture (a zarr group) is written.
     subject_id : str, optional
@@ -282,18 +298,25 @@ def ingest_photographs(
     -------
     str
         ``path``; open it with :func:`open_ingested`.
+
+    Raises
+    ------
+    FormatError
+        The folder and the calibration disagree (camera or LED count, bit depth),
+        or a frame is missing, corrupt or of the wrong size or depth; the message
+        names the manifest or frame, the field and both values, and the
+        calibration file when ``dome`` is one.
     """
 
     if not isinstance(geometry, FaceGeometry):
         raise ValidationError(f"geometry must be a FaceGeometry, got {type(geometry).__name__}")
-    if not isinstance(dome, Dome):
-        raise ValidationError(f"dome must be a Dome calibration, got {type(dome).__name__}")
+    dome, calibration = _calibration(dome)
     chunk = check_integer(chunk, "chunk", 1)
     workers = check_integer(workers, "workers", 1)
     motion_tolerance = float(as_finite(motion_tolerance, "motion_tolerance", 0, None, low_inclusive=False))
     min_footprint_px = float(as_finite(min_footprint_px, "min_footprint_px", 0, None))
     folder = folder if isinstance(folder, CaptureFolder) else open_folder(folder)
-    _check_inputs(folder, dome, geometry)
+    _check_inputs(folder, dome, geometry, calibration)
     writer, state = _start(path, folder, geometry, dome, _fingerprint(folder, dome, geometry), chunk, subject_id)
     if state["complete"]:
         return str(path)

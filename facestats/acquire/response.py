@@ -93,7 +93,10 @@ def hat_weights(levels: int) -> np.ndarray:
 
 # -- input checks --------------------------------------------------------------------------------
 def _check_stack(images, exposure_times, bits, name="images"):
-    """Validated ``(codes (P, ...), times (P,), bits)`` sorted by exposure time."""
+    """Validated ``(codes (P, ...), times (P,), bits, order)`` sorted by exposure time.
+
+    ``order[k]`` is the caller's index of the k-th sorted image (for messages).
+    """
     seq = list(images)
     t = as_finite(exposure_times, "exposure_times", 0, None, low_inclusive=False, unit="s", dtype=np.float64)
     if t.ndim != 1 or t.size != len(seq):
@@ -128,7 +131,7 @@ def _check_stack(images, exposure_times, bits, name="images"):
                 "(wrong bit depth?)"
             )
     order = np.argsort(t, kind="stable")
-    return [arrays[j] for j in order], t[order], bits
+    return [arrays[j] for j in order], t[order], bits, order
 
 
 # -- sample selection ---------------------------------------------------------------------------------
@@ -289,9 +292,13 @@ def recover_response(images, exposure_times, *, smoothness=None, samples=None, b
     ------
     ValidationError
         Fewer than two distinct exposure times, codes beyond ``bits``, images of
-        different shapes or non-integer images.
+        different shapes or non-integer images; or no usable samples in a channel
+        (no sampled pixel has a code of non-zero weight, strictly between 0 and
+        2**bits − 1, in at least two exposures — e.g. one all-dark and one
+        all-saturated frame): g would be left at 0.  The message names each frame
+        with its exposure time and its fractions of dark and saturated pixels.
     """
-    stack, t, bits = _check_stack(images, exposure_times, bits)
+    stack, t, bits, order = _check_stack(images, exposure_times, bits)
     levels = 2**bits
     knots = min(levels, MAX_KNOTS)
     p = len(stack)
@@ -315,10 +322,29 @@ def recover_response(images, exposure_times, *, smoothness=None, samples=None, b
         stack = [a[..., None] for a in stack]
     log_t = np.log(t)
     out = np.empty((levels, stack[0].shape[-1]))
+    usable = hat_weights(levels) > 0
     for ch in range(stack[0].shape[-1]):  # loop over channels (3), vectorised over samples
         codes = _sample_codes(stack, ch, samples, levels, n).astype(np.int64)
+        if not np.any(np.count_nonzero(usable[codes], axis=1) >= 2):  # one usable exposure: ln E absorbs it
+            raise ValidationError(_no_samples_message(stack, t, order, ch, levels, codes.shape[0]))
         out[:, ch] = _solve_channel(codes, log_t, levels, lam)
     return out
+
+
+def _no_samples_message(stack, t, order, channel, levels, n):
+    """Why channel ``channel`` of a bracket informs no response: each frame's dark and saturated fractions."""
+    frames = []
+    for k, a in enumerate(stack):  # loop over exposures (a handful), vectorised over pixels
+        c = a[..., channel]
+        dark, sat = np.count_nonzero(c == 0) / c.size, np.count_nonzero(c == levels - 1) / c.size
+        frames.append(
+            f"images[{order[k]}] (exposure {t[k]:.6g} s): {dark:.1%} of pixels at 0, {sat:.1%} at {levels - 1}"
+        )
+    return (
+        f"images hold no usable samples in channel {channel}: none of the {n} sampled pixels has a code strictly "
+        f"between 0 and {levels - 1} (non-zero weight) in at least two exposures, so the response g cannot be "
+        f"recovered; {'; '.join(frames)} (add exposures between these, or check the frames)"
+    )
 
 
 # -- merge ---------------------------------------------------------------------------------------------------
@@ -369,7 +395,7 @@ def merge_photographs(
         is saturated (module docstring).
     """
     check_choice(weighting, "weighting", ("hat", "hat_time"))
-    stack, t, _ = _check_stack(images, exposure_times, None)
+    stack, t, _, _ = _check_stack(images, exposure_times, None)
     channels = stack[0].shape[-1]
     g = _check_response(response, channels)
     levels = g.shape[0]

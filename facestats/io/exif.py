@@ -2,9 +2,10 @@
 
 EXIF (JEITA CP-3451 / CIPA DC-008) stores its tags as a TIFF structure (TIFF 6.0
 §2: byte-order mark ``II`` or ``MM``, magic 42, offset of the first image file
-directory; each IFD a count and 12-byte entries tag, type, count, value/offset).
-The capture tags live in the Exif sub-IFD that tag 0x8769 of IFD0 points to.
-This module reads that structure from
+directory; each IFD a count and 12-byte entries tag, type, count, value/offset;
+BigTIFF: magic 43, 8-byte offsets and counts, 20-byte entries).  The capture
+tags live in the Exif sub-IFD that tag 0x8769 of IFD0 points to.  This module
+reads that structure from
 
 * JPEG: the APP1 segment starting ``Exif\\0\\0``;
 * TIFF: the file itself (its IFD0 is the EXIF IFD0);
@@ -15,19 +16,30 @@ and returns the exposure tags: ``ExposureTime`` (0x829A, seconds), ``FNumber``
 (0x829D), ``ISOSpeedRatings`` (0x8827), ``Make`` (0x010F), ``Model`` (0x0110).
 Nothing else is interpreted; no external program is run.  :func:`exif_payload`
 and :func:`embed_exif` write the same structure (used by the simulator to tag its
-photographs like a camera does).
+photographs like a camera does).  :func:`read_tiff_tags` reads other tags of the
+first IFD of a TIFF file with the same parser (the image decoder of
+:mod:`facestats.io.images` checks a TIFF's layout with it).
 """
 
 from __future__ import annotations
 
 import os
 import struct
+from dataclasses import dataclass
 from fractions import Fraction
 
 from facestats.errors import FormatError
 from facestats.io.png import PNG_SIGNATURE, png_chunk
 
-__all__ = ["read_exif", "parse_exif", "read_exposure_time", "exif_payload", "embed_exif", "EXIF_TAGS"]
+__all__ = [
+    "read_exif",
+    "parse_exif",
+    "read_exposure_time",
+    "read_tiff_tags",
+    "exif_payload",
+    "embed_exif",
+    "EXIF_TAGS",
+]
 
 #: Tags read, by number.
 EXIF_TAGS = {
@@ -38,56 +50,142 @@ EXIF_TAGS = {
     0x8827: "ISOSpeedRatings",
 }
 _EXIF_IFD = 0x8769
-#: TIFF field types: (struct code, size in bytes).
-_TYPES = {1: ("B", 1), 2: ("s", 1), 3: ("H", 2), 4: ("I", 4), 5: ("II", 8), 7: ("B", 1), 9: ("i", 4), 10: ("ii", 8)}
+#: TIFF field types: (struct code, size in bytes); 13 is IFD (TIFF 6.0 supplement), 16-18 are BigTIFF's 8-byte types.
+_TYPES = {
+    1: ("B", 1),
+    2: ("s", 1),
+    3: ("H", 2),
+    4: ("I", 4),
+    5: ("II", 8),
+    6: ("b", 1),
+    7: ("B", 1),
+    8: ("h", 2),
+    9: ("i", 4),
+    10: ("ii", 8),
+    11: ("f", 4),
+    12: ("d", 8),
+    13: ("I", 4),
+    16: ("Q", 8),
+    17: ("q", 8),
+    18: ("Q", 8),
+}
+#: Byte-order marks and magic numbers (TIFF 6.0 §2; BigTIFF: 43, then offset size 8 and a reserved 0).
+_CLASSIC_HEADERS = (b"II*\0", b"MM\0*")
+_BIG_HEADERS = (b"II+\0", b"MM\0+")
 
 
-def _value(data, order, typ, count, field, base):
-    """Value of one IFD entry (``field``: its 4-byte value/offset field)."""
+@dataclass(frozen=True)
+class _Layout:
+    """Where a TIFF structure's IFD fields are: byte order, offset size (4 classic, 8 BigTIFF)."""
+
+    order: str
+    offset_size: int
+
+    @property
+    def offset_code(self) -> str:
+        return "I" if self.offset_size == 4 else "Q"
+
+    @property
+    def entry_size(self) -> int:
+        return 12 if self.offset_size == 4 else 20
+
+    @property
+    def count_code(self) -> str:
+        """Struct code of an IFD's entry count (2 bytes classic, 8 BigTIFF)."""
+        return "H" if self.offset_size == 4 else "Q"
+
+
+def _value(data, layout, typ, count, field, base):
+    """Value of one IFD entry (``field``: its value/offset field, 4 or 8 bytes)."""
     code, size = _TYPES[typ]
     n = size * count
-    raw = field[:n] if n <= 4 else data[base + struct.unpack(order + "I", field)[0] :][:n]
+    if n <= len(field):  # the value fits in the entry
+        raw = field[:n]
+    else:
+        raw = data[base + struct.unpack(layout.order + layout.offset_code, field)[0] :][:n]
     if len(raw) < n:
-        raise FormatError("EXIF entry points beyond the end of its data")
+        raise FormatError("TIFF entry points beyond the end of its data")
     if typ == 2:
         return raw.split(b"\0", 1)[0].decode("latin-1").strip()
     if typ in (5, 10):
-        vals = struct.unpack(order + code[0] * (2 * count), raw)
+        vals = struct.unpack(layout.order + code[0] * (2 * count), raw)
         out = [float(Fraction(a, b)) if b else float("nan") for a, b in zip(vals[::2], vals[1::2])]
     else:
-        out = list(struct.unpack(order + code * count, raw))
+        out = list(struct.unpack(layout.order + code * count, raw))
     return out[0] if count == 1 else out
 
 
-def _ifd(data, order, offset, base):
-    """``{tag: value}`` of the IFD at ``offset`` (relative to ``base``)."""
+def _ifd(data, layout, offset, base, wanted):
+    """``{tag: value}`` of the tags in ``wanted`` of the IFD at ``offset`` (relative to ``base``)."""
     pos = base + offset
-    if pos + 2 > len(data):
-        raise FormatError(f"EXIF IFD offset {offset} lies beyond the end of the data")
-    (count,) = struct.unpack(order + "H", data[pos : pos + 2])
+    count_size = struct.calcsize(layout.count_code)
+    if pos + count_size > len(data):
+        raise FormatError(f"TIFF IFD offset {offset} lies beyond the end of the data")
+    (count,) = struct.unpack(layout.order + layout.count_code, data[pos : pos + count_size])
+    head = layout.order + "HH" + layout.offset_code  # tag, type, count
     out = {}
+    first, size = pos + count_size, layout.entry_size
     for k in range(count):  # loop over the IFD's entries (a few dozen at most)
-        entry = data[pos + 2 + 12 * k : pos + 14 + 12 * k]
-        if len(entry) < 12:
-            raise FormatError("EXIF IFD is truncated")
-        tag, typ, n = struct.unpack(order + "HHI", entry[:8])
-        if typ in _TYPES and (tag in EXIF_TAGS or tag == _EXIF_IFD):
-            out[tag] = _value(data, order, typ, n, entry[8:12], base)
+        entry = data[first + size * k : first + size * (k + 1)]
+        if len(entry) < size:
+            raise FormatError("TIFF IFD is truncated")
+        tag, typ, n = struct.unpack(head, entry[: 4 + layout.offset_size])
+        if typ in _TYPES and tag in wanted:
+            out[tag] = _value(data, layout, typ, n, entry[4 + layout.offset_size :], base)
     return out
+
+
+def _header(data, base):
+    """The :class:`_Layout` and IFD0 offset of the TIFF structure starting at ``base`` (classic or BigTIFF)."""
+    head = data[base : base + 16]
+    order = "<" if head[:2] == b"II" else ">"
+    if head[:4] in _CLASSIC_HEADERS:
+        return _Layout(order, 4), struct.unpack(order + "I", head[4:8])[0]
+    if head[:4] in _BIG_HEADERS and struct.unpack(order + "HH", head[4:8]) == (8, 0):
+        return _Layout(order, 8), struct.unpack(order + "Q", head[8:16])[0]
+    raise FormatError("data does not start with a TIFF header (II*\\0, MM\\0*, or BigTIFF II+\\0, MM\\0+)")
 
 
 def _parse_tiff(data, base=0):
     """The exposure tags of a TIFF structure starting at ``base``."""
-    head = data[base : base + 8]
-    if head[:4] not in (b"II*\0", b"MM\0*"):
-        raise FormatError("EXIF data does not start with a TIFF header (II*\\0 or MM\\0*)")
-    order = "<" if head[:2] == b"II" else ">"
-    ifd0 = _ifd(data, order, struct.unpack(order + "I", head[4:8])[0], base)
+    layout, offset0 = _header(data, base)
+    ifd0 = _ifd(data, layout, offset0, base, EXIF_TAGS.keys() | {_EXIF_IFD})
     tags = {EXIF_TAGS[t]: v for t, v in ifd0.items() if t in EXIF_TAGS}
     if _EXIF_IFD in ifd0:
-        sub = _ifd(data, order, int(ifd0[_EXIF_IFD]), base)
+        sub = _ifd(data, layout, int(ifd0[_EXIF_IFD]), base, EXIF_TAGS.keys())
         tags.update({EXIF_TAGS[t]: v for t, v in sub.items() if t in EXIF_TAGS})
     return tags
+
+
+def read_tiff_tags(data: bytes, tags, name: str = "<bytes>") -> dict:
+    """Values of some tags of the first image file directory (IFD0) of a TIFF file's bytes.
+
+    Parameters
+    ----------
+    data : bytes
+        The whole file (classic TIFF or BigTIFF, either byte order).
+    tags : iterable of int
+        Tag numbers (TIFF 6.0, e.g. 262 PhotometricInterpretation).
+    name : str
+        The file's name, for messages.
+
+    Returns
+    -------
+    dict of int to value
+        The tags present: a single value as int, float or str, several as a list
+        (e.g. BitsPerSample of an RGB image: ``[16, 16, 16]``).  Absent tags are
+        left out (their TIFF defaults are the caller's business).
+
+    Raises
+    ------
+    FormatError
+        The data is not a TIFF file or its IFD0 is corrupt (the message names ``name``).
+    """
+    try:
+        layout, offset0 = _header(data, 0)
+        return _ifd(data, layout, offset0, 0, frozenset(tags))
+    except (struct.error, FormatError, ValueError, ZeroDivisionError) as exc:
+        raise FormatError(f"TIFF structure of {name} is corrupt: {exc}") from None
 
 
 def _jpeg_app1(data):
@@ -140,7 +238,7 @@ def parse_exif(data: bytes, name: str = "<bytes>") -> dict:
     try:
         if data[:2] == b"\xff\xd8":
             base = _jpeg_app1(data)
-        elif data[:4] in (b"II*\0", b"MM\0*"):
+        elif data[:4] in _CLASSIC_HEADERS + _BIG_HEADERS:
             base = 0
         elif data[:8] == PNG_SIGNATURE:
             base = _png_exif(data)

@@ -20,8 +20,21 @@ Formats, by extension:
   Radiance's ``colr_color`` (e = 0 is black); only the ``-Y H +X W`` orientation
   (the standard one) is accepted; written as flat scanlines;
 * ``.pfm`` — Portable Float Map, grey (``Pf``) or colour (``PF``), either byte order;
-* ``.png``, ``.jpg``, ``.jpeg``, ``.tif``, ``.tiff`` — through OpenCV (8- and 16-bit,
-  grey or RGB(A); Pillow, under imageio, reads 16-bit RGB PNG as 8-bit).
+* ``.png``, ``.jpg``, ``.jpeg`` — through OpenCV (8- and 16-bit, grey or RGB(A);
+  Pillow, under imageio, reads 16-bit RGB PNG as 8-bit);
+* ``.tif``, ``.tiff`` — the first image of the file through libtiff
+  (``imagecodecs.tiff_decode``), which reads every layout TIFF 6.0 and BigTIFF
+  allow: strips or tiles, contiguous or planar samples (PlanarConfiguration 1
+  or 2), either byte order, uncompressed, LZW, deflate, PackBits, JPEG (decoded
+  to 8-bit RGB), with or without a horizontal predictor, and packed bit depths
+  9-15 (returned in uint16 with their own ``bits``).  Before decoding, the
+  first image file directory is checked (:func:`facestats.io.exif.read_tiff_tags`):
+  unsigned integer samples (SampleFormat 1) of 8 to 16 bits, grey
+  (MinIsBlack, one sample), RGB with optional extra samples, or YCbCr, and not
+  a reduced-resolution or mask image (NewSubfileType); anything else (float,
+  signed, palette, MinIsWhite, CMYK, CFA raw mosaics, 1-bit, ...) is an
+  :class:`ImageFormatError` naming the file, the tag and its value.  OpenCV is
+  not used for TIFF: it decodes 16-bit planar files to wrong codes.
 """
 
 from __future__ import annotations
@@ -30,10 +43,11 @@ import math
 import os
 import pathlib
 import re
+from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.errors import DependencyError, ValidationError
+from facestats.errors import DependencyError, FormatError, ValidationError
 
 __all__ = [
     "HDR_EXTENSIONS",
@@ -124,7 +138,33 @@ def read_image(path, *, srgb: bool = False) -> np.ndarray:
 
 
 def read_integer_image(path):
-    """An integer image as stored: ``(array (H, W, C) of uint8 or uint16, bits per sample)``, RGB order."""
+    """An integer image as stored in a PNG, JPEG or TIFF file, for camera-response work.
+
+    Parameters
+    ----------
+    path : str or path-like
+        A ``.png``, ``.jpg``/``.jpeg`` or ``.tif``/``.tiff`` file.
+
+    Returns
+    -------
+    codes : ndarray of uint8 or uint16, shape (H, W, C), C-contiguous
+        The codes as stored (no scaling, no EXIF rotation), row 0 at the top;
+        C = 1 for grey, else channels in RGB order followed by any extra
+        samples (C = 4: RGBA).  uint8 for 8-bit files, uint16 for 9- to 16-bit
+        ones.
+    bits : int
+        Bits per sample of the file: 8 or 16 (PNG, JPEG, TIFF), or 9-15 for a
+        TIFF with packed samples; codes lie in [0, 2**bits − 1].
+
+    Raises
+    ------
+    ValidationError
+        ``path`` is missing or not an integer image extension.
+    ImageFormatError
+        The file cannot be decoded, or holds samples that are not 8- to 16-bit
+        unsigned integers in grey or RGB(A) (module docstring); the message
+        names the file and, for TIFF, the tag and value.
+    """
     p = _path(path)
     if _extension(p) not in INTEGER_EXTENSIONS:
         raise ValidationError(f"path must name an integer image ({', '.join(INTEGER_EXTENSIONS)}), got {str(p)!r}")
@@ -132,7 +172,13 @@ def read_integer_image(path):
 
 
 def decode_integer_image(data: bytes, name: str = "<bytes>"):
-    """:func:`read_integer_image` of a file's bytes (read once, e.g. to check a checksum first); ``name`` for errors."""
+    """:func:`read_integer_image` of a file's bytes (read once, e.g. to check a checksum first); ``name`` for errors.
+
+    The format is told by the data's signature, not by ``name``: TIFF (classic or
+    BigTIFF) through libtiff, anything else through OpenCV (module docstring).
+    """
+    if bytes(data[:4]) in _TIFF_SIGNATURES:
+        return _decode_tiff(data, name)
     import cv2
 
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)  # no EXIF rotation, no depth change
@@ -149,6 +195,145 @@ def decode_integer_image(data: bytes, name: str = "<bytes>"):
     if img.shape[2] in (3, 4):  # OpenCV stores BGR(A); cvtColor swaps in one SIMD pass (fancy indexing: 10× slower)
         return cv2.cvtColor(img, cv2.COLOR_BGR2RGB if img.shape[2] == 3 else cv2.COLOR_BGRA2RGBA), bits
     return np.ascontiguousarray(img), bits
+
+
+# -- TIFF ------------------------------------------------------------------------------------
+#: Classic TIFF and BigTIFF signatures (byte order, magic 42 or 43).
+_TIFF_SIGNATURES = (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+")
+#: Tags of the first IFD the decoder checks (TIFF 6.0 numbers).
+_TIFF_TAGS = {
+    254: "NewSubfileType",
+    256: "ImageWidth",
+    257: "ImageLength",
+    258: "BitsPerSample",
+    259: "Compression",
+    262: "PhotometricInterpretation",
+    277: "SamplesPerPixel",
+    284: "PlanarConfiguration",
+    339: "SampleFormat",
+}
+#: PhotometricInterpretation values (TIFF 6.0, TIFF/EP, DNG) named in messages.
+_PHOTOMETRIC = {
+    0: "MinIsWhite",
+    1: "MinIsBlack",
+    2: "RGB",
+    3: "Palette",
+    4: "TransparencyMask",
+    5: "Separated (CMYK)",
+    6: "YCbCr",
+    8: "CIELab",
+    9: "ICCLab",
+    10: "ITULab",
+    32803: "CFA (a raw colour-filter mosaic: demosaic it first)",
+    32844: "LogL",
+    32845: "LogLuv",
+    34892: "LinearRaw",
+}
+_MIN_IS_BLACK, _RGB, _YCBCR = 1, 2, 6
+#: Compression values libtiff decodes to 8-bit RGB(A) itself (JPEG, old-style JPEG): already interleaved.
+_JPEG_COMPRESSION = (6, 7)
+
+
+@dataclass(frozen=True)
+class _TiffLayout:
+    """The checked layout of a TIFF's first image: pixels, samples, bit depth, planar storage."""
+
+    height: int
+    width: int
+    samples: int
+    bits: int
+    planar: bool  # samples stored plane by plane (PlanarConfiguration 2) *and* returned so by libtiff
+
+
+def _tiff_tag(tags, tag, default, name):
+    """One value of ``tag`` (its TIFF 6.0 default when absent); per-sample lists must agree."""
+    v = tags.get(tag, default)
+    values = v if isinstance(v, list) else [v]
+    if len(set(values)) != 1:
+        raise ImageFormatError(
+            f"TIFF file {name!r} must have one {_TIFF_TAGS[tag]} (tag {tag}) for all samples, got {values}"
+        )
+    return values[0]
+
+
+def _tiff_error(name, tag, value, expected) -> ImageFormatError:
+    """The error of a TIFF whose tag ``tag`` has an unsupported ``value``."""
+    return ImageFormatError(f"TIFF file {name!r} must hold {expected}, got {_TIFF_TAGS[tag]} (tag {tag}) = {value!r}")
+
+
+def _tiff_bits(tags, name) -> int:
+    """Bits per sample of a full-resolution image of unsigned 8- to 16-bit samples (else the error)."""
+    subfile = _tiff_tag(tags, 254, 0, name)
+    if subfile & 5:  # bit 0: reduced-resolution version of another image; bit 2: a transparency mask
+        raise _tiff_error(name, 254, subfile, "a full-resolution image first (NewSubfileType without bits 0 and 2)")
+    fmt = _tiff_tag(tags, 339, 1, name)
+    if fmt != 1:
+        kind = {2: "signed integer", 3: "floating point", 4: "undefined"}.get(fmt, "unknown")
+        raise _tiff_error(name, 339, f"{fmt} ({kind})", "unsigned integer samples (SampleFormat 1)")
+    bits = _tiff_tag(tags, 258, 1, name)
+    if not 8 <= bits <= 16:
+        raise _tiff_error(name, 258, bits, "8 to 16 bits per sample")
+    return int(bits)
+
+
+def _tiff_colour(tags, bits, name):
+    """``(samples per pixel, decoded through libtiff's RGBA interface)`` of a grey, RGB(A) or YCbCr image."""
+    photometric = _tiff_tag(tags, 262, None, name)
+    samples = _tiff_tag(tags, 277, 1, name)
+    shown = f"{photometric} ({_PHOTOMETRIC.get(photometric, 'unknown')})"
+    if photometric not in (_MIN_IS_BLACK, _RGB, _YCBCR):
+        raise _tiff_error(name, 262, shown, "a grey (1 MinIsBlack), RGB (2) or YCbCr (6) image")
+    if photometric == _MIN_IS_BLACK and samples != 1:
+        raise _tiff_error(name, 277, samples, "one sample per pixel for a grey (MinIsBlack) image")
+    if photometric != _MIN_IS_BLACK and samples < 3:
+        raise _tiff_error(name, 277, samples, f"at least 3 samples per pixel for PhotometricInterpretation {shown}")
+    # libtiff returns JPEG-compressed and YCbCr images through its RGBA interface: 8-bit RGB, interleaved.
+    via_rgba = _tiff_tag(tags, 259, 1, name) in _JPEG_COMPRESSION or photometric == _YCBCR
+    if via_rgba and bits != 8:
+        raise _tiff_error(name, 258, bits, "8 bits per sample for a JPEG-compressed or YCbCr image")
+    return int(samples), via_rgba
+
+
+def _tiff_layout(data, name) -> _TiffLayout:
+    """The layout of the first image of a TIFF file, or :class:`ImageFormatError` naming what is unsupported."""
+    from facestats.io.exif import read_tiff_tags
+
+    try:
+        tags = read_tiff_tags(data, _TIFF_TAGS, name)
+    except FormatError as exc:
+        raise ImageFormatError(f"TIFF file {name!r} could not be decoded: {exc}") from None
+    for tag in (256, 257, 262):
+        if tag not in tags:
+            raise ImageFormatError(f"TIFF file {name!r} has no {_TIFF_TAGS[tag]} (tag {tag}), which TIFF 6.0 requires")
+    bits = _tiff_bits(tags, name)
+    samples, via_rgba = _tiff_colour(tags, bits, name)
+    planar = _tiff_tag(tags, 284, 1, name)
+    if planar not in (1, 2):
+        raise _tiff_error(name, 284, planar, "contiguous (1) or planar (2) samples")
+    return _TiffLayout(int(tags[257]), int(tags[256]), samples, bits, planar == 2 and samples > 1 and not via_rgba)
+
+
+def _decode_tiff(data, name):
+    """``(codes (H, W, C), bits)`` of the first image of a TIFF file (module docstring)."""
+    import imagecodecs
+
+    layout = _tiff_layout(data, name)
+    try:
+        img = imagecodecs.tiff_decode(data)  # the first IFD, samples as stored, native byte order
+    except (RuntimeError, ValueError, IndexError, MemoryError) as exc:  # imagecodecs.TiffError is a RuntimeError
+        raise ImageFormatError(f"TIFF file {name!r} could not be decoded by libtiff: {exc}") from None
+    if img.ndim == 2:
+        img = img[..., None]
+    elif layout.planar:  # (samples, H, W) -> (H, W, samples)
+        img = np.moveaxis(img, 0, -1)
+    want = (layout.height, layout.width, layout.samples)
+    dtype = np.uint8 if layout.bits == 8 else np.uint16
+    if img.shape != want or img.dtype != dtype:
+        raise ImageFormatError(
+            f"TIFF file {name!r} decoded to shape {img.shape} and dtype {img.dtype}, its tags say {want} and "
+            f"{layout.bits} bits per sample ({np.dtype(dtype).name}): unsupported layout"
+        )
+    return np.ascontiguousarray(img), layout.bits
 
 
 def write_image(path, image, *, half: bool = False, bits: int = 8, srgb: bool = False, attributes=None):

@@ -155,7 +155,7 @@ def load_face_mesh(path, region_image, *, scale=1.0, transform=None, flip_v=True
     label = regions[texel[:, 0], texel[:, 1]]
     keep = (label > 0) & (length > 0) & (area > 0)
     if not keep.any():
-        raise FormatError("no mesh vertex falls on a labelled face region of the region image")
+        raise FormatError(_no_face_region_message(path, region_image, uv, regions, label))
     return FaceGeometry(
         position=verts[keep],
         normal=normals[keep] / length[keep, None],
@@ -169,6 +169,20 @@ def load_face_mesh(path, region_image, *, scale=1.0, transform=None, flip_v=True
         name=name or os.path.basename(os.fspath(path)),
         meta={"kind": "mesh", "path": os.fspath(path), "mesh_grid": int(np.sqrt(len(faces) / 2))},
         mesh_uv=uv,
+    )
+
+
+def _no_face_region_message(path, region_image, uv, regions, label) -> str:
+    """Why no vertex of a mesh became a lumitexel: the mesh's vertex count and UV range, the image's labels."""
+    image = os.fspath(region_image) if isinstance(region_image, (str, os.PathLike)) else "(an array)"
+    n = regions.shape[0]
+    on_label = int(np.count_nonzero(label > 0))
+    return (
+        f"no mesh vertex falls on a labelled face region of the region image: mesh {os.fspath(path)} has "
+        f"{len(uv)} vertices with UV u in [{uv[:, 0].min():.4g}, {uv[:, 0].max():.4g}], v in "
+        f"[{uv[:, 1].min():.4g}, {uv[:, 1].max():.4g}] (image convention, v down); region image {image} is {n}×{n} "
+        f"pixels with {int(np.count_nonzero(regions))} labelled (label 1-10); {on_label} vertices land on labelled "
+        f"pixels{' (all on degenerate triangles: zero normal or area)' if on_label else ''}"
     )
 
 

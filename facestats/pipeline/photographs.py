@@ -14,7 +14,6 @@ import json
 import pathlib
 from dataclasses import dataclass, field
 
-from facestats.acquire.dome import Dome
 from facestats.acquire.ingest import MIN_FOOTPRINT_PX, MOTION_TOLERANCE, ingest_photographs, open_ingested
 from facestats.errors import FormatError
 from facestats.io import open_store
@@ -118,14 +117,13 @@ def ingest_subject(
     with open_store(store, "a") as st:
         if sid in st:
             return IngestReport(sid, str(store), "", skipped=True)
-    dome = Dome.load(calibration)
     geometry = load_face_mesh(mesh, regions if regions is not None else find_region_image(mesh))
     work = pathlib.Path(work) if work is not None else default_work_path(store, sid)
     work.parent.mkdir(parents=True, exist_ok=True)
     ingest_photographs(
         photo_dir,
         geometry,
-        dome,
+        calibration,  # the file, so that errors name it
         work,
         subject_id=sid,
         workers=workers,

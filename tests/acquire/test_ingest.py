@@ -123,8 +123,23 @@ def test_wrong_image_size_and_camera_count(copy, tiny):
         FacestatsError, match=r"frame cam00/led000_e0\.png is 96×96 pixels, the calibration's .* 128×128"
     ):
         ingest_photographs(copy, _geometry(copy), dome.resized(128, 128), copy.parent / "a.zarr", workers=1)
-    with pytest.raises(FacestatsError, match=r"field 'n_cameras' is 4, the calibration has 3 cameras"):
+    with pytest.raises(FacestatsError, match=r"manifest\.json field 'n_cameras' is 4, the calibration has 3 cameras"):
         ingest_photographs(copy, _geometry(copy), dome.select(cameras=[0, 1, 2]), copy.parent / "b.zarr")
+
+
+def test_camera_count_mismatch_names_the_calibration_file(copy, tiny):
+    """Given the calibration's file, the ingest names it in the camera-count error (and reads it)."""
+    _, pc, _ = tiny
+    three = copy.parent / "three-cameras.json"
+    Dome.load(pc.calibration).select(cameras=[0, 1, 2]).save(three)
+    with pytest.raises(
+        FacestatsError,
+        match=r"photos/manifest\.json field 'n_cameras' is 4, the calibration .*three-cameras\.json has 3 cameras "
+        r"\(field 'cameras'\)",
+    ):
+        ingest_photographs(copy, _geometry(copy), three, copy.parent / "b.zarr")
+    with pytest.raises(FacestatsError, match=r"dome must be a Dome calibration or the path of its file, got dict"):
+        ingest_photographs(copy, _geometry(copy), Dome.load(pc.calibration).to_dict(), copy.parent / "c.zarr")
 
 
 def test_wrong_bit_depth(copy, tiny):
@@ -136,8 +151,12 @@ def test_wrong_bit_depth(copy, tiny):
     ):
         for led in range(6):
             f.read_codes(0, led, 1)
-    with pytest.raises(FacestatsError, match="camera_log_response has 4096 levels, manifest.json field 'bits' is 10"):
-        ingest_photographs(copy, _geometry(copy), Dome.load(pc.calibration), copy.parent / "a.zarr")
+    with pytest.raises(
+        FacestatsError,
+        match=r"field 'camera_log_response' of the calibration .*dome.*\.json has 4096 levels, .*manifest\.json "
+        r"field 'bits' is 10",
+    ):
+        ingest_photographs(copy, _geometry(copy), pc.calibration, copy.parent / "a.zarr")
     import cv2
 
     cv2.imwrite(str(copy / "cam00" / "led001_e0.png"), np.zeros((96, 96, 3), np.uint8))
@@ -148,6 +167,27 @@ def test_wrong_bit_depth(copy, tiny):
         FacestatsError, match=r"frame cam00/led001_e0\.png is a 8-bit file, field 'bits' of manifest\.json is 12"
     ):
         f.read_codes(0, 1, 0)
+
+
+def test_a_planar_16_bit_tiff_frame_reads_the_codes_it_holds(copy):
+    """A camera writing 16-bit TIFF with separate colour planes (PlanarConfiguration 2): the same codes as the PNG."""
+    import hashlib
+
+    tifffile = pytest.importorskip("tifffile")
+    want = open_folder(copy).read_codes(1, 2, 1)
+    tif = copy / "cam01" / "led002_e1.tif"
+    tifffile.imwrite(tif, np.ascontiguousarray(np.moveaxis(want, -1, 0)), photometric="rgb", planarconfig="separate")
+    digest = hashlib.sha256(tif.read_bytes()).hexdigest()
+
+    def point(d):
+        for fr in d["frames"]:
+            if (fr["camera"], fr["led"], fr["exposure"]) == (1, 2, 1):
+                fr.update(file="cam01/led002_e1.tif", sha256=digest)
+
+    _edit_manifest(copy, point)
+    got = open_folder(copy).read_codes(1, 2, 1, size=(96, 96))
+    assert got.dtype == np.uint16 and got.shape == (96, 96, 3)
+    np.testing.assert_array_equal(got, want)
 
 
 def test_non_monotonic_exposure_times_and_exif_disagreement(copy):
@@ -192,8 +232,17 @@ def test_mesh_without_face_region(copy):
     from facestats.pipeline.photographs import find_region_image
 
     np.save(copy / "empty.npy", np.zeros((16, 16), np.uint8))
-    with pytest.raises(FacestatsError, match="no mesh vertex falls on a labelled face region"):
+    geometry = _geometry(copy)
+    n_vertices = len(geometry.mesh_vertices)
+    with pytest.raises(
+        FacestatsError,
+        match=rf"no mesh vertex falls on a labelled face region of the region image: mesh .*face\.obj has {n_vertices} "
+        r"vertices with UV u in \[0\.\d+, 0\.\d+\], v in \[0\.\d+, 0\.\d+\] \(image convention, v down\); region image "
+        r".*empty\.npy is 16×16 pixels with 0 labelled \(label 1-10\); 0 vertices land on labelled pixels$",
+    ):
         load_face_mesh(copy / "face.obj", copy / "empty.npy")
+    with pytest.raises(FacestatsError, match=r"region image \(an array\) is 16×16 pixels with 0 labelled"):
+        load_face_mesh(copy / "face.obj", np.zeros((16, 16), np.uint8))
     (copy / "face.regions.png").unlink()
     with pytest.raises(
         FacestatsError, match=r"mesh .*face\.obj has no face-region image \(looked for face\.regions\.png"

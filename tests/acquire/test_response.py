@@ -242,3 +242,31 @@ def test_real_jpeg_bracket_exif_times_and_agreement_with_opencv():
     e_cv = cv2.createMergeDebevec().process(bgr, times.astype(np.float32), resp)[..., ::-1]
     assert _scaled_rel(merge_photographs(imgs, times, np.log(resp[:, 0, ::-1])), e_cv) < 0.005  # same g
     assert _scaled_rel(ours, e_cv) < 0.05  # measured 3.2 %: the two recovered curves differ, not the merges
+
+
+def test_frames_without_information_are_an_error_naming_the_frames():
+    """One all-dark and one all-saturated frame carry no sample usable in two exposures: g would silently be 0."""
+    dark, bright = np.zeros((20, 30, 3), np.uint8), np.full((20, 30, 3), 255, np.uint8)
+    for samples in (None, "stratified", np.arange(50)):
+        with pytest.raises(
+            FacestatsError,
+            match=r"no usable samples in channel 0: none of the \d+ sampled pixels .* in at least two exposures.*"
+            r"images\[1\] \(exposure 0\.01 s\): 100\.0% of pixels at 0, 0\.0% at 255; "
+            r"images\[0\] \(exposure 1 s\): 0\.0% of pixels at 0, 100\.0% at 255",
+        ):
+            recover_response([bright, dark], [1.0, 0.01], samples=samples)  # unsorted: named in the caller's order
+
+
+def test_a_channel_without_information_is_an_error_naming_it(bracket8):
+    """A bracket whose blue channel is clipped in every frame: red and green are fine, blue is named."""
+    _, _, imgs = bracket8
+    clipped = [i.copy() for i in imgs]
+    for k, img in enumerate(clipped):
+        img[..., 2] = 0 if k < 2 else 255
+    with pytest.raises(FacestatsError, match=r"no usable samples in channel 2: .*images\[3\] \(exposure 2 s\)"):
+        recover_response(clipped, TIMES)
+    cam12 = ResponseCurve(bits=12)
+    _, imgs12 = _bracket(cam12, times=np.array([1 / 60, 1 / 8]))
+    dead = [np.zeros_like(imgs12[0]), np.full_like(imgs12[1], 4095)]
+    with pytest.raises(FacestatsError, match=r"strictly between 0 and 4095 .* 100\.0% at 4095"):
+        recover_response(dead, [1 / 60, 1 / 8], bits=12)

@@ -137,3 +137,148 @@ def test_bad_files_and_arguments_name_the_problem(tmp_path):
         images.write_image(tmp_path / "n.hdr", np.full((2, 2, 3), np.nan))
     with pytest.raises(ValidationError, match="bits must be 8 or 16"):
         images.write_image(tmp_path / "j.jpg", np.ones((2, 2, 3)), bits=16)
+
+
+# -- TIFF layouts ------------------------------------------------------------------------------------------------------
+def _rgb16(h=37, w=53):
+    """Random 16-bit RGB codes with a constant blue channel of 30000 (decoders that misread planar data scramble it)."""
+    rgb = np.random.default_rng(16).integers(0, 65536, (h, w, 3), dtype=np.uint16)
+    rgb[..., 2] = 30000
+    return rgb
+
+
+def _planar(a):
+    return np.ascontiguousarray(np.moveaxis(a, -1, 0))  # (H, W, S) -> (S, H, W), as tifffile writes separate planes
+
+
+# name: (codes as read, array and keywords for tifffile.imwrite, bits)
+_TIFF_LAYOUTS = {
+    "planar_rgb16": (_rgb16(), lambda a: (_planar(a), dict(photometric="rgb", planarconfig="separate")), 16),
+    "planar_rgb16_strips": (
+        _rgb16(),
+        lambda a: (_planar(a), dict(photometric="rgb", planarconfig="separate", rowsperstrip=5)),
+        16,
+    ),
+    "big_endian_rgb16": (_rgb16(), lambda a: (a, dict(photometric="rgb", byteorder=">")), 16),
+    "tiled_rgb16": (_rgb16(), lambda a: (a, dict(photometric="rgb", tile=(16, 16))), 16),
+    "lzw_rgb16": (_rgb16(), lambda a: (a, dict(photometric="rgb", compression="lzw")), 16),
+    "deflate_predictor_rgb16": (
+        _rgb16(),
+        lambda a: (a, dict(photometric="rgb", compression="zlib", predictor=True)),
+        16,
+    ),
+    "packbits_rgb16": (_rgb16(), lambda a: (a, dict(photometric="rgb", compression="packbits")), 16),
+    "planar_tiled_big_endian_deflate_rgb16": (
+        _rgb16(),
+        lambda a: (
+            _planar(a),
+            dict(photometric="rgb", planarconfig="separate", tile=(16, 16), byteorder=">", compression="zlib"),
+        ),
+        16,
+    ),
+    "bigtiff_planar_lzw_predictor_rgb16": (
+        _rgb16(),
+        lambda a: (
+            _planar(a),
+            dict(photometric="rgb", planarconfig="separate", bigtiff=True, compression="lzw", predictor=True),
+        ),
+        16,
+    ),
+    "planar_rgba16": (
+        np.dstack([_rgb16(), _rgb16()[..., :1]]),
+        lambda a: (_planar(a), dict(photometric="rgb", planarconfig="separate", extrasamples=["unassalpha"])),
+        16,
+    ),
+    "grey16": (_rgb16()[..., :1], lambda a: (a[..., 0], dict(photometric="minisblack")), 16),
+    "planar_rgb8": (
+        (_rgb16() >> 8).astype(np.uint8),
+        lambda a: (_planar(a), dict(photometric="rgb", planarconfig="separate")),
+        8,
+    ),
+    "packed_12_bit_rgb": (_rgb16() >> 4, lambda a: (a, dict(photometric="rgb", bitspersample=12)), 12),
+    "packed_12_bit_planar_rgb": (
+        _rgb16() >> 4,
+        lambda a: (_planar(a), dict(photometric="rgb", planarconfig="separate", bitspersample=12)),
+        12,
+    ),
+}
+
+
+@pytest.mark.parametrize("layout", sorted(_TIFF_LAYOUTS))
+def test_tiff_layouts_decode_to_the_exact_codes(tmp_path, layout):
+    """Every layout tifffile (an independent writer) produces reads back code for code, RGB(A) order, (H, W, C)."""
+    tifffile = pytest.importorskip("tifffile")
+    codes, writer, bits = _TIFF_LAYOUTS[layout]
+    data, kwargs = writer(codes)
+    path = tmp_path / f"{layout}.tif"
+    tifffile.imwrite(path, data, **kwargs)
+    raw, b = images.read_integer_image(path)
+    assert b == bits and raw.dtype == (np.uint8 if bits == 8 else np.uint16)
+    assert raw.shape == codes.shape and raw.flags.c_contiguous
+    np.testing.assert_array_equal(raw, codes)
+    if layout == "planar_rgb16":
+        assert np.all(raw[..., 2] == 30000)  # the constant blue channel OpenCV decoded as 1600, 4000, 6400, ...
+    assert images.decode_integer_image(path.read_bytes(), path.name)[1] == bits
+    np.testing.assert_array_equal(images.read_image(path), codes.astype(np.float32) / np.float32(2**bits - 1))
+
+
+def test_multi_page_tiff_reads_its_first_image(tmp_path):
+    tifffile = pytest.importorskip("tifffile")
+    first = _rgb16()
+    tifffile.imwrite(tmp_path / "pages.tif", np.stack([first, first // 2]), photometric="rgb")
+    np.testing.assert_array_equal(images.read_integer_image(tmp_path / "pages.tif")[0], first)
+
+
+def test_jpeg_compressed_tiff_decodes_to_8_bit_rgb_like_tifffile(tmp_path):
+    tifffile = pytest.importorskip("tifffile")
+    rgb8 = (_rgb16() >> 8).astype(np.uint8)
+    tifffile.imwrite(tmp_path / "j.tif", rgb8, photometric="rgb", compression="jpeg")  # stored as YCbCr
+    raw, bits = images.read_integer_image(tmp_path / "j.tif")
+    assert bits == 8 and raw.dtype == np.uint8 and raw.shape == rgb8.shape
+    np.testing.assert_array_equal(raw, tifffile.imread(tmp_path / "j.tif"))
+
+
+_BAD_TIFFS = {
+    "float32": (lambda: (_rgb16().astype(np.float32), dict(photometric="rgb")), r"SampleFormat \(tag 339\) = '3"),
+    "int16": (lambda: (_rgb16().astype(np.int16), dict(photometric="rgb")), r"SampleFormat \(tag 339\) = '2"),
+    "uint32": (lambda: (_rgb16().astype(np.uint32), dict(photometric="rgb")), r"BitsPerSample \(tag 258\) = 32"),
+    "bilevel": (lambda: (_rgb16()[..., 0] > 30000, dict(photometric="minisblack")), r"BitsPerSample \(tag 258\) = 1"),
+    "miniswhite": (
+        lambda: (_rgb16()[..., 0], dict(photometric="miniswhite")),
+        r"PhotometricInterpretation \(tag 262\) = '0 \(MinIsWhite\)'",
+    ),
+    "palette": (
+        lambda: ((_rgb16()[..., 0] >> 8).astype(np.uint8), dict(photometric="palette", colormap=np.zeros((3, 256)))),
+        r"PhotometricInterpretation \(tag 262\) = '3 \(Palette\)'",
+    ),
+    "cmyk": (
+        lambda: (np.dstack([_rgb16(), _rgb16()[..., :1]]), dict(photometric="separated")),
+        r"PhotometricInterpretation \(tag 262\) = '5 \(Separated \(CMYK\)\)'",
+    ),
+    "grey_with_extra_samples": (
+        lambda: (_rgb16(), dict(photometric="minisblack", planarconfig="contig")),
+        r"SamplesPerPixel \(tag 277\) = 3",
+    ),
+    "thumbnail_first": (lambda: (_rgb16(), dict(photometric="rgb", subfiletype=1)), r"NewSubfileType \(tag 254\) = 1"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(_BAD_TIFFS))
+def test_unsupported_tiffs_name_the_file_the_tag_and_the_value(tmp_path, case):
+    tifffile = pytest.importorskip("tifffile")
+    writer, message = _BAD_TIFFS[case]
+    data, kwargs = writer()
+    path = tmp_path / f"{case}.tif"
+    tifffile.imwrite(path, data, **kwargs)
+    with pytest.raises(images.ImageFormatError, match=rf"TIFF file '.*{case}\.tif' must hold .*{message}"):
+        images.read_integer_image(path)
+
+
+def test_truncated_tiffs_name_the_file(tmp_path):
+    tifffile = pytest.importorskip("tifffile")
+    tifffile.imwrite(tmp_path / "whole.tif", _rgb16(), photometric="rgb")
+    data = (tmp_path / "whole.tif").read_bytes()
+    with pytest.raises(ValidationError, match=r"TIFF file 'cut\.tif' could not be decoded by libtiff: .*strip"):
+        images.decode_integer_image(data[: len(data) // 2], "cut.tif")
+    with pytest.raises(ValidationError, match=r"TIFF file 'head\.tif' could not be decoded: .*corrupt"):
+        images.decode_integer_image(data[:12], "head.tif")

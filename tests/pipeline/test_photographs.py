@@ -12,6 +12,7 @@ import shutil
 import numpy as np
 import pytest
 
+from facestats.acquire.dome import Dome
 from tests.helpers import run_cli
 
 pytestmark = pytest.mark.slow  # end to end: a whole subject through the pipeline
@@ -94,6 +95,24 @@ def test_ingest_command_reports_bad_input_without_a_traceback(case, tmp_path):
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "frame cam05/led003_e1.png listed in manifest.json is missing" in r.stderr
     assert not any((tmp_path / "s.zarr.ingest").rglob("zarr.json"))  # nothing was started
+    # A calibration of another rig: the error names its file.
+    (bad / "cam05" / "led003_e1.png").write_bytes((pc.folder.parent / "cam05" / "led003_e1.png").read_bytes())
+    Dome.load(bad / "dome.json").select(cameras=[0, 1]).save(bad / "two.json")
+    r = run_cli(
+        "ingest",
+        bad,
+        "--mesh",
+        bad / "face.obj",
+        "--calibration",
+        bad / "two.json",
+        "--store",
+        store,
+        "--subject",
+        "S001",
+        "--quiet",
+    )
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "two.json has 2 cameras" in r.stderr, r.stderr
 
 
 def test_16_bit_tiff_frames_hold_the_png_codes_and_ingest(case, tmp_path):

@@ -489,10 +489,13 @@ def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = N
     Parameters
     ----------
     ds : xarray.Dataset
-        A map subject.  Without ``mesh``, its provenance must name the procedural
-        geometry it was captured on (``capture_provenance.geometry`` =
-        ``procedural-N``, every subject of the embedded default): that head is
-        rebuilt with :func:`facestats.acquire.synthetic.face.procedural_face`.
+        A map subject.  Without ``mesh``, its provenance must name the face it
+        was made on (``capture_provenance.geometry`` of a fitted subject, or
+        ``geometry`` of generated truth such as the texture sample):
+        ``procedural-N`` (every subject of the embedded default; that head is
+        rebuilt with :func:`facestats.acquire.synthetic.face.procedural_face`)
+        or ``ict-N`` (the shipped ICT-FaceKit face area,
+        :func:`facestats.acquire.synthetic.ict_face.ict_face_uv_mesh`).
     mesh : str or os.PathLike, optional
         An OBJ/PLY scan with per-vertex UVs (v up in the file) whose UV layout
         the subject's maps follow.
@@ -510,11 +513,22 @@ def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = N
         geometry = {"kind": "mesh", "name": os.path.basename(os.fspath(mesh)), "path": os.fspath(mesh), "scale": scale}
         return _face_mesh(verts, faces, _checked_uv(stored, len(verts), mesh, True), geometry)
 
-    name = provenance(ds).get("capture_provenance", {}).get("geometry", "")
-    if not str(name).startswith("procedural-"):
+    prov = provenance(ds)
+    name = str(prov.get("capture_provenance", {}).get("geometry", prov.get("geometry", "")))
+    if name.startswith("ict-"):
+        from facestats.acquire.synthetic.ict_face import ict_face_uv_mesh
+
+        split, uv_triangles, uv = ict_face_uv_mesh()
+        geometry = {
+            "kind": "ict-facekit",
+            "name": name,
+            "function": "facestats.acquire.synthetic.ict_face.ict_face_uv_mesh",
+        }
+        return _face_mesh(split, uv_triangles, uv, geometry)
+    if not name.startswith("procedural-"):
         raise ValidationError(
-            f"subject {ds.attrs.get('subject_id', '?')!r} does not record a procedural geometry "
-            f"(capture_provenance.geometry = {name!r}); pass mesh=PATH (--mesh) with the scan its maps belong to"
+            f"subject {ds.attrs.get('subject_id', '?')!r} does not record a face facestats can rebuild "
+            f"(geometry = {name!r}; procedural-N or ict-N); pass mesh=PATH (--mesh) with the scan its maps belong to"
         )
     grid = 128 if mesh_grid is None else check_integer(mesh_grid, "mesh_grid", 8, 4096)
     size = int(ds.sizes["u"])

@@ -82,7 +82,9 @@ def texture_sample_datasets(*, size: int = TEXTURE_SAMPLE_SIZE, subjects=TEXTURE
     -------
     list of xarray.Dataset
         Each the subject's truth (:meth:`SubjectTruth.to_dataset`) with zero ``ts_flag`` and
-        ``bp_flag`` maps and a provenance naming the generator, its seed, size and the
+        ``bp_flag`` maps, the head's own ``normal`` map (the procedural face's normals,
+        0 off the face) and a provenance naming the generator, its seed, size, the
+        head (``geometry`` = ``procedural-N``, which export rebuilds) and the
         subject's drawn features (freckles, moles, melanin).
     """
     from facestats.acquire.synthetic.face import procedural_face
@@ -98,6 +100,9 @@ def texture_sample_datasets(*, size: int = TEXTURE_SAMPLE_SIZE, subjects=TEXTURE
         ds = truth.to_dataset()
         for model in ("ts", "bp"):
             ds[f"{model}_flag"] = (("v", "u"), np.zeros((size, size), np.uint8))
+        normal = np.zeros((size, size, 3), np.float32)  # the head's own normals (no micro-geometry); 0 off the face
+        normal[geometry.grid_index[:, 0], geometry.grid_index[:, 1]] = geometry.normal
+        ds["normal"] = (("v", "u", "component"), normal)
         ds.attrs = dict(truth.metadata())
         ds.attrs["provenance"] = json.dumps(
             {
@@ -105,7 +110,7 @@ def texture_sample_datasets(*, size: int = TEXTURE_SAMPLE_SIZE, subjects=TEXTURE
                 "generator": "facestats.acquire.synthetic.population.synthesize_population",
                 "seed": int(seed),
                 "map_size": int(size),
-                "geometry": "procedural face",
+                "geometry": geometry.name,  # procedural-N: export rebuilds this head
                 "features": dict(truth.features),
                 "software": f"facestats {__version__}",
             },

@@ -87,3 +87,18 @@ def test_a_population_builds_and_fits_on_the_real_face(tmp_path):
     face = ds["region"].values > 0
     rel = np.abs(ds["albedo"].values[face] / truth.albedo[face] - 1)
     assert np.median(rel) < 0.02  # the fit recovers the truth on the real face as on the procedural one
+    # Export rebuilds the ICT face from the provenance: one vertex per UV vertex, normals out of the face.
+    from facestats.acquire.synthetic.ict_face import ict_face_mesh
+    from facestats.io.gltf import read_gltf_summary
+    from facestats.io.mesh import subject_mesh
+    from facestats.io.subject_export import export_subject
+
+    mesh = subject_mesh(ds)
+    _, triangles, uv, _ = ict_face_mesh()
+    assert mesh.geometry["name"] == "ict-24" and len(mesh.vertices) == len(uv) and len(mesh.faces) == len(triangles)
+    assert (
+        np.all((mesh.uv >= 0) & (mesh.uv <= 1)) and np.median(mesh.normals[:, 2]) > 0.3
+    )  # 0.51; reversed winding: -0.51
+    out = export_subject(ds, tmp_path / "gltf", "gltf")
+    summary = read_gltf_summary(tmp_path / "gltf" / next(f for f in out["files"] if f.endswith((".gltf", ".glb"))))
+    assert summary["n_vertices"] == len(uv) and summary["n_triangles"] == len(triangles)

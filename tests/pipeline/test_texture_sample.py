@@ -60,6 +60,22 @@ def test_one_subject_per_skin_type_at_512_with_the_population_s_draws(cache):
 
 
 @pytest.mark.slow  # builds the 512² sample (8 s)
+def test_sample_subjects_export_on_the_head_they_were_drawn_on(cache, tmp_path):
+    """The provenance names the procedural head, so export rebuilds its mesh without --mesh."""
+    from facestats.io.gltf import read_gltf_summary
+    from facestats.io.mesh import subject_mesh
+    from facestats.io.subject_export import export_subject
+
+    _, path = cache
+    with facestats.open_store(path) as store:
+        ds = store.subject("S001")
+    mesh = subject_mesh(ds)
+    assert mesh.geometry["name"] == f"procedural-{ts.TEXTURE_SAMPLE_SIZE}" and mesh.geometry["kind"] == "procedural"
+    out = export_subject(ds, tmp_path / "gltf", "gltf")
+    summary = read_gltf_summary(tmp_path / "gltf" / next(f for f in out["files"] if f.endswith((".gltf", ".glb"))))
+    assert summary["n_vertices"] == len(mesh.vertices)
+
+
 def test_built_once_keyed_by_the_sources_and_old_samples_removed(cache):
     folder, path = cache
     assert (

@@ -40,7 +40,7 @@ from facestats.acquire.geometry import FaceGeometry
 from facestats.core.raster import triangle_coverage
 from facestats.core.validate import check_integer
 
-__all__ = ["ict_face", "ict_face_mesh", "ict_regions", "ICT_OFFSET_MM"]
+__all__ = ["ict_face", "ict_face_mesh", "ict_face_uv_mesh", "ict_regions", "ICT_OFFSET_MM"]
 
 #: Translation (mm) from the ICT-FaceKit model frame into the dome frame: the nose tip (z = 130.9 mm in the
 #: model) to z = 100.9 mm, near the procedural head's (z ≈ 103 mm).
@@ -64,6 +64,18 @@ def ict_face_mesh():
     for a in out:
         a.setflags(write=False)
     return out
+
+
+def ict_face_uv_mesh():
+    """The face area with its vertices split along the UV seams: ``(vertices, triangles, uv)``.
+
+    ``vertices`` (U, 3) mm in the dome frame, one per UV vertex, so that ``uv`` (U, 2, v down) holds one
+    UV per vertex; ``triangles`` (F, 3) index both (the file's ``uv_triangles``).
+    """
+    vertices, triangles, uv, uv_triangles = ict_face_mesh()
+    split = np.empty((len(uv), 3))
+    split[uv_triangles.ravel()] = vertices[triangles.ravel()]
+    return split, uv_triangles, uv
 
 
 def _inside(x, y, x0, y0, ax, ay):
@@ -162,9 +174,7 @@ def ict_face(lumitexel_grid: int = 48, map_size: int | None = None) -> FaceGeome
     mpos, mnrm, _, mrow, mcol = _surface(map_size)
     region_map = np.zeros((map_size, map_size), np.uint8)
     region_map[mrow, mcol] = _labels(mpos, mnrm)
-    vertices, triangles, uv, uv_triangles = ict_face_mesh()
-    split = np.empty((len(uv), 3))
-    split[uv_triangles.ravel()] = vertices[triangles.ravel()]  # one vertex per UV vertex (seams split)
+    split, uv_triangles, uv = ict_face_uv_mesh()
     return FaceGeometry(
         position=pos[face],
         normal=nrm[face],
@@ -177,6 +187,6 @@ def ict_face(lumitexel_grid: int = 48, map_size: int | None = None) -> FaceGeome
         grid_index=np.stack([row[face], col[face]], -1),
         region_map=region_map,
         name=f"ict-{n}",
-        meta={"kind": "ict-facekit", "lumitexel_grid": n, "mesh_grid": int(np.sqrt(len(triangles) / 2))},
+        meta={"kind": "ict-facekit", "lumitexel_grid": n, "mesh_grid": int(np.sqrt(len(uv_triangles) / 2))},
         mesh_uv=uv,
     )

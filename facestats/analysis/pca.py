@@ -30,14 +30,29 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.analysis.population import MODEL_NAMES, index_columns, region_samples, select_population
+from facestats.analysis.population import (
+    MODEL_NAMES,
+    index_columns,
+    population_index,
+    region_samples,
+    select_population,
+)
 from facestats.analysis.serialize import json_ready
 from facestats.core.conventions import REGION_IDS, REGIONS
 from facestats.core.published import HIGHEST_RHO_S, LARGEST_VARIANCE, SMALLEST_M
 from facestats.core.validate import as_float, check_choice, check_finite, check_shape
 from facestats.errors import ValidationError
 
-__all__ = ["principal_axes", "RegionEllipse", "RegionPCA", "region_pca", "region_sample_frame"]
+__all__ = [
+    "principal_axes",
+    "covariance_axes",
+    "pooled_moments",
+    "has_index_moments",
+    "RegionEllipse",
+    "RegionPCA",
+    "region_pca",
+    "region_sample_frame",
+]
 
 
 def principal_axes(samples, ddof=1):
@@ -68,14 +83,57 @@ def principal_axes(samples, ddof=1):
         raise ValidationError(f"samples must have more than ddof={ddof} rows, got {x.shape[0]}")
     mean = x.mean(axis=0)
     xc = x - mean
-    cov = xc.T @ xc / (x.shape[0] - ddof)
-    w, v = np.linalg.eigh(cov)
+    w, v = covariance_axes(xc.T @ xc / (x.shape[0] - ddof))
+    return mean, w, v
+
+
+def covariance_axes(cov):
+    """Eigenvalues (descending, clipped at 0) and unit eigenvectors (columns, largest component positive) of ``cov``."""
+    w, v = np.linalg.eigh(np.asarray(cov, np.float64))
     order = np.argsort(w)[::-1]
     w = np.maximum(w[order], 0.0)
     v = v[:, order]
     idx = np.argmax(np.abs(v), axis=0)
-    v = v * np.sign(v[idx, np.arange(v.shape[1])])
-    return mean, w, v
+    return w, v * np.sign(v[idx, np.arange(v.shape[1])])
+
+
+def pooled_moments(counts, means, covariances, ddof=1):
+    """Mean and covariance of the union of groups of samples, from each group's count, mean and covariance.
+
+    The scatter of the union is the groups' own scatter plus that of their means
+    about the grand mean (the decomposition behind Chan, Golub & LeVeque 1979,
+    "Updating formulae and a pairwise algorithm for computing sample variances"):
+    S = Σ_g (n_g − 1) C_g + Σ_g n_g (x̄_g − x̄)(x̄_g − x̄)ᵀ, x̄ = Σ_g n_g x̄_g / N, and
+    the covariance is S / (N − ddof): exactly that of the pooled samples.
+
+    Parameters
+    ----------
+    counts : array_like, shape (G,)
+        Samples per group (groups with 0 samples are ignored).
+    means : array_like, shape (G, d)
+    covariances : array_like, shape (G, d, d)
+        Each group's sample covariance with ddof 1 (any value where n_g = 1: it is weighted by 0).
+    ddof : int
+        Delta degrees of freedom of the pooled covariance.
+
+    Returns
+    -------
+    mean : ndarray, shape (d,)
+    covariance : ndarray, shape (d, d)
+    n : int
+        Total number of samples N (> ddof, else :class:`ValidationError`).
+    """
+    n = np.asarray(counts, np.float64)
+    keep = n > 0
+    n, mu = n[keep], np.asarray(means, np.float64)[keep]
+    cov = np.where((n > 1)[:, None, None], np.asarray(covariances, np.float64)[keep], 0.0)
+    total = n.sum()
+    if total <= ddof:
+        raise ValidationError(f"the groups must hold more than ddof={ddof} samples, got {int(total)}")
+    mean = (n[:, None] * mu).sum(0) / total
+    dev = mu - mean
+    scatter = np.einsum("g,gij->ij", n - 1, cov) + np.einsum("g,gi,gj->ij", n, dev, dev)
+    return mean, scatter / (total - ddof), int(total)
 
 
 @dataclass(frozen=True)
@@ -355,7 +413,7 @@ def region_sample_frame(source, model="ts", subjects=None):
     return frame
 
 
-def region_pca(source, model="ts", subjects=None, conditions=("normal",), ddof=1):
+def region_pca(source, model="ts", subjects=None, conditions=("normal",), ddof=1, *, from_index="auto"):
     """PCA ellipses of the specular parameters per face region (Weyrich et al. 2006 §7, Fig. 15).
 
     For every region the samples of all selected subjects form the 2 × n
@@ -363,6 +421,13 @@ def region_pca(source, model="ts", subjects=None, conditions=("normal",), ddof=1
     (:func:`principal_axes`): centre = mean, axes = eigenvectors, sizes =
     eigenvalues (variances; ellipses are drawn with half-axes k·σ, k = 1 by
     default, see the module docstring).
+
+    A store's population index holds every subject's per-region sample count,
+    means, standard deviations and (ρs, lobe) covariance
+    (:mod:`facestats.io.summary`); from them the pooled mean and covariance
+    follow exactly (:func:`pooled_moments`), so a store's PCA reads no maps.
+    Stores written before the index held the covariance are read sample by
+    sample.
 
     Parameters
     ----------
@@ -378,6 +443,9 @@ def region_pca(source, model="ts", subjects=None, conditions=("normal",), ddof=1
         Conditions to keep when ``source`` is a store (default: normal only).
     ddof : int
         Delta degrees of freedom of the covariance.
+    from_index : {"auto", True, False}
+        For a store: pool the index's moments (True; an error if the index lacks them), read the
+        samples (False), or the index where it has the moments of every selected subject ("auto").
 
     Returns
     -------
@@ -387,9 +455,16 @@ def region_pca(source, model="ts", subjects=None, conditions=("normal",), ddof=1
     import pandas as pd
 
     check_choice(model, "model", ("ts", "bp"))
+    check_choice(from_index, "from_index", ("auto", True, False))
     _, _, lobe_name = index_columns(model)
     if not isinstance(source, pd.DataFrame):
-        subjects = list(select_population(source, subjects, conditions).index)
+        rows = select_population(source, subjects, conditions)
+        subjects = list(rows.index)
+        moments = _index_moments(rows, model) if from_index is not False else None
+        if moments is None and from_index is True:
+            raise ValidationError(f"the store's index has no per-region {model} covariances (written before they were)")
+        if moments is not None:
+            return _pca_from_moments(moments, model, lobe_name, ddof)
     samples = region_sample_frame(source, model, subjects)
     region = samples["region"].to_numpy()
     values = samples[["rho_s", "lobe"]].to_numpy(np.float64)
@@ -405,4 +480,52 @@ def region_pca(source, model="ts", subjects=None, conditions=("normal",), ddof=1
     if not ellipses:
         raise ValidationError(f"no region has more than {ddof} finite {model} samples in the selected subjects")
     n_subjects = int(pd.unique(sid[finite]).size)
+    return RegionPCA(model, ("rho_s", lobe_name), ellipses, n_subjects, ddof)
+
+
+def has_index_moments(source, model="ts") -> bool:
+    """True if the population index of ``source`` (a store or the index) holds the per-region moments of
+    every subject that :func:`region_pca` pools instead of reading samples."""
+    check_choice(model, "model", ("ts", "bp"))
+    return _index_moments(population_index(source), model) is not None
+
+
+def _index_moments(rows, model):
+    """``({region: (counts, means (S, 2), covariances (S, 2, 2))}, subjects with samples)`` of the index ``rows``.
+
+    None where the index lacks a column or a subject's statistics are not finite (then the samples decide).
+    """
+    from facestats.io.summary import column
+
+    scale, lobe, _ = index_columns(model)
+    out, contributing = {}, np.zeros(len(rows), bool)
+    for r in REGION_IDS:
+        names = [column("n", model=model, region=r), column("cov", model=model, region=r)]
+        names += [column(k, param=p, region=r) for k in ("mean", "std") for p in (scale, lobe)]
+        if any(c not in rows.columns for c in names):
+            return None
+        n, cov, m1, m2, s1, s2 = (rows[c].to_numpy(np.float64) for c in names)
+        n = np.nan_to_num(n)
+        has = n > 0
+        if not np.all(np.isfinite(np.stack([cov, m1, m2, s1, s2])[:, has])):
+            return None  # a subject whose samples are not all finite: the samples decide
+        c = np.zeros((n.size, 2, 2))
+        c[:, 0, 0], c[:, 1, 1], c[:, 0, 1], c[:, 1, 0] = s1**2, s2**2, cov, cov
+        out[r] = (n[has], np.stack([m1, m2], 1)[has], c[has])
+        contributing |= has
+    return out, int(contributing.sum())
+
+
+def _pca_from_moments(moments, model, lobe_name, ddof):
+    """:class:`RegionPCA` from :func:`_index_moments` (:func:`pooled_moments` per region)."""
+    per_region, n_subjects = moments
+    ellipses = {}
+    for r, (n, means, covs) in per_region.items():
+        if n.sum() <= ddof:
+            continue
+        mean, cov, total = pooled_moments(n, means, covs, ddof)
+        w, v = covariance_axes(cov)
+        ellipses[r] = RegionEllipse(r, mean, w, v, total, int(n.size))
+    if not ellipses:
+        raise ValidationError(f"no region has more than {ddof} finite {model} samples in the selected subjects")
     return RegionPCA(model, ("rho_s", lobe_name), ellipses, n_subjects, ddof)

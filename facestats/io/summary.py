@@ -13,6 +13,11 @@ Column names (``r`` = region 1-10, ``ch`` = R/G/B, ``site`` = cheek/forehead/nec
   ``condition``, ``kind`` (``maps``/``samples``), ``source``;
 * ``{p}_mean_r{r}``, ``{p}_std_r{r}`` for p in ``ts_rho_s``, ``ts_m``,
   ``bp_rho_s``, ``bp_exponent``, and ``n_ts_r{r}``, ``n_bp_r{r}`` (sample counts);
+  ``{model}_cov_r{r}`` for model ``ts``/``bp``: the sample covariance (ddof 1) of
+  the region's (scale, lobe) pairs, so that with the counts, means and standard
+  deviations the pooled covariance of any selection of subjects follows exactly
+  (:func:`facestats.analysis.pca.pooled_moments`, Fig. 15 without reading maps);
+  statistics in float64;
 * ``{p}_se_r{r}``: the root mean square of the per-texel standard errors of p
   (the ``*_std`` maps: robust HC3 standard errors of the eq. 14 fit) over the same texels, and
   ``{p}_mean_se_r{r}``: the standard error of the region mean, sqrt(Σ σ²)/n
@@ -61,10 +66,10 @@ def column(kind: str, **keys) -> str:
 
     Parameters
     ----------
-    kind : {"mean", "std", "se", "mean_se", "n", "site", "subject"}
+    kind : {"mean", "std", "se", "mean_se", "n", "cov", "site", "subject"}
         The column family (see the module docstring).
     **keys
-        ``param`` and ``region`` (mean, std, se, mean_se), ``model`` and ``region`` (n),
+        ``param`` and ``region`` (mean, std, se, mean_se), ``model`` and ``region`` (n, cov),
         ``param``, ``site`` and ``channel`` (site), ``param`` and ``channel`` (subject).
 
     Returns
@@ -75,6 +80,8 @@ def column(kind: str, **keys) -> str:
         return f"{keys['param']}_{kind}_r{keys['region']}"
     if kind == "n":
         return f"n_{keys['model']}_r{keys['region']}"
+    if kind == "cov":
+        return f"{keys['model']}_cov_r{keys['region']}"
     if kind == "site":
         return f"site_{keys['param']}_{keys['site']}_{keys['channel']}"
     if kind == "subject":
@@ -198,10 +205,21 @@ def albedo_histogram(ds, bins: int = HIST_BINS) -> np.ndarray:
 
 
 def _mean_std(x):
-    """Mean and sample standard deviation (ddof 1) of a 1-D array: NaN, NaN if empty; std 0 for one value."""
+    """Mean and sample standard deviation (ddof 1) of a 1-D array in float64: NaN, NaN if empty; std 0 for one value."""
     if x.size == 0:
         return np.nan, np.nan
+    x = np.asarray(x, np.float64)
     return float(np.mean(x)), (float(np.std(x, ddof=1)) if x.size > 1 else 0.0)
+
+
+def _covariance(x, y) -> float:
+    """Sample covariance (ddof 1) of paired 1-D arrays in float64: NaN if empty, 0 for one pair."""
+    if x.size == 0:
+        return np.nan
+    if x.size == 1:
+        return 0.0
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    return float(np.dot(x - x.mean(), y - y.mean()) / (x.size - 1))
 
 
 def summarise_subject(ds) -> dict:
@@ -248,6 +266,7 @@ def _add_brdf_columns(row: dict, ds) -> None:
         for r in REGION_IDS:
             rho, lobe = samples[r]
             row[column("n", model=model, region=r)] = int(rho.size)
+            row[column("cov", model=model, region=r)] = _covariance(rho, lobe)
             for k, (name, x) in enumerate(((rho_name, rho), (lobe_name, lobe))):
                 mean, std = _mean_std(x)
                 row[column("mean", param=name, region=r)] = mean

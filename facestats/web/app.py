@@ -205,7 +205,9 @@ def _register_routes(app, ctx):
         # local import: keeps numpy out of this module's import
         from facestats.web.data import pca_document
 
-        doc = pca_document(ctx["samples"], query().subject_ids)
+        ids = query().subject_ids
+        with lock:  # pooled from the store's index (or from the samples read in the background)
+            doc = pca_document(ctx["samples"], ids)
         return jsonify(doc), (202 if doc["status"] == "pending" else 200)
 
     @app.get("/api/scatter")

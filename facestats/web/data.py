@@ -13,7 +13,7 @@ import threading
 
 import numpy as np
 
-from facestats.analysis.pca import region_pca
+from facestats.analysis.pca import has_index_moments, region_pca
 from facestats.analysis.population import region_samples
 from facestats.analysis.scatter import absorption_scattering
 from facestats.core.conventions import CHANNELS, REGIONS
@@ -32,20 +32,25 @@ PREVIEW_LIGHTS = (
 
 
 class RegionSamples:
-    """The Torrance-Sparrow region samples of every subject, loaded once in a background thread.
+    """Where Fig. 15's PCA comes from: the population index, or region samples read once in the background.
 
-    Fig. 15's PCA needs per-texel samples of every subject (opening each
-    subject: about 15 s for the 156 subjects of the default store), read through
-    a store handle of its own so that requests never wait for it; the page
-    asks again until :attr:`ready`.
+    A store's index holds each subject's per-region moments, from which the
+    pooled PCA of any selection follows exactly
+    (:func:`facestats.analysis.pca.region_pca`): then nothing is read and
+    :attr:`from_index` is True.  Stores written before the index held the
+    (ρs, m) covariances need the per-texel samples of every subject (opening
+    each subject: about 10 s for the 156 subjects of the default store), read
+    through a store handle of its own so that requests never wait for it; the
+    page asks again until :attr:`ready`.
     """
 
     def __init__(self, store, start=True):
-        self._store = store
+        self.store = store
         self.frame = None
         self.error = None
+        self.from_index = has_index_moments(store, "ts")
         self._thread = threading.Thread(target=self._load, name="facestats-region-samples", daemon=True)
-        if start:
+        if start and not self.from_index:
             self._thread.start()
 
     def _load(self):
@@ -53,17 +58,18 @@ class RegionSamples:
         from facestats.io.store import open_store
 
         try:  # a store handle of its own: requests never wait for this thread
-            with open_store(self._store.path if self._store.label != "default" else None) as st:
+            with open_store(self.store.path if self.store.label != "default" else None) as st:
                 self.frame = region_samples(st, model="ts")
         except Exception as exc:  # reported to the page, never raised in the thread
             self.error = f"region samples could not be read: {exc}"
 
     @property
     def ready(self) -> bool:
-        return self.frame is not None or self.error is not None
+        return self.from_index or self.frame is not None or self.error is not None
 
     def wait(self, timeout=None) -> bool:
-        self._thread.join(timeout)
+        if not self.from_index and self._thread.is_alive():
+            self._thread.join(timeout)
         return self.ready
 
 
@@ -74,8 +80,12 @@ def pca_document(samples: RegionSamples, subject_ids) -> dict:
         return {"status": "pending"}
     if samples.error:
         return {"status": "error", "error": samples.error}
+    ids = list(subject_ids)
     try:
-        res = region_pca(samples.frame, model="ts", subjects=list(subject_ids))
+        if samples.from_index:
+            res = region_pca(samples.store, model="ts", subjects=ids, conditions=None, from_index=True)
+        else:
+            res = region_pca(samples.frame, model="ts", subjects=ids)
     except ValidationError as exc:
         return {"status": "empty", "error": str(exc)}
     out = []

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from facestats.analysis import condition_differences, principal_axes, region_pca, select_population
+from facestats.analysis.pca import pooled_moments
 from facestats.analysis.population import region_samples as store_region_samples
 from facestats.core.conventions import CONDITIONS, REGION_IDS
 from facestats.errors import ValidationError
@@ -57,6 +58,50 @@ def test_region_pca_against_svd_of_pooled_samples(store):
         assert abs(abs(e.eigenvectors[:, 0] @ vt[0]) - 1) < 1e-8
     # the factories give the nose (6) the smallest mean m, as Weyrich observe
     assert min(res.regions, key=lambda r: res[r].mean[1]) == 6
+
+
+def test_pooled_moments_equal_those_of_the_pooled_samples(rng):
+    groups = [rng.normal([0.2, 0.4], [0.05, 0.02], size=(n, 2)) for n in (40, 1, 0, 7, 300)]
+    counts = [len(g) for g in groups]
+    means = [g.mean(0) if len(g) else [np.nan, np.nan] for g in groups]
+    covs = [np.cov(g.T, ddof=1) if len(g) > 1 else np.full((2, 2), np.nan) for g in groups]
+    pooled = np.concatenate(groups)
+    for ddof in (0, 1):
+        mean, cov, n = pooled_moments(counts, means, covs, ddof)
+        assert n == len(pooled)
+        np.testing.assert_allclose(mean, pooled.mean(0), rtol=1e-13)
+        np.testing.assert_allclose(cov, np.cov(pooled.T, ddof=ddof), rtol=1e-12)
+    with pytest.raises(ValidationError, match="more than ddof=1 samples, got 1"):
+        pooled_moments([1, 0], [[0.1, 0.2], [np.nan, np.nan]], np.zeros((2, 2, 2)))
+
+
+class _OldIndex:
+    """A store whose index predates the per-region covariance columns."""
+
+    def __init__(self, store):
+        self._store = store
+
+    def subjects(self):
+        table = self._store.subjects()
+        return table[[c for c in table.columns if "_cov_r" not in c]]
+
+    def subject(self, sid, **kw):
+        return self._store.subject(sid, **kw)
+
+
+def test_store_pca_pools_the_index_moments_and_reads_samples_for_older_indexes(store):
+    from_index, from_samples = region_pca(store, from_index=True), region_pca(store, from_index=False)
+    old = _OldIndex(store)
+    assert region_pca(old).n_subjects == from_index.n_subjects == from_samples.n_subjects
+    for r in REGION_IDS:
+        a, b, c = from_index[r], from_samples[r], region_pca(old)[r]
+        assert a.n == b.n == c.n and a.n_subjects == b.n_subjects
+        for x in (b, c):
+            np.testing.assert_allclose(a.mean, x.mean, rtol=1e-12)
+            np.testing.assert_allclose(a.eigenvalues, x.eigenvalues, rtol=1e-10)
+            np.testing.assert_allclose(a.eigenvectors, x.eigenvectors, atol=1e-10)
+    with pytest.raises(ValidationError, match="index has no per-region ts covariances"):
+        region_pca(old, from_index=True)
 
 
 def test_region_ellipse_geometry(store):

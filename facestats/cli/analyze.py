@@ -46,7 +46,7 @@ import json
 import sys
 import warnings
 
-from facestats.cli.options import add_store_option, open_store_option
+from facestats.cli.options import add_store_option, ascii_int, open_store_option
 
 __all__ = ["add_analyze", "ACTIONS", "BATCH_ACTIONS"]
 
@@ -222,12 +222,12 @@ def _common(p, model=False):
 def _permutations(p):
     p.add_argument(
         "--permutations",
-        type=int,
+        type=ascii_int,
         default=999,
         metavar="N",
         help="permutations of the CCA permutation test (default 999; 0 skips it)",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the permutations (default 0)")
+    p.add_argument("--seed", type=ascii_int, default=0, help="seed of the permutations (default 0)")
 
 
 def add_analyze(subparsers):
@@ -328,7 +328,7 @@ def add_analyze(subparsers):
         default="model",
         help="likelihood noise: the sensor noise model (default) or the stored profile std",
     )
-    a.add_argument("--seed", type=int, default=0, help="sampler seed (default 0)")
+    a.add_argument("--seed", type=ascii_int, default=0, help="sampler seed (default 0)")
     a.add_argument(
         "--population",
         action="store_true",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 
+from facestats.cli.options import ascii_int
 from facestats.core.conventions import DEFAULT_MAP_SIZE, DEFAULT_SEED
 
 __all__ = ["add_build"]
@@ -83,17 +84,20 @@ def add_build(sub):
         "when set); its workers must see --store on a shared POSIX file system",
     )
     p.add_argument(
-        "--retries", type=int, default=2, help="retries of a subject that fails before it is reported (default 2)"
+        "--retries", type=ascii_int, default=2, help="retries of a subject that fails before it is reported (default 2)"
     )
     p.add_argument("--store", metavar="PATH", help="directory store to build into (created if missing)")
     p.add_argument(
         "--seed",
-        type=int,
+        type=ascii_int,
         default=DEFAULT_SEED,
         help=f"population seed (default {DEFAULT_SEED}, the embedded default's)",
     )
     p.add_argument(
-        "--size", type=int, default=DEFAULT_MAP_SIZE, help=f"UV map / lumitexel grid size (default {DEFAULT_MAP_SIZE})"
+        "--size",
+        type=ascii_int,
+        default=DEFAULT_MAP_SIZE,
+        help=f"UV map / lumitexel grid size (default {DEFAULT_MAP_SIZE})",
     )
     p.add_argument("--subjects", nargs="+", metavar="ID", help="only these subject ids")
     p.add_argument(
@@ -111,6 +115,6 @@ def add_build(sub):
         help="BRDF the simulator renders highlights with",
     )
     p.add_argument("--no-micro-normals", action="store_true", help="do not store per-camera micro-normal maps")
-    p.add_argument("--workers", type=int, default=None, help="worker processes (default: number of cores)")
+    p.add_argument("--workers", type=ascii_int, default=None, help="worker processes (default: number of cores)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_build)

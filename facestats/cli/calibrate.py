@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import pathlib
 
+from facestats.cli.options import ascii_int
+
 __all__ = ["add_calibrate"]
 
 
@@ -40,8 +42,10 @@ def add_calibrate(sub):
     )
     leds.add_argument("target_dir", metavar="TARGET_DIR", help="target folder with manifest.json")
     leds.add_argument("--calibration", help="dome calibration JSON with the cameras (default TARGET_DIR/dome.json)")
-    leds.add_argument("--grid", type=int, default=24, help="target points per side per pose (default 24)")
-    leds.add_argument("--reference-camera", type=int, default=None, help="camera whose gain is 1 (default: most data)")
+    leds.add_argument("--grid", type=ascii_int, default=24, help="target points per side per pose (default 24)")
+    leds.add_argument(
+        "--reference-camera", type=ascii_int, default=None, help="camera whose gain is 1 (default: most data)"
+    )
     leds.add_argument("--output", help="write the LED calibration file (facestats.led-calibration/1)")
     leds.add_argument("--write-calibration", metavar="PATH", help="write the dome calibration with the fitted LEDs")
     leds.set_defaults(func=_cmd_leds)

@@ -6,6 +6,8 @@ from __future__ import annotations
 import signal
 import sys
 
+from facestats.cli.options import ascii_float, ascii_int, number_option
+
 __all__ = ["add_capture"]
 
 
@@ -73,7 +75,7 @@ def _run(args, plan, calibration, on_site=None) -> int:
 def _cmd_dome(args) -> int:
     from facestats.acquire.devices.capture import dome_plan
 
-    colour = tuple(int(v) for v in args.colour.split(","))
+    colour = tuple(number_option(v, int, "--colour") for v in args.colour.split(","))
     plan, calibration = dome_plan(
         args.calibration,
         _subject(args),
@@ -108,19 +110,19 @@ def _common(p, calibration_help):
     s = p.add_argument_group("subject record (or --metadata FILE)")
     s.add_argument("--metadata", help="JSON subject record (person_id, age, gender, skin_type, condition)")
     s.add_argument("--person", dest="person_id", help="person id (default: the subject id)")
-    s.add_argument("--age", type=int)
+    s.add_argument("--age", type=ascii_int)
     s.add_argument("--gender", choices=("M", "F"))
-    s.add_argument("--skin-type", type=int, help="Fitzpatrick skin type 1-6")
+    s.add_argument("--skin-type", type=ascii_int, help="Fitzpatrick skin type 1-6")
     s.add_argument("--condition", help="normal, cold, hot, sweaty, makeup, lotion or powder (default normal)")
     line = p.add_argument_group("serial line")
-    line.add_argument("--baudrate", type=int, default=115200, help="default 115200")
-    line.add_argument("--bytesize", type=int, default=8, choices=(5, 6, 7, 8), help="default 8")
+    line.add_argument("--baudrate", type=ascii_int, default=115200, help="default 115200")
+    line.add_argument("--bytesize", type=ascii_int, default=8, choices=(5, 6, 7, 8), help="default 8")
     line.add_argument("--parity", default="N", choices=("N", "E", "O", "M", "S"), help="default N")
-    line.add_argument("--stopbits", type=float, default=1, choices=(1, 1.5, 2), help="default 1")
-    line.add_argument("--timeout", type=float, default=1.0, help="seconds to wait for a reply (default 1)")
-    line.add_argument("--retries", type=int, default=5, help="attempts after the first (default 5)")
+    line.add_argument("--stopbits", type=ascii_float, default=1, choices=(1, 1.5, 2), help="default 1")
+    line.add_argument("--timeout", type=ascii_float, default=1.0, help="seconds to wait for a reply (default 1)")
+    line.add_argument("--retries", type=ascii_int, default=5, help="attempts after the first (default 5)")
     p.add_argument("--pattern", default="cam{camera:02d}/{frame:012d}{ext}", help="frame file name in the hot folder")
-    p.add_argument("--frame-timeout", type=float, default=60.0, help="seconds to wait for a frame (default 60)")
+    p.add_argument("--frame-timeout", type=ascii_float, default=60.0, help="seconds to wait for a frame (default 60)")
     p.add_argument("--no-fsync", action="store_true", help="do not fsync frames and journal (faster, not power-safe)")
     p.add_argument("--verify", action="store_true", help="on --resume, check the checksum of every stored frame")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no session log on stderr")
@@ -141,16 +143,19 @@ def add_capture(sub):
     csub = p.add_subparsers(title="device", metavar="DEVICE")
     dome = csub.add_parser("dome", help="the dome's sequence")
     _common(dome, "dome calibration JSON (LEDs, cameras, exposure times, response)")
-    dome.add_argument("--brightness", type=int, default=255, help="LED brightness 0-255 (default 255)")
+    dome.add_argument("--brightness", type=ascii_int, default=255, help="LED brightness 0-255 (default 255)")
     dome.add_argument("--colour", default="255,255,255", help="LED colour R,G,B 0-255 (default 255,255,255)")
     dome.add_argument(
-        "--frame-interval", type=float, default=1 / 12, help="cameras' frame interval for the duration estimate, s"
+        "--frame-interval",
+        type=ascii_float,
+        default=1 / 12,
+        help="cameras' frame interval for the duration estimate, s",
     )
     dome.set_defaults(func=_cmd_dome)
     sensor = csub.add_parser("sensor", help="the contact sensor's sequence")
     _common(sensor, "sensor calibration JSON (facestats.sensor-calibration/1)")
     sensor.add_argument(
-        "--readout", type=float, default=0.8, help="frame readout time for the estimate (default 0.8 s)"
+        "--readout", type=ascii_float, default=0.8, help="frame readout time for the estimate (default 0.8 s)"
     )
     sensor.add_argument("--yes", action="store_true", help="do not wait for Enter before each site")
     sensor.set_defaults(func=_cmd_sensor)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from facestats.cli.options import ascii_float
 from facestats.core.published import ETA_SKIN
 
 __all__ = ["add_demo"]
@@ -29,7 +30,7 @@ def add_demo(sub):
     p.add_argument(
         "--albedo",
         nargs=3,
-        type=float,
+        type=ascii_float,
         metavar=("R", "G", "B"),
         default=None,
         help="albedo per channel in (0, 1); default: the ColorChecker 'light skin' patch in linear sRGB",
@@ -37,11 +38,13 @@ def add_demo(sub):
     p.add_argument(
         "--sigma-tr",
         nargs=3,
-        type=float,
+        type=ascii_float,
         metavar=("R", "G", "B"),
         default=None,
         help="σtr in 1/mm; default: Weyrich's σtrAvg = 0.5508 0.9791 1.5497",
     )
-    p.add_argument("--eta", type=float, default=ETA_SKIN, help=f"relative index of refraction (default {ETA_SKIN})")
+    p.add_argument(
+        "--eta", type=ascii_float, default=ETA_SKIN, help=f"relative index of refraction (default {ETA_SKIN})"
+    )
     p.add_argument("--plot", default="dipole_profiles.png", help="where to write the plot (PNG/SVG/PDF); '' for none")
     p.set_defaults(func=_cmd_demo)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import os
 
-from facestats.cli.options import add_store_option, open_store_option, store_path_option
+from facestats.cli.options import add_store_option, ascii_float, ascii_int, open_store_option, store_path_option
 
 __all__ = ["add_edit"]
 
@@ -76,7 +76,7 @@ def _regions_arg(p, help_text):
 
 
 def _t_arg(p):
-    p.add_argument("--t", type=float, default=1.0, help="interpolation weight in [0, 1] (default 1: the target)")
+    p.add_argument("--t", type=ascii_float, default=1.0, help="interpolation weight in [0, 1] (default 1: the target)")
 
 
 def _keep_translucency_arg(p):
@@ -84,7 +84,7 @@ def _keep_translucency_arg(p):
 
 
 def _subsample_seed_arg(p):
-    p.add_argument("--seed", type=int, default=None, help="seed of the subsample of a very large target subset")
+    p.add_argument("--seed", type=ascii_int, default=None, help="seed of the subsample of a very large target subset")
 
 
 def _target(args, *, stats=False):
@@ -301,7 +301,7 @@ def add_edit(sub) -> None:
     a.add_argument("--stats", metavar="FILE", help="... or use the image histograms of saved texture statistics")
     _t_arg(a)
     _regions_arg(a, "regions to edit and take the target albedo from, 1-10 or names (default: the face)")
-    a.add_argument("--feather", type=float, default=0.0, help="blend width in texels inside the edge (default 0)")
+    a.add_argument("--feather", type=ascii_float, default=0.0, help="blend width in texels inside the edge (default 0)")
     _keep_translucency_arg(a)
     _subsample_seed_arg(a)
     _common(a)
@@ -318,12 +318,14 @@ def add_edit(sub) -> None:
     a.add_argument("--target", metavar="ID", help="take the texture of this subject")
     a.add_argument("--stats", metavar="FILE", help="... or of saved statistics (facestats edit stats)")
     _regions_arg(a, "regions to edit, 1-10 or names, e.g. 2 6 7 (forehead, nose, cheeks); default: the face")
-    a.add_argument("--seed", type=int, default=None, help="seed of the start noise (same seed, same result)")
-    a.add_argument("--iterations", type=int, default=5, help="Heeger-Bergen iterations (default 5)")
-    a.add_argument("--levels", type=int, default=None, help="pyramid levels (default: the most the map supports, <= 7)")
-    a.add_argument("--bins", type=int, default=256, help="histogram bins for a subject target (default 256)")
-    a.add_argument("--noise", type=float, default=0.1, help="start-noise amplitude (default 0.1)")
-    a.add_argument("--feather", type=float, default=2.0, help="blend width in texels inside the edge (default 2)")
+    a.add_argument("--seed", type=ascii_int, default=None, help="seed of the start noise (same seed, same result)")
+    a.add_argument("--iterations", type=ascii_int, default=5, help="Heeger-Bergen iterations (default 5)")
+    a.add_argument(
+        "--levels", type=ascii_int, default=None, help="pyramid levels (default: the most the map supports, <= 7)"
+    )
+    a.add_argument("--bins", type=ascii_int, default=256, help="histogram bins for a subject target (default 256)")
+    a.add_argument("--noise", type=ascii_float, default=0.1, help="start-noise amplitude (default 0.1)")
+    a.add_argument("--feather", type=ascii_float, default=2.0, help="blend width in texels inside the edge (default 2)")
     _keep_translucency_arg(a)
     _common(a)
     a.set_defaults(func=_cmd_texture)
@@ -337,8 +339,10 @@ def add_edit(sub) -> None:
     a.add_argument("subject", metavar="SUBJECT", help="subject id")
     a.add_argument("--out", required=True, metavar="FILE", help="output file (.npz appended if missing)")
     _regions_arg(a, "regions to analyse, 1-10 or names (default: the face)")
-    a.add_argument("--levels", type=int, default=None, help="pyramid levels (default: the most the map supports, <= 7)")
-    a.add_argument("--bins", type=int, default=256, help="histogram bins (default 256)")
+    a.add_argument(
+        "--levels", type=ascii_int, default=None, help="pyramid levels (default: the most the map supports, <= 7)"
+    )
+    a.add_argument("--bins", type=ascii_int, default=256, help="histogram bins (default 256)")
     add_store_option(
         a,
         help="store holding the subject (a directory, a zip or texture-sample); default: the "

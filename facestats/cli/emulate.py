@@ -8,6 +8,8 @@ import sys
 import tempfile
 import threading
 
+from facestats.cli.options import ascii_float, ascii_int
+
 __all__ = ["add_emulate"]
 
 
@@ -115,26 +117,28 @@ def _common(p):
     p.add_argument(
         "--store", help="take the subject from this store ('default': the embedded one); default: the synthetic truth"
     )
-    p.add_argument("--map-size", type=int, default=16, help="map side of a synthetic subject (default 16)")
+    p.add_argument("--map-size", type=ascii_int, default=16, help="map side of a synthetic subject (default 16)")
     p.add_argument("--hot-folder", help="where the emulated cameras drop frames (default: a new temporary directory)")
     p.add_argument("--lab", help="where the calibration, mesh and subject record are written (default: temporary)")
     p.add_argument("--link", help="a symlink kept pointing at the pty (stable across injected disconnects)")
     p.add_argument("--realtime", action="store_true", help="answer triggers only after the exposure time")
-    p.add_argument("--seed", type=int, default=0, help="seed of the frames' noise (default 0)")
-    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
+    p.add_argument("--seed", type=ascii_int, default=0, help="seed of the frames' noise (default 0)")
+    p.add_argument("--duration", type=ascii_float, default=None, help="stop after this many seconds (default: Ctrl-C)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no fault log")
     f = p.add_argument_group("fault injection (fractions in per cent of replies or commands)")
-    f.add_argument("--drop", type=float, default=0.0, metavar="PCT", help="replies not sent")
-    f.add_argument("--garble", type=float, default=0.0, metavar="PCT", help="replies with one byte changed")
-    f.add_argument("--truncate", type=float, default=0.0, metavar="PCT", help="replies cut short")
-    f.add_argument("--duplicate", type=float, default=0.0, metavar="PCT", help="replies sent twice")
-    f.add_argument("--stall", type=float, default=0.0, metavar="PCT", help="commands before which the device freezes")
-    f.add_argument("--stall-seconds", type=float, default=1.5, help="length of a stall (default 1.5 s)")
+    f.add_argument("--drop", type=ascii_float, default=0.0, metavar="PCT", help="replies not sent")
+    f.add_argument("--garble", type=ascii_float, default=0.0, metavar="PCT", help="replies with one byte changed")
+    f.add_argument("--truncate", type=ascii_float, default=0.0, metavar="PCT", help="replies cut short")
+    f.add_argument("--duplicate", type=ascii_float, default=0.0, metavar="PCT", help="replies sent twice")
     f.add_argument(
-        "--disconnect-after", type=int, nargs="*", default=[], metavar="K", help="drop the line after command K"
+        "--stall", type=ascii_float, default=0.0, metavar="PCT", help="commands before which the device freezes"
     )
-    f.add_argument("--reboot-after", type=int, nargs="*", default=[], metavar="K", help="reboot at command K")
-    f.add_argument("--fault-seed", type=int, default=0, help="seed of the fault draws (default 0)")
+    f.add_argument("--stall-seconds", type=ascii_float, default=1.5, help="length of a stall (default 1.5 s)")
+    f.add_argument(
+        "--disconnect-after", type=ascii_int, nargs="*", default=[], metavar="K", help="drop the line after command K"
+    )
+    f.add_argument("--reboot-after", type=ascii_int, nargs="*", default=[], metavar="K", help="reboot at command K")
+    f.add_argument("--fault-seed", type=ascii_int, default=0, help="seed of the fault draws (default 0)")
 
 
 def add_emulate(sub):
@@ -152,11 +156,15 @@ def add_emulate(sub):
     esub = p.add_subparsers(title="device", metavar="DEVICE")
     dome = esub.add_parser("dome", help="the dome: LEDs, camera triggers, two exposure settings")
     _common(dome)
-    dome.add_argument("--resolution", type=int, default=None, help="frame side in pixels (default: the rig's 1024)")
-    dome.add_argument("--leds", type=int, default=None, help="a smaller rig: keep N LEDs evenly spread (default 150)")
-    dome.add_argument("--cameras", type=int, default=None, help="a smaller rig: keep N cameras (default 16)")
-    dome.add_argument("--wired-leds", type=int, default=None, help="a mis-wired controller reporting N LEDs")
-    dome.add_argument("--workers", type=int, default=2, help="threads rendering frames (default 2)")
+    dome.add_argument(
+        "--resolution", type=ascii_int, default=None, help="frame side in pixels (default: the rig's 1024)"
+    )
+    dome.add_argument(
+        "--leds", type=ascii_int, default=None, help="a smaller rig: keep N LEDs evenly spread (default 150)"
+    )
+    dome.add_argument("--cameras", type=ascii_int, default=None, help="a smaller rig: keep N cameras (default 16)")
+    dome.add_argument("--wired-leds", type=ascii_int, default=None, help="a mis-wired controller reporting N LEDs")
+    dome.add_argument("--workers", type=ascii_int, default=2, help="threads rendering frames (default 2)")
     dome.add_argument("--cache", help="directory keeping the cameras' pixel maps between runs")
     dome.set_defaults(func=_cmd_dome)
     sensor = esub.add_parser("sensor", help="the contact sensor: lamp, shutter, 23-image bracket")

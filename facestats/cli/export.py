@@ -5,7 +5,7 @@ Parses, calls :func:`facestats.io.subject_export.export_subject` and prints what
 
 from __future__ import annotations
 
-from facestats.cli.options import add_store_option, store_path_option
+from facestats.cli.options import add_store_option, ascii_int, store_path_option
 
 __all__ = ["add_export_subject"]
 
@@ -53,8 +53,8 @@ def add_export_subject(sub):
     p.add_argument("--mesh-format", choices=("obj", "ply"), default="obj", help="mesh file of the EXR set")
     p.add_argument("--probe", metavar="FILE", help="Mitsuba: lat-long HDR light probe (default: a studio probe)")
     p.add_argument("--material", choices=("surface", "subsurface"), default="surface", help="Mitsuba material")
-    p.add_argument("--width", type=int, default=None, help="Mitsuba: image width (default 256)")
-    p.add_argument("--height", type=int, default=None, help="Mitsuba: image height (default 256)")
-    p.add_argument("--spp", type=int, default=None, help="Mitsuba: samples per pixel (default 64)")
+    p.add_argument("--width", type=ascii_int, default=None, help="Mitsuba: image width (default 256)")
+    p.add_argument("--height", type=ascii_int, default=None, help="Mitsuba: image height (default 256)")
+    p.add_argument("--spp", type=ascii_int, default=None, help="Mitsuba: samples per pixel (default 64)")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty output directory")
     p.set_defaults(func=_cmd_export_subject)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from facestats.cli.options import ascii_float, ascii_int
+
 __all__ = ["add_ingest"]
 
 
@@ -44,16 +46,16 @@ def add_ingest(sub):
     p.add_argument("--subject", required=True, metavar="ID", help="subject id in the store")
     p.add_argument("--regions", help="face-region label image (default: <mesh stem>.regions.png|.npy next to the mesh)")
     p.add_argument("--work", help="where the capture is kept (default: <store>.ingest/<ID>/capture.zarr)")
-    p.add_argument("--workers", type=int, default=2, help="threads decoding photographs (default 2)")
+    p.add_argument("--workers", type=ascii_int, default=2, help="threads decoding photographs (default 2)")
     p.add_argument(
         "--motion-tolerance",
-        type=float,
+        type=ascii_float,
         default=None,
         help="head-motion threshold: fraction of face pixels whose two exposures disagree by > e^0.5 (default 0.001)",
     )
     p.add_argument(
         "--min-footprint",
-        type=float,
+        type=ascii_float,
         default=None,
         help="pixels a lumitexel must span along its foreshortened axis to give a sample (default 2)",
     )

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from facestats.cli.options import store_path_option
+from facestats.cli.options import ascii_float, ascii_int, store_path_option
 
 __all__ = ["add_microstructure"]
 
@@ -73,14 +73,16 @@ def add_microstructure(sub):
     frames.add_argument("--weights", metavar="CSV", help="per-frame blendshape weights (header: target names)")
     r.add_argument("--targets", nargs="+", metavar="MESH", help="blendshape target meshes (stems name the columns)")
     r.add_argument("--map", required=True, metavar="IMAGE", help="neutral displacement map (EXR/PFM in um, PNG16/TIFF)")
-    r.add_argument("--height-range-um", type=float, help="um spanned by an integer map's code range")
+    r.add_argument("--height-range-um", type=ascii_float, help="um spanned by an integer map's code range")
     r.add_argument("--out", required=True, metavar="ZARR", help="output zarr group")
     r.add_argument("--exr-dir", metavar="DIR", help="also write per-frame EXR files here")
-    r.add_argument("--size", type=int, help="side of the whole UV map in texels (default: the map's)")
-    r.add_argument("--window", type=int, nargs=4, metavar=("ROW0", "COL0", "H", "W"), help="render part of the map")
+    r.add_argument("--size", type=ascii_int, help="side of the whole UV map in texels (default: the map's)")
+    r.add_argument(
+        "--window", type=ascii_int, nargs=4, metavar=("ROW0", "COL0", "H", "W"), help="render part of the map"
+    )
     r.add_argument("--table", default="forehead", help="kernel table (default: forehead, Nagano eq. 8-9)")
-    r.add_argument("--scale", type=float, default=1.0, help="mesh units to mm (e.g. 10 for cm)")
-    r.add_argument("--tile", type=int, default=512, help="tile side in texels (memory bound)")
+    r.add_argument("--scale", type=ascii_float, default=1.0, help="mesh units to mm (e.g. 10 for cm)")
+    r.add_argument("--tile", type=ascii_int, default=512, help="tile side in texels (memory bound)")
     r.add_argument("--overwrite", action="store_true", help="replace an output holding another render")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=_cmd_render)
@@ -90,10 +92,10 @@ def add_microstructure(sub):
         description="Pores and fine anisotropic furrows, seeded; with --subject, per region from its maps.",
     )
     g.add_argument("--out", required=True, metavar="EXR", help="output .exr file")
-    g.add_argument("--size", type=int, default=1024, help="map side in texels (default 1024)")
-    g.add_argument("--texel-um", type=float, default=15.0, help="um per texel (default 15)")
+    g.add_argument("--size", type=ascii_int, default=1024, help="map side in texels (default 1024)")
+    g.add_argument("--texel-um", type=ascii_float, default=15.0, help="um per texel (default 15)")
     g.add_argument("--subject", help="store subject id (e.g. S001)")
     g.add_argument("--store", help="store path (default: the embedded store)")
-    g.add_argument("--seed", type=int, help="seed (default: from the subject id)")
+    g.add_argument("--seed", type=ascii_int, help="seed (default: from the subject id)")
     g.set_defaults(func=_cmd_generate)
     p.set_defaults(func=lambda args: (p.print_help(), 0)[1])

@@ -1,8 +1,106 @@
-"""Options several command groups share, and how a ``--store`` value opens a store."""
+"""Options several command groups share: numbers typed in ASCII, and how a ``--store`` value opens a store.
+
+Numbers on the command line are ASCII: Python's ``int`` and ``float`` accept
+the digits of every script (``int('١٤')`` is 14, ``float('١.٤')`` 1.4), which no
+user of a command line means, so every numeric option is parsed by
+:func:`ascii_int` or :func:`ascii_float` (argparse types) and every number
+taken apart from a larger value (``64x32``, ``255,200,180``) by
+:func:`number_option`; the one rule is :func:`ascii_number`.
+"""
 
 from __future__ import annotations
 
-__all__ = ["add_store_option", "store_path_option", "open_store_option", "TEXTURE_SAMPLE"]
+import argparse
+
+__all__ = [
+    "add_store_option",
+    "store_path_option",
+    "open_store_option",
+    "TEXTURE_SAMPLE",
+    "ascii_number",
+    "number_option",
+    "ascii_int",
+    "ascii_float",
+]
+
+#: What a number of each kind must look like, for messages.
+_EXPECTED = {int: "an integer (ASCII digits 0-9)", float: "a number (ASCII digits 0-9)"}
+
+
+def ascii_number(text, kind=int):
+    """``kind(text)`` if ``text`` is a string of ASCII characters only that ``kind`` parses, else None.
+
+    Parameters
+    ----------
+    text : str
+        The number as typed.
+    kind : {int, float}
+        What to parse it as (``float`` keeps ``nan``/``inf`` spellings: ranges are checked by the command).
+
+    Returns
+    -------
+    int, float or None
+    """
+    if not isinstance(text, str) or not text.isascii():
+        return None
+    try:
+        return kind(text)
+    except ValueError:
+        return None
+
+
+def number_option(text, kind, name: str):
+    """:func:`ascii_number` of ``text``, or a :class:`~facestats.errors.ValidationError` naming ``name``.
+
+    Parameters
+    ----------
+    text : str
+        The number as typed.
+    kind : {int, float}
+    name : str
+        The option (or part of one) it was given for, e.g. ``"--colour"``.
+
+    Returns
+    -------
+    int or float
+    """
+    value = ascii_number(text, kind)
+    if value is None:
+        from facestats.errors import ValidationError
+
+        raise ValidationError(f"{name} must be {_EXPECTED[kind]}, got {text!r}")
+    return value
+
+
+def _typed(text, kind):
+    """:func:`ascii_number` of ``text``, or :class:`argparse.ArgumentTypeError` (argparse names the option)."""
+    value = ascii_number(text, kind)
+    if value is None:
+        raise argparse.ArgumentTypeError(f"must be {_EXPECTED[kind]}, got {text!r}")
+    return value
+
+
+def ascii_int(text) -> int:
+    """argparse ``type=`` of an integer option: ASCII only (``type=int`` also takes other scripts' digits).
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        ``text`` is not an integer typed in ASCII; argparse reports it naming the option (exit 2).
+    """
+    return _typed(text, int)
+
+
+def ascii_float(text) -> float:
+    """argparse ``type=`` of a real-valued option: ASCII only (``type=float`` also takes other scripts' digits).
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        ``text`` is not a number typed in ASCII; argparse reports it naming the option (exit 2).
+    """
+    return _typed(text, float)
+
 
 #: The ``--store`` value that names the texture sample (:mod:`facestats.pipeline.texture_sample`);
 #: a directory of that name is written ``./texture-sample``.

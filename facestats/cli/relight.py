@@ -17,7 +17,7 @@ import math
 import os
 import pathlib
 
-from facestats.cli.options import add_store_option, open_store_option
+from facestats.cli.options import add_store_option, ascii_float, ascii_int, ascii_number, open_store_option
 
 __all__ = ["add_relight"]
 
@@ -25,11 +25,10 @@ __all__ = ["add_relight"]
 def _lights(text):
     from facestats.errors import ValidationError
 
-    try:
-        a, b = (int(x) for x in text.lower().split("x"))
-    except ValueError:
-        raise ValidationError(f"--lights must be N_THETAxN_PHI such as 64x32, got {text!r}") from None
-    return a, b
+    sizes = [ascii_number(x, int) for x in text.lower().split("x")]
+    if len(sizes) != 2 or None in sizes:
+        raise ValidationError(f"--lights must be N_THETAxN_PHI in ASCII digits such as 64x32, got {text!r}")
+    return tuple(sizes)
 
 
 def _cmd_relight(args) -> int:
@@ -101,13 +100,13 @@ def add_relight(sub):
     p.add_argument("source", help="subject id in the store, or a reflectance field store directory (*.zarr)")
     p.add_argument("--probe", required=True, metavar="FILE", help="light probe (.hdr/.exr/.pfm)")
     p.add_argument("--layout", choices=("latlong", "angular"), default="latlong", help="probe layout")
-    p.add_argument("--rotate", type=float, default=0.0, metavar="DEG",
+    p.add_argument("--rotate", type=ascii_float, default=0.0, metavar="DEG",
                    help="rotate the environment about +y by DEG degrees (right-handed)")  # fmt: skip
     p.add_argument("--out", required=True, metavar="FILE.exr", help="linear OpenEXR output")
     p.add_argument("--png", default=None, metavar="FILE.png", help="tone-mapped PNG (default: next to --out)")
-    p.add_argument("--size", type=int, default=256, help="image side for a subject, pixels (default 256)")
-    p.add_argument("--azimuth", type=float, default=0.0, metavar="DEG", help="camera azimuth (0: frontal)")
-    p.add_argument("--elevation", type=float, default=0.0, metavar="DEG", help="camera elevation")
+    p.add_argument("--size", type=ascii_int, default=256, help="image side for a subject, pixels (default 256)")
+    p.add_argument("--azimuth", type=ascii_float, default=0.0, metavar="DEG", help="camera azimuth (0: frontal)")
+    p.add_argument("--elevation", type=ascii_float, default=0.0, metavar="DEG", help="camera elevation")
     p.add_argument("--lights", default="64x32", metavar="NxM", help="light stage theta x phi (default 64x32)")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     add_store_option(p)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 
-from facestats.cli.options import add_store_option, open_store_option
+from facestats.cli.options import add_store_option, ascii_int, open_store_option
 
 __all__ = ["add_render"]
 
@@ -55,8 +55,8 @@ def add_render(sub):
     )
     p.add_argument("subject_id", metavar="ID")
     p.add_argument("--out", required=True, metavar="DIR", help="directory for the images")
-    p.add_argument("--camera", type=int, default=5, help="dome camera (default 5)")
-    p.add_argument("--light", type=int, default=20, help="dome LED (default 20)")
+    p.add_argument("--camera", type=ascii_int, default=5, help="dome camera (default 5)")
+    p.add_argument("--light", type=ascii_int, default=20, help="dome LED (default 20)")
     p.add_argument("--probe", metavar="FILE", help="render under this lat-long HDR probe instead of an LED")
     p.add_argument(
         "--capture", metavar="PATH", help="the subject's capture (zarr); default: re-simulate a default subject"

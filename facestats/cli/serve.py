@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from facestats.cli.options import add_store_option, store_path_option
+from facestats.cli.options import add_store_option, ascii_int, store_path_option
 
 __all__ = ["add_serve"]
 
@@ -35,5 +35,5 @@ def add_serve(sub):
     )
     add_store_option(p)
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
-    p.add_argument("--port", type=int, default=8000, help="port (default 8000; 0 picks a free one)")
+    p.add_argument("--port", type=ascii_int, default=8000, help="port (default 8000; 0 picks a free one)")
     p.set_defaults(func=_cmd_serve)

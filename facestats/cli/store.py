@@ -170,10 +170,10 @@ def add_validate(sub):
         help="check every subject of a store and the index (exit 1 if invalid); repair with a plan first",
         description="Open and check every subject (group present, dims, checksums, schema, physical domains) and "
         "compare the population index with the data. Exit 0 if valid, 1 if not. --repair prints what a repair "
-        "would do (nothing is changed); --repair --yes does it: damaged data are moved to the store's "
-        "quarantine/ folder (never deleted), subjects are recovered from their newest intact committed "
-        "version, stale index rows recomputed, leftovers of interrupted writes removed. --purge --yes deletes "
-        "the quarantine.",
+        "would do, step by step (nothing is changed); --repair --yes does it: damaged data are moved to the "
+        "store's quarantine/ folder (never deleted; each move is listed in the plan), subjects are recovered from "
+        "their newest intact committed version, stale index rows recomputed, a lost index rebuilt, leftovers of "
+        "interrupted writes removed. --purge --yes deletes the quarantine.",
     )
     add_store_option(p)
     p.add_argument("--repair", action="store_true", help="plan a repair of a directory store (a dry run without --yes)")

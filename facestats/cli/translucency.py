@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+from facestats.cli.options import ascii_float, number_option
+
 __all__ = ["add_translucency"]
 
 
@@ -14,7 +16,7 @@ def _cmd_translucency(args) -> int:
         args.mesh, args.lights, args.camera, args.image, spacing=args.spacing, scale=args.scale
     )
     eta = args.eta if args.eta is not None else eta
-    width = args.width if args.width == "auto" else float(args.width)
+    width = args.width if args.width == "auto" else number_option(args.width, float, "--width")
     fits = fit_image_translucency(
         patches,
         lights,
@@ -71,13 +73,13 @@ def add_translucency(sub):
     p.add_argument("--lights", required=True, help="light description (JSON, see docs/translucency_from_image.md)")
     p.add_argument("--camera", required=True, help="pinhole camera (JSON: matrix, rotation, position_mm, image_size)")
     p.add_argument("--image", required=True, help="linear radiance image (.exr, .pfm, or .npz with 'radiance')")
-    p.add_argument("--spacing", type=float, default=1.0, help="patch edge length in mm (default 1)")
-    p.add_argument("--scale", type=float, default=1.0, help="mesh units to mm (default 1)")
+    p.add_argument("--spacing", type=ascii_float, default=1.0, help="patch edge length in mm (default 1)")
+    p.add_argument("--scale", type=ascii_float, default=1.0, help="mesh units to mm (default 1)")
     p.add_argument("--width", default="auto", help="quantisation width in mm, or 'auto' (default)")
     p.add_argument("--method", choices=("monotone", "pinv"), default="monotone", help="solve (default monotone)")
     p.add_argument("--grid", choices=("table2", "skin"), default="table2", help="eq. 36 grid (default Table 2)")
     p.add_argument("--refine", action="store_true", help="refine the grid optimum by continuous least squares")
-    p.add_argument("--eta", type=float, default=None, help="relative index (default: the light file's, else 1.3)")
+    p.add_argument("--eta", type=ascii_float, default=None, help="relative index (default: the light file's, else 1.3)")
     p.add_argument("--json", default="", help="also write the estimates and diagnostics as JSON here")
     p.add_argument("--plot", default="", help="write the Fig. 5 style plot (measured R' and fitted dipole) here")
     p.set_defaults(func=_cmd_translucency)

@@ -16,6 +16,7 @@ from facestats.errors import ValidationError
 __all__ = [
     "as_float",
     "as_finite",
+    "as_rgb_image",
     "check_finite",
     "check_range",
     "check_shape",
@@ -91,6 +92,33 @@ def as_finite(
     if low is not None or high is not None:
         check_range(arr, name, low, high, **bounds)
     return arr
+
+
+def as_rgb_image(value, name: str) -> np.ndarray:
+    """A finite float RGB image of shape (H, W, 3) holding at least one pixel, else ValidationError naming ``name``.
+
+    Parameters
+    ----------
+    value : array_like
+        The image given (e.g. a source or target albedo map).
+    name : str
+        Its argument name, for the messages.
+
+    Returns
+    -------
+    numpy.ndarray
+        :func:`as_float` of ``value`` (float32 stays float32; no copy of float input).
+
+    Raises
+    ------
+    ValidationError
+        Not numeric, not finite, not (H, W, 3), or empty (e.g. shape (0, 64, 3)).
+    """
+    img = as_finite(value, name)
+    check_shape(img, name, (None, None, 3))
+    if min(img.shape[:2]) < 1:
+        raise ValidationError(f"{name} must hold at least one pixel, got shape {img.shape}")
+    return img
 
 
 def check_finite(arr: np.ndarray, name: str) -> np.ndarray:

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from facestats.core.validate import as_float, check_finite, check_seed, check_shape
+from facestats.core.validate import as_float, as_rgb_image, check_finite, check_seed
 from facestats.edit.grids import band_grids, grid_values, pad_plane, padded_shape, region_index
 from facestats.edit.histogram import SOURCE_BINS, histogram_distance, match_flat, source_histogram
 from facestats.edit.masks import blend, check_feather, feather_weights, mask_labels
@@ -182,8 +182,7 @@ def _statistics_per_region(target, ids):
 def _target_image_statistics(target, target_mask, mask_is_labels, ids, settings, workers, pyramid):
     """Region id → TextureStatistics of a target albedo map (per region if both masks are label maps)."""
     levels, orientations, bins = settings
-    timg = check_finite(as_float(target, "target"), "target")
-    check_shape(timg, "target", (None, None, 3))
+    timg = as_rgb_image(target, "target")
     levels = 7 if levels is None else levels
     orientations = 4 if orientations is None else orientations
     bins = 256 if bins is None else bins
@@ -353,10 +352,7 @@ def _transfer_texture(
     pyramid,
 ):
     """:func:`transfer_texture` after its defaults are resolved."""
-    src = check_finite(as_float(source_albedo, "source_albedo"), "source_albedo")
-    check_shape(src, "source_albedo", (None, None, 3))
-    if min(src.shape[:2]) < 1:
-        raise ValidationError(f"source_albedo must hold at least one pixel, got shape {src.shape}")
+    src = as_rgb_image(source_albedo, "source_albedo")
     check_seed(seed)
     iterations = check_int(iterations, "iterations", 0)
     feather = check_feather(feather)

@@ -127,6 +127,8 @@ class Survey:
         Ids of the real subject folders.
     empty_subjects : list of str
         Subject folders (not in the index) that hold nothing of value once the garbage is gone.
+    records : list of tuple
+        ``(sid, generation)`` of the record files in ``.records/`` (valid ids), whatever their state.
     """
 
     garbage: list = field(default_factory=list)
@@ -136,6 +138,7 @@ class Survey:
     foreign: list = field(default_factory=list)
     subject_dirs: list = field(default_factory=list)
     empty_subjects: list = field(default_factory=list)
+    records: list = field(default_factory=list)
 
     def notes(self) -> list[str]:
         """The report notes of this survey (none if there is nothing to say)."""
@@ -185,7 +188,9 @@ def survey(root, index: dict) -> Survey:
         elif name not in _ROOT_NAMES:
             s.foreign.append(name)
     _survey_writers(s, root)
-    pairs = _survey_records(s, root) | _survey_subjects(s, root)
+    recorded = _survey_records(s, root)
+    s.records = sorted(recorded)
+    pairs = recorded | _survey_subjects(s, root)
     kept = set()
     for sid, gen in sorted(pairs):
         if _survey_generation(s, root, sid, gen, index):

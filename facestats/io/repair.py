@@ -11,17 +11,18 @@ checksum can take long, and writers must not wait for it) and returns a
 * **refusals** (:class:`~facestats.errors.StoreError`, nothing planned):
   ``subjects/`` missing or not a real folder, ``index.json`` or ``.writers``
   of the wrong file type, or (unless ``allow_missing``) the folders of all or
-  more than half of the indexed subjects missing — an unmounted volume must
+  more than half of the indexed subjects missing (with the index lost: of the
+  subjects whose records say they are committed) — an unmounted volume must
   not be mistaken for lost data;
 * a **lost index** (missing, not JSON, not an index) is moved to the
-  quarantine and rebuilt: per subject, the generation with the highest
-  ``committed_revision`` in its record (:mod:`facestats.io.records`) that
-  reads intact; a subject whose newest committed generation is damaged falls
-  back to its previous committed one; generations never committed (crashed
-  writes, crashed batches) and subjects whose last record says *retired*
-  (deleted) are never revived; stores older than records (no record at all)
-  use the newest intact generation of each subject; the new index continues
-  the revision count;
+  quarantine and rebuilt (an empty one if nothing is recoverable): per
+  subject, the generation with the highest ``committed_revision`` in its
+  record (:mod:`facestats.io.records`) that reads intact; a subject whose
+  newest committed generation is damaged falls back to its previous committed
+  one; generations never committed (crashed writes, crashed batches) and
+  subjects whose last record says *retired* (deleted) are never revived;
+  stores older than records (no record at all) use the newest intact
+  generation of each subject; the new index continues the revision count;
 * per **indexed subject**: damaged generation → moved to the quarantine;
   damaged or missing → the subject is recovered from its newest other intact
   committed generation, else its entry is dropped (and saved in the
@@ -30,8 +31,15 @@ checksum can take long, and writers must not wait for it) and returns a
   generation if that reads intact, else dropped (saved); data that could not
   be read just now (an I/O error) get *no* action;
 * committed generations of subjects the index does not list are **adopted**;
+* every generation found **damaged** on the way — the one the index names, or
+  an older one tried while looking for an intact one to recover from or
+  adopt — is moved to the quarantine (with its record), never left for the
+  garbage collection to delete; the plan lists each move;
 * records the index contradicts are healed; leftovers of interrupted writes
-  are collected (:func:`facestats.io.maintenance.collect_garbage`).
+  are collected (:func:`facestats.io.maintenance.collect_garbage`): the plan
+  lists what the collection would remove once the repaired index is in place
+  (e.g. the generations it leaves superseded, as a completed overwrite would
+  have removed them).
 
 :func:`apply_repair` takes the store lock, re-reads the index, and applies
 each action only if what it was planned against still holds (the index still
@@ -76,7 +84,16 @@ from facestats.io.summary import albedo_histogram, summarise_subject
 __all__ = ["RepairAction", "RepairPlan", "plan_repair", "apply_repair"]
 
 #: Order in which the kinds of action are applied (moves before the commit, records after it).
-_ORDER = ("quarantine-index", "quarantine-generation", "drop-entry", "recover", "recompute", "adopt", "heal-record")
+_ORDER = (
+    "quarantine-index",
+    "quarantine-generation",
+    "new-index",
+    "drop-entry",
+    "recover",
+    "recompute",
+    "adopt",
+    "heal-record",
+)
 
 
 @dataclass
@@ -86,11 +103,13 @@ class RepairAction:
     Attributes
     ----------
     kind : str
-        One of ``quarantine-index``, ``quarantine-generation``, ``drop-entry``,
+        One of ``quarantine-index``, ``quarantine-generation``, ``new-index``, ``drop-entry``,
         ``recover``, ``recompute``, ``adopt``, ``heal-record``.
     subject : str or None
     expect : str or None
         The generation the index must still name for the action to apply (None: the subject is absent).
+        A ``quarantine-generation`` of a generation other than the one the index names carries the
+        generation the index named when the plan was made (the move is skipped if it changed).
     source : str or None
         The generation the subject's new entry points at (recover, recompute, adopt), or the one moved.
     entry : dict or None
@@ -110,6 +129,7 @@ class RepairAction:
         what = {
             "quarantine-index": f"move {INDEX_NAME} to the quarantine",
             "quarantine-generation": f"move {generation_rel(self.subject or '', self.source or '')} to the quarantine",
+            "new-index": f"write a new {INDEX_NAME}",
             "drop-entry": f"drop subject {sid} from the index (its entry is saved in the quarantine)",
             "recover": f"recover subject {sid} from generation {self.source}",
             "recompute": f"recompute the index entry of subject {sid}",
@@ -128,7 +148,9 @@ class RepairPlan:
     store : str
     actions : list of RepairAction
     garbage : list of str
-        Leftovers of interrupted writes gc would remove now (re-decided under the lock when applied).
+        What the garbage collection after the repair would remove: leftovers of interrupted writes and
+        the generations the repaired index leaves superseded (never one the plan moves to the
+        quarantine); re-decided under the lock when applied.
     problems : list of str
         What no action can repair (e.g. data that could not be read just now).
     index_lost : bool
@@ -200,21 +222,41 @@ def plan_repair(
     plan = RepairPlan(label)
     index, bad = _read_index(root, plan)
     if index is None:
-        _plan_rebuild(plan, root, open_generation)
-        return plan
-    plan.base_revision = int(index.get("revision", 0))
-    _refuse_half_present(root, index, bad, allow_missing)
-    _plan_bad_entries(plan, root, bad, open_generation)
-    _plan_indexed(plan, root, index, open_generation, progress)
-    s = survey(root, index)
-    _plan_adoptions(plan, s, open_generation)
-    plan.garbage = list(s.garbage)
-    for sid, gen in generations_of(index).items():
-        rec = read_record(root, sid, gen)
-        if is_plain_dir(os.path.join(root, generation_rel(sid, gen))) and (rec is None or rec["state"] != "committed"):
-            plan.actions.append(RepairAction("heal-record", sid, expect=gen, source=gen))
+        _plan_rebuild(plan, root, open_generation, allow_missing)
+    else:
+        plan.base_revision = int(index.get("revision", 0))
+        ids = list(index["subjects"]) + [s for s in bad if isinstance(s, str)]
+        then = " (their index entries are then saved in the quarantine)"
+        _refuse_half_present(root, ids, "indexed subjects", allow_missing, then)
+        _plan_bad_entries(plan, root, bad, open_generation)
+        _plan_indexed(plan, root, index, open_generation, progress)
+        _plan_adoptions(plan, survey(root, index), open_generation)
+        for sid, gen in generations_of(index).items():
+            rec = read_record(root, sid, gen)
+            if is_plain_dir(os.path.join(root, generation_rel(sid, gen))) and (
+                rec is None or rec["state"] != "committed"
+            ):
+                plan.actions.append(RepairAction("heal-record", sid, expect=gen, source=gen))
     plan.actions.sort(key=lambda a: _ORDER.index(a.kind))
+    plan.garbage = _garbage_after(plan, root, index)
     return plan
+
+
+def _garbage_after(plan: RepairPlan, root, index) -> list[str]:
+    """What the garbage collection would remove once ``plan`` is applied (:func:`survey` of the new index).
+
+    The generations (and records) the plan moves to the quarantine are left out: they are moved first.
+    """
+    after = copy.deepcopy(index) if index is not None else empty_index(SCHEMA_VERSION, __version__)
+    for a in plan.actions:
+        _change_index(after["subjects"], a)
+    after["revision"] = plan.base_revision + any(a.kind in _INDEX_KINDS for a in plan.actions)
+    moved = set()
+    for a in plan.actions:
+        if a.kind == "quarantine-generation":
+            moved |= {generation_rel(a.subject, a.source), f"{RECORDS}/{record_name(a.subject, a.source)}"}
+    s = survey(root, after)
+    return [g for g in s.garbage if g not in moved] + [f"{SUBJECTS}/{sid}" for sid in s.empty_subjects]
 
 
 def _preflight(root) -> None:
@@ -252,15 +294,29 @@ def _read_index(root, plan: RepairPlan):
         return None, {}
 
 
-def _refuse_half_present(root, index: dict, bad: dict, allow_missing: bool) -> None:
-    ids = list(index["subjects"]) + [s for s in bad if isinstance(s, str)]
-    missing = [s for s in index["subjects"] if not os.path.lexists(os.path.join(root, SUBJECTS, s))]
+def _refuse_half_present(root, ids, what: str, allow_missing: bool, then: str = "") -> None:
+    """Refuse (StoreError) if the folders of all or more than half of the subjects ``ids`` are missing.
+
+    Parameters
+    ----------
+    root : str
+        The store directory.
+    ids : list of str
+        The subjects the store says it holds: those of the index, or (the index lost) those whose
+        records say they are committed.
+    what : str
+        What ``ids`` are, for the message.
+    allow_missing : bool
+        Never refuse (the data are really gone).
+    then : str
+        What ``--allow-missing`` does with them, for the message.
+    """
+    missing = [s for s in ids if isinstance(s, str) and not os.path.lexists(os.path.join(root, SUBJECTS, s))]
     if ids and missing and not allow_missing and (len(missing) == len(ids) or 2 * len(missing) > len(ids)):
         raise StoreError(
-            f"refusing to repair {root}: the folders of {len(missing)} of the {len(ids)} indexed subjects are "
+            f"refusing to repair {root}: the folders of {len(missing)} of the {len(ids)} {what} are "
             f"missing (e.g. {SUBJECTS}/{missing[0]}) — the store looks unmounted or half-present. Nothing was "
-            "changed. If those data are really gone, rerun with --allow-missing (their index entries are then "
-            "saved in the quarantine)"
+            f"changed. If those data are really gone, rerun with --allow-missing{then}"
         )
 
 
@@ -319,8 +375,12 @@ def _top_revision(root, ids) -> int:
     return top
 
 
-def _first_intact(plan, sid, candidates, open_generation, *, quarantine_damaged: bool):
-    """``(revision, gen, dataset)`` of the first candidate that reads intact, or None."""
+def _first_intact(plan, sid, candidates, open_generation, *, expect):
+    """``(revision, gen, dataset)`` of the first candidate that reads intact, or None.
+
+    Every damaged candidate tried before it is planned to move to the quarantine (never left for the
+    garbage collection to delete), on condition that the index still names ``expect`` for ``sid``.
+    """
     for rev, gen in candidates:
         try:
             ds = _open(open_generation, sid, gen)
@@ -329,8 +389,9 @@ def _first_intact(plan, sid, candidates, open_generation, *, quarantine_damaged:
             continue
         if ds is not None:
             return rev, gen, ds
-        if quarantine_damaged:
-            plan.actions.append(RepairAction("quarantine-generation", sid, source=gen, reason="damaged (checksums)"))
+        plan.actions.append(
+            RepairAction("quarantine-generation", sid, expect=expect, source=gen, reason="damaged (checksums)")
+        )
     return None
 
 
@@ -338,16 +399,25 @@ def _recovered_why(rev: int) -> str:
     return "written before commit records existed" if rev < 0 else f"committed at revision {rev}"
 
 
-def _plan_rebuild(plan: RepairPlan, root, open_generation) -> None:
-    """Recover every subject from its newest intact committed generation (the index is lost)."""
-    ids = survey(root, empty_index(SCHEMA_VERSION, __version__)).subject_dirs
+def _plan_rebuild(plan: RepairPlan, root, open_generation, allow_missing: bool) -> None:
+    """Recover every subject from its newest intact committed generation (the index is lost).
+
+    A new index is written even if no subject is recoverable (an empty one); the store is refused as
+    unmounted or half-present when the folders of most subjects its records call committed are missing.
+    """
+    s = survey(root, empty_index(SCHEMA_VERSION, __version__))
+    committed = sorted(
+        {sid for sid, gen in s.records if (read_record(root, sid, gen) or {}).get("state") == "committed"}
+    )
+    _refuse_half_present(root, committed, "subjects committed according to their records", allow_missing)
+    ids = s.subject_dirs
     plan.base_revision = _top_revision(root, ids)
     for sid in ids:
         newest = _candidates(root, sid, live_only=True)
         if not newest:
             continue  # deleted, or never committed
         older = [c for c in _candidates(root, sid) if c not in newest]
-        found = _first_intact(plan, sid, newest + older, open_generation, quarantine_damaged=True)
+        found = _first_intact(plan, sid, newest + older, open_generation, expect=None)
         if found is None:
             plan.problems.append(f"subject {sid!r}: no intact committed generation is left; it is not recovered")
             continue
@@ -355,6 +425,9 @@ def _plan_rebuild(plan: RepairPlan, root, open_generation) -> None:
         plan.actions.append(
             RepairAction("recover", sid, source=gen, entry=_entry(sid, gen, ds), reason=_recovered_why(rev))
         )
+    n = sum(a.kind == "recover" for a in plan.actions)
+    why = f"it lists the {n} subject(s) recovered below" if n else "no subject is recoverable: the new index is empty"
+    plan.actions.append(RepairAction("new-index", reason=f"the index is lost; {why}"))
 
 
 def _valid_id(sid) -> bool:
@@ -397,7 +470,7 @@ def _plan_indexed(plan: RepairPlan, root, index: dict, open_generation, progress
         if damaged:
             plan.actions.append(RepairAction("quarantine-generation", sid, expect=gen, source=gen, reason=msg))
         cands = _candidates(root, sid, exclude=(gen,))
-        found = _first_intact(plan, sid, cands, open_generation, quarantine_damaged=False)
+        found = _first_intact(plan, sid, cands, open_generation, expect=gen)
         if found is None:
             why = f"{msg}; no intact earlier version is left"
             plan.actions.append(RepairAction("drop-entry", sid, expect=gen, entry=index["subjects"][sid], reason=why))
@@ -417,7 +490,7 @@ def _plan_adoptions(plan: RepairPlan, s, open_generation) -> None:
     for sid, cands in sorted(s.adoptable.items()):
         if sid in planned:
             continue
-        found = _first_intact(plan, sid, cands, open_generation, quarantine_damaged=False)
+        found = _first_intact(plan, sid, cands, open_generation, expect=None)
         if found is not None:
             rev, gen, ds = found
             why = f"committed at revision {rev} but missing from the index"
@@ -470,6 +543,22 @@ def apply_repair(root, plan: RepairPlan, *, label: str, lock, root_attrs: dict) 
     return done, root_attrs
 
 
+#: The kinds of action that change the index (a commit follows).
+_INDEX_KINDS = ("new-index", "drop-entry", "recover", "recompute", "adopt")
+
+
+def _change_index(subjects: dict, a: RepairAction):
+    """Make the change ``a`` calls for in the index entries ``subjects``; the entry a ``drop-entry`` removed.
+
+    Returns None for every other kind (``new-index`` changes no entry: the commit writes the index).
+    """
+    if a.kind == "drop-entry":
+        return subjects.pop(a.subject, None) or a.entry
+    if a.kind in ("recover", "recompute", "adopt"):
+        subjects[a.subject] = copy.deepcopy(a.entry)
+    return None
+
+
 def _current(root):
     """The current index split (valid document, invalid entries), or ``(None, {})`` if it cannot be read."""
     try:
@@ -505,15 +594,15 @@ class _Apply:
     def premise(self, a: RepairAction) -> bool:
         """True if what ``a`` was planned against still holds."""
         named = self.base["subjects"].get(a.subject, {}).get("generation") if a.subject else None
-        if a.kind == "quarantine-index":
-            return True
+        if a.kind in ("quarantine-index", "new-index"):
+            return True  # apply_repair checked that the index is still lost
         if a.kind in ("recover", "recompute", "drop-entry", "heal-record"):
             ok = named == a.expect
         elif a.kind == "adopt":
             ok = named is None
-        else:  # quarantine-generation: the index names it (damaged), or nothing does (lost index)
+        else:  # quarantine-generation: the index names what it named when planned, and no writer is on it
             ok = named == a.expect and not is_locked(writer_lock_path(self.root, a.subject, a.source))
-        if ok and a.kind in ("recover", "recompute", "adopt"):
+        if ok and a.kind in ("recover", "recompute", "adopt", "quarantine-generation"):
             ok = is_plain_dir(os.path.join(self.root, generation_rel(a.subject, a.source)))
         return ok
 
@@ -528,14 +617,13 @@ class _Apply:
             self.quarantine(rel, a.reason)
             if os.path.lexists(record_path(self.root, a.subject, a.source)):
                 self.quarantine(f"{RECORDS}/{record_name(a.subject, a.source)}", "the record of " + rel)
-        elif a.kind == "drop-entry":
-            self.dropped[a.subject] = self.base["subjects"].pop(a.subject, None) or a.entry
-            self.changed = True
         elif a.kind == "heal-record":
             self.heal.append(a)
             return
-        else:  # recover, recompute, adopt
-            self.base["subjects"][a.subject] = copy.deepcopy(a.entry)
+        else:  # new-index, drop-entry, recover, recompute, adopt
+            dropped = _change_index(self.base["subjects"], a)
+            if a.kind == "drop-entry":
+                self.dropped[a.subject] = dropped
             self.changed = True
         self.done.append(a.describe())
 

@@ -9,6 +9,13 @@ Conventions
 * BRDF values are in sr⁻¹.  δ is the angle between the normal N and the half-way
   vector H = (ωi + ωo)/‖ωi + ωo‖.
 * Results are float32 if every float input is float32, else float64.
+* Every public function checks its arguments (numeric, finite, in its domain)
+  and its result: a finite input gives a finite result or a
+  :class:`~facestats.errors.ValidationError` naming the parameters, never inf
+  or NaN.  The building blocks (:func:`beckmann_distribution`,
+  :func:`v_groove_shadowing`, :func:`blinn_phong_lobe`,
+  :func:`torrance_sparrow_cosines`) have ``*_unchecked`` twins (not in
+  ``__all__``) for kernels that evaluate them on already valid arrays.
 
 References
 ----------
@@ -69,6 +76,14 @@ def half_vector(wi, wo):
         return h / np.sqrt(_dot(h, h))[..., None]
 
 
+def beckmann_distribution_unchecked(cos_delta, m):
+    """D of :func:`beckmann_distribution` without input checks (kernels' fast path)."""
+    c2 = cos_delta * cos_delta
+    tan2 = (1 - c2) / c2
+    m2 = m * m
+    return np.exp(-tan2 / m2) / (m2 * c2 * c2)
+
+
 def beckmann_distribution(cos_delta, m):
     """Beckmann microfacet distribution D exactly as printed in Weyrich et al. 2006, eq. 13.
 
@@ -81,21 +96,35 @@ def beckmann_distribution(cos_delta, m):
 
     Parameters
     ----------
-    cos_delta : ndarray
+    cos_delta : array_like
         cos δ = N·H in (0, 1].
-    m : ndarray
+    m : array_like
         RMS micro-facet slope (roughness), > 0, dimensionless.
 
     Returns
     -------
     ndarray
-        D, dimensionless (per unit solid angle once divided by π); no input checks
-        (a building block of :func:`torrance_sparrow` and of the simulator).
+        D, dimensionless (per unit solid angle once divided by π), broadcast shape
+        of the inputs (a building block of :func:`torrance_sparrow`; kernels use
+        :func:`beckmann_distribution_unchecked`).
+
+    Raises
+    ------
+    ValidationError
+        Non-numeric, non-finite or out-of-domain arguments, or finite arguments
+        whose D leaves the float range (e.g. m = 1e-200, whose m² underflows).
     """
-    c2 = cos_delta * cos_delta
-    tan2 = (1 - c2) / c2
-    m2 = m * m
-    return np.exp(-tan2 / m2) / (m2 * c2 * c2)
+    c = as_finite(cos_delta, "cos_delta", 0, 1, low_inclusive=False)
+    m_a = as_finite(m, "m", 0, None, low_inclusive=False)
+    dtype = result_dtype(cos_delta, m)
+    with np.errstate(over="ignore", under="ignore", invalid="ignore", divide="ignore"):
+        out = beckmann_distribution_unchecked(c.astype(dtype, copy=False), m_a.astype(dtype, copy=False))
+    return finite_result(out, "beckmann_distribution", cos_delta=c, m=m_a)
+
+
+def v_groove_shadowing_unchecked(n_h, n_wi, n_wo, wo_h):
+    """G of :func:`v_groove_shadowing` without input checks (kernels' fast path)."""
+    return np.minimum(1, 2 * n_h * np.minimum(n_wi, n_wo) / wo_h)  # the same min: every factor is positive
 
 
 def v_groove_shadowing(n_h, n_wi, n_wo, wo_h):
@@ -105,20 +134,69 @@ def v_groove_shadowing(n_h, n_wi, n_wo, wo_h):
 
     The seed prints ωo·H in both denominators; since H bisects ωi and ωo,
     ωi·H = ωo·H, so the printed form equals the symmetric Cook-Torrance form and G
-    is reciprocal.  Arguments are the cosines N·H, N·ωi, N·ωo and ωo·H (> 0,
-    no input checks); G is dimensionless, in (0, 1].
+    is reciprocal.
+
+    Parameters
+    ----------
+    n_h, n_wi, n_wo, wo_h : array_like
+        The cosines N·H, N·ωi, N·ωo and ωo·H, > 0 (directions above the horizon).
+
+    Returns
+    -------
+    ndarray
+        G, dimensionless, in (0, 1], broadcast shape of the inputs (kernels use
+        :func:`v_groove_shadowing_unchecked`).
+
+    Raises
+    ------
+    ValidationError
+        A non-numeric, non-finite or non-positive cosine (named).
     """
-    return np.minimum(1, 2 * n_h * np.minimum(n_wi, n_wo) / wo_h)  # the same min: every factor is positive
+    names = ("n_h", "n_wi", "n_wo", "wo_h")
+    args = (n_h, n_wi, n_wo, wo_h)
+    checked = [as_finite(v, name, 0, None, low_inclusive=False) for v, name in zip(args, names)]
+    dtype = result_dtype(*args)
+    cos = [c.astype(dtype, copy=False) for c in checked]
+    with np.errstate(over="ignore"):
+        out = v_groove_shadowing_unchecked(*cos)
+    return finite_result(out, "v_groove_shadowing", **dict(zip(names, cos)))
+
+
+def blinn_phong_lobe_unchecked(cos_delta, exponent):
+    """The lobe of :func:`blinn_phong_lobe` without input checks (kernels' fast path)."""
+    return (exponent + 2) / (2 * np.pi) * cos_delta**exponent
 
 
 def blinn_phong_lobe(cos_delta, exponent):
     """Normalised Blinn-Phong lobe (n + 2)/(2π) cosⁿ δ (Weyrich et al. 2006, eq. 11 without ρs).
 
     The factor (n + 2)/(2π) makes the cosine-weighted lobe over half-vector
-    directions integrate to one: ∫ (n+2)/(2π) cosⁿ δ cos δ dω_H = 1.  ``cos_delta``
-    = N·H in [0, 1], ``exponent`` n ≥ 0 (no input checks); the lobe is in sr⁻¹.
+    directions integrate to one: ∫ (n+2)/(2π) cosⁿ δ cos δ dω_H = 1.
+
+    Parameters
+    ----------
+    cos_delta : array_like
+        cos δ = N·H in [0, 1].
+    exponent : array_like
+        The specular exponent n ≥ 0.
+
+    Returns
+    -------
+    ndarray
+        The lobe in sr⁻¹, broadcast shape of the inputs (kernels use
+        :func:`blinn_phong_lobe_unchecked`).
+
+    Raises
+    ------
+    ValidationError
+        Non-numeric, non-finite or out-of-domain arguments (named).
     """
-    return (exponent + 2) / (2 * np.pi) * cos_delta**exponent
+    c = as_finite(cos_delta, "cos_delta", 0, 1)
+    n = as_finite(exponent, "exponent", 0, None)
+    dtype = result_dtype(cos_delta, exponent)
+    with np.errstate(over="ignore", under="ignore"):
+        out = blinn_phong_lobe_unchecked(c.astype(dtype, copy=False), n.astype(dtype, copy=False))
+    return finite_result(out, "blinn_phong_lobe", cos_delta=c, exponent=n)
 
 
 def _ts_geometry_kernel(nx, ny, nz, ix, iy, iz, ox, oy, oz, eta):
@@ -130,18 +208,11 @@ def _ts_geometry_kernel(nx, ny, nz, ix, iy, iz, ox, oy, oz, eta):
     n_wi = nx * ix + ny * iy + nz * iz
     n_wo = nx * ox + ny * oy + nz * oz
     wi_wo = ix * ox + iy * oy + iz * oz
-    return torrance_sparrow_cosines(n_wi, n_wo, wi_wo, eta)
+    return torrance_sparrow_cosines_unchecked(n_wi, n_wo, wi_wo, eta)
 
 
-def torrance_sparrow_cosines(n_wi, n_wo, wi_wo, eta=ETA_SKIN):
-    """cos δ and K = G F_r(ωo·H)/(π (N·ωi)(N·ωo)) of eq. 12-13 from three cosines (no checks).
-
-    With ‖ωi + ωo‖ = sqrt(2 + 2 ωi·ωo), the half vector gives
-    N·H = (N·ωi + N·ωo)/‖ωi + ωo‖ and ωo·H = (1 + ωi·ωo)/‖ωi + ωo‖, so the
-    Torrance-Sparrow geometry needs only N·ωi, N·ωo and ωi·ωo; the fitter gathers
-    these per sample from small per-lumitexel grids instead of building
-    per-sample vectors.  Below the horizon cos δ = 1 and K = 0.
-    """
+def torrance_sparrow_cosines_unchecked(n_wi, n_wo, wi_wo, eta=ETA_SKIN):
+    """cos δ and K of :func:`torrance_sparrow_cosines` without input checks (kernels' fast path)."""
     dtype = np.result_type(n_wi, np.float32)
     one = dtype.type(1)
     above = (n_wi > 0) & (n_wo > 0)
@@ -153,11 +224,52 @@ def torrance_sparrow_cosines(n_wi, n_wo, wi_wo, eta=ETA_SKIN):
     tiny = np.finfo(dtype).tiny
     n_h = np.clip((n_wi + n_wo) * inv, tiny, one)
     wo_h = np.clip((1 + wi_wo) * inv, tiny, one)
-    g = v_groove_shadowing(n_h, n_wi, n_wo, wo_h)
+    g = v_groove_shadowing_unchecked(n_h, n_wi, n_wo, wo_h)
     k = g * fresnel_reflectance_unchecked(wo_h, eta) / (np.pi * n_wi * n_wo)
     if not everywhere:
         k = np.where(above, k, 0)
     return n_h.astype(dtype, copy=False), k.astype(dtype, copy=False)
+
+
+def torrance_sparrow_cosines(n_wi, n_wo, wi_wo, eta=ETA_SKIN):
+    """cos δ and K = G F_r(ωo·H)/(π (N·ωi)(N·ωo)) of eq. 12-13 from three cosines.
+
+    With ‖ωi + ωo‖ = sqrt(2 + 2 ωi·ωo), the half vector gives
+    N·H = (N·ωi + N·ωo)/‖ωi + ωo‖ and ωo·H = (1 + ωi·ωo)/‖ωi + ωo‖, so the
+    Torrance-Sparrow geometry needs only N·ωi, N·ωo and ωi·ωo; the fitter gathers
+    these per sample from small per-lumitexel grids instead of building
+    per-sample vectors.  Below the horizon cos δ = 1 and K = 0.
+
+    Parameters
+    ----------
+    n_wi, n_wo, wi_wo : array_like
+        The cosines N·ωi, N·ωo and ωi·ωo (finite; ≤ 0 for N·ω below the horizon).
+    eta : array_like, optional
+        Relative index of refraction, > 0, default 1.38.
+
+    Returns
+    -------
+    cos_delta : ndarray
+        N·H, clipped to (0, 1]; 1 below the horizon.
+    k : ndarray
+        K in sr⁻¹; 0 below the horizon.  Both in the broadcast shape of the inputs
+        (kernels use :func:`torrance_sparrow_cosines_unchecked`).
+
+    Raises
+    ------
+    ValidationError
+        Non-numeric or non-finite arguments, an invalid ``eta`` (None included),
+        or finite cosines whose K leaves the float range (e.g. N·ωi = N·ωo = 1e-300).
+    """
+    names = ("n_wi", "n_wo", "wi_wo")
+    args = (n_wi, n_wo, wi_wo)
+    checked = [as_finite(v, name) for v, name in zip(args, names)]
+    dtype = result_dtype(*args)
+    cos = [c.astype(dtype, copy=False) for c in checked]
+    eta_a = check_eta(eta)
+    with np.errstate(over="ignore", under="ignore", invalid="ignore", divide="ignore"):
+        cos_delta, k = torrance_sparrow_cosines_unchecked(*cos, eta_a)
+    return cos_delta, finite_result(k, "torrance_sparrow_cosines (K)", **dict(zip(names, cos)))
 
 
 def torrance_sparrow_geometry(normal, wi, wo, eta=ETA_SKIN):
@@ -251,7 +363,7 @@ def _bp_kernel(nx, ny, nz, ix, iy, iz, ox, oy, oz, rho_s, exponent):
     with np.errstate(invalid="ignore", divide="ignore"):
         n_h = (nx * hx + ny * hy + nz * hz) / np.sqrt(hx * hx + hy * hy + hz * hz)
     n_h = np.where(above, np.clip(n_h, 0, 1), 0)
-    return np.where(above, rho_s * blinn_phong_lobe(n_h, exponent), 0)
+    return np.where(above, rho_s * blinn_phong_lobe_unchecked(n_h, exponent), 0)
 
 
 def torrance_sparrow(normal, wi, wo, rho_s, m, eta=ETA_SKIN):
@@ -309,4 +421,4 @@ def torrance_sparrow(normal, wi, wo, rho_s, m, eta=ETA_SKIN):
 def _ts_kernel(nx, ny, nz, ix, iy, iz, ox, oy, oz, eta, rho_s, m):
     """Torrance-Sparrow on vector components (no checks): ρs · D(cos δ; m) · K."""
     cos_delta, k = _ts_geometry_kernel(nx, ny, nz, ix, iy, iz, ox, oy, oz, eta)
-    return rho_s * beckmann_distribution(cos_delta, m) * k
+    return rho_s * beckmann_distribution_unchecked(cos_delta, m) * k

@@ -81,18 +81,25 @@ def boundary_coefficient(eta=ETA_SKIN):
     return _boundary(check_dipole_eta(eta))
 
 
-def _dipole_terms(sigma_s_prime, sigma_a, eta):
-    """σtr, z_r, z_v and α' of the dipole (Suzuki eq. 6-12); no checks.
+def _sigma_tr(sigma_a, sigma_t):
+    """σtr = sqrt(3 σa σ't) (eq. 10) without overflow; no checks.
 
     Where the product 3 σa σ't overflows (coefficients near the float range), σtr
     is formed as sqrt(3 σa) sqrt(σ't) instead: the same number without the
     overflow (elsewhere the product form, bit for bit as before).
     """
-    sigma_t = sigma_s_prime + sigma_a
-    alpha = sigma_s_prime / sigma_t
-    sigma_tr = np.sqrt(3 * sigma_a * sigma_t)
+    with np.errstate(over="ignore"):
+        sigma_tr = np.sqrt(3 * sigma_a * sigma_t)
     if not np.all(np.isfinite(sigma_tr)):
         sigma_tr = np.where(np.isfinite(sigma_tr), sigma_tr, np.sqrt(3 * sigma_a) * np.sqrt(sigma_t))
+    return sigma_tr
+
+
+def _dipole_terms(sigma_s_prime, sigma_a, eta):
+    """σtr, z_r, z_v and α' of the dipole (Suzuki eq. 6-12); no checks."""
+    sigma_t = sigma_s_prime + sigma_a
+    alpha = sigma_s_prime / sigma_t
+    sigma_tr = _sigma_tr(sigma_a, sigma_t)
     a_coef = _boundary(eta)
     z_r = 1 / sigma_t
     z_v = z_r * (1 + 4 * a_coef / 3)
@@ -272,10 +279,18 @@ def transport_coefficient(sigma_a, sigma_s_prime):
     -------
     ndarray
         σtr in mm⁻¹.
+
+    Raises
+    ------
+    ValidationError
+        Invalid coefficients, or coefficients so large that σtr (or σa + σ's)
+        leaves the float range: finite inputs give a finite σtr or this error.
     """
     s, a = dipole_coefficients(sigma_s_prime, sigma_a)
     dtype = result_dtype(sigma_a, sigma_s_prime)
-    return np.asarray(np.sqrt(3 * a * (a + s)), dtype=dtype)
+    with np.errstate(over="ignore"):
+        out = np.asarray(_sigma_tr(a, a + s), dtype=dtype)
+    return finite_result(out, "transport_coefficient", sigma_a=a, sigma_s_prime=s)
 
 
 def diffuse_mean_free_path(sigma_tr):
@@ -283,9 +298,26 @@ def diffuse_mean_free_path(sigma_tr):
 
     ℓd measures translucency; Weyrich et al. report subjects with ℓd from
     [1.0904, 0.6376, 0.6035] to [2.8106, 1.2607, 0.6590] mm (R, G, B).
+
+    Parameters
+    ----------
+    sigma_tr : array_like
+        Effective transport coefficient in mm⁻¹, > 0.
+
+    Returns
+    -------
+    ndarray
+        ℓd in mm, the shape and float dtype of ``sigma_tr``.
+
+    Raises
+    ------
+    ValidationError
+        An invalid σtr, or one so small (e.g. 5e-324) that 1/σtr leaves the float range.
     """
     t = as_finite(sigma_tr, "sigma_tr", 0, None, low_inclusive=False, unit="mm^-1")
-    return 1 / t
+    with np.errstate(over="ignore", divide="ignore"):
+        out = 1 / t
+    return finite_result(out, "diffuse_mean_free_path", sigma_tr=t)
 
 
 #: Largest s = sqrt(3(1 − α')) (α' = 0).

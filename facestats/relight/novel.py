@@ -46,7 +46,7 @@ from facestats.acquire.visibility import rasterize
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_shape
 from facestats.errors import ValidationError
-from facestats.model.brdf import v_groove_shadowing
+from facestats.model.brdf import v_groove_shadowing_unchecked
 from facestats.model.fresnel import fresnel_reflectance_unchecked
 from facestats.model.sphere import latlong_coordinates, latlong_directions
 from facestats.relight.camera import ray_triangle
@@ -83,7 +83,9 @@ def specular_terms(normal, light, view, eta=ETA_SKIN, min_cos: float = 0.02):
     n_l, n_v, n_h, v_h = _dot(n, l), _dot(n, v), _dot(n, h), _dot(v, h)
     above = (n_l > 0) & (n_v > 0) & (n_h > 0) & (v_h > 0)
     tiny = 1e-12
-    g = v_groove_shadowing(np.maximum(n_h, tiny), np.maximum(n_l, tiny), np.maximum(n_v, tiny), np.maximum(v_h, tiny))
+    g = v_groove_shadowing_unchecked(
+        np.maximum(n_h, tiny), np.maximum(n_l, tiny), np.maximum(n_v, tiny), np.maximum(v_h, tiny)
+    )
     f = fresnel_reflectance_unchecked(np.clip(v_h, 0, 1), eta)
     return np.where(above, g * f / np.maximum(n_v, min_cos), 0.0)
 

@@ -56,7 +56,11 @@ from facestats.core.blocked import blockwise
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
 from facestats.errors import ValidationError
-from facestats.model.brdf import beckmann_distribution, blinn_phong_lobe, torrance_sparrow_cosines
+from facestats.model.brdf import (
+    beckmann_distribution_unchecked,
+    blinn_phong_lobe_unchecked,
+    torrance_sparrow_cosines_unchecked,
+)
 from facestats.model.fresnel import fresnel_reflectance_unchecked
 from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport
 from facestats.model.sphere import light_stage_directions, unit_directions
@@ -232,15 +236,15 @@ def _shape(ci, vis, eta):
 
 def _ts_kernel(ci, co, io, rho, m, vis, eta):
     """Torrance-Sparrow f_s (N·l) V (Weyrich eq. 12-13) and the diffuse shape, per sample (no checks)."""
-    cos_delta, k = torrance_sparrow_cosines(ci, co, io, eta)
-    spec = rho * beckmann_distribution(cos_delta, m) * k * np.maximum(ci, 0) * vis
+    cos_delta, k = torrance_sparrow_cosines_unchecked(ci, co, io, eta)
+    spec = rho * beckmann_distribution_unchecked(cos_delta, m) * k * np.maximum(ci, 0) * vis
     return spec, _shape(ci, vis, eta)
 
 
 def _bp_kernel(ci, co, io, rho, n, vis, eta):
     """Blinn-Phong f_s (N·l) V (Weyrich eq. 11) and the diffuse shape, per sample (no checks)."""
-    cos_delta, k = torrance_sparrow_cosines(ci, co, io, eta)  # N·H, and K = 0 below the horizon
-    spec = np.where(k > 0, rho * blinn_phong_lobe(cos_delta, n), 0) * np.maximum(ci, 0) * vis
+    cos_delta, k = torrance_sparrow_cosines_unchecked(ci, co, io, eta)  # N·H, and K = 0 below the horizon
+    spec = np.where(k > 0, rho * blinn_phong_lobe_unchecked(cos_delta, n), 0) * np.maximum(ci, 0) * vis
     return spec, _shape(ci, vis, eta)
 
 

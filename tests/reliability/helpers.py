@@ -159,3 +159,12 @@ def generation_dir(store: Path, sid: str) -> Path:
     with open_store(store) as st:
         gen = st.index_entries()[sid]["generation"]
     return store / "subjects" / sid / gen
+
+
+def flip_albedo_bit(gen_dir: Path) -> bytes:
+    """Flip one bit in the first albedo chunk of a generation folder; the damaged chunk's bytes."""
+    chunk = gen_dir / "albedo" / "c" / "0" / "0" / "0"
+    data = bytearray(chunk.read_bytes())
+    data[len(data) // 2] ^= 0x10
+    chunk.write_bytes(bytes(data))
+    return bytes(data)

@@ -15,6 +15,7 @@
 """
 
 import inspect
+import re
 
 import numpy as np
 import pytest
@@ -45,6 +46,12 @@ GOOD = {
     "sigma_tr": 0.55,
     "albedo": 0.5,
     "total_reflectance": 0.5,
+    "cos_delta": 0.9,  # the building blocks of brdf: N·H, N·ωi, N·ωo, ωo·H, ωi·ωo
+    "n_h": 0.9,
+    "n_wi": 0.8,
+    "n_wo": 0.8,
+    "wo_h": 0.95,
+    "wi_wo": 0.28,
 }
 BAD = [None, object(), {"a": 1}, {}, "abc", [1, "a"], [[1, 2], [3]]]
 
@@ -59,6 +66,13 @@ def _physics():
 
 
 CALLS = [(fn, arg) for fn, args in _physics() for arg in args]
+
+
+def test_every_public_physics_function_is_covered():
+    """The table of valid arguments knows every parameter: no public function is skipped by the generated test."""
+    covered = {fn for fn, _ in CALLS}
+    public = {getattr(m, name) for m in (fresnel, brdf, dipole) for name in m.__all__}
+    assert public == covered, sorted(f.__name__ for f in public - covered)
 
 
 @pytest.mark.parametrize("fn, arg", CALLS, ids=[f"{f.__name__}-{a}" for f, a in CALLS])
@@ -86,8 +100,12 @@ def test_the_api_cases(tmp_path):
             open_store(bad)
     rng = np.random.default_rng(0)
     target = rng.uniform(0.2, 0.7, (64, 64, 3))
-    with pytest.raises(ValidationError, match="source_albedo must hold at least one pixel"):
-        transfer_texture(np.zeros((0, 0, 3)), target)
+    for empty in ((0, 0, 3), (0, 64, 3), (64, 0, 3)):
+        got = re.escape(f"must hold at least one pixel, got shape {empty}")
+        with pytest.raises(ValidationError, match="^source_albedo " + got):
+            transfer_texture(np.zeros(empty), target)
+        with pytest.raises(ValidationError, match="^target " + got):  # an empty target, not only the source
+            transfer_texture(target, np.zeros(empty))
     for seed, pattern in (("abc", "seed must be an integer"), (-1, r"seed must be an integer in \[0")):
         with pytest.raises(ValidationError, match=pattern):
             transfer_texture(target, target, seed=seed)
@@ -120,6 +138,33 @@ def test_extreme_parameters_give_finite_results_or_errors():
     assert dipole.dipole_profile(1.0, 1e200, 1e200) == 0.0  # an opaque medium: no light 1 mm away
     with pytest.raises(ValidationError, match="dipole_profile is not finite"):
         dipole.dipole_profile(1.0, 1e308, 1e308)
+
+
+def test_the_building_blocks_give_finite_results_or_errors():
+    with pytest.raises(ValidationError, match="beckmann_distribution is not finite.*m = 1e-200"):
+        brdf.beckmann_distribution(0.9, 1e-200)  # was ZeroDivisionError
+    assert np.isfinite(brdf.beckmann_distribution(0.9, 1e-6))
+    with pytest.raises(ValidationError, match="eta must be numeric"):
+        brdf.torrance_sparrow_cosines(0.8, 0.8, 0.28, eta=None)  # was ignored (F_r = 1)
+    with pytest.raises(ValidationError, match="torrance_sparrow_cosines .* n_wi = 1e-300"):
+        brdf.torrance_sparrow_cosines(1e-300, 1e-300, 0.28)
+    assert brdf.v_groove_shadowing(1e300, 1e300, 1e300, 1e-300) == 1.0
+    assert np.isfinite(brdf.blinn_phong_lobe(1.0, 1.7e308))
+    sigma_tr = dipole.transport_coefficient(1e200, 1e200)  # was inf: sqrt(3 σa) sqrt(σ't) does not overflow
+    assert sigma_tr == pytest.approx(np.sqrt(6) * 1e200)
+    with pytest.raises(ValidationError, match="transport_coefficient is not finite.*sigma_a = 1e\\+308"):
+        dipole.transport_coefficient(1e308, 1e308)
+    with pytest.raises(ValidationError, match="diffuse_mean_free_path is not finite.*sigma_tr = 5e-324"):
+        dipole.diffuse_mean_free_path(5e-324)  # was inf
+    for fn, args in (
+        (brdf.beckmann_distribution, (1.5, 0.3)),
+        (brdf.beckmann_distribution, (0.9, 0.0)),
+        (brdf.blinn_phong_lobe, (0.9, -1.0)),
+        (brdf.v_groove_shadowing, (0.9, 0.0, 0.8, 0.95)),
+        (brdf.torrance_sparrow_cosines, (np.nan, 0.8, 0.28)),
+    ):
+        with pytest.raises(ValidationError, match="must (lie in|be finite)"):
+            fn(*args)
 
 
 def test_a_constant_source_moves_to_the_targets_mean():

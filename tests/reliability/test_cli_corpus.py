@@ -1,24 +1,32 @@
 """Every CLI command × malformed arguments: exit 1 or 2, a message naming the argument, no side effect.
 
 The corpus is generated below (:data:`CASES`): for each command a valid base invocation and, per
-option, values a hostile user would try (non-numbers, NaN, infinities, superscript digits, paths
-under ``/dev/null``, FIFOs, files where folders are due and the reverse, ids with path separators
-or newlines, out-of-range numbers).  Each case runs in this process in an empty working directory
-and must: exit 1 or 2 (never 0, never 3 — the "unexpected exception" code — and never raise),
-print a message containing one of the option's names, leave the working directory empty, create
-no store, and leave the input store byte for byte as it was.
+option, values a hostile user would try (non-numbers, NaN, infinities, superscript digits and
+other scripts' digits, paths under ``/dev/null``, FIFOs, files where folders are due and the
+reverse, ids with path separators or newlines, out-of-range numbers).  Each case runs in this
+process in an empty working directory and must: exit 1 or 2 (exactly 2 for the commands of
+:data:`EXIT_2`; never 0, never 3 — the "unexpected exception" code — and never raise), print a
+message containing one of the option's names, leave the working directory empty, create no store,
+and leave the input store and the tree of things beside it byte for byte as they were.
+
+The cases of the device, rendering and server commands (:data:`EXIT_2`) use only arguments that
+fail before any work starts (no server is started, no frame rendered); :data:`KNOWN_FAILURES`
+are cases that still fail the rules, marked strict xfail until the code they name is fixed.
 """
 
+import argparse
 import os
 
 import pytest
 import scipy.io
 
+from facestats.cli import build_parser
+from facestats.cli.options import ascii_float, ascii_int
 from tests.helpers import merl_dict
 
 from .helpers import make_store, run, snapshot
 
-NUMBERS = ["abc", "nan", "inf", "-inf", "1e999", "²", "", "0x10"]
+NUMBERS = ["abc", "nan", "inf", "-inf", "1e999", "²", "٣", "", "0x10"]
 INTS = NUMBERS + ["-1", "1.5", "99999999999999999999999"]
 IDS = ["../../x", "S9\n", "", "nope", "²", "a/b"]
 STORES = ["/dev/null", "{fifo}", "", "{file}", "{emptydir}", "{missing}"]
@@ -85,12 +93,149 @@ CASES = (
     + _case("edit stats R1", "--levels", ["-1", "99"], ["levels"], base=("--out", "{new}"))
     + _case("demo", "--albedo", [("1.5", "0.3", "0.2"), ("nan", "0.3", "0.2"), ("abc", "1", "1")], ["albedo"])
     + _case("demo", "--sigma-tr", [("-1", "1", "1"), ("0", "0", "0"), ("inf", "1", "1")], ["sigma"])
-    + _case("demo", "--eta", ["0.5", "nan", "abc", "1e999"], ["eta"])
+    + _case("demo", "--eta", ["0.5", "nan", "abc", "1e999", "١.٤"], ["eta"])
     + _case("demo", "--plot", ["/dev/null/x.png", "{emptydir}", "{fifo}", "x.xyz", "{file}.txt"], ["plot"])
 )
 
+#: Base arguments of the device and rendering commands: inputs that do not exist, outputs in the work folder.
+_EXPORT = ("R1", "--out", "{new}")
+_MITSUBA = _EXPORT + ("--format", "mitsuba")
+_RELIT = ("R1", "--out", "{new}.exr")
+_PROBE = ("--probe", "{missing}.hdr")
+_MICRO_INPUTS = ("--frames", "{missing}", "--map", "{missing}", "--out", "{new}.zarr")
+_MICRO = ("--neutral", "{missing}") + _MICRO_INPUTS
+_GENERATE = ("--out", "{new}.exr")
+_SCENE_FILES = ("--camera", "{missing}", "--image", "{missing}")
+_SCENE = ("{missing}", "--lights", "{missing}") + _SCENE_FILES
+_INGEST_INPUTS = ("{emptydir}", "--mesh", "{missing}", "--calibration", "{missing}")
+_INGEST = _INGEST_INPUTS + ("--store", "{new}.zarr")
+_EMULATE_DIRS = ("--quiet", "--hot-folder", "{new}/hot", "--lab", "{new}/lab")
+_EMULATE = ("--duration", "0.1") + _EMULATE_DIRS
+_LINE = ("--port", "{missing}", "--out", "{new}", "--hot-folder", "{new}/hot")
+_RECORD = ("--age", "30", "--gender", "F", "--skin-type", "3")  # cases of --age and --skin-type leave theirs out
+_CALIBRATION = ("--calibration", "{missing}")
+_X1 = ("--subject", "X1")
+_CAPTURE = _LINE + _X1 + _CALIBRATION + _RECORD
+_TARGET = ("{emptydir}",)
+
+CASES += (
+    _case("export-subject", "ID", ["../../x", "S9\n", "nope"], ["subject"], base=("--out", "{new}"))
+    + _case("export-subject", "--out", ["/dev/null/x", "{file}", "{fifo}"], ["out", "/dev/null"], base=("R1",))
+    + _case("export-subject", "--width", ["abc", "١٦", "1e9"], ["width"], base=_MITSUBA)
+    + _case("export-subject", "--spp", ["1.5"], ["spp"], base=_MITSUBA)
+    + _case("export-subject", "--mesh", ["{missing}", "{fifo}"], ["mesh"], base=_EXPORT)
+    + _case("export-subject", "--probe", ["{missing}", "{fifo}"], ["probe"], base=_MITSUBA)
+    + _case("export-subject", "--format", ["bogus"], ["--format"], base=_EXPORT)
+    + _case("render", "ID", ["../../x", "nope"], ["subject"], base=("--out", "{new}"))
+    + _case("render", "--camera", ["abc", "١"], ["camera"], base=("R1", "--out", "{new}"))
+    + _case("render", "--light", ["2e3"], ["light"], base=("R1", "--out", "{new}"))
+    + _case("render", "--capture", ["{missing}", "{fifo}"], ["capture"], base=("R1", "--out", "{new}"))
+    + _case("relight", "--probe", ["{missing}", "{fifo}", "{file}.txt"], ["probe"], base=_RELIT)
+    + _case("relight", "--out", ["x.png", ""], ["out"], base=("R1",) + _PROBE)
+    + _case("relight", "--size", ["١"], ["size"], base=_RELIT + _PROBE)
+    + _case("relight", "--rotate", ["abc"], ["rotate"], base=_RELIT + _PROBE)
+    + _case("relight", "--layout", ["bogus"], ["--layout"], base=_RELIT + _PROBE)
+    + _case("serve", "--port", ["abc", "-1", "70000", "١", "1.5"], ["port"])
+    + _case("serve", "--store", ["{fifo}", "{missing}", ""], ["store", "path"])
+    + _case("microstructure generate", "--size", ["abc", "١"], ["size"], base=_GENERATE)
+    + _case("microstructure generate", "--texel-um", ["0", "nan"], ["texel"], base=_GENERATE)
+    + _case("microstructure generate", "--out", ["x.xyz"], ["out", ".exr"])
+    + _case("microstructure generate", "--seed", ["-1"], ["seed"], base=_GENERATE)
+    + _case("microstructure render", "--neutral", ["{missing}", "{emptydir}"], ["mesh", "root"], base=_MICRO_INPUTS)
+    + _case("microstructure render", "--tile", ["١"], ["tile"], base=_MICRO)
+    + _case("microstructure render", "--window", [("1", "2", "3", "x")], ["window"], base=_MICRO)
+    + _case("translucency", "--lights", ["{missing}", "{emptydir}"], ["light"], base=_SCENE[:1] + _SCENE_FILES)
+    + _case("translucency", "--spacing", ["١"], ["spacing"], base=_SCENE)
+    + _case("translucency", "--eta", ["١.٤"], ["eta"], base=_SCENE)
+    + _case("translucency", "--method", ["bogus"], ["--method"], base=_SCENE)
+    + _case("ingest", "--subject", ["../x", "S9\n"], ["subject"], base=_INGEST)
+    + _case("ingest", "--workers", ["١"], ["workers"], base=_INGEST + _X1)
+    + _case("ingest", "--motion-tolerance", ["abc"], ["motion-tolerance"], base=_INGEST + _X1)
+    + _case("ingest", "--store", ["/dev/null/x", "{fifo}"], ["store", "path"], base=_INGEST_INPUTS + _X1)
+    + _case("calibrate leds", "TARGET_DIR", ["{missing}", "{file}"], ["calibration"])
+    + _case("calibrate leds", "--grid", ["١"], ["grid"], base=_TARGET)
+    + _case("calibrate leds", "--reference-camera", ["abc"], ["reference-camera"], base=_TARGET)
+    + _case("calibrate leds", "--calibration", ["{file}", "{emptydir}"], ["calibration"], base=_TARGET)
+    + _case("emulate dome", "--map-size", ["١"], ["map-size"], base=_EMULATE)
+    + _case("emulate dome", "--drop", ["-1", "nan"], ["drop"], base=_EMULATE)
+    + _case("emulate dome", "--seed", ["abc"], ["seed"], base=_EMULATE)
+    + _case("emulate dome", "--disconnect-after", ["x"], ["disconnect-after"], base=_EMULATE)
+    + _case("emulate dome", "--stall-seconds", ["-1"], ["stall"], base=_EMULATE)
+    + _case("emulate sensor", "--garble", ["200"], ["garble"], base=_EMULATE)
+    + _case("emulate sensor", "--duration", ["abc"], ["duration"], base=_EMULATE_DIRS)
+    + _case("capture dome", "--colour", ["٢,1,1", "a,b,c"], ["colour"], base=_CAPTURE)
+    + _case("capture dome", "--brightness", ["١"], ["brightness"], base=_CAPTURE)
+    + _case("capture dome", "--baudrate", ["abc"], ["baudrate"], base=_CAPTURE)
+    + _case("capture dome", "--bytesize", ["9"], ["bytesize"], base=_CAPTURE)
+    + _case("capture dome", "--stopbits", ["3"], ["stopbits"], base=_CAPTURE)
+    + _case("capture sensor", "--timeout", ["abc"], ["timeout"], base=_CAPTURE)
+    + _case("capture sensor", "--age", ["١", "300"], ["age"], base=_LINE + _X1 + _CALIBRATION + _RECORD[2:])
+    + _case(
+        "capture sensor",
+        "--skin-type",
+        ["٣", "7"],
+        ["skin-type", "skin_type"],
+        base=_LINE + _X1 + _CALIBRATION + _RECORD[:4],
+    )
+    + _case("capture sensor", "--subject", ["../x", "S9\n"], ["subject"], base=_LINE + _CALIBRATION + _RECORD)
+    + _case("capture sensor", "--calibration", ["{missing}", "{file}"], ["calibration"], base=_LINE + _X1 + _RECORD)
+    + _case(
+        "capture sensor", "--metadata", ["{missing}", "{emptydir}"], ["subject record"], base=_LINE + _X1 + _CALIBRATION
+    )
+)
+
+#: Commands whose malformed arguments must exit with status 2 exactly (argparse's, or a facestats error).
+EXIT_2 = (
+    "export-subject",
+    "render",
+    "relight",
+    "serve",
+    "microstructure",
+    "translucency",
+    "ingest",
+    "calibrate",
+    "emulate",
+    "capture",
+)
+
+#: Cases that still break the rules, each for a reason in code outside the CLI (strict: fixing it fails the test,
+#: and the mark goes).  Cases that block (``calibrate leds --calibration FIFO``, ``emulate dome --seed -1``) are
+#: not run at all: they would cost the alarm's timeout each.
+KNOWN_FAILURES = [
+    pytest.param(
+        *c,
+        marks=pytest.mark.xfail(strict=True, reason=why),
+        id=f"known:{c[0]} {c[1]}={c[2]!r}"[:60],
+    )
+    for c, why in (
+        (
+            ("microstructure generate", "--out", "/dev/null/x.exr", ["out", "/dev/null"], ()),
+            "pipeline.microstructure.generate_neutral_map writes the EXR without checking the folder: exit 3",
+        ),
+        (
+            ("ingest", "--subject", "X1", ["mesh"], _INGEST),
+            "pipeline.photographs.ingest_subject creates the store before it checks the mesh",
+        ),
+        (
+            ("emulate dome", "--map-size", "0", ["map_size"], _EMULATE),
+            "acquire.devices.lab creates the hot folder and the lab folder before it checks the map size",
+        ),
+    )
+]
+
 #: Commands that read ``--store`` (the shared input store) unless the case replaces it.
-_READS_STORE = ("query", "info", "validate", "export", "analyze", "edit")
+_READS_STORE = (
+    "query",
+    "info",
+    "validate",
+    "export",
+    "analyze",
+    "edit",
+    "export-subject",
+    "render",
+    "relight",
+    "serve",
+)
 
 
 @pytest.fixture(scope="module")
@@ -121,13 +266,13 @@ def _fill(value, things, work):
     return [value]
 
 
-@pytest.mark.parametrize("command, option, value, names, base", CASES, ids=lambda x: repr(x)[:40])
+@pytest.mark.parametrize("command, option, value, names, base", CASES + KNOWN_FAILURES, ids=lambda x: repr(x)[:40])
 def test_malformed_argument(env, tmp_path, command, option, value, names, base):
     store, things, mat = env
     work = tmp_path / "work"
     work.mkdir()
     argv = command.split()
-    if option in ("PATH", "TYPE", "SUBJECT"):
+    if option.isupper():  # a positional argument (PATH, TYPE, SUBJECT, ID, TARGET_DIR)
         argv += _fill(value, things, work)
     else:
         argv += [option, *_fill(value, things, work)]
@@ -146,8 +291,32 @@ def test_malformed_argument(env, tmp_path, command, option, value, names, base):
                 argv += [opt, str(default)]
     before, things_before = snapshot(store), snapshot(things)
     code, out = run(*argv, cwd=work, timeout=90)
-    assert code in (1, 2), (argv, code, out)
+    assert code == 2 if argv[0] in EXIT_2 else code in (1, 2), (argv, code, out)
     assert "unexpected" not in out and "Traceback" not in out, out
     assert any(n in out for n in names), (argv, out)
     assert os.listdir(work) == [], (argv, os.listdir(work))  # no store, no file, no folder created
     assert snapshot(store) == before and snapshot(things) == things_before
+
+
+def _actions(parser):
+    """Every argument of ``parser`` and of its subcommands, recursively."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                yield from _actions(sub)
+        else:
+            yield action
+
+
+def test_every_numeric_option_takes_ascii_digits_only():
+    """``type=int``/``float`` take other scripts' digits ('١.٤' is 1.4): every numeric option uses the ASCII types."""
+    actions = list(_actions(build_parser()))
+    plain = sorted({a.option_strings[0] if a.option_strings else a.dest for a in actions if a.type in (int, float)})
+    assert plain == [], f"numeric options parsed with int/float: {plain}"
+    numeric = [a for a in actions if a.type in (ascii_int, ascii_float)]
+    assert len(numeric) > 50
+    for a in numeric:
+        for text in ("١.٤", "٣", "²", "１"):
+            with pytest.raises(argparse.ArgumentTypeError, match="ASCII"):
+                a.type(text)
+    assert ascii_int("-12") == -12 and ascii_float("1.5e3") == 1500.0

@@ -4,7 +4,8 @@ Every case edits ``index.json`` of a copy of a small store, then: ``query``, ``i
 exit 1 or 2 naming what is wrong (never a ``TypeError``/``StopIteration`` traceback), a commit
 (``import-merl`` into the store) is refused without writing anything, and ``validate --repair
 --yes`` brings the store back with every subject's data intact (a recomputable entry is recomputed,
-an unusable one dropped and its committed data added back from their record).
+an unusable one dropped and its committed data added back from their record).  The sentinel tree
+beside the store is compared after every command: nothing outside the store is touched.
 """
 
 import json
@@ -121,17 +122,22 @@ def _tamper(store, case):
 @pytest.mark.parametrize("case", list(ROW_CASES) + list(FILE_CASES))
 def test_tampered_index(base, tmp_path, case):
     store = copy_store(base[0], tmp_path)
+    sentinel = tmp_path / "sentinel"
     _tamper(store, case)
+    mat = _mat(tmp_path)
+    outside = snapshot(sentinel)
     words = (ROW_CASES.get(case) or FILE_CASES[case])[1]
     for argv in (("query", "--skin-type", "III"), ("info",), ("validate",)):
         code, out = run(*argv, "--store", store)
         assert code in (1, 2) and all(w in out for w in words), (argv, code, out)
+        assert snapshot(sentinel) == outside, argv
     layout = snapshot(store)
-    code, out = run("import-merl", _mat(tmp_path), "--store", store)  # a commit must refuse, writing nothing
+    code, out = run("import-merl", mat, "--store", store)  # a commit must refuse, writing nothing
     assert code == 2 and "index.json" in out, out
-    assert snapshot(store) == layout
+    assert snapshot(store) == layout and snapshot(sentinel) == outside
     code, out = run("validate", "--store", store, "--repair", "--yes")
     assert code == 0 and "store is valid" in out, out
+    assert snapshot(sentinel) == outside
     assert subject_digests(store) == base[1]  # every subject back, with its data
     code, out = run("query", "--skin-type", "III", "--store", store)
     assert code == 0, out

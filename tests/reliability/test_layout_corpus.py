@@ -1,7 +1,10 @@
 """Malformed stores: every file and folder of the layout replaced by garbage, a folder, a link out, a FIFO, or missing.
 
-For each of the 14 items × 5 damages (70 stores), the commands that read a store (``info``, ``query``,
-``validate``) and the one that changes it (``validate --repair --yes``) run in this process and must:
+The store holds a quarantine (a damaged subject ``Q1`` moved aside by a repair when the store is made),
+so the quarantine's folder, a repair's folder in it, its ``QUARANTINE.json`` and a quarantined
+generation are items too.  For each of the 18 items × 5 damages (90 stores), the commands that read
+a store (``info``, ``query``, ``validate``) and those that change it (``validate --repair --yes``; for
+the quarantine's items also ``validate --purge --yes``) run in this process and must:
 exit 0, 1 or 2 (3 is the CLI's "unexpected exception"; an exception escaping is a traceback), name
 the damaged item when they fail, leave the sentinel tree beside the store untouched, and lose no
 intact data (the subjects the damage does not touch read back equal; a damaged generation is either
@@ -13,13 +16,18 @@ import shutil
 
 import pytest
 
-from .helpers import copy_store, make_store, run, snapshot, subject_digests
+from facestats.io import open_store
+from tests.helpers import make_map_subject
+
+from .helpers import copy_store, flip_albedo_bit, generation_dir, make_store, run, snapshot, subject_digests
 
 KINDS = ("garbage", "folder", "link-out", "fifo", "missing")
 
 
 def _items(store):
     gen = next(p.name for p in (store / "subjects" / "R1").iterdir() if p.name.startswith("g"))
+    folder = next((store / "quarantine").iterdir()).name
+    qgen = next((store / "quarantine" / folder / "subjects" / "Q1").iterdir()).name
     return {
         "zarr.json": "zarr.json",
         "index.json": "index.json",
@@ -35,6 +43,10 @@ def _items(store):
         "array metadata": f"subjects/R1/{gen}/albedo/zarr.json",
         "chunk": f"subjects/R1/{gen}/albedo/c/0/0/0",
         "record": f".records/R1~{gen}.json",
+        "quarantine": "quarantine",
+        "quarantine folder": f"quarantine/{folder}",
+        "quarantine manifest": f"quarantine/{folder}/QUARANTINE.json",
+        "quarantined generation": f"quarantine/{folder}/subjects/Q1/{qgen}",
     }
 
 
@@ -54,12 +66,20 @@ NAMES = {
     "array metadata": ("R1",),
     "chunk": ("R1",),
     "record": ("R1", "record"),
+    "quarantine": ("quarantine",),
+    "quarantine folder": ("quarantine",),
+    "quarantine manifest": ("quarantine", "QUARANTINE.json"),
+    "quarantined generation": ("quarantine", "Q1"),
 }
 
 
 @pytest.fixture(scope="module")
 def base(tmp_path_factory):
     path = make_store(tmp_path_factory.mktemp("corpus") / "s.zarr")
+    with open_store(path, mode="r+") as st:  # a quarantine: Q1 damaged, moved aside by a repair
+        st.write_subject(make_map_subject("Q1", size=16, seed=7))
+        flip_albedo_bit(generation_dir(path, "Q1"))
+        st.repair()
     return path, subject_digests(path)
 
 
@@ -90,7 +110,10 @@ def test_damaged_layout(base, tmp_path, item, kind):
     untouched = {sid: snapshot(store / "subjects" / sid) for sid in ("R2", "RM")}
     damage(store, rel, kind, sentinel)
     before = snapshot(sentinel)
-    for argv in (("info",), ("query",), ("validate",), ("validate", "--repair", "--yes")):
+    commands = [("info",), ("query",), ("validate",), ("validate", "--repair", "--yes")]
+    if item.startswith("quarantine"):
+        commands += [("validate", "--purge"), ("validate", "--purge", "--yes")]
+    for argv in commands:
         code, out = run(*argv, "--store", store)
         assert code in (0, 1, 2), (argv, code, out)
         if code != 0:

@@ -25,6 +25,7 @@ from tests.helpers import make_map_subject
 from .helpers import (
     copy_store,
     digest_dataset,
+    flip_albedo_bit,
     generation_dir,
     make_store,
     quarantined_generations,
@@ -178,6 +179,84 @@ def test_one_flipped_bit_moves_the_generation_to_the_quarantine(store, base):
     assert code == 0 and not quarantined_generations(store)
     code, out = run("validate", "--store", store)
     assert code == 0 and "quarantine" not in out
+
+
+def _overwrite_without_removal(store, monkeypatch, times: int) -> list[str]:
+    """Overwrite R1 ``times`` times, each crashing before the old version is removed; the generations, oldest first."""
+    gens = []
+    with open_store(store, mode="r+") as st:
+        gens.append(st.index_entries()["R1"]["generation"])
+        monkeypatch.setattr(store_mod.Store, "_remove_generation", lambda self, sid, gen: None)
+        for k in range(times):
+            st.write_subject(make_map_subject("R1", size=16, seed=9 + k), overwrite=True)
+            gens.append(st.index_entries()["R1"]["generation"])
+    monkeypatch.undo()
+    return gens
+
+
+def test_a_damaged_earlier_generation_is_quarantined_not_deleted(store, base, monkeypatch):
+    """The index names a missing generation and the only earlier one is damaged: the subject is dropped, and its
+    damaged data go to the quarantine (the plan says so) instead of being collected as leftovers."""
+    old, new = _overwrite_without_removal(store, monkeypatch, 1)
+    shutil.rmtree(store / "subjects" / "R1" / new)
+    damaged = flip_albedo_bit(store / "subjects" / "R1" / old)
+    whole = snapshot(store)
+    code, out = run("validate", "--store", store, "--repair")
+    assert code == 1 and f"move subjects/R1/{old} to the quarantine: damaged" in out, out
+    assert "drop subject 'R1'" in out and "remove 2 leftover item(s)" in out, out
+    assert snapshot(store) == whole  # a dry run
+    code, out = run("validate", "--store", store, "--repair", "--yes")
+    assert code == 0 and "store is valid" in out and "removed 2 leftover item(s)" in out, out
+    assert quarantined_generations(store) == {old}
+    assert next(store.glob(f"quarantine/*/subjects/R1/{old}/albedo/c/0/0/0")).read_bytes() == damaged
+    assert next(store.glob(f"quarantine/*/.records/R1~{old}.json")).is_file()
+    assert subject_digests(store) == {k: v for k, v in base[1].items() if k != "R1"}
+
+
+def test_recovery_past_a_damaged_middle_generation_quarantines_it(store, monkeypatch):
+    with open_store(store) as st:
+        oldest_digest = digest_dataset(st.subject("R1"))
+    oldest, middle, newest = _overwrite_without_removal(store, monkeypatch, 2)
+    shutil.rmtree(store / "subjects" / "R1" / newest)
+    flip_albedo_bit(store / "subjects" / "R1" / middle)
+    code, out = run("validate", "--store", store, "--repair")
+    assert code == 1 and f"move subjects/R1/{middle} to the quarantine" in out, out
+    assert f"recover subject 'R1' from generation {oldest}" in out, out
+    code, out = run("validate", "--store", store, "--repair", "--yes")
+    assert code == 0 and "store is valid" in out, out
+    assert quarantined_generations(store) == {middle}
+    with open_store(store) as st:
+        assert st.index_entries()["R1"]["generation"] == oldest and digest_dataset(st.subject("R1")) == oldest_digest
+
+
+def test_a_lost_index_of_an_empty_store_is_rebuilt(tmp_path):
+    path = tmp_path / "e.zarr"
+    open_store(path, mode="a").close()
+    (path / "index.json").unlink()
+    code, out = run("validate", "--store", path)
+    assert code == 1 and "has no index.json" in out
+    code, out = run("validate", "--store", path, "--repair")
+    assert code == 1 and "write a new index.json" in out and "the new index is empty" in out, out
+    assert not (path / "index.json").exists()
+    code, out = run("validate", "--store", path, "--repair", "--yes")
+    assert code == 0 and "store is valid" in out, out
+    code, out = run("validate", "--store", path)
+    assert code == 0 and "store is valid" in out, out
+
+
+def test_a_lost_index_on_an_unmounted_volume_is_refused(store, base, tmp_path):
+    (store / "index.json").unlink()
+    shutil.move(store / "subjects", tmp_path / "away")
+    (store / "subjects").mkdir()  # an empty mount point; .records/ still says what was committed
+    whole = snapshot(store)
+    for extra in ((), ("--yes",)):
+        code, out = run("validate", "--store", store, "--repair", *extra)
+        assert code == 2 and "refusing to repair" in out and "half-present" in out, out
+        assert snapshot(store) == whole  # no subjects/zarr.json written onto the bare mount point
+    (store / "subjects").rmdir()
+    shutil.move(tmp_path / "away", store / "subjects")
+    code, out = run("validate", "--store", store, "--repair", "--yes")
+    assert code == 0 and subject_digests(store) == base[1], out
 
 
 # -- 4. using corrupt data -----------------------------------------------------------------------

@@ -289,9 +289,9 @@ class DomeSimulator:
             cos_i_s, ft_i_s, ft_o_s = blk.cos_i[t, l], blk.ft_i[t, l], blk.ft_o[t, c]
         # Specular (grey BRDF × light colour), Weyrich eq. 11-13.
         if self.specular == "torrance_sparrow":
-            f_s = rho[t] * _brdf.beckmann_distribution(cos_delta, lobe[t]) * k_ts
+            f_s = rho[t] * _brdf.beckmann_distribution_unchecked(cos_delta, lobe[t]) * k_ts
         else:
-            f_s = rho[t] * _brdf.blinn_phong_lobe(cos_delta, lobe[t])
+            f_s = rho[t] * _brdf.blinn_phong_lobe_unchecked(cos_delta, lobe[t])
         e_s = blk.e_perp[t, l] * cos_i_s[:, None]  # (S, 3) irradiance E = E⊥ cos θi
         # Diffuse: entering flux F_t(ωi) E per (lumitexel, light), dipole transport, exit.
         e_tl = blk.e_perp * blk.cos_i[..., None]

@@ -29,7 +29,7 @@ from facestats.core.blocked import blockwise
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, as_float, check_choice, check_shape
 from facestats.errors import ValidationError
-from facestats.model.brdf import check_directions, torrance_sparrow_cosines
+from facestats.model.brdf import check_directions, torrance_sparrow_cosines_unchecked
 from facestats.model.fitting.engine import resolve_engine
 from facestats.model.fitting.samples import Samples, segment_sum
 from facestats.model.fitting.solver import DEFAULT_BOUNDS, SpecularFit, solve_specular
@@ -49,7 +49,7 @@ __all__ = [
 
 def _ts_factor_kernel(ci, co, io, eta):
     """(tan²δ, K cos θi / cos⁴δ) of a block of samples (run through :func:`facestats.core.blocked.blockwise`)."""
-    cos_d, k = torrance_sparrow_cosines(ci, co, io, eta)
+    cos_d, k = torrance_sparrow_cosines_unchecked(ci, co, io, eta)
     c2 = cos_d * cos_d
     return (1 - c2) / c2, np.maximum(k * ci / (c2 * c2), 0)
 

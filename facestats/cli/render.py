@@ -21,7 +21,7 @@ def _cmd_render(args) -> int:
 
     with open_store_option(args.store) as st:
         ds = store_subject(st, args.subject_id)
-    cap = open_capture(args.capture) if args.capture else default_capture(args.subject_id)
+    cap = open_capture(args.capture) if args.capture else default_capture(ds)
     if args.probe:
         res = render_probe(ds, cap, args.camera, args.probe)
     else:

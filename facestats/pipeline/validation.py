@@ -41,7 +41,7 @@ from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
 from facestats.io.mesh import subject_mesh
 from facestats.io.probes import read_light_probe
-from facestats.io.schema import modulation
+from facestats.io.schema import modulation, provenance
 from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport, skin_radiance
 from facestats.model.sphere import latlong_light_samples
 from facestats.pipeline.render import camera_image
@@ -253,16 +253,48 @@ def camera_rmse(
     return float(np.sqrt(num / den))
 
 
-@functools.lru_cache(maxsize=2)
-def default_capture(subject_id: str):
+def default_capture(subject):
     """Re-simulate the capture of a subject of the embedded default store (same truth, seed and dome).
+
+    Parameters
+    ----------
+    subject : str or xarray.Dataset
+        A subject id of the default population, or a fitted subject: then its
+        provenance must show that it was fitted from the default simulation of
+        that subject (simulator, seed, geometry and specular model), so that a
+        subject of another store is never compared with a capture it was not
+        fitted to.
 
     The last two are cached (a simulation takes seconds); treat the capture as read-only.
     """
 
-    pop = default_population()
+    subject_id = subject if isinstance(subject, str) else str(subject.attrs.get("subject_id", ""))
+    truth = _default_truth(subject_id)
+    if not isinstance(subject, str):
+        got = provenance(subject).get("capture_provenance", {})
+        want = {
+            "source": "facestats simulator",
+            "seed": truth.seed,
+            "geometry": f"procedural-{DEFAULT_MAP_SIZE}",
+            "specular": "torrance_sparrow",
+        }
+        differ = {k: got.get(k) for k, v in want.items() if got.get(k) != v}
+        if differ:
+            raise ValidationError(
+                f"subject {subject_id!r} was not fitted from the default simulation of that subject (its capture "
+                f"provenance has {differ}, the default has { ({k: want[k] for k in differ}) }); pass the capture it was "
+                "fitted to (--capture PATH on the command line)"
+            )
+    return _simulated_default(subject_id)
+
+
+def _default_truth(subject_id):
     try:
-        truth = pop[subject_id]
+        return default_population()[subject_id]
     except (KeyError, IndexError):
         raise ValidationError(f"subject_id must name a subject of the default population, got {subject_id!r}") from None
-    return DomeSimulator(procedural_face(DEFAULT_MAP_SIZE)).simulate(truth)
+
+
+@functools.lru_cache(maxsize=2)
+def _simulated_default(subject_id):
+    return DomeSimulator(procedural_face(DEFAULT_MAP_SIZE)).simulate(_default_truth(subject_id))

@@ -29,6 +29,26 @@ def test_render_prints_the_relative_rmse_and_writes_images(tmp_path, capsys):
     ]  # fmt: skip
 
 
+def test_render_refuses_a_subject_not_fitted_from_the_default_capture(tmp_path, capsys):
+    """Without --capture, a subject of another store is never compared with the default's re-simulation."""
+    import json
+
+    import facestats
+
+    with facestats.open_store() as st:
+        ds = st.subject("S003").load()
+    prov = json.loads(ds.attrs["provenance"])
+    prov["capture_provenance"]["seed"] = 7  # fitted from another capture of S003
+    ds.attrs["provenance"] = json.dumps(prov)
+    with facestats.open_store(tmp_path / "other.zarr", mode="a") as other:
+        other.write_subject(ds)
+    out = tmp_path / "images"
+    assert main(["render", "S003", "--store", str(tmp_path / "other.zarr"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "was not fitted from the default simulation of that subject" in err and "'seed': 7" in err
+    assert "--capture PATH" in err and not out.exists()
+
+
 def test_serve_refuses_a_port_it_cannot_bind(capsys):
     import socket
 

@@ -2,25 +2,35 @@
 
 :func:`write_exr_set` writes one EXR file per map of a map subject (Weyrich et
 al. 2006 §4: parameter maps in UV space), a mesh with UVs and a
-``manifest.json`` describing every file:
+``manifest.json`` describing every file; :func:`read_exr_set` reads a set back.
 
-============================  ========  =========  ==============================================
-file                          channels  type       content (units)
-============================  ========  =========  ==============================================
-``albedo.exr``                R G B     half       diffuse albedo α (eq. 9), 1
-``modulation.exr``            R G B     half       M = α / α_avg (eq. 7), 1
-``normal.exr``                R G B     half       diffuse normal, object space (x, y, z in [-1, 1])
-``normal_tangent.exr``        R G B     half       the same normal in the mesh's tangent frame
-``ts_rho_s.exr``, ``ts_m``    Y         float      Torrance-Sparrow ρs, Beckmann m (eq. 12-13), 1
-``bp_rho_s``, ``bp_exponent`` Y         float      Blinn-Phong ρs, n (eq. 11), 1
-``ts_error``, ``bp_error``    Y         float      fit error E(p) (eq. 14), sr⁻¹
+================================  ========  =========  ==============================================
+file                              channels  type       content (units)
+================================  ========  =========  ==============================================
+``albedo.exr``                    R G B     half       diffuse albedo α (eq. 9), 1
+``modulation.exr``                R G B     half       M = α / α_avg (eq. 7), 1
+``normal.exr``                    R G B     half       diffuse normal, object space (x, y, z in [-1, 1])
+``normal_tangent.exr``            R G B     half       the same normal in the mesh's tangent frame
+``ts_rho_s.exr``, ``ts_m``        Y         float      Torrance-Sparrow ρs, Beckmann m (eq. 12-13), 1
+``bp_rho_s``, ``bp_exponent``     Y         float      Blinn-Phong ρs, n (eq. 11), 1
+``ts_error``, ``bp_error``        Y         float      fit error E(p) (eq. 14), sr⁻¹
 ``sigma_a``, ``sigma_s_prime``,
-``sigma_tr``                  R G B     float      σa, σ's, σtr (§5.4, eq. 15), mm⁻¹, uniform maps
-``region.exr``                Y         uint       face region 0-10 (Fig. 15)
-``ts_flag``, ``bp_flag``      Y         uint       fit flags (bits: ``facestats.core.conventions.FLAG_BITS``)
-``micro_normal.exr``          camNN.R…  half       per-camera micro-normals (§5.1), when stored
-any other map                 Y / RGB   float      e.g. ``ts_rho_s_std`` standard errors, generically
-============================  ========  =========  ==============================================
+``sigma_tr``                      R G B     float      σa, σ's, σtr (§5.4, eq. 15), mm⁻¹, uniform maps
+``region.exr``                    Y         uint       face region 0-10 (Fig. 15)
+``ts_flag``, ``bp_flag``          Y         uint       fit flags (bits: ``facestats.core.conventions.FLAG_BITS``)
+``micro_normal_cam00.exr`` …      R G B     half       micro-normals seen by camera NN (§5.1), object space,
+                                                       one file per camera, when stored
+any other map                     Y / RGB   float      e.g. ``ts_rho_s_std`` standard errors, generically
+================================  ========  =========  ==============================================
+
+Every file is a single-part scanline EXR, ZIP-compressed (zlib over 16-line
+blocks; :func:`facestats.io.images.write_exr`), that any OpenEXR reader opens;
+non-finite texels (NaN: not measured) are written as 0.  The files are
+independent, so they are written concurrently by a pool of threads (OpenEXR's
+writer and numpy release the GIL); the micro-normals, most of the bytes of a
+fitted subject (16 cameras × 3 half channels), are one file per camera for
+that reason (format ``facestats.exr_set/1`` had them as one 48-channel
+``micro_normal.exr``).
 
 Conventions written into every EXR header (string attributes ``facestats.*``)
 and the manifest:
@@ -36,7 +46,9 @@ and the manifest:
 * tangent-space normals: x along ∂p/∂u, y up the texture (−∂p/∂v, the glTF
   2.0 / OpenGL "+Y up" convention), z along the mesh normal
   (:meth:`facestats.io.mesh.FaceMesh.tangent_frames`);
-* lengths in mm (the mesh) and coefficients in mm⁻¹.
+* lengths in mm (the mesh) and coefficients in mm⁻¹;
+* ``facestats.variable`` names the subject variable a file holds and, for the
+  micro-normals, ``facestats.camera`` the camera index.
 """
 
 from __future__ import annotations
@@ -47,15 +59,23 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from facestats.errors import ValidationError
-from facestats.io.images import write_exr
+from facestats.core.validate import check_integer
+from facestats.errors import FormatError, ValidationError
+from facestats.io.images import read_exr, write_exr
 from facestats.io.mesh import FaceMesh, subject_mesh, write_mesh
 from facestats.io.schema import VARIABLES, modulation, subject_kind
 
-__all__ = ["EXR_SET_FORMAT", "COLOUR_SPACE", "UV_CONVENTION", "write_exr_set", "exr_set_textures"]
+__all__ = [
+    "EXR_SET_FORMAT",
+    "COLOUR_SPACE",
+    "UV_CONVENTION",
+    "write_exr_set",
+    "read_exr_set",
+    "exr_set_textures",
+]
 
-#: Version tag of the manifest.
-EXR_SET_FORMAT = "facestats.exr_set/1"
+#: Version tag of the manifest (2: micro-normals one file per camera).
+EXR_SET_FORMAT = "facestats.exr_set/2"
 COLOUR_SPACE = "linear scene-referred ITU-R BT.709/sRGB primaries, D65 white"
 DATA_SPACE = "data (not a colour)"
 UV_CONVENTION = "u right, v down; image row 0 is v = 0 (top of the forehead); maps indexed [v, u]"
@@ -68,17 +88,40 @@ _HALF = ("albedo", "modulation", "normal", "normal_tangent", "micro_normal")
 _COLOUR = ("albedo", "modulation")
 #: Per-subject coefficients written as uniform RGB maps.
 _UNIFORM = ("sigma_a", "sigma_s_prime", "sigma_tr")
+#: Bytes per texel and channel of each stored type (to write the largest files first).
+_BYTES = {"half": 2, "float": 4, "uint": 4}
 
 
-def _texture(name, channels, *, units, quantity, space=DATA_SPACE, half=False, extra=None):
+def _finite(values) -> np.ndarray:
+    """``values`` as an array, non-finite floats (NaN: not measured) replaced by 0; copied only if it has any."""
+    a = np.asarray(values)
+    if a.dtype.kind == "f":
+        bad = ~np.isfinite(a)
+        if bad.any():
+            a = np.where(bad, a.dtype.type(0), a)
+    return a
+
+
+def _planes(image) -> dict:
+    """An (H, W) image as ``{"Y": image}``, an (H, W, 3) one as ``{"R": ..., "G": ..., "B": ...}`` (views)."""
+    if image.ndim == 2:
+        return {"Y": image}
+    return {k: image[..., i] for i, k in enumerate("RGB")}
+
+
+def _texture(name, channels, load, *, kind, units, quantity, space=DATA_SPACE, variable=None, extra=None):
+    """One file of the set; ``load()`` builds its channels (called by the writing thread, so lazily)."""
     return {
         "name": name,
-        "channels": channels,
+        "file": name + ".exr",
+        "variable": variable or name,
+        "channels": tuple(channels),
+        "type": kind,
         "units": units,
         "quantity": quantity,
         "space": space,
-        "half": half,
         "extra": extra or {},
+        "load": load,
     }
 
 
@@ -86,52 +129,92 @@ def _map_textures(ds):
     """One texture per (v, u[, channel|component]) map of the subject (normals handled separately)."""
     out = []
     for var in sorted(ds.data_vars):
-        dims = tuple(ds[var].dims)
+        da = ds[var]
+        dims = tuple(da.dims)
         if dims[:2] != ("v", "u") or var in ("normal", "modulation"):
             continue
-        units = ds[var].attrs.get("units", VARIABLES.get(var, ((), "1", ""))[1])
-        quantity = ds[var].attrs.get("long_name", VARIABLES.get(var, ((), "", var))[2])
-        values = np.nan_to_num(np.asarray(ds[var].values))
         if len(dims) == 2:
-            channels = {"Y": values}
-        elif dims[2] in ("channel", "component") and values.shape[2] == 3:
-            channels = dict(zip("RGB", np.moveaxis(values, 2, 0)))
+            channels = ("Y",)
+        elif len(dims) == 3 and dims[2] in ("channel", "component") and da.shape[2] == 3:
+            channels = ("R", "G", "B")
         else:
             continue  # not an image-shaped map
-        space = COLOUR_SPACE if var in _COLOUR else DATA_SPACE
-        out.append(_texture(var, channels, units=units, quantity=quantity, space=space, half=var in _HALF))
+        kind = "uint" if da.dtype.kind in "iub" else ("half" if var in _HALF else "float")
+        out.append(
+            _texture(
+                var,
+                channels,
+                lambda da=da: _planes(_finite(da.values)),
+                kind=kind,
+                units=da.attrs.get("units", VARIABLES.get(var, ((), "1", ""))[1]),
+                quantity=da.attrs.get("long_name", VARIABLES.get(var, ((), "", var))[2]),
+                space=COLOUR_SPACE if var in _COLOUR else DATA_SPACE,
+            )
+        )
     return out
+
+
+def _unit_normals(ds) -> np.ndarray:
+    """The subject's diffuse normals normalised, (0, 0, 0) where absent or non-finite; shape (v, u, 3)."""
+    n = _finite(np.asarray(ds["normal"].values, np.float32))
+    length = np.linalg.norm(n, axis=-1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+
+def _tangent_normals(ds, mesh: FaceMesh) -> np.ndarray:
+    """The normals in the mesh's tangent frames (T, B, N): n_t = (n·T, n·B, n·N); (0, 0, 1) where absent."""
+    n = _unit_normals(ds)
+    frames = mesh.tangent_frames(n.shape[0])
+    nt = np.stack([np.einsum("vuk,vuk->vu", n, f) for f in frames], -1)
+    nt[~n.any(axis=-1)] = (0.0, 0.0, 1.0)
+    return nt
 
 
 def _normal_textures(ds, mesh: FaceMesh):
     """Object-space normal map and the same normals in the mesh's tangent frames."""
     if "normal" not in ds.data_vars:
         return []
-    n = np.nan_to_num(np.asarray(ds["normal"].values, np.float64))
-    length = np.linalg.norm(n, axis=-1, keepdims=True)
-    n = np.where(length > 0, n / np.where(length > 0, length, 1), 0.0)
-    t, b, g = mesh.tangent_frames(n.shape[0])
-    nt = np.stack([np.einsum("vuk,vuk->vu", n, f) for f in (t, b, g)], -1)
-    nt[length[..., 0] == 0] = (0.0, 0.0, 1.0)
     quantity = VARIABLES["normal"][2]
     return [
-        _texture("normal", dict(zip("RGB", np.moveaxis(n, 2, 0))), units="1", quantity=quantity, half=True,
-                 extra={"normal_space": OBJECT_SPACE}),
-        _texture("normal_tangent", dict(zip("RGB", np.moveaxis(nt, 2, 0))), units="1", quantity=quantity,
-                 half=True, extra={"normal_space": TANGENT_SPACE}),
-    ]  # fmt: skip
+        _texture(
+            "normal",
+            "RGB",
+            lambda: _planes(_unit_normals(ds)),
+            kind="half",
+            units="1",
+            quantity=quantity,
+            extra={"normal_space": OBJECT_SPACE},
+        ),
+        _texture(
+            "normal_tangent",
+            "RGB",
+            lambda: _planes(_tangent_normals(ds, mesh)),
+            kind="half",
+            units="1",
+            quantity=quantity,
+            extra={"normal_space": TANGENT_SPACE},
+        ),
+    ]
 
 
-def _micro_normal_texture(ds):
-    """Per-camera micro-normals as one multi-channel EXR (``camNN.R/G/B``), if the subject has them."""
+def _micro_normal_textures(ds):
+    """Per-camera micro-normals, one RGB file per camera (``micro_normal_camNN``), if the subject has them."""
     if "micro_normal" not in ds.data_vars:
         return []
-    mn = np.nan_to_num(np.asarray(ds["micro_normal"].values))
-    channels = {f"cam{c:02d}.{k}": mn[c, ..., i] for c in range(mn.shape[0]) for i, k in enumerate("RGB")}
+    mn = ds["micro_normal"]
     return [
-        _texture("micro_normal", channels, units="1", quantity=VARIABLES["micro_normal"][2], half=True,
-                 extra={"normal_space": OBJECT_SPACE})
-    ]  # fmt: skip
+        _texture(
+            f"micro_normal_cam{c:02d}",
+            "RGB",
+            lambda c=c: _planes(_finite(mn[c].values)),
+            kind="half",
+            units="1",
+            quantity=VARIABLES["micro_normal"][2],
+            variable="micro_normal",
+            extra={"camera": c, "normal_space": OBJECT_SPACE},
+        )
+        for c in range(mn.shape[0])
+    ]
 
 
 def _uniform_textures(ds):
@@ -142,16 +225,34 @@ def _uniform_textures(ds):
         if var not in ds.data_vars:
             continue
         vals = np.asarray(ds[var].values, np.float64)
-        channels = {k: np.full(shape, vals[i], np.float32) for i, k in enumerate("RGB")}
         out.append(
-            _texture(var, channels, units="mm-1", quantity=VARIABLES[var][2],
-                     extra={"value": " ".join(repr(float(x)) for x in vals)})
-        )  # fmt: skip
+            _texture(
+                var,
+                "RGB",
+                lambda vals=vals: {k: np.full(shape, v, np.float32) for k, v in zip("RGB", vals)},
+                kind="float",
+                units="mm-1",
+                quantity=VARIABLES[var][2],
+                extra={"value": " ".join(repr(float(x)) for x in vals)},
+            )
+        )
     return out
 
 
+def _modulation_texture(ds):
+    """M = α / α_avg (eq. 7): the stored ``modulation`` map or :func:`facestats.io.schema.modulation`."""
+
+    def load():
+        m = ds["modulation"] if "modulation" in ds.data_vars else modulation(ds)
+        return _planes(_finite(m.values))
+
+    return _texture(
+        "modulation", "RGB", load, kind="half", units="1", quantity=VARIABLES["modulation"][2], space=COLOUR_SPACE
+    )
+
+
 def exr_set_textures(ds, mesh: FaceMesh):
-    """The textures :func:`write_exr_set` writes, as dicts (``name``, ``channels``, ``units``, ...).
+    """The files :func:`write_exr_set` writes, described without building their pixels.
 
     Parameters
     ----------
@@ -163,26 +264,36 @@ def exr_set_textures(ds, mesh: FaceMesh):
     Returns
     -------
     list of dict
+        Per file: ``name`` (file stem), ``file``, ``variable`` (the subject
+        variable it holds), ``channels`` (names), ``type`` (``half``, ``float``
+        or ``uint``), ``units``, ``quantity``, ``space`` (colour space or
+        ``data``), ``extra`` (further header attributes) and ``load``, a
+        function returning the channels as ``{name: (v, u) array}`` (non-finite
+        texels as 0).
+
+    Raises
+    ------
+    ValidationError
+        A region-sample subject (it has no maps).
     """
     if subject_kind(ds) != "maps":
         raise ValidationError(
             f"subject {ds.attrs.get('subject_id', '?')!r} holds region samples, not maps: it has no texture set"
         )
-    textures = _map_textures(ds)
-    m = modulation(ds) if "modulation" not in ds.data_vars else ds["modulation"]
-    mod = np.nan_to_num(np.asarray(m.values))
-    textures.append(
-        _texture("modulation", dict(zip("RGB", np.moveaxis(mod, 2, 0))), units="1",
-                 quantity=VARIABLES["modulation"][2], space=COLOUR_SPACE, half=True)
-    )  # fmt: skip
-    return textures + _normal_textures(ds, mesh) + _uniform_textures(ds) + _micro_normal_texture(ds)
+    return (
+        _map_textures(ds)
+        + [_modulation_texture(ds)]
+        + _normal_textures(ds, mesh)
+        + _uniform_textures(ds)
+        + _micro_normal_textures(ds)
+    )
 
 
 def _header(ds, tex, geometry) -> dict:
     attrs = {
         "facestats.format": EXR_SET_FORMAT,
         "facestats.subject_id": str(ds.attrs.get("subject_id", "")),
-        "facestats.variable": tex["name"],
+        "facestats.variable": tex["variable"],
         "facestats.quantity": tex["quantity"],
         "facestats.units": tex["units"],
         "facestats.colour_space": tex["space"],
@@ -193,8 +304,20 @@ def _header(ds, tex, geometry) -> dict:
     return attrs
 
 
-def write_exr_set(ds, out_dir, *, mesh=None, mesh_format: str = "obj", mesh_grid: int | None = None, workers=4):
+def _default_workers() -> int:
+    """The CPUs this process may run on (its affinity mask where the OS has one)."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return os.cpu_count() or 1
+
+
+def write_exr_set(ds, out_dir, *, mesh=None, mesh_format: str = "obj", mesh_grid: int | None = None, workers=None):
     """Write a map subject as an EXR texture set, its face mesh and ``manifest.json`` into ``out_dir``.
+
+    Every file is independent, so the texture files and the mesh are written by
+    ``workers`` threads, largest first (a file's pixels are built by the thread
+    that writes it, so at most ``workers`` files' pixels are in memory); the
+    manifest is written last.
 
     Parameters
     ----------
@@ -208,31 +331,42 @@ def write_exr_set(ds, out_dir, *, mesh=None, mesh_format: str = "obj", mesh_grid
     mesh_format : {"obj", "ply"}
     mesh_grid : int, optional
         Procedural mesh resolution (default 128).
-    workers : int
-        Files written in parallel.
+    workers : int, optional
+        Threads writing files (default: the CPUs available to the process).
 
     Returns
     -------
     dict
         The manifest (also written as ``manifest.json``): subject metadata,
         ``geometry`` (what mesh was used), ``mesh`` (file name), ``textures``
-        (per name: file, channels, type, units, quantity, colour space) and
-        ``coefficients`` (σa, σ's, σtr, α_avg per channel).
+        (per file stem: file, variable, channels, type, units, quantity, colour
+        space, camera for the micro-normals) and ``coefficients`` (σa, σ's,
+        σtr, α_avg per channel).
     """
     if mesh_format not in ("obj", "ply"):
         raise ValidationError(f"mesh_format must be 'obj' or 'ply', got {mesh_format!r}")
+    workers = _default_workers() if workers is None else check_integer(workers, "workers", 1, 256)
     fm = mesh if isinstance(mesh, FaceMesh) else subject_mesh(ds, mesh, mesh_grid=mesh_grid)
     textures = exr_set_textures(ds, fm)
     out_dir = os.fspath(out_dir)
+    mesh_file = f"mesh.{mesh_format}"
 
     def write(tex):
-        path = os.path.join(out_dir, tex["name"] + ".exr")
-        write_exr(path, tex["channels"], half=tex["half"], attributes=_header(ds, tex, fm.geometry))
+        write_exr(
+            os.path.join(out_dir, tex["file"]),
+            tex["load"](),
+            half=tex["type"] == "half",
+            attributes=_header(ds, tex, fm.geometry),
+        )
 
-    with ThreadPoolExecutor(max_workers=max(1, int(workers))) as pool:
-        list(pool.map(write, textures))
-    mesh_file = f"mesh.{mesh_format}"
-    write_mesh(os.path.join(out_dir, mesh_file), fm.vertices, fm.faces, fm.uv, fm.normals)
+    def write_mesh_file():
+        write_mesh(os.path.join(out_dir, mesh_file), fm.vertices, fm.faces, fm.uv, fm.normals)
+
+    largest_first = sorted(textures, key=lambda t: -len(t["channels"]) * _BYTES[t["type"]])
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        jobs = [pool.submit(write, t) for t in largest_first] + [pool.submit(write_mesh_file)]
+        for job in jobs:
+            job.result()  # re-raises the first failure
     manifest = _manifest(ds, textures, fm, mesh_file)
     with open(os.path.join(out_dir, "manifest.json"), "w", encoding="utf-8") as fh:
         json.dump(manifest, fh, indent=2)
@@ -255,10 +389,10 @@ def _manifest(ds, textures, fm: FaceMesh, mesh_file) -> dict:
         "coefficient_units": {"sigma_a": "mm-1", "sigma_s_prime": "mm-1", "sigma_tr": "mm-1", "albedo_avg": "1"},
         "textures": {
             t["name"]: {
-                "file": t["name"] + ".exr",
+                "file": t["file"],
+                "variable": t["variable"],
                 "channels": list(t["channels"]),
-                "type": "uint" if np.asarray(next(iter(t["channels"].values()))).dtype.kind in "iub"
-                else ("half" if t["half"] else "float"),
+                "type": t["type"],
                 "units": t["units"],
                 "quantity": t["quantity"],
                 "colour_space": t["space"],
@@ -266,4 +400,65 @@ def _manifest(ds, textures, fm: FaceMesh, mesh_file) -> dict:
             }
             for t in textures
         },
-    }  # fmt: skip
+    }
+
+
+def read_exr_set(path):
+    """Read an EXR texture set written by :func:`write_exr_set` back into arrays.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The set's directory (holding ``manifest.json``).
+
+    Returns
+    -------
+    maps : dict of str to ndarray
+        Per file stem, the image indexed ``[v, u]`` (one channel) or
+        ``[v, u, channel]`` (R, G, B) as stored (float16, float32 or uint32),
+        except the per-camera micro-normals, gathered into ``micro_normal``
+        indexed ``[camera, v, u, component]``.
+    manifest : dict
+        ``manifest.json``.
+
+    Raises
+    ------
+    FormatError
+        No readable manifest, a manifest of another format, or micro-normal
+        cameras that are not 0, 1, ..., C − 1.
+    ImageFormatError
+        An unreadable EXR file.
+    """
+    root = os.fspath(path)
+    name = os.path.join(root, "manifest.json")
+    try:
+        with open(name, encoding="utf-8") as fh:
+            manifest = json.load(fh)
+    except (OSError, ValueError) as exc:
+        raise FormatError(f"cannot read the EXR set manifest {name!r}: {exc}") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != EXR_SET_FORMAT:
+        got = manifest.get("format") if isinstance(manifest, dict) else type(manifest).__name__
+        raise FormatError(f"field 'format' of {name!r} must be {EXR_SET_FORMAT!r}, got {got!r}")
+    if not isinstance(manifest.get("textures"), dict):
+        raise FormatError(f"field 'textures' of {name!r} must be an object, got {manifest.get('textures')!r}")
+    maps, cameras = {}, {}
+    for stem, entry in manifest["textures"].items():
+        missing = [k for k in ("file", "variable", "channels") if k not in entry]
+        if missing:
+            raise FormatError(f"texture {stem!r} of {name!r} has no field {missing[0]!r}")
+        channels, _ = read_exr(os.path.join(root, entry["file"]))
+        names = entry["channels"]
+        if set(names) - set(channels):
+            raise FormatError(f"{entry['file']!r} of {name!r} lacks channels {sorted(set(names) - set(channels))}")
+        image = channels[names[0]] if len(names) == 1 else np.stack([channels[k] for k in names], -1)
+        if entry["variable"] == "micro_normal":
+            cameras[int(entry["camera"])] = image
+        else:
+            maps[stem] = image
+    if cameras:
+        if sorted(cameras) != list(range(len(cameras))):
+            raise FormatError(
+                f"the micro-normal cameras of {name!r} must be 0..{len(cameras) - 1}, got {sorted(cameras)}"
+            )
+        maps["micro_normal"] = np.stack([cameras[c] for c in range(len(cameras))])
+    return maps, manifest

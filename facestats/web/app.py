@@ -12,17 +12,22 @@ Routes (GET only; every other method is 405):
 Safety: the store is opened read-only; filter names are whitelisted and values
 bounded in length; subject ids pass :func:`facestats.io.ids.check_subject_id`
 before any use (no path is ever built from a request); query strings are at
-most :data:`MAX_QUERY_STRING` bytes and bodies :data:`MAX_BODY` bytes.  Errors
+most :data:`MAX_QUERY_STRING` bytes and bodies :data:`MAX_BODY` bytes.  Work
+that grows with a subject's maps (map and preview images, the EXR set) runs
+for at most :data:`MAX_HEAVY` requests at once, others get 503 and are asked
+to retry; images are enlarged only up to :data:`facestats.web.data.MAX_IMAGE_SIDE`
+pixels a side; the EXR set is zipped into a temporary file (stored, not
+recompressed) and streamed from there, never held in memory.  Errors
 are JSON (API) or a short page: the text is the one the CLI prints
 (``facestats: error: ...``), with 400 (bad value), 404 (unknown subject or
-page), 409 (store fails its checks), 424 (missing optional dependency); an
+page), 409 (store fails its checks), 424 (missing optional dependency), 503
+(too many image or export requests at once); an
 unexpected exception is logged on the server and answered with a generic 500,
 never a traceback.
 """
 
 from __future__ import annotations
 
-import io
 import logging
 import os
 import shutil
@@ -34,12 +39,14 @@ from collections import OrderedDict
 from facestats.core.conventions import CONDITIONS, REGIONS, ROMAN
 from facestats.errors import DependencyError, FacestatsError, StoreError, ValidationError
 
-__all__ = ["create_app", "FILTERS", "MAX_QUERY_STRING", "MAX_BODY", "error_text"]
+__all__ = ["create_app", "FILTERS", "MAX_QUERY_STRING", "MAX_BODY", "MAX_HEAVY", "error_text"]
 
 FILTERS = ("skin_type", "gender", "age", "condition", "region")
 MAX_QUERY_STRING = 1024
 MAX_BODY = 1024
 MAX_VALUE = 32
+#: Requests that build images or the EXR set, at once (per server); more get 503.
+MAX_HEAVY = 2
 _LOG = logging.getLogger("facestats.web")
 
 
@@ -135,6 +142,7 @@ def create_app(store=None, *, preload=True):
         "lock": lock,
         "samples": RegionSamples(st, start=preload),
         "subjects": _SubjectCache(st, lock),
+        "heavy": threading.BoundedSemaphore(MAX_HEAVY),
     }
     app.config["FACESTATS"] = ctx
     _register_guards(app)
@@ -223,12 +231,22 @@ def _register_routes(app, ctx):
 
 
 def _register_subject_routes(app, ctx):
-    from flask import Response, jsonify, render_template
+    from flask import Response, jsonify, render_template, send_file
+    from werkzeug.exceptions import ServiceUnavailable
 
     # local import: keeps numpy out of this module's import
     from facestats.web.data import map_png, preview_png, subject_document
 
-    cache = ctx["subjects"]
+    cache, heavy = ctx["subjects"], ctx["heavy"]
+
+    def bounded(work):
+        """``work()`` if fewer than :data:`MAX_HEAVY` heavy requests run now, else 503."""
+        if not heavy.acquire(blocking=False):
+            raise ServiceUnavailable(f"{MAX_HEAVY} image or export requests are running; try again in a moment")
+        try:
+            return work()
+        finally:
+            heavy.release()
 
     @app.get("/api/subject/<sid>")
     def api_subject(sid):
@@ -241,33 +259,42 @@ def _register_subject_routes(app, ctx):
 
     @app.get("/subject/<sid>/map/<name>.png")
     def subject_map(sid, name):
-        return Response(map_png(cache.get(sid), name), mimetype="image/png")
+        return Response(bounded(lambda: map_png(cache.get(sid), name)), mimetype="image/png")
 
     @app.get("/subject/<sid>/preview.png")
     def subject_preview(sid):
-        return Response(preview_png(cache.get(sid)), mimetype="image/png")
+        return Response(bounded(lambda: preview_png(cache.get(sid))), mimetype="image/png")
 
     @app.get("/subject/<sid>/exr.zip")
     def subject_exr(sid):
         ds = cache.get(sid)
-        return Response(
-            _exr_zip(ds), mimetype="application/zip",
-            headers={"Content-Disposition": f"attachment; filename={ds.attrs['subject_id']}-exr.zip"},
+        archive = bounded(lambda: _exr_zip(ds))
+        return send_file(
+            archive, mimetype="application/zip", as_attachment=True,
+            download_name=f"{ds.attrs['subject_id']}-exr.zip",
         )  # fmt: skip
 
 
-def _exr_zip(ds) -> bytes:
-    """The subject's EXR texture set (:func:`facestats.io.exr_set.write_exr_set`) as zip bytes."""
+def _exr_zip(ds):
+    """The subject's EXR texture set (:func:`facestats.io.exr_set.write_exr_set`) zipped into a temporary file.
+
+    Returns an open binary file at its start, deleted when closed (the response closes it); the EXR files
+    are compressed already, so the zip stores them as they are.
+    """
     # local import: keeps numpy out of this module's import
     from facestats.io.exr_set import write_exr_set
 
     tmp = tempfile.mkdtemp(prefix="facestats-web-")
+    archive = tempfile.TemporaryFile(prefix="facestats-web-", suffix=".zip")
     try:
         write_exr_set(ds, tmp)
-        buf = io.BytesIO()
-        with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        with zipfile.ZipFile(archive, "w", zipfile.ZIP_STORED) as zf:
             for name in sorted(os.listdir(tmp)):
                 zf.write(os.path.join(tmp, name), arcname=name)
-        return buf.getvalue()
+        archive.seek(0)
+        return archive
+    except BaseException:
+        archive.close()
+        raise
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

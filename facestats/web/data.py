@@ -21,8 +21,19 @@ from facestats.core.validate import check_choice
 from facestats.errors import ValidationError
 from facestats.model.skin import SubsurfaceTransport, skin_radiance
 
-__all__ = ["RegionSamples", "pca_document", "scatter_document", "map_names", "map_png", "preview_png", "PREVIEW_LIGHTS"]
+__all__ = [
+    "MAX_IMAGE_SIDE",
+    "RegionSamples",
+    "pca_document",
+    "scatter_document",
+    "map_names",
+    "map_png",
+    "preview_png",
+    "PREVIEW_LIGHTS",
+]
 
+#: Largest side (pixels) to which map and preview images are enlarged (a 48² map: 4×, 192 pixels).
+MAX_IMAGE_SIDE = 1024
 #: Directions towards the three preview lights (key, fill, rim) and their irradiance (relative units).
 PREVIEW_LIGHTS = (
     ((0.5, 0.45, 0.74), 1.0),
@@ -145,9 +156,12 @@ def _scalar_rgb(values, face, name):
 
 
 def _encode_png(rgb, scale: int) -> bytes:
+    """PNG bytes of an RGB image in [0, 1], enlarged ``scale`` times (texels as blocks) up to
+    :data:`MAX_IMAGE_SIDE` pixels a side; images larger than that are not enlarged."""
     import cv2
 
     img = np.clip(np.asarray(rgb, np.float64), 0, 1)
+    scale = max(1, min(int(scale), MAX_IMAGE_SIDE // max(img.shape[:2])))
     if scale > 1:
         img = np.repeat(np.repeat(img, scale, 0), scale, 1)
     q = np.round(img * 255).astype(np.uint8)[..., ::-1]

@@ -6,6 +6,7 @@ import io
 import json
 import zipfile
 
+import numpy as np
 import pytest
 
 from facestats.cli import main as cli_main
@@ -73,6 +74,37 @@ def test_subject_pages_maps_and_exr_download(client):
     names = set(z.namelist())
     assert {"albedo.exr", "ts_m.exr", "region.exr", "mesh.obj", "manifest.json"} <= names
     assert json.loads(z.read("manifest.json"))["subject"]["subject_id"] == "S002"
+    assert all(i.compress_type == zipfile.ZIP_STORED for i in z.infolist())  # EXR files are compressed already
+    r = client.get("/subject/S002/exr.zip")
+    assert r.headers["Content-Disposition"] == "attachment; filename=S002-exr.zip"
+
+
+def _png_size(data):
+    """(width, height) from a PNG's IHDR chunk."""
+    return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+
+
+def test_heavy_requests_are_bounded_and_images_enlarged_only_up_to_a_limit(client):
+    from facestats.web.app import MAX_HEAVY
+    from facestats.web.data import MAX_IMAGE_SIDE, map_png
+
+    heavy = client.application.config["FACESTATS"]["heavy"]
+    for _ in range(MAX_HEAVY):  # as if MAX_HEAVY exports were running
+        assert heavy.acquire(blocking=False)
+    try:
+        for url in ("/subject/S002/map/albedo.png", "/subject/S002/preview.png", "/subject/S002/exr.zip"):
+            r = client.get(url)
+            assert r.status_code == 503 and b"image or export requests are running; try again" in r.data
+        assert client.get("/api/query").status_code == 200  # the statistics still answer
+    finally:
+        for _ in range(MAX_HEAVY):
+            heavy.release()
+    small = client.get("/subject/S002/map/albedo.png")
+    assert small.status_code == 200 and _png_size(small.data) == (4 * 48, 4 * 48)  # a 48² map shown 4×
+    ds = client.application.config["FACESTATS"]["subjects"].get("S002")
+    big = ds[["albedo", "region"]].isel(u=np.arange(48).repeat(12), v=np.arange(48).repeat(12))  # 576²
+    assert _png_size(map_png(big, "albedo")) == (576, 576)  # 4× would be 2304 > MAX_IMAGE_SIDE: not enlarged
+    assert MAX_IMAGE_SIDE // 576 == 1
 
 
 def test_pca_and_scatter_documents(client):

@@ -14,14 +14,15 @@ bounded in length; subject ids pass :func:`facestats.io.ids.check_subject_id`
 before any use (no path is ever built from a request); query strings are at
 most :data:`MAX_QUERY_STRING` bytes and bodies :data:`MAX_BODY` bytes.  Work
 that grows with a subject's maps (map and preview images, the EXR set) runs
-for at most :data:`MAX_HEAVY` requests at once, others get 503 and are asked
-to retry; images are enlarged only up to :data:`facestats.web.data.MAX_IMAGE_SIDE`
-pixels a side; the EXR set is zipped into a temporary file (stored, not
-recompressed) and streamed from there, never held in memory.  Errors
+for at most :data:`MAX_HEAVY` requests at once; others wait their turn, up to
+:data:`HEAVY_WAIT` seconds, then get 503 and are asked to retry; images are
+enlarged only up to :data:`facestats.web.data.MAX_IMAGE_SIDE` pixels a side;
+the EXR set is zipped into a temporary file (stored, not recompressed) and
+streamed from there, never held in memory.  Errors
 are JSON (API) or a short page: the text is the one the CLI prints
 (``facestats: error: ...``), with 400 (bad value), 404 (unknown subject or
 page), 409 (store fails its checks), 424 (missing optional dependency), 503
-(too many image or export requests at once); an
+(image or export requests waited too long for their turn); an
 unexpected exception is logged on the server and answered with a generic 500,
 never a traceback.
 """
@@ -39,14 +40,15 @@ from collections import OrderedDict
 from facestats.core.conventions import CONDITIONS, REGIONS, ROMAN
 from facestats.errors import DependencyError, FacestatsError, StoreError, ValidationError
 
-__all__ = ["create_app", "FILTERS", "MAX_QUERY_STRING", "MAX_BODY", "MAX_HEAVY", "error_text"]
+__all__ = ["create_app", "FILTERS", "MAX_QUERY_STRING", "MAX_BODY", "MAX_HEAVY", "HEAVY_WAIT", "error_text"]
 
 FILTERS = ("skin_type", "gender", "age", "condition", "region")
 MAX_QUERY_STRING = 1024
 MAX_BODY = 1024
 MAX_VALUE = 32
-#: Requests that build images or the EXR set, at once (per server); more get 503.
+#: Requests that build images or the EXR set, at once (per server); more wait up to HEAVY_WAIT seconds, then 503.
 MAX_HEAVY = 2
+HEAVY_WAIT = 30.0
 _LOG = logging.getLogger("facestats.web")
 
 
@@ -143,6 +145,7 @@ def create_app(store=None, *, preload=True):
         "samples": RegionSamples(st, start=preload),
         "subjects": _SubjectCache(st, lock),
         "heavy": threading.BoundedSemaphore(MAX_HEAVY),
+        "heavy_wait": HEAVY_WAIT,
     }
     app.config["FACESTATS"] = ctx
     _register_guards(app)
@@ -240,8 +243,8 @@ def _register_subject_routes(app, ctx):
     cache, heavy = ctx["subjects"], ctx["heavy"]
 
     def bounded(work):
-        """``work()`` if fewer than :data:`MAX_HEAVY` heavy requests run now, else 503."""
-        if not heavy.acquire(blocking=False):
+        """``work()`` once fewer than :data:`MAX_HEAVY` heavy requests run (503 after :data:`HEAVY_WAIT` s)."""
+        if not heavy.acquire(timeout=ctx["heavy_wait"]):
             raise ServiceUnavailable(f"{MAX_HEAVY} image or export requests are running; try again in a moment")
         try:
             return work()

@@ -88,15 +88,18 @@ def test_heavy_requests_are_bounded_and_images_enlarged_only_up_to_a_limit(clien
     from facestats.web.app import MAX_HEAVY
     from facestats.web.data import MAX_IMAGE_SIDE, map_png
 
-    heavy = client.application.config["FACESTATS"]["heavy"]
+    ctx = client.application.config["FACESTATS"]
+    heavy = ctx["heavy"]
     for _ in range(MAX_HEAVY):  # as if MAX_HEAVY exports were running
         assert heavy.acquire(blocking=False)
+    ctx["heavy_wait"], wait = 0.2, ctx["heavy_wait"]  # a short turn to wait for, then 503
     try:
         for url in ("/subject/S002/map/albedo.png", "/subject/S002/preview.png", "/subject/S002/exr.zip"):
             r = client.get(url)
             assert r.status_code == 503 and b"image or export requests are running; try again" in r.data
         assert client.get("/api/query").status_code == 200  # the statistics still answer
     finally:
+        ctx["heavy_wait"] = wait
         for _ in range(MAX_HEAVY):
             heavy.release()
     small = client.get("/subject/S002/map/albedo.png")

@@ -93,9 +93,14 @@ def _cli_json(store_path, *args, capsys):
 
 
 def _lookup(doc, key):
+    """The value at a cell's ``data-key``: list steps are region numbers (rows with a "region") or 1-based."""
     node = doc
     for part in key.split("."):
-        node = node[int(part) - 1] if part.isdigit() and isinstance(node, list) else node[part]
+        if part.isdigit() and isinstance(node, list):
+            rows = [r for r in node if isinstance(r, dict) and r.get("region") == int(part)]
+            node = rows[0] if rows else node[int(part) - 1]
+        else:
+            node = node[part]
     return node
 
 
@@ -128,6 +133,23 @@ def test_population_page_numbers_equal_cli_json_and_plots_render(driver, server,
             assert float(cell.text) == pytest.approx(expected, rel=5e-4)  # shown to 4 digits
         links = [a.text for a in driver.find_elements(By.CSS_SELECTOR, "a.subject-link")]
         assert links == doc["subject_ids"]
+    # Condition and region filters: the page shows what the CLI prints for them.
+    Select(driver.find_element(By.NAME, "skin_type")).select_by_value("")
+    Select(driver.find_element(By.NAME, "gender")).select_by_value("")
+    Select(driver.find_element(By.NAME, "condition")).select_by_value("normal")
+    Select(driver.find_element(By.NAME, "region")).select_by_value("6")
+    _wait(
+        driver, lambda d: d.find_element(By.TAG_NAME, "body").get_attribute("data-query") == "condition=normal&region=6"
+    )
+    _, doc = _cli_json(store_path, "--condition", "normal", "--region", "6", capsys=capsys)
+    assert driver.find_element(By.TAG_NAME, "body").get_attribute("data-count") == str(doc["count"])
+    cells = driver.find_elements(By.CSS_SELECTOR, "td[data-value]")
+    assert cells and all(
+        float(c.get_attribute("data-value")) == _lookup(doc, c.get_attribute("data-key")) for c in cells
+    )
+    Select(driver.find_element(By.NAME, "condition")).select_by_value("")
+    Select(driver.find_element(By.NAME, "region")).select_by_value("")
+    _wait(driver, lambda d: d.find_element(By.TAG_NAME, "body").get_attribute("data-query") == "")
     # Plots: three albedo histograms with bars, four region bar charts, the scatter, the PCA ellipses.
     hist = driver.find_elements(By.CSS_SELECTOR, "svg.histogram")
     assert [h.get_attribute("data-channel") for h in hist] == ["R", "G", "B"]

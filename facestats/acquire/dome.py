@@ -41,6 +41,7 @@ photographs (:mod:`facestats.acquire.response`), when they are not linear raw.
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -476,12 +477,43 @@ class Dome:
 
     @classmethod
     def load(cls, path) -> "Dome":
-        """Read a calibration written by :meth:`save` (or by hand for a real rig)."""
+        """Read a calibration written by :meth:`save` (or by hand for a real rig).
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The calibration JSON file.
+
+        Returns
+        -------
+        Dome
+
+        Raises
+        ------
+        FormatError
+            ``path`` is missing, unreadable, not a regular file (a directory, a FIFO
+            or a device, refused without blocking on it), not a JSON object, or
+            lacks a field; the message names the file.
+        ValidationError
+            A field of the calibration is out of its domain (:meth:`from_dict`); the message names the file.
+        """
+        # local import: keeps facestats.io (the store, 20-odd modules) out of this module's import
+        from facestats.io.layout import read_regular_file
+
+        if not isinstance(path, (str, os.PathLike)) or not os.fspath(path):
+            raise ValidationError(f"calibration must be the path of a dome calibration file, got {path!r}")
         try:
-            with open(path) as f:
-                return cls.from_dict(json.load(f))
-        except (OSError, json.JSONDecodeError) as exc:
-            raise FormatError(f"cannot read dome calibration {path!s}: {exc}") from None
+            doc = json.loads(read_regular_file(path))
+        except OSError as exc:
+            raise FormatError(f"cannot read dome calibration {os.fspath(path)}: {exc.strerror or exc}") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise FormatError(f"cannot read dome calibration {os.fspath(path)}: not valid JSON ({exc})") from None
+        if not isinstance(doc, dict):
+            raise FormatError(f"dome calibration {os.fspath(path)} must hold a JSON object, got {type(doc).__name__}")
+        try:
+            return cls.from_dict(doc)
+        except (FormatError, ValidationError) as exc:  # name the file
+            raise type(exc)(f"{exc} (in {os.fspath(path)})") from None
 
 
 def default_dome(seed: int = 2006) -> Dome:

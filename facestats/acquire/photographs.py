@@ -178,11 +178,12 @@ class CaptureFolder:
         # local import: keeps facestats.io (24 modules) out of this module's import
         from facestats.io.exif import parse_exif
         from facestats.io.images import decode_integer_image
+        from facestats.io.layout import read_regular_file
 
         rel = self.files[pose, camera, led, exposure]
         p = self.path / rel
         try:
-            data = p.read_bytes()
+            data = read_regular_file(p)  # a FIFO planted as a frame is refused, never read
         except OSError as exc:
             raise FormatError(f"frame {rel} listed in {MANIFEST} cannot be read: {exc.strerror}") from None
         digest = hashlib.sha256(data).hexdigest()
@@ -329,18 +330,22 @@ def _frame_table(path, cols, n_cameras, n_leds, cameras):
     absent = [f for f in files[expected] if not (path / f).is_file()]
     if absent:
         more = f" ({len(absent)} frames missing)" if len(absent) > 1 else ""
-        raise FormatError(f"frame {absent[0]} listed in {MANIFEST} is missing from {path}{more}")
+        what = "is not a regular file in" if os.path.lexists(path / absent[0]) else "is missing from"
+        raise FormatError(f"frame {absent[0]} listed in {MANIFEST} {what} {path}{more}")
     return n_poses, n_exp, files, sha, times
 
 
 def open_folder(path) -> CaptureFolder:
     """Open and check a capture folder (module docstring); raises :class:`FormatError` on any violation."""
+    # local import: keeps facestats.io (24 modules) out of this module's import
+    from facestats.io.layout import read_regular_file
+
     p = pathlib.Path(os.fspath(path))
     try:
-        doc = json.loads((p / MANIFEST).read_text())
+        doc = json.loads(read_regular_file(p / MANIFEST))  # a FIFO is refused, never read
     except OSError as exc:
         raise FormatError(f"capture folder {p} has no readable {MANIFEST}: {exc.strerror}") from None
-    except json.JSONDecodeError as exc:
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise FormatError(f"{p / MANIFEST} is not valid JSON: {exc}") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         got = doc.get("format") if isinstance(doc, dict) else doc

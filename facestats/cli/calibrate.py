@@ -13,9 +13,13 @@ __all__ = ["add_calibrate"]
 def _cmd_leds(args) -> int:
     from facestats.acquire.calibration import calibrate_leds
     from facestats.acquire.dome import Dome
+    from facestats.core.outputs import check_output_file
 
+    for path, option in ((args.output, "--output"), (args.write_calibration, "--write-calibration")):
+        if path is not None:  # before the fit: a bad output path must not cost a calibration
+            check_output_file(path, option)
     calibration = args.calibration or str(pathlib.Path(args.target_dir) / "dome.json")
-    dome = Dome.load(calibration)
+    dome = Dome.load(calibration)  # a FIFO, a directory or a device is refused without blocking
     result = calibrate_leds(args.target_dir, dome, grid=args.grid, reference_camera=args.reference_camera)
     print(result.to_text())
     if args.output:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import signal
 import sys
-import tempfile
 import threading
 
 from facestats.cli.options import ascii_float, ascii_int
@@ -14,8 +13,17 @@ __all__ = ["add_emulate"]
 
 
 def _faults(args):
+    """The fault injection of the options, each checked with a message naming it (before any work)."""
     from facestats.acquire.devices.emulator import Faults
+    from facestats.core.validate import as_finite, check_integer
 
+    for name in ("drop", "garble", "truncate", "duplicate", "stall"):
+        as_finite(getattr(args, name), f"--{name}", 0, 100, unit="%")
+    as_finite(args.stall_seconds, "--stall-seconds", 0, None, unit="s")
+    for name in ("disconnect_after", "reboot_after"):
+        for k in getattr(args, name):
+            check_integer(k, "--" + name.replace("_", "-"), 1)
+    check_integer(args.fault_seed, "--fault-seed", 0)
     return Faults(
         drop=args.drop / 100,
         garble=args.garble / 100,
@@ -29,14 +37,26 @@ def _faults(args):
     )
 
 
+def _check_duration(duration) -> None:
+    """``--duration``: None (serve until Ctrl-C) or a finite number of seconds > 0, checked before any work."""
+    import math
+
+    from facestats.errors import ValidationError
+
+    if duration is not None and not (math.isfinite(duration) and duration > 0):
+        raise ValidationError(
+            f"--duration must be a finite number of seconds > 0 (leave it out to serve until Ctrl-C), got {duration!r}"
+        )
+
+
 def _serve(server, args, what):
     """Print where the device is, serve until Ctrl-C, SIGTERM or --duration, print what happened."""
     print(what)
     print(f"port: {server.slave_name}")
     if args.link:
         print(f"link: {args.link} (follows reconnections)")
-    print(f"hot folder: {args.hot_folder}")
-    print(f"lab files: {args.lab}")
+    print(f"hot folder: {server.hot_folder}")
+    print(f"lab files: {server.lab}")
     print("ready (Ctrl-C to stop)", flush=True)
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -50,14 +70,6 @@ def _serve(server, args, what):
     return 0
 
 
-def _dirs(args, kind):
-    base = None
-    if args.hot_folder is None or args.lab is None:
-        base = tempfile.mkdtemp(prefix=f"facestats-emulate-{kind}-")
-    args.hot_folder = args.hot_folder or f"{base}/hot"
-    args.lab = args.lab or f"{base}/lab"
-
-
 def _log(args):
     return None if args.quiet else (lambda line: print(f"[emulator] {line}", file=sys.stderr, flush=True))
 
@@ -65,7 +77,7 @@ def _log(args):
 def _cmd_dome(args) -> int:
     from facestats.acquire.devices.lab import emulated_dome
 
-    _dirs(args, "dome")
+    _check_duration(args.duration)
     server = emulated_dome(
         args.subject,
         args.hot_folder,
@@ -94,7 +106,7 @@ def _cmd_dome(args) -> int:
 def _cmd_sensor(args) -> int:
     from facestats.acquire.devices.lab import emulated_sensor
 
-    _dirs(args, "sensor")
+    _check_duration(args.duration)
     server = emulated_sensor(
         args.subject,
         args.hot_folder,
@@ -122,8 +134,10 @@ def _common(p):
     p.add_argument("--lab", help="where the calibration, mesh and subject record are written (default: temporary)")
     p.add_argument("--link", help="a symlink kept pointing at the pty (stable across injected disconnects)")
     p.add_argument("--realtime", action="store_true", help="answer triggers only after the exposure time")
-    p.add_argument("--seed", type=ascii_int, default=0, help="seed of the frames' noise (default 0)")
-    p.add_argument("--duration", type=ascii_float, default=None, help="stop after this many seconds (default: Ctrl-C)")
+    p.add_argument("--seed", type=ascii_int, default=0, help="seed of the frames' noise, >= 0 (default 0)")
+    p.add_argument(
+        "--duration", type=ascii_float, default=None, help="stop after this many seconds, > 0 (default: Ctrl-C)"
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar, no fault log")
     f = p.add_argument_group("fault injection (fractions in per cent of replies or commands)")
     f.add_argument("--drop", type=ascii_float, default=0.0, metavar="PCT", help="replies not sent")

@@ -31,9 +31,23 @@ def _cmd_render(args) -> int:
     return 0
 
 
+def _check_generate(args) -> None:
+    """The options of ``microstructure generate``, checked before any work with messages naming them."""
+    from facestats.core.outputs import check_output_file
+    from facestats.core.validate import as_finite, check_integer
+    from facestats.pipeline.microstructure import MAX_NEUTRAL_MAP_SIZE
+
+    check_output_file(args.out, "--out", (".exr",))
+    check_integer(args.size, "--size", 2, MAX_NEUTRAL_MAP_SIZE)
+    as_finite(args.texel_um, "--texel-um", 0.0, 1000.0, low_inclusive=False, unit="um")
+    if args.seed is not None:
+        check_integer(args.seed, "--seed", 0)
+
+
 def _cmd_generate(args) -> int:
     from facestats.pipeline.microstructure import generate_neutral_map
 
+    _check_generate(args)
     path = generate_neutral_map(
         args.out,
         args.size,
@@ -92,10 +106,10 @@ def add_microstructure(sub):
         description="Pores and fine anisotropic furrows, seeded; with --subject, per region from its maps.",
     )
     g.add_argument("--out", required=True, metavar="EXR", help="output .exr file")
-    g.add_argument("--size", type=ascii_int, default=1024, help="map side in texels (default 1024)")
-    g.add_argument("--texel-um", type=ascii_float, default=15.0, help="um per texel (default 15)")
+    g.add_argument("--size", type=ascii_int, default=1024, help="map side in texels, 2-16384 (default 1024)")
+    g.add_argument("--texel-um", type=ascii_float, default=15.0, help="um per texel, in (0, 1000] (default 15)")
     g.add_argument("--subject", help="store subject id (e.g. S001)")
     g.add_argument("--store", help="store path (default: the embedded store)")
-    g.add_argument("--seed", type=ascii_int, help="seed (default: from the subject id)")
+    g.add_argument("--seed", type=ascii_int, help="seed, >= 0 (default: from the subject id)")
     g.set_defaults(func=_cmd_generate)
     p.set_defaults(func=lambda args: (p.print_help(), 0)[1])

@@ -18,11 +18,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.core.validate import as_float, check_finite, check_shape
+from facestats.core.validate import as_finite, as_rgb_image, check_shape
 from facestats.edit.colourspace import ColourBasis, decorrelating_basis, masked_pixels
 from facestats.edit.histogram import Histogram, check_t, match_histogram
 from facestats.edit.masks import blend, check_feather, feather_weights, mask_labels
-from facestats.edit.statistics import TextureStatistics
+from facestats.edit.statistics import TextureStatistics, check_int
 from facestats.errors import ValidationError
 
 __all__ = ["ColourBasis", "decorrelating_basis", "transfer_colour"]
@@ -32,9 +32,15 @@ def _target_colour(target, target_mask, bins):
     """(ColourBasis, [Histogram × 3]) of a colour-transfer target."""
     if isinstance(target, TextureStatistics):
         return target.basis, [target.histogram(c, 0) for c in range(3)]
-    pixels = masked_pixels(target, target_mask, "target", "target_mask")
+    values = check_shape(as_finite(target, "target"), "target", (..., 3))
+    if values.size == 0:
+        raise ValidationError(f"target must hold at least 2 pixels, got shape {values.shape}")
+    pixels = masked_pixels(values, target_mask, "target", "target_mask")
     if pixels.shape[0] < 2:
-        raise ValidationError(f"target must hold at least 2 pixels inside target_mask, got {pixels.shape[0]}")
+        where = " inside target_mask" if target_mask is not None else ""
+        raise ValidationError(
+            f"target must hold at least 2 pixels{where}, got {pixels.shape[0]} (shape {values.shape})"
+        )
     basis = decorrelating_basis(pixels)
     planes = basis.to_decorrelated(pixels, np.float64)
     return basis, [Histogram.from_data(planes[c], bins) for c in range(3)]
@@ -56,10 +62,11 @@ def transfer_colour(
     Parameters
     ----------
     source_albedo : array_like, shape (H, W, 3)
-        Linear RGB albedo of the face to edit.
+        Linear RGB albedo of the face to edit (finite, at least one pixel).
     target : array_like, shape (..., 3), or TextureStatistics
-        Target albedo (an image, or RGB samples, e.g. of a population subset),
-        or statistics whose image histograms and colour basis are used.
+        Target albedo (an image, or RGB samples, e.g. of a population subset;
+        finite, at least 2 pixels inside ``target_mask``), or statistics whose
+        image histograms and colour basis are used.
     mask : array_like of bool or int, shape (H, W), optional
         Pixels to edit (nonzero labels form one region); default all.
     target_mask : array_like of bool, shape target.shape[:-1], optional
@@ -68,7 +75,8 @@ def transfer_colour(
         Interpolation weight in [0, 1]: each decorrelated value moves the
         fraction ``t`` towards its matched value (t = 0 leaves the source).
     bins : int
-        Bins of the target histograms when ``target`` is an array.
+        Bins of the target histograms when ``target`` is an array, in [1, 65536]
+        (:data:`facestats.edit.statistics.MAX_BINS`).
     feather : float
         Width in pixels of a linear blend inside the mask edge (0: hard edge).
 
@@ -77,10 +85,16 @@ def transfer_colour(
     numpy.ndarray, shape (H, W, 3)
         Edited albedo in the dtype of the source; pixels outside the mask are
         the source's, bit for bit.
+
+    Raises
+    ------
+    ValidationError
+        An argument of the wrong type, shape or domain (e.g. an empty source or
+        target, whose message names it and its shape), checked before any work.
     """
-    src = check_finite(as_float(source_albedo, "source_albedo"), "source_albedo")
-    check_shape(src, "source_albedo", (None, None, 3))
+    src = as_rgb_image(source_albedo, "source_albedo")
     t = check_t(t)
+    bins = check_int(bins, "bins", 1)
     feather = check_feather(feather)
     labels, _ = mask_labels(mask, src.shape[:2])
     inside = np.ones(src.shape[:2], bool) if labels is None else labels > 0

@@ -39,9 +39,10 @@ import numpy as np
 
 import facestats
 from facestats.acquire.synthetic.microstructure import procedural_microstructure, subject_microstructure
-from facestats.core.validate import check_integer
+from facestats.core.outputs import OutputSet, check_output_file
+from facestats.core.validate import as_finite, check_integer
 from facestats.core.version import __version__
-from facestats.errors import StoreError, ValidationError
+from facestats.errors import FacestatsError, StoreError, ValidationError
 from facestats.io.displacement import read_displacement, write_displacement
 from facestats.io.ict_facekit import read_ict_facekit
 from facestats.io.images import write_exr
@@ -52,6 +53,10 @@ from facestats.model.microstructure.tables import KernelTable
 from facestats.model.strain import MeshStrain
 
 __all__ = ["SequenceReport", "render_sequence", "tile_halo"]
+
+#: Largest side of a generated neutral map (:func:`generate_neutral_map`): 16384² texels, a 16K map, need
+#: about 17 GiB while they are generated (about 64 bytes per texel, measured at sides 512-2048).
+MAX_NEUTRAL_MAP_SIZE = 16384
 
 STRETCH_STATS = ("r_s_p1", "r_s_p50", "r_s_p99", "r_t_p1", "r_t_p50", "r_t_p99", "n_degenerate")
 
@@ -333,28 +338,45 @@ def render_files(neutral, neutral_map, out, *, frames=None, targets=None, weight
 def generate_neutral_map(out, size, *, texel_um=15.0, subject=None, store=None, seed=None):
     """Write a procedural neutral microstructure map (EXR, µm) for a store subject or generic skin.
 
+    Every argument is checked before any work (the output path first: an
+    existing directory, a path under a file such as ``/dev/null/x.exr`` or
+    another suffix than ``.exr`` fail at once); the file is written under a
+    temporary name and renamed into place, so a failure leaves no partial file
+    and no folder the call created.
+
     Parameters
     ----------
     out : path-like
-        ``.exr`` file to write.
+        ``.exr`` file to write (missing parent folders are created).
     size : int
-        Map side in texels.
+        Map side in texels, in [2, :data:`MAX_NEUTRAL_MAP_SIZE`].
     texel_um : float
-        µm per texel.
+        µm per texel, in (0, 1000].
     subject : str, optional
         Store subject id: regions and roughness from its maps
         (:func:`facestats.acquire.synthetic.microstructure.subject_microstructure`).
     store : path-like, optional
         Store to read the subject from (default: the embedded store).
     seed : int, optional
-        Seed (default: from the subject id, or 0).
+        Seed, an integer >= 0 (default: from the subject id, or 0).
 
     Returns
     -------
     str
         The path written.
+
+    Raises
+    ------
+    ValidationError
+        An argument out of its domain, or ``out`` not a writable ``.exr`` path; the message names it.
+    FacestatsError
+        The file could not be written (e.g. a full disk); nothing was left behind.
     """
 
+    path = check_output_file(out, "out", (".exr",))
+    size = check_integer(size, "size", 2, MAX_NEUTRAL_MAP_SIZE)
+    texel_um = float(as_finite(texel_um, "texel_um", 0.0, 1000.0, low_inclusive=False, unit="um"))
+    seed = None if seed is None else check_integer(seed, "seed", 0)
     if subject is None:
         h = procedural_microstructure(size, texel_um, seed=0 if seed is None else seed)
         attrs = {"source": "facestats procedural microstructure (REGION_DEFAULTS, one region)"}
@@ -363,5 +385,10 @@ def generate_neutral_map(out, size, *, texel_um=15.0, subject=None, store=None, 
             ds = st.subject(subject)
             h = subject_microstructure(ds, size, texel_um, seed=seed)
         attrs = {"source": f"facestats procedural microstructure of subject {subject}"}
-    attrs["texel_um"] = f"{float(texel_um):g}"
-    return os.fspath(write_displacement(out, h, attributes=attrs))
+    attrs["texel_um"] = f"{texel_um:g}"
+    with OutputSet(path.parent) as files:
+        try:
+            write_displacement(files.path(path.name), h, attributes=attrs)
+        except RuntimeError as exc:  # OpenEXR reports a failed write so
+            raise FacestatsError(f"cannot write out {str(path)!r}: {exc}") from None
+    return os.fspath(files.written[0])

@@ -6,19 +6,36 @@
 subject reaches the store only after the whole capture is ingested and fitted:
 an interrupted run leaves a partial capture in the work directory, never a
 subject, and rerunning the same command resumes at the first unfinished camera.
+
+A run that fails leaves no side effects: every argument and input (subject id,
+options, the store and work paths, the mesh and its region image, the
+calibration, the photo folder's manifest) is checked before anything is
+created, and an error after that removes the store and the work folders the
+run created (a store only while it is still empty).  Only an interruption
+(Ctrl-C, a signal) keeps them, with the partial capture, for the next run to resume.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import pathlib
+import shutil
+import stat
 from dataclasses import dataclass, field
 
+from facestats.acquire.dome import Dome
 from facestats.acquire.ingest import MIN_FOOTPRINT_PX, MOTION_TOLERANCE, ingest_photographs, open_ingested
-from facestats.errors import FormatError
+from facestats.acquire.photographs import open_folder
+from facestats.core.outputs import check_output_dir
+from facestats.core.validate import as_finite, check_integer
+from facestats.errors import FormatError, ValidationError
 from facestats.io import open_store
 from facestats.io.ids import check_subject_id
+from facestats.io.layout import ROOT_META
 from facestats.io.mesh import load_face_mesh
+from facestats.io.root import new_store_guard
 from facestats.pipeline.subject import fit_subject
 
 __all__ = ["ingest_subject", "IngestReport", "default_work_path", "find_region_image"]
@@ -94,7 +111,7 @@ def ingest_subject(
     calibration : path
         The dome calibration JSON (:meth:`facestats.acquire.dome.Dome.load`).
     store : path
-        Directory store, created if missing.
+        Directory store, created if missing (after the inputs are checked).
     subject_id : str
         The subject's id in the store (overrides the manifest's).
     regions : path, optional
@@ -111,30 +128,67 @@ def ingest_subject(
         Resolution limit of a sample (default :data:`facestats.acquire.ingest.MIN_FOOTPRINT_PX`).
     progress : bool
         Progress bars.
+
+    Returns
+    -------
+    IngestReport
+
+    Raises
+    ------
+    ValidationError
+        An argument out of its domain or an unusable store or work path, before anything is created.
+    FormatError
+        The mesh, its region image, the calibration or the photo folder cannot be read (before anything
+        is created), or a frame is corrupt (the store and work folders this call created are removed).
     """
 
     sid = check_subject_id(subject_id)
-    with open_store(store, "a") as st:
-        if sid in st:
-            return IngestReport(sid, str(store), "", skipped=True)
-    geometry = load_face_mesh(mesh, regions if regions is not None else find_region_image(mesh))
-    work = pathlib.Path(work) if work is not None else default_work_path(store, sid)
-    work.parent.mkdir(parents=True, exist_ok=True)
-    ingest_photographs(
-        photo_dir,
-        geometry,
-        calibration,  # the file, so that errors name it
-        work,
-        subject_id=sid,
-        workers=workers,
-        motion_tolerance=MOTION_TOLERANCE if motion_tolerance is None else motion_tolerance,
-        min_footprint_px=MIN_FOOTPRINT_PX if min_footprint_px is None else min_footprint_px,
-        progress=progress,
-    )
-    capture = open_ingested(work)
-    ds = fit_subject(capture, sigma_tr_avg, settings, progress=progress)
-    with open_store(store, "a") as st:
-        st.write_subject(ds)
+    workers = check_integer(workers, "workers", 1)
+    if motion_tolerance is None:
+        motion_tolerance = MOTION_TOLERANCE
+    motion_tolerance = float(as_finite(motion_tolerance, "motion_tolerance", 0, None, low_inclusive=False))
+    if min_footprint_px is None:
+        min_footprint_px = MIN_FOOTPRINT_PX
+    min_footprint_px = float(as_finite(min_footprint_px, "min_footprint_px", 0, None))
+    store = check_output_dir(store, "store")
+    work = check_output_dir(work if work is not None else default_work_path(store, sid), "work")
+    if (store / ROOT_META).is_file():  # an existing store (read only here): nothing to do if it has the subject
+        with open_store(store) as st:
+            if sid in st:
+                return IngestReport(sid, str(store), "", skipped=True)
+    _input_file(mesh, "mesh")
+    if regions is None:
+        regions = find_region_image(mesh)
+    if isinstance(regions, (str, os.PathLike)):
+        _input_file(regions, "regions")
+    Dome.load(calibration)  # read again by ingest_photographs, whose messages then name the file
+    folder = open_folder(photo_dir)
+    geometry = load_face_mesh(mesh, regions)
+    interrupted = None
+    with new_store_guard(store), _removed_on_error(work, keep=store):  # nothing was created before this line
+        try:
+            with open_store(store, "a"):  # create it now: a foreign directory fails before the long ingest
+                pass
+            work.parent.mkdir(parents=True, exist_ok=True)
+            ingest_photographs(
+                folder,
+                geometry,
+                calibration,  # the file, so that errors name it
+                work,
+                subject_id=sid,
+                workers=workers,
+                motion_tolerance=motion_tolerance,
+                min_footprint_px=min_footprint_px,
+                progress=progress,
+            )
+            capture = open_ingested(work)
+            ds = fit_subject(capture, sigma_tr_avg, settings, progress=progress)
+            with open_store(store, "a") as st:
+                st.write_subject(ds)
+        except KeyboardInterrupt as exc:  # an interruption keeps the store and the partial capture to resume
+            interrupted = exc
+    if interrupted is not None:
+        raise interrupted
     prov = capture.provenance
     counts = json.loads(ds.attrs["provenance"])["counts"]
     return IngestReport(
@@ -145,3 +199,59 @@ def ingest_subject(
         samples_used=int(counts["samples_used"]),
         motion_flags=list(prov.get("motion_flags", [])),
     )
+
+
+def _input_file(path, what: str) -> pathlib.Path:
+    """``path`` if it is a regular file, else an error naming ``what`` and the path (a FIFO is never opened).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        An input file.
+    what : str
+        The argument's name in messages (``"mesh"``, ``"regions"``).
+
+    Returns
+    -------
+    pathlib.Path
+
+    Raises
+    ------
+    ValidationError
+        ``path`` is not a path.
+    FormatError
+        It does not exist, cannot be read, or is a directory, FIFO or device.
+    """
+    if not isinstance(path, (str, os.PathLike)) or not os.fspath(path):
+        raise ValidationError(f"{what} must be the path of a file, got {path!r}")
+    p = pathlib.Path(os.fspath(path))
+    try:
+        mode = os.stat(p).st_mode
+    except OSError as exc:
+        raise FormatError(f"{what} {p} cannot be read: {exc.strerror}") from None
+    if not stat.S_ISREG(mode):
+        raise FormatError(f"{what} {p} is not a regular file (it is a directory, FIFO, socket or device)")
+    return p
+
+
+@contextlib.contextmanager
+def _removed_on_error(path, keep):
+    """Remove ``path`` and the missing folders above it that the block created, if the block fails with an error.
+
+    Folders that existed before the block are never removed, nor one that holds ``keep`` (the store, whose
+    creation :func:`facestats.io.root.new_store_guard` undoes).  An interruption (:class:`KeyboardInterrupt`)
+    keeps them: a partial capture is resumed by the next run.  A failed ingest leaves nothing behind, even
+    after some cameras were finished: its input needs fixing, and the next run starts afresh.
+    """
+    p, keep = pathlib.Path(os.fspath(path)).absolute(), pathlib.Path(os.fspath(keep)).absolute()
+    created = None  # the outermost missing folder of path's chain that does not hold keep
+    while not os.path.lexists(p) and p != p.parent:
+        if not keep.is_relative_to(p):
+            created = p
+        p = p.parent
+    try:
+        yield
+    except Exception:
+        if created is not None and os.path.isdir(created) and not os.path.islink(created):
+            shutil.rmtree(created, ignore_errors=True)
+        raise

@@ -1,6 +1,7 @@
 """The capture folder, the photograph ingest and its bad inputs, on a tiny simulated capture (4 cameras, 6 LEDs)."""
 
 import json
+import os
 import shutil
 
 import numpy as np
@@ -310,3 +311,18 @@ def test_8_bit_jpeg_frames_with_exif(tmp_path):
     assert dome_cal.camera_log_response.shape == (2, 256, 3)
     cap = open_ingested(ingest_photographs(f, pc.geometry, dome_cal, tmp_path / "c.zarr", min_footprint_px=1))
     assert np.isfinite(cap.array("radiance")).mean() > 0.05
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_a_fifo_manifest_or_frame_is_refused_not_read(copy):
+    """A FIFO where the manifest or a frame should be would block a plain read forever; it is refused at once."""
+    frame = sorted((copy / "cam01").glob("*.png"))[0]
+    frame.unlink()
+    os.mkfifo(frame)
+    with pytest.raises(FacestatsError, match=r"frame cam01/\S+\.png listed in manifest\.json is not a regular file"):
+        open_folder(copy)  # checked when the folder is opened; reads refuse it too (io.layout.read_regular_file)
+    frame.unlink()
+    (copy / "manifest.json").unlink()
+    os.mkfifo(copy / "manifest.json")
+    with pytest.raises(FacestatsError, match=r"has no readable manifest\.json: not a regular file"):
+        open_folder(copy)

@@ -12,10 +12,19 @@
   f_s × 1e-30 is fitted exactly (ρs × 1e-30).
 * Physical domains of stored variables, on write and in validate, and in MERL imports; the ρs bound
   of Torrance-Sparrow checked by a numerical integral.
+* Checks before work, no side effects: ``transfer_colour`` names an empty source or target and refuses
+  ``bins=10**12`` before allocating; ``Dome.load`` refuses a FIFO, a device or a directory at once;
+  ``generate_neutral_map`` checks its output path and numbers before generating (and writes all or
+  nothing); the emulators check every argument before drawing the subject or creating a folder, and
+  remove the folders they created when starting fails.
 """
 
+import contextlib
 import inspect
+import os
 import re
+import signal
+import tempfile
 
 import numpy as np
 import pytest
@@ -264,3 +273,170 @@ def test_merl_import_refuses_impossible_values(tmp_path, col, name):
 def test_every_error_is_a_facestats_error():
     for exc in (ValidationError, SchemaError, StoreError, FormatError):
         assert issubclass(exc, FacestatsError)
+
+
+@contextlib.contextmanager
+def _within(seconds):
+    """Fail (instead of hanging the suite) if the block runs longer than ``seconds`` (e.g. blocked on a FIFO)."""
+
+    def hung(signum, frame):
+        raise AssertionError(f"blocked for more than {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, hung)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def test_transfer_colour_names_empty_inputs_and_checks_bins_first():
+    from facestats.edit import transfer_colour
+
+    target = np.random.default_rng(0).uniform(0.2, 0.7, (16, 16, 3))
+    for empty in ((0, 0, 3), (0, 16, 3), (16, 0, 3)):
+        got = re.escape(f"must hold at least one pixel, got shape {empty}")
+        with pytest.raises(ValidationError, match="^source_albedo " + got):
+            transfer_colour(np.zeros(empty), target)
+    for empty in ((0, 0, 3), (0, 3), (4, 0, 3)):
+        with pytest.raises(
+            ValidationError, match="^target " + re.escape(f"must hold at least 2 pixels, got shape {empty}")
+        ):
+            transfer_colour(target, np.zeros(empty))
+    with pytest.raises(ValidationError, match=re.escape("target must hold at least 2 pixels, got 1 (shape (1, 3))")):
+        transfer_colour(target, np.full((1, 3), 0.5))
+    with pytest.raises(ValidationError, match="target must hold at least 2 pixels inside target_mask, got 0"):
+        transfer_colour(target, target, target_mask=np.zeros((16, 16), bool))
+    with pytest.raises(ValidationError, match=re.escape("target must have shape (..., 3), got shape (16, 16, 2)")):
+        transfer_colour(target, target[..., :2])
+    with pytest.raises(ValidationError, match=re.escape("bins must be an int in [1, 65536], got 1000000000000")):
+        transfer_colour(target, target, bins=10**12)  # checked before the histograms are allocated
+    for bad in (0, 2.5, "abc"):
+        with pytest.raises(ValidationError, match="bins must be an int"):
+            transfer_colour(target, target, bins=bad)
+
+
+def test_dome_load_refuses_what_is_not_a_regular_file(tmp_path):
+    from facestats.acquire.dome import Dome, default_dome
+
+    (tmp_path / "dir.json").mkdir()
+    (tmp_path / "list.json").write_text("[1, 2]")
+    (tmp_path / "broken.json").write_text("{")
+    (tmp_path / "empty.json").write_text("{}")
+    cases = {
+        tmp_path / "dir.json": "is a directory",
+        tmp_path / "list.json": "must hold a JSON object, got list",
+        tmp_path / "broken.json": "not valid JSON",
+        tmp_path / "empty.json": "missing the key 'led_position_mm'",
+        tmp_path / "missing.json": "No such file",
+    }
+    if hasattr(os, "mkfifo"):
+        os.mkfifo(tmp_path / "fifo.json")
+        cases[tmp_path / "fifo.json"] = "not a regular file"
+    if os.path.exists("/dev/null"):
+        cases["/dev/null"] = "not a regular file"  # a character device
+    for path, words in cases.items():
+        with _within(20), pytest.raises(FormatError) as info:
+            Dome.load(path)
+        assert str(path) in str(info.value) and words in str(info.value), str(info.value)
+    for bad in (None, 3, ""):
+        with pytest.raises(ValidationError, match="calibration must be the path"):
+            Dome.load(bad)
+    default_dome().save(tmp_path / "dome.json")
+    assert Dome.load(tmp_path / "dome.json").n_leds == 150
+
+
+def test_generate_neutral_map_checks_everything_before_work(tmp_path, monkeypatch):
+    from facestats.io.displacement import read_displacement
+    from facestats.pipeline import microstructure as pm
+
+    def generated(*args, **kwargs):
+        raise AssertionError("the map was generated before the arguments were checked")
+
+    monkeypatch.setattr(pm, "procedural_microstructure", generated)
+    (tmp_path / "dir.exr").mkdir()
+    cases = [
+        ({"out": "/dev/null/x.exr"}, "out must be a path that can be created, got '/dev/null/x.exr'"),
+        ({"out": tmp_path / "x.png"}, "out must end in one of ['.exr']"),
+        ({"out": tmp_path / "dir.exr"}, "out must be a file, got"),
+        ({"out": ""}, "out must be a file system path, got ''"),
+        ({"size": 0}, "size must be an integer in [2, 16384], got 0"),
+        ({"size": 1}, "size must be an integer in [2, 16384], got 1"),
+        ({"size": 10**6}, "size must be an integer in [2, 16384], got 1000000"),
+        ({"size": 2.5}, "size must be an integer"),
+        ({"texel_um": 0}, "texel_um must lie in (0, 1000] um, got 0"),
+        ({"texel_um": float("nan")}, "texel_um must be finite"),
+        ({"seed": -1}, "seed must be an integer in [0, inf], got -1"),
+        ({"seed": "abc"}, "seed must be an integer"),
+    ]
+    for change, message in cases:
+        kwargs = {"out": tmp_path / "n.exr", "size": 16, **change}
+        with pytest.raises(ValidationError, match=re.escape(message)):
+            pm.generate_neutral_map(kwargs.pop("out"), kwargs.pop("size"), **kwargs)
+    assert os.listdir(tmp_path) == ["dir.exr"]
+    monkeypatch.undo()
+    path = pm.generate_neutral_map(tmp_path / "new" / "n.exr", 16, seed=3)  # missing folders are created
+    assert path == str(tmp_path / "new" / "n.exr") and os.listdir(tmp_path / "new") == ["n.exr"]  # no temporary
+    assert read_displacement(path).shape == (16, 16)
+
+
+def test_the_emulators_check_their_arguments_before_creating_anything(tmp_path, monkeypatch):
+    from facestats.acquire.devices import lab
+    from facestats.acquire.devices.emulator import Faults
+
+    def drawn(*args, **kwargs):
+        raise AssertionError("the subject was drawn before the arguments were checked")
+
+    monkeypatch.setattr(lab, "subject_truth", drawn)
+    (tmp_path / "file").write_text("not a folder")
+    hot, lab_dir = tmp_path / "new" / "hot", tmp_path / "new" / "lab"
+    dome_cases = [
+        ({"map_size": 0}, "map_size must be an integer in [2, inf], got 0"),
+        ({"seed": -1}, "seed must be an integer in [0, inf], got -1"),
+        ({"workers": 0}, "workers must be an integer in [1, inf], got 0"),
+        ({"wired_leds": 0}, "wired_leds must be an integer in [1, inf], got 0"),
+        ({"leds": 0}, "leds must be an integer in [1, 150], got 0"),
+        ({"resolution": 4}, "resolution must be an integer in [8, 8192], got 4"),
+        ({"link": tmp_path / "file"}, "link must be absent or a symlink"),
+        ({"faults": "none"}, "faults must be a Faults, got str"),
+        ({"cache": tmp_path / "file"}, "cache must be a directory"),
+    ]
+    for kwargs, message in dome_cases:
+        with pytest.raises(ValidationError, match=re.escape(message)):
+            lab.emulated_dome("S001", hot, lab_dir, **kwargs)
+    for kwargs, message in dome_cases[:2]:
+        with pytest.raises(ValidationError, match=re.escape(message)):
+            lab.emulated_sensor("S001", hot, lab_dir, **kwargs)
+    with pytest.raises(ValidationError, match="hot_folder must be a directory"):
+        lab.emulated_dome("S001", tmp_path / "file", lab_dir)
+    with pytest.raises(ValidationError, match="lab must be a path that can be created"):
+        lab.emulated_sensor("S001", hot, tmp_path / "file" / "lab")
+    with pytest.raises(ValidationError, match=re.escape("seed must be an integer in [0, inf], got -1")):
+        Faults(seed=-1)
+    assert os.listdir(tmp_path) == ["file"]
+
+
+def test_an_emulator_that_fails_to_start_removes_the_folders_it_created(tmp_path, monkeypatch):
+    from facestats.acquire.devices import lab
+
+    class Broken:
+        def __init__(self, *args, **kwargs):
+            raise FacestatsError("the scene cannot be built")
+
+        @classmethod
+        def of(cls, *args, **kwargs):
+            return cls()
+
+    monkeypatch.setattr(lab, "subject_truth", lambda *args, **kwargs: None)
+    monkeypatch.setattr(lab, "DomeScene", Broken)
+    monkeypatch.setattr(lab, "SensorScene", Broken)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))  # where hot_folder=None goes
+    (tmp_path / "tmp").mkdir()
+    (tmp_path / "kept").mkdir()
+    for start in (lab.emulated_dome, lab.emulated_sensor):
+        for hot in (tmp_path / "new" / "hot", None):
+            with pytest.raises(FacestatsError, match="the scene cannot be built"):
+                start("S001", hot, tmp_path / "kept" / "lab")
+            assert sorted(os.listdir(tmp_path)) == ["kept", "tmp"], os.listdir(tmp_path)
+            assert os.listdir(tmp_path / "kept") == [] and os.listdir(tmp_path / "tmp") == []

@@ -4,11 +4,17 @@ Each must exit with a clear message (no traceback on stderr) that names the thin
 effect: no store created by a command that failed, no ``.lock`` in a directory that is not a store,
 no subject committed by an edit whose image folder is unusable.  The cases run in parallel threads
 (each in its own process) to keep the suite short.
+
+Two commands are checked on their own: ``calibrate leds`` and ``ingest`` given a FIFO as the
+calibration must fail at once (a subprocess timeout catches a command that blocks on it), and an
+``ingest`` that fails halfway through a real (tiny) capture must leave no store and no work folder it
+created, keep the folders that existed, and leave an existing store as it was.
 """
 
 import json
 import os
 import shutil
+import time
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
@@ -255,3 +261,69 @@ def test_the_named_cli_cases(env):
     assert snapshot(store) == before["store"]  # the input store is untouched by every failed command
     assert snapshot(root / "foreign") == before["foreign"] and not (root / "foreign" / ".lock").exists()
     assert not (root / ".lock").exists() and not list(root.glob("*.lock"))
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this platform")
+def test_a_fifo_calibration_is_refused_at_once(tmp_path):
+    """``calibrate leds``: the calibration given, or the default ``TARGET_DIR/dome.json``, a FIFO (no writer)."""
+    target = tmp_path / "target"
+    target.mkdir()
+    os.mkfifo(tmp_path / "dome.json")
+    os.mkfifo(target / "dome.json")
+    for argv in (["--calibration", tmp_path / "dome.json"], []):
+        start = time.monotonic()
+        r = run_cli("calibrate", "leds", target, *argv, cwd=tmp_path, timeout=60)  # TimeoutExpired: it blocked
+        assert r.returncode == 2, (argv, r.returncode, r.stderr)
+        assert "Traceback" not in r.stderr and "unexpected" not in r.stderr, r.stderr
+        assert "dome calibration" in r.stderr and "dome.json" in r.stderr and "not a regular file" in r.stderr
+        assert time.monotonic() - start < 30
+    assert sorted(os.listdir(tmp_path)) == ["dome.json", "target"] and os.listdir(target) == ["dome.json"]
+
+
+@pytest.fixture(scope="module")
+def photos(tmp_path_factory):
+    """A capture folder: a 16-grid subject photographed by 4 cameras under 6 LEDs at 96² pixels (about 3 s)."""
+    from facestats.acquire.dome import default_dome
+    from facestats.acquire.synthetic.face import procedural_face
+    from facestats.acquire.synthetic.photographs import write_capture_photographs
+    from facestats.acquire.synthetic.population import synthesize_population
+
+    truth = synthesize_population(map_size=16, conditions=False, subjects=["S011"])["S011"]
+    dome = default_dome().select(leds=[0, 1, 2, 5, 9, 14], cameras=[3, 4, 11, 12]).resized(96, 96)
+    root = tmp_path_factory.mktemp("photos")
+    pc = write_capture_photographs(truth, root / "photos", geometry=procedural_face(16), dome=dome, seed=1)
+    return pc.folder.parent
+
+
+def test_a_failed_ingest_leaves_no_store_and_no_work_folder(photos, tmp_path):
+    """The last camera's last frame is damaged: the ingest fails after three cameras are on disk."""
+    bad = tmp_path / "photos"
+    shutil.copytree(photos, bad)
+    last = sorted((bad / "cam03").glob("*.png"))[-1]
+    last.write_bytes(last.read_bytes()[:100])
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    existing = make_store(runs / "existing.zarr")
+    (runs / "kept").mkdir()
+    os.mkfifo(runs / "fifo.json")
+    before = snapshot(existing)
+
+    def ingest(store, *extra, calibration=bad / "dome.json"):
+        args = ["ingest", bad, "--mesh", bad / "face.obj", "--calibration", calibration, "--store", store]
+        return run_cli(*args, "--subject", "X1", "--quiet", *extra, cwd=runs, timeout=300)
+
+    cases = [
+        (ingest(runs / "new.zarr"), ["cam03/", "checksum"]),  # the default work folder, <store>.ingest/X1
+        (ingest(runs / "new.zarr", "--work", runs / "kept" / "capture.zarr"), ["cam03/", "checksum"]),
+        (ingest(runs / "deep" / "er" / "new.zarr"), ["cam03/", "checksum"]),
+        (ingest(existing), ["cam03/", "checksum"]),
+        (ingest(runs / "new.zarr", calibration=runs / "fifo.json"), ["fifo.json", "not a regular file"]),
+    ]
+    for r, words in cases:
+        assert r.returncode == 2, (r.returncode, r.stderr)
+        assert "Traceback" not in r.stderr and "unexpected" not in r.stderr, r.stderr
+        assert all(w in r.stderr for w in words), (words, r.stderr)
+    # No new store, no work folder; the folder that existed stays (empty); the existing store is as it was.
+    assert sorted(os.listdir(runs)) == ["existing.zarr", "fifo.json", "kept"], os.listdir(runs)
+    assert os.listdir(runs / "kept") == []
+    assert snapshot(existing) == before

@@ -321,7 +321,7 @@ class SensorDevice(EmulatedDevice):
 
 @dataclass(frozen=True)
 class Faults:
-    """Faults a :class:`PtyServer` injects (module docstring); fractions in [0, 1], counts of commands ≥ 1."""
+    """Faults a :class:`PtyServer` injects (module docstring); fractions in [0, 1], counts of commands ≥ 1, seed ≥ 0."""
 
     drop: float = 0.0
     garble: float = 0.0
@@ -342,6 +342,7 @@ class Faults:
         for name in ("disconnect_after", "reboot_after"):
             for k in getattr(self, name):
                 check_integer(k, name, 1)
+        check_integer(self.seed, "seed", 0)  # of numpy.random.default_rng: a negative seed fails there
 
     @property
     def any(self) -> bool:

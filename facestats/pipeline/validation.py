@@ -280,10 +280,11 @@ def default_capture(subject):
         }
         differ = {k: got.get(k) for k, v in want.items() if got.get(k) != v}
         if differ:
+            expected = {k: want[k] for k in differ}
             raise ValidationError(
                 f"subject {subject_id!r} was not fitted from the default simulation of that subject (its capture "
-                f"provenance has {differ}, the default has { ({k: want[k] for k in differ}) }); pass the capture it was "
-                "fitted to (--capture PATH on the command line)"
+                f"provenance has {differ}, the default has {expected}); pass the capture it was fitted to "
+                "(--capture PATH on the command line)"
             )
     return _simulated_default(subject_id)
 

@@ -142,3 +142,30 @@ def test_bad_input_names_the_argument(kwargs, match):
     args.update(kwargs)
     with pytest.raises(FacestatsError, match=match):
         convolve_displacement(**args)
+
+
+def test_compiled_tap_positions_equal_the_float32_formula_of_the_numpy_twin():
+    """The vectorised position loop of the compiled pass computes bias ± i·a exactly as the numpy twin does."""
+    compiled = pytest.importorskip("facestats.model.microstructure.compiled")
+    if not compiled.HAVE_NUMBA:
+        pytest.skip("numba is not available")
+    import numba
+
+    @numba.njit
+    def positions(rad, base, w, du, dv, bias):
+        off, fx, fy = np.empty(2 * rad, np.int64), np.empty(2 * rad, np.float32), np.empty(2 * rad, np.float32)
+        compiled._tap_positions(rad, base, w, du, dv, bias, off, fx, fy)
+        return off, fx, fy
+
+    rng = np.random.default_rng(5)
+    w, base = 4099, 12345
+    for rad in list(range(1, 40)) * 20:  # every remainder of the vector loop, random axes
+        theta = rng.uniform(0, 2 * np.pi)
+        du, dv, bias = np.float32(np.cos(theta)), np.float32(np.sin(theta)), np.float32(rad + 2)
+        off, fx, fy = positions(rad, base, w, du, dv, bias)
+        i = np.repeat(np.arange(1, rad + 1, dtype=np.float32), 2)  # slots +1, -1, +2, -2, ...
+        sign = np.tile(np.array([1, -1], np.float32), rad)
+        xp, yp = bias + sign * (i * du), bias + sign * (i * dv)  # as in _numpy_tap
+        x0, y0 = xp.astype(np.int64), yp.astype(np.int64)
+        assert np.array_equal(off, base + y0 * w + x0)
+        assert np.array_equal(fx, xp - x0.astype(np.float32)) and np.array_equal(fy, yp - y0.astype(np.float32))

@@ -79,38 +79,19 @@ def test_ingest_command_reports_bad_input_without_a_traceback(case, tmp_path):
     shutil.copytree(pc.folder.parent, bad)
     (bad / "cam05" / "led003_e1.png").unlink()
     store = tmp_path / "s.zarr"
-    r = run_cli(
-        "ingest",
-        bad,
-        "--mesh",
-        bad / "face.obj",
-        "--calibration",
-        bad / "dome.json",
-        "--store",
-        store,
-        "--subject",
-        "S001",
-        "--quiet",
-    )
+
+    def ingest(calibration):
+        args = ["ingest", bad, "--mesh", bad / "face.obj", "--calibration", calibration, "--store", store]
+        return run_cli(*args, "--subject", "S001", "--quiet")
+
+    r = ingest(bad / "dome.json")
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "frame cam05/led003_e1.png listed in manifest.json is missing" in r.stderr
     assert not any((tmp_path / "s.zarr.ingest").rglob("zarr.json"))  # nothing was started
     # A calibration of another rig: the error names its file.
     (bad / "cam05" / "led003_e1.png").write_bytes((pc.folder.parent / "cam05" / "led003_e1.png").read_bytes())
     Dome.load(bad / "dome.json").select(cameras=[0, 1]).save(bad / "two.json")
-    r = run_cli(
-        "ingest",
-        bad,
-        "--mesh",
-        bad / "face.obj",
-        "--calibration",
-        bad / "two.json",
-        "--store",
-        store,
-        "--subject",
-        "S001",
-        "--quiet",
-    )
+    r = ingest(bad / "two.json")
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "two.json has 2 cameras" in r.stderr, r.stderr
 

@@ -60,7 +60,7 @@ from facestats.errors import ValidationError
 from facestats.io.ids import check_subject_id
 from facestats.io.packing import pack_store
 from facestats.io.store import default_store_path, open_store
-from facestats.model.fitting import fit_translucency, population_sigma_tr_avg
+from facestats.model.fitting import TranslucencyFit, fit_translucency, population_sigma_tr_avg
 from facestats.model.skin import SPECULAR_MODELS
 from facestats.pipeline import FitSettings, fit_subject
 from facestats.pipeline.cluster import connect, scheduler_address, store_directory
@@ -234,14 +234,24 @@ def sensor_fits(population, map_size: int, specular: str = "torrance_sparrow", f
     """
 
     sim = _simulator(map_size, specular, face)
-    out = {}
-    for truth in population.subjects:  # loop over subjects; each fit is vectorised over sites and channels
+    ids, profiles, stds = [], [], []
+    for truth in population.subjects:  # loop over subjects: their sensor draws
         _, rng_sensor, _ = sim._streams(truth.seed, 1)
         prof, std = sim._sensor(truth, rng_sensor)
-        has = np.any(std > 0)
-        out[truth.subject_id] = fit_translucency(
-            sim.sensor.fiber_distance, np.moveaxis(prof, 1, 2), np.moveaxis(std, 1, 2) if has else None
-        )
+        ids.append(truth.subject_id)
+        profiles.append(np.moveaxis(prof, 1, 2))  # (site, channel, fiber)
+        stds.append(np.moveaxis(std, 1, 2))
+    if not ids:
+        return {}
+    # One fit for all subjects (each profile converges on its own, so this is what per-subject fits give).
+    prof, std = np.stack(profiles), np.stack(stds)
+    has = np.any(std > 0, axis=(1, 2, 3))
+    out = {}
+    for group, with_std in ((has, True), (~has, False)):  # subjects with and without a noise model
+        if group.any():
+            fit = fit_translucency(sim.sensor.fiber_distance, prof[group], std[group] if with_std else None)
+            for k, i in enumerate(np.nonzero(group)[0]):
+                out[ids[i]] = TranslucencyFit(**{name: value[k] for name, value in vars(fit).items()})
     return out
 
 

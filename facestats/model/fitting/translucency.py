@@ -18,7 +18,8 @@ floor, whose logarithm is dominated by noise.)  Non-finite readings are left out
 The cost has a narrow curved valley in (σ's, σa) but is nearly axis-aligned in
 (ln σtr, logit α') (σtr sets the decay, α' the level), so the solve is a
 Levenberg-Marquardt iteration in those coordinates, vectorised over all profiles
-(sites × channels × subjects), with σ's ∈ [0.02, 50] and σa ∈ [10⁻⁴, 20] mm⁻¹.
+(sites × channels × subjects; each profile stops at its own convergence, so its
+result does not depend on the others in the call), with σ's ∈ [0.02, 50] and σa ∈ [10⁻⁴, 20] mm⁻¹.
 It starts from the far-field decay rate (the slope of ln R + 2 ln r against r
 over the clear readings beyond 1.5 mm): for each of three bands of α' the best
 of 18 starts (6 decay rates × 3 levels) is iterated, and the best of the three
@@ -110,6 +111,16 @@ class _Profiles:
             self.snr_scale = 1e-3 * np.abs(p) + 1e-300
         self.use = use
 
+    def subset(self, rows):
+        """The same problem restricted to the profiles ``rows`` (an index array)."""
+        if rows.size == self.p.shape[0]:
+            return self
+        sub = object.__new__(_Profiles)
+        sub.r, sub.eta, sub.linear = self.r, self.eta, self.linear
+        for name in ("p", "wgt", "obs", "snr_scale", "use"):
+            setattr(sub, name, getattr(self, name)[rows])
+        return sub
+
     def transform(self, x):
         """The observation space: R itself (with std) or ln R."""
         return x if self.linear else np.log(x)
@@ -175,27 +186,38 @@ class _Profiles:
         return np.where(self.use, ju, 0), np.where(self.use, jv, 0)
 
     def levenberg_marquardt(self, u, v, max_iter):
-        """Levenberg-Marquardt iterations in (ln σtr, logit α'), vectorised over profiles."""
+        """Levenberg-Marquardt iterations in (ln σtr, logit α'), vectorised over profiles.
+
+        Each profile stops at its own convergence (cost change ≤ 1e-12 relative on an
+        accepted step, steps below 1e-10, or damping above 1e10) and is not touched
+        after, so its result does not depend on which other profiles share the call:
+        fitting many subjects at once gives, bit for bit, what fitting each alone gives.
+        """
         (st_lo, st_hi), (al_lo, al_hi) = _LN_SIGMA_TR_RANGE, _LOGIT_ALBEDO_RANGE
-        wgt = self.wgt
+        u, v = np.array(u, np.float64), np.array(v, np.float64)
         lam = np.full(u.shape, 1e-2)
+        live = np.arange(u.size)  # profiles still iterating
         for _ in range(int(max_iter)):
-            c0, d0 = self.cost_uv(u, v)
-            ju, jv = self.jacobian_uv(u, v)
+            sub = self.subset(live)
+            uu, vv, ll = u[live], v[live], lam[live]
+            c0, d0 = sub.cost_uv(uu, vv)
+            ju, jv = sub.jacobian_uv(uu, vv)
+            wgt = sub.wgt
             a00, a01, a11 = np.sum(wgt * ju * ju, -1), np.sum(wgt * ju * jv, -1), np.sum(wgt * jv * jv, -1)
             g0, g1 = np.sum(wgt * ju * d0, -1), np.sum(wgt * jv * d0, -1)
-            m00, m11 = a00 * (1 + lam) + 1e-300, a11 * (1 + lam) + 1e-300
+            m00, m11 = a00 * (1 + ll) + 1e-300, a11 * (1 + ll) + 1e-300
             det = m00 * m11 - a01 * a01
             with np.errstate(invalid="ignore", divide="ignore"):
                 du = np.nan_to_num((m11 * g0 - a01 * g1) / det)
                 dv = np.nan_to_num((m00 * g1 - a01 * g0) / det)
-            u1, v1 = np.clip(u + du, st_lo, st_hi), np.clip(v + dv, al_lo, al_hi)
-            c1, _ = self.cost_uv(u1, v1)
+            u1, v1 = np.clip(uu + du, st_lo, st_hi), np.clip(vv + dv, al_lo, al_hi)
+            c1, _ = sub.cost_uv(u1, v1)
             acc = c1 < c0
-            u, v = np.where(acc, u1, u), np.where(acc, v1, v)
-            lam = np.where(acc, lam / 3, lam * 4)
+            u[live], v[live] = np.where(acc, u1, uu), np.where(acc, v1, vv)
+            lam[live] = ll = np.where(acc, ll / 3, ll * 4)
             small = (np.abs(du) < 1e-10) & (np.abs(dv) < 1e-10)
-            if np.all((acc & (np.abs(c0 - c1) <= 1e-12 * (1 + c0))) | small | (lam > 1e10)):
+            live = live[~((acc & (np.abs(c0 - c1) <= 1e-12 * (1 + c0))) | small | (ll > 1e10))]
+            if live.size == 0:
                 break
         return u, v, self.cost_uv(u, v)[0]
 

@@ -26,7 +26,7 @@ import numpy as np
 from facestats.core.compiled import resolve_backend
 from facestats.core.validate import as_finite, as_float
 from facestats.errors import ValidationError
-from facestats.model.microstructure.compiled import convolve_pass
+from facestats.model.microstructure.compiled import convolve_pass, padded_empty
 from facestats.model.microstructure.kernel import ALPHA_RANGE, SIGMA_RANGE_UM, TRUNCATE
 
 __all__ = ["convolve_displacement", "island_reach"]
@@ -176,7 +176,7 @@ def convolve_displacement(
     s_t = _field(sigma_t, "sigma_t", shape, SIGMA_RANGE_UM, "um")
     px_s, px_t = _texel_sizes(texel_um, shape)
     lab, reach = _islands(islands, shape)
-    d_s = np.empty_like(d)
+    d_s = padded_empty(shape, d.dtype)  # read again by the second pass: rows that do not alias in the caches
     convolve_pass(d, d_s, su, sv, a_s, s_s, px_s, lab, reach, truncate=TRUNCATE, backend=backend)  # eq. 5
     out = np.empty_like(d)
     convolve_pass(d_s, out, tu, tv, a_t, s_t, px_t, lab, reach, truncate=TRUNCATE, backend=backend)  # eq. 4

@@ -169,3 +169,22 @@ def test_compiled_tap_positions_equal_the_float32_formula_of_the_numpy_twin():
         x0, y0 = xp.astype(np.int64), yp.astype(np.int64)
         assert np.array_equal(off, base + y0 * w + x0)
         assert np.array_equal(fx, xp - x0.astype(np.float32)) and np.array_equal(fy, yp - y0.astype(np.float32))
+
+
+def test_row_layout_does_not_change_the_result():
+    """Maps whose row stride aliases in the caches (a multiple of 1 KiB) are read through padded rows;
+    contiguous maps, padded maps and views of wider maps give the same bits."""
+    from facestats.model.microstructure.compiled import padded_empty
+
+    rng = np.random.default_rng(7)
+    d = rng.normal(size=(90, 256)).astype(np.float32)  # 1 KiB rows: padded internally
+    fields = _random_fields(rng, d.shape)
+    ref = convolve_displacement(d, *fields, 10.0)
+    wide = np.zeros((90, 300), np.float32)
+    wide[:, :256] = d
+    padded = padded_empty(d.shape, np.float32)
+    padded[...] = d
+    assert padded.strides[0] % 1024 != 0 and padded.base.shape[1] > 256
+    for layout in (wide[:, :256], padded, np.asfortranarray(d)):
+        np.testing.assert_array_equal(convolve_displacement(layout, *fields, 10.0), ref)
+    assert np.abs(convolve_displacement(d, *fields, 10.0, backend="numpy") - ref).max() <= 1e-5

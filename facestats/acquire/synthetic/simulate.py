@@ -320,7 +320,11 @@ class DomeSimulator:
             rate_hat, _, n_used = merge_exposures(dn, dome.exposure_times, dome.response)
             radiance = rate_hat / np.float32(dome.camera_scale)
             radiance[np.any(n_used == 0, axis=-1)] = np.nan
-        out = np.full((n * n_cam * n_led, 3), np.nan, np.float16)
+        # NaN everywhere, filled as its uint16 bit pattern: numpy fills float16 element by element
+        # (about 30 times slower); the bits are the same.
+        out = np.empty((n * n_cam * n_led, 3), np.uint16)
+        out.fill(np.float16(np.nan).view(np.uint16))
+        out = out.view(np.float16)
         out[(t.astype(np.int64) * n_cam + c) * n_led + l] = radiance.astype(np.float16)
         return out.reshape(n, n_cam, n_led, 3)
 

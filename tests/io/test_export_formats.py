@@ -313,6 +313,7 @@ def test_mitsuba_subsurface_scene_renders(mitsuba, tmp_path, subject, mesh):
     assert centre[0] > centre[2] > 0  # skin: red diffuses most, blue least
 
 
+@pytest.mark.slow  # runs pytest on this file in a subprocess
 def test_without_mitsuba_only_the_mitsuba_tests_skip(tmp_path):
     """With ``mitsuba`` unimportable, the EXR/glTF tests and the missing-Mitsuba test still run; a test that
     renders skips with the reason (a module-level importorskip would skip the whole file)."""
@@ -440,6 +441,7 @@ def _slab_reflectance(albedo, eta, photons=50_000, seed=0):
     return f0 + out / photons
 
 
+@pytest.mark.slow  # a Monte Carlo reference and two Mitsuba renders
 def test_mitsuba_subsurface_slab_reflects_what_the_transport_equation_gives(mitsuba, tmp_path, subject):
     """A flat slab of the subsurface material (S003's σa, σ's; boundary m = 0.01, i.e. smooth) under uniform
     radiance 1, seen along its normal, reflects per channel what a Monte Carlo solution of the same radiative

@@ -401,6 +401,7 @@ def test_wrong_schema_version_and_not_a_store(built, tmp_path):
         open_store(tmp_path / "x.zarr", mode="w")
 
 
+@pytest.mark.slow  # copies, validates and repairs a store per case (2 s each); tests/reliability has more
 @pytest.mark.parametrize(
     "damage, pattern",
     [

@@ -76,6 +76,7 @@ def test_sample_subjects_export_on_the_head_they_were_drawn_on(cache, tmp_path):
     assert summary["n_vertices"] == len(mesh.vertices)
 
 
+@pytest.mark.slow  # builds the 512² sample (8 s)
 def test_built_once_keyed_by_the_sources_and_old_samples_removed(cache):
     folder, path = cache
     assert (

@@ -326,6 +326,46 @@ def execute(path, workdir, env=None):
     return nb
 
 
+def once_per_session(name, tmp_path_factory, make):
+    """The folder ``make(folder)`` filled, made once per test session even under ``pytest -n N``.
+
+    A module fixture runs once per worker that gets one of the module's tests, and xdist's
+    ``loadgroup`` cannot keep a module on one worker with pytest 9.2 (xdist sets ``item._nodeid``,
+    pytest 9.2 reads ``item._id``).  So the first worker to ask calls ``make`` holding a lock in the
+    session's shared temporary folder, and marks the folder done when ``make`` returned; the others
+    wait for the lock and reuse the folder.  A ``make`` that raised leaves the folder unmarked: the next
+    caller empties it and tries again (and meets the same failure).
+    """
+    import fcntl
+
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # the session's folder under xdist
+    folder, done = shared / f"once-{name}", shared / f"once-{name}.done"
+    with open(shared / f"once-{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not done.exists():
+            shutil.rmtree(folder, ignore_errors=True)
+            folder.mkdir()
+            make(folder)
+            done.touch()
+    return folder
+
+
+def execute_once(path, tmp_path_factory, env=None):
+    """``(notebook executed by :func:`execute`, its working directory)``, run once per test session.
+
+    The working directory is ``workdir/`` of a :func:`once_per_session` folder; the executed notebook
+    is saved beside it.
+    """
+
+    def run(folder):
+        (folder / "workdir").mkdir()
+        nbformat.write(execute(path, folder / "workdir", env=env), folder / "executed.ipynb")
+
+    folder = once_per_session(f"notebook-{pathlib.Path(path).stem}", tmp_path_factory, run)
+    return nbformat.read(folder / "executed.ipynb", as_version=4), folder / "workdir"
+
+
 def cell_text(cell):
     """All text a cell displayed (streams and text/plain results)."""
     parts = []

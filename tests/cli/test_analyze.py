@@ -7,6 +7,7 @@ formats, and the reproduction of the paper's numbers against
 """
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ from facestats import analysis as fa
 from facestats.core import published
 from facestats.core.conventions import CHANNELS, CONDITIONS, SITES
 from facestats.io import open_store
-from tests.helpers import make_map_subject, run_cli
+from tests.helpers import make_map_subject, once_per_session, run_cli
 
 BATCH = ("pca", "cca", "scatter", "translucency", "conditions")
 
@@ -38,10 +39,13 @@ def store():
 
 @pytest.fixture(scope="module")
 def all_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("analyze") / "results"  # created by the command
-    r = run_cli("analyze", "all", "--out", out, "--permutations", "199", "--seed", "5")
-    assert r.returncode == 0, r.stderr
-    return r, out
+    def run(folder):  # once per session (about 14 s), even when this module's tests go to both workers
+        r = run_cli("analyze", "all", "--out", folder / "results", "--permutations", "199", "--seed", "5")
+        assert r.returncode == 0, r.stderr
+        (folder / "stdout.txt").write_text(r.stdout)
+
+    folder = once_per_session("analyze-all", tmp_path_factory, run)
+    return SimpleNamespace(stdout=(folder / "stdout.txt").read_text()), folder / "results"
 
 
 def test_all_writes_a_figure_and_numbers_per_analysis(all_run):

@@ -4,7 +4,7 @@ import re
 
 import pytest
 
-from tests.helpers import NOTEBOOKS, TEST_DATA, assert_no_errors, cell_text, execute, read_committed, shows_figure, tagged
+from tests.helpers import NOTEBOOKS, TEST_DATA, assert_no_errors, cell_text, execute_once, read_committed, shows_figure, tagged
 
 NOTEBOOK = NOTEBOOKS / "microstructure.ipynb"
 
@@ -14,9 +14,8 @@ FIGURES = ("fig12", "fit-landscape", "table-fit", "strain", "before-after")
 
 @pytest.fixture(scope="module")
 def executed(tmp_path_factory):
-    workdir = tmp_path_factory.mktemp("notebook")
     env = {"ICT_FACEKIT": TEST_DATA / "ict-facekit"}  # the kernel runs in the temporary workdir
-    return execute(NOTEBOOK, workdir, env=env), workdir
+    return execute_once(NOTEBOOK, tmp_path_factory, env=env)
 
 
 def test_committed_notebook_is_valid_small_and_has_no_outputs():

@@ -2,7 +2,7 @@
 
 import pytest
 
-from tests.helpers import NOTEBOOKS, assert_no_errors, cell_text, execute, read_committed, shows_figure, tagged
+from tests.helpers import NOTEBOOKS, assert_no_errors, cell_text, execute_once, read_committed, shows_figure, tagged
 
 NOTEBOOK = NOTEBOOKS / "photographs_in.ipynb"
 FIGURES = ("response-figure", "leds-figure", "frame-figure", "albedo-figure")
@@ -10,8 +10,7 @@ FIGURES = ("response-figure", "leds-figure", "frame-figure", "albedo-figure")
 
 @pytest.fixture(scope="module")
 def executed(tmp_path_factory):
-    workdir = tmp_path_factory.mktemp("notebook")
-    return execute(NOTEBOOK, workdir), workdir
+    return execute_once(NOTEBOOK, tmp_path_factory)
 
 
 def test_committed_notebook_is_valid_small_and_has_no_outputs():

@@ -5,7 +5,7 @@ import pytest
 import facestats
 from facestats import analysis as fa
 
-from tests.helpers import NOTEBOOKS, assert_no_errors, cell_text, execute, read_committed, shows_figure, tagged
+from tests.helpers import NOTEBOOKS, assert_no_errors, cell_text, execute_once, read_committed, shows_figure, tagged
 
 NOTEBOOK = NOTEBOOKS / "population_analysis.ipynb"
 
@@ -15,7 +15,7 @@ FIGURES = ("fig15", "fig16", "fig14", "table1-figure", "conditions", "posterior"
 
 @pytest.fixture(scope="module")
 def executed(tmp_path_factory):
-    return execute(NOTEBOOK, tmp_path_factory.mktemp("notebook"))
+    return execute_once(NOTEBOOK, tmp_path_factory)[0]
 
 
 def test_committed_notebook_is_valid_and_has_no_outputs():

@@ -4,7 +4,7 @@ import re
 
 import pytest
 
-from tests.helpers import NOTEBOOKS, assert_no_errors, cell_text, execute, read_committed, shows_figure, tagged
+from tests.helpers import NOTEBOOKS, assert_no_errors, cell_text, execute_once, read_committed, shows_figure, tagged
 
 NOTEBOOK = NOTEBOOKS / "population_scale.ipynb"
 
@@ -12,8 +12,7 @@ NOTEBOOK = NOTEBOOKS / "population_scale.ipynb"
 @pytest.fixture(scope="module")
 def executed(tmp_path_factory):
     pytest.importorskip("distributed")
-    workdir = tmp_path_factory.mktemp("notebook")
-    return execute(NOTEBOOK, workdir), workdir
+    return execute_once(NOTEBOOK, tmp_path_factory)
 
 
 def test_committed_notebook_is_valid_small_and_has_no_outputs():

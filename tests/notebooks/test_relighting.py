@@ -5,7 +5,7 @@ import re
 
 import pytest
 
-from tests.helpers import NOTEBOOKS, TEST_DATA, assert_no_errors, cell_text, execute, read_committed, shows_figure, tagged
+from tests.helpers import NOTEBOOKS, TEST_DATA, assert_no_errors, cell_text, execute_once, read_committed, shows_figure, tagged
 
 NOTEBOOK = NOTEBOOKS / "relighting.ipynb"
 FIGURES = ("stage", "relit", "compression", "separation", "novel")
@@ -13,9 +13,8 @@ FIGURES = ("stage", "relit", "compression", "separation", "novel")
 
 @pytest.fixture(scope="module")
 def executed(tmp_path_factory):
-    workdir = tmp_path_factory.mktemp("notebook")
     env = {"FACESTATS_PROBES": TEST_DATA / "polyhaven-probes"}  # the kernel runs in the temporary workdir
-    return execute(NOTEBOOK, workdir, env=env), workdir
+    return execute_once(NOTEBOOK, tmp_path_factory, env=env)
 
 
 def test_committed_notebook_is_valid_small_and_has_no_outputs():

@@ -137,7 +137,7 @@ def test_led_calibration_recovers_the_simulated_leds_within_one_percent(target, 
     res = calibrate_leds(folder, unknown)
     assert np.all(res.n_observations > 100)
     np.testing.assert_allclose(res.intensity, truth.led_intensity, rtol=0.01)  # the 1 %
-    assert np.max(np.abs(res.intensity / truth.led_intensity - 1)) < 0.005  # measured 0.36 % at 128², 0.08 % at 256²
+    assert np.max(np.abs(res.intensity / truth.led_intensity - 1)) < 0.002  # measured 0.07 % at 128²
     assert np.all(res.rms_residual < 0.03)  # per-point noise of single pixels
     np.testing.assert_allclose(res.camera_gain[[3, 4, 11]], 1, atol=0.005)
     fitted = res.apply(unknown)
@@ -145,6 +145,17 @@ def test_led_calibration_recovers_the_simulated_leds_within_one_percent(target, 
     e_true, e_fit = truth.incident(face)[1], fitted.incident(face)[1]
     lit = e_true > 1e-3
     assert np.max(np.abs(e_fit[lit] / e_true[lit] - 1)) < 0.01  # the LED truth over the face, within 1 %
+    # ... and over the whole head volume: shells up to 150 mm around the centre, i.e. the beam polynomial
+    # wherever a head can be (measured max 0.29 %; 4.6 % when target points whose bilinear taps reach past
+    # the target's edge were kept).
+    d = np.random.default_rng(1).standard_normal((3000, 3))
+    shells = (
+        np.array([0.0, 0.0, 40.0])
+        + (d / np.linalg.norm(d, axis=1, keepdims=True)) * np.repeat([50, 100, 150], 1000)[:, None]
+    )
+    e_true, e_fit = truth.incident(shells)[1], fitted.incident(shells)[1]
+    lit = e_true > 1e-3
+    assert np.max(np.abs(e_fit[lit] / e_true[lit] - 1)) < 0.01
     res.save(tmp_path / "leds.json", fitted)
     back = read_led_calibration(tmp_path / "leds.json")
     assert json.loads((tmp_path / "leds.json").read_text())["format"] == LED_FORMAT

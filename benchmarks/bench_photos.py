@@ -9,6 +9,11 @@
 * ``recover``: response recovery on the same stack (target ≤ 1 s) beside
   OpenCV's ``CalibrateDebevec``, and on a 12-bit stack; error of g against the
   simulated camera's true curve.
+* ``real_bracket``: the same on a real bracket, the three CC0 Olympus JPEGs of
+  ``tests/data/unis-bracket`` (1024 × 768, exposure times from EXIF): recovery and
+  merge times beside OpenCV's, merge agreement with OpenCV (same g, own g) and
+  colour-hdri, and each curve's :func:`facestats.acquire.response.exposure_agreement`
+  (there is no true curve for real photographs).
 * ``ingest``: a whole simulated capture of the default subject (16 cameras ×
   150 LEDs × 2 exposures, 1024² 12-bit PNG, calibration with small errors) made
   once by :func:`facestats.acquire.synthetic.photographs.write_capture_photographs`
@@ -124,6 +129,60 @@ def bench_recover(side=1024, repeat=2):
     }
 
 
+def bench_real_bracket(side=None, repeat=3):
+    """Our response recovery and merge against OpenCV's on the real CC0 bracket (module docstring).
+
+    ``side`` crops the frames to their central ``side``² pixels (the smoke test); None keeps 1024 × 768.
+    """
+    import cv2
+
+    from facestats.acquire.response import exposure_agreement, merge_photographs, recover_response
+    from facestats.io.exif import read_exposure_time
+    from facestats.io.images import read_integer_image
+
+    folder = os.path.join(HERE, os.pardir, "tests", "data", "unis-bracket")
+    files = [os.path.join(folder, f"UNIS_EV{ev}.jpg") for ev in ("-2", "0", "2")]
+    times = np.array([read_exposure_time(f) for f in files])
+    imgs = [read_integer_image(f)[0] for f in files]
+    if side is not None:
+        h, w = imgs[0].shape[:2]
+        y0, x0 = (h - side) // 2, (w - side) // 2
+        imgs = [np.ascontiguousarray(i[y0 : y0 + side, x0 : x0 + side]) for i in imgs]
+    bgr = [np.ascontiguousarray(i[..., ::-1]) for i in imgs]
+    t32 = times.astype(np.float32)
+    t_rec, g = _best(lambda: recover_response(imgs, times), repeat)
+    t_rec_cv, resp = _best(lambda: cv2.createCalibrateDebevec().process(bgr, t32), repeat)
+    g_cv = np.log(resp[:, 0, ::-1].astype(np.float64))
+    t_merge, e_same = _best(lambda: merge_photographs(imgs, times, g_cv), repeat)
+    merger = cv2.createMergeDebevec()
+    t_merge_cv, e_cv = _best(lambda: merger.process(bgr, t32, resp), repeat)
+    e_cv = e_cv[..., ::-1]
+    own = merge_photographs(imgs, times, g)
+    agree, agree_cv = exposure_agreement(imgs, times, g), exposure_agreement(imgs, times, g_cv)
+    out = {
+        "merge_ours_s": t_merge,
+        "merge_opencv_s": t_merge_cv,
+        "merge_opencv_over_ours": t_merge_cv / t_merge,
+        "recover_ours_s": t_rec,
+        "recover_opencv_s": t_rec_cv,
+        "agreement_same_g": _scaled_rel(e_same, e_cv),
+        "agreement_own_g": _scaled_rel(own, e_cv),
+        "exposure_disagreement_median_ours": agree[:, 0].tolist(),
+        "exposure_disagreement_median_opencv": agree_cv[:, 0].tolist(),
+        "megapixels": imgs[0].shape[0] * imgs[0].shape[1] / 1e6,
+        "exposure_times_s": times.tolist(),
+    }
+    try:
+        from tests.helpers import colour_hdri_merge
+
+        e_ch = colour_hdri_merge(imgs, times)
+        out["agreement_colour_hdri_ours"] = _scaled_rel(own, e_ch)
+        out["agreement_colour_hdri_opencv"] = _scaled_rel(e_cv, e_ch)
+    except ImportError:  # colour-hdri is a test extra
+        pass
+    return out
+
+
 _INGEST = r"""
 import json, sys, time
 sys.path.insert(0, sys.argv[5])
@@ -208,11 +267,17 @@ def bench_ingest(grid=48, side=1024, leds=None, workers=2, min_footprint_px=2.0)
     return figures
 
 
-BENCHMARKS = [("merge", bench_merge), ("recover", bench_recover), ("ingest", bench_ingest)]
+BENCHMARKS = [
+    ("merge", bench_merge),
+    ("recover", bench_recover),
+    ("real_bracket", bench_real_bracket),
+    ("ingest", bench_ingest),
+]
 
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
 SMOKE = {
     "merge": {"side": 64, "repeat": 1},
     "recover": {"side": 64, "repeat": 1},
+    "real_bracket": {"side": 128, "repeat": 1},
     "ingest": {"grid": 16, "side": 64, "leds": 8, "workers": 1, "min_footprint_px": 0.5},
 }

@@ -76,12 +76,16 @@ __all__ = [
     "histogram_samples",
     "recover_response",
     "merge_photographs",
+    "exposure_agreement",
     "ResponseCurve",
     "MAX_KNOTS",
+    "WELL_EXPOSED",
 ]
 
 #: Largest number of unknowns g is solved for; finer codes are interpolated (module docstring).
 MAX_KNOTS = 1024
+#: A code is well exposed (:func:`exposure_agreement`) when its hat weight is at least this fraction of the peak.
+WELL_EXPOSED = 0.25
 
 
 def hat_weights(levels: int) -> np.ndarray:
@@ -418,6 +422,55 @@ def merge_photographs(
     ln_e, den = log_radiance(stack, tables, weights, dark, backend=backend)
     np.exp(ln_e, out=ln_e)
     return (ln_e, den) if return_weight else ln_e
+
+
+def exposure_agreement(images, exposure_times, response) -> np.ndarray:
+    """How well a response makes a bracket's exposures agree: the diagnostic of a recovered g.
+
+    With the right g, a pixel well exposed in two exposures j < k (times sorted)
+    gives the same radiance from both, g(Z_ij) − ln Δt_j = g(Z_ik) − ln Δt_k
+    (Debevec & Malik 1997 eq. 2).  For each pair of consecutive exposures this
+    returns the median and 90th percentile of |exp(difference) − 1| over the
+    samples (pixel and channel) whose codes have a hat weight (eq. 4) of at least
+    :data:`WELL_EXPOSED` of its peak in both; NaN for a pair without such samples.
+    Noise and compression set a floor (a few per cent for 8-bit JPEGs); a wrong
+    curve adds a level-dependent disagreement.
+
+    Parameters
+    ----------
+    images : sequence of ndarray of int, each (H, W, C)
+    exposure_times : array_like, shape (P,)
+        Seconds, any order.
+    response : ndarray, shape (levels, C) or (levels,)
+        g = ln f⁻¹ per channel.
+
+    Returns
+    -------
+    ndarray, shape (P − 1, 2)
+        Per consecutive pair (in order of exposure time): median and 90th percentile.
+    """
+    stack, t, _, _ = _check_stack(images, exposure_times, None)
+    if stack[0].ndim == 2:
+        stack = [a[..., None] for a in stack]
+    channels = stack[0].shape[-1]
+    g = _check_response(response, channels)
+    levels = g.shape[0]
+    g = np.broadcast_to(g, (levels, channels))
+    top = max(int(a.max(initial=0)) for a in stack)
+    if top > levels - 1:
+        raise ValidationError(f"images must hold codes below {levels} (the response has {levels} levels), got {top}")
+    w = hat_weights(levels)
+    well = w >= WELL_EXPOSED * w.max()
+    ch = np.arange(channels)
+    out = np.full((len(t) - 1, 2), np.nan)
+    for j in range(len(t) - 1):  # loop over consecutive pairs (a handful), vectorised over samples
+        za, zb = stack[j].astype(np.int64), stack[j + 1].astype(np.int64)
+        ok = well[za] & well[zb]
+        if ok.any():
+            c = np.broadcast_to(ch, za.shape)[ok]
+            d = (g[za[ok], c] - np.log(t[j])) - (g[zb[ok], c] - np.log(t[j + 1]))
+            out[j] = np.percentile(np.abs(np.expm1(d)), [50, 90])
+    return out
 
 
 # -- a known non-linear camera (simulation) -----------------------------------------------------------------

@@ -1,11 +1,13 @@
-"""``facestats calibrate leds``: LED intensities and beams from photographs of a diffuse target
-(:func:`facestats.acquire.calibration.calibrate_leds`)."""
+"""``facestats calibrate response``: a camera's response from a bracket of photographs
+(:func:`facestats.acquire.bracket.calibrate_response`); ``facestats calibrate leds``: LED intensities
+and beams from photographs of a diffuse target (:func:`facestats.acquire.calibration.calibrate_leds`)."""
 
 from __future__ import annotations
 
 import pathlib
 
-from facestats.cli.options import ascii_int
+from facestats.cli.options import ascii_float, ascii_int
+from facestats.errors import ValidationError
 
 __all__ = ["add_calibrate"]
 
@@ -31,8 +33,50 @@ def _cmd_leds(args) -> int:
     return 0
 
 
+def _cmd_response(args) -> int:
+    from facestats.acquire.bracket import calibrate_response
+    from facestats.core.outputs import check_output_file
+
+    outputs = ((args.output, "--output", None), (args.plot, "--plot", (".png", ".svg", ".pdf")))
+    for path, option, suffixes in outputs + ((args.write_calibration, "--write-calibration", None),):
+        if path is not None:  # before the fit: a bad output path must not cost a calibration
+            check_output_file(path, option, suffixes)
+    if args.write_calibration and not args.calibration:
+        raise ValidationError("--write-calibration needs --calibration (the dome calibration to put the response into)")
+    dome = None
+    if args.calibration:
+        from facestats.acquire.dome import Dome
+
+        dome = Dome.load(args.calibration)  # read before the fit: a bad calibration must not cost one
+    result = calibrate_response(
+        args.images, args.times, bits=args.bits, smoothness=args.smoothness, samples=args.samples
+    )
+    print(result.to_text())
+    if args.output:
+        result.save(args.output)
+        print(f"response written to {args.output}")
+    if args.plot:
+        from facestats.acquire.plots import plot_response
+
+        plot_response(result.log_response).savefig(args.plot, dpi=120)
+        print(f"plot written to {args.plot}")
+    if args.write_calibration:
+        result.apply(dome, args.cameras).save(args.write_calibration)
+        which = "every camera" if args.cameras is None else f"camera(s) {', '.join(map(str, args.cameras))}"
+        print(f"calibration with this response for {which} written to {args.write_calibration}")
+    return 0
+
+
+def _samples(text: str):
+    """``--samples``: ``histogram``, ``stratified`` or a number of histogram samples."""
+    return text if text in ("histogram", "stratified") else ascii_int(text)
+
+
 def add_calibrate(sub):
-    p = sub.add_parser("calibrate", help="calibrate the dome from photographs (LEDs from a diffuse target)")
+    p = sub.add_parser(
+        "calibrate",
+        help="calibrate cameras and LEDs from photographs (response from a bracket, LEDs from a diffuse target)",
+    )
     csub = p.add_subparsers(title="what", metavar="WHAT")
     leds = csub.add_parser(
         "leds",
@@ -53,4 +97,29 @@ def add_calibrate(sub):
     leds.add_argument("--output", help="write the LED calibration file (facestats.led-calibration/1)")
     leds.add_argument("--write-calibration", metavar="PATH", help="write the dome calibration with the fitted LEDs")
     leds.set_defaults(func=_cmd_leds)
+    resp = csub.add_parser(
+        "response",
+        help="recover a camera's response curve from a bracket of photographs (Debevec & Malik 1997)",
+        description=(
+            "Read photographs of one static scene at several exposure times (JPEG, PNG or TIFF; times from EXIF "
+            "unless given), recover the camera's response g = ln f^-1 per channel (Debevec & Malik 1997, "
+            "histogram samples), and print how well it makes consecutive exposures agree. Use three or more "
+            "exposures, with unequal steps where possible (docs/photographs.md)."
+        ),
+    )
+    resp.add_argument("images", metavar="IMAGE", nargs="+", help="the bracket's photographs, any order")
+    resp.add_argument(
+        "--times", type=ascii_float, nargs="+", metavar="SECONDS", help="exposure times, one per IMAGE (default EXIF)"
+    )
+    resp.add_argument("--bits", type=ascii_int, help="bit depth of the codes (default 8 or 16 from the files)")
+    resp.add_argument("--smoothness", type=ascii_float, help="lambda of the smoothness term (default 10*sqrt(N/70))")
+    resp.add_argument("--samples", type=_samples, help="histogram (default), stratified, or a number of samples")
+    resp.add_argument("--output", help="write the response (JSON, facestats.camera-response/1)")
+    resp.add_argument("--plot", help="draw g(z) per channel (.png, .svg or .pdf)")
+    resp.add_argument("--calibration", help="dome calibration JSON to put the response into (with --write-calibration)")
+    resp.add_argument(
+        "--cameras", type=ascii_int, nargs="+", metavar="C", help="cameras that get this response (default all)"
+    )
+    resp.add_argument("--write-calibration", metavar="PATH", help="write the dome calibration with this response")
+    resp.set_defaults(func=_cmd_response)
     p.set_defaults(func=lambda args: p.print_help() or 2)

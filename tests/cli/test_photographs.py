@@ -1,6 +1,10 @@
-"""``facestats calibrate leds`` through the console script (``facestats ingest``: tests/pipeline/test_photographs)."""
+"""``facestats calibrate leds`` and ``calibrate response`` through the console script.
+
+``facestats ingest``: tests/pipeline/test_photographs.py.
+"""
 
 import json
+import pathlib
 from dataclasses import replace
 
 import numpy as np
@@ -32,3 +36,28 @@ def test_calibrate_leds_prints_the_fitted_leds(tmp_path):
     np.testing.assert_allclose([float(x[1]) for x in rows], dome.led_intensity[:, 0], rtol=0.01)
     assert all(x[6].endswith("%") for x in rows)
     assert json.loads((tmp_path / "leds.json").read_text())["format"] == "facestats.led-calibration/1"
+
+
+def test_calibrate_response_from_the_real_bracket_into_a_dome(tmp_path):
+    from facestats.acquire.bracket import read_response
+    from facestats.acquire.dome import Dome, default_dome
+
+    frames = sorted((pathlib.Path(__file__).resolve().parents[1] / "data" / "unis-bracket").glob("*.jpg"))
+    default_dome().save(tmp_path / "dome.json")
+    r = run_cli(
+        "calibrate", "response", *frames, "--output", tmp_path / "g.json", "--plot", tmp_path / "g.png",
+        "--calibration", tmp_path / "dome.json", "--write-calibration", tmp_path / "dome-g.json",
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "1/1250 s -> 1/320 s: 3.3" in r.stdout and "written to" in r.stdout
+    g = read_response(tmp_path / "g.json")
+    np.testing.assert_array_equal(Dome.load(tmp_path / "dome-g.json").camera_log_response[7, 1:], g[1:])
+    assert (tmp_path / "g.png").stat().st_size > 10_000
+    before = sorted(p.name for p in tmp_path.iterdir())
+    r = run_cli("calibrate", "response", *frames, "--write-calibration", tmp_path / "x.json")
+    assert r.returncode == 2 and "--write-calibration needs --calibration" in r.stderr
+    r = run_cli("calibrate", "response", *frames, "--plot", tmp_path / "g.gif")
+    assert r.returncode == 2 and "--plot" in r.stderr
+    r = run_cli("calibrate", "response", frames[0], frames[1], "--times", "0.1")
+    assert r.returncode == 2 and "one time per photograph (2), got 1" in r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # failed commands write nothing

@@ -5,7 +5,7 @@ import pytest
 from tests.helpers import NOTEBOOKS, assert_no_errors, cell_text, execute_once, read_committed, shows_figure, tagged
 
 NOTEBOOK = NOTEBOOKS / "photographs_in.ipynb"
-FIGURES = ("response-figure", "leds-figure", "frame-figure", "albedo-figure")
+FIGURES = ("response-figure", "real-bracket-figure", "leds-figure", "frame-figure", "albedo-figure")
 
 
 @pytest.fixture(scope="module")
@@ -29,6 +29,9 @@ def test_runs_shows_its_figures_and_numbers(executed):
     text = cell_text(tagged(nb, "response"))
     g_err = float(text.split("codes 20-250: ")[1].split(" ")[0])
     assert g_err < 0.03
+    real = cell_text(tagged(nb, "real-bracket"))
+    medians = [float(line.split(": ")[1].split("%")[0]) for line in real.splitlines() if " s -> " in line]
+    assert len(medians) == 2 and max(medians) < 5  # the real bracket's exposures agree (3.3 %, 3.6 %)
     leds = cell_text(tagged(nb, "leds"))
     assert "camera gains relative to camera" in leds
     assert float(leds.split("largest intensity error: ")[1].split("%")[0]) < 1.0  # the 1 %

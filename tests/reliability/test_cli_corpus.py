@@ -16,6 +16,7 @@ are cases that still fail the rules, marked strict xfail until the code they nam
 
 import argparse
 import os
+import pathlib
 
 import pytest
 import scipy.io
@@ -120,6 +121,10 @@ _CALIBRATION = ("--calibration", "{missing}")
 _X1 = ("--subject", "X1")
 _CAPTURE = _LINE + _X1 + _CALIBRATION + _RECORD
 _TARGET = ("{emptydir}",)
+_UNIS = tuple(
+    str(p) for p in sorted((pathlib.Path(__file__).resolve().parents[1] / "data" / "unis-bracket").glob("*.jpg"))
+)
+_UNIS_DOME = _UNIS + ("--write-calibration", "{new}")
 
 CASES += (
     _case("export-subject", "ID", ["../../x", "S9\n", "nope"], ["subject"], base=("--out", "{new}"))
@@ -171,6 +176,30 @@ CASES += (
     + _case("calibrate leds", "--calibration", ["{fifo}", "/dev/null"], ["calibration"], base=_TARGET)  # no blocking
     + _case("calibrate leds", "--output", ["/dev/null/x", "{emptydir}", "{fifo}", ""], ["--output"], base=_TARGET)
     + _case("calibrate leds", "--write-calibration", ["/dev/null/x"], ["--write-calibration"], base=_TARGET)
+    + _case(
+        "calibrate response",
+        "IMAGE",
+        ["{missing}", "{emptydir}", "{fifo}", "/dev/null"],
+        ["photograph"],
+        base=_UNIS[:1],
+    )
+    + _case("calibrate response", "IMAGE", ["{file}"], ["EXIF"], base=_UNIS[:1])
+    + _case(
+        "calibrate response",
+        "--times",
+        [("nan", "1", "2"), ("-1", "1", "2"), ("0", "1", "2")],
+        ["exposure_times"],
+        base=("--",) + _UNIS,
+    )
+    + _case("calibrate response", "--times", ["abc", "١"], ["times"], base=("--",) + _UNIS)
+    + _case("calibrate response", "--bits", ["0", "17", "abc"], ["bits"], base=_UNIS)
+    + _case("calibrate response", "--bits", ["7"], ["bit"], base=_UNIS)
+    + _case("calibrate response", "--smoothness", ["-1", "nan", "inf", "abc"], ["smoothness"], base=_UNIS)
+    + _case("calibrate response", "--samples", ["bogus", "-5", "1"], ["samples"], base=_UNIS)
+    + _case("calibrate response", "--output", ["/dev/null/x", "{emptydir}", "{fifo}", ""], ["--output"], base=_UNIS)
+    + _case("calibrate response", "--plot", ["x.gif", "/dev/null/x.png", "{emptydir}"], ["--plot"], base=_UNIS)
+    + _case("calibrate response", "--calibration", ["{file}", "{fifo}", "{missing}"], ["calibration"], base=_UNIS_DOME)
+    + _case("calibrate response", "--write-calibration", ["/dev/null/x", "{new}"], ["--write-calibration"], base=_UNIS)
     + _case("emulate dome", "--map-size", ["١"], ["map-size"], base=_EMULATE)
     + _case("emulate dome", "--map-size", ["0", "1", "-3"], ["map_size"], base=_EMULATE)
     + _case("emulate sensor", "--map-size", ["0"], ["map_size"], base=_EMULATE)

@@ -1,0 +1,265 @@
+"""A camera's response from a bracket of photographs on disk: read, recover, check, save.
+
+The lab's first calibration step (Weyrich et al. 2006 §5 calibrate the cameras
+before the lights): photograph a static scene with a wide range of brightness at
+several exposure times (a tripod, fixed aperture, focus and white balance), then
+
+    facestats calibrate response IMG_1.jpg IMG_2.jpg IMG_3.jpg --output response.json
+
+:func:`read_bracket` reads the frames (8-bit JPEG/PNG, 16-bit PNG/TIFF through
+:func:`facestats.io.images.read_integer_image`) and their exposure times (EXIF
+``ExposureTime`` through :func:`facestats.io.exif.read_exposure_time`, or given);
+:func:`calibrate_response` recovers Debevec & Malik's g
+(:func:`facestats.acquire.response.recover_response`) and scores it with
+:func:`facestats.acquire.response.exposure_agreement`; :class:`ResponseCalibration`
+saves it as JSON (``facestats.camera-response/1``) and puts it into a dome
+calibration (:meth:`ResponseCalibration.apply`, the ``camera_log_response`` of
+:class:`facestats.acquire.dome.Dome`).
+
+**Exposure ratios.** Debevec & Malik's g is determined only up to what the
+bracket can tell apart: with two exposures, or with one constant ratio between
+consecutive exposures, a perturbation of g that repeats with that ratio in
+exposure cannot be seen (Grossberg & Nayar 2003, *Determining the camera response
+from images: what is knowable?*, §3); the smoothness term then decides it. Use
+three or more exposures, and unequal steps where the camera allows.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from facestats.acquire.response import exposure_agreement, recover_response
+from facestats.errors import FormatError, ValidationError
+
+__all__ = ["RESPONSE_FORMAT", "ResponseCalibration", "read_bracket", "calibrate_response", "read_response"]
+
+RESPONSE_FORMAT = "facestats.camera-response/1"
+
+
+def read_bracket(paths, exposure_times=None):
+    """Frames and exposure times of a bracket of photographs.
+
+    Parameters
+    ----------
+    paths : sequence of str or path-like
+        At least two image files of one static scene, any order.
+    exposure_times : sequence of float, optional
+        Seconds, one per file; default each file's EXIF ``ExposureTime``.
+
+    Returns
+    -------
+    images : list of ndarray of uint8 or uint16, each (H, W, 3)
+    times : ndarray of float64, shape (P,)
+    bits : int
+        8 for 8-bit files, 16 for 16-bit ones (pass ``bits`` to :func:`calibrate_response`
+        for 12-bit codes in 16-bit files).
+
+    Raises
+    ------
+    FormatError
+        A file without EXIF exposure time when none is given (named), frames of
+        different sizes or bit depths, or not RGB.
+    ValidationError
+        Fewer than two files, or a count of ``exposure_times`` different from the files.
+    """
+    from facestats.io.exif import read_exposure_time
+    from facestats.io.images import read_integer_image
+
+    files = [os.fspath(p) for p in paths]
+    if len(files) < 2:
+        raise ValidationError(f"a bracket needs at least two photographs, got {len(files)}")
+    for f in files:  # stat only: a FIFO or a device is refused without blocking on a read
+        if not os.path.isfile(f):
+            raise FormatError(f"{f!r} is not a photograph: no such regular file")
+    if exposure_times is not None:
+        times = np.asarray(exposure_times, np.float64).reshape(-1)
+        if times.size != len(files):
+            raise ValidationError(
+                f"exposure_times must hold one time per photograph ({len(files)}), got {times.size}: {times.tolist()}"
+            )
+    else:
+        found = [read_exposure_time(f) for f in files]
+        missing = [f for f, t in zip(files, found) if t is None]
+        if missing:
+            raise FormatError(
+                f"no EXIF ExposureTime in {', '.join(missing)}: give the exposure times (seconds) of every file"
+            )
+        times = np.asarray(found, np.float64)
+    images, depths = [], []
+    for f in files:  # loop over a handful of files
+        img, bits = read_integer_image(f)
+        if img.ndim != 3 or img.shape[-1] < 3:
+            raise FormatError(f"{f} must be an RGB photograph, got shape {img.shape}")
+        images.append(np.ascontiguousarray(img[..., :3]))
+        depths.append(bits)
+    shapes = {i.shape for i in images}
+    if len(shapes) != 1 or len(set(depths)) != 1:
+        table = ", ".join(f"{f}: {i.shape[1]}×{i.shape[0]}, {b}-bit" for f, i, b in zip(files, images, depths))
+        raise FormatError(f"the photographs of a bracket must share size and bit depth, got {table}")
+    return images, times, 8 if depths[0] == 8 else 16
+
+
+@dataclass
+class ResponseCalibration:
+    """Result of :func:`calibrate_response`.
+
+    Attributes
+    ----------
+    log_response : ndarray, shape (2**bits, 3)
+        g(z) in natural-log exposure, g(2**bits / 2) = 0 (:func:`recover_response`).
+    bits : int
+    exposure_times : ndarray, shape (P,)
+        Seconds, in the order of ``files``.
+    agreement : ndarray, shape (P − 1, 2)
+        Median and 90th percentile of the consecutive exposures' disagreement
+        (:func:`exposure_agreement`), in order of exposure time.
+    files : list of str
+    settings : dict
+        ``smoothness`` and ``samples`` as passed (None: the defaults).
+    """
+
+    log_response: np.ndarray
+    bits: int
+    exposure_times: np.ndarray
+    agreement: np.ndarray
+    files: list = field(default_factory=list)
+    settings: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """JSON-ready: format, bits, files with their times, agreement, settings and g per channel."""
+        g = np.asarray(self.log_response, np.float64)
+        return {
+            "format": RESPONSE_FORMAT,
+            "bits": int(self.bits),
+            "frames": [{"file": f, "exposure_time_s": float(t)} for f, t in zip(self.files, self.exposure_times)],
+            "exposure_agreement": [
+                {"median": _num(m), "p90": _num(p)} for m, p in np.asarray(self.agreement, np.float64)
+            ],
+            "settings": dict(self.settings),
+            # code 0 has no weight and g(0) may be -inf: stored as null
+            "log_response": [[_num(v) for v in g[:, c]] for c in range(g.shape[1])],
+        }
+
+    def save(self, path) -> None:
+        """Write :meth:`to_dict` as JSON (``facestats.camera-response/1``)."""
+        with open(path, "w", encoding="utf-8") as f:
+            json.dump(self.to_dict(), f, indent=1, allow_nan=False)
+            f.write("\n")
+
+    def to_text(self) -> str:
+        """The frames, the consecutive exposures' agreement and g at a few codes."""
+        order = np.argsort(self.exposure_times, kind="stable")
+        lines = [f"{len(self.files)} photographs, {self.bits}-bit codes:"]
+        lines += [f"  {self.files[k]}  {_seconds(self.exposure_times[k])}" for k in order]
+        lines.append("exposure agreement (|E_j/E_k - 1| over samples well exposed in both): median, 90th percentile")
+        for (m, p), a, b in zip(self.agreement, order[:-1], order[1:]):
+            pair = f"{_seconds(self.exposure_times[a])} -> {_seconds(self.exposure_times[b])}"
+            lines.append(f"  {pair}: " + ("no common well-exposed samples" if np.isnan(m) else f"{m:.2%}, {p:.2%}"))
+        levels = self.log_response.shape[0]
+        codes = [levels // 16, levels // 4, levels // 2, 3 * levels // 4, levels - 1 - levels // 16]
+        lines.append(
+            "g(z) = ln exposure (R G B): "
+            + "; ".join(f"z={z}: " + " ".join(f"{v:+.3f}" for v in self.log_response[z]) for z in codes)
+        )
+        return "\n".join(lines)
+
+    def apply(self, dome, cameras=None):
+        """``dome`` with this response as the ``camera_log_response`` of ``cameras`` (default every camera).
+
+        A dome without responses takes this one for every camera; then ``cameras``
+        must be every camera (the others would have none).
+        """
+        g = np.where(np.isfinite(self.log_response), self.log_response, self.log_response[1])  # code 0: weight 0
+        n_cam = dome.n_cameras
+        sel = list(range(n_cam)) if cameras is None else [int(c) for c in cameras]
+        bad = [c for c in sel if not 0 <= c < n_cam]
+        if bad:
+            raise ValidationError(f"cameras must be in [0, {n_cam}), got {bad}")
+        current = dome.camera_log_response
+        if current is None:
+            if sorted(set(sel)) != list(range(n_cam)):
+                raise ValidationError(
+                    f"the calibration has no camera responses yet: give every camera (0-{n_cam - 1}), got {sel}"
+                )
+            out = np.repeat(g[None], n_cam, axis=0)
+        else:
+            if current.shape[1] != g.shape[0]:
+                raise ValidationError(
+                    f"the calibration's responses have {current.shape[1]} levels, this one {g.shape[0]} "
+                    f"({self.bits}-bit): pass bits to match the cameras"
+                )
+            out = np.array(current, np.float64)
+            out[sel] = g
+        return replace(dome, camera_log_response=out)
+
+
+def _num(x):
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def _samples_setting(samples):
+    """``samples`` as recorded in the file: None, a choice, a count, or "indices" for an explicit array."""
+    if samples is None or isinstance(samples, (str, int, np.integer)):
+        return samples if not isinstance(samples, np.integer) else int(samples)
+    return "indices"
+
+
+def _seconds(t: float) -> str:
+    return f"1/{1 / t:.4g} s" if t < 1 else f"{t:.4g} s"
+
+
+def calibrate_response(paths, exposure_times=None, *, bits=None, smoothness=None, samples=None):
+    """Debevec & Malik's response g from a bracket of photographs on disk (module docstring).
+
+    Parameters
+    ----------
+    paths, exposure_times
+        As :func:`read_bracket`.
+    bits : int, optional
+        Bit depth of the codes (default 8 or 16 from the files; 12 for 12-bit codes in 16-bit files).
+    smoothness, samples
+        As :func:`facestats.acquire.response.recover_response`.
+
+    Returns
+    -------
+    ResponseCalibration
+    """
+    images, times, file_bits = read_bracket(paths, exposure_times)
+    bits = file_bits if bits is None else bits
+    g = recover_response(images, times, smoothness=smoothness, samples=samples, bits=bits)
+    return ResponseCalibration(
+        log_response=g,
+        bits=int(bits),
+        exposure_times=times,
+        agreement=exposure_agreement(images, times, g),
+        files=[os.fspath(p) for p in paths],
+        settings={"smoothness": smoothness, "samples": _samples_setting(samples)},
+    )
+
+
+def read_response(path) -> np.ndarray:
+    """g (levels, 3) of a ``facestats.camera-response/1`` file (code 0, stored as null, is −inf)."""
+    from facestats.io.layout import read_regular_file
+
+    p = os.fspath(path)
+    try:
+        d = json.loads(read_regular_file(p))  # a FIFO or a device is refused, never read
+    except (OSError, ValueError) as exc:
+        raise FormatError(f"cannot read the response file {p}: {exc}") from None
+    if not isinstance(d, dict) or d.get("format") != RESPONSE_FORMAT:
+        got = d.get("format") if isinstance(d, dict) else type(d).__name__
+        raise FormatError(f"{p} field 'format' must be {RESPONSE_FORMAT!r}, got {got!r}")
+    try:
+        g = np.array([[np.nan if v is None else float(v) for v in ch] for ch in d["log_response"]], np.float64).T
+    except (KeyError, TypeError, ValueError) as exc:
+        raise FormatError(f"{p} field 'log_response' is missing or malformed ({exc!r})") from None
+    levels = g.shape[0]
+    if g.ndim != 2 or g.shape[1] != 3 or levels < 2 or levels & (levels - 1) or not np.all(np.isfinite(g[1:])):
+        raise FormatError(f"{p} field 'log_response' must be 3 channels of 2**bits finite values, got shape {g.shape}")
+    g[0] = np.where(np.isfinite(g[0]), g[0], -np.inf)  # code 0 (weight 0) may be stored as null
+    return g

@@ -1,0 +1,103 @@
+"""A camera's response from a bracket of photographs on disk: files, EXIF, the result file, the dome."""
+
+import json
+import pathlib
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from facestats import FacestatsError
+from facestats.acquire.bracket import RESPONSE_FORMAT, calibrate_response, read_bracket, read_response
+from facestats.acquire.dome import default_dome
+from facestats.acquire.response import ResponseCurve
+from facestats.acquire.synthetic.photographs import encode_frame
+from facestats.io.png import encode_png
+
+UNIS = pathlib.Path(__file__).resolve().parents[1] / "data" / "unis-bracket"
+TIMES = (1 / 500, 1 / 125, 1 / 30, 1 / 8)  # steps of 4, 4.2 and 3.75: not one constant ratio
+
+
+def _scene(h=96, w=128):
+    """Electrons per second over four decades, RGB ratios 1 : 0.8 : 0.6."""
+    yy, xx = np.mgrid[0:h, 0:w]
+    return np.exp(np.log(2e3) + 9.5 * (xx / w) + 0.4 * np.sin(yy / 9))[..., None] * np.array([1.0, 0.8, 0.6])
+
+
+@pytest.fixture(scope="module")
+def bracket(tmp_path_factory):
+    """Four 8-bit PNGs with EXIF exposure times, written by the simulator's frame encoder; the camera."""
+    camera = ResponseCurve(bits=8)
+    rng = np.random.default_rng(3)
+    folder = tmp_path_factory.mktemp("bracket")
+    files = []
+    for k, t in enumerate(TIMES):
+        path = folder / f"frame{k}.png"
+        path.write_bytes(encode_frame(camera.encode(_scene() * t, rng), t))
+        files.append(path)
+    return files, camera
+
+
+def test_recovers_the_true_curve_from_png_files_and_exif(bracket, tmp_path):
+    files, camera = bracket
+    res = calibrate_response(files[::-1])  # any order
+    np.testing.assert_allclose(res.exposure_times, TIMES[::-1], rtol=1e-6)  # EXIF rationals
+    true = camera.log_exposure() - camera.log_exposure()[128]
+    z = np.arange(20, 236)
+    assert np.abs(res.log_response[z] - true[z, None]).max() < 0.02
+    assert res.agreement.shape == (3, 2) and np.all(res.agreement[:, 0] < 0.03)  # shot noise of the frames
+    res.save(tmp_path / "g.json")
+    d = json.loads((tmp_path / "g.json").read_text())
+    assert d["format"] == RESPONSE_FORMAT and d["bits"] == 8 and len(d["frames"]) == 4
+    np.testing.assert_array_equal(read_response(tmp_path / "g.json")[1:], res.log_response[1:])
+    text = res.to_text()
+    assert "1/500 s -> 1/125 s" in text and text.count("%") == 6
+
+
+def test_the_response_goes_into_a_dome_calibration(bracket):
+    res = calibrate_response(bracket[0])
+    dome = default_dome()
+    every = res.apply(dome)
+    assert every.camera_log_response.shape == (16, 256, 3)
+    np.testing.assert_array_equal(every.camera_log_response[5], res.log_response)
+    two = res.apply(every, cameras=[0, 3])  # a dome with responses: only these cameras change
+    np.testing.assert_array_equal(two.camera_log_response[3], res.log_response)
+    with pytest.raises(FacestatsError, match=r"no camera responses yet: give every camera \(0-15\), got \[0, 3\]"):
+        res.apply(dome, cameras=[0, 3])
+    with pytest.raises(FacestatsError, match=r"cameras must be in \[0, 16\), got \[16\]"):
+        res.apply(every, cameras=[16])
+    twelve = replace(dome, camera_log_response=np.linspace(-5, 2, 4096)[None, :, None].repeat(16, 0).repeat(3, 2))
+    with pytest.raises(FacestatsError, match=r"have 4096 levels, this one 256 \(8-bit\)"):
+        res.apply(twelve)
+
+
+def test_the_real_cc0_bracket_through_the_files():
+    """tests/data/unis-bracket (README there): EXIF times, and exposures that agree (3.3 %, 3.6 %)."""
+    res = calibrate_response(sorted(UNIS.glob("UNIS_EV*.jpg")))
+    assert sorted(res.exposure_times) == [0.0008, 0.003125, 0.025]
+    assert np.all(res.agreement[:, 0] < 0.05)
+    assert np.all(np.diff(res.log_response[1:-1], axis=0) > 0)
+
+
+def test_bad_brackets_name_the_file_and_the_field(bracket, tmp_path):
+    files, camera = bracket
+    bare = tmp_path / "no-exif.png"
+    bare.write_bytes(encode_png(camera.encode(_scene() * 0.01)))
+    with pytest.raises(FacestatsError, match=r"no EXIF ExposureTime in .*no-exif\.png: give the exposure times"):
+        read_bracket([files[0], bare])
+    images, times, bits = read_bracket([files[0], bare], [0.002, 0.01])  # given times: fine
+    assert bits == 8 and times.tolist() == [0.002, 0.01] and images[1].shape == (96, 128, 3)
+    small = tmp_path / "small.png"
+    small.write_bytes(encode_frame(camera.encode(_scene(48, 64) * 0.01), 0.01))
+    with pytest.raises(FacestatsError, match=r"share size and bit depth, got .*frame0\.png: 128×96, 8-bit, .*64×48"):
+        read_bracket([files[0], small])
+    with pytest.raises(FacestatsError, match="a bracket needs at least two photographs, got 1"):
+        calibrate_response(files[:1])
+    with pytest.raises(FacestatsError, match=r"one time per photograph \(2\), got 3"):
+        read_bracket(files[:2], [0.1, 0.2, 0.3])
+    with pytest.raises(FacestatsError, match="at least two distinct exposure times"):
+        calibrate_response(files[:2], [0.1, 0.1])
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"format": "something/1"}))
+    with pytest.raises(FacestatsError, match=r"other\.json field 'format' must be 'facestats.camera-response/1'"):
+        read_response(other)

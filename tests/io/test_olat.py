@@ -57,6 +57,30 @@ def test_diligent_folder_gives_photometric_stereo_normals(tmp_path, bits):
     assert np.allclose(np.nanmedian(albedo[inside], 0), np.array([0.7, 0.5, 0.4]) * 0.9 * np.pi, rtol=0.02)
 
 
+def test_a_real_olat_folder_a_ball_under_eight_leds(tmp_path):
+    """tests/data/hales-sphere-olat (README there): real photographs, normals against the ball's sphere.
+
+    Measured 8.9° mean (7.7° median) with the default rank filtering: JPEG data linearised with the sRGB curve,
+    eight lights 35-45° off the axis, and a table lit beside the ball.  The same images with the light file's
+    y axis left pointing down (image coordinates, as published) give 53°.
+    """
+    folder = TEST_DATA / "hales-sphere-olat"
+    f = read_olat_folder(folder)
+    assert f.sizes["light"] == 8 and (f.sizes["y"], f.sizes["x"]) == (110, 110) and f["mask"].values.sum() > 6000
+    n, albedo = photometric_stereo(f)
+    err = angular_error_deg(n, f["normal_gt"].values, f["mask"].values)
+    assert np.mean(err) < 12 and np.median(err) < 10
+    rho = np.nanmedian(albedo[f["mask"].values], 0)
+    assert rho[1] > 1.5 * rho[0] > 0 and rho[2] < 0.2 * rho[1]  # a green ball: G > R, almost no blue
+    for name in os.listdir(folder):  # the light file as published: y down
+        if name != "light_directions.txt":
+            os.symlink(folder / name, tmp_path / name)
+    flipped = np.loadtxt(folder / "light_directions.txt") * [1, -1, 1]
+    np.savetxt(tmp_path / "light_directions.txt", flipped)
+    n, _ = photometric_stereo(read_olat_folder(tmp_path))
+    assert np.mean(angular_error_deg(n, f["normal_gt"].values, f["mask"].values)) > 30
+
+
 def test_one_bright_texel_keeps_its_light_and_pixel(tmp_path):
     d, _ = light_stage_directions(8, 4)
     flat = d.reshape(-1, 3)

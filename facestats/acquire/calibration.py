@@ -56,6 +56,7 @@ __all__ = [
     "target_observations",
     "fit_leds",
     "calibrate_leds",
+    "target_hits",
     "LED_FORMAT",
     "ITERATIONS",
 ]
@@ -315,23 +316,29 @@ def target_observations(folder, dome: Dome, *, grid: int = 24, cameras=None, wor
     return res
 
 
-def _taps_on_target(dome, cam, index, geometry) -> np.ndarray:
-    """Whether every tap pixel (N, 4 flat indices) of ``cam`` looks at the target ``geometry`` (N,) bool.
+def target_hits(dome: Dome, camera: int, pixels, geometry):
+    """Where the rays of ``pixels`` (N, 2; centres at integers) of ``camera`` meet a planar target.
 
-    Each tap pixel's ray (:meth:`Dome.pixel_rays`, pixel centres at integers) is
-    intersected with the target's plane; the tap sees the target when the
-    intersection lies in front of the camera and inside the target's rectangle.
+    ``geometry`` is ``(centre, normal, u_axis, size)`` (mm, unit vectors, (width, height) mm).
+    Returns the world points (N, 3) on the target's plane and whether each lies in
+    front of the camera and inside the target's rectangle (N,) bool.
     """
-    centre, normal, u_axis, size = geometry
+    centre, normal, u_axis, size = (np.asarray(x, np.float64) for x in geometry)
+    rays = dome.pixel_rays(camera, pixels)
+    origin = dome.camera_position[camera]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dist = ((centre - origin) @ normal) / (rays @ normal)
+    pts = origin + dist[:, None] * rays
+    d = pts - centre
+    inside = (dist > 0) & (np.abs(d @ u_axis) <= size[0] / 2) & (np.abs(d @ np.cross(normal, u_axis)) <= size[1] / 2)
+    return pts, inside
+
+
+def _taps_on_target(dome, cam, index, geometry) -> np.ndarray:
+    """Whether every tap pixel (N, 4 flat indices) of ``cam`` looks at the target ``geometry`` (N,) bool."""
     w = int(dome.image_size[cam][0])
     flat = index.reshape(-1)
-    rays = dome.pixel_rays(cam, np.stack([flat % w, flat // w], 1).astype(np.float64))
-    origin = dome.camera_position[cam]
-    denom = rays @ normal
-    with np.errstate(divide="ignore", invalid="ignore"):
-        dist = ((centre - origin) @ normal) / denom
-    d = origin + dist[:, None] * rays - centre
-    inside = (dist > 0) & (np.abs(d @ u_axis) <= size[0] / 2) & (np.abs(d @ np.cross(normal, u_axis)) <= size[1] / 2)
+    _, inside = target_hits(dome, cam, np.stack([flat % w, flat // w], 1).astype(np.float64), geometry)
     return inside.reshape(index.shape).all(axis=1)
 
 

@@ -44,6 +44,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from facestats.acquire.calibration import target_hits
 from facestats.acquire.dome import Dome, default_dome
 from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.photographs import MANIFEST, write_manifest, write_sensor_file
@@ -468,17 +469,8 @@ def _target_points(dome, camera, pose):
     """World points (P, 3) of the pixels of ``camera`` that see the target, and their flat pixel indices."""
     w, h = dome.image_size[camera]
     v, u = np.mgrid[0:h, 0:w]
-    rays = dome.pixel_rays(camera, np.stack([u.ravel(), v.ravel()], 1))
-    c, n = np.asarray(pose.centre, np.float64), np.asarray(pose.normal, np.float64)
-    origin = dome.camera_position[camera]
-    denom = rays @ n
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = ((c - origin) @ n) / denom
-    pts = origin + s[:, None] * rays
-    ua = np.asarray(pose.u_axis, np.float64)
-    va = np.cross(n, ua)
-    d = pts - c
-    inside = (s > 0) & (np.abs(d @ ua) <= pose.size_mm[0] / 2) & (np.abs(d @ va) <= pose.size_mm[1] / 2)
-    inside &= (origin - c) @ n > 0  # the camera faces the target's front
+    geometry = (pose.centre, pose.normal, pose.u_axis, pose.size_mm)
+    pts, inside = target_hits(dome, camera, np.stack([u.ravel(), v.ravel()], 1), geometry)
+    inside &= (dome.camera_position[camera] - np.asarray(pose.centre, np.float64)) @ np.asarray(pose.normal) > 0
     idx = np.nonzero(inside)[0]
     return pts[idx], idx

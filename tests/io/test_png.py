@@ -26,13 +26,14 @@ def _chunks(data):
     return out
 
 
+@pytest.mark.parametrize("compression", ["huffman", "libdeflate"])
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
 @pytest.mark.parametrize("channels", [None, 1, 3, 4])
-def test_opencv_decodes_the_exact_samples(dtype, channels, rng):
+def test_opencv_decodes_the_exact_samples(dtype, channels, compression, rng):
     shape = (37, 53) if channels is None else (37, 53, channels)
     img = rng.integers(0, np.iinfo(dtype).max + 1, shape, dtype=dtype)
     img[0, 0] = np.iinfo(dtype).max  # both byte halves of 16-bit samples matter
-    back = cv2.imdecode(np.frombuffer(encode_png(img), np.uint8), cv2.IMREAD_UNCHANGED)
+    back = cv2.imdecode(np.frombuffer(encode_png(img, compression=compression), np.uint8), cv2.IMREAD_UNCHANGED)
     want = img.reshape(37, 53) if channels in (None, 1) else img[..., [2, 1, 0, 3][:channels]]  # OpenCV: BGR(A)
     assert back.dtype == dtype
     np.testing.assert_array_equal(back, want)
@@ -59,6 +60,7 @@ def test_layout_chunks_and_exif(rng):
         (np.zeros((4, 4, 2), np.uint8), {}, r"image must have shape \(H, W\) or \(H, W, 1\|3\|4\), got \(4, 4, 2\)"),
         (np.zeros((0, 4), np.uint8), {}, "image must have shape"),
         (np.zeros((4, 4), np.uint8), {"level": 0}, "level must be an integer in"),
+        (np.zeros((4, 4), np.uint8), {"compression": "lzma"}, "compression"),
     ],
 )
 def test_bad_input_names_the_field(image, kw, match):

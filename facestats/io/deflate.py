@@ -1,0 +1,245 @@
+"""Huffman-only deflate of image rows: one dynamic-Huffman block, no string matching.
+
+The emulated dome writes 4,800 16-bit PNG frames a session, mostly read noise: string matching
+(LZ77) finds almost nothing to match in them, and what compresses is the skew of the byte values
+(high bytes nearly always 0; low bytes of dark pixels a few values).  A Huffman code over the
+bytes captures exactly that.  libdeflate at level 1 spends 27-33 ms a 1024² × 3 frame searching
+for matches; this encoder builds the code from the frame's byte histogram and packs it in about
+15 ms (compiled), into files about 5 % smaller (``benchmarks/bench_devices.py``).
+
+Format (RFC 1950 zlib container around RFC 1951 deflate):
+
+* zlib header ``78 01`` (deflate, 32 KiB window, no dictionary, fastest-compression flag), the
+  deflate stream, then the Adler-32 of the uncompressed data, big-endian (RFC 1950 §2.2).
+* One final block (BFINAL = 1) of dynamic Huffman codes (BTYPE = 2, RFC 1951 §3.2.7):
+  HLIT = 257 literal/length codes (the 256 byte values and end-of-block: no lengths are used),
+  HDIST = 1 distance code (never used; one code of length 1, which RFC 1951 §3.2.7 allows),
+  HCLEN = 19 code-length codes, of which the 16 lengths 0-15 get 4-bit codes (a complete code)
+  and the run-length symbols 16-18 none.  Each literal's code length is then written as its
+  4-bit code-length code.
+* Huffman codes are packed most-significant bit first into a stream filled from the
+  least-significant bit of each byte (RFC 1951 §3.1.1); header fields least-significant bit first.
+  :func:`canonical_codes` therefore returns codes with their bits reversed, ready to be OR-ed into
+  a little-endian bit accumulator.
+
+The data are the rows of an image each preceded by one prefix byte (PNG's filter-type byte,
+ISO/IEC 15948 §9), 16-bit samples big-endian: a 16-bit sample v is the two literals v >> 8 then
+v & 255, whose codes are joined in one table entry of at most 30 bits indexed by v.
+Any inflater reads the result (tested against zlib and OpenCV); the compiled and numpy packers
+give the same bytes (tested).
+"""
+
+from __future__ import annotations
+
+import heapq
+import struct
+import zlib
+
+import numpy as np
+
+from facestats.core.compiled import resolve_backend
+from facestats.errors import ValidationError
+
+__all__ = ["MAX_CODE_BITS", "huffman_code_lengths", "canonical_codes", "prefixed_rows", "deflate_rows"]
+
+#: Longest Huffman code deflate allows for literals (RFC 1951 §3.2.7).
+MAX_CODE_BITS = 15
+
+#: End-of-block literal/length symbol (RFC 1951 §3.2.5).
+_END_OF_BLOCK = 256
+
+#: The order in which the code-length code lengths are written (RFC 1951 §3.2.7).
+_CODE_LENGTH_ORDER = (16, 17, 18, 0, 8, 7, 9, 6, 10, 5, 11, 4, 12, 3, 13, 2, 14, 1, 15)
+
+
+def huffman_code_lengths(counts, limit: int = MAX_CODE_BITS) -> np.ndarray:
+    """Code length of every symbol of a Huffman code for ``counts``, no code longer than ``limit``.
+
+    Huffman's construction (merge the two least frequent subtrees; ties broken by order of
+    creation, so the result is deterministic).  Where the longest code exceeds ``limit``, the
+    counts are halved (kept ≥ 1) and the code rebuilt until it fits: the code stays complete and
+    prefix-free, slightly longer on average than the optimal length-limited code (package-merge),
+    which matters only for the rare symbols that forced it.
+
+    Parameters
+    ----------
+    counts : array_like of int, shape (n,)
+        Occurrences of each symbol; 0: the symbol gets no code (length 0).
+    limit : int
+        Longest code allowed, bits.
+
+    Returns
+    -------
+    ndarray of int64, shape (n,)
+        A single used symbol gets length 1 (deflate needs at least one bit per code).
+    """
+    counts = np.asarray(counts, np.int64).copy()
+    if counts.ndim != 1 or np.any(counts < 0) or not np.any(counts > 0):
+        raise ValidationError("counts must be a 1-D array of non-negative integers with at least one above 0")
+    used = np.flatnonzero(counts)
+    if used.size > 2**limit:
+        raise ValidationError(f"{used.size} symbols cannot have codes of at most {limit} bits")
+    while True:
+        lengths = np.zeros(counts.size, np.int64)
+        if used.size == 1:
+            lengths[used] = 1
+            return lengths
+        heap = [(int(counts[s]), k, (int(s),)) for k, s in enumerate(used)]
+        heapq.heapify(heap)
+        order = len(heap)
+        while len(heap) > 1:
+            c1, _, a = heapq.heappop(heap)
+            c2, _, b = heapq.heappop(heap)
+            lengths[list(a + b)] += 1  # every symbol below the new node is one bit deeper
+            heapq.heappush(heap, (c1 + c2, order, a + b))
+            order += 1
+        if lengths.max() <= limit:
+            return lengths
+        counts[used] = np.maximum(counts[used] >> 1, 1)
+
+
+def canonical_codes(lengths) -> np.ndarray:
+    """The canonical Huffman code of every symbol (RFC 1951 §3.2.2), bits reversed for LSB-first packing.
+
+    Codes of equal length are consecutive in symbol order, shorter codes numerically first.  The
+    returned value of a symbol of length L is its L-bit code read backwards, so that OR-ing it at the
+    current bit position of a little-endian accumulator sends the code's most significant bit first,
+    as deflate requires.  Symbols of length 0 get 0.
+    """
+    lengths = np.asarray(lengths, np.int64)
+    bl_count = np.bincount(lengths, minlength=MAX_CODE_BITS + 1)
+    bl_count[0] = 0
+    next_code = np.zeros(lengths.max() + 2, np.int64)
+    code = 0
+    for bits in range(1, next_code.size):
+        code = (code + int(bl_count[bits - 1])) << 1
+        next_code[bits] = code
+    codes = np.zeros(lengths.size, np.int64)
+    for s in np.flatnonzero(lengths):  # at most 257 symbols: the loop is not over data
+        codes[s] = next_code[lengths[s]]
+        next_code[lengths[s]] += 1
+    out = np.zeros(lengths.size, np.int64)
+    for bit in range(int(lengths.max())):  # reverse the low `length` bits of each code
+        has = lengths > bit
+        out[has] |= ((codes[has] >> bit) & 1) << (lengths[has] - 1 - bit)
+    return out
+
+
+def _block_header(lengths, codes) -> tuple[bytes, int, int]:
+    """The block header bits (module docstring) as whole bytes plus the leftover (value, bit count)."""
+    cl_lengths = np.r_[np.full(16, 4), 0, 0, 0]  # code-length symbols 0-15: 4 bits each; 16-18 unused
+    cl_codes = canonical_codes(cl_lengths)
+    fields = [(1, 1), (2, 2), (257 - 257, 5), (1 - 1, 5), (19 - 4, 4)]  # BFINAL, BTYPE, HLIT, HDIST, HCLEN
+    fields += [(int(cl_lengths[s]), 3) for s in _CODE_LENGTH_ORDER]
+    fields += [(int(cl_codes[n]), 4) for n in lengths]  # the 257 literal/length code lengths
+    fields.append((int(cl_codes[1]), 4))  # the one distance code: length 1
+    acc = nbits = 0
+    for value, width in fields:
+        acc |= value << nbits
+        nbits += width
+    whole = nbits // 8
+    return (acc & ((1 << (8 * whole)) - 1)).to_bytes(whole, "little"), acc >> (8 * whole), nbits - 8 * whole
+
+
+def _sample_histogram(samples, backend):
+    """Occurrences of each sample value (2^bits bins) in the 2-D ``samples``."""
+    if backend == "numba":
+        from facestats.io.deflate_numba import sample_histogram
+
+        counts = np.zeros(np.iinfo(samples.dtype).max + 1, np.int64)
+        sample_histogram(samples, counts)
+        return counts
+    return np.bincount(samples.ravel(), minlength=np.iinfo(samples.dtype).max + 1)
+
+
+def _pack_numpy(samples, code, length, prefix_code, prefix_length, tail, start, start_bits):
+    """The numpy twin of :func:`facestats.io.deflate_numba.pack_rows`: the same bytes.
+
+    Every code gets its bit offset from a cumulative sum; codes never share bits, so a word's bits
+    are the sum of the parts landing in it, computed exactly in float64 by ``numpy.bincount``
+    (32-bit words, each code part below 2³²).
+    """
+    h, n = samples.shape
+    c = np.empty((h, n + 1), np.uint64)
+    b = np.empty((h, n + 1), np.int64)
+    c[:, 0], b[:, 0] = prefix_code, prefix_length
+    c[:, 1:], b[:, 1:] = code[samples], length[samples]
+    c = np.r_[np.uint64(start), c.ravel(), np.uint64(tail[0])]
+    b = np.r_[start_bits, b.ravel(), tail[1]]
+    end = np.cumsum(b)
+    offset = end - b
+    word, shift = offset >> 5, (offset & 31).astype(np.uint64)
+    part = c << shift
+    words = int(end[-1] + 31) // 32 + 1
+    low = np.bincount(word, (part & np.uint64(0xFFFFFFFF)).astype(np.float64), words)
+    high = np.bincount(word + 1, (part >> np.uint64(32)).astype(np.float64), words)
+    return (low + high).astype("<u4").view(np.uint8)[: (int(end[-1]) + 7) // 8].tobytes()
+
+
+def prefixed_rows(samples, prefix: int = 0) -> np.ndarray:
+    """The bytes :func:`deflate_rows` compresses: (H, 1 + N·itemsize) uint8, each row ``prefix`` then its
+    samples, 16-bit samples big-endian (PNG's filtered scanlines with filter type ``prefix``)."""
+    a = np.asarray(samples)
+    h = a.shape[0]
+    rows = np.empty((h, 1 + a[0].size * a.itemsize), np.uint8)
+    rows[:, 0] = prefix
+    rows[:, 1:] = a.astype(a.dtype.newbyteorder(">"), copy=False).reshape(h, -1).view(np.uint8)
+    return rows
+
+
+def deflate_rows(samples, *, prefix: int = 0, backend: str = "auto") -> bytes:
+    """A zlib stream of the rows of ``samples``, each preceded by the byte ``prefix`` (module docstring).
+
+    Parameters
+    ----------
+    samples : ndarray, shape (H, N), uint8 or uint16
+        The rows' samples; 16-bit samples are written big-endian (PNG's byte order).
+    prefix : int
+        The byte before every row (PNG: the filter type; 0 = None).
+    backend : {"auto", "numba", "numpy"}
+        Histogram and bit packing compiled (:mod:`facestats.io.deflate_numba`) or with numpy: the same bytes.
+
+    Returns
+    -------
+    bytes
+        ``zlib.decompress`` of it gives the H rows of ``1 + N·itemsize`` bytes.
+    """
+    a = np.asarray(samples)
+    if a.dtype not in (np.uint8, np.uint16) or a.ndim != 2:
+        raise ValidationError(f"samples must be a 2-D uint8 or uint16 array, got {a.dtype} of shape {a.shape}")
+    if not 0 <= int(prefix) <= 255:
+        raise ValidationError(f"prefix must be a byte value in [0, 255], got {prefix}")
+    backend = resolve_backend(backend)
+    a = np.ascontiguousarray(a)
+    h, n = a.shape
+    values = np.iinfo(a.dtype).max + 1
+    by_sample = _sample_histogram(a, backend)
+    counts = np.zeros(257, np.int64)
+    if a.dtype == np.uint16:
+        grid = by_sample.reshape(256, 256)  # [high byte, low byte]
+        counts[:256] = grid.sum(axis=1) + grid.sum(axis=0)
+    else:
+        counts[:256] = by_sample
+    counts[int(prefix)] += h
+    counts[_END_OF_BLOCK] = 1
+    lengths = huffman_code_lengths(counts)
+    codes = canonical_codes(lengths)
+    v = np.arange(values)
+    if a.dtype == np.uint16:  # high byte first, then the low byte: one entry of at most 30 bits
+        hi, lo = v >> 8, v & 255
+        table_code = (codes[hi] | (codes[lo] << lengths[hi])).astype(np.uint64)
+        table_length = lengths[hi] + lengths[lo]
+    else:
+        table_code, table_length = codes.astype(np.uint64)[:256], lengths[:256]
+    head, start, start_bits = _block_header(lengths, codes)
+    p, tail = int(prefix), (int(codes[_END_OF_BLOCK]), int(lengths[_END_OF_BLOCK]))
+    if backend == "numba":
+        from facestats.io.deflate_numba import pack_rows
+
+        out = np.empty(h * (n + 1) * 4 + 16, np.uint8)  # at most 30 bits per sample, 15 per prefix
+        used = pack_rows(a, table_code, table_length, codes[p], lengths[p], tail[0], tail[1], start, start_bits, out)
+        body = out[:used].tobytes()
+    else:
+        body = _pack_numpy(a, table_code, table_length, codes[p], lengths[p], tail, start, start_bits)
+    adler = zlib.adler32(prefixed_rows(a, p)) & 0xFFFFFFFF
+    return b"\x78\x01" + head + body + struct.pack(">I", adler)

@@ -16,6 +16,10 @@
   over two cores (the session's length on two otherwise idle cores, when the
   machine is shared); peak resident memory of both processes and the data volume.
 * ``sensor_session``: the contact-sensor sequence (3 sites × 23 exposures).
+* ``frame_encode``: writing one emulated frame (1024² × 3 12-bit codes: read noise of the dome's
+  camera, a lit graded patch over a third of it) as a 16-bit PNG: facestats' Huffman-only deflate
+  (:mod:`facestats.io.deflate`, compiled and numpy) beside libdeflate level 1 (the writer before it)
+  and OpenCV's PNG writer at its fastest setting; milliseconds per frame and file size.
 """
 
 from __future__ import annotations
@@ -188,15 +192,52 @@ def bench_sensor_session(durable=True):
     return {"session_s": wall, "frames": report.frames, "emulator_startup_s": startup, "data_mb": size / 1e6}
 
 
+def bench_frame_encode(size=1024, repeats=10):
+    import cv2
+    import numpy as np
+
+    from facestats.acquire.devices.scene import dark_code_table
+    from facestats.acquire.dome import default_dome
+    from facestats.acquire.response import ResponseCurve
+    from facestats.io.png import encode_png
+
+    dome = default_dome()
+    camera = ResponseCurve(12, dome.response.full_well, dome.response.read_noise)
+    rng = np.random.default_rng(2006)
+    frame = dark_code_table(camera)[rng.integers(0, 65536, (size, size, 3))]
+    lo, hi = size // 3, 2 * size // 3
+    grade = np.linspace(200.0, 3000.0, hi - lo)[None, :, None]
+    frame[lo:hi, lo:hi] = np.clip(np.rint(rng.normal(grade, 40.0, (hi - lo, hi - lo, 3))), 0, 4095)
+    writers = {
+        "huffman": lambda: encode_png(frame, compression="huffman"),
+        "huffman_numpy": lambda: encode_png(frame, compression="huffman", backend="numpy"),
+        "libdeflate1": lambda: encode_png(frame, compression="libdeflate", level=1),
+        "opencv": lambda: cv2.imencode(".png", frame[..., ::-1], [cv2.IMWRITE_PNG_COMPRESSION, 1])[1].tobytes(),
+    }
+    out = {}
+    for name, write in writers.items():
+        size_bytes = len(write())  # warm-up (compiles the kernels once)
+        t0 = time.perf_counter()
+        for _ in range(repeats):
+            write()
+        out[f"{name}_ms"] = 1e3 * (time.perf_counter() - t0) / repeats
+        out[f"{name}_mb"] = size_bytes / 1e6
+    out["vs_libdeflate1"] = out["libdeflate1_ms"] / out["huffman_ms"]
+    out["vs_opencv"] = out["opencv_ms"] / out["huffman_ms"]
+    return out
+
+
 BENCHMARKS = [
     ("round_trips", bench_round_trips),
     ("dome_session", bench_dome_session),
     ("sensor_session", bench_sensor_session),
+    ("frame_encode", bench_frame_encode),  # last: its frames would count in the capture's peak memory
 ]
 
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
 SMOKE = {
     "round_trips": {"n": 200},
+    "frame_encode": {"size": 64, "repeats": 1},
     "dome_session": {"resolution": 32, "leds": 6, "cameras": 2, "durable": False},
     "sensor_session": {"durable": False},
 }

@@ -7,7 +7,7 @@ writer builds the rows with filter type 0 (the noisy 12-bit codes gain nothing
 from prediction) and deflates them with one of two compressors:
 
 * ``"huffman"`` (default): :func:`facestats.io.deflate.deflate_rows`, a Huffman
-  code of the frame's bytes and no string matching, about 15 ms a frame
+  code of the frame's bytes and no string matching, about 11 ms a frame
   (compiled), files about 5 % smaller than libdeflate level 1's on noisy frames;
 * ``"libdeflate"``: libdeflate at ``level`` (``imagecodecs.deflate_encode``,
   zlib container), 27-33 ms at level 1; smaller files on smooth images.

@@ -95,25 +95,28 @@ def _huffman_depths(counts, used) -> list:
     """Depth of each symbol of ``used`` (≥ 2 symbols) in Huffman's tree by two queues (see above)."""
     order = np.argsort(counts[used], kind="stable")  # ascending count, ties by symbol
     leaf_weight = counts[used][order].tolist()
-    node_weight, parent = [], {}  # internal node k: its weight; every node ("leaf"|"node", k): its parent
+    n = len(leaf_weight)
+    node_weight = []
+    leaf_parent, node_parent = [0] * n, [0] * (n - 1)
     i = j = 0  # next leaf, next internal node
-    for k in range(len(leaf_weight) - 1):
-        pair = []
+    for k in range(n - 1):
+        total = 0
         for _ in range(2):
-            if i < len(leaf_weight) and (j >= len(node_weight) or leaf_weight[i] <= node_weight[j]):
-                pair.append((("leaf", i), leaf_weight[i]))
+            if i < n and (j >= k or leaf_weight[i] <= node_weight[j]):
+                leaf_parent[i] = k
+                total += leaf_weight[i]
                 i += 1
             else:
-                pair.append((("node", j), node_weight[j]))
+                node_parent[j] = k
+                total += node_weight[j]
                 j += 1
-        parent[pair[0][0]] = parent[pair[1][0]] = k
-        node_weight.append(pair[0][1] + pair[1][1])
-    depth = [0] * len(node_weight)  # the root is the last node; parents come after their children
-    for k in range(len(node_weight) - 2, -1, -1):
-        depth[k] = depth[parent[("node", k)]] + 1
-    out = [0] * len(leaf_weight)
+        node_weight.append(total)
+    depth = [0] * (n - 1)  # the root is the last node; parents come after their children
+    for k in range(n - 3, -1, -1):
+        depth[k] = depth[node_parent[k]] + 1
+    out = [0] * n
     for rank, symbol_index in enumerate(order.tolist()):
-        out[symbol_index] = depth[parent[("leaf", rank)]] + 1
+        out[symbol_index] = depth[leaf_parent[rank]] + 1
     return out
 
 
@@ -121,43 +124,49 @@ def canonical_codes(lengths) -> np.ndarray:
     """The canonical Huffman code of every symbol (RFC 1951 §3.2.2), bits reversed for LSB-first packing.
 
     Codes of equal length are consecutive in symbol order, shorter codes numerically first.  The
-    returned value of a symbol of length L is its L-bit code read backwards, so that OR-ing it at the
-    current bit position of a little-endian accumulator sends the code's most significant bit first,
-    as deflate requires.  Symbols of length 0 get 0.
+    i-th code in that order is the Kraft sum of the codes before it at its own length,
+    Σ_{j<i} 2^(L_i − L_j) (each shorter or equal code takes that share of the L_i-bit codes), which is
+    RFC 1951's construction in closed form.  The returned value of a symbol of length L is its L-bit
+    code read backwards, so that OR-ing it at the current bit position of a little-endian accumulator
+    sends the code's most significant bit first, as deflate requires.  Symbols of length 0 get 0.
     """
     lengths = np.asarray(lengths, np.int64)
-    bl_count = np.bincount(lengths, minlength=MAX_CODE_BITS + 1)
-    bl_count[0] = 0
-    next_code = np.zeros(lengths.max() + 2, np.int64)
-    code = 0
-    for bits in range(1, next_code.size):
-        code = (code + int(bl_count[bits - 1])) << 1
-        next_code[bits] = code
+    top = int(lengths.max())
+    used = np.flatnonzero(lengths)
+    order = used[np.argsort(lengths[used], kind="stable")]  # by length, then by symbol
+    share = np.int64(1) << (top - lengths[order])  # each code's share of the top-length codes
+    kraft_before = np.cumsum(share) - share
     codes = np.zeros(lengths.size, np.int64)
-    for s in np.flatnonzero(lengths):  # at most 257 symbols: the loop is not over data
-        codes[s] = next_code[lengths[s]]
-        next_code[lengths[s]] += 1
+    codes[order] = kraft_before >> (top - lengths[order])
     out = np.zeros(lengths.size, np.int64)
-    for bit in range(int(lengths.max())):  # reverse the low `length` bits of each code
+    for bit in range(top):  # reverse the low `length` bits of each code
         has = lengths > bit
         out[has] |= ((codes[has] >> bit) & 1) << (lengths[has] - 1 - bit)
     return out
 
 
-def _block_header(lengths, codes) -> tuple[bytes, int, int]:
-    """The block header bits (module docstring) as whole bytes plus the leftover (value, bit count)."""
-    cl_lengths = np.r_[np.full(16, 4), 0, 0, 0]  # code-length symbols 0-15: 4 bits each; 16-18 unused
-    cl_codes = canonical_codes(cl_lengths)
-    fields = [(1, 1), (2, 2), (257 - 257, 5), (1 - 1, 5), (19 - 4, 4)]  # BFINAL, BTYPE, HLIT, HDIST, HCLEN
-    fields += [(int(cl_lengths[s]), 3) for s in _CODE_LENGTH_ORDER]
-    fields += [(int(cl_codes[n]), 4) for n in lengths]  # the 257 literal/length code lengths
-    fields.append((int(cl_codes[1]), 4))  # the one distance code: length 1
-    acc = nbits = 0
-    for value, width in fields:
-        acc |= value << nbits
-        nbits += width
-    whole = nbits // 8
-    return (acc & ((1 << (8 * whole)) - 1)).to_bytes(whole, "little"), acc >> (8 * whole), nbits - 8 * whole
+#: Code lengths of the code-length alphabet (symbols 0-18): 0-15 get 4 bits each, 16-18 none.
+_CL_LENGTHS = np.r_[np.full(16, 4), 0, 0, 0]
+_CL_CODES = canonical_codes(_CL_LENGTHS)
+
+#: The fixed head of the block header: BFINAL 1, BTYPE 2, HLIT 257 − 257, HDIST 1 − 1, HCLEN 19 − 4, then
+#: the 19 code-length code lengths (3 bits each, in RFC 1951's order); as (value, width) pairs.
+_HEADER_HEAD = [(1, 1), (2, 2), (0, 5), (0, 5), (15, 4)] + [(int(_CL_LENGTHS[s]), 3) for s in _CODE_LENGTH_ORDER]
+
+
+def _block_header(lengths) -> tuple[bytes, int, int]:
+    """The block header bits (module docstring) as whole bytes plus the leftover (value, bit count).
+
+    Fields are written least-significant bit first; the 257 literal/length code lengths and the one
+    distance code length (1) follow the fixed head as 4-bit code-length codes.
+    """
+    values = np.array([v for v, _ in _HEADER_HEAD] + _CL_CODES[np.r_[lengths, 1]].tolist(), np.int64)
+    widths = np.array([w for _, w in _HEADER_HEAD] + [4] * (len(lengths) + 1), np.int64)
+    bits = ((values[:, None] >> np.arange(5)) & 1)[np.arange(5) < widths[:, None]]  # LSB first, field by field
+    whole = bits.size // 8
+    head = np.packbits(bits[: 8 * whole], bitorder="little").tobytes()
+    rest = bits[8 * whole :]
+    return head, int(np.sum(rest << np.arange(rest.size))), int(rest.size)
 
 
 def _byte_counts(samples, prefix, sample_rows, backend):
@@ -248,24 +257,25 @@ def deflate_rows(samples, *, prefix: int = 0, sample_rows: int = 64, backend: st
     a = np.asarray(samples)
     if a.dtype not in (np.uint8, np.uint16) or a.ndim != 2:
         raise ValidationError(f"samples must be a 2-D uint8 or uint16 array, got {a.dtype} of shape {a.shape}")
+    if a.size == 0:
+        raise ValidationError(f"samples must hold at least one sample, got shape {a.shape}")
     if not 0 <= int(prefix) <= 255:
         raise ValidationError(f"prefix must be a byte value in [0, 255], got {prefix}")
     check_integer(sample_rows, "sample_rows", 1)
     backend = resolve_backend(backend)
     a = np.ascontiguousarray(a)
     h, n = a.shape
-    values = np.iinfo(a.dtype).max + 1
     counts = _byte_counts(a, prefix, int(sample_rows), backend)
     lengths = huffman_code_lengths(counts)
     codes = canonical_codes(lengths)
-    v = np.arange(values)
+    v = np.arange(int(a.max()) + 1)  # table entries for the values present (a 12-bit frame: 4,096)
     if a.dtype == np.uint16:  # high byte first, then the low byte: one entry of at most 30 bits
         hi, lo = v >> 8, v & 255
         table_code = (codes[hi] | (codes[lo] << lengths[hi])).astype(np.uint64)
         table_length = lengths[hi] + lengths[lo]
     else:
-        table_code, table_length = codes.astype(np.uint64)[:256], lengths[:256]
-    head, start, start_bits = _block_header(lengths, codes)
+        table_code, table_length = codes.astype(np.uint64)[v], lengths[v]
+    head, start, start_bits = _block_header(lengths)
     p, tail = int(prefix), (int(codes[_END_OF_BLOCK]), int(lengths[_END_OF_BLOCK]))
     if backend == "numba":
         from facestats.io.deflate_numba import pack_rows

@@ -6,11 +6,15 @@ encoding them dominates the cost of an emulated session.  OpenCV's PNG writer
 writer builds the rows with filter type 0 (the noisy 12-bit codes gain nothing
 from prediction) and deflates them with one of two compressors:
 
-* ``"huffman"`` (default): :func:`facestats.io.deflate.deflate_rows`, a Huffman
+* ``"huffman"``: :func:`facestats.io.deflate.deflate_rows`, a Huffman
   code of the frame's bytes and no string matching, about 11 ms a frame
   (compiled), files about 5 % smaller than libdeflate level 1's on noisy frames;
 * ``"libdeflate"``: libdeflate at ``level`` (``imagecodecs.deflate_encode``,
-  zlib container), 27-33 ms at level 1; smaller files on smooth images.
+  zlib container), 27-33 ms at level 1; smaller files on smooth images;
+* ``"auto"`` (default): Huffman-only from :data:`HUFFMAN_MIN_SAMPLES` samples on, libdeflate level
+  ``level`` below, where building the Huffman code (about 0.35 ms) costs more than libdeflate's
+  search (measured on read-noise frames: libdeflate faster up to 128² × 3 samples, Huffman-only from
+  192² × 3 on; ``benchmarks/bench_devices.py``).
 
 Format (PNG specification, ISO/IEC 15948, §5 and §11): signature, ``IHDR``
 (width, height, bit depth 8 or 16, colour type 0 grey / 2 RGB / 6 RGBA,
@@ -31,7 +35,7 @@ import numpy as np
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
 
-__all__ = ["COMPRESSIONS", "encode_png", "png_chunk", "PNG_SIGNATURE"]
+__all__ = ["COMPRESSIONS", "HUFFMAN_MIN_SAMPLES", "encode_png", "png_chunk", "PNG_SIGNATURE"]
 
 #: The eight bytes every PNG file starts with.
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -49,17 +53,20 @@ def png_chunk(tag: bytes, data: bytes) -> bytes:
 
 
 #: Values of :func:`encode_png`'s ``compression``.
-COMPRESSIONS = ("huffman", "libdeflate")
+COMPRESSIONS = ("auto", "huffman", "libdeflate")
+
+#: Samples (pixels × channels) from which ``compression="auto"`` deflates with the Huffman-only encoder.
+HUFFMAN_MIN_SAMPLES = 65536
 
 
-def encode_png(image, *, compression: str = "huffman", level: int = 1, chunks=(), backend: str = "auto") -> bytes:
+def encode_png(image, *, compression: str = "auto", level: int = 1, chunks=(), backend: str = "auto") -> bytes:
     """The bytes of a PNG file holding ``image``.
 
     Parameters
     ----------
     image : ndarray, shape (H, W) or (H, W, C), C in {1, 3, 4}
         uint8 or uint16 samples, channels in RGB(A) order.
-    compression : {"huffman", "libdeflate"}
+    compression : {"auto", "huffman", "libdeflate"}
         The rows' compressor (module docstring).
     level : int
         libdeflate compression level, 1 (fastest) to 12 (``compression="libdeflate"`` only).
@@ -85,6 +92,8 @@ def encode_png(image, *, compression: str = "huffman", level: int = 1, chunks=()
     check_integer(level, "level", 1, 12)
     h, w, c = a.shape
     bits = 8 * a.itemsize
+    if compression == "auto":
+        compression = "huffman" if a.size >= HUFFMAN_MIN_SAMPLES else "libdeflate"
     if compression == "huffman":
         idat = deflate_rows(a.reshape(h, w * c), prefix=0, backend=backend)  # filter type 0 (None) on every row
     else:

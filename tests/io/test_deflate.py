@@ -98,6 +98,7 @@ def test_noisy_frames_compress_to_their_byte_entropy(rng):
     [
         (np.zeros((4, 4), np.float32), {}, "samples must be a 2-D uint8 or uint16 array, got float32"),
         (np.zeros((4, 4, 3), np.uint16), {}, r"got uint16 of shape \(4, 4, 3\)"),
+        (np.zeros((3, 0), np.uint8), {}, r"samples must hold at least one sample, got shape \(3, 0\)"),
         (np.zeros((4, 4), np.uint8), {"prefix": 256}, r"prefix must be a byte value in \[0, 255\], got 256"),
         (np.zeros((4, 4), np.uint8), {"backend": "gpu"}, "backend"),
     ],

@@ -26,7 +26,7 @@ def _chunks(data):
     return out
 
 
-@pytest.mark.parametrize("compression", ["huffman", "libdeflate"])
+@pytest.mark.parametrize("compression", ["auto", "huffman", "libdeflate"])
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
 @pytest.mark.parametrize("channels", [None, 1, 3, 4])
 def test_opencv_decodes_the_exact_samples(dtype, channels, compression, rng):
@@ -66,3 +66,10 @@ def test_layout_chunks_and_exif(rng):
 def test_bad_input_names_the_field(image, kw, match):
     with pytest.raises(ValidationError, match=match):
         encode_png(image, **kw)
+
+
+def test_auto_compression_picks_by_size(rng):
+    small = rng.integers(0, 4096, (64, 64, 3), dtype=np.uint16)  # 12,288 samples: libdeflate
+    large = rng.integers(0, 4096, (160, 160, 3), dtype=np.uint16)  # 76,800 samples: Huffman-only
+    for img, method in ((small, "libdeflate"), (large, "huffman")):
+        assert _chunks(encode_png(img)) == _chunks(encode_png(img, compression=method))

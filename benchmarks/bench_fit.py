@@ -45,8 +45,9 @@ def _default_case(index=0, specular="torrance_sparrow", grid=48):
     from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
 
-    pop = synthesize_population(map_size=grid)
-    return pop, pop[index], DomeSimulator(procedural_face(grid), specular=specular)
+    geometry = procedural_face(grid)
+    pop = synthesize_population(map_size=grid, geometry=geometry)
+    return pop, pop[index], DomeSimulator(geometry, specular=specular)
 
 
 def _specular_problem(capture):

@@ -189,6 +189,7 @@ sys.path.insert(0, sys.argv[5])
 from bench_photos import _errors
 from facestats.acquire.dome import Dome
 from facestats.acquire.ingest import ingest_photographs, open_ingested
+from facestats.acquire.synthetic.faces import face_geometry
 from facestats.acquire.synthetic.population import synthesize_population
 from facestats.io.mesh import load_face_mesh
 from facestats.pipeline import fit_subject
@@ -202,7 +203,8 @@ t1 = time.perf_counter()
 peak = next(int(l.split()[1]) for l in open("/proc/self/status") if l.startswith("VmHWM")) / 1024
 cap = open_ingested(out)
 ds = fit_subject(cap)
-truth = synthesize_population(map_size=int(sys.argv[4]), subjects=["S001"])["S001"]
+grid = int(sys.argv[4])
+truth = synthesize_population(map_size=grid, geometry=face_geometry("procedural", grid), subjects=["S001"])["S001"]
 print(json.dumps({"ingest_s": t1 - t0, "fit_s": time.perf_counter() - t1, "peak_rss_ingest_mb": peak,
                   "motion_flags": len(cap.provenance.get("motion_flags", [])), **_errors(ds, truth)}))
 """
@@ -232,8 +234,8 @@ def bench_ingest(grid=48, side=1024, leds=None, workers=2, min_footprint_px=2.0)
     from facestats.acquire.synthetic.simulate import DomeSimulator
     from facestats.pipeline import fit_subject
 
-    truth = synthesize_population(map_size=grid, subjects=["S001"])["S001"]
     geometry = procedural_face(grid)
+    truth = synthesize_population(map_size=grid, geometry=geometry, subjects=["S001"])["S001"]
     dome = default_dome().resized(side, side)
     if leds is not None:
         dome = dome.select(leds=np.arange(leds))

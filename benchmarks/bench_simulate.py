@@ -39,7 +39,7 @@ def bench_one_subject(grid=48, repeats=5):
     from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
 
-    pop = synthesize_population(map_size=grid)
+    pop = synthesize_population(map_size=grid, geometry=procedural_face(grid))
     t0 = time.perf_counter()
     sim = DomeSimulator(procedural_face(grid))
     sim.simulate(pop[0])  # builds the geometry cache
@@ -63,7 +63,7 @@ def _simulate_many(ids, grid):
     from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
 
-    pop = synthesize_population(map_size=grid)
+    pop = synthesize_population(map_size=grid, geometry=procedural_face(grid))
     sim = DomeSimulator(procedural_face(grid))
     for sid in ids:
         sim.simulate(pop[sid])

@@ -60,5 +60,5 @@ def pytest_configure(config):
     from facestats.acquire.synthetic.simulate import DomeSimulator
     from facestats.pipeline import fit_subject
 
-    truth = synthesize_population(map_size=8, subjects=["S001"], conditions=False)["S001"]
+    truth = synthesize_population(map_size=8, geometry=procedural_face(8), subjects=["S001"], conditions=False)["S001"]
     fit_subject(DomeSimulator(procedural_face(8)).simulate(truth))

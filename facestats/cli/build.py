@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 from facestats.cli.options import ascii_int
-from facestats.core.conventions import DEFAULT_MAP_SIZE, DEFAULT_SEED
+from facestats.core.conventions import DEFAULT_FACE, DEFAULT_MAP_SIZE, DEFAULT_SEED
 
 __all__ = ["add_build"]
 
@@ -102,10 +102,10 @@ def add_build(sub):
     p.add_argument("--subjects", nargs="+", metavar="ID", help="only these subject ids")
     p.add_argument(
         "--face",
-        choices=("procedural", "ict"),
-        default="procedural",
-        help="the face the population lives on: the procedural head (default, as the embedded store) or ict, "
-        "the face area of ICT-FaceKit's neutral head (a real face, MIT licence)",
+        choices=("ict", "procedural"),
+        default=DEFAULT_FACE,
+        help="the face the population lives on: ict, the face area of ICT-FaceKit's neutral head (a real face, "
+        f"MIT licence), or procedural, a parametric head (default {DEFAULT_FACE}, as the embedded store)",
     )
     p.add_argument("--no-conditions", action="store_true", help="leave out the subject measured under seven conditions")
     p.add_argument(

@@ -188,9 +188,12 @@ def age_group(age) -> str:
     raise ValidationError(f"age must be in 0-200 years, got {age!r}")
 
 
-#: Seed and map size (= lumitexel grid) of the embedded default store (``facestats build --default``).
+#: Seed, map size (= lumitexel grid) and face of the embedded default store (``facestats build --default``):
+#: the face is one of :data:`facestats.acquire.synthetic.faces.FACES`, ``"ict"`` the face area of
+#: ICT-FaceKit's neutral head (:mod:`facestats.acquire.synthetic.ict_face`).
 DEFAULT_SEED = 2006
 DEFAULT_MAP_SIZE = 48
+DEFAULT_FACE = "ict"
 
 #: Bit flags of the fits of a texel (the ``ts_flag`` / ``bp_flag`` maps of a subject).
 FLAG_BITS = {

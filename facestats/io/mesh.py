@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.acquire.geometry import FaceGeometry, uv_to_texel
-from facestats.acquire.synthetic.face import procedural_face
+from facestats.acquire.synthetic.faces import named_face
 from facestats.core.validate import as_finite, check_integer, check_shape
 from facestats.errors import FormatError, ValidationError
 from facestats.io.schema import provenance
@@ -39,6 +39,7 @@ __all__ = [
     "read_triangle_mesh",
     "save_face_mesh",
     "procedural_mesh",
+    "geometry_mesh",
     "write_mesh",
     "FaceMesh",
     "subject_mesh",
@@ -295,6 +296,34 @@ def procedural_mesh(geometry: FaceGeometry):
     return verts[used], remap[faces], uv[used]
 
 
+def geometry_mesh(geometry: FaceGeometry):
+    """The triangle mesh of a face geometry with the UV of every vertex: :func:`procedural_mesh` for a
+    procedural head, the mesh as it is for a geometry that carries one UV per mesh vertex (``mesh_uv``:
+    the ICT face, :func:`facestats.acquire.synthetic.ict_face.ict_face`, split along its UV seams).
+
+    Returns
+    -------
+    vertices : ndarray, shape (V, 3)
+    faces : ndarray of int64, shape (F, 3)
+    uv : ndarray, shape (V, 2)
+        (u, v) in facestats' convention (v down).
+
+    Raises
+    ------
+    ValidationError
+        For geometries with neither (a loaded scan: write the scan itself).
+    """
+    if geometry.meta.get("kind") == "procedural":
+        return procedural_mesh(geometry)
+    uv = geometry.mesh_uv
+    if uv is None or len(uv) != len(geometry.mesh_vertices):
+        raise ValidationError(
+            f"geometry {geometry.name!r} has no UV per mesh vertex (procedural heads and the ICT face have); "
+            "write the scan it was loaded from instead"
+        )
+    return np.asarray(geometry.mesh_vertices, float), np.asarray(geometry.mesh_faces, np.int64), np.asarray(uv, float)
+
+
 def write_mesh(path, vertices, faces, uv, normals=None) -> str:
     """Write a triangle mesh with per-vertex UVs as OBJ (``vt``) or PLY (``s``/``t``), by extension.
 
@@ -343,19 +372,19 @@ def write_mesh(path, vertices, faces, uv, normals=None) -> str:
 
 
 def save_face_mesh(geometry: FaceGeometry, path, region_path=None):
-    """Write a procedural geometry's shadowing mesh as an OBJ with per-vertex UVs (and its region image as .npy).
+    """Write a face geometry's shadowing mesh as an OBJ with per-vertex UVs (and its region image as .npy).
 
-    The OBJ holds the triangle mesh of :func:`facestats.acquire.synthetic.face.procedural_face`
-    (:func:`procedural_mesh`) with the UV of every vertex (v upwards, as files
-    store it), so :func:`load_face_mesh` reads it back; the lumitexels it then
-    finds are the mesh vertices on labelled texels, which are the geometry's own
-    lumitexels when ``mesh_grid`` equals the lumitexel grid.  Use it to hand a
-    procedural face to other tools.
+    The OBJ holds the triangle mesh of the geometry (:func:`geometry_mesh`: a
+    procedural head or the ICT face) with the UV of every vertex (v upwards, as
+    files store it), so :func:`load_face_mesh` reads it back; the lumitexels it
+    then finds are the mesh vertices on labelled texels, which are a procedural
+    geometry's own lumitexels when ``mesh_grid`` equals the lumitexel grid.  Use
+    it to hand a face to other tools.
 
     Parameters
     ----------
     geometry : FaceGeometry
-        A procedural geometry.
+        A procedural geometry or the ICT face.
     path : str or os.PathLike
         The OBJ (or PLY) file to write.
     region_path : str or os.PathLike, optional
@@ -369,9 +398,9 @@ def save_face_mesh(geometry: FaceGeometry, path, region_path=None):
     Raises
     ------
     ValidationError
-        For geometries that are not procedural (their mesh vertices have no UV grid).
+        For geometries without a UV per mesh vertex (:func:`geometry_mesh`).
     """
-    verts, faces, uv = procedural_mesh(geometry)
+    verts, faces, uv = geometry_mesh(geometry)
     write_mesh(path, verts, faces, uv)
     if region_path is not None and geometry.region_map is not None:
         np.save(os.fspath(region_path), geometry.region_map)
@@ -515,32 +544,24 @@ def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = N
 
     prov = provenance(ds)
     name = str(prov.get("capture_provenance", {}).get("geometry", prov.get("geometry", "")))
-    if name.startswith("ict-"):
-        from facestats.acquire.synthetic.ict_face import ict_face_uv_mesh
-
-        split, uv_triangles, uv = ict_face_uv_mesh()
-        geometry = {
-            "kind": "ict-facekit",
-            "name": name,
-            "function": "facestats.acquire.synthetic.ict_face.ict_face_uv_mesh",
-        }
-        return _face_mesh(split, uv_triangles, uv, geometry)
-    if not name.startswith("procedural-"):
+    procedural = name.startswith("procedural-")
+    grid = 128 if mesh_grid is None else check_integer(mesh_grid, "mesh_grid", 8, 4096)
+    try:
+        # the mesh does not depend on the lumitexel grid: rebuild the cheapest one
+        geom = named_face(name.rsplit("-", 1)[0] + "-8", int(ds.sizes["u"]), mesh_grid=grid if procedural else None)
+    except ValidationError:
         raise ValidationError(
             f"subject {ds.attrs.get('subject_id', '?')!r} does not record a face facestats can rebuild "
             f"(geometry = {name!r}; procedural-N or ict-N); pass mesh=PATH (--mesh) with the scan its maps belong to"
-        )
-    grid = 128 if mesh_grid is None else check_integer(mesh_grid, "mesh_grid", 8, 4096)
-    size = int(ds.sizes["u"])
-    geom = procedural_face(8, map_size=size, mesh_grid=grid)
-    verts, faces, uv = procedural_mesh(geom)
+        ) from None
     geometry = {
-        "kind": "procedural",
+        "kind": "procedural" if procedural else "ict-facekit",
         "name": name,
-        "function": "facestats.acquire.synthetic.face.procedural_face",
-        "mesh_grid": int(grid),
+        "function": "facestats.acquire.synthetic.faces.named_face",
     }
-    return _face_mesh(verts, faces, uv, geometry)
+    if procedural:
+        geometry["mesh_grid"] = int(grid)
+    return _face_mesh(*geometry_mesh(geom), geometry)
 
 
 def _face_mesh(verts, faces, uv, geometry) -> FaceMesh:

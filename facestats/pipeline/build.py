@@ -54,7 +54,7 @@ import numpy as np
 from facestats.acquire.synthetic.faces import FACES, face_geometry
 from facestats.acquire.synthetic.population import synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator
-from facestats.core.conventions import DEFAULT_MAP_SIZE, DEFAULT_SEED, SITES
+from facestats.core.conventions import DEFAULT_FACE, DEFAULT_MAP_SIZE, DEFAULT_SEED, SITES
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
 from facestats.io.ids import check_subject_id
@@ -200,7 +200,7 @@ def _geometry(map_size: int, face: str):
     return _WORKER_CACHE[key]
 
 
-def _simulator(map_size: int, specular: str, face: str = "procedural"):
+def _simulator(map_size: int, specular: str, face: str = DEFAULT_FACE):
     """One simulator per process (shadow maps and geometry are reused across subjects)."""
     key = (map_size, specular, face)
     if key not in _WORKER_CACHE:
@@ -208,7 +208,7 @@ def _simulator(map_size: int, specular: str, face: str = "procedural"):
     return _WORKER_CACHE[key]
 
 
-def _population(seed: int, map_size: int, conditions: bool, face: str = "procedural"):
+def _population(seed: int, map_size: int, conditions: bool, face: str = DEFAULT_FACE):
     """One population per process (drawn once, reused across subjects)."""
     key = ("population", seed, map_size, conditions, face)
     if key not in _WORKER_CACHE:
@@ -224,7 +224,7 @@ def _settings(micro_normals: bool):
     return FitSettings(micro_normals=micro_normals)
 
 
-def sensor_fits(population, map_size: int, specular: str = "torrance_sparrow", face: str = "procedural"):
+def sensor_fits(population, map_size: int, specular: str = "torrance_sparrow", face: str = DEFAULT_FACE):
     """Stage 6 for every subject from its simulated sensor profiles (the same draws as the full simulation).
 
     Returns
@@ -271,7 +271,7 @@ def _build_one(
     sensor_fit,
     micro_normals,
     keep_derived=True,
-    face="procedural",
+    face=DEFAULT_FACE,
 ):
     """Simulate, fit and store one subject (runs in a worker process)."""
 
@@ -309,7 +309,7 @@ def build_store(
     progress: bool = False,
     scheduler: str | None = None,
     retries: int = 2,
-    face: str = "procedural",
+    face: str = DEFAULT_FACE,
 ) -> BuildReport:
     """Simulate and fit a synthetic population into a directory store (resumable).
 
@@ -340,9 +340,9 @@ def build_store(
     retries : int
         Attempts after the first for a subject that fails (≥ 0); it is then reported in
         :attr:`BuildReport.failed` and the journal (``facestats build --status``).
-    face : {"procedural", "ict"}
+    face : {"ict", "procedural"}
         The face the population lives on (:func:`facestats.acquire.synthetic.faces.face_geometry`):
-        the procedural head of the embedded default, or ICT-FaceKit's real face.
+        ICT-FaceKit's real face (the embedded default's, :data:`DEFAULT_FACE`) or the procedural head.
 
     Returns
     -------
@@ -434,9 +434,10 @@ def _gathered(future, args):
 def build_default(*, workers: int | None = None, progress: bool = False, out=None) -> BuildReport:
     """Regenerate the embedded default store and pack it into the package (or ``out``).
 
-    The default is the population of :data:`DEFAULT_SEED` at :data:`DEFAULT_MAP_SIZE`²,
-    fitted without micro-normal maps (16 × 3 values per texel would triple its size)
-    and stored without the derived modulation texture, so it stays under 20 MB.
+    The default is the population of :data:`DEFAULT_SEED` at :data:`DEFAULT_MAP_SIZE`² on
+    :data:`DEFAULT_FACE` (ICT-FaceKit's face), fitted without micro-normal maps (16 × 3 values
+    per texel would triple its size) and stored without the derived modulation texture, so it
+    stays under 20 MB.
     """
 
     target = Path(out) if out is not None else default_store_path()
@@ -450,6 +451,7 @@ def build_default(*, workers: int | None = None, progress: bool = False, out=Non
             micro_normals=False,
             keep_derived=False,
             progress=progress,
+            face=DEFAULT_FACE,
         )
         pack_store(tmp / "default.zarr", target, overwrite=True)
         report.store = str(target)

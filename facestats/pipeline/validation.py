@@ -32,9 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.acquire.geometry import uv_to_texel
-from facestats.acquire.synthetic.face import procedural_face
-from facestats.acquire.synthetic.population import DEFAULT_MAP_SIZE, default_population
-from facestats.acquire.synthetic.simulate import DomeSimulator
+from facestats.acquire.synthetic.population import default_population
+from facestats.acquire.synthetic.simulate import simulate_capture
 from facestats.acquire.visibility import ShadowMaps
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import check_choice, check_integer
@@ -275,7 +274,7 @@ def default_capture(subject):
         want = {
             "source": "facestats simulator",
             "seed": truth.seed,
-            "geometry": f"procedural-{DEFAULT_MAP_SIZE}",
+            "geometry": truth.geometry,
             "specular": "torrance_sparrow",
         }
         differ = {k: got.get(k) for k, v in want.items() if got.get(k) != v}
@@ -298,4 +297,4 @@ def _default_truth(subject_id):
 
 @functools.lru_cache(maxsize=2)
 def _simulated_default(subject_id):
-    return DomeSimulator(procedural_face(DEFAULT_MAP_SIZE)).simulate(_default_truth(subject_id))
+    return simulate_capture(_default_truth(subject_id))

@@ -10,14 +10,13 @@ novel-view re-projection (:func:`facestats.relight.novel.reproject`).  Frame: fa
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 
 import numpy as np
 
 from facestats.acquire.dome import look_at
 from facestats.acquire.geometry import FaceGeometry
-from facestats.acquire.synthetic.face import procedural_face
+from facestats.acquire.synthetic.faces import named_face
 from facestats.acquire.visibility import rasterize
 from facestats.core.validate import as_finite, check_integer, check_shape
 from facestats.errors import ValidationError
@@ -101,41 +100,43 @@ def stage_camera(
     return StageCamera(pos, t, fov_deg, size)
 
 
-_PROCEDURAL = re.compile(r"^procedural-(\d+)$")
-
-
 def subject_geometry(subject, *, mesh_grid: int = 64) -> FaceGeometry:
     """The face geometry a store subject was captured on, from its provenance.
 
-    Subjects of the synthetic population record ``capture_provenance.geometry =
-    "procedural-N"``: the procedural head of lumitexel grid N
-    (:func:`facestats.acquire.synthetic.face.procedural_face`), rebuilt here with a
-    ``mesh_grid``² rendering mesh.  Subjects fitted on a real scan must be
-    rendered with that scan's geometry (pass it to :func:`light_stage_field`).
+    Subjects of the synthetic population record ``capture_provenance.geometry``:
+    ``"ict-N"`` (the ICT-FaceKit face of the default, its own mesh) or ``"procedural-N"``
+    (the procedural head of lumitexel grid N, rebuilt here with a ``mesh_grid``² rendering
+    mesh), both through :func:`facestats.acquire.synthetic.faces.named_face`.  Subjects
+    fitted on a real scan must be rendered with that scan's geometry (pass it to
+    :func:`light_stage_field`).
     """
     # local import: keeps facestats.io (21 modules) out of this module's import
     from facestats.io.schema import provenance
 
     prov = provenance(subject)
     name = (prov.get("capture_provenance") or {}).get("geometry")
-    m = _PROCEDURAL.match(str(name))
-    if not m:
+    mesh_grid = check_integer(mesh_grid, "mesh_grid", 8, 1024)
+    try:
+        return named_face(str(name), mesh_grid=mesh_grid if str(name).startswith("procedural-") else None)
+    except ValidationError:
         raise ValidationError(
-            f"subject {subject.attrs.get('subject_id', '?')!r} records geometry {name!r}, not a procedural head: "
-            "pass its FaceGeometry (e.g. facestats.io.mesh.load_face_mesh) as geometry="
-        )
-    return procedural_face(int(m.group(1)), mesh_grid=check_integer(mesh_grid, "mesh_grid", 8, 1024))
+            f"subject {subject.attrs.get('subject_id', '?')!r} records geometry {name!r}, not a face facestats "
+            "can rebuild: pass its FaceGeometry (e.g. facestats.io.mesh.load_face_mesh) as geometry="
+        ) from None
 
 
 def mesh_uv(geometry: FaceGeometry) -> np.ndarray:
     """UV coordinates of every mesh vertex, (V, 2).
 
-    Procedural heads: their mesh is a regular grid in UV (vertex i·n + j at
-    ((j + ½)/n, (i + ½)/n)).  Loaded scans: the lumitexels are mesh vertices, so
-    each vertex takes the UV of the nearest lumitexel (exact on the face; off-face
-    vertices only matter as background).
+    Geometries that carry them (``mesh_uv``: the ICT face): those.  Procedural heads:
+    their mesh is a regular grid in UV (vertex i·n + j at ((j + ½)/n, (i + ½)/n)).
+    Loaded scans: the lumitexels are mesh vertices, so each vertex takes the UV of
+    the nearest lumitexel (exact on the face; off-face vertices only matter as
+    background).
     """
     verts = np.asarray(geometry.mesh_vertices)
+    if geometry.mesh_uv is not None:
+        return np.asarray(geometry.mesh_uv)
     if geometry.meta.get("kind") == "procedural":
         n = int(round(np.sqrt(len(verts))))
         if n * n != len(verts):

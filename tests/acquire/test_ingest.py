@@ -23,7 +23,7 @@ LEDS = [0, 1, 2, 5, 9, 14]
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     """A 16-grid subject photographed by 4 cameras under 6 LEDs at 96² pixels, 12-bit PNG."""
-    pop = synthesize_population(map_size=16, conditions=False, subjects=["S011"])
+    pop = synthesize_population(map_size=16, geometry=procedural_face(16), conditions=False, subjects=["S011"])
     truth = pop["S011"]
     dome = default_dome().select(leds=LEDS, cameras=CAMERAS).resized(96, 96)
     root = tmp_path_factory.mktemp("tiny")
@@ -300,7 +300,7 @@ def test_8_bit_jpeg_frames_with_exif(tmp_path):
     """The simulator's 8-bit JPEG option: frames decode as 8-bit, carry their exposure time, and ingest."""
     from facestats.io.exif import read_exposure_time
 
-    truth = synthesize_population(map_size=16, conditions=False, subjects=["S011"])["S011"]
+    truth = synthesize_population(map_size=16, geometry=procedural_face(16), conditions=False, subjects=["S011"])["S011"]
     dome = default_dome().select(leds=[0, 1, 5], cameras=[3, 11]).resized(96, 96)
     pc = write_capture_photographs(truth, tmp_path / "jpg", geometry=procedural_face(16), dome=dome, extension=".jpg")
     f = open_folder(tmp_path / "jpg")

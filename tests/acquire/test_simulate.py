@@ -18,7 +18,7 @@ from facestats.model.fresnel import fresnel_reflectance, fresnel_transmittance
 
 @pytest.fixture(scope="module")
 def pop32():
-    return synthesize_population(map_size=32, conditions=False)
+    return synthesize_population(map_size=32, geometry=procedural_face(32), conditions=False)
 
 
 @pytest.fixture(scope="module")

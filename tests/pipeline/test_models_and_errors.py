@@ -25,7 +25,7 @@ SIZE = 32
 @pytest.fixture(scope="module")
 def case():
     """A default-population subject on a TS-rendering dome, fitted with camera 7 held out."""
-    pop = synthesize_population(map_size=SIZE, conditions=False)
+    pop = synthesize_population(map_size=SIZE, geometry=procedural_face(SIZE), conditions=False)
     truth = pop[12]
     cap = DomeSimulator(procedural_face(SIZE)).simulate(truth)
     ds = fit_subject(cap, pop.sigma_tr_avg, FitSettings(micro_normals=False, exclude_cameras=(7,)))
@@ -41,7 +41,7 @@ def test_blinn_phong_maps_are_honest_on_torrance_sparrow_captures(case):
     measured = (flags & FLAG_BITS["filled"]) == 0
     assert np.all((n[measured] >= lo) & (n[measured] <= hi))  # in the range skin can have, or flagged and filled
     # Fitting Blinn-Phong up to 80° as eq. 14 prints it: the grazing samples make many fits ill-conditioned.
-    pop = synthesize_population(map_size=SIZE, conditions=False)
+    pop = synthesize_population(map_size=SIZE, geometry=procedural_face(SIZE), conditions=False)
     printed = fit_subject(cap, pop.sigma_tr_avg, FitSettings(micro_normals=False, bp_max_angle_deg=80.0))
     ill = (printed.bp_flag.values[face] & FLAG_BITS["ill_conditioned"]) != 0
     assert ill.mean() > 0.04
@@ -137,7 +137,7 @@ def test_model_errors_per_region(tmp_path):
 def test_both_engines_fit_the_same_capture_alike(case):
     """The numpy engine on the capture the numba engine fitted: maps within the solver's tolerance."""
     truth, cap, ds = case
-    pop = synthesize_population(map_size=SIZE, conditions=False)
+    pop = synthesize_population(map_size=SIZE, geometry=procedural_face(SIZE), conditions=False)
     other = fit_subject(cap, pop.sigma_tr_avg, FitSettings(micro_normals=False, exclude_cameras=(7,), engine="numpy"))
     face = ds.region.values > 0
     for var in ("albedo", "normal"):

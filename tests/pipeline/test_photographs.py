@@ -29,7 +29,7 @@ def case(tmp_path_factory):
     from facestats.acquire.synthetic.simulate import DomeSimulator
     from facestats.pipeline import fit_subject
 
-    truth = synthesize_population(map_size=16, subjects=["S001"])["S001"]
+    truth = synthesize_population(map_size=16, geometry=procedural_face(16), subjects=["S001"])["S001"]
     dome = default_dome().select(leds=np.arange(0, 150, 5)).resized(160, 160)
     root = tmp_path_factory.mktemp("e2e")
     pc = write_capture_photographs(truth, root / "photos", geometry=procedural_face(16), dome=dome, moved_frames=MOVED)

@@ -20,7 +20,7 @@ from tests.helpers import hemisphere_pairs
 
 @pytest.fixture(scope="module")
 def pop():
-    return synthesize_population(map_size=32, conditions=False)
+    return synthesize_population(map_size=32, geometry=procedural_face(32), conditions=False)
 
 
 @pytest.fixture(scope="module")

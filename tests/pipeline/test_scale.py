@@ -25,7 +25,7 @@ QUICK = FitSettings(micro_normals=False, block=128)
 @pytest.fixture(scope="module")
 def captures(tmp_path_factory):
     root = tmp_path_factory.mktemp("captures")
-    pop = synthesize_population(map_size=SIZE, conditions=False)
+    pop = synthesize_population(map_size=SIZE, geometry=procedural_face(SIZE), conditions=False)
     sim = DomeSimulator(procedural_face(SIZE))
     return [sim.simulate(pop[i]).to_zarr(root / f"{i}.zarr", chunk=128) for i in (0, 1, 2)]
 

@@ -71,9 +71,12 @@ def test_stage_field_relit_equals_the_direct_render(subject, geometry, stage_fie
     relit = relight(field, lw)
     rel = np.abs(relit - direct)[m] / direct[m]
     assert rel.max() <= 1e-3
-    # The same field streamed tile by tile into zarr (float32) is identical.
+    # The same field streamed tile by tile into zarr (float32) is the same to the last bits (the products
+    # run over tiles of other sizes, so a few values may round differently).
     on_disk = stage.light_stage_field(subject, cam, geometry=geometry, directions=d, out=tmp_path / "s.zarr", tile=8)
-    assert np.array_equal(open_field(tmp_path / "s.zarr")["reflectance"].values, field["reflectance"].values)
+    np.testing.assert_allclose(
+        open_field(tmp_path / "s.zarr")["reflectance"].values, field["reflectance"].values, rtol=1e-6, atol=1e-8
+    )
     assert np.allclose(relight(on_disk, lw), relit, rtol=1e-6)
 
 
@@ -116,7 +119,7 @@ def test_several_cameras_give_one_field_each(subject, geometry):
 def test_subjects_without_a_known_geometry_are_refused(subject):
     other = subject.copy()
     other.attrs["provenance"] = '{"capture_provenance": {"geometry": "scan-7"}}'
-    with pytest.raises(ValidationError, match="'scan-7', not a procedural head"):
+    with pytest.raises(ValidationError, match="'scan-7', not a face facestats can rebuild"):
         stage.subject_geometry(other)
     with pytest.raises(ValidationError, match="StageCamera"):
         stage.light_stage_field(subject, camera="front")

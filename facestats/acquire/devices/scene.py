@@ -45,7 +45,7 @@ from facestats.acquire.devices.sensor import FiberLayout
 from facestats.acquire.hdr import expose
 from facestats.acquire.response import ResponseCurve
 from facestats.acquire.sensor import ContactSensor
-from facestats.acquire.synthetic.face import procedural_face
+from facestats.acquire.synthetic.faces import face_geometry, named_face
 from facestats.acquire.synthetic.photographs import FrameRenderer
 from facestats.acquire.synthetic.population import SubjectTruth, synthesize_population
 from facestats.core.compiled import resolve_backend
@@ -68,7 +68,10 @@ def subject_truth(subject_id: str, *, store=None, map_size: int = 16, seed: int 
     subject_id : str
     store : str, path-like or Store, optional
         A store (``"default"``: the embedded one); None takes the synthetic
-        population drawn with ``seed`` at ``map_size``.
+        population drawn with ``seed`` at ``map_size`` on the procedural head (its mesh
+        vertices are its lumitexels: 172 at 16², where the ICT face's mesh has about 5,000,
+        which keeps the emulated rig's per-frame work small).  A store subject keeps the
+        face its capture provenance names (``ict-48`` for the embedded default).
     map_size : int
         Map side of a population subject (a store subject keeps its own).
 
@@ -84,13 +87,15 @@ def subject_truth(subject_id: str, *, store=None, map_size: int = 16, seed: int 
     """
 
     if store is None:
-        return synthesize_population(seed=seed, map_size=map_size, subjects=[subject_id])[subject_id]
+        head = face_geometry("procedural", map_size)
+        return synthesize_population(seed=seed, map_size=map_size, geometry=head, subjects=[subject_id])[subject_id]
     return _truth_from_store(store, subject_id)
 
 
 def _truth_from_store(store, subject_id):
     # local import: keeps facestats.io (22 modules) out of this module's import
     from facestats.io import open_store
+    from facestats.io.schema import provenance
 
     st = open_store() if store == "default" else open_store(store) if isinstance(store, (str, pathlib.Path)) else store
     ds = st.subject(subject_id)
@@ -126,6 +131,7 @@ def _truth_from_store(store, subject_id):
     meta = {k: ds.attrs[k] for k in ("subject_id", "person_id", "age", "gender", "skin_type", "condition")}
     return SubjectTruth(
         **meta,
+        geometry=str(provenance(ds).get("capture_provenance", {}).get("geometry", "")),
         region_map=region.astype(np.uint8),
         albedo=albedo,
         ts_rho_s=rho,
@@ -227,7 +233,8 @@ class DomeScene:
         self.truth, self.dome, self.seed = truth, dome, int(seed)
         self.backend = resolve_backend(backend)
         self.camera = camera or ResponseCurve(12, dome.response.full_well, dome.response.read_noise)
-        self.mesh = pathlib.Path(save_face_mesh(procedural_face(truth.region_map.shape[0]), workdir / "face.obj"))
+        face = named_face(truth.geometry, truth.region_map.shape[0])
+        self.mesh = pathlib.Path(save_face_mesh(face, workdir / "face.obj"))
         self.regions = workdir / "face.regions.npy"
         np.save(self.regions, truth.region_map)
         self.geometry = load_face_mesh(self.mesh, self.regions)  # the truth is the mesh the lab has

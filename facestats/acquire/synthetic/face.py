@@ -1,4 +1,4 @@
-"""The procedural head of the embedded default: an ellipsoidal cap with the 10 regions of Fig. 15.
+"""A procedural head: an ellipsoidal cap with the 10 regions of Fig. 15 (the default face is ICT-FaceKit's).
 
 The procedural face is an ellipsoidal cap with Gaussian features (nose ridge,
 eye sockets, brow ridge, cheekbones, lips, mouth line, chin).  Its 10 regions
@@ -95,7 +95,7 @@ def _surface(u, v):
 def procedural_face(
     lumitexel_grid: int = 48, map_size: int | None = None, mesh_grid: int | None = None
 ) -> FaceGeometry:
-    """The embedded default face: a parametric head with the 10 regions of Weyrich Fig. 15.
+    """A parametric head (ellipsoidal cap with a nose) with the 10 regions of Weyrich Fig. 15.
 
     Parameters
     ----------

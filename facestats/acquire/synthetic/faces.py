@@ -1,25 +1,38 @@
 """The faces the synthetic population can live on, by name: ``"procedural"`` and ``"ict"``.
 
-* ``"procedural"`` — :func:`facestats.acquire.synthetic.face.procedural_face`, the parametric head
-  of the embedded default;
 * ``"ict"`` — :func:`facestats.acquire.synthetic.ict_face.ict_face`, the face area of ICT-FaceKit's
-  neutral head (a real face, registered from light-stage scans; MIT licence).
+  neutral head (a real face, registered from light-stage scans; MIT licence): the face of the
+  embedded default (:data:`facestats.core.conventions.DEFAULT_FACE`);
+* ``"procedural"`` — :func:`facestats.acquire.synthetic.face.procedural_face`, a parametric head
+  (an ellipsoidal cap with a nose), kept as an option.
+
+A geometry records which face it is in :attr:`FaceGeometry.name` (``"ict-48"``: the ICT face with
+lumitexels on a 48² grid); :func:`named_face` rebuilds it from that name, which is how a subject's
+capture provenance, a truth's ``geometry`` and the exporters find the face again.
 """
 
 from __future__ import annotations
 
-from facestats.acquire.geometry import FaceGeometry
-from facestats.core.validate import check_choice
+import re
 
-__all__ = ["FACES", "face_geometry"]
+from facestats.acquire.geometry import FaceGeometry
+from facestats.core.validate import check_choice, check_integer
+from facestats.errors import ValidationError
+
+__all__ = ["FACES", "face_geometry", "named_face"]
 
 #: Names of the faces :func:`face_geometry` builds.
 FACES = ("procedural", "ict")
 
+_NAME = re.compile(r"^(procedural|ict)-(\d+)$")
 
-def face_geometry(face: str, lumitexel_grid: int, map_size: int | None = None) -> FaceGeometry:
+
+def face_geometry(
+    face: str, lumitexel_grid: int, map_size: int | None = None, *, mesh_grid: int | None = None
+) -> FaceGeometry:
     """The face ``face`` (one of :data:`FACES`) with lumitexels on a ``lumitexel_grid``² UV grid and
-    ``map_size``² maps (default ``lumitexel_grid``)."""
+    ``map_size``² maps (default ``lumitexel_grid``).  ``mesh_grid`` is the procedural head's rendering
+    mesh (its default otherwise); the ICT face's mesh is the scan's."""
     check_choice(face, "face", FACES)
     if face == "ict":
         from facestats.acquire.synthetic.ict_face import ict_face
@@ -27,4 +40,31 @@ def face_geometry(face: str, lumitexel_grid: int, map_size: int | None = None) -
         return ict_face(lumitexel_grid, map_size)
     from facestats.acquire.synthetic.face import procedural_face
 
-    return procedural_face(lumitexel_grid, map_size)
+    mesh_grid = None if mesh_grid is None else check_integer(mesh_grid, "mesh_grid", 8, 4096)
+    return procedural_face(lumitexel_grid, map_size, mesh_grid)
+
+
+def named_face(name: str, map_size: int | None = None, *, mesh_grid: int | None = None) -> FaceGeometry:
+    """Rebuild the face a record names (``"procedural-N"`` or ``"ict-N"``, as :attr:`FaceGeometry.name`).
+
+    Parameters
+    ----------
+    name : str
+        ``FACE-N``: one of :data:`FACES` and its lumitexel grid N.
+    map_size : int, optional
+        Side of the maps (default N).
+    mesh_grid : int, optional
+        As :func:`face_geometry`.
+
+    Raises
+    ------
+    ValidationError
+        When ``name`` is not such a name (a face loaded from a scan must be loaded again from it).
+    """
+    m = _NAME.match(str(name))
+    if not m:
+        raise ValidationError(
+            f"geometry must name a face facestats can rebuild ('procedural-N' or 'ict-N'), got {name!r}; "
+            "a face loaded from a scan is loaded again with facestats.io.mesh.load_face_mesh"
+        )
+    return face_geometry(m.group(1), int(m.group(2)), map_size, mesh_grid=mesh_grid)

@@ -3,9 +3,9 @@
 :func:`write_capture_photographs` turns a subject's truth into the inputs of
 :func:`facestats.acquire.ingest.ingest_photographs`:
 
-* **Truth geometry**: the procedural face's mesh is written as the lab's mesh
-  (OBJ with UVs and a region image) and read back; its vertices and their mesh
-  normals are the simulated face, so the ingest sees the surface it was given.
+* **Truth geometry**: the face's mesh is written as the lab's mesh (OBJ with UVs
+  and a region image) and read back; its vertices and their mesh normals are the
+  simulated face, so the ingest sees the surface it was given.
 * **Radiance** of every lumitexel, camera and LED from the simulator's forward
   model (:class:`facestats.acquire.synthetic.simulate.DomeSimulator`, noise-free).
 * **Images**: the face mesh is sampled densely (barycentric grids, ≤ ½ pixel
@@ -49,7 +49,7 @@ from facestats.acquire.dome import Dome, default_dome
 from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.photographs import MANIFEST, write_manifest, write_sensor_file
 from facestats.acquire.response import ResponseCurve
-from facestats.acquire.synthetic.face import procedural_face
+from facestats.acquire.synthetic.faces import named_face
 from facestats.acquire.synthetic.simulate import DomeSimulator
 from facestats.core.validate import as_finite, check_choice
 from facestats.errors import ValidationError
@@ -298,9 +298,12 @@ def write_capture_photographs(
     folder : str or path-like
         Output folder (created).
     geometry : FaceGeometry, optional
-        A procedural face (its mesh grid equal to its lumitexel grid); default
-        :func:`procedural_face` at the truth's map size.  The simulated truth is its
-        mesh as written and read back (``PhotoCapture.geometry``).
+        The face, with the truth's map size; default the face the truth was drawn on
+        (``truth.geometry``, :func:`facestats.acquire.synthetic.faces.named_face`).  The
+        simulated truth is its mesh as written and read back (``PhotoCapture.geometry``):
+        every labelled mesh vertex becomes a lumitexel, so a procedural face whose mesh
+        grid equals its lumitexel grid keeps its lumitexels; the ICT face has about
+        4,800-5,200 face vertices (857 lumitexels at 48²), which costs time.
     dome : Dome, optional
         The true rig; default :func:`default_dome` (1024² cameras; use :meth:`Dome.resized`).
     camera : ResponseCurve, optional
@@ -327,7 +330,7 @@ def write_capture_photographs(
     as_finite(motion_deg, "motion_deg", 0, None, unit="deg")
     folder = pathlib.Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    geometry = procedural_face(truth.region_map.shape[0]) if geometry is None else geometry
+    geometry = named_face(truth.geometry, truth.region_map.shape[0]) if geometry is None else geometry
     dome = default_dome() if dome is None else dome
     camera = camera or ResponseCurve(
         8 if extension == ".jpg" else 12, dome.response.full_well, dome.response.read_noise

@@ -48,7 +48,7 @@ from facestats.acquire.dome import Dome, default_dome
 from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.hdr import expose, merge_exposures
 from facestats.acquire.sensor import ContactSensor
-from facestats.acquire.synthetic.face import procedural_face
+from facestats.acquire.synthetic.faces import named_face
 from facestats.acquire.visibility import dome_shadow_maps, sample_visibility
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_choice, check_integer
@@ -400,10 +400,17 @@ class DomeSimulator:
         bad = ~(lobe > 0) if self.specular == "torrance_sparrow" else ~(lobe >= 0)
         bad |= ~(rho >= 0)
         if np.any(bad):
+            drawn = truth.geometry
+            hint = (
+                f" (the truth was drawn on {drawn!r}, the simulator's face is {self.geometry.name!r}: draw the "
+                "population with geometry= this face)"
+                if drawn and drawn != self.geometry.name
+                else ""
+            )
             raise ValidationError(
                 f"truth of {truth.subject_id} must hold skin (rho_s >= 0, {name} > 0 for Torrance-Sparrow, >= 0 "
                 f"for Blinn-Phong) at every lumitexel's texel; {int(bad.sum())} lumitexel(s) read "
-                f"e.g. rho_s={float(rho[bad][0])!r}, {name}={float(lobe[bad][0])!r}"
+                f"e.g. rho_s={float(rho[bad][0])!r}, {name}={float(lobe[bad][0])!r}{hint}"
             )
 
     # -- public -------------------------------------------------------------------------
@@ -481,7 +488,8 @@ class DomeSimulator:
 
 
 def simulate_capture(truth, geometry: FaceGeometry | None = None, **kwargs) -> Capture:
-    """Simulate one subject on ``geometry`` (default: the procedural face at the truth's map size)."""
+    """Simulate one subject on ``geometry`` (default: the face its truth was drawn on, ``truth.geometry``,
+    rebuilt by :func:`facestats.acquire.synthetic.faces.named_face` at the truth's map size)."""
     if geometry is None:
-        geometry = procedural_face(truth.region_map.shape[0])
+        geometry = named_face(truth.geometry, truth.region_map.shape[0])
     return DomeSimulator(geometry, **kwargs).simulate(truth)

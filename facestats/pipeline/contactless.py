@@ -31,7 +31,12 @@ import numpy as np
 
 from facestats.acquire.lights import patch_irradiance
 from facestats.acquire.scene import patch_radiance
-from facestats.acquire.synthetic.contactless import CONTACTLESS_SITES, patch_modulation, simulate_site_image
+from facestats.acquire.synthetic.contactless import (
+    CONTACTLESS_SITES,
+    modulation_face,
+    patch_modulation,
+    simulate_site_image,
+)
 from facestats.core.conventions import CHANNELS, SITES
 from facestats.core.published import ETA_SKIN
 from facestats.errors import QuantisationWarning, ValidationError
@@ -47,7 +52,9 @@ SKIN_GRID = ProfileGrid.log_spaced((0.05, 20.0), (1e-3, 5.0), (160, 160))
 _VARS = ("image_sigma_s_prime", "image_sigma_a", "image_sigma_tr", "image_sigma_tr_low", "image_sigma_tr_high")
 
 
-def estimate_site(scene, image, *, modulation_map=None, width="auto", grid=SKIN_GRID, refine=True, eta=ETA_SKIN):
+def estimate_site(
+    scene, image, *, modulation_map=None, face=None, width="auto", grid=SKIN_GRID, refine=True, eta=ETA_SKIN
+):
     """The three channel fits (R, G, B) of one site image (module docstring, steps 1-3).
 
     Parameters
@@ -58,6 +65,9 @@ def estimate_site(scene, image, *, modulation_map=None, width="auto", grid=SKIN_
         Linear radiance.
     modulation_map : ndarray, shape (n, n, 3), optional
         The subject's fitted M = α/α_avg [v, u, channel]; None: no correction.
+    face : FaceGeometry, optional
+        The face the map is laid out on when it is not the procedural head
+        (:func:`facestats.acquire.synthetic.contactless.patch_modulation`).
     width, grid, refine, eta
         As :func:`facestats.model.fitting.fit_scattering_image`.
 
@@ -73,7 +83,7 @@ def estimate_site(scene, image, *, modulation_map=None, width="auto", grid=SKIN_
     if l.shape[1] != 3:
         raise ValidationError(f"image must have 3 channels (R, G, B), got {l.shape[1]}")
     if modulation_map is not None:
-        m = patch_modulation(p, modulation_map)
+        m = patch_modulation(p, modulation_map, face)
         ok = np.all(m > 0, axis=1)
         seen &= ok
         l = np.where(ok[:, None], l / np.where(m > 0, m, 1.0), 0.0)
@@ -104,17 +114,19 @@ def fit_contactless(subject, images: dict, *, light="stripe", use_modulation=Tru
     unknown = sorted(set(images) - set(SITES))
     if unknown or not images:
         raise ValidationError(f"images must map sites among {list(SITES)} to (scene, image), got {sorted(images)}")
-    mod = None
+    mod = face = None
     if use_modulation:
         if "albedo" not in subject.data_vars or "albedo_avg" not in subject.data_vars:
             raise ValidationError(f"subject {subject.attrs.get('subject_id', '?')!r} has no albedo map to modulate by")
         mod = np.asarray(modulation(subject).values, np.float64)
+        name = str(provenance(subject).get("capture_provenance", {}).get("geometry", ""))
+        face = modulation_face(name, mod.shape[0])
     vals = {k: np.full((len(SITES), 3), np.nan) for k in _VARS}
     record = {}
     for site, (scene, image) in images.items():  # loop over the (two) sites
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", QuantisationWarning)
-            fits = estimate_site(scene, image, modulation_map=mod, **options)
+            fits = estimate_site(scene, image, modulation_map=mod, face=face, **options)
         i = SITES.index(site)
         for ch, fit in enumerate(fits):  # three channels
             vals["image_sigma_s_prime"][i, ch] = fit.sigma_s_prime

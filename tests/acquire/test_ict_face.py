@@ -7,8 +7,8 @@ import pytest
 
 import facestats
 from facestats.acquire.synthetic.face import SITE_CENTRES
-from facestats.acquire.synthetic.faces import face_geometry
-from facestats.acquire.synthetic.ict_face import ICT_OFFSET_MM, ict_face, ict_face_mesh, ict_regions
+from facestats.acquire.synthetic.faces import face_geometry, named_face
+from facestats.acquire.synthetic.ict_face import FRONTAL_LIMIT_DEG, ICT_OFFSET_MM, ict_face, ict_face_mesh, ict_regions
 from facestats.errors import ValidationError
 from facestats.io.ict_facekit import read_ict_facekit
 from tests.helpers import TEST_DATA
@@ -70,6 +70,72 @@ def test_faces_by_name():
     assert face_geometry("procedural", 16).name == "procedural-16"
     with pytest.raises(ValidationError, match="face must be one of"):
         face_geometry("mannequin", 16)
+    # A recorded name rebuilds the same face, at another map size if asked.
+    for face in ("ict", "procedural"):
+        g, back = face_geometry(face, 16), named_face(f"{face}-16")
+        np.testing.assert_array_equal(back.position, g.position)
+        np.testing.assert_array_equal(back.region_map, g.region_map)
+        assert named_face(f"{face}-16", 32).region_map.shape == (32, 32)
+    assert len(named_face("procedural-16", mesh_grid=24).mesh_vertices) == 24 * 24
+    for bad in ("scan.obj", "ict-", "procedural-x", ""):
+        with pytest.raises(ValidationError, match="'procedural-N' or 'ict-N'"):
+            named_face(bad)
+
+
+def test_the_face_area_stops_at_80_degrees_from_the_front(face48):
+    assert FRONTAL_LIMIT_DEG == 80.0
+    assert face48.normal[:, 2].min() > np.cos(np.radians(80.0))
+    # What it leaves out is under the jaw and chin (and behind the eyeballs), not the front of the face.
+    from facestats.acquire.synthetic import ict_face as module
+
+    pos, nrm, _, row, col = module._surface(48)
+    model = pos - np.asarray(ICT_OFFSET_MM)
+    painted = (ict_regions(model[:, 0], model[:, 1]) > 0) & (model[:, 2] > 40) & (nrm[:, 2] > 0)
+    dropped = painted & (nrm[:, 2] <= np.cos(np.radians(80.0)))
+    assert 0.03 < dropped.sum() / painted.sum() < 0.15
+    assert np.median(nrm[dropped, 1]) < -0.5  # facing down
+
+
+def test_the_default_population_lives_on_the_ict_face():
+    from facestats.acquire.synthetic.face import procedural_face
+    from facestats.acquire.synthetic.population import synthesize_population
+    from facestats.acquire.synthetic.simulate import DomeSimulator, simulate_capture
+    from facestats.core.conventions import DEFAULT_FACE
+
+    assert DEFAULT_FACE == "ict"
+    truth = synthesize_population(map_size=16, conditions=False, subjects=["S001"])["S001"]
+    assert truth.geometry == "ict-16" and truth.to_dataset().attrs["geometry"] == "ict-16"
+    np.testing.assert_array_equal(truth.region_map, ict_face(16).region_map)
+    capture = simulate_capture(truth)  # on the face the truth was drawn on
+    np.testing.assert_allclose(capture.array("position"), ict_face(16).position, atol=1e-4)  # float32 mm
+    with pytest.raises(ValidationError, match="drawn on 'ict-16', the simulator's face is 'procedural-16'"):
+        DomeSimulator(procedural_face(16)).simulate(truth)
+
+
+def test_the_ict_face_is_written_and_read_back_as_a_lab_mesh(tmp_path, face48):
+    from facestats.acquire.geometry import uv_to_texel
+    from facestats.io.mesh import load_face_mesh, save_face_mesh
+
+    path = save_face_mesh(face48, tmp_path / "face.obj", tmp_path / "regions.npy")
+    lab = load_face_mesh(path, tmp_path / "regions.npy")
+    tex = uv_to_texel(lab.uv, 48)
+    np.testing.assert_array_equal(lab.region, face48.region_map[tex[:, 0], tex[:, 1]])
+    assert 4000 < lab.n_points < 6000  # every labelled mesh vertex is a lumitexel
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(ict_face_mesh()[0]).query(lab.position)
+    assert d.max() < 1e-3  # the vertices as shipped (mm, OBJ text)
+
+
+def test_contactless_windows_land_in_their_regions_on_the_ict_face(face48):
+    from facestats.acquire.synthetic.contactless import modulation_face, patch_modulation
+    from facestats.acquire.synthetic.scenes import face_site_scene
+
+    labels = face48.region_map[..., None].astype(float)
+    for site, region in (("cheek", 7), ("forehead", 2)):
+        patches = face_site_scene(site).patches
+        assert np.all(patch_modulation(patches, labels, modulation_face("ict-48", 48)) == region)
+    assert modulation_face("procedural-48", 48) is None and modulation_face("scan.obj", 48) is None
 
 
 @pytest.mark.slow

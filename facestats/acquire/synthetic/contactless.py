@@ -13,7 +13,10 @@ of :func:`facestats.acquire.synthetic.scenes.face_site_scene`:
    assumes;
 3. the radiance L = M F_t,o l / π with the modulation texture M = α/α_avg of
    the truth's albedo map at each patch (Weyrich et al. 2006 eq. 6-7: the
-   dome-fitted albedo varies across the site), or M = 1;
+   dome-fitted albedo varies across the site), or M = 1.  The window is the
+   procedural head's; a truth drawn on another face (``truth.geometry``, e.g. the
+   default's ICT face) is read at that face's lumitexel nearest to each patch in
+   the frontal plane (x, y), which puts both windows in the same region there;
 4. the image (:func:`facestats.acquire.synthetic.patch_image.render_patch_image`)
    with multiplicative Gaussian pixel noise of relative std ``noise``.
 
@@ -28,26 +31,51 @@ import numpy as np
 from facestats.acquire.geometry import uv_to_texel
 from facestats.acquire.lights import patch_irradiance
 from facestats.acquire.synthetic.face import face_uv
+from facestats.acquire.synthetic.faces import named_face
 from facestats.acquire.synthetic.patch_image import render_patch_image
 from facestats.acquire.synthetic.scenes import face_site_scene
 from facestats.acquire.synthetic.subsurface import render_exitance
 from facestats.core.conventions import SITES
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_choice
+from facestats.errors import ValidationError
 from facestats.model.irradiance import radiance_from_exitance
 
-__all__ = ["CONTACTLESS_SITES", "patch_modulation", "simulate_site_image"]
+__all__ = ["CONTACTLESS_SITES", "modulation_face", "patch_modulation", "simulate_site_image"]
 
 #: Sites of the procedural face the contactless study images (the neck is not modelled).
 CONTACTLESS_SITES = ("cheek", "forehead")
 
 
-def patch_modulation(patches, modulation_map) -> np.ndarray:
-    """M (m, 3) at the patches of a procedural-face window from a modulation map [v, u, channel]."""
+def modulation_face(name: str, map_size: int):
+    """The face whose layout a modulation map follows, for :func:`patch_modulation`: None for the
+    procedural head (and for a name facestats cannot rebuild: a scan), else
+    :func:`facestats.acquire.synthetic.faces.named_face` (``ict-N``)."""
+    if not name or name.startswith("procedural-"):
+        return None
+    try:
+        return named_face(name, map_size)
+    except ValidationError:
+        return None
+
+
+def patch_modulation(patches, modulation_map, geometry=None) -> np.ndarray:
+    """M (m, 3) at the patches of a procedural-face window from a modulation map [v, u, channel].
+
+    ``geometry``: the face the map is laid out on, when it is not the procedural head (whose UV the
+    patches' positions give exactly); each patch then takes the UV of the face's lumitexel nearest
+    to it in (x, y), the frontal plane.
+    """
 
     mod = np.asarray(modulation_map, np.float64)
-    u, v = face_uv(patches.centre[:, 0], patches.centre[:, 1])
-    tex = uv_to_texel(np.stack([u, v], -1), mod.shape[0])
+    if geometry is None or geometry.meta.get("kind") == "procedural":
+        uv = np.stack(face_uv(patches.centre[:, 0], patches.centre[:, 1]), -1)
+    else:
+        from scipy.spatial import cKDTree
+
+        _, nearest = cKDTree(geometry.position[:, :2]).query(patches.centre[:, :2])
+        uv = geometry.uv[nearest]
+    tex = uv_to_texel(uv, mod.shape[0])
     return mod[tex[:, 0], tex[:, 1]]
 
 
@@ -86,7 +114,8 @@ def simulate_site_image(truth, site="cheek", light="stripe", *, spacing=0.3, mod
     if modulation:
         face = truth.region_map > 0
         avg = truth.albedo[face].mean(axis=0)
-        l = l * patch_modulation(p, np.where(face[..., None], truth.albedo / avg, 1.0))
+        geometry = modulation_face(truth.geometry, truth.region_map.shape[0])
+        l = l * patch_modulation(p, np.where(face[..., None], truth.albedo / avg, 1.0), geometry)
     to_cam = scene.camera.position - p.centre
     cos_o = np.clip(np.einsum("mk,mk->m", p.normal, to_cam) / np.linalg.norm(to_cam, axis=1), 0, 1)
     image = render_patch_image(scene.camera, p, radiance_from_exitance(l, cos_o, ETA_SKIN), samples=2)

@@ -349,7 +349,11 @@ def collect_garbage(root, lock) -> list[str]:
         index = read_index_file(root)
         s = survey(root, index)
         for rel in s.stale_locks:
-            lk = try_lock(os.path.join(root, rel), create=False) if os.path.exists(os.path.join(root, rel)) else None
+            try:
+                lk = try_lock(os.path.join(root, rel), create=False)
+            except FileNotFoundError:  # removed by its writer since the survey: nothing left to collect
+                s.garbage.remove(rel)
+                continue
             if lk is None:  # taken again meanwhile (cannot happen for a dead writer's name): keep it
                 s.garbage.remove(rel)
             else:

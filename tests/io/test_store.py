@@ -570,6 +570,31 @@ def test_info(built):
     assert info["schema_version"] == SCHEMA_VERSION and info["size_bytes"] > 0
 
 
+def test_gc_skips_a_stale_lock_its_writer_removes_meanwhile(tmp_path, monkeypatch):
+    """A writer's lock file judged stale by the survey can vanish before gc locks it (the writer finished):
+    gc goes on and removes the rest (a race seen in the concurrent-writers test)."""
+    import facestats.io.maintenance as maintenance
+    from facestats.io.generations import reserve_generation
+
+    path = tmp_path / "s.zarr"
+    with open_store(path, mode="a") as st:
+        st.write_subject(make_map_subject("G1"))
+        gen, lock = reserve_generation(str(path), "G1")
+        lock.release()  # a dead writer's lock file
+        (path / "index.json.tmp-99-deadbeef").write_text("partial")
+        real = maintenance.try_lock
+
+        def writer_finishes_first(target, **kw):
+            if str(target).endswith(f"G1~{gen}.lock"):
+                os.remove(lock.path)  # after the survey judged it stale, before gc opens it
+            return real(target, **kw)
+
+        monkeypatch.setattr(maintenance, "try_lock", writer_finishes_first)
+        removed = st.gc()
+        assert "index.json.tmp-99-deadbeef" in removed and not (path / "index.json.tmp-99-deadbeef").exists()
+        assert st.subject("G1") is not None
+
+
 def test_gc_removes_dead_writers_leftovers_but_not_live_ones(tmp_path):
     from facestats.io.generations import reserve_generation
 

@@ -383,6 +383,9 @@ def build_store(
     present = set(store.ids())
     todo = [s for s in wanted if s not in present]
     skipped = [s for s in wanted if s in present]
+    journal = BuildJournal(store_path)
+    for sid in skipped:  # committed by a build killed before it removed the record: the record goes
+        journal.finish(sid)
     args = [
         (str(store_path), seed, map_size, conditions, specular, sid, stra, fits[sid], micro_normals, keep_derived, face)
         for sid in todo
@@ -395,7 +398,7 @@ def build_store(
     finally:
         if own is not None:
             own.close()
-    BuildJournal(store_path).prune()
+    journal.prune()
     return BuildReport(
         store=str(store_path),
         written=sorted(sid for sid, state, _ in results if state == "done"),

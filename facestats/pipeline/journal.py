@@ -10,7 +10,9 @@ every subject it works on in ``<store>/.build/<subject>.json``::
 
 Each record is replaced atomically (temporary file, ``os.replace``) by the
 process working on the subject, so a reader sees the previous state or the
-next; the record is removed when the subject is committed to the store.
+next; the record is removed when the subject is committed to the store (or,
+when a build was killed between the commit and the removal, by the next build,
+which finds the subject stored and skips it).
 *Done* is not journalled: it is being in the store's index, the store's own
 commit point.  A subject is retried up to ``retries`` times in its task; if it
 still fails its record stays ``failed``, with the last error, until a later

@@ -122,6 +122,19 @@ def test_status_reports_running_and_interrupted_subjects(tmp_path):
     assert build_status(store).running == []
 
 
+def test_a_record_left_by_a_build_killed_after_its_commit_goes_on_resume(tmp_path):
+    """Killed between a subject's commit and its record's removal, a build leaves a ``running`` record of a
+    stored subject; the resumed build skips the subject and removes the record (and the empty journal)."""
+    store = tmp_path / "k.zarr"
+    build_module.build_store(store, map_size=8, subjects=["S001"], workers=1, conditions=False, micro_normals=False)
+    BuildJournal(store).start("S001", 1)  # as the killed build left it
+    assert (store / JOURNAL_DIR / "S001.json").exists()
+    report = build_module.build_store(store, map_size=8, subjects=["S001"], workers=1, conditions=False)
+    assert report.skipped == ["S001"] and not (store / JOURNAL_DIR).exists()
+    with open_store(store) as st:
+        assert st.validate().ok and not st.validate().notes
+
+
 @pytest.mark.slow
 def test_build_on_a_distributed_cluster_given_by_the_environment(tmp_path, monkeypatch):
     distributed = pytest.importorskip("distributed")

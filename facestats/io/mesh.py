@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.acquire.geometry import FaceGeometry, uv_to_texel
-from facestats.acquire.synthetic.faces import named_face
+from facestats.acquire.synthetic.faces import face_geometry, parse_face_name
 from facestats.core.validate import as_finite, check_integer, check_shape
 from facestats.errors import FormatError, ValidationError
 from facestats.io.schema import provenance
@@ -544,16 +544,17 @@ def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = N
 
     prov = provenance(ds)
     name = str(prov.get("capture_provenance", {}).get("geometry", prov.get("geometry", "")))
-    procedural = name.startswith("procedural-")
     grid = 128 if mesh_grid is None else check_integer(mesh_grid, "mesh_grid", 8, 4096)
     try:
-        # the mesh does not depend on the lumitexel grid: rebuild the cheapest one
-        geom = named_face(name.rsplit("-", 1)[0] + "-8", int(ds.sizes["u"]), mesh_grid=grid if procedural else None)
+        face, _ = parse_face_name(name)
     except ValidationError:
         raise ValidationError(
             f"subject {ds.attrs.get('subject_id', '?')!r} does not record a face facestats can rebuild "
             f"(geometry = {name!r}; procedural-N or ict-N); pass mesh=PATH (--mesh) with the scan its maps belong to"
         ) from None
+    procedural = face == "procedural"
+    # the mesh does not depend on the lumitexel grid: rebuild the cheapest one
+    geom = face_geometry(face, 8, int(ds.sizes["u"]), mesh_grid=grid if procedural else None)
     geometry = {
         "kind": "procedural" if procedural else "ict-facekit",
         "name": name,

@@ -190,6 +190,16 @@ def test_geometry_without_provenance_asks_for_a_mesh(subject):
         subject_mesh(ds)
 
 
+@pytest.mark.parametrize("name", ["ict-abc", "procedural-", "ict-48-2", "scan-48"])
+def test_malformed_geometry_name_is_refused_by_name(subject, name):
+    import json
+
+    ds = subject.copy()
+    ds.attrs["provenance"] = json.dumps({"geometry": name})
+    with pytest.raises(FacestatsError, match=f"geometry = '{name}'"):
+        subject_mesh(ds)
+
+
 def test_beckmann_to_ggx_factor_is_the_least_squares_match():
     from scipy.optimize import minimize_scalar
 

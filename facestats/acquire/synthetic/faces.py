@@ -19,7 +19,7 @@ from facestats.acquire.geometry import FaceGeometry
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
 
-__all__ = ["FACES", "face_geometry", "named_face"]
+__all__ = ["FACES", "face_geometry", "named_face", "parse_face_name"]
 
 #: Names of the faces :func:`face_geometry` builds.
 FACES = ("procedural", "ict")
@@ -44,6 +44,23 @@ def face_geometry(
     return procedural_face(lumitexel_grid, map_size, mesh_grid)
 
 
+def parse_face_name(name: str) -> tuple[str, int]:
+    """The face and lumitexel grid N of a face name ``"procedural-N"`` or ``"ict-N"`` (:attr:`FaceGeometry.name`).
+
+    Raises
+    ------
+    ValidationError
+        When ``name`` is not such a name (a face loaded from a scan must be loaded again from it).
+    """
+    m = _NAME.match(str(name))
+    if not m:
+        raise ValidationError(
+            f"geometry must name a face facestats can rebuild ('procedural-N' or 'ict-N'), got {name!r}; "
+            "a face loaded from a scan is loaded again with facestats.io.mesh.load_face_mesh"
+        )
+    return m.group(1), int(m.group(2))
+
+
 def named_face(name: str, map_size: int | None = None, *, mesh_grid: int | None = None) -> FaceGeometry:
     """Rebuild the face a record names (``"procedural-N"`` or ``"ict-N"``, as :attr:`FaceGeometry.name`).
 
@@ -59,12 +76,7 @@ def named_face(name: str, map_size: int | None = None, *, mesh_grid: int | None 
     Raises
     ------
     ValidationError
-        When ``name`` is not such a name (a face loaded from a scan must be loaded again from it).
+        When ``name`` is not such a name (:func:`parse_face_name`).
     """
-    m = _NAME.match(str(name))
-    if not m:
-        raise ValidationError(
-            f"geometry must name a face facestats can rebuild ('procedural-N' or 'ict-N'), got {name!r}; "
-            "a face loaded from a scan is loaded again with facestats.io.mesh.load_face_mesh"
-        )
-    return face_geometry(m.group(1), int(m.group(2)), map_size, mesh_grid=mesh_grid)
+    face, grid = parse_face_name(name)
+    return face_geometry(face, grid, map_size, mesh_grid=mesh_grid)

@@ -22,7 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.acquire.camera import look_at
-from facestats.core.raster import triangle_coverage
+from facestats.core.compiled import resolve_backend
+from facestats.core.raster import triangle_coverage, triangle_setup
 
 __all__ = [
     "shadow_map",
@@ -44,6 +45,13 @@ def _project(points, eye, rot, focal, res):
     return x, y, z
 
 
+def _front_triangles(x, y, z, faces):
+    """Which triangles lie in front of the camera with finite projections, and their vertex depths (T, 3)."""
+    tz = z[faces]
+    good = np.all(np.isfinite(x[faces]) & np.isfinite(y[faces]) & (tz > 0), axis=1)
+    return good, tz[good]
+
+
 def _fragments(vertices, faces, eye, rot, focal, resolution, triangles=False):
     """Covered pixel centres of a mesh seen through a pinhole camera, one batch at a time.
 
@@ -55,17 +63,15 @@ def _fragments(vertices, faces, eye, rot, focal, resolution, triangles=False):
     :func:`rasterize` (nearest triangle).
     """
     x, y, z = _project(vertices, eye, rot, focal, resolution)
-    tz = z[faces]
-    good = np.all(np.isfinite(x[faces]) & np.isfinite(y[faces]) & (tz > 0), axis=1)
+    good, tz = _front_triangles(x, y, z, faces)
     tri_index = np.nonzero(good)[0]
-    tz = tz[good]
     for tri, py, px, l0, l1, l2 in triangle_coverage(x, y, faces[good], resolution, resolution):
         t = tz[tri]
         depth = l0 * t[:, 0] + l1 * t[:, 1] + l2 * t[:, 2]
         yield py * resolution + px, depth, (tri_index[tri] if triangles else None)
 
 
-def shadow_map(vertices, faces, eye, target, radius, resolution):
+def shadow_map(vertices, faces, eye, target, radius, resolution, *, backend="auto"):
     """Depth buffer of a mesh seen from ``eye`` looking at ``target``.
 
     Parameters
@@ -78,6 +84,9 @@ def shadow_map(vertices, faces, eye, target, radius, resolution):
         Radius (mm) around ``target`` the buffer must cover.
     resolution : int
         Buffer side in pixels.
+    backend : {"auto", "numba", "numpy"}
+        The compiled depth buffer (:mod:`facestats.core.raster_numba`, default where numba is
+        installed) or the numpy one; both give the same buffer, bit for bit.
 
     Returns
     -------
@@ -92,8 +101,16 @@ def shadow_map(vertices, faces, eye, target, radius, resolution):
     half = np.arcsin(min(radius / dist, 0.99))
     focal = (resolution / 2) / np.tan(half)
     depth = np.full(resolution * resolution, np.inf)
-    for pix, zz, _ in _fragments(vertices, faces, eye, rot, focal, resolution):
-        np.minimum.at(depth, pix, zz)
+    if resolve_backend(backend) == "numba":
+        from facestats.core.raster_numba import nearest_depth  # imports numba: only when a map is drawn
+
+        x, y, z = _project(vertices, eye, rot, focal, resolution)
+        good, tz = _front_triangles(x, y, z, faces)
+        setup = triangle_setup(x, y, faces[good], resolution, resolution)
+        nearest_depth(*setup, *(np.ascontiguousarray(tz[:, k]) for k in range(3)), resolution, depth)
+    else:
+        for pix, zz, _ in _fragments(vertices, faces, eye, rot, focal, resolution):
+            np.minimum.at(depth, pix, zz)
     return depth.reshape(resolution, resolution), (eye, rot, focal, resolution)
 
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["triangle_coverage"]
+__all__ = ["triangle_coverage", "triangle_setup"]
 
 #: Barycentric tolerance of the inside test.
 EDGE_EPS = -1e-6
@@ -49,21 +49,7 @@ def triangle_coverage(x, y, triangles, width, height, *, max_candidates=2_000_00
         first, second and third vertex; they sum to 1).
     """
     triangles = np.asarray(triangles, np.int64)
-    tx, ty = np.asarray(x, float)[triangles], np.asarray(y, float)[triangles]  # (F, 3)
-    finite = np.all(np.isfinite(tx) & np.isfinite(ty), axis=1)
-    tx, ty = np.where(finite[:, None], tx, 0.0), np.where(finite[:, None], ty, 0.0)
-    x0 = np.floor(tx.min(1) - 0.5).astype(np.int64)
-    y0 = np.floor(ty.min(1) - 0.5).astype(np.int64)
-    w = np.ceil(tx.max(1) - 0.5).astype(np.int64) - x0 + 1
-    h = np.ceil(ty.max(1) - 0.5).astype(np.int64) - y0 + 1
-    size = np.maximum(w, h)
-    # Barycentric set-up (edge functions) of every triangle.
-    ax, ay, bx, by, cx, cy = tx[:, 0], ty[:, 0], tx[:, 1], ty[:, 1], tx[:, 2], ty[:, 2]
-    den = (by - cy) * (ax - cx) + (cx - bx) * (ay - cy)
-    # Triangles entirely off the grid cover nothing.
-    on_grid = (x0 + w > 0) & (y0 + h > 0) & (x0 < width) & (y0 < height)
-    usable = finite & (np.abs(den) > 1e-12) & on_grid
-    classes = 2 ** np.ceil(np.log2(np.maximum(size, 1))).astype(np.int64)
+    ax, ay, bx, by, cx, cy, den, x0, y0, classes, usable = triangle_setup(x, y, triangles, width, height)
     for s in np.unique(classes[usable]):
         sel = np.nonzero((classes == s) & usable)[0]
         step = max(1, int(max_candidates) // int(s * s))
@@ -96,3 +82,32 @@ def triangle_coverage(x, y, triangles, width, height, *, max_candidates=2_000_00
                 continue
             tri = np.broadcast_to(t[:, None, None], inside.shape)[inside]
             yield tri, py[inside], px[inside], l0[inside], l1[inside], l2[inside]
+
+
+def triangle_setup(x, y, triangles, width, height):
+    """Per-triangle set-up of :func:`triangle_coverage`: vertices, edge-function denominator, candidate box.
+
+    Returns ``(ax, ay, bx, by, cx, cy, den, x0, y0, size, usable)``, each of shape (F,): the three
+    vertices in pixel units (non-finite ones replaced by 0), den = (by − cy)(ax − cx) + (cx − bx)(ay − cy)
+    (twice the signed area), the first candidate column and row, the side of the square candidate box
+    (the power of two at or above the bounding box's larger side) and whether the triangle can cover
+    anything (finite, |den| > 1e-12, its box on the grid).  The compiled depth buffer
+    (:mod:`facestats.core.raster_numba`) tests the same candidates with the same arithmetic.
+    """
+    triangles = np.asarray(triangles, np.int64)
+    tx, ty = np.asarray(x, float)[triangles], np.asarray(y, float)[triangles]  # (F, 3)
+    finite = np.all(np.isfinite(tx) & np.isfinite(ty), axis=1)
+    tx, ty = np.where(finite[:, None], tx, 0.0), np.where(finite[:, None], ty, 0.0)
+    x0 = np.floor(tx.min(1) - 0.5).astype(np.int64)
+    y0 = np.floor(ty.min(1) - 0.5).astype(np.int64)
+    w = np.ceil(tx.max(1) - 0.5).astype(np.int64) - x0 + 1
+    h = np.ceil(ty.max(1) - 0.5).astype(np.int64) - y0 + 1
+    size = np.maximum(w, h)
+    # Barycentric set-up (edge functions) of every triangle.
+    ax, ay, bx, by, cx, cy = tx[:, 0], ty[:, 0], tx[:, 1], ty[:, 1], tx[:, 2], ty[:, 2]
+    den = (by - cy) * (ax - cx) + (cx - bx) * (ay - cy)
+    # Triangles entirely off the grid cover nothing.
+    on_grid = (x0 + w > 0) & (y0 + h > 0) & (x0 < width) & (y0 < height)
+    usable = finite & (np.abs(den) > 1e-12) & on_grid
+    classes = 2 ** np.ceil(np.log2(np.maximum(size, 1))).astype(np.int64)
+    return ax, ay, bx, by, cx, cy, den, x0, y0, classes, usable

@@ -287,6 +287,56 @@ def bench_default_store_posterior(n_profiles=5):
     }
 
 
+def bench_default_store_accuracy(path=None, n_subjects=None):
+    """The shipped store's fitted maps against the truth they were simulated from (README, "The default face").
+
+    Every normal-condition subject of the store at ``path`` (None: the embedded default) is compared
+    with its truth, drawn again from the default population (``DEFAULT_SEED``, the store's map size,
+    the default face): the relative error |fit − truth| / truth over the face texels of the albedo
+    (three channels), Torrance-Sparrow ρs and m (median and 90th percentile), and the share of face
+    texels flagged for each model, and the principal correlations of Fig. 16 of the truth's region means
+    beside the store's (:func:`facestats.analysis.brdf_cca`).  ``n_subjects`` limits the comparison to the
+    first subjects (the CCA needs at least 25).
+    """
+    import facestats
+    from facestats.acquire.synthetic.population import synthesize_population
+    from facestats.core.conventions import DEFAULT_SEED
+
+    store = facestats.open_store(path) if path is not None else _default_store()
+    if store is None:
+        return {"status": "unavailable (the embedded store is not built)"}
+    table = store.subjects()
+    ids = sorted(table.index[table.condition == "normal"])[:n_subjects]
+    size = int(store.subject(ids[0]).sizes["u"])
+    truths = {t.subject_id: t for t in synthesize_population(DEFAULT_SEED, size, subjects=ids)}
+    errors = {"albedo": [], "ts_rho_s": [], "ts_m": []}
+    flagged = {"ts": [], "bp": []}
+    for sid in ids:
+        ds, truth = store.subject(sid), truths[sid]
+        face = ds.region.values > 0
+        for var in errors:
+            fit, true = ds[var].values[face], getattr(truth, var)[face]
+            errors[var].append(np.abs(fit - true).ravel() / true.ravel())
+        for key in flagged:
+            flagged[key].append(ds[f"{key}_flag"].values[face] != 0)
+    out = {"subjects": len(ids), "face_texels": int(sum(f.size for f in flagged["ts"]))}
+    for var, e in errors.items():
+        e = np.concatenate(e)
+        out[f"{var}_median_rel_error"] = float(np.median(e))
+        out[f"{var}_p90_rel_error"] = float(np.percentile(e, 90))
+    for key, f in flagged.items():
+        out[f"{key}_flagged"] = float(np.concatenate(f).mean())
+    if len(ids) >= 25:
+        t = [truths[sid] for sid in ids]
+        x = [[getattr(s, v)[s.region_map == r].mean() for r in range(1, 11) for v in ("ts_rho_s", "ts_m")] for s in t]
+        y = [[max(s.skin_type, 2), s.gender == "F", s.age] for s in t]  # as brdf_cca reads them from a store
+        truth_r = fa.cca(np.array(x), np.array(y, float)).correlations
+        store_r = fa.brdf_cca(store, n_permutations=0).correlations
+        out.update(truth_cca_r1=float(truth_r[0]), truth_cca_r2=float(truth_r[1]))
+        out.update(store_cca_r1=float(store_r[0]), store_cca_r2=float(store_r[1]))
+    return out
+
+
 BENCHMARKS = [
     ("population", bench_population),
     ("figures", bench_figures),
@@ -295,6 +345,7 @@ BENCHMARKS = [
     ("default_store", bench_default_store),
     ("default_store_cli", bench_default_store_cli),
     ("default_store_posterior", bench_default_store_posterior),
+    ("default_store_accuracy", bench_default_store_accuracy),
 ]
 
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
@@ -306,4 +357,5 @@ SMOKE = {
     "default_store": {"n_permutations": 9},
     "default_store_cli": {"n_permutations": 9},
     "default_store_posterior": {"n_profiles": 1},
+    "default_store_accuracy": {"n_subjects": 2},
 }

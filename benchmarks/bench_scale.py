@@ -263,7 +263,7 @@ def bench_calibration(n_subjects=4, grid=48):
     return out
 
 
-def bench_calibration_budget(subject=0, grid=48):
+def bench_calibration_budget(subject=0, grid=48, passes=None):
     """Where the intervals' misses come from: coverage with the truth's normals and albedo swapped in (docstring).
 
     One default-population subject on the procedural face, each model fitted to
@@ -275,6 +275,8 @@ def bench_calibration_budget(subject=0, grid=48):
     errors), then again with the true normal and/or the true grey albedo in place
     of the estimates.  Per case: coverage of the nominal 90 % intervals and the
     median relative bias of ρs and of the lobe over the unflagged lumitexels.
+    ``passes``: the photometric-stereo passes (None: the default of
+    :func:`facestats.model.fitting.photometric_normals`; 3 gives the fit before 2026-12-04).
     """
     from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.population import synthesize_population
@@ -294,7 +296,8 @@ def bench_calibration_budget(subject=0, grid=48):
             sim = DomeSimulator(geometry, specular=model, noise=noise, block=block)
             lt = sim.simulate(truth).lumitexels()
             samples, _ = fitting.Samples.from_dome(lt.wi, lt.wo, lt.irradiance, lt.radiance)
-            ps_normal, _ = fitting.photometric_normals(samples, lt.scan_normal, lt.wo.shape[1])
+            kw = {} if passes is None else {"iterations": passes}
+            ps_normal, _ = fitting.photometric_normals(samples, lt.scan_normal, lt.wo.shape[1], **kw)
             case = f"{pre}_{transport}_{'noise' if noise else 'noise_free'}"
             cos_err = np.clip(np.einsum("nk,nk->n", ps_normal.astype(np.float64), geometry.normal), -1, 1)
             out[f"{case}_normal_error_deg_median"] = float(np.degrees(np.median(np.arccos(cos_err))))
@@ -338,6 +341,34 @@ def bench_calibration_budget(subject=0, grid=48):
                         err = (value - true)[ok]
                         out[f"{key}_{name}_coverage90"] = float(np.mean(np.abs(err) <= z90 * std[ok]))
                         out[f"{key}_{name}_median_bias"] = float(np.median(err / true[ok]))
+    return out
+
+
+def bench_normal_passes(subject=0, grid=48, passes=(1, 2, 3, 4, 5, 6)):
+    """Median angle (deg) between photometric-stereo and true normals after each number of F_t passes.
+
+    Subject ``subject`` of the default population on the procedural face, Torrance-Sparrow captures
+    with the local transport (several simulator blocks), without and with camera noise
+    (:func:`facestats.model.fitting.photometric_normals`, its module docstring quotes the figures).
+    """
+    from facestats.acquire.synthetic.face import procedural_face
+    from facestats.acquire.synthetic.population import synthesize_population
+    from facestats.acquire.synthetic.simulate import DomeSimulator
+    from facestats.model import fitting
+
+    geometry = procedural_face(grid)
+    truth = synthesize_population(map_size=grid, geometry=geometry)[subject]
+    out = {}
+    for noise in (False, True):
+        sim = DomeSimulator(geometry, noise=noise, block=max(1, len(geometry.position) // 3))
+        lt = sim.simulate(truth).lumitexels()
+        samples, _ = fitting.Samples.from_dome(lt.wi, lt.wo, lt.irradiance, lt.radiance)
+        for k in passes:
+            normal, _ = fitting.photometric_normals(samples, lt.scan_normal, lt.wo.shape[1], iterations=k)
+            cos = np.clip(np.einsum("nk,nk->n", normal.astype(np.float64), geometry.normal), -1, 1)
+            out[f"{'noise' if noise else 'noise_free'}_passes_{k}_median_deg"] = float(
+                np.degrees(np.median(np.arccos(cos)))
+            )
     return out
 
 
@@ -386,6 +417,7 @@ BENCHMARKS = [
     ("cluster_scaling", bench_cluster_scaling),
     ("calibration", bench_calibration),
     ("calibration_budget", bench_calibration_budget),
+    ("normal_passes", bench_normal_passes),
     ("blinn_phong_maps", bench_blinn_phong_maps),
 ]
 
@@ -396,5 +428,6 @@ SMOKE = {
     "cluster_scaling": {"n": 2, "grid": 16, "map_size": 32, "workers": (1, 2), "block": 256},
     "calibration": {"n_subjects": 1, "grid": 16},
     "calibration_budget": {"grid": 16},
+    "normal_passes": {"grid": 16, "passes": (1, 5)},
     "blinn_phong_maps": {"n_subjects": 1, "grid": 16},
 }

@@ -230,12 +230,47 @@ def bench_independent(sizes=(512, 1024), seeds=(2, 3, 4)):
     return out
 
 
+#: Kernels of the dense-surface check (Nagano et al. 2015 Fig. 11 spans α ∈ [−2, 1], σ up to about 60 µm).
+DENSE_TRUTHS = ((0.5, 30.0), (-1.0, 20.0), (0.9, 60.0), (0.3, 45.0), (-0.5, 15.0), (-1.8, 25.0), (-1.5, 40.0),
+                (0.7, 20.0))  # fmt: skip
+
+
+def bench_independent_dense(sizes=(256, 384, 512), seeds=(2, 3, 4), truths=DENSE_TRUTHS):
+    """Joint argmin of eq. 7 from independent realisations of a shot-noise surface (500 bumps/mm², 10 µm).
+
+    Targets: realisation ``seed`` convolved along (0.6, 0.8) with each (α, σ); neutral: seed 1; fit by
+    coarse-to-fine over the paper's grid.  Prints the largest |Δα| and |Δσ| (texels) per size and the
+    number of fits outside ±0.1 in α or ±1 texel in σ.
+    """
+    from facestats.acquire.synthetic.microstructure import shot_noise_microstructure
+    from facestats.model.microstructure import convolve_displacement, fit_kernel
+
+    texel, axis = 10.0, (0.6, 0.8)
+    out = {}
+    for n in sizes:
+        neutral = shot_noise_microstructure(n, texel, seed=1).astype(np.float64)
+        errors = []
+        for seed in seeds:
+            other = shot_noise_microstructure(n, texel, seed=seed).astype(np.float64)
+            for alpha, sigma in truths:
+                target = convolve_displacement(other, axis, alpha, sigma, 0.0, 1.0, texel)
+                fit = fit_kernel(neutral, target, axis, 1.0, texel, method="coarse-to-fine")
+                errors.append((abs(fit.alpha - alpha), abs(fit.sigma_um - sigma) / texel))
+        e = np.array(errors)
+        out[f"n{n}_fits"] = len(e)
+        out[f"n{n}_max_abs_dalpha"] = round(float(e[:, 0].max()), 3)
+        out[f"n{n}_max_abs_dsigma_texel"] = round(float(e[:, 1].max()), 3)
+        out[f"n{n}_outside_tolerance"] = int(np.sum((e[:, 0] > 0.1 + 1e-9) | (e[:, 1] > 1 + 1e-9)))
+    return out
+
+
 BENCHMARKS = [
     ("convolve", bench_convolve),
     ("convolve_table", bench_convolve_table),
     ("strain", bench_strain),
     ("fit", bench_fit),
     ("independent", bench_independent),
+    ("independent_dense", bench_independent_dense),
 ]
 
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
@@ -245,6 +280,7 @@ SMOKE = {
     "strain": {"frames": 2, "texel_size": 64},
     "fit": {"size": 96, "brute": False},
     "independent": {"sizes": (96,), "seeds": (2,)},
+    "independent_dense": {"sizes": (96,), "seeds": (2,), "truths": ((0.5, 30.0),)},
 }
 
 

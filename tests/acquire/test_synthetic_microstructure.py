@@ -9,6 +9,7 @@ import facestats
 from facestats.acquire.synthetic.microstructure import (
     SkinMicrostructure,
     procedural_microstructure,
+    shot_noise_microstructure,
     subject_microstructure,
     subject_microstructure_parameters,
 )
@@ -87,3 +88,18 @@ def test_bad_input():
         procedural_microstructure(64, 10.0, deformation=np.diag([1.0, -1.0]))
     with pytest.raises(FacestatsError, match="region_map must be a 2-D integer label map"):
         procedural_microstructure(64, 10.0, region_map=np.zeros((4, 4), float))
+
+
+def test_shot_noise_surface_has_the_stated_rms_slope_and_tiles():
+    h = shot_noise_microstructure((256, 320), 15.0, density_mm2=200.0, bump_radius_um=20.0, rms_slope=0.3, seed=5)
+    wrapped = np.pad(h.astype(np.float64), 1, mode="wrap")  # periodic: central differences across the seam
+    gu = (wrapped[1:-1, 2:] - wrapped[1:-1, :-2]) / 30.0
+    gv = (wrapped[2:, 1:-1] - wrapped[:-2, 1:-1]) / 30.0
+    assert h.shape == (256, 320) and h.dtype == np.float32
+    assert abs(np.sqrt(np.mean(gu**2 + gv**2)) / 0.3 - 1) < 0.03  # closed-form scale; realisation spread ~1 %
+    assert np.array_equal(h, shot_noise_microstructure((256, 320), 15.0, density_mm2=200.0, bump_radius_um=20.0,
+                                                       rms_slope=0.3, seed=5))  # fmt: skip
+    with pytest.raises(FacestatsError, match="density_mm2 must lie in"):
+        shot_noise_microstructure(64, density_mm2=0.0)
+    with pytest.raises(FacestatsError, match="bump_radius_um must be at most"):
+        shot_noise_microstructure(64, 10.0, bump_radius_um=200.0)

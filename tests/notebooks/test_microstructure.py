@@ -49,3 +49,11 @@ def test_profiles_follow_the_table_and_the_smile_is_shown(executed):
     assert "alpha(1) = 0.0;" in cell_text(tagged(nb, "table-fit"))
     assert "0 degenerate triangles" in cell_text(tagged(nb, "strain"))
     assert "4 frames" in cell_text(tagged(nb, "sequence"))
+
+
+@pytest.mark.slow
+def test_dense_surface_argmin_is_printed_within_tolerance(executed):
+    nb, _ = executed
+    text = cell_text(tagged(nb, "dense-argmin"))
+    alpha, sigma = (float(x) for x in re.search(r"argmin alpha = (\S+), sigma = (\S+) um", text).groups())
+    assert abs(alpha + 1.0) <= 0.1 and abs(sigma - 20.0) <= 10.0  # one texel

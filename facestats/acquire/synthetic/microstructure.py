@@ -41,6 +41,12 @@ deformed by A, h'(x) = h(A⁻¹ x) — cosines with wave vectors A⁻ᵀ f, pits
 A c and sheared — exactly, with no resampling: the ground truth of a purely
 geometric stretch for the kernel fit (:func:`facestats.model.microstructure.fit_kernel`).
 
+A second, simpler generator, :func:`shot_noise_microstructure`, draws a
+stationary shot-noise surface (many small bumps at Poisson-distributed texels):
+a test surface whose independent realisations share their slope statistics
+closely at patch sizes, which the procedural skin's few pores and finite wave
+sums do not (see :func:`shot_noise_microstructure`).
+
 Speed: the cosine sums are separable (cos(a + b) = cos a cos b − sin a sin b),
 so a field is two matrix products (rows × waves)·(waves × columns) per family.
 """
@@ -61,6 +67,7 @@ __all__ = [
     "BASE_WAVELENGTH_UM",
     "FURROW_WAVELENGTH_UM",
     "procedural_microstructure",
+    "shot_noise_microstructure",
     "subject_microstructure_parameters",
     "subject_microstructure",
 ]
@@ -382,6 +389,80 @@ def procedural_microstructure(
     # Pores: Poisson pits at the largest density, thinned per region; depth from π λ d² = pore share · m².
     _add_pores(out, rng, per_region, full, texel, a_inv)
     return out.astype(np.float32)
+
+
+def shot_noise_microstructure(
+    shape, texel_um=10.0, *, density_mm2=500.0, bump_radius_um=10.0, rms_slope=0.2, seed=0
+) -> np.ndarray:
+    """A stationary shot-noise surface: Gaussian bumps of exponential height at Poisson-distributed texels.
+
+    h = c · (X ∗ g) with X a field of independent compound-Poisson texel values
+    (a Poisson number of bumps per texel, mean μ = ``density_mm2`` × texel area,
+    each of unit-mean exponential height, so Var X = 2μ) and g the discrete
+    Gaussian of σ = ``bump_radius_um`` (``scipy.ndimage.gaussian_filter``,
+    periodic boundaries, so the map tiles).  Its slopes are non-Gaussian (each
+    is a sum of few heavy-tailed terms) and a Gaussian blur of σ pixels
+    averages more of them, so the shape of the normal histogram changes with a
+    kernel's (α, σ), not only its variance: this is what makes Nagano et al.
+    2015 eq. 7's joint argmin identifiable.  With hundreds of bumps per mm² a
+    patch holds thousands of independent features and two realisations have
+    the same statistics to sampling accuracy; the procedural skin
+    (:func:`procedural_microstructure`) has a few pores per mm² and finite
+    wave sums whose realisations differ in slope kurtosis by several per cent
+    (docs/microstructure.md).  This surface is a test object, not a model of
+    any skin region.
+
+    Scale, in closed form (not measured on the realisation): the central-difference
+    slope of h is c · X ∗ ∂g with Σ ∂g = 0, so
+    ⟨|∇h|²⟩ = c² · Var X · Σ |∂g|² = c² · 2μ · Σ |∂g|², and c is chosen so that
+    this equals ``rms_slope``².
+
+    Parameters
+    ----------
+    shape : int or (int, int)
+        Map size in texels ``(height, width)``.
+    texel_um : float
+        µm of skin per texel.
+    density_mm2 : float
+        Bumps per mm² (> 0).
+    bump_radius_um : float
+        Gaussian σ of a bump, µm.
+    rms_slope : float
+        Expected root-mean-square central-difference slope |∇h| (µm/µm).
+    seed : int
+        Seed of the realisation.
+
+    Returns
+    -------
+    ndarray of float32, shape (height, width)
+        Heights in µm, indexed ``[v, u]``.
+    """
+    from scipy.ndimage import gaussian_filter
+
+    shape = (shape, shape) if np.ndim(shape) == 0 else tuple(shape)
+    shape = (check_integer(shape[0], "shape height", 8), check_integer(shape[1], "shape width", 8))
+    texel = float(as_finite(texel_um, "texel_um", 0.0, 1000.0, low_inclusive=False, unit="um"))
+    density = float(as_finite(density_mm2, "density_mm2", 0.0, 1e6, low_inclusive=False, unit="1/mm^2"))
+    radius_px = float(as_finite(bump_radius_um, "bump_radius_um", 0.0, 1e4, low_inclusive=False, unit="um")) / texel
+    slope = float(as_finite(rms_slope, "rms_slope", 0.0, 10.0, low_inclusive=False))
+    seed = check_integer(seed, "seed", 0)
+    if 8 * radius_px > min(shape):
+        raise ValidationError(
+            f"bump_radius_um must be at most 1/8 of the map's shorter side ({min(shape) * texel / 8:g} um), "
+            f"got {bump_radius_um}"
+        )
+    mu = density * (texel / 1000.0) ** 2  # mean bumps per texel
+    rng = np.random.default_rng(seed)
+    counts = rng.poisson(mu, shape)
+    x = np.where(counts > 0, rng.gamma(np.maximum(counts, 1), 1.0), 0.0)  # sum of `counts` unit exponentials
+    h = gaussian_filter(x, radius_px, mode="wrap")
+    half = int(4 * radius_px + 0.5) + 2  # the filter's own truncation (truncate=4) plus the difference stencil
+    impulse = np.zeros((2 * half + 1, 2 * half + 1))
+    impulse[half, half] = 1.0
+    g = gaussian_filter(impulse, radius_px, mode="constant")
+    dgy, dgx = np.gradient(g, texel)
+    c = slope / np.sqrt(2.0 * mu * np.sum(dgx**2 + dgy**2))
+    return (c * h).astype(np.float32)
 
 
 def subject_microstructure_parameters(subject, defaults=None) -> dict:

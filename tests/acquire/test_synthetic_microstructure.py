@@ -91,14 +91,19 @@ def test_bad_input():
 
 
 def test_shot_noise_surface_has_the_stated_rms_slope_and_tiles():
-    h = shot_noise_microstructure((256, 320), 15.0, density_mm2=200.0, bump_radius_um=20.0, rms_slope=0.3, seed=5)
-    wrapped = np.pad(h.astype(np.float64), 1, mode="wrap")  # periodic: central differences across the seam
-    gu = (wrapped[1:-1, 2:] - wrapped[1:-1, :-2]) / 30.0
-    gv = (wrapped[2:, 1:-1] - wrapped[:-2, 1:-1]) / 30.0
+    kw = dict(density_mm2=2000.0, bump_radius_um=20.0, rms_slope=0.3)
+    msq = []
+    for seed in range(24):  # mean square over seeds: each map holds ~9,200 bumps, its own scatters by ~2.5 %
+        h = shot_noise_microstructure((128, 160), 15.0, seed=seed, **kw).astype(np.float64)
+        wrapped = np.pad(h, 1, mode="wrap")  # periodic: central differences across the seam
+        gu = (wrapped[1:-1, 2:] - wrapped[1:-1, :-2]) / 30.0
+        gv = (wrapped[2:, 1:-1] - wrapped[:-2, 1:-1]) / 30.0
+        msq.append(np.mean(gu**2 + gv**2))
+    assert abs(np.mean(msq) / 0.3**2 - 1) < 0.02  # closed-form scale; the 24-seed mean scatters by ~0.5 %
+    h = shot_noise_microstructure((256, 320), 15.0, seed=5, **kw)
     assert h.shape == (256, 320) and h.dtype == np.float32
-    assert abs(np.sqrt(np.mean(gu**2 + gv**2)) / 0.3 - 1) < 0.03  # closed-form scale; realisation spread ~1 %
-    assert np.array_equal(h, shot_noise_microstructure((256, 320), 15.0, density_mm2=200.0, bump_radius_um=20.0,
-                                                       rms_slope=0.3, seed=5))  # fmt: skip
+    assert np.array_equal(h, shot_noise_microstructure((256, 320), 15.0, seed=5, **kw))
+    assert not np.array_equal(h, shot_noise_microstructure((256, 320), 15.0, seed=6, **kw))
     with pytest.raises(FacestatsError, match="density_mm2 must lie in"):
         shot_noise_microstructure(64, density_mm2=0.0)
     with pytest.raises(FacestatsError, match="bump_radius_um must be at most"):

@@ -426,9 +426,12 @@ def shot_noise_microstructure(
     density_mm2 : float
         Bumps per mm² (> 0).
     bump_radius_um : float
-        Gaussian σ of a bump, µm.
+        Gaussian σ of a bump, µm.  Under about 0.3 texel the discrete Gaussian is nearly the identity and
+        each bump is a one-texel spike.
     rms_slope : float
-        Expected root-mean-square central-difference slope |∇h| (µm/µm).
+        √⟨|∇h|²⟩ of the central-difference slope (µm/µm): the root of the *expected* mean square.  A
+        realisation's own rms slope scatters about it by about √(6 / number of bumps) relative, and at
+        a few bumps per map its average falls below it (a root of a mean is below the mean of the root).
     seed : int
         Seed of the realisation.
 

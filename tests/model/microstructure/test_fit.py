@@ -91,8 +91,8 @@ def test_bad_input():
 @pytest.mark.parametrize("alpha, sigma", [(0.5, 30.0), (-1.5, 40.0)])
 def test_independent_realisation_of_a_dense_surface_recovers_the_joint_argmin(alpha, sigma):
     # Nagano et al. eq. 7 from an independent realisation with the same statistics: a shot-noise surface (500 bumps
-    # per mm^2, thousands per patch). bench_microstructure.bench_independent: 24 fits at 512^2 (8 truths x 3 seeds)
-    # all within the tolerance (max 0.09 in alpha, 0.45 texel in sigma); at 256^2 four miss.
+    # per mm^2, thousands per patch). bench_microstructure.bench_independent_dense: 24 fits at 512^2 (8 truths x 3
+    # seeds) all within the tolerance (max 0.09 in alpha, 0.45 texel in sigma); at 256^2 four miss.
     neutral = shot_noise_microstructure(512, TEXEL, seed=1).astype(np.float64)
     other = shot_noise_microstructure(512, TEXEL, seed=2).astype(np.float64)
     target = convolve_displacement(other, (0.6, 0.8), alpha, sigma, 0.0, 1.0, TEXEL)

@@ -218,11 +218,44 @@ def bench_stream(size=256, n_theta=64, n_phi=32, tile=None):
             "wall_s": wall}  # fmt: skip
 
 
+def bench_compression_sweep(size=256, n_theta=64, n_phi=32, ranks=(42, 80, 160), clusters=None, sample=256):
+    """Largest / 99th-percentile relative error and share above 3 % of the compressed relight at several ranks.
+
+    The same cached stage field and probes as :func:`bench_relight`; one ``compress(field, rank=K)`` per rank
+    (default clusters; ``sample`` pixels per cluster estimate its basis, as ``compress``), each probe's relight
+    against the dense float32 product.  Shows how far the
+    clustered-PCA family is from the issue's 3 % worst pixel at and below the 20× budget.
+    """
+    from facestats.relight.compression import compress
+    from facestats.relight.field import open_field
+    from facestats.relight.relighting import lighting_for, relight_block
+
+    path, _ = _stage_input(size, n_theta, n_phi)
+    field = open_field(path).load()
+    mask = field["mask"].values
+    probes, probe_source = _probes()
+    n = n_theta * n_phi
+    dense = np.asarray(field["reflectance"].values, np.float32).reshape(n, size, size, 3)
+    weights = {p: lighting_for(field, pr).reshape(n, 3).astype(np.float32) for p, pr in probes.items()}
+    refs = {p: relight_block(dense, w) for p, w in weights.items()}
+    del dense
+    out = {"probes": probe_source}
+    for k in ranks:
+        comp = compress(field, rank=min(k, n), clusters=clusters, sample=sample)
+        out[f"rank{k}_ratio"] = round(comp.ratio, 2)
+        for p, w in weights.items():
+            rel = _rel(comp.relight(w), refs[p], mask)
+            out[f"rank{k}_{p}_max_p99_share3"] = (round(float(rel.max()), 4), round(float(np.percentile(rel, 99)), 4),
+                                                  round(float(np.mean(rel > 0.03)), 4))  # fmt: skip
+    return out
+
+
 BENCHMARKS = [
     ("relight", bench_relight),
     ("stage", bench_stage),
     ("discretisation", bench_discretisation),
     ("stream", bench_stream),
+    ("compression_sweep", bench_compression_sweep),
 ]
 
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
@@ -231,4 +264,5 @@ SMOKE = {
     "stage": {"size": 12, "n_theta": 8, "n_phi": 4},
     "discretisation": {"size": 8, "probe_height": 8, "n_theta": 8, "n_phi": 4},
     "stream": {"size": 12, "n_theta": 8, "n_phi": 4},
+    "compression_sweep": {"size": 16, "n_theta": 16, "n_phi": 8, "ranks": (2, 4)},
 }

@@ -8,8 +8,14 @@ __all__ = ["add_microstructure"]
 
 
 def _cmd_render(args) -> int:
+    from facestats.core.validate import check_integer
+    from facestats.errors import ValidationError
     from facestats.pipeline.microstructure import render_files
 
+    if args.size is not None:
+        check_integer(args.size, "--size", 1)
+    if args.frames is not None and args.targets is not None:
+        raise ValidationError("--targets go with --weights (blendshapes), not with --frames; got both")
     report = render_files(
         args.neutral,
         args.map,

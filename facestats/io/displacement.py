@@ -5,10 +5,13 @@ source".  :func:`read_displacement` reads one through :mod:`facestats.io.images`
 
 * float files (``.exr``, ``.pfm``, ``.hdr``): heights as stored, in µm, unless
   an EXR carries a ``units`` attribute of ``mm`` or ``m`` (converted);
-* integer files (16-bit ``.png``, ``.tif``/``.tiff``; 8-bit accepted): codes
-  scaled to [0, 1] by :func:`facestats.io.images.read_image`, then mapped to
-  ``(value − midpoint) · height_range_um`` — the range must be given, an integer
-  image carries no unit.
+* floating-point TIFF (``.tif``/``.tiff`` with SampleFormat IEEE float, read by
+  ``tifffile``): heights as stored, in µm;
+* integer files (16-bit ``.png``, ``.tif``/``.tiff``; 8-bit accepted with a
+  :class:`~facestats.errors.QuantisationWarning`: 256 levels quantise a height
+  map coarsely): codes scaled to [0, 1] by :func:`facestats.io.images.read_image`,
+  then mapped to ``(value − midpoint) · height_range_um`` — the range must be
+  given, an integer image carries no unit.
 
 A map must have one channel (or identical R, G, B); it is returned as float32
 ``[v, u]`` (row 0 at the top, the image convention facestats' UV maps share).
@@ -19,15 +22,34 @@ from __future__ import annotations
 
 import os
 import pathlib
+import warnings
 
 import numpy as np
 
-from facestats.errors import FormatError, ValidationError
-from facestats.io.images import INTEGER_EXTENSIONS, read_exr, read_image, write_exr
+from facestats.errors import FormatError, QuantisationWarning, ValidationError
+from facestats.io.images import INTEGER_EXTENSIONS, read_exr, read_image, read_integer_image, write_exr
 
 __all__ = ["read_displacement", "write_displacement"]
 
 _UNITS_TO_UM = {"um": 1.0, "µm": 1.0, "micron": 1.0, "mm": 1000.0, "m": 1e6}
+
+
+def _float_tiff(path) -> bool:
+    """Whether the first image of a TIFF file holds floating-point samples (SampleFormat 3)."""
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tif:
+            return tif.pages.first.dtype is not None and np.dtype(tif.pages.first.dtype).kind == "f"
+    except (tifffile.TiffFileError, OSError, ValueError):
+        return False  # not a readable TIFF: the integer reader reports it by name
+
+
+def _read_float_tiff(path):
+    import tifffile
+
+    img = np.asarray(tifffile.imread(path, key=0), np.float32)
+    return img[..., None] if img.ndim == 2 else img
 
 
 def _one_channel(img, path):
@@ -38,13 +60,13 @@ def _one_channel(img, path):
 
 
 def read_displacement(path, *, height_range_um=None, midpoint=0.5) -> np.ndarray:
-    """A displacement map in µm from an EXR/PFM/HDR or 8/16-bit PNG/TIFF file (module docstring).
+    """A displacement map in µm from an EXR/PFM/HDR, float TIFF or 8/16-bit PNG/TIFF file (module docstring).
 
     Parameters
     ----------
     path : path-like
     height_range_um : float, optional
-        Integer files: µm spanned by the code range 0 … max (required for them).
+        Integer files: µm spanned by the code range 0 … max (required for them; ignored for float files).
     midpoint : float
         Integer files: the code fraction that means height 0.
 
@@ -54,7 +76,9 @@ def read_displacement(path, *, height_range_um=None, midpoint=0.5) -> np.ndarray
     """
     p = pathlib.Path(os.fspath(path))
     ext = p.suffix.lower()
-    if ext in INTEGER_EXTENSIONS:
+    if ext in (".tif", ".tiff") and _float_tiff(p):
+        h = _one_channel(_read_float_tiff(p), p)
+    elif ext in INTEGER_EXTENSIONS:
         if height_range_um is None:
             raise ValidationError(
                 f"height_range_um must be given for the integer image {str(p)!r} (its codes carry no unit), got None"
@@ -62,6 +86,14 @@ def read_displacement(path, *, height_range_um=None, midpoint=0.5) -> np.ndarray
         rng = float(height_range_um)
         if not (np.isfinite(rng) and rng > 0):
             raise ValidationError(f"height_range_um must be > 0, got {height_range_um!r}")
+        _, bits = read_integer_image(p)
+        if bits <= 8:
+            warnings.warn(
+                f"displacement map {str(p)!r} has {bits}-bit codes: {2**bits} height levels over "
+                f"{rng:g} um ({rng / (2**bits - 1):.3g} um per level); a 16-bit or float file keeps the fine relief",
+                QuantisationWarning,
+                stacklevel=2,
+            )
         h = (_one_channel(read_image(p), p) - np.float32(midpoint)) * np.float32(rng)
     else:
         factor = 1.0

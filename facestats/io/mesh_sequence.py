@@ -253,6 +253,14 @@ def read_vertices(path, neutral: UVMesh, *, scale=1.0, transform=None) -> np.nda
             else f"{len(mesh.triangles)} vs {len(neutral.triangles)} triangles"
         )
         raise FormatError(f"{name}: topology differs from the neutral {neutral.name!r}: faces differ ({n_diff})")
+    size = float(np.linalg.norm(np.ptp(mesh.vertices, axis=0)))
+    rest = float(np.linalg.norm(np.ptp(neutral.vertices, axis=0)))
+    if rest > 0 and not (0.5 <= size / rest <= 2.0):  # no expression halves or doubles a face's extent
+        raise FormatError(
+            f"{name}: its extent is {size / rest:.3g} x the neutral's ({size:.4g} vs {rest:.4g} mm after scale "
+            f"{scale}); frames must be in the neutral mesh's units (with an ICT-FaceKit folder as the neutral, read "
+            "in mm, pass the scale of the frames' units, e.g. 10 for cm)"
+        )
     return mesh.vertices
 
 

@@ -19,7 +19,12 @@ B = n_u, n_v, n_n) per frame in ``exr_dir``.  A frame is marked done only after
 all its outputs are written (EXR files through a temporary name and an atomic
 rename), so an interrupted run leaves the finished frames intact and the next
 run with the same inputs continues where it stopped; different inputs at the
-same path raise instead of mixing renders.
+same path raise instead of mixing renders: the group records a SHA-256 of the
+neutral mesh, of every frame's vertex positions and of the neutral map.  The
+group is created under a temporary name and renamed into place, so a run killed
+while creating it leaves no group; ``overwrite`` replaces only a render of this
+function (never another folder).  EXR files of a frame rendered in this run
+replace any existing ones.
 
 Tiling: the window is processed in tiles of ``tile`` texels with a halo of
 2 (⌈3 · 100 µm / smallest rest texel⌉ + 2) + 2 texels (the reach of both passes
@@ -39,8 +44,9 @@ import numpy as np
 
 import facestats
 from facestats.acquire.synthetic.microstructure import procedural_microstructure, subject_microstructure
+from facestats.core.compiled import resolve_backend
 from facestats.core.outputs import OutputSet, check_output_file
-from facestats.core.validate import as_finite, check_integer
+from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.core.version import __version__
 from facestats.errors import FacestatsError, StoreError, ValidationError
 from facestats.io.displacement import read_displacement, write_displacement
@@ -49,7 +55,7 @@ from facestats.io.images import write_exr
 from facestats.io.mesh_sequence import BlendshapeSequence, FrameSequence, read_mesh, read_vertices, read_weights
 from facestats.model.microstructure.deform import deform_microstructure
 from facestats.model.microstructure.kernel import SIGMA_RANGE_UM, TRUNCATE
-from facestats.model.microstructure.tables import KernelTable
+from facestats.model.microstructure.tables import TABLES, KernelTable
 from facestats.model.strain import MeshStrain
 
 __all__ = ["SequenceReport", "render_sequence", "tile_halo"]
@@ -101,44 +107,84 @@ def _neutral_map(neutral_map):
     return d.astype(np.float32)
 
 
+def _sequence_sha256(sequence) -> str:
+    """SHA-256 of the neutral mesh (positions, triangles, UVs) and of every frame's vertex positions.
+
+    Reads every frame once: a resumed render must be of the same inputs, frame by frame.
+    """
+    h = hashlib.sha256()
+    mesh = sequence.neutral
+    for a in (mesh.vertices, mesh.triangles, mesh.uv, mesh.uv_triangles):
+        h.update(np.ascontiguousarray(a).tobytes())
+    for i in range(len(sequence)):  # loop over frames (a mesh each)
+        h.update(np.ascontiguousarray(sequence.frame(i), np.float64).tobytes())
+    return h.hexdigest()
+
+
 def _config(sequence, neutral, map_shape, window, table, names):
     tab = table if isinstance(table, str) else repr(table)
     return {
         "neutral_mesh": sequence.neutral.name,
         "n_vertices": sequence.neutral.n_vertices,
         "frames": names,
-        "frame_positions": hashlib.sha1(
-            np.ascontiguousarray(
-                [sequence.frame(i)[:: max(1, sequence.neutral.n_vertices // 64)] for i in (0, len(sequence) - 1)]
-            ).tobytes()
-        ).hexdigest(),
-        "neutral_map_sha1": hashlib.sha1(np.ascontiguousarray(neutral).tobytes()).hexdigest(),
+        "sequence_sha256": _sequence_sha256(sequence),
+        "neutral_map_sha256": hashlib.sha256(np.ascontiguousarray(neutral).tobytes()).hexdigest(),
         "map_shape": list(map_shape),
         "window": list(window),
         "table": tab,
     }
 
 
+#: Attribute that marks a zarr group as a render of :func:`render_sequence`.
+METHOD = "Nagano et al. 2015 eq. 1-13 (facestats.pipeline.microstructure)"
+
+
+def _is_render(path) -> bool:
+    """Whether ``path`` is a zarr group written by :func:`render_sequence` (its ``method`` attribute)."""
+    meta = os.path.join(path, "zarr.json")
+    if not os.path.isfile(meta):
+        return False
+    try:
+        with open(meta, encoding="utf-8") as f:
+            return json.load(f).get("attributes", {}).get("method") == METHOD
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 def _open_group(out, config, n, window, tile, overwrite):
+    """The render's zarr group: reopened if it holds the same render, else created (atomically, by a rename).
+
+    An existing path that is not a render of this function is never opened for writing nor deleted, even
+    with ``overwrite``; a render of other inputs is replaced only with ``overwrite``.
+    """
+    import shutil
+
     import zarr
 
     path = os.fspath(out)
-    if os.path.exists(path) and not overwrite:
-        try:
-            g = zarr.open_group(path, mode="a")
-            old = json.loads(g.attrs.get("config", "null"))
-        except Exception as exc:  # zarr raises several types for what is not a group
+    if os.path.lexists(path):
+        if not _is_render(path):
             raise StoreError(
-                f"out {path!r} exists and is not a microstructure render ({exc}); pass overwrite=True"
-            ) from None
-        if old != config:
+                f"out {path!r} exists and is not a microstructure render; facestats neither writes into nor "
+                "deletes it, even with overwrite (--overwrite): choose another path"
+            )
+        g = zarr.open_group(path, mode="r+")
+        old = json.loads(g.attrs.get("config", "null"))
+        if old == config:
+            return g
+        if not overwrite:
             diff = sorted(k for k in config if (old or {}).get(k) != config[k])
             raise StoreError(
-                f"out {path!r} holds a render of other inputs (differing: {diff}); use another path or overwrite=True"
+                f"out {path!r} holds a render of other inputs (differing: {diff}); use another path or "
+                "overwrite=True (--overwrite)"
             )
-        return g
+    parent, base = os.path.split(os.path.abspath(path))
+    os.makedirs(parent, exist_ok=True)
+    tmp = os.path.join(parent, f".{base}.creating")
+    if os.path.lexists(tmp):  # left by a run killed while creating its group
+        shutil.rmtree(tmp)
     h, w = window[2], window[3]
-    g = zarr.open_group(path, mode="w")
+    g = zarr.open_group(tmp, mode="w")
     ch, cw = min(tile, h), min(tile, w)
     g.create_array("displacement", shape=(n, h, w), chunks=(1, ch, cw), dtype="float32", fill_value=np.nan,
                    dimension_names=("frame", "v", "u"))  # fmt: skip
@@ -152,11 +198,14 @@ def _open_group(out, config, n, window, tile, overwrite):
             "config": json.dumps(config),
             "stat": list(STRETCH_STATS),
             "units": json.dumps({"displacement": "um", "normal": "1"}),
-            "method": "Nagano et al. 2015 eq. 1-13 (facestats.pipeline.microstructure)",
+            "method": METHOD,
             "facestats_version": __version__,
         }
     )
-    return g
+    if os.path.lexists(path):  # a render of other inputs, replaced (overwrite)
+        shutil.rmtree(path)
+    os.replace(tmp, path)
+    return zarr.open_group(path, mode="r+")
 
 
 def _tiles(window, tile):
@@ -188,14 +237,15 @@ def _render_frame(ms, vertices, neutral, map_shape, window, table, tile, halo, b
     group["stretch"][index] = np.concatenate([*pct, [stats[0][2] if stats else 0]])
 
 
-def _write_exr(group, index, exr_dir, name):
+def _write_exr(group, index, exr_dir, name, replace_existing):
+    """Write frame ``index``'s EXR files; existing ones are kept only for a frame done in an earlier run."""
     os.makedirs(exr_dir, exist_ok=True)
     targets = {
         "displacement": os.path.join(exr_dir, f"displacement.{index:05d}.exr"),
         "normal": os.path.join(exr_dir, f"normal.{index:05d}.exr"),
     }
     for kind, target in targets.items():  # write to a temporary name, then rename atomically
-        if os.path.exists(target):
+        if os.path.exists(target) and not replace_existing:
             continue
         tmp = target[:-4] + ".partial.exr"
         data = np.asarray(group[kind][index])
@@ -204,6 +254,40 @@ def _write_exr(group, index, exr_dir, name):
         else:
             write_exr(tmp, {"R": data[..., 0], "G": data[..., 1], "B": data[..., 2]}, attributes={"frame": name})
         os.replace(tmp, target)
+
+
+def _check_window(neutral, map_shape, window):
+    """(map_shape, window) as ints, checked: the window inside the map, the neutral map covering it."""
+    if map_shape is None:
+        map_shape = neutral.shape
+    if np.shape(map_shape) != (2,):
+        raise ValidationError(f"map_shape must be (height, width), got {map_shape!r}")
+    map_shape = (check_integer(map_shape[0], "map_shape height", 1), check_integer(map_shape[1], "map_shape width", 1))
+    if window is None:
+        window = (0, 0, *map_shape)
+    if np.shape(window) != (4,):
+        raise ValidationError(f"window must be (row0, col0, height, width), got {window!r}")
+    window = (
+        check_integer(window[0], "window row0", 0, map_shape[0] - 1),
+        check_integer(window[1], "window col0", 0, map_shape[1] - 1),
+        check_integer(window[2], "window height", 1),
+        check_integer(window[3], "window width", 1),
+    )
+    if window[0] + window[2] > map_shape[0] or window[1] + window[3] > map_shape[1]:
+        raise ValidationError(
+            f"window must lie inside the {map_shape[0]} x {map_shape[1]} map, got rows {window[0]}-"
+            f"{window[0] + window[2]}, columns {window[1]}-{window[1] + window[3]}"
+        )
+    if neutral.shape != (window[2], window[3]):
+        raise ValidationError(f"neutral_map must cover the window {window[2]} x {window[3]}, got shape {neutral.shape}")
+    return map_shape, window
+
+
+def _check_table(table):
+    if isinstance(table, str):
+        check_choice(table, "table", tuple(TABLES))
+    elif not isinstance(table, KernelTable):
+        raise ValidationError(f"table must be a table name or a KernelTable, got {type(table).__name__}")
 
 
 def render_sequence(
@@ -245,7 +329,8 @@ def render_sequence(
     progress : bool
         Progress bar over frames.
     overwrite : bool
-        Replace ``out`` if it holds another render.
+        Replace ``out`` if it holds a render of other inputs (a path that is not a render is never
+        replaced: the call refuses).
 
     Returns
     -------
@@ -253,18 +338,11 @@ def render_sequence(
     """
     neutral = _neutral_map(neutral_map)
     tile = check_integer(tile, "tile", 16)
-    if map_shape is None:
-        map_shape = neutral.shape
-    if window is None:
-        window = (0, 0, int(map_shape[0]), int(map_shape[1]))
-    window = tuple(int(x) for x in window)
-    if neutral.shape != (window[2], window[3]):
-        raise ValidationError(f"neutral_map must cover the window {window[2]} x {window[3]}, got shape {neutral.shape}")
-    if not isinstance(table, (str, KernelTable)):
-        raise ValidationError(f"table must be a table name or a KernelTable, got {type(table).__name__}")
+    map_shape, window = _check_window(neutral, map_shape, window)
+    _check_table(table)
+    backend = resolve_backend(backend)
     mesh = sequence.neutral.require_uv()
     ms = MeshStrain(mesh.vertices, mesh.triangles, mesh.uv, mesh.uv_triangles)
-    map_shape = (int(map_shape[0]), int(map_shape[1]))
     n = len(sequence)
     names = sequence.frame_names()
     group = _open_group(out, _config(sequence, neutral, map_shape, window, table, names), n, window, tile, overwrite)
@@ -285,7 +363,7 @@ def render_sequence(
             _render_frame(ms, vertices, neutral, map_shape, window, table, tile, halo, backend, group, i)
             report.rendered.append(i)
         if exr_dir is not None:
-            _write_exr(group, i, os.fspath(exr_dir), names[i])
+            _write_exr(group, i, os.fspath(exr_dir), names[i], replace_existing=not done[i])
         group["done"][i] = True
     report.seconds = time.perf_counter() - start
     return report
@@ -306,11 +384,16 @@ def open_sequence(neutral, *, frames=None, targets=None, weights=None, scale=1.0
     weights : path-like, optional
         CSV of per-frame weights (:func:`facestats.io.mesh_sequence.read_weights`).
     scale : float
-        Factor of the mesh units to mm (ignored for ICT-FaceKit, which is read in mm).
+        Factor of the mesh files' units to mm (10 for cm).  An ICT-FaceKit directory is read in mm
+        whatever ``scale`` is, but frame files given with it are scaled by ``scale`` (ICT-FaceKit's own
+        OBJ files are in cm: pass 10).  A frame whose extent differs from the neutral's by more than 2×
+        is refused (wrong units).
     """
 
     if (frames is None) == (weights is None):
         raise ValidationError("pass either frames or weights (with targets), got " + ("both" if frames else "neither"))
+    if frames is not None and targets is not None:
+        raise ValidationError("targets go with weights (blendshapes), not with frames; got both frames and targets")
     if os.path.isdir(os.fspath(neutral)):
         names_w, w = read_weights(weights) if weights is not None else (None, None)
         mesh, shapes = read_ict_facekit(neutral, names_w if targets is None else list(targets))

@@ -2,11 +2,12 @@
 
 import numpy as np
 import pytest
+import tifffile
 import zarr
 
 from facestats.acquire.synthetic.microstructure import procedural_microstructure
 from facestats.cli import main
-from facestats.errors import FacestatsError
+from facestats.errors import FacestatsError, QuantisationWarning
 from facestats.io.displacement import read_displacement, write_displacement
 from facestats.io.ict_facekit import read_ict_facekit
 from facestats.io.images import read_exr, write_image
@@ -36,16 +37,21 @@ class _Interrupt(Exception):
 
 
 class _Failing:
-    """A sequence whose frame ``fail_at`` raises (an interrupted run)."""
+    """A sequence whose frame ``fail_at`` raises when it is read to be rendered (an interrupted run).
+
+    The first read of every frame is the inputs' fingerprint (before any output); the second, the render.
+    """
 
     def __init__(self, seq, fail_at):
         self.seq, self.fail_at, self.neutral = seq, fail_at, seq.neutral
+        self.reads = [0] * len(seq)
 
     def __len__(self):
         return len(self.seq)
 
     def frame(self, i):
-        if i == self.fail_at:
+        self.reads[i] += 1
+        if i == self.fail_at and self.reads[i] == 2:
             raise _Interrupt
         return self.seq.frame(i)
 
@@ -100,6 +106,11 @@ def test_user_maps_round_trip(tmp_path):
     write_image(tmp_path / "rgb.png", np.random.default_rng(1).uniform(size=(8, 8, 3)), bits=16)
     with pytest.raises(FacestatsError, match="must have one channel"):
         read_displacement(tmp_path / "rgb.png", height_range_um=10)
+    tifffile.imwrite(tmp_path / "f.tif", h)  # a float TIFF holds heights in um, as an EXR does
+    assert np.array_equal(read_displacement(tmp_path / "f.tif"), h)
+    write_image(tmp_path / "h8.png", code, bits=8)
+    with pytest.warns(QuantisationWarning, match="8-bit codes: 256 height levels"):
+        read_displacement(tmp_path / "h8.png", height_range_um=10)
 
 
 def test_bad_render_input(tmp_path, smile, neutral_map):
@@ -109,7 +120,86 @@ def test_bad_render_input(tmp_path, smile, neutral_map):
         render_sequence(smile, neutral_map.astype(np.int32), tmp_path / "b.zarr", progress=False)
     with pytest.raises(FacestatsError, match="neutral_map must cover the window"):
         render_sequence(smile, neutral_map, tmp_path / "c.zarr", map_shape=MAP, window=(0, 0, 10, 10), progress=False)
-    assert not (tmp_path / "c.zarr").exists()
+    h, w = neutral_map.shape
+    for kw, match in (
+        (dict(map_shape=MAP, window=(16380, 0, h, w)), "window must lie inside the 16384 x 16384 map"),
+        (dict(map_shape=MAP, window=(-10, 0, h, w)), "window row0 must be an integer in"),
+        (dict(map_shape=(0, 0)), "map_shape height must be an integer in"),
+        (dict(map_shape=MAP, window=WINDOW, table="cheek"), "table must be one of"),
+        (dict(map_shape=MAP, window=WINDOW, backend="gpu"), "backend must be one of"),
+    ):
+        with pytest.raises(FacestatsError, match=match):
+            render_sequence(smile, neutral_map, tmp_path / "c.zarr", progress=False, **kw)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # checked before any output
+
+
+class _Edited:
+    """``seq`` with frame ``index`` moved by 0.1 mm (an edited input between two runs)."""
+
+    def __init__(self, seq, index):
+        self.seq, self.index, self.neutral = seq, index, seq.neutral
+
+    def __len__(self):
+        return len(self.seq)
+
+    def frame(self, i):
+        return self.seq.frame(i) + (0.1 if i == self.index else 0.0)
+
+    def frame_names(self):
+        return self.seq.frame_names()
+
+
+def test_outputs_are_safe(tmp_path, smile, neutral_map):
+    opts = dict(map_shape=MAP, window=WINDOW, progress=False)
+    # A folder that is not a render is neither written into nor deleted, even with overwrite.
+    victim = tmp_path / "victim"
+    victim.mkdir()
+    (victim / "notes.txt").write_text("keep me")
+    for overwrite in (False, True):
+        with pytest.raises(FacestatsError, match="is not a microstructure render; facestats neither writes into"):
+            render_sequence(smile, neutral_map, victim, overwrite=overwrite, **opts)
+    assert [p.name for p in victim.iterdir()] == ["notes.txt"]
+    # A resumed render of edited inputs (a middle frame) is refused; with overwrite the EXR files follow the zarr.
+    run, exr = tmp_path / "run.zarr", tmp_path / "exr"
+    render_sequence(smile, neutral_map, run, exr_dir=exr, **opts)
+    with pytest.raises(FacestatsError, match=r"holds a render of other inputs \(differing: \['sequence_sha256'\]\)"):
+        render_sequence(_Edited(smile, 1), neutral_map, run, exr_dir=exr, **opts)
+    other = neutral_map[::-1].copy()
+    render_sequence(smile, other, run, exr_dir=exr, overwrite=True, **opts)
+    d = zarr.open_group(str(run), mode="r")["displacement"][:]
+    for i in range(len(smile)):
+        assert np.array_equal(read_exr(exr / f"displacement.{i:05d}.exr")[0]["Y"], d[i])
+    assert np.array_equal(d[0], other)
+    # A run killed while creating its group leaves only the temporary name, which the next run replaces.
+    (tmp_path / ".new.zarr.creating").mkdir()
+    (tmp_path / ".new.zarr.creating" / "zarr.json").write_text("{}")
+    assert render_sequence(smile, neutral_map, tmp_path / "new.zarr", **opts).rendered == [0, 1, 2, 3]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["exr", "new.zarr", "run.zarr", "victim"]
+
+
+def _grid_obj(path, size_mm):
+    """A 3 x 3 vertex planar quad mesh of side ``size_mm`` with UVs, as OBJ text."""
+    lines = [f"v {x * size_mm / 2} {y * size_mm / 2} 0" for y in range(3) for x in range(3)]
+    lines += [f"vt {x / 2} {y / 2}" for y in range(3) for x in range(3)]
+    for y in range(2):
+        for x in range(2):
+            a = y * 3 + x + 1
+            lines.append(f"f {a}/{a} {a + 1}/{a + 1} {a + 4}/{a + 4} {a + 3}/{a + 3}")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_frames_in_other_units_and_targets_with_frames_are_refused(tmp_path):
+    from facestats.pipeline.microstructure import open_sequence
+
+    _grid_obj(tmp_path / "n.obj", 100.0)  # mm
+    _grid_obj(tmp_path / "f_cm.obj", 10.0)  # the same surface in cm
+    seq = open_sequence(tmp_path / "n.obj", frames=[tmp_path / "f_cm.obj"])
+    with pytest.raises(FacestatsError, match=r"f_cm.obj: its extent is 0.1 x the neutral's .*e\.g\. 10 for cm"):
+        seq.frame(0)
+    same = open_sequence(tmp_path / "n.obj", frames=[tmp_path / "n.obj"], scale=10).frame(0)
+    assert np.ptp(same[:, 0]) == pytest.approx(1000.0)  # neutral and frames scaled alike (cm -> mm)
+    with pytest.raises(FacestatsError, match="targets go with weights"):
+        open_sequence(tmp_path / "n.obj", frames=[tmp_path / "f_cm.obj"], targets=[tmp_path / "f_cm.obj"])
 
 
 def test_command_line_generates_and_renders(tmp_path, capsys):

@@ -160,9 +160,14 @@ def gaussian_stencil(axis, sigma_px):
 
 
 def _patch(value, name):
+    dtype = np.asarray(value).dtype
+    if dtype not in (np.float32, np.float64):
+        raise ValidationError(f"{name} must be a float32/float64 displacement patch (um), got dtype {dtype}")
     p = as_finite(value, name, dtype=np.float64)
     if p.ndim != 2:
         raise ValidationError(f"{name} must be a 2-D displacement patch, got shape {p.shape}")
+    if np.ptp(p) == 0:
+        raise ValidationError(f"{name} must have relief (a flat patch has no normal distribution), got all {p.flat[0]}")
     return p
 
 
@@ -296,7 +301,11 @@ def fit_kernel(
     r = float(as_finite(r, "r", 0.0, low_inclusive=False))
     r_t = float(as_finite(r_t, "r_t", 0.0, low_inclusive=False))
     texel = float(as_finite(texel_um, "texel_um", 0.0, low_inclusive=False, unit="um"))
-    texel_d = texel if deformed_texel_um is None else float(as_finite(deformed_texel_um, "deformed_texel_um", 0.0))
+    texel_d = (
+        texel
+        if deformed_texel_um is None
+        else float(as_finite(deformed_texel_um, "deformed_texel_um", 0.0, low_inclusive=False, unit="um"))
+    )
     check_choice(method, "method", ("brute", "coarse-to-fine"))
     backend = resolve_backend(backend)
     margin = int(kernel_radius(SIGMA_RANGE_UM[1] / texel)) + 3

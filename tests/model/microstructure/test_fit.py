@@ -75,9 +75,15 @@ def test_compiled_and_numpy_histograms_agree():
 
 
 def test_bad_input():
-    p = np.zeros((120, 120))
+    p = np.random.default_rng(0).normal(0, 1, (120, 120))
     with pytest.raises(FacestatsError, match="neutral must be at least 74 texels"):
-        fit_kernel(np.zeros((40, 40)), p, (1, 0), 1.0, TEXEL)
+        fit_kernel(p[:40, :40], p, (1, 0), 1.0, TEXEL)
+    with pytest.raises(FacestatsError, match="neutral must have relief"):
+        fit_kernel(np.zeros((120, 120)), p, (1, 0), 1.0, TEXEL)
+    with pytest.raises(FacestatsError, match="deformed must be a float32/float64 displacement patch .* int8"):
+        fit_kernel(p, (p * 10).astype(np.int8), (1, 0), 1.0, TEXEL)
+    with pytest.raises(FacestatsError, match="deformed_texel_um must"):
+        fit_kernel(p, p, (1, 0), 1.0, TEXEL, deformed_texel_um=0)
     with pytest.raises(FacestatsError, match="axis must be a unit 2-vector"):
         fit_kernel(p, p, (1, 1), 1.0, TEXEL)
     with pytest.raises(FacestatsError, match="r must lie in"):

@@ -23,8 +23,10 @@ same path raise instead of mixing renders: the group records a SHA-256 of the
 neutral mesh, of every frame's vertex positions and of the neutral map.  The
 group is created under a temporary name and renamed into place, so a run killed
 while creating it leaves no group; ``overwrite`` replaces only a render of this
-function (never another folder).  EXR files of a frame rendered in this run
-replace any existing ones.
+function (never another folder, nor what a symbolic link points to).  EXR
+files are rewritten for every frame rendered in this run and for every frame
+not yet written to this ``exr_dir`` (the group records the folder and which
+frames it holds); a folder holding frame files beyond the sequence is refused.
 
 Tiling: the window is processed in tiles of ``tile`` texels with a halo of
 2 (⌈3 · 100 µm / smallest rest texel⌉ + 2) + 2 texels (the reach of both passes
@@ -37,6 +39,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import time
 from dataclasses import dataclass, field
 
@@ -151,38 +154,87 @@ def _is_render(path) -> bool:
         return False
 
 
-def _open_group(out, config, n, window, tile, overwrite):
-    """The render's zarr group: reopened if it holds the same render, else created (atomically, by a rename).
+def _reuse(path, config, overwrite) -> bool:
+    """True if ``path`` holds this very render (reopen it); False if it may be created or replaced; else raise.
 
-    An existing path that is not a render of this function is never opened for writing nor deleted, even
-    with ``overwrite``; a render of other inputs is replaced only with ``overwrite``.
+    Never replaced: a path that is not a render of :func:`render_sequence` (an empty folder is taken as absent),
+    and a symbolic link (what it points to is not facestats' to delete); a render of other inputs only with
+    ``overwrite``.
     """
+    if not path:
+        raise ValidationError("out must be a non-empty path, got ''")
+    if not os.path.lexists(path):
+        return False
+    if os.path.isdir(path) and not os.path.islink(path) and not os.listdir(path):
+        return False  # an empty folder: nothing to lose
+    if not _is_render(path):
+        raise StoreError(
+            f"out {path!r} exists and is not a microstructure render; facestats neither writes into nor "
+            "deletes it, even with overwrite (--overwrite): choose another path"
+        )
+    with open(os.path.join(path, "zarr.json"), encoding="utf-8") as f:
+        try:
+            old = json.loads(json.load(f)["attributes"].get("config", "null"))
+        except (ValueError, KeyError, TypeError):
+            old = None
+    if old == config:
+        return True
+    if os.path.islink(path):
+        raise StoreError(
+            f"out {path!r} is a symbolic link to a render of other inputs; facestats does not replace what a link "
+            "points to: give another path"
+        )
+    if overwrite:
+        return False
+    if not isinstance(old, dict) or any(k not in old for k in config):
+        raise StoreError(
+            f"out {path!r} holds a render from an older facestats or with an unreadable record (missing "
+            f"{sorted(k for k in config if not isinstance(old, dict) or k not in old)}); it cannot be resumed: "
+            "overwrite=True (--overwrite) renders it again"
+        )
+    diff = sorted(k for k in config if old.get(k) != config[k])
+    raise StoreError(
+        f"out {path!r} holds a render of other inputs (differing: {diff}); use another path or "
+        "overwrite=True (--overwrite)"
+    )
+
+
+_EXR_NAME = re.compile(r"^(displacement|normal)\.(\d{5,})\.exr$")
+
+
+def _check_exr_dir(exr_dir, n):
+    """An EXR folder that is not a file and holds no frame files beyond this sequence's ``n`` frames."""
+    if exr_dir is None:
+        return None
+    path = os.path.abspath(os.fspath(exr_dir))
+    if os.path.lexists(path) and not os.path.isdir(path):
+        raise ValidationError(f"exr_dir must be a folder, got the existing file {os.fspath(exr_dir)!r}")
+    if os.path.isdir(path):
+        beyond = sorted(f for f in os.listdir(path) if (m := _EXR_NAME.match(f)) and int(m.group(2)) >= n)
+        if beyond:
+            raise ValidationError(
+                f"exr_dir {os.fspath(exr_dir)!r} holds frame files beyond this sequence's {n} frames "
+                f"({', '.join(beyond[:4])}{', ...' if len(beyond) > 4 else ''}): remove them or use another folder"
+            )
+    return path
+
+
+def _open_group(out, config, n, window, tile, overwrite):
+    """The render's zarr group: reopened if it holds the same render, else created (atomically, by a rename)."""
     import shutil
 
     import zarr
 
     path = os.fspath(out)
-    if os.path.lexists(path):
-        if not _is_render(path):
-            raise StoreError(
-                f"out {path!r} exists and is not a microstructure render; facestats neither writes into nor "
-                "deletes it, even with overwrite (--overwrite): choose another path"
-            )
-        g = zarr.open_group(path, mode="r+")
-        old = json.loads(g.attrs.get("config", "null"))
-        if old == config:
-            return g
-        if not overwrite:
-            diff = sorted(k for k in config if (old or {}).get(k) != config[k])
-            raise StoreError(
-                f"out {path!r} holds a render of other inputs (differing: {diff}); use another path or "
-                "overwrite=True (--overwrite)"
-            )
+    if _reuse(path, config, overwrite):
+        return zarr.open_group(path, mode="r+")
     parent, base = os.path.split(os.path.abspath(path))
     os.makedirs(parent, exist_ok=True)
     tmp = os.path.join(parent, f".{base}.creating")
-    if os.path.lexists(tmp):  # left by a run killed while creating its group
+    if os.path.isdir(tmp) and not os.path.islink(tmp):  # left by a run killed while creating its group
         shutil.rmtree(tmp)
+    elif os.path.lexists(tmp):
+        os.remove(tmp)
     h, w = window[2], window[3]
     g = zarr.open_group(tmp, mode="w")
     ch, cw = min(tile, h), min(tile, w)
@@ -193,6 +245,7 @@ def _open_group(out, config, n, window, tile, overwrite):
     g.create_array("stretch", shape=(n, len(STRETCH_STATS)), chunks=(n, len(STRETCH_STATS)), dtype="float64",
                    fill_value=np.nan, dimension_names=("frame", "stat"))  # fmt: skip
     g.create_array("done", shape=(n,), chunks=(n,), dtype="bool", fill_value=False, dimension_names=("frame",))
+    g.create_array("exr_done", shape=(n,), chunks=(n,), dtype="bool", fill_value=False, dimension_names=("frame",))
     g.attrs.update(
         {
             "config": json.dumps(config),
@@ -200,9 +253,12 @@ def _open_group(out, config, n, window, tile, overwrite):
             "units": json.dumps({"displacement": "um", "normal": "1"}),
             "method": METHOD,
             "facestats_version": __version__,
+            "exr_dir": None,
         }
     )
-    if os.path.lexists(path):  # a render of other inputs, replaced (overwrite)
+    if os.path.isdir(path) and not os.listdir(path):
+        os.rmdir(path)  # an empty folder
+    elif os.path.lexists(path):  # a render of other inputs, replaced (overwrite)
         shutil.rmtree(path)
     os.replace(tmp, path)
     return zarr.open_group(path, mode="r+")
@@ -237,16 +293,14 @@ def _render_frame(ms, vertices, neutral, map_shape, window, table, tile, halo, b
     group["stretch"][index] = np.concatenate([*pct, [stats[0][2] if stats else 0]])
 
 
-def _write_exr(group, index, exr_dir, name, replace_existing):
-    """Write frame ``index``'s EXR files; existing ones are kept only for a frame done in an earlier run."""
+def _write_exr(group, index, exr_dir, name):
+    """Write frame ``index``'s EXR files (replacing any), each through a temporary name and a rename."""
     os.makedirs(exr_dir, exist_ok=True)
     targets = {
         "displacement": os.path.join(exr_dir, f"displacement.{index:05d}.exr"),
         "normal": os.path.join(exr_dir, f"normal.{index:05d}.exr"),
     }
     for kind, target in targets.items():  # write to a temporary name, then rename atomically
-        if os.path.exists(target) and not replace_existing:
-            continue
         tmp = target[:-4] + ".partial.exr"
         data = np.asarray(group[kind][index])
         if kind == "displacement":
@@ -345,10 +399,15 @@ def render_sequence(
     ms = MeshStrain(mesh.vertices, mesh.triangles, mesh.uv, mesh.uv_triangles)
     n = len(sequence)
     names = sequence.frame_names()
+    exr = _check_exr_dir(exr_dir, n)
     group = _open_group(out, _config(sequence, neutral, map_shape, window, table, names), n, window, tile, overwrite)
+    if exr is not None and group.attrs.get("exr_dir") != exr:  # EXR files of another folder (or none) so far
+        group["exr_done"][:] = False
+        group.attrs["exr_dir"] = exr
     halo = tile_halo(ms, map_shape)
     report = SequenceReport(os.fspath(out), n, map_shape=map_shape, window=window)
     done = np.asarray(group["done"][:])
+    exr_done = np.asarray(group["exr_done"][:])
     start = time.perf_counter()
     frames = range(n)
     if progress:
@@ -362,8 +421,9 @@ def render_sequence(
             vertices = sequence.frame(i)
             _render_frame(ms, vertices, neutral, map_shape, window, table, tile, halo, backend, group, i)
             report.rendered.append(i)
-        if exr_dir is not None:
-            _write_exr(group, i, os.fspath(exr_dir), names[i], replace_existing=not done[i])
+        if exr is not None and not (done[i] and exr_done[i]):  # rendered now, or not yet written to this folder
+            _write_exr(group, i, exr, names[i])
+            group["exr_done"][i] = True
         group["done"][i] = True
     report.seconds = time.perf_counter() - start
     return report

@@ -1,5 +1,7 @@
 """Rendering a sequence (zarr/EXR, resumable), reading user maps, and the ``facestats microstructure`` command."""
 
+import json
+
 import numpy as np
 import pytest
 import tifffile
@@ -170,11 +172,46 @@ def test_outputs_are_safe(tmp_path, smile, neutral_map):
     for i in range(len(smile)):
         assert np.array_equal(read_exr(exr / f"displacement.{i:05d}.exr")[0]["Y"], d[i])
     assert np.array_equal(d[0], other)
+    # EXR files follow the zarr whenever a folder is given later, and frames beyond the sequence are refused.
+    later, exr2 = tmp_path / "later.zarr", tmp_path / "exr2"
+    render_sequence(smile, neutral_map, later, **opts)
+    exr2.mkdir()
+    (exr2 / "displacement.00000.exr").write_bytes(b"stale")
+    render_sequence(smile, neutral_map, later, exr_dir=exr2, **opts)  # all frames done: only the EXR files
+    d = zarr.open_group(str(later), mode="r")["displacement"][:]
+    assert np.array_equal(read_exr(exr2 / "displacement.00000.exr")[0]["Y"], d[0])
+    assert len(list(exr2.iterdir())) == 2 * len(smile)
+    (exr2 / "normal.00009.exr").write_bytes(b"old")
+    with pytest.raises(FacestatsError, match="holds frame files beyond this sequence's 4 frames .normal.00009.exr"):
+        render_sequence(smile, neutral_map, tmp_path / "x.zarr", exr_dir=exr2, **opts)
+    with pytest.raises(FacestatsError, match="exr_dir must be a folder, got the existing file"):
+        render_sequence(smile, neutral_map, tmp_path / "x.zarr", exr_dir=victim / "notes.txt", **opts)
+    # A render recorded by an older facestats (no fingerprint) says so and how to render it again.
+    meta = later / "zarr.json"
+    record = json.loads(meta.read_text())
+    config = json.loads(record["attributes"]["config"])
+    del config["sequence_sha256"]
+    record["attributes"]["config"] = json.dumps(config)
+    meta.write_text(json.dumps(record))
+    with pytest.raises(FacestatsError, match=r"from an older facestats .*missing \['sequence_sha256'\]"):
+        render_sequence(smile, neutral_map, later, **opts)
+    # Nothing behind a symbolic link is replaced; an empty path is refused; an empty folder is used.
+    (tmp_path / "link.zarr").symlink_to(run)
+    with pytest.raises(FacestatsError, match="is a symbolic link to a render of other inputs"):
+        render_sequence(smile, neutral_map, tmp_path / "link.zarr", overwrite=True, **opts)
+    assert np.array_equal(zarr.open_group(str(run), mode="r")["displacement"][0], other)
+    with pytest.raises(FacestatsError, match="out must be a non-empty path"):
+        render_sequence(smile, neutral_map, "", **opts)
+    (tmp_path / "empty.zarr").mkdir()
+    assert render_sequence(smile, neutral_map, tmp_path / "empty.zarr", **opts).rendered == [0, 1, 2, 3]
+    assert not (tmp_path / "x.zarr").exists()
     # A run killed while creating its group leaves only the temporary name, which the next run replaces.
     (tmp_path / ".new.zarr.creating").mkdir()
     (tmp_path / ".new.zarr.creating" / "zarr.json").write_text("{}")
     assert render_sequence(smile, neutral_map, tmp_path / "new.zarr", **opts).rendered == [0, 1, 2, 3]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["exr", "new.zarr", "run.zarr", "victim"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "empty.zarr", "exr", "exr2", "later.zarr", "link.zarr", "new.zarr", "run.zarr", "victim",
+    ]  # fmt: skip
 
 
 def _grid_obj(path, size_mm):

@@ -57,6 +57,7 @@ __all__ = [
     "decode_integer_image",
     "write_image",
     "read_exr",
+    "read_exr_attributes",
     "write_exr",
     "read_rgbe",
     "write_rgbe",
@@ -442,6 +443,18 @@ def read_exr(path):
     except Exception as exc:  # the bindings raise RuntimeError and others for bad files
         raise ImageFormatError(f"EXR file {str(p)!r} could not be read: {exc}") from exc
     return channels, attrs
+
+
+def read_exr_attributes(path) -> dict:
+    """The string header attributes of an EXR file, without reading its pixels (see :func:`read_exr`)."""
+    OpenEXR = _openexr()
+
+    p = _path(path)
+    try:
+        with OpenEXR.File(str(p), header_only=True) as f:
+            return {k: v for k, v in f.header().items() if isinstance(v, str)}
+    except Exception as exc:  # the bindings raise RuntimeError and others for bad files
+        raise ImageFormatError(f"EXR file {str(p)!r} could not be read: {exc}") from exc
 
 
 def write_exr(path, channels: dict, *, half: bool = False, attributes=None):

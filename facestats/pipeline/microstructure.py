@@ -24,9 +24,11 @@ neutral mesh, of every frame's vertex positions and of the neutral map.  The
 group is created under a temporary name and renamed into place, so a run killed
 while creating it leaves no group; ``overwrite`` replaces only a render of this
 function (never another folder, nor what a symbolic link points to).  EXR
-files are rewritten for every frame rendered in this run and for every frame
-not yet written to this ``exr_dir`` (the group records the folder and which
-frames it holds); a folder holding frame files beyond the sequence is refused.
+files carry a header attribute naming the render (a SHA-256 of its inputs) and
+the frame; every run with ``exr_dir`` writes each frame rendered in this run and
+each finished frame whose files there are missing or from another render (only
+the headers are read); a folder holding frame files beyond the sequence is
+refused.
 
 Tiling: the window is processed in tiles of ``tile`` texels with a halo of
 2 (⌈3 · 100 µm / smallest rest texel⌉ + 2) + 2 texels (the reach of both passes
@@ -54,7 +56,7 @@ from facestats.core.version import __version__
 from facestats.errors import FacestatsError, StoreError, ValidationError
 from facestats.io.displacement import read_displacement, write_displacement
 from facestats.io.ict_facekit import read_ict_facekit
-from facestats.io.images import write_exr
+from facestats.io.images import read_exr_attributes, write_exr
 from facestats.io.mesh_sequence import BlendshapeSequence, FrameSequence, read_mesh, read_vertices, read_weights
 from facestats.model.microstructure.deform import deform_microstructure
 from facestats.model.microstructure.kernel import SIGMA_RANGE_UM, TRUNCATE
@@ -206,9 +208,11 @@ def _check_exr_dir(exr_dir, n):
     """An EXR folder that is not a file and holds no frame files beyond this sequence's ``n`` frames."""
     if exr_dir is None:
         return None
-    path = os.path.abspath(os.fspath(exr_dir))
+    path = os.fspath(exr_dir)  # as given: the system resolves links and '..' (a lexical normpath would not)
+    if not path:
+        raise ValidationError("exr_dir must be a non-empty path, got ''")
     if os.path.lexists(path) and not os.path.isdir(path):
-        raise ValidationError(f"exr_dir must be a folder, got the existing file {os.fspath(exr_dir)!r}")
+        raise ValidationError(f"exr_dir must be a folder, got {path!r}, which exists and is not a folder")
     if os.path.isdir(path):
         beyond = sorted(f for f in os.listdir(path) if (m := _EXR_NAME.match(f)) and int(m.group(2)) >= n)
         if beyond:
@@ -245,7 +249,6 @@ def _open_group(out, config, n, window, tile, overwrite):
     g.create_array("stretch", shape=(n, len(STRETCH_STATS)), chunks=(n, len(STRETCH_STATS)), dtype="float64",
                    fill_value=np.nan, dimension_names=("frame", "stat"))  # fmt: skip
     g.create_array("done", shape=(n,), chunks=(n,), dtype="bool", fill_value=False, dimension_names=("frame",))
-    g.create_array("exr_done", shape=(n,), chunks=(n,), dtype="bool", fill_value=False, dimension_names=("frame",))
     g.attrs.update(
         {
             "config": json.dumps(config),
@@ -253,7 +256,6 @@ def _open_group(out, config, n, window, tile, overwrite):
             "units": json.dumps({"displacement": "um", "normal": "1"}),
             "method": METHOD,
             "facestats_version": __version__,
-            "exr_dir": None,
         }
     )
     if os.path.isdir(path) and not os.listdir(path):
@@ -293,20 +295,40 @@ def _render_frame(ms, vertices, neutral, map_shape, window, table, tile, halo, b
     group["stretch"][index] = np.concatenate([*pct, [stats[0][2] if stats else 0]])
 
 
-def _write_exr(group, index, exr_dir, name):
-    """Write frame ``index``'s EXR files (replacing any), each through a temporary name and a rename."""
-    os.makedirs(exr_dir, exist_ok=True)
-    targets = {
+def _exr_targets(exr_dir, index):
+    return {
         "displacement": os.path.join(exr_dir, f"displacement.{index:05d}.exr"),
         "normal": os.path.join(exr_dir, f"normal.{index:05d}.exr"),
     }
-    for kind, target in targets.items():  # write to a temporary name, then rename atomically
+
+
+def _exr_current(exr_dir, index, render_id) -> bool:
+    """Whether both EXR files of frame ``index`` exist and were written from this render (their header says so)."""
+    token = f"{render_id}:{index}"
+    for target in _exr_targets(exr_dir, index).values():
+        try:
+            if read_exr_attributes(target).get("facestats_render") != token:
+                return False
+        except (FacestatsError, OSError):
+            return False
+    return True
+
+
+def _write_exr(group, index, exr_dir, name, render_id):
+    """Write frame ``index``'s EXR files (replacing any), each through a temporary name and a rename.
+
+    The header attribute ``facestats_render`` (SHA-256 of the render's inputs : frame index) tells a later run
+    whether a file in the folder is this frame of this render (:func:`_exr_current`).
+    """
+    os.makedirs(exr_dir, exist_ok=True)
+    attributes = {"frame": name, "facestats_render": f"{render_id}:{index}"}
+    for kind, target in _exr_targets(exr_dir, index).items():
         tmp = target[:-4] + ".partial.exr"
         data = np.asarray(group[kind][index])
         if kind == "displacement":
-            write_displacement(tmp, data, attributes={"frame": name})
+            write_displacement(tmp, data, attributes=attributes)
         else:
-            write_exr(tmp, {"R": data[..., 0], "G": data[..., 1], "B": data[..., 2]}, attributes={"frame": name})
+            write_exr(tmp, {"R": data[..., 0], "G": data[..., 1], "B": data[..., 2]}, attributes=attributes)
         os.replace(tmp, target)
 
 
@@ -400,14 +422,12 @@ def render_sequence(
     n = len(sequence)
     names = sequence.frame_names()
     exr = _check_exr_dir(exr_dir, n)
-    group = _open_group(out, _config(sequence, neutral, map_shape, window, table, names), n, window, tile, overwrite)
-    if exr is not None and group.attrs.get("exr_dir") != exr:  # EXR files of another folder (or none) so far
-        group["exr_done"][:] = False
-        group.attrs["exr_dir"] = exr
+    config = _config(sequence, neutral, map_shape, window, table, names)
+    group = _open_group(out, config, n, window, tile, overwrite)
+    render_id = hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()
     halo = tile_halo(ms, map_shape)
     report = SequenceReport(os.fspath(out), n, map_shape=map_shape, window=window)
     done = np.asarray(group["done"][:])
-    exr_done = np.asarray(group["exr_done"][:])
     start = time.perf_counter()
     frames = range(n)
     if progress:
@@ -421,9 +441,8 @@ def render_sequence(
             vertices = sequence.frame(i)
             _render_frame(ms, vertices, neutral, map_shape, window, table, tile, halo, backend, group, i)
             report.rendered.append(i)
-        if exr is not None and not (done[i] and exr_done[i]):  # rendered now, or not yet written to this folder
-            _write_exr(group, i, exr, names[i])
-            group["exr_done"][i] = True
+        if exr is not None and not (done[i] and _exr_current(exr, i, render_id)):
+            _write_exr(group, i, exr, names[i], render_id)
         group["done"][i] = True
     report.seconds = time.perf_counter() - start
     return report

@@ -181,10 +181,18 @@ def test_outputs_are_safe(tmp_path, smile, neutral_map):
     d = zarr.open_group(str(later), mode="r")["displacement"][:]
     assert np.array_equal(read_exr(exr2 / "displacement.00000.exr")[0]["Y"], d[0])
     assert len(list(exr2.iterdir())) == 2 * len(smile)
+    # Two renders sharing the folder, a deleted file: the next run of each puts its own frames back.
+    render_sequence(smile, other, tmp_path / "b.zarr", exr_dir=exr2, **opts)
+    (exr2 / "normal.00001.exr").unlink()
+    assert render_sequence(smile, neutral_map, later, exr_dir=exr2, **opts).rendered == []
+    n_later = zarr.open_group(str(later), mode="r")["normal"][:]
+    for i in range(len(smile)):
+        assert np.array_equal(read_exr(exr2 / f"displacement.{i:05d}.exr")[0]["Y"], d[i])
+        assert np.array_equal(read_exr(exr2 / f"normal.{i:05d}.exr")[0]["B"], n_later[i, ..., 2])
     (exr2 / "normal.00009.exr").write_bytes(b"old")
     with pytest.raises(FacestatsError, match="holds frame files beyond this sequence's 4 frames .normal.00009.exr"):
         render_sequence(smile, neutral_map, tmp_path / "x.zarr", exr_dir=exr2, **opts)
-    with pytest.raises(FacestatsError, match="exr_dir must be a folder, got the existing file"):
+    with pytest.raises(FacestatsError, match="exr_dir must be a folder, got .* which exists and is not a folder"):
         render_sequence(smile, neutral_map, tmp_path / "x.zarr", exr_dir=victim / "notes.txt", **opts)
     # A render recorded by an older facestats (no fingerprint) says so and how to render it again.
     meta = later / "zarr.json"
@@ -210,7 +218,7 @@ def test_outputs_are_safe(tmp_path, smile, neutral_map):
     (tmp_path / ".new.zarr.creating" / "zarr.json").write_text("{}")
     assert render_sequence(smile, neutral_map, tmp_path / "new.zarr", **opts).rendered == [0, 1, 2, 3]
     assert sorted(p.name for p in tmp_path.iterdir()) == [
-        "empty.zarr", "exr", "exr2", "later.zarr", "link.zarr", "new.zarr", "run.zarr", "victim",
+        "b.zarr", "empty.zarr", "exr", "exr2", "later.zarr", "link.zarr", "new.zarr", "run.zarr", "victim",
     ]  # fmt: skip
 
 

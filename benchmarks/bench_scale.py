@@ -302,12 +302,8 @@ def bench_calibration_budget(subject=0, grid=48, passes=None):
             cos_err = np.clip(np.einsum("nk,nk->n", ps_normal.astype(np.float64), geometry.normal), -1, 1)
             out[f"{case}_normal_error_deg_median"] = float(np.degrees(np.median(np.arccos(cos_err))))
             for normal_source, normal in (("estimated", ps_normal), ("true", geometry.normal.astype(np.float32))):
-                ci, co, ft2 = fitting.fresnel_factors(samples, normal)
-                lim = np.float32(np.cos(np.radians(80)))
-                use = (ci > lim) & (co > lim)
-                with np.errstate(invalid="ignore", divide="ignore"):
-                    f_r = samples.radiance / (samples.irradiance * np.maximum(ci, 0))
-                cos_half = (ci + co) / np.sqrt(np.maximum(2 + 2 * samples.cos_io(), 1e-12))
+                ci, co, ft2, use, f_r = fitting.brdf_samples(samples, normal)
+                cos_half = samples.cos_half(ci, co)
                 est, _, grey_std = fitting.refine_albedo(samples, f_r, ft2, cos_half, use, with_std=True)
                 true_grey = truth.albedo[v, u].sum(axis=1)
                 with np.errstate(invalid="ignore"):

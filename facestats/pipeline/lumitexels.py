@@ -69,11 +69,7 @@ def _fit_piece(lt, st):
     if st.micro_normals:
         out["micro_normal"] = fitting.micro_normals(samples, n_cam)
     # Stage 2: albedo from BRDF samples with the photometric normal (eq. 8).
-    cos_i, cos_o, ft2 = fitting.fresnel_factors(samples, normal, st.eta)
-    lim = np.float32(np.cos(np.radians(st.max_angle_deg)))
-    use = (cos_i > lim) & (cos_o > lim)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        f_r = samples.radiance / (samples.irradiance * np.maximum(cos_i, 0))  # eq. 8, channel-major (3, S)
+    cos_i, cos_o, ft2, use, f_r = fitting.brdf_samples(samples, normal, st.eta, st.max_angle_deg)
     albedo_min, _ = fitting.albedo_stable_minimum(
         samples, f_r, cos_i, cos_o, ft2, use, discard=st.discard, grazing_penalty=st.grazing_penalty
     )
@@ -83,7 +79,7 @@ def _fit_piece(lt, st):
     albedo_std = None  # standard error of the grey albedo (unknown for the stable minimum)
     if st.refine_albedo:
         # Stage 2b: the mean over specular-free samples removes the noise bias of the minimum.
-        cos_half = (cos_i + cos_o) / np.sqrt(np.maximum(2 + 2 * samples.cos_io(), 1e-12))
+        cos_half = samples.cos_half(cos_i, cos_o)
         refined, n_ref, grey_std = fitting.refine_albedo(samples, f_r, ft2, cos_half, use, with_std=True)
         ok = np.isfinite(refined).all(1) & (n_ref >= st.min_samples)
         albedo = np.where(ok[:, None], refined, albedo).astype(np.float32)

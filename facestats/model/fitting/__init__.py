@@ -20,7 +20,14 @@ Translucency from one image (Suzuki, Mukaigawa & Yagi): :func:`fit_scattering_im
 :func:`facestats.pipeline.fit_subject` runs them all on a capture.
 """
 
-from facestats.model.fitting.albedo import albedo_stable_minimum, fresnel_factors, refine_albedo, specular_residual
+from facestats.model.fitting.albedo import (
+    BrdfSamples,
+    albedo_stable_minimum,
+    brdf_samples,
+    fresnel_factors,
+    refine_albedo,
+    specular_residual,
+)
 from facestats.model.fitting.maps import fill_flagged, push_pull, scatter_to_map
 from facestats.model.fitting.normals import micro_normals, photometric_normals
 from facestats.model.fitting.profile_grid import TABLE2_GRID, ProfileGrid
@@ -54,6 +61,8 @@ __all__ = [
     "refine_albedo",
     "specular_residual",
     "fresnel_factors",
+    "brdf_samples",
+    "BrdfSamples",
     "fit_specular",
     "fit_specular_samples",
     "fit_specular_models",

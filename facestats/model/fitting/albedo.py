@@ -39,6 +39,8 @@ Stage 3 (§5.3): f_s = f_r − (α/π) F_t(ωi) F_t(ωo) (eq. 10), converted to 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from facestats.core.published import ETA_SKIN
@@ -47,7 +49,14 @@ from facestats.errors import ValidationError
 from facestats.model.fitting.samples import order_keys
 from facestats.model.fresnel import check_eta, fresnel_reflectance_unchecked
 
-__all__ = ["fresnel_factors", "albedo_stable_minimum", "specular_residual", "refine_albedo"]
+__all__ = [
+    "fresnel_factors",
+    "BrdfSamples",
+    "brdf_samples",
+    "albedo_stable_minimum",
+    "specular_residual",
+    "refine_albedo",
+]
 
 
 def _check_per_sample(samples, brdf=None, **vectors):
@@ -84,6 +93,33 @@ def fresnel_factors(samples, normal, eta=ETA_SKIN):
     ft_i = 1 - fresnel_reflectance_unchecked(np.clip(ci_g, 0, 1), e)
     ft_o = 1 - fresnel_reflectance_unchecked(np.clip(co_g, 0, 1), e)
     return samples.at_lights(ci_g), samples.at_cameras(co_g), samples.at_lights(ft_i) * samples.at_cameras(ft_o)
+
+
+class BrdfSamples(NamedTuple):
+    """Per-sample geometry and BRDF values for one set of normals (:func:`brdf_samples`); arrays of shape (S,)
+    except ``f_r`` (3, S), channel-major."""
+
+    cos_i: np.ndarray
+    cos_o: np.ndarray
+    ft2: np.ndarray
+    use: np.ndarray
+    f_r: np.ndarray
+
+
+def brdf_samples(samples, normal, eta=ETA_SKIN, max_angle_deg=80.0) -> BrdfSamples:
+    """BRDF samples f_r = L_o / (E_i cos θi) (Weyrich et al. 2006 eq. 8) with their angles, for per-lumitexel normals.
+
+    ``cos_i``, ``cos_o`` and ``ft2`` are :func:`fresnel_factors`; ``use`` marks the samples with θi and θo
+    below ``max_angle_deg`` (eq. 14's domain: 80° in the paper), compared in float32; ``f_r`` is NaN or inf
+    where cos θi ≤ 0 (such samples are outside ``use``).  Irradiance E_i is per unit area normal to the light,
+    so the cosine is the surface's.
+    """
+    cos_i, cos_o, ft2 = fresnel_factors(samples, normal, eta)
+    lim = np.float32(np.cos(np.radians(float(as_finite(max_angle_deg, "max_angle_deg", 0.0, 90.0, unit="deg")))))
+    use = (cos_i > lim) & (cos_o > lim)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f_r = samples.radiance / (samples.irradiance * np.maximum(cos_i, 0))  # channel-major (3, S)
+    return BrdfSamples(cos_i, cos_o, ft2, use, f_r)
 
 
 def albedo_stable_minimum(

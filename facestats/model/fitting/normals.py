@@ -139,7 +139,7 @@ def _numpy_system(samples, n_scan, y, cos_spec, lim):
     """
     ci_g, co_g = samples.cos_grids(n_scan)
     ci, co = samples.at_lights(ci_g), samples.at_cameras(co_g)
-    cos_h = (ci + co) / np.sqrt(np.maximum(2 + 2 * samples.cos_io(), 1e-12))  # N·H with ‖ωi + ωo‖² = 2 + 2 ωi·ωo
+    cos_h = samples.cos_half(ci, co)
     with np.errstate(invalid="ignore"):
         use = (cos_h < cos_spec) & (ci > lim) & (co > lim) & (y > 0) & (y < np.inf)
     m_grid = samples.on_grid(use.astype(np.float32))  # (n, C, L)

@@ -432,6 +432,10 @@ class Samples:
             self._cache["io"] = io.astype(np.float32, copy=False)
         return self._cache["io"]
 
+    def cos_half(self, cos_i, cos_o) -> np.ndarray:
+        """Per-sample N·H, H = (ωi + ωo)/‖ωi + ωo‖, from N·ωi and N·ωo: (cos θi + cos θo) / √(2 + 2 ωi·ωo)."""
+        return (cos_i + cos_o) / np.sqrt(np.maximum(2 + 2 * self.cos_io(), 1e-12))
+
     def grey(self) -> np.ndarray:
         """Σ_ch L / Σ_ch E⊥ per sample: the grey f_r cos θi (cached)."""
         if "grey" not in self._cache:

@@ -94,7 +94,7 @@ def test_stages_agree_between_engines(rng):
         with np.errstate(divide="ignore", invalid="ignore"):
             f_r = s.radiance / (s.irradiance * np.maximum(ci, 0))
         alb, n_used = fitting.albedo_stable_minimum(s, f_r, ci, co, ft2, use, discard=2, grazing_penalty=1.5)
-        cos_half = (ci + co) / np.sqrt(np.maximum(2 + 2 * s.cos_io(), 1e-12))
+        cos_half = s.cos_half(ci, co)
         ref, n_ref = fitting.refine_albedo(s, f_r, ft2, cos_half, use, min_half_angle=0.3)
         out[eng] = (normal, cam, micro, alb, n_used, ref, n_ref)
     (n0, c0, m0, a0, u0, r0, k0), (n1, c1, m1, a1, u1, r1, k1) = out["numpy"], out["numba"]

@@ -144,16 +144,17 @@ def _config(sequence, neutral, map_shape, window, table, names):
 METHOD = "Nagano et al. 2015 eq. 1-13 (facestats.pipeline.microstructure)"
 
 
-def _is_render(path) -> bool:
-    """Whether ``path`` is a zarr group written by :func:`render_sequence` (its ``method`` attribute)."""
+def _render_attributes(path):
+    """The group attributes of ``path`` if it is a zarr group written by :func:`render_sequence`, else None."""
     meta = os.path.join(path, "zarr.json")
     if not os.path.isfile(meta):
-        return False
+        return None
     try:
         with open(meta, encoding="utf-8") as f:
-            return json.load(f).get("attributes", {}).get("method") == METHOD
+            attrs = json.load(f).get("attributes", {})
     except (OSError, ValueError, AttributeError):
-        return False
+        return None
+    return attrs if isinstance(attrs, dict) and attrs.get("method") == METHOD else None
 
 
 def _reuse(path, config, overwrite) -> bool:
@@ -169,16 +170,16 @@ def _reuse(path, config, overwrite) -> bool:
         return False
     if os.path.isdir(path) and not os.path.islink(path) and not os.listdir(path):
         return False  # an empty folder: nothing to lose
-    if not _is_render(path):
+    attrs = _render_attributes(path)
+    if attrs is None:
         raise StoreError(
             f"out {path!r} exists and is not a microstructure render; facestats neither writes into nor "
             "deletes it, even with overwrite (--overwrite): choose another path"
         )
-    with open(os.path.join(path, "zarr.json"), encoding="utf-8") as f:
-        try:
-            old = json.loads(json.load(f)["attributes"].get("config", "null"))
-        except (ValueError, KeyError, TypeError):
-            old = None
+    try:
+        old = json.loads(attrs.get("config", "null"))
+    except (ValueError, TypeError):
+        old = None
     if old == config:
         return True
     if os.path.islink(path):

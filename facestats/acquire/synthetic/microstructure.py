@@ -328,6 +328,14 @@ def _render_pores(out, centres, radii, depth, texel_um, a_inv, xs0, ys0):
         np.subtract.at(out, (rr[ok], ccc[ok]), val[ok])
 
 
+def _map_shape(shape, minimum):
+    """``shape`` (an int or a pair) as (height, width), each at least ``minimum`` texels."""
+    shape = (shape, shape) if np.ndim(shape) == 0 else tuple(shape)
+    if len(shape) != 2:
+        raise ValidationError(f"shape must be an int or (height, width), got {shape!r}")
+    return check_integer(shape[0], "shape height", minimum), check_integer(shape[1], "shape width", minimum)
+
+
 def procedural_microstructure(
     shape, texel_um=15.0, *, params=None, region_map=None, seed=0, deformation=None, smooth_mm=0.5
 ) -> np.ndarray:
@@ -355,8 +363,7 @@ def procedural_microstructure(
     ndarray of float32, shape (height, width)
         Heights in µm, indexed ``[v, u]``.
     """
-    shape = (shape, shape) if np.ndim(shape) == 0 else tuple(shape)
-    shape = (check_integer(shape[0], "shape height", 2), check_integer(shape[1], "shape width", 2))
+    shape = _map_shape(shape, 2)
     texel = float(as_finite(texel_um, "texel_um", 0.0, 1000.0, low_inclusive=False, unit="um"))
     seed = check_integer(seed, "seed", 0)
     a = np.eye(2) if deformation is None else as_finite(deformation, "deformation", dtype=np.float64)
@@ -442,8 +449,7 @@ def shot_noise_microstructure(
     """
     from scipy.ndimage import gaussian_filter
 
-    shape = (shape, shape) if np.ndim(shape) == 0 else tuple(shape)
-    shape = (check_integer(shape[0], "shape height", 8), check_integer(shape[1], "shape width", 8))
+    shape = _map_shape(shape, 8)
     texel = float(as_finite(texel_um, "texel_um", 0.0, 1000.0, low_inclusive=False, unit="um"))
     density = float(as_finite(density_mm2, "density_mm2", 0.0, 1e6, low_inclusive=False, unit="1/mm^2"))
     radius_px = float(as_finite(bump_radius_um, "bump_radius_um", 0.0, 1e4, low_inclusive=False, unit="um")) / texel

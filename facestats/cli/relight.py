@@ -4,9 +4,10 @@ One API call — :func:`facestats.relight.stage.relight_subject` for a subject o
 the store (through the virtual light stage) or
 :func:`facestats.relight.relighting.relight` for a field store (``*.zarr`` written by
 :func:`facestats.relight.field.write_field`) — then the linear image is written
-as OpenEXR and a tone-mapped sRGB PNG next to it.  Outputs are written to
-temporary files and renamed only when both are complete: a failed command
-leaves nothing behind.
+as OpenEXR and a tone-mapped sRGB PNG next to it.  Both output paths are
+checked before any work; the files are written under unique temporary names
+and renamed into place together (:class:`facestats.core.outputs.OutputSet`):
+a failed command leaves nothing behind and replaces nothing.
 
 Registered in :mod:`facestats.cli` with :func:`add_relight`.
 """
@@ -34,20 +35,22 @@ def _lights(text):
 def _cmd_relight(args) -> int:
     import numpy as np
 
+    from facestats.core.outputs import OutputSet, check_output_file
     from facestats.errors import ValidationError
     from facestats.io.images import write_image
     from facestats.io.probes import read_light_probe
     from facestats.relight.display import exposure_scale
 
-    out = pathlib.Path(args.out)
-    if out.suffix.lower() != ".exr":
-        raise ValidationError(f"--out must name an .exr file, got {str(out)!r}")
-    png = pathlib.Path(args.png) if args.png else out.with_suffix(".png")
+    # Outputs first: a bad path must not cost a relight, and nothing is replaced unless both are written.
+    out = check_output_file(args.out, "--out", (".exr",))
+    png = check_output_file(args.png if args.png else out.with_suffix(".png"), "--png", (".png",))
+    if not math.isfinite(args.rotate):
+        raise ValidationError(f"--rotate must be a finite angle in degrees, got {args.rotate!r}")
     for p in (out, png):
-        if p.exists() and not args.overwrite:
+        if os.path.lexists(p) and not args.overwrite:
             raise ValidationError(f"output {str(p)!r} exists (pass --overwrite to replace it)")
     probe = read_light_probe(args.probe, args.layout)
-    rotate = math.radians(args.rotate)
+    rotate = math.radians(math.fmod(args.rotate, 360.0))  # fmod first: exact for any finite angle
     source = pathlib.Path(args.source)
     if source.is_dir():
         from facestats.relight.field import open_field
@@ -66,18 +69,11 @@ def _cmd_relight(args) -> int:
         image, mask = relight_subject(subject, probe, layout=args.layout, rotate=rotate, camera=camera,
                                       lights=_lights(args.lights))  # fmt: skip
     scale = exposure_scale(image, mask)
-    tmp_exr = out.with_name(f".{out.name}.tmp.exr")
-    tmp_png = png.with_name(f".{png.name}.tmp.png")
-    try:
-        attrs = {"source": str(args.source), "probe": str(args.probe), "rotate_deg": str(args.rotate),
-                 "units": "radiance in the probe's unit", "method": "Debevec et al. 2000 eq. 4"}  # fmt: skip
-        write_image(tmp_exr, image, attributes=attrs)
-        write_image(tmp_png, np.clip(image * scale, 0, 1), srgb=True)
-        os.replace(tmp_exr, out)
-        os.replace(tmp_png, png)
-    finally:
-        for t in (tmp_exr, tmp_png):
-            t.unlink(missing_ok=True)
+    attrs = {"source": str(args.source), "probe": str(args.probe), "rotate_deg": str(args.rotate),
+             "units": "radiance in the probe's unit", "method": "Debevec et al. 2000 eq. 4"}  # fmt: skip
+    with OutputSet(out.parent) as files:  # both files or neither
+        write_image(files.path(out.name), image, attributes=attrs)
+        write_image(files.path(png.absolute()), np.clip(image * scale, 0, 1), srgb=True)
     lum = image.mean(-1)
     sel = lum[mask] if mask is not None else lum
     print(f"relit {args.source} under {args.probe} (rotated {args.rotate:g}°): {image.shape[1]} x {image.shape[0]}, "

@@ -113,6 +113,13 @@ class OutputSet:
             out.path("data.json").write_text(...)
         out.written  # the final paths
 
+    Targets may also be paths in other folders (``out.path("/elsewhere/x.png")``):
+    their missing folders are created, and removed again on failure.  The
+    temporaries have unique names (never a name an earlier run could have left,
+    never followed through a symlink).  Renaming into place is a transaction:
+    an existing target is first moved aside, and if any rename fails every
+    target is put back as it was.
+
     Parameters
     ----------
     directory : str or os.PathLike
@@ -126,49 +133,84 @@ class OutputSet:
         self._created: list[pathlib.Path] = []
 
     def __enter__(self):
+        self._make_dirs(self.directory)
+        return self
+
+    def _make_dirs(self, directory: pathlib.Path) -> None:
         missing = []
-        d = self.directory.absolute()
+        d = directory.absolute()
         while not os.path.lexists(d):
             missing.append(d)
             d = d.parent
         try:
-            self.directory.mkdir(parents=True, exist_ok=True)
+            directory.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise ValidationError(f"cannot create the output folder {self.directory}: {exc.strerror}") from None
-        self._created = missing
-        return self
+            raise ValidationError(f"cannot create the output folder {directory}: {exc.strerror}") from None
+        self._created = missing + self._created  # innermost first, newest first
 
-    def path(self, name: str) -> pathlib.Path:
-        """The temporary path to write the file ``name`` (of :attr:`directory`) to."""
+    def path(self, name) -> pathlib.Path:
+        """The temporary path to write the file ``name`` (of :attr:`directory`, or a path elsewhere) to."""
         final = self.directory / name
-        tmp = final.with_name(f".{final.name}.tmp-{os.getpid()}-{secrets.token_hex(3)}{final.suffix}")
+        if any(final == f for _, f in self._temps):
+            raise ValidationError(f"output {str(final)!r} is named twice")
+        self._make_dirs(final.parent)
+        tmp = final.with_name(f".{final.name}.tmp-{os.getpid()}-{secrets.token_hex(6)}{final.suffix}")
+        # Reserve the name: O_EXCL never opens an existing file or follows a symlink left there.
+        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
         self._temps.append((tmp, final))
         return tmp
 
     def __exit__(self, exc_type, exc, tb):
         if exc_type is None:
             try:
-                for tmp, final in self._temps:
-                    os.replace(tmp, final)
-                    self.written.append(final)
+                self._commit()
                 return False
             except OSError as err:
                 exc = err
         self._cleanup()
         if isinstance(exc, OSError):  # e.g. a full disk: say where, and that nothing was left behind
+            where = exc.filename if getattr(exc, "filename", None) else self.directory
             raise FacestatsError(
-                f"cannot write the output files in {self.directory}: {exc.strerror or exc}; nothing was written"
+                f"cannot write the output files in {self.directory} ({where}): {exc.strerror or exc}; "
+                "nothing was written"
             ) from None
         return False
 
+    def _commit(self) -> None:
+        """Rename every temporary into place; on a failure, restore every target as it was."""
+        moved: list[tuple[pathlib.Path, pathlib.Path]] = []  # (backup, final)
+        placed: list[pathlib.Path] = []
+        try:
+            for _, final in self._temps:
+                if os.path.lexists(final) and not os.path.isdir(final):
+                    backup = final.with_name(f".{final.name}.old-{os.getpid()}-{secrets.token_hex(6)}")
+                    os.replace(final, backup)
+                    moved.append((backup, final))
+            for tmp, final in self._temps:
+                os.replace(tmp, final)
+                placed.append(final)
+        except OSError:
+            for final in placed:
+                _remove(final)
+            for backup, final in moved:
+                os.replace(backup, final)
+            raise
+        for backup, _ in moved:
+            _remove(backup)
+        self.written = placed
+
     def _cleanup(self) -> None:
         for tmp, _ in self._temps:
-            try:
-                os.remove(tmp)
-            except OSError:
-                pass
+            _remove(tmp)
         for d in self._created:  # innermost first; a folder someone else filled meanwhile stays
             try:
                 os.rmdir(d)
             except OSError:
                 pass
+
+
+def _remove(path) -> None:
+    try:
+        os.remove(path)
+    except OSError:
+        pass

@@ -509,7 +509,17 @@ def _rgbe_header(data: bytes, p):
         raise ImageFormatError(
             f"Radiance file {str(p)!r} must have the resolution line '-Y H +X W', got {size_line[:40]!r}"
         )
-    return int(m.group(1)), int(m.group(2)), nl + 1
+    height, width = int(m.group(1)), int(m.group(2))
+    if height < 1 or width < 1:
+        raise ImageFormatError(f"Radiance file {str(p)!r} must have at least one pixel, got '-Y {height} +X {width}'")
+    # Before allocating: each scanline takes at least 4 + 8 ceil(W / 127) bytes (run-length encoded) or 4 W (flat).
+    least = height * min(4 * width, 4 + 8 * -(-width // 127))
+    if nl < 0 or len(data) - (nl + 1) < least:
+        raise ImageFormatError(
+            f"Radiance file {str(p)!r} is truncated: '-Y {height} +X {width}' needs at least {least} bytes of "
+            f"pixel data, the file holds {max(len(data) - (nl + 1), 0) if nl >= 0 else 0}"
+        )
+    return height, width, nl + 1
 
 
 def _rle_scanline(buf, pos, width, p, row):
@@ -545,7 +555,7 @@ def read_rgbe(path) -> np.ndarray:
     rgbe = np.empty((height, width, 4), np.uint8)
     rle = 8 <= width < 32768
     for row in range(height):  # loop over scanlines; each is decoded with array operations per run
-        if rle and data[pos : pos + 2] == b"\x02\x02" and not data[pos + 2] & 0x80:
+        if rle and pos + 4 <= len(data) and data[pos : pos + 2] == b"\x02\x02" and not data[pos + 2] & 0x80:
             if (data[pos + 2] << 8 | data[pos + 3]) != width:
                 raise ImageFormatError(f"Radiance file {str(p)!r} has a scanline of the wrong width at row {row}")
             rgbe[row], pos = _rle_scanline(data, pos + 4, width, p, row)

@@ -62,20 +62,28 @@ MANIFEST_NAME = "olat.json"
 _GRID_TOL = 1e-6
 
 
-def _read_rows(path: pathlib.Path, width: int) -> np.ndarray:
+def _read_rows(path: pathlib.Path, width: int, what: str) -> np.ndarray:
+    """Rows of ``width`` finite numbers from a text file (``what`` names its contents in messages)."""
+    if not path.is_file():
+        raise ValidationError(f"{what} file {str(path)!r} does not exist")
     try:
-        a = np.loadtxt(path, ndmin=2, dtype=np.float64)
-    except ValueError as exc:
+        a = np.loadtxt(path, ndmin=2, dtype=np.float64, encoding="utf-8")
+    except (ValueError, UnicodeDecodeError) as exc:
         raise FormatError(f"{str(path)!r}: cannot read numbers: {exc}") from None
     if a.shape[1] != width:
         raise FormatError(f"{str(path)!r}: each line must hold {width} numbers, got {a.shape[1]}")
+    if not np.all(np.isfinite(a)):
+        row = int(np.flatnonzero(~np.isfinite(a).all(1))[0])
+        raise ValidationError(f"{str(path)!r}: {what} must be finite, got {a[row].tolist()} on line {row + 1}")
     return a
 
 
 def _load_images(folder, names, srgb):
-    """Stack of images (L, H, W, 3) float32, checked for existence and a common size (loop over files)."""
+    """Stack of images (L, H, W, 3) float32, checked for existence, values and a common size (loop over files),
+    and whether any 8-bit image was decoded from sRGB."""
 
     stack = None
+    decoded = False
     for k, name in enumerate(names):
         p = folder / name
         if not p.is_file():
@@ -83,8 +91,16 @@ def _load_images(folder, names, srgb):
         if p.suffix.lower() in INTEGER_EXTENSIONS:
             bits = read_integer_image(p)[1]
             img = read_image(p, srgb=bool(srgb) and bits == 8)
+            decoded |= bool(srgb) and bits == 8
         else:
             img = read_image(p)
+            bad = ~np.isfinite(img) | (img < 0)
+            if bad.any():
+                y, x = np.argwhere(bad.any(-1))[0]
+                raise ValidationError(
+                    f"image {str(p)!r} (light {k}) must hold finite values >= 0, got {img[y, x].tolist()} at "
+                    f"pixel (x={x}, y={y})"
+                )
         if img.shape[2] == 1:
             img = np.repeat(img, 3, axis=2)
         img = img[..., :3]
@@ -96,7 +112,7 @@ def _load_images(folder, names, srgb):
                 f"{stack.shape[2]} x {stack.shape[1]}: all images of a folder must have one size"
             )
         stack[k] = img
-    return stack
+    return stack, decoded
 
 
 def _read_mask(path: pathlib.Path, shape):
@@ -114,15 +130,34 @@ def read_ground_truth_normals(folder, shape=None):
     if mat.is_file():
         from scipy.io import loadmat
 
-        n = np.asarray(loadmat(mat)["Normal_gt"], np.float64)
+        src = mat
+        try:
+            n = loadmat(mat)["Normal_gt"]
+        except KeyError:
+            raise FormatError(f"{str(mat)!r} must hold the variable 'Normal_gt'") from None
+        except Exception as exc:  # scipy raises several types for a damaged file
+            raise FormatError(f"cannot read {str(mat)!r}: {exc}") from None
     elif npy.is_file():
-        n = np.asarray(np.load(npy), np.float64)
+        src = npy
+        try:
+            n = np.load(npy, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise FormatError(f"cannot read {str(npy)!r} as a numeric array: {exc}") from None
     elif txt.is_file() and shape is not None:
-        n = _read_rows(txt, 3).reshape(tuple(shape) + (3,))
+        src = txt
+        n = _read_rows(txt, 3, "ground-truth normals")
+        if n.shape[0] != int(np.prod(shape)):
+            raise FormatError(f"{str(txt)!r} must hold one normal per pixel ({int(np.prod(shape))}), got {n.shape[0]}")
+        n = n.reshape(tuple(shape) + (3,))
     else:
         return None
-    if shape is not None and n.shape[:2] != tuple(shape):
-        raise ValidationError(f"ground-truth normals of {str(folder)!r} have shape {n.shape[:2]}, images have {shape}")
+    try:
+        n = np.asarray(n, np.float64)
+    except (TypeError, ValueError):
+        raise FormatError(f"ground-truth normals {str(src)!r} must be numeric, got dtype {n.dtype}") from None
+    if n.ndim != 3 or n.shape[2] != 3 or (shape is not None and n.shape[:2] != tuple(shape)):
+        want = f"{tuple(shape) + (3,)}" if shape is not None else "(H, W, 3)"
+        raise ValidationError(f"ground-truth normals {str(src)!r} must have shape {want}, got {n.shape}")
     return n
 
 
@@ -130,42 +165,90 @@ def _diligent(folder: pathlib.Path, srgb):
     names_file = folder / "filenames.txt"
     if not names_file.is_file():
         raise ValidationError(f"DiLiGenT folder {str(folder)!r} must hold filenames.txt")
-    names = [ln.strip() for ln in names_file.read_text().splitlines() if ln.strip()]
-    dirs = _read_rows(folder / "light_directions.txt", 3)
+    try:
+        names = [ln.strip() for ln in names_file.read_text(encoding="utf-8").splitlines() if ln.strip()]
+    except UnicodeDecodeError as exc:
+        raise FormatError(f"{str(names_file)!r} must be UTF-8 text: {exc}") from None
+    dirs = _read_rows(folder / "light_directions.txt", 3, "light directions")
     if dirs.shape[0] != len(names):
         raise ValidationError(
             f"{str(folder / 'light_directions.txt')!r} lists {dirs.shape[0]} lights but "
             f"{str(names_file)!r} lists {len(names)} images"
         )
     inten_file = folder / "light_intensities.txt"
-    inten = _read_rows(inten_file, 3) if inten_file.is_file() else np.ones((len(names), 3))
+    inten = _read_rows(inten_file, 3, "light intensities") if inten_file.is_file() else np.ones((len(names), 3))
     if inten.shape[0] != len(names):
         raise ValidationError(
             f"{str(inten_file)!r} lists {inten.shape[0]} intensities but there are {len(names)} images"
         )
-    return {"names": names, "directions": dirs, "intensity": inten, "mask": "mask.png", "srgb": srgb, "view": None,
-            "skipped": [], "layout": "diligent"}  # fmt: skip
+    if np.any(inten <= 0):
+        row = int(np.flatnonzero((inten <= 0).any(1))[0])
+        raise ValidationError(f"{str(inten_file)!r}: light intensities must be > 0, got {inten[row].tolist()} on "
+                              f"line {row + 1}")  # fmt: skip
+    return {"names": names, "directions": dirs, "intensity": inten, "mask": "mask.png", "mask_required": False,
+            "srgb": srgb, "view": None, "skipped": [], "layout": "diligent"}  # fmt: skip
+
+
+def _numbers(value, path, what):
+    """``value`` (a JSON number or list of numbers) as a float64 array, else a FormatError naming ``what``."""
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if isinstance(value, list):
+        ok = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+    if not ok:
+        raise FormatError(f"{str(path)!r}: {what} must be a number or a list of numbers, got {value!r}")
+    a = np.asarray(value, np.float64)
+    if not np.all(np.isfinite(a)):
+        raise ValidationError(f"{str(path)!r}: {what} must be finite, got {value!r}")
+    return a
+
+
+def _unit_vector(value, path, what):
+    d = _numbers(value, path, what)
+    if d.shape != (3,) or abs(np.linalg.norm(d) - 1) > 1e-3:
+        raise ValidationError(f"{str(path)!r}: {what} must be a unit 3-vector, got {value!r}")
+    return d / np.linalg.norm(d)
 
 
 def _frame_direction(fr, k, path):
     if "direction" in fr:
-        d = np.asarray(fr["direction"], np.float64)
-    elif "phi_deg" in fr and "theta_deg" in fr:
-        d = direction_from_angles(np.radians(float(fr["phi_deg"])), np.radians(float(fr["theta_deg"])))
-    else:
+        return _unit_vector(fr["direction"], path, f"frame {k} ({fr['file']!r}) direction")
+    if "phi_deg" in fr and "theta_deg" in fr:
+        phi = _numbers(fr["phi_deg"], path, f"frame {k} ({fr['file']!r}) phi_deg")
+        theta = _numbers(fr["theta_deg"], path, f"frame {k} ({fr['file']!r}) theta_deg")
+        if phi.shape or theta.shape:
+            raise FormatError(f"{str(path)!r}: frame {k} ({fr['file']!r}) phi_deg and theta_deg must be numbers, "
+                              f"got {fr['phi_deg']!r} and {fr['theta_deg']!r}")  # fmt: skip
+        return direction_from_angles(np.radians(float(phi)), np.radians(float(theta)))
+    raise ValidationError(f"{str(path)!r}: frame {k} ({fr['file']!r}) needs 'direction' or 'phi_deg'+'theta_deg'")
+
+
+def _frame_intensity(fr, k, path):
+    it = _numbers(fr.get("intensity", [1.0, 1.0, 1.0]), path, f"frame {k} ({fr['file']!r}) intensity")
+    it = np.repeat(it, 3) if it.shape == (1,) or it.ndim == 0 else it
+    if it.shape != (3,) or np.any(it <= 0):
         raise ValidationError(
-            f"{str(path)!r}: frame {k} ({fr.get('file')!r}) needs 'direction' or 'phi_deg'+'theta_deg'"
+            f"{str(path)!r}: frame {k} ({fr['file']!r}) intensity must be 1 or 3 positive numbers, "
+            f"got {fr.get('intensity')!r}"
         )
-    if d.shape != (3,) or not np.all(np.isfinite(d)) or abs(np.linalg.norm(d) - 1) > 1e-3:
-        raise ValidationError(f"{str(path)!r}: frame {k} direction must be a unit 3-vector, got {fr.get('direction')}")
-    return d / np.linalg.norm(d)
+    return it
+
+
+def _mask_and_view(man, path):
+    """The manifest's optional mask file name and view direction (unit vector), checked."""
+    mask = man.get("mask")
+    if mask is not None and (not isinstance(mask, str) or not mask.strip()):
+        raise FormatError(f"{str(path)!r}: mask must be a file name, got {mask!r}")
+    view = man.get("view")
+    return mask, None if view is None else _unit_vector(view, path, "view")
 
 
 def _manifest(path: pathlib.Path, srgb):
     try:
-        man = json.loads(path.read_text())
+        man = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
         raise FormatError(f"cannot read the OLAT manifest {str(path)!r}: {exc}") from None
+    if not isinstance(man, dict):
+        raise FormatError(f"{str(path)!r}: the manifest must be a JSON object, got {type(man).__name__}")
     if man.get("format", "facestats-olat/1") != "facestats-olat/1":
         raise ValidationError(f"{str(path)!r}: format must be 'facestats-olat/1', got {man.get('format')!r}")
     enc = man.get("encoding", "srgb")
@@ -173,39 +256,49 @@ def _manifest(path: pathlib.Path, srgb):
     frames = man.get("frames")
     if not isinstance(frames, list) or not frames:
         raise ValidationError(f"{str(path)!r}: 'frames' must be a non-empty list")
+    mask, view = _mask_and_view(man, path)
     names, dirs, inten, skipped = [], [], [], []
     for k, fr in enumerate(frames):
-        if not isinstance(fr, dict) or "file" not in fr:
-            raise ValidationError(f"{str(path)!r}: frame {k} must be an object with a 'file'")
+        if not isinstance(fr, dict) or not isinstance(fr.get("file"), str) or not fr["file"].strip():
+            raise ValidationError(f"{str(path)!r}: frame {k} must be an object with a 'file' name, got {fr!r}")
         if fr.get("kind", "olat") != "olat":
-            skipped.append(str(fr["file"]))
+            skipped.append(fr["file"])
             continue
-        names.append(str(fr["file"]))
+        names.append(fr["file"])
         dirs.append(_frame_direction(fr, k, path))
-        it = np.asarray(fr.get("intensity", [1.0, 1.0, 1.0]), np.float64)
-        it = np.repeat(it, 3) if it.shape == (1,) or it.ndim == 0 else it
-        if it.shape != (3,) or not np.all(np.isfinite(it)) or np.any(it <= 0):
-            raise ValidationError(f"{str(path)!r}: frame {k} intensity must be 1 or 3 positive numbers, got {it}")
-        inten.append(it)
+        inten.append(_frame_intensity(fr, k, path))
     if not names:
         raise ValidationError(f"{str(path)!r}: no light frame (every frame is of another kind)")
     srgb_eff = (enc == "srgb") if srgb is None else srgb
-    view = man.get("view")
-    return {"names": names, "directions": np.array(dirs), "intensity": np.array(inten), "mask": man.get("mask"),
-            "srgb": srgb_eff, "view": view, "skipped": skipped, "layout": "manifest"}  # fmt: skip
+    return {"names": names, "directions": np.array(dirs), "intensity": np.array(inten), "mask": mask,
+            "mask_required": mask is not None, "srgb": srgb_eff, "view": view, "skipped": skipped,
+            "layout": "manifest"}  # fmt: skip
 
 
 def _as_grid(dirs):
     """(n_phi, n_theta) when ``dirs`` is a lat-long light stage in row-major order, else None."""
 
     n = dirs.shape[0]
-    for n_phi in range(1, int(np.sqrt(n / 2)) + 2):
+    for n_phi in range(1, n + 1):  # every divisor (a few dozen at most)
         if n % n_phi == 0:
             n_theta = n // n_phi
             ref = latlong_directions(n_phi, n_theta).reshape(-1, 3)
             if np.allclose(ref, dirs, atol=_GRID_TOL):
                 return n_phi, n_theta
     return None
+
+
+def _check_distinct(dirs, names, folder):
+    """Two images under one light direction make the solid angles undefined: refuse, naming both."""
+    order = np.lexsort(dirs.T)
+    same = np.all(np.abs(np.diff(dirs[order], axis=0)) < 1e-9, axis=1)
+    if same.any():
+        a, b = order[np.flatnonzero(same)[0]], order[np.flatnonzero(same)[0] + 1]
+        a, b = min(a, b), max(a, b)
+        raise ValidationError(
+            f"light directions of {str(folder)!r} must be distinct: {names[a]!r} (light {a}) and {names[b]!r} "
+            f"(light {b}) both have {np.round(dirs[a], 6).tolist()}"
+        )
 
 
 def read_olat_folder(path, *, srgb=None):
@@ -242,19 +335,20 @@ def read_olat_folder(path, *, srgb=None):
         k = int(np.argmax(np.abs(norm - 1)))
         raise ValidationError(f"light direction {k} of {str(folder)!r} must be a unit vector, got norm {norm[k]:.4g}")
     dirs = dirs / norm[:, None]
-    stack = _load_images(folder, spec["names"], spec["srgb"])
+    _check_distinct(dirs, spec["names"], folder)
+    mask_path = folder / spec["mask"] if spec["mask"] else None
+    if spec["mask_required"] and not mask_path.is_file():
+        raise ValidationError(f"mask {str(mask_path)!r} named by {str(man)!r} does not exist")
+    stack, decoded = _load_images(folder, spec["names"], spec["srgb"])
     values = stack / spec["intensity"][:, None, None, :].astype(np.float32)
     h, w = stack.shape[1:3]
     mask = None
-    if spec["mask"] and (folder / spec["mask"]).is_file():
-        mask = _read_mask(folder / spec["mask"], (h, w))
-    view = None
-    if spec["view"] is not None:
-        v = np.asarray(spec["view"], np.float64)
-        view = np.broadcast_to(v / np.linalg.norm(v), (h, w, 3))
+    if mask_path is not None and mask_path.is_file():
+        mask = _read_mask(mask_path, (h, w))
+    view = None if spec["view"] is None else np.broadcast_to(spec["view"], (h, w, 3))
     grid = _as_grid(dirs)
     attrs = {"source": f"OLAT folder {folder.name}", "layout": spec["layout"], "files": list(spec["names"]),
-             "skipped_frames": list(spec["skipped"]), "srgb_decoded": bool(spec["srgb"])}  # fmt: skip
+             "skipped_frames": list(spec["skipped"]), "srgb_decoded": decoded}  # fmt: skip
     if grid is not None:
         values = values.reshape(grid + (h, w, 3))
         d_in, inten = dirs.reshape(grid + (3,)), spec["intensity"].reshape(grid + (3,))

@@ -47,3 +47,32 @@ def test_bad_probe_or_existing_output_leaves_no_side_effect(tmp_path):
     assert r.returncode == 2 and "exists" in r.stderr and (tmp_path / "o.exr").read_text() == "keep me"
     r = run_cli("relight", "NOPE", "--probe", tmp_path / "sky.pfm", "--out", tmp_path / "n.exr")
     assert r.returncode == 2 and not (tmp_path / "n.exr").exists()
+
+
+def test_outputs_are_checked_first_and_replaced_together(tmp_path):
+    f, _, _ = lambertian_field(4, 4)
+    write_field(tmp_path / "f.zarr", f)
+    write_light_probe(tmp_path / "sky.pfm", sky_probe(8))
+    src, probe = tmp_path / "f.zarr", tmp_path / "sky.pfm"
+    (tmp_path / "a.exr").write_text("keep")
+    (tmp_path / "a.png").mkdir()  # the PNG target is a folder: nothing may be replaced
+    r = run_cli("relight", src, "--probe", probe, "--out", tmp_path / "a.exr", "--overwrite")
+    assert r.returncode == 2 and "--png must be a file" in r.stderr and "a.png" in r.stderr
+    assert (tmp_path / "a.exr").read_text() == "keep"
+    for png in ("c.exr", "d.jpg"):  # a PNG under another name, or the EXR's own name
+        r = run_cli("relight", src, "--probe", probe, "--out", tmp_path / "c.exr", "--png", tmp_path / png)
+        assert r.returncode == 2 and "--png must end in one of ['.png']" in r.stderr
+    # Temporaries are unique: files or links under the old fixed names are neither used nor followed.
+    (tmp_path / "victim.txt").write_text("mine")
+    (tmp_path / ".o.png.tmp.png").symlink_to(tmp_path / "victim.txt")
+    (tmp_path / ".o.exr.tmp.exr").write_text("also mine")
+    r = run_cli("relight", src, "--probe", probe, "--out", tmp_path / "o.exr", "--rotate", "1.7e308")
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "victim.txt").read_text() == "mine" and (tmp_path / ".o.exr.tmp.exr").read_text() == "also mine"
+    assert read_image(tmp_path / "o.png").shape == (4, 4, 3)
+    r = run_cli("relight", src, "--probe", probe, "--out", tmp_path / "new" / "n.exr", "--rotate", "nan")
+    assert r.returncode == 2 and "--rotate must be a finite angle" in r.stderr and not (tmp_path / "new").exists()
+    r = run_cli("relight", src, "--probe", probe, "--out", tmp_path / "new" / "n.exr", "--rotate", "1e20")
+    assert r.returncode == 0 and (tmp_path / "new" / "n.png").is_file()  # folders created on success
+    ref = relight(f, probe=sky_probe(8), rotate=np.radians(1e20 % 360))  # 280°, not the unrotated image
+    assert np.allclose(read_image(tmp_path / "new" / "n.exr"), ref, rtol=1e-5, atol=1e-7)

@@ -125,6 +125,17 @@ def test_bad_files_and_arguments_name_the_problem(tmp_path):
     (tmp_path / "t.hdr").write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 2 +X 8\n\x02\x02\x00\x08\x88")
     with pytest.raises(ValidationError, match="truncated|bad run"):
         images.read_image(tmp_path / "t.hdr")
+    head = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 4 +X 256\n"
+    for cut in (b"\x02", b"\x02\x02", b"\x02\x02\x01"):  # cut inside a run-length marker
+        (tmp_path / "c.hdr").write_bytes(head + cut)
+        with pytest.raises(ValidationError, match=r"c.hdr' is truncated: '-Y 4 \+X 256' needs at least"):
+            images.read_image(tmp_path / "c.hdr")
+    (tmp_path / "h.hdr").write_bytes(b"#?RADIANCE\n\n-Y 9999999 +X 19999998\n" + b"\0" * 100)
+    with pytest.raises(ValidationError, match=r"h.hdr' is truncated: .* the file holds 100"):  # before allocating
+        images.read_image(tmp_path / "h.hdr")
+    (tmp_path / "z.hdr").write_bytes(b"#?RADIANCE\n\n-Y 0 +X 0\n")
+    with pytest.raises(ValidationError, match=r"z.hdr' must have at least one pixel, got '-Y 0 \+X 0'"):
+        images.read_image(tmp_path / "z.hdr")
     (tmp_path / "o.hdr").write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n+Y 2 +X 8\n")
     with pytest.raises(ValidationError, match="-Y H \\+X W"):
         images.read_image(tmp_path / "o.hdr")

@@ -7,10 +7,10 @@ import pathlib
 import numpy as np
 import pytest
 
-from facestats.errors import ValidationError
+from facestats.errors import FacestatsError, FormatError, ValidationError
 from facestats.io.images import srgb_to_linear, write_image
 from facestats.io.olat import read_olat_folder, write_olat_manifest
-from facestats.model.sphere import light_stage_directions
+from facestats.model.sphere import latlong_directions, light_stage_directions
 from facestats.relight.photometric import angular_error_deg, photometric_stereo
 from tests.helpers import TEST_DATA
 from tests.relight.fields import sphere_normals
@@ -135,8 +135,95 @@ def test_bad_folders_name_file_field_and_value(tmp_path):
     bad = tmp_path / "m"
     bad.mkdir()
     (bad / "olat.json").write_text(json.dumps({"frames": [{"file": "x.png", "direction": [0, 0, 3]}]}))
-    with pytest.raises(ValidationError, match="frame 0 direction must be a unit 3-vector"):
+    with pytest.raises(ValidationError, match=r"frame 0 \('x.png'\) direction must be a unit 3-vector"):
         read_olat_folder(bad)
+
+
+def _manifest_folder(folder, **fields):
+    folder.mkdir()
+    write_image(folder / "a.exr", np.full((4, 4, 3), 0.5))
+    write_image(folder / "b.exr", np.full((4, 4, 3), 0.25))
+    man = {"frames": [{"file": "a.exr", "direction": [0, 0, 1]}, {"file": "b.exr", "direction": [0, 1, 0]}]}
+    man.update(fields)
+    (folder / "olat.json").write_text(json.dumps(man))
+    return folder
+
+
+@pytest.mark.parametrize(
+    "fields, message",
+    [
+        ({"frames": [{"file": "a.exr", "direction": "abc"}]}, r"frame 0 \('a.exr'\) direction must be a number"),
+        ({"frames": [{"file": "a.exr", "direction": {"x": 1}}]}, "direction must be a number"),
+        ({"frames": [{"file": "a.exr", "phi_deg": "abc", "theta_deg": 0}]}, "phi_deg must be a number"),
+        ({"frames": [{"file": "a.exr", "phi_deg": [1, 2], "theta_deg": 0}]}, "phi_deg and theta_deg must be numbers"),
+        ({"frames": [{"file": "a.exr", "direction": [0, 0, 1], "intensity": {}}]}, "intensity must be a number"),
+        ({"frames": [{"file": "a.exr", "direction": [0, 0, 1], "intensity": [1, 0, 1]}]}, "positive numbers"),
+        ({"frames": [{"file": 5, "direction": [0, 0, 1]}]}, "must be an object with a 'file' name"),
+        ({"view": "abc"}, "view must be a number"),
+        ({"view": [0, 1]}, "view must be a unit 3-vector"),
+        ({"mask": 5}, "mask must be a file name"),
+        ({"mask": "nomask.png"}, r"mask .*nomask.png' named by .*olat.json' does not exist"),
+        ({"frames": [{"file": "a.exr", "direction": [0, 0, 1]}, {"file": "b.exr", "direction": [0, 0, 1]}]},
+         r"must be distinct: 'a.exr' \(light 0\) and 'b.exr' \(light 1\)"),
+    ],
+)
+def test_hostile_manifests_are_refused_by_name(tmp_path, fields, message):
+    folder = _manifest_folder(tmp_path / "m", **fields)
+    with pytest.raises(FacestatsError, match=message):
+        read_olat_folder(folder)
+
+
+def test_hostile_folders_are_refused_by_name(tmp_path):
+    (tmp_path / "top").mkdir()
+    (tmp_path / "top" / "olat.json").write_text("[]")
+    with pytest.raises(FormatError, match="must be a JSON object, got list"):
+        read_olat_folder(tmp_path / "top")
+    neg = _manifest_folder(tmp_path / "neg")
+    write_image(neg / "b.exr", np.full((4, 4, 3), -1.0))
+    with pytest.raises(ValidationError, match=r"b.exr' \(light 1\) must hold finite values >= 0, got \[-1.0"):
+        read_olat_folder(neg)
+    dil = tmp_path / "d"
+    dil.mkdir()
+    _diligent_folder(dil, h=8)
+    (dil / "light_intensities.txt").write_text("1 1 1\n" + "nan 1 1\n" * 19)
+    with pytest.raises(ValidationError, match=r"light_intensities.txt': light intensities must be finite, .* line 2"):
+        read_olat_folder(dil)
+    (dil / "light_intensities.txt").write_text("1 1 1\n" * 19 + "0 1 1\n")
+    with pytest.raises(ValidationError, match=r"must be > 0, got \[0.0, 1.0, 1.0\] on line 20"):
+        read_olat_folder(dil)
+    (dil / "light_intensities.txt").unlink()
+    (dil / "filenames.txt").write_bytes(b"\xff\xfe001.png\n")
+    with pytest.raises(FormatError, match="filenames.txt' must be UTF-8"):
+        read_olat_folder(dil)
+    (dil / "filenames.txt").write_text("".join(f"{k + 1:03d}.png\n" for k in range(20)))
+    (dil / "light_directions.txt").rename(dil / "moved.txt")
+    with pytest.raises(ValidationError, match="light directions file .*light_directions.txt' does not exist"):
+        read_olat_folder(dil)
+    (dil / "moved.txt").rename(dil / "light_directions.txt")
+    (dil / "normal.txt").write_text("0 0 1\n" * 5)
+    with pytest.raises(FormatError, match=r"normal.txt' must hold one normal per pixel \(64\), got 5"):
+        read_olat_folder(dil)
+    np.save(dil / "normals.npy", np.zeros((5, 7)))
+    with pytest.raises(ValidationError, match=r"normals.npy' must have shape \(8, 8, 3\), got \(5, 7\)"):
+        read_olat_folder(dil)
+    (dil / "Normal_gt.mat").write_bytes(b"MATLAB junk")
+    with pytest.raises(FormatError, match="Normal_gt.mat"):
+        read_olat_folder(dil)
+    (dil / "Normal_gt.mat").unlink()
+    (dil / "normals.npy").unlink()
+    (dil / "normal.txt").unlink()
+    assert read_olat_folder(dil).attrs["srgb_decoded"] is False  # 16-bit images are linear, not decoded
+
+
+@pytest.mark.parametrize("n_phi, n_theta", [(8, 8), (8, 16), (4, 8), (3, 64)])
+def test_every_latlong_stage_is_read_as_a_grid(tmp_path, n_phi, n_theta):
+    d = latlong_directions(n_phi, n_theta).reshape(-1, 3)
+    files = [f"l{k:04d}.exr" for k in range(len(d))]
+    for k, name in enumerate(files):
+        write_image(tmp_path / name, np.full((2, 2, 3), k + 1.0))
+    write_olat_manifest(tmp_path, files, d)
+    f = read_olat_folder(tmp_path)
+    assert (f.sizes["light_phi"], f.sizes["light_theta"]) == (n_phi, n_theta)
 
 
 @pytest.mark.skipif(not BUNNY.is_dir(), reason=f"public DiLiGenT-layout sample absent: copy Gintoki-jpg/Bunny_Specular "

@@ -1,0 +1,40 @@
+"""``facestats.core.outputs.OutputSet``: several files replaced together or not at all."""
+
+import os
+
+import pytest
+
+from facestats.core import outputs
+from facestats.core.outputs import OutputSet
+from facestats.errors import FacestatsError, ValidationError
+
+
+def test_a_failed_rename_puts_every_target_back(tmp_path, monkeypatch):
+    (tmp_path / "a.txt").write_text("old a")
+    elsewhere = tmp_path / "other" / "deep"
+    real_replace = os.replace
+
+    def failing(src, dst):  # the second file cannot be placed (e.g. a full disk on its folder)
+        if str(dst).endswith("b.txt"):
+            raise OSError(28, "No space left on device", str(dst))
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(outputs.os, "replace", failing)
+    with pytest.raises(FacestatsError, match="No space left on device; nothing was written"):
+        with OutputSet(tmp_path) as out:
+            out.path("a.txt").write_text("new a")
+            out.path(elsewhere / "b.txt").write_text("new b")
+    assert (tmp_path / "a.txt").read_text() == "old a"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]  # no temporaries, backups or new folders
+
+
+def test_temporaries_are_unique_and_names_are_not_reused(tmp_path):
+    (tmp_path / "link").symlink_to(tmp_path / "victim")
+    with OutputSet(tmp_path) as out:
+        p = out.path("x.txt")
+        assert p.exists() and not p.is_symlink() and p.name.startswith(".x.txt.tmp-")
+        p.write_text("x")
+        with pytest.raises(ValidationError, match="named twice"):
+            out.path("x.txt")
+    assert (tmp_path / "x.txt").read_text() == "x" and not (tmp_path / "victim").exists()
+    assert out.written == [tmp_path / "x.txt"]

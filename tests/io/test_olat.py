@@ -163,8 +163,10 @@ def _manifest_folder(folder, **fields):
         ({"view": [0, 1]}, "view must be a unit 3-vector"),
         ({"mask": 5}, "mask must be a file name"),
         ({"mask": "nomask.png"}, r"mask .*nomask.png' named by .*olat.json' does not exist"),
-        ({"frames": [{"file": "a.exr", "direction": [0, 0, 1]}, {"file": "b.exr", "direction": [0, 0, 1]}]},
-         r"must be distinct: 'a.exr' \(light 0\) and 'b.exr' \(light 1\)"),
+        (
+            {"frames": [{"file": "a.exr", "direction": [0, 0, 1]}, {"file": "b.exr", "direction": [0, 0, 1]}]},
+            r"must be distinct: 'a.exr' \(light 0\) and 'b.exr' \(light 1\)",
+        ),
     ],
 )
 def test_hostile_manifests_are_refused_by_name(tmp_path, fields, message):

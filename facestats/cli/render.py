@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import os
-
 from facestats.cli.options import add_store_option, ascii_int, open_store_option
 
 __all__ = ["add_render"]
@@ -15,30 +13,35 @@ def _cmd_render(args) -> int:
 
     matplotlib.use("Agg")
     from facestats.acquire.capture import open_capture
+    from facestats.core.outputs import OutputSet, check_output_dir, check_output_file
     from facestats.io.images import write_image
     from facestats.io.subject_export import store_subject
     from facestats.pipeline.validation import default_capture, render_led, render_probe
 
+    out = check_output_dir(args.out, "--out")  # before rendering: a bad folder must not cost a render
     with open_store_option(args.store) as st:
         ds = store_subject(st, args.subject_id)
+    stem = f"{ds.attrs.get('subject_id', args.subject_id)}-cam{args.camera:02d}"
+    names = [f"{stem}-rendered.exr", f"{stem}-capture.exr", f"{stem}-error.exr", f"{stem}.png"]
+    for name in names:
+        check_output_file(out / name, "--out")
     cap = open_capture(args.capture) if args.capture else default_capture(ds)
     if args.probe:
         res = render_probe(ds, cap, args.camera, args.probe)
     else:
         res = render_led(ds, cap, args.camera, args.light)
-    os.makedirs(args.out, exist_ok=True)
-    stem = os.path.join(args.out, f"{args.subject_id}-cam{args.camera:02d}")
-    write_image(stem + "-rendered.exr", np.nan_to_num(res.rendered).clip(0))
-    if res.reference is not None:
-        write_image(stem + "-capture.exr", np.nan_to_num(res.reference).clip(0))
-        write_image(stem + "-error.exr", np.nan_to_num(res.error))
-    res.figure().savefig(stem + ".png", dpi=120)
+    with OutputSet(out) as files:  # every file or none
+        write_image(files.path(names[0]), np.nan_to_num(res.rendered).clip(0))
+        if res.reference is not None:
+            write_image(files.path(names[1]), np.nan_to_num(res.reference).clip(0))
+            write_image(files.path(names[2]), np.nan_to_num(res.error))
+        res.figure().savefig(files.path(names[3]), dpi=120)
     if res.relative_rmse is not None:
         print(
             f"{args.subject_id} camera {args.camera} {res.light}: "
             f"RMSE {res.rmse:.4g}, relative {100 * res.relative_rmse:.2f} %"
         )
-    print(f"wrote {stem}.png and the EXR images beside it")
+    print(f"wrote {out / names[3]} and the EXR images beside it")
     return 0
 
 

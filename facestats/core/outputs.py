@@ -27,7 +27,7 @@ import secrets
 
 from facestats.errors import FacestatsError, ValidationError
 
-__all__ = ["check_output_dir", "check_output_file", "OutputSet"]
+__all__ = ["check_output_dir", "check_output_file", "check_apart", "OutputSet"]
 
 
 def _as_path(path, name: str) -> pathlib.Path:
@@ -99,6 +99,31 @@ def check_output_file(path, name: str = "out", suffixes=None) -> pathlib.Path:
         return p
     _creatable(p, name)
     return p
+
+
+def check_apart(path, protected, name: str = "out", what: str = "the store", *, replaced: bool = False) -> None:
+    """Refuse an output ``path`` that is ``protected`` or lies inside it (links resolved).
+
+    Writing there would mix files into ``protected`` (a store).  With
+    ``replaced`` (an output folder replaced as a whole) a ``path`` that contains
+    ``protected`` is refused too: replacing it would destroy ``protected``.
+    URLs (``scheme://``) are not local paths and are not checked.
+
+    Raises
+    ------
+    ValidationError
+        Naming ``name``, the path and ``what``.
+    """
+    if not protected or "://" in os.fspath(protected):
+        return
+    guard = os.path.realpath(protected)
+    real = os.path.realpath(path)
+    common = os.path.commonpath([guard, real])
+    if common == guard or (replaced and common == real):
+        rule = "lie outside {w} and not contain it" if replaced else "lie outside {w}"
+        raise ValidationError(
+            f"{name} must {rule.format(w=what)}: {name} {os.fspath(path)!r}, {what} {os.fspath(protected)!r}"
+        )
 
 
 class OutputSet:

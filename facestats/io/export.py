@@ -43,7 +43,7 @@ import math
 from pathlib import Path
 
 from facestats.core.conventions import CHANNELS, REGIONS, ROMAN, SITES
-from facestats.core.outputs import OutputSet, check_output_dir
+from facestats.core.outputs import OutputSet, check_apart, check_output_dir
 from facestats.core.version import __version__
 from facestats.errors import ValidationError
 from facestats.io.index import utc_now
@@ -130,7 +130,8 @@ def export_statistics(store, out_dir, formats=("csv", "json")) -> list[Path]:
     ----------
     store : facestats.io.store.Store
     out_dir : str or os.PathLike
-        Created if missing; existing files of the same names are replaced.
+        Created if missing; existing files of the same names are replaced; never
+        the store's folder or a folder inside it.
         Checked before anything is written, and the files are written all or
         none (:class:`facestats.core.outputs.OutputSet`): a failure (e.g. a
         full disk) leaves the folder as it was.
@@ -145,6 +146,7 @@ def export_statistics(store, out_dir, formats=("csv", "json")) -> list[Path]:
     if not formats or any(f not in ("csv", "json") for f in formats):
         raise ValidationError(f"formats must be a non-empty subset of ['csv', 'json'], got {list(formats)!r}")
     out_dir = check_output_dir(out_dir, "out_dir")
+    check_apart(out_dir, store.path, "out_dir")
     with OutputSet(out_dir) as out:
         _write_release(store, out, formats)
     return out.written

@@ -327,6 +327,8 @@ def geometry_mesh(geometry: FaceGeometry):
 def write_mesh(path, vertices, faces, uv, normals=None) -> str:
     """Write a triangle mesh with per-vertex UVs as OBJ (``vt``) or PLY (``s``/``t``), by extension.
 
+    The OBJ has no material (``mtllib``): the maps are the material, written beside it by the caller.
+
     Files store v upwards (OBJ/PLY convention), so ``1 - v`` is written;
     :func:`load_face_mesh` flips it back.
 
@@ -365,7 +367,13 @@ def write_mesh(path, vertices, faces, uv, normals=None) -> str:
     mesh = trimesh.Trimesh(v, f, process=False, **kw)
     mesh.visual = trimesh.visual.TextureVisuals(uv=np.stack([t[:, 0], 1 - t[:, 1]], 1))
     if ext == ".obj":
-        mesh.export(path, file_type="obj", include_normals=normals is not None)
+        from trimesh.exchange.obj import export_obj
+
+        # UVs only: trimesh would add a placeholder material (material.mtl and a grey 2 × 2 PNG beside the OBJ).
+        text = export_obj(mesh, include_normals=normals is not None, include_texture=True, write_texture=False)
+        lines = [ln for ln in text.splitlines() if not ln.startswith(("mtllib ", "usemtl "))]
+        with open(path, "w", encoding="ascii") as fh:
+            fh.write("\n".join(lines) + "\n")
     else:
         mesh.export(path, file_type="ply")
     return path

@@ -11,9 +11,10 @@ disk) leaves nothing behind, and an existing directory is replaced only with
 from __future__ import annotations
 
 import os
+import secrets
 import shutil
-import tempfile
 
+from facestats.core.outputs import check_apart, check_output_dir
 from facestats.core.validate import check_choice
 from facestats.errors import StoreError, ValidationError
 from facestats.io.gltf import write_gltf
@@ -23,17 +24,6 @@ from facestats.io.store import Store, open_store
 __all__ = ["EXPORT_FORMATS", "UnknownSubjectError", "export_subject", "store_subject"]
 
 EXPORT_FORMATS = ("exr", "mitsuba", "gltf")
-
-
-def _dataset(subject, store):
-    """The subject Dataset: given, or read (fully verified) from ``store`` (a Store, a path or None = default)."""
-    if hasattr(subject, "data_vars"):
-        return subject
-
-    if isinstance(store, Store):
-        return store_subject(store, subject)
-    with open_store(store) as st:
-        return store_subject(st, subject)
 
 
 def store_subject(store, subject_id):
@@ -103,27 +93,90 @@ def export_subject(subject, out, format="exr", *, store=None, overwrite=False, *
         ``subject_id``, ``format``, ``out`` and ``files`` (sorted names).
     """
     check_choice(format, "format", EXPORT_FORMATS)
-    out = os.path.abspath(os.fspath(out))
-    if os.path.exists(out) and not os.path.isdir(out):
-        raise ValidationError(f"out must be a directory, got the file {out!r}")
-    if os.path.isdir(out) and os.listdir(out) and not overwrite:
-        raise ValidationError(f"out directory {out!r} is not empty (pass overwrite=True / --overwrite to replace it)")
-    ds = _dataset(subject, store)
+    out = _check_out(out, overwrite)
+    if hasattr(subject, "data_vars"):
+        ds = subject
+    elif isinstance(store, Store):
+        check_apart(out, store.path, replaced=True)
+        ds = store_subject(store, subject)
+    else:
+        with open_store(store) as st:
+            check_apart(out, st.path, replaced=True)
+            ds = store_subject(st, subject)
     parent = os.path.dirname(out)
+    _remove_stale_temporaries(parent, os.path.basename(out))
+    created = _missing_dirs(parent)
     os.makedirs(parent, exist_ok=True)
-    tmp = tempfile.mkdtemp(prefix=f".{os.path.basename(out)}-", dir=parent)
+    tmp = os.path.join(parent, f".{os.path.basename(out)}.export-{os.getpid()}-{secrets.token_hex(4)}")
     try:
-        os.chmod(tmp, 0o755)  # mkdtemp makes it private; the export is an ordinary directory
+        os.mkdir(tmp, 0o755)
         _write(format, ds, tmp, options)
         files = sorted(os.listdir(tmp))
-        if os.path.isdir(out):
-            old = tmp + ".old"
-            os.replace(out, old)
-            os.replace(tmp, out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, out)
+        _place(tmp, out, overwrite)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
+        for d in created:  # innermost first: the folders this export created for nothing
+            try:
+                os.rmdir(d)
+            except OSError:
+                pass
         raise
     return {"subject_id": str(ds.attrs.get("subject_id", "")), "format": format, "out": out, "files": files}
+
+
+def _check_out(out, overwrite):
+    """``out`` as an absolute path: a directory or creatable path, not a link, empty unless ``overwrite``."""
+    path = os.path.abspath(check_output_dir(out, "out"))
+    if os.path.islink(path):
+        raise ValidationError(f"out must not be a symbolic link (it would be replaced by a directory), got {path!r}")
+    if os.path.isdir(path) and os.listdir(path) and not overwrite:
+        raise ValidationError(f"out directory {path!r} is not empty (pass overwrite=True / --overwrite to replace it)")
+    return path
+
+
+def _missing_dirs(path):
+    """The folders of ``path`` that do not exist yet, innermost first."""
+    missing = []
+    d = os.path.abspath(path)
+    while not os.path.lexists(d) and d != os.path.dirname(d):
+        missing.append(d)
+        d = os.path.dirname(d)
+    return missing
+
+
+def _remove_stale_temporaries(parent, name):
+    """Remove ``.NAME.export-PID-*`` folders left by exports whose process is gone (killed mid-way)."""
+    if not os.path.isdir(parent):
+        return
+    prefix = f".{name}.export-"
+    for entry in os.listdir(parent):
+        if not entry.startswith(prefix):
+            continue
+        pid = entry[len(prefix) :].split("-", 1)[0]
+        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
+            shutil.rmtree(os.path.join(parent, entry), ignore_errors=True)
+
+
+def _alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's live process
+        return True
+    return True
+
+
+def _place(tmp, out, overwrite):
+    """Rename the finished export ``tmp`` to ``out``, checking ``out`` again (it may have appeared meanwhile)."""
+    if os.path.islink(out) or (os.path.lexists(out) and not os.path.isdir(out)):
+        raise ValidationError(f"out {out!r} was replaced by a file or link during the export; nothing was written")
+    if os.path.isdir(out) and os.listdir(out):
+        if not overwrite:
+            raise ValidationError(f"out directory {out!r} was filled during the export; nothing was written")
+        old = tmp + ".old"
+        os.replace(out, old)
+        os.replace(tmp, out)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(tmp, out)  # onto an empty folder, or a new name

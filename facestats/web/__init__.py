@@ -16,12 +16,25 @@ from facestats.errors import ValidationError
 __all__ = ["create_app", "serve", "make_server"]
 
 
-def create_app(store=None, *, preload=True):
+def create_app(store=None, *, preload=True, allowed_hosts=None):
     """See :func:`facestats.web.app.create_app`."""
     # local import: keeps 23 modules out of this module's import
     from facestats.web.app import create_app as _create_app
 
-    return _create_app(store, preload=preload)
+    return _create_app(store, preload=preload, allowed_hosts=allowed_hosts)
+
+
+#: Host names of this machine's loopback interface.
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+
+
+def _check_host(host):
+    """``host`` as a non-empty address (an empty one would bind every interface)."""
+    if not isinstance(host, str) or not host.strip() or host != host.strip():
+        raise ValidationError(
+            f"host must be an address such as 127.0.0.1 (an empty one binds every network interface), got {host!r}"
+        )
+    return host
 
 
 def make_server(app, host: str = "127.0.0.1", port: int = 8000):
@@ -38,6 +51,13 @@ def make_server(app, host: str = "127.0.0.1", port: int = 8000):
     from facestats.core.validate import check_integer
 
     check_integer(port, "port", 0, 65535)
+    _check_host(host)
+    import socket
+
+    try:  # werkzeug would print its own message and exit: resolve first to name the host
+        socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except socket.gaierror as exc:
+        raise ValidationError(f"host {host!r} is not an address of this machine: {exc.strerror}") from None
     try:
         return _make_server(host, port, app, threaded=True)
     except SystemExit:  # werkzeug exits when the address is taken; say so as every facestats error does
@@ -56,7 +76,19 @@ def serve(store=None, *, host: str = "127.0.0.1", port: int = 8000, ready=None):
     ready : callable, optional
         Called with the URL once the server listens.
     """
-    server = make_server(create_app(store), host, port)
+    _check_host(host)
+    local = host in LOOPBACK or host.startswith("127.")
+    # On loopback, only requests addressed to this machine's names (no DNS rebinding through another name).
+    allowed = set(LOOPBACK) | {host} if local else None
+    server = make_server(create_app(store, allowed_hosts=allowed), host, port)
+    if not local:
+        import warnings
+
+        warnings.warn(
+            f"serving on {host}, not on loopback: anyone who can reach this machine on port {server.server_port} "
+            "can read the store",
+            stacklevel=2,
+        )
     url = f"http://{host}:{server.server_port}/"
     if ready is not None:
         ready(url)

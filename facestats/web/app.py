@@ -100,6 +100,8 @@ def _filters(args) -> dict:
         raise ValidationError(f"unknown filter(s) {unknown}; expected some of {list(FILTERS)}")
     out = {}
     for key in FILTERS:
+        if len(args.getlist(key)) > 1:
+            raise ValidationError(f"filter {key} must be given once, got {args.getlist(key)[:4]!r}")
         value = args.get(key, "").strip()
         if len(value) > MAX_VALUE:
             raise ValidationError(f"{key} must be at most {MAX_VALUE} characters, got {len(value)}")
@@ -107,7 +109,15 @@ def _filters(args) -> dict:
     return out
 
 
-def create_app(store=None, *, preload=True):
+def _host_name(host: str) -> str:
+    """The name part of a ``Host`` header (``[::1]:8000`` → ``::1``, ``localhost:80`` → ``localhost``)."""
+    host = host.strip().lower()
+    if host.startswith("["):
+        return host[1 : host.find("]")] if "]" in host else host
+    return host.rsplit(":", 1)[0] if host.count(":") == 1 else host
+
+
+def create_app(store=None, *, preload=True, allowed_hosts=None):
     """The Flask app over ``store`` (a path, a read-only :class:`~facestats.io.store.Store` or None: the default).
 
     Parameters
@@ -115,6 +125,9 @@ def create_app(store=None, *, preload=True):
     store : str, os.PathLike, Store or None
     preload : bool
         Start reading the region samples for Fig. 15 in the background now.
+    allowed_hosts : iterable of str, optional
+        Host names a request's ``Host`` header may carry (others get 400): what
+        :func:`facestats.web.serve` passes on loopback, against DNS rebinding.
 
     Returns
     -------
@@ -148,23 +161,32 @@ def create_app(store=None, *, preload=True):
         "heavy_wait": HEAVY_WAIT,
     }
     app.config["FACESTATS"] = ctx
-    _register_guards(app)
+    _register_guards(app, None if allowed_hosts is None else frozenset(h.lower() for h in allowed_hosts))
     _register_routes(app, ctx)
     return app
 
 
-def _register_guards(app):
+def _check_request(request, allowed_hosts):
+    """Abort a request to another host name, with another method than GET/HEAD, or beyond the size limits."""
+    from flask import abort
+
+    if allowed_hosts is not None and _host_name(request.host) not in allowed_hosts:
+        abort(400, f"unexpected Host header {request.host[:64]!r}: this server answers {sorted(allowed_hosts)}")
+    if request.method not in ("GET", "HEAD"):
+        abort(405)
+    if len(request.query_string) > MAX_QUERY_STRING:
+        abort(414)
+    if (request.content_length or 0) > MAX_BODY:
+        abort(413)
+
+
+def _register_guards(app, allowed_hosts):
     from flask import jsonify, render_template, request
     from werkzeug.exceptions import HTTPException
 
     @app.before_request
     def _limits():
-        from flask import abort
-
-        if request.method not in ("GET", "HEAD"):
-            abort(405)
-        if len(request.query_string) > MAX_QUERY_STRING:
-            abort(414)
+        _check_request(request, allowed_hosts)
 
     def _reply(status, message):
         if request.path.startswith("/api/"):

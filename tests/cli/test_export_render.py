@@ -29,6 +29,17 @@ def test_render_prints_the_relative_rmse_and_writes_images(tmp_path, capsys):
     ]  # fmt: skip
 
 
+def test_render_checks_its_outputs_before_rendering(tmp_path, capsys):
+    (tmp_path / "afile").write_text("x")
+    assert main(["render", "S003", "--out", str(tmp_path / "afile")]) == 2
+    assert "--out must be a directory, got" in capsys.readouterr().err
+    assert main(["render", "S003", "--out", ""]) == 2
+    assert "--out must be a file system path, got ''" in capsys.readouterr().err
+    (tmp_path / "r" / "S003-cam05.png").mkdir(parents=True)  # one target is a folder: nothing is written
+    assert main(["render", "S003", "--out", str(tmp_path / "r")]) == 2
+    assert "S003-cam05.png" in capsys.readouterr().err and os.listdir(tmp_path / "r") == ["S003-cam05.png"]
+
+
 def test_render_refuses_a_subject_not_fitted_from_the_default_capture(tmp_path, capsys):
     """Without --capture, a subject of another store is never compared with the default's re-simulation."""
     import json

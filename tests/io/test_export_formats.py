@@ -255,6 +255,58 @@ def test_export_subject_is_atomic_and_refuses_non_empty_directories(tmp_path, su
     export_subject(subject, out, "exr", overwrite=True)
     assert (out / "albedo.exr").exists() and not (out / "face.gltf").exists()
     assert sorted(os.listdir(tmp_path)) == ["S003"]
+    assert "mtllib" not in (out / "mesh.obj").read_text()  # no placeholder material beside the maps
+    assert not {"material.mtl", "material_0.png"} & set(os.listdir(out))
+
+
+def test_export_subject_never_replaces_what_it_must_not(tmp_path, subject, monkeypatch):
+    from facestats.io import subject_export
+
+    with pytest.raises(FacestatsError, match="out must be a file system path, got ''"):
+        export_subject(subject, "", "gltf", overwrite=True)  # not the current folder
+    (tmp_path / "real").mkdir()
+    (tmp_path / "real" / "keep.txt").write_text("keep")
+    (tmp_path / "link").symlink_to(tmp_path / "real")
+    with pytest.raises(FacestatsError, match="out must not be a symbolic link"):
+        export_subject(subject, tmp_path / "link", "gltf", overwrite=True)
+    # Missing parent folders are created only for an export that succeeds.
+    with pytest.raises(FacestatsError, match="probe"):
+        export_subject(subject, tmp_path / "x" / "a" / "b", "mitsuba", probe=tmp_path / "missing.exr")
+    assert not (tmp_path / "x").exists()
+    # A folder filled by someone else during the export is not replaced without overwrite.
+    real_write = subject_export._write
+
+    def racing(fmt, ds, tmp, options):
+        real_write(fmt, ds, tmp, options)
+        (tmp_path / "race").mkdir()
+        (tmp_path / "race" / "user.txt").write_text("mine")
+
+    monkeypatch.setattr(subject_export, "_write", racing)
+    with pytest.raises(FacestatsError, match="was filled during the export; nothing was written"):
+        export_subject(subject, tmp_path / "race", "gltf")
+    monkeypatch.undo()
+    assert os.listdir(tmp_path / "race") == ["user.txt"]
+    # A killed export's temporary folder is removed by the next export to the same place.
+    stale = tmp_path / ".race2.export-999999999-abcd"
+    stale.mkdir()
+    export_subject(subject, tmp_path / "race2", "gltf")
+    assert not stale.exists()
+    assert sorted(os.listdir(tmp_path)) == ["link", "race", "race2", "real"]
+
+
+def test_export_subject_refuses_the_store_itself_and_paths_around_it(tmp_path):
+    import facestats
+
+    with facestats.open_store() as st:
+        ds = st.subject("S003")
+    store = tmp_path / "proj" / "store.zarr"
+    with facestats.open_store(store, mode="a") as st:
+        st.write_subject(ds)
+    for out in (store, store / "subjects" / "new", tmp_path / "proj"):
+        with pytest.raises(FacestatsError, match="out must lie outside the store and not contain it"):
+            export_subject("S003", out, "gltf", store=store, overwrite=True)
+    with facestats.open_store(store) as st:
+        assert "S003" in st
 
 
 def test_missing_mitsuba_is_a_clear_error(monkeypatch):

@@ -64,6 +64,27 @@ def test_errors_carry_the_cli_text_and_4xx_never_a_traceback(client, store_path,
     assert r.status_code == 500 and b"ZeroDivisionError" not in r.data and b"internal error" in r.data
 
 
+def test_host_names_bodies_and_repeated_filters_are_checked(store_path):
+    from facestats.errors import ValidationError
+    from facestats.web import create_app, make_server
+
+    app = create_app(store_path, preload=False, allowed_hosts=("127.0.0.1", "localhost", "::1"))
+    c = app.test_client()
+    assert c.get("/api/query", headers={"Host": "localhost:8000"}).status_code == 200
+    assert c.get("/api/query", headers={"Host": "[::1]:8000"}).status_code == 200
+    r = c.get("/api/query", headers={"Host": "evil.example.com"})  # DNS rebinding: another name for this address
+    assert r.status_code == 400 and "unexpected Host header" in r.get_json()["error"]
+    r = c.get("/api/query", headers={"Host": "localhost"}, data=b"\0" * 5000)
+    assert r.status_code == 413
+    r = c.get("/api/query?skin_type=III&skin_type=IV", headers={"Host": "localhost"})
+    assert r.status_code == 400 and "filter skin_type must be given once" in r.get_json()["error"]
+    for host in ("", " ", "127.0.0.1 "):
+        with pytest.raises(ValidationError, match="host must be an address"):
+            make_server(app, host, 0)
+    with pytest.raises(ValidationError, match="host 'no.such.host.invalid' is not an address of this machine"):
+        make_server(app, "no.such.host.invalid", 0)
+
+
 def test_subject_pages_maps_and_exr_download(client):
     assert client.get("/subject/S002").status_code == 200
     doc = client.get("/api/subject/S002").get_json()

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from facestats.acquire.response import exposure_agreement, recover_response
+from facestats.core.validate import check_integer
 from facestats.errors import FormatError, ValidationError
 
 __all__ = ["RESPONSE_FORMAT", "ResponseCalibration", "read_bracket", "calibrate_response", "read_response"]
@@ -230,6 +231,8 @@ def calibrate_response(paths, exposure_times=None, *, bits=None, smoothness=None
     ResponseCalibration
     """
     images, times, file_bits = read_bracket(paths, exposure_times)
+    if bits is not None and check_integer(bits, "bits", 1) > file_bits:
+        raise ValidationError(f"bits must be at most {file_bits} for these {file_bits}-bit files, got {bits}")
     bits = file_bits if bits is None else bits
     g = recover_response(images, times, smoothness=smoothness, samples=samples, bits=bits)
     return ResponseCalibration(

@@ -248,27 +248,47 @@ def read_led_calibration(path) -> dict:
 
 # -- observations of the target ----------------------------------------------------------------------------------
 def _target(folder: CaptureFolder):
-    """Albedo (3,) and poses (centre, normal, u axis, size) of a target folder's manifest."""
+    """Albedo (3,) and poses (centre, unit normal, unit u axis in the plane, size) of a target folder's manifest."""
     t = folder.manifest.get("target")
-    try:
-        rho = np.asarray(t["albedo"], float)
-        poses = [
-            (
-                np.asarray(p["centre_mm"], float),
-                np.asarray(p["normal"], float) / np.linalg.norm(p["normal"]),
-                np.asarray(p["u_axis"], float),
-                np.asarray(p["size_mm"], float),
+    where = f"{folder.path / 'manifest.json'} field 'target'"
+    if not isinstance(t, dict) or not isinstance(t.get("poses"), list):
+        raise FormatError(f"{where} must be an object with 'albedo' and a list 'poses', got {t!r:.80}")
+    rho = _target_vector(t.get("albedo"), 3, f"{where} 'albedo'")
+    if np.any(rho <= 0):
+        raise FormatError(f"{where} 'albedo' must be 3 numbers > 0, got {t['albedo']!r}")
+    if len(t["poses"]) != folder.n_poses:
+        raise FormatError(f"{where} needs {folder.n_poses} pose(s) (one per frame pose), got {len(t['poses'])}")
+    poses = []
+    for k, p in enumerate(t["poses"]):  # loop over the few poses
+        name = f"{where} poses[{k}]"
+        if not isinstance(p, dict):
+            raise FormatError(f"{name} must be an object, got {p!r:.60}")
+        centre = _target_vector(p.get("centre_mm"), 3, f"{name} 'centre_mm'")
+        normal = _target_vector(p.get("normal"), 3, f"{name} 'normal'")
+        u_axis = _target_vector(p.get("u_axis"), 3, f"{name} 'u_axis'")
+        size = _target_vector(p.get("size_mm"), 2, f"{name} 'size_mm'")
+        if np.linalg.norm(normal) < 1e-9 or np.linalg.norm(u_axis) < 1e-9 or np.any(size <= 0):
+            raise FormatError(f"{name} needs a non-zero 'normal' and 'u_axis' and 'size_mm' > 0, got {p!r:.120}")
+        normal = normal / np.linalg.norm(normal)
+        u_axis = u_axis / np.linalg.norm(u_axis)
+        if abs(normal @ u_axis) > 1e-3:
+            raise FormatError(
+                f"{name} 'u_axis' must lie in the target's plane (perpendicular to 'normal'), got cosine "
+                f"{normal @ u_axis:.4g} between them"
             )
-            for p in t["poses"]
-        ]
-    except (KeyError, TypeError, ValueError) as exc:
-        raise FormatError(f"manifest.json field 'target' is missing or malformed ({exc!r})") from None
-    if rho.shape != (3,) or np.any(rho <= 0) or len(poses) != folder.n_poses:
-        raise FormatError(
-            f"manifest.json field 'target' needs albedo [r, g, b] > 0 and {folder.n_poses} pose(s), got albedo "
-            f"{rho.tolist()} and {len(poses)} pose(s)"
-        )
+        poses.append((centre, normal, u_axis, size))
     return rho, poses
+
+
+def _target_vector(value, n, name):
+    """``value`` as ``n`` finite floats, else a FormatError naming the field and the value."""
+    try:
+        v = np.asarray(value, np.float64)
+    except (TypeError, ValueError):
+        v = None
+    if v is None or v.shape != (n,) or not np.all(np.isfinite(v)):
+        raise FormatError(f"{name} must be {n} finite numbers, got {value!r:.60}")
+    return v
 
 
 def target_observations(folder, dome: Dome, *, grid: int = 24, cameras=None, workers: int = 2) -> dict:
@@ -298,6 +318,12 @@ def target_observations(folder, dome: Dome, *, grid: int = 24, cameras=None, wor
         )
     if dome.camera_log_response is None:
         raise FormatError("the calibration has no field 'camera_log_response' to merge the target's photographs")
+    levels = dome.camera_log_response.shape[1]
+    if levels != 2**folder.bits:
+        raise FormatError(
+            f"the calibration's field 'camera_log_response' has {levels} levels, {folder.path / 'manifest.json'} "
+            f"field 'bits' is {folder.bits} ({2**folder.bits} levels)"
+        )
     rho, poses = _target(folder)
     check_integer(grid, "grid", 2)
     cams = folder.cameras if cameras is None else [int(c) for c in cameras]

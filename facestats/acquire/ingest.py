@@ -86,13 +86,14 @@ MIN_FOOTPRINT_PX = 2.0
 _ATTR = "ingest"
 
 
-def _fingerprint(folder: CaptureFolder, dome, geometry: FaceGeometry) -> dict:
-    """What an ingest was made from: manifest, calibration and geometry digests."""
+def _fingerprint(folder: CaptureFolder, dome, geometry: FaceGeometry, subject_id=None) -> dict:
+    """What an ingest was made from: manifest, calibration and geometry digests, and the subject id it is for."""
     geo = hashlib.sha256()
     for a in (geometry.position, geometry.normal, geometry.uv, geometry.mesh_vertices, geometry.mesh_faces):
         geo.update(np.ascontiguousarray(a).tobytes())
     calib = hashlib.sha256(json.dumps(dome.to_dict(), sort_keys=True).encode()).hexdigest()
-    return {"manifest": folder.fingerprint(), "calibration": calib, "geometry": geo.hexdigest()}
+    sid = subject_id or folder.subject()["subject_id"]
+    return {"manifest": folder.fingerprint(), "calibration": calib, "geometry": geo.hexdigest(), "subject_id": sid}
 
 
 def _calibration(dome):
@@ -160,6 +161,11 @@ def _start(path, folder, geometry, dome, fingerprint, chunk, subject_id):
                 "work directory"
             )
         return CaptureWriter.reopen(path), state
+    if os.path.isdir(path) and os.listdir(path):  # never write over a folder that is not this ingest's capture
+        raise FormatError(
+            f"work folder {path} is not empty and holds no ingest: choose an empty or new folder "
+            "(the capture is written there)"
+        )
     sensor, _, _ = folder.sensor()
     meta = dict(folder.subject(), **({"subject_id": subject_id} if subject_id else {}))
     if subject_id and meta.get("person_id") in (None, folder.subject()["subject_id"]):
@@ -317,7 +323,9 @@ def ingest_photographs(
     min_footprint_px = float(as_finite(min_footprint_px, "min_footprint_px", 0, None))
     folder = folder if isinstance(folder, CaptureFolder) else open_folder(folder)
     _check_inputs(folder, dome, geometry, calibration)
-    writer, state = _start(path, folder, geometry, dome, _fingerprint(folder, dome, geometry), chunk, subject_id)
+    writer, state = _start(
+        path, folder, geometry, dome, _fingerprint(folder, dome, geometry, subject_id), chunk, subject_id
+    )
     if state["complete"]:
         return str(path)
     shadows = dome_shadow_maps(geometry, dome, camera_pixels=True)

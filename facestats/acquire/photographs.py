@@ -52,7 +52,8 @@ import numpy as np
 
 from facestats.acquire.response import hat_weights, merge_photographs
 from facestats.acquire.sensor import ContactSensor
-from facestats.errors import FormatError
+from facestats.errors import FormatError, SchemaError
+from facestats.io.schema import check_subject_metadata
 
 __all__ = [
     "FORMAT",
@@ -237,6 +238,10 @@ class CaptureFolder:
         missing = [k for k in SUBJECT_FIELDS if k not in sub]
         if missing:
             raise FormatError(f"{MANIFEST} field 'subject' is missing {missing}")
+        try:
+            check_subject_metadata(sub, f"{self.path / MANIFEST} field 'subject'")
+        except SchemaError as exc:
+            raise FormatError(str(exc)) from None
         return {k: sub[k] for k in SUBJECT_FIELDS}
 
     def sensor(self):

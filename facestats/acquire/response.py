@@ -266,6 +266,11 @@ def _solve_channel(codes, log_t, levels, smoothness):
     return out - out[levels // 2]
 
 
+#: Most histogram samples :func:`recover_response` takes (its least-squares system is about 0.6 kB per sample
+#: and exposure).
+MAX_SAMPLES = 1_000_000
+
+
 def recover_response(images, exposure_times, *, smoothness=None, samples=None, bits=None) -> np.ndarray:
     """Debevec & Malik 1997 camera response g = ln f⁻¹ per channel from a bracket of photographs.
 
@@ -314,7 +319,9 @@ def recover_response(images, exposure_times, *, smoothness=None, samples=None, b
         check_choice(samples, "samples", ("stratified", "histogram"))
         n = default_n
     elif isinstance(samples, (int, np.integer)) and not isinstance(samples, bool):
-        n = check_integer(samples, "samples", 2)
+        # The least-squares system grows with N × P: beyond the pixels there is nothing new to sample, and past
+        # MAX_SAMPLES it would need gigabytes.
+        n = check_integer(samples, "samples", 2, min(npix, MAX_SAMPLES))
         samples = "histogram"
     else:
         n = None

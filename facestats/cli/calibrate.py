@@ -12,6 +12,20 @@ from facestats.errors import ValidationError
 __all__ = ["add_calibrate"]
 
 
+def _write_all(writers) -> None:
+    """Write every ``(path, write(tmp_path), message)`` together (:class:`facestats.core.outputs.OutputSet`)."""
+    from facestats.core.outputs import OutputSet
+
+    writers = [w for w in writers if w[0]]
+    if not writers:
+        return
+    with OutputSet(".") as files:  # all files or none: a failure replaces nothing
+        for path, write, _ in writers:
+            write(files.path(pathlib.Path(path).absolute()))
+    for _, _, message in writers:
+        print(message)
+
+
 def _cmd_leds(args) -> int:
     from facestats.acquire.calibration import calibrate_leds
     from facestats.acquire.dome import Dome
@@ -24,12 +38,12 @@ def _cmd_leds(args) -> int:
     dome = Dome.load(calibration)  # a FIFO, a directory or a device is refused without blocking
     result = calibrate_leds(args.target_dir, dome, grid=args.grid, reference_camera=args.reference_camera)
     print(result.to_text())
-    if args.output:
-        result.save(args.output, dome)
-        print(f"LED calibration written to {args.output}")
-    if args.write_calibration:
-        result.apply(dome).save(args.write_calibration)
-        print(f"calibration with the fitted LEDs written to {args.write_calibration}")
+    applied = result.apply(dome) if args.write_calibration else None  # any error before any file is written
+    _write_all([
+        (args.output, lambda p: result.save(p, dome), f"LED calibration written to {args.output}"),
+        (args.write_calibration, applied.save if applied is not None else None,
+         f"calibration with the fitted LEDs written to {args.write_calibration}"),
+    ])  # fmt: skip
     return 0
 
 
@@ -52,18 +66,20 @@ def _cmd_response(args) -> int:
         args.images, args.times, bits=args.bits, smoothness=args.smoothness, samples=args.samples
     )
     print(result.to_text())
-    if args.output:
-        result.save(args.output)
-        print(f"response written to {args.output}")
+    # Everything that can fail before any file is written (a file replaced by a failed command is lost).
+    applied = result.apply(dome, args.cameras) if args.write_calibration else None
+    figure = None
     if args.plot:
         from facestats.acquire.plots import plot_response
 
-        plot_response(result.log_response).savefig(args.plot, dpi=120)
-        print(f"plot written to {args.plot}")
-    if args.write_calibration:
-        result.apply(dome, args.cameras).save(args.write_calibration)
-        which = "every camera" if args.cameras is None else f"camera(s) {', '.join(map(str, args.cameras))}"
-        print(f"calibration with this response for {which} written to {args.write_calibration}")
+        figure = plot_response(result.log_response)
+    which = "every camera" if args.cameras is None else f"camera(s) {', '.join(map(str, args.cameras or []))}"
+    _write_all([
+        (args.output, result.save, f"response written to {args.output}"),
+        (args.plot, lambda p: figure.savefig(p, dpi=120), f"plot written to {args.plot}"),
+        (args.write_calibration, applied.save if applied is not None else None,
+         f"calibration with this response for {which} written to {args.write_calibration}"),
+    ])  # fmt: skip
     return 0
 
 

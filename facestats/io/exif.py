@@ -23,6 +23,7 @@ first IFD of a TIFF file with the same parser (the image decoder of
 
 from __future__ import annotations
 
+import math
 import os
 import struct
 from dataclasses import dataclass
@@ -49,6 +50,8 @@ EXIF_TAGS = {
     0x829D: "FNumber",
     0x8827: "ISOSpeedRatings",
 }
+#: Tags whose value must be one positive number.
+_NUMERIC = ("ExposureTime", "FNumber", "ISOSpeedRatings")
 _EXIF_IFD = 0x8769
 #: TIFF field types: (struct code, size in bytes); 13 is IFD (TIFF 6.0 supplement), 16-18 are BigTIFF's 8-byte types.
 _TYPES = {
@@ -152,8 +155,15 @@ def _parse_tiff(data, base=0):
     ifd0 = _ifd(data, layout, offset0, base, EXIF_TAGS.keys() | {_EXIF_IFD})
     tags = {EXIF_TAGS[t]: v for t, v in ifd0.items() if t in EXIF_TAGS}
     if _EXIF_IFD in ifd0:
-        sub = _ifd(data, layout, int(ifd0[_EXIF_IFD]), base, EXIF_TAGS.keys())
+        pointer = ifd0[_EXIF_IFD]
+        if isinstance(pointer, (list, str, float)):
+            raise FormatError(f"the Exif IFD pointer must be one integer offset, got {pointer!r:.40}")
+        sub = _ifd(data, layout, int(pointer), base, EXIF_TAGS.keys())
         tags.update({EXIF_TAGS[t]: v for t, v in sub.items() if t in EXIF_TAGS})
+    for name in _NUMERIC:  # a camera writes one positive number; anything else would reach the merge as a time
+        v = tags.get(name)
+        if v is not None and (isinstance(v, (str, list)) or not math.isfinite(v) or v <= 0):
+            raise FormatError(f"EXIF {name} must be one positive number, got {v!r:.40}")
     return tags
 
 

@@ -58,6 +58,7 @@ from facestats.core.published import ETA_SKIN
 from facestats.errors import SchemaError
 
 __all__ = [
+    "check_subject_metadata",
     "SCHEMA_VERSION",
     "VARIABLES",
     "MAP_REQUIRED",
@@ -417,18 +418,34 @@ def _check_attrs(ds, label) -> None:
     for key in REQUIRED_ATTRS:
         if key not in ds.attrs:
             raise SchemaError(f"subject {label!r}: missing attribute {key!r}")
-    if not isinstance(ds.attrs["gender"], str) or ds.attrs["gender"] not in GENDERS:
-        raise SchemaError(f"subject {label!r}: attribute gender must be one of {GENDERS}, got {ds.attrs['gender']!r}")
-    st = ds.attrs["skin_type"]
+    check_subject_metadata(ds.attrs, f"subject {label!r}")
+
+
+def check_subject_metadata(attrs, label: str) -> None:
+    """Gender, skin type, condition and age of a subject's metadata (a mapping) are in their domains.
+
+    Parameters
+    ----------
+    attrs : mapping
+        Holds ``gender``, ``skin_type``, ``condition`` and ``age``.
+    label : str
+        What messages call the mapping (e.g. ``"subject 'S001'"`` or a manifest field).
+
+    Raises
+    ------
+    SchemaError
+        Naming ``label``, the attribute and its value.
+    """
+    if not isinstance(attrs["gender"], str) or attrs["gender"] not in GENDERS:
+        raise SchemaError(f"{label}: attribute gender must be one of {GENDERS}, got {attrs['gender']!r}")
+    st = attrs["skin_type"]
     if isinstance(st, (bool, np.bool_)) or not isinstance(st, (int, np.integer)) or int(st) not in range(1, 7):
-        raise SchemaError(f"subject {label!r}: attribute skin_type must be an integer 1-6, got {st!r}")
-    if not isinstance(ds.attrs["condition"], str) or ds.attrs["condition"] not in CONDITIONS:
-        raise SchemaError(
-            f"subject {label!r}: attribute condition must be one of {CONDITIONS}, got {ds.attrs['condition']!r}"
-        )
-    age = ds.attrs["age"]
+        raise SchemaError(f"{label}: attribute skin_type must be an integer 1-6, got {st!r}")
+    if not isinstance(attrs["condition"], str) or attrs["condition"] not in CONDITIONS:
+        raise SchemaError(f"{label}: attribute condition must be one of {CONDITIONS}, got {attrs['condition']!r}")
+    age = attrs["age"]
     if isinstance(age, (bool, np.bool_)) or not (isinstance(age, (int, np.integer)) and 0 <= int(age) <= 200):
-        raise SchemaError(f"subject {label!r}: attribute age must be an integer in 0-200 years, got {age!r}")
+        raise SchemaError(f"{label}: attribute age must be an integer in 0-200 years, got {age!r}")
 
 
 def _check_dims(ds, label) -> None:

@@ -61,3 +61,13 @@ def test_calibrate_response_from_the_real_bracket_into_a_dome(tmp_path):
     r = run_cli("calibrate", "response", frames[0], frames[1], "--times", "0.1")
     assert r.returncode == 2 and "one time per photograph (2), got 1" in r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # failed commands write nothing
+    (tmp_path / "g.json").write_text("OLD")  # a fit that cannot be applied replaces no output
+    r = run_cli("calibrate", "response", *frames, "--output", tmp_path / "g.json", "--plot", tmp_path / "new.png",
+                "--calibration", tmp_path / "dome.json", "--write-calibration", tmp_path / "n.json",
+                "--cameras", "99")  # fmt: skip
+    assert r.returncode == 2 and "cameras must be in [0, 16), got [99]" in r.stderr
+    assert (tmp_path / "g.json").read_text() == "OLD" and not (tmp_path / "new.png").exists()
+    r = run_cli("calibrate", "response", *frames, "--bits", "12")  # 8-bit JPEGs
+    assert r.returncode == 2 and "bits must be at most 8 for these 8-bit files, got 12" in r.stderr
+    r = run_cli("calibrate", "response", *frames, "--samples", "100000000")
+    assert r.returncode == 2 and "samples must be" in r.stderr

@@ -1,5 +1,7 @@
 """The EXIF exposure reader against Pillow and on JPEG, PNG and TIFF files; corrupt input."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -72,3 +74,31 @@ def test_files_without_exif_and_corrupt_files(tmp_path):
         read_exif(txt)
     with pytest.raises(FacestatsError, match="cannot read EXIF data"):
         read_exif(tmp_path / "missing.png")
+
+
+def _one_tag_tiff(typ, count, payload):
+    """A little-endian TIFF whose IFD0 holds one ExposureTime entry of the given type, count and bytes."""
+    import struct
+
+    inline = len(payload) <= 4
+    field = payload.ljust(4, b"\0") if inline else struct.pack("<I", 8 + 2 + 12 + 4)
+    ifd = struct.pack("<H", 1) + struct.pack("<HHI", 0x829A, typ, count) + field + struct.pack("<I", 0)
+    return b"II*\0" + struct.pack("<I", 8) + ifd + (b"" if inline else payload)
+
+
+def test_malformed_exposure_times_are_refused_by_tag_and_value():
+    import struct
+
+    from facestats.errors import FormatError
+    from facestats.io.exif import parse_exif
+
+    assert parse_exif(_one_tag_tiff(5, 1, struct.pack("<II", 1, 60)), "f.tif")["ExposureTime"] == 1 / 60
+    for data, shown in (
+        (_one_tag_tiff(2, 5, b"1/60\0"), "'1/60'"),  # ASCII instead of a rational
+        (_one_tag_tiff(5, 2, struct.pack("<IIII", 1, 60, 1, 30)), "[0.01666"),  # two values
+        (_one_tag_tiff(5, 1, struct.pack("<II", 1, 0)), "nan"),  # zero denominator
+        (_one_tag_tiff(5, 0, b""), "[]"),  # no value
+    ):
+        with pytest.raises(FormatError, match=r"f.tif is corrupt: EXIF ExposureTime must be one positive number, got "
+                           + re.escape(shown)):  # fmt: skip
+            parse_exif(data, "f.tif")

@@ -71,6 +71,34 @@ def test_ingest_command_fits_the_photographed_subject(case):
         assert photo[name][0] <= 2.0 * mem[name][0], (name, photo[name], mem[name])
     again = run_cli(*args)
     assert again.returncode == 0 and "already in" in again.stdout
+    # The finished work capture is S001's: it never becomes another subject's.
+    work = root / "s.zarr.ingest" / "S001" / "capture.zarr"
+    other = ["ingest", folder, "--mesh", pc.mesh, "--calibration", pc.calibration, "--store", root / "t.zarr"]
+    r = run_cli(*other, "--subject", "S002", "--work", work, "--quiet")
+    assert r.returncode == 2 and "holds an ingest of other inputs (subject_id differ)" in r.stderr
+    assert not (root / "t.zarr").exists()
+
+
+def test_ingest_never_writes_over_a_folder_that_is_not_its_capture(case, tmp_path):
+    _, pc, _, _ = case
+    photos = tmp_path / "photos"
+    shutil.copytree(pc.folder.parent, photos)
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "important.txt").write_text("keep")
+    n_files = sum(1 for _ in photos.rglob("*"))
+    for work in (tmp_path / "mine", photos):  # a folder of the user's, the photographs themselves
+        r = run_cli("ingest", photos, "--mesh", photos / "face.obj", "--calibration", photos / "dome.json",
+                    "--store", tmp_path / "s.zarr", "--subject", "S001", "--work", work, "--quiet")  # fmt: skip
+        assert r.returncode == 2 and "is not empty and holds no ingest" in r.stderr, r.stderr
+    assert (tmp_path / "mine" / "important.txt").read_text() == "keep"
+    assert sum(1 for _ in photos.rglob("*")) == n_files and not (tmp_path / "s.zarr").exists()
+    man = json.loads((photos / "manifest.json").read_text())
+    man["subject"]["age"] = "old"
+    (photos / "manifest.json").write_text(json.dumps(man))
+    r = run_cli("ingest", photos, "--mesh", photos / "face.obj", "--calibration", photos / "dome.json",
+                "--store", tmp_path / "s.zarr", "--subject", "S001", "--quiet")  # fmt: skip
+    assert r.returncode == 2 and "manifest.json field 'subject': attribute age must be an integer" in r.stderr
+    assert not (tmp_path / "s.zarr").exists()
 
 
 def test_ingest_command_reports_bad_input_without_a_traceback(case, tmp_path):

@@ -248,8 +248,11 @@ class CaptureFolder:
         """``(ContactSensor, profile, profile_std)`` of the manifest's ``sensor`` file (format ``SENSOR_FORMAT``)."""
 
         name = self.manifest.get("sensor")
-        if not isinstance(name, str):
-            raise FormatError(f"{MANIFEST} needs the field 'sensor' naming the contact-sensor file, got {name!r:.60}")
+        if not isinstance(name, str) or not _relative_inside(name):
+            raise FormatError(
+                f"{MANIFEST} needs the field 'sensor' naming the contact-sensor file inside the folder (a relative "
+                f"path without '..'), got {name!r:.60}"
+            )
         try:
             doc = json.loads((self.path / name).read_text())
         except (OSError, json.JSONDecodeError) as exc:
@@ -267,11 +270,26 @@ class CaptureFolder:
                 f"sensor file {name} fields 'profile' and 'profile_std' must be (site 3, fiber {sensor.n_fibers}, "
                 f"channel 3), got {prof.shape} and {std.shape}"
             )
+        # A measured profile may dip below 0 by noise (dark-frame subtraction); its standard error may not.
+        for field, a, low in (("profile", prof, -np.inf), ("profile_std", std, 0.0)):
+            bad = ~np.isfinite(a) | (a < low)
+            if bad.any():
+                at = tuple(int(i) for i in np.argwhere(bad)[0])
+                rule = "finite" if low == -np.inf else "finite and >= 0"
+                raise FormatError(
+                    f"sensor file {name} field {field!r} must be {rule}, got {a[at]} at (site, fiber, channel) {at}"
+                )
         return sensor, prof, std
 
     def fingerprint(self) -> str:
         """SHA-256 of the manifest file (identifies the capture an ingest was made from)."""
         return hashlib.sha256((self.path / MANIFEST).read_bytes()).hexdigest()
+
+
+def _relative_inside(name: str) -> bool:
+    """A relative path without ``..``: it names a file inside the folder, never one elsewhere."""
+    p = pathlib.PurePosixPath(name)
+    return bool(name) and not p.is_absolute() and not name.startswith("~") and ".." not in p.parts
 
 
 def _parse_frames(frames, n_cameras, n_leds):
@@ -287,7 +305,7 @@ def _parse_frames(frames, n_cameras, n_leds):
         cols["led"].append(_field(f, "led", int, where, lambda v: 0 <= v < n_leds))
         cols["exposure"].append(_field(f, "exposure", int, where, lambda v: v >= 0))
         cols["exposure_s"].append(_field(f, "exposure_s", (int, float), where, lambda v: v > 0 and np.isfinite(v)))
-        name = _field(f, "file", str, where, lambda v: v and ".." not in pathlib.PurePosixPath(v).parts)
+        name = _field(f, "file", str, where, _relative_inside)
         cols["file"].append(name)
         cols["sha256"].append(_field(f, "sha256", str, where, lambda v: len(v) == 64))
         cols["pose"].append(_field(f, "pose", int, where, lambda v: v >= 0) if "pose" in f else 0)
@@ -298,6 +316,15 @@ def _frame_table(path, cols, n_cameras, n_leds, cameras):
     """The (pose, camera, led, exposure) tables, checking completeness, duplicates and monotonic times."""
     n_poses = int(cols["pose"].max()) + 1
     n_exp = int(cols["exposure"].max()) + 1
+    # Python ints (no overflow), before any table exists: an index far beyond the frames would allocate terabytes.
+    # Up to twice the frames, the tables below name the first missing frame instead.
+    needed = n_poses * len(cameras) * n_leds * n_exp
+    if needed > 2 * len(cols["file"]):
+        raise FormatError(
+            f"{MANIFEST} lists {len(cols['file'])} frames, fewer than the {needed} that its fields ask for "
+            f"({n_poses} pose(s) × {len(cameras)} camera(s) × {n_leds} LED(s) × {n_exp} exposure(s): "
+            "check 'n_leds', 'cameras' and the frames' 'pose' and 'exposure' indices)"
+        )
     shape = (n_poses, n_cameras, n_leds, n_exp)
     flat = np.ravel_multi_index((cols["pose"], cols["camera"], cols["led"], cols["exposure"]), shape)
     uniq, first, counts = np.unique(flat, return_index=True, return_counts=True)

@@ -178,11 +178,16 @@ def decode_integer_image(data: bytes, name: str = "<bytes>"):
     The format is told by the data's signature, not by ``name``: TIFF (classic or
     BigTIFF) through libtiff, anything else through OpenCV (module docstring).
     """
+    if len(data) == 0:  # OpenCV would fail an internal assertion
+        raise ImageFormatError(f"image file {name!r} is empty (0 bytes)")
     if bytes(data[:4]) in _TIFF_SIGNATURES:
         return _decode_tiff(data, name)
     import cv2
 
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)  # no EXIF rotation, no depth change
+    try:
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)  # no EXIF rotation, no depth change
+    except cv2.error:
+        img = None
     if img is None:
         raise ImageFormatError(f"image file {name!r} could not be decoded (not a valid PNG, JPEG or TIFF file)")
     if img.dtype == np.uint8:

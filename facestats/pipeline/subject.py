@@ -149,6 +149,15 @@ def fit_subject(
     # Stage 5: maps.
     face = capture.array("region_map") > 0
     texel = uv_to_texel(capture.array("uv").astype(np.float64), capture.map_size)
+    on_face = face[texel[:, 0], texel[:, 1]]
+    usable = on_face & (res["n_samples"] >= st.min_samples)
+    if not usable.any():
+        most = int(res["n_samples"][on_face].max()) if on_face.any() else 0
+        raise ValidationError(
+            f"no face lumitexel of the capture has the {st.min_samples} usable samples a fit needs (min_samples; "
+            f"the most any has is {most} of {on_face.sum()} face lumitexels): the capture has too few cameras or "
+            "lights, or its frames are dark, saturated or do not see the face"
+        )
     maps, micro = subject_maps(res, texel, face, workers)
     # Stage 6: sensor profiles.
     tf = fit_sensor(capture, st.eta) if sensor_fit is None else sensor_fit

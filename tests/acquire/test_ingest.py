@@ -229,6 +229,31 @@ def test_bad_manifests(copy):
         open_folder(copy / "cam00")
 
 
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda d: d["frames"][0].update(pose=2**62), r"fewer than the \d+ that its fields ask for"),
+        (lambda d: d["frames"][0].update(exposure=10**12), r"fewer than the \d+ that its fields ask for"),
+        (lambda d: d.update(n_leds=10**6), r"fewer than the \d+ that its fields ask for"),
+        (lambda d: d["frames"][0].update(file="/etc/hostname"), r"frames\[0\] field 'file' has an invalid value"),
+        (lambda d: d.update(sensor="/etc/hostname"), "naming the contact-sensor file inside the folder"),
+    ],
+)
+def test_hostile_manifest_fields_are_refused_before_any_allocation_or_read(copy, edit, message):
+    _edit_manifest(copy, edit)
+    with pytest.raises(FacestatsError, match=message):
+        open_folder(copy).sensor()
+
+
+def test_sensor_profiles_must_be_finite(copy):
+    sensor = copy / json.loads((copy / "manifest.json").read_text())["sensor"]
+    doc = json.loads(sensor.read_text())
+    doc["profile"][1][2][0] = float("nan")
+    sensor.write_text(json.dumps(doc))
+    with pytest.raises(FacestatsError, match=r"field 'profile' must be finite, got nan at .* \(1, 2, 0\)"):
+        open_folder(copy).sensor()
+
+
 def test_mesh_without_face_region(copy):
     from facestats.pipeline.photographs import find_region_image
 

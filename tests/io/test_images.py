@@ -136,6 +136,9 @@ def test_bad_files_and_arguments_name_the_problem(tmp_path):
     (tmp_path / "z.hdr").write_bytes(b"#?RADIANCE\n\n-Y 0 +X 0\n")
     with pytest.raises(ValidationError, match=r"z.hdr' must have at least one pixel, got '-Y 0 \+X 0'"):
         images.read_image(tmp_path / "z.hdr")
+    (tmp_path / "empty.png").write_bytes(b"")
+    with pytest.raises(ValidationError, match=r"empty.png' is empty \(0 bytes\)"):
+        images.read_integer_image(tmp_path / "empty.png")
     (tmp_path / "o.hdr").write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n+Y 2 +X 8\n")
     with pytest.raises(ValidationError, match="-Y H \\+X W"):
         images.read_image(tmp_path / "o.hdr")

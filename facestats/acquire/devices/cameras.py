@@ -70,6 +70,8 @@ class Trigger:
     @classmethod
     def from_fields(cls, fields: dict) -> "Trigger":
         """The trigger of a ``tr`` reply's payload (``frame=… led=… exposure=…``)."""
+        if "frame" not in fields:
+            raise DeviceError(f"trigger reply without the field 'frame': {fields!r}")
         try:
             kw = {
                 k: int(fields[k])

@@ -87,7 +87,7 @@ def capture(
     as they happen.
     """
 
-    if session_state(out, plan, resume=resume) == "complete":
+    if session_state(out, plan, resume=resume) == "complete" and not (resume and verify):  # no port opened
         return SessionReport(plan.kind, plan.subject_id, pathlib.Path(out), plan.n_steps, plan.n_steps, complete=True)
     if plan.kind == "dome":
         cams, sizes, controller = range(plan.n_cameras), dict(enumerate(plan.image_size)), DomeController

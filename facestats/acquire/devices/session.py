@@ -413,6 +413,12 @@ def run_session(
     out = pathlib.Path(out)
     state = session_state(out, plan, resume=resume)
     report = SessionReport(plan.kind, plan.subject_id, out, plan.n_steps, 0)
+    if state == "complete" and resume and verify:  # a finished session is checked too: retake what is gone
+        missing = plan.n_steps - len(_Journal(out, plan, log).load(True))
+        if missing:
+            log(f"verify: {missing} completed step(s) have missing or altered frames; the session is reopened")
+            os.remove(out / PRODUCT[plan.kind])  # written again when every step is back
+            state = "resume"
     if state == "complete":
         report.steps_before, report.complete = plan.n_steps, True
         return report

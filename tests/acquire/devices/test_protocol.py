@@ -128,3 +128,11 @@ def test_fault_settings_are_checked():
     with pytest.raises(ValidationError, match="reboot_after"):
         Faults(reboot_after=(0,))
     assert not Faults().any and Faults(disconnect_after=(3,)).any
+
+
+def test_a_trigger_reply_without_its_frame_or_with_garbage_is_a_device_error():
+    assert Trigger.from_fields({"frame": "3", "led": "1"}) == Trigger(3, led=1)
+    with pytest.raises(DeviceError, match="trigger reply without the field 'frame'"):
+        Trigger.from_fields({"led": "1", "exposure": "0"})
+    with pytest.raises(DeviceError, match="trigger reply with a malformed field"):
+        Trigger.from_fields({"frame": "x"})

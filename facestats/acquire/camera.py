@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_shape
+from facestats.core.validate import as_finite, check_shape, described
 from facestats.errors import FormatError, ValidationError
 
 __all__ = [
@@ -97,10 +97,18 @@ class PinholeCamera:
         r = check_shape(as_finite(self.rotation, "rotation", dtype=np.float64), "rotation", (3, 3))
         if not np.allclose(r @ r.T, np.eye(3), atol=1e-6):
             raise ValidationError("rotation must be a rotation matrix (R Rᵀ = I), got a matrix that is not orthonormal")
+        if np.linalg.det(r) < 0:
+            raise ValidationError("rotation must be a proper rotation (det R = +1), got a reflection (det R = -1)")
+        if k[0, 0] <= 0 or k[1, 1] <= 0 or not np.allclose(k[2], [0, 0, 1]) or k[1, 0] != 0:
+            raise ValidationError(
+                f"matrix must be pinhole intrinsics [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, "
+                f"got {k.tolist()}"
+            )
         c = check_shape(as_finite(self.position, "position", dtype=np.float64), "position", (3,))
-        size = tuple(int(x) for x in np.asarray(self.image_size).reshape(-1))
-        if len(size) != 2 or min(size) <= 0:
-            raise ValidationError(f"image_size must be (width, height) positive pixels, got {self.image_size!r}")
+        raw = np.asarray(self.image_size).reshape(-1)
+        if raw.dtype.kind not in "iuf" or raw.size != 2 or np.any(raw != np.round(raw)) or np.any(raw <= 0):
+            raise ValidationError(f"image_size must be (width, height) positive whole pixels, got {self.image_size!r}")
+        size = tuple(int(x) for x in raw)
         self.matrix, self.rotation, self.position, self.image_size = k, r, c, size
 
     @classmethod
@@ -147,6 +155,8 @@ class PinholeCamera:
     @classmethod
     def from_dict(cls, d: dict) -> "PinholeCamera":
         """Inverse of :meth:`to_dict`; ``look_at`` form accepted (module docstring)."""
+        if not isinstance(d, dict):
+            raise FormatError(f"camera description must be a JSON object, got {type(d).__name__}")
         try:
             if "look_at" in d or "target_mm" in d:
                 return cls.looking_at(
@@ -164,11 +174,13 @@ class PinholeCamera:
 
     @classmethod
     def load(cls, path) -> "PinholeCamera":
+        """The camera of a JSON file (:meth:`from_dict`); every error names the file."""
         try:
             with open(path) as f:
-                return cls.from_dict(json.load(f))
+                doc = json.load(f)
         except (OSError, json.JSONDecodeError) as exc:
             raise FormatError(f"cannot read the camera file {os.fspath(path)}: {exc}") from None
+        return described(cls.from_dict, doc, f"camera file {os.fspath(path)}")
 
 
 def sample_image(image, pixels) -> np.ndarray:

@@ -39,8 +39,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from facestats.acquire.visibility import ShadowMaps
-from facestats.core.validate import as_finite, check_shape
+from facestats.core.validate import as_finite, check_shape, described
 from facestats.errors import FormatError, ValidationError
+from facestats.model.dipole import check_dipole_eta
 from facestats.model.irradiance import (
     SUZUKI_ETA,
     directional_light_irradiance,
@@ -212,7 +213,8 @@ def lights_from_dict(d: dict):
     """``(lights, eta)`` from the JSON form of the module docstring (``eta`` defaults to 1.3)."""
     if not isinstance(d, dict) or not isinstance(d.get("lights"), list) or not d["lights"]:
         raise FormatError("a light description must be an object with a non-empty list 'lights'")
-    return [_light_from_dict(x) for x in d["lights"]], float(d.get("eta", SUZUKI_ETA))
+    eta = float(check_dipole_eta(d.get("eta", SUZUKI_ETA)))  # the dipole's domain: the fit needs it
+    return [_light_from_dict(x) for x in d["lights"]], eta
 
 
 def lights_to_dict(lights, eta=SUZUKI_ETA) -> dict:
@@ -223,9 +225,10 @@ def load_lights(path):
     """``(lights, eta)`` from a JSON file (module docstring)."""
     try:
         with open(path) as f:
-            return lights_from_dict(json.load(f))
+            doc = json.load(f)
     except (OSError, json.JSONDecodeError) as exc:
         raise FormatError(f"cannot read the light description {os.fspath(path)}: {exc}") from None
+    return described(lights_from_dict, doc, f"light description {os.fspath(path)}")
 
 
 def save_lights(path, lights, eta=SUZUKI_ETA):

@@ -5,13 +5,33 @@ from __future__ import annotations
 import json
 
 from facestats.cli.options import ascii_float, number_option
+from facestats.errors import ValidationError
 
 __all__ = ["add_translucency"]
 
 
+def _checked_options(args):
+    """``(json path, plot path)`` after checking them and ``--eta`` (before the fit: bad options must not cost one)."""
+    from facestats.core.outputs import check_output_file
+    from facestats.model.dipole import check_dipole_eta
+
+    out_json = check_output_file(args.json, "--json", (".json",)) if args.json else None
+    plot = check_output_file(args.plot, "--plot", (".png", ".svg", ".pdf")) if args.plot else None
+    if out_json is not None and plot is not None and out_json.absolute() == plot.absolute():
+        raise ValidationError(f"--plot must differ from --json, got {str(plot)!r} for both")
+    if args.eta is not None:
+        try:
+            check_dipole_eta(args.eta)
+        except ValidationError as exc:
+            raise ValidationError(f"--{exc}") from None
+    return out_json, plot
+
+
 def _cmd_translucency(args) -> int:
+    from facestats.core.outputs import OutputSet
     from facestats.pipeline.image_translucency import fit_image_translucency, load_scene_inputs
 
+    out_json, plot = _checked_options(args)
     patches, lights, eta, camera, image = load_scene_inputs(
         args.mesh, args.lights, args.camera, args.image, spacing=args.spacing, scale=args.scale
     )
@@ -46,15 +66,21 @@ def _cmd_translucency(args) -> int:
         )
         for note in s["notes"]:
             print(f"   note: {note}")
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump({name: fit.summary() for name, fit in zip(names, fits)}, f, indent=1)
-        print(f"wrote {args.json}")
-    if args.plot:
+    figure = None
+    if plot is not None:
         from facestats.pipeline.translucency_plots import plot_profile_fit
 
-        plot_profile_fit(fits, names).savefig(args.plot, dpi=120)
-        print(f"wrote {args.plot}")
+        figure = plot_profile_fit(fits, names)
+    with OutputSet(".") as files:  # both files or neither
+        if out_json is not None:
+            files.path(out_json.absolute()).write_text(
+                json.dumps({name: fit.summary() for name, fit in zip(names, fits)}, indent=1)
+            )
+        if figure is not None:
+            figure.savefig(files.path(plot.absolute()), dpi=120)
+    for path in (out_json, plot):
+        if path is not None:
+            print(f"wrote {path}")
     return 0
 
 

@@ -14,6 +14,7 @@ import numpy as np
 from facestats.errors import ValidationError
 
 __all__ = [
+    "described",
     "as_float",
     "as_finite",
     "as_rgb_image",
@@ -233,3 +234,22 @@ def finite_result(out, what: str, **inputs) -> np.ndarray:
             f"{arr.dtype} can represent (use physically sized values)"
         )
     return out
+
+
+def described(parse, doc, what: str):
+    """``parse(doc)`` for a document read from a file, every error naming ``what`` (e.g. ``"camera file c.json"``).
+
+    A :class:`~facestats.errors.ValidationError` or :class:`~facestats.errors.FormatError`
+    of the parser gets ``what`` in front of its message; a ``TypeError``,
+    ``ValueError``, ``AttributeError``, ``KeyError`` or ``IndexError`` (a field of
+    the wrong JSON type reaching numpy or a constructor) becomes a
+    :class:`~facestats.errors.FormatError` naming ``what``.
+    """
+    from facestats.errors import FormatError
+
+    try:
+        return parse(doc)
+    except (ValidationError, FormatError) as exc:
+        raise type(exc)(f"{what}: {exc}") from None
+    except (TypeError, ValueError, AttributeError, KeyError, IndexError) as exc:
+        raise FormatError(f"{what} is malformed ({type(exc).__name__}: {exc})") from None

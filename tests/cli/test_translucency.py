@@ -77,3 +77,35 @@ def test_cli_rejects_a_missing_image_and_a_bad_width(scene_files, capsys):
     )
     assert "width must lie in" in capsys.readouterr().err
     assert not out.exists() and not plot.exists()  # a failed command writes nothing
+
+
+def test_bad_inputs_are_named_by_file_and_field_before_the_fit(scene_files, tmp_path):
+    d = scene_files
+    cam = json.loads((d / "camera.json").read_text())
+    lights = json.loads((d / "lights.json").read_text())
+    cases = [
+        ("camera", dict(cam, matrix=[[0, 0, 150], [0, 0, 150], [0, 0, 1]]), "matrix must be pinhole intrinsics"),
+        ("camera", dict(cam, rotation=[[-1, 0, 0], [0, -1, 0], [0, 0, -1]]), r"proper rotation \(det R = \+1\)"),
+        ("camera", dict(cam, image_size=[300.9, 300.2]), "image_size must be .* whole pixels"),
+        ("camera", [], "camera description must be a JSON object, got list"),
+        ("lights", {"lights": ["x"]}, "is malformed"),
+        ("lights", dict(lights, eta="abc"), "eta must be numeric"),
+        ("lights", dict(lights, eta=0.5), r"eta must lie in \[1, 3\], got 0.5"),
+    ]
+    for kind, doc, message in cases:
+        path = tmp_path / f"{kind}.json"
+        path.write_text(json.dumps(doc))
+        files = {"camera": d / "camera.json", "lights": d / "lights.json", kind: path}
+        r = run_cli("translucency", d / "pyramid.obj", "--lights", files["lights"], "--camera", files["camera"],
+                    "--image", d / "pyramid.exr", "--spacing", "2.5")  # fmt: skip
+        assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+        assert re.search(f"{kind if kind == 'camera' else 'light description'}.*{kind}.json: ", r.stderr) or (
+            "is malformed" in message and f"{kind}.json is malformed" in r.stderr
+        ), r.stderr
+        assert re.search(message, r.stderr), r.stderr
+    base = ["translucency", d / "pyramid.obj", "--lights", d / "lights.json", "--camera", d / "camera.json",
+            "--image", d / "pyramid.exr", "--spacing", "2.5"]  # fmt: skip
+    r = run_cli(*base, "--eta", "0.5")
+    assert r.returncode == 2 and "--eta must lie in [1, 3], got 0.5" in r.stderr
+    r = run_cli(*base, "--json", tmp_path / "o.json", "--plot", tmp_path / "f.xyz")
+    assert r.returncode == 2 and "--plot must end in one of" in r.stderr and not (tmp_path / "o.json").exists()

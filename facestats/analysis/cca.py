@@ -374,6 +374,14 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
     wx, wy = _whitener(sxx, rcond), _whitener(syy, rcond)
     xw, yw = xc @ wx, yc @ wy
     plain = not reg.any()
+    if plain and n - 1 <= wx.shape[1] + wy.shape[1]:
+        # The centred rows span at most n − 1 dimensions: with as many variables, some combination of X equals one
+        # of Y exactly, whatever the data, and every test statistic is meaningless.
+        raise ValidationError(
+            f"cca needs more complete rows (subjects) than variables: {n} rows for {wx.shape[1]} + {wy.shape[1]} "
+            f"independent variables give canonical correlations of 1 by construction (need at least "
+            f"{wx.shape[1] + wy.shape[1] + 2} rows, or regularization > 0)"
+        )
     upper = 1.0 if plain else np.inf
     r, u, v = _canonical(xw, yw, upper)
     a, b, proj_x, proj_y, x_load, y_load = _oriented(xc, yc, wx @ u, wy @ v)

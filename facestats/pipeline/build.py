@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import json
 import multiprocessing
 import os
 import shutil
@@ -260,6 +261,35 @@ def sensor_fits(population, map_size: int, specular: str = "torrance_sparrow", f
 DERIVED = ("modulation",)
 
 
+def _check_same_build(store, pop, present, geometry, specular):
+    """Refuse to add to a store whose simulated subjects came from another seed, size, face or specular model.
+
+    Resuming is by subject id: a subject already present is skipped, so a build with other parameters would
+    count another person as present and mix two populations (and two σtrAvg) in one store.  Each present
+    subject's capture provenance records its seed, geometry and specular model; imported subjects (no
+    simulator provenance) are left out of the comparison.
+    """
+    seeds = {t.subject_id: t.seed for t in pop.subjects}
+    for sid in sorted(present):  # the attributes only: no map is read
+        try:
+            prov = json.loads(store.subject(sid, lazy=True).attrs.get("provenance", "{}"))
+        except (ValueError, TypeError):
+            continue
+        cap = prov.get("capture_provenance") or {}
+        if cap.get("source") != "facestats simulator":
+            continue
+        ours = {"geometry": geometry, "specular": specular}
+        if sid in seeds:
+            ours["seed"] = int(seeds[sid])
+        differ = {k: (cap.get(k), v) for k, v in ours.items() if cap.get(k) != v}
+        if differ:
+            what = "; ".join(f"{k} {old!r} stored, {new!r} in this build" for k, (old, new) in differ.items())
+            raise ValidationError(
+                f"store {store.label} holds {sid} built with other parameters ({what}): a resumed build must use "
+                "the same --seed, --size, --face and --specular; build into another store"
+            )
+
+
 def _build_one(
     store_path,
     seed,
@@ -381,6 +411,7 @@ def build_store(
     normal = [s.subject_id for s in pop.subjects if s.condition == "normal"]
     stra = population_sigma_tr_avg(np.stack([fits[s].sigma_tr for s in normal]), SITES)
     present = set(store.ids())
+    _check_same_build(store, pop, present, _geometry(map_size, face).name, specular)
     todo = [s for s in wanted if s not in present]
     skipped = [s for s in wanted if s in present]
     journal = BuildJournal(store_path)

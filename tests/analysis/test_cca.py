@@ -180,3 +180,12 @@ def test_brdf_cca_on_store():
         ),
         atol=1e-8,
     )
+
+
+def test_too_few_subjects_for_the_variables_is_refused_not_a_perfect_fit():
+    rng = np.random.default_rng(3)
+    X, Y = rng.standard_normal((12, 18)), rng.standard_normal((12, 3))  # noise: a plain CCA would give r = 1
+    with pytest.raises(ValidationError, match=r"12 rows for 11 \+ 3 independent variables .*need at least 16"):
+        cca(X, Y)
+    res = cca(X, Y, regularization=0.5)  # shrinkage keeps the problem well posed; no parametric tests then
+    assert res.correlations[0] < 1 and np.isnan(res.p_value).all()

@@ -359,6 +359,21 @@ def test_fit_subject_and_build_store_reject_bad_arguments_early(tmp_path, ts_cas
     assert not store.exists()  # bad arguments leave no empty store behind
 
 
+def test_a_resumed_build_with_other_parameters_never_mixes_populations(tmp_path):
+    from facestats.io import open_store
+    from facestats.pipeline.build import build_store
+
+    store = tmp_path / "s.zarr"
+    assert build_store(store, map_size=8, subjects=["S001"], workers=1).written == ["S001"]
+    for kw, differ in (({"seed": 7}, "seed"), ({"map_size": 12}, "geometry 'ict-8' stored, 'ict-12'"),
+                       ({"specular": "blinn_phong"}, "specular")):  # fmt: skip
+        with pytest.raises(FacestatsError, match=f"holds S001 built with other parameters.*{differ}"):
+            build_store(store, **{"map_size": 8, **kw}, subjects=["S001", "S002"], workers=1)
+    with open_store(store) as st:
+        assert st.ids() == ["S001"]  # nothing was added
+    assert build_store(store, map_size=8, subjects=["S001", "S002"], workers=1).skipped == ["S001"]
+
+
 _DETERMINISM = """
 import hashlib, sys
 import numpy as np

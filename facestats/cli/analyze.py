@@ -146,6 +146,10 @@ _HANDLERS = {
 
 
 # -- writing ------------------------------------------------------------------------
+#: Analyses that ``all`` skips (saying why) when the store cannot support them.
+SKIPPABLE = ("cca", "conditions", "models", "scatter", "translucency")
+
+
 def _out_dir(path):
     """``--out``, checked before any work (created when the first file is written)."""
     from facestats.core.outputs import check_output_dir
@@ -153,17 +157,16 @@ def _out_dir(path):
     return check_output_dir(path, "--out")
 
 
-def _write(out, name, fig, doc, fmt, store):
-    """Write ``name.<fmt>`` and ``name.json`` (the header keys, then ``doc``, JSON-ready); return their paths."""
+def _write(files, name, fig, doc, fmt, store):
+    """Write ``name.<fmt>`` and ``name.json`` (the header keys, then ``doc``, JSON-ready) into the
+    :class:`~facestats.core.outputs.OutputSet` ``files``; return their final paths."""
 
     from facestats.core.version import __version__
 
-    out.mkdir(parents=True, exist_ok=True)
-    figure = out / f"{name}.{fmt}"
-    fig.savefig(figure, format=fmt, dpi=150)
+    figure, path = files.directory / f"{name}.{fmt}", files.directory / f"{name}.json"
+    fig.savefig(files.path(figure.name), format=fmt, dpi=150)
     head = {"action": name, "facestats_version": __version__, "store": store.label, "figure": figure.name}
-    path = out / f"{name}.json"
-    with open(path, "w", encoding="utf-8") as f:
+    with open(files.path(path.name), "w", encoding="utf-8") as f:
         json.dump({**head, **doc}, f, indent=2, allow_nan=False)
         f.write("\n")
     return figure, path
@@ -175,10 +178,12 @@ def _emit(text, files):
 
 
 def _cmd_analyze(args) -> int:
+    from facestats.core.outputs import OutputSet, check_apart
     from facestats.errors import ValidationError
 
     out = _out_dir(args.out)
-    with open_store_option(args.store) as store:
+    with open_store_option(args.store) as store, OutputSet(out) as files:  # every file or none
+        check_apart(out, store.path, "--out")
         if args.action == "posterior":
             if args.population:
                 if args.subject or args.site:
@@ -187,7 +192,7 @@ def _cmd_analyze(args) -> int:
             else:
                 name, handler = "posterior", _posterior
             fig, doc, text = handler(store, args)
-            _emit(text, _write(out, name, fig, doc, args.format, store))
+            _emit(text, _write(files, name, fig, doc, args.format, store))
             return 0
         actions = BATCH_ACTIONS if args.action == "all" else (args.action,)
         for i, action in enumerate(actions):
@@ -196,12 +201,13 @@ def _cmd_analyze(args) -> int:
             try:
                 fig, doc, text = _HANDLERS[action](store, args)
             except ValidationError as exc:
-                # ``all`` on a store without a condition series (or without maps): skip that analysis.
-                if args.action == "all" and action in ("conditions", "models"):
+                # ``all`` on a store that cannot support an analysis (too few subjects for the CCA, no condition
+                # series, no maps, no sensor data as in an imported MERL store): skip it and say why.
+                if args.action == "all" and action in SKIPPABLE:
                     print(f"{action}: skipped ({exc})")
                     continue
                 raise
-            _emit(text, _write(out, action, fig, doc, args.format, store))
+            _emit(text, _write(files, action, fig, doc, args.format, store))
     return 0
 
 

@@ -137,15 +137,20 @@ def _report(edit, args) -> int:
 
 def _check_outputs(args) -> None:
     """The new id and the images folder, checked before any work (a failed command leaves no side effects)."""
-    from facestats.core.outputs import check_output_dir
+    from facestats.core.outputs import check_apart, check_output_dir
     from facestats.errors import ValidationError
     from facestats.io.ids import check_subject_id
+    from facestats.io.store import default_store_path
 
     if args.new_id is not None:
         check_subject_id(args.new_id)
     if args.out_store is not None and not args.out_store.strip():
         raise ValidationError("--out-store must name a directory store, got ''")
     check_output_dir(args.images, "--images")
+    source = store_path_option(args.store) if args.store is not None else default_store_path()
+    check_apart(args.images, source, "--images", "the source store")
+    if args.out_store is not None:  # the source store itself, or a store elsewhere; never one nested inside it
+        check_apart(args.out_store, source, "--out-store", "the source store", same=True)
 
 
 def _run(args, edit_function, target, **kwargs) -> int:

@@ -101,13 +101,17 @@ def check_output_file(path, name: str = "out", suffixes=None) -> pathlib.Path:
     return p
 
 
-def check_apart(path, protected, name: str = "out", what: str = "the store", *, replaced: bool = False) -> None:
+def check_apart(
+    path, protected, name: str = "out", what: str = "the store", *, replaced: bool = False, same: bool = False
+) -> None:
     """Refuse an output ``path`` that is ``protected`` or lies inside it (links resolved).
 
     Writing there would mix files into ``protected`` (a store).  With
     ``replaced`` (an output folder replaced as a whole) a ``path`` that contains
     ``protected`` is refused too: replacing it would destroy ``protected``.
-    URLs (``scheme://``) are not local paths and are not checked.
+    With ``same``, ``path`` may be ``protected`` itself (an output store that is
+    the source store), only not inside it.  URLs (``scheme://``) are not local
+    paths and are not checked.
 
     Raises
     ------
@@ -119,7 +123,7 @@ def check_apart(path, protected, name: str = "out", what: str = "the store", *, 
     guard = os.path.realpath(protected)
     real = os.path.realpath(path)
     common = os.path.commonpath([guard, real])
-    if common == guard or (replaced and common == real):
+    if (common == guard and not (same and real == guard)) or (replaced and common == real):
         rule = "lie outside {w} and not contain it" if replaced else "lie outside {w}"
         raise ValidationError(
             f"{name} must {rule.format(w=what)}: {name} {os.fspath(path)!r}, {what} {os.fspath(protected)!r}"

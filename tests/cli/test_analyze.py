@@ -285,8 +285,12 @@ def test_store_without_condition_series(tmp_path):
     r = run_cli("analyze", "all", "--store", path, "--permutations", "0", "--out", tmp_path / "all")
     assert r.returncode == 0, r.stderr
     assert "conditions: skipped" in r.stdout
+    assert "cca: skipped (cca needs more complete rows (subjects) than variables: 6 rows" in r.stdout
     written = sorted(p.name for p in (tmp_path / "all").iterdir())
     # models: the factories store fitted error maps, so §5.3's model comparison runs too
-    assert written == sorted(f"{a}.{e}" for a in (*BATCH[:-1], "models") for e in ("json", "png"))
+    ran = [a for a in (*BATCH[:-1], "models") if a != "cca"]
+    assert written == sorted(f"{a}.{e}" for a in ran for e in ("json", "png"))
+    r = run_cli("analyze", "pca", "--store", path, "--out", path)  # never into the store
+    assert r.returncode == 2 and "--out must lie outside the store" in r.stderr
     doc = _doc(tmp_path / "all", "translucency")
     assert doc["n_subjects"] == 6 and doc["store"] == str(path)

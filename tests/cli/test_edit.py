@@ -136,6 +136,11 @@ def test_errors_exit_2_with_clear_messages(pop, tmp_path):
     assert r.returncode == 2 and "t must lie in [0, 1], got 2.0" in r.stderr
     r = run_cli("edit")
     assert r.returncode == 2 and "skin-type" in r.stdout
+    r = run_cli("edit", "skin-type", "F3", "V", "--store", pop, "--images", pop)  # images into the store
+    assert r.returncode == 2 and "--images must lie outside the source store" in r.stderr
+    r = run_cli("edit", "skin-type", "F3", "V", "--store", pop, "--out-store", pop / "subjects" / "n.zarr")
+    assert r.returncode == 2 and "--out-store must lie outside the source store" in r.stderr
+    assert not (pop / "subjects" / "n.zarr").exists()
     with open_store(pop) as st:  # failed edits wrote nothing
         assert not [s for s in st.ids() if s.startswith("F3.brdf")]
 

@@ -75,8 +75,10 @@ def padded_shape(shape, levels):
     """
     padded = pad_shape(shape, levels)
     if levels > max_levels(padded):
+        # The padding grows with the levels asked for: the limit is the largest count its own padding supports.
+        most = max((k for k in range(1, 33) if k <= max_levels(pad_shape(shape, k))), default=0)
         raise ValidationError(
-            f"levels must be at most {max_levels(padded)} for a map of shape {tuple(shape)} "
+            f"levels must be at most {most} for a map of shape {tuple(shape)} "
             f"(the low-pass residual needs at least 4 pixels a side), got {levels}; the paper's 7 levels need "
             "maps of at least 256 x 256, e.g. those of the texture sample (512 x 512: --store texture-sample, "
             "facestats.pipeline.texture_sample)"

@@ -468,6 +468,8 @@ def _check_coords(ds, label) -> None:
 def _check_maps(ds, label) -> None:
     """Region labels 0-10 with at least one face texel; finite fitted maps in the face."""
     region = np.asarray(ds["region"].values)
+    if region.dtype.kind not in "iu":  # 2.5 would silently belong to no region of any statistic
+        raise SchemaError(f"subject {label!r}: region labels must be integers 0-10, got dtype {region.dtype}")
     if region.min() < 0 or region.max() > max(REGIONS):
         raise SchemaError(
             f"subject {label!r}: region labels must be 0-10, got {int(region.min())}..{int(region.max())}"

@@ -326,6 +326,10 @@ def test_invalid_subjects_are_refused_without_touching_the_store(tmp_path):
         bad.attrs["provenance"] = "source: camera"
         with pytest.raises(SchemaError, match="provenance must be a JSON"):
             st.write_subject(bad)
+        bad = make_map_subject("BAD4")
+        bad["region"] = bad["region"].astype("float64") + 0.5 * (bad["region"] == 2)  # 2.5: in no region
+        with pytest.raises(SchemaError, match="region labels must be integers 0-10, got dtype float64"):
+            st.write_subject(bad)
         assert st.revision == rev
         assert sorted(p.relative_to(path) for p in path.rglob("*")) == listing
 

@@ -38,7 +38,7 @@ import numpy as np
 
 from facestats.errors import SchemaError, StoreError, ValidationError
 from facestats.io.ids import check_subject_id
-from facestats.io.index import is_index_temp, make_entry, read_index_file
+from facestats.io.index import INDEX_NAME, is_index_temp, make_entry, read_index_file
 from facestats.io.layout import (
     LOCK_NAME,
     QUARANTINE,
@@ -544,6 +544,13 @@ def directory_notes(root, label: str, index) -> tuple[list[str], list[str]]:
         problems.append(
             f"store {label}: its subjects/ folder is missing (an unmounted volume?); no subject can be read"
         )
+    for name, plain, kind in ((INDEX_NAME, is_plain_file, "a regular file"), (SUBJECTS, is_plain_dir, "a folder")):
+        path = os.path.join(root, name)
+        if os.path.lexists(path) and not plain(path):  # read through, but writes and repairs refuse it
+            problems.append(
+                f"store {label}: {name} must be {kind} of the store, but it is a symbolic link, FIFO or device; "
+                "facestats reads through it but refuses to write or repair there: replace it by what it points to"
+            )
     if index is not None:
         notes += survey(root, index).notes()
     q = list_quarantine(root)

@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import copy
 import os
+import shutil
 from dataclasses import dataclass, field
 
 from facestats.core.version import __version__
@@ -587,9 +588,20 @@ class _Apply:
         self.committed = False
 
     def quarantine(self, rel: str, why: str) -> None:
-        if self.qdir is None:
+        fresh = self.qdir is None
+        if fresh:
             self.qdir = open_quarantine(self.root, f"facestats validate --repair ({self.label})")
-        quarantine_move(self.root, self.qdir, rel, why)
+        try:
+            quarantine_move(self.root, self.qdir, rel, why)
+        except BaseException:
+            if fresh:  # refused before anything moved: leave no empty quarantine folder behind
+                shutil.rmtree(self.qdir, ignore_errors=True)
+                try:
+                    os.rmdir(os.path.dirname(self.qdir))  # quarantine/ itself, if nothing else is in it
+                except OSError:
+                    pass
+                self.qdir = None
+            raise
 
     def premise(self, a: RepairAction) -> bool:
         """True if what ``a`` was planned against still holds."""

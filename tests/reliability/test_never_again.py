@@ -75,6 +75,26 @@ def test_a_link_planted_as_a_subject_folder_is_never_written_through(store, tmp_
     assert snapshot(sentinel) == before
 
 
+def test_a_subject_folder_linked_out_stops_repair_without_leaving_a_quarantine(store, base, tmp_path):
+    sid = sorted(p.name for p in (store / "subjects").iterdir() if p.is_dir())[0]
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    shutil.move(store / "subjects" / sid, outside / sid)
+    (store / "subjects" / sid).symlink_to(outside / sid)
+    before = snapshot(outside)
+    code, out = run("validate", "--store", store, "--repair", "--yes")
+    assert code == 2 and "outside the store" in out
+    assert not (store / "quarantine").exists() and snapshot(outside) == before
+
+
+def test_a_linked_index_is_a_problem_for_validate_as_for_repair(store, tmp_path):
+    (tmp_path / "victim").mkdir()
+    shutil.move(store / "index.json", tmp_path / "victim" / "index.json")
+    (store / "index.json").symlink_to(tmp_path / "victim" / "index.json")
+    code, out = run("validate", "--store", store)
+    assert code == 1 and "index.json must be a regular file of the store, but it is a symbolic link" in out
+
+
 # -- 2. writing outside the store ------------------------------------------------------------------
 @pytest.mark.parametrize("bad", ["../../victim", "S9\n", "a/b", "..", ".hidden", "x" * 65, ""])
 def test_ids_read_from_the_index_are_validated(store, tmp_path, bad):

@@ -78,6 +78,8 @@ def population_index(source):
         )
     if "subject_id" in frame.columns and frame.index.name != "subject_id":
         frame = frame.set_index("subject_id")
+    if len(frame) == 0 and len(frame.columns) == 0:
+        raise ValidationError("the store has no subjects (its population index is empty): nothing to analyse")
     missing = [c for c in ("age", "gender", "skin_type", "condition") if c not in frame.columns]
     if missing:
         raise ValidationError(

@@ -6,9 +6,10 @@ Each parses its arguments, makes one call to :mod:`facestats.io` and prints.
 from __future__ import annotations
 
 import json
+import os
 import sys
 
-from facestats.cli.options import add_store_option, open_store_option
+from facestats.cli.options import add_store_option, open_store_option, store_path_option
 
 __all__ = ["add_query", "add_info", "add_validate", "add_export", "add_import_merl"]
 
@@ -125,6 +126,13 @@ def _cmd_validate(args) -> int:
     if (args.yes or args.allow_missing) and not (args.repair or args.purge):
         raise StoreError("--yes and --allow-missing go with --repair (or --yes with --purge)")
     writes = (args.repair or args.purge) and args.yes
+    path = store_path_option(args.store) if args.store is not None else None
+    if writes and (path is None or os.path.isfile(path)):
+        what = "--repair --yes" if args.repair else "--purge --yes"
+        raise StoreError(
+            f"store {args.store or '(the embedded default)'} is a read-only zip store: {what} needs a directory "
+            "store (unpack it, repair the directory, pack it again with facestats.io.pack_store)"
+        )
     try:
         store = open_store_option(args.store, mode="r+" if writes else "r")
     except StoreError as exc:  # includes SchemaError: an unopenable store is invalid

@@ -94,7 +94,7 @@ def transfer_colour(
     """
     src = as_rgb_image(source_albedo, "source_albedo")
     t = check_t(t)
-    bins = check_int(bins, "bins", 1)
+    bins = check_int(bins, "bins", 2)  # as every histogram of the edits: one bin matches nothing
     feather = check_feather(feather)
     labels, _ = mask_labels(mask, src.shape[:2])
     inside = np.ones(src.shape[:2], bool) if labels is None else labels > 0

@@ -231,6 +231,10 @@ class TextureStatistics:
         if not path.is_file():  # a FIFO would block np.load forever; a folder or nothing is no statistics file
             what = "does not exist" if not os.path.lexists(path) else "is not a regular file"
             raise FormatError(f"cannot read texture statistics from {str(path)!r}: it {what}")
+        with open(path, "rb") as fh:
+            zipped = fh.read(4) == b"PK\x03\x04"  # an .npz is a zip archive; anything else is not ours
+        if not zipped:
+            raise FormatError(f"{str(path)!r} is not a facestats texture-statistics file (not an .npz archive)")
         try:
             with np.load(path, allow_pickle=False) as z:
                 data = {k: z[k] for k in z.files}

@@ -359,7 +359,7 @@ def _transfer_texture(
     noise_amp = _check_noise(noise)
     for name, v in (("levels", levels), ("orientations", orientations), ("bins", bins)):
         if v is not None:
-            check_int(v, name, 0 if name == "levels" else 1)
+            check_int(v, name, {"levels": 0, "orientations": 1, "bins": 2}[name])  # as check_settings
     shape = src.shape[:2]
     labels, ids = mask_labels(mask, shape)
     mask_is_labels = mask is not None and np.asarray(mask).dtype.kind in "iu"

@@ -57,6 +57,7 @@ __all__ = [
     "ROOT_META",
     "TRASH_PREFIX",
     "QUARANTINE",
+    "BUILD_JOURNAL",
     "GENERATION_PATTERN",
     "MAP_CHUNK_ROWS",
     "map_chunk_rows",
@@ -91,6 +92,8 @@ ROOT_META = "zarr.json"
 TRASH_PREFIX = ".trash-"
 #: Folder (under the root) of what repair moved aside.
 QUARANTINE = "quarantine"
+#: Folder (under the root) of a build's per-subject journal (:mod:`facestats.pipeline.journal`).
+BUILD_JOURNAL = ".build"
 #: Names :func:`new_generation` makes (always matched in full: a trailing newline is not a name).
 GENERATION_PATTERN = re.compile(r"g[0-9a-f]{16}-[0-9]{1,10}-[0-9a-f]{6}")
 #: Temporary files of :func:`write_json_atomic` beside a ``zarr.json`` or a generation record.

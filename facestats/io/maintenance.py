@@ -40,6 +40,7 @@ from facestats.errors import SchemaError, StoreError, ValidationError
 from facestats.io.ids import check_subject_id
 from facestats.io.index import INDEX_NAME, is_index_temp, make_entry, read_index_file
 from facestats.io.layout import (
+    BUILD_JOURNAL,
     LOCK_NAME,
     QUARANTINE,
     RECORDS,
@@ -71,7 +72,7 @@ __all__ = [
     "directory_notes",
 ]
 
-_ROOT_NAMES = {ROOT_META, "index.json", LOCK_NAME, WRITERS, RECORDS, SUBJECTS, QUARANTINE}
+_ROOT_NAMES = {ROOT_META, "index.json", LOCK_NAME, WRITERS, RECORDS, SUBJECTS, QUARANTINE, BUILD_JOURNAL}
 
 
 @dataclass

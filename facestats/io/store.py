@@ -235,6 +235,11 @@ class Store:
         """The current index document (re-read when the file changed)."""
         key = self._b.index_key()
         if key is None:
+            if self.kind != "directory":
+                raise StoreError(
+                    f"store {self.label} has no {INDEX_NAME}; a zip store is read-only: unpack it, rebuild the index "
+                    "with `facestats validate --repair --yes` on the directory, and pack it again"
+                )
             raise StoreError(
                 f"store {self.label} has no {INDEX_NAME}; run `facestats validate --repair --store {self.path}` "
                 "to rebuild it from the subject groups"

@@ -397,7 +397,7 @@ def build_store(
         check_subject_id(sid)
     t0 = time.perf_counter()
     pop = _population(seed, map_size, conditions, face)
-    wanted = [s.subject_id for s in pop.subjects] if subjects is None else list(subjects)
+    wanted = [s.subject_id for s in pop.subjects] if subjects is None else list(dict.fromkeys(subjects))  # once each
     ids = {t.subject_id for t in pop.subjects}
     unknown = [s for s in wanted if s not in ids]
     if unknown:

@@ -36,12 +36,13 @@ import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from facestats.io.layout import BUILD_JOURNAL
 from facestats.io.store import open_store
 
 __all__ = ["JOURNAL_DIR", "BuildJournal", "BuildStatus", "build_status", "run_journalled"]
 
 #: Folder of the journal inside a directory store.
-JOURNAL_DIR = ".build"
+JOURNAL_DIR = BUILD_JOURNAL
 
 
 def _now() -> str:

@@ -131,6 +131,8 @@ def test_validate_and_repair(stores, tmp_path):
     assert len(list((path / "quarantine").glob("*/subjects/P2/g*"))) == 1
     r = run_cli("validate", "--store", tmp_path / "missing")
     assert r.returncode == 1 and "INVALID" in r.stdout
+    r = run_cli("validate", "--store", stores[1], "--purge", "--yes")  # a valid zip store is not "INVALID"
+    assert r.returncode == 2 and "is a read-only zip store: --purge --yes needs a directory store" in r.stderr
 
 
 def test_export(stores, tmp_path):

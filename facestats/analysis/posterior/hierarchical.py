@@ -231,7 +231,7 @@ def _hierarchical_channel(groups, skin_types, n_draws, rng, q):
         raise ValidationError(
             f"the hierarchical model needs >= 3 skin types and more subjects than types, got types "
             f"{[st for st, k in zip(skin_types, n) if k]} with {int(n.sum())} subjects "
-            "(use model='independent')"
+            "(use the independent model: model='independent' in Python, `analyze posterior` without --population)"
         )
     ybar = np.array([g.mean() for g in groups if g.size])
     s_w2 = sum(float(np.sum((g - g.mean()) ** 2)) for g in groups if g.size) / dof

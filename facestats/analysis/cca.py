@@ -365,7 +365,7 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
     """
     import pandas as pd
 
-    x, y, x_names, y_names, index, dropped, reg = _complete_blocks(X, Y, regularization, n_permutations, missing)
+    x, y, x_names, y_names, index, dropped, reg = _complete_blocks(X, Y, regularization, n_permutations, missing, seed)
     n, q = x.shape[0], y.shape[1]
     x_mean, y_mean = x.mean(axis=0), y.mean(axis=0)
     xc, yc = x - x_mean, y - y_mean
@@ -427,7 +427,7 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
     )
 
 
-def _complete_blocks(X, Y, regularization, n_permutations, missing):
+def _complete_blocks(X, Y, regularization, n_permutations, missing, seed=0):
     """Checked blocks without incomplete rows: x, y, x_names, y_names, row labels kept and dropped, (λx, λy)."""
     x, x_names, x_index = _as_block(X, "X")
     y, y_names, _ = _as_block(Y, "Y")
@@ -441,6 +441,7 @@ def _complete_blocks(X, Y, regularization, n_permutations, missing):
         raise ValidationError(f"missing must be 'raise' or 'drop', got {missing!r}")
     if int(n_permutations) < 0:
         raise ValidationError(f"n_permutations must be >= 0, got {n_permutations!r}")
+    check_seed(seed)  # every argument before any statement about the data
     ok = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(y), axis=1)
     if not ok.all() and missing == "raise":
         raise ValidationError(

@@ -149,7 +149,7 @@ def test_the_papers_seven_levels_from_a_fresh_install_with_the_texture_sample(tm
     env = {"FACESTATS_CACHE_DIR": str(tmp_path / "cache")}
     common = ("--out-store", tmp_path / "out.zarr", "--images", tmp_path / "img", "--seed", "1")
     r = run_cli("edit", "texture", "S001", "--target", "S030", "--levels", "7", *common, env=env)
-    assert r.returncode == 2 and "levels must be at most 5" in r.stderr and "--store texture-sample" in r.stderr
+    assert r.returncode == 2 and "levels must be at most 3" in r.stderr and "--store texture-sample" in r.stderr
     assert not (tmp_path / "cache").exists()  # the default store's error builds nothing
     args = ("edit", "texture", "S001", "--target", "S030", "--levels", "7", "--store", "texture-sample", "--id", "T7")
     r = run_cli(*args, *common, env=env)

@@ -12,6 +12,7 @@ __all__ = [
     "ValidationError",
     "StoreError",
     "SchemaError",
+    "InsufficientDataError",
     "FitError",
     "FormatError",
     "DependencyError",
@@ -31,6 +32,10 @@ class FacestatsError(Exception):
 
 class ValidationError(FacestatsError, ValueError):
     """An argument has the wrong shape, type, domain or value."""
+
+
+class InsufficientDataError(ValidationError):
+    """The data selected cannot support an analysis (too few subjects, no condition series, no sensor data)."""
 
 
 class StoreError(FacestatsError):

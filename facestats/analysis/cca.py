@@ -52,7 +52,7 @@ from facestats.analysis.population import MODEL_NAMES
 from facestats.analysis.serialize import json_ready, records
 from facestats.core.published import CCA_DIRECT, CCA_PRINCIPAL
 from facestats.core.validate import as_float, check_range, check_seed
-from facestats.errors import ValidationError
+from facestats.errors import InsufficientDataError, ValidationError
 
 __all__ = ["CCAResult", "cca"]
 
@@ -374,13 +374,13 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
     wx, wy = _whitener(sxx, rcond), _whitener(syy, rcond)
     xw, yw = xc @ wx, yc @ wy
     plain = not reg.any()
-    if plain and n - 1 <= wx.shape[1] + wy.shape[1]:
-        # The centred rows span at most n − 1 dimensions: with as many variables, some combination of X equals one
+    if plain and n - 1 < wx.shape[1] + wy.shape[1]:
+        # The centred rows span at most n − 1 dimensions: with more variables, some combination of X equals one
         # of Y exactly, whatever the data, and every test statistic is meaningless.
-        raise ValidationError(
+        raise InsufficientDataError(
             f"cca needs more complete rows (subjects) than variables: {n} rows for {wx.shape[1]} + {wy.shape[1]} "
-            f"independent variables give canonical correlations of 1 by construction (need at least "
-            f"{wx.shape[1] + wy.shape[1] + 2} rows, or regularization > 0)"
+            f"independent variables give a canonical correlation of 1 by construction (need at least "
+            f"{wx.shape[1] + wy.shape[1] + 1} rows, or regularization > 0)"
         )
     upper = 1.0 if plain else np.inf
     r, u, v = _canonical(xw, yw, upper)

@@ -21,7 +21,7 @@ import numpy as np
 from facestats.analysis.population import LOBE_NAMES, MODEL_NAMES, index_columns, population_index
 from facestats.analysis.serialize import json_ready, records
 from facestats.core.conventions import CONDITIONS, REGION_IDS, parse_condition
-from facestats.errors import ValidationError
+from facestats.errors import InsufficientDataError, ValidationError
 
 __all__ = ["ConditionDifferences", "condition_differences", "PUBLISHED_PAIRS"]
 
@@ -162,7 +162,7 @@ def _pick_person(frame, person_id, reference):
         has_ref = frame.loc[frame["condition"] == reference, "person_id"].unique()
         candidates = n_cond[n_cond.index.isin(has_ref) & (n_cond > 1)]
         if candidates.empty:
-            raise ValidationError(
+            raise InsufficientDataError(
                 f"no person in the store was measured under {reference!r} and another condition; "
                 "condition_differences needs one (Weyrich §7 measured one subject under seven conditions)"
             )

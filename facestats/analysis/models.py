@@ -23,7 +23,7 @@ import numpy as np
 from facestats.analysis.population import select_population
 from facestats.analysis.serialize import json_ready
 from facestats.core.conventions import FLAG_BITS, REGION_IDS, REGIONS
-from facestats.errors import ValidationError
+from facestats.errors import InsufficientDataError
 
 __all__ = ["ModelErrors", "model_errors"]
 
@@ -133,7 +133,9 @@ def model_errors(store, subjects=None, conditions=("normal",)) -> ModelErrors:
     if "kind" in frame.columns:
         frame = frame[frame["kind"] == "maps"]
     if len(frame) == 0:
-        raise ValidationError("the selection holds no map subject (fitted maps): there are no fit errors to compare")
+        raise InsufficientDataError(
+            "the selection holds no map subject (fitted maps): there are no fit errors to compare"
+        )
     ids = [str(s) for s in frame.index]
     ratios = np.full((len(ids), len(REGION_IDS)), np.nan)
     face_ratio = np.full(len(ids), np.nan)

@@ -25,7 +25,7 @@ from facestats.analysis.population import select_population
 from facestats.analysis.serialize import json_ready
 from facestats.core.conventions import CHANNELS, ROMAN, SITES
 from facestats.core.validate import check_choice
-from facestats.errors import ValidationError
+from facestats.errors import InsufficientDataError, ValidationError
 
 __all__ = ["AbsorptionScattering", "absorption_scattering"]
 
@@ -221,5 +221,5 @@ def absorption_scattering(source, site=None, subjects=None, conditions=("normal"
         parts.append(part[ok])
     data = pd.concat(parts, ignore_index=True)
     if data.empty:
-        raise ValidationError("no selected subject has positive sigma_a and sigma_s_prime")
+        raise InsufficientDataError("no selected subject has positive sigma_a and sigma_s_prime")
     return AbsorptionScattering(data, site)

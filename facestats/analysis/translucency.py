@@ -43,7 +43,7 @@ from facestats.analysis.serialize import by_channel, json_ready
 from facestats.core.conventions import CHANNELS, SITES
 from facestats.core.published import ELL_D_MAX, ELL_D_MIN, SIGMA_TR_AVG, TABLE1_MEAN, TABLE1_VAR
 from facestats.core.validate import check_choice
-from facestats.errors import ValidationError
+from facestats.errors import InsufficientDataError
 
 __all__ = ["TranslucencyTable", "translucency_table", "subject_sigma_tr"]
 
@@ -271,7 +271,7 @@ def translucency_table(source, subjects=None, conditions=("normal",), ddof=1, ra
     sig = subject_sigma_tr(frame)
     have = sig.notna().all(axis=1) & (sig > 0).all(axis=1)
     if not have.any():
-        raise ValidationError("no selected subject has a cheek or forehead sigma_tr in all three channels")
+        raise InsufficientDataError("no selected subject has a cheek or forehead sigma_tr in all three channels")
     sig = sig[have]
     sigma_tr_avg = sig.mean(axis=0).to_numpy()
     ell = 1.0 / sig

@@ -146,12 +146,8 @@ _HANDLERS = {
 
 
 # -- writing ------------------------------------------------------------------------
-#: Analyses that ``all`` skips (saying why) when the store cannot support them.
-SKIPPABLE = ("cca", "conditions", "models", "scatter", "translucency")
-
-
 def _out_dir(path):
-    """``--out``, checked before any work (created when the first file is written)."""
+    """``--out``, checked before any work (created when the files are written, all at the end)."""
     from facestats.core.outputs import check_output_dir
 
     return check_output_dir(path, "--out")
@@ -172,43 +168,49 @@ def _write(files, name, fig, doc, fmt, store):
     return figure, path
 
 
-def _emit(text, files):
-    print(text)
-    print("wrote " + ", ".join(str(f) for f in files))
+def _summary(text, files) -> str:
+    return text + "\nwrote " + ", ".join(str(f) for f in files)
 
 
 def _cmd_analyze(args) -> int:
     from facestats.core.outputs import OutputSet, check_apart
-    from facestats.errors import ValidationError
 
     out = _out_dir(args.out)
-    with open_store_option(args.store) as store, OutputSet(out) as files:  # every file or none
-        check_apart(out, store.path, "--out")
-        if args.action == "posterior":
-            if args.population:
-                if args.subject or args.site:
-                    raise ValidationError("posterior --population takes no --subject or --site")
-                name, handler = "posterior_population", _population_posterior
-            else:
-                name, handler = "posterior", _posterior
-            fig, doc, text = handler(store, args)
-            _emit(text, _write(files, name, fig, doc, args.format, store))
-            return 0
-        actions = BATCH_ACTIONS if args.action == "all" else (args.action,)
-        for i, action in enumerate(actions):
-            if i:
-                print()
-            try:
-                fig, doc, text = _HANDLERS[action](store, args)
-            except ValidationError as exc:
-                # ``all`` on a store that cannot support an analysis (too few subjects for the CCA, no condition
-                # series, no maps, no sensor data as in an imported MERL store): skip it and say why.
-                if args.action == "all" and action in SKIPPABLE:
-                    print(f"{action}: skipped ({exc})")
-                    continue
-                raise
-            _emit(text, _write(files, action, fig, doc, args.format, store))
+    report = []
+    with open_store_option(args.store) as store:
+        check_apart(out, store.path, "--out")  # before OutputSet creates any folder
+        with OutputSet(out) as files:  # every file or none
+            _run_actions(args, store, files, report)
+    print("\n\n".join(report))  # once the files are in place: "wrote" is then true
     return 0
+
+
+def _run_actions(args, store, files, report) -> None:
+    """Run the action(s) of ``args``, writing into the OutputSet ``files``; append each summary to ``report``."""
+    from facestats.errors import InsufficientDataError, ValidationError
+
+    if args.action == "posterior":
+        if args.population:
+            if args.subject or args.site:
+                raise ValidationError("posterior --population takes no --subject or --site")
+            name, handler = "posterior_population", _population_posterior
+        else:
+            name, handler = "posterior", _posterior
+        fig, doc, text = handler(store, args)
+        report.append(_summary(text, _write(files, name, fig, doc, args.format, store)))
+        return
+    for action in BATCH_ACTIONS if args.action == "all" else (args.action,):
+        try:
+            fig, doc, text = _HANDLERS[action](store, args)
+        except InsufficientDataError as exc:
+            # ``all`` on a store that cannot support an analysis (too few subjects for the CCA, no condition
+            # series, no maps, no sensor data as in an imported MERL store): skip it and say why. Bad options
+            # and bad data are other errors: they stop the command.
+            if args.action == "all":
+                report.append(f"{action}: skipped ({exc})")
+                continue
+            raise
+        report.append(_summary(text, _write(files, action, fig, doc, args.format, store)))
 
 
 # -- registration -----------------------------------------------------------------
@@ -343,8 +345,10 @@ def add_analyze(subparsers):
     a = sub.add_parser(
         "all",
         help="every analysis but the posterior",
-        description="Run pca, cca, scatter, translucency, conditions (skipped when the store has "
-        "no person measured under several conditions) and models (skipped without fitted maps).",
+        description="Run pca, cca, scatter, translucency, conditions and models. An analysis the store cannot "
+        "support is skipped with the reason: cca with no more subjects than variables, scatter and translucency "
+        "without sensor data, conditions without a person measured under several conditions, models without "
+        "fitted maps. Every file is written, or none.",
     )
     _common(a, model=True)
     _permutations(a)

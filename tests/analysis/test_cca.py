@@ -185,7 +185,7 @@ def test_brdf_cca_on_store():
 def test_too_few_subjects_for_the_variables_is_refused_not_a_perfect_fit():
     rng = np.random.default_rng(3)
     X, Y = rng.standard_normal((12, 18)), rng.standard_normal((12, 3))  # noise: a plain CCA would give r = 1
-    with pytest.raises(ValidationError, match=r"12 rows for 11 \+ 3 independent variables .*need at least 16"):
+    with pytest.raises(ValidationError, match=r"12 rows for 11 \+ 3 independent variables .*need at least 15"):
         cca(X, Y)
     res = cca(X, Y, regularization=0.5)  # shrinkage keeps the problem well posed; no parametric tests then
     assert np.isfinite(res.correlations).all() and np.isnan(res.p_value).all()

@@ -44,7 +44,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from facestats.acquire.dome import Dome, beam_terms
-from facestats.acquire.photographs import CaptureFolder, bilinear_taps, merge_at, open_folder, prefetch
+from facestats.acquire.photographs import CaptureFolder, bilinear_taps, check_response, merge_at, open_folder, prefetch
 from facestats.core.validate import check_integer
 from facestats.errors import FormatError, ValidationError
 
@@ -316,14 +316,7 @@ def target_observations(folder, dome: Dome, *, grid: int = 24, cameras=None, wor
             f"manifest.json fields 'n_cameras', 'n_leds' are {folder.n_cameras}, {folder.n_leds}; the calibration "
             f"has {dome.n_cameras} cameras and {dome.n_leds} LEDs"
         )
-    if dome.camera_log_response is None:
-        raise FormatError("the calibration has no field 'camera_log_response' to merge the target's photographs")
-    levels = dome.camera_log_response.shape[1]
-    if levels != 2**folder.bits:
-        raise FormatError(
-            f"the calibration's field 'camera_log_response' has {levels} levels, {folder.path / 'manifest.json'} "
-            f"field 'bits' is {folder.bits} ({2**folder.bits} levels)"
-        )
+    check_response(folder, dome)  # to merge the target's photographs
     rho, poses = _target(folder)
     check_integer(grid, "grid", 2)
     cams = folder.cameras if cameras is None else [int(c) for c in cameras]

@@ -56,6 +56,7 @@ from facestats.acquire.photographs import (
     MANIFEST,
     CaptureFolder,
     bilinear_taps,
+    check_response,
     exposure_consistency,
     merge_at,
     open_folder,
@@ -125,17 +126,7 @@ def _check_inputs(folder: CaptureFolder, dome, geometry, calibration="the calibr
         )
     if geometry.region_map is None:
         raise FormatError(f"geometry {geometry.name!r} has no face-region image (region_map): the maps need it")
-    if dome.camera_log_response is None:
-        raise FormatError(
-            f"{calibration} has no field 'camera_log_response' (the cameras' Debevec-Malik response g); "
-            "recover it from a bracket with facestats.acquire.hdr.recover_response"
-        )
-    levels = dome.camera_log_response.shape[1]
-    if levels != 2**folder.bits:
-        raise FormatError(
-            f"field 'camera_log_response' of {calibration} has {levels} levels, {manifest} field 'bits' is "
-            f"{folder.bits} ({2**folder.bits} levels)"
-        )
+    check_response(folder, dome, calibration)
 
 
 def ingest_state(path) -> dict | None:
@@ -150,12 +141,22 @@ def ingest_state(path) -> dict | None:
     return json.loads(st) if isinstance(st, str) else st
 
 
+def _capture_subject_id(path):
+    """The ``subject_id`` attribute of the capture group at ``path`` (None if it has none)."""
+    import zarr
+
+    return zarr.open_group(str(path), mode="r").attrs.get("subject_id")
+
+
 def _start(path, folder, geometry, dome, fingerprint, chunk, subject_id):
     """Create the capture group with its per-lumitexel geometry and irradiance, or reopen a matching one."""
     state = ingest_state(path)
     if state is not None:
-        if state.get("fingerprint") != fingerprint:
-            changed = [k for k in fingerprint if state.get("fingerprint", {}).get(k) != fingerprint[k]]
+        stored = dict(state.get("fingerprint") or {})
+        if "subject_id" not in stored:  # an ingest begun before the id was part of the key: the capture's own id
+            stored["subject_id"] = _capture_subject_id(path)
+        if stored != fingerprint:
+            changed = [k for k in fingerprint if stored.get(k) != fingerprint[k]]
             raise FormatError(
                 f"{path} holds an ingest of other inputs ({', '.join(changed)} differ); remove it or choose another "
                 "work directory"

@@ -59,6 +59,7 @@ __all__ = [
     "FORMAT",
     "MANIFEST",
     "CaptureFolder",
+    "check_response",
     "open_folder",
     "write_manifest",
     "write_sensor_file",
@@ -284,6 +285,24 @@ class CaptureFolder:
     def fingerprint(self) -> str:
         """SHA-256 of the manifest file (identifies the capture an ingest was made from)."""
         return hashlib.sha256((self.path / MANIFEST).read_bytes()).hexdigest()
+
+
+def check_response(folder: "CaptureFolder", dome, calibration: str = "the calibration") -> None:
+    """Raise unless ``dome`` has camera responses with one level per code of the folder's ``bits``.
+
+    ``calibration`` names the calibration in messages (its file when known).
+    """
+    if dome.camera_log_response is None:
+        raise FormatError(
+            f"{calibration} has no field 'camera_log_response' (the cameras' Debevec-Malik response g); "
+            "recover it from a bracket with facestats.acquire.hdr.recover_response"
+        )
+    levels = dome.camera_log_response.shape[1]
+    if levels != 2**folder.bits:
+        raise FormatError(
+            f"field 'camera_log_response' of {calibration} has {levels} levels, {folder.path / MANIFEST} field "
+            f"'bits' is {folder.bits} ({2**folder.bits} levels)"
+        )
 
 
 def _relative_inside(name: str) -> bool:

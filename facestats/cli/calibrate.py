@@ -21,7 +21,7 @@ def _write_all(writers) -> None:
         return
     with OutputSet(".") as files:  # all files or none: a failure replaces nothing
         for path, write, _ in writers:
-            write(files.path(pathlib.Path(path).absolute()))
+            write(files.path(pathlib.Path(path).expanduser().absolute()))  # as check_output_file read it
     for _, _, message in writers:
         print(message)
 

@@ -24,10 +24,11 @@ from __future__ import annotations
 import os
 import pathlib
 import secrets
+import shutil
 
 from facestats.errors import FacestatsError, ValidationError
 
-__all__ = ["check_output_dir", "check_output_file", "check_apart", "OutputSet"]
+__all__ = ["check_output_dir", "check_output_file", "check_apart", "missing_folders", "OutputSet"]
 
 
 def _as_path(path, name: str) -> pathlib.Path:
@@ -101,6 +102,16 @@ def check_output_file(path, name: str = "out", suffixes=None) -> pathlib.Path:
     return p
 
 
+def missing_folders(path) -> list[pathlib.Path]:
+    """The folders of ``path`` (itself included) that do not exist yet, innermost first (what a ``mkdir -p`` makes)."""
+    missing = []
+    d = pathlib.Path(os.path.abspath(path))
+    while not os.path.lexists(d) and d != d.parent:
+        missing.append(d)
+        d = d.parent
+    return missing
+
+
 def check_apart(
     path, protected, name: str = "out", what: str = "the store", *, replaced: bool = False, same: bool = False
 ) -> None:
@@ -120,8 +131,8 @@ def check_apart(
     """
     if not protected or "://" in os.fspath(protected):
         return
-    guard = os.path.realpath(protected)
-    real = os.path.realpath(path)
+    guard = os.path.realpath(_as_path(protected, what))
+    real = os.path.realpath(_as_path(path, name))
     common = os.path.commonpath([guard, real])
     if (common == guard and not (same and real == guard)) or (replaced and common == real):
         rule = "lie outside {w} and not contain it" if replaced else "lie outside {w}"
@@ -146,7 +157,8 @@ class OutputSet:
     their missing folders are created, and removed again on failure.  The
     temporaries have unique names (never a name an earlier run could have left,
     never followed through a symlink).  Renaming into place is a transaction:
-    an existing target is first moved aside, and if any rename fails every
+    an existing target is first kept under a second name (a hard link: it never
+    disappears), and if any rename fails, or the process is interrupted, every
     target is put back as it was.
 
     Parameters
@@ -166,11 +178,7 @@ class OutputSet:
         return self
 
     def _make_dirs(self, directory: pathlib.Path) -> None:
-        missing = []
-        d = directory.absolute()
-        while not os.path.lexists(d):
-            missing.append(d)
-            d = d.parent
+        missing = missing_folders(directory)
         try:
             directory.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -179,7 +187,7 @@ class OutputSet:
 
     def path(self, name) -> pathlib.Path:
         """The temporary path to write the file ``name`` (of :attr:`directory`, or a path elsewhere) to."""
-        final = self.directory / name
+        final = pathlib.Path(os.path.abspath(self.directory / name))
         if any(final == f for _, f in self._temps):
             raise ValidationError(f"output {str(final)!r} is named twice")
         self._make_dirs(final.parent)
@@ -196,6 +204,9 @@ class OutputSet:
                 return False
             except OSError as err:
                 exc = err
+            except BaseException:  # interrupted while committing: the targets are back, the temporaries go
+                self._cleanup()
+                raise
         self._cleanup()
         if isinstance(exc, OSError):  # e.g. a full disk: say where, and that nothing was left behind
             where = exc.filename if getattr(exc, "filename", None) else self.directory
@@ -206,25 +217,35 @@ class OutputSet:
         return False
 
     def _commit(self) -> None:
-        """Rename every temporary into place; on a failure, restore every target as it was."""
-        moved: list[tuple[pathlib.Path, pathlib.Path]] = []  # (backup, final)
+        """Rename every temporary into place; on a failure (or an interruption), put every target back.
+
+        An existing target is first kept under a hard link (a second name for the same file), so it never
+        disappears: readers see the old file, then the new one.  Where hard links are not possible (another
+        file system's rules), it is copied instead.
+        """
+        kept: list[tuple[pathlib.Path, pathlib.Path]] = []  # (backup, final)
         placed: list[pathlib.Path] = []
         try:
             for _, final in self._temps:
                 if os.path.lexists(final) and not os.path.isdir(final):
                     backup = final.with_name(f".{final.name}.old-{os.getpid()}-{secrets.token_hex(6)}")
-                    os.replace(final, backup)
-                    moved.append((backup, final))
+                    try:
+                        os.link(final, backup, follow_symlinks=False)
+                    except OSError:
+                        shutil.copy2(final, backup, follow_symlinks=False)
+                    kept.append((backup, final))
             for tmp, final in self._temps:
                 os.replace(tmp, final)
                 placed.append(final)
-        except OSError:
+        except BaseException:
+            restored = {final for _, final in kept}
             for final in placed:
-                _remove(final)
-            for backup, final in moved:
+                if final not in restored:
+                    _remove(final)
+            for backup, final in kept:
                 os.replace(backup, final)
             raise
-        for backup, _ in moved:
+        for backup, _ in kept:
             _remove(backup)
         self.written = placed
 

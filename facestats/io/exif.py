@@ -50,7 +50,7 @@ EXIF_TAGS = {
     0x829D: "FNumber",
     0x8827: "ISOSpeedRatings",
 }
-#: Tags whose value must be one positive number.
+#: Tags whose value is one positive number (ExposureTime is refused otherwise; the others are dropped).
 _NUMERIC = ("ExposureTime", "FNumber", "ISOSpeedRatings")
 _EXIF_IFD = 0x8769
 #: TIFF field types: (struct code, size in bytes); 13 is IFD (TIFF 6.0 supplement), 16-18 are BigTIFF's 8-byte types.
@@ -160,10 +160,12 @@ def _parse_tiff(data, base=0):
             raise FormatError(f"the Exif IFD pointer must be one integer offset, got {pointer!r:.40}")
         sub = _ifd(data, layout, int(pointer), base, EXIF_TAGS.keys())
         tags.update({EXIF_TAGS[t]: v for t, v in sub.items() if t in EXIF_TAGS})
-    for name in _NUMERIC:  # a camera writes one positive number; anything else would reach the merge as a time
+    for name in _NUMERIC:
         v = tags.get(name)
         if v is not None and (isinstance(v, (str, list)) or not math.isfinite(v) or v <= 0):
-            raise FormatError(f"EXIF {name} must be one positive number, got {v!r:.40}")
+            if name == "ExposureTime":  # it would reach the HDR merge as a time: refuse the file
+                raise FormatError(f"EXIF ExposureTime must be one positive number, got {v!r:.40}")
+            del tags[name]  # informative only (a manual lens writes FNumber 0; ISO may hold several values)
     return tags
 
 

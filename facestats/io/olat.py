@@ -94,11 +94,11 @@ def _load_images(folder, names, srgb):
             decoded |= bool(srgb) and bits == 8
         else:
             img = read_image(p)
-            bad = ~np.isfinite(img) | (img < 0)
+            bad = ~np.isfinite(img)  # small negatives are kept: dark-subtracted HDR frames hold them
             if bad.any():
                 y, x = np.argwhere(bad.any(-1))[0]
                 raise ValidationError(
-                    f"image {str(p)!r} (light {k}) must hold finite values >= 0, got {img[y, x].tolist()} at "
+                    f"image {str(p)!r} (light {k}) must hold finite values, got {img[y, x].tolist()} at "
                     f"pixel (x={x}, y={y})"
                 )
         if img.shape[2] == 1:

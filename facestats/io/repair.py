@@ -53,7 +53,6 @@ from __future__ import annotations
 
 import copy
 import os
-import shutil
 from dataclasses import dataclass, field
 
 from facestats.core.version import __version__
@@ -77,6 +76,7 @@ from facestats.io.layout import (
 )
 from facestats.io.locking import is_locked
 from facestats.io.maintenance import ValidationReport, check_subjects, survey
+from facestats.io.quarantine import MANIFEST as QUARANTINE_MANIFEST
 from facestats.io.quarantine import open_quarantine, quarantine_move, write_quarantine_json
 from facestats.io.records import mark_record, read_record, record_name, record_path
 from facestats.io.schema import SCHEMA_VERSION
@@ -576,6 +576,22 @@ def _group_meta(root, done: list) -> None:
         done.append(f"wrote the missing {SUBJECTS}/{ROOT_META}")
 
 
+def _remove_empty_quarantine(qdir: str) -> None:
+    """Remove a quarantine folder that received nothing: its manifest, then the folder and ``quarantine/`` if empty.
+
+    Only empty folders are removed (``os.rmdir``): anything moved there meanwhile stays.
+    """
+    try:
+        os.remove(os.path.join(qdir, QUARANTINE_MANIFEST))
+    except OSError:
+        pass
+    for folder in (qdir, os.path.dirname(qdir)):
+        try:
+            os.rmdir(folder)
+        except OSError:
+            pass
+
+
 class _Apply:
     """The state of one application: the index being changed, the quarantine folder, what was done."""
 
@@ -594,12 +610,8 @@ class _Apply:
         try:
             quarantine_move(self.root, self.qdir, rel, why)
         except BaseException:
-            if fresh:  # refused before anything moved: leave no empty quarantine folder behind
-                shutil.rmtree(self.qdir, ignore_errors=True)
-                try:
-                    os.rmdir(os.path.dirname(self.qdir))  # quarantine/ itself, if nothing else is in it
-                except OSError:
-                    pass
+            if fresh and os.path.lexists(os.path.join(self.root, rel)):  # refused before anything moved
+                _remove_empty_quarantine(self.qdir)
                 self.qdir = None
             raise
 

@@ -13,8 +13,9 @@ from __future__ import annotations
 import os
 import secrets
 import shutil
+import socket
 
-from facestats.core.outputs import check_apart, check_output_dir
+from facestats.core.outputs import check_apart, check_output_dir, missing_folders
 from facestats.core.validate import check_choice
 from facestats.errors import StoreError, ValidationError
 from facestats.io.gltf import write_gltf
@@ -105,9 +106,9 @@ def export_subject(subject, out, format="exr", *, store=None, overwrite=False, *
             ds = store_subject(st, subject)
     parent = os.path.dirname(out)
     _remove_stale_temporaries(parent, os.path.basename(out))
-    created = _missing_dirs(parent)
+    created = missing_folders(parent)
     os.makedirs(parent, exist_ok=True)
-    tmp = os.path.join(parent, f".{os.path.basename(out)}.export-{os.getpid()}-{secrets.token_hex(4)}")
+    tmp = os.path.join(parent, f"{_temp_prefix(os.path.basename(out))}{os.getpid()}-{secrets.token_hex(4)}")
     try:
         os.mkdir(tmp, 0o755)
         _write(format, ds, tmp, options)
@@ -134,23 +135,23 @@ def _check_out(out, overwrite):
     return path
 
 
-def _missing_dirs(path):
-    """The folders of ``path`` that do not exist yet, innermost first."""
-    missing = []
-    d = os.path.abspath(path)
-    while not os.path.lexists(d) and d != os.path.dirname(d):
-        missing.append(d)
-        d = os.path.dirname(d)
-    return missing
+def _temp_prefix(name):
+    """``.NAME.export-HOST-``: the start of this machine's temporary folders for an export to ``NAME``."""
+    host = "".join(c if c.isalnum() else "_" for c in socket.gethostname())[:40] or "host"
+    return f".{name}.export-{host}-"
 
 
 def _remove_stale_temporaries(parent, name):
-    """Remove ``.NAME.export-PID-*`` folders left by exports whose process is gone (killed mid-way)."""
+    """Remove this machine's ``.NAME.export-HOST-PID-*`` folders whose process is gone (an export killed mid-way).
+
+    Another machine's temporaries (a shared folder) and ``*.old`` folders (a previous export being replaced)
+    are never touched.
+    """
     if not os.path.isdir(parent):
         return
-    prefix = f".{name}.export-"
+    prefix = _temp_prefix(name)
     for entry in os.listdir(parent):
-        if not entry.startswith(prefix):
+        if not entry.startswith(prefix) or entry.endswith(".old"):
             continue
         pid = entry[len(prefix) :].split("-", 1)[0]
         if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
@@ -176,7 +177,11 @@ def _place(tmp, out, overwrite):
             raise ValidationError(f"out directory {out!r} was filled during the export; nothing was written")
         old = tmp + ".old"
         os.replace(out, old)
-        os.replace(tmp, out)
+        try:
+            os.replace(tmp, out)
+        except BaseException:
+            os.replace(old, out)  # the previous export comes back
+            raise
         shutil.rmtree(old, ignore_errors=True)
     else:
         os.replace(tmp, out)  # onto an empty folder, or a new name

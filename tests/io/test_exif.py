@@ -102,3 +102,16 @@ def test_malformed_exposure_times_are_refused_by_tag_and_value():
         with pytest.raises(FormatError, match=r"f.tif is corrupt: EXIF ExposureTime must be one positive number, got "
                            + re.escape(shown)):  # fmt: skip
             parse_exif(data, "f.tif")
+
+
+def test_informative_tags_out_of_their_domain_are_dropped_not_fatal():
+    import struct
+
+    from facestats.io.exif import parse_exif
+
+    ifd = struct.pack("<H", 2)
+    ifd += struct.pack("<HHI", 0x829A, 5, 1) + struct.pack("<I", 8 + 2 + 24 + 4)  # ExposureTime 1/60
+    ifd += struct.pack("<HHI", 0x829D, 5, 1) + struct.pack("<I", 8 + 2 + 24 + 4 + 8)  # FNumber 0/0 (manual lens)
+    data = b"II*\0" + struct.pack("<I", 8) + ifd + struct.pack("<I", 0)
+    data += struct.pack("<II", 1, 60) + struct.pack("<II", 0, 0)
+    assert parse_exif(data, "f.tif") == {"ExposureTime": 1 / 60}

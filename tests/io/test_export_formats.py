@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import socket
 import subprocess
 import sys
 
@@ -287,7 +288,8 @@ def test_export_subject_never_replaces_what_it_must_not(tmp_path, subject, monke
     monkeypatch.undo()
     assert os.listdir(tmp_path / "race") == ["user.txt"]
     # A killed export's temporary folder is removed by the next export to the same place.
-    stale = tmp_path / ".race2.export-999999999-abcd"
+    host = "".join(c if c.isalnum() else "_" for c in socket.gethostname())[:40] or "host"
+    stale = tmp_path / f".race2.export-{host}-999999999-abcd"
     stale.mkdir()
     export_subject(subject, tmp_path / "race2", "gltf")
     assert not stale.exists()

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from facestats.errors import FacestatsError, FormatError, ValidationError
-from facestats.io.images import srgb_to_linear, write_image
+from facestats.io.images import srgb_to_linear, write_image, write_pfm
 from facestats.io.olat import read_olat_folder, write_olat_manifest
 from facestats.model.sphere import latlong_directions, light_stage_directions
 from facestats.relight.photometric import angular_error_deg, photometric_stereo
@@ -181,8 +181,9 @@ def test_hostile_folders_are_refused_by_name(tmp_path):
     with pytest.raises(FormatError, match="must be a JSON object, got list"):
         read_olat_folder(tmp_path / "top")
     neg = _manifest_folder(tmp_path / "neg")
-    write_image(neg / "b.exr", np.full((4, 4, 3), -1.0))
-    with pytest.raises(ValidationError, match=r"b.exr' \(light 1\) must hold finite values >= 0, got \[-1.0"):
+    write_pfm(neg / "b.pfm", np.full((4, 4, 3), np.nan, np.float32))  # EXR writers refuse NaN; PFM holds it
+    (neg / "olat.json").write_text((neg / "olat.json").read_text().replace("b.exr", "b.pfm"))
+    with pytest.raises(ValidationError, match=r"b.pfm' \(light 1\) must hold finite values, got \[nan"):
         read_olat_folder(neg)
     dil = tmp_path / "d"
     dil.mkdir()

@@ -18,7 +18,7 @@ from facestats.acquire.devices.cameras import DEFAULT_PATTERN, HotFolderCameras
 from facestats.acquire.devices.dome import DomeController
 from facestats.acquire.devices.plans import DomePlan, SensorPlan
 from facestats.acquire.devices.sensor import SensorController, load_sensor_calibration
-from facestats.acquire.devices.session import SessionLog, SessionReport, run_session, session_state
+from facestats.acquire.devices.session import SessionLog, SessionReport, missing_steps, run_session, session_state
 from facestats.acquire.dome import Dome
 from facestats.errors import FormatError
 
@@ -87,7 +87,8 @@ def capture(
     as they happen.
     """
 
-    if session_state(out, plan, resume=resume) == "complete" and not (resume and verify):  # no port opened
+    finished = session_state(out, plan, resume=resume) == "complete"
+    if finished and not (resume and verify and missing_steps(out, plan)):  # nothing to do: no port opened
         return SessionReport(plan.kind, plan.subject_id, pathlib.Path(out), plan.n_steps, plan.n_steps, complete=True)
     if plan.kind == "dome":
         cams, sizes, controller = range(plan.n_cameras), dict(enumerate(plan.image_size)), DomeController

@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 from facestats.core.conventions import SITES
 from facestats.errors import DeviceError, SessionError
 
-__all__ = ["run_session", "SessionReport", "SessionLog", "session_state"]
+__all__ = ["run_session", "SessionReport", "SessionLog", "session_state", "missing_steps"]
 
 SESSION_DIR = "session"
 #: Files and directories a capture directory may hold besides the frames' camera folders.
@@ -121,6 +121,15 @@ def _read_json(path, what):
         raise SessionError(
             f"{what} {path} cannot be read ({exc}): delete the session directory to start over"
         ) from None
+
+
+def missing_steps(out, plan, log=None) -> int:
+    """Steps of a session in ``out`` whose frames are missing or differ from their SHA-256.
+
+    Reads every committed frame; only a journal line cut short by an interruption is changed (removed, as on
+    resume: its step counts as missing).
+    """
+    return plan.n_steps - len(_Journal(pathlib.Path(out), plan, log or SessionLog()).load(True))
 
 
 def session_state(out, plan, *, resume: bool) -> str:
@@ -413,17 +422,17 @@ def run_session(
     out = pathlib.Path(out)
     state = session_state(out, plan, resume=resume)
     report = SessionReport(plan.kind, plan.subject_id, out, plan.n_steps, 0)
-    if state == "complete" and resume and verify:  # a finished session is checked too: retake what is gone
-        missing = plan.n_steps - len(_Journal(out, plan, log).load(True))
-        if missing:
-            log(f"verify: {missing} completed step(s) have missing or altered frames; the session is reopened")
-            os.remove(out / PRODUCT[plan.kind])  # written again when every step is back
-            state = "resume"
-    if state == "complete":
+    # A finished session is checked too with --resume --verify: the steps whose frames are gone are retaken.
+    missing = missing_steps(out, plan, log) if state == "complete" and resume and verify else 0
+    if state == "complete" and not missing:
         report.steps_before, report.complete = plan.n_steps, True
         return report
     plan.check_device(controller)  # a mis-wired device stops the session before anything is written
     cameras.prepare()
+    if missing:
+        log(f"verify: {missing} completed step(s) have missing or altered frames; the session is reopened")
+        os.remove(out / PRODUCT[plan.kind])  # written again when every step is back
+        state = "resume"
     journal = _Journal(out, plan, log)
     if state == "new":
         try:

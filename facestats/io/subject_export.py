@@ -16,6 +16,7 @@ import shutil
 import socket
 
 from facestats.core.outputs import check_apart, check_output_dir, missing_folders
+from facestats.core.processes import process_gone
 from facestats.core.validate import check_choice
 from facestats.errors import StoreError, ValidationError
 from facestats.io.gltf import write_gltf
@@ -154,18 +155,8 @@ def _remove_stale_temporaries(parent, name):
         if not entry.startswith(prefix) or entry.endswith(".old"):
             continue
         pid = entry[len(prefix) :].split("-", 1)[0]
-        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
+        if pid.isdigit() and int(pid) != os.getpid() and process_gone(int(pid)):
             shutil.rmtree(os.path.join(parent, entry), ignore_errors=True)
-
-
-def _alive(pid):
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's live process
-        return True
-    return True
 
 
 def _place(tmp, out, overwrite):

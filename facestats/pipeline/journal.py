@@ -36,6 +36,7 @@ import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from facestats.core.processes import process_gone
 from facestats.io.layout import BUILD_JOURNAL
 from facestats.io.store import open_store
 
@@ -185,15 +186,7 @@ class BuildStatus:
 
 def _alive(record) -> bool:
     """False when the record's process is known to be gone (on this host); True if it cannot be told."""
-    if record.get("host") != socket.gethostname():
-        return True
-    try:
-        os.kill(int(record["pid"]), 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OSError, ValueError, KeyError):
-        return True
-    return True
+    return not process_gone(record.get("pid"), record.get("host") or "")
 
 
 def build_status(store_path) -> BuildStatus:

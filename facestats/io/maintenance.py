@@ -554,6 +554,12 @@ def directory_notes(root, label: str, index) -> tuple[list[str], list[str]]:
             )
     if index is not None:
         notes += survey(root, index).notes()
+        linked = [sid for sid in index["subjects"] if os.path.islink(os.path.join(root, SUBJECTS, sid))]
+        if linked:  # read through, but repair and writes refuse them
+            problems.append(
+                f"store {label}: {SUBJECTS}/{linked[0]} is a symbolic link ({len(linked)} indexed subject folder(s) "
+                "are); facestats reads through it but refuses to write or repair there: replace it by its folder"
+            )
     q = list_quarantine(root)
     if q:
         n, size = sum(len(e["items"]) for e in q), sum(e["bytes"] for e in q)

@@ -227,6 +227,7 @@ def plan_repair(
     else:
         plan.base_revision = int(index.get("revision", 0))
         ids = list(index["subjects"]) + [s for s in bad if isinstance(s, str)]
+        _refuse_linked_subjects(root, ids)
         then = " (their index entries are then saved in the quarantine)"
         _refuse_half_present(root, ids, "indexed subjects", allow_missing, then)
         _plan_bad_entries(plan, root, bad, open_generation)
@@ -293,6 +294,17 @@ def _read_index(root, plan: RepairPlan):
         if os.path.lexists(os.path.join(root, INDEX_NAME)):
             plan.actions.append(RepairAction("quarantine-index", reason=str(exc)))
         return None, {}
+
+
+def _refuse_linked_subjects(root, ids) -> None:
+    """Refuse a store where an indexed subject's folder is a symbolic link: repair never moves through links."""
+    linked = [sid for sid in ids if os.path.islink(os.path.join(root, SUBJECTS, sid))]
+    if linked:
+        raise StoreError(
+            f"refusing to repair {root}: {SUBJECTS}/{linked[0]} is a symbolic link ({len(linked)} indexed subject "
+            "folder(s) are); facestats never moves or writes through links: replace each by the folder it points "
+            "to, then run the repair again. Nothing was changed"
+        )
 
 
 def _refuse_half_present(root, ids, what: str, allow_missing: bool, then: str = "") -> None:

@@ -82,8 +82,12 @@ def test_a_subject_folder_linked_out_stops_repair_without_leaving_a_quarantine(s
     shutil.move(store / "subjects" / sid, outside / sid)
     (store / "subjects" / sid).symlink_to(outside / sid)
     before = snapshot(outside)
+    code, out = run("validate", "--store", store)
+    assert code == 1 and f"subjects/{sid} is a symbolic link" in out
+    code, out = run("validate", "--store", store, "--repair")  # the plan says so, and proposes nothing
+    assert code == 2 and f"refusing to repair {store}: subjects/{sid} is a symbolic link" in out
     code, out = run("validate", "--store", store, "--repair", "--yes")
-    assert code == 2 and "outside the store" in out
+    assert code == 2 and "is a symbolic link" in out
     assert not (store / "quarantine").exists() and snapshot(outside) == before
 
 

@@ -45,7 +45,7 @@ import numpy as np
 
 from facestats.acquire.dome import Dome, beam_terms
 from facestats.acquire.photographs import CaptureFolder, bilinear_taps, check_response, merge_at, open_folder, prefetch
-from facestats.core.validate import check_integer
+from facestats.core.validate import check_integer, json_numbers
 from facestats.errors import FormatError, ValidationError
 
 __all__ = [
@@ -253,7 +253,7 @@ def _target(folder: CaptureFolder):
     where = f"{folder.path / 'manifest.json'} field 'target'"
     if not isinstance(t, dict) or not isinstance(t.get("poses"), list):
         raise FormatError(f"{where} must be an object with 'albedo' and a list 'poses', got {t!r:.80}")
-    rho = _target_vector(t.get("albedo"), 3, f"{where} 'albedo'")
+    rho = json_numbers(t.get("albedo"), f"{where} 'albedo'", 3)
     if np.any(rho <= 0):
         raise FormatError(f"{where} 'albedo' must be 3 numbers > 0, got {t['albedo']!r}")
     if len(t["poses"]) != folder.n_poses:
@@ -263,10 +263,10 @@ def _target(folder: CaptureFolder):
         name = f"{where} poses[{k}]"
         if not isinstance(p, dict):
             raise FormatError(f"{name} must be an object, got {p!r:.60}")
-        centre = _target_vector(p.get("centre_mm"), 3, f"{name} 'centre_mm'")
-        normal = _target_vector(p.get("normal"), 3, f"{name} 'normal'")
-        u_axis = _target_vector(p.get("u_axis"), 3, f"{name} 'u_axis'")
-        size = _target_vector(p.get("size_mm"), 2, f"{name} 'size_mm'")
+        centre = json_numbers(p.get("centre_mm"), f"{name} 'centre_mm'", 3)
+        normal = json_numbers(p.get("normal"), f"{name} 'normal'", 3)
+        u_axis = json_numbers(p.get("u_axis"), f"{name} 'u_axis'", 3)
+        size = json_numbers(p.get("size_mm"), f"{name} 'size_mm'", 2)
         if np.linalg.norm(normal) < 1e-9 or np.linalg.norm(u_axis) < 1e-9 or np.any(size <= 0):
             raise FormatError(f"{name} needs a non-zero 'normal' and 'u_axis' and 'size_mm' > 0, got {p!r:.120}")
         normal = normal / np.linalg.norm(normal)
@@ -278,17 +278,6 @@ def _target(folder: CaptureFolder):
             )
         poses.append((centre, normal, u_axis, size))
     return rho, poses
-
-
-def _target_vector(value, n, name):
-    """``value`` as ``n`` finite floats, else a FormatError naming the field and the value."""
-    try:
-        v = np.asarray(value, np.float64)
-    except (TypeError, ValueError):
-        v = None
-    if v is None or v.shape != (n,) or not np.all(np.isfinite(v)):
-        raise FormatError(f"{name} must be {n} finite numbers, got {value!r:.60}")
-    return v
 
 
 def target_observations(folder, dome: Dome, *, grid: int = 24, cameras=None, workers: int = 2) -> dict:

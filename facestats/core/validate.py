@@ -11,10 +11,11 @@ from typing import Iterable
 
 import numpy as np
 
-from facestats.errors import ValidationError
+from facestats.errors import FormatError, ValidationError
 
 __all__ = [
     "described",
+    "json_numbers",
     "as_float",
     "as_finite",
     "as_rgb_image",
@@ -236,6 +237,38 @@ def finite_result(out, what: str, **inputs) -> np.ndarray:
     return out
 
 
+def json_numbers(value, name: str, size: int | None = None) -> np.ndarray:
+    """A value read from JSON (a number, or a list of numbers) as float64, checked.
+
+    Parameters
+    ----------
+    value : object
+        The JSON value.
+    name : str
+        What messages call it (file and field, e.g. ``"'olat.json': view"``).
+    size : int, optional
+        The number of values it must hold (a list of that length).
+
+    Raises
+    ------
+    FormatError
+        Not a number or a list of numbers (strings, objects, booleans, nested lists), or not ``size`` of them.
+    ValidationError
+        A value that is not finite.
+    """
+    numeric = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if isinstance(value, list):
+        numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+    if not numeric:
+        raise FormatError(f"{name} must be a number or a list of numbers, got {value!r:.80}")
+    a = np.asarray(value, np.float64)
+    if size is not None and a.shape != (size,):
+        raise FormatError(f"{name} must be a list of {size} numbers, got {value!r:.80}")
+    if not np.all(np.isfinite(a)):
+        raise ValidationError(f"{name} must be finite, got {value!r:.80}")
+    return a
+
+
 def described(parse, doc, what: str):
     """``parse(doc)`` for a document read from a file, every error naming ``what`` (e.g. ``"camera file c.json"``).
 
@@ -245,8 +278,6 @@ def described(parse, doc, what: str):
     the wrong JSON type reaching numpy or a constructor) becomes a
     :class:`~facestats.errors.FormatError` naming ``what``.
     """
-    from facestats.errors import FormatError
-
     try:
         return parse(doc)
     except (ValidationError, FormatError) as exc:

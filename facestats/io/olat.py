@@ -51,7 +51,7 @@ import pathlib
 
 import numpy as np
 
-from facestats.core.validate import check_choice
+from facestats.core.validate import check_choice, json_numbers
 from facestats.errors import FormatError, ValidationError
 from facestats.io.images import INTEGER_EXTENSIONS, read_image, read_integer_image
 from facestats.model.sphere import direction_from_angles, latlong_directions
@@ -190,16 +190,8 @@ def _diligent(folder: pathlib.Path, srgb):
 
 
 def _numbers(value, path, what):
-    """``value`` (a JSON number or list of numbers) as a float64 array, else a FormatError naming ``what``."""
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if isinstance(value, list):
-        ok = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
-    if not ok:
-        raise FormatError(f"{str(path)!r}: {what} must be a number or a list of numbers, got {value!r}")
-    a = np.asarray(value, np.float64)
-    if not np.all(np.isfinite(a)):
-        raise ValidationError(f"{str(path)!r}: {what} must be finite, got {value!r}")
-    return a
+    """``value`` (a JSON number or list of numbers) as float64 (:func:`json_numbers`), naming the file and field."""
+    return json_numbers(value, f"{str(path)!r}: {what}")
 
 
 def _unit_vector(value, path, what):

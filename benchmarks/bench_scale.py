@@ -273,7 +273,9 @@ def bench_calibration_budget(subject=0, grid=48, passes=None):
     1-4 as :func:`facestats.pipeline.fit_lumitexels` runs them (photometric normal,
     albedo refined over specular-free samples, eq. 10, eq. 14 with the standard
     errors), then again with the true normal and/or the true grey albedo in place
-    of the estimates.  Per case: coverage of the nominal 90 % intervals and the
+    of the estimates, and once with the diffuse removed at the photometric normal
+    but the lobe fitted at the true normal (``normal_estimated_lobe_normal_true``:
+    what a specular normal of its own would gain).  Per case: coverage of the nominal 90 % intervals and the
     median relative bias of ρs and of the lobe over the unflagged lumitexels.
     ``passes``: the photometric-stereo passes (None: the default of
     :func:`facestats.model.fitting.photometric_normals`; 3 gives the fit before 2026-12-04).
@@ -283,7 +285,6 @@ def bench_calibration_budget(subject=0, grid=48, passes=None):
     from facestats.acquire.synthetic.simulate import DomeSimulator
     from facestats.model import fitting
 
-    z90 = 1.6448536269514722
     geometry = procedural_face(grid)
     pop = synthesize_population(map_size=grid, geometry=geometry)
     truth = pop[subject]
@@ -301,7 +302,8 @@ def bench_calibration_budget(subject=0, grid=48, passes=None):
             case = f"{pre}_{transport}_{'noise' if noise else 'noise_free'}"
             cos_err = np.clip(np.einsum("nk,nk->n", ps_normal.astype(np.float64), geometry.normal), -1, 1)
             out[f"{case}_normal_error_deg_median"] = float(np.degrees(np.median(np.arccos(cos_err))))
-            for normal_source, normal in (("estimated", ps_normal), ("true", geometry.normal.astype(np.float32))):
+            true_normal = geometry.normal.astype(np.float32)
+            for normal_source, normal in (("estimated", ps_normal), ("true", true_normal)):
                 ci, co, ft2, use, f_r = fitting.brdf_samples(samples, normal)
                 cos_half = samples.cos_half(ci, co)
                 est, _, grey_std = fitting.refine_albedo(samples, f_r, ft2, cos_half, use, with_std=True)
@@ -312,31 +314,47 @@ def bench_calibration_budget(subject=0, grid=48, passes=None):
                     out[f"{case}_normal_{normal_source}_albedo_error_over_std_median"] = float(
                         np.nanmedian(np.abs(alb_err) / grey_std)
                     )
-                for albedo_source, albedo, albedo_std in (
-                    ("estimated", est, grey_std),
-                    ("true", truth.albedo[v, u].astype(np.float32), np.zeros(samples.n_texels)),
-                ):
+                for albedo_source, albedo in (("estimated", est), ("true", truth.albedo[v, u].astype(np.float32))):
                     f_s = fitting.specular_residual(samples, f_r, albedo, ft2)
-                    fit = fitting.fit_specular_models(
-                        samples,
-                        normal,
-                        f_s,
-                        use,
-                        (model,),
-                        cos=(ci, co),
-                        ft2=ft2,
-                        albedo_std=albedo_std,
-                        max_angle={"blinn_phong": np.radians(70)} if model == "blinn_phong" else None,
-                    )[model]
-                    ok = fit.flags == 0
                     key = f"{case}_normal_{normal_source}_albedo_{albedo_source}"
-                    for name, value, std, true in (
-                        ("rho_s", fit.rho_s, fit.rho_s_std, true_rho),
-                        ("lobe", fit.lobe, fit.lobe_std, true_lobe),
-                    ):
-                        err = (value - true)[ok]
-                        out[f"{key}_{name}_coverage90"] = float(np.mean(np.abs(err) <= z90 * std[ok]))
-                        out[f"{key}_{name}_median_bias"] = float(np.median(err / true[ok]))
+                    out.update(_coverage(key, model, samples, normal, f_s, use, (ci, co), ft2, true_rho, true_lobe))
+                if normal_source == "estimated":
+                    # Diffuse removed with the photometric normal as above, the lobe evaluated at the true normal.
+                    ci_t, co_t, _, use_t, _ = fitting.brdf_samples(samples, true_normal)
+                    with np.errstate(invalid="ignore", divide="ignore"):
+                        f_s_t = (f_s * ci / ci_t).astype(np.float32)  # the same specular radiance over E
+                    key = f"{case}_normal_estimated_lobe_normal_true"
+                    cos = (ci_t, co_t)
+                    out.update(
+                        _coverage(key, model, samples, true_normal, f_s_t, use & use_t, cos, ft2, true_rho, true_lobe)
+                    )
+    return out
+
+
+def _coverage(key, model, samples, normal, f_s, use, cos, ft2, true_rho, true_lobe):
+    """Coverage of nominal 90 % intervals and median relative bias of ρs and the lobe of one fit (unflagged)."""
+    from facestats.model import fitting
+
+    z90 = 1.6448536269514722
+    fit = fitting.fit_specular_models(
+        samples,
+        normal,
+        f_s,
+        use,
+        (model,),
+        cos=cos,
+        ft2=ft2,
+        max_angle={"blinn_phong": np.radians(70)} if model == "blinn_phong" else None,
+    )[model]
+    ok = fit.flags == 0
+    out = {}
+    for name, value, std, true in (
+        ("rho_s", fit.rho_s, fit.rho_s_std, true_rho),
+        ("lobe", fit.lobe, fit.lobe_std, true_lobe),
+    ):
+        err = (value - true)[ok]
+        out[f"{key}_{name}_coverage90"] = float(np.mean(np.abs(err) <= z90 * std[ok]))
+        out[f"{key}_{name}_median_bias"] = float(np.median(err / true[ok]))
     return out
 
 

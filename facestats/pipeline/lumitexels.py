@@ -27,7 +27,7 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
 
     The block's valid samples (minus ``settings.exclude_cameras``) are flattened
     into :class:`facestats.model.fitting.Samples`, one contiguous run per
-    lumitexel; then: diffuse normals by photometric stereo (3 passes) and
+    lumitexel; then: diffuse normals by photometric stereo (4 passes) and
     micro-normals; BRDF samples f_r (eq. 8) with the photometric normal; the
     albedo by the stable minimum (eq. 9), refined over specular-free samples if
     ``settings.refine_albedo``; the grey specular residual (eq. 10); and the
@@ -43,7 +43,8 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
         (usable samples), ``n_invalid`` (masked: NaN, negative, unlit, occluded, clipped),
         ``n_grazing`` (valid but beyond the angle limit of eq. 14), and for each model
         ``*_rho_s``, ``*_m``/``*_exponent``, ``*_error``, ``*_flag`` and the standard errors
-        ``*_rho_s_std``, ``*_m_std``/``*_exponent_std`` (robust HC3 standard errors of the fit).
+        ``*_rho_s_std``, ``*_m_std``/``*_exponent_std`` (robust HC3 standard errors of the fit, with the
+        grey diffuse level fitted alongside: :mod:`facestats.model.fitting.diffuse_level`).
     """
     st = settings or FitSettings()
     if lt.n <= PIECE:
@@ -76,15 +77,14 @@ def _fit_piece(lt, st):
     albedo = np.where(np.isfinite(albedo_min), albedo_min, 0).astype(np.float32)
     out["n_samples"] = samples.count(use)
     out["n_grazing"] = samples.count(~use)
-    albedo_std = None  # standard error of the grey albedo (unknown for the stable minimum)
     if st.refine_albedo:
         # Stage 2b: the mean over specular-free samples removes the noise bias of the minimum.
         cos_half = samples.cos_half(cos_i, cos_o)
-        refined, n_ref, grey_std = fitting.refine_albedo(samples, f_r, ft2, cos_half, use, with_std=True)
+        refined, n_ref = fitting.refine_albedo(samples, f_r, ft2, cos_half, use)
         ok = np.isfinite(refined).all(1) & (n_ref >= st.min_samples)
         albedo = np.where(ok[:, None], refined, albedo).astype(np.float32)
-        albedo_std = np.where(ok, grey_std, np.nan)
-    # Stages 3-4: the specular residual (eq. 10) and the batch fit of each model (eq. 14).
+    # Stages 3-4: the specular residual (eq. 10) and the batch fit of each model (eq. 14), each with
+    # the grey diffuse level left by eq. 10 (fitting.diffuse_level).
     f_s = fitting.specular_residual(samples, f_r, albedo, ft2)
     fits = fitting.fit_specular_models(
         samples,
@@ -98,7 +98,6 @@ def _fit_piece(lt, st):
         cos=(cos_i, cos_o),
         engine=st.engine,
         ft2=ft2,
-        albedo_std=albedo_std,
         max_angle=_model_angles(st),
     )
     few = out["n_samples"] < st.min_samples

@@ -19,8 +19,10 @@ samples of eq. 14 (w = 1), for the lobes of :mod:`facestats.model.fitting.lobes`
   ``tol``/10 the parameters stay within 2·10⁻³ relative of a fit run to
   tol = 10⁻¹³, as close as the E²-change test alone gets.)
 * When fewer than 70 % of the texels are still moving the converged ones leave
-  the working set, their sums kept for the standard errors.  E² and the sums of
-  the standard errors come from explicit residuals at the solution
+  the working set.
+* With ``d`` (∂y/∂α per sample), the grey diffuse level of eq. 10 is then fitted
+  with (ρs, q) (:mod:`facestats.model.fitting.diffuse_level`).  E² and the
+  standard errors come from explicit residuals at the solution
   (:mod:`facestats.model.fitting.uncertainty`).
 
 Flags (:data:`facestats.core.conventions.FLAG_BITS`): ``few_samples`` when fewer than
@@ -52,9 +54,10 @@ import numpy as np
 from facestats.core.conventions import FLAG_BITS
 from facestats.core.validate import as_finite, check_integer
 from facestats.errors import ValidationError
+from facestats.model.fitting.diffuse_level import STEPS, fit_diffuse_level
 from facestats.model.fitting.engine import resolve_engine
 from facestats.model.fitting.lobes import lobe_moments, lobe_sums
-from facestats.model.fitting.uncertainty import residual_sums, standard_errors
+from facestats.model.fitting.uncertainty import robust_variances, standard_errors
 
 __all__ = ["SpecularFit", "DEFAULT_BOUNDS", "PLAUSIBLE_LOBE", "solve_specular"]
 
@@ -99,8 +102,11 @@ class SpecularFit:
     iterations : int
         Levenberg-Marquardt iterations run.
     rho_s_std, lobe_std : ndarray
-        Standard errors: the robust (sandwich) covariance plus the albedo's
-        uncertainty (:mod:`facestats.model.fitting.uncertainty`).
+        Standard errors: the robust (sandwich) covariance of the fitted parameters
+        (:mod:`facestats.model.fitting.uncertainty`).
+    diffuse_shift : ndarray or None
+        δ, the correction of the grey albedo α_R + α_G + α_B fitted with the lobe
+        (:mod:`facestats.model.fitting.diffuse_level`); None when the fit had no ∂y/∂α.
     """
 
     model: str
@@ -112,6 +118,7 @@ class SpecularFit:
     iterations: int
     rho_s_std: np.ndarray
     lobe_std: np.ndarray
+    diffuse_shift: np.ndarray | None = None
 
     @property
     def lobe_name(self) -> str:
@@ -301,14 +308,13 @@ def solve_specular(
     start=None,
     engine=None,
     d=None,
-    albedo_std=None,
 ):
     """Batch bounded Levenberg-Marquardt on flat samples in per-texel runs of ``n_use`` samples (module docstring).
 
     ``engine`` (:mod:`facestats.model.fitting.engine`) picks the numpy iteration
     below or the compiled per-texel solve of :mod:`facestats.model.fitting.kernels.lm`.
-    ``d`` (per sample, ∂y/∂α of the grey albedo) and ``albedo_std`` (per texel) add the
-    albedo's uncertainty to the standard errors (:mod:`facestats.model.fitting.uncertainty`).
+    ``d`` (per sample, ∂y/∂α of the grey albedo): the grey diffuse level is fitted too
+    (:mod:`facestats.model.fitting.diffuse_level`).
     """
     (r_lo, r_hi), (p_lo, p_hi) = _check_solver_args(model, bounds, min_samples, max_iter, tol, max_relative_error)
     engine = resolve_engine(engine)
@@ -323,14 +329,10 @@ def solve_specular(
     p0 = None if start is None else np.asarray(start, np.float64)
     bnd = ((r_lo, r_hi), (p_lo, p_hi))
     if engine == "numba":
-        rho, q, done, iterations, all_sums, sums = _solve_compiled(
-            model, y, s1, a, d, n_use, ~few, p0, bnd, max_iter, tol
-        )
+        fit = _solve_compiled(model, y, s1, a, d, n_use, ~few, p0, bnd, max_iter, tol)
     else:
-        rho, q, done, iterations, all_sums = _solve_numpy(model, y, s1, a, n_use, ~few, p0, bnd, max_iter, tol, dt)
-        sums = residual_sums(model, y, s1, a, d, n_use, ~few, rho, q, all_sums)
-    fit = (rho, q, done, iterations, all_sums, sums)
-    return _result(model, n_use, few, fit, albedo_std, max_relative_error, (r_lo, r_hi, p_lo, p_hi), scale, dt)
+        fit = _solve_numpy(model, y, s1, a, d, n_use, ~few, p0, bnd, max_iter, tol, dt)
+    return _result(model, n_use, few, fit, max_relative_error, (r_lo, r_hi, p_lo, p_hi), scale, dt)
 
 
 def _y_scale(y) -> float:
@@ -354,8 +356,9 @@ def _rho_outside(model, good, q, all_sums, r_lo, r_hi, max_relative_error):
     return out
 
 
-def _solve_numpy(model, y, s1, a, n_use, solve, p_start, bounds, max_iter, tol, dt):
-    """The numpy iteration: (ρs, ln p, converged, iterations, lobe sums) per texel (module docstring)."""
+def _solve_numpy(model, y, s1, a, d, n_use, solve, p_start, bounds, max_iter, tol, dt):
+    """The numpy iteration, then the diffuse level (with ``d``): (ρs, ln p, δ, converged, iterations, lobe
+    sums, (E², var ρs, var ln p)) per texel (module docstring)."""
     (r_lo, r_hi), (p_lo, p_hi) = bounds
     q_lo, q_hi = np.log(p_lo), np.log(p_hi)
     n_tex = n_use.size
@@ -385,7 +388,25 @@ def _solve_numpy(model, y, s1, a, n_use, solve, p_start, bounds, max_iter, tol, 
         all_sums, iterations = _lm_iterations(model, ws, state, sums, swyy, (r_lo, r_hi), (q_lo, q_hi), max_iter, tol)
     rho = state["rho"].astype(np.float64)
     q = state["q"].astype(np.float64)
-    return rho, q, state["done"] & solve, iterations, all_sums
+    delta = None
+    if d is not None:
+        rho, q, delta = fit_diffuse_level(model, y, s1, a, d, n_use, solve, rho, q, (r_lo, r_hi, q_lo, q_hi))
+        all_sums = _final_lobe_sums(model, y, s1, a, d, n_use, solve, q, delta)
+    robust = robust_variances(model, y, s1, a, d, n_use, solve, rho, q, delta)
+    return rho, q, delta, state["done"] & solve, iterations, all_sums, robust
+
+
+def _final_lobe_sums(model, y, s1, a, d, n_use, solve, q, delta):
+    """The five lobe sums at the solution ``q`` of y + δ d (zeros where not ``solve``)."""
+    out = np.zeros((5, n_use.size))
+    if solve.any():
+        cnt = n_use[solve]
+        kept = np.flatnonzero(np.repeat(solve, n_use))
+        y_shifted = (y.take(kept) + d.take(kept) * np.repeat(delta[solve], cnt)).astype(y.dtype)
+        zk, ak = s1.take(kept), a.take(kept)
+        scratch = np.empty((3, kept.size), y.dtype)
+        out[:, solve] = lobe_sums(model, q[solve], cnt, _segments(cnt), zk, ak, y_shifted, scratch)
+    return out
 
 
 def _solve_compiled(model, y, s1, a, d, n_use, solve, p_start, bounds, max_iter, tol):
@@ -398,7 +419,7 @@ def _solve_compiled(model, y, s1, a, d, n_use, solve, p_start, bounds, max_iter,
     p0 = np.full(n_tex, np.nan) if p_start is None else np.where(np.isfinite(p_start) & (p_start > 0), p_start, np.nan)
     code = lm.TORRANCE_SPARROW if model == "torrance_sparrow" else lm.BLINN_PHONG
     limits = np.array([r_lo, r_hi, np.log(p_lo), np.log(p_hi), p_lo, p_hi], np.float64)
-    rho, q, done, its, all_sums, sums = lm.solve_runs(
+    rho, q, delta, done, its, all_sums, robust = lm.solve_runs(
         code,
         np.ascontiguousarray(y, np.float32),
         np.ascontiguousarray(s1, np.float32),
@@ -411,18 +432,20 @@ def _solve_compiled(model, y, s1, a, d, n_use, solve, p_start, bounds, max_iter,
         limits,
         int(max_iter),
         float(tol),
+        STEPS,
     )
-    return rho, q, done, int(its.max(initial=0)), all_sums, sums
+    return rho, q, None if d is None else delta, done, int(its.max(initial=0)), all_sums, tuple(robust)
 
 
-def _result(model, n_use, few, fit, albedo_std, max_relative_error, limits, scale, dt):
-    """The :class:`SpecularFit` of a solve: standard errors, flags, NaN where too few samples; ρs, E and the
+def _result(model, n_use, few, fit, max_relative_error, limits, scale, dt):
+    """The :class:`SpecularFit` of a solve: standard errors, flags, NaN where too few samples; ρs, δ, E and the
     standard error of ρs scaled back by ``scale`` (module docstring: Scale)."""
-    rho, q, done, iterations, all_sums, sums = fit
+    rho, q, delta, done, iterations, all_sums, (e2, var_rho, var_q) = fit
     r_lo, r_hi, p_lo, p_hi = limits
     q_lo, q_hi = np.log(p_lo), np.log(p_hi)
     good = ~few
-    err, r_std, p_std, ill = standard_errors(model, n_use, good, rho, q, all_sums, sums, albedo_std, max_relative_error)
+    robust = (e2, var_rho, var_q)
+    err, r_std, p_std, ill = standard_errors(model, n_use, good, rho, q, all_sums, *robust, max_relative_error)
     rho_out = _rho_outside(model, good, q, all_sums, r_lo, r_hi, max_relative_error)
     rho, err, r_std = rho * scale, err * scale, r_std * scale
     p = np.exp(q)
@@ -447,4 +470,5 @@ def _result(model, n_use, few, fit, albedo_std, max_relative_error, limits, scal
         iterations=iterations,
         rho_s_std=r_std.astype(dt),
         lobe_std=p_std.astype(dt),
+        diffuse_shift=None if delta is None else np.where(few, np.nan, delta).astype(dt),  # y and d scale alike
     )

@@ -183,7 +183,6 @@ def fit_specular_models(
     cos=None,
     engine=None,
     ft2=None,
-    albedo_std=None,
     max_angle=None,
 ) -> dict:
     """Fit several models to the same grey specular samples; later models start from the first.
@@ -202,10 +201,9 @@ def fit_specular_models(
     bounds : dict, optional
         Bounds per model (as :func:`fit_specular`); missing models use :data:`DEFAULT_BOUNDS`.
     ft2 : ndarray, shape (S,), optional
-        F_t(θi) F_t(θo) per sample and
-    albedo_std : ndarray, shape (n,), optional
-        the standard error of the grey albedo α_R + α_G + α_B per texel: with both, the
-        albedo's uncertainty enters the standard errors (:mod:`facestats.model.fitting.uncertainty`).
+        F_t(θi) F_t(θo) per sample, with which eq. 10 subtracted the diffuse term from ``f_s``:
+        the grey diffuse level is then fitted with each lobe (:mod:`facestats.model.fitting.diffuse_level`),
+        and its uncertainty enters the standard errors.
     max_angle : dict, optional
         ``{model: angle}`` (rad): a model's samples are further limited to θi and θo below
         its angle (e.g. Blinn-Phong at 70°, :class:`facestats.pipeline.FitSettings`); the
@@ -241,40 +239,41 @@ def fit_specular_models(
             y, factors, counts, d = _kept_factors_compiled(*args)
         else:
             y, factors, counts, d = _kept_factors(samples, ci, co, f_s, use_g, tuple(group), eta, ft2)
-        albedo = None if ft2 is None or albedo_std is None else (d, albedo_std)
-        kept.update({m: (y, factors[m], counts, albedo) for m in group})
+        kept.update({m: (y, factors[m], counts, d) for m in group})
     settings = dict(min_samples=min_samples, max_iter=max_iter, tol=tol, max_relative_error=max_relative_error)
     fits = _solve_models(models, kept, bounds, start, engine, settings)
     for limit, group in groups.items():
         if limit is not None:  # scored on the full domain of eq. 14, as the other models
-            _rescore(fits, group, samples, ci, co, f_s, use, eta, engine)
+            _rescore(fits, group, samples, ci, co, f_s, use, eta, engine, ft2)
     return fits
 
 
-def _rescore(fits, group, samples, ci, co, f_s, use, eta, engine):
-    """Replace the ``error`` of the fits of ``group`` by E(p) over the samples of ``use``."""
+def _rescore(fits, group, samples, ci, co, f_s, use, eta, engine, ft2):
+    """Replace the ``error`` of the fits of ``group`` by E(p) over the samples of ``use`` (with their
+    diffuse level, if fitted)."""
     if engine == "numba":
-        args = (samples.starts, samples.counts, ci, co, samples.cos_io(), f_s, use, tuple(group), eta)
-        y, factors, counts, _ = _kept_factors_compiled(*args)
+        args = (samples.starts, samples.counts, ci, co, samples.cos_io(), f_s, use, tuple(group), eta, ft2)
+        y, factors, counts, d = _kept_factors_compiled(*args)
     else:
-        y, factors, counts, _ = _kept_factors(samples, ci, co, f_s, use, tuple(group), eta)
+        y, factors, counts, d = _kept_factors(samples, ci, co, f_s, use, tuple(group), eta, ft2)
     for m in group:
         fit = fits[m]
-        err = rms_error(m, y, *factors[m], counts, fit.rho_s, fit.lobe)
+        y_m = y
+        if d is not None and fit.diffuse_shift is not None:
+            y_m = y + d * np.repeat(np.nan_to_num(fit.diffuse_shift), counts)
+        err = rms_error(m, y_m, *factors[m], counts, fit.rho_s, fit.lobe)
         fit.error = np.where(np.isfinite(fit.error), err, np.nan).astype(fit.error.dtype)
 
 
 def _solve_models(models, kept, bounds, start, engine, settings):
     """Solve eq. 14 for each model on its kept samples; later models start from the first's fit.
 
-    ``kept[model]`` = (y, (s1, A), counts, albedo) with ``albedo`` None or (d per kept sample,
-    the grey albedo's standard error per texel); ``settings`` the solver's ``min_samples``,
-    ``max_iter``, ``tol``, ``max_relative_error``.
+    ``kept[model]`` = (y, (s1, A), counts, d) with ``d`` None or ∂y/∂α per kept sample;
+    ``settings`` the solver's ``min_samples``, ``max_iter``, ``tol``, ``max_relative_error``.
     """
     fits = {}
     for m in models:
-        y, (s1, a), counts, albedo = kept[m]
-        d, albedo_std = (None, None) if albedo is None else albedo
+        y, (s1, a), counts, d = kept[m]
         first = fits[models[0]] if fits else None
         st = start if first is None else equivalent_lobe(first.lobe, first.model, m)
         fits[m] = solve_specular(
@@ -287,7 +286,6 @@ def _solve_models(models, kept, bounds, start, engine, settings):
             start=st,
             engine=engine,
             d=d,
-            albedo_std=albedo_std,
             **settings,
         )
     return fits

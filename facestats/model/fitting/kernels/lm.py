@@ -7,9 +7,11 @@ texels: every evaluation of a texel's lobe (:func:`_lobe_sums`) makes two
 passes over its samples while they sit in the CPU cache — the lobe values
 (vectorised, :func:`facestats.model.fitting.kernels.fastexp.fill_lobe`) and the
 five sums of :func:`facestats.model.fitting.lobes.lobe_sums` (float64, in
-sample order) — and a texel stops as soon as it converges.  At the end one
-pass over explicit residuals r = y − ρs g forms E² and the sums of the
-standard errors (:func:`facestats.model.fitting.uncertainty.residual_sums`).
+sample order) — and a texel stops as soon as it converges.  Then, with the
+per-sample ∂y/∂α, the Gauss-Newton steps of the grey diffuse level
+(:mod:`facestats.model.fitting.diffuse_level`), and at the end two passes over
+explicit residuals form E² and the robust variances
+(:func:`facestats.model.fitting.uncertainty.robust_variances`).
 
 Differences from the numpy solver, all below float32 resolution of the
 parameters: sums are float64 in sample order (numpy: pairwise float32), and a
@@ -132,50 +134,208 @@ def _log_linear_start(model, y, z, a, start, n):
     return slope if slope > 0 else 20.0
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _residual_sums(model, q, rho, y, z, a, d, start, n, u, bits, sums, out):
-    """E², Σ r²/(1 − h)² (J00, J01, J11) and Jᵀd of one texel (float64) into ``out[0:6]``.
+@numba.njit(cache=True, nogil=True, inline="always")
+def _jacobian_row(model, w, p, rho, uj, zj):
+    """(g, ρs ∂g/∂q) of one sample from its lobe base u (:func:`facestats.model.fitting.uncertainty.lobe_jacobian`)."""
+    if model == TORRANCE_SPARROW:
+        return w * uj, rho * 2 * w * uj * (w * zj - 1)
+    return (p + 2) * uj, rho * p * uj * (1 + (p + 2) * zj)
 
-    As :func:`facestats.model.fitting.uncertainty.residual_sums`: J = (g, ρs ∂g/∂q), leverages
-    h from JᵀJ of the lobe sums ``sums`` at the solution; ``d`` empty: Jᵀd = 0.
-    """
-    _, sgg, _, sgdg, sdgdg = _moments(model, q, sums)
-    h00, h01, h11 = sgg, rho * sgdg, rho * rho * sdgdg
-    det = h00 * h11 - h01 * h01
-    i00, i01, i11 = h11 / det, -h01 / det, h00 / det
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _add_raw(acc, uj, zj, yj, dj):
+    """acc + (y u, y u z, u², u² z, u² z², u d, u z d) of one sample."""
+    yu = yj * uj
+    uu = uj * uj
+    ud = uj * dj
+    return (
+        acc[0] + yu,
+        acc[1] + yu * zj,
+        acc[2] + uu,
+        acc[3] + uu * zj,
+        acc[4] + uu * zj * zj,
+        acc[5] + ud,
+        acc[6] + ud * zj,
+    )
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _raw_sums(model, q, y, z, a, d, with_d, start, n, u, bits, raw):
+    """The lobe base u at q into ``u`` and Σ y u, Σ y u z, Σ u², Σ u² z, Σ u² z², Σ u d, Σ u z d of one texel
+    into ``raw`` (float64; even and odd samples summed apart, in sample order; the last two 0 without ``d``)."""
     fill_lobe(_rate(model, q), z, a, start, n, u, bits)
-    p = math.exp(q)
-    w = 1.0 / (p * p)
-    scale32 = np.float32(rho * (w if model == TORRANCE_SPARROW else p + 2))
-    e = m00 = m01 = m11 = b0 = b1 = 0.0
-    with_d = d.shape[0] > 0
+    e = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    o = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    j = 0
+    while j + 1 < n:
+        d0 = np.float64(d[start + j]) if with_d else 0.0
+        d1 = np.float64(d[start + j + 1]) if with_d else 0.0
+        e = _add_raw(e, np.float64(u[j]), np.float64(z[start + j]), np.float64(y[start + j]), d0)
+        o = _add_raw(o, np.float64(u[j + 1]), np.float64(z[start + j + 1]), np.float64(y[start + j + 1]), d1)
+        j += 2
+    if j < n:
+        d0 = np.float64(d[start + j]) if with_d else 0.0
+        e = _add_raw(e, np.float64(u[j]), np.float64(z[start + j]), np.float64(y[start + j]), d0)
+    for k in range(7):
+        raw[k] = e[k] + o[k]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _constant_sums(y, d, with_d, start, n, const):
+    """Σ y², Σ y d, Σ d² of one texel into ``const`` (float64, in sample order)."""
+    syy = syd = sdd = 0.0
     for j in range(n):
-        uj = np.float64(u[j])
-        zj = np.float64(z[start + j])
-        r = np.float64(y[start + j] - scale32 * u[j])
-        if model == TORRANCE_SPARROW:
-            g = w * uj
-            j1 = rho * 2 * w * uj * (w * zj - 1)
-        else:
-            g = (p + 2) * uj
-            j1 = rho * p * uj * (1 + (p + 2) * zj)
-        rr = r * r
-        lev = min(max(_finite(i00 * g * g + 2 * i01 * g * j1 + i11 * j1 * j1), 0.0), LEVERAGE_CAP)
-        wr = rr / ((1 - lev) * (1 - lev))
-        e += rr
-        m00 += wr * g * g
-        m01 += wr * g * j1
-        m11 += wr * j1 * j1
+        yj = np.float64(y[start + j])
+        syy += yj * yj
         if with_d:
             dj = np.float64(d[start + j])
-            b0 += g * dj
-            b1 += j1 * dj
-    out[0], out[1], out[2], out[3], out[4], out[5] = e, m00, m01, m11, b0, b1
+            syd += yj * dj
+            sdd += dj * dj
+    const[0], const[1], const[2] = syy, syd, sdd
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _solve_one(model, y, z, a, d, start, n, p0, bounds, max_iter, tol, u, bits, sums, trial, out):
-    """The whole solve of one texel; ``out`` receives (ρs, q, converged, iterations, then the six residual sums)."""
+def _normal_equations(model, q, rho, delta, raw, const, acc):
+    """E², the upper triangle of JᵀJ (h00, h01, h02, h11, h12, h22) and Jᵀr (three) into ``acc``, in closed form
+    from the raw sums at q (:func:`_raw_sums`) and the constant ones (:func:`_constant_sums`).
+
+    J = (g, ρs ∂g/∂q, −d), r = y + δ d − ρs g (:mod:`facestats.model.fitting.diffuse_level`); g = s u and
+    ∂g/∂q = c₁ u + c₂ u z with s = 1/m², c₁ = −2/m², c₂ = 2/m⁴ (Torrance-Sparrow) or s = n + 2, c₁ = n,
+    c₂ = n (n + 2) (Blinn-Phong), as in :func:`facestats.model.fitting.lobes.lobe_moments`.
+    """
+    p = math.exp(q)
+    if model == TORRANCE_SPARROW:
+        sc = 1.0 / (p * p)
+        c1, c2 = -2 * sc, 2 * sc * sc
+    else:
+        sc = p + 2
+        c1, c2 = p, p * sc
+    s_yu, s_yuz, s_uu, s_uuz, s_uuzz, s_ud, s_uzd = raw[0], raw[1], raw[2], raw[3], raw[4], raw[5], raw[6]
+    syy, syd, sdd = const[0], const[1], const[2]
+    sgg = sc * sc * s_uu
+    sgdg = sc * (c1 * s_uu + c2 * s_uuz)
+    sdgdg = max(c1 * c1 * s_uu + 2 * c1 * c2 * s_uuz + c2 * c2 * s_uuzz, 0.0)
+    sgy = sc * s_yu
+    sdgy = c1 * s_yu + c2 * s_yuz
+    sgd = sc * s_ud
+    sdgd = c1 * s_ud + c2 * s_uzd
+    acc[0] = syy + 2 * delta * syd + delta * delta * sdd - 2 * rho * (sgy + delta * sgd) + rho * rho * sgg
+    acc[1] = sgg
+    acc[2] = rho * sgdg
+    acc[3] = -sgd
+    acc[4] = rho * rho * sdgdg
+    acc[5] = -rho * sdgd
+    acc[6] = sdd
+    acc[7] = sgy + delta * sgd - rho * sgg
+    acc[8] = rho * (sdgy + delta * sdgd - rho * sgdg)
+    acc[9] = -(syd + delta * sdd - rho * sgd)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _inverse(h00, h01, h02, h11, h12, h22, with_d):
+    """Upper triangle of the inverse of the symmetric JᵀJ (3 × 3, or its (ρs, q) block without ``d``);
+    NaN where singular, by the test of :func:`facestats.model.fitting.uncertainty.inverse_stack`."""
+    if not with_d:
+        det = h00 * h11 - h01 * h01
+        scale = h00 * h11
+        if not (abs(det) > 1e-12 * abs(scale) and scale != 0):
+            return np.nan, np.nan, 0.0, np.nan, 0.0, 0.0
+        return h11 / det, -h01 / det, 0.0, h00 / det, 0.0, 0.0
+    c00 = h11 * h22 - h12 * h12
+    c01 = h02 * h12 - h01 * h22
+    c02 = h01 * h12 - h02 * h11
+    det = h00 * c00 + h01 * c01 + h02 * c02
+    scale = h00 * h11 * h22
+    if not (abs(det) > 1e-12 * abs(scale) and scale != 0):
+        return np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
+    c11 = h00 * h22 - h02 * h02
+    c12 = h01 * h02 - h00 * h12
+    c22 = h00 * h11 - h01 * h01
+    return c00 / det, c01 / det, c02 / det, c11 / det, c12 / det, c22 / det
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _diffuse_steps(model, y, z, a, d, start, n, limits, steps, u, bits, raw, const, acc, par):
+    """The Gauss-Newton steps of (ρs, q, δ) of :func:`facestats.model.fitting.diffuse_level.fit_diffuse_level`
+    for one texel, from ``par`` = (ρs, q, 0) in place.  Returns whether ``raw`` and ``u`` still hold the
+    evaluation at the final ``par`` (not after an undone step)."""
+    r_lo, r_hi, q_lo, q_hi = limits[0], limits[1], limits[2], limits[3]
+    e_prev = np.inf
+    p0, p1, p2 = par[0], par[1], par[2]
+    for k in range(steps + 1):
+        _raw_sums(model, par[1], y, z, a, d, True, start, n, u, bits, raw)
+        _normal_equations(model, par[1], par[0], par[2], raw, const, acc)
+        if not (acc[0] <= e_prev):  # the last step did not lower E²: undo it and stop
+            par[0], par[1], par[2] = p0, p1, p2
+            return False
+        if k == steps:
+            return True
+        i00, i01, i02, i11, i12, i22 = _inverse(acc[1], acc[2], acc[3], acc[4], acc[5], acc[6], True)
+        b0, b1, b2 = acc[7], acc[8], acc[9]
+        s0 = i00 * b0 + i01 * b1 + i02 * b2
+        s1 = i01 * b0 + i11 * b1 + i12 * b2
+        s2 = i02 * b0 + i12 * b1 + i22 * b2
+        if not (math.isfinite(s0) and math.isfinite(s1) and math.isfinite(s2)):
+            return True
+        p0, p1, p2 = par[0], par[1], par[2]
+        e_prev = acc[0]
+        par[0] = min(max(par[0] + s0, r_lo), r_hi)
+        par[1] = min(max(par[1] + s1, q_lo), q_hi)
+        par[2] = par[2] + s2
+    return True
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _robust(model, q, rho, delta, y, z, a, d, with_d, start, n, u, bits, raw, const, acc, fresh, sums, out):
+    """E², the HC3 variances of ρs and q (:func:`facestats.model.fitting.uncertainty.robust_variances`) into
+    ``out[0:3]``, and the five lobe sums at the solution of y + δ d into ``sums``.  ``fresh``: ``raw`` and
+    ``u`` already hold :func:`_raw_sums` at this solution."""
+    if not fresh:
+        _raw_sums(model, q, y, z, a, d, with_d, start, n, u, bits, raw)
+    _normal_equations(model, q, rho, delta, raw, const, acc)
+    i00, i01, i02, i11, i12, i22 = _inverse(acc[1], acc[2], acc[3], acc[4], acc[5], acc[6], with_d)
+    p = math.exp(q)
+    w = 1.0 / (p * p)
+    e2 = m00 = m01 = m02 = m11 = m12 = m22 = 0.0
+    for j in range(n):  # u holds the lobe base at q
+        uj = np.float64(u[j])
+        g, j1 = _jacobian_row(model, w, p, rho, uj, np.float64(z[start + j]))
+        j2 = -np.float64(d[start + j]) if with_d else 0.0
+        r = np.float64(y[start + j]) - delta * j2 - rho * g
+        lev = i00 * g * g + i11 * j1 * j1 + 2 * i01 * g * j1
+        if with_d:
+            lev += i22 * j2 * j2 + 2 * (i02 * g * j2 + i12 * j1 * j2)
+        lev = min(max(_finite(lev), 0.0), LEVERAGE_CAP)
+        rr = r * r
+        wr = rr / ((1 - lev) * (1 - lev))
+        e2 += rr
+        m00 += wr * g * g
+        m01 += wr * g * j1
+        m02 += wr * g * j2
+        m11 += wr * j1 * j1
+        m12 += wr * j1 * j2
+        m22 += wr * j2 * j2
+    sums[0] = raw[0] + delta * raw[5]  # Σ (y + δ d) u
+    sums[1] = raw[1] + delta * raw[6]
+    sums[2], sums[3], sums[4] = raw[2], raw[3], raw[4]
+    # diagonal entries 0 and 1 of H⁻¹ M H⁻¹ (H⁻¹ and M symmetric)
+    r0 = (i00, i01, i02)
+    r1 = (i01, i11, i12)
+    mm = ((m00, m01, m02), (m01, m11, m12), (m02, m12, m22))
+    v0 = 0.0
+    v1 = 0.0
+    for i in range(3):
+        for k in range(3):
+            v0 += r0[i] * mm[i][k] * r0[k]
+            v1 += r1[i] * mm[i][k] * r1[k]
+    out[0] = e2
+    out[1] = v0
+    out[2] = v1
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _solve_one(model, y, z, a, d, start, n, p0, bounds, max_iter, tol, steps, u, bits, sums, trial, work, par, out):
+    """The whole solve of one texel; ``out`` receives (ρs, q, δ, converged, iterations, E², var ρs, var q)."""
     r_lo, r_hi, q_lo, q_hi, p_lo, p_hi = bounds[0], bounds[1], bounds[2], bounds[3], bounds[4], bounds[5]
     swyy = 0.0
     for j in range(n):
@@ -226,15 +386,21 @@ def _solve_one(model, y, z, a, d, start, n, p0, bounds, max_iter, tol, u, bits, 
             rel = 0.0
             lam = np.float32(lm * 4)
         done = (accept and rel < tol) or small or lam > 1e10
-    out[0] = rho
-    out[1] = q
-    out[2] = 1.0 if done else 0.0
-    out[3] = it
-    _residual_sums(model, q, rho, y, z, a, d, start, n, u, bits, sums, out[4:])
+    with_d = d.shape[0] > 0
+    raw, const, acc = work[0:7], work[7:10], work[10:20]
+    _constant_sums(y, d, with_d, start, n, const)
+    par[0], par[1], par[2] = rho, q, 0.0
+    fresh = False
+    if with_d:
+        fresh = _diffuse_steps(model, y, z, a, d, start, n, bounds, steps, u, bits, raw, const, acc, par)
+    out[0], out[1], out[2] = par[0], par[1], par[2] if with_d else np.nan
+    out[3] = 1.0 if done else 0.0
+    out[4] = it
+    _robust(model, par[1], par[0], par[2], y, z, a, d, with_d, start, n, u, bits, raw, const, acc, fresh, sums, out[5:])
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def solve_runs(model, y, z, a, d, starts, counts, solve, p_start, bounds, max_iter, tol):
+def solve_runs(model, y, z, a, d, starts, counts, solve, p_start, bounds, max_iter, tol, steps):
     """Solve eq. 14 for every texel with ``solve[t]`` (module docstring).
 
     Parameters
@@ -244,7 +410,8 @@ def solve_runs(model, y, z, a, d, starts, counts, solve, p_start, bounds, max_it
     y, z, a : ndarray of float32, shape (S,)
         y = f_s cos θi, and the lobe factors (z, A) of every kept sample, in per-texel runs.
     d : ndarray of float32, shape (S,) or (0,)
-        ∂y/∂α of the grey albedo per sample (empty: no albedo term).
+        ∂y/∂α of the grey albedo per sample: the grey diffuse level is fitted too
+        (:mod:`facestats.model.fitting.diffuse_level`); empty: (ρs, p) alone.
     starts, counts : ndarray of int64, shape (T,)
         The runs.
     solve : ndarray of bool, shape (T,)
@@ -255,26 +422,30 @@ def solve_runs(model, y, z, a, d, starts, counts, solve, p_start, bounds, max_it
         ρs low, ρs high, ln p low, ln p high, p low, p high.
     max_iter : int
     tol : float
+    steps : int
+        Gauss-Newton steps of the diffuse level (with ``d``).
 
     Returns
     -------
-    rho, q : ndarray of float64
-        ρs and ln p (float32 values, as the numpy solver keeps them).
+    rho, q, delta : ndarray of float64
+        ρs and ln p (float32 values after the Levenberg-Marquardt iteration, as the numpy
+        solver keeps them, then refined with δ), and δ (NaN without ``d``).
     converged : ndarray of bool
     iterations : ndarray of int32
     sums : ndarray of float64, shape (5, T)
-        The lobe sums at the solution (:func:`facestats.model.fitting.lobes.lobe_sums`).
-    residual : ndarray of float64, shape (6, T)
-        E² = Σ (y − ρs g)², Σ r² J J (three entries) and Jᵀd
-        (:func:`facestats.model.fitting.uncertainty.residual_sums`).
+        The lobe sums at the solution (:func:`facestats.model.fitting.lobes.lobe_sums`) of y + δ d.
+    robust : ndarray of float64, shape (3, T)
+        E² and the HC3 variances of ρs and q
+        (:func:`facestats.model.fitting.uncertainty.robust_variances`).
     """
     n_tex = starts.shape[0]
     rho = np.full(n_tex, np.nan)
     q = np.full(n_tex, np.nan)
+    delta = np.full(n_tex, np.nan)
     converged = np.zeros(n_tex, np.bool_)
     iterations = np.zeros(n_tex, np.int32)
     all_sums = np.zeros((5, n_tex))
-    residual = np.zeros((6, n_tex))
+    robust = np.full((3, n_tex), np.nan)
     width = 1
     for t in range(n_tex):
         width = max(width, counts[t])
@@ -282,17 +453,38 @@ def solve_runs(model, y, z, a, d, starts, counts, solve, p_start, bounds, max_it
     bits = np.empty(width, np.int32)
     sums = np.zeros(5)
     trial = np.zeros(5)
-    out = np.zeros(10)
+    work = np.zeros(20)
+    par = np.zeros(3)
+    out = np.zeros(8)
     for t in range(n_tex):
         if not solve[t]:
             continue
         _solve_one(
-            model, y, z, a, d, starts[t], counts[t], p_start[t], bounds, max_iter, tol, u, bits, sums, trial, out
+            model,
+            y,
+            z,
+            a,
+            d,
+            starts[t],
+            counts[t],
+            p_start[t],
+            bounds,
+            max_iter,
+            tol,
+            steps,
+            u,
+            bits,
+            sums,
+            trial,
+            work,
+            par,
+            out,
         )
         rho[t] = out[0]
         q[t] = out[1]
-        converged[t] = out[2] > 0
-        iterations[t] = np.int32(out[3])
-        residual[:, t] = out[4:]
+        delta[t] = out[2]
+        converged[t] = out[3] > 0
+        iterations[t] = np.int32(out[4])
+        robust[:, t] = out[5:]
         all_sums[:, t] = sums
-    return rho, q, converged, iterations, all_sums, residual
+    return rho, q, delta, converged, iterations, all_sums, robust

@@ -128,7 +128,7 @@ def test_diffuse_level_and_standard_errors_against_brute_force(rng):
 def test_diffuse_level_removes_the_bias_of_an_albedo_error(rng, engine):
     """Data whose diffuse term was subtracted with a wrong albedo: (ρs, m) alone are biased and their intervals
     miss; with the diffuse level fitted the bias goes and nominal 90 % intervals cover 83-95 % (HC3 on
-    300 samples runs slightly narrow: 85-88 % for ρs and 88-90 % for m with seeds 0-3)."""
+    300 samples runs slightly narrow: 85-88 % for ρs and 87-91 % for m with seeds 0-3)."""
     t, s = 600, 300
     # the albedo came out too low by 0.04-0.08: y keeps some diffuse light
     _, _, _, rho, m, d, shift, y, s1, a = _shifted_case(rng, t, s, (0.04, 0.08), 0.002)

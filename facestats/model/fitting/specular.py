@@ -228,40 +228,41 @@ def fit_specular_models(
     groups = {}  # models by the samples they use (one compaction per distinct angle limit)
     for m in models:
         groups.setdefault(None if not max_angle or m not in max_angle else float(max_angle[m]), []).append(m)
+    # The full domain of eq. 14, with every model's factors: the unlimited models fit on it, the limited
+    # ones are scored on it.
+    full = _kept_inputs(samples, ci, co, f_s, use, models, eta, ft2, engine)
     kept = {}
     for limit, group in groups.items():
-        use_g = use
+        y, factors, counts, d = full
         if limit is not None:
             c = np.float32(np.cos(as_finite(limit, "max_angle", 0, np.pi / 2, low_inclusive=False, unit="rad")))
             use_g = np.asarray(use, bool) & (ci > c) & (co > c)
-        if engine == "numba":
-            args = (samples.starts, samples.counts, ci, co, samples.cos_io(), f_s, use_g, tuple(group), eta, ft2)
-            y, factors, counts, d = _kept_factors_compiled(*args)
-        else:
-            y, factors, counts, d = _kept_factors(samples, ci, co, f_s, use_g, tuple(group), eta, ft2)
+            y, factors, counts, d = _kept_inputs(samples, ci, co, f_s, use_g, tuple(group), eta, ft2, engine)
         kept.update({m: (y, factors[m], counts, d) for m in group})
     settings = dict(min_samples=min_samples, max_iter=max_iter, tol=tol, max_relative_error=max_relative_error)
     fits = _solve_models(models, kept, bounds, start, engine, settings)
     for limit, group in groups.items():
         if limit is not None:  # scored on the full domain of eq. 14, as the other models
-            _rescore(fits, group, samples, ci, co, f_s, use, eta, engine, ft2)
+            _rescore(fits, group, full, engine)
     return fits
 
 
-def _rescore(fits, group, samples, ci, co, f_s, use, eta, engine, ft2):
-    """Replace the ``error`` of the fits of ``group`` by E(p) over the samples of ``use`` (with their
-    diffuse level, if fitted)."""
+def _kept_inputs(samples, ci, co, f_s, use, models, eta, ft2, engine):
+    """(y, factors per model, kept count per texel, d) of the samples of eq. 14 in ``use``, by ``engine``."""
     if engine == "numba":
-        args = (samples.starts, samples.counts, ci, co, samples.cos_io(), f_s, use, tuple(group), eta, ft2)
-        y, factors, counts, d = _kept_factors_compiled(*args)
-    else:
-        y, factors, counts, d = _kept_factors(samples, ci, co, f_s, use, tuple(group), eta, ft2)
+        args = (samples.starts, samples.counts, ci, co, samples.cos_io(), f_s, use, tuple(models), eta, ft2)
+        return _kept_factors_compiled(*args)
+    return _kept_factors(samples, ci, co, f_s, use, tuple(models), eta, ft2)
+
+
+def _rescore(fits, group, full, engine):
+    """Replace the ``error`` of the fits of ``group`` by E(p) over the samples ``full`` of :func:`_kept_inputs`
+    (with their diffuse level, if fitted)."""
+    y, factors, counts, d = full
     for m in group:
         fit = fits[m]
-        y_m = y
-        if d is not None and fit.diffuse_shift is not None:
-            y_m = y + d * np.repeat(np.nan_to_num(fit.diffuse_shift), counts)
-        err = rms_error(m, y_m, *factors[m], counts, fit.rho_s, fit.lobe)
+        shift = None if d is None or fit.diffuse_shift is None else np.nan_to_num(fit.diffuse_shift)
+        err = rms_error(m, y, *factors[m], counts, fit.rho_s, fit.lobe, d=d, shift=shift, engine=engine)
         fit.error = np.where(np.isfinite(fit.error), err, np.nan).astype(fit.error.dtype)
 
 

@@ -150,3 +150,27 @@ def test_diffuse_level_removes_the_bias_of_an_albedo_error(rng, engine):
         )
     assert cover["plain"][0] < 0.8, cover
     assert all(0.83 <= c <= 0.95 for c in cover["joint"]), cover
+
+
+@pytest.mark.parametrize("model", ["torrance_sparrow", "blinn_phong"])
+def test_rms_error_engines_agree_with_a_direct_sum(rng, model):
+    """E(p) of given (ρs, p, δ): the compiled pass and numpy equal sqrt(mean((y + δ d − ρs g)²)) formed directly."""
+    from facestats.model.fitting.lobes import lobe_base, lobe_scale
+    from facestats.model.fitting.uncertainty import rms_error
+
+    t, s = 7, 200
+    _, _, n, rho, m, d, shift, y, _, _ = _shifted_case(rng, t, s, (-0.03, 0.03), 0.003)
+    wi, wo = hemisphere_pairs(rng, t, s)
+    samples = fitting.Samples.from_arrays(wi, wo, np.ones((t, s), bool), engine="numpy")
+    z, a = specular_factors(samples, n, model)
+    lobe = m if model == "torrance_sparrow" else 2 / m**2 - 2
+    q = np.log(lobe)
+    g = np.repeat(rho * lobe_scale(model, q), s) * lobe_base(model, q, np.full(t, s), z, a).astype(np.float64)
+    r = y.reshape(-1) + d.reshape(-1) * np.repeat(shift, s) - g
+    expected = np.sqrt((r.reshape(t, s) ** 2).mean(axis=1))
+    counts = np.full(t, s)
+    for engine in ("numba", "numpy"):
+        got = rms_error(model, y.reshape(-1), z, a, counts, rho, lobe, d=d.reshape(-1), shift=shift, engine=engine)
+        np.testing.assert_allclose(got, expected, rtol=1e-5, err_msg=engine)
+    plain = rms_error(model, y.reshape(-1), z, a, counts, rho, lobe, engine="numba")
+    assert np.all(np.abs(plain - expected) > 1e-6)  # δ d matters

@@ -9,9 +9,11 @@ passes over its samples while they sit in the CPU cache — the lobe values
 five sums of :func:`facestats.model.fitting.lobes.lobe_sums` (float64, in
 sample order) — and a texel stops as soon as it converges.  Then, with the
 per-sample ∂y/∂α, the Gauss-Newton steps of the grey diffuse level
-(:mod:`facestats.model.fitting.diffuse_level`), and at the end two passes over
-explicit residuals form E² and the robust variances
-(:func:`facestats.model.fitting.uncertainty.robust_variances`).
+(:mod:`facestats.model.fitting.diffuse_level`), each from the seven sums of one
+pass (:func:`_raw_sums`, the normal equations in closed form), and at the end
+one pass over explicit residuals forms E² and the robust variances
+(:func:`facestats.model.fitting.uncertainty.robust_variances`).  :func:`rms_runs`
+scores given parameters on other samples (one pass per texel).
 
 Differences from the numpy solver, all below float32 resolution of the
 parameters: sums are float64 in sample order (numpy: pairwise float32), and a
@@ -29,7 +31,7 @@ import numpy as np
 from facestats.model.fitting.kernels.fastexp import fill_lobe
 from facestats.model.fitting.uncertainty import LEVERAGE_CAP
 
-__all__ = ["solve_runs", "TORRANCE_SPARROW", "BLINN_PHONG"]
+__all__ = ["solve_runs", "rms_runs", "TORRANCE_SPARROW", "BLINN_PHONG"]
 
 #: Model codes of the kernel.
 TORRANCE_SPARROW, BLINN_PHONG = 0, 1
@@ -488,3 +490,32 @@ def solve_runs(model, y, z, a, d, starts, counts, solve, p_start, bounds, max_it
         robust[:, t] = out[5:]
         all_sums[:, t] = sums
     return rho, q, delta, converged, iterations, all_sums, robust
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def rms_runs(model, y, z, a, d, starts, counts, good, rho, q, shift):
+    """E(p) = sqrt(Σ r² / n) per texel with ``good[t]`` (NaN for the others), r = y + δ d − ρs g at the given
+    (ρs, q = ln p, δ = ``shift``) (:func:`facestats.model.fitting.uncertainty.rms_error`; ``d`` empty: no δ)."""
+    n_tex = starts.shape[0]
+    out = np.full(n_tex, np.nan)
+    width = 1
+    for t in range(n_tex):
+        width = max(width, counts[t])
+    u = np.empty(width, np.float32)
+    bits = np.empty(width, np.int32)
+    with_d = d.shape[0] > 0
+    for t in range(n_tex):
+        if not good[t]:
+            continue
+        start, n = starts[t], counts[t]
+        fill_lobe(_rate(model, q[t]), z, a, start, n, u, bits)
+        p = math.exp(q[t])
+        sc = rho[t] * (1.0 / (p * p) if model == TORRANCE_SPARROW else p + 2)
+        e2 = 0.0
+        for j in range(n):
+            r = np.float64(y[start + j]) - sc * np.float64(u[j])
+            if with_d:
+                r += shift[t] * np.float64(d[start + j])
+            e2 += r * r
+        out[t] = math.sqrt(e2 / n)
+    return out

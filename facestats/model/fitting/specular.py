@@ -262,8 +262,35 @@ def _rescore(fits, group, full, engine):
     for m in group:
         fit = fits[m]
         shift = None if d is None or fit.diffuse_shift is None else np.nan_to_num(fit.diffuse_shift)
-        err = rms_error(m, y, *factors[m], counts, fit.rho_s, fit.lobe, d=d, shift=shift, engine=engine)
+        if engine == "numba":
+            err = _rms_compiled(m, y, factors[m], counts, fit, d, shift)
+        else:
+            err = rms_error(m, y, *factors[m], counts, fit.rho_s, fit.lobe, d=d, shift=shift)
         fit.error = np.where(np.isfinite(fit.error), err, np.nan).astype(fit.error.dtype)
+
+
+def _rms_compiled(model, y, factors, counts, fit, d, shift):
+    """:func:`facestats.model.fitting.uncertainty.rms_error` in one compiled pass per texel
+    (:func:`facestats.model.fitting.kernels.lm.rms_runs`)."""
+    # local import: the kernels import numba
+    from facestats.model.fitting.kernels import lm
+
+    n_use = np.asarray(counts, np.int64)
+    good = (n_use > 0) & np.isfinite(fit.rho_s) & np.isfinite(fit.lobe) & (fit.lobe > 0)
+    with_d = d is not None and shift is not None
+    return lm.rms_runs(
+        lm.TORRANCE_SPARROW if model == "torrance_sparrow" else lm.BLINN_PHONG,
+        np.ascontiguousarray(y, np.float32),
+        np.ascontiguousarray(factors[0], np.float32),
+        np.ascontiguousarray(factors[1], np.float32),
+        np.ascontiguousarray(d, np.float32) if with_d else np.zeros(0, np.float32),
+        np.concatenate([[0], np.cumsum(n_use)[:-1]]).astype(np.int64),
+        n_use,
+        good,
+        np.asarray(fit.rho_s, np.float64),
+        np.log(np.where(good, fit.lobe, 1.0).astype(np.float64)),
+        np.asarray(shift, np.float64) if with_d else np.zeros(n_use.size),
+    )
 
 
 def _solve_models(models, kept, bounds, start, engine, settings):

@@ -114,14 +114,14 @@ def inverse_stack(h):
     return out
 
 
-def rms_error(model, y, s1, a, n_use, rho, lobe, d=None, shift=None, engine="numpy"):
+def rms_error(model, y, s1, a, n_use, rho, lobe, d=None, shift=None):
     """E(p) of eq. 14 per texel for given parameters on samples in runs of ``n_use`` (NaN for texels without).
 
     For scoring a fit on other samples than it was made on (a Blinn-Phong fit made within
     70° scored on the 80° domain of the Torrance-Sparrow fit).  With ``d`` (∂y/∂α per
     sample) and ``shift`` (δ per texel) the residuals are y + δ d − ρs g
-    (:mod:`facestats.model.fitting.diffuse_level`).  ``engine`` "numba" runs one compiled
-    pass per texel (:func:`facestats.model.fitting.kernels.lm.rms_runs`).
+    (:mod:`facestats.model.fitting.diffuse_level`).  The compiled twin is
+    :func:`facestats.model.fitting.kernels.lm.rms_runs`.
     """
     n_use = np.asarray(n_use, np.int64)
     out = np.full(n_use.size, np.nan)
@@ -130,22 +130,6 @@ def rms_error(model, y, s1, a, n_use, rho, lobe, d=None, shift=None, engine="num
         return out
     q = np.log(np.where(good, lobe, 1.0).astype(np.float64))
     with_d = d is not None and shift is not None
-    if engine == "numba":
-        from facestats.model.fitting.kernels import lm  # local import: the kernels import numba
-
-        return lm.rms_runs(
-            lm.TORRANCE_SPARROW if model == "torrance_sparrow" else lm.BLINN_PHONG,
-            np.ascontiguousarray(y, np.float32),
-            np.ascontiguousarray(s1, np.float32),
-            np.ascontiguousarray(a, np.float32),
-            np.ascontiguousarray(d, np.float32) if with_d else np.zeros(0, np.float32),
-            np.concatenate([[0], np.cumsum(n_use)[:-1]]).astype(np.int64),
-            n_use,
-            good,
-            np.asarray(rho, np.float64),
-            q,
-            np.asarray(shift, np.float64) if with_d else np.zeros(n_use.size),
-        )
     cnt = n_use[good]
     kept = np.flatnonzero(np.repeat(good, n_use))
     s1k, ak = np.asarray(s1).take(kept), np.asarray(a).take(kept)

@@ -3,7 +3,7 @@
 The same algorithm as :mod:`facestats.model.fitting.solver` (parameters
 (ρs, q = ln p), log-linear cold start, projected steps with per-texel damping,
 the same four stopping tests, float32 parameter state), written as a loop over
-texels: every evaluation of a texel's lobe (:func:`_lobe_sums`) makes two
+texels: every evaluation of a texel's lobe (:func:`_raw_sums`) makes two
 passes over its samples while they sit in the CPU cache — the lobe values
 (vectorised, :func:`facestats.model.fitting.kernels.fastexp.fill_lobe`) and the
 five sums of :func:`facestats.model.fitting.lobes.lobe_sums` (float64, in
@@ -45,32 +45,6 @@ def _rate(model, q):
     if model == TORRANCE_SPARROW:
         return np.float32(-1.0 / (p * p))
     return np.float32(p)
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _lobe_sums(model, q, y, z, a, start, n, u, bits, sums):
-    """Σ y u, Σ y u z, Σ u², Σ u² z, Σ u² z² of one texel into ``sums`` (float64; even and odd samples
-    summed apart, in sample order, then added)."""
-    fill_lobe(_rate(model, q), z, a, start, n, u, bits)
-    e = (0.0, 0.0, 0.0, 0.0, 0.0)
-    o = (0.0, 0.0, 0.0, 0.0, 0.0)
-    j = 0
-    while j + 1 < n:  # even and odd samples in two chains of additions
-        e = _add_lobe(e, np.float64(u[j]), np.float64(z[start + j]), np.float64(y[start + j]))
-        o = _add_lobe(o, np.float64(u[j + 1]), np.float64(z[start + j + 1]), np.float64(y[start + j + 1]))
-        j += 2
-    if j < n:
-        e = _add_lobe(e, np.float64(u[j]), np.float64(z[start + j]), np.float64(y[start + j]))
-    for k in range(5):
-        sums[k] = e[k] + o[k]
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _add_lobe(acc, uj, zj, yj):
-    """acc + (y u, y u z, u², u² z, u² z²) of one sample."""
-    yu = yj * uj
-    uu = uj * uj
-    return (acc[0] + yu, acc[1] + yu * zj, acc[2] + uu, acc[3] + uu * zj, acc[4] + uu * zj * zj)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -347,7 +321,7 @@ def _solve_one(model, y, z, a, d, start, n, p0, bounds, max_iter, tol, steps, u,
         if p0 != p0:
             p0 = 0.3 if model == TORRANCE_SPARROW else 20.0
     q_start = min(max(math.log(min(max(p0, p_lo), p_hi)), q_lo), q_hi)
-    _lobe_sums(model, q_start, y, z, a, start, n, u, bits, sums)
+    _raw_sums(model, q_start, y, z, a, d, False, start, n, u, bits, sums)
     syg, sgg, _, _, _ = _moments(model, q_start, sums)
     rho = np.float64(np.float32(min(max(_finite(syg / sgg), r_lo), r_hi)))
     q = np.float64(np.float32(q_start))
@@ -373,7 +347,7 @@ def _solve_one(model, y, z, a, d, start, n, p0, bounds, max_iter, tol, steps, u,
         dq = _finite((d00 * b1 - h01 * b0) / det)
         r1 = min(max(rho + dr, r_lo), r_hi)
         q1 = min(max(q + dq, q_lo), q_hi)
-        _lobe_sums(model, q1, y, z, a, start, n, u, bits, trial)
+        _raw_sums(model, q1, y, z, a, d, False, start, n, u, bits, trial)
         syg1, sgg1, _, _, _ = _moments(model, q1, trial)
         e1 = swyy - 2 * r1 * syg1 + r1 * r1 * sgg1
         accept = e1 < e0
@@ -453,8 +427,8 @@ def solve_runs(model, y, z, a, d, starts, counts, solve, p_start, bounds, max_it
         width = max(width, counts[t])
     u = np.empty(width, np.float32)
     bits = np.empty(width, np.int32)
-    sums = np.zeros(5)
-    trial = np.zeros(5)
+    sums = np.zeros(7)  # the lobe sums of lobes.lobe_sums, then Σ u d, Σ u z d (_raw_sums)
+    trial = np.zeros(7)
     work = np.zeros(20)
     par = np.zeros(3)
     out = np.zeros(8)
@@ -488,7 +462,7 @@ def solve_runs(model, y, z, a, d, starts, counts, solve, p_start, bounds, max_it
         converged[t] = out[3] > 0
         iterations[t] = np.int32(out[4])
         robust[:, t] = out[5:]
-        all_sums[:, t] = sums
+        all_sums[:, t] = sums[:5]
     return rho, q, delta, converged, iterations, all_sums, robust
 
 

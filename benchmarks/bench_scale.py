@@ -320,14 +320,17 @@ def bench_calibration_budget(subject=0, grid=48, passes=None):
                     key = f"{case}_normal_{normal_source}_albedo_{albedo_source}"
                     out.update(_coverage(key, model, samples, normal, f_s, use, (ci, co), ft2, true_rho, true_lobe))
                 if normal_source == "estimated":
-                    # Diffuse removed with the photometric normal as above, the lobe evaluated at the true normal.
+                    # Diffuse removed with the photometric normal and the estimated albedo, as the pipeline
+                    # does; the lobe evaluated at the true normal.
+                    f_s = fitting.specular_residual(samples, f_r, est, ft2)
                     ci_t, co_t, _, use_t, _ = fitting.brdf_samples(samples, true_normal)
                     with np.errstate(invalid="ignore", divide="ignore"):
-                        f_s_t = (f_s * ci / ci_t).astype(np.float32)  # the same specular radiance over E
+                        ratio = ci / ci_t  # the same specular radiance over E; d = −F_t F_t cos θi/(3π) at the
+                        f_s_t, ft2_t = (f_s * ratio).astype(np.float32), (ft2 * ratio).astype(np.float32)  # PS θi
                     key = f"{case}_normal_estimated_lobe_normal_true"
-                    cos = (ci_t, co_t)
+                    cos, both = (ci_t, co_t), use & use_t
                     out.update(
-                        _coverage(key, model, samples, true_normal, f_s_t, use & use_t, cos, ft2, true_rho, true_lobe)
+                        _coverage(key, model, samples, true_normal, f_s_t, both, cos, ft2_t, true_rho, true_lobe)
                     )
     return out
 

@@ -410,7 +410,8 @@ def _final_lobe_sums(model, y, s1, a, d, n_use, solve, q, delta):
 
 
 def _solve_compiled(model, y, s1, a, d, n_use, solve, p_start, bounds, max_iter, tol):
-    """The compiled per-texel solve (:func:`facestats.model.fitting.kernels.lm.solve_runs`), and its residual sums."""
+    """The compiled per-texel solve (:func:`facestats.model.fitting.kernels.lm.solve_runs`): the tuple of
+    :func:`_solve_numpy`."""
     # local import: the kernels import numba
     from facestats.model.fitting.kernels import lm
 

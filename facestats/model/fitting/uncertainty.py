@@ -9,13 +9,13 @@ covariances of θ̂ are formed from sums over the texel's samples:
 
 * **classic**: σ² (JᵀJ)⁻¹ of (ρs, q) with σ² = E²/(n − 2), exact for independent
   noise of equal variance.  It decides the ``ill_conditioned`` flag (the fit's
-  conditioning).
+  conditioning), as do robust variances that cannot be formed (a singular JᵀJ).
 * **robust** (heteroscedasticity-consistent "sandwich" with the jackknife
   weights HC3 of MacKinnon & White 1985, "Some heteroskedasticity-consistent
   covariance matrix estimators with improved finite sample properties",
   J. Econometrics 29, 305-325, as recommended by Long & Ervin 2000):
-  (JᵀJ)⁻¹ (Σ r²/(1 − h)² J Jᵀ) (JᵀJ)⁻¹ with the leverage h = Jᵀ (JᵀJ)⁻¹ J of
-  each sample (capped at 0.99), over all the fitted parameters.  Camera noise
+  (JᵀJ)⁻¹ (Σ r²/(1 − h)² J Jᵀ) (JᵀJ)⁻¹ with the leverage h = Jᵢᵀ (JᵀJ)⁻¹ Jᵢ of
+  each sample's Jacobian row Jᵢ (capped at 0.99), over all the fitted parameters.  Camera noise
   is shot noise, whose variance grows with the signal: the few highlight
   samples that determine ρs and m are noisier than average and carry the
   leverage, which the classic σ² assumes away (on simulated captures the
@@ -168,5 +168,6 @@ def standard_errors(model, n_use, good, rho, q, all_sums, e2, var_rho, var_q, ma
         rel_r = np.sqrt(sigma2 * i00) / rho  # the classic errors judge the conditioning
         rel_q = np.sqrt(sigma2 * i11)
         singular = ~(det > 1e-12 * np.maximum(h00 * h11, 1e-300))
-        ill = good & (singular | ~(rel_r <= max_relative_error) | ~(rel_q <= max_relative_error))
+        unknown = ~(np.isfinite(var_rho) & np.isfinite(var_q))  # e.g. a singular 3 × 3 with the diffuse level
+        ill = good & (singular | unknown | ~(rel_r <= max_relative_error) | ~(rel_q <= max_relative_error))
     return err, r_std, p_std, ill

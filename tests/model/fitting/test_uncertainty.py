@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from facestats.core.conventions import FLAG_BITS
 from facestats.model import brdf, fitting
 from facestats.model.fitting.solver import solve_specular
 from facestats.model.fitting.specular import specular_factors
@@ -179,3 +180,16 @@ def test_rms_error_engines_agree_with_a_direct_sum(rng, model):
     )
     plain = rms_error(model, y.reshape(-1), z, a, counts, rho, lobe)
     assert np.all(np.abs(plain - expected) > 1e-6)  # δ d matters
+
+
+@pytest.mark.parametrize("engine", ["numba", "numpy"])
+def test_texels_whose_errors_cannot_be_formed_are_flagged(rng, engine):
+    """Two samples cannot fix three parameters: the 3 × 3 JᵀJ is singular, its robust errors are NaN, and the
+    texel is flagged ill-conditioned (it is then filled from its neighbours, never stored as NaN)."""
+    t, s = 6, 2
+    _, _, _, _, _, d, _, y, s1, a = _shifted_case(rng, t, s, (-0.01, 0.01), 0.002)
+    args = dict(bounds=None, min_samples=2, max_iter=20, tol=1e-8, max_relative_error=1e9, engine=engine)
+    fit = solve_specular("torrance_sparrow", y.reshape(-1), s1, a, np.full(t, s), d=d.reshape(-1), **args)
+    bad = ~(np.isfinite(fit.rho_s_std) & np.isfinite(fit.lobe_std))
+    assert bad.all()
+    assert np.all(fit.flags & FLAG_BITS["ill_conditioned"])

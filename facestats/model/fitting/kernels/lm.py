@@ -7,7 +7,8 @@ texels: every evaluation of a texel's lobe (:func:`_raw_sums`) makes two
 passes over its samples while they sit in the CPU cache — the lobe values
 (vectorised, :func:`facestats.model.fitting.kernels.fastexp.fill_lobe`) and the
 five sums of :func:`facestats.model.fitting.lobes.lobe_sums` (float64, in
-sample order) — and a texel stops as soon as it converges.  Then, with the
+sample order; with ∂y/∂α two more, Σ u d and Σ u z d) — and a texel stops as
+soon as it converges.  Then, with the
 per-sample ∂y/∂α, the Gauss-Newton steps of the grey diffuse level
 (:mod:`facestats.model.fitting.diffuse_level`), each from the seven sums of one
 pass (:func:`_raw_sums`, the normal equations in closed form), and at the end

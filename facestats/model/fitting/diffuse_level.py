@@ -39,7 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from facestats.model.fitting.lobes import lobe_base
-from facestats.model.fitting.uncertainty import inverse_stack, lobe_jacobian
+from facestats.model.fitting.uncertainty import gram_stack, inverse_stack, lobe_jacobian
 
 __all__ = ["fit_diffuse_level", "STEPS"]
 
@@ -92,13 +92,9 @@ def fit_diffuse_level(model, y, s1, a, d, n_use, good, rho, q, limits, steps=STE
         moving &= ~worse
         if k == steps or not moving.any():
             break
-        jac = (g, rs * dg, -dx)
-        h = np.empty((cnt.size, 3, 3))
-        for i in range(3):
-            for j in range(i, 3):
-                h[:, i, j] = h[:, j, i] = np.add.reduceat(jac[i] * jac[j], starts)
-        b = np.stack([np.add.reduceat(col * r, starts) for col in jac], axis=1)
-        step = (inverse_stack(h) @ b[..., None])[..., 0]  # NaN where H is singular
+        jac = np.stack([g, rs * dg, -dx])
+        step = inverse_stack(gram_stack(jac, jac, starts)) @ gram_stack(jac, r[None], starts)  # NaN if singular
+        step = step[..., 0]
         moving &= np.isfinite(step).all(axis=1)
         prev, e_prev = par.copy(), e
         par[:, moving] += step[moving].T

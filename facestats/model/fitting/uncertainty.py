@@ -36,7 +36,15 @@ import numpy as np
 
 from facestats.model.fitting.lobes import lobe_base, lobe_moments, lobe_scale
 
-__all__ = ["robust_variances", "inverse_stack", "standard_errors", "lobe_jacobian", "rms_error", "LEVERAGE_CAP"]
+__all__ = [
+    "robust_variances",
+    "inverse_stack",
+    "gram_stack",
+    "standard_errors",
+    "lobe_jacobian",
+    "rms_error",
+    "LEVERAGE_CAP",
+]
 
 #: Largest leverage used in the HC3 weights 1/(1 − h)² (a texel of two samples has h = 1).
 LEVERAGE_CAP = 0.99
@@ -82,23 +90,22 @@ def robust_variances(model, y, s1, a, d, n_use, good, rho, q, delta=None):
         cols.append(-dx)
     starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])
     jac = np.stack(cols)  # (P, S)
-    h_inv = inverse_stack(_gram(jac, jac, starts))  # (T, P, P)
+    h_inv = inverse_stack(gram_stack(jac, jac, starts))  # (T, P, P)
     with np.errstate(invalid="ignore"):
         lev = np.einsum("is,sij,js->s", jac, np.repeat(h_inv, cnt, axis=0), jac)
         rr = r * r
         w = rr / np.square(1 - np.clip(np.nan_to_num(lev), 0, LEVERAGE_CAP))
-        cov = h_inv @ _gram(jac, w * jac, starts) @ h_inv
+        cov = h_inv @ gram_stack(jac, w * jac, starts) @ h_inv
     e2[good] = np.add.reduceat(rr, starts)
     var_rho[good], var_q[good] = cov[:, 0, 0], cov[:, 1, 1]
     return e2, var_rho, var_q
 
 
-def _gram(left, right, starts):
-    """Per-run Σ left_i right_j as (T, P, P) for (P, S) rows ``left`` and ``right``."""
-    p = left.shape[0]
-    out = np.empty((starts.size, p, p))
-    for i in range(p):  # P ≤ 3: a few segmented sums, each over all samples
-        for j in range(p):
+def gram_stack(left, right, starts):
+    """Per-run Σ left_i right_j as (T, P, Q) for rows ``left`` (P, S) and ``right`` (Q, S) (float64 sums)."""
+    out = np.empty((starts.size, left.shape[0], right.shape[0]))
+    for i in range(left.shape[0]):  # P, Q ≤ 3: a few segmented sums, each over all samples
+        for j in range(right.shape[0]):
             out[:, i, j] = np.add.reduceat(left[i] * right[j], starts)
     return out
 

@@ -187,15 +187,10 @@ def _normal_equations(model, q, rho, delta, raw, const, acc):
     else:
         sc = p + 2
         c1, c2 = p, p * sc
-    s_yu, s_yuz, s_uu, s_uuz, s_uuzz, s_ud, s_uzd = raw[0], raw[1], raw[2], raw[3], raw[4], raw[5], raw[6]
+    sgy, sgg, sdgy, sgdg, sdgdg = _moments(model, q, raw)  # raw[0:5] are the lobe sums
     syy, syd, sdd = const[0], const[1], const[2]
-    sgg = sc * sc * s_uu
-    sgdg = sc * (c1 * s_uu + c2 * s_uuz)
-    sdgdg = max(c1 * c1 * s_uu + 2 * c1 * c2 * s_uuz + c2 * c2 * s_uuzz, 0.0)
-    sgy = sc * s_yu
-    sdgy = c1 * s_yu + c2 * s_yuz
-    sgd = sc * s_ud
-    sdgd = c1 * s_ud + c2 * s_uzd
+    sgd = sc * raw[5]  # Σ g d
+    sdgd = c1 * raw[5] + c2 * raw[6]  # Σ g' d
     acc[0] = syy + 2 * delta * syd + delta * delta * sdd - 2 * rho * (sgy + delta * sgd) + rho * rho * sgg
     acc[1] = sgg
     acc[2] = rho * sgdg
@@ -314,9 +309,10 @@ def _robust(model, q, rho, delta, y, z, a, d, with_d, start, n, u, bits, raw, co
 def _solve_one(model, y, z, a, d, start, n, p0, bounds, max_iter, tol, steps, u, bits, sums, trial, work, par, out):
     """The whole solve of one texel; ``out`` receives (ρs, q, δ, converged, iterations, E², var ρs, var q)."""
     r_lo, r_hi, q_lo, q_hi, p_lo, p_hi = bounds[0], bounds[1], bounds[2], bounds[3], bounds[4], bounds[5]
-    swyy = 0.0
-    for j in range(n):
-        swyy += np.float64(y[start + j]) * np.float64(y[start + j])
+    with_d = d.shape[0] > 0
+    raw, const, acc = work[0:7], work[7:10], work[10:20]
+    _constant_sums(y, d, with_d, start, n, const)
+    swyy = const[0]
     if p0 != p0:
         p0 = _log_linear_start(model, y, z, a, start, n)
         if p0 != p0:
@@ -363,9 +359,6 @@ def _solve_one(model, y, z, a, d, start, n, p0, bounds, max_iter, tol, steps, u,
             rel = 0.0
             lam = np.float32(lm * 4)
         done = (accept and rel < tol) or small or lam > 1e10
-    with_d = d.shape[0] > 0
-    raw, const, acc = work[0:7], work[7:10], work[10:20]
-    _constant_sums(y, d, with_d, start, n, const)
     par[0], par[1], par[2] = rho, q, 0.0
     fresh = False
     if with_d:

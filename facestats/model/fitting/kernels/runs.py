@@ -3,10 +3,13 @@
 Each kernel replaces a numpy reduction of :mod:`facestats.model.fitting`
 (Weyrich et al. 2006 §5.1-5.2) by one pass over the samples:
 
-* :func:`camera_system` and :func:`camera_rhs` — per (lumitexel, camera):
-  A = Σ ωi ωiᵀ (six entries) and b = Σ y ωi / F_t(θi) over the lights used by
-  :func:`facestats.model.fitting.photometric_normals` (float64, sample order;
-  numpy forms them as batched products on the (lumitexel, camera, light) grid);
+* :func:`camera_system` — per (lumitexel, camera): A = Σ ωi ωiᵀ (six entries) over the lights used by
+  :func:`facestats.model.fitting.photometric_normals` (float64, sample order; numpy forms them as
+  batched products on the (lumitexel, camera, light) grid);
+* :func:`normal_passes` — the refinement passes of photometric stereo per lumitexel: F_t(θi) of every
+  light at the current normal (float32, as :func:`facestats.model.fresnel.fresnel_reflectance_unchecked`),
+  b = Σ y ωi / F_t per camera (float64, sample order), each camera's normal adj(A) b / ‖adj(A) b‖ and
+  their cosine-weighted mean, all while the lumitexel's samples sit in the cache;
 * :func:`run_argmax` — the first brightest sample of every (lumitexel, camera)
   run (:func:`facestats.model.fitting.micro_normals`);
 * :func:`stable_minimum` — the (k+1)-th smallest penalised value per lumitexel
@@ -29,7 +32,7 @@ import numpy as np
 
 _FLT_MAX = np.float32(np.finfo(np.float32).max)
 
-__all__ = ["camera_system", "camera_rhs", "run_argmax", "stable_minimum", "refine_sums"]
+__all__ = ["camera_system", "normal_passes", "run_argmax", "stable_minimum", "refine_sums"]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -122,38 +125,126 @@ def _add_outer(acc, wi_flat, li, y_used):
     )
 
 
-@numba.njit(cache=True, nogil=True)
-def camera_rhs(light_index, run_keys, run_starts, run_counts, y_used, w_flat, n_keys):
-    """b = Σ y w per (lumitexel, camera) (float64), w = ωi or ωi/F_t per light, shape (n C, 3).
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _fresnel32(c, eta):
+    """F_r of :func:`facestats.model.fresnel.fresnel_reflectance_unchecked` for one float32 cosine in [0, 1]
+    (Cook & Torrance 1982's closed form, in float32 as numpy evaluates it; 1 for total internal reflection)."""
+    one = np.float32(1.0)
+    g2 = eta * eta - one + c * c
+    g = np.sqrt(max(g2, np.float32(0.0)))
+    gpc = g + c
+    gmc = g - c
+    a = gmc / gpc
+    b = (c * gpc - one) / (c * gmc + one)
+    out = np.float32(0.5) * a * a * (one + b * b)
+    if g2 <= 0 or not np.isfinite(out):
+        return one
+    return out
 
-    ``y_used`` is :func:`camera_system`'s (0 for unused samples, so every sample adds, branch-free).
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def normal_passes(run_keys, run_starts, run_counts, light_index, y_used, wi_grid, wo_grid, adj, ok, scan, eta, passes):
+    """The passes of :func:`facestats.model.fitting.photometric_normals` for every lumitexel, in one kernel.
+
+    Per pass: w = ωi, or ωi / F_t(θi) at the previous pass's normal (float32; F_t = 1 − F_r,
+    :func:`_fresnel32`, θi clipped to [0°, 90°]); per camera b = Σ y w over its used samples (float64,
+    even and odd samples apart), g = adj(A) b (``adj`` (3, 3, n C) of the
+    camera's A = Σ ωi ωiᵀ, whose inverse is adj(A)/det(A) with det(A) > 0 where ``ok``),
+    N_c = g/‖g‖; the lumitexel's normal is Σ w_c N_c normalised, w_c = max(N_c·ωo,c, 0) (§5.1's
+    blending weights), or the scanned normal where no camera votes.  ``y_used`` is
+    :func:`camera_system`'s; runs as there.
+
+    Returns
+    -------
+    normal : float64 (n, 3)
+    camera_normal : float64 (n, C, 3)
+        The cameras' normals of the last pass (NaN where not ``ok``).
     """
-    b = np.zeros((n_keys, 3))
-    for r in range(run_keys.shape[0]):
-        e0 = e1 = e2 = o0 = o1 = o2 = 0.0
-        s0, n = run_starts[r], run_counts[r]
-        j = 0
-        while j + 1 < n:
-            s = s0 + j
-            li, lk = light_index[s], light_index[s + 1]
-            ye, yo = np.float64(y_used[s]), np.float64(y_used[s + 1])
-            e0 += ye * np.float64(w_flat[li, 0])
-            e1 += ye * np.float64(w_flat[li, 1])
-            e2 += ye * np.float64(w_flat[li, 2])
-            o0 += yo * np.float64(w_flat[lk, 0])
-            o1 += yo * np.float64(w_flat[lk, 1])
-            o2 += yo * np.float64(w_flat[lk, 2])
-            j += 2
-        if j < n:
-            s = s0 + j
-            li = light_index[s]
-            ye = np.float64(y_used[s])
-            e0 += ye * np.float64(w_flat[li, 0])
-            e1 += ye * np.float64(w_flat[li, 1])
-            e2 += ye * np.float64(w_flat[li, 2])
-        cj = run_keys[r]
-        b[cj, 0], b[cj, 1], b[cj, 2] = e0 + o0, e1 + o1, e2 + o2
-    return b
+    n, n_led = wi_grid.shape[0], wi_grid.shape[1]
+    n_cam = wo_grid.shape[1]
+    n_runs = run_keys.shape[0]
+    normal = np.empty((n, 3))
+    cam_n = np.full((n, n_cam, 3), np.nan)
+    w = np.empty((n_led, 3), np.float32)
+    r_end = 0
+    for t in range(n):
+        r_begin = r_end
+        while r_end < n_runs and run_keys[r_end] // n_cam == t:
+            r_end += 1
+        nrm = (np.float64(scan[t, 0]), np.float64(scan[t, 1]), np.float64(scan[t, 2]))
+        for it in range(passes):
+            _light_weights(wi_grid, t, nrm, it > 0, eta, w)
+            cam_n[t] = np.nan
+            acc = (0.0, 0.0, 0.0, 0.0)  # Σ w_c N_c, Σ w_c
+            for r in range(r_begin, r_end):
+                key = run_keys[r]
+                if ok[key]:
+                    b = _weighted_sum(light_index, y_used, w, run_starts[r], run_counts[r], t * n_led)
+                    acc = _camera_vote(adj, key, b, wo_grid[t, key - t * n_cam], cam_n[t, key - t * n_cam], acc)
+            norm = np.sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
+            if acc[3] > 0 and norm > 0:
+                nrm = (acc[0] / norm, acc[1] / norm, acc[2] / norm)
+            else:
+                nrm = (np.float64(scan[t, 0]), np.float64(scan[t, 1]), np.float64(scan[t, 2]))
+        normal[t, 0], normal[t, 1], normal[t, 2] = nrm
+    return normal, cam_n
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _light_weights(wi_grid, t, nrm, fresnel, eta, w):
+    """w = ωi of lumitexel ``t``'s lights, divided by F_t(θi) at the normal ``nrm`` if ``fresnel`` (float32)."""
+    zero, one = np.float32(0.0), np.float32(1.0)
+    m0, m1, m2 = np.float32(nrm[0]), np.float32(nrm[1]), np.float32(nrm[2])
+    for lt in range(wi_grid.shape[1]):
+        x, y, z = wi_grid[t, lt, 0], wi_grid[t, lt, 1], wi_grid[t, lt, 2]
+        ft = one
+        if fresnel:
+            ft = one - _fresnel32(min(max(x * m0 + y * m1 + z * m2, zero), one), eta)
+            if not ft > 0:
+                ft = one
+        w[lt, 0], w[lt, 1], w[lt, 2] = x / ft, y / ft, z / ft
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _weighted_sum(light_index, y_used, w, s0, cnt, base):
+    """Σ y w over the run of ``cnt`` samples from ``s0`` (float64, even and odd samples apart); ``base`` = t L."""
+    e0 = e1 = e2 = o0 = o1 = o2 = 0.0
+    j = 0
+    while j + 1 < cnt:
+        s = s0 + j
+        li, lk = light_index[s] - base, light_index[s + 1] - base
+        ye, yo = np.float64(y_used[s]), np.float64(y_used[s + 1])
+        e0 += ye * np.float64(w[li, 0])
+        e1 += ye * np.float64(w[li, 1])
+        e2 += ye * np.float64(w[li, 2])
+        o0 += yo * np.float64(w[lk, 0])
+        o1 += yo * np.float64(w[lk, 1])
+        o2 += yo * np.float64(w[lk, 2])
+        j += 2
+    if j < cnt:
+        li = light_index[s0 + j] - base
+        ye = np.float64(y_used[s0 + j])
+        e0 += ye * np.float64(w[li, 0])
+        e1 += ye * np.float64(w[li, 1])
+        e2 += ye * np.float64(w[li, 2])
+    return e0 + o0, e1 + o1, e2 + o2
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _camera_vote(adj, key, b, wo, out, acc):
+    """One camera's normal N_c = adj(A) b / ‖adj(A) b‖ into ``out`` (left NaN if g = 0) and ``acc`` + (w_c N_c, w_c)
+    with w_c = max(N_c·ωo, 0)."""
+    g0 = adj[0, 0, key] * b[0] + adj[0, 1, key] * b[1] + adj[0, 2, key] * b[2]
+    g1 = adj[1, 0, key] * b[0] + adj[1, 1, key] * b[1] + adj[1, 2, key] * b[2]
+    g2 = adj[2, 0, key] * b[0] + adj[2, 1, key] * b[1] + adj[2, 2, key] * b[2]
+    norm = np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
+    if not norm > 0:
+        return acc
+    g0, g1, g2 = g0 / norm, g1 / norm, g2 / norm
+    out[0], out[1], out[2] = g0, g1, g2
+    wt = g0 * np.float64(wo[0]) + g1 * np.float64(wo[1])
+    wt = max(wt + g2 * np.float64(wo[2]), 0.0)
+    return acc[0] + wt * g0, acc[1] + wt * g1, acc[2] + wt * g2, acc[3] + wt
 
 
 @numba.njit(cache=True, nogil=True)

@@ -226,7 +226,7 @@ class Samples:
 
             rad = np.ascontiguousarray(radiance).view(np.uint16)
             irr = np.ascontiguousarray(irradiance, np.float32)
-            texel, cam_i, light_i, grid_i, bits, irr_s, per_tc = flatten_grid(rad, irr, keep)
+            texel, cam_i, light_i, grid_i, rad_s, irr_s, per_tc = flatten_grid(rad, irr, keep)
             out = cls(
                 n_texels=n,
                 texel=texel,
@@ -234,7 +234,7 @@ class Samples:
                 light_index=light_i,
                 wi_grid=np.asarray(wi, np.float32),
                 wo_grid=np.asarray(wo, np.float32),
-                radiance=bits.view(np.float16).astype(np.float32),
+                radiance=rad_s,
                 irradiance=irr_s,
                 engine=engine,
             )

@@ -61,6 +61,16 @@ def test_fast_exponential_and_logarithm_against_numpy(rng):
     assert np.all(np.abs(lg - ref) <= 1.5e-7 + 6e-8 * np.abs(ref))  # about one float32 ulp of the result
 
 
+def test_float16_to_float32_conversion_is_numpys_for_every_bit_pattern():
+    """The kernel's conversion of the captured float16 radiance gives numpy's float32 bits for all 65,536 halves
+    (zeros, subnormals, normals, ±inf and NaN payloads)."""
+    from facestats.model.fitting.kernels.samples import _halves_to_singles
+
+    halves = np.arange(65536, dtype=np.uint32).astype(np.uint16)
+    got = _halves_to_singles(halves.astype(np.int32).reshape(2, -1).copy()).reshape(-1)
+    np.testing.assert_array_equal(got.view(np.int32), halves.view(np.float16).astype(np.float32).view(np.int32))
+
+
 def test_flattened_grid_and_cosines_are_the_numpy_ones(rng):
     wi, wo, irr, rad = _grid(rng)
     keep = np.array([True, False, True, True, True])

@@ -31,6 +31,32 @@ def _valid_bits(u0, u1, u2):
     return ok0 & ok1 & ok2
 
 
+_HALF_TO_SINGLE = np.float32(2.0**112)  # 2^(127 − 15): the float32 exponent bias over float16's
+
+
+@numba.njit(cache=True, nogil=True)
+def _halves_to_singles(bits):
+    """float16 bit patterns held in the int32 array ``bits`` replaced in place by the float32 values' bits
+    (exact, as numpy's cast; IEEE 754-2008 binary16); returns the float32 view.
+
+    The exponent and mantissa bits shifted into float32's places read as a float32 that is 2^-112 times
+    the value, for normal and subnormal halves alike, so one multiplication by 2^112 (exact: a power of
+    two) gives it; ±inf and NaN (exponent all ones) get float32's all-ones exponent; the sign is copied.
+    Free of calls, so LLVM vectorises the loop.
+    """
+    flat = bits.reshape(-1)
+    values = flat.view(np.float32)
+    for i in range(flat.shape[0]):
+        h = flat[i]
+        em = h & np.int32(0x7FFF)
+        flat[i] = em << np.int32(13)
+        values[i] = values[i] * _HALF_TO_SINGLE
+        if em >= np.int32(0x7C00):
+            flat[i] = np.int32(0x7F800000) | ((em & np.int32(0x03FF)) << np.int32(13))
+        flat[i] = flat[i] | ((h & np.int32(0x8000)) << np.int32(16))
+    return bits.view(np.float32)
+
+
 @numba.njit(cache=True, nogil=True)
 def _lit(irradiance):
     """(n, L): every channel of E⊥ is > 0."""
@@ -75,8 +101,8 @@ def flatten_grid(rad_bits, irradiance, keep_camera):
     -------
     texel : int32 (S,); camera_index, light_index, grid_index : intp (S,)
         t, t C + c, t L + l and (t C + c) L + l of every sample.
-    rad : uint16 (3, S)
-        Radiance bit patterns, channel-major.
+    rad : float32 (3, S)
+        Radiance, channel-major (converted from float16 exactly).
     irr : float32 (3, S)
         E⊥ per sample, channel-major.
     per_camera : int64 (n C,)
@@ -94,7 +120,7 @@ def flatten_grid(rad_bits, irradiance, keep_camera):
     camera_index = np.empty(total, np.intp)
     light_index = np.empty(total, np.intp)
     grid_index = np.empty(total, np.intp)
-    rad = np.empty((3, total), np.uint16)
+    rad = np.empty((3, total), np.int32)  # float16 bits, then float32 values (_halves_to_singles)
     irr = np.empty((3, total), np.float32)
     s = 0
     for t in range(n):
@@ -115,7 +141,7 @@ def flatten_grid(rad_bits, irradiance, keep_camera):
                     irr[1, s] = irradiance[t, l, 1]
                     irr[2, s] = irradiance[t, l, 2]
                     s += 1
-    return texel, camera_index, light_index, grid_index, rad, irr, per_camera
+    return texel, camera_index, light_index, grid_index, _halves_to_singles(rad), irr, per_camera
 
 
 @numba.njit(cache=True, nogil=True)

@@ -86,13 +86,20 @@ def fresnel_factors(samples, normal, eta=ETA_SKIN):
     -------
     cos_i, cos_o, ft2 : ndarray of float32, shape (S,)
     """
+    ci_g, co_g, ft_i, ft_o = _fresnel_grids(samples, normal, eta)
+    return samples.at_lights(ci_g), samples.at_cameras(co_g), samples.at_lights(ft_i) * samples.at_cameras(ft_o)
+
+
+def _fresnel_grids(samples, normal, eta):
+    """cos θi and F_t(θi) on the (lumitexel, light) grid, cos θo and F_t(θo) on the (lumitexel, camera) grid
+    (float32)."""
     check_shape(np.asarray(normal), "normal", (samples.n_texels, 3))
     check_eta(eta)
     ci_g, co_g = samples.cos_grids(normal)
     e = np.float32(eta)
     ft_i = 1 - fresnel_reflectance_unchecked(np.clip(ci_g, 0, 1), e)
     ft_o = 1 - fresnel_reflectance_unchecked(np.clip(co_g, 0, 1), e)
-    return samples.at_lights(ci_g), samples.at_cameras(co_g), samples.at_lights(ft_i) * samples.at_cameras(ft_o)
+    return ci_g, co_g, ft_i, ft_o
 
 
 class BrdfSamples(NamedTuple):
@@ -114,8 +121,15 @@ def brdf_samples(samples, normal, eta=ETA_SKIN, max_angle_deg=80.0) -> BrdfSampl
     where cos θi ≤ 0 (such samples are outside ``use``).  Irradiance E_i is per unit area normal to the light,
     so the cosine is the surface's.
     """
-    cos_i, cos_o, ft2 = fresnel_factors(samples, normal, eta)
     lim = np.float32(np.cos(np.radians(float(as_finite(max_angle_deg, "max_angle_deg", 0.0, 90.0, unit="deg")))))
+    if samples.resolved_engine == "numba" and not samples.paired:
+        # local import: the kernels import numba
+        from facestats.model.fitting.kernels.samples import brdf_values
+
+        grids = (np.ascontiguousarray(g, np.float32).reshape(-1) for g in _fresnel_grids(samples, normal, eta))
+        light = (np.ascontiguousarray(x, np.float32) for x in (samples.radiance, samples.irradiance))
+        return BrdfSamples(*brdf_values(samples.light_index, samples.camera_index, *grids, *light, lim))
+    cos_i, cos_o, ft2 = fresnel_factors(samples, normal, eta)
     use = (cos_i > lim) & (cos_o > lim)
     with np.errstate(invalid="ignore", divide="ignore"):
         f_r = samples.radiance / (samples.irradiance * np.maximum(cos_i, 0))  # channel-major (3, S)

@@ -434,7 +434,13 @@ class Samples:
 
     def cos_half(self, cos_i, cos_o) -> np.ndarray:
         """Per-sample N·H, H = (ωi + ωo)/‖ωi + ωo‖, from N·ωi and N·ωo: (cos θi + cos θo) / √(2 + 2 ωi·ωo)."""
-        return (cos_i + cos_o) / np.sqrt(np.maximum(2 + 2 * self.cos_io(), 1e-12))
+        io = self.cos_io()
+        if self._compiled() and cos_i.dtype == cos_o.dtype == io.dtype == np.float32:
+            # local import: the kernels import numba
+            from facestats.model.fitting.kernels.samples import half_cosines
+
+            return half_cosines(np.ascontiguousarray(cos_i), np.ascontiguousarray(cos_o), io)
+        return (cos_i + cos_o) / np.sqrt(np.maximum(2 + 2 * io, 1e-12))
 
     def grey(self) -> np.ndarray:
         """Σ_ch L / Σ_ch E⊥ per sample: the grey f_r cos θi (cached)."""

@@ -90,8 +90,14 @@ def test_flattened_grid_and_cosines_are_the_numpy_ones(rng):
     np.testing.assert_array_equal(a.cos_io(), b.cos_io())
 
 
+def assert_equal_bits(x, y):
+    """Equal arrays, NaNs included (the same float bits up to NaN payloads)."""
+    np.testing.assert_array_equal(x, y, strict=True)
+
+
 def test_stages_agree_between_engines(rng):
-    """Normals, micro-normals and the stable minimum are the same bits; the refined albedo to float32 rounding."""
+    """Normals, micro-normals, the BRDF samples of eq. 8, N·H and the stable minimum are the same bits; the
+    refined albedo to float32 rounding."""
     wi, wo, irr, rad = _grid(rng, n=60, n_cam=6, n_led=40, frac=0.8)
     scan = np.tile(np.float32([0, 0, 1]), (60, 1))
     out = {}
@@ -99,18 +105,20 @@ def test_stages_agree_between_engines(rng):
         s, _ = fitting.Samples.from_dome(wi, wo, irr, rad, engine=eng)
         normal, cam = fitting.photometric_normals(s, scan, 6, min_lights=4)
         micro = fitting.micro_normals(s, 6)
-        ci, co, ft2 = fitting.fresnel_factors(s, normal)
-        use = (ci > 0.17) & (co > 0.17)
+        brdf = fitting.brdf_samples(s, normal, max_angle_deg=80.2)
+        ci, co, ft2, use, f_r = brdf
         with np.errstate(divide="ignore", invalid="ignore"):
-            f_r = s.radiance / (s.irradiance * np.maximum(ci, 0))
+            assert_equal_bits(f_r, s.radiance / (s.irradiance * np.maximum(ci, 0)))  # eq. 8
+        assert_equal_bits(ft2, fitting.fresnel_factors(s, normal)[2])
         alb, n_used = fitting.albedo_stable_minimum(s, f_r, ci, co, ft2, use, discard=2, grazing_penalty=1.5)
         cos_half = s.cos_half(ci, co)
         ref, n_ref = fitting.refine_albedo(s, f_r, ft2, cos_half, use, min_half_angle=0.3)
-        out[eng] = (normal, cam, micro, alb, n_used, ref, n_ref)
-    (n0, c0, m0, a0, u0, r0, k0), (n1, c1, m1, a1, u1, r1, k1) = out["numpy"], out["numba"]
-    assert np.isfinite(n0).all() and np.isfinite(a0[:, 0]).sum() > 40
-    for x, y in ((n0, n1), (c0, c1), (m0, m1), (a0, a1), (u0, u1), (k0, k1)):
-        np.testing.assert_array_equal(x, y)
+        out[eng] = (normal, cam, micro, *brdf, cos_half, alb, n_used, ref, n_ref)
+    (*same0, r0, k0), (*same1, r1, k1) = out["numpy"], out["numba"]
+    assert np.isfinite(same0[0]).all() and np.isfinite(same0[-2][:, 0]).sum() > 40
+    assert 0 < same0[6].mean() < 1  # some samples beyond the angle limit
+    for x, y in zip(same0 + [k0], same1 + [k1]):
+        assert_equal_bits(x, y)
     np.testing.assert_allclose(r1, r0, rtol=2e-6, equal_nan=True)
 
 

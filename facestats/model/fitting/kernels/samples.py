@@ -9,6 +9,9 @@
   direction grids (three products and two sums each, in float32 and in the
   order of :func:`facestats.model.fitting.samples._dot3`, so the bits equal
   numpy's), without the (lumitexel, camera, light) grid numpy goes through;
+* :func:`brdf_values` — the per-sample values of :func:`facestats.model.fitting.brdf_samples` (eq. 8)
+  gathered from its grids in one pass, and :func:`half_cosines` the N·H of
+  :meth:`facestats.model.fitting.Samples.cos_half`, both with numpy's bits;
 * :func:`dense_samples` — the usable samples of dense per-texel arrays (the
   public :func:`facestats.model.fitting.fit_specular`), compacted into runs
   with their cosines, without copying the arrays.
@@ -19,7 +22,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["flatten_grid", "sample_cosines", "dense_samples"]
+__all__ = ["flatten_grid", "sample_cosines", "brdf_values", "half_cosines", "dense_samples"]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -167,6 +170,54 @@ def sample_cosines(texel, light_index, camera_index, wi_flat, wo_flat, normal, w
             ci[s] = ix * nx + iy * ny + iz * nz
             co[s] = ox * nx + oy * ny + oz * nz
     return ci, co, io
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def brdf_values(light_index, camera_index, cos_i_grid, cos_o_grid, ft_i_grid, ft_o_grid, radiance, irradiance, limit):
+    """Per sample: cos θi, cos θo, F_t(θi) F_t(θo), θi and θo within the limit, f_r = L/(E⊥ max(cos θi, 0)).
+
+    The per-sample values of :func:`facestats.model.fitting.brdf_samples` (eq. 8) in one pass, from its
+    (lumitexel, light) and (lumitexel, camera) grids flattened (``cos_i_grid``, ``ft_i_grid`` (n L,);
+    ``cos_o_grid``, ``ft_o_grid`` (n C,)), all float32 as numpy computes them (max(−0, 0) is −0 as in
+    ``numpy.maximum``), so the bits equal numpy's.
+
+    Returns
+    -------
+    cos_i, cos_o, ft2 : float32 (S,)
+    use : bool (S,)
+        cos θi > ``limit`` and cos θo > ``limit``.
+    f_r : float32 (3, S)
+    """
+    n_s = light_index.shape[0]
+    ci = np.empty(n_s, np.float32)
+    co = np.empty(n_s, np.float32)
+    ft2 = np.empty(n_s, np.float32)
+    use = np.empty(n_s, np.bool_)
+    f_r = np.empty((3, n_s), np.float32)
+    zero = np.float32(0.0)
+    for s in range(n_s):
+        li, cj = light_index[s], camera_index[s]
+        c_i, c_o = cos_i_grid[li], cos_o_grid[cj]
+        ci[s], co[s] = c_i, c_o
+        ft2[s] = ft_i_grid[li] * ft_o_grid[cj]
+        use[s] = (c_i > limit) & (c_o > limit)
+        pos = c_i if (c_i >= zero) | (c_i != c_i) else zero
+        f_r[0, s] = radiance[0, s] / (irradiance[0, s] * pos)
+        f_r[1, s] = radiance[1, s] / (irradiance[1, s] * pos)
+        f_r[2, s] = radiance[2, s] / (irradiance[2, s] * pos)
+    return ci, co, ft2, use, f_r
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def half_cosines(cos_i, cos_o, cos_io):
+    """N·H = (cos θi + cos θo)/√max(2 + 2 ωi·ωo, 10⁻¹²) per sample, float32 as
+    :meth:`facestats.model.fitting.Samples.cos_half` computes it in numpy."""
+    out = np.empty(cos_i.shape[0], np.float32)
+    two = np.float32(2.0)
+    tiny = np.float32(1e-12)
+    for s in range(cos_i.shape[0]):
+        out[s] = (cos_i[s] + cos_o[s]) / np.sqrt(max(two + two * cos_io[s], tiny))
+    return out
 
 
 @numba.njit(cache=True, nogil=True)

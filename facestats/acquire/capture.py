@@ -225,7 +225,7 @@ class Capture:
         sl = slice(int(start), stop)
         pos = self.array("position", sl).astype(np.float64)
         dome = self.dome
-        wi, wo = dome.light_directions(pos), dome.view_directions(pos)
+        wi, wo = dome.directions32(pos)
         rad = self.array("radiance", sl)  # as stored (float16): the fit converts only the valid samples
         if cameras is not None:
             cams = np.asarray(cameras)
@@ -241,8 +241,8 @@ class Capture:
             uv=self.array("uv", sl).astype(np.float64),
             area=self.array("area", sl).astype(np.float64),
             region=self.array("region", sl),
-            wi=wi.astype(np.float32),
-            wo=wo.astype(np.float32),
+            wi=wi,
+            wo=wo,
             irradiance=self.array("irradiance", sl),
             radiance=rad,
         )

@@ -50,6 +50,7 @@ from facestats.acquire.camera import look_at
 from facestats.acquire.geodesic import farthest_point_subset, geodesic_points
 from facestats.acquire.hdr import CameraResponse
 from facestats.acquire.lens import distort_normalised, undistort_normalised
+from facestats.core.compiled import resolve_backend
 from facestats.core.published import N_CAMERAS, N_LEDS
 from facestats.core.validate import as_finite, as_float, check_range, check_shape
 from facestats.errors import FormatError, ValidationError
@@ -289,6 +290,22 @@ class Dome:
     def view_directions(self, points):
         """Unit directions (N, C, 3) from ``points`` (N, 3, mm) towards every camera centre (``wo`` of :meth:`view`)."""
         return self._towards(self.camera_position, points)[0]
+
+    def directions32(self, points, backend="auto"):
+        """(ωi (N, L, 3), ωo (N, C, 3)) from ``points`` (N, 3, mm): :meth:`light_directions` and
+        :meth:`view_directions` rounded to float32 (as the fit stores them).
+
+        ``backend`` (:data:`facestats.core.compiled.BACKENDS`): ``"numba"`` computes them in one compiled
+        pass (:func:`facestats.acquire.dome_numba.unit_directions32`, the same float64 arithmetic, so the
+        same bits) without the float64 (N, T, 3) temporaries; ``"auto"`` uses it when numba imports.
+        """
+        pts = np.ascontiguousarray(points, np.float64)
+        if resolve_backend(backend) == "numba":
+            from facestats.acquire.dome_numba import unit_directions32  # imports numba: only when used
+
+            led, cam = (np.ascontiguousarray(x, np.float64) for x in (self.led_position, self.camera_position))
+            return unit_directions32(led, pts), unit_directions32(cam, pts)
+        return self.light_directions(pts).astype(np.float32), self.view_directions(pts).astype(np.float32)
 
     def resized(self, width: int, height: int) -> "Dome":
         """The same rig with every camera's image resampled to ``width`` × ``height`` pixels (K scaled, pixel

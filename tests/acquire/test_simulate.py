@@ -210,6 +210,18 @@ def test_dome_calibration_round_trip(tmp_path):
 
 
 @pytest.mark.slow
+def test_float32_directions_are_the_rounded_float64_ones_with_either_backend():
+    """Dome.directions32: the compiled pass and numpy give the float64 unit vectors rounded, bit for bit."""
+    dome = default_dome()
+    pts = np.random.default_rng(3).normal(scale=60.0, size=(500, 3))
+    want = (dome.light_directions(pts).astype(np.float32), dome.view_directions(pts).astype(np.float32))
+    for backend in ("numba", "numpy"):
+        for got, ref in zip(dome.directions32(pts, backend=backend), want):
+            assert got.dtype == np.float32
+            np.testing.assert_array_equal(got, ref, strict=True)
+    np.testing.assert_allclose(np.linalg.norm(want[0], axis=-1), 1, atol=1e-6)
+
+
 def test_real_mesh_loader_round_trip(tmp_path):
     from facestats.io.mesh import load_face_mesh, save_face_mesh
 

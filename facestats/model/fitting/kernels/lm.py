@@ -258,17 +258,18 @@ def _diffuse_steps(model, y, z, a, d, start, n, limits, steps, u, bits, raw, con
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _robust(model, q, rho, delta, y, z, a, d, with_d, start, n, u, bits, raw, const, acc, fresh, sums, out):
+def _robust(model, q, rho, delta, y, z, a, d, with_d, start, n, u, bits, raw, const, acc, fresh, sums, out, terms):
     """E², the HC3 variances of ρs and q (:func:`facestats.model.fitting.uncertainty.robust_variances`) into
     ``out[0:3]``, and the five lobe sums at the solution of y + δ d into ``sums``.  ``fresh``: ``raw`` and
-    ``u`` already hold :func:`_raw_sums` at this solution."""
+    ``u`` already hold :func:`_raw_sums` at this solution.  ``terms`` is float64 scratch (5, ≥ n): the
+    per-sample terms are formed in one loop free of reductions (vectorised), then summed in sample order."""
     if not fresh:
         _raw_sums(model, q, y, z, a, d, with_d, start, n, u, bits, raw)
     _normal_equations(model, q, rho, delta, raw, const, acc)
     i00, i01, i02, i11, i12, i22 = _inverse(acc[1], acc[2], acc[3], acc[4], acc[5], acc[6], with_d)
     p = math.exp(q)
     w = 1.0 / (p * p)
-    e2 = m00 = m01 = m02 = m11 = m12 = m22 = 0.0
+    g_, j1_, j2_, rr_, wr_ = terms[0], terms[1], terms[2], terms[3], terms[4]
     for j in range(n):  # u holds the lobe base at q
         uj = np.float64(u[j])
         g, j1 = _jacobian_row(model, w, p, rho, uj, np.float64(z[start + j]))
@@ -279,8 +280,12 @@ def _robust(model, q, rho, delta, y, z, a, d, with_d, start, n, u, bits, raw, co
             lev += i22 * j2 * j2 + 2 * (i02 * g * j2 + i12 * j1 * j2)
         lev = min(max(_finite(lev), 0.0), LEVERAGE_CAP)
         rr = r * r
-        wr = rr / ((1 - lev) * (1 - lev))
-        e2 += rr
+        g_[j], j1_[j], j2_[j], rr_[j] = g, j1, j2, rr
+        wr_[j] = rr / ((1 - lev) * (1 - lev))
+    e2 = m00 = m01 = m02 = m11 = m12 = m22 = 0.0
+    for j in range(n):
+        g, j1, j2, wr = g_[j], j1_[j], j2_[j], wr_[j]
+        e2 += rr_[j]
         m00 += wr * g * g
         m01 += wr * g * j1
         m02 += wr * g * j2
@@ -306,7 +311,9 @@ def _robust(model, q, rho, delta, y, z, a, d, with_d, start, n, u, bits, raw, co
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _solve_one(model, y, z, a, d, start, n, p0, bounds, max_iter, tol, steps, u, bits, sums, trial, work, par, out):
+def _solve_one(
+    model, y, z, a, d, start, n, p0, bounds, max_iter, tol, steps, u, bits, sums, trial, work, par, out, terms
+):
     """The whole solve of one texel; ``out`` receives (ρs, q, δ, converged, iterations, E², var ρs, var q)."""
     r_lo, r_hi, q_lo, q_hi, p_lo, p_hi = bounds[0], bounds[1], bounds[2], bounds[3], bounds[4], bounds[5]
     with_d = d.shape[0] > 0
@@ -366,7 +373,28 @@ def _solve_one(model, y, z, a, d, start, n, p0, bounds, max_iter, tol, steps, u,
     out[0], out[1], out[2] = par[0], par[1], par[2] if with_d else np.nan
     out[3] = 1.0 if done else 0.0
     out[4] = it
-    _robust(model, par[1], par[0], par[2], y, z, a, d, with_d, start, n, u, bits, raw, const, acc, fresh, sums, out[5:])
+    _robust(
+        model,
+        par[1],
+        par[0],
+        par[2],
+        y,
+        z,
+        a,
+        d,
+        with_d,
+        start,
+        n,
+        u,
+        bits,
+        raw,
+        const,
+        acc,
+        fresh,
+        sums,
+        out[5:],
+        terms,
+    )
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -421,6 +449,7 @@ def solve_runs(model, y, z, a, d, starts, counts, solve, p_start, bounds, max_it
         width = max(width, counts[t])
     u = np.empty(width, np.float32)
     bits = np.empty(width, np.int32)
+    terms = np.empty((5, width))  # per-sample terms of the robust variances (_robust)
     sums = np.zeros(7)  # the lobe sums of lobes.lobe_sums, then Σ u d, Σ u z d (_raw_sums)
     trial = np.zeros(7)
     work = np.zeros(20)
@@ -449,6 +478,7 @@ def solve_runs(model, y, z, a, d, starts, counts, solve, p_start, bounds, max_it
             work,
             par,
             out,
+            terms,
         )
         rho[t] = out[0]
         q[t] = out[1]

@@ -148,7 +148,7 @@ def normal_passes(run_keys, run_starts, run_counts, light_index, y_used, wi_grid
 
     Per pass: w = ωi, or ωi / F_t(θi) at the previous pass's normal (float32; F_t = 1 − F_r,
     :func:`_fresnel32`, θi clipped to [0°, 90°]); per camera b = Σ y w over its used samples (float64,
-    even and odd samples apart), g = adj(A) b (``adj`` (3, 3, n C) of the
+    even- and odd-position samples summed apart, in sample order), g = adj(A) b (``adj`` (3, 3, n C) of the
     camera's A = Σ ωi ωiᵀ, whose inverse is adj(A)/det(A) with det(A) > 0 where ``ok``),
     N_c = g/‖g‖; the lumitexel's normal is Σ w_c N_c normalised, w_c = max(N_c·ωo,c, 0) (§5.1's
     blending weights), or the scanned normal where no camera votes.  ``y_used`` is
@@ -166,20 +166,30 @@ def normal_passes(run_keys, run_starts, run_counts, light_index, y_used, wi_grid
     normal = np.empty((n, 3))
     cam_n = np.full((n, n_cam, 3), np.nan)
     w = np.empty((n_led, 3), np.float32)
+    scratch = np.empty((2, n_led), np.float32)
+    # The used samples of one lumitexel, compacted per run into its even- and then odd-position samples
+    # (the unused ones add exact zeros to the sums, so leaving them out keeps the bits).
+    used_light = np.empty(n_cam * n_led, np.int64)
+    used_y = np.empty(n_cam * n_led, np.float64)
+    bounds = np.empty(3 * n_cam, np.int64)
     r_end = 0
     for t in range(n):
         r_begin = r_end
         while r_end < n_runs and run_keys[r_end] // n_cam == t:
             r_end += 1
+        _compact_used(
+            run_starts, run_counts, light_index, y_used, r_begin, r_end, t * n_led, used_light, used_y, bounds
+        )
         nrm = (np.float64(scan[t, 0]), np.float64(scan[t, 1]), np.float64(scan[t, 2]))
         for it in range(passes):
-            _light_weights(wi_grid, t, nrm, it > 0, eta, w)
+            _light_weights(wi_grid, t, nrm, it > 0, eta, w, scratch)
             cam_n[t] = np.nan
             acc = (0.0, 0.0, 0.0, 0.0)  # Σ w_c N_c, Σ w_c
             for r in range(r_begin, r_end):
                 key = run_keys[r]
                 if ok[key]:
-                    b = _weighted_sum(light_index, y_used, w, run_starts[r], run_counts[r], t * n_led)
+                    i = 3 * (r - r_begin)
+                    b = _weighted_sum(used_light, used_y, w, bounds[i], bounds[i + 1], bounds[i + 2])
                     acc = _camera_vote(adj, key, b, wo_grid[t, key - t * n_cam], cam_n[t, key - t * n_cam], acc)
             norm = np.sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
             if acc[3] > 0 and norm > 0:
@@ -191,42 +201,73 @@ def normal_passes(run_keys, run_starts, run_counts, light_index, y_used, wi_grid
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _light_weights(wi_grid, t, nrm, fresnel, eta, w):
-    """w = ωi of lumitexel ``t``'s lights, divided by F_t(θi) at the normal ``nrm`` if ``fresnel`` (float32)."""
+def _light_weights(wi_grid, t, nrm, fresnel, eta, w, scratch):
+    """w = ωi of lumitexel ``t``'s lights, divided by F_t(θi) at the normal ``nrm`` if ``fresnel`` (float32).
+
+    ``scratch`` is float32 (2, L): cos θi and F_t are formed in loops of their own, which LLVM vectorises.
+    """
+    n_led = wi_grid.shape[1]
+    if not fresnel:
+        for lt in range(n_led):
+            w[lt, 0], w[lt, 1], w[lt, 2] = wi_grid[t, lt, 0], wi_grid[t, lt, 1], wi_grid[t, lt, 2]
+        return
     zero, one = np.float32(0.0), np.float32(1.0)
     m0, m1, m2 = np.float32(nrm[0]), np.float32(nrm[1]), np.float32(nrm[2])
-    for lt in range(wi_grid.shape[1]):
-        x, y, z = wi_grid[t, lt, 0], wi_grid[t, lt, 1], wi_grid[t, lt, 2]
-        ft = one
-        if fresnel:
-            ft = one - _fresnel32(min(max(x * m0 + y * m1 + z * m2, zero), one), eta)
-            if not ft > 0:
-                ft = one
-        w[lt, 0], w[lt, 1], w[lt, 2] = x / ft, y / ft, z / ft
+    cos_i, ft = scratch[0], scratch[1]
+    for lt in range(n_led):
+        c = wi_grid[t, lt, 0] * m0 + wi_grid[t, lt, 1] * m1 + wi_grid[t, lt, 2] * m2
+        cos_i[lt] = min(max(c, zero), one)
+    for lt in range(n_led):
+        f = one - _fresnel32(cos_i[lt], eta)
+        ft[lt] = f if f > 0 else one
+    for lt in range(n_led):
+        f = ft[lt]
+        w[lt, 0], w[lt, 1], w[lt, 2] = wi_grid[t, lt, 0] / f, wi_grid[t, lt, 1] / f, wi_grid[t, lt, 2] / f
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _weighted_sum(light_index, y_used, w, s0, cnt, base):
-    """Σ y w over the run of ``cnt`` samples from ``s0`` (float64, even and odd samples apart); ``base`` = t L."""
+def _compact_used(run_starts, run_counts, light_index, y_used, r_begin, r_end, base, used_light, used_y, bounds):
+    """The used samples (y > 0) of runs ``r_begin:r_end`` of one lumitexel: per run its even-position samples,
+    then its odd-position ones, as (light within the lumitexel, y as float64); ``bounds[3 i: 3 i + 3]`` =
+    start of the even ones, start of the odd ones, end, of the i-th run."""
+    m = 0
+    for r in range(r_begin, r_end):
+        s0, cnt = run_starts[r], run_counts[r]
+        i = 3 * (r - r_begin)
+        for parity in range(2):
+            bounds[i + parity] = m
+            for j in range(parity, cnt, 2):
+                if y_used[s0 + j] > 0:
+                    used_light[m] = light_index[s0 + j] - base
+                    used_y[m] = np.float64(y_used[s0 + j])
+                    m += 1
+        bounds[i + 2] = m
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _weighted_sum(used_light, used_y, w, even, odd, end):
+    """Σ y w of one run from its compacted samples (:func:`_compact_used`): the even-position ones
+    ``even:odd`` and the odd-position ones ``odd:end`` summed apart in order (float64), side by side."""
     e0 = e1 = e2 = o0 = o1 = o2 = 0.0
-    j = 0
-    while j + 1 < cnt:
-        s = s0 + j
-        li, lk = light_index[s] - base, light_index[s + 1] - base
-        ye, yo = np.float64(y_used[s]), np.float64(y_used[s + 1])
-        e0 += ye * np.float64(w[li, 0])
-        e1 += ye * np.float64(w[li, 1])
-        e2 += ye * np.float64(w[li, 2])
-        o0 += yo * np.float64(w[lk, 0])
-        o1 += yo * np.float64(w[lk, 1])
-        o2 += yo * np.float64(w[lk, 2])
-        j += 2
-    if j < cnt:
-        li = light_index[s0 + j] - base
-        ye = np.float64(y_used[s0 + j])
-        e0 += ye * np.float64(w[li, 0])
-        e1 += ye * np.float64(w[li, 1])
-        e2 += ye * np.float64(w[li, 2])
+    n_even, n_odd = odd - even, end - odd
+    for k in range(min(n_even, n_odd)):  # two independent chains of additions
+        le, ye, lo, yo = used_light[even + k], used_y[even + k], used_light[odd + k], used_y[odd + k]
+        e0 += ye * np.float64(w[le, 0])
+        e1 += ye * np.float64(w[le, 1])
+        e2 += ye * np.float64(w[le, 2])
+        o0 += yo * np.float64(w[lo, 0])
+        o1 += yo * np.float64(w[lo, 1])
+        o2 += yo * np.float64(w[lo, 2])
+    for k in range(n_odd, n_even):
+        le, ye = used_light[even + k], used_y[even + k]
+        e0 += ye * np.float64(w[le, 0])
+        e1 += ye * np.float64(w[le, 1])
+        e2 += ye * np.float64(w[le, 2])
+    for k in range(n_even, n_odd):
+        lo, yo = used_light[odd + k], used_y[odd + k]
+        o0 += yo * np.float64(w[lo, 0])
+        o1 += yo * np.float64(w[lo, 1])
+        o2 += yo * np.float64(w[lo, 2])
     return e0 + o0, e1 + o1, e2 + o2
 
 

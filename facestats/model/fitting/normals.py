@@ -105,13 +105,10 @@ def photometric_normals(
     lim = np.float32(np.cos(max_angle))
     cos_spec = np.float32(np.cos(specular_exclusion))
     if samples.resolved_engine == "numba":
-        a, count, y_used = _compiled_system(samples, n_scan, y, cos_spec, lim)
-    else:
-        a, count, rhs = _numpy_system(samples, n_scan, y, cos_spec, lim)
+        return _compiled_normals(samples, n_scan, y, cos_spec, lim, eta, iterations, min_lights)
+    a, count, rhs = _numpy_system(samples, n_scan, y, cos_spec, lim)
     adj, det = _adjugate_sym3(a)  # A is the same in every pass: g = A⁻¹ b ∝ adj(A) b
     ok = (count >= min_lights) & (det > 1e-6 * np.maximum(count, 1.0) ** 3)
-    if samples.resolved_engine == "numba":
-        return _compiled_passes(samples, y_used, adj, ok, n_scan, eta, iterations)
     wi = np.asarray(samples.wi_grid, np.float32)  # (n, L, 3)
     cam_dir = samples.wo_grid.astype(np.float64)  # (n, C, 3)
     normal = n_scan.astype(np.float64)
@@ -157,47 +154,29 @@ def _numpy_system(samples, n_scan, y, cos_spec, lim):
     return a, m_grid.sum(-1), rhs
 
 
-def _compiled_system(samples, n_scan, y, cos_spec, lim):
-    """A (6, n, C) and the light count (n, C) as :func:`_numpy_system`, and y of the used samples (0 elsewhere),
-    by one pass over the samples (:func:`facestats.model.fitting.kernels.runs.camera_system`)."""
+def _compiled_normals(samples, n_scan, y, cos_spec, lim, eta, iterations, min_lights):
+    """:func:`photometric_normals` by two compiled passes over the samples
+    (:func:`facestats.model.fitting.kernels.runs.used_samples`, then
+    :func:`~facestats.model.fitting.kernels.runs.normal_passes`, which forms A, adj(A) and the passes
+    per lumitexel)."""
     # local import: the kernels import numba
-    from facestats.model.fitting.kernels.runs import camera_system
+    from facestats.model.fitting.kernels.runs import normal_passes, used_samples
 
-    n, n_cam = samples.n_texels, samples.wo_grid.shape[1]
-    y_used, a, count = camera_system(
+    wi = np.ascontiguousarray(samples.wi_grid, np.float32)
+    wo = np.ascontiguousarray(samples.wo_grid, np.float32)
+    y_used = used_samples(
         samples.texel,
         samples.light_index,
         samples.camera_index,
-        *samples.camera_runs(),
-        np.ascontiguousarray(samples.wi_grid, np.float32).reshape(-1, 3),
-        np.ascontiguousarray(samples.wo_grid, np.float32).reshape(-1, 3),
+        wi.reshape(-1, 3),
+        wo.reshape(-1, 3),
         n_scan,
         np.ascontiguousarray(y, np.float32),
         cos_spec,
         lim,
     )
-    return a.reshape(6, n, n_cam), count.reshape(n, n_cam), y_used
-
-
-def _compiled_passes(samples, y_used, adj, ok, n_scan, eta, iterations):
-    """The passes of :func:`photometric_normals` in one kernel
-    (:func:`facestats.model.fitting.kernels.runs.normal_passes`)."""
-    # local import: the kernels import numba
-    from facestats.model.fitting.kernels.runs import normal_passes
-
-    n, n_cam = ok.shape
-    normal, cam_n = normal_passes(
-        *samples.camera_runs(),
-        samples.light_index,
-        y_used,
-        np.ascontiguousarray(samples.wi_grid, np.float32),
-        np.ascontiguousarray(samples.wo_grid, np.float32),
-        np.ascontiguousarray(adj.reshape(3, 3, n * n_cam)),
-        ok.reshape(-1),
-        n_scan,
-        np.float32(eta),
-        int(iterations),
-    )
+    args = (samples.light_index, y_used, wi, wo, n_scan, np.float32(eta), int(iterations), float(min_lights))
+    normal, cam_n = normal_passes(*samples.camera_runs(), *args)
     return normal.astype(np.float32), cam_n.astype(np.float32)
 
 

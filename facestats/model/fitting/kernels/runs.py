@@ -3,13 +3,12 @@
 Each kernel replaces a numpy reduction of :mod:`facestats.model.fitting`
 (Weyrich et al. 2006 §5.1-5.2) by one pass over the samples:
 
-* :func:`camera_system` — per (lumitexel, camera): A = Σ ωi ωiᵀ (six entries) over the lights used by
-  :func:`facestats.model.fitting.photometric_normals` (float64, sample order; numpy forms them as
-  batched products on the (lumitexel, camera, light) grid);
-* :func:`normal_passes` — the refinement passes of photometric stereo per lumitexel: F_t(θi) of every
+* :func:`used_samples` and :func:`normal_passes` — photometric stereo
+  (:func:`facestats.model.fitting.photometric_normals`): the samples it uses, then per lumitexel,
+  while its samples sit in the cache, A = Σ ωi ωiᵀ per camera (float64, sample order; numpy forms
+  it as batched products on the (lumitexel, camera, light) grid), and the passes: F_t(θi) of every
   light at the current normal (float32, as :func:`facestats.model.fresnel.fresnel_reflectance_unchecked`),
-  b = Σ y ωi / F_t per camera (float64, sample order), each camera's normal adj(A) b / ‖adj(A) b‖ and
-  their cosine-weighted mean, all while the lumitexel's samples sit in the cache;
+  b = Σ y ωi / F_t per camera, each camera's normal adj(A) b / ‖adj(A) b‖ and their cosine-weighted mean;
 * :func:`run_argmax` — the first brightest sample of every (lumitexel, camera)
   run (:func:`facestats.model.fitting.micro_normals`);
 * :func:`stable_minimum` — the (k+1)-th smallest penalised value per lumitexel
@@ -27,49 +26,26 @@ CPU, and the two chains of additions run in parallel.
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
 _FLT_MAX = np.float32(np.finfo(np.float32).max)
 
-__all__ = ["camera_system", "normal_passes", "run_argmax", "stable_minimum", "refine_sums"]
+__all__ = ["used_samples", "normal_passes", "run_argmax", "stable_minimum", "refine_sums"]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def camera_system(
-    texel,
-    light_index,
-    camera_index,
-    run_keys,
-    run_starts,
-    run_counts,
-    wi_flat,
-    wo_flat,
-    scan_normal,
-    y,
-    cos_specular,
-    cos_limit,
-):
-    """Used samples of photometric stereo and the per-(lumitexel, camera) sums A = Σ ωi ωiᵀ.
+def used_samples(texel, light_index, camera_index, wi_flat, wo_flat, scan_normal, y, cos_specular, cos_limit):
+    """y of the samples photometric stereo uses, 0 for the others (float32 (S,)).
 
     A sample is used when its half vector lies more than the specular exclusion
     angle from the scanned normal (N·H < ``cos_specular``), θi and θo are within
     the angle limit (cosines > ``cos_limit``) and 0 < y < ∞ (all float32 as
-    :func:`facestats.model.fitting.photometric_normals` computes them).  ``run_keys``,
-    ``run_starts``, ``run_counts`` are the (lumitexel, camera) runs of
-    :meth:`facestats.model.fitting.Samples.camera_runs`.
-
-    Returns
-    -------
-    y_used : float32 (S,)
-        y of the used samples, 0 elsewhere.
-    a : float64 (6, n C)
-        A00, A01, A02, A11, A12, A22 per (lumitexel, camera), flat index t C + c.
-    count : float64 (n C,)
-        Used lights per (lumitexel, camera).
+    :func:`facestats.model.fitting.photometric_normals` computes them).
     """
     n_s = texel.shape[0]
-    n_keys = scan_normal.shape[0] * (wo_flat.shape[0] // scan_normal.shape[0])
     y_used = np.empty(n_s, np.float32)
     two = np.float32(2.0)
     tiny = np.float32(1e-12)
@@ -87,42 +63,7 @@ def camera_system(
         ys = y[s]
         ok = (cos_h < cos_specular) & (ci > cos_limit) & (co > cos_limit) & (ys > 0) & (ys < np.inf)
         y_used[s] = np.float32(ok) * min(ys, _FLT_MAX)  # 0 unless used (then y < inf): branch-free
-    a = np.zeros((6, n_keys))
-    count = np.zeros(n_keys)
-    zero = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    for r in range(run_keys.shape[0]):  # one run per (lumitexel, camera): sums in registers, even/odd halves
-        e = zero
-        o = zero
-        s0, n = run_starts[r], run_counts[r]
-        j = 0
-        while j + 1 < n:
-            e = _add_outer(e, wi_flat, light_index[s0 + j], y_used[s0 + j])
-            o = _add_outer(o, wi_flat, light_index[s0 + j + 1], y_used[s0 + j + 1])
-            j += 2
-        if j < n:
-            e = _add_outer(e, wi_flat, light_index[s0 + j], y_used[s0 + j])
-        cj = run_keys[r]
-        for q in range(6):
-            a[q, cj] = e[q] + o[q]
-        count[cj] = e[6] + o[6]
-    return y_used, a, count
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _add_outer(acc, wi_flat, li, y_used):
-    """acc + (the six entries of ωi ωiᵀ, 1), times 1 for a used sample (y_used > 0), else 0 (branch-free)."""
-    m = np.float64(y_used > 0)
-    x, w, v = np.float64(wi_flat[li, 0]), np.float64(wi_flat[li, 1]), np.float64(wi_flat[li, 2])
-    mx, mw = m * x, m * w
-    return (
-        acc[0] + mx * x,
-        acc[1] + mx * w,
-        acc[2] + mx * v,
-        acc[3] + mw * w,
-        acc[4] + mw * v,
-        acc[5] + (m * v) * v,
-        acc[6] + m,
-    )
+    return y_used
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -143,22 +84,27 @@ def _fresnel32(c, eta):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def normal_passes(run_keys, run_starts, run_counts, light_index, y_used, wi_grid, wo_grid, adj, ok, scan, eta, passes):
-    """The passes of :func:`facestats.model.fitting.photometric_normals` for every lumitexel, in one kernel.
+def normal_passes(
+    run_keys, run_starts, run_counts, light_index, y_used, wi_grid, wo_grid, scan, eta, passes, min_lights
+):
+    """Photometric stereo (:func:`facestats.model.fitting.photometric_normals`) for every lumitexel, in one kernel.
 
-    Per pass: w = ωi, or ωi / F_t(θi) at the previous pass's normal (float32; F_t = 1 − F_r,
-    :func:`_fresnel32`, θi clipped to [0°, 90°]); per camera b = Σ y w over its used samples (float64,
-    even- and odd-position samples summed apart, in sample order), g = adj(A) b (``adj`` (3, 3, n C) of the
-    camera's A = Σ ωi ωiᵀ, whose inverse is adj(A)/det(A) with det(A) > 0 where ``ok``),
-    N_c = g/‖g‖; the lumitexel's normal is Σ w_c N_c normalised, w_c = max(N_c·ωo,c, 0) (§5.1's
-    blending weights), or the scanned normal where no camera votes.  ``y_used`` is
-    :func:`camera_system`'s; runs as there.
+    Per (lumitexel, camera): A = Σ ωi ωiᵀ over its used samples and their number k (float64), the
+    adjugate adj(A) and det(A) (A⁻¹ = adj(A)/det(A)), as
+    :func:`facestats.model.fitting.normals._adjugate_sym3` forms them; the camera votes when
+    k ≥ ``min_lights`` and det(A) > 10⁻⁶ max(k, 1)³.  Per pass: w = ωi, or ωi / F_t(θi) at the previous
+    pass's normal (float32; F_t = 1 − F_r, :func:`_fresnel32`, θi clipped to [0°, 90°]); per voting
+    camera b = Σ y w over its used samples, g = adj(A) b, N_c = g/‖g‖; the lumitexel's normal is
+    Σ w_c N_c normalised, w_c = max(N_c·ωo,c, 0) (§5.1's blending weights), or the scanned normal where
+    no camera votes.  Sums are float64, over even- and odd-position samples apart, in sample order.
+    ``y_used`` is :func:`used_samples`'; ``run_keys``, ``run_starts``, ``run_counts`` are the
+    (lumitexel, camera) runs of :meth:`facestats.model.fitting.Samples.camera_runs`.
 
     Returns
     -------
     normal : float64 (n, 3)
     camera_normal : float64 (n, C, 3)
-        The cameras' normals of the last pass (NaN where not ``ok``).
+        The cameras' normals of the last pass (NaN where a camera does not vote).
     """
     n, n_led = wi_grid.shape[0], wi_grid.shape[1]
     n_cam = wo_grid.shape[1]
@@ -172,6 +118,8 @@ def normal_passes(run_keys, run_starts, run_counts, light_index, y_used, wi_grid
     used_light = np.empty(n_cam * n_led, np.int64)
     used_y = np.empty(n_cam * n_led, np.float64)
     bounds = np.empty(3 * n_cam, np.int64)
+    adj = np.empty((n_cam, 9))  # adj(A) of every camera run of the lumitexel, row-major
+    votes = np.empty(n_cam, np.bool_)
     r_end = 0
     for t in range(n):
         r_begin = r_end
@@ -180,17 +128,22 @@ def normal_passes(run_keys, run_starts, run_counts, light_index, y_used, wi_grid
         _compact_used(
             run_starts, run_counts, light_index, y_used, r_begin, r_end, t * n_led, used_light, used_y, bounds
         )
+        for r in range(r_begin, r_end):
+            i = 3 * (r - r_begin)
+            votes[r - r_begin] = _camera_system(
+                wi_grid, t, used_light, bounds[i], bounds[i + 1], bounds[i + 2], min_lights, adj[r - r_begin]
+            )
         nrm = (np.float64(scan[t, 0]), np.float64(scan[t, 1]), np.float64(scan[t, 2]))
         for it in range(passes):
             _light_weights(wi_grid, t, nrm, it > 0, eta, w, scratch)
             cam_n[t] = np.nan
             acc = (0.0, 0.0, 0.0, 0.0)  # Σ w_c N_c, Σ w_c
             for r in range(r_begin, r_end):
-                key = run_keys[r]
-                if ok[key]:
+                if votes[r - r_begin]:
                     i = 3 * (r - r_begin)
+                    cj = run_keys[r] - t * n_cam
                     b = _weighted_sum(used_light, used_y, w, bounds[i], bounds[i + 1], bounds[i + 2])
-                    acc = _camera_vote(adj, key, b, wo_grid[t, key - t * n_cam], cam_n[t, key - t * n_cam], acc)
+                    acc = _camera_vote(adj[r - r_begin], b, wo_grid[t, cj], cam_n[t, cj], acc)
             norm = np.sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
             if acc[3] > 0 and norm > 0:
                 nrm = (acc[0] / norm, acc[1] / norm, acc[2] / norm)
@@ -272,12 +225,53 @@ def _weighted_sum(used_light, used_y, w, even, odd, end):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _camera_vote(adj, key, b, wo, out, acc):
+def _camera_system(wi_grid, t, used_light, even, odd, end, min_lights, adj):
+    """adj(A) of one camera run into ``adj`` (9, row-major) from its compacted used samples, and whether it
+    votes: A = Σ ωi ωiᵀ and k summed over even and odd positions apart (float64), then the cofactors
+    and det(A) in the order of :func:`facestats.model.fitting.normals._adjugate_sym3`."""
+    e = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    o = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    n_even, n_odd = odd - even, end - odd
+    for k in range(min(n_even, n_odd)):  # two independent chains of additions
+        e = _add_outer(e, wi_grid, t, used_light[even + k])
+        o = _add_outer(o, wi_grid, t, used_light[odd + k])
+    for k in range(n_odd, n_even):
+        e = _add_outer(e, wi_grid, t, used_light[even + k])
+    for k in range(n_even, n_odd):
+        o = _add_outer(o, wi_grid, t, used_light[odd + k])
+    a00, a01, a02, a11, a12, a22 = e[0] + o[0], e[1] + o[1], e[2] + o[2], e[3] + o[3], e[4] + o[4], e[5] + o[5]
+    count = e[6] + o[6]
+    c00, c11, c22 = a11 * a22 - a12 * a12, a00 * a22 - a02 * a02, a00 * a11 - a01 * a01
+    c01, c02, c12 = a02 * a12 - a01 * a22, a01 * a12 - a02 * a11, a01 * a02 - a00 * a12
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    adj[0], adj[1], adj[2] = c00, c01, c02
+    adj[3], adj[4], adj[5] = c01, c11, c12
+    adj[6], adj[7], adj[8] = c02, c12, c22
+    return (count >= min_lights) & (det > 1e-6 * math.pow(max(count, 1.0), 3.0))
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _add_outer(acc, wi_grid, t, light):
+    """acc + (the six entries of ωi ωiᵀ, 1) of one used sample (float64)."""
+    x, w, v = np.float64(wi_grid[t, light, 0]), np.float64(wi_grid[t, light, 1]), np.float64(wi_grid[t, light, 2])
+    return (
+        acc[0] + x * x,
+        acc[1] + x * w,
+        acc[2] + x * v,
+        acc[3] + w * w,
+        acc[4] + w * v,
+        acc[5] + v * v,
+        acc[6] + 1.0,
+    )
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _camera_vote(adj, b, wo, out, acc):
     """One camera's normal N_c = adj(A) b / ‖adj(A) b‖ into ``out`` (left NaN if g = 0) and ``acc`` + (w_c N_c, w_c)
     with w_c = max(N_c·ωo, 0)."""
-    g0 = adj[0, 0, key] * b[0] + adj[0, 1, key] * b[1] + adj[0, 2, key] * b[2]
-    g1 = adj[1, 0, key] * b[0] + adj[1, 1, key] * b[1] + adj[1, 2, key] * b[2]
-    g2 = adj[2, 0, key] * b[0] + adj[2, 1, key] * b[1] + adj[2, 2, key] * b[2]
+    g0 = adj[0] * b[0] + adj[1] * b[1] + adj[2] * b[2]
+    g1 = adj[3] * b[0] + adj[4] * b[1] + adj[5] * b[2]
+    g2 = adj[6] * b[0] + adj[7] * b[1] + adj[8] * b[2]
     norm = np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
     if not norm > 0:
         return acc

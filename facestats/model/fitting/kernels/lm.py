@@ -120,6 +120,14 @@ def _jacobian_row(model, w, p, rho, uj, zj):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
+def _add_lobe(acc, uj, zj, yj):
+    """acc + (y u, y u z, u², u² z, u² z²) of one sample (the first five of :func:`_add_raw`)."""
+    yu = yj * uj
+    uu = uj * uj
+    return (acc[0] + yu, acc[1] + yu * zj, acc[2] + uu, acc[3] + uu * zj, acc[4] + uu * zj * zj)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def _add_raw(acc, uj, zj, yj, dj):
     """acc + (y u, y u z, u², u² z, u² z², u d, u z d) of one sample."""
     yu = yj * uj
@@ -139,19 +147,40 @@ def _add_raw(acc, uj, zj, yj, dj):
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _raw_sums(model, q, y, z, a, d, with_d, start, n, u, bits, raw):
     """The lobe base u at q into ``u`` and Σ y u, Σ y u z, Σ u², Σ u² z, Σ u² z², Σ u d, Σ u z d of one texel
-    into ``raw`` (float64; even and odd samples summed apart, in sample order; the last two 0 without ``d``)."""
+    into ``raw`` (float64; even and odd samples summed apart, in sample order; the last two 0 without ``d``,
+    and then not formed)."""
     fill_lobe(_rate(model, q), z, a, start, n, u, bits)
+    if with_d:
+        _sums_with_d(y, z, d, start, n, u, raw)
+        return
+    e = (0.0, 0.0, 0.0, 0.0, 0.0)
+    o = (0.0, 0.0, 0.0, 0.0, 0.0)
+    j = 0
+    while j + 1 < n:
+        e = _add_lobe(e, np.float64(u[j]), np.float64(z[start + j]), np.float64(y[start + j]))
+        o = _add_lobe(o, np.float64(u[j + 1]), np.float64(z[start + j + 1]), np.float64(y[start + j + 1]))
+        j += 2
+    if j < n:
+        e = _add_lobe(e, np.float64(u[j]), np.float64(z[start + j]), np.float64(y[start + j]))
+    for k in range(5):
+        raw[k] = e[k] + o[k]
+    raw[5] = raw[6] = 0.0
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _sums_with_d(y, z, d, start, n, u, raw):
+    """The seven sums of :func:`_raw_sums` with ∂y/∂α ``d``, from the lobe base ``u``."""
     e = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     o = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     j = 0
     while j + 1 < n:
-        d0 = np.float64(d[start + j]) if with_d else 0.0
-        d1 = np.float64(d[start + j + 1]) if with_d else 0.0
+        d0 = np.float64(d[start + j])
+        d1 = np.float64(d[start + j + 1])
         e = _add_raw(e, np.float64(u[j]), np.float64(z[start + j]), np.float64(y[start + j]), d0)
         o = _add_raw(o, np.float64(u[j + 1]), np.float64(z[start + j + 1]), np.float64(y[start + j + 1]), d1)
         j += 2
     if j < n:
-        d0 = np.float64(d[start + j]) if with_d else 0.0
+        d0 = np.float64(d[start + j])
         e = _add_raw(e, np.float64(u[j]), np.float64(z[start + j]), np.float64(y[start + j]), d0)
     for k in range(7):
         raw[k] = e[k] + o[k]

@@ -230,14 +230,11 @@ def fit_specular_models(
         groups.setdefault(None if not max_angle or m not in max_angle else float(max_angle[m]), []).append(m)
     # The full domain of eq. 14, with every model's factors: the unlimited models fit on it, the limited
     # ones are scored on it.
-    full = _kept_inputs(samples, ci, co, f_s, use, models, eta, ft2, engine)
+    domains = _domain_inputs(samples, ci, co, f_s, use, models, groups, eta, ft2, engine)
+    full = domains[None]
     kept = {}
     for limit, group in groups.items():
-        y, factors, counts, d = full
-        if limit is not None:
-            c = np.float32(np.cos(as_finite(limit, "max_angle", 0, np.pi / 2, low_inclusive=False, unit="rad")))
-            use_g = np.asarray(use, bool) & (ci > c) & (co > c)
-            y, factors, counts, d = _kept_inputs(samples, ci, co, f_s, use_g, tuple(group), eta, ft2, engine)
+        y, factors, counts, d = domains[limit]
         kept.update({m: (y, factors[m], counts, d) for m in group})
     settings = dict(min_samples=min_samples, max_iter=max_iter, tol=tol, max_relative_error=max_relative_error)
     fits = _solve_models(models, kept, bounds, start, engine, settings)
@@ -247,16 +244,39 @@ def fit_specular_models(
     return fits
 
 
-def _kept_inputs(samples, ci, co, f_s, use, models, eta, ft2, engine):
-    """(y, factors per model, kept count per texel, d) of the samples of eq. 14 in ``use``, by ``engine``."""
+def _domain_inputs(samples, ci, co, f_s, use, models, groups, eta, ft2, engine):
+    """(y, factors per model, kept count per texel, d) of the samples of eq. 14 in ``use``, by ``engine``, per
+    domain: ``None`` the full one (every model's factors), and each angle limit of ``groups`` (its models'
+    factors, on the samples with θi and θo below it).  The compiled engine forms the full domain and the
+    first limited one in one pass."""
+    limits = [limit for limit in groups if limit is not None]
+    cosines = {
+        limit: np.float32(np.cos(as_finite(limit, "max_angle", 0, np.pi / 2, low_inclusive=False, unit="rad")))
+        for limit in limits
+    }
+    out = {}
     if engine == "numba":
-        args = (samples.starts, samples.counts, ci, co, samples.cos_io(), f_s, use, tuple(models), eta, ft2)
-        return _kept_factors_compiled(*args)
-    return _kept_factors(samples, ci, co, f_s, use, tuple(models), eta, ft2)
+        args = (samples.starts, samples.counts, ci, co, samples.cos_io(), f_s)
+        first = limits[0] if limits else None
+        out[None], limited = _kept_factors_compiled(
+            *args, use, tuple(models), eta, ft2, cosines.get(first), tuple(groups.get(first, ()))
+        )
+        if first is not None:
+            out[first] = limited
+    else:
+        out[None] = _kept_factors(samples, ci, co, f_s, use, tuple(models), eta, ft2)
+    for limit in limits:
+        if limit not in out:
+            use_g = np.asarray(use, bool) & (ci > cosines[limit]) & (co > cosines[limit])
+            if engine == "numba":
+                out[limit] = _kept_factors_compiled(*args, use_g, tuple(groups[limit]), eta, ft2)[0]
+            else:
+                out[limit] = _kept_factors(samples, ci, co, f_s, use_g, tuple(groups[limit]), eta, ft2)
+    return out
 
 
 def _rescore(fits, group, full, engine):
-    """Replace the ``error`` of the fits of ``group`` by E(p) over the samples ``full`` of :func:`_kept_inputs`
+    """Replace the ``error`` of the fits of ``group`` by E(p) over the samples ``full`` of :func:`_domain_inputs`
     (with their diffuse level, if fitted)."""
     y, factors, counts, d = full
     for m in group:
@@ -344,12 +364,14 @@ def _kept_factors(samples, ci, co, f_s, use, models, eta, ft2=None):
     return (y * ci_u).astype(np.float32, copy=False), factors, counts, d
 
 
-def _kept_factors_compiled(starts, counts, ci, co, io, f_s, use, models, eta, ft2=None):
-    """:func:`_kept_factors` in one compiled pass (:func:`facestats.model.fitting.kernels.factors.specular_inputs`)."""
+def _kept_factors_compiled(starts, counts, ci, co, io, f_s, use, models, eta, ft2=None, limit=None, limit_models=()):
+    """:func:`_kept_factors` in one compiled pass (:func:`facestats.model.fitting.kernels.factors.specular_inputs`),
+    and, with a ``limit`` (the cosine of an angle), the same for ``limit_models`` on the samples with
+    cos θi and cos θo above it (else None)."""
     # local import: the kernels import numba
     from facestats.model.fitting.kernels.factors import specular_inputs
 
-    kept, y, ts_z, ts_a, bp_z, bp_a, d = specular_inputs(
+    full, limited = specular_inputs(
         np.ascontiguousarray(ci, np.float32),
         np.ascontiguousarray(co, np.float32),
         np.ascontiguousarray(io, np.float32),
@@ -361,9 +383,16 @@ def _kept_factors_compiled(starts, counts, ci, co, io, f_s, use, models, eta, ft
         np.float32(eta),
         "torrance_sparrow" in models,
         "blinn_phong" in models,
+        np.float32(-2.0 if limit is None else limit),
+        "torrance_sparrow" in limit_models,
+        "blinn_phong" in limit_models,
     )
-    all_factors = {"torrance_sparrow": (ts_z, ts_a), "blinn_phong": (bp_z, bp_a)}
-    return y, {m: all_factors[m] for m in models}, kept, (None if ft2 is None else d)
+
+    def inputs(kept, y, ts_z, ts_a, bp_z, bp_a, d, wanted):
+        all_factors = {"torrance_sparrow": (ts_z, ts_a), "blinn_phong": (bp_z, bp_a)}
+        return y, {m: all_factors[m] for m in wanted}, kept, (None if ft2 is None else d)
+
+    return inputs(*full, models), (None if limit is None else inputs(*limited, limit_models))
 
 
 def _check_specular_inputs(samples, normal, f_s, use, start):
@@ -486,7 +515,9 @@ def _fit_dense_compiled(wi, wo, normal, f_s, valid, model, lim, eta, bounds, kwa
         np.ascontiguousarray(wi), np.ascontiguousarray(wo), np.ascontiguousarray(normal), f_s, valid, float(lim)
     )
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    y, factors, kept, _ = _kept_factors_compiled(starts, counts, ci, co, io, fs, np.ones(fs.size, bool), (model,), eta)
+    (y, factors, kept, _), _ = _kept_factors_compiled(
+        starts, counts, ci, co, io, fs, np.ones(fs.size, bool), (model,), eta
+    )
     return _solve_models((model,), {model: (y, factors[model], kept, None)}, {model: bounds}, None, "numba", kwargs)[
         model
     ]

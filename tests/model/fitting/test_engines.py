@@ -147,6 +147,42 @@ def test_specular_fits_agree_between_engines_and_recover_the_truth(rng):
     assert np.percentile(np.abs(z), 95) < 3
 
 
+def test_angle_limits_give_each_model_its_domain_in_both_engines(rng):
+    """fit_specular_models with per-model angle limits (the compiled engine forms the full domain and the first
+    limit in one pass, any further limit in another) fits each model on its own domain's samples (as a fit of
+    those samples alone), and both engines form the same domains."""
+    wi, wo, irr, rad = _grid(rng, n=60, n_cam=6, n_led=40, frac=0.9)
+    scan = np.tile(np.float32([0, 0, 1]), (60, 1))
+    models = ("torrance_sparrow", "blinn_phong")
+    results = {}
+    for eng in ("numpy", "numba"):
+        s, _ = fitting.Samples.from_dome(wi, wo, irr, rad, engine=eng)
+        normal, _ = fitting.photometric_normals(s, scan, 6, min_lights=4)
+        ci, co, ft2, use, f_r = fitting.brdf_samples(s, normal)
+        alb, _ = fitting.albedo_stable_minimum(s, f_r, ci, co, ft2, use)
+        f_s = fitting.specular_residual(s, f_r, np.nan_to_num(alb), ft2)
+        common = dict(cos=(ci, co), ft2=ft2, min_samples=10)
+        for limits in ({"blinn_phong": np.radians(60)}, {"blinn_phong": np.radians(60), "torrance_sparrow": 1.2}):
+            fits = fitting.fit_specular_models(s, normal, f_s, use, models, max_angle=limits, **common)
+            for m in models:
+                if m not in limits:
+                    continue
+                c = np.float32(np.cos(limits[m]))
+                alone = fitting.fit_specular_models(
+                    s, normal, f_s, use & (ci > c) & (co > c), (m,), start=fits[m].lobe * 0 + np.nan, **common
+                )[m]
+                if m == models[0]:  # the first model starts cold in both fits
+                    np.testing.assert_array_equal(fits[m].rho_s, alone.rho_s)
+                np.testing.assert_array_equal(fits[m].n_samples, alone.n_samples)
+                assert (
+                    fits[m].n_samples < fitting.fit_specular_models(s, normal, f_s, use, (m,), **common)[m].n_samples
+                ).any()
+            results[(eng, len(limits))] = fits
+    for k in (1, 2):  # the same domains in both engines
+        for m in models:
+            np.testing.assert_array_equal(results[("numpy", k)][m].n_samples, results[("numba", k)][m].n_samples)
+
+
 def test_numba_engine_rejects_bad_input_like_numpy():
     with pytest.raises(FacestatsError, match="wi must have shape"):
         fitting.fit_specular(

@@ -68,10 +68,12 @@ def _ts_factors(ci, co, io, eta):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _all_factors(ci, co, io, f_s, use, ft2, eta, want_ts, want_bp):
-    """Every sample's keep flag, y, TS (z, A), clipped cos δ (BP) and d, uncompacted (a vectorised loop)."""
+def _all_factors(ci, co, io, f_s, use, ft2, eta, want_ts, want_bp, limit, limit_ts, limit_bp):
+    """Every sample's keep flags (the full domain; the limited one), y, TS (z, A), clipped cos δ (BP) and d,
+    uncompacted (a vectorised loop)."""
     n_s = ci.shape[0]
     keep = np.empty(n_s, np.bool_)
+    keep_limited = np.empty(n_s, np.bool_)
     y = np.empty(n_s, np.float32)
     ts_z = np.empty(n_s if want_ts else 0, np.float32)
     ts_a = np.empty(n_s if want_ts else 0, np.float32)
@@ -81,6 +83,7 @@ def _all_factors(ci, co, io, f_s, use, ft2, eta, want_ts, want_bp):
     for s in range(n_s):  # every sample, no branches out of the loop: vectorised
         c_i, c_o, fs, io_s = ci[s], co[s], f_s[s], io[s]
         ok = use[s] & np.isfinite(fs) & (c_i > 0) & (c_o > 0)
+        ok_limited = ok & (c_i > limit) & (c_o > limit)
         y[s] = fs * c_i
         if with_d:
             d[s] = -(ft2[s] * c_i) / _THREE_PI
@@ -89,17 +92,22 @@ def _all_factors(ci, co, io, f_s, use, ft2, eta, want_ts, want_bp):
             ts_z[s] = tz
             ts_a[s] = ta
             ok = ok & (ta > 0)  # A underflows only in extreme geometry
+            ok_limited = ok_limited & ((ta > 0) | ~limit_ts)
         if want_bp:
             cd = (c_i + c_o) / np.sqrt(max(_TWO + _TWO * io_s, np.float32(1e-12)))
             cos_d[s] = min(max(cd, np.float32(1e-6)), _ONE)
-            ok = ok & (c_i / _TWO_PI > 0)
+            positive = c_i / _TWO_PI > 0
+            ok = ok & positive
+            ok_limited = ok_limited & (positive | ~limit_bp)
         keep[s] = ok
-    return keep, y, ts_z, ts_a, cos_d, d
+        keep_limited[s] = ok_limited
+    return keep, keep_limited, y, ts_z, ts_a, cos_d, d
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def specular_inputs(ci, co, io, f_s, use, ft2, starts, counts, eta, want_ts, want_bp):
-    """Kept samples of eq. 14 and their factors, in per-texel runs (module docstring).
+def specular_inputs(ci, co, io, f_s, use, ft2, starts, counts, eta, want_ts, want_bp, limit, limit_ts, limit_bp):
+    """Kept samples of eq. 14 and their factors, in per-texel runs (module docstring), on the full domain
+    and on one domain limited to θi and θo below an angle.
 
     Parameters
     ----------
@@ -113,34 +121,70 @@ def specular_inputs(ci, co, io, f_s, use, ft2, starts, counts, eta, want_ts, wan
     eta : float32
     want_ts, want_bp : bool
         Models whose factors are wanted (a sample is kept only where every wanted A > 0).
+    limit : float32
+        Cosine of the limited domain's angle: its samples also have cos θi and cos θo above it
+        (−2: the whole domain again; its arrays are then not formed).
+    limit_ts, limit_bp : bool
+        Models fitted on the limited domain (a sample is kept there where their A > 0), among the
+        wanted ones.
 
     Returns
     -------
-    kept : int64 (T,)
-        Kept samples per texel.
-    y, ts_z, ts_a, bp_z, bp_a, d : float32 (S',)
-        Compacted; a model's factors (or d) are empty when not wanted.
+    full, limited : tuple
+        Each (kept, y, ts_z, ts_a, bp_z, bp_a, d): ``kept`` int64 (T,) kept samples per texel,
+        the others float32 (S'), compacted; a model's factors (or d) are empty when not wanted.
+        The same per-sample values, whichever domain keeps them.
     """
     n_s = ci.shape[0]
-    keep, y, ts_z, ts_a, cos_d, d = _all_factors(ci, co, io, f_s, use, ft2, eta, want_ts, want_bp)
+    keep, keep_limited, y, ts_z, ts_a, cos_d, d = _all_factors(
+        ci, co, io, f_s, use, ft2, eta, want_ts, want_bp, limit, limit_ts, limit_bp
+    )
     bp_z = np.empty(n_s if want_bp else 0, np.float32)
     if want_bp:
         fill_log(cos_d, bp_z, np.empty(n_s, np.int32))
-    with_d = d.shape[0] > 0
-    kept = np.zeros(starts.shape[0], np.int64)
+    bp_a = np.empty(n_s if want_bp else 0, np.float32)
+    for s in range(bp_a.shape[0]):
+        bp_a[s] = ci[s] / _TWO_PI
+    limited = _compact(
+        keep_limited if limit > -2 else keep[:0], starts, counts, y, ts_z, ts_a, bp_z, bp_a, d, limit_ts, limit_bp
+    )
+    full = _compact(keep, starts, counts, y, ts_z, ts_a, bp_z, bp_a, d, want_ts, want_bp)
+    return full, limited
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _compact(keep, starts, counts, y, ts_z, ts_a, bp_z, bp_a, d, with_ts, with_bp):
+    """The samples with ``keep`` in per-texel runs: (kept per texel, y, ts_z, ts_a, bp_z, bp_a, d), copies
+    (a model's arrays empty unless ``with_*``, d empty without it; all empty for an empty ``keep``)."""
+    n_s = keep.shape[0]
+    kept = np.zeros(starts.shape[0] if n_s > 0 else 0, np.int64)
+    index = np.empty(n_s, np.int64)
     m = 0
-    for t in range(starts.shape[0]):  # compaction into per-texel runs, in place and branch-free
+    for t in range(kept.shape[0]):  # branch-free: every sample is written, the next one overwrites it if dropped
         m0 = m
         for s in range(starts[t], starts[t] + counts[t]):
-            y[m] = y[s]
-            if with_d:
-                d[m] = d[s]
-            if want_ts:
-                ts_z[m] = ts_z[s]
-                ts_a[m] = ts_a[s]
-            if want_bp:
-                bp_z[m] = bp_z[s]
-                cos_d[m] = ci[s] / _TWO_PI
+            index[m] = s
             m += keep[s]
         kept[t] = m - m0
-    return kept, y[:m], ts_z[:m], ts_a[:m], bp_z[:m], cos_d[:m], d[:m]
+    index = index[:m]
+    with_d = d.shape[0] > 0 and n_s > 0
+    with_ts = with_ts and n_s > 0
+    with_bp = with_bp and n_s > 0
+    return (
+        kept,
+        _gather(y, index, True),
+        _gather(ts_z, index, with_ts),
+        _gather(ts_a, index, with_ts),
+        _gather(bp_z, index, with_bp),
+        _gather(bp_a, index, with_bp),
+        _gather(d, index, with_d),
+    )
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather(values, index, wanted):
+    """``values[index]`` (a vectorised gather), or an empty array if not ``wanted``."""
+    out = np.empty(index.shape[0] if wanted else 0, values.dtype)
+    for k in range(out.shape[0]):
+        out[k] = values[index[k]]
+    return out

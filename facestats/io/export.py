@@ -48,7 +48,7 @@ from facestats.core.version import __version__
 from facestats.errors import ValidationError
 from facestats.io.index import utc_now
 from facestats.io.query import SCATTERING, UNITS
-from facestats.io.summary import HIST_BINS, column
+from facestats.io.summary import HIST_BINS, IDENTITY_COLUMNS, column
 
 __all__ = ["EXPORT_FORMAT", "export_statistics"]
 
@@ -159,7 +159,8 @@ def _write_release(store, out: OutputSet, formats) -> None:
     rows = [entries[i]["row"] for i in ids]
     hists = [entries[i]["albedo_hist"] for i in ids]
     if "csv" in formats:
-        cols = list(dict.fromkeys(k for r in rows for k in r))  # every column, in first-seen order
+        # every column, in first-seen order (an empty store: the identity columns, a header without rows)
+        cols = list(dict.fromkeys(k for r in rows for k in r)) or list(IDENTITY_COLUMNS)
         with open(out.path("subjects.csv"), "w", newline="") as fh:
             w = csv.writer(fh)
             w.writerow(cols)

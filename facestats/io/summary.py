@@ -41,6 +41,7 @@ from facestats.io.schema import provenance, subject_kind
 
 __all__ = [
     "HIST_BINS",
+    "IDENTITY_COLUMNS",
     "BRDF_PARAMS",
     "MODEL_PARAMS",
     "region_samples",
@@ -222,6 +223,10 @@ def _covariance(x, y) -> float:
     return float(np.dot(x - x.mean(), y - y.mean()) / (x.size - 1))
 
 
+#: The first columns of every index row: who the subject is, what kind and from where.
+IDENTITY_COLUMNS = ("subject_id", "person_id", "age", "gender", "skin_type", "condition", "kind", "source")
+
+
 def summarise_subject(ds) -> dict:
     """The population-index row of a subject (see the module docstring for the columns).
 
@@ -236,16 +241,17 @@ def summarise_subject(ds) -> dict:
         ``{column: value}`` in a fixed column order; missing quantities are NaN.
     """
     a = ds.attrs
-    row = {
-        "subject_id": str(a["subject_id"]),
-        "person_id": str(a.get("person_id", a["subject_id"])),
-        "age": int(a["age"]),
-        "gender": str(a["gender"]),
-        "skin_type": int(a["skin_type"]),
-        "condition": str(a["condition"]),
-        "kind": subject_kind(ds),
-    }
-    row["source"] = str(provenance(ds).get("source", ""))
+    identity = (
+        str(a["subject_id"]),
+        str(a.get("person_id", a["subject_id"])),
+        int(a["age"]),
+        str(a["gender"]),
+        int(a["skin_type"]),
+        str(a["condition"]),
+        subject_kind(ds),
+        str(provenance(ds).get("source", "")),
+    )
+    row = dict(zip(IDENTITY_COLUMNS, identity))
     _add_brdf_columns(row, ds)
     _add_scattering_columns(row, ds)
     alb = _albedo_values(ds)

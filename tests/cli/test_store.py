@@ -135,6 +135,20 @@ def test_validate_and_repair(stores, tmp_path):
     assert r.returncode == 2 and "is a read-only zip store: --purge --yes needs a directory store" in r.stderr
 
 
+def test_export_of_an_empty_store_writes_headers_and_no_rows(tmp_path):
+    from facestats.io.summary import IDENTITY_COLUMNS
+
+    store = tmp_path / "empty.zarr"
+    open_store(store, mode="a").close()
+    out = tmp_path / "release"
+    r = run_cli("export", "--store", store, "--out", out)
+    assert r.returncode == 0, r.stderr
+    lines = (out / "subjects.csv").read_text().splitlines()
+    assert lines == [",".join(IDENTITY_COLUMNS)]
+    assert (out / "albedo_histograms.csv").read_text().splitlines()[0].startswith("subject_id,channel,bin_000")
+    assert json.loads((out / "statistics.json").read_text())["subjects"] == []
+
+
 def test_export(stores, tmp_path):
     out = tmp_path / "release"
     r = run_cli("export", "--store", stores[1], "--out", out)

@@ -11,6 +11,9 @@ Figures, each beside its named baseline:
   workers), and the largest relative differences of the maps between the two
   engines over the face (the parameters must stay within 1e-3 of the numpy
   engine's).
+* ``fit_stages``: where one process's fit time goes, ms per 2,048-lumitexel block of the
+  full-resolution capture for reading and each stage of ``fit_lumitexels`` (no baseline: the figures
+  to compare are the same benchmark at another commit).
 * ``codec``: decoding the radiance of a capture stored with Blosc-LZ4 (what
   captures use) against zarr's default zstd (the baseline): µs per lumitexel
   and bytes.
@@ -126,6 +129,42 @@ def bench_full_resolution(workers=2, block=2048, grid=None, map_size=None, basel
                 figures[f"median_rel_diff_{var}"] = med
     figures["workers"] = workers
     return figures
+
+
+def bench_fit_stages(blocks=20, block=2048, grid=None, map_size=None, engine="numba"):
+    """Where one process's fit time goes: ms per ``block``-lumitexel block for reading and each stage.
+
+    ``blocks`` blocks from the middle third of the full-resolution capture (``_capture``), one process,
+    after one warm-up block; stages as :func:`facestats.pipeline.fit_lumitexels` times them
+    (``timings=``), reading as :meth:`facestats.acquire.capture.Capture.lumitexels`.  The projected
+    one-core time of the whole capture is the per-block total times its blocks.
+    """
+    from facestats.acquire.capture import open_capture
+    from facestats.pipeline import FitSettings
+    from facestats.pipeline.lumitexels import fit_lumitexels
+
+    path, _ = _capture(grid, map_size)
+    capture = open_capture(path)
+    settings = FitSettings(block=block, engine=engine)
+    ranges = list(capture.blocks(block))
+    first = len(ranges) // 3
+    chosen = ranges[first : first + blocks]
+    fit_lumitexels(capture.lumitexels(*chosen[0]), settings)  # warm-up: kernels loaded, caches filled
+    timings = {"read": 0.0}
+    for a, b in chosen:
+        t0 = time.perf_counter()
+        lt = capture.lumitexels(a, b)
+        timings["read"] += time.perf_counter() - t0
+        fit_lumitexels(lt, settings, timings=timings)
+    out = {f"{k}_ms_per_block": 1e3 * v / len(chosen) for k, v in timings.items()}
+    total = sum(timings.values()) / len(chosen)
+    return {
+        "total_ms_per_block": 1e3 * total,
+        **out,
+        "blocks": len(chosen),
+        "block": block,
+        "projected_one_core_s": total * len(ranges),
+    }
 
 
 def bench_codec(grid=256, map_size=512, lumitexels=8192):
@@ -431,6 +470,7 @@ def bench_blinn_phong_maps(n_subjects=6, grid=48):
 
 BENCHMARKS = [
     ("full_resolution", bench_full_resolution),
+    ("fit_stages", bench_fit_stages),
     ("codec", bench_codec),
     ("cluster_scaling", bench_cluster_scaling),
     ("calibration", bench_calibration),
@@ -442,6 +482,7 @@ BENCHMARKS = [
 #: Tiny sizes for the test suite (the full-resolution case keeps its maps finer than its grid).
 SMOKE = {
     "full_resolution": {"workers": 1, "block": 256, "grid": 24, "map_size": 64},
+    "fit_stages": {"blocks": 2, "block": 64, "grid": 24, "map_size": 64},
     "codec": {"grid": 16, "map_size": 32, "lumitexels": 200},
     "cluster_scaling": {"n": 2, "grid": 16, "map_size": 32, "workers": (1, 2), "block": 256},
     "calibration": {"n_subjects": 1, "grid": 16},

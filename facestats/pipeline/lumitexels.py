@@ -8,6 +8,8 @@ residual (eq. 10) and the batch specular fits (eq. 14).
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from facestats.errors import ValidationError
@@ -22,7 +24,7 @@ __all__ = ["fit_lumitexels", "PIECE"]
 PIECE = 256
 
 
-def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
+def fit_lumitexels(lt, settings: FitSettings | None = None, *, timings: dict | None = None) -> dict:
     """Stages 1-4 on a block of lumitexels (:class:`facestats.acquire.capture.Lumitexels`).
 
     The block's valid samples (minus ``settings.exclude_cameras``) are flattened
@@ -33,7 +35,8 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
     ``settings.refine_albedo``; the grey specular residual (eq. 10); and the
     batch fit of each of ``settings.models`` (eq. 14), the later ones started
     from the first.  Lumitexels are independent: a block runs in pieces of
-    :data:`PIECE` lumitexels (cache-sized), concatenated.
+    :data:`PIECE` lumitexels (cache-sized), concatenated.  ``timings``, if given, accumulates the
+    wall time of each stage (seconds, by stage name; ``benchmarks/bench_scale.bench_fit_stages``).
 
     Returns
     -------
@@ -47,45 +50,69 @@ def fit_lumitexels(lt, settings: FitSettings | None = None) -> dict:
         grey diffuse level fitted alongside: :mod:`facestats.model.fitting.diffuse_level`).
     """
     st = settings or FitSettings()
+    clock = _Clock(timings)
     if lt.n <= PIECE:
-        return _fit_piece(lt, st)
-    parts = [_fit_piece(lt[a : a + PIECE], st) for a in range(0, lt.n, PIECE)]
+        return _fit_piece(lt, st, clock)
+    parts = [_fit_piece(lt[a : a + PIECE], st, clock) for a in range(0, lt.n, PIECE)]
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
-def _fit_piece(lt, st):
-    """Stages 1-4 on lumitexels ``lt`` (:func:`fit_lumitexels`)."""
+class _Clock:
+    """Wall time per stage into a dict (or nothing without one): ``lap(name)`` adds the time since the last lap."""
+
+    def __init__(self, timings):
+        self.timings = timings
+        self.last = time.perf_counter()
+
+    def lap(self, name):
+        if self.timings is not None:
+            now = time.perf_counter()
+            self.timings[name] = self.timings.get(name, 0.0) + now - self.last
+            self.last = now
+
+
+def _fit_piece(lt, st, clock):
+    """Stages 1-4 on lumitexels ``lt`` (:func:`fit_lumitexels`), timed by ``clock``."""
     n_cam = lt.wo.shape[1]
     if any(c >= n_cam for c in st.exclude_cameras):
         raise ValidationError(f"exclude_cameras must be camera indices below {n_cam}, got {st.exclude_cameras!r}")
     keep = np.ones(n_cam, bool)
     keep[list(st.exclude_cameras)] = False
+    clock.lap("other")
     samples, n_invalid = fitting.Samples.from_dome(
         lt.wi, lt.wo, lt.irradiance, lt.radiance, keep_cameras=keep, engine=st.engine
     )
+    clock.lap("samples")
     out = {"n_invalid": n_invalid}
     # Stage 1: normals.
     normal, _ = fitting.photometric_normals(samples, lt.scan_normal, n_cam, eta=st.eta)
     out["normal"] = normal
+    clock.lap("photometric_normals")
     if st.micro_normals:
         out["micro_normal"] = fitting.micro_normals(samples, n_cam)
+        clock.lap("micro_normals")
     # Stage 2: albedo from BRDF samples with the photometric normal (eq. 8).
     cos_i, cos_o, ft2, use, f_r = fitting.brdf_samples(samples, normal, st.eta, st.max_angle_deg)
+    clock.lap("brdf_samples")
     albedo_min, _ = fitting.albedo_stable_minimum(
         samples, f_r, cos_i, cos_o, ft2, use, discard=st.discard, grazing_penalty=st.grazing_penalty
     )
+    clock.lap("stable_minimum")
     albedo = np.where(np.isfinite(albedo_min), albedo_min, 0).astype(np.float32)
     out["n_samples"] = samples.count(use)
     out["n_grazing"] = samples.count(~use)
+    clock.lap("other")
     if st.refine_albedo:
         # Stage 2b: the mean over specular-free samples removes the noise bias of the minimum.
         cos_half = samples.cos_half(cos_i, cos_o)
         refined, n_ref = fitting.refine_albedo(samples, f_r, ft2, cos_half, use)
         ok = np.isfinite(refined).all(1) & (n_ref >= st.min_samples)
         albedo = np.where(ok[:, None], refined, albedo).astype(np.float32)
+        clock.lap("refine_albedo")
     # Stages 3-4: the specular residual (eq. 10) and the batch fit of each model (eq. 14), each with
     # the grey diffuse level left by eq. 10 (fitting.diffuse_level).
     f_s = fitting.specular_residual(samples, f_r, albedo, ft2)
+    clock.lap("specular_residual")
     fits = fitting.fit_specular_models(
         samples,
         normal,
@@ -100,6 +127,7 @@ def _fit_piece(lt, st):
         ft2=ft2,
         max_angle=_model_angles(st),
     )
+    clock.lap("specular_fits")
     few = out["n_samples"] < st.min_samples
     out["albedo"] = np.where(few[:, None], np.nan, albedo).astype(np.float32)
     out["albedo_min"] = albedo_min.astype(np.float32)
@@ -108,6 +136,7 @@ def _fit_piece(lt, st):
         k_rho, k_lobe, k_err = MAP_VARS[key]
         out[k_rho], out[k_lobe], out[k_err], out[f"{key}_flag"] = res.rho_s, res.lobe, res.error, res.flags
         out[STD_VARS[key][0]], out[STD_VARS[key][1]] = res.rho_s_std, res.lobe_std
+    clock.lap("other")
     return out
 
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from facestats import FacestatsError
+from facestats.core.conventions import FLAG_BITS
 from facestats.model import brdf, fitting
 from facestats.model.fitting import engine as engines
 from tests.helpers import hemisphere_pairs
@@ -181,6 +182,23 @@ def test_angle_limits_give_each_model_its_domain_in_both_engines(rng):
     for k in (1, 2):  # the same domains in both engines
         for m in models:
             np.testing.assert_array_equal(results[("numpy", k)][m].n_samples, results[("numba", k)][m].n_samples)
+
+
+def test_lumitexels_without_valid_samples_are_flagged_few_samples_in_both_engines(rng):
+    wi, wo, irr, rad = _grid(rng, n=20, n_cam=4, n_led=30, frac=0.8)
+    rad[:] = np.nan  # no valid sample anywhere
+    normal = np.tile(np.float32([0, 0, 1]), (20, 1))
+    for eng in ("numpy", "numba"):
+        s, _ = fitting.Samples.from_dome(wi, wo, irr, rad, engine=eng)
+        ci, co, ft2, use, f_r = fitting.brdf_samples(s, normal)
+        f_s = fitting.specular_residual(s, f_r, np.zeros((20, 3), np.float32), ft2)
+        models = ("torrance_sparrow", "blinn_phong")
+        fits = fitting.fit_specular_models(
+            s, normal, f_s, use, models, cos=(ci, co), ft2=ft2, max_angle={models[1]: 1.2}
+        )
+        for fit in fits.values():
+            assert s.n == 0 and fit.n_samples.shape == (20,) and (fit.n_samples == 0).all()
+            assert (fit.flags == FLAG_BITS["few_samples"]).all() and np.isnan(fit.rho_s).all()
 
 
 def test_numba_engine_rejects_bad_input_like_numpy():

@@ -145,19 +145,17 @@ def specular_inputs(ci, co, io, f_s, use, ft2, starts, counts, eta, want_ts, wan
     bp_a = np.empty(n_s if want_bp else 0, np.float32)
     for s in range(bp_a.shape[0]):
         bp_a[s] = ci[s] / _TWO_PI
-    limited = _compact(
-        keep_limited if limit > -2 else keep[:0], starts, counts, y, ts_z, ts_a, bp_z, bp_a, d, limit_ts, limit_bp
-    )
-    full = _compact(keep, starts, counts, y, ts_z, ts_a, bp_z, bp_a, d, want_ts, want_bp)
+    limited = _compact(keep_limited, starts, counts, y, ts_z, ts_a, bp_z, bp_a, d, limit_ts, limit_bp, limit > -2)
+    full = _compact(keep, starts, counts, y, ts_z, ts_a, bp_z, bp_a, d, want_ts, want_bp, True)
     return full, limited
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _compact(keep, starts, counts, y, ts_z, ts_a, bp_z, bp_a, d, with_ts, with_bp):
+def _compact(keep, starts, counts, y, ts_z, ts_a, bp_z, bp_a, d, with_ts, with_bp, wanted):
     """The samples with ``keep`` in per-texel runs: (kept per texel, y, ts_z, ts_a, bp_z, bp_a, d), copies
-    (a model's arrays empty unless ``with_*``, d empty without it; all empty for an empty ``keep``)."""
-    n_s = keep.shape[0]
-    kept = np.zeros(starts.shape[0] if n_s > 0 else 0, np.int64)
+    (a model's arrays empty unless ``with_*``, d empty without it; all empty unless ``wanted``)."""
+    n_s = keep.shape[0] if wanted else 0
+    kept = np.zeros(starts.shape[0] if wanted else 0, np.int64)
     index = np.empty(n_s, np.int64)
     m = 0
     for t in range(kept.shape[0]):  # branch-free: every sample is written, the next one overwrites it if dropped
@@ -167,17 +165,14 @@ def _compact(keep, starts, counts, y, ts_z, ts_a, bp_z, bp_a, d, with_ts, with_b
             m += keep[s]
         kept[t] = m - m0
     index = index[:m]
-    with_d = d.shape[0] > 0 and n_s > 0
-    with_ts = with_ts and n_s > 0
-    with_bp = with_bp and n_s > 0
     return (
         kept,
-        _gather(y, index, True),
-        _gather(ts_z, index, with_ts),
-        _gather(ts_a, index, with_ts),
-        _gather(bp_z, index, with_bp),
-        _gather(bp_a, index, with_bp),
-        _gather(d, index, with_d),
+        _gather(y, index, wanted),
+        _gather(ts_z, index, wanted and with_ts),
+        _gather(ts_a, index, wanted and with_ts),
+        _gather(bp_z, index, wanted and with_bp),
+        _gather(bp_a, index, wanted and with_bp),
+        _gather(d, index, wanted and d.shape[0] > 0),
     )
 
 

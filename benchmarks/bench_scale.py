@@ -135,7 +135,7 @@ def bench_fit_stages(blocks=20, block=2048, grid=None, map_size=None, engine="nu
     """Where one process's fit time goes: ms per ``block``-lumitexel block for reading and each stage.
 
     ``blocks`` blocks from the middle third of the full-resolution capture (``_capture``), one process,
-    after one warm-up block; stages as :func:`facestats.pipeline.fit_lumitexels` times them
+    after one warm-up block (the one before them); stages as :func:`facestats.pipeline.fit_lumitexels` times them
     (``timings=``), reading as :meth:`facestats.acquire.capture.Capture.lumitexels`.  The projected
     one-core time of the whole capture is the per-block total times its blocks.
     """
@@ -147,9 +147,9 @@ def bench_fit_stages(blocks=20, block=2048, grid=None, map_size=None, engine="nu
     capture = open_capture(path)
     settings = FitSettings(block=block, engine=engine)
     ranges = list(capture.blocks(block))
-    first = len(ranges) // 3
+    first = max(1, len(ranges) // 3)
     chosen = ranges[first : first + blocks]
-    fit_lumitexels(capture.lumitexels(*chosen[0]), settings)  # warm-up: kernels loaded, caches filled
+    fit_lumitexels(capture.lumitexels(*ranges[first - 1]), settings)  # warm-up (kernels loaded), not measured
     timings = {"read": 0.0}
     for a, b in chosen:
         t0 = time.perf_counter()

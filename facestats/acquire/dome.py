@@ -297,9 +297,11 @@ class Dome:
 
         ``backend`` (:data:`facestats.core.compiled.BACKENDS`): ``"numba"`` computes them in one compiled
         pass (:func:`facestats.acquire.dome_numba.unit_directions32`, the same float64 arithmetic, so the
-        same bits) without the float64 (N, T, 3) temporaries; ``"auto"`` uses it when numba imports.
+        same bits) without the float64 (N, T, 3) temporaries; ``"auto"`` uses it when numba imports (the fit's
+        engine setting does not choose here: both give the same bits).
         """
         pts = np.ascontiguousarray(points, np.float64)
+        check_shape(pts, "points", (None, 3))
         if resolve_backend(backend) == "numba":
             from facestats.acquire.dome_numba import unit_directions32  # imports numba: only when used
 

@@ -9,12 +9,13 @@ import numpy as np
 __all__ = ["unit_directions32"]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def unit_directions32(targets, points):
     """Unit vectors (N, T, 3) from ``points`` (N, 3) towards ``targets`` (T, 3), float32.
 
-    Computed in float64 as :meth:`facestats.acquire.dome.Dome._towards` computes them (offset, squared
-    length summed x, y, z in that order, division by its square root), then rounded: the same bits.
+    Computed in float64 as :meth:`facestats.acquire.dome.Dome.light_directions` computes them (offset,
+    squared length summed x, y, z in that order, division by its square root; NaN for a point at a
+    target), then rounded: the same bits.
     """
     n, m = points.shape[0], targets.shape[0]
     out = np.empty((n, m, 3), np.float32)

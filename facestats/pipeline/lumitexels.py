@@ -54,7 +54,9 @@ def fit_lumitexels(lt, settings: FitSettings | None = None, *, timings: dict | N
     if lt.n <= PIECE:
         return _fit_piece(lt, st, clock)
     parts = [_fit_piece(lt[a : a + PIECE], st, clock) for a in range(0, lt.n, PIECE)]
-    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    clock.lap("other")
+    return out
 
 
 class _Clock:

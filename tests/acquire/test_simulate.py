@@ -12,6 +12,7 @@ from facestats.acquire.hdr import CameraResponse
 from facestats.acquire.synthetic.face import procedural_face
 from facestats.acquire.synthetic.population import SubjectTruth, synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator
+from facestats.errors import ValidationError
 from facestats.model import brdf, dipole
 from facestats.model.fresnel import fresnel_reflectance, fresnel_transmittance
 
@@ -220,6 +221,12 @@ def test_float32_directions_are_the_rounded_float64_ones_with_either_backend():
             assert got.dtype == np.float32
             np.testing.assert_array_equal(got, ref, strict=True)
     np.testing.assert_allclose(np.linalg.norm(want[0], axis=-1), 1, atol=1e-6)
+    at_led = dome.led_position[:1]  # a point at an LED: no direction (NaN) with either backend
+    for backend in ("numba", "numpy"):
+        with np.errstate(invalid="ignore"):  # numpy's 0/0
+            assert np.isnan(dome.directions32(at_led, backend=backend)[0][0, 0]).all()
+        with pytest.raises(ValidationError, match="points"):
+            dome.directions32(pts[:, :2], backend=backend)
 
 
 def test_real_mesh_loader_round_trip(tmp_path):

@@ -198,6 +198,14 @@ def _check_camera_grid(samples, n_cameras):
             f"samples must hold one wo_grid direction per camera (build them with Samples.from_grid): "
             f"n_cameras is {n_cameras}, got wo_grid of shape {samples.wo_grid.shape}"
         )
+    for name in ("wi_grid", "wo_grid"):  # a point at a light or camera has no direction
+        bad = ~np.isfinite(getattr(samples, name)).all(axis=-1)
+        if bad.any():
+            t, k = np.argwhere(bad)[0]
+            raise ValidationError(
+                f"samples.{name} must hold finite directions, got {getattr(samples, name)[t, k].tolist()} "
+                f"for lumitexel {t}, {'light' if name == 'wi_grid' else 'camera'} {k}"
+            )
     return n_cameras
 
 

@@ -34,7 +34,13 @@ import numpy as np
 from facestats.errors import ValidationError
 from facestats.model.fitting.engine import resolve_engine
 
-__all__ = ["Samples", "segment_sum", "masked", "order_keys", "valid_samples"]
+__all__ = ["Samples", "run_starts", "segment_sum", "masked", "order_keys", "valid_samples"]
+
+
+def run_starts(counts):
+    """Start offsets (int64) of consecutive runs of ``counts`` samples: one per run, none for no runs."""
+    c = np.asarray(counts, np.int64)
+    return np.cumsum(c) - c
 
 
 def segment_sum(values, starts, counts):
@@ -244,7 +250,7 @@ class Samples:
         valid = valid_samples(radiance, irradiance) & keep[None, :, None]
         out = cls.from_grid(wi, wo, irradiance, radiance, valid)
         out.engine = engine
-        return out, (~valid).reshape(n, -1).sum(1)
+        return out, (~valid).reshape(n, n_cam * n_led).sum(1)
 
     @classmethod
     def from_arrays(cls, wi, wo, valid, radiance=None, irradiance=None, engine=None):
@@ -287,8 +293,7 @@ class Samples:
     def starts(self) -> np.ndarray:
         """Offset of each lumitexel's run of samples, shape (n_texels,)."""
         if "starts" not in self._cache:
-            c = self.counts
-            self._cache["starts"] = np.concatenate([[0], np.cumsum(c)[:-1]]).astype(np.int64)
+            self._cache["starts"] = run_starts(self.counts)
         return self._cache["starts"]
 
     @property
@@ -318,7 +323,7 @@ class Samples:
                 bound = np.flatnonzero(np.concatenate([[True], k[1:] != k[:-1]])) if k.size else np.zeros(0, np.int64)
                 key = k[bound]
                 cnt = np.diff(np.concatenate([bound, [k.size]]))
-            start = np.concatenate([[0], np.cumsum(cnt)[:-1]]).astype(np.int64)
+            start = run_starts(cnt)
             self._cache["camera_run_triple"] = (key.astype(np.int64), start, cnt)
         return self._cache["camera_run_triple"]
 
@@ -435,7 +440,8 @@ class Samples:
     def cos_half(self, cos_i, cos_o) -> np.ndarray:
         """Per-sample N·H, H = (ωi + ωo)/‖ωi + ωo‖, from N·ωi and N·ωo: (cos θi + cos θo) / √(2 + 2 ωi·ωo)."""
         io = self.cos_io()
-        if self._compiled() and cos_i.dtype == cos_o.dtype == io.dtype == np.float32:
+        cos_i, cos_o = np.asarray(cos_i), np.asarray(cos_o)
+        if self._compiled() and cos_i.shape == cos_o.shape == io.shape and cos_i.dtype == cos_o.dtype == np.float32:
             # local import: the kernels import numba
             from facestats.model.fitting.kernels.samples import half_cosines
 

@@ -57,6 +57,7 @@ from facestats.errors import ValidationError
 from facestats.model.fitting.diffuse_level import STEPS, fit_diffuse_level
 from facestats.model.fitting.engine import resolve_engine
 from facestats.model.fitting.lobes import lobe_moments, lobe_sums
+from facestats.model.fitting.samples import run_starts
 from facestats.model.fitting.uncertainty import robust_variances, standard_errors
 
 __all__ = ["SpecularFit", "DEFAULT_BOUNDS", "PLAUSIBLE_LOBE", "solve_specular"]
@@ -151,8 +152,8 @@ def _check_solver_args(model, bounds, min_samples, max_iter, tol, max_relative_e
 
 
 def _segments(counts):
-    """Start offsets of contiguous per-texel runs with these (non-zero) sample counts."""
-    return np.concatenate([[0], np.cumsum(counts)[:-1]])
+    """Start offsets of contiguous per-texel runs with these (non-zero) sample counts (none for no runs)."""
+    return run_starts(counts)
 
 
 def _rsum(x, starts):

@@ -31,7 +31,7 @@ from facestats.core.validate import as_finite, as_float, check_choice, check_sha
 from facestats.errors import ValidationError
 from facestats.model.brdf import check_directions, torrance_sparrow_cosines_unchecked
 from facestats.model.fitting.engine import resolve_engine
-from facestats.model.fitting.samples import Samples, segment_sum
+from facestats.model.fitting.samples import Samples, run_starts, segment_sum
 from facestats.model.fitting.solver import DEFAULT_BOUNDS, SpecularFit, solve_specular
 from facestats.model.fitting.uncertainty import rms_error
 from facestats.model.fresnel import check_eta
@@ -247,31 +247,28 @@ def fit_specular_models(
 def _domain_inputs(samples, ci, co, f_s, use, models, groups, eta, ft2, engine):
     """(y, factors per model, kept count per texel, d) of the samples of eq. 14 in ``use``, by ``engine``, per
     domain: ``None`` the full one (every model's factors), and each angle limit of ``groups`` (its models'
-    factors, on the samples with θi and θo below it).  The compiled engine forms the full domain and the
-    first limited one in one pass."""
-    limits = [limit for limit in groups if limit is not None]
-    cosines = {
-        limit: np.float32(np.cos(as_finite(limit, "max_angle", 0, np.pi / 2, low_inclusive=False, unit="rad")))
-        for limit in limits
-    }
-    out = {}
+    factors, on the samples of ``use`` with cos θi and cos θo above the limit's cosine in float32, compared in
+    the dtype of ``ci``/``co``).  The compiled engine forms the full domain and the first limited one in one
+    pass."""
+    domains = {}
+    for limit in groups:
+        if limit is not None:
+            c = np.float32(np.cos(as_finite(limit, "max_angle", 0, np.pi / 2, low_inclusive=False, unit="rad")))
+            domains[limit] = np.asarray(use, bool) & (ci > c) & (co > c)
+    limits = list(domains)
     if engine == "numba":
-        args = (samples.starts, samples.counts, ci, co, samples.cos_io(), f_s)
         first = limits[0] if limits else None
-        out[None], limited = _kept_factors_compiled(
-            *args, use, tuple(models), eta, ft2, cosines.get(first), tuple(groups.get(first, ()))
+        runs = (samples.starts, samples.counts, ci, co, samples.cos_io(), f_s)
+        full, limited = _kept_factors_compiled(
+            *runs, use, models, eta, ft2, domains.get(first), tuple(groups.get(first, ()))
         )
-        if first is not None:
-            out[first] = limited
-    else:
-        out[None] = _kept_factors(samples, ci, co, f_s, use, tuple(models), eta, ft2)
+        out = {None: full} if first is None else {None: full, first: limited}
+        for limit in limits[1:]:
+            out[limit] = _kept_factors_compiled(*runs, domains[limit], groups[limit], eta, ft2)[0]
+        return out
+    out = {None: _kept_factors(samples, ci, co, f_s, use, tuple(models), eta, ft2)}
     for limit in limits:
-        if limit not in out:
-            use_g = np.asarray(use, bool) & (ci > cosines[limit]) & (co > cosines[limit])
-            if engine == "numba":
-                out[limit] = _kept_factors_compiled(*args, use_g, tuple(groups[limit]), eta, ft2)[0]
-            else:
-                out[limit] = _kept_factors(samples, ci, co, f_s, use_g, tuple(groups[limit]), eta, ft2)
+        out[limit] = _kept_factors(samples, ci, co, f_s, domains[limit], tuple(groups[limit]), eta, ft2)
     return out
 
 
@@ -304,7 +301,7 @@ def _rms_compiled(model, y, factors, counts, fit, d, shift):
         np.ascontiguousarray(factors[0], np.float32),
         np.ascontiguousarray(factors[1], np.float32),
         np.ascontiguousarray(d, np.float32) if with_d else np.zeros(0, np.float32),
-        np.concatenate([[0], np.cumsum(n_use)[:-1]]).astype(np.int64),
+        run_starts(n_use),
         n_use,
         good,
         np.asarray(fit.rho_s, np.float64),
@@ -364,26 +361,32 @@ def _kept_factors(samples, ci, co, f_s, use, models, eta, ft2=None):
     return (y * ci_u).astype(np.float32, copy=False), factors, counts, d
 
 
-def _kept_factors_compiled(starts, counts, ci, co, io, f_s, use, models, eta, ft2=None, limit=None, limit_models=()):
-    """:func:`_kept_factors` in one compiled pass (:func:`facestats.model.fitting.kernels.factors.specular_inputs`),
-    and, with a ``limit`` (the cosine of an angle), the same for ``limit_models`` on the samples with
-    cos θi and cos θo above it (else None)."""
+def _kept_factors_compiled(
+    starts, counts, ci, co, io, f_s, use, models, eta, ft2=None, use_limited=None, limit_models=()
+):
+    """:func:`_kept_factors` of the runs ``starts``, ``counts`` in one compiled pass
+    (:func:`facestats.model.fitting.kernels.factors.specular_inputs`), and, with ``use_limited``, the same
+    for ``limit_models`` (among ``models``) on those samples (else None)."""
     # local import: the kernels import numba
     from facestats.model.fitting.kernels.factors import specular_inputs
 
+    models, limit_models = tuple(models), tuple(limit_models)
+    if not set(limit_models) <= set(models):
+        raise ValidationError(f"limit_models must be among models {models!r}, got {limit_models!r}")
     full, limited = specular_inputs(
         np.ascontiguousarray(ci, np.float32),
         np.ascontiguousarray(co, np.float32),
         np.ascontiguousarray(io, np.float32),
         np.ascontiguousarray(f_s, np.float32),
         np.ascontiguousarray(use, bool),
+        use_limited is not None,
+        np.zeros(0, bool) if use_limited is None else np.ascontiguousarray(use_limited, bool),
         np.zeros(0, np.float32) if ft2 is None else np.ascontiguousarray(ft2, np.float32),
         starts,
         counts,
         np.float32(eta),
         "torrance_sparrow" in models,
         "blinn_phong" in models,
-        np.float32(-2.0 if limit is None else limit),
         "torrance_sparrow" in limit_models,
         "blinn_phong" in limit_models,
     )
@@ -392,7 +395,7 @@ def _kept_factors_compiled(starts, counts, ci, co, io, f_s, use, models, eta, ft
         all_factors = {"torrance_sparrow": (ts_z, ts_a), "blinn_phong": (bp_z, bp_a)}
         return y, {m: all_factors[m] for m in wanted}, kept, (None if ft2 is None else d)
 
-    return inputs(*full, models), (None if limit is None else inputs(*limited, limit_models))
+    return inputs(*full, models), (None if use_limited is None else inputs(*limited, limit_models))
 
 
 def _check_specular_inputs(samples, normal, f_s, use, start):
@@ -514,7 +517,7 @@ def _fit_dense_compiled(wi, wo, normal, f_s, valid, model, lim, eta, bounds, kwa
     counts, ci, co, io, fs = dense_samples(
         np.ascontiguousarray(wi), np.ascontiguousarray(wo), np.ascontiguousarray(normal), f_s, valid, float(lim)
     )
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    starts = run_starts(counts)
     (y, factors, kept, _), _ = _kept_factors_compiled(
         starts, counts, ci, co, io, fs, np.ones(fs.size, bool), (model,), eta
     )

@@ -65,10 +65,10 @@ def test_fast_exponential_and_logarithm_against_numpy(rng):
 def test_float16_to_float32_conversion_is_numpys_for_every_bit_pattern():
     """The kernel's conversion of the captured float16 radiance gives numpy's float32 bits for all 65,536 halves
     (zeros, subnormals, normals, ±inf and NaN payloads)."""
-    from facestats.model.fitting.kernels.samples import _halves_to_singles
+    from facestats.model.fitting.kernels.samples import halves_to_singles
 
     halves = np.arange(65536, dtype=np.uint32).astype(np.uint16)
-    got = _halves_to_singles(halves.astype(np.int32).reshape(2, -1).copy()).reshape(-1)
+    got = halves_to_singles(halves.astype(np.int32).reshape(2, -1).copy()).reshape(-1)
     np.testing.assert_array_equal(got.view(np.int32), halves.view(np.float16).astype(np.float32).view(np.int32))
 
 
@@ -121,6 +121,46 @@ def test_stages_agree_between_engines(rng):
     for x, y in zip(same0 + [k0], same1 + [k1]):
         assert_equal_bits(x, y)
     np.testing.assert_allclose(r1, r0, rtol=2e-6, equal_nan=True)
+
+
+def test_brdf_samples_at_a_signed_zero_cosine_are_numpys():
+    """cos θi = −0 exactly (every product −0): f_r = L/(E max(cos θi, 0)) is +inf in both engines (numpy's
+    maximum(−0, 0) is +0)."""
+    wi = np.float32([[[-0.6, -0.8, -0.0], [0.0, 0.6, 0.8]]])
+    wo = np.float32([[[0.0, 0.0, 1.0]]])
+    irr = np.ones((1, 2, 3), np.float32)
+    rad = np.full((1, 1, 2, 3), 0.5, np.float16)
+    normal = np.float32([[0.0, 0.0, 1.0]])
+    out = {}
+    for eng in ("numpy", "numba"):
+        s, _ = fitting.Samples.from_dome(wi, wo, irr, rad, engine=eng)
+        out[eng] = fitting.brdf_samples(s, normal)
+    assert np.signbit(out["numba"].cos_i[0]) and out["numba"].f_r[0, 0] == np.inf
+    for x, y in zip(out["numpy"], out["numba"]):
+        assert_equal_bits(x, y)
+
+
+def test_photometric_stereo_with_non_finite_values_in_both_engines(rng):
+    """A grey value that is NaN (+inf radiance over an irradiance whose channel sum overflows) is left out
+    alike by both engines; a light direction that is not finite is refused by name."""
+    wi, wo, irr, rad = _grid(rng, n=30, n_cam=6, n_led=40, frac=0.9)
+    irr[3, :5] = 3e38  # Σ E⊥ overflows to inf
+    rad[3, :, :5] = np.inf  # valid (≥ 0): L/E = inf/inf = NaN
+    scan = np.tile(np.float32([0, 0, 1]), (30, 1))
+    out = {}
+    for eng in ("numpy", "numba"):
+        s, _ = fitting.Samples.from_dome(wi, wo, irr, rad, engine=eng)
+        with np.errstate(invalid="ignore", over="ignore"):
+            assert np.isnan(s.grey()).any()
+            out[eng] = fitting.photometric_normals(s, scan, 6, min_lights=4)
+    assert np.isfinite(out["numba"][0]).all()
+    for x, y in zip(out["numpy"], out["numba"]):
+        assert_equal_bits(x, y)
+    wi[2, 7] = np.nan
+    for eng in ("numpy", "numba"):
+        s, _ = fitting.Samples.from_dome(wi, wo, irr, rad, engine=eng)
+        with pytest.raises(FacestatsError, match="wi_grid must hold finite directions.*lumitexel 2, light 7"):
+            fitting.photometric_normals(s, scan, 6, min_lights=4)
 
 
 def test_specular_fits_agree_between_engines_and_recover_the_truth(rng):
@@ -179,7 +219,17 @@ def test_angle_limits_give_each_model_its_domain_in_both_engines(rng):
                     fits[m].n_samples < fitting.fit_specular_models(s, normal, f_s, use, (m,), **common)[m].n_samples
                 ).any()
             results[(eng, len(limits))] = fits
-    for k in (1, 2):  # the same domains in both engines
+        # float64 cosines: the limits are compared in float64 in both engines (the float32 factors follow)
+        limits = {"blinn_phong": np.radians(60)}
+        cos64 = (ci.astype(np.float64), co.astype(np.float64))
+        cos64[0][::7] = np.float64(np.float32(np.cos(limits["blinn_phong"]))) + 1e-12  # above the limit only in float64
+        results[(eng, "float64")] = fitting.fit_specular_models(
+            s, normal, f_s, use, models, max_angle=limits, **{**common, "cos": cos64}
+        )
+        c = np.cos(limits["blinn_phong"]).astype(np.float32)
+        want = s.count(use & (cos64[0] > c) & (cos64[1] > c) & np.isfinite(f_s))
+        np.testing.assert_array_equal(results[(eng, "float64")]["blinn_phong"].n_samples, want)
+    for k in (1, 2, "float64"):  # the same domains in both engines
         for m in models:
             np.testing.assert_array_equal(results[("numpy", k)][m].n_samples, results[("numba", k)][m].n_samples)
 
@@ -199,6 +249,26 @@ def test_lumitexels_without_valid_samples_are_flagged_few_samples_in_both_engine
         for fit in fits.values():
             assert s.n == 0 and fit.n_samples.shape == (20,) and (fit.n_samples == 0).all()
             assert (fit.flags == FLAG_BITS["few_samples"]).all() and np.isnan(fit.rho_s).all()
+
+
+def test_a_block_of_no_lumitexels_gives_empty_results_in_both_engines():
+    """Zero lumitexels (an empty block) run through every stage: empty results, no crash (the compiled
+    kernels once read a run start that did not exist)."""
+    e = np.zeros(0, np.float32)
+    grid = (np.zeros((0, 4, 3), np.float32), np.zeros((0, 2, 3), np.float32), np.ones((0, 4, 3), np.float32))
+    for eng in ("numpy", "numba"):
+        s, n_invalid = fitting.Samples.from_dome(*grid, np.ones((0, 2, 4, 3), np.float16), engine=eng)
+        assert s.starts.shape == s.counts.shape == n_invalid.shape == (0,)
+        normal, _ = fitting.photometric_normals(s, np.zeros((0, 3), np.float32), 2)
+        ci, co, ft2, use, f_r = fitting.brdf_samples(s, normal)
+        alb, _ = fitting.albedo_stable_minimum(s, f_r, ci, co, ft2, use)
+        ref, _ = fitting.refine_albedo(s, f_r, ft2, s.cos_half(ci, co), use)
+        assert normal.shape == alb.shape == ref.shape == (0, 3)
+        for limits in (None, {"blinn_phong": 1.2}):
+            fits = fitting.fit_specular_models(
+                s, normal, e, use, ("torrance_sparrow", "blinn_phong"), cos=(ci, co), ft2=ft2, max_angle=limits
+            )
+            assert all(f.rho_s.shape == (0,) for f in fits.values())
 
 
 def test_numba_engine_rejects_bad_input_like_numpy():

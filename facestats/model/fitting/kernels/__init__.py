@@ -5,12 +5,14 @@ single pass over every lumitexel's contiguous run of samples (see
 :mod:`facestats.model.fitting.samples`), while the run sits in the CPU cache:
 
 * :mod:`~facestats.model.fitting.kernels.samples` — the dome grid flattened into
-  valid samples (:meth:`facestats.model.fitting.Samples.from_grid`) and the
-  per-sample cosines;
-* :mod:`~facestats.model.fitting.kernels.runs` — sums and arg-extrema over runs
-  (photometric stereo's per-camera sums, micro-normals, the stable minimum of eq. 9);
+  valid samples (:meth:`facestats.model.fitting.Samples.from_grid`, float16
+  radiance converted on the way), the per-sample cosines and N·H, and the BRDF
+  samples of eq. 8 (:func:`facestats.model.fitting.brdf_samples`);
+* :mod:`~facestats.model.fitting.kernels.runs` — work over runs: photometric
+  stereo (its samples, then per lumitexel the cameras' systems and all passes),
+  micro-normals, the stable minimum of eq. 9, the refined albedo;
 * :mod:`~facestats.model.fitting.kernels.factors` — the specular factors of the
-  samples that enter eq. 14;
+  samples that enter eq. 14, on the full domain and one angle-limited one;
 * :mod:`~facestats.model.fitting.kernels.lm` — the bounded Levenberg-Marquardt
   solve of eq. 14 (:mod:`facestats.model.fitting.solver`), texel by texel;
 * :mod:`~facestats.model.fitting.kernels.fastexp` — the exponential of the

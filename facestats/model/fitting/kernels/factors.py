@@ -23,6 +23,7 @@ import numba
 import numpy as np
 
 from facestats.model.fitting.kernels.fastexp import fill_log
+from facestats.model.fitting.kernels.samples import cos_half32
 
 __all__ = ["fresnel_reflectance", "specular_inputs"]
 
@@ -68,9 +69,9 @@ def _ts_factors(ci, co, io, eta):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _all_factors(ci, co, io, f_s, use, ft2, eta, want_ts, want_bp, limit, limit_ts, limit_bp):
-    """Every sample's keep flags (the full domain; the limited one), y, TS (z, A), clipped cos δ (BP) and d,
-    uncompacted (a vectorised loop)."""
+def _all_factors(ci, co, io, f_s, use, limited, use_limited, ft2, eta, want_ts, want_bp, limit_ts, limit_bp):
+    """Every sample's keep flags (the full domain; the limited one, all False unless ``limited``), y,
+    TS (z, A), clipped cos δ (BP) and d, uncompacted (a vectorised loop)."""
     n_s = ci.shape[0]
     keep = np.empty(n_s, np.bool_)
     keep_limited = np.empty(n_s, np.bool_)
@@ -82,8 +83,9 @@ def _all_factors(ci, co, io, f_s, use, ft2, eta, want_ts, want_bp, limit, limit_
     d = np.empty(n_s if with_d else 0, np.float32)
     for s in range(n_s):  # every sample, no branches out of the loop: vectorised
         c_i, c_o, fs, io_s = ci[s], co[s], f_s[s], io[s]
-        ok = use[s] & np.isfinite(fs) & (c_i > 0) & (c_o > 0)
-        ok_limited = ok & (c_i > limit) & (c_o > limit)
+        base = np.isfinite(fs) & (c_i > 0) & (c_o > 0)
+        ok = use[s] & base
+        ok_limited = (use_limited[s] & base) if limited else False
         y[s] = fs * c_i
         if with_d:
             d[s] = -(ft2[s] * c_i) / _THREE_PI
@@ -94,8 +96,7 @@ def _all_factors(ci, co, io, f_s, use, ft2, eta, want_ts, want_bp, limit, limit_
             ok = ok & (ta > 0)  # A underflows only in extreme geometry
             ok_limited = ok_limited & ((ta > 0) | ~limit_ts)
         if want_bp:
-            cd = (c_i + c_o) / np.sqrt(max(_TWO + _TWO * io_s, np.float32(1e-12)))
-            cos_d[s] = min(max(cd, np.float32(1e-6)), _ONE)
+            cos_d[s] = min(max(cos_half32(c_i, c_o, io_s), np.float32(1e-6)), _ONE)
             positive = c_i / _TWO_PI > 0
             ok = ok & positive
             ok_limited = ok_limited & (positive | ~limit_bp)
@@ -105,39 +106,43 @@ def _all_factors(ci, co, io, f_s, use, ft2, eta, want_ts, want_bp, limit, limit_
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def specular_inputs(ci, co, io, f_s, use, ft2, starts, counts, eta, want_ts, want_bp, limit, limit_ts, limit_bp):
+def specular_inputs(
+    ci, co, io, f_s, use, limited, use_limited, ft2, starts, counts, eta, want_ts, want_bp, limit_ts, limit_bp
+):
     """Kept samples of eq. 14 and their factors, in per-texel runs (module docstring), on the full domain
-    and on one domain limited to θi and θo below an angle.
+    and on one limited domain (e.g. θi and θo below a smaller angle).
 
     Parameters
     ----------
     ci, co, io, f_s : ndarray of float32, shape (S,)
         N·ωi, N·ωo, ωi·ωo and the grey specular residual per sample.
     use : ndarray of bool, shape (S,)
+        Samples of the full domain.
+    limited : bool
+        Whether there is a limited domain (else its arrays are empty).
+    use_limited : ndarray of bool, shape (S,)
+        Samples of the limited domain (any shape without one).
     ft2 : ndarray of float32, shape (S,) or (0,)
         F_t(θi) F_t(θo) per sample, for d = ∂y/∂α = −F_t F_t cos θi/(3π) (empty: no d).
     starts, counts : ndarray of int64
         Every texel's run of samples.
     eta : float32
     want_ts, want_bp : bool
-        Models whose factors are wanted (a sample is kept only where every wanted A > 0).
-    limit : float32
-        Cosine of the limited domain's angle: its samples also have cos θi and cos θo above it
-        (−2: the whole domain again; its arrays are then not formed).
+        Models whose factors are wanted on the full domain (a sample is kept only where every wanted
+        A > 0).
     limit_ts, limit_bp : bool
-        Models fitted on the limited domain (a sample is kept there where their A > 0), among the
-        wanted ones.
+        Models fitted on the limited domain (kept there where their A > 0); among the wanted ones.
 
     Returns
     -------
     full, limited : tuple
         Each (kept, y, ts_z, ts_a, bp_z, bp_a, d): ``kept`` int64 (T,) kept samples per texel,
-        the others float32 (S'), compacted; a model's factors (or d) are empty when not wanted.
-        The same per-sample values, whichever domain keeps them.
+        the others float32 (S'), compacted; a model's factors (or d) are empty when not wanted there.
+        The per-sample values are the same whichever domain keeps them.
     """
     n_s = ci.shape[0]
     keep, keep_limited, y, ts_z, ts_a, cos_d, d = _all_factors(
-        ci, co, io, f_s, use, ft2, eta, want_ts, want_bp, limit, limit_ts, limit_bp
+        ci, co, io, f_s, use, limited, use_limited, ft2, eta, want_ts, want_bp, limit_ts, limit_bp
     )
     bp_z = np.empty(n_s if want_bp else 0, np.float32)
     if want_bp:
@@ -145,9 +150,9 @@ def specular_inputs(ci, co, io, f_s, use, ft2, starts, counts, eta, want_ts, wan
     bp_a = np.empty(n_s if want_bp else 0, np.float32)
     for s in range(bp_a.shape[0]):
         bp_a[s] = ci[s] / _TWO_PI
-    limited = _compact(keep_limited, starts, counts, y, ts_z, ts_a, bp_z, bp_a, d, limit_ts, limit_bp, limit > -2)
+    lim = _compact(keep_limited, starts, counts, y, ts_z, ts_a, bp_z, bp_a, d, limit_ts, limit_bp, limited)
     full = _compact(keep, starts, counts, y, ts_z, ts_a, bp_z, bp_a, d, want_ts, want_bp, True)
-    return full, limited
+    return full, lim
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

@@ -31,6 +31,9 @@ import math
 import numba
 import numpy as np
 
+from facestats.model.fitting.kernels.factors import fresnel_reflectance
+from facestats.model.fitting.kernels.samples import cos_half32
+
 _FLT_MAX = np.float32(np.finfo(np.float32).max)
 
 __all__ = ["used_samples", "normal_passes", "run_argmax", "stable_minimum", "refine_sums"]
@@ -47,8 +50,6 @@ def used_samples(texel, light_index, camera_index, wi_flat, wo_flat, scan_normal
     """
     n_s = texel.shape[0]
     y_used = np.empty(n_s, np.float32)
-    two = np.float32(2.0)
-    tiny = np.float32(1e-12)
     for s in range(n_s):  # the mask: no reductions, vectorised
         t = texel[s]
         li = light_index[s]
@@ -59,28 +60,11 @@ def used_samples(texel, light_index, camera_index, wi_flat, wo_flat, scan_normal
         ci = ix * nx + iy * ny + iz * nz
         co = ox * nx + oy * ny + oz * nz
         io = ox * ix + oy * iy + oz * iz
-        cos_h = (ci + co) / np.sqrt(max(two + two * io, tiny))
+        cos_h = cos_half32(ci, co, io)
         ys = y[s]
         ok = (cos_h < cos_specular) & (ci > cos_limit) & (co > cos_limit) & (ys > 0) & (ys < np.inf)
-        y_used[s] = np.float32(ok) * min(ys, _FLT_MAX)  # 0 unless used (then y < inf): branch-free
+        y_used[s] = min(ys, _FLT_MAX) if ok else np.float32(0.0)  # exactly 0 unless used (then 0 < y < inf)
     return y_used
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _fresnel32(c, eta):
-    """F_r of :func:`facestats.model.fresnel.fresnel_reflectance_unchecked` for one float32 cosine in [0, 1]
-    (Cook & Torrance 1982's closed form, in float32 as numpy evaluates it; 1 for total internal reflection)."""
-    one = np.float32(1.0)
-    g2 = eta * eta - one + c * c
-    g = np.sqrt(max(g2, np.float32(0.0)))
-    gpc = g + c
-    gmc = g - c
-    a = gmc / gpc
-    b = (c * gpc - one) / (c * gmc + one)
-    out = np.float32(0.5) * a * a * (one + b * b)
-    if g2 <= 0 or not np.isfinite(out):
-        return one
-    return out
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -90,8 +74,8 @@ def normal_passes(
     """Photometric stereo (:func:`facestats.model.fitting.photometric_normals`) for every lumitexel, in one kernel.
 
     Per (lumitexel, camera): A = Σ ωi ωiᵀ over its used samples and their number k (float64), the
-    adjugate adj(A) and det(A) (A⁻¹ = adj(A)/det(A)), as
-    :func:`facestats.model.fitting.normals._adjugate_sym3` forms them; the camera votes when
+    adjugate adj(A) and det(A) (A⁻¹ = adj(A)/det(A); cofactors and determinant in the order the numpy
+    engine of :func:`facestats.model.fitting.photometric_normals` forms them); the camera votes when
     k ≥ ``min_lights`` and det(A) > 10⁻⁶ max(k, 1)³.  Per pass: w = ωi, or ωi / F_t(θi) at the previous
     pass's normal (float32; F_t = 1 − F_r, :func:`_fresnel32`, θi clipped to [0°, 90°]); per voting
     camera b = Σ y w over its used samples, g = adj(A) b, N_c = g/‖g‖; the lumitexel's normal is
@@ -114,7 +98,7 @@ def normal_passes(
     w = np.empty((n_led, 3), np.float32)
     scratch = np.empty((2, n_led), np.float32)
     # The used samples of one lumitexel, compacted per run into its even- and then odd-position samples
-    # (the unused ones add exact zeros to the sums, so leaving them out keeps the bits).
+    # (unused ones have y = 0 and finite directions, photometric_normals checks: they add exact zeros).
     used_light = np.empty(n_cam * n_led, np.int64)
     used_y = np.empty(n_cam * n_led, np.float64)
     bounds = np.empty(3 * n_cam, np.int64)
@@ -145,7 +129,7 @@ def normal_passes(
                     b = _weighted_sum(used_light, used_y, w, bounds[i], bounds[i + 1], bounds[i + 2])
                     acc = _camera_vote(adj[r - r_begin], b, wo_grid[t, cj], cam_n[t, cj], acc)
             norm = np.sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
-            if acc[3] > 0 and norm > 0:
+            if acc[3] > 0:  # (NaN if the votes cancel exactly, as numpy gives)
                 nrm = (acc[0] / norm, acc[1] / norm, acc[2] / norm)
             else:
                 nrm = (np.float64(scan[t, 0]), np.float64(scan[t, 1]), np.float64(scan[t, 2]))
@@ -171,7 +155,7 @@ def _light_weights(wi_grid, t, nrm, fresnel, eta, w, scratch):
         c = wi_grid[t, lt, 0] * m0 + wi_grid[t, lt, 1] * m1 + wi_grid[t, lt, 2] * m2
         cos_i[lt] = min(max(c, zero), one)
     for lt in range(n_led):
-        f = one - _fresnel32(cos_i[lt], eta)
+        f = one - fresnel_reflectance(cos_i[lt], eta)
         ft[lt] = f if f > 0 else one
     for lt in range(n_led):
         f = ft[lt]
@@ -228,7 +212,7 @@ def _weighted_sum(used_light, used_y, w, even, odd, end):
 def _camera_system(wi_grid, t, used_light, even, odd, end, min_lights, adj):
     """adj(A) of one camera run into ``adj`` (9, row-major) from its compacted used samples, and whether it
     votes: A = Σ ωi ωiᵀ and k summed over even and odd positions apart (float64), then the cofactors
-    and det(A) in the order of :func:`facestats.model.fitting.normals._adjugate_sym3`."""
+    and det(A) in the order the numpy engine of :func:`facestats.model.fitting.photometric_normals` forms them."""
     e = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     o = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     n_even, n_odd = odd - even, end - odd

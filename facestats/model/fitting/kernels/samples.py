@@ -22,7 +22,15 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["flatten_grid", "sample_cosines", "brdf_values", "half_cosines", "dense_samples"]
+__all__ = [
+    "halves_to_singles",
+    "flatten_grid",
+    "sample_cosines",
+    "brdf_values",
+    "cos_half32",
+    "half_cosines",
+    "dense_samples",
+]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -34,28 +42,31 @@ def _valid_bits(u0, u1, u2):
     return ok0 & ok1 & ok2
 
 
-_HALF_TO_SINGLE = np.float32(2.0**112)  # 2^(127 − 15): the float32 exponent bias over float16's
+_SUBNORMAL_HALF = np.float32(2.0**-24)  # the value of the last mantissa bit of a subnormal float16
 
 
 @numba.njit(cache=True, nogil=True)
-def _halves_to_singles(bits):
+def halves_to_singles(bits):
     """float16 bit patterns held in the int32 array ``bits`` replaced in place by the float32 values' bits
     (exact, as numpy's cast; IEEE 754-2008 binary16); returns the float32 view.
 
-    The exponent and mantissa bits shifted into float32's places read as a float32 that is 2^-112 times
-    the value, for normal and subnormal halves alike, so one multiplication by 2^112 (exact: a power of
-    two) gives it; ±inf and NaN (exponent all ones) get float32's all-ones exponent; the sign is copied.
-    Free of calls, so LLVM vectorises the loop.
+    Normal halves: exponent and mantissa move into float32's places and the exponent bias grows by
+    127 − 15 = 112 (integer arithmetic); ±inf and NaN (exponent all ones) get float32's all-ones exponent;
+    subnormal halves and zeros are m · 2⁻²⁴ for their 10-bit mantissa m, computed in float32 (exact, and
+    normal: no float32 subnormal is formed, so a CPU flushing subnormals to zero gives the same bits); the
+    sign is copied.
     """
     flat = bits.reshape(-1)
     values = flat.view(np.float32)
     for i in range(flat.shape[0]):
         h = flat[i]
         em = h & np.int32(0x7FFF)
-        flat[i] = em << np.int32(13)
-        values[i] = values[i] * _HALF_TO_SINGLE
-        if em >= np.int32(0x7C00):
+        if em < np.int32(0x0400):
+            values[i] = np.float32(em) * _SUBNORMAL_HALF
+        elif em >= np.int32(0x7C00):
             flat[i] = np.int32(0x7F800000) | ((em & np.int32(0x03FF)) << np.int32(13))
+        else:
+            flat[i] = (em << np.int32(13)) + np.int32(0x38000000)
         flat[i] = flat[i] | ((h & np.int32(0x8000)) << np.int32(16))
     return bits.view(np.float32)
 
@@ -144,7 +155,7 @@ def flatten_grid(rad_bits, irradiance, keep_camera):
                     irr[1, s] = irradiance[t, l, 1]
                     irr[2, s] = irradiance[t, l, 2]
                     s += 1
-    return texel, camera_index, light_index, grid_index, _halves_to_singles(rad), irr, per_camera
+    return texel, camera_index, light_index, grid_index, halves_to_singles(rad), irr, per_camera
 
 
 @numba.njit(cache=True, nogil=True)
@@ -178,8 +189,8 @@ def brdf_values(light_index, camera_index, cos_i_grid, cos_o_grid, ft_i_grid, ft
 
     The per-sample values of :func:`facestats.model.fitting.brdf_samples` (eq. 8) in one pass, from its
     (lumitexel, light) and (lumitexel, camera) grids flattened (``cos_i_grid``, ``ft_i_grid`` (n L,);
-    ``cos_o_grid``, ``ft_o_grid`` (n C,)), all float32 as numpy computes them (max(−0, 0) is −0 as in
-    ``numpy.maximum``), so the bits equal numpy's.
+    ``cos_o_grid``, ``ft_o_grid`` (n C,)), all float32 as numpy computes them (max(±0, 0) is +0 and
+    max(NaN, 0) NaN, as ``numpy.maximum`` gives them), so the bits equal numpy's.
 
     Returns
     -------
@@ -201,22 +212,27 @@ def brdf_values(light_index, camera_index, cos_i_grid, cos_o_grid, ft_i_grid, ft
         ci[s], co[s] = c_i, c_o
         ft2[s] = ft_i_grid[li] * ft_o_grid[cj]
         use[s] = (c_i > limit) & (c_o > limit)
-        pos = c_i if (c_i >= zero) | (c_i != c_i) else zero
+        pos = c_i if (c_i > zero) | (c_i != c_i) else zero  # numpy.maximum(c, 0): NaN kept, ±0 -> +0
         f_r[0, s] = radiance[0, s] / (irradiance[0, s] * pos)
         f_r[1, s] = radiance[1, s] / (irradiance[1, s] * pos)
         f_r[2, s] = radiance[2, s] / (irradiance[2, s] * pos)
     return ci, co, ft2, use, f_r
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def cos_half32(cos_i, cos_o, cos_io):
+    """N·H = (cos θi + cos θo)/√max(2 + 2 ωi·ωo, 10⁻¹²) of one sample in float32, as
+    :meth:`facestats.model.fitting.Samples.cos_half` computes it in numpy (H the half vector)."""
+    two = np.float32(2.0)
+    return (cos_i + cos_o) / np.sqrt(max(two + two * cos_io, np.float32(1e-12)))
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def half_cosines(cos_i, cos_o, cos_io):
-    """N·H = (cos θi + cos θo)/√max(2 + 2 ωi·ωo, 10⁻¹²) per sample, float32 as
-    :meth:`facestats.model.fitting.Samples.cos_half` computes it in numpy."""
+    """:func:`cos_half32` of every sample (float32 arrays of one shape)."""
     out = np.empty(cos_i.shape[0], np.float32)
-    two = np.float32(2.0)
-    tiny = np.float32(1e-12)
     for s in range(cos_i.shape[0]):
-        out[s] = (cos_i[s] + cos_o[s]) / np.sqrt(max(two + two * cos_io[s], tiny))
+        out[s] = cos_half32(cos_i[s], cos_o[s], cos_io[s])
     return out
 
 

@@ -94,6 +94,7 @@ def photometric_normals(
         Per-camera normals (NaN where a camera had too few lights).
     """
     n_cameras = _check_camera_grid(samples, n_cameras)
+    _check_finite_directions(samples)
     check_shape(np.asarray(scan_normal), "scan_normal", (samples.n_texels, 3))
     check_eta(eta)
     as_finite(specular_exclusion, "specular_exclusion", 0, np.pi / 2, unit="rad")
@@ -198,15 +199,19 @@ def _check_camera_grid(samples, n_cameras):
             f"samples must hold one wo_grid direction per camera (build them with Samples.from_grid): "
             f"n_cameras is {n_cameras}, got wo_grid of shape {samples.wo_grid.shape}"
         )
-    for name in ("wi_grid", "wo_grid"):  # a point at a light or camera has no direction
-        bad = ~np.isfinite(getattr(samples, name)).all(axis=-1)
-        if bad.any():
-            t, k = np.argwhere(bad)[0]
+    return n_cameras
+
+
+def _check_finite_directions(samples):
+    """The light and view directions of ``samples`` are finite (a point at a light or camera has none)."""
+    for name in ("wi_grid", "wo_grid"):
+        grid = getattr(samples, name)
+        if not np.isfinite(grid).all():
+            t, k = np.argwhere(~np.isfinite(grid).all(axis=-1))[0]
             raise ValidationError(
-                f"samples.{name} must hold finite directions, got {getattr(samples, name)[t, k].tolist()} "
+                f"samples.{name} must hold finite directions, got {grid[t, k].tolist()} "
                 f"for lumitexel {t}, {'light' if name == 'wi_grid' else 'camera'} {k}"
             )
-    return n_cameras
 
 
 def micro_normals(samples, n_cameras):

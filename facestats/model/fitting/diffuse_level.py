@@ -39,6 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from facestats.model.fitting.lobes import lobe_base
+from facestats.model.fitting.samples import run_starts
 from facestats.model.fitting.uncertainty import gram_stack, inverse_stack, lobe_jacobian
 
 __all__ = ["fit_diffuse_level", "STEPS"]
@@ -77,7 +78,7 @@ def fit_diffuse_level(model, y, s1, a, d, n_use, good, rho, q, limits, steps=STE
     kept = np.flatnonzero(np.repeat(good, n_use))
     z32, a32 = np.asarray(s1).take(kept), np.asarray(a).take(kept)
     yx, zx, dx = (np.asarray(x).take(kept).astype(np.float64) for x in (y, s1, d))
-    starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    starts = run_starts(cnt)
     par = np.stack([rho[good], q[good], np.zeros(cnt.size)])  # (3, T')
     prev = par.copy()
     e_prev = np.full(cnt.size, np.inf)

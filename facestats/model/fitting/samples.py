@@ -470,7 +470,7 @@ class Samples:
             m = np.asarray(mask, bool)
             t = self.texel[m]
             counts = self.count(m)
-            start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+            start = run_starts(counts)
         return t, np.arange(t.size) - np.repeat(start, counts), counts
 
     def padded(self, values, fill, mask=None):
@@ -482,7 +482,7 @@ class Samples:
             m = np.asarray(mask, bool)
             vals = vals[m]
             counts = self.count(m)
-            start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+            start = run_starts(counts)
         width = max(int(counts.max(initial=0)), 1)
         out = np.full((self.n_texels, width), fill, dtype=vals.dtype)
         # Slot of each sample: its rank plus its row offset (non-decreasing, so the scatter streams).

@@ -151,11 +151,6 @@ def _check_solver_args(model, bounds, min_samples, max_iter, tol, max_relative_e
     return (r_lo, r_hi), (p_lo, p_hi)
 
 
-def _segments(counts):
-    """Start offsets of contiguous per-texel runs with these (non-zero) sample counts (none for no runs)."""
-    return run_starts(counts)
-
-
 def _rsum(x, starts):
     """Per-run sums of ``x`` (float32 pairwise within a run), as float64."""
     return np.add.reduceat(x, starts).astype(np.float64)
@@ -172,7 +167,7 @@ class _WorkingSet:
         else:
             self.y, self.a, self.s = y, a, s1
         self.counts = n_use[self.work]
-        self.starts = _segments(self.counts) if self.work.size else None
+        self.starts = run_starts(self.counts) if self.work.size else None
         self.scratch = np.empty((3, self.y.size), dtype)  # per-sample work buffers of the lobe sums
 
     def lobe_sums(self, model, q):
@@ -185,7 +180,7 @@ class _WorkingSet:
         self.y, self.a, self.s = (x.take(kept) for x in (self.y, self.a, self.s))
         self.work = self.work[live]
         self.counts = self.n_use[self.work]
-        self.starts = _segments(self.counts)
+        self.starts = run_starts(self.counts)
         self.scratch = self.scratch[:, : self.y.size]
 
 
@@ -406,7 +401,7 @@ def _final_lobe_sums(model, y, s1, a, d, n_use, solve, q, delta):
         y_shifted = (y.take(kept) + d.take(kept) * np.repeat(delta[solve], cnt)).astype(y.dtype)
         zk, ak = s1.take(kept), a.take(kept)
         scratch = np.empty((3, kept.size), y.dtype)
-        out[:, solve] = lobe_sums(model, q[solve], cnt, _segments(cnt), zk, ak, y_shifted, scratch)
+        out[:, solve] = lobe_sums(model, q[solve], cnt, run_starts(cnt), zk, ak, y_shifted, scratch)
     return out
 
 
@@ -427,7 +422,7 @@ def _solve_compiled(model, y, s1, a, d, n_use, solve, p_start, bounds, max_iter,
         np.ascontiguousarray(s1, np.float32),
         np.ascontiguousarray(a, np.float32),
         np.zeros(0, np.float32) if d is None else np.ascontiguousarray(d, np.float32),
-        _segments(n_use).astype(np.int64),
+        run_starts(n_use),
         n_use,
         solve,
         p0,

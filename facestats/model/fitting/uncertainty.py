@@ -35,6 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from facestats.model.fitting.lobes import lobe_base, lobe_moments, lobe_scale
+from facestats.model.fitting.samples import run_starts
 
 __all__ = [
     "robust_variances",
@@ -88,7 +89,7 @@ def robust_variances(model, y, s1, a, d, n_use, good, rho, q, delta=None):
         dx = np.asarray(d).take(kept).astype(np.float64)
         r += dx * np.repeat(np.asarray(delta, np.float64)[good], cnt)
         cols.append(-dx)
-    starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    starts = run_starts(cnt)
     jac = np.stack(cols)  # (P, S)
     h_inv = inverse_stack(gram_stack(jac, jac, starts))  # (T, P, P)
     with np.errstate(invalid="ignore"):
@@ -145,7 +146,7 @@ def rms_error(model, y, s1, a, n_use, rho, lobe, d=None, shift=None):
     r = np.asarray(y).take(kept).astype(np.float64) - model_y
     if with_d:
         r += np.asarray(d).take(kept).astype(np.float64) * np.repeat(np.asarray(shift, np.float64)[good], cnt)
-    out[good] = np.sqrt(np.add.reduceat(r * r, np.concatenate([[0], np.cumsum(cnt)[:-1]])) / cnt)
+    out[good] = np.sqrt(np.add.reduceat(r * r, run_starts(cnt)) / cnt)
     return out
 
 

@@ -77,7 +77,8 @@ def normal_passes(
     adjugate adj(A) and det(A) (A⁻¹ = adj(A)/det(A); cofactors and determinant in the order the numpy
     engine of :func:`facestats.model.fitting.photometric_normals` forms them); the camera votes when
     k ≥ ``min_lights`` and det(A) > 10⁻⁶ max(k, 1)³.  Per pass: w = ωi, or ωi / F_t(θi) at the previous
-    pass's normal (float32; F_t = 1 − F_r, :func:`_fresnel32`, θi clipped to [0°, 90°]); per voting
+    pass's normal (float32; F_t = 1 − F_r with F_r of
+    :func:`facestats.model.fitting.kernels.factors.fresnel_reflectance`, θi clipped to [0°, 90°]); per voting
     camera b = Σ y w over its used samples, g = adj(A) b, N_c = g/‖g‖; the lumitexel's normal is
     Σ w_c N_c normalised, w_c = max(N_c·ωo,c, 0) (§5.1's blending weights), or the scanned normal where
     no camera votes.  Sums are float64, over even- and odd-position samples apart, in sample order.
@@ -117,7 +118,8 @@ def normal_passes(
             votes[r - r_begin] = _camera_system(
                 wi_grid, t, used_light, bounds[i], bounds[i + 1], bounds[i + 2], min_lights, adj[r - r_begin]
             )
-        nrm = (np.float64(scan[t, 0]), np.float64(scan[t, 1]), np.float64(scan[t, 2]))
+        scanned = (np.float64(scan[t, 0]), np.float64(scan[t, 1]), np.float64(scan[t, 2]))
+        nrm = scanned
         for it in range(passes):
             _light_weights(wi_grid, t, nrm, it > 0, eta, w, scratch)
             cam_n[t] = np.nan
@@ -132,7 +134,7 @@ def normal_passes(
             if acc[3] > 0:  # (NaN if the votes cancel exactly, as numpy gives)
                 nrm = (acc[0] / norm, acc[1] / norm, acc[2] / norm)
             else:
-                nrm = (np.float64(scan[t, 0]), np.float64(scan[t, 1]), np.float64(scan[t, 2]))
+                nrm = scanned
         normal[t, 0], normal[t, 1], normal[t, 2] = nrm
     return normal, cam_n
 

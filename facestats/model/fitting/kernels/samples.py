@@ -134,7 +134,7 @@ def flatten_grid(rad_bits, irradiance, keep_camera):
     camera_index = np.empty(total, np.intp)
     light_index = np.empty(total, np.intp)
     grid_index = np.empty(total, np.intp)
-    rad = np.empty((3, total), np.int32)  # float16 bits, then float32 values (_halves_to_singles)
+    rad = np.empty((3, total), np.int32)  # float16 bits, then float32 values (halves_to_singles)
     irr = np.empty((3, total), np.float32)
     s = 0
     for t in range(n):

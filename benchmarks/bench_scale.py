@@ -273,27 +273,32 @@ def _peak_rss_mb():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def bench_calibration(n_subjects=4, grid=48):
-    """Coverage of nominal 90 % intervals on simulated captures with known truth, per model (module docstring)."""
-    from bench_fit import _default_case
+def bench_calibration(n_subjects=4, grid=48, face="procedural", transport="dipole", normal_tilt=True):
+    """Coverage of nominal 90 % intervals on simulated captures with known truth, per model (module docstring).
 
+    ``n_subjects`` of the default population spread over it, on ``face`` ("procedural" or "ict", at ``grid``),
+    each model fitted by the pipeline to captures rendered with it, with the simulator's dipole transport
+    over the surface or the local (flat-patch) transport of a simulator streaming in three blocks
+    (``transport="local"``); ``normal_tilt`` as :class:`facestats.pipeline.FitSettings`.
+    """
+    from facestats.acquire.synthetic.faces import named_face
+    from facestats.acquire.synthetic.population import synthesize_population
+    from facestats.acquire.synthetic.simulate import DomeSimulator
     from facestats.pipeline import FitSettings, fit_subject
 
     z90 = 1.6448536269514722
-    pop, _, sim = _default_case(grid=grid)
-    _, _, sim_bp = _default_case(specular="blinn_phong", grid=grid)
+    geometry = named_face(f"{face}-{grid}")
+    pop = synthesize_population(map_size=grid, geometry=geometry)
+    block = {"dipole": 8192, "local": max(1, len(geometry.position) // 3)}[transport]
     hits = {k: [] for k in ("ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent")}
     for i in np.linspace(0, len(pop.subjects) - 1, n_subjects).astype(int):
         truth = pop[int(i)]
-        face = truth.region_map > 0
-        for model, simulator, params in (
-            ("torrance_sparrow", sim, ("ts_rho_s", "ts_m")),
-            ("blinn_phong", sim_bp, ("bp_rho_s", "bp_exponent")),
-        ):
-            ds = fit_subject(
-                simulator.simulate(truth), pop.sigma_tr_avg, FitSettings(models=(model,), micro_normals=False)
-            )
-            ok = face & (ds[f"{params[0][:2]}_flag"].values == 0)
+        on_face = truth.region_map > 0
+        for model, params in (("torrance_sparrow", ("ts_rho_s", "ts_m")), ("blinn_phong", ("bp_rho_s", "bp_exponent"))):
+            capture = DomeSimulator(geometry, specular=model, block=block).simulate(truth)
+            settings = FitSettings(models=(model,), micro_normals=False, normal_tilt=normal_tilt)
+            ds = fit_subject(capture, pop.sigma_tr_avg, settings)
+            ok = on_face & (ds[f"{params[0][:2]}_flag"].values == 0)
             for p in params:
                 err = np.abs(ds[p].values[ok] - getattr(truth, p)[ok])
                 hits[p].append(err <= z90 * ds[f"{p}_std"].values[ok])

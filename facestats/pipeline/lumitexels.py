@@ -128,6 +128,8 @@ def _fit_piece(lt, st, clock):
         engine=st.engine,
         ft2=ft2,
         max_angle=_model_angles(st),
+        normal_tilt=st.normal_tilt,
+        albedo=albedo,
     )
     clock.lap("specular_fits")
     few = out["n_samples"] < st.min_samples

@@ -51,6 +51,11 @@ class FitSettings:
         Cameras left out of the fit (e.g. one held out to validate renderings), ≥ 0.
     micro_normals : bool
         Keep the per-camera micro-normal maps (16 × 3 values per texel).
+    normal_tilt : bool
+        The standard errors of ρs and the lobe allow the lobe's normal a tilt away from the
+        photometric-stereo normal (two nuisance parameters,
+        :mod:`facestats.model.fitting.normal_tilt`); False: errors conditional on that normal,
+        which cover the truth less often than they claim (``docs/scale.md``).
     block : int
         Lumitexels per block, ≥ 1 (memory per block ≈ block × 0.1 MB); best equal to
         the capture's zarr chunk (2048 by default), so no chunk is decoded twice.
@@ -72,6 +77,7 @@ class FitSettings:
     models: tuple = ("torrance_sparrow", "blinn_phong")
     exclude_cameras: tuple = ()
     micro_normals: bool = True
+    normal_tilt: bool = True
     block: int = 2048
     eta: float = ETA_SKIN
     engine: str = field(default_factory=default_engine)
@@ -88,6 +94,9 @@ class FitSettings:
         for m in self.models:
             if m not in fitting.DEFAULT_BOUNDS:
                 raise ValidationError(f"models must be among {list(fitting.DEFAULT_BOUNDS)}, got {m!r}")
+        if not isinstance(self.normal_tilt, (bool, np.bool_)):
+            raise ValidationError(f"normal_tilt must be True or False, got {self.normal_tilt!r}")
+        self.normal_tilt = bool(self.normal_tilt)
         check_integer(self.discard, "discard", 0)
         check_integer(self.min_samples, "min_samples", 2)
         check_integer(self.block, "block", 1)

@@ -57,6 +57,7 @@ from facestats.errors import ValidationError
 from facestats.model.fitting.diffuse_level import STEPS, fit_diffuse_level
 from facestats.model.fitting.engine import resolve_engine
 from facestats.model.fitting.lobes import lobe_moments, lobe_sums
+from facestats.model.fitting.normal_tilt import tilt_slopes
 from facestats.model.fitting.samples import run_starts
 from facestats.model.fitting.uncertainty import robust_variances, standard_errors
 
@@ -304,13 +305,19 @@ def solve_specular(
     start=None,
     engine=None,
     d=None,
+    tilt=None,
+    albedo=None,
 ):
     """Batch bounded Levenberg-Marquardt on flat samples in per-texel runs of ``n_use`` samples (module docstring).
 
     ``engine`` (:mod:`facestats.model.fitting.engine`) picks the numpy iteration
     below or the compiled per-texel solve of :mod:`facestats.model.fitting.kernels.lm`.
     ``d`` (per sample, ∂y/∂α of the grey albedo): the grey diffuse level is fitted too
-    (:mod:`facestats.model.fitting.diffuse_level`).
+    (:mod:`facestats.model.fitting.diffuse_level`).  ``tilt``
+    (:class:`~facestats.model.fitting.normal_tilt.TiltInputs` of the samples): the standard errors
+    allow the lobe's normal two tilts, and with its ``diffuse`` and ``d`` the normal of the diffuse
+    term eq. 10 removed with the grey albedo ``albedo`` (T,) too
+    (:mod:`facestats.model.fitting.normal_tilt`).
     """
     (r_lo, r_hi), (p_lo, p_hi) = _check_solver_args(model, bounds, min_samples, max_iter, tol, max_relative_error)
     engine = resolve_engine(engine)
@@ -325,9 +332,9 @@ def solve_specular(
     p0 = None if start is None else np.asarray(start, np.float64)
     bnd = ((r_lo, r_hi), (p_lo, p_hi))
     if engine == "numba":
-        fit = _solve_compiled(model, y, s1, a, d, n_use, ~few, p0, bnd, max_iter, tol)
+        fit = _solve_compiled(model, y, s1, a, d, (tilt, albedo), n_use, ~few, p0, bnd, max_iter, tol)
     else:
-        fit = _solve_numpy(model, y, s1, a, d, n_use, ~few, p0, bnd, max_iter, tol, dt)
+        fit = _solve_numpy(model, y, s1, a, d, (tilt, albedo), n_use, ~few, p0, bnd, max_iter, tol, dt)
     return _result(model, n_use, few, fit, max_relative_error, (r_lo, r_hi, p_lo, p_hi), scale, dt)
 
 
@@ -352,9 +359,10 @@ def _rho_outside(model, good, q, all_sums, r_lo, r_hi, max_relative_error):
     return out
 
 
-def _solve_numpy(model, y, s1, a, d, n_use, solve, p_start, bounds, max_iter, tol, dt):
+def _solve_numpy(model, y, s1, a, d, tilt, n_use, solve, p_start, bounds, max_iter, tol, dt):
     """The numpy iteration, then the diffuse level (with ``d``): (ρs, ln p, δ, converged, iterations, lobe
-    sums, (E², var ρs, var ln p)) per texel (module docstring)."""
+    sums, (E², var ρs, var ln p)) per texel (module docstring); ``tilt`` = (tilt, albedo) of
+    :func:`solve_specular`."""
     (r_lo, r_hi), (p_lo, p_hi) = bounds
     q_lo, q_hi = np.log(p_lo), np.log(p_hi)
     n_tex = n_use.size
@@ -388,7 +396,8 @@ def _solve_numpy(model, y, s1, a, d, n_use, solve, p_start, bounds, max_iter, to
     if d is not None:
         rho, q, delta = fit_diffuse_level(model, y, s1, a, d, n_use, solve, rho, q, (r_lo, r_hi, q_lo, q_hi))
         all_sums = _final_lobe_sums(model, y, s1, a, d, n_use, solve, q, delta)
-    robust = robust_variances(model, y, s1, a, d, n_use, solve, rho, q, delta)
+    slopes = None if tilt[0] is None else tilt_slopes(model, tilt[0])
+    robust = robust_variances(model, y, s1, a, d, n_use, solve, rho, q, delta, slopes, tilt[1])
     return rho, q, delta, state["done"] & solve, iterations, all_sums, robust
 
 
@@ -405,7 +414,7 @@ def _final_lobe_sums(model, y, s1, a, d, n_use, solve, q, delta):
     return out
 
 
-def _solve_compiled(model, y, s1, a, d, n_use, solve, p_start, bounds, max_iter, tol):
+def _solve_compiled(model, y, s1, a, d, tilt, n_use, solve, p_start, bounds, max_iter, tol):
     """The compiled per-texel solve (:func:`facestats.model.fitting.kernels.lm.solve_runs`): the tuple of
     :func:`_solve_numpy`."""
     # local import: the kernels import numba
@@ -422,6 +431,9 @@ def _solve_compiled(model, y, s1, a, d, n_use, solve, p_start, bounds, max_iter,
         np.ascontiguousarray(s1, np.float32),
         np.ascontiguousarray(a, np.float32),
         np.zeros(0, np.float32) if d is None else np.ascontiguousarray(d, np.float32),
+        0 if tilt[0] is None else tilt[0].rows,
+        _kernel_tilt(tilt[0]),
+        np.zeros(n_tex) if tilt[1] is None else np.ascontiguousarray(tilt[1], np.float64),
         run_starts(n_use),
         n_use,
         solve,
@@ -432,6 +444,15 @@ def _solve_compiled(model, y, s1, a, d, n_use, solve, p_start, bounds, max_iter,
         STEPS,
     )
     return rho, q, None if d is None else delta, done, int(its.max(initial=0)), all_sums, tuple(robust)
+
+
+def _kernel_tilt(tilt):
+    """The arrays of :class:`~facestats.model.fitting.normal_tilt.TiltInputs` as the compiled solve takes them
+    (empty ones without ``tilt``)."""
+    if tilt is None:
+        i, f, g = np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros((0, 4), np.float32)
+        return (i, i, i, f, f, f, g, g)
+    return (tilt.index, tilt.light_index, tilt.camera_index, tilt.ci, tilt.co, tilt.io, tilt.light, tilt.camera)
 
 
 def _result(model, n_use, few, fit, max_relative_error, limits, scale, dt):

@@ -31,6 +31,7 @@ from facestats.core.validate import as_finite, as_float, check_choice, check_sha
 from facestats.errors import ValidationError
 from facestats.model.brdf import check_directions, torrance_sparrow_cosines_unchecked
 from facestats.model.fitting.engine import resolve_engine
+from facestats.model.fitting.normal_tilt import tilt_grids, tilt_inputs
 from facestats.model.fitting.samples import Samples, run_starts, segment_sum
 from facestats.model.fitting.solver import DEFAULT_BOUNDS, SpecularFit, solve_specular
 from facestats.model.fitting.uncertainty import rms_error
@@ -184,6 +185,8 @@ def fit_specular_models(
     engine=None,
     ft2=None,
     max_angle=None,
+    normal_tilt=False,
+    albedo=None,
 ) -> dict:
     """Fit several models to the same grey specular samples; later models start from the first.
 
@@ -209,6 +212,14 @@ def fit_specular_models(
         its angle (e.g. Blinn-Phong at 70°, :class:`facestats.pipeline.FitSettings`); the
         samples are then compacted per distinct limit.  Its E(p) (``error``) is still
         reported over all of ``use``, the domain the other models are scored on.
+    normal_tilt : bool
+        Let the standard errors allow the lobe's normal a tilt, two nuisance parameters, and with
+        ``ft2`` the normal of the diffuse term eq. 10 removed too, two more
+        (:mod:`facestats.model.fitting.normal_tilt`): for a ``normal`` that is an estimate, such as
+        photometric stereo's.  False: the errors are conditional on ``normal``.
+    albedo : ndarray, shape (n, 3), optional
+        The albedo eq. 10 removed the diffuse term with (:func:`facestats.model.fitting.specular_residual`);
+        required with ``normal_tilt`` and ``ft2``.
 
     Returns
     -------
@@ -232,12 +243,18 @@ def fit_specular_models(
     # ones are scored on it.
     domains = _domain_inputs(samples, ci, co, f_s, use, models, groups, eta, ft2, engine)
     full = domains[None]
+    grey = _grey_albedo(samples, albedo, normal_tilt and ft2 is not None)
+    grids = tilt_grids(samples, np.asarray(normal, np.float64), eta, engine) if normal_tilt else None
     kept = {}
     for limit, group in groups.items():
-        y, factors, counts, d = domains[limit]
-        kept.update({m: (y, factors[m], counts, d) for m in group})
+        y, factors, counts, d, index = domains[limit]
+        for m in group:
+            tilt = None
+            if grids is not None:
+                tilt = tilt_inputs(samples, index, (ci, co, samples.cos_io()), grids, grey is not None)
+            kept[m] = (y, factors[m], counts, d, tilt)
     settings = dict(min_samples=min_samples, max_iter=max_iter, tol=tol, max_relative_error=max_relative_error)
-    fits = _solve_models(models, kept, bounds, start, engine, settings)
+    fits = _solve_models(models, kept, bounds, start, engine, settings, grey)
     for limit, group in groups.items():
         if limit is not None:  # scored on the full domain of eq. 14, as the other models
             _rescore(fits, group, full, engine)
@@ -245,11 +262,11 @@ def fit_specular_models(
 
 
 def _domain_inputs(samples, ci, co, f_s, use, models, groups, eta, ft2, engine):
-    """(y, factors per model, kept count per texel, d) of the samples of eq. 14 in ``use``, by ``engine``, per
-    domain: ``None`` the full one (every model's factors), and each angle limit of ``groups`` (its models'
-    factors, on the samples of ``use`` with cos θi and cos θo above the limit's cosine in float32, compared in
-    the dtype of ``ci``/``co``).  The compiled engine forms the full domain and the first limited one in one
-    pass."""
+    """(y, factors per model, kept count per texel, d, kept sample indices) of the samples of eq. 14 in ``use``,
+    by ``engine``, per domain: ``None`` the full one (every model's factors), and each angle limit of ``groups``
+    (its models' factors, on the samples of ``use`` with cos θi and cos θo above the limit's cosine in float32,
+    compared in the dtype of ``ci``/``co``).  The compiled engine forms the full domain and the first limited
+    one in one pass."""
     domains = {}
     for limit in groups:
         if limit is not None:
@@ -275,7 +292,7 @@ def _domain_inputs(samples, ci, co, f_s, use, models, groups, eta, ft2, engine):
 def _rescore(fits, group, full, engine):
     """Replace the ``error`` of the fits of ``group`` by E(p) over the samples ``full`` of :func:`_domain_inputs`
     (with their diffuse level, if fitted)."""
-    y, factors, counts, d = full
+    y, factors, counts, d, _ = full
     for m in group:
         fit = fits[m]
         shift = None if d is None or fit.diffuse_shift is None else np.nan_to_num(fit.diffuse_shift)
@@ -284,6 +301,19 @@ def _rescore(fits, group, full, engine):
         else:
             err = rms_error(m, y, *factors[m], counts, fit.rho_s, fit.lobe, d=d, shift=shift)
         fit.error = np.where(np.isfinite(fit.error), err, np.nan).astype(fit.error.dtype)
+
+
+def _grey_albedo(samples, albedo, wanted):
+    """α = α_R + α_G + α_B per texel (float64) of the (n, 3) ``albedo`` when ``wanted``, else None."""
+    if not wanted:
+        return None
+    if albedo is None:
+        raise ValidationError(
+            "albedo (the one eq. 10 removed the diffuse term with) is required with normal_tilt and ft2"
+        )
+    albedo = as_finite(albedo, "albedo")
+    check_shape(albedo, "albedo", (samples.n_texels, 3))
+    return albedo.sum(axis=1, dtype=np.float32).astype(np.float64)
 
 
 def _rms_compiled(model, y, factors, counts, fit, d, shift):
@@ -310,15 +340,17 @@ def _rms_compiled(model, y, factors, counts, fit, d, shift):
     )
 
 
-def _solve_models(models, kept, bounds, start, engine, settings):
+def _solve_models(models, kept, bounds, start, engine, settings, albedo=None):
     """Solve eq. 14 for each model on its kept samples; later models start from the first's fit.
 
-    ``kept[model]`` = (y, (s1, A), counts, d) with ``d`` None or ∂y/∂α per kept sample;
-    ``settings`` the solver's ``min_samples``, ``max_iter``, ``tol``, ``max_relative_error``.
+    ``kept[model]`` = (y, (s1, A), counts, d, tilt) with ``d`` None or ∂y/∂α per kept sample and ``tilt``
+    None or the :class:`~facestats.model.fitting.normal_tilt.TiltInputs` of the kept samples;
+    ``settings`` the solver's ``min_samples``, ``max_iter``, ``tol``, ``max_relative_error``; ``albedo`` the grey
+    albedo per texel (with a ``tilt`` whose diffuse normal tilts).
     """
     fits = {}
     for m in models:
-        y, (s1, a), counts, d = kept[m]
+        y, (s1, a), counts, d, tilt = kept[m]
         first = fits[models[0]] if fits else None
         st = start if first is None else equivalent_lobe(first.lobe, first.model, m)
         fits[m] = solve_specular(
@@ -331,13 +363,16 @@ def _solve_models(models, kept, bounds, start, engine, settings):
             start=st,
             engine=engine,
             d=d,
+            tilt=tilt,
+            albedo=albedo,
             **settings,
         )
     return fits
 
 
 def _kept_factors(samples, ci, co, f_s, use, models, eta, ft2=None):
-    """y = f_s cos θi, the factors (s1, A) per model, the kept count per texel and d = ∂y/∂α of the samples of eq. 14.
+    """y = f_s cos θi, the factors (s1, A) per model, the kept count per texel, d = ∂y/∂α and the indices of the
+    samples of eq. 14.
 
     Kept: ``use``, finite ``f_s``, ωi and ωo above the horizon and A > 0 for every model
     (compacted once for all models, one contiguous run per texel).  d = −F_t F_t cos θi/(3π)
@@ -353,12 +388,12 @@ def _kept_factors(samples, ci, co, f_s, use, models, eta, ft2=None):
     counts = samples.count(ok)
     if not keep.all():
         counts = segment_sum(keep, np.cumsum(counts) - counts, counts)
-        kept = np.flatnonzero(keep)
-        ci_u, y = ci_u.take(kept), y.take(kept)
-        ft_u = None if ft_u is None else ft_u.take(kept)
-        factors = {m: (s1.take(kept), a.take(kept)) for m, (s1, a) in factors.items()}
+        again = np.flatnonzero(keep)
+        kept, ci_u, y = kept.take(again), ci_u.take(again), y.take(again)
+        ft_u = None if ft_u is None else ft_u.take(again)
+        factors = {m: (s1.take(again), a.take(again)) for m, (s1, a) in factors.items()}
     d = None if ft_u is None else (-(ft_u * ci_u) / np.float32(3 * np.pi)).astype(np.float32)
-    return (y * ci_u).astype(np.float32, copy=False), factors, counts, d
+    return (y * ci_u).astype(np.float32, copy=False), factors, counts, d, kept
 
 
 def _kept_factors_compiled(
@@ -391,9 +426,9 @@ def _kept_factors_compiled(
         "blinn_phong" in limit_models,
     )
 
-    def inputs(kept, y, ts_z, ts_a, bp_z, bp_a, d, wanted):
+    def inputs(kept, y, ts_z, ts_a, bp_z, bp_a, d, index, wanted):
         all_factors = {"torrance_sparrow": (ts_z, ts_a), "blinn_phong": (bp_z, bp_a)}
-        return y, {m: all_factors[m] for m in wanted}, kept, (None if ft2 is None else d)
+        return y, {m: all_factors[m] for m in wanted}, kept, (None if ft2 is None else d), index
 
     return inputs(*full, models), (None if use_limited is None else inputs(*limited, limit_models))
 
@@ -518,9 +553,9 @@ def _fit_dense_compiled(wi, wo, normal, f_s, valid, model, lim, eta, bounds, kwa
         np.ascontiguousarray(wi), np.ascontiguousarray(wo), np.ascontiguousarray(normal), f_s, valid, float(lim)
     )
     starts = run_starts(counts)
-    (y, factors, kept, _), _ = _kept_factors_compiled(
+    (y, factors, kept, _, _), _ = _kept_factors_compiled(
         starts, counts, ci, co, io, fs, np.ones(fs.size, bool), (model,), eta
     )
-    return _solve_models((model,), {model: (y, factors[model], kept, None)}, {model: bounds}, None, "numba", kwargs)[
-        model
-    ]
+    return _solve_models(
+        (model,), {model: (y, factors[model], kept, None, None)}, {model: bounds}, None, "numba", kwargs
+    )[model]

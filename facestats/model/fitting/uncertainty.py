@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.model.fitting.lobes import lobe_base, lobe_moments, lobe_scale
+from facestats.model.fitting.lobes import lobe_base, lobe_moments, lobe_rate, lobe_scale
 from facestats.model.fitting.samples import run_starts
 
 __all__ = [
@@ -64,12 +64,16 @@ def lobe_jacobian(model, q, u, z):
     return (p + 2) * u, p * u * (1 + (p + 2) * z)
 
 
-def robust_variances(model, y, s1, a, d, n_use, good, rho, q, delta=None):
+def robust_variances(model, y, s1, a, d, n_use, good, rho, q, delta=None, tilt=None, albedo=None):
     """Per texel: E² = Σ r² and the robust (HC3) variances of ρs and of q = ln p (module docstring).
 
     From explicit residuals at the solution, samples in per-texel runs of ``n_use``;
     ``d`` None: the two parameters (ρs, q); else the three (ρs, q, δ) with r = y + δ d − ρs g
-    and δ per texel (``delta``).  Texels not ``good`` get NaN.  Returns ``(e2, var_rho, var_q)``,
+    and δ per texel (``delta``).  ``tilt`` (4, S): the slopes (∂z, ∂ln A) of two tilts of the
+    lobe's normal per sample (:mod:`facestats.model.fitting.normal_tilt`), two more columns
+    ρs g (∂ln A + c ∂z); (6, S) with ``d``: also ∂ln D of two tilts of the diffuse term's normal,
+    two more columns (α + δ)(−d) ∂ln D with ``albedo`` α (T,) the grey albedo eq. 10 removed.
+    Texels not ``good`` get NaN.  Returns ``(e2, var_rho, var_q)``,
     float64, of the scale of ``y``.
     """
     n_tex = n_use.size
@@ -89,6 +93,13 @@ def robust_variances(model, y, s1, a, d, n_use, good, rho, q, delta=None):
         dx = np.asarray(d).take(kept).astype(np.float64)
         r += dx * np.repeat(np.asarray(delta, np.float64)[good], cnt)
         cols.append(-dx)
+    if tilt is not None:
+        rate = lobe_rate(model, np.exp(qs))
+        slopes = np.asarray(tilt).take(kept, axis=1).astype(np.float64)
+        cols.extend(rs * g * (slopes[k + 1] + rate * slopes[k]) for k in (0, 2))
+        if slopes.shape[0] == 6:
+            level = np.repeat(np.asarray(albedo, np.float64)[good] + np.asarray(delta, np.float64)[good], cnt)
+            cols.extend(-level * dx * slopes[k] for k in (4, 5))
     starts = run_starts(cnt)
     jac = np.stack(cols)  # (P, S)
     h_inv = inverse_stack(gram_stack(jac, jac, starts))  # (T, P, P)
@@ -105,7 +116,7 @@ def robust_variances(model, y, s1, a, d, n_use, good, rho, q, delta=None):
 def gram_stack(left, right, starts):
     """Per-run Σ left_i right_j as (T, P, Q) for rows ``left`` (P, S) and ``right`` (Q, S) (float64 sums)."""
     out = np.empty((starts.size, left.shape[0], right.shape[0]))
-    for i in range(left.shape[0]):  # P, Q ≤ 3: a few segmented sums, each over all samples
+    for i in range(left.shape[0]):  # P, Q ≤ 5: a few segmented sums, each over all samples
         for j in range(right.shape[0]):
             out[:, i, j] = np.add.reduceat(left[i] * right[j], starts)
     return out

@@ -19,13 +19,15 @@ agree with theirs to the last bit, except z of Blinn-Phong, whose logarithm is
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
 from facestats.model.fitting.kernels.fastexp import fill_log
 from facestats.model.fitting.kernels.samples import cos_half32
 
-__all__ = ["fresnel_reflectance", "specular_inputs"]
+__all__ = ["fresnel_reflectance", "specular_inputs", "texel_tilt_slopes", "diffuse_coefficients"]
 
 _ONE = np.float32(1.0)
 _TWO = np.float32(2.0)
@@ -136,8 +138,9 @@ def specular_inputs(
     Returns
     -------
     full, limited : tuple
-        Each (kept, y, ts_z, ts_a, bp_z, bp_a, d): ``kept`` int64 (T,) kept samples per texel,
-        the others float32 (S'), compacted; a model's factors (or d) are empty when not wanted there.
+        Each (kept, y, ts_z, ts_a, bp_z, bp_a, d, index): ``kept`` int64 (T,) kept samples per texel,
+        the next six float32 (S'), compacted; a model's factors (or d) are empty when not wanted there;
+        ``index`` int64 (S') the kept samples' indices in the inputs.
         The per-sample values are the same whichever domain keeps them.
     """
     n_s = ci.shape[0]
@@ -157,8 +160,9 @@ def specular_inputs(
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _compact(keep, starts, counts, y, ts_z, ts_a, bp_z, bp_a, d, with_ts, with_bp, wanted):
-    """The samples with ``keep`` in per-texel runs: (kept per texel, y, ts_z, ts_a, bp_z, bp_a, d), copies
-    (a model's arrays empty unless ``with_*``, d empty without it; all empty unless ``wanted``)."""
+    """The samples with ``keep`` in per-texel runs: (kept per texel, y, ts_z, ts_a, bp_z, bp_a, d, index), copies
+    (a model's arrays empty unless ``with_*``, d empty without it; all empty unless ``wanted``) and the kept
+    samples' indices."""
     n_s = keep.shape[0] if wanted else 0
     kept = np.zeros(starts.shape[0] if wanted else 0, np.int64)
     index = np.empty(n_s, np.int64)
@@ -178,6 +182,7 @@ def _compact(keep, starts, counts, y, ts_z, ts_a, bp_z, bp_a, d, with_ts, with_b
         _gather(bp_z, index, wanted and with_bp),
         _gather(bp_a, index, wanted and with_bp),
         _gather(d, index, wanted and d.shape[0] > 0),
+        index,
     )
 
 
@@ -188,3 +193,68 @@ def _gather(values, index, wanted):
     for k in range(out.shape[0]):
         out[k] = values[index[k]]
     return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def diffuse_coefficients(cos, eta, with_inverse):
+    """κ = (1/cos θ if ``with_inverse``) − F_r'(θ)/F_t(θ) per entry of ``cos`` (float32 in, float32 out, float64
+    arithmetic; 0 at or below the horizon): :func:`facestats.model.fitting.normal_tilt.diffuse_coefficients`,
+    with F_r and F_r' the closed form of :func:`fresnel_reflectance` and its derivative
+    (:func:`facestats.model.fresnel.fresnel_reflectance_slope_unchecked`)."""
+    out = np.zeros(cos.shape[0], np.float32)
+    e2 = np.float64(eta) * np.float64(eta)
+    for k in range(cos.shape[0]):
+        c = min(np.float64(cos[k]), 1.0)
+        if not c > 0.0:
+            continue
+        kappa = 1.0 / c if with_inverse else 0.0
+        g2 = e2 - 1.0 + c * c
+        if g2 > 0.0:  # else total internal reflection: F_r = 1, F_r' = 0 (F_t = 0: no diffuse light)
+            g = math.sqrt(g2)
+            gpc, gmc = g + c, g - c
+            a = gmc / gpc
+            da = 2.0 * (1.0 - e2) / (g * gpc * gpc)
+            num, den = c * gpc - 1.0, c * gmc + 1.0
+            dn, dd = g + c * c / g + 2.0 * c, g + c * c / g - 2.0 * c
+            b = num / den
+            db = (dn * den - num * dd) / (den * den)
+            f = 0.5 * a * a * (1.0 + b * b)
+            kappa -= (a * da * (1.0 + b * b) + a * a * b * db) / (1.0 - f)
+        out[k] = np.float32(kappa)
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def texel_tilt_slopes(torrance_sparrow, rows, tilt, z, start, n, out):
+    """The slopes of two tilts of the normals for the kept samples ``start`` … ``start + n`` into ``out[:rows, :n]``
+    (float64): rows ∂z₁, ∂ln A₁, ∂z₂, ∂ln A₂ of the lobe and, with ``rows`` = 6, ∂ln D₁, ∂ln D₂ of the diffuse
+    term D = F_t F_t cos θi (:func:`facestats.model.fitting.normal_tilt.tilt_slopes`).
+
+    ``tilt`` = (index, light_index, camera_index, ci, co, io, light, camera), the arrays of
+    :class:`facestats.model.fitting.normal_tilt.TiltInputs` (1/N·ω read from the grids' fourth columns);
+    ``z`` the kept samples' lobe factor z;
+    ``torrance_sparrow``: the model (else Blinn-Phong).  Without a square root: d cos δ / cos δ =
+    (d(N·ωi) + d(N·ωo)) / (N·ωi + N·ωo), 1/cos²δ = 1 + tan²δ = 1 + z (Torrance-Sparrow), and G < 1 where
+    2 (N·ωi + N·ωo) min(N·ωi, N·ωo) < 1 + ωi·ωo (G's test multiplied by ‖ωi + ωo‖).
+    """
+    index, light_index, camera_index, ci, co, io, light, camera = tilt
+    for j in range(n):
+        s = index[start + j]
+        li, cj = light_index[s], camera_index[s]
+        c_i, c_o = np.float64(ci[s]), np.float64(co[s])
+        r_i, r_o, r_s = np.float64(light[li, 3]), np.float64(camera[cj, 3]), 1.0 / (c_i + c_o)
+        # G < 1, and which of N·ωi, N·ωo sets it, as 0/1 weights (branch-free: both are data-dependent)
+        g_on = 1.0 if 2.0 * (c_i + c_o) * min(c_i, c_o) < 1.0 + np.float64(io[s]) else 0.0
+        by_i = 1.0 if c_i <= c_o else 0.0
+        for t in range(2):
+            dci, dco = np.float64(light[li, t]), np.float64(camera[cj, t])
+            dc = (dci + dco) * r_s  # d cos δ / cos δ
+            if torrance_sparrow:
+                d_ln_g = g_on * (dc + by_i * dci * r_i + (1.0 - by_i) * dco * r_o)
+                out[2 * t, j] = -2.0 * dc * (1.0 + np.float64(z[start + j]))
+                out[2 * t + 1, j] = d_ln_g - dco * r_o - 4.0 * dc
+            else:
+                out[2 * t, j] = dc
+                out[2 * t + 1, j] = dci * r_i
+            if rows == 6:
+                out[4 + t, j] = np.float64(light[li, 2]) * dci + np.float64(camera[cj, 2]) * dco

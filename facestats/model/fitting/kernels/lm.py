@@ -29,6 +29,7 @@ import math
 import numba
 import numpy as np
 
+from facestats.model.fitting.kernels.factors import texel_tilt_slopes
 from facestats.model.fitting.kernels.fastexp import fill_lobe
 from facestats.model.fitting.uncertainty import LEVERAGE_CAP
 
@@ -233,15 +234,9 @@ def _normal_equations(model, q, rho, delta, raw, const, acc):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _inverse(h00, h01, h02, h11, h12, h22, with_d):
-    """Upper triangle of the inverse of the symmetric JᵀJ (3 × 3, or its (ρs, q) block without ``d``);
-    NaN where singular, by the test of :func:`facestats.model.fitting.uncertainty.inverse_stack`."""
-    if not with_d:
-        det = h00 * h11 - h01 * h01
-        scale = h00 * h11
-        if not (abs(det) > 1e-12 * abs(scale) and scale != 0):
-            return np.nan, np.nan, 0.0, np.nan, 0.0, 0.0
-        return h11 / det, -h01 / det, 0.0, h00 / det, 0.0, 0.0
+def _inverse(h00, h01, h02, h11, h12, h22):
+    """Upper triangle of the inverse of the symmetric 3 × 3 JᵀJ of (ρs, q, δ); NaN where singular, by the test
+    of :func:`facestats.model.fitting.uncertainty.inverse_stack`."""
     c00 = h11 * h22 - h12 * h12
     c01 = h02 * h12 - h01 * h22
     c02 = h01 * h12 - h02 * h11
@@ -271,7 +266,7 @@ def _diffuse_steps(model, y, z, a, d, start, n, limits, steps, u, bits, raw, con
             return False
         if k == steps:
             return True
-        i00, i01, i02, i11, i12, i22 = _inverse(acc[1], acc[2], acc[3], acc[4], acc[5], acc[6], True)
+        i00, i01, i02, i11, i12, i22 = _inverse(acc[1], acc[2], acc[3], acc[4], acc[5], acc[6])
         b0, b1, b2 = acc[7], acc[8], acc[9]
         s0 = i00 * b0 + i01 * b1 + i02 * b2
         s1 = i01 * b0 + i11 * b1 + i12 * b2
@@ -287,61 +282,168 @@ def _diffuse_steps(model, y, z, a, d, start, n, limits, steps, u, bits, raw, con
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _robust(model, q, rho, delta, y, z, a, d, with_d, start, n, u, bits, raw, const, acc, fresh, sums, out, terms):
-    """E², the HC3 variances of ρs and q (:func:`facestats.model.fitting.uncertainty.robust_variances`) into
-    ``out[0:3]``, and the five lobe sums at the solution of y + δ d into ``sums``.  ``fresh``: ``raw`` and
-    ``u`` already hold :func:`_raw_sums` at this solution.  ``terms`` is float64 scratch (5, ≥ n): the
-    per-sample terms are formed in one loop free of reductions (vectorised), then summed in sample order."""
-    if not fresh:
-        _raw_sums(model, q, y, z, a, d, with_d, start, n, u, bits, raw)
-    _normal_equations(model, q, rho, delta, raw, const, acc)
-    i00, i01, i02, i11, i12, i22 = _inverse(acc[1], acc[2], acc[3], acc[4], acc[5], acc[6], with_d)
+def _eliminate(a, out, c, k):
+    """One Gauss-Jordan step on column ``c`` of ``a`` (pivot row ``c`` already chosen), the same row operations on
+    ``out``; returns the pivot."""
+    pv = a[c, c]
+    for j in range(k):
+        a[c, j] /= pv
+        out[c, j] /= pv
+    for r in range(k):
+        f = a[r, c]
+        if r != c and f != 0.0:
+            for j in range(k):
+                a[r, j] -= f * a[c, j]
+                out[r, j] -= f * out[c, j]
+    return pv
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _invert(h, k, a, out):
+    """The inverse of the symmetric k × k matrix ``h`` (its lower triangle is read) into ``out`` by Gauss-Jordan
+    elimination with partial pivoting (``a`` scratch); False where singular, by the test of
+    :func:`facestats.model.fitting.uncertainty.inverse_stack` (|det| ≤ 1e-12 × the diagonal's product)."""
+    scale = 1.0
+    for i in range(k):
+        scale *= h[i, i]
+        for j in range(k):
+            a[i, j] = h[max(i, j), min(i, j)]
+            out[i, j] = 1.0 if i == j else 0.0
+    det = 1.0
+    for c in range(k):
+        piv = c
+        for r in range(c + 1, k):
+            if abs(a[r, c]) > abs(a[piv, c]):
+                piv = r
+        if not (a[piv, c] != 0.0):
+            return False
+        if piv != c:
+            det = -det
+            for j in range(k):
+                a[c, j], a[piv, j] = a[piv, j], a[c, j]
+                out[c, j], out[piv, j] = out[piv, j], out[c, j]
+        det *= _eliminate(a, out, c, k)
+    return math.isfinite(det) and abs(det) > 1e-12 * abs(scale) and scale != 0.0
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _columns(model, q, rho, delta, y, z, d, with_d, rows, slopes, level, start, n, u, cols, rr):
+    """The per-sample columns of J into the rows of ``cols`` (k, n) and the squared residuals into ``rr``.
+    Columns: g, ρs ∂g/∂q, −d (with ``d``), the lobe tilts ρs g (∂ln A + c ∂z) (``rows`` ≥ 4) and the
+    diffuse tilts ``level`` (−d) ∂ln D (``rows`` = 6, with ``d``), from the texel's ``slopes`` (rows, ≥ n)."""
+    with_tilt = rows >= 4
+    with_diffuse_tilt = with_d and rows == 6
     p = math.exp(q)
     w = 1.0 / (p * p)
-    g_, j1_, j2_, rr_, wr_ = terms[0], terms[1], terms[2], terms[3], terms[4]
+    rate = -w if model == TORRANCE_SPARROW else p  # c of g = s A e^{c z}
+    c = 3 if with_d else 2
     for j in range(n):  # u holds the lobe base at q
-        uj = np.float64(u[j])
-        g, j1 = _jacobian_row(model, w, p, rho, uj, np.float64(z[start + j]))
-        j2 = -np.float64(d[start + j]) if with_d else 0.0
-        r = np.float64(y[start + j]) - delta * j2 - rho * g
-        lev = i00 * g * g + i11 * j1 * j1 + 2 * i01 * g * j1
+        g, j1 = _jacobian_row(model, w, p, rho, np.float64(u[j]), np.float64(z[start + j]))
+        cols[0, j], cols[1, j] = g, j1
+        r = np.float64(y[start + j]) - rho * g
         if with_d:
-            lev += i22 * j2 * j2 + 2 * (i02 * g * j2 + i12 * j1 * j2)
-        lev = min(max(_finite(lev), 0.0), LEVERAGE_CAP)
-        rr = r * r
-        g_[j], j1_[j], j2_[j], rr_[j] = g, j1, j2, rr
-        wr_[j] = rr / ((1 - lev) * (1 - lev))
-    e2 = m00 = m01 = m02 = m11 = m12 = m22 = 0.0
-    for j in range(n):
-        g, j1, j2, wr = g_[j], j1_[j], j2_[j], wr_[j]
-        e2 += rr_[j]
-        m00 += wr * g * g
-        m01 += wr * g * j1
-        m02 += wr * g * j2
-        m11 += wr * j1 * j1
-        m12 += wr * j1 * j2
-        m22 += wr * j2 * j2
+            dj = np.float64(d[start + j])
+            r += delta * dj
+            cols[2, j] = -dj
+        if with_tilt:
+            m = rho * g
+            cols[c, j] = m * (slopes[1, j] + rate * slopes[0, j])
+            cols[c + 1, j] = m * (slopes[3, j] + rate * slopes[2, j])
+        if with_diffuse_tilt:
+            m = -level * np.float64(d[start + j])
+            cols[c + 2, j] = m * slopes[4, j]
+            cols[c + 3, j] = m * slopes[5, j]
+        rr[j] = r * r
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _column_count(with_d, rows):
+    """The number of columns of J of :func:`_columns`."""
+    k = 3 if with_d else 2
+    if rows >= 4:
+        k += 2
+    if with_d and rows == 6:
+        k += 2
+    return k
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _robust(
+    model, q, rho, delta, y, z, a, d, with_d, rows, tilt, level, start, n, u, bits, raw, fresh, sums, out, scratch
+):
+    """E², the HC3 variances of ρs and q (:func:`facestats.model.fitting.uncertainty.robust_variances`) into
+    ``out[0:3]``, and the five lobe sums at the solution of y + δ d into ``sums``.  ``fresh``: ``raw`` and
+    ``u`` already hold :func:`_raw_sums` at this solution.  Columns of J: :func:`_columns`; with ``rows`` > 0
+    the tilts' slopes of the texel's samples are formed first
+    (:func:`facestats.model.fitting.kernels.factors.texel_tilt_slopes` from the arrays ``tilt``; ``level`` =
+    α + δ: :mod:`facestats.model.fitting.normal_tilt`).  ``scratch`` float64 (≥ 15 n).
+
+    H = JᵀJ and P = H⁻¹ J are BLAS products (k ≤ 7 rows of n samples); the leverage of a sample is
+    h = Σᵢ Jᵢ Pᵢ, and the diagonal of H⁻¹ (Σ w J Jᵀ) H⁻¹ needs only the rows 0 and 1 of P:
+    var ρs = Σ w P₀², var q = Σ w P₁² with w = r²/(1 − h)².
+    """
+    if not fresh:
+        _raw_sums(model, q, y, z, a, d, with_d, start, n, u, bits, raw)
     sums[0] = raw[0] + delta * raw[5]  # Σ (y + δ d) u
     sums[1] = raw[1] + delta * raw[6]
     sums[2], sums[3], sums[4] = raw[2], raw[3], raw[4]
-    # diagonal entries 0 and 1 of H⁻¹ M H⁻¹ (H⁻¹ and M symmetric)
-    r0 = (i00, i01, i02)
-    r1 = (i01, i11, i12)
-    mm = ((m00, m01, m02), (m01, m11, m12), (m02, m12, m22))
-    v0 = 0.0
-    v1 = 0.0
-    for i in range(3):
-        for k in range(3):
-            v0 += r0[i] * mm[i][k] * r0[k]
-            v1 += r1[i] * mm[i][k] * r1[k]
+    k = _column_count(with_d, rows)
+    cols = scratch[: k * n].reshape((k, n))
+    rr = scratch[k * n : (k + 1) * n]
+    lev = scratch[(k + 1) * n : (k + 2) * n]
+    slopes = scratch[(k + 2) * n : (k + 2 + rows) * n].reshape((rows, n))
+    if rows > 0:
+        texel_tilt_slopes(model == TORRANCE_SPARROW, rows, tilt, z, start, n, slopes)
+    _columns(model, q, rho, delta, y, z, d, with_d, rows, slopes, level, start, n, u, cols, rr)
+    e2 = 0.0
+    for j in range(n):
+        e2 += rr[j]
     out[0] = e2
+    h = np.dot(cols, cols.T)
+    h_inv = np.empty((k, k))
+    if not _invert(h, k, np.empty((k, k)), h_inv):
+        out[1] = out[2] = np.nan
+        return
+    proj = np.dot(h_inv, cols)
+    lev[:] = 0.0
+    for i in range(k):
+        for j in range(n):
+            lev[j] += cols[i, j] * proj[i, j]
+    v0 = v1 = 0.0
+    for j in range(n):
+        hj = min(max(_finite(lev[j]), 0.0), LEVERAGE_CAP)
+        wj = rr[j] / ((1 - hj) * (1 - hj))
+        v0 += wj * proj[0, j] * proj[0, j]
+        v1 += wj * proj[1, j] * proj[1, j]
     out[1] = v0
     out[2] = v1
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _solve_one(
-    model, y, z, a, d, start, n, p0, bounds, max_iter, tol, steps, u, bits, sums, trial, work, par, out, terms
+    model,
+    y,
+    z,
+    a,
+    d,
+    rows,
+    tilt,
+    albedo,
+    start,
+    n,
+    p0,
+    bounds,
+    max_iter,
+    tol,
+    steps,
+    u,
+    bits,
+    sums,
+    trial,
+    work,
+    par,
+    out,
+    terms,
 ):
     """The whole solve of one texel; ``out`` receives (ρs, q, δ, converged, iterations, E², var ρs, var q)."""
     r_lo, r_hi, q_lo, q_hi, p_lo, p_hi = bounds[0], bounds[1], bounds[2], bounds[3], bounds[4], bounds[5]
@@ -412,13 +514,14 @@ def _solve_one(
         a,
         d,
         with_d,
+        rows,
+        tilt,
+        albedo + par[2] if with_d else 0.0,
         start,
         n,
         u,
         bits,
         raw,
-        const,
-        acc,
         fresh,
         sums,
         out[5:],
@@ -427,7 +530,7 @@ def _solve_one(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def solve_runs(model, y, z, a, d, starts, counts, solve, p_start, bounds, max_iter, tol, steps):
+def solve_runs(model, y, z, a, d, rows, tilt, albedo, starts, counts, solve, p_start, bounds, max_iter, tol, steps):
     """Solve eq. 14 for every texel with ``solve[t]`` (module docstring).
 
     Parameters
@@ -439,6 +542,14 @@ def solve_runs(model, y, z, a, d, starts, counts, solve, p_start, bounds, max_it
     d : ndarray of float32, shape (S,) or (0,)
         ∂y/∂α of the grey albedo per sample: the grey diffuse level is fitted too
         (:mod:`facestats.model.fitting.diffuse_level`); empty: (ρs, p) alone.
+    rows : int
+        0: the errors are conditional on the normal; 4: they allow the lobe's normal two tilts; 6
+        (with ``d``): the diffuse term's normal too (:mod:`facestats.model.fitting.normal_tilt`).
+    tilt : tuple
+        (index, light_index, camera_index, ci, co, io, light, camera): the arrays of
+        :class:`facestats.model.fitting.normal_tilt.TiltInputs` (read with ``rows`` > 0).
+    albedo : ndarray of float64, shape (T,)
+        The grey albedo α eq. 10 removed, per texel (read with ``rows`` = 6 only).
     starts, counts : ndarray of int64, shape (T,)
         The runs.
     solve : ndarray of bool, shape (T,)
@@ -478,7 +589,7 @@ def solve_runs(model, y, z, a, d, starts, counts, solve, p_start, bounds, max_it
         width = max(width, counts[t])
     u = np.empty(width, np.float32)
     bits = np.empty(width, np.int32)
-    terms = np.empty((5, width))  # per-sample terms of the robust variances (_robust)
+    terms = np.empty(15 * width)  # per-sample columns and terms of the robust variances (_robust)
     sums = np.zeros(7)  # the lobe sums of lobes.lobe_sums, then Σ u d, Σ u z d (_raw_sums)
     trial = np.zeros(7)
     work = np.zeros(20)
@@ -493,6 +604,9 @@ def solve_runs(model, y, z, a, d, starts, counts, solve, p_start, bounds, max_it
             z,
             a,
             d,
+            rows,
+            tilt,
+            albedo[t],
             starts[t],
             counts[t],
             p_start[t],

@@ -45,6 +45,7 @@ __all__ = [
     "lobe_jacobian",
     "rms_error",
     "LEVERAGE_CAP",
+    "MAX_INFLATION",
 ]
 
 #: Largest leverage used in the HC3 weights 1/(1 − h)² (a texel of two samples has h = 1).
@@ -122,14 +123,30 @@ def gram_stack(left, right, starts):
     return out
 
 
+#: Largest variance inflation factor H_ii (H⁻¹)_ii of a Gram matrix H taken as invertible (:func:`inverse_stack`).
+MAX_INFLATION = 1e12
+
+
 def inverse_stack(h):
-    """Inverses of a stack of small matrices (T, P, P); NaN where singular (|det| ≤ 1e-12 × the diagonal's product)."""
+    """Inverses of a stack of small Gram matrices (T, P, P); NaN where singular.
+
+    Singular: a zero or non-finite determinant or diagonal, or a column within 1e-12 of the
+    span of the others, i.e. a variance inflation factor H_ii (H⁻¹)_ii above
+    :data:`MAX_INFLATION` (1/(1 − R²) of column i regressed on the others), or one ≤ 0 (it is
+    ≥ 1 for a positive definite H: rounding in a rank-deficient H can make it negative).  For two columns
+    this is the test |det| > 1e-12 × the diagonal's product; for more it does not shrink with
+    their number as that determinant test does.
+    """
     det = np.linalg.det(h)
-    scale = np.prod(np.diagonal(h, axis1=1, axis2=2), axis=1)
-    ok = np.isfinite(det) & (np.abs(det) > 1e-12 * np.abs(scale)) & (scale != 0)
+    diag = np.diagonal(h, axis1=1, axis2=2)
+    ok = np.isfinite(det) & (det != 0) & np.all(np.isfinite(diag) & (diag != 0), axis=1)
     out = np.full_like(h, np.nan)
     if ok.any():
-        out[ok] = np.linalg.inv(h[ok])
+        inv = np.linalg.inv(h[ok])
+        inflation = diag[ok] * np.diagonal(inv, axis1=1, axis2=2)
+        plausible = np.all((inflation > 0) & (inflation <= MAX_INFLATION), axis=1)
+        good = plausible & np.all(np.isfinite(inv), axis=(1, 2))
+        out[np.flatnonzero(ok)[good]] = inv[good]
     return out
 
 

@@ -193,3 +193,29 @@ def test_texels_whose_errors_cannot_be_formed_are_flagged(rng, engine):
     bad = ~(np.isfinite(fit.rho_s_std) & np.isfinite(fit.lobe_std))
     assert bad.all()
     assert np.all(fit.flags & FLAG_BITS["ill_conditioned"])
+
+
+def test_gram_inverses_refuse_dependent_columns_not_many_correlated_ones(rng):
+    """Seven columns, each pair correlated, whose correlation determinant is far below 1e-12 (the old test)
+    but no column within 1e-6 of the others' span: invertible, by both engines' tests; a column equal to a
+    combination of the others is refused (rounding may even make its inflation factor negative)."""
+    from facestats.model.fitting.kernels.lm import _invert
+    from facestats.model.fitting.uncertainty import MAX_INFLATION, inverse_stack
+
+    base = rng.normal(size=(1, 400))
+    cols = base + 0.05 * rng.normal(size=(7, 400))  # all nearly the same column
+    h = cols @ cols.T
+    corr = h / np.sqrt(np.outer(np.diag(h), np.diag(h)))
+    assert np.linalg.det(corr) < 1e-12
+    inflation = np.diag(h) * np.diag(np.linalg.inv(h))
+    assert 1 < inflation.max() < 1e6 < MAX_INFLATION
+    dependent = cols.copy()
+    dependent[6] = dependent[0] - 2 * dependent[3]
+    h_dep = dependent @ dependent.T
+    inv = inverse_stack(np.stack([h, h_dep]))
+    np.testing.assert_allclose(inv[0], np.linalg.inv(h), rtol=1e-9)
+    assert np.all(np.isnan(inv[1]))
+    out = np.empty((7, 7))
+    assert _invert(h, 7, np.empty((7, 7)), out)
+    np.testing.assert_allclose(out, np.linalg.inv(h), rtol=1e-9)
+    assert not _invert(h_dep, 7, np.empty((7, 7)), out)

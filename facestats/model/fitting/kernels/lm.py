@@ -31,7 +31,7 @@ import numpy as np
 
 from facestats.model.fitting.kernels.factors import texel_tilt_slopes
 from facestats.model.fitting.kernels.fastexp import fill_lobe
-from facestats.model.fitting.uncertainty import LEVERAGE_CAP
+from facestats.model.fitting.uncertainty import LEVERAGE_CAP, MAX_INFLATION
 
 __all__ = ["solve_runs", "rms_runs", "TORRANCE_SPARROW", "BLINN_PHONG"]
 
@@ -241,12 +241,15 @@ def _inverse(h00, h01, h02, h11, h12, h22):
     c01 = h02 * h12 - h01 * h22
     c02 = h01 * h12 - h02 * h11
     det = h00 * c00 + h01 * c01 + h02 * c02
-    scale = h00 * h11 * h22
-    if not (abs(det) > 1e-12 * abs(scale) and scale != 0):
-        return np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
     c11 = h00 * h22 - h02 * h02
     c12 = h01 * h02 - h00 * h12
     c22 = h00 * h11 - h01 * h01
+    nan = np.nan
+    if not (math.isfinite(det) and det != 0 and h00 != 0 and h11 != 0 and h22 != 0):
+        return nan, nan, nan, nan, nan, nan
+    v0, v1, v2 = h00 * c00 / det, h11 * c11 / det, h22 * c22 / det  # variance inflation factors
+    if not (0 < v0 <= MAX_INFLATION and 0 < v1 <= MAX_INFLATION and 0 < v2 <= MAX_INFLATION):
+        return nan, nan, nan, nan, nan, nan
     return c00 / det, c01 / det, c02 / det, c11 / det, c12 / det, c22 / det
 
 
@@ -302,10 +305,11 @@ def _eliminate(a, out, c, k):
 def _invert(h, k, a, out):
     """The inverse of the symmetric k × k matrix ``h`` (its lower triangle is read) into ``out`` by Gauss-Jordan
     elimination with partial pivoting (``a`` scratch); False where singular, by the test of
-    :func:`facestats.model.fitting.uncertainty.inverse_stack` (|det| ≤ 1e-12 × the diagonal's product)."""
-    scale = 1.0
+    :func:`facestats.model.fitting.uncertainty.inverse_stack` (a variance inflation factor above
+    :data:`~facestats.model.fitting.uncertainty.MAX_INFLATION`)."""
     for i in range(k):
-        scale *= h[i, i]
+        if not (h[i, i] != 0.0 and math.isfinite(h[i, i])):
+            return False
         for j in range(k):
             a[i, j] = h[max(i, j), min(i, j)]
             out[i, j] = 1.0 if i == j else 0.0
@@ -323,7 +327,20 @@ def _invert(h, k, a, out):
                 a[c, j], a[piv, j] = a[piv, j], a[c, j]
                 out[c, j], out[piv, j] = out[piv, j], out[c, j]
         det *= _eliminate(a, out, c, k)
-    return math.isfinite(det) and abs(det) > 1e-12 * abs(scale) and scale != 0.0
+    return math.isfinite(det) and det != 0.0 and _invertible(h, out, k)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _invertible(h, h_inv, k):
+    """Whether the inverse ``h_inv`` of ``h`` is finite with every variance inflation factor H_ii (H⁻¹)_ii in
+    (0, :data:`~facestats.model.fitting.uncertainty.MAX_INFLATION`]."""
+    for i in range(k):
+        if not (0.0 < h[i, i] * h_inv[i, i] <= MAX_INFLATION):
+            return False
+        for j in range(k):
+            if not math.isfinite(h_inv[i, j]):
+                return False
+    return True
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

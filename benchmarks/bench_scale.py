@@ -28,7 +28,10 @@ Figures, each beside its named baseline:
 * ``calibration``: coverage of the nominal 90 % intervals (±1.645 standard
   errors) of ρs and the lobe parameter over the unflagged texels of simulated
   captures with known truth, per model (Torrance-Sparrow on Torrance-Sparrow
-  captures, Blinn-Phong on Blinn-Phong captures); the target is 85-95 %.
+  captures, Blinn-Phong on Blinn-Phong captures); the target is 85-95 %.  The
+  baseline is the same with ``normal_tilt=False`` (errors conditional on the
+  photometric-stereo normal, as before 2026-12-05); ``calibration_variants``
+  compares the nuisance columns the pipeline's were chosen among.
 * ``blinn_phong_maps``: Blinn-Phong fits of default-population subjects on
   Torrance-Sparrow captures, fitted within 80° (eq. 14 as printed, the
   baseline) and within 70° (``FitSettings.bp_max_angle_deg``): flagged share,
@@ -308,6 +311,100 @@ def bench_calibration(n_subjects=4, grid=48, face="procedural", transport="dipol
     return out
 
 
+def bench_calibration_variants(subjects=(0, 51, 103, 155), grid=48, face="procedural"):
+    """Coverage of nominal 90 % intervals with other nuisance columns than the pipeline's (docs/scale.md).
+
+    The variants among which the pipeline's columns were chosen: the HC3 sandwich of (ρs, ln p, δ) with
+    no tilt (``none``), the lobe's two tilts (``lobe``), the diffuse term's two (``diffuse``), one tilt
+    shared by both (``shared``: the columns summed) and both (``both``, the pipeline's).  Stages 1-4 as
+    the pipeline runs them (numpy engine), on ``subjects`` of the default population on ``face`` at
+    ``grid``, each model on captures rendered with it (dipole transport, camera noise).  The columns
+    are formed here from the package's slopes (:func:`facestats.model.fitting.normal_tilt.tilt_slopes`).
+    """
+    from facestats.acquire.synthetic.faces import named_face
+    from facestats.acquire.synthetic.population import synthesize_population
+    from facestats.acquire.synthetic.simulate import DomeSimulator
+    from facestats.core.published import ETA_SKIN
+    from facestats.model import fitting
+    from facestats.model.fitting.lobes import lobe_base, lobe_rate, lobe_scale
+    from facestats.model.fitting.normal_tilt import tilt_grids, tilt_inputs, tilt_slopes
+    from facestats.model.fitting.samples import run_starts
+    from facestats.model.fitting.uncertainty import LEVERAGE_CAP, gram_stack, inverse_stack, lobe_jacobian
+
+    z90 = 1.6448536269514722
+    geometry = named_face(f"{face}-{grid}")
+    pop = synthesize_population(map_size=grid, geometry=geometry)
+    v, u = geometry.face_texel_index().T
+    hits = {}
+    for subject in subjects:
+        truth = pop[subject]
+        for model, pre, lobe_name in (("torrance_sparrow", "ts", "ts_m"), ("blinn_phong", "bp", "bp_exponent")):
+            lt = DomeSimulator(geometry, specular=model).simulate(truth).lumitexels()
+            samples, _ = fitting.Samples.from_dome(lt.wi, lt.wo, lt.irradiance, lt.radiance, engine="numpy")
+            normal, _ = fitting.photometric_normals(samples, lt.scan_normal, lt.wo.shape[1])
+            ci, co, ft2, use, f_r = fitting.brdf_samples(samples, normal)
+            albedo, _ = fitting.refine_albedo(samples, f_r, ft2, samples.cos_half(ci, co), use)
+            albedo = np.nan_to_num(albedo).astype(np.float32)
+            f_s = fitting.specular_residual(samples, f_r, albedo, ft2)
+            limit = {"blinn_phong": np.radians(70)} if model == "blinn_phong" else None
+            kw = dict(cos=(ci, co), ft2=ft2, max_angle=limit, engine="numpy")
+            fit = fitting.fit_specular_models(samples, normal, f_s, use, (model,), **kw)[model]
+            # The kept samples of eq. 14 (the fit's domain) and their columns.
+            keep = use & np.isfinite(f_s) & (ci > 0) & (co > 0)
+            if limit:
+                c = np.float32(np.cos(limit[model]))
+                keep &= (ci > c) & (co > c)
+            s1, a = fitting.specular_factors(samples, normal, model, cos=(ci, co))
+            keep &= a > 0
+            index = np.flatnonzero(keep)
+            cnt = samples.count(keep)
+            texel = np.repeat(np.arange(cnt.size), cnt)
+            q = np.log(np.where(np.isfinite(fit.lobe) & (fit.lobe > 0), fit.lobe, 1.0))
+            rho, delta = (
+                np.nan_to_num(fit.rho_s).astype(np.float64),
+                np.nan_to_num(fit.diffuse_shift).astype(np.float64),
+            )
+            s1k = s1[index].astype(np.float64)
+            base = lobe_base(model, q, cnt, s1k, a[index].astype(np.float64))
+            g, dg = lobe_jacobian(model, q[texel], base, s1k)
+            y = (f_s[index] * ci[index]).astype(np.float64)
+            d = -(ft2[index] * ci[index]).astype(np.float64) / (3 * np.pi)
+            r = y + delta[texel] * d - rho[texel] * lobe_scale(model, q[texel]) * base
+            grids = tilt_grids(samples, normal.astype(np.float64), ETA_SKIN)
+            slopes = tilt_slopes(model, tilt_inputs(samples, index, (ci, co, samples.cos_io()), grids, True)).astype(
+                np.float64
+            )
+            rate = lobe_rate(model, np.exp(q[texel]))
+            level = np.repeat(albedo.sum(axis=1, dtype=np.float32).astype(np.float64), cnt) + delta[texel]
+            lobe_t = [rho[texel] * g * (slopes[k + 1] + rate * slopes[k]) for k in (0, 2)]
+            diffuse_t = [-level * d * slopes[k] for k in (4, 5)]
+            core = [g, rho[texel] * dg, -d]
+            variants = {
+                "none": core,
+                "lobe": core + lobe_t,
+                "diffuse": core + diffuse_t,
+                "shared": core + [lobe_t[0] + diffuse_t[0], lobe_t[1] + diffuse_t[1]],
+                "both": core + lobe_t + diffuse_t,
+            }
+            starts = run_starts(cnt)
+            ok = fit.flags == 0
+            true_rho, true_lobe = getattr(truth, f"{pre}_rho_s")[v, u], getattr(truth, lobe_name)[v, u]
+            for name, columns in variants.items():
+                jac = np.stack(columns)
+                h_inv = inverse_stack(gram_stack(jac, jac, starts))
+                lev = np.einsum("is,sij,js->s", jac, np.repeat(h_inv, cnt, axis=0), jac)
+                w = r * r / np.square(1 - np.clip(np.nan_to_num(lev), 0, LEVERAGE_CAP))
+                cov = h_inv @ gram_stack(jac, w * jac, starts) @ h_inv
+                std_rho, std_lobe = np.sqrt(cov[:, 0, 0]), np.exp(q) * np.sqrt(cov[:, 1, 1])
+                for par, value, std, true in (
+                    ("rho_s", fit.rho_s, std_rho, true_rho),
+                    ("lobe", fit.lobe, std_lobe, true_lobe),
+                ):
+                    hit = np.abs(value[ok] - true[ok]) <= z90 * std[ok]
+                    hits.setdefault(f"{name}_{pre}_{par}", []).append(hit)
+    return {f"coverage90_{k}": float(np.mean(np.concatenate(h))) for k, h in hits.items()}
+
+
 def bench_calibration_budget(subject=0, grid=48, passes=None):
     """Where the intervals' misses come from: coverage with the truth's normals and albedo swapped in (docstring).
 
@@ -479,6 +576,7 @@ BENCHMARKS = [
     ("codec", bench_codec),
     ("cluster_scaling", bench_cluster_scaling),
     ("calibration", bench_calibration),
+    ("calibration_variants", bench_calibration_variants),
     ("calibration_budget", bench_calibration_budget),
     ("normal_passes", bench_normal_passes),
     ("blinn_phong_maps", bench_blinn_phong_maps),
@@ -491,6 +589,7 @@ SMOKE = {
     "codec": {"grid": 16, "map_size": 32, "lumitexels": 200},
     "cluster_scaling": {"n": 2, "grid": 16, "map_size": 32, "workers": (1, 2), "block": 256},
     "calibration": {"n_subjects": 1, "grid": 16},
+    "calibration_variants": {"subjects": (0,), "grid": 16},
     "calibration_budget": {"grid": 16},
     "normal_passes": {"grid": 16, "passes": (1, 5)},
     "blinn_phong_maps": {"n_subjects": 1, "grid": 16},

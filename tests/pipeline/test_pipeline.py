@@ -332,6 +332,7 @@ def test_photometric_normals_runs_at_least_one_pass(ts_case):
         ({"max_angle_deg": 95.0}, r"max_angle_deg must lie in \(0, 90\] deg"),
         ({"max_relative_error": 0.0}, r"max_relative_error must lie in \(0, inf\]"),
         ({"eta": 0.5}, r"eta must lie in \[1, 3\]"),
+        ({"normal_tilt": "yes"}, r"normal_tilt must be True or False, got 'yes'"),
     ],
 )
 def test_fit_settings_validation(kwargs, message):

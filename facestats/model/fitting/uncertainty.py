@@ -24,10 +24,15 @@ covariances of θ̂ are formed from sums over the texel's samples:
   matrix: its column −d is what lets δ trade against ρs and the lobe.
 
 The stored standard errors are the square roots of the robust diagonal (for the
-lobe parameter p = e^q: p · σ_q).  What they leave out is the error of the
-photometric-stereo normal the fit is evaluated with, and any difference between
-the true reflectance and the model (``docs/scale.md`` gives the coverage measured
-on simulated captures).
+lobe parameter p = e^q: p · σ_q).  With the tilts of
+:mod:`facestats.model.fitting.normal_tilt` (the pipeline's default) the matrix has
+four more columns, and the errors allow the lobe's and the diffuse term's normals
+to differ from the photometric-stereo normal the fit is evaluated with.  What they
+leave out is any other difference between the true reflectance and the model
+(``docs/scale.md`` gives the coverage measured on simulated captures).
+
+Gram matrices are inverted where no column lies within 1e-12 of the span of the
+others (:func:`inverse_stack`).
 """
 
 from __future__ import annotations
@@ -105,21 +110,28 @@ def robust_variances(model, y, s1, a, d, n_use, good, rho, q, delta=None, tilt=N
     jac = np.stack(cols)  # (P, S)
     h_inv = inverse_stack(gram_stack(jac, jac, starts))  # (T, P, P)
     with np.errstate(invalid="ignore"):
-        lev = np.einsum("is,sij,js->s", jac, np.repeat(h_inv, cnt, axis=0), jac)
+        # P = H⁻¹ J per sample, row by row (no (S, P, P) array); the leverage is Σ_i J_i P_i and the
+        # diagonal of H⁻¹ (Σ w J Jᵀ) H⁻¹ needs only the rows of ρs and q: Σ w P₀², Σ w P₁².
+        proj = [sum(np.repeat(h_inv[:, i, m], cnt) * jac[m] for m in range(len(cols))) for i in range(len(cols))]
+        lev = sum(jac[i] * proj[i] for i in range(len(cols)))
         rr = r * r
         w = rr / np.square(1 - np.clip(np.nan_to_num(lev), 0, LEVERAGE_CAP))
-        cov = h_inv @ gram_stack(jac, w * jac, starts) @ h_inv
+        var_rho[good] = np.add.reduceat(w * proj[0] * proj[0], starts)
+        var_q[good] = np.add.reduceat(w * proj[1] * proj[1], starts)
     e2[good] = np.add.reduceat(rr, starts)
-    var_rho[good], var_q[good] = cov[:, 0, 0], cov[:, 1, 1]
     return e2, var_rho, var_q
 
 
 def gram_stack(left, right, starts):
-    """Per-run Σ left_i right_j as (T, P, Q) for rows ``left`` (P, S) and ``right`` (Q, S) (float64 sums)."""
+    """Per-run Σ left_i right_j as (T, P, Q) for rows ``left`` (P, S) and ``right`` (Q, S) (float64 sums; when
+    ``right`` is ``left``, each symmetric pair once)."""
     out = np.empty((starts.size, left.shape[0], right.shape[0]))
-    for i in range(left.shape[0]):  # P, Q ≤ 5: a few segmented sums, each over all samples
+    for i in range(left.shape[0]):  # P, Q ≤ 7: segmented sums, each over all samples
         for j in range(right.shape[0]):
-            out[:, i, j] = np.add.reduceat(left[i] * right[j], starts)
+            if right is left and j < i:
+                out[:, i, j] = out[:, j, i]
+            else:
+                out[:, i, j] = np.add.reduceat(left[i] * right[j], starts)
     return out
 
 

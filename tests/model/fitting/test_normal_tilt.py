@@ -210,3 +210,19 @@ def test_engines_agree_on_tilt_errors(rng):
         for name in ("rho_s_std", "lobe_std"):
             rel = np.abs(getattr(a, name)[ok] / getattr(b, name)[ok] - 1)
             assert rel.max() < 2e-3, (model, name, rel.max())
+
+
+def test_tilt_of_the_diffuse_term_needs_its_albedo(rng):
+    from facestats import FacestatsError
+
+    wi, wo = hemisphere_pairs(rng, 2, 50)
+    n = np.tile([0.0, 0.0, 1.0], (2, 1))
+    samples = fitting.Samples.from_arrays(wi, wo, np.ones((2, 50), bool), engine="numpy")
+    f_s, ft2 = np.full(samples.n, 0.1, np.float32), np.full(samples.n, 0.9, np.float32)
+    use = np.ones(samples.n, bool)
+    with pytest.raises(FacestatsError, match="albedo .* is required with normal_tilt and ft2"):
+        fitting.fit_specular_models(samples, n, f_s, use, "torrance_sparrow", ft2=ft2, normal_tilt=True)
+    with pytest.raises(FacestatsError, match=r"albedo must have shape \(2, 3\)"):
+        fitting.fit_specular_models(
+            samples, n, f_s, use, "torrance_sparrow", ft2=ft2, normal_tilt=True, albedo=np.ones((3, 3))
+        )

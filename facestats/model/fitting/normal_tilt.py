@@ -43,11 +43,13 @@ F_r' = dF_r/d cos θ (:func:`facestats.model.fresnel.fresnel_reflectance_slope_u
 lumitexel and the camera: they are formed on the (lumitexel, light) and
 (lumitexel, camera) grids (:func:`tilt_grids`) and read per sample.
 
-Both are checked against finite differences of the factors in the tests.  The
-compiled twin is :func:`facestats.model.fitting.kernels.factors.tilt_slopes`.
-On simulated captures the nominal 90 % intervals of all four parameters cover
-the truth in 87-95 % of the texels with both tilts, 80-84 % without
-(``docs/scale.md``).
+ε is in radians; the slopes are per radian of tilt.  All are checked against
+finite differences of the factors in the tests.  The compiled twin is
+:func:`facestats.model.fitting.kernels.factors.texel_tilt_slopes` (the same
+quantities without a square root).  On simulated captures (procedural and ICT
+face, dipole and local transport) the nominal 90 % intervals of all four
+parameters cover the truth in 87.5-94.5 % of the texels with both tilts,
+79.9-90.1 % without (``docs/scale.md``).
 """
 
 from __future__ import annotations

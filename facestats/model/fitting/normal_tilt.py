@@ -155,24 +155,26 @@ def tilt_grids(samples, normal, eta, engine="numpy"):
     ωi·t₂, κi, 1/N·ωi on the (lumitexel, light) grid and (n C, 4) with ωo·t₁, ωo·t₂, κo, 1/N·ωo on the
     (lumitexel, camera) grid, flat as ``samples.light_index`` and ``camera_index`` index them; t₁, t₂ of
     :func:`tangent_pair`, κ of :func:`diffuse_coefficients` (κ and 1/N·ω 0 where the direction is at or below
-    the horizon of ``normal``), formed by ``engine`` ("numba":
-    :func:`facestats.model.fitting.kernels.factors.diffuse_coefficients`)."""
-    (ti1, to1), (ti2, to2) = (samples.cos_grids(t) for t in tangent_pair(normal))
-    ci, co = (c.reshape(-1) for c in samples.cos_grids(normal))
+    the horizon of ``normal``), formed by ``engine`` ("numba": one compiled pass per grid,
+    :func:`facestats.model.fitting.kernels.factors.tilt_grid`)."""
+    t1, t2 = tangent_pair(normal)
     if engine == "numba":
         # local import: the kernels import numba
-        from facestats.model.fitting.kernels.factors import diffuse_coefficients as compiled
+        from facestats.model.fitting.kernels.factors import tilt_grid
 
-        k_i, k_o = compiled(ci, np.float32(eta), True), compiled(co, np.float32(eta), False)
-    else:
-        up_i, up_o = ci > 0, co > 0
-        k_i, k_o = diffuse_coefficients(np.where(up_i, ci, 1), np.where(up_o, co, 1), eta)
-        k_i, k_o = np.where(up_i, k_i, 0), np.where(up_o, k_o, 0)
+        vectors = [np.ascontiguousarray(v, np.float32) for v in (normal, t1, t2)]
+        wi, wo = (np.ascontiguousarray(g, np.float32) for g in (samples.wi_grid, samples.wo_grid))
+        return tilt_grid(wi, *vectors, np.float32(eta), True), tilt_grid(wo, *vectors, np.float32(eta), False)
+    (ti1, to1), (ti2, to2) = (samples.cos_grids(t) for t in (t1, t2))
+    ci, co = (c.reshape(-1) for c in samples.cos_grids(normal))
+    up_i, up_o = ci > 0, co > 0
+    k_i, k_o = diffuse_coefficients(np.where(up_i, ci, 1), np.where(up_o, co, 1), eta)
     with np.errstate(divide="ignore"):
-        r_i, r_o = np.where(ci > 0, 1 / ci.astype(np.float64), 0), np.where(co > 0, 1 / co.astype(np.float64), 0)
-    light = np.stack([ti1.reshape(-1), ti2.reshape(-1), k_i, r_i], axis=1).astype(np.float32)
-    camera = np.stack([to1.reshape(-1), to2.reshape(-1), k_o, r_o], axis=1).astype(np.float32)
-    return light, camera
+        r_i, r_o = 1 / ci.astype(np.float64), 1 / co.astype(np.float64)
+    light = np.stack([ti1.reshape(-1), ti2.reshape(-1), k_i, r_i], axis=1)
+    camera = np.stack([to1.reshape(-1), to2.reshape(-1), k_o, r_o], axis=1)
+    light[~up_i, 2:], camera[~up_o, 2:] = 0, 0
+    return light.astype(np.float32), camera.astype(np.float32)
 
 
 def factor_slopes(model, ci, co, io, dci, dco):

@@ -226,3 +226,25 @@ def test_tilt_of_the_diffuse_term_needs_its_albedo(rng):
         fitting.fit_specular_models(
             samples, n, f_s, use, "torrance_sparrow", ft2=ft2, normal_tilt=True, albedo=np.ones((3, 3))
         )
+
+
+def test_tilt_grids_of_both_engines_agree(rng):
+    """The compiled grids equal numpy's: the dot products bit for bit, κ and 1/N·ω to float32 rounding; below the
+    horizon both are 0."""
+    from facestats.model.fitting.normal_tilt import tilt_grids
+
+    n, lights, cams = 30, 40, 6
+    wi = rng.normal(size=(n, lights, 3))
+    wo = rng.normal(size=(n, cams, 3))
+    wi /= np.linalg.norm(wi, axis=-1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=-1, keepdims=True)
+    irr = np.ones((n, lights, 3), np.float32)
+    rad = np.ones((n, cams, lights, 3), np.float32)
+    samples, _ = fitting.Samples.from_dome(wi.astype(np.float32), wo.astype(np.float32), irr, rad, engine="numpy")
+    normal = rng.normal(size=(n, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    a, b = tilt_grids(samples, normal, ETA, "numpy"), tilt_grids(samples, normal, ETA, "numba")
+    for grid_a, grid_b in zip(a, b):
+        np.testing.assert_array_equal(grid_a[:, :2], grid_b[:, :2])
+        np.testing.assert_allclose(grid_a[:, 2:], grid_b[:, 2:], rtol=2e-7, atol=0)
+        assert np.any(grid_a[:, 3] == 0) and np.all((grid_a[:, 3] == 0) == (grid_a[:, 2] == 0))

@@ -27,7 +27,7 @@ import numpy as np
 from facestats.model.fitting.kernels.fastexp import fill_log
 from facestats.model.fitting.kernels.samples import cos_half32
 
-__all__ = ["fresnel_reflectance", "specular_inputs", "texel_tilt_slopes", "diffuse_coefficients"]
+__all__ = ["fresnel_reflectance", "specular_inputs", "texel_tilt_slopes", "tilt_grid"]
 
 _ONE = np.float32(1.0)
 _TWO = np.float32(2.0)
@@ -196,31 +196,47 @@ def _gather(values, index, wanted):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def diffuse_coefficients(cos, eta, with_inverse):
-    """κ = (1/cos θ if ``with_inverse``) − F_r'(θ)/F_t(θ) per entry of ``cos`` (float32 in, float32 out, float64
-    arithmetic; 0 at or below the horizon): :func:`facestats.model.fitting.normal_tilt.diffuse_coefficients`,
-    with F_r and F_r' the closed form of :func:`fresnel_reflectance` and its derivative
+def _kappa(cos, e2, with_inverse):
+    """κ = (1/cos θ if ``with_inverse``) − F_r'(θ)/F_t(θ) at cos θ = ``cos`` > 0 (float64; η² = ``e2``):
+    :func:`facestats.model.fitting.normal_tilt.diffuse_coefficients`, with F_r and F_r' the closed form of
+    :func:`fresnel_reflectance` and its derivative
     (:func:`facestats.model.fresnel.fresnel_reflectance_slope_unchecked`)."""
-    out = np.zeros(cos.shape[0], np.float32)
+    c = min(cos, 1.0)
+    kappa = 1.0 / c if with_inverse else 0.0
+    g2 = e2 - 1.0 + c * c
+    if g2 > 0.0:  # else total internal reflection: F_r = 1, F_r' = 0 (F_t = 0: no diffuse light)
+        g = math.sqrt(g2)
+        gpc, gmc = g + c, g - c
+        a = gmc / gpc
+        da = 2.0 * (1.0 - e2) / (g * gpc * gpc)
+        num, den = c * gpc - 1.0, c * gmc + 1.0
+        dn, dd = g + c * c / g + 2.0 * c, g + c * c / g - 2.0 * c
+        b = num / den
+        db = (dn * den - num * dd) / (den * den)
+        f = 0.5 * a * a * (1.0 + b * b)
+        kappa -= (a * da * (1.0 + b * b) + a * a * b * db) / (1.0 - f)
+    return kappa
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def tilt_grid(directions, normal, t1, t2, eta, with_inverse):
+    """The tilts' grid of one direction grid (n, D, 3) float32: (n D, 4) float32 with columns ω·t₁, ω·t₂, κ and 1/N·ω
+    per (lumitexel, direction), κ and 1/N·ω 0 at or below the horizon
+    (:func:`facestats.model.fitting.normal_tilt.tilt_grids`: the same float32 dot products, κ of :func:`_kappa`
+    with 1/cos θ for the lights (``with_inverse``), 1/N·ω in float64 rounded to float32)."""
+    n, m = directions.shape[0], directions.shape[1]
+    out = np.zeros((n * m, 4), np.float32)
     e2 = np.float64(eta) * np.float64(eta)
-    for k in range(cos.shape[0]):
-        c = min(np.float64(cos[k]), 1.0)
-        if not c > 0.0:
-            continue
-        kappa = 1.0 / c if with_inverse else 0.0
-        g2 = e2 - 1.0 + c * c
-        if g2 > 0.0:  # else total internal reflection: F_r = 1, F_r' = 0 (F_t = 0: no diffuse light)
-            g = math.sqrt(g2)
-            gpc, gmc = g + c, g - c
-            a = gmc / gpc
-            da = 2.0 * (1.0 - e2) / (g * gpc * gpc)
-            num, den = c * gpc - 1.0, c * gmc + 1.0
-            dn, dd = g + c * c / g + 2.0 * c, g + c * c / g - 2.0 * c
-            b = num / den
-            db = (dn * den - num * dd) / (den * den)
-            f = 0.5 * a * a * (1.0 + b * b)
-            kappa -= (a * da * (1.0 + b * b) + a * a * b * db) / (1.0 - f)
-        out[k] = np.float32(kappa)
+    for t in range(n):
+        for k in range(m):
+            x, y, z = directions[t, k, 0], directions[t, k, 1], directions[t, k, 2]
+            row = t * m + k
+            out[row, 0] = x * t1[t, 0] + y * t1[t, 1] + z * t1[t, 2]
+            out[row, 1] = x * t2[t, 0] + y * t2[t, 1] + z * t2[t, 2]
+            c = x * normal[t, 0] + y * normal[t, 1] + z * normal[t, 2]
+            if c > 0:
+                out[row, 2] = np.float32(_kappa(np.float64(c), e2, with_inverse))
+                out[row, 3] = np.float32(1.0 / np.float64(c))
     return out
 
 

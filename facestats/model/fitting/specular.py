@@ -248,11 +248,10 @@ def fit_specular_models(
     kept = {}
     for limit, group in groups.items():
         y, factors, counts, d, index = domains[limit]
-        for m in group:
-            tilt = None
-            if grids is not None:
-                tilt = tilt_inputs(samples, index, (ci, co, samples.cos_io()), grids, grey is not None)
-            kept[m] = (y, factors[m], counts, d, tilt)
+        tilt = None  # the group's models share their samples, and so the tilts' inputs
+        if grids is not None:
+            tilt = tilt_inputs(samples, index, (ci, co, samples.cos_io()), grids, grey is not None)
+        kept.update({m: (y, factors[m], counts, d, tilt) for m in group})
     settings = dict(min_samples=min_samples, max_iter=max_iter, tol=tol, max_relative_error=max_relative_error)
     fits = _solve_models(models, kept, bounds, start, engine, settings, grey)
     for limit, group in groups.items():
@@ -503,6 +502,8 @@ def fit_specular(
     Returns
     -------
     SpecularFit
+        Its standard errors are conditional on ``normal`` (the caller's); the pipeline, whose normal is
+        photometric stereo's estimate, lets them allow a tilt (:func:`fit_specular_models`, ``normal_tilt``).
     """
     check_choice(model, "model", DEFAULT_BOUNDS)
     as_finite(max_angle, "max_angle", 0, np.pi / 2, low_inclusive=False, unit="rad")

@@ -140,8 +140,8 @@ def tilt_slopes(model, tilt):
 
 
 def tangent_pair(normal):
-    """Two unit tangents (t₁, t₂) per normal, float64 (n, 3) each: t₁ ⊥ N in the plane of N and +y
-    (of N and +x where N is within 0.06° of ±y), t₂ = N × t₁.  ``normal`` (n, 3) unit vectors."""
+    """Two unit tangents (t₁, t₂) per normal, float64 (n, 3) each: t₁ = N × ŷ normalised (perpendicular to N and
+    +y; N × x̂ where N is within 0.06° of ±y), t₂ = N × t₁.  ``normal`` (n, 3) unit vectors."""
     n = np.asarray(normal, np.float64)
     t1 = np.cross(n, (0.0, 1.0, 0.0))
     near_y = np.linalg.norm(t1, axis=1) < 1e-3

@@ -15,6 +15,10 @@ horizon, A > 0 for every model), and write, in per-texel runs,
 The arithmetic is float32 in the order of the numpy functions, so the factors
 agree with theirs to the last bit, except z of Blinn-Phong, whose logarithm is
 :func:`facestats.model.fitting.kernels.fastexp.fill_log` (within 2e-7 of numpy's).
+
+The same module forms what the standard errors' tilts of the normals need
+(:mod:`facestats.model.fitting.normal_tilt`): the per-(lumitexel, direction) grids
+(:func:`tilt_grid`) and a texel's slopes of the factors (:func:`texel_tilt_slopes`).
 """
 
 from __future__ import annotations

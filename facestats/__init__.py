@@ -16,8 +16,11 @@ Heavy modules are imported lazily so the command line starts fast.
 
 from __future__ import annotations
 
+from facestats.core.kernel_cache import refresh_kernel_caches
 from facestats.core.version import __version__
 from facestats.errors import FacestatsError
+
+refresh_kernel_caches()  # numba's caches of changed kernels (and of their callers) must not be used
 
 __all__ = ["FacestatsError", "__version__", "open_store"]
 

@@ -1,0 +1,61 @@
+"""numba's kernel caches are cleared when any kernel module changes (facestats.core.kernel_cache)."""
+
+import re
+from pathlib import Path
+
+import facestats
+from facestats.core import kernel_cache
+from facestats.core.kernel_cache import KERNEL_MODULES, STAMP, source_digest
+
+PACKAGE = Path(facestats.__file__).resolve().parent
+
+
+def test_every_module_with_kernels_is_listed():
+    found = {
+        p.relative_to(PACKAGE).as_posix()
+        for p in PACKAGE.rglob("*.py")
+        if re.search(r"numba\.(njit|jit|vectorize|guvectorize)|@njit", p.read_text(encoding="utf-8"))
+    }
+    assert found == set(KERNEL_MODULES)
+
+
+def _package(tmp_path):
+    for rel in KERNEL_MODULES:
+        f = tmp_path / rel
+        f.parent.mkdir(parents=True, exist_ok=True)
+        f.write_text(f"# {rel}\n")
+        cache = f.parent / "__pycache__"
+        cache.mkdir(exist_ok=True)
+        (cache / f"{f.stem}.kernel-12.py311.nbi").write_bytes(b"index")
+        (cache / f"{f.stem}.kernel-12.py311.1.nbc").write_bytes(b"code")
+        (cache / f"{f.stem}.cpython-311.pyc").write_bytes(b"bytecode")
+    other = tmp_path / "model" / "fitting" / "kernels" / "__pycache__" / "unrelated.f-1.py311.nbi"
+    other.write_bytes(b"not ours")
+    return other
+
+
+def _caches(root):
+    return sorted(p.name for p in root.rglob("*.nb[ic]"))
+
+
+def test_caches_are_cleared_once_and_again_after_a_change(tmp_path):
+    refresh = kernel_cache.refresh_kernel_caches.__wrapped__  # the once-per-process memo bypassed
+    other = _package(tmp_path)
+    assert len(_caches(tmp_path)) == 2 * len(KERNEL_MODULES) + 1
+    assert refresh(str(tmp_path)) is True  # no stamp yet: unknown caches are cleared
+    assert _caches(tmp_path) == [other.name]  # a file of no kernel module stays
+    assert (tmp_path / "__pycache__" / STAMP).read_text().strip() == source_digest(tmp_path)
+    assert len(list(tmp_path.rglob("*.pyc"))) == len(KERNEL_MODULES)  # bytecode is not numba's
+    # Unchanged sources: fresh caches are kept.
+    lm = tmp_path / "model" / "fitting" / "kernels" / "__pycache__" / "lm.solve-3.py311.nbi"
+    lm.write_bytes(b"new index")
+    assert refresh(str(tmp_path)) is False and lm.exists()
+    # A callee changes (not the caller's file): the caller's cache goes too.
+    (tmp_path / "model" / "fitting" / "kernels" / "factors.py").write_text("# changed\n")
+    assert refresh(str(tmp_path)) is True and not lm.exists()
+    assert refresh(str(tmp_path)) is False
+
+
+def test_the_installed_package_carries_its_digest():
+    stamp = PACKAGE / "__pycache__" / STAMP
+    assert not stamp.exists() or stamp.read_text().strip() == source_digest(PACKAGE)

@@ -1,53 +1,63 @@
-"""Compressed relighting: clustered PCA of the solid-angle weighted reflectance functions.
+"""Compressed relighting: clustered PCA of the solid-angle weighted reflectance functions, by light region.
 
 Debevec et al. 2000 §3.3 relight directly from JPEG-compressed reflectance
 functions (Smith & Rowe's compressed-domain products) "reducing both storage
 and computation by a factor of twenty"; §5 suggests exploiting the similarity
-of neighbouring reflectance functions.  facestats uses a *shared basis per
-cluster of pixels* (clustered PCA, Sloan et al. 2003) instead of a per-pixel
-transform:
+of neighbouring reflectance functions.  facestats keeps a *shared basis per
+cluster of pixels and per region of the light sphere* (clustered PCA, Sloan et
+al. 2003, with the lights split into regions):
 
-    √δA_l R_p,c(l) ≈ s_p,c μ_k(l) + Σ_{j<K} C_{p,c,j} B_k,j(l),     k = cluster of pixel p
+    √δA_l R_p,c(l) ≈ Σ_{j<K_kr} C_p,c,r,j B_kr,j(l)   for the lights l of region r,  k = cluster of pixel p
 
-with s_p,c = ‖√δA R_p,c‖ and (μ_k, B_k) the mean and K leading principal
-components of the *normalised* rows √δA R_p,c / s_p,c of the pixels of cluster k,
-all three channels together.
-Choice and justification:
+where the B_kr are the leading principal directions (uncentred) of the rows
+√δA R_p,c / ‖√δA R_p,c‖ of *every* pixel of cluster k, all three channels,
+restricted to the lights of region r, and the coefficients C are the
+projections of the unnormalised rows.  Choice and justification (the
+measurements behind it: ``docs/relighting.md``, D2):
 
-* **Cost of a relight.**  The lighting is projected once on every cluster's
-  basis (C·K·L multiply-adds for all pixels together) and each pixel then needs
-  K multiply-adds per channel: one small dense GEMV per cluster and channel.  A
+* **Cost of a relight.**  The lighting is projected once on every basis
+  (Σ K_kr L_r multiply-adds per channel) and each stored row then needs K_kr
+  multiply-adds: one small dense GEMV per (region, cluster, channel).  A
   per-pixel transform (DCT/wavelet of each 64 × 32 function, the paper's JPEG)
   keeps different coefficients per pixel and needs a gather per coefficient;
   measured on a face field, a per-pixel Haar truncation to 1/20 of the
-  coefficients also errs far more (over 100 % on backlit pixels under the
-  ennis probe) than a shared basis.
-* **Why clusters.**  One global basis (K = 100 of 2048) cannot follow the
-  specular lobe and the shadow edges, whose position moves with the normal:
-  errors of tens of percent on backlit pixels under the test probes.  Pixels
-  with similar reflectance functions (similar normals, similar shadowing)
-  share a basis well; the clusters are found by k-means on the functions'
-  projections onto a global basis.  Within a cluster the three channels'
-  functions differ mostly by a colour factor and share the basis.
+  coefficients also errs far more than a shared basis.
+* **Why clusters.**  One global basis cannot follow the specular lobe and the
+  shadow edges, whose position moves with the normal.  Pixels with similar
+  reflectance functions share a basis well; the clusters are found by k-means
+  on the functions' projections onto a global basis.  Within a cluster the
+  three channels' functions differ mostly by a colour factor and share the basis.
+* **Why light regions.**  Over half of the (pixel, light) values of a face
+  are exactly zero: lights below a pixel's horizon or behind the nose.  A
+  basis over the whole sphere reconstructs them with small ripples, and a
+  bright source there (a window, the sun) multiplies the ripple into errors of
+  100 % and more on the pixels it does not light.  Split into regions (the two
+  hemispheres y ≥ 0 and y < 0, each into ``sectors`` azimuth sectors about +y),
+  a row that is zero over a whole region is not stored and comes back exactly
+  zero, and ripples stay inside the region they belong to.
+* **Components where they pay.**  Each (cluster, region) block offers its
+  components in the order of its singular values; a component of block b costs
+  L_r + n_b stored values (its basis row and one coefficient per stored row)
+  and removes σ² of the normalised rows' squared residual.  Components are
+  taken greedily by σ² per stored value until the budget of the ratio is
+  spent, so flat regions get none and the specular regions many.
 * **The error metric.**  Environment lighting weights each light by its solid
   angle δA (eq. 4), so each basis minimises Σ_l δA_l (R − R̂)²: rows are scaled
-  by √δA before the PCA.  Unweighted, it would spend coefficients on the light
-  stage's polar rows, which sample "more samples per solid angle near the
-  poles" (§3.3) but carry little light.  And a relit image is judged by its
-  *relative* error per pixel and channel, so the PCA runs on rows normalised to
-  unit norm (each row keeps its norm s as one extra stored value): a dark blue
-  channel is then represented as well as a bright red one.  Measured on a 256²
-  face at ratio 20, this halves the worst relative error against the
-  unnormalised PCA, whose errors concentrate in the weak channels of dark pixels.
-* **Honest diagnostics.**  Components are nested, so the residual
-  ‖√δA (R − R̂)‖ of every pixel is non-increasing in K (:meth:`CompressedField.truncate`),
-  and by Cauchy-Schwarz the relighting error of a pixel is bounded by that
-  residual times ‖L √δA‖ (:meth:`CompressedField.error_bound`).
+  by √δA.  And a relit image is judged by its *relative* error per pixel and
+  channel, so the bases come from rows normalised to unit norm over the whole
+  sphere: a dark blue channel weighs as much as a bright red one.  Every pixel
+  enters its cluster's bases (a basis estimated from a sample of the pixels
+  left unsampled pixels with errors near 100 %, over 1,000 % under a rotated probe).
+* **Honest diagnostics.**  The components of a block are nested and the greedy
+  order is fixed, so keeping fewer (:meth:`CompressedField.truncate`) never
+  lowers any row's residual ‖√δA (R − R̂)‖, and by Cauchy-Schwarz the
+  relighting error of a pixel is bounded by that residual times ‖L √δA‖
+  (:meth:`CompressedField.error_bound`).
 
 The compression ratio counts stored values: L·P·3 dense values of the face
-pixels against (K + 1)·P·3 coefficients and scales and C·(K + 1)·L basis and
-mean values (background pixels are all zero and stored as a mask in both
-cases; the cluster label per pixel is not counted).
+pixels against the basis rows and coefficients plus two values per pixel (its
+cluster label and the bit mask of its zero (channel, region) rows); background
+pixels are all zero and stored as a mask in both cases.
 """
 
 from __future__ import annotations
@@ -61,27 +71,12 @@ from facestats.errors import ValidationError
 from facestats.relight.field import as_field, image_tiles, light_dims, light_table
 from facestats.relight.lighting import resample_probe
 
-__all__ = ["CompressedField", "compress", "rank_for_ratio", "default_clusters"]
+__all__ = ["CompressedField", "compress", "default_clusters", "light_regions"]
 
 #: Target pixels per cluster of the default clustering.
 PIXELS_PER_CLUSTER = 512
-
-
-def rank_for_ratio(n_lights: int, n_pixels: int, ratio: float, clusters: int = 1) -> int:
-    """Largest K with 3 L P / ((3 P + C L)(K + 1)) ≥ ``ratio`` (K coefficients and one scale per row).
-
-    Raises :class:`ValidationError` when even K = 1 cannot reach the ratio.
-    """
-    r = float(as_finite(ratio, "ratio", 1, None))
-    c = check_integer(clusters, "clusters", 1)
-    dense = 3 * n_lights * n_pixels
-    k = int(np.floor(dense / r / (3 * n_pixels + c * n_lights))) - 1
-    if k < 1:
-        best = dense / (2 * (3 * n_pixels + c * n_lights))
-        raise ValidationError(
-            f"ratio must be at most {best:.1f} for {n_lights} lights, {n_pixels} pixels and {c} clusters, got {r:g}"
-        )
-    return min(k, n_lights)
+#: Values stored per pixel besides its coefficients: the cluster label and the zero-row bit mask.
+PER_PIXEL = 2
 
 
 def default_clusters(n_pixels: int) -> int:
@@ -89,69 +84,117 @@ def default_clusters(n_pixels: int) -> int:
     return max(1, int(round(n_pixels / PIXELS_PER_CLUSTER)))
 
 
+def light_regions(directions, sectors: int = 4) -> np.ndarray:
+    """Region (int64, in [0, 2 ``sectors``)) of each light direction (…, 3), facestats world frame (+y up).
+
+    Region h · ``sectors`` + s: hemisphere h = 0 for y ≥ 0, 1 below; azimuth sector
+    s = ⌊(atan2(x, z) + π) / (2π / ``sectors``)⌋ about +y (sector 0 starts at −z, turning through −x).
+    """
+    d = as_finite(directions, "directions", dtype=np.float64)
+    if d.ndim < 1 or d.shape[-1] != 3:
+        raise ValidationError(f"directions must have shape (..., 3), got {d.shape}")
+    n = check_integer(sectors, "sectors", 1)
+    azimuth = np.arctan2(d[..., 0], d[..., 2]) + np.pi
+    sector = np.minimum((azimuth / (2 * np.pi / n)).astype(np.int64), n - 1)
+    return np.where(d[..., 1] >= 0, 0, n) + sector
+
+
+@dataclass
+class _Block:
+    """One (region, cluster) block: its basis rows and, per channel, the stored rows' pixels and coefficients."""
+
+    basis: np.ndarray  # (K, L_r) float32, orthonormal rows
+    gains: np.ndarray  # (K,) σ² of each component (normalised rows), non-increasing
+    rows: tuple  # per channel: positions (int64, (n_c,)) in CompressedField.pixels
+    coefficients: tuple  # per channel: (n_c, K) float32
+
+    @property
+    def stored(self) -> int:
+        """Basis values and coefficients."""
+        k = self.basis.shape[0]
+        return k * (self.basis.shape[1] + sum(r.size for r in self.rows)) if k else 0
+
+
 @dataclass
 class CompressedField:
-    """A reflectance field in clustered PCA bases (module docstring); relights in O(P K + C K L).
+    """A reflectance field in clustered PCA bases per light region (module docstring).
 
     Attributes
     ----------
-    means : ndarray, shape (C, L)
-        Mean of the normalised weighted functions √δA R/‖√δA R‖ of each cluster.
-    bases : ndarray, shape (C, K, L)
-        Orthonormal components B_k in the √δA-weighted space.
-    coefficients : ndarray, shape (3, P, K)
-        C per channel and stored pixel, pixels ordered by cluster.
-    scale : ndarray, shape (3, P)
-        ‖√δA R‖ of each pixel and channel (the mean enters scaled by it).
     pixels : ndarray of int, shape (P,)
-        Flat index (row · W + column) of each stored pixel, in cluster order.
-    offsets : ndarray of int, shape (C + 1,)
-        Pixels ``offsets[k]:offsets[k+1]`` belong to cluster k.
+        Flat index (row · W + column) of each stored pixel.
+    labels : ndarray of int, shape (P,)
+        Cluster of each stored pixel.
+    regions : list of ndarray of int
+        The lights (flat indices) of each region.
+    blocks : dict
+        (region, cluster) → block: basis (K, L_r), per channel the stored rows and their coefficients.
     residual : ndarray, shape (P, 3)
-        ‖√δA (R − R̂)‖ of each pixel and channel at this K.
+        ‖√δA (R − R̂)‖ of each pixel and channel.
+    order : ndarray of int, shape (N, 2)
+        (region, cluster) of every offered component in the greedy order; the first ``kept`` are kept.
+    kept : int
     sqrt_solid_angle : ndarray, shape (L,)
     directions : ndarray, shape (light dims..., 3)
     image_shape : tuple of int
     """
 
-    means: np.ndarray
-    bases: np.ndarray
-    coefficients: np.ndarray
-    scale: np.ndarray
     pixels: np.ndarray
-    offsets: np.ndarray
+    labels: np.ndarray
+    regions: list
+    blocks: dict
     residual: np.ndarray
+    order: np.ndarray
+    kept: int
     sqrt_solid_angle: np.ndarray
     directions: np.ndarray
     image_shape: tuple
 
     @property
-    def rank(self) -> int:
-        """K, the coefficients kept per pixel and channel."""
-        return int(self.bases.shape[1])
-
-    @property
     def clusters(self) -> int:
-        return int(self.bases.shape[0])
+        return int(self.labels.max()) + 1 if self.labels.size else 0
 
     @property
     def n_lights(self) -> int:
-        return int(self.bases.shape[2])
+        return int(self.sqrt_solid_angle.size)
+
+    @property
+    def components(self) -> int:
+        """Basis rows kept over all blocks."""
+        return int(sum(b.basis.shape[0] for b in self.blocks.values()))
+
+    @property
+    def stored(self) -> int:
+        """Stored values: basis rows, coefficients and :data:`PER_PIXEL` per pixel."""
+        return int(sum(b.stored for b in self.blocks.values())) + PER_PIXEL * self.pixels.size
 
     @property
     def ratio(self) -> float:
-        """Dense face values over stored values: 3 L P / (3 P (K + 1) + C (K + 1) L)."""
-        p, k, c, n = self.pixels.size, self.rank, self.clusters, self.n_lights
-        return 3 * n * p / (3 * p * (k + 1) + c * (k + 1) * n)
+        """Dense face values over stored values: 3 L P / :attr:`stored`."""
+        return 3 * self.n_lights * self.pixels.size / self.stored
 
-    def truncate(self, rank: int) -> "CompressedField":
-        """The same field with the first ``rank`` components of every cluster (residuals only grow)."""
-        k = check_integer(rank, "rank", 1, self.rank)
-        c = self.coefficients[..., k:]
-        extra = np.einsum("cpk,cpk->pc", c, c, dtype=np.float64)
-        res = np.sqrt(self.residual.astype(np.float64) ** 2 + extra).astype(np.float32)
-        return replace(self, bases=np.ascontiguousarray(self.bases[:, :k]),
-                       coefficients=np.ascontiguousarray(self.coefficients[..., :k]), residual=res)  # fmt: skip
+    def truncate(self, ratio: float) -> "CompressedField":
+        """The same field with the greedy prefix of its components that meets ``ratio`` (residuals only grow; a
+        ratio at or below :attr:`ratio` keeps them all)."""
+        r = float(as_finite(ratio, "ratio", 0, None, low_inclusive=False))
+        budget = 3 * self.n_lights * self.pixels.size / r - PER_PIXEL * self.pixels.size
+        cost = {key: self.regions[key[0]].size + sum(x.size for x in b.rows) for key, b in self.blocks.items()}
+        keep, per_block = _take(self.order[: self.kept], cost, budget)
+        res2 = self.residual.astype(np.float64) ** 2
+        blocks = {}
+        for key, b in self.blocks.items():
+            k = per_block.get(key, 0)
+            for c in range(3):
+                dropped = b.coefficients[c][:, k:]
+                res2[b.rows[c], c] += np.einsum("nk,nk->n", dropped, dropped, dtype=np.float64)
+            if k:
+                blocks[key] = _Block(
+                    basis=b.basis[:k].copy(),
+                    gains=b.gains[:k].copy(),
+                    rows=b.rows,
+                    coefficients=tuple(np.ascontiguousarray(cf[:, :k]) for cf in b.coefficients),
+                )
+        return replace(self, blocks=blocks, residual=np.sqrt(res2).astype(np.float32), kept=keep)
 
     def _weights(self, lighting):
         w = as_finite(lighting, "lighting", dtype=np.float64)
@@ -164,30 +207,25 @@ class CompressedField:
     def relight(self, lighting=None, *, probe=None, layout: str = "latlong", rotate: float = 0.0) -> np.ndarray:
         """Relit image from the compressed field, (H, W, 3) float32 (Debevec et al. 2000 eq. 4).
 
-        Per cluster: base = μ_k·(W/√δA), proj = B_k (W/√δA), then pixel value =
-        C_p · proj + s_p base per channel.  ``lighting`` is L·δA per light (as
+        Per block: proj = B_kr (W/√δA)_r, then each stored row adds C · proj of its
+        channel.  ``lighting`` is L·δA per light (as
         :func:`facestats.relight.relighting.relight`); or pass a ``probe`` (with
         ``layout``, ``rotate``) to resample.
         """
-
         if (lighting is None) == (probe is None):
             raise ValidationError("pass exactly one of lighting (L·δA per light) and probe")
         if probe is not None:
             lighting = resample_probe(probe, self.directions, layout=layout, rotate=rotate)
         wd = (self._weights(lighting) / self.sqrt_solid_angle[:, None]).astype(np.float32)  # (L, 3)
-        c, k, n = self.bases.shape
-        proj = (self.bases.reshape(c * k, n) @ wd).reshape(c, k, 3)
-        base = self.means @ wd  # (C, 3)
-        vals = np.empty((self.pixels.size, 3), np.float32)
-        off = self.offsets
-        for j in range(c):  # loop over clusters: one GEMV per channel each
-            a, b = off[j], off[j + 1]
-            if b > a:
-                for ch in range(3):
-                    np.matmul(self.coefficients[ch, a:b], proj[j, :, ch], out=vals[a:b, ch])
-                vals[a:b] += self.scale[:, a:b].T * base[j]
+        by_region = [wd[lights] for lights in self.regions]
+        vals = np.zeros((3, self.pixels.size), np.float32)
+        for (r, _), b in self.blocks.items():  # loop over blocks: one GEMV per channel each
+            proj = b.basis @ by_region[r]  # (K, 3)
+            for c in range(3):
+                if b.rows[c].size:
+                    vals[c, b.rows[c]] += b.coefficients[c] @ proj[:, c]
         out = np.zeros((self.image_shape[0] * self.image_shape[1], 3), np.float32)
-        out[self.pixels] = vals
+        out[self.pixels] = vals.T
         return out.reshape(self.image_shape + (3,))
 
     def error_bound(self, lighting) -> np.ndarray:
@@ -200,12 +238,13 @@ class CompressedField:
 
     def reconstruct(self) -> np.ndarray:
         """The approximated field, (L, H, W, 3) float32 (for inspection; memory of the dense field)."""
+        rows = np.zeros((3, self.pixels.size, self.n_lights), np.float32)
+        for (r, _), b in self.blocks.items():  # loop over blocks
+            lights = self.regions[r]
+            for c in range(3):
+                rows[c, b.rows[c][:, None], lights[None, :]] = b.coefficients[c] @ b.basis
         out = np.zeros((self.n_lights, self.image_shape[0] * self.image_shape[1], 3), np.float32)
-        for j in range(self.clusters):  # loop over clusters
-            a, b = self.offsets[j], self.offsets[j + 1]
-            rows = np.einsum("cpk,kl->lpc", self.coefficients[:, a:b], self.bases[j])
-            rows += self.means[j][:, None, None] * self.scale[:, a:b].T[None]
-            out[:, self.pixels[a:b]] = rows / self.sqrt_solid_angle[:, None, None]
+        out[:, self.pixels] = np.transpose(rows, (2, 1, 0)) / self.sqrt_solid_angle[:, None, None]
         return out.reshape((self.n_lights,) + self.image_shape + (3,))
 
 
@@ -300,55 +339,81 @@ def _clusters(stream, c, nf, s, rng):
     return labels.astype(np.int64)
 
 
-def _cluster_bases(stream, labels, order, offsets, k, s, rng):
-    """Mean (C, L) and K components (C, K, L) of each cluster, from up to ``s`` of its pixels."""
-    c, n = offsets.size - 1, stream.sw.size
-    picked = np.zeros(stream.n_pix, bool)
-    for j in range(c):  # loop over clusters: draw each one's sample
-        members = order[offsets[j] : offsets[j + 1]]
-        if members.size:
-            picked[rng.choice(members, min(members.size, s), replace=False)] = True
-    rows, where = stream.rows_of(picked, "compress: cluster bases")
-    rows = _normalised(rows)
-    means = np.zeros((c, n), np.float32)
-    bases = np.zeros((c, k, n), np.float32)
-    lab = labels[where]
-    for j in range(c):  # loop over clusters
-        r = rows[lab == j]
-        if r.shape[0]:
-            means[j], bases[j] = _pca(r.reshape(-1, n), k)
-    return means, bases
-
-
 def _normalised(rows):
     """Rows divided by their norms (zero rows stay zero)."""
     norm = np.linalg.norm(rows, axis=-1, keepdims=True)
     return rows / np.where(norm > 0, norm, 1)
 
 
-def _coefficients(stream, labels, order, means, bases):
-    """Coefficients (3, P, K), scales (3, P) in cluster order and residual norms (P, 3) of every face pixel.
+def _grams(stream, labels, regions):
+    """Gram matrices Σ yᵀy (float64, (L_r, L_r)) of the normalised non-zero rows of each (region, cluster) block,
+    and the number of those rows."""
+    grams, counts = {}, {}
+    for sel, rows in stream.each("compress: gram matrices"):
+        rows = _normalised(rows)  # (n, 3, L)
+        lab = labels[sel]
+        for r, lights in enumerate(regions):
+            sub = rows[:, :, lights]  # (n, 3, L_r)
+            nonzero = np.any(sub != 0, axis=-1)  # (n, 3)
+            for k in np.unique(lab):  # loop over the clusters present in this tile
+                here = (lab == k)[:, None] & nonzero
+                if here.any():
+                    y = sub[here].astype(np.float64)
+                    g = grams.setdefault((r, int(k)), np.zeros((lights.size, lights.size)))
+                    g += y.T @ y
+                    counts[(r, int(k))] = counts.get((r, int(k)), 0) + y.shape[0]
+    return grams, counts
 
-    A row y is stored as ‖y‖ μ_k + C B_k with C = (y − ‖y‖ μ_k) B_kᵀ: the basis was
-    fitted to normalised rows, so its error is relative to each row's norm.
-    """
-    k = bases.shape[1]
-    rank_in = np.empty(stream.n_pix, np.int64)
-    rank_in[order] = np.arange(stream.n_pix)
-    coef = np.empty((3, stream.n_pix, k), np.float32)
-    scale = np.empty((3, stream.n_pix), np.float32)
-    res = np.empty((stream.n_pix, 3), np.float32)
-    for sel, tile_rows in stream.each("compress: coefficients"):
-        for j in np.unique(labels[sel]):  # loop over the clusters present in this tile
-            here = labels[sel] == j
-            norm = np.linalg.norm(tile_rows[here], axis=-1)  # (n, 3)
-            y = tile_rows[here] - norm[..., None] * means[j]
-            cf = y @ bases[j].T  # (n, 3, K)
-            dest = rank_in[sel[here]]
-            coef[:, dest, :] = np.transpose(cf, (1, 0, 2))
-            scale[:, dest] = norm.T
-            res[dest] = np.linalg.norm(y - cf @ bases[j], axis=-1)
-    return coef, scale, res
+
+def _bases(grams):
+    """Per block: the principal directions (K, L_r) float32 and their σ², non-increasing (σ² > 1e-12 σ²_max)."""
+    out = {}
+    for key, g in grams.items():
+        e, v = np.linalg.eigh(g)
+        e, v = e[::-1], v[:, ::-1]
+        keep = e > max(e[0], 1e-300) * 1e-12
+        out[key] = (np.ascontiguousarray(v[:, keep].T, np.float32), e[keep])
+    return out
+
+
+def _take(order, cost, budget):
+    """The greedy prefix of ``order`` (rows (region, cluster)) within ``budget`` stored values, one component of
+    block b costing ``cost[b]``: (its length, components per block)."""
+    used, counts = 0, {}
+    for i, (r, k) in enumerate(order):
+        key = (int(r), int(k))
+        if used + cost[key] > budget:
+            return i, counts
+        used += cost[key]
+        counts[key] = counts.get(key, 0) + 1
+    return len(order), counts
+
+
+def _coefficients(stream, labels, regions, bases, counts):
+    """Per block and channel: the stored rows (positions in the face pixels) and their coefficients on the
+    block's K components; the residual ‖√δA (R − R̂)‖ (P, 3) of every row."""
+    parts = {key: ([[], [], []], [[], [], []]) for key in bases}
+    res2 = np.zeros((stream.n_pix, 3))
+    for sel, rows in stream.each("compress: coefficients"):
+        lab = labels[sel]
+        for r, lights in enumerate(regions):
+            sub = rows[:, :, lights]  # (n, 3, L_r), unnormalised
+            nonzero = np.any(sub != 0, axis=-1)
+            for k in np.unique(lab):  # loop over the clusters present in this tile
+                key = (r, int(k))
+                if key not in bases:
+                    continue
+                basis = bases[key][0][: counts.get(key, 0)]
+                for c in range(3):
+                    here = np.flatnonzero((lab == k) & nonzero[:, c])
+                    if not here.size:
+                        continue
+                    y = sub[here, c]
+                    cf = y @ basis.T  # (n, K)
+                    res2[sel[here], c] += np.sum((y - cf @ basis).astype(np.float64) ** 2, axis=-1)
+                    parts[key][0][c].append(sel[here])
+                    parts[key][1][c].append(cf)
+    return parts, np.sqrt(res2).astype(np.float32)
 
 
 def compress(
@@ -356,35 +421,36 @@ def compress(
     ratio: float = 20,
     *,
     clusters: int | None = None,
-    rank: int | None = None,
+    sectors: int = 4,
     features: int = 32,
     sample: int = 256,
     seed: int = 0,
     progress: bool = False,
 ) -> CompressedField:
-    """Compress a reflectance field into clustered, solid-angle weighted PCA bases (module docstring).
+    """Compress a reflectance field into clustered, solid-angle weighted PCA bases per light region (module docstring).
 
     Streaming passes over the field's tiles (in memory or on disk): a global
     basis of ``features`` components from a sample of pixels and every pixel's
-    projection on it; k-means of those projections into ``clusters``; each
-    cluster's mean and K components from up to ``sample`` of its pixels; then
-    every pixel's coefficients and residual.
+    projection on it; k-means of those projections into ``clusters``; the Gram
+    matrix of every (region, cluster) block from all its pixels' normalised
+    non-zero rows, and its principal directions; the greedy choice of components
+    for the ratio; then every stored row's coefficients and every row's residual.
 
     Parameters
     ----------
     field : xarray.Dataset
     ratio : float
-        Minimum compression ratio; sets K = :func:`rank_for_ratio` unless ``rank`` is given.
+        Minimum compression ratio (> 0; below 1 stores more than the dense field, e.g. every component).
     clusters : int, optional
         Number of clusters C (default :func:`default_clusters`: one per 512 face pixels).
-    rank : int, optional
-        Keep exactly K components per cluster.
+    sectors : int
+        Azimuth sectors per hemisphere of :func:`light_regions` (2 × ``sectors`` regions).
     features : int
         Components of the global basis that the clustering works on.
     sample : int
-        Pixels per cluster (and, times C, for the global basis) used to estimate the bases.
+        Pixels per cluster (times C) that estimate the global basis of the clustering.
     seed : int
-        Seed of the samples and of k-means.
+        Seed of that sample and of k-means.
     progress : bool
         Progress bar over tiles.
 
@@ -393,31 +459,51 @@ def compress(
     CompressedField
     """
     f = as_field(field)
-    _, sa, _ = light_table(f)
+    directions, sa, _ = light_table(f)
     sw = np.sqrt(sa)
     n = sa.size
     pixels = _face_pixels(f)
     if pixels.size == 0:
         raise ValidationError("field has no pixel with a non-zero reflectance (or its mask is empty)")
+    r_min = float(as_finite(ratio, "ratio", 0, None, low_inclusive=False))
     c = default_clusters(pixels.size) if clusters is None else check_integer(clusters, "clusters", 1, pixels.size)
-    k = rank_for_ratio(n, pixels.size, ratio, c) if rank is None else check_integer(rank, "rank", 1, n)
     s = check_integer(sample, "sample", 1)
     nf = check_integer(features, "features", 1, n)
     rng = np.random.default_rng(check_integer(seed, "seed"))
+    region_of = light_regions(directions, sectors)
+    regions = [np.flatnonzero(region_of == r) for r in range(2 * sectors)]
+    regions = [lights for lights in regions if lights.size]
     stream = _Pass(f, pixels, sw, progress)
     labels = _clusters(stream, c, nf, s, rng)
-    order = np.argsort(labels, kind="stable")
-    offsets = np.concatenate([[0], np.cumsum(np.bincount(labels, minlength=c))])
-    means, bases = _cluster_bases(stream, labels, order, offsets, k, s, rng)
-    coef, scale, res = _coefficients(stream, labels, order, means, bases)
+    grams, rows_of = _grams(stream, labels, regions)  # rows_of: the rows a block stores, for its components' cost
+    bases = _bases(grams)
+    del grams
+    cost = {key: regions[key[0]].size + rows_of[key] for key in bases}  # stored values of one component
+    gain = [(e / cost[key], key) for key, (_, sigma2) in bases.items() for e in sigma2]
+    gain.sort(key=lambda g: -g[0])
+    order = np.array([key for _, key in gain], np.int64).reshape(-1, 2)
+    budget = 3 * n * pixels.size / r_min - PER_PIXEL * pixels.size
+    kept, counts = _take(order, cost, budget)
+    if kept == 0:
+        raise ValidationError(
+            f"ratio {r_min:g} leaves no room for one component ({n} lights, {pixels.size} pixels); use a smaller ratio"
+        )
+    parts, residual = _coefficients(stream, labels, regions, bases, counts)
+    blocks = {}
+    for key, (basis, e) in bases.items():
+        k = counts.get(key, 0)
+        if k:
+            rows = tuple(np.concatenate(p) if p else np.zeros(0, np.int64) for p in parts[key][0])
+            coef = tuple(np.concatenate(p) if p else np.zeros((0, k), np.float32) for p in parts[key][1])
+            blocks[key] = _Block(basis=basis[:k], gains=e[:k], rows=rows, coefficients=coef)
     return CompressedField(
-        means=means,
-        bases=bases,
-        coefficients=coef,
-        scale=scale,
-        pixels=pixels[order],
-        offsets=offsets,
-        residual=res,
+        pixels=pixels,
+        labels=labels,
+        regions=regions,
+        blocks=blocks,
+        residual=residual,
+        order=order,
+        kept=kept,
         sqrt_solid_angle=sw,
         directions=np.asarray(f["direction"].values, np.float64),
         image_shape=(f.sizes["y"], f.sizes["x"]),

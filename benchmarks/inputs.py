@@ -6,10 +6,17 @@ directory) next to a key file recording the facestats source it was made with
 (a SHA-256 of every ``facestats/**/*.py``) and the parameters it was made from.
 An input whose key differs from the current one is deleted and rebuilt, so a
 benchmark can never measure data that an older version of the code produced.
+
+Two processes asking for one input at once build it once: the check and the
+build hold an exclusive lock (``<name>.lock``, POSIX ``flock``).  Do not run
+benchmarks of *different* code versions against one ``FACESTATS_BENCH_DIR`` at
+the same time: the newer one deletes and rebuilds an input the other may be
+reading, and zarr reads the chunks that vanished as zeros.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import pathlib
@@ -51,6 +58,12 @@ def cached_input(name: str, params: dict, make, *, rebuild: bool = False):
         What ``make`` returned, or ``{}`` when a current copy was reused.
     """
     root = bench_dir()
+    with open(root / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        return _current_or_built(root, name, params, make, rebuild)
+
+
+def _current_or_built(root, name, params, make, rebuild):
     path, key_file = root / name, root / f"{name}.key.json"
     key = {"code": source_fingerprint(), "params": params}
     if not rebuild and path.exists() and key_file.exists():

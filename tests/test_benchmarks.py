@@ -9,6 +9,7 @@ it returns.  Timings are not asserted: they belong to the benchmarks.
 from __future__ import annotations
 
 import functools
+import importlib
 import importlib.util
 import math
 import pathlib
@@ -56,3 +57,28 @@ def test_benchmark_runs_at_a_tiny_size(module, name, fn, tmp_path, monkeypatch):
         assert isinstance(key, str)
         if isinstance(value, (int, float)):
             assert math.isfinite(value), (key, value)
+
+
+def test_an_input_asked_for_twice_at_once_is_built_once(tmp_path, monkeypatch):
+    import threading
+    import time
+
+    monkeypatch.setenv("FACESTATS_BENCH_DIR", str(tmp_path))
+    monkeypatch.syspath_prepend(str(BENCH))
+    inputs = importlib.import_module("inputs")
+    built = []
+
+    def make(path):
+        built.append(path)
+        time.sleep(0.3)  # long enough for the other caller to arrive while this one builds
+        pathlib.Path(path).write_text("data")
+        return {"made": 1}
+
+    results = []
+    callers = [threading.Thread(target=lambda: results.append(inputs.cached_input("x", {"a": 1}, make))) for _ in "ab"]
+    for t in callers:
+        t.start()
+    for t in callers:
+        t.join()
+    assert len(built) == 1 and sorted(len(r[1]) for r in results) == [0, 1]  # one built, the other reused
+    assert inputs.cached_input("x", {"a": 2}, make)[1] == {"made": 1} and len(built) == 2  # other parameters: rebuilt

@@ -411,8 +411,9 @@ def _coefficients(stream, labels, regions, bases, counts):
                     y = sub[here, c]
                     cf = y @ basis.T  # (n, K)
                     res2[sel[here], c] += np.sum((y - cf @ basis).astype(np.float64) ** 2, axis=-1)
-                    parts[key][0][c].append(sel[here])
-                    parts[key][1][c].append(cf)
+                    if basis.shape[0]:  # a block without components stores nothing
+                        parts[key][0][c].append(sel[here])
+                        parts[key][1][c].append(cf)
     return parts, np.sqrt(res2).astype(np.float32)
 
 

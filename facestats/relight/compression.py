@@ -55,9 +55,11 @@ measurements behind it: ``docs/relighting.md``, D2):
   (:meth:`CompressedField.error_bound`).
 
 The compression ratio counts stored values: L·P·3 dense values of the face
-pixels against the basis rows and coefficients plus two values per pixel (its
-cluster label and the bit mask of its zero (channel, region) rows); background
-pixels are all zero and stored as a mask in both cases.
+pixels against the basis rows and coefficients plus, per pixel, its cluster
+label and the bit mask of its zero (channel, region) rows (:func:`per_pixel_values`).
+Only the face pixels (the field's ``mask``, else the pixels with a non-zero
+value) are stored: pixels outside the mask relight to 0, and
+:meth:`CompressedField.error_bound` covers the stored pixels.
 """
 
 from __future__ import annotations
@@ -66,17 +68,29 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_integer
+from facestats.core.validate import as_finite, check_integer, check_seed
 from facestats.errors import ValidationError
 from facestats.relight.field import as_field, image_tiles, light_dims, light_table
 from facestats.relight.lighting import resample_probe
 
-__all__ = ["CompressedField", "compress", "default_clusters", "light_regions"]
+__all__ = ["CompressedField", "compress", "default_clusters", "light_regions", "per_pixel_values"]
 
 #: Target pixels per cluster of the default clustering.
 PIXELS_PER_CLUSTER = 512
-#: Values stored per pixel besides its coefficients: the cluster label and the zero-row bit mask.
-PER_PIXEL = 2
+
+
+def per_pixel_values(n_regions: int) -> int:
+    """Values stored per pixel besides its coefficients: its cluster label and its bit mask of zero rows
+    (3 channels × ``n_regions`` bits, in 32-bit values)."""
+    return 1 + -(-3 * n_regions // 32)
+
+
+def _ratio(value, name="ratio"):
+    """A positive finite scalar ratio."""
+    r = as_finite(value, name, 0, None, low_inclusive=False)
+    if r.ndim:
+        raise ValidationError(f"{name} must be a number, got an array of shape {r.shape}")
+    return float(r)
 
 
 def default_clusters(n_pixels: int) -> int:
@@ -165,8 +179,9 @@ class CompressedField:
 
     @property
     def stored(self) -> int:
-        """Stored values: basis rows, coefficients and :data:`PER_PIXEL` per pixel."""
-        return int(sum(b.stored for b in self.blocks.values())) + PER_PIXEL * self.pixels.size
+        """Stored values: basis rows, coefficients and :func:`per_pixel_values` per pixel."""
+        per_pixel = per_pixel_values(len(self.regions))
+        return int(sum(b.stored for b in self.blocks.values())) + per_pixel * self.pixels.size
 
     @property
     def ratio(self) -> float:
@@ -176,10 +191,12 @@ class CompressedField:
     def truncate(self, ratio: float) -> "CompressedField":
         """The same field with the greedy prefix of its components that meets ``ratio`` (residuals only grow; a
         ratio at or below :attr:`ratio` keeps them all)."""
-        r = float(as_finite(ratio, "ratio", 0, None, low_inclusive=False))
-        budget = 3 * self.n_lights * self.pixels.size / r - PER_PIXEL * self.pixels.size
+        r = _ratio(ratio)
+        budget = 3 * self.n_lights * self.pixels.size / r - per_pixel_values(len(self.regions)) * self.pixels.size
         cost = {key: self.regions[key[0]].size + sum(x.size for x in b.rows) for key, b in self.blocks.items()}
         keep, per_block = _take(self.order[: self.kept], cost, budget)
+        if keep == 0:
+            raise ValidationError(_no_room(r, cost[tuple(self.order[0])], budget))
         res2 = self.residual.astype(np.float64) ** 2
         blocks = {}
         for key, b in self.blocks.items():
@@ -197,7 +214,10 @@ class CompressedField:
         return replace(self, blocks=blocks, residual=np.sqrt(res2).astype(np.float32), kept=keep)
 
     def _weights(self, lighting):
+        """L·δA per light as (L, 3) float64; grey lighting (one value per light) is given to every channel."""
         w = as_finite(lighting, "lighting", dtype=np.float64)
+        if w.shape in (self.directions.shape[:-1], (self.n_lights,)):
+            w = np.repeat(w[..., None], 3, axis=-1)
         if w.shape[:-1] not in (self.directions.shape[:-1], (self.n_lights,)) or w.shape[-1] != 3:
             raise ValidationError(
                 f"lighting must hold L·δA per light, shape {self.directions.shape[:-1] + (3,)}, got {w.shape}"
@@ -214,6 +234,8 @@ class CompressedField:
         """
         if (lighting is None) == (probe is None):
             raise ValidationError("pass exactly one of lighting (L·δA per light) and probe")
+        if probe is None and rotate != 0:
+            raise ValidationError(f"rotate applies to a probe, got rotate={rotate!r} with lighting")
         if probe is not None:
             lighting = resample_probe(probe, self.directions, layout=layout, rotate=rotate)
         wd = (self._weights(lighting) / self.sqrt_solid_angle[:, None]).astype(np.float32)  # (L, 3)
@@ -229,7 +251,8 @@ class CompressedField:
         return out.reshape(self.image_shape + (3,))
 
     def error_bound(self, lighting) -> np.ndarray:
-        """Per-pixel bound on |relight(compressed) − relight(dense)|: residual · ‖W/√δA‖, (H, W, 3)."""
+        """Per-pixel bound on |relight(compressed) − relight(dense)| over the stored pixels (0 elsewhere):
+        residual · ‖W/√δA‖, (H, W, 3) (Cauchy-Schwarz)."""
         w = self._weights(lighting)
         norm = np.sqrt(((w / self.sqrt_solid_angle[:, None]) ** 2).sum(0))
         out = np.zeros((self.image_shape[0] * self.image_shape[1], 3), np.float32)
@@ -340,9 +363,9 @@ def _clusters(stream, c, nf, s, rng):
 
 
 def _normalised(rows):
-    """Rows divided by their norms (zero rows stay zero)."""
-    norm = np.linalg.norm(rows, axis=-1, keepdims=True)
-    return rows / np.where(norm > 0, norm, 1)
+    """Rows divided by their norms (taken in float64: no overflow for float32 rows; zero rows stay zero)."""
+    norm = np.sqrt(np.einsum("...l,...l->...", rows, rows, dtype=np.float64))[..., None]
+    return (rows / np.where(norm > 0, norm, 1)).astype(rows.dtype)
 
 
 def _grams(stream, labels, regions):
@@ -374,6 +397,14 @@ def _bases(grams):
         keep = e > max(e[0], 1e-300) * 1e-12
         out[key] = (np.ascontiguousarray(v[:, keep].T, np.float32), e[keep])
     return out
+
+
+def _no_room(ratio, first, budget):
+    """The message of a ratio whose budget cannot hold the first component of the greedy order."""
+    return (
+        f"ratio {ratio:g} leaves {max(budget, 0):.0f} values after the per-pixel ones, and the first component "
+        f"costs {first}; use a smaller ratio"
+    )
 
 
 def _take(order, cost, budget):
@@ -447,7 +478,7 @@ def compress(
     sectors : int
         Azimuth sectors per hemisphere of :func:`light_regions` (2 × ``sectors`` regions).
     features : int
-        Components of the global basis that the clustering works on.
+        Components of the global basis that the clustering works on (at most the number of lights).
     sample : int
         Pixels per cluster (times C) that estimate the global basis of the clustering.
     seed : int
@@ -466,11 +497,11 @@ def compress(
     pixels = _face_pixels(f)
     if pixels.size == 0:
         raise ValidationError("field has no pixel with a non-zero reflectance (or its mask is empty)")
-    r_min = float(as_finite(ratio, "ratio", 0, None, low_inclusive=False))
+    r_min = _ratio(ratio)
     c = default_clusters(pixels.size) if clusters is None else check_integer(clusters, "clusters", 1, pixels.size)
     s = check_integer(sample, "sample", 1)
-    nf = check_integer(features, "features", 1, n)
-    rng = np.random.default_rng(check_integer(seed, "seed"))
+    nf = min(check_integer(features, "features", 1), n)
+    rng = np.random.default_rng(check_seed(seed))
     region_of = light_regions(directions, sectors)
     regions = [np.flatnonzero(region_of == r) for r in range(2 * sectors)]
     regions = [lights for lights in regions if lights.size]
@@ -483,12 +514,12 @@ def compress(
     gain = [(e / cost[key], key) for key, (_, sigma2) in bases.items() for e in sigma2]
     gain.sort(key=lambda g: -g[0])
     order = np.array([key for _, key in gain], np.int64).reshape(-1, 2)
-    budget = 3 * n * pixels.size / r_min - PER_PIXEL * pixels.size
+    if not order.size:
+        raise ValidationError("field has no face pixel with a non-zero reflectance: nothing to compress")
+    budget = 3 * n * pixels.size / r_min - per_pixel_values(len(regions)) * pixels.size
     kept, counts = _take(order, cost, budget)
     if kept == 0:
-        raise ValidationError(
-            f"ratio {r_min:g} leaves no room for one component ({n} lights, {pixels.size} pixels); use a smaller ratio"
-        )
+        raise ValidationError(_no_room(r_min, cost[tuple(order[0])], budget))
     parts, residual = _coefficients(stream, labels, regions, bases, counts)
     blocks = {}
     for key, (basis, e) in bases.items():

@@ -31,13 +31,23 @@ def test_light_regions_split_hemispheres_and_azimuth_sectors():
 def test_ratio_counts_every_stored_value(field):
     c = cmp.compress(field, ratio=8, clusters=2)
     p, n = int(field["mask"].sum()), 32 * 16
+    assert cmp.per_pixel_values(8) == 2 and cmp.per_pixel_values(16) == 3  # label + 24 or 48 mask bits
     stored = sum(b.basis.size + sum(x.size for x in b.coefficients) for b in c.blocks.values()) + 2 * p
     assert c.stored == stored and c.ratio == pytest.approx(3 * n * p / stored) and c.ratio >= 8
     assert c.components == sum(b.basis.shape[0] for b in c.blocks.values()) == c.kept
-    with pytest.raises(ValidationError, match="leaves no room"):
+    with pytest.raises(ValidationError, match="leaves 0 values"):
         cmp.compress(field, ratio=1e6)
-    with pytest.raises(ValidationError, match="ratio"):
-        cmp.compress(field, ratio=-1)
+    with pytest.raises(ValidationError, match="first component"):
+        c.truncate(1e6)  # truncation refuses what compression refuses
+    for bad in (-1, [1, 2], np.inf):
+        with pytest.raises(ValidationError, match="ratio"):
+            cmp.compress(field, ratio=bad)
+    with pytest.raises(ValidationError, match="seed"):
+        cmp.compress(field, seed=-1)
+    with pytest.raises(ValidationError, match="rotate"):
+        c.relight(np.ones((16, 32, 3)), rotate=1.0)
+    grey = np.linspace(0, 1, 16 * 32).reshape(16, 32)
+    assert np.array_equal(c.relight(grey), c.relight(np.repeat(grey[..., None], 3, -1)))
 
 
 def test_zero_rows_of_a_region_come_back_exactly_zero(field):

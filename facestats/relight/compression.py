@@ -118,7 +118,6 @@ class _Block:
     """One (region, cluster) block: its basis rows and, per channel, the stored rows' pixels and coefficients."""
 
     basis: np.ndarray  # (K, L_r) float32, orthonormal rows
-    gains: np.ndarray  # (K,) σ² of each component (normalised rows), non-increasing
     rows: tuple  # per channel: positions (int64, (n_c,)) in CompressedField.pixels
     coefficients: tuple  # per channel: (n_c, K) float32
 
@@ -207,7 +206,6 @@ class CompressedField:
             if k:
                 blocks[key] = _Block(
                     basis=b.basis[:k].copy(),
-                    gains=b.gains[:k].copy(),
                     rows=b.rows,
                     coefficients=tuple(np.ascontiguousarray(cf[:, :k]) for cf in b.coefficients),
                 )
@@ -522,12 +520,12 @@ def compress(
         raise ValidationError(_no_room(r_min, cost[tuple(order[0])], budget))
     parts, residual = _coefficients(stream, labels, regions, bases, counts)
     blocks = {}
-    for key, (basis, e) in bases.items():
+    for key, (basis, _) in bases.items():
         k = counts.get(key, 0)
         if k:
             rows = tuple(np.concatenate(p) if p else np.zeros(0, np.int64) for p in parts[key][0])
             coef = tuple(np.concatenate(p) if p else np.zeros((0, k), np.float32) for p in parts[key][1])
-            blocks[key] = _Block(basis=basis[:k], gains=e[:k], rows=rows, coefficients=coef)
+            blocks[key] = _Block(basis=basis[:k], rows=rows, coefficients=coef)
     return CompressedField(
         pixels=pixels,
         labels=labels,

@@ -3,7 +3,8 @@
 * ``relight`` — a 512 × 512 field of 2,048 directions (a store subject through the
   virtual light stage) relit under the test probes: the baseline is the dense
   float32 BLAS product (one pass over the field, :func:`facestats.relight.relighting.relight_block`),
-  side by side with the compressed path (:func:`facestats.relight.compression.compress`):
+  side by side with the compressed path (:func:`facestats.relight.compression.compress`;
+  its default compiled backend, and its numpy backend):
   milliseconds per relight, speed-up, frames per second, compression ratio and
   the maximum relative error against the dense result.
 * ``stage`` — rendering the virtual light stage for a 512² view (target ≤ 60 s),
@@ -129,11 +130,13 @@ def bench_relight(size=512, n_theta=64, n_phi=32, repeat=5, ratio=20.0):
     w0 = next(iter(weights.values()))
     dense_ms = _best_ms(lambda: relight_block(dense_vals, w0), repeat)
     comp_ms = _best_ms(lambda: comp.relight(w0), repeat)
+    comp_numpy_ms = _best_ms(lambda: comp.relight(w0, backend="numpy"), repeat)
     return {
         "speedup_compressed_vs_dense_blas": dense_ms / comp_ms,
         "dense_blas_ms": dense_ms,
         "compressed_ms": comp_ms,
         "compressed_fps": 1e3 / comp_ms,
+        "compressed_numpy_backend_ms": comp_numpy_ms,
         "ratio": comp.ratio,
         "components": comp.components,
         "clusters": comp.clusters,
@@ -218,6 +221,23 @@ def bench_stream(size=256, n_theta=64, n_phi=32, tile=None):
             "wall_s": wall}  # fmt: skip
 
 
+def _rotated_references(size, n_theta, n_phi, rotations):
+    """The cached stage field (in memory), its mask, the probes' source, and per probe × rotation (degrees about
+    the vertical) the lighting L·δA (L, 3) and the dense float32 relight."""
+    from facestats.relight.field import open_field
+    from facestats.relight.relighting import lighting_for, relight_block
+
+    path, _ = _stage_input(size, n_theta, n_phi)
+    field = open_field(path).load()
+    probes, probe_source = _probes()
+    n = n_theta * n_phi
+    dense = np.asarray(field["reflectance"].values, np.float32).reshape(n, size, size, 3)
+    weights = {f"{p}@{r}": lighting_for(field, pr, rotate=np.radians(r)).reshape(n, 3).astype(np.float32)
+               for p, pr in probes.items() for r in rotations}  # fmt: skip
+    refs = {p: relight_block(dense, w) for p, w in weights.items()}
+    return field, field["mask"].values, probe_source, weights, refs
+
+
 def bench_compression_sweep(size=256, n_theta=64, n_phi=32, ratios=(20, 10, 5), rotations=(0, 45, 135, 225)):
     """Largest / 99th-percentile relative error and share above 3 % of the compressed relight at several ratios.
 
@@ -228,19 +248,8 @@ def bench_compression_sweep(size=256, n_theta=64, n_phi=32, ratios=(20, 10, 5), 
     below the 20× budget.
     """
     from facestats.relight.compression import compress
-    from facestats.relight.field import open_field
-    from facestats.relight.relighting import lighting_for, relight_block
 
-    path, _ = _stage_input(size, n_theta, n_phi)
-    field = open_field(path).load()
-    mask = field["mask"].values
-    probes, probe_source = _probes()
-    n = n_theta * n_phi
-    dense = np.asarray(field["reflectance"].values, np.float32).reshape(n, size, size, 3)
-    weights = {f"{p}@{r}": lighting_for(field, pr, rotate=np.radians(r)).reshape(n, 3).astype(np.float32)
-               for p, pr in probes.items() for r in rotations}  # fmt: skip
-    refs = {p: relight_block(dense, w) for p, w in weights.items()}
-    del dense
+    field, mask, probe_source, weights, refs = _rotated_references(size, n_theta, n_phi, rotations)
     full = compress(field, ratio=min(ratios))
     out = {"probes": probe_source}
     for ratio in sorted(ratios, reverse=True):
@@ -256,12 +265,45 @@ def bench_compression_sweep(size=256, n_theta=64, n_phi=32, ratios=(20, 10, 5), 
     return out
 
 
+def bench_cluster_density(size=256, n_theta=64, n_phi=32, pixels_per_cluster=(512, 256, 128, 64), seeds=(0, 1, 2),
+                          ratio=20.0, rotations=(0, 45, 135, 225)):  # fmt: skip
+    """The compressed relight's errors against the clusters' size, over several k-means seeds (what
+    :data:`facestats.relight.compression.PIXELS_PER_CLUSTER` is chosen from).
+
+    Per density and seed: the largest relative error of each of the probes × ``rotations`` lightings; reported are
+    the median over lightings and seeds of those maxima (a stable summary: a single worst pixel moves with the
+    seed), the largest of them, the largest 99th percentile, and the compression time.
+    """
+    from facestats.relight.compression import compress
+
+    field, mask, probe_source, weights, refs = _rotated_references(size, n_theta, n_phi, rotations)
+    out = {"probes": probe_source, "face_pixels": int(mask.sum())}
+    for ppc in pixels_per_cluster:
+        clusters = max(1, round(int(mask.sum()) / ppc))
+        maxima, p99, seconds = [], [], []
+        for seed in seeds:
+            t0 = time.perf_counter()
+            comp = compress(field, ratio=ratio, clusters=clusters, seed=seed)
+            seconds.append(time.perf_counter() - t0)
+            for p, w in weights.items():
+                rel = _rel(comp.relight(w), refs[p], mask)
+                maxima.append(float(rel.max()))
+                p99.append(float(np.percentile(rel, 99)))
+        out[f"ppc{ppc}_clusters"] = clusters
+        out[f"ppc{ppc}_median_max"] = round(float(np.median(maxima)), 4)
+        out[f"ppc{ppc}_worst_max"] = round(max(maxima), 4)
+        out[f"ppc{ppc}_worst_p99"] = round(max(p99), 4)
+        out[f"ppc{ppc}_compress_s"] = round(float(np.mean(seconds)), 1)
+    return out
+
+
 BENCHMARKS = [
     ("relight", bench_relight),
     ("stage", bench_stage),
     ("discretisation", bench_discretisation),
     ("stream", bench_stream),
     ("compression_sweep", bench_compression_sweep),
+    ("cluster_density", bench_cluster_density),
 ]
 
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
@@ -271,4 +313,13 @@ SMOKE = {
     "discretisation": {"size": 8, "probe_height": 8, "n_theta": 8, "n_phi": 4},
     "stream": {"size": 12, "n_theta": 8, "n_phi": 4},
     "compression_sweep": {"size": 16, "n_theta": 16, "n_phi": 8, "ratios": (4, 2), "rotations": (0, 90)},
+    "cluster_density": {
+        "size": 16,
+        "n_theta": 16,
+        "n_phi": 8,
+        "pixels_per_cluster": (64, 16),
+        "seeds": (0, 1),
+        "ratio": 2.0,
+        "rotations": (0, 90),
+    },
 }

@@ -31,6 +31,7 @@ KERNEL_MODULES = (
     "model/fitting/kernels/runs.py",
     "model/fitting/kernels/samples.py",
     "model/microstructure/compiled.py",
+    "relight/compression_numba.py",
 )
 #: The digest's file, in the package's own ``__pycache__``.
 STAMP = "numba-kernels.sha256"

@@ -17,7 +17,9 @@ measurements behind it: ``docs/relighting.md``, D2):
 
 * **Cost of a relight.**  The lighting is projected once on every basis
   (Σ K_kr L_r multiply-adds per channel) and each stored row then needs K_kr
-  multiply-adds: one small dense GEMV per (region, cluster, channel).  A
+  multiply-adds: one pass over the stored coefficients, which are kept in one
+  flat array (compiled, :mod:`facestats.relight.compression_numba`; or one
+  small dense GEMV per (region, cluster, channel) with ``backend="numpy"``).  A
   per-pixel transform (DCT/wavelet of each 64 × 32 function, the paper's JPEG)
   keeps different coefficients per pixel and needs a gather per coefficient;
   measured on a face field, a per-pixel Haar truncation to 1/20 of the
@@ -65,9 +67,11 @@ value) are stored: pixels outside the mask relight to 0, and
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from dataclasses import field as dataclass_field
 
 import numpy as np
 
+from facestats.core.compiled import resolve_backend
 from facestats.core.validate import as_finite, check_integer, check_seed
 from facestats.errors import ValidationError
 from facestats.relight.field import as_field, image_tiles, light_dims, light_table
@@ -75,8 +79,11 @@ from facestats.relight.lighting import resample_probe
 
 __all__ = ["CompressedField", "compress", "default_clusters", "light_regions", "per_pixel_values"]
 
-#: Target pixels per cluster of the default clustering.
-PIXELS_PER_CLUSTER = 512
+#: Target pixels per cluster of the default clustering.  Smaller clusters fit their pixels better but spend more
+#: of the budget on bases; on the 256² face at 20× (docs/relighting.md) the median over 12 lightings of the worst
+#: pixel falls from 11-14 % at 512 pixels per cluster to about 9 % at 128 and stops falling at 64.  A relight's
+#: cost does not depend on the clusters (it reads every stored value once); compressing takes longer.
+PIXELS_PER_CLUSTER = 128
 
 
 def per_pixel_values(n_regions: int) -> int:
@@ -129,6 +136,108 @@ class _Block:
 
 
 @dataclass
+class _Packed:
+    """The stored values of a :class:`CompressedField` in flat arrays (the blocks' bases and coefficients are
+    views of them): per region the stacked bases of its blocks, all coefficients, and per (block, channel)
+    segment where its rows, coefficients and components are."""
+
+    stacks: list  # per region: (Σ K, L_r) float32
+    region_start: np.ndarray  # (n_regions + 1,) first component of each region in the projections
+    coef: np.ndarray  # flat float32
+    pixel: np.ndarray  # int32 position of every stored row
+    seg_row: np.ndarray  # int64 first row of each segment
+    seg_rows: np.ndarray  # int64 rows
+    seg_k: np.ndarray  # int64 components
+    seg_proj: np.ndarray  # int64 first component in the projections
+    seg_channel: np.ndarray  # int64
+    seg_coef: np.ndarray  # int64 first coefficient
+
+    @property
+    def components(self) -> int:
+        return int(self.region_start[-1])
+
+
+def _pack(blocks, regions):
+    """Pack the blocks' bases and coefficients into flat arrays and make the blocks' arrays views of them (the
+    values are stored once)."""
+    keys = sorted(blocks)  # by region, then cluster
+    stacks, region_start, offset, proj_of = [], [0], 0, {}
+    for r, lights in enumerate(regions):
+        here = [key for key in keys if key[0] == r]
+        for key in here:
+            proj_of[key] = offset
+            offset += blocks[key].basis.shape[0]
+        region_start.append(offset)
+        stacks.append(
+            np.concatenate([blocks[key].basis for key in here]) if here else np.zeros((0, lights.size), np.float32)
+        )
+    segments = [(key, c) for key in keys for c in range(3) if blocks[key].rows[c].size]
+    seg_rows = np.array([blocks[key].rows[c].size for key, c in segments], np.int64)
+    seg_k = np.array([blocks[key].basis.shape[0] for key, _ in segments], np.int64)
+    seg_coef = np.concatenate([[0], np.cumsum(seg_rows * seg_k)]).astype(np.int64)
+    coef = np.empty(int(seg_coef[-1]), np.float32)
+    segment_of = {seg: i for i, seg in enumerate(segments)}
+    for key in keys:  # loop over blocks: copy their arrays into the flat ones and keep views
+        b = blocks[key]
+        lo = proj_of[key] - region_start[key[0]]
+        cfs = list(b.coefficients)
+        for c in range(3):
+            i = segment_of.get((key, c))
+            if i is not None:
+                view = coef[seg_coef[i] : seg_coef[i + 1]].reshape(cfs[c].shape)
+                view[...] = cfs[c]
+                cfs[c] = view
+        b.basis, b.coefficients = stacks[key[0]][lo : lo + b.basis.shape[0]], tuple(cfs)
+    pixel = (
+        np.concatenate([blocks[key].rows[c] for key, c in segments]).astype(np.int32)
+        if segments
+        else np.zeros(0, np.int32)
+    )
+    return _Packed(
+        stacks=stacks,
+        region_start=np.asarray(region_start, np.int64),
+        coef=coef,
+        pixel=pixel,
+        seg_row=np.concatenate([[0], np.cumsum(seg_rows)[:-1]]).astype(np.int64) if segments else seg_rows,
+        seg_rows=seg_rows,
+        seg_k=seg_k,
+        seg_proj=np.array([proj_of[key] for key, _ in segments], np.int64),
+        seg_channel=np.array([c for _, c in segments], np.int64),
+        seg_coef=seg_coef[:-1],
+    )
+
+
+def _relight_numba(pk, wd, regions, proj, n_pix):
+    """The compiled relight: the lighting ``wd`` (L, 3) projected on every region's stacked bases into ``proj``
+    (3, components), then the rows' products, the segments split into one part of about equal work per
+    thread; (n_pix, 3) float32."""
+    import numba
+
+    from facestats.relight.compression_numba import project, relight_segments
+
+    for r, lights in enumerate(regions):  # loop over the light regions: one compiled product each
+        project(pk.stacks[r], np.ascontiguousarray(wd[lights].T), proj[:, pk.region_start[r] : pk.region_start[r + 1]])
+    work = np.cumsum(pk.seg_rows * (pk.seg_k + 1))
+    n_parts = max(1, min(numba.get_num_threads(), pk.seg_rows.size))
+    cuts = np.searchsorted(work, work[-1] * np.arange(1, n_parts) / n_parts) if work.size else []
+    bounds = np.concatenate([[0], cuts, [pk.seg_rows.size]]).astype(np.int64)
+    parts = relight_segments(
+        pk.coef,
+        pk.pixel,
+        pk.seg_row,
+        pk.seg_rows,
+        pk.seg_k,
+        pk.seg_proj,
+        pk.seg_channel,
+        pk.seg_coef,
+        bounds,
+        proj,
+        n_pix,
+    )
+    return parts.sum(0)
+
+
+@dataclass
 class CompressedField:
     """A reflectance field in clustered PCA bases per light region (module docstring).
 
@@ -162,6 +271,10 @@ class CompressedField:
     sqrt_solid_angle: np.ndarray
     directions: np.ndarray
     image_shape: tuple
+    _packed: _Packed = dataclass_field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        self._packed = _pack(self.blocks, self.regions)
 
     @property
     def clusters(self) -> int:
@@ -222,30 +335,42 @@ class CompressedField:
             )
         return w.reshape(-1, 3)
 
-    def relight(self, lighting=None, *, probe=None, layout: str = "latlong", rotate: float = 0.0) -> np.ndarray:
+    def relight(
+        self, lighting=None, *, probe=None, layout: str = "latlong", rotate: float = 0.0, backend: str = "auto"
+    ) -> np.ndarray:
         """Relit image from the compressed field, (H, W, 3) float32 (Debevec et al. 2000 eq. 4).
 
-        Per block: proj = B_kr (W/√δA)_r, then each stored row adds C · proj of its
-        channel.  ``lighting`` is L·δA per light (as
-        :func:`facestats.relight.relighting.relight`); or pass a ``probe`` (with
-        ``layout``, ``rotate``) to resample.
+        Per block: proj = B_kr (W/√δA)_r (one GEMM per region over its blocks' stacked bases), then each stored
+        row adds C · proj of its channel.  ``lighting`` is L·δA per light (as
+        :func:`facestats.relight.relighting.relight`); or pass a ``probe`` (with ``layout``, ``rotate``) to
+        resample.  ``backend`` (:data:`facestats.core.compiled.BACKENDS`): ``"numba"`` runs the rows' products
+        in one compiled pass over the stored coefficients on all cores
+        (:mod:`facestats.relight.compression_numba`), ``"numpy"`` one GEMV per block and channel; they agree
+        to float32 rounding.
         """
         if (lighting is None) == (probe is None):
             raise ValidationError("pass exactly one of lighting (L·δA per light) and probe")
         if probe is None and rotate != 0:
             raise ValidationError(f"rotate applies to a probe, got rotate={rotate!r} with lighting")
+        engine = resolve_backend(backend)
         if probe is not None:
             lighting = resample_probe(probe, self.directions, layout=layout, rotate=rotate)
         wd = (self._weights(lighting) / self.sqrt_solid_angle[:, None]).astype(np.float32)  # (L, 3)
-        by_region = [wd[lights] for lights in self.regions]
-        vals = np.zeros((3, self.pixels.size), np.float32)
-        for (r, _), b in self.blocks.items():  # loop over blocks: one GEMV per channel each
-            proj = b.basis @ by_region[r]  # (K, 3)
-            for c in range(3):
-                if b.rows[c].size:
-                    vals[c, b.rows[c]] += b.coefficients[c] @ proj[:, c]
+        pk = self._packed
+        proj = np.empty((3, pk.components), np.float32)  # per channel, the lighting on every component
+        if engine == "numba":
+            vals = _relight_numba(pk, wd, self.regions, proj, self.pixels.size)
+        else:
+            for r, lights in enumerate(self.regions):  # one GEMM per region: its blocks' bases are stacked
+                proj[:, pk.region_start[r] : pk.region_start[r + 1]] = (pk.stacks[r] @ wd[lights]).T
+            vals = np.zeros((self.pixels.size, 3), np.float32)
+            for s in range(pk.seg_rows.size):  # loop over (block, channel) segments: one GEMV each
+                n, k, c = pk.seg_rows[s], pk.seg_k[s], pk.seg_channel[s]
+                rows = pk.pixel[pk.seg_row[s] : pk.seg_row[s] + n]
+                cf = pk.coef[pk.seg_coef[s] : pk.seg_coef[s] + n * k].reshape(n, k)
+                vals[rows, c] += cf @ proj[c, pk.seg_proj[s] : pk.seg_proj[s] + k]
         out = np.zeros((self.image_shape[0] * self.image_shape[1], 3), np.float32)
-        out[self.pixels] = vals.T
+        out[self.pixels] = vals
         return out.reshape(self.image_shape + (3,))
 
     def error_bound(self, lighting) -> np.ndarray:
@@ -295,9 +420,12 @@ def _tile_pixels(f, pixels):
 
 def _weighted_rows(f, ys, xs, inside, sw):
     """√δA-weighted rows (n_pix, 3, L) float32 of the face pixels of one tile."""
-    block = np.asarray(f["reflectance"].isel(y=ys, x=xs).values, np.float32)
-    flat = block.reshape((sw.size, -1, 3))[:, inside, :]  # (L, n_pix, 3)
-    return np.transpose(flat, (1, 2, 0)) * sw.astype(np.float32)
+    block = np.asarray(f["reflectance"].isel(y=ys, x=xs).values)
+    flat = block.reshape((sw.size, -1, 3))[:, inside, :]  # (L, n_pix, 3), gathered in the stored dtype
+    rows = np.empty((inside.size, 3, sw.size), np.float32)
+    rows[...] = np.transpose(flat, (1, 2, 0))  # converted once, face pixels only
+    rows *= sw.astype(np.float32)
+    return rows
 
 
 def _pca(rows, k):
@@ -472,7 +600,7 @@ def compress(
     ratio : float
         Minimum compression ratio (> 0; below 1 stores more than the dense field, e.g. every component).
     clusters : int, optional
-        Number of clusters C (default :func:`default_clusters`: one per 512 face pixels).
+        Number of clusters C (default :func:`default_clusters`: one per 128 face pixels).
     sectors : int
         Azimuth sectors per hemisphere of :func:`light_regions` (2 × ``sectors`` regions).
     features : int

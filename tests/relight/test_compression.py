@@ -113,3 +113,22 @@ def test_exact_at_full_rank_and_identical_from_zarr_tiles(field, tmp_path):
     ya, yb = a.relight(lw), b.relight(lw)
     assert np.allclose(ya, yb, rtol=1e-4, atol=1e-5 * np.abs(ya).max())
     assert np.allclose(a.relight(probe=sky_probe(32)), a.relight(lw), rtol=1e-6)
+
+
+def test_compiled_and_numpy_relights_agree_and_values_are_stored_once(field):
+    pytest.importorskip("numba")
+    lw = resample_probe(sky_probe(32), field["direction"].values)
+    rng = np.random.default_rng(4)
+    coloured = lw * rng.uniform(0.2, 3, lw.shape)  # every channel and light weighted differently
+    m = field["mask"].values
+    for c in (cmp.compress(field, ratio=6, clusters=3), cmp.compress(field, ratio=6, clusters=3).truncate(15)):
+        for w in (lw, coloured):
+            a, b = c.relight(w, backend="numpy"), c.relight(w, backend="numba")
+            assert np.allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(a).max())
+            assert np.all(a[~m] == 0) and np.all(b[~m] == 0)
+        # the blocks' coefficients are views of one flat array, their bases of one stack per region (no copies)
+        stored = [cf for b in c.blocks.values() for cf in b.coefficients if cf.size]
+        assert all(cf.base is not None for cf in stored) and len({id(cf.base) for cf in stored}) == 1
+        assert len({id(b.basis.base) for b in c.blocks.values()}) == len({r for r, _ in c.blocks})
+    with pytest.raises(ValidationError, match="backend"):
+        c.relight(lw, backend="cuda")

@@ -139,12 +139,13 @@ class _Block:
 class _Packed:
     """The stored values of a :class:`CompressedField` in flat arrays (the blocks' bases and coefficients are
     views of them): per region the stacked bases of its blocks, all coefficients, and per (block, channel)
-    segment where its rows, coefficients and components are."""
+    segment where its rows, coefficients and components are; segments in (region, cluster, channel) order."""
 
     stacks: list  # per region: (Σ K, L_r) float32
     region_start: np.ndarray  # (n_regions + 1,) first component of each region in the projections
     coef: np.ndarray  # flat float32
-    pixel: np.ndarray  # int32 position of every stored row
+    pixel: np.ndarray  # int64 position of every stored row
+    seg_region: np.ndarray  # int64 region of each segment
     seg_row: np.ndarray  # int64 first row of each segment
     seg_rows: np.ndarray  # int64 rows
     seg_k: np.ndarray  # int64 components
@@ -158,8 +159,8 @@ class _Packed:
 
 
 def _pack(blocks, regions):
-    """Pack the blocks' bases and coefficients into flat arrays and make the blocks' arrays views of them (the
-    values are stored once)."""
+    """Pack the blocks' bases and coefficients into new flat arrays and make the blocks' arrays views of them
+    (the values are stored once)."""
     keys = sorted(blocks)  # by region, then cluster
     stacks, region_start, offset, proj_of = [], [0], 0, {}
     for r, lights in enumerate(regions):
@@ -188,16 +189,13 @@ def _pack(blocks, regions):
                 view[...] = cfs[c]
                 cfs[c] = view
         b.basis, b.coefficients = stacks[key[0]][lo : lo + b.basis.shape[0]], tuple(cfs)
-    pixel = (
-        np.concatenate([blocks[key].rows[c] for key, c in segments]).astype(np.int32)
-        if segments
-        else np.zeros(0, np.int32)
-    )
+    seg_region = np.array([key[0] for key, _ in segments], np.int64)
     return _Packed(
         stacks=stacks,
         region_start=np.asarray(region_start, np.int64),
+        seg_region=seg_region,
         coef=coef,
-        pixel=pixel,
+        pixel=np.concatenate([blocks[key].rows[c] for key, c in segments] + [np.zeros(0, np.int64)]).astype(np.int64),
         seg_row=np.concatenate([[0], np.cumsum(seg_rows)[:-1]]).astype(np.int64) if segments else seg_rows,
         seg_rows=seg_rows,
         seg_k=seg_k,
@@ -207,23 +205,26 @@ def _pack(blocks, regions):
     )
 
 
-def _relight_numba(pk, wd, regions, proj, n_pix):
-    """The compiled relight: the lighting ``wd`` (L, 3) projected on every region's stacked bases into ``proj``
-    (3, components), then the rows' products, the segments split into one part of about equal work per
-    thread; (n_pix, 3) float32."""
+def _relight_numba(pk, wd, regions, n_pix):
+    """The compiled relight (:mod:`facestats.relight.compression_numba`): the lighting ``wd`` (L, 3) projected on
+    every region's stacked bases, then the rows' products in one part of about equal work per thread, into one
+    image per region; (n_pix, 3) float32."""
     import numba
 
     from facestats.relight.compression_numba import project, relight_segments
 
+    proj = np.empty((3, pk.components), np.float32)
     for r, lights in enumerate(regions):  # loop over the light regions: one compiled product each
-        project(pk.stacks[r], np.ascontiguousarray(wd[lights].T), proj[:, pk.region_start[r] : pk.region_start[r + 1]])
+        project(pk.stacks[r], np.ascontiguousarray(wd[lights].T), proj, pk.region_start[r])
     work = np.cumsum(pk.seg_rows * (pk.seg_k + 1))
-    n_parts = max(1, min(numba.get_num_threads(), pk.seg_rows.size))
+    n_parts = max(1, min(4 * numba.get_num_threads(), work.size))  # a few parts per thread balance better
     cuts = np.searchsorted(work, work[-1] * np.arange(1, n_parts) / n_parts) if work.size else []
-    bounds = np.concatenate([[0], cuts, [pk.seg_rows.size]]).astype(np.int64)
-    parts = relight_segments(
+    bounds = np.concatenate([[0], cuts, [work.size]]).astype(np.int64)
+    out = np.zeros((len(pk.stacks), n_pix, 3), np.float32)
+    relight_segments(
         pk.coef,
         pk.pixel,
+        pk.seg_region,
         pk.seg_row,
         pk.seg_rows,
         pk.seg_k,
@@ -232,9 +233,9 @@ def _relight_numba(pk, wd, regions, proj, n_pix):
         pk.seg_coef,
         bounds,
         proj,
-        n_pix,
+        out,
     )
-    return parts.sum(0)
+    return out.sum(0)
 
 
 @dataclass
@@ -259,6 +260,11 @@ class CompressedField:
     sqrt_solid_angle : ndarray, shape (L,)
     directions : ndarray, shape (light dims..., 3)
     image_shape : tuple of int
+
+    Notes
+    -----
+    At construction the blocks' bases and coefficients are packed into flat arrays that the relight reads, and
+    become views of them: treat ``blocks`` as read-only (a changed block would not reach :meth:`relight`).
     """
 
     pixels: np.ndarray
@@ -340,13 +346,14 @@ class CompressedField:
     ) -> np.ndarray:
         """Relit image from the compressed field, (H, W, 3) float32 (Debevec et al. 2000 eq. 4).
 
-        Per block: proj = B_kr (W/√δA)_r (one GEMM per region over its blocks' stacked bases), then each stored
-        row adds C · proj of its channel.  ``lighting`` is L·δA per light (as
+        Per block: proj = B_kr (W/√δA)_r (one product per region over its blocks' stacked bases), then each
+        stored row adds C · proj of its channel.  ``lighting`` is L·δA per light (as
         :func:`facestats.relight.relighting.relight`); or pass a ``probe`` (with ``layout``, ``rotate``) to
-        resample.  ``backend`` (:data:`facestats.core.compiled.BACKENDS`): ``"numba"`` runs the rows' products
-        in one compiled pass over the stored coefficients on all cores
-        (:mod:`facestats.relight.compression_numba`), ``"numpy"`` one GEMV per block and channel; they agree
-        to float32 rounding.
+        resample.  ``backend`` (:data:`facestats.core.compiled.BACKENDS`): ``"numba"`` computes the projections
+        and the rows' products in compiled passes over the stored values on all cores
+        (:mod:`facestats.relight.compression_numba`; its cost does not grow with the number of blocks),
+        ``"numpy"`` one BLAS product per region and one GEMV per block and channel (a Python loop over
+        3 × regions × clusters segments); they agree to float32 rounding.
         """
         if (lighting is None) == (probe is None):
             raise ValidationError("pass exactly one of lighting (L·δA per light) and probe")
@@ -357,10 +364,10 @@ class CompressedField:
             lighting = resample_probe(probe, self.directions, layout=layout, rotate=rotate)
         wd = (self._weights(lighting) / self.sqrt_solid_angle[:, None]).astype(np.float32)  # (L, 3)
         pk = self._packed
-        proj = np.empty((3, pk.components), np.float32)  # per channel, the lighting on every component
         if engine == "numba":
-            vals = _relight_numba(pk, wd, self.regions, proj, self.pixels.size)
+            vals = _relight_numba(pk, wd, self.regions, self.pixels.size)
         else:
+            proj = np.empty((3, pk.components), np.float32)  # per channel, the lighting on every component
             for r, lights in enumerate(self.regions):  # one GEMM per region: its blocks' bases are stacked
                 proj[:, pk.region_start[r] : pk.region_start[r + 1]] = (pk.stacks[r] @ wd[lights]).T
             vals = np.zeros((self.pixels.size, 3), np.float32)
@@ -515,10 +522,11 @@ def _grams(stream, labels, regions):
 
 
 def _bases(grams):
-    """Per block: the principal directions (K, L_r) float32 and their σ², non-increasing (σ² > 1e-12 σ²_max)."""
+    """Per block: the principal directions (K, L_r) float32 and their σ², non-increasing (σ² > 1e-12 σ²_max).
+    Empties ``grams`` as it goes (each Gram matrix is freed once its directions are known)."""
     out = {}
-    for key, g in grams.items():
-        e, v = np.linalg.eigh(g)
+    for key in list(grams):  # loop over blocks
+        e, v = np.linalg.eigh(grams.pop(key))
         e, v = e[::-1], v[:, ::-1]
         keep = e > max(e[0], 1e-300) * 1e-12
         out[key] = (np.ascontiguousarray(v[:, keep].T, np.float32), e[keep])
@@ -635,7 +643,6 @@ def compress(
     labels = _clusters(stream, c, nf, s, rng)
     grams, rows_of = _grams(stream, labels, regions)  # rows_of: the rows a block stores, for its components' cost
     bases = _bases(grams)
-    del grams
     cost = {key: regions[key[0]].size + rows_of[key] for key in bases}  # stored values of one component
     gain = [(e / cost[key], key) for key, (_, sigma2) in bases.items() for e in sigma2]
     gain.sort(key=lambda g: -g[0])
@@ -646,6 +653,7 @@ def compress(
     kept, counts = _take(order, cost, budget)
     if kept == 0:
         raise ValidationError(_no_room(r_min, cost[tuple(order[0])], budget))
+    bases = {key: (basis[: counts.get(key, 0)].copy(), s2) for key, (basis, s2) in bases.items()}  # free the rest
     parts, residual = _coefficients(stream, labels, regions, bases, counts)
     blocks = {}
     for key, (basis, _) in bases.items():

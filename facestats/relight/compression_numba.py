@@ -1,15 +1,17 @@
-"""The per-row products of a compressed relight (:meth:`facestats.relight.compression.CompressedField.relight`),
-compiled with numba.
+"""The products of a compressed relight (:meth:`facestats.relight.compression.CompressedField.relight`), compiled
+with numba.
 
-Imported only when a compressed field is relit with ``backend="numba"``: importing numba costs about a
-second.  The stored rows are grouped in segments (one per block and channel, their coefficients contiguous);
-each row adds the dot product of its coefficients with its block's projected lighting to its pixel and
-channel.  The segments are split into ``bounds.size − 1`` parts of about equal work, one per thread, each
-summing into its own image so that no two threads write the same value; the caller adds the parts.  Same
-float32 products and sums as the numpy path's GEMVs, in a different order (agreement to float32 rounding,
-``tests/relight/test_compression.py``).  ``fastmath={"reassoc"}`` lets each dot product be summed in SIMD
-lanes (reassociation only: no assumption about NaN, infinities or signed zeros); without it the float32 sums
-run one multiply-add at a time and a 512² field's relight takes 30 ms instead of a few.
+Imported when a compressed field is relit with the numba backend (``backend="numba"``, or ``"auto"`` where numba
+imports): importing numba costs about a second.  The stored rows are grouped in segments (one per block and
+channel, their coefficients contiguous); each row adds the dot product of its coefficients with its block's
+projected lighting to its pixel and channel of its region's image.  Within one light region every pixel belongs
+to one block (its cluster's), so no two segments write the same value of the per-region images, and the
+segments run in parallel (in parts of about equal work) without a race; the caller adds the regions' images
+(memory: regions × pixels × 3 values, whatever the number of threads).  Same float32 products as the numpy
+path's GEMVs, summed in another order (agreement to float32 rounding, ``tests/relight/test_compression.py``).
+``fastmath={"reassoc"}`` lets each dot product be summed in SIMD lanes (reassociation only: no assumption about
+NaN, infinities or signed zeros; exact zeros stay zero); without it the float32 sums run one multiply-add at a
+time and a 512² field's relight takes 30 ms instead of a few.
 """
 
 from __future__ import annotations
@@ -21,14 +23,14 @@ __all__ = ["project", "relight_segments"]
 
 
 @numba.njit(cache=True, parallel=True, nogil=True, fastmath={"reassoc"})
-def relight_segments(coef, pixel, seg_row, seg_rows, seg_k, seg_proj, seg_channel, seg_coef, bounds, proj, n_pix):
-    """Per-part images (parts, n_pix, 3) float32 of Σ_rows C_row · proj[block components, channel].
+def relight_segments(coef, pixel, seg_region, seg_row, seg_rows, seg_k, seg_proj, seg_channel, seg_coef, bounds, proj,
+                     out):  # fmt: skip
+    """Add Σ_rows C_row · proj[channel, block components] to ``out[region]`` ((regions, n_pix, 3) float32).
 
-    ``coef`` flat float32 coefficients; ``pixel`` (int32) the position of every stored row; per segment its
-    first row, number of rows, number of components K, offset of its block's components in ``proj`` (columns of
-    ``proj``, (3, components) float32), channel and first coefficient; ``bounds`` the segments of each part.
+    ``coef`` flat float32 coefficients; ``pixel`` (int64) the position of every stored row; per segment its
+    region, first row, number of rows, number of components K, offset of its block's components in ``proj``
+    ((3, components) float32), channel and first coefficient; ``bounds`` the segments of each parallel part.
     """
-    parts = np.zeros((bounds.size - 1, n_pix, 3), np.float32)
     for t in numba.prange(bounds.size - 1):
         for s in range(bounds[t], bounds[t + 1]):
             k = seg_k[s]
@@ -36,22 +38,23 @@ def relight_segments(coef, pixel, seg_row, seg_rows, seg_k, seg_proj, seg_channe
             c = seg_channel[s]
             b = seg_coef[s]
             r0 = seg_row[s]
+            o = out[seg_region[s]]
             for i in range(seg_rows[s]):
                 acc = np.float32(0)
                 for j in range(k):
                     acc += coef[b + i * k + j] * proj[c, p0 + j]
-                parts[t, pixel[r0 + i], c] += acc
-    return parts
+                o[pixel[r0 + i], c] += acc
+    return out
 
 
 @numba.njit(cache=True, parallel=True, nogil=True, fastmath={"reassoc"})
-def project(stack, weights, out):
-    """``out[c, i] = Σ_l stack[i, l] weights[c, l]``: the lighting (3, L_r) on a region's stacked bases (n, L_r),
-    float32.
+def project(stack, weights, proj, start):
+    """``proj[c, start + i] = Σ_l stack[i, l] weights[c, l]``: the lighting (3, L_r) on a region's stacked bases
+    (n, L_r), float32, into the columns of ``proj`` (3, components) from ``start``.
 
     Compiled beside :func:`relight_segments` rather than left to BLAS: a threaded BLAS product just before a
-    numba parallel region leaves BLAS's threads spinning on the cores numba needs (measured: the 512² relight
-    took 26 ms after a BLAS projection, 8 ms after this one).
+    numba parallel region leaves BLAS's threads spinning on the cores numba needs (measured: a 512² relight took
+    26 ms after BLAS projections, 8 ms after these).
     """
     for i in numba.prange(stack.shape[0]):
         a0 = np.float32(0)
@@ -62,6 +65,7 @@ def project(stack, weights, out):
             a0 += v * weights[0, j]
             a1 += v * weights[1, j]
             a2 += v * weights[2, j]
-        out[0, i] = a0
-        out[1, i] = a1
-        out[2, i] = a2
+        proj[0, start + i] = a0
+        proj[1, start + i] = a1
+        proj[2, start + i] = a2
+    return proj

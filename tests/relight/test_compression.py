@@ -102,6 +102,7 @@ def test_exact_at_full_rank_and_identical_from_zarr_tiles(field, tmp_path):
     m = field["mask"].values
     exact = cmp.compress(field, ratio=0.5, clusters=1)
     assert np.allclose(exact.relight(lw)[m], relight(field, lw)[m], rtol=1e-4, atol=1e-7)
+    assert np.allclose(exact.relight(lw, backend="numpy")[m], relight(field, lw)[m], rtol=1e-4, atol=1e-7)
     rec = exact.reconstruct()[:, m]
     assert np.allclose(rec, field["reflectance"].values.reshape(512, 14, 14, 3)[:, m], atol=1e-5)
     write_field(tmp_path / "f.zarr", field, tile=5)
@@ -132,3 +133,13 @@ def test_compiled_and_numpy_relights_agree_and_values_are_stored_once(field):
         assert len({id(b.basis.base) for b in c.blocks.values()}) == len({r for r, _ in c.blocks})
     with pytest.raises(ValidationError, match="backend"):
         c.relight(lw, backend="cuda")
+    # a light region without any block (every row zero there) between regions with blocks; exact at full rank
+    directions, _, _ = light_table(field)
+    dark = cmp.light_regions(directions) == 1
+    f = field.copy(deep=True)
+    f["reflectance"].values[dark.reshape(f["reflectance"].shape[:2])] = 0
+    full = cmp.compress(f, ratio=0.5, clusters=3)
+    assert 1 not in {r for r, _ in full.blocks} and {0, 2} <= {r for r, _ in full.blocks}
+    dense = relight(f, coloured)
+    for backend in ("numpy", "numba"):
+        assert np.allclose(full.relight(coloured, backend=backend)[m], dense[m], rtol=1e-4, atol=1e-6 * dense.max())

@@ -9,6 +9,12 @@ checked before any work; the files are written under unique temporary names
 and renamed into place together (:class:`facestats.core.outputs.OutputSet`):
 a failed command leaves nothing behind and replaces nothing.
 
+``--turntable N`` renders N frames with the environment turned by 360°/N between them, through the
+compressed path (:func:`facestats.relight.compression.compress`, ``--ratio``; Debevec et al. 2000 §3.3: relight
+from compressed reflectance functions): the field (for a subject, its virtual light stage field, streamed to
+a temporary zarr store) is compressed once and each frame is one compressed relight.  Frames are written as
+``OUT_000.exr`` … with their PNGs (one exposure for all frames, from the first), all or none.
+
 Registered in :mod:`facestats.cli` with :func:`add_relight`.
 """
 
@@ -32,6 +38,11 @@ def _lights(text):
     return tuple(sizes)
 
 
+def _frame(path, k, frames):
+    """``path`` with ``_kkk`` before its suffix when there are several frames."""
+    return path if frames is None else path.with_name(f"{path.stem}_{k:03d}{path.suffix}")
+
+
 def _cmd_relight(args) -> int:
     import numpy as np
 
@@ -41,15 +52,27 @@ def _cmd_relight(args) -> int:
     from facestats.io.probes import read_light_probe
     from facestats.relight.display import exposure_scale
 
-    # Outputs first: a bad path must not cost a relight, and nothing is replaced unless both are written.
+    # Outputs first: a bad path must not cost a relight, and nothing is replaced unless all are written.
+    if args.turntable is not None and not 1 <= args.turntable <= 3600:
+        raise ValidationError(f"--turntable must be a number of frames in [1, 3600], got {args.turntable}")
+    frames = args.turntable
+    if args.ratio is not None and frames is None:
+        raise ValidationError("--ratio applies to --turntable (a single relight uses the dense field)")
+    if args.ratio is not None and not (math.isfinite(args.ratio) and args.ratio > 0):
+        raise ValidationError(f"--ratio must be a finite number > 0, got {args.ratio!r}")
     out = check_output_file(args.out, "--out", (".exr",))
     png = check_output_file(args.png if args.png else out.with_suffix(".png"), "--png", (".png",))
     if not math.isfinite(args.rotate):
         raise ValidationError(f"--rotate must be a finite angle in degrees, got {args.rotate!r}")
-    for p in (out, png):
-        if os.path.lexists(p) and not args.overwrite:
-            raise ValidationError(f"output {str(p)!r} exists (pass --overwrite to replace it)")
+    targets = [(_frame(out, k, frames), _frame(png, k, frames)) for k in range(frames or 1)]
+    for pair in targets:
+        for name, p in zip(("--out", "--png"), pair):
+            check_output_file(p, name, (p.suffix.lower(),))
+            if os.path.lexists(p) and not args.overwrite:
+                raise ValidationError(f"output {str(p)!r} exists (pass --overwrite to replace it)")
     probe = read_light_probe(args.probe, args.layout)
+    if frames is not None:
+        return _turntable(args, probe, targets)
     rotate = math.radians(math.fmod(args.rotate, 360.0))  # fmod first: exact for any finite angle
     source = pathlib.Path(args.source)
     if source.is_dir():
@@ -82,6 +105,53 @@ def _cmd_relight(args) -> int:
     return 0
 
 
+def _turntable(args, probe, targets) -> int:
+    """Frames of the environment turning about +y, relit through the compressed field (module docstring)."""
+    import tempfile
+
+    import numpy as np
+
+    from facestats.core.outputs import OutputSet
+    from facestats.io.images import write_image
+    from facestats.relight.compression import compress
+    from facestats.relight.display import exposure_scale
+    from facestats.relight.field import open_field
+
+    with tempfile.TemporaryDirectory(prefix="facestats-stage-") as tmp:
+        source = pathlib.Path(args.source)
+        if source.is_dir():
+            field = open_field(source)
+        else:
+            from facestats.model.sphere import light_stage_directions
+            from facestats.relight.camera import stage_camera
+            from facestats.relight.stage import light_stage_field
+
+            with open_store_option(args.store) as store:
+                subject = store.subject(args.source).load()
+            camera = stage_camera(args.azimuth, args.elevation, size=args.size)
+            d, _ = light_stage_directions(*_lights(args.lights))
+            field = light_stage_field(subject, camera, directions=d, out=pathlib.Path(tmp) / "field.zarr",
+                                      dtype="float16", progress=True)  # fmt: skip
+        mask = field["mask"].values if "mask" in field.data_vars else None
+        comp = compress(field, ratio=20.0 if args.ratio is None else args.ratio, progress=True)
+        step = 360.0 / len(targets)
+        angles = [math.fmod(args.rotate + k * step, 360.0) for k in range(len(targets))]
+        images = [comp.relight(probe=probe, layout=args.layout, rotate=math.radians(a)) for a in angles]
+    scale = exposure_scale(images[0], mask)
+    with OutputSet(targets[0][0].parent) as files:  # every frame or none
+        for (exr, png), angle, image in zip(targets, angles, images):
+            attrs = {"source": str(args.source), "probe": str(args.probe), "rotate_deg": repr(angle),
+                     "units": "radiance in the probe's unit", "compression_ratio": f"{comp.ratio:.4g}",
+                     "method": "Debevec et al. 2000 eq. 4, compressed field (facestats.relight.compress)"}  # fmt: skip
+            write_image(files.path(exr.absolute()), image, attributes=attrs)
+            write_image(files.path(png.absolute()), np.clip(image * scale, 0, 1), srgb=True)
+    print(f"turntable of {args.source} under {args.probe}: {len(targets)} frames every {step:g}° from "
+          f"{args.rotate:g}°, compressed {comp.ratio:.1f}x ({comp.clusters} clusters, {comp.components} components), "
+          f"PNG exposure x{scale:.4g}")  # fmt: skip
+    print(f"wrote {targets[0][0]} ... {targets[-1][1]}")
+    return 0
+
+
 def add_relight(sub):
     p = sub.add_parser(
         "relight",
@@ -104,6 +174,11 @@ def add_relight(sub):
     p.add_argument("--azimuth", type=ascii_float, default=0.0, metavar="DEG", help="camera azimuth (0: frontal)")
     p.add_argument("--elevation", type=ascii_float, default=0.0, metavar="DEG", help="camera elevation")
     p.add_argument("--lights", default="64x32", metavar="NxM", help="light stage theta x phi (default 64x32)")
+    p.add_argument("--turntable", type=ascii_int, default=None, metavar="N",
+                   help="N frames, the environment turned by 360/N degrees between them, relit through the "
+                   "compressed field (OUT_000.exr, OUT_000.png, ...)")  # fmt: skip
+    p.add_argument("--ratio", type=ascii_float, default=None,
+                   help="compression ratio of the turntable's field (default 20)")  # fmt: skip
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     add_store_option(p)
     p.set_defaults(func=_cmd_relight)

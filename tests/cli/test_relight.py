@@ -76,3 +76,45 @@ def test_outputs_are_checked_first_and_replaced_together(tmp_path):
     assert r.returncode == 0 and (tmp_path / "new" / "n.png").is_file()  # folders created on success
     ref = relight(f, probe=sky_probe(8), rotate=np.radians(1e20 % 360))  # 280°, not the unrotated image
     assert np.allclose(read_image(tmp_path / "new" / "n.exr"), ref, rtol=1e-5, atol=1e-7)
+
+
+def test_turntable_relights_the_compressed_field_frame_by_frame(tmp_path):
+    from facestats.io.probes import read_light_probe
+    from facestats.relight.compression import compress
+    from facestats.relight.relighting import lighting_for
+    from tests.relight.fields import ts_lambert_field
+
+    f, _, _ = ts_lambert_field(10, 10, n_theta=16, n_phi=8)
+    write_field(tmp_path / "f.zarr", f)
+    write_light_probe(tmp_path / "sky.hdr", sky_probe(16))
+    probe = read_light_probe(tmp_path / "sky.hdr")
+    r = run_cli("relight", tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", "--turntable", "4", "--rotate", "30",
+                "--ratio", "3", "--out", tmp_path / "t.exr")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    names = sorted(p.name for p in tmp_path.iterdir() if p.suffix in (".exr", ".png"))
+    assert names == [f"t_{k:03d}.{e}" for k in range(4) for e in ("exr", "png")]
+    comp = compress(f, ratio=3)
+    m = f["mask"].values
+    for k in range(4):  # frame k: the environment turned by 30° + 90° k, through the compressed field
+        img = read_image(tmp_path / f"t_{k:03d}.exr")
+        angle = np.radians(30 + 90 * k)
+        assert np.allclose(img, comp.relight(probe=probe, rotate=angle), rtol=1e-5, atol=1e-7)
+        dense = relight(f, probe=probe, rotate=angle)
+        bound = comp.error_bound(lighting_for(f, probe, rotate=angle))  # residual x |L| (Cauchy-Schwarz)
+        assert np.all(np.abs(img - dense)[m] <= bound[m] * (1 + 1e-4) + 1e-6)
+        assert read_exr(tmp_path / f"t_{k:03d}.exr")[1]["rotate_deg"] == repr(float(30 + 90 * k))
+    assert not np.allclose(read_image(tmp_path / "t_000.exr"), read_image(tmp_path / "t_002.exr"))
+    # one existing frame stops the command before any work; nothing is written or replaced
+    (tmp_path / "u_002.png").write_text("keep")
+    r = run_cli("relight", tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", "--turntable", "4",
+                "--out", tmp_path / "u.exr")  # fmt: skip
+    assert r.returncode == 2 and "u_002.png" in r.stderr and "exists" in r.stderr
+    assert not any(p.name.startswith("u_") and p.name != "u_002.png" for p in tmp_path.iterdir())
+    for bad, message in ((("--turntable", "0"), "--turntable"), (("--turntable", "2", "--ratio", "-1"), "--ratio"),
+                         (("--ratio", "5"), "--ratio applies to --turntable")):  # fmt: skip
+        r = run_cli("relight", tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", *bad, "--out", tmp_path / "v.exr")
+        assert r.returncode == 2 and message in r.stderr and not any(p.name.startswith("v") for p in tmp_path.iterdir())
+    r = run_cli("relight", "S001", "--probe", tmp_path / "sky.hdr", "--size", "12", "--lights", "8x4",
+                "--turntable", "2", "--ratio", "2", "--out", tmp_path / "s.exr")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert read_image(tmp_path / "s_001.exr").shape == (12, 12, 3) and "2 frames every 180°" in r.stdout

@@ -143,6 +143,8 @@ CASES += (
     + _case("relight", "--size", ["١"], ["size"], base=_RELIT + _PROBE)
     + _case("relight", "--rotate", ["abc"], ["rotate"], base=_RELIT + _PROBE)
     + _case("relight", "--layout", ["bogus"], ["--layout"], base=_RELIT + _PROBE)
+    + _case("relight", "--turntable", ["abc", "١", "0", "-3", "100000"], ["turntable"], base=_RELIT + _PROBE)
+    + _case("relight", "--ratio", ["abc", "0", "nan", "-1"], ["ratio"], base=_RELIT + _PROBE + ("--turntable", "2"))
     + _case("serve", "--port", ["abc", "-1", "70000", "١", "1.5"], ["port"])
     + _case("serve", "--store", ["{fifo}", "{missing}", ""], ["store", "path"])
     + _case("microstructure generate", "--size", ["abc", "١"], ["size"], base=_GENERATE)

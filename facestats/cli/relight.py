@@ -134,12 +134,17 @@ def _turntable(args, probe, targets) -> int:
                                       dtype="float16", progress=True)  # fmt: skip
         mask = field["mask"].values if "mask" in field.data_vars else None
         comp = compress(field, ratio=20.0 if args.ratio is None else args.ratio, progress=True)
-        step = 360.0 / len(targets)
-        angles = [math.fmod(args.rotate + k * step, 360.0) for k in range(len(targets))]
-        images = [comp.relight(probe=probe, layout=args.layout, rotate=math.radians(a)) for a in angles]
-    scale = exposure_scale(images[0], mask)
-    with OutputSet(targets[0][0].parent) as files:  # every frame or none
-        for (exr, png), angle, image in zip(targets, angles, images):
+    step = 360.0 / len(targets)
+    angles = [math.fmod(args.rotate + k * step, 360.0) for k in range(len(targets))]
+
+    def frame(angle):
+        return comp.relight(probe=probe, layout=args.layout, rotate=math.radians(angle))
+
+    first = frame(angles[0])
+    scale = exposure_scale(first, mask)
+    with OutputSet(targets[0][0].parent) as files:  # every frame or none; one frame in memory at a time
+        for k, ((exr, png), angle) in enumerate(zip(targets, angles)):
+            image = first if k == 0 else frame(angle)
             attrs = {"source": str(args.source), "probe": str(args.probe), "rotate_deg": repr(angle),
                      "units": "radiance in the probe's unit", "compression_ratio": f"{comp.ratio:.4g}",
                      "method": "Debevec et al. 2000 eq. 4, compressed field (facestats.relight.compress)"}  # fmt: skip

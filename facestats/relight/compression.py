@@ -80,9 +80,10 @@ from facestats.relight.lighting import resample_probe
 __all__ = ["CompressedField", "compress", "default_clusters", "light_regions", "per_pixel_values"]
 
 #: Target pixels per cluster of the default clustering.  Smaller clusters fit their pixels better but spend more
-#: of the budget on bases; on the 256² face at 20× (docs/relighting.md) the median over 12 lightings of the worst
-#: pixel falls from 11-14 % at 512 pixels per cluster to about 9 % at 128 and stops falling at 64.  A relight's
-#: cost does not depend on the clusters (it reads every stored value once); compressing takes longer.
+#: of the budget on bases; on the 256² face at 20× (``benchmarks/bench_relight.bench_cluster_density``, table in
+#: docs/relighting.md) the median over 12 lightings and 3 seeds of the worst pixel falls from 12.8 % at 512 pixels
+#: per cluster to 9.2 % at 128 and stops falling at 64.  The compiled relight's cost does not depend on the
+#: clusters (it reads every stored value once; the numpy backend's grows with them); compressing takes longer.
 PIXELS_PER_CLUSTER = 128
 
 
@@ -207,8 +208,8 @@ def _pack(blocks, regions):
 
 def _relight_numba(pk, wd, regions, n_pix):
     """The compiled relight (:mod:`facestats.relight.compression_numba`): the lighting ``wd`` (L, 3) projected on
-    every region's stacked bases, then the rows' products in one part of about equal work per thread, into one
-    image per region; (n_pix, 3) float32."""
+    every region's stacked bases, then the rows' products in parts of about equal work (a few per thread), into
+    one image per region; (n_pix, 3) float32."""
     import numba
 
     from facestats.relight.compression_numba import project, relight_segments

@@ -38,6 +38,15 @@ def _lights(text):
     return tuple(sizes)
 
 
+def _subject_and_camera(args):
+    """The store subject ``args.source`` (loaded) and the stage camera of ``--azimuth``, ``--elevation``, ``--size``."""
+    from facestats.relight.camera import stage_camera
+
+    with open_store_option(args.store) as store:
+        subject = store.subject(args.source).load()
+    return subject, stage_camera(args.azimuth, args.elevation, size=args.size)
+
+
 def _frame(path, k, frames):
     """``path`` with ``_kkk`` before its suffix when there are several frames."""
     return path if frames is None else path.with_name(f"{path.stem}_{k:03d}{path.suffix}")
@@ -83,12 +92,9 @@ def _cmd_relight(args) -> int:
         image = relight(field, probe=probe, layout=args.layout, rotate=rotate, progress=True)
         mask = field["mask"].values if "mask" in field.data_vars else None
     else:
-        from facestats.relight.camera import stage_camera
         from facestats.relight.stage import relight_subject
 
-        with open_store_option(args.store) as store:
-            subject = store.subject(args.source).load()
-        camera = stage_camera(args.azimuth, args.elevation, size=args.size)
+        subject, camera = _subject_and_camera(args)
         image, mask = relight_subject(subject, probe, layout=args.layout, rotate=rotate, camera=camera,
                                       lights=_lights(args.lights))  # fmt: skip
     scale = exposure_scale(image, mask)
@@ -123,12 +129,9 @@ def _turntable(args, probe, targets) -> int:
             field = open_field(source)
         else:
             from facestats.model.sphere import light_stage_directions
-            from facestats.relight.camera import stage_camera
             from facestats.relight.stage import light_stage_field
 
-            with open_store_option(args.store) as store:
-                subject = store.subject(args.source).load()
-            camera = stage_camera(args.azimuth, args.elevation, size=args.size)
+            subject, camera = _subject_and_camera(args)
             d, _ = light_stage_directions(*_lights(args.lights))
             field = light_stage_field(subject, camera, directions=d, out=pathlib.Path(tmp) / "field.zarr",
                                       dtype="float16", progress=True)  # fmt: skip

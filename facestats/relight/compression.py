@@ -197,7 +197,7 @@ def _pack(blocks, regions):
         seg_region=seg_region,
         coef=coef,
         pixel=np.concatenate([blocks[key].rows[c] for key, c in segments] + [np.zeros(0, np.int64)]).astype(np.int64),
-        seg_row=np.concatenate([[0], np.cumsum(seg_rows)[:-1]]).astype(np.int64) if segments else seg_rows,
+        seg_row=np.cumsum(seg_rows) - seg_rows,
         seg_rows=seg_rows,
         seg_k=seg_k,
         seg_proj=np.array([proj_of[key] for key, _ in segments], np.int64),

@@ -265,35 +265,50 @@ def bench_compression_sweep(size=256, n_theta=64, n_phi=32, ratios=(20, 10, 5), 
     return out
 
 
-def bench_cluster_density(size=256, n_theta=64, n_phi=32, pixels_per_cluster=(512, 256, 128, 64), seeds=(0, 1, 2),
-                          ratio=20.0, rotations=(0, 45, 135, 225)):  # fmt: skip
-    """The compressed relight's errors against the clusters' size, over several k-means seeds (what
-    :data:`facestats.relight.compression.PIXELS_PER_CLUSTER` is chosen from).
-
-    Per density and seed: the largest relative error of each of the probes × ``rotations`` lightings; reported are
-    the median over lightings and seeds of those maxima (a stable summary: a single worst pixel moves with the
-    seed), the largest of them, the largest 99th percentile, and the compression time.
-    """
+def _error_summary(field, mask, weights, refs, seeds, **settings):
+    """Compress with ``settings`` once per seed and relight every lighting: the median over lightings and seeds of
+    the largest relative error (a stable summary: a single worst pixel moves with the seed), the largest of them,
+    the largest 99th percentile, and the mean compression time."""
     from facestats.relight.compression import compress
 
+    maxima, p99, seconds = [], [], []
+    for seed in seeds:
+        t0 = time.perf_counter()
+        comp = compress(field, seed=seed, **settings)
+        seconds.append(time.perf_counter() - t0)
+        for p, w in weights.items():
+            rel = _rel(comp.relight(w), refs[p], mask)
+            maxima.append(float(rel.max()))
+            p99.append(float(np.percentile(rel, 99)))
+    return {"median_max": round(float(np.median(maxima)), 4), "worst_max": round(max(maxima), 4),
+            "worst_p99": round(max(p99), 4), "compress_s": round(float(np.mean(seconds)), 1)}  # fmt: skip
+
+
+def bench_cluster_density(size=256, n_theta=64, n_phi=32, pixels_per_cluster=(512, 256, 128, 64), seeds=(0, 1, 2),
+                          ratio=20.0, rotations=(0, 45, 135, 225)):  # fmt: skip
+    """The compressed relight's errors against the clusters' size (what
+    :data:`facestats.relight.compression.PIXELS_PER_CLUSTER` is chosen from): :func:`_error_summary` over the
+    probes × ``rotations`` lightings and ``seeds``."""
     field, mask, probe_source, weights, refs = _rotated_references(size, n_theta, n_phi, rotations)
     out = {"probes": probe_source, "face_pixels": int(mask.sum())}
     for ppc in pixels_per_cluster:
         clusters = max(1, round(int(mask.sum()) / ppc))
-        maxima, p99, seconds = [], [], []
-        for seed in seeds:
-            t0 = time.perf_counter()
-            comp = compress(field, ratio=ratio, clusters=clusters, seed=seed)
-            seconds.append(time.perf_counter() - t0)
-            for p, w in weights.items():
-                rel = _rel(comp.relight(w), refs[p], mask)
-                maxima.append(float(rel.max()))
-                p99.append(float(np.percentile(rel, 99)))
         out[f"ppc{ppc}_clusters"] = clusters
-        out[f"ppc{ppc}_median_max"] = round(float(np.median(maxima)), 4)
-        out[f"ppc{ppc}_worst_max"] = round(max(maxima), 4)
-        out[f"ppc{ppc}_worst_p99"] = round(max(p99), 4)
-        out[f"ppc{ppc}_compress_s"] = round(float(np.mean(seconds)), 1)
+        summary = _error_summary(field, mask, weights, refs, seeds, ratio=ratio, clusters=clusters)
+        out.update({f"ppc{ppc}_{k}": v for k, v in summary.items()})
+    return out
+
+
+def bench_region_floor(size=256, n_theta=64, n_phi=32, floors=(0.05, 0.1, 0.2, 0.4, 1.0), seeds=(0, 1, 2),
+                       ratio=20.0, rotations=(0, 45, 135, 225)):  # fmt: skip
+    """The compressed relight's errors against the ``floor`` of the region parts' scales (what
+    ``compress(floor=)``'s default is chosen from): :func:`_error_summary` over the probes × ``rotations``
+    lightings and ``seeds``."""
+    field, mask, probe_source, weights, refs = _rotated_references(size, n_theta, n_phi, rotations)
+    out = {"probes": probe_source, "face_pixels": int(mask.sum())}
+    for floor in floors:
+        summary = _error_summary(field, mask, weights, refs, seeds, ratio=ratio, floor=floor)
+        out.update({f"floor{floor}_{k}": v for k, v in summary.items()})
     return out
 
 
@@ -304,6 +319,7 @@ BENCHMARKS = [
     ("stream", bench_stream),
     ("compression_sweep", bench_compression_sweep),
     ("cluster_density", bench_cluster_density),
+    ("region_floor", bench_region_floor),
 ]
 
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
@@ -319,6 +335,15 @@ SMOKE = {
         "n_phi": 8,
         "pixels_per_cluster": (64, 16),
         "seeds": (0, 1),
+        "ratio": 2.0,
+        "rotations": (0, 90),
+    },
+    "region_floor": {
+        "size": 16,
+        "n_theta": 16,
+        "n_phi": 8,
+        "floors": (0.2, 1.0),
+        "seeds": (0,),
         "ratio": 2.0,
         "rotations": (0, 90),
     },

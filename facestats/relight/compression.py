@@ -9,11 +9,12 @@ al. 2003, with the lights split into regions):
 
     √δA_l R_p,c(l) ≈ Σ_{j<K_kr} C_p,c,r,j B_kr,j(l)   for the lights l of region r,  k = cluster of pixel p
 
-where the B_kr are the leading principal directions (uncentred) of the rows
-√δA R_p,c / ‖√δA R_p,c‖ of *every* pixel of cluster k, all three channels,
-restricted to the lights of region r, and the coefficients C are the
-projections of the unnormalised rows.  Choice and justification (the
-measurements behind it: ``docs/relighting.md``, D2):
+where the B_kr are the leading principal directions (uncentred) of the
+region-r parts of the rows y = √δA R_p,c of *every* pixel of cluster k, all
+three channels, each part scaled by 1 / max(s_r, ``floor`` · s) (see *The error
+metric* below), and the coefficients C are the projections of the unscaled
+parts.  Choice and justification (the measurements behind it:
+``docs/relighting.md``, D2):
 
 * **Cost of a relight.**  The lighting is projected once on every basis
   (Σ K_kr L_r multiply-adds per channel) and each stored row then needs K_kr
@@ -40,16 +41,27 @@ measurements behind it: ``docs/relighting.md``, D2):
 * **Components where they pay.**  Each (cluster, region) block offers its
   components in the order of its singular values; a component of block b costs
   L_r + n_b stored values (its basis row and one coefficient per stored row)
-  and removes σ² of the normalised rows' squared residual.  Components are
+  and removes σ² of the scaled rows' squared residual.  Components are
   taken greedily by σ² per stored value until the budget of the ratio is
   spent, so flat regions get none and the specular regions many.
 * **The error metric.**  Environment lighting weights each light by its solid
   angle δA (eq. 4), so each basis minimises Σ_l δA_l (R − R̂)²: rows are scaled
-  by √δA.  And a relit image is judged by its *relative* error per pixel and
-  channel, so the bases come from rows normalised to unit norm over the whole
-  sphere: a dark blue channel weighs as much as a bright red one.  Every pixel
-  enters its cluster's bases (a basis estimated from a sample of the pixels
-  left unsampled pixels with errors near 100 %, over 1,000 % under a rotated probe).
+  by √δA.  A relit image is judged by its *relative* error per pixel and
+  channel, and a pixel's relit value is the sum of its regions' shares
+  y_r · (L √δA)_r.  Under a light that falls on one region only, the relative
+  error of the pixel is its residual there against s_r = Σ_{l∈r} √δA_l |y_l|,
+  the region's value under uniform light of unit radiance (the √δA-weighted
+  L1 norm of the part).  So each region's part of a row enters its block's
+  basis and the greedy choice scaled by 1 / max(s_r, ``floor`` · s), s = Σ_r s_r:
+  a dark blue channel weighs as much as a bright red one, and a region that
+  holds a small share of the pixel's light is weighed as if it held ``floor``
+  (scaled by s_r alone, the bases would chase regions that hardly light the pixel
+  under any probe).  The default floor is chosen by
+  ``benchmarks/bench_relight.bench_region_floor``; its figures and those of rows
+  scaled to unit L2 norm over the whole sphere (the method until 2026-12-05) are
+  in docs/relighting.md, D2.  Every pixel enters its cluster's bases (a basis
+  estimated from a sample of the pixels left unsampled pixels with errors near
+  100 %, over 1,000 % under a rotated probe).
 * **Honest diagnostics.**  The components of a block are nested and the greedy
   order is fixed, so keeping fewer (:meth:`CompressedField.truncate`) never
   lowers any row's residual ‖√δA (R − R̂)‖, and by Cauchy-Schwarz the
@@ -93,12 +105,17 @@ def per_pixel_values(n_regions: int) -> int:
     return 1 + -(-3 * n_regions // 32)
 
 
-def _ratio(value, name="ratio"):
-    """A positive finite scalar ratio."""
-    r = as_finite(value, name, 0, None, low_inclusive=False)
+def _number(value, name, low, high=None, **bounds):
+    """A finite scalar within [``low``, ``high``] (``bounds``: as :func:`facestats.core.validate.check_range`)."""
+    r = as_finite(value, name, low, high, **bounds)
     if r.ndim:
         raise ValidationError(f"{name} must be a number, got an array of shape {r.shape}")
     return float(r)
+
+
+def _ratio(value):
+    """A positive finite scalar ratio."""
+    return _number(value, "ratio", 0, low_inclusive=False)
 
 
 def default_clusters(n_pixels: int) -> int:
@@ -502,20 +519,30 @@ def _normalised(rows):
     return (rows / np.where(norm > 0, norm, 1)).astype(rows.dtype)
 
 
-def _grams(stream, labels, regions):
-    """Gram matrices Σ yᵀy (float64, (L_r, L_r)) of the normalised non-zero rows of each (region, cluster) block,
-    and the number of those rows."""
+def _region_scales(rows, regions, sw, floor):
+    """Per region, the divisor max(s_r, ``floor`` · s) (n, 3) float64 of each row's part (module docstring, *The
+    error metric*): s_r = Σ_{l∈r} √δA_l |y_l| of the weighted rows y (n, 3, L), s = Σ_r s_r."""
+    absw = np.abs(rows)
+    parts = [np.einsum("ncl,l->nc", absw[:, :, lights], sw[lights], dtype=np.float64) for lights in regions]
+    total = np.sum(parts, axis=0)
+    return [np.maximum(part, floor * total) for part in parts]
+
+
+def _grams(stream, labels, regions, floor):
+    """Gram matrices Σ yᵀy (float64, (L_r, L_r)) of the scaled non-zero region parts of the rows
+    (:func:`_region_scales`) of each (region, cluster) block, and the number of those parts."""
     grams, counts = {}, {}
     for sel, rows in stream.each("compress: gram matrices"):
-        rows = _normalised(rows)  # (n, 3, L)
         lab = labels[sel]
+        scales = _region_scales(rows, regions, stream.sw, floor)
         for r, lights in enumerate(regions):
             sub = rows[:, :, lights]  # (n, 3, L_r)
             nonzero = np.any(sub != 0, axis=-1)  # (n, 3)
+            sub = sub / np.where(nonzero, scales[r], 1)[..., None]
             for k in np.unique(lab):  # loop over the clusters present in this tile
                 here = (lab == k)[:, None] & nonzero
                 if here.any():
-                    y = sub[here].astype(np.float64)
+                    y = sub[here]
                     g = grams.setdefault((r, int(k)), np.zeros((lights.size, lights.size)))
                     g += y.T @ y
                     counts[(r, int(k))] = counts.get((r, int(k)), 0) + y.shape[0]
@@ -589,6 +616,7 @@ def compress(
     *,
     clusters: int | None = None,
     sectors: int = 4,
+    floor: float = 0.2,
     features: int = 32,
     sample: int = 256,
     seed: int = 0,
@@ -599,8 +627,8 @@ def compress(
     Streaming passes over the field's tiles (in memory or on disk): a global
     basis of ``features`` components from a sample of pixels and every pixel's
     projection on it; k-means of those projections into ``clusters``; the Gram
-    matrix of every (region, cluster) block from all its pixels' normalised
-    non-zero rows, and its principal directions; the greedy choice of components
+    matrix of every (region, cluster) block from all its pixels' scaled
+    non-zero region parts, and its principal directions; the greedy choice of components
     for the ratio; then every stored row's coefficients and every row's residual.
 
     Parameters
@@ -612,6 +640,9 @@ def compress(
         Number of clusters C (default :func:`default_clusters`: one per 128 face pixels).
     sectors : int
         Azimuth sectors per hemisphere of :func:`light_regions` (2 × ``sectors`` regions).
+    floor : float
+        In [0, 1]: a region's part of a row is scaled by 1 / max(s_r, ``floor`` · s) before the bases are found
+        (module docstring, *The error metric*; 1 scales every part by its row's s).
     features : int
         Components of the global basis that the clustering works on (at most the number of lights).
     sample : int
@@ -635,6 +666,7 @@ def compress(
     r_min = _ratio(ratio)
     c = default_clusters(pixels.size) if clusters is None else check_integer(clusters, "clusters", 1, pixels.size)
     s = check_integer(sample, "sample", 1)
+    fl = _number(floor, "floor", 0, 1)
     nf = min(check_integer(features, "features", 1), n)
     rng = np.random.default_rng(check_seed(seed))
     region_of = light_regions(directions, sectors)
@@ -642,7 +674,7 @@ def compress(
     regions = [lights for lights in regions if lights.size]
     stream = _Pass(f, pixels, sw, progress)
     labels = _clusters(stream, c, nf, s, rng)
-    grams, rows_of = _grams(stream, labels, regions)  # rows_of: the rows a block stores, for its components' cost
+    grams, rows_of = _grams(stream, labels, regions, fl)  # rows_of: the rows a block stores, for its components' cost
     bases = _bases(grams)
     cost = {key: regions[key[0]].size + rows_of[key] for key in bases}  # stored values of one component
     gain = [(e / cost[key], key) for key, (_, sigma2) in bases.items() for e in sigma2]

@@ -143,3 +143,27 @@ def test_compiled_and_numpy_relights_agree_and_values_are_stored_once(field):
     dense = relight(f, coloured)
     for backend in ("numpy", "numba"):
         assert np.allclose(full.relight(coloured, backend=backend)[m], dense[m], rtol=1e-4, atol=1e-6 * dense.max())
+
+
+def test_region_parts_are_scaled_by_their_values_under_uniform_light(field):
+    # s_r of a (pixel, channel) row is its relit value under unit radiance from region r alone (eq. 4 with
+    # L = 1 on r): checked against the dense relight, an independent path; the floor lifts small parts to floor · s
+    directions, sa, _ = light_table(field)
+    m = field["mask"].values
+    regions = cmp.light_regions(directions).reshape(-1)
+    lights = [np.flatnonzero(regions == r) for r in np.unique(regions)]
+    sw = np.sqrt(sa.reshape(-1))
+    rows = np.moveaxis(field["reflectance"].values.reshape(sw.size, 14, 14, 3)[:, m], 0, -1) * sw  # (P, 3, L)
+    uniform = [relight(field, np.where(regions == r, sa.reshape(-1), 0.0).reshape(16, 32))[m]
+               for r in np.unique(regions)]  # fmt: skip
+    total = np.sum(uniform, axis=0)
+    assert total.min() > 0
+    for floor in (0.0, 0.3, 1.0):
+        scales = cmp._region_scales(rows, lights, sw, floor)
+        for s_r, u in zip(scales, uniform):
+            assert np.allclose(s_r, np.maximum(u, floor * total), rtol=1e-5, atol=1e-9)
+    # absolute values: a field with negative noise still gets positive scales
+    assert np.allclose(cmp._region_scales(-rows, lights, sw, 0.0)[0], uniform[0], rtol=1e-5, atol=1e-9)
+    for bad in (-0.1, 1.5, np.nan, [0.1, 0.2]):
+        with pytest.raises(ValidationError, match="floor"):
+            cmp.compress(field, floor=bad)

@@ -312,6 +312,19 @@ def bench_region_floor(size=256, n_theta=64, n_phi=32, floors=(0.05, 0.1, 0.2, 0
     return out
 
 
+def bench_parts(size=256, n_theta=64, n_phi=32, parts=(1, 2, 3, 4), seeds=(0, 1, 2), ratio=20.0,
+                rotations=(0, 45, 135, 225)):  # fmt: skip
+    """The compressed relight's errors against the ``parts`` each (region, cluster) block's lights are split into
+    by their zeros (what ``compress(parts=)``'s default is chosen from): :func:`_error_summary` over the probes ×
+    ``rotations`` lightings and ``seeds``."""
+    field, mask, probe_source, weights, refs = _rotated_references(size, n_theta, n_phi, rotations)
+    out = {"probes": probe_source, "face_pixels": int(mask.sum())}
+    for n in parts:
+        summary = _error_summary(field, mask, weights, refs, seeds, ratio=ratio, parts=n)
+        out.update({f"parts{n}_{k}": v for k, v in summary.items()})
+    return out
+
+
 BENCHMARKS = [
     ("relight", bench_relight),
     ("stage", bench_stage),
@@ -320,6 +333,7 @@ BENCHMARKS = [
     ("compression_sweep", bench_compression_sweep),
     ("cluster_density", bench_cluster_density),
     ("region_floor", bench_region_floor),
+    ("parts", bench_parts),
 ]
 
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
@@ -343,6 +357,15 @@ SMOKE = {
         "n_theta": 16,
         "n_phi": 8,
         "floors": (0.2, 1.0),
+        "seeds": (0,),
+        "ratio": 2.0,
+        "rotations": (0, 90),
+    },
+    "parts": {
+        "size": 16,
+        "n_theta": 16,
+        "n_phi": 8,
+        "parts": (1, 2),
         "seeds": (0,),
         "ratio": 2.0,
         "rotations": (0, 90),

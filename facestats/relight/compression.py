@@ -10,7 +10,7 @@ al. 2003, with the lights split into regions):
     √δA_l R_p,c(l) ≈ Σ_{j<K_kr} C_p,c,r,j B_kr,j(l)   for the lights l of region r,  k = cluster of pixel p
 
 where the B_kr are the leading principal directions (uncentred) of the
-region-r parts of the rows y = √δA R_p,c of *every* pixel of cluster k, all
+region-r parts (split further by zeros, below) of the rows y = √δA R_p,c of *every* pixel of cluster k, all
 three channels, each part scaled by 1 / max(s_r, ``floor`` · s) (see *The error
 metric* below), and the coefficients C are the projections of the unscaled
 parts.  Choice and justification (the measurements behind it:
@@ -62,6 +62,19 @@ parts.  Choice and justification (the measurements behind it:
   in docs/relighting.md, D2.  Every pixel enters its cluster's bases (a basis
   estimated from a sample of the pixels left unsampled pixels with errors near
   100 %, over 1,000 % under a rotated probe).
+* **Parts by zeros.**  Over half of a face's (pixel, light) values are zero,
+  and within a region a pixel's horizon or a cast shadow cuts through the
+  lights its cluster's other pixels see.  A block's basis then ripples onto
+  lights where a row is exactly zero, and a bright source there (a window just
+  below the horizon of the face's sides) turns a ripple of 1 % of the row's
+  norm into an error of 10-20 % of the pixel.  So each (region, cluster)
+  block's lights are split into ``parts`` by the share of its non-zero rows
+  that are zero at the light (two parts: lights zero for fewer than half of
+  them, and the rest), each part with its own basis; a row that is zero over a
+  part is not stored there and comes back exactly zero, and the bases of the
+  lit part no longer reach the lights the cluster mostly does not see.  Each
+  part costs its support's bit mask, and the rows' zero masks one bit per
+  (channel, region, part).
 * **Honest diagnostics.**  The components of a block are nested and the greedy
   order is fixed, so keeping fewer (:meth:`CompressedField.truncate`) never
   lowers any row's residual ‖√δA (R − R̂)‖, and by Cauchy-Schwarz the
@@ -99,10 +112,10 @@ __all__ = ["CompressedField", "compress", "default_clusters", "light_regions", "
 PIXELS_PER_CLUSTER = 128
 
 
-def per_pixel_values(n_regions: int) -> int:
+def per_pixel_values(n_parts: int) -> int:
     """Values stored per pixel besides its coefficients: its cluster label and its bit mask of zero rows
-    (3 channels × ``n_regions`` bits, in 32-bit values)."""
-    return 1 + -(-3 * n_regions // 32)
+    (3 channels × ``n_parts`` (region, part) bits, in 32-bit values)."""
+    return 1 + -(-3 * n_parts // 32)
 
 
 def _number(value, name, low, high=None, **bounds):
@@ -140,30 +153,37 @@ def light_regions(directions, sectors: int = 4) -> np.ndarray:
 
 @dataclass
 class _Block:
-    """One (region, cluster) block: its basis rows and, per channel, the stored rows' pixels and coefficients."""
+    """One (region, cluster, part) block: its lights within the region, its basis rows and, per channel, the stored
+    rows' pixels and coefficients."""
 
-    basis: np.ndarray  # (K, L_r) float32, orthonormal rows
+    support: np.ndarray  # (L_r,) bool: the region's lights of this part
+    basis: np.ndarray  # (K, L_r) float32, orthonormal rows, zero outside the support
     rows: tuple  # per channel: positions (int64, (n_c,)) in CompressedField.pixels
     coefficients: tuple  # per channel: (n_c, K) float32
 
     @property
     def stored(self) -> int:
-        """Basis values and coefficients."""
+        """Basis values on the support, coefficients, and the support's bit mask (32 bits a value) unless the
+        support is the whole region."""
         k = self.basis.shape[0]
-        return k * (self.basis.shape[1] + sum(r.size for r in self.rows)) if k else 0
+        if not k:
+            return 0
+        return k * (int(self.support.sum()) + sum(r.size for r in self.rows)) + _mask_values(self.support)
 
 
 @dataclass
 class _Packed:
     """The stored values of a :class:`CompressedField` in flat arrays (the blocks' bases and coefficients are
     views of them): per region the stacked bases of its blocks, all coefficients, and per (block, channel)
-    segment where its rows, coefficients and components are; segments in (region, cluster, channel) order."""
+    segment where its rows, coefficients and components are, and the image it adds to (one per (region, part):
+    each pixel has at most one block there); segments in (region, cluster, part, channel) order."""
 
     stacks: list  # per region: (Σ K, L_r) float32
     region_start: np.ndarray  # (n_regions + 1,) first component of each region in the projections
     coef: np.ndarray  # flat float32
     pixel: np.ndarray  # int64 position of every stored row
-    seg_region: np.ndarray  # int64 region of each segment
+    n_images: int  # (region, part) pairs that hold blocks
+    seg_image: np.ndarray  # int64 (region, part) image of each segment
     seg_row: np.ndarray  # int64 first row of each segment
     seg_rows: np.ndarray  # int64 rows
     seg_k: np.ndarray  # int64 components
@@ -179,7 +199,7 @@ class _Packed:
 def _pack(blocks, regions):
     """Pack the blocks' bases and coefficients into new flat arrays and make the blocks' arrays views of them
     (the values are stored once)."""
-    keys = sorted(blocks)  # by region, then cluster
+    keys = sorted(blocks)  # by region, then cluster, then part
     stacks, region_start, offset, proj_of = [], [0], 0, {}
     for r, lights in enumerate(regions):
         here = [key for key in keys if key[0] == r]
@@ -207,11 +227,12 @@ def _pack(blocks, regions):
                 view[...] = cfs[c]
                 cfs[c] = view
         b.basis, b.coefficients = stacks[key[0]][lo : lo + b.basis.shape[0]], tuple(cfs)
-    seg_region = np.array([key[0] for key, _ in segments], np.int64)
+    image_of = {pair: i for i, pair in enumerate(sorted({(key[0], key[2]) for key in keys}))}
     return _Packed(
         stacks=stacks,
         region_start=np.asarray(region_start, np.int64),
-        seg_region=seg_region,
+        n_images=len(image_of),
+        seg_image=np.array([image_of[key[0], key[2]] for key, _ in segments], np.int64),
         coef=coef,
         pixel=np.concatenate([blocks[key].rows[c] for key, c in segments] + [np.zeros(0, np.int64)]).astype(np.int64),
         seg_row=np.cumsum(seg_rows) - seg_rows,
@@ -226,7 +247,7 @@ def _pack(blocks, regions):
 def _relight_numba(pk, wd, regions, n_pix):
     """The compiled relight (:mod:`facestats.relight.compression_numba`): the lighting ``wd`` (L, 3) projected on
     every region's stacked bases, then the rows' products in parts of about equal work (a few per thread), into
-    one image per region; (n_pix, 3) float32."""
+    one image per (region, part); (n_pix, 3) float32."""
     import numba
 
     from facestats.relight.compression_numba import project, relight_segments
@@ -238,11 +259,11 @@ def _relight_numba(pk, wd, regions, n_pix):
     n_parts = max(1, min(4 * numba.get_num_threads(), work.size))  # a few parts per thread balance better
     cuts = np.searchsorted(work, work[-1] * np.arange(1, n_parts) / n_parts) if work.size else []
     bounds = np.concatenate([[0], cuts, [work.size]]).astype(np.int64)
-    out = np.zeros((len(pk.stacks), n_pix, 3), np.float32)
+    out = np.zeros((pk.n_images, n_pix, 3), np.float32)
     relight_segments(
         pk.coef,
         pk.pixel,
-        pk.seg_region,
+        pk.seg_image,
         pk.seg_row,
         pk.seg_rows,
         pk.seg_k,
@@ -269,15 +290,18 @@ class CompressedField:
     regions : list of ndarray of int
         The lights (flat indices) of each region.
     blocks : dict
-        (region, cluster) → block: basis (K, L_r), per channel the stored rows and their coefficients.
+        (region, cluster, part) → block: its support (the region's lights of the part), basis (K, L_r), zero
+        off the support, per channel the stored rows and their coefficients.
     residual : ndarray, shape (P, 3)
         ‖√δA (R − R̂)‖ of each pixel and channel.
-    order : ndarray of int, shape (N, 2)
-        (region, cluster) of every offered component in the greedy order; the first ``kept`` are kept.
+    order : ndarray of int, shape (N, 3)
+        (region, cluster, part) of every offered component in the greedy order; the first ``kept`` are kept.
     kept : int
     sqrt_solid_angle : ndarray, shape (L,)
     directions : ndarray, shape (light dims..., 3)
     image_shape : tuple of int
+    parts : int
+        Parts per (region, cluster) block (:func:`compress`).
 
     Notes
     -----
@@ -295,6 +319,7 @@ class CompressedField:
     sqrt_solid_angle: np.ndarray
     directions: np.ndarray
     image_shape: tuple
+    parts: int
     _packed: _Packed = dataclass_field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -316,7 +341,7 @@ class CompressedField:
     @property
     def stored(self) -> int:
         """Stored values: basis rows, coefficients and :func:`per_pixel_values` per pixel."""
-        per_pixel = per_pixel_values(len(self.regions))
+        per_pixel = per_pixel_values(len(self.regions) * self.parts)
         return int(sum(b.stored for b in self.blocks.values())) + per_pixel * self.pixels.size
 
     @property
@@ -328,11 +353,14 @@ class CompressedField:
         """The same field with the greedy prefix of its components that meets ``ratio`` (residuals only grow; a
         ratio at or below :attr:`ratio` keeps them all)."""
         r = _ratio(ratio)
-        budget = 3 * self.n_lights * self.pixels.size / r - per_pixel_values(len(self.regions)) * self.pixels.size
-        cost = {key: self.regions[key[0]].size + sum(x.size for x in b.rows) for key, b in self.blocks.items()}
-        keep, per_block = _take(self.order[: self.kept], cost, budget)
+        per_pixel = per_pixel_values(len(self.regions) * self.parts)
+        budget = (3 * self.n_lights - per_pixel * r) * self.pixels.size / r
+        cost = {key: int(b.support.sum()) + sum(x.size for x in b.rows) for key, b in self.blocks.items()}
+        first = {key: _mask_values(b.support) for key, b in self.blocks.items()}
+        keep, per_block = _take(self.order[: self.kept], cost, budget, first)
         if keep == 0:
-            raise ValidationError(_no_room(r, cost[tuple(self.order[0])], budget))
+            key = tuple(self.order[0])
+            raise ValidationError(_no_room(r, cost[key] + first[key], budget))
         res2 = self.residual.astype(np.float64) ** 2
         blocks = {}
         for key, b in self.blocks.items():
@@ -342,6 +370,7 @@ class CompressedField:
                 res2[b.rows[c], c] += np.einsum("nk,nk->n", dropped, dropped, dtype=np.float64)
             if k:
                 blocks[key] = _Block(
+                    support=b.support,
                     basis=b.basis[:k].copy(),
                     rows=b.rows,
                     coefficients=tuple(np.ascontiguousarray(cf[:, :k]) for cf in b.coefficients),
@@ -410,10 +439,10 @@ class CompressedField:
     def reconstruct(self) -> np.ndarray:
         """The approximated field, (L, H, W, 3) float32 (for inspection; memory of the dense field)."""
         rows = np.zeros((3, self.pixels.size, self.n_lights), np.float32)
-        for (r, _), b in self.blocks.items():  # loop over blocks
+        for (r, _, _), b in self.blocks.items():  # loop over blocks
             lights = self.regions[r]
             for c in range(3):
-                rows[c, b.rows[c][:, None], lights[None, :]] = b.coefficients[c] @ b.basis
+                rows[c, b.rows[c][:, None], lights[None, :]] += b.coefficients[c] @ b.basis  # parts add
         out = np.zeros((self.n_lights, self.image_shape[0] * self.image_shape[1], 3), np.float32)
         out[:, self.pixels] = np.transpose(rows, (2, 1, 0)) / self.sqrt_solid_angle[:, None, None]
         return out.reshape((self.n_lights,) + self.image_shape + (3,))
@@ -528,36 +557,68 @@ def _region_scales(rows, regions, sw, floor):
     return [np.maximum(part, floor * total) for part in parts]
 
 
-def _grams(stream, labels, regions, floor):
-    """Gram matrices Σ yᵀy (float64, (L_r, L_r)) of the scaled non-zero region parts of the rows
-    (:func:`_region_scales`) of each (region, cluster) block, and the number of those parts."""
+def _supports(stream, labels, regions, parts):
+    """The lights of each (region, cluster, part) block, (L_r,) bool: the region's lights split by the share of the
+    (region, cluster) block's non-zero rows that are zero there, part q holding the shares in [q/``parts``,
+    (q + 1)/``parts``) (the last one including 1).  Parts with no light are left out."""
+    zeros, rows_of = {}, {}
+    for sel, rows in stream.each("compress: zero patterns"):
+        lab = labels[sel]
+        for r, lights in enumerate(regions):
+            sub = rows[:, :, lights]  # (n, 3, L_r)
+            nonzero = np.any(sub != 0, axis=-1)
+            for k in np.unique(lab):  # loop over the clusters present in this tile
+                here = (lab == k)[:, None] & nonzero
+                if here.any():
+                    key = (r, int(k))
+                    z = zeros.setdefault(key, np.zeros(lights.size, np.int64))
+                    z += np.count_nonzero(sub[here] == 0, axis=0)
+                    rows_of[key] = rows_of.get(key, 0) + int(here.sum())
+    out = {}
+    for (r, k), z in zeros.items():  # loop over (region, cluster) blocks
+        part = np.minimum((z * parts) // rows_of[r, k], parts - 1)  # exact integer shares
+        for q in range(parts):
+            if np.any(part == q):
+                out[(r, k, q)] = part == q
+    return out
+
+
+def _grams(stream, labels, regions, floor, supports):
+    """Gram matrices Σ yᵀy (float64, (L, L) over the block's L lights) of the scaled non-zero parts of the rows
+    (:func:`_region_scales`) of each (region, cluster, part) block, and the number of those parts."""
     grams, counts = {}, {}
+    parts_of = {}
+    for key in supports:
+        parts_of.setdefault(key[:2], []).append(key)
     for sel, rows in stream.each("compress: gram matrices"):
         lab = labels[sel]
         scales = _region_scales(rows, regions, stream.sw, floor)
         for r, lights in enumerate(regions):
             sub = rows[:, :, lights]  # (n, 3, L_r)
-            nonzero = np.any(sub != 0, axis=-1)  # (n, 3)
-            sub = sub / np.where(nonzero, scales[r], 1)[..., None]
+            sub = sub / np.where(scales[r] > 0, scales[r], 1)[..., None]
             for k in np.unique(lab):  # loop over the clusters present in this tile
-                here = (lab == k)[:, None] & nonzero
-                if here.any():
-                    y = sub[here]
-                    g = grams.setdefault((r, int(k)), np.zeros((lights.size, lights.size)))
-                    g += y.T @ y
-                    counts[(r, int(k))] = counts.get((r, int(k)), 0) + y.shape[0]
+                mine = sub[lab == k]
+                for key in parts_of.get((r, int(k)), ()):  # loop over the block's parts
+                    part = mine[:, :, supports[key]]
+                    y = part[np.any(part != 0, axis=-1)]
+                    if y.shape[0]:
+                        g = grams.setdefault(key, np.zeros((y.shape[1], y.shape[1])))
+                        g += y.T @ y
+                        counts[key] = counts.get(key, 0) + y.shape[0]
     return grams, counts
 
 
-def _bases(grams):
-    """Per block: the principal directions (K, L_r) float32 and their σ², non-increasing (σ² > 1e-12 σ²_max).
-    Empties ``grams`` as it goes (each Gram matrix is freed once its directions are known)."""
+def _bases(grams, supports):
+    """Per block: the principal directions (K, L_r) float32, zero off its support, and their σ², non-increasing
+    (σ² > 1e-12 σ²_max).  Empties ``grams`` as it goes (each Gram matrix is freed once its directions are known)."""
     out = {}
     for key in list(grams):  # loop over blocks
         e, v = np.linalg.eigh(grams.pop(key))
         e, v = e[::-1], v[:, ::-1]
         keep = e > max(e[0], 1e-300) * 1e-12
-        out[key] = (np.ascontiguousarray(v[:, keep].T, np.float32), e[keep])
+        basis = np.zeros((int(keep.sum()), supports[key].size), np.float32)
+        basis[:, supports[key]] = v[:, keep].T
+        out[key] = (basis, e[keep])
     return out
 
 
@@ -569,45 +630,55 @@ def _no_room(ratio, first, budget):
     )
 
 
-def _take(order, cost, budget):
-    """The greedy prefix of ``order`` (rows (region, cluster)) within ``budget`` stored values, one component of
-    block b costing ``cost[b]``: (its length, components per block)."""
+def _take(order, cost, budget, first):
+    """The greedy prefix of ``order`` (rows (region, cluster, part)) within ``budget`` stored values, one component of
+    block b costing ``cost[b]`` and its first one ``first[b]`` more (the support's mask): (its length, components
+    per block)."""
     used, counts = 0, {}
-    for i, (r, k) in enumerate(order):
-        key = (int(r), int(k))
-        if used + cost[key] > budget:
+    for i, row in enumerate(order):
+        key = tuple(int(v) for v in row)
+        price = cost[key] + (0 if key in counts else first[key])
+        if used + price > budget:
             return i, counts
-        used += cost[key]
+        used += price
         counts[key] = counts.get(key, 0) + 1
     return len(order), counts
 
 
-def _coefficients(stream, labels, regions, bases, counts):
+def _mask_values(support):
+    """Stored values of a block's support mask: none when it is the whole region."""
+    return 0 if support.all() else -(-support.size // 32)
+
+
+def _coefficients(stream, labels, regions, bases, supports):
     """Per block and channel: the stored rows (positions in the face pixels) and their coefficients on the
-    block's K components; the residual ‖√δA (R − R̂)‖ (P, 3) of every row."""
-    parts = {key: ([[], [], []], [[], [], []]) for key in bases}
+    block's K components (``bases``: the kept ones); the residual ‖√δA (R − R̂)‖ (P, 3) of every row."""
+    stored = {key: ([[], [], []], [[], [], []]) for key in bases}
+    parts_of = {}
+    for key in bases:
+        parts_of.setdefault(key[:2], []).append(key)
     res2 = np.zeros((stream.n_pix, 3))
     for sel, rows in stream.each("compress: coefficients"):
         lab = labels[sel]
         for r, lights in enumerate(regions):
-            sub = rows[:, :, lights]  # (n, 3, L_r), unnormalised
-            nonzero = np.any(sub != 0, axis=-1)
+            sub = rows[:, :, lights]  # (n, 3, L_r), unscaled
             for k in np.unique(lab):  # loop over the clusters present in this tile
-                key = (r, int(k))
-                if key not in bases:
-                    continue
-                basis = bases[key][0][: counts.get(key, 0)]
-                for c in range(3):
-                    here = np.flatnonzero((lab == k) & nonzero[:, c])
-                    if not here.size:
-                        continue
-                    y = sub[here, c]
-                    cf = y @ basis.T  # (n, K)
-                    res2[sel[here], c] += np.sum((y - cf @ basis).astype(np.float64) ** 2, axis=-1)
-                    if basis.shape[0]:  # a block without components stores nothing
-                        parts[key][0][c].append(sel[here])
-                        parts[key][1][c].append(cf)
-    return parts, np.sqrt(res2).astype(np.float32)
+                mine = np.flatnonzero(lab == k)
+                for key in parts_of.get((r, int(k)), ()):  # loop over the block's parts
+                    basis = bases[key][:, supports[key]]  # (K, L) on the support
+                    part = sub[mine][:, :, supports[key]]  # (m, 3, L)
+                    nonzero = np.any(part != 0, axis=-1)
+                    for c in range(3):
+                        here = np.flatnonzero(nonzero[:, c])
+                        if not here.size:
+                            continue
+                        y = part[here, c]
+                        cf = y @ basis.T  # (n, K)
+                        res2[sel[mine[here]], c] += np.sum((y - cf @ basis).astype(np.float64) ** 2, axis=-1)
+                        if basis.shape[0]:  # a block without components stores nothing
+                            stored[key][0][c].append(sel[mine[here]])
+                            stored[key][1][c].append(cf)
+    return stored, np.sqrt(res2).astype(np.float32)
 
 
 def compress(
@@ -617,6 +688,7 @@ def compress(
     clusters: int | None = None,
     sectors: int = 4,
     floor: float = 0.2,
+    parts: int = 2,
     features: int = 32,
     sample: int = 256,
     seed: int = 0,
@@ -643,6 +715,9 @@ def compress(
     floor : float
         In [0, 1]: a region's part of a row is scaled by 1 / max(s_r, ``floor`` · s) before the bases are found
         (module docstring, *The error metric*; 1 scales every part by its row's s).
+    parts : int
+        In [1, 8]: each (region, cluster) block's lights are split into this many parts by how often the cluster's
+        functions are zero there, each part with its own basis (module docstring, *Parts by zeros*).
     features : int
         Components of the global basis that the clustering works on (at most the number of lights).
     sample : int
@@ -667,6 +742,7 @@ def compress(
     c = default_clusters(pixels.size) if clusters is None else check_integer(clusters, "clusters", 1, pixels.size)
     s = check_integer(sample, "sample", 1)
     fl = _number(floor, "floor", 0, 1)
+    n_parts = check_integer(parts, "parts", 1, 8)
     nf = min(check_integer(features, "features", 1), n)
     rng = np.random.default_rng(check_seed(seed))
     region_of = light_regions(directions, sectors)
@@ -674,27 +750,30 @@ def compress(
     regions = [lights for lights in regions if lights.size]
     stream = _Pass(f, pixels, sw, progress)
     labels = _clusters(stream, c, nf, s, rng)
-    grams, rows_of = _grams(stream, labels, regions, fl)  # rows_of: the rows a block stores, for its components' cost
-    bases = _bases(grams)
-    cost = {key: regions[key[0]].size + rows_of[key] for key in bases}  # stored values of one component
+    supports = _supports(stream, labels, regions, n_parts)
+    grams, rows_of = _grams(stream, labels, regions, fl, supports)  # rows_of: the rows a block stores
+    bases = _bases(grams, supports)
+    cost = {key: int(supports[key].sum()) + rows_of[key] for key in bases}  # stored values of one component
+    first = {key: _mask_values(supports[key]) for key in bases}  # and of a block's support mask
     gain = [(e / cost[key], key) for key, (_, sigma2) in bases.items() for e in sigma2]
     gain.sort(key=lambda g: -g[0])
-    order = np.array([key for _, key in gain], np.int64).reshape(-1, 2)
+    order = np.array([key for _, key in gain], np.int64).reshape(-1, 3)
     if not order.size:
         raise ValidationError("field has no face pixel with a non-zero reflectance: nothing to compress")
-    budget = 3 * n * pixels.size / r_min - per_pixel_values(len(regions)) * pixels.size
-    kept, counts = _take(order, cost, budget)
+    budget = 3 * n * pixels.size / r_min - per_pixel_values(len(regions) * n_parts) * pixels.size
+    kept, counts = _take(order, cost, budget, first)
     if kept == 0:
-        raise ValidationError(_no_room(r_min, cost[tuple(order[0])], budget))
-    bases = {key: (basis[: counts.get(key, 0)].copy(), s2) for key, (basis, s2) in bases.items()}  # free the rest
-    parts, residual = _coefficients(stream, labels, regions, bases, counts)
+        key = tuple(order[0])
+        raise ValidationError(_no_room(r_min, cost[key] + first[key], budget))
+    bases = {key: basis[: counts.get(key, 0)].copy() for key, (basis, _) in bases.items()}  # free the rest
+    stored, residual = _coefficients(stream, labels, regions, bases, supports)
     blocks = {}
-    for key, (basis, _) in bases.items():
-        k = counts.get(key, 0)
+    for key, basis in bases.items():
+        k = basis.shape[0]
         if k:
-            rows = tuple(np.concatenate(p) if p else np.zeros(0, np.int64) for p in parts[key][0])
-            coef = tuple(np.concatenate(p) if p else np.zeros((0, k), np.float32) for p in parts[key][1])
-            blocks[key] = _Block(basis=basis[:k], rows=rows, coefficients=coef)
+            rows = tuple(np.concatenate(p) if p else np.zeros(0, np.int64) for p in stored[key][0])
+            coef = tuple(np.concatenate(p) if p else np.zeros((0, k), np.float32) for p in stored[key][1])
+            blocks[key] = _Block(support=supports[key], basis=basis, rows=rows, coefficients=coef)
     return CompressedField(
         pixels=pixels,
         labels=labels,
@@ -706,4 +785,5 @@ def compress(
         sqrt_solid_angle=sw,
         directions=np.asarray(f["direction"].values, np.float64),
         image_shape=(f.sizes["y"], f.sizes["x"]),
+        parts=n_parts,
     )

@@ -4,10 +4,10 @@ with numba.
 Imported when a compressed field is relit with the numba backend (``backend="numba"``, or ``"auto"`` where numba
 imports): importing numba costs about a second.  The stored rows are grouped in segments (one per block and
 channel, their coefficients contiguous); each row adds the dot product of its coefficients with its block's
-projected lighting to its pixel and channel of its region's image.  Within one light region every pixel belongs
-to one block (its cluster's), so no two segments write the same value of the per-region images, and the
-segments run in parallel (in parts of about equal work) without a race; the caller adds the regions' images
-(memory: regions × pixels × 3 values, whatever the number of threads).  Same float32 products as the numpy
+projected lighting to its pixel and channel of its (region, part) image.  Within one light region and part every
+pixel belongs to one block (its cluster's), so no two segments write the same value of an image, and the
+segments run in parallel (in parts of about equal work) without a race; the caller adds the images
+(memory: (region, part) pairs × pixels × 3 values, whatever the number of threads).  Same float32 products as the numpy
 path's GEMVs, summed in another order (agreement to float32 rounding, ``tests/relight/test_compression.py``).
 ``fastmath={"reassoc"}`` lets each dot product be summed in SIMD lanes (reassociation only: no assumption about
 NaN, infinities or signed zeros; exact zeros stay zero); without it the float32 sums run one multiply-add at a
@@ -23,13 +23,14 @@ __all__ = ["project", "relight_segments"]
 
 
 @numba.njit(cache=True, parallel=True, nogil=True, fastmath={"reassoc"})
-def relight_segments(coef, pixel, seg_region, seg_row, seg_rows, seg_k, seg_proj, seg_channel, seg_coef, bounds, proj,
+def relight_segments(coef, pixel, seg_image, seg_row, seg_rows, seg_k, seg_proj, seg_channel, seg_coef, bounds, proj,
                      out):  # fmt: skip
-    """Add Σ_rows C_row · proj[channel, block components] to ``out[region]`` ((regions, n_pix, 3) float32).
+    """Add Σ_rows C_row · proj[channel, block components] to ``out[image]`` ((images, n_pix, 3) float32).
 
     ``coef`` flat float32 coefficients; ``pixel`` (int64) the position of every stored row; per segment its
-    region, first row, number of rows, number of components K, offset of its block's components in ``proj``
-    ((3, components) float32), channel and first coefficient; ``bounds`` the segments of each parallel part.
+    (region, part) image, first row, number of rows, number of components K, offset of its block's components
+    in ``proj`` ((3, components) float32), channel and first coefficient; ``bounds`` the segments of each
+    parallel part.
     """
     for t in numba.prange(bounds.size - 1):
         for s in range(bounds[t], bounds[t + 1]):
@@ -38,7 +39,7 @@ def relight_segments(coef, pixel, seg_region, seg_row, seg_rows, seg_k, seg_proj
             c = seg_channel[s]
             b = seg_coef[s]
             r0 = seg_row[s]
-            o = out[seg_region[s]]
+            o = out[seg_image[s]]
             for i in range(seg_rows[s]):
                 acc = np.float32(0)
                 for j in range(k):

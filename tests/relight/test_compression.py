@@ -32,8 +32,16 @@ def test_ratio_counts_every_stored_value(field):
     c = cmp.compress(field, ratio=8, clusters=2)
     p, n = int(field["mask"].sum()), 32 * 16
     assert cmp.per_pixel_values(8) == 2 and cmp.per_pixel_values(16) == 3  # label + 24 or 48 mask bits
-    stored = sum(b.basis.size + sum(x.size for x in b.coefficients) for b in c.blocks.values()) + 2 * p
-    assert c.stored == stored and c.ratio == pytest.approx(3 * n * p / stored) and c.ratio >= 8
+    # per block: its basis on its support, its coefficients, the support's 32-bit mask unless it is the whole
+    # region; per pixel: the label and 3 channels x 8 regions x 2 parts zero bits
+    stored = sum(b.basis.shape[0] * int(b.support.sum()) + sum(x.size for x in b.coefficients)
+                 + (0 if b.support.all() else -(-b.support.size // 32)) for b in c.blocks.values()) + 3 * p  # fmt: skip
+    assert c.parts == 2 and c.stored == stored and c.ratio == pytest.approx(3 * n * p / stored) and c.ratio >= 8
+    for (r, k, q), b in c.blocks.items():  # bases vanish off their supports; a block's parts split its region
+        assert np.all(b.basis[:, ~b.support] == 0) and b.support.size == c.regions[r].size
+        other = c.blocks.get((r, k, 1 - q))
+        assert other is None or not np.any(other.support & b.support)
+    assert not all(b.support.all() for b in c.blocks.values())
     assert c.components == sum(b.basis.shape[0] for b in c.blocks.values()) == c.kept
     with pytest.raises(ValidationError, match="leaves 0 values"):
         cmp.compress(field, ratio=1e6)
@@ -70,6 +78,15 @@ def test_zero_rows_of_a_region_come_back_exactly_zero(field):
     lw = np.zeros((32 * 16, 3))
     lw[regions == r0] = 1e6
     assert dark.sum() > 10 and np.all(c.relight(lw)[m][dark] == 0)
+    # so does a row that is zero over one part of its block and not over the whole region
+    d_rows, r_rows = dense.reshape(512, -1, 3)[:, c.pixels], rec.reshape(512, -1, 3)[:, c.pixels]
+    part_zeros = 0
+    for (r, k, _), b in c.blocks.items():
+        lights, mine = c.regions[r][b.support], c.labels == k
+        zero = np.all(d_rows[lights][:, mine] == 0, axis=0)  # (pixels of the cluster, 3)
+        assert np.all(r_rows[lights][:, mine][:, zero] == 0)
+        part_zeros += int((zero & np.any(d_rows[c.regions[r]][:, mine] != 0, axis=0)).sum())
+    assert part_zeros > 0.5 * 3 * m.sum()  # 690 of 444 rows × 8 regions here; none with parts=1
 
 
 def test_error_is_non_increasing_in_kept_coefficients_and_bounded(field):
@@ -130,7 +147,7 @@ def test_compiled_and_numpy_relights_agree_and_values_are_stored_once(field):
         # the blocks' coefficients are views of one flat array, their bases of one stack per region (no copies)
         stored = [cf for b in c.blocks.values() for cf in b.coefficients if cf.size]
         assert all(cf.base is not None for cf in stored) and len({id(cf.base) for cf in stored}) == 1
-        assert len({id(b.basis.base) for b in c.blocks.values()}) == len({r for r, _ in c.blocks})
+        assert len({id(b.basis.base) for b in c.blocks.values()}) == len({r for r, _, _ in c.blocks})
     with pytest.raises(ValidationError, match="backend"):
         c.relight(lw, backend="cuda")
     # a light region without any block (every row zero there) between regions with blocks; exact at full rank
@@ -139,7 +156,7 @@ def test_compiled_and_numpy_relights_agree_and_values_are_stored_once(field):
     f = field.copy(deep=True)
     f["reflectance"].values[dark.reshape(f["reflectance"].shape[:2])] = 0
     full = cmp.compress(f, ratio=0.5, clusters=3)
-    assert 1 not in {r for r, _ in full.blocks} and {0, 2} <= {r for r, _ in full.blocks}
+    assert 1 not in {r for r, _, _ in full.blocks} and {0, 2} <= {r for r, _, _ in full.blocks}
     dense = relight(f, coloured)
     for backend in ("numpy", "numba"):
         assert np.allclose(full.relight(coloured, backend=backend)[m], dense[m], rtol=1e-4, atol=1e-6 * dense.max())

@@ -299,30 +299,29 @@ def bench_cluster_density(size=256, n_theta=64, n_phi=32, pixels_per_cluster=(51
     return out
 
 
+def _setting_sweep(setting, values, size, n_theta, n_phi, seeds, ratio, rotations):
+    """:func:`_error_summary` of ``compress(..., setting=value)`` for each of ``values``, over the probes ×
+    ``rotations`` lightings and ``seeds``, keyed ``f"{setting}{value}_…"``."""
+    field, mask, probe_source, weights, refs = _rotated_references(size, n_theta, n_phi, rotations)
+    out = {"probes": probe_source, "face_pixels": int(mask.sum())}
+    for value in values:
+        summary = _error_summary(field, mask, weights, refs, seeds, ratio=ratio, **{setting: value})
+        out.update({f"{setting}{value}_{k}": v for k, v in summary.items()})
+    return out
+
+
 def bench_region_floor(size=256, n_theta=64, n_phi=32, floors=(0.05, 0.1, 0.2, 0.4, 1.0), seeds=(0, 1, 2),
                        ratio=20.0, rotations=(0, 45, 135, 225)):  # fmt: skip
     """The compressed relight's errors against the ``floor`` of the region parts' scales (what
-    ``compress(floor=)``'s default is chosen from): :func:`_error_summary` over the probes × ``rotations``
-    lightings and ``seeds``."""
-    field, mask, probe_source, weights, refs = _rotated_references(size, n_theta, n_phi, rotations)
-    out = {"probes": probe_source, "face_pixels": int(mask.sum())}
-    for floor in floors:
-        summary = _error_summary(field, mask, weights, refs, seeds, ratio=ratio, floor=floor)
-        out.update({f"floor{floor}_{k}": v for k, v in summary.items()})
-    return out
+    ``compress(floor=)``'s default is chosen from)."""
+    return _setting_sweep("floor", floors, size, n_theta, n_phi, seeds, ratio, rotations)
 
 
 def bench_parts(size=256, n_theta=64, n_phi=32, parts=(1, 2, 3, 4), seeds=(0, 1, 2), ratio=20.0,
                 rotations=(0, 45, 135, 225)):  # fmt: skip
     """The compressed relight's errors against the ``parts`` each (region, cluster) block's lights are split into
-    by their zeros (what ``compress(parts=)``'s default is chosen from): :func:`_error_summary` over the probes ×
-    ``rotations`` lightings and ``seeds``."""
-    field, mask, probe_source, weights, refs = _rotated_references(size, n_theta, n_phi, rotations)
-    out = {"probes": probe_source, "face_pixels": int(mask.sum())}
-    for n in parts:
-        summary = _error_summary(field, mask, weights, refs, seeds, ratio=ratio, parts=n)
-        out.update({f"parts{n}_{k}": v for k, v in summary.items()})
-    return out
+    by their zeros (what ``compress(parts=)``'s default is chosen from)."""
+    return _setting_sweep("parts", parts, size, n_theta, n_phi, seeds, ratio, rotations)
 
 
 BENCHMARKS = [

@@ -10,11 +10,11 @@ al. 2003, with the lights split into regions):
     √δA_l R_p,c(l) ≈ Σ_{j<K_kr} C_p,c,r,j B_kr,j(l)   for the lights l of region r,  k = cluster of pixel p
 
 where the B_kr are the leading principal directions (uncentred) of the
-region-r parts (split further by zeros, below) of the rows y = √δA R_p,c of *every* pixel of cluster k, all
-three channels, each part scaled by 1 / max(s_r, ``floor`` · s) (see *The error
-metric* below), and the coefficients C are the projections of the unscaled
-parts.  Choice and justification (the measurements behind it:
-``docs/relighting.md``, D2):
+region-r parts (split further by zeros, below) of the rows y = √δA R_p,c of
+*every* pixel of cluster k, all three channels, each part scaled by
+1 / max(s_r, ``floor`` · s) (see *The error metric* below), and the
+coefficients C are the projections of the unscaled parts.  Choice and
+justification (the measurements behind it: ``docs/relighting.md``, D2):
 
 * **Cost of a relight.**  The lighting is projected once on every basis
   (Σ K_kr L_r multiply-adds per channel) and each stored row then needs K_kr
@@ -583,13 +583,19 @@ def _supports(stream, labels, regions, parts):
     return out
 
 
+def _parts_of(keys):
+    """(region, cluster) → its (region, cluster, part) keys among ``keys``."""
+    out = {}
+    for key in keys:
+        out.setdefault(key[:2], []).append(key)
+    return out
+
+
 def _grams(stream, labels, regions, floor, supports):
     """Gram matrices Σ yᵀy (float64, (L, L) over the block's L lights) of the scaled non-zero parts of the rows
     (:func:`_region_scales`) of each (region, cluster, part) block, and the number of those parts."""
     grams, counts = {}, {}
-    parts_of = {}
-    for key in supports:
-        parts_of.setdefault(key[:2], []).append(key)
+    parts_of = _parts_of(supports)
     for sel, rows in stream.each("compress: gram matrices"):
         lab = labels[sel]
         scales = _region_scales(rows, regions, stream.sw, floor)
@@ -654,9 +660,7 @@ def _coefficients(stream, labels, regions, bases, supports):
     """Per block and channel: the stored rows (positions in the face pixels) and their coefficients on the
     block's K components (``bases``: the kept ones); the residual ‖√δA (R − R̂)‖ (P, 3) of every row."""
     stored = {key: ([[], [], []], [[], [], []]) for key in bases}
-    parts_of = {}
-    for key in bases:
-        parts_of.setdefault(key[:2], []).append(key)
+    parts_of = _parts_of(bases)
     res2 = np.zeros((stream.n_pix, 3))
     for sel, rows in stream.each("compress: coefficients"):
         lab = labels[sel]
@@ -664,9 +668,10 @@ def _coefficients(stream, labels, regions, bases, supports):
             sub = rows[:, :, lights]  # (n, 3, L_r), unscaled
             for k in np.unique(lab):  # loop over the clusters present in this tile
                 mine = np.flatnonzero(lab == k)
+                sub_k = sub[mine]
                 for key in parts_of.get((r, int(k)), ()):  # loop over the block's parts
                     basis = bases[key][:, supports[key]]  # (K, L) on the support
-                    part = sub[mine][:, :, supports[key]]  # (m, 3, L)
+                    part = sub_k[:, :, supports[key]]  # (m, 3, L)
                     nonzero = np.any(part != 0, axis=-1)
                     for c in range(3):
                         here = np.flatnonzero(nonzero[:, c])

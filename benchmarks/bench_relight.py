@@ -335,6 +335,9 @@ BENCHMARKS = [
     ("parts", bench_parts),
 ]
 
+#: The tiny field, ratio and lightings of the sweeps' smoke runs.
+_TINY_SWEEP = {"size": 16, "n_theta": 16, "n_phi": 8, "ratio": 2.0, "rotations": (0, 90)}
+
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
 SMOKE = {
     "relight": {"size": 16, "n_theta": 16, "n_phi": 8, "repeat": 1, "ratio": 2.0},
@@ -342,31 +345,7 @@ SMOKE = {
     "discretisation": {"size": 8, "probe_height": 8, "n_theta": 8, "n_phi": 4},
     "stream": {"size": 12, "n_theta": 8, "n_phi": 4},
     "compression_sweep": {"size": 16, "n_theta": 16, "n_phi": 8, "ratios": (4, 2), "rotations": (0, 90)},
-    "cluster_density": {
-        "size": 16,
-        "n_theta": 16,
-        "n_phi": 8,
-        "pixels_per_cluster": (64, 16),
-        "seeds": (0, 1),
-        "ratio": 2.0,
-        "rotations": (0, 90),
-    },
-    "region_floor": {
-        "size": 16,
-        "n_theta": 16,
-        "n_phi": 8,
-        "floors": (0.2, 1.0),
-        "seeds": (0,),
-        "ratio": 2.0,
-        "rotations": (0, 90),
-    },
-    "parts": {
-        "size": 16,
-        "n_theta": 16,
-        "n_phi": 8,
-        "parts": (1, 2),
-        "seeds": (0,),
-        "ratio": 2.0,
-        "rotations": (0, 90),
-    },
+    "cluster_density": {**_TINY_SWEEP, "pixels_per_cluster": (64, 16), "seeds": (0, 1)},
+    "region_floor": {**_TINY_SWEEP, "floors": (0.2, 1.0), "seeds": (0,)},
+    "parts": {**_TINY_SWEEP, "parts": (1, 2), "seeds": (0,)},
 }

@@ -703,10 +703,13 @@ def compress(
 
     Streaming passes over the field's tiles (in memory or on disk): a global
     basis of ``features`` components from a sample of pixels and every pixel's
-    projection on it; k-means of those projections into ``clusters``; the Gram
-    matrix of every (region, cluster) block from all its pixels' scaled
-    non-zero region parts, and its principal directions; the greedy choice of components
-    for the ratio; then every stored row's coefficients and every row's residual.
+    projection on it; k-means of those projections into ``clusters``; how often
+    each (region, cluster) block's rows are zero at each light, which splits its
+    lights into ``parts`` (a pass of its own: the split must be known before the
+    Gram matrices count the rows each part stores); the Gram matrix of every
+    (region, cluster, part) block from all its pixels' scaled non-zero parts,
+    and its principal directions; the greedy choice of components for the ratio;
+    then every stored row's coefficients and every row's residual.
 
     Parameters
     ----------

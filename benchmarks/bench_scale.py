@@ -134,13 +134,16 @@ def bench_full_resolution(workers=2, block=2048, grid=None, map_size=None, basel
     return figures
 
 
-def bench_fit_stages(blocks=20, block=2048, grid=None, map_size=None, engine="numba"):
+def bench_fit_stages(blocks=20, block=2048, grid=None, map_size=None, engine="numba", normal_tilt=True):
     """Where one process's fit time goes: ms per ``block``-lumitexel block for reading and each stage.
 
     ``blocks`` blocks from the middle third of the full-resolution capture (``_capture``), one process,
     after one warm-up block (the one before them); stages as :func:`facestats.pipeline.fit_lumitexels` times them
     (``timings=``), reading as :meth:`facestats.acquire.capture.Capture.lumitexels`.  The projected
-    one-core time of the whole capture is the per-block total times its blocks.
+    one-core time of the whole capture is the per-block total times its blocks.  ``normal_tilt=False`` fits
+    without the tilts' columns in the standard errors (:class:`facestats.pipeline.FitSettings`): their cost is
+    the difference.  ``budget_ms_per_block``: what the 30 s target leaves a block on two workers, before the
+    maps are assembled (an upper bound: the maps take seconds more).
     """
     from facestats.acquire.capture import open_capture
     from facestats.pipeline import FitSettings
@@ -148,7 +151,7 @@ def bench_fit_stages(blocks=20, block=2048, grid=None, map_size=None, engine="nu
 
     path, _ = _capture(grid, map_size)
     capture = open_capture(path)
-    settings = FitSettings(block=block, engine=engine)
+    settings = FitSettings(block=block, engine=engine, normal_tilt=normal_tilt)
     ranges = list(capture.blocks(block))
     first = max(1, len(ranges) // 3)
     chosen = ranges[first : first + blocks]
@@ -167,6 +170,7 @@ def bench_fit_stages(blocks=20, block=2048, grid=None, map_size=None, engine="nu
         "blocks": len(chosen),
         "block": block,
         "projected_one_core_s": total * len(ranges),
+        "budget_ms_per_block": 1e3 * TARGET_FULL_RESOLUTION_S * 2 / len(ranges),
     }
 
 

@@ -76,7 +76,23 @@ def as_float(value, name: str, dtype=None) -> np.ndarray:
         raise ValidationError(f"{name} must be numeric, got {what} ({_describe(arr)})")
     if dtype is None:
         dtype = arr.dtype if arr.dtype in _FLOAT_TYPES else np.float64
-    return arr.astype(dtype, copy=False)
+    with np.errstate(over="ignore"):  # a finite value that overflows is reported below
+        out = arr.astype(dtype, copy=False)
+    if out.dtype.itemsize < arr.dtype.itemsize and arr.dtype.kind == "f":
+        _check_narrowed(arr, out, name)
+    return out
+
+
+def _check_narrowed(arr: np.ndarray, out: np.ndarray, name: str) -> None:
+    """Raise if a finite value of ``arr`` became ±inf in the narrower float ``out`` (e.g. 1e39 in float32)."""
+    grew = np.isinf(out) & np.isfinite(arr)
+    if grew.any():
+        i = tuple(np.argwhere(grew)[0]) if arr.ndim else ()
+        limit = float(np.finfo(out.dtype).max)
+        raise ValidationError(
+            f"{name} must be within the {out.dtype} range (|x| <= {limit:.4g}), got {float(arr[i])!r}"
+            + (f" at index {tuple(int(k) for k in i)}" if i else "")
+        )
 
 
 def as_finite(

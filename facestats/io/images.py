@@ -47,6 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facestats.core.validate import as_float
 from facestats.errors import DependencyError, FormatError, ValidationError
 
 __all__ = [
@@ -484,7 +485,7 @@ def write_exr(path, channels: dict, *, half: bool = False, attributes=None):
         else:
             if not np.all(np.isfinite(a)):
                 raise ValidationError(f"channel {name!r} must be finite to write {str(p)!r}, got NaN or inf")
-            data[name] = np.ascontiguousarray(a.astype(np.float16 if half else np.float32))
+            data[name] = np.ascontiguousarray(as_float(a, f"channel {name!r} for {str(p)!r}", _exr_type(half)))
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     for key, value in (attributes or {}).items():
         header[str(key)] = str(value)
@@ -493,7 +494,15 @@ def write_exr(path, channels: dict, *, half: bool = False, attributes=None):
     return p
 
 
+def _exr_type(half: bool):
+    """The float type EXR channels are stored in: half or float32."""
+    return np.float16 if half else np.float32
+
+
 # -- Radiance RGBE ---------------------------------------------------------------------------
+#: Radiance RGBE holds values below 2^127 (exponent byte 255): the largest a file can store.
+_RGBE_LIMIT = 2.0**127
+
 _RGBE_SIZE = re.compile(rb"^-Y (\d+) \+X (\d+)$")
 
 
@@ -586,6 +595,12 @@ def write_rgbe(path, image):
     if not np.all(np.isfinite(img)) or np.any(img < 0):
         raise ValidationError(f"image for a Radiance file must be finite and >= 0 ({str(p)!r})")
     v = img.max(axis=-1)
+    if v.max(initial=0.0) >= _RGBE_LIMIT:
+        i = np.unravel_index(int(np.argmax(v)), v.shape)
+        raise ValidationError(
+            f"image for a Radiance file must be below 2^127 (about 1.7e38, the largest RGBE value), got "
+            f"{float(v[i])!r} at row {i[0]}, column {i[1]} ({str(p)!r})"
+        )
     mant, exp = np.frexp(v)  # v = mant · 2^exp, mant in [0.5, 1)
     ok = v >= 1e-32
     scale = np.where(ok, mant * 256.0 / np.where(ok, v, 1), 0)
@@ -626,7 +641,7 @@ def read_pfm(path) -> np.ndarray:
 def write_pfm(path, image):
     """Write a float (H, W, 1|3) image as a little-endian PFM file (rows stored bottom-up)."""
     p = _path(path, must_exist=False)
-    img = np.asarray(image, np.float32)
+    img = as_float(image, f"image for {str(p)!r}", np.float32)
     if img.ndim == 2:
         img = img[..., None]
     if img.ndim != 3 or img.shape[2] not in (1, 3):

@@ -39,14 +39,20 @@ PROBE_LAYOUTS = ("latlong", "angular")
 
 
 def _probe_path(path, must_exist=True) -> pathlib.Path:
-    p = pathlib.Path(os.fspath(path))
+    try:
+        p = pathlib.Path(os.fspath(path))
+    except TypeError:
+        raise ValidationError(f"light probe path must be a str or path-like, got {path!r}") from None
     if p.suffix.lower() not in PROBE_EXTENSIONS:
         raise ValidationError(
             f"light probe {str(p)!r} must be one of {', '.join(PROBE_EXTENSIONS)} (high dynamic range), "
             f"got extension {p.suffix!r}"
         )
     if must_exist and not p.is_file():
-        raise ValidationError(f"light probe {str(p)!r} does not exist")
+        what = "is a directory, not a file" if p.is_dir() else "does not exist"
+        raise ValidationError(f"light probe {str(p)!r} {what}")
+    if not must_exist and not p.parent.is_dir():
+        raise ValidationError(f"light probe {str(p)!r}: its directory {str(p.parent)!r} does not exist")
     return p
 
 

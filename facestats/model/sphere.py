@@ -115,13 +115,17 @@ def latlong_edges(height: int, width: int):
     return np.linspace(0.0, np.pi, h + 1), np.linspace(-np.pi, np.pi, w + 1)
 
 
-def latlong_directions(height: int, width: int) -> np.ndarray:
+def latlong_directions(height: int, width: int, rows: slice | None = None) -> np.ndarray:
     """Unit directions of the pixel centres of a lat-long image, shape (H, W, 3); row 0 is nearest +y.
 
-    Pixel (i, j) has φ = π (i + ½)/H and θ = 2π (j + ½)/W − π (module docstring).
+    Pixel (i, j) has φ = π (i + ½)/H and θ = 2π (j + ½)/W − π (module docstring).  ``rows`` (a slice with
+    step 1): only those rows, shape (len, W, 3), the same values as the full image's.
     """
     h, w = _check_size(height, width)
-    phi = np.pi * (np.arange(h) + 0.5) / h
+    r = range(h) if rows is None else range(h)[rows]
+    if r.step != 1:
+        raise ValidationError(f"rows must be a slice of consecutive rows, got {rows!r}")
+    phi = np.pi * (np.arange(r.start, r.stop) + 0.5) / h
     theta = 2 * np.pi * (np.arange(w) + 0.5) / w - np.pi
     return direction_from_angles(phi[:, None], theta[None, :])
 

@@ -97,10 +97,11 @@ from dataclasses import field as dataclass_field
 import numpy as np
 
 from facestats.core.compiled import resolve_backend
-from facestats.core.validate import as_finite, check_integer, check_seed
+from facestats.core.validate import as_finite, as_float, check_integer, check_seed
 from facestats.errors import ValidationError
 from facestats.relight.field import as_field, image_tiles, light_dims, light_table
 from facestats.relight.lighting import resample_probe
+from facestats.relight.relighting import check_relit
 
 __all__ = ["CompressedField", "compress", "default_clusters", "light_regions", "per_pixel_values"]
 
@@ -409,7 +410,7 @@ class CompressedField:
         engine = resolve_backend(backend)
         if probe is not None:
             lighting = resample_probe(probe, self.directions, layout=layout, rotate=rotate)
-        wd = (self._weights(lighting) / self.sqrt_solid_angle[:, None]).astype(np.float32)  # (L, 3)
+        wd = as_float(self._weights(lighting) / self.sqrt_solid_angle[:, None], "lighting / √δA", np.float32)  # (L, 3)
         pk = self._packed
         if engine == "numba":
             vals = _relight_numba(pk, wd, self.regions, self.pixels.size)
@@ -425,7 +426,7 @@ class CompressedField:
                 vals[rows, c] += cf @ proj[c, pk.seg_proj[s] : pk.seg_proj[s] + k]
         out = np.zeros((self.image_shape[0] * self.image_shape[1], 3), np.float32)
         out[self.pixels] = vals
-        return out.reshape(self.image_shape + (3,))
+        return check_relit(out.reshape(self.image_shape + (3,)), "compressed relight")
 
     def error_bound(self, lighting) -> np.ndarray:
         """Per-pixel bound on |relight(compressed) − relight(dense)| over the stored pixels (0 elsewhere):
@@ -476,6 +477,14 @@ def _weighted_rows(f, ys, xs, inside, sw):
     """√δA-weighted rows (n_pix, 3, L) float32 of the face pixels of one tile."""
     block = np.asarray(f["reflectance"].isel(y=ys, x=xs).values)
     flat = block.reshape((sw.size, -1, 3))[:, inside, :]  # (L, n_pix, 3), gathered in the stored dtype
+    bad = ~np.isfinite(flat)
+    if bad.any():  # a NaN would make the bases' eigendecomposition fail or spread into a whole cluster
+        light, i, c = (int(v) for v in np.argwhere(bad)[0])
+        y, x = ys.start + int(inside[i]) // (xs.stop - xs.start), xs.start + int(inside[i]) % (xs.stop - xs.start)
+        raise ValidationError(
+            f"field reflectance must be finite, got {float(flat[light, i, c])!r} at pixel (y={y}, x={x}), light "
+            f"{light} (flat index), channel {c} ({int(bad.sum())} non-finite value(s) in that tile)"
+        )
     rows = np.empty((inside.size, 3, sw.size), np.float32)
     rows[...] = np.transpose(flat, (1, 2, 0))  # converted once, face pixels only
     rows *= sw.astype(np.float32)

@@ -40,7 +40,15 @@ import uuid
 import numpy as np
 
 from facestats.core.conventions import CHANNELS
-from facestats.core.validate import as_finite, check_choice, check_integer, check_range, check_shape
+from facestats.core.validate import (
+    as_finite,
+    as_float,
+    check_choice,
+    check_finite,
+    check_integer,
+    check_range,
+    check_shape,
+)
 from facestats.errors import StoreError, ValidationError
 from facestats.model.sphere import latlong_directions, latlong_solid_angles, unit_directions, voronoi_solid_angles
 
@@ -262,6 +270,8 @@ def write_field(path, field, *, dtype="float32", tile: int = 64, overwrite: bool
     p = pathlib.Path(os.fspath(path))
     if p.exists() and not overwrite:
         raise StoreError(f"field store {str(p)!r} already exists (pass overwrite=True to replace it)")
+    if not bool(np.isfinite(f["reflectance"]).all()):
+        raise ValidationError(f"field reflectance must be finite to write {str(p)!r}, got NaN or inf")
     if dtype == "float16":
         big = float(f["reflectance"].max())
         if big > float(np.finfo(np.float16).max):
@@ -347,9 +357,8 @@ class FieldStore:
 
     def write(self, ys: slice, xs: slice, block):
         """Store the values of all lights on the image tile ``[ys, xs]`` (block: light dims + (ty, tx, 3))."""
-        b = np.asarray(block)
-        if b.dtype == np.float32 and self._dtype == np.float16 and b.size and b.max() > np.finfo(np.float16).max:
-            raise ValidationError(f"field values up to {float(b.max()):g} overflow float16; write float32")
+        name = f"field block [y {ys.start}:{ys.stop}, x {xs.start}:{xs.stop}]"
+        b = check_finite(as_float(block, name, self._dtype), name)  # as_float: float16 overflow is an error
         b = b.reshape(tuple(self._array.shape[: self._nl]) + b.shape[-3:])
         self._array[(slice(None),) * self._nl + (ys, xs, slice(None))] = b.astype(self._dtype)
 

@@ -24,9 +24,11 @@ Resampling conserves Σ L·δΩ exactly:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
+from facestats.core.validate import as_finite, as_float, check_choice, check_integer, check_shape
 from facestats.errors import ValidationError
 from facestats.model.sphere import (
     angles_from_direction,
@@ -63,7 +65,7 @@ def check_probe(probe, layout: str = "latlong", name: str = "probe") -> np.ndarr
     angular W = H), NaN/inf or negative radiance.  Values are never rescaled.
     """
     check_choice(layout, "layout", LAYOUTS)
-    p = np.asarray(probe)
+    p = as_float(probe, f"{name}: radiance")
     if p.ndim != 3 or p.shape[2] != 3:
         raise ValidationError(f"{name}: a light probe must have shape (H, W, 3), got {p.shape}")
     h, w = p.shape[:2]
@@ -71,7 +73,7 @@ def check_probe(probe, layout: str = "latlong", name: str = "probe") -> np.ndarr
         raise ValidationError(f"{name}: a lat-long probe must be twice as wide as high, got {h} x {w} (H x W)")
     if layout == "angular" and w != h:
         raise ValidationError(f"{name}: an angular probe must be square, got {h} x {w} (H x W)")
-    p = np.asarray(p, np.float32)
+    p = as_float(p, f"{name}: radiance", np.float32)
     bad = ~np.isfinite(p)
     if bad.any():
         i = np.argwhere(bad)[0]
@@ -107,23 +109,31 @@ def _latlong_to_grid(probe, n_phi, n_theta):
     return np.einsum("ah,hwc,bw->abc", rows, p, cols, optimize=True)
 
 
-def probe_samples(probe, layout: str = "latlong", supersample: int = 1):
+def probe_samples(probe, layout: str = "latlong", supersample: int = 1, rows: slice | None = None):
     """The probe as weighted direction samples: ``(directions (N, 3), L·δΩ (N, 3))``.
 
     Each pixel is split into ``supersample``² sub-cells: exact lat-long sub-cells
     (equal steps in φ and θ, exact areas), or for angular probes quadrature
     sub-cells of equal (u, v) size weighted by the Jacobian.  Radiance is
     constant over a pixel, so Σ L·δΩ equals that of the pixels exactly.
+    ``rows`` (lat-long only, a slice of consecutive probe rows): the samples of those rows alone, so a large
+    probe can be integrated band by band in bounded memory.
     """
     p = check_probe(probe, layout)
     s = check_integer(supersample, "supersample", 1, 16)
     h, w = p.shape[:2]
+    if rows is not None and layout != "latlong":
+        raise ValidationError(f"rows applies to lat-long probes, got layout {layout!r}")
     if layout == "latlong":
-        sub_d = latlong_directions(h * s, w * s).reshape(h, s, w, s, 3)
+        band = range(h) if rows is None else range(h)[rows]
+        if band.step != 1:
+            raise ValidationError(f"rows must be a slice of consecutive probe rows, got {rows!r}")
+        r0, n = band.start, len(band)
+        sub_d = latlong_directions(h * s, w * s, rows=slice(r0 * s, (r0 + n) * s)).reshape(n, s, w, s, 3)
         phi_e, _ = latlong_edges(h * s, w * s)
         sub_sa = (2 * np.pi / (w * s)) * (np.cos(phi_e[:-1]) - np.cos(phi_e[1:]))
-        sa = np.broadcast_to(sub_sa.reshape(h, s, 1, 1), (h, s, w, s))
-        rad = np.broadcast_to(p[:, None, :, None, :], (h, s, w, s, 3))
+        sa = np.broadcast_to(sub_sa[r0 * s : (r0 + n) * s].reshape(n, s, 1, 1), (n, s, w, s))
+        rad = np.broadcast_to(p[r0 : r0 + n, None, :, None, :], (n, s, w, s, 3))
     else:
         sub_d, inside = angular_directions(h * s)
         sa = angular_solid_angles(h * s).reshape(h, s, w, s)
@@ -183,16 +193,37 @@ def resample_probe(probe, directions=None, *, layout: str = "latlong", rotate: f
         d = unit_directions(directions)
     if layout == "latlong" and _is_latlong_grid(d):
         return _latlong_to_grid(p, d.shape[0], d.shape[1])
-    samples, weights = probe_samples(p, layout, supersample)
     flat = d.reshape(-1, 3)
     if _is_latlong_grid(d):  # an angular probe onto a lat-long grid: its cells, not Voronoi cells
-        idx = _grid_cells(samples, d.shape[0], d.shape[1])
+        tree = None
     else:
         from scipy.spatial import cKDTree
 
-        _, idx = cKDTree(flat).query(samples)  # nearest light on the unit sphere = its Voronoi cell
-    out = np.stack([np.bincount(idx, weights=weights[:, c], minlength=flat.shape[0]) for c in range(3)], axis=-1)
+        tree = cKDTree(flat)
+    out = np.zeros((flat.shape[0], 3))
+    for rows in _bands(p.shape, layout, supersample):  # loop over bands of probe rows: bounded memory
+        samples, weights = probe_samples(p, layout, supersample, rows=rows)
+        if tree is None:
+            idx = _grid_cells(samples, d.shape[0], d.shape[1])
+        else:
+            _, idx = tree.query(samples)  # nearest light on the unit sphere = its Voronoi cell
+        for c in range(3):
+            out[:, c] += np.bincount(idx, weights=weights[:, c], minlength=flat.shape[0])
     return out.reshape(d.shape[:-1] + (3,))
+
+
+#: Sub-cell samples per band of :func:`resample_probe` (about 100 MB of temporaries).
+_BAND_SAMPLES = 2**20
+
+
+def _bands(shape, layout, supersample):
+    """Slices of probe rows holding about :data:`_BAND_SAMPLES` sub-cells each (lat-long), or ``[None]`` (the
+    whole probe: angular probes are sampled at once)."""
+    if layout != "latlong":
+        return [None]
+    h, w = shape[:2]
+    step = max(1, _BAND_SAMPLES // (w * int(supersample) ** 2))
+    return [slice(r, min(r + step, h)) for r in range(0, h, step)]
 
 
 def _bilinear_latlong(probe, directions):
@@ -240,7 +271,10 @@ def rotate_probe(probe, angle: float, *, layout: str = "latlong") -> np.ndarray:
     ndarray of float32, shape of ``probe``
     """
     p = check_probe(probe, layout)
-    a = float(as_finite(angle, "angle"))
+    a = as_finite(angle, "angle", dtype=np.float64)
+    if a.ndim:
+        raise ValidationError(f"angle must be one number (radians), got an array of shape {a.shape}")
+    a = math.fmod(float(a), 2 * math.pi)  # the same rotation; keeps the column shift below an int's range
     if layout == "latlong":
         w = p.shape[1]
         s = a * w / (2 * np.pi)

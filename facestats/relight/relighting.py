@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_shape
+from facestats.core.validate import as_finite, as_float, check_shape
 from facestats.errors import ValidationError
 from facestats.relight.field import as_field, image_tiles, light_dims, light_table
 from facestats.relight.lighting import resample_probe
@@ -52,7 +52,7 @@ def _weights(field, lighting):
             f"lighting must hold L·δA per light of the field, shape {lshape + (3,)} or {lshape} (grey), "
             f"got {w.shape}; resample a probe with facestats.relight.lighting_for(field, probe)"
         )
-    return w.astype(np.float32)
+    return as_float(w, "lighting", np.float32)
 
 
 def relight_block(values, weights) -> np.ndarray:
@@ -64,7 +64,8 @@ def relight_block(values, weights) -> np.ndarray:
     r = np.asarray(values, np.float32)
     n = r.shape[0]
     flat = r.reshape(n, -1)
-    prod = weights.T.astype(np.float32) @ flat  # (3, P·3)
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported by check_relit
+        prod = weights.T.astype(np.float32) @ flat  # (3, P·3)
     p3 = prod.reshape(3, -1, 3)
     return np.stack([p3[c, :, c] for c in range(3)], axis=-1).reshape(r.shape[1:])
 
@@ -105,12 +106,38 @@ def relight(field, lighting=None, *, probe=None, layout: str = "latlong", rotate
     elif rotate:
         raise ValidationError("rotate applies to a probe; rotate per-light lighting with the probe before resampling")
     w = _weights(f, lighting)
+    ind = tint = None
+    if indirect is not None:  # checked before the relight, which may take long
+        if not isinstance(indirect, tuple) or len(indirect) != 2:
+            raise ValidationError(f"indirect must be a tuple (field, tint), got {type(indirect).__name__}")
+        ind = as_field(indirect[0])
+        if (ind.sizes["y"], ind.sizes["x"]) != (f.sizes["y"], f.sizes["x"]):
+            raise ValidationError(
+                f"indirect field must have the field's image size {f.sizes['y']} x {f.sizes['x']}, got "
+                f"{ind.sizes['y']} x {ind.sizes['x']}"
+            )
+        tint = check_shape(as_finite(indirect[1], "tint", 0, None, dtype=np.float32), "tint", (3,))
     out = _relight_weights(f, w, progress)
-    if indirect is not None:
-        ind, tint = indirect
-        t = check_shape(as_finite(tint, "tint", 0, None, dtype=np.float32), "tint", (3,))
-        out = out + t * _relight_weights(as_field(ind), _weights(ind, lighting), progress)
-    return out
+    if ind is not None:
+        out = out + tint * _relight_weights(ind, _weights(ind, lighting), progress)
+    return check_relit(out, "relight")
+
+
+def check_relit(image, what: str) -> np.ndarray:
+    """``image`` (y, x, 3) if every value is finite; else a :class:`ValidationError` naming the first pixel.
+
+    A relit value is not finite when the field holds NaN or inf at that pixel (under a light with L·δA ≠ 0),
+    or when finite values overflow float32 (lighting brighter than about 1e38 / the reflectance).
+    """
+    bad = ~np.isfinite(image)
+    if bad.any():
+        y, x, c = (int(v) for v in np.argwhere(bad)[0])
+        raise ValidationError(
+            f"{what}: the relit value at pixel (y={y}, x={x}), channel {c} is {float(image[y, x, c])!r} "
+            f"({int(bad.sum())} non-finite value(s)): the field holds NaN or inf there, or the lighting times the "
+            "reflectance exceeds the float32 range"
+        )
+    return image
 
 
 def _relight_weights(f, w, progress):

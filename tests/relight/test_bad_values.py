@@ -1,0 +1,129 @@
+"""Values no format or float type can hold: clear errors, never a silent NaN, inf or zero (issue: reflectance
+fields, bad input)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from facestats.core.validate import as_float
+from facestats.errors import ValidationError
+from facestats.io.probes import read_light_probe, write_light_probe
+from facestats.model import sphere
+from facestats.relight import compress, lighting, relight
+from facestats.relight.field import FieldStore, write_field
+from tests.relight.fields import lambertian_field
+
+
+@pytest.fixture(scope="module")
+def small():
+    f, _, _ = lambertian_field(4, 4, n_theta=16, n_phi=8)
+    return f
+
+
+def _with_nan(f):
+    v = f.reflectance.values.copy()
+    v[3, 5, 1, 2, 0] = np.nan
+    g = f.copy()
+    g["reflectance"] = (f.reflectance.dims, v)
+    return g
+
+
+def test_a_nan_in_the_field_is_reported_at_its_pixel(small, tmp_path):
+    bad = _with_nan(small)
+    with pytest.raises(ValidationError, match=r"pixel \(y=1, x=2\), light 53 .*channel 0"):
+        compress(bad, ratio=3)
+    with pytest.raises(ValidationError, match=r"relight: the relit value at pixel \(y=1, x=2\), channel 0 is nan"):
+        relight(bad, np.ones((8, 16, 3)))
+    with pytest.raises(ValidationError, match="must be finite"):
+        write_field(tmp_path / "f.zarr", bad)
+    assert not any(tmp_path.iterdir())  # nothing written
+
+
+def test_lighting_beyond_float32_is_refused_not_turned_into_inf(small):
+    with pytest.raises(ValidationError, match=r"lighting must be within the float32 range .*got 1e\+39"):
+        relight(small, np.full((128, 3), 1e39))
+    comp = compress(small, ratio=3)
+    with pytest.raises(ValidationError, match="float32 range"):
+        comp.relight(np.full((128, 3), 3e38))  # fits float32, not once divided by √δA
+    # finite lighting that overflows in the product: named, not a silent inf image
+    with pytest.raises(ValidationError, match="exceeds the float32 range"):
+        relight(small, np.full((128, 3), 3e38))
+
+
+def test_as_float_names_a_finite_value_that_a_narrower_type_cannot_hold():
+    with pytest.raises(ValidationError, match=r"x must be within the float16 range .*got 100000.0 at index \(1,\)"):
+        as_float(np.array([1.0, 1e5]), "x", np.float16)
+    assert np.isinf(as_float(np.array([np.inf]), "x", np.float32)[0])  # inf stays inf: check_finite's job
+
+
+def test_probe_writers_refuse_what_their_format_cannot_store(tmp_path):
+    p = np.ones((4, 8, 3), np.float32)
+    p[0, 0] = 2e38  # ≥ 2^127: RGBE's exponent byte would wrap to 0 and the light would read back as black
+    with pytest.raises(ValidationError, match=r"below 2\^127 .*row 0, column 0"):
+        write_light_probe(tmp_path / "v.hdr", p)
+    p[0, 0] = 1.6e38  # the largest RGBE values still round-trip
+    write_light_probe(tmp_path / "ok.hdr", p)
+    assert read_light_probe(tmp_path / "ok.hdr")[0, 0, 0] == pytest.approx(1.6e38, rel=2e-2)
+    q = np.ones((4, 8, 3), np.float32)
+    q[1, 2] = 1e5
+    with pytest.raises(ValidationError, match="float16 range"):
+        write_light_probe(tmp_path / "h.exr", q, half=True)  # half floats end at 65504
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["ok.hdr"]
+    with pytest.raises(ValidationError, match="its directory .* does not exist"):
+        write_light_probe(tmp_path / "missing" / "x.pfm", q)
+
+
+def test_probe_paths_and_values_of_the_wrong_kind(tmp_path):
+    for path in (None, 3):
+        with pytest.raises(ValidationError, match="must be a str or path-like"):
+            read_light_probe(path)
+    (tmp_path / "d.hdr").mkdir()
+    with pytest.raises(ValidationError, match="is a directory, not a file"):
+        read_light_probe(tmp_path / "d.hdr")
+    for value in (np.full((2, 4, 3), "a"), np.full((2, 4, 3), None), np.ones((2, 4, 3), complex)):
+        with pytest.raises(ValidationError, match="radiance must be numeric"):
+            lighting.check_probe(value)
+
+
+def test_rotation_by_a_huge_angle_is_the_rotation_by_its_remainder(rng):
+    p = rng.random((8, 16, 3)).astype(np.float32)
+    big = 3.0 + 2 * math.pi * 1e6
+    assert np.allclose(lighting.rotate_probe(p, big), lighting.rotate_probe(p, math.fmod(big, 2 * math.pi)))
+    lighting.rotate_probe(p, 1e308)  # no OverflowError
+    with pytest.raises(ValidationError, match="angle must be one number"):
+        lighting.rotate_probe(p, [0.1, 0.2])
+
+
+def test_voronoi_resampling_goes_band_by_band_with_the_same_result(rng, monkeypatch):
+    d = rng.normal(size=(40, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    p = rng.gamma(0.5, 1.0, size=(24, 48, 3)).astype(np.float32)
+    whole = lighting.resample_probe(p, d)
+    monkeypatch.setattr(lighting, "_BAND_SAMPLES", 48 * 16 * 5)  # bands of 5 probe rows, the last of 4
+    banded = lighting.resample_probe(p, d)
+    assert np.allclose(banded, whole, rtol=1e-12, atol=0)
+    total = (p.astype(np.float64) * sphere.latlong_solid_angles(24, 48)[..., None]).sum((0, 1))
+    assert np.allclose(banded.sum(0), total, rtol=1e-12)
+    rows = lighting.probe_samples(p, supersample=2, rows=slice(3, 7))[0]
+    assert np.array_equal(rows, lighting.probe_samples(p, supersample=2)[0][3 * 2 * 2 * 48 : 7 * 2 * 2 * 48])
+    assert np.array_equal(sphere.latlong_directions(12, 24, rows=slice(2, 5)), sphere.latlong_directions(12, 24)[2:5])
+
+
+def test_field_store_blocks_are_checked(tmp_path, small):
+    from facestats.relight.field import light_table
+
+    directions = light_table(small)[0].reshape(8, 16, 3)
+    store = FieldStore(tmp_path / "s.zarr", directions, (2, 2), dtype="float16")
+    with pytest.raises(ValidationError, match=r"field block \[y 0:2, x 0:2\] must be within the float16 range"):
+        store.write(slice(0, 2), slice(0, 2), np.full((8, 16, 2, 2, 3), 1e5))  # float64 input too
+    with pytest.raises(ValidationError, match="must be finite"):
+        store.write(slice(0, 2), slice(0, 2), np.full((8, 16, 2, 2, 3), np.nan, np.float32))
+
+
+def test_indirect_must_be_a_field_and_tint_of_the_same_image(small):
+    other, _, _ = lambertian_field(3, 3, n_theta=16, n_phi=8)
+    with pytest.raises(ValidationError, match="indirect must be a tuple"):
+        relight(small, np.ones((8, 16, 3)), indirect=small)
+    with pytest.raises(ValidationError, match="image size 4 x 4, got 3 x 3"):
+        relight(small, np.ones((8, 16, 3)), indirect=(other, [1, 1, 1]))

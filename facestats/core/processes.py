@@ -31,6 +31,6 @@ def process_gone(pid, host: str | None = None) -> bool:
         os.kill(int(pid), 0)
     except ProcessLookupError:
         return True
-    except (PermissionError, OSError, ValueError, TypeError):  # another user's live process, or no pid
+    except (PermissionError, OSError, ValueError, TypeError, OverflowError):  # another user's, or no usable pid
         return False
     return False

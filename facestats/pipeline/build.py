@@ -62,10 +62,11 @@ from facestats.io.ids import check_subject_id
 from facestats.io.packing import pack_store
 from facestats.io.store import default_store_path, open_store
 from facestats.model.fitting import TranslucencyFit, fit_translucency, population_sigma_tr_avg
+from facestats.model.fitting.engine import resolve_engine
 from facestats.model.skin import SPECULAR_MODELS
 from facestats.pipeline import FitSettings, fit_subject
 from facestats.pipeline.cluster import connect, scheduler_address, store_directory
-from facestats.pipeline.journal import BuildJournal, run_journalled
+from facestats.pipeline.journal import BuildJournal, gathered, run_journalled
 from facestats.pipeline.progress import TaskProgress, progress_bar
 
 __all__ = ["BuildReport", "build_store", "build_default", "estimated_memory", "DEFAULT_SEED", "DEFAULT_MAP_SIZE"]
@@ -402,27 +403,26 @@ def build_store(
     unknown = [s for s in wanted if s not in ids]
     if unknown:
         raise ValidationError(f"subjects must be ids of the population, got unknown {unknown[:5]}")
-    store = open_store(store_path, mode="a")  # only now: bad arguments leave no empty store behind
-    store.gc()  # the leftovers of a killed build, if any (never a live writer's data)
-    key = ("sensor_fits", seed, map_size, conditions, specular, face)
-    if key not in _WORKER_CACHE:  # the same draws every time: computed once per process
-        _WORKER_CACHE[key] = sensor_fits(pop, map_size, specular, face)
-    fits = _WORKER_CACHE[key]
-    normal = [s.subject_id for s in pop.subjects if s.condition == "normal"]
-    stra = population_sigma_tr_avg(np.stack([fits[s].sigma_tr for s in normal]), SITES)
-    present = set(store.ids())
-    _check_same_build(store, pop, present, _geometry(map_size, face).name, specular)
-    todo = [s for s in wanted if s not in present]
-    skipped = [s for s in wanted if s in present]
-    journal = BuildJournal(store_path)
-    for sid in skipped:  # committed by a build killed before it removed the record: the record goes
-        journal.finish(sid)
-    args = [
-        (str(store_path), seed, map_size, conditions, specular, sid, stra, fits[sid], micro_normals, keep_derived, face)
-        for sid in todo
-    ]
-    own = connect(address) if address is not None else None
+    resolve_engine(None)  # $FACESTATS_ENGINE, which every task's fit reads, checked once here
+    own = connect(address) if address is not None else None  # an unreachable scheduler leaves no store
     try:
+        store = open_store(store_path, mode="a")  # only now: bad arguments leave no empty store behind
+        store.gc()  # the leftovers of a killed build, if any (never a live writer's data)
+        key = ("sensor_fits", seed, map_size, conditions, specular, face)
+        if key not in _WORKER_CACHE:  # the same draws every time: computed once per process
+            _WORKER_CACHE[key] = sensor_fits(pop, map_size, specular, face)
+        fits = _WORKER_CACHE[key]
+        normal = [s.subject_id for s in pop.subjects if s.condition == "normal"]
+        stra = population_sigma_tr_avg(np.stack([fits[s].sigma_tr for s in normal]), SITES)
+        present = set(store.ids())
+        _check_same_build(store, pop, present, _geometry(map_size, face).name, specular)
+        todo = [s for s in wanted if s not in present]
+        skipped = [s for s in wanted if s in present]
+        journal = BuildJournal(store_path)
+        for sid in skipped:  # committed by a build killed before it removed the record: the record goes
+            journal.finish(sid)
+        common = (micro_normals, keep_derived, face)
+        args = [(str(store_path), seed, map_size, conditions, specular, sid, stra, fits[sid], *common) for sid in todo]
         with _stop_on_sigterm():
             results = _run_tasks(args, retries, own or client, n_workers, progress)
         size = n_workers if own is None and client is None else len((own or client).scheduler_info()["workers"])
@@ -448,21 +448,13 @@ def _run_tasks(args, retries, client, n_workers, progress):
 
         # Task failures are retried inside the task; Dask's retries cover a lost worker.
         futures = {client.submit(_build_task, retries, *a, pure=False, retries=retries): a for a in args}
-        return [_gathered(f, futures[f]) for f in progress_bar(as_completed(futures), len(futures), progress)]
+        done = progress_bar(as_completed(futures), len(futures), progress)
+        return [gathered(f, futures[f][0], futures[f][5]) for f in done]
     if n_workers == 1 or len(args) <= 1:
         return [_build_task(retries, *a) for a in progress_bar(args, len(args), progress)]
     import dask
 
     return _run_local([dask.delayed(_build_task, pure=False)(retries, *a) for a in args], n_workers, progress)
-
-
-def _gathered(future, args):
-    """The result of a build future; a task lost with its workers is recorded as failed, not raised."""
-    try:
-        return future.result()
-    except Exception as exc:  # e.g. KilledWorker after Dask's retries
-        BuildJournal(args[0]).fail(args[5], 1, exc)
-        return args[5], "failed", f"{type(exc).__name__}: {exc}"
 
 
 def build_default(*, workers: int | None = None, progress: bool = False, out=None) -> BuildReport:

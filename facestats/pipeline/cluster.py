@@ -48,7 +48,11 @@ def scheduler_address(scheduler=None):
         if value is None:
             continue
         value = str(value).strip()
-        if urlparse(value).scheme not in _SCHEMES or "://" not in value:
+        try:
+            scheme = urlparse(value).scheme
+        except ValueError:  # e.g. an unclosed IPv6 bracket
+            scheme = None
+        if scheme not in _SCHEMES or "://" not in value:
             raise ValidationError(
                 f"{name} must be a Dask scheduler address such as tcp://host:8786 "
                 f"(protocols {', '.join(_SCHEMES)}), got {value!r}"
@@ -75,6 +79,8 @@ def connect(address, timeout: float = 30.0):
         return Client(address, timeout=timeout)
     except (OSError, TimeoutError) as exc:
         raise ValidationError(f"scheduler {address!r} did not answer within {timeout:g} s: {exc}") from None
+    except (ValueError, TypeError, KeyError) as exc:  # Dask's parsers: no port, an unknown or unusable protocol
+        raise ValidationError(f"scheduler {address!r} is not an address Dask can connect to: {exc}") from None
 
 
 def is_url(path) -> bool:

@@ -37,10 +37,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from facestats.core.processes import process_gone
+from facestats.errors import ValidationError
+from facestats.io.ids import check_subject_id
 from facestats.io.layout import BUILD_JOURNAL
 from facestats.io.store import open_store
 
-__all__ = ["JOURNAL_DIR", "BuildJournal", "BuildStatus", "build_status", "run_journalled"]
+__all__ = ["JOURNAL_DIR", "BuildJournal", "BuildStatus", "build_status", "gathered", "run_journalled"]
 
 #: Folder of the journal inside a directory store.
 JOURNAL_DIR = BUILD_JOURNAL
@@ -57,28 +59,34 @@ class BuildJournal:
         self.root = Path(store_path) / JOURNAL_DIR
 
     def _path(self, sid: str) -> Path:
-        return self.root / f"{sid}.json"
+        return self.root / f"{check_subject_id(sid)}.json"  # an id is a file name: never a path out of the store
 
     def _write(self, sid: str, record: dict) -> None:
+        target = self._path(sid)
         self.root.mkdir(parents=True, exist_ok=True)
-        tmp = self.root / f".{sid}.json.tmp-{os.getpid()}-{secrets.token_hex(3)}"
+        tmp = self.root / f".{target.name}.tmp-{os.getpid()}-{secrets.token_hex(3)}"
         tmp.write_text(json.dumps(record, sort_keys=True))
-        os.replace(tmp, self._path(sid))
+        os.replace(tmp, target)
 
     def read(self, sid: str) -> dict | None:
-        """The record of ``sid``, or None."""
+        """The record of ``sid``, or None (also for a file that is not a record: damaged, or not JSON)."""
+        path = self._path(sid)
         try:
-            return json.loads(self._path(sid).read_text())
+            rec = json.loads(path.read_text())
         except (FileNotFoundError, ValueError):
             return None
+        return rec if isinstance(rec, dict) and rec.get("state") in ("running", "failed") else None
 
     def records(self) -> dict:
-        """Every record, by subject id."""
+        """Every record, by subject id (files whose names are not subject ids are left out)."""
         if not self.root.is_dir():
             return {}
         out = {}
         for p in sorted(self.root.glob("*.json")):
-            rec = self.read(p.stem)
+            try:
+                rec = self.read(p.stem)
+            except ValidationError:  # not a subject id: not ours
+                continue
             if rec is not None:
                 out[p.stem] = rec
         return out
@@ -117,6 +125,17 @@ class BuildJournal:
             self.root.rmdir()
         except OSError:  # missing, or records left
             pass
+
+
+def gathered(future, store, sid):
+    """The ``(id, state, result)`` of a task future; a task lost with its workers (e.g. ``KilledWorker`` after
+    Dask's own retries) is recorded as failed in the journal of ``store`` (None: not recorded), not raised."""
+    try:
+        return future.result()
+    except Exception as exc:  # the worker died or the task could not run: reported with the others
+        if store is not None:
+            BuildJournal(store).fail(sid, 1, exc)
+        return sid, "failed", f"{type(exc).__name__}: {exc}"
 
 
 def run_journalled(journal, sid, fn, retries):
@@ -174,13 +193,17 @@ class BuildStatus:
         for sid in self.running:
             r = self.records[sid]
             lines.append(
-                f"  running      {sid}  attempt {r['attempts']} on {r['host']} (pid {r['pid']}) since {r['started']}"
+                f"  running      {sid}  attempt {r.get('attempts', '?')} on {r.get('host', '?')} "
+                f"(pid {r.get('pid', '?')}) since {r.get('started', '?')}"
             )
         for sid in self.interrupted:
             r = self.records[sid]
-            lines.append(f"  interrupted  {sid}  attempt {r['attempts']} on {r['host']} (pid {r['pid']} is gone)")
+            lines.append(
+                f"  interrupted  {sid}  attempt {r.get('attempts', '?')} on {r.get('host', '?')} "
+                f"(pid {r.get('pid', '?')} is gone)"
+            )
         for sid, err in self.failed.items():
-            lines.append(f"  failed       {sid}  after {self.records[sid]['attempts']} attempt(s): {err}")
+            lines.append(f"  failed       {sid}  after {self.records[sid].get('attempts', '?')} attempt(s): {err}")
         return "\n".join(lines)
 
 

@@ -17,10 +17,12 @@ from facestats.acquire.capture import Capture, open_capture
 from facestats.core.conventions import SITES
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import FitError, ValidationError
+from facestats.io.ids import check_subject_id
 from facestats.io.store import open_store
 from facestats.model import fitting
+from facestats.model.fitting.engine import resolve_engine
 from facestats.pipeline.cluster import connect, scheduler_address, store_directory
-from facestats.pipeline.journal import BuildJournal, run_journalled
+from facestats.pipeline.journal import BuildJournal, gathered, run_journalled
 from facestats.pipeline.progress import TaskProgress, progress_bar
 from facestats.pipeline.settings import FitSettings
 from facestats.pipeline.subject import fit_sensor, fit_subject
@@ -80,7 +82,9 @@ def fit_population(
         Show a progress bar over subjects, with ETA.
     store : str or path-like, optional
         A directory store (created if missing) every worker can write: each subject is
-        written there as soon as it is fitted, and the datasets are not returned.
+        written there as soon as it is fitted, and the datasets are not returned.  Subjects
+        the store already holds are skipped, not refitted (a rerun resumes).  ``settings.models``
+        must then include both models (the store's schema holds both).
         Object-store URLs are refused (:func:`facestats.pipeline.cluster.store_directory`).
     retries : int
         Attempts after the first for a subject that fails (≥ 0).
@@ -88,7 +92,7 @@ def fit_population(
     Returns
     -------
     datasets : list of xarray.Dataset, or list of str
-        The subjects' Datasets in the order of ``captures``; with ``store``, the ids written.
+        The subjects' Datasets in the order of ``captures``; with ``store``, their ids (each now in the store).
     sigma_tr_avg : ndarray, shape (3,)
 
     Raises
@@ -102,13 +106,10 @@ def fit_population(
     if num_workers is not None:
         check_integer(num_workers, "num_workers", 1)
     check_integer(retries, "retries", 0)
-    st = settings or FitSettings()
-    caps = [c if isinstance(c, Capture) else open_capture(c) for c in captures]
-    if not caps:
-        raise ValidationError("captures must contain at least one capture, got none")
+    st = _settings(settings, store)
+    caps, ids = _captures(captures)
     if store is not None:
         store = store_directory(store)
-        open_store(store, mode="a").close()
     fits = [fit_sensor(c, st.eta) for c in caps]
     condition_normal = [i for i, c in enumerate(caps) if c.attrs.get("condition", "normal") == "normal"]
     if not condition_normal:
@@ -116,10 +117,14 @@ def fit_population(
             "captures must include at least one subject of condition 'normal' (σtrAvg is their mean), got none"
         )
     stra = fitting.population_sigma_tr_avg(np.stack([fits[i].sigma_tr for i in condition_normal]), list(SITES))
-    tasks = [(str(c.metadata["subject_id"]), c.path or c, stra, st, f, store, retries) for c, f in zip(caps, fits)]
-    own = connect(address) if address is not None else None
+    own = connect(address) if address is not None else None  # an unreachable scheduler leaves no store
     try:
-        results = _run(tasks, own or client, local, num_workers, progress)
+        present = set()
+        if store is not None:
+            with open_store(store, mode="a") as stored:
+                present = set(stored.ids())
+        tasks = [(sid, c.path or c, stra, st, f, store, retries) for sid, c, f in zip(ids, caps, fits)]
+        results = _run([t for t in tasks if t[0] not in present], own or client, local, num_workers, progress)
     finally:
         if own is not None:
             own.close()
@@ -128,8 +133,40 @@ def fit_population(
         lines = "; ".join(f"{sid}: {err}" for sid, err in failed.items())
         raise FitError(f"{len(failed)} of {len(results)} subject(s) failed after {retries} retries: {lines}")
     if store is not None:
-        BuildJournal(store).prune()
+        journal = BuildJournal(store)
+        for sid in present & set(ids):  # committed by a run killed before it removed the record
+            journal.finish(sid)
+        journal.prune()
+        return ids, stra
     return [res for _, _, res in results], stra
+
+
+def _captures(captures):
+    """The captures opened, and their subject ids: valid ids (they name files), each once."""
+    caps = [c if isinstance(c, Capture) else open_capture(c) for c in captures]
+    if not caps:
+        raise ValidationError("captures must contain at least one capture, got none")
+    ids = [check_subject_id(c.metadata["subject_id"]) for c in caps]
+    twice = sorted({sid for sid in ids if ids.count(sid) > 1})
+    if twice:
+        raise ValidationError(f"captures must hold each subject once, got {twice} more than once")
+    return caps, ids
+
+
+def _settings(settings, store):
+    """``settings`` (default :class:`FitSettings`) checked before any work: its engine (and
+    ``$FACESTATS_ENGINE``), and with a ``store`` the models its schema stores."""
+    st = FitSettings() if settings is None else settings
+    if not isinstance(st, FitSettings):
+        raise ValidationError(f"settings must be a FitSettings, got {type(settings).__name__}")
+    resolve_engine(st.engine)
+    missing = [m for m in ("torrance_sparrow", "blinn_phong") if m not in st.models]
+    if store is not None and missing:
+        raise ValidationError(
+            f"settings.models must include {missing} to write to a store (a stored subject holds both models' "
+            f"maps), got {st.models!r}"
+        )
+    return st
 
 
 def _where(scheduler, client):
@@ -154,7 +191,7 @@ def _run(tasks, client, local, num_workers, progress):
         futures = [client.submit(_fit_capture_task, *t, pure=False) for t in tasks]
         for _ in progress_bar(as_completed(futures), len(futures), progress, desc="fit"):
             pass
-        return [f.result() for f in futures]
+        return [gathered(f, t[5], t[0]) for f, t in zip(futures, tasks)]
     if local == "synchronous" or len(tasks) == 1:
         return [_fit_capture_task(*t) for t in progress_bar(tasks, len(tasks), progress, desc="fit")]
     import dask

@@ -164,3 +164,94 @@ def _broken_capture(tmp_path, source):
             with open(os.path.join(root, f), "wb") as fh:
                 fh.write(b"not a blosc frame")
     return str(path)
+
+
+def _renamed(tmp_path, source, sid):
+    """A copy of capture ``source`` whose subject id is ``sid`` (written into its zarr.json as it stands)."""
+    import shutil
+
+    path = tmp_path / f"renamed-{abs(hash(sid))}.zarr"
+    shutil.copytree(source, path)
+    meta = json.loads((path / "zarr.json").read_text())
+    meta["attributes"]["subject_id"] = sid
+    (path / "zarr.json").write_text(json.dumps(meta))
+    return str(path)
+
+
+def test_a_subject_id_that_is_a_path_writes_nothing_anywhere(tmp_path, captures):
+    bad = _renamed(tmp_path, captures[0], "/../../escaped")
+    store = tmp_path / "p.zarr"
+    with pytest.raises(FacestatsError, match="escaped"):
+        fit_population([bad], QUICK, scheduler="synchronous", store=store)
+    assert not store.exists() and not list(tmp_path.rglob("escaped*"))
+    with pytest.raises(FacestatsError):
+        BuildJournal(store).start("../x", 1)  # the journal's own guard
+    twice = _renamed(tmp_path, captures[1], open_capture(captures[0]).metadata["subject_id"])
+    with pytest.raises(FacestatsError, match="each subject once"):
+        fit_population([captures[0], twice], QUICK, scheduler="synchronous", store=store)
+    assert not store.exists()
+
+
+def test_a_rerun_into_a_store_skips_the_stored_subjects(tmp_path, captures, monkeypatch):
+    from facestats.pipeline import population
+
+    store = tmp_path / "r.zarr"
+    ids, _ = fit_population(captures[:1], QUICK, scheduler="synchronous", store=store)
+    before = open_store(store).subject(ids[0]).ts_m.values
+
+    def refit(*args, **kwargs):
+        raise AssertionError("a stored subject was fitted again")
+
+    monkeypatch.setattr(population, "fit_subject", refit)
+    again, _ = fit_population(captures[:1], QUICK, scheduler="synchronous", store=store)
+    assert again == ids
+    np.testing.assert_array_equal(open_store(store).subject(ids[0]).ts_m.values, before)
+
+
+def test_settings_and_schedulers_that_cannot_work_are_refused_before_the_store_exists(tmp_path, captures, monkeypatch):
+    store = tmp_path / "n.zarr"
+    with pytest.raises(FacestatsError, match="settings.models must include"):
+        fit_population(captures[:1], FitSettings(models=("torrance_sparrow",)), scheduler="synchronous", store=store)
+    with pytest.raises(FacestatsError, match="settings must be a FitSettings, got dict"):
+        fit_population(captures[:1], {"engine": "numpy"}, scheduler="synchronous", store=store)
+    for address in ("tcp://", "TCP://127.0.0.1:1", "tcp://[::1"):
+        with pytest.raises(FacestatsError, match="scheduler"):
+            fit_population(captures[:1], QUICK, scheduler=address, store=store)
+        with pytest.raises(FacestatsError, match="scheduler"):
+            build_module.build_store(store, map_size=8, subjects=["S001"], scheduler=address, workers=1)
+    monkeypatch.setenv("FACESTATS_ENGINE", "bogus")
+    with pytest.raises(FacestatsError, match="FACESTATS_ENGINE must be one of"):
+        fit_population(captures[:1], FitSettings(micro_normals=False), scheduler="synchronous", store=store)
+    with pytest.raises(FacestatsError, match="FACESTATS_ENGINE must be one of"):
+        build_module.build_store(store, map_size=8, subjects=["S001"], workers=1)
+    assert not store.exists()
+
+
+def test_a_task_lost_with_its_worker_is_reported_and_journalled(tmp_path):
+    from facestats.pipeline.journal import gathered
+
+    class Lost:
+        def result(self):
+            raise RuntimeError("KilledWorker: the worker died")
+
+    store = tmp_path / "g.zarr"
+    open_store(store, mode="a").close()
+    assert gathered(Lost(), store, "S007") == ("S007", "failed", "RuntimeError: KilledWorker: the worker died")
+    assert build_status(store).failed == {"S007": "RuntimeError: KilledWorker: the worker died"}
+
+
+def test_status_reads_damaged_journal_records_without_failing(tmp_path):
+    store = tmp_path / "j.zarr"
+    open_store(store, mode="a").close()
+    journal = BuildJournal(store)
+    journal.start("S001", 1)
+    root = store / JOURNAL_DIR
+    for name, text in (("S002", "[]"), ("S003", '"x"'), ("S004", '{"state": "failed"}'), ("..bad", "{}")):
+        (root / f"{name}.json").write_text(text)
+    (root / "S005.json").write_text(json.dumps({"state": "running", "pid": 2**70, "host": os.uname().nodename}))
+    status = build_status(store)
+    assert status.failed == {"S004": None} and "S001" in status.running and "S005" in status.running
+    text = status.to_text()
+    assert "failed       S004  after ? attempt(s)" in text
+    res = run_cli("build", "--status", str(store))
+    assert res.returncode == 1 and "Traceback" not in res.stderr

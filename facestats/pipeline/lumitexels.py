@@ -14,7 +14,7 @@ import numpy as np
 
 from facestats.errors import ValidationError
 from facestats.model import fitting
-from facestats.pipeline.settings import MAP_VARS, MODEL_PREFIX, STD_VARS, FitSettings
+from facestats.pipeline.settings import MAP_VARS, MODEL_PREFIX, STD_VARS, FitSettings, checked_settings
 
 __all__ = ["fit_lumitexels", "PIECE"]
 
@@ -49,7 +49,7 @@ def fit_lumitexels(lt, settings: FitSettings | None = None, *, timings: dict | N
         ``*_rho_s_std``, ``*_m_std``/``*_exponent_std`` (robust HC3 standard errors of the fit, with the
         grey diffuse level fitted alongside: :mod:`facestats.model.fitting.diffuse_level`).
     """
-    st = settings or FitSettings()
+    st = checked_settings(settings)
     clock = _Clock(timings)
     if lt.n <= PIECE:
         return _fit_piece(lt, st, clock)

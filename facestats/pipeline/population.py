@@ -24,7 +24,7 @@ from facestats.model.fitting.engine import resolve_engine
 from facestats.pipeline.cluster import connect, scheduler_address, store_directory
 from facestats.pipeline.journal import BuildJournal, gathered, run_journalled
 from facestats.pipeline.progress import TaskProgress, progress_bar
-from facestats.pipeline.settings import FitSettings
+from facestats.pipeline.settings import FitSettings, checked_settings
 from facestats.pipeline.subject import fit_sensor, fit_subject
 
 __all__ = ["fit_population"]
@@ -156,9 +156,7 @@ def _captures(captures):
 def _settings(settings, store):
     """``settings`` (default :class:`FitSettings`) checked before any work: its engine (and
     ``$FACESTATS_ENGINE``), and with a ``store`` the models its schema stores."""
-    st = FitSettings() if settings is None else settings
-    if not isinstance(st, FitSettings):
-        raise ValidationError(f"settings must be a FitSettings, got {type(settings).__name__}")
+    st = checked_settings(settings)
     resolve_engine(st.engine)
     missing = [m for m in ("torrance_sparrow", "blinn_phong") if m not in st.models]
     if store is not None and missing:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -13,7 +13,7 @@ from facestats.model import fitting
 from facestats.model.dipole import check_dipole_eta
 from facestats.model.fitting.engine import default_engine, resolve_engine
 
-__all__ = ["FitSettings", "LUMITEXEL_OUTPUTS", "MODEL_PREFIX", "MAP_VARS", "STD_VARS"]
+__all__ = ["FitSettings", "checked_settings", "LUMITEXEL_OUTPUTS", "MODEL_PREFIX", "MAP_VARS", "STD_VARS"]
 
 
 @dataclass
@@ -83,29 +83,58 @@ class FitSettings:
     engine: str = field(default_factory=default_engine)
 
     def __post_init__(self):
-        if isinstance(self.models, str):
-            raise ValidationError(f"models must be a tuple of model names, got the string {self.models!r}")
-        self.models = tuple(self.models)
-        if isinstance(self.exclude_cameras, (int, np.integer)):
-            raise ValidationError(f"exclude_cameras must be a tuple of camera indices, got {self.exclude_cameras!r}")
-        self.exclude_cameras = tuple(check_integer(c, "exclude_cameras", 0) for c in self.exclude_cameras)
+        self.models = _names(self.models, "models", "model names")
+        self.exclude_cameras = tuple(
+            check_integer(c, "exclude_cameras", 0) for c in _names(self.exclude_cameras, "exclude_cameras", None)
+        )
         if not self.models or len(set(self.models)) != len(self.models):
             raise ValidationError(f"models must name at least one model, each once, got {self.models!r}")
         for m in self.models:
             if m not in fitting.DEFAULT_BOUNDS:
                 raise ValidationError(f"models must be among {list(fitting.DEFAULT_BOUNDS)}, got {m!r}")
-        if not isinstance(self.normal_tilt, (bool, np.bool_)):
-            raise ValidationError(f"normal_tilt must be True or False, got {self.normal_tilt!r}")
-        self.normal_tilt = bool(self.normal_tilt)
+        for name in ("refine_albedo", "micro_normals", "normal_tilt"):
+            value = getattr(self, name)
+            if not isinstance(value, (bool, np.bool_)):
+                raise ValidationError(f"{name} must be True or False, got {value!r}")
+            setattr(self, name, bool(value))
         check_integer(self.discard, "discard", 0)
         check_integer(self.min_samples, "min_samples", 2)
         check_integer(self.block, "block", 1)
-        as_finite(self.grazing_penalty, "grazing_penalty", 0, None)
-        as_finite(self.max_angle_deg, "max_angle_deg", 0, 90, low_inclusive=False, unit="deg")
-        as_finite(self.bp_max_angle_deg, "bp_max_angle_deg", 0, 90, low_inclusive=False, unit="deg")
-        as_finite(self.max_relative_error, "max_relative_error", 0, None, low_inclusive=False)
+        self.grazing_penalty = _number(self.grazing_penalty, "grazing_penalty", 0, None)
+        self.max_angle_deg = _number(self.max_angle_deg, "max_angle_deg", 0, 90, low_inclusive=False, unit="deg")
+        self.bp_max_angle_deg = _number(
+            self.bp_max_angle_deg, "bp_max_angle_deg", 0, 90, low_inclusive=False, unit="deg"
+        )
+        self.max_relative_error = _number(self.max_relative_error, "max_relative_error", 0, None, low_inclusive=False)
+        self.eta = _number(self.eta, "eta")
         check_dipole_eta(self.eta)
         self.engine = resolve_engine(self.engine)
+
+
+def checked_settings(settings) -> FitSettings:
+    """``settings`` validated again as a copy (its fields may have been assigned since construction), or the
+    default :class:`FitSettings` for None; anything else is a :class:`ValidationError`."""
+    if settings is None:
+        return FitSettings()
+    if not isinstance(settings, FitSettings):
+        raise ValidationError(f"settings must be a FitSettings, got {type(settings).__name__}")
+    return replace(settings)
+
+
+def _names(value, name, what):
+    """``value`` as a tuple: a list, tuple or range (of ``what``: str, when given); else a ValidationError."""
+    if not isinstance(value, (tuple, list, range)):
+        raise ValidationError(f"{name} must be a tuple{' of ' + what if what else ''}, got {value!r}")
+    if what and not all(isinstance(v, str) for v in value):
+        raise ValidationError(f"{name} must be a tuple of {what}, got {tuple(value)!r}")
+    return tuple(value)
+
+
+def _number(value, name, low=None, high=None, **bounds):
+    """``value`` as a float: one real number (not a bool, not an array) in the bounds of :func:`as_finite`."""
+    if isinstance(value, (bool, np.bool_)) or np.ndim(value) != 0:
+        raise ValidationError(f"{name} must be a number, got {value!r}")
+    return float(as_finite(value, name, low, high, **bounds))
 
 
 #: Per-lumitexel outputs of :func:`fit_lumitexels` (a model's four entries only when it is

@@ -28,7 +28,7 @@ from facestats.io.schema import SCHEMA_VERSION, set_variable_attrs
 from facestats.model import fitting
 from facestats.pipeline.lumitexels import fit_lumitexels
 from facestats.pipeline.maps import subject_maps
-from facestats.pipeline.settings import MAP_VARS, STD_VARS, FitSettings
+from facestats.pipeline.settings import MAP_VARS, STD_VARS, FitSettings, checked_settings
 
 __all__ = ["fit_subject", "fit_sensor"]
 
@@ -143,7 +143,7 @@ def fit_subject(
     if sigma_tr_avg is not None:
         as_finite(sigma_tr_avg, "sigma_tr_avg", 0, None, low_inclusive=False, unit="mm^-1")
         check_shape(np.asarray(sigma_tr_avg), "sigma_tr_avg", (3,))
-    st = settings or FitSettings()
+    st = checked_settings(settings)
     res = _blocks_result(capture, st, client=client, progress=progress, workers=workers)
 
     # Stage 5: maps.

@@ -255,3 +255,22 @@ def test_status_reads_damaged_journal_records_without_failing(tmp_path):
     assert "failed       S004  after ? attempt(s)" in text
     res = run_cli("build", "--status", str(store))
     assert res.returncode == 1 and "Traceback" not in res.stderr
+
+
+def test_settings_of_the_wrong_kind_are_refused_and_assigned_fields_checked_again(captures):
+    for kwargs, message in (
+        ({"bp_max_angle_deg": [70]}, "bp_max_angle_deg must be a number"),
+        ({"eta": True}, "eta must be a number"),
+        ({"micro_normals": "no"}, "micro_normals must be True or False"),
+        ({"exclude_cameras": None}, "exclude_cameras must be a tuple"),
+        ({"models": [["blinn_phong"]]}, "models must be a tuple of model names"),
+    ):
+        with pytest.raises(FacestatsError, match=message):
+            FitSettings(**kwargs)
+    st = FitSettings(micro_normals=False, block=128)
+    st.bp_max_angle_deg = float("nan")  # a dataclass field assigned after construction
+    with pytest.raises(FacestatsError, match="bp_max_angle_deg must be finite"):
+        fit_subject(captures[0], settings=st)
+    st.bp_max_angle_deg, st.exclude_cameras = 70.0, (-1,)
+    with pytest.raises(FacestatsError, match="exclude_cameras must be"):
+        fit_subject(captures[0], settings=st)

@@ -448,7 +448,7 @@ def _run_tasks(args, retries, client, n_workers, progress):
 
         # Task failures are retried inside the task; Dask's retries cover a lost worker.
         futures = {client.submit(_build_task, retries, *a, pure=False, retries=retries): a for a in args}
-        done = progress_bar(as_completed(futures), len(futures), progress)
+        done = progress_bar(as_completed(futures, loop=client.loop), len(futures), progress)
         return [gathered(f, futures[f][0], futures[f][5]) for f in done]
     if n_workers == 1 or len(args) <= 1:
         return [_build_task(retries, *a) for a in progress_bar(args, len(args), progress)]

@@ -75,11 +75,29 @@ def connect(address, timeout: float = 30.0):
         raise ValidationError(
             f"scheduler {address!r} needs the 'distributed' package: pip install 'facestats[distributed]'"
         ) from None
+    _check_connectable(address)  # a Client built from a malformed address fails half-made
     try:
-        return Client(address, timeout=timeout)
+        # Not made Dask's default scheduler: a Client that fails to connect would stay the default, and the
+        # process's later Dask computations would wait for it. facestats passes the client explicitly.
+        return Client(address, timeout=timeout, set_as_default=False)
     except (OSError, TimeoutError) as exc:
         raise ValidationError(f"scheduler {address!r} did not answer within {timeout:g} s: {exc}") from None
-    except (ValueError, TypeError, KeyError) as exc:  # Dask's parsers: no port, an unknown or unusable protocol
+    except (ValueError, TypeError, KeyError) as exc:  # e.g. an in-process address that no cluster listens on
+        raise ValidationError(f"scheduler {address!r} is not an address Dask can connect to: {exc}") from None
+
+
+def _check_connectable(address):
+    """ValidationError unless ``address`` has a protocol distributed knows and, except in-process ones, a
+    host and a port (distributed's own parsers)."""
+    from distributed.comm.addressing import get_address_host_port, parse_address
+    from distributed.comm.registry import get_backend
+
+    try:
+        scheme, _ = parse_address(address)
+        get_backend(scheme)
+        if scheme != "inproc":
+            get_address_host_port(address)
+    except (ValueError, TypeError, KeyError) as exc:
         raise ValidationError(f"scheduler {address!r} is not an address Dask can connect to: {exc}") from None
 
 

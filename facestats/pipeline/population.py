@@ -187,7 +187,7 @@ def _run(tasks, client, local, num_workers, progress):
         from distributed import as_completed
 
         futures = [client.submit(_fit_capture_task, *t, pure=False) for t in tasks]
-        for _ in progress_bar(as_completed(futures), len(futures), progress, desc="fit"):
+        for _ in progress_bar(as_completed(futures, loop=client.loop), len(futures), progress, desc="fit"):
             pass
         return [gathered(f, t[5], t[0]) for f, t in zip(futures, tasks)]
     if local == "synchronous" or len(tasks) == 1:

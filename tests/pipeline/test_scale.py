@@ -214,11 +214,17 @@ def test_settings_and_schedulers_that_cannot_work_are_refused_before_the_store_e
         fit_population(captures[:1], FitSettings(models=("torrance_sparrow",)), scheduler="synchronous", store=store)
     with pytest.raises(FacestatsError, match="settings must be a FitSettings, got dict"):
         fit_population(captures[:1], {"engine": "numpy"}, scheduler="synchronous", store=store)
-    for address in ("tcp://", "TCP://127.0.0.1:1", "tcp://[::1"):
+    import dask
+
+    before = dask.config.get("scheduler", None)
+    for address in ("tcp://", "TCP://127.0.0.1:1", "tcp://[::1", "inproc://x"):
         with pytest.raises(FacestatsError, match="scheduler"):
             fit_population(captures[:1], QUICK, scheduler=address, store=store)
         with pytest.raises(FacestatsError, match="scheduler"):
             build_module.build_store(store, map_size=8, subjects=["S001"], scheduler=address, workers=1)
+    # a failed connection leaves Dask's default scheduler as it was: later computations still run
+    assert dask.config.get("scheduler", None) == before
+    assert dask.compute(dask.delayed(sum)([1, 2]))[0] == 3
     monkeypatch.setenv("FACESTATS_ENGINE", "bogus")
     with pytest.raises(FacestatsError, match="FACESTATS_ENGINE must be one of"):
         fit_population(captures[:1], FitSettings(micro_normals=False), scheduler="synchronous", store=store)

@@ -207,8 +207,15 @@ class Capture:
         return json.loads(p) if isinstance(p, str) else dict(p)
 
     def array(self, name, sl=slice(None)) -> np.ndarray:
-        """An array (or a lumitexel slice of it) as numpy."""
-        return np.asarray(self.arrays[name][sl])
+        """An array (or a lumitexel slice of it) as numpy; a damaged chunk is a :class:`FormatError` naming the
+        capture, the array and the lumitexels."""
+        try:
+            return np.asarray(self.arrays[name][sl])
+        except (RuntimeError, ValueError, OSError) as exc:  # e.g. "error during blosc decompression: -1"
+            raise FormatError(
+                f"capture {self.path or '(in memory)'}: array {name!r}, lumitexels {sl.start}:{sl.stop}, cannot be "
+                f"read (a damaged or truncated chunk): {exc}"
+            ) from exc
 
     # -- lumitexel blocks ------------------------------------------------------------
     def lumitexels(self, start: int = 0, stop: int | None = None, cameras=None) -> Lumitexels:

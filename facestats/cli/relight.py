@@ -29,6 +29,23 @@ from facestats.cli.options import add_store_option, ascii_float, ascii_int, asci
 __all__ = ["add_relight"]
 
 
+#: Options of a subject rendered through the virtual stage, with their defaults: a field store has its camera
+#: and lights already.
+_SUBJECT_OPTIONS = {"size": 256, "azimuth": 0.0, "elevation": 0.0, "lights": "64x32"}
+
+
+def _check_subject_options(args):
+    """A field store source with options that only a subject's render uses: a ValidationError naming them."""
+    from facestats.errors import ValidationError
+
+    given = [f"--{k}" for k, v in _SUBJECT_OPTIONS.items() if getattr(args, k) != v]
+    if given and pathlib.Path(args.source).is_dir():
+        raise ValidationError(
+            f"{', '.join(given)} apply to a subject rendered through the virtual stage; {args.source!r} is a "
+            "field store, whose camera and lights are fixed (leave them out)"
+        )
+
+
 def _lights(text):
     from facestats.errors import ValidationError
 
@@ -73,6 +90,7 @@ def _cmd_relight(args) -> int:
     png = check_output_file(args.png if args.png else out.with_suffix(".png"), "--png", (".png",))
     if not math.isfinite(args.rotate):
         raise ValidationError(f"--rotate must be a finite angle in degrees, got {args.rotate!r}")
+    _check_subject_options(args)
     targets = [(_frame(out, k, frames), _frame(png, k, frames)) for k in range(frames or 1)]
     for pair in targets:
         for name, p in zip(("--out", "--png"), pair):
@@ -178,10 +196,19 @@ def add_relight(sub):
                    help="rotate the environment about +y by DEG degrees (right-handed)")  # fmt: skip
     p.add_argument("--out", required=True, metavar="FILE.exr", help="linear OpenEXR output")
     p.add_argument("--png", default=None, metavar="FILE.png", help="tone-mapped PNG (default: next to --out)")
-    p.add_argument("--size", type=ascii_int, default=256, help="image side for a subject, pixels (default 256)")
-    p.add_argument("--azimuth", type=ascii_float, default=0.0, metavar="DEG", help="camera azimuth (0: frontal)")
-    p.add_argument("--elevation", type=ascii_float, default=0.0, metavar="DEG", help="camera elevation")
-    p.add_argument("--lights", default="64x32", metavar="NxM", help="light stage theta x phi (default 64x32)")
+    p.add_argument(
+        "--size",
+        type=ascii_int,
+        default=_SUBJECT_OPTIONS["size"],
+        help="image side for a subject, pixels (default 256)",
+    )
+    p.add_argument("--azimuth", type=ascii_float, default=_SUBJECT_OPTIONS["azimuth"], metavar="DEG",
+                   help="camera azimuth (0: frontal)")  # fmt: skip
+    p.add_argument("--elevation", type=ascii_float, default=_SUBJECT_OPTIONS["elevation"], metavar="DEG",
+                   help="camera elevation")  # fmt: skip
+    p.add_argument(
+        "--lights", default=_SUBJECT_OPTIONS["lights"], metavar="NxM", help="light stage theta x phi (default 64x32)"
+    )
     p.add_argument("--turntable", type=ascii_int, default=None, metavar="N",
                    help="N frames, the environment turned by 360/N degrees between them, relit through the "
                    "compressed field (OUT_000.exr, OUT_000.png, ...)")  # fmt: skip

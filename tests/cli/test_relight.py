@@ -32,6 +32,11 @@ def test_relight_a_field_store_and_a_subject(tmp_path):
     assert r.returncode == 0, r.stderr
     assert read_image(tmp_path / "s.exr").shape == (16, 16, 3) and (tmp_path / "s_preview.png").exists()
     assert "wrote" in r.stdout
+    # A field store has its camera and lights: the subject's render options are refused, not ignored.
+    r = run_cli("relight", tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", "--size", "999", "--lights", "0x0",
+                "--out", tmp_path / "g.exr")  # fmt: skip
+    assert r.returncode == 2 and "--size, --lights apply to a subject" in r.stderr
+    assert not (tmp_path / "g.exr").exists()
 
 
 def test_bad_probe_or_existing_output_leaves_no_side_effect(tmp_path):

@@ -149,8 +149,10 @@ def test_build_on_a_distributed_cluster_given_by_the_environment(tmp_path, monke
 
 def test_fit_population_reports_subjects_that_keep_failing(tmp_path, captures):
     broken = _broken_capture(tmp_path, captures[0])
-    with pytest.raises(FitError, match=r"1 of 2 subject\(s\) failed after 1 retries: S\d+: "):
+    with pytest.raises(FitError, match=r"1 of 2 subject\(s\) failed after 1 retries: S\d+: FormatError: capture "):
         fit_population([captures[1], broken], QUICK, scheduler="synchronous", retries=1)
+    with pytest.raises(FacestatsError, match=r"array 'radiance', lumitexels 0:128, cannot be read \(a damaged"):
+        fit_subject(broken, settings=QUICK)
 
 
 def _broken_capture(tmp_path, source):

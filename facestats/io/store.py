@@ -46,6 +46,7 @@ from __future__ import annotations
 import os
 import zipfile
 from pathlib import Path
+from urllib.parse import urlparse
 
 import numpy as np
 
@@ -162,6 +163,14 @@ def _store_path(path) -> Path:
     text = os.fspath(path)
     if not text.strip() or "\x00" in text:
         raise ValidationError(f"path must name a store (a directory or a zip file), got {text!r}")
+    scheme = urlparse(text).scheme if "://" in text else ""
+    if scheme == "file":  # file:///data/pop.zarr, as `facestats build --store` accepts
+        text = urlparse(text).path
+    elif len(scheme) > 1:  # not a Windows drive letter
+        raise StoreError(
+            f"store {text!r} is a {scheme}:// location: facestats opens stores on a file system (a path or a "
+            "file:// URL); copy it to a local or shared disk first"
+        )
     return Path(text).expanduser()
 
 

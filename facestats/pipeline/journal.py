@@ -41,6 +41,7 @@ from facestats.errors import ValidationError
 from facestats.io.ids import check_subject_id
 from facestats.io.layout import BUILD_JOURNAL
 from facestats.io.store import open_store
+from facestats.pipeline.cluster import store_directory
 
 __all__ = ["JOURNAL_DIR", "BuildJournal", "BuildStatus", "build_status", "gathered", "run_journalled"]
 
@@ -215,6 +216,7 @@ def _alive(record) -> bool:
 def build_status(store_path) -> BuildStatus:
     """Done, running, interrupted and failed subjects of builds into the store at ``store_path``."""
 
+    store_path = store_directory(store_path)  # a file:// URL, as `facestats build --store` takes, is its path
     with open_store(store_path, mode="r") as store:
         done = sorted(store.ids())
     records = {sid: rec for sid, rec in BuildJournal(store_path).records().items() if sid not in done}

@@ -694,3 +694,12 @@ def test_fsync_tree_falls_back_to_every_file_and_reports_syncfs_errors(tmp_path,
     monkeypatch.setattr(layout, "_syncfs", failing(errno.EIO))  # a write-back error is an error
     with pytest.raises(OSError, match="syncfs failed"):
         layout.fsync_tree(g)
+
+
+def test_a_store_opens_from_a_file_url_and_refuses_other_urls(tmp_path):
+    open_store(tmp_path / "u.zarr", mode="a").close()
+    with open_store(f"file://{tmp_path}/u.zarr") as st:  # as `facestats build --store file://…` writes it
+        assert st.ids() == []
+    for url in ("s3://bucket/u.zarr", "https://example.org/u.zarr"):
+        with pytest.raises(StoreError, match="copy it to a local or shared disk"):
+            open_store(url)

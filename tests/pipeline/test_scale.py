@@ -282,3 +282,12 @@ def test_settings_of_the_wrong_kind_are_refused_and_assigned_fields_checked_agai
     st.bp_max_angle_deg, st.exclude_cameras = 70.0, (-1,)
     with pytest.raises(FacestatsError, match="exclude_cameras must be"):
         fit_subject(captures[0], settings=st)
+
+
+def test_status_of_a_store_given_as_a_file_url(tmp_path):
+    store = tmp_path / "f.zarr"
+    open_store(store, mode="a").close()
+    BuildJournal(store).start("S009", 1)
+    assert build_status(f"file://{store}").running == ["S009"]
+    res = run_cli("build", "--status", f"file://{store}")
+    assert res.returncode == 0 and "1 running" in res.stdout

@@ -213,9 +213,17 @@ def light_stage_directions(n_theta: int = 64, n_phi: int = 32):
     return latlong_directions(n_p, n_t), latlong_solid_angles(n_p, n_t)
 
 
-def _angular_uv(size):
+def _angular_uv(size, rows=None):
+    """(u, v) of the pixel centres, (1, S) and (R, 1): every column, the rows ``rows`` (a slice; default all)."""
     c = 2 * (np.arange(size) + 0.5) / size - 1
-    return c[None, :], -c[:, None]  # u grows to the right, v upwards
+    return c[None, :], -c[rows if rows is not None else slice(None), None]  # u grows to the right, v upwards
+
+
+def _rows(size, rows):
+    """``rows`` checked: None, or a slice of consecutive rows of a ``size``-row image."""
+    if rows is not None and range(size)[rows].step != 1:
+        raise ValidationError(f"rows must be a slice of consecutive rows, got {rows!r}")
+    return rows
 
 
 def _angular_map(u, v):
@@ -228,8 +236,9 @@ def _angular_map(u, v):
     return np.where((r <= 1)[..., None], d, np.nan)
 
 
-def angular_directions(size: int):
-    """Unit directions of the pixel centres of an angular (light-probe) image.
+def angular_directions(size: int, rows: slice | None = None):
+    """Unit directions of the pixel centres of an angular (light-probe) image (``rows``: only those rows, the same
+    values as the full image's).
 
     Returns
     -------
@@ -239,13 +248,14 @@ def angular_directions(size: int):
         Pixel centres inside the disc.
     """
     s = check_integer(size, "size", 1)
-    u, v = _angular_uv(s)
+    u, v = _angular_uv(s, _rows(s, rows))
     d = _angular_map(u, v)
     return d, np.isfinite(d[..., 0])
 
 
-def angular_solid_angles(size: int, order: int = 8) -> np.ndarray:
-    """Solid angle of every angular-map pixel, (S, S), sr (Gauss-Legendre quadrature of the Jacobian).
+def angular_solid_angles(size: int, order: int = 8, rows: slice | None = None) -> np.ndarray:
+    """Solid angle of every angular-map pixel, (S, S), sr (Gauss-Legendre quadrature of the Jacobian); ``rows``:
+    only those rows, the same values as the full image's.
 
     ∫∫_pixel π sin(π r)/r du dv over the part of the pixel inside the unit disc,
     with an ``order`` × ``order`` Gauss-Legendre rule per pixel (the Jacobian is
@@ -255,7 +265,7 @@ def angular_solid_angles(size: int, order: int = 8) -> np.ndarray:
     n = check_integer(order, "order", 1, 64)
     x, wq = np.polynomial.legendre.leggauss(n)
     half = 1.0 / s  # half a pixel in (u, v) units (pixel side 2/S)
-    u0, v0 = _angular_uv(s)
+    u0, v0 = _angular_uv(s, _rows(s, rows))
     uu = u0[..., None, None] + half * x[None, None, :, None]
     vv = v0[..., None, None] + half * x[None, None, None, :]
     r = np.sqrt(uu * uu + vv * vv)

@@ -116,29 +116,27 @@ def probe_samples(probe, layout: str = "latlong", supersample: int = 1, rows: sl
     (equal steps in φ and θ, exact areas), or for angular probes quadrature
     sub-cells of equal (u, v) size weighted by the Jacobian.  Radiance is
     constant over a pixel, so Σ L·δΩ equals that of the pixels exactly.
-    ``rows`` (lat-long only, a slice of consecutive probe rows): the samples of those rows alone, so a large
-    probe can be integrated band by band in bounded memory.
+    ``rows`` (a slice of consecutive probe rows): the samples of those rows alone, so a large probe can be
+    integrated band by band in bounded memory.
     """
     p = check_probe(probe, layout)
     s = check_integer(supersample, "supersample", 1, 16)
     h, w = p.shape[:2]
-    if rows is not None and layout != "latlong":
-        raise ValidationError(f"rows applies to lat-long probes, got layout {layout!r}")
+    band = range(h) if rows is None else range(h)[rows]
+    if band.step != 1:
+        raise ValidationError(f"rows must be a slice of consecutive probe rows, got {rows!r}")
+    r0, n = band.start, len(band)
+    sub = slice(r0 * s, (r0 + n) * s)  # the band's sub-cell rows
     if layout == "latlong":
-        band = range(h) if rows is None else range(h)[rows]
-        if band.step != 1:
-            raise ValidationError(f"rows must be a slice of consecutive probe rows, got {rows!r}")
-        r0, n = band.start, len(band)
-        sub_d = latlong_directions(h * s, w * s, rows=slice(r0 * s, (r0 + n) * s)).reshape(n, s, w, s, 3)
+        sub_d = latlong_directions(h * s, w * s, rows=sub).reshape(n, s, w, s, 3)
         phi_e, _ = latlong_edges(h * s, w * s)
         sub_sa = (2 * np.pi / (w * s)) * (np.cos(phi_e[:-1]) - np.cos(phi_e[1:]))
-        sa = np.broadcast_to(sub_sa[r0 * s : (r0 + n) * s].reshape(n, s, 1, 1), (n, s, w, s))
-        rad = np.broadcast_to(p[r0 : r0 + n, None, :, None, :], (n, s, w, s, 3))
+        sa = np.broadcast_to(sub_sa[sub].reshape(n, s, 1, 1), (n, s, w, s))
     else:
-        sub_d, inside = angular_directions(h * s)
-        sa = angular_solid_angles(h * s).reshape(h, s, w, s)
-        sub_d = np.where(inside[..., None], sub_d, np.array([0.0, 0.0, 1.0])).reshape(h, s, w, s, 3)
-        rad = np.broadcast_to(p[:, None, :, None, :], (h, s, w, s, 3))
+        sub_d, inside = angular_directions(h * s, rows=sub)
+        sa = angular_solid_angles(h * s, rows=sub).reshape(n, s, w, s)
+        sub_d = np.where(inside[..., None], sub_d, np.array([0.0, 0.0, 1.0])).reshape(n, s, w, s, 3)
+    rad = np.broadcast_to(p[r0 : r0 + n, None, :, None, :], (n, s, w, s, 3))
     keep = sa.reshape(-1) > 0
     d = sub_d.reshape(-1, 3)[keep]
     lw = (rad.reshape(-1, 3) * sa.reshape(-1, 1))[keep]
@@ -217,12 +215,12 @@ _BAND_SAMPLES = 2**20
 
 
 def _bands(shape, layout, supersample):
-    """Slices of probe rows holding about :data:`_BAND_SAMPLES` sub-cells each (lat-long), or ``[None]`` (the
-    whole probe: angular probes are sampled at once)."""
-    if layout != "latlong":
-        return [None]
+    """Slices of probe rows holding about :data:`_BAND_SAMPLES` sub-cells each; a sixteenth of that for angular
+    probes, whose sub-cells' solid angles take an 8 × 8 quadrature each
+    (:func:`facestats.model.sphere.angular_solid_angles`)."""
     h, w = shape[:2]
-    step = max(1, _BAND_SAMPLES // (w * int(supersample) ** 2))
+    per_band = _BAND_SAMPLES if layout == "latlong" else _BAND_SAMPLES // 16
+    step = max(1, per_band // (w * int(supersample) ** 2))
     return [slice(r, min(r + step, h)) for r in range(0, h, step)]
 
 

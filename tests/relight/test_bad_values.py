@@ -127,3 +127,17 @@ def test_indirect_must_be_a_field_and_tint_of_the_same_image(small):
         relight(small, np.ones((8, 16, 3)), indirect=small)
     with pytest.raises(ValidationError, match="image size 4 x 4, got 3 x 3"):
         relight(small, np.ones((8, 16, 3)), indirect=(other, [1, 1, 1]))
+
+
+def test_angular_probes_are_resampled_band_by_band_too(rng, monkeypatch):
+    d = rng.normal(size=(30, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    p = rng.gamma(0.5, 1.0, size=(16, 16, 3)).astype(np.float32)
+    whole = lighting.resample_probe(p, d, layout="angular")
+    monkeypatch.setattr(lighting, "_BAND_SAMPLES", 16 * 16 * 16 * 3)  # angular bands of 3 probe rows
+    assert np.allclose(lighting.resample_probe(p, d, layout="angular"), whole, rtol=1e-12, atol=0)
+    sa = sphere.angular_solid_angles(12)
+    assert np.array_equal(sphere.angular_solid_angles(12, rows=slice(4, 9)), sa[4:9])
+    assert np.array_equal(sphere.angular_directions(12, rows=slice(4, 9))[1], sphere.angular_directions(12)[1][4:9])
+    with pytest.raises(ValidationError, match="rows must be a slice of consecutive rows"):
+        sphere.angular_directions(12, rows=slice(0, 8, 2))

@@ -51,7 +51,7 @@ import pathlib
 
 import numpy as np
 
-from facestats.core.validate import check_choice, json_numbers
+from facestats.core.validate import as_float, check_choice, json_numbers
 from facestats.errors import FormatError, ValidationError
 from facestats.io.images import INTEGER_EXTENSIONS, read_image, read_integer_image
 from facestats.model.sphere import direction_from_angles, latlong_directions
@@ -78,6 +78,17 @@ def _read_rows(path: pathlib.Path, width: int, what: str) -> np.ndarray:
     return a
 
 
+def _inside(folder, name, what):
+    """``folder / name`` for a relative ``name`` that stays inside the folder (no absolute path, no ``..``): a
+    listing never makes the reader open a file elsewhere."""
+    parts = pathlib.PurePath(name).parts
+    if pathlib.PurePath(name).is_absolute() or ".." in parts or not parts:
+        raise ValidationError(
+            f"{what} {name!r} must be a path inside the folder {str(folder)!r} (relative, without '..')"
+        )
+    return folder / name
+
+
 def _load_images(folder, names, srgb):
     """Stack of images (L, H, W, 3) float32, checked for existence, values and a common size (loop over files),
     and whether any 8-bit image was decoded from sRGB."""
@@ -85,7 +96,7 @@ def _load_images(folder, names, srgb):
     stack = None
     decoded = False
     for k, name in enumerate(names):
-        p = folder / name
+        p = _inside(folder, name, f"image of light {k}")
         if not p.is_file():
             raise ValidationError(f"image {str(p)!r} listed for light {k} does not exist")
         if p.suffix.lower() in INTEGER_EXTENSIONS:
@@ -94,12 +105,12 @@ def _load_images(folder, names, srgb):
             decoded |= bool(srgb) and bits == 8
         else:
             img = read_image(p)
-            bad = ~np.isfinite(img)  # small negatives are kept: dark-subtracted HDR frames hold them
+            bad = ~(np.isfinite(img) & (img >= 0))  # a reflectance field holds values >= 0: say where one is not
             if bad.any():
                 y, x = np.argwhere(bad.any(-1))[0]
                 raise ValidationError(
-                    f"image {str(p)!r} (light {k}) must hold finite values, got {img[y, x].tolist()} at "
-                    f"pixel (x={x}, y={y})"
+                    f"image {str(p)!r} (light {k}) must hold finite values >= 0, got {img[y, x].tolist()} at "
+                    f"pixel (x={x}, y={y}) (clip a dark-subtracted frame's negative noise to 0 first)"
                 )
         if img.shape[2] == 1:
             img = np.repeat(img, 3, axis=2)
@@ -113,6 +124,21 @@ def _load_images(folder, names, srgb):
             )
         stack[k] = img
     return stack, decoded
+
+
+def _intensities(values, folder):
+    """The light intensities (L, 3) as float32, each a normal float32 number (neither overflowing to inf nor
+    underflowing to 0, which would turn its image into zeros or infinities)."""
+    it = as_float(values, f"light intensities of {str(folder)!r}", np.float32)
+    tiny = float(np.finfo(np.float32).tiny)
+    small = it < tiny
+    if small.any():
+        k = int(np.argwhere(small)[0][0])
+        raise ValidationError(
+            f"light intensities of {str(folder)!r} must be at least {tiny:.4g} (the smallest normal float32), got "
+            f"{np.asarray(values)[k].tolist()} for light {k}"
+        )
+    return it
 
 
 def _read_mask(path: pathlib.Path, shape):
@@ -328,11 +354,12 @@ def read_olat_folder(path, *, srgb=None):
         raise ValidationError(f"light direction {k} of {str(folder)!r} must be a unit vector, got norm {norm[k]:.4g}")
     dirs = dirs / norm[:, None]
     _check_distinct(dirs, spec["names"], folder)
-    mask_path = folder / spec["mask"] if spec["mask"] else None
+    mask_path = _inside(folder, spec["mask"], "mask") if spec["mask"] else None
     if spec["mask_required"] and not mask_path.is_file():
         raise ValidationError(f"mask {str(mask_path)!r} named by {str(man)!r} does not exist")
+    intensity = _intensities(spec["intensity"], folder)
     stack, decoded = _load_images(folder, spec["names"], spec["srgb"])
-    values = stack / spec["intensity"][:, None, None, :].astype(np.float32)
+    values = stack / intensity[:, None, None, :]
     h, w = stack.shape[1:3]
     mask = None
     if mask_path is not None and mask_path.is_file():

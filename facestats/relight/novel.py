@@ -48,7 +48,7 @@ from facestats.core.validate import as_finite, check_shape
 from facestats.errors import ValidationError
 from facestats.model.brdf import v_groove_shadowing_unchecked
 from facestats.model.fresnel import fresnel_reflectance_unchecked
-from facestats.model.sphere import latlong_coordinates, latlong_directions
+from facestats.model.sphere import latlong_coordinates, latlong_directions, unit_directions
 from facestats.relight.camera import ray_triangle
 from facestats.relight.field import make_field
 from facestats.relight.separate import ramp_chromaticity, ramp_factor, unit_rgb
@@ -145,9 +145,9 @@ def remap_specular(specular, normal, view_old, view_new, *, eta=ETA_SKIN, shadow
     if s.ndim not in (3, 4):
         raise ValidationError(f"specular must have shape (n_phi, n_theta, N[, C]), got {s.shape}")
     n_phi, n_theta, n = s.shape[:3]
-    nrm = check_shape(as_finite(normal, "normal", dtype=np.float64), "normal", (n, 3))
-    v0 = check_shape(as_finite(view_old, "view_old", dtype=np.float64), "view_old", (n, 3))
-    vn = check_shape(as_finite(view_new, "view_new", dtype=np.float64), "view_new", (n, 3))
+    nrm = check_shape(unit_directions(normal, "normal"), "normal", (n, 3))
+    v0 = check_shape(unit_directions(view_old, "view_old"), "view_old", (n, 3))
+    vn = check_shape(unit_directions(view_new, "view_new"), "view_new", (n, 3))
     dirs = latlong_directions(n_phi, n_theta).reshape(-1, 1, 3)  # (L, 1, 3)
     # View-independent facet distribution P ∝ S / (G F/(v·n)) at the original view.
     t0 = specular_terms(nrm[None], dirs, v0[None], eta, min_cos)  # (L, N)

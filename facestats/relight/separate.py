@@ -45,6 +45,7 @@ import numpy as np
 
 from facestats.core.validate import as_finite, check_shape
 from facestats.errors import ValidationError
+from facestats.model.sphere import unit_directions
 from facestats.relight.field import as_field, light_dims, light_table
 from facestats.relight.photometric import lambertian_fit
 
@@ -299,7 +300,10 @@ def separate_field(field, s=WHITE, *, view=None, ramp: bool = True, mirror_deg: 
         if "view" not in f.data_vars:
             raise ValidationError("field must carry a 'view' variable (unit vectors to the camera) or pass view=")
         view = f["view"].values
-    v = np.asarray(view, np.float64).reshape(h * w, 3)
+    v = unit_directions(view, "view")
+    if v.shape == (3,):  # one direction for every pixel
+        v = np.broadcast_to(v, (h, w, 3))
+    v = check_shape(v, "view", (h, w, 3)).reshape(h * w, 3)
     s_unit = unit_rgb(s, "s")
     d0_est = diffuse_chromaticity(r) if d0 is None else np.broadcast_to(unit_rgb(d0, "d0"), (h, w, 3)).reshape(-1, 3)
     finite = np.all(np.isfinite(d0_est), axis=-1)

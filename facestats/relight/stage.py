@@ -54,7 +54,7 @@ from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.visibility import ShadowMaps
 from facestats.core.blocked import blockwise
 from facestats.core.published import ETA_SKIN
-from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
+from facestats.core.validate import as_finite, as_float, check_choice, check_integer, check_shape
 from facestats.errors import ValidationError
 from facestats.model.brdf import (
     beckmann_distribution_unchecked,
@@ -74,6 +74,7 @@ from facestats.relight.camera import (
 )
 from facestats.relight.field import FieldStore, make_field
 from facestats.relight.lighting import resample_probe
+from facestats.relight.relighting import check_relit
 
 __all__ = [
     "StageCamera",
@@ -511,26 +512,31 @@ def render_subject(
     """
     camera = stage_camera() if camera is None else camera
     flat, _ = _light_set(directions)
-    w = as_finite(lighting, "lighting", 0, None, dtype=np.float64).reshape(-1, 3)
+    w = as_finite(lighting, "lighting", 0, None, dtype=np.float64)
+    if w.ndim < 1 or w.shape[-1] != 3:
+        raise ValidationError(f"lighting must hold L·δA per light and channel, shape (L, 3), got {w.shape}")
+    w = w.reshape(-1, 3)
     if w.shape[0] != flat.shape[0]:
         raise ValidationError(f"lighting must hold one RGB weight per light ({flat.shape[0]}), got {w.shape[0]}")
     surface, shading, vis_v, active, vidx = _prepare(
         subject, geometry, camera, flat, specular=specular, eta=eta, shadows=shadows,
         shadow_resolution=shadow_resolution,
     )  # fmt: skip
-    wa = w[active].astype(np.float32)
+    wa = as_float(w[active], "lighting", np.float32)
     step = max(1, RENDER_SAMPLES // max(active.size, 1)) if chunk is None else check_integer(chunk, "chunk", 1)
     out = np.zeros((surface.pixel.size, 3), np.float32)
     for a in range(0, surface.pixel.size, step):  # loop over chunks of pixels
         rows = np.arange(a, min(a + step, surface.pixel.size))
         vis = _pixel_visibility(vis_v, vidx, surface.bary, rows)
         spec, shape = shading.subset(rows).factors(flat[active], surface.view[rows], vis)
-        out[rows] = (spec @ wa) + (shape @ wa) * shading.colour[rows].astype(np.float32)
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported by check_relit
+            out[rows] = (spec @ wa) + (shape @ wa) * shading.colour[rows].astype(np.float32)
     img = np.zeros((camera.size * camera.size, 3), np.float32)
     img[surface.pixel] = out
     mask = np.zeros(camera.size * camera.size, bool)
     mask[surface.pixel] = True
-    return img.reshape(camera.size, camera.size, 3), mask.reshape(camera.size, camera.size)
+    image = check_relit(img.reshape(camera.size, camera.size, 3), "render_subject")
+    return image, mask.reshape(camera.size, camera.size)
 
 
 def relight_subject(

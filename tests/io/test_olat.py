@@ -162,6 +162,11 @@ def _manifest_folder(folder, **fields):
         ({"view": "abc"}, "view must be a number"),
         ({"view": [0, 1]}, "view must be a unit 3-vector"),
         ({"mask": 5}, "mask must be a file name"),
+        ({"frames": [{"file": "../outside.exr", "direction": [0, 0, 1]}]}, r"image of light 0 '../outside.exr' must"),
+        ({"frames": [{"file": "/tmp/x.exr", "direction": [0, 0, 1]}]}, "must be a path inside the folder"),
+        ({"mask": "../m.png"}, r"mask '../m.png' must be a path inside the folder"),
+        ({"frames": [{"file": "a.exr", "direction": [0, 0, 1], "intensity": 1e300}]}, "must be within the float32"),
+        ({"frames": [{"file": "a.exr", "direction": [0, 0, 1], "intensity": 1e-320}]}, "smallest normal float32"),
         ({"mask": "nomask.png"}, r"mask .*nomask.png' named by .*olat.json' does not exist"),
         (
             {"frames": [{"file": "a.exr", "direction": [0, 0, 1]}, {"file": "b.exr", "direction": [0, 0, 1]}]},
@@ -183,7 +188,10 @@ def test_hostile_folders_are_refused_by_name(tmp_path):
     neg = _manifest_folder(tmp_path / "neg")
     write_pfm(neg / "b.pfm", np.full((4, 4, 3), np.nan, np.float32))  # EXR writers refuse NaN; PFM holds it
     (neg / "olat.json").write_text((neg / "olat.json").read_text().replace("b.exr", "b.pfm"))
-    with pytest.raises(ValidationError, match=r"b.pfm' \(light 1\) must hold finite values, got \[nan"):
+    with pytest.raises(ValidationError, match=r"b.pfm' \(light 1\) must hold finite values >= 0, got \[nan"):
+        read_olat_folder(neg)
+    write_pfm(neg / "b.pfm", np.full((4, 4, 3), 0.2, np.float32) - np.eye(4, dtype=np.float32)[..., None] * 0.3)
+    with pytest.raises(ValidationError, match=r"b.pfm' \(light 1\) .*>= 0, got \[-0.1.*at pixel \(x=0, y=0\)"):
         read_olat_folder(neg)
     dil = tmp_path / "d"
     dil.mkdir()

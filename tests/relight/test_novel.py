@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from facestats.errors import ValidationError
 from facestats.model.brdf import torrance_sparrow
 from facestats.model.sphere import light_stage_directions
 from facestats.relight import novel, separate
@@ -79,3 +80,11 @@ def test_reprojection_into_the_same_camera_returns_the_image():
     inner[[0, -1]] = inner[:, [0, -1]] = False
     assert covered.sum() >= 14 * 14
     assert np.allclose(out[inner], img[inner], atol=1e-5)
+
+
+def test_views_must_be_unit_vectors():
+    n = NORMALS
+    s0 = np.ones((32, 64, n.shape[0]))
+    for scale in (1.1, 3.0, 0.0):
+        with pytest.raises(ValidationError, match="view_old must hold unit vectors"):
+            novel.remap_specular(s0, n, n * scale, n)

@@ -125,3 +125,7 @@ def test_subjects_without_a_known_geometry_are_refused(subject):
         stage.light_stage_field(subject, camera="front")
     with pytest.raises(ValidationError, match="one RGB weight per light"):
         stage.render_subject(subject, np.ones((5, 3)), camera=stage.stage_camera(size=8))
+    with pytest.raises(ValidationError, match=r"shape \(L, 3\), got \(2048,\)"):
+        stage.render_subject(subject, np.ones(2048), camera=stage.stage_camera(size=8))
+    with pytest.raises(ValidationError, match="lighting must be within the float32 range"):
+        stage.render_subject(subject, np.full((2048, 3), 1e39), camera=stage.stage_camera(size=8))

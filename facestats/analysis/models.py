@@ -94,7 +94,7 @@ class ModelErrors:
         o = self.overall
         lines = [
             f"Blinn-Phong vs Torrance-Sparrow fit error E(p) (eq. 14) over {o['subjects']} subjects: "
-            f"median ratio {o['error_ratio']:.1f}; flagged {100 * o['ts_flagged']:.2f} % (TS), "
+            f"median ratio {_number(o['error_ratio'])}; flagged {100 * o['ts_flagged']:.2f} % (TS), "
             f"{100 * o['bp_flagged']:.2f} % (BP) of face texels (Weyrich §5.3: Blinn-Phong fits worse)",
             f"{'region':<16}{'E_BP/E_TS':>10}{'IQR':>14}{'TS flag':>9}{'BP flag':>9}"
             f"{'BP n':>8}{'n p95':>8}{'n out':>8}",
@@ -104,13 +104,21 @@ class ModelErrors:
                 lines.append(f"{r:>2} {REGIONS[r]:<13}{'-':>10}  (no texels)")
                 continue
             lo, hi = self.error_ratio_iqr[k]
+            iqr = f"{lo:.1f}-{hi:.1f}" if np.isfinite(lo) else "-"  # a region with texels but none unflagged
             lines.append(
-                f"{r:>2} {REGIONS[r]:<13}{self.error_ratio[k]:>10.1f}{f'{lo:.1f}-{hi:.1f}':>14}"
+                f"{r:>2} {REGIONS[r]:<13}{_number(self.error_ratio[k]):>10}{iqr:>14}"
                 f"{100 * self.ts_flagged[k]:>8.2f}%{100 * self.bp_flagged[k]:>8.2f}%"
-                f"{self.bp_exponent_median[k]:>8.1f}{self.bp_exponent_p95[k]:>8.1f}"
+                f"{_number(self.bp_exponent_median[k]):>8}{_number(self.bp_exponent_p95[k]):>8}"
                 f"{100 * self.bp_implausible[k]:>7.2f}%"
             )
+        if o.get("skipped"):
+            lines.append(f"left out, without both models' fit errors: {', '.join(o['skipped'])}")
         return "\n".join(lines)
+
+
+def _number(x) -> str:
+    """``x`` with one decimal, or ``-`` when it is NaN (no unflagged texel)."""
+    return f"{x:.1f}" if np.isfinite(x) else "-"
 
 
 def model_errors(store, subjects=None, conditions=("normal",)) -> ModelErrors:
@@ -136,7 +144,14 @@ def model_errors(store, subjects=None, conditions=("normal",)) -> ModelErrors:
         raise InsufficientDataError(
             "the selection holds no map subject (fitted maps): there are no fit errors to compare"
         )
-    ids = [str(s) for s in frame.index]
+    ids, skipped = [], []
+    for sid in (str(s) for s in frame.index):  # the fit errors are optional in the schema (older subjects)
+        has = all(v in store.subject(sid, lazy=True).variables for v in _VARIABLES)
+        (ids if has else skipped).append(sid)
+    if not ids:
+        raise InsufficientDataError(
+            f"no map subject of the selection holds both models' fit errors (ts_error, bp_error): {skipped[:5]}"
+        )
     ratios = np.full((len(ids), len(REGION_IDS)), np.nan)
     face_ratio = np.full(len(ids), np.nan)
     counts = np.zeros((4, len(REGION_IDS)))  # texels, TS flagged, BP flagged, BP implausible
@@ -155,7 +170,9 @@ def model_errors(store, subjects=None, conditions=("normal",)) -> ModelErrors:
                 (sel & ((f_bp & FLAG_BITS["implausible"]) != 0)).sum()
             ]
             exponents[k].append(n_bp[sel & (f_bp == 0)])
-    return _result(ids, ratios, face_ratio, counts, exponents)
+    res = _result(ids, ratios, face_ratio, counts, exponents)
+    res.overall["skipped"] = skipped
+    return res
 
 
 def _result(ids, ratios, face_ratio, counts, exponents):
@@ -179,7 +196,7 @@ def _result(ids, ratios, face_ratio, counts, exponents):
         bp_exponent_p95=stat[:, 1],
         bp_implausible=shares[2],
         overall={
-            "error_ratio": float(np.nanmedian(face_ratio)),
+            "error_ratio": float(np.nanmedian(face_ratio)) if np.isfinite(face_ratio).any() else float("nan"),
             "ts_flagged": float(total[1] / total[0]),
             "bp_flagged": float(total[2] / total[0]),
             "subjects": len(ids),

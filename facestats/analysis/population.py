@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.core.conventions import parse_condition
+from facestats.core.conventions import EDIT_SOURCE, parse_condition
 from facestats.core.validate import check_choice
 from facestats.errors import StoreError, ValidationError
 
@@ -96,7 +96,8 @@ def select_population(source, subjects=None, conditions=("normal",)):
     source : store or pandas.DataFrame
         A parameter store (``subjects()`` returns its index) or the index itself.
     subjects : sequence of str, optional
-        Subject ids to keep (default: all).  Unknown ids raise.
+        Subject ids to keep (default: every measured subject; subjects written by an edit, index ``source``
+        ``facestats.edit``, enter only when named here).  Unknown ids raise.
     conditions : sequence of str or None, optional
         Measurement conditions to keep, default ``("normal",)`` as in Weyrich
         §7, where the population statistics use one normal measurement per
@@ -119,6 +120,8 @@ def select_population(source, subjects=None, conditions=("normal",)):
         if unknown:
             raise ValidationError(f"subjects must be ids of the store, got unknown id(s) {unknown[:5]}")
         frame = frame.loc[ids]
+    elif "source" in frame.columns:  # edited subjects are not measurements: only ids asked for by name enter
+        frame = frame[frame["source"] != EDIT_SOURCE]
     if conditions is not None:
         conds = [parse_condition(c) for c in ([conditions] if isinstance(conditions, str) else conditions)]
         frame = frame[frame["condition"].isin(conds)]

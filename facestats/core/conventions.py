@@ -59,6 +59,10 @@ SITES = ("cheek", "forehead", "neck")
 #: External conditions of the one subject measured seven times (§7).
 CONDITIONS = ("normal", "cold", "hot", "sweaty", "makeup", "lotion", "powder")
 
+#: Provenance ``source`` (and index column ``source``) of subjects written by an edit: not measurements, so left
+#: out of population statistics and of edit target subsets.
+EDIT_SOURCE = "facestats.edit"
+
 GENDERS = ("M", "F")
 
 ROMAN = {1: "I", 2: "II", 3: "III", 4: "IV", 5: "V", 6: "VI"}

@@ -21,6 +21,7 @@ failure while writing (a full disk) must leave nothing half-written:
 
 from __future__ import annotations
 
+import math
 import os
 import pathlib
 import secrets
@@ -28,7 +29,22 @@ import shutil
 
 from facestats.errors import FacestatsError, ValidationError
 
-__all__ = ["check_output_dir", "check_output_file", "check_apart", "missing_folders", "OutputSet"]
+__all__ = ["check_output_dir", "check_output_file", "check_apart", "missing_folders", "json_ready", "OutputSet"]
+
+
+def json_ready(value):
+    """``value`` for ``json.dumps(..., allow_nan=False)``: every NaN or ±inf float becomes None (JSON has no such
+    numbers; ``json.dumps`` would write the non-standard tokens ``NaN`` and ``Infinity``), numpy scalars become
+    Python values, recursively through dicts, lists and tuples."""
+    if isinstance(value, dict):
+        return {k: json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    if hasattr(value, "item") and getattr(value, "ndim", None) == 0:  # a numpy scalar or 0-d array
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
 def _as_path(path, name: str) -> pathlib.Path:

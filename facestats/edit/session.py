@@ -34,15 +34,13 @@ import os
 
 import numpy as np
 
+from facestats.core.conventions import EDIT_SOURCE
 from facestats.core.version import __version__
 from facestats.edit.masks import parse_regions, present_regions
 from facestats.edit.result import SubjectEdit
 from facestats.errors import StoreError, ValidationError
 
 __all__ = ["EDIT_SOURCE", "EditSession", "check_store", "read_map_subject", "replace_values"]
-
-#: Provenance ``source`` of subjects written by an edit (excluded from target subsets).
-EDIT_SOURCE = "facestats.edit"
 
 
 def check_store(store, name):

@@ -59,6 +59,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from facestats.core.outputs import json_ready
 from facestats.core.validate import check_integer
 from facestats.errors import FormatError, ValidationError
 from facestats.io.images import read_exr, write_exr
@@ -368,8 +369,9 @@ def write_exr_set(ds, out_dir, *, mesh=None, mesh_format: str = "obj", mesh_grid
         for job in jobs:
             job.result()  # re-raises the first failure
     manifest = _manifest(ds, textures, fm, mesh_file)
+    manifest = json_ready(manifest)  # a subject attribute of NaN is written as null, not as the token NaN
     with open(os.path.join(out_dir, "manifest.json"), "w", encoding="utf-8") as fh:
-        json.dump(manifest, fh, indent=2)
+        json.dump(manifest, fh, indent=2, allow_nan=False)
     return manifest
 
 

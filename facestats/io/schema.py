@@ -242,6 +242,8 @@ def check_domain(name: str, values, *, what: str, unit: str | None = None) -> No
     """
     domain = DOMAINS[name]
     v = np.asarray(values)
+    if v.dtype.kind not in "fiub":  # strings, complex or objects would pass the range test unseen
+        raise SchemaError(f"{what}: variable {name!r} must be numeric (float, int or bool), got dtype {v.dtype}")
     bad = domain.outside(v)
     if bad.any():
         first = v[bad].reshape(-1)[0].item()

@@ -38,6 +38,7 @@ import zipfile
 from collections import OrderedDict
 
 from facestats.core.conventions import CONDITIONS, REGIONS, ROMAN
+from facestats.core.outputs import json_ready
 from facestats.errors import DependencyError, FacestatsError, StoreError, ValidationError
 
 __all__ = ["create_app", "FILTERS", "MAX_QUERY_STRING", "MAX_BODY", "MAX_HEAVY", "HEAVY_WAIT", "error_text"]
@@ -275,7 +276,7 @@ def _register_subject_routes(app, ctx):
 
     @app.get("/api/subject/<sid>")
     def api_subject(sid):
-        return jsonify(subject_document(cache.get(sid)))
+        return jsonify(json_ready(subject_document(cache.get(sid))))
 
     @app.get("/subject/<sid>")
     def subject_page(sid):

@@ -171,3 +171,22 @@ def test_condition_differences_needs_a_series():
         condition_differences(plain)
     with pytest.raises(ValidationError, match="person_id"):
         condition_differences(make_population(n=5), person_id="nobody")
+
+
+def test_edited_subjects_enter_population_statistics_only_by_name():
+    import pandas as pd
+
+    from facestats.core.conventions import EDIT_SOURCE
+
+    index = pd.DataFrame(
+        {
+            "age": [30, 30, 40],
+            "gender": ["F", "F", "M"],
+            "skin_type": [2, 2, 3],
+            "condition": ["normal"] * 3,
+            "source": ["facestats simulator", EDIT_SOURCE, "facestats simulator"],
+        },
+        index=pd.Index(["S001", "S001.brdf-1234", "S002"], name="subject_id"),
+    )
+    assert list(select_population(index).index) == ["S001", "S002"]  # one measurement per person, as §7
+    assert list(select_population(index, ["S001", "S001.brdf-1234"]).index) == ["S001", "S001.brdf-1234"]

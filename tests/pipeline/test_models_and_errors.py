@@ -125,6 +125,12 @@ def test_model_errors_per_region(tmp_path):
     assert np.isnan(res.error_ratio[7]) and res.bp_flagged[7] == 1.0 and res.ts_flagged[7] < 0.01
     assert res.overall["error_ratio"] == pytest.approx(4.5) and res.compare_published()["bp_fits_worse"] == (True, True)
     assert "lips" in res.to_text() and plot_model_errors(res).axes
+    lips = next(line for line in res.to_text().splitlines() if "lips" in line)
+    assert "nan" not in lips and lips.split()[2] == "-"  # texels, none unflagged: shown as '-'
+    older = datasets[0].drop_vars(["ts_error", "bp_error"])  # fit errors are optional (older subjects)
+    older.attrs["subject_id"] = "OLD1"
+    store.write_subject(older)
+    assert model_errors(store).overall["skipped"] == ["OLD1"] and "left out" in model_errors(store).to_text()
     out = tmp_path / "an"
     cli = run_cli("analyze", "models", "--store", str(tmp_path / "m.zarr"), "--out", str(out))
     assert cli.returncode == 0, cli.stderr

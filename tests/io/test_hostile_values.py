@@ -1,0 +1,38 @@
+"""Stored values of the wrong kind: refused when written, or written as valid JSON (red-team review, 2026-12-05)."""
+
+import json
+
+import numpy as np
+import pytest
+
+import facestats
+from facestats.core.outputs import json_ready
+from facestats.errors import SchemaError
+from facestats.io.exr_set import write_exr_set
+
+
+@pytest.fixture(scope="module")
+def subject():
+    with facestats.open_store() as store:
+        return store.subject("S001").load()
+
+
+def test_maps_that_are_not_numbers_are_refused_by_the_schema(subject, tmp_path):
+    store = facestats.open_store(tmp_path / "x.zarr", mode="a")
+    for bad, dtype in (((subject["ts_m_std"] - 5).astype(str), "<U"), (subject["ts_m_std"] * (1 + 0j), "complex")):
+        ds = subject.copy()
+        ds["ts_m_std"] = bad
+        with pytest.raises(SchemaError, match=f"'ts_m_std' must be numeric .*got dtype {dtype}"):
+            store.write_subject(ds)
+    assert store.ids() == []
+
+
+def test_non_finite_attributes_are_written_as_json_null(subject, tmp_path):
+    ds = subject.copy()
+    ds.attrs.update(weight=float("nan"), gain=float("inf"))
+    manifest = write_exr_set(ds, tmp_path)
+    text = (tmp_path / "manifest.json").read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    assert manifest["subject"]["weight"] is None and json.loads(text)["subject"]["gain"] is None
+    ready = json_ready({"a": [np.float32(np.nan), (1.5, -np.inf)], "b": np.int64(3)})
+    assert ready == {"a": [None, [1.5, None]], "b": 3}

@@ -485,18 +485,14 @@ def write_exr(path, channels: dict, *, half: bool = False, attributes=None):
         else:
             if not np.all(np.isfinite(a)):
                 raise ValidationError(f"channel {name!r} must be finite to write {str(p)!r}, got NaN or inf")
-            data[name] = np.ascontiguousarray(as_float(a, f"channel {name!r} for {str(p)!r}", _exr_type(half)))
+            stored = np.float16 if half else np.float32
+            data[name] = np.ascontiguousarray(as_float(a, f"channel {name!r} for {str(p)!r}", stored))
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     for key, value in (attributes or {}).items():
         header[str(key)] = str(value)
     with OpenEXR.File(header, data) as f:
         f.write(str(p))
     return p
-
-
-def _exr_type(half: bool):
-    """The float type EXR channels are stored in: half or float32."""
-    return np.float16 if half else np.float32
 
 
 # -- Radiance RGBE ---------------------------------------------------------------------------

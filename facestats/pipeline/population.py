@@ -20,7 +20,6 @@ from facestats.errors import FitError, ValidationError
 from facestats.io.ids import check_subject_id
 from facestats.io.store import open_store
 from facestats.model import fitting
-from facestats.model.fitting.engine import resolve_engine
 from facestats.pipeline.cluster import connect, scheduler_address, store_directory
 from facestats.pipeline.journal import BuildJournal, gathered, run_journalled
 from facestats.pipeline.progress import TaskProgress, progress_bar
@@ -154,10 +153,9 @@ def _captures(captures):
 
 
 def _settings(settings, store):
-    """``settings`` (default :class:`FitSettings`) checked before any work: its engine (and
-    ``$FACESTATS_ENGINE``), and with a ``store`` the models its schema stores."""
+    """``settings`` (default :class:`FitSettings`) checked before any work (:func:`checked_settings`), and with a
+    ``store`` the models its schema stores."""
     st = checked_settings(settings)
-    resolve_engine(st.engine)
     missing = [m for m in ("torrance_sparrow", "blinn_phong") if m not in st.models]
     if store is not None and missing:
         raise ValidationError(

@@ -150,19 +150,19 @@ def region_standard_errors(ds, model: str = "ts"):
     Returns
     -------
     dict or None
-        float64 arrays per region 1-10; None when the subject has no standard-error maps
-        (a sample subject, a store written before they existed, an edited parameter).
+        float64 arrays per region 1-10 (NaN for a map the subject lacks); None when the subject has neither
+        standard-error map (a sample subject, a store written before they existed, an edited parameter).
     """
     names = MODEL_STD[model]
-    if subject_kind(ds) != "maps" or not all(n in ds.data_vars for n in names):
+    if subject_kind(ds) != "maps" or not any(n in ds.data_vars for n in names):
         return None
     region = np.asarray(ds["region"].values)
     good = np.asarray(ds[MODEL_PARAMS[model][2]].values) == 0
-    rho_std, lobe_std = (np.asarray(ds[n].values) for n in names)
+    maps = [np.asarray(ds[n].values) if n in ds.data_vars else None for n in names]  # each map is optional
     out = {}
     for r in REGION_IDS:
         sel = (region == r) & good
-        out[r] = (rho_std[sel].astype(np.float64), lobe_std[sel].astype(np.float64))
+        out[r] = tuple(np.full(int(sel.sum()), np.nan) if m is None else m[sel].astype(np.float64) for m in maps)
     return out
 
 
@@ -171,8 +171,11 @@ def _standard_errors(sd):
     sd = sd[np.isfinite(sd)]
     if sd.size == 0:
         return np.nan, np.nan
-    var = np.square(sd)
-    return float(np.sqrt(var.mean())), float(np.sqrt(var.sum()) / sd.size)
+    scale = float(np.max(np.abs(sd)))  # squares of values near 1e155 and above would overflow float64
+    if scale == 0:
+        return 0.0, 0.0
+    var = np.square(sd / scale)
+    return scale * float(np.sqrt(var.mean())), scale * float(np.sqrt(var.sum())) / sd.size
 
 
 def _albedo_values(ds) -> np.ndarray:

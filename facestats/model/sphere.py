@@ -301,16 +301,22 @@ def rotate_directions(directions, angle) -> np.ndarray:
     return d @ rotation_y(angle).T
 
 
-def unit_directions(value, name: str = "directions", tol: float = 1e-3) -> np.ndarray:
-    """Validate finite 3-vectors of norm 1 ± ``tol`` on the last axis; returned normalised, float64."""
+def unit_directions(value, name: str = "directions", tol: float = 1e-3, *, allow_zero: bool = False) -> np.ndarray:
+    """Validate finite 3-vectors of norm 1 ± ``tol`` on the last axis; returned normalised, float64.
+
+    ``allow_zero``: zero vectors are accepted and stay zero (per-pixel maps that hold 0 where there is no
+    surface, such as a stage field's ``view`` off the face)."""
     d = check_shape(as_finite(value, name, dtype=np.float64), name, (..., 3))
     norm = np.linalg.norm(d, axis=-1)
-    bad = np.abs(norm - 1) > tol
+    zero = (norm == 0) if allow_zero else np.zeros(norm.shape, bool)
+    bad = (np.abs(norm - 1) > tol) & ~zero
     if np.any(bad):
         raise ValidationError(
-            f"{name} must hold unit vectors (norm 1 ± {tol:g}), got a vector of norm {norm[bad][0]:.6g}"
+            f"{name} must hold unit vectors (norm 1 ± {tol:g}"
+            + (", or 0 where there is no surface" if allow_zero else "")
+            + f"), got a vector of norm {norm[bad][0]:.6g}"
         )
-    return d / norm[..., None]
+    return d / np.where(zero, 1.0, norm)[..., None]
 
 
 def voronoi_solid_angles(directions, *, grid: int = 256) -> np.ndarray:

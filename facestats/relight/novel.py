@@ -47,7 +47,7 @@ from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_shape
 from facestats.errors import ValidationError
 from facestats.model.brdf import v_groove_shadowing_unchecked
-from facestats.model.fresnel import fresnel_reflectance_unchecked
+from facestats.model.fresnel import check_eta, fresnel_reflectance_unchecked
 from facestats.model.sphere import latlong_coordinates, latlong_directions, unit_directions
 from facestats.relight.camera import ray_triangle
 from facestats.relight.field import make_field
@@ -145,9 +145,9 @@ def remap_specular(specular, normal, view_old, view_new, *, eta=ETA_SKIN, shadow
     if s.ndim not in (3, 4):
         raise ValidationError(f"specular must have shape (n_phi, n_theta, N[, C]), got {s.shape}")
     n_phi, n_theta, n = s.shape[:3]
-    nrm = check_shape(unit_directions(normal, "normal"), "normal", (n, 3))
-    v0 = check_shape(unit_directions(view_old, "view_old"), "view_old", (n, 3))
-    vn = check_shape(unit_directions(view_new, "view_new"), "view_new", (n, 3))
+    nrm = check_shape(unit_directions(normal, "normal", allow_zero=True), "normal", (n, 3))  # 0: no surface
+    v0 = check_shape(unit_directions(view_old, "view_old", allow_zero=True), "view_old", (n, 3))
+    vn = check_shape(unit_directions(view_new, "view_new", allow_zero=True), "view_new", (n, 3))
     dirs = latlong_directions(n_phi, n_theta).reshape(-1, 1, 3)  # (L, 1, 3)
     # View-independent facet distribution P ∝ S / (G F/(v·n)) at the original view.
     t0 = specular_terms(nrm[None], dirs, v0[None], eta, min_cos)  # (L, N)
@@ -241,11 +241,13 @@ def novel_view_field(separation, view_new, *, eta=ETA_SKIN, shadow=None, s=None)
     n = h * w
     nrm = np.nan_to_num(np.asarray(sep["normal"].values, np.float64).reshape(n, 3))
     v0 = np.asarray(sep["view"].values, np.float64).reshape(n, 3)
-    vn = np.broadcast_to(np.asarray(view_new, np.float64), (h, w, 3)).reshape(n, 3)
-    vn = _unit(vn)
+    vn = unit_directions(view_new, "view_new")
+    vn = check_shape(np.broadcast_to(vn, (h, w, 3)) if vn.shape == (3,) else vn, "view_new", (h, w, 3)).reshape(n, 3)
+    check_eta(eta)
     spec = np.asarray(sep["specular"].values, np.float64).reshape(n_phi, n_theta, n, 3)
     diff = np.asarray(sep["diffuse"].values, np.float64).reshape(n_phi * n_theta, n, 3)
-    sh = None if shadow is None else np.asarray(shadow, bool).reshape(n_phi, n_theta, n)
+    sh = None if shadow is None else check_shape(np.asarray(shadow, bool), "shadow", (n_phi, n_theta, h, w))
+    sh = None if sh is None else sh.reshape(n_phi, n_theta, n)
     new_spec = remap_specular(np.nan_to_num(spec), np.where(np.isfinite(nrm).all(1, keepdims=True), nrm, v0), v0,
                               vn, eta=eta, shadow=sh)  # fmt: skip
     dirs = latlong_directions(n_phi, n_theta).reshape(-1, 3)

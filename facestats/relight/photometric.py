@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.core.validate import as_finite
+from facestats.core.validate import as_finite, check_shape
 from facestats.errors import ValidationError
 from facestats.relight.field import as_field, light_table
 
@@ -107,7 +107,7 @@ def photometric_stereo(field, *, dark: float = 0.25, bright: float = 0.1, mask=N
     n_l = dirs.shape[0]
     if mask is None:
         mask = f["mask"].values if "mask" in f.data_vars else np.ones((h, w), bool)
-    m = np.asarray(mask, bool).reshape(h * w)
+    m = check_shape(np.asarray(mask, bool), "mask", (h, w)).reshape(h * w)
     vals = np.asarray(f["reflectance"].values, np.float64).reshape(n_l, h * w, 3)[:, m]
     wts = rank_weights(vals.sum(-1), dark, bright)
     nrm, alb = lambertian_fit(vals, dirs, wts)

@@ -291,6 +291,9 @@ def separate_field(field, s=WHITE, *, view=None, ramp: bool = True, mirror_deg: 
     """
 
     f = as_field(field)
+    mirror_deg = float(as_finite(mirror_deg, "mirror_deg", 0, 90, unit="deg"))
+    shadow_threshold = float(as_finite(shadow_threshold, "shadow_threshold", 0, 1, high_inclusive=False))
+    max_condition = float(as_finite(max_condition, "max_condition", 1, None))
     nl = len(light_dims(f))
     dirs, sa, _ = light_table(f)
     n_l = dirs.shape[0]
@@ -300,7 +303,7 @@ def separate_field(field, s=WHITE, *, view=None, ramp: bool = True, mirror_deg: 
         if "view" not in f.data_vars:
             raise ValidationError("field must carry a 'view' variable (unit vectors to the camera) or pass view=")
         view = f["view"].values
-    v = unit_directions(view, "view")
+    v = unit_directions(view, "view", allow_zero=True)  # 0 off the face
     if v.shape == (3,):  # one direction for every pixel
         v = np.broadcast_to(v, (h, w, 3))
     v = check_shape(v, "view", (h, w, 3)).reshape(h * w, 3)

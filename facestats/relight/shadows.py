@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_integer
+from facestats.core.validate import as_finite, check_finite, check_integer
 from facestats.errors import ValidationError
 from facestats.relight.field import as_field, is_grid
 
@@ -68,8 +68,11 @@ def threshold_shadow_maps(field, threshold: float = 0.02, *, clean: int = 1):
         grid = vals.ndim == 5
     t = float(as_finite(threshold, "threshold", 0, 1, low_inclusive=False, high_inclusive=False))
     c = check_integer(clean, "clean", 0, 8)
-    if vals.shape[-1] != 3:
-        raise ValidationError(f"field values must have 3 channels on the last axis, got shape {vals.shape}")
+    if vals.ndim not in (4, 5) or vals.shape[-1] != 3:
+        raise ValidationError(
+            f"field values must have shape (light dims..., y, x, 3) with one or two light dims, got {vals.shape}"
+        )
+    check_finite(vals, "field values")  # a NaN would compare as shadowed
     lum = vals.sum(-1)
     nl = 2 if grid else 1
     peak = lum.max(axis=tuple(range(nl)), keepdims=True)

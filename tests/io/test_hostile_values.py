@@ -36,3 +36,16 @@ def test_non_finite_attributes_are_written_as_json_null(subject, tmp_path):
     assert manifest["subject"]["weight"] is None and json.loads(text)["subject"]["gain"] is None
     ready = json_ready({"a": [np.float32(np.nan), (1.5, -np.inf)], "b": np.int64(3)})
     assert ready == {"a": [None, [1.5, None]], "b": 3}
+
+
+def test_standard_errors_of_huge_or_partial_maps(subject):
+    from facestats.io.summary import summarise_subject
+
+    base = summarise_subject(subject)
+    ds = subject.copy()
+    ds["ts_m_std"] = ds["ts_m_std"].astype(np.float64).where(ds["region"] == 0, 1e200)  # its square overflows
+    row = summarise_subject(ds)
+    assert row["ts_m_se_r2"] == pytest.approx(1e200) and row["ts_m_mean_se_r2"] > 0
+    partial = subject.drop_vars("ts_m_std")  # each standard-error map is optional on its own
+    row = summarise_subject(partial)
+    assert row["ts_rho_s_se_r2"] == base["ts_rho_s_se_r2"] and np.isnan(row["ts_m_se_r2"])

@@ -141,3 +141,34 @@ def test_angular_probes_are_resampled_band_by_band_too(rng, monkeypatch):
     assert np.array_equal(sphere.angular_directions(12, rows=slice(4, 9))[1], sphere.angular_directions(12)[1][4:9])
     with pytest.raises(ValidationError, match="rows must be a slice of consecutive rows"):
         sphere.angular_directions(12, rows=slice(0, 8, 2))
+
+
+def test_separation_shadows_and_photometric_stereo_check_their_parameters():
+    from facestats.relight import photometric, separate, shadows
+    from facestats.relight.novel import novel_view_field
+    from tests.relight.fields import ts_lambert_field
+
+    f, *_ = ts_lambert_field(4, 4, n_theta=16, n_phi=8)
+    for kwargs, message in (
+        ({"mirror_deg": 500}, r"mirror_deg must lie in \[0, 90\] deg"),
+        ({"shadow_threshold": float("nan")}, "shadow_threshold must be finite"),
+        ({"max_condition": -1}, "max_condition must lie in"),
+        ({"view": [0, 0, 2.0]}, "view must hold unit vectors"),
+        ({"view": np.tile([0, 0, 1.0], (3, 3, 1))}, "view must have shape"),
+    ):
+        with pytest.raises(ValidationError, match=message):
+            separate.separate_field(f, [1, 1, 1], **kwargs)
+    sep = separate.separate_field(f, [1, 1, 1])
+    sep["view"] = f["view"]  # as the notebook carries it over
+    with pytest.raises(ValidationError, match="view_new must hold unit vectors"):
+        novel_view_field(sep, [0, 0, 0])
+    with pytest.raises(ValidationError, match="eta must lie in"):
+        novel_view_field(sep, [0, 0, 1.0], eta=-1)
+    with pytest.raises(ValidationError, match="shadow must have shape"):
+        novel_view_field(sep, [0, 0, 1.0], shadow=np.ones((8, 16, 2, 2), bool))
+    with pytest.raises(ValidationError, match="field values must be finite"):
+        shadows.threshold_shadow_maps(np.full((8, 16, 2, 2, 3), np.nan))
+    with pytest.raises(ValidationError, match="one or two light dims"):
+        shadows.threshold_shadow_maps(np.ones((8, 3)))
+    with pytest.raises(ValidationError, match="mask must have shape"):
+        photometric.photometric_stereo(f, mask=np.ones((2, 2), bool))

@@ -195,6 +195,8 @@ def _diligent(folder: pathlib.Path, srgb):
         names = [ln.strip() for ln in names_file.read_text(encoding="utf-8").splitlines() if ln.strip()]
     except UnicodeDecodeError as exc:
         raise FormatError(f"{str(names_file)!r} must be UTF-8 text: {exc}") from None
+    if not names:
+        raise ValidationError(f"{str(names_file)!r} must list at least one image, got none")
     dirs = _read_rows(folder / "light_directions.txt", 3, "light directions")
     if dirs.shape[0] != len(names):
         raise ValidationError(
@@ -347,6 +349,11 @@ def read_olat_folder(path, *, srgb=None):
         raise ValidationError(f"OLAT folder {str(folder)!r} does not exist")
     man = folder / MANIFEST_NAME
     spec = _manifest(man, srgb) if man.is_file() else _diligent(folder, True if srgb is None else srgb)
+    names = list(spec["names"])
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        k = [i for i, n in enumerate(names) if n == twice[0]]
+        raise ValidationError(f"image {twice[0]!r} of {str(folder)!r} is listed for lights {k}: each light has its own")
     dirs = spec["directions"]
     norm = np.linalg.norm(dirs, axis=1)
     if np.any(np.abs(norm - 1) > 1e-2):

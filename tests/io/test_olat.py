@@ -165,6 +165,10 @@ def _manifest_folder(folder, **fields):
         ({"frames": [{"file": "../outside.exr", "direction": [0, 0, 1]}]}, r"image of light 0 '../outside.exr' must"),
         ({"frames": [{"file": "/tmp/x.exr", "direction": [0, 0, 1]}]}, "must be a path inside the folder"),
         ({"mask": "../m.png"}, r"mask '../m.png' must be a path inside the folder"),
+        (
+            {"frames": [{"file": "a.exr", "direction": [0, 0, 1]}, {"file": "a.exr", "direction": [0, 1, 0]}]},
+            r"image 'a.exr' of .* is listed for lights \[0, 1\]",
+        ),
         ({"frames": [{"file": "a.exr", "direction": [0, 0, 1], "intensity": 1e300}]}, "must be within the float32"),
         ({"frames": [{"file": "a.exr", "direction": [0, 0, 1], "intensity": 1e-320}]}, "smallest normal float32"),
         ({"mask": "nomask.png"}, r"mask .*nomask.png' named by .*olat.json' does not exist"),
@@ -203,6 +207,11 @@ def test_hostile_folders_are_refused_by_name(tmp_path):
     with pytest.raises(ValidationError, match=r"must be > 0, got \[0.0, 1.0, 1.0\] on line 20"):
         read_olat_folder(dil)
     (dil / "light_intensities.txt").unlink()
+    names = (dil / "filenames.txt").read_text()
+    (dil / "filenames.txt").write_text("\n")
+    with pytest.raises(ValidationError, match="filenames.txt' must list at least one image"):
+        read_olat_folder(dil)
+    (dil / "filenames.txt").write_text(names)
     (dil / "filenames.txt").write_bytes(b"\xff\xfe001.png\n")
     with pytest.raises(FormatError, match="filenames.txt' must be UTF-8"):
         read_olat_folder(dil)

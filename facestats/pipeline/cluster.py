@@ -87,16 +87,22 @@ def connect(address, timeout: float = 30.0):
 
 
 def _check_connectable(address):
-    """ValidationError unless ``address`` has a protocol distributed knows and, except in-process ones, a
-    host and a port (distributed's own parsers)."""
+    """ValidationError unless ``address`` has a protocol distributed knows and a host and a port, or is an in-process
+    address something listens on (distributed's own parsers and registry). A Client made for an address that cannot
+    work fails half-made, and its clean-up can block the process."""
     from distributed.comm.addressing import get_address_host_port, parse_address
     from distributed.comm.registry import get_backend
 
     try:
-        scheme, _ = parse_address(address)
+        scheme, location = parse_address(address)
         get_backend(scheme)
         if scheme != "inproc":
             get_address_host_port(address)
+        else:  # an in-process scheduler either listens in this process now or cannot be reached at all
+            from distributed.comm.inproc import global_manager
+
+            if global_manager.get_listener_for(location) is None:
+                raise ValueError("no in-process scheduler of this process listens there")
     except (ValueError, TypeError, KeyError) as exc:
         raise ValidationError(f"scheduler {address!r} is not an address Dask can connect to: {exc}") from None
 

@@ -1,26 +1,53 @@
-"""Compressed relighting: clustered PCA of the solid-angle weighted reflectance functions, by light region.
+"""Compressed relighting: clustered PCA of solid-angle weighted reflectance functions by colour row and light region.
 
 Debevec et al. 2000 §3.3 relight directly from JPEG-compressed reflectance
 functions (Smith & Rowe's compressed-domain products) "reducing both storage
 and computation by a factor of twenty"; §5 suggests exploiting the similarity
-of neighbouring reflectance functions.  facestats keeps a *shared basis per
-cluster of pixels and per region of the light sphere* (clustered PCA, Sloan et
-al. 2003, with the lights split into regions):
+of neighbouring reflectance functions.  facestats writes each pixel's three
+channel functions in the colour basis of the paper's §4.2 and keeps a *shared
+basis per cluster of pixels, colour row and region of the light sphere*
+(clustered PCA, Sloan et al. 2003, with the lights split into regions):
 
-    √δA_l R_p,c(l) ≈ Σ_{j<K_kr} C_p,c,r,j B_kr,j(l)   for the lights l of region r,  k = cluster of pixel p
+    √δA_l R_p(l) = Σ_q A_p,q g_p,q(l),    A_p = [d_p  s  d_p × s]              (§4.2: R = μd d + μs s + μe e)
+    g_p,q(l) ≈ Σ_{j<K} C_p,q,r,j B_kqr,j(l)   for the lights l of region r,  k = cluster of pixel p
 
-where the B_kr are the leading principal directions (uncentred) of the
-region-r parts (split further by zeros, below) of the rows y = √δA R_p,c of
-*every* pixel of cluster k, all three channels, each part scaled by
-1 / max(s_r, ``floor`` · s) (see *The error metric* below), and the
-coefficients C are the projections of the unscaled parts.  Choice and
+where R_p(l) is the pixel's RGB value under light l, d_p its diffuse colour and
+s the light's (unit RGB vectors), g_p,q the rows of its coordinates μ (diffuse,
+specular, off the plane; below), the B_kqr the leading principal directions
+(uncentred) of the region-r parts (split further by zeros, below) of the rows
+g_p,q of *every* pixel of cluster k, each part scaled for the error it makes in
+the channels (see *The error metric* below), and the coefficients C the
+projections of the unscaled parts.  Choice and
 justification (the measurements behind it: ``docs/relighting.md``, D2):
 
+* **Colour rows.**  Per pixel the three channel functions lie in one plane
+  of colour space, spanned by the diffuse colour d and the light's colour s:
+  the diffuse term has one shape in all channels (the chromaticity ramp of
+  eq. 6 moves its colour within that plane) and the specular term has the
+  light's colour.  So each pixel is stored as two rows, its coordinates μd
+  and μs in the basis [d s d×s] of §4.2, instead of three channel rows: a
+  third of the coefficients is saved and spent on more components.  The μs
+  row is zero wherever no specular light falls, and diffuse shapes and
+  specular lobes get bases of their own (each colour row q its own blocks).
+  The coordinate off the plane, μe, holds noise and inter-reflections of
+  another colour; it is stored as a third row only where its contribution's
+  norm exceeds ``off_plane`` times the pixel's (none on a rendered field; on
+  measured data the greedy choice below weighs it like any row), and left
+  out (counted in the residual) elsewhere.  d is the most saturated colour
+  among the pixel's lit samples (:func:`diffuse_colours`): a sample of pure
+  diffuse light has the diffuse colour, and specular light only moves a
+  sample towards s, so μs ≥ 0 and μs = 0 off the lobe (the median colour of
+  mid-bright samples, :func:`facestats.relight.separate.diffuse_chromaticity`,
+  lies inside the cone and gives μs < 0 on every purely diffuse sample).
+  Measured against three channel rows on the 256² face at 20× (12 lightings,
+  docs/relighting.md, D2): the median worst pixel fell from 5.0 % to 3.4 %.
 * **Cost of a relight.**  The lighting is projected once on every basis
-  (Σ K_kr L_r multiply-adds per channel) and each stored row then needs K_kr
-  multiply-adds: one pass over the stored coefficients, which are kept in one
-  flat array (compiled, :mod:`facestats.relight.compression_numba`; or one
-  small dense GEMV per (region, cluster, channel) with ``backend="numpy"``).  A
+  (Σ K L_r multiply-adds per channel) and each stored row then needs 3 K
+  multiply-adds (its coordinate under each channel's lighting) and mixes the
+  three results into the pixel's channels with A_p: one pass over the stored
+  coefficients, which are kept in one flat array (compiled,
+  :mod:`facestats.relight.compression_numba`; or one small dense GEMM per
+  block with ``backend="numpy"``).  A
   per-pixel transform (DCT/wavelet of each 64 × 32 function, the paper's JPEG)
   keeps different coefficients per pixel and needs a gather per coefficient;
   measured on a face field, a per-pixel Haar truncation to 1/20 of the
@@ -28,8 +55,7 @@ justification (the measurements behind it: ``docs/relighting.md``, D2):
 * **Why clusters.**  One global basis cannot follow the specular lobe and the
   shadow edges, whose position moves with the normal.  Pixels with similar
   reflectance functions share a basis well; the clusters are found by k-means
-  on the functions' projections onto a global basis.  Within a cluster the
-  three channels' functions differ mostly by a colour factor and share the basis.
+  on the projections of their luminance functions onto a global basis.
 * **Why light regions.**  Over half of the (pixel, light) values of a face
   are exactly zero: lights below a pixel's horizon or behind the nose.  A
   basis over the whole sphere reconstructs them with small ripples, and a
@@ -37,10 +63,11 @@ justification (the measurements behind it: ``docs/relighting.md``, D2):
   100 % and more on the pixels it does not light.  Split into regions (the two
   hemispheres y ≥ 0 and y < 0, each into ``sectors`` azimuth sectors about +y),
   a row that is zero over a whole region is not stored and comes back exactly
-  zero, and ripples stay inside the region they belong to.
+  zero (a pixel's rows are zero wherever all its channels are), and ripples
+  stay inside the region they belong to.
 * **Components where they pay.**  Each (cluster, region) block offers its
   components in the order of its singular values; a component of block b costs
-  L_r + n_b stored values (its basis row and one coefficient per stored row)
+  L_b + n_b stored values (its basis row and one coefficient per stored row)
   and removes σ² of the scaled rows' squared residual.  Components are
   taken greedily by σ² per stored value until the budget of the ratio is
   spent, so flat regions get none and the specular regions many.
@@ -51,12 +78,14 @@ justification (the measurements behind it: ``docs/relighting.md``, D2):
   y_r · (L √δA)_r.  Under a light that falls on one region only, the relative
   error of the pixel is its residual there against s_r = Σ_{l∈r} √δA_l |y_l|,
   the region's value under uniform light of unit radiance (the √δA-weighted
-  L1 norm of the part).  So each region's part of a row enters its block's
-  basis and the greedy choice scaled by 1 / max(s_r, ``floor`` · s), s = Σ_r s_r:
-  a dark blue channel weighs as much as a bright red one, and a region that
-  holds a small share of the pixel's light is weighed as if it held ``floor``
-  (scaled by s_r alone, the bases would chase regions that hardly light the pixel
-  under any probe).  The default floor is chosen by
+  L1 norm of the part).  Its tolerance is t_c,r = max(s_c,r, ``floor`` · s_c),
+  s_c = Σ_r s_c,r: a dark blue channel weighs as much as a bright red one, and
+  a region that holds a small share of the pixel's light is weighed as if it
+  held ``floor`` (scaled by s_r alone, the bases would chase regions that hardly
+  light the pixel under any probe).  An error in colour row q adds A_cq times
+  it to channel c, so each region's part of row q enters its block's basis and
+  the greedy choice scaled by max_c |A_cq| / t_c,r (with A the identity, one row
+  per channel, this is the scaling of the channel rows by 1 / t_c,r).  The default floor is chosen by
   ``benchmarks/bench_relight.bench_region_floor``; its figures and those of rows
   scaled to unit L2 norm over the whole sphere (the method until 2026-12-05) are
   in docs/relighting.md, D2.  Every pixel enters its cluster's bases (a basis
@@ -74,16 +103,17 @@ justification (the measurements behind it: ``docs/relighting.md``, D2):
   part is not stored there and comes back exactly zero, and the bases of the
   lit part no longer reach the lights the cluster mostly does not see.  Each
   part costs its support's bit mask, and the rows' zero masks one bit per
-  (channel, region, part).
+  (colour row, region, part).
 * **Honest diagnostics.**  The components of a block are nested and the greedy
   order is fixed, so keeping fewer (:meth:`CompressedField.truncate`) never
-  lowers any row's residual ‖√δA (R − R̂)‖, and by Cauchy-Schwarz the
-  relighting error of a pixel is bounded by that residual times ‖L √δA‖
-  (:meth:`CompressedField.error_bound`).
+  lowers any row's residual ρ_q = ‖g_q − ĝ_q‖, and by Cauchy-Schwarz and the
+  triangle inequality the relighting error of channel c of a pixel is bounded
+  by Σ_q |A_cq| ρ_q ‖L_c / √δA‖ (:meth:`CompressedField.error_bound`).
 
 The compression ratio counts stored values: L·P·3 dense values of the face
 pixels against the basis rows and coefficients plus, per pixel, its cluster
-label and the bit mask of its zero (channel, region) rows (:func:`per_pixel_values`).
+label, the bit mask of its zero (colour row, region, part) rows and its diffuse
+colour d (:func:`per_pixel_values`), and the light colour s.
 Only the face pixels (the field's ``mask``, else the pixels with a non-zero
 value) are stored: pixels outside the mask relight to 0, and
 :meth:`CompressedField.error_bound` covers the stored pixels.
@@ -102,21 +132,34 @@ from facestats.errors import ValidationError
 from facestats.relight.field import as_field, image_tiles, light_dims, light_table
 from facestats.relight.lighting import resample_probe
 from facestats.relight.relighting import check_relit
+from facestats.relight.separate import WHITE, separation_basis, unit_rgb
 
-__all__ = ["CompressedField", "compress", "default_clusters", "light_regions", "per_pixel_values"]
+__all__ = ["CompressedField", "compress", "default_clusters", "diffuse_colours", "light_regions", "per_pixel_values"]
 
 #: Target pixels per cluster of the default clustering.  Smaller clusters fit their pixels better but spend more
 #: of the budget on bases; on the 256² face at 20× (``benchmarks/bench_relight.bench_cluster_density``, table in
-#: docs/relighting.md) the median over 12 lightings and 3 seeds of the worst pixel falls from 12.8 % at 512 pixels
-#: per cluster to 9.2 % at 128 and stops falling at 64.  The compiled relight's cost does not depend on the
-#: clusters (it reads every stored value once; the numpy backend's grows with them); compressing takes longer.
+#: docs/relighting.md, measured with one row per channel) the median over 12 lightings and 3 seeds of the worst
+#: pixel falls from 12.8 % at 512 pixels per cluster to 9.2 % at 128 and stops falling at 64.  The compiled
+#: relight's cost does not depend on the clusters (it reads every stored value once; the numpy backend's grows
+#: with them); compressing takes longer.
 PIXELS_PER_CLUSTER = 128
+
+#: Samples whose coordinate along the light colour s reaches this share of the pixel's largest take part in its
+#: diffuse colour (:func:`diffuse_colours`): dimmer samples' colours are dominated by rounding and noise.
+LIT_SHARE = 0.05
+
+#: A diffuse colour within this angle (radians) of the light colour is not used as a basis vector (the basis
+#: [d s d×s] would be ill-conditioned): such grey pixels use the direction of their colours' offset from s.
+GREY_ANGLE = np.radians(5.0)
+
+#: Colour rows: 0 the diffuse coordinate μd, 1 the specular μs, 2 the one off the plane μe (§4.2).
+ROWS = 3
 
 
 def per_pixel_values(n_parts: int) -> int:
-    """Values stored per pixel besides its coefficients: its cluster label and its bit mask of zero rows
-    (3 channels × ``n_parts`` (region, part) bits, in 32-bit values)."""
-    return 1 + -(-3 * n_parts // 32)
+    """Values stored per pixel besides its coefficients: its cluster label, its bit mask of zero rows
+    (3 colour rows × ``n_parts`` (region, part) bits, in 32-bit values) and its diffuse colour (3)."""
+    return 1 + -(-ROWS * n_parts // 32) + 3
 
 
 def _number(value, name, low, high=None, **bounds):
@@ -150,303 +193,6 @@ def light_regions(directions, sectors: int = 4) -> np.ndarray:
     azimuth = np.arctan2(d[..., 0], d[..., 2]) + np.pi
     sector = np.minimum((azimuth / (2 * np.pi / n)).astype(np.int64), n - 1)
     return np.where(d[..., 1] >= 0, 0, n) + sector
-
-
-@dataclass
-class _Block:
-    """One (region, cluster, part) block: its lights within the region, its basis rows and, per channel, the stored
-    rows' pixels and coefficients."""
-
-    support: np.ndarray  # (L_r,) bool: the region's lights of this part
-    basis: np.ndarray  # (K, L_r) float32, orthonormal rows, zero outside the support
-    rows: tuple  # per channel: positions (int64, (n_c,)) in CompressedField.pixels
-    coefficients: tuple  # per channel: (n_c, K) float32
-
-    @property
-    def stored(self) -> int:
-        """Basis values on the support, coefficients, and the support's bit mask (32 bits a value) unless the
-        support is the whole region."""
-        k = self.basis.shape[0]
-        if not k:
-            return 0
-        return k * (int(self.support.sum()) + sum(r.size for r in self.rows)) + _mask_values(self.support)
-
-
-@dataclass
-class _Packed:
-    """The stored values of a :class:`CompressedField` in flat arrays (the blocks' bases and coefficients are
-    views of them): per region the stacked bases of its blocks, all coefficients, and per (block, channel)
-    segment where its rows, coefficients and components are, and the image it adds to (one per (region, part):
-    each pixel has at most one block there); segments in (region, cluster, part, channel) order."""
-
-    stacks: list  # per region: (Σ K, L_r) float32
-    region_start: np.ndarray  # (n_regions + 1,) first component of each region in the projections
-    coef: np.ndarray  # flat float32
-    pixel: np.ndarray  # int64 position of every stored row
-    n_images: int  # (region, part) pairs that hold blocks
-    seg_image: np.ndarray  # int64 (region, part) image of each segment
-    seg_row: np.ndarray  # int64 first row of each segment
-    seg_rows: np.ndarray  # int64 rows
-    seg_k: np.ndarray  # int64 components
-    seg_proj: np.ndarray  # int64 first component in the projections
-    seg_channel: np.ndarray  # int64
-    seg_coef: np.ndarray  # int64 first coefficient
-
-    @property
-    def components(self) -> int:
-        return int(self.region_start[-1])
-
-
-def _pack(blocks, regions):
-    """Pack the blocks' bases and coefficients into new flat arrays and make the blocks' arrays views of them
-    (the values are stored once)."""
-    keys = sorted(blocks)  # by region, then cluster, then part
-    stacks, region_start, offset, proj_of = [], [0], 0, {}
-    for r, lights in enumerate(regions):
-        here = [key for key in keys if key[0] == r]
-        for key in here:
-            proj_of[key] = offset
-            offset += blocks[key].basis.shape[0]
-        region_start.append(offset)
-        stacks.append(
-            np.concatenate([blocks[key].basis for key in here]) if here else np.zeros((0, lights.size), np.float32)
-        )
-    segments = [(key, c) for key in keys for c in range(3) if blocks[key].rows[c].size]
-    seg_rows = np.array([blocks[key].rows[c].size for key, c in segments], np.int64)
-    seg_k = np.array([blocks[key].basis.shape[0] for key, _ in segments], np.int64)
-    seg_coef = np.concatenate([[0], np.cumsum(seg_rows * seg_k)]).astype(np.int64)
-    coef = np.empty(int(seg_coef[-1]), np.float32)
-    segment_of = {seg: i for i, seg in enumerate(segments)}
-    for key in keys:  # loop over blocks: copy their arrays into the flat ones and keep views
-        b = blocks[key]
-        lo = proj_of[key] - region_start[key[0]]
-        cfs = list(b.coefficients)
-        for c in range(3):
-            i = segment_of.get((key, c))
-            if i is not None:
-                view = coef[seg_coef[i] : seg_coef[i + 1]].reshape(cfs[c].shape)
-                view[...] = cfs[c]
-                cfs[c] = view
-        b.basis, b.coefficients = stacks[key[0]][lo : lo + b.basis.shape[0]], tuple(cfs)
-    image_of = {pair: i for i, pair in enumerate(sorted({(key[0], key[2]) for key in keys}))}
-    return _Packed(
-        stacks=stacks,
-        region_start=np.asarray(region_start, np.int64),
-        n_images=len(image_of),
-        seg_image=np.array([image_of[key[0], key[2]] for key, _ in segments], np.int64),
-        coef=coef,
-        pixel=np.concatenate([blocks[key].rows[c] for key, c in segments] + [np.zeros(0, np.int64)]).astype(np.int64),
-        seg_row=np.cumsum(seg_rows) - seg_rows,
-        seg_rows=seg_rows,
-        seg_k=seg_k,
-        seg_proj=np.array([proj_of[key] for key, _ in segments], np.int64),
-        seg_channel=np.array([c for _, c in segments], np.int64),
-        seg_coef=seg_coef[:-1],
-    )
-
-
-def _relight_numba(pk, wd, regions, n_pix):
-    """The compiled relight (:mod:`facestats.relight.compression_numba`): the lighting ``wd`` (L, 3) projected on
-    every region's stacked bases, then the rows' products in parts of about equal work (a few per thread), into
-    one image per (region, part); (n_pix, 3) float32."""
-    import numba
-
-    from facestats.relight.compression_numba import project, relight_segments
-
-    proj = np.empty((3, pk.components), np.float32)
-    for r, lights in enumerate(regions):  # loop over the light regions: one compiled product each
-        project(pk.stacks[r], np.ascontiguousarray(wd[lights].T), proj, pk.region_start[r])
-    work = np.cumsum(pk.seg_rows * (pk.seg_k + 1))
-    n_parts = max(1, min(4 * numba.get_num_threads(), work.size))  # a few parts per thread balance better
-    cuts = np.searchsorted(work, work[-1] * np.arange(1, n_parts) / n_parts) if work.size else []
-    bounds = np.concatenate([[0], cuts, [work.size]]).astype(np.int64)
-    out = np.zeros((pk.n_images, n_pix, 3), np.float32)
-    relight_segments(
-        pk.coef,
-        pk.pixel,
-        pk.seg_image,
-        pk.seg_row,
-        pk.seg_rows,
-        pk.seg_k,
-        pk.seg_proj,
-        pk.seg_channel,
-        pk.seg_coef,
-        bounds,
-        proj,
-        out,
-    )
-    return out.sum(0)
-
-
-@dataclass
-class CompressedField:
-    """A reflectance field in clustered PCA bases per light region (module docstring).
-
-    Attributes
-    ----------
-    pixels : ndarray of int, shape (P,)
-        Flat index (row · W + column) of each stored pixel.
-    labels : ndarray of int, shape (P,)
-        Cluster of each stored pixel.
-    regions : list of ndarray of int
-        The lights (flat indices) of each region.
-    blocks : dict
-        (region, cluster, part) → block: its support (the region's lights of the part), basis (K, L_r), zero
-        off the support, per channel the stored rows and their coefficients.
-    residual : ndarray, shape (P, 3)
-        ‖√δA (R − R̂)‖ of each pixel and channel.
-    order : ndarray of int, shape (N, 3)
-        (region, cluster, part) of every offered component in the greedy order; the first ``kept`` are kept.
-    kept : int
-    sqrt_solid_angle : ndarray, shape (L,)
-    directions : ndarray, shape (light dims..., 3)
-    image_shape : tuple of int
-    parts : int
-        Parts per (region, cluster) block (:func:`compress`).
-
-    Notes
-    -----
-    At construction the blocks' bases and coefficients are packed into flat arrays that the relight reads, and
-    become views of them: treat ``blocks`` as read-only (a changed block would not reach :meth:`relight`).
-    """
-
-    pixels: np.ndarray
-    labels: np.ndarray
-    regions: list
-    blocks: dict
-    residual: np.ndarray
-    order: np.ndarray
-    kept: int
-    sqrt_solid_angle: np.ndarray
-    directions: np.ndarray
-    image_shape: tuple
-    parts: int
-    _packed: _Packed = dataclass_field(init=False, repr=False, compare=False)
-
-    def __post_init__(self):
-        self._packed = _pack(self.blocks, self.regions)
-
-    @property
-    def clusters(self) -> int:
-        return int(self.labels.max()) + 1 if self.labels.size else 0
-
-    @property
-    def n_lights(self) -> int:
-        return int(self.sqrt_solid_angle.size)
-
-    @property
-    def components(self) -> int:
-        """Basis rows kept over all blocks."""
-        return int(sum(b.basis.shape[0] for b in self.blocks.values()))
-
-    @property
-    def stored(self) -> int:
-        """Stored values: basis rows, coefficients and :func:`per_pixel_values` per pixel."""
-        per_pixel = per_pixel_values(len(self.regions) * self.parts)
-        return int(sum(b.stored for b in self.blocks.values())) + per_pixel * self.pixels.size
-
-    @property
-    def ratio(self) -> float:
-        """Dense face values over stored values: 3 L P / :attr:`stored`."""
-        return 3 * self.n_lights * self.pixels.size / self.stored
-
-    def truncate(self, ratio: float) -> "CompressedField":
-        """The same field with the greedy prefix of its components that meets ``ratio`` (residuals only grow; a
-        ratio at or below :attr:`ratio` keeps them all)."""
-        r = _ratio(ratio)
-        per_pixel = per_pixel_values(len(self.regions) * self.parts)
-        budget = (3 * self.n_lights - per_pixel * r) * self.pixels.size / r
-        cost = {key: int(b.support.sum()) + sum(x.size for x in b.rows) for key, b in self.blocks.items()}
-        first = {key: _mask_values(b.support) for key, b in self.blocks.items()}
-        keep, per_block = _take(self.order[: self.kept], cost, budget, first)
-        if keep == 0:
-            key = tuple(self.order[0])
-            raise ValidationError(_no_room(r, cost[key] + first[key], budget))
-        res2 = self.residual.astype(np.float64) ** 2
-        blocks = {}
-        for key, b in self.blocks.items():
-            k = per_block.get(key, 0)
-            for c in range(3):
-                dropped = b.coefficients[c][:, k:]
-                res2[b.rows[c], c] += np.einsum("nk,nk->n", dropped, dropped, dtype=np.float64)
-            if k:
-                blocks[key] = _Block(
-                    support=b.support,
-                    basis=b.basis[:k].copy(),
-                    rows=b.rows,
-                    coefficients=tuple(np.ascontiguousarray(cf[:, :k]) for cf in b.coefficients),
-                )
-        return replace(self, blocks=blocks, residual=np.sqrt(res2).astype(np.float32), kept=keep)
-
-    def _weights(self, lighting):
-        """L·δA per light as (L, 3) float64; grey lighting (one value per light) is given to every channel."""
-        w = as_finite(lighting, "lighting", dtype=np.float64)
-        if w.shape in (self.directions.shape[:-1], (self.n_lights,)):
-            w = np.repeat(w[..., None], 3, axis=-1)
-        if w.shape[:-1] not in (self.directions.shape[:-1], (self.n_lights,)) or w.shape[-1] != 3:
-            raise ValidationError(
-                f"lighting must hold L·δA per light, shape {self.directions.shape[:-1] + (3,)}, got {w.shape}"
-            )
-        return w.reshape(-1, 3)
-
-    def relight(
-        self, lighting=None, *, probe=None, layout: str = "latlong", rotate: float = 0.0, backend: str = "auto"
-    ) -> np.ndarray:
-        """Relit image from the compressed field, (H, W, 3) float32 (Debevec et al. 2000 eq. 4).
-
-        Per block: proj = B_kr (W/√δA)_r (one product per region over its blocks' stacked bases), then each
-        stored row adds C · proj of its channel.  ``lighting`` is L·δA per light (as
-        :func:`facestats.relight.relighting.relight`); or pass a ``probe`` (with ``layout``, ``rotate``) to
-        resample.  ``backend`` (:data:`facestats.core.compiled.BACKENDS`): ``"numba"`` computes the projections
-        and the rows' products in compiled passes over the stored values on all cores
-        (:mod:`facestats.relight.compression_numba`; its cost does not grow with the number of blocks),
-        ``"numpy"`` one BLAS product per region and one GEMV per block and channel (a Python loop over
-        3 × regions × clusters segments); they agree to float32 rounding.
-        """
-        if (lighting is None) == (probe is None):
-            raise ValidationError("pass exactly one of lighting (L·δA per light) and probe")
-        if probe is None and rotate != 0:
-            raise ValidationError(f"rotate applies to a probe, got rotate={rotate!r} with lighting")
-        engine = resolve_backend(backend)
-        if probe is not None:
-            lighting = resample_probe(probe, self.directions, layout=layout, rotate=rotate)
-        wd = as_float(self._weights(lighting) / self.sqrt_solid_angle[:, None], "lighting / √δA", np.float32)  # (L, 3)
-        pk = self._packed
-        if engine == "numba":
-            vals = _relight_numba(pk, wd, self.regions, self.pixels.size)
-        else:
-            proj = np.empty((3, pk.components), np.float32)  # per channel, the lighting on every component
-            for r, lights in enumerate(self.regions):  # one GEMM per region: its blocks' bases are stacked
-                proj[:, pk.region_start[r] : pk.region_start[r + 1]] = (pk.stacks[r] @ wd[lights]).T
-            vals = np.zeros((self.pixels.size, 3), np.float32)
-            for s in range(pk.seg_rows.size):  # loop over (block, channel) segments: one GEMV each
-                n, k, c = pk.seg_rows[s], pk.seg_k[s], pk.seg_channel[s]
-                rows = pk.pixel[pk.seg_row[s] : pk.seg_row[s] + n]
-                cf = pk.coef[pk.seg_coef[s] : pk.seg_coef[s] + n * k].reshape(n, k)
-                vals[rows, c] += cf @ proj[c, pk.seg_proj[s] : pk.seg_proj[s] + k]
-        out = np.zeros((self.image_shape[0] * self.image_shape[1], 3), np.float32)
-        out[self.pixels] = vals
-        return check_relit(out.reshape(self.image_shape + (3,)), "compressed relight")
-
-    def error_bound(self, lighting) -> np.ndarray:
-        """Per-pixel bound on |relight(compressed) − relight(dense)| over the stored pixels (0 elsewhere):
-        residual · ‖W/√δA‖, (H, W, 3) (Cauchy-Schwarz)."""
-        w = self._weights(lighting)
-        norm = np.sqrt(((w / self.sqrt_solid_angle[:, None]) ** 2).sum(0))
-        out = np.zeros((self.image_shape[0] * self.image_shape[1], 3), np.float32)
-        out[self.pixels] = self.residual * norm
-        return out.reshape(self.image_shape + (3,))
-
-    def reconstruct(self) -> np.ndarray:
-        """The approximated field, (L, H, W, 3) float32 (for inspection; memory of the dense field)."""
-        rows = np.zeros((3, self.pixels.size, self.n_lights), np.float32)
-        for (r, _, _), b in self.blocks.items():  # loop over blocks
-            lights = self.regions[r]
-            for c in range(3):
-                rows[c, b.rows[c][:, None], lights[None, :]] += b.coefficients[c] @ b.basis  # parts add
-        out = np.zeros((self.n_lights, self.image_shape[0] * self.image_shape[1], 3), np.float32)
-        out[:, self.pixels] = np.transpose(rows, (2, 1, 0)) / self.sqrt_solid_angle[:, None, None]
-        return out.reshape((self.n_lights,) + self.image_shape + (3,))
 
 
 def _face_pixels(f):
@@ -509,29 +255,115 @@ def _pca(rows, k):
     return mean.astype(np.float32), out
 
 
+def _normalised(rows):
+    """Rows divided by their norms (taken in float64: no overflow for float32 rows; zero rows stay zero)."""
+    norm = np.sqrt(np.einsum("...l,...l->...", rows, rows, dtype=np.float64))[..., None]
+    return (rows / np.where(norm > 0, norm, 1)).astype(rows.dtype)
+
+
+def diffuse_colours(rows, specular=WHITE) -> np.ndarray:
+    """Diffuse colour d of each pixel's reflectance functions, (n, 3) float64 unit RGB vectors.
+
+    ``rows`` (n, 3, L): each pixel's channel functions (any positive weight per light, e.g. √δA); ``specular``
+    the light's colour s (3,).  Debevec et al. 2000 §4.2 write a sample as R = μd d + μs s + μe (d × s).  The
+    lit samples (coordinate along s at least :data:`LIT_SHARE` of the pixel's largest) of a diffuse and specular
+    pixel lie in the cone between d and s: a sample of pure diffuse light has colour d and specular light only
+    moves it towards s.  So d is the lit sample farthest from s: with u the unit direction of the pixel's summed
+    offset from s, d ∝ s + t u, t the largest ratio (R · u) / (R · s) over the lit samples; then μs ≥ 0 on the
+    lit samples.  When the pixel has a purely diffuse lit sample, d is its diffuse colour and μs = 0 on those
+    samples (exactly, without noise); when every lit sample holds some specular light (a broad lobe's tail), d
+    lies that little towards s (9e-5 for a Torrance-Sparrow lobe of m = 0.35 in the tests).  A pixel whose d
+    would lie within :data:`GREY_ANGLE` of s (grey), or with no offset at all, gets d = u (a unit vector
+    orthogonal to s) instead.
+    """
+    r = as_finite(rows, "rows", dtype=np.float32)
+    if r.ndim != 3 or r.shape[1] != 3:
+        raise ValidationError(f"rows must have shape (pixels, 3, lights), got {r.shape}")
+    s = unit_rgb(specular, "specular")
+    along = np.einsum("ncl,c->nl", r, s.astype(np.float32), dtype=np.float64)  # (n, L)
+    total = r.sum(-1, dtype=np.float64)  # (n, 3)
+    offset = total - (total @ s)[:, None] * s
+    norm = np.linalg.norm(offset, axis=-1)
+    offset_ok = norm > 1e-6 * np.linalg.norm(total, axis=-1)  # not rounding of a grey pixel's sum
+    spare = np.eye(3)[np.argmin(np.abs(s))]  # a unit vector orthogonal to s, for pixels with no offset
+    spare = spare - (spare @ s) * s
+    u = np.where(offset_ok[:, None], offset / np.where(offset_ok, norm, 1)[:, None], spare / np.linalg.norm(spare))
+    across = np.einsum("ncl,nc->nl", r, u.astype(np.float32), dtype=np.float64)  # (n, L): R · u
+    lit = (along > 0) & (along >= LIT_SHARE * along.max(-1, keepdims=True))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(lit, across / np.where(lit, along, 1), -np.inf).max(-1)
+    grey = ~offset_ok | ~(t > np.tan(GREY_ANGLE))
+    d = np.where(grey[:, None], u, s + np.where(grey, 0, t)[:, None] * u)
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def _colour_inverse(d, s):
+    """[d s d×s]⁻¹ (n, 3, 3) float64 of unit diffuse colours ``d`` (n, 3) and light colour ``s`` (3,)."""
+    return np.linalg.inv(separation_basis(d, s))
+
+
 class _Pass:
-    """Streaming reads of a field's face rows, tile by tile (the loop runs over tiles and clusters)."""
+    """Streaming reads of a field's face rows, tile by tile (the loop runs over tiles and clusters): √δA-weighted
+    channel rows, and once :meth:`set_colours` has run, each pixel's colour rows."""
 
     def __init__(self, f, pixels, sw, progress):
         self.f, self.sw, self.progress = f, sw, progress
         self.tiles = _tile_pixels(f, pixels)
         self.n_pix = pixels.size
+        self.inverse = self.off_plane = None
 
-    def each(self, desc):
+    def channels(self, desc):
+        """(indices into the face pixels, weighted channel rows (n, 3, L) float32) per tile."""
         from tqdm.auto import tqdm
 
         for ys, xs, sel, inside in tqdm(self.tiles, desc=desc, disable=not self.progress, leave=False):
             yield sel, _weighted_rows(self.f, ys, xs, inside, self.sw)
 
+    def set_colours(self, inverse, off_plane):
+        """Each pixel's [d s d×s]⁻¹ (P, 3, 3) and whether its off-plane row is stored (P,) bool."""
+        self.inverse, self.off_plane = inverse, off_plane
+
+    def colour_rows(self, sel, rows):
+        """The colour rows g = [d s d×s]⁻¹ y (n, 3, L) float32 of channel rows y; values within float32 rounding
+        of zero (≤ 1e-6 of their sample's norm, the product's rounding) set to 0, so that a μs of a purely
+        diffuse sample is zero as it is exactly; off-plane rows not stored set to 0."""
+        g = np.einsum("nqc,ncl->nql", self.inverse[sel].astype(np.float32), rows)
+        size = np.sqrt(np.einsum("ncl,ncl->nl", rows, rows))[:, None, :]
+        g[np.abs(g) <= 1e-6 * size] = 0
+        g[~self.off_plane[sel], 2] = 0
+        return g
+
+    def each(self, desc):
+        """(indices, weighted channel rows (n, 3, L), colour rows (n, 3, L)) per tile."""
+        for sel, rows in self.channels(desc):
+            yield sel, rows, self.colour_rows(sel, rows)
+
     def rows_of(self, selected, desc):
-        """Weighted rows (n, 3, L) of the selected pixels and their indices."""
+        """Weighted channel rows (n, 3, L) of the selected pixels and their indices."""
         parts, where = [], []
-        for sel, rows in self.each(desc):
+        for sel, rows in self.channels(desc):
             keep = selected[sel]
             if keep.any():
                 parts.append(rows[keep])
                 where.append(sel[keep])
         return np.concatenate(parts), np.concatenate(where)
+
+
+def _colours(stream, s, off_plane):
+    """Per face pixel: its diffuse colour d (P, 3), whether its off-plane row is stored (its contribution
+    ‖(d×s) μe‖ above ``off_plane`` times the pixel's norm ‖y‖), and the squared norm of the rows left out."""
+    d = np.empty((stream.n_pix, 3))
+    keep = np.zeros(stream.n_pix, bool)
+    dropped = np.zeros(stream.n_pix)
+    for sel, rows in stream.channels("compress: colours"):
+        dd = diffuse_colours(rows, s)
+        e = np.einsum("nql,nql->n", rows, rows, dtype=np.float64)
+        mu_e = np.einsum("nc,ncl->nl", _colour_inverse(dd, s)[:, 2].astype(np.float32), rows)
+        off = np.einsum("nl,nl->n", mu_e, mu_e, dtype=np.float64)
+        size = np.linalg.norm(np.cross(dd, s), axis=-1) ** 2 * off
+        d[sel], keep[sel] = dd, size > off_plane**2 * e
+        dropped[sel] = np.where(keep[sel], 0, off)
+    return d, keep, dropped
 
 
 def _clusters(stream, c, nf, s, rng):
@@ -545,96 +377,91 @@ def _clusters(stream, c, nf, s, rng):
     smp, _ = stream.rows_of(chosen, "compress: global basis")
     g_mean, g_basis = _pca(_normalised(smp.sum(1)), nf)
     feats = np.empty((stream.n_pix, nf), np.float32)
-    for sel, rows in stream.each("compress: features"):
+    for sel, rows in stream.channels("compress: features"):
         feats[sel] = (_normalised(rows.sum(1)) - g_mean) @ g_basis.T  # the shapes of the functions
     _, labels = kmeans2(feats.astype(np.float64), c, seed=int(rng.integers(2**31)), minit="++", iter=20)
     return labels.astype(np.int64)
 
 
-def _normalised(rows):
-    """Rows divided by their norms (taken in float64: no overflow for float32 rows; zero rows stay zero)."""
-    norm = np.sqrt(np.einsum("...l,...l->...", rows, rows, dtype=np.float64))[..., None]
-    return (rows / np.where(norm > 0, norm, 1)).astype(rows.dtype)
+def _region_scales(rows, regions, sw, floor, mix=None):
+    """Per region, the divisor (n, 3) float64 of each row's part (module docstring, *The error metric*).
 
-
-def _region_scales(rows, regions, sw, floor):
-    """Per region, the divisor max(s_r, ``floor`` · s) (n, 3) float64 of each row's part (module docstring, *The
-    error metric*): s_r = Σ_{l∈r} √δA_l |y_l| of the weighted rows y (n, 3, L), s = Σ_r s_r."""
+    ``rows`` (n, 3, L) the weighted channel rows y; the channel tolerances t_c,r = max(s_c,r, ``floor`` · s_c),
+    s_c,r = Σ_{l∈r} √δA_l |y_c,l|, s_c = Σ_r s_c,r.  ``mix`` (n, 3, 3), A with channels on axis 1 and colour rows
+    on axis 2: the divisor of colour row q is min_c t_c,r / |A_cq| (rows that reach no channel get 1); without
+    it, one row per channel, the divisors are t_c,r.
+    """
     absw = np.abs(rows)
     parts = [np.einsum("ncl,l->nc", absw[:, :, lights], sw[lights], dtype=np.float64) for lights in regions]
     total = np.sum(parts, axis=0)
-    return [np.maximum(part, floor * total) for part in parts]
+    tolerances = [np.maximum(part, floor * total) for part in parts]
+    if mix is None:
+        return tolerances
+    weight = np.abs(mix)
+    out = []
+    for t in tolerances:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ok = (weight > 0) & (t[:, :, None] > 0)  # a channel that is zero throughout is left out
+            q = np.min(np.where(ok, t[:, :, None] / np.where(ok, weight, 1), np.inf), axis=1)
+        out.append(np.where(np.isfinite(q), q, 1.0))
+    return out
 
 
 def _supports(stream, labels, regions, parts):
-    """The lights of each (region, cluster, part) block, (L_r,) bool: the region's lights split by the share of the
-    (region, cluster) block's non-zero rows that are zero there, part q holding the shares in [q/``parts``,
-    (q + 1)/``parts``) (the last one including 1).  Parts with no light are left out."""
+    """The lights of each (region, cluster, row, part) block, (L_r,) bool: the region's lights split by the share
+    of the (region, cluster, row) block's non-zero colour rows that are zero there, part q holding the shares in
+    [q/``parts``, (q + 1)/``parts``) (the last one including 1).  Parts with no light are left out."""
     zeros, rows_of = {}, {}
-    for sel, rows in stream.each("compress: zero patterns"):
+    for sel, _, g in stream.each("compress: zero patterns"):
         lab = labels[sel]
         for r, lights in enumerate(regions):
-            sub = rows[:, :, lights]  # (n, 3, L_r)
+            sub = g[:, :, lights]  # (n, 3, L_r)
             nonzero = np.any(sub != 0, axis=-1)
             for k in np.unique(lab):  # loop over the clusters present in this tile
-                here = (lab == k)[:, None] & nonzero
-                if here.any():
-                    key = (r, int(k))
-                    z = zeros.setdefault(key, np.zeros(lights.size, np.int64))
-                    z += np.count_nonzero(sub[here] == 0, axis=0)
-                    rows_of[key] = rows_of.get(key, 0) + int(here.sum())
+                for q in range(ROWS):  # and the colour rows
+                    here = (lab == k) & nonzero[:, q]
+                    if here.any():
+                        key = (r, int(k), q)
+                        z = zeros.setdefault(key, np.zeros(lights.size, np.int64))
+                        z += np.count_nonzero(sub[here, q] == 0, axis=0)
+                        rows_of[key] = rows_of.get(key, 0) + int(here.sum())
     out = {}
-    for (r, k), z in zeros.items():  # loop over (region, cluster) blocks
-        part = np.minimum((z * parts) // rows_of[r, k], parts - 1)  # exact integer shares
-        for q in range(parts):
-            if np.any(part == q):
-                out[(r, k, q)] = part == q
+    for (r, k, q), z in zeros.items():  # loop over (region, cluster, row) blocks
+        part = np.minimum((z * parts) // rows_of[r, k, q], parts - 1)  # exact integer shares
+        for i in range(parts):
+            if np.any(part == i):
+                out[(r, k, q, i)] = part == i
     return out
 
 
 def _parts_of(keys):
-    """(region, cluster) → its (region, cluster, part) keys among ``keys``."""
+    """(region, cluster) → its (region, cluster, row, part) keys among ``keys``."""
     out = {}
     for key in keys:
         out.setdefault(key[:2], []).append(key)
     return out
 
 
-def _grams(stream, labels, regions, floor, supports):
-    """Gram matrices Σ yᵀy (float64, (L, L) over the block's L lights) of the scaled non-zero parts of the rows
-    (:func:`_region_scales`) of each (region, cluster, part) block, and the number of those parts."""
+def _grams(stream, mix, labels, regions, floor, supports):
+    """Gram matrices Σ yᵀy (float64, (L, L) over the block's L lights) of the scaled non-zero parts of the colour
+    rows (:func:`_region_scales`) of each (region, cluster, row, part) block, and the number of those parts."""
     grams, counts = {}, {}
     parts_of = _parts_of(supports)
-    for sel, rows in stream.each("compress: gram matrices"):
+    for sel, rows, g in stream.each("compress: gram matrices"):
         lab = labels[sel]
-        scales = _region_scales(rows, regions, stream.sw, floor)
+        scales = _region_scales(rows, regions, stream.sw, floor, mix[sel])
         for r, lights in enumerate(regions):
-            sub = rows[:, :, lights]  # (n, 3, L_r)
-            sub = sub / np.where(scales[r] > 0, scales[r], 1)[..., None]
+            sub = g[:, :, lights] / scales[r][..., None]  # (n, 3, L_r) float64: the Gram sums need it
             for k in np.unique(lab):  # loop over the clusters present in this tile
                 mine = sub[lab == k]
-                for key in parts_of.get((r, int(k)), ()):  # loop over the block's parts
-                    part = mine[:, :, supports[key]]
+                for key in parts_of.get((r, int(k)), ()):  # loop over the block's rows and parts
+                    part = mine[:, key[2]][:, supports[key]]
                     y = part[np.any(part != 0, axis=-1)]
                     if y.shape[0]:
-                        g = grams.setdefault(key, np.zeros((y.shape[1], y.shape[1])))
-                        g += y.T @ y
+                        gm = grams.setdefault(key, np.zeros((y.shape[1], y.shape[1])))
+                        gm += y.T @ y
                         counts[key] = counts.get(key, 0) + y.shape[0]
     return grams, counts
-
-
-def _bases(grams, supports):
-    """Per block: the principal directions (K, L_r) float32, zero off its support, and their σ², non-increasing
-    (σ² > 1e-12 σ²_max).  Empties ``grams`` as it goes (each Gram matrix is freed once its directions are known)."""
-    out = {}
-    for key in list(grams):  # loop over blocks
-        e, v = np.linalg.eigh(grams.pop(key))
-        e, v = e[::-1], v[:, ::-1]
-        keep = e > max(e[0], 1e-300) * 1e-12
-        basis = np.zeros((int(keep.sum()), supports[key].size), np.float32)
-        basis[:, supports[key]] = v[:, keep].T
-        out[key] = (basis, e[keep])
-    return out
 
 
 def _no_room(ratio, first, budget):
@@ -665,34 +492,357 @@ def _mask_values(support):
     return 0 if support.all() else -(-support.size // 32)
 
 
+def _bases(grams, supports):
+    """Per block: the principal directions (K, L_r) float32, zero off its support, and their σ², non-increasing
+    (σ² > 1e-12 σ²_max).  Empties ``grams`` as it goes (each Gram matrix is freed once its directions are known)."""
+    out = {}
+    for key in list(grams):  # loop over blocks
+        e, v = np.linalg.eigh(grams.pop(key))
+        e, v = e[::-1], v[:, ::-1]
+        keep = e > max(e[0], 1e-300) * 1e-12
+        basis = np.zeros((int(keep.sum()), supports[key].size), np.float32)
+        basis[:, supports[key]] = v[:, keep].T
+        out[key] = (basis, e[keep])
+    return out
+
+
 def _coefficients(stream, labels, regions, bases, supports):
-    """Per block and channel: the stored rows (positions in the face pixels) and their coefficients on the
-    block's K components (``bases``: the kept ones); the residual ‖√δA (R − R̂)‖ (P, 3) of every row."""
-    stored = {key: ([[], [], []], [[], [], []]) for key in bases}
+    """Per block: the stored rows (positions in the face pixels) and their coefficients on the block's K
+    components (``bases``: the kept ones); the squared residual ‖g − ĝ‖² (P, 3) of every colour row."""
+    stored = {key: ([], []) for key in bases}
     parts_of = _parts_of(bases)
-    res2 = np.zeros((stream.n_pix, 3))
-    for sel, rows in stream.each("compress: coefficients"):
+    res2 = np.zeros((stream.n_pix, ROWS))
+    for sel, _, g in stream.each("compress: coefficients"):
         lab = labels[sel]
         for r, lights in enumerate(regions):
-            sub = rows[:, :, lights]  # (n, 3, L_r), unscaled
+            sub = g[:, :, lights]  # (n, 3, L_r), unscaled
             for k in np.unique(lab):  # loop over the clusters present in this tile
                 mine = np.flatnonzero(lab == k)
                 sub_k = sub[mine]
-                for key in parts_of.get((r, int(k)), ()):  # loop over the block's parts
+                for key in parts_of.get((r, int(k)), ()):  # loop over the block's rows and parts
                     basis = bases[key][:, supports[key]]  # (K, L) on the support
-                    part = sub_k[:, :, supports[key]]  # (m, 3, L)
-                    nonzero = np.any(part != 0, axis=-1)
-                    for c in range(3):
-                        here = np.flatnonzero(nonzero[:, c])
-                        if not here.size:
-                            continue
-                        y = part[here, c]
-                        cf = y @ basis.T  # (n, K)
-                        res2[sel[mine[here]], c] += np.sum((y - cf @ basis).astype(np.float64) ** 2, axis=-1)
-                        if basis.shape[0]:  # a block without components stores nothing
-                            stored[key][0][c].append(sel[mine[here]])
-                            stored[key][1][c].append(cf)
-    return stored, np.sqrt(res2).astype(np.float32)
+                    part = sub_k[:, key[2]][:, supports[key]]  # (m, L)
+                    here = np.flatnonzero(np.any(part != 0, axis=-1))
+                    if not here.size:
+                        continue
+                    y = part[here]
+                    cf = y @ basis.T  # (n, K)
+                    res2[sel[mine[here]], key[2]] += np.sum((y - cf @ basis).astype(np.float64) ** 2, axis=-1)
+                    if basis.shape[0]:  # a block without components stores nothing
+                        stored[key][0].append(sel[mine[here]])
+                        stored[key][1].append(cf)
+    return stored, res2
+
+
+@dataclass
+class _Block:
+    """One (region, cluster, colour row, part) block: its lights within the region, its basis rows, and the stored
+    rows' pixels and coefficients."""
+
+    support: np.ndarray  # (L_r,) bool: the region's lights of this part
+    basis: np.ndarray  # (K, L_r) float32, orthonormal rows, zero outside the support
+    rows: np.ndarray  # positions (int64, (n,)) in CompressedField.pixels
+    coefficients: np.ndarray  # (n, K) float32
+
+    @property
+    def stored(self) -> int:
+        """Basis values on the support, coefficients, and the support's bit mask (32 bits a value) unless the
+        support is the whole region."""
+        k = self.basis.shape[0]
+        if not k:
+            return 0
+        return k * (int(self.support.sum()) + self.rows.size) + _mask_values(self.support)
+
+
+@dataclass
+class _Packed:
+    """The stored values of a :class:`CompressedField` in flat arrays (the blocks' bases and coefficients are
+    views of them): per region the stacked bases of its blocks, all coefficients, and per block (a segment) where
+    its rows, coefficients and components are and which colour row it holds; segments in (cluster, region, row,
+    part) order, so that the segments of different clusters write different pixels (``cluster_end``: the segment
+    after each cluster's last)."""
+
+    stacks: list  # per region: (Σ K, L_r) float32
+    region_start: np.ndarray  # (n_regions + 1,) first component of each region in the projections
+    coef: np.ndarray  # flat float32
+    pixel: np.ndarray  # int64 position of every stored row
+    mix: np.ndarray  # (P, 3, 3) float32: A of every pixel, channels on axis 1, colour rows on axis 2
+    seg_row: np.ndarray  # int64 first row of each segment
+    seg_rows: np.ndarray  # int64 rows
+    seg_k: np.ndarray  # int64 components
+    seg_proj: np.ndarray  # int64 first component in the projections
+    seg_kind: np.ndarray  # int64 colour row
+    seg_coef: np.ndarray  # int64 first coefficient
+    cluster_end: np.ndarray  # int64
+
+    @property
+    def components(self) -> int:
+        return int(self.region_start[-1])
+
+
+def _pack(blocks, regions, mix):
+    """Pack the blocks' bases and coefficients into new flat arrays and make the blocks' arrays views of them
+    (the values are stored once)."""
+    keys = sorted(blocks)  # by region, then cluster, row, part: the order of the stacked bases
+    stacks, region_start, offset, proj_of = [], [0], 0, {}
+    for r, lights in enumerate(regions):
+        here = [key for key in keys if key[0] == r]
+        for key in here:
+            proj_of[key] = offset
+            offset += blocks[key].basis.shape[0]
+        region_start.append(offset)
+        stacks.append(
+            np.concatenate([blocks[key].basis for key in here]) if here else np.zeros((0, lights.size), np.float32)
+        )
+    segments = sorted((key for key in keys if blocks[key].rows.size), key=lambda key: (key[1], key[0], key[2], key[3]))
+    seg_rows = np.array([blocks[key].rows.size for key in segments], np.int64)
+    seg_k = np.array([blocks[key].basis.shape[0] for key in segments], np.int64)
+    seg_coef = np.concatenate([[0], np.cumsum(seg_rows * seg_k)]).astype(np.int64)
+    coef = np.empty(int(seg_coef[-1]), np.float32)
+    for i, key in enumerate(segments):  # loop over blocks with rows: copy their coefficients, keep views
+        b = blocks[key]
+        view = coef[seg_coef[i] : seg_coef[i + 1]].reshape(b.coefficients.shape)
+        view[...] = b.coefficients
+        b.coefficients = view
+    for key in keys:  # loop over blocks: their bases become views of the stacks
+        b = blocks[key]
+        lo = proj_of[key] - region_start[key[0]]
+        b.basis = stacks[key[0]][lo : lo + b.basis.shape[0]]
+    cluster = np.array([key[1] for key in segments], np.int64)
+    return _Packed(
+        stacks=stacks,
+        region_start=np.asarray(region_start, np.int64),
+        coef=coef,
+        pixel=np.concatenate([blocks[key].rows for key in segments] + [np.zeros(0, np.int64)]).astype(np.int64),
+        mix=np.ascontiguousarray(mix, dtype=np.float32),
+        seg_row=np.cumsum(seg_rows) - seg_rows,
+        seg_rows=seg_rows,
+        seg_k=seg_k,
+        seg_proj=np.array([proj_of[key] for key in segments], np.int64),
+        seg_kind=np.array([key[2] for key in segments], np.int64),
+        seg_coef=seg_coef[:-1],
+        cluster_end=np.flatnonzero(np.diff(np.append(cluster, -1)) != 0).astype(np.int64) + 1,
+    )
+
+
+def _relight_numba(pk, wd, regions, n_pix):
+    """The compiled relight (:mod:`facestats.relight.compression_numba`): the lighting ``wd`` (L, 3) projected on
+    every region's stacked bases, then the rows' products in parallel parts of about equal work (a few per
+    thread, cut between clusters: each part writes only its clusters' pixels); (n_pix, 3) float32."""
+    import numba
+
+    from facestats.relight.compression_numba import project, relight_segments
+
+    proj = np.empty((3, pk.components), np.float32)
+    for r, lights in enumerate(regions):  # loop over the light regions: one compiled product each
+        project(pk.stacks[r], np.ascontiguousarray(wd[lights].T), proj, pk.region_start[r])
+    out = np.zeros((n_pix, 3), np.float32)
+    if not pk.seg_rows.size:
+        return out
+    work = np.cumsum(pk.seg_rows * (3 * pk.seg_k + 3))[pk.cluster_end - 1]  # work up to each cluster's end
+    n_parts = max(1, min(4 * numba.get_num_threads(), work.size))  # a few parts per thread balance better
+    cuts = np.searchsorted(work, work[-1] * np.arange(1, n_parts) / n_parts)
+    bounds = np.unique(np.concatenate([[0], pk.cluster_end[np.minimum(cuts, work.size - 1)], [pk.seg_rows.size]]))
+    relight_segments(
+        pk.coef,
+        pk.pixel,
+        pk.mix,
+        pk.seg_row,
+        pk.seg_rows,
+        pk.seg_k,
+        pk.seg_proj,
+        pk.seg_kind,
+        pk.seg_coef,
+        bounds.astype(np.int64),
+        proj,
+        out,
+    )
+    return out
+
+
+@dataclass
+class CompressedField:
+    """A reflectance field in clustered PCA bases per colour row and light region (module docstring).
+
+    Attributes
+    ----------
+    pixels : ndarray of int, shape (P,)
+        Flat index (row · W + column) of each stored pixel.
+    labels : ndarray of int, shape (P,)
+        Cluster of each stored pixel.
+    colours : ndarray, shape (P, 3)
+        Diffuse colour d of each stored pixel (unit RGB, :func:`diffuse_colours`).
+    specular : ndarray, shape (3,)
+        Light colour s (unit RGB).
+    regions : list of ndarray of int
+        The lights (flat indices) of each region.
+    blocks : dict
+        (region, cluster, colour row, part) → block: its support (the region's lights of the part), basis (K, L_r),
+        zero off its support, its stored rows and their coefficients.
+    residual : ndarray, shape (P, 3)
+        ‖g_q − ĝ_q‖ of each pixel's colour rows q (μd, μs, μe: √δA-weighted coordinates).
+    order : ndarray of int, shape (N, 4)
+        (region, cluster, row, part) of every offered component in the greedy order; the first ``kept`` are kept.
+    kept : int
+    sqrt_solid_angle : ndarray, shape (L,)
+    directions : ndarray, shape (light dims..., 3)
+    image_shape : tuple of int
+    parts : int
+        Parts per (region, cluster, row) block (:func:`compress`).
+
+    Notes
+    -----
+    At construction the blocks' bases and coefficients are packed into flat arrays that the relight reads, and
+    become views of them: treat ``blocks`` as read-only (a changed block would not reach :meth:`relight`).
+    """
+
+    pixels: np.ndarray
+    labels: np.ndarray
+    colours: np.ndarray
+    specular: np.ndarray
+    regions: list
+    blocks: dict
+    residual: np.ndarray
+    order: np.ndarray
+    kept: int
+    sqrt_solid_angle: np.ndarray
+    directions: np.ndarray
+    image_shape: tuple
+    parts: int
+    _packed: _Packed = dataclass_field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        self._packed = _pack(self.blocks, self.regions, self.mix)
+
+    @property
+    def mix(self) -> np.ndarray:
+        """A = [d s d×s] of every stored pixel, (P, 3, 3) float64: channel c = Σ_q A[c, q] · colour row q."""
+        return separation_basis(self.colours, self.specular)
+
+    @property
+    def clusters(self) -> int:
+        return int(self.labels.max()) + 1 if self.labels.size else 0
+
+    @property
+    def n_lights(self) -> int:
+        return int(self.sqrt_solid_angle.size)
+
+    @property
+    def components(self) -> int:
+        """Basis rows kept over all blocks."""
+        return int(sum(b.basis.shape[0] for b in self.blocks.values()))
+
+    @property
+    def stored(self) -> int:
+        """Stored values: basis rows, coefficients, :func:`per_pixel_values` per pixel, and the light colour."""
+        per_pixel = per_pixel_values(len(self.regions) * self.parts)
+        return int(sum(b.stored for b in self.blocks.values())) + per_pixel * self.pixels.size + 3
+
+    @property
+    def ratio(self) -> float:
+        """Dense face values over stored values: 3 L P / :attr:`stored`."""
+        return 3 * self.n_lights * self.pixels.size / self.stored
+
+    def truncate(self, ratio: float) -> "CompressedField":
+        """The same field with the greedy prefix of its components that meets ``ratio`` (residuals only grow; a
+        ratio at or below :attr:`ratio` keeps them all)."""
+        r = _ratio(ratio)
+        budget = _budget(self.n_lights, self.pixels.size, r, len(self.regions) * self.parts)
+        cost = {key: int(b.support.sum()) + b.rows.size for key, b in self.blocks.items()}
+        first = {key: _mask_values(b.support) for key, b in self.blocks.items()}
+        keep, per_block = _take(self.order[: self.kept], cost, budget, first)
+        if keep == 0:
+            key = tuple(self.order[0])
+            raise ValidationError(_no_room(r, cost[key] + first[key], budget))
+        res2 = self.residual.astype(np.float64) ** 2
+        blocks = {}
+        for key, b in self.blocks.items():
+            k = per_block.get(key, 0)
+            dropped = b.coefficients[:, k:]
+            res2[b.rows, key[2]] += np.einsum("nk,nk->n", dropped, dropped, dtype=np.float64)
+            if k:
+                blocks[key] = _Block(
+                    support=b.support,
+                    basis=b.basis[:k].copy(),
+                    rows=b.rows,
+                    coefficients=np.ascontiguousarray(b.coefficients[:, :k]),
+                )
+        return replace(self, blocks=blocks, residual=np.sqrt(res2).astype(np.float32), kept=keep)
+
+    def _weights(self, lighting):
+        """L·δA per light as (L, 3) float64; grey lighting (one value per light) is given to every channel."""
+        w = as_finite(lighting, "lighting", dtype=np.float64)
+        if w.shape in (self.directions.shape[:-1], (self.n_lights,)):
+            w = np.repeat(w[..., None], 3, axis=-1)
+        if w.shape[:-1] not in (self.directions.shape[:-1], (self.n_lights,)) or w.shape[-1] != 3:
+            raise ValidationError(
+                f"lighting must hold L·δA per light, shape {self.directions.shape[:-1] + (3,)}, got {w.shape}"
+            )
+        return w.reshape(-1, 3)
+
+    def relight(
+        self, lighting=None, *, probe=None, layout: str = "latlong", rotate: float = 0.0, backend: str = "auto"
+    ) -> np.ndarray:
+        """Relit image from the compressed field, (H, W, 3) float32 (Debevec et al. 2000 eq. 4).
+
+        Per block: proj = B (W/√δA)_r per channel (one product per region over its blocks' stacked bases); each
+        stored row q of pixel p then gives t_c = C · proj_c for the three channels c and adds A_p[c, q] t_c to
+        channel c.  ``lighting`` is L·δA per light (as :func:`facestats.relight.relighting.relight`); or pass a
+        ``probe`` (with ``layout``, ``rotate``) to resample.  ``backend`` (:data:`facestats.core.compiled.BACKENDS`):
+        ``"numba"`` computes the projections and the rows' products in compiled passes over the stored values on
+        all cores (:mod:`facestats.relight.compression_numba`; its cost does not grow with the number of blocks),
+        ``"numpy"`` one BLAS product per region and one small GEMM per block (a Python loop over the blocks); they
+        agree to float32 rounding.
+        """
+        if (lighting is None) == (probe is None):
+            raise ValidationError("pass exactly one of lighting (L·δA per light) and probe")
+        if probe is None and rotate != 0:
+            raise ValidationError(f"rotate applies to a probe, got rotate={rotate!r} with lighting")
+        engine = resolve_backend(backend)
+        if probe is not None:
+            lighting = resample_probe(probe, self.directions, layout=layout, rotate=rotate)
+        wd = as_float(self._weights(lighting) / self.sqrt_solid_angle[:, None], "lighting / √δA", np.float32)  # (L, 3)
+        pk = self._packed
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported by check_relit
+            if engine == "numba":
+                vals = _relight_numba(pk, wd, self.regions, self.pixels.size)
+            else:
+                proj = np.empty((3, pk.components), np.float32)  # per channel, the lighting on every component
+                for r, lights in enumerate(self.regions):  # one GEMM per region: its blocks' bases are stacked
+                    proj[:, pk.region_start[r] : pk.region_start[r + 1]] = (pk.stacks[r] @ wd[lights]).T
+                vals = np.zeros((self.pixels.size, 3), np.float32)
+                for s in range(pk.seg_rows.size):  # loop over blocks: one small GEMM each
+                    n, k, q = pk.seg_rows[s], pk.seg_k[s], pk.seg_kind[s]
+                    rows = pk.pixel[pk.seg_row[s] : pk.seg_row[s] + n]
+                    cf = pk.coef[pk.seg_coef[s] : pk.seg_coef[s] + n * k].reshape(n, k)
+                    vals[rows] += pk.mix[rows, :, q] * (cf @ proj[:, pk.seg_proj[s] : pk.seg_proj[s] + k].T)
+        out = np.zeros((self.image_shape[0] * self.image_shape[1], 3), np.float32)
+        out[self.pixels] = vals
+        return check_relit(out.reshape(self.image_shape + (3,)), "compressed relight")
+
+    def error_bound(self, lighting) -> np.ndarray:
+        """Per-pixel bound on |relight(compressed) − relight(dense)| over the stored pixels (0 elsewhere):
+        Σ_q |A_cq| ρ_q ‖W_c/√δA‖, (H, W, 3) (Cauchy-Schwarz and the triangle inequality)."""
+        w = self._weights(lighting)
+        norm = np.sqrt(((w / self.sqrt_solid_angle[:, None]) ** 2).sum(0))
+        out = np.zeros((self.image_shape[0] * self.image_shape[1], 3), np.float32)
+        out[self.pixels] = np.einsum("pcq,pq->pc", np.abs(self.mix), self.residual.astype(np.float64)) * norm
+        return out.reshape(self.image_shape + (3,))
+
+    def reconstruct(self) -> np.ndarray:
+        """The approximated field, (L, H, W, 3) float32 (for inspection; memory of the dense field)."""
+        rows = np.zeros((ROWS, self.pixels.size, self.n_lights), np.float32)
+        for (r, _, q, _), b in self.blocks.items():  # loop over blocks
+            rows[q, b.rows[:, None], self.regions[r][None, :]] += b.coefficients @ b.basis  # parts add
+        channels = np.einsum("pcq,qpl->lpc", self.mix.astype(np.float32), rows)
+        out = np.zeros((self.n_lights, self.image_shape[0] * self.image_shape[1], 3), np.float32)
+        out[:, self.pixels] = channels / self.sqrt_solid_angle[:, None, None].astype(np.float32)
+        return out.reshape((self.n_lights,) + self.image_shape + (3,))
+
+
+def _budget(n_lights, n_pix, ratio, n_parts):
+    """Values left for bases and coefficients at ``ratio``: 3 L P / ratio less the per-pixel values and s."""
+    return 3 * n_lights * n_pix / ratio - per_pixel_values(n_parts) * n_pix - 3
 
 
 def compress(
@@ -703,22 +853,27 @@ def compress(
     sectors: int = 4,
     floor: float = 0.2,
     parts: int = 2,
+    specular=WHITE,
+    off_plane: float = 1e-3,
     features: int = 32,
     sample: int = 256,
     seed: int = 0,
     progress: bool = False,
 ) -> CompressedField:
-    """Compress a reflectance field into clustered, solid-angle weighted PCA bases per light region (module docstring).
+    """Compress a reflectance field into clustered, solid-angle weighted PCA bases per colour row and light region
+    (module docstring).
 
-    Streaming passes over the field's tiles (in memory or on disk): a global
-    basis of ``features`` components from a sample of pixels and every pixel's
-    projection on it; k-means of those projections into ``clusters``; how often
-    each (region, cluster) block's rows are zero at each light, which splits its
-    lights into ``parts`` (a pass of its own: the split must be known before the
-    Gram matrices count the rows each part stores); the Gram matrix of every
-    (region, cluster, part) block from all its pixels' scaled non-zero parts,
-    and its principal directions; the greedy choice of components for the ratio;
-    then every stored row's coefficients and every row's residual.
+    Streaming passes over the field's tiles (in memory or on disk): each
+    pixel's diffuse colour (:func:`diffuse_colours`) and so its colour rows,
+    the coordinates of §4.2; a global basis of ``features`` components from a
+    sample of pixels and every pixel's projection on it; k-means of those
+    projections into ``clusters``; how often each (region, cluster, row)
+    block's rows are zero at each light, which splits its lights into
+    ``parts`` (a pass of its own: the split must be known before the Gram
+    matrices count the rows each part stores); the Gram matrix of every
+    (region, cluster, row, part) block from all its pixels' scaled non-zero
+    parts, and its principal directions; the greedy choice of components for
+    the ratio; then every stored row's coefficients and every row's residual.
 
     Parameters
     ----------
@@ -730,11 +885,18 @@ def compress(
     sectors : int
         Azimuth sectors per hemisphere of :func:`light_regions` (2 × ``sectors`` regions).
     floor : float
-        In [0, 1]: a region's part of a row is scaled by 1 / max(s_r, ``floor`` · s) before the bases are found
-        (module docstring, *The error metric*; 1 scales every part by its row's s).
+        In [0, 1]: a region's share of a pixel's channel is taken as at least ``floor`` of the channel when the
+        rows are scaled (module docstring, *The error metric*; 1 scales every part by its channel's total).
     parts : int
-        In [1, 8]: each (region, cluster) block's lights are split into this many parts by how often the cluster's
-        functions are zero there, each part with its own basis (module docstring, *Parts by zeros*).
+        In [1, 8]: each (region, cluster, row) block's lights are split into this many parts by how often the
+        cluster's functions are zero there, each part with its own basis (module docstring, *Parts by zeros*).
+    specular : array_like, shape (3,)
+        Colour of the light (and so of the specular reflection) in the field's RGB; the field's values are per
+        unit irradiance of each light, so white unless the lights' colours were not divided out.
+    off_plane : float
+        In [0, 1]: a pixel's coordinate off the plane of its diffuse colour and ``specular`` is stored as a
+        third row when its contribution's norm exceeds this share of the pixel's norm (0 stores every non-zero
+        one), and is left out, counted in the residual, otherwise.
     features : int
         Components of the global basis that the clustering works on (at most the number of lights).
     sample : int
@@ -760,43 +922,53 @@ def compress(
     s = check_integer(sample, "sample", 1)
     fl = _number(floor, "floor", 0, 1)
     n_parts = check_integer(parts, "parts", 1, 8)
+    light = unit_rgb(specular, "specular")
+    if light.shape != (3,):
+        raise ValidationError(f"specular must be one RGB colour, shape (3,), got {light.shape}")
+    tol = _number(off_plane, "off_plane", 0, 1)
     nf = min(check_integer(features, "features", 1), n)
     rng = np.random.default_rng(check_seed(seed))
     region_of = light_regions(directions, sectors)
     regions = [np.flatnonzero(region_of == r) for r in range(2 * sectors)]
     regions = [lights for lights in regions if lights.size]
     stream = _Pass(f, pixels, sw, progress)
+    colours, off_kept, off_dropped = _colours(stream, light, tol)
+    mix = separation_basis(colours, light)
+    stream.set_colours(np.linalg.inv(mix), off_kept)
     labels = _clusters(stream, c, nf, s, rng)
     supports = _supports(stream, labels, regions, n_parts)
-    grams, rows_of = _grams(stream, labels, regions, fl, supports)  # rows_of: the rows a block stores
+    grams, rows_of = _grams(stream, mix, labels, regions, fl, supports)  # rows_of: the rows a block stores
     bases = _bases(grams, supports)
     cost = {key: int(supports[key].sum()) + rows_of[key] for key in bases}  # stored values of one component
     first = {key: _mask_values(supports[key]) for key in bases}  # and of a block's support mask
     gain = [(e / cost[key], key) for key, (_, sigma2) in bases.items() for e in sigma2]
     gain.sort(key=lambda g: -g[0])
-    order = np.array([key for _, key in gain], np.int64).reshape(-1, 3)
+    order = np.array([key for _, key in gain], np.int64).reshape(-1, 4)
     if not order.size:
         raise ValidationError("field has no face pixel with a non-zero reflectance: nothing to compress")
-    budget = 3 * n * pixels.size / r_min - per_pixel_values(len(regions) * n_parts) * pixels.size
+    budget = _budget(n, pixels.size, r_min, len(regions) * n_parts)
     kept, counts = _take(order, cost, budget, first)
     if kept == 0:
         key = tuple(order[0])
         raise ValidationError(_no_room(r_min, cost[key] + first[key], budget))
     bases = {key: basis[: counts.get(key, 0)].copy() for key, (basis, _) in bases.items()}  # free the rest
-    stored, residual = _coefficients(stream, labels, regions, bases, supports)
+    stored, res2 = _coefficients(stream, labels, regions, bases, supports)
+    res2[:, 2] += off_dropped
     blocks = {}
     for key, basis in bases.items():
         k = basis.shape[0]
         if k:
-            rows = tuple(np.concatenate(p) if p else np.zeros(0, np.int64) for p in stored[key][0])
-            coef = tuple(np.concatenate(p) if p else np.zeros((0, k), np.float32) for p in stored[key][1])
+            rows = np.concatenate(stored[key][0]) if stored[key][0] else np.zeros(0, np.int64)
+            coef = np.concatenate(stored[key][1]) if stored[key][1] else np.zeros((0, k), np.float32)
             blocks[key] = _Block(support=supports[key], basis=basis, rows=rows, coefficients=coef)
     return CompressedField(
         pixels=pixels,
         labels=labels,
+        colours=colours,
+        specular=light,
         regions=regions,
         blocks=blocks,
-        residual=residual,
+        residual=np.sqrt(res2).astype(np.float32),
         order=order,
         kept=kept,
         sqrt_solid_angle=sw,

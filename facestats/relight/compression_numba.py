@@ -2,13 +2,13 @@
 with numba.
 
 Imported when a compressed field is relit with the numba backend (``backend="numba"``, or ``"auto"`` where numba
-imports): importing numba costs about a second.  The stored rows are grouped in segments (one per block and
-channel, their coefficients contiguous); each row adds the dot product of its coefficients with its block's
-projected lighting to its pixel and channel of its (region, part) image.  Within one light region and part every
-pixel belongs to one block (its cluster's), so no two segments write the same value of an image, and the
-segments run in parallel (in parts of about equal work) without a race; the caller adds the images
-(memory: (region, part) pairs × pixels × 3 values, whatever the number of threads).  Same float32 products as the numpy
-path's GEMVs, summed in another order (agreement to float32 rounding, ``tests/relight/test_compression.py``).
+imports): importing numba costs about a second.  The stored rows are grouped in segments (one per block, their
+coefficients contiguous); each row q of pixel p takes the dot product of its coefficients with its block's
+projected lighting of each channel c, t_c, and adds A_p[c, q] t_c to channel c of the pixel.  The segments are in
+cluster order and the parallel parts are cut between clusters; a pixel belongs to one cluster, so no two parts
+write the same value and the parts run in parallel without a race (memory: one image, whatever the number of
+threads).  Same float32 products as the numpy path's GEMMs, summed in another order (agreement to float32
+rounding, ``tests/relight/test_compression.py``).
 ``fastmath={"reassoc"}`` lets each dot product be summed in SIMD lanes (reassociation only: no assumption about
 NaN, infinities or signed zeros; exact zeros stay zero); without it the float32 sums run one multiply-add at a
 time and a 512² field's relight takes 30 ms instead of a few.
@@ -23,28 +23,35 @@ __all__ = ["project", "relight_segments"]
 
 
 @numba.njit(cache=True, parallel=True, nogil=True, fastmath={"reassoc"})
-def relight_segments(coef, pixel, seg_image, seg_row, seg_rows, seg_k, seg_proj, seg_channel, seg_coef, bounds, proj,
+def relight_segments(coef, pixel, mix, seg_row, seg_rows, seg_k, seg_proj, seg_kind, seg_coef, bounds, proj,
                      out):  # fmt: skip
-    """Add Σ_rows C_row · proj[channel, block components] to ``out[image]`` ((images, n_pix, 3) float32).
+    """Add Σ_rows A[pixel, c, q] (C_row · proj[c, block components]) to ``out[pixel, c]`` ((n_pix, 3) float32).
 
-    ``coef`` flat float32 coefficients; ``pixel`` (int64) the position of every stored row; per segment its
-    (region, part) image, first row, number of rows, number of components K, offset of its block's components
-    in ``proj`` ((3, components) float32), channel and first coefficient; ``bounds`` the segments of each
-    parallel part.
+    ``coef`` flat float32 coefficients; ``pixel`` (int64) the position of every stored row; ``mix`` (n_pix, 3, 3)
+    float32 each pixel's A (channels, colour rows); per segment its first row, number of rows, number of components
+    K, offset of its block's components in ``proj`` ((3, components) float32), colour row q and first coefficient;
+    ``bounds`` the segments of each parallel part (cut between clusters).
     """
     for t in numba.prange(bounds.size - 1):
         for s in range(bounds[t], bounds[t + 1]):
             k = seg_k[s]
             p0 = seg_proj[s]
-            c = seg_channel[s]
+            q = seg_kind[s]
             b = seg_coef[s]
             r0 = seg_row[s]
-            o = out[seg_image[s]]
             for i in range(seg_rows[s]):
-                acc = np.float32(0)
+                a0 = np.float32(0)
+                a1 = np.float32(0)
+                a2 = np.float32(0)
                 for j in range(k):
-                    acc += coef[b + i * k + j] * proj[c, p0 + j]
-                o[pixel[r0 + i], c] += acc
+                    v = coef[b + i * k + j]
+                    a0 += v * proj[0, p0 + j]
+                    a1 += v * proj[1, p0 + j]
+                    a2 += v * proj[2, p0 + j]
+                p = pixel[r0 + i]
+                out[p, 0] += mix[p, 0, q] * a0
+                out[p, 1] += mix[p, 1, q] * a1
+                out[p, 2] += mix[p, 2, q] * a2
     return out
 
 

@@ -56,6 +56,7 @@ __all__ = [
     "ramp_factor_from_chromaticity",
     "fit_chromaticity_ramp",
     "diffuse_chromaticity",
+    "separation_basis",
     "separation_matrix_condition",
     "separate_colour",
     "separate_field",
@@ -199,15 +200,17 @@ def diffuse_chromaticity(values, low: float = 25.0, high: float = 75.0):
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
-def _basis(d, s):
-    """The matrices [d s d×s] (..., 3, 3), columns d, s, e."""
-    s = np.broadcast_to(s, d.shape)
+def separation_basis(d, s=WHITE) -> np.ndarray:
+    """The matrices [d s d×s] (..., 3, 3) of §4.2, columns d, s and e = d × s, for unit RGB vectors ``d`` (..., 3)
+    and ``s`` (3,): R = μd d + μs s + μe e (the coordinates μ of :func:`separate_colour`)."""
+    d = np.asarray(d, np.float64)
+    s = np.broadcast_to(np.asarray(s, np.float64), d.shape)
     return np.stack([d, s, np.cross(d, s)], axis=-1)
 
 
 def separation_matrix_condition(d, s=WHITE) -> np.ndarray:
     """2-norm condition number of [d s d×s] per chromaticity (∞ when d ∥ s)."""
-    m = _basis(unit_rgb(d, "d"), unit_rgb(s, "s"))
+    m = separation_basis(unit_rgb(d, "d"), unit_rgb(s, "s"))
     sv = np.linalg.svd(m, compute_uv=False)
     with np.errstate(divide="ignore"):
         return np.where(sv[..., -1] > 0, sv[..., 0] / sv[..., -1], np.inf)

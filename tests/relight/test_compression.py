@@ -1,5 +1,5 @@
-"""D2: compressed relighting (clustered, solid-angle weighted PCA per light region): ratio, nested error, bound,
-exact zeros, tiles, exactness."""
+"""D2: compressed relighting (clustered, solid-angle weighted PCA per colour row and light region): ratio, nested
+error, bound, exact zeros, tiles, exactness, the colour rows."""
 
 import numpy as np
 import pytest
@@ -31,15 +31,17 @@ def test_light_regions_split_hemispheres_and_azimuth_sectors():
 def test_ratio_counts_every_stored_value(field):
     c = cmp.compress(field, ratio=8, clusters=2)
     p, n = int(field["mask"].sum()), 32 * 16
-    assert cmp.per_pixel_values(8) == 2 and cmp.per_pixel_values(16) == 3  # label + 24 or 48 mask bits
+    # label + 24 or 48 mask bits + the diffuse colour (3)
+    assert cmp.per_pixel_values(8) == 5 and cmp.per_pixel_values(16) == 6
     # per block: its basis on its support, its coefficients, the support's 32-bit mask unless it is the whole
-    # region; per pixel: the label and 3 channels x 8 regions x 2 parts zero bits
-    stored = sum(b.basis.shape[0] * int(b.support.sum()) + sum(x.size for x in b.coefficients)
-                 + (0 if b.support.all() else -(-b.support.size // 32)) for b in c.blocks.values()) + 3 * p  # fmt: skip
+    # region; per pixel: the label, 3 colour rows x 8 regions x 2 parts zero bits and d; once: the light colour
+    stored = sum(b.basis.shape[0] * int(b.support.sum()) + b.coefficients.size
+                 + (0 if b.support.all() else -(-b.support.size // 32))
+                 for b in c.blocks.values()) + 6 * p + 3  # fmt: skip
     assert c.parts == 2 and c.stored == stored and c.ratio == pytest.approx(3 * n * p / stored) and c.ratio >= 8
-    for (r, k, q), b in c.blocks.items():  # bases vanish off their supports; a block's parts split its region
+    for (r, k, q, i), b in c.blocks.items():  # bases vanish off their supports; a block's parts split its region
         assert np.all(b.basis[:, ~b.support] == 0) and b.support.size == c.regions[r].size
-        other = c.blocks.get((r, k, 1 - q))
+        other = c.blocks.get((r, k, q, 1 - i))
         assert other is None or not np.any(other.support & b.support)
     assert not all(b.support.all() for b in c.blocks.values())
     assert c.components == sum(b.basis.shape[0] for b in c.blocks.values()) == c.kept
@@ -78,15 +80,19 @@ def test_zero_rows_of_a_region_come_back_exactly_zero(field):
     lw = np.zeros((32 * 16, 3))
     lw[regions == r0] = 1e6
     assert dark.sum() > 10 and np.all(c.relight(lw)[m][dark] == 0)
-    # so does a row that is zero over one part of its block and not over the whole region
-    d_rows, r_rows = dense.reshape(512, -1, 3)[:, c.pixels], rec.reshape(512, -1, 3)[:, c.pixels]
+    # so does a colour row that is zero over one part of its block and not over the whole region: here the
+    # samples whose channels are all zero (its colour rows are all zero there)
+    d_rows = dense.reshape(512, -1, 3)[:, c.pixels]
+    mu_hat = np.zeros((3, c.pixels.size, 512), np.float32)  # the colour rows as stored
+    for (r, _, q, _), b in c.blocks.items():
+        mu_hat[q, b.rows[:, None], c.regions[r][None, :]] += b.coefficients @ b.basis
     part_zeros = 0
-    for (r, k, _), b in c.blocks.items():
-        lights, mine = c.regions[r][b.support], c.labels == k
-        zero = np.all(d_rows[lights][:, mine] == 0, axis=0)  # (pixels of the cluster, 3)
-        assert np.all(r_rows[lights][:, mine][:, zero] == 0)
-        part_zeros += int((zero & np.any(d_rows[c.regions[r]][:, mine] != 0, axis=0)).sum())
-    assert part_zeros > 0.5 * 3 * m.sum()  # 690 of 444 rows × 8 regions here; none with parts=1
+    for (r, k, q, _), b in c.blocks.items():
+        lights, mine = c.regions[r][b.support], np.flatnonzero(c.labels == k)
+        zero = np.all(d_rows[lights][:, mine] == 0, axis=(0, 2))  # (pixels of the cluster,)
+        assert np.all(mu_hat[q][np.ix_(mine[zero], lights)] == 0)
+        part_zeros += int((zero & np.any(d_rows[c.regions[r]][:, mine] != 0, axis=(0, 2))).sum())
+    assert part_zeros > 0.5 * m.sum()
 
 
 def test_error_is_non_increasing_in_kept_coefficients_and_bounded(field):
@@ -99,7 +105,7 @@ def test_error_is_non_increasing_in_kept_coefficients_and_bounded(field):
     for r in (30, 12, 4, 1.5, full.ratio):
         c = full.truncate(r)
         assert c.ratio >= r * (1 - 1e-12)
-        res = np.linalg.norm(c.residual, axis=1)
+        res = c.residual.astype(np.float64)
         if prev_res is not None:
             assert np.all(res <= prev_res * (1 + 1e-5) + 1e-9)  # nested components: residuals never grow
         prev_res = res
@@ -107,11 +113,14 @@ def test_error_is_non_increasing_in_kept_coefficients_and_bounded(field):
         assert np.all(err <= c.error_bound(lw)[m] * (1 + 1e-4) + 1e-7)  # Cauchy-Schwarz bound
         errs.append(float((err / dense[m]).max()))
     assert errs[-1] < errs[0] and errs[-1] < 1e-4
-    # the residual is what the reconstruction leaves
+    # the residual is what the reconstruction leaves, row by row in the colour coordinates mu = A^-1 R
     c = full.truncate(4)
-    rec = c.reconstruct()[:, m] * full.sqrt_solid_angle[:, None, None]
-    ref = field["reflectance"].values.reshape((512,) + m.shape + (3,))[:, m] * full.sqrt_solid_angle[:, None, None]
-    assert np.allclose(np.linalg.norm(rec - ref, axis=0), c.residual, rtol=1e-3, atol=1e-6)
+    sw = full.sqrt_solid_angle[:, None, None]
+    rec = c.reconstruct()[:, m] * sw
+    ref = field["reflectance"].values.reshape((512,) + m.shape + (3,))[:, m] * sw
+    inv = np.linalg.inv(c.mix)
+    mu = np.einsum("pqc,lpc->lpq", inv, rec - ref)
+    assert np.allclose(np.linalg.norm(mu, axis=0), c.residual, rtol=1e-3, atol=1e-6)
 
 
 def test_exact_at_full_rank_and_identical_from_zarr_tiles(field, tmp_path):
@@ -121,7 +130,7 @@ def test_exact_at_full_rank_and_identical_from_zarr_tiles(field, tmp_path):
     assert np.allclose(exact.relight(lw)[m], relight(field, lw)[m], rtol=1e-4, atol=1e-7)
     assert np.allclose(exact.relight(lw, backend="numpy")[m], relight(field, lw)[m], rtol=1e-4, atol=1e-7)
     rec = exact.reconstruct()[:, m]
-    assert np.allclose(rec, field["reflectance"].values.reshape(512, 14, 14, 3)[:, m], atol=1e-5)
+    assert np.allclose(rec, field["reflectance"].values.reshape(512, 14, 14, 3)[:, m], atol=1e-6)
     write_field(tmp_path / "f.zarr", field, tile=5)
     a = cmp.compress(field, ratio=6, clusters=3, seed=2)
     b = cmp.compress(open_field(tmp_path / "f.zarr"), ratio=6, clusters=3, seed=2)
@@ -145,9 +154,9 @@ def test_compiled_and_numpy_relights_agree_and_values_are_stored_once(field):
             assert np.allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(a).max())
             assert np.all(a[~m] == 0) and np.all(b[~m] == 0)
         # the blocks' coefficients are views of one flat array, their bases of one stack per region (no copies)
-        stored = [cf for b in c.blocks.values() for cf in b.coefficients if cf.size]
+        stored = [b.coefficients for b in c.blocks.values() if b.coefficients.size]
         assert all(cf.base is not None for cf in stored) and len({id(cf.base) for cf in stored}) == 1
-        assert len({id(b.basis.base) for b in c.blocks.values()}) == len({r for r, _, _ in c.blocks})
+        assert len({id(b.basis.base) for b in c.blocks.values()}) == len({key[0] for key in c.blocks})
     with pytest.raises(ValidationError, match="backend"):
         c.relight(lw, backend="cuda")
     # a light region without any block (every row zero there) between regions with blocks; exact at full rank
@@ -156,7 +165,7 @@ def test_compiled_and_numpy_relights_agree_and_values_are_stored_once(field):
     f = field.copy(deep=True)
     f["reflectance"].values[dark.reshape(f["reflectance"].shape[:2])] = 0
     full = cmp.compress(f, ratio=0.5, clusters=3)
-    assert 1 not in {r for r, _, _ in full.blocks} and {0, 2} <= {r for r, _, _ in full.blocks}
+    assert 1 not in {key[0] for key in full.blocks} and {0, 2} <= {key[0] for key in full.blocks}
     dense = relight(f, coloured)
     for backend in ("numpy", "numba"):
         assert np.allclose(full.relight(coloured, backend=backend)[m], dense[m], rtol=1e-4, atol=1e-6 * dense.max())
@@ -184,3 +193,46 @@ def test_region_parts_are_scaled_by_their_values_under_uniform_light(field):
     for bad in (-0.1, 1.5, np.nan, [0.1, 0.2]):
         with pytest.raises(ValidationError, match="floor"):
             cmp.compress(field, floor=bad)
+
+
+def test_colour_rows_are_the_coordinates_of_section_4_2(field):
+    # d is the most saturated lit sample: for Lambertian colour + white Torrance-Sparrow it is the albedo's
+    # direction up to the lobe's tail (every lit sample of a pixel holds some specular light: 9e-5 here)
+    albedo = np.array([0.5, 0.3, 0.2])
+    d = cmp.diffuse_colours(np.moveaxis(field["reflectance"].values.reshape(512, 14, 14, 3)[:, field["mask"].values],
+                                        0, -1))  # fmt: skip
+    assert np.allclose(d, albedo / np.linalg.norm(albedo), atol=2e-4)
+    c = cmp.compress(field, ratio=0.5, clusters=2)
+    assert np.allclose(c.colours, d, atol=2e-4)  # from the √δA-weighted rows (another lit set: 5 % of the max)
+    assert c.specular == pytest.approx(np.full(3, 1 / np.sqrt(3)))
+    # a rank-two field stores no off-plane row; its residual is rounding
+    assert not any(key[2] == 2 for key in c.blocks) and c.residual[:, 2].max() < 1e-6
+    # grey samples (d within 5 degrees of s) and a zero pixel: a unit d orthogonal to s, no NaN
+    grey = np.ones((2, 3, 8), np.float32)
+    grey[1] = 0
+    dg = cmp.diffuse_colours(grey)
+    assert np.allclose(np.linalg.norm(dg, axis=1), 1) and np.allclose(dg @ np.ones(3), 0, atol=1e-12)
+    with pytest.raises(ValidationError, match="rows"):
+        cmp.diffuse_colours(np.ones((2, 4, 8)))
+
+
+def test_off_plane_rows_are_stored_when_they_matter(field):
+    # a third colour outside the plane of the albedo and white (an inter-reflection off a green shirt, say)
+    m = field["mask"].values
+    f = field.copy(deep=True)
+    below = np.clip(-field["direction"].values[..., 1], 0, None)  # (16, 32): light from below
+    green = below[..., None, None, None] * np.array([0.0, 0.02, 0.0])
+    f["reflectance"].values[...] += np.where(m[None, None, :, :, None], green, 0)
+    lw = resample_probe(sky_probe(32), f["direction"].values)
+    dense = relight(f, lw)
+    exact = cmp.compress(f, ratio=0.5, clusters=2)
+    assert any(key[2] == 2 for key in exact.blocks)  # the off-plane rows are stored ...
+    assert np.allclose(exact.relight(lw)[m], dense[m], rtol=1e-4, atol=1e-7)  # ... and everything is exact
+    # told to leave them out, their norm is the row's residual and the error bound still holds
+    flat = cmp.compress(f, ratio=0.5, clusters=2, off_plane=1.0)
+    assert not any(key[2] == 2 for key in flat.blocks) and flat.residual[:, 2].max() > 1e-3
+    err = np.abs(flat.relight(lw) - dense)[m]
+    assert err.max() > 1e-4 and np.all(err <= flat.error_bound(lw)[m] * (1 + 1e-4) + 1e-7)
+    for bad, name in (([1, 1], "specular"), ([0, 0, 0], "specular"), (2.0, "off_plane"), (np.nan, "off_plane")):
+        with pytest.raises(ValidationError, match=name):
+            cmp.compress(field, **{name: bad})

@@ -195,6 +195,18 @@ def check_shape(arr: np.ndarray, name: str, shape: Iterable) -> np.ndarray:
     return arr
 
 
+def check_broadcast(arr: np.ndarray, name: str, shape: Iterable, target: str) -> np.ndarray:
+    """``arr`` broadcast (read-only view) to ``shape``, the shape of ``target``; a :class:`ValidationError` naming
+    both when it cannot be."""
+    shape = tuple(shape)
+    try:
+        return np.broadcast_to(arr, shape)
+    except ValueError:
+        raise ValidationError(
+            f"{name} of shape {np.shape(arr)} does not broadcast to the shape {shape} of {target}"
+        ) from None
+
+
 def check_choice(value, name: str, choices) -> object:
     """Raise unless ``value`` is one of ``choices``."""
     if value not in choices:

@@ -18,7 +18,11 @@ Formats, by extension:
 * ``.hdr``, ``.pic`` — Radiance RGBE (Ward 1991): flat and run-length-encoded
   scanlines; a pixel (r, g, b, e) is ((r, g, b) + 0.5) · 2^(e − 136) as in
   Radiance's ``colr_color`` (e = 0 is black); only the ``-Y H +X W`` orientation
-  (the standard one) is accepted; written as flat scanlines;
+  (the standard one) is accepted; written as flat scanlines.  The header's
+  ``EXPOSURE=`` and ``COLORCORR=`` lines record multipliers already applied to
+  the pixels, cumulatively (Radiance's file-format notes): the reader divides by
+  their product, so values come back in the units before any exposure (each must
+  be finite and > 0); the writer writes none (multiplier 1);
 * ``.pfm`` — Portable Float Map, grey (``Pf``) or colour (``PF``), either byte order;
 * ``.png``, ``.jpg``, ``.jpeg`` — through OpenCV (8- and 16-bit, grey or RGB(A);
   Pillow, under imageio, reads 16-bit RGB PNG as 8-bit);
@@ -502,16 +506,37 @@ _RGBE_LIMIT = 2.0**127
 _RGBE_SIZE = re.compile(rb"^-Y (\d+) \+X (\d+)$")
 
 
+def _rgbe_multipliers(line: bytes, key: bytes, count: int, p) -> np.ndarray:
+    """The ``count`` multipliers of a header line ``KEY= v ...`` (finite, > 0)."""
+    text = line[len(key) :].decode("ascii", "replace")
+    try:
+        values = np.array([float(v) for v in text.split()], np.float64)
+    except ValueError:
+        values = np.zeros(0)
+    if values.size != count or not np.all(np.isfinite(values)) or np.any(values <= 0):
+        raise ImageFormatError(
+            f"Radiance file {str(p)!r} header {key.decode()} must hold {count} finite value(s) > 0, "
+            f"got {text.strip()!r}"
+        )
+    return values
+
+
 def _rgbe_header(data: bytes, p):
-    """(height, width, offset of the pixel data) of a Radiance file's bytes."""
+    """(height, width, offset of the pixel data, the RGB multipliers applied to the pixels: the product of the
+    ``EXPOSURE=`` and ``COLORCORR=`` lines) of a Radiance file's bytes."""
     if not (data.startswith(b"#?RADIANCE") or data.startswith(b"#?RGBE")):
         raise ImageFormatError(f"Radiance file {str(p)!r} must start with '#?RADIANCE' or '#?RGBE'")
     end = data.find(b"\n\n")
     if end < 0:
         raise ImageFormatError(f"Radiance file {str(p)!r} has no end of header (empty line)")
+    applied = np.ones(3)
     for line in data[:end].split(b"\n"):
         if line.startswith(b"FORMAT=") and line.strip() != b"FORMAT=32-bit_rle_rgbe":
             raise ImageFormatError(f"Radiance file {str(p)!r} must be FORMAT=32-bit_rle_rgbe, got {line.decode()!r}")
+        if line.startswith(b"EXPOSURE="):
+            applied *= _rgbe_multipliers(line, b"EXPOSURE=", 1, p)
+        elif line.startswith(b"COLORCORR="):
+            applied *= _rgbe_multipliers(line, b"COLORCORR=", 3, p)
     nl = data.find(b"\n", end + 2)
     size_line = data[end + 2 : nl if nl >= 0 else len(data)].strip()
     m = _RGBE_SIZE.match(size_line)
@@ -529,7 +554,7 @@ def _rgbe_header(data: bytes, p):
             f"Radiance file {str(p)!r} is truncated: '-Y {height} +X {width}' needs at least {least} bytes of "
             f"pixel data, the file holds {max(len(data) - (nl + 1), 0) if nl >= 0 else 0}"
         )
-    return height, width, nl + 1
+    return height, width, nl + 1, applied
 
 
 def _rle_scanline(buf, pos, width, p, row):
@@ -561,7 +586,7 @@ def read_rgbe(path) -> np.ndarray:
     """A Radiance RGBE file as float32 (H, W, 3) (module docstring for the decoding)."""
     p = _path(path)
     data = p.read_bytes()
-    height, width, pos = _rgbe_header(data, p)
+    height, width, pos, applied = _rgbe_header(data, p)
     rgbe = np.empty((height, width, 4), np.uint8)
     rle = 8 <= width < 32768
     for row in range(height):  # loop over scanlines; each is decoded with array operations per run
@@ -579,7 +604,10 @@ def read_rgbe(path) -> np.ndarray:
             pos += 4 * width
     e = rgbe[..., 3].astype(np.int32)
     scale = np.where(e > 0, np.ldexp(np.float32(1), e - 136), 0).astype(np.float32)
-    return (rgbe[..., :3].astype(np.float32) + np.float32(0.5)) * scale[..., None]
+    out = (rgbe[..., :3].astype(np.float32) + np.float32(0.5)) * scale[..., None]
+    if np.any(applied != 1):  # the pixels before EXPOSURE / COLORCORR
+        out = as_float(out / applied, f"Radiance file {str(p)!r} pixels divided by EXPOSURE × COLORCORR", np.float32)
+    return out
 
 
 def write_rgbe(path, image):

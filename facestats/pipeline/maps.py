@@ -19,6 +19,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from facestats.errors import FitError
 from facestats.io.schema import FLAG_BITS
 from facestats.model import fitting
 from facestats.pipeline.settings import MAP_VARS, STD_VARS
@@ -64,7 +65,7 @@ def subject_maps(res, texel, face, workers=1):
             if f"{key}_flag" in res:
                 names = map_vars + tuple(v for v in STD_VARS[key] if v in maps)
                 jobs[key] = pool.submit(
-                    _model_maps, [maps[v] for v in names], res[f"{key}_flag"], texel, face, has_data
+                    _model_maps, [maps[v] for v in names], res[f"{key}_flag"], texel, face, has_data, key
                 )
         jobs["albedo"] = pool.submit(_filled_map, maps["albedo"], face, has_data)
         jobs["normal"] = pool.submit(_filled_map, maps["normal"], face, has_data, unit=True)
@@ -108,17 +109,26 @@ def _averaged_maps(res, texel, size):
     return maps, count > 0
 
 
-def _model_maps(values, flags, texel, face, has_data):
+def _model_maps(values, flags, texel, face, has_data, model):
     """One model's maps with flagged and empty face texels filled from their neighbours (§5.3), and its flag map.
 
     ``values`` are the model's (size, size) maps (NaN where no lumitexel landed),
-    ``flags`` the per-lumitexel fit flags; off the face everything is 0.
+    ``flags`` the per-lumitexel fit flags; off the face everything is 0.  A model whose every face texel is
+    flagged leaves nothing to fill from: a :class:`FitError` naming the model and its flags.
     """
     size = face.shape[0]
     fl = np.zeros((size, size), np.uint8)
     np.bitwise_or.at(fl, (texel[:, 0], texel[:, 1]), flags.astype(np.uint8))
     hole = face & ~has_data  # texels no lumitexel maps to (the map is finer than the mesh)
     bad = face & ((fl != 0) | hole)
+    if face.any() and bad[face].all():
+        raised = {name: int(np.count_nonzero(fl[face] & bit)) for name, bit in FLAG_BITS.items() if bit}
+        raise FitError(
+            f"every face texel's {model}_ fit is flagged ({', '.join(f'{k}: {v}' for k, v in raised.items() if v)} "
+            f"of {int(face.sum())} texels): nothing to fill its maps from; the sample limits (max_angle_deg, and "
+            "bp_max_angle_deg for Blinn-Phong) may leave too few samples per lumitexel, or the capture holds no "
+            "usable specular data"
+        )
     filled = fitting.fill_flagged(np.stack(values, axis=-1), bad, face)  # filled together: push-pull is linear
     fl[bad] |= FLAG_BITS["filled"]
     fl[~face] = 0

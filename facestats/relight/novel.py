@@ -44,7 +44,7 @@ import numpy as np
 from facestats.acquire.geometry import grid_triangles
 from facestats.acquire.visibility import rasterize
 from facestats.core.published import ETA_SKIN
-from facestats.core.validate import as_finite, check_shape
+from facestats.core.validate import as_finite, as_float, check_shape
 from facestats.errors import ValidationError
 from facestats.model.brdf import v_groove_shadowing_unchecked
 from facestats.model.fresnel import check_eta, fresnel_reflectance_unchecked
@@ -187,7 +187,10 @@ def shift_diffuse_chromaticity(diffuse, cos_i, cos_r_old, cos_r_new, alpha0, alp
     ----------
     diffuse : array_like, shape (L, N, 3)
     cos_i : array_like, shape (L, N)
-    cos_r_old, cos_r_new, alpha0, alpha1 : array_like, shape (N,)
+    cos_r_old, cos_r_new : array_like, shape (N,)
+    alpha0, alpha1 : array_like, shape (N,)
+        The ramp of each pixel (:func:`facestats.relight.separate.fit_chromaticity_ramp`); NaN where it has none
+        (too few samples): those pixels keep their colours.
     s : array_like, shape (3,), optional
         Light chromaticity (default white).
 
@@ -195,20 +198,26 @@ def shift_diffuse_chromaticity(diffuse, cos_i, cos_r_old, cos_r_new, alpha0, alp
     -------
     ndarray, shape (L, N, 3)
     """
-    d = as_finite(diffuse, "diffuse", dtype=np.float64)
+    d = check_shape(as_finite(diffuse, "diffuse", dtype=np.float64), "diffuse (L, N, 3)", (None, None, 3))
     s_unit = unit_rgb(np.ones(3) if s is None else s, "s")
     norm = np.linalg.norm(d, axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         c = d / norm[..., None]
-    ci = np.clip(np.asarray(cos_i, np.float64), 0, 1)
-    a0, a1 = np.asarray(alpha0, np.float64), np.asarray(alpha1, np.float64)
-    f0 = ramp_factor(ci, np.asarray(cos_r_old)[None], a0[None], a1[None])
-    fn = ramp_factor(ci, np.asarray(cos_r_new)[None], a0[None], a1[None])
+    ci = np.clip(check_shape(as_finite(cos_i, "cos_i", dtype=np.float64), "cos_i", d.shape[:2]), 0, 1)
+    per_pixel = {
+        name: check_shape(np.asarray(as_float(value, name, np.float64)), name, d.shape[1:2])
+        for name, value in (("cos_r_old", cos_r_old), ("cos_r_new", cos_r_new), ("alpha0", alpha0), ("alpha1", alpha1))
+    }
+    for name in ("cos_r_old", "cos_r_new"):
+        as_finite(per_pixel[name], name)
+    a0, a1 = per_pixel["alpha0"], per_pixel["alpha1"]
+    f0 = ramp_factor(ci, per_pixel["cos_r_old"][None], a0[None], a1[None])
+    fn = ramp_factor(ci, per_pixel["cos_r_new"][None], a0[None], a1[None])
     # d₀ from c: λ c = (1 + f₀) d₀ − f₀ s with ‖d₀‖ = 1 → ‖λ c + f₀ s‖ = 1 + f₀, λ > 0.
     cs = _dot(c, s_unit)
     lam = -f0 * cs + np.sqrt(np.maximum((f0 * cs) ** 2 - f0**2 + (1 + f0) ** 2, 0))
     d0 = _unit(lam[..., None] * c + f0[..., None] * s_unit)
-    ok = (norm > 0) & np.all(np.isfinite(d0), axis=-1)
+    ok = (norm > 0) & np.all(np.isfinite(d0), axis=-1) & np.isfinite(fn)
     new = ramp_chromaticity(np.where(ok[..., None], d0, s_unit), s_unit, np.where(ok, fn, 0.0))
     return np.where(ok[..., None], norm[..., None] * new, d)
 

@@ -43,7 +43,7 @@ import warnings
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_shape
+from facestats.core.validate import as_finite, check_broadcast, check_shape
 from facestats.errors import ValidationError
 from facestats.model.sphere import unit_directions
 from facestats.relight.field import as_field, light_dims, light_table
@@ -135,14 +135,17 @@ def fit_chromaticity_ramp(values, cos_i, cos_r, d0, s=WHITE, weights=None):
     alpha0, alpha1 : ndarray, shape (N,)
         NaN where fewer than two usable samples with distinct cos θi cos θr exist.
     """
-    r = check_shape(as_finite(values, "values", dtype=np.float64), "values", (None, None, 3))
+    r = check_shape(as_finite(values, "values", dtype=np.float64), "values (samples, pixels, 3)", (None, None, 3))
     ci = check_shape(as_finite(cos_i, "cos_i", dtype=np.float64), "cos_i", r.shape[:2])
     cr = check_shape(as_finite(cos_r, "cos_r", dtype=np.float64), "cos_r", r.shape[1:2])
     norm = np.linalg.norm(r, axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         c = r / norm[..., None]
-    f = ramp_factor_from_chromaticity(c, np.broadcast_to(unit_rgb(d0, "d0"), r.shape[1:]), s)
-    w = norm * (ci > 0) if weights is None else as_finite(weights, "weights", 0, None, dtype=np.float64)
+    f = ramp_factor_from_chromaticity(c, check_broadcast(unit_rgb(d0, "d0"), "d0", r.shape[1:], "a pixel of values"), s)
+    if weights is None:
+        w = norm * (ci > 0)
+    else:
+        w = check_broadcast(as_finite(weights, "weights", 0, None, dtype=np.float64), "weights", r.shape[:2], "cos_i")
     w = np.where(np.isfinite(f) & (norm > 0), w, 0.0)
     f = np.where(w > 0, f, 0.0)
     x = ci * cr[None, :]
@@ -239,7 +242,7 @@ def separate_colour(values, d, s=WHITE):
         negative μs is set to 0.
     """
     r = check_shape(as_finite(values, "values", dtype=np.float64), "values", (..., 3))
-    dd = np.broadcast_to(unit_rgb(d, "d"), r.shape)
+    dd = check_broadcast(unit_rgb(d, "d"), "d", r.shape, "values")
     ss = unit_rgb(s, "s")
     e = np.cross(dd, np.broadcast_to(ss, r.shape))
     # Inverse of [d s e] by cross products: rows (s × e, e × d, d × s) / det.

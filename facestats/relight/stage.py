@@ -566,6 +566,8 @@ def relight_subject(
     mask : ndarray of bool, shape (size, size)
     """
 
+    if np.ndim(lights) != 1 or np.size(lights) != 2:
+        raise ValidationError(f"lights must be (n_theta, n_phi), two integers, got {lights!r}")
     n_theta, n_phi = lights
     d, _ = light_stage_directions(n_theta, n_phi)
     w = resample_probe(probe, d, layout=layout, rotate=rotate)

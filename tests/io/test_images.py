@@ -23,6 +23,21 @@ def test_hdr_round_trip_keeps_orientation_and_values(tmp_path, ext):
     np.testing.assert_allclose(back, img, rtol=0, atol=2.5 / 128 if ext == ".hdr" else 0)
 
 
+def test_rgbe_exposure_and_colour_correction_are_divided_out(tmp_path):
+    # Radiance's EXPOSURE= and COLORCORR= record multipliers already applied to the pixels, cumulatively
+    img = _bright()
+    raw = images.write_rgbe(tmp_path / "x.hdr", img).read_bytes()
+    stored = images.read_rgbe(tmp_path / "x.hdr")
+    head = b"FORMAT=32-bit_rle_rgbe\n"
+    (tmp_path / "e.hdr").write_bytes(raw.replace(head, head + b"EXPOSURE= 2\nCOLORCORR=1 2 4\nEXPOSURE=0.25\n"))
+    back = images.read_rgbe(tmp_path / "e.hdr")
+    np.testing.assert_allclose(back, stored / (0.5 * np.array([1, 2, 4])), rtol=1e-6)
+    for bad in (b"EXPOSURE=0", b"EXPOSURE=inf", b"EXPOSURE=two", b"COLORCORR=1 2"):
+        (tmp_path / "b.hdr").write_bytes(raw.replace(head, head + bad + b"\n"))
+        with pytest.raises(images.ImageFormatError, match=bad.split(b"=")[0].decode()):
+            images.read_rgbe(tmp_path / "b.hdr")
+
+
 def test_exr_half_channels_and_attributes(tmp_path):
     rng = np.random.default_rng(0)
     chans = {

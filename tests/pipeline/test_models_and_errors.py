@@ -13,6 +13,7 @@ from facestats.acquire.synthetic.population import synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator
 from facestats.analysis import model_errors
 from facestats.analysis.plots import plot_model_errors
+from facestats.errors import FitError
 from facestats.io.schema import FLAG_BITS
 from facestats.model.fitting.solver import PLAUSIBLE_LOBE
 from facestats.pipeline import FitSettings, fit_subject
@@ -48,6 +49,9 @@ def test_blinn_phong_maps_are_honest_on_torrance_sparrow_captures(case):
     # Both errors are scored on the same 80° samples: Blinn-Phong fits worse, never better, than its own 80° fit.
     ratio = np.median(ds.bp_error.values[face] / printed.bp_error.values[face])
     assert 1.0 <= ratio < 1.05
+    # A limit that leaves every lumitexel too few samples flags every fit: a clear error, not a failed fill
+    with pytest.raises(FitError, match=r"every face texel's bp_ fit is flagged \(few_samples: \d+ of \d+"):
+        fit_subject(cap, pop.sigma_tr_avg, FitSettings(micro_normals=False, bp_max_angle_deg=10.0))
 
 
 def test_residual_by_angle_locates_the_mismatch_at_grazing_angles(case):

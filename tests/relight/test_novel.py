@@ -67,6 +67,18 @@ def test_diffuse_chroma_shift_follows_the_ramp_exactly(rng):
     assert np.allclose(moved, diffuse(crn), atol=1e-12)
     same = novel.shift_diffuse_chromaticity(diffuse(cr0), cos_i, cr0, cr0, a0, a1, s)
     assert np.allclose(same, diffuse(cr0), atol=1e-12)
+    # a pixel without a ramp (NaN alphas, as fit_chromaticity_ramp returns) keeps its colours; NaN views and
+    # per-pixel arrays of the wrong length are refused by name
+    no_ramp = a0.copy()
+    no_ramp[3] = np.nan
+    kept = novel.shift_diffuse_chromaticity(diffuse(cr0), cos_i, cr0, crn, no_ramp, a1, s)
+    assert np.array_equal(kept[:, 3], diffuse(cr0)[:, 3]) and np.allclose(kept[:, 4:], moved[:, 4:], atol=1e-12)
+    bad_view = crn.copy()
+    bad_view[0] = np.nan
+    with pytest.raises(ValidationError, match="cos_r_new"):
+        novel.shift_diffuse_chromaticity(diffuse(cr0), cos_i, cr0, bad_view, a0, a1, s)
+    with pytest.raises(ValidationError, match="alpha1"):
+        novel.shift_diffuse_chromaticity(diffuse(cr0), cos_i, cr0, crn, a0, a1[:5], s)
 
 
 def test_reprojection_into_the_same_camera_returns_the_image():

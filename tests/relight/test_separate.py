@@ -50,6 +50,19 @@ def test_near_parallel_colours_are_flagged_by_the_condition_number():
         sep.separate_colour([[1.0, 1.0, 1.0]], [1, 1, 1], [1, 1, 1])
 
 
+def test_colours_and_weights_of_the_wrong_shape_are_refused_by_name():
+    with pytest.raises(ValidationError, match=r"d of shape \(5, 3\) does not broadcast .* of values"):
+        sep.separate_colour(np.ones((4, 3)), np.ones((5, 3)))
+    args = np.ones((6, 2, 3)), np.ones((6, 2)), np.ones(2)
+    with pytest.raises(ValidationError, match=r"d0 of shape \(3, 3\)"):
+        sep.fit_chromaticity_ramp(*args, np.ones((3, 3)))
+    with pytest.raises(ValidationError, match=r"weights of shape \(5, 2\)"):
+        sep.fit_chromaticity_ramp(*args, SKIN, weights=np.ones((5, 2)))
+    # the basis of §4.2 that the compression shares: columns d, s, d x s
+    m = sep.separation_basis(sep.unit_rgb(SKIN), sep.WHITE)
+    assert np.allclose(m[:, 2], np.cross(sep.unit_rgb(SKIN), sep.WHITE)) and np.allclose(m[:, 1], sep.WHITE)
+
+
 def test_diffuse_chromaticity_is_the_median_ratio_colour():
     d, _ = light_stage_directions(16, 8)
     vals = np.clip(d[..., 2:3], 0, None).reshape(-1, 1, 1) * SKIN  # (L, 1, 3)

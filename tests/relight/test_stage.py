@@ -129,3 +129,6 @@ def test_subjects_without_a_known_geometry_are_refused(subject):
         stage.render_subject(subject, np.ones(2048), camera=stage.stage_camera(size=8))
     with pytest.raises(ValidationError, match="lighting must be within the float32 range"):
         stage.render_subject(subject, np.full((2048, 3), 1e39), camera=stage.stage_camera(size=8))
+    for lights in ((8,), (8, 4, 2), 8):
+        with pytest.raises(ValidationError, match=r"lights must be \(n_theta, n_phi\)"):
+            stage.relight_subject(subject, sky_probe(16), lights=lights, camera=stage.stage_camera(size=8))

@@ -164,6 +164,8 @@ def per_pixel_values(n_parts: int) -> int:
 
 def _number(value, name, low, high=None, **bounds):
     """A finite scalar within [``low``, ``high``] (``bounds``: as :func:`facestats.core.validate.check_range`)."""
+    if isinstance(value, (bool, np.bool_)):
+        raise ValidationError(f"{name} must be a number, got {value!r}")
     r = as_finite(value, name, low, high, **bounds)
     if r.ndim:
         raise ValidationError(f"{name} must be a number, got an array of shape {r.shape}")
@@ -261,6 +263,16 @@ def _normalised(rows):
     return (rows / np.where(norm > 0, norm, 1)).astype(rows.dtype)
 
 
+def light_colour(value, name: str = "specular") -> np.ndarray:
+    """A light colour as a unit RGB vector (3,) float64: finite, no component negative, not all zero."""
+    c = as_finite(value, name, dtype=np.float64)
+    if c.shape != (3,):
+        raise ValidationError(f"{name} must be one RGB colour, shape (3,), got shape {c.shape}")
+    if np.any(c < 0) or not np.any(c > 0):
+        raise ValidationError(f"{name} must have components >= 0, not all zero (a light's colour), got {c.tolist()}")
+    return unit_rgb(c, name)
+
+
 def diffuse_colours(rows, specular=WHITE) -> np.ndarray:
     """Diffuse colour d of each pixel's reflectance functions, (n, 3) float64 unit RGB vectors.
 
@@ -277,9 +289,9 @@ def diffuse_colours(rows, specular=WHITE) -> np.ndarray:
     orthogonal to s) instead.
     """
     r = as_finite(rows, "rows", dtype=np.float32)
-    if r.ndim != 3 or r.shape[1] != 3:
-        raise ValidationError(f"rows must have shape (pixels, 3, lights), got {r.shape}")
-    s = unit_rgb(specular, "specular")
+    if r.ndim != 3 or r.shape[1] != 3 or r.shape[2] < 1:
+        raise ValidationError(f"rows must have shape (pixels, 3, lights) with at least one light, got {r.shape}")
+    s = light_colour(specular)
     along = np.einsum("ncl,c->nl", r, s.astype(np.float32), dtype=np.float64)  # (n, L)
     total = r.sum(-1, dtype=np.float64)  # (n, 3)
     offset = total - (total @ s)[:, None] * s
@@ -324,12 +336,13 @@ class _Pass:
         self.inverse, self.off_plane = inverse, off_plane
 
     def colour_rows(self, sel, rows):
-        """The colour rows g = [d s d×s]⁻¹ y (n, 3, L) float32 of channel rows y; values within float32 rounding
-        of zero (≤ 1e-6 of their sample's norm, the product's rounding) set to 0, so that a μs of a purely
-        diffuse sample is zero as it is exactly; off-plane rows not stored set to 0."""
-        g = np.einsum("nqc,ncl->nql", self.inverse[sel].astype(np.float32), rows)
-        size = np.sqrt(np.einsum("ncl,ncl->nl", rows, rows))[:, None, :]
-        g[np.abs(g) <= 1e-6 * size] = 0
+        """The colour rows g = [d s d×s]⁻¹ y (n, 3, L) float32 of channel rows y, the product taken in float64 (a
+        faint coordinate, e.g. the μs that alone makes a blue channel where the albedo has no blue, keeps its
+        own precision), in slices of pixels; off-plane rows not stored set to 0."""
+        g = np.empty(rows.shape, np.float32)
+        inverse = self.inverse[sel]
+        for i in range(0, rows.shape[0], 1024):  # loop over slices of pixels: a float64 slice at a time
+            g[i : i + 1024] = np.matmul(inverse[i : i + 1024], rows[i : i + 1024].astype(np.float64))
         g[~self.off_plane[sel], 2] = 0
         return g
 
@@ -891,8 +904,9 @@ def compress(
         In [1, 8]: each (region, cluster, row) block's lights are split into this many parts by how often the
         cluster's functions are zero there, each part with its own basis (module docstring, *Parts by zeros*).
     specular : array_like, shape (3,)
-        Colour of the light (and so of the specular reflection) in the field's RGB; the field's values are per
-        unit irradiance of each light, so white unless the lights' colours were not divided out.
+        Colour of the light (and so of the specular reflection) in the field's RGB (components ≥ 0, not all 0); the
+        field's values are per unit irradiance of each light, so white unless the lights' colours were not divided
+        out.
     off_plane : float
         In [0, 1]: a pixel's coordinate off the plane of its diffuse colour and ``specular`` is stored as a
         third row when its contribution's norm exceeds this share of the pixel's norm (0 stores every non-zero
@@ -922,9 +936,7 @@ def compress(
     s = check_integer(sample, "sample", 1)
     fl = _number(floor, "floor", 0, 1)
     n_parts = check_integer(parts, "parts", 1, 8)
-    light = unit_rgb(specular, "specular")
-    if light.shape != (3,):
-        raise ValidationError(f"specular must be one RGB colour, shape (3,), got {light.shape}")
+    light = light_colour(specular)
     tol = _number(off_plane, "off_plane", 0, 1)
     nf = min(check_integer(features, "features", 1), n)
     rng = np.random.default_rng(check_seed(seed))

@@ -233,6 +233,31 @@ def test_off_plane_rows_are_stored_when_they_matter(field):
     assert not any(key[2] == 2 for key in flat.blocks) and flat.residual[:, 2].max() > 1e-3
     err = np.abs(flat.relight(lw) - dense)[m]
     assert err.max() > 1e-4 and np.all(err <= flat.error_bound(lw)[m] * (1 + 1e-4) + 1e-7)
-    for bad, name in (([1, 1], "specular"), ([0, 0, 0], "specular"), (2.0, "off_plane"), (np.nan, "off_plane")):
+    bad_args = [([1, 1], "specular"), ([0, 0, 0], "specular"), ([-1, -1, -1], "specular"), ([1, -1, 0], "specular")]
+    bad_args += [(2.0, "off_plane"), (np.nan, "off_plane"), (True, "ratio")]
+    for bad, name in bad_args:
         with pytest.raises(ValidationError, match=name):
             cmp.compress(field, **{name: bad})
+    with pytest.raises(ValidationError, match="specular"):
+        cmp.diffuse_colours(np.ones((2, 3, 4)), specular=np.ones((2, 3)))
+    with pytest.raises(ValidationError, match="at least one light"):
+        cmp.diffuse_colours(np.ones((2, 3, 0)))
+
+
+def test_scale_does_not_change_the_compression(field):
+    # every step is linear in the field: a field 1e25 times brighter (beyond float32's square root range, where
+    # norms of float32 rows overflow) compresses to the same relight, scaled; a dark channel made only by a faint
+    # specular tail (no blue in the albedo) keeps its precision
+    lw = resample_probe(sky_probe(32), field["direction"].values)
+    m = field["mask"].values
+    bright = field.copy(deep=True)
+    bright["reflectance"].values[...] *= np.float32(1e25)
+    a = cmp.compress(field, ratio=0.5, clusters=2).relight(lw)
+    b = cmp.compress(bright, ratio=0.5, clusters=2).relight(lw)
+    assert np.allclose(b[m] / 1e25, a[m], rtol=1e-5)
+    f, _, _ = ts_lambert_field(14, 14, albedo=(0.5, 0.3, 0.0), rho_s=1e-4, n_theta=32, n_phi=16)
+    dense = relight(f, lw)[f["mask"].values]
+    full = cmp.compress(f, ratio=0.5, clusters=2)
+    got = full.relight(lw)[f["mask"].values]
+    assert np.max(np.abs(got - dense)[:, 2] / dense[:, 2]) < 1e-2  # 0.5 % (15 % when rounding was snapped to 0)
+    assert np.all(np.abs(got - dense) <= full.error_bound(lw)[f["mask"].values] * (1 + 1e-4) + 1e-6 * np.abs(dense))

@@ -396,23 +396,21 @@ def _clusters(stream, c, nf, s, rng):
     return labels.astype(np.int64)
 
 
-def _region_scales(rows, regions, sw, floor, mix=None):
-    """Per region, the divisor (n, 3) float64 of each row's part (module docstring, *The error metric*).
+def _region_scales(rows, regions, sw, floor, mix):
+    """Per region, the divisor (n, 3) float64 of each colour row's part (module docstring, *The error metric*).
 
     ``rows`` (n, 3, L) the weighted channel rows y; the channel tolerances t_c,r = max(s_c,r, ``floor`` · s_c),
     s_c,r = Σ_{l∈r} √δA_l |y_c,l|, s_c = Σ_r s_c,r.  ``mix`` (n, 3, 3), A with channels on axis 1 and colour rows
-    on axis 2: the divisor of colour row q is min_c t_c,r / |A_cq| (rows that reach no channel get 1); without
-    it, one row per channel, the divisors are t_c,r.
+    on axis 2: the divisor of colour row q is min_c t_c,r / |A_cq| (rows that reach no channel get 1; with A the
+    identity, one row per channel, the divisors are the t_c,r).
     """
     absw = np.abs(rows)
     parts = [np.einsum("ncl,l->nc", absw[:, :, lights], sw[lights], dtype=np.float64) for lights in regions]
     total = np.sum(parts, axis=0)
-    tolerances = [np.maximum(part, floor * total) for part in parts]
-    if mix is None:
-        return tolerances
     weight = np.abs(mix)
     out = []
-    for t in tolerances:
+    for part in parts:
+        t = np.maximum(part, floor * total)
         with np.errstate(divide="ignore", invalid="ignore"):
             ok = (weight > 0) & (t[:, :, None] > 0)  # a channel that is zero throughout is left out
             q = np.min(np.where(ok, t[:, :, None] / np.where(ok, weight, 1), np.inf), axis=1)
@@ -946,7 +944,7 @@ def compress(
     stream = _Pass(f, pixels, sw, progress)
     colours, off_kept, off_dropped = _colours(stream, light, tol)
     mix = separation_basis(colours, light)
-    stream.set_colours(np.linalg.inv(mix), off_kept)
+    stream.set_colours(_colour_inverse(colours, light), off_kept)
     labels = _clusters(stream, c, nf, s, rng)
     supports = _supports(stream, labels, regions, n_parts)
     grams, rows_of = _grams(stream, mix, labels, regions, fl, supports)  # rows_of: the rows a block stores

@@ -184,12 +184,20 @@ def test_region_parts_are_scaled_by_their_values_under_uniform_light(field):
                for r in np.unique(regions)]  # fmt: skip
     total = np.sum(uniform, axis=0)
     assert total.min() > 0
+    one_row_per_channel = np.broadcast_to(np.eye(3), (len(rows), 3, 3))  # A = I: the colour rows are R, G, B
     for floor in (0.0, 0.3, 1.0):
-        scales = cmp._region_scales(rows, lights, sw, floor)
+        scales = cmp._region_scales(rows, lights, sw, floor, one_row_per_channel)
         for s_r, u in zip(scales, uniform):
-            assert np.allclose(s_r, np.maximum(u, floor * total), rtol=1e-5, atol=1e-9)
+            t = np.maximum(u, floor * total)
+            assert np.allclose(s_r, np.where(t > 0, t, 1), rtol=1e-5, atol=1e-9)  # a zero part is not scaled
     # absolute values: a field with negative noise still gets positive scales
-    assert np.allclose(cmp._region_scales(-rows, lights, sw, 0.0)[0], uniform[0], rtol=1e-5, atol=1e-9)
+    first = cmp._region_scales(-rows, lights, sw, 0.0, one_row_per_channel)[0]
+    assert np.allclose(first, np.where(uniform[0] > 0, uniform[0], 1), rtol=1e-5, atol=1e-9)
+    # a colour row is scaled by the worst relative error it makes in a channel: min_c t_c / |A_cq|
+    mix = np.broadcast_to(np.array([[0.8, 0.5, 0.0], [0.5, 0.5, 0.0], [0.3, 0.5, 1.0]]), (len(rows), 3, 3))
+    t = np.maximum(uniform[0], 0.3 * total)
+    expected = np.stack([np.min(t / mix[:, :, 0], 1), np.min(t / mix[:, :, 1], 1), t[:, 2]], 1)
+    assert np.allclose(cmp._region_scales(rows, lights, sw, 0.3, mix)[0], expected, rtol=1e-5, atol=1e-9)
     for bad in (-0.1, 1.5, np.nan, [0.1, 0.2]):
         with pytest.raises(ValidationError, match="floor"):
             cmp.compress(field, floor=bad)

@@ -204,15 +204,13 @@ def shift_diffuse_chromaticity(diffuse, cos_i, cos_r_old, cos_r_new, alpha0, alp
     with np.errstate(invalid="ignore", divide="ignore"):
         c = d / norm[..., None]
     ci = np.clip(check_shape(as_finite(cos_i, "cos_i", dtype=np.float64), "cos_i", d.shape[:2]), 0, 1)
-    per_pixel = {
-        name: check_shape(np.asarray(as_float(value, name, np.float64)), name, d.shape[1:2])
-        for name, value in (("cos_r_old", cos_r_old), ("cos_r_new", cos_r_new), ("alpha0", alpha0), ("alpha1", alpha1))
-    }
-    for name in ("cos_r_old", "cos_r_new"):
-        as_finite(per_pixel[name], name)
-    a0, a1 = per_pixel["alpha0"], per_pixel["alpha1"]
-    f0 = ramp_factor(ci, per_pixel["cos_r_old"][None], a0[None], a1[None])
-    fn = ramp_factor(ci, per_pixel["cos_r_new"][None], a0[None], a1[None])
+    n = d.shape[1:2]
+    cr0 = check_shape(as_finite(cos_r_old, "cos_r_old", dtype=np.float64), "cos_r_old", n)
+    crn = check_shape(as_finite(cos_r_new, "cos_r_new", dtype=np.float64), "cos_r_new", n)
+    a0 = check_shape(as_float(alpha0, "alpha0", np.float64), "alpha0", n)  # NaN: no ramp
+    a1 = check_shape(as_float(alpha1, "alpha1", np.float64), "alpha1", n)
+    f0 = ramp_factor(ci, cr0[None], a0[None], a1[None])
+    fn = ramp_factor(ci, crn[None], a0[None], a1[None])
     # d₀ from c: λ c = (1 + f₀) d₀ − f₀ s with ‖d₀‖ = 1 → ‖λ c + f₀ s‖ = 1 + f₀, λ > 0.
     cs = _dot(c, s_unit)
     lam = -f0 * cs + np.sqrt(np.maximum((f0 * cs) ** 2 - f0**2 + (1 + f0) ** 2, 0))

@@ -33,7 +33,14 @@ compressed with Blosc-LZ4 (radiance unshuffled, irradiance byte-shuffled):
 measured on a 512² capture, radiance decodes in 7 µs per lumitexel against
 24 µs with zarr's default zstd, for 32 % more bytes (``benchmarks/bench_fit.py``,
 ``codec``); the fit reads every chunk once, so decoding speed wins.  Other
-arrays keep zarr's default (zstd).  Captures written with any codec read the same.  Real captures are brought
+arrays keep zarr's default (zstd).  Captures written with any codec read the same.
+
+zarr leaves out a chunk that holds only its fill value, so a deleted radiance chunk would read as
+2048 lumitexels of invalid samples and the fit would fill them in from their neighbours.  A
+:class:`CaptureWriter` therefore writes every chunk, fill values or not, and marks the group with
+:data:`ALL_CHUNKS_ATTR`; :func:`open_capture` refuses such a capture when any array has fewer chunks
+on disk than its shape asks for (deleted, or not yet written).  Captures written before the mark
+are read as before.  Real captures are brought
 into this layout by whoever registers the images to the geometry; everything
 downstream (the fit pipeline) reads only this layout.
 
@@ -279,6 +286,10 @@ class Capture:
         return str(path)
 
 
+#: Group attribute of captures whose every chunk is on disk once written (module docstring).
+ALL_CHUNKS_ATTR = "all_chunks_written"
+
+
 def _lz4(shuffle):
     """A Blosc-LZ4 compressor (zarr v3 codec) with the given shuffle."""
     from zarr.codecs import BloscCodec
@@ -329,9 +340,17 @@ class CaptureWriter:
             fill = np.nan if dtype.startswith("float") else 0
             codec = {"compressors": CAPTURE_CODECS[name]()} if name in CAPTURE_CODECS else {}
             self.group.create_array(
-                name, shape=shape, chunks=chunks, dtype=dtype, dimension_names=dims, fill_value=fill, **codec
+                name,
+                shape=shape,
+                chunks=chunks,
+                dtype=dtype,
+                dimension_names=dims,
+                fill_value=fill,
+                config={"write_empty_chunks": True},  # a missing chunk is then damage (module docstring)
+                **codec,
             )
         self.group.attrs.update({k: (json.dumps(v) if isinstance(v, dict) else v) for k, v in attrs.items()})
+        self.group.attrs[ALL_CHUNKS_ATTR] = True
         self.group.attrs["channel"] = list(CHANNELS)
         self.group.attrs["site"] = list(SITES)
 
@@ -348,15 +367,21 @@ class CaptureWriter:
             raise FormatError(f"cannot reopen capture {path!s}: {exc}") from None
         return self
 
+    def array(self, name):
+        """The group's array ``name`` to write to, writing every chunk if the capture is marked so (zarr does not
+        keep the setting in the array's metadata)."""
+        arr = self.group[name]
+        return arr.with_config({"write_empty_chunks": True}) if self.group.attrs.get(ALL_CHUNKS_ATTR) else arr
+
     def write_block(self, start, arrays: dict):
         """Write per-lumitexel arrays for the lumitexels from ``start`` on."""
         for name, arr in arrays.items():
-            self.group[name][start : start + arr.shape[0]] = arr
+            self.array(name)[start : start + arr.shape[0]] = arr
 
     def write_global(self, arrays: dict):
         """Write arrays that are not per lumitexel (region map, sensor data) whole."""
         for name, arr in arrays.items():
-            self.group[name][...] = arr
+            self.array(name)[...] = arr
 
 
 def open_capture(path) -> Capture:
@@ -372,4 +397,10 @@ def open_capture(path) -> Capture:
         if name not in g:
             raise FormatError(f"capture {path!s} is missing the array {name!r}")
         arrays[name] = g[name]
+        if g.attrs.get(ALL_CHUNKS_ATTR) and arrays[name].nchunks_initialized < arrays[name].nchunks:
+            raise FormatError(
+                f"capture {path!s}: array {name!r} has {arrays[name].nchunks_initialized} of its "
+                f"{arrays[name].nchunks} chunks on disk (a chunk was deleted, or the capture was not completely "
+                "written)"
+            )
     return Capture(arrays=arrays, attrs=dict(g.attrs), path=str(path))

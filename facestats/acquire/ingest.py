@@ -340,7 +340,7 @@ def ingest_photographs(
     for cam in it:  # loop over cameras: one camera's samples in memory at a time
         resolved = footprint_px(dome, geometry, cam) >= min_footprint_px
         rad, _, flags = _camera_samples(folder, dome, vis, cam, motion_tolerance, workers, resolved)
-        writer.group["radiance"][:, cam] = rad.astype(np.float16)
+        writer.array("radiance")[:, cam] = rad.astype(np.float16)
         state["cameras_done"].append(int(cam))
         state["motion_flags"].extend(flags)
         writer.group.attrs[_ATTR] = json.dumps(state)  # the camera is on disk: record it

@@ -257,21 +257,37 @@ def angular_solid_angles(size: int, order: int = 8, rows: slice | None = None) -
     """Solid angle of every angular-map pixel, (S, S), sr (Gauss-Legendre quadrature of the Jacobian); ``rows``:
     only those rows, the same values as the full image's.
 
-    ∫∫_pixel π sin(π r)/r du dv over the part of the pixel inside the unit disc,
-    with an ``order`` × ``order`` Gauss-Legendre rule per pixel (the Jacobian is
-    smooth and vanishes at r = 1, so the sum is 4π to about 1e-4 at order 8).
+    ∫∫_pixel π sin(π r)/r du dv over the part of the pixel inside the unit disc (dΩ = sin θ dθ dφ with
+    θ = π r and du dv = r dr dφ).  Pixels that the rim r = 1 crosses take an ``order`` × ``order``
+    Gauss-Legendre rule (the integrand has a kink there; the sum is 4π to about 1e-4 at order 8 and
+    S = 8, 1e-7 at S = 256).  Pixels wholly inside the disc, where the integrand is analytic, take
+    min(``order``, :data:`INTERIOR_ORDER`)²: checked against order 8, the same to 5e-8 relative at
+    S = 3, 2e-11 at S = 8 and 1e-14 from S = 32 (four times fewer evaluations than order 8 everywhere).
     """
     s = check_integer(size, "size", 1)
     n = check_integer(order, "order", 1, 64)
-    x, wq = np.polynomial.legendre.leggauss(n)
     half = 1.0 / s  # half a pixel in (u, v) units (pixel side 2/S)
-    u0, v0 = _angular_uv(s, _rows(s, rows))
-    uu = u0[..., None, None] + half * x[None, None, :, None]
-    vv = v0[..., None, None] + half * x[None, None, None, :]
+    u0, v0 = np.broadcast_arrays(*_angular_uv(s, _rows(s, rows)))
+    far = np.hypot(np.abs(u0) + half, np.abs(v0) + half)  # the pixel's corner farthest from the centre
+    out = _pixel_quadrature(u0, v0, half, min(n, INTERIOR_ORDER))
+    rim = far > 1
+    if n > INTERIOR_ORDER and rim.any():
+        out[rim] = _pixel_quadrature(u0[rim], v0[rim], half, n)
+    return out
+
+
+#: Gauss-Legendre order of :func:`angular_solid_angles` on pixels wholly inside the disc.
+INTERIOR_ORDER = 4
+
+
+def _pixel_quadrature(u0, v0, half, n):
+    """∫∫ π sin(π r)/r du dv (0 outside r ≤ 1) over the squares of half-side ``half`` centred on (u0, v0),
+    by an n × n Gauss-Legendre rule; any shape of centres."""
+    x, wq = np.polynomial.legendre.leggauss(n)
+    uu = u0[..., None, None] + half * x[:, None]
+    vv = v0[..., None, None] + half * x[None, :]
     r = np.sqrt(uu * uu + vv * vv)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        jac = np.where(r > 0, np.pi * np.sin(np.pi * np.minimum(r, 1)) / np.where(r > 0, r, 1), np.pi * np.pi)
-    jac = np.where(r <= 1, jac, 0.0)
+    jac = np.where(r <= 1, np.pi * np.pi * np.sinc(r), 0.0)  # π sin(π r)/r = π² sinc(r), π² at r = 0
     return (jac * (wq[:, None] * wq[None, :])).sum(axis=(-2, -1)) * half * half
 
 

@@ -67,10 +67,11 @@ justification (the measurements behind it: ``docs/relighting.md``, D2):
   stay inside the region they belong to.
 * **Components where they pay.**  Each (cluster, region) block offers its
   components in the order of its singular values; a component of block b costs
-  L_b + n_b stored values (its basis row and one coefficient per stored row)
-  and removes σ² of the scaled rows' squared residual.  Components are
-  taken greedily by σ² per stored value until the budget of the ratio is
-  spent, so flat regions get none and the specular regions many.
+  L_b + n_b stored values (its basis row and one coefficient per stored row),
+  its first one also the block's header (its number of components), and
+  removes σ² of the scaled rows' squared residual.  Components are taken
+  greedily by σ² per stored value until the budget of the ratio is spent, so
+  flat regions get none and the specular regions many.
 * **The error metric.**  Environment lighting weights each light by its solid
   angle δA (eq. 4), so each basis minimises Σ_l δA_l (R − R̂)²: rows are scaled
   by √δA.  A relit image is judged by its *relative* error per pixel and
@@ -485,7 +486,7 @@ def _no_room(ratio, first, budget):
 
 def _take(order, cost, budget, first):
     """The greedy prefix of ``order`` (rows (region, cluster, part)) within ``budget`` stored values, one component of
-    block b costing ``cost[b]`` and its first one ``first[b]`` more (the support's mask): (its length, components
+    block b costing ``cost[b]`` and its first one ``first[b]`` more (the block's header): (its length, components
     per block)."""
     used, counts = 0, {}
     for i, row in enumerate(order):
@@ -498,9 +499,10 @@ def _take(order, cost, budget, first):
     return len(order), counts
 
 
-def _mask_values(support):
-    """Stored values of a block's support mask: none when it is the whole region."""
-    return 0 if support.all() else -(-support.size // 32)
+def _header_values(support):
+    """Stored values of a block besides its components: its number of components (1) and its support's bit mask
+    (32 bits a value; none when the support is the whole region)."""
+    return 1 + (0 if support.all() else -(-support.size // 32))
 
 
 def _bases(grams, supports):
@@ -557,12 +559,12 @@ class _Block:
 
     @property
     def stored(self) -> int:
-        """Basis values on the support, coefficients, and the support's bit mask (32 bits a value) unless the
-        support is the whole region."""
+        """Basis values on the support, coefficients, and the header (:func:`_header_values`) of a block with
+        components."""
         k = self.basis.shape[0]
         if not k:
             return 0
-        return k * (int(self.support.sum()) + self.rows.size) + _mask_values(self.support)
+        return k * (int(self.support.sum()) + self.rows.size) + _header_values(self.support)
 
 
 @dataclass
@@ -760,7 +762,7 @@ class CompressedField:
         r = _ratio(ratio)
         budget = _budget(self.n_lights, self.pixels.size, r, len(self.regions) * self.parts)
         cost = {key: int(b.support.sum()) + b.rows.size for key, b in self.blocks.items()}
-        first = {key: _mask_values(b.support) for key, b in self.blocks.items()}
+        first = {key: _header_values(b.support) for key, b in self.blocks.items()}
         keep, per_block = _take(self.order[: self.kept], cost, budget, first)
         if keep == 0:
             key = tuple(self.order[0])
@@ -950,7 +952,7 @@ def compress(
     grams, rows_of = _grams(stream, mix, labels, regions, fl, supports)  # rows_of: the rows a block stores
     bases = _bases(grams, supports)
     cost = {key: int(supports[key].sum()) + rows_of[key] for key in bases}  # stored values of one component
-    first = {key: _mask_values(supports[key]) for key in bases}  # and of a block's support mask
+    first = {key: _header_values(supports[key]) for key in bases}  # and of a block's header
     gain = [(e / cost[key], key) for key, (_, sigma2) in bases.items() for e in sigma2]
     gain.sort(key=lambda g: -g[0])
     order = np.array([key for _, key in gain], np.int64).reshape(-1, 4)

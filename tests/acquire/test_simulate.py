@@ -1,18 +1,20 @@
 """The dome and contact-sensor simulator (Weyrich et al. 2006 §5, §5.4) and captures on disk."""
 
 import dataclasses
+import os
+import shutil
 
 import numpy as np
 import pytest
 
-from facestats.acquire.capture import open_capture
+from facestats.acquire.capture import ALL_CHUNKS_ATTR, open_capture
 from facestats.acquire.dome import Dome, default_dome, look_at
 from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.hdr import CameraResponse
 from facestats.acquire.synthetic.face import procedural_face
 from facestats.acquire.synthetic.population import SubjectTruth, synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator
-from facestats.errors import ValidationError
+from facestats.errors import FormatError, ValidationError
 from facestats.model import brdf, dipole
 from facestats.model.fresnel import fresnel_reflectance, fresnel_transmittance
 
@@ -171,6 +173,23 @@ def test_capture_round_trip_through_zarr(tmp_path, pop32, sim32):
     a, b = cap.lumitexels(100, 400), back.lumitexels(100, 400)
     np.testing.assert_array_equal(a.radiance, b.radiance)
     np.testing.assert_array_equal(a.valid, b.valid)
+
+
+def test_a_deleted_capture_chunk_is_refused_while_an_all_invalid_one_reads(tmp_path, pop32, sim32):
+    """zarr leaves out chunks of fill values; a capture keeps them, so a missing chunk is damage, not NaNs."""
+    cap = sim32.simulate(pop32[1])
+    cap.arrays["radiance"] = cap.array("radiance").copy()
+    cap.arrays["radiance"][:300] = np.nan  # the first chunk: no valid sample at all
+    path = cap.to_zarr(tmp_path / "cap.zarr", chunk=300)
+    back = open_capture(path)
+    assert back.attrs[ALL_CHUNKS_ATTR] is True
+    assert np.isnan(back.lumitexels(0, 300).radiance).all()  # read as written
+    np.testing.assert_array_equal(back.array("radiance"), cap.array("radiance"))
+    chunks = sorted(os.listdir(tmp_path / "cap.zarr" / "radiance" / "c"))
+    assert chunks[0] == "0"  # the all-NaN chunk is on disk
+    shutil.rmtree(tmp_path / "cap.zarr" / "radiance" / "c" / "1")
+    with pytest.raises(FormatError, match=r"array 'radiance' has \d+ of its \d+ chunks on disk"):
+        open_capture(path)
 
 
 def test_streaming_simulation_equals_in_memory(tmp_path, pop32):

@@ -33,11 +33,12 @@ def test_ratio_counts_every_stored_value(field):
     p, n = int(field["mask"].sum()), 32 * 16
     # label + 24 or 48 mask bits + the diffuse colour (3)
     assert cmp.per_pixel_values(8) == 5 and cmp.per_pixel_values(16) == 6
-    # per block: its basis on its support, its coefficients, the support's 32-bit mask unless it is the whole
-    # region; per pixel: the label, 3 colour rows x 8 regions x 2 parts zero bits and d; once: the light colour
-    stored = sum(b.basis.shape[0] * int(b.support.sum()) + b.coefficients.size
+    # per block with components: its basis on its support, its coefficients, its number of components, the
+    # support's 32-bit mask unless it is the whole region; per pixel: the label, 3 colour rows x 8 regions x 2
+    # parts zero bits and d; once: the light colour
+    stored = sum(b.basis.shape[0] * int(b.support.sum()) + b.coefficients.size + 1
                  + (0 if b.support.all() else -(-b.support.size // 32))
-                 for b in c.blocks.values()) + 6 * p + 3  # fmt: skip
+                 for b in c.blocks.values() if b.basis.shape[0]) + 6 * p + 3  # fmt: skip
     assert c.parts == 2 and c.stored == stored and c.ratio == pytest.approx(3 * n * p / stored) and c.ratio >= 8
     for (r, k, q, i), b in c.blocks.items():  # bases vanish off their supports; a block's parts split its region
         assert np.all(b.basis[:, ~b.support] == 0) and b.support.size == c.regions[r].size

@@ -8,8 +8,13 @@ scattering.  Subpackages:
 * :mod:`facestats.model` - the physics (Fresnel, BRDFs, dipole, skin model) and fitting;
 * :mod:`facestats.acquire` - the dome and contact-sensor captures (devices or simulator);
 * :mod:`facestats.io` - the Zarr parameter store and file formats;
+* :mod:`facestats.pipeline` - the fit pipeline from captures to the store, and population builds;
 * :mod:`facestats.analysis` - population statistics;
-* :mod:`facestats.edit` - appearance editing.
+* :mod:`facestats.edit` - appearance editing;
+* :mod:`facestats.relight` - reflectance fields and relighting (Debevec et al. 2000);
+* :mod:`facestats.web` - the population statistics in a browser;
+* :mod:`facestats.core` - vocabulary shared by every stage (conventions, validation, published values);
+* :mod:`facestats.cli` - the ``facestats`` command line.
 
 Heavy modules are imported lazily so the command line starts fast.
 """

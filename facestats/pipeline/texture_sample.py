@@ -2,8 +2,8 @@
 
 Weyrich et al. 2006 §8 transfer texture with a steerable pyramid of 7 levels and
 4 orientations (23,808 histogram values).  The embedded default store holds
-48 × 48 maps, on which at most 5 levels fit (the low-pass residual needs 4
-texels a side).  The texture sample holds the ground truth of six subjects of
+48 × 48 maps, on which at most 3 levels fit (:func:`facestats.edit.pyramid.max_levels`).
+The texture sample holds the ground truth of six subjects of
 the synthetic population (:func:`facestats.acquire.synthetic.population.synthesize_population`,
 seed :data:`~facestats.core.conventions.DEFAULT_SEED`) drawn at
 :data:`TEXTURE_SAMPLE_SIZE`² on the procedural face: albedo with pores,
@@ -15,7 +15,7 @@ the 7-level pyramid of the texture transfer large connected regions.  Its maps a
 a measurement.
 
 It is made on demand rather than shipped: six subjects at 512² pack to about
-18 MB of zip (the noise of pores does not compress), against a 10 MB budget for
+27 MB of zip (the noise of pores does not compress), against a 10 MB budget for
 package data, while drawing them takes about 8 s.  :func:`texture_sample` builds
 it once into the user's cache (:func:`cache_dir`) as a read-only zip store
 named by the fingerprint of the facestats sources
@@ -154,7 +154,7 @@ def texture_sample(*, rebuild: bool = False, quiet: bool = False) -> pathlib.Pat
     """The path of the texture sample (a read-only zip store), built into :func:`cache_dir` when absent.
 
     The file is ``texture-sample-<fingerprint[:16]>.zip``; samples of other facestats sources in the
-    cache are removed when a new one is built.  Building takes about 8 s and writes about 18 MB.
+    cache are removed when a new one is built.  Building takes about 8 s and writes about 27 MB.
 
     Parameters
     ----------

@@ -477,6 +477,29 @@ def test_stale_index_row_is_reported_and_repaired(built, tmp_path):
         assert st.subjects().loc["A05", "ts_m_mean_r6"] == summarise_subject(built[1]["A05"])["ts_m_mean_r6"]
 
 
+def test_index_rows_agree_within_last_bits_but_not_beyond(built, tmp_path):
+    """A row written by a version that rounded differently is current; a value moved by 1e-6 is not."""
+    path = _copy_store(built[0], tmp_path / "c.zarr")
+    index = json.loads((path / "index.json").read_text())
+    row = index["subjects"]["A05"]["row"]
+    key = next(k for k, v in sorted(row.items()) if isinstance(v, float) and np.isfinite(v) and v != 0)
+    row[key] = float(np.nextafter(row[key], np.inf)) * (1 + 1e-12)
+    (path / "index.json").write_text(json.dumps(index))
+    with open_store(path) as st:
+        assert st.validate().ok
+    row[key] *= 1 + 1e-6
+    (path / "index.json").write_text(json.dumps(index))
+    with open_store(path) as st:
+        report = st.validate()
+        assert not report.ok and key in report.problems[0]
+
+
+def test_the_shipped_default_store_validates():
+    report = facestats.open_store().validate()
+    assert report.ok, report.problems[:3]
+    assert report.n_checked == len(facestats.open_store())
+
+
 def test_lost_index_is_rebuilt_by_repair(built, tmp_path):
     path = _copy_store(built[0], tmp_path / "c.zarr")
     (path / "index.json").unlink()

@@ -36,6 +36,7 @@ from facestats.cli.edit import add_edit
 from facestats.cli.emulate import add_emulate
 from facestats.cli.export import add_export_subject
 from facestats.cli.ingest import add_ingest
+from facestats.cli.interrupts import is_interrupt
 from facestats.cli.microstructure import add_microstructure
 from facestats.cli.relight import add_relight
 from facestats.cli.render import add_render
@@ -104,6 +105,9 @@ def main(argv=None) -> int:
             pass
         return 0
     except Exception as exc:  # the last line of defence: no command ends in a traceback
+        if is_interrupt(exc):  # Ctrl-C inside compiled code
+            print("facestats: interrupted", file=sys.stderr)
+            return 130
         if os.environ.get("FACESTATS_DEBUG"):
             raise
         print(f"facestats: error: {_describe_failure(exc)}", file=sys.stderr)

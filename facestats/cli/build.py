@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 
+from facestats.cli.interrupts import is_interrupt
 from facestats.cli.options import ascii_int
 from facestats.core.conventions import DEFAULT_FACE, DEFAULT_MAP_SIZE, DEFAULT_SEED
 
@@ -13,7 +14,9 @@ __all__ = ["add_build"]
 def _cmd_build(args) -> int:
     try:
         return _build_command(args)
-    except KeyboardInterrupt:
+    except BaseException as exc:  # a Ctrl-C may come back from compiled code as another error (cli.interrupts)
+        if not is_interrupt(exc):
+            raise
         print(
             "facestats: build interrupted; the subjects finished so far are stored (each write is atomic): rerun "
             "the same command to resume",

@@ -213,7 +213,8 @@ def add_relight(sub):
                    help="N frames, the environment turned by 360/N degrees between them, relit through the "
                    "compressed field (OUT_000.exr, OUT_000.png, ...)")  # fmt: skip
     p.add_argument("--ratio", type=ascii_float, default=None,
-                   help="compression ratio of the turntable's field (default 20)")  # fmt: skip
+                   help="minimum compression ratio of the turntable's field (default 20; a ratio the field reaches "
+                        "with every component, e.g. below 1, keeps them all: exact)")  # fmt: skip
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     add_store_option(p)
     p.set_defaults(func=_cmd_relight)

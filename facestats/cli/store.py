@@ -88,7 +88,9 @@ def _cmd_info(args) -> int:
     if args.format == "json":
         print(json.dumps(info, indent=2))
         return 0
-    print(f"store:           {info['store']} ({info['kind']}, {'read-only' if info['read_only'] else 'read-write'})")
+    # what the store allows, not the mode `info` opened it in (read-only, to change nothing)
+    writable = info["kind"] == "directory" and os.access(info["store"], os.W_OK)
+    print(f"store:           {info['store']} ({info['kind']}, {'writable' if writable else 'read-only'})")
     print(f"schema version:  {info['schema_version']}")
     print(f"written by:      facestats {info['writer_version']}")
     print(f"index revision:  {info['index_revision']} (updated {info['updated']})")

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import json
+import sys
+import warnings
 
 from facestats.cli.options import ascii_float, number_option
-from facestats.errors import ValidationError
+from facestats.errors import FacestatsError, QuantisationWarning, ValidationError
 
 __all__ = ["add_translucency"]
 
@@ -27,6 +29,24 @@ def _checked_options(args):
     return out_json, plot
 
 
+def _with_notes(fit, *args, **kwargs):
+    """``fit(*args, **kwargs)`` with its quantisation warnings held back: they are each fit's notes, printed as
+    "note:" lines with the result, or on stderr before a failure's error; other warnings pass on."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", QuantisationWarning)
+        try:
+            result = fit(*args, **kwargs)
+        except FacestatsError:
+            for w in caught:
+                if issubclass(w.category, QuantisationWarning):
+                    print(f"note: {w.message}", file=sys.stderr)
+            raise
+    for w in caught:
+        if not issubclass(w.category, QuantisationWarning):
+            warnings.warn(w.message, w.category, stacklevel=2)
+    return result
+
+
 def _cmd_translucency(args) -> int:
     from facestats.core.outputs import OutputSet
     from facestats.pipeline.image_translucency import fit_image_translucency, load_scene_inputs
@@ -37,7 +57,8 @@ def _cmd_translucency(args) -> int:
     )
     eta = args.eta if args.eta is not None else eta
     width = args.width if args.width == "auto" else number_option(args.width, float, "--width")
-    fits = fit_image_translucency(
+    fits = _with_notes(
+        fit_image_translucency,
         patches,
         lights,
         camera,

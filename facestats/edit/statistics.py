@@ -107,6 +107,8 @@ def statistics_path(path) -> pathlib.Path:
     """
     if isinstance(path, (str, os.PathLike)) and os.fspath(path).strip() and pathlib.Path(os.fspath(path)).name:
         path = pathlib.Path(os.fspath(path))
+        if path.is_dir():  # not a sibling "<folder>.npz"
+            raise ValidationError(f"path must be a file (.npz), got the folder {os.fspath(path)!r}")
         if path.suffix != ".npz":
             path = path.with_name(path.name + ".npz")
     return check_output_file(path, "path", suffixes=(".npz",))

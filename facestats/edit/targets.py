@@ -174,8 +174,12 @@ def resolve_target(store, target, source_id, *, query=True, statistics=False) ->
             return found
     if isinstance(target, str):
         if target not in store:
-            also = " nor an existing texture-statistics file" if statistics else ""
-            raise StoreError(f"target {target!r} is neither a subject of store {store.label}{also}")
+            if statistics:
+                raise StoreError(
+                    f"target {target!r} is neither a subject of store {store.label} nor an existing texture-statistics "
+                    "file"
+                )
+            raise StoreError(f"target {target!r} is not a subject of store {store.label}")
         if target == source_id:
             raise ValidationError(f"target must differ from the edited subject, got {target!r}")
         return Target(subjects=[target], record={"subject": target})

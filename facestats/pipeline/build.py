@@ -284,7 +284,10 @@ def _check_same_build(store, pop, present, geometry, specular):
             ours["seed"] = int(seeds[sid])
         differ = {k: (cap.get(k), v) for k, v in ours.items() if cap.get(k) != v}
         if differ:
-            what = "; ".join(f"{k} {old!r} stored, {new!r} in this build" for k, (old, new) in differ.items())
+            names = {"seed": "its subject seed (derived from --seed)"}
+            what = "; ".join(
+                f"{names.get(k, k)} {old!r} stored, {new!r} in this build" for k, (old, new) in differ.items()
+            )
             raise ValidationError(
                 f"store {store.label} holds {sid} built with other parameters ({what}): a resumed build must use "
                 "the same --seed, --size, --face and --specular; build into another store"

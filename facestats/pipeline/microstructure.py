@@ -469,7 +469,7 @@ def open_sequence(neutral, *, frames=None, targets=None, weights=None, scale=1.0
         OBJ files are in cm: pass 10).  A frame whose extent differs from the neutral's by more than 2×
         is refused (wrong units).
     """
-
+    scale = float(as_finite(scale, "scale", 0, None, low_inclusive=False))  # checked also for an ICT-FaceKit folder
     if (frames is None) == (weights is None):
         raise ValidationError("pass either frames or weights (with targets), got " + ("both" if frames else "neither"))
     if frames is not None and targets is not None:

@@ -129,7 +129,7 @@ def test_errors_exit_2_with_clear_messages(pop, tmp_path):
     r = run_cli("edit", "brdf", "F3", "--target", "F5a", "--condition", "lotion", "--store", pop)
     assert r.returncode == 2 and "give exactly one target" in r.stderr
     r = run_cli("edit", "brdf", "F3", "--target", "nobody", "--store", pop, "--images", tmp_path)
-    assert r.returncode == 2 and "target 'nobody' is neither a subject of store" in r.stderr
+    assert r.returncode == 2 and "target 'nobody' is not a subject of store" in r.stderr
     r = run_cli("edit", "skin-type", "F3", "VII", "--store", pop, "--images", tmp_path)
     assert r.returncode == 2 and "skin type must be I-VI or 1-6, got 'VII'" in r.stderr
     r = run_cli("edit", "brdf", "F3", "--skin-type", "V", "--t", "2", "--store", pop, "--images", tmp_path)

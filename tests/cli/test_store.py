@@ -107,6 +107,9 @@ def test_info(stores):
     assert r.returncode == 0, r.stderr
     assert "schema version:  1" in r.stdout and "subjects:        7" in r.stdout
     assert "skin type      I 1, II 1, III 1, IV 4" in r.stdout
+    assert "(zip, read-only)" in r.stdout
+    r = run_cli("info", "--store", stores[0])  # a directory store: what it allows, not how info opened it
+    assert r.returncode == 0 and "(directory, writable)" in r.stdout, r.stderr
     r = run_cli("info", "--store", stores[0], "--format", "json")
     info = json.loads(r.stdout)
     assert info["by_gender"] == {"M": 4, "F": 3} and info["by_kind"] == {"maps": 6, "samples": 1}

@@ -109,3 +109,25 @@ def test_bad_inputs_are_named_by_file_and_field_before_the_fit(scene_files, tmp_
     assert r.returncode == 2 and "--eta must lie in [1, 3], got 0.5" in r.stderr
     r = run_cli(*base, "--json", tmp_path / "o.json", "--plot", tmp_path / "f.xyz")
     assert r.returncode == 2 and "--plot must end in one of" in r.stderr and not (tmp_path / "o.json").exists()
+
+
+def test_quantisation_warnings_are_held_back_as_notes(capsys, recwarn):
+    """The fits' notes repeat their quantisation warnings: the command prints notes, not Python warnings; a failed
+    fit's warnings go to stderr before its error; other warnings pass on."""
+    import warnings
+
+    from facestats.cli.translucency import _with_notes
+    from facestats.errors import FitError, QuantisationWarning
+
+    def fit(fail):
+        warnings.warn("levels 3 and 4 merged", QuantisationWarning)
+        warnings.warn("something else", UserWarning)
+        if fail:
+            raise FitError("only 2 supported levels remain")
+        return "fits"
+
+    assert _with_notes(fit, False) == "fits"
+    assert [str(w.message) for w in recwarn] == ["something else"] and capsys.readouterr().err == ""
+    with pytest.raises(FitError, match="only 2"):
+        _with_notes(fit, fail=True)
+    assert capsys.readouterr().err == "note: levels 3 and 4 merged\n"

@@ -137,6 +137,14 @@ def test_statistics_alone_equal_target_image(tmp_path, images):
     np.testing.assert_array_equal(direct.albedo, via_file.albedo)
 
 
+def test_statistics_are_not_saved_beside_a_folder_named_as_the_output(tmp_path, images):
+    _, tgt, _ = images
+    (tmp_path / "out").mkdir()
+    with pytest.raises(ValidationError, match="path must be a file.*folder"):
+        TextureStatistics.from_image(tgt, levels=3).save(tmp_path / "out")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no sibling out.npz
+
+
 def test_mask_leaves_outside_bit_identical(images):
     src, tgt, _ = images
     v, u = np.mgrid[0:128, 0:128]

@@ -9,7 +9,7 @@ import zarr
 
 from facestats.acquire.synthetic.microstructure import procedural_microstructure
 from facestats.cli import main
-from facestats.errors import FacestatsError, QuantisationWarning
+from facestats.errors import FacestatsError, QuantisationWarning, ValidationError
 from facestats.io.displacement import read_displacement, write_displacement
 from facestats.io.ict_facekit import read_ict_facekit
 from facestats.io.images import read_exr, write_image
@@ -245,6 +245,15 @@ def test_frames_in_other_units_and_targets_with_frames_are_refused(tmp_path):
     assert np.ptp(same[:, 0]) == pytest.approx(1000.0)  # neutral and frames scaled alike (cm -> mm)
     with pytest.raises(FacestatsError, match="targets go with weights"):
         open_sequence(tmp_path / "n.obj", frames=[tmp_path / "f_cm.obj"], targets=[tmp_path / "f_cm.obj"])
+
+
+@pytest.mark.parametrize("scale", [float("nan"), -1.0, float("inf"), 0.0])
+def test_a_bad_scale_is_refused_also_with_an_ict_facekit_folder(scale):
+    """An ICT-FaceKit folder is read in mm, but frames given with it take ``scale``: it is checked either way."""
+    from facestats.pipeline.microstructure import open_sequence
+
+    with pytest.raises(ValidationError, match="scale"):
+        open_sequence(DATA, weights="never-read.csv", scale=scale)
 
 
 def test_command_line_generates_and_renders(tmp_path, capsys):

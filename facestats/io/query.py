@@ -36,8 +36,10 @@ uncertainty, that the pipeline stores per texel; ``docs/scale.md``,
 :mod:`facestats.io.summary`): ``mean_se``, the standard error of one
 subject's region mean — the within-subject uncertainty to set beside the
 between-subject ``std`` —, and ``texel_se``, the typical standard error of one
-texel; both are root mean squares over the subjects that have them (null when
-none has: older stores, imported or edited parameters).  Albedo statistics and
+texel, both over the texels the fit determines (standard error at most the value:
+:data:`facestats.io.summary.DETERMINED_RELATIVE_SE`); both are root mean squares
+over the subjects that have them (null when none has: older stores, imported or
+edited parameters).  Albedo statistics and
 histograms are over the whole face.  The albedo histogram (256 bins over
 [0, 1] per channel) is the mean of the matching subjects' normalised
 histograms, so every subject weighs the same whatever its texel count.

@@ -98,6 +98,24 @@ def test_bad_input_gets_a_message_and_no_traceback(emulator, tmp_path):
         assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
         assert message in r.stderr, r.stderr
     assert not (tmp_path / "a").exists() and not (root / "b").exists()
+    # Bad values are refused before the port is opened and before anything is written (a port that does not
+    # exist would otherwise be the first error).
+    for extra, message in [
+        (("--brightness", "300"), "brightness must be an integer in [0, 255], got 300"),
+        (("--brightness", "300", "--dry-run"), "brightness must be an integer in [0, 255]"),
+        (("--colour", "1,2"), "colour must be three LED drive values"),
+        (("--frame-interval", "nan"), "frame_interval_s must be finite"),
+        (("--frame-interval", "-1"), "frame_interval_s must lie in"),
+        (("--frame-timeout", "nan"), "frame_timeout must be finite"),
+        (("--frame-timeout", "-1"), "frame_timeout must lie in"),
+        (("--pattern", "foo"), "must name each frame's file apart: it lacks {frame}"),
+        (("--pattern", "{frame}{ext}"), "it lacks {camera}"),
+    ]:
+        r = run_cli("capture", "dome", "--port", "/dev/ttyNOPE", "--subject", "S003", "--out", tmp_path / "d",
+                    "--calibration", root / "lab" / "dome.json", "--hot-folder", root / "hot", "--metadata",
+                    root / "lab" / "subject.json", *extra)  # fmt: skip
+        assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, (extra, r.stderr)
+        assert not (tmp_path / "d").exists(), extra
     missing = run_cli("capture", "dome", "--port", "x", "--subject", "S9", "--out", tmp_path / "c", "--calibration",
                       root / "lab" / "dome.json", "--hot-folder", root / "hot", "--dry-run")  # fmt: skip
     assert missing.returncode == 2 and "needs the subject's age, gender, skin_type" in missing.stderr
@@ -114,6 +132,11 @@ def test_sensor_dry_run_prints_the_bracket_and_its_duration(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "3 sites (cheek, forehead, neck) × 23 exposures = 69 frames" in r.stdout
     assert "89 s per site" in r.stdout and not (tmp_path / "cap").exists()
+    for readout in ("nan", "-1"):
+        bad = run_cli("capture", "sensor", "--port", "/dev/null", "--subject", "S001", "--out", tmp_path / "cap",
+                      "--calibration", tmp_path / "sensor.json", "--hot-folder", tmp_path, "--age", "31", "--gender",
+                      "F", "--skin-type", "3", "--readout", readout, "--dry-run")  # fmt: skip
+        assert bad.returncode == 2 and "readout_s must" in bad.stderr, bad.stderr
 
 
 def _capture_port(root, port):

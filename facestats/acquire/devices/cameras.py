@@ -202,9 +202,14 @@ class HotFolderCameras(CameraBackend):
         self.settle = float(settle)
         self.require_checksum = bool(require_checksum)
         try:
-            pattern.format(camera=0, frame=0, ext=extension)
-        except (KeyError, IndexError, ValueError) as exc:
+            first = pattern.format(camera=0, frame=0, ext=extension)
+            same_frame = first == pattern.format(camera=0, frame=1, ext=extension)
+            same_camera = len(self.cameras) > 1 and first == pattern.format(camera=1, frame=0, ext=extension)
+        except (KeyError, IndexError, ValueError, AttributeError) as exc:
             raise DeviceError(f"hot-folder pattern {pattern!r} is invalid ({exc}); use {{camera}}, {{frame}}, {{ext}}")
+        if same_frame or same_camera:  # every frame would be looked for under one name
+            missing = "{frame}" if same_frame else "{camera}"
+            raise DeviceError(f"hot-folder pattern {pattern!r} must name each frame's file apart: it lacks {missing}")
 
     def path(self, camera: int, frame: int) -> pathlib.Path:
         return self.folder / self.pattern.format(camera=camera, frame=frame, ext=self.extension)

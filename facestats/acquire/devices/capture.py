@@ -20,6 +20,7 @@ from facestats.acquire.devices.plans import DomePlan, SensorPlan
 from facestats.acquire.devices.sensor import SensorController, load_sensor_calibration
 from facestats.acquire.devices.session import SessionLog, SessionReport, missing_steps, run_session, session_state
 from facestats.acquire.dome import Dome
+from facestats.core.validate import as_finite
 from facestats.errors import FormatError
 
 __all__ = ["dome_plan", "sensor_plan", "capture", "read_subject_record"]
@@ -84,9 +85,9 @@ def capture(
     ``link_options`` are keyword arguments of
     :class:`~facestats.acquire.devices.serial_link.SerialLink` (baudrate, bytesize,
     parity, stopbits, timeout, retries); ``echo`` receives the session's log lines
-    as they happen.
+    as they happen.  Every argument is checked before the port is opened or anything is written.
     """
-
+    as_finite(frame_timeout, "frame_timeout", 0, None, low_inclusive=False)
     finished = session_state(out, plan, resume=resume) == "complete"
     if finished and not (resume and verify and missing_steps(out, plan)):  # nothing to do: no port opened
         return SessionReport(plan.kind, plan.subject_id, pathlib.Path(out), plan.n_steps, plan.n_steps, complete=True)

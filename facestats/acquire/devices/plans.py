@@ -31,7 +31,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from facestats.core.conventions import CONDITIONS, GENDERS, SITES
-from facestats.core.validate import check_choice, check_integer
+from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.errors import ValidationError
 
 __all__ = ["DomePlan", "SensorPlan", "subject_record", "PLAN_FORMAT"]
@@ -119,6 +119,14 @@ class DomePlan(_Plan):
     extension: str = ".png"
 
     kind = "dome"
+
+    def __post_init__(self):
+        check_integer(self.brightness, "brightness", 0, 255)
+        if len(self.colour) != 3:
+            raise ValidationError(f"colour must be three LED drive values (R, G, B), got {self.colour!r}")
+        for value in self.colour:
+            check_integer(value, "colour", 0, 255)
+        as_finite(self.frame_interval_s, "frame_interval_s", 0, None)
 
     @classmethod
     def from_calibration(cls, dome, calibration_bytes: bytes, subject: dict, **options) -> "DomePlan":
@@ -233,6 +241,7 @@ class SensorPlan(_Plan):
     kind = "sensor"
 
     def __post_init__(self):
+        as_finite(self.readout_s, "readout_s", 0, None)
         if sorted(self.sites) != list(range(len(SITES))):
             raise ValidationError(f"sites must hold each of 0..{len(SITES) - 1} once ({SITES}), got {self.sites!r}")
 

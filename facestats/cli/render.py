@@ -14,6 +14,7 @@ def _cmd_render(args) -> int:
     matplotlib.use("Agg")
     from facestats.acquire.capture import open_capture
     from facestats.core.outputs import OutputSet, check_output_dir, check_output_file
+    from facestats.errors import ValidationError
     from facestats.io.images import write_image
     from facestats.io.subject_export import store_subject
     from facestats.pipeline.validation import default_capture, render_led, render_probe
@@ -25,6 +26,8 @@ def _cmd_render(args) -> int:
     names = [f"{stem}-rendered.exr", f"{stem}-capture.exr", f"{stem}-error.exr", f"{stem}.png"]
     for name in names:
         check_output_file(out / name, "--out")
+        if (out / name).exists() and not args.overwrite:
+            raise ValidationError(f"output {str(out / name)!r} exists (pass --overwrite to replace it)")
     cap = open_capture(args.capture) if args.capture else default_capture(ds)
     if args.probe:
         res = render_probe(ds, cap, args.camera, args.probe)
@@ -64,5 +67,6 @@ def add_render(sub):
     p.add_argument(
         "--capture", metavar="PATH", help="the subject's capture (zarr); default: re-simulate a default subject"
     )
+    p.add_argument("--overwrite", action="store_true", help="replace existing images of the same names")
     add_store_option(p)
     p.set_defaults(func=_cmd_render)

@@ -123,6 +123,10 @@ def _subject_json(sid: str, row: dict, hist) -> dict:
     return out
 
 
+#: The files of each format of a statistics release (besides README.txt).
+RELEASE_FILES = {"csv": ("subjects.csv", "albedo_histograms.csv"), "json": ("statistics.json",)}
+
+
 def export_statistics(store, out_dir, formats=("csv", "json")) -> list[Path]:
     """Write the per-subject statistics release of ``store`` into ``out_dir``.
 
@@ -130,8 +134,9 @@ def export_statistics(store, out_dir, formats=("csv", "json")) -> list[Path]:
     ----------
     store : facestats.io.store.Store
     out_dir : str or os.PathLike
-        Created if missing; existing files of the same names are replaced; never
-        the store's folder or a folder inside it.
+        Created if missing; existing files of the same names are replaced, and the files of an
+        earlier release in a format not written now (:data:`RELEASE_FILES`) are removed, so the folder
+        holds one release; never the store's folder or a folder inside it.
         Checked before anything is written, and the files are written all or
         none (:class:`facestats.core.outputs.OutputSet`): a failure (e.g. a
         full disk) leaves the folder as it was.
@@ -149,6 +154,9 @@ def export_statistics(store, out_dir, formats=("csv", "json")) -> list[Path]:
     check_apart(out_dir, store.path, "out_dir")
     with OutputSet(out_dir) as out:
         _write_release(store, out, formats)
+    for fmt in set(RELEASE_FILES) - set(formats):  # an earlier release's other format would contradict README.txt
+        for name in RELEASE_FILES[fmt]:
+            (out_dir / name).unlink(missing_ok=True)
     return out.written
 
 

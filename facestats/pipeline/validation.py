@@ -88,9 +88,22 @@ class Render:
         return fig
 
 
+#: Largest share of a capture's lumitexels that may fall outside the subject's face (map texels of region 0).
+OFF_FACE_SHARE = 0.01
+
+
 def _texels(subject, capture):
+    """The capture's lumitexels and their texels (v, u) in the subject's maps; a capture whose lumitexels fall
+    outside the subject's face (another face or UV layout) is refused."""
     lt = capture.lumitexels()
     tex = uv_to_texel(lt.uv, int(subject.sizes["u"]))
+    off = float(np.mean(np.asarray(subject["region"].values)[tex[:, 0], tex[:, 1]] == 0)) if lt.n else 0.0
+    if off > OFF_FACE_SHARE:
+        raise ValidationError(
+            f"the capture (of subject {capture.attrs.get('subject_id', '?')!r}) does not fit subject "
+            f"{subject.attrs.get('subject_id', '?')!r}: {100 * off:.1f} % of its lumitexels fall outside the subject's "
+            "face in its maps (a capture of another face or UV layout); pass the subject's own capture"
+        )
     return lt, tex[:, 0], tex[:, 1]
 
 

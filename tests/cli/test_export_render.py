@@ -38,6 +38,11 @@ def test_render_checks_its_outputs_before_rendering(tmp_path, capsys):
     (tmp_path / "r" / "S003-cam05.png").mkdir(parents=True)  # one target is a folder: nothing is written
     assert main(["render", "S003", "--out", str(tmp_path / "r")]) == 2
     assert "S003-cam05.png" in capsys.readouterr().err and os.listdir(tmp_path / "r") == ["S003-cam05.png"]
+    (tmp_path / "s").mkdir()
+    (tmp_path / "s" / "S003-cam05-error.exr").write_bytes(b"an earlier render")  # replaced only with --overwrite
+    assert main(["render", "S003", "--out", str(tmp_path / "s")]) == 2
+    assert "S003-cam05-error.exr' exists (pass --overwrite" in capsys.readouterr().err
+    assert (tmp_path / "s" / "S003-cam05-error.exr").read_bytes() == b"an earlier render"
 
 
 def test_render_refuses_a_subject_not_fitted_from_the_default_capture(tmp_path, capsys):

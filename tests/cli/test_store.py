@@ -180,6 +180,10 @@ def test_export(stores, tmp_path):
     assert (out / "README.txt").exists()
     r = run_cli("export", "--store", stores[1], "--out", tmp_path / "j", "--format", "json")
     assert r.returncode == 0 and sorted(p.name for p in (tmp_path / "j").iterdir()) == ["README.txt", "statistics.json"]
+    (out / "notes.txt").write_text("mine")  # a release in the other format replaces the first, and only it
+    r = run_cli("export", "--store", stores[0], "--out", out, "--format", "json")
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["README.txt", "notes.txt", "statistics.json"]
     before = sorted(p.name for p in (stores[0] / "subjects").iterdir())
     r = run_cli("export", "--store", stores[0], "--out", stores[0] / "subjects")  # never into the store
     assert r.returncode == 2 and "out_dir must lie outside the store" in r.stderr

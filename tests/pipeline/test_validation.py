@@ -56,6 +56,16 @@ def test_micro_normals_are_used_for_the_specular_of_their_camera(case):
     assert render_led(tilted, cap, 5, 20).relative_rmse > render_led(ds, cap, 5, 20).relative_rmse
 
 
+def test_a_capture_of_another_face_layout_is_refused_by_name(case):
+    """Lumitexels outside the subject's face mean another face or UV layout (it failed on a zero normal before)."""
+    ds, cap = case
+    other = ds.copy()
+    left = np.arange(ds.sizes["u"]) < ds.sizes["u"] // 2
+    other["region"] = (("v", "u"), np.where(left, ds["region"].values, 0))  # half the face gone from the maps
+    with pytest.raises(FacestatsError, match=r"capture \(of subject 'S003'\) does not fit subject 'S003': \d"):
+        render_led(other, cap, 5, 20)
+
+
 def test_probe_render_is_lit_and_shadowed(case):
     from facestats.io.probes import studio_probe
     from facestats.model.sphere import latlong_directions

@@ -114,7 +114,7 @@ def _cmd_relight(args) -> int:
 
         subject, camera = _subject_and_camera(args)
         image, mask = relight_subject(subject, probe, layout=args.layout, rotate=rotate, camera=camera,
-                                      lights=_lights(args.lights))  # fmt: skip
+                                      lights=_lights(args.lights), progress=True)  # fmt: skip
     scale = exposure_scale(image, mask)
     attrs = {"source": str(args.source), "probe": str(args.probe), "rotate_deg": str(args.rotate),
              "units": "radiance in the probe's unit", "method": "Debevec et al. 2000 eq. 4"}  # fmt: skip

@@ -249,8 +249,10 @@ def _bp_kernel(ci, co, io, rho, n, vis, eta):
     return spec, _shape(ci, vis, eta)
 
 
-def _visibility_setup(geometry, surface, normals, directions, shadow_resolution, shadows):
-    """Vertex visibility (V_used, L_active) of the lights that reach some pixel, and those lights' indices."""
+def _visibility_setup(geometry, surface, normals, directions, shadow_resolution, shadows, progress=False):
+    """Vertex visibility (V_used, L_active) of the lights that reach some pixel, and those lights' indices
+    (``progress``: a bar over the lights' shadow maps, most of a direct render's time)."""
+    from tqdm.auto import tqdm
 
     active = np.nonzero((normals @ directions.T > 0).any(axis=0))[0]
     used, inverse = np.unique(surface.vertices, return_inverse=True)
@@ -262,13 +264,15 @@ def _visibility_setup(geometry, surface, normals, directions, shadow_resolution,
     target = 0.5 * (verts.min(0) + verts.max(0))
     eyes = target + LIGHT_DISTANCE * directions[active]
     vis = np.empty((used.size, active.size), np.float32)
-    for a in range(0, active.size, SHADOW_BATCH):  # batches of lights: bounded memory for many lights
-        maps = ShadowMaps(verts, faces, eyes[a : a + SHADOW_BATCH], target=target, resolution=shadow_resolution)
-        vis[:, a : a + SHADOW_BATCH] = maps.visible(verts[used], vn[used])
+    with tqdm(total=active.size, desc="shadow maps", unit="light", disable=not progress, leave=False) as bar:
+        for a in range(0, active.size, SHADOW_BATCH):  # batches of lights: bounded memory for many lights
+            maps = ShadowMaps(verts, faces, eyes[a : a + SHADOW_BATCH], target=target, resolution=shadow_resolution)
+            vis[:, a : a + SHADOW_BATCH] = maps.visible(verts[used], vn[used])
+            bar.update(min(SHADOW_BATCH, active.size - a))
     return vis, active, inverse.reshape(surface.vertices.shape)
 
 
-def _prepare(subject, geometry, camera, directions, *, specular, eta, shadows, shadow_resolution):
+def _prepare(subject, geometry, camera, directions, *, specular, eta, shadows, shadow_resolution, progress=False):
     """Shared set-up of the stage and of the direct render: surface, shading, visibility."""
     if geometry is None:
         geometry = subject_geometry(subject)
@@ -280,7 +284,7 @@ def _prepare(subject, geometry, camera, directions, *, specular, eta, shadows, s
     shading, on_face = SubjectShading.from_subject(subject, surface, specular=specular, eta=eta)
     surface, shading = surface.subset(on_face), shading.subset(on_face)
     res = check_integer(shadow_resolution, "shadow_resolution", 8, 4096)
-    vis_v, active, vidx = _visibility_setup(geometry, surface, shading.normal, directions, res, shadows)
+    vis_v, active, vidx = _visibility_setup(geometry, surface, shading.normal, directions, res, shadows, progress)
     return surface, shading, vis_v, active, vidx
 
 
@@ -390,7 +394,7 @@ def light_stage_field(
     flat, grid = _light_set(directions)
     surface, shading, vis_v, active, vidx = _prepare(
         subject, geometry, camera, flat, specular=specular, eta=eta, shadows=shadows,
-        shadow_resolution=shadow_resolution,
+        shadow_resolution=shadow_resolution, progress=progress,
     )  # fmt: skip
     size = camera.size
     t = check_integer(tile, "tile", 1)
@@ -483,6 +487,7 @@ def render_subject(
     shadows: bool = True,
     shadow_resolution: int = 128,
     chunk: int | None = None,
+    progress: bool = False,
 ):
     """Render a subject directly under distant lights with weights L·δA: Σ_l R_l L_l δA_l without a stored field.
 
@@ -503,6 +508,8 @@ def render_subject(
         As :func:`light_stage_field`.
     chunk : int, optional
         Pixels per chunk (default: about 4 million pixel-light samples per chunk).
+    progress : bool
+        Show a progress bar over the chunks.
 
     Returns
     -------
@@ -520,12 +527,15 @@ def render_subject(
         raise ValidationError(f"lighting must hold one RGB weight per light ({flat.shape[0]}), got {w.shape[0]}")
     surface, shading, vis_v, active, vidx = _prepare(
         subject, geometry, camera, flat, specular=specular, eta=eta, shadows=shadows,
-        shadow_resolution=shadow_resolution,
+        shadow_resolution=shadow_resolution, progress=progress,
     )  # fmt: skip
     wa = as_float(w[active], "lighting", np.float32)
     step = max(1, RENDER_SAMPLES // max(active.size, 1)) if chunk is None else check_integer(chunk, "chunk", 1)
     out = np.zeros((surface.pixel.size, 3), np.float32)
-    for a in range(0, surface.pixel.size, step):  # loop over chunks of pixels
+    from tqdm.auto import tqdm
+
+    chunks = range(0, surface.pixel.size, step)
+    for a in tqdm(chunks, desc="render", unit="chunk", disable=not progress, leave=False):  # chunks of pixels
         rows = np.arange(a, min(a + step, surface.pixel.size))
         vis = _pixel_visibility(vis_v, vidx, surface.bary, rows)
         spec, shape = shading.subset(rows).factors(flat[active], surface.view[rows], vis)
@@ -550,6 +560,7 @@ def relight_subject(
     geometry: FaceGeometry | None = None,
     specular: str = "torrance_sparrow",
     shadows: bool = True,
+    progress: bool = False,
 ):
     """A store subject relit under a light probe through the virtual light stage (Debevec et al. 2000 eq. 4).
 
@@ -557,7 +568,8 @@ def relight_subject(
     directions (:func:`facestats.relight.lighting.resample_probe`, exact cell
     integrals) and the subject rendered under those lights
     (:func:`render_subject`); this equals relighting the subject's stage field
-    (:func:`light_stage_field`) with the same probe, without storing the field.
+    (:func:`light_stage_field`) with the same probe, without storing the field.  ``progress``: a progress bar
+    over the rendered chunks.
 
     Returns
     -------
@@ -571,4 +583,6 @@ def relight_subject(
     n_theta, n_phi = lights
     d, _ = light_stage_directions(n_theta, n_phi)
     w = resample_probe(probe, d, layout=layout, rotate=rotate)
-    return render_subject(subject, w, d, camera, geometry=geometry, specular=specular, shadows=shadows)
+    return render_subject(
+        subject, w, d, camera, geometry=geometry, specular=specular, shadows=shadows, progress=progress
+    )

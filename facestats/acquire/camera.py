@@ -47,7 +47,14 @@ def look_at(position, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
     """World-to-camera rotation (rows: camera x right, y down, z forward) looking from ``position`` at ``target``."""
     p = np.asarray(position, float)
     fwd = np.asarray(target, float) - p
-    fwd /= np.linalg.norm(fwd, axis=-1, keepdims=True)
+    length = np.linalg.norm(fwd, axis=-1, keepdims=True)
+    if not np.all(length > 0):  # also NaN
+        first = np.argwhere(~(length[..., 0] > 0))[0] if length.ndim > 1 else ()
+        where = f" (camera {', '.join(str(int(i)) for i in first)})" if len(first) else ""
+        raise ValidationError(
+            f"a camera's target must differ from its position{where}, got position {p[tuple(first)].tolist()!r}"
+        )
+    fwd /= length
     up = np.broadcast_to(np.asarray(up, float), fwd.shape)
     right = np.cross(fwd, up)
     bad = np.linalg.norm(right, axis=-1) < 1e-6

@@ -69,10 +69,10 @@ def read_region_image(region_image) -> np.ndarray:
             if path.endswith(".npy"):
                 img = np.load(path)
             else:
-                from skimage.io import imread
+                from facestats.io.images import read_integer_image
 
-                img = imread(path)
-        except (OSError, ValueError) as exc:
+                img, _ = read_integer_image(path)  # (H, W, C) codes as stored, C = 1 for grey
+        except (OSError, ValueError) as exc:  # ImageFormatError is a ValueError (ValidationError)
             raise FormatError(f"cannot read the region image {path}: {exc}") from None
     else:
         img = np.asarray(region_image)

@@ -269,6 +269,10 @@ def test_mesh_without_face_region(copy):
         load_face_mesh(copy / "face.obj", copy / "empty.npy")
     with pytest.raises(FacestatsError, match=r"region image \(an array\) is 16×16 pixels with 0 labelled"):
         load_face_mesh(copy / "face.obj", np.zeros((16, 16), np.uint8))
+    (copy / "junk.png").write_bytes(b"\x89PNG not really")  # one line naming the file, not a plugin list
+    unreadable = r"^cannot read the region image .*junk\.png: .*could not be decoded[^\n]*$"
+    with pytest.raises(FacestatsError, match=unreadable):
+        load_face_mesh(copy / "face.obj", copy / "junk.png")
     (copy / "face.regions.png").unlink()
     with pytest.raises(
         FacestatsError, match=r"mesh .*face\.obj has no face-region image \(looked for face\.regions\.png"

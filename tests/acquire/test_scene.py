@@ -225,3 +225,15 @@ def test_an_environment_probe_lights_patches_as_its_directional_lights_do():
     c = patch_irradiance(p, [env], shadows=False)
     assert np.all(c > 0)
     np.testing.assert_allclose(c, patch_irradiance(p, [sun], shadows=False), rtol=1e-6)
+
+
+def test_a_camera_looking_at_its_own_position_is_refused_by_name():
+    from facestats.acquire.camera import look_at
+
+    with pytest.raises(ValidationError, match=r"target must differ from its position, got position \[1.0, 2.0, 3.0\]"):
+        look_at([1, 2, 3], [1, 2, 3])
+    with pytest.raises(ValidationError, match=r"\(camera 1\)"):
+        look_at(np.array([[0.0, 0, 0], [1, 1, 1]]), np.array([[0.0, 0, 1], [1, 1, 1]]))
+    rot = look_at([0, 0, -5.0], [0, 0, 0])
+    np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(rot[2], [0, 0, 1])  # forward row points at the target

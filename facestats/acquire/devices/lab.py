@@ -96,7 +96,7 @@ def _check_common(hot_folder, lab, map_size, faults, link, seed, cache=None) -> 
         check_output_dir(lab, "lab")
     if cache is not None:
         check_output_dir(cache, "cache")
-    check_integer(map_size, "map_size", 2)
+    check_integer(map_size, "map_size", 8)  # the synthetic faces need a lumitexel grid of 8 or more
     if not isinstance(faults, Faults):
         raise ValidationError(f"faults must be a Faults, got {type(faults).__name__}")
     _check_link(link)

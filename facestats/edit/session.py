@@ -242,8 +242,8 @@ class EditSession:
             )
         if not overwrite and new_id in self.out:
             raise StoreError(
-                f"subject {new_id!r} already exists in store {self.out.label}; pass overwrite=True to replace it "
-                "or choose another new_id"
+                f"subject {new_id!r} already exists in store {self.out.label}; pass overwrite=True (--overwrite) to "
+                "replace it or choose another new_id (--id)"
             )
         self.new_id, self.overwrite = new_id, overwrite
         return new_id

@@ -65,7 +65,7 @@ def refuse_existing(index: dict, ids) -> None:
     clash = sorted(set(ids) & set(index["subjects"]))
     if clash:
         raise StoreError(
-            f"subject(s) {clash} already exist in the store; pass overwrite=True to replace them "
+            f"subject(s) {clash} already exist in the store; pass overwrite=True (--overwrite) to replace them "
             "(edits should write a new subject id)"
         )
 

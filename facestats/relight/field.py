@@ -269,7 +269,7 @@ def write_field(path, field, *, dtype="float32", tile: int = 64, overwrite: bool
     t = check_integer(tile, "tile", 1)
     p = pathlib.Path(os.fspath(path))
     if p.exists() and not overwrite:
-        raise StoreError(f"field store {str(p)!r} already exists (pass overwrite=True to replace it)")
+        raise StoreError(f"field store {str(p)!r} already exists (pass overwrite=True, or --overwrite, to replace it)")
     if not bool(np.isfinite(f["reflectance"]).all()):
         raise ValidationError(f"field reflectance must be finite to write {str(p)!r}, got NaN or inf")
     if dtype == "float16":
@@ -330,7 +330,9 @@ class FieldStore:
         t = check_integer(tile, "tile", 1)
         self.path = pathlib.Path(os.fspath(path))
         if self.path.exists() and not overwrite:
-            raise StoreError(f"field store {str(self.path)!r} already exists (pass overwrite=True to replace it)")
+            raise StoreError(
+                f"field store {str(self.path)!r} already exists (pass overwrite=True, or --overwrite, to replace it)"
+            )
         h, w = (check_integer(n, "image_shape", 1) for n in image_shape)
         d = np.asarray(directions, np.float64)
         lshape = d.shape[:-1]

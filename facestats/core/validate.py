@@ -66,12 +66,13 @@ def result_dtype(*arrays) -> np.dtype:
 
 
 def as_float(value, name: str, dtype=None) -> np.ndarray:
-    """Convert ``value`` to a float array (float32 or float64), rejecting non-numeric input."""
+    """Convert ``value`` to a float array (float32 or float64), rejecting non-numeric input (booleans too: True is
+    not a quantity, and a mask passed where a number belongs must not be taken as 1)."""
     try:
         arr = np.asarray(value)
     except Exception:  # numpy raises many types here (ragged lists, objects with broken __array__)
         raise ValidationError(f"{name} must be numeric, got {_short(value)}") from None
-    if arr.dtype.kind not in "fiub":
+    if arr.dtype.kind not in "fiu":
         what = type(value).__name__ if arr.dtype.kind == "O" else f"dtype {arr.dtype}"
         raise ValidationError(f"{name} must be numeric, got {what} ({_describe(arr)})")
     if dtype is None:

@@ -138,7 +138,7 @@ def point_lights(positions, normals, light_positions, intensity):
         E in W mm⁻².
     """
     p = _points(positions, "positions")
-    n = _points(normals, "normals", p.shape[0])
+    n = _points(_brdf.check_directions(normals, "normals"), "normals", p.shape[0])  # unit: E scales with |N|
     lp = _points(light_positions, "light_positions")
     i = as_finite(intensity, "intensity", 0, None)
     if i.ndim == 1:
@@ -172,7 +172,7 @@ def directional_lights(normals, directions, irradiance):
     wi : ndarray, shape (N, L, 3)
     irradiance : ndarray, shape (N, L, 3)
     """
-    n = _points(normals, "normals")
+    n = _points(_brdf.check_directions(normals, "normals"), "normals")  # unit: E scales with |N|
     w = _brdf.check_directions(directions, "directions")
     check_shape(w, "directions", (None, 3))
     e = as_finite(irradiance, "irradiance", 0, None)
@@ -363,9 +363,17 @@ class SubsurfaceTransport:
         Returns
         -------
         ndarray, shape of ``flux``
-            Exitance per channel before modulation and exit Fresnel, W mm⁻².
+            Exitance per channel before modulation and exit Fresnel, W mm⁻² (float32 for float32 flux, else
+            float64: integer flux is not truncated).
         """
-        f = np.asarray(flux)
+        f = as_float(flux, "flux")
+        ok = np.isfinite(f) & (f >= 0)
+        if not ok.all():
+            bad = f[~ok]
+            raise ValidationError(
+                f"flux must be finite and >= 0 (a flux density entering the skin), got {bad.size} value(s) that are "
+                f"not, e.g. {bad.flat[0]!r}"
+            )
         if f.shape[-1] != 3:
             raise ValidationError(f"flux must have 3 channels on the last axis, got shape {f.shape}")
         if self.positions is None:

@@ -784,7 +784,7 @@ class CompressedField:
 
     def _weights(self, lighting):
         """L·δA per light as (L, 3) float64; grey lighting (one value per light) is given to every channel."""
-        w = as_finite(lighting, "lighting", dtype=np.float64)
+        w = as_finite(lighting, "lighting", 0, None, dtype=np.float64)  # L·δA >= 0, as render_subject asks
         if w.shape in (self.directions.shape[:-1], (self.n_lights,)):
             w = np.repeat(w[..., None], 3, axis=-1)
         if w.shape[:-1] not in (self.directions.shape[:-1], (self.n_lights,)) or w.shape[-1] != 3:

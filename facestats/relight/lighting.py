@@ -183,12 +183,18 @@ def resample_probe(probe, directions=None, *, layout: str = "latlong", rotate: f
         Σ_pixels L ΔΩ of the probe (exactly, up to rounding).
     """
     p = check_probe(probe, layout)
-    if rotate:
-        p = rotate_probe(p, rotate, layout=layout)
+    supersample = check_integer(supersample, "supersample", 1, 16)
+    rot = as_finite(rotate, "rotate", dtype=np.float64)
+    if rot.ndim:
+        raise ValidationError(f"rotate must be one angle (radians), got an array of shape {rot.shape}")
+    if rot:
+        p = rotate_probe(p, float(rot), layout=layout)
     if directions is None:
         d = latlong_directions(32, 64)
     else:
         d = unit_directions(directions)
+        if d.size == 0:  # the probe's light would go nowhere
+            raise ValidationError(f"directions must hold at least one light, got shape {d.shape}")
     if layout == "latlong" and _is_latlong_grid(d):
         return _latlong_to_grid(p, d.shape[0], d.shape[1])
     flat = d.reshape(-1, 3)

@@ -293,7 +293,7 @@ def reproject(image, position, mask, camera):
     covered : ndarray of bool, shape (size, size)
     """
 
-    img = as_finite(image, "image", dtype=np.float64)
+    img = check_shape(as_finite(image, "image", dtype=np.float64), "image", (None, None, 3))
     pos = as_finite(position, "position", dtype=np.float64)
     m = np.asarray(mask, bool)
     if img.shape[:2] != m.shape or pos.shape[:2] != m.shape:

@@ -42,7 +42,7 @@ def _weights(field, lighting):
     """Lighting as a float32 (L, 3) matrix matching the field's lights (grey (L,) allowed)."""
     f = as_field(field)
     lshape = tuple(f.sizes[d] for d in light_dims(f))
-    w = as_finite(lighting, "lighting", dtype=np.float64)
+    w = as_finite(lighting, "lighting", 0, None, dtype=np.float64)  # L·δA >= 0: subtract two relit images instead
     if w.shape in (lshape, (int(np.prod(lshape)),)):
         w = np.repeat(w.reshape(-1, 1), 3, axis=1)
     elif w.shape in (lshape + (3,), (int(np.prod(lshape)), 3)):

@@ -204,3 +204,27 @@ def test_per_point_parameters_and_default_radius_settings_are_checked():
         skin.SubsurfaceTransport(SIGMA_S, SIGMA_A, positions=np.zeros((2, 3)), areas=[1.0, 1.0], tail=1.0)
     with pytest.raises(FacestatsError, match="max_neighbors must be an integer"):
         skin.SubsurfaceTransport(SIGMA_S, SIGMA_A, positions=np.zeros((2, 3)), areas=[1.0, 1.0], max_neighbors=0)
+
+
+def test_subsurface_transport_takes_integer_flux_as_numbers_and_refuses_bad_flux():
+    from facestats.errors import ValidationError
+
+    t = skin.SubsurfaceTransport([1.0, 1, 1], [0.1, 0.1, 0.1])
+    expect = t.apply(np.ones((2, 3)))
+    assert np.all(expect > 0.2)
+    np.testing.assert_array_equal(t.apply(np.ones((2, 3), int)), expect)  # was truncated to 0
+    for bad in (np.ones((2, 3), bool), np.full((2, 3), np.nan), -np.ones((2, 3)), np.full((2, 3), np.inf)):
+        with pytest.raises(ValidationError, match="flux"):
+            t.apply(bad)
+
+
+def test_light_irradiance_refuses_normals_that_are_not_unit():
+    """E = I cos θi / d² takes N·ωi as cos θi: a normal of length 2 doubled E."""
+    from facestats.errors import ValidationError
+
+    _, e = skin.point_lights([[0, 0, 0]], [[0, 0, 1.0]], [[0, 0, 10.0]], [100.0])
+    np.testing.assert_allclose(e, 1.0)
+    with pytest.raises(ValidationError, match="normals must hold unit vectors"):
+        skin.point_lights([[0, 0, 0]], [[0, 0, 2.0]], [[0, 0, 10.0]], [100.0])
+    with pytest.raises(ValidationError, match="normals must hold unit vectors"):
+        skin.directional_lights([[0, 0, 2.0]], [[0, 0, 1.0]], [1.0])

@@ -172,3 +172,33 @@ def test_separation_shadows_and_photometric_stereo_check_their_parameters():
         shadows.threshold_shadow_maps(np.ones((8, 3)))
     with pytest.raises(ValidationError, match="mask must have shape"):
         photometric.photometric_stereo(f, mask=np.ones((2, 2), bool))
+
+
+def test_negative_lighting_and_images_of_other_channel_counts_are_refused(small):
+    """L·δA is radiance times solid angle: never negative (render_subject refused it; relight did not). An image
+    to reproject has three channels (six were reshaped into twice the pixels)."""
+    from facestats.relight.novel import reproject
+
+    w = np.ones((8, 16, 3))
+    w[2, 3, 1] = -1.0
+    with pytest.raises(ValidationError, match="lighting must lie in"):
+        relight(small, w)
+    with pytest.raises(ValidationError, match="lighting must lie in"):
+        compress(small, ratio=3).relight(w)
+    pos = np.zeros((4, 4, 3))
+    mask = np.ones((4, 4), bool)
+    for shape in ((4, 4, 6), (4, 4), (4, 4, 2)):
+        with pytest.raises(ValidationError, match=r"image must have shape \(n, n, 3\)"):
+            reproject(np.ones(shape), pos, mask, None)
+
+
+def test_resample_probe_checks_its_arguments_first():
+    p = lighting.uniform_probe(8)
+    with pytest.raises(ValidationError, match=r"supersample must be an integer in \[1, 16\], got 0"):
+        lighting.resample_probe(p, supersample=0)
+    with pytest.raises(ValidationError, match="rotate must be one angle"):
+        lighting.resample_probe(p, rotate=np.array([0.1, 0.2]))
+    with pytest.raises(ValidationError, match="directions must hold at least one light"):
+        lighting.resample_probe(p, np.zeros((0, 3)))
+    total = lighting.resample_probe(p).sum(axis=(0, 1))
+    np.testing.assert_allclose(lighting.resample_probe(p, rotate=0.3).sum(axis=(0, 1)), total)  # energy kept

@@ -29,7 +29,9 @@ How it is computed (same result as convolving every candidate, much faster):
   points).  Where the minimum is distinct (e.g. a target made from the same
   patch) it returns the brute-force argmin (tested); on a flat ridge it returns a
   point of the ridge, not necessarily the brute-force argmin, which is itself
-  arbitrary there.
+  arbitrary there.  Exact ties go to the smallest |α|, then the smallest σ: kernels
+  narrower than a texel are all the identity, so an unchanged patch fits α = 0
+  (not the grid's first α, the strongest sharpening).
 * The ridge: TV is flat along a curve of (α, σ) trading strength against width
   (both set the slope variance).  The fit reports every evaluated grid point
   within ``ridge_tolerance`` of the minimum (default: the TV noise level of the
@@ -336,8 +338,10 @@ def fit_kernel(
         grid = _search(problem, a_grid, sig_px, coarse_cells, False)
         fine = _refine_cells(grid) & np.isnan(grid)
         grid = np.where(np.isnan(grid), _search(problem, a_grid, sig_px, fine, progress), grid)
-    i, j = np.unravel_index(np.nanargmin(grid), grid.shape)
-    best = float(grid[i, j])
+    best = float(np.nanmin(grid))
+    ti, tj = np.nonzero(grid == best)  # exact ties (kernels narrower than a texel are all the identity):
+    k = np.lexsort((s_grid[tj], np.abs(a_grid[ti])))[0]  # the smallest |α|, then σ: an unchanged patch fits α = 0
+    i, j = int(ti[k]), int(tj[k])
     ri, rj = np.nonzero(grid <= best + tol)
     return KernelFit(
         alpha=float(a_grid[i]),

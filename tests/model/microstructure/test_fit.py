@@ -104,3 +104,12 @@ def test_independent_realisation_of_a_dense_surface_recovers_the_joint_argmin(al
     target = convolve_displacement(other, (0.6, 0.8), alpha, sigma, 0.0, 1.0, TEXEL)
     fit = fit_kernel(neutral, target, (0.6, 0.8), 1.0, TEXEL, method="coarse-to-fine")
     assert abs(fit.alpha - alpha) <= 0.1 and abs(fit.sigma_um - sigma) <= TEXEL, (fit.alpha, fit.sigma_um)
+
+
+@pytest.mark.parametrize("method", ["brute", "coarse-to-fine"])
+def test_an_unchanged_patch_fits_no_filter_not_the_first_grid_point(method):
+    """Kernels narrower than a texel are all the identity: every α ties at TV 0, and the tie goes to α = 0 (the
+    grid's first α, -2, the strongest sharpening, would corrupt a kernel table built from such points)."""
+    patch = np.random.default_rng(3).normal(size=(96, 96))
+    fit = fit_kernel(patch, patch, (1, 0), 1.0, 10.0, method=method)
+    assert fit.tv == 0.0 and fit.alpha == 0.0 and fit.sigma_um == fit.sigmas_um.min()

@@ -392,7 +392,7 @@ def test_the_emulators_check_their_arguments_before_creating_anything(tmp_path, 
     (tmp_path / "file").write_text("not a folder")
     hot, lab_dir = tmp_path / "new" / "hot", tmp_path / "new" / "lab"
     dome_cases = [
-        ({"map_size": 0}, "map_size must be an integer in [2, inf], got 0"),
+        ({"map_size": 0}, "map_size must be an integer in [8, inf], got 0"),
         ({"seed": -1}, "seed must be an integer in [0, inf], got -1"),
         ({"workers": 0}, "workers must be an integer in [1, inf], got 0"),
         ({"wired_leds": 0}, "wired_leds must be an integer in [1, inf], got 0"),

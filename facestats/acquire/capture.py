@@ -397,10 +397,11 @@ def open_capture(path) -> Capture:
         if name not in g:
             raise FormatError(f"capture {path!s} is missing the array {name!r}")
         arrays[name] = g[name]
-        if g.attrs.get(ALL_CHUNKS_ATTR) and arrays[name].nchunks_initialized < arrays[name].nchunks:
-            raise FormatError(
-                f"capture {path!s}: array {name!r} has {arrays[name].nchunks_initialized} of its "
-                f"{arrays[name].nchunks} chunks on disk (a chunk was deleted, or the capture was not completely "
-                "written)"
-            )
+        if g.attrs.get(ALL_CHUNKS_ATTR):
+            on_disk = arrays[name].nchunks_initialized  # lists the array's keys in the store once
+            if on_disk < arrays[name].nchunks:
+                raise FormatError(
+                    f"capture {path!s}: array {name!r} has {on_disk} of its {arrays[name].nchunks} chunks on disk "
+                    "(a chunk was deleted, or the capture was not completely written)"
+                )
     return Capture(arrays=arrays, attrs=dict(g.attrs), path=str(path))

@@ -21,7 +21,6 @@ Registered in :mod:`facestats.cli` with :func:`add_relight`.
 from __future__ import annotations
 
 import math
-import os
 import pathlib
 
 from facestats.cli.options import add_store_option, ascii_float, ascii_int, ascii_number, open_store_option
@@ -94,9 +93,7 @@ def _cmd_relight(args) -> int:
     targets = [(_frame(out, k, frames), _frame(png, k, frames)) for k in range(frames or 1)]
     for pair in targets:
         for name, p in zip(("--out", "--png"), pair):
-            check_output_file(p, name, (p.suffix.lower(),))
-            if os.path.lexists(p) and not args.overwrite:
-                raise ValidationError(f"output {str(p)!r} exists (pass --overwrite to replace it)")
+            check_output_file(p, name, (p.suffix.lower(),), overwrite=args.overwrite)
     probe = read_light_probe(args.probe, args.layout)
     if frames is not None:
         return _turntable(args, probe, targets)

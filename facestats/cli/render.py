@@ -14,7 +14,6 @@ def _cmd_render(args) -> int:
     matplotlib.use("Agg")
     from facestats.acquire.capture import open_capture
     from facestats.core.outputs import OutputSet, check_output_dir, check_output_file
-    from facestats.errors import ValidationError
     from facestats.io.images import write_image
     from facestats.io.subject_export import store_subject
     from facestats.pipeline.validation import default_capture, render_led, render_probe
@@ -25,9 +24,7 @@ def _cmd_render(args) -> int:
     stem = f"{ds.attrs.get('subject_id', args.subject_id)}-cam{args.camera:02d}"
     names = [f"{stem}-rendered.exr", f"{stem}-capture.exr", f"{stem}-error.exr", f"{stem}.png"]
     for name in names:
-        check_output_file(out / name, "--out")
-        if (out / name).exists() and not args.overwrite:
-            raise ValidationError(f"output {str(out / name)!r} exists (pass --overwrite to replace it)")
+        check_output_file(out / name, "--out", overwrite=args.overwrite)
     cap = open_capture(args.capture) if args.capture else default_capture(ds)
     if args.probe:
         res = render_probe(ds, cap, args.camera, args.probe)

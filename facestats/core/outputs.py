@@ -87,7 +87,7 @@ def check_output_dir(path, name: str = "out") -> pathlib.Path:
     return p
 
 
-def check_output_file(path, name: str = "out", suffixes=None) -> pathlib.Path:
+def check_output_file(path, name: str = "out", suffixes=None, *, overwrite: bool = True) -> pathlib.Path:
     """``path`` as an output file: absent (creatable) or an existing regular file, with one of ``suffixes``.
 
     Parameters
@@ -97,6 +97,8 @@ def check_output_file(path, name: str = "out", suffixes=None) -> pathlib.Path:
         The argument's name in messages.
     suffixes : iterable of str, optional
         Accepted suffixes, lower case with the dot (e.g. ``(".png", ".svg")``).
+    overwrite : bool
+        Whether an existing file may be replaced (False: refused, pointing at ``--overwrite``).
 
     Raises
     ------
@@ -113,6 +115,8 @@ def check_output_file(path, name: str = "out", suffixes=None) -> pathlib.Path:
             raise ValidationError(f"{name} must be a file, got {str(p)!r}, which exists and is not a regular file")
         if not os.access(p, os.W_OK) or not os.access(p.parent, os.W_OK | os.X_OK):
             raise ValidationError(f"{name} must be writable, got {str(p)!r}")
+        if not overwrite:
+            raise ValidationError(f"output {str(p)!r} exists (pass --overwrite to replace it)")
         return p
     _creatable(p, name)
     return p

@@ -52,7 +52,7 @@ from facestats.acquire.hdr import CameraResponse
 from facestats.acquire.lens import distort_normalised, undistort_normalised
 from facestats.core.compiled import resolve_backend
 from facestats.core.published import N_CAMERAS, N_LEDS
-from facestats.core.validate import as_finite, as_float, check_range, check_shape
+from facestats.core.validate import as_finite, as_float, check_range, check_shape, check_unit_vectors
 from facestats.errors import FormatError, ValidationError
 
 __all__ = ["Dome", "default_dome", "beam_terms"]
@@ -145,10 +145,7 @@ class Dome:
         et = as_float(self.exposure_times, "exposure_times", np.float64)
         if et.ndim != 1 or et.size < 1 or not np.all(et > 0):
             raise ValidationError(f"exposure_times must be a 1-D array of positive times, got {et!r}")
-        norm = np.linalg.norm(la, axis=1)
-        if np.any(np.abs(norm - 1) > 1e-6):
-            bad = norm[np.abs(norm - 1) > 1e-6][0]
-            raise ValidationError(f"led_axis must hold unit vectors (norm 1 ± 1e-6), got a vector of norm {bad:.6g}")
+        check_unit_vectors(la, "led_axis", 1e-6)
         rrt = cr @ np.swapaxes(cr, 1, 2)
         if not np.allclose(rrt, np.eye(3), atol=1e-6):
             err = np.abs(rrt - np.eye(3)).max(axis=(1, 2))

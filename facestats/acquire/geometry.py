@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_range, check_shape
+from facestats.core.validate import as_finite, check_range, check_shape, check_unit_vectors
 from facestats.errors import ValidationError
 
 
@@ -90,10 +90,7 @@ class FaceGeometry:
     def __post_init__(self):
         p = check_shape(as_finite(self.position, "position", dtype=np.float64), "position", (None, 3))
         n = check_shape(as_finite(self.normal, "normal", dtype=np.float64), "normal", (p.shape[0], 3))
-        norm = np.linalg.norm(n, axis=1)
-        if np.any(np.abs(norm - 1) > 1e-3):
-            bad = norm[np.abs(norm - 1) > 1e-3][0]
-            raise ValidationError(f"normal must hold unit vectors (norm 1 ± 1e-3), got a vector of norm {bad:.6g}")
+        check_unit_vectors(n, "normal", 1e-3)
         a = check_shape(as_finite(self.area, "area", dtype=np.float64), "area", (p.shape[0],))
         check_range(a, "area", 0, None, low_inclusive=False, unit="mm^2")
         uv = check_shape(as_finite(self.uv, "uv", dtype=np.float64), "uv", (p.shape[0], 2))

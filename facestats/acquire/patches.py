@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_range, check_shape
+from facestats.core.validate import as_finite, check_range, check_shape, check_unit_vectors
 from facestats.errors import ValidationError
 
 __all__ = ["Patches", "mesh_patches", "read_mesh_patches", "subdivide_triangles"]
@@ -61,11 +61,7 @@ class Patches:
         n = as_finite(self.normal, "normal", dtype=np.float64)
         if n.shape != c.shape:
             raise ValidationError(f"normal must have the shape of centre, {c.shape}, got {n.shape}")
-        norm = np.linalg.norm(n, axis=1)
-        if np.any(np.abs(norm - 1) > 1e-6):
-            raise ValidationError(
-                f"normal must hold unit vectors, got a vector of norm {norm[np.abs(norm - 1) > 1e-6][0]:.6g}"
-            )
+        check_unit_vectors(n, "normal", 1e-6)
         a = check_shape(as_finite(self.area, "area", dtype=np.float64), "area", (m,))
         check_range(a, "area", 0, None, low_inclusive=False, unit="mm^2")
         if self.corners is not None:

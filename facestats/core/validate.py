@@ -22,6 +22,7 @@ __all__ = [
     "check_finite",
     "check_range",
     "check_shape",
+    "check_unit_vectors",
     "check_choice",
     "check_integer",
     "check_seed",
@@ -194,6 +195,25 @@ def check_shape(arr: np.ndarray, name: str, shape: Iterable) -> np.ndarray:
         want = "(" + ", ".join("..." if p is Ellipsis else ("n" if p is None else str(p)) for p in pattern) + ")"
         raise ValidationError(f"{name} must have shape {want}, got shape {arr.shape}")
     return arr
+
+
+def check_unit_vectors(arr: np.ndarray, name: str, tol: float = 1e-3, *, allow_zero: bool = False) -> np.ndarray:
+    """The norms of the vectors on ``arr``'s last axis, after checking that each is 1 ± ``tol``.
+
+    ``allow_zero``: zero vectors pass too (per-pixel maps holding 0 where there is no surface).
+    ``arr`` must be finite (see :func:`as_finite`); it is not changed.
+    """
+    norm = np.linalg.norm(arr, axis=-1)
+    bad = np.abs(norm - 1) > tol
+    if allow_zero:
+        bad &= norm != 0
+    if np.any(bad):
+        raise ValidationError(
+            f"{name} must hold unit vectors (norm 1 ± {tol:g}"
+            + (", or 0 where there is no surface" if allow_zero else "")
+            + f"), got a vector of norm {norm[bad].reshape(-1)[0]:.6g}"
+        )
+    return norm
 
 
 def check_broadcast(arr: np.ndarray, name: str, shape: Iterable, target: str) -> np.ndarray:

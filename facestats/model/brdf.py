@@ -30,8 +30,7 @@ import numpy as np
 
 from facestats.core.blocked import blockwise, components
 from facestats.core.published import ETA_SKIN
-from facestats.core.validate import as_finite, as_float, check_shape, finite_result, result_dtype
-from facestats.errors import ValidationError
+from facestats.core.validate import as_finite, as_float, check_shape, check_unit_vectors, finite_result, result_dtype
 from facestats.model.fresnel import check_eta, fresnel_reflectance_unchecked
 
 __all__ = [
@@ -52,10 +51,7 @@ def check_directions(value, name):
     """Validate finite unit 3-vectors on the last axis (norm 1 within ``_UNIT_TOL``)."""
     v = as_finite(value, name)
     check_shape(v, name, (..., 3))
-    norm = np.sqrt(np.einsum("...k,...k->...", v, v))
-    if np.any(np.abs(norm - 1) > _UNIT_TOL):
-        bad = norm[np.abs(norm - 1) > _UNIT_TOL].reshape(-1)[0]
-        raise ValidationError(f"{name} must hold unit vectors (norm 1 ± {_UNIT_TOL}), got a vector of norm {bad:.6g}")
+    check_unit_vectors(v, name, _UNIT_TOL)
     return v
 
 

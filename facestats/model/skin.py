@@ -196,7 +196,7 @@ def view_directions(positions, camera_positions):
 
 
 def neighbour_pairs(positions, radius):
-    """All ordered pairs of distinct points closer than ``radius``: ``(rows, cols, distance)``.
+    """All ordered pairs of distinct points at most ``radius`` apart (distance ≤ radius): ``(rows, cols, distance)``.
 
     Parameters
     ----------

@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_integer, check_shape
+from facestats.core.validate import as_finite, check_integer, check_shape, check_unit_vectors
 from facestats.errors import ValidationError
 
 __all__ = [
@@ -323,16 +323,8 @@ def unit_directions(value, name: str = "directions", tol: float = 1e-3, *, allow
     ``allow_zero``: zero vectors are accepted and stay zero (per-pixel maps that hold 0 where there is no
     surface, such as a stage field's ``view`` off the face)."""
     d = check_shape(as_finite(value, name, dtype=np.float64), name, (..., 3))
-    norm = np.linalg.norm(d, axis=-1)
-    zero = (norm == 0) if allow_zero else np.zeros(norm.shape, bool)
-    bad = (np.abs(norm - 1) > tol) & ~zero
-    if np.any(bad):
-        raise ValidationError(
-            f"{name} must hold unit vectors (norm 1 ± {tol:g}"
-            + (", or 0 where there is no surface" if allow_zero else "")
-            + f"), got a vector of norm {norm[bad][0]:.6g}"
-        )
-    return d / np.where(zero, 1.0, norm)[..., None]
+    norm = check_unit_vectors(d, name, tol, allow_zero=allow_zero)
+    return d / np.where(norm == 0, 1.0, norm)[..., None]
 
 
 def voronoi_solid_angles(directions, *, grid: int = 256) -> np.ndarray:

@@ -18,6 +18,7 @@ from facestats.acquire.lights import load_lights, patch_irradiance
 from facestats.acquire.patches import read_mesh_patches
 from facestats.acquire.scene import patch_radiance, read_radiance_image
 from facestats.core.validate import check_choice
+from facestats.errors import ValidationError
 from facestats.model.fitting.profile_grid import TABLE2_GRID, ProfileGrid
 from facestats.model.fitting.scattering_image import fit_scattering_channels
 
@@ -47,8 +48,11 @@ def fit_image_translucency(
     patches : Patches
     lights : list of lights (:mod:`facestats.acquire.lights`)
     camera : PinholeCamera
-    image : ndarray, shape (H, W[, C])
-        Linear radiance.
+    image : ndarray, shape (H, W), (H, W, 1) or (H, W, 3)
+        Linear radiance.  An RGB image is fitted per channel against the lights'
+        RGB irradiance.  A grey image is fitted once against the mean of the
+        lights' R, G and B irradiance: a camera equally sensitive to the three
+        light colours (exact for white lights; for coloured lights, give RGB).
     eta : float
         Relative index of refraction (Suzuki: 1.3).
     width, method
@@ -63,14 +67,16 @@ def fit_image_translucency(
     list of ScatteringImageFit
         One per image channel.
     """
-
+    shape = np.shape(image)
+    if len(shape) not in (2, 3) or (len(shape) == 3 and shape[2] not in (1, 3)):
+        raise ValidationError(f"image must have shape (H, W), (H, W, 1) or (H, W, 3), got {shape}")
     if isinstance(grid, str):
         check_choice(grid, "grid", GRIDS)
         grid = GRIDS[grid]
     c = patch_irradiance(patches, lights, eta=eta)
     l, seen = patch_radiance(image, camera, patches, eta=eta)
-    n_ch = l.shape[1]
-    c = c[:, :n_ch] if n_ch <= 3 else np.repeat(c[:, :1], n_ch, axis=1)
+    if l.shape[1] == 1:  # grey: equal sensitivity to the lights' three colours (docstring)
+        c = c.mean(axis=1, keepdims=True)
     return fit_scattering_channels(
         patches.centre, patches.area, c, l, width=width, visible=seen, eta=eta, method=method, grid=grid, **options
     )

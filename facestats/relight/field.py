@@ -48,6 +48,7 @@ from facestats.core.validate import (
     check_integer,
     check_range,
     check_shape,
+    check_unit_vectors,
 )
 from facestats.errors import StoreError, ValidationError
 from facestats.model.sphere import latlong_directions, latlong_solid_angles, unit_directions, voronoi_solid_angles
@@ -103,6 +104,7 @@ def make_field(
         RGB irradiance of each light in the capture (default 1).
     mask : array_like of bool, shape (H, W), optional
     view, normal, position : array_like, shape (H, W, 3), optional
+        ``view`` and ``normal``: unit vectors (norm 1 ± 1e-3), or 0 where there is no surface.
     attrs : dict, optional
         Extra attributes (JSON-serialisable).
 
@@ -121,6 +123,8 @@ def make_field(
         raise ValidationError(
             f"values must have shape {want} for directions of shape {np.shape(directions)}, got {r.shape}"
         )
+    if r.size == 0:
+        raise ValidationError(f"values must hold at least one light and one pixel, got shape {r.shape}")
     r = as_finite(r, "values", dtype=np.float16 if r.dtype == np.float16 else np.float32)
     check_range(r, "values", 0, None, unit="sr-1")
     lshape = r.shape[:nl]
@@ -157,6 +161,8 @@ def make_field(
         if arr is not None:
             a = as_finite(arr, name, dtype=np.float32)
             check_shape(a, name, (h, w, 3))
+            if name != "position":
+                check_unit_vectors(a, name, allow_zero=True)
             ds[name] = (("y", "x", "component"), a)
     if mask is not None:
         m = np.asarray(mask, bool)

@@ -440,3 +440,46 @@ def test_an_emulator_that_fails_to_start_removes_the_folders_it_created(tmp_path
                 start("S001", hot, tmp_path / "kept" / "lab")
             assert sorted(os.listdir(tmp_path)) == ["kept", "tmp"], os.listdir(tmp_path)
             assert os.listdir(tmp_path / "kept") == [] and os.listdir(tmp_path / "tmp") == []
+
+
+def test_sizes_that_would_exhaust_memory_are_refused_by_name():
+    """A kernel of 6e12 taps and a width giving 1.6e11 levels are refused before anything is allocated."""
+    from facestats.model.fitting.quantised import MAX_LEVELS, uniform_levels
+    from facestats.model.fitting.scattering_image import fit_scattering_image
+    from facestats.model.microstructure import kernel_taps
+    from facestats.model.microstructure.kernel import MAX_RADIUS
+
+    with pytest.raises(ValidationError, match=r"sigma_px=1e\+12 texels needs a kernel of 6000000000001 taps"):
+        kernel_taps(0.5, 1e12, 1.0)
+    assert kernel_taps(0.5, MAX_RADIUS / 3.0, 1.0).size == 2 * MAX_RADIUS + 1  # the largest allowed
+    p = np.random.default_rng(0).random((40, 3)) * 100
+    with pytest.raises(ValidationError, match=r"width=1e-09 mm gives .* levels .* use a width of at least"):
+        fit_scattering_image(p, np.ones(40), np.ones(40), np.ones(40), width=1e-9)
+    assert uniform_levels(1.0, MAX_LEVELS - 2).size == MAX_LEVELS
+
+
+def test_microstructure_slopes_refuse_mismatched_shapes():
+    from facestats.model.microstructure.surface import normal_histogram, tangent_normals
+
+    with pytest.raises(ValidationError, match=r"jacobian must have shape \(2, 2\) or \(4, 5, 2, 2\)"):
+        tangent_normals(np.zeros((4, 5)), np.zeros((3, 5, 2, 2)))
+    with pytest.raises(ValidationError, match="gx and gy must be non-empty slopes of one shape"):
+        normal_histogram(np.zeros(5), np.zeros(4), extent=0.5)
+    with pytest.raises(ValidationError, match="gx and gy must be non-empty"):
+        normal_histogram(np.zeros(0), np.zeros(0), extent=0.5)
+
+
+def test_make_field_refuses_empty_images_and_non_unit_views():
+    from facestats.relight.field import make_field
+
+    d = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    with pytest.raises(
+        ValidationError, match=r"values must hold at least one light and one pixel, got shape \(2, 0, 3, 3\)"
+    ):
+        make_field(np.zeros((2, 0, 3, 3)), d)
+    view = np.zeros((2, 3, 3), np.float32)
+    view[0, 0] = (0, 0, 2)
+    with pytest.raises(ValidationError, match="view must hold unit vectors .*or 0 where there is no surface.*norm 2"):
+        make_field(np.zeros((2, 2, 3, 3)), d, view=view)
+    view[0, 0] = (0, 0, 1)  # unit vectors on the face, 0 off it
+    assert make_field(np.zeros((2, 2, 3, 3)), d, view=view, normal=view)["view"].shape == (2, 3, 3)

@@ -66,6 +66,7 @@ from facestats.errors import FitError, ValidationError
 
 __all__ = [
     "DEFAULT_BLOCK_BYTES",
+    "MAX_LEVELS",
     "QuantisedSystem",
     "Conditioning",
     "uniform_levels",
@@ -84,6 +85,8 @@ __all__ = [
 
 #: Default memory budget of one row block of :func:`quantised_system` (bytes).
 DEFAULT_BLOCK_BYTES = 128 * 2**20
+#: Most levels a width may give (W holds one column per level; Suzuki's scenes need tens to hundreds).
+MAX_LEVELS = 4096
 #: Bytes of temporaries per (row, lit patch) pair of a block.
 _BYTES_PER_PAIR = 48
 
@@ -135,8 +138,13 @@ def uniform_levels(width, max_distance) -> np.ndarray:
     """
     w = float(as_finite(width, "width", 0, None, low_inclusive=False, unit="mm"))
     dmax = float(as_finite(max_distance, "max_distance", 0, None, unit="mm"))
-    n = int(np.floor(dmax / w)) + 2
-    return np.arange(n) * w
+    n = np.floor(dmax / w) + 2
+    if n > MAX_LEVELS:
+        raise ValidationError(
+            f"width={w:g} mm gives {n:.4g} levels over {dmax:.4g} mm, more than MAX_LEVELS = {MAX_LEVELS}; "
+            f"use a width of at least {dmax / (MAX_LEVELS - 2):.4g} mm"
+        )
+    return np.arange(int(n)) * w
 
 
 def _check_levels(levels) -> np.ndarray:

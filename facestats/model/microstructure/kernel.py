@@ -39,6 +39,7 @@ __all__ = [
     "ALPHA_RANGE",
     "SIGMA_RANGE_UM",
     "TRUNCATE",
+    "MAX_RADIUS",
     "GAUSSIAN_RESPONSE_FLOOR",
     "kernel_radius",
     "gaussian_taps",
@@ -54,6 +55,8 @@ ALPHA_RANGE = (-2.0, 1.0)
 SIGMA_RANGE_UM = (1.0, 100.0)
 #: The Gaussian is truncated at TRUNCATE standard deviations (then renormalised).
 TRUNCATE = 3.0
+#: Largest half-width R of a discrete Gaussian, taps (σ up to 1365 texels; 100 µm at 0.07 µm per texel).
+MAX_RADIUS = 4096
 #: Bound of how far below 0 the truncated, renormalised Gaussian's response dips (see module docstring).
 GAUSSIAN_RESPONSE_FLOOR = 2e-3
 
@@ -81,6 +84,11 @@ def gaussian_taps(sigma_px: float) -> np.ndarray:
     if s == 0:
         return np.ones(1)
     r = int(kernel_radius(s))
+    if r > MAX_RADIUS:
+        raise ValidationError(
+            f"sigma_px={s:g} texels needs a kernel of {2 * r + 1} taps, more than the {2 * MAX_RADIUS + 1} allowed "
+            "(MAX_RADIUS); check sigma and the texel size (same unit, um)"
+        )
     i = np.arange(-r, r + 1, dtype=np.float64)
     g = np.exp(-(i * i) / (2 * s * s))
     return g / g.sum()

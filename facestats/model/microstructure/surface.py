@@ -62,6 +62,10 @@ def slopes(displacement, jacobian):
     """Tangent-frame slopes ``g = J ∇h`` (dimensionless), float64 (H, W) each (module docstring)."""
     gu, gv = height_gradient(displacement)
     j = _jacobian(jacobian)
+    if j.shape not in ((2, 2), gu.shape + (2, 2)):
+        raise ValidationError(
+            f"jacobian must have shape (2, 2) or {gu.shape + (2, 2)} (one per texel of the displacement), got {j.shape}"
+        )
     return j[..., 0, 0] * gu + j[..., 0, 1] * gv, j[..., 1, 0] * gu + j[..., 1, 1] * gv
 
 
@@ -100,7 +104,10 @@ def normal_histogram(gx, gy, *, bins=64, extent):
     e = float(extent)
     if not 0 < e <= 1:
         raise ValidationError(f"extent must lie in (0, 1], got {extent!r}")
-    gx, gy = np.asarray(gx, np.float64).reshape(-1), np.asarray(gy, np.float64).reshape(-1)
+    gx, gy = np.asarray(gx, np.float64), np.asarray(gy, np.float64)
+    if gx.shape != gy.shape or gx.size == 0:
+        raise ValidationError(f"gx and gy must be non-empty slopes of one shape, got {gx.shape} and {gy.shape}")
+    gx, gy = gx.reshape(-1), gy.reshape(-1)
     inv = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy)
     scale = nb / (2 * e)
     bu = np.clip(np.floor((-gx * inv + e) * scale), 0, nb - 1).astype(np.int64)

@@ -63,6 +63,7 @@ from facestats.acquire.photographs import (
     prefetch,
 )
 from facestats.acquire.visibility import dome_shadow_maps, sample_visibility
+from facestats.core.progress import progress_bar
 from facestats.core.validate import as_finite, check_integer
 from facestats.core.version import __version__
 from facestats.errors import FormatError, ValidationError
@@ -332,11 +333,9 @@ def ingest_photographs(
     shadows = dome_shadow_maps(geometry, dome, camera_pixels=True)
     vis = sample_visibility(dome, shadows, geometry.position, geometry.normal)
     todo = [c for c in range(dome.n_cameras) if c not in state["cameras_done"]]
-    it = todo
-    if progress:
-        from tqdm.auto import tqdm
-
-        it = tqdm(todo, desc=f"ingest {folder.path.name}", unit="camera", initial=dome.n_cameras - len(todo))
+    it = progress_bar(
+        todo, desc=f"ingest {folder.path.name}", unit="camera", initial=dome.n_cameras - len(todo), enabled=progress
+    )
     for cam in it:  # loop over cameras: one camera's samples in memory at a time
         resolved = footprint_px(dome, geometry, cam) >= min_footprint_px
         rad, _, flags = _camera_samples(folder, dome, vis, cam, motion_tolerance, workers, resolved)

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from facestats.core.progress import progress_bar
 from facestats.errors import SchemaError, StoreError, ValidationError
 from facestats.io.ids import check_subject_id
 from facestats.io.index import INDEX_NAME, is_index_temp, make_entry, read_index_file
@@ -463,7 +464,7 @@ def check_subjects(
     generation_exists : callable, optional
         ``generation_exists(sid, gen)``: tells a missing generation from a damaged one.
     progress : bool
-        Show a progress bar (tqdm; silent when not on a terminal).
+        Show a progress bar (:mod:`facestats.core.progress`).
 
     Returns
     -------
@@ -471,10 +472,7 @@ def check_subjects(
     """
     out = Checked()
     ids = sorted(index["subjects"])
-    if progress:
-        from tqdm.auto import tqdm
-
-        ids = tqdm(ids, desc="check", unit="subject", disable=None)
+    ids = progress_bar(ids, desc="check", unit="subject", enabled=progress)
     for sid in ids:
         entry = index["subjects"][sid]
         for _ in range(5):

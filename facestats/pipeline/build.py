@@ -67,7 +67,7 @@ from facestats.model.skin import SPECULAR_MODELS
 from facestats.pipeline import FitSettings, fit_subject
 from facestats.pipeline.cluster import connect, scheduler_address, store_directory
 from facestats.pipeline.journal import BuildJournal, gathered, run_journalled
-from facestats.pipeline.progress import TaskProgress, progress_bar
+from facestats.pipeline.progress import TaskProgress, subject_bar
 
 __all__ = ["BuildReport", "build_store", "build_default", "estimated_memory", "DEFAULT_SEED", "DEFAULT_MAP_SIZE"]
 
@@ -451,10 +451,10 @@ def _run_tasks(args, retries, client, n_workers, progress):
 
         # Task failures are retried inside the task; Dask's retries cover a lost worker.
         futures = {client.submit(_build_task, retries, *a, pure=False, retries=retries): a for a in args}
-        done = progress_bar(as_completed(futures, loop=client.loop), len(futures), progress)
+        done = subject_bar(as_completed(futures, loop=client.loop), len(futures), progress)
         return [gathered(f, futures[f][0], futures[f][5]) for f in done]
     if n_workers == 1 or len(args) <= 1:
-        return [_build_task(retries, *a) for a in progress_bar(args, len(args), progress)]
+        return [_build_task(retries, *a) for a in subject_bar(args, len(args), progress)]
     import dask
 
     return _run_local([dask.delayed(_build_task, pure=False)(retries, *a) for a in args], n_workers, progress)

@@ -38,6 +38,7 @@ from facestats.acquire.synthetic.contactless import (
     simulate_site_image,
 )
 from facestats.core.conventions import CHANNELS, SITES
+from facestats.core.progress import progress_bar
 from facestats.core.published import ETA_SKIN
 from facestats.errors import QuantisationWarning, ValidationError
 from facestats.io.schema import modulation, provenance, set_provenance, set_variable_attrs
@@ -169,10 +170,7 @@ def contactless_population(
         The subject ids written.
     """
     it = list(ids)
-    if progress:
-        from tqdm.auto import tqdm
-
-        it = tqdm(it, desc="contactless translucency", unit="subject")
+    it = progress_bar(it, desc="contactless translucency", unit="subject", enabled=progress)
     written = []
     for sid in it:  # loop over subjects
         truth = population[sid]
@@ -212,10 +210,7 @@ def contactless_study(
     import pandas as pd
 
     it = list(ids)
-    if progress:
-        from tqdm.auto import tqdm
-
-        it = tqdm(it, desc="contactless study", unit="subject")
+    it = progress_bar(it, desc="contactless study", unit="subject", enabled=progress)
     rows = []
     for sid in it:  # loop over subjects
         truth = population[sid]

@@ -51,6 +51,7 @@ import facestats
 from facestats.acquire.synthetic.microstructure import procedural_microstructure, subject_microstructure
 from facestats.core.compiled import resolve_backend
 from facestats.core.outputs import OutputSet, check_output_file
+from facestats.core.progress import progress_bar
 from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.core.version import __version__
 from facestats.errors import FacestatsError, StoreError, ValidationError
@@ -431,10 +432,7 @@ def render_sequence(
     done = np.asarray(group["done"][:])
     start = time.perf_counter()
     frames = range(n)
-    if progress:
-        from tqdm.auto import tqdm
-
-        frames = tqdm(frames, desc="microstructure", unit="frame", disable=None)
+    frames = progress_bar(frames, desc="microstructure", unit="frame", enabled=progress)
     for i in frames:  # loop over frames
         if done[i]:
             report.skipped.append(i)

@@ -22,7 +22,7 @@ from facestats.io.store import open_store
 from facestats.model import fitting
 from facestats.pipeline.cluster import connect, scheduler_address, store_directory
 from facestats.pipeline.journal import BuildJournal, gathered, run_journalled
-from facestats.pipeline.progress import TaskProgress, progress_bar
+from facestats.pipeline.progress import TaskProgress, subject_bar
 from facestats.pipeline.settings import FitSettings, checked_settings
 from facestats.pipeline.subject import fit_sensor, fit_subject
 
@@ -185,11 +185,11 @@ def _run(tasks, client, local, num_workers, progress):
         from distributed import as_completed
 
         futures = [client.submit(_fit_capture_task, *t, pure=False) for t in tasks]
-        for _ in progress_bar(as_completed(futures, loop=client.loop), len(futures), progress, desc="fit"):
+        for _ in subject_bar(as_completed(futures, loop=client.loop), len(futures), progress, desc="fit"):
             pass
         return [gathered(f, t[5], t[0]) for f, t in zip(futures, tasks)]
     if local == "synchronous" or len(tasks) == 1:
-        return [_fit_capture_task(*t) for t in progress_bar(tasks, len(tasks), progress, desc="fit")]
+        return [_fit_capture_task(*t) for t in subject_bar(tasks, len(tasks), progress, desc="fit")]
     import dask
 
     delayed = [dask.delayed(_fit_capture_task, pure=False)(*t) for t in tasks]

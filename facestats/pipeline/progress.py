@@ -1,24 +1,22 @@
-"""Progress bars of population runs: one tick per subject, with the ETA tqdm estimates from the rate so far."""
+"""Progress bars of population runs: one tick per subject, with the ETA tqdm estimates from the rate so far.
+
+The bars follow :mod:`facestats.core.progress` (shown when asked for, hidden by ``FACESTATS_PROGRESS=0``).
+"""
 
 from __future__ import annotations
 
-__all__ = ["progress_bar", "TaskProgress"]
+from facestats.core.progress import progress_bar
+
+__all__ = ["subject_bar", "TaskProgress"]
 
 
-def progress_bar(items, total, enabled, desc="build"):
-    """``items`` through a tqdm bar over ``total`` subjects (with ETA) when ``enabled``, else unchanged.
-
-    The bar hides itself when the output is not a terminal (``disable=None``).
-    """
-    if not enabled:
-        return items
-    from tqdm.auto import tqdm
-
-    return tqdm(items, total=total, desc=desc, unit="subject", disable=None)
+def subject_bar(items, total, enabled, desc="build"):
+    """``items`` through a bar over ``total`` subjects (with ETA) when ``enabled``."""
+    return progress_bar(items, enabled=enabled, total=total, desc=desc, unit="subject")
 
 
 class TaskProgress:
-    """A tqdm bar advanced by Dask's local scheduler as tasks finish (silent when not on a terminal).
+    """A bar advanced by Dask's local scheduler as tasks finish.
 
     Use as a context manager around ``dask.compute`` of ``total`` subject tasks.
     """
@@ -27,12 +25,9 @@ class TaskProgress:
         self.total, self.enabled, self.desc = total, enabled, desc
 
     def __enter__(self):
-        if not self.enabled:
-            return self
         from dask.callbacks import Callback
-        from tqdm.auto import tqdm
 
-        bar = tqdm(total=self.total, desc=self.desc, unit="subject", disable=None)
+        bar = progress_bar(enabled=self.enabled, total=self.total, desc=self.desc, unit="subject")
 
         class _Tick(Callback):
             def _posttask(self, key, result, dsk, state, id):
@@ -43,6 +38,5 @@ class TaskProgress:
         return self
 
     def __exit__(self, *exc):
-        if self.enabled:
-            self.cb.__exit__(*exc)
-            self.bar.close()
+        self.cb.__exit__(*exc)
+        self.bar.close()

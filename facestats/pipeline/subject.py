@@ -20,6 +20,7 @@ import numpy as np
 from facestats.acquire.capture import Capture, open_capture
 from facestats.acquire.geometry import uv_to_texel
 from facestats.core.conventions import CHANNELS, SITES
+from facestats.core.progress import progress_bar
 from facestats.core.published import ETA_SKIN, SIGMA_TR_AVG
 from facestats.core.validate import as_finite, check_integer, check_shape
 from facestats.core.version import __version__
@@ -73,10 +74,7 @@ def _blocks_result(capture, settings, client=None, progress=False, workers=1):
         parts = list(dask.compute(*tasks, scheduler=scheduler, num_workers=workers))
     else:
         it = ranges
-        if progress:
-            from tqdm.auto import tqdm
-
-            it = tqdm(ranges, desc=f"fit {capture.attrs.get('subject_id', '')}", unit="block")
+        it = progress_bar(ranges, desc=f"fit {capture.attrs.get('subject_id', '')}", unit="block", enabled=progress)
         parts = [run(a, b) for a, b in it]
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 

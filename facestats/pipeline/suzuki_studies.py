@@ -25,6 +25,7 @@ import numpy as np
 from facestats.acquire.lights import patch_irradiance
 from facestats.acquire.scene import camera_sees
 from facestats.acquire.synthetic.subsurface import render_exitance
+from facestats.core.progress import progress_bar
 from facestats.core.published import SUZUKI_TABLE1, SUZUKI_TABLE3
 from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.errors import FitError, QuantisationWarning
@@ -183,10 +184,7 @@ def noise_study(rendered: RenderedScene, *, noise=0.01, seeds=20, width="auto", 
     w = auto_width(p.centre, rendered.irradiance * p.area, rows)[0] if width == "auto" else float(width)
     system = _system(rendered, w)
     it = range(int(seeds))
-    if progress:
-        from tqdm.auto import tqdm
-
-        it = tqdm(it, desc="noise seeds", unit="image")
+    it = progress_bar(it, desc="noise seeds", unit="image", enabled=progress)
     out = []
     for seed in it:  # loop over noisy images; each solve is vectorised
         rng = np.random.default_rng(seed)

@@ -128,6 +128,7 @@ from dataclasses import field as dataclass_field
 import numpy as np
 
 from facestats.core.compiled import resolve_backend
+from facestats.core.progress import progress_bar
 from facestats.core.validate import as_finite, as_float, check_integer, check_seed
 from facestats.errors import ValidationError
 from facestats.relight.field import as_field, image_tiles, light_dims, light_table
@@ -327,9 +328,7 @@ class _Pass:
 
     def channels(self, desc):
         """(indices into the face pixels, weighted channel rows (n, 3, L) float32) per tile."""
-        from tqdm.auto import tqdm
-
-        for ys, xs, sel, inside in tqdm(self.tiles, desc=desc, disable=not self.progress, leave=False):
+        for ys, xs, sel, inside in progress_bar(self.tiles, desc=desc, enabled=self.progress, leave=False):
             yield sel, _weighted_rows(self.f, ys, xs, inside, self.sw)
 
     def set_colours(self, inverse, off_plane):

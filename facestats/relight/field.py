@@ -159,17 +159,21 @@ def make_field(
         ds.attrs["layout"] = "latlong"
     for name, arr in (("view", view), ("normal", normal), ("position", position)):
         if arr is not None:
-            a = as_finite(arr, name, dtype=np.float32)
-            check_shape(a, name, (h, w, 3))
-            if name != "position":
-                check_unit_vectors(a, name, allow_zero=True)
-            ds[name] = (("y", "x", "component"), a)
+            ds[name] = (("y", "x", "component"), _pixel_vectors(arr, name, (h, w)))
     if mask is not None:
         m = np.asarray(mask, bool)
         check_shape(m, "mask", (h, w))
         ds["mask"] = (("y", "x"), m)
     ds.attrs.update(attrs or {})
     return ds
+
+
+def _pixel_vectors(arr, name, size) -> np.ndarray:
+    """A (H, W, 3) float32 map of ``make_field``; ``view`` and ``normal`` hold unit vectors or 0 (no surface)."""
+    a = check_shape(as_finite(arr, name, dtype=np.float32), name, size + (3,))
+    if name != "position":
+        check_unit_vectors(a, name, allow_zero=True)
+    return a
 
 
 def as_field(field):

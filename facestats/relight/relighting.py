@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from facestats.core.progress import progress_bar
 from facestats.core.validate import as_finite, as_float, check_shape
 from facestats.errors import ValidationError
 from facestats.relight.field import as_field, image_tiles, light_dims, light_table
@@ -142,8 +143,6 @@ def check_relit(image, what: str) -> np.ndarray:
 
 def _relight_weights(f, w, progress):
     """Relit image of a validated field with (L, 3) float32 weights, by tiles when the field is chunked."""
-    from tqdm.auto import tqdm
-
     refl = f["reflectance"]
     nl = len(light_dims(f))
     n = int(np.prod(refl.shape[:nl]))
@@ -151,7 +150,7 @@ def _relight_weights(f, w, progress):
         vals = np.asarray(refl.values).reshape((n,) + refl.shape[nl:])
         return relight_block(vals, w)
     out = np.zeros((f.sizes["y"], f.sizes["x"], 3), np.float32)
-    for ys, xs in tqdm(image_tiles(f), desc="relight tiles", disable=not progress, leave=False):
+    for ys, xs in progress_bar(image_tiles(f), desc="relight tiles", enabled=progress, leave=False):
         block = np.asarray(refl.isel(y=ys, x=xs).values, np.float32)
         out[ys, xs] = relight_block(block.reshape((n,) + block.shape[nl:]), w)
     return out

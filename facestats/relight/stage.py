@@ -53,6 +53,7 @@ import numpy as np
 from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.visibility import ShadowMaps
 from facestats.core.blocked import blockwise
+from facestats.core.progress import progress_bar
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, as_float, check_choice, check_integer, check_shape
 from facestats.errors import ValidationError
@@ -252,8 +253,6 @@ def _bp_kernel(ci, co, io, rho, n, vis, eta):
 def _visibility_setup(geometry, surface, normals, directions, shadow_resolution, shadows, progress=False):
     """Vertex visibility (V_used, L_active) of the lights that reach some pixel, and those lights' indices
     (``progress``: a bar over the lights' shadow maps, most of a direct render's time)."""
-    from tqdm.auto import tqdm
-
     active = np.nonzero((normals @ directions.T > 0).any(axis=0))[0]
     used, inverse = np.unique(surface.vertices, return_inverse=True)
     if not shadows or active.size == 0:
@@ -264,7 +263,7 @@ def _visibility_setup(geometry, surface, normals, directions, shadow_resolution,
     target = 0.5 * (verts.min(0) + verts.max(0))
     eyes = target + LIGHT_DISTANCE * directions[active]
     vis = np.empty((used.size, active.size), np.float32)
-    with tqdm(total=active.size, desc="shadow maps", unit="light", disable=not progress, leave=False) as bar:
+    with progress_bar(total=active.size, desc="shadow maps", unit="light", enabled=progress, leave=False) as bar:
         for a in range(0, active.size, SHADOW_BATCH):  # batches of lights: bounded memory for many lights
             maps = ShadowMaps(verts, faces, eyes[a : a + SHADOW_BATCH], target=target, resolution=shadow_resolution)
             vis[:, a : a + SHADOW_BATCH] = maps.visible(verts[used], vn[used])
@@ -380,8 +379,6 @@ def light_stage_field(
         ``normal`` and ``position`` per pixel; attributes record the subject,
         camera and model.
     """
-    from tqdm.auto import tqdm
-
     if isinstance(camera, (list, tuple)):  # several cameras: one field each (Debevec used two)
         outs = [None] * len(camera) if out is None else list(out)
         if len(outs) != len(camera):
@@ -419,7 +416,7 @@ def light_stage_field(
                            overwrite=overwrite)  # fmt: skip
     sink = _Sink(flat.shape[0], size, t, active, store, visibility)
     try:
-        for ti, tj, rows in tqdm(_tiles_of(surface.pixel, size, t), desc="light stage tiles", disable=not progress,
+        for ti, tj, rows in progress_bar(_tiles_of(surface.pixel, size, t), desc="light stage tiles", enabled=progress,
                                  leave=False):  # fmt: skip
             vis = _pixel_visibility(vis_v, vidx, surface.bary, rows)
             spec, shape = shading.subset(rows).factors(flat[active], surface.view[rows], vis)
@@ -532,10 +529,8 @@ def render_subject(
     wa = as_float(w[active], "lighting", np.float32)
     step = max(1, RENDER_SAMPLES // max(active.size, 1)) if chunk is None else check_integer(chunk, "chunk", 1)
     out = np.zeros((surface.pixel.size, 3), np.float32)
-    from tqdm.auto import tqdm
-
     chunks = range(0, surface.pixel.size, step)
-    for a in tqdm(chunks, desc="render", unit="chunk", disable=not progress, leave=False):  # chunks of pixels
+    for a in progress_bar(chunks, desc="render", unit="chunk", enabled=progress, leave=False):  # chunks of pixels
         rows = np.arange(a, min(a + step, surface.pixel.size))
         vis = _pixel_visibility(vis_v, vidx, surface.bary, rows)
         spec, shape = shading.subset(rows).factors(flat[active], surface.view[rows], vis)

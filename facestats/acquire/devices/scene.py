@@ -49,6 +49,7 @@ from facestats.acquire.synthetic.faces import face_geometry, named_face
 from facestats.acquire.synthetic.photographs import FrameRenderer
 from facestats.acquire.synthetic.population import SubjectTruth, synthesize_population
 from facestats.core.compiled import resolve_backend
+from facestats.core.progress import progress_bar
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import check_integer
 from facestats.errors import ValidationError
@@ -257,10 +258,7 @@ class DomeScene:
                 return [(z[f"flat{c}"], z[f"node{c}"]) for c in range(self.dome.n_cameras)]
         renderer = FrameRenderer(self.geometry, self.dome)
         cams = range(self.dome.n_cameras)
-        if progress:
-            from tqdm.auto import tqdm
-
-            cams = tqdm(cams, desc="emulated cameras", unit="camera")
+        cams = progress_bar(cams, desc="emulated cameras", unit="camera", enabled=progress)
         maps = [renderer.pixels(c) for c in cams]
         if path is not None:
             path.parent.mkdir(parents=True, exist_ok=True)

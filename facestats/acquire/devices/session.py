@@ -46,6 +46,7 @@ import time
 from dataclasses import dataclass, field
 
 from facestats.core.conventions import SITES
+from facestats.core.progress import progress_bar
 from facestats.errors import DeviceError, SessionError
 
 __all__ = ["run_session", "SessionReport", "SessionLog", "session_state", "missing_steps"]
@@ -445,14 +446,12 @@ def run_session(
     done = journal.load(verify)
     report.steps_before = len(done)
     pending = [s for s in range(plan.n_steps) if s not in done]
-    from tqdm.auto import tqdm
-
-    bar = tqdm(
+    bar = progress_bar(
         total=plan.n_steps,
         initial=len(done),
         desc=f"capture {plan.kind} {plan.subject_id}",
         unit="step",
-        disable=not progress,
+        enabled=progress,
     )
     runner = _Runner(
         plan,

@@ -51,6 +51,7 @@ from facestats.acquire.photographs import MANIFEST, write_manifest, write_sensor
 from facestats.acquire.response import ResponseCurve
 from facestats.acquire.synthetic.faces import named_face
 from facestats.acquire.synthetic.simulate import DomeSimulator
+from facestats.core.progress import progress_bar
 from facestats.core.validate import as_finite, check_choice
 from facestats.errors import ValidationError
 
@@ -351,10 +352,7 @@ def write_capture_photographs(
     moved = {(int(c), int(l)) for c, l in moved_frames}
     writer = _FrameWriter(folder, workers)
     cams = range(dome.n_cameras)
-    if progress:
-        from tqdm.auto import tqdm
-
-        cams = tqdm(cams, desc=f"photographs {truth.subject_id}", unit="camera")
+    cams = progress_bar(cams, desc=f"photographs {truth.subject_id}", unit="camera", enabled=progress)
     for cam in cams:  # loop over cameras, then LEDs; each frame is whole-image array work
         pixels = renderer.pixels(cam)
         for led in range(dome.n_leds):

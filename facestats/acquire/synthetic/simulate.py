@@ -50,6 +50,7 @@ from facestats.acquire.hdr import expose, merge_exposures
 from facestats.acquire.sensor import ContactSensor
 from facestats.acquire.synthetic.faces import named_face
 from facestats.acquire.visibility import dome_shadow_maps, sample_visibility
+from facestats.core.progress import progress_bar
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.core.version import __version__
@@ -460,10 +461,7 @@ class DomeSimulator:
             chunk=int(chunk),
         )
         it = zip(ranges, rngs)
-        if progress:
-            from tqdm.auto import tqdm
-
-            it = tqdm(list(it), desc=f"simulate {truth.subject_id}", unit="block")
+        it = progress_bar(list(it), desc=f"simulate {truth.subject_id}", unit="block", enabled=progress)
         for (a, b), r in it:
             blk = self._block_geometry(a, b)
             sl = slice(a, b)

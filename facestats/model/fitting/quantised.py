@@ -61,6 +61,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from facestats.core.progress import progress_bar
 from facestats.core.validate import as_finite, check_integer, check_shape
 from facestats.errors import FitError, ValidationError
 
@@ -240,7 +241,7 @@ def quantised_system(
     block_bytes : int
         Memory budget of a row block (≥ 1 MiB).
     progress : bool
-        Show a progress bar over the row blocks (tqdm).
+        Show a progress bar over the row blocks (:mod:`facestats.core.progress`).
 
     Returns
     -------
@@ -269,10 +270,7 @@ def quantised_system(
         w, lev = None, _check_levels(levels)
     block = max(1, int(block_bytes) // (_BYTES_PER_PAIR * lit.size))
     starts = range(0, idx.size, block)
-    if progress:
-        from tqdm.auto import tqdm
-
-        starts = tqdm(starts, desc="W (Suzuki eq. 33)", unit="block")
+    starts = progress_bar(starts, desc="W (Suzuki eq. 33)", unit="block", enabled=progress)
     sq_c = np.einsum("ij,ij->i", cols_xyz, cols_xyz)
     lit_pos = np.full(m, -1)
     lit_pos[lit] = np.arange(lit.size)

@@ -50,6 +50,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from facestats.core.compiled import resolve_backend
+from facestats.core.progress import progress_bar
 from facestats.core.validate import as_finite, check_choice
 from facestats.errors import ValidationError
 from facestats.model.microstructure.compiled import histogram_tv
@@ -214,11 +215,7 @@ class _Problem:
 
 
 def _progress(it, enabled, total, desc):
-    if not enabled:
-        return it
-    from tqdm.auto import tqdm
-
-    return tqdm(it, total=total, desc=desc, unit="sigma")
+    return progress_bar(it, enabled=enabled, total=total, desc=desc, unit="sigma")
 
 
 def _search(problem, alphas, sigmas_px, cells, progress):

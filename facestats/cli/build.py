@@ -35,8 +35,12 @@ def _build_command(args) -> int:
         print(status.to_text())
         return 1 if status.failed else 0
     if args.default:
-        if args.store:
-            print("facestats: error: --default writes the embedded store; do not pass --store", file=sys.stderr)
+        if args.store or args.scheduler:
+            print(
+                "facestats: error: --default builds the embedded store on this machine; do not pass --store or "
+                "--scheduler",
+                file=sys.stderr,
+            )
             return 2
         report = _build.build_default(workers=args.workers, progress=not args.quiet)
     else:
@@ -84,7 +88,8 @@ def add_build(sub):
         metavar="ADDRESS",
         default=None,
         help="run on the Dask distributed scheduler at ADDRESS (tcp://host:8786; default $DASK_SCHEDULER_ADDRESS "
-        "when set); its workers must see --store on a shared POSIX file system",
+        "when set; 'local': this machine whatever the variable says); its workers must see --store on a shared POSIX "
+        "file system",
     )
     p.add_argument(
         "--retries", type=ascii_int, default=2, help="retries of a subject that fails before it is reported (default 2)"

@@ -65,7 +65,7 @@ from facestats.model.fitting import TranslucencyFit, fit_translucency, populatio
 from facestats.model.fitting.engine import resolve_engine
 from facestats.model.skin import SPECULAR_MODELS
 from facestats.pipeline import FitSettings, fit_subject
-from facestats.pipeline.cluster import connect, scheduler_address, store_directory
+from facestats.pipeline.cluster import LOCAL, connect, scheduler_address, store_directory
 from facestats.pipeline.journal import BuildJournal, gathered, run_journalled
 from facestats.pipeline.progress import TaskProgress, subject_bar
 
@@ -364,7 +364,8 @@ def build_store(
         Run on a cluster instead (workers must see ``store_path``).
     scheduler : str, optional
         Address of a Dask scheduler (``tcp://host:8786``) to run on instead; default
-        ``$DASK_SCHEDULER_ADDRESS`` when set (:mod:`facestats.pipeline.cluster`).
+        ``$DASK_SCHEDULER_ADDRESS`` when set (:mod:`facestats.pipeline.cluster`); ``"local"``:
+        this machine whatever the variable says.
     micro_normals : bool
         Keep per-camera micro-normal maps (the default store drops them to stay small).
     keep_derived : bool
@@ -466,7 +467,8 @@ def build_default(*, workers: int | None = None, progress: bool = False, out=Non
     The default is the population of :data:`DEFAULT_SEED` at :data:`DEFAULT_MAP_SIZE`² on
     :data:`DEFAULT_FACE` (ICT-FaceKit's face), fitted without micro-normal maps (16 × 3 values
     per texel would triple its size) and stored without the derived modulation texture, so it
-    stays under 20 MB.
+    stays under 20 MB.  It is built on this machine (``$DASK_SCHEDULER_ADDRESS`` is not read): the
+    build goes to a local temporary directory that a cluster's workers could not see.
     """
 
     target = Path(out) if out is not None else default_store_path()
@@ -481,6 +483,7 @@ def build_default(*, workers: int | None = None, progress: bool = False, out=Non
             keep_derived=False,
             progress=progress,
             face=DEFAULT_FACE,
+            scheduler=LOCAL,
         )
         pack_store(tmp / "default.zarr", target, overwrite=True)
         report.store = str(target)

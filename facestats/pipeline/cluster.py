@@ -3,7 +3,8 @@
 * :func:`scheduler_address` — the ``tcp://…`` (or ``tls://``, ``ucx://``,
   ``inproc://``) address of a running Dask scheduler, given explicitly
   (``facestats build --scheduler``) or by the environment variable
-  ``DASK_SCHEDULER_ADDRESS`` (Dask's own name for it), or None: run locally;
+  ``DASK_SCHEDULER_ADDRESS`` (Dask's own name for it), or None: run locally
+  (also when given ``"local"``, which ignores the variable);
 * :func:`connect` — a :class:`distributed.Client` for such an address;
 * :func:`store_directory` — the directory of a store the workers write to.
 
@@ -29,21 +30,27 @@ from urllib.parse import urlparse
 
 from facestats.errors import StoreError, ValidationError
 
-__all__ = ["SCHEDULER_VARIABLE", "scheduler_address", "connect", "store_directory", "is_url"]
+__all__ = ["SCHEDULER_VARIABLE", "LOCAL", "scheduler_address", "connect", "store_directory", "is_url"]
 
 #: Environment variable naming the scheduler (read by Dask too).
 SCHEDULER_VARIABLE = "DASK_SCHEDULER_ADDRESS"
+#: The ``scheduler`` value that runs on this machine whatever ``$DASK_SCHEDULER_ADDRESS`` says.
+LOCAL = "local"
 _SCHEMES = ("tcp", "tls", "ucx", "inproc", "ws", "wss")
 
 
 def scheduler_address(scheduler=None):
     """The distributed scheduler to use: ``scheduler`` if it is an address, else ``$DASK_SCHEDULER_ADDRESS``, else None.
 
+    ``scheduler="local"`` (:data:`LOCAL`) gives None whatever the variable says.
+
     Raises
     ------
     ValidationError
         If ``scheduler`` (or the variable) is not an address of a known protocol.
     """
+    if isinstance(scheduler, str) and scheduler.strip() == LOCAL:
+        return None
     for value, name in ((scheduler, "scheduler"), (os.environ.get(SCHEDULER_VARIABLE) or None, SCHEDULER_VARIABLE)):
         if value is None:
             continue
@@ -55,7 +62,7 @@ def scheduler_address(scheduler=None):
         if scheme not in _SCHEMES or "://" not in value:
             raise ValidationError(
                 f"{name} must be a Dask scheduler address such as tcp://host:8786 "
-                f"(protocols {', '.join(_SCHEMES)}), got {value!r}"
+                f"(protocols {', '.join(_SCHEMES)}) or {LOCAL!r}, got {value!r}"
             )
         return value
     return None

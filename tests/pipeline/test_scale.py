@@ -42,6 +42,27 @@ def test_scheduler_address_from_argument_or_environment(monkeypatch):
     monkeypatch.setenv(SCHEDULER_VARIABLE, "nonsense")
     with pytest.raises(FacestatsError, match="DASK_SCHEDULER_ADDRESS must be a Dask scheduler address"):
         scheduler_address()
+    assert scheduler_address("local") is None  # this machine, whatever the variable says
+
+
+def test_the_default_store_is_built_on_this_machine_whatever_the_environment_says(monkeypatch, tmp_path, capsys):
+    """build_default builds in a local temporary directory that a cluster's workers could not see."""
+    from facestats.cli import main
+
+    monkeypatch.setenv(SCHEDULER_VARIABLE, "tcp://10.255.255.1:8786")
+    seen = {}
+
+    def recorded(path, **kwargs):
+        seen.update(kwargs)
+        raise KeyboardInterrupt  # stop before any work
+
+    monkeypatch.setattr(build_module, "build_store", recorded)
+    with pytest.raises(KeyboardInterrupt):
+        build_module.build_default(out=tmp_path / "default.zip")
+    assert scheduler_address(seen["scheduler"]) is None
+    assert main(["build", "--default", "--scheduler", "tcp://10.255.255.1:8786"]) == 2
+    assert "--default builds the embedded store on this machine" in capsys.readouterr().err
+    assert not (tmp_path / "default.zip").exists()
 
 
 def test_object_stores_are_refused_before_anything_runs(tmp_path, captures):

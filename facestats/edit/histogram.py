@@ -189,22 +189,28 @@ class Histogram:
         keep = self.counts > 0
         return cdf[:-1][keep], cdf[1:][keep], self.edges[:-1][keep], self.edges[1:][keep]
 
-    def quantile(self, u) -> np.ndarray:
+    def quantile(self, u, side: str = "left") -> np.ndarray:
         """Quantile function Q(u), the inverse of the piecewise-linear CDF.
 
         Linear within each non-empty bin, with a jump across runs of empty bins;
         Q(0) is the left edge of the first non-empty bin, Q(1) the right edge of
-        the last one.
+        the last one.  At a jump (u equal to the CDF between two non-empty bins
+        separated by empty ones) ``side`` chooses the limit: ``"left"`` Q(u−), the
+        right edge of the bin below; ``"right"`` Q(u+), the left edge of the bin above.
 
         Parameters
         ----------
         u : array_like
             Probabilities in [0, 1].
+        side : {"left", "right"}
+            Which limit at a jump.
         """
+        if side not in ("left", "right"):
+            raise ValidationError(f"side must be 'left' or 'right', got {side!r}")
         uu = check_finite(as_float(u, "u", np.float64), "u")
         check_range(uu, "u", 0.0, 1.0)
         f_lo, f_hi, e_lo, e_hi = self._segments()
-        j = np.clip(np.searchsorted(f_hi, uu, side="left"), 0, f_hi.size - 1)
+        j = np.clip(np.searchsorted(f_hi, uu, side=side), 0, f_hi.size - 1)
         frac = np.clip((uu - f_lo[j]) / (f_hi[j] - f_lo[j]), 0.0, 1.0)
         return e_lo[j] + frac * (e_hi[j] - e_lo[j])
 
@@ -392,14 +398,20 @@ def match_flat(x: np.ndarray, target: Histogram, t: float, source_bins: int, out
         # (t-weighted), which lies inside the target's range.
         out[...] = (1 - t) * x + t * target.mean()
         return distance
-    # T at the source edges, linear in between: y_k = (1 - t) e_k + t Q(F(e_k)).
-    y = target.quantile(np.clip(src.cdf, 0.0, 1.0))
+    # T linear within each source bin k, from Q(F(e_k)+) at its left edge to Q(F(e_k+1)−) at its right edge,
+    # then (1 - t) x + t T.  The one-sided limits keep a bin's values inside the target bins its mass maps to:
+    # evaluated at the edges alone, Q jumps across the target's empty bins inside a source bin, and a source
+    # bin whose values all lie in one target bin spread over the gap before it (a sample matched to its own
+    # histogram moved by up to 20 bins).
+    f = np.clip(src.cdf, 0.0, 1.0)
+    y_lo, y_hi = target.quantile(f[:-1], side="right"), target.quantile(f[1:], side="left")
     if t < 1.0:
-        y = (1 - t) * src.edges + t * y
+        y_lo, y_hi = (1 - t) * src.edges[:-1] + t * y_lo, (1 - t) * src.edges[1:] + t * y_hi
     k = np.arange(source_bins)
-    slope = np.diff(y)
-    intercept = y[:-1] - k * slope
+    slope = y_hi - y_lo
+    intercept = y_lo - k * slope
     _apply_lut(x, src.edges[0], scale, intercept.astype(x.dtype), slope.astype(x.dtype), out)
+    np.clip(out, y_lo[0], y_hi[-1], out=out)  # T is monotone: rounding must not carry a value past its ends
     return distance
 
 

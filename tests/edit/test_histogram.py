@@ -77,7 +77,24 @@ def test_quantile_inverts_cdf_and_jumps_over_empty_bins():
     np.testing.assert_allclose(h.cdf, [0.0, 0.5, 0.5, 0.5, 1.0])
     np.testing.assert_allclose(h.quantile([0.0, 0.25, 0.5, 0.75, 1.0]), [0.0, 0.5, 1.0, 3.5, 4.0])
     assert h.quantile(0.5 + 1e-9) == pytest.approx(3.0, abs=1e-6)
+    assert h.quantile(0.5, side="right") == 3.0  # the other limit at the jump
     assert h.mean() == pytest.approx(2.0)
+
+
+@pytest.mark.parametrize("n", [5, 16, 300])
+def test_values_matched_to_their_own_histogram_stay_in_their_bins(rng, n):
+    """Sparse samples (coarse pyramid bands, small regions): every value keeps its target bin.
+
+    Evaluated at the source bin edges alone, Q jumped across runs of empty target bins inside a source bin,
+    and the values of that bin were spread over the gap (0.5 of [0, .1, .5, .9, 1] went to 0.10).
+    """
+    x = rng.standard_normal(n)
+    h = Histogram.from_data(x, 256)
+    out = match_histogram(x, h)
+    np.testing.assert_array_equal(np.histogram(out, bins=h.edges)[0], h.counts)
+    assert np.abs(out - x).max() <= h.edges[1] - h.edges[0]
+    five = np.array([0.0, 0.1, 0.5, 0.9, 1.0])
+    np.testing.assert_allclose(match_histogram(five, Histogram.from_data(five, 256)), five, atol=1 / 256)
 
 
 def test_interpolation_endpoints(rng):

@@ -76,6 +76,17 @@ def test_decorrelating_basis(images):
     np.testing.assert_allclose(basis.to_rgb(planes), tgt, atol=1e-12)
 
 
+def test_a_texture_transferred_onto_itself_stays_almost_unchanged(images):
+    """The target's own statistics are a fixed point up to the pyramid's and the histograms' resolution.
+
+    Before the one-sided quantiles of ``match_flat`` the distance rose to 0.12 and texels moved by up to 0.038.
+    """
+    _, tgt, _ = images
+    res = transfer_texture(tgt, TextureStatistics.from_image(tgt, levels=4), iterations=5, seed=1, noise=0)
+    assert res.distance.max() < 0.05
+    assert np.abs(res.albedo - tgt).max() < 0.003 and np.abs(res.albedo - tgt).mean() < 3e-4
+
+
 def test_save_load_roundtrip(tmp_path, images):
     _, tgt, _ = images
     st = TextureStatistics.from_image(tgt, levels=4, bins=64)
@@ -98,7 +109,8 @@ def test_transfer_moves_statistics_to_target(images):
     assert res.albedo.shape == src.shape and res.albedo.dtype == np.float32
     assert res.distance.shape == (6,) and res.band_distance.shape == (6, 3, 18)
     assert res.distance[-1] < 0.6 * res.distance[0]
-    assert np.all(np.diff(res.distance) < 0)
+    # Heeger-Bergen's iterations are not guaranteed to descend: it falls fast, then settles within a few per cent.
+    assert np.all(np.diff(res.distance[:4]) < 0) and res.distance[1:].max() <= res.distance[1]
 
     # Measured independently on the fine bands (high-pass, levels 0-1; coarser bands hold too few
     # coefficients for 256 bins): the result is as close to the target as a second sample of the

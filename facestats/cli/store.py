@@ -26,7 +26,12 @@ def _cmd_query(args) -> int:
 
     with open_store_option(args.store) as store:
         result = store.query(
-            skin_type=args.skin_type, gender=args.gender, age=args.age, condition=args.condition, region=args.region
+            skin_type=args.skin_type,
+            gender=args.gender,
+            age=args.age,
+            condition=args.condition,
+            region=args.region,
+            edits=args.edits,
         )
     if args.format == "json":
         print(result.to_json())
@@ -57,6 +62,11 @@ def add_query(sub):
     p.add_argument("--age", metavar="RANGE", help="20s, 30s, 40s, 50s+, MIN-MAX or one age in years")
     p.add_argument("--condition", metavar="NAME", help="one of: " + ", ".join(_conditions()))
     p.add_argument("--region", metavar="NAME|N", help="report the BRDF of one face region (1-10 or a name)")
+    p.add_argument(
+        "--edits",
+        action="store_true",
+        help="also count subjects written by 'facestats edit' (default: measured subjects only, as 'analyze' does)",
+    )
     add_store_option(p)
     p.add_argument(
         "--format",

@@ -222,7 +222,8 @@ class EditSession:
             Explicit id; default ``<source id>.<tag>-<digest>`` (the source id
             shortened so the id has at most 64 characters).
         overwrite : bool
-            Replace an existing subject of :attr:`out` (never the source itself).
+            Replace an existing subject of :attr:`out` written by an earlier edit.  An edit never
+            replaces its source, its target subjects or any measured subject.
 
         Returns
         -------
@@ -240,11 +241,20 @@ class EditSession:
             raise ValidationError(
                 f"new_id must differ from the source subject {sid!r}: an edit never overwrites its source"
             )
-        if not overwrite and new_id in self.out:
-            raise StoreError(
-                f"subject {new_id!r} already exists in store {self.out.label}; pass overwrite=True (--overwrite) to "
-                "replace it or choose another new_id (--id)"
-            )
+        target = record.get("target") or {}
+        if new_id == target.get("subject") or new_id in (target.get("subjects") or ()):
+            raise ValidationError(f"new_id must differ from the edit's target subjects, got {new_id!r}")
+        if new_id in self.out:
+            if not overwrite:
+                raise StoreError(
+                    f"subject {new_id!r} already exists in store {self.out.label}; pass overwrite=True (--overwrite) "
+                    "to replace it or choose another new_id (--id)"
+                )
+            if self.out.index_entries()[new_id]["row"].get("source") != EDIT_SOURCE:
+                raise StoreError(
+                    f"subject {new_id!r} of store {self.out.label} is a measured subject, not an earlier edit: an edit "
+                    "never replaces one, even with overwrite=True (--overwrite); choose another new_id (--id)"
+                )
         self.new_id, self.overwrite = new_id, overwrite
         return new_id
 

@@ -55,8 +55,10 @@ version.  ``stat`` below is ``{"mean": float|null, "std": float|null,
       "store": str,                      # store path, or "default"
       "n_store_subjects": int,
       "filters": {"skin_type": [int]|null, "gender": "M"|"F"|null,
-                  "age": [min, max]|null, "condition": str|null, "region": int|null},
+                  "age": [min, max]|null, "condition": str|null, "region": int|null,
+                  "edits": bool},        # subjects written by an edit included (default false)
       "count": int,                      # matching subject records
+      "n_edits_left_out": int,           # edited subjects matching the filters, left out
       "n_persons": int,                  # distinct person_id among them
       "subject_ids": [str],
       "breakdown": {"gender": {"M": int, ...}, "skin_type": {"IV": int, ...},
@@ -89,6 +91,7 @@ from facestats.core.conventions import (
     AGE_GROUPS,
     CHANNELS,
     CONDITIONS,
+    EDIT_SOURCE,
     GENDERS,
     REGIONS,
     ROMAN,
@@ -170,13 +173,15 @@ def _stat(x: np.ndarray, within: np.ndarray | None = None) -> Stat:
     return Stat(mean, std, n, w)
 
 
-def normalise_filters(skin_type=None, gender=None, age=None, condition=None, region=None) -> dict:
+def normalise_filters(skin_type=None, gender=None, age=None, condition=None, region=None, edits=False) -> dict:
     """Parse the query filters (raises :class:`facestats.errors.ValidationError` on a bad value).
 
     Parameters
     ----------
     skin_type, gender, age, condition, region
         The filters of :func:`run_query` (None: no filter).
+    edits : bool
+        Also match subjects written by an edit (default: measured subjects only).
 
     Returns
     -------
@@ -184,7 +189,9 @@ def normalise_filters(skin_type=None, gender=None, age=None, condition=None, reg
         The JSON-ready form used in :attr:`QueryResult.filters`: skin types as
         a list of ints (I and II are grouped), age as ``[min, max]``.
     """
-    out = {"skin_type": None, "gender": None, "age": None, "condition": None, "region": None}
+    if not isinstance(edits, (bool, np.bool_)):
+        raise ValidationError(f"edits must be True or False, got {edits!r}")
+    out = {"skin_type": None, "gender": None, "age": None, "condition": None, "region": None, "edits": bool(edits)}
     if skin_type is not None:
         t = parse_skin_type(skin_type)
         out["skin_type"] = [1, 2] if t in (1, 2) else [t]
@@ -221,6 +228,8 @@ def describe_filters(filters: dict) -> str:
     if filters.get("region") is not None:
         r = filters["region"]
         parts.append(f"region {r} ({REGIONS[r]})")
+    if filters.get("edits"):
+        parts.append("edited subjects included")
     return ", ".join(parts)
 
 
@@ -251,6 +260,8 @@ class QueryResult:
         (3, 256) mean normalised histogram (rows R, G, B); None if nothing matches.
     store : str
         Where the data came from.
+    n_edits_left_out : int
+        Edited subjects that match the filters but were left out (``edits=False``).
     """
 
     filters: dict
@@ -265,6 +276,7 @@ class QueryResult:
     albedo: dict
     albedo_histogram: np.ndarray | None = field(repr=False)
     store: str = ""
+    n_edits_left_out: int = 0
 
     # -- JSON ----------------------------------------------------------------------
     def to_dict(self) -> dict:
@@ -278,6 +290,7 @@ class QueryResult:
             "n_store_subjects": int(self.n_store),
             "filters": dict(self.filters),
             "count": int(self.count),
+            "n_edits_left_out": int(self.n_edits_left_out),
             "n_persons": int(self.n_persons),
             "subject_ids": list(self.subject_ids),
             "breakdown": {k: dict(v) for k, v in self.breakdown.items()},
@@ -341,6 +354,10 @@ class QueryResult:
     def to_table(self, *, ascii: bool = False, columns: int = 32) -> str:
         """A human-readable report; histograms drawn as ``columns``-wide bar strips."""
         lines = [f"facestats query: {describe_filters(self.filters)}", f"store: {self.store} ({self.n_store} subjects)"]
+        if self.n_edits_left_out:
+            lines.append(
+                f"left out: {self.n_edits_left_out} edited subject(s) matching the filters (--edits includes them)"
+            )
         if self.count == 0:
             lines.append("no subject matches these filters")
             return "\n".join(lines) + "\n"
@@ -562,7 +579,7 @@ def breakdown(table, idx) -> dict:
 
 
 def run_query(
-    table, *, skin_type=None, gender=None, age=None, condition=None, region=None, store: str = ""
+    table, *, skin_type=None, gender=None, age=None, condition=None, region=None, edits=False, store: str = ""
 ) -> QueryResult:
     """Filter the index and summarise the matching subjects (see the module docstring).
 
@@ -573,6 +590,10 @@ def run_query(
     skin_type, gender, age, condition, region
         Filters; ``None`` = no filter.  Invalid values raise
         :class:`facestats.errors.ValidationError`.
+    edits : bool
+        Also match subjects written by an edit (index ``source`` :data:`EDIT_SOURCE`).  By default
+        the statistics are of measured subjects only, as in :mod:`facestats.analysis`: an edit is a
+        synthetic subject made from the population and would be counted twice.
     store : str
         Label of the store for the report.
 
@@ -580,8 +601,10 @@ def run_query(
     -------
     QueryResult
     """
-    filters = normalise_filters(skin_type, gender, age, condition, region)
-    idx = np.flatnonzero(_filter_mask(table, filters))
+    filters = normalise_filters(skin_type, gender, age, condition, region, edits)
+    mask = _filter_mask(table, filters)
+    edited = _edited(table)
+    idx = np.flatnonzero(mask & ~edited if not filters["edits"] else mask)
     count = int(idx.size)
 
     def col(name):
@@ -608,7 +631,15 @@ def run_query(
         albedo={ch: _stat(col(f"albedo_mean_{ch}")) for ch in CHANNELS},
         albedo_histogram=_mean_histogram(table.hists[idx]) if count else None,
         store=store,
+        n_edits_left_out=0 if filters["edits"] else int(np.count_nonzero(mask & edited)),
     )
+
+
+def _edited(table) -> np.ndarray:
+    """The index rows of subjects written by an edit (bool)."""
+    if "source" not in table.columns:
+        return np.zeros(len(table), dtype=bool)
+    return np.asarray(table["source"] == EDIT_SOURCE, dtype=bool)
 
 
 def _filter_mask(table, filters: dict) -> np.ndarray:

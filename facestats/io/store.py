@@ -321,11 +321,12 @@ class Store:
         """Albedo histogram counts, shape (n_subjects, 3, 256), rows aligned with :meth:`subjects`."""
         return self._table().hists.copy()
 
-    def query(self, skin_type=None, gender=None, age=None, condition=None, region=None):
+    def query(self, skin_type=None, gender=None, age=None, condition=None, region=None, edits=False):
         """Population statistics of the subjects matching the filters (:class:`facestats.io.query.QueryResult`).
 
         See :mod:`facestats.io.query` for the filters (skin types I and II are
-        grouped), the statistics and the JSON form.
+        grouped; ``edits=True`` also matches subjects written by an edit), the
+        statistics and the JSON form.
         """
 
         return run_query(
@@ -335,6 +336,7 @@ class Store:
             age=age,
             condition=condition,
             region=region,
+            edits=edits,
             store=self.label,
         )
 

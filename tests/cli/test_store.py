@@ -55,7 +55,14 @@ def test_query_json_matches_the_api(stores):
         api = st.query(skin_type="IV", gender="M", age="20-60").to_dict()
     assert doc == api
     assert doc["count"] == 2 and doc["subject_ids"] == ["P1", "P3"]
-    assert doc["filters"] == {"skin_type": [4], "gender": "M", "age": [20, 60], "condition": None, "region": None}
+    assert doc["filters"] == {
+        "skin_type": [4],
+        "gender": "M",
+        "age": [20, 60],
+        "condition": None,
+        "region": None,
+        "edits": False,
+    }
     assert len(doc["albedo_histogram"]["R"]) == 256 and sum(doc["albedo_histogram"]["R"]) == pytest.approx(1)
 
 

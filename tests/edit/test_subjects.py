@@ -96,7 +96,10 @@ def _pooled(subjects, ids, var, region=None):
 
 def test_select_subjects_excludes_edits_and_the_source(store):
     assert select_subjects(store, {"skin_type": 5}) == SUBSET_V  # not E1 (an edit) nor V5 (lotion)
-    assert "E1" in store.query(skin_type=5, condition="normal").subject_ids  # ... which the query itself includes
+    q = store.query(skin_type=5, condition="normal")
+    assert "E1" not in q.subject_ids and q.n_edits_left_out == 1  # nor does the query, unless asked
+    assert "E1" in store.query(skin_type=5, condition="normal", edits=True).subject_ids
+    assert "left out: 1 edited subject(s)" in q.to_table()
     assert select_subjects(store, {"skin_type": "II"}) == ["A2", "M1"]  # I and II grouped; sample subjects count
     assert select_subjects(store, {"skin_type": "V"}, exclude=["V2"]) == ["V1"]
     assert select_subjects(store, {"skin_type": 5, "condition": None}) == ["V1", "V2", "V5"]
@@ -308,6 +311,12 @@ def test_ids_are_new_and_existing_ids_refused(store, pop):
         transfer_brdf_subject(store, "A2", "V2", new_id="A2", overwrite=True)
     with pytest.raises(StoreError, match="already exists"):
         transfer_brdf_subject(store, "A2", "V2", new_id="V1")
+    # overwrite replaces earlier edits only: never a measured subject, never the edit's own target
+    with pytest.raises(StoreError, match="'V1' of store .* is a measured subject, not an earlier edit"):
+        transfer_brdf_subject(store, "A2", "V2", new_id="V1", overwrite=True)
+    with pytest.raises(ValidationError, match="new_id must differ from the edit's target subjects, got 'V2'"):
+        transfer_brdf_subject(store, "A2", "V2", new_id="V2", overwrite=True)
+    assert provenance(store.subject("V1")).get("source") != EDIT_SOURCE
     xr.testing.assert_identical(store.subject("A2"), store.subject("A2"))
     np.testing.assert_array_equal(store.subject("A2")["bp_rho_s"].values, pop[1]["A2"]["bp_rho_s"].values)
 

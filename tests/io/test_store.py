@@ -255,7 +255,14 @@ def test_query_with_no_match_gives_an_empty_valid_document(built):
     assert res.count == 0 and res.albedo_histogram is None
     doc = json.loads(res.to_json())
     assert doc["format"] == "facestats.query/1" and doc["count"] == 0 and doc["subject_ids"] == []
-    assert doc["filters"] == {"skin_type": [6], "gender": "M", "age": None, "condition": None, "region": None}
+    assert doc["filters"] == {
+        "skin_type": [6],
+        "gender": "M",
+        "age": None,
+        "condition": None,
+        "region": None,
+        "edits": False,
+    }
     empty = {"mean": None, "std": None, "n": 0, "within_std": None, "mean_se": None, "texel_se": None}
     assert all(r["ts_m"] == empty for r in doc["regions"])
     assert doc["albedo_histogram"]["R"] is None
@@ -270,6 +277,7 @@ def test_query_documents_json_csv_and_table(built):
     assert set(doc) == {
         "format",
         "store",
+        "n_edits_left_out",
         "n_store_subjects",
         "filters",
         "count",

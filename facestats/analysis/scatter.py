@@ -56,7 +56,7 @@ class AbsorptionScattering:
             d = self.data[self.data["channel"] == ch]
             with np.errstate(invalid="ignore", divide="ignore"):  # constant columns give NaN
                 pear = np.corrcoef(d["sigma_s_prime"], np.log(d["sigma_a"]))[0, 1] if len(d) > 2 else np.nan
-            spear = d["sigma_s_prime"].rank().corr(d["sigma_a"].rank()) if len(d) > 2 else np.nan
+            spear = _spearman(d["sigma_s_prime"], d["sigma_a"])
             rows.append({"channel": ch, "n": len(d), "pearson_log": pear, "spearman": spear})
         return pd.DataFrame.from_records(rows).set_index("channel")
 
@@ -156,16 +156,47 @@ class AbsorptionScattering:
             f"Absorption against reduced scattering ({src}), {self.n_subjects} subjects (Weyrich Fig. 14)",
             f"{'channel':<8}{'sigma_a mean':>13}{'sigma_s_prime mean':>20}{'r(ss, ln sa)':>14}{'Spearman':>10}",
         ]
-        for ch, c in self.compare_published().iterrows():
+        table = self.compare_published()
+        for ch, c in table.iterrows():
             lines.append(
                 f"{ch:<8}{c['sigma_a_mean']:13.4f}{c['sigma_s_prime_mean']:20.4f}"
                 f"{c['pearson_log']:14.3f}{c['spearman']:10.3f}"
             )
-        lines.append(
-            "sigma_a falls as sigma_s_prime rises (negative correlations), as in the paper; "
-            "darker skin types absorb more and scatter less"
-        )
+        lines.append(self._conclusion(table))
         return "\n".join(lines)
+
+    def _conclusion(self, table) -> str:
+        """What the correlations and the skin-type trend show, against the paper's Fig. 14 (from the numbers)."""
+        defined = table[["pearson_log", "spearman"]].notna().all(axis=1)
+        if not defined.any():
+            return "correlations undefined (fewer than 3 subjects, or constant values): nothing to compare"
+        if table["falls"].all():
+            text = "sigma_a falls as sigma_s_prime rises in every channel (negative correlations), as in the paper"
+        else:
+            other = ", ".join(ch for ch in table.index[~table["falls"]])
+            text = f"unlike the paper, sigma_a does not fall as sigma_s_prime rises in channel(s) {other}"
+        trend = self._skin_type_trend()
+        if trend is not None:
+            text += "; " + trend
+        return text
+
+    def _skin_type_trend(self):
+        """Whether darker skin types absorb more and scatter less in every channel (Spearman ρ against skin type)."""
+        d = self.data
+        if d["skin_type"].nunique() < 2:
+            return None
+        rho = [
+            (_spearman(sub["skin_type"], sub["sigma_a"]), _spearman(sub["skin_type"], sub["sigma_s_prime"]))
+            for sub in (d[d["channel"] == ch] for ch in CHANNELS)
+        ]
+        if all(a > 0 and s < 0 for a, s in rho):
+            return "darker skin types absorb more and scatter less, as in the paper"
+        return "darker skin types do not both absorb more and scatter less in every channel, unlike the paper"
+
+
+def _spearman(a, b) -> float:
+    """Spearman ρ of two pandas Series (Pearson r of their average ranks); NaN below 3 values or for constants."""
+    return a.rank().corr(b.rank()) if len(a) > 2 else np.nan
 
 
 def absorption_scattering(source, site=None, subjects=None, conditions=("normal",)):

@@ -113,6 +113,18 @@ def test_absorption_scattering_fig14(store):
     by_type = res.by_skin_type()
     red = by_type.xs("R", level="channel")[("sigma_a", "mean")]
     assert red.loc[6] > red.loc[2]
+    assert res.to_text().splitlines()[-1] == (
+        "sigma_a falls as sigma_s_prime rises in every channel (negative correlations), as in the paper; "
+        "darker skin types absorb more and scatter less, as in the paper"
+    )
+    # the conclusion follows the numbers: one subject has no correlation; reversed ranks contradict the paper
+    one = type(res)(data=res.data[res.data["subject_id"] == res.data["subject_id"].iloc[0]], site=None)
+    assert one.to_text().splitlines()[-1].startswith("correlations undefined (fewer than 3 subjects")
+    flipped = res.data.assign(sigma_a=1.0 / res.data["sigma_a"], skin_type=7 - res.data["skin_type"])
+    assert type(res)(data=flipped, site=None).to_text().splitlines()[-1] == (
+        "unlike the paper, sigma_a does not fall as sigma_s_prime rises in channel(s) R, G, B; "
+        "darker skin types do not both absorb more and scatter less in every channel, unlike the paper"
+    )
     site = absorption_scattering(store, site="cheek")
     assert site.site == "cheek"
     np.testing.assert_allclose(

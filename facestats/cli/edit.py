@@ -228,7 +228,7 @@ def _cmd_stats(args) -> int:
     from facestats.edit.statistics import statistics_path
     from facestats.edit.subjects import subject_texture_statistics
 
-    statistics_path(args.out)  # checked before the work
+    statistics_path(args.out, overwrite=args.overwrite)  # checked before the work
     with open_store_option(args.store) as store:
         stats = subject_texture_statistics(
             store, args.subject, regions=args.regions, levels=args.levels, bins=args.bins
@@ -324,7 +324,7 @@ def add_edit(sub) -> None:
     a.add_argument("--stats", metavar="FILE", help="... or of saved statistics (facestats edit stats)")
     _regions_arg(a, "regions to edit, 1-10 or names, e.g. 2 6 7 (forehead, nose, cheeks); default: the face")
     a.add_argument("--seed", type=ascii_int, default=None, help="seed of the start noise (same seed, same result)")
-    a.add_argument("--iterations", type=ascii_int, default=5, help="Heeger-Bergen iterations (default 5)")
+    a.add_argument("--iterations", type=ascii_int, default=5, help="Heeger-Bergen iterations, 0-100 (default 5)")
     a.add_argument(
         "--levels", type=ascii_int, default=None, help="pyramid levels (default: the most the map supports, <= 7)"
     )
@@ -343,6 +343,7 @@ def add_edit(sub) -> None:
     )
     a.add_argument("subject", metavar="SUBJECT", help="subject id")
     a.add_argument("--out", required=True, metavar="FILE", help="output file (.npz appended if missing)")
+    a.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     _regions_arg(a, "regions to analyse, 1-10 or names (default: the face)")
     a.add_argument(
         "--levels", type=ascii_int, default=None, help="pyramid levels (default: the most the map supports, <= 7)"

@@ -43,7 +43,7 @@ def _check_generate(args) -> None:
     from facestats.core.validate import as_finite, check_integer
     from facestats.pipeline.microstructure import MAX_NEUTRAL_MAP_SIZE
 
-    check_output_file(args.out, "--out", (".exr",))
+    check_output_file(args.out, "--out", (".exr",), overwrite=args.overwrite)
     check_integer(args.size, "--size", 2, MAX_NEUTRAL_MAP_SIZE)
     as_finite(args.texel_um, "--texel-um", 0.0, 1000.0, low_inclusive=False, unit="um")
     if args.seed is not None:
@@ -117,5 +117,6 @@ def add_microstructure(sub):
     g.add_argument("--subject", help="store subject id (e.g. S001)")
     g.add_argument("--store", help="store path (default: the embedded store)")
     g.add_argument("--seed", type=ascii_int, help="seed, >= 0 (default: from the subject id)")
+    g.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     g.set_defaults(func=_cmd_generate)
     p.set_defaults(func=lambda args: (p.print_help(), 0)[1])

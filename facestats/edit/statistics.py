@@ -96,8 +96,10 @@ def check_settings(levels, orientations, bins):
     check_int(bins, "bins", 2)
 
 
-def statistics_path(path) -> pathlib.Path:
+def statistics_path(path, *, overwrite: bool = True) -> pathlib.Path:
     """The file :meth:`TextureStatistics.save` writes for ``path``: ``.npz`` appended if missing, checked writable.
+
+    ``overwrite=False`` refuses an existing file (pointing at ``--overwrite``).
 
     Raises
     ------
@@ -111,7 +113,7 @@ def statistics_path(path) -> pathlib.Path:
             raise ValidationError(f"path must be a file (.npz), got the folder {os.fspath(path)!r}")
         if path.suffix != ".npz":
             path = path.with_name(path.name + ".npz")
-    return check_output_file(path, "path", suffixes=(".npz",))
+    return check_output_file(path, "path", suffixes=(".npz",), overwrite=overwrite)
 
 
 @dataclass(frozen=True)

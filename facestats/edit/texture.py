@@ -45,7 +45,10 @@ from facestats.edit.pyramid import SteerablePyramid
 from facestats.edit.statistics import TextureStatistics, check_int, image_statistics, region_statistics
 from facestats.errors import ValidationError
 
-__all__ = ["TextureStatistics", "TextureTransfer", "region_statistics", "transfer_texture"]
+__all__ = ["MAX_ITERATIONS", "TextureStatistics", "TextureTransfer", "region_statistics", "transfer_texture"]
+
+#: Most Heeger-Bergen iterations a transfer runs (Heeger & Bergen 1995 use about five; the distance settles by ten).
+MAX_ITERATIONS = 100
 
 
 # --------------------------------------------------------------------------- synthesis
@@ -297,7 +300,7 @@ def transfer_texture(
         Pyramid and histogram settings, default 7, 4, 256 (§8) or those of
         the target statistics (a different explicit value is an error).
     iterations : int
-        Heeger-Bergen iterations (default 5).
+        Heeger-Bergen iterations, 0 to :data:`MAX_ITERATIONS` (default 5; the distance settles after a few).
     seed : int or numpy.random.Generator, optional
         Seed of the start noise; the same seed gives the same result bit for bit.
     noise : float
@@ -354,7 +357,7 @@ def _transfer_texture(
     """:func:`transfer_texture` after its defaults are resolved."""
     src = as_rgb_image(source_albedo, "source_albedo")
     check_seed(seed)
-    iterations = check_int(iterations, "iterations", 0)
+    iterations = check_int(iterations, "iterations", 0, MAX_ITERATIONS)
     feather = check_feather(feather)
     noise_amp = _check_noise(noise)
     for name, v in (("levels", levels), ("orientations", orientations), ("bins", bins)):

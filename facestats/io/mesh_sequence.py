@@ -38,6 +38,7 @@ __all__ = [
     "read_vertices",
     "FrameSequence",
     "BlendshapeSequence",
+    "MAX_WEIGHT",
     "read_weights",
 ]
 
@@ -298,6 +299,11 @@ class FrameSequence:
         return [os.path.basename(p) for p in self.paths]
 
 
+#: Largest |weight| of a blendshape target in a frame (weights are fractions of the target's displacement,
+#: usually 0-1; beyond ten times a target's displacement a frame is no longer a face and its strain overflows).
+MAX_WEIGHT = 10.0
+
+
 class BlendshapeSequence:
     """Frames as the neutral plus weighted blendshape deltas.
 
@@ -307,7 +313,8 @@ class BlendshapeSequence:
     targets : dict of str to ndarray (V, 3)
         Target positions (mm) by name, on the neutral's topology.
     weights : array_like, shape (n_frames, n_targets)
-        Weight of each target (columns in the order of ``names``) in each frame.
+        Weight of each target (columns in the order of ``names``) in each frame, within
+        ±:data:`MAX_WEIGHT`.
     names : sequence of str, optional
         Target names of the weight columns (default: the order of ``targets``).
     """
@@ -326,7 +333,7 @@ class BlendshapeSequence:
                     f"expected {neutral.vertices.shape}"
                 )
         self.deltas = np.stack([np.asarray(targets[n], np.float64) - neutral.vertices for n in self.names])
-        w = as_finite(weights, "weights", dtype=np.float64)
+        w = as_finite(weights, "weights", -MAX_WEIGHT, MAX_WEIGHT, dtype=np.float64)
         if w.ndim == 1 and len(self.names) == 1:
             w = w[:, None]
         self.weights = check_shape(w, "weights", (None, len(self.names)))

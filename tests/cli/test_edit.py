@@ -101,6 +101,14 @@ def test_texture_with_regions_and_saved_stats(pop, tmp_path):
     assert r.returncode == 0, r.stderr
     stats = TextureStatistics.load(tmp_path / "f5a.npz")
     assert stats.levels == 2 and stats.bins == 256 and str(tmp_path / "f5a.npz") in r.stdout
+    before = (tmp_path / "f5a.npz").read_bytes()
+    again = ("edit", "stats", "F3", "--store", pop, "--out", tmp_path / "f5a")
+    r = run_cli(*again)  # another subject's statistics over the file: refused without --overwrite
+    assert r.returncode == 2 and "f5a.npz' exists (pass --overwrite to replace it)" in r.stderr
+    assert (tmp_path / "f5a.npz").read_bytes() == before
+    assert run_cli(*again, "--overwrite").returncode == 0 and (tmp_path / "f5a.npz").read_bytes() != before
+    r = run_cli("edit", "stats", "F5a", "--store", pop, "--regions", "cheeks", "--out", tmp_path / "f5a", "--overwrite")
+    assert r.returncode == 0 and (tmp_path / "f5a.npz").read_bytes() == before
     out = tmp_path / "out.zarr"
     common = ("--store", pop, "--out-store", out, "--images", tmp_path / "img", "--iterations", "2", "--seed", "5")
     r1 = run_cli("edit", "texture", "F3", "--target", "F5a", "--regions", "forehead", "6", "7", "--id", "T1", *common)

@@ -257,9 +257,13 @@ def test_a_bad_scale_is_refused_also_with_an_ict_facekit_folder(scale):
 
 
 def test_command_line_generates_and_renders(tmp_path, capsys):
-    assert (
-        main(["microstructure", "generate", "--out", str(tmp_path / "n.exr"), "--size", "64", "--subject", "S003"]) == 0
-    )
+    generate = ["microstructure", "generate", "--out", str(tmp_path / "n.exr"), "--size", "64", "--subject", "S003"]
+    assert main(generate) == 0
+    neutral = (tmp_path / "n.exr").read_bytes()
+    assert main(generate[:-1] + ["S004"]) == 2  # an existing map is replaced only with --overwrite
+    assert "n.exr' exists (pass --overwrite to replace it)" in capsys.readouterr().err
+    assert (tmp_path / "n.exr").read_bytes() == neutral
+    assert main(generate + ["--overwrite"]) == 0 and (tmp_path / "n.exr").read_bytes() == neutral  # same seed
     (tmp_path / "w.csv").write_text("mouthSmile_L,mouthSmile_R\n0,0\n1,1\n")
     args = ["microstructure", "render", "--neutral", str(DATA), "--weights", str(tmp_path / "w.csv"),
             "--map", str(tmp_path / "n.exr"), "--size", "16384", "--window", "9050", "4200", "64", "64",
@@ -271,3 +275,13 @@ def test_command_line_generates_and_renders(tmp_path, capsys):
     assert main(bad) == 2
     assert "path must name an existing image file" in capsys.readouterr().err
     assert not (tmp_path / "p.zarr").exists()
+
+
+def test_absurd_blendshape_weights_are_refused_by_name():
+    """A weight of 1e9 made the strain overflow into a raw numpy warning; weights beyond ±MAX_WEIGHT are refused."""
+    from facestats.io.mesh_sequence import MAX_WEIGHT
+
+    neutral, targets = read_ict_facekit(DATA, ["mouthSmile_L"])
+    assert len(BlendshapeSequence(neutral, targets, np.array([[0.0], [MAX_WEIGHT], [-MAX_WEIGHT]]))) == 3
+    with pytest.raises(ValidationError, match=r"weights must lie in \[-10, 10\], got 1000000000.0"):
+        BlendshapeSequence(neutral, targets, np.array([[0.5], [1e9]]))

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.core.outputs import OutputSet, check_output_file
-from facestats.core.validate import as_float, check_finite, check_shape
+from facestats.core.validate import as_float, check_finite, check_integer, check_shape
 from facestats.edit.colourspace import ColourBasis, decorrelating_basis
 from facestats.edit.grids import band_grids, grid_values, pad_plane, padded_shape, region_index
 from facestats.edit.histogram import Histogram, widen_range
@@ -75,13 +75,7 @@ def check_int(value, name, low, high=None):
     -------
     int
     """
-    if name == "bins" and high is None:
-        high = MAX_BINS
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < low:
-        raise ValidationError(f"{name} must be an int >= {low}, got {value!r}")
-    if high is not None and value > high:
-        raise ValidationError(f"{name} must be an int in [{low}, {high}], got {value!r}")
-    return int(value)
+    return check_integer(value, name, low, MAX_BINS if name == "bins" and high is None else high)
 
 
 def check_settings(levels, orientations, bins):

@@ -231,7 +231,7 @@ def test_validation(images):
     src, tgt, _ = images
     with pytest.raises(ValidationError, match="levels must be at most"):
         transfer_texture(src, tgt, levels=7)
-    with pytest.raises(ValidationError, match=r"iterations must be an int in \[0, 100\], got 100000000"):
+    with pytest.raises(ValidationError, match=r"iterations must be an integer in \[0, 100\], got 100000000"):
         transfer_texture(src, tgt, levels=3, iterations=10**8)  # refused before allocating 31 GiB
     with pytest.raises(ValidationError, match="levels must match"):
         transfer_texture(src, TextureStatistics.from_image(tgt, levels=3), levels=4)

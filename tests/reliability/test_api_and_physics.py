@@ -118,7 +118,7 @@ def test_the_api_cases(tmp_path):
     for seed, pattern in (("abc", "seed must be an integer"), (-1, r"seed must be an integer in \[0")):
         with pytest.raises(ValidationError, match=pattern):
             transfer_texture(target, target, seed=seed)
-    with pytest.raises(ValidationError, match=r"bins must be an int in \[2, 65536\]"):
+    with pytest.raises(ValidationError, match=r"bins must be an integer in \[2, 65536\]"):
         transfer_texture(target, target, bins=10**9)
 
 
@@ -310,10 +310,10 @@ def test_transfer_colour_names_empty_inputs_and_checks_bins_first():
         transfer_colour(target, target, target_mask=np.zeros((16, 16), bool))
     with pytest.raises(ValidationError, match=re.escape("target must have shape (..., 3), got shape (16, 16, 2)")):
         transfer_colour(target, target[..., :2])
-    with pytest.raises(ValidationError, match=re.escape("bins must be an int in [2, 65536], got 1000000000000")):
+    with pytest.raises(ValidationError, match=re.escape("bins must be an integer in [2, 65536], got 1000000000000")):
         transfer_colour(target, target, bins=10**12)  # checked before the histograms are allocated
     for bad in (0, 2.5, "abc"):
-        with pytest.raises(ValidationError, match="bins must be an int"):
+        with pytest.raises(ValidationError, match="bins must be an integer"):
             transfer_colour(target, target, bins=bad)
 
 

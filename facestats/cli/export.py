@@ -42,7 +42,8 @@ def add_export_subject(sub):
             "space, rho_s, m, Blinn-Phong exponent, sigma_a, sigma_s', sigma_tr, modulation, regions, flags, any "
             "*_std maps) with units and colour space in the headers, the face mesh (OBJ/PLY with UVs) and a "
             "manifest; 'mitsuba' adds a Mitsuba 3 scene (scene.xml, scene.json) with a light probe; 'gltf' writes "
-            "a glTF 2.0 asset with a metallic-roughness material. The directory appears whole or not at all."
+            "a glTF 2.0 asset with a metallic-roughness material. The directory appears whole or not at all. "
+            "Options of another format than the one chosen are refused."
         ),
     )
     p.add_argument("subject_id", metavar="ID", help="subject id (see facestats query)")
@@ -50,9 +51,13 @@ def add_export_subject(sub):
     p.add_argument("--format", choices=("exr", "mitsuba", "gltf"), default="exr")
     add_store_option(p)
     p.add_argument("--mesh", metavar="PATH", help="OBJ/PLY scan the maps belong to (default: the recorded geometry)")
-    p.add_argument("--mesh-format", choices=("obj", "ply"), default="obj", help="mesh file of the EXR set")
+    p.add_argument(
+        "--mesh-format", choices=("obj", "ply"), default=None, help="EXR set: mesh file (default obj; Mitsuba: obj)"
+    )
     p.add_argument("--probe", metavar="FILE", help="Mitsuba: lat-long HDR light probe (default: a studio probe)")
-    p.add_argument("--material", choices=("surface", "subsurface"), default="surface", help="Mitsuba material")
+    p.add_argument(
+        "--material", choices=("surface", "subsurface"), default=None, help="Mitsuba material (default surface)"
+    )
     p.add_argument("--width", type=ascii_int, default=None, help="Mitsuba: image width (default 256)")
     p.add_argument("--height", type=ascii_int, default=None, help="Mitsuba: image height (default 256)")
     p.add_argument("--spp", type=ascii_int, default=None, help="Mitsuba: samples per pixel (default 64)")

@@ -212,7 +212,7 @@ def _cmd_export(args) -> int:
 
     formats = ("csv", "json") if args.format == "both" else (args.format,)
     with open_store_option(args.store) as store:
-        files = export_statistics(store, args.out, formats=formats)
+        files = export_statistics(store, args.out, formats=formats, overwrite=args.overwrite)
         n = len(store)
     print(f"exported the statistics of {n} subjects:")
     for f in files:
@@ -230,6 +230,11 @@ def add_export(sub):
     add_store_option(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
     p.add_argument("--format", choices=("csv", "json", "both"), default="both")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into a non-empty folder that holds no earlier release (its files of the same names are replaced)",
+    )
     p.set_defaults(func=_cmd_export)
 
 

@@ -24,8 +24,8 @@ any other map                     Y / RGB   float      e.g. ``ts_rho_s_std`` sta
 ================================  ========  =========  ==============================================
 
 Every file is a single-part scanline EXR, ZIP-compressed (zlib over 16-line
-blocks; :func:`facestats.io.images.write_exr`), that any OpenEXR reader opens;
-non-finite texels (NaN: not measured) are written as 0.  The files are
+blocks; :func:`facestats.io.images.write_exr`), that any OpenEXR reader opens.
+The files are
 independent, so they are written concurrently by a pool of threads (OpenEXR's
 writer and numpy release the GIL); the micro-normals, most of the bytes of a
 fitted subject (16 cameras × 3 half channels), are one file per camera for
@@ -49,6 +49,19 @@ and the manifest:
 * lengths in mm (the mesh) and coefficients in mm⁻¹;
 * ``facestats.variable`` names the subject variable a file holds and, for the
   micro-normals, ``facestats.camera`` the camera index.
+
+Texels off the measured face.  A renderer samples the maps wherever the mesh's
+UVs land and filters (mipmaps) across the face's edge, and the mesh covers more
+than the measured face (61.6 % of the ICT face's area, the default store's
+``ict-48``, lies on texels of region 0: scalp, ears, neck, sides).  So the maps
+a renderer reads for colour and reflectance (:data:`FILLED_MAPS`: albedo,
+modulation, ρs, m, Blinn-Phong ρs and n) hold, at every texel that is not
+measured (region 0, or a non-finite value), the value of the nearest measured
+texel (:class:`FaceFill`; measured texels are written unchanged); the
+object-space normal map holds the mesh's own normal there and the tangent-space
+one (0, 0, 1), i.e. no detail.  ``region.exr`` stays 0 and the flags 0 there,
+so the region map says which texels are measured.  Every other map writes its
+non-finite texels (NaN: not measured) as 0, and 0 off the face as stored.
 """
 
 from __future__ import annotations
@@ -69,7 +82,10 @@ from facestats.io.schema import VARIABLES, modulation, subject_kind
 __all__ = [
     "EXR_SET_FORMAT",
     "COLOUR_SPACE",
+    "FILLED_MAPS",
     "UV_CONVENTION",
+    "FaceFill",
+    "check_map_subject",
     "write_exr_set",
     "read_exr_set",
     "exr_set_textures",
@@ -91,6 +107,77 @@ _COLOUR = ("albedo", "modulation")
 _UNIFORM = ("sigma_a", "sigma_s_prime", "sigma_tr")
 #: Bytes per texel and channel of each stored type (to write the largest files first).
 _BYTES = {"half": 2, "float": 4, "uint": 4}
+#: Maps a renderer reads for colour and reflectance: off the measured face, the nearest measured texel's value.
+FILLED_MAPS = ("albedo", "modulation", "ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent")
+
+
+def check_map_subject(ds, what: str) -> None:
+    """Refuse a subject that holds region samples (an imported published file), not maps.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A subject of either kind (:func:`facestats.io.schema.subject_kind`).
+    what : str
+        What the caller makes of the maps, for the message (e.g. ``"an EXR texture set"``).
+
+    Raises
+    ------
+    ValidationError
+        ``subject 'ID' holds region samples, not maps: WHAT needs a map subject``.
+    """
+    if subject_kind(ds) != "maps":
+        raise ValidationError(
+            f"subject {ds.attrs.get('subject_id', '?')!r} holds region samples, not maps: {what} needs a map subject"
+        )
+
+
+class FaceFill:
+    """Every texel off a subject's measured face given the value of the nearest measured texel.
+
+    A texel is measured where its region is 1-10 and its value finite (all
+    channels).  The nearest measured texel is the one at the least Euclidean
+    distance in texels (ties as :func:`scipy.ndimage.distance_transform_edt`
+    breaks them); a measured texel is its own nearest, so measured texels keep
+    their values bit for bit.  The nearest texel of every texel under the face
+    mask is found once, when the fill is made; a map with non-finite texels on
+    the face has its own search.
+
+    Parameters
+    ----------
+    region : array_like of int, shape (H, W)
+        The subject's region map (0 = not face).
+    """
+
+    def __init__(self, region):
+        self.face = np.asarray(region) > 0
+        self._face_nearest = _nearest_texels(self.face) if self.face.any() else None
+
+    def __call__(self, values) -> np.ndarray:
+        """``values`` (H, W) or (H, W, C) filled off the measured face.
+
+        Returns
+        -------
+        ndarray
+            Same shape and dtype as ``values``; if no texel is measured (nothing to fill from), ``values``
+            with its non-finite texels as 0.
+        """
+        a = np.asarray(values)
+        if a.shape[:2] != self.face.shape:
+            raise ValidationError(f"values must have shape {self.face.shape} (+ channels), got {a.shape}")
+        measured = self.face & np.isfinite(a).reshape(self.face.shape + (-1,)).all(axis=-1)
+        if not measured.any():
+            return _finite(a)
+        nearest = self._face_nearest if np.array_equal(measured, self.face) else _nearest_texels(measured)
+        return a.reshape(measured.size, -1)[nearest].reshape(a.shape)
+
+
+def _nearest_texels(measured) -> np.ndarray:
+    """For every texel, the flat index of the nearest texel where ``measured`` is True (its own if measured)."""
+    from scipy.ndimage import distance_transform_edt
+
+    iv, iu = distance_transform_edt(~measured, return_distances=False, return_indices=True)
+    return (iv * measured.shape[1] + iu).ravel()
 
 
 def _finite(values) -> np.ndarray:
@@ -126,8 +213,9 @@ def _texture(name, channels, load, *, kind, units, quantity, space=DATA_SPACE, v
     }
 
 
-def _map_textures(ds):
-    """One texture per (v, u[, channel|component]) map of the subject (normals handled separately)."""
+def _map_textures(ds, fill: FaceFill):
+    """One texture per (v, u[, channel|component]) map of the subject (normals handled separately);
+    :data:`FILLED_MAPS` filled off the measured face by ``fill``."""
     out = []
     for var in sorted(ds.data_vars):
         da = ds[var]
@@ -141,11 +229,12 @@ def _map_textures(ds):
         else:
             continue  # not an image-shaped map
         kind = "uint" if da.dtype.kind in "iub" else ("half" if var in _HALF else "float")
+        prepare = fill if var in FILLED_MAPS else _finite
         out.append(
             _texture(
                 var,
                 channels,
-                lambda da=da: _planes(_finite(da.values)),
+                lambda da=da, prepare=prepare: _planes(prepare(da.values)),
                 kind=kind,
                 units=da.attrs.get("units", VARIABLES.get(var, ((), "1", ""))[1]),
                 quantity=da.attrs.get("long_name", VARIABLES.get(var, ((), "", var))[2]),
@@ -162,12 +251,26 @@ def _unit_normals(ds) -> np.ndarray:
     return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
-def _tangent_normals(ds, mesh: FaceMesh) -> np.ndarray:
-    """The normals in the mesh's tangent frames (T, B, N): n_t = (n·T, n·B, n·N); (0, 0, 1) where absent."""
+def _measured_normals(ds):
+    """The unit normals and where none is measured (off the face, or absent or non-finite: zero)."""
     n = _unit_normals(ds)
+    return n, ~n.any(axis=-1) | (np.asarray(ds["region"].values) == 0)
+
+
+def _object_normals(ds, mesh: FaceMesh) -> np.ndarray:
+    """The unit normals, the mesh's own normal where none is measured."""
+    n, absent = _measured_normals(ds)
+    if absent.any():
+        n[absent] = mesh.tangent_frames(n.shape[0])[2][absent]
+    return n
+
+
+def _tangent_normals(ds, mesh: FaceMesh) -> np.ndarray:
+    """The normals in the mesh's tangent frames (T, B, N): n_t = (n·T, n·B, n·N); (0, 0, 1) where none is measured."""
+    n, absent = _measured_normals(ds)
     frames = mesh.tangent_frames(n.shape[0])
     nt = np.stack([np.einsum("vuk,vuk->vu", n, f) for f in frames], -1)
-    nt[~n.any(axis=-1)] = (0.0, 0.0, 1.0)
+    nt[absent] = (0.0, 0.0, 1.0)
     return nt
 
 
@@ -180,7 +283,7 @@ def _normal_textures(ds, mesh: FaceMesh):
         _texture(
             "normal",
             "RGB",
-            lambda: _planes(_unit_normals(ds)),
+            lambda: _planes(_object_normals(ds, mesh)),
             kind="half",
             units="1",
             quantity=quantity,
@@ -240,12 +343,13 @@ def _uniform_textures(ds):
     return out
 
 
-def _modulation_texture(ds):
-    """M = α / α_avg (eq. 7): the stored ``modulation`` map or :func:`facestats.io.schema.modulation`."""
+def _modulation_texture(ds, fill: FaceFill):
+    """M = α / α_avg (eq. 7): the stored ``modulation`` map or :func:`facestats.io.schema.modulation`, filled
+    off the measured face by ``fill``."""
 
     def load():
         m = ds["modulation"] if "modulation" in ds.data_vars else modulation(ds)
-        return _planes(_finite(m.values))
+        return _planes(fill(m.values))
 
     return _texture(
         "modulation", "RGB", load, kind="half", units="1", quantity=VARIABLES["modulation"][2], space=COLOUR_SPACE
@@ -269,21 +373,20 @@ def exr_set_textures(ds, mesh: FaceMesh):
         variable it holds), ``channels`` (names), ``type`` (``half``, ``float``
         or ``uint``), ``units``, ``quantity``, ``space`` (colour space or
         ``data``), ``extra`` (further header attributes) and ``load``, a
-        function returning the channels as ``{name: (v, u) array}`` (non-finite
-        texels as 0).
+        function returning the channels as ``{name: (v, u) array}``
+        (:data:`FILLED_MAPS` filled off the measured face, the object-space
+        normals the mesh's there, other non-finite texels 0; module docstring).
 
     Raises
     ------
     ValidationError
         A region-sample subject (it has no maps).
     """
-    if subject_kind(ds) != "maps":
-        raise ValidationError(
-            f"subject {ds.attrs.get('subject_id', '?')!r} holds region samples, not maps: it has no texture set"
-        )
+    check_map_subject(ds, "an EXR texture set")
+    fill = FaceFill(ds["region"].values)
     return (
-        _map_textures(ds)
-        + [_modulation_texture(ds)]
+        _map_textures(ds, fill)
+        + [_modulation_texture(ds, fill)]
         + _normal_textures(ds, mesh)
         + _uniform_textures(ds)
         + _micro_normal_textures(ds)
@@ -344,6 +447,7 @@ def write_exr_set(ds, out_dir, *, mesh=None, mesh_format: str = "obj", mesh_grid
         space, camera for the micro-normals) and ``coefficients`` (σa, σ's,
         σtr, α_avg per channel).
     """
+    check_map_subject(ds, "an EXR texture set")
     if mesh_format not in ("obj", "ply"):
         raise ValidationError(f"mesh_format must be 'obj' or 'ply', got {mesh_format!r}")
     workers = _default_workers() if workers is None else check_integer(workers, "workers", 1, 256)

@@ -12,6 +12,13 @@ PNG textures, through pygltflib:
 * ``metallic_roughness.png`` — linear 8-bit, G = roughness, B = metallic = 0
   (skin is a dielectric), R unused (0).
 
+The mesh covers more than the measured face (most of the ICT head: scalp, ears,
+neck), and the sampler filters across the face's edge (trilinear mipmaps), so
+the base colour and the roughness hold, off the measured face, the value of the
+nearest measured texel (:class:`facestats.io.exr_set.FaceFill`; measured texels
+unchanged) and the normal map (0, 0, 1), the mesh's own normal; the EXR set's
+``region.exr`` says which texels are measured.
+
 Roughness conversion.  glTF's specular lobe is GGX (Trowbridge-Reitz) with
 α = roughness²; the fitted lobe is Beckmann with width m (eq. 13).  α_GGX =
 c·m with c = :data:`GGX_PER_BECKMANN` = 0.92, the least-squares match of the
@@ -34,6 +41,8 @@ import os
 import numpy as np
 
 from facestats.errors import DependencyError, ValidationError
+from facestats.io.exr_set import FaceFill, check_map_subject
+from facestats.io.ids import SUBJECT_ID_PATTERN
 from facestats.io.images import write_image
 from facestats.io.mesh import FaceMesh, subject_mesh
 
@@ -73,9 +82,10 @@ def beckmann_to_gltf_roughness(m):
 
 
 def _textures(ds, mesh, out):
-    """Write the three PNGs; returns their file names."""
-    face = np.asarray(ds["region"].values) > 0
-    alb = np.nan_to_num(np.asarray(ds["albedo"].values, np.float64))
+    """Write the three PNGs (base colour and roughness filled off the measured face); returns their file names."""
+    fill = FaceFill(ds["region"].values)
+    face = fill.face
+    alb = fill(np.asarray(ds["albedo"].values, np.float64))
     write_image(os.path.join(out, "base_color.png"), alb, srgb=True)
     n = np.nan_to_num(np.asarray(ds["normal"].values, np.float64))
     t, b, g = mesh.tangent_frames(n.shape[0])
@@ -83,7 +93,7 @@ def _textures(ds, mesh, out):
     nt /= np.maximum(np.linalg.norm(nt, axis=-1, keepdims=True), 1e-12)
     nt[~face] = (0.0, 0.0, 1.0)
     write_image(os.path.join(out, "normal.png"), (nt + 1) / 2)
-    rough = np.where(face, beckmann_to_gltf_roughness(np.nan_to_num(ds["ts_m"].values)), 1.0)
+    rough = beckmann_to_gltf_roughness(fill(np.asarray(ds["ts_m"].values, np.float64)))
     mr = np.stack([np.zeros_like(rough), rough, np.zeros_like(rough)], -1)
     write_image(os.path.join(out, "metallic_roughness.png"), mr)
     return "base_color.png", "normal.png", "metallic_roughness.png"
@@ -124,15 +134,28 @@ def write_gltf(ds, out_dir, *, mesh=None, name="face"):
     mesh : FaceMesh, str or os.PathLike, optional
         The face mesh (default: the recorded procedural head, :func:`facestats.io.mesh.subject_mesh`).
     name : str
-        Base name of the ``.gltf`` and ``.bin`` files.
+        Base name of the ``.gltf`` and ``.bin`` files: a plain file stem (1-64 letters, digits, '.', '_' or
+        '-', starting with a letter or digit; no folder).
 
     Returns
     -------
     str
         Path of the ``.gltf`` file.
+
+    Raises
+    ------
+    ValidationError
+        A region-sample subject, missing maps, or a ``name`` that is not a plain file stem (checked before
+        anything is written).
     """
 
+    if not isinstance(name, str) or not SUBJECT_ID_PATTERN.fullmatch(name):
+        raise ValidationError(
+            "name must be a plain file stem (1-64 letters, digits, '.', '_' or '-', starting with a letter or "
+            f"digit; no folder), got {name!r}"
+        )
     g = _pygltflib()
+    check_map_subject(ds, "a glTF asset")
     missing = [v for v in ("albedo", "normal", "ts_m", "region") if v not in ds.data_vars]
     if missing:
         raise ValidationError(f"subject {ds.attrs.get('subject_id', '?')!r} lacks the maps {missing} glTF needs")

@@ -29,7 +29,7 @@ import numpy as np
 
 from facestats.acquire.geometry import FaceGeometry, uv_to_texel
 from facestats.acquire.synthetic.faces import face_geometry, parse_face_name
-from facestats.core.validate import as_finite, check_integer, check_shape
+from facestats.core.validate import as_finite, check_finite, check_integer, check_shape
 from facestats.errors import FormatError, ValidationError
 from facestats.io.schema import provenance
 
@@ -110,13 +110,20 @@ def read_triangle_mesh(path, *, scale=1.0, transform=None, uv=False):
     Returns
     -------
     vertices : ndarray, shape (V, 3)
-        mm.
+        mm, all finite.
     faces : ndarray of int, shape (F, 3)
     uv : ndarray, shape (V, 2) or None
         Only when ``uv=True``.
+
+    Raises
+    ------
+    FormatError
+        An unreadable file, or one without triangles.
+    ValidationError
+        A vertex that is not finite (NaN or infinite in the file, or after ``scale`` and ``transform``).
     """
     mesh = _read_mesh(path)
-    verts = _placed_vertices(mesh, scale, transform)
+    verts = check_finite(_placed_vertices(mesh, scale, transform), f"vertices of {os.fspath(path)}")
     faces = np.asarray(mesh.faces, np.int64)
     if not uv:
         return verts, faces
@@ -547,7 +554,8 @@ def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = N
     """
     if mesh is not None:
         verts, faces, stored = read_triangle_mesh(mesh, scale=scale, uv=True)
-        geometry = {"kind": "mesh", "name": os.path.basename(os.fspath(mesh)), "path": os.fspath(mesh), "scale": scale}
+        path = os.path.abspath(os.fspath(mesh))  # recorded in every export: absolute, so it says which file
+        geometry = {"kind": "mesh", "name": os.path.basename(path), "path": path, "scale": scale}
         return _face_mesh(verts, faces, _checked_uv(stored, len(verts), mesh, True), geometry)
 
     prov = provenance(ds)

@@ -28,7 +28,14 @@ is the Lambertian α/π without the F_t(ωi) F_t(ωo) of eq. 10 (≥ 0.95 below 
 Mitsuba has no additive BSDF, so the sum is ``blendbsdf`` with weight 0.5 of
 a ``diffuse`` with reflectance 2α and the specular with ``specular_reflectance``
 8ρs (0.5·2α + 0.5·8ρs·f = α + 4ρs·f exactly); these two scaled maps are
-written as ``mitsuba_diffuse.exr`` and ``mitsuba_specular.exr``.
+written as ``mitsuba_diffuse.exr`` and ``mitsuba_specular.exr``.  Like the EXR
+set's ``ts_m.exr`` (the ``alpha`` texture), they hold, off the measured face
+(which most of the ICT head's mesh lies outside: scalp, ears, neck), the value
+of the nearest measured texel (:class:`facestats.io.exr_set.FaceFill`), not 0.
+
+The mesh is an OBJ: Mitsuba reads a PLY's texture coordinates as stored (v up),
+but flips an OBJ's (v down, the maps' convention), so the maps would lie upside
+down on a PLY; ``mesh_format="ply"`` is refused.
 
 ``material="subsurface"`` — Mitsuba 3 has no dipole; its recommended
 replacement is volumetric path tracing: a ``roughdielectric`` boundary
@@ -323,7 +330,7 @@ def spec_to_xml(spec) -> str:
     return ET.tostring(root, encoding="unicode") + "\n"
 
 
-def write_mitsuba_scene(ds, out_dir, *, probe=None, material="surface", mesh=None, **view):
+def write_mitsuba_scene(ds, out_dir, *, probe=None, material="surface", mesh=None, mesh_format="obj", **view):
     """Write a subject's Mitsuba 3 scene: EXR set, Mitsuba textures, probe, ``scene.xml`` and ``scene.json``.
 
     Parameters
@@ -338,6 +345,8 @@ def write_mitsuba_scene(ds, out_dir, *, probe=None, material="surface", mesh=Non
         See the module docstring.
     mesh : str or os.PathLike, optional
         The scan the maps belong to (default: the recorded procedural head).
+    mesh_format : {"obj"}
+        The mesh file written; "ply" is refused (module docstring: Mitsuba would map the textures upside down).
     **view
         Camera and film settings of :func:`scene_spec`.
 
@@ -349,15 +358,22 @@ def write_mitsuba_scene(ds, out_dir, *, probe=None, material="surface", mesh=Non
     """
 
     # local import: keeps facestats.acquire (5 modules) out of this module's import
-    from facestats.io.exr_set import write_exr_set
+    from facestats.io.exr_set import FaceFill, check_map_subject, write_exr_set
 
+    check_map_subject(ds, "a Mitsuba scene")
     check_choice(material, "material", MATERIALS)
+    if mesh_format != "obj":
+        raise ValidationError(
+            "mesh_format must be 'obj' for a Mitsuba scene (Mitsuba reads a PLY's texture coordinates v up, "
+            f"so the maps would lie upside down), got {mesh_format!r}"
+        )
     out = os.fspath(out_dir)
     if probe is not None:
         read_light_probe(probe)  # checked before anything is written
     manifest = write_exr_set(ds, out, mesh=mesh)
-    alb = np.nan_to_num(np.asarray(ds["albedo"].values, np.float32))
-    rho = np.nan_to_num(np.asarray(ds["ts_rho_s"].values, np.float32))
+    fill = FaceFill(ds["region"].values)
+    alb = fill(np.asarray(ds["albedo"].values, np.float32))
+    rho = fill(np.asarray(ds["ts_rho_s"].values, np.float32))
     write_exr(os.path.join(out, "mitsuba_diffuse.exr"), {c: 2 * alb[..., i] for i, c in enumerate("RGB")})
     write_exr(os.path.join(out, "mitsuba_specular.exr"), {"Y": 8 * rho})
     if probe is None:

@@ -23,9 +23,22 @@ from facestats.io.gltf import write_gltf
 from facestats.io.ids import check_subject_id
 from facestats.io.store import Store, open_store
 
-__all__ = ["EXPORT_FORMATS", "UnknownSubjectError", "export_subject", "store_subject"]
+__all__ = ["EXPORT_FORMATS", "EXPORT_OPTIONS", "UnknownSubjectError", "export_subject", "store_subject"]
 
 EXPORT_FORMATS = ("exr", "mitsuba", "gltf")
+#: The formats each option of :func:`export_subject` applies to.
+EXPORT_OPTIONS = {
+    "mesh": EXPORT_FORMATS,
+    "mesh_format": ("exr", "mitsuba"),
+    "probe": ("mitsuba",),
+    "material": ("mitsuba",),
+    "width": ("mitsuba",),
+    "height": ("mitsuba",),
+    "spp": ("mitsuba",),
+    "fov": ("mitsuba",),
+}
+#: Options that name input files (refused inside ``out``, which an export may replace).
+_INPUTS = ("mesh", "probe")
 
 
 def store_subject(store, subject_id):
@@ -62,7 +75,7 @@ def _write(fmt, ds, tmp, options):
         view = {k: options[k] for k in ("width", "height", "spp", "fov") if options.get(k) is not None}
         write_mitsuba_scene(
             ds, tmp, probe=options.get("probe"), material=options.get("material", "surface"),
-            mesh=options.get("mesh"), **view,
+            mesh=options.get("mesh"), mesh_format=options.get("mesh_format", "obj"), **view,
         )  # fmt: skip
     else:
         write_gltf(ds, tmp, mesh=options.get("mesh"))
@@ -86,16 +99,30 @@ def export_subject(subject, out, format="exr", *, store=None, overwrite=False, *
     overwrite : bool
         Replace an existing non-empty ``out``.
     **options
-        ``mesh`` (scan path), ``mesh_format`` (``obj``/``ply``, EXR set),
-        ``probe``, ``material``, ``width``, ``height``, ``spp``, ``fov`` (Mitsuba).
+        :data:`EXPORT_OPTIONS`: ``mesh`` (scan path; every format), ``mesh_format`` (``obj``/``ply`` for
+        ``exr``; only ``obj`` for ``mitsuba``), ``probe``, ``material``, ``width``, ``height``, ``spp``,
+        ``fov`` (``mitsuba``).  An option of None is not given.
 
     Returns
     -------
     dict
         ``subject_id``, ``format``, ``out`` and ``files`` (sorted names).
+
+    Raises
+    ------
+    ValidationError
+        Before anything is written: an unknown option, an option that does not apply to ``format``, an input
+        file (``mesh``, ``probe``) inside ``out`` (``overwrite`` would delete it), a non-empty ``out`` without
+        ``overwrite``, a region-sample subject.
+    UnknownSubjectError
+        An id the store does not hold.
     """
     check_choice(format, "format", EXPORT_FORMATS)
+    options = _check_options(format, options)
     out = _check_out(out, overwrite)
+    for name in _INPUTS:
+        if isinstance(options.get(name), (str, os.PathLike)):
+            check_apart(options[name], out, name, "out")
     if hasattr(subject, "data_vars"):
         ds = subject
     elif isinstance(store, Store):
@@ -124,6 +151,21 @@ def export_subject(subject, out, format="exr", *, store=None, overwrite=False, *
                 pass
         raise
     return {"subject_id": str(ds.attrs.get("subject_id", "")), "format": format, "out": out, "files": files}
+
+
+def _check_options(format, options) -> dict:
+    """The options given (not None), each known (:data:`EXPORT_OPTIONS`) and applying to ``format``."""
+    given = {k: v for k, v in options.items() if v is not None}
+    unknown = [k for k in given if k not in EXPORT_OPTIONS]
+    if unknown:
+        raise ValidationError(f"export options must be among {list(EXPORT_OPTIONS)}, got {unknown}")
+    foreign = [k for k in given if format not in EXPORT_OPTIONS[k]]
+    if foreign:
+        described = (
+            f"{k}={given[k]!r} (--{k.replace('_', '-')}: {', '.join(EXPORT_OPTIONS[k])} only)" for k in foreign
+        )
+        raise ValidationError(f"options must apply to format {format!r}, got {', '.join(described)}")
+    return given
 
 
 def _check_out(out, overwrite):

@@ -7,7 +7,9 @@ Routes (GET only; every other method is 405):
   (the same call, :meth:`facestats.io.store.Store.query` → ``to_dict``); ``/api/query.csv`` its CSV;
 * ``/api/pca``, ``/api/scatter`` — Fig. 15 ellipses and Fig. 14 points of the matching subjects;
 * ``/subject/<id>`` — a subject page; ``/api/subject/<id>``, ``/subject/<id>/map/<name>.png``,
-  ``/subject/<id>/preview.png``, ``/subject/<id>/exr.zip`` (the EXR texture set).
+  ``/subject/<id>/preview.png``, ``/subject/<id>/exr.zip`` (the EXR texture set).  Subjects that hold
+  region samples (``facestats import-merl``) have no maps: their page links no preview or EXR set, and
+  those two answer 400 saying so.
 
 Safety: the store is opened read-only; filter names are whitelisted and values
 bounded in length; subject ids pass :func:`facestats.io.ids.check_subject_id`

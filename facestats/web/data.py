@@ -207,10 +207,17 @@ def preview_radiance(ds, lights=PREVIEW_LIGHTS, view=(0.0, 0.0, 1.0)):
     Torrance-Sparrow specular with the fitted (ρs, m) and diffuse normal, diffuse
     from the modulation texture and the subject's σ's, σa (flat-patch dipole
     transport, no shadows); irradiance E = E⊥ (N·ωi).
+
+    Raises
+    ------
+    ValidationError
+        A region-sample subject (:func:`facestats.io.exr_set.check_map_subject`): it has no maps to relight.
     """
     # local import: keeps facestats.io (23 modules) out of this module's import
+    from facestats.io.exr_set import check_map_subject
     from facestats.io.schema import modulation
 
+    check_map_subject(ds, "the relit preview")
     face = np.asarray(ds["region"].values) > 0
     if "normal" in ds.data_vars:
         n = np.asarray(ds["normal"].values, np.float64)[face]
@@ -247,11 +254,23 @@ def preview_png(ds, scale: int = 4) -> bytes:
 
 
 def subject_document(ds) -> dict:
-    """Metadata, coefficients and map names of a subject (JSON-ready)."""
+    """Metadata, kind (``maps`` or ``samples``), coefficients and map names of a subject (JSON-ready).
+
+    Only a ``maps`` subject has a relit preview and an EXR texture set (the subject page links them only then).
+    """
+    # local import: keeps facestats.io (23 modules) out of this module's import
+    from facestats.io.schema import subject_kind
+
     meta = {k: (v.item() if hasattr(v, "item") else v) for k, v in ds.attrs.items() if k != "provenance"}
     coeffs = {
         v: dict(zip(CHANNELS, (float(x) for x in np.asarray(ds[v].values))))
         for v in ("albedo_avg", "sigma_a", "sigma_s_prime", "sigma_tr")
         if v in ds.data_vars
     }
-    return {"subject": meta, "coefficients": coeffs, "units": {"sigma": "mm-1", "albedo": "1"}, "maps": map_names(ds)}
+    return {
+        "subject": meta,
+        "kind": subject_kind(ds),
+        "coefficients": coeffs,
+        "units": {"sigma": "mm-1", "albedo": "1"},
+        "maps": map_names(ds),
+    }

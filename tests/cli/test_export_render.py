@@ -19,6 +19,22 @@ def test_export_subject_writes_the_set_and_reports_errors_like_every_command(tmp
     assert not (tmp_path / "x").exists()
 
 
+def test_export_subject_refuses_options_of_another_format_by_their_flags(tmp_path, capsys):
+    args = ["export-subject", "S001", "--format", "gltf", "--out", str(tmp_path / "gp")]
+    bad = ["--probe", "nan.exr", "--width", "5", "--material", "subsurface", "--mesh-format", "ply"]
+    assert main(args + bad) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("facestats: error: options must apply to format 'gltf', got mesh_format='ply' (--mesh-format")
+    for flag in ("--probe", "--width", "--material"):
+        assert f"({flag}: mitsuba only)" in err
+    mitsuba = ["export-subject", "S001", "--format", "mitsuba", "--mesh-format", "ply", "--out", str(tmp_path / "m")]
+    assert main(mitsuba) == 2
+    assert "mesh_format must be 'obj' for a Mitsuba scene" in capsys.readouterr().err
+    assert os.listdir(tmp_path) == []
+    assert main(args) == 0  # the options' defaults are not passed as options
+    assert "face.gltf" in capsys.readouterr().out
+
+
 @pytest.mark.slow  # re-simulates a default capture (about 10 s); tests/pipeline/test_validation.py covers the API
 def test_render_prints_the_relative_rmse_and_writes_images(tmp_path, capsys):
     assert main(["render", "S003", "--out", str(tmp_path), "--camera", "5", "--light", "20"]) == 0

@@ -218,3 +218,21 @@ def test_import_merl(tmp_path):
     zp = pack_store(out, tmp_path / "m.zip")
     r = run_cli("import-merl", mat, "--store", zp)
     assert r.returncode == 2 and "read-only" in r.stderr
+
+
+def test_export_into_a_folder_of_other_files_needs_overwrite_and_removes_nothing(stores, tmp_path):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "statistics.json").write_text('{"my": 1}')
+    r = run_cli("export", "--store", stores[1], "--out", out, "--format", "csv")
+    assert r.returncode == 2 and "--overwrite: write into any folder" in r.stderr and "'statistics.json'" in r.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["statistics.json"]
+    r = run_cli("export", "--store", stores[1], "--out", out, "--format", "csv", "--overwrite")
+    assert r.returncode == 0, r.stderr
+    assert (out / "statistics.json").read_text() == '{"my": 1}'  # a file of the other format is not removed
+    assert sorted(p.name for p in out.iterdir()) == [
+        "README.txt",
+        "albedo_histograms.csv",
+        "statistics.json",
+        "subjects.csv",
+    ]

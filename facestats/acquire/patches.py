@@ -25,7 +25,10 @@ import numpy as np
 from facestats.core.validate import as_finite, check_range, check_shape, check_unit_vectors
 from facestats.errors import ValidationError
 
-__all__ = ["Patches", "mesh_patches", "read_mesh_patches", "subdivide_triangles"]
+__all__ = ["MAX_PATCHES", "Patches", "mesh_patches", "read_mesh_patches", "subdivide_triangles"]
+
+#: Most patches a mesh may be divided into (Suzuki's W pairs every visible patch with every lit one: O(m²)).
+MAX_PATCHES = 1_000_000
 
 
 @dataclass
@@ -152,7 +155,14 @@ def mesh_patches(vertices, faces, *, spacing, occluder=True) -> Patches:
         raise ValidationError("faces must include at least one triangle of positive area, got only degenerate ones")
     tri, cross, area2 = tri[ok], cross[ok], area2[ok]
     edges = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(1)
-    ks = np.ones(tri.shape[0], np.int64) if h is None else np.maximum(1, np.ceil(edges / h - 1e-9).astype(np.int64))
+    kf = np.ones(tri.shape[0]) if h is None else np.maximum(1.0, np.ceil(edges / h - 1e-9))
+    n = float(np.sum(kf * kf))
+    if n > MAX_PATCHES:  # checked in float64, before any allocation
+        raise ValidationError(
+            f"spacing={h:g} mm gives {n:.3g} patches, more than MAX_PATCHES = {MAX_PATCHES:,}; use a spacing of at "
+            f"least {h * np.sqrt(n / MAX_PATCHES):.3g} mm"
+        )
+    ks = kf.astype(np.int64)
     centres, normals, areas, corners = [], [], [], []
     for k in np.unique(ks):  # one vectorised subdivision per distinct k
         sel = ks == k

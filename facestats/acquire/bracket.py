@@ -121,6 +121,9 @@ class ResponseCalibration:
     files : list of str
     settings : dict
         ``smoothness`` and ``samples`` as passed (None: the defaults).
+    black_level : int
+        The sensor's pedestal in DN g was recovered with (:mod:`facestats.acquire.response`); merges of
+        photographs with this g must pass the same ``black_level``.
     """
 
     log_response: np.ndarray
@@ -129,13 +132,15 @@ class ResponseCalibration:
     agreement: np.ndarray
     files: list = field(default_factory=list)
     settings: dict = field(default_factory=dict)
+    black_level: int = 0
 
     def to_dict(self) -> dict:
-        """JSON-ready: format, bits, files with their times, agreement, settings and g per channel."""
+        """JSON-ready: format, bits, black level, files with their times, agreement, settings and g per channel."""
         g = np.asarray(self.log_response, np.float64)
         return {
             "format": RESPONSE_FORMAT,
             "bits": int(self.bits),
+            "black_level": int(self.black_level),
             "frames": [{"file": f, "exposure_time_s": float(t)} for f, t in zip(self.files, self.exposure_times)],
             "exposure_agreement": [
                 {"median": _num(m), "p90": _num(p)} for m, p in np.asarray(self.agreement, np.float64)
@@ -154,7 +159,8 @@ class ResponseCalibration:
     def to_text(self) -> str:
         """The frames, the consecutive exposures' agreement and g at a few codes."""
         order = np.argsort(self.exposure_times, kind="stable")
-        lines = [f"{len(self.files)} photographs, {self.bits}-bit codes:"]
+        pedestal = f", black level {self.black_level}" if self.black_level else ""
+        lines = [f"{len(self.files)} photographs, {self.bits}-bit codes{pedestal}:"]
         lines += [f"  {self.files[k]}  {_seconds(self.exposure_times[k])}" for k in order]
         lines.append("exposure agreement (|E_j/E_k - 1| over samples well exposed in both): median, 90th percentile")
         for (m, p), a, b in zip(self.agreement, order[:-1], order[1:]):
@@ -172,7 +178,10 @@ class ResponseCalibration:
         """``dome`` with this response as the ``camera_log_response`` of ``cameras`` (default every camera).
 
         A dome without responses takes this one for every camera; then ``cameras``
-        must be every camera (the others would have none).
+        must be every camera (the others would have none).  A dome has no black level: merges
+        of its cameras' photographs must be given :attr:`black_level` (``black_level`` of
+        :func:`facestats.acquire.ingest.ingest_photographs` and
+        :func:`facestats.acquire.calibration.calibrate_leds`).
         """
         g = np.where(np.isfinite(self.log_response), self.log_response, self.log_response[1])  # code 0: weight 0
         n_cam = dome.n_cameras
@@ -214,7 +223,7 @@ def _seconds(t: float) -> str:
     return f"1/{1 / t:.4g} s" if t < 1 else f"{t:.4g} s"
 
 
-def calibrate_response(paths, exposure_times=None, *, bits=None, smoothness=None, samples=None):
+def calibrate_response(paths, exposure_times=None, *, bits=None, smoothness=None, samples=None, black_level=0):
     """Debevec & Malik's response g from a bracket of photographs on disk (module docstring).
 
     Parameters
@@ -223,8 +232,8 @@ def calibrate_response(paths, exposure_times=None, *, bits=None, smoothness=None
         As :func:`read_bracket`.
     bits : int, optional
         Bit depth of the codes (default 8 or 16 from the files; 12 for 12-bit codes in 16-bit files).
-    smoothness, samples
-        As :func:`facestats.acquire.response.recover_response`.
+    smoothness, samples, black_level
+        As :func:`facestats.acquire.response.recover_response` (``black_level`` also scores the agreement).
 
     Returns
     -------
@@ -234,14 +243,15 @@ def calibrate_response(paths, exposure_times=None, *, bits=None, smoothness=None
     if bits is not None and check_integer(bits, "bits", 1) > file_bits:
         raise ValidationError(f"bits must be at most {file_bits} for these {file_bits}-bit files, got {bits}")
     bits = file_bits if bits is None else bits
-    g = recover_response(images, times, smoothness=smoothness, samples=samples, bits=bits)
+    g = recover_response(images, times, smoothness=smoothness, samples=samples, bits=bits, black_level=black_level)
     return ResponseCalibration(
         log_response=g,
         bits=int(bits),
         exposure_times=times,
-        agreement=exposure_agreement(images, times, g),
+        agreement=exposure_agreement(images, times, g, black_level=black_level),
         files=[os.fspath(p) for p in paths],
         settings={"smoothness": smoothness, "samples": _samples_setting(samples)},
+        black_level=int(black_level),
     )
 
 

@@ -44,7 +44,16 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from facestats.acquire.dome import Dome, beam_terms
-from facestats.acquire.photographs import CaptureFolder, bilinear_taps, check_response, merge_at, open_folder, prefetch
+from facestats.acquire.photographs import (
+    CaptureFolder,
+    bilinear_taps,
+    check_exposures,
+    check_response,
+    merge_at,
+    open_folder,
+    prefetch,
+)
+from facestats.acquire.response import check_black_level
 from facestats.core.validate import check_integer, json_numbers
 from facestats.errors import FormatError, ValidationError
 
@@ -59,11 +68,17 @@ __all__ = [
     "target_hits",
     "LED_FORMAT",
     "ITERATIONS",
+    "MAX_GRID",
 ]
 
 LED_FORMAT = "facestats.led-calibration/1"
 #: Rounds of the alternating LED / camera-gain fit.
 ITERATIONS = 3
+#: Most target points per side of a pose (:func:`target_observations`).  Each (point, camera, LED) observation
+#: holds about 130 bytes: the default 24 on the full rig (150 LEDs, 4 poses each seen by about 8 cameras) keeps
+#: some 0.4 GB, 100 some 6 GB (on a 6-LED, 3-camera rig 100 takes 2 s and 0.28 GB, 1000 took 4.5 min and 9.3 GB);
+#: six beam coefficients per LED need nowhere near 10,000 points per pose.
+MAX_GRID = 100
 
 
 # -- OpenCV camera files ---------------------------------------------------------------------------------------
@@ -280,7 +295,9 @@ def _target(folder: CaptureFolder):
     return rho, poses
 
 
-def target_observations(folder, dome: Dome, *, grid: int = 24, cameras=None, workers: int = 2) -> dict:
+def target_observations(
+    folder, dome: Dome, *, grid: int = 24, cameras=None, workers: int = 2, black_level: int = 0
+) -> dict:
     """HDR values of a target folder at a grid of points on each pose, for every camera and LED.
 
     Points: a ``grid`` × ``grid`` lattice over the central 90 % of each target;
@@ -289,8 +306,9 @@ def target_observations(folder, dome: Dome, *, grid: int = 24, cameras=None, wor
     angle a pixel's footprint reaches past the target: its value mixes in the
     background, 15-18 % low in the simulated set-up of the tests, and such points
     biased the beam's quadratic terms by up to 2);
-    values are the HDR merge (:func:`facestats.acquire.photographs.merge_at`)
-    divided by ``camera_scale``; saturated or unlit observations are dropped.
+    values are the HDR merge (:func:`facestats.acquire.photographs.merge_at`, with the
+    cameras' pedestal ``black_level`` in DN) divided by ``camera_scale``; saturated or
+    unlit observations are dropped.  ``grid`` is in [2, :data:`MAX_GRID`].
 
     Returns
     -------
@@ -306,8 +324,10 @@ def target_observations(folder, dome: Dome, *, grid: int = 24, cameras=None, wor
             f"has {dome.n_cameras} cameras and {dome.n_leds} LEDs"
         )
     check_response(folder, dome)  # to merge the target's photographs
+    check_exposures(folder, dome)  # with the times they were taken with
     rho, poses = _target(folder)
-    check_integer(grid, "grid", 2)
+    check_integer(grid, "grid", 2, MAX_GRID)
+    black_level = check_black_level(black_level, 2**folder.bits)
     cams = folder.cameras if cameras is None else [int(c) for c in cameras]
     out = {k: [] for k in ("point", "normal", "camera", "led", "value")}
     f = (np.arange(grid) + 0.5) / grid * 0.9 - 0.45
@@ -316,7 +336,7 @@ def target_observations(folder, dome: Dome, *, grid: int = 24, cameras=None, wor
         pts = centre + a.reshape(-1, 1) * u_axis + b.reshape(-1, 1) * np.cross(normal, u_axis)
         for cam in cams:
             if (dome.camera_position[cam] - centre) @ normal > 0:  # the camera faces the target's front
-                _observe(folder, dome, p, cam, pts, poses[p], workers, out)
+                _observe(folder, dome, p, cam, pts, poses[p], workers, out, black_level)
     if not out["point"]:
         raise FormatError("no camera sees a target pose: check the poses and the camera calibration")
     res = {k: np.concatenate(v) for k, v in out.items()}
@@ -350,7 +370,7 @@ def _taps_on_target(dome, cam, index, geometry) -> np.ndarray:
     return inside.reshape(index.shape).all(axis=1)
 
 
-def _observe(folder, dome, pose, cam, pts, geometry, workers, out):
+def _observe(folder, dome, pose, cam, pts, geometry, workers, out, black_level=0):
     """Append the observations of target points ``pts`` in camera ``cam`` under every LED to ``out``."""
     normal = geometry[1]
     _, in_frame, pix = dome.view(pts, [cam])
@@ -368,7 +388,7 @@ def _observe(folder, dome, pose, cam, pts, geometry, workers, out):
         return led, folder.read_stack(cam, led, pose=pose, size=dome.image_size[cam])
 
     for led, (stack, times) in prefetch(read, range(dome.n_leds), workers):  # loop over LEDs; arrays inside
-        val = merge_at(stack, times, g, index, weight) / dome.camera_scale
+        val = merge_at(stack, times, g, index, weight, black_level=black_level) / dome.camera_scale
         ok = np.all(np.isfinite(val) & (val > 0), axis=1)
         out["point"].append(pts[keep[ok]])
         out["normal"].append(np.broadcast_to(normal, (int(ok.sum()), 3)))
@@ -438,8 +458,12 @@ def fit_leds(dome: Dome, obs: dict, *, reference_camera: int | None = None) -> L
     return LedCalibration(intensity, beam, gain, rms, nobs, ref)
 
 
-def calibrate_leds(folder, dome: Dome, *, grid: int = 24, reference_camera: int | None = None, workers: int = 2):
-    """Fit every LED's intensity and beam polynomial, and the camera gains, from a target folder (module docstring)."""
-    return fit_leds(
-        dome, target_observations(folder, dome, grid=grid, workers=workers), reference_camera=reference_camera
-    )
+def calibrate_leds(
+    folder, dome: Dome, *, grid: int = 24, reference_camera: int | None = None, workers: int = 2, black_level: int = 0
+):
+    """Fit every LED's intensity and beam polynomial, and the camera gains, from a target folder (module docstring).
+
+    ``grid``, ``workers`` and ``black_level`` are those of :func:`target_observations`.
+    """
+    obs = target_observations(folder, dome, grid=grid, workers=workers, black_level=black_level)
+    return fit_leds(dome, obs, reference_camera=reference_camera)

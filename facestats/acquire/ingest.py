@@ -56,12 +56,14 @@ from facestats.acquire.photographs import (
     MANIFEST,
     CaptureFolder,
     bilinear_taps,
+    check_exposures,
     check_response,
     exposure_consistency,
     merge_at,
     open_folder,
     prefetch,
 )
+from facestats.acquire.response import check_black_level
 from facestats.acquire.visibility import dome_shadow_maps, sample_visibility
 from facestats.core.progress import progress_bar
 from facestats.core.validate import as_finite, check_integer
@@ -88,14 +90,21 @@ MIN_FOOTPRINT_PX = 2.0
 _ATTR = "ingest"
 
 
-def _fingerprint(folder: CaptureFolder, dome, geometry: FaceGeometry, subject_id=None) -> dict:
-    """What an ingest was made from: manifest, calibration and geometry digests, and the subject id it is for."""
+def _fingerprint(folder: CaptureFolder, dome, geometry: FaceGeometry, subject_id=None, black_level=0) -> dict:
+    """What an ingest was made from: manifest, calibration and geometry digests, the black level of the merge and
+    the subject id it is for."""
     geo = hashlib.sha256()
     for a in (geometry.position, geometry.normal, geometry.uv, geometry.mesh_vertices, geometry.mesh_faces):
         geo.update(np.ascontiguousarray(a).tobytes())
     calib = hashlib.sha256(json.dumps(dome.to_dict(), sort_keys=True).encode()).hexdigest()
     sid = subject_id or folder.subject()["subject_id"]
-    return {"manifest": folder.fingerprint(), "calibration": calib, "geometry": geo.hexdigest(), "subject_id": sid}
+    return {
+        "manifest": folder.fingerprint(),
+        "calibration": calib,
+        "geometry": geo.hexdigest(),
+        "subject_id": sid,
+        "black_level": int(black_level),
+    }
 
 
 def _calibration(dome):
@@ -108,7 +117,7 @@ def _calibration(dome):
 
 
 def _check_inputs(folder: CaptureFolder, dome, geometry, calibration="the calibration"):
-    """Raise unless the folder and the calibration describe the same rig and bit depth.
+    """Raise unless the folder and the calibration describe the same rig, exposure times and bit depth.
 
     ``calibration`` names the calibration in messages (its file when known).
     """
@@ -128,6 +137,7 @@ def _check_inputs(folder: CaptureFolder, dome, geometry, calibration="the calibr
     if geometry.region_map is None:
         raise FormatError(f"geometry {geometry.name!r} has no face-region image (region_map): the maps need it")
     check_response(folder, dome, calibration)
+    check_exposures(folder, dome, calibration)
 
 
 def ingest_state(path) -> dict | None:
@@ -156,6 +166,7 @@ def _start(path, folder, geometry, dome, fingerprint, chunk, subject_id):
         stored = dict(state.get("fingerprint") or {})
         if "subject_id" not in stored:  # an ingest begun before the id was part of the key: the capture's own id
             stored["subject_id"] = _capture_subject_id(path)
+        stored.setdefault("black_level", 0)  # an ingest begun before the black level was part of the key
         if stored != fingerprint:
             changed = [k for k in fingerprint if stored.get(k) != fingerprint[k]]
             raise FormatError(
@@ -230,7 +241,7 @@ def footprint_px(dome, geometry, camera: int) -> np.ndarray:
         return np.where(z[:, 0] > 0, np.sqrt(geometry.area) * cos_o * f / z[:, 0], 0.0)
 
 
-def _camera_samples(folder, dome, vis, camera, motion_tolerance, workers, resolved):
+def _camera_samples(folder, dome, vis, camera, motion_tolerance, workers, resolved, black_level=0):
     """Radiance (N, L, 3) float32 of one camera (NaN where invalid) and its motion scores (L,)."""
     n, n_led = vis.seen.shape[0], dome.n_leds
     out = np.full((n, n_led, 3), np.nan, np.float32)
@@ -251,10 +262,10 @@ def _camera_samples(folder, dome, vis, camera, motion_tolerance, workers, resolv
 
     flags = []
     for led, (stack, times) in prefetch(read, range(n_led), workers):  # loop over LEDs, vectorised over lumitexels
-        rad = merge_at(stack, times, g, index, weight) / scale
+        rad = merge_at(stack, times, g, index, weight, black_level=black_level) / scale
         lit = vis.lit[sel, led]
         out[sel[lit], led] = rad[lit]
-        scores[led], n_used = exposure_consistency(stack, times, g, box)
+        scores[led], n_used = exposure_consistency(stack, times, g, box, black_level=black_level)
         if n_used >= 100 and scores[led] > motion_tolerance:
             out[:, led] = np.nan
             flags.append({"camera": int(camera), "led": int(led), "score": round(float(scores[led]), 4)})
@@ -272,6 +283,7 @@ def ingest_photographs(
     workers: int = 2,
     motion_tolerance: float = MOTION_TOLERANCE,
     min_footprint_px: float = MIN_FOOTPRINT_PX,
+    black_level: int = 0,
     progress: bool = False,
 ) -> str:
     """Turn a capture folder into a capture on disk (module docstring); rerunning resumes an interrupted ingest.
@@ -299,6 +311,10 @@ def ingest_photographs(
     min_footprint_px : float
         Samples whose lumitexel patch spans fewer pixels along its shortest axis
         (:func:`footprint_px`) are invalid (≥ 0; module docstring).
+    black_level : int
+        The cameras' pedestal in DN, the one their response was recovered with
+        (:func:`facestats.acquire.response.recover_response`): codes at and below it get no weight
+        in the merge; 0 (default) for cameras without one.
     progress : bool
         Show a progress bar over cameras.
 
@@ -310,7 +326,8 @@ def ingest_photographs(
     Raises
     ------
     FormatError
-        The folder and the calibration disagree (camera or LED count, bit depth),
+        The folder and the calibration disagree (camera or LED count, bit depth, a frame's
+        exposure time beyond 1 % of the calibration's, :func:`~facestats.acquire.photographs.check_exposures`),
         or a frame is missing, corrupt or of the wrong size or depth; the message
         names the manifest or frame, the field and both values, and the
         calibration file when ``dome`` is one.
@@ -325,8 +342,9 @@ def ingest_photographs(
     min_footprint_px = float(as_finite(min_footprint_px, "min_footprint_px", 0, None))
     folder = folder if isinstance(folder, CaptureFolder) else open_folder(folder)
     _check_inputs(folder, dome, geometry, calibration)
+    black_level = check_black_level(black_level, 2**folder.bits)
     writer, state = _start(
-        path, folder, geometry, dome, _fingerprint(folder, dome, geometry, subject_id), chunk, subject_id
+        path, folder, geometry, dome, _fingerprint(folder, dome, geometry, subject_id, black_level), chunk, subject_id
     )
     if state["complete"]:
         return str(path)
@@ -338,7 +356,7 @@ def ingest_photographs(
     )
     for cam in it:  # loop over cameras: one camera's samples in memory at a time
         resolved = footprint_px(dome, geometry, cam) >= min_footprint_px
-        rad, _, flags = _camera_samples(folder, dome, vis, cam, motion_tolerance, workers, resolved)
+        rad, _, flags = _camera_samples(folder, dome, vis, cam, motion_tolerance, workers, resolved, black_level)
         writer.array("radiance")[:, cam] = rad.astype(np.float16)
         state["cameras_done"].append(int(cam))
         state["motion_flags"].extend(flags)

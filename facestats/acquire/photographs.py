@@ -21,13 +21,16 @@ that lists them (the layout is documented in ``docs/photographs.md``)::
 
 Rules checked on opening (:func:`open_folder`; each violation is a
 :class:`facestats.errors.FormatError` naming the file, the field and the value):
-every listed file exists; every (pose, camera, LED) has the same exposures
-0..E−1 and no frame twice; exposure times increase strictly with the exposure
-index.  Rules checked on reading a frame (:meth:`CaptureFolder.read_codes`): the
-SHA-256 of the file's bytes matches; the image decodes as 8- or 16-bit RGB with
-codes below 2^bits (an 8-bit file in a 12-bit manifest is refused); its size is
-the calibration's; an EXIF ``ExposureTime``, when present, agrees with
-``exposure_s`` within 1 %.
+``cameras`` lists each camera once (every camera, unless a target); every
+listed file exists; every (pose, camera, LED) has the same exposures 0..E−1 and
+no frame twice; exposure times increase strictly with the exposure index.
+Against a calibration (:func:`check_exposures`, before an ingest or an LED
+calibration reads any frame): every ``exposure_s`` is the calibration's time of
+its exposure index within 1 %.  Rules checked on reading a frame
+(:meth:`CaptureFolder.read_codes`): the SHA-256 of the file's bytes matches; the
+image decodes as 8- or 16-bit RGB with codes below 2^bits (an 8-bit file in a
+12-bit manifest is refused); its size is the calibration's; an EXIF
+``ExposureTime``, when present, agrees with ``exposure_s`` within 1 %.
 
 HDR samples: :func:`bilinear_taps` gives, for sub-pixel positions (OpenCV
 convention: pixel centres at integer coordinates), the four neighbouring pixels
@@ -60,6 +63,9 @@ __all__ = [
     "MANIFEST",
     "CaptureFolder",
     "check_response",
+    "check_exposures",
+    "relative_inside",
+    "EXPOSURE_TOLERANCE",
     "open_folder",
     "write_manifest",
     "write_sensor_file",
@@ -75,8 +81,10 @@ SENSOR_FORMAT = "facestats.sensor-profiles/1"
 MANIFEST = "manifest.json"
 SUBJECT_FIELDS = ("subject_id", "person_id", "age", "gender", "skin_type", "condition")
 _FRAME_FIELDS = ("camera", "led", "exposure", "exposure_s", "file", "sha256")
-#: Relative tolerance between a frame's EXIF ExposureTime and its manifest ``exposure_s``.
-EXIF_TOLERANCE = 0.01
+#: Relative tolerance within which two statements of one exposure time must agree: a frame's EXIF ExposureTime and
+#: its manifest ``exposure_s``, ``exposure_s`` and the calibration's ``exposure_times_s`` (:func:`check_exposures`),
+#: and a device's reported exposure settings and the calibration's (``facestats capture``).
+EXPOSURE_TOLERANCE = 0.01
 
 
 def write_sensor_file(path, sensor, profile, profile_std, **fields) -> pathlib.Path:
@@ -201,7 +209,7 @@ class CaptureFolder:
         self._check_frame(rel, codes, file_bits, size)
         t_exif = parse_exif(data, str(rel)).get("ExposureTime")
         t = self.exposure_s[pose, camera, led, exposure]
-        if t_exif is not None and abs(t_exif / t - 1) > EXIF_TOLERANCE:
+        if t_exif is not None and abs(t_exif / t - 1) > EXPOSURE_TOLERANCE:
             raise FormatError(
                 f"frame {rel}: EXIF ExposureTime {t_exif:.6g} s disagrees with field 'exposure_s' {t:.6g} s"
             )
@@ -249,7 +257,7 @@ class CaptureFolder:
         """``(ContactSensor, profile, profile_std)`` of the manifest's ``sensor`` file (format ``SENSOR_FORMAT``)."""
 
         name = self.manifest.get("sensor")
-        if not isinstance(name, str) or not _relative_inside(name):
+        if not isinstance(name, str) or not relative_inside(name):
             raise FormatError(
                 f"{MANIFEST} needs the field 'sensor' naming the contact-sensor file inside the folder (a relative "
                 f"path without '..'), got {name!r:.60}"
@@ -305,7 +313,40 @@ def check_response(folder: "CaptureFolder", dome, calibration: str = "the calibr
         )
 
 
-def _relative_inside(name: str) -> bool:
+def check_exposures(folder: "CaptureFolder", dome, calibration: str = "the calibration") -> None:
+    """Raise unless every frame's ``exposure_s`` is the calibration's exposure time of its exposure index.
+
+    The frames of exposure e were taken with the rig's exposure setting e, whose time is
+    ``dome.exposure_times[e]`` (``exposure_times_s`` of the calibration file); they must agree within
+    :data:`EXPOSURE_TOLERANCE` (relative), the tolerance ``facestats capture`` allows between the device's
+    settings and the calibration.  This catches times written in another unit (milliseconds: a factor 1000 in
+    every merged radiance) in frames without EXIF, and frames of another rig set-up.  ``calibration`` names the
+    calibration in messages (its file when known).
+
+    Raises
+    ------
+    FormatError
+        Naming the manifest, or the first disagreeing frame with its ``exposure_s`` and the calibration's time.
+    """
+    want = np.asarray(dome.exposure_times, np.float64)
+    manifest = folder.path / MANIFEST
+    if folder.n_exposures != want.size:
+        raise FormatError(
+            f"{manifest} frames have {folder.n_exposures} exposures (0..{folder.n_exposures - 1}), {calibration} "
+            f"field 'exposure_times_s' has {want.size}: {[round(float(t), 6) for t in want]} s"
+        )
+    with np.errstate(invalid="ignore"):  # NaN: cameras without frames
+        bad = np.abs(folder.exposure_s / want - 1) > EXPOSURE_TOLERANCE
+    if np.any(bad):
+        p, c, l, e = np.argwhere(bad)[0]
+        raise FormatError(
+            f"frame {folder.files[p, c, l, e]}: field 'exposure_s' {folder.exposure_s[p, c, l, e]:.6g} s of {MANIFEST} "
+            f"differs by more than {EXPOSURE_TOLERANCE * 100:g} % from exposure {e} of {calibration} (field "
+            f"'exposure_times_s': {want[e]:.6g} s); times must be in seconds, taken with the calibrated settings"
+        )
+
+
+def relative_inside(name: str) -> bool:
     """A relative path without ``..``: it names a file inside the folder, never one elsewhere."""
     p = pathlib.PurePosixPath(name)
     return bool(name) and not p.is_absolute() and not name.startswith("~") and ".." not in p.parts
@@ -324,7 +365,7 @@ def _parse_frames(frames, n_cameras, n_leds):
         cols["led"].append(_field(f, "led", int, where, lambda v: 0 <= v < n_leds))
         cols["exposure"].append(_field(f, "exposure", int, where, lambda v: v >= 0))
         cols["exposure_s"].append(_field(f, "exposure_s", (int, float), where, lambda v: v > 0 and np.isfinite(v)))
-        name = _field(f, "file", str, where, _relative_inside)
+        name = _field(f, "file", str, where, relative_inside)
         cols["file"].append(name)
         cols["sha256"].append(_field(f, "sha256", str, where, lambda v: len(v) == 64))
         cols["pose"].append(_field(f, "pose", int, where, lambda v: v >= 0) if "pose" in f else 0)
@@ -404,20 +445,32 @@ def open_folder(path) -> CaptureFolder:
     bits = _field(doc, "bits", int, MANIFEST, lambda v: 8 <= v <= 16)
     n_cam = _field(doc, "n_cameras", int, MANIFEST, lambda v: v >= 1)
     n_led = _field(doc, "n_leds", int, MANIFEST, lambda v: v >= 1)
+    cameras = _cameras(doc, n_cam)
+    cols = _parse_frames(doc.get("frames"), n_cam, n_led)
+    n_poses, n_exp, files, sha, times = _frame_table(p, cols, n_cam, n_led, cameras)
+    return CaptureFolder(p, doc, bits, n_cam, n_led, n_poses, n_exp, cameras, files, sha, times)
+
+
+def _cameras(doc, n_cam) -> list:
+    """The manifest's field ``cameras``, sorted: distinct indices in [0, n_cam), every camera unless a target."""
     cameras = doc.get("cameras", list(range(n_cam)))
     if (
         not isinstance(cameras, list)
         or not cameras
         or any(isinstance(c, bool) or not isinstance(c, int) or not 0 <= c < n_cam for c in cameras)
-        or (len(cameras) < n_cam and doc.get("kind", "face") != "target")
     ):
+        raise FormatError(f"{MANIFEST} field 'cameras' must list camera indices in [0, {n_cam}), got {cameras!r:.60}")
+    seen = set()
+    twice = [c for c in cameras if c in seen or seen.add(c)]
+    if twice:
+        raise FormatError(f"{MANIFEST} field 'cameras' must list each camera once, got camera {twice[0]} twice")
+    if len(seen) < n_cam and doc.get("kind", "face") != "target":
+        absent = sorted(set(range(n_cam)) - seen)
         raise FormatError(
-            f"{MANIFEST} field 'cameras' must list camera indices in [0, {n_cam}) (a subset for targets only), "
-            f"got {cameras!r:.60}"
+            f"{MANIFEST} field 'cameras' must list every camera 0..{n_cam - 1} (a subset for targets only), "
+            f"got {len(seen)} without {absent[:5]}"
         )
-    cols = _parse_frames(doc.get("frames"), n_cam, n_led)
-    n_poses, n_exp, files, sha, times = _frame_table(p, cols, n_cam, n_led, sorted(set(cameras)))
-    return CaptureFolder(p, doc, bits, n_cam, n_led, n_poses, n_exp, sorted(set(cameras)), files, sha, times)
+    return sorted(seen)
 
 
 def prefetch(fn, items, workers: int):
@@ -475,18 +528,21 @@ def _gather(stack, index):
     return [img.reshape(-1, img.shape[-1])[index] for img in stack]
 
 
-def merge_at(stack, times, response, index, weight, weighting: str = "hat_time") -> np.ndarray:
+def merge_at(stack, times, response, index, weight, weighting: str = "hat_time", black_level: int = 0) -> np.ndarray:
     """HDR radiance (N, 3) of a frame at the taps of :func:`bilinear_taps` (NaN if a tap is saturated).
 
     Debevec & Malik 1997 eq. 6 at each of the four pixels
     (:func:`facestats.acquire.response.merge_photographs`, by default with the
-    shot-noise weights w(z)·Δt), then bilinear interpolation.
+    shot-noise weights w(z)·Δt, zero at and below ``black_level``), then bilinear interpolation.
     """
-    e = merge_photographs(_gather(stack, index), times, response, weighting=weighting)  # (N, 4, 3)
+    taps = _gather(stack, index)
+    e = merge_photographs(taps, times, response, weighting=weighting, black_level=black_level)  # (N, 4, 3)
     return np.einsum("nk,nkc->nc", weight, e)
 
 
-def exposure_consistency(stack, times, response, box, *, min_weight: float = 0.2, jump: float = 0.5):
+def exposure_consistency(
+    stack, times, response, box, *, min_weight: float = 0.2, jump: float = 0.5, black_level: int = 0
+):
     """How often a frame's shortest and longest exposures disagree inside ``box``: the head-motion statistic.
 
     For each pixel and channel of ``box`` well exposed (hat weight ≥ ``min_weight``
@@ -505,6 +561,9 @@ def exposure_consistency(stack, times, response, box, *, min_weight: float = 0.2
         Pixel bounds (end exclusive) of the face in the frame.
     jump : float
         |d| counted as a disagreement (0.5: a factor e^0.5 ≈ 1.65).
+    black_level : int
+        The sensor's pedestal in DN: Z_min of the hat weights
+        (:func:`facestats.acquire.response.hat_weights`).
 
     Returns
     -------
@@ -514,7 +573,7 @@ def exposure_consistency(stack, times, response, box, *, min_weight: float = 0.2
         Number of usable samples.
     """
     g = np.asarray(response, np.float64)
-    w = hat_weights(g.shape[0])
+    w = hat_weights(g.shape[0], black_level)
     w = w / w.max()
     order = np.argsort(times)
     x0, y0, x1, y1 = (int(v) for v in box)

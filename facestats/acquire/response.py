@@ -26,6 +26,20 @@ they approximate the same per-level penalty (Δ^(−3/2)·second difference of k
 **Weights**: w(z) = z − Z_min for z ≤ (Z_min + Z_max)/2, Z_max − z above (eq. 4):
 zero at both clipping ends, so codes 0 and 2^bits − 1 never inform g or E.
 
+**Black level** (``black_level``, default 0): a sensor that adds a pedestal of b
+DN to every reading (so that noise around zero signal is recorded, not clipped)
+has f⁻¹(z) ∝ z − b, and g(z) = ln(z − b) + const plunges towards −∞ as z → b.
+With Z_min = 0 the codes just above the pedestal (z − b of a few DN, a relative
+noise of tens of per cent) weigh as much as z − 0 ≈ b and the smoothness term
+cannot follow g's plunge: on a 12-bit linear sensor with b = 256 the recovered g
+and the merge were biased by 6-10 % over two decades of radiance.  Passing
+``black_level = b`` takes Z_min = b in eq. 4 (zero weight at and below the
+pedestal, rising from it), and recovers g on the codes b..2^bits − 1 only (its
+knots span that range; codes at and below b take g(b), extrapolated by the
+smoothness term: the merge gives them no weight, and an all-dark pixel gets the
+noise-floor bound below).  Merges and :func:`exposure_agreement` must then be
+given the same ``black_level``.
+
 **Sample selection** (``samples``): the paper needs N(P − 1) > Z_max − Z_min
 sample pixels spread over the code range (§2.1).  Two documented choices, N =
 max(512, ⌈4K/(P − 1)⌉) by default (at most the number of pixels):
@@ -72,6 +86,7 @@ from facestats.errors import ValidationError
 
 __all__ = [
     "hat_weights",
+    "check_black_level",
     "stratified_samples",
     "histogram_samples",
     "recover_response",
@@ -80,19 +95,33 @@ __all__ = [
     "ResponseCurve",
     "MAX_KNOTS",
     "WELL_EXPOSED",
+    "MAX_SMOOTHNESS",
 ]
 
 #: Largest number of unknowns g is solved for; finer codes are interpolated (module docstring).
 MAX_KNOTS = 1024
 #: A code is well exposed (:func:`exposure_agreement`) when its hat weight is at least this fraction of the peak.
 WELL_EXPOSED = 0.25
+#: Largest smoothness λ :func:`recover_response` accepts.  Far below it g is already the straight line the term
+#: tends to (an 8-bit bracket of 512 samples reaches it by λ ≈ 1e4); beyond it the solve loses precision (at λ =
+#: 1e8 the same bracket's exposures disagree 5 times more, at 1e10 g is flat, at 1e200 it overflows).
+MAX_SMOOTHNESS = 1e6
 
 
-def hat_weights(levels: int) -> np.ndarray:
-    """Debevec & Malik 1997 eq. 4 weights w(z) for codes 0..levels−1, float64: 0 at both ends, peak mid-range."""
+def hat_weights(levels: int, black_level: int = 0) -> np.ndarray:
+    """Debevec & Malik 1997 eq. 4 weights w(z) for codes 0..levels−1, float64, with Z_min = ``black_level``.
+
+    w(z) = z − Z_min for z ≤ (Z_min + Z_max)/2, Z_max − z above, Z_max = levels − 1: 0 at and below the black
+    level and at the top code, peak mid-range (module docstring).
+    """
     z = np.arange(levels, dtype=np.float64)
-    top = levels - 1
-    return np.where(z <= top / 2, z, top - z)
+    low, top = float(black_level), levels - 1
+    return np.maximum(np.where(z <= (low + top) / 2, z - low, top - z), 0.0)
+
+
+def check_black_level(black_level, levels: int) -> int:
+    """``black_level`` as an int, checked: a code in [0, levels/2) (g is pinned at levels/2, above it)."""
+    return check_integer(black_level, "black_level", 0, levels // 2 - 1)
 
 
 # -- input checks --------------------------------------------------------------------------------
@@ -215,22 +244,25 @@ def _sample_codes(stack, channel, samples, levels, n):
 
 
 # -- recovery ---------------------------------------------------------------------------------------------
-def _interpolation(z, levels, knots):
-    """Knot index k0 (int) and weight a of code(s) z: g(z) = (1 − a) g[k0] + a g[k0 + 1]."""
-    x = np.asarray(z, np.float64) * ((knots - 1) / (levels - 1))
+def _interpolation(z, levels, knots, black_level=0):
+    """Knot index k0 (int) and weight a of code(s) z: g(z) = (1 − a) g[k0] + a g[k0 + 1].
+
+    The knots span the codes ``black_level``..levels − 1; codes below take g(black_level).
+    """
+    x = (np.maximum(np.asarray(z, np.float64), black_level) - black_level) * ((knots - 1) / (levels - 1 - black_level))
     k0 = np.clip(np.floor(x).astype(np.int64), 0, knots - 2)
     return k0, x - k0
 
 
-def _solve_channel(codes, log_t, levels, smoothness):
+def _solve_channel(codes, log_t, levels, smoothness, black_level=0):
     """g at every code of one channel from (N, P) sampled codes (module docstring: reduced normal equations)."""
     from scipy import sparse
 
-    knots = min(levels, MAX_KNOTS)
-    w_level = hat_weights(levels)
+    knots = min(levels - black_level, MAX_KNOTS)
+    w_level = hat_weights(levels, black_level)
     n, p = codes.shape
     w = w_level[codes]  # (N, P)
-    k0, a = _interpolation(codes, levels, knots)
+    k0, a = _interpolation(codes, levels, knots, black_level)
     rows = np.repeat(np.arange(n * p), 2)
     cols = np.stack([k0, k0 + 1], -1).reshape(-1)
     bvals = np.stack([1 - a, a], -1).reshape(-1)
@@ -243,14 +275,14 @@ def _solve_channel(codes, log_t, levels, smoothness):
     h = (a_mat.T @ a_mat).toarray() - (c_mat.T @ sparse.diags(inv) @ c_mat).toarray()
     b = a_mat.T @ (w.reshape(-1) * np.tile(log_t, n)) - c_mat.T @ (inv * s)
     # Smoothness rows λ w(z_k) (g[k−1] − 2g[k] + g[k+1]) Δ^(−3/2) on the interior knots.
-    step = (levels - 1) / (knots - 1)
+    step = (levels - 1 - black_level) / (knots - 1)
     k = np.arange(1, knots - 1)
-    wk = np.interp(k * step, np.arange(levels), w_level)
+    wk = np.interp(black_level + k * step, np.arange(levels), w_level)
     d = sparse.diags([1.0, -2.0, 1.0], [0, 1, 2], shape=(knots - 2, knots))
     d = sparse.diags(smoothness * wk * step**-1.5) @ d
     h += (d.T @ d).toarray()
     # Scale: g(levels/2) = 0 (one pinning row; the rest of the objective is shift-invariant).
-    km, am = _interpolation(levels // 2, levels, knots)
+    km, am = _interpolation(levels // 2, levels, knots, black_level)
     e = np.zeros(knots)
     e[km], e[km + 1] = 1 - am, am
     h += np.outer(e, e)
@@ -261,7 +293,7 @@ def _solve_channel(codes, log_t, levels, smoothness):
             g = np.linalg.solve(h, b)
         except np.linalg.LinAlgError:
             g = np.linalg.lstsq(h, b, rcond=None)[0]
-    kz, az = _interpolation(np.arange(levels), levels, knots)
+    kz, az = _interpolation(np.arange(levels), levels, knots, black_level)
     out = (1 - az) * g[kz] + az * g[kz + 1]
     return out - out[levels // 2]
 
@@ -271,7 +303,9 @@ def _solve_channel(codes, log_t, levels, smoothness):
 MAX_SAMPLES = 1_000_000
 
 
-def recover_response(images, exposure_times, *, smoothness=None, samples=None, bits=None) -> np.ndarray:
+def recover_response(
+    images, exposure_times, *, smoothness=None, samples=None, bits=None, black_level: int = 0
+) -> np.ndarray:
     """Debevec & Malik 1997 camera response g = ln f⁻¹ per channel from a bracket of photographs.
 
     Parameters
@@ -281,27 +315,34 @@ def recover_response(images, exposure_times, *, smoothness=None, samples=None, b
     exposure_times : array_like, shape (P,)
         Exposure times Δt_j in seconds, in any order; at least two distinct.
     smoothness : float, optional
-        λ ≥ 0, the multiplier of the smoothness rows (module docstring; OpenCV's and
-        ``gsolve``'s ``lambda``).  Default 10·sqrt(N/70): OpenCV's default trade-off
-        (λ = 10 at 70 samples) kept as the number of samples N grows.
+        λ in [0, :data:`MAX_SMOOTHNESS`], the multiplier of the smoothness rows (module
+        docstring; OpenCV's and ``gsolve``'s ``lambda``).  Default 10·sqrt(N/70): OpenCV's
+        default trade-off (λ = 10 at 70 samples) kept as the number of samples N grows.
     samples : {"stratified", "histogram"} or int or ndarray of int, optional
         Sample selection (module docstring); an int is the number of histogram
         samples; default ``"histogram"`` with max(512, ⌈4K/(P − 1)⌉) samples.
     bits : int, optional
         Bit depth of the codes; default 8 for uint8 input, 16 for uint16 (pass 12
         for 12-bit data stored in 16-bit files).
+    black_level : int
+        The sensor's pedestal in DN, in [0, 2**bits / 2): Z_min of the weights (module
+        docstring); merge with the same value.
 
     Returns
     -------
     ndarray of float64, shape (2**bits, C)
         g(z) in natural-log exposure (ln of seconds × radiance units), g(2**bits / 2) = 0
-        (g(128) = 0 for 8-bit input).
+        (g(128) = 0 for 8-bit input); codes at and below ``black_level`` take g(black_level).
 
     Raises
     ------
     ValidationError
         Fewer than two distinct exposure times, codes beyond ``bits``, images of
-        different shapes or non-integer images; or no usable samples in a channel
+        different shapes or non-integer images; a highest code below 2**(bits − 2), a
+        quarter of the full scale (codes of fewer bits in wider files, e.g. 12-bit codes
+        in 16-bit PNGs read with the default ``bits``, or a bracket without bright
+        exposures: g would be extrapolated over most of the codes; the message names the
+        bit depth the codes fit in); or no usable samples in a channel
         (no sampled pixel has a code of non-zero weight, strictly between 0 and
         2**bits − 1, in at least two exposures — e.g. one all-dark and one
         all-saturated frame): g would be left at 0.  The message names each frame
@@ -309,7 +350,9 @@ def recover_response(images, exposure_times, *, smoothness=None, samples=None, b
     """
     stack, t, bits, order = _check_stack(images, exposure_times, bits)
     levels = 2**bits
-    knots = min(levels, MAX_KNOTS)
+    black_level = check_black_level(black_level, levels)
+    _check_full_scale(stack, bits)
+    knots = min(levels - black_level, MAX_KNOTS)
     p = len(stack)
     npix = int(np.prod(stack[0].shape[:-1])) if stack[0].ndim == 3 else int(np.prod(stack[0].shape))
     default_n = min(npix, max(512, int(np.ceil(4 * knots / (p - 1)))))
@@ -328,33 +371,48 @@ def recover_response(images, exposure_times, *, smoothness=None, samples=None, b
     if smoothness is None:
         n_eff = n if n is not None else np.asarray(samples).size
         smoothness = 10.0 * np.sqrt(n_eff / 70.0)
-    lam = float(as_finite(smoothness, "smoothness", 0, None))
+    lam = float(as_finite(smoothness, "smoothness", 0, MAX_SMOOTHNESS))  # above the range the solve overflows
     if stack[0].ndim == 2:
         stack = [a[..., None] for a in stack]
     log_t = np.log(t)
     out = np.empty((levels, stack[0].shape[-1]))
-    usable = hat_weights(levels) > 0
+    usable = hat_weights(levels, black_level) > 0
     for ch in range(stack[0].shape[-1]):  # loop over channels (3), vectorised over samples
         codes = _sample_codes(stack, ch, samples, levels, n).astype(np.int64)
         if not np.any(np.count_nonzero(usable[codes], axis=1) >= 2):  # one usable exposure: ln E absorbs it
-            raise ValidationError(_no_samples_message(stack, t, order, ch, levels, codes.shape[0]))
-        out[:, ch] = _solve_channel(codes, log_t, levels, lam)
+            raise ValidationError(_no_samples_message(stack, t, order, ch, levels, codes.shape[0], black_level))
+        out[:, ch] = _solve_channel(codes, log_t, levels, lam, black_level)
     return out
 
 
-def _no_samples_message(stack, t, order, channel, levels, n):
+def _check_full_scale(stack, bits) -> None:
+    """Raise unless the bracket's highest code reaches a quarter of the full scale 2**bits − 1 (recover_response)."""
+    top = max(int(a.max(initial=0)) for a in stack)
+    if top >= 2 ** (bits - 2):
+        return
+    fit = max(top.bit_length(), 1)
+    raise ValidationError(
+        f"bits must be the bit depth of the codes, got {bits} while the images' highest code is {top}, below a "
+        f"quarter of the full scale {2**bits - 1}: if the camera records {fit}-bit codes (stored in {bits}-bit "
+        f"files), pass bits={fit} (--bits {fit}); if it records {bits}-bit codes, add longer exposures until the "
+        "brightest frame nears the top code"
+    )
+
+
+def _no_samples_message(stack, t, order, channel, levels, n, black_level=0):
     """Why channel ``channel`` of a bracket informs no response: each frame's dark and saturated fractions."""
     frames = []
+    at = "0" if black_level == 0 else f"or below the black level {black_level}"
     for k, a in enumerate(stack):  # loop over exposures (a handful), vectorised over pixels
         c = a[..., channel]
-        dark, sat = np.count_nonzero(c == 0) / c.size, np.count_nonzero(c == levels - 1) / c.size
+        dark, sat = np.count_nonzero(c <= black_level) / c.size, np.count_nonzero(c == levels - 1) / c.size
         frames.append(
-            f"images[{order[k]}] (exposure {t[k]:.6g} s): {dark:.1%} of pixels at 0, {sat:.1%} at {levels - 1}"
+            f"images[{order[k]}] (exposure {t[k]:.6g} s): {dark:.1%} of pixels at {at}, {sat:.1%} at {levels - 1}"
         )
     return (
         f"images hold no usable samples in channel {channel}: none of the {n} sampled pixels has a code strictly "
-        f"between 0 and {levels - 1} (non-zero weight) in at least two exposures, so the response g cannot be "
-        f"recovered; {'; '.join(frames)} (add exposures between these, or check the frames)"
+        f"between {black_level} and {levels - 1} (non-zero weight) in at least two exposures, so the response g "
+        f"cannot be recovered; {'; '.join(frames)} (add exposures between these, or check the frames)"
     )
 
 
@@ -375,7 +433,14 @@ def _check_response(response, channels):
 
 
 def merge_photographs(
-    images, exposure_times, response, *, weighting: str = "hat", return_weight: bool = False, backend: str = "auto"
+    images,
+    exposure_times,
+    response,
+    *,
+    weighting: str = "hat",
+    return_weight: bool = False,
+    backend: str = "auto",
+    black_level: int = 0,
 ):
     """Radiance from a bracket of non-linear photographs, Debevec & Malik 1997 eq. 6 (module docstring).
 
@@ -398,6 +463,9 @@ def merge_photographs(
     backend : {"auto", "numba", "numpy"}
         The look-ups compiled (default where numba is installed) or in numpy
         (:mod:`facestats.acquire.merge_kernel`); both give the same bits.
+    black_level : int
+        The sensor's pedestal in DN (module docstring), the one ``response`` was recovered
+        with: codes at and below it get no weight.
 
     Returns
     -------
@@ -417,7 +485,7 @@ def merge_photographs(
             f"images must hold codes below {levels} (the response has {levels} levels, {bits} bits), got {top}"
         )
     g = np.broadcast_to(g, (levels, channels))
-    w = hat_weights(levels).astype(np.float32)
+    w = hat_weights(levels, check_black_level(black_level, levels)).astype(np.float32)
     g32 = np.where(np.isfinite(g), g, g[1]).astype(np.float32)  # code 0 has weight 0; keep it finite
     tables = np.empty((len(t), levels, channels), np.float32)
     weights = np.empty((len(t), levels, channels), np.float32)
@@ -431,7 +499,7 @@ def merge_photographs(
     return (ln_e, den) if return_weight else ln_e
 
 
-def exposure_agreement(images, exposure_times, response) -> np.ndarray:
+def exposure_agreement(images, exposure_times, response, *, black_level: int = 0) -> np.ndarray:
     """How well a response makes a bracket's exposures agree: the diagnostic of a recovered g.
 
     With the right g, a pixel well exposed in two exposures j < k (times sorted)
@@ -450,6 +518,8 @@ def exposure_agreement(images, exposure_times, response) -> np.ndarray:
         Seconds, any order.
     response : ndarray, shape (levels, C) or (levels,)
         g = ln f⁻¹ per channel.
+    black_level : int
+        The sensor's pedestal in DN (module docstring): Z_min of the weights.
 
     Returns
     -------
@@ -466,7 +536,7 @@ def exposure_agreement(images, exposure_times, response) -> np.ndarray:
     top = max(int(a.max(initial=0)) for a in stack)
     if top > levels - 1:
         raise ValidationError(f"images must hold codes below {levels} (the response has {levels} levels), got {top}")
-    w = hat_weights(levels)
+    w = hat_weights(levels, check_black_level(black_level, levels))
     well = w >= WELL_EXPOSED * w.max()
     ch = np.arange(channels)
     out = np.full((len(t) - 1, 2), np.nan)

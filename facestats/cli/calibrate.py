@@ -4,12 +4,52 @@ and beams from photographs of a diffuse target (:func:`facestats.acquire.calibra
 
 from __future__ import annotations
 
+import os
 import pathlib
 
 from facestats.cli.options import ascii_float, ascii_int
 from facestats.errors import ValidationError
 
 __all__ = ["add_calibrate"]
+
+
+def _check_outputs(outputs) -> list:
+    """Check each output ``(path or None, option, suffixes)`` with :func:`facestats.core.outputs.check_output_file`.
+
+    Returns ``(os.stat_result, path, option)`` of the outputs that exist already, for :func:`_refuse_inputs`.
+    """
+    from facestats.core.outputs import check_output_file
+
+    existing = []
+    for path, option, suffixes in outputs:
+        if path is not None:  # before the fit: a bad output path must not cost a calibration
+            p = check_output_file(path, option, suffixes)  # ~ expanded, as the files are written
+            if os.path.exists(p):
+                existing.append((os.stat(p), path, option))
+    return existing
+
+
+def _refuse_inputs(existing, inputs) -> None:
+    """Refuse, before any work, an output that is one of the command's inputs ``(path, what)``.
+
+    ``existing`` is what :func:`_check_outputs` returned.  An output is an input when both name
+    the same file (:func:`os.path.samestat`: the same device and inode, whatever links or
+    relative spellings lead there): writing it would replace a photograph, a manifest or the
+    calibration being read.
+    """
+    if not existing:
+        return
+    for source, what in inputs:  # one stat per input
+        try:
+            st = os.stat(pathlib.Path(source).expanduser())
+        except OSError:
+            continue  # a missing input is refused when it is read
+        for out, path, option in existing:
+            if os.path.samestat(out, st):
+                raise ValidationError(
+                    f"{option} must not be one of the inputs, got {os.fspath(path)!r}, which is {what} "
+                    "(writing it would replace it)"
+                )
 
 
 def _write_all(writers) -> None:
@@ -27,16 +67,26 @@ def _write_all(writers) -> None:
 
 
 def _cmd_leds(args) -> int:
-    from facestats.acquire.calibration import calibrate_leds
+    from facestats.acquire.calibration import MAX_GRID, calibrate_leds
     from facestats.acquire.dome import Dome
-    from facestats.core.outputs import check_output_file
+    from facestats.acquire.photographs import MANIFEST, open_folder
+    from facestats.core.validate import check_integer
 
-    for path, option in ((args.output, "--output"), (args.write_calibration, "--write-calibration")):
-        if path is not None:  # before the fit: a bad output path must not cost a calibration
-            check_output_file(path, option)
+    check_integer(args.grid, "--grid", 2, MAX_GRID)  # before any work: a huge grid would exhaust the memory
+    check_integer(args.black_level, "--black-level", 0)  # its upper bound, 2**bits / 2, once the bits are known
+    existing = _check_outputs(((args.output, "--output", None), (args.write_calibration, "--write-calibration", None)))
     calibration = args.calibration or str(pathlib.Path(args.target_dir) / "dome.json")
     dome = Dome.load(calibration)  # a FIFO, a directory or a device is refused without blocking
-    result = calibrate_leds(args.target_dir, dome, grid=args.grid, reference_camera=args.reference_camera)
+    folder = open_folder(args.target_dir)  # the manifest and the frames it lists (stat only)
+    frames = [folder.path / f for f in folder.files.reshape(-1) if f is not None]
+    _refuse_inputs(
+        existing,
+        [(calibration, f"--calibration {calibration!r}"), (folder.path / MANIFEST, "the target folder's manifest")]
+        + [(f, f"the target photograph {str(f)!r}") for f in frames],
+    )
+    result = calibrate_leds(
+        folder, dome, grid=args.grid, reference_camera=args.reference_camera, black_level=args.black_level
+    )
     print(result.to_text())
     applied = result.apply(dome) if args.write_calibration else None  # any error before any file is written
     _write_all([
@@ -49,21 +99,41 @@ def _cmd_leds(args) -> int:
 
 def _cmd_response(args) -> int:
     from facestats.acquire.bracket import calibrate_response
-    from facestats.core.outputs import check_output_file
+    from facestats.acquire.response import MAX_SMOOTHNESS
+    from facestats.core.validate import as_finite, check_integer
 
-    outputs = ((args.output, "--output", None), (args.plot, "--plot", (".png", ".svg", ".pdf")))
-    for path, option, suffixes in outputs + ((args.write_calibration, "--write-calibration", None),):
-        if path is not None:  # before the fit: a bad output path must not cost a calibration
-            check_output_file(path, option, suffixes)
+    if args.smoothness is not None:  # before the photographs are read: an out-of-range λ ends in an overflow
+        as_finite(args.smoothness, "--smoothness", 0, MAX_SMOOTHNESS)
+    check_integer(args.black_level, "--black-level", 0)  # its upper bound, 2**bits / 2, once the bits are known
+    outputs = (
+        (args.output, "--output", None),
+        (args.plot, "--plot", (".png", ".svg", ".pdf")),
+        (args.write_calibration, "--write-calibration", None),
+    )
+    inputs = [(f, f"IMAGE {os.fspath(f)!r}") for f in args.images]
+    if args.calibration:
+        inputs.append((args.calibration, f"--calibration {args.calibration!r}"))
+    _refuse_inputs(_check_outputs(outputs), inputs)
     if args.write_calibration and not args.calibration:
         raise ValidationError("--write-calibration needs --calibration (the dome calibration to put the response into)")
+    if args.write_calibration and args.black_level:
+        raise ValidationError(
+            f"--write-calibration cannot be combined with --black-level {args.black_level}: a dome calibration has "
+            "no field for the black level, and `facestats ingest` would give the codes at and below it weight (write "
+            "the response with --output; docs/photographs.md, 'Black level')"
+        )
     dome = None
     if args.calibration:
         from facestats.acquire.dome import Dome
 
         dome = Dome.load(args.calibration)  # read before the fit: a bad calibration must not cost one
     result = calibrate_response(
-        args.images, args.times, bits=args.bits, smoothness=args.smoothness, samples=args.samples
+        args.images,
+        args.times,
+        bits=args.bits,
+        smoothness=args.smoothness,
+        samples=args.samples,
+        black_level=args.black_level,
     )
     print(result.to_text())
     # Everything that can fail before any file is written (a file replaced by a failed command is lost).
@@ -106,9 +176,16 @@ def add_calibrate(sub):
     )
     leds.add_argument("target_dir", metavar="TARGET_DIR", help="target folder with manifest.json")
     leds.add_argument("--calibration", help="dome calibration JSON with the cameras (default TARGET_DIR/dome.json)")
-    leds.add_argument("--grid", type=ascii_int, default=24, help="target points per side per pose (default 24)")
+    leds.add_argument("--grid", type=ascii_int, default=24, help="target points per side per pose, 2-100 (default 24)")
     leds.add_argument(
         "--reference-camera", type=ascii_int, default=None, help="camera whose gain is 1 (default: most data)"
+    )
+    leds.add_argument(
+        "--black-level",
+        type=ascii_int,
+        default=0,
+        metavar="DN",
+        help="the cameras' pedestal: codes at and below it get no weight in the merge (default 0)",
     )
     leds.add_argument("--output", help="write the LED calibration file (facestats.led-calibration/1)")
     leds.add_argument("--write-calibration", metavar="PATH", help="write the dome calibration with the fitted LEDs")
@@ -130,6 +207,13 @@ def add_calibrate(sub):
     resp.add_argument("--bits", type=ascii_int, help="bit depth of the codes (default 8 or 16 from the files)")
     resp.add_argument("--smoothness", type=ascii_float, help="lambda of the smoothness term (default 10*sqrt(N/70))")
     resp.add_argument("--samples", type=_samples, help="histogram (default), stratified, or a number of samples")
+    resp.add_argument(
+        "--black-level",
+        type=ascii_int,
+        default=0,
+        metavar="DN",
+        help="the sensor's pedestal: codes at and below it get no weight, g is recovered above it (default 0)",
+    )
     resp.add_argument("--output", help="write the response (JSON, facestats.camera-response/1)")
     resp.add_argument("--plot", help="draw g(z) per channel (.png, .svg or .pdf)")
     resp.add_argument("--calibration", help="dome calibration JSON to put the response into (with --write-calibration)")

@@ -105,7 +105,11 @@ def _common(p, calibration_help):
     p.add_argument("--out", required=True, metavar="CAPTURE_DIR", help="capture directory (new, or with --resume)")
     p.add_argument("--calibration", required=True, help=calibration_help)
     p.add_argument("--hot-folder", required=True, help="directory the camera software drops frames into")
-    p.add_argument("--resume", action="store_true", help="continue the unfinished session in CAPTURE_DIR")
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the session in CAPTURE_DIR; frames deleted from a finished one are taken again",
+    )
     p.add_argument("--dry-run", action="store_true", help="print the plan and its duration; touch nothing")
     s = p.add_argument_group("subject record (or --metadata FILE)")
     s.add_argument("--metadata", help="JSON subject record (person_id, age, gender, skin_type, condition)")
@@ -121,10 +125,14 @@ def _common(p, calibration_help):
     line.add_argument("--stopbits", type=ascii_float, default=1, choices=(1, 1.5, 2), help="default 1")
     line.add_argument("--timeout", type=ascii_float, default=1.0, help="seconds to wait for a reply (default 1)")
     line.add_argument("--retries", type=ascii_int, default=5, help="attempts after the first (default 5)")
-    p.add_argument("--pattern", default="cam{camera:02d}/{frame:012d}{ext}", help="frame file name in the hot folder")
+    p.add_argument(
+        "--pattern",
+        default="cam{camera:02d}/{frame:012d}{ext}",
+        help="frame file name in the hot folder (relative, without '..')",
+    )
     p.add_argument("--frame-timeout", type=ascii_float, default=60.0, help="seconds to wait for a frame (default 60)")
     p.add_argument("--no-fsync", action="store_true", help="do not fsync frames and journal (faster, not power-safe)")
-    p.add_argument("--verify", action="store_true", help="on --resume, check the checksum of every stored frame")
+    p.add_argument("--verify", action="store_true", help="on --resume, also check the checksum of every stored frame")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no session log on stderr")
 
 

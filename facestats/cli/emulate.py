@@ -16,9 +16,16 @@ def _faults(args):
     """The fault injection of the options, each checked with a message naming it (before any work)."""
     from facestats.acquire.devices.emulator import Faults
     from facestats.core.validate import as_finite, check_integer
+    from facestats.errors import ValidationError
 
     for name in ("drop", "garble", "truncate", "duplicate", "stall"):
         as_finite(getattr(args, name), f"--{name}", 0, 100, unit="%")
+    replies = args.drop + args.garble + args.truncate + args.duplicate  # each reply gets one fault at most
+    if replies > 100:
+        raise ValidationError(
+            f"--drop + --garble + --truncate + --duplicate must not exceed 100 % (per cent of the replies), got "
+            f"{args.drop:g} + {args.garble:g} + {args.truncate:g} + {args.duplicate:g} = {replies:g} %"
+        )
     as_finite(args.stall_seconds, "--stall-seconds", 0, None, unit="s")
     for name in ("disconnect_after", "reboot_after"):
         for k in getattr(args, name):

@@ -3,6 +3,7 @@
 import json
 import os
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -357,3 +358,69 @@ def test_a_fifo_manifest_or_frame_is_refused_not_read(copy):
     os.mkfifo(copy / "manifest.json")
     with pytest.raises(FacestatsError, match=r"has no readable manifest\.json: not a regular file"):
         open_folder(copy)
+
+
+def test_a_duplicated_camera_is_refused_before_any_work(copy, tiny):
+    """ "cameras": [0, 0, 1, 2] hid camera 3's absence; the ingest crashed with a TypeError after the other cameras."""
+    _, pc, _ = tiny
+
+    def duplicate(d):
+        d["cameras"] = [0, 0, 1, 2]
+        d["frames"] = [fr for fr in d["frames"] if fr["camera"] != 3]
+
+    _edit_manifest(copy, duplicate)
+    with pytest.raises(FacestatsError, match=r"field 'cameras' must list each camera once, got camera 0 twice"):
+        open_folder(copy)
+    with pytest.raises(FacestatsError, match=r"got camera 0 twice"):
+        ingest_photographs(copy, _geometry(copy), pc.calibration, copy.parent / "a.zarr")
+    assert not (copy.parent / "a.zarr").exists()
+    _edit_manifest(copy, lambda d: d.update(cameras=[0, 1, 2]))  # the distinct set decides whether it is a subset
+    with pytest.raises(
+        FacestatsError,
+        match=r"field 'cameras' must list every camera 0\.\.3 \(a subset for targets only\), got 3 "
+        r"without \[3\]",
+    ):
+        open_folder(copy)
+    _edit_manifest(copy, lambda d: d.update(kind="target", cameras=[2, 0, 1, 1]))
+    with pytest.raises(FacestatsError, match=r"got camera 1 twice"):
+        open_folder(copy)
+    _edit_manifest(copy, lambda d: d.update(cameras=[2, 0, 1]))
+    assert open_folder(copy).cameras == [0, 1, 2]
+
+
+def test_exposure_times_must_be_the_calibrations(copy, tiny):
+    """Times in milliseconds (frames without EXIF cannot tell) divided the radiance by 1000 without a word."""
+    from facestats.acquire.photographs import check_exposures
+
+    _, pc, _ = tiny
+    dome = Dome.load(pc.calibration)
+    np.testing.assert_allclose(dome.exposure_times, [1 / 60, 1 / 8])
+    _edit_manifest(copy, lambda d: [fr.update(exposure_s=fr["exposure_s"] * 1000) for fr in d["frames"]])
+    with pytest.raises(
+        FacestatsError,
+        match=r"frame cam00/led000_e0\.png: field 'exposure_s' 16\.6667 s of manifest\.json differs by more than "
+        r"1 % from exposure 0 of the calibration .*dome.*\.json \(field 'exposure_times_s': 0\.0166667 s\)",
+    ):
+        ingest_photographs(copy, _geometry(copy), pc.calibration, copy.parent / "a.zarr")
+    assert not (copy.parent / "a.zarr").exists()
+
+    def scale(factor):
+        def edit(d):
+            for fr in d["frames"]:
+                fr["exposure_s"] = float(dome.exposure_times[fr["exposure"]])
+                if (fr["camera"], fr["led"], fr["exposure"]) == (2, 3, 1):
+                    fr["exposure_s"] *= factor
+
+        return edit
+
+    _edit_manifest(copy, scale(1.009))  # within the 1 % that the EXIF and device checks allow
+    check_exposures(open_folder(copy), dome)
+    _edit_manifest(copy, scale(1.02))
+    with pytest.raises(FacestatsError, match=r"cam02/led003_e1\.png: field 'exposure_s' 0\.1275 s .* exposure 1 "):
+        check_exposures(open_folder(copy), dome)
+    three = replace(dome, exposure_times=np.array([1 / 60, 1 / 8, 1.0]))
+    with pytest.raises(
+        FacestatsError,
+        match=r"manifest\.json frames have 2 exposures \(0\.\.1\), the calibration field 'exposure_times_s' has 3",
+    ):
+        check_exposures(open_folder(copy), three)

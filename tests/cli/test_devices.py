@@ -79,6 +79,8 @@ def test_emulate_prints_its_port_and_capture_runs_the_plan(emulator):
 
 def test_bad_input_gets_a_message_and_no_traceback(emulator, tmp_path):
     root, _ = emulator
+    if not (root / "cap" / "manifest.json").exists():  # the session refused below, made by the test above when it
+        assert _capture(root).returncode == 0  # ran first on this pytest-xdist worker
     master, slave = pty.openpty()  # a device that never answers
     try:
         silent = run_cli("capture", "dome", "--port", os.ttyname(slave), "--subject", "S003", "--out", tmp_path / "a",
@@ -110,6 +112,7 @@ def test_bad_input_gets_a_message_and_no_traceback(emulator, tmp_path):
         (("--frame-timeout", "-1"), "frame_timeout must lie in"),
         (("--pattern", "foo"), "must name each frame's file apart: it lacks {frame}"),
         (("--pattern", "{frame}{ext}"), "it lacks {camera}"),
+        (("--pattern", "../x{camera}{frame}.png"), "must name a file inside the hot folder"),
     ]:
         r = run_cli("capture", "dome", "--port", "/dev/ttyNOPE", "--subject", "S003", "--out", tmp_path / "d",
                     "--calibration", root / "lab" / "dome.json", "--hot-folder", root / "hot", "--metadata",
@@ -137,6 +140,19 @@ def test_sensor_dry_run_prints_the_bracket_and_its_duration(tmp_path):
                       "--calibration", tmp_path / "sensor.json", "--hot-folder", tmp_path, "--age", "31", "--gender",
                       "F", "--skin-type", "3", "--readout", readout, "--dry-run")  # fmt: skip
         assert bad.returncode == 2 and "readout_s must" in bad.stderr, bad.stderr
+
+
+def test_emulate_fault_percentages_that_exceed_the_replies_name_the_options(tmp_path):
+    """--drop 60 --garble 60 said "must not exceed 1 (fractions of the replies)": neither the options nor per cent."""
+    for sub in ("dome", "sensor"):
+        r = run_cli("emulate", sub, "--drop", "60", "--garble", "60", "--hot-folder", tmp_path / "hot",
+                    "--lab", tmp_path / "lab", "--quiet")  # fmt: skip
+        assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+        assert (
+            "--drop + --garble + --truncate + --duplicate must not exceed 100 % (per cent of the replies), "
+            "got 60 + 60 + 0 + 0 = 120 %" in r.stderr
+        ), r.stderr
+        assert not (tmp_path / "hot").exists() and not (tmp_path / "lab").exists()
 
 
 def _capture_port(root, port):

@@ -210,6 +210,14 @@ class HotFolderCameras(CameraBackend):
         if same_frame or same_camera:  # every frame would be looked for under one name
             missing = "{frame}" if same_frame else "{camera}"
             raise DeviceError(f"hot-folder pattern {pattern!r} must name each frame's file apart: it lacks {missing}")
+        # local import: keeps numpy out of this module's import
+        from facestats.acquire.photographs import relative_inside
+
+        if not relative_inside(first):  # frames are taken (and released: deleted) only inside the hot folder
+            raise DeviceError(
+                f"hot-folder pattern {pattern!r} must name a file inside the hot folder (a relative path without "
+                f"'..', as in a manifest), got {first!r}"
+            )
 
     def path(self, camera: int, frame: int) -> pathlib.Path:
         return self.folder / self.pattern.format(camera=camera, frame=frame, ext=self.extension)

@@ -89,7 +89,7 @@ def capture(
     """
     as_finite(frame_timeout, "frame_timeout", 0, None, low_inclusive=False)
     finished = session_state(out, plan, resume=resume) == "complete"
-    if finished and not (resume and verify and missing_steps(out, plan)):  # nothing to do: no port opened
+    if finished and not (resume and missing_steps(out, plan, verify=verify)):  # nothing to do: no port opened
         return SessionReport(plan.kind, plan.subject_id, pathlib.Path(out), plan.n_steps, plan.n_steps, complete=True)
     if plan.kind == "dome":
         cams, sizes, controller = range(plan.n_cameras), dict(enumerate(plan.image_size)), DomeController

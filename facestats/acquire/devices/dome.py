@@ -32,6 +32,7 @@ import numpy as np
 
 from facestats.acquire.devices.cameras import Trigger
 from facestats.acquire.devices.controller import Controller
+from facestats.acquire.photographs import EXPOSURE_TOLERANCE
 from facestats.core.validate import check_integer
 from facestats.errors import DeviceError
 
@@ -161,10 +162,10 @@ class DomeController(Controller):
             )
         want = np.asarray(exposure_s, float)
         got = np.asarray(st.exposure_s, float)
-        if got.shape != want.shape or np.any(np.abs(got / want - 1) > 0.01):
+        if got.shape != want.shape or np.any(np.abs(got / want - 1) > EXPOSURE_TOLERANCE):
             raise DeviceError(
                 f"{where} exposes for {[round(float(v), 6) for v in got]} s, the calibration for "
-                f"{[round(float(v), 6) for v in want]} s (agreement within 1 % "
+                f"{[round(float(v), 6) for v in want]} s (agreement within {EXPOSURE_TOLERANCE * 100:g} % "
                 f"needed): {fix}"
             )
         if bits is not None and st.bits != bits:

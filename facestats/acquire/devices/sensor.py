@@ -39,6 +39,7 @@ import numpy as np
 from facestats.acquire.devices.cameras import Trigger
 from facestats.acquire.devices.controller import Controller
 from facestats.acquire.hdr import merge_exposures
+from facestats.acquire.photographs import EXPOSURE_TOLERANCE
 from facestats.acquire.sensor import ContactSensor
 from facestats.core.published import N_FIBERS
 from facestats.core.validate import check_integer
@@ -304,11 +305,11 @@ class SensorController(Controller):
         if st.n_fibers != n_fibers:
             raise DeviceError(f"{where} reports {st.n_fibers} detector fibres, the calibration has {n_fibers}: {fix}")
         want, got = np.asarray(exposure_s, float), np.asarray(st.exposure_s, float)
-        if got.shape != want.shape or np.any(np.abs(got / want - 1) > 0.01):
+        if got.shape != want.shape or np.any(np.abs(got / want - 1) > EXPOSURE_TOLERANCE):
             raise DeviceError(
                 f"{where} brackets {got.size} exposures {[round(float(v), 6) for v in got[:3]]}… s, the calibration "
-                f"{want.size} exposures {[round(float(v), 6) for v in want[:3]]}… s (agreement within 1 % needed): "
-                f"{fix}"
+                f"{want.size} exposures {[round(float(v), 6) for v in want[:3]]}… s (agreement within "
+                f"{EXPOSURE_TOLERANCE * 100:g} % needed): {fix}"
             )
         if tuple(st.image_size) != tuple(image_size):
             raise DeviceError(

@@ -19,11 +19,14 @@ names (moved out of the hot folder or written, then fsync'ed) and verified — t
 SHA-256 of the stored file (:func:`facestats.acquire.photographs.frame_entry`)
 must equal the checksum the cameras delivered — by appending its line and
 fsync'ing the journal.  On ``resume`` a line cut short by a crash is removed, a
-step whose frames are missing is taken again, and steps without a line are taken
-(their leftover files overwritten).  On completion the journal is rewritten in
-step order and the product (manifest or sensor file) is written atomically, so a
-session is marked complete only when every frame is stored, and a completed
-session is the same, byte for byte, however often it was interrupted (only
+step whose frames are missing is taken again (with ``verify``: also one whose
+frames differ from their SHA-256), and steps without a line are taken (their
+leftover files overwritten); this holds for a finished session too (each
+frame it lists is looked up; its product is removed and written again once
+every step is back).  On completion the journal is rewritten in step order and
+the product (manifest or sensor file) is written atomically, so a session is
+marked complete only when every frame is stored, and a completed session is the
+same, byte for byte, however often it was interrupted (only
 ``session/log.txt`` tells the story).  Every frame is taken under a state the
 device itself reports in its trigger reply (:meth:`DomePlan.matches`); a frame
 taken under another state (a reboot lost the LED) is discarded and the step
@@ -124,13 +127,14 @@ def _read_json(path, what):
         ) from None
 
 
-def missing_steps(out, plan, log=None) -> int:
-    """Steps of a session in ``out`` whose frames are missing or differ from their SHA-256.
+def missing_steps(out, plan, log=None, *, verify: bool = True) -> int:
+    """Steps of a session in ``out`` whose frames are missing (or, with ``verify``, differ from their SHA-256).
 
-    Reads every committed frame; only a journal line cut short by an interruption is changed (removed, as on
-    resume: its step counts as missing).
+    Without ``verify`` every committed frame is only looked up (a stat each: cheap); with it every frame is read
+    and hashed.  Only a journal line cut short by an interruption is changed (removed, as on resume: its step
+    counts as missing).
     """
-    return plan.n_steps - len(_Journal(pathlib.Path(out), plan, log or SessionLog()).load(True))
+    return plan.n_steps - len(_Journal(pathlib.Path(out), plan, log or SessionLog()).load(verify))
 
 
 def session_state(out, plan, *, resume: bool) -> str:
@@ -409,7 +413,8 @@ def run_session(
     durable : bool
         fsync every frame and journal line (a power cut loses nothing committed).
     verify : bool
-        On resume, check the SHA-256 of every committed frame (not only its presence).
+        On resume, check the SHA-256 of every committed frame (without it, only that each file exists), also of
+        a finished session.
     log : callable, optional
         Receives the session's log lines (a :class:`SessionLog` writes them to ``session/log.txt``).
     on_site : callable, optional
@@ -423,15 +428,17 @@ def run_session(
     out = pathlib.Path(out)
     state = session_state(out, plan, resume=resume)
     report = SessionReport(plan.kind, plan.subject_id, out, plan.n_steps, 0)
-    # A finished session is checked too with --resume --verify: the steps whose frames are gone are retaken.
-    missing = missing_steps(out, plan, log) if state == "complete" and resume and verify else 0
+    # A finished session is checked too on resume: the steps whose frames are gone (with verify: or altered) are
+    # retaken.
+    missing = missing_steps(out, plan, log, verify=verify) if state == "complete" and resume else 0
     if state == "complete" and not missing:
         report.steps_before, report.complete = plan.n_steps, True
         return report
     plan.check_device(controller)  # a mis-wired device stops the session before anything is written
     cameras.prepare()
     if missing:
-        log(f"verify: {missing} completed step(s) have missing or altered frames; the session is reopened")
+        found = "missing or altered" if verify else "missing"
+        log(f"resume: {missing} completed step(s) have {found} frames; the session is reopened")
         os.remove(out / PRODUCT[plan.kind])  # written again when every step is back
         state = "resume"
     journal = _Journal(out, plan, log)

@@ -1,6 +1,7 @@
 """The hot-folder camera backend on its own: waiting, timeouts, checksums, sizes, cleanup."""
 
 import hashlib
+import re
 import threading
 import time
 
@@ -88,3 +89,22 @@ def test_a_missing_folder_or_pattern_is_a_clear_error(tmp_path):
         HotFolderCameras(tmp_path / "absent", [0]).prepare()
     with pytest.raises(DeviceError, match="hot-folder pattern .* is invalid"):
         HotFolderCameras(tmp_path, [0], pattern="cam{cam}/{frame}{ext}")
+
+
+@pytest.mark.parametrize(
+    "pattern, first",
+    [
+        ("../x{camera}{frame}{ext}", "../x00.png"),
+        ("cam{camera}/../../{frame}{ext}", "cam0/../../0.png"),
+        ("/tmp/x{camera}_{frame}{ext}", "/tmp/x0_0.png"),
+        ("~/x{camera}_{frame}{ext}", "~/x0_0.png"),
+    ],
+)
+def test_a_pattern_that_leaves_the_hot_folder_is_refused(tmp_path, pattern, first):
+    """Frames are moved out of (and released frames deleted from) where the pattern points: only inside the folder."""
+    with pytest.raises(
+        DeviceError, match=rf"hot-folder pattern .* must name a file inside the hot folder .*got '{re.escape(first)}'"
+    ):
+        HotFolderCameras(tmp_path, [0, 1], pattern=pattern)
+    ok = HotFolderCameras(tmp_path, [0, 1], pattern="cam{camera}..{frame}{ext}")  # '..' inside a name is a name
+    assert ok.path(1, 7) == tmp_path / "cam1..7.png"

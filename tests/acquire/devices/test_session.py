@@ -158,6 +158,33 @@ def test_an_interrupted_session_resumes_to_the_identical_folder(small, tmp_path)
     assert again.complete and again.steps_taken == 0 and "nothing to do" in again.to_text()
 
 
+def test_plain_resume_retakes_the_frames_deleted_from_a_finished_session(small, tmp_path):
+    """Plain --resume on a finished session said "nothing to do" with frames gone; it now looks each frame up."""
+    root, _ = small
+    out = tmp_path / "out"
+    shutil.copytree(root / "clean", out)
+    (out / "cam02" / "led007_e0.png").unlink()
+    altered = out / "cam00" / "led001_e1.png"
+    altered.write_bytes(altered.read_bytes()[:-1] + b"\0")  # content: only --verify reads it
+    server = _serve(small, tmp_path)
+    try:
+        fixed = run_capture(server, tmp_path / "lab", tmp_path / "hot", out, resume=True)
+        assert fixed.complete and (fixed.steps_before, fixed.steps_taken) == (19, 1)
+        log = (out / "session" / "log.txt").read_text()
+        assert "resume: 1 completed step(s) have missing frames; the session is reopened" in log
+        assert "step 7 has missing or altered frames" in log
+        clean = tree(root / "clean")
+        assert {k: v for k, v in tree(out).items() if k != altered.relative_to(out).as_posix()} == {
+            k: v for k, v in clean.items() if k != altered.relative_to(out).as_posix()
+        }
+        verified = run_capture(server, tmp_path / "lab", tmp_path / "hot", out, resume=True, verify=True)
+        assert verified.complete and verified.steps_taken == 1 and tree(out) == clean
+    finally:
+        server.stop()
+    again = run_capture(server, tmp_path / "lab", tmp_path / "hot", out, resume=True)  # no port: nothing missing
+    assert again.complete and again.steps_taken == 0 and "nothing to do" in again.to_text()
+
+
 class _BadChecksum(HotFolderCameras):
     """A transfer that corrupts one frame's checksum file once."""
 

@@ -1,0 +1,147 @@
+"""``facestats calibrate``: outputs never replace the inputs; options are range-checked before any work.
+
+Found by a red-team review: ``--output`` or ``--plot`` naming one of the bracket's photographs replaced it with JSON
+or a plot (exit 0), and ``calibrate leds --output TARGET/manifest.json`` replaced the target's manifest.
+"""
+
+import hashlib
+import json
+import pathlib
+import shutil
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from tests.helpers import TEST_DATA, run_cli
+
+UNIS = sorted((TEST_DATA / "unis-bracket").glob("*.jpg"))
+
+
+def _digests(paths):
+    return {str(p): hashlib.sha256(pathlib.Path(p).read_bytes()).hexdigest() for p in paths}
+
+
+@pytest.fixture
+def bracket(tmp_path):
+    """The three UNIS JPEGs (EXIF times), copied: outputs may be pointed at them."""
+    out = []
+    for f in UNIS:
+        shutil.copy(f, tmp_path / f.name)
+        out.append(tmp_path / f.name)
+    return out
+
+
+def _bracket_12_bit(folder, black=0):
+    """Four 16-bit PNGs holding 12-bit codes of a linear sensor on a pedestal of ``black`` DN (EXIF times)."""
+    from facestats.acquire.synthetic.photographs import encode_frame
+
+    rng = np.random.default_rng(3)
+    rate = np.exp(rng.uniform(np.log(10), np.log(1e5), (96, 128, 3)))  # electrons/s
+    paths = []
+    for k, t in enumerate([1 / 60, 1 / 10, 1 / 4, 1.0]):
+        e = rate * t
+        e = e + rng.standard_normal(e.shape) * np.sqrt(e + 25.0)
+        z = np.clip(np.rint(e / 20000 * (4095 - black) + black), 0, 4095).astype(np.uint16)
+        paths.append(folder / f"h{k}.png")
+        paths[-1].write_bytes(encode_frame(z, t, ".png"))
+    return paths
+
+
+@pytest.fixture(scope="module")
+def target(tmp_path_factory):
+    """A small target folder (2 cameras, 3 LEDs, one pose, 96² 12-bit frames) with its dome.json."""
+    from facestats.acquire.dome import default_dome
+    from facestats.acquire.response import ResponseCurve
+    from facestats.acquire.synthetic.photographs import TargetPose, write_target_photographs
+
+    camera = ResponseCurve(12)
+    dome = default_dome().select(leds=[0, 41, 101]).resized(96, 96)
+    dome = replace(dome, camera_log_response=np.repeat(camera.log_exposure()[:, None], 3, axis=1))
+    root = tmp_path_factory.mktemp("target")
+    poses = [TargetPose((0.0, 0.0, 40.0), (0.0, 0.0, 1.0), (1.0, 0.0, 0.0))]
+    write_target_photographs(root / "target", dome, poses, cameras=[4, 11], camera=camera)
+    dome.save(root / "target" / "dome.json")
+    return root / "target"
+
+
+def test_response_outputs_that_are_inputs_are_refused_before_the_fit(tmp_path):
+    from facestats.acquire.dome import default_dome
+
+    bracket = _bracket_12_bit(tmp_path)
+    dome = tmp_path / "dome.json"
+    default_dome().save(dome)
+    before = _digests(bracket + [dome])
+    link = tmp_path / "link"
+    link.symlink_to(tmp_path, target_is_directory=True)
+    cases = [
+        (("--output", bracket[0]), f"--output must not be one of the inputs, got '{bracket[0]}', which is IMAGE"),
+        (("--plot", bracket[2]), f"--plot must not be one of the inputs, got '{bracket[2]}', which is IMAGE"),
+        (("--output", link / bracket[1].name), "--output must not be one of the inputs"),  # another spelling
+        (("--output", f"{tmp_path}/./{bracket[1].name}"), "--output must not be one of the inputs"),
+        (("--calibration", dome, "--write-calibration", dome),
+         f"--write-calibration must not be one of the inputs, got '{dome}', which is --calibration '{dome}'"),
+        (("--calibration", dome, "--write-calibration", bracket[1]), "--write-calibration must not be one of the"),
+    ]  # fmt: skip
+    for extra, message in cases:
+        r = run_cli("calibrate", "response", *bracket, "--bits", "12", *extra)
+        assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, (extra, r.stderr)
+        assert "exposure agreement" not in r.stdout  # refused before the fit
+    assert _digests(bracket + [dome]) == before
+    ok = run_cli("calibrate", "response", *bracket, "--bits", "12", "--output", tmp_path / "g.json")
+    assert ok.returncode == 0, ok.stderr
+
+
+def test_led_outputs_that_are_inputs_are_refused_before_the_fit(target, tmp_path):
+    work = tmp_path / "target"
+    shutil.copytree(target, work)
+    frame = work / json.loads((work / "manifest.json").read_text())["frames"][3]["file"]
+    inputs = [work / "manifest.json", work / "dome.json", frame]
+    before = _digests(inputs)
+    cases = [
+        (("--output", work / "manifest.json"), "--output must not be one of the inputs, got '"),
+        (("--output", work / "manifest.json"), "which is the target folder's manifest"),
+        (("--write-calibration", frame), f"which is the target photograph '{frame}'"),
+        (("--write-calibration", work / "dome.json"), f"which is --calibration '{work / 'dome.json'}'"),
+        (("--calibration", work / "dome.json", "--output", work / "dome.json"), "--output must not be one of"),
+    ]
+    for extra, message in cases:
+        r = run_cli("calibrate", "leds", work, *extra)
+        assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, (extra, r.stderr)
+        assert "camera gains" not in r.stdout
+    assert _digests(inputs) == before
+    r = run_cli("calibrate", "leds", work, "--output", work / "leds.json")  # beside the inputs is fine
+    assert r.returncode == 0 and (work / "leds.json").is_file(), r.stderr
+
+
+def test_out_of_range_options_are_refused_before_any_work(bracket, tmp_path):
+    """--smoothness 1e300 ended in "response must be finite"; --grid 100000 in "out of memory (74.5 GiB)"."""
+    r = run_cli("calibrate", "response", *bracket, "--smoothness", "1e300")
+    assert r.returncode == 2 and "--smoothness must lie in [0, 1e+06], got 1e+300" in r.stderr, r.stderr
+    r = run_cli("calibrate", "leds", tmp_path / "absent", "--grid", "100000")  # checked before the folder is read
+    assert r.returncode == 2 and "--grid must be an integer in [2, 100], got 100000" in r.stderr, r.stderr
+    r = run_cli("calibrate", "response", *bracket, "--black-level", "-3")
+    assert r.returncode == 2 and "--black-level must be an integer in [0, inf], got -3" in r.stderr, r.stderr
+
+
+def test_12_bit_codes_in_16_bit_files_need_bits_and_a_black_level_is_recorded(tmp_path):
+    frames = _bracket_12_bit(tmp_path, black=128)
+    r = run_cli("calibrate", "response", *frames, "--output", tmp_path / "g.json")
+    assert r.returncode == 2 and not (tmp_path / "g.json").exists()
+    assert "highest code is 4095, below a quarter of the full scale 65535" in r.stderr and "--bits 12" in r.stderr
+    g_json = tmp_path / "g.json"
+    r = run_cli("calibrate", "response", *frames, "--bits", "12", "--black-level", "128", "--output", g_json)
+    assert r.returncode == 0, r.stderr
+    assert "4 photographs, 12-bit codes, black level 128:" in r.stdout
+    doc = json.loads((tmp_path / "g.json").read_text())
+    assert doc["black_level"] == 128 and len(doc["log_response"][0]) == 4096
+    g = np.array(doc["log_response"][1][208:4000], float)
+    d = g - np.log(np.arange(208, 4000) - 128.0)
+    assert np.abs(d - np.median(d)).max() < 0.02  # ln(z − 128) from 2 % of the range above the pedestal
+    from facestats.acquire.dome import default_dome
+
+    default_dome().save(tmp_path / "dome.json")
+    r = run_cli("calibrate", "response", *frames, "--bits", "12", "--black-level", "128",
+                "--calibration", tmp_path / "dome.json", "--write-calibration", tmp_path / "new.json")  # fmt: skip
+    assert r.returncode == 2 and "--write-calibration cannot be combined with --black-level 128" in r.stderr
+    assert not (tmp_path / "new.json").exists()

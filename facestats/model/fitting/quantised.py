@@ -72,6 +72,7 @@ __all__ = [
     "Conditioning",
     "uniform_levels",
     "quantised_system",
+    "point_kernel_exitance",
     "interpolation_matrix",
     "merge_levels",
     "NormalEquations",
@@ -179,13 +180,11 @@ def _levels_of(d, levels, width):
     return i, t
 
 
-def _accumulate_block(rows_xyz, self_cols, cols_xyz, sq_c, cols_w, levels, width):
-    """One row block: its rows of W, its level support and its largest pair distance (module docstring).
+def _pair_distances(rows_xyz, self_cols, cols_xyz, sq_c) -> np.ndarray:
+    """Distances (b, nc) between a block of rows and the lit columns, mm; a patch and itself exactly 0 apart.
 
     ``self_cols`` holds, per row, the column of the same patch among the lit ones (−1 if unlit).
     """
-    n = levels.shape[0]
-    b, nc = rows_xyz.shape[0], cols_xyz.shape[0]
     d2 = rows_xyz @ cols_xyz.T
     d2 *= -2
     d2 += np.einsum("ij,ij->i", rows_xyz, rows_xyz)[:, None]
@@ -195,7 +194,17 @@ def _accumulate_block(rows_xyz, self_cols, cols_xyz, sq_c, cols_w, levels, width
     # 0 apart, so that they support level 0 only.
     own = np.nonzero(self_cols >= 0)[0]
     d2[own, self_cols[own]] = 0
-    d = np.sqrt(d2, out=d2)
+    return np.sqrt(d2, out=d2)
+
+
+def _accumulate_block(rows_xyz, self_cols, cols_xyz, sq_c, cols_w, levels, width):
+    """One row block: its rows of W, its level support and its largest pair distance (module docstring).
+
+    ``self_cols`` holds, per row, the column of the same patch among the lit ones (−1 if unlit).
+    """
+    n = levels.shape[0]
+    b, nc = rows_xyz.shape[0], cols_xyz.shape[0]
+    d = _pair_distances(rows_xyz, self_cols, cols_xyz, sq_c)
     dmax = float(d.max(initial=0.0))
     if dmax >= levels[-1]:
         raise ValidationError(
@@ -293,6 +302,48 @@ def quantised_system(
         max_distance=dmax,
         n_pairs=int(idx.size) * int(lit.size),
     )
+
+
+def point_kernel_exitance(points, weights, rows, profile, *, block_bytes=DEFAULT_BLOCK_BYTES) -> np.ndarray:
+    """l_j = Σ_k R(d_jk) w_k of the ``rows``: Suzuki et al. eq. 17 with w_k = c_k A_k, the exitance W r approximates.
+
+    The point kernel before quantisation: every pair at its own distance, a patch
+    and itself at d = 0 (as in :func:`quantised_system`, where that pair supports
+    level 0 only, so both give it R(0) w_j).
+
+    Parameters
+    ----------
+    points : array_like, shape (m, 3)
+        Patch centres, mm.
+    weights : array_like, shape (m,)
+        w_k = c_k A_k ≥ 0 (irradiance × area).
+    rows : array_like of int
+        The patches whose exitance is wanted.
+    profile : callable
+        R(d) for an array of distances d in mm, vectorised (mm⁻²).
+    block_bytes : int
+        Memory budget of a row block.
+
+    Returns
+    -------
+    ndarray, shape (len(rows),)
+        In the unit of ``weights`` × mm⁻².
+    """
+    p = check_shape(as_finite(points, "points", dtype=np.float64), "points", (None, 3))
+    wk = check_shape(as_finite(weights, "weights", 0, None, dtype=np.float64), "weights", (p.shape[0],))
+    idx = np.asarray(rows, np.int64)
+    lit = np.nonzero(wk > 0)[0]
+    lit_pos = np.full(p.shape[0], -1)
+    lit_pos[lit] = np.arange(lit.size)
+    centre = p[lit].mean(0) if lit.size else np.zeros(3)
+    rows_xyz, cols_xyz = p[idx] - centre, p[lit] - centre
+    sq_c = np.einsum("ij,ij->i", cols_xyz, cols_xyz)
+    out = np.zeros(idx.size)
+    block = max(1, int(check_integer(block_bytes, "block_bytes", 2**20)) // (16 * max(lit.size, 1)))
+    for start in range(0, idx.size if lit.size else 0, block):  # loop over row blocks, vectorised over pairs
+        sub = slice(start, start + block)
+        out[sub] = profile(_pair_distances(rows_xyz[sub], lit_pos[idx[sub]], cols_xyz, sq_c)) @ wk[lit]
+    return out
 
 
 def interpolation_matrix(levels, coarse) -> np.ndarray:

@@ -16,11 +16,8 @@ NAN_VERTEX_OBJ = "v 0 0 nan\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2
 
 
 @pytest.fixture(scope="module")
-def subject():
-    import facestats
-
-    with facestats.open_store() as st:
-        return st.subject("S001")
+def subject(default_subject):
+    return default_subject
 
 
 @pytest.fixture(scope="module")

@@ -18,11 +18,8 @@ from facestats.io.mesh import subject_mesh
 
 
 @pytest.fixture(scope="module")
-def subject():
-    import facestats
-
-    with facestats.open_store() as st:
-        return st.subject("S001")
+def subject(default_subject):
+    return default_subject
 
 
 @pytest.fixture(scope="module")

@@ -6,13 +6,20 @@ whether or not stderr is a terminal, so that a log of a long job shows how far
 it got.  ``FACESTATS_PROGRESS=0`` in the environment hides every bar (for logs
 that should stay short).  Bars come from :mod:`tqdm.auto`: a widget in a
 notebook, text elsewhere, with the rate and the ETA tqdm estimates.
+
+A hidden bar is not a tqdm at all but :class:`QuietBar`, which iterates,
+updates and closes at no cost.  This matters beyond speed: every tqdm takes
+tqdm's write lock, a multiprocessing lock shared with forked processes, and a
+forked worker killed while holding it (a cancelled build) would leave every
+later bar of the parent waiting for ever.  Processes that show no bar never
+touch it.
 """
 
 from __future__ import annotations
 
 import os
 
-__all__ = ["PROGRESS_ENV", "progress_bar", "bars_enabled"]
+__all__ = ["PROGRESS_ENV", "QuietBar", "progress_bar", "bars_enabled"]
 
 #: Environment variable that hides every bar when set to ``0``.
 PROGRESS_ENV = "FACESTATS_PROGRESS"
@@ -23,19 +30,36 @@ def bars_enabled(enabled=True) -> bool:
     return bool(enabled) and os.environ.get(PROGRESS_ENV, "").strip() != "0"
 
 
-def progress_bar(iterable=None, *, enabled=True, desc=None, unit="it", total=None, initial=0, leave=True):
-    """A tqdm bar over ``iterable`` (or a manual one, advanced with ``update``), hidden unless :func:`bars_enabled`.
+class QuietBar:
+    """The hidden bar: iterates over ``iterable`` unchanged; ``update``, ``close`` and ``with`` do nothing else."""
 
-    A hidden bar is a disabled tqdm: it iterates, updates and closes like a shown one at no cost.
-    """
+    def __init__(self, iterable=None, total=None, initial=0):
+        self.iterable, self.total, self.n = iterable, total, initial
+
+    def __iter__(self):
+        return iter(self.iterable)
+
+    def __len__(self):
+        return len(self.iterable) if self.total is None else self.total
+
+    def update(self, n=1):
+        self.n += n
+
+    def close(self):
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+def progress_bar(iterable=None, *, enabled=True, desc=None, unit="it", total=None, initial=0, leave=True):
+    """A tqdm bar over ``iterable`` (or a manual one, advanced with ``update``) if :func:`bars_enabled`, else a
+    :class:`QuietBar`."""
+    if not bars_enabled(enabled):
+        return QuietBar(iterable, total, initial)
     from tqdm.auto import tqdm
 
-    return tqdm(
-        iterable,
-        total=total,
-        initial=initial,
-        desc=desc,
-        unit=unit,
-        leave=leave,
-        disable=not bars_enabled(enabled),
-    )
+    return tqdm(iterable, total=total, initial=initial, desc=desc, unit=unit, leave=leave)

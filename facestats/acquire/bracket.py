@@ -123,7 +123,7 @@ class ResponseCalibration:
         ``smoothness`` and ``samples`` as passed (None: the defaults).
     black_level : int
         The sensor's pedestal in DN g was recovered with (:mod:`facestats.acquire.response`); merges of
-        photographs with this g must pass the same ``black_level``.
+        photographs with this g use the same (:meth:`apply` records it in a dome calibration).
     """
 
     log_response: np.ndarray
@@ -178,10 +178,10 @@ class ResponseCalibration:
         """``dome`` with this response as the ``camera_log_response`` of ``cameras`` (default every camera).
 
         A dome without responses takes this one for every camera; then ``cameras``
-        must be every camera (the others would have none).  A dome has no black level: merges
-        of its cameras' photographs must be given :attr:`black_level` (``black_level`` of
-        :func:`facestats.acquire.ingest.ingest_photographs` and
-        :func:`facestats.acquire.calibration.calibrate_leds`).
+        must be every camera (the others would have none).  The dome takes :attr:`black_level`
+        as its ``camera_black_level`` (one for all cameras: applying to some cameras of a dome
+        whose black level differs is refused), which the ingest and the LED calibration then
+        merge with.
         """
         g = np.where(np.isfinite(self.log_response), self.log_response, self.log_response[1])  # code 0: weight 0
         n_cam = dome.n_cameras
@@ -202,9 +202,14 @@ class ResponseCalibration:
                     f"the calibration's responses have {current.shape[1]} levels, this one {g.shape[0]} "
                     f"({self.bits}-bit): pass bits to match the cameras"
                 )
+            if sorted(set(sel)) != list(range(n_cam)) and dome.camera_black_level != self.black_level:
+                raise ValidationError(
+                    f"black_level must be the calibration's camera_black_level ({dome.camera_black_level}) when only "
+                    f"cameras {sel} take this response (the cameras share one), got {self.black_level}"
+                )
             out = np.array(current, np.float64)
             out[sel] = g
-        return replace(dome, camera_log_response=out)
+        return replace(dome, camera_log_response=out, camera_black_level=int(self.black_level))
 
 
 def _num(x):

@@ -296,7 +296,7 @@ def _target(folder: CaptureFolder):
 
 
 def target_observations(
-    folder, dome: Dome, *, grid: int = 24, cameras=None, workers: int = 2, black_level: int = 0
+    folder, dome: Dome, *, grid: int = 24, cameras=None, workers: int = 2, black_level: int | None = None
 ) -> dict:
     """HDR values of a target folder at a grid of points on each pose, for every camera and LED.
 
@@ -307,8 +307,9 @@ def target_observations(
     background, 15-18 % low in the simulated set-up of the tests, and such points
     biased the beam's quadratic terms by up to 2);
     values are the HDR merge (:func:`facestats.acquire.photographs.merge_at`, with the
-    cameras' pedestal ``black_level`` in DN) divided by ``camera_scale``; saturated or
-    unlit observations are dropped.  ``grid`` is in [2, :data:`MAX_GRID`].
+    cameras' pedestal ``black_level`` in DN, default the calibration's ``camera_black_level``)
+    divided by ``camera_scale``; saturated or unlit observations are dropped.  ``grid`` is in
+    [2, :data:`MAX_GRID`].
 
     Returns
     -------
@@ -327,7 +328,7 @@ def target_observations(
     check_exposures(folder, dome)  # with the times they were taken with
     rho, poses = _target(folder)
     check_integer(grid, "grid", 2, MAX_GRID)
-    black_level = check_black_level(black_level, 2**folder.bits)
+    black_level = check_black_level(dome.camera_black_level if black_level is None else black_level, 2**folder.bits)
     cams = folder.cameras if cameras is None else [int(c) for c in cameras]
     out = {k: [] for k in ("point", "normal", "camera", "led", "value")}
     f = (np.arange(grid) + 0.5) / grid * 0.9 - 0.45
@@ -459,7 +460,13 @@ def fit_leds(dome: Dome, obs: dict, *, reference_camera: int | None = None) -> L
 
 
 def calibrate_leds(
-    folder, dome: Dome, *, grid: int = 24, reference_camera: int | None = None, workers: int = 2, black_level: int = 0
+    folder,
+    dome: Dome,
+    *,
+    grid: int = 24,
+    reference_camera: int | None = None,
+    workers: int = 2,
+    black_level: int | None = None,
 ):
     """Fit every LED's intensity and beam polynomial, and the camera gains, from a target folder (module docstring).
 

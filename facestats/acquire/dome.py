@@ -35,7 +35,9 @@ coordinates (x_c/z_c, y_c/z_c) are distorted to (x'', y'') by
 converts a camera's merged photograph values to the reference camera's units
 (1 for the reference; :mod:`facestats.acquire.calibration` fits it), and
 ``camera_log_response`` holds the Debevec-Malik response g of the cameras'
-photographs (:mod:`facestats.acquire.response`), when they are not linear raw.
+photographs (:mod:`facestats.acquire.response`), when they are not linear raw,
+and ``camera_black_level`` the pedestal (DN) it was recovered above: codes at
+and below it get no weight when the photographs are merged (0: none).
 """
 
 from __future__ import annotations
@@ -52,7 +54,14 @@ from facestats.acquire.hdr import CameraResponse
 from facestats.acquire.lens import distort_normalised, undistort_normalised
 from facestats.core.compiled import resolve_backend
 from facestats.core.published import N_CAMERAS, N_LEDS
-from facestats.core.validate import as_finite, as_float, check_range, check_shape, check_unit_vectors
+from facestats.core.validate import (
+    as_finite,
+    as_float,
+    check_integer,
+    check_range,
+    check_shape,
+    check_unit_vectors,
+)
 from facestats.errors import FormatError, ValidationError
 
 __all__ = ["Dome", "default_dome", "beam_terms"]
@@ -109,6 +118,10 @@ class Dome:
         camera (default 1).
     camera_log_response : ndarray, shape (C, levels, 3), optional
         Debevec-Malik g = ln f⁻¹ of each camera's photographs (levels = 2^bits).
+    camera_black_level : int
+        The photographs' pedestal in DN, shared by the cameras, that ``camera_log_response`` was
+        recovered above (:func:`facestats.acquire.response.recover_response`, ``black_level``);
+        0 ≤ it < levels / 2.  JSON field ``camera_black_level`` (absent: 0).
     """
 
     led_position: np.ndarray
@@ -125,6 +138,7 @@ class Dome:
     camera_distortion: np.ndarray | None = None
     camera_gain: np.ndarray | None = None
     camera_log_response: np.ndarray | None = None
+    camera_black_level: int = 0
 
     def __post_init__(self):
         def array(name, shape):
@@ -162,7 +176,7 @@ class Dome:
         self._check_camera_extras(n_cam)
 
     def _check_camera_extras(self, n_cam):
-        """Validate and normalise ``camera_distortion``, ``camera_gain`` and ``camera_log_response``."""
+        """Validate and normalise ``camera_distortion``, ``camera_gain``, ``camera_log_response``, its black level."""
         if self.camera_distortion is None:
             dist = np.zeros((n_cam, 8))
         else:
@@ -189,6 +203,10 @@ class Dome:
                 )
             if not np.all(np.isfinite(resp)):
                 raise ValidationError("camera_log_response must be finite, got NaN or inf")
+        levels = None if resp is None else resp.shape[1]
+        self.camera_black_level = check_integer(
+            self.camera_black_level, "camera_black_level", 0, None if levels is None else levels // 2 - 1
+        )
         self.camera_distortion, self.camera_gain, self.camera_log_response = dist, gain, resp
 
     @property
@@ -416,6 +434,8 @@ class Dome:
             g = self.camera_log_response
             shared = bool(np.all(g == g[:1]))
             out["camera_log_response"] = (g[0] if shared else g).tolist()
+        if self.camera_black_level:
+            out["camera_black_level"] = self.camera_black_level
         return out
 
     def camera_dict(self, c: int) -> dict:
@@ -477,6 +497,7 @@ class Dome:
                 camera_scale=float(d["camera_scale"]),
                 response=CameraResponse(**d.get("response", {})),
                 camera_log_response=None if resp is None else np.asarray(resp, float),
+                camera_black_level=d.get("camera_black_level", 0),
                 **cls._cameras_from_dict(d),
             )
         except KeyError as exc:

@@ -283,7 +283,7 @@ def ingest_photographs(
     workers: int = 2,
     motion_tolerance: float = MOTION_TOLERANCE,
     min_footprint_px: float = MIN_FOOTPRINT_PX,
-    black_level: int = 0,
+    black_level: int | None = None,
     progress: bool = False,
 ) -> str:
     """Turn a capture folder into a capture on disk (module docstring); rerunning resumes an interrupted ingest.
@@ -311,10 +311,10 @@ def ingest_photographs(
     min_footprint_px : float
         Samples whose lumitexel patch spans fewer pixels along its shortest axis
         (:func:`footprint_px`) are invalid (≥ 0; module docstring).
-    black_level : int
+    black_level : int, optional
         The cameras' pedestal in DN, the one their response was recovered with
         (:func:`facestats.acquire.response.recover_response`): codes at and below it get no weight
-        in the merge; 0 (default) for cameras without one.
+        in the merge.  Default: the calibration's ``camera_black_level`` (0 for cameras without one).
     progress : bool
         Show a progress bar over cameras.
 
@@ -342,7 +342,7 @@ def ingest_photographs(
     min_footprint_px = float(as_finite(min_footprint_px, "min_footprint_px", 0, None))
     folder = folder if isinstance(folder, CaptureFolder) else open_folder(folder)
     _check_inputs(folder, dome, geometry, calibration)
-    black_level = check_black_level(black_level, 2**folder.bits)
+    black_level = check_black_level(dome.camera_black_level if black_level is None else black_level, 2**folder.bits)
     writer, state = _start(
         path, folder, geometry, dome, _fingerprint(folder, dome, geometry, subject_id, black_level), chunk, subject_id
     )

@@ -73,7 +73,8 @@ def _cmd_leds(args) -> int:
     from facestats.core.validate import check_integer
 
     check_integer(args.grid, "--grid", 2, MAX_GRID)  # before any work: a huge grid would exhaust the memory
-    check_integer(args.black_level, "--black-level", 0)  # its upper bound, 2**bits / 2, once the bits are known
+    if args.black_level is not None:  # its upper bound, 2**bits / 2, once the bits are known
+        check_integer(args.black_level, "--black-level", 0)
     existing = _check_outputs(((args.output, "--output", None), (args.write_calibration, "--write-calibration", None)))
     calibration = args.calibration or str(pathlib.Path(args.target_dir) / "dome.json")
     dome = Dome.load(calibration)  # a FIFO, a directory or a device is refused without blocking
@@ -116,12 +117,6 @@ def _cmd_response(args) -> int:
     _refuse_inputs(_check_outputs(outputs), inputs)
     if args.write_calibration and not args.calibration:
         raise ValidationError("--write-calibration needs --calibration (the dome calibration to put the response into)")
-    if args.write_calibration and args.black_level:
-        raise ValidationError(
-            f"--write-calibration cannot be combined with --black-level {args.black_level}: a dome calibration has "
-            "no field for the black level, and `facestats ingest` would give the codes at and below it weight (write "
-            "the response with --output; docs/photographs.md, 'Black level')"
-        )
     dome = None
     if args.calibration:
         from facestats.acquire.dome import Dome
@@ -183,9 +178,10 @@ def add_calibrate(sub):
     leds.add_argument(
         "--black-level",
         type=ascii_int,
-        default=0,
+        default=None,
         metavar="DN",
-        help="the cameras' pedestal: codes at and below it get no weight in the merge (default 0)",
+        help="the cameras' pedestal: codes at and below it get no weight in the merge (default: the calibration's "
+        "camera_black_level, 0 if none)",
     )
     leds.add_argument("--output", help="write the LED calibration file (facestats.led-calibration/1)")
     leds.add_argument("--write-calibration", metavar="PATH", help="write the dome calibration with the fitted LEDs")
@@ -212,7 +208,8 @@ def add_calibrate(sub):
         type=ascii_int,
         default=0,
         metavar="DN",
-        help="the sensor's pedestal: codes at and below it get no weight, g is recovered above it (default 0)",
+        help="the sensor's pedestal: codes at and below it get no weight, g is recovered above it (default 0); "
+        "--write-calibration records it as the calibration's camera_black_level, which the ingest merges with",
     )
     resp.add_argument("--output", help="write the response (JSON, facestats.camera-response/1)")
     resp.add_argument("--plot", help="draw g(z) per channel (.png, .svg or .pdf)")

@@ -424,3 +424,31 @@ def test_exposure_times_must_be_the_calibrations(copy, tiny):
         match=r"manifest\.json frames have 2 exposures \(0\.\.1\), the calibration field 'exposure_times_s' has 3",
     ):
         check_exposures(open_folder(copy), three)
+
+
+def test_the_calibrations_black_level_is_what_the_ingest_merges_with(tiny, tmp_path):
+    """``camera_black_level`` of the dome calibration: JSON round trip, set by a response's ``apply``, and the
+    default of ``ingest_photographs`` (the same capture as passing it explicitly)."""
+    from facestats.acquire.bracket import ResponseCalibration
+
+    _, pc, _ = tiny
+    folder = pc.folder.parent
+    dome = Dome.load(pc.calibration)
+    assert dome.camera_black_level == 0 and "camera_black_level" not in dome.to_dict()  # older files unchanged
+    levels = dome.camera_log_response.shape[1]
+    resp = ResponseCalibration(dome.camera_log_response[0], 12, np.array([1 / 60, 1 / 8]), np.zeros((1, 2)))
+    with_pedestal = replace(resp, black_level=64).apply(dome)
+    assert with_pedestal.camera_black_level == 64
+    assert Dome.from_dict(json.loads(json.dumps(with_pedestal.to_dict()))).camera_black_level == 64
+    with pytest.raises(FacestatsError, match=rf"camera_black_level must be an integer in \[0, {levels // 2 - 1}\]"):
+        replace(dome, camera_black_level=levels // 2)
+    with pytest.raises(FacestatsError, match=r"black_level must be the calibration's camera_black_level \(64\)"):
+        resp.apply(with_pedestal, cameras=[0])  # the cameras share one pedestal
+    geometry = _geometry(folder)
+    kw = dict(workers=1, min_footprint_px=1)
+    a = ingest_photographs(folder, geometry, with_pedestal, tmp_path / "a.zarr", **kw)
+    b = ingest_photographs(folder, geometry, dome, tmp_path / "b.zarr", black_level=64, **kw)
+    c = ingest_photographs(folder, geometry, dome, tmp_path / "c.zarr", **kw)
+    ra, rb, rc = (open_ingested(p).array("radiance") for p in (a, b, c))
+    np.testing.assert_array_equal(ra, rb)
+    assert not np.array_equal(ra, rc, equal_nan=True)  # the pedestal changes the merge

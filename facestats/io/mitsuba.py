@@ -370,8 +370,8 @@ def write_mitsuba_scene(ds, out_dir, *, probe=None, material="surface", mesh=Non
     out = os.fspath(out_dir)
     if probe is not None:
         read_light_probe(probe)  # checked before anything is written
-    manifest = write_exr_set(ds, out, mesh=mesh)
     fill = FaceFill(ds["region"].values)
+    manifest = write_exr_set(ds, out, mesh=mesh, fill=fill)
     alb = fill(np.asarray(ds["albedo"].values, np.float32))
     rho = fill(np.asarray(ds["ts_rho_s"].values, np.float32))
     write_exr(os.path.join(out, "mitsuba_diffuse.exr"), {c: 2 * alb[..., i] for i, c in enumerate("RGB")})

@@ -360,10 +360,23 @@ def execute_once(path, tmp_path_factory, env=None):
 
     def run(folder):
         (folder / "workdir").mkdir()
-        nbformat.write(execute(path, folder / "workdir", env=env), folder / "executed.ipynb")
+        (folder / "tmp").mkdir()
+        env_tmp = {**(env or {}), "TMPDIR": folder / "tmp"}  # the kernel's tempfile folder, checked afterwards
+        nbformat.write(execute(path, folder / "workdir", env=env_tmp), folder / "executed.ipynb")
 
     folder = once_per_session(f"notebook-{pathlib.Path(path).stem}", tmp_path_factory, run)
     return nbformat.read(folder / "executed.ipynb", as_version=4), folder / "workdir"
+
+
+def assert_nothing_left(workdir):
+    """Nothing left by a notebook run by :func:`execute_once`: its working directory and its kernel's temporary
+    folder (``TMPDIR``) are empty after the last cell, but for Dask's shared ``dask-scratch-space`` holding only its
+    lock files (Dask keeps that folder for every later cluster)."""
+    assert list(workdir.iterdir()) == []
+    tmp = workdir.parent / "tmp"
+    dask = tmp / "dask-scratch-space"
+    left = [p for p in tmp.iterdir() if p != dask] + [p for p in dask.rglob("*") if p.is_file() and p.suffix != ".lock"]
+    assert left == [], f"left in the temporary folder: {[p.name for p in left]}"
 
 
 def cell_text(cell):

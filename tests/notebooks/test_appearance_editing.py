@@ -2,7 +2,16 @@
 
 import pytest
 
-from tests.helpers import NOTEBOOKS, assert_no_errors, cell_text, execute_once, read_committed, shows_figure, tagged
+from tests.helpers import (
+    assert_nothing_left,
+    NOTEBOOKS,
+    assert_no_errors,
+    cell_text,
+    execute_once,
+    read_committed,
+    shows_figure,
+    tagged,
+)
 
 NOTEBOOK = NOTEBOOKS / "appearance_editing.ipynb"
 
@@ -31,7 +40,7 @@ def test_committed_notebook_is_valid_small_and_has_no_outputs():
 def test_runs_without_errors_and_writes_nothing_to_its_directory(executed):
     nb, workdir = executed
     assert_no_errors(nb)
-    assert list(workdir.iterdir()) == []  # edits go to a temporary store
+    assert_nothing_left(workdir)  # edits go to a temporary store
 
 
 def test_every_figure_is_displayed(executed):

@@ -2,7 +2,16 @@
 
 import pytest
 
-from tests.helpers import NOTEBOOKS, assert_no_errors, cell_text, execute_once, read_committed, shows_figure, tagged
+from tests.helpers import (
+    assert_nothing_left,
+    NOTEBOOKS,
+    assert_no_errors,
+    cell_text,
+    execute_once,
+    read_committed,
+    shows_figure,
+    tagged,
+)
 
 NOTEBOOK = NOTEBOOKS / "device_capture.ipynb"
 FIGURES = ("link-figure", "sheet-figure", "bracket-figure")
@@ -23,7 +32,7 @@ def test_committed_notebook_is_valid_small_and_has_no_outputs():
 def test_runs_shows_its_figures_and_the_sessions_agree(executed):
     nb, workdir = executed
     assert_no_errors(nb)
-    assert list(workdir.iterdir()) == []  # everything went to a temporary directory, removed at the end
+    assert_nothing_left(workdir)  # everything went to a temporary directory, removed at the end
     for tag in FIGURES:
         assert shows_figure(tagged(nb, tag)), tag
     assert "estimated duration on the hardware" in cell_text(tagged(nb, "plan"))

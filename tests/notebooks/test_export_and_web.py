@@ -2,7 +2,16 @@
 
 import pytest
 
-from tests.helpers import NOTEBOOKS, assert_no_errors, cell_text, execute_once, read_committed, shows_figure, tagged
+from tests.helpers import (
+    assert_nothing_left,
+    NOTEBOOKS,
+    assert_no_errors,
+    cell_text,
+    execute_once,
+    read_committed,
+    shows_figure,
+    tagged,
+)
 
 NOTEBOOK = NOTEBOOKS / "export_and_web.ipynb"
 
@@ -20,7 +29,7 @@ def test_committed_notebook_is_small_and_has_no_outputs():
 def test_runs_and_shows_exports_render_and_web_numbers(executed):
     nb, workdir = executed
     assert_no_errors(nb)
-    assert list(workdir.iterdir()) == []
+    assert_nothing_left(workdir)
     assert "ict-48" in cell_text(tagged(nb, "exr"))
     assert "vertices," in cell_text(tagged(nb, "gltf"))
     assert shows_figure(tagged(nb, "validation"))

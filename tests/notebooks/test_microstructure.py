@@ -4,7 +4,17 @@ import re
 
 import pytest
 
-from tests.helpers import NOTEBOOKS, TEST_DATA, assert_no_errors, cell_text, execute_once, read_committed, shows_figure, tagged
+from tests.helpers import (
+    assert_nothing_left,
+    NOTEBOOKS,
+    TEST_DATA,
+    assert_no_errors,
+    cell_text,
+    execute_once,
+    read_committed,
+    shows_figure,
+    tagged,
+)
 
 NOTEBOOK = NOTEBOOKS / "microstructure.ipynb"
 
@@ -28,7 +38,7 @@ def test_committed_notebook_is_valid_small_and_has_no_outputs():
 def test_runs_without_errors_and_writes_nothing_to_its_directory(executed):
     nb, workdir = executed
     assert_no_errors(nb)
-    assert list(workdir.iterdir()) == []  # the sequence goes to a temporary directory
+    assert_nothing_left(workdir)  # the sequence goes to a temporary directory
 
 
 @pytest.mark.slow

@@ -4,7 +4,16 @@ import re
 
 import pytest
 
-from tests.helpers import NOTEBOOKS, assert_no_errors, cell_text, execute_once, read_committed, shows_figure, tagged
+from tests.helpers import (
+    assert_nothing_left,
+    NOTEBOOKS,
+    assert_no_errors,
+    cell_text,
+    execute_once,
+    read_committed,
+    shows_figure,
+    tagged,
+)
 
 NOTEBOOK = NOTEBOOKS / "population_scale.ipynb"
 
@@ -24,7 +33,7 @@ def test_committed_notebook_is_valid_small_and_has_no_outputs():
 def test_runs_without_errors_and_writes_nothing_to_its_directory(executed):
     nb, workdir = executed
     assert_no_errors(nb)
-    assert list(workdir.iterdir()) == []
+    assert_nothing_left(workdir)
 
 
 def test_engines_agree_and_the_cluster_fit_is_stored(executed):

@@ -5,7 +5,17 @@ import re
 
 import pytest
 
-from tests.helpers import NOTEBOOKS, TEST_DATA, assert_no_errors, cell_text, execute_once, read_committed, shows_figure, tagged
+from tests.helpers import (
+    assert_nothing_left,
+    NOTEBOOKS,
+    TEST_DATA,
+    assert_no_errors,
+    cell_text,
+    execute_once,
+    read_committed,
+    shows_figure,
+    tagged,
+)
 
 NOTEBOOK = NOTEBOOKS / "relighting.ipynb"
 FIGURES = ("stage", "relit", "compression", "separation", "novel")
@@ -26,7 +36,7 @@ def test_committed_notebook_is_valid_small_and_has_no_outputs():
 def test_runs_without_errors_shows_every_figure_and_writes_nothing(executed):
     nb, workdir = executed
     assert_no_errors(nb)
-    assert list(workdir.iterdir()) == []
+    assert_nothing_left(workdir)
     for tag in FIGURES:
         assert shows_figure(tagged(nb, tag)), tag
 

@@ -14,6 +14,8 @@
   probe (every probe pixel a light) against the 64 × 32 stage.
 * ``stream`` — relighting a field from its zarr store tile by tile: peak memory
   against the field's size.
+* ``separation`` — accuracy of the colour-space separation's ρs on analytic spheres, with and without a
+  chromaticity ramp, for the mirror exclusions 45° and 60°.
 
 Inputs (the fields) are built once per code version under ``FACESTATS_BENCH_DIR``
 (:mod:`inputs`).  The real probes are the committed CC0 Poly Haven samples
@@ -324,6 +326,40 @@ def bench_parts(size=256, n_theta=64, n_phi=32, parts=(1, 2, 3, 4), seeds=(0, 1,
     return _setting_sweep("parts", parts, size, n_theta, n_phi, seeds, ratio, rotations)
 
 
+def bench_separation(
+    size=7, lobes=(0.2, 0.3, 0.35, 0.4, 0.5), mirrors=(45.0, 60.0), views=((0, 0, 1), (0.5, 0, 0.866))
+):
+    """Accuracy of ``separate_field``'s ρs on Lambertian + Torrance-Sparrow spheres (what ``mirror_deg``'s default is
+    chosen from, D3 of ``docs/relighting.md``).
+
+    Median relative error over the sphere's pixels, %, for Beckmann m in ``lobes``: data without a ramp ("flat")
+    and with the ramp (α₀, α₁) = (−0.05, −0.3), separated with the ramp fitted ("on") and without it ("off"), at
+    each ``mirror_deg`` in ``mirrors``; printed as a table, returned keyed ``view/m/data/fit/mirror``.
+    """
+    from facestats.relight.separate import separate_field
+    from tests.relight.fields import ts_lambert_field
+
+    skin = np.array([0.62, 0.42, 0.33]) * 0.8
+    cols = [(data, mirror, fit) for data in ("flat", "ramp") for mirror in mirrors for fit in ("on", "off")]
+    print(f"{'view':>16} {'m':>5} " + " ".join(f"{f'{d} {fit} {mir:g}°':>14}" for d, mir, fit in cols))
+    out = {}
+    for view in views:
+        for lobe in lobes:
+            row = []
+            for data, mirror, fit in cols:
+                true_ramp = (-0.05, -0.3) if data == "ramp" else None
+                f, spec, _ = ts_lambert_field(size, size, albedo=skin, rho_s=0.25, m=lobe, view=view, ramp=true_ramp)
+                truth = (spec * f["solid_angle"].values[..., None, None]).sum((0, 1))
+                mask = f["mask"].values & (truth > 0)  # an oblique view leaves pixels facing away without a lobe
+                truth = truth[mask]
+                sep = separate_field(f, [1, 1, 1], ramp=fit == "on", mirror_deg=mirror)
+                err = round(100 * float(np.median(sep["rho_s"].values[mask] / truth - 1)), 1)
+                out[f"{','.join(f'{c:g}' for c in view)}/m{lobe:g}/{data}/{fit}/{mirror:g}"] = err
+                row.append(err)
+            print(f"{str(view):>16} {lobe:5.2f} " + " ".join(f"{e:+13.1f}%" for e in row))
+    return out
+
+
 BENCHMARKS = [
     ("relight", bench_relight),
     ("stage", bench_stage),
@@ -333,6 +369,7 @@ BENCHMARKS = [
     ("cluster_density", bench_cluster_density),
     ("region_floor", bench_region_floor),
     ("parts", bench_parts),
+    ("separation", bench_separation),
 ]
 
 #: The tiny field, ratio and lightings of the sweeps' smoke runs.
@@ -348,4 +385,5 @@ SMOKE = {
     "cluster_density": {**_TINY_SWEEP, "pixels_per_cluster": (64, 16), "seeds": (0, 1)},
     "region_floor": {**_TINY_SWEEP, "floors": (0.2, 1.0), "seeds": (0,)},
     "parts": {**_TINY_SWEEP, "parts": (1, 2), "seeds": (0,)},
+    "separation": {"size": 4, "lobes": (0.35,), "views": ((0, 0, 1),)},
 }

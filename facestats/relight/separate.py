@@ -162,7 +162,7 @@ def fit_chromaticity_ramp(values, cos_i, cos_r, d0, s=WHITE, weights=None):
     return alpha0, alpha1
 
 
-def diffuse_chromaticity(values, low: float = 25.0, high: float = 75.0):
+def diffuse_chromaticity(values, low: float = 25.0, high: float = 75.0, use=None):
     """Representative diffuse chromaticity d₀ of each reflectance function (Debevec et al. 2000 §4.2).
 
     "the median of the red-green and green-blue ratios over reflectance function
@@ -174,11 +174,20 @@ def diffuse_chromaticity(values, low: float = 25.0, high: float = 75.0):
     the maximum would be emptied by one strong highlight).  With a = median R/G
     and b = median G/B, d₀ = normalize(a b, b, 1).
 
+    A broad lobe also lifts mid-bright samples: on a Lambertian + Torrance-Sparrow
+    sphere (m = 0.35, ρs = 0.25, 7 × 7 pixels) d₀ from all samples is up to 1.6°
+    off the albedo's colour, towards white.  :func:`separate_field` therefore
+    passes ``use``: only the samples farther than its ``mirror_deg`` from the
+    mirror direction, which gives 0.5° there.
+
     Parameters
     ----------
     values : array_like, shape (L, N, 3)
     low, high : float
         Percentiles, 0 ≤ low < high ≤ 100.
+    use : array_like of bool, shape (L, N), optional
+        The samples that may count (default all); the percentiles are those of
+        the lit samples among them.
 
     Returns
     -------
@@ -191,6 +200,8 @@ def diffuse_chromaticity(values, low: float = 25.0, high: float = 75.0):
     hi = float(as_finite(high, "high", lo, 100, low_inclusive=False))
     lum = r.sum(-1)
     lit = (lum > 0) & (r[..., 1] > 0) & (r[..., 2] > 0)
+    if use is not None:
+        lit &= check_broadcast(np.asarray(use, bool), "use", r.shape[:2], "values without the RGB axis")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns give NaN, reported as such
         q = np.nanpercentile(np.where(lit, lum, np.nan), [lo, hi], axis=0)
@@ -256,7 +267,7 @@ def separate_colour(values, d, s=WHITE):
     return r - spec, spec, mu, clamped
 
 
-def separate_field(field, s=WHITE, *, view=None, ramp: bool = True, mirror_deg: float = 45.0,
+def separate_field(field, s=WHITE, *, view=None, ramp: bool = True, mirror_deg: float = 60.0,
                    shadow_threshold: float = 0.05, max_condition: float = 50.0, d0=None):  # fmt: skip
     """The colour-space separation of §4.2 applied to every pixel of a reflectance field.
 
@@ -283,9 +294,18 @@ def separate_field(field, s=WHITE, *, view=None, ramp: bool = True, mirror_deg: 
         (both lie in the plane of d₀ and s), so the ramp is fitted only on
         samples farther than ``mirror_deg`` from the mirror direction; broad
         lobes (skin's m ≈ 0.3-0.4) need a wide exclusion.
-    mirror_deg, shadow_threshold, max_condition : float
+    mirror_deg : float
+        Degrees, in [0, 90]: samples closer than this to the mirror direction of
+        the view (about a first Lambertian normal) are left out of d₀ and of the
+        ramp fit.  The paper only says "downweight values near the mirror angle".
+        The default, 60°, was chosen on Lambertian + Torrance-Sparrow spheres
+        (``docs/relighting.md``, D3): at skin's m = 0.35 the ramp fit, with 45°,
+        reads the lobe's tail as a ramp and ρs comes out 14 % low, against 5.5 %
+        with 60°.
+    shadow_threshold, max_condition : float
     d0 : array_like, shape (y, x, 3) or (3,), optional
-        Known diffuse chromaticity instead of the median-ratio estimate.
+        Known diffuse chromaticity instead of the median-ratio estimate
+        (:func:`diffuse_chromaticity` over the samples outside ``mirror_deg``).
 
     Returns
     -------
@@ -314,7 +334,11 @@ def separate_field(field, s=WHITE, *, view=None, ramp: bool = True, mirror_deg: 
         v = np.broadcast_to(v, (h, w, 3))
     v = check_shape(v, "view", (h, w, 3)).reshape(h * w, 3)
     s_unit = unit_rgb(s, "s")
-    d0_est = diffuse_chromaticity(r) if d0 is None else np.broadcast_to(unit_rgb(d0, "d0"), (h, w, 3)).reshape(-1, 3)
+    if d0 is None:  # the median ratios of mid-bright samples away from the mirror direction of a first normal
+        far, _, _ = _far_from_mirror(r, dirs, v, _lit(r, shadow_threshold), mirror_deg)
+        d0_est = diffuse_chromaticity(r, use=far)
+    else:
+        d0_est = np.broadcast_to(unit_rgb(d0, "d0"), (h, w, 3)).reshape(-1, 3)
     finite = np.all(np.isfinite(d0_est), axis=-1)
     cond = np.full(h * w, np.inf)
     cond[finite] = separation_matrix_condition(d0_est[finite], s_unit)
@@ -336,18 +360,30 @@ def separate_field(field, s=WHITE, *, view=None, ramp: bool = True, mirror_deg: 
     return _separation_dataset(f, nl, h, w, full, d0_est, cond, max_condition)
 
 
+def _lit(r, shadow_threshold):
+    """Samples whose luminance reaches ``shadow_threshold`` × the pixel's maximum (§4.4), r (L, N, 3) → (L, N)."""
+    lum = r.sum(-1)
+    return lum >= shadow_threshold * lum.max(0)
+
+
+def _far_from_mirror(r, dirs, v, lit, mirror_deg):
+    """(samples farther than ``mirror_deg`` from the mirror direction, cos θi (L, N), cos θr (N,)) for the
+    Lambertian normal of ``r`` (L, N, 3) over the ``lit`` samples; the view ``v`` (N, 3) where that has none."""
+    normal, _ = lambertian_fit(r, dirs, lit * 1.0)
+    n_safe = np.where(np.isfinite(normal), normal, v)
+    cos_i = dirs @ n_safe.T
+    cos_r = np.clip(np.einsum("nk,nk->n", n_safe, v), 0, 1)
+    mirror = 2 * cos_r[:, None] * n_safe - v  # (N, 3)
+    return (dirs @ mirror.T) < np.cos(np.radians(mirror_deg)), cos_i, cos_r
+
+
 def _separate_pixels(r, dirs, sa, v, d0, s_unit, ramp, mirror_deg, shadow_threshold):
     """The §4.2 procedure on separable pixels: r (L, N, 3), v (N, 3), d0 (N, 3) → dict of results."""
     n = r.shape[1]
     lum = r.sum(-1)
-    lit = lum >= shadow_threshold * lum.max(0)
+    lit = _lit(r, shadow_threshold)
     rough_d, _, _, _ = separate_colour(r, d0[None], s_unit)
-    normal0, _ = lambertian_fit(rough_d, dirs, lit * 1.0)
-    n_safe = np.where(np.isfinite(normal0), normal0, v)
-    cos_i = dirs @ n_safe.T
-    cos_r = np.clip(np.einsum("nk,nk->n", n_safe, v), 0, 1)
-    mirror = 2 * cos_r[:, None] * n_safe - v  # (N, 3)
-    far_from_mirror = (dirs @ mirror.T) < np.cos(np.radians(mirror_deg))
+    far_from_mirror, cos_i, cos_r = _far_from_mirror(rough_d, dirs, v, lit, mirror_deg)
     if ramp:
         wts = lum * lit * far_from_mirror * (cos_i > 0)
         a0, a1 = fit_chromaticity_ramp(r, np.clip(cos_i, 0, 1), cos_r, d0, s_unit, weights=wts)

@@ -42,6 +42,13 @@ def main(argv=None) -> int:
     ap.add_argument("groups", nargs="*", help="benchmark modules to run (default: all)")
     ap.add_argument("--list", action="store_true", help="list the benchmarks and exit")
     args = ap.parse_args(argv)
+    known = {path.stem[len("bench_") :] for path in HERE.glob("bench_*.py")}
+    unknown = sorted(set(args.groups) - known)
+    if unknown:
+        print(
+            f"run.py: unknown group(s) {', '.join(unknown)}; the groups are {', '.join(sorted(known))}", file=sys.stderr
+        )
+        return 2
     failed = 0
     for group, mod in _modules():
         if args.groups and group not in args.groups:

@@ -82,3 +82,11 @@ def test_an_input_asked_for_twice_at_once_is_built_once(tmp_path, monkeypatch):
         t.join()
     assert len(built) == 1 and sorted(len(r[1]) for r in results) == [0, 1]  # one built, the other reused
     assert inputs.cached_input("x", {"a": 2}, make)[1] == {"made": 1} and len(built) == 2  # other parameters: rebuilt
+
+
+def test_run_refuses_an_unknown_group(capsys):
+    spec = importlib.util.spec_from_file_location("bench_run", BENCH / "run.py")
+    run = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(run)
+    assert run.main(["relight", "nosuch"]) == 2  # before running anything
+    assert "unknown group(s) nosuch; the groups are analysis," in capsys.readouterr().err

@@ -25,22 +25,48 @@ def _cmd_build(args) -> int:
         return 130
 
 
+#: dest -> (option, its default) of the options that shape a population build: --default (the embedded store's
+#: fixed population, built here) and --status (a report) take none of them.
+_BUILD_OPTIONS = {
+    "store": ("--store", None),
+    "scheduler": ("--scheduler", None),
+    "retries": ("--retries", 2),
+    "seed": ("--seed", DEFAULT_SEED),
+    "size": ("--size", DEFAULT_MAP_SIZE),
+    "subjects": ("--subjects", None),
+    "face": ("--face", DEFAULT_FACE),
+    "no_conditions": ("--no-conditions", False),
+    "specular": ("--specular", "torrance_sparrow"),
+    "no_micro_normals": ("--no-micro-normals", False),
+}
+
+
+def _ignored(args, mode: str, also=()) -> bool:
+    """Print an error and return True when ``args`` set an option that ``mode`` would ignore (nothing run)."""
+    given = [flag for dest, (flag, default) in _BUILD_OPTIONS.items() if getattr(args, dest) != default]
+    given += [flag for dest, flag in also if getattr(args, dest)]
+    if given:
+        print(f"facestats: error: {mode}; it takes no {', '.join(given)}", file=sys.stderr)
+    return bool(given)
+
+
 def _build_command(args) -> int:
     from facestats.pipeline import build as _build
 
     if args.status:
+        if _ignored(args, "--status reports on a store", also=[("default", "--default"), ("workers", "--workers")]):
+            return 2
         from facestats.pipeline.journal import build_status
 
         status = build_status(args.status)
         print(status.to_text())
         return 1 if status.failed else 0
     if args.default:
-        if args.store or args.scheduler:
-            print(
-                "facestats: error: --default builds the embedded store on this machine; do not pass --store or "
-                "--scheduler",
-                file=sys.stderr,
-            )
+        mode = (
+            f"--default builds the embedded store on this machine (seed {DEFAULT_SEED}, {DEFAULT_MAP_SIZE}² maps, "
+            f"the {DEFAULT_FACE} face)"
+        )
+        if _ignored(args, mode):
             return 2
         report = _build.build_default(workers=args.workers, progress=not args.quiet)
     else:

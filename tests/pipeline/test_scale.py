@@ -63,6 +63,12 @@ def test_the_default_store_is_built_on_this_machine_whatever_the_environment_say
     assert main(["build", "--default", "--scheduler", "tcp://10.255.255.1:8786"]) == 2
     assert "--default builds the embedded store on this machine" in capsys.readouterr().err
     assert not (tmp_path / "default.zip").exists()
+    # every option --default would ignore is refused before anything runs (--retries once rebuilt the store)
+    for extra in (["--retries", "3"], ["--seed", "5"], ["--size", "16"], ["--face", "procedural"], ["--no-conditions"]):
+        assert main(["build", "--default", *extra]) == 2
+        assert f"it takes no {extra[0]}" in capsys.readouterr().err
+    assert main(["build", "--status", str(tmp_path), "--default", "--seed", "5"]) == 2
+    assert "--status reports on a store; it takes no --seed, --default" in capsys.readouterr().err
 
 
 def test_object_stores_are_refused_before_anything_runs(tmp_path, captures):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 from facestats.cli.interrupts import is_interrupt
-from facestats.cli.options import ascii_int
+from facestats.cli.options import ascii_int, named_options
 from facestats.core.conventions import DEFAULT_FACE, DEFAULT_MAP_SIZE, DEFAULT_SEED
 
 __all__ = ["add_build"]
@@ -68,25 +68,34 @@ def _build_command(args) -> int:
         )
         if _ignored(args, mode):
             return 2
-        report = _build.build_default(workers=args.workers, progress=not args.quiet)
+        with named_options(workers="--workers"):
+            report = _build.build_default(workers=args.workers, progress=not args.quiet)
     else:
         if not args.store:
             print("facestats: error: pass --store PATH (a directory store) or --default", file=sys.stderr)
             return 2
-        report = _build.build_store(
-            args.store,
-            seed=args.seed,
-            map_size=args.size,
-            conditions=not args.no_conditions,
-            specular=args.specular,
-            subjects=args.subjects,
-            workers=args.workers,
-            micro_normals=not args.no_micro_normals,
-            progress=not args.quiet,
-            scheduler=args.scheduler,
-            retries=args.retries,
-            face=args.face,
-        )
+        with named_options(
+            map_size="--size",
+            seed="--seed",
+            retries="--retries",
+            workers="--workers",
+            subjects="--subjects",
+            scheduler="--scheduler",
+        ):
+            report = _build.build_store(
+                args.store,
+                seed=args.seed,
+                map_size=args.size,
+                conditions=not args.no_conditions,
+                specular=args.specular,
+                subjects=args.subjects,
+                workers=args.workers,
+                micro_normals=not args.no_micro_normals,
+                progress=not args.quiet,
+                scheduler=args.scheduler,
+                retries=args.retries,
+                face=args.face,
+            )
     print(report.to_text())
     return 1 if report.failed else 0
 

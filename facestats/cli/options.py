@@ -11,6 +11,7 @@ taken apart from a larger value (``64x32``, ``255,200,180``) by
 from __future__ import annotations
 
 import argparse
+import contextlib
 
 __all__ = [
     "add_store_option",
@@ -21,6 +22,7 @@ __all__ = [
     "number_option",
     "ascii_int",
     "ascii_float",
+    "named_options",
 ]
 
 #: What a number of each kind must look like, for messages.
@@ -131,3 +133,24 @@ def open_store_option(value, mode: str = "r"):
     from facestats.io.store import open_store
 
     return open_store(store_path_option(value), mode=mode)
+
+
+@contextlib.contextmanager
+def named_options(**options):
+    """Errors of the API call inside the block named by the command's options instead of its parameters.
+
+    ``options`` maps parameter names to option names (``map_size="--size"``): a
+    :class:`~facestats.errors.ValidationError` whose message starts with a parameter's name
+    (``"map_size must be an integer in [8, inf], got 2"``) is raised again with the option's
+    (``"--size must be ..."``); every other error passes unchanged.
+    """
+    from facestats.errors import ValidationError
+
+    try:
+        yield
+    except ValidationError as exc:
+        message = str(exc)
+        for param, option in options.items():
+            if message.startswith(f"{param} "):
+                raise type(exc)(option + message[len(param) :]) from None
+        raise

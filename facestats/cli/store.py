@@ -9,7 +9,7 @@ import json
 import os
 import sys
 
-from facestats.cli.options import add_store_option, open_store_option, store_path_option
+from facestats.cli.options import add_store_option, named_options, open_store_option, store_path_option
 
 __all__ = ["add_query", "add_info", "add_validate", "add_export", "add_import_merl"]
 
@@ -212,7 +212,8 @@ def _cmd_export(args) -> int:
 
     formats = ("csv", "json") if args.format == "both" else (args.format,)
     with open_store_option(args.store) as store:
-        files = export_statistics(store, args.out, formats=formats, overwrite=args.overwrite)
+        with named_options(out_dir="--out"):
+            files = export_statistics(store, args.out, formats=formats, overwrite=args.overwrite)
         n = len(store)
     print(f"exported the statistics of {n} subjects:")
     for f in files:
@@ -233,7 +234,8 @@ def add_export(sub):
     p.add_argument(
         "--overwrite",
         action="store_true",
-        help="write into a non-empty folder that holds no earlier release (its files of the same names are replaced)",
+        help="write into a non-empty folder: replace an earlier release there (its files of the other format are "
+        "removed), or, in a folder that holds none, replace files of the release's names and remove nothing",
     )
     p.set_defaults(func=_cmd_export)
 

@@ -41,10 +41,11 @@ counts, means and standard deviations, the pooled covariance of any selection
 of subjects follows exactly (:func:`facestats.analysis.pca.pooled_moments`,
 Fig. 15).
 
-The release is written only into a new or empty folder or over an earlier
-release (whose files of the other format are then removed, so the folder holds
-one release); any other non-empty folder is refused unless ``overwrite=True``,
-which replaces the files of the release's names there and removes nothing.
+The release is written only into a new or empty folder; any other folder is
+refused unless ``overwrite=True`` (as every command that writes files asks).
+With it, an earlier release is replaced (its files of the other format are
+removed, so the folder holds one release), and in a folder that holds no
+release the files of the release's names are replaced and nothing is removed.
 """
 
 from __future__ import annotations
@@ -167,15 +168,16 @@ def export_statistics(store, out_dir, formats=("csv", "json"), *, overwrite: boo
     store : facestats.io.store.Store
     out_dir : str or os.PathLike
         Created if missing; never the store's folder or a folder inside it.  An existing folder must be
-        empty or hold an earlier release (its ``README.txt`` starts with :data:`RELEASE_TITLE`): the
-        release's files are replaced, and those of a format not written now (:data:`RELEASE_FILES`) are
-        removed, so the folder holds one release; other files there are kept.  Checked before anything is
-        written, and the files are written all or none (:class:`facestats.core.outputs.OutputSet`): a
-        failure (e.g. a full disk) leaves the folder as it was.
+        empty unless ``overwrite``.  Checked before anything is written, and the files are written all or
+        none (:class:`facestats.core.outputs.OutputSet`): a failure (e.g. a full disk) leaves the folder as
+        it was.
     formats : iterable of {"csv", "json"}
     overwrite : bool
-        Also write into a non-empty folder that holds no release, replacing its files of the release's
-        names (``README.txt`` and those of ``formats``) and removing nothing.
+        Also write into a non-empty folder.  Over an earlier release (its ``README.txt`` starts with
+        :data:`RELEASE_TITLE`) the release's files are replaced and those of a format not written now
+        (:data:`RELEASE_FILES`) removed, so the folder holds one release; other files there are kept.  In a
+        folder that holds no release its files of the release's names (``README.txt`` and those of
+        ``formats``) are replaced and nothing is removed.
 
     Returns
     -------
@@ -195,12 +197,13 @@ def export_statistics(store, out_dir, formats=("csv", "json"), *, overwrite: boo
     check_apart(out_dir, store.path, "out_dir")
     entries = sorted(os.listdir(out_dir)) if out_dir.is_dir() else []
     release = _is_release(out_dir)
-    if entries and not release and not overwrite:
+    if entries and not overwrite:
         shown = ", ".join(repr(e) for e in entries[:5]) + (", ..." if len(entries) > 5 else "")
+        what = "an earlier statistics release" if release else f"{len(entries)} entries ({shown})"
         raise ValidationError(
-            "out_dir must be a new or empty folder or an earlier facestats statistics release (overwrite=True, "
-            f"--overwrite: write into any folder, replacing files of the release's names), got {str(out_dir)!r}, "
-            f"which holds {len(entries)} entries ({shown})"
+            "out_dir must be a new or empty folder (overwrite=True, --overwrite: replace an earlier release, or "
+            f"write into any folder replacing files of the release's names), got {str(out_dir)!r}, which holds "
+            f"{what}"
         )
     with OutputSet(out_dir) as out:
         _write_release(store, out, formats)

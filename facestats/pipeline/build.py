@@ -182,14 +182,19 @@ class BuildReport:
     seconds: float
     workers: int
     failed: dict = field(default_factory=dict)
+    #: How many subjects ``sigma_tr_avg`` averages: the drawn population's subjects under normal conditions,
+    #: whichever of them this build wrote (every fit uses the same value, so partial builds agree).
+    sigma_tr_subjects: int = 0
 
     def to_text(self) -> str:
         """One line for the command line, then one line per failed subject."""
         text = (
             f"store {self.store}: {len(self.written)} subject(s) written, {len(self.skipped)} already present"
             + (f", {len(self.failed)} FAILED" if self.failed else "")
-            + f"; sigma_trAvg = {np.round(self.sigma_tr_avg, 4).tolist()} mm^-1; "
-            f"{self.seconds:.1f} s with {self.workers} worker(s)"
+            + f"; {self.seconds:.1f} s with {self.workers} worker(s)\n"
+            f"sigma_trAvg used by every fit = {np.round(self.sigma_tr_avg, 4).tolist()} mm^-1 (R, G, B), the "
+            f"cheek and forehead mean over all {self.sigma_tr_subjects} subjects of the drawn population under "
+            "normal conditions, not only those written"
         )
         return "\n".join([text] + [f"  failed {sid}: {err}" for sid, err in sorted(self.failed.items())])
 
@@ -439,6 +444,7 @@ def build_store(
         written=sorted(sid for sid, state, _ in results if state == "done"),
         skipped=skipped,
         sigma_tr_avg=stra,
+        sigma_tr_subjects=len(normal),
         seconds=time.perf_counter() - t0,
         workers=size,
         failed={sid: err for sid, state, err in results if state != "done"},

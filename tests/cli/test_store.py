@@ -236,3 +236,22 @@ def test_export_into_a_folder_of_other_files_needs_overwrite_and_removes_nothing
         "statistics.json",
         "subjects.csv",
     ]
+
+
+def test_errors_name_the_commands_options_not_the_api_parameters(tmp_path):
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "mine.txt").write_text("mine")
+    res = run_cli("export", "--out", str(tmp_path / "full"))
+    assert res.returncode == 2 and "error: --out must be a new or empty folder" in res.stderr
+    res = run_cli("build", "--store", str(tmp_path / "x.zarr"), "--size", "2")
+    assert res.returncode == 2 and "error: --size must be an integer in [8, inf], got 2" in res.stderr
+    res = run_cli("build", "--store", str(tmp_path / "x.zarr"), "--size", "8", "--subjects", "S999")
+    assert res.returncode == 2 and "error: --subjects must be ids of the population, got unknown ['S999']" in res.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["full"]  # nothing written
+
+
+def test_the_build_report_says_what_sigma_tr_avg_averages(tmp_path):
+    res = run_cli("build", "--store", str(tmp_path / "s.zarr"), "--size", "8", "--subjects", "S001", "--quiet")
+    assert res.returncode == 0, res.stderr
+    assert "1 subject(s) written" in res.stdout
+    assert "the cheek and forehead mean over all 150 subjects of the drawn population under normal" in res.stdout

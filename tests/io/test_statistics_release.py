@@ -29,7 +29,7 @@ def test_a_folder_that_is_not_a_release_is_refused_and_left_alone(tmp_path, stor
     (out / "README.txt").write_text("my own readme")
     with pytest.raises(ValidationError) as err:
         export_statistics(store, out, formats=("csv",))
-    assert str(err.value).startswith("out_dir must be a new or empty folder or an earlier facestats statistics release")
+    assert str(err.value).startswith("out_dir must be a new or empty folder (overwrite=True, --overwrite: replace")
     assert "which holds 2 entries ('README.txt', 'statistics.json')" in str(err.value)
     assert sorted(os.listdir(out)) == ["README.txt", "statistics.json"]
     assert (out / "statistics.json").read_text() == "my own statistics"
@@ -47,11 +47,15 @@ def test_an_earlier_release_is_replaced_with_the_other_format_and_other_files_ke
     export_statistics(store, out, formats=("json",))  # a new folder
     assert sorted(os.listdir(out)) == ["README.txt", "statistics.json"]
     (out / "notes.txt").write_text("mine")
-    export_statistics(store, out, formats=("csv",))  # an earlier release: no overwrite needed
+    before = {name: (out / name).read_bytes() for name in os.listdir(out)}
+    with pytest.raises(ValidationError, match="which holds an earlier statistics release"):
+        export_statistics(store, out, formats=("csv",))  # replacing a release needs overwrite, as everywhere
+    assert {name: (out / name).read_bytes() for name in os.listdir(out)} == before
+    export_statistics(store, out, formats=("csv",), overwrite=True)
     assert sorted(os.listdir(out)) == ["README.txt", "albedo_histograms.csv", "notes.txt", "subjects.csv"]
     readme = (out / "README.txt").read_text()
     assert "subjects.csv" in readme and "statistics.json" not in readme  # it describes the files written
-    export_statistics(store, out)
+    export_statistics(store, out, overwrite=True)
     assert sorted(os.listdir(out)) == [
         "README.txt", "albedo_histograms.csv", "notes.txt", "statistics.json", "subjects.csv",
     ]  # fmt: skip

@@ -15,7 +15,14 @@ from __future__ import annotations
 
 import os
 
-from facestats.cli.options import add_store_option, ascii_float, ascii_int, open_store_option, store_path_option
+from facestats.cli.options import (
+    add_store_option,
+    ascii_float,
+    ascii_int,
+    named_options,
+    open_store_option,
+    store_path_option,
+)
 
 __all__ = ["add_edit"]
 
@@ -209,19 +216,20 @@ def _cmd_colour(args) -> int:
 def _cmd_texture(args) -> int:
     from facestats.edit.subjects import transfer_texture_subject
 
-    return _run(
-        args,
-        transfer_texture_subject,
-        _target(args, stats=True),
-        regions=args.regions,
-        levels=args.levels,
-        bins=args.bins,
-        iterations=args.iterations,
-        seed=args.seed,
-        noise=args.noise,
-        feather=args.feather,
-        keep_translucency=args.keep_translucency,
-    )
+    with named_options(bins="--bins", levels="--levels", iterations="--iterations", noise="--noise"):
+        return _run(
+            args,
+            transfer_texture_subject,
+            _target(args, stats=True),
+            regions=args.regions,
+            levels=args.levels,
+            bins=args.bins,
+            iterations=args.iterations,
+            seed=args.seed,
+            noise=args.noise,
+            feather=args.feather,
+            keep_translucency=args.keep_translucency,
+        )
 
 
 def _cmd_stats(args) -> int:
@@ -328,7 +336,12 @@ def add_edit(sub) -> None:
     a.add_argument(
         "--levels", type=ascii_int, default=None, help="pyramid levels (default: the most the map supports, <= 7)"
     )
-    a.add_argument("--bins", type=ascii_int, default=256, help="histogram bins for a subject target (default 256)")
+    a.add_argument(
+        "--bins",
+        type=ascii_int,
+        default=None,
+        help="histogram bins for a subject target (default 256); a --stats target fixes its own",
+    )
     a.add_argument("--noise", type=ascii_float, default=0.1, help="start-noise amplitude (default 0.1)")
     a.add_argument("--feather", type=ascii_float, default=2.0, help="blend width in texels inside the edge (default 2)")
     _keep_translucency_arg(a)

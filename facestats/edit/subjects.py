@@ -381,8 +381,8 @@ def transfer_texture_subject(
     *,
     regions=None,
     levels: int | None = None,
-    orientations: int = 4,
-    bins: int = 256,
+    orientations: int | None = None,
+    bins: int | None = None,
     iterations: int = 5,
     seed=None,
     noise: float = 0.1,
@@ -419,8 +419,9 @@ def transfer_texture_subject(
     levels : int, optional
         Pyramid levels; default those of target statistics, else the most the
         maps support (at most 7, §8; 3 for 48 × 48 maps).
-    orientations, bins : int
-        Pyramid orientations and histogram bins for a subject target (§8: 4, 256).
+    orientations, bins : int, optional
+        Pyramid orientations and histogram bins for a subject target (default 4 and 256, §8).  Target
+        statistics fix both: a value other than theirs is a :class:`ValidationError`.
     iterations : int
         Heeger-Bergen iterations.
     seed : int, optional
@@ -446,6 +447,16 @@ def transfer_texture_subject(
     session = EditSession(store, out_store).open(subject)
     regions = session.regions(regions)
     target = resolve_target(session.store, target, session.source_id, query=False, statistics=True)
+    if target.statistics is not None:  # they fix the pyramid and the histograms: another value would be ignored
+        stats = target.statistics
+        for name, value, fixed in (("orientations", orientations, stats.orientations), ("bins", bins, stats.bins)):
+            if value is not None and value != fixed:
+                raise ValidationError(
+                    f"{name} must be the target statistics' {fixed} (they fix the pyramid and the histograms), "
+                    f"got {value}"
+                )
+    orientations = 4 if orientations is None else orientations  # §8's; recorded as given before 2026-12-05
+    bins = 256 if bins is None else bins
     mask = region_labels(session.region, regions)
     if target.statistics is not None:
         texture_target, kwargs = target.statistics, {"levels": levels}

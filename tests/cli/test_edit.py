@@ -116,6 +116,9 @@ def test_texture_with_regions_and_saved_stats(pop, tmp_path):
     for r in (r1, r3):
         assert r.returncode == 0, r.stderr
     assert "histogram distance to the target" in r1.stdout
+    # statistics fix the bins: another --bins was ignored (the summary said bins=256); now refused, nothing written
+    r = run_cli("edit", "texture", "F3", "--stats", tmp_path / "f5a.npz", "--bins", "16", "--id", "T4", *common)
+    assert r.returncode == 2 and "--bins must be the target statistics' 256 (they fix the pyramid" in r.stderr
     with open_store(out) as st, open_store(pop) as src_store:
         src = src_store.subject("F3")
         t1, t3 = st.subject("T1"), st.subject("T3")
@@ -123,6 +126,8 @@ def test_texture_with_regions_and_saved_stats(pop, tmp_path):
     out1, out3 = ~np.isin(reg, [2, 6, 7]), reg != 7
     np.testing.assert_array_equal(t1["albedo"].values[out1], src["albedo"].values[out1])
     np.testing.assert_array_equal(t3["albedo"].values[out3], src["albedo"].values[out3])
+    with open_store(out) as st:
+        assert "T4" not in st.ids()
     p1, p3 = provenance(t1)["edit"], provenance(t3)["edit"]
     assert p1["target"] == {"subject": "F5a"} and p1["parameters"]["regions"] == [2, 6, 7]
     assert p3["target"]["file"] == str(tmp_path / "f5a.npz")

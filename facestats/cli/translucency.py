@@ -68,10 +68,13 @@ def _cmd_translucency(args) -> int:
         method=args.method,
         grid=args.grid,
         refine=args.refine,
-        progress=True,
+        progress=not args.quiet,
     )
     names = ["R", "G", "B"] if len(fits) == 3 else [f"channel {k}" for k in range(len(fits))]
-    print(f"patches: {len(patches)} (spacing {patches.spacing:.4g} mm), eta {eta:g}, method {args.method}")
+    print(
+        f"patches: {len(patches)} (--spacing {args.spacing:g} mm: sub-triangle edges at most {args.spacing:g} mm; "
+        f"neighbouring centres {patches.spacing:.4g} mm apart, median), eta {eta:g}, method {args.method}"
+    )
     for name, fit in zip(names, fits):
         s = fit.summary()
         (s0, s1), (a0, a1) = s["sigma_s_prime_interval"], s["sigma_a_interval"]
@@ -120,7 +123,16 @@ def add_translucency(sub):
     p.add_argument("--lights", required=True, help="light description (JSON, see docs/translucency_from_image.md)")
     p.add_argument("--camera", required=True, help="pinhole camera (JSON: matrix, rotation, position_mm, image_size)")
     p.add_argument("--image", required=True, help="linear radiance image (.exr, .pfm, or .npz with 'radiance')")
-    p.add_argument("--spacing", type=ascii_float, default=1.0, help="patch edge length in mm (default 1)")
+    p.add_argument(
+        "--spacing",
+        type=ascii_float,
+        default=1.0,
+        help=(
+            "longest patch edge in mm (default 1): each mesh triangle is split into k*k sub-triangles, "
+            "k = ceil(longest triangle edge / SPACING); neighbouring patch centres lie closer, about half "
+            "SPACING (their median distance is printed)"
+        ),
+    )
     p.add_argument("--scale", type=ascii_float, default=1.0, help="mesh units to mm (default 1)")
     p.add_argument("--width", default="auto", help="quantisation width in mm, or 'auto' (default)")
     p.add_argument("--method", choices=("monotone", "pinv"), default="monotone", help="solve (default monotone)")
@@ -129,4 +141,5 @@ def add_translucency(sub):
     p.add_argument("--eta", type=ascii_float, default=None, help="relative index (default: the light file's, else 1.3)")
     p.add_argument("--json", default="", help="also write the estimates and diagnostics as JSON here")
     p.add_argument("--plot", default="", help="write the Fig. 5 style plot (measured R' and fitted dipole) here")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_translucency)

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from facestats.analysis.population import region_samples
-from facestats.core.conventions import parse_condition, parse_skin_type
+from facestats.core.conventions import ROMAN, parse_condition, parse_skin_type
 from facestats.core.validate import check_seed
 from facestats.edit.masks import face_mask
 from facestats.edit.session import EDIT_SOURCE, check_store
@@ -99,6 +99,14 @@ def _normalise_query(query) -> dict:
     if q.get("condition") is not None:
         q["condition"] = parse_condition(q["condition"])
     return q
+
+
+def _describe_query(q: dict) -> str:
+    """A normalised target query as a user would type it: ``skin type V, condition normal``."""
+    parts = [
+        f"{key.replace('_', ' ')} {ROMAN[v] if key == 'skin_type' else v}" for key, v in q.items() if v is not None
+    ]
+    return ", ".join(parts) or "any subject"
 
 
 def select_subjects(store, query, *, exclude=()) -> list[str]:
@@ -188,7 +196,8 @@ def resolve_target(store, target, source_id, *, query=True, statistics=False) ->
         ids = select_subjects(store, q, exclude=[source_id])
         if not ids:
             raise ValidationError(
-                f"target query {q} matches no subject in store {store.label} (the edited subject and edited "
+                f"target query ({_describe_query(q)}) matches no subject in store {store.label} (the edited subject "
+                "and edited "
                 "subjects excluded)"
             )
         return Target(subjects=ids, record={"query": q, "subjects": ids})

@@ -45,7 +45,10 @@ from facestats.errors import DependencyError, FacestatsError, StoreError, Valida
 
 __all__ = ["create_app", "FILTERS", "MAX_QUERY_STRING", "MAX_BODY", "MAX_HEAVY", "HEAVY_WAIT", "error_text"]
 
-FILTERS = ("skin_type", "gender", "age", "condition", "region")
+FILTERS = ("skin_type", "gender", "age", "condition", "region", "edits")
+#: Values of the ``edits`` filter (``facestats query --edits``): include the subjects written by edits, or not.
+EDITS_VALUES = {"": False, "0": False, "false": False, "no": False, "1": True, "true": True, "yes": True,
+                "include": True}  # fmt: skip
 MAX_QUERY_STRING = 1024
 MAX_BODY = 1024
 MAX_VALUE = 32
@@ -109,6 +112,10 @@ def _filters(args) -> dict:
         if len(value) > MAX_VALUE:
             raise ValidationError(f"{key} must be at most {MAX_VALUE} characters, got {len(value)}")
         out[key] = value or None
+    edits = (out.pop("edits") or "").lower()
+    if edits not in EDITS_VALUES:
+        raise ValidationError(f"filter edits must be one of {sorted(set(EDITS_VALUES) - {''})}, got {edits!r}")
+    out["edits"] = EDITS_VALUES[edits]
     return out
 
 

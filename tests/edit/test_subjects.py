@@ -324,7 +324,7 @@ def test_ids_are_new_and_existing_ids_refused(store, pop):
 def test_errors(store, pop, tmp_path):
     with pytest.raises(ValidationError, match="subject must be a map subject"):
         change_skin_type(store, "M1", 2)
-    with pytest.raises(ValidationError, match="matches no subject"):
+    with pytest.raises(ValidationError, match=r"target query \(skin type I, condition cold\) matches no subject"):
         transfer_brdf_subject(store, "A2", {"skin_type": 1, "condition": "cold"})
     with pytest.raises(ValidationError, match="target must differ"):
         transfer_brdf_subject(store, "A2", "A2")

@@ -44,3 +44,12 @@ def test_images_of_other_than_one_or_three_channels_are_refused_first(warm_scene
         ValidationError, match=r"image must have shape \(H, W\), \(H, W, 1\) or \(H, W, 3\), got \(300, 300, 4\)"
     ):
         fit_image_translucency(scene.patches, scene.lights, scene.camera, four)
+
+
+def test_the_skin_grid_fits_through_the_api_although_its_far_corner_underflows(warm_scene):
+    """fit_image_translucency(grid="skin") used to fail with numpy's "zero-size array to reduction operation"."""
+    scene, image = warm_scene
+    red = fit_image_translucency(scene.patches, scene.lights, scene.camera, image, grid="skin", refine=True)[0]
+    (s0, s1), (a0, a1) = red.summary()["sigma_s_prime_interval"], red.summary()["sigma_a_interval"]
+    assert s0 <= 2.19 <= s1 and a0 <= 0.0021 <= a1
+    assert abs(red.sigma_s_prime - 2.19) <= 0.05 and abs(red.sigma_a - 0.0021) <= 0.0003

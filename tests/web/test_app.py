@@ -179,3 +179,20 @@ def test_a_damaged_subject_is_409_and_the_others_still_serve(tmp_path):
     assert r.status_code == 409 and "variable 'albedo' does not match its checksum" in r.get_json()["error"]
     assert b"Traceback" not in r.data
     assert client.get("/api/subject/S001").status_code == 200
+
+
+def test_edited_subjects_are_left_out_unless_asked_for_as_in_the_cli(tmp_path, capsys):
+    from facestats.web import create_app
+    from tests.helpers import store_from_default
+
+    path = store_from_default(tmp_path / "edits.zarr", ids=("S001", "S006"))  # S006: skin type V
+    assert cli_main(["edit", "skin-type", "S001", "V", "--store", path, "--images", str(tmp_path / "img")]) == 0
+    client = create_app(path, preload=False).test_client()
+    capsys.readouterr()
+    for value, flag in (("", []), ("include", ["--edits"]), ("1", ["--edits"]), ("no", [])):
+        doc = client.get(f"/api/query?edits={value}").get_json()
+        assert cli_main(["query", "--store", path, "--format", "json", *flag]) == 0
+        assert doc == json.loads(capsys.readouterr().out)
+        assert doc["count"] == (3 if flag else 2)
+    r = client.get("/api/query?edits=maybe")
+    assert r.status_code == 400 and "filter edits must be one of ['0', '1', 'false', 'include'" in r.get_json()["error"]

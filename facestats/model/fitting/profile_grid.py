@@ -11,7 +11,11 @@ model, and Suzuki's σs is the reduced σ's because g = 0 (eq. 13).  The search 
 exhaustive over a grid, by default Suzuki Table 2 (σ's 0.01-3.00 step 0.01,
 σa 0.0001-0.0030 step 0.0001 mm⁻¹, η = 1.3: 9,000 models), vectorised over all
 models: with M the (models × levels) matrix of ln R, the costs are
-Σ M² − 2 M y + y·y for y = ln R'.  An optional refinement continues from the
+Σ M² − 2 M y + y·y for y = ln R'.  A model whose R underflows to 0 at a fitted
+level (ln R = −∞ where ln R' is finite: large σ's and σa far out, e.g. the skin
+grid's corner σ's 20, σa 5 mm⁻¹ at 39 mm) costs +∞, where the expansion would
+give ∞ − ∞ = NaN; if every model of the grid does, the fit raises
+:class:`~facestats.errors.FitError`.  An optional refinement continues from the
 best grid model with a bounded least-squares solve in (ln σ's, ln σa)
 (:func:`scipy.optimize.least_squares`).
 
@@ -104,6 +108,8 @@ def profile_cost(distances, log_profile, grid: ProfileGrid, eta) -> np.ndarray:
     grid : ProfileGrid
     eta : float
         Relative index of refraction.
+
+    Models whose R underflows to 0 at one of the levels cost ``inf`` (module docstring).
     """
     d = np.asarray(distances, np.float64)
     y = np.asarray(log_profile, np.float64)
@@ -113,7 +119,9 @@ def profile_cost(distances, log_profile, grid: ProfileGrid, eta) -> np.ndarray:
     for start in range(0, total, _CHUNK_MODELS):  # loop over chunks of models, vectorised within
         rows = np.arange(start, min(start + _CHUNK_MODELS, total))
         m = _log_models(grid, d, eta, rows)
-        cost[rows] = np.einsum("ij,ij->i", m, m) - 2 * (m @ y) + yy
+        finite = np.isfinite(m).all(axis=1)  # R underflowed to 0 at some level: ln R' − ln R = +∞ (docstring)
+        m[~finite] = 0.0
+        cost[rows] = np.where(finite, np.einsum("ij,ij->i", m, m) - 2 * (m @ y) + yy, np.inf)
     return np.maximum(cost, 0).reshape(grid.shape)
 
 
@@ -222,6 +230,13 @@ def fit_profile_grid(
     best = np.unravel_index(int(np.argmin(cost)), cost.shape)
     gs, ga = float(grid.sigma_s_prime[best[0]]), float(grid.sigma_a[best[1]])
     cmin = float(cost[best])
+    if not np.isfinite(cmin):
+        (s0, s1), (a0, a1) = (grid.sigma_s_prime[[0, -1]], grid.sigma_a[[0, -1]])
+        raise FitError(
+            f"eq. 36: every model of the grid (sigma_s' {s0:g}-{s1:g}, sigma_a {a0:g}-{a1:g} 1/mm) has R "
+            f"underflowing to 0 at some of the {n_used} levels up to {float(du.max()):g} mm; "
+            "fit fewer levels (max_distance) or use a grid of smaller coefficients"
+        )
     s, a, c = (gs, ga, cmin)
     if refine:
         s, a, c = _refine(du, y, gs, ga, eta, grid)

@@ -36,6 +36,7 @@ import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from facestats.core.conventions import EDIT_SOURCE
 from facestats.core.processes import process_gone
 from facestats.errors import ValidationError
 from facestats.io.ids import check_subject_id
@@ -174,6 +175,8 @@ class BuildStatus:
     interrupted: list = field(default_factory=list)
     failed: dict = field(default_factory=dict)
     records: dict = field(default_factory=dict)
+    #: Subjects of the store that no build wrote: edits (source ``facestats.edit``) and imported sample subjects.
+    others: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         """JSON-ready: counts and ids per state, the failed subjects' last errors."""
@@ -183,6 +186,7 @@ class BuildStatus:
             "running": self.running,
             "interrupted": self.interrupted,
             "failed": self.failed,
+            "others": len(self.others),
         }
 
     def to_text(self) -> str:
@@ -190,6 +194,7 @@ class BuildStatus:
         lines = [
             f"store {self.store}: {len(self.done)} done, {len(self.running)} running, "
             f"{len(self.interrupted)} interrupted, {len(self.failed)} failed"
+            + (f" (and {len(self.others)} edited or imported subject(s), not built)" if self.others else "")
         ]
         for sid in self.running:
             r = self.records[sid]
@@ -218,9 +223,11 @@ def build_status(store_path) -> BuildStatus:
 
     store_path = store_directory(store_path)  # a file:// URL, as `facestats build --store` takes, is its path
     with open_store(store_path, mode="r") as store:
-        done = sorted(store.ids())
-    records = {sid: rec for sid, rec in BuildJournal(store_path).records().items() if sid not in done}
+        rows = {sid: entry["row"] for sid, entry in store.index_entries().items()}
+    built = {sid for sid, row in rows.items() if row.get("source") != EDIT_SOURCE and row.get("kind") != "samples"}
+    done, others = sorted(built), sorted(set(rows) - built)
+    records = {sid: rec for sid, rec in BuildJournal(store_path).records().items() if sid not in rows}
     running = sorted(s for s, r in records.items() if r.get("state") == "running" and _alive(r))
     interrupted = sorted(s for s, r in records.items() if r.get("state") == "running" and s not in running)
     failed = {s: r.get("error") for s, r in sorted(records.items()) if r.get("state") == "failed"}
-    return BuildStatus(str(store_path), done, running, interrupted, failed, records)
+    return BuildStatus(str(store_path), done, running, interrupted, failed, records, others)

@@ -131,6 +131,14 @@ def test_failed_subjects_are_retried_then_reported_never_skipped(tmp_path, monke
     # The command line: --status lists the failure and exits 1.
     res = run_cli("build", "--status", str(store))
     assert res.returncode == 1 and "failed       S002  after 2 attempt(s): RuntimeError" in res.stdout
+    # an edit written into the store is not a build that is done
+    res = run_cli("edit", "brdf", "S001", "--target", "S003", "--store", str(store), "--images", str(tmp_path / "i"))
+    assert res.returncode == 0, res.stderr
+    status = build_status(store)
+    assert status.done == ["S001", "S003"] and len(status.others) == 1 and status.others[0].startswith("S001.brdf-")
+    assert "2 done, 0 running, 0 interrupted, 1 failed (and 1 edited or imported subject(s), not built)" in (
+        status.to_text()
+    )
 
 
 def test_status_reports_running_and_interrupted_subjects(tmp_path):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from facestats.cli.options import ascii_float, ascii_int, store_path_option
+from facestats.cli.options import ascii_float, ascii_int, named_options, store_path_option
 
 __all__ = ["add_microstructure"]
 
@@ -16,23 +16,26 @@ def _cmd_render(args) -> int:
         check_integer(args.size, "--size", 1)
     if args.frames is not None and args.targets is not None:
         raise ValidationError("--targets go with --weights (blendshapes), not with --frames; got both")
-    report = render_files(
-        args.neutral,
-        args.map,
-        args.out,
-        frames=args.frames,
-        targets=args.targets,
-        weights=args.weights,
-        scale=args.scale,
-        height_range_um=args.height_range_um,
-        map_shape=None if args.size is None else (args.size, args.size),
-        window=args.window,
-        table=args.table,
-        exr_dir=args.exr_dir,
-        tile=args.tile,
-        progress=not args.quiet,
-        overwrite=args.overwrite,
-    )
+    with named_options(
+        height_range_um="--height-range-um", tile="--tile", scale="--scale", table="--table", weights="--weights"
+    ):
+        report = render_files(
+            args.neutral,
+            args.map,
+            args.out,
+            frames=args.frames,
+            targets=args.targets,
+            weights=args.weights,
+            scale=args.scale,
+            height_range_um=args.height_range_um,
+            map_shape=None if args.size is None else (args.size, args.size),
+            window=args.window,
+            table=args.table,
+            exr_dir=args.exr_dir,
+            tile=args.tile,
+            progress=not args.quiet,
+            overwrite=args.overwrite,
+        )
     print(report.to_text())
     return 0
 
@@ -41,8 +44,11 @@ def _check_generate(args) -> None:
     """The options of ``microstructure generate``, checked before any work with messages naming them."""
     from facestats.core.outputs import check_output_file
     from facestats.core.validate import as_finite, check_integer
+    from facestats.errors import ValidationError
     from facestats.pipeline.microstructure import MAX_NEUTRAL_MAP_SIZE
 
+    if args.store is not None and args.subject is None:
+        raise ValidationError(f"--store names the store of --subject; give --subject too (got --store {args.store!r})")
     check_output_file(args.out, "--out", (".exr",), overwrite=args.overwrite)
     check_integer(args.size, "--size", 2, MAX_NEUTRAL_MAP_SIZE)
     as_finite(args.texel_um, "--texel-um", 0.0, 1000.0, low_inclusive=False, unit="um")
@@ -115,7 +121,7 @@ def add_microstructure(sub):
     g.add_argument("--size", type=ascii_int, default=1024, help="map side in texels, 2-16384 (default 1024)")
     g.add_argument("--texel-um", type=ascii_float, default=15.0, help="um per texel, in (0, 1000] (default 15)")
     g.add_argument("--subject", help="store subject id (e.g. S001)")
-    g.add_argument("--store", help="store path (default: the embedded store)")
+    g.add_argument("--store", help="store of --subject (default, or 'default': the embedded store)")
     g.add_argument("--seed", type=ascii_int, help="seed, >= 0 (default: from the subject id)")
     g.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     g.set_defaults(func=_cmd_generate)

@@ -18,6 +18,7 @@ __all__ = [
     "store_path_option",
     "open_store_option",
     "TEXTURE_SAMPLE",
+    "DEFAULT_STORE",
     "ascii_number",
     "number_option",
     "ascii_int",
@@ -107,20 +108,25 @@ def ascii_float(text) -> float:
 #: The ``--store`` value that names the texture sample (:mod:`facestats.pipeline.texture_sample`);
 #: a directory of that name is written ``./texture-sample``.
 TEXTURE_SAMPLE = "texture-sample"
+#: The ``--store`` value that names the embedded store, as leaving ``--store`` out does (and as
+#: ``facestats emulate --store default`` takes it); a directory of that name is written ``./default``.
+DEFAULT_STORE = "default"
 
 
 def add_store_option(
     parser,
     help="a store directory (X.zarr) or zip, or texture-sample (six subjects with 512² maps, built once into "
-    "the cache); default: the store embedded in facestats",
+    "the cache); default (or 'default'): the store embedded in facestats",
 ):
     """``--store PATH`` (default None: the embedded store)."""
     parser.add_argument("--store", default=None, metavar="PATH", help=help)
 
 
 def store_path_option(value):
-    """The store a ``--store`` value names: None (the embedded default), the texture sample's zip
-    (built into the cache on first use) for ``texture-sample``, else ``value`` itself."""
+    """The store a ``--store`` value names: None (the embedded default) for None or ``default``, the texture
+    sample's zip (built into the cache on first use) for ``texture-sample``, else ``value`` itself."""
+    if value == DEFAULT_STORE:
+        return None
     if value == TEXTURE_SAMPLE:
         from facestats.pipeline.texture_sample import texture_sample
 

@@ -109,7 +109,12 @@ def check_output_file(path, name: str = "out", suffixes=None, *, overwrite: bool
     if suffixes is not None:
         accepted = sorted(set(suffixes))
         if p.suffix.lower() not in accepted:
-            raise ValidationError(f"{name} must end in one of {accepted}, got {str(p)!r}")
+            bare = p.name.lower() in accepted  # '.exr': a hidden file's name without a suffix, no name before it
+            raise ValidationError(
+                f"{name} must end in one of {accepted}"
+                + (f" after a file name (e.g. out{p.name.lower()})" if bare else "")
+                + f", got {str(p)!r}"
+            )
     if os.path.lexists(p):
         if not p.is_file():
             raise ValidationError(f"{name} must be a file, got {str(p)!r}, which exists and is not a regular file")

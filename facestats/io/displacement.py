@@ -66,7 +66,8 @@ def read_displacement(path, *, height_range_um=None, midpoint=0.5) -> np.ndarray
     ----------
     path : path-like
     height_range_um : float, optional
-        Integer files: µm spanned by the code range 0 … max (required for them; ignored for float files).
+        Integer files: µm spanned by the code range 0 … max (required for them; refused for float files,
+        which are in µm already: a range given for one would be silently ignored).
     midpoint : float
         Integer files: the code fraction that means height 0.
 
@@ -76,6 +77,12 @@ def read_displacement(path, *, height_range_um=None, midpoint=0.5) -> np.ndarray
     """
     p = pathlib.Path(os.fspath(path))
     ext = p.suffix.lower()
+    float_file = ext not in INTEGER_EXTENSIONS or (ext in (".tif", ".tiff") and _float_tiff(p))
+    if float_file and height_range_um is not None:
+        raise ValidationError(
+            f"height_range_um applies to integer images only: {str(p)!r} holds floating-point heights in um "
+            f"already, got {height_range_um!r}"
+        )
     if ext in (".tif", ".tiff") and _float_tiff(p):
         h = _one_channel(_read_float_tiff(p), p)
     elif ext in INTEGER_EXTENSIONS:

@@ -481,6 +481,11 @@ def open_sequence(neutral, *, frames=None, targets=None, weights=None, scale=1.0
     mesh = read_mesh(neutral, scale=scale).require_uv()
     if frames is not None:
         return FrameSequence(mesh, frames, scale=scale)
+    if not targets:  # only an ICT-FaceKit checkout names its blendshapes itself
+        raise ValidationError(
+            f"weights need targets: the blendshape meshes their columns name (or an ICT-FaceKit checkout as the "
+            f"neutral), got weights {os.fspath(weights)!r} and no targets"
+        )
     names_w, w = read_weights(weights)
     shapes = {
         os.path.splitext(os.path.basename(os.fspath(t)))[0]: read_vertices(t, mesh, scale=scale) for t in targets or []

@@ -264,10 +264,23 @@ def test_command_line_generates_and_renders(tmp_path, capsys):
     assert "n.exr' exists (pass --overwrite to replace it)" in capsys.readouterr().err
     assert (tmp_path / "n.exr").read_bytes() == neutral
     assert main(generate + ["--overwrite"]) == 0 and (tmp_path / "n.exr").read_bytes() == neutral  # same seed
+    # --store default is the embedded store, as leaving it out; --store without --subject was ignored: refused
+    assert main(generate + ["--overwrite", "--store", "default"]) == 0 and (tmp_path / "n.exr").read_bytes() == neutral
+    assert main(generate[:-2] + ["--overwrite", "--store", str(tmp_path / "s.zarr")]) == 2
+    assert "--store names the store of --subject; give --subject too" in capsys.readouterr().err
+    assert main(["microstructure", "generate", "--out", str(tmp_path / ".exr")]) == 2
+    assert "--out must end in one of ['.exr'] after a file name (e.g. out.exr)" in capsys.readouterr().err
     (tmp_path / "w.csv").write_text("mouthSmile_L,mouthSmile_R\n0,0\n1,1\n")
     args = ["microstructure", "render", "--neutral", str(DATA), "--weights", str(tmp_path / "w.csv"),
             "--map", str(tmp_path / "n.exr"), "--size", "16384", "--window", "9050", "4200", "64", "64",
             "--out", str(tmp_path / "o.zarr"), "--quiet"]  # fmt: skip
+    assert main(args + ["--height-range-um", "50"]) == 2  # a float map is in um: the range would be ignored
+    assert "--height-range-um applies to integer images only" in capsys.readouterr().err
+    obj = tmp_path / "neutral.obj"  # a mesh file names no blendshapes: --weights needs --targets
+    obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n")
+    assert main(["microstructure", "render", "--neutral", str(obj), *args[4:]]) == 2
+    assert "--weights need targets: the blendshape meshes their columns name" in capsys.readouterr().err
+    assert not (tmp_path / "o.zarr").exists()
     assert main(args) == 0
     assert "2 frames" in capsys.readouterr().out
     assert zarr.open_group(str(tmp_path / "o.zarr"), mode="r")["done"][:].all()

@@ -165,7 +165,7 @@ def _cases(root, store, s):
         (
             "build size 100000",
             ["build", "--store", new / "b2.zarr", "--size", "100000"],
-            ["map_size 100000", "GiB"],
+            ["--size 100000 needs about", "GiB"],
             [new],
         ),
         (

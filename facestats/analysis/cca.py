@@ -380,7 +380,8 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
         raise InsufficientDataError(
             f"cca needs more complete rows (subjects) than variables: {n} rows for {wx.shape[1]} + {wy.shape[1]} "
             f"independent variables give a canonical correlation of 1 by construction (need at least "
-            f"{wx.shape[1] + wy.shape[1] + 1} rows, or regularization > 0)"
+            f"{wx.shape[1] + wy.shape[1] + 1} rows; the Python API's cca(regularization=) shrinks the covariances "
+            "instead, at the price of a criterion that is no longer a correlation)"
         )
     upper = 1.0 if plain else np.inf
     r, u, v = _canonical(xw, yw, upper)

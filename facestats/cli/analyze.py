@@ -191,8 +191,11 @@ def _run_actions(args, store, files, report) -> None:
 
     if args.action == "posterior":
         if args.population:
-            if args.subject or args.site:
-                raise ValidationError("posterior --population takes no --subject or --site")
+            if args.subject or args.site or args.noise != "model":
+                raise ValidationError(
+                    "posterior --population takes no --subject, --site or --noise stored (it works on each subject's "
+                    "fitted sigma_tr, whose spread within a skin type holds the measurement noise)"
+                )
             name, handler = "posterior_population", _population_posterior
         else:
             name, handler = "posterior", _posterior

@@ -248,7 +248,11 @@ def test_posterior_defaults_and_population(tmp_path, store):
             "site must be one of ['cheek', 'forehead', 'neck'], got 'ear'",
         ),
         (("scatter", "--site", "ear"), "site must be one of"),
-        (("posterior", "--population", "--subject", "S001"), "posterior --population takes no --subject or --site"),
+        (("posterior", "--population", "--subject", "S001"), "posterior --population takes no --subject, --site or"),
+        (
+            ("posterior", "--population", "--noise", "stored"),
+            "posterior --population takes no --subject, --site or --noise",
+        ),
         (("cca", "--permutations", "-1"), "--permutations must be >= 0, got -1"),
         (("pca", "--store", "/no/such/store.zarr"), "store /no/such/store.zarr does not exist"),
     ],

@@ -153,6 +153,11 @@ def _check_outputs(args) -> None:
         check_subject_id(args.new_id)
     if args.out_store is not None and not args.out_store.strip():
         raise ValidationError("--out-store must name a directory store, got ''")
+    if args.out_store is not None and args.out_store.lower().endswith(".zip"):
+        raise ValidationError(
+            "--out-store must name a directory store (e.g. edits.zarr; a zip store is read-only), got "
+            f"{args.out_store!r}"
+        )
     check_output_dir(args.images, "--images")
     source = store_path_option(args.store) if args.store is not None else default_store_path()
     check_apart(args.images, source, "--images", "the source store")

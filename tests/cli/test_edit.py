@@ -135,6 +135,8 @@ def test_texture_with_regions_and_saved_stats(pop, tmp_path):
 
 
 def test_errors_exit_2_with_clear_messages(pop, tmp_path):
+    r = run_cli("edit", "skin-type", "F3", "V", "--store", pop, "--out-store", tmp_path / "e.zip")
+    assert r.returncode == 2 and "--out-store must name a directory store (e.g. edits.zarr; a zip store" in r.stderr
     r = run_cli("edit", "skin-type", "P150-normal", "V", "--images", tmp_path)
     assert r.returncode == 2 and "embedded default store is read-only: pass --out-store PATH" in r.stderr
     r = run_cli("edit", "brdf", "F3", "--store", pop, "--images", tmp_path)

@@ -74,6 +74,9 @@ def _serve(server, args, what):
     print(
         f"stopped after {server.commands} commands; frames written {server.writer.written}; faults {injected or 'none'}"
     )
+    if args.hot_folder is None or args.lab is None:  # the files must outlive the emulator: capture and ingest read them
+        kept = [str(p) for p, given in ((server.hot_folder, args.hot_folder), (server.lab, args.lab)) if given is None]
+        print(f"kept in a temporary folder (remove it when done): {', '.join(kept)}")
     return 0
 
 
@@ -175,7 +178,13 @@ def add_emulate(sub):
         ),
     )
     esub = p.add_subparsers(title="device", metavar="DEVICE")
-    dome = esub.add_parser("dome", help="the dome: LEDs, camera triggers, two exposure settings")
+    dome = esub.add_parser(
+        "dome",
+        help="the dome: LEDs, camera triggers, two exposure settings",
+        description="Emulate the dome's LED and trigger controller on a pseudo-terminal, its cameras writing each "
+        "trigger's frames into the hot folder, and the lab's calibration, face mesh and subject record; serve until "
+        "Ctrl-C, SIGTERM or --duration. `facestats capture dome` takes frames from it.",
+    )
     _common(dome)
     dome.add_argument(
         "--resolution", type=ascii_int, default=None, help="frame side in pixels (default: the rig's 1024)"
@@ -188,7 +197,13 @@ def add_emulate(sub):
     dome.add_argument("--workers", type=ascii_int, default=2, help="threads rendering frames (default 2)")
     dome.add_argument("--cache", help="directory keeping the cameras' pixel maps between runs")
     dome.set_defaults(func=_cmd_dome)
-    sensor = esub.add_parser("sensor", help="the contact sensor: lamp, shutter, 23-image bracket")
+    sensor = esub.add_parser(
+        "sensor",
+        help="the contact sensor: lamp, shutter, 23-image bracket",
+        description="Emulate the contact sensor (Weyrich et al. 2006 §4.2) on a pseudo-terminal: its lamp, shutter and "
+        "camera writing each exposure bracket into the hot folder, and the lab's sensor calibration and subject "
+        "record; serve until Ctrl-C, SIGTERM or --duration. `facestats capture sensor` takes brackets from it.",
+    )
     _common(sensor)
     sensor.set_defaults(func=_cmd_sensor)
     p.set_defaults(func=lambda args: p.print_help() or 2)

@@ -154,13 +154,13 @@ def _cmd_validate(args) -> int:
         if args.purge:
             return _purge(store, args.yes)
         if args.repair and not args.yes:
-            plan = store.plan_repair(allow_missing=args.allow_missing, progress=True)
+            plan = store.plan_repair(allow_missing=args.allow_missing, progress=not args.quiet)
             sys.stdout.write(plan.to_text())
             return 1 if plan.fixes_problems or plan.problems else 0
         if args.repair:
-            report = store.repair(allow_missing=args.allow_missing, progress=True)
+            report = store.repair(allow_missing=args.allow_missing, progress=not args.quiet)
         else:
-            report = store.validate(progress=True)
+            report = store.validate(progress=not args.quiet)
     sys.stdout.write(report.to_text())
     return 0 if report.ok else 1
 
@@ -204,6 +204,7 @@ def add_validate(sub):
         action="store_true",
         help="repair even if most subject folders are missing (otherwise the store looks unmounted and repair refuses)",
     )
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_validate)
 
 

@@ -201,3 +201,12 @@ def _lines(path):
         return path.read_bytes().count(b"\n")
     except FileNotFoundError:
         return 0
+
+
+def test_an_emulator_in_temporary_folders_says_where_it_leaves_them(tmp_path):
+    args = ["emulate", "sensor", "--subject", "S003", "--duration", "0.2", "--quiet", "--lab", tmp_path / "lab"]
+    r = run_cli(*args, env={"TMPDIR": str(tmp_path)})
+    assert r.returncode == 0, r.stderr
+    (hot,) = [p for p in tmp_path.iterdir() if p.name.startswith("facestats-emulate-sensor-")]
+    assert f"kept in a temporary folder (remove it when done): {hot / 'hot'}" in r.stdout
+    assert str(tmp_path / "lab") not in r.stdout.split("kept in")[1]  # a folder the user named is not temporary

@@ -126,7 +126,9 @@ def test_validate_and_repair(stores, tmp_path):
     import shutil
 
     r = run_cli("validate", "--store", stores[1])
-    assert r.returncode == 0 and "store is valid" in r.stdout
+    assert r.returncode == 0 and "store is valid" in r.stdout and "subject/s" in r.stderr  # its progress bar
+    r = run_cli("validate", "--store", stores[1], "--quiet")
+    assert r.returncode == 0 and "store is valid" in r.stdout and r.stderr == ""
     path = shutil.copytree(stores[0], tmp_path / "c.zarr")
     gen = next((path / "subjects" / "P2").glob("g*"))
     chunk = gen / "ts_m" / "c" / "0" / "0"

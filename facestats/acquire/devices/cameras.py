@@ -222,6 +222,25 @@ class HotFolderCameras(CameraBackend):
     def path(self, camera: int, frame: int) -> pathlib.Path:
         return self.folder / self.pattern.format(camera=camera, frame=frame, ext=self.extension)
 
+    def stray_frames(self) -> list:
+        """Frame files in the hot folder that the pattern names, of any camera and frame id, sorted.
+
+        Every frame a run collects is moved out of the hot folder (:meth:`release` removes what is left of a
+        step), and frame ids never repeat across runs, so after a run these are frames of triggers that no run
+        collected: those an interrupted run triggered and then stopped waiting for (they arrive after it).
+        """
+        import glob
+        import string
+
+        parts = []
+        for literal, field, _, _ in string.Formatter().parse(self.pattern):
+            parts.append(glob.escape(literal))
+            if field == "ext":
+                parts.append(glob.escape(self.extension))
+            elif field is not None:
+                parts.append("*")
+        return sorted(p for p in self.folder.glob("".join(parts)) if p.is_file())
+
     def prepare(self):
         if not self.folder.is_dir():
             raise DeviceError(

@@ -99,7 +99,7 @@ def capture(
     cameras.prepare()
     log = SessionLog(echo)
     with controller(port, log=log, **(link_options or {})) as device:
-        return run_session(
+        report = run_session(
             plan,
             device,
             cameras,
@@ -113,3 +113,5 @@ def capture(
             log=log,
             on_site=on_site,
         )
+    report.stray_frames = [str(p) for p in cameras.stray_frames()]
+    return report

@@ -99,6 +99,9 @@ class SessionReport:
     elapsed_s: float = 0.0
     link: dict = field(default_factory=dict)
     complete: bool = False
+    #: Frame files left in the hot folder at the end of the run, of triggers no run collected
+    #: (:meth:`~facestats.acquire.devices.cameras.HotFolderCameras.stray_frames`); the session does not use them.
+    stray_frames: list = field(default_factory=list)
 
     def to_text(self) -> str:
         head = f"{self.kind} session of {self.subject_id} in {self.out}: "
@@ -115,6 +118,11 @@ class SessionReport:
         if self.link:
             shown = {k: v for k, v in self.link.items() if v and k != "bytes_received"}
             lines.append("link: " + ", ".join(f"{k} {v}" for k, v in shown.items()))
+        if self.stray_frames:
+            lines.append(
+                f"hot folder: {len(self.stray_frames)} frame file(s) of triggers no run collected (an interrupted "
+                f"run's) are left there, e.g. {self.stray_frames[0]}; this session does not use them: delete them"
+            )
         return "\n".join(lines)
 
 

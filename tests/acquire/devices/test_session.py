@@ -2,6 +2,7 @@
 
 import json
 import os
+import pathlib
 import shutil
 import time
 
@@ -146,6 +147,11 @@ def test_an_interrupted_session_resumes_to_the_identical_folder(small, tmp_path)
         report = run_capture(server, tmp_path / "lab", tmp_path / "hot", out, resume=True)
         assert report.complete and report.steps_before == 6 and report.steps_taken == 14
         assert tree(out) == tree(root / "clean")
+        # the crashed run triggered steps 7 and 8 (one trigger of look-ahead) and collected neither: their 4 + 4
+        # frames stay in the hot folder, and the resumed run says so
+        assert len(report.stray_frames) == 8 and all(pathlib.Path(f).is_file() for f in report.stray_frames)
+        assert len({pathlib.Path(f).name for f in report.stray_frames}) == 2  # two frame ids, four cameras each
+        assert "hot folder: 8 frame file(s) of triggers no run collected" in report.to_text()
         log = (out / "session" / "log.txt").read_text()
         assert "removed a line cut short" in log and "step 3 has missing or altered frames" in log
         # A finished session loses a frame: --resume --verify reopens it and retakes that step only.

@@ -69,6 +69,7 @@ __all__ = [
     "LED_FORMAT",
     "ITERATIONS",
     "MAX_GRID",
+    "MIN_OBSERVATIONS",
 ]
 
 LED_FORMAT = "facestats.led-calibration/1"
@@ -79,6 +80,10 @@ ITERATIONS = 3
 #: some 0.4 GB, 100 some 6 GB (on a 6-LED, 3-camera rig 100 takes 2 s and 0.28 GB, 1000 took 4.5 min and 9.3 GB);
 #: six beam coefficients per LED need nowhere near 10,000 points per pose.
 MAX_GRID = 100
+#: Fewest usable observations (lit from the front, seen unsaturated) of an LED for its fit: twice the six
+#: coefficients of the beam polynomial.  An LED with fewer is not calibrated (NaN; :meth:`LedCalibration.apply`
+#: keeps its previous photometry).
+MIN_OBSERVATIONS = 12
 
 
 # -- OpenCV camera files ---------------------------------------------------------------------------------------
@@ -169,7 +174,17 @@ class LedCalibration:
     rms_residual : ndarray, shape (L,)
         RMS relative residual of each LED's observations.
     n_observations : ndarray of int, shape (L,)
+        Usable observations of each LED (fewer than :data:`MIN_OBSERVATIONS`: not calibrated).
     reference_camera : int
+    beam_stderr : ndarray, shape (L, 6), optional
+        Standard errors of the beam coefficients c₀..c₅ (c₀ ≡ 1: 0), from the residuals of the fit
+        (inf where the observations do not determine the polynomial at all).
+    beam_error : ndarray, shape (L,), optional
+        Largest relative standard error of the fitted beam P(s, t) over the target's points in front of
+        the LED (every pose, every camera: where the calibration is used).  At its own observations a
+        least-squares fit is never less certain than one observation (their leverage is at most 1), so a
+        ``beam_error`` above ``rms_residual`` means the beam is extrapolated beyond the LED's observations
+        (:attr:`poorly_determined`).
     """
 
     intensity: np.ndarray
@@ -178,6 +193,46 @@ class LedCalibration:
     rms_residual: np.ndarray
     n_observations: np.ndarray
     reference_camera: int
+    beam_stderr: np.ndarray | None = None
+    beam_error: np.ndarray | None = None
+
+    @property
+    def uncalibrated(self) -> np.ndarray:
+        """Indices of the LEDs without a fit (fewer than :data:`MIN_OBSERVATIONS` usable observations)."""
+        return np.nonzero(~np.isfinite(self.intensity).all(1))[0]
+
+    @property
+    def poorly_determined(self) -> np.ndarray:
+        """Indices of the fitted LEDs whose :attr:`beam_error` exceeds their ``rms_residual`` (class docstring)."""
+        if self.beam_error is None:
+            return np.zeros(0, np.int64)
+        fitted = np.isfinite(self.intensity).all(1)
+        with np.errstate(invalid="ignore"):
+            return np.nonzero(fitted & ~(self.beam_error <= self.rms_residual))[0]
+
+    def uncalibrated_text(self) -> str:
+        """One line naming the LEDs without a fit and why, or '' if every LED was fitted."""
+        bad = self.uncalibrated
+        if bad.size == 0:
+            return ""
+        return (
+            f"{bad.size} of {len(self.intensity)} LEDs not calibrated (fewer than {MIN_OBSERVATIONS} usable "
+            f"observations of the target, lit from the front and seen unsaturated): "
+            f"LED{'s' if bad.size > 1 else ''} {', '.join(map(str, bad))}"
+        )
+
+    def poorly_determined_text(self) -> list[str]:
+        """One line per LED of :attr:`poorly_determined`: its beam error, residual and curvature terms."""
+        lines = []
+        for i in self.poorly_determined:
+            b, se = self.beam[i], (self.beam_stderr[i] if self.beam_stderr is not None else np.full(6, np.nan))
+            lines.append(
+                f"LED {i}: beam poorly determined, extrapolated beyond its {self.n_observations[i]} observations: "
+                f"its standard error on the target reaches {self.beam_error[i]:.1%}, above the "
+                f"{self.rms_residual[i]:.2%} RMS residual of one observation (c3 {b[3]:.3f} ± {se[3]:.3f}, "
+                f"c5 {b[5]:.3f} ± {se[5]:.3f})"
+            )
+        return lines
 
     def apply(self, dome: Dome) -> Dome:
         """``dome`` with these LED intensities, beams and camera gains (LEDs or cameras without data keep theirs)."""
@@ -202,6 +257,11 @@ class LedCalibration:
                 "rms_residual": _num(self.rms_residual[i]),
                 "n_observations": int(self.n_observations[i]),
             }
+            | (
+                {}
+                if self.beam_stderr is None
+                else {"beam_stderr": _list(self.beam_stderr[i]), "beam_error": _num(self.beam_error[i])}
+            )
             for i in range(len(self.intensity))
         ]
         return {
@@ -219,6 +279,9 @@ class LedCalibration:
         """One line per LED: intensity, beam curvature, residual and observations; the camera gains."""
         lines = [f"{'LED':>4} {'I0 R':>10} {'I0 G':>10} {'I0 B':>10} {'c3':>7} {'c5':>7} {'rms res':>8} {'n':>6}"]
         for i, (it, b, r, n) in enumerate(zip(self.intensity, self.beam, self.rms_residual, self.n_observations)):
+            if not np.all(np.isfinite(it)):
+                lines.append(f"{i:4d}   not calibrated: {n} usable observations, {MIN_OBSERVATIONS} needed")
+                continue
             lines.append(f"{i:4d} {it[0]:10.4g} {it[1]:10.4g} {it[2]:10.4g} {b[3]:7.3f} {b[5]:7.3f} {r:8.2%} {n:6d}")
         lines.append(f"camera gains relative to camera {self.reference_camera}:")
         for c, g in enumerate(self.camera_gain):
@@ -314,7 +377,9 @@ def target_observations(
     Returns
     -------
     dict
-        ``point`` (M, 3), ``normal`` (M, 3), ``camera`` (M,), ``led`` (M,), ``value`` (M, 3), ``albedo`` (3,).
+        ``point`` (M, 3), ``normal`` (M, 3), ``camera`` (M,), ``led`` (M,), ``value`` (M, 3), ``albedo`` (3,),
+        and ``target_points`` (K, 3): the points each camera sees on each pose, whatever the LED (where the
+        fitted beams are checked, :attr:`LedCalibration.beam_error`).
     """
     folder = folder if isinstance(folder, CaptureFolder) else open_folder(folder)
     if folder.kind != "target":
@@ -330,7 +395,7 @@ def target_observations(
     check_integer(grid, "grid", 2, MAX_GRID)
     black_level = check_black_level(dome.camera_black_level if black_level is None else black_level, 2**folder.bits)
     cams = folder.cameras if cameras is None else [int(c) for c in cameras]
-    out = {k: [] for k in ("point", "normal", "camera", "led", "value")}
+    out = {k: [] for k in ("point", "normal", "camera", "led", "value", "target_points")}
     f = (np.arange(grid) + 0.5) / grid * 0.9 - 0.45
     for p, (centre, normal, u_axis, size) in enumerate(poses):  # loop over poses and cameras; arrays inside
         a, b = np.meshgrid(f * size[0], f * size[1])
@@ -383,6 +448,7 @@ def _observe(folder, dome, pose, cam, pts, geometry, workers, out, black_level=0
     keep, index, weight = keep[on], index[on], weight[on]
     if keep.size == 0:
         return
+    out["target_points"].append(pts[keep])
     g = dome.camera_log_response[cam]
 
     def read(led):
@@ -399,13 +465,17 @@ def _observe(folder, dome, pose, cam, pts, geometry, workers, out, black_level=0
 
 
 # -- the fit ------------------------------------------------------------------------------------------------------
-def _led_fit(dome, obs, rows, led, gain):
-    """Intensity (3,), beam (6,), residual of one LED from its observation rows (module docstring)."""
+def _led_fit(dome, obs, rows, led, gain, region):
+    """Intensity (3,), beam (6,), residual, observations, beam standard errors (6,) and beam error of one LED.
+
+    From its observation rows (module docstring); the last two are those of :class:`LedCalibration`, the beam
+    error over the target points ``region`` (K, 3).
+    """
     wi, r2, s, t, front = dome.beam_coordinates(obs["point"][rows], [led])
     cos = np.einsum("nk,nk->n", wi[:, 0], obs["normal"][rows])
     use = front[:, 0] & (cos > 0.05)
-    if use.sum() < 12:
-        return np.full(3, np.nan), np.full(6, np.nan), np.nan, int(use.sum())
+    if use.sum() < MIN_OBSERVATIONS:
+        return np.full(3, np.nan), np.full(6, np.nan), np.nan, int(use.sum()), np.full(6, np.nan), np.nan
     geo = (obs["albedo"] / np.pi) * (cos[use] / r2[use, 0])[:, None] * gain[obs["camera"][rows][use]]
     y = obs["value"][rows][use] / geo  # I₀ P(s, t) per channel
     x = beam_terms(s[use, 0], t[use, 0])
@@ -415,7 +485,34 @@ def _led_fit(dome, obs, rows, led, gain):
     intensity = (shape @ y) / (shape @ shape)
     model = shape[:, None] * intensity
     rms = float(np.sqrt(np.mean((y / model - 1) ** 2)))
-    return intensity, beam, rms, int(use.sum())
+    stderr, error = _beam_uncertainty(dome, led, x, y.sum(1), a.sum(1), region)
+    return intensity, beam, rms, int(use.sum()), stderr, error
+
+
+def _beam_uncertainty(dome, led, x, total, coef, region):
+    """Standard errors of the beam c = A / A₀ (6,) and its largest relative standard error over ``region``.
+
+    ``coef`` A (6,) is the least-squares fit of the channels' sum ``total`` (N,) on the monomials ``x`` (N, 6)
+    (the sum of the channels' fits, from which the beam is formed); its covariance is σ² (XᵀX)⁻¹ with σ² the
+    residual variance on N − 6 degrees of freedom, propagated to c and to P(s, t) = m(s, t)·c to first order.
+    A design of lower numerical rank (numpy's ``matrix_rank`` tolerance) leaves the beam undetermined: inf.
+    """
+    _, sv, vt = np.linalg.svd(x, full_matrices=False)
+    if sv[-1] <= sv[0] * max(x.shape) * np.finfo(np.float64).eps:
+        return np.r_[0.0, np.full(5, np.inf)], np.inf
+    resid = total - x @ coef
+    cov = (resid @ resid) / (len(total) - 6) * (vt.T / sv**2) @ vt  # covariance of A
+    beam = coef / coef[0]
+    jac = (np.eye(6) - np.outer(beam, np.eye(6)[0])) / coef[0]  # ∂c/∂A
+    stderr = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", jac, cov, jac), 0))
+    _, _, s, t, front = dome.beam_coordinates(region, [led])
+    m = beam_terms(s[front[:, 0], 0], t[front[:, 0], 0])
+    if len(m) == 0:
+        return stderr, np.nan
+    grad = m @ jac  # ∂P/∂A at each point
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.sqrt(np.maximum(np.einsum("nj,jk,nk->n", grad, cov, grad), 0)) / np.abs(m @ beam)
+    return stderr, float(np.max(np.where(np.isnan(rel), np.inf, rel)))
 
 
 def _gains(dome, obs, intensity, beam, reference):
@@ -448,15 +545,19 @@ def fit_leds(dome: Dome, obs: dict, *, reference_camera: int | None = None) -> L
     n_led = dome.n_leds
     by_led = [np.nonzero(obs["led"] == led)[0] for led in range(n_led)]
     ref_only = [r[obs["camera"][r] == ref] for r in by_led]
+    region = obs["target_points"] if "target_points" in obs else np.unique(obs["point"], axis=0)
     gain = np.ones((dome.n_cameras, 3))
     intensity, beam = np.full((n_led, 3), np.nan), np.full((n_led, 6), np.nan)
     rms, nobs = np.full(n_led, np.nan), np.zeros(n_led, np.int64)
+    stderr, error = np.full((n_led, 6), np.nan), np.full(n_led, np.nan)
     for it in range(ITERATIONS):  # alternate LEDs (linear) and camera gains (medians)
         rows = ref_only if it == 0 else by_led
         for led in range(n_led):  # loop over LEDs: one small linear fit each
-            intensity[led], beam[led], rms[led], nobs[led] = _led_fit(dome, obs, rows[led], led, np.nan_to_num(gain))
+            intensity[led], beam[led], rms[led], nobs[led], stderr[led], error[led] = _led_fit(
+                dome, obs, rows[led], led, np.nan_to_num(gain), region
+            )
         gain = _gains(dome, obs, intensity, beam, ref)
-    return LedCalibration(intensity, beam, gain, rms, nobs, ref)
+    return LedCalibration(intensity, beam, gain, rms, nobs, ref, stderr, error)
 
 
 def calibrate_leds(

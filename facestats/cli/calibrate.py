@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import pathlib
+import sys
 
 from facestats.cli.options import ascii_float, ascii_int
 from facestats.errors import ValidationError
@@ -89,13 +90,30 @@ def _cmd_leds(args) -> int:
         folder, dome, grid=args.grid, reference_camera=args.reference_camera, black_level=args.black_level
     )
     print(result.to_text())
+    _warn_leds(result, args)
     applied = result.apply(dome) if args.write_calibration else None  # any error before any file is written
     _write_all([
         (args.output, lambda p: result.save(p, dome), f"LED calibration written to {args.output}"),
         (args.write_calibration, applied.save if applied is not None else None,
          f"calibration with the fitted LEDs written to {args.write_calibration}"),
     ])  # fmt: skip
-    return 0
+    # A calibration written with LEDs left at their previous photometry is incomplete: say so in the exit
+    # status too (1, as `build` does for a partial result), for the scripts that run the lab's calibration.
+    return 1 if args.write_calibration and result.uncalibrated.size else 0
+
+
+def _warn_leds(result, args) -> None:
+    """Warn on stderr about the LEDs without a fit (what the outputs hold for them) and poorly determined beams."""
+    text = result.uncalibrated_text()
+    if text:
+        held = []
+        if args.write_calibration:
+            held.append("--write-calibration keeps their previous intensity and beam")
+        if args.output:
+            held.append("--output records null for them")
+        print(f"facestats: warning: {text}" + (f"; {', '.join(held)}" if held else ""), file=sys.stderr)
+    for line in result.poorly_determined_text():
+        print(f"facestats: warning: {line}", file=sys.stderr)
 
 
 def _cmd_response(args) -> int:
@@ -106,6 +124,12 @@ def _cmd_response(args) -> int:
     if args.smoothness is not None:  # before the photographs are read: an out-of-range λ ends in an overflow
         as_finite(args.smoothness, "--smoothness", 0, MAX_SMOOTHNESS)
     check_integer(args.black_level, "--black-level", 0)  # its upper bound, 2**bits / 2, once the bits are known
+    for option, given, what in (
+        ("--cameras", args.cameras, "the cameras that get this response in the written calibration"),
+        ("--calibration", args.calibration, "the calibration the response is put into"),
+    ):
+        if given is not None and not args.write_calibration:  # it would be ignored
+            raise ValidationError(f"{option} needs --write-calibration ({option} names {what})")
     outputs = (
         (args.output, "--output", None),
         (args.plot, "--plot", (".png", ".svg", ".pdf")),
@@ -122,6 +146,7 @@ def _cmd_response(args) -> int:
         from facestats.acquire.dome import Dome
 
         dome = Dome.load(args.calibration)  # read before the fit: a bad calibration must not cost one
+        _check_apply(dome, args)
     result = calibrate_response(
         args.images,
         args.times,
@@ -148,6 +173,35 @@ def _cmd_response(args) -> int:
     return 0
 
 
+def _check_apply(dome, args) -> None:
+    """Refuse, before the fit, what :meth:`ResponseCalibration.apply` would refuse after it, where the options
+    tell already: cameras the calibration lacks, some cameras of a calibration without responses or with another
+    black level, a ``--bits`` whose levels differ from the calibration's responses (else the files' bits decide)."""
+    n_cam = dome.n_cameras
+    cameras = list(range(n_cam)) if args.cameras is None else args.cameras
+    bad = [c for c in cameras if not 0 <= c < n_cam]
+    if bad:
+        raise ValidationError(f"--cameras must be in [0, {n_cam}), got {bad}: --calibration has {n_cam} cameras")
+    every = sorted(set(cameras)) == list(range(n_cam))
+    current = dome.camera_log_response
+    if current is None and not every:
+        raise ValidationError(
+            f"--cameras must be every camera (0-{n_cam - 1}): --calibration has no camera responses yet, got {cameras}"
+        )
+    if current is not None and not every and dome.camera_black_level != args.black_level:
+        raise ValidationError(
+            f"--black-level must be the calibration's camera_black_level ({dome.camera_black_level}) when only "
+            f"--cameras {' '.join(map(str, cameras))} take this response (the cameras share one), got "
+            f"{args.black_level}"
+        )
+    levels = None if current is None else current.shape[1]
+    if levels is not None and args.bits is not None and levels != 2 ** min(args.bits, 64):
+        raise ValidationError(
+            f"--bits must be {levels.bit_length() - 1} to match the calibration's responses ({levels} levels), "
+            f"got {args.bits}"
+        )
+
+
 def _samples(text: str):
     """``--samples``: ``histogram``, ``stratified`` or a number of histogram samples."""
     return text if text in ("histogram", "stratified") else ascii_int(text)
@@ -166,7 +220,11 @@ def add_calibrate(sub):
             "Read a target folder (manifest.json of kind 'target': photographs of a planar Lambertian target of "
             "known albedo at known poses under every LED), merge the HDR frames, and fit each LED's RGB intensity "
             "and bi-variate 2nd-degree beam polynomial, plus the cameras' relative gains (Weyrich et al. 2006 §5). "
-            "Prints the fitted LEDs with their RMS relative residuals."
+            "Prints the fitted LEDs with their RMS relative residuals. LEDs with fewer than 12 usable observations "
+            "are not calibrated: a warning names them, --output records null for them, --write-calibration keeps "
+            "their previous intensity and beam and the command then exits with status 1. A warning also names "
+            "each LED whose beam is extrapolated beyond its observations (its standard error on the target above "
+            "the RMS residual of one observation; docs/photographs.md)."
         ),
     )
     leds.add_argument("target_dir", metavar="TARGET_DIR", help="target folder with manifest.json")
@@ -215,7 +273,11 @@ def add_calibrate(sub):
     resp.add_argument("--plot", help="draw g(z) per channel (.png, .svg or .pdf)")
     resp.add_argument("--calibration", help="dome calibration JSON to put the response into (with --write-calibration)")
     resp.add_argument(
-        "--cameras", type=ascii_int, nargs="+", metavar="C", help="cameras that get this response (default all)"
+        "--cameras",
+        type=ascii_int,
+        nargs="+",
+        metavar="C",
+        help="cameras that get this response in --write-calibration (default all)",
     )
     resp.add_argument("--write-calibration", metavar="PATH", help="write the dome calibration with this response")
     resp.set_defaults(func=_cmd_response)

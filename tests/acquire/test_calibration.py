@@ -9,12 +9,15 @@ import pytest
 from facestats import FacestatsError
 from facestats.acquire.calibration import (
     LED_FORMAT,
+    MIN_OBSERVATIONS,
     calibrate_leds,
+    fit_leds,
     read_led_calibration,
     read_opencv_camera,
+    target_observations,
     write_opencv_camera,
 )
-from facestats.acquire.dome import Dome, default_dome
+from facestats.acquire.dome import Dome, beam_terms, default_dome
 from facestats.acquire.response import ResponseCurve
 from facestats.acquire.synthetic.photographs import TargetPose, write_target_photographs
 
@@ -163,6 +166,12 @@ def test_led_calibration_recovers_the_simulated_leds_within_one_percent(target, 
     np.testing.assert_allclose(back["position"], truth.led_position)
     text = res.to_text()
     assert text.count("\n") >= 9 and "rms res" in text and "camera gains relative to camera" in text
+    # every beam determined over the target (its standard error below one observation's residual) ...
+    assert res.poorly_determined.size == 0 and res.uncalibrated.size == 0
+    assert np.all(res.beam_error < res.rms_residual / 4)  # measured at most 0.15 of it
+    # ... and standard errors that describe the errors: |fit - truth| / stderr of c1..c5 like a normal deviate
+    z = np.abs(res.beam - truth.led_beam)[:, 1:] / res.beam_stderr[:, 1:]
+    assert 0.4 < np.median(z) < 1.2 and z.max() < 5  # measured median 0.76, max 3.8
 
 
 def test_led_calibration_rejects_a_face_folder_and_a_mismatched_rig(target):
@@ -171,3 +180,50 @@ def test_led_calibration_rejects_a_face_folder_and_a_mismatched_rig(target):
         calibrate_leds(folder, default_dome())
     manifest = json.loads((folder / "manifest.json").read_text())
     assert manifest["kind"] == "target" and manifest["cameras"] == [3, 4, 11]
+
+
+@pytest.fixture(scope="module")
+def sparse_target(tmp_path_factory):
+    """Two poses that light LED 1 from behind only and LEDs 2 and 3 over one pose only (3 cameras, 96²)."""
+    camera = ResponseCurve(12, 20000.0, 5.0)
+    dome = default_dome().select(leds=[0, 3, 33, 81]).resized(96, 96)
+    dome = replace(dome, camera_log_response=np.repeat(camera.log_exposure()[:, None], 3, axis=1))
+    folder = tmp_path_factory.mktemp("sparse")
+    write_target_photographs(folder, dome, [_pose((0, 0, 1)), _pose((3.7, 0, 1))], cameras=[3, 4, 11], camera=camera)
+    return folder, dome
+
+
+def test_uncalibrated_leds_and_extrapolated_beams_are_named(sparse_target):
+    """A red team found `calibrate leds --grid 8` listing LEDs as `nan … 0` and accepting beams like c3 = 12.772
+    (truth about -0.3) from a strip of the target, without a word."""
+    folder, truth = sparse_target
+    obs = target_observations(folder, truth, grid=8)
+    res = fit_leds(truth, obs)
+    assert res.uncalibrated.tolist() == [1] and res.n_observations[1] < MIN_OBSERVATIONS
+    assert res.poorly_determined.tolist() == [2, 3]
+    assert res.uncalibrated_text() == (
+        "1 of 4 LEDs not calibrated (fewer than 12 usable observations of the target, lit from the front and seen "
+        "unsaturated): LED 1"
+    )
+    lines = res.poorly_determined_text()
+    assert len(lines) == 2 and lines[0].startswith("LED 2: beam poorly determined, extrapolated beyond its 180 ")
+    assert f"reaches {res.beam_error[3]:.1%}, above the {res.rms_residual[3]:.2%} RMS residual" in lines[1]
+    assert f"(c3 {res.beam[3, 3]:.3f} ± {res.beam_stderr[3, 3]:.3f}, " in lines[1]
+    # the flagged beams are wrong on the target by several percent; LED 0's is not
+    pts = obs["target_points"]
+    for led, worst in ((0, 0.005), (2, None), (3, None)):
+        _, _, s, t, front = truth.beam_coordinates(pts, [led])
+        m = beam_terms(s[front[:, 0], 0], t[front[:, 0], 0])
+        err = np.max(np.abs(m @ res.beam[led] / (m @ truth.led_beam[led]) - 1))
+        assert err < worst if worst else err > 0.05, (led, err)  # measured 0.16 %, 20 % and 20 %
+    # over the points an LED was fitted from (the tilted pose, which it lights from the front) its beam is never
+    # less certain than one observation
+    tilted = np.abs((pts - [0.0, 0.0, 40.0]) @ (np.array([3.7, 0.0, 1.0]) / np.hypot(3.7, 1.0))) < 1e-6
+    own = fit_leds(truth, dict(obs, target_points=pts[tilted]))
+    assert own.beam_error[2] < own.rms_residual[2] and own.poorly_determined.tolist() == []
+    assert "   1   not calibrated: 0 usable observations, 12 needed" in res.to_text().splitlines()
+    doc = res.to_dict(truth)
+    assert doc["leds"][1]["beam_error"] is None and doc["leds"][1]["beam_stderr"] == [None] * 6
+    assert doc["leds"][2]["beam_error"] == pytest.approx(res.beam_error[2]) and doc["leds"][2]["beam_stderr"][0] == 0
+    fitted = res.apply(truth)
+    np.testing.assert_array_equal(fitted.led_beam[1], truth.led_beam[1])  # kept, as the warning says

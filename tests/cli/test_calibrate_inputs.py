@@ -7,6 +7,7 @@ or a plot (exit 0), and ``calibrate leds --output TARGET/manifest.json`` replace
 import hashlib
 import json
 import pathlib
+import re
 import shutil
 from dataclasses import replace
 
@@ -145,3 +146,94 @@ def test_12_bit_codes_in_16_bit_files_need_bits_and_a_black_level_is_recorded(tm
                 "--calibration", tmp_path / "dome.json", "--write-calibration", tmp_path / "new.json")  # fmt: skip
     assert r.returncode == 0, r.stderr  # the calibration records the pedestal the ingest then merges with
     assert json.loads((tmp_path / "new.json").read_text())["camera_black_level"] == 128
+
+
+def test_response_options_for_the_calibration_are_checked_before_the_fit(target, tmp_path):
+    """--cameras without --write-calibration was ignored (exit 0), and --cameras 9 of a calibration without camera 9
+    was refused only after the fit had run and printed; so were a subset of a calibration without responses, another
+    black level for some cameras and a --bits whose levels differ from the calibration's responses."""
+    frames = _bracket_12_bit(tmp_path)
+    plain = tmp_path / "plain.json"  # 16 cameras, no responses yet
+    from facestats.acquire.dome import default_dome
+
+    default_dome().save(plain)
+    with_g = target / "dome.json"  # 16 cameras with 12-bit responses, black level 0
+    new = ("--write-calibration", tmp_path / "new.json")
+    cases = [
+        (("--cameras", "0"), "--cameras needs --write-calibration (--cameras names the cameras that get this "
+         "response in the written calibration)"),
+        (("--calibration", plain), "--calibration needs --write-calibration (--calibration names the calibration "
+         "the response is put into)"),
+        (("--calibration", plain, "--cameras", "9", "16", *new),
+         "--cameras must be in [0, 16), got [16]: --calibration has 16 cameras"),
+        (("--calibration", plain, "--cameras", "2", *new),
+         "--cameras must be every camera (0-15): --calibration has no camera responses yet, got [2]"),
+        (("--calibration", with_g, "--cameras", "2", "--black-level", "5", *new),
+         "--black-level must be the calibration's camera_black_level (0) when only --cameras 2 take this response "
+         "(the cameras share one), got 5"),
+        (("--calibration", with_g, "--bits", "10", *new),
+         "--bits must be 12 to match the calibration's responses (4096 levels), got 10"),
+    ]  # fmt: skip
+    for extra, message in cases:
+        r = run_cli("calibrate", "response", *frames, "--bits", "12", *extra)
+        assert r.returncode == 2 and r.stderr == f"facestats: error: {message}\n", (extra, r.stderr)
+        assert r.stdout == "" and not (tmp_path / "new.json").exists()  # before the fit
+    r = run_cli("calibrate", "response", *frames, "--bits", "12", "--calibration", with_g, "--cameras", "2", *new)
+    assert r.returncode == 0 and "calibration with this response for camera(s) 2 written to" in r.stdout, r.stderr
+
+
+@pytest.fixture(scope="module")
+def sparse_target(tmp_path_factory):
+    """Two poses that leave LED 1 unlit from the front and light LEDs 2 and 3 only over a strip (3 cameras, 96²)."""
+    from facestats.acquire.dome import default_dome
+    from facestats.acquire.response import ResponseCurve
+    from facestats.acquire.synthetic.photographs import TargetPose, write_target_photographs
+
+    camera = ResponseCurve(12, 20000.0, 5.0)
+    dome = default_dome().select(leds=[0, 3, 33, 81]).resized(96, 96)
+    dome = replace(dome, camera_log_response=np.repeat(camera.log_exposure()[:, None], 3, axis=1))
+    poses = []
+    for normal in ((0.0, 0.0, 1.0), (3.7, 0.0, 1.0)):
+        n = np.asarray(normal) / np.linalg.norm(normal)
+        u = np.cross([0.0, 1.0, 0.0], n)
+        poses.append(TargetPose((0.0, 0.0, 40.0), tuple(n), tuple(u / np.linalg.norm(u)), (300.0, 300.0)))
+    root = tmp_path_factory.mktemp("sparse") / "target"
+    write_target_photographs(root, dome, poses, cameras=[3, 4, 11], camera=camera)
+    dome.save(root / "dome.json")
+    return root
+
+
+def test_leds_left_uncalibrated_or_poorly_determined_are_named(sparse_target, tmp_path):
+    """Found by a red team: `calibrate leds --grid 8 --write-calibration` listed 9 of 40 LEDs as `nan … 0`, kept their
+    old photometry in the calibration and wrote null for them with --output, exit 0 and no word; it also accepted
+    beams such as c3 = 12.772 (truth about -0.3) without comment."""
+    from facestats.acquire.dome import Dome
+
+    old = Dome.load(sparse_target / "dome.json")
+    r = run_cli("calibrate", "leds", sparse_target, "--grid", "8",
+                "--write-calibration", tmp_path / "d.json", "--output", tmp_path / "o.json")  # fmt: skip
+    assert r.returncode == 1, r.stderr  # a calibration was written with an LED left at its previous photometry
+    assert "   1   not calibrated: 0 usable observations, 12 needed\n" in r.stdout and "nan" not in r.stdout
+    lines = r.stderr.splitlines()
+    assert lines[0] == (
+        "facestats: warning: 1 of 4 LEDs not calibrated (fewer than 12 usable observations of the target, lit from "
+        "the front and seen unsaturated): LED 1; --write-calibration keeps their previous intensity and beam, "
+        "--output records null for them"
+    )
+    poor = re.compile(
+        r"facestats: warning: LED (\d): beam poorly determined, extrapolated beyond its \d+ observations: its "
+        r"standard error on the target reaches (\d+\.\d)%, above the (\d\.\d\d)% RMS residual of one observation "
+        r"\(c3 -?\d+\.\d{3} ± \d+\.\d{3}, c5 -?\d+\.\d{3} ± \d+\.\d{3}\)"
+    )
+    matches = [poor.fullmatch(line) for line in lines[1:]]
+    assert len(lines) == 3 and all(matches), r.stderr
+    assert [m.group(1) for m in matches] == ["2", "3"]
+    assert all(float(m.group(2)) > 5 * float(m.group(3)) for m in matches)  # measured 8.8x and 32x
+    written = Dome.load(tmp_path / "d.json")
+    np.testing.assert_array_equal(written.led_intensity[1], old.led_intensity[1])
+    np.testing.assert_array_equal(written.led_beam[1], old.led_beam[1])
+    led1 = json.loads((tmp_path / "o.json").read_text())["leds"][1]
+    assert led1["intensity"] == [None] * 3 and led1["n_observations"] == 0 and led1["beam_error"] is None
+    r = run_cli("calibrate", "leds", sparse_target, "--grid", "8", "--output", tmp_path / "o2.json")
+    assert r.returncode == 0, r.stderr  # nothing kept from before: the LED file says null
+    assert r.stderr.splitlines()[0].endswith("LED 1; --output records null for them")

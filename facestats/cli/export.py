@@ -50,7 +50,12 @@ def add_export_subject(sub):
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (must not exist or be empty)")
     p.add_argument("--format", choices=("exr", "mitsuba", "gltf"), default="exr")
     add_store_option(p)
-    p.add_argument("--mesh", metavar="PATH", help="OBJ/PLY scan the maps belong to (default: the recorded geometry)")
+    p.add_argument(
+        "--mesh",
+        metavar="PATH",
+        help="OBJ/PLY scan the maps belong to (default: the face the subject's provenance records; an edit's: its "
+        "source's)",
+    )
     p.add_argument(
         "--mesh-format", choices=("obj", "ply"), default=None, help="EXR set: mesh file (default obj; Mitsuba: obj)"
     )

@@ -13,7 +13,12 @@ a failed command leaves nothing behind and replaces nothing.
 compressed path (:func:`facestats.relight.compression.compress`, ``--ratio``; Debevec et al. 2000 §3.3: relight
 from compressed reflectance functions): the field (for a subject, its virtual light stage field, streamed to
 a temporary zarr store) is compressed once and each frame is one compressed relight.  Frames are written as
-``OUT_000.exr`` … with their PNGs (one exposure for all frames, from the first), all or none.
+``OUT_000.exr`` … with their PNGs (one exposure for all frames, from the first), all or none.  Without
+``--ratio`` the ratio is 20, or half the largest a field of few lights can hold (:func:`_ratio`, with a note).
+
+A subject is rendered on the face its provenance records (an edit: its source's;
+:func:`facestats.relight.camera.subject_geometry`); a subject ingested from photographs records its scan's file
+name, which is passed again as ``--mesh``.  Subjects of region samples (``import-merl``) have no maps to relight.
 
 Registered in :mod:`facestats.cli` with :func:`add_relight`.
 """
@@ -28,9 +33,12 @@ from facestats.cli.options import add_store_option, ascii_float, ascii_int, asci
 __all__ = ["add_relight"]
 
 
-#: Options of a subject rendered through the virtual stage, with their defaults: a field store has its camera
-#: and lights already.
-_SUBJECT_OPTIONS = {"size": 256, "azimuth": 0.0, "elevation": 0.0, "lights": "64x32"}
+#: Options of a subject rendered through the virtual stage, with their defaults: a field store has its camera,
+#: lights and surface already.
+_SUBJECT_OPTIONS = {"size": 256, "azimuth": 0.0, "elevation": 0.0, "lights": "64x32", "mesh": None}
+
+#: The turntable's compression ratio when ``--ratio`` is not given (lowered for fields of few lights: _ratio).
+DEFAULT_RATIO = 20.0
 
 
 def _check_subject_options(args):
@@ -49,18 +57,75 @@ def _lights(text):
     from facestats.errors import ValidationError
 
     sizes = [ascii_number(x, int) for x in text.lower().split("x")]
-    if len(sizes) != 2 or None in sizes:
-        raise ValidationError(f"--lights must be N_THETAxN_PHI in ASCII digits such as 64x32, got {text!r}")
+    if len(sizes) != 2 or None in sizes or min(sizes) < 1:
+        raise ValidationError(
+            f"--lights must be N_THETAxN_PHI, two whole numbers >= 1 in ASCII digits such as 64x32, got {text!r}"
+        )
     return tuple(sizes)
 
 
+def _check_subject_values(args):
+    """The values of a subject's render options, checked by their flags before any work (a subject source)."""
+    from facestats.errors import ValidationError
+
+    _lights(args.lights)
+    if not 1 <= args.size <= 8192:
+        raise ValidationError(f"--size must be an image side in [1, 8192] pixels, got {args.size}")
+    if not math.isfinite(args.azimuth):
+        raise ValidationError(f"--azimuth must be a finite angle in degrees, got {args.azimuth!r}")
+    if not -90 <= args.elevation <= 90:  # NaN fails too
+        raise ValidationError(f"--elevation must be an angle in [-90, 90] degrees, got {args.elevation!r}")
+    if args.mesh is not None and not pathlib.Path(args.mesh).is_file():
+        raise ValidationError(f"--mesh must be an OBJ/PLY file with UVs, got {args.mesh!r} (not a file)")
+
+
 def _subject_and_camera(args):
-    """The store subject ``args.source`` (loaded) and the stage camera of ``--azimuth``, ``--elevation``, ``--size``."""
-    from facestats.relight.camera import stage_camera
+    """The store subject ``args.source`` (loaded), its face geometry (``--mesh``, else the one its provenance
+    names: :func:`facestats.relight.camera.subject_geometry`) and the stage camera of ``--azimuth``,
+    ``--elevation``, ``--size``."""
+    from facestats.relight.camera import stage_camera, subject_geometry
 
     with open_store_option(args.store) as store:
         subject = store.subject(args.source).load()
-    return subject, stage_camera(args.azimuth, args.elevation, size=args.size)
+    geometry = subject_geometry(subject, args.mesh)
+    return subject, geometry, stage_camera(args.azimuth, args.elevation, size=args.size)
+
+
+def _ratio(args, directions):
+    """The turntable's compression ratio for a field of these light directions (L, 3), checked before any work.
+
+    Besides its components, a compressed field stores :func:`facestats.relight.compression.per_pixel_values`
+    values per face pixel, so no ratio at or above 3 L / that count leaves room for a component.  An explicit
+    ``--ratio`` there is refused naming it; without ``--ratio``, the default 20 is lowered to half that bound
+    (the other half left for components) with a note.
+    """
+    import inspect
+
+    import numpy as np
+
+    from facestats.errors import ValidationError
+    from facestats.relight.compression import compress, light_regions, per_pixel_values
+
+    defaults = inspect.signature(compress).parameters
+    d = np.asarray(directions, np.float64).reshape(-1, 3)
+    regions = np.unique(light_regions(d, defaults["sectors"].default)).size
+    per_pixel = per_pixel_values(regions * defaults["parts"].default)
+    bound = 3 * len(d) / per_pixel
+    if args.ratio is not None:
+        if args.ratio >= bound:
+            raise ValidationError(
+                f"--ratio {args.ratio:g} cannot be met by a field of {len(d)} lights: besides its components it "
+                f"stores {per_pixel} values per face pixel, so the ratio must stay below 3 x {len(d)} / {per_pixel} "
+                f"= {bound:.4g}; pass a smaller --ratio"
+            )
+        return args.ratio
+    if DEFAULT_RATIO <= bound / 2:
+        return DEFAULT_RATIO
+    print(
+        f"note: --ratio not given and the default {DEFAULT_RATIO:g} does not fit a field of {len(d)} lights (below "
+        f"{bound:.4g} with room for no component): compressing at ratio {bound / 2:.4g}"
+    )
+    return bound / 2
 
 
 def _frame(path, k, frames):
@@ -90,6 +155,8 @@ def _cmd_relight(args) -> int:
     if not math.isfinite(args.rotate):
         raise ValidationError(f"--rotate must be a finite angle in degrees, got {args.rotate!r}")
     _check_subject_options(args)
+    if not pathlib.Path(args.source).is_dir():
+        _check_subject_values(args)
     targets = [(_frame(out, k, frames), _frame(png, k, frames)) for k in range(frames or 1)]
     for pair in targets:
         for name, p in zip(("--out", "--png"), pair):
@@ -109,9 +176,9 @@ def _cmd_relight(args) -> int:
     else:
         from facestats.relight.stage import relight_subject
 
-        subject, camera = _subject_and_camera(args)
+        subject, geometry, camera = _subject_and_camera(args)
         image, mask = relight_subject(subject, probe, layout=args.layout, rotate=rotate, camera=camera,
-                                      lights=_lights(args.lights), progress=True)  # fmt: skip
+                                      lights=_lights(args.lights), geometry=geometry, progress=True)  # fmt: skip
     scale = exposure_scale(image, mask)
     attrs = {"source": str(args.source), "probe": str(args.probe), "rotate_deg": str(args.rotate),
              "units": "radiance in the probe's unit", "method": "Debevec et al. 2000 eq. 4"}  # fmt: skip
@@ -133,6 +200,7 @@ def _turntable(args, probe, targets) -> int:
     import numpy as np
 
     from facestats.core.outputs import OutputSet
+    from facestats.errors import ValidationError
     from facestats.io.images import write_image
     from facestats.relight.compression import compress
     from facestats.relight.display import exposure_scale
@@ -141,17 +209,26 @@ def _turntable(args, probe, targets) -> int:
     with tempfile.TemporaryDirectory(prefix="facestats-stage-") as tmp:
         source = pathlib.Path(args.source)
         if source.is_dir():
+            from facestats.relight.field import light_table
+
             field = open_field(source)
+            ratio = _ratio(args, light_table(field)[0])
         else:
             from facestats.model.sphere import light_stage_directions
             from facestats.relight.stage import light_stage_field
 
-            subject, camera = _subject_and_camera(args)
+            subject, geometry, camera = _subject_and_camera(args)
             d, _ = light_stage_directions(*_lights(args.lights))
-            field = light_stage_field(subject, camera, directions=d, out=pathlib.Path(tmp) / "field.zarr",
-                                      dtype="float16", progress=True)  # fmt: skip
+            ratio = _ratio(args, d)  # before the field is rendered
+            field = light_stage_field(subject, camera, geometry=geometry, directions=d,
+                                      out=pathlib.Path(tmp) / "field.zarr", dtype="float16", progress=True)  # fmt: skip
         mask = field["mask"].values if "mask" in field.data_vars else None
-        comp = compress(field, ratio=20.0 if args.ratio is None else args.ratio, progress=True)
+        try:
+            comp = compress(field, ratio=ratio, progress=True)
+        except ValidationError as exc:  # a ratio whose budget cannot hold the first component: name the option
+            if not str(exc).startswith("ratio "):
+                raise
+            raise ValidationError(f"--{str(exc).replace('use a smaller ratio', 'pass a smaller --ratio')}") from None
     step = 360.0 / len(targets)
     angles = [math.fmod(args.rotate + k * step, 360.0) for k in range(len(targets))]
 
@@ -210,8 +287,12 @@ def add_relight(sub):
                    help="N frames, the environment turned by 360/N degrees between them, relit through the "
                    "compressed field (OUT_000.exr, OUT_000.png, ...)")  # fmt: skip
     p.add_argument("--ratio", type=ascii_float, default=None,
-                   help="minimum compression ratio of the turntable's field (default 20; a ratio the field reaches "
-                        "with every component, e.g. below 1, keeps them all: exact)")  # fmt: skip
+                   help="minimum compression ratio of the turntable's field (default 20, lowered with a note for a "
+                        "field of too few lights to hold it; a ratio the field reaches with every component, e.g. "
+                        "below 1, keeps them all: exact)")  # fmt: skip
+    p.add_argument("--mesh", metavar="PATH",
+                   help="OBJ/PLY scan (with UVs) a subject's maps belong to, for a subject ingested from photographs "
+                        "(default: the face its provenance records)")  # fmt: skip
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     add_store_option(p)
     p.set_defaults(func=_cmd_relight)

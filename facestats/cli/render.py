@@ -1,10 +1,27 @@
-"""``facestats render``: a fitted subject rendered beside its capture (:mod:`facestats.pipeline.validation`)."""
+"""``facestats render``: a fitted subject rendered beside its capture (:mod:`facestats.pipeline.validation`).
+
+Under an LED the render is compared with the capture: ``--capture``, or, for a subject of the synthetic
+population (the embedded default, or a store ``facestats build`` wrote), its capture re-simulated from the
+recorded provenance (:func:`facestats.pipeline.validation.default_capture`; ``--seed``: the build's).  Under a
+probe nothing is compared: without ``--capture``, the lumitexels of the face the subject records (an edit: its
+source's) are rendered for the default dome (:func:`facestats.pipeline.validation.face_view`).  File names carry
+the camera and the light, ``ID-cam05-led020-rendered.exr`` or ``ID-cam05-probe-STEM-rendered.exr``, so renders
+under other lights sit side by side.
+"""
 
 from __future__ import annotations
+
+import pathlib
 
 from facestats.cli.options import add_store_option, ascii_int, open_store_option
 
 __all__ = ["add_render"]
+
+
+def _stem(subject_id, args) -> str:
+    """``ID-camCC-ledLLL`` or ``ID-camCC-probe-STEM``: what was rendered, for the file names."""
+    light = f"probe-{pathlib.Path(args.probe).stem}" if args.probe else f"led{args.light:03d}"
+    return f"{subject_id}-cam{args.camera:02d}-{light}"
 
 
 def _cmd_render(args) -> int:
@@ -13,19 +30,35 @@ def _cmd_render(args) -> int:
 
     matplotlib.use("Agg")
     from facestats.acquire.capture import open_capture
+    from facestats.core.conventions import DEFAULT_SEED
     from facestats.core.outputs import OutputSet, check_output_dir, check_output_file
+    from facestats.errors import ValidationError
+    from facestats.io.exr_set import check_map_subject
     from facestats.io.images import write_image
     from facestats.io.subject_export import store_subject
     from facestats.pipeline.validation import default_capture, render_led, render_probe
 
+    if args.seed is not None and (args.capture or args.probe):
+        raise ValidationError(
+            "--seed applies to the LED render without --capture (the population seed of its re-simulated capture)"
+        )
+    if args.seed is not None and args.seed < 0:
+        raise ValidationError(f"--seed must be a population seed >= 0, got {args.seed}")
     out = check_output_dir(args.out, "--out")  # before rendering: a bad folder must not cost a render
     with open_store_option(args.store) as st:
         ds = store_subject(st, args.subject_id)
-    stem = f"{ds.attrs.get('subject_id', args.subject_id)}-cam{args.camera:02d}"
+    check_map_subject(ds, "a validation render")
+    stem = _stem(ds.attrs.get("subject_id", args.subject_id), args)
     names = [f"{stem}-rendered.exr", f"{stem}-capture.exr", f"{stem}-error.exr", f"{stem}.png"]
-    for name in names:
+    written = names[:1] + names[3:] if args.probe else names
+    for name in written:
         check_output_file(out / name, "--out", overwrite=args.overwrite)
-    cap = open_capture(args.capture) if args.capture else default_capture(ds)
+    if args.capture:
+        cap = open_capture(args.capture)
+    elif args.probe:
+        cap = None  # nothing to compare with: the subject's face suffices
+    else:
+        cap = default_capture(ds, seed=DEFAULT_SEED if args.seed is None else args.seed)
     if args.probe:
         res = render_probe(ds, cap, args.camera, args.probe)
     else:
@@ -53,7 +86,9 @@ def add_render(sub):
             "Render a fitted subject with the skin model (specular with per-view micro-normals where stored, "
             "diffuse through the spatial dipole transport) for one dome camera under one LED (with the capture's "
             "radiance, the error image and the RMSE) or under a lat-long light probe. Without --capture, subjects "
-            "of the embedded default store are re-simulated."
+            "of the synthetic population (the embedded default, or a store written by facestats build) are "
+            "re-simulated from their recorded provenance for an LED; under a probe nothing is compared and the "
+            "face the subject records suffices. Files: ID-camCC-ledLLL-*.exr or ID-camCC-probe-NAME-*.exr."
         ),
     )
     p.add_argument("subject_id", metavar="ID")
@@ -62,7 +97,16 @@ def add_render(sub):
     p.add_argument("--light", type=ascii_int, default=20, help="dome LED (default 20)")
     p.add_argument("--probe", metavar="FILE", help="render under this lat-long HDR probe instead of an LED")
     p.add_argument(
-        "--capture", metavar="PATH", help="the subject's capture (zarr); default: re-simulate a default subject"
+        "--capture",
+        metavar="PATH",
+        help="the subject's capture (zarr); default: re-simulate a subject of the synthetic population",
+    )
+    p.add_argument(
+        "--seed",
+        type=ascii_int,
+        default=None,
+        help="population seed of the re-simulated capture: the --seed of the facestats build that wrote the store "
+        "(default 2006, build's default)",
     )
     p.add_argument("--overwrite", action="store_true", help="replace existing images of the same names")
     add_store_option(p)

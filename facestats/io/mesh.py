@@ -43,6 +43,7 @@ __all__ = [
     "write_mesh",
     "FaceMesh",
     "subject_mesh",
+    "recorded_geometry",
 ]
 
 
@@ -527,6 +528,43 @@ def _unit_or(v, fallback):
     return v / np.maximum(np.linalg.norm(v, axis=1), 1e-300)[:, None]
 
 
+#: Edits of edits followed by :func:`recorded_geometry` at most (a cycle cannot occur in stored JSON; a bound anyway).
+MAX_EDIT_DEPTH = 64
+
+
+def recorded_geometry(ds) -> str | None:
+    """The name of the face a subject's maps belong to, from its provenance: the one place it is read.
+
+    ``capture_provenance.geometry`` of a fitted subject (``ict-N`` or ``procedural-N`` for the synthetic
+    population, which :func:`facestats.acquire.synthetic.faces.named_face` rebuilds; the scan's file name, e.g.
+    ``face.obj``, for a subject ingested from photographs), else ``geometry`` of generated truth (the texture
+    sample).  A subject written by ``facestats edit`` keeps the face of its source: without a geometry of its
+    own, its ``source_provenance`` is followed (through edits of edits).  Used by :func:`subject_mesh` (the
+    exporters, the web app's EXR set), :func:`facestats.relight.camera.subject_geometry` (relighting) and
+    :mod:`facestats.pipeline.validation` (renders), so they agree.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A subject (its ``provenance`` attribute).
+
+    Returns
+    -------
+    str or None
+        None when no provenance in the chain records a geometry.
+    """
+    prov = provenance(ds)
+    for _ in range(MAX_EDIT_DEPTH):
+        if not isinstance(prov, dict):
+            return None
+        cap = prov.get("capture_provenance")
+        name = (cap.get("geometry") if isinstance(cap, dict) else None) or prov.get("geometry")
+        if name:
+            return str(name)
+        prov = prov.get("source_provenance")
+    return None
+
+
 def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = None) -> FaceMesh:
     """The face mesh a subject's maps belong to, for export (which one is recorded in ``geometry``).
 
@@ -534,8 +572,9 @@ def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = N
     ----------
     ds : xarray.Dataset
         A map subject.  Without ``mesh``, its provenance must name the face it
-        was made on (``capture_provenance.geometry`` of a fitted subject, or
-        ``geometry`` of generated truth such as the texture sample):
+        was made on (:func:`recorded_geometry`: ``capture_provenance.geometry`` of
+        a fitted subject, ``geometry`` of generated truth such as the texture
+        sample, the source's for an edit):
         ``procedural-N`` (every subject of the embedded default; that head is
         rebuilt with :func:`facestats.acquire.synthetic.face.procedural_face`)
         or ``ict-N`` (the shipped ICT-FaceKit face area,
@@ -558,8 +597,7 @@ def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = N
         geometry = {"kind": "mesh", "name": os.path.basename(path), "path": path, "scale": scale}
         return _face_mesh(verts, faces, _checked_uv(stored, len(verts), mesh, True), geometry)
 
-    prov = provenance(ds)
-    name = str(prov.get("capture_provenance", {}).get("geometry", prov.get("geometry", "")))
+    name = str(recorded_geometry(ds) or "")
     grid = 128 if mesh_grid is None else check_integer(mesh_grid, "mesh_grid", 8, 4096)
     try:
         face, _ = parse_face_name(name)

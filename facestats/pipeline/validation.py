@@ -31,14 +31,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facestats.acquire.capture import Lumitexels
+from facestats.acquire.dome import default_dome
 from facestats.acquire.geometry import uv_to_texel
-from facestats.acquire.synthetic.population import default_population
-from facestats.acquire.synthetic.simulate import simulate_capture
+from facestats.acquire.synthetic.faces import named_face, parse_face_name
+from facestats.acquire.synthetic.population import default_population, synthesize_population
+from facestats.acquire.synthetic.simulate import DomeSimulator, simulate_capture
 from facestats.acquire.visibility import ShadowMaps
+from facestats.core.conventions import DEFAULT_SEED
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
-from facestats.io.mesh import subject_mesh
+from facestats.io.mesh import recorded_geometry, subject_mesh
 from facestats.io.probes import read_light_probe
 from facestats.io.schema import modulation, provenance
 from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport, skin_radiance
@@ -46,7 +50,7 @@ from facestats.model.sphere import latlong_light_samples
 from facestats.pipeline.render import camera_image
 from facestats.pipeline.settings import MAP_VARS, MODEL_PREFIX
 
-__all__ = ["Render", "render_led", "render_probe", "camera_rmse", "default_capture"]
+__all__ = ["Render", "render_led", "render_probe", "camera_rmse", "default_capture", "face_view", "FaceView"]
 
 
 @dataclass
@@ -195,6 +199,64 @@ def _check(subject, capture, camera, light, specular):
         raise ValidationError("subject must hold the fitted 'normal' map (a Dataset from fit_subject)")
 
 
+class FaceView:
+    """What :func:`render_probe` reads of a capture, from the face geometry alone: its lumitexels and the dome.
+
+    The lumitexels are the geometry's (as a simulated capture stores them: float32 positions, UVs and areas),
+    seen by ``dome`` (default :func:`facestats.acquire.dome.default_dome`, the simulator's); they hold no
+    samples (``irradiance`` and ``radiance`` have no light or camera), so only a render without a reference can
+    use them.  Made by :func:`face_view`.
+    """
+
+    def __init__(self, geometry, subject_id: str, dome=None):
+        self.dome = default_dome() if dome is None else dome
+        self.attrs = {"subject_id": str(subject_id), "geometry": str(geometry.name)}
+        self._position = np.asarray(geometry.position, np.float32)
+        self._geometry = geometry
+        self._lumitexels = None
+
+    def array(self, name, sl=slice(None)) -> np.ndarray:
+        """``position`` (N, 3) float32, as :meth:`facestats.acquire.capture.Capture.array` (the only array)."""
+        if name != "position":
+            raise ValidationError(f"a face view holds the lumitexel positions only, not {name!r}")
+        return self._position[sl]
+
+    def lumitexels(self) -> Lumitexels:
+        """Every lumitexel with its directions to the dome's LEDs and cameras (computed once)."""
+        if self._lumitexels is None:
+            g, n = self._geometry, len(self._position)
+            pos = self._position.astype(np.float64)
+            wi, wo = self.dome.directions32(pos)
+            self._lumitexels = Lumitexels(
+                index=np.arange(n), position=pos, scan_normal=np.asarray(g.normal, np.float64),
+                uv=np.asarray(g.uv, np.float32).astype(np.float64),
+                area=np.asarray(g.area, np.float32).astype(np.float64), region=np.asarray(g.region), wi=wi, wo=wo,
+                irradiance=np.zeros((n, 0, 3), np.float32), radiance=np.zeros((n, 0, 0, 3), np.float16),
+            )  # fmt: skip
+        return self._lumitexels
+
+
+def face_view(subject) -> FaceView:
+    """The lumitexels of the face a subject's provenance records (:func:`facestats.io.mesh.recorded_geometry`;
+    an edit's: its source's), seen by the default dome: the stand-in for a capture in :func:`render_probe`.
+
+    Raises
+    ------
+    ValidationError
+        A face facestats cannot rebuild (a subject fitted on a scan: pass its capture).
+    """
+    sid = str(subject.attrs.get("subject_id", "?"))
+    name = recorded_geometry(subject)
+    try:
+        geometry = named_face(str(name))
+    except ValidationError:
+        raise ValidationError(
+            f"subject {sid!r} records geometry {name!r}, not a face facestats can rebuild: pass the capture it was "
+            "fitted to (--capture PATH on the command line)"
+        ) from None
+    return FaceView(geometry, sid)
+
+
 def render_probe(subject, capture, camera: int, probe, *, samples=(8, 16), specular="torrance_sparrow", eta=ETA_SKIN):
     """The fitted model for ``camera`` under a lat-long light probe, shadowed by the face mesh.
 
@@ -204,8 +266,14 @@ def render_probe(subject, capture, camera: int, probe, *, samples=(8, 16), specu
     where the subject's face mesh (:func:`facestats.io.mesh.subject_mesh`)
     shadows it.
 
+    Nothing is compared with a capture, so none is needed: ``capture`` None renders the lumitexels of the
+    subject's recorded face seen by the default dome (:func:`face_view`; for a simulated subject the same
+    lumitexels and dome as its capture's).
+
     Parameters
     ----------
+    capture : Capture, FaceView or None
+        The subject's capture (its lumitexels and dome calibration), or None (:func:`face_view`).
     probe : str, os.PathLike or ndarray (H, W, 3)
         Lat-long probe (a file is read with :func:`facestats.io.probes.read_light_probe`).
     samples : (int, int)
@@ -217,6 +285,8 @@ def render_probe(subject, capture, camera: int, probe, *, samples=(8, 16), specu
         Without a reference.
     """
 
+    if capture is None:
+        capture = face_view(subject)
     check_integer(camera, "camera", 0, capture.dome.n_cameras - 1)
     img = read_light_probe(probe) if not isinstance(probe, np.ndarray) else np.asarray(probe, np.float64)
     h, w = (check_integer(s, "samples", 1) for s in samples)
@@ -265,40 +335,82 @@ def camera_rmse(
     return float(np.sqrt(num / den))
 
 
-def default_capture(subject):
-    """Re-simulate the capture of a subject of the embedded default store (same truth, seed and dome).
+#: Capture provenance entries that set up the simulator (:class:`facestats.acquire.synthetic.simulate.DomeSimulator`).
+SIMULATOR_SETTINGS = ("specular", "noise", "head_motion_deg", "scan_normal_noise_deg", "block")
+
+
+def default_capture(subject, seed: int = DEFAULT_SEED):
+    """Re-simulate the capture of a subject of the synthetic population (same truth, seed, face and dome).
 
     Parameters
     ----------
     subject : str or xarray.Dataset
-        A subject id of the default population, or a fitted subject: then its
-        provenance must show that it was fitted from the default simulation of
-        that subject (simulator, seed, geometry and specular model), so that a
-        subject of another store is never compared with a capture it was not
-        fitted to.
+        A subject id of the embedded default's population, or a fitted subject of any store
+        ``facestats build`` wrote: its capture provenance (simulator settings, subject seed and face
+        ``ict-N``/``procedural-N``, which sets the map size) says how it was simulated, and the
+        re-simulation must reproduce it, so that a subject is never compared with a capture it was not fitted
+        to.  The truth is drawn from the synthetic population of ``seed``; the subject seed it records must be
+        the one that population gives that subject.
+    seed : int
+        Seed of the population (``facestats build --seed``, default 2006: the build's seed is not recorded in
+        the store, only each subject's seed drawn from it).
 
-    The last two are cached (a simulation takes seconds); treat the capture as read-only.
+    Raises
+    ------
+    ValidationError
+        A subject whose capture cannot be re-simulated, saying what to pass instead: an edit (never captured),
+        a subject fitted from photographs or another capture, another population seed.
+
+    The last two simulations are cached (a simulation takes seconds); treat the capture as read-only.
     """
 
-    subject_id = subject if isinstance(subject, str) else str(subject.attrs.get("subject_id", ""))
-    truth = _default_truth(subject_id)
-    if not isinstance(subject, str):
-        got = provenance(subject).get("capture_provenance", {})
-        want = {
-            "source": "facestats simulator",
-            "seed": truth.seed,
-            "geometry": truth.geometry,
-            "specular": "torrance_sparrow",
-        }
-        differ = {k: got.get(k) for k, v in want.items() if got.get(k) != v}
-        if differ:
-            expected = {k: want[k] for k in differ}
+    if isinstance(subject, str):
+        _default_truth(subject)  # the message of an id outside the default
+        return _simulated(subject, int(seed), None, ())
+    sid = str(subject.attrs.get("subject_id", ""))
+    prov = provenance(subject)
+    got = prov.get("capture_provenance")
+    capture = "(--capture PATH on the command line)"
+    if not isinstance(got, dict) or not got:
+        if isinstance(prov.get("source_provenance"), dict):
             raise ValidationError(
-                f"subject {subject_id!r} was not fitted from the default simulation of that subject (its capture "
-                f"provenance has {differ}, the default has {expected}); pass the capture it was fitted to "
-                "(--capture PATH on the command line)"
+                f"subject {sid!r} is an edit (of {prov.get('source_subject', '?')!r}, facestats edit): it was never "
+                "captured, so there is no capture to compare it with; render it under a light probe (--probe FILE), "
+                "which needs none"
             )
-    return _simulated_default(subject_id)
+        raise ValidationError(f"subject {sid!r} records no capture it was fitted from: pass that capture {capture}")
+    if got.get("source") != "facestats simulator":
+        raise ValidationError(
+            f"subject {sid!r} was fitted from a capture facestats did not simulate (source {got.get('source')!r}): "
+            f"pass that capture {capture}"
+        )
+    name = got.get("geometry")
+    try:
+        parse_face_name(str(name))
+    except ValidationError:
+        raise ValidationError(
+            f"subject {sid!r} was simulated on geometry {name!r}, not a face facestats can rebuild: pass the "
+            f"capture it was fitted to {capture}"
+        ) from None
+    truth = _population_truth(sid, int(seed), str(name))
+    if truth.seed != got.get("seed"):
+        raise ValidationError(
+            f"subject {sid!r} was not fitted from the default simulation of that subject (its capture provenance "
+            f"has {{'seed': {got.get('seed')!r}}}, the population of seed {seed} has {{'seed': {truth.seed}}}): a "
+            "subject of a store built with another --seed needs that seed (--seed N; the store does not record it), "
+            f"any other the capture it was fitted to {capture}"
+        )
+    settings = tuple((k, got[k]) for k in SIMULATOR_SETTINGS if k in got)
+    cap = _simulated(sid, int(seed), str(name), settings)
+    made = cap.provenance
+    differ = {k: v for k, v in got.items() if k != "software" and made.get(k) != v}
+    if differ:
+        raise ValidationError(
+            f"subject {sid!r} records a simulation this facestats does not reproduce (its capture provenance has "
+            f"{differ}, the re-simulation {{{', '.join(f'{k!r}: {made.get(k)!r}' for k in differ)}}}): pass the "
+            f"capture it was fitted to {capture}"
+        )
+    return cap
 
 
 def _default_truth(subject_id):
@@ -308,6 +420,26 @@ def _default_truth(subject_id):
         raise ValidationError(f"subject_id must name a subject of the default population, got {subject_id!r}") from None
 
 
+@functools.lru_cache(maxsize=4)
+def _population_truth(subject_id, seed, face):
+    """The truth of one subject of the synthetic population of ``seed`` drawn on face ``face`` (``ict-N``...)."""
+    try:
+        geometry = named_face(face)
+        return synthesize_population(seed=seed, map_size=geometry.map_size, geometry=geometry, subjects=[subject_id])[
+            subject_id
+        ]
+    except ValidationError:  # an id outside the population
+        raise ValidationError(
+            f"subject {subject_id!r} is not a subject of the synthetic population (S001-S149, P150-<condition>): "
+            "pass the capture it was fitted to (--capture PATH on the command line)"
+        ) from None
+
+
 @functools.lru_cache(maxsize=2)
-def _simulated_default(subject_id):
-    return simulate_capture(_default_truth(subject_id))
+def _simulated(subject_id, seed, face, settings):
+    """A simulated capture: of the default (``face`` None) or of the population of ``seed`` on ``face`` with the
+    simulator ``settings`` ((name, value) pairs of :data:`SIMULATOR_SETTINGS`)."""
+    if face is None:
+        return simulate_capture(default_population(seed=seed)[subject_id])
+    truth = _population_truth(subject_id, seed, face)
+    return DomeSimulator(named_face(face), **dict(settings)).simulate(truth)

@@ -100,28 +100,39 @@ def stage_camera(
     return StageCamera(pos, t, fov_deg, size)
 
 
-def subject_geometry(subject, *, mesh_grid: int = 64) -> FaceGeometry:
-    """The face geometry a store subject was captured on, from its provenance.
+def subject_geometry(subject, mesh=None, *, scale: float = 1.0, mesh_grid: int = 64) -> FaceGeometry:
+    """The face geometry a store subject's maps belong to: a scan given as ``mesh``, else the face its provenance names.
 
-    Subjects of the synthetic population record ``capture_provenance.geometry``:
-    ``"ict-N"`` (the ICT-FaceKit face of the default, its own mesh) or ``"procedural-N"``
-    (the procedural head of lumitexel grid N, rebuilt here with a ``mesh_grid``² rendering
-    mesh), both through :func:`facestats.acquire.synthetic.faces.named_face`.  Subjects
-    fitted on a real scan must be rendered with that scan's geometry (pass it to
-    :func:`light_stage_field`).
+    The name is read by :func:`facestats.io.mesh.recorded_geometry` (the one place, shared with the exporters):
+    ``"ict-N"`` (the ICT-FaceKit face of the default, its own mesh) or ``"procedural-N"`` (the procedural head of
+    lumitexel grid N, rebuilt here with a ``mesh_grid``² rendering mesh), both through
+    :func:`facestats.acquire.synthetic.faces.named_face`; an edit (``facestats edit``) has its source's face.
+    Subjects fitted on a real scan (ingested photographs: the scan's file name is recorded) need that scan:
+    ``mesh``, an OBJ/PLY with per-vertex UVs (v up in the file, mm times ``scale``) whose UV layout the maps
+    follow, loaded with :func:`facestats.io.mesh.load_face_mesh` and the subject's own ``region`` map.
+
+    Raises
+    ------
+    ValidationError
+        A subject of region samples (``facestats import-merl``: no maps to render), or one whose recorded face
+        cannot be rebuilt and no ``mesh`` (the message names ``--mesh``, the command line's option).
     """
-    # local import: keeps facestats.io (21 modules) out of this module's import
-    from facestats.io.schema import provenance
+    # local imports: keep facestats.io (21 modules) out of this module's import
+    from facestats.io.exr_set import check_map_subject
+    from facestats.io.mesh import load_face_mesh, recorded_geometry
 
-    prov = provenance(subject)
-    name = (prov.get("capture_provenance") or {}).get("geometry")
+    check_map_subject(subject, "relighting")
     mesh_grid = check_integer(mesh_grid, "mesh_grid", 8, 1024)
+    if mesh is not None:
+        return load_face_mesh(mesh, np.asarray(subject["region"].values), scale=scale)
+    name = recorded_geometry(subject)
     try:
         return named_face(str(name), mesh_grid=mesh_grid if str(name).startswith("procedural-") else None)
     except ValidationError:
         raise ValidationError(
             f"subject {subject.attrs.get('subject_id', '?')!r} records geometry {name!r}, not a face facestats "
-            "can rebuild: pass its FaceGeometry (e.g. facestats.io.mesh.load_face_mesh) as geometry="
+            "can rebuild: pass the scan its maps belong to, an OBJ/PLY with UVs (--mesh PATH on the command line; "
+            "mesh=PATH of facestats.relight.camera.subject_geometry in Python)"
         ) from None
 
 

@@ -2,6 +2,7 @@
 
 import os
 
+import numpy as np
 import pytest
 
 from facestats.cli import main
@@ -41,7 +42,8 @@ def test_render_prints_the_relative_rmse_and_writes_images(tmp_path, capsys):
     line = capsys.readouterr().out.splitlines()[0]
     assert float(line.split("relative ")[1].split(" %")[0]) < 5
     assert sorted(os.listdir(tmp_path)) == [
-        "S003-cam05-capture.exr", "S003-cam05-error.exr", "S003-cam05-rendered.exr", "S003-cam05.png",
+        "S003-cam05-led020-capture.exr", "S003-cam05-led020-error.exr", "S003-cam05-led020-rendered.exr",
+        "S003-cam05-led020.png",
     ]  # fmt: skip
 
 
@@ -51,14 +53,16 @@ def test_render_checks_its_outputs_before_rendering(tmp_path, capsys):
     assert "--out must be a directory, got" in capsys.readouterr().err
     assert main(["render", "S003", "--out", ""]) == 2
     assert "--out must be a file system path, got ''" in capsys.readouterr().err
-    (tmp_path / "r" / "S003-cam05.png").mkdir(parents=True)  # one target is a folder: nothing is written
+    (tmp_path / "r" / "S003-cam05-led020.png").mkdir(parents=True)  # one target is a folder: nothing is written
     assert main(["render", "S003", "--out", str(tmp_path / "r")]) == 2
-    assert "S003-cam05.png" in capsys.readouterr().err and os.listdir(tmp_path / "r") == ["S003-cam05.png"]
+    assert "S003-cam05-led020.png" in capsys.readouterr().err and os.listdir(tmp_path / "r") == [
+        "S003-cam05-led020.png"
+    ]
     (tmp_path / "s").mkdir()
-    (tmp_path / "s" / "S003-cam05-error.exr").write_bytes(b"an earlier render")  # replaced only with --overwrite
+    (tmp_path / "s" / "S003-cam05-led020-error.exr").write_bytes(b"an earlier render")  # replaced only with --overwrite
     assert main(["render", "S003", "--out", str(tmp_path / "s")]) == 2
-    assert "S003-cam05-error.exr' exists (pass --overwrite" in capsys.readouterr().err
-    assert (tmp_path / "s" / "S003-cam05-error.exr").read_bytes() == b"an earlier render"
+    assert "S003-cam05-led020-error.exr' exists (pass --overwrite" in capsys.readouterr().err
+    assert (tmp_path / "s" / "S003-cam05-led020-error.exr").read_bytes() == b"an earlier render"
 
 
 def test_render_refuses_a_subject_not_fitted_from_the_default_capture(tmp_path, capsys):
@@ -79,6 +83,103 @@ def test_render_refuses_a_subject_not_fitted_from_the_default_capture(tmp_path, 
     err = capsys.readouterr().err
     assert "was not fitted from the default simulation of that subject" in err and "'seed': 7" in err
     assert "--capture PATH" in err and not out.exists()
+
+
+def _copy(store, sid, edit=None, **capture):
+    """A subject of the default store written to ``store``: its capture provenance updated with ``capture``, or
+    (``edit``: the new id) as ``facestats edit`` writes an edit of it (no capture of its own)."""
+    import json
+
+    import facestats
+
+    with facestats.open_store() as st:
+        ds = st.subject(sid).load()
+    prov = json.loads(ds.attrs["provenance"])
+    prov["capture_provenance"].update(capture)
+    if edit:
+        prov = {"source": "facestats.edit", "source_subject": sid, "source_provenance": prov}
+        ds.attrs["subject_id"] = edit
+    ds.attrs["provenance"] = json.dumps(prov)
+    with facestats.open_store(store, mode="a") as other:
+        other.write_subject(ds)
+
+
+def test_export_subject_of_an_edit_exports_the_face_of_its_source(tmp_path, capsys):
+    """An edit records no capture: the face is its source's (the resolver relight and the web app's EXR set use)."""
+    import json
+
+    store = str(tmp_path / "edits.zarr")
+    _copy(store, "S004", edit="S004.edit")
+    assert main(["export-subject", "S004.edit", "--store", store, "--out", str(tmp_path / "x")]) == 0
+    assert "exported S004.edit as exr" in capsys.readouterr().out
+    geometry = json.loads((tmp_path / "x" / "manifest.json").read_text())["geometry"]
+    assert geometry["name"] == "ict-48" and geometry["kind"] == "ict-facekit"
+
+
+def test_render_under_a_probe_needs_no_capture_and_names_the_probe(tmp_path, capsys):
+    """Nothing is compared under a probe: the face the subject records suffices, an edit's being its source's."""
+    from facestats.io.images import read_image
+    from facestats.io.probes import write_light_probe
+    from facestats.relight.lighting import sky_probe
+
+    store = str(tmp_path / "other.zarr")
+    _copy(store, "S003", seed=7)  # fitted from another capture: no LED render without it, a probe render anyway
+    _copy(store, "S003", edit="S003.edit")
+    write_light_probe(tmp_path / "sky.hdr", sky_probe(16))
+    out = tmp_path / "images"
+    for sid in ("S003", "S003.edit"):
+        assert main(["render", sid, "--store", store, "--out", str(out), "--probe", str(tmp_path / "sky.hdr")]) == 0
+        assert capsys.readouterr().out == f"wrote {out / sid}-cam05-probe-sky.png and the EXR images beside it\n"
+    assert sorted(os.listdir(out)) == [
+        "S003-cam05-probe-sky-rendered.exr", "S003-cam05-probe-sky.png",
+        "S003.edit-cam05-probe-sky-rendered.exr", "S003.edit-cam05-probe-sky.png",
+    ]  # fmt: skip
+    a, b = (read_image(out / f"{sid}-cam05-probe-sky-rendered.exr") for sid in ("S003", "S003.edit"))
+    assert np.array_equal(a, b) and np.nanmax(a) > 0  # same maps, same face
+    assert main(["render", "S003.edit", "--store", store, "--out", str(out)]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "facestats: error: subject 'S003.edit' is an edit (of 'S003', facestats edit): it was never captured, so "
+        "there is no capture to compare it with; render it under a light probe (--probe FILE), which needs none"
+    )
+
+
+def test_render_refuses_a_subject_of_region_samples_by_what_it_holds(tmp_path, capsys):
+    from facestats.io.merl import import_merl
+    from tests.helpers import merl_dict, save_mat
+
+    import_merl(save_mat(tmp_path, merl_dict()), tmp_path / "merl.zarr")
+    for extra in ([], ["--probe", "sky.hdr"]):
+        args = ["render", "merl-001", "--store", str(tmp_path / "merl.zarr"), "--out", str(tmp_path / "r")]
+        assert main(args + extra) == 2
+        assert capsys.readouterr().err.strip() == (
+            "facestats: error: subject 'merl-001' holds region samples, not maps: a validation render needs a map "
+            "subject"
+        )
+    assert not (tmp_path / "r").exists()
+
+
+def test_render_resimulates_the_capture_of_a_subject_facestats_build_wrote(tmp_path, capsys):
+    """A built store records each subject's seed, face and map size: its LED render re-simulates the capture (with
+    the build's --seed, which the store does not record), and renders under other LEDs sit side by side."""
+    store, out = str(tmp_path / "b.zarr"), tmp_path / "r"
+    build = ["build", "--store", store, "--size", "8", "--seed", "7", "--subjects", "S002", "--workers", "1", "--quiet"]
+    assert main(build) == 0
+    capsys.readouterr()
+    assert main(["render", "S002", "--store", store, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "was not fitted from the default simulation of that subject" in err and "--seed N" in err
+    assert not out.exists()
+    for light in ("20", "30"):
+        assert main(["render", "S002", "--store", store, "--out", str(out), "--seed", "7", "--light", light]) == 0
+        rel = float(capsys.readouterr().out.split("relative ")[1].split(" %")[0])
+        assert rel < 15  # an 8² fit of its own capture (another capture would be far off)
+    assert sorted(os.listdir(out)) == [
+        f"S002-cam05-led0{n}{tail}"
+        for n in ("20", "30")
+        for tail in ("-capture.exr", "-error.exr", "-rendered.exr", ".png")
+    ]
+    assert main(["render", "S002", "--store", store, "--out", str(out), "--seed", "7", "--probe", "x.hdr"]) == 2
+    assert "--seed applies to the LED render without --capture" in capsys.readouterr().err
 
 
 def test_serve_refuses_a_port_it_cannot_bind(capsys):

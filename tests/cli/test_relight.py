@@ -123,3 +123,152 @@ def test_turntable_relights_the_compressed_field_frame_by_frame(tmp_path):
                 "--turntable", "2", "--ratio", "2", "--out", tmp_path / "s.exr")  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert read_image(tmp_path / "s_001.exr").shape == (12, 12, 3) and "2 frames every 180°" in r.stdout
+
+
+# -- subjects whose face is found by following their provenance, or given as --mesh ------------------------------------
+def _copy_of_s001(path, subject_id, provenance):
+    """S001 of the default store, written to the store ``path`` as ``subject_id`` with ``provenance`` (same maps)."""
+    import json
+
+    import facestats
+
+    with facestats.open_store() as st:
+        ds = st.subject("S001").load()
+    ds.attrs["subject_id"] = subject_id
+    ds.attrs["provenance"] = json.dumps(provenance(json.loads(ds.attrs["provenance"])))
+    with facestats.open_store(path, mode="a") as dst:
+        dst.write_subject(ds)
+    return ds
+
+
+def _relight(main, capsys, *args):
+    code = main(["relight", *map(str, args)])
+    return code, capsys.readouterr()
+
+
+def _edit_of(prov, source="S001"):
+    """The provenance ``facestats edit`` writes: no capture of its own, its source's under ``source_provenance``."""
+    return {"source": "facestats.edit", "edit": {"name": "change_skin_type"}, "source_subject": source,
+            "source_store": "default", "source_provenance": prov}  # fmt: skip
+
+
+def test_an_edit_is_relit_and_exported_on_the_face_of_its_source(tmp_path, capsys):
+    """An edit records no geometry of its own: its source's (through edits of edits) is the face it is rendered on."""
+    from facestats.cli import main
+
+    store = tmp_path / "edits.zarr"
+    _copy_of_s001(store, "S001.edit-1", _edit_of)
+    _copy_of_s001(store, "S001.edit-2", lambda p: _edit_of(_edit_of(p), source="S001.edit-1"))
+    write_light_probe(tmp_path / "sky.hdr", sky_probe(16))
+    common = ("--probe", tmp_path / "sky.hdr", "--size", "16", "--lights", "8x4")
+    code, io = _relight(main, capsys, "S001", *common, "--out", tmp_path / "s.exr")
+    assert code == 0, io.err
+    for sid in ("S001.edit-1", "S001.edit-2"):
+        code, io = _relight(main, capsys, sid, "--store", store, *common, "--out", tmp_path / f"{sid}.exr")
+        assert code == 0, io.err  # same maps, same face: the same image as the source's
+        assert np.array_equal(read_image(tmp_path / f"{sid}.exr"), read_image(tmp_path / "s.exr"))
+    assert main(["export-subject", "S001.edit-2", "--store", str(store), "--out", str(tmp_path / "x")]) == 0, (
+        capsys.readouterr().err
+    )
+    import json
+
+    assert json.loads((tmp_path / "x" / "manifest.json").read_text())["geometry"]["name"] == "ict-48"
+
+
+def test_a_subject_fitted_on_a_scan_is_relit_with_mesh(tmp_path, capsys):
+    """Ingested subjects record their scan's file name: --mesh passes the scan, and the message names --mesh."""
+    from facestats.cli import main
+    from facestats.io.mesh import subject_mesh, write_mesh
+
+    store = tmp_path / "scans.zarr"
+
+    def ingested(prov):
+        return dict(
+            prov, source="facestats ingest", capture_provenance={"source": "photographs", "geometry": "face.obj"}
+        )
+
+    ds = _copy_of_s001(store, "X1", ingested)
+    write_light_probe(tmp_path / "sky.hdr", sky_probe(16))
+    common = ("--probe", tmp_path / "sky.hdr", "--size", "16", "--lights", "8x4")
+    code, io = _relight(main, capsys, "X1", "--store", store, *common, "--out", tmp_path / "x.exr")
+    assert code == 2 and io.err.strip() == (
+        "facestats: error: subject 'X1' records geometry 'face.obj', not a face facestats can rebuild: pass the scan "
+        "its maps belong to, an OBJ/PLY with UVs (--mesh PATH on the command line; mesh=PATH of "
+        "facestats.relight.camera.subject_geometry in Python)"
+    )
+    assert "geometry=" not in io.err and not (tmp_path / "x.exr").exists()
+    fm = subject_mesh(ds.assign_attrs(provenance='{"geometry": "ict-48"}'))  # the scan: the ICT face's mesh
+    write_mesh(tmp_path / "face.obj", fm.vertices, fm.faces, fm.uv)
+    code, io = _relight(main, capsys, "X1", "--store", store, *common, "--mesh", tmp_path / "face.obj",
+                        "--out", tmp_path / "x.exr")  # fmt: skip
+    assert code == 0, io.err
+    code, io = _relight(main, capsys, "S001", *common, "--out", tmp_path / "s.exr")
+    assert code == 0, io.err
+    x, s = read_image(tmp_path / "x.exr"), read_image(tmp_path / "s.exr")
+    assert np.allclose(x, s, rtol=1e-3, atol=1e-5 * s.max())  # the scan is the face S001 records (to the OBJ's digits)
+    code, io = _relight(main, capsys, "X1", "--store", store, *common, "--mesh", tmp_path / "nope.obj",
+                        "--out", tmp_path / "y.exr")  # fmt: skip
+    assert code == 2 and "--mesh must be an OBJ/PLY file with UVs, got" in io.err and "nope.obj" in io.err
+    f, _, _ = lambertian_field(4, 4)
+    write_field(tmp_path / "f.zarr", f)
+    code, io = _relight(main, capsys, tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", "--mesh",
+                        tmp_path / "face.obj", "--out", tmp_path / "z.exr")  # fmt: skip
+    assert code == 2 and "--mesh apply to a subject rendered through the virtual stage" in io.err
+    assert not any((tmp_path / n).exists() for n in ("y.exr", "z.exr"))
+
+
+def test_a_subject_of_region_samples_has_no_maps_to_relight(tmp_path, capsys):
+    from facestats.cli import main
+    from facestats.io.merl import import_merl
+    from tests.helpers import merl_dict, save_mat
+
+    import_merl(save_mat(tmp_path, merl_dict()), tmp_path / "merl.zarr")
+    write_light_probe(tmp_path / "sky.hdr", sky_probe(8))
+    for extra in ((), ("--turntable", "2")):
+        code, io = _relight(main, capsys, "merl-001", "--store", tmp_path / "merl.zarr", "--probe",
+                            tmp_path / "sky.hdr", "--size", "8", *extra, "--out", tmp_path / "m.exr")  # fmt: skip
+        assert code == 2 and io.err.strip() == (
+            "facestats: error: subject 'merl-001' holds region samples, not maps: relighting needs a map subject"
+        )
+        assert "note:" not in io.out
+    assert not list(tmp_path.glob("m*.exr"))
+
+
+def test_a_turntable_of_few_lights_lowers_the_default_ratio_and_refuses_an_explicit_one(tmp_path, capsys):
+    """3 L / 6 values per pixel bound the ratio: 16 for 8 x 4 lights, where the default 20 would leave no room."""
+    from facestats.cli import main
+
+    write_light_probe(tmp_path / "sky.hdr", sky_probe(16))
+    common = ("S001", "--probe", tmp_path / "sky.hdr", "--size", "12", "--lights", "8x4", "--turntable", "2")
+    code, io = _relight(main, capsys, *common, "--ratio", "20", "--out", tmp_path / "a.exr")
+    assert code == 2 and io.err.strip() == (
+        "facestats: error: --ratio 20 cannot be met by a field of 32 lights: besides its components it stores 6 "
+        "values per face pixel, so the ratio must stay below 3 x 32 / 6 = 16; pass a smaller --ratio"
+    )
+    assert not list(tmp_path.glob("a_*"))
+    code, io = _relight(main, capsys, *common, "--out", tmp_path / "t.exr")
+    assert code == 0, io.err
+    assert io.out.startswith(
+        "note: --ratio not given and the default 20 does not fit a field of 32 lights (below 16 with room for no "
+        "component): compressing at ratio 8\n"
+    )
+    assert 8 <= float(read_exr(tmp_path / "t_001.exr")[1]["compression_ratio"]) < 16  # a minimum ratio, met
+
+
+def test_stage_options_are_checked_by_their_flags_before_any_work(tmp_path, capsys):
+    from facestats.cli import main
+
+    write_light_probe(tmp_path / "sky.hdr", sky_probe(8))
+    for bad, message in (
+        (("--lights", "0x4"), "--lights must be N_THETAxN_PHI, two whole numbers >= 1 in ASCII digits such as "
+                              "64x32, got '0x4'"),
+        (("--lights", "8x-1"), "--lights must be N_THETAxN_PHI, two whole numbers >= 1"),
+        (("--elevation", "95"), "--elevation must be an angle in [-90, 90] degrees, got 95.0"),
+        (("--elevation", "nan"), "--elevation must be an angle in [-90, 90] degrees, got nan"),
+        (("--azimuth", "inf"), "--azimuth must be a finite angle in degrees, got inf"),
+        (("--size", "0"), "--size must be an image side in [1, 8192] pixels, got 0"),
+    ):  # fmt: skip
+        code, io = _relight(main, capsys, "S001", "--probe", tmp_path / "sky.hdr", *bad, "--out", tmp_path / "o.exr")
+        assert code == 2 and io.err.strip().startswith(f"facestats: error: {message}"), (bad, io.err)
+        assert "n_theta" not in io.err and "elevation_deg" not in io.err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sky.hdr"]

@@ -191,11 +191,13 @@ def test_export(stores, tmp_path):
     assert r.returncode == 0 and sorted(p.name for p in (tmp_path / "j").iterdir()) == ["README.txt", "statistics.json"]
     (out / "notes.txt").write_text("mine")  # a release in the other format replaces the first, and only it
     r = run_cli("export", "--store", stores[0], "--out", out, "--format", "json")
+    assert r.returncode == 2 and "which holds an earlier statistics release" in r.stderr  # only with --overwrite
+    r = run_cli("export", "--store", stores[0], "--out", out, "--format", "json", "--overwrite")
     assert r.returncode == 0, r.stderr
     assert sorted(p.name for p in out.iterdir()) == ["README.txt", "notes.txt", "statistics.json"]
     before = sorted(p.name for p in (stores[0] / "subjects").iterdir())
     r = run_cli("export", "--store", stores[0], "--out", stores[0] / "subjects")  # never into the store
-    assert r.returncode == 2 and "out_dir must lie outside the store" in r.stderr
+    assert r.returncode == 2 and "--out must lie outside the store" in r.stderr
     assert sorted(p.name for p in (stores[0] / "subjects").iterdir()) == before
 
 
@@ -227,7 +229,8 @@ def test_export_into_a_folder_of_other_files_needs_overwrite_and_removes_nothing
     out.mkdir()
     (out / "statistics.json").write_text('{"my": 1}')
     r = run_cli("export", "--store", stores[1], "--out", out, "--format", "csv")
-    assert r.returncode == 2 and "--overwrite: write into any folder" in r.stderr and "'statistics.json'" in r.stderr
+    assert r.returncode == 2 and "--overwrite: replace an earlier release, or write into any folder" in r.stderr
+    assert "'statistics.json'" in r.stderr
     assert sorted(p.name for p in out.iterdir()) == ["statistics.json"]
     r = run_cli("export", "--store", stores[1], "--out", out, "--format", "csv", "--overwrite")
     assert r.returncode == 0, r.stderr

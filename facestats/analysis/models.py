@@ -144,20 +144,24 @@ def model_errors(store, subjects=None, conditions=("normal",)) -> ModelErrors:
         raise InsufficientDataError(
             "the selection holds no map subject (fitted maps): there are no fit errors to compare"
         )
-    ids, skipped = [], []
+    opened, skipped = {}, []
     for sid in (str(s) for s in frame.index):  # the fit errors are optional in the schema (older subjects)
-        has = all(v in store.subject(sid, lazy=True).variables for v in _VARIABLES)
-        (ids if has else skipped).append(sid)
-    if not ids:
+        ds = store.subject(sid, lazy=True)  # opened once (each opening reads and checks its metadata)
+        if all(v in ds.variables for v in _VARIABLES):
+            opened[sid] = ds
+        else:
+            skipped.append(sid)
+    if not opened:
         raise InsufficientDataError(
             f"no map subject of the selection holds both models' fit errors (ts_error, bp_error): {skipped[:5]}"
         )
+    ids = list(opened)
     ratios = np.full((len(ids), len(REGION_IDS)), np.nan)
     face_ratio = np.full(len(ids), np.nan)
     counts = np.zeros((4, len(REGION_IDS)))  # texels, TS flagged, BP flagged, BP implausible
     exponents = [[] for _ in REGION_IDS]
     for i, sid in enumerate(ids):
-        ds = store.subject(sid, lazy=True, variables=_VARIABLES)
+        ds = opened.pop(sid)
         region, e_ts, e_bp, f_ts, f_bp, n_bp = (np.asarray(ds[v].values) for v in _VARIABLES)
         both = (f_ts == 0) & (f_bp == 0) & (e_ts > 0)
         ratio = np.where(both, e_bp / np.where(both, e_ts, 1), np.nan)

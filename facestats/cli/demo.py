@@ -23,27 +23,19 @@ from facestats.core.published import ETA_SKIN
 
 __all__ = ["add_demo"]
 
-#: Domains of the options (low, high, whether high is included, as written in messages, unit).
-ALBEDO = (1e-10, 1.0, False, "[1e-10, 1)", "")
-SIGMA_TR = (1e-100, 1e80, True, "[1e-100, 1e80]", " mm^-1")
-ETA = (1.0, 3.0, True, "[1, 3]", "")
+#: Domains of the options (module docstring): (low, high, high included, unit).
+ALBEDO = (1e-10, 1.0, False, None)
+SIGMA_TR = (1e-100, 1e80, True, "mm^-1")
+ETA = (1.0, 3.0, True, None)
 PLOT_SUFFIXES = (".png", ".svg", ".pdf")
-
-
-def _given(value: float) -> str:
-    """A parsed number as it was most likely typed (``-1`` for -1.0, ``1e-300``, ``inf``)."""
-    text = repr(float(value))
-    return text[:-2] if text.endswith(".0") else text
 
 
 def _check(values, option: str, domain) -> None:
     """Refuse a value of ``option`` outside ``domain`` (NaN and ±inf included), naming the option and the domain."""
-    from facestats.errors import ValidationError
+    from facestats.core.validate import as_finite
 
-    low, high, high_inclusive, written, unit = domain
-    for v in values:
-        if not (low <= v and (v <= high if high_inclusive else v < high)):  # NaN fails every comparison
-            raise ValidationError(f"{option} must lie in {written}{unit}, got {_given(v)}")
+    low, high, high_inclusive, unit = domain
+    as_finite(values, option, low, high, high_inclusive=high_inclusive, unit=unit)
 
 
 def _cmd_demo(args) -> int:

@@ -42,12 +42,12 @@ def test_demo_messages_name_the_option_its_true_domain_and_the_value_given(tmp_p
     in (0, inf]" (the range is [1, 3]) and --sigma-tr inf was refused by a message whose interval included inf."""
     cases = [
         (("--albedo", "1e-300", "0.3", "0.2"), "--albedo must lie in [1e-10, 1), got 1e-300"),
-        (("--albedo", "0.5", "1", "0.2"), "--albedo must lie in [1e-10, 1), got 1"),
-        (("--albedo", "0.5", "nan", "0.2"), "--albedo must lie in [1e-10, 1), got nan"),
-        (("--sigma-tr", "1e-300", "1", "1"), "--sigma-tr must lie in [1e-100, 1e80] mm^-1, got 1e-300"),
-        (("--sigma-tr", "inf", "1", "1"), "--sigma-tr must lie in [1e-100, 1e80] mm^-1, got inf"),
-        (("--sigma-tr", "1", "0", "1"), "--sigma-tr must lie in [1e-100, 1e80] mm^-1, got 0"),
-        (("--eta", "-1"), "--eta must lie in [1, 3], got -1"),
+        (("--albedo", "0.5", "1", "0.2"), "--albedo must lie in [1e-10, 1), got 1.0"),
+        (("--albedo", "0.5", "nan", "0.2"), "--albedo must be finite, got 1 non-finite value(s) (first: nan)"),
+        (("--sigma-tr", "1e-300", "1", "1"), "--sigma-tr must lie in [1e-100, 1e+80] mm^-1, got 1e-300"),
+        (("--sigma-tr", "inf", "1", "1"), "--sigma-tr must be finite, got 1 non-finite value(s) (first: inf)"),
+        (("--sigma-tr", "1", "0", "1"), "--sigma-tr must lie in [1e-100, 1e+80] mm^-1, got 0.0"),
+        (("--eta", "-1"), "--eta must lie in [1, 3], got -1.0"),
         (("--eta", "3.5"), "--eta must lie in [1, 3], got 3.5"),
     ]
     for extra, message in cases:

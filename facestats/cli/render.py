@@ -42,6 +42,9 @@ def _cmd_render(args) -> int:
         raise ValidationError(
             "--seed applies to the LED render without --capture (the population seed of its re-simulated capture)"
         )
+    if args.probe and args.light is not None:
+        raise ValidationError("--light names an LED to render under, --probe renders under a probe instead: got both")
+    args.light = 20 if args.light is None else args.light
     if args.seed is not None and args.seed < 0:
         raise ValidationError(f"--seed must be a population seed >= 0, got {args.seed}")
     out = check_output_dir(args.out, "--out")  # before rendering: a bad folder must not cost a render
@@ -94,7 +97,7 @@ def add_render(sub):
     p.add_argument("subject_id", metavar="ID")
     p.add_argument("--out", required=True, metavar="DIR", help="directory for the images")
     p.add_argument("--camera", type=ascii_int, default=5, help="dome camera (default 5)")
-    p.add_argument("--light", type=ascii_int, default=20, help="dome LED (default 20)")
+    p.add_argument("--light", type=ascii_int, default=None, help="dome LED (default 20; not with --probe)")
     p.add_argument("--probe", metavar="FILE", help="render under this lat-long HDR probe instead of an LED")
     p.add_argument(
         "--capture",

@@ -136,6 +136,10 @@ def test_render_under_a_probe_needs_no_capture_and_names_the_probe(tmp_path, cap
     ]  # fmt: skip
     a, b = (read_image(out / f"{sid}-cam05-probe-sky-rendered.exr") for sid in ("S003", "S003.edit"))
     assert np.array_equal(a, b) and np.nanmax(a) > 0  # same maps, same face
+    light = ["render", "S003", "--store", store, "--out", str(tmp_path / "x"), "--probe", str(tmp_path / "sky.hdr")]
+    assert main(light + ["--light", "149"]) == 2  # it was ignored
+    assert "--light names an LED to render under, --probe renders under a probe instead" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
     assert main(["render", "S003.edit", "--store", store, "--out", str(out)]) == 2
     assert capsys.readouterr().err.strip() == (
         "facestats: error: subject 'S003.edit' is an edit (of 'S003', facestats edit): it was never captured, so "

@@ -48,7 +48,12 @@ def add_export_subject(sub):
     )
     p.add_argument("subject_id", metavar="ID", help="subject id (see facestats query)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (must not exist or be empty)")
-    p.add_argument("--format", choices=("exr", "mitsuba", "gltf"), default="exr")
+    p.add_argument(
+        "--format",
+        choices=("exr", "mitsuba", "gltf"),
+        default="exr",
+        help="exr: one EXR per map with the mesh (default); mitsuba: a Mitsuba 3 scene; gltf: glTF 2.0 with PBR maps",
+    )
     add_store_option(p)
     p.add_argument(
         "--mesh",

@@ -171,14 +171,15 @@ def _cmd_relight(args) -> int:
         from facestats.relight.relighting import relight
 
         field = open_field(source)
-        image = relight(field, probe=probe, layout=args.layout, rotate=rotate, progress=True)
+        image = relight(field, probe=probe, layout=args.layout, rotate=rotate, progress=not args.quiet)
         mask = field["mask"].values if "mask" in field.data_vars else None
     else:
         from facestats.relight.stage import relight_subject
 
         subject, geometry, camera = _subject_and_camera(args)
         image, mask = relight_subject(subject, probe, layout=args.layout, rotate=rotate, camera=camera,
-                                      lights=_lights(args.lights), geometry=geometry, progress=True)  # fmt: skip
+                                      lights=_lights(args.lights), geometry=geometry,
+                                      progress=not args.quiet)  # fmt: skip
     scale = exposure_scale(image, mask)
     attrs = {"source": str(args.source), "probe": str(args.probe), "rotate_deg": str(args.rotate),
              "units": "radiance in the probe's unit", "method": "Debevec et al. 2000 eq. 4"}  # fmt: skip
@@ -221,10 +222,11 @@ def _turntable(args, probe, targets) -> int:
             d, _ = light_stage_directions(*_lights(args.lights))
             ratio = _ratio(args, d)  # before the field is rendered
             field = light_stage_field(subject, camera, geometry=geometry, directions=d,
-                                      out=pathlib.Path(tmp) / "field.zarr", dtype="float16", progress=True)  # fmt: skip
+                                      out=pathlib.Path(tmp) / "field.zarr", dtype="float16",
+                                      progress=not args.quiet)  # fmt: skip
         mask = field["mask"].values if "mask" in field.data_vars else None
         try:
-            comp = compress(field, ratio=ratio, progress=True)
+            comp = compress(field, ratio=ratio, progress=not args.quiet)
         except ValidationError as exc:  # a ratio whose budget cannot hold the first component: name the option
             if not str(exc).startswith("ratio "):
                 raise
@@ -294,5 +296,6 @@ def add_relight(sub):
                    help="OBJ/PLY scan (with UVs) a subject's maps belong to, for a subject ingested from photographs "
                         "(default: the face its provenance records)")  # fmt: skip
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_store_option(p)
     p.set_defaults(func=_cmd_relight)

@@ -31,7 +31,10 @@ def test_relight_a_field_store_and_a_subject(tmp_path):
                 "--out", tmp_path / "s.exr", "--png", tmp_path / "s_preview.png")  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert read_image(tmp_path / "s.exr").shape == (16, 16, 3) and (tmp_path / "s_preview.png").exists()
-    assert "wrote" in r.stdout
+    assert "wrote" in r.stdout and "shadow maps:" in r.stderr  # the progress bars
+    r = run_cli("relight", "S001", "--probe", tmp_path / "sky.hdr", "--size", "16", "--lights", "16x8",
+                "--out", tmp_path / "q.exr", "--quiet")  # fmt: skip
+    assert r.returncode == 0 and r.stderr == ""
     # A field store has its camera and lights: the subject's render options are refused, not ignored.
     r = run_cli("relight", tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", "--size", "999", "--lights", "0x0",
                 "--out", tmp_path / "g.exr")  # fmt: skip

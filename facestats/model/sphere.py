@@ -323,7 +323,7 @@ def unit_directions(value, name: str = "directions", tol: float = 1e-3, *, allow
     ``allow_zero``: zero vectors are accepted and stay zero (per-pixel maps that hold 0 where there is no
     surface, such as a stage field's ``view`` off the face)."""
     d = check_shape(as_finite(value, name, dtype=np.float64), name, (..., 3))
-    norm = check_unit_vectors(d, name, tol, allow_zero=allow_zero)
+    norm = check_unit_vectors(d, name, tol, allow_zero=allow_zero, norms=True)
     return d / np.where(norm == 0, 1.0, norm)[..., None]
 
 

@@ -115,3 +115,20 @@ def test_validation_messages():
         brdf.blinn_phong([0, 1.0], N, N, 0.2, 3)
     with pytest.raises(FacestatsError, match="rho_s must be finite"):
         brdf.blinn_phong(N, N, N, np.nan, 3)
+
+
+def test_the_unit_vector_check_has_one_rule_in_both_modes():
+    """``check_unit_vectors`` compares squared norms (fast) unless asked for the norms; both give one rule."""
+    from facestats.core.validate import check_unit_vectors
+    from facestats.errors import ValidationError
+
+    inside = np.array([[0.0, 0.0, 1.0009], [0.0, 0.9991, 0.0]])
+    outside = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0011]])
+    for norms in (False, True):
+        check_unit_vectors(inside, "v", 1e-3, norms=norms)
+        with pytest.raises(
+            ValidationError, match=r"v must hold unit vectors \(norm 1 ± 0.001\), got a vector of norm 1.0011$"
+        ):
+            check_unit_vectors(outside, "v", 1e-3, norms=norms)
+        check_unit_vectors(np.zeros((2, 3)), "v", allow_zero=True, norms=norms)
+    assert np.array_equal(check_unit_vectors(inside, "v", norms=True), np.linalg.norm(inside, axis=-1))

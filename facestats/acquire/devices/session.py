@@ -121,7 +121,8 @@ class SessionReport:
         if self.stray_frames:
             lines.append(
                 f"hot folder: {len(self.stray_frames)} frame file(s) of triggers no run collected (an interrupted "
-                f"run's) are left there, e.g. {self.stray_frames[0]}; this session does not use them: delete them"
+                f"run's, or triggered by hand) are left there, e.g. {self.stray_frames[0]}; this session does not "
+                "use them: delete them"
             )
         return "\n".join(lines)
 

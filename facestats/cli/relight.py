@@ -28,7 +28,14 @@ from __future__ import annotations
 import math
 import pathlib
 
-from facestats.cli.options import add_store_option, ascii_float, ascii_int, ascii_number, open_store_option
+from facestats.cli.options import (
+    add_store_option,
+    ascii_float,
+    ascii_int,
+    ascii_number,
+    named_options,
+    open_store_option,
+)
 
 __all__ = ["add_relight"]
 
@@ -94,35 +101,29 @@ def _subject_and_camera(args):
 def _ratio(args, directions):
     """The turntable's compression ratio for a field of these light directions (L, 3), checked before any work.
 
-    Besides its components, a compressed field stores :func:`facestats.relight.compression.per_pixel_values`
-    values per face pixel, so no ratio at or above 3 L / that count leaves room for a component.  An explicit
-    ``--ratio`` there is refused naming it; without ``--ratio``, the default 20 is lowered to half that bound
-    (the other half left for components) with a note.
+    No ratio at or above :func:`facestats.relight.compression.ratio_bound` leaves room for a component (with
+    ``compress``'s default sectors and parts).  An explicit ``--ratio`` there is refused naming it; without
+    ``--ratio``, the default 20 is lowered to half that bound (the other half left for components) with a note.
     """
-    import inspect
-
     import numpy as np
 
     from facestats.errors import ValidationError
-    from facestats.relight.compression import compress, light_regions, per_pixel_values
+    from facestats.relight.compression import ratio_bound
 
-    defaults = inspect.signature(compress).parameters
-    d = np.asarray(directions, np.float64).reshape(-1, 3)
-    regions = np.unique(light_regions(d, defaults["sectors"].default)).size
-    per_pixel = per_pixel_values(regions * defaults["parts"].default)
-    bound = 3 * len(d) / per_pixel
+    bound, n = ratio_bound(directions), int(np.prod(np.shape(directions)[:-1]))  # lights of an (…, 3) array
     if args.ratio is not None:
         if args.ratio >= bound:
+            per_pixel = 3 * n / bound  # values per face pixel besides the components
             raise ValidationError(
-                f"--ratio {args.ratio:g} cannot be met by a field of {len(d)} lights: besides its components it "
-                f"stores {per_pixel} values per face pixel, so the ratio must stay below 3 x {len(d)} / {per_pixel} "
-                f"= {bound:.4g}; pass a smaller --ratio"
+                f"--ratio {args.ratio:g} cannot be met by a field of {n} lights: besides its components it stores "
+                f"{per_pixel:g} values per face pixel, so the ratio must stay below 3 x {n} / {per_pixel:g} = "
+                f"{bound:.4g}; pass a smaller --ratio"
             )
         return args.ratio
     if DEFAULT_RATIO <= bound / 2:
         return DEFAULT_RATIO
     print(
-        f"note: --ratio not given and the default {DEFAULT_RATIO:g} does not fit a field of {len(d)} lights (below "
+        f"note: --ratio not given and the default {DEFAULT_RATIO:g} does not fit a field of {n} lights (below "
         f"{bound:.4g} with room for no component): compressing at ratio {bound / 2:.4g}"
     )
     return bound / 2
@@ -201,7 +202,6 @@ def _turntable(args, probe, targets) -> int:
     import numpy as np
 
     from facestats.core.outputs import OutputSet
-    from facestats.errors import ValidationError
     from facestats.io.images import write_image
     from facestats.relight.compression import compress
     from facestats.relight.display import exposure_scale
@@ -225,12 +225,8 @@ def _turntable(args, probe, targets) -> int:
                                       out=pathlib.Path(tmp) / "field.zarr", dtype="float16",
                                       progress=not args.quiet)  # fmt: skip
         mask = field["mask"].values if "mask" in field.data_vars else None
-        try:
+        with named_options(ratio="--ratio"):  # a ratio whose budget cannot hold the first component
             comp = compress(field, ratio=ratio, progress=not args.quiet)
-        except ValidationError as exc:  # a ratio whose budget cannot hold the first component: name the option
-            if not str(exc).startswith("ratio "):
-                raise
-            raise ValidationError(f"--{str(exc).replace('use a smaller ratio', 'pass a smaller --ratio')}") from None
     step = 360.0 / len(targets)
     angles = [math.fmod(args.rotate + k * step, 360.0) for k in range(len(targets))]
 

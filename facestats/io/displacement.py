@@ -77,13 +77,13 @@ def read_displacement(path, *, height_range_um=None, midpoint=0.5) -> np.ndarray
     """
     p = pathlib.Path(os.fspath(path))
     ext = p.suffix.lower()
-    float_file = ext not in INTEGER_EXTENSIONS or (ext in (".tif", ".tiff") and _float_tiff(p))
-    if float_file and height_range_um is not None:
+    float_tiff = ext in (".tif", ".tiff") and _float_tiff(p)
+    if (float_tiff or ext not in INTEGER_EXTENSIONS) and height_range_um is not None:
         raise ValidationError(
             f"height_range_um applies to integer images only: {str(p)!r} holds floating-point heights in um "
             f"already, got {height_range_um!r}"
         )
-    if ext in (".tif", ".tiff") and _float_tiff(p):
+    if float_tiff:
         h = _one_channel(_read_float_tiff(p), p)
     elif ext in INTEGER_EXTENSIONS:
         if height_range_um is None:

@@ -136,7 +136,15 @@ from facestats.relight.lighting import resample_probe
 from facestats.relight.relighting import check_relit
 from facestats.relight.separate import WHITE, separation_basis, unit_rgb
 
-__all__ = ["CompressedField", "compress", "default_clusters", "diffuse_colours", "light_regions", "per_pixel_values"]
+__all__ = [
+    "CompressedField",
+    "compress",
+    "default_clusters",
+    "diffuse_colours",
+    "light_regions",
+    "per_pixel_values",
+    "ratio_bound",
+]
 
 #: Target pixels per cluster of the default clustering.  Smaller clusters fit their pixels better but spend more
 #: of the budget on bases; on the 256² face at 20× (``benchmarks/bench_relight.bench_cluster_density``, table in
@@ -182,6 +190,25 @@ def _ratio(value):
 def default_clusters(n_pixels: int) -> int:
     """About one cluster per :data:`PIXELS_PER_CLUSTER` face pixels (at least 1)."""
     return max(1, int(round(n_pixels / PIXELS_PER_CLUSTER)))
+
+
+def ratio_bound(directions, sectors: int = 4, parts: int = 2) -> float:
+    """The compression ratio at which the per-pixel values alone fill the budget of a field of these lights.
+
+    At ratio ρ a field of L lights and P face pixels keeps 3 L P / ρ values; :func:`per_pixel_values` of them
+    per pixel go to labels, zero masks and colours, for ``sectors`` × 2 regions × ``parts``.  At or above
+    3 L / :func:`per_pixel_values` no component fits, whatever P (``compress`` would refuse).
+
+    Parameters
+    ----------
+    directions : array_like, shape (L, 3)
+        The field's light directions.
+    sectors, parts : int
+        As :func:`compress` takes them (its defaults).
+    """
+    d = as_finite(directions, "directions", dtype=np.float64).reshape(-1, 3)
+    regions = np.unique(light_regions(d, sectors)).size
+    return 3 * len(d) / per_pixel_values(regions * check_integer(parts, "parts", 1))
 
 
 def light_regions(directions, sectors: int = 4) -> np.ndarray:

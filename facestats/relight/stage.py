@@ -522,11 +522,12 @@ def render_subject(
     w = w.reshape(-1, 3)
     if w.shape[0] != flat.shape[0]:
         raise ValidationError(f"lighting must hold one RGB weight per light ({flat.shape[0]}), got {w.shape[0]}")
+    w32 = as_float(w, "lighting", np.float32)  # its range checked before the shadow maps are made
     surface, shading, vis_v, active, vidx = _prepare(
         subject, geometry, camera, flat, specular=specular, eta=eta, shadows=shadows,
         shadow_resolution=shadow_resolution, progress=progress,
     )  # fmt: skip
-    wa = as_float(w[active], "lighting", np.float32)
+    wa = w32[active]
     step = max(1, RENDER_SAMPLES // max(active.size, 1)) if chunk is None else check_integer(chunk, "chunk", 1)
     out = np.zeros((surface.pixel.size, 3), np.float32)
     chunks = range(0, surface.pixel.size, step)

@@ -4,7 +4,8 @@ Under an LED the render is compared with the capture: ``--capture``, or, for a s
 population (the embedded default, or a store ``facestats build`` wrote), its capture re-simulated from the
 recorded provenance (:func:`facestats.pipeline.validation.default_capture`; ``--seed``: the build's).  Under a
 probe nothing is compared: without ``--capture``, the lumitexels of the face the subject records (an edit: its
-source's) are rendered for the default dome (:func:`facestats.pipeline.validation.face_view`).  File names carry
+source's), or of ``--mesh`` (the scan of a subject ingested from photographs, which also shadows a render with
+``--capture``), are rendered for the default dome (:func:`facestats.pipeline.validation.face_view`).  File names carry
 the camera and the light, ``ID-cam05-led020-rendered.exr`` or ``ID-cam05-probe-STEM-rendered.exr``, so renders
 under other lights sit side by side.
 """
@@ -24,19 +25,9 @@ def _stem(subject_id, args) -> str:
     return f"{subject_id}-cam{args.camera:02d}-{light}"
 
 
-def _cmd_render(args) -> int:
-    import matplotlib
-    import numpy as np
-
-    matplotlib.use("Agg")
-    from facestats.acquire.capture import open_capture
-    from facestats.core.conventions import DEFAULT_SEED
-    from facestats.core.outputs import OutputSet, check_output_dir, check_output_file
+def _check_options(args) -> None:
+    """Refuse options that do not apply together, and set ``--light``'s default, before any work."""
     from facestats.errors import ValidationError
-    from facestats.io.exr_set import check_map_subject
-    from facestats.io.images import write_image
-    from facestats.io.subject_export import store_subject
-    from facestats.pipeline.validation import default_capture, render_led, render_probe
 
     if args.seed is not None and (args.capture or args.probe):
         raise ValidationError(
@@ -45,8 +36,31 @@ def _cmd_render(args) -> int:
     if args.probe and args.light is not None:
         raise ValidationError("--light names an LED to render under, --probe renders under a probe instead: got both")
     args.light = 20 if args.light is None else args.light
+    if args.mesh is not None and not args.probe:
+        raise ValidationError(
+            "--mesh applies to a render under a light probe (--probe FILE); an LED render compares with the capture "
+            "it was fitted to (--capture PATH), which holds the scan's lumitexels"
+        )
+    if args.mesh is not None and not pathlib.Path(args.mesh).is_file():
+        raise ValidationError(f"--mesh must be an OBJ/PLY file with UVs, got {args.mesh!r} (not a file)")
     if args.seed is not None and args.seed < 0:
         raise ValidationError(f"--seed must be a population seed >= 0, got {args.seed}")
+
+
+def _cmd_render(args) -> int:
+    import matplotlib
+    import numpy as np
+
+    matplotlib.use("Agg")
+    from facestats.acquire.capture import open_capture
+    from facestats.core.conventions import DEFAULT_SEED
+    from facestats.core.outputs import OutputSet, check_output_dir, check_output_file
+    from facestats.io.exr_set import check_map_subject
+    from facestats.io.images import write_image
+    from facestats.io.subject_export import store_subject
+    from facestats.pipeline.validation import default_capture, render_led, render_probe
+
+    _check_options(args)
     out = check_output_dir(args.out, "--out")  # before rendering: a bad folder must not cost a render
     with open_store_option(args.store) as st:
         ds = store_subject(st, args.subject_id)
@@ -63,7 +77,7 @@ def _cmd_render(args) -> int:
     else:
         cap = default_capture(ds, seed=DEFAULT_SEED if args.seed is None else args.seed)
     if args.probe:
-        res = render_probe(ds, cap, args.camera, args.probe)
+        res = render_probe(ds, cap, args.camera, args.probe, mesh=args.mesh)
     else:
         res = render_led(ds, cap, args.camera, args.light)
     with OutputSet(out) as files:  # every file or none
@@ -91,7 +105,8 @@ def add_render(sub):
             "radiance, the error image and the RMSE) or under a lat-long light probe. Without --capture, subjects "
             "of the synthetic population (the embedded default, or a store written by facestats build) are "
             "re-simulated from their recorded provenance for an LED; under a probe nothing is compared and the "
-            "face the subject records suffices. Files: ID-camCC-ledLLL-*.exr or ID-camCC-probe-NAME-*.exr."
+            "face the subject records suffices (for a subject ingested from photographs: --mesh, its scan). "
+            "Files: ID-camCC-ledLLL-*.exr or ID-camCC-probe-NAME-*.exr."
         ),
     )
     p.add_argument("subject_id", metavar="ID")
@@ -103,6 +118,12 @@ def add_render(sub):
         "--capture",
         metavar="PATH",
         help="the subject's capture (zarr); default: re-simulate a subject of the synthetic population",
+    )
+    p.add_argument(
+        "--mesh",
+        metavar="PATH",
+        help="with --probe: the OBJ/PLY scan (with UVs) of a subject ingested from photographs, which shadows the "
+        "render and, without --capture, gives the lumitexels (default: the face the subject's provenance records)",
     )
     p.add_argument(
         "--seed",

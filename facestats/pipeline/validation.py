@@ -42,7 +42,7 @@ from facestats.core.conventions import DEFAULT_SEED
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
-from facestats.io.mesh import recorded_geometry, subject_mesh
+from facestats.io.mesh import load_face_mesh, recorded_geometry, subject_mesh
 from facestats.io.probes import read_light_probe
 from facestats.io.schema import modulation, provenance
 from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport, skin_radiance
@@ -236,39 +236,58 @@ class FaceView:
         return self._lumitexels
 
 
-def face_view(subject) -> FaceView:
-    """The lumitexels of the face a subject's provenance records (:func:`facestats.io.mesh.recorded_geometry`;
-    an edit's: its source's), seen by the default dome: the stand-in for a capture in :func:`render_probe`.
+def face_view(subject, mesh=None, *, scale: float = 1.0) -> FaceView:
+    """The lumitexels of a subject's face seen by the default dome: the stand-in for a capture in :func:`render_probe`.
+
+    The face is the one the subject's provenance records (:func:`facestats.io.mesh.recorded_geometry`; an
+    edit's: its source's), or ``mesh``: the scan its maps belong to (an OBJ/PLY with per-vertex UVs, mm times
+    ``scale``, in the dome's frame), for a subject fitted on a scan (ingested photographs), whose lumitexels are
+    the scan's vertices labelled by the subject's ``region`` map (:func:`facestats.io.mesh.load_face_mesh`).
 
     Raises
     ------
     ValidationError
-        A face facestats cannot rebuild (a subject fitted on a scan: pass its capture).
+        A face facestats cannot rebuild and no ``mesh`` (a subject fitted on a scan: pass the scan, or its capture
+        to :func:`render_probe`).
     """
     sid = str(subject.attrs.get("subject_id", "?"))
+    if mesh is not None:
+        return FaceView(load_face_mesh(mesh, np.asarray(subject["region"].values), scale=scale), sid)
     name = recorded_geometry(subject)
     try:
         geometry = named_face(str(name))
     except ValidationError:
         raise ValidationError(
-            f"subject {sid!r} records geometry {name!r}, not a face facestats can rebuild: pass the capture it was "
-            "fitted to (--capture PATH on the command line)"
+            f"subject {sid!r} records geometry {name!r}, not a face facestats can rebuild: pass the scan its maps "
+            "belong to (mesh=PATH; --mesh PATH on the command line) or the capture it was fitted to (--capture PATH)"
         ) from None
     return FaceView(geometry, sid)
 
 
-def render_probe(subject, capture, camera: int, probe, *, samples=(8, 16), specular="torrance_sparrow", eta=ETA_SKIN):
+def render_probe(
+    subject,
+    capture,
+    camera: int,
+    probe,
+    *,
+    samples=(8, 16),
+    specular="torrance_sparrow",
+    eta=ETA_SKIN,
+    mesh=None,
+    scale: float = 1.0,
+):
     """The fitted model for ``camera`` under a lat-long light probe, shadowed by the face mesh.
 
     The probe is averaged down to ``samples`` = (rows, columns) directions
     (area-weighted block means), each a directional light of irradiance
     E = L Δω (N·ω) (:func:`facestats.model.sphere.latlong_light_samples`), occluded
-    where the subject's face mesh (:func:`facestats.io.mesh.subject_mesh`)
-    shadows it.
+    where the subject's face mesh (:func:`facestats.io.mesh.subject_mesh`: the face its provenance records, or
+    ``mesh``) shadows it.
 
     Nothing is compared with a capture, so none is needed: ``capture`` None renders the lumitexels of the
-    subject's recorded face seen by the default dome (:func:`face_view`; for a simulated subject the same
-    lumitexels and dome as its capture's).
+    subject's face seen by the default dome (:func:`face_view`; for a simulated subject the same lumitexels and
+    dome as its capture's; for a subject fitted on a scan, the vertices of ``mesh``, which must then be in the
+    default dome's frame: pass the capture otherwise).
 
     Parameters
     ----------
@@ -278,22 +297,39 @@ def render_probe(subject, capture, camera: int, probe, *, samples=(8, 16), specu
         Lat-long probe (a file is read with :func:`facestats.io.probes.read_light_probe`).
     samples : (int, int)
         Light directions (rows, columns); must divide the probe's size.
+    mesh : str or os.PathLike, optional
+        The scan the subject's maps belong to (OBJ/PLY with per-vertex UVs), for a subject whose recorded face
+        facestats cannot rebuild (ingested photographs): the shadowing mesh, and without ``capture`` the
+        lumitexels (:func:`face_view`).
+    scale : float
+        Factor from ``mesh``'s unit to mm.
 
     Returns
     -------
     Render
         Without a reference.
+
+    Raises
+    ------
+    ValidationError
+        ``camera`` sees none of the lumitexels (e.g. a scan outside the default dome's frame without its capture).
     """
 
     if capture is None:
-        capture = face_view(subject)
+        capture = face_view(subject, mesh, scale=scale)
     check_integer(camera, "camera", 0, capture.dome.n_cameras - 1)
     img = read_light_probe(probe) if not isinstance(probe, np.ndarray) else np.asarray(probe, np.float64)
     h, w = (check_integer(s, "samples", 1) for s in samples)
     d, power = latlong_light_samples(img, h, w)
     lt, v, u = _texels(subject, capture)
+    _, in_frame, _ = capture.dome.view(lt.position.astype(np.float64), cameras=[camera])
+    if not in_frame.any():  # before the shadow maps: a scan in another frame must not cost them
+        raise ValidationError(
+            f"camera {camera} sees none of the {lt.n} lumitexels of subject {subject.attrs.get('subject_id', '?')!r} "
+            "(a scan outside the dome's frame, or a camera facing away): pass the capture it was fitted to"
+        )
     normal = _unit(np.asarray(subject["normal"].values)[v, u])
-    mesh = subject_mesh(subject, mesh_grid=64)
+    mesh = subject_mesh(subject, mesh, scale=scale, mesh_grid=64)
     centre = mesh.vertices.mean(0)
     vis = ShadowMaps(mesh.vertices, mesh.faces, centre + 2000.0 * d, target=centre, resolution=128).visible(
         lt.position.astype(np.float64), normal
@@ -302,7 +338,6 @@ def render_probe(subject, capture, camera: int, probe, *, samples=(8, 16), specu
     irr = cos[..., None] * power[None]
     wi = np.broadcast_to(d, (len(normal),) + d.shape)
     pred, _ = _radiance(subject, capture, camera, wi, irr, specular=specular, eta=eta)
-    _, in_frame, _ = capture.dome.view(lt.position.astype(np.float64), cameras=[camera])
     values = np.where(in_frame[:, :1], pred.sum(axis=1), np.nan)
     return Render(camera_image(values, capture, camera, 0), None, camera, "probe")
 

@@ -147,6 +147,44 @@ def test_render_under_a_probe_needs_no_capture_and_names_the_probe(tmp_path, cap
     )
 
 
+def test_render_under_a_probe_takes_the_scan_of_an_ingested_subject_as_mesh(tmp_path, capsys):
+    """A subject fitted on a scan records the scan's file name: --mesh gives its lumitexels and shadows; a scan
+    outside the dome's frame is refused before the shadow maps, and --mesh without --probe is refused."""
+    from facestats.io.images import read_image
+    from facestats.io.mesh import subject_mesh, write_mesh
+    from facestats.io.probes import write_light_probe
+    from facestats.relight.lighting import sky_probe
+
+    store = str(tmp_path / "scans.zarr")
+    _copy(store, "S003", geometry="face.obj", source="photographs")  # as facestats ingest records it
+    import facestats
+
+    with facestats.open_store() as st:
+        fm = subject_mesh(st.subject("S003").load())  # the scan: the ICT face the maps belong to
+    write_mesh(tmp_path / "face.obj", fm.vertices, fm.faces, fm.uv)
+    write_mesh(tmp_path / "far.obj", fm.vertices + [0.0, 0.0, 5000.0], fm.faces, fm.uv)  # 5 m behind the dome
+    write_light_probe(tmp_path / "sky.hdr", sky_probe(16))
+    out, args = tmp_path / "images", ["render", "S003", "--store", store, "--probe", str(tmp_path / "sky.hdr")]
+    assert main(args + ["--out", str(out)]) == 2
+    assert "records geometry 'face.obj', not a face facestats can rebuild: pass the scan its maps belong to " in (
+        capsys.readouterr().err
+    )
+    assert main(args + ["--out", str(out), "--mesh", str(tmp_path / "far.obj")]) == 2
+    assert "camera 5 sees none of the 4819 lumitexels of subject 'S003'" in capsys.readouterr().err
+    assert main(args[:4] + ["--out", str(out), "--mesh", str(tmp_path / "face.obj")]) == 2
+    assert "--mesh applies to a render under a light probe (--probe FILE)" in capsys.readouterr().err
+    assert not out.exists()
+    assert main(args + ["--out", str(out), "--mesh", str(tmp_path / "face.obj")]) == 0
+    scan = read_image(out / "S003-cam05-probe-sky-rendered.exr")
+    assert main(["render", "S003", "--probe", str(tmp_path / "sky.hdr"), "--out", str(tmp_path / "default")]) == 0
+    ict = read_image(tmp_path / "default" / "S003-cam05-probe-sky-rendered.exr")  # the same face, its 48² lumitexels
+    # other samplings of one face under one probe (the scan's 4819 face vertices against 48² lumitexels): the mean
+    # radiance over the pixels a lumitexel lands on (the files hold 0 elsewhere) agrees within 2 % in every channel
+    # (measured: -0.4, -0.2, +0.2 %)
+    mean_scan, mean_ict = (x[x.sum(-1) > 0].mean(0) for x in (scan, ict))
+    assert np.all(np.abs(mean_scan / mean_ict - 1) < 0.02), (mean_scan, mean_ict)
+
+
 def test_render_refuses_a_subject_of_region_samples_by_what_it_holds(tmp_path, capsys):
     from facestats.io.merl import import_merl
     from tests.helpers import merl_dict, save_mat

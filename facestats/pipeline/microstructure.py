@@ -41,6 +41,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import pathlib
 import re
 import time
 from dataclasses import dataclass, field
@@ -64,7 +65,7 @@ from facestats.model.microstructure.kernel import SIGMA_RANGE_UM, TRUNCATE
 from facestats.model.microstructure.tables import TABLES, KernelTable
 from facestats.model.strain import MeshStrain
 
-__all__ = ["SequenceReport", "render_sequence", "tile_halo"]
+__all__ = ["SequenceReport", "render_sequence", "tile_halo", "mesh_texel_um", "TEXEL_SIZE_TOLERANCE"]
 
 #: Largest side of a generated neutral map (:func:`generate_neutral_map`): 16384² texels, a 16K map, need
 #: about 17 GiB while they are generated (about 64 bytes per texel, measured at sides 512-2048).
@@ -100,6 +101,49 @@ def tile_halo(mesh_strain: MeshStrain, map_shape) -> int:
     largest = float(np.max(np.linalg.norm(m, ord=2, axis=(1, 2)))) if len(m) else 1.0  # texels per mm, worst axis
     smallest_texel_um = 1000.0 / largest
     return 2 * (int(np.ceil(TRUNCATE * SIGMA_RANGE_UM[1] / smallest_texel_um)) + 2) + 2
+
+
+#: A generated map whose recorded texel size differs from the mesh's by more than this factor is refused.
+TEXEL_SIZE_TOLERANCE = 2.0
+
+
+def mesh_texel_um(mesh_strain: MeshStrain, map_shape) -> float:
+    """Median µm per texel of the rest mesh's triangles in a map of ``map_shape`` = (H, W) texels.
+
+    A triangle's texels per mm are the singular values of diag(W, H) M (M: the UV metric of
+    :class:`facestats.model.strain.MeshStrain`, columns = UV per mm); their geometric mean sqrt(|det|) gives its
+    µm per texel, 1000 / sqrt(|det|).  NaN for a mesh with no valid triangle.
+    """
+    h, w = map_shape
+    m = mesh_strain.m[~mesh_strain.rest_degenerate] * np.array([w, h], float)[None, :, None]
+    det = np.abs(np.linalg.det(m)) if len(m) else np.zeros(0)
+    det = det[det > 0]
+    return float(np.median(1000.0 / np.sqrt(det))) if det.size else float("nan")
+
+
+def _check_texel_size(path, mesh_strain, map_shape) -> None:
+    """Refuse a map ``facestats microstructure generate`` made for texels of another size than the mesh's.
+
+    The generator records its ``texel_um``; pores and ridges made at 15 µm per texel and mapped at 117 µm per texel
+    come out 8× too large, and the table's kernels (σ of 5-40 µm) fall under a texel, a silent no-op.  Maps without
+    the attribute (not generated here) are not checked.
+    """
+    if pathlib.Path(path).suffix.lower() != ".exr":
+        return
+    recorded = read_exr_attributes(path).get("texel_um")
+    try:
+        made = float(recorded)
+    except (TypeError, ValueError):
+        return
+    mesh = mesh_texel_um(mesh_strain, map_shape)
+    if not (np.isfinite(mesh) and made > 0) or 1 / TEXEL_SIZE_TOLERANCE <= mesh / made <= TEXEL_SIZE_TOLERANCE:
+        return
+    raise ValidationError(
+        f"neutral_map {os.fspath(path)!r} was generated at texel_um {made:g} um per texel, but the mesh maps a "
+        f"{map_shape[0]} x {map_shape[1]} map at {mesh:.3g} um per texel (median over its triangles): its "
+        f"microstructure would be {mesh / made:.2g}x its size. Generate it at that texel size (--texel-um "
+        f"{mesh:.3g}), or give the map size and window it was made for (--size, --window; map_shape, window)"
+    )
 
 
 def _neutral_map(neutral_map):
@@ -390,7 +434,9 @@ def render_sequence(
         Frames on the topology of ``sequence.neutral`` (a mesh with UVs).
     neutral_map : ndarray (H, W) or path-like
         Neutral displacement map in µm over ``window`` (a path is read by
-        :func:`facestats.io.displacement.read_displacement`).
+        :func:`facestats.io.displacement.read_displacement`).  A map ``facestats microstructure generate``
+        wrote records its texel size: one that differs from the mesh's (:func:`mesh_texel_um`) by more than
+        :data:`TEXEL_SIZE_TOLERANCE` is refused.
     out : path-like
         Zarr group to write (created; reopened and continued if it holds the same render).
     map_shape : (int, int), optional
@@ -421,6 +467,8 @@ def render_sequence(
     backend = resolve_backend(backend)
     mesh = sequence.neutral.require_uv()
     ms = MeshStrain(mesh.vertices, mesh.triangles, mesh.uv, mesh.uv_triangles)
+    if isinstance(neutral_map, (str, os.PathLike)):
+        _check_texel_size(neutral_map, ms, map_shape)
     n = len(sequence)
     names = sequence.frame_names()
     exr = _check_exr_dir(exr_dir, n)
@@ -498,7 +546,9 @@ def render_files(neutral, neutral_map, out, *, frames=None, targets=None, weight
     """:func:`render_sequence` of files (:func:`open_sequence`, read_displacement)."""
 
     sequence = open_sequence(neutral, frames=frames, targets=targets, weights=weights, scale=scale)
-    return render_sequence(sequence, read_displacement(neutral_map, height_range_um=height_range_um), out, **options)
+    if height_range_um is not None:  # an integer image: read here with its range (no texel size recorded)
+        neutral_map = read_displacement(neutral_map, height_range_um=height_range_um)
+    return render_sequence(sequence, neutral_map, out, **options)
 
 
 def generate_neutral_map(out, size, *, texel_um=15.0, subject=None, store=None, seed=None):

@@ -247,6 +247,33 @@ def test_frames_in_other_units_and_targets_with_frames_are_refused(tmp_path):
         open_sequence(tmp_path / "n.obj", frames=[tmp_path / "f_cm.obj"], targets=[tmp_path / "f_cm.obj"])
 
 
+def test_a_generated_map_of_another_texel_size_than_the_mesh_is_refused(tmp_path):
+    """generate records its texel size: a 64-texel map of 15 um texels on a 30 mm plane (469 um per texel) would
+    have 31x pores and kernels under a texel (no effect); refused, and accepted on the plane it was made for."""
+    from facestats.model.strain import MeshStrain
+    from facestats.pipeline.microstructure import generate_neutral_map, mesh_texel_um, render_files
+
+    generate_neutral_map(tmp_path / "n.exr", 64, texel_um=15.0, seed=1)
+    _grid_obj(tmp_path / "far.obj", 30.0)
+    _grid_obj(tmp_path / "fit.obj", 64 * 0.015)  # 0.96 mm: 15 um per texel
+    far = MeshStrain(*(lambda m: (m.vertices, m.triangles, m.uv, m.uv_triangles))(_read(tmp_path / "far.obj")))
+    assert mesh_texel_um(far, (64, 64)) == pytest.approx(30000 / 64)
+    with pytest.raises(ValidationError, match=r"generated at texel_um 15 um per texel, but the mesh maps a 64 x 64 "
+                       r"map at 469 um per texel .*31x its size.*--texel-um 469"):  # fmt: skip
+        render_files(tmp_path / "far.obj", tmp_path / "n.exr", tmp_path / "far.zarr",
+                     frames=[tmp_path / "far.obj"], progress=False)  # fmt: skip
+    assert not (tmp_path / "far.zarr").exists()
+    report = render_files(tmp_path / "fit.obj", tmp_path / "n.exr", tmp_path / "fit.zarr",
+                          frames=[tmp_path / "fit.obj"], progress=False)  # fmt: skip
+    assert report.rendered == [0]
+
+
+def _read(path):
+    from facestats.io.mesh_sequence import read_mesh
+
+    return read_mesh(path).require_uv()
+
+
 @pytest.mark.parametrize("scale", [float("nan"), -1.0, float("inf"), 0.0])
 def test_a_bad_scale_is_refused_also_with_an_ict_facekit_folder(scale):
     """An ICT-FaceKit folder is read in mm, but frames given with it take ``scale``: it is checked either way."""

@@ -20,6 +20,18 @@ that α(1) is exactly 0 (every table has that knot: the neutral kernel is the
 identity and the convolution skips it).  Note Fig. 11's
 published points scatter about eq. 8-9 (e.g. r = 1.22: fitted α = 1, table
 0.68): the table is a fit, not an interpolation.
+
+Below the measured compressions the ratio is held at the smallest one
+(``min_ratio``; 0.73 for :data:`FOREHEAD`, Fig. 11's smallest r).  Resolution of
+an extrapolation the paper leaves open: eq. 9's compression line falls to the
+1 µm clamp at r = 0.68 and would be negative below r = 0.665, and a 1 µm kernel
+is the identity at any texel size skin is mapped at, so extrapolated, the most
+compressed skin would get no roughening at all (the rms slope across the axis
+× 1.17 at r = 0.8, × 1.06 at 0.73, × 1.00 from 0.68 down, 6 µm texels), against
+the paper's "compressed skin becomes rougher".  Held at r = 0.73, every
+stronger compression gets that kernel (α = −2, σ = 4.57 µm).  Stretch is not
+held: eq. 8-9 grow monotonically there (α reaches 1 at r = 1.32; σ grows), so
+more stretch blurs more.
 """
 
 from __future__ import annotations
@@ -46,6 +58,9 @@ class KernelTable:
     sigma_compress, sigma_stretch : (slope, intercept)
         σ = slope · r + intercept, µm, for r < 1 and r ≥ 1.
     name : str
+    min_ratio : float
+        Smallest measured ratio: a smaller r takes its parameters (no extrapolation of the compression line,
+        which reaches the 1 µm clamp, an identity kernel, for the forehead); 0 keeps every ratio, in [0, 1).
     """
 
     alpha_knots: tuple
@@ -53,6 +68,7 @@ class KernelTable:
     sigma_compress: tuple
     sigma_stretch: tuple
     name: str = "custom"
+    min_ratio: float = 0.0
 
     def __post_init__(self):
         k = np.asarray(self.alpha_knots, float)
@@ -65,23 +81,42 @@ class KernelTable:
             line = np.asarray(getattr(self, name), float)
             if line.shape != (2,) or not np.all(np.isfinite(line)):
                 raise ValidationError(f"{name} must be (slope, intercept), got {getattr(self, name)!r}")
+        if not 0 <= self.min_ratio < 1:  # NaN fails too
+            raise ValidationError(f"min_ratio must be a stretch ratio in [0, 1), got {self.min_ratio!r}")
 
     def alpha(self, r) -> np.ndarray:
-        """α(r), clamped to [−2, 1] (eq. 8 form)."""
-        return np.clip(np.interp(_ratio(r), self.alpha_knots, self.alpha_values), *ALPHA_RANGE)
+        """α(r), clamped to [−2, 1] (eq. 8 form); r below ``min_ratio`` takes α(min_ratio)."""
+        return np.clip(np.interp(self._held(r), self.alpha_knots, self.alpha_values), *ALPHA_RANGE)
 
     def sigma(self, r) -> np.ndarray:
-        """σ(r) in µm, clamped to [1, 100] µm (eq. 9 form)."""
-        r = _ratio(r)
+        """σ(r) in µm, clamped to [1, 100] µm (eq. 9 form); r below ``min_ratio`` takes σ(min_ratio)."""
+        r = self._held(r)
         (a_c, b_c), (a_s, b_s) = self.sigma_compress, self.sigma_stretch
         return np.clip(np.where(r >= 1, a_s * r + b_s, a_c * r + b_c), *SIGMA_RANGE_UM)
 
     def __call__(self, r):
         return self.alpha(r), self.sigma(r)
 
+    def _held(self, r) -> np.ndarray:
+        """r checked (finite, > 0), ratios below ``min_ratio`` raised to it."""
+        return np.maximum(_ratio(r), self.min_ratio)
+
 
 def _ratio(r) -> np.ndarray:
     return as_finite(r, "r", 0.0, low_inclusive=False)
+
+
+#: Nagano et al. 2015 Fig. 11: fitted (r, α, σ µm) of a forehead patch.
+FIG11 = (
+    (0.73, -2.0, 6.5),
+    (0.79, -1.76, 6.5),
+    (0.88, -0.2, 13.0),
+    (0.94, -0.02, 22.0),
+    (1.08, 0.54, 14.5),
+    (1.15, 0.27, 19.0),
+    (1.22, 1.0, 17.0),
+    (1.28, 1.0, 24.0),
+)
 
 
 def _forehead() -> KernelTable:
@@ -95,6 +130,7 @@ def _forehead() -> KernelTable:
         sigma_compress=(70.5, -46.9),
         sigma_stretch=(38.2, -26.5),
         name="forehead",
+        min_ratio=min(r for r, _, _ in FIG11),
     )
 
 
@@ -102,18 +138,6 @@ def _forehead() -> KernelTable:
 FOREHEAD = _forehead()
 #: Tables by name.
 TABLES = {"forehead": FOREHEAD}
-
-#: Nagano et al. 2015 Fig. 11: fitted (r, α, σ µm) of a forehead patch.
-FIG11 = (
-    (0.73, -2.0, 6.5),
-    (0.79, -1.76, 6.5),
-    (0.88, -0.2, 13.0),
-    (0.94, -0.02, 22.0),
-    (1.08, 0.54, 14.5),
-    (1.15, 0.27, 19.0),
-    (1.22, 1.0, 17.0),
-    (1.28, 1.0, 24.0),
-)
 
 
 def _table(table) -> KernelTable:
@@ -149,7 +173,8 @@ def fit_kernel_table(r, alpha, sigma_um, alpha_knots, *, name="custom") -> Kerne
     between knots, constant outside) that fits the points in least squares
     subject to α(1) = 0 (a Lagrange multiplier; 1 need not be a knot).  σ: one
     least-squares line through the compression points (r < 1) and one through
-    the stretch points (r ≥ 1).
+    the stretch points (r ≥ 1).  Ratios below the smallest fitted one take its
+    parameters (``min_ratio``, as :data:`FOREHEAD` does).
 
     Parameters
     ----------
@@ -188,4 +213,6 @@ def fit_kernel_table(r, alpha, sigma_um, alpha_knots, *, name="custom") -> Kerne
             raise ValidationError(f"r must hold at least 2 {side} patches to fit sigma, got {np.count_nonzero(sel)}")
         slope, intercept = np.polyfit(r[sel], s[sel], 1)
         lines.append((float(slope), float(intercept)))
-    return KernelTable(tuple(knots.tolist()), tuple(values.tolist()), lines[0], lines[1], name=name)
+    return KernelTable(
+        tuple(knots.tolist()), tuple(values.tolist()), lines[0], lines[1], name=name, min_ratio=float(r.min())
+    )

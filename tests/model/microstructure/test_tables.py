@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 
 from facestats.errors import FacestatsError
-from facestats.model.microstructure import FOREHEAD, convolve_displacement, fit_kernel_table, kernel_parameters
+from facestats.model.microstructure import (
+    FOREHEAD,
+    KernelTable,
+    convolve_displacement,
+    fit_kernel_table,
+    kernel_parameters,
+)
 
 
 def _eq8(r):
@@ -28,9 +34,29 @@ def test_forehead_table_values(r, alpha, sigma):
 def test_forehead_table_is_eq_8_9_clamped_everywhere():
     r = np.linspace(0.3, 2.5, 20001)
     a, s = kernel_parameters(r, FOREHEAD)
-    assert np.abs(a - _eq8(r)).max() < 1e-12 and np.abs(s - _eq9(r)).max() < 1e-12
+    held = np.maximum(r, 0.73)  # below Fig. 11's smallest ratio, its parameters
+    assert np.abs(a - _eq8(held)).max() < 1e-12 and np.abs(s - _eq9(held)).max() < 1e-12
     assert kernel_parameters(1.0)[0] == 0.0  # neutral: identity
-    assert a.min() == -2 and a.max() == 1 and s.min() == 1  # clamped to the fitted ranges
+    assert a.min() == -2 and a.max() == 1  # clamped to the fitted range
+    assert s.min() == pytest.approx(70.5 * 0.73 - 46.9)  # never the 1 um clamp (an identity kernel)
+
+
+def test_compression_beyond_the_measured_ratios_keeps_roughening():
+    """Eq. 9 extrapolated reaches sigma = 1 um at r = 0.68 (an identity kernel): the most compressed skin would not
+    roughen at all.  Held at Fig. 11's smallest ratio, every stronger compression sharpens as r = 0.73 does."""
+    from facestats.acquire.synthetic.microstructure import procedural_microstructure
+
+    d = procedural_microstructure(128, 6.0, seed=1).astype(np.float64)
+
+    def slope_gain(r):  # rms slope along the compressed axis, after / before (> 1: rougher)
+        a, s = (float(x) for x in kernel_parameters(r))
+        out = convolve_displacement(d, (1.0, 0.0), a, s, 0.0, 1.0, 6.0)
+        return np.gradient(out, axis=1)[16:-16, 16:-16].std() / np.gradient(d, axis=1)[16:-16, 16:-16].std()
+
+    at_73 = slope_gain(0.73)
+    assert at_73 > 1.03  # measured 1.057 (1.166 at r = 0.8)
+    for r in (0.4, 0.6, 0.68):
+        assert slope_gain(r) == at_73  # the extrapolated line gave 1.000 here
 
 
 def test_convolved_map_is_continuous_across_r_1():
@@ -50,7 +76,8 @@ def test_convolved_map_is_continuous_across_r_1():
 def test_fitting_points_of_eq_8_9_recovers_the_forehead_table():
     r = np.linspace(0.7, 1.4, 29)
     table = fit_kernel_table(r, _eq8(r), _eq9(r), FOREHEAD.alpha_knots, name="refit")
-    grid = np.linspace(0.6, 1.6, 501)
+    assert table.min_ratio == 0.7  # the smallest fitted ratio (the forehead's is Fig. 11's, 0.73)
+    grid = np.linspace(0.73, 1.6, 501)
     assert np.abs(table.alpha(grid) - FOREHEAD.alpha(grid)).max() < 1e-9
     assert np.abs(table.sigma(grid) - FOREHEAD.sigma(grid)).max() < 1e-9
 
@@ -72,5 +99,7 @@ def test_bad_input():
         kernel_parameters(1.1, "cheek")
     with pytest.raises(FacestatsError, match="at least 2 compression"):
         fit_kernel_table([0.9, 1.1, 1.2], [-0.3, 0.3, 0.6], [16, 15, 19], [0.8, 1.2])
+    with pytest.raises(FacestatsError, match=r"min_ratio must be a stretch ratio in \[0, 1\), got nan"):
+        KernelTable((1.0,), (0.0,), (70.5, -46.9), (38.2, -26.5), min_ratio=float("nan"))
     with pytest.raises(FacestatsError, match="alpha_knots must increase"):
         fit_kernel_table([0.8, 0.9, 1.1, 1.2], [-1, -0.3, 0.3, 0.6], [9, 16, 15, 19], [1.2, 0.8])

@@ -65,6 +65,21 @@ def test_grid_fit_finds_grid_models_and_refinement_finds_the_rest():
     assert skin.sigma_s_prime == pytest.approx(0.94, rel=1e-4) and skin.sigma_a == pytest.approx(0.0875, rel=1e-4)
 
 
+def test_a_refined_estimate_lies_inside_its_interval():
+    """The cost's narrow diagonal valley put the refined optimum several grid steps from the best grid model, outside
+    that model's interval (found by an audit: sigma_s' 2.192 against [2.008, 2.165] here; 8-9 of 25 media)."""
+    from facestats.pipeline.image_translucency import GRIDS
+
+    rs = render_scene(pyramid_scene(1.8, "edge"), 2.19, 0.01)
+    fit = _fit(rs, width="auto", grid=GRIDS["skin"], refine=True)
+    pf = fit.profile_fit
+    assert abs(pf.grid_sigma_s_prime - fit.sigma_s_prime) > 0.1  # the best grid model is far along the valley
+    (s0, s1), (a0, a1) = fit.sigma_s_prime_interval, fit.sigma_a_interval
+    assert s0 <= fit.sigma_s_prime <= s1 and a0 <= fit.sigma_a <= a1
+    assert s0 <= 2.19 <= s1 and a0 <= 0.01 <= a1  # noise-free: the truth too
+    assert s0 <= pf.grid_sigma_s_prime <= s1  # and the grid's own optimum
+
+
 def test_table3_row_025_is_reproduced_exactly(edge):
     (row,) = table3(edge, widths=(0.25,))
     assert row["paper"] == SUZUKI_TABLE3[0.25] == TRUTH

@@ -41,6 +41,7 @@ __all__ = [
     "torrance_sparrow_geometry",
     "torrance_sparrow_cosines",
     "blinn_phong",
+    "blinn_phong_albedo",
     "torrance_sparrow",
 ]
 
@@ -302,6 +303,35 @@ def _check_common(normal, wi, wo, rho_s):
         check_directions(wo, "wo"),
         as_finite(rho_s, "rho_s", 0, None),
     )
+
+
+def blinn_phong_albedo(exponent):
+    """Directional albedo at normal incidence of :func:`blinn_phong` per unit ρs (Weyrich et al. 2006, eq. 11).
+
+    a(n) = ∫ (n + 2)/(2π) cosⁿ δ cos θo dωo over the upper hemisphere, with ωi = N (so δ = θo/2).
+    Derivation: dωo = 2π sin θo dθo; with u = θo/2 and c = cos u,
+
+        a(n) = 4 (n + 2) ∫_{1/√2}^{1} c^(n+1) (2c² − 1) dc
+             = 4 (n + 2) [2 (1 − s^(n+4))/(n + 4) − (1 − s^(n+2))/(n + 2)],   s = 1/√2.
+
+    a(0) = 8 (2 (1 − 1/4)/4 − (1 − 1/2)/2) = 1, 2.30 at n = 5, 3.85 at n = 100, → 4 as n → ∞ (the
+    (n + 2)/(2π) normalisation is over half-vectors, not outgoing directions; checked against a midpoint
+    integral in ``tests/model/test_brdf.py``).  A texel reflects more than it receives at normal incidence
+    where ρs a(n) > 1; oblique incidence puts part of the lobe below the horizon and reflects less.
+
+    Parameters
+    ----------
+    exponent : array_like
+        n ≥ 0.
+
+    Returns
+    -------
+    ndarray
+        a(n), dimensionless, shape of ``exponent``.
+    """
+    n = as_finite(exponent, "exponent", 0, None).astype(np.float64)
+    s = np.sqrt(0.5)
+    return 4 * (n + 2) * (2 * (1 - s ** (n + 4)) / (n + 4) - (1 - s ** (n + 2)) / (n + 2))
 
 
 def blinn_phong(normal, wi, wo, rho_s, exponent):

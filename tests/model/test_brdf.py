@@ -78,6 +78,15 @@ def test_blinn_phong_albedo_exceeds_rho_s_as_documented():
     a100 = _hemisphere_albedo(lambda n, i, o: brdf.blinn_phong(n, i, o, 1.0, 100.0), 0.0)
     assert a5 == pytest.approx(2.30, abs=0.02)
     assert a100 == pytest.approx(3.85, abs=0.03)
+    # the closed form of blinn_phong_albedo against the integral, and oblique incidence reflects less
+    for n in (0.0, 5.0, 100.0, 400.0):
+        num = _hemisphere_albedo(lambda nn, i, o: brdf.blinn_phong(nn, i, o, 1.0, n), 0.0, n=1200)
+        assert brdf.blinn_phong_albedo(n) == pytest.approx(num, rel=2e-3), n
+        for th in (20, 50):
+            assert _hemisphere_albedo(lambda nn, i, o: brdf.blinn_phong(nn, i, o, 1.0, n), np.radians(th)) < num
+    assert brdf.blinn_phong_albedo(0.0) == pytest.approx(1.0, rel=1e-15)
+    assert np.all(np.diff(brdf.blinn_phong_albedo(np.linspace(0, 5000, 101))) > 0)
+    assert brdf.blinn_phong_albedo(5000.0) == pytest.approx(4.0, rel=2e-3)
 
 
 @pytest.mark.parametrize("m", [0.15, 0.3, 0.5])

@@ -165,6 +165,13 @@ def test_fit_specular_public_api_recovers_parameters(rng):
     ok = rb.flags == 0
     assert ok.mean() > 0.95
     assert np.median(np.abs(rb.lobe[ok] / nexp[ok] - 1)) < 0.05
+    # A Blinn-Phong texel that reflects more than it receives is flagged implausible (rho_s a(n) > 1), however well
+    # it fits: rho_s 0.4 with n 148 reflects 1.56 at normal incidence (a default-store nose texel's fit)
+    bright = brdf.blinn_phong(n[:4, None], wi[:4], wo[:4], np.array([[0.4], [0.2], [0.27], [0.24]]), 148.0)
+    rbb = fit_specular(wi[:4], wo[:4], n[:4], bright, valid[:4], "blinn_phong")
+    np.testing.assert_allclose(rbb.rho_s, [0.4, 0.2, 0.27, 0.24], rtol=1e-3)
+    implausible = (rbb.flags & FLAG_BITS["implausible"]) != 0
+    assert implausible.tolist() == [True, False, True, False]  # a(148) = 3.89: the limit is rho_s 0.257
     with pytest.raises(FacestatsError, match="model must be one of"):
         fit_specular(wi, wo, n, f, valid, "phong")
     with pytest.raises(FacestatsError, match="wi must have shape"):

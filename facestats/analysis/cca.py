@@ -51,7 +51,7 @@ import numpy as np
 from facestats.analysis.population import MODEL_NAMES
 from facestats.analysis.serialize import json_ready, records
 from facestats.core.published import CCA_DIRECT, CCA_PRINCIPAL
-from facestats.core.validate import as_float, check_range, check_seed
+from facestats.core.validate import as_finite, as_float, check_integer, check_range, check_seed
 from facestats.errors import InsufficientDataError, ValidationError
 
 __all__ = ["CCAResult", "cca"]
@@ -365,6 +365,7 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
     """
     import pandas as pd
 
+    rcond = float(as_finite(rcond, "rcond", 0, 1, high_inclusive=False))
     x, y, x_names, y_names, index, dropped, reg = _complete_blocks(X, Y, regularization, n_permutations, missing, seed)
     n, q = x.shape[0], y.shape[1]
     x_mean, y_mean = x.mean(axis=0), y.mean(axis=0)
@@ -436,12 +437,16 @@ def _complete_blocks(X, Y, regularization, n_permutations, missing, seed=0):
         raise ValidationError(
             f"X and Y must have the same number of rows (subjects), got {x.shape[0]} and {y.shape[0]}"
         )
-    reg = np.broadcast_to(np.asarray(regularization, dtype=np.float64), (2,))
+    reg = np.asarray(regularization, dtype=np.float64)
+    if reg.shape not in ((), (1,), (2,)):
+        raise ValidationError(
+            f"regularization must be one value or (value for X, value for Y), got {np.asarray(regularization).tolist()}"
+        )
+    reg = np.broadcast_to(reg.reshape(-1), (2,))
     check_range(reg, "regularization", 0, 1)
     if missing not in ("raise", "drop"):
         raise ValidationError(f"missing must be 'raise' or 'drop', got {missing!r}")
-    if int(n_permutations) < 0:
-        raise ValidationError(f"n_permutations must be >= 0, got {n_permutations!r}")
+    check_integer(n_permutations, "n_permutations", 0)
     check_seed(seed)  # every argument before any statement about the data
     ok = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(y), axis=1)
     if not ok.all() and missing == "raise":

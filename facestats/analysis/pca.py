@@ -40,7 +40,7 @@ from facestats.analysis.population import (
 from facestats.analysis.serialize import json_ready
 from facestats.core.conventions import REGION_IDS, REGIONS
 from facestats.core.published import HIGHEST_RHO_S, LARGEST_VARIANCE, SMALLEST_M
-from facestats.core.validate import as_float, check_choice, check_finite, check_shape
+from facestats.core.validate import as_float, check_choice, check_finite, check_integer, check_shape
 from facestats.errors import ValidationError
 
 __all__ = [
@@ -77,6 +77,7 @@ def principal_axes(samples, ddof=1):
         Unit principal directions as columns, each with its largest-magnitude
         component positive.
     """
+    ddof = check_integer(ddof, "ddof", 0)
     x = check_finite(as_float(samples, "samples", np.float64), "samples")
     check_shape(x, "samples", (None, None))
     if x.shape[0] <= ddof:

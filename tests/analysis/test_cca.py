@@ -189,3 +189,20 @@ def test_too_few_subjects_for_the_variables_is_refused_not_a_perfect_fit():
         cca(X, Y)
     res = cca(X, Y, regularization=0.5)  # shrinkage keeps the problem well posed; no parametric tests then
     assert np.isfinite(res.correlations).all() and np.isnan(res.p_value).all()
+
+
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        ({"rcond": np.nan}, "rcond must be finite"),  # gave an empty set of correlations
+        ({"rcond": 2.0}, r"rcond must lie in \[0, 1\)"),
+        ({"rcond": -1e-3}, r"rcond must lie in \[0, 1\)"),
+        ({"regularization": (0.1, 0.2, 0.3)}, r"regularization must be one value or \(value for X"),  # numpy error
+        ({"n_permutations": 2.5}, "n_permutations must be an integer, got 2.5"),  # numpy TypeError
+    ],
+)
+def test_bad_settings_are_named(kw, match):
+    rng = np.random.default_rng(0)
+    x, y = rng.normal(size=(40, 3)), rng.normal(size=(40, 2))
+    with pytest.raises(ValidationError, match=match):
+        cca(x, y, **kw)

@@ -190,3 +190,10 @@ def test_edited_subjects_enter_population_statistics_only_by_name():
     )
     assert list(select_population(index).index) == ["S001", "S002"]  # one measurement per person, as §7
     assert list(select_population(index, ["S001", "S001.brdf-1234"]).index) == ["S001", "S001.brdf-1234"]
+
+
+@pytest.mark.parametrize("ddof", [-3, 1.5, True])
+def test_ddof_must_be_a_non_negative_integer(ddof):
+    """-3 and 1.5 were accepted silently (a covariance divided by n + 3 or n - 1.5)."""
+    with pytest.raises(ValidationError, match="ddof must be an integer"):
+        principal_axes(np.random.default_rng(0).normal(size=(20, 2)), ddof=ddof)

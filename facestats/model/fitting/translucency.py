@@ -58,7 +58,12 @@ class TranslucencyFit:
 
     ``sigma_s_prime``, ``sigma_a``, ``sigma_tr`` and their ``*_std`` standard errors
     in mm⁻¹; ``chi2`` the final cost (weighted squared residuals; in ln R without
-    std); ``n_points`` the readings used per profile.
+    std); ``n_points`` the readings used per profile; ``at_bound`` True where the
+    fit ended on a limit of its search (σtr 0.02 or 20 mm⁻¹, α' 0.0067 or
+    0.99988, σ's 0.02 or 50 mm⁻¹, σa 1e-4 or 20 mm⁻¹): the data ask for a
+    medium outside skin's range, typically distances not in mm or a profile not
+    in mm⁻² (e.g. distances in metres gave σ's = 0.02, the lower limit, without a
+    word before ``at_bound``).
     """
 
     sigma_s_prime: np.ndarray
@@ -69,6 +74,7 @@ class TranslucencyFit:
     sigma_tr_std: np.ndarray
     chi2: np.ndarray
     n_points: np.ndarray
+    at_bound: np.ndarray | None = None
 
     @property
     def ell_d(self):
@@ -304,6 +310,19 @@ def fit_translucency(r, profile, std=None, *, eta=ETA_SKIN, max_iter=60):
             better = fc < best
             u, v, best = np.where(better, fu, u), np.where(better, fv, v), np.where(better, fc, best)
     out = prob.result(u, v)
+    tol = 1e-6  # the iteration clips its coordinates to the ranges: a fit there ended on a limit
+    (s_lo, s_hi), (a_lo, a_hi) = _BOUNDS
+    sp, sa = np.asarray(out.sigma_s_prime), np.asarray(out.sigma_a)
+    out.at_bound = (
+        (u <= _LN_SIGMA_TR_RANGE[0] + tol)
+        | (u >= _LN_SIGMA_TR_RANGE[1] - tol)
+        | (v <= _LOGIT_ALBEDO_RANGE[0] + tol)
+        | (v >= _LOGIT_ALBEDO_RANGE[1] - tol)
+        | (sp <= s_lo * (1 + tol))
+        | (sp >= s_hi * (1 - tol))
+        | (sa <= a_lo * (1 + tol))
+        | (sa >= a_hi * (1 - tol))
+    )
     for k, val in vars(out).items():
         setattr(out, k, np.asarray(val).reshape(lead))
     return out

@@ -1,6 +1,7 @@
 """Dipole fits of contact-sensor profiles (:func:`facestats.model.fitting.fit_translucency`)."""
 
 import numpy as np
+import pytest
 
 from facestats.model.dipole import dipole_profile
 from facestats.model.fitting import fit_translucency
@@ -36,3 +37,18 @@ def test_a_profile_s_fit_does_not_depend_on_the_profiles_fitted_with_it(rng):
         alone = fit_translucency(R_MM, prof[i : i + 1], std[i : i + 1])
         for name, value in vars(alone).items():
             np.testing.assert_array_equal(value[0], getattr(together, name)[i], err_msg=name)
+
+
+def test_a_fit_on_a_limit_of_its_search_says_so():
+    """Distances in metres or a profile in m^-2 drove the fit to its limits without a word (an API red team)."""
+    from facestats.model import dipole
+
+    r = 0.5 + 0.35 * np.arange(28)
+    p = dipole.dipole_profile(r, 0.74, 0.032)
+    good = fit_translucency(r, p[None])
+    assert good.at_bound.tolist() == [False] and np.allclose(good.sigma_s_prime, 0.74, rtol=1e-4)
+    metres, per_m2 = fit_translucency(r / 1000, p[None]), fit_translucency(r, p[None] * 1e6)
+    assert metres.at_bound.tolist() == [True] and metres.sigma_s_prime[0] == pytest.approx(0.02)  # sigma_s' limit
+    assert per_m2.at_bound.tolist() == [True] and per_m2.sigma_tr[0] == pytest.approx(0.02)  # sigma_tr limit
+    both = fit_translucency(r, np.stack([p, p * 1e6]))  # per profile
+    assert both.at_bound.tolist() == [False, True]

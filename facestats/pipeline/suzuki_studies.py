@@ -49,9 +49,12 @@ class RenderedScene:
     sigma_a: float
     eta: float
     kernel: str
+    self_term: str = "point"
 
 
-def render_scene(scene, sigma_s_prime=None, sigma_a=None, *, kernel="point", width=None, channel=0) -> RenderedScene:
+def render_scene(
+    scene, sigma_s_prime=None, sigma_a=None, *, kernel="point", width=None, channel=0, self_term="point"
+) -> RenderedScene:
     """Render a patch scene with the dipole (module docstring); default parameters Suzuki Table 1.
 
     Parameters
@@ -65,26 +68,35 @@ def render_scene(scene, sigma_s_prime=None, sigma_a=None, *, kernel="point", wid
         Quantisation width of the quantised kernel, mm.
     channel : int
         Channel of the lights used (0-2).
+    self_term : {"point", "footprint"}
+        A patch's own light: eq. 17's R(0) c_j A_j (default, the paper's discretisation and its Table 3) or over
+        the disk of its area, as a continuous surface gives it (:mod:`facestats.model.fitting.quantised`); the
+        studies' W takes it the same way.
     """
 
     check_choice(kernel, "kernel", ("point", "quantised"))
+    check_choice(self_term, "self_term", ("point", "footprint"))
     s = SUZUKI_TABLE1["sigma_s_prime"] if sigma_s_prime is None else float(sigma_s_prime)
     a = SUZUKI_TABLE1["sigma_a"] if sigma_a is None else float(sigma_a)
     p = scene.patches
     c = patch_irradiance(p, scene.lights, eta=scene.eta)[:, int(channel)]
     seen = camera_sees(scene.camera, p)
     if kernel == "point":
-        l = render_exitance(p.centre, p.area, c, s, a, eta=scene.eta, radius=np.inf)
+        l = render_exitance(p.centre, p.area, c, s, a, eta=scene.eta, radius=np.inf, self_term=self_term)
     else:
         w = float(as_finite(width, "width", 0, None, low_inclusive=False, unit="mm"))
-        system = quantised_system(p.centre, c * p.area, np.arange(len(p)), width=w)
+        own = p.area if self_term == "footprint" else None
+        system = quantised_system(p.centre, c * p.area, np.arange(len(p)), width=w, areas=own)
         l = system.matrix @ dipole_profile(system.levels, s, a, scene.eta)
-    return RenderedScene(p, c, l, seen, s, a, scene.eta, kernel)
+    return RenderedScene(p, c, l, seen, s, a, scene.eta, kernel, self_term)
 
 
 def _system(rendered, width):
     p = rendered.patches
-    return quantised_system(p.centre, rendered.irradiance * p.area, np.nonzero(rendered.visible)[0], width=width)
+    own = p.area if rendered.self_term == "footprint" else None
+    return quantised_system(
+        p.centre, rendered.irradiance * p.area, np.nonzero(rendered.visible)[0], width=width, areas=own
+    )
 
 
 def table3(rendered: RenderedScene, widths=tuple(SUZUKI_TABLE3), methods=("pinv", "monotone"), **fit_options) -> list:

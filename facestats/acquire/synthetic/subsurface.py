@@ -7,7 +7,17 @@ the exitance of patch j is
 
 with R the dipole profile (:func:`facestats.model.dipole.dipole_profile`, mm⁻²,
 Suzuki eq. 3-13) evaluated at the patch-centre distances: the point kernel,
-not the quantised model (the patch itself contributes R(0) c_j A_j).  The radiance
+not the quantised model.  A patch's own light (``self_term``): by default
+eq. 17's R(0) c_j A_j (the paper's); ``"footprint"`` takes c_j E(ρ_j), the
+dipole's energy within the disk of its area (ρ_j = sqrt(A_j/π),
+:func:`facestats.model.dipole.dipole_radial_energy`), as a continuous surface
+gives it.  For 1 mm patches of Suzuki Table 1's medium the point term is about
+twice the footprint's (0.451 against 0.216 per unit c): against a quadrature
+of the surface (sub-patches of 1/8 the spacing), the lit half of a flat plate of
+1 mm patches is 21 % brighter with the point term (42 % at worst) and 4.2 %
+darker with the footprint (4.8 % at worst; the rest is the neighbours' point
+kernel), the lit face of the pyramid of 1.8 mm patches 27 % brighter and
+2.6 % darker.  The radiance
 a camera sees is L_o = F_t,o l / π (eq. 14-15,
 :func:`facestats.model.irradiance.radiance_from_exitance`).
 
@@ -27,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_integer, check_shape
+from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
 from facestats.errors import ValidationError
 from facestats.model.dipole import (
     check_dipole_eta,
@@ -77,6 +87,7 @@ def render_exitance(
     eta=1.3,
     rows=None,
     radius=None,
+    self_term="point",
     block_bytes=64 * 2**20,
 ):
     """Exitance l_j = Σ_k R(d_jk) c_k A_k of every row patch (module docstring), per channel.
@@ -97,6 +108,9 @@ def render_exitance(
         Patches whose exitance is wanted (default all).
     radius : float, optional
         Cut-off distance in mm (> 0; ``inf`` for none); default :func:`cutoff_radius`.
+    self_term : {"footprint", "point"}
+        A patch's own light: eq. 17's R(0) c_j A_j (default, the paper's) or over the disk of its area (module
+        docstring).
     block_bytes : int
         Memory budget of a row block (≥ 1 MiB).
 
@@ -127,6 +141,7 @@ def render_exitance(
         if not rad > 0:  # inf allowed (no cut-off); NaN and ≤ 0 are not
             raise ValidationError(f"radius must be > 0 mm (inf for no cut-off), got {radius!r}")
     check_integer(block_bytes, "block_bytes", 2**20)
+    check_choice(self_term, "self_term", ("footprint", "point"))
     idx = np.arange(m) if rows is None else np.asarray(rows, np.int64)
     lit = np.nonzero(np.any(c2 > 0, axis=1))[0]
     out = np.zeros((idx.size, n_ch))
@@ -145,4 +160,10 @@ def render_exitance(
         for ch in range(n_ch):  # loop over channels (≤ 3)
             kern = dipole_profile_unchecked(d, s[ch], a[ch], eta)
             out[start : start + rp.shape[0], ch] = np.bincount(jj, weights=kern * ca[kk, ch], minlength=rp.shape[0])
+    if self_term == "footprint":  # each row's own pair (d = 0, always within the radius): its disk instead
+        rho = np.sqrt(ar[idx] / np.pi)
+        for ch in range(n_ch):  # loop over channels (≤ 3)
+            zero = dipole_profile_unchecked(np.zeros(1), s[ch], a[ch], eta)[0]
+            own = dipole_radial_energy_unchecked(rho, s[ch], a[ch], eta) - zero * ar[idx]
+            out[:, ch] += c2[idx, ch] * own
     return out[:, 0] if flat else out

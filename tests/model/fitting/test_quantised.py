@@ -9,6 +9,7 @@ from facestats.errors import FacestatsError, ValidationError
 from facestats.model.fitting.quantised import (
     conditioning,
     dependent_levels,
+    disk_hat_integrals,
     interpolation_matrix,
     merge_levels,
     normal_equations,
@@ -158,3 +159,48 @@ def test_uniform_levels_follow_eq_22_to_24():
     np.testing.assert_allclose(lev, [0, 0.25, 0.5, 0.75, 1.0, 1.25])
     with pytest.raises(FacestatsError, match="max_distance"):
         uniform_levels(0.25, -1)
+
+
+def test_disk_hat_integrals_integrate_the_interpolated_profile_over_disks():
+    """Sum_i H_i(rho) R(d'_i) is the integral of the piecewise-linear R over the disk: exact for a linear R, the
+    disk's area for R = 1; explicit (non-uniform) levels too."""
+    levels = np.array([0.0, 0.3, 0.5, 1.1, 2.0])
+    rho = np.array([0.0, 0.1, 0.3, 0.42, 1.7, 5.0])  # 5 mm: beyond the last level, taken up to it
+    h = disk_hat_integrals(levels, rho)
+    r_in = np.minimum(rho, 2.0)
+    np.testing.assert_allclose(h.sum(1), np.pi * r_in**2, rtol=1e-13, atol=1e-15)
+    exact = 2 * np.pi * (3 * r_in**2 / 2 - r_in**3 / 3)  # R(r) = 3 - r, linear: interpolated exactly
+    np.testing.assert_allclose(h @ (3 - levels), exact, rtol=1e-12, atol=1e-15)
+    assert np.all(h >= 0) and np.all(h[rho <= 1.1, 4] == 0) and np.all(h[rho > 1.1, 4] > 0)  # hat 4: [1.1, 2]
+
+
+def test_the_footprint_self_term_replaces_r0_c_a_by_the_disk_integral(cloud):
+    """With areas, a lit row's own pair is c_j H(rho_j) over the levels instead of c_j A_j at level 0; every
+    other pair, and unlit rows, are as before; the point-kernel exitance takes the same self term."""
+    from facestats.model.dipole import dipole_profile, dipole_radial_energy
+    from facestats.model.fitting.quantised import point_kernel_exitance
+
+    p, c, rows = cloud
+    area = np.full(len(p), 0.2)
+    w = c * area
+    plain = quantised_system(p, w, rows, width=0.25)
+    own = quantised_system(p, w, rows, width=0.25, areas=area)
+    diff = own.matrix - plain.matrix
+    lit = c[rows] > 0
+    assert np.all(diff[~lit] == 0)
+    h = disk_hat_integrals(plain.levels, np.full(1, np.sqrt(0.2 / np.pi)))[0]
+    expected = c[rows][lit, None] * h[None] - np.outer(w[rows][lit], np.eye(plain.levels.size)[0])
+    np.testing.assert_allclose(diff[lit], expected, rtol=1e-12, atol=1e-14)
+    assert own.areas is not None and plain.areas is None
+    s, a = 2.19, 0.0021
+    l_pt = point_kernel_exitance(p, w, rows, lambda d: dipole_profile(d, s, a, 1.3))
+    l_fp = point_kernel_exitance(
+        p, w, rows, lambda d: dipole_profile(d, s, a, 1.3), areas=area,
+        energy=lambda r: dipole_radial_energy(r, s, a, 1.3),
+    )  # fmt: skip
+    self_fp = c[rows] * dipole_radial_energy(np.sqrt(0.2 / np.pi), s, a, 1.3)
+    np.testing.assert_allclose(l_fp - l_pt, self_fp - w[rows] * dipole_profile(0.0, s, a, 1.3), rtol=1e-10)
+    with pytest.raises(ValidationError, match="areas and energy go together"):
+        point_kernel_exitance(p, w, rows, lambda d: dipole_profile(d, s, a, 1.3), areas=area)
+    with pytest.raises(ValidationError, match="areas must be > 0"):
+        quantised_system(p, w, rows, width=0.25, areas=np.zeros(len(p)))

@@ -831,7 +831,8 @@ class CompressedField:
         ``"numba"`` computes the projections and the rows' products in compiled passes over the stored values on
         all cores (:mod:`facestats.relight.compression_numba`; its cost does not grow with the number of blocks),
         ``"numpy"`` one BLAS product per region and one small GEMM per block (a Python loop over the blocks); they
-        agree to float32 rounding.
+        agree to float32 rounding.  Values below 0 (the truncated bases' ringing under lighting much narrower
+        than their components) are returned as 0: radiance is not negative.
         """
         if (lighting is None) == (probe is None):
             raise ValidationError("pass exactly one of lighting (L·δA per light) and probe")
@@ -857,7 +858,11 @@ class CompressedField:
                     vals[rows] += pk.mix[rows, :, q] * (cf @ proj[:, pk.seg_proj[s] : pk.seg_proj[s] + k].T)
         out = np.zeros((self.image_shape[0] * self.image_shape[1], 3), np.float32)
         out[self.pixels] = vals
-        return check_relit(out.reshape(self.image_shape + (3,)), "compressed relight")
+        out = check_relit(out.reshape(self.image_shape + (3,)), "compressed relight")
+        # radiance is not negative: the truncated bases ring below 0 under lighting much narrower than their
+        # components (a single light of a 32 x 64 field: 314 pixels, down to -19 % of the image's maximum).
+        # Lighting >= 0 on reflectance >= 0 relights to >= 0, so clamping never moves a value away from it.
+        return np.maximum(out, 0, out=out)
 
     def error_bound(self, lighting) -> np.ndarray:
         """Per-pixel bound on |relight(compressed) − relight(dense)| over the stored pixels (0 elsewhere):

@@ -231,7 +231,10 @@ def separation_matrix_condition(d, s=WHITE) -> np.ndarray:
 
 
 def separate_colour(values, d, s=WHITE):
-    """Split RGB samples into diffuse and specular parts: μ = [d s d×s]⁻¹ R, S = max(μs, 0) s, D = R − S (§4.2).
+    """Split RGB samples into diffuse and specular parts: μ = [d s d×s]⁻¹ R, S = μs s, D = R − S (§4.2).
+
+    μs is clamped to [0, min_c R_c / s_c], so that 0 ≤ S ≤ R and D ≥ 0 in every channel (beyond the paper,
+    which clamps at 0 only: where d is nearly parallel to s the inverse amplifies noise into S far above R).
 
     Parameters
     ----------
@@ -249,8 +252,8 @@ def separate_colour(values, d, s=WHITE):
     mu : ndarray, shape of ``values``
         (μd, μs, μe) before clamping.
     clamped : ndarray of bool, shape ``values.shape[:-1]``
-        Samples whose μs was negative beyond rounding (below −10⁻⁶ ‖R‖); every
-        negative μs is set to 0.
+        Samples whose μs left [0, min_c R_c / s_c] beyond rounding (10⁻⁶ ‖R‖); every
+        μs is clamped into it.
     """
     r = check_shape(as_finite(values, "values", dtype=np.float64), "values", (..., 3))
     dd = check_broadcast(unit_rgb(d, "d"), "d", r.shape, "values")
@@ -262,8 +265,12 @@ def separate_colour(values, d, s=WHITE):
         raise ValidationError("d and s must not be parallel (the separation matrix is singular); check its condition")
     rows = np.stack([np.cross(np.broadcast_to(ss, r.shape), e), np.cross(e, dd), np.cross(dd, ss)], axis=-2)
     mu = np.einsum("...ij,...j->...i", rows, r) / det[..., None]
-    clamped = mu[..., 1] < -1e-6 * np.linalg.norm(r, axis=-1)  # rounding-level negatives are not counted
-    spec = np.maximum(mu[..., 1], 0)[..., None] * ss
+    # 0 <= S <= R in every channel: mu_s <= min_c R_c / s_c (D >= 0), which the solve breaks where d is nearly
+    # parallel to s (a ramp pushed there by few samples): S of 315 x R and D < 0 were seen
+    top = np.min(np.where(ss > 0, np.maximum(r, 0) / np.where(ss > 0, ss, 1.0), np.inf), axis=-1)
+    tol = 1e-6 * np.linalg.norm(r, axis=-1)  # rounding-level excursions are not counted
+    clamped = (mu[..., 1] < -tol) | (mu[..., 1] > top + tol)
+    spec = np.clip(mu[..., 1], 0, top)[..., None] * ss
     return r - spec, spec, mu, clamped
 
 
@@ -313,7 +320,7 @@ def separate_field(field, s=WHITE, *, view=None, ramp: bool = True, mirror_deg: 
         ``diffuse`` and ``specular`` (dims of the field's reflectance), per pixel
         ``normal``, ``specular_normal`` (half vector of the specular peak),
         ``albedo`` (ρd, RGB), ``rho_s``, ``alpha0``, ``alpha1``, ``d0``,
-        ``condition`` and ``ill_conditioned``, ``n_clamped`` (negative μs clamped).
+        ``condition`` and ``ill_conditioned``, ``n_clamped`` (μs clamped into [0, min_c R_c / s_c]).
     """
 
     f = as_field(field)

@@ -129,3 +129,16 @@ def test_a_true_ramp_is_fitted_and_needed():
     f, spec, _ = ts_lambert_field(7, 7, albedo=SKIN * 0.8, rho_s=0.25, m=0.3, ramp=(-0.05, -0.3))
     assert abs(_median_rho_s_error(sep.separate_field(f, [1, 1, 1]), spec, f)) < 0.02  # 0.2 %
     assert _median_rho_s_error(sep.separate_field(f, [1, 1, 1], ramp=False), spec, f) < -0.2  # 30.8 % low
+
+
+def test_the_specular_part_never_exceeds_the_sample():
+    """Where d is nearly parallel to s the colour solve amplified noise into S = 315 x R with D < 0 (a default
+    subject's field at 64², found by an API red team): mu_s is clamped to [0, min_c R_c / s_c] and counted."""
+    d = np.array([1.0, 0.97, 1.0])  # nearly white diffuse, white light
+    r = np.array([[0.30, 0.31, 0.30], [0.30, 0.25, 0.30], [0.2, 0.1, 0.05]])  # greener than white, then not
+    diffuse, spec, mu, clamped = sep.separate_colour(r, d)
+    assert mu[0, 1] > r[0].min() / (1 / np.sqrt(3))  # the unclamped solve asks for more specular than measured
+    assert np.all(spec <= r + 1e-15) and np.all(diffuse >= -1e-15) and np.all(spec >= 0)
+    np.testing.assert_allclose(diffuse + spec, r, rtol=0, atol=1e-15)
+    assert clamped[0] and np.isclose(diffuse[0].min(), 0, atol=1e-15)  # one channel left with no diffuse light
+    assert mu[1, 1] < 0 and np.all(spec[1] == 0) and clamped[1]  # a negative mu_s is clamped to 0, as before

@@ -343,3 +343,34 @@ def described(parse, doc, what: str):
         raise type(exc)(f"{what}: {exc}") from None
     except (TypeError, ValueError, AttributeError, KeyError, IndexError) as exc:
         raise FormatError(f"{what} is malformed ({type(exc).__name__}: {exc})") from None
+
+
+def check_rigid_transform(transform, name: str = "transform") -> np.ndarray:
+    """A 4 × 4 rigid transform [R t; 0 0 0 1] (R a rotation: RᵀR = I and det R = +1, to 1e-6) as float64.
+
+    A mirror (det R = −1) turns a mesh inside out: its triangles' winding reverses, so normals computed from them
+    point into the head; a scale changes areas and lengths, which the readers take from their own ``scale``.  Both
+    are refused, as is a projective bottom row.
+    """
+    t = np.asarray(transform, np.float64)
+    if t.shape != (4, 4):
+        raise ValidationError(f"{name} must be a 4x4 matrix, got shape {t.shape}")
+    if not np.all(np.isfinite(t)):
+        raise ValidationError(f"{name} must be finite, got {t.tolist()}")
+    if not np.allclose(t[3], [0.0, 0.0, 0.0, 1.0], rtol=0, atol=1e-12):
+        raise ValidationError(
+            f"{name} must have the bottom row [0, 0, 0, 1] (rigid, not projective), got {t[3].tolist()}"
+        )
+    r = t[:3, :3]
+    if not np.allclose(r.T @ r, np.eye(3), rtol=0, atol=1e-6):
+        sv = np.linalg.svd(r, compute_uv=False)
+        raise ValidationError(
+            f"{name} must be rigid (its 3x3 part a rotation), got singular values {np.round(sv, 6).tolist()}: "
+            "pass a scale as scale= (mm per file unit), not in the transform"
+        )
+    if np.linalg.det(r) < 0:
+        raise ValidationError(
+            f"{name} must be a rotation, got a mirror (det = -1): it turns the mesh inside out (normals into the "
+            "head); convert the handedness of the file instead (e.g. negate one axis and reverse each face's winding)"
+        )
+    return t

@@ -58,6 +58,22 @@ def _label_map(labels, shape, name):
     return lab
 
 
+#: Physical domains of the specular parameters a transfer knows (lower bound, whether it is excluded): target
+#: samples outside them are refused (a target m of -1 gave an edited m of -1).
+_DOMAINS = {"rho_s": (0.0, False), "m": (0.0, True), "exponent": (0.0, False)}
+
+
+def _in_domain(y, what, name):
+    """``y`` if every value lies in the parameter's physical domain (:data:`_DOMAINS`; other names: any)."""
+    if name in _DOMAINS and y.size:
+        low, strict = _DOMAINS[name]
+        bad = y <= low if strict else y < low
+        if bad.any():
+            sign = ">" if strict else ">="
+            raise ValidationError(f"{what} must be {sign} {low:g} ({name}), got {float(y[bad][0])!r}")
+    return y
+
+
 def _target_for_region(spec, name, region, target_regions):
     """Sorted finite target samples (ndarray) or a Histogram for one parameter and region, or None."""
     if isinstance(spec, Mapping):
@@ -67,7 +83,7 @@ def _target_for_region(spec, name, region, target_regions):
         if isinstance(v, Histogram):
             return v
         y = as_float(v, f"target[{name!r}][{region}]", np.float64).ravel()
-        y = np.sort(y[np.isfinite(y)])
+        y = _in_domain(np.sort(y[np.isfinite(y)]), f"target[{name!r}][{region}]", name)
         return y if y.size else None
     y = as_float(spec, f"target[{name!r}]", np.float64)
     if target_regions is None:
@@ -76,7 +92,7 @@ def _target_for_region(spec, name, region, target_regions):
         raise ValidationError(
             f"target[{name!r}] must have the shape of target_regions {target_regions.shape}, got {y.shape}"
         )
-    y = y[(target_regions == region) & np.isfinite(y)]
+    y = _in_domain(y[(target_regions == region) & np.isfinite(y)], f"target[{name!r}]", name)
     return np.sort(y) if y.size else None
 
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from facestats.acquire.geometry import FaceGeometry, uv_to_texel
 from facestats.acquire.synthetic.faces import face_geometry, parse_face_name
-from facestats.core.validate import as_finite, check_finite, check_integer, check_shape
+from facestats.core.validate import as_finite, check_finite, check_integer, check_rigid_transform, check_shape
 from facestats.errors import FormatError, ValidationError
 from facestats.io.schema import provenance
 
@@ -245,9 +245,7 @@ def _placed_vertices(mesh, scale, transform) -> np.ndarray:
         raise ValidationError(f"scale must be > 0, got {scale!r}")
     verts = np.asarray(mesh.vertices, np.float64) * float(scale)
     if transform is not None:
-        t = np.asarray(transform, np.float64)
-        if t.shape != (4, 4):
-            raise ValidationError(f"transform must be a 4x4 matrix, got shape {t.shape}")
+        t = check_rigid_transform(transform)
         verts = verts @ t[:3, :3].T + t[:3, 3]
     return verts
 

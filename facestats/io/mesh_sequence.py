@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_shape
+from facestats.core.validate import as_finite, check_rigid_transform, check_shape
 from facestats.errors import FormatError, ValidationError
 from facestats.model.strain import triangulate
 
@@ -86,9 +86,7 @@ def _place(vertices, scale, transform, name):
         raise ValidationError(f"scale must be > 0, got {scale!r}")
     v = np.asarray(vertices, np.float64) * float(scale)
     if transform is not None:
-        t = np.asarray(transform, np.float64)
-        if t.shape != (4, 4):
-            raise ValidationError(f"transform must be a 4x4 matrix, got shape {t.shape}")
+        t = check_rigid_transform(transform)
         v = v @ t[:3, :3].T + t[:3, 3]
     if not np.all(np.isfinite(v)):
         bad = int(np.nonzero(~np.all(np.isfinite(v), axis=1))[0][0])

@@ -132,3 +132,15 @@ def test_validation(faces):
         transfer_brdf(_maps(src), regions.astype(float), _maps(tgt), target_regions=regions)
     with pytest.raises(ValidationError, match="t must lie in"):
         transfer_brdf(_maps(src), regions, _maps(tgt), target_regions=regions, t=-0.1)
+
+
+def test_target_samples_outside_a_parameters_domain_are_refused():
+    """A target m of -1 gave an edited m of -1 (an API red team): rho_s >= 0, m > 0 and exponent >= 0."""
+    src = {"rho_s": np.full((4, 4), 0.1), "m": np.full((4, 4), 0.3)}
+    reg = np.ones((4, 4), int)
+    with pytest.raises(ValidationError, match=r"target\['m'\]\[1\] must be > 0 \(m\), got -2.0"):
+        transfer_brdf(src, reg, {"rho_s": {1: [0.1, 0.2]}, "m": {1: [-1.0, -2.0]}}, t=1.0)
+    with pytest.raises(ValidationError, match=r"target\['rho_s'\] must be >= 0 \(rho_s\), got -0.5"):
+        transfer_brdf(src, reg, {"rho_s": np.full((4, 4), -0.5), "m": np.full((4, 4), 0.2)}, target_regions=reg)
+    out = transfer_brdf(src, reg, {"rho_s": {1: [0.1, 0.2]}, "m": {1: [0.2, 0.4]}}, t=1.0)
+    assert np.all(out["m"] > 0)

@@ -95,3 +95,27 @@ def test_blendshapes_and_weights(tmp_path):
         read_weights(tmp_path / "bad.csv")
     with pytest.raises(FacestatsError, match="ICT-FaceKit checkout"):
         read_ict_facekit(tmp_path)
+
+
+@pytest.mark.parametrize(
+    "transform, match",
+    [
+        (np.diag([1.0, 1.0, -1.0, 1.0]), "got a mirror .det = -1.: it turns the mesh inside out"),
+        (np.diag([2.0, 2.0, 2.0, 1.0]), r"must be rigid .* singular values \[2.0, 2.0, 2.0\]: pass a scale as scale="),
+        (np.vstack([np.eye(4)[:3], [0.0, 0.0, 0.0, 1000.0]]), r"bottom row \[0, 0, 0, 1\]"),
+        (np.eye(3), r"4x4 matrix, got shape \(3, 3\)"),
+    ],
+)
+def test_a_transform_must_be_rigid_in_both_mesh_readers(tmp_path, transform, match):
+    """A mirror turned the normals into the head, a scale quadrupled the areas and a bottom row of 1000 was
+    ignored, all silently (an API red team); the scan reader and the sequence reader share the check."""
+    from facestats.io.mesh import read_triangle_mesh
+
+    path = _write(tmp_path / "q.obj", QUAD_OBJ)
+    for read in (lambda: read_obj(path, transform=transform), lambda: read_triangle_mesh(path, transform=transform)):
+        with pytest.raises(FacestatsError, match=match):
+            read()
+    turn = np.eye(4)
+    turn[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]  # 90 degrees about z, then moved
+    turn[:3, 3] = [5.0, 0.0, 0.0]
+    assert np.allclose(read_obj(path, transform=turn).vertices[1], [5.0, 1.0, 0.0])

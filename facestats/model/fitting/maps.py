@@ -118,7 +118,7 @@ def push_pull(image, known, fill=None):
     Parameters
     ----------
     image : ndarray, shape (H, W) or (H, W, K)
-        Values; entries where ``known`` is False are ignored.
+        Values, finite where ``known``; entries where ``known`` is False are ignored.
     known : ndarray of bool, shape (H, W)
         Texels holding data.
     fill : ndarray of bool, shape (H, W), optional
@@ -137,6 +137,13 @@ def push_pull(image, known, fill=None):
         raise ValidationError(f"known must have shape {img.shape[:2]}, got {k.shape}")
     if not k.any():
         raise ValidationError("known must mark at least one texel with data, got none")
+    finite = np.isfinite(img).all(-1) if img.ndim == 3 else np.isfinite(img)
+    if not finite[k].all():  # a NaN among the known texels spread into every texel filled from it
+        y, x = (int(v) for v in np.argwhere(k & ~finite)[0])
+        raise ValidationError(
+            f"image must be finite at the known texels, got {int((k & ~finite).sum())} non-finite (first at y={y}, "
+            f"x={x}); mark them unknown (known=False) to have them filled"
+        )
     squeeze = img.ndim == 2
     val = np.where(k[..., None] if not squeeze else k, img, 0)
     if squeeze:

@@ -267,3 +267,17 @@ def test_order_keys_sort_like_a_stable_argsort(rng):
     want = np.lexsort((np.arange(values.size), ~np.signbit(values), values))
     np.testing.assert_array_equal(order, want)
     np.testing.assert_array_equal(key & 0xFFFFFFFF, np.arange(values.size))
+
+
+def test_push_pull_refuses_a_non_finite_known_texel():
+    """One NaN among the known texels spread into 31 filled texels silently (an API red team)."""
+    from facestats.errors import ValidationError
+    from facestats.model.fitting.maps import push_pull
+
+    rng = np.random.default_rng(0)
+    img, known = rng.normal(size=(16, 16)), rng.uniform(size=(16, 16)) > 0.3
+    img[3, 4], known[3, 4] = np.nan, True
+    with pytest.raises(ValidationError, match=r"finite at the known texels, got 1 non-finite \(first at y=3, x=4\)"):
+        push_pull(img, known)
+    known[3, 4] = False  # marked unknown, it is filled like any other
+    assert np.all(np.isfinite(push_pull(img, known)))

@@ -238,6 +238,19 @@ def check_broadcast(arr: np.ndarray, name: str, shape: Iterable, target: str) ->
         ) from None
 
 
+def check_broadcastable(**arrays) -> tuple:
+    """The broadcast shape of the named arrays, or a :class:`ValidationError` naming every argument's shape.
+
+    For vectors (normals, directions) pass their shapes without the vector axis (``normal[..., 0]``).
+    """
+    shapes = {k: np.shape(a) for k, a in arrays.items()}
+    try:
+        return np.broadcast_shapes(*shapes.values())
+    except ValueError:
+        got = ", ".join(f"{k} {shape}" for k, shape in shapes.items())
+        raise ValidationError(f"{', '.join(shapes)} must broadcast against each other, got shapes {got}") from None
+
+
 def check_choice(value, name: str, choices) -> object:
     """Raise unless ``value`` is one of ``choices``."""
     if value not in choices:

@@ -270,9 +270,10 @@ def interpolate_histograms(h0: Histogram, h1: Histogram, t: float, edges=None) -
     t : float
         Weight in [0, 1].
     edges : array_like, optional
-        Output bin edges.  Default: ``(1 - t) h0.edges + t h1.edges`` if both
-        have the same number of bins (so t = 0 and t = 1 reproduce ``h0`` and
-        ``h1``), otherwise ``max(bins)`` uniform bins over the interpolated range.
+        Output bin edges, covering the interpolated values.  Default:
+        ``(1 - t) h0.edges + t h1.edges`` if both have the same number of bins
+        (so t = 0 and t = 1 reproduce ``h0`` and ``h1``), otherwise
+        ``max(bins)`` uniform bins over the interpolated range.
 
     Returns
     -------
@@ -307,6 +308,13 @@ def interpolate_histograms(h0: Histogram, h1: Histogram, t: float, edges=None) -
     y_hi = (1 - t) * b0 + t * b1
     mass = u_hi - u_lo
     width = y_hi - y_lo
+    lo, hi = float(y_lo.min()), float(y_hi.max())  # the interpolated distribution's support
+    tol = 1e-9 * max(hi - lo, abs(lo), abs(hi), 1e-300)
+    if edges[0] > lo + tol or edges[-1] < hi - tol:  # counts outside the edges would be lost
+        raise ValidationError(
+            f"edges must cover the interpolated values [{lo:.6g}, {hi:.6g}] (at t = {t:g}), got "
+            f"[{edges[0]:.6g}, {edges[-1]:.6g}]: counts outside them would be lost"
+        )
     e = edges[:, None]
     safe = np.where(width > 0, width, 1.0)
     frac = np.where(width > 0, np.clip((e - y_lo) / safe, 0.0, 1.0), (e >= y_lo).astype(float))

@@ -30,7 +30,15 @@ import numpy as np
 
 from facestats.core.blocked import blockwise, components
 from facestats.core.published import ETA_SKIN
-from facestats.core.validate import as_finite, as_float, check_shape, check_unit_vectors, finite_result, result_dtype
+from facestats.core.validate import (
+    as_finite,
+    as_float,
+    check_broadcastable,
+    check_shape,
+    check_unit_vectors,
+    finite_result,
+    result_dtype,
+)
 from facestats.model.fresnel import check_eta, fresnel_reflectance_unchecked
 
 __all__ = [
@@ -289,7 +297,10 @@ def torrance_sparrow_geometry(normal, wi, wo, eta=ETA_SKIN):
         The factor K in sr⁻¹ (before multiplication by D), same broadcast shape.
     """
     normal, wi, wo = (as_float(v, name) for v, name in ((normal, "normal"), (wi, "wi"), (wo, "wo")))
+    for v, name in ((normal, "normal"), (wi, "wi"), (wo, "wo")):
+        check_shape(v, name, (..., 3))
     eta = as_float(eta, "eta")
+    check_broadcastable(normal=normal[..., 0], wi=wi[..., 0], wo=wo[..., 0], eta=eta)
     dtype = result_dtype(normal, wi, wo)
     ops = [*components(normal), *components(wi), *components(wo), eta]
     return blockwise(_ts_geometry_kernel, ops, dtype, n_out=2)
@@ -373,6 +384,7 @@ def blinn_phong(normal, wi, wo, rho_s, exponent):
     """
     normal, wi, wo, rho_s = _check_common(normal, wi, wo, rho_s)
     exponent = as_finite(exponent, "exponent", 0, None)
+    check_broadcastable(normal=normal[..., 0], wi=wi[..., 0], wo=wo[..., 0], rho_s=rho_s, exponent=exponent)
     dtype = result_dtype(normal, wi, wo, rho_s, exponent)
     ops = [*components(normal), *components(wi), *components(wo), rho_s, exponent]
     with np.errstate(over="ignore", invalid="ignore"):
@@ -437,6 +449,7 @@ def torrance_sparrow(normal, wi, wo, rho_s, m, eta=ETA_SKIN):
     normal, wi, wo, rho_s = _check_common(normal, wi, wo, rho_s)
     m = as_finite(m, "m", 0, None, low_inclusive=False)
     eta_a = check_eta(eta)
+    check_broadcastable(normal=normal[..., 0], wi=wi[..., 0], wo=wo[..., 0], rho_s=rho_s, m=m, eta=eta_a)
     dtype = result_dtype(normal, wi, wo, rho_s, m, eta)
     ops = [*components(normal), *components(wi), *components(wo), eta_a, rho_s, m]
     with np.errstate(over="ignore", invalid="ignore", under="ignore", divide="ignore"):

@@ -27,7 +27,7 @@ import numpy as np
 
 from facestats.core.blocked import blockwise
 from facestats.core.published import ETA_SKIN
-from facestats.core.validate import as_finite, as_float, check_range, finite_result, result_dtype
+from facestats.core.validate import as_finite, as_float, check_broadcastable, check_range, finite_result, result_dtype
 from facestats.errors import FitError, ValidationError
 from facestats.model.fresnel import check_eta, diffuse_fresnel_reflectance_unchecked
 
@@ -47,6 +47,7 @@ def dipole_coefficients(sigma_s_prime, sigma_a):
     """Validate (σ's, σa) in mm⁻¹: finite, ≥ 0, and not both 0 anywhere."""
     s = as_finite(sigma_s_prime, "sigma_s_prime", 0, None, unit="mm^-1")
     a = as_finite(sigma_a, "sigma_a", 0, None, unit="mm^-1")
+    check_broadcastable(sigma_s_prime=s, sigma_a=a)
     if np.any((s <= 0) & (a <= 0)):
         raise ValidationError(
             "sigma_s_prime + sigma_a must be > 0 mm^-1 "
@@ -163,6 +164,7 @@ def dipole_profile(r, sigma_s_prime, sigma_a, eta=ETA_SKIN):
     r_a = as_finite(r, "r", 0, None, unit="mm")
     s, a = dipole_coefficients(sigma_s_prime, sigma_a)
     e = check_dipole_eta(eta)
+    check_broadcastable(r=r_a, sigma_s_prime=s, sigma_a=a, eta=e)
     dtype = result_dtype(r, sigma_s_prime, sigma_a, eta)
     with np.errstate(over="ignore", invalid="ignore"):
         out = blockwise(dipole_profile_unchecked, [r_a, s, a, e], dtype)
@@ -201,6 +203,7 @@ def dipole_radial_energy(radius, sigma_s_prime, sigma_a, eta=ETA_SKIN):
     check_range(rad, "radius", 0, None, unit="mm")
     s, a = dipole_coefficients(sigma_s_prime, sigma_a)
     e = check_dipole_eta(eta)
+    check_broadcastable(radius=rad, sigma_s_prime=s, sigma_a=a, eta=e)
     dtype = result_dtype(radius, sigma_s_prime, sigma_a, eta)
     return np.asarray(
         dipole_radial_energy_unchecked(rad.astype(dtype), s.astype(dtype), a.astype(dtype), e.astype(dtype)), dtype
@@ -259,6 +262,7 @@ def total_diffuse_reflectance(sigma_s_prime, sigma_a, eta=ETA_SKIN):
     """
     s, a = dipole_coefficients(sigma_s_prime, sigma_a)
     e = check_dipole_eta(eta)
+    check_broadcastable(sigma_s_prime=s, sigma_a=a, eta=e)
     dtype = result_dtype(sigma_s_prime, sigma_a, eta)
     alpha = (s / (s + a)).astype(dtype)
     return np.asarray(total_from_reduced_albedo_unchecked(alpha, e.astype(dtype)), dtype=dtype)
@@ -400,6 +404,7 @@ def reduced_albedo(total_reflectance, eta=ETA_SKIN):
     """
     t = as_finite(total_reflectance, "total_reflectance", 0, 1, low_inclusive=False, high_inclusive=False)
     e = check_dipole_eta(eta)
+    check_broadcastable(total_reflectance=t, eta=e)
     dtype = result_dtype(total_reflectance, eta)
     return np.asarray(_reduced_albedo(t, e), dtype=dtype)
 
@@ -440,6 +445,7 @@ def scattering_from_albedo(albedo, sigma_tr, eta=ETA_SKIN):
     a = as_finite(albedo, "albedo", 0, 1, low_inclusive=False, high_inclusive=False)
     e = check_dipole_eta(eta)
     t = as_finite(sigma_tr, "sigma_tr", 0, None, low_inclusive=False, unit="mm^-1")
+    check_broadcastable(albedo=a, sigma_tr=t, eta=e)
     dtype = result_dtype(albedo, sigma_tr, eta)
     s = np.maximum(_solve_s(a, e), np.finfo(np.float64).eps * 1e-3)
     t = t.astype(np.float64)

@@ -24,7 +24,7 @@ import numpy as np
 
 from facestats.core.blocked import blockwise
 from facestats.core.published import ETA_SKIN
-from facestats.core.validate import as_finite, check_range, result_dtype
+from facestats.core.validate import as_finite, check_broadcastable, check_range, result_dtype
 from facestats.errors import ValidationError
 
 __all__ = ["fresnel_reflectance", "fresnel_transmittance", "diffuse_fresnel_reflectance"]
@@ -129,6 +129,7 @@ def fresnel_reflectance(cos_theta, eta=ETA_SKIN):
     """
     c = _check_cos(cos_theta)
     e = check_eta(eta)
+    check_broadcastable(cos_theta=c, eta=e)
     return blockwise(fresnel_reflectance_unchecked, [c, e], result_dtype(c, e))
 
 

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from facestats import FacestatsError
-from facestats.model import brdf
+from facestats.model import brdf, dipole
 from facestats.model.fresnel import fresnel_reflectance
 from tests.helpers import random_hemisphere
 
@@ -141,3 +141,23 @@ def test_the_unit_vector_check_has_one_rule_in_both_modes():
             check_unit_vectors(outside, "v", 1e-3, norms=norms)
         check_unit_vectors(np.zeros((2, 3)), "v", allow_zero=True, norms=norms)
     assert np.array_equal(check_unit_vectors(inside, "v", norms=True), np.linalg.norm(inside, axis=-1))
+
+
+@pytest.mark.parametrize(
+    "call, match",
+    [
+        (lambda: dipole.dipole_profile(np.ones(3), np.ones(2), 0.1),
+         r"r, sigma_s_prime, sigma_a, eta must broadcast .* r \(3,\), sigma_s_prime \(2,\)"),
+        (lambda: brdf.torrance_sparrow(np.tile(N, (3, 1)), N, N, np.full(2, 0.1), 0.3),
+         r"normal, wi, wo, rho_s, m, eta must broadcast .* normal \(3,\), wi \(\), wo \(\), rho_s \(2,\)"),
+        (lambda: brdf.blinn_phong(np.tile(N, (3, 1)), N, N, 0.1, np.full(2, 20.0)),
+         r"exponent \(2,\)"),
+        (lambda: fresnel_reflectance(np.full(3, 0.5), np.full(2, 1.3)),
+         r"cos_theta, eta must broadcast .* cos_theta \(3,\), eta \(2,\)"),
+        (lambda: brdf.torrance_sparrow_geometry(N, np.array([0.0, 1.0]), N), r"wi must have shape \(\.\.\., 3\)"),
+    ],
+)  # fmt: skip
+def test_shapes_that_do_not_broadcast_are_named(call, match):
+    """numpy's "Mismatch is between arg 0 and arg 1" or an IndexError named no argument (an API red team)."""
+    with pytest.raises(FacestatsError, match=match):
+        call()

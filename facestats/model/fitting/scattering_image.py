@@ -343,7 +343,12 @@ def fit_scattering_system(
     if pf.n_nonpositive:
         notes.append(f"{pf.n_nonpositive} level(s) within the fit range with R' ≤ 0 left out of eq. 36 (log undefined)")
     if pf.at_grid_edge:
-        notes.append("the interval reaches the edge of the grid: the grid bounds it")
+        g = pf.grid
+        notes.append(
+            f"the interval reaches the edge of the grid (sigma_s' {g.sigma_s_prime[0]:g}-{g.sigma_s_prime[-1]:g}, "
+            f"sigma_a {g.sigma_a[0]:g}-{g.sigma_a[-1]:g} 1/mm): the grid bounds it, and the medium may lie outside; "
+            "fit on a wider grid (grid=ProfileGrid.log_spaced(); --grid skin on the command line)"
+        )
     deficient = n_rank_merged > 0 or cond.rank < system.n_levels
     return ScatteringImageFit(
         sigma_s_prime=pf.sigma_s_prime,

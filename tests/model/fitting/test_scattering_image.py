@@ -254,3 +254,16 @@ def test_the_footprint_self_term_fits_a_continuous_surface_closer_and_its_own_re
     assert (fit.sigma_s_prime, fit.sigma_a) == TRUTH
     with pytest.raises(ValidationError, match="self_term must be one of"):
         _fit(edge, width=0.25, self_term="disk")
+
+
+def test_a_medium_outside_table_2_is_told_to_use_a_wider_grid():
+    """The default grid (Table 2, sigma_a <= 0.003) pins sigma_a = 0.03 at its edge; the note names the grid's range
+    and the way out (an audit found only "the grid bounds it")."""
+    rs = render_scene(pyramid_scene(1.8, "edge"), 2.19, 0.03)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", QuantisationWarning)
+        fit = _fit(rs, width=0.25)
+        wide = _fit(rs, width=0.25, grid=ProfileGrid.log_spaced(), refine=True)
+    assert fit.sigma_a == 0.003 and fit.profile_fit.at_grid_edge
+    assert any("sigma_a 0.0001-0.003 1/mm): the grid bounds it" in n and "--grid skin" in n for n in fit.notes)
+    assert wide.sigma_a == pytest.approx(0.03, rel=0.02) and not wide.profile_fit.at_grid_edge

@@ -31,7 +31,7 @@ from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.errors import FitError, QuantisationWarning
 from facestats.model.dipole import dipole_profile
 from facestats.model.fitting.quantisation_choice import auto_width
-from facestats.model.fitting.quantised import quantised_system
+from facestats.model.fitting.quantised import SELF_TERMS, quantised_system
 from facestats.model.fitting.scattering_image import fit_scattering_system
 
 __all__ = ["RenderedScene", "render_scene", "table3", "format_table3", "noise_study", "NoiseStudy"]
@@ -75,7 +75,7 @@ def render_scene(
     """
 
     check_choice(kernel, "kernel", ("point", "quantised"))
-    check_choice(self_term, "self_term", ("point", "footprint"))
+    check_choice(self_term, "self_term", SELF_TERMS)
     s = SUZUKI_TABLE1["sigma_s_prime"] if sigma_s_prime is None else float(sigma_s_prime)
     a = SUZUKI_TABLE1["sigma_a"] if sigma_a is None else float(sigma_a)
     p = scene.patches

@@ -46,6 +46,7 @@ from facestats.model.dipole import (
     dipole_radial_energy_unchecked,
     total_diffuse_reflectance,
 )
+from facestats.model.fitting.quantised import SELF_TERMS
 
 __all__ = ["cutoff_radius", "render_exitance"]
 
@@ -141,7 +142,7 @@ def render_exitance(
         if not rad > 0:  # inf allowed (no cut-off); NaN and ≤ 0 are not
             raise ValidationError(f"radius must be > 0 mm (inf for no cut-off), got {radius!r}")
     check_integer(block_bytes, "block_bytes", 2**20)
-    check_choice(self_term, "self_term", ("footprint", "point"))
+    check_choice(self_term, "self_term", SELF_TERMS)
     idx = np.arange(m) if rows is None else np.asarray(rows, np.int64)
     lit = np.nonzero(np.any(c2 > 0, axis=1))[0]
     out = np.zeros((idx.size, n_ch))

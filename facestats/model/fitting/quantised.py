@@ -21,7 +21,8 @@ Conventions and choices (stated once here, used by every function):
   itself at d = 0, R(0) c_j A_j; a surface gives c_j ∫_patch R(‖x_j − y‖) dA(y),
   about half of that for skin-like media and 1 mm patches (Table 1's medium,
   A = 1.13 mm²: 0.216 against 0.451), so an image of a real, continuous surface
-  is fitted with a biased medium (σ's 8.6 % low, σa 17 % high on the pyramid).
+  is fitted with a biased medium (σ's 8.6 % low, σa 17 % high on the pyramid at
+  ``width="auto"`` on a 200² log grid, refined).
   With ``areas``, :func:`quantised_system` takes the patch as the disk of its
   area around its centre, ρ_j = sqrt(A_j/π), and spreads its own pair over the
   levels by ∫_0^ρ 2πr hat_i(r) dr (:func:`disk_hat_integrals`): the footprint
@@ -84,6 +85,7 @@ __all__ = [
     "quantised_system",
     "point_kernel_exitance",
     "disk_hat_integrals",
+    "SELF_TERMS",
     "interpolation_matrix",
     "merge_levels",
     "NormalEquations",
@@ -96,6 +98,8 @@ __all__ = [
     "profile_covariance",
 ]
 
+#: A patch's own light (module docstring): over the disk of its area, or the paper's R(0) c A (eq. 17).
+SELF_TERMS = ("footprint", "point")
 #: Default memory budget of one row block of :func:`quantised_system` (bytes).
 DEFAULT_BLOCK_BYTES = 128 * 2**20
 #: Most levels a width may give (W holds one column per level; Suzuki's scenes need tens to hundreds).
@@ -379,10 +383,10 @@ def quantised_system(
 
 
 def _check_areas(areas, m) -> np.ndarray:
-    a = check_shape(as_finite(areas, "areas", dtype=np.float64), "areas", (m,))
-    if np.any(a <= 0):
-        raise ValidationError(f"areas must be > 0 mm^2, got {a[a <= 0][0]!r}")
-    return a
+    """Patch areas, mm², one per point, finite and > 0."""
+    return check_shape(
+        as_finite(areas, "areas", 0, None, low_inclusive=False, unit="mm^2", dtype=np.float64), "areas", (m,)
+    )
 
 
 def point_kernel_exitance(

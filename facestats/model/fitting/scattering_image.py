@@ -70,6 +70,7 @@ from facestats.model.fitting.profile_grid import TABLE2_GRID, ProfileFit, Profil
 from facestats.model.fitting.quantisation_choice import auto_width, fit_distance
 from facestats.model.fitting.quantised import (
     DEFAULT_BLOCK_BYTES,
+    SELF_TERMS,
     QuantisedSystem,
     conditioning,
     dependent_levels,
@@ -103,8 +104,6 @@ CONDITION_WARNING = 1e4
 QUANTISATION_ROWS = 500
 #: :func:`quantisation_error` above which a fit carries a warning (module docstring, step 6).
 QUANTISATION_WARNING = 0.05
-#: A patch's own light (module docstring, step 2): the integral over its disk, or the paper's R(0) c A.
-SELF_TERMS = ("footprint", "point")
 
 
 @dataclass

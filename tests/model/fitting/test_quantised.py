@@ -202,5 +202,5 @@ def test_the_footprint_self_term_replaces_r0_c_a_by_the_disk_integral(cloud):
     np.testing.assert_allclose(l_fp - l_pt, self_fp - w[rows] * dipole_profile(0.0, s, a, 1.3), rtol=1e-10)
     with pytest.raises(ValidationError, match="areas and energy go together"):
         point_kernel_exitance(p, w, rows, lambda d: dipole_profile(d, s, a, 1.3), areas=area)
-    with pytest.raises(ValidationError, match="areas must be > 0"):
+    with pytest.raises(ValidationError, match=r"areas must lie in \(0, inf\] mm\^2, got 0.0"):
         quantised_system(p, w, rows, width=0.25, areas=np.zeros(len(p)))

@@ -62,12 +62,13 @@ def read_bracket(paths, exposure_times=None):
     Raises
     ------
     FormatError
-        A file without EXIF exposure time when none is given (named), frames of
-        different sizes or bit depths, or not RGB.
+        A file without EXIF exposure time when none is given (named), frames whose EXIF
+        records another aperture, ISO or camera when no times are given (the exposure would not
+        be the time alone), frames of different sizes or bit depths, or not RGB.
     ValidationError
         Fewer than two files, or a count of ``exposure_times`` different from the files.
     """
-    from facestats.io.exif import read_exposure_time
+    from facestats.io.exif import read_exif
     from facestats.io.images import read_integer_image
 
     files = [os.fspath(p) for p in paths]
@@ -83,13 +84,14 @@ def read_bracket(paths, exposure_times=None):
                 f"exposure_times must hold one time per photograph ({len(files)}), got {times.size}: {times.tolist()}"
             )
     else:
-        found = [read_exposure_time(f) for f in files]
-        missing = [f for f, t in zip(files, found) if t is None]
+        tags = [read_exif(f) for f in files]
+        missing = [f for f, t in zip(files, tags) if t.get("ExposureTime") is None]
         if missing:
             raise FormatError(
                 f"no EXIF ExposureTime in {', '.join(missing)}: give the exposure times (seconds) of every file"
             )
-        times = np.asarray(found, np.float64)
+        _check_only_time_varies(files, tags)
+        times = np.asarray([float(t["ExposureTime"]) for t in tags], np.float64)
     images, depths = [], []
     for f in files:  # loop over a handful of files
         img, bits = read_integer_image(f)
@@ -102,6 +104,29 @@ def read_bracket(paths, exposure_times=None):
         table = ", ".join(f"{f}: {i.shape[1]}×{i.shape[0]}, {b}-bit" for f, i, b in zip(files, images, depths))
         raise FormatError(f"the photographs of a bracket must share size and bit depth, got {table}")
     return images, times, 8 if depths[0] == 8 else 16
+
+
+#: EXIF tags a bracket must hold constant: the exposure is then the time alone (Debevec & Malik 1997 §2.1).
+_FIXED_TAGS = {"FNumber": "aperture (FNumber)", "ISOSpeedRatings": "ISO (ISOSpeedRatings)", "Make": "camera (Make)",
+               "Model": "camera (Model)"}  # fmt: skip
+
+
+def _check_only_time_varies(files, tags) -> None:
+    """Refuse a bracket whose EXIF records another aperture, ISO or camera in some frames (times from EXIF).
+
+    Exposure is t·ISO/N²: a bracket that varies ISO with the time read as if only the time changed gives a g
+    scaled by the wrong ratios (ISO doubled with each doubled time: g half the truth, with a perfect exposure
+    agreement).  Tags a file does not record are not compared.
+    """
+    for tag, what in _FIXED_TAGS.items():
+        seen = {f: t[tag] for f, t in zip(files, tags) if t.get(tag) not in (None, "")}
+        if len({str(v) for v in seen.values()}) > 1:
+            table = ", ".join(f"{os.path.basename(f)}: {v}" for f, v in seen.items())
+            raise FormatError(
+                f"a bracket must vary only the exposure time, got another {what} across the photographs ({table}): "
+                "reshoot with it fixed, or give --times with each frame's relative exposure t·ISO/N² (exposure_times "
+                "in Python), which are then not checked against EXIF"
+            )
 
 
 @dataclass

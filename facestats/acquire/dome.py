@@ -52,6 +52,7 @@ from facestats.acquire.camera import look_at
 from facestats.acquire.geodesic import farthest_point_subset, geodesic_points
 from facestats.acquire.hdr import CameraResponse
 from facestats.acquire.lens import distort_normalised, undistort_normalised
+from facestats.acquire.response import check_rising
 from facestats.core.compiled import resolve_backend
 from facestats.core.published import N_CAMERAS, N_LEDS
 from facestats.core.validate import (
@@ -203,6 +204,8 @@ class Dome:
                 )
             if not np.all(np.isfinite(resp)):
                 raise ValidationError("camera_log_response must be finite, got NaN or inf")
+            for cam in range(n_cam):  # a handful of cameras, each checked vectorised
+                check_rising(resp[cam], 0, f"camera_log_response of camera {cam}")
         levels = None if resp is None else resp.shape[1]
         self.camera_black_level = check_integer(
             self.camera_black_level, "camera_black_level", 0, None if levels is None else levels // 2 - 1

@@ -96,6 +96,7 @@ __all__ = [
     "MAX_KNOTS",
     "WELL_EXPOSED",
     "MAX_SMOOTHNESS",
+    "check_rising",
 ]
 
 #: Largest number of unknowns g is solved for; finer codes are interpolated (module docstring).
@@ -106,6 +107,35 @@ WELL_EXPOSED = 0.25
 #: tends to (an 8-bit bracket of 512 samples reaches it by λ ≈ 1e4); beyond it the solve loses precision (at λ =
 #: 1e8 the same bracket's exposures disagree 5 times more, at 1e10 g is flat, at 1e200 it overflows).
 MAX_SMOOTHNESS = 1e6
+#: How far g may fall from one code to the next, as a fraction of its range, and still count as rising: the
+#: solve's rounding where the smoothness term alone decides g (codes no exposure reaches), not data.
+FALL_TOLERANCE = 1e-3
+
+
+def check_rising(response, black_level: int = 0, name: str = "response") -> np.ndarray:
+    """``response`` g (levels, C) if it rises with the code above ``black_level``; else a :class:`ValidationError`.
+
+    Debevec & Malik 1997 §2.1 assume the sensor's response f is monotonic, so g = ln f⁻¹ only rises: a g
+    that falls (by more than :data:`FALL_TOLERANCE` of its range from a code to the next) was recovered from
+    exposure times that do not match the frames (e.g. an auto-bracket shot 0, −2, +2 EV with its times given
+    in ascending order), from frames that differ in more than their exposure time, or from a moving scene.
+    """
+    g = np.asarray(response, np.float64)
+    g2 = g[:, None] if g.ndim == 1 else g
+    above = g2[int(black_level) + 1 :]  # code 0 may be -inf; below the pedestal g is constant
+    steps = np.diff(above, axis=0)
+    falls = steps < -FALL_TOLERANCE * np.maximum(np.ptp(above, axis=0), 1e-300)
+    if falls.any():
+        c = int(np.argmax(falls.sum(0)))
+        z = int(np.nonzero(falls[:, c])[0][0]) + int(black_level) + 1
+        raise ValidationError(
+            f"{name} must rise with the code (a camera's response is monotonic, Debevec & Malik 1997 §2.1), got a g "
+            f"that falls at {int(falls[:, c].sum())} of {steps.shape[0]} steps in channel {c} (first g({z + 1}) = "
+            f"{g2[z + 1, c]:.4g} < g({z}) = {g2[z, c]:.4g}): the exposure times likely do not match the frames "
+            "(their order, e.g. an auto-bracket of 0, -2, +2 EV), or the frames differ in more than the exposure "
+            "time (ISO, aperture, a moving scene)"
+        )
+    return g
 
 
 def hat_weights(levels: int, black_level: int = 0) -> np.ndarray:
@@ -337,7 +367,8 @@ def recover_response(
     Raises
     ------
     ValidationError
-        Fewer than two distinct exposure times, codes beyond ``bits``, images of
+        A recovered g that falls with the code (:func:`check_rising`: times that do not match the
+        frames); fewer than two distinct exposure times, codes beyond ``bits``, images of
         different shapes or non-integer images; a highest code below 2**(bits − 2), a
         quarter of the full scale (codes of fewer bits in wider files, e.g. 12-bit codes
         in 16-bit PNGs read with the default ``bits``, or a bracket without bright
@@ -382,7 +413,7 @@ def recover_response(
         if not np.any(np.count_nonzero(usable[codes], axis=1) >= 2):  # one usable exposure: ln E absorbs it
             raise ValidationError(_no_samples_message(stack, t, order, ch, levels, codes.shape[0], black_level))
         out[:, ch] = _solve_channel(codes, log_t, levels, lam, black_level)
-    return out
+    return check_rising(out, black_level, "the recovered response")
 
 
 def _check_full_scale(stack, bits) -> None:

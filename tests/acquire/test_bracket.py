@@ -101,3 +101,34 @@ def test_bad_brackets_name_the_file_and_the_field(bracket, tmp_path):
     other.write_text(json.dumps({"format": "something/1"}))
     with pytest.raises(FacestatsError, match=r"other\.json field 'format' must be 'facestats.camera-response/1'"):
         read_response(other)
+
+
+def test_times_that_do_not_match_the_frames_give_a_falling_response_which_is_refused(tmp_path):
+    """The real CC0 bracket with an auto-bracket's order (0, -2, +2 EV) and its times given ascending: g fell at
+    130 of 254 steps, the exposures disagreed by 554 %, and the file was written (a red team); now refused, and a
+    dome calibration holding a falling g is refused when loaded."""
+    files = [UNIS / "UNIS_EV0.jpg", UNIS / "UNIS_EV-2.jpg", UNIS / "UNIS_EV2.jpg"]
+    with pytest.raises(FacestatsError, match=r"must rise with the code .* falls at \d+ of 254 steps .*\(their order"):
+        calibrate_response(files, exposure_times=[0.0008, 0.003125, 0.025])
+    good = calibrate_response(files)  # the EXIF times: the same frames give a rising g
+    falling = good.log_response.copy()
+    falling[100:140] = falling[100:140][::-1]
+    with pytest.raises(FacestatsError, match=r"camera_log_response of camera 0 must rise with the code"):
+        replace(default_dome(), camera_log_response=np.repeat(falling[None], 16, 0))
+
+
+def test_a_bracket_that_varies_iso_with_the_time_is_refused(tmp_path):
+    """ISO 100/200/400 with 1/100, 1/50, 1/25 s read as time alone gave g at half the truth with a perfect
+    agreement (a red team): another ISO, aperture or camera across the EXIF of a bracket is refused."""
+    from facestats.io.exif import embed_exif, exif_payload
+
+    camera, rng = ResponseCurve(bits=8), np.random.default_rng(1)
+    files = []
+    for k, (t, iso) in enumerate([(1 / 100, 100), (1 / 50, 200), (1 / 25, 400)]):
+        png = encode_png(camera.encode(_scene() * t * iso / 100, rng))
+        files.append(tmp_path / f"f{k}.png")
+        files[-1].write_bytes(embed_exif(png, exif_payload(t, f_number=2.8, iso=iso)))
+    with pytest.raises(FacestatsError, match=r"vary only the exposure time, got another ISO .*f0.png: 100, f1.png"):
+        read_bracket(files)
+    _, times, _ = read_bracket(files, [0.01, 0.04, 0.16])  # the user's effective exposures t·ISO/100: not checked
+    assert times.tolist() == [0.01, 0.04, 0.16]

@@ -16,7 +16,8 @@ The mesh covers more than the measured face (most of the ICT head: scalp, ears,
 neck), and the sampler filters across the face's edge (trilinear mipmaps), so
 the base colour and the roughness hold, off the measured face, the value of the
 nearest measured texel (:class:`facestats.io.exr_set.FaceFill`; measured texels
-unchanged) and the normal map (0, 0, 1), the mesh's own normal; the EXR set's
+unchanged) and the normal map (0, 0, 1), the mesh's own normal (also where a face
+texel has no fitted normal: NaN, which the schema allows); the EXR set's
 ``region.exr`` says which texels are measured.
 
 Roughness conversion.  glTF's specular lobe is GGX (Trowbridge-Reitz) with
@@ -87,11 +88,13 @@ def _textures(ds, mesh, out):
     face = fill.face
     alb = fill(np.asarray(ds["albedo"].values, np.float64))
     write_image(os.path.join(out, "base_color.png"), alb, srgb=True)
-    n = np.nan_to_num(np.asarray(ds["normal"].values, np.float64))
+    n = np.asarray(ds["normal"].values, np.float64)
+    absent = ~face | ~np.all(np.isfinite(n), axis=-1) | (np.linalg.norm(np.nan_to_num(n), axis=-1) == 0)
+    n = np.nan_to_num(n)
     t, b, g = mesh.tangent_frames(n.shape[0])
     nt = np.stack([np.einsum("vuk,vuk->vu", n, f) for f in (t, b, g)], -1)
     nt /= np.maximum(np.linalg.norm(nt, axis=-1, keepdims=True), 1e-12)
-    nt[~face] = (0.0, 0.0, 1.0)
+    nt[absent] = (0.0, 0.0, 1.0)  # no fitted normal (off the face, or missing): the mesh's own, as the EXR set
     write_image(os.path.join(out, "normal.png"), (nt + 1) / 2)
     rough = beckmann_to_gltf_roughness(fill(np.asarray(ds["ts_m"].values, np.float64)))
     mr = np.stack([np.zeros_like(rough), rough, np.zeros_like(rough)], -1)

@@ -25,10 +25,14 @@ term (1 unless 2(N·H) min(N·ωi, N·ωo) < ωo·H); below those angles both ar
 and Mitsuba's BSDF equals eq. 12 to float32 precision (measured |ratio − 1|
 ≤ 3e-5; at θi = θo = 60°, m = 0.5 Smith gives 0.979 of it); the diffuse term
 is the Lambertian α/π without the F_t(ωi) F_t(ωo) of eq. 10 (≥ 0.95 below 45°).
-Mitsuba has no additive BSDF, so the sum is ``blendbsdf`` with weight 0.5 of
-a ``diffuse`` with reflectance 2α and the specular with ``specular_reflectance``
-8ρs (0.5·2α + 0.5·8ρs·f = α + 4ρs·f exactly); these two scaled maps are
-written as ``mitsuba_diffuse.exr`` and ``mitsuba_specular.exr``.  Like the EXR
+Mitsuba has no additive BSDF, so the sum is ``blendbsdf`` with weight w of
+a ``diffuse`` with reflectance α/(1 − w) and the specular with ``specular_reflectance``
+4ρs/w ((1 − w)·α/(1 − w) + w·4ρs/w·f = α + 4ρs·f exactly); these two scaled maps are
+written as ``mitsuba_diffuse.exr`` and ``mitsuba_specular.exr``.  w = min(0.5, 1 − max α)
+(:func:`blend_weight`; 0.5 for α ≤ 0.5): Mitsuba's spectral variants clamp a reflectance
+texture to [0, 1], so a diffuse map above 1 (2α with a fixed w = 0.5, on 18.6 % of the
+default store's face texels) rendered light skin too dark there (×0.77 in red for S141); the
+specular map is ``raw`` and not clamped.  Like the EXR
 set's ``ts_m.exr`` (the ``alpha`` texture), they hold, off the measured face
 (which most of the ICT head's mesh lies outside: scalp, ears, neck), the value
 of the nearest measured texel (:class:`facestats.io.exr_set.FaceFill`), not 0.
@@ -85,6 +89,7 @@ from facestats.io.probes import read_light_probe, write_studio_probe
 
 __all__ = [
     "MATERIALS",
+    "blend_weight",
     "MITSUBA_VARIANT",
     "require_mitsuba",
     "scene_spec",
@@ -140,12 +145,21 @@ def _rgb(values):
     return {"type": "rgb", "value": [float(v) for v in values]}
 
 
-def _material(material, files, coefficients, eta):
+def blend_weight(albedo) -> float:
+    """The ``blendbsdf`` weight w of the surface material: min(0.5, 1 − max α), at least 1e-3 (module docstring).
+
+    The diffuse map α/(1 − w) then stays within [0, 1], which Mitsuba's spectral variants clamp a reflectance to.
+    """
+    top = float(np.nanmax(np.asarray(albedo, np.float64), initial=0.0))
+    return float(min(0.5, max(1.0 - top, 1e-3)))
+
+
+def _material(material, files, coefficients, eta, weight=0.5):
     """The shape's BSDF (and interior medium) for ``material`` (module docstring)."""
     if material == "surface":
         bsdf = {
             "type": "blendbsdf",
-            "weight": 0.5,
+            "weight": float(weight),
             "diffuse": {"type": "diffuse", "reflectance": _bitmap(files["mitsuba_diffuse"], raw=False)},
             "specular": {
                 "type": "roughconductor",
@@ -191,6 +205,7 @@ def scene_spec(
     max_depth=-1,
     eta=ETA_SKIN,
     probe_scale=1.0,
+    weight=0.5,
 ):
     """The scene as a plain dict in Mitsuba's dict layout, with transforms as ``{"type": "look_at", ...}``.
 
@@ -218,12 +233,16 @@ def scene_spec(
         Relative index of refraction of skin.
     probe_scale : float
         Factor on the probe's radiance.
+    weight : float
+        The surface material's ``blendbsdf`` weight w, in (0, 1): the maps were written as α/(1 − w) and
+        4ρs/w (:func:`blend_weight`).
 
     Returns
     -------
     dict
     """
     check_choice(material, "material", MATERIALS)
+    as_finite(weight, "weight", 0, 1, low_inclusive=False, high_inclusive=False)
     as_finite(fov, "fov", 1, 170, unit="deg")
     for name, value in (("width", width), ("height", height), ("spp", spp)):
         check_integer(value, name, 1, 1 << 14)
@@ -233,7 +252,7 @@ def scene_spec(
     t = as_finite(target, "target")
     if o.shape != (3,) or t.shape != (3,) or np.allclose(o, t):
         raise ValidationError(f"origin and target must be distinct 3-vectors (mm), got {list(o)} and {list(t)}")
-    bsdf, medium = _material(material, files, coefficients, eta)
+    bsdf, medium = _material(material, files, coefficients, eta, weight)
     shape = {"type": os.path.splitext(files["mesh"])[1][1:], "filename": files["mesh"], "bsdf": bsdf}
     if medium is not None:
         shape["interior"] = medium
@@ -374,8 +393,9 @@ def write_mitsuba_scene(ds, out_dir, *, probe=None, material="surface", mesh=Non
     manifest = write_exr_set(ds, out, mesh=mesh, fill=fill)
     alb = fill(np.asarray(ds["albedo"].values, np.float32))
     rho = fill(np.asarray(ds["ts_rho_s"].values, np.float32))
-    write_exr(os.path.join(out, "mitsuba_diffuse.exr"), {c: 2 * alb[..., i] for i, c in enumerate("RGB")})
-    write_exr(os.path.join(out, "mitsuba_specular.exr"), {"Y": 8 * rho})
+    w = blend_weight(alb)
+    write_exr(os.path.join(out, "mitsuba_diffuse.exr"), {c: alb[..., i] / (1 - w) for i, c in enumerate("RGB")})
+    write_exr(os.path.join(out, "mitsuba_specular.exr"), {"Y": 4 * rho / w})
     if probe is None:
         probe_name = write_studio_probe(os.path.join(out, "probe.exr"))
     else:
@@ -388,7 +408,7 @@ def write_mitsuba_scene(ds, out_dir, *, probe=None, material="surface", mesh=Non
         "mitsuba_diffuse": "mitsuba_diffuse.exr",
         "mitsuba_specular": "mitsuba_specular.exr",
     }
-    spec = scene_spec(files, manifest["coefficients"], material=material, **view)
+    spec = scene_spec(files, manifest["coefficients"], material=material, weight=w, **view)
     with open(os.path.join(out, "scene.xml"), "w", encoding="utf-8") as fh:
         fh.write(spec_to_xml(spec))
     with open(os.path.join(out, "scene.json"), "w", encoding="utf-8") as fh:

@@ -15,7 +15,11 @@ __all__ = ["add_translucency"]
 def _checked_options(args):
     """``(json path, plot path)`` after checking them and ``--eta`` (before the fit: bad options must not cost one)."""
     from facestats.core.outputs import check_output_file
+    from facestats.core.validate import check_choice
     from facestats.model.dipole import check_dipole_eta
+    from facestats.model.fitting.quantised import SELF_TERMS
+
+    check_choice(args.self_term, "--self-term", SELF_TERMS)
 
     out_json = check_output_file(args.json, "--json", (".json",)) if args.json else None
     plot = check_output_file(args.plot, "--plot", (".png", ".svg", ".pdf")) if args.plot else None
@@ -68,12 +72,14 @@ def _cmd_translucency(args) -> int:
         method=args.method,
         grid=args.grid,
         refine=args.refine,
+        self_term=args.self_term,
         progress=not args.quiet,
     )
     names = ["R", "G", "B"] if len(fits) == 3 else [f"channel {k}" for k in range(len(fits))]
     print(
         f"patches: {len(patches)} (--spacing {args.spacing:g} mm: sub-triangle edges at most {args.spacing:g} mm; "
         f"neighbouring centres {patches.spacing:.4g} mm apart, median), eta {eta:g}, method {args.method}"
+        + ("" if args.self_term == "point" else f", self term {args.self_term}")
     )
     for name, fit in zip(names, fits):
         s = fit.summary()
@@ -138,6 +144,13 @@ def add_translucency(sub):
     p.add_argument("--method", choices=("monotone", "pinv"), default="monotone", help="solve (default monotone)")
     p.add_argument("--grid", choices=("table2", "skin"), default="table2", help="eq. 36 grid (default Table 2)")
     p.add_argument("--refine", action="store_true", help="refine the grid optimum by continuous least squares")
+    p.add_argument(
+        "--self-term",
+        default="point",
+        metavar="{point,footprint}",
+        help="a patch's own light: 'point' (Suzuki eq. 17, R(0) c A; default) or 'footprint' (the dipole "
+        "integrated over the patch's disk; see docs/translucency_from_image.md, Limits)",
+    )
     p.add_argument("--eta", type=ascii_float, default=None, help="relative index (default: the light file's, else 1.3)")
     p.add_argument("--json", default="", help="also write the estimates and diagnostics as JSON here")
     p.add_argument("--plot", default="", help="write the Fig. 5 style plot (measured R' and fitted dipole) here")

@@ -75,9 +75,12 @@ def boundary_coefficient(eta=ETA_SKIN):
     There is no F_dv in the model; the diffusion boundary condition of Jensen et
     al. 2001 (after Groenhuis et al. 1983) gives A = (1 + F_dr)/(1 − F_dr), which
     is also the factor (1 + μ_r)/(1 − μ_r) of Weyrich et al. 2006 eq. 16 with
-    μ_r = F_dr.  Only this form makes the closed-form total reflectance
-    (:func:`total_diffuse_reflectance`) equal the numerical integral of the
-    profile, which ``tests/model/test_dipole.py`` checks to 1e-8.
+    μ_r = F_dr.  The profile and the closed-form total reflectance
+    (:func:`total_diffuse_reflectance`) share A, so their agreement does not test
+    it; the published values do: with this A, Skin1 of Jensen et al. 2001 (η = 1.3)
+    gives R_d = 0.436, 0.227, 0.131 (R, G, B) against the tabulated 0.44, 0.22,
+    0.13, where A = 1 (no mismatch) would give 0.547, 0.291, 0.161
+    (``tests/model/test_dipole.py`` checks the red channel).
     """
     return _boundary(check_dipole_eta(eta))
 

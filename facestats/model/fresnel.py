@@ -167,7 +167,7 @@ def diffuse_fresnel_reflectance(eta=ETA_SKIN):
     0.514 at η = 1.38.
 
     Seed typo resolved: the seed text prints ``− 0.710/η``.  With that sign F_dr is
-    negative for all η in [1, 2] (−0.906 at η = 1.38), which is impossible for a
+    negative for η below about 1.88 (−0.515 at η = 1.38), which is impossible for a
     reflectance; with ``+ 0.710/η`` the polynomial matches the numerical integral
     2∫ F_r(μ, 1/η) μ dμ to within 0.3 % over η ∈ [1.2, 1.6] (checked in
     ``tests/model/test_fresnel.py``).  The dipole uses it through

@@ -189,13 +189,15 @@ def exitance_from_radiance(radiance, cos_o, eta=SUZUKI_ETA):
     Returns
     -------
     ndarray
-        l_j in the irradiance unit (W mm⁻²), shape of ``radiance``.
+        l_j in the irradiance unit (W mm⁻²), shape of ``radiance``; NaN where cos_o = 0 (F_t,o = 0: a
+        patch seen edge-on tells nothing of its exitance; it was 0 before 2026-12-06, which read any
+        radiance there as no light).
     """
     lo = as_finite(radiance, "radiance", 0, None)
     ft = _exit_transmittance(cos_o, eta)
     ft = ft.reshape(ft.shape + (1,) * (lo.ndim - ft.ndim))
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(ft > 0, np.pi * lo / ft, 0.0)
+        return np.where(ft > 0, np.pi * lo / ft, np.nan)
 
 
 def radiance_from_exitance(exitance, cos_o, eta=SUZUKI_ETA):

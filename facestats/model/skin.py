@@ -257,7 +257,12 @@ class SubsurfaceTransport:
     tail : float
         Energy fraction left to the local tail when choosing the default radius.
     max_neighbors : int
-        Cap on the neighbourhood size that bounds cost at high resolution.
+        Cap on the neighbourhood size that bounds cost at high resolution.  The cap can
+        keep much of the light local: at 0.25 mm spacing it makes the radius 1.60 mm,
+        and skin of Weyrich's σtrAvg with albedo 0.45 / 0.30 / 0.20 carries 29 / 15 / 6 %
+        (R / G / B) of its diffuse energy beyond that, which returns at the entry point
+        (energy is conserved, the spread of red light is not).  Raise it, or give
+        ``radius``, where the spread matters more than the cost.
     neighbours : tuple of ndarray, optional
         Precomputed ``(rows, cols, distance)`` of :func:`neighbour_pairs` for these
         positions and ``radius``, to reuse the search across many subjects.

@@ -90,12 +90,12 @@ def _fit_piece(lt, st, clock):
     normal, _ = fitting.photometric_normals(samples, lt.scan_normal, n_cam, eta=st.eta)
     out["normal"] = normal
     clock.lap("photometric_normals")
-    if st.micro_normals:
-        out["micro_normal"] = fitting.micro_normals(samples, n_cam)
-        clock.lap("micro_normals")
     # Stage 2: albedo from BRDF samples with the photometric normal (eq. 8).
     cos_i, cos_o, ft2, use, f_r = fitting.brdf_samples(samples, normal, st.eta, st.max_angle_deg)
     clock.lap("brdf_samples")
+    if st.micro_normals:
+        out["micro_normal"] = fitting.micro_normals(samples, n_cam, cos_i, use)
+        clock.lap("micro_normals")
     albedo_min, _ = fitting.albedo_stable_minimum(
         samples, f_r, cos_i, cos_o, ft2, use, discard=st.discard, grazing_penalty=st.grazing_penalty
     )

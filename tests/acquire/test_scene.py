@@ -114,6 +114,8 @@ def test_eq_15_exitance_and_its_inverse():
     l = exitance_from_radiance(lo, cos, 1.3)
     np.testing.assert_allclose(l, np.pi * lo / fresnel_transmittance(cos, 1.3))
     np.testing.assert_allclose(radiance_from_exitance(l, cos, 1.3), lo)
+    # Seen edge-on (F_t,o = 0) a patch's exitance is unknown, not 0 (a review found radiance read as no light).
+    assert np.isnan(exitance_from_radiance(np.array([0.3]), np.array([0.0]), 1.3)).all()
 
 
 def test_lights_masks_shadows_and_json(tmp_path):

@@ -184,3 +184,22 @@ def test_cli_quiet_hides_the_progress_bar(scene_files, capsys, monkeypatch):
     assert "W (Suzuki eq. 33)" in capsys.readouterr().err  # bars on any stderr by default (core.progress)
     assert main(_scene_args(scene_files) + ["--quiet"]) == 0
     assert "W (Suzuki eq. 33)" not in capsys.readouterr().err
+
+
+def test_cli_self_term_footprint_reaches_the_fit(scene_files, capsys):
+    """--self-term footprint is the fit's option (the JSON says so, and the scene, rendered with the point self
+    term, gives another estimate); a name outside the two is refused before the fit, naming the option."""
+    from facestats.cli import main
+
+    out = {}
+    for term in ("point", "footprint"):
+        path = scene_files / f"{term}.json"
+        assert main(_scene_args(scene_files) + ["--quiet", "--self-term", term, "--json", str(path)]) == 0
+        head = capsys.readouterr().out.splitlines()[0]
+        assert head.endswith("method monotone" if term == "point" else "method monotone, self term footprint")
+        out[term] = json.loads(path.read_text())["R"]
+        assert out[term]["self_term"] == term
+    s_point, s_foot = out["point"]["sigma_s_prime"], out["footprint"]["sigma_s_prime"]
+    assert abs(s_point - 2.19) <= 0.05 and abs(s_foot / s_point - 1) > 0.02, (s_point, s_foot)
+    assert main(_scene_args(scene_files) + ["--quiet", "--self-term", "disk"]) == 2
+    assert "--self-term must be one of ['footprint', 'point'], got 'disk'" in capsys.readouterr().err

@@ -77,11 +77,13 @@ def test_normals_by_photometric_stereo_beat_the_scan(ts_case, geom):
     assert np.median(err) < 0.5 < np.median(err_scan)
 
 
-def test_micro_normals_are_half_vectors_of_brightest_samples(ts_case):
+def test_micro_normals_are_half_vectors_of_the_largest_brdf_samples(ts_case):
+    """Per camera, where it sees the texel within eq. 14's 80° (the micro-normals' domain): 48 % of the
+    (camera, texel) pairs of this 32² map."""
     _, _, ds = ts_case
     mn = ds.micro_normal.values
     ok = np.all(np.isfinite(mn), -1)
-    assert ok.mean() > 0.5
+    assert ok.mean() > 0.4
     np.testing.assert_allclose(np.linalg.norm(mn[ok], axis=-1), 1, atol=1e-5)
     # Micro-normals lie near the diffuse normal (within the LED spacing of the dome).
     cos = np.sum(mn * ds.normal.values[None], -1)[ok]
@@ -301,7 +303,7 @@ def test_fit_stages_reject_bad_arguments(rng):
     with pytest.raises(FacestatsError, match="samples must hold one wo_grid direction per camera"):
         photometric_normals(s, np.tile([0, 0, 1.0], (s.n_texels, 1)), 16)
     with pytest.raises(FacestatsError, match="n_cameras must be an integer"):
-        micro_normals(s, 0)
+        micro_normals(s, 0, np.ones(s.n), np.ones(s.n, bool))
     with pytest.raises(FacestatsError, match=r"texel must lie in \[0, 4\)"):
         scatter_to_map(np.ones(2), np.array([[0, 0], [4, 1]]), 4)
     r = np.linspace(0.5, 5, 10)

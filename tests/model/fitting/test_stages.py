@@ -281,3 +281,50 @@ def test_push_pull_refuses_a_non_finite_known_texel():
         push_pull(img, known)
     known[3, 4] = False  # marked unknown, it is filled like any other
     assert np.all(np.isfinite(push_pull(img, known)))
+
+
+def _fibonacci(n, z_min):
+    """``n`` unit directions spread evenly over the cap z ≥ ``z_min`` (a dome's lights or cameras)."""
+    i = np.arange(n) + 0.5
+    z = 1 - i / n * (1 - z_min)
+    phi = i * np.pi * (3 - np.sqrt(5))
+    r = np.sqrt(1 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1)
+
+
+@pytest.mark.parametrize("engine", ["numpy", "numba"])
+def test_micro_normals_take_the_largest_brdf_sample(rng, engine):
+    """§5.1 ranks a lumitexel's BRDF samples f_r (eq. 8). Ranking L/E⊥ = f_r cos θi instead pulls the choice
+    towards lights near the normal: on 200 lumitexels (150 lights, 16 cameras, Blinn-Phong n = 30 over a
+    Fresnel-weighted diffuse term, normals tilted up to 25°) the median angle to the true normal is 3.3° by
+    f_r over the 80° domain and 6.1° by f_r cos θi (measured 2026-12-06)."""
+    from facestats.model import brdf, fresnel
+    from facestats.model.fitting import brdf_samples, micro_normals
+
+    n, n_led, n_cam = 200, 150, 16
+    lights, cams = _fibonacci(n_led, -0.2), _fibonacci(n_cam, 0.0)
+    tilt, azimuth = np.radians(25) * np.sqrt(rng.uniform(size=n)), rng.uniform(0, 2 * np.pi, n)
+    normal = np.stack([np.sin(tilt) * np.cos(azimuth), np.sin(tilt) * np.sin(azimuth), np.cos(tilt)], -1)
+    nb, wi, wo = np.broadcast_arrays(normal[:, None, None], lights[None, None], cams[None, :, None])
+    ci, co = np.sum(nb * wi, -1), np.sum(nb * wo, -1)
+    f_s = brdf.blinn_phong(nb, wi, wo, 0.05, 30.0)
+    ft = (1 - fresnel.fresnel_reflectance(np.clip(ci, 0, 1))) * (1 - fresnel.fresnel_reflectance(np.clip(co, 0, 1)))
+    f_r = f_s[..., None] + np.array([0.5, 0.35, 0.25]) / np.pi * ft[..., None]
+    rad = np.where(((ci > 0) & (co > 0))[..., None], f_r * np.clip(ci, 0, None)[..., None], np.nan)
+    s, _ = Samples.from_dome(
+        np.broadcast_to(lights, (n, n_led, 3)).astype(np.float32),
+        np.broadcast_to(cams, (n, n_cam, 3)).astype(np.float32),
+        np.ones((n, n_led, 3), np.float32),
+        rad.astype(np.float16),
+        engine=engine,
+    )
+    cos_i, _, _, use, _ = brdf_samples(s, normal.astype(np.float32))
+
+    def median_error(cos):
+        micro = micro_normals(s, n_cam, cos, use)
+        seen = np.isfinite(micro[..., 0])
+        return np.degrees(np.median(np.arccos(np.clip(np.einsum("nck,nk->nc", micro, normal)[seen], -1, 1))))
+
+    assert median_error(cos_i) < 4.5 < 5.5 < median_error(np.ones_like(cos_i))
+    none = micro_normals(s, n_cam, cos_i, np.zeros_like(use))
+    assert np.isnan(none).all()  # no sample in the domain: no micro-normal

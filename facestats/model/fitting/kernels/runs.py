@@ -9,7 +9,7 @@ Each kernel replaces a numpy reduction of :mod:`facestats.model.fitting`
   it as batched products on the (lumitexel, camera, light) grid), and the passes: F_t(θi) of every
   light at the current normal (float32, as :func:`facestats.model.fresnel.fresnel_reflectance_unchecked`),
   b = Σ y ωi / F_t per camera, each camera's normal adj(A) b / ‖adj(A) b‖ and their cosine-weighted mean;
-* :func:`run_argmax` — the first brightest sample of every (lumitexel, camera)
+* :func:`run_argmax` — the first largest value (a BRDF sample) of every (lumitexel, camera)
   run (:func:`facestats.model.fitting.micro_normals`);
 * :func:`stable_minimum` — the (k+1)-th smallest penalised value per lumitexel
   and channel (:func:`facestats.model.fitting.albedo_stable_minimum`, eq. 9),

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.analysis.population import LOBE_NAMES, MODEL_NAMES, index_columns, population_index
+from facestats.analysis.population import LOBE_NAMES, MODEL_NAMES, index_columns, select_population
 from facestats.analysis.serialize import json_ready, records
 from facestats.core.conventions import CONDITIONS, REGION_IDS, parse_condition
 from facestats.errors import InsufficientDataError, ValidationError
@@ -262,7 +262,9 @@ def condition_differences(source, person_id=None, model="ts", reference="normal"
     same differences standardised by the pooled within-region spread.  Values
     come from the population index columns ``{p}_mean_r{r}``, ``{p}_std_r{r}``
     and ``n_{model}_r{r}``; repeated measurements of one condition are combined
-    (n-weighted mean, pooled spread).
+    (n-weighted mean, pooled spread).  Subjects written by an edit are not
+    measurements and are left out (as by :func:`select_population`): they keep
+    their source's ``person_id`` and would count as repeated measurements.
 
     Parameters
     ----------
@@ -288,7 +290,7 @@ def condition_differences(source, person_id=None, model="ts", reference="normal"
     """
     index_columns(model)  # validates the model before anything is read
     reference = parse_condition(reference)
-    frame = population_index(source)
+    frame = select_population(source, conditions=None)  # measurements only: an edit keeps its source's person
     if "person_id" not in frame.columns:
         frame = frame.assign(person_id=frame.index.astype(str))
     person_id, rows = _pick_person(frame, person_id, reference)

@@ -183,6 +183,14 @@ class Histogram:
         centres = 0.5 * (self.edges[1:] + self.edges[:-1])
         return float(np.dot(self.pdf, centres))
 
+    def std(self) -> float:
+        """Standard deviation of the piecewise-uniform distribution: sqrt(Σ p_k (c_k² + w_k²/12) − mean²) for bins
+        of centre c_k and width w_k."""
+        centres = 0.5 * (self.edges[1:] + self.edges[:-1])
+        widths = np.diff(self.edges)
+        second = float(np.dot(self.pdf, centres * centres + widths * widths / 12))
+        return float(np.sqrt(max(second - self.mean() ** 2, 0.0)))
+
     def _segments(self):
         """Non-empty bins as (F at left edge, F at right edge, left edge, right edge)."""
         cdf = self.cdf

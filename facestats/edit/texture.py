@@ -244,12 +244,16 @@ def _check_noise(noise) -> float:
     return noise_amp
 
 
-def _add_start_noise(planes, union, noise_amp, rng):
-    """Add Gaussian noise of ``noise_amp`` × each channel's standard deviation inside ``union`` (in place)."""
+def _add_start_noise(planes, union, noise_amp, rng, stats):
+    """Add Gaussian noise inside ``union`` (in place): ``noise_amp`` × the larger of each channel's standard deviation
+    there and the largest of the target regions' (``stats``), so that a flat source still gets variation to
+    synthesise from (§8: noise "to allow for sufficient variation"; a constant source got none and came out
+    constant, found by an audit)."""
     if noise_amp > 0:
         dtype = planes.dtype.type
         for c in range(3):
-            sd = float(planes[c][union].std())
+            target = max(t.histogram(c, 0).std() for t in stats.values())
+            sd = max(float(planes[c][union].std()), target)
             z = rng.standard_normal(union.shape, dtype=dtype)
             z *= dtype(noise_amp * sd)
             np.add(planes[c], z, out=planes[c], where=union)
@@ -274,8 +278,9 @@ def transfer_texture(
     """Transfer skin texture by Heeger-Bergen histogram matching (Weyrich et al. 2006 §8).
 
     The source albedo is expressed in the target's decorrelated colour basis;
-    Gaussian noise of standard deviation ``noise`` × (the channel's standard
-    deviation inside the mask) is added inside the mask (seeded); then, per
+    Gaussian noise of standard deviation ``noise`` × (the larger of the channel's
+    standard deviation inside the mask and the target's) is added inside the mask
+    (seeded); then, per
     channel: match the image histogram, and ``iterations`` times: build the
     steerable pyramid, match every band's histogram to the target's (within each
     region), collapse the pyramid, restore the pixels outside the mask, match
@@ -305,7 +310,8 @@ def transfer_texture(
         Seed of the start noise; the same seed gives the same result bit for bit.
     noise : float
         Start-noise amplitude relative to each decorrelated channel's standard
-        deviation inside the mask (default 0.1; 0 for none).
+        deviation inside the mask, or the target's where that is larger (a flat
+        source), default 0.1; 0 for none.
     feather : float
         Blend width in pixels inside the mask edge (default 4; 0 for a hard edge).
     workers : int
@@ -382,7 +388,7 @@ def _transfer_texture(
     planes_src = basis.to_decorrelated(src, dtype)
     source = np.stack([pad_plane(planes_src[c], padded) for c in range(3)])
     planes = source.copy()
-    _add_start_noise(planes, union, noise_amp, np.random.default_rng(seed))
+    _add_start_noise(planes, union, noise_amp, np.random.default_rng(seed), stats)
 
     pyr = pyramid(padded, levels, orientations, dtype=dtype, workers=workers)
     dist = _synthesise(planes, source, outside, index, stats, pyr, iterations, SOURCE_BINS)

@@ -197,3 +197,21 @@ def test_ddof_must_be_a_non_negative_integer(ddof):
     """-3 and 1.5 were accepted silently (a covariance divided by n + 3 or n - 1.5)."""
     with pytest.raises(ValidationError, match="ddof must be an integer"):
         principal_axes(np.random.default_rng(0).normal(size=(20, 2)), ddof=ddof)
+
+
+def test_condition_differences_leave_edited_subjects_out(store):
+    """An edit keeps its source's person_id and condition: it was pooled with the measurements as a repeat (an audit:
+    a BRDF transfer of P150-normal to lotion moved lotion's distance to normal from 4.94 to 1.34)."""
+    import pandas as pd
+
+    from facestats.core.conventions import EDIT_SOURCE
+
+    idx = store.subjects()
+    edited = idx.loc[["C0"]].rename(index={"C0": "C0.brdf-edit"})
+    cols = [c for c in idx.columns if c.startswith("ts_rho_s_mean_r")]
+    edited[cols] = idx.loc["C6", cols].to_numpy()  # normal made to look like powder
+    edited["source"] = EDIT_SOURCE
+    with_edit = condition_differences(pd.concat([idx, edited]).sort_index())
+    alone = condition_differences(idx)
+    np.testing.assert_array_equal(with_edit.distance.to_numpy(), alone.distance.to_numpy())
+    assert with_edit.distance.to_numpy()[0, 6] > 0.1

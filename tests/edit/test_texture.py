@@ -255,3 +255,19 @@ def test_plot_texture_transfer(tmp_path, images):
     h1 = Histogram.from_data(rng.normal(0.2, 0.02, 5000), 64)
     fig2 = plot_histogram_interpolation(h0, h1, labels=("normal", "lotion"), xlabel="m")
     assert len(fig2.axes[0].patches) == 5
+
+
+def test_a_flat_source_takes_the_target_s_variation(images):
+    """The start noise scaled with the source's spread alone, so a constant source got none and came out constant
+    (an audit): it now takes the target's spread where that is larger, and the texture arrives."""
+    _, tgt, _ = images
+    flat = np.full_like(tgt, 0.5)
+    res = transfer_texture(flat, TextureStatistics.from_image(tgt, levels=4), iterations=5, seed=3)
+    ratio = res.albedo.reshape(-1, 3).std(0) / tgt.reshape(-1, 3).std(0)
+    assert np.all((ratio > 0.7) & (ratio < 1.3)), ratio
+
+
+def test_histogram_std_of_a_piecewise_uniform_distribution(rng):
+    x = rng.gamma(3.0, 0.1, 100_000)
+    assert Histogram.from_data(x, bins=512).std() == pytest.approx(x.std(), rel=2e-3)
+    assert Histogram([0.0, 1.0], [5.0]).std() == pytest.approx(np.sqrt(1 / 12), rel=1e-12)

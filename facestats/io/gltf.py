@@ -1,6 +1,6 @@
 """A subject as a glTF 2.0 asset: the face mesh with a metallic-roughness PBR material made from the fitted maps.
 
-:func:`write_gltf` writes ``face.gltf`` (JSON), ``face.bin`` (geometry) and three
+:func:`write_gltf` writes ``face.gltf`` (JSON), ``face.bin`` (geometry) and five
 PNG textures, through pygltflib:
 
 * ``base_color.png`` — the diffuse albedo α (Weyrich et al. 2006 eq. 9),
@@ -10,13 +10,19 @@ PNG textures, through pygltflib:
   texture, z the mesh normal — glTF's "+Y up" convention), stored linearly as
   (n + 1)/2; the mesh carries the matching ``TANGENT`` attribute (with w);
 * ``metallic_roughness.png`` — linear 8-bit, G = roughness, B = metallic = 0
-  (skin is a dielectric), R unused (0).
+  (skin is a dielectric), R unused (0);
+* ``specular.png`` — ``KHR_materials_specular``'s ``specularTexture``: linear
+  8-bit RGBA, A = min(4ρs, 1) (the specular weight; the extension reads only
+  A, RGB are written white);
+* ``specular_color.png`` — its ``specularColorTexture``: sRGB-encoded 8-bit
+  grey, max(4ρs, 1)/K with ``specularColorFactor`` = (K, K, K) (below).
 
 The mesh covers more than the measured face (most of the ICT head: scalp, ears,
 neck), and the sampler filters across the face's edge (trilinear mipmaps), so
-the base colour and the roughness hold, off the measured face, the value of the
-nearest measured texel (:class:`facestats.io.exr_set.FaceFill`; measured texels
-unchanged) and the normal map (0, 0, 1), the mesh's own normal (also where a face
+the base colour, the roughness and the two specular maps hold, off the measured
+face, the value of the nearest measured texel
+(:class:`facestats.io.exr_set.FaceFill`; measured texels unchanged) and the
+normal map (0, 0, 1), the mesh's own normal (also where a face
 texel has no fitted normal: NaN, which the schema allows); the EXR set's
 ``region.exr`` says which texels are measured.
 
@@ -25,9 +31,71 @@ Roughness conversion.  glTF's specular lobe is GGX (Trowbridge-Reitz) with
 c·m with c = :data:`GGX_PER_BECKMANN` = 0.92, the least-squares match of the
 projected distributions D(θ) cos θ over the hemisphere (the optimum is
 0.913-0.923 for m in 0.2-0.4, the range of skin; ``tests/io/test_export_formats.py``
-recomputes it), so roughness = sqrt(0.92 m).  What glTF cannot carry: ρs
-(glTF's dielectric specular has a fixed strength; the skin's index 1.38 is
-given by ``KHR_materials_ior``), the Blinn-Phong fit, and subsurface scattering.
+recomputes it), so roughness = sqrt(0.92 m).
+
+Specular strength (``KHR_materials_specular``).  Weyrich's eq. 12-13, as
+:func:`facestats.model.brdf.torrance_sparrow` evaluates it, is
+
+    f = (ρs/π) D_W G F_r(ωo·H) / ((N·ωi)(N·ωo)),   D_W = exp(−tan²δ/m²)/(m² cos⁴δ),
+
+with D_W the Beckmann distribution printed *without* 1/π, G the V-groove
+shadowing and F_r the exact unpolarised Fresnel reflectance of η = 1.38.  The
+normalised Beckmann distribution (∫ D cos δ dω = 1) is D_B = D_W/π, so
+
+    f = ρs D_B G F_r / ((N·ωi)(N·ωo)) = 4ρs · [D_B G F_r / (4 (N·ωi)(N·ωo))],
+
+4ρs times the Cook-Torrance microfacet BRDF (``tests/io/test_export_formats.py``
+checks this against :func:`~facestats.model.brdf.torrance_sparrow` to 1e-10).
+glTF's dielectric specular is F · D · V with V = G/(4 |N·L||N·V|): the same
+bracket, with GGX in place of Beckmann (the roughness above) and F in place of
+F_r, so the Fresnel factor glTF must carry is F = 4ρs F_r(ωo·H).  With
+``KHR_materials_ior`` and ``KHR_materials_specular`` (its §Implementation; three.js
+evaluates the same) glTF's factor is
+
+    F(c) = s · [F0' + (1 − F0')(1 − c)⁵],   F0' = min(F0_η k, 1),   F0_η = ((η − 1)/(η + 1))²,
+
+c = V·H, s = specularFactor × specularTexture.a ∈ [0, 1] (specularFactor ≤ 1
+by the schema), k = specularColorFactor × specularColorTexture.rgb ≥ 0 (no
+upper bound); F0_η = 0.02549 for η = 1.38, which is F_r at normal incidence
+exactly.  At normal incidence glTF's F0 = s k F0_η, and eq. 12's 4ρs F0_η; at
+grazing incidence glTF's F90 = s, and eq. 12's 4ρs.  The exporter writes
+
+    s = min(4ρs, 1),   k = min(max(4ρs, 1), 1/F0_η),   so   s k = 4ρs   for ρs ≤ 1/(4 F0_η) = 9.81:
+
+* ρs ≤ 1/4 (:data:`RHO_S_EXACT`): s = 4ρs, k = 1, so glTF's F is 4ρs times
+  Schlick's approximation of F_r, as eq. 12's is 4ρs F_r, at every angle.
+  Schlick reads the exact F_r of η = 1.38 low by 0.8 % at V·H = cos 20°,
+  4.4 % at 30°, 13 % at 40°, 23 % at 53°, and high by up to 11 % beyond 70°.
+  This is the "4ρs where ρs ≤ 0.25" of the weight s alone, which cannot
+  exceed 1.
+* 1/4 < ρs ≤ 9.81 (:data:`RHO_S_F0_LIMIT`): the weight saturates at s = 1 and
+  k = 4ρs carries the rest, so F0 = 4ρs F0_η is still exact, but F90 = 1
+  where eq. 12 gives 4ρs > 1 (more than a surface of Fresnel mirror facets
+  reflects, which glTF cannot express); at every angle glTF's F lies between
+  the weight alone's F0_η + (1 − F0_η)(1 − c)⁵ and 4ρs times it.  29.5 % of
+  the default store's measured texels are here (ρs median 0.217, 99th
+  percentile 0.35, maximum 1.14): the weight alone would have cut their F0 by
+  up to 4.5×.
+* ρs > 9.81: glTF's own clamp min(F0_η k, 1) = 1 is reached; k is clamped to
+  1/F0_η, so F0 = 1 (a mirror) instead of 4ρs F0_η.  9.81 is the top of the
+  schema's domain of ρs (:data:`facestats.io.schema.TS_RHO_S_MAX`: eq. 12's
+  directional albedo 4ρs F_r(0) reaches 1 there), so only a subject that was
+  never checked (not read from a store) has such texels.
+
+``specularColorTexture`` holds k/K with K ≥ the largest k of the map, rounded
+up so that 1/K is an 8-bit sRGB code: texels with ρs ≤ 1/4 decode to k = 1
+exactly.  The counts of measured texels (region > 0, finite ρs) in the last
+two cases go into the file's ``extras.facestats.specular``
+(``texels_f90_capped``, ``texels_clamped``, of ``texels_measured``; also in
+:func:`read_gltf_summary`), and clamped texels raise a
+:class:`~facestats.errors.FacestatsWarning`.  ``KHR_materials_specular`` is in
+``extensionsUsed``, not ``extensionsRequired``: a viewer without it shows the
+default specular (with ``KHR_materials_ior``: F0 = F0_η, F90 = 1, i.e. ρs =
+1/4 everywhere).  glTF also weights the base colour by 1 − max F
+(``fresnel_mix``), where eq. 12's diffuse term is not: 1 − 0.102 ρs at normal
+incidence.
+
+What glTF cannot carry: the Blinn-Phong fit, and subsurface scattering.
 
 Units and frame: glTF is in metres, +y up, +z the front of the asset —
 facestats' world frame, so vertices are scaled by 0.001 and not rotated.  UV:
@@ -38,21 +106,38 @@ convention, so UVs are written as stored.
 from __future__ import annotations
 
 import os
+import warnings
 
 import numpy as np
 
-from facestats.errors import DependencyError, ValidationError
+from facestats.errors import DependencyError, FacestatsWarning, ValidationError
 from facestats.io.exr_set import FaceFill, check_map_subject
 from facestats.io.ids import SUBJECT_ID_PATTERN
-from facestats.io.images import write_image
+from facestats.io.images import linear_to_srgb, srgb_to_linear, write_image
 from facestats.io.mesh import FaceMesh, subject_mesh
 
-__all__ = ["GGX_PER_BECKMANN", "beckmann_to_gltf_roughness", "write_gltf", "read_gltf_summary"]
+__all__ = [
+    "GGX_PER_BECKMANN",
+    "RHO_S_EXACT",
+    "RHO_S_F0_LIMIT",
+    "beckmann_to_gltf_roughness",
+    "rho_s_to_gltf_specular",
+    "write_gltf",
+    "read_gltf_summary",
+]
 
 #: α_GGX / m: least-squares match of the projected Beckmann and GGX distributions (module docstring).
 GGX_PER_BECKMANN = 0.92
 #: IOR of skin for ``KHR_materials_ior`` (Weyrich et al. 2006 §3, η ≈ 1.38).
 _IOR = 1.38
+#: glTF's dielectric F0 of that IOR, ((η − 1)/(η + 1))² = 0.02549: Weyrich's F_r at normal incidence.
+_F0 = ((_IOR - 1) / (_IOR + 1)) ** 2
+#: Largest ρs whose whole Fresnel curve glTF scales like eq. 12: specular weight 4ρs ≤ 1 (module docstring).
+RHO_S_EXACT = 0.25
+#: Largest ρs whose normal-incidence F0 = 4ρs F0_η glTF can carry (F0 ≤ 1): 1/(4 F0_η) = 9.81, the top of the
+#: schema's domain (:data:`facestats.io.schema.TS_RHO_S_MAX`, where eq. 12 reflects all light at normal incidence).
+RHO_S_F0_LIMIT = 1 / (4 * _F0)
+_SPECULAR_EXTENSION = "KHR_materials_specular"
 
 
 def _pygltflib():
@@ -82,8 +167,30 @@ def beckmann_to_gltf_roughness(m):
     return np.clip(np.sqrt(np.clip(GGX_PER_BECKMANN * m, 0, None)), 0, 1)
 
 
+def rho_s_to_gltf_specular(rho_s):
+    """``KHR_materials_specular``'s weight s and colour scale k for a Torrance-Sparrow ρs (module docstring).
+
+    s = min(4ρs, 1) (``specularFactor`` × ``specularTexture.a``) and k = min(max(4ρs, 1), 1/F0_η)
+    (``specularColorFactor`` × ``specularColorTexture.rgb``), so glTF's dielectric F0 = F0_η s k equals
+    Weyrich's 4ρs F0_η for ρs ≤ :data:`RHO_S_F0_LIMIT` (F0_η = ((1.38 − 1)/(1.38 + 1))²), and its F90 = s
+    equals eq. 12's 4ρs for ρs ≤ :data:`RHO_S_EXACT`.
+
+    Parameters
+    ----------
+    rho_s : array_like
+        ρs ≥ 0 in the convention of :func:`facestats.model.brdf.torrance_sparrow` (negative values count as 0).
+
+    Returns
+    -------
+    s, k : ndarray
+        float64, shape of ``rho_s``; s in [0, 1], k in [1, 1/F0_η].
+    """
+    four = 4 * np.clip(np.asarray(rho_s, np.float64), 0, None)
+    return np.minimum(four, 1.0), np.clip(four, 1.0, 1 / _F0)
+
+
 def _textures(ds, mesh, out):
-    """Write the three PNGs (base colour and roughness filled off the measured face); returns their file names."""
+    """Write the five PNGs (all but the normal map filled off the measured face); file names, K, clamp report."""
     fill = FaceFill(ds["region"].values)
     face = fill.face
     alb = fill(np.asarray(ds["albedo"].values, np.float64))
@@ -99,7 +206,41 @@ def _textures(ds, mesh, out):
     rough = beckmann_to_gltf_roughness(fill(np.asarray(ds["ts_m"].values, np.float64)))
     mr = np.stack([np.zeros_like(rough), rough, np.zeros_like(rough)], -1)
     write_image(os.path.join(out, "metallic_roughness.png"), mr)
-    return "base_color.png", "normal.png", "metallic_roughness.png"
+    colour_factor, report = _specular_textures(ds, fill, out)
+    names = ("base_color.png", "normal.png", "metallic_roughness.png", "specular.png", "specular_color.png")
+    return names, colour_factor, report
+
+
+def _specular_textures(ds, fill, out):
+    """Write ``specular.png`` (A = s) and ``specular_color.png`` (k/K, sRGB); returns K and the clamp report."""
+    rho = np.asarray(ds["ts_rho_s"].values, np.float64)
+    measured = fill.face & np.isfinite(rho)
+    s, k = rho_s_to_gltf_specular(fill(rho))
+    # K: the largest k, rounded up so that 1/K is an 8-bit sRGB code (k = 1 then decodes to exactly 1/K)
+    code = max(int(np.floor(float(linear_to_srgb(1 / float(k.max()))) * 255)), 1)
+    colour_factor = 1 / float(srgb_to_linear(code / 255))
+    rgba = np.concatenate([np.ones(s.shape + (3,)), s[..., None]], -1)  # RGB unused by the extension: white
+    write_image(os.path.join(out, "specular.png"), rgba)
+    write_image(os.path.join(out, "specular_color.png"), np.repeat((k / colour_factor)[..., None], 3, -1), srgb=True)
+    values = rho[measured]
+    report = {
+        "mapping": "F0 = ((ior-1)/(ior+1))^2 * 4 rho_s: specularTexture.a = min(4 rho_s, 1), "
+        "specularColorFactor * specularColorTexture = max(4 rho_s, 1), at most (ior+1)^2/(ior-1)^2",
+        "texels_measured": int(values.size),
+        "texels_f90_capped": int(np.count_nonzero(values > RHO_S_EXACT)),
+        "texels_clamped": int(np.count_nonzero(values > RHO_S_F0_LIMIT)),
+        "rho_s_exact": RHO_S_EXACT,
+        "rho_s_f0_limit": RHO_S_F0_LIMIT,
+    }
+    if report["texels_clamped"]:
+        warnings.warn(
+            f"glTF export of subject {ds.attrs.get('subject_id', '?')!r}: {report['texels_clamped']} of "
+            f"{report['texels_measured']} measured texels have rho_s > {RHO_S_F0_LIMIT:.2f}, beyond the specular "
+            "F0 = 1 that KHR_materials_specular can carry; they are exported as F0 = 1 (a mirror)",
+            FacestatsWarning,
+            stacklevel=4,  # the caller of write_gltf
+        )
+    return colour_factor, report
 
 
 def _buffer(g, mesh):
@@ -126,12 +267,15 @@ def _buffer(g, mesh):
 
 
 def write_gltf(ds, out_dir, *, mesh=None, name="face"):
-    """Write a map subject as a glTF 2.0 asset (``NAME.gltf``, ``NAME.bin``, three PNGs) into ``out_dir``.
+    """Write a map subject as a glTF 2.0 asset (``NAME.gltf``, ``NAME.bin``, five PNGs) into ``out_dir``.
+
+    The material carries ρs through ``KHR_materials_specular`` (module docstring); how many measured texels
+    lie beyond what it expresses is in the file's ``extras.facestats.specular``.
 
     Parameters
     ----------
     ds : xarray.Dataset
-        A map subject with ``albedo``, ``normal``, ``ts_m`` and ``region``.
+        A map subject with ``albedo``, ``normal``, ``ts_m``, ``ts_rho_s`` and ``region``.
     out_dir : str or os.PathLike
         Existing directory.
     mesh : FaceMesh, str or os.PathLike, optional
@@ -150,6 +294,12 @@ def write_gltf(ds, out_dir, *, mesh=None, name="face"):
     ValidationError
         A region-sample subject, missing maps, or a ``name`` that is not a plain file stem (checked before
         anything is written).
+
+    Warns
+    -----
+    FacestatsWarning
+        Measured texels with ρs > :data:`RHO_S_F0_LIMIT` (9.81), exported as F0 = 1 (their count is in
+        ``extras.facestats.specular.texels_clamped``).
     """
 
     if not isinstance(name, str) or not SUBJECT_ID_PATTERN.fullmatch(name):
@@ -159,12 +309,12 @@ def write_gltf(ds, out_dir, *, mesh=None, name="face"):
         )
     g = _pygltflib()
     check_map_subject(ds, "a glTF asset")
-    missing = [v for v in ("albedo", "normal", "ts_m", "region") if v not in ds.data_vars]
+    missing = [v for v in ("albedo", "normal", "ts_m", "ts_rho_s", "region") if v not in ds.data_vars]
     if missing:
         raise ValidationError(f"subject {ds.attrs.get('subject_id', '?')!r} lacks the maps {missing} glTF needs")
     fm = mesh if isinstance(mesh, FaceMesh) else subject_mesh(ds, mesh)
     out = os.fspath(out_dir)
-    base, normal, mr = _textures(ds, fm, out)
+    images, colour_factor, specular = _textures(ds, fm, out)
     blob, views, accessors = _buffer(g, fm)
     with open(os.path.join(out, f"{name}.bin"), "wb") as fh:
         fh.write(blob)
@@ -176,7 +326,13 @@ def write_gltf(ds, out_dir, *, mesh=None, name="face"):
         ),
         normalTexture=g.NormalMaterialTexture(index=1),
         doubleSided=False,
-        extensions={"KHR_materials_ior": {"ior": _IOR}},
+        extensions={
+            "KHR_materials_ior": {"ior": _IOR},
+            _SPECULAR_EXTENSION: {
+                "specularFactor": 1.0, "specularTexture": {"index": 3},
+                "specularColorFactor": [colour_factor] * 3, "specularColorTexture": {"index": 4},
+            },
+        },
     )  # fmt: skip
     prim = g.Primitive(attributes=g.Attributes(POSITION=0, NORMAL=1, TANGENT=2, TEXCOORD_0=3), indices=4, material=0)
     gltf = g.GLTF2(
@@ -187,13 +343,19 @@ def write_gltf(ds, out_dir, *, mesh=None, name="face"):
         meshes=[g.Mesh(primitives=[prim], name="face")],
         materials=[material],
         samplers=[g.Sampler(magFilter=9729, minFilter=9987, wrapS=33071, wrapT=33071)],
-        images=[g.Image(uri=u) for u in (base, normal, mr)],
-        textures=[g.Texture(source=i, sampler=0) for i in range(3)],
+        images=[g.Image(uri=u) for u in images],
+        textures=[g.Texture(source=i, sampler=0) for i in range(len(images))],
         buffers=[g.Buffer(byteLength=len(blob), uri=f"{name}.bin")],
         bufferViews=views,
         accessors=accessors,
-        extensionsUsed=["KHR_materials_ior"],
-        extras={"facestats": {"geometry": fm.geometry, "roughness": "sqrt(0.92 m), Beckmann m -> GGX alpha"}},
+        extensionsUsed=["KHR_materials_ior", _SPECULAR_EXTENSION],  # not required: viewers without it still work
+        extras={
+            "facestats": {
+                "geometry": fm.geometry,
+                "roughness": "sqrt(0.92 m), Beckmann m -> GGX alpha",
+                "specular": specular,
+            }
+        },
     )
     path = os.path.join(out, f"{name}.gltf")
     gltf.save_json(path)
@@ -205,12 +367,14 @@ def read_gltf_summary(path) -> dict:
 
     Checks: version 2.0, one triangle primitive whose accessors fit their
     buffer views and the binary file, POSITION/NORMAL/TANGENT/TEXCOORD_0
-    present, a metallic-roughness material whose three textures exist.
+    present, a metallic-roughness material whose three textures exist, and
+    the textures of its ``KHR_materials_specular`` when it has one.
 
     Returns
     -------
     dict
-        ``n_vertices``, ``n_triangles``, ``bounds_m`` (min, max), ``images`` (paths).
+        ``n_vertices``, ``n_triangles``, ``bounds_m`` (min, max), ``images`` (paths), ``specular`` (the
+        ``extras.facestats.specular`` report of :func:`write_gltf`, None in files written before it).
     """
     g = _pygltflib()
     gl = g.GLTF2().load(os.fspath(path))
@@ -232,6 +396,8 @@ def read_gltf_summary(path) -> dict:
     mat = gl.materials[prim.material]
     pbr = mat.pbrMetallicRoughness
     tex = [pbr.baseColorTexture.index, mat.normalTexture.index, pbr.metallicRoughnessTexture.index]
+    spec = (mat.extensions or {}).get(_SPECULAR_EXTENSION) or {}
+    tex += [spec[key]["index"] for key in ("specularTexture", "specularColorTexture") if key in spec]
     images = [os.path.join(base, gl.images[gl.textures[t].source].uri) for t in tex]
     for p in images:
         if not os.path.isfile(p):
@@ -242,4 +408,5 @@ def read_gltf_summary(path) -> dict:
         "n_triangles": gl.accessors[prim.indices].count // 3,
         "bounds_m": (pos.min, pos.max),
         "images": images,
+        "specular": ((gl.extras or {}).get("facestats") or {}).get("specular"),
     }

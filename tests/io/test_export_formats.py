@@ -247,6 +247,99 @@ def test_gltf_reads_back_with_pygltflib_and_trimesh(tmp_path, subject, mesh):
     assert srgb_to_linear(1.0) == pytest.approx(1.0)
 
 
+def _srgb_to_linear_8bit(code):
+    """IEC 61966-2-1 decoding of 8-bit codes, written out here (not facestats.io.images)."""
+    v = np.asarray(code, np.float64) / 255
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
+
+def test_eq_12_is_4_rho_s_times_the_microfacet_brdf_gltf_evaluates():
+    """The factor behind the glTF specular weight: facestats' Torrance-Sparrow (D printed without 1/pi) equals
+    4 rho_s x D_B G F / (4 cos_i cos_o) with the normalised Beckmann D_B, the form glTF's F D V takes."""
+    from facestats.model.brdf import torrance_sparrow
+    from facestats.model.fresnel import fresnel_reflectance
+
+    rng = np.random.default_rng(3)
+    wi, wo = (v / np.linalg.norm(v, axis=1, keepdims=True) for v in (rng.normal(size=(2, 50, 3)) + [0, 0, 2.5]))
+    n = np.array([0.0, 0.0, 1.0])
+    rho, m = 0.18, 0.3
+    h = (wi + wo) / np.linalg.norm(wi + wo, axis=1, keepdims=True)
+    ci, co, ch, oh = wi[:, 2], wo[:, 2], h[:, 2], np.einsum("kd,kd->k", wo, h)
+    d_b = np.exp(-(1 - ch**2) / (ch**2 * m**2)) / (np.pi * m**2 * ch**4)
+    g = np.minimum(1, np.minimum(2 * ch * co / oh, 2 * ch * ci / oh))
+    microfacet = d_b * g * fresnel_reflectance(oh, 1.38) / (4 * ci * co)
+    np.testing.assert_allclose(torrance_sparrow(n, wi, wo, rho, m) / microfacet, 4 * rho, rtol=1e-10)
+
+
+def test_gltf_specular_follows_rho_s_and_counts_the_texels_it_cannot_carry(tmp_path, subject, mesh):
+    """KHR_materials_specular: glTF's dielectric F0 = ((ior-1)/(ior+1))^2 x specularFactor x specularTexture.a x
+    specularColorFactor x specularColorTexture (sRGB) must be Weyrich's 4 rho_s F_r(0), decoded here from the PNGs
+    with PIL; texels with rho_s > 1/4 keep F0 (the weight saturates, the colour carries the rest), rho_s > 9.81
+    is clamped at F0 = 1 and counted."""
+    from PIL import Image
+
+    from facestats.errors import FacestatsWarning
+    from facestats.io.gltf import RHO_S_F0_LIMIT, read_gltf_summary, write_gltf
+    from facestats.io.schema import TS_RHO_S_MAX
+
+    ds = subject.copy(deep=True)
+    face = np.argwhere(np.asarray(ds["region"].values) > 0)
+    chosen = face[[0, 7, 50, 120, 300, 301]]
+    planted = [0.0, 0.05, 0.25, 0.3, 1.2, 15.0]  # exact, exact, the weight's limit, colour, colour, beyond F0 = 1
+    for (v, u), r in zip(chosen, planted):
+        ds["ts_rho_s"].values[v, u] = r
+    with pytest.warns(FacestatsWarning, match="1 of"):
+        path = write_gltf(ds, tmp_path, mesh=mesh)
+    doc = json.loads(open(path).read())
+    assert "KHR_materials_specular" in doc["extensionsUsed"]
+    assert "KHR_materials_specular" not in doc.get("extensionsRequired", [])
+    mat = doc["materials"][0]
+    ext, ior = mat["extensions"]["KHR_materials_specular"], mat["extensions"]["KHR_materials_ior"]["ior"]
+    f0_ior = ((ior - 1) / (ior + 1)) ** 2
+    assert ior == 1.38 and f0_ior == pytest.approx(0.025493, abs=1e-6)
+    assert RHO_S_F0_LIMIT == pytest.approx(1 / (4 * f0_ior), rel=1e-12) == TS_RHO_S_MAX  # the schema's top of rho_s
+
+    def image(kind):
+        return doc["images"][doc["textures"][ext[kind]["index"]]["source"]]["uri"]
+
+    with Image.open(tmp_path / image("specularTexture")) as im:
+        assert im.mode == "RGBA"
+        weight = np.asarray(im, np.float64)[..., 3] / 255  # the spec's channel: alpha
+    with Image.open(tmp_path / image("specularColorTexture")) as im:
+        code = np.asarray(im.convert("RGB"), np.float64)
+    assert np.array_equal(code[..., 0], code[..., 2])  # grey
+    colour = np.asarray(ext["specularColorFactor"]) * _srgb_to_linear_8bit(code)
+    f0 = np.minimum(f0_ior * colour, 1) * ext.get("specularFactor", 1.0) * weight[..., None]  # (H, W, 3)
+
+    rho = np.asarray(ds["ts_rho_s"].values, np.float64)
+    measured = (np.asarray(ds["region"].values) > 0) & np.isfinite(rho)
+    want = np.minimum(4 * rho * f0_ior, 1)
+    pick = np.concatenate([chosen, face[np.random.default_rng(1).choice(len(face), 40, replace=False)]])
+    v, u = pick.T
+    # 8-bit quantisation: half a step of the linear alpha, and of the sRGB code of the colour
+    s, k = np.minimum(4 * rho[v, u], 1), np.clip(4 * rho[v, u], 1, 1 / f0_ior)
+    assert np.all(np.abs(weight[v, u] - s) <= 0.5 / 255 + 1e-9)
+    factor = ext["specularColorFactor"][0]
+    lo, hi = (_srgb_to_linear_8bit(code[v, u, 0] + d) * factor for d in (-0.5, 0.5))
+    assert np.all((lo <= k + 1e-9) & (k <= hi + 1e-9))
+    exact = rho[v, u] <= 0.25  # k = 1 decodes exactly: F0 = F0_ior x the weight
+    np.testing.assert_allclose(colour[v, u, 0][exact], 1, rtol=1e-6)
+    np.testing.assert_allclose(f0[v, u, 0][exact], want[v, u][exact], atol=f0_ior * 0.5 / 255)
+    assert np.all(weight[v, u][~exact] == 1)  # the weight saturates; the colour's code brackets 4 rho_s
+    lo_f0, hi_f0 = (np.minimum(f0_ior * b[~exact], 1) - 1e-12 for b in (lo, hi))
+    for got in (want[v, u][~exact], f0[v, u, 0][~exact]):
+        assert np.all((lo_f0 <= got) & (got <= hi_f0 + 2e-12))
+    assert f0[tuple(chosen[-1])][0] == 1.0  # rho_s = 15: clamped at a mirror
+    # beyond the weight F0 is kept, to the sRGB step of a code near 50 (the planted 15 makes K = 1/F0_ior = 39)
+    assert f0[tuple(chosen[-2])][0] == pytest.approx(4 * 1.2 * f0_ior, rel=0.02)
+
+    report = doc["extras"]["facestats"]["specular"]
+    assert report == read_gltf_summary(path)["specular"]
+    assert report["texels_measured"] == np.count_nonzero(measured)
+    assert report["texels_f90_capped"] == np.count_nonzero(measured & (rho > 0.25)) > 0
+    assert report["texels_clamped"] == np.count_nonzero(measured & (rho * 4 * f0_ior > 1)) == 1
+
+
 def test_export_subject_is_atomic_and_refuses_non_empty_directories(tmp_path, subject):
     out = tmp_path / "S003"
     with pytest.raises(FacestatsError, match="probe"):
@@ -579,6 +672,7 @@ def test_gltf_passes_the_khronos_validator(tmp_path, subject, face):
     issues = report["issues"]
     assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"]
     assert report["info"]["version"] == "2.0" and report["info"]["generator"] == "facestats"
+    assert set(report["info"]["extensionsUsed"]) == {"KHR_materials_ior", "KHR_materials_specular"}
     assert mesh.geometry["name"] == face
     assert report["info"]["totalVertexCount"] == len(mesh.vertices)  # the mesh was read, not just the JSON
 

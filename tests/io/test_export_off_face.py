@@ -109,7 +109,7 @@ def test_mitsuba_textures_are_filled_off_the_face(tmp_path, subject, mesh):
         assert np.all(np.isfinite(values)) and np.all(values > 0), name
 
 
-def test_gltf_base_colour_and_roughness_are_filled_off_the_face(tmp_path, subject, mesh):
+def test_gltf_base_colour_roughness_and_specular_are_filled_off_the_face(tmp_path, subject, mesh):
     from facestats.io.gltf import beckmann_to_gltf_roughness, write_gltf
 
     write_gltf(subject, tmp_path, mesh=mesh)
@@ -127,6 +127,8 @@ def test_gltf_base_colour_and_roughness_are_filled_off_the_face(tmp_path, subjec
     np.testing.assert_array_equal(mr[face], read_image(tmp_path / "ref_mr.png")[face])
     _assert_nearest_filled(mr, face)
     assert mr[..., 1].max() < 0.9 and mr[..., 0].max() == 0 and mr[..., 2].max() == 0  # roughness 1 was the fill
+    for name in ("specular.png", "specular_color.png"):  # KHR_materials_specular's weight and colour (from rho_s)
+        _assert_nearest_filled(read_image(tmp_path / name), face)
 
 
 def test_face_fill_takes_the_nearest_finite_face_texel():

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from facestats.acquire.response import exposure_agreement, recover_response
+from facestats.acquire.response import check_white_level, exposure_agreement, recover_response
 from facestats.core.validate import check_integer
 from facestats.errors import FormatError, ValidationError
 
@@ -149,6 +149,9 @@ class ResponseCalibration:
     black_level : int
         The sensor's pedestal in DN g was recovered with (:mod:`facestats.acquire.response`); merges of
         photographs with this g use the same (:meth:`apply` records it in a dome calibration).
+    white_level : int or None
+        The code in DN at and above which the sensor clips, the Z_max of Debevec & Malik 1997 eq. 4 that g was
+        recovered with (None: the top code 2**bits − 1); merges use the same (:meth:`apply` records it).
     """
 
     log_response: np.ndarray
@@ -158,14 +161,17 @@ class ResponseCalibration:
     files: list = field(default_factory=list)
     settings: dict = field(default_factory=dict)
     black_level: int = 0
+    white_level: int | None = None
 
     def to_dict(self) -> dict:
-        """JSON-ready: format, bits, black level, files with their times, agreement, settings and g per channel."""
+        """JSON-ready: format, bits, black and white levels (null: the top code), files with their times, agreement,
+        settings and g per channel."""
         g = np.asarray(self.log_response, np.float64)
         return {
             "format": RESPONSE_FORMAT,
             "bits": int(self.bits),
             "black_level": int(self.black_level),
+            "white_level": None if self.white_level is None else int(self.white_level),
             "frames": [{"file": f, "exposure_time_s": float(t)} for f, t in zip(self.files, self.exposure_times)],
             "exposure_agreement": [
                 {"median": _num(m), "p90": _num(p)} for m, p in np.asarray(self.agreement, np.float64)
@@ -185,7 +191,8 @@ class ResponseCalibration:
         """The frames, the consecutive exposures' agreement and g at a few codes."""
         order = np.argsort(self.exposure_times, kind="stable")
         pedestal = f", black level {self.black_level}" if self.black_level else ""
-        lines = [f"{len(self.files)} photographs, {self.bits}-bit codes{pedestal}:"]
+        clip = f", white level {self.white_level}" if self.white_level is not None else ""
+        lines = [f"{len(self.files)} photographs, {self.bits}-bit codes{pedestal}{clip}:"]
         lines += [f"  {self.files[k]}  {_seconds(self.exposure_times[k])}" for k in order]
         lines.append("exposure agreement (|E_j/E_k - 1| over samples well exposed in both): median, 90th percentile")
         for (m, p), a, b in zip(self.agreement, order[:-1], order[1:]):
@@ -204,9 +211,10 @@ class ResponseCalibration:
 
         A dome without responses takes this one for every camera; then ``cameras``
         must be every camera (the others would have none).  The dome takes :attr:`black_level`
-        as its ``camera_black_level`` (one for all cameras: applying to some cameras of a dome
-        whose black level differs is refused), which the ingest and the LED calibration then
-        merge with.
+        as its ``camera_black_level`` and :attr:`white_level` as its ``camera_white_level`` (one
+        each for all cameras: applying to some cameras of a dome whose black or white level differs
+        is refused; a white level of None and one at the top code are the same), which the ingest
+        and the LED calibration then merge with.
         """
         g = np.where(np.isfinite(self.log_response), self.log_response, self.log_response[1])  # code 0: weight 0
         n_cam = dome.n_cameras
@@ -232,9 +240,26 @@ class ResponseCalibration:
                     f"black_level must be the calibration's camera_black_level ({dome.camera_black_level}) when only "
                     f"cameras {sel} take this response (the cameras share one), got {self.black_level}"
                 )
+            levels = g.shape[0]
+            mine = check_white_level(self.white_level, levels, self.black_level)
+            theirs = check_white_level(dome.camera_white_level, levels, dome.camera_black_level)
+            if sorted(set(sel)) != list(range(n_cam)) and theirs != mine:
+                have, got = _white(dome.camera_white_level, levels), _white(self.white_level, levels)
+                raise ValidationError(
+                    f"white_level must be the calibration's camera_white_level ({have}) when only cameras {sel} take "
+                    f"this response (the cameras share one), got {got}"
+                )
             out = np.array(current, np.float64)
             out[sel] = g
-        return replace(dome, camera_log_response=out, camera_black_level=int(self.black_level))
+        white = None if self.white_level is None else int(self.white_level)
+        return replace(
+            dome, camera_log_response=out, camera_black_level=int(self.black_level), camera_white_level=white
+        )
+
+
+def _white(white_level, levels: int) -> str:
+    """A white level (DN) for messages: None is the top code."""
+    return f"None: the top code {levels - 1}" if white_level is None else str(int(white_level))
 
 
 def _num(x):
@@ -253,7 +278,9 @@ def _seconds(t: float) -> str:
     return f"1/{1 / t:.4g} s" if t < 1 else f"{t:.4g} s"
 
 
-def calibrate_response(paths, exposure_times=None, *, bits=None, smoothness=None, samples=None, black_level=0):
+def calibrate_response(
+    paths, exposure_times=None, *, bits=None, smoothness=None, samples=None, black_level=0, white_level=None
+):
     """Debevec & Malik's response g from a bracket of photographs on disk (module docstring).
 
     Parameters
@@ -262,8 +289,10 @@ def calibrate_response(paths, exposure_times=None, *, bits=None, smoothness=None
         As :func:`read_bracket`.
     bits : int, optional
         Bit depth of the codes (default 8 or 16 from the files; 12 for 12-bit codes in 16-bit files).
-    smoothness, samples, black_level
-        As :func:`facestats.acquire.response.recover_response` (``black_level`` also scores the agreement).
+    smoothness, samples, black_level, white_level
+        As :func:`facestats.acquire.response.recover_response` (``black_level`` and ``white_level``, in DN, the
+        Z_min and Z_max of Debevec & Malik 1997 eq. 4, also score the agreement; ``white_level`` None: the top
+        code).
 
     Returns
     -------
@@ -273,15 +302,24 @@ def calibrate_response(paths, exposure_times=None, *, bits=None, smoothness=None
     if bits is not None and check_integer(bits, "bits", 1) > file_bits:
         raise ValidationError(f"bits must be at most {file_bits} for these {file_bits}-bit files, got {bits}")
     bits = file_bits if bits is None else bits
-    g = recover_response(images, times, smoothness=smoothness, samples=samples, bits=bits, black_level=black_level)
+    g = recover_response(
+        images,
+        times,
+        smoothness=smoothness,
+        samples=samples,
+        bits=bits,
+        black_level=black_level,
+        white_level=white_level,
+    )
     return ResponseCalibration(
         log_response=g,
         bits=int(bits),
         exposure_times=times,
-        agreement=exposure_agreement(images, times, g, black_level=black_level),
+        agreement=exposure_agreement(images, times, g, black_level=black_level, white_level=white_level),
         files=[os.fspath(p) for p in paths],
         settings={"smoothness": smoothness, "samples": _samples_setting(samples)},
         black_level=int(black_level),
+        white_level=None if white_level is None else int(white_level),
     )
 
 

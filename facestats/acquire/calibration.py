@@ -53,7 +53,7 @@ from facestats.acquire.photographs import (
     open_folder,
     prefetch,
 )
-from facestats.acquire.response import check_black_level
+from facestats.acquire.response import check_black_level, check_white_level
 from facestats.core.validate import check_integer, json_numbers
 from facestats.errors import FormatError, ValidationError
 
@@ -359,7 +359,14 @@ def _target(folder: CaptureFolder):
 
 
 def target_observations(
-    folder, dome: Dome, *, grid: int = 24, cameras=None, workers: int = 2, black_level: int | None = None
+    folder,
+    dome: Dome,
+    *,
+    grid: int = 24,
+    cameras=None,
+    workers: int = 2,
+    black_level: int | None = None,
+    white_level: int | None = None,
 ) -> dict:
     """HDR values of a target folder at a grid of points on each pose, for every camera and LED.
 
@@ -370,9 +377,11 @@ def target_observations(
     background, 15-18 % low in the simulated set-up of the tests, and such points
     biased the beam's quadratic terms by up to 2);
     values are the HDR merge (:func:`facestats.acquire.photographs.merge_at`, with the
-    cameras' pedestal ``black_level`` in DN, default the calibration's ``camera_black_level``)
-    divided by ``camera_scale``; saturated or unlit observations are dropped.  ``grid`` is in
-    [2, :data:`MAX_GRID`].
+    cameras' pedestal ``black_level`` in DN, default the calibration's ``camera_black_level``, and
+    the code ``white_level`` in DN at and above which they clip, default the calibration's
+    ``camera_white_level`` (None there: the top code); Z_min and Z_max of the hat weights of
+    Debevec & Malik 1997 eq. 4) divided by ``camera_scale``; saturated or unlit observations are
+    dropped.  ``grid`` is in [2, :data:`MAX_GRID`].
 
     Returns
     -------
@@ -394,6 +403,9 @@ def target_observations(
     rho, poses = _target(folder)
     check_integer(grid, "grid", 2, MAX_GRID)
     black_level = check_black_level(dome.camera_black_level if black_level is None else black_level, 2**folder.bits)
+    white_level = check_white_level(
+        dome.camera_white_level if white_level is None else white_level, 2**folder.bits, black_level
+    )
     cams = folder.cameras if cameras is None else [int(c) for c in cameras]
     out = {k: [] for k in ("point", "normal", "camera", "led", "value", "target_points")}
     f = (np.arange(grid) + 0.5) / grid * 0.9 - 0.45
@@ -402,7 +414,7 @@ def target_observations(
         pts = centre + a.reshape(-1, 1) * u_axis + b.reshape(-1, 1) * np.cross(normal, u_axis)
         for cam in cams:
             if (dome.camera_position[cam] - centre) @ normal > 0:  # the camera faces the target's front
-                _observe(folder, dome, p, cam, pts, poses[p], workers, out, black_level)
+                _observe(folder, dome, p, cam, pts, poses[p], workers, out, black_level, white_level)
     if not out["point"]:
         raise FormatError("no camera sees a target pose: check the poses and the camera calibration")
     res = {k: np.concatenate(v) for k, v in out.items()}
@@ -436,7 +448,7 @@ def _taps_on_target(dome, cam, index, geometry) -> np.ndarray:
     return inside.reshape(index.shape).all(axis=1)
 
 
-def _observe(folder, dome, pose, cam, pts, geometry, workers, out, black_level=0):
+def _observe(folder, dome, pose, cam, pts, geometry, workers, out, black_level=0, white_level=None):
     """Append the observations of target points ``pts`` in camera ``cam`` under every LED to ``out``."""
     normal = geometry[1]
     _, in_frame, pix = dome.view(pts, [cam])
@@ -455,7 +467,8 @@ def _observe(folder, dome, pose, cam, pts, geometry, workers, out, black_level=0
         return led, folder.read_stack(cam, led, pose=pose, size=dome.image_size[cam])
 
     for led, (stack, times) in prefetch(read, range(dome.n_leds), workers):  # loop over LEDs; arrays inside
-        val = merge_at(stack, times, g, index, weight, black_level=black_level) / dome.camera_scale
+        val = merge_at(stack, times, g, index, weight, black_level=black_level, white_level=white_level)
+        val /= dome.camera_scale
         ok = np.all(np.isfinite(val) & (val > 0), axis=1)
         out["point"].append(pts[keep[ok]])
         out["normal"].append(np.broadcast_to(normal, (int(ok.sum()), 3)))
@@ -568,10 +581,14 @@ def calibrate_leds(
     reference_camera: int | None = None,
     workers: int = 2,
     black_level: int | None = None,
+    white_level: int | None = None,
 ):
     """Fit every LED's intensity and beam polynomial, and the camera gains, from a target folder (module docstring).
 
-    ``grid``, ``workers`` and ``black_level`` are those of :func:`target_observations`.
+    ``grid``, ``workers``, ``black_level`` and ``white_level`` (DN; Z_min and Z_max of the hat weights of
+    Debevec & Malik 1997 eq. 4, default the calibration's) are those of :func:`target_observations`.
     """
-    obs = target_observations(folder, dome, grid=grid, workers=workers, black_level=black_level)
+    obs = target_observations(
+        folder, dome, grid=grid, workers=workers, black_level=black_level, white_level=white_level
+    )
     return fit_leds(dome, obs, reference_camera=reference_camera)

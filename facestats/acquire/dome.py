@@ -37,7 +37,9 @@ converts a camera's merged photograph values to the reference camera's units
 ``camera_log_response`` holds the Debevec-Malik response g of the cameras'
 photographs (:mod:`facestats.acquire.response`), when they are not linear raw,
 and ``camera_black_level`` the pedestal (DN) it was recovered above: codes at
-and below it get no weight when the photographs are merged (0: none).
+and below it get no weight when the photographs are merged (0: none);
+``camera_white_level`` the code (DN) at which the cameras clip, that it was
+recovered below: codes at and above it get no weight (None: the top code).
 """
 
 from __future__ import annotations
@@ -123,6 +125,11 @@ class Dome:
         The photographs' pedestal in DN, shared by the cameras, that ``camera_log_response`` was
         recovered above (:func:`facestats.acquire.response.recover_response`, ``black_level``);
         0 ≤ it < levels / 2.  JSON field ``camera_black_level`` (absent: 0).
+    camera_white_level : int or None
+        The code in DN, shared by the cameras, at and above which their photographs clip (Z_max of the hat
+        weights of Debevec & Malik 1997 eq. 4) and below which ``camera_log_response`` was recovered
+        (:func:`facestats.acquire.response.recover_response`, ``white_level``); levels / 2 < it ≤ levels − 1,
+        or None for the top code levels − 1.  JSON field ``camera_white_level`` (absent: None).
     """
 
     led_position: np.ndarray
@@ -140,6 +147,7 @@ class Dome:
     camera_gain: np.ndarray | None = None
     camera_log_response: np.ndarray | None = None
     camera_black_level: int = 0
+    camera_white_level: int | None = None
 
     def __post_init__(self):
         def array(name, shape):
@@ -177,7 +185,8 @@ class Dome:
         self._check_camera_extras(n_cam)
 
     def _check_camera_extras(self, n_cam):
-        """Validate and normalise ``camera_distortion``, ``camera_gain``, ``camera_log_response``, its black level."""
+        """Validate and normalise ``camera_distortion``, ``camera_gain``, ``camera_log_response``, its black and
+        white levels."""
         if self.camera_distortion is None:
             dist = np.zeros((n_cam, 8))
         else:
@@ -210,6 +219,11 @@ class Dome:
         self.camera_black_level = check_integer(
             self.camera_black_level, "camera_black_level", 0, None if levels is None else levels // 2 - 1
         )
+        if self.camera_white_level is not None:  # above levels / 2 (where g is pinned), at most the top code
+            low = self.camera_black_level + 1 if levels is None else levels // 2 + 1
+            self.camera_white_level = check_integer(
+                self.camera_white_level, "camera_white_level", low, None if levels is None else levels - 1
+            )
         self.camera_distortion, self.camera_gain, self.camera_log_response = dist, gain, resp
 
     @property
@@ -439,6 +453,8 @@ class Dome:
             out["camera_log_response"] = (g[0] if shared else g).tolist()
         if self.camera_black_level:
             out["camera_black_level"] = self.camera_black_level
+        if self.camera_white_level is not None:
+            out["camera_white_level"] = self.camera_white_level
         return out
 
     def camera_dict(self, c: int) -> dict:
@@ -501,6 +517,7 @@ class Dome:
                 response=CameraResponse(**d.get("response", {})),
                 camera_log_response=None if resp is None else np.asarray(resp, float),
                 camera_black_level=d.get("camera_black_level", 0),
+                camera_white_level=d.get("camera_white_level"),
                 **cls._cameras_from_dict(d),
             )
         except KeyError as exc:

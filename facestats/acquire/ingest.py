@@ -63,7 +63,7 @@ from facestats.acquire.photographs import (
     open_folder,
     prefetch,
 )
-from facestats.acquire.response import check_black_level
+from facestats.acquire.response import check_black_level, check_white_level
 from facestats.acquire.visibility import dome_shadow_maps, sample_visibility
 from facestats.core.progress import progress_bar
 from facestats.core.validate import as_finite, check_integer
@@ -90,9 +90,11 @@ MIN_FOOTPRINT_PX = 2.0
 _ATTR = "ingest"
 
 
-def _fingerprint(folder: CaptureFolder, dome, geometry: FaceGeometry, subject_id=None, black_level=0) -> dict:
-    """What an ingest was made from: manifest, calibration and geometry digests, the black level of the merge and
-    the subject id it is for."""
+def _fingerprint(
+    folder: CaptureFolder, dome, geometry: FaceGeometry, subject_id=None, black_level=0, white_level=None
+) -> dict:
+    """What an ingest was made from: manifest, calibration and geometry digests, the black and white levels of the
+    merge (DN; white None: the top code 2**bits − 1) and the subject id it is for."""
     geo = hashlib.sha256()
     for a in (geometry.position, geometry.normal, geometry.uv, geometry.mesh_vertices, geometry.mesh_faces):
         geo.update(np.ascontiguousarray(a).tobytes())
@@ -104,6 +106,7 @@ def _fingerprint(folder: CaptureFolder, dome, geometry: FaceGeometry, subject_id
         "geometry": geo.hexdigest(),
         "subject_id": sid,
         "black_level": int(black_level),
+        "white_level": int(2**folder.bits - 1 if white_level is None else white_level),
     }
 
 
@@ -167,6 +170,7 @@ def _start(path, folder, geometry, dome, fingerprint, chunk, subject_id):
         if "subject_id" not in stored:  # an ingest begun before the id was part of the key: the capture's own id
             stored["subject_id"] = _capture_subject_id(path)
         stored.setdefault("black_level", 0)  # an ingest begun before the black level was part of the key
+        stored.setdefault("white_level", 2**folder.bits - 1)  # one begun before the white level was: the top code
         if stored != fingerprint:
             changed = [k for k in fingerprint if stored.get(k) != fingerprint[k]]
             raise FormatError(
@@ -241,7 +245,7 @@ def footprint_px(dome, geometry, camera: int) -> np.ndarray:
         return np.where(z[:, 0] > 0, np.sqrt(geometry.area) * cos_o * f / z[:, 0], 0.0)
 
 
-def _camera_samples(folder, dome, vis, camera, motion_tolerance, workers, resolved, black_level=0):
+def _camera_samples(folder, dome, vis, camera, motion_tolerance, workers, resolved, black_level=0, white_level=None):
     """Radiance (N, L, 3) float32 of one camera (NaN where invalid) and its motion scores (L,)."""
     n, n_led = vis.seen.shape[0], dome.n_leds
     out = np.full((n, n_led, 3), np.nan, np.float32)
@@ -262,10 +266,12 @@ def _camera_samples(folder, dome, vis, camera, motion_tolerance, workers, resolv
 
     flags = []
     for led, (stack, times) in prefetch(read, range(n_led), workers):  # loop over LEDs, vectorised over lumitexels
-        rad = merge_at(stack, times, g, index, weight, black_level=black_level) / scale
+        rad = merge_at(stack, times, g, index, weight, black_level=black_level, white_level=white_level) / scale
         lit = vis.lit[sel, led]
         out[sel[lit], led] = rad[lit]
-        scores[led], n_used = exposure_consistency(stack, times, g, box, black_level=black_level)
+        scores[led], n_used = exposure_consistency(
+            stack, times, g, box, black_level=black_level, white_level=white_level
+        )
         if n_used >= 100 and scores[led] > motion_tolerance:
             out[:, led] = np.nan
             flags.append({"camera": int(camera), "led": int(led), "score": round(float(scores[led]), 4)})
@@ -284,6 +290,7 @@ def ingest_photographs(
     motion_tolerance: float = MOTION_TOLERANCE,
     min_footprint_px: float = MIN_FOOTPRINT_PX,
     black_level: int | None = None,
+    white_level: int | None = None,
     progress: bool = False,
 ) -> str:
     """Turn a capture folder into a capture on disk (module docstring); rerunning resumes an interrupted ingest.
@@ -315,6 +322,12 @@ def ingest_photographs(
         The cameras' pedestal in DN, the one their response was recovered with
         (:func:`facestats.acquire.response.recover_response`): codes at and below it get no weight
         in the merge.  Default: the calibration's ``camera_black_level`` (0 for cameras without one).
+    white_level : int, optional
+        The code in DN at and above which the cameras clip, the one their response was recovered with:
+        Z_max of the hat weights of Debevec & Malik 1997 eq. 4, codes at and above it get no weight in
+        the merge (a sample with a tap at or above it in every exposure is invalid) and in the head-motion
+        test.  Default: the calibration's ``camera_white_level`` (None there: the top code 2**bits − 1).
+        An ingest resumed with another white level is refused, as for another black level.
     progress : bool
         Show a progress bar over cameras.
 
@@ -343,9 +356,11 @@ def ingest_photographs(
     folder = folder if isinstance(folder, CaptureFolder) else open_folder(folder)
     _check_inputs(folder, dome, geometry, calibration)
     black_level = check_black_level(dome.camera_black_level if black_level is None else black_level, 2**folder.bits)
-    writer, state = _start(
-        path, folder, geometry, dome, _fingerprint(folder, dome, geometry, subject_id, black_level), chunk, subject_id
+    white_level = check_white_level(
+        dome.camera_white_level if white_level is None else white_level, 2**folder.bits, black_level
     )
+    fingerprint = _fingerprint(folder, dome, geometry, subject_id, black_level, white_level)
+    writer, state = _start(path, folder, geometry, dome, fingerprint, chunk, subject_id)
     if state["complete"]:
         return str(path)
     shadows = dome_shadow_maps(geometry, dome, camera_pixels=True)
@@ -356,7 +371,9 @@ def ingest_photographs(
     )
     for cam in it:  # loop over cameras: one camera's samples in memory at a time
         resolved = footprint_px(dome, geometry, cam) >= min_footprint_px
-        rad, _, flags = _camera_samples(folder, dome, vis, cam, motion_tolerance, workers, resolved, black_level)
+        rad, _, flags = _camera_samples(
+            folder, dome, vis, cam, motion_tolerance, workers, resolved, black_level, white_level
+        )
         writer.array("radiance")[:, cam] = rad.astype(np.float16)
         state["cameras_done"].append(int(cam))
         state["motion_flags"].extend(flags)

@@ -528,20 +528,40 @@ def _gather(stack, index):
     return [img.reshape(-1, img.shape[-1])[index] for img in stack]
 
 
-def merge_at(stack, times, response, index, weight, weighting: str = "hat_time", black_level: int = 0) -> np.ndarray:
+def merge_at(
+    stack,
+    times,
+    response,
+    index,
+    weight,
+    weighting: str = "hat_time",
+    black_level: int = 0,
+    white_level: int | None = None,
+) -> np.ndarray:
     """HDR radiance (N, 3) of a frame at the taps of :func:`bilinear_taps` (NaN if a tap is saturated).
 
     Debevec & Malik 1997 eq. 6 at each of the four pixels
     (:func:`facestats.acquire.response.merge_photographs`, by default with the
-    shot-noise weights w(z)·Δt, zero at and below ``black_level``), then bilinear interpolation.
+    shot-noise weights w(z)·Δt, zero at and below ``black_level`` and at and above ``white_level``, both in DN:
+    Z_min and Z_max of eq. 4; ``white_level`` None is the top code), then bilinear interpolation.
     """
     taps = _gather(stack, index)
-    e = merge_photographs(taps, times, response, weighting=weighting, black_level=black_level)  # (N, 4, 3)
+    e = merge_photographs(
+        taps, times, response, weighting=weighting, black_level=black_level, white_level=white_level
+    )  # (N, 4, 3)
     return np.einsum("nk,nkc->nc", weight, e)
 
 
 def exposure_consistency(
-    stack, times, response, box, *, min_weight: float = 0.2, jump: float = 0.5, black_level: int = 0
+    stack,
+    times,
+    response,
+    box,
+    *,
+    min_weight: float = 0.2,
+    jump: float = 0.5,
+    black_level: int = 0,
+    white_level: int | None = None,
 ):
     """How often a frame's shortest and longest exposures disagree inside ``box``: the head-motion statistic.
 
@@ -564,6 +584,9 @@ def exposure_consistency(
     black_level : int
         The sensor's pedestal in DN: Z_min of the hat weights
         (:func:`facestats.acquire.response.hat_weights`).
+    white_level : int, optional
+        The code in DN at and above which the sensor clips: Z_max of the hat weights (Debevec & Malik
+        1997 eq. 4); default None, the top code.
 
     Returns
     -------
@@ -573,7 +596,7 @@ def exposure_consistency(
         Number of usable samples.
     """
     g = np.asarray(response, np.float64)
-    w = hat_weights(g.shape[0], black_level)
+    w = hat_weights(g.shape[0], black_level, white_level)
     w = w / w.max()
     order = np.argsort(times)
     x0, y0, x1, y1 = (int(v) for v in box)

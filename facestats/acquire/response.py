@@ -24,7 +24,8 @@ they approximate the same per-level penalty (Δ^(−3/2)·second difference of k
 Δ levels apart).
 
 **Weights**: w(z) = z − Z_min for z ≤ (Z_min + Z_max)/2, Z_max − z above (eq. 4):
-zero at both clipping ends, so codes 0 and 2^bits − 1 never inform g or E.
+zero at both clipping ends, so codes 0 and 2^bits − 1 (or the black and white
+levels below) never inform g or E.
 
 **Black level** (``black_level``, default 0): a sensor that adds a pedestal of b
 DN to every reading (so that noise around zero signal is recorded, not clipped)
@@ -39,6 +40,23 @@ knots span that range; codes at and below b take g(b), extrapolated by the
 smoothness term: the merge gives them no weight, and an all-dark pixel gets the
 noise-floor bound below).  Merges and :func:`exposure_agreement` must then be
 given the same ``black_level``.
+
+**White level** (``white_level``, default None: the top code 2^bits − 1): a sensor
+whose readings clip below the top code (raw-derived 16-bit files of a 14-bit sensor
+that saturate at, say, 15,000 of 16,383 DN) records every brighter pixel as a code
+at or near the white level W.  With Z_max = 2^bits − 1 those codes weigh
+Z_max − z > 0, so clipped pixels count as good data: they pull g(W) up towards the
+exposures of pixels far brighter than W (the smoothness term carries the distortion
+down the curve) and enter the merge with the wrong radiance: on a synthetic linear
+14-bit bracket clipping at 15,000 (four exposures 1/60-1 s) the merge was biased by
++8.6, +7.7 and +17 % over the decades 10²-10³, 10³-10⁴ and 10⁴-10⁵ DN/s, and pixels
+clipped in every exposure came out as data; with the white level, by at most 0.24 %.
+Passing ``white_level = W`` ends the hat there, Z_max = W in eq. 4 (zero weight at
+and above W, falling towards it), and recovers g on the codes black..W only (codes
+above W take g(W), which carries no weight); W must lie in (2^bits / 2, 2^bits − 1]
+(g is pinned at 2^bits / 2, which must lie between the black and the white level). A
+pixel at or above W in every exposure merges to NaN (saturated).  Merges and
+:func:`exposure_agreement` must then be given the same ``white_level``.
 
 **Sample selection** (``samples``): the paper needs N(P − 1) > Z_max − Z_min
 sample pixels spread over the code range (§2.1).  Two documented choices, N =
@@ -62,9 +80,9 @@ An integer array of flat pixel indices picks the pixels explicitly.
     ln E_i = Σ_j w(Z_ij)(g(Z_ij) − ln Δt_j) / Σ_j w(Z_ij).
 
 A pixel with no usable exposure (zero total weight) is NaN when it is at or above
-mid-range in every exposure (saturated: unknown radiance), and otherwise takes
-the estimate of its longest exposure g(Z) − ln Δt (an all-dark pixel: an upper
-bound at the noise floor).
+mid-range in every exposure (saturated, e.g. at or above the white level: unknown
+radiance), and otherwise takes the estimate of its longest exposure g(Z) − ln Δt
+(an all-dark pixel: an upper bound at the noise floor).
 
 The existing linear-raw merge with a noise model is
 :func:`facestats.acquire.hdr.merge_exposures`; this module is for cameras whose
@@ -87,6 +105,7 @@ from facestats.errors import ValidationError
 __all__ = [
     "hat_weights",
     "check_black_level",
+    "check_white_level",
     "stratified_samples",
     "histogram_samples",
     "recover_response",
@@ -138,20 +157,48 @@ def check_rising(response, black_level: int = 0, name: str = "response") -> np.n
     return g
 
 
-def hat_weights(levels: int, black_level: int = 0) -> np.ndarray:
-    """Debevec & Malik 1997 eq. 4 weights w(z) for codes 0..levels−1, float64, with Z_min = ``black_level``.
+def hat_weights(levels: int, black_level: int = 0, white_level: int | None = None) -> np.ndarray:
+    """Debevec & Malik 1997 eq. 4 weights w(z) for codes 0..levels−1, float64, Z_min = black, Z_max = white level.
 
-    w(z) = z − Z_min for z ≤ (Z_min + Z_max)/2, Z_max − z above, Z_max = levels − 1: 0 at and below the black
-    level and at the top code, peak mid-range (module docstring).
+    w(z) = z − Z_min for z ≤ (Z_min + Z_max)/2, Z_max − z above: 0 at and below the black level and at and above
+    the white level, peak mid-way (module docstring).
+
+    Parameters
+    ----------
+    levels : int
+        Number of codes, 2^bits.
+    black_level : int
+        Z_min in DN (the sensor's pedestal; 0: none).
+    white_level : int, optional
+        Z_max in DN, the code at which the sensor clips; default None, the top code levels − 1.
     """
     z = np.arange(levels, dtype=np.float64)
-    low, top = float(black_level), levels - 1
+    low = float(black_level)
+    top = float(levels - 1 if white_level is None else white_level)
     return np.maximum(np.where(z <= (low + top) / 2, z - low, top - z), 0.0)
 
 
 def check_black_level(black_level, levels: int) -> int:
     """``black_level`` as an int, checked: a code in [0, levels/2) (g is pinned at levels/2, above it)."""
     return check_integer(black_level, "black_level", 0, levels // 2 - 1)
+
+
+def check_white_level(white_level, levels: int, black_level: int = 0) -> int:
+    """``white_level`` as an int (levels − 1 for None), checked: a code in (levels/2, levels − 1], DN.
+
+    The white level is Z_max of Debevec & Malik 1997 eq. 4 (module docstring): the code at and above which the
+    sensor clips.  g is pinned at levels/2, so that code must lie strictly between the black level (below levels/2,
+    :func:`check_black_level`) and the white level; ``black_level`` is the hat's Z_min, which then lies below it.
+
+    Raises
+    ------
+    ValidationError
+        Naming ``white_level`` and the value: not an integer, at or below levels/2, or above the top code.
+    """
+    if white_level is None:
+        return levels - 1
+    low = max(levels // 2, int(black_level)) + 1
+    return check_integer(white_level, "white_level", low, levels - 1)
 
 
 # -- input checks --------------------------------------------------------------------------------
@@ -274,25 +321,33 @@ def _sample_codes(stack, channel, samples, levels, n):
 
 
 # -- recovery ---------------------------------------------------------------------------------------------
-def _interpolation(z, levels, knots, black_level=0):
+def _interpolation(z, levels, knots, black_level=0, white_level=None):
     """Knot index k0 (int) and weight a of code(s) z: g(z) = (1 − a) g[k0] + a g[k0 + 1].
 
-    The knots span the codes ``black_level``..levels − 1; codes below take g(black_level).
+    The knots span the codes ``black_level``..``white_level`` (DN; default levels − 1); codes below take
+    g(black_level), codes above g(white_level).
     """
-    x = (np.maximum(np.asarray(z, np.float64), black_level) - black_level) * ((knots - 1) / (levels - 1 - black_level))
+    top = levels - 1 if white_level is None else white_level
+    x = np.clip(np.asarray(z, np.float64), black_level, top) - black_level
+    x *= (knots - 1) / (top - black_level)
     k0 = np.clip(np.floor(x).astype(np.int64), 0, knots - 2)
     return k0, x - k0
 
 
-def _solve_channel(codes, log_t, levels, smoothness, black_level=0):
-    """g at every code of one channel from (N, P) sampled codes (module docstring: reduced normal equations)."""
+def _solve_channel(codes, log_t, levels, smoothness, black_level=0, white_level=None):
+    """g at every code of one channel from (N, P) sampled codes (module docstring: reduced normal equations).
+
+    The knots span the codes ``black_level``..``white_level`` (DN, default levels − 1): the non-zero span of the
+    hat weights of Debevec & Malik 1997 eq. 4.
+    """
     from scipy import sparse
 
-    knots = min(levels - black_level, MAX_KNOTS)
-    w_level = hat_weights(levels, black_level)
+    top = levels - 1 if white_level is None else white_level
+    knots = min(top - black_level + 1, MAX_KNOTS)
+    w_level = hat_weights(levels, black_level, top)
     n, p = codes.shape
     w = w_level[codes]  # (N, P)
-    k0, a = _interpolation(codes, levels, knots, black_level)
+    k0, a = _interpolation(codes, levels, knots, black_level, top)
     rows = np.repeat(np.arange(n * p), 2)
     cols = np.stack([k0, k0 + 1], -1).reshape(-1)
     bvals = np.stack([1 - a, a], -1).reshape(-1)
@@ -305,14 +360,14 @@ def _solve_channel(codes, log_t, levels, smoothness, black_level=0):
     h = (a_mat.T @ a_mat).toarray() - (c_mat.T @ sparse.diags(inv) @ c_mat).toarray()
     b = a_mat.T @ (w.reshape(-1) * np.tile(log_t, n)) - c_mat.T @ (inv * s)
     # Smoothness rows λ w(z_k) (g[k−1] − 2g[k] + g[k+1]) Δ^(−3/2) on the interior knots.
-    step = (levels - 1 - black_level) / (knots - 1)
+    step = (top - black_level) / (knots - 1)
     k = np.arange(1, knots - 1)
     wk = np.interp(black_level + k * step, np.arange(levels), w_level)
     d = sparse.diags([1.0, -2.0, 1.0], [0, 1, 2], shape=(knots - 2, knots))
     d = sparse.diags(smoothness * wk * step**-1.5) @ d
     h += (d.T @ d).toarray()
     # Scale: g(levels/2) = 0 (one pinning row; the rest of the objective is shift-invariant).
-    km, am = _interpolation(levels // 2, levels, knots, black_level)
+    km, am = _interpolation(levels // 2, levels, knots, black_level, top)
     e = np.zeros(knots)
     e[km], e[km + 1] = 1 - am, am
     h += np.outer(e, e)
@@ -323,7 +378,7 @@ def _solve_channel(codes, log_t, levels, smoothness, black_level=0):
             g = np.linalg.solve(h, b)
         except np.linalg.LinAlgError:
             g = np.linalg.lstsq(h, b, rcond=None)[0]
-    kz, az = _interpolation(np.arange(levels), levels, knots, black_level)
+    kz, az = _interpolation(np.arange(levels), levels, knots, black_level, top)
     out = (1 - az) * g[kz] + az * g[kz + 1]
     return out - out[levels // 2]
 
@@ -334,7 +389,14 @@ MAX_SAMPLES = 1_000_000
 
 
 def recover_response(
-    images, exposure_times, *, smoothness=None, samples=None, bits=None, black_level: int = 0
+    images,
+    exposure_times,
+    *,
+    smoothness=None,
+    samples=None,
+    bits=None,
+    black_level: int = 0,
+    white_level: int | None = None,
 ) -> np.ndarray:
     """Debevec & Malik 1997 camera response g = ln f⁻¹ per channel from a bracket of photographs.
 
@@ -357,12 +419,17 @@ def recover_response(
     black_level : int
         The sensor's pedestal in DN, in [0, 2**bits / 2): Z_min of the weights (module
         docstring); merge with the same value.
+    white_level : int, optional
+        The code in DN at and above which the sensor clips, in (2**bits / 2, 2**bits − 1]: Z_max of
+        the weights of Debevec & Malik 1997 eq. 4 (module docstring); default None, the top code
+        2**bits − 1.  Merge with the same value.
 
     Returns
     -------
     ndarray of float64, shape (2**bits, C)
         g(z) in natural-log exposure (ln of seconds × radiance units), g(2**bits / 2) = 0
-        (g(128) = 0 for 8-bit input); codes at and below ``black_level`` take g(black_level).
+        (g(128) = 0 for 8-bit input); codes at and below ``black_level`` take g(black_level),
+        codes at and above ``white_level`` g(white_level).
 
     Raises
     ------
@@ -374,16 +441,17 @@ def recover_response(
         in 16-bit PNGs read with the default ``bits``, or a bracket without bright
         exposures: g would be extrapolated over most of the codes; the message names the
         bit depth the codes fit in); or no usable samples in a channel
-        (no sampled pixel has a code of non-zero weight, strictly between 0 and
-        2**bits − 1, in at least two exposures — e.g. one all-dark and one
+        (no sampled pixel has a code of non-zero weight, strictly between the black level and
+        the white level (0 and 2**bits − 1 by default), in at least two exposures — e.g. one all-dark and one
         all-saturated frame): g would be left at 0.  The message names each frame
         with its exposure time and its fractions of dark and saturated pixels.
     """
     stack, t, bits, order = _check_stack(images, exposure_times, bits)
     levels = 2**bits
     black_level = check_black_level(black_level, levels)
+    white_level = check_white_level(white_level, levels, black_level)
     _check_full_scale(stack, bits)
-    knots = min(levels - black_level, MAX_KNOTS)
+    knots = min(white_level - black_level + 1, MAX_KNOTS)
     p = len(stack)
     npix = int(np.prod(stack[0].shape[:-1])) if stack[0].ndim == 3 else int(np.prod(stack[0].shape))
     default_n = min(npix, max(512, int(np.ceil(4 * knots / (p - 1)))))
@@ -407,12 +475,14 @@ def recover_response(
         stack = [a[..., None] for a in stack]
     log_t = np.log(t)
     out = np.empty((levels, stack[0].shape[-1]))
-    usable = hat_weights(levels, black_level) > 0
+    usable = hat_weights(levels, black_level, white_level) > 0
     for ch in range(stack[0].shape[-1]):  # loop over channels (3), vectorised over samples
         codes = _sample_codes(stack, ch, samples, levels, n).astype(np.int64)
         if not np.any(np.count_nonzero(usable[codes], axis=1) >= 2):  # one usable exposure: ln E absorbs it
-            raise ValidationError(_no_samples_message(stack, t, order, ch, levels, codes.shape[0], black_level))
-        out[:, ch] = _solve_channel(codes, log_t, levels, lam, black_level)
+            raise ValidationError(
+                _no_samples_message(stack, t, order, ch, levels, codes.shape[0], black_level, white_level)
+            )
+        out[:, ch] = _solve_channel(codes, log_t, levels, lam, black_level, white_level)
     return check_rising(out, black_level, "the recovered response")
 
 
@@ -430,19 +500,23 @@ def _check_full_scale(stack, bits) -> None:
     )
 
 
-def _no_samples_message(stack, t, order, channel, levels, n, black_level=0):
-    """Why channel ``channel`` of a bracket informs no response: each frame's dark and saturated fractions."""
+def _no_samples_message(stack, t, order, channel, levels, n, black_level=0, white_level=None):
+    """Why channel ``channel`` of a bracket informs no response: each frame's dark and saturated fractions.
+
+    Dark: codes at or below ``black_level``; saturated: codes at or above ``white_level`` (DN, default the top code
+    levels − 1), the zero-weight ends of Debevec & Malik 1997 eq. 4.
+    """
+    white = levels - 1 if white_level is None else int(white_level)
     frames = []
     at = "0" if black_level == 0 else f"or below the black level {black_level}"
+    top = f"{white}" if white == levels - 1 else f"or above the white level {white}"
     for k, a in enumerate(stack):  # loop over exposures (a handful), vectorised over pixels
         c = a[..., channel]
-        dark, sat = np.count_nonzero(c <= black_level) / c.size, np.count_nonzero(c == levels - 1) / c.size
-        frames.append(
-            f"images[{order[k]}] (exposure {t[k]:.6g} s): {dark:.1%} of pixels at {at}, {sat:.1%} at {levels - 1}"
-        )
+        dark, sat = np.count_nonzero(c <= black_level) / c.size, np.count_nonzero(c >= white) / c.size
+        frames.append(f"images[{order[k]}] (exposure {t[k]:.6g} s): {dark:.1%} of pixels at {at}, {sat:.1%} at {top}")
     return (
         f"images hold no usable samples in channel {channel}: none of the {n} sampled pixels has a code strictly "
-        f"between {black_level} and {levels - 1} (non-zero weight) in at least two exposures, so the response g "
+        f"between {black_level} and {white} (non-zero weight) in at least two exposures, so the response g "
         f"cannot be recovered; {'; '.join(frames)} (add exposures between these, or check the frames)"
     )
 
@@ -472,6 +546,7 @@ def merge_photographs(
     return_weight: bool = False,
     backend: str = "auto",
     black_level: int = 0,
+    white_level: int | None = None,
 ):
     """Radiance from a bracket of non-linear photographs, Debevec & Malik 1997 eq. 6 (module docstring).
 
@@ -497,12 +572,16 @@ def merge_photographs(
     black_level : int
         The sensor's pedestal in DN (module docstring), the one ``response`` was recovered
         with: codes at and below it get no weight.
+    white_level : int, optional
+        The code in DN at and above which the sensor clips (module docstring), the one
+        ``response`` was recovered with: Z_max of Debevec & Malik 1997 eq. 4, codes at and above
+        it get no weight; default None, the top code levels − 1.
 
     Returns
     -------
     ndarray of float32, shape of one image
         Linear radiance exp(ln E) in the units of exp(g)/s; NaN where every exposure
-        is saturated (module docstring).
+        is saturated (module docstring: at or above mid-range, e.g. at or above the white level).
     """
     check_choice(weighting, "weighting", ("hat", "hat_time"))
     stack, t, _, _ = _check_stack(images, exposure_times, None)
@@ -516,7 +595,9 @@ def merge_photographs(
             f"images must hold codes below {levels} (the response has {levels} levels, {bits} bits), got {top}"
         )
     g = np.broadcast_to(g, (levels, channels))
-    w = hat_weights(levels, check_black_level(black_level, levels)).astype(np.float32)
+    black_level = check_black_level(black_level, levels)
+    white_level = check_white_level(white_level, levels, black_level)
+    w = hat_weights(levels, black_level, white_level).astype(np.float32)
     g32 = np.where(np.isfinite(g), g, g[1]).astype(np.float32)  # code 0 has weight 0; keep it finite
     tables = np.empty((len(t), levels, channels), np.float32)
     weights = np.empty((len(t), levels, channels), np.float32)
@@ -530,7 +611,9 @@ def merge_photographs(
     return (ln_e, den) if return_weight else ln_e
 
 
-def exposure_agreement(images, exposure_times, response, *, black_level: int = 0) -> np.ndarray:
+def exposure_agreement(
+    images, exposure_times, response, *, black_level: int = 0, white_level: int | None = None
+) -> np.ndarray:
     """How well a response makes a bracket's exposures agree: the diagnostic of a recovered g.
 
     With the right g, a pixel well exposed in two exposures j < k (times sorted)
@@ -551,6 +634,9 @@ def exposure_agreement(images, exposure_times, response, *, black_level: int = 0
         g = ln f⁻¹ per channel.
     black_level : int
         The sensor's pedestal in DN (module docstring): Z_min of the weights.
+    white_level : int, optional
+        The code in DN at and above which the sensor clips (module docstring): Z_max of the
+        weights (eq. 4); default None, the top code levels − 1.
 
     Returns
     -------
@@ -567,7 +653,8 @@ def exposure_agreement(images, exposure_times, response, *, black_level: int = 0
     top = max(int(a.max(initial=0)) for a in stack)
     if top > levels - 1:
         raise ValidationError(f"images must hold codes below {levels} (the response has {levels} levels), got {top}")
-    w = hat_weights(levels, check_black_level(black_level, levels))
+    black_level = check_black_level(black_level, levels)
+    w = hat_weights(levels, black_level, check_white_level(white_level, levels, black_level))
     well = w >= WELL_EXPOSED * w.max()
     ch = np.arange(channels)
     out = np.full((len(t) - 1, 2), np.nan)

@@ -76,10 +76,12 @@ def _cmd_leds(args) -> int:
     check_integer(args.grid, "--grid", 2, MAX_GRID)  # before any work: a huge grid would exhaust the memory
     if args.black_level is not None:  # its upper bound, 2**bits / 2, once the bits are known
         check_integer(args.black_level, "--black-level", 0)
+    _check_white_level(args.white_level, None)
     existing = _check_outputs(((args.output, "--output", None), (args.write_calibration, "--write-calibration", None)))
     calibration = args.calibration or str(pathlib.Path(args.target_dir) / "dome.json")
     dome = Dome.load(calibration)  # a FIFO, a directory or a device is refused without blocking
     folder = open_folder(args.target_dir)  # the manifest and the frames it lists (stat only)
+    _check_white_level(args.white_level, folder.bits)
     frames = [folder.path / f for f in folder.files.reshape(-1) if f is not None]
     _refuse_inputs(
         existing,
@@ -87,7 +89,12 @@ def _cmd_leds(args) -> int:
         + [(f, f"the target photograph {str(f)!r}") for f in frames],
     )
     result = calibrate_leds(
-        folder, dome, grid=args.grid, reference_camera=args.reference_camera, black_level=args.black_level
+        folder,
+        dome,
+        grid=args.grid,
+        reference_camera=args.reference_camera,
+        black_level=args.black_level,
+        white_level=args.white_level,
     )
     print(result.to_text())
     _warn_leds(result, args)
@@ -124,6 +131,7 @@ def _cmd_response(args) -> int:
     if args.smoothness is not None:  # before the photographs are read: an out-of-range λ ends in an overflow
         as_finite(args.smoothness, "--smoothness", 0, MAX_SMOOTHNESS)
     check_integer(args.black_level, "--black-level", 0)  # its upper bound, 2**bits / 2, once the bits are known
+    _check_white_level(args.white_level, args.bits)
     for option, given, what in (
         ("--cameras", args.cameras, "the cameras that get this response in the written calibration"),
         ("--calibration", args.calibration, "the calibration the response is put into"),
@@ -154,6 +162,7 @@ def _cmd_response(args) -> int:
         smoothness=args.smoothness,
         samples=args.samples,
         black_level=args.black_level,
+        white_level=args.white_level,
     )
     print(result.to_text())
     # Everything that can fail before any file is written (a file replaced by a failed command is lost).
@@ -173,10 +182,25 @@ def _cmd_response(args) -> int:
     return 0
 
 
+def _check_white_level(white_level, bits) -> None:
+    """Refuse a ``--white-level`` (DN, the Z_max of Debevec & Malik 1997 eq. 4) that is no code of ``bits`` bits
+    above mid-range, (2**bits / 2, 2**bits − 1] (g is pinned at 2**bits / 2, below the white level); without
+    ``bits`` yet, one that is no code above mid-range at any bit depth up to 16."""
+    from facestats.core.validate import check_integer
+
+    if white_level is None:
+        return
+    if bits is None or isinstance(bits, bool) or not isinstance(bits, int) or not 1 <= bits <= 16:
+        check_integer(white_level, "--white-level", 2, 2**16 - 1)  # bits checked where they are used
+        return
+    check_integer(white_level, "--white-level", 2 ** (bits - 1) + 1, 2**bits - 1)
+
+
 def _check_apply(dome, args) -> None:
     """Refuse, before the fit, what :meth:`ResponseCalibration.apply` would refuse after it, where the options
     tell already: cameras the calibration lacks, some cameras of a calibration without responses or with another
-    black level, a ``--bits`` whose levels differ from the calibration's responses (else the files' bits decide)."""
+    black or white level, a ``--white-level`` out of the range of the calibration's responses, a ``--bits`` whose
+    levels differ from the calibration's responses (else the files' bits decide)."""
     n_cam = dome.n_cameras
     cameras = list(range(n_cam)) if args.cameras is None else args.cameras
     bad = [c for c in cameras if not 0 <= c < n_cam]
@@ -195,6 +219,17 @@ def _check_apply(dome, args) -> None:
             f"{args.black_level}"
         )
     levels = None if current is None else current.shape[1]
+    if levels is not None and args.bits is None:
+        _check_white_level(args.white_level, levels.bit_length() - 1)
+    if current is not None and not every:
+        top = levels - 1
+        have = top if dome.camera_white_level is None else dome.camera_white_level
+        if have != (top if args.white_level is None else args.white_level):
+            raise ValidationError(
+                f"--white-level must be the calibration's camera_white_level ({have}) when only --cameras "
+                f"{' '.join(map(str, cameras))} take this response (the cameras share one), got "
+                f"{'none (the top code)' if args.white_level is None else args.white_level}"
+            )
     if levels is not None and args.bits is not None and levels != 2 ** min(args.bits, 64):
         raise ValidationError(
             f"--bits must be {levels.bit_length() - 1} to match the calibration's responses ({levels} levels), "
@@ -241,6 +276,14 @@ def add_calibrate(sub):
         help="the cameras' pedestal: codes at and below it get no weight in the merge (default: the calibration's "
         "camera_black_level, 0 if none)",
     )
+    leds.add_argument(
+        "--white-level",
+        type=ascii_int,
+        default=None,
+        metavar="DN",
+        help="the code at and above which the cameras clip, above mid-range: codes at and above it get no weight in "
+        "the merge (default: the calibration's camera_white_level, the top code if none)",
+    )
     leds.add_argument("--output", help="write the LED calibration file (facestats.led-calibration/1)")
     leds.add_argument("--write-calibration", metavar="PATH", help="write the dome calibration with the fitted LEDs")
     leds.set_defaults(func=_cmd_leds)
@@ -268,6 +311,15 @@ def add_calibrate(sub):
         metavar="DN",
         help="the sensor's pedestal: codes at and below it get no weight, g is recovered above it (default 0); "
         "--write-calibration records it as the calibration's camera_black_level, which the ingest merges with",
+    )
+    resp.add_argument(
+        "--white-level",
+        type=ascii_int,
+        default=None,
+        metavar="DN",
+        help="the code at and above which the sensor clips (e.g. 15000 for a 14-bit raw), above mid-range: codes "
+        "at and above it get no weight, g is recovered below it (default the top code 2^bits - 1); "
+        "--write-calibration records it as the calibration's camera_white_level, which the ingest merges with",
     )
     resp.add_argument("--output", help="write the response (JSON, facestats.camera-response/1)")
     resp.add_argument("--plot", help="draw g(z) per channel (.png, .svg or .pdf)")

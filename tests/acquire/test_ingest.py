@@ -452,3 +452,58 @@ def test_the_calibrations_black_level_is_what_the_ingest_merges_with(tiny, tmp_p
     ra, rb, rc = (open_ingested(p).array("radiance") for p in (a, b, c))
     np.testing.assert_array_equal(ra, rb)
     assert not np.array_equal(ra, rc, equal_nan=True)  # the pedestal changes the merge
+
+
+def test_the_calibrations_white_level_is_what_the_ingest_merges_with(tiny, tmp_path):
+    """``camera_white_level`` of the dome calibration (DN, Z_max of Debevec & Malik 1997 eq. 4): JSON round trip,
+    set by a response's ``apply``, the default of ``ingest_photographs`` (overridden by passing one), and part of the
+    resume key (an ingest begun before it was keeps resuming with the top code)."""
+    import zarr
+
+    from facestats.acquire.bracket import ResponseCalibration
+
+    _, pc, _ = tiny
+    folder = pc.folder.parent
+    dome = Dome.load(pc.calibration)
+    assert dome.camera_white_level is None and "camera_white_level" not in dome.to_dict()  # older files unchanged
+    resp = ResponseCalibration(
+        dome.camera_log_response[0], 12, np.array([1 / 60, 1 / 8]), np.zeros((1, 2)), ["e0.png", "e1.png"]
+    )
+    assert resp.to_dict()["white_level"] is None and "white level" not in resp.to_text()
+    clipping = replace(resp, white_level=2500)
+    assert clipping.to_dict()["white_level"] == 2500 and "12-bit codes, white level 2500:" in clipping.to_text()
+    clipped = clipping.apply(dome)
+    assert clipped.camera_white_level == 2500 and clipped.to_dict()["camera_white_level"] == 2500
+    assert Dome.from_dict(json.loads(json.dumps(clipped.to_dict()))).camera_white_level == 2500
+    assert Dome.from_dict(dict(dome.to_dict(), camera_white_level=None)).camera_white_level is None
+    for bad in (2048, 4096, 2500.5):
+        with pytest.raises(
+            FacestatsError, match=rf"camera_white_level must be an integer( in \[2049, 4095\])?, got {bad!r}"
+        ):
+            replace(dome, camera_white_level=bad)
+    with pytest.raises(
+        FacestatsError,
+        match=r"white_level must be the calibration's camera_white_level \(2500\) when only cameras \[0\] take this "
+        r"response \(the cameras share one\), got None: the top code 4095",
+    ):
+        resp.apply(clipped, cameras=[0])  # the cameras share one white level
+    assert replace(resp, white_level=4095).apply(dome, cameras=[0]).camera_white_level == 4095  # None ≡ top code
+    assert resp.apply(clipped).camera_white_level is None  # every camera: the new response's
+    geometry = _geometry(folder)
+    kw = dict(workers=1, min_footprint_px=1)
+    a = ingest_photographs(folder, geometry, clipped, tmp_path / "a.zarr", **kw)  # the calibration's 2500
+    c = ingest_photographs(folder, geometry, clipped, tmp_path / "c.zarr", white_level=4095, **kw)  # overridden
+    ra, rc = (open_ingested(p).array("radiance") for p in (a, c))
+    assert not np.array_equal(ra, rc, equal_nan=True)  # the white level changes the merge
+    with pytest.raises(FacestatsError, match=r"a\.zarr holds an ingest of other inputs \(white_level differ\)"):
+        ingest_photographs(folder, geometry, clipped, a, white_level=3000, **kw)
+    assert ingest_photographs(folder, geometry, clipped, a, white_level=2500, **kw) == str(a)  # the same: resumed
+    with pytest.raises(FacestatsError, match=r"white_level must be an integer in \[2049, 4095\], got 2048"):
+        ingest_photographs(folder, geometry, dome, tmp_path / "d.zarr", white_level=2048, **kw)
+    group = zarr.open_group(str(c), mode="r+")  # an ingest begun before the white level was part of the key
+    state = json.loads(group.attrs["ingest"])
+    del state["fingerprint"]["white_level"]
+    group.attrs["ingest"] = json.dumps(state)
+    assert ingest_photographs(folder, geometry, clipped, c, white_level=4095, **kw) == str(c)  # the top code
+    with pytest.raises(FacestatsError, match=r"\(white_level differ\)"):
+        ingest_photographs(folder, geometry, clipped, c, **kw)

@@ -33,8 +33,9 @@ def bracket(tmp_path):
     return out
 
 
-def _bracket_12_bit(folder, black=0):
-    """Four 16-bit PNGs holding 12-bit codes of a linear sensor on a pedestal of ``black`` DN (EXIF times)."""
+def _bracket_12_bit(folder, black=0, white=4095):
+    """Four 16-bit PNGs holding 12-bit codes of a linear sensor on a pedestal of ``black`` DN that clips at ``white``
+    DN (EXIF times)."""
     from facestats.acquire.synthetic.photographs import encode_frame
 
     rng = np.random.default_rng(3)
@@ -43,7 +44,7 @@ def _bracket_12_bit(folder, black=0):
     for k, t in enumerate([1 / 60, 1 / 10, 1 / 4, 1.0]):
         e = rate * t
         e = e + rng.standard_normal(e.shape) * np.sqrt(e + 25.0)
-        z = np.clip(np.rint(e / 20000 * (4095 - black) + black), 0, 4095).astype(np.uint16)
+        z = np.clip(np.rint(e / 20000 * (4095 - black) + black), 0, white).astype(np.uint16)
         paths.append(folder / f"h{k}.png")
         paths[-1].write_bytes(encode_frame(z, t, ".png"))
     return paths
@@ -237,3 +238,73 @@ def test_leds_left_uncalibrated_or_poorly_determined_are_named(sparse_target, tm
     r = run_cli("calibrate", "leds", sparse_target, "--grid", "8", "--output", tmp_path / "o2.json")
     assert r.returncode == 0, r.stderr  # nothing kept from before: the LED file says null
     assert r.stderr.splitlines()[0].endswith("LED 1; --output records null for them")
+
+
+def test_white_level_is_range_checked_before_the_fit_naming_the_option(target, tmp_path, capsys):
+    """--white-level DN (Debevec & Malik 1997 eq. 4's Z_max): above mid-range and at most the top code, refused
+    naming the option once the bits are known (--bits, the calibration's responses, the target folder's manifest),
+    and the same for every camera when only some take the response."""
+    from facestats.cli import main
+
+    frames = _bracket_12_bit(tmp_path)
+    new = ("--write-calibration", tmp_path / "new.json")
+    cases = [
+        (("response", *frames, "--bits", "12", "--white-level", "2048"),
+         "--white-level must be an integer in [2049, 4095], got 2048"),
+        (("response", *frames, "--bits", "12", "--white-level", "4096"),
+         "--white-level must be an integer in [2049, 4095], got 4096"),
+        (("response", *frames, "--white-level", "70000"), "--white-level must be an integer in [2, 65535], got 70000"),
+        (("response", *frames, "--calibration", target / "dome.json", "--white-level", "1000", *new),
+         "--white-level must be an integer in [2049, 4095], got 1000"),  # the calibration's 12-bit responses
+        (("response", *frames, "--bits", "12", "--calibration", target / "dome.json", "--cameras", "2",
+          "--white-level", "3000", *new),
+         "--white-level must be the calibration's camera_white_level (4095) when only --cameras 2 take this response "
+         "(the cameras share one), got 3000"),
+        (("leds", target, "--white-level", "100000"), "--white-level must be an integer in [2, 65535], got 100000"),
+        (("leds", target, "--white-level", "2048"), "--white-level must be an integer in [2049, 4095], got 2048"),
+    ]  # fmt: skip
+    for args, message in cases:
+        assert main(["calibrate", *map(str, args)]) == 2, args
+        out, err = capsys.readouterr()
+        assert err == f"facestats: error: {message}\n" and out == "", (args, err)
+    assert not (tmp_path / "new.json").exists()
+    with pytest.raises(SystemExit):
+        main(["calibrate", "response", *map(str, frames), "--white-level", "4000.5"])
+    assert "argument --white-level: must be an integer (ASCII digits 0-9), got '4000.5'" in capsys.readouterr().err
+
+
+def test_a_white_level_is_recovered_below_and_recorded(tmp_path):
+    """A 12-bit linear bracket clipping at 3,800 DN: `calibrate response --white-level 3800` recovers g = ln z below
+    it, writes it into the response file and the dome calibration (camera_white_level), which the ingest merges with."""
+    from facestats.acquire.dome import default_dome
+
+    frames = _bracket_12_bit(tmp_path, white=3800)
+    default_dome().save(tmp_path / "dome.json")
+    r = run_cli("calibrate", "response", *frames, "--bits", "12", "--white-level", "3800", "--output",
+                tmp_path / "g.json", "--calibration", tmp_path / "dome.json", "--write-calibration",
+                tmp_path / "new.json")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "4 photographs, 12-bit codes, white level 3800:" in r.stdout
+    doc = json.loads((tmp_path / "g.json").read_text())
+    assert doc["white_level"] == 3800 and doc["black_level"] == 0
+    g = np.array(doc["log_response"], float)
+    d = g[:, 80:3801] - np.log(np.arange(80, 3801.0))
+    assert np.abs(d - np.median(d, axis=1, keepdims=True)).max() < 0.03  # ln z up to it: measured 0.008 (0.79 without)
+    assert np.all(g[:, 3800:] == g[:, 3800:3801])  # above it: g(3800)
+    assert json.loads((tmp_path / "new.json").read_text())["camera_white_level"] == 3800
+
+
+def test_calibrate_leds_merges_with_the_white_level(target, tmp_path, capsys):
+    """The LED calibration's merge takes --white-level, default the calibration's camera_white_level."""
+    from facestats.acquire.calibration import target_observations
+    from facestats.acquire.dome import Dome
+    from facestats.cli import main
+
+    dome = Dome.load(target / "dome.json")
+    plain = target_observations(target, dome, grid=6)["value"]
+    given = target_observations(target, dome, grid=6, white_level=3000)["value"]
+    recorded = target_observations(target, replace(dome, camera_white_level=3000), grid=6)["value"]
+    np.testing.assert_array_equal(given, recorded)
+    assert given.shape == plain.shape and not np.array_equal(given, plain)  # the hat ends at 3000 (codes to 3706)
+    assert main(["calibrate", "leds", str(target), "--grid", "6", "--white-level", "3000"]) == 0
+    assert "camera gains" in capsys.readouterr().out

@@ -70,6 +70,10 @@ __all__ = [
     "rotation_y",
     "rotate_directions",
     "voronoi_solid_angles",
+    "light_reach",
+    "resolve_reach",
+    "nearest_light",
+    "REACH_SPACINGS",
     "unit_directions",
 ]
 
@@ -160,9 +164,14 @@ def latlong_light_samples(probe, rows: int, columns: int):
 
     The probe's pixels are grouped in equal blocks; each block becomes one light carrying the block's
     radiance integrated over its solid angle, Σ L_ij ΔΩ_ij (W mm⁻² for radiance in W mm⁻² sr⁻¹; Debevec
-    et al. 2000 eq. 4 with the exact ΔΩ of :func:`latlong_solid_angles`), from the block's solid-angle
-    weighted mean direction.  Irradiance on a surface of normal n is then Σ_b max(0, n·d_b) P_b, exact
-    for uniform light up to the blocks' cosine spread.
+    et al. 2000 eq. 4 with the exact ΔΩ of :func:`latlong_solid_angles`), from the block's power-weighted
+    mean direction (Σ_ch L_ij ΔΩ_ij ω_ij normalised; the solid-angle weighted mean for a dark block), so a
+    bright source lights from where it is.  Irradiance on a surface of normal n is then Σ_b max(0, n·d_b) P_b,
+    exact where the whole block is above the surface's horizon up to the factor P_b/|Σ L ΔΩ ω| ≥ 1 (the
+    block's spread).  Before 2026-12-06 the solid-angle weighted mean was used for every block: under the
+    Probulator probes at 8 × 16 blocks the brightest source moved by 9-11° and the Lambertian irradiance of
+    2,000 random normals erred by 20-64 % at worst (an audit); now by 11-16 %
+    (``tests/model/test_sphere.py``).
 
     Parameters
     ----------
@@ -189,7 +198,11 @@ def latlong_light_samples(probe, rows: int, columns: int):
     dw = latlong_solid_angles(h, w)
     blocks = (r, h // r, c, w // c)
     power = (img * dw[..., None]).reshape(*blocks, 3).sum(axis=(1, 3)).reshape(-1, 3)
-    d = (latlong_directions(h, w) * dw[..., None]).reshape(*blocks, 3).sum(axis=(1, 3)).reshape(-1, 3)
+    dirs = latlong_directions(h, w)
+    lit = (dirs * (img.sum(-1) * dw)[..., None]).reshape(*blocks, 3).sum(axis=(1, 3)).reshape(-1, 3)
+    area = (dirs * dw[..., None]).reshape(*blocks, 3).sum(axis=(1, 3)).reshape(-1, 3)
+    norm = np.linalg.norm(lit, axis=1, keepdims=True)
+    d = np.where(norm > 0, lit, area)  # a dark block (or one whose light cancels) keeps its centre
     return d / np.linalg.norm(d, axis=1, keepdims=True), power
 
 
@@ -327,26 +340,82 @@ def unit_directions(value, name: str = "directions", tol: float = 1e-3, *, allow
     return d / np.where(norm == 0, 1.0, norm)[..., None]
 
 
-def voronoi_solid_angles(directions, *, grid: int = 256) -> np.ndarray:
+#: How far a light of an irregular set reaches, in median nearest-neighbour spacings (:func:`light_reach`).
+REACH_SPACINGS = 4.0
+
+
+def light_reach(directions) -> float:
+    """Angle (radians) beyond which a light of an irregular set stands for no direction: :data:`REACH_SPACINGS` (4)
+    × the median angle from a light to its nearest neighbour, at most π (π for a single light).
+
+    A light set that does not surround the subject (a frontal OLAT rig, a dome without lights below) has Voronoi
+    cells at its rim that reach far behind it: 96 lights within 35° of +z (a Fibonacci cap) give rim cells of up to
+    1.16 sr reaching 145° from their light, so a probe lit only from behind relit a +z-facing white Lambertian pixel
+    to 1.33 (found by an audit; the truth is 0).  Directions farther than the reach from every light are left out of
+    the cells.  Four spacings leave sets that surround the subject whole: 150 uniformly random directions have cells
+    reaching 3.2-3.4 spacings, a Fibonacci set 0.8; Weyrich's 150-LED dome (spacing 9.4°) loses the directions more
+    than 37.6° from every LED, 1.9 % of the sphere below the face.
+    """
+    from scipy.spatial import cKDTree
+
+    d = np.asarray(directions, np.float64).reshape(-1, 3)
+    if d.shape[0] < 2:
+        return float(np.pi)
+    chord, _ = cKDTree(d).query(d, 2)
+    spacing = float(np.median(2 * np.arcsin(np.clip(chord[:, 1] / 2, 0, 1))))
+    return float(min(np.pi, REACH_SPACINGS * spacing))
+
+
+def resolve_reach(reach, directions) -> float:
+    """The reach (radians) of ``reach``: ``"auto"`` → :func:`light_reach`, None → π (cells unbounded), else the
+    angle, checked in (0, π]."""
+    if isinstance(reach, str) and reach == "auto":
+        return light_reach(directions)
+    if reach is None:
+        return float(np.pi)
+    r = as_finite(reach, "reach", 0, np.pi, low_inclusive=False, unit="rad", dtype=np.float64)
+    if r.ndim:
+        raise ValidationError(f"reach must be one angle (radians), 'auto' or None, got an array of shape {r.shape}")
+    return float(r)
+
+
+def nearest_light(directions, samples, reach: float):
+    """Index of the nearest light of each sample direction (its Voronoi cell); ``len(directions)`` where no light
+    lies within ``reach`` radians (:func:`light_reach`).  Both arguments unit vectors, (L, 3) and (N, 3)."""
+    from scipy.spatial import cKDTree
+
+    d = np.asarray(directions, np.float64).reshape(-1, 3)
+    if reach >= np.pi:
+        return cKDTree(d).query(samples)[1]
+    bound = 2 * np.sin(reach / 2) * (1 + 1e-12)  # the chord of the reach angle
+    return cKDTree(d).query(samples, distance_upper_bound=bound)[1]
+
+
+def voronoi_solid_angles(directions, *, grid: int = 256, reach="auto") -> np.ndarray:
     """Solid angle of the spherical Voronoi cell of each direction of an arbitrary light set, (L,), sr.
 
     The cell of light k is the part of the sphere closer to it than to any other
-    light; the cells tile the sphere, so the solid angles sum to 4π.  This is the
-    δA of eq. 4 (Debevec et al. 2000) for a dome whose lights are not on a
-    lat-long grid (e.g. Weyrich's 150 LEDs).  Exact cell areas from
-    :class:`scipy.spatial.SphericalVoronoi`; for sets it cannot tessellate (fewer
-    than 4 lights, all lights on one great circle) the cells are measured on a
-    ``grid`` × 2 ``grid`` lat-long grid (each exact cell to its nearest light; the
-    sum is still 4π, each share exact to about a cell row).
+    light and within ``reach`` of it (:func:`light_reach`); for a set that
+    surrounds the subject the cells tile the sphere and sum to 4π, otherwise
+    4π − Σ is the solid angle no light stands for.  This is the δA of eq. 4
+    (Debevec et al. 2000) for a dome whose lights are not on a lat-long grid (e.g.
+    Weyrich's 150 LEDs).  Cells within the reach have exact areas from
+    :class:`scipy.spatial.SphericalVoronoi`; a cell that extends beyond it, and
+    every cell of a set it cannot tessellate (fewer than 4 lights, all lights on
+    one great circle), is measured on a ``grid`` × 2 ``grid`` lat-long grid (each
+    share exact to about a cell row).
 
     Parameters
     ----------
     directions : array_like, shape (L, 3)
         Distinct unit vectors.
     grid : int
-        Rows of the fallback grid.
+        Rows of the measuring grid.
+    reach : "auto", float or None
+        How far a light's cell extends (radians): ``"auto"`` :func:`light_reach`, a number in (0, π], or None
+        (unbounded cells: the sum is always 4π, as before 2026-12-06).
     """
-    from scipy.spatial import SphericalVoronoi, cKDTree
+    from scipy.spatial import SphericalVoronoi
 
     d = unit_directions(directions)
     check_shape(d, "directions", (None, 3))
@@ -354,11 +423,25 @@ def voronoi_solid_angles(directions, *, grid: int = 256) -> np.ndarray:
         raise ValidationError("directions must hold at least one light, got none")
     if np.unique(np.round(d, 12), axis=0).shape[0] != d.shape[0]:
         raise ValidationError("directions must be distinct, got the same direction twice")
+    g = check_integer(grid, "grid", 8, 4096)
+    r = resolve_reach(reach, d)
+
+    def measured():
+        idx = nearest_light(d, latlong_directions(g, 2 * g).reshape(-1, 3), r)
+        w = latlong_solid_angles(g, 2 * g).reshape(-1)
+        return np.bincount(idx, weights=w, minlength=d.shape[0] + 1)[: d.shape[0]]
+
+    if d.shape[0] < 4 or np.linalg.matrix_rank(d, tol=1e-9) < 3:
+        return measured()
     try:
-        if d.shape[0] < 4 or np.linalg.matrix_rank(d, tol=1e-9) < 3:
-            raise ValueError("degenerate")
-        return SphericalVoronoi(d, radius=1.0, center=np.zeros(3), threshold=1e-9).calculate_areas()
+        sv = SphericalVoronoi(d, radius=1.0, center=np.zeros(3), threshold=1e-9)
     except ValueError:
-        g = check_integer(grid, "grid", 8, 4096)
-        _, idx = cKDTree(d).query(latlong_directions(g, 2 * g).reshape(-1, 3))
-        return np.bincount(idx, weights=latlong_solid_angles(g, 2 * g).reshape(-1), minlength=d.shape[0])
+        return measured()
+    areas = sv.calculate_areas()
+    if r < np.pi:
+        # A cell is a convex spherical polygon: its farthest point from its light is a vertex (a loop over lights).
+        nearest_cos = np.array([np.min(sv.vertices[region] @ d[k]) for k, region in enumerate(sv.regions)])
+        beyond = np.arccos(np.clip(nearest_cos, -1, 1)) > r
+        if beyond.any():
+            areas[beyond] = measured()[beyond]
+    return areas

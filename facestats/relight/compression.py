@@ -391,11 +391,14 @@ class _Pass:
 
 def _colours(stream, s, off_plane):
     """Per face pixel: its diffuse colour d (P, 3), whether its off-plane row is stored (its contribution
-    ‖(d×s) μe‖ above ``off_plane`` times the pixel's norm ‖y‖), and the squared norm of the rows left out."""
+    ‖(d×s) μe‖ above ``off_plane`` times the pixel's norm ‖y‖), the squared norm of the rows left out, and whether
+    every value of the field is ≥ 0 (:attr:`CompressedField.nonnegative`)."""
     d = np.empty((stream.n_pix, 3))
     keep = np.zeros(stream.n_pix, bool)
     dropped = np.zeros(stream.n_pix)
+    nonnegative = True
     for sel, rows in stream.channels("compress: colours"):
+        nonnegative = nonnegative and not bool((rows < 0).any())
         dd = diffuse_colours(rows, s)
         e = np.einsum("nql,nql->n", rows, rows, dtype=np.float64)
         mu_e = np.einsum("nc,ncl->nl", _colour_inverse(dd, s)[:, 2].astype(np.float32), rows)
@@ -403,7 +406,7 @@ def _colours(stream, s, off_plane):
         size = np.linalg.norm(np.cross(dd, s), axis=-1) ** 2 * off
         d[sel], keep[sel] = dd, size > off_plane**2 * e
         dropped[sel] = np.where(keep[sel], 0, off)
-    return d, keep, dropped
+    return d, keep, dropped, nonnegative
 
 
 def _clusters(stream, c, nf, s, rng):
@@ -728,6 +731,11 @@ class CompressedField:
     image_shape : tuple of int
     parts : int
         Parts per (region, cluster, row) block (:func:`compress`).
+    nonnegative : bool
+        Every value of the compressed field was ≥ 0 (a measured or rendered field), so its relights under
+        lighting ≥ 0 are too and :meth:`relight` clamps the bases' ringing at 0; False for a field holding
+        differences (e.g. :func:`facestats.relight.relighting.indirect_field`'s white − black), whose relights
+        may be negative and are returned as they are.
 
     Notes
     -----
@@ -748,6 +756,7 @@ class CompressedField:
     directions: np.ndarray
     image_shape: tuple
     parts: int
+    nonnegative: bool = True
     _packed: _Packed = dataclass_field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -831,8 +840,9 @@ class CompressedField:
         ``"numba"`` computes the projections and the rows' products in compiled passes over the stored values on
         all cores (:mod:`facestats.relight.compression_numba`; its cost does not grow with the number of blocks),
         ``"numpy"`` one BLAS product per region and one small GEMM per block (a Python loop over the blocks); they
-        agree to float32 rounding.  Values below 0 (the truncated bases' ringing under lighting much narrower
-        than their components) are returned as 0: radiance is not negative.
+        agree to float32 rounding.  For a :attr:`nonnegative` field, values below 0 (the truncated bases'
+        ringing under lighting much narrower than their components) are returned as 0: its radiance is not
+        negative; a field of differences keeps them.
         """
         if (lighting is None) == (probe is None):
             raise ValidationError("pass exactly one of lighting (L·δA per light) and probe")
@@ -861,8 +871,9 @@ class CompressedField:
         out = check_relit(out.reshape(self.image_shape + (3,)), "compressed relight")
         # radiance is not negative: the truncated bases ring below 0 under lighting much narrower than their
         # components (a single light of a 32 x 64 field: 314 pixels, down to -19 % of the image's maximum).
-        # Lighting >= 0 on reflectance >= 0 relights to >= 0, so clamping never moves a value away from it.
-        return np.maximum(out, 0, out=out)
+        # Lighting >= 0 on reflectance >= 0 relights to >= 0, so clamping never moves a value away from it; a
+        # field of differences (indirect_field's white - black) relights to negative values legitimately.
+        return np.maximum(out, 0, out=out) if self.nonnegative else out
 
     def error_bound(self, lighting) -> np.ndarray:
         """Per-pixel bound on |relight(compressed) − relight(dense)| over the stored pixels (0 elsewhere):
@@ -975,7 +986,7 @@ def compress(
     regions = [np.flatnonzero(region_of == r) for r in range(2 * sectors)]
     regions = [lights for lights in regions if lights.size]
     stream = _Pass(f, pixels, sw, progress)
-    colours, off_kept, off_dropped = _colours(stream, light, tol)
+    colours, off_kept, off_dropped, nonnegative = _colours(stream, light, tol)
     mix = separation_basis(colours, light)
     stream.set_colours(_colour_inverse(colours, light), off_kept)
     labels = _clusters(stream, c, nf, s, rng)
@@ -1018,4 +1029,5 @@ def compress(
         directions=np.asarray(f["direction"].values, np.float64),
         image_shape=(f.sizes["y"], f.sizes["x"]),
         parts=n_parts,
+        nonnegative=nonnegative,
     )

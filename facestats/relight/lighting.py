@@ -17,9 +17,13 @@ Resampling conserves Σ L·δΩ exactly:
   pixel, subdivided ``supersample`` × ``supersample`` into sub-cells with exact
   solid angles, is given to its nearest light, i.e. the probe is integrated
   over the spherical Voronoi cells of the lights
-  (:func:`facestats.model.sphere.voronoi_solid_angles`).  Every sub-cell goes to
-  exactly one light, so the total is conserved exactly; each light's share is
-  exact up to the sub-cells cut by a Voronoi edge.
+  (:func:`facestats.model.sphere.voronoi_solid_angles`), each bounded by the
+  light's reach (:func:`facestats.model.sphere.light_reach`: four median light
+  spacings).  Every sub-cell goes to at most one light, so the total over the
+  directions the lights reach is conserved exactly; light from beyond every
+  light's reach (behind a frontal OLAT rig) is left out rather than given to
+  a rim light far from it.  Each light's share is exact up to the sub-cells cut
+  by a Voronoi edge.
 """
 
 from __future__ import annotations
@@ -38,6 +42,8 @@ from facestats.model.sphere import (
     latlong_coordinates,
     latlong_directions,
     latlong_edges,
+    nearest_light,
+    resolve_reach,
     rotate_directions,
     unit_directions,
 )
@@ -155,7 +161,9 @@ def _is_latlong_grid(d):
     return d.ndim == 3 and d.shape[2] == 3 and np.allclose(d, latlong_directions(d.shape[0], d.shape[1]), atol=1e-6)
 
 
-def resample_probe(probe, directions=None, *, layout: str = "latlong", rotate: float = 0.0, supersample: int = 4):
+def resample_probe(
+    probe, directions=None, *, layout: str = "latlong", rotate: float = 0.0, supersample: int = 4, reach="auto"
+):
     """Per-light L·δA of a light probe for a light set (Debevec et al. 2000 eq. 4), conserving Σ L·δΩ exactly.
 
     Parameters
@@ -175,12 +183,20 @@ def resample_probe(probe, directions=None, *, layout: str = "latlong", rotate: f
     supersample : int
         Sub-cells per pixel side for the Voronoi integration (and for angular
         probes), 1-16.
+    reach : "auto", float or None
+        How far a Voronoi cell extends from its light (radians,
+        :func:`facestats.model.sphere.light_reach`; None: unbounded); the probe's
+        light from directions beyond every light's reach is left out.  Use the
+        same value as the field's solid angles
+        (:func:`facestats.model.sphere.voronoi_solid_angles`).
 
     Returns
     -------
     ndarray of float64, shape directions.shape[:-1] + (3,)
         ∫_cell L dΩ per light and channel.  Their sum over lights equals
-        Σ_pixels L ΔΩ of the probe (exactly, up to rounding).
+        Σ_pixels L ΔΩ of the probe (exactly, up to rounding) over the directions
+        the lights reach: all of them for a lat-long grid or a set that
+        surrounds the subject.
     """
     p = check_probe(probe, layout)
     supersample = check_integer(supersample, "supersample", 1, 16)
@@ -198,21 +214,16 @@ def resample_probe(probe, directions=None, *, layout: str = "latlong", rotate: f
     if layout == "latlong" and _is_latlong_grid(d):
         return _latlong_to_grid(p, d.shape[0], d.shape[1])
     flat = d.reshape(-1, 3)
-    if _is_latlong_grid(d):  # an angular probe onto a lat-long grid: its cells, not Voronoi cells
-        tree = None
-    else:
-        from scipy.spatial import cKDTree
-
-        tree = cKDTree(flat)
-    out = np.zeros((flat.shape[0], 3))
+    grid = _is_latlong_grid(d)  # an angular probe onto a lat-long grid: its cells, not Voronoi cells
+    r = None if grid else resolve_reach(reach, flat)
+    n = flat.shape[0]
+    out = np.zeros((n, 3))
     for rows in _bands(p.shape, layout, supersample):  # loop over bands of probe rows: bounded memory
         samples, weights = probe_samples(p, layout, supersample, rows=rows)
-        if tree is None:
-            idx = _grid_cells(samples, d.shape[0], d.shape[1])
-        else:
-            _, idx = tree.query(samples)  # nearest light on the unit sphere = its Voronoi cell
+        # the nearest light on the unit sphere = its Voronoi cell; n (dropped) beyond every light's reach
+        idx = _grid_cells(samples, d.shape[0], d.shape[1]) if grid else nearest_light(flat, samples, r)
         for c in range(3):
-            out[:, c] += np.bincount(idx, weights=weights[:, c], minlength=flat.shape[0])
+            out[:, c] += np.bincount(idx, weights=weights[:, c], minlength=n + 1)[:n]
     return out.reshape(d.shape[:-1] + (3,))
 
 

@@ -21,9 +21,12 @@ the facet distribution P(h) ∝ S · (v₀·n)/(G F) and P is interpolated
 bilinearly *in its logarithm* on the lat-long grid of lights: the lobe is close
 to a Gaussian in the angles, whose logarithm is quadratic, so the
 interpolation error is a small uniform fraction instead of growing in the
-tails.  The ratio of the non-D terms is clamped near grazing (v·n and G F at
-least ``min_cos``), lights lₚ or l_q below the horizon give 0, and a shadow
-mask (if given) zeroes shadowed lₚ (§4.4).
+tails.  The ratio of the non-D terms is clamped near grazing (v·n at least
+``min_cos``; G F is not clamped: where it vanishes at the original view, S
+does too, and P = S/(G F/(v·n)) is taken as 0 where the ratio is 0), lights
+lₚ or l_q below the horizon give 0, and a shadow mask (if given) zeroes
+shadowed lₚ (§4.4).  A pixel without a separated normal (NaN) takes its view
+direction as the normal.
 
 **Diffuse** (§4.3).  Each diffuse sample's chromaticity is moved along the
 ramp of eq. 6-7 (:mod:`facestats.relight.separate`): its own chromaticity stands
@@ -135,7 +138,7 @@ def remap_specular(specular, normal, view_old, view_new, *, eta=ETA_SKIN, shadow
     shadow : array_like of bool, shape (n_phi, n_theta, N), optional
         Lit samples (True); shadowed novel-view samples are set to 0 (§4.4).
     min_cos : float
-        Clamp of the grazing denominators (v·n, G F).
+        Clamp of the grazing denominator v·n.
 
     Returns
     -------
@@ -246,7 +249,8 @@ def novel_view_field(separation, view_new, *, eta=ETA_SKIN, shadow=None, s=None)
         raise ValidationError("separation must be of a lat-long grid field and carry the field's 'view'")
     n_phi, n_theta, h, w = (sep.sizes[k] for k in ("light_phi", "light_theta", "y", "x"))
     n = h * w
-    nrm = np.nan_to_num(np.asarray(sep["normal"].values, np.float64).reshape(n, 3))
+    raw = np.asarray(sep["normal"].values, np.float64).reshape(n, 3)
+    nrm = np.nan_to_num(raw)
     v0 = np.asarray(sep["view"].values, np.float64).reshape(n, 3)
     vn = unit_directions(view_new, "view_new")
     vn = check_shape(np.broadcast_to(vn, (h, w, 3)) if vn.shape == (3,) else vn, "view_new", (h, w, 3)).reshape(n, 3)
@@ -255,7 +259,9 @@ def novel_view_field(separation, view_new, *, eta=ETA_SKIN, shadow=None, s=None)
     diff = np.asarray(sep["diffuse"].values, np.float64).reshape(n_phi * n_theta, n, 3)
     sh = None if shadow is None else check_shape(np.asarray(shadow, bool), "shadow", (n_phi, n_theta, h, w))
     sh = None if sh is None else sh.reshape(n_phi, n_theta, n)
-    new_spec = remap_specular(np.nan_to_num(spec), np.where(np.isfinite(nrm).all(1, keepdims=True), nrm, v0), v0,
+    # A pixel without a separated normal keeps its specular about the view (the NaN test on the raw normals: on
+    # nan_to_num's zeros it never fired, and such pixels lost their specular in the new view).
+    new_spec = remap_specular(np.nan_to_num(spec), np.where(np.isfinite(raw).all(1, keepdims=True), raw, v0), v0,
                               vn, eta=eta, shadow=sh)  # fmt: skip
     dirs = latlong_directions(n_phi, n_theta).reshape(-1, 3)
     cos_i = dirs @ nrm.T

@@ -9,7 +9,7 @@ colour) and e = d × s an error direction; μ = [d s e]⁻¹ R.  The specular pa
 is S = max(μs, 0) s and the diffuse part D = R − S, so D + S = R exactly.
 Chromaticities are unit RGB vectors.  When d and s are nearly parallel the
 matrix is ill-conditioned: its condition number is returned and pixels above
-``max_condition`` are flagged; negative μs are clamped to 0 and counted.
+``max_condition`` are flagged; μs is clamped to [0, min_c R_c/s_c] and counted.
 
 The diffuse chromaticity is not constant (§4.1): it desaturates towards the
 light colour as θi and θr grow, which eq. 6-7 model as
@@ -318,7 +318,8 @@ def separate_field(field, s=WHITE, *, view=None, ramp: bool = True, mirror_deg: 
     -------
     xarray.Dataset
         ``diffuse`` and ``specular`` (dims of the field's reflectance), per pixel
-        ``normal``, ``specular_normal`` (half vector of the specular peak),
+        ``normal``, ``specular_normal`` (half vector of the specular peak; NaN where the
+        specular is nowhere above 1e-6 of the pixel's brightest sample),
         ``albedo`` (ρd, RGB), ``rho_s``, ``alpha0``, ``alpha1``, ``d0``,
         ``condition`` and ``ill_conditioned``, ``n_clamped`` (μs clamped into [0, min_c R_c / s_c]).
     """
@@ -400,11 +401,15 @@ def _separate_pixels(r, dirs, sa, v, d0, s_unit, ramp, mirror_deg, shadow_thresh
     d_ramp = ramp_chromaticity(np.broadcast_to(d0, r.shape), s_unit, fr)
     diffuse, spec, _, clamped = separate_colour(r, d_ramp, s_unit)
     normal, albedo = lambertian_fit(diffuse, dirs, lit * 1.0)
-    peak = np.argmax(np.linalg.norm(spec, axis=-1), axis=0)
+    size = np.linalg.norm(spec, axis=-1)
+    peak = np.argmax(size, axis=0)
     hv = dirs[peak] + v
+    hv /= np.linalg.norm(hv, axis=-1, keepdims=True)
+    # No specular above rounding (1e-6 of the pixel's brightest sample): no peak, so no specular normal.
+    hv[size[peak, np.arange(n)] <= 1e-6 * np.linalg.norm(r, axis=-1).max(0)] = np.nan
     return {
         "diffuse": diffuse, "specular": spec, "normal": normal,
-        "specular_normal": hv / np.linalg.norm(hv, axis=-1, keepdims=True), "albedo": albedo,
+        "specular_normal": hv, "albedo": albedo,
         "rho_s": np.einsum("ln,l->n", spec.mean(-1), sa), "alpha0": a0, "alpha1": a1, "clamped": clamped,
     }  # fmt: skip
 

@@ -27,9 +27,14 @@ __all__ = ["threshold_shadow_maps", "shadow_agreement"]
 
 
 def _wrap_morphology(lit, op, iterations):
-    """Binary opening/closing on (n_phi, n_theta, ...) with a 3 × 3 element over the first two axes, θ wrapping."""
+    """Binary opening/closing on (n_phi, n_theta, ...) with a 3 × 3 element over the first two axes, θ wrapping.
 
-    pad = iterations + 1
+    An opening or closing of ``iterations`` = c steps reads up to 2c cells away (c erosions, then c dilations), so
+    2c + 1 cells are padded on each side; c + 1 left the seam's result depending on where the map starts in
+    azimuth for c ≥ 2 (an audit).
+    """
+
+    pad = 2 * iterations + 1
     x = np.concatenate([lit[:, -pad:], lit, lit[:, :pad]], axis=1)
     struct = np.zeros((3, 3) + (1,) * (lit.ndim - 2), bool)
     struct[:, :, ...] = True

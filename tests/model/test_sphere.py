@@ -144,3 +144,29 @@ def test_latlong_light_samples_put_the_centre_column_behind_the_head():
         sphere.latlong_light_samples(probe, 5, 16)
     with pytest.raises(ValidationError, match="width 2 x height"):
         sphere.latlong_light_samples(np.zeros((16, 16, 3)), 4, 4)
+
+
+def test_latlong_light_samples_light_from_where_the_light_is(rng):
+    """A block's light points along its power-weighted mean direction: a sun off the block's centre lights from the
+    sun (the solid-angle weighted centre put it up to 11° away under the Probulator probes; an audit), and the
+    Lambertian irradiance of a sky with a sun errs far less than from the blocks' centres."""
+    h, w = 64, 128
+    d = sphere.latlong_directions(h, w)
+    probe = np.full((h, w, 3), 0.2)
+    sun = d[9, 22]  # near a corner of block (1, 2) of the 8 x 16 blocks (rows 8-15, columns 16-23)
+    probe[d @ sun > np.cos(np.radians(1.5))] = 4000.0
+    dirs, power = sphere.latlong_light_samples(probe, 8, 16)
+    block = np.argmax(power[:, 0])
+    assert np.degrees(np.arccos(dirs[block] @ sun)) < 2.0  # 0.01°
+    n = rng.normal(size=(500, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    power_px = probe.reshape(-1, 3) * sphere.latlong_solid_angles(h, w).reshape(-1, 1)
+    full = np.maximum(n @ d.reshape(-1, 3).T, 0) @ power_px
+    lit = full[:, 0] > 0.05 * full[:, 0].max()  # normals the sun reaches
+    err = np.abs(np.maximum(n @ dirs.T, 0) @ power - full)[lit, 0] / full[lit, 0]
+    area = sphere.latlong_solid_angles(h, w)[..., None] * d
+    centres = area.reshape(8, 8, 16, 8, 3).sum((1, 3)).reshape(-1, 3)
+    centres /= np.linalg.norm(centres, axis=1, keepdims=True)
+    err_centres = np.abs(np.maximum(n @ centres.T, 0) @ power - full)[lit, 0] / full[lit, 0]
+    assert np.degrees(np.arccos(centres[block] @ sun)) > 5  # 8.7° from the block centre
+    assert np.median(err) < 0.2 * np.median(err_centres)

@@ -283,3 +283,18 @@ def test_a_compressed_relight_is_never_negative_and_clamping_only_helps():
     img, ref = (x.reshape(-1, 3)[comp.pixels] for x in (comp.relight(lighting=light), relight(f, light)))
     assert img.min() == 0  # was -0.0032
     assert np.all(np.abs(img - ref) <= comp.error_bound(light).reshape(-1, 3)[comp.pixels] + 1e-6)
+
+
+def test_a_field_of_differences_keeps_its_negative_relights():
+    """indirect_field's white − black holds negative values, and its dense relight may be negative; the clamp at 0
+    (for fields of radiance) must not apply there (an audit: at full rank 84 % of pixels differed)."""
+    f = ts_lambert_field(16, 16, m=0.3)[0]
+    diff = f.copy(deep=True)
+    diff["reflectance"].values[..., ::2] *= np.float32(-0.5)  # a signed field: some lights subtract
+    comp = cmp.compress(diff, ratio=1.0, clusters=1)
+    assert not comp.nonnegative and cmp.compress(f, ratio=1.0, clusters=1).nonnegative
+    light = resample_probe(sky_probe(32), f["direction"].values)
+    got, ref = comp.relight(light), relight(diff, light)
+    m = f["mask"].values
+    assert ref[m].min() < 0 and got[m].min() < 0
+    np.testing.assert_allclose(got[m], ref[m], atol=1e-4 * np.abs(ref[m]).max())

@@ -55,11 +55,38 @@ def test_arbitrary_light_sets_use_voronoi_cells_and_conserve_energy(rng):
     d[:, 1] = np.abs(d[:, 1])  # a dome: lights above the horizon only
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     p = _probe(rng, 32)
-    w = lighting.resample_probe(p, d)
+    w = lighting.resample_probe(p, d, reach=None)  # unbounded cells: the whole probe, exactly
     assert w.shape == (150, 3)
     assert np.allclose(w.sum(0), _total(p), rtol=1e-10)
+    # Cells bounded by the lights' reach: a uniform probe gives each light its cell, and leaves out exactly the
+    # solid angle no light reaches (here most of the lower hemisphere).
     w1 = lighting.resample_probe(lighting.uniform_probe(64), d, supersample=4)
-    assert np.allclose(w1[:, 0], sphere.voronoi_solid_angles(d), rtol=0.03, atol=2e-3)
+    sa = sphere.voronoi_solid_angles(d)
+    assert np.allclose(w1[:, 0], sa, rtol=0.03, atol=2e-3)
+    assert 4 * np.pi - w1[:, 0].sum() == pytest.approx(4 * np.pi - sa.sum(), rel=0.02)
+    assert 0.2 < 1 - sa.sum() / (4 * np.pi) < 0.5
+    assert np.all(lighting.resample_probe(p, d) <= w + 1e-12)
+
+
+def test_a_frontal_light_set_takes_no_light_from_behind():
+    """96 lights within 35° of +z: their rim cells reached 145° behind, so a probe lit only from behind relit a
+    +z-facing white Lambertian pixel to 1.33 here (the truth: 0; a uniform environment gives 1 at most; an audit)."""
+    from facestats.relight.field import make_field
+    from facestats.relight.relighting import relight
+
+    i = np.arange(96) + 0.5
+    z = 1 - i / 96 * (1 - np.cos(np.radians(35)))
+    phi = i * np.pi * (3 - np.sqrt(5))
+    d = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], -1)
+    values = np.repeat((np.clip(d[:, 2], 0, None) / np.pi)[:, None, None, None], 3, axis=-1)  # (L, 1, 1, 3)
+    field = make_field(values, d)
+    assert field["solid_angle"].values.max() < 0.15  # 1.16 sr with unbounded cells
+    behind = np.zeros((64, 128, 3), np.float32)
+    behind[:, :, :] = (sphere.latlong_directions(64, 128)[..., 2] < -0.2)[..., None]
+    assert relight(field, probe=behind).max() == 0  # 1.33 with unbounded cells
+    front = relight(field, probe=lighting.uniform_probe(64))
+    # A uniform environment: at least the lit cap's share sin² 35° of the irradiance, and below the albedo.
+    assert np.sin(np.radians(35)) ** 2 < front.max() < 1
 
 
 def test_the_weyrich_dome_leds_are_a_voronoi_light_set(rng):
@@ -69,9 +96,12 @@ def test_the_weyrich_dome_leds_are_a_voronoi_light_set(rng):
     d = dome.led_position - [0, 0, 40.0]  # from the head centre towards each of the 150 LEDs
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     p = _probe(rng, 32)
-    w = lighting.resample_probe(p, d, supersample=2)
+    w = lighting.resample_probe(p, d, supersample=2, reach=None)
     assert w.shape == (150, 3) and np.allclose(w.sum(0), _total(p), rtol=1e-10)
-    assert sphere.voronoi_solid_angles(d).sum() == pytest.approx(4 * np.pi, rel=1e-9)
+    assert sphere.voronoi_solid_angles(d, reach=None).sum() == pytest.approx(4 * np.pi, rel=1e-9)
+    # Within four LED spacings (37.6°) of some LED: all but 1.9 % of the sphere, below the face.
+    assert sphere.light_reach(d) == pytest.approx(np.radians(37.6), abs=np.radians(0.1))
+    assert 1 - sphere.voronoi_solid_angles(d).sum() / (4 * np.pi) == pytest.approx(0.019, abs=0.002)
 
 
 def test_rotation_by_whole_columns_is_a_roll_and_fractions_conserve(rng):

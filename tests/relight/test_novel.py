@@ -100,3 +100,22 @@ def test_views_must_be_unit_vectors():
     for scale in (1.1, 3.0, 0.5):  # 0 is allowed: a pixel with no surface
         with pytest.raises(ValidationError, match="view_old must hold unit vectors"):
             novel.remap_specular(s0, n, n * scale, n)
+
+
+def test_a_pixel_without_a_normal_keeps_its_specular_and_no_specular_has_no_normal():
+    """novel_view_field meant to remap a pixel with a NaN normal about its view, but tested the NaN after nan_to_num
+    had made it 0, so the pixel lost its specular; separate_field gave a specular normal (the half vector of light 0)
+    to pixels without specular (an audit)."""
+    from tests.relight.fields import ts_lambert_field
+
+    f, *_ = ts_lambert_field(4, 4, n_theta=32, n_phi=16)
+    out = separate.separate_field(f, [1, 1, 1])
+    out["view"] = f["view"]
+    out["normal"].values[1, 2] = np.nan
+    dull = out.copy(deep=True)
+    dull["specular"].values[...] = 0
+    new = novel.novel_view_field(out, f["view"].values)["reflectance"].values[..., 1, 2, :]
+    diffuse_only = novel.novel_view_field(dull, f["view"].values)["reflectance"].values[..., 1, 2, :]
+    assert (new - diffuse_only).max() > 0.5 * out["specular"].values[..., 1, 2, :].max()  # was 0
+    lambert, *_ = ts_lambert_field(4, 4, rho_s=0.0, n_theta=32, n_phi=16)
+    assert np.isnan(separate.separate_field(lambert, [1, 1, 1], ramp=False)["specular_normal"].values).all()

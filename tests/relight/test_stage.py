@@ -132,3 +132,14 @@ def test_subjects_without_a_known_geometry_are_refused(subject):
     for lights in ((8,), (8, 4, 2), 8):
         with pytest.raises(ValidationError, match=r"lights must be \(n_theta, n_phi\)"):
             stage.relight_subject(subject, sky_probe(16), lights=lights, camera=stage.stage_camera(size=8))
+
+
+@pytest.mark.parametrize("clean", [1, 2, 3])
+def test_shadow_map_cleaning_does_not_depend_on_where_azimuth_starts(rng, clean):
+    """The azimuth wraps: turning the light grid turns the cleaned map. With c + 1 padded columns an opening or
+    closing of c ≥ 2 steps (which reads 2c cells away) changed columns at the seam (an audit)."""
+    values = np.repeat((rng.uniform(size=(32, 64, 4, 5, 1)) > 0.4).astype(float), 3, axis=-1)  # 20 binary maps
+    lit = threshold_shadow_maps(values, 0.5, clean=clean)
+    for k in (5, 32):
+        turned = threshold_shadow_maps(np.roll(values, k, axis=1), 0.3, clean=clean)
+        np.testing.assert_array_equal(turned, np.roll(lit, k, axis=1))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from facestats.cli.options import ascii_float, ascii_int, named_options, store_path_option
+from facestats.cli.options import ascii_float, ascii_int, check_apart_from_store, named_options, store_path_option
 
 __all__ = ["add_microstructure"]
 
@@ -50,6 +50,7 @@ def _check_generate(args) -> None:
     if args.store is not None and args.subject is None:
         raise ValidationError(f"--store names the store of --subject; give --subject too (got --store {args.store!r})")
     check_output_file(args.out, "--out", (".exr",), overwrite=args.overwrite)
+    check_apart_from_store(args.out, "--out", args.store)  # never a file mixed into the store
     check_integer(args.size, "--size", 2, MAX_NEUTRAL_MAP_SIZE)
     as_finite(args.texel_um, "--texel-um", 0.0, 1000.0, low_inclusive=False, unit="um")
     if args.seed is not None:

@@ -17,6 +17,7 @@ __all__ = [
     "add_store_option",
     "store_path_option",
     "open_store_option",
+    "check_apart_from_store",
     "TEXTURE_SAMPLE",
     "DEFAULT_STORE",
     "ascii_number",
@@ -132,6 +133,20 @@ def store_path_option(value):
 
         return str(texture_sample())
     return value
+
+
+def check_apart_from_store(path, name: str, value) -> None:
+    """Refuse an output ``path`` (option ``name``) that is the store a ``--store`` value names, or lies inside it.
+
+    Writing there would mix files into the store (:func:`facestats.core.outputs.check_apart`).  The
+    embedded default and the texture sample are zip files nothing can be written into: not looked up
+    (so the texture sample is never built just for this check).
+    """
+    from facestats.core.outputs import check_apart
+
+    if value is None or value in (DEFAULT_STORE, TEXTURE_SAMPLE):
+        return
+    check_apart(path, value, name, "the store")
 
 
 def open_store_option(value, mode: str = "r"):

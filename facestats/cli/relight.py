@@ -33,6 +33,7 @@ from facestats.cli.options import (
     ascii_float,
     ascii_int,
     ascii_number,
+    check_apart_from_store,
     named_options,
     open_store_option,
 )
@@ -134,6 +135,17 @@ def _frame(path, k, frames):
     return path if frames is None else path.with_name(f"{path.stem}_{k:03d}{path.suffix}")
 
 
+def _check_apart(args, out, png) -> None:
+    """The outputs never lie inside the field store relit or the store of the subject (files mixed into a store)."""
+    from facestats.core.outputs import check_apart
+
+    for name, p in (("--out", out), ("--png", png)):
+        if pathlib.Path(args.source).is_dir():
+            check_apart(p, args.source, name, "the field store")
+        else:
+            check_apart_from_store(p, name, args.store)
+
+
 def _cmd_relight(args) -> int:
     import numpy as np
 
@@ -162,6 +174,7 @@ def _cmd_relight(args) -> int:
     for pair in targets:
         for name, p in zip(("--out", "--png"), pair):
             check_output_file(p, name, (p.suffix.lower(),), overwrite=args.overwrite)
+    _check_apart(args, out, png)
     probe = read_light_probe(args.probe, args.layout)
     if frames is not None:
         return _turntable(args, probe, targets)

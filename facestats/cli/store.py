@@ -172,7 +172,12 @@ def _purge(store, yes: bool) -> int:
         print(f"store {store.label}: the quarantine is empty")
         return 0
     for e in entries:
-        state = "" if e["valid"] else " (no QUARANTINE.json: not created by a repair, never purged)"
+        if e["valid"]:
+            state = ""
+        elif e.get("problem"):
+            state = f" (its QUARANTINE.json {e['problem']}: never purged; fix the file or remove the folder yourself)"
+        else:
+            state = " (no QUARANTINE.json: not created by a repair, never purged)"
         print(f"quarantine/{e['name']}: {len(e['items'])} item(s), {e['bytes'] / 1e6:.1f} MB{state}")
         for item in e["items"][:10]:
             print(f"  {item['path']}: {item['why']}")

@@ -70,7 +70,7 @@ class DirectoryBackend:
         """
         top = os.path.join(self.root, rel)
         try:
-            confined(self.root, top)  # the group itself, or a folder above it, is a link out of the store
+            confined(self.root, top, through_links=True)  # the group, or a folder above it, is a link out of the store
         except StoreError:
             return rel
         for base, dirs, files in os.walk(top):

@@ -14,8 +14,10 @@ store lock, in this order:
    those of the generations it no longer names become ``retired``;
 4. the root group's ``facestats_version`` is brought up to date.
 
-A failure before step 2 completes (e.g. a full disk) raises
-:class:`~facestats.errors.StoreError` and leaves the store exactly as it was;
+A failure before step 2 completes (e.g. a full disk, or the folder of a
+subject the index names gone missing: the message names the subject and the
+repair) raises :class:`~facestats.errors.StoreError` and leaves the store
+exactly as it was;
 failures in steps 3-4 are ignored (``facestats validate --repair`` heals a
 record the index contradicts).
 """
@@ -27,7 +29,15 @@ import os
 from facestats.core.version import __version__
 from facestats.errors import StoreError
 from facestats.io.index import utc_now, write_index_file
-from facestats.io.layout import ROOT_META, SUBJECTS, confined, group_meta, is_generation, write_json_atomic
+from facestats.io.layout import (
+    ROOT_META,
+    SUBJECTS,
+    confined,
+    group_meta,
+    is_generation,
+    is_plain_dir,
+    write_json_atomic,
+)
 from facestats.io.records import mark_record
 
 __all__ = ["generations_of", "commit_index"]
@@ -64,6 +74,15 @@ def commit_index(root, index: dict, before: dict, root_attrs: dict, *, label: st
     StoreError
         The index could not be written (nothing was committed).
     """
+    for sid in index["subjects"]:  # a subject the index names whose folder is gone: name it, and the way out
+        folder = os.path.join(root, SUBJECTS, sid)
+        if not os.path.lexists(os.path.join(folder, ROOT_META)) and not is_plain_dir(folder):
+            raise StoreError(
+                f"could not commit to store {label}: the folder of subject {sid!r} ({SUBJECTS}/{sid}) is missing "
+                f"(or is not a folder), so the index would name data that are not there; nothing was committed, "
+                f"the store is as it was: run `facestats validate --repair --store {root}` (it recovers or drops "
+                f"{sid!r}), then try again"
+            )
     try:
         for sid in index["subjects"]:
             node = os.path.join(root, SUBJECTS, sid, ROOT_META)

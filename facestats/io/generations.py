@@ -37,6 +37,7 @@ from facestats.io.layout import (
     confined,
     fsync_tree,
     generation_rel,
+    generation_strays,
     is_plain_dir,
     map_chunk_rows,
     new_generation,
@@ -84,6 +85,9 @@ def store_folder(root, rel: str) -> str:
 def reserve_generation(root, sid: str, when: str = ""):
     """Pick a new generation name for ``sid``, take its writer lock and write its record (before any data exist).
 
+    A failure (e.g. a full disk) leaves nothing behind: the subject folder made for it (if it was
+    missing) is removed again with the lock.
+
     Returns
     -------
     gen : str
@@ -94,7 +98,7 @@ def reserve_generation(root, sid: str, when: str = ""):
     ------
     StoreError
         ``subjects/``, ``subjects/<sid>/`` or ``.writers/`` is not a real folder
-        inside the store, or no lock could be created.
+        inside the store, or no lock or record could be created.
     """
     if not is_plain_dir(os.path.join(root, SUBJECTS)):
         raise StoreError(
@@ -102,23 +106,37 @@ def reserve_generation(root, sid: str, when: str = ""):
         )
     store_folder(root, RECORDS)
     writers = store_folder(root, WRITERS)
-    for _ in range(10):
-        store_folder(root, f"{SUBJECTS}/{sid}")  # again each time: gc may remove an empty subject folder meanwhile
-        gen = new_generation()
-        try:
-            lock = create_locked(writer_lock_path(root, sid, gen))
-        except (FileNotFoundError, StoreError):
-            continue  # raced with gc removing a temporary lock file: try another name
-        try:
-            write_record(root, sid, gen, "writing", created=when)
-        except FileNotFoundError:
-            drop_writer_lock(lock)
-            continue
-        except OSError as exc:
-            drop_writer_lock(lock)
-            raise StoreError(f"cannot write the record of a new generation of {sid!r}: {exc.strerror}") from None
-        return gen, lock
-    raise StoreError(f"cannot create a writer lock in {writers}")
+    sdir = os.path.join(root, SUBJECTS, sid)
+    made = not os.path.lexists(sdir)
+    try:
+        for _ in range(10):
+            store_folder(root, f"{SUBJECTS}/{sid}")  # again each time: gc may remove an empty subject folder meanwhile
+            gen = new_generation()
+            try:
+                lock = create_locked(writer_lock_path(root, sid, gen))
+            except (FileNotFoundError, StoreError):
+                continue  # raced with gc removing a temporary lock file: try another name
+            except OSError as exc:
+                raise StoreError(f"cannot create a writer lock in {writers}: {exc.strerror or exc}") from None
+            try:
+                write_record(root, sid, gen, "writing", created=when)
+            except FileNotFoundError:
+                drop_writer_lock(lock)
+                continue
+            except OSError as exc:
+                drop_writer_lock(lock)
+                raise StoreError(
+                    f"cannot write the record of a new generation of {sid!r}: {exc.strerror or exc}"
+                ) from None
+            return gen, lock
+        raise StoreError(f"cannot create a writer lock in {writers}")
+    except BaseException:
+        if made:  # the (empty) folder made for this write: nothing else may be left of it
+            try:
+                os.rmdir(confined(root, sdir))
+            except (OSError, StoreError):
+                pass
+        raise
 
 
 def drop_writer_lock(lock) -> None:
@@ -263,11 +281,17 @@ def remove_generation(root, sid: str, gen: str) -> None:
 
 
 def _delete_generation(root, sid: str, gen: str) -> None:
-    """Rename a generation to trash, delete it, then its record (each step checked to stay inside the store)."""
+    """Rename a generation to trash, delete it, then its record (each step checked to stay inside the store).
+
+    A generation holding items Zarr did not write (:func:`facestats.io.layout.generation_strays`) is left
+    in place: ``facestats validate`` reports them.
+    """
     src = os.path.join(root, generation_rel(sid, gen))
     dst = os.path.join(root, SUBJECTS, sid, f"{TRASH_PREFIX}{gen}")
     try:
-        if is_plain_dir(confined(root, src)):
+        if generation_strays(confined(root, src)):
+            return  # holds what someone else put there: kept (and reported by validate), never deleted with it
+        if is_plain_dir(src):
             os.rename(src, confined(root, dst))
         if is_plain_dir(dst):
             remove_tree(dst)

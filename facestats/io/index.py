@@ -97,12 +97,21 @@ _META_EXPECTED = {
 }
 
 
+#: Largest integer an entry may hold (row values, histogram counts): exact in float64 and in every JSON reader,
+#: and far from int64's limit, so the index's columns and sums never overflow.
+MAX_INT = 2**53
+
+
 def _is_int(v) -> bool:
     return isinstance(v, int) and not isinstance(v, bool)
 
 
 def _is_number(v) -> bool:
-    return v is None or (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v))
+    if v is None:
+        return True
+    if _is_int(v):
+        return -MAX_INT <= v <= MAX_INT  # (math.isfinite of a huge int raises OverflowError)
+    return isinstance(v, float) and math.isfinite(v)
 
 
 def _no_constants(name):
@@ -214,16 +223,17 @@ def _row_problem(sid, row) -> str | None:
         if key == "source" and isinstance(v, str):
             continue
         if not _is_number(v):
-            return f"row field {key!r} must be a finite number or null, got {v!r}"
+            shown = repr(v) if len(repr(v)) <= 40 else repr(v)[:37] + "..."
+            return f"row field {key!r} must be a finite number (integers within ±2**53) or null, got {shown}"
     return None
 
 
 def _hist_problem(hist) -> str | None:
     ok = isinstance(hist, list) and len(hist) == 3
     ok = ok and all(isinstance(h, list) and len(h) == _HIST_BINS for h in hist)
-    ok = ok and all(_is_int(c) and c >= 0 for h in hist for c in h)
+    ok = ok and all(_is_int(c) and 0 <= c <= MAX_INT for h in hist for c in h)
     if not ok:
-        return f"field 'albedo_hist' must be 3 lists of {_HIST_BINS} counts (integers >= 0)"
+        return f"field 'albedo_hist' must be 3 lists of {_HIST_BINS} counts (integers 0 to 2**53)"
     return None
 
 

@@ -109,7 +109,9 @@ def store_attr_json(generation: str, written: str, manifest: dict) -> str:
     )
 
 
-def open_generation(backend, sid: str, gen: str, *, label: str, lazy: bool = False, variables=None):
+def open_generation(
+    backend, sid: str, gen: str, *, label: str, lazy: bool = False, variables=None, check_chunks: bool = False
+):
     """Open and check one generation of a subject.
 
     Parameters
@@ -125,6 +127,10 @@ def open_generation(backend, sid: str, gen: str, *, label: str, lazy: bool = Fal
         except ``variables``, which are loaded and verified.
     variables : list of str, optional
         With ``lazy=True``: the variables to load and verify.
+    check_chunks : bool
+        Also check the per-chunk checksums of the variables loaded against their bytes (``validate``
+        and repair: a damaged ``chunk_crc32`` would fail every later lazy read of its band; a full
+        read needs no more than each variable's own checksum).
 
     Returns
     -------
@@ -146,7 +152,7 @@ def open_generation(backend, sid: str, gen: str, *, label: str, lazy: bool = Fal
         check = [n for n in manifest if n in now] + [n for n in (variables or []) if n not in manifest]
     else:
         check = list(manifest)
-    _verify_checksums(ds, manifest, check, sid)
+    _verify_checksums(ds, manifest, check, sid, check_chunks)
     ds = _strings_to_str(ds, set(check) | set(ds.indexes))
     if lazy:
         return _verify_on_read(ds, manifest, set(check), sid)
@@ -215,9 +221,80 @@ def _take_store_attr(ds, sid: str, rel: str) -> dict:
         raise SchemaError(f"subject {sid!r}: schema version {meta.get('schema')!r}, expected {SCHEMA_VERSION}")
     if str(attrs.get("subject_id")) != sid:
         raise SchemaError(f"subject {sid!r}: group {rel} holds subject_id {attrs.get('subject_id')!r}")
+    _check_manifest(manifest, sid, rel)
     ds.attrs = attrs
     ds.encoding[STORE_ATTR] = {k: v for k, v in meta.items() if k != "manifest"}
     return manifest
+
+
+def _is_count(v, low: int = 0, high: int = 2**63 - 1) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and low <= v <= high
+
+
+def _is_crc(v) -> bool:
+    return _is_count(v, 0, 2**32 - 1)
+
+
+def _show(v) -> str:
+    text = repr(v)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def manifest_entry_problem(m) -> str | None:
+    """What is wrong with one manifest entry (naming the field and the value), or None if it is well formed.
+
+    An entry is ``{"dims": [str], "shape": [int >= 0], "dtype": str, "crc32": int}`` (CRC-32 values are
+    integers in [0, 2**32)); a map variable also has ``chunk_rows`` (an integer >= 1) and ``chunk_crc32``
+    (one CRC-32 per band of ``chunk_rows`` rows of ``v``), and generations written before chunk
+    checksums existed have neither.
+    """
+    if not isinstance(m, dict):
+        return f"the entry must be an object, got {_show(m)}"
+    missing = [k for k in ("dims", "shape", "dtype", "crc32") if k not in m]
+    if missing:
+        return f"field {missing[0]!r} is missing"
+    dims, shape = m.get("dims"), m.get("shape")
+    if not isinstance(dims, list) or not all(isinstance(d, str) for d in dims):
+        return f"field 'dims' must be a list of dimension names, got {_show(dims)}"
+    if not isinstance(shape, list) or len(shape) != len(dims) or not all(_is_count(n) for n in shape):
+        return f"field 'shape' must be a list of {len(dims)} sizes (integers >= 0), got {_show(shape)}"
+    if not isinstance(m.get("dtype"), str):
+        return f"field 'dtype' must be a string, got {_show(m.get('dtype'))}"
+    if not _is_crc(m.get("crc32")):
+        return f"field 'crc32' must be a CRC-32 (an integer in [0, 2**32)), got {_show(m.get('crc32'))}"
+    return _chunks_problem(m, dims, shape)
+
+
+def _chunks_problem(m: dict, dims: list, shape: list) -> str | None:
+    """What is wrong with the chunk checksums of a manifest entry with (valid) ``dims`` and ``shape``, or None."""
+    rows, crcs = m.get("chunk_rows"), m.get("chunk_crc32")
+    if rows is None and crcs is None:
+        return None
+    if "v" not in dims:
+        return f"fields 'chunk_rows' and 'chunk_crc32' belong to map variables (with dimension v), dims are {dims}"
+    if not _is_count(rows, 1):
+        return f"field 'chunk_rows' must be an integer >= 1, got {_show(rows)}"
+    n = -(-shape[dims.index("v")] // rows)
+    if not isinstance(crcs, list) or len(crcs) != n:
+        return f"field 'chunk_crc32' must be a list of {n} CRC-32 (one per {rows} rows of v), got {_show(crcs)}"
+    bad = next((k for k, c in enumerate(crcs) if not _is_crc(c)), None)
+    if bad is not None:
+        return f"field 'chunk_crc32' must hold CRC-32 (integers in [0, 2**32)), got {_show(crcs[bad])} at [{bad}]"
+    return None
+
+
+def _check_manifest(manifest, sid: str, rel: str) -> None:
+    """:class:`SchemaError` naming the file, the variable and the field unless ``manifest`` is well formed."""
+    where = f"the manifest in the {STORE_ATTR!r} attribute of {rel}/{ROOT_META}"
+    if not isinstance(manifest, dict):
+        raise SchemaError(
+            f"subject {sid!r}: {where} must be an object of variables, got {_show(manifest)} (damaged or not "
+            "written by facestats)"
+        )
+    for name, m in manifest.items():
+        problem = manifest_entry_problem(m)
+        if problem:
+            raise SchemaError(f"subject {sid!r}: {where}: variable {name!r}: {problem}")
 
 
 def _check_variables(ds, manifest: dict, sid: str, rel: str) -> None:
@@ -245,8 +322,8 @@ def _check_variable(var, name: str, m: dict, sid: str) -> None:
         raise SchemaError(f"subject {sid!r}: variable {name!r} has dtype {dt}, expected {m['dtype']}")
 
 
-def _verify_checksums(ds, manifest: dict, names, sid: str) -> None:
-    """Load the variables ``names`` and compare their CRC-32 with the manifest."""
+def _verify_checksums(ds, manifest: dict, names, sid: str, chunks: bool = False) -> None:
+    """Load the variables ``names`` and compare their CRC-32 with the manifest (and, with ``chunks``, each chunk's)."""
     for name in names:
         if name not in manifest:
             raise SchemaError(f"subject {sid!r}: no variable {name!r}")
@@ -259,6 +336,27 @@ def _verify_checksums(ds, manifest: dict, names, sid: str) -> None:
             raise SchemaError(
                 f"subject {sid!r}: variable {name!r} does not match its checksum "
                 "(a chunk file is missing, truncated or altered)"
+            )
+        if chunks:
+            _verify_chunk_checksums(var, manifest[name], sid, name)
+
+
+def _verify_chunk_checksums(var, m: dict, sid: str, name: str) -> None:
+    """The chunk checksums of a loaded (and whole-checksum verified) map variable agree with its bytes.
+
+    The whole variable matched its CRC-32, so a chunk checksum that disagrees is a damaged manifest,
+    on which every lazy read of that band would fail: damage, named here.
+    """
+    crcs = m.get("chunk_crc32")
+    if not crcs or "v" not in var.dims:
+        return
+    rows, axis, values = int(m["chunk_rows"]), list(var.dims).index("v"), np.asarray(var.values)
+    for j, lo in enumerate(range(0, values.shape[axis], rows)):
+        if digest(_band(values, axis, lo, lo + rows))[1] != crcs[j]:
+            raise SchemaError(
+                f"subject {sid!r}: variable {name!r}: chunk_crc32[{j}] of its manifest (rows {lo}-"
+                f"{min(lo + rows, values.shape[axis]) - 1} of v) does not match the data, which match the "
+                "variable's checksum: the manifest is damaged"
             )
 
 

@@ -25,8 +25,10 @@ module's names describe *and* what is proven to be facestats' own: a
 generation by its name and its record, a temporary file by its name, a lock by
 its name and folder.  Before touching a path it checks, with :func:`confined`,
 that the path is not a symbolic link and that its parent resolves inside the
-store root, so a link planted under ``subjects/`` can never lead maintenance
-out of the store.
+store root without passing through a link, so a link planted under
+``subjects/`` can never lead maintenance out of the store or to another of its
+folders; a generation holding files Zarr did not write
+(:func:`generation_strays`) is never deleted.
 
 Small files the store replaces (group metadata, records) are written
 atomically by :func:`write_json_atomic`; whole directories are flushed with
@@ -70,6 +72,7 @@ __all__ = [
     "is_plain_dir",
     "is_plain_file",
     "confined",
+    "generation_strays",
     "read_regular_file",
     "remove_tree",
     "group_meta",
@@ -100,6 +103,9 @@ GENERATION_PATTERN = re.compile(r"g[0-9a-f]{16}-[0-9]{1,10}-[0-9a-f]{6}")
 _JSON_TEMP = re.compile(
     r"(?:zarr\.json|[A-Za-z0-9._-]{1,64}~g[0-9a-f]{16}-[0-9]{1,10}-[0-9a-f]{6}\.json)\.tmp-[0-9]{1,10}-[0-9a-f]{6}"
 )
+#: Temporary files Zarr's local store writes before renaming a chunk or a ``zarr.json`` into place
+#: (``Path.with_suffix(".<uuid hex>.partial")``); an interrupted write leaves them.
+_ZARR_PARTIAL = re.compile(r"(?:zarr|c|[0-9]+)\.[0-9a-f]{32}\.partial")
 #: Rows of ``v`` per chunk of a map variable.
 MAP_CHUNK_ROWS = 64
 
@@ -197,17 +203,30 @@ def remove_tree(path) -> None:
     shutil.rmtree(path, onerror=gone_already)
 
 
-def confined(root, path) -> str:
+def confined(root, path, *, through_links: bool = False) -> str:
     """``path``, after checking it is safe for the store at ``root`` to change or remove.
 
-    The path must not be a symbolic link itself and its parent must resolve
-    (all links followed) to the store root or a folder inside it; what it
+    The path must not be a symbolic link itself, its parent must resolve (all
+    links followed) to the store root or a folder inside it, and no folder
+    between the root and the path may be a symbolic link either: a link planted
+    in the store (``subjects/X -> R2``) must not lead maintenance to another of
+    the store's own folders any more than out of the store.  What the path
     names need not exist.
+
+    Parameters
+    ----------
+    root : str or os.PathLike
+        The store directory (itself may be reached through a link).
+    path : str or os.PathLike
+        A path inside it (``os.path.join(root, rel)``).
+    through_links : bool
+        Allow links among the folders between the root and the path, as long as
+        they resolve inside the store (reads only: they never change anything).
 
     Raises
     ------
     StoreError
-        Naming the path and what leads out of the store.
+        Naming the path and what leads out of the store (or through a link).
     """
     path = os.fspath(path)
     real_root = os.path.realpath(root)
@@ -218,7 +237,82 @@ def confined(root, path) -> str:
         )
     if os.path.islink(path):
         raise StoreError(f"refusing to touch {path}: it is a symbolic link, not something the store created")
+    if not through_links:
+        base = os.path.abspath(root)
+        rel = os.path.relpath(os.path.abspath(os.path.dirname(path) or "."), base)
+        if rel != os.curdir and not rel.startswith(os.pardir):
+            for part in rel.split(os.sep):
+                base = os.path.join(base, part)
+                if os.path.islink(base):
+                    raise StoreError(
+                        f"refusing to touch {path}: {base} is a symbolic link (not a folder the store created); "
+                        "facestats never changes or removes anything reached through a link"
+                    )
     return path
+
+
+def generation_strays(path) -> list[str]:
+    """Entries inside the generation folder ``path`` that Zarr did not write, relative to it (links not followed).
+
+    A generation holds its group's ``zarr.json`` and one folder per variable
+    with the array's ``zarr.json`` and its chunks under ``c`` (folders and files
+    named by chunk indices, or a file ``c`` for a 0-d array), and, after an
+    interrupted write, Zarr's temporary ``*.<hex>.partial`` files.  Anything
+    else (a note, a file where a variable's folder is due, a link, a FIFO) was
+    put there by someone else: maintenance never deletes a generation holding such
+    entries.  A missing or unreadable folder gives an empty list.
+    """
+    out = []
+    try:
+        names = sorted(os.listdir(path))
+    except OSError:
+        return out
+    for name in names:
+        p = os.path.join(path, name)
+        if _ZARR_PARTIAL.fullmatch(name) and is_plain_file(p):
+            continue
+        if name == ROOT_META:
+            if not is_plain_file(p):
+                out.append(name)
+        elif not is_plain_dir(p):
+            out.append(name)
+        else:
+            out += [f"{name}/{s}" for s in _variable_strays(p)]
+    return out
+
+
+def _variable_strays(path) -> list[str]:
+    """Entries of one variable folder other than its ``zarr.json`` and its chunk tree ``c``."""
+    out = []
+    try:
+        names = sorted(os.listdir(path))
+    except OSError:
+        return out
+    for name in names:
+        p = os.path.join(path, name)
+        if (name in (ROOT_META, "c") or _ZARR_PARTIAL.fullmatch(name)) and is_plain_file(p):
+            continue
+        if name != "c" or not is_plain_dir(p):
+            out.append(name)
+            continue
+        try:
+            out += _chunk_strays(path, p)
+        except RecursionError:  # a chunk tree nested deeper than any array's: not Zarr's
+            out.append("c")
+    return out
+
+
+def _chunk_strays(var: str, top: str) -> list[str]:
+    """Entries of the chunk tree ``top`` of the variable folder ``var`` not named by chunk indices (relative to it)."""
+    out = []
+    for base, dirs, files in os.walk(top):
+        for n in dirs + files:
+            q = os.path.join(base, n)
+            chunk = n.isascii() and n.isdigit() and (is_plain_dir(q) if n in dirs else is_plain_file(q))
+            if not chunk and not (n in files and _ZARR_PARTIAL.fullmatch(n) and is_plain_file(q)):
+                out.append(os.path.relpath(q, var))
+        dirs[:] = [d for d in dirs if d.isascii() and d.isdigit() and is_plain_dir(os.path.join(base, d))]
+    return out
 
 
 def group_meta(attributes=None) -> dict:

@@ -15,16 +15,25 @@ entry into
   subject is not in the index: ``facestats validate --repair`` recovers them;
   never deleted);
 * **foreign** — anything the store did not provably create: symbolic links
-  (e.g. ``subjects/X1 -> /elsewhere``), files and folders of other names,
-  generations without a record (written before records existed).  They are
-  reported and never touched.
+  (e.g. ``subjects/X1 -> /elsewhere``, or ``subjects/X -> R2``: a link never
+  makes another subject's generations look like its own), files and folders of
+  other names, generations without a record (written before records existed).
+  They are reported and never touched; so are items Zarr did not write found
+  inside a generation folder (*strays*), and the generation holding them is
+  kept;
+* **damaged records** — the store's own records with a malformed field (a
+  revision that is not an integer, an unknown state): a problem for
+  ``facestats validate``; the generation and the record are kept (repair
+  rewrites the record of a generation the index names and moves the others to
+  the quarantine).
 
-:func:`collect_garbage` deletes exactly the survey's garbage (decided under the
-store lock), and ``facestats validate`` reports exactly it, so the two always
-agree.  :func:`check_subjects` opens every indexed subject and sorts the
-failures: *damaged* data (:class:`~facestats.errors.SchemaError`), a *missing*
-generation, an index row that disagrees with the data, or data that could not
-be read just now (an I/O error: no action may follow from it).  A subject
+:func:`collect_garbage` deletes exactly the survey's garbage (decided, and the
+doomed generations renamed aside, under the store lock), and ``facestats
+validate`` reports exactly it, so the two always agree.  :func:`check_subjects`
+opens every indexed subject and sorts the failures: *damaged* data
+(:class:`~facestats.errors.SchemaError`), a *missing* generation, an index row
+that disagrees with the data, or data that could not be read just now (an I/O
+error: no action may follow from it).  A subject
 replaced by a concurrent writer while it is checked is checked again in its
 new version.  What repair does with these findings is :mod:`facestats.io.repair`.
 """
@@ -52,6 +61,7 @@ from facestats.io.layout import (
     WRITERS,
     confined,
     generation_rel,
+    generation_strays,
     is_generation,
     is_meta_temp,
     is_plain_dir,
@@ -61,7 +71,7 @@ from facestats.io.layout import (
 )
 from facestats.io.locking import is_lock_temp, is_locked, try_lock
 from facestats.io.quarantine import list_quarantine
-from facestats.io.records import parse_record_name, read_record, record_name
+from facestats.io.records import inspect_record, parse_record_name, read_record, record_name
 from facestats.io.summary import albedo_histogram, summarise_subject
 
 __all__ = [
@@ -132,6 +142,15 @@ class Survey:
         Subject folders (not in the index) that hold nothing of value once the garbage is gone.
     records : list of tuple
         ``(sid, generation)`` of the record files in ``.records/`` (valid ids), whatever their state.
+    bad_records : list of tuple
+        ``(sid, generation, message, live)`` of the store's own records with a malformed field (an unknown
+        state, a revision that is not an integer): damage, reported as a problem; the generation and
+        its record are kept (repair rewrites the record of a generation the index names and moves the
+        others to the quarantine).
+    strays : list of str
+        Files and folders inside generation folders that Zarr did not write (e.g.
+        ``subjects/R1/<generation>/notes.txt``): reported, never deleted, and the generation holding
+        them is kept (of the generations the index names only when asked: :func:`survey`).
     """
 
     garbage: list = field(default_factory=list)
@@ -142,6 +161,17 @@ class Survey:
     subject_dirs: list = field(default_factory=list)
     empty_subjects: list = field(default_factory=list)
     records: list = field(default_factory=list)
+    bad_records: list = field(default_factory=list)
+    strays: list = field(default_factory=list)
+    kept_trash: set = field(default_factory=set, repr=False)  # (sid, gen) of trash folders kept for their strays
+
+    def problems(self) -> list[str]:
+        """The report problems of this survey: the store's own records that are malformed."""
+        return [
+            f"{message}; `facestats validate --repair --yes` "
+            + ("rewrites it from the index" if live else "moves it, with its generation, to the quarantine")
+            for _, _, message, live in self.bad_records
+        ]
 
     def notes(self) -> list[str]:
         """The report notes of this survey (none if there is nothing to say)."""
@@ -164,6 +194,12 @@ class Survey:
             )
         if self.foreign:
             out.append(f"{len(self.foreign)} item(s) not created by facestats were left alone (e.g. {self.foreign[0]})")
+        if self.strays:
+            out.append(
+                f"{len(self.strays)} item(s) inside generation folders were not written by facestats "
+                f"(e.g. {self.strays[0]}); they were left alone, and a generation holding such items is never "
+                "deleted: move them out, and `facestats validate --repair --yes` removes what is leftover"
+            )
         return out
 
 
@@ -174,7 +210,7 @@ def _listdir(path) -> list[str]:
         return []
 
 
-def survey(root, index: dict) -> Survey:
+def survey(root, index: dict, *, live_strays: bool = False) -> Survey:
     """Walk the store at ``root`` (no link followed) and sort its entries against ``index`` (module docstring).
 
     Parameters
@@ -183,6 +219,9 @@ def survey(root, index: dict) -> Survey:
         The store directory.
     index : dict
         A valid index document (:func:`facestats.io.index.parse_index`).
+    live_strays : bool
+        Also look for items Zarr did not write inside the generations the index names
+        (:attr:`Survey.strays`; ``facestats validate`` does, garbage collection needs not).
     """
     s = Survey()
     for name in _listdir(root):
@@ -198,6 +237,11 @@ def survey(root, index: dict) -> Survey:
     for sid, gen in sorted(pairs):
         if _survey_generation(s, root, sid, gen, index):
             kept.add(sid)
+    if live_strays:
+        for sid, entry in sorted(index["subjects"].items()):
+            rel = generation_rel(sid, entry["generation"])
+            if sid in s.subject_dirs and is_plain_dir(os.path.join(root, rel)):
+                s.strays += [f"{rel}/{x}" for x in generation_strays(os.path.join(root, rel))]
     s.empty_subjects = [
         sid for sid in s.subject_dirs if sid not in kept and sid not in index["subjects"] and sid not in s.adoptable
     ]
@@ -275,26 +319,40 @@ def _survey_subject(s: Survey, root, sid: str) -> set:
         elif is_meta_temp(name) and is_plain_file(path):
             s.garbage.append(rel)
         elif trash and is_plain_dir(path) and read_record(root, sid, name[len(TRASH_PREFIX) :]) is not None:
-            s.garbage.append(rel)
-            pairs.add((sid, name[len(TRASH_PREFIX) :]))
+            gen = name[len(TRASH_PREFIX) :]
+            strays = generation_strays(path)
+            s.strays += [f"{rel}/{x}" for x in strays]
+            if strays:
+                s.kept_trash.add((sid, gen))  # and its record with it
+            else:
+                s.garbage.append(rel)
+            pairs.add((sid, gen))
         else:
             s.foreign.append(rel)
     return pairs
 
 
 def _survey_generation(s: Survey, root, sid: str, gen: str, index: dict) -> bool:
-    """Sort one generation (its folder and/or record); True if something of it is kept."""
+    """Sort one generation (its folder and/or record); True if something of it is kept.
+
+    A generation counts as present only in a real subject folder (``subjects/X -> R2``, a link planted
+    in the store, never makes ``R2``'s generations look like ``X``'s); one holding items Zarr did not
+    write is kept (:attr:`Survey.strays`), as is one whose record is malformed (:attr:`Survey.bad_records`).
+    """
     rel = generation_rel(sid, gen)
     rec_rel = f"{RECORDS}/{record_name(sid, gen)}"
     path = os.path.join(root, rel)
-    has_dir = is_plain_dir(path)
+    has_dir = is_plain_dir(os.path.join(root, SUBJECTS, sid)) and is_plain_dir(path)
     live = index["subjects"].get(sid, {}).get("generation")
     if os.path.lexists(path) and not has_dir:
         s.foreign.append(rel)
         return True
-    if gen == live or is_locked(writer_lock_path(root, sid, gen)):
+    rec, problem = inspect_record(root, sid, gen)
+    if problem is not None:
+        s.bad_records.append((sid, gen, problem, gen == live))
         return True
-    rec = read_record(root, sid, gen)
+    if gen == live or is_locked(writer_lock_path(root, sid, gen)) or (sid, gen) in s.kept_trash:
+        return True
     if rec is None:  # no record: not provably ours (or written before records existed)
         for item in (rel, rec_rel):
             if os.path.lexists(os.path.join(root, item)):
@@ -303,6 +361,10 @@ def _survey_generation(s: Survey, root, sid: str, gen: str, index: dict) -> bool
     if has_dir and _keep_committed(s, root, sid, gen, rec, live, index):
         return True
     if has_dir:
+        strays = generation_strays(path)
+        if strays:  # never deleted with what someone put there
+            s.strays += [f"{rel}/{x}" for x in strays]
+            return True
         s.garbage.append(rel)
     s.garbage.append(rec_rel)
     return False
@@ -337,10 +399,18 @@ def collect_garbage(root, lock) -> list[str]:
     """Delete the survey's garbage (module docstring); the paths removed, relative to ``root``.
 
     Decisions are taken holding the store ``lock`` (not yet held), so no commit
-    can name a generation being removed; stale writer locks are held while
-    they are deleted.  Every path is checked to stay inside the store
-    (:func:`facestats.io.layout.confined`) before it is removed; directory
-    trees are removed without following links.
+    can name a generation being removed, and, under the same hold, every
+    generation to delete is renamed aside to ``subjects/<id>/.trash-<generation>``
+    (a rename: the lock stays short, whatever the size of the data).  A trash
+    folder is never a generation, so no commit or repair taken after the lock
+    is released can name it again: a repair that planned to recover a subject
+    from such a generation finds it gone and skips that step, instead of
+    committing an index that names data about to be deleted.  The trees are
+    removed after the lock is released.  Stale writer locks are held while they
+    are deleted.  Every path is checked to stay inside the store without
+    passing through a link (:func:`facestats.io.layout.confined`) before it is
+    renamed or removed; directory trees are removed without following links,
+    and never while they hold items Zarr did not write.
 
     Raises
     ------
@@ -361,8 +431,9 @@ def collect_garbage(root, lock) -> list[str]:
                 s.garbage.remove(rel)
             else:
                 held.append(lk)
+        trashed = _trash_generations(root, s.garbage)
     try:
-        removed = _remove(root, s.garbage)
+        removed = _remove(root, s.garbage, trashed)
     finally:
         for lk in held:
             lk.release()
@@ -371,16 +442,53 @@ def collect_garbage(root, lock) -> list[str]:
     return removed
 
 
-def _remove(root, rels) -> list[str]:
+def _generation_of(rel: str):
+    """``(sid, generation)`` if ``rel`` is a generation folder ``subjects/<id>/<generation>``, else None."""
+    parts = rel.split("/")
+    if len(parts) == 3 and parts[0] == SUBJECTS and is_generation(parts[2]):
+        return parts[1], parts[2]
+    return None
+
+
+def _trash_generations(root, rels) -> dict:
+    """Rename the generation folders among ``rels`` to their trash names (the caller holds the store lock).
+
+    Returns ``{rel: trash path}`` of those renamed; a generation that cannot be renamed (gone meanwhile,
+    its trash name taken, a link on the way) is not deleted this time.
+    """
+    out = {}
+    for rel in rels:
+        pair = _generation_of(rel)
+        if pair is None:
+            continue
+        src = os.path.join(root, rel)
+        dst = os.path.join(root, SUBJECTS, pair[0], TRASH_PREFIX + pair[1])
+        try:
+            confined(root, src)
+            if not is_plain_dir(src) or os.path.lexists(confined(root, dst)):
+                continue
+            os.rename(src, dst)
+        except (OSError, StoreError):
+            continue
+        out[rel] = dst
+    return out
+
+
+def _remove(root, rels, trashed=None) -> list[str]:
     """Delete files and folder trees (the generation folders before any record); those removed.
 
-    A record is removed only once its generation folder and trash folder are both gone, so a
-    leftover never loses the record that proves it is the store's own (another process may be
-    deleting the same leftover at the same time).
+    Generation folders are removed from their trash names (``trashed``, :func:`_trash_generations`);
+    one that was not renamed aside is left for the next collection.  A record is removed only once its
+    generation folder and trash folder are both gone, so a leftover never loses the record that proves
+    it is the store's own (another process may be deleting the same leftover at the same time).  A
+    folder tree that holds items Zarr did not write is left alone.
     """
+    trashed = trashed or {}
     removed = []
     for rel in sorted(rels, key=lambda p: (p.startswith(RECORDS + "/"), p)):
-        path = os.path.join(root, rel)
+        if _generation_of(rel) is not None and rel not in trashed:
+            continue
+        path = trashed.get(rel, os.path.join(root, rel))
         try:
             confined(root, path)
             pair = parse_record_name(os.path.basename(rel)) if rel.startswith(RECORDS + "/") else None
@@ -392,6 +500,8 @@ def _remove(root, rels) -> list[str]:
                 ):
                     continue
             if is_plain_dir(path):
+                if generation_strays(path):  # put there since the survey: never deleted with the tree
+                    continue
                 remove_tree(path)
             else:
                 os.remove(path)
@@ -564,7 +674,9 @@ def directory_notes(root, label: str, index) -> tuple[list[str], list[str]]:
                 "facestats reads through it but refuses to write or repair there: replace it by what it points to"
             )
     if index is not None:
-        notes += survey(root, index).notes()
+        s = survey(root, index, live_strays=True)
+        problems += s.problems()
+        notes += s.notes()
         linked = [sid for sid in index["subjects"] if os.path.islink(os.path.join(root, SUBJECTS, sid))]
         if linked:  # read through, but repair and writes refuse them
             problems.append(
@@ -572,6 +684,12 @@ def directory_notes(root, label: str, index) -> tuple[list[str], list[str]]:
                 "are); facestats reads through it but refuses to write or repair there: replace it by its folder"
             )
     q = list_quarantine(root)
+    problems += [
+        f"store {label}: quarantine/{e['name']}/QUARANTINE.json {e['problem']}; that folder is never purged: fix "
+        "the file or remove the folder yourself"
+        for e in q
+        if e.get("problem")
+    ]
     if q:
         n, size = sum(len(e["items"]) for e in q), sum(e["bytes"] for e in q)
         notes.append(

@@ -92,9 +92,10 @@ class MerlData:
 
 
 class _Reader:
-    def __init__(self, path: Path, mat: dict):
+    def __init__(self, path: Path, mat: dict, logical=frozenset()):
         self.path = path
         self.mat = mat
+        self.logical = logical  # keys stored as MATLAB logical (loadmat reads them as uint8)
 
     def fail(self, msg: str):
         raise FormatError(f"{self.path}: {msg}")
@@ -107,12 +108,14 @@ class _Reader:
 
     def numeric(self, key, value=None) -> np.ndarray:
         a = np.asarray(self.get(key) if value is None else value)
+        if a.dtype.kind == "b" or (value is None and key in self.logical):
+            self.fail(f"{key} must be numeric, got logical (true/false) data")
         if a.dtype == object:  # a cell array of numbers
             try:
                 a = np.array([np.asarray(x).reshape(-1)[0] for x in a.reshape(-1)], dtype=np.float64)
             except (IndexError, TypeError, ValueError):
                 self.fail(f"{key} must be numeric, got a cell array of {type(a.reshape(-1)[0]).__name__}")
-        if a.dtype.kind not in "fiub":
+        if a.dtype.kind not in "fiu":  # (MATLAB logical, refused above: true/false are no counts or indices)
             self.fail(f"{key} must be numeric, got {a.dtype} data")
         return a.astype(np.float64)
 
@@ -235,7 +238,7 @@ def read_merl(path, *, prefix: str = "merl") -> MerlData:
     """
     _check_prefix(prefix)
     path = Path(path).expanduser().resolve()
-    r = _Reader(path, _load_mat(path))
+    r = _Reader(path, _load_mat(path), _logical_keys(path))
     n = _subject_count(r)
     ages = r.integers("subj_age", n, 0, 200, "an integer age in 0-200 years")
     genders = r.parsed("subj_gen", n, parse_gender, "0/1, M/F or male/female")
@@ -301,6 +304,16 @@ def _load_mat(path: Path) -> dict:
         raise FormatError(f"{path}: {exc}; save it with `save -v7` to read it") from None
     except Exception as exc:
         raise FormatError(f"{path}: not a readable MATLAB file ({type(exc).__name__}: {exc})") from None
+
+
+def _logical_keys(path: Path) -> frozenset:
+    """The keys a MATLAB file stores as ``logical`` (:func:`scipy.io.loadmat` returns them as uint8 0/1)."""
+    import scipy.io
+
+    try:
+        return frozenset(name for name, _, cls in scipy.io.whosmat(str(path)) if cls == "logical")
+    except Exception:  # read by _load_mat already; a file whosmat cannot list has no logical keys to refuse
+        return frozenset()
 
 
 def _subject_count(r: _Reader) -> int:

@@ -16,6 +16,7 @@ import os
 import zipfile
 from pathlib import Path
 
+from facestats.core.outputs import check_apart
 from facestats.errors import StoreError
 from facestats.io.index import INDEX_NAME, read_index_file
 from facestats.io.layout import ROOT_META, SUBJECTS, group_meta, store_lock
@@ -51,7 +52,15 @@ def pack_store(src, zip_path, *, overwrite: bool = False) -> Path:
     -------
     pathlib.Path
         ``zip_path``.
+
+    Raises
+    ------
+    ValidationError
+        ``zip_path`` is the store or lies inside it (it would replace or mix into the store's files).
+    StoreError
+        ``zip_path`` exists (without ``overwrite``), or the store is not valid.
     """
+    check_apart(zip_path, src, "zip_path", "the source store")  # never a file inside the store it packs
     zip_path = Path(zip_path)
     if zip_path.exists() and not overwrite:
         raise StoreError(f"{zip_path} exists; pass overwrite=True to replace it")

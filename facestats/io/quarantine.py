@@ -38,6 +38,7 @@ __all__ = [
     "write_quarantine_json",
     "list_quarantine",
     "purge_quarantine",
+    "manifest_problem",
 ]
 
 #: The description file of a quarantine folder.
@@ -114,11 +115,54 @@ def write_quarantine_json(qdir: str, name: str, obj, why: str) -> None:
 
 
 def _manifest(qdir: str) -> dict | None:
+    """The valid ``QUARANTINE.json`` of ``qdir``, or None."""
+    return _read_manifest(qdir)[0]
+
+
+def _read_manifest(qdir: str) -> tuple[dict | None, str | None]:
+    """``(document, problem)`` of the ``QUARANTINE.json`` of ``qdir``.
+
+    ``problem`` says what is wrong with a manifest that is there but malformed (naming the field and the
+    value); a missing manifest is no problem (a folder not created by a repair): ``(None, None)``.
+    """
+    path = os.path.join(qdir, MANIFEST)
+    if not os.path.lexists(path):
+        return None, None
+    if os.path.islink(path):
+        return None, "is a symbolic link, not a file a repair wrote"
     try:
-        doc = json.loads(read_regular_file(os.path.join(qdir, MANIFEST)))
-    except (OSError, ValueError):
-        return None
-    return doc if isinstance(doc, dict) and doc.get("format") == 1 and isinstance(doc.get("items"), list) else None
+        doc = json.loads(read_regular_file(path))
+    except OSError as exc:
+        return None, f"cannot be read ({exc.strerror or exc})"
+    except (ValueError, UnicodeDecodeError, RecursionError) as exc:
+        return None, f"is not valid JSON ({exc})"
+    problem = manifest_problem(doc)
+    return (None, problem) if problem else (doc, None)
+
+
+def manifest_problem(doc) -> str | None:
+    """What is wrong with a ``QUARANTINE.json`` document (naming the field and the value), or None if it is valid."""
+
+    def show(v) -> str:
+        text = repr(v)
+        return text if len(text) <= 80 else text[:77] + "..."
+
+    if not isinstance(doc, dict):
+        return f"must be a JSON object, got {type(doc).__name__}"
+    if doc.get("format") != 1:
+        return f"field 'format' must be 1, got {show(doc.get('format'))}"
+    if not isinstance(doc.get("reason", ""), str):
+        return f"field 'reason' must be a string, got {show(doc.get('reason'))}"
+    items = doc.get("items")
+    if not isinstance(items, list):
+        return f"field 'items' must be a list, got {show(items)}"
+    for k, item in enumerate(items):
+        if not isinstance(item, dict):
+            return f"items[{k}] must be an object with the strings 'path' and 'why', got {show(item)}"
+        for key in ("path", "why"):
+            if not isinstance(item.get(key), str):
+                return f"field {key!r} of items[{k}] must be a string, got {show(item.get(key))}"
+    return None
 
 
 def _add_item(qdir: str, rel: str, why: str) -> None:
@@ -147,8 +191,9 @@ def list_quarantine(root) -> list[dict]:
     Returns
     -------
     list of dict
-        ``{"name", "reason", "items": [{"path", "why"}], "bytes", "valid"}``; ``valid`` is False for a
-        folder without a readable ``QUARANTINE.json`` (listed, never purged).
+        ``{"name", "reason", "items": [{"path", "why"}], "bytes", "valid", "problem"}``; ``valid`` is False
+        for a folder without a valid ``QUARANTINE.json`` (listed, never purged); ``problem`` says what is
+        wrong with a ``QUARANTINE.json`` that is there but malformed (None otherwise).
     """
     base = os.path.join(root, QUARANTINE)
     if not is_plain_dir(base):
@@ -156,7 +201,7 @@ def list_quarantine(root) -> list[dict]:
     out = []
     for name in sorted(os.listdir(base)):
         path = os.path.join(base, name)
-        doc = _manifest(path) if _FOLDER.fullmatch(name) and is_plain_dir(path) else None
+        doc, problem = _read_manifest(path) if _FOLDER.fullmatch(name) and is_plain_dir(path) else (None, None)
         out.append(
             {
                 "name": name,
@@ -164,6 +209,7 @@ def list_quarantine(root) -> list[dict]:
                 "items": (doc or {}).get("items", []),
                 "bytes": _size(path) if is_plain_dir(path) else 0,
                 "valid": doc is not None,
+                "problem": problem,
             }
         )
     return out

@@ -43,6 +43,8 @@ __all__ = [
     "parse_record_name",
     "record_path",
     "read_record",
+    "inspect_record",
+    "record_problem",
     "write_record",
     "mark_record",
 ]
@@ -72,32 +74,67 @@ def record_path(root, sid: str, gen: str) -> str:
 
 
 def read_record(root, sid: str, gen: str) -> dict | None:
-    """The record of a generation, or None if it is missing, unreadable or not a record of this generation.
+    """The record of a generation, or None if it is missing, unreadable, malformed or not a record of this generation.
 
     A record counts only if it is a regular file (not a link) whose content
-    names this very subject and generation in the current format.
+    names this very subject and generation in the current format, with a known
+    state and revisions that are integers >= 0 (:func:`inspect_record` says
+    what is wrong with one that does not).
+    """
+    return inspect_record(root, sid, gen)[0]
+
+
+def inspect_record(root, sid: str, gen: str) -> tuple[dict | None, str | None]:
+    """``(record, problem)`` of the record file of a generation.
+
+    ``record`` is the valid record (or None); ``problem`` is None unless the
+    file is the store's own record of this generation — a regular file whose
+    JSON names this subject and generation in the current format — with a
+    malformed field (an unknown state, a revision that is not an integer >= 0,
+    a creation time that is not a string): a message naming the file, the
+    field and the value.  Anything else that is not a valid record (a link,
+    unreadable, not JSON, about another generation) is not provably the
+    store's: ``(None, None)``.
     """
     path = record_path(root, sid, gen)
     try:
         confined(root, path)  # a record read through a link planted in the store proves nothing
     except StoreError:
-        return None
+        return None, None
     if not is_plain_file(path):
-        return None
+        return None, None
     try:
         with open(path, "rb") as fh:
             rec = json.loads(fh.read(65536))
-    except (OSError, ValueError):
-        return None
+    except (OSError, ValueError, RecursionError):
+        return None, None
     if (
         not isinstance(rec, dict)
         or rec.get("facestats_generation") != RECORD_FORMAT
         or rec.get("subject") != sid
         or rec.get("generation") != gen
-        or rec.get("state") not in STATES
     ):
-        return None
-    return rec
+        return None, None
+    problem = record_problem(rec)
+    if problem is not None:
+        return None, f"the record {RECORDS}/{record_name(sid, gen)} is malformed: {problem}"
+    return rec, None
+
+
+def _is_revision(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 2**53
+
+
+def record_problem(rec: dict) -> str | None:
+    """What is wrong with the fields of a record document (its state, revisions, creation time), or None."""
+    if rec.get("state") not in STATES:
+        return f"field 'state' must be one of {list(STATES)}, got {rec.get('state')!r}"
+    for key in ("committed_revision", "retired_revision"):
+        if key in rec and not _is_revision(rec[key]):
+            return f"field {key!r} must be an integer >= 0, got {rec[key]!r}"
+    if not isinstance(rec.get("created", ""), str):
+        return f"field 'created' must be a string, got {rec['created']!r}"
+    return None
 
 
 def write_record(root, sid: str, gen: str, state: str, **fields) -> dict:

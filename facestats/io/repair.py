@@ -23,6 +23,9 @@ checksum can take long, and writers must not wait for it) and returns a
   subjects whose last record says *retired* (deleted) are never revived;
   stores older than records (no record at all) use the newest intact
   generation of each subject; the new index continues the revision count;
+  an intact generation whose record says *writing* (records lag the index, so
+  it may have been committed) is moved to the quarantine, neither revived nor
+  left for the garbage collection;
 * per **indexed subject**: damaged generation → moved to the quarantine;
   damaged or missing → the subject is recovered from its newest other intact
   committed generation, else its entry is dropped (and saved in the
@@ -35,6 +38,9 @@ checksum can take long, and writers must not wait for it) and returns a
   an older one tried while looking for an intact one to recover from or
   adopt — is moved to the quarantine (with its record), never left for the
   garbage collection to delete; the plan lists each move;
+* a record with a malformed field (a revision that is not an integer, an
+  unknown state) is rewritten if the index names its generation, else moved
+  to the quarantine with its generation folder;
 * records the index contradicts are healed; leftovers of interrupted writes
   are collected (:func:`facestats.io.maintenance.collect_garbage`): the plan
   lists what the collection would remove once the repaired index is in place
@@ -78,7 +84,7 @@ from facestats.io.locking import is_locked
 from facestats.io.maintenance import ValidationReport, check_subjects, survey
 from facestats.io.quarantine import MANIFEST as QUARANTINE_MANIFEST
 from facestats.io.quarantine import open_quarantine, quarantine_move, write_quarantine_json
-from facestats.io.records import mark_record, read_record, record_name, record_path
+from facestats.io.records import inspect_record, mark_record, read_record, record_name, record_path
 from facestats.io.schema import SCHEMA_VERSION
 from facestats.io.summary import albedo_histogram, summarise_subject
 
@@ -88,6 +94,7 @@ __all__ = ["RepairAction", "RepairPlan", "plan_repair", "apply_repair"]
 _ORDER = (
     "quarantine-index",
     "quarantine-generation",
+    "quarantine-record",
     "new-index",
     "drop-entry",
     "recover",
@@ -104,8 +111,8 @@ class RepairAction:
     Attributes
     ----------
     kind : str
-        One of ``quarantine-index``, ``quarantine-generation``, ``new-index``, ``drop-entry``,
-        ``recover``, ``recompute``, ``adopt``, ``heal-record``.
+        One of ``quarantine-index``, ``quarantine-generation``, ``quarantine-record``, ``new-index``,
+        ``drop-entry``, ``recover``, ``recompute``, ``adopt``, ``heal-record``.
     subject : str or None
     expect : str or None
         The generation the index must still name for the action to apply (None: the subject is absent).
@@ -130,12 +137,15 @@ class RepairAction:
         what = {
             "quarantine-index": f"move {INDEX_NAME} to the quarantine",
             "quarantine-generation": f"move {generation_rel(self.subject or '', self.source or '')} to the quarantine",
+            "quarantine-record": f"move {RECORDS}/{record_name(self.subject or '', self.source or '')} and its "
+            "generation folder (if any) to the quarantine",
             "new-index": f"write a new {INDEX_NAME}",
             "drop-entry": f"drop subject {sid} from the index (its entry is saved in the quarantine)",
             "recover": f"recover subject {sid} from generation {self.source}",
             "recompute": f"recompute the index entry of subject {sid}",
             "adopt": f"add subject {sid} back to the index from generation {self.source}",
-            "heal-record": f"mark generation {self.source} of {sid} committed in its record",
+            "heal-record": f"{'rewrite' if self.reason else 'mark'} generation {self.source} of {sid} committed in "
+            "its record",
         }[self.kind]
         return f"{what}: {self.reason}" if self.reason else what
 
@@ -174,14 +184,17 @@ class RepairPlan:
 
     @property
     def fixes_problems(self) -> bool:
-        """True if the plan repairs problems (beyond housekeeping: healing records, removing leftovers)."""
-        return any(a.kind != "heal-record" for a in self.actions)
+        """True if the plan repairs problems (beyond housekeeping: healing records, removing leftovers).
+
+        Rewriting a malformed record (a ``heal-record`` with a reason) repairs a problem.
+        """
+        return any(a.kind != "heal-record" or a.reason for a in self.actions)
 
     def to_text(self, *, applied: bool = False) -> str:
         head = "repair" if applied else "repair plan (dry run: nothing was changed; add --yes to apply it)"
         lines = [f"{head} for store {self.store}:"]
-        heals = [a for a in self.actions if a.kind == "heal-record"]
-        lines += [f"  - {a.describe()}" for a in self.actions if a.kind != "heal-record"]
+        heals = [a for a in self.actions if a.kind == "heal-record" and not a.reason]
+        lines += [f"  - {a.describe()}" for a in self.actions if a.kind != "heal-record" or a.reason]
         if heals:
             lines.append(f"  - mark {len(heals)} generation(s) the index names as committed in their records")
         if self.garbage:
@@ -232,13 +245,17 @@ def plan_repair(
         _refuse_half_present(root, ids, "indexed subjects", allow_missing, then)
         _plan_bad_entries(plan, root, bad, open_generation)
         _plan_indexed(plan, root, index, open_generation, progress)
-        _plan_adoptions(plan, survey(root, index), open_generation)
+        s = survey(root, index)
+        _plan_adoptions(plan, s, open_generation)
+        malformed = {(sid, gen): message for sid, gen, message, _ in s.bad_records}
         for sid, gen in generations_of(index).items():
             rec = read_record(root, sid, gen)
             if is_plain_dir(os.path.join(root, generation_rel(sid, gen))) and (
                 rec is None or rec["state"] != "committed"
             ):
-                plan.actions.append(RepairAction("heal-record", sid, expect=gen, source=gen))
+                why = malformed.get((sid, gen), "")
+                plan.actions.append(RepairAction("heal-record", sid, expect=gen, source=gen, reason=why))
+        _plan_bad_records(plan, s, index)
     plan.actions.sort(key=lambda a: _ORDER.index(a.kind))
     plan.garbage = _garbage_after(plan, root, index)
     return plan
@@ -255,7 +272,7 @@ def _garbage_after(plan: RepairPlan, root, index) -> list[str]:
     after["revision"] = plan.base_revision + any(a.kind in _INDEX_KINDS for a in plan.actions)
     moved = set()
     for a in plan.actions:
-        if a.kind == "quarantine-generation":
+        if a.kind in ("quarantine-generation", "quarantine-record"):
             moved |= {generation_rel(a.subject, a.source), f"{RECORDS}/{record_name(a.subject, a.source)}"}
     s = survey(root, after)
     return [g for g in s.garbage if g not in moved] + [f"{SUBJECTS}/{sid}" for sid in s.empty_subjects]
@@ -350,6 +367,8 @@ def _open(open_generation, sid: str, gen: str):
 def _records(root, sid: str) -> dict:
     """``{generation: record}`` of the generation folders of ``sid`` (record None if it has none)."""
     sdir = os.path.join(root, SUBJECTS, sid)
+    if not is_plain_dir(sdir):  # a link planted in the store (subjects/X -> R2) holds no generation of X
+        return {}
     try:
         names = os.listdir(sdir)
     except OSError:
@@ -425,7 +444,9 @@ def _plan_rebuild(plan: RepairPlan, root, open_generation, allow_missing: bool) 
     _refuse_half_present(root, committed, "subjects committed according to their records", allow_missing)
     ids = s.subject_dirs
     plan.base_revision = _top_revision(root, ids)
+    _plan_bad_records(plan, s, None)
     for sid in ids:
+        _plan_unconfirmed(plan, root, sid, open_generation)
         newest = _candidates(root, sid, live_only=True)
         if not newest:
             continue  # deleted, or never committed
@@ -441,6 +462,40 @@ def _plan_rebuild(plan: RepairPlan, root, open_generation, allow_missing: bool) 
     n = sum(a.kind == "recover" for a in plan.actions)
     why = f"it lists the {n} subject(s) recovered below" if n else "no subject is recoverable: the new index is empty"
     plan.actions.append(RepairAction("new-index", reason=f"the index is lost; {why}"))
+
+
+def _plan_unconfirmed(plan: RepairPlan, root, sid: str, open_generation) -> None:
+    """With the index lost: intact generations of ``sid`` whose record says ``writing`` go to the quarantine.
+
+    Records lag the index (a crash between the index's replacement and the record's update leaves a
+    committed generation marked ``writing``), so with the index gone such a generation may hold committed
+    data as well as a crashed write: it is neither revived nor left for the garbage collection, which
+    would delete it; a damaged or incomplete one is the leftover of an interrupted write.
+    """
+    for gen, rec in sorted(_records(root, sid).items()):
+        if rec is None or rec["state"] != "writing" or is_locked(writer_lock_path(root, sid, gen)):
+            continue
+        try:
+            ds = _open(open_generation, sid, gen)
+        except StoreError as exc:
+            plan.problems.append(str(exc))
+            continue
+        if ds is not None:
+            why = (
+                "the index is lost and its record says 'writing': it may have been committed (records lag the "
+                "index) or be a write that crashed, so it is kept in the quarantine rather than revived or deleted"
+            )
+            plan.actions.append(RepairAction("quarantine-generation", sid, source=gen, reason=why))
+
+
+def _plan_bad_records(plan: RepairPlan, s, index) -> None:
+    """The store's own records with a malformed field, of generations the index does not name: quarantined."""
+    named = generations_of(index)
+    for sid, gen, message, _ in s.bad_records:
+        if named.get(sid) != gen:
+            plan.actions.append(
+                RepairAction("quarantine-record", sid, expect=named.get(sid), source=gen, reason=message)
+            )
 
 
 def _valid_id(sid) -> bool:
@@ -636,6 +691,9 @@ class _Apply:
             ok = named == a.expect
         elif a.kind == "adopt":
             ok = named is None
+        elif a.kind == "quarantine-record":  # never the record of what the index names; no writer on it
+            ok = named != a.source and not is_locked(writer_lock_path(self.root, a.subject, a.source))
+            ok = ok and inspect_record(self.root, a.subject, a.source)[1] is not None  # still malformed
         else:  # quarantine-generation: the index names what it named when planned, and no writer is on it
             ok = named == a.expect and not is_locked(writer_lock_path(self.root, a.subject, a.source))
         if ok and a.kind in ("recover", "recompute", "adopt", "quarantine-generation"):
@@ -653,6 +711,13 @@ class _Apply:
             self.quarantine(rel, a.reason)
             if os.path.lexists(record_path(self.root, a.subject, a.source)):
                 self.quarantine(f"{RECORDS}/{record_name(a.subject, a.source)}", "the record of " + rel)
+        elif a.kind == "quarantine-record":
+            rel = generation_rel(a.subject, a.source)
+            if is_plain_dir(os.path.join(self.root, SUBJECTS, a.subject)) and is_plain_dir(
+                os.path.join(self.root, rel)
+            ):
+                self.quarantine(rel, a.reason)
+            self.quarantine(f"{RECORDS}/{record_name(a.subject, a.source)}", a.reason)
         elif a.kind == "heal-record":
             self.heal.append(a)
             return

@@ -26,12 +26,14 @@ from facestats.io.layout import (
     fsync_path,
     group_meta,
     is_meta_temp,
+    is_plain_dir,
+    is_plain_file,
     write_json_atomic,
 )
 from facestats.io.locking import FileLock
 from facestats.io.schema import SCHEMA_VERSION
 
-__all__ = ["create_store", "read_root_attrs", "remove_empty_store", "new_store_guard"]
+__all__ = ["create_store", "enclosing_store", "read_root_attrs", "remove_empty_store", "new_store_guard"]
 
 _CREATION_LEFTOVERS = {LOCK_NAME, WRITERS, RECORDS, SUBJECTS, INDEX_NAME}
 
@@ -47,27 +49,131 @@ def create_store(p: Path) -> None:
     Raises
     ------
     StoreError
-        ``p`` cannot be created, or holds files that are not a store's.  The
-        contents of an existing directory are checked *before* anything is
-        written to it, so a foreign directory never gets a lock file.
+        ``p`` cannot be created, lies inside another store (:func:`enclosing_store`), or holds
+        files that are not a store's (or links among a store's names: nothing is written through
+        them).  The contents of an existing directory are checked *before* anything is written
+        to it, so a foreign directory never gets a lock file; a creation that fails (e.g. a full
+        disk) removes what it made.
     """
+    outer = enclosing_store(p)
+    if outer is not None:
+        raise StoreError(
+            f"cannot create a store at {p}: it lies inside the store {outer}, whose maintenance would take it for "
+            "files it did not create; choose a folder outside every store"
+        )
     _refuse_foreign(p)
+    made = _missing_folders(p)
     try:
         p.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise StoreError(f"cannot create store directory {p}: {exc.strerror}") from None
+    had_lock = os.path.lexists(p / LOCK_NAME)
     try:
         with FileLock(p / LOCK_NAME):
-            if (p / ROOT_META).exists():
-                return
-            _refuse_foreign(p)
-            _populate(p)
-    except OSError as exc:
-        raise StoreError(f"cannot create store {p}: {exc.strerror or exc}") from None
+            try:
+                if (p / ROOT_META).exists():
+                    return
+                _refuse_foreign(p)
+                before = set(os.listdir(p))
+                try:
+                    _populate(p)
+                except BaseException:
+                    _undo_populate(p, before)
+                    raise
+            except BaseException:
+                if not had_lock:  # still held: a creator waiting for it finds no half-made store
+                    _unlink(p / LOCK_NAME)
+                raise
+    except (OSError, StoreError) as exc:
+        _remove_folders(made)
+        if isinstance(exc, StoreError):
+            raise
+        raise StoreError(f"cannot create store {p}: {exc.strerror or exc}; nothing was left behind") from None
+    except BaseException:
+        _remove_folders(made)
+        raise
+
+
+def enclosing_store(p) -> Path | None:
+    """The facestats directory store that ``p`` lies inside (itself excluded, links resolved), or None.
+
+    A folder is a store if its ``zarr.json`` is a Zarr group with the ``facestats_schema`` attribute
+    (:func:`read_root_attrs`' test); every folder above ``p`` is looked at.
+    """
+    here = Path(os.path.realpath(os.fspath(p)))
+    for folder in here.parents:
+        meta = folder / ROOT_META
+        try:
+            if not meta.is_file():
+                continue
+            doc = json.loads(meta.read_bytes()[:1_000_000])
+        except (OSError, ValueError, UnicodeDecodeError, RecursionError):
+            continue
+        attrs = doc.get("attributes") if isinstance(doc, dict) else None
+        if isinstance(attrs, dict) and "facestats_schema" in attrs:
+            return folder
+    return None
+
+
+def _missing_folders(p: Path) -> list[Path]:
+    """The folders of ``p`` (itself included) that do not exist yet, innermost first."""
+    out = []
+    q = Path(os.path.abspath(p))
+    while not os.path.lexists(q) and q != q.parent:
+        out.append(q)
+        q = q.parent
+    return out
+
+
+def _undo_populate(p: Path, before: set) -> None:
+    """Remove what :func:`_populate` made in ``p`` (the names not in ``before``); the caller holds the lock."""
+    for name in sorted(set(_listdir(p)) - before - {LOCK_NAME}):
+        target = p / name
+        try:
+            if target.is_dir() and not target.is_symlink():
+                for inner in _listdir(target):  # only what _populate writes there: subjects/zarr.json
+                    if inner == ROOT_META or is_meta_temp(inner):
+                        (target / inner).unlink()
+                target.rmdir()
+            elif name in _CREATION_LEFTOVERS or name == ROOT_META or is_index_temp(name) or is_meta_temp(name):
+                target.unlink()
+        except OSError:
+            pass
+
+
+def _unlink(path: Path) -> None:
+    try:
+        path.unlink()
+    except OSError:
+        pass
+
+
+def _remove_folders(made: list) -> None:
+    """Remove the folders a failed creation made (innermost first), as long as they are empty."""
+    for folder in made:
+        try:
+            folder.rmdir()
+        except OSError:
+            break
+
+
+def _listdir(p: Path) -> list[str]:
+    try:
+        return os.listdir(p)
+    except OSError:
+        return []
+
+
+#: What each name of a store's own may be: its folders, its files.
+_KINDS = {WRITERS: "dir", RECORDS: "dir", SUBJECTS: "dir", LOCK_NAME: "file", INDEX_NAME: "file"}
 
 
 def _refuse_foreign(p: Path) -> None:
-    """:class:`StoreError` if ``p`` exists and is not a directory, or holds anything but store-creation leftovers."""
+    """:class:`StoreError` if ``p`` exists and is not a directory, or holds anything but store-creation leftovers.
+
+    Leftovers count only as what the store makes (real folders, regular files; no link): a creation
+    never writes through a link planted among them (``subjects -> /elsewhere``).
+    """
     if not p.exists() and not p.is_symlink():
         return
     if not p.is_dir():
@@ -81,6 +187,15 @@ def _refuse_foreign(p: Path) -> None:
     extra = [n for n in names if n not in _CREATION_LEFTOVERS and not is_index_temp(n) and not is_meta_temp(n)]
     if extra:
         raise StoreError(f"{p} exists, is not empty and is not a facestats store (contains {sorted(extra)[:5]})")
+    for name in sorted(names):
+        kind = _KINDS.get(name, "file")
+        ok = is_plain_dir(p / name) if kind == "dir" else is_plain_file(p / name)
+        if not ok:
+            what = "a symbolic link" if os.path.islink(p / name) else f"not a {'folder' if kind == 'dir' else 'file'}"
+            raise StoreError(
+                f"cannot create a store at {p}: {p / name} is {what}, so it was not left by facestats; nothing was "
+                "written: remove it or choose another folder"
+            )
 
 
 def _populate(p: Path) -> None:
@@ -141,10 +256,11 @@ def read_root_attrs(backend, label: str) -> dict:
     return attrs
 
 
-def remove_empty_store(p) -> bool:
+def remove_empty_store(p, *, keep_folder: bool = False) -> bool:
     """Remove the store at ``p`` if it is exactly an empty store (no subject, nothing but its own files).
 
     Used to undo the creation of a store by a command that then failed.
+    With ``keep_folder`` the folder itself stays (it existed, empty, before the store was made in it).
     Returns True if it was removed.
     """
     p = Path(p)
@@ -165,7 +281,8 @@ def remove_empty_store(p) -> bool:
                 target = p / name
                 shutil.rmtree(target) if target.is_dir() and not target.is_symlink() else target.unlink()
         (p / LOCK_NAME).unlink()
-        p.rmdir()
+        if not keep_folder:
+            p.rmdir()
     except (OSError, StoreError):
         return False
     return True
@@ -177,14 +294,17 @@ def new_store_guard(path):
 
     A command that fails must leave no side effects; a store it created and
     wrote nothing into is one (e.g. ``facestats edit ... --out-store NEW``
-    with an invalid argument found late).
+    with an invalid argument found late, or ``facestats import-merl`` on a
+    full disk).  A store made in a folder that existed empty is emptied again,
+    the folder kept.
     """
     created = []  # the store folder and the missing folders above it, innermost first
+    was_empty = False
     if path is not None:
         p = Path(os.fspath(path)).absolute()
-        while not os.path.lexists(p) and p != p.parent:
-            created.append(p)
-            p = p.parent
+        created = _missing_folders(p)
+        if not created:
+            was_empty = is_plain_dir(p) and not _listdir(p)
     try:
         yield
     except BaseException:
@@ -194,4 +314,6 @@ def new_store_guard(path):
                     folder.rmdir()
                 except OSError:
                     break
+        elif was_empty:
+            remove_empty_store(p, keep_folder=True)
         raise

@@ -104,10 +104,12 @@ def open_store(path=None, mode: str = "r", *, lock_timeout: float = 60.0) -> "St
         ``"r"`` read-only; ``"r+"`` read-write, the store must exist; ``"a"``
         read-write, created if missing (directory stores only).
     lock_timeout : float
-        Seconds a writer waits for the store lock before :class:`StoreError`.
+        Seconds a writer waits for the store lock before :class:`StoreError`, in [0, 86400].
 
     Raises
     ------
+    ValidationError
+        ``mode`` or ``lock_timeout`` out of range (NaN, a negative number, not a number).
     StoreError
         Missing or unreadable store, read-write access to a zip store, or the
         default store not built yet.
@@ -115,6 +117,7 @@ def open_store(path=None, mode: str = "r", *, lock_timeout: float = 60.0) -> "St
         A store written with a schema version this facestats cannot read.
     """
     check_choice(mode, "mode", ("r", "r+", "a"))
+    lock_timeout = _check_lock_timeout(lock_timeout)
     if path is None:
         return _open_default(mode, lock_timeout)
     p = _store_path(path)
@@ -130,6 +133,19 @@ def open_store(path=None, mode: str = "r", *, lock_timeout: float = 60.0) -> "St
             raise StoreError(f"cannot create zip store {p}: create a directory store and pack it with pack_store")
         create_store(p)
     return Store(DirectoryBackend(str(p)), read_only=(mode == "r"), label=str(p), lock_timeout=lock_timeout)
+
+
+#: Longest wait for the store lock ``open_store`` accepts (a day): commits hold it for milliseconds.
+MAX_LOCK_TIMEOUT = 86400.0
+
+
+def _check_lock_timeout(value) -> float:
+    """``lock_timeout`` as a float, or :class:`ValidationError` naming it unless it is a number of seconds in
+    [0, :data:`MAX_LOCK_TIMEOUT`] (NaN would wait forever, a string fail late, a negative time out at once)."""
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+    if not ok or not 0 <= float(value) <= MAX_LOCK_TIMEOUT:  # NaN fails too
+        raise ValidationError(f"lock_timeout must be a number of seconds in [0, {MAX_LOCK_TIMEOUT:g}], got {value!r}")
+    return float(value)
 
 
 def _open_default(mode: str, lock_timeout: float) -> "Store":
@@ -172,6 +188,25 @@ def _store_path(path) -> Path:
             "file:// URL); copy it to a local or shared disk first"
         )
     return Path(text).expanduser()
+
+
+def _variable_names(variables) -> list[str]:
+    """``variables`` of :meth:`Store.subject` as a list of names; :class:`ValidationError` naming it otherwise.
+
+    A single string is refused rather than taken letter by letter (``"albedo"`` is not ``["a", "l", ...]``).
+    """
+    if isinstance(variables, (str, bytes)):
+        raise ValidationError(
+            f"variables must be a list of variable names, got the string {variables!r} (write [{variables!r}])"
+        )
+    try:
+        names = list(variables)
+    except TypeError:
+        raise ValidationError(f"variables must be a list of variable names, got {type(variables).__name__}") from None
+    bad = [v for v in names if not isinstance(v, str)]
+    if bad:
+        raise ValidationError(f"variables must be a list of variable names (strings), got {bad[0]!r} among them")
+    return names
 
 
 # -- the store ---------------------------------------------------------------------
@@ -345,6 +380,10 @@ class Store:
         """Open and check one generation; ``variables`` (with lazy=True): load and verify just these."""
         return open_generation(self._b, sid, gen, label=self.label, lazy=lazy, variables=variables)
 
+    def _check_generation(self, sid: str, gen: str):
+        """Open one generation and check everything, the per-chunk checksums too (validate, repair)."""
+        return open_generation(self._b, sid, gen, label=self.label, check_chunks=True)
+
     def _load(self, sid: str, **kw):
         """Open the current generation of ``sid``, retrying if a concurrent writer replaced it."""
         sid = str(sid)
@@ -373,6 +412,8 @@ class Store:
         """
         if variables is not None and not lazy:
             raise ValidationError("variables requires lazy=True (without it every variable is loaded and verified)")
+        if variables is not None:
+            variables = _variable_names(variables)
         return self._load(str(subject_id), lazy=lazy, variables=variables)
 
     # -- writing -----------------------------------------------------------------
@@ -465,8 +506,11 @@ class Store:
         Removes only what is provably the store's own and of no use
         (:func:`facestats.io.maintenance.survey`): never a generation the
         index names, one whose writer is still running, a committed one the
-        index lost (repair recovers it), nor anything the store did not
-        create (links, other files); decisions are taken under the store lock.
+        index lost (repair recovers it), one holding files Zarr did not
+        write, nor anything the store did not create (links, other files);
+        decisions are taken under the store lock, and the generations to
+        delete are renamed aside under it (removed after it is released), so
+        no concurrent commit or repair can name them again.
         Returns the removed paths relative to the store.
         """
         self._require_writable()
@@ -515,7 +559,9 @@ class Store:
                 return is_plain_dir(os.path.join(self.path, generation_rel(sid, gen)))
 
         reread = self._fresh_entries
-        check_subjects(index, self._open_generation, report, reread=reread, generation_exists=exists, progress=progress)
+        check_subjects(
+            index, self._check_generation, report, reread=reread, generation_exists=exists, progress=progress
+        )
         self._directory_notes(report, index)
         return report
 
@@ -554,7 +600,7 @@ class Store:
         return plan_repair(
             self.path,
             label=self.label,
-            open_generation=self._open_generation,
+            open_generation=self._check_generation,
             allow_missing=allow_missing,
             progress=progress,
         )

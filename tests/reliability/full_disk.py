@@ -1,8 +1,9 @@
 """Full-disk scenarios, run as a script inside a private mount namespace on a small tmpfs.
 
 ``python -m tests.reliability.full_disk TMPFS SOURCE_STORE`` copies the store onto the tmpfs, fills
-the rest of the tmpfs, runs each scenario (export, repair, delete, write, edit), frees the space,
-checks what is left, and prints one JSON line per scenario:
+the rest of the tmpfs, runs each scenario (export, repair, delete, write, edit, a MERL import into the
+store and one into an empty folder), frees the space, checks what is left, and prints one JSON line
+per scenario:
 ``{"name", "code", "message", "checks": {check: bool}}``.  The test (``test_faults.py``) runs it with
 ``unshare -rm`` and asserts on the JSON; the tmpfs vanishes with the namespace.
 """
@@ -52,9 +53,11 @@ def digests(path):
     return subject_digests(path)
 
 
-def scenario(name, root: Path, source: Path, run, checks):
+def scenario(name, root: Path, source: Path, run, checks, prepare=None):
     store = root / name / "s.zarr"
     shutil.copytree(source, store)
+    if prepare is not None:
+        prepare(root / name)
     before = digests(store)
     filler = fill(root)
     try:
@@ -113,6 +116,25 @@ def delete(store):
         st.delete_subject("R1")
 
 
+def merl_file(root: Path) -> Path:
+    """A valid ``ts_data.mat`` on the disk (written before it is filled)."""
+    import scipy.io
+
+    from tests.helpers import merl_dict
+
+    path = root / "ts_data.mat"
+    scipy.io.savemat(path, merl_dict())
+    return path
+
+
+def import_merl(store, work):
+    return cli("import-merl", work.parent / "ts_data.mat", "--store", store)
+
+
+def import_new(store, work):
+    return cli("import-merl", work.parent / "ts_data.mat", "--store", work / "empty.zarr")
+
+
 def still_repairable(store, work, before):
     code, _ = cli("validate", "--store", store, "--repair", "--yes")
     after = digests(store)
@@ -136,6 +158,14 @@ def no_images(store, work, before):
     return {**unchanged(store, work, before), "no images": not (work / "img").exists()}
 
 
+def no_import(store, work, before):
+    return {**unchanged(store, work, before), "no subject folder left": not list(store.glob("subjects/merl-*"))}
+
+
+def still_empty(store, work, before):
+    return {**unchanged(store, work, before), "the empty folder left empty": os.listdir(work / "empty.zarr") == []}
+
+
 def main(root: Path, source: Path) -> None:
     scenario("export", root, source, export, no_export)
     damaged_source = root / "damaged" / "s.zarr"
@@ -146,6 +176,9 @@ def main(root: Path, source: Path) -> None:
     scenario("delete", root, source, api(delete), unchanged)
     scenario("write", root, source, api(write), unchanged)
     scenario("edit", root, source, edit, no_images)
+    merl_file(root)
+    scenario("import", root, source, import_merl, no_import)
+    scenario("import-new", root, source, import_new, still_empty, prepare=lambda work: (work / "empty.zarr").mkdir())
 
 
 if __name__ == "__main__":

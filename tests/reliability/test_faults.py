@@ -295,7 +295,9 @@ def test_full_disk(base, tmp_path):
     )
     assert r.returncode == 0, r.stderr[-3000:]
     results = [json.loads(line) for line in r.stdout.splitlines() if line.startswith("{")]
-    assert [x["name"] for x in results] == ["export", "repair", "delete", "write", "edit"], r.stdout
+    assert [x["name"] for x in results] == [
+        "export", "repair", "delete", "write", "edit", "import", "import-new"
+    ], r.stdout  # fmt: skip
     for x in results:
         assert x["code"] == 2, x  # a clear error (exit status 2 / a FacestatsError), not a traceback
         assert "No space left on device" in x["message"] or "no space" in x["message"].lower(), x

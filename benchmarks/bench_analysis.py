@@ -269,7 +269,7 @@ def bench_default_store_posterior(n_profiles=5):
     store = _default_store()
     if store is None:
         return {"status": "unavailable (the embedded store is not built)"}
-    cases = [("S001", "cheek"), ("S040", "forehead"), ("S080", "neck"), ("S120", "cheek"), ("P150-normal", "forehead")]
+    cases = [("S001", "cheek"), ("S040", "forehead"), ("S080", "neck"), ("S120", "cheek"), ("S008", "forehead")]
     cases = cases[:n_profiles]
     times, steps, taus = [], [], []
     for seed, (sid, site) in enumerate(cases):

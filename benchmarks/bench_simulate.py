@@ -7,7 +7,7 @@ Figures:
 * ``one_subject``: seconds to simulate one default subject (48² lumitexel grid,
   ~1,560 lumitexels × ~940 samples), geometry and shadow maps cached as in a
   population build (target: well under 1 s).
-* ``population``: wall time of simulating the whole default population (156
+* ``population``: wall time of simulating the whole default population (155
   captures) on this machine's cores (target: under a minute).
 * ``full_resolution``: a subject at the paper's full resolution (lumitexel grid
   1,152², about 900,000 lumitexels, 2,048² maps, finer than the grid) streamed

@@ -6,8 +6,10 @@ them), every sample (pixel, channel c) gets
 
     num = Σ_j T_j(Z_j, c),  den = Σ_j W_j(Z_j, c),  ln E = num / den,
 
-the weighted mean of eq. 6.  Where den = 0 (no usable exposure) ln E is NaN if every
-exposure's code is at or above mid-range (saturated), and otherwise the longest
+the weighted mean of eq. 6.  Where den = 0 (no usable exposure) ln E is NaN if any
+exposure's code is at or above mid-range (saturated there: with zero weight every code
+is dark or clipped, and a pixel dark in a short exposure and clipped in a long one lies
+between the two, unknown), and otherwise (dark in every exposure) the longest
 exposure's estimate D(Z_P, c) = g(Z_P, c) − ln Δt_P (:mod:`facestats.acquire.response`'s
 docstring).  Two implementations, the same sums in the same order (float32, exposures in
 the given order), so the results are identical:
@@ -96,7 +98,7 @@ def _numpy_block(stack, tables, weights, dark, num, den):
     none = np.nonzero(den == 0)  # no usable exposure: treated on these samples only
     if none[0].size:
         levels = dark.shape[0]
-        bright = np.all([z[none] >= levels // 2 for z in stack], axis=0)
+        bright = np.any([z[none] >= levels // 2 for z in stack], axis=0)
         num[none] = np.where(bright, np.float32(np.nan), dark[stack[-1][none], none[-1]])
 
 

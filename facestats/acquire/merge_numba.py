@@ -33,8 +33,8 @@ def lookup_pass(stack, tables, weights, dark, out, den, chunk):
             den[i] = d
             if d > 0:
                 out[i] = s / d
-            else:  # no usable exposure: saturated in all (NaN) or the longest exposure's floor
-                bright = True
+            else:  # no usable exposure: saturated in one at least (NaN) or the longest exposure's floor
+                bright = False
                 for j in range(len(stack)):
-                    bright = bright and stack[j][i] >= half
+                    bright = bright or stack[j][i] >= half
                 out[i] = np.float32(np.nan) if bright else dark[stack[len(stack) - 1][i], c]

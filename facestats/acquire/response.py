@@ -55,7 +55,7 @@ Passing ``white_level = W`` ends the hat there, Z_max = W in eq. 4 (zero weight 
 and above W, falling towards it), and recovers g on the codes black..W only (codes
 above W take g(W), which carries no weight); W must lie in (2^bits / 2, 2^bits − 1]
 (g is pinned at 2^bits / 2, which must lie between the black and the white level). A
-pixel at or above W in every exposure merges to NaN (saturated).  Merges and
+pixel with no usable exposure that is at or above W in one merges to NaN (saturated).  Merges and
 :func:`exposure_agreement` must then be given the same ``white_level``.
 
 **Sample selection** (``samples``): the paper needs N(P − 1) > Z_max − Z_min
@@ -79,10 +79,13 @@ An integer array of flat pixel indices picks the pixels explicitly.
 
     ln E_i = Σ_j w(Z_ij)(g(Z_ij) − ln Δt_j) / Σ_j w(Z_ij).
 
-A pixel with no usable exposure (zero total weight) is NaN when it is at or above
-mid-range in every exposure (saturated, e.g. at or above the white level: unknown
-radiance), and otherwise takes the estimate of its longest exposure g(Z) − ln Δt
-(an all-dark pixel: an upper bound at the noise floor).
+A pixel with no usable exposure (zero total weight: every code dark or clipped) is
+NaN when it is clipped (at or above the white level) in any exposure: unknown
+radiance, above what clips there (before 2026-12-06 only when clipped in every
+exposure, so a pixel dark in a short exposure and clipped in a long one took the
+clipped code's estimate, a lower bound read as the value; a red team); dark in every
+exposure, it takes the estimate of its longest exposure g(Z) − ln Δt (an upper bound
+at the noise floor).
 
 The existing linear-raw merge with a noise model is
 :func:`facestats.acquire.hdr.merge_exposures`; this module is for cameras whose
@@ -580,8 +583,8 @@ def merge_photographs(
     Returns
     -------
     ndarray of float32, shape of one image
-        Linear radiance exp(ln E) in the units of exp(g)/s; NaN where every exposure
-        is saturated (module docstring: at or above mid-range, e.g. at or above the white level).
+        Linear radiance exp(ln E) in the units of exp(g)/s; NaN where no exposure is
+        usable and one at least is saturated (module docstring: at or above the white level).
     """
     check_choice(weighting, "weighting", ("hat", "hat_time"))
     stack, t, _, _ = _check_stack(images, exposure_times, None)

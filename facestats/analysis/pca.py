@@ -15,8 +15,11 @@ Conventions
   ``ddof=1`` by default), sorted in descending order; eigenvectors are unit
   columns, each signed so that its largest-magnitude component is positive.
 * Drawn ellipses have half-axes k·σ_i = k·sqrt(λ_i) along the eigenvectors,
-  **k = 1 by default** (the paper does not say whether it drew σ or a multiple
-  of it); :meth:`RegionEllipse.half_axes` and the plot take ``k``.
+  **k = 1 by default**.  §7 calls the eigenvalues "the size of the ellipse
+  axis"; read literally, a half-axis λ would not even carry the parameters'
+  units, so facestats draws σ = sqrt(λ) and says so.  A 1σ ellipse holds only
+  39 % of a bivariate normal (k = 2.45 holds 95 %);
+  :meth:`RegionEllipse.half_axes` and the plot take ``k``.
 
 :class:`RegionPCA` also gives the region orderings the paper discusses
 (:meth:`RegionPCA.orderings`, beside the paper's in

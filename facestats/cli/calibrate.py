@@ -4,6 +4,7 @@ and beams from photographs of a diffuse target (:func:`facestats.acquire.calibra
 
 from __future__ import annotations
 
+import contextlib
 import os
 import pathlib
 import sys
@@ -123,6 +124,21 @@ def _warn_leds(result, args) -> None:
         print(f"facestats: warning: {line}", file=sys.stderr)
 
 
+@contextlib.contextmanager
+def _level_options(args):
+    """Re-raise the API's ``black_level`` / ``white_level`` refusals as the command's options, with a hint when the
+    bit depth came from the files (e.g. 14-bit codes in 16-bit files need ``--bits 14``)."""
+    try:
+        yield
+    except ValidationError as exc:
+        text = str(exc)
+        for name in ("white_level", "black_level"):
+            if text.startswith(name):
+                hint = "" if args.bits is not None else " (the files set the bit depth: pass --bits N for N-bit codes)"
+                raise ValidationError("--" + name.replace("_", "-") + text[len(name) :] + hint) from None
+        raise
+
+
 def _cmd_response(args) -> int:
     from facestats.acquire.bracket import calibrate_response
     from facestats.acquire.response import MAX_SMOOTHNESS
@@ -155,15 +171,16 @@ def _cmd_response(args) -> int:
 
         dome = Dome.load(args.calibration)  # read before the fit: a bad calibration must not cost one
         _check_apply(dome, args)
-    result = calibrate_response(
-        args.images,
-        args.times,
-        bits=args.bits,
-        smoothness=args.smoothness,
-        samples=args.samples,
-        black_level=args.black_level,
-        white_level=args.white_level,
-    )
+    with _level_options(args):  # the levels' bounds known only from the files: name the options
+        result = calibrate_response(
+            args.images,
+            args.times,
+            bits=args.bits,
+            smoothness=args.smoothness,
+            samples=args.samples,
+            black_level=args.black_level,
+            white_level=args.white_level,
+        )
     print(result.to_text())
     # Everything that can fail before any file is written (a file replaced by a failed command is lost).
     applied = result.apply(dome, args.cameras) if args.write_calibration else None

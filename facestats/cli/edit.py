@@ -19,6 +19,7 @@ from facestats.cli.options import (
     add_store_option,
     ascii_float,
     ascii_int,
+    check_apart_from_store,
     named_options,
     open_store_option,
     store_path_option,
@@ -163,6 +164,7 @@ def _check_outputs(args) -> None:
     check_apart(args.images, source, "--images", "the source store")
     if args.out_store is not None:  # the source store itself, or a store elsewhere; never one nested inside it
         check_apart(args.out_store, source, "--out-store", "the source store", same=True)
+        check_apart(args.images, args.out_store, "--images", "the output store")
 
 
 def _run(args, edit_function, target, **kwargs) -> int:
@@ -241,7 +243,8 @@ def _cmd_stats(args) -> int:
     from facestats.edit.statistics import statistics_path
     from facestats.edit.subjects import subject_texture_statistics
 
-    statistics_path(args.out, overwrite=args.overwrite)  # checked before the work
+    path = statistics_path(args.out, overwrite=args.overwrite)  # checked before the work
+    check_apart_from_store(path, "--out", args.store)  # never a file mixed into the store
     with open_store_option(args.store) as store:
         stats = subject_texture_statistics(
             store, args.subject, regions=args.regions, levels=args.levels, bins=args.bins
@@ -292,7 +295,7 @@ def add_edit(sub) -> None:
         help="per-region BRDF histogram transfer / interpolation from a subject or a subset",
         description="Move each region's Torrance-Sparrow and/or Blinn-Phong parameter histograms to the target's "
         "(histogram interpolation of Matusik et al. 2005), e.g. normal -> lotion half-way: "
-        "brdf P150-normal --condition lotion --t 0.5.",
+        "brdf S008 --condition lotion --t 0.5.",
     )
     a.add_argument("subject", metavar="SUBJECT", help="subject id")
     _query_args(a, "BRDF")

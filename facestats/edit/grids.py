@@ -80,8 +80,8 @@ def padded_shape(shape, levels):
         raise ValidationError(
             f"levels must be at most {most} for a map of shape {tuple(shape)} "
             f"(the low-pass residual needs at least 4 pixels a side), got {levels}; the paper's 7 levels need "
-            "maps of at least 256 x 256, e.g. those of the texture sample (512 x 512: --store texture-sample, "
-            "facestats.pipeline.texture_sample)"
+            "maps of at least 385 pixels a side (padded to 512), e.g. those of the texture sample (512 x 512: "
+            "--store texture-sample, facestats.pipeline.texture_sample)"
         )
     return padded
 

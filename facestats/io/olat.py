@@ -48,11 +48,12 @@ from __future__ import annotations
 import json
 import os
 import pathlib
+import warnings
 
 import numpy as np
 
 from facestats.core.validate import as_float, check_choice, json_numbers
-from facestats.errors import FormatError, ValidationError
+from facestats.errors import FacestatsWarning, FormatError, ValidationError
 from facestats.io.images import INTEGER_EXTENSIONS, read_image, read_integer_image
 from facestats.model.sphere import direction_from_angles, latlong_directions
 
@@ -91,16 +92,19 @@ def _inside(folder, name, what):
 
 def _load_images(folder, names, srgb):
     """Stack of images (L, H, W, 3) float32, checked for existence, values and a common size (loop over files),
-    and whether any 8-bit image was decoded from sRGB."""
+    whether any 8-bit image was decoded from sRGB, and the number of clipped pixels per light (a channel at the
+    top code of an integer image)."""
 
     stack = None
     decoded = False
+    clipped = np.zeros(len(names), np.int64)
     for k, name in enumerate(names):
         p = _inside(folder, name, f"image of light {k}")
         if not p.is_file():
             raise ValidationError(f"image {str(p)!r} listed for light {k} does not exist")
         if p.suffix.lower() in INTEGER_EXTENSIONS:
-            bits = read_integer_image(p)[1]
+            codes, bits = read_integer_image(p)
+            clipped[k] = np.count_nonzero((codes[..., :3] >= 2**bits - 1).any(-1))  # (H, W, C) codes
             img = read_image(p, srgb=bool(srgb) and bits == 8)
             decoded |= bool(srgb) and bits == 8
         else:
@@ -123,7 +127,7 @@ def _load_images(folder, names, srgb):
                 f"{stack.shape[2]} x {stack.shape[1]}: all images of a folder must have one size"
             )
         stack[k] = img
-    return stack, decoded
+    return stack, decoded, clipped
 
 
 def _intensities(values, folder):
@@ -338,8 +342,11 @@ def read_olat_folder(path, *, srgb=None):
     xarray.Dataset
         A reflectance field: images / intensities (the raw intensities kept as the
         ``intensity`` coordinate), ``mask``, ``normal_gt`` when the folder has
-        ground truth, and attributes ``source``, ``layout``, ``files`` and
-        ``skipped_frames``.
+        ground truth, and attributes ``source``, ``layout``, ``files``,
+        ``skipped_frames`` and ``clipped_pixels`` (per light, pixels with a
+        channel at the top code of an integer image: read as that code, which
+        biases them low; a :class:`~facestats.errors.FacestatsWarning` says how
+        many).
     """
     # local import: keeps facestats.acquire and facestats.model (26 modules) out of this module's import
     from facestats.relight.field import make_field
@@ -365,7 +372,17 @@ def read_olat_folder(path, *, srgb=None):
     if spec["mask_required"] and not mask_path.is_file():
         raise ValidationError(f"mask {str(mask_path)!r} named by {str(man)!r} does not exist")
     intensity = _intensities(spec["intensity"], folder)
-    stack, decoded = _load_images(folder, spec["names"], spec["srgb"])
+    stack, decoded, clipped = _load_images(folder, spec["names"], spec["srgb"])
+    if clipped.any():  # §3 leaves out invalid samples; a field has no way to mark them, so say so
+        k = int(np.argmax(clipped))
+        warnings.warn(
+            f"OLAT folder {str(folder)!r}: {int(clipped.sum())} pixel(s) in {int(np.count_nonzero(clipped))} of "
+            f"{clipped.size} image(s) are clipped at the top code (most in {spec['names'][k]!r}: {int(clipped[k])}); "
+            "they are read as the top code, which biases their specular and their relights low (attribute "
+            "clipped_pixels)",
+            FacestatsWarning,
+            stacklevel=2,
+        )
     values = stack / intensity[:, None, None, :]
     h, w = stack.shape[1:3]
     mask = None
@@ -374,7 +391,8 @@ def read_olat_folder(path, *, srgb=None):
     view = None if spec["view"] is None else np.broadcast_to(spec["view"], (h, w, 3))
     grid = _as_grid(dirs)
     attrs = {"source": f"OLAT folder {folder.name}", "layout": spec["layout"], "files": list(spec["names"]),
-             "skipped_frames": list(spec["skipped"]), "srgb_decoded": decoded}  # fmt: skip
+             "skipped_frames": list(spec["skipped"]), "srgb_decoded": decoded,
+             "clipped_pixels": [int(c) for c in clipped]}  # fmt: skip
     if grid is not None:
         values = values.reshape(grid + (h, w, 3))
         d_in, inten = dirs.reshape(grid + (3,)), spec["intensity"].reshape(grid + (3,))

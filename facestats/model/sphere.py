@@ -201,8 +201,15 @@ def latlong_light_samples(probe, rows: int, columns: int):
     dirs = latlong_directions(h, w)
     lit = (dirs * (img.sum(-1) * dw)[..., None]).reshape(*blocks, 3).sum(axis=(1, 3)).reshape(-1, 3)
     area = (dirs * dw[..., None]).reshape(*blocks, 3).sum(axis=(1, 3)).reshape(-1, 3)
-    norm = np.linalg.norm(lit, axis=1, keepdims=True)
-    d = np.where(norm > 0, lit, area)  # a dark block (or one whose light cancels) keeps its centre
+    total = (img.sum(-1) * dw).reshape(r, h // r, c, w // c).sum(axis=(1, 3)).reshape(-1, 1)
+    # A dark block, or one whose light cancels (a uniform block spanning opposite directions), keeps its centre.
+    d = np.where(np.linalg.norm(lit, axis=1, keepdims=True) > 1e-6 * total, lit, area)
+    size = dw.reshape(r, h // r, c, w // c).sum(axis=(1, 3)).reshape(-1)
+    if np.any(np.linalg.norm(area, axis=1) <= 1e-6 * size):
+        raise ValidationError(
+            f"rows x columns {r} x {c} make blocks that span opposite directions (no direction to light from): "
+            "use at least 2 x 2"
+        )
     return d / np.linalg.norm(d, axis=1, keepdims=True), power
 
 
@@ -340,29 +347,37 @@ def unit_directions(value, name: str = "directions", tol: float = 1e-3, *, allow
     return d / np.where(norm == 0, 1.0, norm)[..., None]
 
 
-#: How far a light of an irregular set reaches, in median nearest-neighbour spacings (:func:`light_reach`).
-REACH_SPACINGS = 4.0
+#: How far a light of an irregular set reaches, in light spacings (:func:`light_reach`).
+REACH_SPACINGS = 2.0
+#: The light spacing of :func:`light_reach` is the median angle from a light to its ``REACH_NEIGHBOUR``-th nearest
+#: light: robust to lights in pairs or small clusters (polarised pairs, RGB triplets), unlike the nearest one.
+REACH_NEIGHBOUR = 6
 
 
 def light_reach(directions) -> float:
-    """Angle (radians) beyond which a light of an irregular set stands for no direction: :data:`REACH_SPACINGS` (4)
-    × the median angle from a light to its nearest neighbour, at most π (π for a single light).
+    """Angle (radians) beyond which a light of an irregular set stands for no direction: :data:`REACH_SPACINGS`
+    (2) × the median angle from a light to its :data:`REACH_NEIGHBOUR`-th (6th) nearest light (the last one for
+    fewer lights), at most π (π for a single light).
 
     A light set that does not surround the subject (a frontal OLAT rig, a dome without lights below) has Voronoi
-    cells at its rim that reach far behind it: 96 lights within 35° of +z (a Fibonacci cap) give rim cells of up to
-    1.16 sr reaching 145° from their light, so a probe lit only from behind relit a +z-facing white Lambertian pixel
-    to 1.33 (found by an audit; the truth is 0).  Directions farther than the reach from every light are left out of
-    the cells.  Four spacings leave sets that surround the subject whole: 150 uniformly random directions have cells
-    reaching 3.2-3.4 spacings, a Fibonacci set 0.8; Weyrich's 150-LED dome (spacing 9.4°) loses the directions more
-    than 37.6° from every LED, 1.9 % of the sphere below the face.
+    cells at its rim that reach far behind it: 96 lights within 35° of +z (a Fibonacci cap) give rim cells of up
+    to 1.16 sr reaching 145° from their light, so a probe lit only from behind relit a +z-facing white Lambertian
+    pixel to 1.33 (found by an audit; the truth is 0).  Directions farther than the reach from every light are
+    left out of the cells.  Two spacings leave sets that surround the subject whole: the cells of 150 uniformly
+    random directions reach at most 1.1-1.2 spacings, a Fibonacci set's 0.6, the 64 × 32 light stage's 0.6, and
+    150 lights each with a twin 0.5° away 0.7 (the nearest-neighbour spacing, used at first, made that reach
+    0.4° and the cells sum to 0.48 sr; a red team).  Weyrich's 150-LED dome (spacing 21.4°) loses the
+    directions more than 42.7° from every LED, 0.8 % of the sphere below the face; 75 lights on a hemisphere
+    keep 47° below their rim (their cells reached 91°).
     """
     from scipy.spatial import cKDTree
 
     d = np.asarray(directions, np.float64).reshape(-1, 3)
     if d.shape[0] < 2:
         return float(np.pi)
-    chord, _ = cKDTree(d).query(d, 2)
-    spacing = float(np.median(2 * np.arcsin(np.clip(chord[:, 1] / 2, 0, 1))))
+    k = min(REACH_NEIGHBOUR, d.shape[0] - 1)
+    chord, _ = cKDTree(d).query(d, k + 1)
+    spacing = float(np.median(2 * np.arcsin(np.clip(chord[:, k] / 2, 0, 1))))
     return float(min(np.pi, REACH_SPACINGS * spacing))
 
 

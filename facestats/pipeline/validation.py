@@ -264,13 +264,41 @@ def face_view(subject, mesh=None, *, scale: float = 1.0) -> FaceView:
     return FaceView(geometry, sid)
 
 
+#: Most directional lights :func:`render_probe` sums a probe into (a shadow map each: 2,048 take minutes at 48²).
+MAX_PROBE_LIGHTS = 2048
+
+
+def probe_lights(shape, samples=None, name="samples"):
+    """(rows, columns) of the directional lights a lat-long probe of ``shape`` is summed into (:func:`render_probe`).
+
+    ``samples`` None: 16 × 32 where it divides the probe, else the finest of 8 × 16, 4 × 8, 2 × 4 that does.
+    Given: checked (each ≥ 2, dividing the probe's rows and columns, at most :data:`MAX_PROBE_LIGHTS` lights),
+    errors naming ``name``.
+    """
+    ph, pw = int(shape[0]), int(shape[1])
+    if samples is None:
+        for r in (16, 8, 4, 2):
+            if ph % r == 0 and pw % (2 * r) == 0:
+                return r, 2 * r
+        raise ValidationError(
+            f"{name}: no default number of lights divides the probe's size {ph} x {pw} (rows a multiple of 2 and "
+            "columns of 4 at least): resample the probe"
+        )
+    r, c = (check_integer(v, name, 2) for v in samples)
+    if r * c > MAX_PROBE_LIGHTS:
+        raise ValidationError(f"{name} must make at most {MAX_PROBE_LIGHTS} lights, got {r} x {c} = {r * c}")
+    if ph % r or pw % c:
+        raise ValidationError(f"{name} {r} x {c} must divide the probe's size {ph} x {pw} (rows x columns)")
+    return r, c
+
+
 def render_probe(
     subject,
     capture,
     camera: int,
     probe,
     *,
-    samples=(16, 32),
+    samples=None,
     specular="torrance_sparrow",
     eta=ETA_SKIN,
     mesh=None,
@@ -295,13 +323,14 @@ def render_probe(
         The subject's capture (its lumitexels and dome calibration), or None (:func:`face_view`).
     probe : str, os.PathLike or ndarray (H, W, 3)
         Lat-long probe (a file is read with :func:`facestats.io.probes.read_light_probe`).
-    samples : (int, int)
-        Light directions (rows, columns); must divide the probe's size.  Default 16 × 32 (512 lights; before
-        2026-12-06 8 × 16): under the Probulator probes (pisa, ennis, wells) the Lambertian irradiance of 2,000
-        random normals is then within 0.15-0.29 % at the median, 1.9-6.0 % at the 99th percentile and 3.9-12.4 %
-        at worst of the full-resolution probe's; 8 × 16 gives 0.6-0.9 %, 5.9-21 % and 10-45 %, 32 × 64 0.04-0.08 %,
-        0.4-1.4 % and 0.9-5.5 % (an audit's figures, re-measured).  The cost grows with the lights: at 48² about
-        1 s at 8 × 16 and 4 s at 16 × 32.
+    samples : (int, int), optional
+        Light directions (rows, columns), each dividing the probe's size, at most :data:`MAX_PROBE_LIGHTS` in
+        all (each light costs a shadow map).  Default: 16 × 32 (512 lights) where it divides the probe, else the
+        finest of 8 × 16, 4 × 8, 2 × 4 that does (before 2026-12-06 8 × 16 always): under the Probulator probes
+        (pisa, ennis, wells) the Lambertian irradiance of 2,000 random normals is then within 0.15-0.29 % at the
+        median, 1.9-6.0 % at the 99th percentile and 3.9-12.4 % at worst of the full-resolution probe's; 8 × 16
+        gives 0.6-0.9 %, 5.9-21 % and 10-45 %, 32 × 64 0.04-0.08 %, 0.4-1.4 % and 0.9-5.5 % (an audit's figures,
+        re-measured).  The cost grows with the lights: at 48² about 1 s at 8 × 16 and 4 s at 16 × 32.
     mesh : str or os.PathLike, optional
         The scan the subject's maps belong to (OBJ/PLY with per-vertex UVs), for a subject whose recorded face
         facestats cannot rebuild (ingested photographs): the shadowing mesh, and without ``capture`` the
@@ -324,7 +353,7 @@ def render_probe(
         capture = face_view(subject, mesh, scale=scale)
     check_integer(camera, "camera", 0, capture.dome.n_cameras - 1)
     img = read_light_probe(probe) if not isinstance(probe, np.ndarray) else np.asarray(probe, np.float64)
-    h, w = (check_integer(s, "samples", 1) for s in samples)
+    h, w = probe_lights(img.shape, samples)
     d, power = latlong_light_samples(img, h, w)
     lt, v, u = _texels(subject, capture)
     _, in_frame, _ = capture.dome.view(lt.position.astype(np.float64), cameras=[camera])
@@ -376,7 +405,7 @@ def camera_rmse(
 
 
 #: Capture provenance entries that set up the simulator (:class:`facestats.acquire.synthetic.simulate.DomeSimulator`).
-SIMULATOR_SETTINGS = ("specular", "noise", "head_motion_deg", "scan_normal_noise_deg", "block")
+SIMULATOR_SETTINGS = ("specular", "noise", "head_motion_deg", "scan_normal_noise_deg", "block", "eta")
 
 
 def default_capture(subject, seed: int = DEFAULT_SEED):
@@ -470,7 +499,8 @@ def _population_truth(subject_id, seed, face):
         ]
     except ValidationError:  # an id outside the population
         raise ValidationError(
-            f"subject {subject_id!r} is not a subject of the synthetic population (S001-S149, P150-<condition>): "
+            f"subject {subject_id!r} is not a subject of the synthetic population (S001-S149, and one subject's "
+            "records under the other conditions, e.g. S008-lotion for seed 2006): "
             "pass the capture it was fitted to (--capture PATH on the command line)"
         ) from None
 

@@ -154,6 +154,10 @@ __all__ = [
 #: with them); compressing takes longer.
 PIXELS_PER_CLUSTER = 128
 
+#: Negative values summing to at most this share of the positive ones are a field of radiance's noise
+#: (:attr:`CompressedField.nonnegative`): a single value of −1e-9 turned the clamp off (a red team).
+NEGATIVE_NOISE = 1e-3
+
 #: Samples whose coordinate along the light colour s reaches this share of the pixel's largest take part in its
 #: diffuse colour (:func:`diffuse_colours`): dimmer samples' colours are dominated by rounding and noise.
 LIT_SHARE = 0.05
@@ -349,6 +353,7 @@ class _Pass:
 
     def __init__(self, f, pixels, sw, progress):
         self.f, self.sw, self.progress = f, sw, progress
+        self.signed = bool(f.attrs.get("signed", False))  # a field of differences (indirect_field)
         self.tiles = _tile_pixels(f, pixels)
         self.n_pix = pixels.size
         self.inverse = self.off_plane = None
@@ -392,13 +397,14 @@ class _Pass:
 def _colours(stream, s, off_plane):
     """Per face pixel: its diffuse colour d (P, 3), whether its off-plane row is stored (its contribution
     ‖(d×s) μe‖ above ``off_plane`` times the pixel's norm ‖y‖), the squared norm of the rows left out, and whether
-    every value of the field is ≥ 0 (:attr:`CompressedField.nonnegative`)."""
+    the field holds radiance, not differences (:attr:`CompressedField.nonnegative`)."""
     d = np.empty((stream.n_pix, 3))
     keep = np.zeros(stream.n_pix, bool)
     dropped = np.zeros(stream.n_pix)
-    nonnegative = True
+    negative = positive = 0.0
     for sel, rows in stream.channels("compress: colours"):
-        nonnegative = nonnegative and not bool((rows < 0).any())
+        negative += float(np.sum(np.minimum(rows, 0), dtype=np.float64))
+        positive += float(np.sum(np.maximum(rows, 0), dtype=np.float64))
         dd = diffuse_colours(rows, s)
         e = np.einsum("nql,nql->n", rows, rows, dtype=np.float64)
         mu_e = np.einsum("nc,ncl->nl", _colour_inverse(dd, s)[:, 2].astype(np.float32), rows)
@@ -406,6 +412,9 @@ def _colours(stream, s, off_plane):
         size = np.linalg.norm(np.cross(dd, s), axis=-1) ** 2 * off
         d[sel], keep[sel] = dd, size > off_plane**2 * e
         dropped[sel] = np.where(keep[sel], 0, off)
+    # A field of radiance may carry a little negative noise (a dark-subtracted capture); one of differences
+    # (indirect_field: white - black) carries more, and says so.
+    nonnegative = -negative <= NEGATIVE_NOISE * positive and not stream.signed
     return d, keep, dropped, nonnegative
 
 
@@ -732,10 +741,11 @@ class CompressedField:
     parts : int
         Parts per (region, cluster, row) block (:func:`compress`).
     nonnegative : bool
-        Every value of the compressed field was ≥ 0 (a measured or rendered field), so its relights under
-        lighting ≥ 0 are too and :meth:`relight` clamps the bases' ringing at 0; False for a field holding
-        differences (e.g. :func:`facestats.relight.relighting.indirect_field`'s white − black), whose relights
-        may be negative and are returned as they are.
+        The compressed field holds radiance (its negative values, noise, sum to at most
+        :data:`NEGATIVE_NOISE` of its positive ones), so its relights under lighting ≥ 0 are ≥ 0 and
+        :meth:`relight` clamps the bases' ringing at 0; False for a field of differences (its ``signed``
+        attribute, set by :func:`facestats.relight.relighting.indirect_field`, or more negative mass), whose
+        relights may be negative and are returned as they are.
 
     Notes
     -----

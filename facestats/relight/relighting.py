@@ -175,6 +175,7 @@ def indirect_field(white, black):
     out["reflectance"] = w["reflectance"] - b["reflectance"]
     out["reflectance"].attrs.update(b["reflectance"].attrs)
     out.attrs["source"] = "indirect light from clothing (white - black), Debevec et al. 2000 §3.4"
+    out.attrs["signed"] = True  # differences: relights may be negative (CompressedField.nonnegative)
     return out
 
 

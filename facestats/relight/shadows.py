@@ -35,11 +35,13 @@ def _wrap_morphology(lit, op, iterations):
     """
 
     pad = 2 * iterations + 1
-    x = np.concatenate([lit[:, -pad:], lit, lit[:, :pad]], axis=1)
+    n_rows, n_cols = lit.shape[:2]
+    # Columns wrap (modulo, so any pad fits any width); rows do not: beyond-pole cells repeat the nearest row
+    # (no false edges).
+    x = np.take(lit, np.arange(-pad, n_cols + pad) % n_cols, axis=1)
+    x = np.take(x, np.clip(np.arange(-pad, n_rows + pad), 0, n_rows - 1), axis=0)
     struct = np.zeros((3, 3) + (1,) * (lit.ndim - 2), bool)
     struct[:, :, ...] = True
-    # Rows do not wrap: the border value treats beyond-pole cells as equal to the nearest row (no false edges).
-    x = np.concatenate([x[:1]] * pad + [x] + [x[-1:]] * pad, axis=0)
     y = op(x, structure=struct, iterations=iterations)
     return y[pad:-pad, pad:-pad]
 

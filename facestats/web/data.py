@@ -50,7 +50,7 @@ class RegionSamples:
     (:func:`facestats.analysis.pca.region_pca`): then nothing is read and
     :attr:`from_index` is True.  Stores written before the index held the
     (ρs, m) covariances need the per-texel samples of every subject (opening
-    each subject: about 10 s for the 156 subjects of the default store), read
+    each subject: about 10 s for the 155 subjects of the default store), read
     through a store handle of its own so that requests never wait for it; the
     page asks again until :attr:`ready`.
     """

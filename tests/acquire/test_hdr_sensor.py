@@ -28,6 +28,16 @@ def test_hdr_merge_unbiased_with_predicted_noise(rng):
     assert np.all(n_used[:, bright & ok] == 1)
 
 
+def test_the_noise_model_drops_the_exposures_the_merge_drops():
+    """The merge drops a reading at or above 0.95 of the ADC's full scale, black level included: 18,687 e⁻ for the
+    default camera. The model dropped it from 19,000 e⁻ (0.95 × full well), so a long exposure expecting 18,950 e⁻
+    counted in the model and not in the merge (an audit)."""
+    cam, times = CameraResponse(), np.array([1 / 60, 1 / 8])
+    rate = np.full((20000, 1), 18950 / times[1])
+    est, _, _ = merge_exposures(expose(rate, times, cam, np.random.default_rng(1), dtype=np.float64), times, cam)
+    assert est.std() / merged_std(rate[0], times, cam)[0] == pytest.approx(1, abs=0.05)  # 0.99
+
+
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_compiled_and_numpy_camera_give_the_same_bits(dtype):
     """Readings and merges from numba and from the numpy twins agree exactly (dark, clipped, mid-range)."""

@@ -16,7 +16,13 @@ def pop():
 
 
 def _normal(p):
-    return [s for s in p.subjects if s.condition == "normal" and s.person_id.startswith("S")]
+    return [s for s in p.subjects if s.condition == "normal"]
+
+
+def _series(p):
+    """The records of the person measured under the conditions of §7, by condition."""
+    person = next(s.person_id for s in p.subjects if s.condition == "lotion")
+    return {s.condition: s for s in p.subjects if s.person_id == person}
 
 
 def test_counts_match_table2_and_section7(pop):
@@ -30,9 +36,16 @@ def test_counts_match_table2_and_section7(pop):
     for grp, (m, f) in published.AGE_COUNTS.items():
         assert sum(age_group(s.age) == grp and s.gender == "M" for s in subs) == m
         assert sum(age_group(s.age) == grp and s.gender == "F" for s in subs) == f
-    conds = [s for s in pop.subjects if not s.person_id.startswith("S")]
-    assert sorted(s.condition for s in conds) == sorted(published_conditions())
-    assert len({s.person_id for s in conds}) == 1
+    # §7 "we also measured one male subject under several external conditions": one of the 149 (a type III man),
+    # his normal record among them, six more records of the same person (a 150th person made 50 type III men).
+    series = _series(pop)
+    assert sorted(series) == sorted(published_conditions())
+    assert series["normal"] in subs and series["normal"].skin_type == 3 and series["normal"].gender == "M"
+    assert len(pop.subjects) == published.N_SUBJECTS + 6
+    assert {s.subject_id for s in series.values()} == {"S008"} | {f"S008-{c}" for c in published_conditions()[1:]}
+    for cond, s in series.items():  # the same person: his face, texture and translucency in every condition
+        assert (s.age, s.gender, s.skin_type) == (34, "M", 3)
+        np.testing.assert_array_equal(s.site_sigma_tr, series["normal"].site_sigma_tr)
 
 
 def published_conditions():
@@ -146,7 +159,7 @@ def test_skin_colour_anchored_in_colorchecker_patches():
 
 
 def test_conditions_effects(pop):
-    cond = {s.condition: s for s in pop.subjects if not s.person_id.startswith("S")}
+    cond = _series(pop)
     face = cond["normal"].region_map > 0
     mean = {k: (v.ts_rho_s[face].mean(), v.ts_m[face].mean()) for k, v in cond.items()}
     for shiny in ("lotion", "hot"):
@@ -157,8 +170,8 @@ def test_conditions_effects(pop):
 
 def test_subject_subset_is_the_same_draw_and_unknown_ids_are_rejected():
     full = synthesize_population(seed=5, map_size=16)
-    part = synthesize_population(seed=5, map_size=16, subjects=["S002", "P150-lotion"])
-    assert [s.subject_id for s in part.subjects] == ["S002", "P150-lotion"]
+    part = synthesize_population(seed=5, map_size=16, subjects=["S002", "S030-lotion"])  # seed 5: S030's series
+    assert [s.subject_id for s in part.subjects] == ["S002", "S030-lotion"]
     for s in part.subjects:
         np.testing.assert_array_equal(s.albedo, full[s.subject_id].albedo)
         np.testing.assert_array_equal(s.ts_m, full[s.subject_id].ts_m)
@@ -166,7 +179,11 @@ def test_subject_subset_is_the_same_draw_and_unknown_ids_are_rejected():
     with pytest.raises(FacestatsError, match=r"subjects must be ids of the population .*got unknown \['S150'\]"):
         synthesize_population(seed=5, map_size=16, subjects=["S001", "S150"])
     with pytest.raises(FacestatsError, match="got unknown"):
-        synthesize_population(seed=5, map_size=16, conditions=False, subjects=["P150-normal"])
+        synthesize_population(seed=5, map_size=16, conditions=False, subjects=["S030-lotion"])
+    # The 149 subjects' draws do not depend on whether the series is drawn (they did: one more σtr row).
+    alone = synthesize_population(seed=5, map_size=16, conditions=False, subjects=["S002"])["S002"]
+    np.testing.assert_array_equal(alone.site_sigma_tr, full["S002"].site_sigma_tr)
+    np.testing.assert_array_equal(alone.ts_m, full["S002"].ts_m)
     with pytest.raises(FacestatsError, match="subjects must be a collection of subject ids, got the string"):
         synthesize_population(seed=5, map_size=16, subjects="S001")
     with pytest.raises(FacestatsError, match=r"freckle_fraction must lie in \[0, 0.57\]"):

@@ -504,3 +504,19 @@ def test_a_bracket_saturated_at_the_white_level_names_its_saturated_fractions():
         FacestatsError, match=r"strictly between 0 and 3000 .* 100\.0% at or above the white level 3000"
     ):
         recover_response([dark, bright], [0.01, 1.0], bits=12, white_level=3000)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_a_pixel_dark_in_a_short_exposure_and_clipped_in_a_long_one_is_unknown(backend):
+    """With no usable exposure, a pixel dark at 0.01 s and clipped at 0.1 and 1 s lies between the two bounds: it
+    took the clipped code's estimate exp(g(W))/1 s, a lower bound read as the value (a red team). NaN now; a pixel
+    dark in every exposure keeps its longest exposure's floor."""
+    if backend == "numba":
+        pytest.importorskip("numba")
+    g = np.log(np.maximum(np.arange(256.0), 0.5) / 128)[:, None].repeat(3, 1)
+    times = [0.01, 0.1, 1.0]
+    stacks = [np.array([[[5, 5, 5], [5, 5, 5]]], np.uint8), np.array([[[220, 220, 220], [50, 60, 80]]], np.uint8),
+              np.array([[[255, 255, 255], [90, 95, 99]]], np.uint8)]  # fmt: skip
+    e, w = merge_photographs(stacks, times, g, black_level=100, white_level=200, return_weight=True, backend=backend)
+    assert np.all(w == 0) and np.isnan(e[0, 0]).all()
+    np.testing.assert_allclose(e[0, 1], np.exp(g[[90, 95, 99], 0]) / 1.0, rtol=1e-5)  # all dark: the floor

@@ -211,6 +211,21 @@ def test_sensor_site_profiles_are_the_dipole(pop32):
     np.testing.assert_allclose(cap.array("sensor_profile"), expect, rtol=1e-12)
 
 
+def test_another_index_of_refraction_keeps_the_albedo_and_is_recorded(pop32):
+    """(σ's, σa) came from the truth's albedo at skin's η = 1.38 whatever η the simulator rendered with, so at
+    η = 1.3 the sensor's profiles integrated to 1.02-1.05 × the site albedo, and η was not recorded (an audit)."""
+    import json
+
+    from facestats.model.fitting import fit_translucency
+
+    truth = pop32[7]
+    cap = DomeSimulator(procedural_face(32), noise=False, eta=1.3).simulate(truth)
+    fit = fit_translucency(cap.array("fiber_distance"), np.moveaxis(cap.array("sensor_profile"), 1, 2), eta=1.3)
+    rd = dipole.total_diffuse_reflectance(fit.sigma_s_prime, fit.sigma_a, 1.3)
+    np.testing.assert_allclose(rd, truth.site_albedo, rtol=1e-3)
+    assert json.loads(cap.attrs["provenance"])["eta"] == 1.3
+
+
 def test_head_motion_perturbs_the_samples(pop32):
     g = procedural_face(32)
     still = DomeSimulator(g, noise=False).simulate(pop32[0]).array("radiance").astype(float)

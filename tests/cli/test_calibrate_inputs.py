@@ -292,6 +292,11 @@ def test_a_white_level_is_recovered_below_and_recorded(tmp_path):
     assert np.abs(d - np.median(d, axis=1, keepdims=True)).max() < 0.03  # ln z up to it: measured 0.008 (0.79 without)
     assert np.all(g[:, 3800:] == g[:, 3800:3801])  # above it: g(3800)
     assert json.loads((tmp_path / "new.json").read_text())["camera_white_level"] == 3800
+    # Without --bits the 16-bit files set the levels: the refusal names the option and the way out (it named the
+    # API's white_level, and said nothing of --bits; a red team).
+    r = run_cli("calibrate", "response", *frames, "--white-level", "3800")
+    assert r.returncode == 2 and "--white-level must be an integer in [32769, 65535], got 3800" in r.stderr
+    assert "pass --bits N for N-bit codes" in r.stderr
 
 
 def test_calibrate_leds_merges_with_the_white_level(target, tmp_path, capsys):

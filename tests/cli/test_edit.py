@@ -66,7 +66,7 @@ def test_brdf_lotion_half_way_from_the_default_store(tmp_path):
     r = run_cli(
         "edit",
         "brdf",
-        "P150-normal",
+        "S008",
         "--condition",
         "lotion",
         "--t",
@@ -74,26 +74,26 @@ def test_brdf_lotion_half_way_from_the_default_store(tmp_path):
         "--out-store",
         out,
         "--id",
-        "P150-half-lotion",
+        "S008-half-lotion",
         "--images",
         tmp_path,
     )
     assert r.returncode == 0, r.stderr
-    assert _new_id(r.stdout) == "P150-half-lotion" and "target: 1 subject(s): P150-lotion" in r.stdout
+    assert _new_id(r.stdout) == "S008-half-lotion" and "target: 1 subject(s): S008-lotion" in r.stdout
     with open_store(out) as st:
-        new = st.subject("P150-half-lotion")
+        new = st.subject("S008-half-lotion")
     p = provenance(new)
-    assert p["source_store"] == "default" and p["source_subject"] == "P150-normal"
+    assert p["source_store"] == "default" and p["source_subject"] == "S008"
     assert p["edit"]["parameters"]["t"] == 0.5 and p["edit"]["target"]["query"] == {"condition": "lotion"}
     with open_store(None) as default:
-        src, lot = default.subject("P150-normal"), default.subject("P150-lotion")
+        src, lot = default.subject("S008"), default.subject("S008-lotion")
     reg = src["region"].values
     sel = reg == 2
     b = src["ts_rho_s"].values[sel].mean()
     tgt = lot["ts_rho_s"].values[sel & (lot["ts_flag"].values == 0)].mean()
     assert abs(new["ts_rho_s"].values[sel].mean() - 0.5 * (b + tgt)) < 0.05 * abs(tgt - b)
     np.testing.assert_array_equal(new["albedo"].values, src["albedo"].values)
-    assert (tmp_path / "P150-half-lotion_ts_m_before.png").is_file()
+    assert (tmp_path / "S008-half-lotion_ts_m_before.png").is_file()
 
 
 def test_texture_with_regions_and_saved_stats(pop, tmp_path):
@@ -137,7 +137,7 @@ def test_texture_with_regions_and_saved_stats(pop, tmp_path):
 def test_errors_exit_2_with_clear_messages(pop, tmp_path):
     r = run_cli("edit", "skin-type", "F3", "V", "--store", pop, "--out-store", tmp_path / "e.zip")
     assert r.returncode == 2 and "--out-store must name a directory store (e.g. edits.zarr; a zip store" in r.stderr
-    r = run_cli("edit", "skin-type", "P150-normal", "V", "--images", tmp_path)
+    r = run_cli("edit", "skin-type", "S008", "V", "--images", tmp_path)
     assert r.returncode == 2 and "embedded default store is read-only: pass --out-store PATH" in r.stderr
     r = run_cli("edit", "brdf", "F3", "--store", pop, "--images", tmp_path)
     assert r.returncode == 2 and "give exactly one target" in r.stderr

@@ -259,4 +259,4 @@ def test_the_build_report_says_what_sigma_tr_avg_averages(tmp_path):
     res = run_cli("build", "--store", str(tmp_path / "s.zarr"), "--size", "8", "--subjects", "S001", "--quiet")
     assert res.returncode == 0, res.stderr
     assert "1 subject(s) written" in res.stdout
-    assert "the cheek and forehead mean over all 150 subjects of the drawn population under normal" in res.stdout
+    assert "the cheek and forehead mean over all 149 subjects of the drawn population under normal" in res.stdout

@@ -344,12 +344,12 @@ def test_errors(store, pop, tmp_path):
 def test_default_store_is_read_only_and_edits_go_to_another_store(tmp_path):
     default = facestats.open_store(None)
     with pytest.raises(StoreError, match="embedded default store is read-only.*out_store=open_store"):
-        transfer_brdf_subject(default, "P150-normal", {"condition": "lotion"}, t=0.5)
+        transfer_brdf_subject(default, "S008", {"condition": "lotion"}, t=0.5)
     out = open_store(tmp_path / "edits.zarr", mode="a")
-    e = transfer_brdf_subject(default, "P150-normal", {"condition": "lotion"}, t=0.5, out_store=out)
-    assert e.subject_id in out and e.subject_id not in default and list(e.targets) == ["P150-lotion"]
+    e = transfer_brdf_subject(default, "S008", {"condition": "lotion"}, t=0.5, out_store=out)
+    assert e.subject_id in out and e.subject_id not in default and list(e.targets) == ["S008-lotion"]
     assert provenance(out.subject(e.subject_id))["source_store"] == "default"
-    src, lot = default.subject("P150-normal"), default.subject("P150-lotion")
+    src, lot = default.subject("S008"), default.subject("S008-lotion")
     reg = src["region"].values
     for var in ("ts_rho_s", "ts_m"):
         for r in (2, 7):

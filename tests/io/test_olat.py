@@ -267,3 +267,24 @@ def test_diligent_ball_normals_against_ground_truth():
     n, _ = photometric_stereo(f)
     err = angular_error_deg(n, f["normal_gt"].values, f["mask"].values)
     assert err.mean() < 5  # least squares on the DiLiGenT ball: about 4° published (Shi et al. 2016)
+
+
+def test_clipped_pixels_are_counted_and_reported(tmp_path):
+    """An 8-bit 255 was read as reflectance 1/intensity without a word (an audit): §3 leaves invalid samples out;
+    a field cannot mark them, so the reader counts them per light and warns."""
+    from PIL import Image
+
+    from facestats.errors import FacestatsWarning
+
+    d, _ = light_stage_directions(8, 4)
+    files = []
+    for k in range(32):
+        codes = np.full((5, 6, 3), 40, np.uint8)
+        if k in (3, 9):
+            codes[1, 2, 0] = codes[4, 4] = 255  # two clipped pixels in lights 3 and 9
+        files.append(f"l{k:02d}.png")
+        Image.fromarray(codes).save(tmp_path / files[-1])
+    write_olat_manifest(tmp_path, files, d.reshape(-1, 3))
+    with pytest.warns(FacestatsWarning, match=r"4 pixel\(s\) in 2 of 32 image\(s\) are clipped at the top code"):
+        f = read_olat_folder(tmp_path)
+    assert f.attrs["clipped_pixels"][3] == f.attrs["clipped_pixels"][9] == 2 and sum(f.attrs["clipped_pixels"]) == 4

@@ -67,8 +67,8 @@ def test_edits_and_their_provenance_are_shown(executed):
         n_type_v = len(select_subjects(store, {"skin_type": 5}))
     assert f"skin type 5, target subset of {n_type_v} type V subjects" in cell_text(tagged(nb, "skin-type"))
     assert "R_d(sigma_s', sigma_a) after" in cell_text(tagged(nb, "skin-type-translucency"))
-    assert "target: ('P150-lotion',)" in cell_text(tagged(nb, "lotion"))
+    assert "target: ('S008-lotion',)" in cell_text(tagged(nb, "lotion"))
     table = cell_text(tagged(nb, "provenance"))
     assert table.count("facestats.edit") == 3
-    for name in ("transfer_texture", "change_skin_type", "transfer_brdf", "P150-normal"):
+    for name in ("transfer_texture", "change_skin_type", "transfer_brdf", "S008"):
         assert name in table

@@ -72,11 +72,11 @@ def test_probe_render_is_lit_and_shadowed(case):
 
     ds, cap = case
     probe = studio_probe(16)
-    lit = render_probe(ds, cap, 5, probe)
+    lit = render_probe(ds, cap, 5, probe, samples=(8, 16))
     assert lit.reference is None and np.nanmin(lit.rendered) >= 0 and np.nanmean(lit.rendered) > 0
     # A probe dark everywhere but behind the head lights almost nothing the camera sees (rims only).
     d = latlong_directions(16, 32)
     back = np.where((d[..., 2] < -0.5)[..., None], probe, 0)
-    assert np.nansum(render_probe(ds, cap, 5, back).rendered) < 0.05 * np.nansum(lit.rendered)
+    assert np.nansum(render_probe(ds, cap, 5, back, samples=(8, 16)).rendered) < 0.05 * np.nansum(lit.rendered)
     with pytest.raises(FacestatsError, match="camera must be"):
         render_led(ds, cap, 99, 0)

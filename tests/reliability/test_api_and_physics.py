@@ -184,8 +184,13 @@ def test_a_constant_source_moves_to_the_targets_mean():
     const = np.full((64, 64, 3), 0.05)
     for out in (transfer_colour(const, target), transfer_texture(const, target, levels=3, seed=0).albedo):
         px = out.reshape(-1, 3)
-        assert np.all(px >= 0.2) and np.all(px <= 0.7)
         np.testing.assert_allclose(px.mean(0), target.reshape(-1, 3).mean(0), atol=0.02)
+    px = transfer_colour(const, target).reshape(-1, 3)
+    assert np.all(px >= 0.2) and np.all(px <= 0.7)
+    # The texture transfer starts from noise of the target's spread (a constant source has none of its own), so it
+    # takes the target's spread too; each decorrelated channel is matched alone, so RGB may leave [0.2, 0.7].
+    tex = transfer_texture(const, target, levels=3, seed=0).albedo.reshape(-1, 3)
+    np.testing.assert_allclose(tex.std(0), target.reshape(-1, 3).std(0), rtol=0.3)
     half = transfer_colour(const, target, t=0.5).reshape(-1, 3).mean(0)
     np.testing.assert_allclose(half, 0.5 * (0.05 + target.reshape(-1, 3).mean(0)), atol=0.02)
 

@@ -94,7 +94,7 @@ def test_killed_build_leaves_no_worker_and_resumes(tmp_path):
         assert "Traceback" not in outputs[sig][1], sig.name
     assert procs[signal.SIGKILL].returncode == -signal.SIGKILL
     counts = {sig: _count(store) for sig, (store, _) in runs.items()}
-    time.sleep(3)
+    time.sleep(1.5)
     assert counts == {sig: _count(store) for sig, (store, _) in runs.items()}, "subjects were committed after the kill"
     # a killed build resumes: the same command completes the store, skipping what is there
     store = runs[signal.SIGKILL][0]

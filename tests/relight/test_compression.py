@@ -298,3 +298,10 @@ def test_a_field_of_differences_keeps_its_negative_relights():
     m = f["mask"].values
     assert ref[m].min() < 0 and got[m].min() < 0
     np.testing.assert_allclose(got[m], ref[m], atol=1e-4 * np.abs(ref[m]).max())
+    # A field of radiance with a little negative noise keeps the clamp (one value of -1e-9 turned it off); a
+    # field that says it holds differences (indirect_field) does not.
+    noisy = f.copy(deep=True)
+    noisy["reflectance"].values[0, 0, 8, 8, 0] = -1e-9
+    assert cmp.compress(noisy, ratio=1.0, clusters=1).nonnegative
+    noisy.attrs["signed"] = True
+    assert not cmp.compress(noisy, ratio=1.0, clusters=1).nonnegative

@@ -143,3 +143,6 @@ def test_shadow_map_cleaning_does_not_depend_on_where_azimuth_starts(rng, clean)
     for k in (5, 32):
         turned = threshold_shadow_maps(np.roll(values, k, axis=1), 0.3, clean=clean)
         np.testing.assert_array_equal(turned, np.roll(lit, k, axis=1))
+    # More cleaning than the grid is wide keeps the grid's shape (the pad of 2c + 1 columns cut it short).
+    small = values[:4, :8]
+    assert threshold_shadow_maps(small, 0.3, clean=4).shape == small.shape[:-1]

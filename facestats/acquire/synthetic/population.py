@@ -13,8 +13,14 @@ Demographics (Table 2, §7)
     and the exact age-group × gender counts of §7 (20s or younger 61/18, 30s
     37/10, 40s 10/2, 50s or older 6/5), ages uniform within the group (18-29,
     30-39, 40-49, 50-69), age groups assigned to subjects by a seeded shuffle
-    within each gender.  One more person (male, type III, 34 years) is measured
-    under the seven conditions of §7.
+    within each gender.  One of them, the type III man whose age is nearest 34
+    (:func:`condition_person`), is also measured under the six other
+    conditions of §7 ("we also measured one male subject under several
+    external conditions"): records ``<his id>-<condition>`` of the same person,
+    so the normal-condition population stays the 149 of Table 2.  (Before
+    2026-12-06 he was a 150th person, ``P150``, whose normal record entered the
+    population statistics: 50 type III men against Table 2's 49; found by an
+    audit.)
 
 Albedo (linear RGB, total diffuse reflectance)
     The colour of each skin type is anchored in the measured reflectance spectra
@@ -102,6 +108,7 @@ __all__ = [
     "Population",
     "synthesize_population",
     "default_population",
+    "condition_person",
 ]
 
 #: Melanin index t per Fitzpatrick type (0 = ColorChecker "light skin", 1 = "dark skin").
@@ -382,7 +389,8 @@ def synthesize_population(
         default the face of the embedded default (:data:`facestats.core.conventions.DEFAULT_FACE`,
         the ICT-FaceKit face) with lumitexels on a ``map_size``² grid.
     conditions : bool
-        Include the person measured under the seven conditions of §7.
+        Include the records of :func:`condition_person` under the six conditions other than normal (§7).  The
+        149 subjects' draws do not depend on it.
     table1_spread : {"std", "variance"}
         How to read Table 1's "Var." column (module docstring).
     freckle_fraction : float
@@ -390,8 +398,8 @@ def synthesize_population(
         I-III is freckled with probability ``freckle_fraction / 0.57``.
     subjects : collection of str, optional
         Materialise only these subject ids (``"S001"`` … ``"S149"``, and
-        ``"P150-<condition>"`` with ``conditions``; at high resolution the maps of
-        all 156 subjects would not fit in memory).  Every draw is the same as in
+        ``"<condition person>-<condition>"`` with ``conditions``; at high resolution the maps of
+        all 155 subjects would not fit in memory).  Every draw is the same as in
         the full population: each subject has its own random stream.
 
     Returns
@@ -413,12 +421,12 @@ def synthesize_population(
             f"got {None if region_map is None else region_map.shape}"
         )
     texel_mm = float(np.sqrt(np.median(geometry.area))) * (geometry.meta.get("lumitexel_grid", map_size) / map_size)
-    draws = _population_draws(seed, conditions, table1_spread)
+    draws = _population_draws(seed, table1_spread)
     wanted = None if subjects is None else set(subjects)
-    _check_wanted(wanted, len(draws.skin_type), conditions)
+    _check_wanted(wanted, draws, conditions)
     found = _normal_subjects(draws, region_map, texel_mm, freckle_fraction, wanted)
     if conditions:
-        found += _condition_subjects(draws, region_map, texel_mm, wanted)
+        found += _condition_subjects(draws, region_map, texel_mm, freckle_fraction, wanted)
     # σtrAvg: mean over subjects of cheek and forehead (neck excluded), §5.4.
     sigma_tr_avg = draws.sigma_tr[: len(draws.skin_type), :2].mean(axis=(0, 1))
     for s in found:
@@ -457,8 +465,12 @@ class _Draws:
         return out
 
 
-def _population_draws(seed, conditions, table1_spread) -> _Draws:
-    """Demographics, covariates, skin colours, σtr per site and between-subject BRDF offsets of the population."""
+def _population_draws(seed, table1_spread) -> _Draws:
+    """Demographics, covariates, skin colours, σtr per site and between-subject BRDF offsets of the population.
+
+    σtr and the offsets are drawn for n + 1 people, the last row unused: the streams of the population before
+    2026-12-06 with its 150th person, so that the 149 subjects keep their draws (with or without the
+    conditions, which changed every draw then)."""
     root = np.random.SeedSequence(seed)
     demo_seed, tr_seed, subj_seed = root.spawn(3)
     demo = _demographics(np.random.default_rng(demo_seed))
@@ -481,23 +493,80 @@ def _population_draws(seed, conditions, table1_spread) -> _Draws:
         z_cov=z_cov,
         melanin=melanin,
         base_rgb=skin_albedo(melanin),
-        sigma_tr=_sigma_tr_draws(rng, n + (1 if conditions else 0), table1_spread),
+        sigma_tr=_sigma_tr_draws(rng, n + 1, table1_spread),
         between=rng.standard_normal((n + 1, len(REGION_IDS), 2)) * BETWEEN_SUBJECT_CV,
         subject_seeds=subj_seed.spawn(n + len(CONDITIONS)),
     )
 
 
-def _check_wanted(wanted, n, conditions):
+def condition_person(skin_type, gender, age) -> int:
+    """Index of the subject also measured under the other conditions of §7: the type III man whose age is nearest
+    34 (the first such), from the population's demographic draws (arrays over subjects)."""
+    st, g, a = (np.asarray(x) for x in (skin_type, gender, age))
+    men = np.flatnonzero((st == 3) & (g == "M"))
+    return int(men[np.argmin(np.abs(a[men] - 34))])
+
+
+def _series_ids(draws):
+    """``{condition: subject id}`` of the condition person's records other than normal."""
+    sid = f"S{condition_person(draws.skin_type, draws.gender, draws.age) + 1:03d}"
+    return {c: f"{sid}-{c}" for c in CONDITIONS if c != "normal"}
+
+
+def _check_wanted(wanted, draws, conditions):
     """Raise unless every wanted id is an id of the population."""
     if wanted is None:
         return
-    ids = {f"S{i + 1:03d}" for i in range(n)} | ({f"P{n + 1:03d}-{c}" for c in CONDITIONS} if conditions else set())
-    unknown = sorted(wanted - ids)
+    n = len(draws.skin_type)
+    series = set(_series_ids(draws).values()) if conditions else set()
+    unknown = sorted(wanted - ({f"S{i + 1:03d}" for i in range(n)} | series))
     if unknown:
+        extra = f", {min(series)[:4]}-<condition>" if series else ""
         raise ValidationError(
-            f"subjects must be ids of the population (S001-S{n:03d}"
-            f"{f', P{n + 1:03d}-<condition>' if conditions else ''}), got unknown {unknown[:5]}"
+            f"subjects must be ids of the population (S001-S{n:03d}{extra}), got unknown {unknown[:5]}"
         )
+
+
+def _person_record(draws, i, sid, condition, region_map, texel_mm, freckle_fraction, seed):
+    """Subject ``i`` of the population measured under ``condition``: its texture from its own stream (the same
+    for every condition), its region means scaled by the condition's effect (``CONDITION_EFFECTS``)."""
+    srng = np.random.default_rng(draws.subject_seeds[i])
+    means = draws.region_means(i, {c: draws.z_cov[c][i] for c in draws.z_cov})
+    freckled = bool(draws.skin_type[i] <= 3 and srng.uniform() < freckle_fraction / 0.57)
+    n_moles = int(srng.poisson(1.0))
+    gender = str(draws.gender[i])
+    alb = albedo_map(
+        region_map,
+        draws.base_rgb[i],
+        srng,
+        texel_mm=texel_mm,
+        freckles=freckled,
+        moles=n_moles,
+        condition=condition,
+        gender=gender,
+    )
+    if condition != "normal":
+        f_rho, f_m = CONDITION_EFFECTS[condition]
+        means = {r: (v[0] * f_rho, v[1] * f_m) for r, v in means.items()}
+    rho, m = _brdf_maps(region_map, means, srng, gender)
+    meta = {
+        "subject_id": sid,
+        "person_id": f"S{i + 1:03d}",
+        "age": int(draws.age[i]),
+        "gender": gender,
+        "skin_type": int(draws.skin_type[i]),
+        "condition": condition,
+    }
+    return _make_subject(
+        meta,
+        region_map,
+        alb,
+        rho,
+        m,
+        draws.sigma_tr[i],
+        seed=int(seed.generate_state(1)[0]),
+        features={"freckles": freckled, "moles": n_moles, "melanin": float(draws.melanin[i])},
+    )
 
 
 def _normal_subjects(draws, region_map, texel_mm, freckle_fraction, wanted):
@@ -505,84 +574,21 @@ def _normal_subjects(draws, region_map, texel_mm, freckle_fraction, wanted):
     out = []
     for i in range(len(draws.skin_type)):  # loop over subjects (each vectorised over texels)
         sid = f"S{i + 1:03d}"
-        if wanted is not None and sid not in wanted:
-            continue
-        srng = np.random.default_rng(draws.subject_seeds[i])
-        means = draws.region_means(i, {c: draws.z_cov[c][i] for c in draws.z_cov})
-        freckled = bool(draws.skin_type[i] <= 3 and srng.uniform() < freckle_fraction / 0.57)
-        n_moles = int(srng.poisson(1.0))
-        gender = str(draws.gender[i])
-        alb = albedo_map(
-            region_map, draws.base_rgb[i], srng, texel_mm=texel_mm, freckles=freckled, moles=n_moles, gender=gender
-        )
-        rho, m = _brdf_maps(region_map, means, srng, gender)
-        meta = {
-            "subject_id": sid,
-            "person_id": sid,
-            "age": int(draws.age[i]),
-            "gender": gender,
-            "skin_type": int(draws.skin_type[i]),
-            "condition": "normal",
-        }
-        out.append(
-            _make_subject(
-                meta,
-                region_map,
-                alb,
-                rho,
-                m,
-                draws.sigma_tr[i],
-                seed=int(draws.subject_seeds[i].generate_state(1)[0]),
-                features={"freckles": freckled, "moles": n_moles, "melanin": float(draws.melanin[i])},
-            )
-        )
+        if wanted is None or sid in wanted:
+            seed = draws.subject_seeds[i]
+            out.append(_person_record(draws, i, sid, "normal", region_map, texel_mm, freckle_fraction, seed))
     return out
 
 
-def _condition_subjects(draws, region_map, texel_mm, wanted):
-    """One person (type III man, 34) under the seven conditions of §7, every condition from the same texture."""
-    st, gender, age = draws.skin_type, draws.gender, draws.age
-    n = len(st)
-    person = f"P{n + 1:03d}"
-    crng = np.random.default_rng(draws.subject_seeds[n])
-    p_st, p_gender, p_age = 3, "M", 34
-    zs = {
-        "skin_type": (3 - np.mean(np.where(st == 1, 2, st))) / np.std(np.where(st == 1, 2, st)),
-        "gender": float(-np.mean(gender == "F") / np.std(gender == "F")),
-        "age": float((34 - age.mean()) / age.std()),
-    }
-    means = draws.region_means(n, zs)
-    p_melanin = SKIN_TYPE_MELANIN[3]
-    state = crng.bit_generator.state  # every condition starts from the same texture
+def _condition_subjects(draws, region_map, texel_mm, freckle_fraction, wanted):
+    """:func:`condition_person` under the six conditions other than normal (§7), each from his texture."""
+    k = condition_person(draws.skin_type, draws.gender, draws.age)
+    n = len(draws.skin_type)
     out = []
-    for j, cond in enumerate(CONDITIONS):
-        if wanted is not None and f"{person}-{cond}" not in wanted:
-            continue
-        crng.bit_generator.state = state
-        alb = albedo_map(region_map, skin_albedo(p_melanin), crng, texel_mm=texel_mm, condition=cond, gender=p_gender)
-        f_rho, f_m = CONDITION_EFFECTS[cond]
-        cmeans = {r: (v[0] * f_rho, v[1] * f_m) for r, v in means.items()}
-        rho, m = _brdf_maps(region_map, cmeans, crng, p_gender)
-        meta = {
-            "subject_id": f"{person}-{cond}",
-            "person_id": person,
-            "age": p_age,
-            "gender": p_gender,
-            "skin_type": p_st,
-            "condition": cond,
-        }
-        out.append(
-            _make_subject(
-                meta,
-                region_map,
-                alb,
-                rho,
-                m,
-                draws.sigma_tr[n],
-                seed=int(draws.subject_seeds[n + j].generate_state(1)[0]),
-                features={"melanin": p_melanin},
-            )
-        )
+    for j, (cond, sid) in enumerate(_series_ids(draws).items(), start=1):
+        if wanted is None or sid in wanted:  # each record its own capture seed
+            seed = draws.subject_seeds[n + j]
+            out.append(_person_record(draws, k, sid, cond, region_map, texel_mm, freckle_fraction, seed))
     return out
 
 

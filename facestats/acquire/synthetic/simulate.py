@@ -56,6 +56,7 @@ from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.core.version import __version__
 from facestats.errors import ValidationError
 from facestats.model import brdf as _brdf
+from facestats.model import dipole
 from facestats.model.dipole import check_dipole_eta, dipole_profile
 from facestats.model.fresnel import fresnel_reflectance_unchecked
 from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport, neighbour_pairs
@@ -296,7 +297,9 @@ class DomeSimulator:
         e_s = blk.e_perp[t, l] * cos_i_s[:, None]  # (S, 3) irradiance E = E⊥ cos θi
         # Diffuse: entering flux F_t(ωi) E per (lumitexel, light), dipole transport, exit.
         e_tl = blk.e_perp * blk.cos_i[..., None]
-        sp, sa = truth.scattering
+        # (σ's, σa) from α_avg and σtrAvg at the simulator's η (the truth's own properties assume skin's 1.38;
+        # at another η the rendered diffuse reflectance missed α_avg by 2-6 %, found by an audit).
+        sp, sa = dipole.scattering_from_albedo(truth.albedo_avg, truth.sigma_tr, self.eta)
         if self.single_block and self.head_motion_deg == 0:
             transport = SubsurfaceTransport(
                 sp,
@@ -351,7 +354,7 @@ class DomeSimulator:
 
     def _sensor(self, truth, rng):
         """Sensor profiles and their std (site, fiber, channel) of the truth's sites (module docstring, item 6)."""
-        sp, sa = truth.site_scattering
+        sp, sa = dipole.scattering_from_albedo(truth.site_albedo, truth.site_sigma_tr, self.eta)  # at the η rendered
         r = self.sensor.fiber_distance
         prof = dipole_profile(r[None, :, None], sp[:, None, :], sa[:, None, :], self.eta)  # (site, fiber, channel)
         if not self.noise:
@@ -371,6 +374,7 @@ class DomeSimulator:
             "geometry": self.geometry.name,
             "subsurface": "dipole" if (self.single_block and self.head_motion_deg == 0) else "local",
             "block": self.block,
+            "eta": self.eta,
         }
         return dict(
             truth.metadata(),

@@ -263,11 +263,7 @@ def generation_strays(path) -> list[str]:
     entries.  A missing or unreadable folder gives an empty list.
     """
     out = []
-    try:
-        names = sorted(os.listdir(path))
-    except OSError:
-        return out
-    for name in names:
+    for name in _sorted_names(path):
         p = os.path.join(path, name)
         if _ZARR_PARTIAL.fullmatch(name) and is_plain_file(p):
             continue
@@ -281,14 +277,18 @@ def generation_strays(path) -> list[str]:
     return out
 
 
+def _sorted_names(path) -> list[str]:
+    """The names in folder ``path``, sorted; none if it is missing or unreadable."""
+    try:
+        return sorted(os.listdir(path))
+    except OSError:
+        return []
+
+
 def _variable_strays(path) -> list[str]:
     """Entries of one variable folder other than its ``zarr.json`` and its chunk tree ``c``."""
     out = []
-    try:
-        names = sorted(os.listdir(path))
-    except OSError:
-        return out
-    for name in names:
+    for name in _sorted_names(path):
         p = os.path.join(path, name)
         if (name in (ROOT_META, "c") or _ZARR_PARTIAL.fullmatch(name)) and is_plain_file(p):
             continue

@@ -52,6 +52,7 @@ from facestats.errors import StoreError
 from facestats.io.locking import FileLock
 
 __all__ = [
+    "sorted_names",
     "SUBJECTS",
     "LOCK_NAME",
     "WRITERS",
@@ -263,7 +264,7 @@ def generation_strays(path) -> list[str]:
     entries.  A missing or unreadable folder gives an empty list.
     """
     out = []
-    for name in _sorted_names(path):
+    for name in sorted_names(path):
         p = os.path.join(path, name)
         if _ZARR_PARTIAL.fullmatch(name) and is_plain_file(p):
             continue
@@ -277,7 +278,7 @@ def generation_strays(path) -> list[str]:
     return out
 
 
-def _sorted_names(path) -> list[str]:
+def sorted_names(path) -> list[str]:
     """The names in folder ``path``, sorted; none if it is missing or unreadable."""
     try:
         return sorted(os.listdir(path))
@@ -288,7 +289,7 @@ def _sorted_names(path) -> list[str]:
 def _variable_strays(path) -> list[str]:
     """Entries of one variable folder other than its ``zarr.json`` and its chunk tree ``c``."""
     out = []
-    for name in _sorted_names(path):
+    for name in sorted_names(path):
         p = os.path.join(path, name)
         if (name in (ROOT_META, "c") or _ZARR_PARTIAL.fullmatch(name)) and is_plain_file(p):
             continue

@@ -67,6 +67,7 @@ from facestats.io.layout import (
     is_plain_dir,
     is_plain_file,
     remove_tree,
+    sorted_names,
     writer_lock_path,
 )
 from facestats.io.locking import is_lock_temp, is_locked, try_lock
@@ -203,13 +204,6 @@ class Survey:
         return out
 
 
-def _listdir(path) -> list[str]:
-    try:
-        return sorted(os.listdir(path))
-    except OSError:
-        return []
-
-
 def survey(root, index: dict, *, live_strays: bool = False) -> Survey:
     """Walk the store at ``root`` (no link followed) and sort its entries against ``index`` (module docstring).
 
@@ -224,7 +218,7 @@ def survey(root, index: dict, *, live_strays: bool = False) -> Survey:
         (:attr:`Survey.strays`; ``facestats validate`` does, garbage collection needs not).
     """
     s = Survey()
-    for name in _listdir(root):
+    for name in sorted_names(root):
         if is_index_temp(name) or is_meta_temp(name):
             (s.garbage if is_plain_file(os.path.join(root, name)) else s.foreign).append(name)
         elif name not in _ROOT_NAMES:
@@ -252,7 +246,7 @@ def _survey_subjects(s: Survey, root) -> set:
     """Sort the entries of ``subjects/``; the ``(sid, gen)`` of the generation folders found."""
     sub_root = os.path.join(root, SUBJECTS)
     pairs = set()
-    for name in _listdir(sub_root) if is_plain_dir(sub_root) else []:
+    for name in sorted_names(sub_root) if is_plain_dir(sub_root) else []:
         path = os.path.join(sub_root, name)
         if name == ROOT_META:
             continue
@@ -277,7 +271,7 @@ def _valid_id(name: str) -> bool:
 def _survey_writers(s: Survey, root) -> None:
     """Writer locks no live writer holds (and temporary lock files) are garbage; other entries foreign."""
     writers = os.path.join(root, WRITERS)
-    for name in _listdir(writers) if is_plain_dir(writers) else []:
+    for name in sorted_names(writers) if is_plain_dir(writers) else []:
         path = os.path.join(writers, name)
         sid, _, rest = name.partition("~")
         ours = is_lock_temp(name) or (rest.endswith(".lock") and _valid_id(sid) and is_generation(rest[:-5]))
@@ -292,7 +286,7 @@ def _survey_records(s: Survey, root) -> set:
     """``(sid, gen)`` of the record files; temporary files are garbage, other entries foreign."""
     folder = os.path.join(root, RECORDS)
     pairs = set()
-    for name in _listdir(folder) if is_plain_dir(folder) else []:
+    for name in sorted_names(folder) if is_plain_dir(folder) else []:
         path = os.path.join(folder, name)
         parsed = parse_record_name(name)
         if is_meta_temp(name) and is_plain_file(path):
@@ -308,7 +302,7 @@ def _survey_subject(s: Survey, root, sid: str) -> set:
     """Sort the entries of one subject folder; the ``(sid, gen)`` of its generation folders."""
     sdir = os.path.join(root, SUBJECTS, sid)
     pairs = set()
-    for name in _listdir(sdir):
+    for name in sorted_names(sdir):
         path = os.path.join(sdir, name)
         rel = f"{SUBJECTS}/{sid}/{name}"
         trash = name.startswith(TRASH_PREFIX) and is_generation(name[len(TRASH_PREFIX) :])

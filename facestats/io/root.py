@@ -28,6 +28,7 @@ from facestats.io.layout import (
     is_meta_temp,
     is_plain_dir,
     is_plain_file,
+    sorted_names,
     write_json_atomic,
 )
 from facestats.io.locking import FileLock
@@ -127,11 +128,11 @@ def _missing_folders(p: Path) -> list[Path]:
 
 def _undo_populate(p: Path, before: set) -> None:
     """Remove what :func:`_populate` made in ``p`` (the names not in ``before``); the caller holds the lock."""
-    for name in sorted(set(_listdir(p)) - before - {LOCK_NAME}):
+    for name in sorted(set(sorted_names(p)) - before - {LOCK_NAME}):
         target = p / name
         try:
             if target.is_dir() and not target.is_symlink():
-                for inner in _listdir(target):  # only what _populate writes there: subjects/zarr.json
+                for inner in sorted_names(target):  # only what _populate writes there: subjects/zarr.json
                     if inner == ROOT_META or is_meta_temp(inner):
                         (target / inner).unlink()
                 target.rmdir()
@@ -155,13 +156,6 @@ def _remove_folders(made: list) -> None:
             folder.rmdir()
         except OSError:
             break
-
-
-def _listdir(p: Path) -> list[str]:
-    try:
-        return os.listdir(p)
-    except OSError:
-        return []
 
 
 #: What each name of a store's own may be: its folders, its files.
@@ -304,7 +298,7 @@ def new_store_guard(path):
         p = Path(os.fspath(path)).absolute()
         created = _missing_folders(p)
         if not created:
-            was_empty = is_plain_dir(p) and not _listdir(p)
+            was_empty = is_plain_dir(p) and not sorted_names(p)
     try:
         yield
     except BaseException:

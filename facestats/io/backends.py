@@ -22,7 +22,7 @@ import zlib
 
 from facestats.errors import StoreError
 from facestats.io.index import INDEX_NAME
-from facestats.io.layout import ROOT_META, confined, read_regular_file
+from facestats.io.layout import ROOT_META, confined, read_regular_file, walk
 
 __all__ = ["DirectoryBackend", "ZipBackend", "read_leading_entries"]
 
@@ -73,7 +73,7 @@ class DirectoryBackend:
             confined(self.root, top, through_links=True)  # the group, or a folder above it, is a link out of the store
         except StoreError:
             return rel
-        for base, dirs, files in os.walk(top):
+        for base, dirs, files in walk(top):
             for name in dirs + files:
                 mode = os.lstat(os.path.join(base, name)).st_mode
                 if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
@@ -83,7 +83,7 @@ class DirectoryBackend:
     def size(self) -> int:
         """Bytes on disk of every file of the store."""
         total = 0
-        for root, _, files in os.walk(self.root):
+        for root, _, files in walk(self.root):
             for f in files:
                 try:
                     total += os.path.getsize(os.path.join(root, f))

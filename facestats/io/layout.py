@@ -53,6 +53,8 @@ from facestats.io.locking import FileLock
 
 __all__ = [
     "sorted_names",
+    "walk",
+    "copy_tree",
     "SUBJECTS",
     "LOCK_NAME",
     "WRITERS",
@@ -189,19 +191,75 @@ def read_regular_file(path) -> bytes:
         os.close(fd)
 
 
-def remove_tree(path) -> None:
-    """Delete the folder ``path`` and everything in it, without following links.
+def walk(top):
+    """``(folder, dirs, files)`` for ``top`` and every folder under it, like :func:`os.walk`, without recursion.
 
-    Entries that vanish meanwhile (another process removing the same leftover)
-    are fine; any other failure raises :class:`OSError`.  Whether the folder is
+    Top-down; ``dirs`` lists sub-folders and links to folders, ``files`` everything
+    else; links are listed but never followed; a folder that cannot be read is
+    skipped (as :func:`os.walk` does).  A caller may prune ``dirs`` in place to
+    skip sub-folders.  Python 3.11's :func:`os.walk`, :func:`shutil.rmtree`,
+    :func:`shutil.copytree` and :meth:`pathlib.Path.rglob` recurse once per
+    folder level, so a store holding a tree of about a thousand nested folders
+    (hostile input) made validate, repair and gc fail with ``RecursionError``;
+    every walk of a store goes through here instead.
+    """
+    stack = [os.fspath(top)]
+    while stack:
+        base = stack.pop()
+        try:
+            with os.scandir(base) as it:
+                entries = list(it)
+        except OSError:
+            continue
+        dirs, files = [], []
+        for entry in entries:
+            try:
+                is_dir = entry.is_dir()
+            except OSError:
+                is_dir = False
+            (dirs if is_dir else files).append(entry.name)
+        yield base, dirs, files
+        for name in reversed(dirs):  # depth first, in listing order
+            sub = os.path.join(base, name)
+            if not os.path.islink(sub):
+                stack.append(sub)
+
+
+def remove_tree(path) -> None:
+    """Delete the folder ``path`` and everything in it, without following links and without recursion.
+
+    Links are removed as links.  Entries that vanish meanwhile (another process
+    removing the same leftover) are fine; any other failure raises
+    :class:`OSError`, and so does ``path`` being a link.  Whether the folder is
     gone afterwards is the caller's to check.
     """
+    path = os.fspath(path)
+    if os.path.islink(path):
+        raise OSError(errno.ELOOP, "will not remove a tree through a symbolic link", path)
+    folders = []
+    for base, dirs, files in walk(path):
+        folders.append(base)
+        for name in files + [d for d in dirs if os.path.islink(os.path.join(base, d))]:
+            try:
+                os.unlink(os.path.join(base, name))
+            except FileNotFoundError:
+                pass
+    for base in reversed(folders):  # children before their parents
+        try:
+            os.rmdir(base)
+        except FileNotFoundError:
+            pass
 
-    def gone_already(function, p, exc_info):
-        if not issubclass(exc_info[0], FileNotFoundError):
-            raise exc_info[1]
 
-    shutil.rmtree(path, onerror=gone_already)
+def copy_tree(src, dst) -> None:
+    """Copy the folder ``src`` to the new folder ``dst`` without recursion: files with their times, links as links."""
+    src, dst = os.fspath(src), os.fspath(dst)
+    for base, dirs, files in walk(src):
+        target = os.path.normpath(os.path.join(dst, os.path.relpath(base, src)))
+        os.mkdir(target)
+        shutil.copystat(base, target, follow_symlinks=False)
+        for name in files + [d for d in dirs if os.path.islink(os.path.join(base, d))]:
+            shutil.copy2(os.path.join(base, name), os.path.join(target, name), follow_symlinks=False)
 
 
 def confined(root, path, *, through_links: bool = False) -> str:
@@ -296,17 +354,14 @@ def _variable_strays(path) -> list[str]:
         if name != "c" or not is_plain_dir(p):
             out.append(name)
             continue
-        try:
-            out += _chunk_strays(path, p)
-        except RecursionError:  # a chunk tree nested deeper than any array's: not Zarr's
-            out.append("c")
+        out += _chunk_strays(path, p)
     return out
 
 
 def _chunk_strays(var: str, top: str) -> list[str]:
     """Entries of the chunk tree ``top`` of the variable folder ``var`` not named by chunk indices (relative to it)."""
     out = []
-    for base, dirs, files in os.walk(top):
+    for base, dirs, files in walk(top):
         for n in dirs + files:
             q = os.path.join(base, n)
             chunk = n.isascii() and n.isdigit() and (is_plain_dir(q) if n in dirs else is_plain_file(q))
@@ -365,7 +420,7 @@ def fsync_tree(path) -> None:
             return
         if err not in (errno.ENOSYS, errno.EINVAL):
             raise OSError(err, f"syncfs failed: {os.strerror(err)}", os.fspath(path))
-    for root, _, files in os.walk(path):
+    for root, _, files in walk(path):
         for f in files:
             fsync_path(os.path.join(root, f))
         fsync_path(root, directory=True)

@@ -19,7 +19,7 @@ from pathlib import Path
 from facestats.core.outputs import check_apart
 from facestats.errors import StoreError
 from facestats.io.index import INDEX_NAME, read_index_file
-from facestats.io.layout import ROOT_META, SUBJECTS, group_meta, store_lock
+from facestats.io.layout import ROOT_META, SUBJECTS, group_meta, store_lock, walk
 from facestats.io.store import open_store
 
 __all__ = ["pack_store"]
@@ -116,7 +116,8 @@ def _add_subject(zf, root: Path, sid: str, gen: str) -> None:
     """Add a subject's group metadata and every file of its current generation."""
     _add(zf, f"{SUBJECTS}/{sid}/{ROOT_META}", json.dumps(group_meta(), indent=2).encode(), deflate=True)
     gdir = root / SUBJECTS / sid / gen
-    for f in sorted(p for p in gdir.rglob("*") if p.is_file()):
+    files = (Path(base, name) for base, _, names in walk(gdir) for name in names)
+    for f in sorted(p for p in files if p.is_file()):
         data = f.read_bytes()
         meta = f.name == ROOT_META
         if meta:  # Zarr metadata: drop the indentation (a third of a small subject)

@@ -29,7 +29,17 @@ import shutil
 import time
 
 from facestats.errors import StoreError
-from facestats.io.layout import QUARANTINE, confined, fsync_tree, is_plain_dir, read_regular_file, write_json_atomic
+from facestats.io.layout import (
+    QUARANTINE,
+    confined,
+    copy_tree,
+    fsync_tree,
+    is_plain_dir,
+    read_regular_file,
+    remove_tree,
+    walk,
+    write_json_atomic,
+)
 
 __all__ = [
     "MANIFEST",
@@ -96,9 +106,9 @@ def quarantine_move(root, qdir: str, rel: str, why: str) -> None:
 def _copy_then_remove(src: str, dst: str) -> None:
     """Move across volumes: copy (links kept as links), flush the copy, then remove the original."""
     if is_plain_dir(src):
-        shutil.copytree(src, dst, symlinks=True)
+        copy_tree(src, dst)
         fsync_tree(dst)
-        shutil.rmtree(src)
+        remove_tree(src)
     else:
         shutil.copy2(src, dst, follow_symlinks=False)
         fsync_tree(os.path.dirname(dst))
@@ -176,7 +186,7 @@ def _add_item(qdir: str, rel: str, why: str) -> None:
 
 def _size(path: str) -> int:
     total = 0
-    for base, _, files in os.walk(path):
+    for base, _, files in walk(path):
         for f in files:
             try:
                 total += os.lstat(os.path.join(base, f)).st_size
@@ -229,7 +239,7 @@ def purge_quarantine(root, names=None) -> list[str]:
             continue
         path = os.path.join(root, QUARANTINE, entry["name"])
         try:
-            shutil.rmtree(confined(root, path))
+            remove_tree(confined(root, path))
         except OSError as exc:
             raise StoreError(f"cannot remove {path}: {exc.strerror}") from None
         removed.append(f"{QUARANTINE}/{entry['name']}")

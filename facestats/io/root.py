@@ -11,7 +11,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import shutil
 from pathlib import Path
 
 from facestats.core.version import __version__
@@ -28,6 +27,7 @@ from facestats.io.layout import (
     is_meta_temp,
     is_plain_dir,
     is_plain_file,
+    remove_tree,
     sorted_names,
     write_json_atomic,
 )
@@ -273,7 +273,7 @@ def remove_empty_store(p, *, keep_folder: bool = False) -> bool:
                 return False
             for name in names - {LOCK_NAME}:
                 target = p / name
-                shutil.rmtree(target) if target.is_dir() and not target.is_symlink() else target.unlink()
+                remove_tree(target) if target.is_dir() and not target.is_symlink() else target.unlink()
         (p / LOCK_NAME).unlink()
         if not keep_folder:
             p.rmdir()

@@ -1,0 +1,140 @@
+"""Folder trees nested deeper than Python's recursion limit inside a store (hostile input).
+
+Python 3.11's ``os.walk``, ``shutil.rmtree``, ``shutil.copytree`` and ``Path.rglob`` recurse once per folder
+level. A tree of about 1,100 nested folders planted in a generation or a chunk tree made ``facestats validate``
+exit 3 ("a bug in facestats") with a RecursionError, and a gc or a purge could not remove such a tree.
+Every walk of a store now goes through :func:`facestats.io.layout.walk`, which keeps its own stack.
+"""
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from facestats.io import open_store
+from facestats.io.layout import copy_tree, remove_tree, walk
+from tests.helpers import run_cli
+
+from .helpers import copy_store, generation_dir, make_store, subject_digests
+
+#: Nested folders: beyond the recursion limit (1,000), and a path still under Linux's PATH_MAX (4,096).
+DEPTH = 1300
+assert DEPTH > sys.getrecursionlimit()
+
+
+def _nest(top, name="d", depth=DEPTH):
+    """``top/name/name/...`` ``depth`` folders deep (made relative to each folder: no long path is needed);
+    the deepest folder's path."""
+    top = os.fspath(top)
+    fd = os.open(top, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        for _ in range(depth):
+            os.mkdir(name, dir_fd=fd)
+            sub = os.open(name, os.O_RDONLY | os.O_DIRECTORY, dir_fd=fd)
+            os.close(fd)
+            fd = sub
+    finally:
+        os.close(fd)
+    return os.path.join(top, *[name] * depth)
+
+
+@pytest.fixture(autouse=True)
+def _cleaned(tmp_path):
+    """Remove each test's folder with ``rm -rf``: pytest's own clean-up recurses and would fail on these trees."""
+    yield
+    subprocess.run(["rm", "-rf", str(tmp_path)], check=True)
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    path = make_store(tmp_path_factory.mktemp("deep") / "s.zarr")
+    return path, subject_digests(path)
+
+
+@pytest.fixture
+def store(base, tmp_path):
+    return copy_store(base[0], tmp_path)
+
+
+def test_walk_is_os_walk_without_recursion(tmp_path):
+    (tmp_path / "a" / "b").mkdir(parents=True)
+    (tmp_path / "a" / "f").write_text("x")
+    (tmp_path / "c").mkdir()
+    (tmp_path / "c" / "g").write_text("y")
+    (tmp_path / "link").symlink_to(tmp_path / "a")  # listed with the folders, not followed
+    want = [(b, sorted(d), sorted(f)) for b, d, f in os.walk(tmp_path)]
+    got = [(b, sorted(d), sorted(f)) for b, d, f in walk(tmp_path)]
+    assert sorted(got) == sorted(want)
+    deepest = _nest(tmp_path / "c")
+    assert sum(1 for _ in walk(tmp_path)) == len(want) + DEPTH
+    assert any(base == deepest for base, _, _ in walk(tmp_path))
+    with pytest.raises(RecursionError):  # what the standard library does here (Python 3.11)
+        list(os.walk(tmp_path))
+
+
+def test_pruned_folders_are_not_entered(tmp_path):
+    _nest(tmp_path, "skip", 3)
+    (tmp_path / "keep").mkdir()
+    seen = []
+    for base, dirs, _ in walk(tmp_path):
+        seen.append(os.path.relpath(base, tmp_path))
+        dirs[:] = [d for d in dirs if d != "skip"]
+    assert sorted(seen) == [".", "keep"]
+
+
+def test_remove_and_copy_a_deep_tree_keep_links_as_links(tmp_path):
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "keep").write_text("never removed")
+    top = tmp_path / "top"
+    top.mkdir()
+    deepest = _nest(top)
+    os.symlink(outside, os.path.join(deepest, "link"))
+    with open(os.path.join(deepest, "f"), "w") as fh:
+        fh.write("deep")
+    copy_tree(top, tmp_path / "copy")
+    copied = os.path.join(tmp_path / "copy", os.path.relpath(deepest, top))
+    assert open(os.path.join(copied, "f")).read() == "deep"
+    assert os.readlink(os.path.join(copied, "link")) == os.fspath(outside)
+    remove_tree(top)
+    remove_tree(tmp_path / "copy")
+    assert not top.exists() and not (tmp_path / "copy").exists()
+    assert (outside / "keep").read_text() == "never removed"
+    os.symlink(outside, tmp_path / "to-outside")
+    with pytest.raises(OSError):
+        remove_tree(tmp_path / "to-outside")
+    assert (outside / "keep").exists()
+
+
+@pytest.mark.parametrize("where", ["generation", "chunks", "subject", "root"])
+def test_validate_and_repair_report_a_deep_tree_and_leave_it(store, base, where):
+    gen = generation_dir(store, "R1")
+    top = {"generation": gen, "chunks": gen / "albedo" / "c", "subject": gen.parent, "root": store}[where]
+    deepest = _nest(top)
+    report = open_store(store).validate()
+    assert report.ok, report.problems
+    assert any("d" in note for note in report.notes)
+    with open_store(store, mode="r+") as st:
+        assert st.repair().ok
+    assert os.path.isdir(deepest)  # left alone: facestats did not write it
+    assert subject_digests(store) == base[1]
+
+
+def test_the_command_line_names_the_deep_tree_instead_of_failing(store):
+    gen = generation_dir(store, "R1")
+    _nest(gen)
+    r = run_cli("validate", "--store", store, "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert "RecursionError" not in r.stderr
+    assert f"{os.path.relpath(gen, store)}/d/d" in r.stdout and "store is valid" in r.stdout
+
+
+def test_a_superseded_generation_with_a_deep_chunk_tree_is_removed(store, base):
+    old = generation_dir(store, "R1")
+    _nest(old / "albedo" / "c", "77")  # folders named like chunk indices: Zarr's own kind of tree
+    with open_store(store, mode="r+") as st:
+        st.write_subject(st.subject("R1"), overwrite=True)  # a new generation supersedes ``old``
+        st.gc()
+    assert not old.exists()
+    assert generation_dir(store, "R1") != old and subject_digests(store) == base[1]

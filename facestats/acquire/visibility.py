@@ -23,7 +23,7 @@ import numpy as np
 
 from facestats.acquire.camera import look_at
 from facestats.core.compiled import resolve_backend
-from facestats.core.raster import triangle_coverage, triangle_setup
+from facestats.core.raster import triangle_coverage
 
 __all__ = [
     "shadow_map",
@@ -104,10 +104,12 @@ def shadow_map(vertices, faces, eye, target, radius, resolution, *, backend="aut
     if resolve_backend(backend) == "numba":
         from facestats.core.raster_numba import nearest_depth  # imports numba: only when a map is drawn
 
+        faces = np.asarray(faces, np.int64)
+        n = len(vertices)
+        if faces.size and (faces.min() < -n or faces.max() >= n):  # as numpy's indexing would refuse them
+            raise IndexError(f"faces index vertices outside [-{n}, {n})")
         x, y, z = _project(vertices, eye, rot, focal, resolution)
-        good, tz = _front_triangles(x, y, z, faces)
-        setup = triangle_setup(x, y, faces[good], resolution, resolution)
-        nearest_depth(*setup, *(np.ascontiguousarray(tz[:, k]) for k in range(3)), resolution, depth)
+        nearest_depth(x, y, z, np.ascontiguousarray(faces % n if n else faces), resolution, depth)
     else:
         for pix, zz, _ in _fragments(vertices, faces, eye, rot, focal, resolution):
             np.minimum.at(depth, pix, zz)

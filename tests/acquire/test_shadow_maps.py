@@ -43,3 +43,23 @@ def test_random_soup_with_degenerate_offscreen_and_behind_camera_triangles():
         a, b = _both(verts, faces, [0.0, 0.0, 600.0], [0.0, 0.0, 0.0], 160.0, res)
         assert np.array_equal(a, b)
         assert np.isfinite(a).any() and np.isinf(a).any()
+
+
+def test_a_vertex_just_in_front_of_the_eye_costs_no_more_than_the_grid():
+    """Its projection lies ~1e11 pixels away: the candidate box is clipped to the grid before any integer
+    conversion (the numpy path would allocate that box), and the triangle still occludes what it covers."""
+    eye = np.array([0.0, 0.0, 600.0])
+    verts = np.array([[1.0, 0.5, 600.0 - 1e-9], [-50.0, -50.0, 0.0], [50.0, -50.0, 0.0], [0.0, 60.0, 0.0]])
+    faces = np.array([[0, 1, 2], [1, 2, 3]])
+    depth, _ = shadow_map(verts, faces, eye, [0.0, 0.0, 0.0], 160.0, 64, backend="numba")
+    only_far, _ = shadow_map(verts, faces[1:], eye, [0.0, 0.0, 0.0], 160.0, 64, backend="numba")
+    assert np.isfinite(only_far).any()
+    near = depth < only_far  # pixels the sliver in front of the eye covers
+    assert near.any() and np.all(depth <= only_far)
+
+
+def test_faces_outside_the_vertices_are_refused_by_both_paths():
+    verts = np.zeros((3, 3))
+    for backend in ("numba", "numpy"):
+        with pytest.raises(IndexError):
+            shadow_map(verts, np.array([[0, 1, 3]]), [0.0, 0.0, 10.0], [0.0, 0.0, 0.0], 5.0, 8, backend=backend)

@@ -158,6 +158,32 @@ def test_skin_colour_anchored_in_colorchecker_patches():
     assert np.all((rgb > 0) & (rgb < 1))
 
 
+def test_shipped_colour_tables_are_colour_sciences_and_give_its_xyz_to_rgb_bit_for_bit():
+    """facestats/model/skin_colour_tables.py holds what colour-science computes now, and skin_albedo gives, bit for bit,
+    what the same spectral integration followed by colour-science's own ``XYZ_to_RGB`` gives (the implementation
+    before the tables were shipped)."""
+    import colour
+
+    from facestats.model.skin_colour import colour_science_tables
+    from facestats.model.skin_colour_tables import TABLES
+
+    live = colour_science_tables()
+    shipped = TABLES
+    assert shipped.keys() == live.keys()
+    for key in live:
+        if key != "colour_science":
+            assert np.array_equal(np.asarray(shipped[key]), np.asarray(live[key])), key
+    t = np.linspace(-0.3, 1.3, 41)
+    rl = np.maximum(np.asarray(live["light_skin"]), 1e-4)
+    rd = np.maximum(np.asarray(live["dark_skin"]), 1e-4)
+    spectra = np.exp((1 - t[:, None]) * np.log(rl) + t[:, None] * np.log(rd))
+    w = np.asarray(live["cmfs"]) * np.asarray(live["d65"])[:, None]
+    xyz = spectra @ w / w[:, 1].sum()
+    ref = colour.XYZ_to_RGB(xyz, colour.RGB_COLOURSPACES["sRGB"], apply_cctf_encoding=False)
+    assert np.array_equal(skin_albedo(t), np.clip(ref, 0.005, 0.95))
+    assert np.array_equal(skin_albedo(0.4), skin_albedo(np.array([0.4]))[0])
+
+
 def test_conditions_effects(pop):
     cond = _series(pop)
     face = cond["normal"].region_map > 0

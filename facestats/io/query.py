@@ -165,6 +165,8 @@ def _stat(x: np.ndarray, within: np.ndarray | None = None) -> Stat:
     n = int(x.size)
     mean = float(x.mean()) if n else math.nan
     std = float(x.std(ddof=1)) if n > 1 else math.nan
+    if n > 1 and x.min() == x.max():  # equal values (σtr from σtrAvg): no spread, not the sums' rounding (1e-16)
+        mean, std = float(x[0]), 0.0
     w = None
     if within is not None:
         within = np.asarray(within, dtype=np.float64)

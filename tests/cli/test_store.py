@@ -3,6 +3,7 @@
 import csv
 import io
 import json
+import re
 
 import numpy as np
 import pytest
@@ -105,6 +106,10 @@ def test_query_default_store():
     r = run_cli("query", "--skin-type", "IV")
     if default_store_path().exists():
         assert r.returncode in (0, 1) and "facestats query" in r.stdout
+        # every subject's σtr is σtrAvg: no spread, exactly (it printed 0.5517 ± 1.1e-16, the sums' rounding)
+        assert re.search(r"σtr +0\.5517 ± 0 +0\.9801 ± 0 +1\.56 ± 0\n", r.stdout), r.stdout
+        doc = json.loads(run_cli("query", "--skin-type", "IV", "--format", "json").stdout)
+        assert [doc["scattering"]["sigma_tr"][c]["std"] for c in "RGB"] == [0, 0, 0]
     else:
         assert r.returncode == 2 and "default store has not been built" in r.stderr
 

@@ -14,6 +14,9 @@
   probe (every probe pixel a light) against the 64 × 32 stage.
 * ``stream`` — relighting a field from its zarr store tile by tile: peak memory
   against the field's size.
+* ``probe_lights`` — a probe as the directional lights of ``facestats render --probe``: 512 lights by median
+  cut against 16 × 32 equal blocks (the baseline, the default before 2026-12-06): the Lambertian irradiance
+  of 2,000 random normals against the full probe's (median, 99th percentile, worst).
 * ``separation`` — accuracy of the colour-space separation's ρs on analytic spheres, with and without a
   chromaticity ramp, for the mirror exclusions 45° and 60°.
 
@@ -203,6 +206,52 @@ def bench_discretisation(size=64, probe_height=None, n_theta=64, n_phi=32):
     return out
 
 
+def bench_probe_lights(lights=512, blocks=(16, 32), normals=2000, probe_height=None):
+    """A probe as directional lights for ``facestats render --probe``: median cut against equal blocks (baseline).
+
+    For each probe (the Probulator ones where ``$FACESTATS_TEST_DATA``/probulator holds them, and the committed
+    Poly Haven ones always), the Lambertian irradiance of ``normals`` random normals under ``lights`` median-cut lights
+    (:func:`facestats.model.sphere.median_cut_light_samples`) and under ``blocks`` equal blocks
+    (:func:`facestats.model.sphere.latlong_light_samples`), against every pixel of the probe as its own light:
+    median, 99th percentile and largest relative error (worst channel), the number of lights, and the time
+    the sampling takes.
+    """
+    from facestats.io.probes import read_light_probe
+    from facestats.model.sphere import (
+        latlong_directions,
+        latlong_light_samples,
+        latlong_solid_angles,
+        median_cut_light_samples,
+    )
+
+    probes = {p.stem: read_light_probe(p) for p in sorted(COMMITTED.glob("*.hdr"))}
+    if all((PROBE_DIR / f"{p}.hdr").is_file() for p in PROBES):
+        probes.update({p: read_light_probe(PROBE_DIR / f"{p}.hdr") for p in PROBES})
+    n = np.random.default_rng(0).normal(size=(normals, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    out = {}
+    for name, pr in probes.items():
+        if probe_height and pr.shape[0] != probe_height:
+            step = pr.shape[0] // probe_height
+            pr = pr.reshape(probe_height, step, 2 * probe_height, step, 3).mean((1, 3))
+        h, w = pr.shape[:2]
+        pix = (pr * latlong_solid_angles(h, w)[..., None]).reshape(-1, 3)
+        ref = np.clip(n @ latlong_directions(h, w).reshape(-1, 3).T, 0, None) @ pix
+        for label, sample in (
+            ("median_cut", lambda: median_cut_light_samples(pr, lights)),
+            ("blocks", lambda: latlong_light_samples(pr, *blocks)),
+        ):
+            t0 = time.perf_counter()
+            d, power = sample()
+            out[f"{name}_{label}_ms"] = 1e3 * (time.perf_counter() - t0)
+            err = (np.abs(np.clip(n @ d.T, 0, None) @ power - ref) / np.maximum(ref, 1e-30)).max(1)
+            out[f"{name}_{label}_lights"] = len(d)
+            out[f"{name}_{label}_median_rel"] = float(np.median(err))
+            out[f"{name}_{label}_p99_rel"] = float(np.percentile(err, 99))
+            out[f"{name}_{label}_max_rel"] = float(err.max())
+    return out
+
+
 def bench_stream(size=256, n_theta=64, n_phi=32, tile=None):
     """Relight a zarr field tile by tile: Python-heap peak (tracemalloc) against the field's float32 size."""
     from facestats.relight.field import open_field
@@ -365,6 +414,7 @@ BENCHMARKS = [
     ("stage", bench_stage),
     ("discretisation", bench_discretisation),
     ("stream", bench_stream),
+    ("probe_lights", bench_probe_lights),
     ("compression_sweep", bench_compression_sweep),
     ("cluster_density", bench_cluster_density),
     ("region_floor", bench_region_floor),
@@ -381,6 +431,7 @@ SMOKE = {
     "stage": {"size": 12, "n_theta": 8, "n_phi": 4},
     "discretisation": {"size": 8, "probe_height": 8, "n_theta": 8, "n_phi": 4},
     "stream": {"size": 12, "n_theta": 8, "n_phi": 4},
+    "probe_lights": {"lights": 16, "blocks": (2, 4), "normals": 50, "probe_height": 8},
     "compression_sweep": {"size": 16, "n_theta": 16, "n_phi": 8, "ratios": (4, 2), "rotations": (0, 90)},
     "cluster_density": {**_TINY_SWEEP, "pixels_per_cluster": (64, 16), "seeds": (0, 1)},
     "region_floor": {**_TINY_SWEEP, "floors": (0.2, 1.0), "seeds": (0,)},

@@ -48,7 +48,7 @@ from facestats.model.irradiance import (
     environment_irradiance,
     point_light_irradiance,
 )
-from facestats.model.sphere import latlong_light_samples
+from facestats.model.sphere import latlong_light_samples, median_cut_light_samples
 
 __all__ = [
     "PointLight",
@@ -171,13 +171,17 @@ class EnvironmentLight:
 
         The probe follows :mod:`facestats.model.sphere`'s convention and is read with
         :func:`facestats.io.probes.read_light_probe`; it becomes ``samples`` = (rows, columns)
-        directional lights of L·δΩ each (:func:`facestats.model.sphere.latlong_light_samples`).
+        directional lights of L·δΩ each (:func:`facestats.model.sphere.latlong_light_samples`), or, for an
+        int N, the N lights of a median cut (:func:`facestats.model.sphere.median_cut_light_samples`).
         """
         # local import: keeps facestats.io (22 modules) out of this module's import
         from facestats.io.probes import read_light_probe
 
         img = probe if isinstance(probe, np.ndarray) else read_light_probe(probe)
-        directions, power = latlong_light_samples(img, *samples)
+        if np.ndim(samples) == 0:
+            directions, power = median_cut_light_samples(img, samples)
+        else:
+            directions, power = latlong_light_samples(img, *samples)
         return cls(directions, power, shadows)
 
     def to_dict(self) -> dict:

@@ -12,6 +12,7 @@ under other lights sit side by side.
 
 from __future__ import annotations
 
+import math
 import pathlib
 
 from facestats.cli.options import add_store_option, ascii_int, check_apart_from_store, open_store_option
@@ -52,10 +53,14 @@ def _check_options(args) -> None:
 
         text = args.probe_lights
         parts = text.lower().split("x")
-        if len(parts) != 2 or not all(p.isascii() and p.isdigit() and int(p) >= 2 for p in parts):
-            raise ValidationError(f"--probe-lights must be ROWSxCOLUMNS of integers >= 2 (e.g. 16x32), got {text!r}")
-        args.probe_lights = (int(parts[0]), int(parts[1]))
-        if args.probe_lights[0] * args.probe_lights[1] > MAX_PROBE_LIGHTS:  # before the probe is read
+        if not (len(parts) in (1, 2) and all(p.isascii() and p.isdigit() and int(p) >= 2 for p in parts)):
+            raise ValidationError(
+                f"--probe-lights must be N (median cut) or ROWSxCOLUMNS (blocks), integers >= 2 (e.g. 512 or 16x32), "
+                f"got {text!r}"
+            )
+        numbers = [int(p) for p in parts]
+        args.probe_lights = numbers[0] if len(numbers) == 1 else tuple(numbers)
+        if math.prod(numbers) > MAX_PROBE_LIGHTS:  # before the probe is read
             raise ValidationError(f"--probe-lights must make at most {MAX_PROBE_LIGHTS} lights, got {text!r}")
 
 
@@ -137,13 +142,13 @@ def add_render(sub):
     p.add_argument("--probe", metavar="FILE", help="render under this lat-long HDR probe instead of an LED")
     p.add_argument(
         "--probe-lights",
-        metavar="ROWSxCOLUMNS",
+        metavar="N|ROWSxCOLUMNS",
         default=None,
-        help="with --probe: the directional lights the probe is summed into (each >= 2 and dividing the probe's "
-        "size, at most 2048 lights; default 16x32 where it divides the probe, about 4 s at 48²). Lambertian "
-        "irradiance against the full probe at the 99th percentile / worst: 16x32 0.6-6 %% / 1.6-12 %% under the "
-        "Probulator and park and lobby probes, 13 / 26 %% under a studio's small softbox; 8x16 (4x faster) up to "
-        "21 / 47 %%; 32x64 up to 7 / 18 %%",
+        help="with --probe: the directional lights the probe is summed into, N regions of a median cut "
+        "(default 512, about 4 s at 48²) or ROWSxCOLUMNS equal blocks dividing the probe's size; at most 2048 "
+        "lights. Lambertian irradiance against the full probe at the 99th percentile / worst: median cut 512 "
+        "0.5-4.5 %% / 0.9-6.0 %% under the Probulator, park, lobby and studio probes; 16x32 blocks up to "
+        "13.6 / 25.7 %% (a studio's small softbox)",
     )
     p.add_argument(
         "--capture",

@@ -46,7 +46,7 @@ from facestats.io.mesh import load_face_mesh, recorded_geometry, subject_mesh
 from facestats.io.probes import read_light_probe
 from facestats.io.schema import modulation, provenance
 from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport, skin_radiance
-from facestats.model.sphere import latlong_light_samples
+from facestats.model.sphere import latlong_light_samples, median_cut_light_samples
 from facestats.pipeline.render import camera_image
 from facestats.pipeline.settings import MAP_VARS, MODEL_PREFIX
 
@@ -268,22 +268,27 @@ def face_view(subject, mesh=None, *, scale: float = 1.0) -> FaceView:
 MAX_PROBE_LIGHTS = 2048
 
 
-def probe_lights(shape, samples=None, name="samples"):
-    """(rows, columns) of the directional lights a lat-long probe of ``shape`` is summed into (:func:`render_probe`).
+#: Lights a probe is cut into by default (:func:`facestats.model.sphere.median_cut_light_samples`).
+DEFAULT_PROBE_LIGHTS = 512
 
-    ``samples`` None: 16 × 32 where it divides the probe, else the finest of 8 × 16, 4 × 8, 2 × 4 that does.
-    Given: checked (each ≥ 2, dividing the probe's rows and columns, at most :data:`MAX_PROBE_LIGHTS` lights),
-    errors naming ``name``.
+
+def probe_lights(shape, samples=None, name="samples"):
+    """The directional lights a lat-long probe of ``shape`` is summed into (:func:`render_probe`), checked.
+
+    ``samples`` None: :data:`DEFAULT_PROBE_LIGHTS` lights by median cut.  An int N: N lights by median cut
+    (2 ≤ N ≤ :data:`MAX_PROBE_LIGHTS`).  (rows, columns): equal blocks (each ≥ 2, dividing the probe's rows and
+    columns, at most :data:`MAX_PROBE_LIGHTS` lights).  Errors name ``name``.
+
+    Returns
+    -------
+    int or (int, int)
+        The median cut's number of lights, or the blocks.
     """
     ph, pw = int(shape[0]), int(shape[1])
     if samples is None:
-        for r in (16, 8, 4, 2):
-            if ph % r == 0 and pw % (2 * r) == 0:
-                return r, 2 * r
-        raise ValidationError(
-            f"{name}: no default number of lights divides the probe's size {ph} x {pw} (rows a multiple of 2 and "
-            "columns of 4 at least): resample the probe"
-        )
+        return DEFAULT_PROBE_LIGHTS
+    if np.ndim(samples) == 0:
+        return check_integer(samples, name, 2, MAX_PROBE_LIGHTS)
     r, c = (check_integer(v, name, 2) for v in samples)
     if r * c > MAX_PROBE_LIGHTS:
         raise ValidationError(f"{name} must make at most {MAX_PROBE_LIGHTS} lights, got {r} x {c} = {r * c}")
@@ -306,9 +311,10 @@ def render_probe(
 ):
     """The fitted model for ``camera`` under a lat-long light probe, shadowed by the face mesh.
 
-    The probe is summed into ``samples`` = (rows, columns) blocks, each a directional light of irradiance
-    E = (Σ L Δω) (N·ω) from the block's power-weighted mean direction
-    (:func:`facestats.model.sphere.latlong_light_samples`), occluded
+    The probe is summed into directional lights (:func:`probe_lights`): by default 512 regions of a median cut
+    (:func:`facestats.model.sphere.median_cut_light_samples`), or ``samples`` = (rows, columns) equal blocks
+    (:func:`facestats.model.sphere.latlong_light_samples`); each light has irradiance E = (Σ L Δω) (N·ω) from
+    its region's power-weighted mean direction, occluded
     where the subject's face mesh (:func:`facestats.io.mesh.subject_mesh`: the face its provenance records, or
     ``mesh``) shadows it.
 
@@ -323,14 +329,15 @@ def render_probe(
         The subject's capture (its lumitexels and dome calibration), or None (:func:`face_view`).
     probe : str, os.PathLike or ndarray (H, W, 3)
         Lat-long probe (a file is read with :func:`facestats.io.probes.read_light_probe`).
-    samples : (int, int), optional
-        Light directions (rows, columns), each dividing the probe's size, at most :data:`MAX_PROBE_LIGHTS` in
-        all (each light costs a shadow map).  Default: 16 × 32 (512 lights) where it divides the probe, else the
-        finest of 8 × 16, 4 × 8, 2 × 4 that does (before 2026-12-06 8 × 16 always): under the Probulator probes
-        (pisa, ennis, wells) the Lambertian irradiance of 2,000 random normals is then within 0.15-0.29 % at the
-        median, 1.9-6.0 % at the 99th percentile and 3.9-12.4 % at worst of the full-resolution probe's; 8 × 16
-        gives 0.6-0.9 %, 5.9-21 % and 10-45 %, 32 × 64 0.04-0.08 %, 0.4-1.4 % and 0.9-5.5 % (an audit's figures,
-        re-measured).  The cost grows with the lights: at 48² about 1 s at 8 × 16 and 4 s at 16 × 32.
+    samples : int or (int, int), optional
+        The lights: N regions of a median cut, or (rows, columns) equal blocks, each dividing the probe's size;
+        at most :data:`MAX_PROBE_LIGHTS` in all (each light costs a shadow map).  Default: a median cut into
+        512 (before 2026-12-06 equal blocks, 16 × 32 where they divided the probe).  The Lambertian irradiance
+        of 2,000 random normals against the full probe's (``benchmarks/bench_relight.py``
+        ``bench_probe_lights``), at the 99th percentile / worst: median cut 512 0.5-4.5 % / 0.9-6.0 % under the
+        Probulator (pisa, ennis, wells), park, lobby and studio probes; 16 × 32 blocks 0.8-13.6 % /
+        1.6-25.7 % (the studio's small softbox the worst).  The cost grows with the lights: at 48² about 4 s
+        for 512.
     mesh : str or os.PathLike, optional
         The scan the subject's maps belong to (OBJ/PLY with per-vertex UVs), for a subject whose recorded face
         facestats cannot rebuild (ingested photographs): the shadowing mesh, and without ``capture`` the
@@ -353,8 +360,11 @@ def render_probe(
         capture = face_view(subject, mesh, scale=scale)
     check_integer(camera, "camera", 0, capture.dome.n_cameras - 1)
     img = read_light_probe(probe) if not isinstance(probe, np.ndarray) else np.asarray(probe, np.float64)
-    h, w = probe_lights(img.shape, samples)
-    d, power = latlong_light_samples(img, h, w)
+    lights = probe_lights(img.shape, samples)
+    if np.ndim(lights) == 0:
+        d, power = median_cut_light_samples(img, lights)
+    else:
+        d, power = latlong_light_samples(img, *lights)
     lt, v, u = _texels(subject, capture)
     _, in_frame, _ = capture.dome.view(lt.position.astype(np.float64), cameras=[camera])
     if not in_frame.any():  # before the shadow maps: a scan in another frame must not cost them

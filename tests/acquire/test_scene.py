@@ -227,6 +227,11 @@ def test_an_environment_probe_lights_patches_as_its_directional_lights_do():
     c = patch_irradiance(p, [env], shadows=False)
     assert np.all(c > 0)
     np.testing.assert_allclose(c, patch_irradiance(p, [sun], shadows=False), rtol=1e-6)
+    # a median cut (an int) gives the four lit pixels lights of their own: the same total irradiance here
+    cut = EnvironmentLight.from_probe(probe, 64)
+    assert len(cut.directions) == 64
+    np.testing.assert_allclose(cut.radiance_solid_angle.sum(0), power.sum(0), rtol=1e-6)
+    np.testing.assert_allclose(patch_irradiance(p, [cut], shadows=False), c, rtol=0.01)
 
 
 def test_a_camera_looking_at_its_own_position_is_refused_by_name():

@@ -233,3 +233,27 @@ def test_serve_refuses_a_port_it_cannot_bind(capsys):
         port = s.getsockname()[1]
         assert main(["serve", "--port", str(port)]) == 2
     assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err
+
+
+def test_probe_lights_take_a_median_cut_or_blocks_and_name_bad_values(tmp_path, capsys):
+    from facestats.io.images import read_image
+    from facestats.io.probes import write_light_probe
+    from facestats.relight.lighting import sky_probe
+
+    write_light_probe(tmp_path / "sky.hdr", sky_probe(8))
+    args = ["render", "S003", "--probe", str(tmp_path / "sky.hdr")]
+    images = {}
+    for lights in ("16", "4x8", "128"):
+        out = tmp_path / lights
+        assert main(args + ["--probe-lights", lights, "--out", str(out)]) == 0, capsys.readouterr().err
+        images[lights] = read_image(out / "S003-cam05-probe-sky-rendered.exr")
+    assert main(args + ["--out", str(tmp_path / "default")]) == 0
+    default = read_image(tmp_path / "default" / "S003-cam05-probe-sky-rendered.exr")
+    assert np.array_equal(default, images["128"])  # 8 x 16 pixels: the default cut gives every pixel its light
+    lit = default.sum(-1) > 0
+    for lights in ("16", "4x8"):  # coarser lightings of the same face agree on average within 5 %
+        assert abs(images[lights][lit].mean() / default[lit].mean() - 1) < 0.05, lights
+    for bad in ("1", "16x", "x", "3000", "2x2000", "4x5"):
+        assert main(args + ["--probe-lights", bad, "--out", str(tmp_path / "bad")]) == 2
+        assert "--probe-lights" in capsys.readouterr().err, bad
+    assert not (tmp_path / "bad").exists()

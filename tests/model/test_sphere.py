@@ -5,6 +5,7 @@ import pytest
 
 from facestats.errors import ValidationError
 from facestats.model import sphere
+from tests.helpers import TEST_DATA
 
 
 def test_latlong_solid_angles_are_exact_cells_summing_to_four_pi():
@@ -132,6 +133,52 @@ def test_latlong_light_samples_conserve_power_and_give_pi_l_irradiance():
     for n in ([0.0, 0, 1], [0.0, 1, 0], [0.6, 0, -0.8]):
         e = np.clip(d @ np.array(n), 0, None) @ power
         np.testing.assert_allclose(e, np.pi * L, rtol=0.01)  # the blocks' cosine spread: < 1 % at 16 x 32
+
+
+def _lambert_errors(probe, d, power, n=2000):
+    """Largest relative error over channels of the Lambertian irradiance of ``n`` random normals under the
+    lights (d, power), against every pixel of ``probe`` as its own light."""
+    h, w = probe.shape[:2]
+    normals = np.random.default_rng(0).normal(size=(n, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    pix = (probe * sphere.latlong_solid_angles(h, w)[..., None]).reshape(-1, 3)
+    ref = np.clip(normals @ sphere.latlong_directions(h, w).reshape(-1, 3).T, 0, None) @ pix
+    got = np.clip(normals @ d.T, 0, None) @ power
+    return (np.abs(got - ref) / ref).max(1)
+
+
+def test_median_cut_conserves_power_and_gives_pi_l_irradiance():
+    L = np.array([1.0, 2.0, 0.5])
+    d, power = sphere.median_cut_light_samples(np.broadcast_to(L, (32, 64, 3)), 512)
+    assert len(d) == 512
+    np.testing.assert_allclose(power.sum(0), 4 * np.pi * L, rtol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, rtol=1e-12)
+    for n in ([0.0, 0, 1], [0.0, 1, 0], [0.6, 0, -0.8]):
+        np.testing.assert_allclose(np.clip(d @ np.array(n), 0, None) @ power, np.pi * L, rtol=0.01)
+
+
+def test_median_cut_gives_a_light_to_each_pixel_when_there_are_enough():
+    """More lights than pixels: every pixel becomes its own light, at its centre: the exact irradiance."""
+    probe = np.random.default_rng(3).uniform(0, 2, (4, 8, 3))
+    d, power = sphere.median_cut_light_samples(probe, 100)
+    assert len(d) == 32
+    assert _lambert_errors(probe, d, power).max() < 1e-12
+    with pytest.raises(ValidationError, match=r"lights must be an integer in \[2, inf\], got 1"):
+        sphere.median_cut_light_samples(probe, 1)
+    with pytest.raises(ValidationError, match="width 2 x height"):
+        sphere.median_cut_light_samples(np.zeros((8, 8, 3)), 4)
+
+
+def test_median_cut_lights_a_softbox_where_equal_blocks_miss_it():
+    """The studio probe of the committed Poly Haven set (a small softbox): 512 lights by median cut against
+    16 x 32 equal blocks (measured: worst 2.4 % against 25.7 %, 99th percentile 0.81 % against 13.6 %)."""
+    from facestats.io.probes import read_light_probe
+
+    probe = read_light_probe(TEST_DATA / "polyhaven-probes" / "studio.hdr")
+    cut = _lambert_errors(probe, *sphere.median_cut_light_samples(probe, 512))
+    blocks = _lambert_errors(probe, *sphere.latlong_light_samples(probe, 16, 32))
+    assert cut.max() < 0.03 and np.percentile(cut, 99) < 0.01
+    assert blocks.max() > 0.2 and np.percentile(blocks, 99) > 0.1
 
 
 def test_latlong_light_samples_put_the_centre_column_behind_the_head():

@@ -3,10 +3,11 @@
 
 Usage::
 
-    python scripts/make_skin_colour_tables.py
+    python scripts/make_skin_colour_tables.py && ruff format facestats/model/skin_colour_tables.py
 
-Rerun it when colour-science's datasets change (``tests/acquire/test_population.py`` compares the shipped
-tables with colour-science's, bit for bit, and fails until then).
+(the formatter gives the committed layout; the script alone writes the same values in ``pprint``'s). Rerun it
+when colour-science's datasets change (``tests/acquire/test_population.py`` compares the shipped tables with
+colour-science's, bit for bit, and fails until then).
 """
 
 import pathlib

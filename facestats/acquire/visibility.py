@@ -24,6 +24,7 @@ import numpy as np
 from facestats.acquire.camera import look_at
 from facestats.core.compiled import resolve_backend
 from facestats.core.raster import triangle_coverage
+from facestats.errors import ValidationError
 
 __all__ = [
     "shadow_map",
@@ -95,6 +96,11 @@ def shadow_map(vertices, faces, eye, target, radius, resolution, *, backend="aut
     camera : tuple
         ``(eye, rot, focal, resolution)`` to project points into the buffer.
     """
+    faces = np.asarray(faces)
+    if faces.ndim != 2 or faces.shape[1] != 3 or not np.issubdtype(faces.dtype, np.integer):
+        raise ValidationError(
+            f"faces must be an (F, 3) array of integer vertex indices, got shape {faces.shape} of {faces.dtype}"
+        )
     eye = np.asarray(eye, float)
     rot = look_at(eye, target)
     dist = np.linalg.norm(np.asarray(target, float) - eye)
@@ -104,7 +110,7 @@ def shadow_map(vertices, faces, eye, target, radius, resolution, *, backend="aut
     if resolve_backend(backend) == "numba":
         from facestats.core.raster_numba import nearest_depth  # imports numba: only when a map is drawn
 
-        faces = np.asarray(faces, np.int64)
+        faces = faces.astype(np.int64)
         n = len(vertices)
         if faces.size and (faces.min() < -n or faces.max() >= n):  # as numpy's indexing would refuse them
             raise IndexError(f"faces index vertices outside [-{n}, {n})")

@@ -10,13 +10,14 @@ l0, l1 divided by the same denominator, l2 = 1 − l0 − l1, depth l0 z0 + l1 z
 nearest depth per pixel.  So the buffer equals the numpy path's bit for bit
 (``tests/acquire/test_shadow_maps.py``).  Compiled without ``fastmath``: no reassociation or fused
 multiply-add changes a result.  The box is kept in float64 and clipped to the grid before any
-conversion to an integer, so a triangle that projects absurdly far (a vertex just in front of the eye)
-costs no more than the grid and converts no out-of-range float.
+conversion to an integer, so a triangle that projects absurdly far (a vertex just in front of the eye,
+even beyond 2⁶³ pixels) costs no more than the grid, converts no out-of-range float and still occludes
+what it covers; the numpy path cannot draw such a triangle (its candidate box would not fit in memory).
+One difference is left, on absurd input only: a vertex whose depth overflows to inf while its projection
+stays finite gives NaN in the numpy path (0 · inf) and inf here.
 """
 
 from __future__ import annotations
-
-import math
 
 import numba
 import numpy as np
@@ -51,10 +52,10 @@ def nearest_depth(x, y, z, faces, resolution, depth):
         d = (by - cy) * (ax - cx) + (cx - bx) * (ay - cy)
         if not abs(d) > 1e-12:
             continue
-        x0 = math.floor(min(ax, bx, cx) - 0.5)
-        y0 = math.floor(min(ay, by, cy) - 0.5)
-        x1 = math.ceil(max(ax, bx, cx) - 0.5)
-        y1 = math.ceil(max(ay, by, cy) - 0.5)
+        x0 = np.floor(min(ax, bx, cx) - 0.5)  # numpy's floor and ceil keep float64 (math's return int64)
+        y0 = np.floor(min(ay, by, cy) - 0.5)
+        x1 = np.ceil(max(ax, bx, cx) - 0.5)
+        y1 = np.ceil(max(ay, by, cy) - 0.5)
         if x1 + 1 <= 0 or y1 + 1 <= 0 or x0 >= resolution or y0 >= resolution:
             continue  # the bounding box is off the grid
         side = max(x1 - x0 + 1, y1 - y0 + 1)

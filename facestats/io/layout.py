@@ -228,38 +228,81 @@ def walk(top):
 def remove_tree(path) -> None:
     """Delete the folder ``path`` and everything in it, without following links and without recursion.
 
-    Links are removed as links.  Entries that vanish meanwhile (another process
-    removing the same leftover) are fine; any other failure raises
-    :class:`OSError`, and so does ``path`` being a link.  Whether the folder is
+    Works through folder handles, one open at a time: each folder is opened relative to its parent with
+    ``O_NOFOLLOW`` and left through its ``..``, so neither the depth of the tree (Python's recursion limit)
+    nor the length of its paths (``PATH_MAX``) limits it, and a folder swapped for a link meanwhile is not
+    followed.  Links are removed as links.  Entries that vanish meanwhile (another process removing the same
+    leftover), or a missing ``path``, are fine; any other failure raises :class:`OSError`, and so do ``path``
+    being a link (with or without a trailing slash) and ``path`` not being a folder.  Whether the folder is
     gone afterwards is the caller's to check.
     """
     path = os.fspath(path)
-    if os.path.islink(path):
+    if os.path.islink(path) or os.path.islink(path.rstrip(os.sep) or os.sep):
         raise OSError(errno.ELOOP, "will not remove a tree through a symbolic link", path)
-    folders = []
-    for base, dirs, files in walk(path):
-        folders.append(base)
-        for name in files + [d for d in dirs if os.path.islink(os.path.join(base, d))]:
+    flags = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW
+    try:
+        fd = os.open(path, flags)
+    except FileNotFoundError:
+        return
+    names = []  # the folders from ``path`` down to the one ``fd`` holds
+    try:
+        while True:
+            sub = _unlink_until_folder(fd)
+            if sub is not None:  # go down into it
+                try:
+                    child = os.open(sub, flags, dir_fd=fd)
+                except FileNotFoundError:
+                    continue
+                os.close(fd)
+                fd = child
+                names.append(sub)
+                continue
+            if not names:  # ``path`` itself is empty
+                break
+            parent = os.open("..", flags, dir_fd=fd)  # go back up and remove the emptied folder
+            os.close(fd)
+            fd = parent
             try:
-                os.unlink(os.path.join(base, name))
+                os.rmdir(names.pop(), dir_fd=fd)
             except FileNotFoundError:
                 pass
-    for base in reversed(folders):  # children before their parents
-        try:
-            os.rmdir(base)
-        except FileNotFoundError:
-            pass
+    finally:
+        os.close(fd)
+    try:
+        os.rmdir(path)
+    except FileNotFoundError:
+        pass
+
+
+def _unlink_until_folder(fd: int) -> str | None:
+    """Remove the entries of the folder ``fd`` that are not folders, up to its first sub-folder: its name, or None."""
+    with os.scandir(fd) as entries:
+        for entry in entries:
+            if entry.is_dir(follow_symlinks=False):
+                return entry.name
+            try:
+                os.unlink(entry.name, dir_fd=fd)
+            except FileNotFoundError:
+                pass
+    return None
 
 
 def copy_tree(src, dst) -> None:
-    """Copy the folder ``src`` to the new folder ``dst`` without recursion: files with their times, links as links."""
+    """Copy the folder ``src`` to the new folder ``dst`` without recursion: files with their times, links as links.
+
+    A folder's permissions and times are copied after its contents, as :func:`shutil.copytree` does (a
+    read-only folder can be filled, and its time is not changed by the filling).
+    """
     src, dst = os.fspath(src), os.fspath(dst)
+    folders = []
     for base, dirs, files in walk(src):
         target = os.path.normpath(os.path.join(dst, os.path.relpath(base, src)))
         os.mkdir(target)
-        shutil.copystat(base, target, follow_symlinks=False)
+        folders.append((base, target))
         for name in files + [d for d in dirs if os.path.islink(os.path.join(base, d))]:
             shutil.copy2(os.path.join(base, name), os.path.join(target, name), follow_symlinks=False)
+    for base, target in reversed(folders):  # deepest first
+        shutil.copystat(base, target, follow_symlinks=False)
 
 
 def confined(root, path, *, through_links: bool = False) -> str:

@@ -56,10 +56,25 @@ def test_a_vertex_just_in_front_of_the_eye_costs_no_more_than_the_grid():
     assert np.isfinite(only_far).any()
     near = depth < only_far  # pixels the sliver in front of the eye covers
     assert near.any() and np.all(depth <= only_far)
+    # a wedge from a vertical edge to a vertex projected beyond 2^63 pixels: still drawn (math.floor's int64
+    # dropped it; a red team); 1e3 mm gives ~1e18 pixels, which both versions drew
+    for far in (1e3, 1e4):
+        verts = np.array([[far, 0.0, np.nextafter(600.0, 0)], [-50, -50, 0], [-50, 50, 0], [50, 0, -10]])
+        wedge, _ = shadow_map(verts, np.array([[0, 1, 2], [1, 2, 3]]), eye, [0.0, 0.0, 0.0], 160.0, 64)
+        behind, _ = shadow_map(verts, np.array([[1, 2, 3]]), eye, [0.0, 0.0, 0.0], 160.0, 64)
+        assert np.sum(wedge < behind) > 500, far
 
 
-def test_faces_outside_the_vertices_are_refused_by_both_paths():
-    verts = np.zeros((3, 3))
+def test_faces_outside_the_vertices_or_not_triangles_are_refused_by_both_paths():
+    """Two-column faces made the compiled path read past the array (a segmentation fault; a red team), float
+    faces were truncated to indices: both paths refuse them by name."""
+    from facestats.errors import ValidationError
+
+    verts = np.random.default_rng(0).normal(0, 40, (50, 3))
+    args = ([0.0, 0.0, 600.0], [0.0, 0.0, 0.0], 160.0, 32)
     for backend in ("numba", "numpy"):
         with pytest.raises(IndexError):
-            shadow_map(verts, np.array([[0, 1, 3]]), [0.0, 0.0, 10.0], [0.0, 0.0, 0.0], 5.0, 8, backend=backend)
+            shadow_map(verts, np.array([[0, 1, 50]]), *args, backend=backend)
+        for bad in (np.array([[0, 1]] * 60), np.array([[0.0, 1.3, 2.0]]), np.array([0, 1, 2])):
+            with pytest.raises(ValidationError, match=r"faces must be an \(F, 3\) array of integer vertex indices"):
+                shadow_map(verts, bad, *args, backend=backend)

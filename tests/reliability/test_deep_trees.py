@@ -102,9 +102,34 @@ def test_remove_and_copy_a_deep_tree_keep_links_as_links(tmp_path):
     assert not top.exists() and not (tmp_path / "copy").exists()
     assert (outside / "keep").read_text() == "never removed"
     os.symlink(outside, tmp_path / "to-outside")
-    with pytest.raises(OSError):
-        remove_tree(tmp_path / "to-outside")
+    for link in (tmp_path / "to-outside", f"{tmp_path / 'to-outside'}/"):  # with a trailing slash too
+        with pytest.raises(OSError):
+            remove_tree(link)
     assert (outside / "keep").exists()
+    with pytest.raises(NotADirectoryError):
+        remove_tree(outside / "keep")
+    remove_tree(tmp_path / "missing")  # nothing to do
+
+
+def test_a_tree_longer_than_path_max_is_removed_and_its_quarantine_purged(tmp_path):
+    """20 levels of 250-character names: paths of 5,000 characters, beyond Linux's PATH_MAX (4,096). The tree
+    is removed through folder handles; a path-based removal left it, after the purge had already unlinked the
+    quarantine's manifest, so the quarantine could never be purged (a red team)."""
+    from facestats.io.quarantine import list_quarantine, open_quarantine, purge_quarantine
+
+    root = tmp_path / "s.zarr"
+    root.mkdir()
+    folder = os.path.join(open_quarantine(root, "test"), "subjects", "R1", "g")
+    os.makedirs(folder)
+    _nest(folder, "d" * 250, 20)
+    assert [e["valid"] for e in list_quarantine(root)] == [True]
+    assert len(purge_quarantine(root)) == 1
+    assert list_quarantine(root) == [] and os.listdir(root / "quarantine") == []
+    top = tmp_path / "top"
+    top.mkdir()
+    _nest(top, "e" * 250, 20)
+    remove_tree(top)
+    assert not top.exists()
 
 
 @pytest.mark.parametrize("where", ["generation", "chunks", "subject", "root"])

@@ -93,7 +93,7 @@ def skin_albedo(melanin) -> np.ndarray:
         Linear RGB, clipped to [0.005, 0.95].
     """
     tb = _tables()
-    t = np.atleast_1d(np.asarray(melanin, float))
+    t = np.asarray(melanin, float).reshape(-1)  # any shape: the output takes it, plus the channel axis
     rl, rd = np.maximum(tb["light_skin"], 1e-4), np.maximum(tb["dark_skin"], 1e-4)
     spectra = np.exp((1 - t[:, None]) * np.log(rl) + t[:, None] * np.log(rd))
     w = tb["cmfs"] * tb["d65"][:, None]

@@ -182,6 +182,8 @@ def test_shipped_colour_tables_are_colour_sciences_and_give_its_xyz_to_rgb_bit_f
     ref = colour.XYZ_to_RGB(xyz, colour.RGB_COLOURSPACES["sRGB"], apply_cctf_encoding=False)
     assert np.array_equal(skin_albedo(t), np.clip(ref, 0.005, 0.95))
     assert np.array_equal(skin_albedo(0.4), skin_albedo(np.array([0.4]))[0])
+    grid = t[:40].reshape(2, 4, 5)  # any shape, as documented (a 2-D index failed to broadcast before)
+    assert np.array_equal(skin_albedo(grid), skin_albedo(t[:40]).reshape(2, 4, 5, 3))
 
 
 def test_conditions_effects(pop):

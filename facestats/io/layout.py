@@ -231,7 +231,8 @@ def remove_tree(path) -> None:
     Works through folder handles, one open at a time: each folder is opened relative to its parent with
     ``O_NOFOLLOW`` and left through its ``..``, so neither the depth of the tree (Python's recursion limit)
     nor the length of its paths (``PATH_MAX``) limits it, and a folder swapped for a link meanwhile is not
-    followed.  Links are removed as links.  Entries that vanish meanwhile (another process removing the same
+    followed (a folder moved elsewhere meanwhile is emptied where it went: it is left through its ``..``).
+    Links are removed as links.  Entries that vanish meanwhile (another process removing the same
     leftover), or a missing ``path``, are fine; any other failure raises :class:`OSError`, and so do ``path``
     being a link (with or without a trailing slash) and ``path`` not being a folder.  Whether the folder is
     gone afterwards is the caller's to check.

@@ -75,7 +75,10 @@ class DirectoryBackend:
             return rel
         for base, dirs, files in walk(top):
             for name in dirs + files:
-                mode = os.lstat(os.path.join(base, name)).st_mode
+                try:
+                    mode = os.lstat(os.path.join(base, name)).st_mode
+                except OSError:  # e.g. a path beyond PATH_MAX: Zarr, which reads by path, cannot reach it either
+                    continue
                 if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
                     return os.path.relpath(os.path.join(base, name), self.root)
         return None

@@ -180,8 +180,10 @@ class EnvironmentLight:
         img = probe if isinstance(probe, np.ndarray) else read_light_probe(probe)
         if np.ndim(samples) == 0:
             directions, power = median_cut_light_samples(img, samples)
-        else:
+        elif np.ndim(samples) == 1 and len(samples) == 2:
             directions, power = latlong_light_samples(img, *samples)
+        else:
+            raise ValidationError(f"samples must be an int (median cut) or (rows, columns) (blocks), got {samples!r}")
         return cls(directions, power, shadows)
 
     def to_dict(self) -> dict:

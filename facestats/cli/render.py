@@ -52,16 +52,21 @@ def _check_options(args) -> None:
         from facestats.pipeline.validation import MAX_PROBE_LIGHTS
 
         text = args.probe_lights
+        shown = text if len(text) <= 40 else text[:40] + "..."
         parts = text.lower().split("x")
-        if not (len(parts) in (1, 2) and all(p.isascii() and p.isdigit() and int(p) >= 2 for p in parts)):
+        # at most 9 digits each before int(): no 5,000-digit conversion (Python refuses those with a ValueError)
+        if (
+            not (len(parts) in (1, 2) and all(p.isascii() and p.isdigit() and len(p) <= 9 for p in parts))
+            or min(int(p) for p in parts) < 2
+        ):
             raise ValidationError(
                 f"--probe-lights must be N (median cut) or ROWSxCOLUMNS (blocks), integers >= 2 (e.g. 512 or 16x32), "
-                f"got {text!r}"
+                f"got {shown!r}"
             )
         numbers = [int(p) for p in parts]
         args.probe_lights = numbers[0] if len(numbers) == 1 else tuple(numbers)
         if math.prod(numbers) > MAX_PROBE_LIGHTS:  # before the probe is read
-            raise ValidationError(f"--probe-lights must make at most {MAX_PROBE_LIGHTS} lights, got {text!r}")
+            raise ValidationError(f"--probe-lights must make at most {MAX_PROBE_LIGHTS} lights, got {shown!r}")
 
 
 def _cmd_render(args) -> int:

@@ -234,11 +234,12 @@ def remove_tree(path) -> None:
     followed (a folder moved elsewhere meanwhile is emptied where it went: it is left through its ``..``).
     Links are removed as links.  Entries that vanish meanwhile (another process removing the same
     leftover), or a missing ``path``, are fine; any other failure raises :class:`OSError`, and so do ``path``
-    being a link (with or without a trailing slash) and ``path`` not being a folder.  Whether the folder is
+    being a link (also written ``L/`` or ``L/.``) and ``path`` not being a folder.  Links *above* ``path``
+    are followed, as by :func:`shutil.rmtree`: callers check them (:func:`confined`).  Whether the folder is
     gone afterwards is the caller's to check.
     """
-    path = os.fspath(path)
-    if os.path.islink(path) or os.path.islink(path.rstrip(os.sep) or os.sep):
+    path = os.path.normpath(os.fspath(path))  # "L/", "L/." and "L/x/.." name the link L itself
+    if os.path.islink(path):
         raise OSError(errno.ELOOP, "will not remove a tree through a symbolic link", path)
     flags = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW
     try:

@@ -222,7 +222,8 @@ def median_cut_light_samples(probe, lights: int):
     (angular lengths: π Δrows/H along a meridian, 2π Δcolumns/W · sin φ along the region's middle parallel),
     where the power Σ_ch L δΩ of its two parts is most nearly equal, until there are ``lights`` regions.
     When a round would overshoot ``lights``, its most powerful regions are cut first; a region of one pixel is
-    never cut, so a probe with fewer bright pixels than lights gets fewer lights (each such pixel its own).
+    never cut, so a probe with fewer pixels than lights gets one light per pixel, and regions without power
+    give lights of zero power.
     Each region becomes one light as in :func:`latlong_light_samples`: Σ L δΩ over its pixels (exact δΩ of
     :func:`latlong_solid_angles`), from its power-weighted mean direction (the solid-angle weighted mean for a
     dark region).  Bright sources get many small regions and dark surroundings few large ones: under the

@@ -289,6 +289,8 @@ def probe_lights(shape, samples=None, name="samples"):
         return DEFAULT_PROBE_LIGHTS
     if np.ndim(samples) == 0:
         return check_integer(samples, name, 2, MAX_PROBE_LIGHTS)
+    if np.ndim(samples) != 1 or len(samples) != 2:
+        raise ValidationError(f"{name} must be an int (median cut) or (rows, columns) (blocks), got {samples!r}")
     r, c = (check_integer(v, name, 2) for v in samples)
     if r * c > MAX_PROBE_LIGHTS:
         raise ValidationError(f"{name} must make at most {MAX_PROBE_LIGHTS} lights, got {r} x {c} = {r * c}")

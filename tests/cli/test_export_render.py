@@ -253,7 +253,17 @@ def test_probe_lights_take_a_median_cut_or_blocks_and_name_bad_values(tmp_path, 
     lit = default.sum(-1) > 0
     for lights in ("16", "4x8"):  # coarser lightings of the same face agree on average within 5 %
         assert abs(images[lights][lit].mean() / default[lit].mean() - 1) < 0.05, lights
-    for bad in ("1", "16x", "x", "3000", "2x2000", "4x5"):
+    for bad in ("1", "16x", "x", "3000", "2x2000", "4x5", "2x" + "9" * 5000, "9" * 5000):  # 5,000 digits: exit 3
         assert main(args + ["--probe-lights", bad, "--out", str(tmp_path / "bad")]) == 2
-        assert "--probe-lights" in capsys.readouterr().err, bad
+        err = capsys.readouterr().err
+        assert "--probe-lights" in err and len(err) < 300, bad[:20]
     assert not (tmp_path / "bad").exists()
+    from facestats.acquire.lights import EnvironmentLight
+    from facestats.errors import ValidationError
+    from facestats.pipeline.validation import probe_lights
+
+    for bad in ((2, 2, 2), [4], (4,)):  # a wrong length unpacked into a ValueError or a TypeError (a red team)
+        with pytest.raises(ValidationError, match="samples must be an int"):
+            probe_lights((8, 16, 3), bad)
+        with pytest.raises(ValidationError, match="samples must be an int"):
+            EnvironmentLight.from_probe(sky_probe(8), bad)

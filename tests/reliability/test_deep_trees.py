@@ -102,7 +102,7 @@ def test_remove_and_copy_a_deep_tree_keep_links_as_links(tmp_path):
     assert not top.exists() and not (tmp_path / "copy").exists()
     assert (outside / "keep").read_text() == "never removed"
     os.symlink(outside, tmp_path / "to-outside")
-    for link in (tmp_path / "to-outside", f"{tmp_path / 'to-outside'}/"):  # with a trailing slash too
+    for link in (tmp_path / "to-outside", f"{tmp_path / 'to-outside'}/", f"{tmp_path / 'to-outside'}/."):
         with pytest.raises(OSError):
             remove_tree(link)
     assert (outside / "keep").exists()

@@ -228,8 +228,8 @@ def walk(top):
 def remove_tree(path) -> None:
     """Delete the folder ``path`` and everything in it, without following links and without recursion.
 
-    Works through folder handles, one open at a time: each folder is opened relative to its parent with
-    ``O_NOFOLLOW`` and left through its ``..``, so neither the depth of the tree (Python's recursion limit)
+    Works through folder handles, one open at a time: each folder is read once, opened relative to its
+    parent with ``O_NOFOLLOW`` and left through its ``..``, so neither the depth of the tree (Python's recursion limit)
     nor the length of its paths (``PATH_MAX``) limits it, and a folder swapped for a link meanwhile is not
     followed (a folder moved elsewhere meanwhile is emptied where it went: it is left through its ``..``).
     Links are removed as links.  Entries that vanish meanwhile (another process removing the same
@@ -246,26 +246,29 @@ def remove_tree(path) -> None:
         fd = os.open(path, flags)
     except FileNotFoundError:
         return
-    names = []  # the folders from ``path`` down to the one ``fd`` holds
+    above = []  # per level above ``fd``: the sub-folders still to remove there, and the one ``fd`` holds
     try:
+        pending = _unlink_files(fd)
         while True:
-            sub = _unlink_until_folder(fd)
-            if sub is not None:  # go down into it
+            if pending:  # go down into the next sub-folder
+                sub = pending.pop()
                 try:
                     child = os.open(sub, flags, dir_fd=fd)
                 except FileNotFoundError:
                     continue
+                above.append((pending, sub))
                 os.close(fd)
                 fd = child
-                names.append(sub)
+                pending = _unlink_files(fd)
                 continue
-            if not names:  # ``path`` itself is empty
+            if not above:  # ``path`` itself is empty
                 break
             parent = os.open("..", flags, dir_fd=fd)  # go back up and remove the emptied folder
             os.close(fd)
             fd = parent
+            pending, done = above.pop()
             try:
-                os.rmdir(names.pop(), dir_fd=fd)
+                os.rmdir(done, dir_fd=fd)
             except FileNotFoundError:
                 pass
     finally:
@@ -276,17 +279,19 @@ def remove_tree(path) -> None:
         pass
 
 
-def _unlink_until_folder(fd: int) -> str | None:
-    """Remove the entries of the folder ``fd`` that are not folders, up to its first sub-folder: its name, or None."""
+def _unlink_files(fd: int) -> list[str]:
+    """Remove the entries of the folder ``fd`` that are not folders (links included); its sub-folders' names."""
+    folders = []
     with os.scandir(fd) as entries:
         for entry in entries:
             if entry.is_dir(follow_symlinks=False):
-                return entry.name
+                folders.append(entry.name)
+                continue
             try:
                 os.unlink(entry.name, dir_fd=fd)
             except FileNotFoundError:
                 pass
-    return None
+    return folders
 
 
 def copy_tree(src, dst) -> None:

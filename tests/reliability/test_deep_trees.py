@@ -16,7 +16,7 @@ from facestats.io import open_store
 from facestats.io.layout import copy_tree, remove_tree, walk
 from tests.helpers import run_cli
 
-from .helpers import copy_store, generation_dir, make_store, subject_digests
+from .helpers import generation_dir, subject_digests
 
 #: Nested folders: beyond the recursion limit (1,000), and a path still under Linux's PATH_MAX (4,096).
 DEPTH = 1300
@@ -44,17 +44,6 @@ def _cleaned(tmp_path):
     """Remove each test's folder with ``rm -rf``: pytest's own clean-up recurses and would fail on these trees."""
     yield
     subprocess.run(["rm", "-rf", str(tmp_path)], check=True)
-
-
-@pytest.fixture(scope="module")
-def base(tmp_path_factory):
-    path = make_store(tmp_path_factory.mktemp("deep") / "s.zarr")
-    return path, subject_digests(path)
-
-
-@pytest.fixture
-def store(base, tmp_path):
-    return copy_store(base[0], tmp_path)
 
 
 def test_walk_is_os_walk_without_recursion(tmp_path):

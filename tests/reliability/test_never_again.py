@@ -23,27 +23,14 @@ from facestats.io.maintenance import ValidationReport, check_subjects
 from tests.helpers import make_map_subject
 
 from .helpers import (
-    copy_store,
     digest_dataset,
     flip_albedo_bit,
     generation_dir,
-    make_store,
     quarantined_generations,
     run,
     snapshot,
     subject_digests,
 )
-
-
-@pytest.fixture(scope="module")
-def base(tmp_path_factory):
-    path = make_store(tmp_path_factory.mktemp("base") / "s.zarr")
-    return path, subject_digests(path)
-
-
-@pytest.fixture
-def store(base, tmp_path):
-    return copy_store(base[0], tmp_path)
 
 
 # -- 1. deleting outside the store ----------------------------------------------------------------

@@ -26,26 +26,13 @@ from facestats.io.repair import apply_repair
 from tests.helpers import make_map_subject, merl_dict
 
 from .helpers import (
-    copy_store,
     flip_albedo_bit,
     generation_dir,
-    make_store,
     quarantined_generations,
     run,
     snapshot,
     subject_digests,
 )
-
-
-@pytest.fixture(scope="module")
-def base(tmp_path_factory):
-    path = make_store(tmp_path_factory.mktemp("redteam") / "s.zarr")
-    return path, subject_digests(path)
-
-
-@pytest.fixture
-def store(base, tmp_path):
-    return copy_store(base[0], tmp_path)
 
 
 @pytest.fixture(scope="module")

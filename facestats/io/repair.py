@@ -356,12 +356,20 @@ def _entry(sid: str, gen: str, ds) -> dict:
     return make_entry(gen, written, summarise_subject(ds), albedo_histogram(ds))
 
 
-def _open(open_generation, sid: str, gen: str):
-    """The verified Dataset, or None if the generation is damaged; an I/O error propagates (StoreError)."""
+def _open(plan: RepairPlan, open_generation, sid: str, gen: str) -> tuple[bool, object]:
+    """``(readable, dataset)`` of generation ``gen`` of ``sid``.
+
+    ``(True, Dataset)`` if it reads intact, ``(True, None)`` if it is damaged (checksums). ``(False, None)``
+    if it cannot be read now (an I/O error, :class:`StoreError`): the error is noted in ``plan.problems``
+    and the caller leaves the generation alone.
+    """
     try:
-        return open_generation(sid, gen)
+        return True, open_generation(sid, gen)
     except SchemaError:
-        return None
+        return True, None
+    except StoreError as exc:
+        plan.problems.append(str(exc))
+        return False, None
 
 
 def _records(root, sid: str) -> dict:
@@ -414,10 +422,8 @@ def _first_intact(plan, sid, candidates, open_generation, *, expect):
     garbage collection to delete), on condition that the index still names ``expect`` for ``sid``.
     """
     for rev, gen in candidates:
-        try:
-            ds = _open(open_generation, sid, gen)
-        except StoreError as exc:
-            plan.problems.append(str(exc))
+        readable, ds = _open(plan, open_generation, sid, gen)
+        if not readable:
             continue
         if ds is not None:
             return rev, gen, ds
@@ -475,10 +481,8 @@ def _plan_unconfirmed(plan: RepairPlan, root, sid: str, open_generation) -> None
     for gen, rec in sorted(_records(root, sid).items()):
         if rec is None or rec["state"] != "writing" or is_locked(writer_lock_path(root, sid, gen)):
             continue
-        try:
-            ds = _open(open_generation, sid, gen)
-        except StoreError as exc:
-            plan.problems.append(str(exc))
+        readable, ds = _open(plan, open_generation, sid, gen)
+        if not readable:
             continue
         if ds is not None:
             why = (
@@ -513,10 +517,8 @@ def _plan_bad_entries(plan: RepairPlan, root, bad: dict, open_generation) -> Non
         ds = None
         usable = _valid_id(sid) and isinstance(gen, str) and is_generation(gen)
         if usable and is_plain_dir(os.path.join(root, generation_rel(sid, gen))):
-            try:
-                ds = _open(open_generation, sid, gen)
-            except StoreError as exc:
-                plan.problems.append(str(exc))
+            readable, ds = _open(plan, open_generation, sid, gen)
+            if not readable:
                 continue
         if ds is not None:
             plan.actions.append(RepairAction("adopt", sid, source=gen, entry=_entry(sid, gen, ds), reason=problem))

@@ -8,16 +8,24 @@ model both use:
 * signal: the expected photo-electron count is ``rate × t`` for an exposure time
   ``t`` (``rate`` in electrons per unit time);
 * noise: shot noise (variance = mean electrons, Gaussian approximation of the
-  Poisson distribution, good above ~20 e⁻) plus Gaussian read noise;
+  Poisson distribution, good above ~20 e⁻) plus Gaussian read noise and the
+  quantisation noise of one DN, the linear camera model of the EMVA Standard 1288
+  (Release 3.1, §2: σ_y² = K²σ_d² + σ_q² + K(μ_y − μ_y,dark), σ_q² = 1/12 DN²),
+  written here in electrons: Var = e + σ_read² + g²/12 with g = 1/K electrons per DN;
 * response: linear, quantised by an ``adc_bits`` converter whose full scale is
   the full-well capacity, with a black level (pedestal) of ``black_level`` DN so
   that noise below zero signal is recorded rather than clipped (merges subtract
   it, leaving dark readings unbiased); values at or above ``saturation`` of full
   scale are clipped and unusable;
-* merge (after Debevec & Malik 1997, with inverse-variance weights): each
-  unclipped exposure gives an estimate DN·g/t of the rate; estimates are combined
-  with weights 1/Var, Var = (rate·t + σ_read² + g²/12)/t², evaluated at a first
-  time-weighted estimate so the weights do not depend on the noise of each value.
+* merge: each unclipped exposure gives an independent estimate (DN − black)·g/t
+  of the rate, of variance Var_j/t_j²; they are combined with inverse-variance
+  weights t_j²/Var_j, the minimum-variance unbiased combination of a linear camera's
+  exposures (Granados et al. 2010, "Optimal HDR reconstruction with linear digital
+  cameras", CVPR; Debevec & Malik 1997's hat weights, eq. 6, are for an unknown
+  non-linear response and serve :mod:`facestats.acquire.response`).  The weights are
+  evaluated at a first estimate Σ_j (DN_j − black)·g / Σ_j t_j (total electrons over
+  total time: the maximum-likelihood rate of Poisson counts), so that they do not
+  depend on the noise of each value.
 
 Photographs from cameras with an unknown or non-linear response (8-bit JPEG/PNG,
 16-bit PNG/TIFF) go through Debevec & Malik's response recovery and weighted
@@ -91,7 +99,8 @@ class CameraResponse:
         """Variance (e⁻²) of a reading with ``electrons`` expected: shot + read + quantisation.
 
         max(e, 0) + σ_read² + g²/12 (Poisson shot noise, Gaussian read noise and the
-        uniform quantisation error of one DN of g electrons); float input keeps its dtype.
+        uniform quantisation error of one DN of g electrons: EMVA 1288 Release 3.1 §2,
+        in electrons instead of DN); float input keeps its dtype.
         """
         e = np.asarray(electrons)
         if e.dtype.kind == "f":
@@ -101,6 +110,11 @@ class CameraResponse:
 
 def expose(rate, times, response: CameraResponse, rng: np.random.Generator, dtype=np.float32, backend: str = "auto"):
     """Simulate readings (digital numbers) of a signal for each exposure time.
+
+    DN = clip(rint((e + √(e + σ_read²) z)/g + black), 0, max_dn) with e = rate·t and z
+    standard normal: the noise model of :meth:`CameraResponse.variance` (shot noise in
+    its Gaussian approximation, read noise), quantised by the ADC's rounding, which adds
+    the g²/12 term.
 
     Parameters
     ----------
@@ -167,6 +181,12 @@ def expose(rate, times, response: CameraResponse, rng: np.random.Generator, dtyp
 def merge_exposures(dn, times, response: CameraResponse, backend: str = "auto"):
     """Merge bracketed readings into an HDR rate estimate with its noise.
 
+    rate = Σ_j w_j (DN_j − black)·g/t_j / Σ_j w_j and std = 1/√(Σ_j w_j) over the
+    unclipped exposures (DN_j < ``saturation`` × max_dn), with the inverse-variance weights
+    w_j = t_j²/Var(rate₀·t_j) of Granados et al. 2010 evaluated at the
+    time-weighted first estimate rate₀ = Σ_j (DN_j − black)·g / Σ_j t_j (module docstring).
+    Units: ``rate`` in electrons per unit of ``times``.
+
     Parameters
     ----------
     dn : array_like, shape (..., E)
@@ -225,7 +245,7 @@ def _merge_numpy(d, t, response, dtype, sat):
     gain = dtype.type(response.gain)
     black = dtype.type(response.black_level)
     shape = d.shape[1:]
-    # First pass: time-weighted mean of the unclipped estimates (Debevec & Malik weights ∝ t).
+    # First pass: time-weighted mean of the unclipped estimates (weights ∝ t: total electrons over total time).
     num = np.zeros(shape, dtype)
     den = np.zeros(shape, dtype)
     n_used = np.zeros(shape, np.int16)
@@ -258,7 +278,9 @@ def merged_std(rate, times, response: CameraResponse):
     """Expected standard deviation of :func:`merge_exposures` for a true ``rate``.
 
     1/sqrt(Σ_j t_j²/Var_j) over the exposures that do not clip at the expected
-    signal, Var_j = rate·t_j + σ_read² + g²/12.  This is the noise model the
+    signal, Var_j = rate·t_j + σ_read² + g²/12: the standard deviation of the
+    inverse-variance mean of independent estimates (Granados et al. 2010), with the
+    weights at the true rate instead of the merge's first estimate.  This is the noise model the
     translucency fit and the Bayesian posterior use.  An exposure clips as the
     merge decides it: a reading black + e/g at or above ``saturation`` × the full
     scale, i.e. e ≥ (saturation · max_dn − black_level) · g electrons (18,687 e⁻

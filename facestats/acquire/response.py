@@ -6,15 +6,15 @@ E times exposure time Δt).  With g = ln f⁻¹ (Debevec & Malik 1997, §2.1, eq
 
     g(Z_ij) = ln E_i + ln Δt_j.
 
-**Recovery** (:func:`recover_response`, Debevec & Malik 1997 §2.1 eq. 3, with the
-hat weighting of eq. 4 in both terms) minimises, per channel,
+**Recovery** (:func:`recover_response`, Debevec & Malik 1997 §2.1 eq. 5: the objective
+of eq. 3 with the hat weighting of eq. 4 in both terms) minimises, per channel,
 
     O = Σ_ij [w(Z_ij)(g(Z_ij) − ln E_i − ln Δt_j)]² + λ² Σ_z [w(z) g''(z)]²,
 
 with g''(z) = g(z−1) − 2g(z) + g(z+1) and the scale fixed by g(levels/2) = 0
 (g(128) = 0 for 8-bit input).  λ enters as the multiplier of the smoothness rows,
 as in the paper's reference code ``gsolve`` and in OpenCV's ``CalibrateDebevec``
-(λ² in the objective; the paper's eq. 3 writes the same term with its λ = our λ²).
+(λ² in the objective; the paper's eq. 3 and 5 write the same term with its λ = our λ²).
 The unknowns ln E_i are eliminated exactly (Schur complement: each pixel's
 optimal ln E_i is the weighted mean of g(Z_ij) − ln Δt_j), leaving a K × K system
 in g alone, so the solve costs the same for any number of sampled pixels.  For

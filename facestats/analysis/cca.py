@@ -490,7 +490,10 @@ def _oriented(xc, yc, a, b):
 def _direct_p_value(direct, rx, n, plain):
     """F-test p-value of each multiple correlation (exact under normality), NaN where undefined.
 
-    F = (R²/p) / ((1 − R²)/(n − p − 1)) on (p, n − p − 1) degrees of freedom.
+    F = (R²/p) / ((1 − R²)/(n − p − 1)) on (p, n − p − 1) degrees of freedom: the overall F-test of
+    a least-squares regression with intercept on p predictors, whose null distribution under
+    normality is Fisher's (1928, "The general sampling distribution of the multiple correlation
+    coefficient", Proc. R. Soc. A 121).
     """
     from scipy.stats import f as f_dist
 
@@ -504,7 +507,13 @@ def _direct_p_value(direct, rx, n, plain):
 
 
 def _bartlett(r, rx, ry, n, plain):
-    """Bartlett's chi-square approximation to Wilks' lambda per dimension: (Λ, χ², p, df) (NaN unless plain CCA)."""
+    """Bartlett's chi-square approximation to Wilks' lambda per dimension: (Λ, χ², p, df) (NaN unless plain CCA).
+
+    For dimension k (0-based), Λ_k = Π_{i≥k} (1 − r_i²) and −[n − 1 − (p + q + 1)/2] ln Λ_k is
+    approximately χ² on (p − k)(q − k) degrees of freedom under the hypothesis that the canonical
+    correlations from k on are zero (Bartlett 1941, "The statistical significance of canonical
+    correlations", Biometrika 32; Mardia, Kent & Bibby 1979 §10.2).  p = ``rx``, q = ``ry``.
+    """
     from scipy.stats import chi2 as chi2_dist
 
     k = r.size

@@ -16,6 +16,12 @@ The database distributes its Torrance-Sparrow statistics (Weyrich et al. 2006
 ``albedo_subjec``  K' 1-based subject indices
 =================  ======================================================================
 
+Units and convention: m is Beckmann's RMS slope (dimensionless), ρs the scale of Weyrich et
+al. 2006 eq. 12 with the Beckmann D of eq. 13 printed without 1/π, the convention of
+:func:`facestats.model.brdf.torrance_sparrow` (ρs = 1/4 is a surface of Fresnel mirror
+facets), so imported and fitted ρs compare directly; albedo samples are taken as linear RGB
+reflectance, like the store's albedo maps (the file itself does not state an encoding).
+
 Shapes are read liberally: row or column vectors, scalars wrapped in arrays,
 2×K instead of K×2, char arrays ('MFM', a char matrix) or cell arrays of
 strings for the labels.  Values are checked strictly and a
@@ -218,6 +224,8 @@ def _split(subj: np.ndarray, n: int):
 
 def read_merl(path, *, prefix: str = "merl") -> MerlData:
     """Read and check a ``ts_data.mat`` file; sample-subject Datasets, nothing written.
+
+    ρs and m are read in the convention of Weyrich et al. 2006 eq. 12-13 (module docstring).
 
     Parameters
     ----------

@@ -48,6 +48,7 @@ from facestats.model.dipole import (
     dipole_coefficients,
     dipole_radial_energy_unchecked,
     total_from_reduced_albedo_unchecked,
+    transport_coefficient,
 )
 from facestats.model.fresnel import fresnel_reflectance_unchecked
 
@@ -301,9 +302,17 @@ class SubsurfaceTransport:
 
     # -- construction -------------------------------------------------------------
     def _default_radius(self):
+        """The neighbourhood radius (mm) when none is given (class docstring).
+
+        The radius where the most translucent channel (least σtr, Weyrich eq. 15) has
+        delivered 1 − ``tail`` of its total diffuse reflectance (eq. 16), by the closed-form
+        radial energy of the dipole (:func:`facestats.model.dipole.dipole_radial_energy`),
+        capped at the radius of a disk holding about ``max_neighbors`` samples of the
+        median spacing √(median area), and at least that spacing.
+        """
         from scipy.optimize import brentq
 
-        sigma_tr = np.sqrt(3 * self.sigma_a * (self.sigma_a + self.sigma_s_prime))
+        sigma_tr = transport_coefficient(self.sigma_a, self.sigma_s_prime)
         c = int(np.argmin(sigma_tr))  # most translucent channel
         args = (self.sigma_s_prime[c], self.sigma_a[c], self.eta)
         target = (1 - self.tail) * self.total_reflectance[c]
@@ -313,6 +322,18 @@ class SubsurfaceTransport:
         return float(min(r_energy, max(r_cap, spacing)))
 
     def _build(self):
+        """The three per-channel sparse quadratures of eq. 6 (Weyrich et al. 2006; class docstring).
+
+        For output sample o and neighbour i at distance r (mm) the weight is the mean of the dipole
+        R_d (Jensen et al. 2001; Suzuki eq. 3-13) over the annulus r ± w/2 (w = √A_i, mm), from the
+        closed-form radial energy E(ρ) = 2π∫₀^ρ r R_d dr, times A_i (mm²):
+        w_oi = [E(r_out) − E(r_in)] / (π (r_out² − r_in²)) · A_i, dimensionless.  Each row is then
+        rescaled so that its neighbours carry exactly E(radius) − E(foot), the ring between the
+        sample's footprint disk (radius √(A_o/π)) and ``radius``; the diagonal holds E(foot), the
+        tail R_total − E(radius) (eq. 16) and, for a sample with no neighbour, the ring's energy too.
+        So every row sums to the total diffuse reflectance: a uniformly lit flat patch conserves
+        energy whatever the sampling (tested).
+        """
         from scipy import sparse
 
         n = self.positions.shape[0]

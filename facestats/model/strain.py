@@ -130,7 +130,13 @@ def _rot(angle):
 
 
 def _sqrt_spd2(b):
-    """Square root of symmetric positive definite 2 × 2 matrices: (B + √det I)/√(tr B + 2√det)."""
+    """Square root of symmetric positive definite 2 × 2 matrices: (B + √det I)/√(tr B + 2√det).
+
+    The closed form of Levinger 1980 ("The square root of a 2 × 2 matrix", Math. Mag. 53(4)): for
+    S = √B, Cayley-Hamilton gives S² − tr(S) S + det(S) I = 0, i.e. B + √det(B) I = tr(S) S, and
+    tr(S)² = tr(S²) + 2 det(S) = tr(B) + 2√det(B).  Used for M = (QQᵀ)^½ of Nagano et al. 2015
+    eq. 13.
+    """
     sdet = np.sqrt(np.maximum(b[..., 0, 0] * b[..., 1, 1] - b[..., 0, 1] * b[..., 1, 0], 0.0))
     t = np.sqrt(np.maximum(b[..., 0, 0] + b[..., 1, 1] + 2 * sdet, 1e-300))
     out = b.copy()

@@ -17,7 +17,11 @@ __all__ = ["exposure_scale"]
 
 
 def exposure_scale(image, mask=None, *, percentile: float = 99.0, target: float = 0.9) -> float:
-    """Scale factor s so that the ``percentile`` of luminance over ``mask`` becomes ``target`` (1 for black images)."""
+    """Scale factor s so that the ``percentile`` of luminance over ``mask`` becomes ``target`` (1 for black images).
+
+    ``image`` is linear radiance (not sRGB-encoded), shape (..., ≥3); its "luminance" here is the plain
+    mean of R, G and B, not Rec. 709 Y: a scale for a preview, the same for any channel balance.
+    """
     img = as_finite(image, "image", dtype=np.float64)
     p = float(as_finite(percentile, "percentile", 0, 100))
     t = float(as_finite(target, "target", 0, 1, low_inclusive=False))

@@ -25,6 +25,14 @@ __all__ = ["lambertian_fit", "rank_weights", "photometric_stereo", "angular_erro
 def lambertian_fit(values, directions, weights):
     """Per-pixel weighted least squares of a Lambertian lobe: values ≈ g·l over the weighted lights.
 
+    Woodham 1980 (photometric stereo, "Photometric method for determining surface orientation
+    from multiple images", Opt. Eng. 19(1)): with R = ρ/π N·l for every lit sample, g = ρ/π N
+    solves the normal equations (Σ w l lᵀ) g = Σ w R l (three or more lights not in one plane),
+    so N = g/‖g‖ and ρ = π‖g‖.  Radiometric convention: ``values`` are radiance per unit
+    irradiance (sr⁻¹), so a white Lambertian surface gives 1/π at normal incidence.  The
+    channels share the normal of their sum (an equal-weight R + G + B, not a photometric
+    luminance).
+
     Parameters
     ----------
     values : array_like, shape (L, N) or (L, N, 3)
@@ -67,7 +75,12 @@ def lambertian_fit(values, directions, weights):
 def rank_weights(luminance, dark: float = 0.25, bright: float = 0.1):
     """Weights (L, N) that keep, per pixel, the samples between the ``dark`` and 1 − ``bright`` rank fractions.
 
-    Samples of zero luminance are always dropped.  ``dark`` + ``bright`` < 1.
+    A trimmed least squares by rank, facestats' own rule (no paper's): the darkest samples of a
+    pixel are the likeliest to be attached or cast shadows and the brightest to be highlights,
+    whatever the pixel's albedo, the two kinds of sample photometric stereo must leave out
+    (Barsky & Petrou 2003 detect them by other means).  ``luminance`` is any brightness that
+    orders the samples (callers pass R + G + B).  Samples of zero luminance are always dropped.
+    ``dark`` + ``bright`` < 1.
     """
     lum = np.asarray(luminance, np.float64)
     d = float(as_finite(dark, "dark", 0, 1, high_inclusive=False))
@@ -82,6 +95,9 @@ def rank_weights(luminance, dark: float = 0.25, bright: float = 0.1):
 
 def photometric_stereo(field, *, dark: float = 0.25, bright: float = 0.1, mask=None):
     """Normals and albedo of every pixel of a reflectance field by robust Lambertian least squares.
+
+    Woodham 1980's photometric stereo (:func:`lambertian_fit`) over the samples that
+    :func:`rank_weights` keeps (ranked by R + G + B).
 
     Parameters
     ----------

@@ -167,7 +167,8 @@ def diffuse_chromaticity(values, low: float = 25.0, high: float = 75.0, use=None
 
     "the median of the red-green and green-blue ratios over reflectance function
     values falling in a certain brightness range".  The paper does not give the
-    range; facestats takes the samples whose luminance lies between the
+    range; facestats takes the samples whose luminance (the plain sum R + G + B of the
+    linear values) lies between the
     ``low`` and ``high`` percentiles of the function's lit (non-zero) samples —
     a range relative to the function itself that excludes shadows and noise
     below and the specular lobe above whatever its height (a range relative to
@@ -369,7 +370,10 @@ def separate_field(field, s=WHITE, *, view=None, ramp: bool = True, mirror_deg: 
 
 
 def _lit(r, shadow_threshold):
-    """Samples whose luminance reaches ``shadow_threshold`` × the pixel's maximum (§4.4), r (L, N, 3) → (L, N)."""
+    """Samples whose luminance (R + G + B) reaches ``shadow_threshold`` × the pixel's maximum (§4.4).
+
+    r (L, N, 3) → (L, N).
+    """
     lum = r.sum(-1)
     return lum >= shadow_threshold * lum.max(0)
 

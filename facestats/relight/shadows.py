@@ -2,7 +2,8 @@
 
 "since the geometry is incomplete we instead compute the shadow map using
 brightness thresholding on the original reflectance function": a light is
-*lit* for a pixel when the function's luminance there exceeds ``threshold``
+*lit* for a pixel when the function's luminance (here the plain sum R + G + B of the
+linear values, not a photometric Y) there exceeds ``threshold``
 times the function's maximum (a per-pixel relative threshold, so dark skin and
 bright skin are treated alike).  On a lat-long light grid the binary map is
 then cleaned morphologically — an opening removes isolated lit samples

@@ -24,7 +24,7 @@ happened in between — the property that makes resumed sessions byte-identical.
 
 **Sensor frames** (:class:`SensorScene`).  The dipole profile R(r) of each site's
 (σ's, σa) at the fibre distances (:func:`facestats.model.dipole.dipole_profile`,
-Jensen et al. 2001 eq. 4-5 as used by Weyrich et al. 2006 §5.4), imaged as the
+Jensen et al. 2001's dipole in Suzuki et al.'s notation, eq. 3-13, as used by Weyrich et al. 2006 §5.4), imaged as the
 round spots of :class:`facestats.acquire.devices.sensor.FiberLayout`: every
 pixel of fibre k's spot collects ``scale`` × R(r_k) electrons per second
 (:class:`facestats.acquire.sensor.ContactSensor`), read by the sensor's linear

@@ -8,6 +8,14 @@
   steps (of the block's largest τ) are discarded and the chain is thinned by
   ⌊τ/2⌋ (:func:`block_chain`).  The effective sample size is
   n_walkers · (steps − burn-in)/τ.
+
+Sources: the affine-invariant ensemble sampler of Goodman & Weare 2010 (Comm. App. Math. Comp.
+Sci. 5(1)) as implemented by emcee (Foreman-Mackey et al. 2013, PASP 125); τ by Sokal's
+automatic windowing (Sokal 1997, "Monte Carlo methods in statistical mechanics", §3), as in
+:func:`emcee.autocorr.integrated_time`.  A chain of length N then holds about N/τ independent
+samples per walker (Sokal 1997 §3), hence the effective sample size above.  The rules "at least
+``min_tau`` τ long", "burn-in of a few τ" and "thin by about τ/2" follow emcee's documentation
+(autocorrelation analysis); they are conventions, not derived bounds.
 """
 
 from __future__ import annotations

@@ -12,6 +12,9 @@ l ≈ W r with W_j = Σ_k c_k A_k w_jk (eq. 29-34).
 
 Conventions and choices (stated once here, used by every function):
 
+* **Source typos.**  Eq. 14 as printed sums over j (Σ_{j=1}^m) a summand indexed by k; the sum
+  runs over the source patches k (j is the output patch on the left).  Eq. 33 lists W's rows
+  as 1, ⋮, 2, ⋮, m; row j is Σ_k c_k w_jk (eq. 32), one row per visible patch in order.
 * **Patch area.**  Suzuki eq. 14 sums R(d_jk) times the per-area integral c_k of
   eq. 16; R has units mm⁻² (exitance per unit incident flux per unit area), so the
   sum is the quadrature of ∫ R(‖x_o − x_i‖) E(x_i) dA(x_i) and each term carries

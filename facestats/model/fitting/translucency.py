@@ -153,7 +153,14 @@ class _Profiles:
         return self.cost(*self.to_coeffs(u, v))
 
     def far_field_decay(self):
-        """σtr estimate per profile: the slope of ln R + 2 ln r against r over the clear readings beyond 1.5 mm."""
+        """σtr estimate per profile: the slope of ln R + 2 ln r against r over the clear readings beyond 1.5 mm.
+
+        Far from the source (r ≫ z_v) both terms of the dipole profile (Jensen et al. 2001; Suzuki
+        eq. 3) tend to R_d ≈ α'/(4π) (z_r + z_v) σtr (1 + 1/(σtr r)) e^(−σtr r)/r², so ln R + 2 ln r
+        falls with slope −σtr, plus the slowly varying ln(1 + 1/(σtr r)), which makes the slope read
+        σtr somewhat low where σtr r is near 1.  Only a starting point for the fit; r in mm, σtr in
+        mm⁻¹; 1.0 where fewer than three readings qualify or the slope is not negative.
+        """
         p, rr, use = self.p, self.r, self.use
         with np.errstate(invalid="ignore", divide="ignore"):
             snr = np.where(use, p / self.snr_scale, 0)

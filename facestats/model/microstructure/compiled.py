@@ -71,6 +71,17 @@ def _numpy_tap(src, island, label, rows, cols, off_u, off_v, bias):
 
 
 def _convolve_pass_numpy(src, out, au, av, alpha, sigma_um, texel_um, island, truncate):
+    """The numpy twin of the compiled pass: Nagano et al. 2015 eq. 3 / 5 with the kernel of eq. 6.
+
+    At each texel, out = (1 − α) src + α Σ_i g_i src(x + i·a) / Σ_i g_i over the taps i = −R..R
+    along the texel's unit axis a (texels), g_i = exp(−i²/(2 s²)), s = σ/texel (σ and the texel
+    size in µm, so s in texels), R = ceil(``truncate`` · s); each side stops at its first tap whose
+    bilinear footprint leaves the map or the island, and the Gaussian is normalised over the taps
+    used (eq. 6's G is a normalised discrete Gaussian; near an edge, over what stays inside).
+    g_i is built by the recursion g_i = g_{i−1} q^(2i−1), q = exp(−1/(2 s²)), the same products in
+    the same order as the compiled kernel.  Loops over tap offsets, vectorised over texels;
+    arguments as :func:`convolve_pass`.
+    """
     h, w = src.shape
     rows, cols = (i.reshape(-1) for i in np.indices((h, w)))
     a = alpha.reshape(-1).astype(np.float64)
@@ -370,7 +381,11 @@ def convolve_pass(src, out, au, av, alpha, sigma_um, texel_um, island, reach, *,
 
 # -- histogram total variation for many alphas ---------------------------------------------------
 def _bins_numpy(gx, gy, lo, scale, nb):
-    """Flat 2-D bin of each slope sample's tangent-space normal (n_u, n_v), clipped to the grid."""
+    """Flat 2-D bin of each slope sample's tangent-space normal (n_u, n_v), clipped to the grid.
+
+    The normal of a height field of slopes (g_x, g_y) is (−g_x, −g_y, 1)/√(1 + g_x² + g_y²); its
+    (n_u, n_v) components are binned as in :func:`histogram_tv` (the histograms of eq. 7).
+    """
     inv = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy)
     bu = np.clip(np.floor((-gx * inv - lo) * scale), 0, nb - 1).astype(np.int64)
     bv = np.clip(np.floor((-gy * inv - lo) * scale), 0, nb - 1).astype(np.int64)
@@ -378,6 +393,7 @@ def _bins_numpy(gx, gy, lo, scale, nb):
 
 
 def _histogram_tv_numpy(g0x, g0y, dgx, dgy, alphas, target, lo, scale, nb):
+    """The numpy twin of the compiled :func:`histogram_tv`: Nagano et al. 2015 eq. 7 per candidate α."""
     n = g0x.size
     tv = np.empty(len(alphas))
     for k, a in enumerate(alphas):  # loop over candidates, vectorised over texels

@@ -376,7 +376,11 @@ def bench_parts(size=256, n_theta=64, n_phi=32, parts=(1, 2, 3, 4), seeds=(0, 1,
 
 
 def bench_separation(
-    size=7, lobes=(0.2, 0.3, 0.35, 0.4, 0.5), mirrors=(45.0, 60.0), views=((0, 0, 1), (0.5, 0, 0.866))
+    size=7,
+    lobes=(0.2, 0.3, 0.35, 0.4, 0.5),
+    mirrors=(45.0, 60.0),
+    views=((0, 0, 1), (0.5, 0, 0.866)),
+    noises=(0.01, 0.02, 0.05),
 ):
     """Accuracy of ``separate_field``'s ρs on Lambertian + Torrance-Sparrow spheres (what ``mirror_deg``'s default is
     chosen from, D3 of ``docs/relighting.md``).
@@ -384,6 +388,9 @@ def bench_separation(
     Median relative error over the sphere's pixels, %, for Beckmann m in ``lobes``: data without a ramp ("flat")
     and with the ramp (α₀, α₁) = (−0.05, −0.3), separated with the ramp fitted ("on") and without it ("off"), at
     each ``mirror_deg`` in ``mirrors``; printed as a table, returned keyed ``view/m/data/fit/mirror``.
+
+    Then noise (D4): flat data, head-on, with relative Gaussian noise of each level in ``noises`` per sample and
+    channel, separated with the defaults; the median error of ρs, keyed ``noise/m/level``.
     """
     from facestats.relight.separate import separate_field
     from tests.relight.fields import ts_lambert_field
@@ -406,6 +413,16 @@ def bench_separation(
                 out[f"{','.join(f'{c:g}' for c in view)}/m{lobe:g}/{data}/{fit}/{mirror:g}"] = err
                 row.append(err)
             print(f"{str(view):>16} {lobe:5.2f} " + " ".join(f"{e:+13.1f}%" for e in row))
+    print(f"\nnoise (flat data, head-on, defaults): median error of rho_s, %\n{'m':>5} "
+          + " ".join(f"{f'{100 * n:g} %':>8}" for n in noises))  # fmt: skip
+    for lobe in lobes:
+        for level in noises:
+            f, spec, _ = ts_lambert_field(size, size, albedo=skin, rho_s=0.25, m=lobe, noise=level)
+            truth = (spec * f["solid_angle"].values[..., None, None]).sum((0, 1))
+            mask = f["mask"].values & (truth > 0)
+            rho_s = separate_field(f, [1, 1, 1])["rho_s"].values
+            out[f"noise/m{lobe:g}/{level:g}"] = round(100 * float(np.median(rho_s[mask] / truth[mask] - 1)), 1)
+        print(f"{lobe:5.2f} " + " ".join(f"{out[f'noise/m{lobe:g}/{level:g}']:+7.1f}%" for level in noises))
     return out
 
 
@@ -436,5 +453,5 @@ SMOKE = {
     "cluster_density": {**_TINY_SWEEP, "pixels_per_cluster": (64, 16), "seeds": (0, 1)},
     "region_floor": {**_TINY_SWEEP, "floors": (0.2, 1.0), "seeds": (0,)},
     "parts": {**_TINY_SWEEP, "parts": (1, 2), "seeds": (0,)},
-    "separation": {"size": 4, "lobes": (0.35,), "views": ((0, 0, 1),)},
+    "separation": {"size": 4, "lobes": (0.35,), "views": ((0, 0, 1),), "noises": (0.02,)},
 }

@@ -32,11 +32,13 @@ def lambertian_field(h=6, w=6, albedo=(0.6, 0.4, 0.3), n_theta=64, n_phi=32):
 
 
 def ts_lambert_field(h=6, w=6, albedo=(0.5, 0.3, 0.2), rho_s=0.3, m=0.35, n_theta=64, n_phi=32, view=(0, 0, 1),
-                     ramp=None):  # fmt: skip
+                     ramp=None, noise=0.0, seed=0):  # fmt: skip
     """Lambertian diffuse of colour ``albedo`` plus a white Torrance-Sparrow lobe, per unit L·δA.
 
     ``ramp`` = (α₀, α₁): the diffuse colour follows Debevec et al. 2000 eq. 6-7 with d₀ the albedo's colour
-    (each sample keeps the Lambertian diffuse's RGB length).
+    (each sample keeps the Lambertian diffuse's RGB length).  ``noise``: relative Gaussian noise of that
+    standard deviation on every sample and channel (seeded by ``seed``), clipped at 0; the returned
+    specular and diffuse parts are the noise-free truth.
     """
     d, _ = light_stage_directions(n_theta, n_phi)
     n, inside = sphere_normals(h, w)
@@ -49,4 +51,6 @@ def ts_lambert_field(h=6, w=6, albedo=(0.5, 0.3, 0.2), rho_s=0.3, m=0.35, n_thet
         colour = ramp_chromaticity(np.broadcast_to(unit_rgb(albedo), f.shape + (3,)), WHITE, f)
         diff = np.linalg.norm(diff, axis=-1, keepdims=True) * colour
     vals = diff + spec[..., None] / np.sqrt(3) * np.sqrt(3)  # white light: equal in R, G, B
+    if noise:
+        vals = np.clip(vals * (1 + noise * np.random.default_rng(seed).standard_normal(vals.shape)), 0, None)
     return make_field(vals, d, mask=inside, view=v, normal=n), spec, diff

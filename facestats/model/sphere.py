@@ -160,6 +160,31 @@ def latlong_coordinates(directions, height: int, width: int):
     return h * phi / np.pi - 0.5, w * (theta + np.pi) / (2 * np.pi) - 0.5
 
 
+def _unit_scale(img):
+    """``(img · 2⁻ᵏ, 2ᵏ)`` with 2ᵏ the power of two at or below the largest value (1 for a black probe).
+
+    Light sampling works on the scaled probe and multiplies its powers by 2ᵏ last: a power of two
+    scales every sum and product exactly, so ordinary probes give the same bits, while a probe of
+    values near the float64 maximum no longer overflows in its sums (it gave inf, or directions
+    of zero length).
+    """
+    top = float(img.max(initial=0.0))
+    scale = 2.0 ** np.floor(np.log2(top)) if top > 0 else 1.0
+    return img / scale, scale
+
+
+def _unscaled_power(power, scale):
+    """Σ L δΩ times the probe's scale (:func:`_unit_scale`), refused where it leaves the float64 range."""
+    with np.errstate(over="ignore"):
+        out = power * scale
+    if not np.all(np.isfinite(out)):
+        raise ValidationError(
+            "probe: the power of its lights, Σ L δΩ, exceeds the float64 range "
+            f"(its largest value is {scale:.3g} or more); scale the probe down"
+        )
+    return out
+
+
 def latlong_light_samples(probe, rows: int, columns: int):
     """A lat-long probe as ``rows`` × ``columns`` directional lights: direction and Σ L δΩ per block of pixels.
 
@@ -196,6 +221,7 @@ def latlong_light_samples(probe, rows: int, columns: int):
     c = check_integer(columns, "columns", 1)
     if h % r or w % c:
         raise ValidationError(f"rows x columns {r} x {c} must divide the probe size {h} x {w}")
+    img, scale = _unit_scale(img)
     dw = latlong_solid_angles(h, w)
     blocks = (r, h // r, c, w // c)
     power = (img * dw[..., None]).reshape(*blocks, 3).sum(axis=(1, 3)).reshape(-1, 3)
@@ -211,7 +237,7 @@ def latlong_light_samples(probe, rows: int, columns: int):
             f"rows x columns {r} x {c} make blocks that span opposite directions (no direction to light from): "
             "use at least 2 x 2"
         )
-    return d / np.linalg.norm(d, axis=1, keepdims=True), power
+    return d / np.linalg.norm(d, axis=1, keepdims=True), _unscaled_power(power, scale)
 
 
 def median_cut_light_samples(probe, lights: int):
@@ -251,6 +277,7 @@ def median_cut_light_samples(probe, lights: int):
     if w != 2 * h:
         raise ValidationError(f"probe must be a lat-long map of width 2 x height, got {h} x {w} (H x W)")
     n = check_integer(lights, "lights", 2)
+    img, scale = _unit_scale(img)
     dw = latlong_solid_angles(h, w)
     energy = img.sum(-1) * dw
     regions = [(0, h, 0, w)]  # rows [r0, r1), columns [c0, c1)
@@ -273,7 +300,7 @@ def median_cut_light_samples(probe, lights: int):
             v = (dirs[r0:r1, c0:c1] * dw[r0:r1, c0:c1, None]).sum((0, 1))
         d.append(v / np.linalg.norm(v))
         power.append((img[r0:r1, c0:c1] * dw[r0:r1, c0:c1, None]).sum((0, 1)))
-    return np.array(d), np.array(power)
+    return np.array(d), _unscaled_power(np.array(power), scale)
 
 
 def _median_cut(region, energy, h, w):

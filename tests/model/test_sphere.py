@@ -157,6 +157,22 @@ def test_median_cut_conserves_power_and_gives_pi_l_irradiance():
         np.testing.assert_allclose(np.clip(d @ np.array(n), 0, None) @ power, np.pi * L, rtol=0.01)
 
 
+@pytest.mark.parametrize("level", [1e307, 1e-300])
+def test_light_samples_of_probes_near_the_float_limits(level, rng):
+    """Probes near the float64 maximum gave lights of zero-length direction (their sums overflowed); both
+    samplers now work on the probe scaled by a power of two, which keeps every other probe's bits."""
+    probe = rng.uniform(0.5, 1.5, (8, 16, 3))
+    for sample, args in ((sphere.median_cut_light_samples, (8,)), (sphere.latlong_light_samples, (4, 8))):
+        ref_dirs, ref_power = sample(probe, *args)
+        dirs, power = sample(probe * level, *args)
+        assert np.allclose(np.linalg.norm(dirs, axis=1), 1, atol=1e-12) and np.allclose(dirs, ref_dirs, atol=1e-12)
+        assert np.allclose(power, ref_power * level, rtol=1e-12)
+        scaled_dirs, scaled_power = sample(probe * 2.0**40, *args)  # a power of two: the same bits
+        assert np.array_equal(scaled_dirs, ref_dirs) and np.array_equal(scaled_power, ref_power * 2.0**40)
+    with pytest.raises(ValidationError, match="float64 range"):  # the lights' power itself is not representable
+        sphere.median_cut_light_samples(np.full((8, 16, 3), 1.7e308), 8)
+
+
 def test_median_cut_gives_a_light_to_each_pixel_when_there_are_enough():
     """More lights than pixels: every pixel becomes its own light, at its centre: the exact irradiance."""
     probe = np.random.default_rng(3).uniform(0, 2, (4, 8, 3))

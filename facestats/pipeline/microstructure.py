@@ -30,10 +30,11 @@ each finished frame whose files there are missing or from another render (only
 the headers are read); a folder holding frame files beyond the sequence is
 refused.
 
-Tiling: the window is processed in tiles of ``tile`` texels with a halo of
-2 (⌈3 · 100 µm / smallest rest texel⌉ + 2) + 2 texels (the reach of both passes
-at the largest σ of the tables), so any map size runs in bounded memory and the
-result does not depend on the tiling.
+Tiling: the window is processed in tiles of ``tile`` texels, each with a halo of
+the reach of both passes at the largest σ of the tables, ⌈3 · 100 µm / smallest
+rest texel⌉ + 2 texels each, the smallest texel taken around the tile
+(:func:`tile_halo`), so any map size runs in bounded memory and the result does
+not depend on the tiling.
 """
 
 from __future__ import annotations
@@ -94,13 +95,45 @@ class SequenceReport:
         )
 
 
-def tile_halo(mesh_strain: MeshStrain, map_shape) -> int:
-    """Halo (texels) around a tile so that both passes at σ = 100 µm see only real neighbours (module docstring)."""
+def tile_halo(mesh_strain: MeshStrain, map_shape, tile=None) -> int:
+    """Halo (texels) around ``tile`` so that both passes at σ = 100 µm see only real neighbours (module docstring).
+
+    ``tile`` = (row0, col0, height, width) in the map of ``map_shape`` = (H, W) texels, default the whole map.
+    A texel's rest metric is the barycentric mix of its triangle's three UV-vertex metrics M
+    (:meth:`MeshStrain.texels_strain`), so its texels per mm along any axis are at most the largest
+    ‖diag(W, H) M‖₂ of those vertices (the norm is convex): the reach of one pass over a region, in texels,
+    is ⌈3 · 100 µm / smallest texel⌉ + 2 over the UV vertices of the triangles whose UV box meets the region.
+    The first pass must be right over the tile widened by the second pass's reach, hence the halo
+    = reach(tile) + reach(tile widened by reach(tile)) + 2.  Before 2026-12-06 one halo served every tile,
+    from the smallest texel of the whole mesh: ICT-FaceKit's at 16K has a triangle of 0.31 µm texels, so
+    every 512-texel tile of a face window grew by 1,940 texels a side (a 2,048² window took 88 s a frame).
+    """
     h, w = map_shape
-    m = mesh_strain.m[~mesh_strain.rest_degenerate] * np.array([w, h], float)[None, :, None]  # diag(W, H) M
-    largest = float(np.max(np.linalg.norm(m, ord=2, axis=(1, 2)))) if len(m) else 1.0  # texels per mm, worst axis
-    smallest_texel_um = 1000.0 / largest
-    return 2 * (int(np.ceil(TRUNCATE * SIGMA_RANGE_UM[1] / smallest_texel_um)) + 2) + 2
+    region = (0, 0, h, w) if tile is None else tuple(int(x) for x in tile)
+    first = _reach(mesh_strain, map_shape, region)
+    r0, c0, th, tw = region
+    band = (r0 - first, c0 - first, th + 2 * first, tw + 2 * first)
+    return first + _reach(mesh_strain, map_shape, band) + 2
+
+
+def _reach(mesh_strain: MeshStrain, map_shape, region) -> int:
+    """Texels one pass at the largest σ reaches from any texel of ``region`` (:func:`tile_halo`)."""
+    h, w = map_shape
+    r0, c0, rh, rw = region
+    x = mesh_strain.uv_corners[..., 0] * w  # texel coordinates of the triangles' corners (columns, rows)
+    y = mesh_strain.uv_corners[..., 1] * h
+    meets = (
+        ~mesh_strain.rest_degenerate
+        & (x.max(1) >= c0 - 1)
+        & (x.min(1) <= c0 + rw + 1)
+        & (y.max(1) >= r0 - 1)
+        & (y.min(1) <= r0 + rh + 1)
+    )
+    corners = np.unique(mesh_strain.uv_triangles[meets])
+    m = mesh_strain.vertex_m[corners] * np.array([w, h], float)[None, :, None]  # diag(W, H) M
+    norms = np.linalg.norm(np.nan_to_num(m), ord=2, axis=(1, 2)) if len(m) else np.zeros(1)
+    largest = float(np.max(norms))  # texels per mm along the worst axis
+    return int(np.ceil(TRUNCATE * SIGMA_RANGE_UM[1] * largest / 1000.0)) + 2
 
 
 #: A generated map whose recorded texel size differs from the mesh's by more than this factor is refused.
@@ -319,10 +352,11 @@ def _tiles(window, tile):
             yield tr, tc, min(tile, h - tr), min(tile, w - tc)
 
 
-def _render_frame(ms, vertices, neutral, map_shape, window, table, tile, halo, backend, group, index):
+def _render_frame(ms, vertices, neutral, map_shape, window, table, tile, halos, backend, group, index):
     r0, c0, h, w = window
     stats = []
     for tr, tc, th, tw in _tiles(window, tile):
+        halo = halos[tr, tc]
         er0, ec0 = max(0, r0 + tr - halo), max(0, c0 + tc - halo)
         er1, ec1 = min(map_shape[0], r0 + tr + th + halo), min(map_shape[1], c0 + tc + tw + halo)
         # The expanded tile, clipped to the window (the neutral map covers only the window).
@@ -475,7 +509,10 @@ def render_sequence(
     config = _config(sequence, neutral, map_shape, window, table, names)
     group = _open_group(out, config, n, window, tile, overwrite)
     render_id = hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()
-    halo = tile_halo(ms, map_shape)
+    halos = {  # per tile, the same for every frame (the rest mesh decides them)
+        (tr, tc): tile_halo(ms, map_shape, (window[0] + tr, window[1] + tc, th, tw))
+        for tr, tc, th, tw in _tiles(window, tile)
+    }
     report = SequenceReport(os.fspath(out), n, map_shape=map_shape, window=window)
     done = np.asarray(group["done"][:])
     start = time.perf_counter()
@@ -486,7 +523,7 @@ def render_sequence(
             report.skipped.append(i)
         else:
             vertices = sequence.frame(i)
-            _render_frame(ms, vertices, neutral, map_shape, window, table, tile, halo, backend, group, i)
+            _render_frame(ms, vertices, neutral, map_shape, window, table, tile, halos, backend, group, i)
             report.rendered.append(i)
         if exr is not None and not (done[i] and _exr_current(exr, i, render_id)):
             _write_exr(group, i, exr, names[i], render_id)

@@ -34,6 +34,33 @@ def neutral_map():
     return procedural_microstructure((WINDOW[2], WINDOW[3]), 15.0, seed=4)
 
 
+def test_tile_halos_bound_the_reach_of_both_passes_near_each_tile(smile):
+    """Each tile's halo covers both passes at σ = 100 µm over the texels around it, and no more than needed
+    far from the mesh's smallest texels (one halo for the whole mesh made a 2,048² window 8x slower)."""
+    from facestats.model.microstructure.kernel import SIGMA_RANGE_UM, TRUNCATE
+    from facestats.model.strain import MeshStrain
+    from facestats.pipeline.microstructure import tile_halo
+
+    face = smile.neutral
+    ms = MeshStrain(face.vertices, face.triangles, face.uv, face.uv_triangles)
+
+    def reach(region):  # texels one pass reads from the region's texels (taps plus the bilinear footprint)
+        strain = ms.texels_strain(ms.rest, MAP, region)
+        ok = strain.valid
+        smallest = min(strain.texel_um_s[ok].min(), strain.texel_um_t[ok].min())  # µm per texel step, both axes
+        return int(np.ceil(TRUNCATE * SIGMA_RANGE_UM[1] / smallest)) + 2
+
+    whole = tile_halo(ms, MAP)
+    for tile in [(9050, 4200, 64, 64), (9046, 6077, 512, 512), (9558, 7101, 512, 512)]:
+        halo = tile_halo(ms, MAP, tile)
+        r0, c0, h, w = tile
+        first = reach(tile)  # the second pass at the tile's texels reads first-pass values this far away
+        second = reach((r0 - first, c0 - first, h + 2 * first, w + 2 * first))  # which read the map this far
+        assert halo >= first + second + 2
+        assert halo <= whole
+    assert tile_halo(ms, MAP, (9558, 7101, 512, 512)) < whole / 5  # far from the small texels: 66 against 680
+
+
 class _Interrupt(Exception):
     pass
 

@@ -160,16 +160,24 @@ def latlong_coordinates(directions, height: int, width: int):
     return h * phi / np.pi - 0.5, w * (theta + np.pi) / (2 * np.pi) - 0.5
 
 
+#: Probes whose largest value is above this, or below its inverse, are scaled before light sampling
+#: (:func:`_unit_scale`).
+_SCALE_ABOVE = 2.0**960
+
+
 def _unit_scale(img):
-    """``(img · 2⁻ᵏ, 2ᵏ)`` with 2ᵏ the power of two at or below the largest value (1 for a black probe).
+    """``(img · 2⁻ᵏ, 2ᵏ)``: a probe whose largest value is above 2⁹⁶⁰ or below 2⁻⁹⁶⁰ scaled into [0.5, 1).
 
     Light sampling works on the scaled probe and multiplies its powers by 2ᵏ last: a power of two
-    scales every sum and product exactly, so ordinary probes give the same bits, while a probe of
-    values near the float64 maximum no longer overflows in its sums (it gave inf, or directions
-    of zero length).
+    scales every sum and product exactly.  A probe of values near the float64 maximum no longer
+    overflows in its sums (it gave inf, or directions of zero length), nor does a very dim one
+    underflow in the norms of its directions.  Other probes are not scaled (k = 0), so they keep
+    their bits, and their dim pixels are not pushed into subnormals.
     """
     top = float(img.max(initial=0.0))
-    scale = 2.0 ** np.floor(np.log2(top)) if top > 0 else 1.0
+    if not (top > _SCALE_ABOVE or 0 < top < 1 / _SCALE_ABOVE):
+        return img, 1.0
+    scale = float(np.ldexp(1.0, int(np.frexp(top)[1]) - 1))  # top = f · 2ᵉ, f in [0.5, 1): 2ᵉ⁻¹ ≤ top, finite
     return img / scale, scale
 
 

@@ -101,39 +101,57 @@ def tile_halo(mesh_strain: MeshStrain, map_shape, tile=None) -> int:
     ``tile`` = (row0, col0, height, width) in the map of ``map_shape`` = (H, W) texels, default the whole map.
     A texel's rest metric is the barycentric mix of its triangle's three UV-vertex metrics M
     (:meth:`MeshStrain.texels_strain`), so its texels per mm along any axis are at most the largest
-    ‖diag(W, H) M‖₂ of those vertices (the norm is convex): the reach of one pass over a region, in texels,
-    is ⌈3 · 100 µm / smallest texel⌉ + 2 over the UV vertices of the triangles whose UV box meets the region.
-    The first pass must be right over the tile widened by the second pass's reach, hence the halo
+    ‖diag(W, H) M‖₂ of those vertices (the norm is convex).  The reach of one pass over a region, in texels,
+    is ⌈3 · 100 µm / smallest texel⌉ + 2, the smallest texel taken over the triangles whose UV box meets
+    the cells of :data:`HALO_CELL` texels that the region touches (:class:`_TexelDensity`).  The first
+    pass must be right over the tile widened by the second pass's reach, hence the halo
     = reach(tile) + reach(tile widened by reach(tile)) + 2.  Before 2026-12-06 one halo served every tile,
     from the smallest texel of the whole mesh: ICT-FaceKit's at 16K has a triangle of 0.31 µm texels, so
     every 512-texel tile of a face window grew by 1,940 texels a side (a 2,048² window took 88 s a frame).
     """
     h, w = map_shape
-    region = (0, 0, h, w) if tile is None else tuple(int(x) for x in tile)
-    first = _reach(mesh_strain, map_shape, region)
-    r0, c0, th, tw = region
-    band = (r0 - first, c0 - first, th + 2 * first, tw + 2 * first)
-    return first + _reach(mesh_strain, map_shape, band) + 2
+    return _TexelDensity(mesh_strain, map_shape).halo((0, 0, h, w) if tile is None else tile)
 
 
-def _reach(mesh_strain: MeshStrain, map_shape, region) -> int:
-    """Texels one pass at the largest σ reaches from any texel of ``region`` (:func:`tile_halo`)."""
-    h, w = map_shape
-    r0, c0, rh, rw = region
-    x = mesh_strain.uv_corners[..., 0] * w  # texel coordinates of the triangles' corners (columns, rows)
-    y = mesh_strain.uv_corners[..., 1] * h
-    meets = (
-        ~mesh_strain.rest_degenerate
-        & (x.max(1) >= c0 - 1)
-        & (x.min(1) <= c0 + rw + 1)
-        & (y.max(1) >= r0 - 1)
-        & (y.min(1) <= r0 + rh + 1)
-    )
-    corners = np.unique(mesh_strain.uv_triangles[meets])
-    m = mesh_strain.vertex_m[corners] * np.array([w, h], float)[None, :, None]  # diag(W, H) M
-    norms = np.linalg.norm(np.nan_to_num(m), ord=2, axis=(1, 2)) if len(m) else np.zeros(1)
-    largest = float(np.max(norms))  # texels per mm along the worst axis
-    return int(np.ceil(TRUNCATE * SIGMA_RANGE_UM[1] * largest / 1000.0)) + 2
+#: Cell size (texels) of the grid that bounds the texel density around a tile (:func:`tile_halo`).
+HALO_CELL = 64
+
+
+class _TexelDensity:
+    """The largest texels per mm of each :data:`HALO_CELL`² cell of a map: the bound of :func:`tile_halo`."""
+
+    def __init__(self, mesh_strain: MeshStrain, map_shape):
+        h, w = map_shape
+        self.shape = (-(-h // HALO_CELL), -(-w // HALO_CELL))
+        scale = np.array([w, h], float)[None, :, None]  # diag(W, H) M, texels per mm
+        per_vertex = np.linalg.norm(np.nan_to_num(mesh_strain.vertex_m * scale), ord=2, axis=(1, 2))
+        tri = np.nonzero(~mesh_strain.rest_degenerate)[0]
+        density = per_vertex[mesh_strain.uv_triangles[tri]].max(axis=1) if tri.size else np.zeros(0)
+        x, y = mesh_strain.uv_corners[tri, :, 0] * w, mesh_strain.uv_corners[tri, :, 1] * h
+        gh, gw = self.shape
+        cx0, cx1 = (np.clip(np.floor(v / HALO_CELL), 0, gw - 1).astype(int) for v in (x.min(1) - 1, x.max(1) + 1))
+        cy0, cy1 = (np.clip(np.floor(v / HALO_CELL), 0, gh - 1).astype(int) for v in (y.min(1) - 1, y.max(1) + 1))
+        grid = np.zeros(self.shape)
+        span_y, span_x = cy1 - cy0, cx1 - cx0
+        for dy in range(int(span_y.max(initial=-1)) + 1):  # loop over cell offsets within the triangles' boxes
+            for dx in range(int(span_x.max(initial=-1)) + 1):
+                sel = (dy <= span_y) & (dx <= span_x)
+                np.maximum.at(grid, (cy0[sel] + dy, cx0[sel] + dx), density[sel])
+        self.grid = grid
+
+    def reach(self, region) -> int:
+        """Texels one pass at the largest σ reaches from any texel of ``region`` = (row0, col0, height, width)."""
+        r0, c0, rh, rw = (int(v) for v in region)
+        gh, gw = self.shape
+        y0, y1 = (min(max((v) // HALO_CELL, 0), gh - 1) for v in (r0 - 1, r0 + rh + 1))
+        x0, x1 = (min(max((v) // HALO_CELL, 0), gw - 1) for v in (c0 - 1, c0 + rw + 1))
+        largest = float(self.grid[y0 : y1 + 1, x0 : x1 + 1].max(initial=0.0))
+        return int(np.ceil(TRUNCATE * SIGMA_RANGE_UM[1] * largest / 1000.0)) + 2
+
+    def halo(self, tile) -> int:
+        r0, c0, th, tw = (int(v) for v in tile)
+        first = self.reach((r0, c0, th, tw))
+        return first + self.reach((r0 - first, c0 - first, th + 2 * first, tw + 2 * first)) + 2
 
 
 #: A generated map whose recorded texel size differs from the mesh's by more than this factor is refused.
@@ -509,9 +527,9 @@ def render_sequence(
     config = _config(sequence, neutral, map_shape, window, table, names)
     group = _open_group(out, config, n, window, tile, overwrite)
     render_id = hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()
+    density = _TexelDensity(ms, map_shape)
     halos = {  # per tile, the same for every frame (the rest mesh decides them)
-        (tr, tc): tile_halo(ms, map_shape, (window[0] + tr, window[1] + tc, th, tw))
-        for tr, tc, th, tw in _tiles(window, tile)
+        (tr, tc): density.halo((window[0] + tr, window[1] + tc, th, tw)) for tr, tc, th, tw in _tiles(window, tile)
     }
     report = SequenceReport(os.fspath(out), n, map_shape=map_shape, window=window)
     done = np.asarray(group["done"][:])

@@ -171,6 +171,12 @@ def test_light_samples_of_probes_near_the_float_limits(level, rng):
         assert np.array_equal(scaled_dirs, ref_dirs) and np.array_equal(scaled_power, ref_power * 2.0**40)
     with pytest.raises(ValidationError, match="float64 range"):  # the lights' power itself is not representable
         sphere.median_cut_light_samples(np.full((8, 16, 3), 1.7e308), 8)
+    top = np.zeros((4, 8, 3))
+    top[1, 2] = np.finfo(float).max  # its power (about 1e308 per channel) is representable
+    for sample, args in ((sphere.median_cut_light_samples, (8,)), (sphere.latlong_light_samples, (2, 4))):
+        dirs, power = sample(top, *args)
+        assert np.all(np.isfinite(power)) and np.allclose(np.linalg.norm(dirs, axis=1), 1, atol=1e-12)
+        assert np.allclose(power.sum(0), np.finfo(float).max * sphere.latlong_solid_angles(4, 8)[1, 2], rtol=1e-12)
 
 
 def test_median_cut_gives_a_light_to_each_pixel_when_there_are_enough():

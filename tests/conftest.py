@@ -1,8 +1,14 @@
 import os
 
-import matplotlib
-import numpy as np
-import pytest
+# Two test workers (``-n 2``) already fill two cores: one BLAS thread per process, set before numpy loads
+# OpenBLAS and inherited by every process the tests start (console scripts, notebook kernels, build workers).
+# A second thread per process only contends with the other worker for the same cores.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import matplotlib  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 matplotlib.use("Agg")
 os.environ.setdefault("MPLBACKEND", "Agg")
@@ -21,7 +27,12 @@ END_TO_END = ("tests/notebooks/", "tests/cli/", "tests/reliability/", "tests/web
 
 #: Modules with one test of minutes: run first, so that under ``-n 2`` the other worker's queue fills
 #: the time instead of the suite waiting for a long test that started last (order within a module kept).
-LONG_FIRST = ("tests/pipeline/test_default_store.py", "tests/reliability/test_build_workers.py")
+LONG_FIRST = (
+    "tests/pipeline/test_default_store.py",
+    "tests/reliability/test_build_workers.py",
+    "tests/model/fitting/test_engines.py",
+    "tests/notebooks/test_microstructure.py",
+)
 
 
 def pytest_collection_modifyitems(config, items):

@@ -231,8 +231,10 @@ def remove_tree(path) -> None:
     Works through folder handles, one open at a time: each folder is read once, opened relative to its
     parent with ``O_NOFOLLOW`` and left through its ``..``, so neither the depth of the tree (Python's recursion limit)
     nor the length of its paths (``PATH_MAX``) limits it, and a folder swapped for a link meanwhile is not
-    followed (a folder moved elsewhere meanwhile is emptied where it went: it is left through its ``..``).
-    Links are removed as links.  Entries that vanish meanwhile (another process removing the same
+    followed.  Each ``..`` reached on the way up must be the folder the walk came down from (same device and
+    inode): a folder moved elsewhere meanwhile is emptied where it went (its handle is already open), and
+    then the removal stops with :class:`OSError` (``ESTALE``) instead of going on in the folder it was moved
+    to.  Links are removed as links.  Entries that vanish meanwhile (another process removing the same
     leftover), or a missing ``path``, are fine; any other failure raises :class:`OSError`, and so do ``path``
     being a link (also written ``L/`` or ``L/.``) and ``path`` not being a folder.  Links *above* ``path``
     are followed, as by :func:`shutil.rmtree`: callers check them (:func:`confined`).  Whether the folder is
@@ -256,7 +258,7 @@ def remove_tree(path) -> None:
                     child = os.open(sub, flags, dir_fd=fd)
                 except FileNotFoundError:
                     continue
-                above.append((pending, sub))
+                above.append((pending, sub, _identity(fd)))
                 os.close(fd)
                 fd = child
                 pending = _unlink_files(fd)
@@ -266,7 +268,10 @@ def remove_tree(path) -> None:
             parent = os.open("..", flags, dir_fd=fd)  # go back up and remove the emptied folder
             os.close(fd)
             fd = parent
-            pending, done = above.pop()
+            pending, done, came_from = above.pop()
+            if _identity(fd) != came_from:
+                moved = f"a folder of the tree was moved out of it while {done!r} was removed"
+                raise OSError(errno.ESTALE, moved, path)
             try:
                 os.rmdir(done, dir_fd=fd)
             except FileNotFoundError:
@@ -277,6 +282,12 @@ def remove_tree(path) -> None:
         os.rmdir(path)
     except FileNotFoundError:
         pass
+
+
+def _identity(fd: int) -> tuple[int, int]:
+    """(device, inode) of the open folder ``fd``."""
+    st = os.fstat(fd)
+    return st.st_dev, st.st_ino
 
 
 def _unlink_files(fd: int) -> list[str]:

@@ -6,6 +6,7 @@ exit 3 ("a bug in facestats") with a RecursionError, and a gc or a purge could n
 Every walk of a store now goes through :func:`facestats.io.layout.walk`, which keeps its own stack.
 """
 
+import errno
 import os
 import subprocess
 import sys
@@ -98,6 +99,45 @@ def test_remove_and_copy_a_deep_tree_keep_links_as_links(tmp_path):
     with pytest.raises(NotADirectoryError):
         remove_tree(outside / "keep")
     remove_tree(tmp_path / "missing")  # nothing to do
+
+
+def test_a_folder_moved_out_mid_removal_is_not_followed_up_to_its_new_parent(tmp_path, monkeypatch):
+    """A folder moved out of the tree while it is emptied: going back up through its ``..`` would land in the
+    folder it was moved to, and the removal went on there with the old parent's pending names (the race the
+    docstring used to state). The walk now checks each ``..`` against the folder it came down from, and stops.
+    The move is made just before the first ``..`` (``os.open`` wrapped), so the race is hit every time."""
+    top = tmp_path / "top"
+    for name in ("b", "x"):
+        (top / "a" / name).mkdir(parents=True)
+        (top / "a" / name / "file").write_text("in the tree")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    opened, real_open = [], os.open
+
+    def racing_open(path, flags, mode=0o777, *, dir_fd=None):
+        if path == ".." and not opened[-1].startswith("moved:"):
+            current = opened[-1]  # the folder being left: move it, and give its new parent the sibling's name
+            os.rename(top / "a" / current, elsewhere / current)
+            sibling = ({"b", "x"} - {current}).pop()
+            (elsewhere / sibling).mkdir()
+            (elsewhere / sibling / "keep").write_text("not in the tree")
+            opened.append("moved:" + current)
+        elif path != "..":
+            opened.append(os.path.basename(os.fspath(path)))
+        return real_open(path, flags, mode, dir_fd=dir_fd)
+
+    monkeypatch.setattr(os, "open", racing_open)
+    with pytest.raises(OSError, match="moved out of it") as err:
+        remove_tree(top)
+    monkeypatch.undo()
+    assert err.value.errno == errno.ESTALE
+    moved = opened[-1].removeprefix("moved:")
+    sibling = ({"b", "x"} - {moved}).pop()
+    assert (elsewhere / sibling / "keep").read_text() == "not in the tree"  # the new parent is left alone
+    assert os.listdir(elsewhere / moved) == []  # the moved folder was emptied (its handle was open)
+    assert (top / "a").is_dir()  # the walk stopped: the rest of the tree is still there
+    remove_tree(top)  # and a second run removes it
+    assert not top.exists()
 
 
 def test_a_tree_longer_than_path_max_is_removed_and_its_quarantine_purged(tmp_path):

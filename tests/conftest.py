@@ -1,15 +1,18 @@
 import os
 
-# Two test workers (``-n 2``) already fill two cores: one BLAS thread per process, set before numpy loads
-# OpenBLAS and inherited by every process the tests start (console scripts, notebook kernels, build workers).
-# A second thread per process only contends with the other worker for the same cores.
+# Two test workers (``-n 2``) already fill two cores: one BLAS thread per process. The variables reach every
+# process the tests start (xdist workers, console scripts, notebook kernels, build workers) before it loads
+# OpenBLAS; this process may have loaded it already (zarr's pytest plugin imports numpy), so it is also limited
+# here. numba's ``prange`` kernels keep their own thread count (its OpenMP layer does not read OMP_NUM_THREADS).
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import matplotlib  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from threadpoolctl import threadpool_limits  # noqa: E402
 
+threadpool_limits(int(os.environ["OPENBLAS_NUM_THREADS"]), user_api="blas")
 matplotlib.use("Agg")
 os.environ.setdefault("MPLBACKEND", "Agg")
 

@@ -37,6 +37,7 @@ atomically by :func:`write_json_atomic`; whole directories are flushed with
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import errno
 import functools
@@ -225,20 +226,29 @@ def walk(top):
                 stack.append(sub)
 
 
+#: Folder levels of :func:`remove_tree` whose handles stay open while it works below them (one file descriptor
+#: each, well inside the usual limit of 1,024); deeper levels are left through ``..`` (see there).
+HELD_LEVELS = 128
+
+
 def remove_tree(path) -> None:
     """Delete the folder ``path`` and everything in it, without following links and without recursion.
 
-    Works through folder handles, one open at a time: each folder is read once, opened relative to its
-    parent with ``O_NOFOLLOW`` and left through its ``..``, so neither the depth of the tree (Python's recursion limit)
-    nor the length of its paths (``PATH_MAX``) limits it, and a folder swapped for a link meanwhile is not
-    followed.  Each ``..`` reached on the way up must be the folder the walk came down from (same device and
-    inode): a folder moved elsewhere meanwhile is emptied where it went (its handle is already open), and
-    then the removal stops with :class:`OSError` (``ESTALE``) instead of going on in the folder it was moved
-    to.  Links are removed as links.  Entries that vanish meanwhile (another process removing the same
-    leftover), or a missing ``path``, are fine; any other failure raises :class:`OSError`, and so do ``path``
-    being a link (also written ``L/`` or ``L/.``) and ``path`` not being a folder.  Links *above* ``path``
-    are followed, as by :func:`shutil.rmtree`: callers check them (:func:`confined`).  Whether the folder is
-    gone afterwards is the caller's to check.
+    Works through folder handles: each folder is read once and opened relative to its parent with
+    ``O_NOFOLLOW``, so a folder swapped for a link meanwhile is not followed, and neither the depth of the
+    tree (Python's recursion limit) nor the length of its paths (``PATH_MAX``) limits it.  The handles of the
+    :data:`HELD_LEVELS` levels nearest ``path`` stay open while the walk is below them, and the walk returns
+    to them, as :func:`shutil.rmtree` does: a folder moved out of the tree meanwhile is emptied where it went
+    (its handle was open) and the walk goes on in the tree.  Deeper levels are left through ``..``, which
+    must be the folder the walk came down from (same device and inode), else the removal stops with
+    :class:`OSError` (``ESTALE``) instead of going on in the folder the moved one went to.  That check alone
+    can be fooled on file systems that reuse a freed inode number at once (ext4): a concurrent process would
+    have to move a folder out more than :data:`HELD_LEVELS` levels down, remove its parent and make a folder
+    that receives the parent's number, all while the walk is below it.  Links are removed as links.  Entries
+    that vanish meanwhile (another process removing the same leftover), or a missing ``path``, are fine; any
+    other failure raises :class:`OSError`, and so do ``path`` being a link (also written ``L/`` or ``L/.``)
+    and ``path`` not being a folder.  Links *above* ``path`` are followed, as by :func:`shutil.rmtree`:
+    callers check them (:func:`confined`).  Whether the folder is gone afterwards is the caller's to check.
     """
     path = os.path.normpath(os.fspath(path))  # "L/", "L/." and "L/x/.." name the link L itself
     if os.path.islink(path):
@@ -248,40 +258,61 @@ def remove_tree(path) -> None:
         fd = os.open(path, flags)
     except FileNotFoundError:
         return
-    above = []  # per level above ``fd``: the sub-folders still to remove there, and the one ``fd`` holds
+    # Per level above ``fd``: the sub-folders still to remove there, the one ``fd`` holds, and the level's
+    # open handle (within HELD_LEVELS) or its (device, inode) to check ``..`` against.
+    above = []
     try:
         pending = _unlink_files(fd)
         while True:
             if pending:  # go down into the next sub-folder
                 sub = pending.pop()
+                held = len(above) < HELD_LEVELS
+                parent = fd if held else _identity(fd)
                 try:
                     child = os.open(sub, flags, dir_fd=fd)
                 except FileNotFoundError:
                     continue
-                above.append((pending, sub, _identity(fd)))
-                os.close(fd)
+                above.append((pending, sub, parent))
+                if not held:
+                    os.close(fd)
                 fd = child
                 pending = _unlink_files(fd)
                 continue
             if not above:  # ``path`` itself is empty
                 break
-            parent = os.open("..", flags, dir_fd=fd)  # go back up and remove the emptied folder
-            os.close(fd)
-            fd = parent
-            pending, done, came_from = above.pop()
-            if _identity(fd) != came_from:
+            pending, done, parent = above.pop()
+            fd = _climb(fd, parent)
+            if fd is None:  # ``..`` was not the folder the walk came down from: ``fd`` closed
                 moved = f"a folder of the tree was moved out of it while {done!r} was removed"
                 raise OSError(errno.ESTALE, moved, path)
-            try:
+            with contextlib.suppress(FileNotFoundError):  # removed by another process meanwhile
                 os.rmdir(done, dir_fd=fd)
-            except FileNotFoundError:
-                pass
     finally:
-        os.close(fd)
-    try:
+        _close_walk(above, fd)
+    with contextlib.suppress(FileNotFoundError):
         os.rmdir(path)
-    except FileNotFoundError:
-        pass
+
+
+def _close_walk(above: list, fd: int | None) -> None:
+    """Close the walk's open folder ``fd`` (if any) and the handles held in ``above``."""
+    for held in (entry[2] for entry in above if isinstance(entry[2], int)):
+        os.close(held)
+    if fd is not None:
+        os.close(fd)
+
+
+def _climb(fd: int, parent) -> int | None:
+    """From the folder ``fd`` (closed here) back to its parent: the parent's held handle (an int), or its
+    ``..`` when that is the folder of identity ``parent`` (device, inode), else None."""
+    if isinstance(parent, int):
+        os.close(fd)
+        return parent
+    up = os.open("..", os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW, dir_fd=fd)
+    os.close(fd)
+    if _identity(up) == parent:
+        return up
+    os.close(up)
+    return None
 
 
 def _identity(fd: int) -> tuple[int, int]:

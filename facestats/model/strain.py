@@ -151,6 +151,9 @@ def inv2x2(m):
 
     Elementwise over any leading axes, about 20× faster than :func:`numpy.linalg.inv` on millions of
     matrices. A singular matrix gives inf or NaN entries (no warning, no error): callers test ``det``.
+    The determinant is formed directly, so entries must keep it representable: for float64, magnitudes
+    between about 1e-150 and 1e150 (float32: 1e-18 to 1e18); beyond, det overflows to inf (inverse 0) or
+    underflows to 0 (inverse inf), silently. Strain tensors are of order 1.
 
     Parameters
     ----------
@@ -161,9 +164,9 @@ def inv2x2(m):
     inverse : ndarray, shape (..., 2, 2)
     det : ndarray, shape (...)
     """
-    det = m[..., 0, 0] * m[..., 1, 1] - m[..., 0, 1] * m[..., 1, 0]
     inv = np.stack([np.stack([m[..., 1, 1], -m[..., 0, 1]], -1), np.stack([-m[..., 1, 0], m[..., 0, 0]], -1)], -2)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(all="ignore"):
+        det = m[..., 0, 0] * m[..., 1, 1] - m[..., 0, 1] * m[..., 1, 0]
         return inv / det[..., None, None], det
 
 

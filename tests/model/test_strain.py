@@ -60,7 +60,9 @@ def test_inv2x2_matches_numpy_and_marks_singular_matrices_without_warnings():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         inv, det = inv2x2(singular)
+        huge, det_huge = inv2x2(1e155 * np.eye(2))  # beyond the documented range: det overflows, silently
     assert (det == 0).all() and not np.isfinite(inv).any()
+    assert det_huge == np.inf and (huge == 0).all()
 
 
 def test_tangent_frame_is_the_closest_rotation_of_the_uv_map():

@@ -8,13 +8,14 @@ Every walk of a store now goes through :func:`facestats.io.layout.walk`, which k
 
 import errno
 import os
+import pathlib
 import subprocess
 import sys
 
 import pytest
 
 from facestats.io import open_store
-from facestats.io.layout import copy_tree, remove_tree, walk
+from facestats.io.layout import HELD_LEVELS, copy_tree, remove_tree, walk
 from tests.helpers import run_cli
 
 from .helpers import generation_dir, subject_digests
@@ -101,23 +102,33 @@ def test_remove_and_copy_a_deep_tree_keep_links_as_links(tmp_path):
     remove_tree(tmp_path / "missing")  # nothing to do
 
 
-def test_a_folder_moved_out_mid_removal_is_not_followed_up_to_its_new_parent(tmp_path, monkeypatch):
-    """A folder moved out of the tree while it is emptied: going back up through its ``..`` would land in the
-    folder it was moved to, and the removal went on there with the old parent's pending names (the race the
-    docstring used to state). The walk now checks each ``..`` against the folder it came down from, and stops.
-    The move is made just before the first ``..`` (``os.open`` wrapped), so the race is hit every time."""
+def _open_fds() -> int:
+    return len(os.listdir("/proc/self/fd")) if os.path.isdir("/proc/self/fd") else 0
+
+
+@pytest.mark.parametrize("held", [True, False], ids=["held-levels", "below-held-levels"])
+def test_a_folder_moved_out_mid_removal_never_leads_the_walk_out_of_the_tree(tmp_path, monkeypatch, held):
+    """A folder moved out of the tree while it is emptied. Left through its ``..``, the walk would land in the
+    folder it was moved to and go on there with the old parent's pending names: it emptied a sibling-named
+    folder outside the tree (the race earlier notes left alone). Within HELD_LEVELS the walk returns to the
+    parent's open handle and finishes the tree; deeper, each ``..`` is checked against the folder the walk came
+    down from and the removal stops (ESTALE). The move is made as the walk opens ``inner`` in the moved folder
+    (``os.open`` wrapped), so the race is hit every time; no file descriptor is left open either way
+    (the deep case raises with HELD_LEVELS handles open)."""
     top = tmp_path / "top"
+    top.mkdir()
+    parent = pathlib.Path(_nest(top, "d", 0 if held else HELD_LEVELS + 2)) / "a"  # the moved folder's parent
     for name in ("b", "x"):
-        (top / "a" / name).mkdir(parents=True)
-        (top / "a" / name / "file").write_text("in the tree")
+        (parent / name / "inner").mkdir(parents=True)
+        (parent / name / "inner" / "file").write_text("in the tree")
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     opened, real_open = [], os.open
 
     def racing_open(path, flags, mode=0o777, *, dir_fd=None):
-        if path == ".." and not opened[-1].startswith("moved:"):
-            current = opened[-1]  # the folder being left: move it, and give its new parent the sibling's name
-            os.rename(top / "a" / current, elsewhere / current)
+        if path == "inner" and not any(o.startswith("moved:") for o in opened):
+            current = opened[-1]  # the folder the walk is in: move it out, and plant its sibling's name there
+            os.rename(parent / current, elsewhere / current)
             sibling = ({"b", "x"} - {current}).pop()
             (elsewhere / sibling).mkdir()
             (elsewhere / sibling / "keep").write_text("not in the tree")
@@ -126,18 +137,25 @@ def test_a_folder_moved_out_mid_removal_is_not_followed_up_to_its_new_parent(tmp
             opened.append(os.path.basename(os.fspath(path)))
         return real_open(path, flags, mode, dir_fd=dir_fd)
 
+    fds = _open_fds()
     monkeypatch.setattr(os, "open", racing_open)
-    with pytest.raises(OSError, match="moved out of it") as err:
+    if held:
         remove_tree(top)
+    else:
+        with pytest.raises(OSError, match="moved out of it") as err:
+            remove_tree(top)
     monkeypatch.undo()
-    assert err.value.errno == errno.ESTALE
-    moved = opened[-1].removeprefix("moved:")
+    assert _open_fds() == fds
+    moved = next(o for o in opened if o.startswith("moved:")).removeprefix("moved:")
     sibling = ({"b", "x"} - {moved}).pop()
-    assert (elsewhere / sibling / "keep").read_text() == "not in the tree"  # the new parent is left alone
+    assert (elsewhere / sibling / "keep").read_text() == "not in the tree"  # outside the tree: left alone
     assert os.listdir(elsewhere / moved) == []  # the moved folder was emptied (its handle was open)
-    assert (top / "a").is_dir()  # the walk stopped: the rest of the tree is still there
-    remove_tree(top)  # and a second run removes it
-    assert not top.exists()
+    if held:
+        assert not top.exists()  # the walk went back to the parent's handle and finished the tree
+    else:
+        assert err.value.errno == errno.ESTALE and (parent / sibling / "inner" / "file").exists()  # it stopped
+        remove_tree(top)  # and a second run removes the rest
+        assert not top.exists()
 
 
 def test_a_tree_longer_than_path_max_is_removed_and_its_quarantine_purged(tmp_path):

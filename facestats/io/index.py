@@ -228,10 +228,17 @@ def _row_problem(sid, row) -> str | None:
     return None
 
 
+def _counts_ok(counts: list) -> bool:
+    """Every element an integer (not a bool) in [0, MAX_INT]; a non-empty list."""
+    if set(map(type, counts)) == {int}:  # what JSON decodes: the types and the range by C loops (query's start-up)
+        return 0 <= min(counts) and max(counts) <= MAX_INT
+    return all(_is_int(c) and 0 <= c <= MAX_INT for c in counts)
+
+
 def _hist_problem(hist) -> str | None:
     ok = isinstance(hist, list) and len(hist) == 3
     ok = ok and all(isinstance(h, list) and len(h) == _HIST_BINS for h in hist)
-    ok = ok and all(_is_int(c) and 0 <= c <= MAX_INT for h in hist for c in h)
+    ok = ok and all(_counts_ok(h) for h in hist)
     if not ok:
         return f"field 'albedo_hist' must be 3 lists of {_HIST_BINS} counts (integers 0 to 2**53)"
     return None

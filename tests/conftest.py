@@ -35,7 +35,7 @@ def rng():
 END_TO_END = ("tests/notebooks/", "tests/cli/", "tests/reliability/", "tests/web/test_browser.py")
 
 
-#: Modules with one test of minutes: run first, so that under ``-n 2`` the other worker's queue fills
+#: Modules with a test of 20 s or more: run first, so that under ``-n 2`` the other worker's queue fills
 #: the time instead of the suite waiting for a long test that started last (order within a module kept).
 LONG_FIRST = (
     "tests/pipeline/test_default_store.py",

@@ -226,6 +226,9 @@ def walk(top):
                 stack.append(sub)
 
 
+#: How :func:`remove_tree` opens a folder: read-only, a folder, and not through a symbolic link.
+_DIR_FLAGS = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW
+
 #: Folder levels of :func:`remove_tree` whose handles stay open while it works below them (one file descriptor
 #: each, well inside the usual limit of 1,024); deeper levels are left through ``..`` (see there).
 HELD_LEVELS = 128
@@ -253,9 +256,8 @@ def remove_tree(path) -> None:
     path = os.path.normpath(os.fspath(path))  # "L/", "L/." and "L/x/.." name the link L itself
     if os.path.islink(path):
         raise OSError(errno.ELOOP, "will not remove a tree through a symbolic link", path)
-    flags = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW
     try:
-        fd = os.open(path, flags)
+        fd = os.open(path, _DIR_FLAGS)
     except FileNotFoundError:
         return
     # Per level above ``fd``: the sub-folders still to remove there, the one ``fd`` holds, and the level's
@@ -269,7 +271,7 @@ def remove_tree(path) -> None:
                 held = len(above) < HELD_LEVELS
                 parent = fd if held else _identity(fd)
                 try:
-                    child = os.open(sub, flags, dir_fd=fd)
+                    child = os.open(sub, _DIR_FLAGS, dir_fd=fd)
                 except FileNotFoundError:
                     continue
                 above.append((pending, sub, parent))
@@ -307,7 +309,7 @@ def _climb(fd: int, parent) -> int | None:
     if isinstance(parent, int):
         os.close(fd)
         return parent
-    up = os.open("..", os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW, dir_fd=fd)
+    up = os.open("..", _DIR_FLAGS, dir_fd=fd)
     os.close(fd)
     if _identity(up) == parent:
         return up

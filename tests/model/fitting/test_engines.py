@@ -325,7 +325,12 @@ def test_compiled_kernels_give_the_same_bits_on_any_cpu(tmp_path):
     script = "from tests.model.fitting.test_engines import _fit_digest; print(_fit_digest())"
     generic = subprocess.Popen([sys.executable, "-c", script], env=env, cwd=root, stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True)  # fmt: skip
-    host = _fit_digest()  # while the generic kernels compile
-    out, err = generic.communicate(timeout=900)
+    try:
+        host = _fit_digest()  # while the generic kernels compile
+        out, err = generic.communicate(timeout=900)
+    finally:
+        if generic.poll() is None:  # this process failed first: stop the compile
+            generic.kill()
+            generic.wait()
     assert generic.returncode == 0, err[-2000:]
     assert out.strip().splitlines()[-1] == host

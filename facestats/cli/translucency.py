@@ -141,15 +141,22 @@ def add_translucency(sub):
     )
     p.add_argument("--scale", type=ascii_float, default=1.0, help="mesh units to mm (default 1)")
     p.add_argument("--width", default="auto", help="quantisation width in mm, or 'auto' (default)")
-    p.add_argument("--method", choices=("monotone", "pinv"), default="monotone", help="solve (default monotone)")
+    p.add_argument(
+        "--method",
+        choices=("monotone", "pinv", "exitance"),
+        default="monotone",
+        help="solve (default monotone); 'exitance' fits the dipole to the image through W (with --self-term surface "
+        "for continuous surfaces; docs/translucency_from_image.md)",
+    )
     p.add_argument("--grid", choices=("table2", "skin"), default="table2", help="eq. 36 grid (default Table 2)")
     p.add_argument("--refine", action="store_true", help="refine the grid optimum by continuous least squares")
     p.add_argument(
         "--self-term",
         default="point",
-        metavar="{point,footprint}",
+        metavar="{point,footprint,surface}",
         help="a patch's own light: 'point' (Suzuki eq. 17, R(0) c A; default) or 'footprint' (the dipole "
-        "integrated over the patch's disk; see docs/translucency_from_image.md, Limits)",
+        "integrated over the patch's disk); 'surface' also integrates the nearest patches over theirs "
+        "(see docs/translucency_from_image.md, Limits)",
     )
     p.add_argument("--eta", type=ascii_float, default=None, help="relative index (default: the light file's, else 1.3)")
     p.add_argument("--json", default="", help="also write the estimates and diagnostics as JSON here")

@@ -31,7 +31,7 @@ from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.errors import FitError, QuantisationWarning
 from facestats.model.dipole import dipole_profile
 from facestats.model.fitting.quantisation_choice import auto_width
-from facestats.model.fitting.quantised import SELF_TERMS, quantised_system
+from facestats.model.fitting.quantised import SELF_TERMS, quantised_system, self_term_keywords
 from facestats.model.fitting.scattering_image import fit_scattering_system
 
 __all__ = ["RenderedScene", "render_scene", "table3", "format_table3", "noise_study", "NoiseStudy"]
@@ -68,10 +68,10 @@ def render_scene(
         Quantisation width of the quantised kernel, mm.
     channel : int
         Channel of the lights used (0-2).
-    self_term : {"point", "footprint"}
+    self_term : {"point", "footprint", "surface"}
         A patch's own light: eq. 17's R(0) c_j A_j (default, the paper's discretisation and its Table 3) or over
-        the disk of its area, as a continuous surface gives it (:mod:`facestats.model.fitting.quantised`); the
-        studies' W takes it the same way.
+        the disk of its area, as a continuous surface gives it, and with ``"surface"`` the near neighbours' over
+        theirs too (:mod:`facestats.model.fitting.quantised`); the studies' W takes it the same way.
     """
 
     check_choice(kernel, "kernel", ("point", "quantised"))
@@ -85,18 +85,16 @@ def render_scene(
         l = render_exitance(p.centre, p.area, c, s, a, eta=scene.eta, radius=np.inf, self_term=self_term)
     else:
         w = float(as_finite(width, "width", 0, None, low_inclusive=False, unit="mm"))
-        own = p.area if self_term == "footprint" else None
-        system = quantised_system(p.centre, c * p.area, np.arange(len(p)), width=w, areas=own)
+        own = self_term_keywords(self_term, p.area)
+        system = quantised_system(p.centre, c * p.area, np.arange(len(p)), width=w, **own)
         l = system.matrix @ dipole_profile(system.levels, s, a, scene.eta)
     return RenderedScene(p, c, l, seen, s, a, scene.eta, kernel, self_term)
 
 
 def _system(rendered, width):
     p = rendered.patches
-    own = p.area if rendered.self_term == "footprint" else None
-    return quantised_system(
-        p.centre, rendered.irradiance * p.area, np.nonzero(rendered.visible)[0], width=width, areas=own
-    )
+    own = self_term_keywords(rendered.self_term, p.area)
+    return quantised_system(p.centre, rendered.irradiance * p.area, np.nonzero(rendered.visible)[0], width=width, **own)
 
 
 def table3(rendered: RenderedScene, widths=tuple(SUZUKI_TABLE3), methods=("pinv", "monotone"), **fit_options) -> list:

@@ -201,5 +201,11 @@ def test_cli_self_term_footprint_reaches_the_fit(scene_files, capsys):
         assert out[term]["self_term"] == term
     s_point, s_foot = out["point"]["sigma_s_prime"], out["footprint"]["sigma_s_prime"]
     assert abs(s_point - 2.19) <= 0.05 and abs(s_foot / s_point - 1) > 0.02, (s_point, s_foot)
+    path = scene_files / "surface.json"
+    args = ["--quiet", "--self-term", "surface", "--method", "exitance", "--json", str(path)]
+    assert main(_scene_args(scene_files) + args) == 0
+    assert capsys.readouterr().out.splitlines()[0].endswith("method exitance, self term surface")
+    fit = json.loads(path.read_text())["R"]
+    assert (fit["self_term"], fit["method"]) == ("surface", "exitance")
     assert main(_scene_args(scene_files) + ["--quiet", "--self-term", "disk"]) == 2
-    assert "--self-term must be one of ['footprint', 'point'], got 'disk'" in capsys.readouterr().err
+    assert "--self-term must be one of ['footprint', 'point', 'surface'], got 'disk'" in capsys.readouterr().err

@@ -31,6 +31,14 @@ Conventions and choices (stated once here, used by every function):
   levels by ∫_0^ρ 2πr hat_i(r) dr (:func:`disk_hat_integrals`): the footprint
   integral of the piecewise-linear R, in the same unknowns r.  Without
   ``areas`` the pair is the paper's R(0) c_j A_j (to reproduce its Table 3).
+* **Near neighbours' light** (beyond the paper).  The point kernel R(d_jk) c_k A_k
+  of a neighbour is its integral over the patch only to second order in ρ_k/d_jk;
+  with ``near=True`` (and ``areas``) the lit patches with d_jk < NEAR_RADII ρ_k
+  (:mod:`facestats.model.disk_quadrature`, 3 radii: the nearest 8 of a square
+  grid) are integrated over their disks instead, c_k A_k Σ_q w_q hat_i(r_q) by
+  the polar rule of that module, again in the same unknowns.  The two self
+  terms together are ``self_term="surface"`` (:func:`self_term_keywords`).
+  The support still counts the pairs' centres.
 * **Rows and columns.**  Only visible patches give rows (§3.3, last paragraph);
   only lit patches (c_k A_k ≠ 0) contribute to W, so the distances computed are
   those of (visible, lit) pairs.  ``support`` counts those pairs per level,
@@ -76,8 +84,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from facestats.core.progress import progress_bar
-from facestats.core.validate import as_finite, check_integer, check_shape
+from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
 from facestats.errors import FitError, ValidationError
+from facestats.model.disk_quadrature import NEAR_RADII, disk_node_distances
 
 __all__ = [
     "DEFAULT_BLOCK_BYTES",
@@ -89,6 +98,7 @@ __all__ = [
     "point_kernel_exitance",
     "disk_hat_integrals",
     "SELF_TERMS",
+    "self_term_keywords",
     "interpolation_matrix",
     "merge_levels",
     "NormalEquations",
@@ -101,8 +111,9 @@ __all__ = [
     "profile_covariance",
 ]
 
-#: A patch's own light (module docstring): over the disk of its area, or the paper's R(0) c A (eq. 17).
-SELF_TERMS = ("footprint", "point")
+#: A patch's own light (module docstring): over the disk of its area, or the paper's R(0) c A (eq. 17); "surface"
+#: also integrates the near neighbours over their disks.
+SELF_TERMS = ("footprint", "point", "surface")
 #: Default memory budget of one row block of :func:`quantised_system` (bytes).
 DEFAULT_BLOCK_BYTES = 128 * 2**20
 #: Most levels a width may give (W holds one column per level; Suzuki's scenes need tens to hundreds).
@@ -134,6 +145,8 @@ class QuantisedSystem:
     areas : ndarray or None
         The patch areas (mm², one per point) whose disks gave each lit row its own light (module docstring:
         A patch's own light), or None for the paper's R(0) c_j A_j.
+    near : bool
+        The near neighbours' light was integrated over their disks (module docstring: Near neighbours' light).
     """
 
     matrix: np.ndarray
@@ -144,10 +157,30 @@ class QuantisedSystem:
     n_pairs: int
     merged: tuple = field(default=())
     areas: np.ndarray | None = None
+    near: bool = False
 
     @property
     def n_levels(self) -> int:
         return int(self.levels.shape[0])
+
+    @property
+    def self_term(self) -> str:
+        """How W took the light of a patch itself and of its neighbours: one of :data:`SELF_TERMS`."""
+        if self.areas is None:
+            return "point"
+        return "surface" if self.near else "footprint"
+
+
+def self_term_keywords(self_term, areas) -> dict:
+    """The ``areas`` and ``near`` keywords of :func:`quantised_system` that give W a self term of :data:`SELF_TERMS`.
+
+    ``"point"``: none (the paper's eq. 17); ``"footprint"``: a patch's own light over the disk of its area;
+    ``"surface"``: that, and the near neighbours' over theirs (module docstring).
+    """
+    check_choice(self_term, "self_term", SELF_TERMS)
+    if self_term == "point":
+        return {}
+    return {"areas": areas, "near": self_term == "surface"}
 
 
 def uniform_levels(width, max_distance) -> np.ndarray:
@@ -219,10 +252,67 @@ def _pair_distances(rows_xyz, self_cols, cols_xyz, sq_c) -> np.ndarray:
     return np.sqrt(d2, out=d2)
 
 
-def _accumulate_block(rows_xyz, self_cols, cols_xyz, sq_c, cols_w, levels, width):
-    """One row block: its rows of W, its level support and its largest pair distance (module docstring).
+def _hat_sums(flat, weight, weight_t, n_rows, n):
+    """Σ weight · hat_i(d) per (row, level), shape (n_rows, n), by two ``numpy.bincount`` reductions.
 
-    ``self_cols`` holds, per row, the column of the same patch among the lit ones (−1 if unlit).
+    ``flat`` = row · (n + 1) + i holds each entry's bin, with i its level and t its fraction (:func:`_levels_of`);
+    ``weight_t`` = weight · t (``weight`` None: a count of 1 per entry).  hat_i takes 1 − t, hat_(i+1) takes t.
+    """
+    size = n_rows * (n + 1)
+    s_c = np.bincount(flat, weights=weight, minlength=size).reshape(n_rows, n + 1)
+    s_ct = np.bincount(flat, weights=weight_t, minlength=size).reshape(n_rows, n + 1)
+    out = s_c[:, :n] - s_ct[:, :n]
+    out[:, 1:] += s_ct[:, : n - 1]
+    return out
+
+
+def _near_pairs(d, self_cols, cols_rho):
+    """(row, column) of the pairs of a block nearer than NEAR_RADII source radii, a patch and itself left out.
+
+    ``d`` holds the block's pair distances (b, nc), ``self_cols`` each row's own column (−1 if unlit), ``cols_rho``
+    the columns' disk radii (mm).
+    """
+    jj, kk = np.nonzero(d < NEAR_RADII * cols_rho[None, :])
+    keep = kk != self_cols[jj]
+    return jj[keep], kk[keep]
+
+
+def _near_correction(d, self_cols, cols_w, cols_rho, levels, width):
+    """A block's change of W from taking its near pairs over the source disk (module docstring), and their reach.
+
+    A pair (row j, lit column k ≠ j) is near when d_jk < NEAR_RADII ρ_k; it changes row j by c_k A_k [Σ_q w_q
+    hat_i(r_q) − hat_i(d_jk)], with r_q the distances to the disk's nodes
+    (:func:`facestats.model.disk_quadrature.disk_node_distances`).  Nodes beyond the last level take its hat.
+
+    Returns
+    -------
+    ndarray, shape (b, n)
+        The change of the block's rows.
+    float
+        The farthest node distance of a near pair, mm (0 if none).
+    """
+    b, n = d.shape[0], levels.shape[0]
+    jj, kk = _near_pairs(d, self_cols, cols_rho)
+    dist = d[jj, kk]
+    if jj.size == 0:
+        return np.zeros((b, n)), 0.0
+    reach = float(np.max(dist + cols_rho[kk]))
+    r, wq = disk_node_distances(dist, cols_rho[kk])
+    r = np.concatenate([r.ravel(), dist])  # the disk's nodes, then the centre the point kernel took
+    np.minimum(r, np.nextafter(levels[-1], 0), out=r)
+    weight = np.concatenate([(cols_w[kk][:, None] * wq).ravel(), -cols_w[kk]])
+    rows = np.concatenate([np.repeat(jj, wq.size), jj])
+    i, t = _levels_of(r, levels, width)
+    t *= weight
+    return _hat_sums(rows * (n + 1) + i, weight, t, b, n), reach
+
+
+def _accumulate_block(rows_xyz, self_cols, cols_xyz, sq_c, cols_w, levels, width, cols_rho=None):
+    """One row block: its rows of W, its level support, its largest pair distance and its near pairs' reach.
+
+    ``self_cols`` holds, per row, the column of the same patch among the lit ones (−1 if unlit);
+    ``cols_rho`` (the lit columns' disk radii, mm) takes the near pairs over their disks
+    (:func:`_near_correction`), None keeps the point kernel.
     """
     n = levels.shape[0]
     b, nc = rows_xyz.shape[0], cols_xyz.shape[0]
@@ -233,20 +323,16 @@ def _accumulate_block(rows_xyz, self_cols, cols_xyz, sq_c, cols_w, levels, width
             f"levels must extend beyond the largest patch distance (Suzuki eq. 23): last level "
             f"{levels[-1]:.6g} mm, but a pair lies {dmax:.6g} mm apart"
         )
+    near, reach = (0.0, 0.0) if cols_rho is None else _near_correction(d, self_cols, cols_w, cols_rho, levels, width)
     i, t = _levels_of(d, levels, width)
     i_flat, t_flat = i.ravel(), t.ravel()
-    cnt = np.bincount(i_flat, minlength=n + 1)
-    cnt_t = np.bincount(i_flat, weights=t_flat, minlength=n + 1)
-    support = cnt[:n] - cnt_t[:n]
-    support[1:] += cnt_t[: n - 1]
+    support = _hat_sums(i_flat, None, t_flat, 1, n)[0]
     i += (np.arange(b) * (n + 1))[:, None]  # flat (row, level) bins
-    s_c = np.bincount(i_flat, weights=np.broadcast_to(cols_w, (b, nc)).ravel(), minlength=b * (n + 1))
+    weight = np.broadcast_to(cols_w, (b, nc)).ravel()
     t *= cols_w
-    s_ct = np.bincount(i_flat, weights=t_flat, minlength=b * (n + 1))
-    s_c, s_ct = s_c.reshape(b, n + 1), s_ct.reshape(b, n + 1)
-    w_block = s_c[:, :n] - s_ct[:, :n]
-    w_block[:, 1:] += s_ct[:, : n - 1]
-    return w_block, support, dmax
+    w_block = _hat_sums(i_flat, weight, t_flat, b, n)
+    w_block += near
+    return w_block, support, dmax, reach
 
 
 def disk_hat_integrals(levels, radius) -> np.ndarray:
@@ -297,6 +383,7 @@ def quantised_system(
     width=None,
     levels=None,
     areas=None,
+    near=False,
     block_bytes=DEFAULT_BLOCK_BYTES,
     progress=False,
 ) -> QuantisedSystem:
@@ -321,6 +408,10 @@ def quantised_system(
         Patch areas A_k, mm² (> 0): a lit row's own light is the footprint integral over the disk of its
         area, c_j Σ_i H_i(ρ_j) r_i with c_j = weights_j / A_j (:func:`disk_hat_integrals`); default the paper's
         R(0) c_j A_j (module docstring: A patch's own light).
+    near : bool
+        With ``areas``: also take each lit patch within ``NEAR_RADII`` radii of a row over its disk instead of
+        at its centre (module docstring: Near neighbours' light).  ``self_term_keywords`` gives ``areas`` and
+        ``near`` for a self term by name.
     block_bytes : int
         Memory budget of a row block (≥ 1 MiB).
     progress : bool
@@ -345,6 +436,8 @@ def quantised_system(
         raise ValidationError(f"give exactly one of width and levels, got width={width!r} and levels={levels!r}")
     check_integer(block_bytes, "block_bytes", 2**20)
     area = None if areas is None else _check_areas(areas, m)
+    if not isinstance(near, (bool, np.bool_)) or (near and area is None):
+        raise ValidationError(f"near must be True or False, and True only with areas, got {near!r}")
     centre = p[np.concatenate([idx, lit])].mean(0)
     rows_xyz, cols_xyz = p[idx] - centre, p[lit] - centre
     if width is not None:
@@ -360,14 +453,15 @@ def quantised_system(
     lit_pos[lit] = np.arange(lit.size)
     self_cols = lit_pos[idx]
     w_mat = np.empty((idx.size, lev.size))
-    support, dmax = np.zeros(lev.size), 0.0
+    support, dmax, reach = np.zeros(lev.size), 0.0, 0.0
+    rho = np.sqrt(area[lit] / np.pi) if near else None
     for start in starts:  # loop over row blocks, vectorised over the pairs of a block
         sub = slice(start, min(start + block, idx.size))
-        w_mat[sub], sb, db = _accumulate_block(rows_xyz[sub], self_cols[sub], cols_xyz, sq_c, wk[lit], lev, w)
+        w_mat[sub], sb, db, rb = _accumulate_block(rows_xyz[sub], self_cols[sub], cols_xyz, sq_c, wk[lit], lev, w, rho)
         support += sb
-        dmax = max(dmax, db)
+        dmax, reach = max(dmax, db), max(reach, rb)
     if w is not None:  # trim to the levels eq. 23 needs: d'_n is the first level beyond the largest distance
-        n = int(np.floor(dmax / w)) + 2
+        n = min(int(np.floor(max(dmax, reach) / w)) + 2, lev.size)  # (or beyond the near disks' farthest node)
         w_mat, lev, support = w_mat[:, :n], lev[:n], support[:n]
     if area is not None:  # each lit row's own pair: its disk's footprint instead of R(0) c_j A_j at level 0
         own = np.nonzero(self_cols >= 0)[0]
@@ -382,6 +476,7 @@ def quantised_system(
         max_distance=dmax,
         n_pairs=int(idx.size) * int(lit.size),
         areas=area,
+        near=bool(near),
     )
 
 
@@ -393,7 +488,7 @@ def _check_areas(areas, m) -> np.ndarray:
 
 
 def point_kernel_exitance(
-    points, weights, rows, profile, *, areas=None, energy=None, block_bytes=DEFAULT_BLOCK_BYTES
+    points, weights, rows, profile, *, areas=None, energy=None, near=False, block_bytes=DEFAULT_BLOCK_BYTES
 ) -> np.ndarray:
     """l_j = Σ_k R(d_jk) w_k of the ``rows``: Suzuki et al. eq. 17 with w_k = c_k A_k, the exitance W r approximates.
 
@@ -401,7 +496,11 @@ def point_kernel_exitance(
     and itself at d = 0 (as in :func:`quantised_system`, where that pair supports
     level 0 only, so both give it R(0) w_j); with ``areas`` and ``energy``, a lit
     row's own light is c_j E(ρ_j) instead, the profile's energy within the disk
-    of its area (as :func:`quantised_system` with ``areas`` takes it).
+    of its area (as :func:`quantised_system` with ``areas`` takes it); with ``near``
+    too, the lit patches within ``NEAR_RADII`` radii of a row are taken over
+    their disks (the profile at the nodes of
+    :func:`facestats.model.disk_quadrature.disk_node_distances`), as
+    :func:`quantised_system` with ``near`` takes them.
 
     Parameters
     ----------
@@ -418,6 +517,8 @@ def point_kernel_exitance(
     energy : callable, optional
         E(ρ) = ∫_0^ρ 2πr R(r) dr for an array of radii in mm (dimensionless), e.g.
         :func:`facestats.model.dipole.dipole_radial_energy` of the same medium.
+    near : bool
+        With ``areas`` and ``energy``: the near neighbours over their disks.
     block_bytes : int
         Memory budget of a row block.
 
@@ -436,14 +537,24 @@ def point_kernel_exitance(
     rows_xyz, cols_xyz = p[idx] - centre, p[lit] - centre
     sq_c = np.einsum("ij,ij->i", cols_xyz, cols_xyz)
     out = np.zeros(idx.size)
+    if (areas is None) != (energy is None) or (near and areas is None):
+        raise ValidationError(
+            "areas and energy go together (a patch's own light over the disk of its area), and near needs them, "
+            f"got areas {'None' if areas is None else 'given'}, energy {energy!r}, near {near!r}"
+        )
+    area = None if areas is None else _check_areas(areas, p.shape[0])
+    rho = np.sqrt(area[lit] / np.pi) if near else None
     block = max(1, int(check_integer(block_bytes, "block_bytes", 2**20)) // (16 * max(lit.size, 1)))
     for start in range(0, idx.size if lit.size else 0, block):  # loop over row blocks, vectorised over pairs
         sub = slice(start, start + block)
-        out[sub] = profile(_pair_distances(rows_xyz[sub], lit_pos[idx[sub]], cols_xyz, sq_c)) @ wk[lit]
-    if (areas is None) != (energy is None):
-        raise ValidationError("areas and energy go together (a patch's own light over the disk of its area)")
+        d = _pair_distances(rows_xyz[sub], lit_pos[idx[sub]], cols_xyz, sq_c)
+        kern = profile(d)
+        if near:  # the near pairs over the source's disk (quantised_system's near)
+            jj, kk = _near_pairs(d, lit_pos[idx[sub]], rho)
+            r, wq = disk_node_distances(d[jj, kk], rho[kk])
+            kern[jj, kk] = profile(r) @ wq
+        out[sub] = kern @ wk[lit]
     if areas is not None:
-        area = _check_areas(areas, p.shape[0])
         own = np.nonzero(lit_pos[idx] >= 0)[0]
         j = idx[own]
         c = wk[j] / area[j]

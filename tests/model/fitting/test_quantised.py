@@ -204,3 +204,34 @@ def test_the_footprint_self_term_replaces_r0_c_a_by_the_disk_integral(cloud):
         point_kernel_exitance(p, w, rows, lambda d: dipole_profile(d, s, a, 1.3), areas=area)
     with pytest.raises(ValidationError, match=r"areas must lie in \(0, inf\] mm\^2, got 0.0"):
         quantised_system(p, w, rows, width=0.25, areas=np.zeros(len(p)))
+
+
+def test_the_surface_self_term_takes_near_patches_over_their_disks(cloud):
+    """With near=True, W's rows keep their sums (the hats partition unity) and, as hats reproduce a linear R exactly,
+    W applied to R(d) = d equals the point-kernel exitance of that R with the near pairs over the disks' nodes; only
+    rows with a lit patch within NEAR_RADII radii change."""
+    from facestats.model.disk_quadrature import NEAR_RADII
+    from facestats.model.fitting.quantised import point_kernel_exitance, self_term_keywords
+
+    p, c, rows = cloud
+    area = np.full(len(p), 0.2)
+    w = c * area
+    foot = quantised_system(p, w, rows, width=0.05, **self_term_keywords("footprint", area))
+    surf = quantised_system(p, w, rows, width=0.05, **self_term_keywords("surface", area))
+    assert (foot.self_term, surf.self_term) == ("footprint", "surface") and surf.near and not foot.near
+    np.testing.assert_array_equal(surf.levels, foot.levels)
+    np.testing.assert_allclose(surf.matrix.sum(1), foot.matrix.sum(1), rtol=1e-12)
+    linear = point_kernel_exitance(
+        p, w, rows, lambda d: d, areas=area, energy=lambda r: 2 * np.pi * r**3 / 3, near=True
+    )  # fmt: skip
+    np.testing.assert_allclose(surf.matrix @ surf.levels, linear, rtol=1e-10)
+    d = np.linalg.norm(p[rows][:, None] - p[None], axis=-1)
+    near = ((d < NEAR_RADII * np.sqrt(0.2 / np.pi)) & (d > 0) & (w[None] > 0)).any(1)
+    changed = np.abs(surf.matrix - foot.matrix).max(1) > 1e-12
+    assert near.any() and (~near).any()
+    np.testing.assert_array_equal(changed, near)
+    assert self_term_keywords("point", area) == {}
+    with pytest.raises(ValidationError, match="near must be True or False, and True only with areas"):
+        quantised_system(p, w, rows, width=0.05, near=True)
+    with pytest.raises(ValidationError, match="self_term must be one of"):
+        self_term_keywords("disk", area)

@@ -15,6 +15,12 @@
   the default (monotone), printed side by side.
 * ``noise`` — 1 % multiplicative radiance noise over 20 seeds with
   ``width="auto"``: largest errors, spread, interval coverage.
+* ``continuous_surface`` — a flat plate of 1 mm patches lit over a half plane,
+  its exitance by a quadrature of the surface (sub-patches of 1/``sub`` mm,
+  Table 1's medium): how far each forward model (``self_term`` point,
+  footprint, surface) is from it, and the fits at ``width="auto"`` of eq. 36
+  (point, footprint) beside the dipole fitted through W with the surface self
+  term (``method="exitance"``), against the truth (2.19, 0.0021).
 * ``contactless`` — σtr of cheek and forehead from one simulated image each for
   the default population's first ``n_subjects`` subjects: median relative error
   against the truth and against the contact-sensor fit (requirement ≤ 10 %).
@@ -75,6 +81,8 @@ def bench_w_build(m=20_000, width=0.25, dense_m=3_000):
     p, c = _points(m)
     big, t_big = _timed(lambda: quantised_system(p, c, np.arange(m), width=width))
     peak_big = _peak(lambda: quantised_system(p, c, np.arange(m), width=width))
+    area = np.full(m, 100.0 * 100.0 / m)  # the sheet shared out: 0.5 mm² each at 20,000
+    _, t_surface = _timed(lambda: quantised_system(p, c, np.arange(m), width=width, areas=area, near=True))
     ps, cs = _points(dense_m, seed=1)
     small, t_small = _timed(lambda: quantised_system(ps, cs, np.arange(dense_m), width=width))
     ref, t_dense = _timed(lambda: _dense_w(ps, cs, width))
@@ -86,6 +94,7 @@ def bench_w_build(m=20_000, width=0.25, dense_m=3_000):
         "pairs_20k": float(m) * m,
         "peak_MB_20k": peak_big / 2**20,
         "levels_20k": big.n_levels,
+        "seconds_20k_surface_self_term": t_surface,
         "target_s": 30.0,
         "target_MB": 1024.0,
         f"streamed_s_{dense_m}": t_small,
@@ -149,6 +158,28 @@ def bench_noise(spacing=1.8, seeds=20):
     return dict(st.summary(), width_mm=float(st.widths[0]), seconds=time.perf_counter() - t0)
 
 
+def bench_continuous_surface(n=41, sub=8):
+    from facestats.acquire.synthetic.subsurface import half_lit_plate, render_exitance
+    from facestats.model.fitting import fit_scattering_image
+
+    truth = (2.19, 0.0021)
+    centres, areas, c, surface = half_lit_plate(*truth, n=n, sub=sub)
+    lit = c > 0
+    out = {}
+    for term in ("point", "footprint", "surface"):
+        l = render_exitance(centres, areas, c, *truth, radius=np.inf, self_term=term)
+        out[f"render_{term}_median_lit_error"] = float(np.median(l[lit] / surface[lit] - 1))
+    for term, method in (("point", "monotone"), ("footprint", "monotone"), ("surface", "exitance")):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", QuantisationWarning)
+            fit, dt = _timed(
+                lambda: fit_scattering_image(centres, areas, c, surface, width="auto", self_term=term, method=method)
+            )
+        out[f"{term}_{method}"] = f"({fit.sigma_s_prime}, {fit.sigma_a}) at {fit.width:.3g} mm in {dt:.2f} s"
+    out["truth"] = str(truth)
+    return out
+
+
 def bench_contactless(n_subjects=20, spacing=0.3, sites=("cheek", "forehead")):
     import facestats
     from facestats.acquire.synthetic.population import default_population
@@ -178,6 +209,7 @@ BENCHMARKS = [
     ("grid_fit", bench_grid_fit),
     ("table3", bench_table3),
     ("noise", bench_noise),
+    ("continuous_surface", bench_continuous_surface),
     ("contactless", bench_contactless),
 ]
 
@@ -187,5 +219,6 @@ SMOKE = {
     "grid_fit": {"n_levels": 20, "loop_models": 10},
     "table3": {"spacing": 6.0, "widths": (2.0,)},
     "noise": {"spacing": 6.0, "seeds": 2},
+    "continuous_surface": {"n": 15, "sub": 2},
     "contactless": {"n_subjects": 1, "spacing": 0.8, "sites": ("cheek",)},
 }

@@ -433,26 +433,3 @@ def colour_hdri_merge(imgs, times):
         stack.append(im)
     crfs = camera_response_functions_Debevec1997(stack, sampling_function_kwargs={"samples": 200})
     return image_stack_to_HDRI(stack, camera_response_functions=crfs)
-
-
-def plate_with_quadrature(sigma_s_prime, sigma_a, n=41, sub=4):
-    """A flat plate of n × n patches of 1 mm lit over x < 0 (c = 1), and its exitance (η = 1.3) by a quadrature of
-    the surface: the point kernel over sub-patches of 1/``sub`` mm, read at the patch centres.
-
-    Returns (centres (m, 3), areas (m,), irradiance c (m,), exitance (m,)).
-    """
-    from facestats.acquire.synthetic.subsurface import render_exitance
-
-    g = np.arange(n) - n // 2.0
-    x, y = np.meshgrid(g, g)
-    centre = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], 1)
-    c = (centre[:, 0] < 0).astype(float)
-    f = (np.arange(n * sub) - (n * sub - 1) / 2) / sub
-    fx, fy = np.meshgrid(f, f)
-    fine = np.stack([fx.ravel(), fy.ravel(), np.zeros(fx.size)], 1)
-    pts = np.concatenate([fine, centre])
-    areas = np.concatenate([np.full(len(fine), 1.0 / sub**2), np.ones(len(centre))])
-    light = np.concatenate([(fine[:, 0] < -0.5).astype(float), np.zeros(len(centre))])
-    rows = np.arange(len(fine), len(pts))
-    surface = render_exitance(pts, areas, light, sigma_s_prime, sigma_a, eta=1.3, radius=np.inf, rows=rows)
-    return centre, np.ones(len(centre)), c, surface

@@ -250,10 +250,9 @@ def test_the_footprint_self_term_against_a_quadrature_of_the_surface():
     """A patch's own light over the disk of its area: the lit half of a flat plate of 1 mm patches within 5 % of a
     quadrature of the surface (sub-patches of 1/4 mm), where eq. 17's R(0) c A is 21 % too bright; with the near
     patches over their disks too ("surface"), within 0.5 %."""
-    from facestats.acquire.synthetic.subsurface import render_exitance
-    from tests.helpers import plate_with_quadrature
+    from facestats.acquire.synthetic.subsurface import half_lit_plate, render_exitance
 
-    centre, area, c, surface = plate_with_quadrature(2.19, 0.0021, n=31)
+    centre, area, c, surface = half_lit_plate(2.19, 0.0021, n=31)
     lit = c > 0
     rel = {
         st: render_exitance(centre, area, c, 2.19, 0.0021, eta=1.3, radius=np.inf, self_term=st)[lit] / surface[lit] - 1
@@ -262,3 +261,16 @@ def test_the_footprint_self_term_against_a_quadrature_of_the_surface():
     assert np.median(rel["point"]) > 0.15  # measured +21 %, up to +42 %
     assert abs(np.median(rel["footprint"])) < 0.05 and np.abs(rel["footprint"]).max() < 0.06  # -4.2 %, up to 4.8 %
     assert abs(np.median(rel["surface"])) < 0.005 and np.abs(rel["surface"]).max() < 0.005  # -0.36 %, up to 0.42 %
+
+
+def test_the_half_lit_plate_is_centred_and_refuses_an_odd_subdivision():
+    from facestats.acquire.synthetic.subsurface import half_lit_plate
+
+    centres, areas, c, l = half_lit_plate(2.19, 0.0021, n=5, sub=2)
+    assert centres.shape == (25, 3) and (areas == 1).all() and c.sum() == 10  # two of five columns lit (x < 0)
+    np.testing.assert_array_equal(np.unique(centres[:, 0]), [-2, -1, 0, 1, 2])
+    row = np.abs(centres[:, 1]) < 0.5
+    # the lit strip [-2.5, -0.5] is symmetric about x = -1.5; beyond it the exitance falls away from the light
+    assert l[row][0] == pytest.approx(l[row][1], rel=1e-12) and np.all(np.diff(l[row][1:]) < 0)
+    with pytest.raises(ValidationError, match="sub must be even"):
+        half_lit_plate(2.19, 0.0021, sub=3)

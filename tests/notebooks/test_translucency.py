@@ -16,7 +16,7 @@ from tests.helpers import (
 )
 
 NOTEBOOK = NOTEBOOKS / "translucency_from_image.ipynb"
-FIGURES = ("fig5", "noise", "face-image", "face-fit", "face-study")
+FIGURES = ("fig5", "noise", "surface", "face-image", "face-fit", "face-study")
 
 
 @pytest.fixture(scope="module")
@@ -48,5 +48,7 @@ def test_table3_beside_the_paper_and_the_studies(executed):
     noise = cell_text(tagged(nb, "noise"))
     assert "'coverage': 1.0" in noise or re.search(r"'coverage': 0\.(8[5-9]|9)", noise)
     assert "width" in cell_text(tagged(nb, "auto")) and "warning:" in cell_text(tagged(nb, "rank"))
+    fits = dict(re.findall(r"^(\w+) +exitance .*sigma_s' ([\d.]+)", cell_text(tagged(nb, "surface")), re.M))
+    assert abs(float(fits["surface"]) / 2.19 - 1) <= 0.01, fits  # the plate's surface quadrature, SMALL size
     err = float(re.search(r"vs truth ([\d.]+)%", cell_text(tagged(nb, "face-study"))).group(1))
     assert err <= 10.0

@@ -19,6 +19,10 @@ linear system:
    levels, where eq. 28's linear interpolation of the steep R errs: its own round
    trip (footprint render, footprint fit) gives 2.13 at ``"auto"`` (0.42 mm)
    where the point kernel's is exact; use 0.25 mm or finer with it.
+   ``"surface"`` also integrates the lit patches within
+   :data:`facestats.model.disk_quadrature.NEAR_RADII` disk radii of a row over
+   their disks; use it with ``method="exitance"`` (step 5), since eq. 36 cannot
+   resolve the levels between a patch and its neighbours.
 3. **Unsupported levels** — levels that fewer than ``min_pairs`` (visible, lit)
    patch pairs support (hat-weighted count) cannot be solved for; they are
    merged into their neighbours (:func:`~facestats.model.fitting.quantised.merge_levels`)

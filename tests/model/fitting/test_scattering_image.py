@@ -13,7 +13,6 @@ from facestats.model.fitting import fit_scattering_image
 from facestats.model.fitting.profile_grid import TABLE2_GRID, ProfileGrid, fit_profile_grid, profile_cost
 from facestats.model.fitting.scattering_image import SELF_TERMS
 from facestats.pipeline.suzuki_studies import noise_study, render_scene, table3
-from tests.helpers import plate_with_quadrature
 
 TRUTH = (SUZUKI_TABLE1["sigma_s_prime"], SUZUKI_TABLE1["sigma_a"])
 #: The issue's tolerance on the Table 1 scene.
@@ -272,7 +271,9 @@ def test_a_medium_outside_table_2_is_told_to_use_a_wider_grid():
 @pytest.fixture(scope="module")
 def quadrature_plate():
     """The flat plate of 1 mm patches lit over a half plane, its exitance by a quadrature of the surface."""
-    return plate_with_quadrature(*TRUTH)
+    from facestats.acquire.synthetic.subsurface import half_lit_plate
+
+    return half_lit_plate(*TRUTH)
 
 
 def test_the_exitance_fit_with_the_surface_self_term_is_unbiased_on_a_continuous_surface(quadrature_plate):

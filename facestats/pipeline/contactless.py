@@ -40,10 +40,12 @@ from facestats.acquire.synthetic.contactless import (
 from facestats.core.conventions import CHANNELS, SITES
 from facestats.core.progress import progress_bar
 from facestats.core.published import ETA_SKIN
+from facestats.core.validate import check_choice
 from facestats.errors import QuantisationWarning, ValidationError
 from facestats.io.schema import modulation, provenance, set_provenance, set_variable_attrs
 from facestats.model.fitting.profile_grid import ProfileGrid
-from facestats.model.fitting.scattering_image import fit_scattering_channels
+from facestats.model.fitting.quantised import SELF_TERMS
+from facestats.model.fitting.scattering_image import METHODS, fit_scattering_channels
 
 __all__ = ["SKIN_GRID", "estimate_site", "fit_contactless", "contactless_population", "contactless_study"]
 
@@ -54,7 +56,17 @@ _VARS = ("image_sigma_s_prime", "image_sigma_a", "image_sigma_tr", "image_sigma_
 
 
 def estimate_site(
-    scene, image, *, modulation_map=None, face=None, width="auto", grid=SKIN_GRID, refine=True, eta=ETA_SKIN
+    scene,
+    image,
+    *,
+    modulation_map=None,
+    face=None,
+    width="auto",
+    grid=SKIN_GRID,
+    refine=True,
+    eta=ETA_SKIN,
+    method="monotone",
+    self_term="point",
 ):
     """The three channel fits (R, G, B) of one site image (module docstring, steps 1-3).
 
@@ -69,8 +81,9 @@ def estimate_site(
     face : FaceGeometry, optional
         The face the map is laid out on when it is not the procedural head
         (:func:`facestats.acquire.synthetic.contactless.patch_modulation`).
-    width, grid, refine, eta
-        As :func:`facestats.model.fitting.fit_scattering_image`.
+    width, grid, refine, eta, method, self_term
+        As :func:`facestats.model.fitting.fit_scattering_image` (``method="exitance"`` with
+        ``self_term="surface"`` for images of a continuous surface: ``docs/translucency_from_image.md``, Limits).
 
     Returns
     -------
@@ -88,7 +101,19 @@ def estimate_site(
         ok = np.all(m > 0, axis=1)
         seen &= ok
         l = np.where(ok[:, None], l / np.where(m > 0, m, 1.0), 0.0)
-    return fit_scattering_channels(p.centre, p.area, c, l, width=width, visible=seen, eta=eta, grid=grid, refine=refine)
+    return fit_scattering_channels(
+        p.centre,
+        p.area,
+        c,
+        l,
+        width=width,
+        visible=seen,
+        eta=eta,
+        grid=grid,
+        refine=refine,
+        method=method,
+        self_term=self_term,
+    )
 
 
 def fit_contactless(subject, images: dict, *, light="stripe", use_modulation=True, **options):
@@ -115,6 +140,8 @@ def fit_contactless(subject, images: dict, *, light="stripe", use_modulation=Tru
     unknown = sorted(set(images) - set(SITES))
     if unknown or not images:
         raise ValidationError(f"images must map sites among {list(SITES)} to (scene, image), got {sorted(images)}")
+    check_choice(options.get("method", "monotone"), "method", METHODS)
+    check_choice(options.get("self_term", "point"), "self_term", SELF_TERMS)
     mod = face = None
     if use_modulation:
         if "albedo" not in subject.data_vars or "albedo_avg" not in subject.data_vars:
@@ -145,7 +172,7 @@ def fit_contactless(subject, images: dict, *, light="stripe", use_modulation=Tru
     set_variable_attrs(out)
     previous = provenance(subject).get("contactless_translucency")
     entry = {
-        "method": "Suzuki, Mukaigawa & Yagi quantised-distance solve (monotone, 1/l weights) + eq. 36 dipole fit",
+        "method": _method_text(options.get("method", "monotone"), options.get("self_term", "point")),
         "light": light,
         "modulation_corrected": bool(use_modulation),
         "eta": float(options.get("eta", ETA_SKIN)),
@@ -154,6 +181,17 @@ def fit_contactless(subject, images: dict, *, light="stripe", use_modulation=Tru
     if previous is not None:
         entry["replaces"] = previous.get("method")
     return set_provenance(out, contactless_translucency=entry)
+
+
+def _method_text(method, self_term) -> str:
+    """The provenance's one-line description of the estimator."""
+    solve = {
+        "monotone": "solve (monotone, 1/l weights) + eq. 36 dipole fit",
+        "pinv": "solve (pseudo-inverse, eq. 35) + eq. 36 dipole fit",
+        "exitance": "system with the dipole fitted through W (eq. 34, 1/l weights)",
+    }[method]
+    own = "" if self_term == "point" else f"; self term {self_term}"
+    return f"Suzuki, Mukaigawa & Yagi quantised-distance {solve}{own}"
 
 
 def contactless_population(

@@ -79,3 +79,21 @@ def test_store_gets_the_subject_only_when_every_fit_completed(subject_and_fit, t
         back = st.subject("S001")
         assert np.isfinite(back["image_sigma_tr"].values[:2]).all()
         assert "contactless_translucency" in provenance(back)
+
+
+def test_the_exitance_fit_with_the_surface_self_term_is_an_option_recorded_in_the_provenance(subject_and_fit):
+    """estimate_site passes method and self_term to the fit; the provenance says which estimator ran; a bad name is
+    refused before any fit."""
+    from facestats.errors import ValidationError
+
+    _, truth, subject, images, default = subject_and_fit
+    ds = fit_contactless(subject, {"cheek": images["cheek"]}, method="exitance", self_term="surface")
+    i = SITES.index("cheek")
+    rel = ds["image_sigma_tr"].values[i] / truth.site_sigma_tr[i] - 1
+    assert np.all(np.abs(rel) <= 0.02), rel  # the point-kernel render, fitted through W: within 2 %
+    prov = provenance(ds)["contactless_translucency"]
+    assert "dipole fitted through W" in prov["method"] and prov["method"].endswith("self term surface")
+    assert prov["sites"]["cheek"]["channels"]["G"]["method"] == "exitance"
+    assert "eq. 36" in provenance(default)["contactless_translucency"]["method"]
+    with pytest.raises(ValidationError, match="method must be one of"):
+        fit_contactless(subject, images, method="direct")

@@ -286,8 +286,9 @@ def _near_correction(d, self_cols, cols_w, cols_rho, levels, width):
 
     Returns
     -------
-    ndarray, shape (b, n)
-        The change of the block's rows.
+    ndarray, shape (b, k)
+        The change of the block's rows in its first k levels (k: those the near disks reach; later ones do not
+        change, so the temporaries stay b × k).
     float
         The farthest node distance of a near pair, mm (0 if none).
     """
@@ -295,8 +296,9 @@ def _near_correction(d, self_cols, cols_w, cols_rho, levels, width):
     jj, kk = _near_pairs(d, self_cols, cols_rho)
     dist = d[jj, kk]
     if jj.size == 0:
-        return np.zeros((b, n)), 0.0
+        return np.zeros((b, 0)), 0.0
     reach = float(np.max(dist + cols_rho[kk]))
+    k = min(n, int(np.searchsorted(levels, reach, side="right")) + 1)  # levels[k - 1] > reach, or k = n
     r, wq = disk_node_distances(dist, cols_rho[kk])
     r = np.concatenate([r.ravel(), dist])  # the disk's nodes, then the centre the point kernel took
     np.minimum(r, np.nextafter(levels[-1], 0), out=r)
@@ -304,7 +306,7 @@ def _near_correction(d, self_cols, cols_w, cols_rho, levels, width):
     rows = np.concatenate([np.repeat(jj, wq.size), jj])
     i, t = _levels_of(r, levels, width)
     t *= weight
-    return _hat_sums(rows * (n + 1) + i, weight, t, b, n), reach
+    return _hat_sums(rows * (k + 1) + i, weight, t, b, k), reach
 
 
 def _accumulate_block(rows_xyz, self_cols, cols_xyz, sq_c, cols_w, levels, width, cols_rho=None):
@@ -323,7 +325,7 @@ def _accumulate_block(rows_xyz, self_cols, cols_xyz, sq_c, cols_w, levels, width
             f"levels must extend beyond the largest patch distance (Suzuki eq. 23): last level "
             f"{levels[-1]:.6g} mm, but a pair lies {dmax:.6g} mm apart"
         )
-    near, reach = (0.0, 0.0) if cols_rho is None else _near_correction(d, self_cols, cols_w, cols_rho, levels, width)
+    near, reach = (None, 0.0) if cols_rho is None else _near_correction(d, self_cols, cols_w, cols_rho, levels, width)
     i, t = _levels_of(d, levels, width)
     i_flat, t_flat = i.ravel(), t.ravel()
     support = _hat_sums(i_flat, None, t_flat, 1, n)[0]
@@ -331,7 +333,8 @@ def _accumulate_block(rows_xyz, self_cols, cols_xyz, sq_c, cols_w, levels, width
     weight = np.broadcast_to(cols_w, (b, nc)).ravel()
     t *= cols_w
     w_block = _hat_sums(i_flat, weight, t_flat, b, n)
-    w_block += near
+    if cols_rho is not None:
+        w_block[:, : near.shape[1]] += near
     return w_block, support, dmax, reach
 
 

@@ -39,6 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from facestats.core.validate import as_finite, check_integer
+from facestats.errors import ValidationError
 
 __all__ = ["NEAR_RADII", "DISK_RULE", "disk_rule", "disk_node_distances"]
 
@@ -101,8 +102,11 @@ def disk_node_distances(distance, radius, rule=None):
     weight : ndarray, shape (q,)
         Area fractions of the nodes (sum 1).
     """
-    d = np.atleast_1d(as_finite(distance, "distance", 0, None, unit="mm", dtype=np.float64))[:, None]
-    rho = np.atleast_1d(as_finite(radius, "radius", 0, None, unit="mm", dtype=np.float64))[:, None]
+    d = np.atleast_1d(as_finite(distance, "distance", 0, None, unit="mm", dtype=np.float64))
+    rho = np.atleast_1d(as_finite(radius, "radius", 0, None, unit="mm", dtype=np.float64))
+    if d.ndim != 1 or rho.shape != d.shape:
+        raise ValidationError(f"distance and radius must be 1-D of one length, got shapes {d.shape} and {rho.shape}")
+    d, rho = d[:, None], rho[:, None]
     s, phi, weight = disk_rule() if rule is None else rule
     rs = rho * s
     r2 = d * d + rs * rs - 2 * d * rs * np.cos(phi)

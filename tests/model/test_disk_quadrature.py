@@ -49,3 +49,8 @@ def test_bad_distances_are_named():
         disk_node_distances([-1.0], [0.5])
     with pytest.raises(ValidationError, match="radius"):
         disk_node_distances([1.0], [np.nan])
+
+
+def test_distances_and_radii_must_pair_up():
+    with pytest.raises(ValidationError, match="distance and radius must be 1-D of one length"):
+        disk_node_distances([1.0, 2.0], [0.5, 0.5, 0.5])

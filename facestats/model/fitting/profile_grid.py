@@ -55,12 +55,13 @@ normal equations of the monotone solve): no level needs identifying, so W is
 used at its width, unmerged, and each model costs one n_levels² quadratic
 form.  The interval follows the rule above with the rows as residuals
 (s² = cost_min / (n − 2)); the refinement solves the same least squares
-through the eigen-decomposition of G.  Measured on a flat plate of 1 mm
-patches (exitance by a quadrature of the surface, Suzuki Table 1's medium,
-σ's 2.19, σa 0.0021 mm⁻¹) at width 0.1 mm: eq. 36 gives 1.92 / 0.003 (point
-self term), 2.03 / 0.0026 (footprint), 2.04 / 0.0026 (surface); the exitance
-fit 1.82 / 0.003, 2.29 / 0.0019 and 2.19 / 0.0021: with the surface self term
-it is unbiased, with the others it is not.
+through the eigen-decomposition of G.  Measured on a flat plate of 41 × 41
+patches of 1 mm (exitance by a quadrature of the surface with 1/8 mm
+sub-patches, :func:`facestats.acquire.synthetic.subsurface.half_lit_plate`;
+Suzuki Table 1's medium, σ's 2.19, σa 0.0021 mm⁻¹) at width 0.1 mm: eq. 36
+gives 1.92 / 0.003 (point self term), 2.03 / 0.0026 (footprint), 1.89 / 0.003
+(surface); the exitance fit 1.82 / 0.003, 2.29 / 0.0019 and 2.19 / 0.0021:
+with the surface self term it is unbiased, with the others it is not.
 """
 
 from __future__ import annotations
@@ -69,7 +70,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_shape
+from facestats.core.validate import as_finite, check_integer, check_shape
 from facestats.errors import FitError, ValidationError
 from facestats.model.dipole import check_dipole_eta, dipole_profile_unchecked
 
@@ -83,8 +84,10 @@ __all__ = [
     "fit_exitance_grid",
 ]
 
-#: Models evaluated per chunk of the grid search (bounds memory to chunk × levels doubles).
+#: Models evaluated per chunk of the grid search; the dipole's temporaries take about 8 × chunk × levels doubles.
 _CHUNK_MODELS = 4096
+#: The exitance fit's chunks hold at most this many model × level values (16 MB a temporary, ~130 MB in all).
+_CHUNK_VALUES = 2**21
 
 
 @dataclass(frozen=True)
@@ -348,8 +351,9 @@ def exitance_cost(levels, gram, rhs, n_rows, grid: ProfileGrid, eta) -> np.ndarr
     d = np.asarray(levels, np.float64)
     total = int(np.prod(grid.shape))
     cost = np.empty(total)
-    for start in range(0, total, _CHUNK_MODELS):  # loop over chunks of models, vectorised within
-        rows = np.arange(start, min(start + _CHUNK_MODELS, total))
+    chunk = max(16, min(_CHUNK_MODELS, _CHUNK_VALUES // max(d.size, 1)))  # the dipole's temporaries: ~8 × chunk × n
+    for start in range(0, total, chunk):  # loop over chunks of models, vectorised within
+        rows = np.arange(start, min(start + chunk, total))
         m = _models(grid, d, eta, rows)
         cost[rows] = np.einsum("ij,ij->i", m @ gram, m) - 2 * (m @ rhs) + n_rows
     return np.maximum(cost, 0).reshape(grid.shape)
@@ -377,9 +381,15 @@ def fit_exitance_grid(levels, gram, rhs, n_rows, *, grid: ProfileGrid | None = N
         ``max_distance`` is the last level.
     """
     d = check_shape(as_finite(levels, "levels", 0, None, unit="mm", dtype=np.float64), "levels", (None,))
+    if d.size < 2 or np.any(np.diff(d) <= 0):
+        raise ValidationError(f"levels must increase strictly (Suzuki eq. 24) with at least 2 entries, got {d!r}")
     g = check_shape(as_finite(gram, "gram", dtype=np.float64), "gram", (d.size, d.size))
+    if np.any(np.diag(g) < 0):
+        raise ValidationError(
+            f"gram must be a Gram matrix AᵀA (diagonal ≥ 0), got diagonal minimum {np.diag(g).min()!r}"
+        )
     b = check_shape(as_finite(rhs, "rhs", dtype=np.float64), "rhs", (d.size,))
-    n = int(n_rows)
+    n = check_integer(n_rows, "n_rows", 0)
     if n < 3:
         raise FitError(f"the exitance fit needs at least 3 rows with l > 0 to fit 2 parameters, got {n}")
     eta = float(check_dipole_eta(eta))

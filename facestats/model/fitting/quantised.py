@@ -86,7 +86,7 @@ import numpy as np
 from facestats.core.progress import progress_bar
 from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
 from facestats.errors import FitError, ValidationError
-from facestats.model.disk_quadrature import NEAR_RADII, disk_node_distances
+from facestats.model.disk_quadrature import DISK_RULE, NEAR_RADII, disk_node_distances
 
 __all__ = [
     "DEFAULT_BLOCK_BYTES",
@@ -94,6 +94,7 @@ __all__ = [
     "QuantisedSystem",
     "Conditioning",
     "uniform_levels",
+    "planned_levels",
     "quantised_system",
     "point_kernel_exitance",
     "disk_hat_integrals",
@@ -120,6 +121,8 @@ DEFAULT_BLOCK_BYTES = 128 * 2**20
 MAX_LEVELS = 4096
 #: Bytes of temporaries per (row, lit patch) pair of a block.
 _BYTES_PER_PAIR = 48
+#: Nodes of the disk rule a near pair is integrated over.
+_DISK_NODES = DISK_RULE[0] * DISK_RULE[1]
 
 
 @dataclass
@@ -214,10 +217,25 @@ def _check_levels(levels) -> np.ndarray:
     return lev
 
 
-def _bounding_distance(a, b) -> float:
-    """An upper bound of the distances between two point sets: the diagonal of their joint bounding box."""
-    both = np.concatenate([a, b])
-    return float(np.linalg.norm(both.max(0) - both.min(0)))
+def _farthest(rows_xyz, cols_xyz, rho=None) -> float:
+    """An upper bound of the distances W meets: the diagonal of the points' joint bounding box, plus the largest
+    disk radius when near pairs are taken over their disks (``rho``, mm)."""
+    both = np.concatenate([rows_xyz, cols_xyz])
+    extra = 0.0 if rho is None or rho.size == 0 else float(rho.max())
+    return float(np.linalg.norm(both.max(0) - both.min(0))) + extra
+
+
+def planned_levels(points, weights, rows=None, *, width, areas=None, near=False) -> int:
+    """Number of levels :func:`quantised_system` allocates W with at ``width`` (before trimming to the farthest
+    pair): W then takes len(rows) × this × 8 bytes.  Raises :class:`ValidationError` where the width would give
+    more than :data:`MAX_LEVELS`, as :func:`quantised_system` does."""
+    p = np.asarray(points, np.float64)
+    wk = np.asarray(weights, np.float64)
+    idx = np.arange(p.shape[0]) if rows is None else np.asarray(rows)
+    lit = np.nonzero(wk > 0)[0]
+    rho = np.sqrt(np.asarray(areas, np.float64)[lit] / np.pi) if near else None
+    w = float(as_finite(width, "width", 0, None, low_inclusive=False, unit="mm"))
+    return int(uniform_levels(w, _farthest(p[idx], p[lit], rho)).size)
 
 
 def _levels_of(d, levels, width):
@@ -277,12 +295,13 @@ def _near_pairs(d, self_cols, cols_rho):
     return jj[keep], kk[keep]
 
 
-def _near_correction(d, self_cols, cols_w, cols_rho, levels, width):
+def _near_correction(d, self_cols, cols_w, cols_rho, levels, width, budget):
     """A block's change of W from taking its near pairs over the source disk (module docstring), and their reach.
 
     A pair (row j, lit column k ≠ j) is near when d_jk < NEAR_RADII ρ_k; it changes row j by c_k A_k [Σ_q w_q
     hat_i(r_q) − hat_i(d_jk)], with r_q the distances to the disk's nodes
     (:func:`facestats.model.disk_quadrature.disk_node_distances`).  Nodes beyond the last level take its hat.
+    The pairs are taken in chunks whose temporaries (about 48 bytes a node) stay within ``budget`` bytes.
 
     Returns
     -------
@@ -299,22 +318,27 @@ def _near_correction(d, self_cols, cols_w, cols_rho, levels, width):
         return np.zeros((b, 0)), 0.0
     reach = float(np.max(dist + cols_rho[kk]))
     k = min(n, int(np.searchsorted(levels, reach, side="right")) + 1)  # levels[k - 1] > reach, or k = n
-    r, wq = disk_node_distances(dist, cols_rho[kk])
-    r = np.concatenate([r.ravel(), dist])  # the disk's nodes, then the centre the point kernel took
-    np.minimum(r, np.nextafter(levels[-1], 0), out=r)
-    weight = np.concatenate([(cols_w[kk][:, None] * wq).ravel(), -cols_w[kk]])
-    rows = np.concatenate([np.repeat(jj, wq.size), jj])
-    i, t = _levels_of(r, levels, width)
-    t *= weight
-    return _hat_sums(rows * (k + 1) + i, weight, t, b, k), reach
+    out = np.zeros((b, k))
+    step = max(1, int(budget) // (48 * _DISK_NODES))
+    for start in range(0, jj.size, step):  # loop over chunks of near pairs, vectorised within
+        sl = slice(start, start + step)
+        r, wq = disk_node_distances(dist[sl], cols_rho[kk[sl]])
+        r = np.concatenate([r.ravel(), dist[sl]])  # the disk's nodes, then the centre the point kernel took
+        np.minimum(r, np.nextafter(levels[-1], 0), out=r)
+        weight = np.concatenate([(cols_w[kk[sl]][:, None] * wq).ravel(), -cols_w[kk[sl]]])
+        rows = np.concatenate([np.repeat(jj[sl], wq.size), jj[sl]])
+        i, t = _levels_of(r, levels, width)
+        t *= weight
+        out += _hat_sums(rows * (k + 1) + i, weight, t, b, k)
+    return out, reach
 
 
-def _accumulate_block(rows_xyz, self_cols, cols_xyz, sq_c, cols_w, levels, width, cols_rho=None):
+def _accumulate_block(rows_xyz, self_cols, cols_xyz, sq_c, cols_w, levels, width, cols_rho=None, budget=None):
     """One row block: its rows of W, its level support, its largest pair distance and its near pairs' reach.
 
     ``self_cols`` holds, per row, the column of the same patch among the lit ones (−1 if unlit);
     ``cols_rho`` (the lit columns' disk radii, mm) takes the near pairs over their disks
-    (:func:`_near_correction`), None keeps the point kernel.
+    (:func:`_near_correction`, within ``budget`` bytes), None keeps the point kernel.
     """
     n = levels.shape[0]
     b, nc = rows_xyz.shape[0], cols_xyz.shape[0]
@@ -325,7 +349,9 @@ def _accumulate_block(rows_xyz, self_cols, cols_xyz, sq_c, cols_w, levels, width
             f"levels must extend beyond the largest patch distance (Suzuki eq. 23): last level "
             f"{levels[-1]:.6g} mm, but a pair lies {dmax:.6g} mm apart"
         )
-    near, reach = (None, 0.0) if cols_rho is None else _near_correction(d, self_cols, cols_w, cols_rho, levels, width)
+    near, reach = None, 0.0
+    if cols_rho is not None:
+        near, reach = _near_correction(d, self_cols, cols_w, cols_rho, levels, width, budget)
     i, t = _levels_of(d, levels, width)
     i_flat, t_flat = i.ravel(), t.ravel()
     support = _hat_sums(i_flat, None, t_flat, 1, n)[0]
@@ -443,9 +469,10 @@ def quantised_system(
         raise ValidationError(f"near must be True or False, and True only with areas, got {near!r}")
     centre = p[np.concatenate([idx, lit])].mean(0)
     rows_xyz, cols_xyz = p[idx] - centre, p[lit] - centre
+    rho = np.sqrt(area[lit] / np.pi) if near else None  # the lit patches' disk radii, mm
     if width is not None:
         w = float(as_finite(width, "width", 0, None, low_inclusive=False, unit="mm"))
-        lev = uniform_levels(w, _bounding_distance(rows_xyz, cols_xyz))
+        lev = uniform_levels(w, _farthest(rows_xyz, cols_xyz, rho))
     else:
         w, lev = None, _check_levels(levels)
     block = max(1, int(block_bytes) // (_BYTES_PER_PAIR * lit.size))
@@ -457,10 +484,11 @@ def quantised_system(
     self_cols = lit_pos[idx]
     w_mat = np.empty((idx.size, lev.size))
     support, dmax, reach = np.zeros(lev.size), 0.0, 0.0
-    rho = np.sqrt(area[lit] / np.pi) if near else None
     for start in starts:  # loop over row blocks, vectorised over the pairs of a block
         sub = slice(start, min(start + block, idx.size))
-        w_mat[sub], sb, db, rb = _accumulate_block(rows_xyz[sub], self_cols[sub], cols_xyz, sq_c, wk[lit], lev, w, rho)
+        w_mat[sub], sb, db, rb = _accumulate_block(
+            rows_xyz[sub], self_cols[sub], cols_xyz, sq_c, wk[lit], lev, w, rho, block_bytes
+        )
         support += sb
         dmax, reach = max(dmax, db), max(reach, rb)
     if w is not None:  # trim to the levels eq. 23 needs: d'_n is the first level beyond the largest distance
@@ -540,6 +568,8 @@ def point_kernel_exitance(
     rows_xyz, cols_xyz = p[idx] - centre, p[lit] - centre
     sq_c = np.einsum("ij,ij->i", cols_xyz, cols_xyz)
     out = np.zeros(idx.size)
+    if not isinstance(near, (bool, np.bool_)):
+        raise ValidationError(f"near must be True or False, got {near!r}")
     if (areas is None) != (energy is None) or (near and areas is None):
         raise ValidationError(
             "areas and energy go together (a patch's own light over the disk of its area), and near needs them, "

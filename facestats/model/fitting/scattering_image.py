@@ -51,10 +51,11 @@ linear system:
    level, so an image of a continuous surface is fitted without the point
    kernel's bias (a flat plate of 1 mm patches, exitance by a quadrature of
    the surface: σ's 2.19, σa 0.0021 at 0.1 mm, truth 2.19 / 0.0021; eq. 36
-   gives 2.04 / 0.0026 there).  Its accuracy is bounded by eq. 28's linear
+   with the same self term gives 1.89 / 0.003 there; at a fixed 0.25 mm the
+   exitance fit gives 2.14 / 0.0022).  Its accuracy is bounded by eq. 28's linear
    interpolation over the disks' nodes, which is what step 6 measures, so
    with ``width="auto"`` the width is narrowed (about as the square root of
-   the error, at most ``EXITANCE_ROUNDS`` = 4 times, W at most 1 GiB) until
+   the error, at most ``EXITANCE_ROUNDS`` = 4 times, W at most 256 MiB) until
    that error is at most ``EXITANCE_QUANTISATION`` = 0.25 %.
 
 6. **Check** the quantisation (:func:`quantisation_error`): the interval of step
@@ -94,7 +95,6 @@ from facestats.model.fitting.profile_grid import (
 from facestats.model.fitting.quantisation_choice import auto_width, fit_distance
 from facestats.model.fitting.quantised import (
     DEFAULT_BLOCK_BYTES,
-    MAX_LEVELS,
     SELF_TERMS,
     QuantisedSystem,
     conditioning,
@@ -102,6 +102,7 @@ from facestats.model.fitting.quantised import (
     interpolation_matrix,
     merge_levels,
     normal_equations,
+    planned_levels,
     point_kernel_exitance,
     quantised_system,
     self_term_keywords,
@@ -133,9 +134,10 @@ QUANTISATION_WARNING = 0.05
 #: ``method="exitance"`` with ``width="auto"`` narrows the width until :func:`quantisation_error` is at most this
 #: (module docstring, step 5): on noise-free renders σ's then lies within about 1 % of its converged value.
 EXITANCE_QUANTISATION = 0.0025
-#: At most this many narrowing rounds, and W (rows × levels, float64) at most this many bytes.
+#: At most this many narrowing rounds, and W (rows × levels, float64) at most this many bytes: the exitance fit
+#: holds about 3 more of W's size at its peak (normal equations, the R' solve), so about 1 GiB in all.
 EXITANCE_ROUNDS = 4
-EXITANCE_W_BYTES = 2**30
+EXITANCE_W_BYTES = 256 * 2**20
 
 
 @dataclass
@@ -321,6 +323,60 @@ def _fit_range(system, neq, l, r, method, max_distance):
     return dmax
 
 
+def _solved_profile(system, l, method, min_pairs, rcond, notes):
+    """Steps 3-4: merge the unsupported and the dependent levels (warned about), then solve r by ``method``.
+
+    Returns (system after merging, its normal equations, conditioning, r, rows solved, rank deficient).
+    """
+    system = _merge_unsupported(system, int(min_pairs), notes)
+    neq = normal_equations(system, l, weighted=method != "pinv")
+    system, neq, cond, n_rank_merged = _resolve_rank(system, neq, float(rcond), notes)
+    if cond.condition > CONDITION_WARNING:
+        notes.append(
+            f"W is ill-conditioned: condition number {cond.condition:.3g} > {CONDITION_WARNING:g} (columns scaled to "
+            "unit norm, rows weighted as solved); the profile is sensitive to noise, e.g. under nearly uniform light"
+        )
+    if cond.rank < system.n_levels:
+        notes.append(
+            f"W keeps numerical rank {cond.rank} < {system.n_levels} (the dependent levels include the first or "
+            "the last, which eq. 22-23 keep): r is not unique; pinv truncates, the monotone constraints choose"
+        )
+    if system.n_levels < 3:
+        raise FitError(f"only {system.n_levels} supported levels remain; at least 3 are needed to fit 2 parameters")
+    for note in notes:  # warned before the fit, which may still fail on what they describe
+        warnings.warn(note, QuantisationWarning, stacklevel=4)
+    r, n_rows = _solve(system, neq, l, method, rcond, notes)
+    return system, neq, cond, r, n_rows, n_rank_merged > 0 or cond.rank < system.n_levels
+
+
+def _exitance_fit(system, l, *, max_distance, min_pairs, rcond, grid, eta, refine, level):
+    """``method="exitance"`` (module docstring, step 5): the estimate through W unmerged, R' solved for display.
+
+    Returns (the system R' is shown on, the ProfileFit, r, conditioning, rows, notes).
+    """
+    if not (max_distance is None or (isinstance(max_distance, str) and max_distance == "auto")):
+        raise ValidationError(
+            f"max_distance selects the levels of eq. 36; method='exitance' fits every row through W, got "
+            f"max_distance={max_distance!r} (use 'auto' or None)"
+        )
+    full = normal_equations(system, l, weighted=True)
+    pf = fit_exitance_grid(
+        system.levels, full.gram, full.rhs, full.n_rows, grid=grid, eta=eta, refine=refine, level=level
+    )
+    shown_notes = []  # the R' solve's own, warned about by it
+    try:
+        shown, _, cond, r, _, _ = _solved_profile(system, l, "monotone", min_pairs, rcond, shown_notes)
+    except FitError as exc:
+        shown_notes.append(f"R' was not solved ({exc}); the exitance fit does not need it")
+        shown, cond, r = system, conditioning(full, float(rcond)), np.full(system.n_levels, np.nan)
+    note = (
+        "method='exitance': the dipole is fitted to the exitance through W at its width (eq. 34, "
+        f"{system.n_levels} levels, none merged); the profile R', its levels, rank and condition are the monotone "
+        "solve's, shown for comparison"
+    )
+    return shown, pf, r, cond, full.n_rows, [note, *shown_notes]
+
+
 def fit_scattering_system(
     system: QuantisedSystem,
     exitance,
@@ -343,41 +399,22 @@ def fit_scattering_system(
     check_choice(method, "method", METHODS)
     check_integer(min_pairs, "min_pairs", 1)
     l = check_shape(as_finite(exitance, "radiance", 0, None, dtype=np.float64), "radiance", (system.rows.size,))
-    notes: list = []
-    direct = None
-    if method == "exitance":  # the estimate through W at its width, unmerged (step 5)
-        if max_distance not in ("auto", None):
-            raise ValidationError(
-                f"max_distance selects the levels of eq. 36; method='exitance' fits every row through W, got "
-                f"max_distance={max_distance!r} (use 'auto' or None)"
-            )
-        direct = (system.levels, normal_equations(system, l, weighted=True))
-    system = _merge_unsupported(system, int(min_pairs), notes)
-    neq = normal_equations(system, l, weighted=method != "pinv")
-    system, neq, cond, n_rank_merged = _resolve_rank(system, neq, float(rcond), notes)
-    if cond.condition > CONDITION_WARNING:
-        notes.append(
-            f"W is ill-conditioned: condition number {cond.condition:.3g} > {CONDITION_WARNING:g} (columns scaled to "
-            "unit norm, rows weighted as solved); the profile is sensitive to noise, e.g. under nearly uniform light"
+    if method == "exitance":
+        system, pf, r, cond, n_rows, notes = _exitance_fit(
+            system,
+            l,
+            max_distance=max_distance,
+            min_pairs=min_pairs,
+            rcond=rcond,
+            grid=grid,
+            eta=eta,
+            refine=refine,
+            level=level,
         )
-    if cond.rank < system.n_levels:
-        notes.append(
-            f"W keeps numerical rank {cond.rank} < {system.n_levels} (the dependent levels include the first or "
-            "the last, which eq. 22-23 keep): r is not unique; pinv truncates, the monotone constraints choose"
-        )
-    if system.n_levels < 3:
-        raise FitError(f"only {system.n_levels} supported levels remain; at least 3 are needed to fit 2 parameters")
-    for note in notes:  # warned before the fit, which may still fail on what they describe
-        warnings.warn(note, QuantisationWarning, stacklevel=3)
-    r, n_rows = _solve(system, neq, l, method, rcond, notes)
-    if direct is not None:
-        levels, full = direct
-        pf = fit_exitance_grid(levels, full.gram, full.rhs, full.n_rows, grid=grid, eta=eta, refine=refine, level=level)
-        notes.append(
-            "method='exitance': the dipole is fitted to the exitance through W at its width (eq. 34, "
-            f"{levels.size} levels, none merged); the profile R' shown is the monotone solve's"
-        )
+        deficient = False  # the estimate fits 2 parameters through W whatever its rank
     else:
+        notes = []
+        system, neq, cond, r, n_rows, deficient = _solved_profile(system, l, method, min_pairs, rcond, notes)
         pf = fit_profile_grid(
             system.levels,
             r,
@@ -396,7 +433,6 @@ def fit_scattering_system(
             f"sigma_a {g.sigma_a[0]:g}-{g.sigma_a[-1]:g} 1/mm): the grid bounds it, and the medium may lie outside; "
             "fit on a wider grid (grid=ProfileGrid.log_spaced(); --grid skin on the command line)"
         )
-    deficient = n_rank_merged > 0 or cond.rank < system.n_levels
     return ScatteringImageFit(
         sigma_s_prime=pf.sigma_s_prime,
         sigma_a=pf.sigma_a,
@@ -639,7 +675,28 @@ def _checked_quantisation(system, points, weights, fit) -> None:
 
 def _fit_over_widths(p, weights, rows, exitances, width, options, block_bytes, progress, own) -> list:
     """Fit each exitance vector (rows) with W built at the width, or at the ``"auto"`` candidates in turn
-    (``own``: the self term's keywords of :func:`quantised_system`, from ``self_term_keywords``)."""
+    (``own``: the self term's keywords of :func:`quantised_system`, from ``self_term_keywords``); with
+    ``method="exitance"`` and ``width="auto"``, then narrow the width (:func:`_narrowed`)."""
+    auto = isinstance(width, str)
+    if not (auto and options.get("method") == "exitance"):
+        return _fit_candidates(p, weights, rows, exitances, width, options, block_bytes, progress, own)
+    with warnings.catch_warnings(record=True) as caught:  # about the candidate width: replayed if it is kept
+        warnings.simplefilter("always")
+        first = _fit_candidates(p, weights, rows, exitances, width, options, block_bytes, progress, own)
+    out, replay = [], False
+    for fit, l in zip(first, exitances):  # the images (channels), each narrowed on its own
+        kept, kept_warnings = _narrowed(fit, p, weights, rows, l, options, block_bytes, progress, own)
+        out.append(kept)
+        replay |= kept is fit
+        for x in kept_warnings:
+            warnings.warn(x.message, x.category, stacklevel=4)
+    for x in caught if replay else ():
+        warnings.warn(x.message, x.category, stacklevel=4)
+    return out
+
+
+def _fit_candidates(p, weights, rows, exitances, width, options, block_bytes, progress, own) -> list:
+    """Each exitance vector fitted at the width, or at the first ``"auto"`` candidate that suits it."""
     auto = isinstance(width, str)
     if auto:
         check_choice(width, "width", ("auto",))
@@ -660,49 +717,50 @@ def _fit_over_widths(p, weights, rows, exitances, width, options, block_bytes, p
                 errors[i] = exc
             if results[i] is not None:
                 _checked_quantisation(system, p, weights, results[i])
-    _raise_unsolved(results, errors, auto)
-    if auto and options.get("method") == "exitance":
-        return [
-            _narrowed(f, p, weights, rows, l, options, block_bytes, progress, own) for f, l in zip(results, exitances)
-        ]
-    return results
-
-
-def _raise_unsolved(results, errors, auto) -> None:
-    """Raise the error of the first image no width could fit."""
     for fit, error in zip(results, errors):
         if fit is None:
             if not auto:
                 raise error
             raise FitError(f"no candidate width gave a solvable system; the last said: {error}")
+    return results
 
 
 def _narrowed(fit, p, weights, rows, exitance, options, block_bytes, progress, own):
     """``method="exitance"``, ``width="auto"``: narrow the width while the levels misrepresent the fitted dipole
-    by more than :data:`EXITANCE_QUANTISATION` (module docstring, step 5)."""
-    first = fit
+    by more than :data:`EXITANCE_QUANTISATION` (module docstring, step 5).
+
+    Returns the fit kept and the warnings of its fit (none when it is ``fit``, whose warnings the caller holds).
+    """
+    first, caught = fit, []
     for _ in range(EXITANCE_ROUNDS):  # a few rounds: the error falls about as the width squared
         err = fit.quantisation_error
         if not err > EXITANCE_QUANTISATION:
+            if not np.isfinite(err):
+                fit.notes.append("width='auto' kept the width: the quantisation error could not be measured")
             break
         w = fit.width * 0.9 * np.sqrt(EXITANCE_QUANTISATION / err)
-        levels = float(fit.profile_fit.max_distance) / w + 2
-        if levels > MAX_LEVELS or levels * rows.size * 8 > EXITANCE_W_BYTES:
+        try:
+            cells = rows.size * planned_levels(p, weights, rows, width=w, **own)
+        except ValidationError:  # beyond MAX_LEVELS
+            cells = np.inf
+        if cells * 8 > EXITANCE_W_BYTES:
             fit.notes.append(
-                f"width='auto' kept {fit.width:.4g} mm (quantisation error {100 * err:.3g} %): a width of {w:.4g} mm "
-                f"would give W {rows.size} rows x {levels:.0f} levels, beyond MAX_LEVELS or {EXITANCE_W_BYTES} bytes"
+                f"width='auto' kept {fit.width:.4g} mm (quantisation error {100 * err:.3g} %): W at {w:.4g} mm would "
+                f"exceed MAX_LEVELS or {EXITANCE_W_BYTES} bytes"
             )
             break
         system = quantised_system(p, weights, rows, width=w, block_bytes=block_bytes, progress=progress, **own)
-        with warnings.catch_warnings():  # the notes of the narrower system are the result's own
-            warnings.simplefilter("ignore", QuantisationWarning)
+        with warnings.catch_warnings(record=True) as record:
+            warnings.simplefilter("always")
             fit = fit_scattering_system(system, exitance, width=w, **options)
-        _checked_quantisation(system, p, weights, fit)
+            _checked_quantisation(system, p, weights, fit)
+        caught = record
     if fit is not first:
-        fit.notes.insert(
-            0,
+        carried = [note for note in first.notes if note.startswith("width='auto'")]  # the candidates, skips
+        fit.notes[:0] = carried + [
             f"width='auto' chose {first.width:.4g} mm, then narrowed it to {fit.width:.4g} mm for method='exitance' "
             f"(quantisation error {100 * first.quantisation_error:.3g} % -> {100 * fit.quantisation_error:.3g} %, "
-            f"target {100 * EXITANCE_QUANTISATION:g} %)",
-        )
-    return fit
+            f"target {100 * EXITANCE_QUANTISATION:g} %)"
+        ]
+        fit.rank_deficient = first.rank_deficient
+    return fit, caught

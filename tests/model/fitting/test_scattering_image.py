@@ -292,7 +292,7 @@ def test_the_exitance_fit_with_the_surface_self_term_is_unbiased_on_a_continuous
     assert fit.sigma_s_prime_interval[0] <= TRUTH[0] <= fit.sigma_s_prime_interval[1]
     assert (fit.method, fit.self_term) == ("exitance", "surface")
     assert fit.quantisation_error <= EXITANCE_QUANTISATION and fit.width < 0.2
-    assert "then narrowed it to" in fit.notes[0] and any("method='exitance'" in n for n in fit.notes)
+    assert "then narrowed it to" in fit.notes[1] and any("method='exitance'" in n for n in fit.notes)
 
 
 def test_the_exitance_cost_is_the_sum_of_squared_relative_residuals(edge):
@@ -329,3 +329,36 @@ def test_the_exitance_fit_round_trips_and_refuses_a_fit_range(edge):
     assert abs(refined.sigma_s_prime / TRUTH[0] - 1) < 0.01  # measured 2.173 (eq. 28's interpolation at 0.25 mm)
     with pytest.raises(ValidationError, match="max_distance selects the levels of eq. 36"):
         _fit(edge, width=0.5, method="exitance", max_distance=10.0)
+
+
+def test_the_exitance_fit_stands_where_r_prime_cannot_be_solved_and_warns_only_about_the_width_kept():
+    """A red team's cases: on a 4 x 4 plate no R' can be solved (2 supported levels), yet the exitance fit needs none;
+    under width='auto' the warnings are those of the narrowed fit, not of the candidate it replaced, and the
+    candidates' note is kept."""
+    from facestats.acquire.synthetic.subsurface import half_lit_plate
+    from facestats.model.fitting.quantised import quantised_system
+    from facestats.model.fitting.scattering_image import EXITANCE_QUANTISATION, fit_scattering_system
+
+    centres, areas, c, l = half_lit_plate(*TRUTH, n=4, sub=8)
+    system = quantised_system(centres, c * areas, width=0.1, areas=areas, near=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", QuantisationWarning)
+        fit = fit_scattering_system(system, l, method="exitance")
+        with pytest.raises(FitError, match="only 2 supported levels remain"):
+            fit_scattering_system(system, l, method="monotone")
+    assert np.isfinite(fit.sigma_s_prime) and np.isnan(fit.profile).all()
+    assert any("R' was not solved" in n for n in fit.notes) and not fit.rank_deficient
+    with pytest.raises(ValidationError, match="max_distance selects the levels of eq. 36"):
+        fit_scattering_system(system, l, method="exitance", max_distance=np.array([3.0, 4.0]))
+    centres, areas, c, l = half_lit_plate(5.0, 0.02, n=21, sub=4)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fit = fit_scattering_image(
+            centres, areas, c, l, width="auto", self_term="surface", method="exitance", grid=ProfileGrid.log_spaced()
+        )
+    said = [str(w.message) for w in caught]
+    assert fit.width < 0.1 and fit.quantisation_error <= EXITANCE_QUANTISATION  # measured 0.046 mm, 0.21 %
+    assert not any("misrepresent" in m for m in said)  # the 0.5 mm candidate's 12 % is not warned about
+    assert not any(m.startswith("method='exitance'") for m in said)  # an explanation, not a warning
+    assert fit.notes[0].startswith("width='auto' chose 0.5 mm (candidates") and "narrowed it to" in fit.notes[1]
+    assert abs(fit.sigma_s_prime / 5.0 - 1) < 0.08 and abs(fit.sigma_a / 0.02 - 1) < 0.15  # measured 4.70, 0.0219

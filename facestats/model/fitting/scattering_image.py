@@ -78,6 +78,7 @@ the open problem of Suzuki §4.1): see :mod:`facestats.model.fitting.quantisatio
 
 from __future__ import annotations
 
+import contextlib
 import warnings
 from dataclasses import dataclass, field
 
@@ -95,6 +96,7 @@ from facestats.model.fitting.profile_grid import (
 from facestats.model.fitting.quantisation_choice import auto_width, fit_distance
 from facestats.model.fitting.quantised import (
     DEFAULT_BLOCK_BYTES,
+    MAX_LEVELS,
     SELF_TERMS,
     QuantisedSystem,
     conditioning,
@@ -131,6 +133,10 @@ CONDITION_WARNING = 1e4
 QUANTISATION_ROWS = 500
 #: :func:`quantisation_error` above which a fit carries a warning (module docstring, step 6).
 QUANTISATION_WARNING = 0.05
+#: Stack level of the warnings of a fit from patch positions: the frame that called fit_scattering_image or
+#: fit_scattering_channels (through _fit_over_widths, _fit_candidates, _one_image, and _try_width or
+#: _checked_quantisation).
+_USER = 6
 #: ``method="exitance"`` with ``width="auto"`` narrows the width until :func:`quantisation_error` is at most this
 #: (module docstring, step 5): on noise-free renders σ's then lies within about 1 % of its converged value.
 EXITANCE_QUANTISATION = 0.0025
@@ -323,7 +329,7 @@ def _fit_range(system, neq, l, r, method, max_distance):
     return dmax
 
 
-def _solved_profile(system, l, method, min_pairs, rcond, notes):
+def _solved_profile(system, l, method, min_pairs, rcond, notes, stacklevel):
     """Steps 3-4: merge the unsupported and the dependent levels (warned about), then solve r by ``method``.
 
     Returns (system after merging, its normal equations, conditioning, r, rows solved, rank deficient).
@@ -344,7 +350,7 @@ def _solved_profile(system, l, method, min_pairs, rcond, notes):
     if system.n_levels < 3:
         raise FitError(f"only {system.n_levels} supported levels remain; at least 3 are needed to fit 2 parameters")
     for note in notes:  # warned before the fit, which may still fail on what they describe
-        warnings.warn(note, QuantisationWarning, stacklevel=4)
+        warnings.warn(note, QuantisationWarning, stacklevel=stacklevel)
     r, n_rows = _solve(system, neq, l, method, rcond, notes)
     return system, neq, cond, r, n_rows, n_rank_merged > 0 or cond.rank < system.n_levels
 
@@ -365,9 +371,11 @@ def _exitance_fit(system, l, *, max_distance, min_pairs, rcond, grid, eta, refin
     )
     shown_notes = []  # the R' solve's own, warned about by it
     try:
-        shown, _, cond, r, _, _ = _solved_profile(system, l, "monotone", min_pairs, rcond, shown_notes)
+        shown, _, cond, r, _, _ = _solved_profile(system, l, "monotone", min_pairs, rcond, shown_notes, 4)
     except FitError as exc:
         shown_notes.append(f"R' was not solved ({exc}); the exitance fit does not need it")
+        for note in shown_notes:  # _solved_profile stopped before warning them
+            warnings.warn(note, QuantisationWarning, stacklevel=4)
         shown, cond, r = system, conditioning(full, float(rcond)), np.full(system.n_levels, np.nan)
     note = (
         "method='exitance': the dipole is fitted to the exitance through W at its width (eq. 34, "
@@ -414,7 +422,7 @@ def fit_scattering_system(
         deficient = False  # the estimate fits 2 parameters through W whatever its rank
     else:
         notes = []
-        system, neq, cond, r, n_rows, deficient = _solved_profile(system, l, method, min_pairs, rcond, notes)
+        system, neq, cond, r, n_rows, deficient = _solved_profile(system, l, method, min_pairs, rcond, notes, 3)
         pf = fit_profile_grid(
             system.levels,
             r,
@@ -597,7 +605,7 @@ def _try_width(system, exitance, w, options, candidates, skipped, auto):
             error = exc
     if error is not None:  # what was found about the system is still reported, then the error propagates
         for x in caught:
-            warnings.warn(x.message, x.category, stacklevel=4)
+            warnings.warn(x.message, x.category, stacklevel=_USER)
         raise error
     if auto and fit.rank_deficient and w != candidates[-1]:
         skipped.append(f"{w:.4g} mm (rank {fit.rank} of {fit.n_levels}, condition {fit.condition:.3g})")
@@ -608,9 +616,9 @@ def _try_width(system, exitance, w, options, candidates, skipped, auto):
             note = f"width='auto' skipped rank-deficient widths: {'; '.join(skipped)}"
             fit.notes.insert(1, note)
             fit.rank_deficient = True
-            warnings.warn(note, QuantisationWarning, stacklevel=4)
+            warnings.warn(note, QuantisationWarning, stacklevel=_USER)
     for x in caught:
-        warnings.warn(x.message, x.category, stacklevel=4)
+        warnings.warn(x.message, x.category, stacklevel=_USER)
     return fit
 
 
@@ -670,33 +678,36 @@ def _checked_quantisation(system, points, weights, fit) -> None:
             "can be biased beyond its interval; use a finer width or width='auto'"
         )
         fit.notes.append(note)
-        warnings.warn(note, QuantisationWarning, stacklevel=4)
+        warnings.warn(note, QuantisationWarning, stacklevel=_USER)
 
 
 def _fit_over_widths(p, weights, rows, exitances, width, options, block_bytes, progress, own) -> list:
     """Fit each exitance vector (rows) with W built at the width, or at the ``"auto"`` candidates in turn
     (``own``: the self term's keywords of :func:`quantised_system`, from ``self_term_keywords``); with
-    ``method="exitance"`` and ``width="auto"``, then narrow the width (:func:`_narrowed`)."""
+    ``method="exitance"`` and ``width="auto"``, then narrow the width (:func:`_narrowed`).  Warnings are those of
+    the width each image keeps, in the images' order."""
     auto = isinstance(width, str)
     if not (auto and options.get("method") == "exitance"):
         return _fit_candidates(p, weights, rows, exitances, width, options, block_bytes, progress, own)
-    with warnings.catch_warnings(record=True) as caught:  # about the candidate width: replayed if it is kept
-        warnings.simplefilter("always")
-        first = _fit_candidates(p, weights, rows, exitances, width, options, block_bytes, progress, own)
-    out, replay = [], False
-    for fit, l in zip(first, exitances):  # the images (channels), each narrowed on its own
-        kept, kept_warnings = _narrowed(fit, p, weights, rows, l, options, block_bytes, progress, own)
-        out.append(kept)
-        replay |= kept is fit
-        for x in kept_warnings:
-            warnings.warn(x.message, x.category, stacklevel=4)
-    for x in caught if replay else ():
-        warnings.warn(x.message, x.category, stacklevel=4)
-    return out
+    sinks = [[] for _ in exitances]  # each image's warnings at its candidate width
+    kept = []
+    try:
+        first = _fit_candidates(p, weights, rows, exitances, width, options, block_bytes, progress, own, sinks)
+        for i, (fit, l) in enumerate(zip(first, exitances)):  # the images (channels), each narrowed on its own
+            narrowed, caught = _narrowed(fit, p, weights, rows, l, options, block_bytes, progress, own)
+            if narrowed is not fit:
+                sinks[i] = caught
+            kept.append(narrowed)
+    finally:  # also when a later image fails: what was found about the earlier ones is reported
+        for sink in sinks:
+            for x in sink:
+                warnings.warn(x.message, x.category, stacklevel=3)
+    return kept
 
 
-def _fit_candidates(p, weights, rows, exitances, width, options, block_bytes, progress, own) -> list:
-    """Each exitance vector fitted at the width, or at the first ``"auto"`` candidate that suits it."""
+def _fit_candidates(p, weights, rows, exitances, width, options, block_bytes, progress, own, sinks=None) -> list:
+    """Each exitance vector fitted at the width, or at the first ``"auto"`` candidate that suits it; with ``sinks``
+    (one list per image) each image's warnings are recorded there instead of being issued."""
     auto = isinstance(width, str)
     if auto:
         check_choice(width, "width", ("auto",))
@@ -711,18 +722,41 @@ def _fit_candidates(p, weights, rows, exitances, width, options, block_bytes, pr
             break
         system = quantised_system(p, weights, rows, width=w, block_bytes=block_bytes, progress=progress, **own)
         for i in pending:  # the images sharing this W
-            try:
-                results[i] = _try_width(system, exitances[i], w, options, candidates, skipped[i], auto)
-            except FitError as exc:
-                errors[i] = exc
-            if results[i] is not None:
-                _checked_quantisation(system, p, weights, results[i])
+            sink = None if sinks is None else sinks[i]
+            results[i], errors[i] = _one_image(
+                system, p, weights, exitances[i], w, options, candidates, skipped[i], auto, sink
+            )
     for fit, error in zip(results, errors):
         if fit is None:
             if not auto:
                 raise error
             raise FitError(f"no candidate width gave a solvable system; the last said: {error}")
     return results
+
+
+def _one_image(system, p, weights, exitance, w, options, candidates, skipped, auto, sink):
+    """One image at one candidate width: (fit or None, FitError or None), its quantisation checked; its warnings
+    recorded into ``sink`` when given (a list), else issued."""
+    with warnings.catch_warnings(record=True) if sink is not None else contextlib.nullcontext() as caught:
+        if sink is not None:
+            warnings.simplefilter("always")
+        try:
+            fit = _try_width(system, exitance, w, options, candidates, skipped, auto)
+            if fit is not None:
+                _checked_quantisation(system, p, weights, fit)
+            return fit, None
+        except FitError as exc:
+            return None, exc
+        finally:
+            if sink is not None:
+                sink.extend(caught)
+
+
+def _finest_width(p, weights, rows, own, width) -> float:
+    """The finest width whose W fits :data:`EXITANCE_W_BYTES` and MAX_LEVELS (from the levels at ``width``)."""
+    farthest = (planned_levels(p, weights, rows, width=width, **own) - 1) * width  # ≥ the distance W must span
+    most = min(MAX_LEVELS, EXITANCE_W_BYTES // (8 * max(rows.size, 1)))
+    return farthest / max(most - 2, 1)
 
 
 def _narrowed(fit, p, weights, rows, exitance, options, block_bytes, progress, own):
@@ -738,15 +772,11 @@ def _narrowed(fit, p, weights, rows, exitance, options, block_bytes, progress, o
             if not np.isfinite(err):
                 fit.notes.append("width='auto' kept the width: the quantisation error could not be measured")
             break
-        w = fit.width * 0.9 * np.sqrt(EXITANCE_QUANTISATION / err)
-        try:
-            cells = rows.size * planned_levels(p, weights, rows, width=w, **own)
-        except ValidationError:  # beyond MAX_LEVELS
-            cells = np.inf
-        if cells * 8 > EXITANCE_W_BYTES:
+        w = max(fit.width * 0.9 * np.sqrt(EXITANCE_QUANTISATION / err), _finest_width(p, weights, rows, own, fit.width))
+        if not w < 0.95 * fit.width:
             fit.notes.append(
-                f"width='auto' kept {fit.width:.4g} mm (quantisation error {100 * err:.3g} %): W at {w:.4g} mm would "
-                f"exceed MAX_LEVELS or {EXITANCE_W_BYTES} bytes"
+                f"width='auto' kept {fit.width:.4g} mm (quantisation error {100 * err:.3g} %): a finer W would exceed "
+                f"MAX_LEVELS or {EXITANCE_W_BYTES} bytes"
             )
             break
         system = quantised_system(p, weights, rows, width=w, block_bytes=block_bytes, progress=progress, **own)

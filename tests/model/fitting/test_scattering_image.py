@@ -341,11 +341,12 @@ def test_the_exitance_fit_stands_where_r_prime_cannot_be_solved_and_warns_only_a
 
     centres, areas, c, l = half_lit_plate(*TRUTH, n=4, sub=8)
     system = quantised_system(centres, c * areas, width=0.1, areas=areas, near=True)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", QuantisationWarning)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         fit = fit_scattering_system(system, l, method="exitance")
         with pytest.raises(FitError, match="only 2 supported levels remain"):
             fit_scattering_system(system, l, method="monotone")
+    assert any("R' was not solved" in str(w.message) for w in caught)
     assert np.isfinite(fit.sigma_s_prime) and np.isnan(fit.profile).all()
     assert any("R' was not solved" in n for n in fit.notes) and not fit.rank_deficient
     with pytest.raises(ValidationError, match="max_distance selects the levels of eq. 36"):
@@ -362,3 +363,46 @@ def test_the_exitance_fit_stands_where_r_prime_cannot_be_solved_and_warns_only_a
     assert not any(m.startswith("method='exitance'") for m in said)  # an explanation, not a warning
     assert fit.notes[0].startswith("width='auto' chose 0.5 mm (candidates") and "narrowed it to" in fit.notes[1]
     assert abs(fit.sigma_s_prime / 5.0 - 1) < 0.08 and abs(fit.sigma_a / 0.02 - 1) < 0.15  # measured 4.70, 0.0219
+
+
+def test_each_channel_warns_about_the_width_it_keeps_and_warnings_point_at_the_caller():
+    """Two channels under width='auto', method='exitance': one keeps its candidate, one is narrowed; the warnings
+    are those of the widths kept (a second red team saw the narrowed channel's discarded 12 % candidate replayed),
+    attributed to the caller's line, as the default path's are."""
+    from facestats.acquire.synthetic.subsurface import half_lit_plate
+    from facestats.model.fitting import fit_scattering_channels
+
+    centres, areas, c, low = half_lit_plate(0.3, 0.003, n=21, sub=4)
+    high = half_lit_plate(5.0, 0.02, n=21, sub=4)[3]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fits = fit_scattering_channels(
+            centres, areas, c, np.c_[low, high], width="auto", self_term="surface", method="exitance",
+            grid=ProfileGrid.log_spaced(),
+        )  # fmt: skip
+    assert fits[0].width == 0.5 and fits[1].width < 0.1  # measured 0.5 and 0.046 mm
+    said = [str(w.message) for w in caught]
+    assert not any("misrepresent" in m for m in said)
+    assert sum("at 0.5 mm" in m for m in said) == 1  # channel 0's one merge note, once
+    assert {w.filename for w in caught} == {__file__}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fit_scattering_image(centres, areas, c, low, width="auto")
+    assert caught and {w.filename for w in caught} == {__file__}
+
+
+def test_a_capped_w_narrows_as_far_as_the_cap_allows(monkeypatch):
+    """With W capped at 1 MiB the narrowing stops at the finest width the cap allows, and says so."""
+    from facestats.acquire.synthetic.subsurface import half_lit_plate
+    from facestats.model.fitting import scattering_image
+
+    monkeypatch.setattr(scattering_image, "EXITANCE_W_BYTES", 2**20)
+    centres, areas, c, l = half_lit_plate(5.0, 0.02, n=21, sub=4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", QuantisationWarning)
+        fit = fit_scattering_image(
+            centres, areas, c, l, width="auto", self_term="surface", method="exitance", grid=ProfileGrid.log_spaced()
+        )
+    # measured: 0.098 mm (441 rows x at most 297 levels), quantisation error 0.92 % against 12.3 % at 0.5 mm
+    assert 0.05 < fit.width < 0.2 and fit.quantisation_error < 0.02
+    assert any("a finer W would exceed" in n for n in fit.notes)

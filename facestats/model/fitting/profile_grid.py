@@ -245,7 +245,8 @@ def _grid_fit(cost, grid, n_data, refine_resid, level, **fields) -> ProfileFit:
     cmin = float(cost[best])
     s, a, c = (gs, ga, cmin)
     if refine_resid is not None:
-        s, a, c = _refine(*refine_resid[:1], gs, ga, grid, refine_resid[1])
+        resid, offset = refine_resid
+        s, a, c = _refine(resid, gs, ga, grid, offset)
         c = min(c, cmin)
     s2 = max(cmin, 1e-300) / max(n_data - 2, 1)
     inside = (cost - cmin) / s2 <= -2 * np.log1p(-level)  # χ² quantile of 2 degrees of freedom

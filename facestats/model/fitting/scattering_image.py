@@ -374,8 +374,8 @@ def _exitance_fit(system, l, *, max_distance, min_pairs, rcond, grid, eta, refin
         shown, _, cond, r, _, _ = _solved_profile(system, l, "monotone", min_pairs, rcond, shown_notes, 4)
     except FitError as exc:
         shown_notes.append(f"R' was not solved ({exc}); the exitance fit does not need it")
-        for note in shown_notes:  # _solved_profile stopped before warning them
-            warnings.warn(note, QuantisationWarning, stacklevel=4)
+        for note in shown_notes:  # _solved_profile stopped before warning them; to fit_scattering_system's caller
+            warnings.warn(note, QuantisationWarning, stacklevel=3)
         shown, cond, r = system, conditioning(full, float(rcond)), np.full(system.n_levels, np.nan)
     note = (
         "method='exitance': the dipole is fitted to the exitance through W at its width (eq. 34, "

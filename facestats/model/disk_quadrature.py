@@ -41,7 +41,7 @@ import numpy as np
 from facestats.core.validate import as_finite, check_integer
 from facestats.errors import ValidationError
 
-__all__ = ["NEAR_RADII", "DISK_RULE", "disk_rule", "disk_node_distances"]
+__all__ = ["NEAR_RADII", "DISK_RULE", "is_near", "disk_rule", "disk_node_distances"]
 
 #: A lit patch k counts as near a row j, and is integrated over its disk, when d_jk < NEAR_RADII ρ_k.  On the plate of
 #: 1 mm patches (ρ = 0.56 mm; 21 × 21 patches, quadrature of 1/12 mm sub-patches) 3 takes the neighbours at 1 and
@@ -53,6 +53,13 @@ __all__ = ["NEAR_RADII", "DISK_RULE", "disk_rule", "disk_node_distances"]
 NEAR_RADII = 3.0
 #: Default (radial, angular) node counts of :func:`disk_rule`.
 DISK_RULE = (8, 16)
+
+
+def is_near(distance, radius):
+    """Whether a point at ``distance`` (mm) from a disk's centre takes the disk's integral instead of the point kernel:
+    distance < NEAR_RADII × ``radius`` (mm), elementwise (module docstring).  The caller leaves out a patch and itself,
+    which takes its own footprint instead."""
+    return np.asarray(distance) < NEAR_RADII * np.asarray(radius)
 
 
 def disk_rule(n_radial=DISK_RULE[0], n_angular=DISK_RULE[1]):

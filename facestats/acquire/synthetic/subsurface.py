@@ -50,7 +50,7 @@ from facestats.model.dipole import (
     dipole_radial_energy_unchecked,
     total_diffuse_reflectance,
 )
-from facestats.model.disk_quadrature import NEAR_RADII, disk_node_distances
+from facestats.model.disk_quadrature import disk_node_distances, is_near
 from facestats.model.fitting.quantised import SELF_TERMS
 
 __all__ = ["cutoff_radius", "render_exitance", "half_lit_plate"]
@@ -88,7 +88,7 @@ def _pair_kernel(d, other, rho, s, a, eta, *, near):
     disk (radius ρ) for the pairs of two patches (``other``) nearer than NEAR_RADII ρ (module docstring)."""
     kernel = np.stack([dipole_profile_unchecked(d, s[ch], a[ch], eta) for ch in range(s.size)])
     if near:
-        pick = np.nonzero(other & (d < NEAR_RADII * rho))[0]
+        pick = np.nonzero(other & is_near(d, rho))[0]
         r, wq = disk_node_distances(d[pick], rho[pick])
         for ch in range(s.size):  # loop over channels (≤ 3)
             kernel[ch, pick] = dipole_profile_unchecked(r, s[ch], a[ch], eta) @ wq

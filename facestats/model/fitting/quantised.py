@@ -86,7 +86,7 @@ import numpy as np
 from facestats.core.progress import progress_bar
 from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
 from facestats.errors import FitError, ValidationError
-from facestats.model.disk_quadrature import DISK_RULE, NEAR_RADII, disk_node_distances
+from facestats.model.disk_quadrature import DISK_RULE, disk_node_distances, is_near
 
 __all__ = [
     "DEFAULT_BLOCK_BYTES",
@@ -290,7 +290,7 @@ def _near_pairs(d, self_cols, cols_rho):
     ``d`` holds the block's pair distances (b, nc), ``self_cols`` each row's own column (−1 if unlit), ``cols_rho``
     the columns' disk radii (mm).
     """
-    jj, kk = np.nonzero(d < NEAR_RADII * cols_rho[None, :])
+    jj, kk = np.nonzero(is_near(d, cols_rho[None, :]))
     keep = kk != self_cols[jj]
     return jj[keep], kk[keep]
 

@@ -73,6 +73,8 @@ def brdf_cca(
 
     rho_stem, lobe_stem, lobe_name = index_columns(model)
     variables = tuple(variables)
+    if not variables:
+        raise ValidationError(f"variables must name one or more of {EXPERIMENTAL_VARIABLES}, got none")
     for v in variables:
         if v not in EXPERIMENTAL_VARIABLES:
             raise ValidationError(f"variables must be among {EXPERIMENTAL_VARIABLES}, got {v!r}")

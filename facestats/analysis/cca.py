@@ -286,13 +286,17 @@ def _as_block(a, name):
         a = a.to_frame()
     if isinstance(a, pd.DataFrame):
         values = as_float(a.to_numpy(dtype=np.float64, na_value=np.nan), name, np.float64)
-        return values, tuple(str(c) for c in a.columns), tuple(a.index)
-    values = as_float(a, name, np.float64)
-    if values.ndim == 1:
-        values = values[:, None]
-    if values.ndim != 2:
-        raise ValidationError(f"{name} must be 1-D or 2-D (subjects as rows), got shape {values.shape}")
-    return values, tuple(f"{name.lower()}{j}" for j in range(values.shape[1])), tuple(range(values.shape[0]))
+        names, rows = tuple(str(c) for c in a.columns), tuple(a.index)
+    else:
+        values = as_float(a, name, np.float64)
+        if values.ndim == 1:
+            values = values[:, None]
+        if values.ndim != 2:
+            raise ValidationError(f"{name} must be 1-D or 2-D (subjects as rows), got shape {values.shape}")
+        names, rows = tuple(f"{name.lower()}{j}" for j in range(values.shape[1])), tuple(range(values.shape[0]))
+    if values.shape[1] == 0:
+        raise ValidationError(f"{name} must hold at least one variable (column), got shape {values.shape}")
+    return values, names, rows
 
 
 def _shrink(cov, lam):
@@ -306,6 +310,13 @@ def _whitener(cov, rcond=1e-10):
     top = w.max() if w.size else 0.0
     keep = w > rcond * max(top, np.finfo(float).tiny)
     return v[:, keep] / np.sqrt(w[keep])
+
+
+def _unit_scaled(xc):
+    """``(xc / s, s)`` with s the largest magnitude of each column (1 for a column of zeros)."""
+    s = np.max(np.abs(xc), axis=0) if xc.shape[0] else np.ones(xc.shape[1])
+    s = np.where(s > 0, s, 1.0)
+    return xc / s, s
 
 
 def _canonical(xw, yw, upper=1.0):
@@ -377,7 +388,10 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
     x, y, x_names, y_names, index, dropped, reg = _complete_blocks(X, Y, regularization, n_permutations, missing, seed)
     n, q = x.shape[0], y.shape[1]
     x_mean, y_mean = x.mean(axis=0), y.mean(axis=0)
-    xc, yc = x - x_mean, y - y_mean
+    # Each centred variable divided by its largest magnitude: the correlations do not depend on the units, but
+    # `rcond` compares eigenvalues across variables (a variable in metres beside others in millimetres was
+    # dropped as collinear) and covariances of values near 1e±160 under- or overflow (a red team).
+    (xc, sx), (yc, sy) = _unit_scaled(x - x_mean), _unit_scaled(y - y_mean)
     sxx = _shrink(xc.T @ xc / (n - 1), reg[0])
     syy = _shrink(yc.T @ yc / (n - 1), reg[1])
     wx, wy = _whitener(sxx, rcond), _whitener(syy, rcond)
@@ -395,6 +409,7 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
     upper = 1.0 if plain else np.inf
     r, u, v = _canonical(xw, yw, upper)
     a, b, proj_x, proj_y, x_load, y_load = _oriented(xc, yc, wx @ u, wy @ v)
+    a, b = a / sx[:, None], b / sy[:, None]  # weights of the variables in their own units
 
     # Direct correlations: CCA of the X block with each Y variable alone.
     direct = np.full(q, np.nan)

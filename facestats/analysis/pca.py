@@ -83,11 +83,20 @@ def principal_axes(samples, ddof=1):
     ddof = check_integer(ddof, "ddof", 0)
     x = check_finite(as_float(samples, "samples", np.float64), "samples")
     check_shape(x, "samples", (None, None))
+    if x.shape[1] == 0:
+        raise ValidationError(f"samples must hold at least one variable (column), got shape {x.shape}")
     if x.shape[0] <= ddof:
         raise ValidationError(f"samples must have more than ddof={ddof} rows, got {x.shape[0]}")
-    mean = x.mean(axis=0)
-    xc = x - mean
-    w, v = covariance_axes(xc.T @ xc / (x.shape[0] - ddof))
+    with np.errstate(over="ignore", invalid="ignore"):
+        mean = x.mean(axis=0)
+        xc = x - mean
+        cov = xc.T @ xc / (x.shape[0] - ddof)
+    if not np.all(np.isfinite(cov)):
+        raise ValidationError(
+            f"samples are too large for their covariance to be a float64 (|values| up to {np.abs(x).max():.3g}): "
+            "rescale them (the axes do not depend on the scale, the eigenvalues scale with its square)"
+        )
+    w, v = covariance_axes(cov)
     return mean, w, v
 
 
@@ -460,6 +469,7 @@ def region_pca(source, model="ts", subjects=None, conditions=("normal",), ddof=1
 
     check_choice(model, "model", ("ts", "bp"))
     check_choice(from_index, "from_index", ("auto", True, False))
+    ddof = check_integer(ddof, "ddof", 0)  # both paths (the index's moments and the maps' samples)
     _, _, lobe_name = index_columns(model)
     if not isinstance(source, pd.DataFrame):
         rows = select_population(source, subjects, conditions)

@@ -42,8 +42,8 @@ from facestats.analysis.population import select_population
 from facestats.analysis.serialize import by_channel, json_ready
 from facestats.core.conventions import CHANNELS, SITES
 from facestats.core.published import ELL_D_MAX, ELL_D_MIN, SIGMA_TR_AVG, TABLE1_MEAN, TABLE1_VAR
-from facestats.core.validate import check_choice
-from facestats.errors import InsufficientDataError
+from facestats.core.validate import check_choice, check_integer
+from facestats.errors import InsufficientDataError, ValidationError
 
 __all__ = ["TranslucencyTable", "translucency_table", "subject_sigma_tr"]
 
@@ -253,6 +253,7 @@ def translucency_table(source, subjects=None, conditions=("normal",), ddof=1, ra
     import pandas as pd
 
     check_choice(rank_by, "rank_by", ("mean",) + CHANNELS)
+    ddof = check_integer(ddof, "ddof", 0)
     frame = select_population(source, subjects, conditions)
     stats = {}
     for site in SITES:
@@ -261,10 +262,17 @@ def translucency_table(source, subjects=None, conditions=("normal",), ddof=1, ra
             continue
         vals = frame[cols].astype(float)
         vals.columns = list(CHANNELS)
+        n = vals.notna().sum(axis=0)
+        few = (n > 0) & (n <= ddof)  # the variance would be NaN or negative: say so rather than print it
+        if few.any():
+            raise ValidationError(
+                f"ddof must be less than the number of subjects with a {site} sigma_tr ({int(n[few].min())}), "
+                f"got {ddof}"
+            )
         stats[(site, "mean")] = vals.mean(axis=0)
         stats[(site, "var")] = vals.var(axis=0, ddof=ddof)
         stats[(site, "std")] = vals.std(axis=0, ddof=ddof)
-        stats[(site, "n")] = vals.notna().sum(axis=0)
+        stats[(site, "n")] = n
     table = pd.DataFrame(stats, index=pd.Index(list(CHANNELS), name="channel"))
     table.columns = pd.MultiIndex.from_tuples(table.columns, names=["site", "statistic"])
 

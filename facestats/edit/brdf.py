@@ -74,6 +74,23 @@ def _in_domain(y, what, name):
     return y
 
 
+def _histogram_in_domain(h, what, name):
+    """``h`` if its quantiles lie in the parameter's domain: its first non-empty bin starts at or above the bound.
+
+    A transfer draws quantiles at probabilities (k + 1/2)/n > 0, strictly inside that bin, so an excluded bound
+    (m > 0) is met by an edge at the bound itself.
+    """
+    if name in _DOMAINS:
+        low, strict = _DOMAINS[name]
+        start = float(h.edges[np.argmax(h.counts > 0)])
+        if start < low:
+            sign = ">" if strict else ">="
+            raise ValidationError(
+                f"{what} must be {sign} {low:g} ({name}): the histogram's first non-empty bin starts at {start!r}"
+            )
+    return h
+
+
 def _target_for_region(spec, name, region, target_regions):
     """Sorted finite target samples (ndarray) or a Histogram for one parameter and region, or None."""
     if isinstance(spec, Mapping):
@@ -81,7 +98,7 @@ def _target_for_region(spec, name, region, target_regions):
             return None
         v = spec[region]
         if isinstance(v, Histogram):
-            return v
+            return _histogram_in_domain(v, f"target[{name!r}][{region}]", name)
         y = as_float(v, f"target[{name!r}][{region}]", np.float64).ravel()
         y = _in_domain(np.sort(y[np.isfinite(y)]), f"target[{name!r}][{region}]", name)
         return y if y.size else None

@@ -99,6 +99,22 @@ def _sigma_tr(sigma_a, sigma_t):
     return sigma_tr
 
 
+def reduced_albedo_unchecked(sigma_s_prime, sigma_a):
+    """α' = σ's/(σ's + σa) (Suzuki eq. 6, Weyrich eq. 16), no checks; where σ's + σa overflows, 1/(1 + σa/σ's).
+
+    The second form is used only there, so every other value keeps the bits of the plain quotient (an overflowing
+    sum gave α' = 0: a red team's σ's = σa = 1e308 had a total reflectance of 0 instead of that of α' = 1/2).
+    """
+    with np.errstate(over="ignore"):
+        sigma_t = sigma_s_prime + sigma_a
+    alpha = sigma_s_prime / sigma_t
+    big = np.isinf(sigma_t)
+    if np.any(big):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            alpha = np.where(big, 1 / (1 + sigma_a / sigma_s_prime), alpha)
+    return alpha
+
+
 def _dipole_terms(sigma_s_prime, sigma_a, eta):
     """σtr, z_r, z_v and α' of the dipole (Suzuki eq. 6-12); no checks."""
     sigma_t = sigma_s_prime + sigma_a
@@ -208,9 +224,11 @@ def dipole_radial_energy(radius, sigma_s_prime, sigma_a, eta=ETA_SKIN):
     e = check_dipole_eta(eta)
     check_broadcastable(radius=rad, sigma_s_prime=s, sigma_a=a, eta=e)
     dtype = result_dtype(radius, sigma_s_prime, sigma_a, eta)
-    return np.asarray(
-        dipole_radial_energy_unchecked(rad.astype(dtype), s.astype(dtype), a.astype(dtype), e.astype(dtype)), dtype
-    )
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = np.asarray(
+            dipole_radial_energy_unchecked(rad.astype(dtype), s.astype(dtype), a.astype(dtype), e.astype(dtype)), dtype
+        )
+    return finite_result(out, "dipole_radial_energy", sigma_s_prime=s, sigma_a=a)  # as dipole_profile
 
 
 def dipole_radial_energy_unchecked(radius, sigma_s_prime, sigma_a, eta):
@@ -267,7 +285,7 @@ def total_diffuse_reflectance(sigma_s_prime, sigma_a, eta=ETA_SKIN):
     e = check_dipole_eta(eta)
     check_broadcastable(sigma_s_prime=s, sigma_a=a, eta=e)
     dtype = result_dtype(sigma_s_prime, sigma_a, eta)
-    alpha = (s / (s + a)).astype(dtype)
+    alpha = reduced_albedo_unchecked(s, a).astype(dtype)
     return np.asarray(total_from_reduced_albedo_unchecked(alpha, e.astype(dtype)), dtype=dtype)
 
 

@@ -97,9 +97,14 @@ def _check_cos(cos_theta, name="cos_theta"):
     return np.clip(c, 0, 1)
 
 
-def check_eta(eta):
-    """Validate a relative index of refraction: finite and > 0."""
-    return as_finite(eta, "eta", 0.0, None, low_inclusive=False)
+def check_eta(eta, scalar: bool = False):
+    """Validate a relative index of refraction: finite and > 0 (with ``scalar``, one number, returned as float)."""
+    e = as_finite(eta, "eta", 0.0, None, low_inclusive=False)
+    if not scalar:
+        return e
+    if e.ndim:
+        raise ValidationError(f"eta must be one number (a relative index of refraction), got shape {e.shape}")
+    return float(e)
 
 
 def fresnel_reflectance(cos_theta, eta=ETA_SKIN):
@@ -130,7 +135,8 @@ def fresnel_reflectance(cos_theta, eta=ETA_SKIN):
     c = _check_cos(cos_theta)
     e = check_eta(eta)
     check_broadcastable(cos_theta=c, eta=e)
-    return blockwise(fresnel_reflectance_unchecked, [c, e], result_dtype(c, e))
+    with np.errstate(over="ignore"):  # η² of η ≳ 1e154 overflows to inf, which gives the limit F_r = 1 exactly
+        return blockwise(fresnel_reflectance_unchecked, [c, e], result_dtype(c, e))
 
 
 def fresnel_transmittance(cos_theta, eta=ETA_SKIN):

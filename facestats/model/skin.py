@@ -47,10 +47,11 @@ from facestats.model.dipole import (
     check_dipole_eta,
     dipole_coefficients,
     dipole_radial_energy_unchecked,
+    reduced_albedo_unchecked,
     total_from_reduced_albedo_unchecked,
     transport_coefficient,
 )
-from facestats.model.fresnel import fresnel_reflectance_unchecked
+from facestats.model.fresnel import check_eta, fresnel_reflectance_unchecked
 
 __all__ = [
     "SPECULAR_MODELS",
@@ -286,7 +287,7 @@ class SubsurfaceTransport:
         a = np.broadcast_to(a, (3,)).astype(np.float64)
         self.sigma_s_prime, self.sigma_a = s, a
         self.eta = float(check_dipole_eta(self.eta))
-        alpha = s / (s + a)
+        alpha = reduced_albedo_unchecked(s, a)
         self.total_reflectance = total_from_reduced_albedo_unchecked(alpha, self.eta)
         if self.positions is None:
             return
@@ -304,21 +305,25 @@ class SubsurfaceTransport:
     def _default_radius(self):
         """The neighbourhood radius (mm) when none is given (class docstring).
 
-        The radius where the most translucent channel (least σtr, Weyrich eq. 15) has
-        delivered 1 − ``tail`` of its total diffuse reflectance (eq. 16), by the closed-form
+        The radius where the most translucent channel (least σtr, Weyrich eq. 15) of those that
+        reflect light (σ's > 0) has delivered 1 − ``tail`` of its total diffuse reflectance (eq. 16), by the closed-form
         radial energy of the dipole (:func:`facestats.model.dipole.dipole_radial_energy`),
         capped at the radius of a disk holding about ``max_neighbors`` samples of the
-        median spacing √(median area), and at least that spacing.
+        median spacing √(median area), and at least that spacing.  With no channel reflecting, the
+        spacing (the transport is then zero whatever the radius).
         """
         from scipy.optimize import brentq
 
-        sigma_tr = transport_coefficient(self.sigma_a, self.sigma_s_prime)
-        c = int(np.argmin(sigma_tr))  # most translucent channel
+        spacing = np.sqrt(np.median(self.areas))
+        r_cap = spacing * np.sqrt(self.max_neighbors / np.pi)
+        reflects = self.total_reflectance > 0  # a channel with σ's = 0 spreads no light: its radius would be 0
+        if not reflects.any():
+            return float(spacing)
+        sigma_tr = np.where(reflects, transport_coefficient(self.sigma_a, self.sigma_s_prime), np.inf)
+        c = int(np.argmin(sigma_tr))  # most translucent channel that reflects
         args = (self.sigma_s_prime[c], self.sigma_a[c], self.eta)
         target = (1 - self.tail) * self.total_reflectance[c]
         r_energy = brentq(lambda r: dipole_radial_energy_unchecked(r, *args) - target, 0.0, 1e4)
-        spacing = np.sqrt(np.median(self.areas))
-        r_cap = spacing * np.sqrt(self.max_neighbors / np.pi)
         return float(min(r_energy, max(r_cap, spacing)))
 
     def _build(self):
@@ -493,6 +498,7 @@ def skin_radiance(
     check_shape(mod, "modulation", (npts, 3))
     rho = _per_point(rho_s, "rho_s", npts)
     rough = _per_point(roughness, "roughness", npts)
+    eta = check_eta(eta, scalar=True)  # the diffuse transmittances read it too, whatever the specular model
     dtype = result_dtype(n, wi, wo, e, mod)
 
     # Specular: grey BRDF for every (point, camera, light), times the light's colour.

@@ -209,3 +209,23 @@ def test_bad_settings_are_named(kw, match):
     x, y = rng.normal(size=(40, 3)), rng.normal(size=(40, 2))
     with pytest.raises(ValidationError, match=match):
         cca(x, y, **kw)
+
+
+def test_correlations_do_not_depend_on_the_units_of_a_variable(rng):
+    """Each variable is scaled by its largest magnitude first: `rcond` compared eigenvalues across variables, so a
+    variable in metres beside one in millimetres was dropped as collinear, and values near 1e±160 gave an IndexError
+    (a red team)."""
+    z = rng.standard_normal(200)
+    x = np.c_[z + 0.5 * rng.standard_normal(200), rng.standard_normal(200)]
+    y = np.c_[z + 0.5 * rng.standard_normal(200), rng.standard_normal(200)]
+    ref = cca(x, y)
+    for sx, sy in (((1e-6, 1.0), (1.0, 1.0)), ((1e-160, 1e-160), (1.0, 1.0)), ((1e155, 3.0), (1e-150, 1.0))):
+        res = cca(x * np.array(sx), y * np.array(sy))
+        np.testing.assert_allclose(res.correlations, ref.correlations, rtol=1e-9)
+        np.testing.assert_allclose(res.direct_correlations, ref.direct_correlations, rtol=1e-9)
+        np.testing.assert_allclose(res.x_weights * np.array(sx)[:, None], ref.x_weights, rtol=1e-9)  # own units
+        np.testing.assert_allclose(res.projections, ref.projections, rtol=1e-9, atol=1e-12)
+    with pytest.raises(ValidationError, match="Y must hold at least one variable"):
+        cca(x, np.zeros((200, 0)))
+    with pytest.raises(ValidationError, match="variables must name one or more"):
+        brdf_cca(make_population(n=12, seed=4), variables=())

@@ -215,3 +215,19 @@ def test_condition_differences_leave_edited_subjects_out(store):
     alone = condition_differences(idx)
     np.testing.assert_array_equal(with_edit.distance.to_numpy(), alone.distance.to_numpy())
     assert with_edit.distance.to_numpy()[0, 6] > 0.1
+
+
+def test_principal_axes_refuse_what_has_no_finite_covariance():
+    x = np.random.default_rng(0).standard_normal((50, 2))
+    with pytest.raises(ValidationError, match="at least one variable"):
+        principal_axes(np.zeros((5, 0)))
+    with pytest.raises(ValidationError, match=r"too large .* up to 2\.\d+e\+155"):  # was NaN eigenvalues
+        principal_axes(x * 1e155)
+
+
+@pytest.mark.parametrize("ddof", [-1, 2.5, "1", True])
+def test_region_pca_checks_ddof_on_both_paths(ddof):
+    store = make_population(n=8, seed=2)
+    for from_index in ("auto", False):
+        with pytest.raises(ValidationError, match="ddof must be an integer"):
+            region_pca(store, ddof=ddof, from_index=from_index)

@@ -132,3 +132,12 @@ def test_absorption_scattering_fig14(store):
     )
     with pytest.raises(ValidationError, match="site"):
         absorption_scattering(store, site="elbow")
+
+
+def test_a_ddof_beyond_the_subjects_is_refused_not_a_nan_variance(store):
+    n = int(translucency_table(store).table.loc["R", ("cheek", "n")])
+    assert np.isfinite(translucency_table(store, ddof=n - 1).table.loc["R", ("cheek", "var")])
+    with pytest.raises(ValidationError, match=rf"ddof must be less than the number of subjects .*\({n}\), got {n}"):
+        translucency_table(store, ddof=n)
+    with pytest.raises(ValidationError, match="ddof must be an integer"):
+        translucency_table(store, ddof=-1)

@@ -144,3 +144,17 @@ def test_target_samples_outside_a_parameters_domain_are_refused():
         transfer_brdf(src, reg, {"rho_s": np.full((4, 4), -0.5), "m": np.full((4, 4), 0.2)}, target_regions=reg)
     out = transfer_brdf(src, reg, {"rho_s": {1: [0.1, 0.2]}, "m": {1: [0.2, 0.4]}}, t=1.0)
     assert np.all(out["m"] > 0)
+
+
+def test_a_histogram_target_outside_the_parameters_domain_is_refused():
+    """Sample and map targets were checked, Histogram targets were not: a transfer gave ρs = −0.56 (a red team)."""
+    src = {"rho_s": np.full((2, 2), 0.1), "m": np.full((2, 2), 0.3)}
+    lab = np.ones((2, 2), int)
+    ok = {"rho_s": {1: Histogram([0.0, 0.5], [1])}, "m": {1: Histogram([0.0, 0.4], [1])}}  # m > 0 inside the bin
+    out = transfer_brdf(src, lab, ok)
+    assert out["rho_s"].min() > 0 and out["m"].min() > 0
+    for name, hist in (("rho_s", Histogram([-1.0, -0.5], [1])), ("m", Histogram([-1.0, 0.0, 1.0], [1, 1]))):
+        with pytest.raises(ValidationError, match=rf"target\['{name}'\]\[1\] must be .* starts at -1.0"):
+            transfer_brdf(src, lab, {**ok, name: {1: hist}})
+    empty_first = Histogram([-1.0, 0.0, 1.0], [0, 1])  # its first non-empty bin starts at 0: allowed
+    assert transfer_brdf(src, lab, {**ok, "rho_s": {1: empty_first}})["rho_s"].min() >= 0

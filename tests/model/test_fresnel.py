@@ -1,3 +1,5 @@
+import warnings
+
 import numpy as np
 import pytest
 
@@ -65,3 +67,10 @@ def test_errors_name_argument_and_value():
         diffuse_fresnel_reflectance(0.8)
     with pytest.raises(ValueError):  # ValidationError is also a ValueError
         fresnel_reflectance("x", 1.38)
+
+
+def test_a_huge_index_reflects_everything_without_overflow_warnings():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert fresnel_reflectance(0.5, 1e300) == 1.0 and fresnel_transmittance(0.0, 1e300) == 0.0
+        assert fresnel_reflectance(np.float32(0.5), np.float32(1e30)) == 1.0

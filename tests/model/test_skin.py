@@ -228,3 +228,29 @@ def test_light_irradiance_refuses_normals_that_are_not_unit():
         skin.point_lights([[0, 0, 0]], [[0, 0, 2.0]], [[0, 0, 10.0]], [100.0])
     with pytest.raises(ValidationError, match="normals must hold unit vectors"):
         skin.directional_lights([[0, 0, 2.0]], [[0, 0, 1.0]], [1.0])
+
+
+def test_a_channel_that_only_absorbs_leaves_the_default_radius_to_the_others():
+    """σ's = 0 in one channel (allowed) made the default radius 0, refused as "radius must lie in (0, inf]"."""
+    pts = np.random.default_rng(0).random((60, 3))
+    areas = np.full(60, 0.01)
+    mixed = skin.SubsurfaceTransport([0.0, 1.0, 1.0], [0.1, 0.1, 0.1], positions=pts, areas=areas)
+    alike = skin.SubsurfaceTransport([1.0, 1.0, 1.0], [0.1, 0.1, 0.1], positions=pts, areas=areas)
+    assert mixed.radius == alike.radius > 0
+    out = mixed.apply(np.ones((60, 1, 3)))
+    assert np.all(out[..., 0] == 0) and np.allclose(out[..., 1:], alike.apply(np.ones((60, 1, 3)))[..., 1:])
+    none = skin.SubsurfaceTransport([0.0, 0.0, 0.0], [0.1, 0.1, 0.1], positions=pts, areas=areas)
+    assert none.radius == pytest.approx(0.1) and np.all(none.apply(np.ones((60, 1, 3))) == 0)
+
+
+@pytest.mark.parametrize("specular", ["torrance_sparrow", "blinn_phong"])
+@pytest.mark.parametrize("eta, message", [(np.nan, "finite"), (None, "numeric"), (-1.0, "eta must lie"),
+                                          ([1.3, 1.4], "eta must be one number")])  # fmt: skip
+def test_skin_radiance_checks_eta_whatever_the_specular_model(specular, eta, message):
+    """Blinn-Phong never reads eta, but the diffuse transmittances do: NaN made them 0, an array the shape wrong."""
+    st = skin.SubsurfaceTransport([1.0, 1.0, 1.0], [0.1, 0.1, 0.1])
+    rough = 0.3 if specular == "torrance_sparrow" else 10.0
+    args = (np.array([[0, 0, 1.0]]), np.array([[[0.6, 0, 0.8]]]), np.ones((1, 1, 3)), np.array([[[-0.6, 0, 0.8]]]))
+    with pytest.raises(FacestatsError, match=message):
+        skin.skin_radiance(*args, rho_s=0.1, roughness=rough, modulation=np.ones((1, 3)), subsurface=st,
+                           specular=specular, eta=eta)  # fmt: skip

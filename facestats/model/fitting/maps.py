@@ -149,7 +149,7 @@ def push_pull(image, known, fill=None):
     if squeeze:
         val = val[..., None]
     levels = [(val, k.astype(dtype))]
-    while levels[-1][1].min() < 1 and min(levels[-1][1].shape) > 1:
+    while levels[-1][1].min() < 1 and max(levels[-1][1].shape) > 1:  # a 1 x N level still halves along N
         levels.append(_pull(*levels[-1]))
     # Push: from the coarsest level down, fill every empty cell from the parent.
     cur = levels[-1][0]

@@ -67,7 +67,7 @@ def specular_factors(samples, normal, model, eta=ETA_SKIN, cos=None):
     (``normal`` is then not used).
     """
     check_choice(model, "model", DEFAULT_BOUNDS)
-    check_eta(eta)
+    eta = check_eta(eta, scalar=True)
     ci, co = samples.cos(normal) if cos is None else cos
     return _factors(model, ci, co, samples.cos_io(), eta)
 
@@ -231,7 +231,7 @@ def fit_specular_models(
         raise ValidationError(f"models must name one or more distinct models, got {models!r}")
     for m in models:
         check_choice(m, "models", DEFAULT_BOUNDS)
-    check_eta(eta)
+    eta = check_eta(eta, scalar=True)
     engine = resolve_engine(samples.engine if engine is None else engine)
     _check_specular_inputs(samples, normal, f_s, use, start)
     bounds = bounds or {}
@@ -507,6 +507,7 @@ def fit_specular(
     """
     check_choice(model, "model", DEFAULT_BOUNDS)
     as_finite(max_angle, "max_angle", 0, np.pi / 2, low_inclusive=False, unit="rad")
+    eta = check_eta(eta, scalar=True)  # both engines: the compiled one reads it as a float32
     wi = as_float(wi, "wi")
     wo = as_float(wo, "wo")
     normal = as_float(normal, "normal")

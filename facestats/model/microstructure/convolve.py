@@ -27,7 +27,7 @@ from facestats.core.compiled import resolve_backend
 from facestats.core.validate import as_finite, as_float
 from facestats.errors import ValidationError
 from facestats.model.microstructure.compiled import convolve_pass, padded_empty
-from facestats.model.microstructure.kernel import ALPHA_RANGE, SIGMA_RANGE_UM, TRUNCATE
+from facestats.model.microstructure.kernel import ALPHA_RANGE, MAX_RADIUS, SIGMA_RANGE_UM, TRUNCATE
 
 __all__ = ["convolve_displacement", "island_reach"]
 
@@ -103,6 +103,22 @@ def _texel_sizes(texel_um, shape):
     return tuple(np.broadcast_to(p.astype(np.float32, copy=False), shape) for p in pair)
 
 
+def _check_kernel_size(s_s, px_s, s_t, px_t):
+    """Both passes' widest kernel within :data:`MAX_RADIUS` taps (as :func:`gaussian_taps` requires of one kernel).
+
+    Compared without a division: a texel size that rounds to 0 in float32 (1e-300 um) is refused here, not met
+    as a division by zero in the compiled pass.
+    """
+    for sigma, px in ((s_s, px_s), (s_t, px_t)):
+        if sigma.size:
+            top, texel = float(np.max(sigma)), float(np.min(px))
+            if not texel * MAX_RADIUS >= TRUNCATE * top:
+                raise ValidationError(
+                    f"texel_um must be at least {TRUNCATE * top / MAX_RADIUS:.3g} um for sigma up to {top:g} um "
+                    f"(kernels of at most {2 * MAX_RADIUS + 1} taps, MAX_RADIUS), got {texel:.3g} um (as float32)"
+                )
+
+
 def island_reach(islands) -> np.ndarray:
     """Distance (texels, float32) from each texel to the nearest texel with another island in its 3 × 3 block.
 
@@ -175,6 +191,7 @@ def convolve_displacement(
     s_s = _field(sigma_s, "sigma_s", shape, SIGMA_RANGE_UM, "um")
     s_t = _field(sigma_t, "sigma_t", shape, SIGMA_RANGE_UM, "um")
     px_s, px_t = _texel_sizes(texel_um, shape)
+    _check_kernel_size(s_s, px_s, s_t, px_t)
     lab, reach = _islands(islands, shape)
     d_s = padded_empty(shape, d.dtype)  # read again by the second pass: rows that do not alias in the caches
     convolve_pass(d, d_s, su, sv, a_s, s_s, px_s, lab, reach, truncate=TRUNCATE, backend=backend)  # eq. 5

@@ -83,13 +83,15 @@ def gaussian_taps(sigma_px: float) -> np.ndarray:
         raise ValidationError(f"sigma_px must be finite and >= 0, got {sigma_px!r}")
     if s == 0:
         return np.ones(1)
-    r = int(kernel_radius(s))
-    if r > MAX_RADIUS:
+    if TRUNCATE * s > MAX_RADIUS:  # compared as floats: a huge sigma's radius does not fit an integer
         raise ValidationError(
-            f"sigma_px={s:g} texels needs a kernel of {2 * r + 1} taps, more than the {2 * MAX_RADIUS + 1} allowed "
-            "(MAX_RADIUS); check sigma and the texel size (same unit, um)"
+            f"sigma_px={s:g} texels needs a kernel of {2 * math.ceil(TRUNCATE * s) + 1:.3g} taps, more than the "
+            f"{2 * MAX_RADIUS + 1} allowed (MAX_RADIUS); check sigma and the texel size (same unit, um)"
         )
+    r = int(kernel_radius(s))
     i = np.arange(-r, r + 1, dtype=np.float64)
+    if 2 * s * s == 0:  # sigma so far below a texel that its square underflows: the Gaussian is a unit impulse
+        return (i == 0).astype(np.float64)
     g = np.exp(-(i * i) / (2 * s * s))
     return g / g.sum()
 

@@ -101,10 +101,11 @@ def histogram_extent(*slope_pairs, quantile=0.999, margin=1.1) -> float:
 def normal_histogram(gx, gy, *, bins=64, extent):
     """Histogram (fractions, shape (bins, bins), [n_v, n_u]) of the tangent normals of slopes (gx, gy)."""
     nb = _bins(bins)
-    e = float(extent)
-    if not 0 < e <= 1:
-        raise ValidationError(f"extent must lie in (0, 1], got {extent!r}")
-    gx, gy = np.asarray(gx, np.float64), np.asarray(gy, np.float64)
+    e = as_finite(extent, "extent", 0, 1, low_inclusive=False)
+    if e.ndim:
+        raise ValidationError(f"extent must be one number in (0, 1], got shape {e.shape}")
+    e = float(e)
+    gx, gy = as_finite(gx, "gx", dtype=np.float64), as_finite(gy, "gy", dtype=np.float64)  # a NaN has no bin
     if gx.shape != gy.shape or gx.size == 0:
         raise ValidationError(f"gx and gy must be non-empty slopes of one shape, got {gx.shape} and {gy.shape}")
     gx, gy = gx.reshape(-1), gy.reshape(-1)

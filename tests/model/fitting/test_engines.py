@@ -334,3 +334,15 @@ def test_compiled_kernels_give_the_same_bits_on_any_cpu(tmp_path):
             generic.wait()
     assert generic.returncode == 0, err[-2000:]
     assert out.strip().splitlines()[-1] == host
+
+
+@pytest.mark.parametrize("engine", ["numba", "numpy"])
+@pytest.mark.parametrize("eta, message", [(np.nan, "finite"), (0.0, "eta must lie"), (None, "numeric"),
+                                          (-1.0, "eta must lie"), ([1.3, 1.4], "eta must be one number")])  # fmt: skip
+def test_both_engines_check_eta(engine, eta, message):
+    """The compiled path read eta unchecked: NaN, 0 or None fitted ρs 0.0036 for 0.1 with no flag (a red team)."""
+    wi, wo = hemisphere_pairs(np.random.default_rng(3), 2, 60)
+    n = np.tile([0.0, 0.0, 1.0], (2, 1))
+    fs = brdf.torrance_sparrow(n[:, None], wi, wo, 0.1, 0.3)
+    with pytest.raises(FacestatsError, match=message):
+        fitting.fit_specular(wi, wo, n, fs, np.ones((2, 60), bool), "torrance_sparrow", eta=eta, engine=engine)

@@ -180,6 +180,22 @@ def test_push_pull_keeps_known_texels_and_fills_smoothly(rng, size):
     assert out[..., 0].min() >= ramp[known][:, 0].min() - 1e-12 and out[..., 0].max() <= ramp[known][:, 0].max() + 1e-12
 
 
+@pytest.mark.parametrize("shape", [(1, 5), (3, 40), (40, 3), (2, 16)])
+def test_push_pull_fills_non_square_maps_from_their_data(shape):
+    """A 1 x N level still holds empty cells: the pull goes on along N (a red team: holes were filled with 0)."""
+    known = np.zeros(shape, bool)
+    if shape[0] > shape[1]:
+        known[0], known[-1] = True, True  # data only at the two ends of the long side
+    else:
+        known[:, 0], known[:, -1] = True, True
+    const = push_pull(np.where(known, 7.0, np.nan), known)
+    np.testing.assert_allclose(const, 7.0, rtol=1e-12)  # a constant is filled exactly, nowhere 0
+    line = np.add.outer(np.arange(float(shape[0])), np.arange(float(shape[1])))
+    out = push_pull(np.where(known, line, np.nan), known)
+    np.testing.assert_array_equal(out[known], line[known])
+    assert out.min() >= line[known].min() and out.max() <= line[known].max()  # convex weights: within the data
+
+
 def _specular_problem(rng, t=240, s=500, noise=0.02, model="torrance_sparrow"):
     """Samples of ``model`` on a hemisphere: the first half of the texels noise-free, the rest noisy."""
     from facestats.model import brdf

@@ -188,3 +188,16 @@ def test_row_layout_does_not_change_the_result():
     for layout in (wide[:, :256], padded, np.asfortranarray(d)):
         np.testing.assert_array_equal(convolve_displacement(layout, *fields, 10.0), ref)
     assert np.abs(convolve_displacement(d, *fields, 10.0, backend="numpy") - ref).max() <= 1e-5
+
+
+def test_kernels_beyond_the_tap_limit_or_below_a_texel_are_refused_or_an_impulse():
+    """A huge sigma overflowed the radius's int64 cast; a sigma whose square underflows gave NaN taps; a texel size
+    that rounds to 0 in float32 divided by zero in the compiled pass (a red team)."""
+    with pytest.raises(FacestatsError, match="taps, more than the 8193 allowed"):
+        kernel_taps(0.5, 1e20, 1.0)
+    np.testing.assert_array_equal(kernel_taps(0.5, 1e-200, 1.0), [0.0, 1.0, 0.0])
+    d = np.random.default_rng(0).normal(size=(8, 8)).astype(np.float32)
+    for backend in ("numpy", "numba"):
+        for texel in (1e-300, 1e-40, 1e-3):
+            with pytest.raises(FacestatsError, match="texel_um must be at least 0.00732 um for sigma up to 10 um"):
+                convolve_displacement(d, [1.0, 0.0], 0.5, 10.0, 0.5, 10.0, texel, backend=backend)

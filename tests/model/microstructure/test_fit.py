@@ -113,3 +113,15 @@ def test_an_unchanged_patch_fits_no_filter_not_the_first_grid_point(method):
     patch = np.random.default_rng(3).normal(size=(96, 96))
     fit = fit_kernel(patch, patch, (1, 0), 1.0, 10.0, method=method)
     assert fit.tv == 0.0 and fit.alpha == 0.0 and fit.sigma_um == fit.sigmas_um.min()
+
+
+def test_normal_histogram_names_a_nan_slope_and_a_bad_extent():
+    from facestats.model.microstructure.surface import normal_histogram
+
+    h = normal_histogram(np.zeros(3), np.zeros(3), bins=4, extent=0.5)
+    assert h.sum() == pytest.approx(1.0)
+    with pytest.raises(FacestatsError, match="gx must be finite"):  # was a raw ValueError from np.bincount
+        normal_histogram(np.array([np.nan, 0, 0]), np.zeros(3), bins=4, extent=0.5)
+    for extent in ("a", None, 0.0, 1.5, [0.5, 0.5]):
+        with pytest.raises(FacestatsError, match="extent"):
+            normal_histogram(np.zeros(3), np.zeros(3), bins=4, extent=extent)

@@ -431,7 +431,7 @@ def plot_population_sigma_tr(result):
         lo, hi = np.nanmin(t["lo"]), np.nanmax(t["hi"])
         if np.isfinite(lo) and np.isfinite(hi) and hi > lo:  # headroom for the n= labels above the intervals
             ax.set_ylim(lo - 0.05 * (hi - lo), hi + 0.15 * (hi - lo))
-        ax.set_xticks(x, [ROMAN[int(v)] for v in t.index])
+        ax.set_xticks(x, [result.type_label(v) for v in t.index])
         ax.set_xlabel("skin type")
         ax.set_ylabel(r"mean $\sigma_{tr}$ (mm$^{-1}$)")
         ax.set_title(f"{ch} channel", color=_CHANNEL_COLORS[ch])

@@ -256,7 +256,16 @@ def _check_apply(dome, args) -> None:
 
 def _samples(text: str):
     """``--samples``: ``histogram``, ``stratified`` or a number of histogram samples."""
-    return text if text in ("histogram", "stratified") else ascii_int(text)
+    import argparse
+
+    if text in ("histogram", "stratified"):
+        return text
+    try:
+        return ascii_int(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(
+            f"must be histogram, stratified or a number of samples (ASCII digits 0-9), got {text!r}"
+        ) from None
 
 
 def add_calibrate(sub):

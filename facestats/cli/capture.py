@@ -3,10 +3,10 @@
 
 from __future__ import annotations
 
-import signal
 import sys
 
 from facestats.cli.options import ascii_float, ascii_int, number_option
+from facestats.core.processes import sigterm_as_interrupt
 
 __all__ = ["add_capture"]
 
@@ -30,17 +30,12 @@ def _subject(args) -> dict:
     return subject_record(args.subject, **record)
 
 
-def _terminate(*_):
-    raise KeyboardInterrupt  # the driver's context manager switches the lights off
-
-
 def _run(args, plan, calibration, on_site=None) -> int:
     from facestats.acquire.devices.capture import capture
 
     if args.dry_run:
         print(plan.describe())
         return 0
-    signal.signal(signal.SIGTERM, _terminate)
     link = dict(
         baudrate=args.baudrate,
         bytesize=args.bytesize,
@@ -52,22 +47,23 @@ def _run(args, plan, calibration, on_site=None) -> int:
     from tqdm.auto import tqdm
 
     echo = None if args.quiet else (lambda line: tqdm.write(f"[session] {line}", file=sys.stderr))
-    report = capture(
-        plan,
-        calibration,
-        args.port,
-        args.out,
-        args.hot_folder,
-        resume=args.resume,
-        link_options=link,
-        pattern=args.pattern,
-        frame_timeout=args.frame_timeout,
-        durable=not args.no_fsync,
-        verify=args.verify,
-        progress=not args.quiet,
-        on_site=on_site,
-        echo=echo,
-    )
+    with sigterm_as_interrupt():  # the driver's context manager switches the lights off
+        report = capture(
+            plan,
+            calibration,
+            args.port,
+            args.out,
+            args.hot_folder,
+            resume=args.resume,
+            link_options=link,
+            pattern=args.pattern,
+            frame_timeout=args.frame_timeout,
+            durable=not args.no_fsync,
+            verify=args.verify,
+            progress=not args.quiet,
+            on_site=on_site,
+            echo=echo,
+        )
     print(report.to_text())
     return 0
 

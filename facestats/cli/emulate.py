@@ -8,6 +8,7 @@ import sys
 import threading
 
 from facestats.cli.options import ascii_float, ascii_int
+from facestats.core.processes import sigterm_as_interrupt
 
 __all__ = ["add_emulate"]
 
@@ -88,25 +89,26 @@ def _cmd_dome(args) -> int:
     from facestats.acquire.devices.lab import emulated_dome
 
     _check_duration(args.duration)
-    server = emulated_dome(
-        args.subject,
-        args.hot_folder,
-        args.lab,
-        store=args.store,
-        map_size=args.map_size,
-        resolution=args.resolution,
-        leds=args.leds,
-        cameras=args.cameras,
-        faults=_faults(args),
-        link=args.link,
-        wired_leds=args.wired_leds,
-        realtime=args.realtime,
-        seed=args.seed,
-        workers=args.workers,
-        cache=args.cache,
-        progress=not args.quiet,
-        log=_log(args),
-    )
+    with sigterm_as_interrupt():  # building takes minutes: a kill then removes the half-built folders as Ctrl-C does
+        server = emulated_dome(
+            args.subject,
+            args.hot_folder,
+            args.lab,
+            store=args.store,
+            map_size=args.map_size,
+            resolution=args.resolution,
+            leds=args.leds,
+            cameras=args.cameras,
+            faults=_faults(args),
+            link=args.link,
+            wired_leds=args.wired_leds,
+            realtime=args.realtime,
+            seed=args.seed,
+            workers=args.workers,
+            cache=args.cache,
+            progress=not args.quiet,
+            log=_log(args),
+        )
     dome = server.scene.dome
     w, h = dome.image_size[0]
     what = f"dome emulator for {args.subject}: {dome.n_leds} LEDs, {dome.n_cameras} cameras, {w}×{h} px frames"
@@ -117,18 +119,19 @@ def _cmd_sensor(args) -> int:
     from facestats.acquire.devices.lab import emulated_sensor
 
     _check_duration(args.duration)
-    server = emulated_sensor(
-        args.subject,
-        args.hot_folder,
-        args.lab,
-        store=args.store,
-        map_size=args.map_size,
-        faults=_faults(args),
-        link=args.link,
-        realtime=args.realtime,
-        seed=args.seed,
-        log=_log(args),
-    )
+    with sigterm_as_interrupt():
+        server = emulated_sensor(
+            args.subject,
+            args.hot_folder,
+            args.lab,
+            store=args.store,
+            map_size=args.map_size,
+            faults=_faults(args),
+            link=args.link,
+            realtime=args.realtime,
+            seed=args.seed,
+            log=_log(args),
+        )
     s = server.scene.sensor
     what = f"contact-sensor emulator for {args.subject}: {s.n_fibers} fibres, {s.n_exposures}-image bracket"
     return _serve(server, args, what)

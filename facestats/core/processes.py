@@ -1,6 +1,6 @@
-"""Whether a process that left something behind (a journal record, a temporary folder) is known to be gone.
+"""Process life: whether a process that left something behind is known to be gone, and SIGTERM as Ctrl-C.
 
-One job: the liveness test of crash clean-ups.  A process is *known to be gone* only when it ran on this
+The liveness test of crash clean-ups (:func:`process_gone`).  A process is *known to be gone* only when it ran on this
 host and ``kill(pid, 0)`` says there is no such process; on another host, or when the answer is unclear
 (a live process of another user, a malformed pid), it is assumed alive, so nothing it may still use is
 removed.
@@ -8,10 +8,35 @@ removed.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import socket
+import threading
 
-__all__ = ["process_gone"]
+__all__ = ["process_gone", "sigterm_as_interrupt"]
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt():
+    """Turn SIGTERM into :class:`KeyboardInterrupt` (as SIGINT is) in the main thread while the block runs.
+
+    The code that cleans up after Ctrl-C (temporary folders, a builder's half-written files, a rig's lights)
+    then cleans up after ``kill`` too; the previous handler is restored afterwards.  In another thread, where
+    no handler can be set, the block runs unchanged.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt(f"stopped by signal {signum}")
+
+    old = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 def process_gone(pid, host: str | None = None) -> bool:

@@ -66,13 +66,18 @@ def read_region_image(region_image) -> np.ndarray:
         Unreadable, not square, colours, or labels outside 0-10.
     """
     if isinstance(region_image, (str, os.PathLike)):
+        from facestats.io.images import INTEGER_EXTENSIONS, read_integer_image
+
         path = os.fspath(region_image)
+        ext = os.path.splitext(path)[1].lower()
+        if ext != ".npy" and ext not in INTEGER_EXTENSIONS:  # a label image: no HDR format holds integer labels
+            raise FormatError(
+                f"region image {path!r} has the extension {ext!r}; expected one of {('.npy',) + INTEGER_EXTENSIONS}"
+            )
         try:
-            if path.endswith(".npy"):
+            if ext == ".npy":
                 img = np.load(path)
             else:
-                from facestats.io.images import read_integer_image
-
                 img, _ = read_integer_image(path)  # (H, W, C) codes as stored, C = 1 for grey
         except (OSError, ValueError) as exc:  # ImageFormatError is a ValueError (ValidationError)
             raise FormatError(f"cannot read the region image {path}: {exc}") from None

@@ -36,7 +36,6 @@ are refused before anything starts (:func:`estimated_memory`).
 
 from __future__ import annotations
 
-import contextlib
 import ctypes
 import json
 import multiprocessing
@@ -56,6 +55,7 @@ from facestats.acquire.synthetic.faces import FACES, face_geometry
 from facestats.acquire.synthetic.population import synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator
 from facestats.core.conventions import DEFAULT_FACE, DEFAULT_MAP_SIZE, DEFAULT_SEED, SITES
+from facestats.core.processes import sigterm_as_interrupt
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
 from facestats.io.ids import check_subject_id
@@ -134,23 +134,6 @@ def _worker_init(parent: int, stop) -> None:
         os._exit(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides; Ctrl-C reaches the whole group
     threading.Thread(target=_watch_parent, args=(parent, stop), daemon=True).start()
-
-
-@contextlib.contextmanager
-def _stop_on_sigterm():
-    """Turn SIGTERM into :class:`KeyboardInterrupt` (like SIGINT) while a build runs in the main thread."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum, frame):
-        raise KeyboardInterrupt(f"stopped by signal {signum}")
-
-    old = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, old)
 
 
 def _run_local(tasks, n_workers: int, progress: bool) -> list:
@@ -432,7 +415,7 @@ def build_store(
             journal.finish(sid)
         common = (micro_normals, keep_derived, face)
         args = [(str(store_path), seed, map_size, conditions, specular, sid, stra, fits[sid], *common) for sid in todo]
-        with _stop_on_sigterm():
+        with sigterm_as_interrupt():
             results = _run_tasks(args, retries, own or client, n_workers, progress)
         size = n_workers if own is None and client is None else len((own or client).scheduler_info()["workers"])
     finally:

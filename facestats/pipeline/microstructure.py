@@ -90,7 +90,8 @@ class SequenceReport:
     def to_text(self) -> str:
         per = self.seconds / max(len(self.rendered), 1)
         return (
-            f"{self.path}: {self.n_frames} frames, window {self.window} of a {self.map_shape[0]} x {self.map_shape[1]} "
+            f"{self.path}: {self.n_frames} frame{'s' if self.n_frames != 1 else ''}, window {self.window} of a "
+            f"{self.map_shape[0]} x {self.map_shape[1]} "
             f"map; rendered {len(self.rendered)} ({per:.2f} s/frame), already done {len(self.skipped)}"
         )
 

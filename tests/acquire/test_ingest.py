@@ -274,6 +274,11 @@ def test_mesh_without_face_region(copy):
     unreadable = r"^cannot read the region image .*junk\.png: .*could not be decoded[^\n]*$"
     with pytest.raises(FacestatsError, match=unreadable):
         load_face_mesh(copy / "face.obj", copy / "junk.png")
+    (copy / "labels.exr").write_bytes(b"")  # the formats listed are those a label image can be: .npy among them
+    with pytest.raises(
+        FacestatsError, match=r"labels\.exr' has the extension '\.exr'; expected one of \('\.npy', '\.png'"
+    ):
+        load_face_mesh(copy / "face.obj", copy / "labels.exr")
     (copy / "face.regions.png").unlink()
     with pytest.raises(
         FacestatsError, match=r"mesh .*face\.obj has no face-region image \(looked for face\.regions\.png"

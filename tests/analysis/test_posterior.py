@@ -258,6 +258,8 @@ def test_population_on_store_and_errors():
     store = make_population(n=40, seed=8)
     res = population_sigma_tr(store, n_draws=4000)
     assert res.skin_types == (2, 3, 4, 5, 6)  # type I grouped with II
+    assert "type I-II " in res.to_text() and res.to_dict()["grouped_i_ii"] is True  # not "type II" (a red team)
+    assert res.type_label(2) == "I-II" and res.type_label(3) == "III"
     assert res.draws.shape == (4000, 5, 3) and np.isfinite(res.draws).all()
     frame = select_population(store)
     sig = subject_sigma_tr(frame)
@@ -268,6 +270,7 @@ def test_population_on_store_and_errors():
     two_types = frame[frame["skin_type"].isin([3, 4])]
     with pytest.raises(ValidationError, match="3 skin types"):
         population_sigma_tr(two_types)
-    assert population_sigma_tr(two_types, model="independent").summary.shape[0] == 6
+    apart = population_sigma_tr(two_types, model="independent", group_i_ii=False)
+    assert apart.summary.shape[0] == 6 and apart.type_label(2) == "II" and apart.to_dict()["grouped_i_ii"] is False
     with pytest.raises(ValidationError, match="model"):
         population_sigma_tr(store, model="pooled")

@@ -124,6 +124,8 @@ def test_out_of_range_options_are_refused_before_any_work(bracket, tmp_path):
     assert r.returncode == 2 and "--grid must be an integer in [2, 100], got 100000" in r.stderr, r.stderr
     r = run_cli("calibrate", "response", *bracket, "--black-level", "-3")
     assert r.returncode == 2 and "--black-level must be an integer in [0, inf], got -3" in r.stderr, r.stderr
+    r = run_cli("calibrate", "response", *bracket, "--samples", "foo")  # the message names every accepted form
+    assert r.returncode == 2 and "--samples: must be histogram, stratified or a number of samples" in r.stderr
 
 
 def test_12_bit_codes_in_16_bit_files_need_bits_and_a_black_level_is_recorded(tmp_path):

@@ -210,3 +210,27 @@ def test_an_emulator_in_temporary_folders_says_where_it_leaves_them(tmp_path):
     (hot,) = [p for p in tmp_path.iterdir() if p.name.startswith("facestats-emulate-sensor-")]
     assert f"kept in a temporary folder (remove it when done): {hot / 'hot'}" in r.stdout
     assert str(tmp_path / "lab") not in r.stdout.split("kept in")[1]  # a folder the user named is not temporary
+
+
+@pytest.mark.slow
+def test_emulate_killed_while_it_builds_leaves_no_temporary_folder(tmp_path):
+    """SIGTERM during the minutes of start-up did what Ctrl-C does only since 2026-12-06: before, the default
+    disposition killed the process and left a half-built ``facestats-emulate-dome-*`` folder (a red team)."""
+    env = dict(os.environ, TMPDIR=str(tmp_path), PYTHONWARNINGS="ignore")
+    proc = subprocess.Popen(
+        facestats_exe() + ["emulate", "dome", "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env=env,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        while not list(tmp_path.glob("facestats-emulate-dome-*")) and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.stderr.read()
+            time.sleep(0.05)
+        assert list(tmp_path.glob("facestats-emulate-dome-*")), "the emulator made no temporary folder"
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130 and "facestats: interrupted" in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []

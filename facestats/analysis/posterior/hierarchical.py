@@ -60,6 +60,8 @@ class PopulationSigmaTr:
     level : float
     seed : int
         Seed of the draws.
+    grouped_i_ii : bool
+        Skin types I and II are pooled under II (the paper's grouping): :meth:`type_label` names that group I-II.
     """
 
     summary: object
@@ -69,6 +71,11 @@ class PopulationSigmaTr:
     model: str
     level: float
     seed: int = 0
+    grouped_i_ii: bool = False
+
+    def type_label(self, skin_type: int) -> str:
+        """The Roman numeral of a skin type, ``I-II`` for the pooled group of types I and II."""
+        return "I-II" if self.grouped_i_ii and int(skin_type) == 2 else ROMAN[int(skin_type)]
 
     def compare_published(self):
         """Posterior median and interval of each skin type's mean σtr beside the paper's σtrAvg.
@@ -91,10 +98,10 @@ class PopulationSigmaTr:
         """The JSON document (``facestats analyze posterior --population`` writes it as ``posterior_population.json``).
 
         Keys (conventions: :mod:`facestats.analysis.serialize`): ``model``,
-        ``level``, ``skin_types`` (Roman numerals), ``seed``; ``summary``: a
-        list of ``{skin_type, channel, n, sample_mean, median, mean, lo,
-        hi}``; ``hyper``: by channel ``{sigma_w, mu_median, mu_lo, mu_hi,
-        tau_median, tau_lo, tau_hi}`` (``null`` for the independent model).
+        ``level``, ``skin_types`` (Roman numerals; II stands for the pooled I-II where
+        ``grouped_i_ii``), ``grouped_i_ii``, ``seed``; ``summary``: a list of
+        ``{skin_type, channel, n, sample_mean, median, mean, lo, hi}``; ``hyper``: by channel
+        ``{sigma_w, mu_median, mu_lo, mu_hi, tau_median, tau_lo, tau_hi}`` (``null`` for the independent model).
         """
         summary = records(self.summary)
         for row in summary:
@@ -104,6 +111,7 @@ class PopulationSigmaTr:
             "model": self.model,
             "level": self.level,
             "skin_types": [ROMAN[t] for t in self.skin_types],
+            "grouped_i_ii": self.grouped_i_ii,
             "seed": self.seed,
             "summary": summary,
             "hyper": hyper,
@@ -121,7 +129,9 @@ class PopulationSigmaTr:
             for ch in CHANNELS:
                 r = self.summary.loc[(st, ch)]
                 cells.append(f"{ch} {r['median']:.3f} [{r['lo']:.3f}, {r['hi']:.3f}]")
-            lines.append(f"type {ROMAN[st]:<4}n={int(self.summary.loc[(st, 'R'), 'n']):<4}" + "   ".join(cells))
+            lines.append(
+                f"type {self.type_label(st):<5}n={int(self.summary.loc[(st, 'R'), 'n']):<4}" + "   ".join(cells)
+            )
         return "\n".join(lines)
 
 
@@ -215,7 +225,9 @@ def population_sigma_tr(
         rows += _summary_rows(draws[:, :, c], skin_types, ch, n, ybar, q)
     summary = pd.DataFrame.from_records(rows).set_index(["skin_type", "channel"])
     hyper = pd.DataFrame.from_records(hyper_rows).set_index("channel") if hyper_rows else None
-    return PopulationSigmaTr(summary, draws, skin_types, hyper, model, float(level), seed=seed)
+    return PopulationSigmaTr(
+        summary, draws, skin_types, hyper, model, float(level), seed=seed, grouped_i_ii=bool(group_i_ii)
+    )
 
 
 def _hierarchical_channel(groups, skin_types, n_draws, rng, q):

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_shape, described
+from facestats.core.validate import as_finite, as_scalar, check_shape, described
 from facestats.errors import FormatError, ValidationError
 
 __all__ = [
@@ -122,7 +122,7 @@ class PinholeCamera:
     def looking_at(cls, position, target, *, focal_px, image_size) -> "PinholeCamera":
         """A camera at ``position`` (mm) looking at ``target``, focal length ``focal_px``, principal point centred."""
         w, h = (int(x) for x in image_size)
-        f = float(as_finite(focal_px, "focal_px", 0, None, low_inclusive=False))
+        f = as_scalar(focal_px, "focal_px", 0, None, low_inclusive=False)
         k = np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1.0]])
         return cls(k, look_at(position, target), np.asarray(position, float), (w, h))
 

@@ -66,7 +66,7 @@ from facestats.acquire.photographs import (
 from facestats.acquire.response import check_black_level, check_white_level
 from facestats.acquire.visibility import dome_shadow_maps, sample_visibility
 from facestats.core.progress import progress_bar
-from facestats.core.validate import as_finite, check_integer
+from facestats.core.validate import as_scalar, check_integer
 from facestats.core.version import __version__
 from facestats.errors import FormatError, ValidationError
 
@@ -351,8 +351,8 @@ def ingest_photographs(
     dome, calibration = _calibration(dome)
     chunk = check_integer(chunk, "chunk", 1)
     workers = check_integer(workers, "workers", 1)
-    motion_tolerance = float(as_finite(motion_tolerance, "motion_tolerance", 0, None, low_inclusive=False))
-    min_footprint_px = float(as_finite(min_footprint_px, "min_footprint_px", 0, None))
+    motion_tolerance = as_scalar(motion_tolerance, "motion_tolerance", 0, None, low_inclusive=False)
+    min_footprint_px = as_scalar(min_footprint_px, "min_footprint_px", 0, None)
     folder = folder if isinstance(folder, CaptureFolder) else open_folder(folder)
     _check_inputs(folder, dome, geometry, calibration)
     black_level = check_black_level(dome.camera_black_level if black_level is None else black_level, 2**folder.bits)

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from facestats.acquire.visibility import ShadowMaps
-from facestats.core.validate import as_finite, check_shape, described
+from facestats.core.validate import as_finite, as_scalar, check_shape, described
 from facestats.errors import FormatError, ValidationError
 from facestats.model.dipole import check_dipole_eta
 from facestats.model.irradiance import (
@@ -93,7 +93,7 @@ class PointLight:
         self.cuts = tuple(_unit(n, "cuts") for n in self.cuts)
         if self.cone is not None:
             axis, half = self.cone
-            half = float(as_finite(half, "cone half-angle", 0, np.pi / 2, low_inclusive=False, unit="rad"))
+            half = as_scalar(half, "cone half-angle", 0, np.pi / 2, low_inclusive=False, unit="rad")
             self.cone = (_unit(axis, "cone axis"), half)
 
     def mask(self, points) -> np.ndarray:

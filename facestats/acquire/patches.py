@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_range, check_shape, check_unit_vectors
+from facestats.core.validate import as_finite, as_scalar, check_range, check_shape, check_unit_vectors
 from facestats.errors import ValidationError
 
 __all__ = ["MAX_PATCHES", "Patches", "mesh_patches", "read_mesh_patches", "subdivide_triangles"]
@@ -146,7 +146,7 @@ def mesh_patches(vertices, faces, *, spacing, occluder=True) -> Patches:
         raise ValidationError(f"faces must be a non-empty (F, 3) integer array, got shape {f.shape} dtype {f.dtype}")
     if f.min() < 0 or f.max() >= v.shape[0]:
         raise ValidationError(f"faces must index vertices 0..{v.shape[0] - 1}, got {int(f.min())}..{int(f.max())}")
-    h = None if spacing is None else float(as_finite(spacing, "spacing", 0, None, low_inclusive=False, unit="mm"))
+    h = None if spacing is None else as_scalar(spacing, "spacing", 0, None, low_inclusive=False, unit="mm")
     tri = v[f]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     area2 = np.linalg.norm(cross, axis=1)

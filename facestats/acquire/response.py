@@ -102,7 +102,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.acquire.merge_kernel import log_radiance
-from facestats.core.validate import as_finite, check_choice, check_integer
+from facestats.core.validate import as_finite, as_scalar, check_choice, check_integer
 from facestats.errors import ValidationError
 
 __all__ = [
@@ -473,7 +473,7 @@ def recover_response(
     if smoothness is None:
         n_eff = n if n is not None else np.asarray(samples).size
         smoothness = 10.0 * np.sqrt(n_eff / 70.0)
-    lam = float(as_finite(smoothness, "smoothness", 0, MAX_SMOOTHNESS))  # above the range the solve overflows
+    lam = as_scalar(smoothness, "smoothness", 0, MAX_SMOOTHNESS)  # above the range the solve overflows
     if stack[0].ndim == 2:
         stack = [a[..., None] for a in stack]
     log_t = np.log(t)

@@ -58,7 +58,7 @@ import numpy as np
 from facestats.analysis.population import MODEL_NAMES
 from facestats.analysis.serialize import json_ready, records
 from facestats.core.published import CCA_DIRECT, CCA_PRINCIPAL
-from facestats.core.validate import as_finite, as_float, check_integer, check_range, check_seed
+from facestats.core.validate import as_float, as_scalar, check_integer, check_range, check_seed
 from facestats.errors import InsufficientDataError, ValidationError
 
 __all__ = ["CCAResult", "cca"]
@@ -384,7 +384,7 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
     """
     import pandas as pd
 
-    rcond = float(as_finite(rcond, "rcond", 0, 1, high_inclusive=False))
+    rcond = as_scalar(rcond, "rcond", 0, 1, high_inclusive=False)
     x, y, x_names, y_names, index, dropped, reg = _complete_blocks(X, Y, regularization, n_permutations, missing, seed)
     n, q = x.shape[0], y.shape[1]
     x_mean, y_mean = x.mean(axis=0), y.mean(axis=0)

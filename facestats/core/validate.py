@@ -18,6 +18,7 @@ __all__ = [
     "json_numbers",
     "as_float",
     "as_finite",
+    "as_scalar",
     "as_rgb_image",
     "check_finite",
     "check_range",
@@ -112,6 +113,18 @@ def as_finite(
     if low is not None or high is not None:
         check_range(arr, name, low, high, **bounds)
     return arr
+
+
+def as_scalar(value, name: str, low: float | None = None, high: float | None = None, **bounds) -> float:
+    """:func:`as_finite` of one number, returned as a Python float.
+
+    An array of any other shape (a list of one value included) is refused naming the argument, where
+    ``float()`` of it would raise a bare ``TypeError``.
+    """
+    arr = as_finite(value, name, low, high, **bounds)
+    if arr.ndim:
+        raise ValidationError(f"{name} must be one number, got an array of shape {arr.shape}")
+    return float(arr)
 
 
 def as_rgb_image(value, name: str) -> np.ndarray:

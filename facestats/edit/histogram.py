@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.core.validate import as_float, check_finite, check_range
+from facestats.core.validate import as_finite, as_float, check_finite, check_range
 from facestats.errors import ValidationError
 
 __all__ = [
@@ -151,7 +151,10 @@ class Histogram:
             raise ValidationError(f"bins must be a positive int, got {bins!r}")
         if range is None:
             range = widen_range(float(x.min()), float(x.max()))
-        lo, hi = float(range[0]), float(range[1])
+        bounds = as_finite(range, "range")
+        if bounds.shape != (2,):
+            raise ValidationError(f"range must be (low, high), got {range!r}")
+        lo, hi = float(bounds[0]), float(bounds[1])
         if not hi > lo:
             raise ValidationError(f"range must have high > low, got {range!r}")
         counts, edges = np.histogram(x, bins=int(bins), range=(lo, hi))

@@ -57,7 +57,7 @@ import math
 
 import numpy as np
 
-from facestats.core.validate import as_float, check_finite, check_shape
+from facestats.core.validate import as_float, check_finite, check_integer, check_shape
 from facestats.errors import ValidationError
 
 __all__ = ["SteerablePyramid", "band_names", "max_levels"]
@@ -79,7 +79,10 @@ def max_levels(shape) -> int:
     int
         0 for images smaller than 8 pixels a side.
     """
-    return max(int(math.floor(math.log2(min(shape)))) - 2, 0)
+    sides = [check_integer(n, "shape", 0) for n in shape] if len(shape) else []
+    if not sides or min(sides) == 0:
+        return 0  # an empty image holds no level (log2 of 0 is undefined)
+    return max(int(math.floor(math.log2(min(sides)))) - 2, 0)
 
 
 def band_names(levels: int = 7, orientations: int = 4) -> list[str]:

@@ -35,6 +35,7 @@ from facestats.core.published import ETA_SKIN
 from facestats.core.validate import (
     as_finite,
     as_float,
+    as_scalar,
     check_choice,
     check_integer,
     check_range,
@@ -217,8 +218,8 @@ def neighbour_pairs(positions, radius):
     from scipy.spatial import cKDTree
 
     p = _points(positions, "positions").astype(np.float64, copy=False)
-    as_finite(radius, "radius", 0, None, low_inclusive=False, unit="mm")
-    pairs = cKDTree(p).query_pairs(float(radius), output_type="ndarray")
+    radius = as_scalar(radius, "radius", 0, None, low_inclusive=False, unit="mm")
+    pairs = cKDTree(p).query_pairs(radius, output_type="ndarray")
     rows = np.concatenate([pairs[:, 0], pairs[:, 1]])
     cols = np.concatenate([pairs[:, 1], pairs[:, 0]])
     return rows, cols, np.linalg.norm(p[rows] - p[cols], axis=1)
@@ -283,10 +284,16 @@ class SubsurfaceTransport:
 
     def __post_init__(self):
         s, a = dipole_coefficients(self.sigma_s_prime, self.sigma_a)
+        for name, v in (("sigma_s_prime", s), ("sigma_a", a)):
+            if v.shape not in ((), (3,)):
+                raise ValidationError(f"{name} must be one value or one per channel, shape (3,), got shape {v.shape}")
         s = np.broadcast_to(s, (3,)).astype(np.float64)
         a = np.broadcast_to(a, (3,)).astype(np.float64)
         self.sigma_s_prime, self.sigma_a = s, a
-        self.eta = float(check_dipole_eta(self.eta))
+        eta = check_dipole_eta(self.eta)
+        if eta.ndim:
+            raise ValidationError(f"eta must be one number (the relative index of the dipole), got shape {eta.shape}")
+        self.eta = float(eta)
         alpha = reduced_albedo_unchecked(s, a)
         self.total_reflectance = total_from_reduced_albedo_unchecked(alpha, self.eta)
         if self.positions is None:

@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_integer, check_shape, check_unit_vectors
+from facestats.core.validate import as_finite, as_scalar, check_integer, check_shape, check_unit_vectors
 from facestats.errors import ValidationError
 
 __all__ = [
@@ -438,7 +438,7 @@ def angular_coordinates(directions, size: int):
 
 def rotation_y(angle) -> np.ndarray:
     """Right-handed rotation matrix about +y by ``angle`` radians (module docstring), shape (3, 3)."""
-    b = float(as_finite(angle, "angle"))
+    b = as_scalar(angle, "angle")
     c, s = np.cos(b), np.sin(b)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 

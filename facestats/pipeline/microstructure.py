@@ -54,7 +54,7 @@ from facestats.acquire.synthetic.microstructure import procedural_microstructure
 from facestats.core.compiled import resolve_backend
 from facestats.core.outputs import OutputSet, check_output_file
 from facestats.core.progress import progress_bar
-from facestats.core.validate import as_finite, check_choice, check_integer
+from facestats.core.validate import as_scalar, check_choice, check_integer
 from facestats.core.version import __version__
 from facestats.errors import FacestatsError, StoreError, ValidationError
 from facestats.io.displacement import read_displacement, write_displacement
@@ -571,7 +571,7 @@ def open_sequence(neutral, *, frames=None, targets=None, weights=None, scale=1.0
         OBJ files are in cm: pass 10).  A frame whose extent differs from the neutral's by more than 2×
         is refused (wrong units).
     """
-    scale = float(as_finite(scale, "scale", 0, None, low_inclusive=False))  # checked also for an ICT-FaceKit folder
+    scale = as_scalar(scale, "scale", 0, None, low_inclusive=False)  # checked also for an ICT-FaceKit folder
     if (frames is None) == (weights is None):
         raise ValidationError("pass either frames or weights (with targets), got " + ("both" if frames else "neither"))
     if frames is not None and targets is not None:
@@ -647,7 +647,7 @@ def generate_neutral_map(out, size, *, texel_um=15.0, subject=None, store=None, 
 
     path = check_output_file(out, "out", (".exr",))
     size = check_integer(size, "size", 2, MAX_NEUTRAL_MAP_SIZE)
-    texel_um = float(as_finite(texel_um, "texel_um", 0.0, 1000.0, low_inclusive=False, unit="um"))
+    texel_um = as_scalar(texel_um, "texel_um", 0.0, 1000.0, low_inclusive=False, unit="um")
     seed = None if seed is None else check_integer(seed, "seed", 0)
     if subject is None:
         h = procedural_microstructure(size, texel_um, seed=0 if seed is None else seed)

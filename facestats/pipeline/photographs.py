@@ -29,7 +29,7 @@ from facestats.acquire.dome import Dome
 from facestats.acquire.ingest import MIN_FOOTPRINT_PX, MOTION_TOLERANCE, ingest_photographs, open_ingested
 from facestats.acquire.photographs import open_folder
 from facestats.core.outputs import check_output_dir
-from facestats.core.validate import as_finite, check_integer
+from facestats.core.validate import as_scalar, check_integer
 from facestats.errors import FormatError, ValidationError
 from facestats.io import open_store
 from facestats.io.ids import check_subject_id
@@ -146,10 +146,10 @@ def ingest_subject(
     workers = check_integer(workers, "workers", 1)
     if motion_tolerance is None:
         motion_tolerance = MOTION_TOLERANCE
-    motion_tolerance = float(as_finite(motion_tolerance, "motion_tolerance", 0, None, low_inclusive=False))
+    motion_tolerance = as_scalar(motion_tolerance, "motion_tolerance", 0, None, low_inclusive=False)
     if min_footprint_px is None:
         min_footprint_px = MIN_FOOTPRINT_PX
-    min_footprint_px = float(as_finite(min_footprint_px, "min_footprint_px", 0, None))
+    min_footprint_px = as_scalar(min_footprint_px, "min_footprint_px", 0, None)
     store = check_output_dir(store, "store")
     work = check_output_dir(work if work is not None else default_work_path(store, sid), "work")
     if (store / ROOT_META).is_file():  # an existing store (read only here): nothing to do if it has the subject

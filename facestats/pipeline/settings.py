@@ -7,7 +7,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from facestats.core.published import ETA_SKIN, GRAZING_LIMIT_DEG
-from facestats.core.validate import as_finite, check_integer
+from facestats.core.validate import as_scalar, check_integer
 from facestats.errors import ValidationError
 from facestats.model import fitting
 from facestats.model.dipole import check_dipole_eta
@@ -134,7 +134,7 @@ def _number(value, name, low=None, high=None, **bounds):
     """``value`` as a float: one real number (not a bool, not an array) in the bounds of :func:`as_finite`."""
     if isinstance(value, (bool, np.bool_)) or np.ndim(value) != 0:
         raise ValidationError(f"{name} must be a number, got {value!r}")
-    return float(as_finite(value, name, low, high, **bounds))
+    return as_scalar(value, name, low, high, **bounds)
 
 
 #: Per-lumitexel outputs of :func:`fit_lumitexels` (a model's four entries only when it is

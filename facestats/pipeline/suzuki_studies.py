@@ -27,7 +27,7 @@ from facestats.acquire.scene import camera_sees
 from facestats.acquire.synthetic.subsurface import render_exitance
 from facestats.core.progress import progress_bar
 from facestats.core.published import SUZUKI_TABLE1, SUZUKI_TABLE3
-from facestats.core.validate import as_finite, check_choice, check_integer
+from facestats.core.validate import as_scalar, check_choice, check_integer
 from facestats.errors import FitError, QuantisationWarning
 from facestats.model.dipole import dipole_profile
 from facestats.model.fitting.quantisation_choice import auto_width
@@ -84,7 +84,7 @@ def render_scene(
     if kernel == "point":
         l = render_exitance(p.centre, p.area, c, s, a, eta=scene.eta, radius=np.inf, self_term=self_term)
     else:
-        w = float(as_finite(width, "width", 0, None, low_inclusive=False, unit="mm"))
+        w = as_scalar(width, "width", 0, None, low_inclusive=False, unit="mm")
         own = self_term_keywords(self_term, p.area)
         system = quantised_system(p.centre, c * p.area, np.arange(len(p)), width=w, **own)
         l = system.matrix @ dipole_profile(system.levels, s, a, scene.eta)
@@ -188,7 +188,7 @@ def noise_study(rendered: RenderedScene, *, noise=0.01, seeds=20, width="auto", 
     """
 
     check_integer(seeds, "seeds", 1)
-    nz = float(as_finite(noise, "noise", 0, 1))
+    nz = as_scalar(noise, "noise", 0, 1)
     p = rendered.patches
     rows = np.nonzero(rendered.visible)[0]
     w = auto_width(p.centre, rendered.irradiance * p.area, rows)[0] if width == "auto" else float(width)

@@ -18,7 +18,7 @@ from facestats.acquire.dome import look_at
 from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.synthetic.faces import named_face
 from facestats.acquire.visibility import rasterize
-from facestats.core.validate import as_finite, check_integer, check_shape
+from facestats.core.validate import as_finite, as_scalar, check_integer, check_shape
 from facestats.errors import ValidationError
 
 __all__ = ["StageCamera", "stage_camera", "subject_geometry", "mesh_uv", "vertex_normals", "ViewSurface",
@@ -51,7 +51,7 @@ class StageCamera:
         self.target = check_shape(as_finite(self.target, "target", dtype=np.float64), "target", (3,))
         if np.linalg.norm(self.target - self.position) <= 0:
             raise ValidationError("target must differ from the camera position, got the same point")
-        self.fov_deg = float(as_finite(self.fov_deg, "fov_deg", 0, 180, low_inclusive=False, high_inclusive=False))
+        self.fov_deg = as_scalar(self.fov_deg, "fov_deg", 0, 180, low_inclusive=False, high_inclusive=False)
         self.size = check_integer(self.size, "size", 1, 8192)
 
     @property
@@ -92,9 +92,9 @@ def stage_camera(
     ``target + distance (cos e sin a, sin e, cos e cos a)``.  The default field
     of view frames the procedural head at 1.2 m.
     """
-    a = np.radians(float(as_finite(azimuth_deg, "azimuth_deg")))
-    e = np.radians(float(as_finite(elevation_deg, "elevation_deg", -90, 90)))
-    dist = float(as_finite(distance, "distance", 0, None, low_inclusive=False, unit="mm"))
+    a = np.radians(as_scalar(azimuth_deg, "azimuth_deg"))
+    e = np.radians(as_scalar(elevation_deg, "elevation_deg", -90, 90))
+    dist = as_scalar(distance, "distance", 0, None, low_inclusive=False, unit="mm")
     t = np.asarray(as_finite(target, "target", dtype=np.float64))
     pos = t + dist * np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
     return StageCamera(pos, t, fov_deg, size)

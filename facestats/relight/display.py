@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.core.validate import as_finite
+from facestats.core.validate import as_finite, as_scalar
 
 __all__ = ["exposure_scale"]
 
@@ -23,8 +23,8 @@ def exposure_scale(image, mask=None, *, percentile: float = 99.0, target: float 
     mean of R, G and B, not Rec. 709 Y: a scale for a preview, the same for any channel balance.
     """
     img = as_finite(image, "image", dtype=np.float64)
-    p = float(as_finite(percentile, "percentile", 0, 100))
-    t = float(as_finite(target, "target", 0, 1, low_inclusive=False))
+    p = as_scalar(percentile, "percentile", 0, 100)
+    t = as_scalar(target, "target", 0, 1, low_inclusive=False)
     lum = img[..., :3].mean(-1)
     vals = lum[np.asarray(mask, bool)] if mask is not None else lum.reshape(-1)
     vals = vals[vals > 0]

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_shape
+from facestats.core.validate import as_scalar, check_shape
 from facestats.errors import ValidationError
 from facestats.relight.field import as_field, light_table
 
@@ -83,8 +83,8 @@ def rank_weights(luminance, dark: float = 0.25, bright: float = 0.1):
     ``dark`` + ``bright`` < 1.
     """
     lum = np.asarray(luminance, np.float64)
-    d = float(as_finite(dark, "dark", 0, 1, high_inclusive=False))
-    b = float(as_finite(bright, "bright", 0, 1, high_inclusive=False))
+    d = as_scalar(dark, "dark", 0, 1, high_inclusive=False)
+    b = as_scalar(bright, "bright", 0, 1, high_inclusive=False)
     if d + b >= 1:
         raise ValidationError(f"dark + bright must be < 1, got {d} + {b}")
     n = lum.shape[0]

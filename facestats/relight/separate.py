@@ -43,7 +43,7 @@ import warnings
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_broadcast, check_shape
+from facestats.core.validate import as_finite, as_scalar, check_broadcast, check_shape
 from facestats.errors import ValidationError
 from facestats.model.sphere import unit_directions
 from facestats.relight.field import as_field, light_dims, light_table
@@ -197,8 +197,8 @@ def diffuse_chromaticity(values, low: float = 25.0, high: float = 75.0, use=None
     """
 
     r = check_shape(as_finite(values, "values", dtype=np.float64), "values", (None, None, 3))
-    lo = float(as_finite(low, "low", 0, 100))
-    hi = float(as_finite(high, "high", lo, 100, low_inclusive=False))
+    lo = as_scalar(low, "low", 0, 100)
+    hi = as_scalar(high, "high", lo, 100, low_inclusive=False)
     lum = r.sum(-1)
     lit = (lum > 0) & (r[..., 1] > 0) & (r[..., 2] > 0)
     if use is not None:
@@ -331,9 +331,9 @@ def separate_field(field, s=WHITE, *, view=None, ramp: bool = True, mirror_deg: 
     """
 
     f = as_field(field)
-    mirror_deg = float(as_finite(mirror_deg, "mirror_deg", 0, 90, unit="deg"))
-    shadow_threshold = float(as_finite(shadow_threshold, "shadow_threshold", 0, 1, high_inclusive=False))
-    max_condition = float(as_finite(max_condition, "max_condition", 1, None))
+    mirror_deg = as_scalar(mirror_deg, "mirror_deg", 0, 90, unit="deg")
+    shadow_threshold = as_scalar(shadow_threshold, "shadow_threshold", 0, 1, high_inclusive=False)
+    max_condition = as_scalar(max_condition, "max_condition", 1, None)
     nl = len(light_dims(f))
     dirs, sa, _ = light_table(f)
     n_l = dirs.shape[0]

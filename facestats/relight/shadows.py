@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_finite, check_integer
+from facestats.core.validate import as_scalar, check_finite, check_integer
 from facestats.errors import ValidationError
 from facestats.relight.field import as_field, is_grid
 
@@ -74,7 +74,7 @@ def threshold_shadow_maps(field, threshold: float = 0.02, *, clean: int = 1):
     else:
         vals = np.asarray(field, np.float32)
         grid = vals.ndim == 5
-    t = float(as_finite(threshold, "threshold", 0, 1, low_inclusive=False, high_inclusive=False))
+    t = as_scalar(threshold, "threshold", 0, 1, low_inclusive=False, high_inclusive=False)
     c = check_integer(clean, "clean", 0, 8)
     if vals.ndim not in (4, 5) or vals.shape[-1] != 3:
         raise ValidationError(

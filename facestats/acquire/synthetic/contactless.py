@@ -37,7 +37,7 @@ from facestats.acquire.synthetic.scenes import face_site_scene
 from facestats.acquire.synthetic.subsurface import render_exitance
 from facestats.core.conventions import SITES
 from facestats.core.published import ETA_SKIN
-from facestats.core.validate import as_finite, check_choice
+from facestats.core.validate import as_scalar, check_choice
 from facestats.errors import ValidationError
 from facestats.model.irradiance import radiance_from_exitance
 
@@ -104,7 +104,7 @@ def simulate_site_image(truth, site="cheek", light="stripe", *, spacing=0.3, mod
     """
 
     check_choice(site, "site", CONTACTLESS_SITES)
-    nz = float(as_finite(noise, "noise", 0, 1, high_inclusive=False))
+    nz = as_scalar(noise, "noise", 0, 1, high_inclusive=False)
     scene = face_site_scene(site, light, spacing=spacing)
     p = scene.patches
     c = patch_irradiance(p, scene.lights, eta=ETA_SKIN)

@@ -58,7 +58,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_integer
+from facestats.core.validate import as_finite, as_scalar, check_integer
 from facestats.errors import ValidationError
 
 __all__ = [
@@ -364,7 +364,7 @@ def procedural_microstructure(
         Heights in µm, indexed ``[v, u]``.
     """
     shape = _map_shape(shape, 2)
-    texel = float(as_finite(texel_um, "texel_um", 0.0, 1000.0, low_inclusive=False, unit="um"))
+    texel = as_scalar(texel_um, "texel_um", 0.0, 1000.0, low_inclusive=False, unit="um")
     seed = check_integer(seed, "seed", 0)
     a = np.eye(2) if deformation is None else as_finite(deformation, "deformation", dtype=np.float64)
     if a.shape != (2, 2) or not np.linalg.det(a) > 0:
@@ -450,10 +450,10 @@ def shot_noise_microstructure(
     from scipy.ndimage import gaussian_filter
 
     shape = _map_shape(shape, 8)
-    texel = float(as_finite(texel_um, "texel_um", 0.0, 1000.0, low_inclusive=False, unit="um"))
-    density = float(as_finite(density_mm2, "density_mm2", 0.0, 1e6, low_inclusive=False, unit="1/mm^2"))
-    radius_px = float(as_finite(bump_radius_um, "bump_radius_um", 0.0, 1e4, low_inclusive=False, unit="um")) / texel
-    slope = float(as_finite(rms_slope, "rms_slope", 0.0, 10.0, low_inclusive=False))
+    texel = as_scalar(texel_um, "texel_um", 0.0, 1000.0, low_inclusive=False, unit="um")
+    density = as_scalar(density_mm2, "density_mm2", 0.0, 1e6, low_inclusive=False, unit="1/mm^2")
+    radius_px = as_scalar(bump_radius_um, "bump_radius_um", 0.0, 1e4, low_inclusive=False, unit="um") / texel
+    slope = as_scalar(rms_slope, "rms_slope", 0.0, 10.0, low_inclusive=False)
     seed = check_integer(seed, "seed", 0)
     if 8 * radius_px > min(shape):
         raise ValidationError(

@@ -30,7 +30,7 @@ from facestats.acquire.camera import PinholeCamera
 from facestats.acquire.lights import DirectionalLight, PointLight
 from facestats.acquire.patches import Patches, mesh_patches
 from facestats.acquire.synthetic.face import SITE_CENTRES, face_window
-from facestats.core.validate import as_finite, check_choice
+from facestats.core.validate import as_scalar, check_choice
 from facestats.errors import ValidationError
 
 __all__ = ["PatchScene", "square_pyramid", "pyramid_scene", "face_site_scene", "PYRAMID_LIGHTS", "SITE_LIGHTS"]
@@ -54,8 +54,8 @@ class PatchScene:
 
 def square_pyramid(base=50.0, height=25.0):
     """A square pyramid (vertices (5, 3) mm, faces (6, 3)): base on z = 0, apex at (0, 0, height), outward normals."""
-    b = float(as_finite(base, "base", 0, None, low_inclusive=False, unit="mm")) / 2
-    h = float(as_finite(height, "height", 0, None, low_inclusive=False, unit="mm"))
+    b = as_scalar(base, "base", 0, None, low_inclusive=False, unit="mm") / 2
+    h = as_scalar(height, "height", 0, None, low_inclusive=False, unit="mm")
     v = np.array([[b, b, 0], [-b, b, 0], [-b, -b, 0], [b, -b, 0], [0, 0, h]], float)
     f = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4], [0, 2, 1], [0, 3, 2]])
     return v, f
@@ -96,7 +96,7 @@ def face_site_scene(site="cheek", light="stripe", *, spacing=0.3, half_width=9.0
 
     check_choice(site, "site", tuple(SITE_CENTRES))
     check_choice(light, "light", SITE_LIGHTS)
-    hw = float(as_finite(half_width, "half_width", 6.0, None, unit="mm"))
+    hw = as_scalar(half_width, "half_width", 6.0, None, unit="mm")
     v, f, centre, normal = face_window(site, half_width=hw, spacing=spacing)
     patches = mesh_patches(v, f, spacing=None)  # one patch per triangle of the window's grid
     # Projector frame: e1, e2 span the tangent plane at the site centre.

@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
+from facestats.core.validate import as_finite, as_scalar, check_choice, check_integer, check_shape
 from facestats.errors import ValidationError
 from facestats.model.dipole import (
     check_dipole_eta,
@@ -70,7 +70,7 @@ def cutoff_radius(sigma_s_prime, sigma_a, eta, tail=DEFAULT_TAIL) -> float:
 
     s, a = dipole_coefficients(sigma_s_prime, sigma_a)
     s, a = np.broadcast_arrays(np.atleast_1d(s), np.atleast_1d(a))
-    t = float(as_finite(tail, "tail", 0, 1, low_inclusive=False, high_inclusive=False))
+    t = as_scalar(tail, "tail", 0, 1, low_inclusive=False, high_inclusive=False)
     total = total_diffuse_reflectance(s, a, eta)
     radius = 0.0
     for c in range(s.size):  # loop over channels (≤ 3)

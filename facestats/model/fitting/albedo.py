@@ -51,7 +51,7 @@ from typing import NamedTuple
 import numpy as np
 
 from facestats.core.published import ETA_SKIN
-from facestats.core.validate import as_finite, check_integer, check_shape
+from facestats.core.validate import as_finite, as_scalar, check_integer, check_shape
 from facestats.errors import ValidationError
 from facestats.model.fitting.samples import order_keys
 from facestats.model.fresnel import check_eta, fresnel_reflectance_unchecked
@@ -76,7 +76,7 @@ def _check_per_sample(samples, brdf=None, **vectors):
 
 def _check_angle(value, name):
     """An angle in [0, π/2] rad."""
-    return float(as_finite(value, name, 0, np.pi / 2, unit="rad"))
+    return as_scalar(value, name, 0, np.pi / 2, unit="rad")
 
 
 def fresnel_factors(samples, normal, eta=ETA_SKIN):
@@ -128,7 +128,7 @@ def brdf_samples(samples, normal, eta=ETA_SKIN, max_angle_deg=80.0) -> BrdfSampl
     where cos θi ≤ 0 (such samples are outside ``use``).  Irradiance E_i is per unit area normal to the light,
     so the cosine is the surface's.
     """
-    lim = np.float32(np.cos(np.radians(float(as_finite(max_angle_deg, "max_angle_deg", 0.0, 90.0, unit="deg")))))
+    lim = np.float32(np.cos(np.radians(as_scalar(max_angle_deg, "max_angle_deg", 0.0, 90.0, unit="deg"))))
     if samples.resolved_engine == "numba" and not samples.paired:
         # local import: the kernels import numba
         from facestats.model.fitting.kernels.samples import brdf_values

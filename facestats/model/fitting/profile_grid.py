@@ -70,7 +70,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_integer, check_shape
+from facestats.core.validate import as_finite, as_scalar, check_integer, check_shape
 from facestats.errors import FitError, ValidationError
 from facestats.model.dipole import check_dipole_eta, dipole_profile_unchecked
 
@@ -303,11 +303,11 @@ def fit_profile_grid(
     d = check_shape(as_finite(levels, "levels", 0, None, unit="mm", dtype=np.float64), "levels", (None,))
     r = check_shape(as_finite(profile, "profile", dtype=np.float64), "profile", d.shape)
     eta = float(check_dipole_eta(eta))
-    lvl = float(as_finite(level, "level", 0, 1, low_inclusive=False, high_inclusive=False))
+    lvl = as_scalar(level, "level", 0, 1, low_inclusive=False, high_inclusive=False)
     grid = TABLE2_GRID if grid is None else grid
     if not isinstance(grid, ProfileGrid):
         raise ValidationError(f"grid must be a ProfileGrid, got {type(grid).__name__}")
-    dmax = np.inf if max_distance is None else float(as_finite(max_distance, "max_distance", 0, None, unit="mm"))
+    dmax = np.inf if max_distance is None else as_scalar(max_distance, "max_distance", 0, None, unit="mm")
     in_range = d <= dmax
     used = in_range & (r > 0)
     n_used = int(used.sum())
@@ -394,7 +394,7 @@ def fit_exitance_grid(levels, gram, rhs, n_rows, *, grid: ProfileGrid | None = N
     if n < 3:
         raise FitError(f"the exitance fit needs at least 3 rows with l > 0 to fit 2 parameters, got {n}")
     eta = float(check_dipole_eta(eta))
-    lvl = float(as_finite(level, "level", 0, 1, low_inclusive=False, high_inclusive=False))
+    lvl = as_scalar(level, "level", 0, 1, low_inclusive=False, high_inclusive=False)
     grid = TABLE2_GRID if grid is None else grid
     if not isinstance(grid, ProfileGrid):
         raise ValidationError(f"grid must be a ProfileGrid, got {type(grid).__name__}")

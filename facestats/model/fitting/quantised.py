@@ -84,7 +84,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from facestats.core.progress import progress_bar
-from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
+from facestats.core.validate import as_finite, as_scalar, check_choice, check_integer, check_shape
 from facestats.errors import FitError, ValidationError
 from facestats.model.disk_quadrature import DISK_RULE, disk_node_distances, is_near
 
@@ -196,8 +196,8 @@ def uniform_levels(width, max_distance) -> np.ndarray:
     max_distance : float
         Largest patch distance to cover, mm, ≥ 0.
     """
-    w = float(as_finite(width, "width", 0, None, low_inclusive=False, unit="mm"))
-    dmax = float(as_finite(max_distance, "max_distance", 0, None, unit="mm"))
+    w = as_scalar(width, "width", 0, None, low_inclusive=False, unit="mm")
+    dmax = as_scalar(max_distance, "max_distance", 0, None, unit="mm")
     n = np.floor(dmax / w) + 2
     if n > MAX_LEVELS:
         raise ValidationError(
@@ -234,7 +234,7 @@ def planned_levels(points, weights, rows=None, *, width, areas=None, near=False)
     idx = np.arange(p.shape[0]) if rows is None else np.asarray(rows)
     lit = np.nonzero(wk > 0)[0]
     rho = np.sqrt(np.asarray(areas, np.float64)[lit] / np.pi) if near else None
-    w = float(as_finite(width, "width", 0, None, low_inclusive=False, unit="mm"))
+    w = as_scalar(width, "width", 0, None, low_inclusive=False, unit="mm")
     return int(uniform_levels(w, _farthest(p[idx], p[lit], rho)).size)
 
 
@@ -471,7 +471,7 @@ def quantised_system(
     rows_xyz, cols_xyz = p[idx] - centre, p[lit] - centre
     rho = np.sqrt(area[lit] / np.pi) if near else None  # the lit patches' disk radii, mm
     if width is not None:
-        w = float(as_finite(width, "width", 0, None, low_inclusive=False, unit="mm"))
+        w = as_scalar(width, "width", 0, None, low_inclusive=False, unit="mm")
         lev = uniform_levels(w, _farthest(rows_xyz, cols_xyz, rho))
     else:
         w, lev = None, _check_levels(levels)
@@ -708,7 +708,7 @@ def conditioning(neq: NormalEquations, rcond=1e-10) -> Conditioning:
     """
     from scipy.linalg import eigvalsh
 
-    rc = float(as_finite(rcond, "rcond", 0, 1, low_inclusive=False, high_inclusive=False))
+    rc = as_scalar(rcond, "rcond", 0, 1, low_inclusive=False, high_inclusive=False)
     s = np.sqrt(np.maximum(eigvalsh(_scaled_gram(neq), check_finite=False)[::-1], 0))
     smax = float(s[0]) if s.size else 0.0
     rank = int(np.sum(s > rc * smax)) if smax > 0 else 0

@@ -84,7 +84,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_choice, check_integer, check_shape
+from facestats.core.validate import as_finite, as_scalar, check_choice, check_integer, check_shape
 from facestats.errors import FitError, QuantisationWarning, ValidationError
 from facestats.model.fitting.profile_grid import (
     TABLE2_GRID,
@@ -320,7 +320,7 @@ def _fit_range(system, neq, l, r, method, max_distance):
         return fit_distance(system, neq, r)
     if max_distance is None or max_distance == "auto":  # the paper fits every level
         return float(system.levels[-1])
-    dmax = float(as_finite(max_distance, "max_distance", 0, None, low_inclusive=False, unit="mm"))
+    dmax = as_scalar(max_distance, "max_distance", 0, None, low_inclusive=False, unit="mm")
     if dmax > system.max_distance:
         raise ValidationError(
             f"max_distance must not exceed the largest patch distance {system.max_distance:.6g} mm "
@@ -713,7 +713,7 @@ def _fit_candidates(p, weights, rows, exitances, width, options, block_bytes, pr
         check_choice(width, "width", ("auto",))
         candidates = auto_width(p, weights, rows, min_pairs=options.get("min_pairs", 30))
     else:
-        candidates = [float(as_finite(width, "width", 0, None, low_inclusive=False, unit="mm"))]
+        candidates = [as_scalar(width, "width", 0, None, low_inclusive=False, unit="mm")]
     n = len(exitances)
     results, skipped, errors = [None] * n, [[] for _ in range(n)], [None] * n
     for w in candidates:  # loop over candidate widths (one unless width="auto" meets a rank deficit)

@@ -51,7 +51,7 @@ import numpy as np
 
 from facestats.core.compiled import resolve_backend
 from facestats.core.progress import progress_bar
-from facestats.core.validate import as_finite, check_choice
+from facestats.core.validate import as_finite, as_scalar, check_choice
 from facestats.errors import ValidationError
 from facestats.model.microstructure.compiled import histogram_tv
 from facestats.model.microstructure.kernel import ALPHA_RANGE, SIGMA_RANGE_UM, kernel_radius
@@ -297,13 +297,13 @@ def fit_kernel(
     if a.shape != (2,) or abs(np.linalg.norm(a) - 1) > 1e-3:
         raise ValidationError(f"axis must be a unit 2-vector (a_u, a_v), got {np.asarray(axis).tolist()}")
     a = a / np.linalg.norm(a)
-    r = float(as_finite(r, "r", 0.0, low_inclusive=False))
-    r_t = float(as_finite(r_t, "r_t", 0.0, low_inclusive=False))
-    texel = float(as_finite(texel_um, "texel_um", 0.0, low_inclusive=False, unit="um"))
+    r = as_scalar(r, "r", 0.0, low_inclusive=False)
+    r_t = as_scalar(r_t, "r_t", 0.0, low_inclusive=False)
+    texel = as_scalar(texel_um, "texel_um", 0.0, low_inclusive=False, unit="um")
     texel_d = (
         texel
         if deformed_texel_um is None
-        else float(as_finite(deformed_texel_um, "deformed_texel_um", 0.0, low_inclusive=False, unit="um"))
+        else as_scalar(deformed_texel_um, "deformed_texel_um", 0.0, low_inclusive=False, unit="um")
     )
     check_choice(method, "method", ("brute", "coarse-to-fine"))
     backend = resolve_backend(backend)
@@ -326,7 +326,7 @@ def fit_kernel(
         )
     sig_px = s_grid / texel
     noise = tv_noise(problem.target, problem.n_target)
-    tol = noise if ridge_tolerance is None else float(as_finite(ridge_tolerance, "ridge_tolerance", 0.0))
+    tol = noise if ridge_tolerance is None else as_scalar(ridge_tolerance, "ridge_tolerance", 0.0)
     if method == "brute":
         grid = _search(problem, a_grid, sig_px, np.ones((len(a_grid), len(sig_px)), bool), progress)
     else:

@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-from facestats.core.validate import as_finite
+from facestats.core.validate import as_finite, as_scalar
 from facestats.errors import ValidationError
 
 __all__ = [
@@ -109,9 +109,9 @@ def kernel_taps(alpha: float, sigma_um: float, texel_um: float) -> np.ndarray:
     texel_um : float
         Texel size along the kernel's axis, µm.
     """
-    a = float(check_alpha(alpha))
-    s = float(as_finite(sigma_um, "sigma_um", 0.0, unit="um"))
-    t = float(as_finite(texel_um, "texel_um", 0.0, low_inclusive=False, unit="um"))
+    a = as_scalar(alpha, "alpha", *ALPHA_RANGE)  # check_alpha of one number
+    s = as_scalar(sigma_um, "sigma_um", 0.0, unit="um")
+    t = as_scalar(texel_um, "texel_um", 0.0, low_inclusive=False, unit="um")
     k = a * gaussian_taps(s / t)
     k[len(k) // 2] += 1.0 - a
     return k

@@ -70,6 +70,16 @@ __all__ = [
 SPECULAR_MODELS = {"torrance_sparrow": "m", "blinn_phong": "exponent"}
 
 
+def _boolean_mask(mask) -> np.ndarray:
+    """``mask`` as bool: booleans, or integers 0 and 1 (a float mask, NaN included, read as True before)."""
+    m = np.asarray(mask)
+    if m.dtype == bool:
+        return m
+    if m.dtype.kind in "iu" and (m.size == 0 or (m.min() >= 0 and m.max() <= 1)):
+        return m.astype(bool)
+    raise ValidationError(f"mask must hold booleans (or 0 and 1), got dtype {m.dtype}")
+
+
 def modulation_texture(albedo, mask=None):
     """Modulation texture M(xo) = α(xo) / α_avg, Weyrich et al. 2006 eq. 7.
 
@@ -95,7 +105,7 @@ def modulation_texture(albedo, mask=None):
     a = as_finite(albedo, "albedo")
     check_shape(a, "albedo", (..., 3))
     check_range(a, "albedo", 0, 1)
-    m = np.ones(a.shape[:-1], bool) if mask is None else np.asarray(mask, bool)
+    m = np.ones(a.shape[:-1], bool) if mask is None else _boolean_mask(mask)
     if m.shape != a.shape[:-1]:
         raise ValidationError(f"mask must have shape {a.shape[:-1]}, got {m.shape}")
     if not m.any():

@@ -110,7 +110,8 @@ def relight(field, lighting=None, *, probe=None, layout: str = "latlong", rotate
     ind = tint = None
     if indirect is not None:  # checked before the relight, which may take long
         if not isinstance(indirect, tuple) or len(indirect) != 2:
-            raise ValidationError(f"indirect must be a tuple (field, tint), got {type(indirect).__name__}")
+            got = f"a tuple of {len(indirect)}" if isinstance(indirect, tuple) else type(indirect).__name__
+            raise ValidationError(f"indirect must be a tuple of two, (field, tint), got {got}")
         ind = as_field(indirect[0])
         if (ind.sizes["y"], ind.sizes["x"]) != (f.sizes["y"], f.sizes["x"]):
             raise ValidationError(

@@ -254,3 +254,10 @@ def test_skin_radiance_checks_eta_whatever_the_specular_model(specular, eta, mes
     with pytest.raises(FacestatsError, match=message):
         skin.skin_radiance(*args, rho_s=0.1, roughness=rough, modulation=np.ones((1, 3)), subsurface=st,
                            specular=specular, eta=eta)  # fmt: skip
+
+
+def test_modulation_texture_takes_a_boolean_mask_only():
+    albedo = np.full((2, 3), 0.5)
+    assert skin.modulation_texture(albedo, np.array([1, 0]))[0][1].tolist() == [0, 0, 0]  # 0/1 integers are fine
+    with pytest.raises(FacestatsError, match="mask must hold booleans"):  # NaN and 0.5 read as True before
+        skin.modulation_texture(albedo, np.array([np.nan, 0.0]))

@@ -123,8 +123,10 @@ def test_field_store_blocks_are_checked(tmp_path, small):
 
 def test_indirect_must_be_a_field_and_tint_of_the_same_image(small):
     other, _, _ = lambertian_field(3, 3, n_theta=16, n_phi=8)
-    with pytest.raises(ValidationError, match="indirect must be a tuple"):
+    with pytest.raises(ValidationError, match="indirect must be a tuple of two, .*, got Dataset"):
         relight(small, np.ones((8, 16, 3)), indirect=small)
+    with pytest.raises(ValidationError, match="got a tuple of 1"):  # was "must be a tuple ..., got tuple"
+        relight(small, np.ones((8, 16, 3)), indirect=(small,))
     with pytest.raises(ValidationError, match="image size 4 x 4, got 3 x 3"):
         relight(small, np.ones((8, 16, 3)), indirect=(other, [1, 1, 1]))
 

@@ -94,7 +94,7 @@ def equivalent_lobe(lobe, source, target):
     2007 ("Microfacet models for refraction through rough surfaces", §5.2) find
     the two distributions very similar.  It is only a starting point: one
     model's fit starts the other's, which then converges on its own.  ``m`` is
-    clamped at 10⁻³ and ``n`` at 0 so the result stays finite.
+    clamped at 10⁻³ (so the result stays finite) and ``n`` at 0, in and out (m > 1 gives n = 0).
     """
     check_choice(source, "source", DEFAULT_BOUNDS)
     check_choice(target, "target", DEFAULT_BOUNDS)
@@ -102,7 +102,7 @@ def equivalent_lobe(lobe, source, target):
     if source == target:
         return lobe
     if target == "blinn_phong":
-        return 2 / np.maximum(lobe, 1e-3) ** 2 - 2
+        return np.maximum(2 / np.maximum(lobe, 1e-3) ** 2 - 2, 0)  # m > 1 has no positive n (gave n < 0)
     return np.sqrt(2 / (np.maximum(lobe, 0) + 2))
 
 

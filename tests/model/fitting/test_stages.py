@@ -268,6 +268,8 @@ def test_equivalent_lobe_maps_roughness_to_exponent_and_back():
     np.testing.assert_allclose(n, 2 / m**2 - 2)  # Walter et al. 2007: α_p = 2 α_b⁻² − 2
     np.testing.assert_allclose(equivalent_lobe(n, "blinn_phong", "torrance_sparrow"), m)
     np.testing.assert_array_equal(equivalent_lobe(m, "blinn_phong", "blinn_phong"), m)
+    assert equivalent_lobe(1.0, "torrance_sparrow", "blinn_phong") == 0  # n = 0 at m = 1 ...
+    assert equivalent_lobe(2.0, "torrance_sparrow", "blinn_phong") == 0  # ... and beyond (was -1.5, a red team)
     with pytest.raises(FacestatsError, match="target must be one of"):
         equivalent_lobe(m, "torrance_sparrow", "phong")
 

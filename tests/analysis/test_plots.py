@@ -119,4 +119,4 @@ def test_posterior_figures(store, tmp_path):
     pop = fa.population_sigma_tr(store, n_draws=2000)
     fig = _save(plots.plot_population_sigma_tr(pop), tmp_path / "population.png")
     assert len(fig.axes) == 3
-    assert [t.get_text() for t in fig.axes[0].get_xticklabels()] == ["II", "III", "IV", "V", "VI"]
+    assert [t.get_text() for t in fig.axes[0].get_xticklabels()] == ["I-II", "III", "IV", "V", "VI"]  # I, II pooled

@@ -16,6 +16,7 @@ import os
 import shutil
 import time
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import pytest
 import scipy.io
@@ -246,9 +247,21 @@ def _cases(root, store, s):
     ]
 
 
+def _own(arg, root, k):
+    """``arg`` moved from ``root/new`` to case ``k``'s own ``root/new{k}`` (other arguments unchanged)."""
+    if isinstance(arg, Path) and arg.is_relative_to(root / "new"):
+        return root / f"new{k}" / arg.relative_to(root / "new")
+    return arg
+
+
 def test_the_named_cli_cases(env):
     root, store, stores = env
-    cases = _cases(root, store, stores)
+    # Each case gets its own folder for the outputs it must not leave: run at once, one case's output folder could
+    # hold another's parent folder while that one cleaned up, and the parent was then (rightly) left in place.
+    cases = [
+        (name, [_own(a, root, k) for a in argv], words, [_own(p, root, k) for p in absent])
+        for k, (name, argv, words, absent) in enumerate(_cases(root, store, stores))
+    ]
     before = {"store": snapshot(store), "foreign": snapshot(root / "foreign")}
     with ThreadPoolExecutor(4) as pool:
         results = list(pool.map(lambda c: run_cli(*c[1], cwd=root, timeout=300), cases))

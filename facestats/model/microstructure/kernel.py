@@ -85,7 +85,7 @@ def gaussian_taps(sigma_px: float) -> np.ndarray:
         return np.ones(1)
     if TRUNCATE * s > MAX_RADIUS:  # compared as floats: a huge sigma's radius does not fit an integer
         raise ValidationError(
-            f"sigma_px={s:g} texels needs a kernel of {2 * math.ceil(TRUNCATE * s) + 1:.3g} taps, more than the "
+            f"sigma_px={s:g} texels needs a kernel of {2 * math.ceil(TRUNCATE * s) + 1} taps, more than the "
             f"{2 * MAX_RADIUS + 1} allowed (MAX_RADIUS); check sigma and the texel size (same unit, um)"
         )
     r = int(kernel_radius(s))

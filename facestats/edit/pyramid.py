@@ -79,7 +79,7 @@ def max_levels(shape) -> int:
     int
         0 for images smaller than 8 pixels a side.
     """
-    sides = [check_integer(n, "shape", 0) for n in shape] if len(shape) else []
+    sides = [check_integer(n, "shape", 0) for n in shape]
     if not sides or min(sides) == 0:
         return 0  # an empty image holds no level (log2 of 0 is undefined)
     return max(int(math.floor(math.log2(min(sides)))) - 2, 0)

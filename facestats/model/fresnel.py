@@ -24,7 +24,7 @@ import numpy as np
 
 from facestats.core.blocked import blockwise
 from facestats.core.published import ETA_SKIN
-from facestats.core.validate import as_finite, check_broadcastable, check_range, result_dtype
+from facestats.core.validate import as_finite, as_scalar, check_broadcastable, check_range, result_dtype
 from facestats.errors import ValidationError
 
 __all__ = ["fresnel_reflectance", "fresnel_transmittance", "diffuse_fresnel_reflectance"]
@@ -99,12 +99,9 @@ def _check_cos(cos_theta, name="cos_theta"):
 
 def check_eta(eta, scalar: bool = False):
     """Validate a relative index of refraction: finite and > 0 (with ``scalar``, one number, returned as float)."""
-    e = as_finite(eta, "eta", 0.0, None, low_inclusive=False)
-    if not scalar:
-        return e
-    if e.ndim:
-        raise ValidationError(f"eta must be one number (a relative index of refraction), got shape {e.shape}")
-    return float(e)
+    if scalar:
+        return as_scalar(eta, "eta", 0.0, None, low_inclusive=False)
+    return as_finite(eta, "eta", 0.0, None, low_inclusive=False)
 
 
 def fresnel_reflectance(cos_theta, eta=ETA_SKIN):

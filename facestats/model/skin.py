@@ -45,7 +45,6 @@ from facestats.core.validate import (
 from facestats.errors import ValidationError
 from facestats.model import brdf as _brdf
 from facestats.model.dipole import (
-    check_dipole_eta,
     dipole_coefficients,
     dipole_radial_energy_unchecked,
     reduced_albedo_unchecked,
@@ -300,10 +299,7 @@ class SubsurfaceTransport:
         s = np.broadcast_to(s, (3,)).astype(np.float64)
         a = np.broadcast_to(a, (3,)).astype(np.float64)
         self.sigma_s_prime, self.sigma_a = s, a
-        eta = check_dipole_eta(self.eta)
-        if eta.ndim:
-            raise ValidationError(f"eta must be one number (the relative index of the dipole), got shape {eta.shape}")
-        self.eta = float(eta)
+        self.eta = as_scalar(self.eta, "eta", 1.0, 3.0)  # check_dipole_eta of one number
         alpha = reduced_albedo_unchecked(s, a)
         self.total_reflectance = total_from_reduced_albedo_unchecked(alpha, self.eta)
         if self.positions is None:

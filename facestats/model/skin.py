@@ -126,6 +126,17 @@ def _points(value, name, n=None):
     return check_shape(as_finite(value, name), name, (n, 3))
 
 
+def _squared_distances(d, name, hint=""):
+    """|d|² over the last axis, refused where it overflows (the direction d/|d| would come out 0)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        dist2 = _dot(d, d)
+    if not np.all(np.isfinite(dist2)):
+        raise ValidationError(
+            f"{name} must lie within about 1e154 mm of the surface positions (squared distances overflow beyond){hint}"
+        )
+    return dist2
+
+
 def point_lights(positions, normals, light_positions, intensity):
     """Directions and irradiance from isotropic point lights (inverse-square law).
 
@@ -157,7 +168,7 @@ def point_lights(positions, normals, light_positions, intensity):
         i = np.repeat(i[:, None], 3, axis=1)
     check_shape(i, "intensity", (lp.shape[0], 3))
     d = lp[None, :, :] - p[:, None, :]
-    dist2 = _dot(d, d)
+    dist2 = _squared_distances(d, "light_positions", "; light from that far is directional: use directional_lights")
     if np.any(dist2 <= 0):
         raise ValidationError("light_positions must not coincide with surface positions, got distance 0")
     wi = d / np.sqrt(dist2)[..., None]
@@ -201,7 +212,7 @@ def view_directions(positions, camera_positions):
     p = _points(positions, "positions")
     c = _points(camera_positions, "camera_positions")
     d = c[None, :, :] - p[:, None, :]
-    dist = np.sqrt(_dot(d, d))
+    dist = np.sqrt(_squared_distances(d, "camera_positions"))
     if np.any(dist <= 0):
         raise ValidationError("camera_positions must not coincide with surface positions, got distance 0")
     return d / dist[..., None]

@@ -261,3 +261,13 @@ def test_modulation_texture_takes_a_boolean_mask_only():
     assert skin.modulation_texture(albedo, np.array([1, 0]))[0][1].tolist() == [0, 0, 0]  # 0/1 integers are fine
     with pytest.raises(FacestatsError, match="mask must hold booleans"):  # NaN and 0.5 read as True before
         skin.modulation_texture(albedo, np.array([np.nan, 0.0]))
+
+
+def test_lights_and_cameras_too_far_for_a_squared_distance_are_refused_not_zero_directions():
+    """|d|² overflowed past ~1e154 mm: the unit direction d/|d| came out 0 with an overflow warning (a red team)."""
+    pos, nor = np.zeros((2, 3)), np.tile([0.0, 0.0, 1.0], (2, 1))
+    with pytest.raises(FacestatsError, match="light_positions must lie within about 1e154 mm.*directional_lights"):
+        skin.point_lights(pos, nor, np.array([[0.0, 0.0, 1e155]]), np.ones((1, 3)))
+    with pytest.raises(FacestatsError, match="camera_positions must lie within about 1e154 mm"):
+        skin.view_directions(pos, np.array([[0.0, 0.0, 1e155]]))
+    np.testing.assert_allclose(skin.view_directions(pos, np.array([[0.0, 0.0, 1e150]]))[0, 0], [0, 0, 1])

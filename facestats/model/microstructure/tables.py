@@ -92,7 +92,8 @@ class KernelTable:
         """σ(r) in µm, clamped to [1, 100] µm (eq. 9 form); r below ``min_ratio`` takes σ(min_ratio)."""
         r = self._held(r)
         (a_c, b_c), (a_s, b_s) = self.sigma_compress, self.sigma_stretch
-        return np.clip(np.where(r >= 1, a_s * r + b_s, a_c * r + b_c), *SIGMA_RANGE_UM)
+        with np.errstate(over="ignore", invalid="ignore"):  # a ratio near 1e308 overflows to ±inf: clipped to the range
+            return np.clip(np.where(r >= 1, a_s * r + b_s, a_c * r + b_c), *SIGMA_RANGE_UM)
 
     def __call__(self, r):
         return self.alpha(r), self.sigma(r)

@@ -103,3 +103,14 @@ def test_bad_input():
         KernelTable((1.0,), (0.0,), (70.5, -46.9), (38.2, -26.5), min_ratio=float("nan"))
     with pytest.raises(FacestatsError, match="alpha_knots must increase"):
         fit_kernel_table([0.8, 0.9, 1.1, 1.2], [-1, -0.3, 0.3, 0.6], [9, 16, 15, 19], [1.2, 0.8])
+
+
+def test_a_huge_ratio_is_clipped_to_the_sigma_range_without_warnings():
+    import warnings
+
+    from facestats.model.microstructure import kernel_parameters
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a ratio near 1e308 overflowed a_s r + b_s (the value was right)
+        alpha, sigma = kernel_parameters(1e308)
+    assert (float(alpha), float(sigma)) == (1.0, 100.0)

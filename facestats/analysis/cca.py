@@ -314,7 +314,7 @@ def _whitener(cov, rcond=1e-10):
 
 def _unit_scaled(xc):
     """``(xc / s, s)`` with s the largest magnitude of each column (1 for a column of zeros)."""
-    s = np.max(np.abs(xc), axis=0) if xc.shape[0] else np.ones(xc.shape[1])
+    s = np.max(np.abs(xc), axis=0, initial=0.0)
     s = np.where(s > 0, s, 1.0)
     return xc / s, s
 

@@ -218,9 +218,9 @@ class SteerablePyramid:
     """
 
     def __init__(self, shape, levels: int = 7, orientations: int = 4, *, dtype=np.float32, workers: int = 2):
-        shape = tuple(int(s) for s in shape)
-        if len(shape) != 2 or min(shape) < 1:
+        if not isinstance(shape, (tuple, list, np.ndarray)) or len(shape) != 2:
             raise ValidationError(f"shape must be (rows, columns) of positive ints, got {shape!r}")
+        shape = tuple(check_integer(s, "shape", 1) for s in shape)
         if not isinstance(levels, (int, np.integer)) or levels < 0:
             raise ValidationError(f"levels must be a non-negative int, got {levels!r}")
         if levels > max_levels(shape):

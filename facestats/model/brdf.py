@@ -73,10 +73,14 @@ def half_vector(wi, wo):
     """Half-way vector H = (ωi + ωo) / ‖ωi + ωo‖ (Weyrich et al. 2006, eq. 11-13).
 
     For ωi = −ωo (undefined H) the result is NaN; callers only use H for pairs
-    above the horizon, where it is always defined.  No input checks: ``wi`` and
-    ``wo`` are unit vectors on the last axis, broadcast against each other.
+    above the horizon, where it is always defined.  ``wi`` and ``wo`` are unit
+    3-vectors on the last axis, broadcast against each other; their shapes are
+    checked, their norms are not.
     """
-    h = as_float(wi, "wi") + as_float(wo, "wo")
+    a = check_shape(as_float(wi, "wi"), "wi", (..., 3))
+    b = check_shape(as_float(wo, "wo"), "wo", (..., 3))
+    check_broadcastable(wi=a, wo=b)
+    h = a + b
     with np.errstate(invalid="ignore", divide="ignore"):
         return h / np.sqrt(_dot(h, h))[..., None]
 

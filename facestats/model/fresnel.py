@@ -148,7 +148,7 @@ def fresnel_transmittance(cos_theta, eta=ETA_SKIN):
 
     Parameters and return as :func:`fresnel_reflectance`.
     """
-    return 1 - fresnel_reflectance(cos_theta, eta)
+    return np.asarray(1 - fresnel_reflectance(cos_theta, eta))  # a 0-d array for scalars, as fresnel_reflectance
 
 
 def diffuse_fresnel_reflectance_unchecked(eta):

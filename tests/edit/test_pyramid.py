@@ -104,6 +104,10 @@ def test_validation():
         SteerablePyramid((64, 64), 5)
     with pytest.raises(ValidationError, match="orientations"):
         SteerablePyramid((64, 64), 2, 0)
+    bad_shapes = [("ab", r"shape must be \(rows, columns\)"), (64, "shape must be"), ((6.5, 64), "an integer")]
+    for shape, match in bad_shapes:
+        with pytest.raises(ValidationError, match=match):  # int("a") was a bare ValueError (an API red team)
+            SteerablePyramid(shape, 1)
     pyr = SteerablePyramid((64, 64), 2)
     with pytest.raises(ValidationError, match="image must have shape"):
         pyr.decompose(np.zeros((32, 32)))

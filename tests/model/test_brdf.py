@@ -155,6 +155,8 @@ def test_the_unit_vector_check_has_one_rule_in_both_modes():
         (lambda: fresnel_reflectance(np.full(3, 0.5), np.full(2, 1.3)),
          r"cos_theta, eta must broadcast .* cos_theta \(3,\), eta \(2,\)"),
         (lambda: brdf.torrance_sparrow_geometry(N, np.array([0.0, 1.0]), N), r"wi must have shape \(\.\.\., 3\)"),
+        (lambda: brdf.half_vector(np.ones((4, 2)), np.ones((4, 2))), r"wi must have shape \(\.\.\., 3\)"),
+        (lambda: brdf.half_vector(np.tile(N, (4, 1)), np.tile(N, (5, 1))), r"wi, wo must broadcast .* wi \(4, 3\)"),
     ],
 )  # fmt: skip
 def test_shapes_that_do_not_broadcast_are_named(call, match):

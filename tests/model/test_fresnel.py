@@ -38,6 +38,9 @@ def test_reflectance_monotone_in_angle():
 
 def test_dtype_preserved():
     assert fresnel_reflectance(np.float32([0.5, 0.7]), 1.38).dtype == np.float32
+    assert fresnel_transmittance(np.float32([0.5, 0.7]), 1.38).dtype == np.float32
+    # A scalar gives a 0-d array from both (the transmittance was a numpy scalar: an API red team).
+    assert type(fresnel_reflectance(0.5)) is type(fresnel_transmittance(0.5)) is np.ndarray
     assert fresnel_reflectance(np.array([0.5]), 1.38).dtype == np.float64
 
 

@@ -187,6 +187,11 @@ class Reply:
         return data + b"*%04X" % crc16(data) + TERMINATOR
 
 
+def _quoted(data: bytes) -> str:
+    """Bytes of the link quoted for a message: ASCII as text, other bytes and control characters escaped."""
+    return ascii(data.decode("latin-1"))
+
+
 def parse_request(line: bytes) -> Request:
     """The request of one line (without its LF); raises :class:`ProtocolViolation` with the device's error number."""
     line = line.rstrip(b"\r")
@@ -196,11 +201,11 @@ def parse_request(line: bytes) -> Request:
     if m is None:
         name = re.match(rb"[a-z?]{1,8}", line)
         if name is None or line[name.end() : name.end() + 1] not in (b"", b".", b" ", b"*"):
-            raise ProtocolViolation(f"malformed request {line[:40]!r}", 7)
-        raise ProtocolViolation(f"malformed arguments in {line[:40]!r} (integers joined by dots)", 7)
+            raise ProtocolViolation(f"malformed request {_quoted(line[:40])}", 7)
+        raise ProtocolViolation(f"malformed arguments in {_quoted(line[:40])} (integers joined by dots)", 7)
     name, args, rid, crc = m.groups()
     if crc is not None and int(crc, 16) != crc16(line[: line.rindex(b"*")]):
-        raise ProtocolViolation(f"bad checksum {crc.decode()} of {line[:40]!r}", 2)
+        raise ProtocolViolation(f"bad checksum {crc.decode()} of {_quoted(line[:40])}", 2)
     values = tuple(int(a) for a in args.split(b".")[1:]) if args else ()
     return Request(name.decode(), values, int(rid) if rid else 0)
 
@@ -214,10 +219,10 @@ def parse_reply(chunk: bytes) -> Reply:
     start = chunk.rfind(b"@")
     m = _FRAME.match(chunk[start:]) if start >= 0 else None
     if m is None:
-        raise FrameError(f"garbled reply frame {chunk[-60:]!r}", "garbled", chunk)
+        raise FrameError(f"garbled reply frame {_quoted(chunk[-60:])}", "garbled", chunk)
     seq, rid, status, payload, crc = m.groups()
     if int(crc, 16) != crc16(chunk[start : chunk.rindex(b"*")]):
-        raise FrameError(f"reply frame with a wrong CRC {chunk[-60:]!r}", "garbled", chunk)
+        raise FrameError(f"reply frame with a wrong CRC {_quoted(chunk[-60:])}", "garbled", chunk)
     return Reply(int(seq), int(rid), status.decode(), (payload or b"").decode("ascii"))
 
 
@@ -242,7 +247,8 @@ class FrameReader:
             chunk, buf = buf[:end], buf[end + len(TERMINATOR) :]
             start = chunk.rfind(b"@")
             if start > 0 and chunk[:start].strip():
-                items.append(FrameError(f"truncated reply frame {chunk[:start][-60:]!r}", "truncated", chunk[:start]))
+                head = chunk[:start]
+                items.append(FrameError(f"truncated reply frame {_quoted(head[-60:])}", "truncated", head))
             try:
                 items.append(parse_reply(chunk))
             except FrameError as exc:
@@ -253,4 +259,4 @@ class FrameReader:
     def flush(self):
         """Drop the pending bytes; a :class:`FrameError` ("truncated") if they held anything but whitespace."""
         rest, self.pending = self.pending, b""
-        return FrameError(f"truncated reply frame {rest[-60:]!r}", "truncated", rest) if rest.strip() else None
+        return FrameError(f"truncated reply frame {_quoted(rest[-60:])}", "truncated", rest) if rest.strip() else None

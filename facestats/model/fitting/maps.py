@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.core.validate import check_integer, check_shape
+from facestats.core.validate import as_float, check_integer, check_shape
 from facestats.errors import ValidationError
 
 __all__ = ["scatter_to_map", "push_pull", "fill_flagged"]
@@ -45,7 +45,7 @@ def scatter_to_map(values, texel, size):
     count : ndarray of int, shape (size, size)
     """
     size = check_integer(size, "size", 1)
-    v = np.asarray(values)
+    v = as_float(values, "values")
     t = check_shape(np.asarray(texel), "texel", (v.shape[0] if v.ndim else None, 2))
     if t.dtype.kind not in "iu":
         raise ValidationError(f"texel must hold integer (v, u) indices, got dtype {t.dtype}")

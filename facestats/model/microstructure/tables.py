@@ -210,8 +210,12 @@ def fit_kernel_table(r, alpha, sigma_um, alpha_knots, *, name="custom") -> Kerne
     values[knots == 1.0] = 0.0
     lines = []
     for side, sel in (("compression (r < 1)", r < 1), ("stretch (r >= 1)", r >= 1)):
-        if np.count_nonzero(sel) < 2:
-            raise ValidationError(f"r must hold at least 2 {side} patches to fit sigma, got {np.count_nonzero(sel)}")
+        distinct = np.unique(r[sel])
+        if distinct.size < 2:  # one ratio (or none) leaves the line's slope undetermined
+            raise ValidationError(
+                f"r must hold at least 2 distinct {side} ratios to fit sigma's line, got "
+                f"{np.count_nonzero(sel)} patch(es) at {distinct.tolist()}"
+            )
         slope, intercept = np.polyfit(r[sel], s[sel], 1)
         lines.append((float(slope), float(intercept)))
     return KernelTable(

@@ -49,6 +49,9 @@ def test_requests_round_trip_and_bad_requests_get_their_error_numbers():
     with pytest.raises(ProtocolViolation) as exc:
         parse_request(bytes(bad))
     assert exc.value.code == 2  # bad checksum
+    assert "of 'sc.355.200.0 #1048577*" in str(exc.value)  # quoted as text, not as a Python bytes repr (b'...')
+    with pytest.raises(ProtocolViolation, match=r"malformed request '\\xff\\x00zz'"):  # others escaped: ASCII
+        parse_request(b"\xff\x00zz")
     for text, code in ((b"L.37", 7), (b"l.3x", 7), (b"l." + b"1" * 300, 7)):
         with pytest.raises(ProtocolViolation) as exc:
             parse_request(text)

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from facestats.errors import ValidationError
 from facestats.model.fitting import Samples, push_pull, scatter_to_map
 from facestats.model.fitting.lobes import lobe_base as _lobe_base
 from facestats.model.fitting.lobes import lobe_moments as _moments
@@ -139,6 +140,14 @@ def test_lobe_moments_match_direct_sums_and_finite_differences(rng, model):
     else:
         want = a * (p + 2) * np.exp(z) ** p
     np.testing.assert_allclose(g, want, rtol=1e-12)
+
+
+def test_scatter_to_map_refuses_values_that_are_not_real_numbers():
+    texel = np.zeros((3, 2), int)
+    with pytest.raises(ValidationError, match="values must be numeric, got dtype complex128"):  # was a TypeError
+        scatter_to_map(np.ones(3) * 1j, texel, 2)
+    mean, count = scatter_to_map(np.arange(3), texel, 2)  # integers are averaged as float64
+    assert mean[0, 0] == 1.0 and count[0, 0] == 3 and np.isnan(mean[1, 1]) and mean.dtype == np.float64
 
 
 def test_scatter_to_map_averages_finite_values_per_texel(rng):

@@ -97,8 +97,11 @@ def test_bad_input():
         kernel_parameters(-0.5)
     with pytest.raises(FacestatsError, match="table must be"):
         kernel_parameters(1.1, "cheek")
-    with pytest.raises(FacestatsError, match="at least 2 compression"):
+    with pytest.raises(FacestatsError, match="at least 2 distinct compression"):
         fit_kernel_table([0.9, 1.1, 1.2], [-0.3, 0.3, 0.6], [16, 15, 19], [0.8, 1.2])
+    # Repeated patches at one ratio leave the line's slope undetermined (polyfit's RankWarning before: an API red team)
+    with pytest.raises(FacestatsError, match=r"2 distinct compression .* got 3 patch\(es\) at \[0.9\]"):
+        fit_kernel_table([0.9, 0.9, 0.9, 1.1, 1.2], [-0.3] * 3 + [0.3, 0.6], [16, 17, 15, 15, 19], [0.8, 1.2])
     with pytest.raises(FacestatsError, match=r"min_ratio must be a stretch ratio in \[0, 1\), got nan"):
         KernelTable((1.0,), (0.0,), (70.5, -46.9), (38.2, -26.5), min_ratio=float("nan"))
     with pytest.raises(FacestatsError, match="alpha_knots must increase"):

@@ -330,7 +330,7 @@ def read_response(path) -> np.ndarray:
     p = os.fspath(path)
     try:
         d = json.loads(read_regular_file(p))  # a FIFO or a device is refused, never read
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, RecursionError) as exc:  # (RecursionError: nesting deeper than Python's limit)
         raise FormatError(f"cannot read the response file {p}: {exc}") from None
     if not isinstance(d, dict) or d.get("format") != RESPONSE_FORMAT:
         got = d.get("format") if isinstance(d, dict) else type(d).__name__

@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import pathlib
 from concurrent.futures import ThreadPoolExecutor
@@ -128,6 +129,18 @@ def write_manifest(folder, frames, *, kind="face", bits, n_cameras, n_leds, **fi
     tmp.write_text(json.dumps(doc, indent=1))
     os.replace(tmp, p)
     return p
+
+
+#: Most cameras a capture folder may declare (Weyrich et al.'s dome has 16; a light stage a few).
+MAX_CAMERAS = 1024
+
+
+def _positive_finite(v) -> bool:
+    """True for a number > 0 that float64 holds finitely (a JSON integer of 400 digits is refused, not overflowed)."""
+    try:
+        return 0 < float(v) < math.inf
+    except OverflowError:
+        return False
 
 
 def _field(doc, key, kind, where, check=None):
@@ -264,7 +277,7 @@ class CaptureFolder:
             )
         try:
             doc = json.loads((self.path / name).read_text())
-        except (OSError, json.JSONDecodeError) as exc:
+        except (OSError, ValueError, RecursionError) as exc:
             raise FormatError(f"sensor file {name} of {self.path} cannot be read: {exc}") from None
         if not isinstance(doc, dict) or doc.get("format") != SENSOR_FORMAT:
             raise FormatError(f"sensor file {name} field 'format' must be {SENSOR_FORMAT!r}")
@@ -364,7 +377,7 @@ def _parse_frames(frames, n_cameras, n_leds):
         cols["camera"].append(_field(f, "camera", int, where, lambda v: 0 <= v < n_cameras))
         cols["led"].append(_field(f, "led", int, where, lambda v: 0 <= v < n_leds))
         cols["exposure"].append(_field(f, "exposure", int, where, lambda v: v >= 0))
-        cols["exposure_s"].append(_field(f, "exposure_s", (int, float), where, lambda v: v > 0 and np.isfinite(v)))
+        cols["exposure_s"].append(_field(f, "exposure_s", (int, float), where, _positive_finite))
         name = _field(f, "file", str, where, relative_inside)
         cols["file"].append(name)
         cols["sha256"].append(_field(f, "sha256", str, where, lambda v: len(v) == 64))
@@ -437,13 +450,15 @@ def open_folder(path) -> CaptureFolder:
         doc = json.loads(read_regular_file(p / MANIFEST))  # a FIFO is refused, never read
     except OSError as exc:
         raise FormatError(f"capture folder {p} has no readable {MANIFEST}: {exc.strerror}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+    except (ValueError, RecursionError) as exc:  # bad JSON or UTF-8, an int of > 4300 digits, nesting too deep
         raise FormatError(f"{p / MANIFEST} is not valid JSON: {exc}") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         got = doc.get("format") if isinstance(doc, dict) else doc
         raise FormatError(f"{MANIFEST} field 'format' must be {FORMAT!r}, got {got!r:.60}")
     bits = _field(doc, "bits", int, MANIFEST, lambda v: 8 <= v <= 16)
     n_cam = _field(doc, "n_cameras", int, MANIFEST, lambda v: v >= 1)
+    if n_cam > MAX_CAMERAS:  # the frame tables hold every camera: a few bytes of JSON must not ask for gigabytes
+        raise FormatError(f"{MANIFEST} field 'n_cameras' must be at most {MAX_CAMERAS}, got {n_cam}")
     n_led = _field(doc, "n_leds", int, MANIFEST, lambda v: v >= 1)
     cameras = _cameras(doc, n_cam)
     cols = _parse_frames(doc.get("frames"), n_cam, n_led)

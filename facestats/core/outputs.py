@@ -34,17 +34,24 @@ __all__ = ["check_output_dir", "check_output_file", "check_apart", "missing_fold
 
 def json_ready(value):
     """``value`` for ``json.dumps(..., allow_nan=False)``: every NaN or ±inf float becomes None (JSON has no such
-    numbers; ``json.dumps`` would write the non-standard tokens ``NaN`` and ``Infinity``), numpy scalars become
-    Python values, recursively through dicts, lists and tuples."""
+    numbers; ``json.dumps`` would write the non-standard tokens ``NaN`` and ``Infinity``).
+
+    Recursively through dicts (keys as str), lists, tuples and arrays (tuples and arrays become lists); numpy
+    scalars become Python bool, int or float; a value of any other type becomes its ``str``.
+    """
     if isinstance(value, dict):
-        return {k: json_ready(v) for k, v in value.items()}
+        return {str(k): json_ready(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [json_ready(v) for v in value]
-    if hasattr(value, "item") and getattr(value, "ndim", None) == 0:  # a numpy scalar or 0-d array
-        value = value.item()
+    if hasattr(value, "tolist") and hasattr(value, "ndim"):  # a numpy array or scalar
+        value = value.tolist()
+        if isinstance(value, list):
+            return json_ready(value)
     if isinstance(value, float) and not math.isfinite(value):
         return None
-    return value
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    return str(value)
 
 
 def _as_path(path, name: str) -> pathlib.Path:

@@ -267,7 +267,7 @@ def check_broadcastable(**arrays) -> tuple:
 def check_choice(value, name: str, choices) -> object:
     """Raise unless ``value`` is one of ``choices``."""
     if value not in choices:
-        raise ValidationError(f"{name} must be one of {sorted(map(str, choices))}, got {value!r}")
+        raise ValidationError(f"{name} must be one of {sorted(map(str, choices))}, got {_short(value)}")
     return value
 
 
@@ -346,7 +346,10 @@ def json_numbers(value, name: str, size: int | None = None) -> np.ndarray:
         numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
     if not numeric:
         raise FormatError(f"{name} must be a number or a list of numbers, got {value!r:.80}")
-    a = np.asarray(value, np.float64)
+    try:
+        a = np.asarray(value, np.float64)
+    except OverflowError:  # a JSON integer beyond float64 (e.g. 1e400 written out)
+        raise ValidationError(f"{name} must be finite, got {value!r:.80}") from None
     if size is not None and a.shape != (size,):
         raise FormatError(f"{name} must be a list of {size} numbers, got {value!r:.80}")
     if not np.all(np.isfinite(a)):

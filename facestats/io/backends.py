@@ -42,8 +42,8 @@ class DirectoryBackend:
         self.root = root
 
     def read(self, rel: str) -> bytes:
-        """The bytes of the regular file ``rel`` (:class:`OSError` if missing or not a regular file)."""
-        return read_regular_file(os.path.join(self.root, rel))
+        """The bytes of the regular file ``rel`` (:class:`OSError` if missing, a link or not a regular file)."""
+        return read_regular_file(os.path.join(self.root, rel), follow_links=False)
 
     def exists(self, rel: str) -> bool:
         """True if ``rel`` exists."""

@@ -20,6 +20,7 @@ A map must have one channel (or identical R, G, B); it is returned as float32
 
 from __future__ import annotations
 
+import io
 import os
 import pathlib
 import warnings
@@ -28,27 +29,53 @@ import numpy as np
 
 from facestats.errors import FormatError, QuantisationWarning, ValidationError
 from facestats.io.images import INTEGER_EXTENSIONS, read_exr, read_image, read_integer_image, write_exr
+from facestats.io.layout import read_regular_file
 
 __all__ = ["read_displacement", "write_displacement"]
 
 _UNITS_TO_UM = {"um": 1.0, "µm": 1.0, "micron": 1.0, "mm": 1000.0, "m": 1e6}
 
 
-def _float_tiff(path) -> bool:
-    """Whether the first image of a TIFF file holds floating-point samples (SampleFormat 3)."""
+def _tiff_page(data: bytes, path):
+    """``(first page's dtype, its axes)`` of a TIFF file's bytes, or :class:`FormatError` naming the file."""
     import tifffile
 
     try:
-        with tifffile.TiffFile(path) as tif:
-            return tif.pages.first.dtype is not None and np.dtype(tif.pages.first.dtype).kind == "f"
-    except (tifffile.TiffFileError, OSError, ValueError):
-        return False  # not a readable TIFF: the integer reader reports it by name
+        with tifffile.TiffFile(io.BytesIO(data)) as tif:
+            page = tif.pages.first
+            dtype, axes, shape = page.dtype, page.axes, page.shape
+    except Exception as exc:  # tifffile raises many types for a damaged header
+        raise FormatError(f"displacement map {str(path)!r} is not a readable TIFF file: {exc}") from None
+    if dtype is None:  # no sample format or no strips: nothing to decode
+        raise FormatError(f"displacement map {str(path)!r} is not a readable TIFF file: its first image has no data")
+    return np.dtype(dtype), axes, shape
 
 
-def _read_float_tiff(path):
+def _float_tiff(path):
+    """``(bytes, axes, shape)`` of a TIFF file whose first image holds floating-point samples, else None."""
+    try:
+        data = read_regular_file(path)  # a FIFO or a device is refused, never read
+    except OSError as exc:
+        raise FormatError(f"cannot read the displacement map {str(path)!r}: {exc}") from None
+    dtype, axes, shape = _tiff_page(data, path)
+    return (data, axes, shape) if dtype.kind == "f" else None
+
+
+def _read_float_tiff(data: bytes, axes: str, shape, path):
+    """The first page of a float TIFF as (H, W, C) float32: samples last, also for planar files ('SYX')."""
     import tifffile
 
-    img = np.asarray(tifffile.imread(path, key=0), np.float32)
+    from facestats.io.images import check_image_size
+
+    if set(axes) - set("YXS") or not {"Y", "X"} <= set(axes):
+        raise FormatError(f"displacement map {str(path)!r} must be one 2-D image, got TIFF axes {axes!r} {shape}")
+    check_image_size(shape[axes.index("Y")], shape[axes.index("X")], str(path))
+    try:
+        img = tifffile.imread(io.BytesIO(data), key=0)
+    except Exception as exc:  # tifffile and imagecodecs raise many types for damaged data
+        raise FormatError(f"displacement map {str(path)!r} could not be decoded: {exc}") from None
+    order = [axes.index(a) for a in "YXS" if a in axes]
+    img = np.asarray(np.transpose(img, order), np.float32)
     return img[..., None] if img.ndim == 2 else img
 
 
@@ -77,14 +104,14 @@ def read_displacement(path, *, height_range_um=None, midpoint=0.5) -> np.ndarray
     """
     p = pathlib.Path(os.fspath(path))
     ext = p.suffix.lower()
-    float_tiff = ext in (".tif", ".tiff") and _float_tiff(p)
+    float_tiff = _float_tiff(p) if ext in (".tif", ".tiff") else None
     if (float_tiff or ext not in INTEGER_EXTENSIONS) and height_range_um is not None:
         raise ValidationError(
             f"height_range_um applies to integer images only: {str(p)!r} holds floating-point heights in um "
             f"already, got {height_range_um!r}"
         )
     if float_tiff:
-        h = _one_channel(_read_float_tiff(p), p)
+        h = _one_channel(_read_float_tiff(*float_tiff, p), p)
     elif ext in INTEGER_EXTENSIONS:
         if height_range_um is None:
             raise ValidationError(

@@ -122,6 +122,8 @@ def _ifd(data, layout, offset, base, wanted):
     """``{tag: value}`` of the tags in ``wanted`` of the IFD at ``offset`` (relative to ``base``)."""
     pos = base + offset
     count_size = struct.calcsize(layout.count_code)
+    if offset < 0:  # a signed (SLONG) pointer: Python's slices would read from the end of the data
+        raise FormatError(f"TIFF IFD offset must be >= 0, got {offset}")
     if pos + count_size > len(data):
         raise FormatError(f"TIFF IFD offset {offset} lies beyond the end of the data")
     (count,) = struct.unpack(layout.order + layout.count_code, data[pos : pos + count_size])
@@ -236,11 +238,12 @@ def read_exif(path) -> dict:
         The file is not a JPEG, TIFF or PNG, or its EXIF structure is corrupt (the
         message names the file).
     """
+    from facestats.io.layout import read_regular_file
+
     p = os.fspath(path)
     try:
-        with open(p, "rb") as f:
-            data = f.read(1 << 20)  # EXIF blocks precede the image data: the first MiB holds them
-    except OSError as exc:
+        data = read_regular_file(p, 1 << 20)  # EXIF blocks precede the image data: the first MiB holds them
+    except OSError as exc:  # a FIFO or a device is refused, never read
         raise FormatError(f"cannot read EXIF data of {p}: {exc}") from None
     return parse_exif(data, p)
 

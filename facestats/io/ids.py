@@ -46,7 +46,7 @@ def check_subject_id(sid) -> str:
     if not SUBJECT_ID_PATTERN.fullmatch(text):
         raise ValidationError(
             f"subject_id must be 1-64 characters of letters, digits, '.', '_' or '-' starting with a letter "
-            f"or digit, got {sid!r}"
+            f"or digit, got {text[:64]!r}" + (f"... ({len(text)} characters)" if len(text) > 64 else "")
         )
     if text == RESERVED_NAME or RESERVED_TEMP.fullmatch(text):
         raise ValidationError(

@@ -70,14 +70,32 @@ __all__ = [
     "write_pfm",
     "srgb_to_linear",
     "linear_to_srgb",
+    "MAX_IMAGE_PIXELS",
+    "read_npy",
+    "check_image_size",
 ]
 
 HDR_EXTENSIONS = (".exr", ".hdr", ".pic", ".pfm")
 INTEGER_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 
 
+#: Most pixels an image file may declare (16384², the side of the largest maps facestats makes).  A header is
+#: checked against it before any decoding, so a file of a few bytes cannot ask for gigabytes.
+MAX_IMAGE_PIXELS = 1 << 28
+
+
 class ImageFormatError(ValidationError):
     """A file is not a valid image of the format its extension names."""
+
+
+def check_image_size(height, width, name) -> None:
+    """Raise :class:`ImageFormatError` unless a file's declared ``height`` × ``width`` is at most
+    :data:`MAX_IMAGE_PIXELS` (``name``: the file, for the message)."""
+    if int(height) * int(width) > MAX_IMAGE_PIXELS:
+        raise ImageFormatError(
+            f"image file {name!r} declares {int(width)} x {int(height)} pixels, more than the {MAX_IMAGE_PIXELS} "
+            "(16384 x 16384) facestats reads"
+        )
 
 
 def _path(path, *, must_exist=True) -> pathlib.Path:
@@ -260,6 +278,10 @@ def _tiff_tag(tags, tag, default, name):
     """One value of ``tag`` (its TIFF 6.0 default when absent); per-sample lists must agree."""
     v = tags.get(tag, default)
     values = v if isinstance(v, list) else [v]
+    if v is not default and not (values and all(isinstance(x, int) and x >= 0 for x in values)):
+        raise ImageFormatError(
+            f"TIFF file {name!r} must hold a non-negative integer {_TIFF_TAGS[tag]} (tag {tag}), got {v!r}"
+        )
     if len(set(values)) != 1:
         raise ImageFormatError(
             f"TIFF file {name!r} must have one {_TIFF_TAGS[tag]} (tag {tag}) for all samples, got {values}"
@@ -316,12 +338,14 @@ def _tiff_layout(data, name) -> _TiffLayout:
     for tag in (256, 257, 262):
         if tag not in tags:
             raise ImageFormatError(f"TIFF file {name!r} has no {_TIFF_TAGS[tag]} (tag {tag}), which TIFF 6.0 requires")
+    width, height = _tiff_tag(tags, 256, None, name), _tiff_tag(tags, 257, None, name)
     bits = _tiff_bits(tags, name)
     samples, via_rgba = _tiff_colour(tags, bits, name)
+    check_image_size(height, width, name)
     planar = _tiff_tag(tags, 284, 1, name)
     if planar not in (1, 2):
         raise _tiff_error(name, 284, planar, "contiguous (1) or planar (2) samples")
-    return _TiffLayout(int(tags[257]), int(tags[256]), samples, bits, planar == 2 and samples > 1 and not via_rgba)
+    return _TiffLayout(int(height), int(width), samples, bits, planar == 2 and samples > 1 and not via_rgba)
 
 
 def _decode_tiff(data, name):
@@ -439,7 +463,8 @@ def read_exr(path):
     Returns
     -------
     channels : dict of str to ndarray (H, W)
-        As stored (float16 or float32; uint32 channels as uint32).
+        As stored (float16 or float32; uint32 channels as uint32).  Subsampled
+        channels (x or y sampling other than 1, as in luminance/chroma files) are refused.
     attributes : dict of str to str
         Header attributes whose values are strings.
     """
@@ -448,10 +473,14 @@ def read_exr(path):
     p = _path(path)
     try:
         with OpenEXR.File(str(p), separate_channels=True) as f:
-            channels = {name: np.array(ch.pixels) for name, ch in f.channels().items()}
+            stored = f.channels()
+            sub = {n: (c.xSampling, c.ySampling) for n, c in stored.items() if (c.xSampling, c.ySampling) != (1, 1)}
+            channels = {} if sub else {name: np.array(ch.pixels) for name, ch in stored.items()}
             attrs = {k: v for k, v in f.header().items() if isinstance(v, str)}  # the header empties on close
     except Exception as exc:  # the bindings raise RuntimeError and others for bad files
         raise ImageFormatError(f"EXR file {str(p)!r} could not be read: {exc}") from exc
+    if sub:  # a subsampled channel holds fewer pixels than the data window: it is no map of its texels
+        raise ImageFormatError(f"EXR file {str(p)!r} must hold full-resolution channels, got (x, y) sampling {sub}")
     return channels, attrs
 
 
@@ -532,14 +561,15 @@ def _rgbe_header(data: bytes, p):
     applied = np.ones(3)
     for line in data[:end].split(b"\n"):
         if line.startswith(b"FORMAT=") and line.strip() != b"FORMAT=32-bit_rle_rgbe":
-            raise ImageFormatError(f"Radiance file {str(p)!r} must be FORMAT=32-bit_rle_rgbe, got {line.decode()!r}")
+            shown = line.decode("ascii", "backslashreplace")[:60]
+            raise ImageFormatError(f"Radiance file {str(p)!r} must be FORMAT=32-bit_rle_rgbe, got {shown!r}")
         if line.startswith(b"EXPOSURE="):
             applied *= _rgbe_multipliers(line, b"EXPOSURE=", 1, p)
         elif line.startswith(b"COLORCORR="):
             applied *= _rgbe_multipliers(line, b"COLORCORR=", 3, p)
     nl = data.find(b"\n", end + 2)
     size_line = data[end + 2 : nl if nl >= 0 else len(data)].strip()
-    m = _RGBE_SIZE.match(size_line)
+    m = _RGBE_SIZE.match(size_line) if len(size_line) <= 40 else None  # Python refuses ints of > 4300 digits
     if not m:
         raise ImageFormatError(
             f"Radiance file {str(p)!r} must have the resolution line '-Y H +X W', got {size_line[:40]!r}"
@@ -547,8 +577,11 @@ def _rgbe_header(data: bytes, p):
     height, width = int(m.group(1)), int(m.group(2))
     if height < 1 or width < 1:
         raise ImageFormatError(f"Radiance file {str(p)!r} must have at least one pixel, got '-Y {height} +X {width}'")
-    # Before allocating: each scanline takes at least 4 + 8 ceil(W / 127) bytes (run-length encoded) or 4 W (flat).
-    least = height * min(4 * width, 4 + 8 * -(-width // 127))
+    check_image_size(height, width, str(p))
+    # Before allocating: each scanline takes at least 4 + 8 ceil(W / 127) bytes (run-length encoded, only for
+    # 8 <= W < 32768: read_rgbe) or 4 W (flat).
+    rle = 8 <= width < 32768
+    least = height * (min(4 * width, 4 + 8 * -(-width // 127)) if rle else 4 * width)
     if nl < 0 or len(data) - (nl + 1) < least:
         raise ImageFormatError(
             f"Radiance file {str(p)!r} is truncated: '-Y {height} +X {width}' needs at least {least} bytes of "
@@ -638,6 +671,48 @@ def write_rgbe(path, image):
 
 # -- PFM -------------------------------------------------------------------------------------
 _PFM_HEADER = re.compile(rb"(P[Ff])\s+(\d+)\s+(\d+)\s+(\S+)\s")
+
+
+def read_npy(path, what: str = "array") -> np.ndarray:
+    """A numeric array from a ``.npy`` file (never a pickle), read once as a regular file.
+
+    The header's shape and dtype are checked against the file's size before the
+    array is built, so a damaged header cannot ask for more memory than the file
+    holds; a FIFO or a device is refused, never read.
+
+    Parameters
+    ----------
+    path : str or path-like
+    what : str
+        The array's name in messages (e.g. ``"region image"``).
+
+    Raises
+    ------
+    FormatError
+        The file cannot be read, is not a ``.npy`` file, or holds no numeric
+        (bool, integer or float) array; the message names ``what`` and the file.
+    """
+    import io
+
+    from facestats.io.layout import read_regular_file
+
+    p = os.fspath(path)
+    try:
+        data = read_regular_file(p)
+        f = io.BytesIO(data)
+        version = np.lib.format.read_magic(f)
+        header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, _, dtype = header(f)
+        if dtype.hasobject or dtype.kind not in "biuf":
+            raise FormatError(f"{what} {p} must hold a numeric .npy array, got dtype {dtype}")
+        if math.prod(shape) * dtype.itemsize > len(data) - f.tell():
+            raise FormatError(f"{what} {p} is truncated: its header declares shape {shape} of {dtype}")
+        f.seek(0)
+        return np.load(f, allow_pickle=False)
+    except FormatError:
+        raise
+    except Exception as exc:  # numpy raises many types for a damaged file (ValueError, EOFError, SyntaxError, ...)
+        raise FormatError(f"cannot read the {what} {p} as a .npy array: {exc}") from None
 
 
 def read_pfm(path) -> np.ndarray:

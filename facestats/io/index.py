@@ -331,7 +331,7 @@ def read_index_bytes(root) -> bytes:
     """The bytes of ``<root>/index.json``; :class:`StoreError` if it is missing or not a readable file."""
     path = os.path.join(os.fspath(root), INDEX_NAME)
     try:
-        return read_regular_file(path)
+        return read_regular_file(path, follow_links=False)
     except FileNotFoundError:
         raise StoreError(
             f"store {os.fspath(root)} has no {INDEX_NAME}; run `facestats validate --repair --store "

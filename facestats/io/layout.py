@@ -171,15 +171,25 @@ def is_plain_file(path) -> bool:
         return False
 
 
-def read_regular_file(path) -> bytes:
-    """The bytes of the regular file ``path`` (links followed).
+def read_regular_file(path, limit: int | None = None, *, follow_links: bool = True) -> bytes:
+    """The bytes of the regular file ``path``; its first ``limit`` bytes if ``limit`` is given.
+
+    With ``follow_links`` False a symbolic link at ``path`` (its last component)
+    raises :class:`OSError` (ELOOP) instead of being followed: a store's own files
+    are never links, and one planted there could lead a read out of the store.
 
     Opens without blocking and checks the type first, so a FIFO or a device
     planted where a store file should be raises :class:`OSError` (EINVAL,
     "not a regular file") instead of hanging or reading forever; a directory
     raises :class:`IsADirectoryError`, a missing file :class:`FileNotFoundError`.
     """
-    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    flags = os.O_RDONLY | os.O_NONBLOCK | (0 if follow_links else os.O_NOFOLLOW)
+    try:
+        fd = os.open(path, flags)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP and not follow_links:
+            raise OSError(errno.ELOOP, "a symbolic link (a store's files are never links)", os.fspath(path)) from None
+        raise
     try:
         mode = os.fstat(fd).st_mode
         if stat.S_ISDIR(mode):
@@ -187,7 +197,7 @@ def read_regular_file(path) -> bytes:
         if not stat.S_ISREG(mode):
             raise OSError(errno.EINVAL, "not a regular file (a FIFO, socket or device?)", os.fspath(path))
         with os.fdopen(os.dup(fd), "rb") as fh:
-            return fh.read()
+            return fh.read() if limit is None else fh.read(limit)
     finally:
         os.close(fd)
 

@@ -116,10 +116,14 @@ class _Reader:
         a = np.asarray(self.get(key) if value is None else value)
         if a.dtype.kind == "b" or (value is None and key in self.logical):
             self.fail(f"{key} must be numeric, got logical (true/false) data")
-        if a.dtype == object:  # a cell array of numbers
+        if a.dtype == object:  # a cell array of numbers, one per cell
+            cells = [np.asarray(x) for x in a.reshape(-1)]
+            several = next((c for c in cells if c.size != 1), None)
+            if several is not None:  # its first number alone would be read
+                self.fail(f"{key} must hold one number per cell, got a cell of shape {several.shape}")
             try:
-                a = np.array([np.asarray(x).reshape(-1)[0] for x in a.reshape(-1)], dtype=np.float64)
-            except (IndexError, TypeError, ValueError):
+                a = np.array([c.reshape(-1)[0] for c in cells], dtype=np.float64).reshape(a.shape)
+            except (TypeError, ValueError):
                 self.fail(f"{key} must be numeric, got a cell array of {type(a.reshape(-1)[0]).__name__}")
         if a.dtype.kind not in "fiu":  # (MATLAB logical, refused above: true/false are no counts or indices)
             self.fail(f"{key} must be numeric, got {a.dtype} data")

@@ -32,6 +32,7 @@ from facestats.acquire.synthetic.faces import face_geometry, parse_face_name
 from facestats.core.raster import triangle_coverage
 from facestats.core.validate import as_finite, check_finite, check_integer, check_rigid_transform, check_shape
 from facestats.errors import FormatError, ValidationError
+from facestats.io.mesh_sequence import load_trimesh
 from facestats.io.schema import provenance
 
 __all__ = [
@@ -66,7 +67,7 @@ def read_region_image(region_image) -> np.ndarray:
         Unreadable, not square, colours, or labels outside 0-10.
     """
     if isinstance(region_image, (str, os.PathLike)):
-        from facestats.io.images import INTEGER_EXTENSIONS, read_integer_image
+        from facestats.io.images import INTEGER_EXTENSIONS, read_integer_image, read_npy
 
         path = os.fspath(region_image)
         ext = os.path.splitext(path)[1].lower()
@@ -74,15 +75,17 @@ def read_region_image(region_image) -> np.ndarray:
             raise FormatError(
                 f"region image {path!r} has the extension {ext!r}; expected one of {('.npy',) + INTEGER_EXTENSIONS}"
             )
-        try:
-            if ext == ".npy":
-                img = np.load(path)
-            else:
+        if ext == ".npy":
+            img = read_npy(path, "region image")
+        else:
+            try:
                 img, _ = read_integer_image(path)  # (H, W, C) codes as stored, C = 1 for grey
-        except (OSError, ValueError) as exc:  # ImageFormatError is a ValueError (ValidationError)
-            raise FormatError(f"cannot read the region image {path}: {exc}") from None
+            except (OSError, ValueError) as exc:  # ImageFormatError is a ValueError (ValidationError)
+                raise FormatError(f"cannot read the region image {path}: {exc}") from None
     else:
         img = np.asarray(region_image)
+    if img.size == 0 or img.dtype.kind not in "biu":
+        raise FormatError(f"region image must hold integer labels 0-10, got dtype {img.dtype} and shape {img.shape}")
     if img.ndim == 3:  # a label PNG saved as RGB(A) greyscale
         if not np.all(img[..., :3] == img[..., :1]):
             raise FormatError(
@@ -129,12 +132,13 @@ def read_triangle_mesh(path, *, scale=1.0, transform=None, uv=False):
     ValidationError
         A vertex that is not finite (NaN or infinite in the file, or after ``scale`` and ``transform``).
     """
-    mesh = _read_mesh(path)
-    verts = check_finite(_placed_vertices(mesh, scale, transform), f"vertices of {os.fspath(path)}")
-    faces = np.asarray(mesh.faces, np.int64)
+    stored, faces, stored_uv = load_trimesh(path)
+    if len(faces) == 0:
+        raise FormatError(f"{os.fspath(path)} holds no triangle mesh")
+    verts = check_finite(_placed_vertices(stored, scale, transform), f"vertices of {os.fspath(path)}")
     if not uv:
         return verts, faces
-    return verts, faces, _stored_uv(mesh)
+    return verts, faces, stored_uv
 
 
 def load_face_mesh(path, region_image, *, scale=1.0, transform=None, flip_v=True, name=None) -> FaceGeometry:
@@ -201,39 +205,6 @@ def _no_face_region_message(path, region_image, uv, regions, label) -> str:
     )
 
 
-def _read_mesh(path):
-    """The triangle mesh in ``path`` (:class:`FormatError` if unreadable or without triangles)."""
-    import trimesh
-
-    try:
-        mesh = trimesh.load(os.fspath(path), force="mesh", process=False)
-    except Exception as exc:  # trimesh raises many types for unreadable files
-        raise FormatError(f"cannot read the mesh {os.fspath(path)}: {exc}") from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise FormatError(f"{os.fspath(path)} holds no triangle mesh")
-    return mesh
-
-
-def _ply_uv(mesh):
-    """Per-vertex UVs from the raw PLY vertex properties (s/t, u/v or texture_u/texture_v), or None."""
-    if "ply_raw" not in mesh.metadata:
-        return None
-    props = mesh.metadata["ply_raw"]["vertex"]["data"]
-    names = props.dtype.names or ()
-    for a, b in (("s", "t"), ("u", "v"), ("texture_u", "texture_v")):
-        if a in names and b in names:
-            return np.stack([props[a], props[b]], 1).astype(np.float64)
-    return None
-
-
-def _stored_uv(mesh):
-    """Per-vertex UVs as stored (texture visuals or PLY properties), a float64 copy, or None."""
-    uv = getattr(mesh.visual, "uv", None)
-    if uv is None:
-        uv = _ply_uv(mesh)
-    return None if uv is None else np.array(uv, np.float64)
-
-
 def _checked_uv(uv, n_vertices, path, flip_v: bool) -> np.ndarray:
     """The per-vertex UVs checked to lie in [0, 1] (v flipped to the image convention if ``flip_v``)."""
     if uv is None or len(uv) != n_vertices:
@@ -245,11 +216,11 @@ def _checked_uv(uv, n_vertices, path, flip_v: bool) -> np.ndarray:
     return np.clip(uv, 0, 1)
 
 
-def _placed_vertices(mesh, scale, transform) -> np.ndarray:
+def _placed_vertices(vertices, scale, transform) -> np.ndarray:
     """Mesh vertices scaled to mm and moved by ``transform`` (4 × 4) into the world frame."""
     if not float(scale) > 0:
         raise ValidationError(f"scale must be > 0, got {scale!r}")
-    verts = np.asarray(mesh.vertices, np.float64) * float(scale)
+    verts = np.asarray(vertices, np.float64) * float(scale)
     if transform is not None:
         t = check_rigid_transform(transform)
         verts = verts @ t[:3, :3].T + t[:3, 3]

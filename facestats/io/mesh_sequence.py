@@ -22,19 +22,23 @@ count and, where the file holds faces, the same faces; otherwise a
 
 from __future__ import annotations
 
+import io
 import os
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from facestats.core.validate import as_finite, check_rigid_transform, check_shape
 from facestats.errors import FormatError, ValidationError
+from facestats.io.layout import read_regular_file
 from facestats.model.strain import triangulate
 
 __all__ = [
     "UVMesh",
     "read_obj",
     "read_mesh",
+    "load_trimesh",
     "read_vertices",
     "FrameSequence",
     "BlendshapeSequence",
@@ -107,8 +111,15 @@ def _parse_faces(face_lines, n_v, n_vt, name):
         toks = [t.split("/") for t in line.split()[1:]]
         if len(toks) < 3:
             raise FormatError(f"{name}: face {k} must have at least 3 corners, got {line.strip()!r}")
-        vi = [int(t[0]) for t in toks]
-        ti = [int(t[1]) if len(t) > 1 and t[1] else None for t in toks]
+        try:
+            vi = [int(t[0]) for t in toks]
+            ti = [int(t[1]) if len(t) > 1 and t[1] else None for t in toks]
+        except ValueError:
+            raise FormatError(
+                f"{name}: face {k} must hold integer indices (v, v/vt or v/vt/vn), got {line.strip()!r}"
+            ) from None
+        if 0 in vi or 0 in ti:  # OBJ indices start at 1 (negative: relative to the end)
+            raise FormatError(f"{name}: face {k} holds the index 0 (OBJ indices start at 1), got {line.strip()!r}")
         this_vt = all(t is not None for t in ti)
         has_vt = this_vt if has_vt is None else (has_vt and this_vt)
         vi = [i - 1 if i > 0 else n_v + i for i in vi]  # OBJ is 1-based; negative = relative
@@ -118,22 +129,62 @@ def _parse_faces(face_lines, n_v, n_vt, name):
         if this_vt:
             ti = [i - 1 if i > 0 else n_vt + i for i in ti]
             uv_tris.extend(_fan(ti))
-    tri = np.asarray(tris, np.int64).reshape(-1, 3)
-    uv_tri = np.asarray(uv_tris, np.int64).reshape(-1, 3) if has_vt else None
+    try:
+        tri = np.asarray(tris, np.int64).reshape(-1, 3)
+        uv_tri = np.asarray(uv_tris, np.int64).reshape(-1, 3) if has_vt else None
+    except OverflowError:  # an index beyond int64; the range checks of the caller name the others
+        raise FormatError(f"{name}: face indices must be at most 2**63 - 1") from None
     return tri, uv_tri, np.asarray(poly, np.int64)
 
 
 def _numbers(lines, width, name, what):
-    """The first ``width`` numbers after the keyword of each line, (n, width) float64."""
+    """The first ``width`` numbers after the keyword of each line, (n, width) float64.
+
+    Every line must hold at least ``width`` numbers (more are ignored: an OBJ ``v`` line may carry w or a colour).
+    """
     rest = [ln.split(None, 1)[1] if " " in ln.strip() else "" for ln in lines]
-    counts = {len(r.split()) for r in rest[:1000]}
-    n = counts.pop() if len(counts) == 1 else None
+    counts = np.fromiter(map(len, map(str.split, rest)), np.int64, len(rest))
+    short = np.flatnonzero(counts < width)
+    if short.size:
+        k = int(short[0])
+        raise FormatError(
+            f"{name}: {what!r} lines must hold at least {width} numbers, got {lines[k].strip()!r} "
+            f"(line {k + 1} of them)"
+        )
     try:
-        if n is not None and n >= width:
-            return np.array(" ".join(rest).split(), dtype=np.float64).reshape(len(rest), n)[:, :width]
+        if counts.size and np.all(counts == counts[0]):  # one reshape of all the numbers
+            return np.array(" ".join(rest).split(), dtype=np.float64).reshape(len(rest), -1)[:, :width]
         return np.array([r.split()[:width] for r in rest], dtype=np.float64)
     except ValueError as exc:
         raise FormatError(f"{name}: cannot read the {what} lines: {exc}") from None
+
+
+def _parse_obj(name: str, faces: bool = True):
+    """The arrays of an OBJ file as stored, checked for structure: ``(vertices, uv, tri, uv_tri, polygon)``.
+
+    ``uv`` and ``uv_tri`` are None when the file has no ``vt`` or a face lacks texture indices; with ``faces``
+    False only the vertices are read (the rest empty or None).
+    """
+    try:
+        lines = read_regular_file(name).decode("utf-8", errors="replace").splitlines()
+    except OSError as exc:  # a FIFO or a device is refused, never read
+        raise FormatError(f"cannot read the mesh {name}: {exc}") from None
+    v_lines = [ln for ln in lines if ln.startswith("v ")]
+    if not v_lines:
+        raise FormatError(f"{name} holds no vertices ('v' lines)")
+    verts = _numbers(v_lines, 3, name, "v")
+    if not faces:
+        return verts, None, np.zeros((0, 3), np.int64), None, np.zeros(0, np.int64)
+    vt_lines = [ln for ln in lines if ln.startswith("vt ")]
+    uv = _numbers(vt_lines, 2, name, "vt") if vt_lines else None
+    tri, uv_tri, poly = _parse_faces([ln for ln in lines if ln.startswith("f ")], len(verts), len(vt_lines), name)
+    if tri.size and (tri.min() < 0 or tri.max() >= len(verts)):
+        raise FormatError(f"{name}: faces must index the {len(verts)} vertices, got {tri.min() + 1}..{tri.max() + 1}")
+    if uv is None or uv_tri is None:
+        return verts, None, tri, None, poly
+    if uv_tri.size and (uv_tri.min() < 0 or uv_tri.max() >= len(uv)):
+        raise FormatError(f"{name}: faces must index the {len(uv)} texture coordinates")
+    return verts, uv, tri, uv_tri, poly
 
 
 def read_obj(path, *, scale=1.0, transform=None, flip_v=True, faces=True) -> UVMesh:
@@ -158,27 +209,11 @@ def read_obj(path, *, scale=1.0, transform=None, flip_v=True, faces=True) -> UVM
         the file has no ``vt`` or a face lacks texture indices.
     """
     name = os.fspath(path)
-    try:
-        with open(name, encoding="utf-8", errors="replace") as f:
-            lines = f.read().splitlines()
-    except OSError as exc:
-        raise FormatError(f"cannot read the mesh {name}: {exc}") from None
-    v_lines = [ln for ln in lines if ln.startswith("v ")]
-    if not v_lines:
-        raise FormatError(f"{name} holds no vertices ('v' lines)")
-    verts = _place(_numbers(v_lines, 3, name, "v"), scale, transform, name)
+    stored, uv, tri, uv_tri, poly = _parse_obj(name, faces)
+    verts = _place(stored, scale, transform, name)
     if not faces:
-        empty = np.zeros((0, 3), np.int64)
-        return UVMesh(verts, empty, None, None, np.zeros(0, np.int64), name=os.path.basename(name))
-    vt_lines = [ln for ln in lines if ln.startswith("vt ")]
-    uv = _numbers(vt_lines, 2, name, "vt") if vt_lines else None
-    tri, uv_tri, poly = _parse_faces([ln for ln in lines if ln.startswith("f ")], len(verts), len(vt_lines), name)
-    if tri.size and (tri.min() < 0 or tri.max() >= len(verts)):
-        raise FormatError(f"{name}: faces must index the {len(verts)} vertices, got {tri.min() + 1}..{tri.max() + 1}")
+        return UVMesh(verts, tri, None, None, poly, name=os.path.basename(name))
     if uv is not None and uv_tri is not None:
-        if uv_tri.size and (uv_tri.min() < 0 or uv_tri.max() >= len(uv)):
-            raise FormatError(f"{name}: faces must index the {len(uv)} texture coordinates")
-        uv = uv.copy()
         if flip_v:
             uv[:, 1] = 1 - uv[:, 1]
         if not np.all(np.isfinite(uv)):
@@ -188,16 +223,51 @@ def read_obj(path, *, scale=1.0, transform=None, flip_v=True, faces=True) -> UVM
     return UVMesh(verts, tri, uv, uv_tri, poly, name=os.path.basename(name))
 
 
-def _read_ply(path, scale, transform, flip_v) -> UVMesh:
+def load_trimesh(path):
+    """A mesh file read by trimesh (no processing) and checked: ``(vertices, faces, uv)``.
+
+    vertices (V, 3) float64 as stored; faces (F, 3) int64 indexing them; per-vertex
+    UVs (V, 2) float64 as stored (v upwards; texture visuals, or PLY ``s``/``t``,
+    ``u``/``v`` or ``texture_u``/``texture_v`` vertex properties), finite, or None.
+    An OBJ file is first parsed as :func:`read_obj` does, with checks trimesh does not
+    make (a ``v`` line with two numbers drops z from every vertex in trimesh, the
+    invalid index 0 becomes vertex 1).
+
+    Raises
+    ------
+    FormatError
+        An unreadable file, one without vertices, or arrays of the wrong shape or range.
+    """
     import trimesh
 
     name = os.fspath(path)
+    if os.path.splitext(name)[1].lower() == ".obj":
+        _parse_obj(name)
     try:
         mesh = trimesh.load(name, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for unreadable files
         raise FormatError(f"cannot read the mesh {name}: {exc}") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.vertices) == 0:
         raise FormatError(f"{name} holds no mesh")
+    verts = np.asarray(mesh.vertices, np.float64)
+    if verts.ndim != 2 or verts.shape[1] != 3:
+        raise FormatError(f"vertices of {name} must have 3 coordinates, got shape {verts.shape}")
+    faces = np.asarray(mesh.faces, np.int64).reshape(-1, 3)
+    if faces.size and (faces.min() < 0 or faces.max() >= len(verts)):
+        raise FormatError(
+            f"faces of {name} must index its {len(verts)} vertices, got indices {faces.min()}..{faces.max()}"
+        )
+    uv = _trimesh_uv(mesh)
+    if uv is not None and (uv.shape != (len(verts), 2) or not np.all(np.isfinite(uv))):
+        raise FormatError(
+            f"texture coordinates of {name} must be finite (u, v) pairs, one per vertex, got shape {uv.shape}"
+            + ("" if uv.shape != (len(verts), 2) else " with non-finite values")
+        )
+    return verts, faces, uv
+
+
+def _trimesh_uv(mesh):
+    """Per-vertex UVs of a trimesh mesh as stored (texture visuals, else PLY vertex properties), float64, or None."""
     uv = getattr(mesh.visual, "uv", None)
     if uv is None and "ply_raw" in mesh.metadata:
         props = mesh.metadata["ply_raw"]["vertex"]["data"]
@@ -206,12 +276,16 @@ def _read_ply(path, scale, transform, flip_v) -> UVMesh:
             if a in names and b in names:
                 uv = np.stack([props[a], props[b]], 1)
                 break
-    tri, poly = triangulate(np.asarray(mesh.faces, np.int64).reshape(-1, 3))
-    verts = _place(mesh.vertices, scale, transform, name)
-    if uv is not None:
-        uv = np.asarray(uv, np.float64).copy()
-        if flip_v:
-            uv[:, 1] = 1 - uv[:, 1]
+    return None if uv is None else np.array(uv, np.float64)
+
+
+def _read_ply(path, scale, transform, flip_v) -> UVMesh:
+    name = os.fspath(path)
+    verts, faces, uv = load_trimesh(name)
+    tri, poly = triangulate(faces)
+    verts = _place(verts, scale, transform, name)
+    if uv is not None and flip_v:
+        uv[:, 1] = 1 - uv[:, 1]
     return UVMesh(verts, tri, uv, None if uv is None else tri, poly, name=os.path.basename(name))
 
 
@@ -360,17 +434,24 @@ def read_weights(path) -> tuple[list[str], np.ndarray]:
     import pandas as pd
 
     try:
-        table = pd.read_csv(os.fspath(path))
-    except (OSError, ValueError) as exc:
+        data = io.BytesIO(read_regular_file(path))  # a FIFO or a device is refused, never read
+        with warnings.catch_warnings():  # a row longer than the header: pandas drops or shifts its values
+            warnings.simplefilter("error", pd.errors.ParserWarning)
+            table = pd.read_csv(data, index_col=False)
+    except (OSError, ValueError, pd.errors.ParserWarning) as exc:
         raise FormatError(f"cannot read the weights {os.fspath(path)}: {exc}") from None
-    if table.columns[0].strip().lower() == "frame":
+    if table.shape[1] and str(table.columns[0]).strip().lower() == "frame":
         table = table.iloc[:, 1:]
     if table.shape[1] == 0 or table.shape[0] == 0:
         raise FormatError(f"weights {os.fspath(path)} must have a header of target names and one row per frame")
+    names = [str(c).strip() for c in table.columns]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:  # pandas renames a repeated header (a, a.1), and names equal after stripping stay apart
+        raise FormatError(f"weights {os.fspath(path)} must name each target once, got {twice} more than once")
     try:
         w = table.to_numpy(np.float64)
     except ValueError as exc:
         raise FormatError(f"weights {os.fspath(path)} must be numbers: {exc}") from None
     if not np.all(np.isfinite(w)):
         raise FormatError(f"weights {os.fspath(path)} must be finite numbers, got NaN or empty cells")
-    return [str(c).strip() for c in table.columns], w
+    return names, w

@@ -168,11 +168,10 @@ def read_ground_truth_normals(folder, shape=None):
         except Exception as exc:  # scipy raises several types for a damaged file
             raise FormatError(f"cannot read {str(mat)!r}: {exc}") from None
     elif npy.is_file():
+        from facestats.io.images import read_npy
+
         src = npy
-        try:
-            n = np.load(npy, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise FormatError(f"cannot read {str(npy)!r} as a numeric array: {exc}") from None
+        n = read_npy(npy, "ground-truth normals")
     elif txt.is_file() and shape is not None:
         src = txt
         n = _read_rows(txt, 3, "ground-truth normals")
@@ -269,7 +268,7 @@ def _mask_and_view(man, path):
 def _manifest(path: pathlib.Path, srgb):
     try:
         man = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, RecursionError) as exc:  # (RecursionError: nesting deeper than Python's limit)
         raise FormatError(f"cannot read the OLAT manifest {str(path)!r}: {exc}") from None
     if not isinstance(man, dict):
         raise FormatError(f"{str(path)!r}: the manifest must be a JSON object, got {type(man).__name__}")

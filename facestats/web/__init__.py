@@ -89,7 +89,7 @@ def serve(store=None, *, host: str = "127.0.0.1", port: int = 8000, ready=None):
             "can read the store",
             stacklevel=2,
         )
-    url = f"http://{host}:{server.server_port}/"
+    url = f"http://{f'[{host}]' if ':' in host else host}:{server.server_port}/"  # an IPv6 address in brackets
     if ready is not None:
         ready(url)
     try:

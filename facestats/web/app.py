@@ -20,7 +20,11 @@ for at most :data:`MAX_HEAVY` requests at once; others wait their turn, up to
 :data:`HEAVY_WAIT` seconds, then get 503 and are asked to retry; images are
 enlarged only up to :data:`facestats.web.data.MAX_IMAGE_SIDE` pixels a side;
 the EXR set is zipped into a temporary file (stored, not recompressed) and
-streamed from there, never held in memory.  Errors
+streamed from there, never held in memory; a subject is read inside its turn,
+so at most :data:`MAX_HEAVY` are loaded for such work at once.  The last few
+subjects read are kept by id *and* generation: a subject another process
+rewrote or removed is read again or answered 404, never served from memory.
+JSON answers hold no NaN or infinities (``null`` instead).  Errors
 are JSON (API) or a short page: the text is the one the CLI prints
 (``facestats: error: ...``), with 400 (bad value), 404 (unknown subject or
 page), 409 (store fails its checks), 424 (missing optional dependency), 503
@@ -77,7 +81,11 @@ def _status(exc) -> int:
 
 
 class _SubjectCache:
-    """The last few subjects read (a page asks for several maps of one subject)."""
+    """The last few subjects read (a page asks for several maps of one subject).
+
+    Keyed by id and generation: a subject another process rewrote since (a new
+    generation in the index) is read again, and one it removed is no longer served.
+    """
 
     def __init__(self, store, lock, size=8):
         self._store, self._lock, self._size = store, lock, size
@@ -88,11 +96,13 @@ class _SubjectCache:
         from facestats.io.subject_export import store_subject
 
         with self._lock:
-            if sid in self._items:
-                self._items.move_to_end(sid)
-                return self._items[sid]
+            entry = self._store.index_entries().get(sid)  # the index is re-read when its file changed
+            key = (sid, None if entry is None else entry["generation"])
+            if entry is not None and key in self._items:
+                self._items.move_to_end(key)
+                return self._items[key]
             ds = store_subject(self._store, sid)
-            self._items[sid] = ds
+            self._items[key] = ds
             while len(self._items) > self._size:
                 self._items.popitem(last=False)
             return ds
@@ -181,9 +191,10 @@ def _check_request(request, allowed_hosts):
     from flask import abort
 
     if allowed_hosts is not None and _host_name(request.host) not in allowed_hosts:
-        abort(400, f"unexpected Host header {request.host[:64]!r}: this server answers {sorted(allowed_hosts)}")
+        shown = request.headers.get("Host", "")[:64]  # as sent: werkzeug's request.host is '' when it cannot parse it
+        abort(400, f"unexpected Host header {shown!r}: this server answers {sorted(allowed_hosts)}")
     if request.method not in ("GET", "HEAD"):
-        abort(405)
+        abort(405, valid_methods=["GET", "HEAD"])
     if len(request.query_string) > MAX_QUERY_STRING:
         abort(414)
     if (request.content_length or 0) > MAX_BODY:
@@ -209,7 +220,9 @@ def _register_guards(app, allowed_hosts):
 
     @app.errorhandler(HTTPException)
     def _http_error(exc):
-        return _reply(exc.code, f"facestats: error: {exc.name}: {exc.description}")
+        body, status = _reply(exc.code, f"facestats: error: {exc.name}: {exc.description}")
+        allow = dict(exc.get_headers()).get("Allow")  # 405 names the methods allowed (RFC 9110 §15.5.6)
+        return body, status, ({"Allow": allow} if allow else {})
 
     @app.errorhandler(Exception)
     def _unexpected(exc):
@@ -251,7 +264,7 @@ def _register_routes(app, ctx):
         ids = query().subject_ids
         with lock:  # pooled from the store's index (or from the samples read in the background)
             doc = pca_document(ctx["samples"], ids)
-        return jsonify(doc), (202 if doc["status"] == "pending" else 200)
+        return jsonify(json_ready(doc)), (202 if doc["status"] == "pending" else 200)  # overflow: null, not NaN
 
     @app.get("/api/scatter")
     def api_scatter():
@@ -302,12 +315,12 @@ def _register_subject_routes(app, ctx):
 
     @app.get("/subject/<sid>/exr.zip")
     def subject_exr(sid):
-        ds = cache.get(sid)
-        archive = bounded(lambda: _exr_zip(ds))
-        return send_file(
-            archive, mimetype="application/zip", as_attachment=True,
-            download_name=f"{ds.attrs['subject_id']}-exr.zip",
-        )  # fmt: skip
+        def build():  # the subject is read inside the slot too: at most MAX_HEAVY loaded at once
+            ds = cache.get(sid)
+            return _exr_zip(ds), ds.attrs["subject_id"]
+
+        archive, name = bounded(build)
+        return send_file(archive, mimetype="application/zip", as_attachment=True, download_name=f"{name}-exr.zip")
 
 
 def _exr_zip(ds):

@@ -18,7 +18,7 @@ from facestats.analysis.population import region_samples
 from facestats.analysis.scatter import absorption_scattering
 from facestats.core.conventions import CHANNELS, REGIONS
 from facestats.core.validate import check_choice
-from facestats.errors import ValidationError
+from facestats.errors import FacestatsError, ValidationError
 from facestats.model.skin import SubsurfaceTransport, skin_radiance
 
 __all__ = [
@@ -59,6 +59,7 @@ class RegionSamples:
         self.store = store
         self.frame = None
         self.error = None
+        self.failed = {}  # subject id -> why its samples could not be read
         self.from_index = has_index_moments(store, "ts")
         self._thread = threading.Thread(target=self._load, name="facestats-region-samples", daemon=True)
         if start and not self.from_index:
@@ -66,11 +67,20 @@ class RegionSamples:
 
     def _load(self):
         # local import: keeps facestats.io (23 modules) out of this module's import
+        import pandas as pd
+
         from facestats.io.store import open_store
 
         try:  # a store handle of its own: requests never wait for this thread
             with open_store(self.store.path if self.store.label != "default" else None) as st:
-                self.frame = region_samples(st, model="ts")
+                frames, failed = [], {}
+                for sid in st.subjects().index:  # loop over subjects: one damaged subject spoils only itself
+                    try:
+                        frames.append(region_samples(st, model="ts", subjects=[str(sid)]))
+                    except FacestatsError as exc:  # named when a selection includes it
+                        failed[str(sid)] = str(exc)
+                self.failed = failed
+                self.frame = pd.concat(frames, ignore_index=True) if frames else region_samples(st, subjects=[])
         except Exception as exc:  # reported to the page, never raised in the thread
             self.error = f"region samples could not be read: {exc}"
 
@@ -92,6 +102,10 @@ def pca_document(samples: RegionSamples, subject_ids) -> dict:
     if samples.error:
         return {"status": "error", "error": samples.error}
     ids = list(subject_ids)
+    broken = [sid for sid in ids if sid in samples.failed]
+    if broken:
+        why = samples.failed[broken[0]]
+        return {"status": "error", "error": f"region samples of {broken} could not be read: {why}"}
     try:
         if samples.from_index:
             res = region_pca(samples.store, model="ts", subjects=ids, conditions=None, from_index=True)
@@ -178,10 +192,14 @@ def map_png(ds, name: str, scale: int = 4) -> bytes:
         ``name`` is not one of :func:`map_names`.
     """
     # local import: keeps facestats.io (24 modules) out of this module's import
+    from facestats.io.exr_set import check_map_subject
     from facestats.io.images import linear_to_srgb
     from facestats.io.schema import modulation
 
-    check_choice(name, "map", tuple(map_names(ds)))
+    names = map_names(ds)
+    if not names:  # a region-sample subject: say so, not "map must be one of []"
+        check_map_subject(ds, "a map image")
+    check_choice(name, "map", tuple(names))
     face = np.asarray(ds["region"].values) > 0
     if name == "modulation":
         vals = np.asarray(modulation(ds).values) * 0.5

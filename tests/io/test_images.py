@@ -145,9 +145,17 @@ def test_bad_files_and_arguments_name_the_problem(tmp_path):
         (tmp_path / "c.hdr").write_bytes(head + cut)
         with pytest.raises(ValidationError, match=r"c.hdr' is truncated: '-Y 4 \+X 256' needs at least"):
             images.read_image(tmp_path / "c.hdr")
-    (tmp_path / "h.hdr").write_bytes(b"#?RADIANCE\n\n-Y 9999999 +X 19999998\n" + b"\0" * 100)
+    (tmp_path / "h.hdr").write_bytes(b"#?RADIANCE\n\n-Y 9999 +X 19998\n" + b"\0" * 100)
     with pytest.raises(ValidationError, match=r"h.hdr' is truncated: .* the file holds 100"):  # before allocating
         images.read_image(tmp_path / "h.hdr")
+    # Beyond MAX_IMAGE_PIXELS the header alone is refused; a flat scanline of 2^30 pixels (no run-length encoding
+    # at widths >= 32768) needed 4 GB where the old bound assumed run-length encoding (a fuzzing red team).
+    (tmp_path / "w.hdr").write_bytes(b"#?RADIANCE\n\n-Y 1 +X 1073741824\n" + b"\0" * 100)
+    with pytest.raises(ValidationError, match=r"w.hdr' declares 1073741824 x 1 pixels, more than the 268435456"):
+        images.read_image(tmp_path / "w.hdr")
+    (tmp_path / "f.hdr").write_bytes(b"#?RADIANCE\n\n-Y 2 +X 40000\n" + b"\0" * 100)  # flat rows: 4 bytes a pixel
+    with pytest.raises(ValidationError, match=r"f.hdr' is truncated: '-Y 2 \+X 40000' needs at least 320000 bytes"):
+        images.read_image(tmp_path / "f.hdr")
     (tmp_path / "z.hdr").write_bytes(b"#?RADIANCE\n\n-Y 0 +X 0\n")
     with pytest.raises(ValidationError, match=r"z.hdr' must have at least one pixel, got '-Y 0 \+X 0'"):
         images.read_image(tmp_path / "z.hdr")

@@ -47,12 +47,14 @@ import math
 import os
 import pathlib
 import re
+import struct
 from dataclasses import dataclass
 
 import numpy as np
 
 from facestats.core.validate import as_float
 from facestats.errors import DependencyError, FormatError, ValidationError
+from facestats.io.png import PNG_SIGNATURE
 
 __all__ = [
     "HDR_EXTENSIONS",
@@ -205,6 +207,9 @@ def decode_integer_image(data: bytes, name: str = "<bytes>"):
         raise ImageFormatError(f"image file {name!r} is empty (0 bytes)")
     if bytes(data[:4]) in _TIFF_SIGNATURES:
         return _decode_tiff(data, name)
+    size = _declared_size(data)
+    if size is not None:  # before OpenCV allocates what the header asks for
+        check_image_size(*size, name)
     import cv2
 
     try:
@@ -229,6 +234,41 @@ def decode_integer_image(data: bytes, name: str = "<bytes>"):
 # -- TIFF ------------------------------------------------------------------------------------
 #: Classic TIFF and BigTIFF signatures (byte order, magic 42 or 43).
 _TIFF_SIGNATURES = (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+")
+#: JPEG start-of-frame markers (ITU T.81 Table B.1: SOF0-SOF15 but DHT C4, JPG C8 and DAC CC).
+_JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+
+
+def _declared_size(data: bytes):
+    """``(height, width)`` a PNG (IHDR, PNG spec §11.2.2) or JPEG (the first SOFn frame header, ITU T.81 §B.2.2)
+    declares, or None when the data is neither or the header cannot be found (the decoder then reports it)."""
+    if data[:8] == PNG_SIGNATURE and len(data) >= 24 and data[12:16] == b"IHDR":
+        width, height = struct.unpack(">II", data[16:24])
+        return height, width
+    if data[:2] != b"\xff\xd8":
+        return None
+    pos = 2
+    while pos + 4 <= len(data):  # loop over the marker segments before the frame header (a few)
+        if data[pos] != 0xFF:
+            return None
+        marker = data[pos + 1]
+        if marker == 0xFF:  # a fill byte
+            pos += 1
+            continue
+        if marker in (0x01, *range(0xD0, 0xD8)):  # TEM, RSTn: no length
+            pos += 2
+            continue
+        length = struct.unpack(">H", data[pos + 2 : pos + 4])[0]
+        if marker in _JPEG_SOF:
+            if pos + 9 > len(data):
+                return None
+            height, width = struct.unpack(">HH", data[pos + 5 : pos + 9])
+            return height, width
+        if marker in (0xD9, 0xDA) or length < 2:  # end of image or start of scan before any frame header
+            return None
+        pos += 2 + length
+    return None
+
+
 #: Tags of the first IFD the decoder checks (TIFF 6.0 numbers).
 _TIFF_TAGS = {
     254: "NewSubfileType",

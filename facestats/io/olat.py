@@ -187,6 +187,14 @@ def read_ground_truth_normals(folder, shape=None):
     if n.ndim != 3 or n.shape[2] != 3 or (shape is not None and n.shape[:2] != tuple(shape)):
         want = f"{tuple(shape) + (3,)}" if shape is not None else "(H, W, 3)"
         raise ValidationError(f"ground-truth normals {str(src)!r} must have shape {want}, got {n.shape}")
+    length = np.linalg.norm(n, axis=-1)
+    bad = ~np.isfinite(length) | ((length > 1e-6) & (np.abs(length - 1) > 1e-3))
+    if bad.any():  # unit normals, or (0, 0, 0) off the object as DiLiGenT stores them
+        r, c = (int(i) for i in np.argwhere(bad)[0])
+        raise ValidationError(
+            f"ground-truth normals {str(src)!r} must be unit vectors (or 0, 0, 0 off the object), got "
+            f"{n[r, c].tolist()} (length {length[r, c]:.6g}) at pixel ({r}, {c}) and {int(bad.sum()) - 1} more"
+        )
     return n
 
 

@@ -46,7 +46,7 @@ _COLOUR_TYPE = {1: 0, 3: 2, 4: 6}
 
 def png_chunk(tag: bytes, data: bytes) -> bytes:
     """One PNG chunk: length (4 bytes, big-endian), type, data, CRC-32 of type and data."""
-    if len(tag) != 4:
+    if not isinstance(tag, bytes) or len(tag) != 4:
         raise ValidationError(f"a PNG chunk type has 4 bytes, got {tag!r}")
     body = tag + data
     return struct.pack(">I", len(data)) + body + struct.pack(">I", zlib.crc32(body) & 0xFFFFFFFF)
@@ -82,8 +82,9 @@ def encode_png(image, *, compression: str = "auto", level: int = 1, chunks=(), b
     from facestats.io.deflate import deflate_rows, prefixed_rows
 
     a = np.asarray(image)
-    if a.dtype not in (np.uint8, np.uint16):
+    if a.dtype.kind != "u" or a.dtype.itemsize not in (1, 2):
         raise ValidationError(f"image must hold uint8 or uint16 samples, got dtype {a.dtype}")
+    a = a.astype(a.dtype.newbyteorder("="), copy=False)  # big-endian uint16 (">u2") holds the same codes
     if a.ndim == 2:
         a = a[..., None]
     if a.ndim != 3 or a.shape[2] not in _COLOUR_TYPE or a.shape[0] < 1 or a.shape[1] < 1:

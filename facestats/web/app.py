@@ -320,7 +320,10 @@ def _register_subject_routes(app, ctx):
             return _exr_zip(ds), ds.attrs["subject_id"]
 
         archive, name = bounded(build)
-        return send_file(archive, mimetype="application/zip", as_attachment=True, download_name=f"{name}-exr.zip")
+        size = os.fstat(archive.fileno()).st_size
+        response = send_file(archive, mimetype="application/zip", as_attachment=True, download_name=f"{name}-exr.zip")
+        response.content_length = size  # a file object gives werkzeug no length: say it, for download progress
+        return response
 
 
 def _exr_zip(ds):

@@ -5,6 +5,7 @@ Each case below was a silently wrong result, a hang, a huge allocation or a raw 
 
 import json
 import os
+import pathlib
 import struct
 import threading
 
@@ -130,6 +131,24 @@ def test_tiff_tags_of_another_type_and_huge_declared_sizes_are_refused():
         decode_integer_image(_tiff(huge + [(258, 3, 1, short(8))]), "x")  # 1.56 GB of RSS in libtiff before
 
 
+def test_png_and_jpeg_headers_are_checked_before_decoding():
+    import zlib
+
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    ihdr = struct.pack(">IIBBBBB", 20000, 20000, 8, 0, 0, 0, 0)  # 8-bit grey, 400 M pixels
+    row = zlib.compress(b"\0" * 20001 * 64)  # a few rows of the zeros a bomb would hold
+    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", row) + chunk(b"IEND", b"")
+    with pytest.raises(ImageFormatError, match=r"'bomb\.png' declares 20000 x 20000 pixels"):
+        decode_integer_image(png, "bomb.png")  # OpenCV allocated the 400 MB image before
+    sof = b"\xff\xc0" + struct.pack(">HBHHB", 11, 8, 20000, 30000, 1) + b"\x01\x11\x00"
+    with pytest.raises(ImageFormatError, match=r"'bomb\.jpg' declares 30000 x 20000 pixels"):
+        decode_integer_image(b"\xff\xd8\xff\xe0\x00\x04ab" + sof + b"\xff\xd9", "bomb.jpg")
+    real = (pathlib.Path(__file__).parents[1] / "data" / "unis-bracket" / "UNIS_EV0.jpg").read_bytes()
+    assert decode_integer_image(real, "real.jpg")[0].shape == (768, 1024, 3)  # a real JPEG's header is found
+
+
 def _exr(width, height, channels):
     """An uncompressed scanline EXR (OpenEXR file layout) of FLOAT channels ``(name, x sampling, y sampling)``."""
 
@@ -204,6 +223,20 @@ def test_npy_files_are_checked_before_they_are_built(tmp_path):
     for name, match in cases.items():
         with pytest.raises(FormatError, match=match):
             read_region_image(tmp_path / name)
+
+
+def test_ground_truth_normals_must_be_unit_or_zero(tmp_path):
+    from facestats.io.olat import read_ground_truth_normals
+
+    n = np.zeros((4, 4, 3), np.float32)
+    n[1:3, 1:3] = (0, 0, 1)  # unit on the object, zero off it (DiLiGenT)
+    np.save(tmp_path / "normals.npy", n)
+    assert read_ground_truth_normals(tmp_path, (4, 4)).shape == (4, 4, 3)
+    for value, match in ((np.nan, r"got \[nan, 0.0, 1.0\] \(length nan\) at pixel \(2, 2\)"), (3.0, r"length 3.16")):
+        n[2, 2] = (value, 0, 1)  # were accepted, and angular errors against them meant nothing
+        np.save(tmp_path / "normals.npy", n)
+        with pytest.raises(ValidationError, match=match):
+            read_ground_truth_normals(tmp_path, (4, 4))
 
 
 def test_float_tiff_displacement_maps_planar_corrupt_and_huge(tmp_path):

@@ -73,3 +73,11 @@ def test_auto_compression_picks_by_size(rng):
     large = rng.integers(0, 4096, (160, 160, 3), dtype=np.uint16)  # 76,800 samples: Huffman-only
     for img, method in ((small, "libdeflate"), (large, "huffman")):
         assert _chunks(encode_png(img)) == _chunks(encode_png(img, compression=method))
+
+
+def test_big_endian_samples_are_encoded_and_a_str_chunk_type_is_named():
+    codes = (np.arange(12, dtype=">u2") * 5000).reshape(3, 4)  # refused as "dtype >u2" before
+    out = cv2.imdecode(np.frombuffer(encode_png(codes), np.uint8), cv2.IMREAD_UNCHANGED)
+    assert out.dtype == np.uint16 and out.tolist() == codes.tolist()
+    with pytest.raises(ValidationError, match="a PNG chunk type has 4 bytes, got 'IHDR'"):  # a TypeError before
+        png_chunk("IHDR", b"")

@@ -98,6 +98,8 @@ def test_long_path_values_host_headers_405_and_sample_subject_maps(tmp_path):
     assert "... (60000 characters)" in r.get_json()["error"]
     r = client.get("/api/query", headers={"Host": "localhost:evil"})
     assert r.status_code == 400 and "unexpected Host header 'localhost:evil'" in r.get_json()["error"]  # '' before
+    r = client.get("/subject/S001/exr.zip", headers={"Host": "localhost"})
+    assert r.status_code == 200 and int(r.headers["Content-Length"]) == len(r.data) > 0  # no length before
     r = client.post("/api/query", headers={"Host": "localhost"})
     assert r.status_code == 405 and set(r.headers["Allow"].replace(" ", "").split(",")) == {"GET", "HEAD"}
     merl = tmp_path / "merl.zarr"

@@ -37,7 +37,7 @@ _UNITS_TO_UM = {"um": 1.0, "µm": 1.0, "micron": 1.0, "mm": 1000.0, "m": 1e6}
 
 
 def _tiff_page(data: bytes, path):
-    """``(first page's dtype, its axes)`` of a TIFF file's bytes, or :class:`FormatError` naming the file."""
+    """``(dtype, axes, shape)`` of the first image of a TIFF file's bytes, or :class:`FormatError` naming the file."""
     import tifffile
 
     try:

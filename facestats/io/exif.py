@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from fractions import Fraction
 
 from facestats.errors import FormatError
+from facestats.io.layout import read_regular_file
 from facestats.io.png import PNG_SIGNATURE, png_chunk
 
 __all__ = [
@@ -238,8 +239,6 @@ def read_exif(path) -> dict:
         The file is not a JPEG, TIFF or PNG, or its EXIF structure is corrupt (the
         message names the file).
     """
-    from facestats.io.layout import read_regular_file
-
     p = os.fspath(path)
     try:
         data = read_regular_file(p, 1 << 20)  # EXIF blocks precede the image data: the first MiB holds them

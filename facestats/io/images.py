@@ -43,6 +43,7 @@ Formats, by extension:
 
 from __future__ import annotations
 
+import io
 import math
 import os
 import pathlib
@@ -54,6 +55,7 @@ import numpy as np
 
 from facestats.core.validate import as_float
 from facestats.errors import DependencyError, FormatError, ValidationError
+from facestats.io.layout import read_regular_file
 from facestats.io.png import PNG_SIGNATURE
 
 __all__ = [
@@ -732,10 +734,6 @@ def read_npy(path, what: str = "array") -> np.ndarray:
         The file cannot be read, is not a ``.npy`` file, or holds no numeric
         (bool, integer or float) array; the message names ``what`` and the file.
     """
-    import io
-
-    from facestats.io.layout import read_regular_file
-
     p = os.fspath(path)
     try:
         data = read_regular_file(p)

@@ -316,3 +316,14 @@ def test_a_capture_manifest_cannot_ask_for_a_billion_cameras(tmp_path):
     _write(tmp_path / MANIFEST, json.dumps(doc))
     with pytest.raises(FormatError, match=r"field 'n_cameras' must be at most 1024, got 1000000000"):
         open_folder(tmp_path)  # a MemoryError after building range(10**9) before
+
+
+def test_a_matlab_reader_that_crashes_is_a_named_error(tmp_path, monkeypatch):
+    """Some damaged MATLAB files make SciPy's loadmat crash the interpreter (SIGSEGV); it runs in a child now."""
+    import facestats.io.merl as merl
+
+    path = save_mat(tmp_path, merl_dict())
+    assert len(merl.read_merl(path).datasets) == 4  # the child reads a valid file
+    monkeypatch.setattr(merl, "_LOAD_MAT_CHILD", "import os, signal; os.kill(os.getpid(), signal.SIGSEGV)")
+    with pytest.raises(FormatError, match=r"not a readable MATLAB file \(SciPy's loadmat ended with signal 11"):
+        merl.read_merl(path)

@@ -44,7 +44,6 @@ imported all the same (their index summaries are NaN) and listed in
 from __future__ import annotations
 
 import hashlib
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -55,6 +54,7 @@ from facestats.core.version import __version__
 from facestats.errors import FormatError, ValidationError
 from facestats.io.batch import prepare_batch
 from facestats.io.ids import MAX_SUBJECT_ID_LENGTH, check_subject_id
+from facestats.io.matlab import read_mat
 from facestats.io.root import new_store_guard
 from facestats.io.schema import DOMAINS, set_provenance, set_variable_attrs
 from facestats.io.store import Store, open_store
@@ -250,7 +250,7 @@ def read_merl(path, *, prefix: str = "merl") -> MerlData:
     """
     _check_prefix(prefix)
     path = Path(path).expanduser().resolve()
-    r = _Reader(path, *_load_mat(path))
+    r = _Reader(path, *read_mat(path))
     n = _subject_count(r)
     ages = r.integers("subj_age", n, 0, 200, "an integer age in 0-200 years")
     genders = r.parsed("subj_gen", n, parse_gender, "0/1, M/F or male/female")
@@ -301,60 +301,6 @@ def _check_prefix(prefix) -> None:
             f"prefix must make subject ids '<prefix>-001' ...: 1-{MAX_SUBJECT_ID_LENGTH - 4} letters, digits, '.', "
             f"'_' or '-' starting with a letter or digit, got {prefix!r}"
         ) from None
-
-
-#: Run by :func:`_load_mat` in a child process: the MATLAB file's bytes on stdin, a pickled
-#: ``(status, variables or message, logical keys)`` on stdout.
-_LOAD_MAT_CHILD = """
-import io, pickle, sys
-import scipy.io
-data = io.BytesIO(sys.stdin.buffer.read())
-try:
-    mat = scipy.io.loadmat(data, squeeze_me=False, chars_as_strings=True)
-    try:
-        data.seek(0)
-        logical = frozenset(name for name, _, cls in scipy.io.whosmat(data) if cls == "logical")
-    except Exception:
-        logical = frozenset()
-    out = ("ok", mat, logical)
-except NotImplementedError as exc:
-    out = ("v7.3", str(exc), None)
-except Exception as exc:
-    out = ("error", f"{type(exc).__name__}: {exc}", None)
-sys.stdout.buffer.write(pickle.dumps(out))
-"""
-
-
-def _load_mat(path: Path):
-    """``(variables, logical keys)`` of a MATLAB file (:class:`FormatError` if it cannot be read).
-
-    :func:`scipy.io.loadmat` runs in a child process: some damaged files make it
-    crash the interpreter (SIGSEGV in SciPy 1.17, found by fuzzing: 36 of the
-    1,064 one-byte changes of a small valid file), which would end the caller
-    with no message.  The keys stored as MATLAB ``logical`` (which ``loadmat``
-    returns as uint8 0/1) come from :func:`scipy.io.whosmat` in the same child.
-    """
-    import pickle
-    import subprocess
-    import sys
-
-    from facestats.io.layout import read_regular_file
-
-    try:
-        data = read_regular_file(path)  # a FIFO or a device is refused, never read
-    except OSError as exc:
-        what = "no such file" if not os.path.lexists(path) else f"not a readable regular file ({exc.strerror})"
-        raise FormatError(f"{path}: {what}") from None
-    child = subprocess.run([sys.executable, "-I", "-c", _LOAD_MAT_CHILD], input=data, capture_output=True)
-    if child.returncode != 0:
-        how = f"signal {-child.returncode}" if child.returncode < 0 else f"exit status {child.returncode}"
-        raise FormatError(f"{path}: not a readable MATLAB file (SciPy's loadmat ended with {how}: a damaged file)")
-    status, value, logical = pickle.loads(child.stdout)  # written by _LOAD_MAT_CHILD above
-    if status == "v7.3":  # MATLAB v7.3 (HDF5) files
-        raise FormatError(f"{path}: {value}; save it with `save -v7` to read it")
-    if status != "ok":
-        raise FormatError(f"{path}: not a readable MATLAB file ({value})")
-    return value, logical
 
 
 def _subject_count(r: _Reader) -> int:

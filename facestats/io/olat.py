@@ -158,15 +158,13 @@ def read_ground_truth_normals(folder, shape=None):
     folder = pathlib.Path(os.fspath(folder))
     mat, txt, npy = folder / "Normal_gt.mat", folder / "normal.txt", folder / "normals.npy"
     if mat.is_file():
-        from scipy.io import loadmat
+        from facestats.io.matlab import read_mat
 
         src = mat
-        try:
-            n = loadmat(mat)["Normal_gt"]
-        except KeyError:
-            raise FormatError(f"{str(mat)!r} must hold the variable 'Normal_gt'") from None
-        except Exception as exc:  # scipy raises several types for a damaged file
-            raise FormatError(f"cannot read {str(mat)!r}: {exc}") from None
+        variables, _ = read_mat(mat)
+        if "Normal_gt" not in variables:
+            raise FormatError(f"{str(mat)!r} must hold the variable 'Normal_gt'")
+        n = variables["Normal_gt"]
     elif npy.is_file():
         from facestats.io.images import read_npy
 

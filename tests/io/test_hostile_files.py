@@ -320,10 +320,11 @@ def test_a_capture_manifest_cannot_ask_for_a_billion_cameras(tmp_path):
 
 def test_a_matlab_reader_that_crashes_is_a_named_error(tmp_path, monkeypatch):
     """Some damaged MATLAB files make SciPy's loadmat crash the interpreter (SIGSEGV); it runs in a child now."""
-    import facestats.io.merl as merl
+    import facestats.io.matlab as matlab
+    from facestats.io.merl import read_merl
 
     path = save_mat(tmp_path, merl_dict())
-    assert len(merl.read_merl(path).datasets) == 4  # the child reads a valid file
-    monkeypatch.setattr(merl, "_LOAD_MAT_CHILD", "import os, signal; os.kill(os.getpid(), signal.SIGSEGV)")
+    assert len(read_merl(path).datasets) == 4  # the child reads a valid file
+    monkeypatch.setattr(matlab, "_CHILD", "import os, signal; os.kill(os.getpid(), signal.SIGSEGV)")
     with pytest.raises(FormatError, match=r"not a readable MATLAB file \(SciPy's loadmat ended with signal 11"):
-        merl.read_merl(path)
+        read_merl(path)

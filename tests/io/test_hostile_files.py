@@ -230,6 +230,9 @@ def test_ground_truth_normals_must_be_unit_or_zero(tmp_path):
 
     n = np.zeros((4, 4, 3), np.float32)
     n[1:3, 1:3] = (0, 0, 1)  # unit on the object, zero off it (DiLiGenT)
+    scipy.io.savemat(tmp_path / "Normal_gt.mat", {"Normal_gt": n})  # DiLiGenT's file, read in a child process
+    np.testing.assert_array_equal(read_ground_truth_normals(tmp_path, (4, 4)), n)
+    os.remove(tmp_path / "Normal_gt.mat")
     np.save(tmp_path / "normals.npy", n)
     assert read_ground_truth_normals(tmp_path, (4, 4)).shape == (4, 4, 3)
     for value, match in ((np.nan, r"got \[nan, 0.0, 1.0\] \(length nan\) at pixel \(2, 2\)"), (3.0, r"length 3.16")):

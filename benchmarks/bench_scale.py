@@ -508,7 +508,8 @@ def _coverage(key, model, samples, normal, f_s, use, cos, ft2, true_rho, true_lo
 
 
 def bench_normal_passes(subject=0, grid=48, passes=(1, 2, 3, 4, 5, 6)):
-    """Median angle (deg) between photometric-stereo and true normals after each number of F_t passes.
+    """Median, 99th-percentile and largest angle (deg) between photometric-stereo and true normals after each
+    number of F_t passes.
 
     Subject ``subject`` of the default population on the procedural face, Torrance-Sparrow captures
     with the local transport (several simulator blocks), without and with camera noise
@@ -529,9 +530,11 @@ def bench_normal_passes(subject=0, grid=48, passes=(1, 2, 3, 4, 5, 6)):
         for k in passes:
             normal, _ = fitting.photometric_normals(samples, lt.scan_normal, lt.wo.shape[1], iterations=k)
             cos = np.clip(np.einsum("nk,nk->n", normal.astype(np.float64), geometry.normal), -1, 1)
-            out[f"{'noise' if noise else 'noise_free'}_passes_{k}_median_deg"] = float(
-                np.degrees(np.median(np.arccos(cos)))
-            )
+            angle = np.degrees(np.arccos(cos))
+            key = f"{'noise' if noise else 'noise_free'}_passes_{k}"
+            out[f"{key}_median_deg"] = float(np.median(angle))
+            out[f"{key}_p99_deg"] = float(np.percentile(angle, 99))
+            out[f"{key}_max_deg"] = float(angle.max())
     return out
 
 

@@ -468,8 +468,8 @@ REACH_NEIGHBOUR = 6
 
 def light_reach(directions) -> float:
     """Angle (radians) beyond which a light of an irregular set stands for no direction: :data:`REACH_SPACINGS`
-    (2) × the median angle from a light to its :data:`REACH_NEIGHBOUR`-th (6th) nearest light (the last one for
-    fewer lights), at most π (π for a single light).
+    (2) × the median angle from a light to its k-th nearest light, k = :data:`REACH_NEIGHBOUR` (6) or a third of
+    the other lights if fewer (at least 1), at most π (π for a single light).
 
     A light set that does not surround the subject (a frontal OLAT rig, a dome without lights below) has Voronoi
     cells at its rim that reach far behind it: 96 lights within 35° of +z (a Fibonacci cap) give rim cells of up
@@ -481,13 +481,20 @@ def light_reach(directions) -> float:
     0.4° and the cells sum to 0.48 sr; a red team).  Weyrich's 150-LED dome (spacing 21.4°) loses the
     directions more than 42.7° from every LED, 0.8 % of the sphere below the face; 75 lights on a hemisphere
     keep 47° below their rim (their cells reached 91°).
+
+    The sixth neighbour measures the local spacing of a set in which a light has about six neighbours around
+    it.  In a small set it lies across the set instead: on the eight-LED ring of the Hales OLAT sphere (LEDs
+    35-45° from the camera axis) it gave a reach of 146°, the cells tiled the whole sphere, and a probe lit only
+    from behind gave the front LEDs all of its 2π sr (found by a red team on the real folder).  With at most a
+    third of the other lights (k = 2 there, still past a twin) the reach is 59°: the cells cover 7.09 sr, the
+    front hemisphere whole, and 0.81 sr of the back-lit probe's 2π reaches the LEDs.
     """
     from scipy.spatial import cKDTree
 
     d = np.asarray(directions, np.float64).reshape(-1, 3)
     if d.shape[0] < 2:
         return float(np.pi)
-    k = min(REACH_NEIGHBOUR, d.shape[0] - 1)
+    k = min(REACH_NEIGHBOUR, max(1, (d.shape[0] - 1) // 3))  # a third of the other lights at most: stay local
     chord, _ = cKDTree(d).query(d, k + 1)
     spacing = float(np.median(2 * np.arcsin(np.clip(chord[:, k] / 2, 0, 1))))
     return float(min(np.pi, REACH_SPACINGS * spacing))

@@ -89,6 +89,28 @@ def test_a_frontal_light_set_takes_no_light_from_behind():
     assert np.sin(np.radians(35)) ** 2 < front.max() < 1
 
 
+def test_a_small_real_rig_takes_little_light_from_behind():
+    """The eight LEDs of the committed Hales OLAT sphere (35-45° off the camera axis): the sixth-nearest light lay
+    across the ring, the reach was 146°, the cells tiled the sphere and a probe lit only from behind gave the LEDs
+    its whole 2π sr, so the ball relit as bright as under the matching front-only probe (a red team)."""
+    import pathlib
+
+    from facestats.io.olat import read_olat_folder
+    from facestats.relight.relighting import relight
+
+    field = read_olat_folder(pathlib.Path(__file__).parents[1] / "data" / "hales-sphere-olat")
+    d = field["direction"].values
+    assert np.degrees(sphere.light_reach(d)) == pytest.approx(59.1, abs=0.1)  # 2 × the median 2nd-nearest angle
+    sky = sphere.latlong_directions(128, 256)[..., 2]
+    back = np.repeat((sky < 0).astype(np.float32)[..., None], 3, -1)
+    front = np.repeat((sky >= 0).astype(np.float32)[..., None], 3, -1)
+    assert lighting.resample_probe(back, d)[:, 1].sum() < 0.15 * 2 * np.pi  # 0.81 sr (all 2π before)
+    assert lighting.resample_probe(front, d)[:, 1].sum() == pytest.approx(2 * np.pi, rel=1e-6)  # front kept whole
+    mask = field["mask"].values
+    ratio = relight(field, probe=back)[mask].sum(-1) / relight(field, probe=front)[mask].sum(-1)
+    assert np.median(ratio) < 0.2  # 0.13 (1.00 before)
+
+
 def test_lights_in_pairs_keep_their_cells():
     """The reach counted from the nearest light collapsed for lights in pairs (a twin 0.5° from each of 150: reach
     0.4°, cells summing to 0.48 sr, a uniform environment relit to 0.04; a red team); from the 6th nearest it

@@ -70,6 +70,10 @@ def test_a_real_olat_folder_a_ball_under_eight_leds(tmp_path):
     n, albedo = photometric_stereo(f)
     err = angular_error_deg(n, f["normal_gt"].values, f["mask"].values)
     assert np.mean(err) < 12 and np.median(err) < 10
+    # With eight lights the default filtering leaves out two samples of every pixel (25 % darkest) and no highlight
+    # (10 % of 8 rounds to 0): on this matte, wholly lit ball plain least squares does better, 7.7° against 8.9°.
+    plain = angular_error_deg(photometric_stereo(f, dark=0, bright=0)[0], f["normal_gt"].values, f["mask"].values)
+    assert np.mean(plain) < np.mean(err) - 0.5
     rho = np.nanmedian(albedo[f["mask"].values], 0)
     assert rho[1] > 1.5 * rho[0] > 0 and rho[2] < 0.2 * rho[1]  # a green ball: G > R, almost no blue
     for name in os.listdir(folder):  # the light file as published: y down

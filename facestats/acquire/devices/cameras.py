@@ -28,6 +28,8 @@ from __future__ import annotations
 import hashlib
 import os
 import pathlib
+import re
+import stat
 import struct
 import threading
 import time
@@ -40,6 +42,10 @@ from facestats.errors import DeviceError, DeviceTimeout
 __all__ = ["Trigger", "Frame", "CameraBackend", "EmulatedCameras", "HotFolderCameras", "HotFolderWriter"]
 
 DEFAULT_PATTERN = "cam{camera:02d}/{frame:012d}{ext}"
+
+
+#: A field value of a device reply: a plain decimal integer.
+_DECIMAL = re.compile(r"-?[0-9]{1,18}")
 
 
 @dataclass(frozen=True)
@@ -68,21 +74,43 @@ class Trigger:
         return self.lines < 0 or bool(self.lines >> int(camera) & 1)
 
     @classmethod
-    def from_fields(cls, fields: dict) -> "Trigger":
-        """The trigger of a ``tr`` reply's payload (``frame=… led=… exposure=…``)."""
-        if "frame" not in fields:
-            raise DeviceError(f"trigger reply without the field 'frame': {fields!r}")
-        try:
-            kw = {
-                k: int(fields[k])
-                for k in ("frame", "led", "exposure", "brightness", "lamp", "shutter", "site", "lines")
-                if k in fields
-            }
-            if "colour" in fields:
-                kw["colour"] = tuple(int(v) for v in fields["colour"].split(","))
-            return cls(**kw)
-        except (KeyError, ValueError) as exc:
-            raise DeviceError(f"trigger reply with a malformed field: {fields!r} ({exc})") from None
+    def from_fields(cls, fields: dict, required=("frame",), frame: int | None = None) -> "Trigger":
+        """The trigger of a ``tr`` reply's payload (``frame=… led=… exposure=…``).
+
+        Parameters
+        ----------
+        fields : dict
+            The reply's ``key=value`` fields (:meth:`~facestats.acquire.devices.protocol.Reply.fields`).
+        required : sequence of str
+            Fields the device must report (a missing one would take its default here, and a plan's state check
+            would compare against the default, not against what the device did).
+        frame : int, optional
+            The frame id the host asked for: a reply naming another (firmware with a stale frame register) would
+            file this exposure's pictures under another trigger's id.
+
+        Raises
+        ------
+        DeviceError
+            A required field missing, a value that is not a plain decimal integer (``int`` also takes ``0_2``
+            and `` 2``), or another frame id.
+        """
+        missing = [k for k in required if k not in fields]
+        if missing:
+            raise DeviceError(f"trigger reply without the field(s) {missing}: {fields!r:.160}")
+        kw = {}
+        for k in ("frame", "led", "exposure", "brightness", "lamp", "shutter", "site", "lines", "colour"):
+            if k not in fields:
+                continue
+            parts = fields[k].split(",") if k == "colour" else [fields[k]]
+            if not all(_DECIMAL.fullmatch(v) for v in parts) or (k == "colour") != (len(parts) == 3):
+                raise DeviceError(f"trigger reply with a malformed field {k}={fields[k]!r}: {fields!r:.160}")
+            kw[k] = tuple(int(v) for v in parts) if k == "colour" else int(parts[0])
+        if frame is not None and kw["frame"] != frame:
+            raise DeviceError(
+                f"trigger reply for frame {kw['frame']}, the host asked for frame {frame}: its pictures would be "
+                "filed under another trigger"
+            )
+        return cls(**kw)
 
 
 @dataclass(frozen=True)
@@ -148,16 +176,41 @@ class EmulatedCameras(CameraBackend):
 
 
 def _size(path):
-    """The size of ``path`` in bytes, None while it does not exist."""
+    """The size of ``path`` in bytes, None while it does not exist.
+
+    Raises :class:`DeviceError` for anything but a regular file (a link, which could lead out of the hot folder or
+    to ``/dev/zero``; a FIFO, which would block the read; a folder): camera software writes files.
+    """
     try:
-        return path.stat().st_size
+        st = os.lstat(path)
     except FileNotFoundError:
         return None
+    if not stat.S_ISREG(st.st_mode):
+        raise DeviceError(
+            f"frame {path} in the hot folder is not a regular file (a link, FIFO, device or folder): camera software "
+            "writes plain files; remove it and rerun with --resume"
+        )
+    return st.st_size
+
+
+#: The first 8 bytes of every PNG file (PNG spec §5.2).
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: The last 12 bytes of every complete PNG file: the IEND chunk (PNG spec §11.2.5) with its CRC.
+_PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+
+
+def _complete(data: bytes) -> bool:
+    """False for a PNG without its IEND chunk or a JPEG without its EOI marker at the end (still being written)."""
+    if data[:8] == _PNG_SIGNATURE:
+        return data.endswith(_PNG_END)
+    if data[:2] == b"\xff\xd8":
+        return data.endswith(b"\xff\xd9")
+    return True
 
 
 def _png_size(data: bytes):
     """(width, height) from a PNG's IHDR chunk, or None for other formats."""
-    if data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR":
+    if data[:8] == _PNG_SIGNATURE and data[12:16] == b"IHDR":
         return struct.unpack(">II", data[16:24])
     return None
 
@@ -262,7 +315,9 @@ class HotFolderCameras(CameraBackend):
                 if size is not None and side.exists():
                     return self._checked(camera, p, side)
                 if size is not None and size == last and not self.require_checksum:
-                    return self._checked(camera, p, None)
+                    frame = self._checked(camera, p, None)
+                    if frame is not None:
+                        return frame
             except (OSError, ValueError) as exc:  # the file went away or its sidecar is unreadable
                 raise DeviceError(f"frame {p} could not be read from the hot folder: {exc}") from None
             if time.monotonic() > deadline:
@@ -275,7 +330,13 @@ class HotFolderCameras(CameraBackend):
             pause = min(2 * pause, 0.02)
 
     def _checked(self, camera, p, side):
-        data = p.read_bytes()
+        """The frame in ``p`` after its checks; None if it has no sidecar and is still being written."""
+        # local import: keeps numpy (facestats.io) out of this module's import
+        from facestats.io.layout import read_regular_file
+
+        data = read_regular_file(p, follow_links=False)  # checked by _size; a link put in its place is refused
+        if side is None and not _complete(data):  # a writer that paused longer than ``settle``
+            return None
         digest = hashlib.sha256(data).hexdigest()
         if side is not None:
             want = side.read_text().split()

@@ -36,6 +36,9 @@ from facestats.acquire.photographs import EXPOSURE_TOLERANCE
 from facestats.core.validate import check_integer
 from facestats.errors import DeviceError
 
+#: Fields a dome's ``tr`` reply must carry (``lines`` may be missing: firmware without trigger masks pulses all).
+DOME_TRIGGER_FIELDS = ("frame", "led", "exposure", "brightness", "colour")
+
 __all__ = ["DomeController", "DomeStatus"]
 
 
@@ -61,7 +64,7 @@ class DomeStatus:
     @classmethod
     def from_fields(cls, f: dict, port: str = "") -> "DomeStatus":
         try:
-            return cls(
+            st = cls(
                 n_leds=int(f["leds"]),
                 n_cameras=int(f["cameras"]),
                 exposure_s=tuple(v / 1e6 for v in _ints(f["exposure_us"])),
@@ -75,6 +78,12 @@ class DomeStatus:
             )
         except (KeyError, ValueError) as exc:
             raise DeviceError(f"the dome on {port} sent a status without a valid field {exc}: {f!r:.120}") from None
+        if st.n_leds < 1 or st.n_cameras < 1:  # camera c is bit c of the trigger-line mask: a shift by c
+            raise DeviceError(
+                f"the dome on {port} reports {st.n_leds} LEDs and {st.n_cameras} cameras; expected at least one "
+                f"of each: {f!r:.120}"
+            )
+        return st
 
 
 class DomeController(Controller):
@@ -147,7 +156,7 @@ class DomeController(Controller):
     def trigger(self, frame: int, timeout: float | None = None) -> Trigger:
         """Pulse the cameras' trigger lines; the state the device reports the exposure was taken under."""
         reply = self.link.request("tr", check_integer(frame, "frame", 0), timeout=timeout)
-        return Trigger.from_fields(reply.fields())
+        return Trigger.from_fields(reply.fields(), DOME_TRIGGER_FIELDS, frame)
 
     def check(self, n_leds: int, n_cameras: int, exposure_s, bits: int | None = None) -> DomeStatus:
         """Raise :class:`DeviceError` unless the device is wired and set up as the calibration says."""

@@ -79,6 +79,8 @@ MARKER = b"-==-"
 TERMINATOR = b"\n" + MARKER + b"\n"
 #: Longest request line a device accepts, bytes (without the LF).
 MAX_LINE = 200
+#: Bytes a :class:`FrameReader` keeps while it waits for a frame's end (a reply frame is far shorter).
+MAX_PENDING = 1 << 16
 #: Numbered errors of ``Enn`` replies.
 ERRORS = {
     1: "unknown command",
@@ -93,8 +95,8 @@ ERRORS = {
 RETRYABLE = frozenset({2, 5})
 
 _NAME = re.compile(r"[a-z?]{1,8}")
-_REQUEST = re.compile(rb"^([a-z?]{1,8})((?:\.-?\d{1,12})*)(?: #(\d{1,10}))?(?:\*([0-9A-F]{4}))?$")
-_FRAME = re.compile(rb"^@(\d{1,12}) (\d{1,10}) (OK|E\d\d|BOOT)(?: ([ -)+-?A-~]*))?\*([0-9A-F]{4})$")
+_REQUEST = re.compile(rb"^([a-z?]{1,8})((?:\.-?\d{1,12})*)(?: #(\d{1,10}))?(?:\*([0-9A-F]{4}))?\Z")
+_FRAME = re.compile(rb"^@(\d{1,12}) (\d{1,10}) (OK|E\d\d|BOOT)(?: ([ -)+-?A-~]*))?\*([0-9A-F]{4})\Z")
 
 
 def crc16(data: bytes) -> int:
@@ -173,10 +175,18 @@ class Reply:
         return int(self.status[1:]) if self.status.startswith("E") else 0
 
     def fields(self) -> dict:
-        """The ``key=value`` words of the payload (words without ``=`` map to ``""``)."""
+        """The ``key=value`` words of the payload (words without ``=`` map to ``""``).
+
+        Raises
+        ------
+        DeviceError
+            A key given twice (``led=0 led=2``: which one the device meant is unknown).
+        """
         out = {}
         for word in self.payload.split():
             key, _, value = word.partition("=")
+            if key in out:
+                raise DeviceError(f"reply names the field {key!r} twice: {self.payload[:120]!r}")
             out[key] = value
         return out
 
@@ -206,6 +216,8 @@ def parse_request(line: bytes) -> Request:
     name, args, rid, crc = m.groups()
     if crc is not None and int(crc, 16) != crc16(line[: line.rindex(b"*")]):
         raise ProtocolViolation(f"bad checksum {crc.decode()} of {_quoted(line[:40])}", 2)
+    if rid and int(rid) >= 2**31:  # ten digits reach past the ids a host may use (Request)
+        raise ProtocolViolation(f"request id must lie in [0, 2^31), got {int(rid)}", 7)
     values = tuple(int(a) for a in args.split(b".")[1:]) if args else ()
     return Request(name.decode(), values, int(rid) if rid else 0)
 
@@ -231,7 +243,9 @@ class FrameReader:
 
     Bytes before a complete frame that do not form one themselves are reported
     as a truncated frame; :attr:`pending` holds the bytes of the frame still
-    arriving.
+    arriving, at most :data:`MAX_PENDING` (a device sending megabytes without a
+    frame end made every read search them all again: quadratic time, unbounded
+    memory; a red team); beyond it the older bytes are dropped, reported as a truncated frame.
     """
 
     def __init__(self):
@@ -240,8 +254,10 @@ class FrameReader:
     def feed(self, data: bytes) -> list:
         buf = self.pending + data
         items = []
+        start = max(0, len(self.pending) - len(TERMINATOR) + 1)  # the pending bytes hold no terminator
         while True:
-            end = buf.find(TERMINATOR)
+            end = buf.find(TERMINATOR, start)
+            start = 0
             if end < 0:
                 break
             chunk, buf = buf[:end], buf[end + len(TERMINATOR) :]
@@ -253,6 +269,10 @@ class FrameReader:
                 items.append(parse_reply(chunk))
             except FrameError as exc:
                 items.append(exc)
+        if len(buf) > MAX_PENDING:
+            dropped, buf = buf[:-MAX_PENDING], buf[-MAX_PENDING:]
+            # as bytes before a frame: a frame may still follow (1 MB of boot noise, then the reply)
+            items.append(FrameError(f"{len(dropped)} bytes without a frame end dropped", "truncated", dropped[-60:]))
         self.pending = buf
         return items
 

@@ -57,6 +57,8 @@ __all__ = [
     "CALIBRATION_FORMAT",
 ]
 
+#: Fields a contact sensor's ``tr`` reply must carry.
+SENSOR_TRIGGER_FIELDS = ("frame", "exposure", "lamp", "shutter", "site")
 CALIBRATION_FORMAT = "facestats.sensor-calibration/1"
 
 
@@ -289,7 +291,7 @@ class SensorController(Controller):
     def trigger(self, frame: int, timeout: float | None = None) -> Trigger:
         """Take one picture; the state the device reports it was taken under."""
         reply = self.link.request("tr", check_integer(frame, "frame", 0), timeout=timeout)
-        return Trigger.from_fields(reply.fields())
+        return Trigger.from_fields(reply.fields(), SENSOR_TRIGGER_FIELDS, frame)
 
     def bracket(self, site: int, exposures, frames, timeout: float | None = None):
         """The :class:`Trigger` of each exposure index of ``exposures`` at ``site``, frame ids from ``frames``."""

@@ -161,6 +161,8 @@ class SerialLink:
         self.epoch = 0  # reboots of the device seen by this link
         self._next_id = 1 + int.from_bytes(os.urandom(4), "big") % (2**30)
         self._last = None  # (seq, id) of the last accepted frame
+        self._noted = 0  # discarded items logged during the current request (at most MAX_NOTES)
+        self._unlogged = 0  # ... and those beyond it
         self._reader = FrameReader()
         self._backlog = collections.deque()  # frames read but not yet examined
         self._ser = open_port(port, **self.settings)
@@ -218,11 +220,18 @@ class SerialLink:
         rid = self._next_id
         self._next_id = self._next_id % (2**31 - 1) + 1
         req = Request(name, tuple(int(a) for a in args), rid)
-        line = req.encode()
         wait = self.timeout if timeout is None else float(timeout)
         self.stats.requests += 1
+        try:
+            return self._request(req, wait)
+        finally:
+            self._end_notes(req)
+
+    def _request(self, req, wait):
+        """:meth:`request`'s attempts for ``req`` (its id is ``req.id``)."""
+        rid, line = req.id, req.encode()
         failures = []
-        attempt = 0
+        attempt = drops = 0
         while attempt <= self.retries:
             if attempt:
                 self.stats.retries += 1
@@ -230,6 +239,12 @@ class SerialLink:
             try:
                 reply = self._exchange(line, rid, wait)
             except _Disconnected as exc:
+                drops += 1
+                if drops > self.retries + 1:  # a port that opens and fails at once would loop here for ever
+                    raise DeviceError(
+                        f"{self.port} dropped the connection {drops} times while {req.body!r} was sent ({exc}); "
+                        "check the cable and the device, then rerun (a capture session continues with --resume)"
+                    ) from None
                 self._reconnect(exc)
                 continue  # a failed port is not the device's answer: retry without counting an attempt
             attempt += 1
@@ -254,6 +269,11 @@ class SerialLink:
 
     def _give_up(self, req, failures) -> str:
         s = self.stats
+        if s.out_of_order and not (s.requests > 1 or self._last):  # valid frames, none answering this request
+            return (
+                f"the device on {self.port} answered {req.body!r} only with {s.out_of_order} frames for other "
+                "requests: another program is using the device, or its firmware numbers its replies wrongly"
+            )
         if s.bytes_received and not (s.requests > 1 or self._last):
             return (
                 f"the device on {self.port} answered {req.body!r} with bytes that are not facestats protocol frames "
@@ -315,7 +335,7 @@ class SerialLink:
                 self.stats.garbled += 1
             else:
                 self.stats.truncated += 1
-            self.log(f"{item.kind} reply frame while waiting for request {rid}: {item.raw[-40:]!r}")
+            self._note(f"{item.kind} reply frame while waiting for request {rid}: {item.raw[-40:]!r}")
             return None if item.kind == "garbled" else _SKIP
         if item.status == "BOOT":
             self._reboot(f"boot frame {item.payload!r}")
@@ -324,21 +344,40 @@ class SerialLink:
         key = (item.seq, item.id)
         if key == self._last:
             self.stats.duplicates += 1
-            self.log(f"duplicate frame @{item.seq} (request {item.id}) discarded")
+            self._note(f"duplicate frame @{item.seq} (request {item.id}) discarded")
             return _SKIP
         if item.id != rid:
             self.stats.out_of_order += 1
-            self.log(f"late frame @{item.seq} answering request {item.id} discarded (waiting for {rid})")
+            self._note(f"late frame @{item.seq} answering request {item.id} discarded (waiting for {rid})")
             return _SKIP
         if self._last is not None and item.seq < self._last[0]:
             self._reboot(f"sequence number {item.seq} after {self._last[0]}")
         self._last = key
         return item
 
+    def _note(self, line):
+        """Log a discarded item: the first :data:`MAX_NOTES` of a request one line each, then only count them."""
+        if self._noted < MAX_NOTES:
+            self._noted += 1
+            self.log(line)
+        else:
+            self._unlogged += 1
+
+    def _end_notes(self, req):
+        """One line for the discarded items of ``req`` that were not logged; reset the counts for the next request."""
+        if self._unlogged:
+            self.log(f"... and {self._unlogged} more frames discarded while waiting for {req.body!r} (not logged)")
+        self._noted = self._unlogged = 0
+
     def _reboot(self, why):
         self.epoch += 1
         self.stats.reboots += 1
         self.log(f"device on {self.port} rebooted ({why}); its state is lost")
+
+
+#: Discarded frames logged one line each per request; the rest are counted in one line (a flood of stray frames
+#: wrote 105,355 log lines in 2 s before; a red team).
+MAX_NOTES = 20
 
 
 class _Disconnected(Exception):

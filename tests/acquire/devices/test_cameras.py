@@ -58,6 +58,45 @@ def test_a_frame_written_late_is_waited_for_and_read_whole(tmp_path):
     assert frame.data == data and frame.sha256 == hashlib.sha256(data).hexdigest() and frame.camera == 0
 
 
+def test_a_writer_pausing_longer_than_settle_is_not_read_half_written(tmp_path):
+    """Without a sidecar a file was taken once its size held for ``settle``: a writer pausing 0.3 s gave a frame of
+    its first 100 bytes, checksummed and journalled as if whole (a red team). A PNG is complete at its IEND chunk."""
+    cams = HotFolderCameras(tmp_path, [0], settle=0.05)
+    data = _png(16, 12)
+
+    def vendor():
+        p = cams.path(0, 4)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        with open(p, "wb") as f:
+            f.write(data[:100])
+            f.flush()
+            time.sleep(0.3)  # six times settle
+            f.write(data[100:])
+
+    th = threading.Thread(target=vendor)
+    th.start()
+    (frame,) = cams.collect(Trigger(4), timeout=5.0)
+    th.join()
+    assert frame.data == data
+
+
+def test_links_fifos_and_folders_in_place_of_a_frame_are_refused(tmp_path):
+    import os
+
+    cams = HotFolderCameras(tmp_path, [0])
+    outside = tmp_path.parent / f"{tmp_path.name}-outside.png"
+    outside.write_bytes(_png(4, 4))
+    cams.path(0, 1).parent.mkdir(parents=True)
+    os.symlink(outside, cams.path(0, 1))  # read through before, then moved into the capture folder as a link
+    os.symlink("/dev/zero", cams.path(0, 2))  # read until memory ran out, past the frame timeout
+    os.mkfifo(cams.path(0, 3))  # blocked the read for ever
+    for frame in (1, 2, 3):
+        t0 = time.monotonic()
+        with pytest.raises(DeviceError, match="is not a regular file"):
+            cams.collect(Trigger(frame), timeout=2.0)
+        assert time.monotonic() - t0 < 1.0
+
+
 def test_wrong_resolution_is_refused_naming_both_sizes(tmp_path):
     cams = HotFolderCameras(tmp_path, [0], sizes={0: (64, 48)})
     _drop(cams, 0, 1, _png(32, 24))

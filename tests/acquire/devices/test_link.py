@@ -227,3 +227,66 @@ def test_socket_urls_reach_a_device_over_tcp():
     finally:
         srv.close()
     assert parse_request(b"x").name == "x"
+
+
+def test_a_port_that_opens_and_drops_at_once_ends_the_request():
+    """A device that accepts each connection and drops it at once: every drop reopened the port and retried without
+    counting an attempt, for ever (33 reconnects in 10 s; a red team)."""
+    srv = socket.create_server(("127.0.0.1", 0))
+
+    def drop_every_connection():
+        while True:
+            try:
+                conn, _ = srv.accept()
+            except OSError:
+                return
+            conn.close()
+
+    threading.Thread(target=drop_every_connection, daemon=True).start()
+    try:
+        t0 = time.monotonic()
+        link = SerialLink(f"socket://127.0.0.1:{srv.getsockname()[1]}", timeout=0.2, retries=1, reconnect_timeout=0.5)
+        with pytest.raises(DeviceError, match=r"dropped the connection 3 times while 'ver' was sent"):
+            link.request("ver")
+        assert time.monotonic() - t0 < 5.0
+    finally:
+        srv.close()
+
+
+def test_a_flood_of_stray_frames_is_counted_not_logged_line_by_line():
+    """Valid frames answering other requests: one log line each wrote 105,355 lines in 2 s, and the error called
+    them "not facestats protocol frames" (a red team)."""
+    from facestats.acquire.devices.protocol import Reply
+    from facestats.acquire.devices.serial_link import MAX_NOTES
+
+    master, slave = pty.openpty()
+    stop = threading.Event()
+
+    def flood():
+        k = 0
+        while not stop.is_set():
+            try:
+                os.write(master, b"".join(Reply(1000 + k + i, 999_999, "OK", "x").encode() for i in range(200)))
+            except OSError:
+                return
+            k += 200
+
+    threading.Thread(target=flood, daemon=True).start()
+    lines = []
+    try:
+        with pytest.raises(DeviceTimeout, match=r"answered 'ver' only with \d+ frames for other requests"):
+            SerialLink(os.ttyname(slave), timeout=0.3, retries=1, backoff=0.01, log=lines.append).request("ver")
+    finally:
+        stop.set()
+        os.close(slave)
+        os.close(master)
+    summary = [ln for ln in lines if "more frames discarded while waiting for 'ver'" in ln]
+    # The first MAX_NOTES one line each, then the count; a few more lines: a truncated frame at each attempt's end.
+    assert len(summary) == 1 and MAX_NOTES < len(lines) < MAX_NOTES + 8
+
+
+def test_a_request_id_beyond_the_hosts_range_is_an_e07_and_the_emulator_lives_on():
+    """`x #3000000000` raised a plain DeviceError in the emulator's request parser, which killed its server thread."""
+    dev = DomeDevice(150, 16, EXPOSURES)
+    assert b" E07 request id must lie in [0, 2^31), got 3000000000" in dev.handle(b"x #3000000000")
+    assert b" OK " in dev.handle(b"ver")

@@ -135,7 +135,44 @@ def test_fault_settings_are_checked():
 
 def test_a_trigger_reply_without_its_frame_or_with_garbage_is_a_device_error():
     assert Trigger.from_fields({"frame": "3", "led": "1"}) == Trigger(3, led=1)
-    with pytest.raises(DeviceError, match="trigger reply without the field 'frame'"):
+    with pytest.raises(DeviceError, match=r"trigger reply without the field\(s\) \['frame'\]"):
         Trigger.from_fields({"led": "1", "exposure": "0"})
-    with pytest.raises(DeviceError, match="trigger reply with a malformed field"):
+    with pytest.raises(DeviceError, match="trigger reply with a malformed field frame='x'"):
         Trigger.from_fields({"frame": "x"})
+
+
+def test_trigger_replies_are_held_to_what_the_device_must_report():
+    """A red team's firmware: missing fields were filled with defaults that passed the plan's state check, `0_2` was
+    read as 2, a repeated key kept its last value, and a reply naming the previous frame was filed under it."""
+    from facestats.acquire.devices.dome import DOME_TRIGGER_FIELDS
+    from facestats.acquire.devices.protocol import Reply
+
+    full = {"frame": "5", "led": "2", "exposure": "1", "brightness": "10", "colour": "255,255,255"}
+    assert Trigger.from_fields(full, DOME_TRIGGER_FIELDS, 5) == Trigger(5, led=2, exposure=1, brightness=10)
+    with pytest.raises(DeviceError, match=r"without the field\(s\) \['exposure', 'brightness', 'colour'\]"):
+        Trigger.from_fields({"frame": "5", "led": "2"}, DOME_TRIGGER_FIELDS, 5)  # exposure 0, brightness 255 before
+    for bad in ({"led": "0_2"}, {"led": " 2"}, {"colour": "1,2"}):
+        with pytest.raises(DeviceError, match="malformed field"):
+            Trigger.from_fields({**full, **bad}, DOME_TRIGGER_FIELDS, 5)
+    with pytest.raises(DeviceError, match="trigger reply for frame 4, the host asked for frame 5"):
+        Trigger.from_fields({**full, "frame": "4"}, DOME_TRIGGER_FIELDS, 5)
+    with pytest.raises(DeviceError, match="names the field 'led' twice"):
+        Reply(1, 5, "OK", "frame=5 led=0 led=2").fields()
+
+
+def test_the_frame_reader_keeps_a_bounded_tail_and_finds_a_frame_after_megabytes_of_noise():
+    """Unterminated bytes were kept whole and searched again on every read (4 MB in 4 KiB reads: 1.8 s; a red
+    team); a reply frame also ended in a stray LF (``$`` matched before it)."""
+    import time
+
+    from facestats.acquire.devices.protocol import MAX_PENDING
+
+    reader, noise = FrameReader(), bytes(range(256)).replace(b"\n", b"x") * 16  # 4 KiB without a frame end
+    t0 = time.monotonic()
+    items = [item for _ in range(1024) for item in reader.feed(noise)]
+    assert time.monotonic() - t0 < 1.0 and len(reader.pending) == MAX_PENDING
+    assert items and all(isinstance(i, FrameError) and i.kind == "truncated" for i in items)  # skipped, not garbled
+    frame = Reply(3, 7, "OK", "a=1").encode()
+    assert reader.feed(frame)[-1] == Reply(3, 7, "OK", "a=1")  # the reply after the noise is still read
+    with pytest.raises(FrameError):
+        parse_reply(frame[: -len(TERMINATOR)] + b"\n")  # '@3 7 OK a=1*CRC' followed by a LF is no frame

@@ -299,10 +299,15 @@ class SerialLink:
         deadline = time.monotonic() + wait
         while True:
             self._backlog.extend(self._read(deadline))
+            garbled = False
             while self._backlog:
                 outcome = self._accept(self._backlog.popleft(), rid)
-                if outcome is not _SKIP:
+                if outcome is None:  # a garbled frame: the reply may still be among what arrived with it
+                    garbled = True
+                elif outcome is not _SKIP:
                     return outcome
+            if garbled:
+                return None
             if time.monotonic() >= deadline:
                 rest = self._reader.flush()
                 if rest is not None:

@@ -290,3 +290,33 @@ def test_a_request_id_beyond_the_hosts_range_is_an_e07_and_the_emulator_lives_on
     dev = DomeDevice(150, 16, EXPOSURES)
     assert b" E07 request id must lie in [0, 2^31), got 3000000000" in dev.handle(b"x #3000000000")
     assert b" OK " in dev.handle(b"ver")
+
+
+def test_a_garbled_line_before_each_valid_reply_does_not_hide_the_reply():
+    """The attempt ended at the garbled line and the retry threw the reply that came with it away as late, so a
+    device that sends one noise line before every intact reply was never understood (a red team)."""
+    from facestats.acquire.devices.protocol import TERMINATOR, Reply
+
+    master, slave = pty.openpty()
+
+    def noisy_device():
+        buf, seq = b"", 0
+        while True:
+            try:
+                buf += os.read(master, 1024)
+            except OSError:
+                return
+            while b"\n" in buf:
+                line, _, buf = buf.partition(b"\n")
+                seq += 1
+                reply = Reply(seq, parse_request(line).id, "OK", "facestats-dome test")
+                os.write(master, b"noise" + TERMINATOR + reply.encode())  # both in one write
+
+    threading.Thread(target=noisy_device, daemon=True).start()
+    try:
+        link = SerialLink(os.ttyname(slave), timeout=0.5, retries=3)
+        assert link.request("ver").payload == "facestats-dome test"
+        assert link.stats.garbled >= 1
+    finally:
+        os.close(slave)
+        os.close(master)

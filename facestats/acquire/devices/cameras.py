@@ -200,12 +200,12 @@ _PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 
 
 def _complete(data: bytes) -> bool:
-    """False for a PNG without its IEND chunk or a JPEG without its EOI marker at the end (still being written)."""
-    if data[:8] == _PNG_SIGNATURE:
-        return data.endswith(_PNG_END)
-    if data[:2] == b"\xff\xd8":
-        return data.endswith(b"\xff\xd9")
-    return True
+    """False for a PNG without its IEND chunk at the end (still being written).
+
+    Only PNG is judged: a JPEG may carry data after its EOI marker (phones append trailers and motion clips) and holds
+    EOI markers inside (its EXIF thumbnail), so its end says nothing; other formats need a sidecar to be safe.
+    """
+    return data.endswith(_PNG_END) if data[:8] == _PNG_SIGNATURE else True
 
 
 def _png_size(data: bytes):

@@ -2,9 +2,9 @@
 
 :func:`read_mat` reads a file with :func:`scipy.io.loadmat` in a child
 process: some damaged files make ``loadmat`` crash the interpreter (SIGSEGV
-in SciPy 1.17; a fuzzing red team found 36 of the 1,064 one-byte changes of a
-small valid file do), which would end the caller with no message.  The child
-costs about 0.4 s per file.  Used by the MERL importer
+in SciPy 1.17, found by a fuzzing red team: single changed bytes of a small
+valid file), which would end the caller with no message.  The child costs
+about 0.4 s per file (starting Python and importing SciPy).  Used by the MERL importer
 (:mod:`facestats.io.merl`) and for DiLiGenT ground-truth normals
 (:mod:`facestats.io.olat`).
 """

@@ -381,7 +381,7 @@ class SerialLink:
 
 
 #: Discarded frames logged one line each per request; the rest are counted in one line (a flood of stray frames
-#: wrote 105,355 log lines in 2 s before; a red team).
+#: wrote a line for each before, megabytes of log a second; a red team).
 MAX_NOTES = 20
 
 

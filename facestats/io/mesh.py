@@ -30,9 +30,9 @@ import numpy as np
 from facestats.acquire.geometry import FaceGeometry, uv_to_texel
 from facestats.acquire.synthetic.faces import face_geometry, parse_face_name
 from facestats.core.raster import triangle_coverage
-from facestats.core.validate import as_finite, check_finite, check_integer, check_rigid_transform, check_shape
+from facestats.core.validate import as_finite, check_integer, check_shape
 from facestats.errors import FormatError, ValidationError
-from facestats.io.mesh_sequence import load_trimesh
+from facestats.io.mesh_sequence import load_trimesh, place_vertices
 from facestats.io.schema import provenance
 
 __all__ = [
@@ -128,14 +128,13 @@ def read_triangle_mesh(path, *, scale=1.0, transform=None, uv=False):
     Raises
     ------
     FormatError
-        An unreadable file, or one without triangles.
-    ValidationError
-        A vertex that is not finite (NaN or infinite in the file, or after ``scale`` and ``transform``).
+        An unreadable file, one without triangles, or a vertex that is not finite (NaN or infinite in
+        the file, or after ``scale`` and ``transform``; :func:`~facestats.io.mesh_sequence.place_vertices`).
     """
     stored, faces, stored_uv = load_trimesh(path)
     if len(faces) == 0:
         raise FormatError(f"{os.fspath(path)} holds no triangle mesh")
-    verts = check_finite(_placed_vertices(stored, scale, transform), f"vertices of {os.fspath(path)}")
+    verts = place_vertices(stored, scale, transform, os.fspath(path))
     if not uv:
         return verts, faces
     return verts, faces, stored_uv
@@ -214,17 +213,6 @@ def _checked_uv(uv, n_vertices, path, flip_v: bool) -> np.ndarray:
     if np.any(~np.isfinite(uv)) or uv.min() < -1e-6 or uv.max() > 1 + 1e-6:
         raise FormatError(f"UV coordinates of {os.fspath(path)} must lie in [0, 1], got {uv.min():.3g}..{uv.max():.3g}")
     return np.clip(uv, 0, 1)
-
-
-def _placed_vertices(vertices, scale, transform) -> np.ndarray:
-    """Mesh vertices scaled to mm and moved by ``transform`` (4 × 4) into the world frame."""
-    if not float(scale) > 0:
-        raise ValidationError(f"scale must be > 0, got {scale!r}")
-    verts = np.asarray(vertices, np.float64) * float(scale)
-    if transform is not None:
-        t = check_rigid_transform(transform)
-        verts = verts @ t[:3, :3].T + t[:3, 3]
-    return verts
 
 
 def _vertex_normals_and_areas(verts: np.ndarray, faces: np.ndarray):

@@ -85,7 +85,32 @@ class UVMesh:
         return self
 
 
-def _place(vertices, scale, transform, name):
+def place_vertices(vertices, scale, transform, name):
+    """Mesh vertices scaled to mm and moved by ``transform`` (4 × 4 rigid) into the world frame.
+
+    Parameters
+    ----------
+    vertices : array_like, shape (V, 3)
+        As stored in the file.
+    scale : float
+        Factor to mm (> 0), applied first.
+    transform : array_like (4, 4) or None
+        Rigid transform applied after scaling.
+    name : str
+        The file, for messages.
+
+    Returns
+    -------
+    ndarray, shape (V, 3)
+        float64, mm, all finite.
+
+    Raises
+    ------
+    FormatError
+        A vertex that is not finite (in the file, or after ``scale`` and ``transform``), named by its index.
+    ValidationError
+        ``scale`` not > 0, or ``transform`` not rigid.
+    """
     if not float(scale) > 0:
         raise ValidationError(f"scale must be > 0, got {scale!r}")
     v = np.asarray(vertices, np.float64) * float(scale)
@@ -210,7 +235,7 @@ def read_obj(path, *, scale=1.0, transform=None, flip_v=True, faces=True) -> UVM
     """
     name = os.fspath(path)
     stored, uv, tri, uv_tri, poly = _parse_obj(name, faces)
-    verts = _place(stored, scale, transform, name)
+    verts = place_vertices(stored, scale, transform, name)
     if not faces:
         return UVMesh(verts, tri, None, None, poly, name=os.path.basename(name))
     if uv is not None and uv_tri is not None:
@@ -283,7 +308,7 @@ def _read_ply(path, scale, transform, flip_v) -> UVMesh:
     name = os.fspath(path)
     verts, faces, uv = load_trimesh(name)
     tri, poly = triangulate(faces)
-    verts = _place(verts, scale, transform, name)
+    verts = place_vertices(verts, scale, transform, name)
     if uv is not None and flip_v:
         uv[:, 1] = 1 - uv[:, 1]
     return UVMesh(verts, tri, uv, None if uv is None else tri, poly, name=os.path.basename(name))

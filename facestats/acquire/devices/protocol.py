@@ -69,6 +69,7 @@ __all__ = [
     "parse_request",
     "parse_reply",
     "FrameReader",
+    "quoted",
 ]
 
 #: Default line settings: 115200 baud, 8N1.
@@ -197,7 +198,7 @@ class Reply:
         return data + b"*%04X" % crc16(data) + TERMINATOR
 
 
-def _quoted(data: bytes) -> str:
+def quoted(data: bytes) -> str:
     """Bytes of the link quoted for a message: ASCII as text, other bytes and control characters escaped."""
     return ascii(data.decode("latin-1"))
 
@@ -211,11 +212,11 @@ def parse_request(line: bytes) -> Request:
     if m is None:
         name = re.match(rb"[a-z?]{1,8}", line)
         if name is None or line[name.end() : name.end() + 1] not in (b"", b".", b" ", b"*"):
-            raise ProtocolViolation(f"malformed request {_quoted(line[:40])}", 7)
-        raise ProtocolViolation(f"malformed arguments in {_quoted(line[:40])} (integers joined by dots)", 7)
+            raise ProtocolViolation(f"malformed request {quoted(line[:40])}", 7)
+        raise ProtocolViolation(f"malformed arguments in {quoted(line[:40])} (integers joined by dots)", 7)
     name, args, rid, crc = m.groups()
     if crc is not None and int(crc, 16) != crc16(line[: line.rindex(b"*")]):
-        raise ProtocolViolation(f"bad checksum {crc.decode()} of {_quoted(line[:40])}", 2)
+        raise ProtocolViolation(f"bad checksum {crc.decode()} of {quoted(line[:40])}", 2)
     if rid and int(rid) >= 2**31:  # ten digits reach past the ids a host may use (Request)
         raise ProtocolViolation(f"request id must lie in [0, 2^31), got {int(rid)}", 7)
     values = tuple(int(a) for a in args.split(b".")[1:]) if args else ()
@@ -231,10 +232,10 @@ def parse_reply(chunk: bytes) -> Reply:
     start = chunk.rfind(b"@")
     m = _FRAME.match(chunk[start:]) if start >= 0 else None
     if m is None:
-        raise FrameError(f"garbled reply frame {_quoted(chunk[-60:])}", "garbled", chunk)
+        raise FrameError(f"garbled reply frame {quoted(chunk[-60:])}", "garbled", chunk)
     seq, rid, status, payload, crc = m.groups()
     if int(crc, 16) != crc16(chunk[start : chunk.rindex(b"*")]):
-        raise FrameError(f"reply frame with a wrong CRC {_quoted(chunk[-60:])}", "garbled", chunk)
+        raise FrameError(f"reply frame with a wrong CRC {quoted(chunk[-60:])}", "garbled", chunk)
     return Reply(int(seq), int(rid), status.decode(), (payload or b"").decode("ascii"))
 
 
@@ -264,7 +265,7 @@ class FrameReader:
             start = chunk.rfind(b"@")
             if start > 0 and chunk[:start].strip():
                 head = chunk[:start]
-                items.append(FrameError(f"truncated reply frame {_quoted(head[-60:])}", "truncated", head))
+                items.append(FrameError(f"truncated reply frame {quoted(head[-60:])}", "truncated", head))
             try:
                 items.append(parse_reply(chunk))
             except FrameError as exc:
@@ -279,4 +280,4 @@ class FrameReader:
     def flush(self):
         """Drop the pending bytes; a :class:`FrameError` ("truncated") if they held anything but whitespace."""
         rest, self.pending = self.pending, b""
-        return FrameError(f"truncated reply frame {_quoted(rest[-60:])}", "truncated", rest) if rest.strip() else None
+        return FrameError(f"truncated reply frame {quoted(rest[-60:])}", "truncated", rest) if rest.strip() else None

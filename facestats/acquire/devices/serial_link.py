@@ -26,7 +26,7 @@ import os
 import time
 from dataclasses import dataclass, fields
 
-from facestats.acquire.devices.protocol import BAUDRATE, ERRORS, RETRYABLE, FrameError, FrameReader, Request
+from facestats.acquire.devices.protocol import BAUDRATE, ERRORS, RETRYABLE, FrameError, FrameReader, Request, quoted
 from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.errors import DeviceError, DeviceReplyError, DeviceTimeout
 
@@ -312,7 +312,7 @@ class SerialLink:
                 rest = self._reader.flush()
                 if rest is not None:
                     self.stats.truncated += 1
-                    self.log(f"truncated reply to request {rid}: {rest.raw[-40:]!r}")
+                    self.log(f"truncated reply to request {rid}: {quoted(rest.raw[-40:])}")
                 else:
                     self.stats.timeouts += 1
                     self.log(f"no reply to request {rid} within {wait:g} s")
@@ -340,7 +340,7 @@ class SerialLink:
                 self.stats.garbled += 1
             else:
                 self.stats.truncated += 1
-            self._note(f"{item.kind} reply frame while waiting for request {rid}: {item.raw[-40:]!r}")
+            self._note(f"{item.kind} reply frame while waiting for request {rid}: {quoted(item.raw[-40:])}")
             return None if item.kind == "garbled" else _SKIP
         if item.status == "BOOT":
             self._reboot(f"boot frame {item.payload!r}")

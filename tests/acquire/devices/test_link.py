@@ -2,6 +2,7 @@
 
 import os
 import pty
+import re
 import socket
 import stat
 import threading
@@ -313,10 +314,13 @@ def test_a_garbled_line_before_each_valid_reply_does_not_hide_the_reply():
                 os.write(master, b"noise" + TERMINATOR + reply.encode())  # both in one write
 
     threading.Thread(target=noisy_device, daemon=True).start()
+    lines = []
     try:
-        link = SerialLink(os.ttyname(slave), timeout=0.5, retries=3)
+        link = SerialLink(os.ttyname(slave), timeout=0.5, retries=3, log=lines.append)
         assert link.request("ver").payload == "facestats-dome test"
         assert link.stats.garbled >= 1
+        # The log quotes the line as text, as the errors do, not as a Python bytes repr (b'noise').
+        assert any(re.fullmatch(r"garbled reply frame while waiting for request \d+: 'noise'", ln) for ln in lines)
     finally:
         os.close(slave)
         os.close(master)

@@ -77,6 +77,7 @@ __all__ = [
     "MAX_IMAGE_PIXELS",
     "read_npy",
     "check_image_size",
+    "require_openexr",
 ]
 
 HDR_EXTENSIONS = (".exr", ".hdr", ".pic", ".pfm")
@@ -488,7 +489,7 @@ def _stack_rgb(channels, p):
 
 
 # -- OpenEXR ---------------------------------------------------------------------------------
-def _openexr():
+def require_openexr():
     """The OpenEXR module, or :class:`DependencyError` saying how to install it (a broken environment)."""
     try:
         import OpenEXR
@@ -510,7 +511,7 @@ def read_exr(path):
     attributes : dict of str to str
         Header attributes whose values are strings.
     """
-    OpenEXR = _openexr()
+    OpenEXR = require_openexr()
 
     p = _path(path)
     try:
@@ -528,7 +529,7 @@ def read_exr(path):
 
 def read_exr_attributes(path) -> dict:
     """The string header attributes of an EXR file, without reading its pixels (see :func:`read_exr`)."""
-    OpenEXR = _openexr()
+    OpenEXR = require_openexr()
 
     p = _path(path)
     try:
@@ -544,7 +545,7 @@ def write_exr(path, channels: dict, *, half: bool = False, attributes=None):
     ``half`` stores float channels as half floats; ``attributes`` are string header
     attributes.  Integer channels are stored as uint32.
     """
-    OpenEXR = _openexr()
+    OpenEXR = require_openexr()
 
     p = _path(path, must_exist=False)
     if not channels:

@@ -279,7 +279,7 @@ def _register_routes(app, ctx):
 
 
 def _register_subject_routes(app, ctx):
-    from flask import Response, jsonify, render_template, send_file
+    from flask import Response, jsonify, render_template, request, send_file
     from werkzeug.exceptions import ServiceUnavailable
 
     # local import: keeps numpy out of this module's import
@@ -315,6 +315,9 @@ def _register_subject_routes(app, ctx):
 
     @app.get("/subject/<sid>/exr.zip")
     def subject_exr(sid):
+        if request.method == "HEAD":
+            return _exr_head(cache.get(sid))
+
         def build():  # the subject is read inside the slot too: at most MAX_HEAVY loaded at once
             ds = cache.get(sid)
             return _exr_zip(ds), ds.attrs["subject_id"]
@@ -324,6 +327,28 @@ def _register_subject_routes(app, ctx):
         response = send_file(archive, mimetype="application/zip", as_attachment=True, download_name=f"{name}-exr.zip")
         response.content_length = size  # a file object gives werkzeug no length: say it, for download progress
         return response
+
+
+def _exr_head(ds):
+    """The answer to ``HEAD .../exr.zip``: the checks and headers of a GET without building the set.
+
+    Building it costs seconds of CPU and a temporary copy on disk, too much for a download manager's probe,
+    so the response carries no ``Content-Length`` (RFC 9110 §9.3.2 allows a HEAD to omit it).
+    """
+    # local imports: keep numpy (and flask, until an app is made) out of this module's import
+    from flask import Response
+
+    from facestats.io.exr_set import check_map_subject
+    from facestats.io.images import require_openexr
+
+    check_map_subject(ds, "an EXR texture set")
+    require_openexr()
+    name = ds.attrs["subject_id"]
+    return Response(
+        iter(()),  # an iterable, not a sequence: werkzeug then sets no Content-Length of 0
+        mimetype="application/zip",
+        headers={"Content-Disposition": f"attachment; filename={name}-exr.zip"},
+    )
 
 
 def _exr_zip(ds):

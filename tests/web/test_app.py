@@ -100,6 +100,25 @@ def test_subject_pages_maps_and_exr_download(client):
     assert r.headers["Content-Disposition"] == "attachment; filename=S002-exr.zip"
 
 
+def test_head_of_the_exr_set_answers_without_building_it(client, monkeypatch):
+    """HEAD ran the GET view whole: seconds of CPU and a temporary copy for a download manager's probe."""
+    import sys
+
+    import facestats.io.exr_set
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("HEAD built the EXR set")
+
+    monkeypatch.setattr(facestats.io.exr_set, "write_exr_set", refuse)
+    r = client.head("/subject/S002/exr.zip")
+    assert r.status_code == 200 and r.data == b"" and "Content-Length" not in r.headers
+    assert r.headers["Content-Disposition"] == "attachment; filename=S002-exr.zip"
+    assert r.mimetype == "application/zip"
+    assert client.head("/subject/S999/exr.zip").status_code == 404  # the same checks as a GET
+    monkeypatch.setitem(sys.modules, "OpenEXR", None)
+    assert client.head("/subject/S002/exr.zip").status_code == 424
+
+
 def _png_size(data):
     """(width, height) from a PNG's IHDR chunk."""
     return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")

@@ -48,3 +48,4 @@ def test_sample_subject_preview_and_exr_set_are_400_with_a_message(client, path,
     assert r.status_code == 400
     assert MESSAGE.format(what) in html.unescape(r.data.decode())
     assert client.get(f"/subject/S001/{path}").status_code == 200
+    assert client.head(f"/subject/merl-001/{path}").status_code == 400

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.acquire.devices.cameras import Trigger
-from facestats.acquire.devices.protocol import MAX_LINE, TERMINATOR, ProtocolViolation, Reply, parse_request
+from facestats.acquire.devices.protocol import MAX_LINE, TERMINATOR, ProtocolViolation, Reply, parse_request, quoted
 from facestats.core.validate import as_finite, check_integer
 from facestats.errors import DeviceError, ValidationError
 
@@ -487,7 +487,7 @@ class PtyServer:
         n = self.commands
         if n in self.faults.reboot_after:
             self.injected["reboot"] += 1
-            self.log(f"fault: reboot at command {n} ({line[:30]!r} lost)")
+            self.log(f"fault: reboot at command {n} ({quoted(line[:30])} lost)")
             self._send(self.device.boot())
             return
         if self.faults.stall and self.rng.random() < self.faults.stall:

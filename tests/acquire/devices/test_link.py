@@ -87,6 +87,8 @@ def test_late_replies_after_a_stall_are_discarded_as_out_of_order():
 def test_a_reboot_and_a_disconnect_mid_sequence_are_survived(tmp_path):
     link = tmp_path / "dome.tty"
     server = _server(Faults(reboot_after=(25,), disconnect_after=(50,)), link=link)
+    logged = []
+    server.log = logged.append
     try:
         with DomeController(str(link), timeout=0.3, backoff=0.01) as c:
             _sweep(
@@ -94,6 +96,8 @@ def test_a_reboot_and_a_disconnect_mid_sequence_are_survived(tmp_path):
             )  # every trigger under the planned LED and exposure; one retake if the reboot hit it
             assert (c.epoch, c.link.stats.reboots, c.link.stats.reconnects) == (1, 1, 1)
             assert server.injected["reboot"] == 1 and server.injected["disconnect"] == 1
+            # the lost command quoted as text, as the protocol's errors quote bytes (it showed b'...')
+            assert any(re.fullmatch(r"fault: reboot at command 25 \('[a-z]+[ .0-9#*A-F]*' lost\)", ln) for ln in logged)
     finally:
         server.stop()
 

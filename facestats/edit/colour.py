@@ -75,7 +75,7 @@ def transfer_colour(
         Interpolation weight in [0, 1]: each decorrelated value moves the
         fraction ``t`` towards its matched value (t = 0 leaves the source).
     bins : int
-        Bins of the target histograms when ``target`` is an array, in [1, 65536]
+        Bins of the target histograms when ``target`` is an array, in [2, 65536]
         (:data:`facestats.edit.statistics.MAX_BINS`).
     feather : float
         Width in pixels of a linear blend inside the mask edge (0: hard edge).

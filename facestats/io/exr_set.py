@@ -77,7 +77,7 @@ from facestats.core.validate import check_integer
 from facestats.errors import FormatError, ValidationError
 from facestats.io.images import read_exr, write_exr
 from facestats.io.mesh import FaceMesh, subject_mesh, write_mesh
-from facestats.io.schema import VARIABLES, modulation, subject_kind
+from facestats.io.schema import VARIABLES, modulation, subject_kind, validate_subject
 
 __all__ = [
     "EXR_SET_FORMAT",
@@ -86,6 +86,7 @@ __all__ = [
     "UV_CONVENTION",
     "FaceFill",
     "check_map_subject",
+    "check_export_subject",
     "write_exr_set",
     "read_exr_set",
     "exr_set_textures",
@@ -130,6 +131,30 @@ def check_map_subject(ds, what: str) -> None:
         raise ValidationError(
             f"subject {ds.attrs.get('subject_id', '?')!r} holds region samples, not maps: {what} needs a map subject"
         )
+
+
+def check_export_subject(ds, what: str) -> None:
+    """Refuse a subject that an export cannot write faithfully: region samples, or values the store would refuse.
+
+    A subject read from a store passed these checks when it was written; a Dataset given to a writer directly
+    (the API) is checked here, so that a negative ρs or a NaN σa is not written as a texture.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A subject.
+    what : str
+        What the caller makes of the maps, for the message (e.g. ``"an EXR texture set"``).
+
+    Raises
+    ------
+    ValidationError
+        A region-sample subject (:func:`check_map_subject`).
+    SchemaError
+        Anything :func:`facestats.io.schema.validate_subject` refuses, named by variable and value.
+    """
+    check_map_subject(ds, what)
+    validate_subject(ds)
 
 
 class FaceFill:
@@ -382,17 +407,27 @@ def exr_set_textures(ds, mesh: FaceMesh, fill: FaceFill | None = None):
     Raises
     ------
     ValidationError
-        A region-sample subject (it has no maps).
+        A region-sample subject (it has no maps), or two textures of one file name (an extra map named like
+        a file of the set, e.g. ``normal_tangent``).
     """
     check_map_subject(ds, "an EXR texture set")
     fill = FaceFill(ds["region"].values) if fill is None else fill
-    return (
+    textures = (
         _map_textures(ds, fill)
         + [_modulation_texture(ds, fill)]
         + _normal_textures(ds, mesh)
         + _uniform_textures(ds)
         + _micro_normal_textures(ds)
     )
+    writers = {}
+    for tex in textures:  # an extra map named like a file of the set (e.g. normal_tangent) would overwrite it
+        other = writers.setdefault(tex["file"], tex)
+        if other is not tex:
+            raise ValidationError(
+                f"subject {ds.attrs.get('subject_id', '?')!r}: variable {tex['variable']!r} would be written to "
+                f"{tex['file']}, which holds {other['variable']!r} in an EXR texture set; rename the variable"
+            )
+    return textures
 
 
 def _header(ds, tex, geometry) -> dict:
@@ -453,8 +488,17 @@ def write_exr_set(
         (per file stem: file, variable, channels, type, units, quantity, colour
         space, camera for the micro-normals) and ``coefficients`` (σa, σ's,
         σtr, α_avg per channel).
+
+    Raises
+    ------
+    ValidationError
+        Before anything is written: a region-sample subject, a bad ``mesh_format`` or ``workers``, two
+        textures of one file name (:func:`exr_set_textures`). While writing: a half-float map beyond ±65504
+        (named by variable and file; nothing is removed, the caller owns ``out_dir``).
+    SchemaError
+        A subject the store would refuse (:func:`check_export_subject`).
     """
-    check_map_subject(ds, "an EXR texture set")
+    check_export_subject(ds, "an EXR texture set")
     if mesh_format not in ("obj", "ply"):
         raise ValidationError(f"mesh_format must be 'obj' or 'ply', got {mesh_format!r}")
     workers = _default_workers() if workers is None else check_integer(workers, "workers", 1, 256)
@@ -464,12 +508,13 @@ def write_exr_set(
     mesh_file = f"mesh.{mesh_format}"
 
     def write(tex):
+        planes = tex["load"]()
+        if tex["type"] == "half":
+            _check_half(ds, tex, planes)
         write_exr(
-            os.path.join(out_dir, tex["file"]),
-            tex["load"](),
-            half=tex["type"] == "half",
+            os.path.join(out_dir, tex["file"]), planes, half=tex["type"] == "half",
             attributes=_header(ds, tex, fm.geometry),
-        )
+        )  # fmt: skip
 
     def write_mesh_file():
         write_mesh(os.path.join(out_dir, mesh_file), fm.vertices, fm.faces, fm.uv, fm.normals)
@@ -484,6 +529,25 @@ def write_exr_set(
     with open(os.path.join(out_dir, "manifest.json"), "w", encoding="utf-8") as fh:
         json.dump(manifest, fh, indent=2, allow_nan=False)
     return manifest
+
+
+def _check_half(ds, tex, planes) -> None:
+    """Refuse a half-float texture with values beyond float16 (|x| > 65504), naming its variable and file.
+
+    The modulation M = α / α_avg (eq. 7) gets there when ``albedo_avg`` is tiny (the schema allows any value
+    in (0, 1]), so its message gives ``albedo_avg`` too.
+    """
+    limit = float(np.finfo(np.float16).max)
+    for channel, plane in planes.items():
+        top = float(np.max(np.abs(plane), initial=0.0))
+        if top > limit:
+            cause = ""
+            if tex["variable"] == "modulation" and "modulation" not in ds.data_vars:
+                cause = f" (M = albedo / albedo_avg, albedo_avg = {np.asarray(ds['albedo_avg'].values).tolist()})"
+            raise ValidationError(
+                f"subject {ds.attrs.get('subject_id', '?')!r}: {tex['variable']} must lie within the half-float "
+                f"range (|x| <= {limit:g}) for {tex['file']}, got {top:.6g} in channel {channel!r}{cause}"
+            )
 
 
 def _manifest(ds, textures, fm: FaceMesh, mesh_file) -> dict:

@@ -31,7 +31,11 @@ Roughness conversion.  glTF's specular lobe is GGX (Trowbridge-Reitz) with
 c·m with c = :data:`GGX_PER_BECKMANN` = 0.92, the least-squares match of the
 projected distributions D(θ) cos θ over the hemisphere (the optimum is
 0.913-0.923 for m in 0.2-0.4, the range of skin; ``tests/io/test_export_formats.py``
-recomputes it), so roughness = sqrt(0.92 m).
+recomputes it), so roughness = sqrt(0.92 m).  glTF's roughness ends at 1, i.e. m =
+1/0.92 = 1.087 (:data:`M_ROUGHNESS_LIMIT`); the schema allows m up to 10, and
+rougher measured texels are written as roughness 1: their count is in the file's
+``extras.facestats.roughness_clamp`` (``texels_clamped`` of ``texels_measured``)
+and raises a :class:`~facestats.errors.FacestatsWarning`.
 
 Specular strength (``KHR_materials_specular``).  Weyrich's eq. 12-13, as
 :func:`facestats.model.brdf.torrance_sparrow` evaluates it, is
@@ -79,16 +83,16 @@ grazing incidence glTF's F90 = s, and eq. 12's 4ρs.  The exporter writes
 * ρs > 9.81: glTF's own clamp min(F0_η k, 1) = 1 is reached; k is clamped to
   1/F0_η, so F0 = 1 (a mirror) instead of 4ρs F0_η.  9.81 is the top of the
   schema's domain of ρs (:data:`facestats.io.schema.TS_RHO_S_MAX`: eq. 12's
-  directional albedo 4ρs F_r(0) reaches 1 there), so only a subject that was
-  never checked (not read from a store) has such texels.
+  directional albedo 4ρs F_r(0) reaches 1 there), and :func:`write_gltf`
+  refuses a subject beyond the schema, so this case is counted (always 0 in
+  its files) but never reached through it.
 
 ``specularColorTexture`` holds k/K with K ≥ the largest k of the map, rounded
 up so that 1/K is an 8-bit sRGB code: texels with ρs ≤ 1/4 decode to k = 1
 exactly.  The counts of measured texels (region > 0, finite ρs) in the last
 two cases go into the file's ``extras.facestats.specular``
 (``texels_f90_capped``, ``texels_clamped``, of ``texels_measured``; also in
-:func:`read_gltf_summary`), and clamped texels raise a
-:class:`~facestats.errors.FacestatsWarning`.  ``KHR_materials_specular`` is in
+:func:`read_gltf_summary`).  ``KHR_materials_specular`` is in
 ``extensionsUsed``, not ``extensionsRequired``: a viewer without it shows the
 default specular (with ``KHR_materials_ior``: F0 = F0_η, F90 = 1, i.e. ρs =
 1/4 everywhere).  glTF also weights the base colour by 1 − max F
@@ -111,13 +115,14 @@ import warnings
 import numpy as np
 
 from facestats.errors import DependencyError, FacestatsWarning, ValidationError
-from facestats.io.exr_set import FaceFill, check_map_subject
+from facestats.io.exr_set import FaceFill, check_export_subject
 from facestats.io.ids import SUBJECT_ID_PATTERN
 from facestats.io.images import linear_to_srgb, srgb_to_linear, write_image
 from facestats.io.mesh import FaceMesh, subject_mesh
 
 __all__ = [
     "GGX_PER_BECKMANN",
+    "M_ROUGHNESS_LIMIT",
     "RHO_S_EXACT",
     "RHO_S_F0_LIMIT",
     "beckmann_to_gltf_roughness",
@@ -128,6 +133,8 @@ __all__ = [
 
 #: α_GGX / m: least-squares match of the projected Beckmann and GGX distributions (module docstring).
 GGX_PER_BECKMANN = 0.92
+#: Largest Beckmann m that glTF's roughness (at most 1) carries: 1 / :data:`GGX_PER_BECKMANN` = 1.087.
+M_ROUGHNESS_LIMIT = 1.0 / GGX_PER_BECKMANN
 #: IOR of skin for ``KHR_materials_ior`` (Weyrich et al. 2006 §3, η ≈ 1.38).
 _IOR = 1.38
 #: glTF's dielectric F0 of that IOR, ((η − 1)/(η + 1))² = 0.02549: Weyrich's F_r at normal incidence.
@@ -203,12 +210,31 @@ def _textures(ds, mesh, out):
     nt /= np.maximum(np.linalg.norm(nt, axis=-1, keepdims=True), 1e-12)
     nt[absent] = (0.0, 0.0, 1.0)  # no fitted normal (off the face, or missing): the mesh's own, as the EXR set
     write_image(os.path.join(out, "normal.png"), (nt + 1) / 2)
-    rough = beckmann_to_gltf_roughness(fill(np.asarray(ds["ts_m"].values, np.float64)))
+    m = np.asarray(ds["ts_m"].values, np.float64)
+    rough = beckmann_to_gltf_roughness(fill(m))
     mr = np.stack([np.zeros_like(rough), rough, np.zeros_like(rough)], -1)
     write_image(os.path.join(out, "metallic_roughness.png"), mr)
     colour_factor, report = _specular_textures(ds, fill, out)
     names = ("base_color.png", "normal.png", "metallic_roughness.png", "specular.png", "specular_color.png")
-    return names, colour_factor, report
+    return names, colour_factor, report, _roughness_report(ds, m[face & np.isfinite(m)])
+
+
+def _roughness_report(ds, measured_m) -> dict:
+    """How many measured texels are rougher than glTF's roughness 1 carries (module docstring); warns if any."""
+    report = {
+        "texels_measured": int(measured_m.size),
+        "texels_clamped": int(np.count_nonzero(measured_m > M_ROUGHNESS_LIMIT)),
+        "m_limit": M_ROUGHNESS_LIMIT,
+    }
+    if report["texels_clamped"]:
+        warnings.warn(
+            f"glTF export of subject {ds.attrs.get('subject_id', '?')!r}: {report['texels_clamped']} of "
+            f"{report['texels_measured']} measured texels have m > {M_ROUGHNESS_LIMIT:.3f}, rougher than glTF's "
+            "roughness 1 (GGX alpha = 1); they are exported as roughness 1",
+            FacestatsWarning,
+            stacklevel=4,  # the caller of write_gltf
+        )
+    return report
 
 
 def _specular_textures(ds, fill, out):
@@ -232,14 +258,6 @@ def _specular_textures(ds, fill, out):
         "rho_s_exact": RHO_S_EXACT,
         "rho_s_f0_limit": RHO_S_F0_LIMIT,
     }
-    if report["texels_clamped"]:
-        warnings.warn(
-            f"glTF export of subject {ds.attrs.get('subject_id', '?')!r}: {report['texels_clamped']} of "
-            f"{report['texels_measured']} measured texels have rho_s > {RHO_S_F0_LIMIT:.2f}, beyond the specular "
-            "F0 = 1 that KHR_materials_specular can carry; they are exported as F0 = 1 (a mirror)",
-            FacestatsWarning,
-            stacklevel=4,  # the caller of write_gltf
-        )
     return colour_factor, report
 
 
@@ -294,12 +312,14 @@ def write_gltf(ds, out_dir, *, mesh=None, name="face"):
     ValidationError
         A region-sample subject, missing maps, or a ``name`` that is not a plain file stem (checked before
         anything is written).
+    SchemaError
+        A subject the store would refuse (:func:`facestats.io.exr_set.check_export_subject`).
 
     Warns
     -----
     FacestatsWarning
-        Measured texels with ρs > :data:`RHO_S_F0_LIMIT` (9.81), exported as F0 = 1 (their count is in
-        ``extras.facestats.specular.texels_clamped``).
+        Measured texels with m > :data:`M_ROUGHNESS_LIMIT` (1.087), exported as roughness 1 (their count is in
+        ``extras.facestats.roughness_clamp.texels_clamped``).
     """
 
     if not isinstance(name, str) or not SUBJECT_ID_PATTERN.fullmatch(name):
@@ -308,13 +328,13 @@ def write_gltf(ds, out_dir, *, mesh=None, name="face"):
             f"digit; no folder), got {name!r}"
         )
     g = _pygltflib()
-    check_map_subject(ds, "a glTF asset")
+    check_export_subject(ds, "a glTF asset")
     missing = [v for v in ("albedo", "normal", "ts_m", "ts_rho_s", "region") if v not in ds.data_vars]
     if missing:
         raise ValidationError(f"subject {ds.attrs.get('subject_id', '?')!r} lacks the maps {missing} glTF needs")
     fm = mesh if isinstance(mesh, FaceMesh) else subject_mesh(ds, mesh)
     out = os.fspath(out_dir)
-    images, colour_factor, specular = _textures(ds, fm, out)
+    images, colour_factor, specular, roughness = _textures(ds, fm, out)
     blob, views, accessors = _buffer(g, fm)
     with open(os.path.join(out, f"{name}.bin"), "wb") as fh:
         fh.write(blob)
@@ -353,6 +373,7 @@ def write_gltf(ds, out_dir, *, mesh=None, name="face"):
             "facestats": {
                 "geometry": fm.geometry,
                 "roughness": "sqrt(0.92 m), Beckmann m -> GGX alpha",
+                "roughness_clamp": roughness,
                 "specular": specular,
             }
         },
@@ -373,8 +394,9 @@ def read_gltf_summary(path) -> dict:
     Returns
     -------
     dict
-        ``n_vertices``, ``n_triangles``, ``bounds_m`` (min, max), ``images`` (paths), ``specular`` (the
-        ``extras.facestats.specular`` report of :func:`write_gltf`, None in files written before it).
+        ``n_vertices``, ``n_triangles``, ``bounds_m`` (min, max), ``images`` (paths), ``specular`` and
+        ``roughness_clamp`` (the ``extras.facestats`` reports of :func:`write_gltf`, None in files written
+        before them).
     """
     g = _pygltflib()
     gl = g.GLTF2().load(os.fspath(path))
@@ -409,4 +431,5 @@ def read_gltf_summary(path) -> dict:
         "bounds_m": (pos.min, pos.max),
         "images": images,
         "specular": ((gl.extras or {}).get("facestats") or {}).get("specular"),
+        "roughness_clamp": ((gl.extras or {}).get("facestats") or {}).get("roughness_clamp"),
     }

@@ -89,6 +89,8 @@ from facestats.io.probes import read_light_probe, write_studio_probe
 
 __all__ = [
     "MATERIALS",
+    "SCENE_FILES",
+    "check_medium",
     "blend_weight",
     "MITSUBA_VARIANT",
     "require_mitsuba",
@@ -101,6 +103,12 @@ __all__ = [
 
 MATERIALS = ("surface", "subsurface")
 MITSUBA_VARIANT = "scalar_rgb"
+#: The EXR files a Mitsuba scene writes beside the EXR set, by stem: a subject map of that name would collide.
+SCENE_FILES = {
+    "mitsuba_diffuse": "the diffuse reflectance of the blend",
+    "mitsuba_specular": "the specular reflectance of the blend",
+    "probe": "the light probe",
+}
 #: Tag of each plugin type in the XML format.
 _TAGS = {
     "scene": "scene",
@@ -171,8 +179,7 @@ def _material(material, files, coefficients, eta, weight=0.5):
             },
         }
         return bsdf, None
-    sa = np.asarray(coefficients["sigma_a"], np.float64)
-    sp = np.asarray(coefficients["sigma_s_prime"], np.float64)
+    sa, sp = check_medium(coefficients["sigma_a"], coefficients["sigma_s_prime"])
     bsdf = {
         "type": "roughdielectric",
         "distribution": "beckmann",
@@ -189,6 +196,35 @@ def _material(material, files, coefficients, eta, weight=0.5):
         "phase": {"type": "isotropic"},
     }
     return bsdf, medium
+
+
+def check_medium(sigma_a, sigma_s_prime):
+    """σa and σ's (mm⁻¹, per channel) of a subsurface medium: finite, ≥ 0, with σt = σa + σ's > 0 in every channel.
+
+    Mitsuba's ``homogeneous`` medium takes albedo σ's/σt and σt (module docstring); with σt = 0 in a channel
+    the albedo is 0/0, a NaN that Mitsuba renders as NaN pixels without complaint.
+
+    Returns
+    -------
+    tuple of ndarray
+        (σa, σ's) as float64.
+
+    Raises
+    ------
+    ValidationError
+        Naming the channel and its values.
+    """
+    sa = as_finite(sigma_a, "sigma_a")
+    sp = as_finite(sigma_s_prime, "sigma_s_prime")
+    if sa.shape != sp.shape or sa.ndim != 1:
+        raise ValidationError(f"sigma_a and sigma_s_prime must be 1-D of one length, got {sa.shape} and {sp.shape}")
+    for k in range(sa.size):  # loop over the three channels
+        if not (sa[k] >= 0 and sp[k] >= 0 and sa[k] + sp[k] > 0):
+            raise ValidationError(
+                "a subsurface medium needs sigma_a >= 0, sigma_s_prime >= 0 and sigma_t = sigma_a + sigma_s_prime "
+                f"> 0 in every channel, got sigma_a = {sa[k]!r}, sigma_s_prime = {sp[k]!r} mm-1 in channel {k}"
+            )
+    return sa, sp
 
 
 def scene_spec(
@@ -374,13 +410,30 @@ def write_mitsuba_scene(ds, out_dir, *, probe=None, material="surface", mesh=Non
     dict
         The :func:`scene_spec` (file names relative to ``out_dir``), also saved as
         ``scene.json``; ``scene.xml`` is the same scene as Mitsuba XML.
+
+    Raises
+    ------
+    ValidationError
+        Before anything is written: a region-sample subject, an unknown ``material``, a ``mesh_format`` other
+        than obj, an unreadable probe, a subject map named like a file of the scene (:data:`SCENE_FILES`), or
+        for ``material="subsurface"`` a channel with σa + σ's = 0 (:func:`check_medium`).
+    SchemaError
+        A subject the store would refuse (:func:`facestats.io.exr_set.check_export_subject`).
     """
 
     # local import: keeps facestats.acquire (5 modules) out of this module's import
-    from facestats.io.exr_set import FaceFill, check_map_subject, write_exr_set
+    from facestats.io.exr_set import FaceFill, check_export_subject, write_exr_set
 
-    check_map_subject(ds, "a Mitsuba scene")
+    check_export_subject(ds, "a Mitsuba scene")
     check_choice(material, "material", MATERIALS)
+    taken = sorted(set(ds.data_vars) & set(SCENE_FILES))
+    if taken:
+        raise ValidationError(
+            f"subject {ds.attrs.get('subject_id', '?')!r}: variable {taken[0]!r} would be exported as "
+            f"{taken[0]}.exr, a file the Mitsuba scene writes itself ({SCENE_FILES[taken[0]]}); rename the variable"
+        )
+    if material == "subsurface":
+        check_medium(ds["sigma_a"].values, ds["sigma_s_prime"].values)
     if mesh_format != "obj":
         raise ValidationError(
             "mesh_format must be 'obj' for a Mitsuba scene (Mitsuba reads a PLY's texture coordinates v up, "
@@ -412,7 +465,7 @@ def write_mitsuba_scene(ds, out_dir, *, probe=None, material="surface", mesh=Non
     with open(os.path.join(out, "scene.xml"), "w", encoding="utf-8") as fh:
         fh.write(spec_to_xml(spec))
     with open(os.path.join(out, "scene.json"), "w", encoding="utf-8") as fh:
-        json.dump(spec, fh, indent=2)
+        json.dump(spec, fh, indent=2, allow_nan=False)
     return spec
 
 

@@ -23,8 +23,10 @@ texels (``region`` > 0; outside the face values carry no meaning), the others
 everywhere.  Infinite values are never in a domain; NaN only where a domain
 says so (a quantity that may be missing).  The bounds and where they come from:
 
-* ``albedo``, ``albedo_avg``, ``albedo_sample`` in [0, 1]: α is a total
+* ``albedo``, ``albedo_sample`` in [0, 1]: α is a total
   diffuse reflectance (Weyrich eq. 9), which cannot exceed the incident energy;
+  ``albedo_avg`` in (0, 1]: it also divides the albedo in the modulation texture
+  M = α / α_avg (eq. 7), which a zero would make infinite on the whole face;
 * ``ts_rho_s``, ``ts_sample_rho_s`` in [0, ρs,max] with ρs,max = 1/(4 F_r(0))
   = 9.807 at η = 1.38: in the convention of eq. 12-13 as printed (D without
   1/π, see :func:`facestats.model.brdf.torrance_sparrow`) the lobe's
@@ -205,7 +207,7 @@ DOMAINS = {
     "site_sigma_s_prime_std": _NONNEG_OR_MISSING,
     "site_sigma_a_std": _NONNEG_OR_MISSING,
     "site_sigma_tr_std": _NONNEG_OR_MISSING,
-    "albedo_avg": Domain(0.0, 1.0),
+    "albedo_avg": Domain(0.0, 1.0, low_open=True),
     "sigma_s_prime": _NONNEG,
     "sigma_a": _NONNEG,
     "sigma_tr": Domain(0.0, low_open=True),

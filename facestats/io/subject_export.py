@@ -14,6 +14,7 @@ import os
 import secrets
 import shutil
 import socket
+import stat
 
 from facestats.core.outputs import check_apart, check_output_dir, missing_folders
 from facestats.core.processes import process_gone
@@ -179,9 +180,15 @@ def _check_out(out, overwrite):
 
 
 def _temp_prefix(name):
-    """``.NAME.export-HOST-``: the start of this machine's temporary folders for an export to ``NAME``."""
+    """``.NAME.export-HOST-``: the start of this machine's temporary folders for an export to ``NAME``.
+
+    NAME is cut to its first 100 bytes (at a character boundary), so that the temporary's name
+    (``.NAME.export-HOST-PID-XXXXXXXX.old`` at most) stays within the 255 bytes a file name may hold when
+    ``out``'s own name does.
+    """
     host = "".join(c if c.isalnum() else "_" for c in socket.gethostname())[:40] or "host"
-    return f".{name}.export-{host}-"
+    short = os.fsencode(name)[:100].decode(errors="ignore") if len(os.fsencode(name)) > 100 else name
+    return f".{short}.export-{host}-"
 
 
 def _remove_stale_temporaries(parent, name):
@@ -202,9 +209,15 @@ def _remove_stale_temporaries(parent, name):
 
 
 def _place(tmp, out, overwrite):
-    """Rename the finished export ``tmp`` to ``out``, checking ``out`` again (it may have appeared meanwhile)."""
+    """Rename the finished export ``tmp`` to ``out``, checking ``out`` again (it may have appeared meanwhile).
+
+    A folder that ``out`` replaces (empty, or any with ``overwrite``) passes its permission bits on, so that a
+    private folder the user prepared (0700) does not become world-readable.
+    """
     if os.path.islink(out) or (os.path.lexists(out) and not os.path.isdir(out)):
         raise ValidationError(f"out {out!r} was replaced by a file or link during the export; nothing was written")
+    if os.path.isdir(out):
+        os.chmod(tmp, stat.S_IMODE(os.stat(out).st_mode))
     if os.path.isdir(out) and os.listdir(out):
         if not overwrite:
             raise ValidationError(f"out directory {out!r} was filled during the export; nothing was written")

@@ -126,3 +126,89 @@ def test_gltf_name_must_be_a_plain_file_stem(tmp_path, subject):
     assert os.listdir(out) == [] and sorted(os.listdir(tmp_path)) == ["api4"]
     write_gltf(subject, out, name="S001.v2")
     assert {"S001.v2.gltf", "S001.v2.bin", "base_color.png"} <= set(os.listdir(out))
+
+
+# -- a red team's findings on the export writers (2026-12-06, evening) ------------------------------------------
+def _loaded(subject):
+    return subject.load().copy(deep=True)
+
+
+@pytest.mark.parametrize("fmt", EXPORT_FORMATS)
+def test_a_dataset_the_store_would_refuse_is_refused_by_every_format(tmp_path, subject, fmt):
+    """A Dataset given to the API was exported unchecked: rho_s = -0.3 became a specular reflectance of -2.87."""
+    from facestats.errors import SchemaError
+
+    ds = _loaded(subject)
+    v, u = map(int, next(zip(*(ds["region"].values > 0).nonzero())))
+    ds["ts_rho_s"].values[v, u] = -0.3
+    with pytest.raises(SchemaError, match=r"subject 'S001'.*ts_rho_s.*-0\.3"):
+        export_subject(ds, tmp_path / "out", fmt)
+    assert os.listdir(tmp_path) == []
+
+
+def test_albedo_avg_must_be_positive_and_a_modulation_beyond_half_floats_is_named(tmp_path, subject):
+    """albedo_avg = 0 made M infinite on the face, written as 0 without a word; 1e-6 failed on a half-float overflow
+    of "channel 'B'" in a temporary folder that was gone by then."""
+    from facestats.errors import SchemaError
+    from facestats.io.schema import validate_subject
+
+    ds = _loaded(subject)
+    ds["albedo_avg"].values[2] = 0.0
+    with pytest.raises(SchemaError, match=r"albedo_avg.*0"):
+        validate_subject(ds)
+    ds["albedo_avg"].values[2] = 1e-6
+    with pytest.raises(ValidationError) as err:
+        export_subject(ds, tmp_path / "out", "exr")
+    msg = str(err.value)
+    assert "modulation must lie within the half-float range (|x| <= 65504) for modulation.exr" in msg
+    assert "in channel 'B' (M = albedo / albedo_avg, albedo_avg = [" in msg and "1e-06]" in msg
+    assert "export-" not in msg and os.listdir(tmp_path) == []  # no temporary path, nothing left
+
+
+def test_a_map_named_like_a_file_of_the_export_is_refused(tmp_path, subject):
+    """An extra map `normal_tangent` overwrote the set's tangent-space normals; `probe` the Mitsuba light probe,
+    whose manifest entry then named a channel the file lacked."""
+    ds = _loaded(subject)
+    ds["normal_tangent"] = ds["normal"] * 0 + 7.0
+    with pytest.raises(ValidationError, match=r"variable 'normal_tangent' would be written to normal_tangent\.exr"):
+        export_subject(ds, tmp_path / "a", "exr")
+    ds = _loaded(subject).assign(probe=subject["ts_m"] * 0 + 1.0)
+    export_subject(ds, tmp_path / "b", "exr")  # the EXR set alone has no probe: fine
+    with pytest.raises(ValidationError, match=r"variable 'probe' would be exported as probe\.exr, a file the "):
+        export_subject(ds, tmp_path / "c", "mitsuba")
+    assert sorted(os.listdir(tmp_path)) == ["b"]
+
+
+def test_a_subsurface_medium_needs_extinction_in_every_channel(tmp_path, subject):
+    """sigma_a = sigma_s' = 0 in a channel gave the medium an albedo of 0/0: NaN in scene.xml and a bare NaN in
+    scene.json, which Mitsuba renders as NaN pixels without complaint."""
+    from facestats.io.mitsuba import check_medium
+
+    ds = _loaded(subject)
+    ds["sigma_a"].values[2] = ds["sigma_s_prime"].values[2] = 0.0
+    with pytest.raises(ValidationError, match=r"sigma_t = sigma_a \+ sigma_s_prime > 0 .*got sigma_a = 0\.0, "):
+        export_subject(ds, tmp_path / "m", "mitsuba", material="subsurface")
+    assert os.listdir(tmp_path) == []
+    export_subject(ds, tmp_path / "s", "mitsuba")  # the surface material has no medium
+    sa, sp = check_medium([0.0, 0.1, 0.2], [1.0, 0.0, 0.5])  # one of the two is enough
+    assert sa.tolist() == [0.0, 0.1, 0.2] and sp.tolist() == [1.0, 0.0, 0.5]
+    with pytest.raises(ValidationError, match="sigma_a must be finite"):
+        check_medium([float("nan"), 1, 1], [1, 1, 1])
+
+
+def test_an_empty_out_folder_keeps_its_permissions_and_long_names_work(tmp_path, subject):
+    """The empty folder was replaced by the export's temporary (0755): a private 0700 folder became world-readable.
+    A 240-byte name failed: the temporary's name went beyond 255 bytes."""
+    import stat
+
+    private = tmp_path / "private"
+    private.mkdir(mode=0o700)
+    os.chmod(private, 0o700)
+    export_subject(subject, private, "gltf")
+    assert stat.S_IMODE(os.stat(private).st_mode) == 0o700 and "face.gltf" in os.listdir(private)
+    os.chmod(private, 0o750)
+    export_subject(subject, private, "gltf", overwrite=True)
+    assert stat.S_IMODE(os.stat(private).st_mode) == 0o750
+    long = tmp_path / ("é" * 120)  # 240 bytes in UTF-8
+    res = export_subject(subject, long, "gltf")
+    assert res["out"] == str(long) and sorted(os.listdir(tmp_path)) == sorted(["private", "é" * 120])

@@ -7,11 +7,12 @@ import os
 import socket
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
 
-from facestats.errors import DependencyError, FacestatsError, FormatError, ValidationError
+from facestats.errors import DependencyError, FacestatsError, FormatError, SchemaError, ValidationError
 from facestats.io.exr_set import COLOUR_SPACE, EXR_SET_FORMAT, FILLED_MAPS, read_exr_set, write_exr_set
 from facestats.io.images import read_exr, read_image, srgb_to_linear, write_exr
 from facestats.io.mesh import FaceMesh, load_face_mesh, subject_mesh
@@ -275,7 +276,8 @@ def test_gltf_specular_follows_rho_s_and_counts_the_texels_it_cannot_carry(tmp_p
     """KHR_materials_specular: glTF's dielectric F0 = ((ior-1)/(ior+1))^2 x specularFactor x specularTexture.a x
     specularColorFactor x specularColorTexture (sRGB) must be Weyrich's 4 rho_s F_r(0), decoded here from the PNGs
     with PIL; texels with rho_s > 1/4 keep F0 (the weight saturates, the colour carries the rest), rho_s > 9.81
-    is clamped at F0 = 1 and counted."""
+    would be clamped at F0 = 1 and counted, but the schema's top of rho_s (9.81) is where F0 = 1: beyond it a
+    subject is refused before anything is written."""
     from PIL import Image
 
     from facestats.errors import FacestatsWarning
@@ -288,7 +290,12 @@ def test_gltf_specular_follows_rho_s_and_counts_the_texels_it_cannot_carry(tmp_p
     planted = [0.0, 0.05, 0.25, 0.3, 1.2, 15.0]  # exact, exact, the weight's limit, colour, colour, beyond F0 = 1
     for (v, u), r in zip(chosen, planted):
         ds["ts_rho_s"].values[v, u] = r
-    with pytest.warns(FacestatsWarning, match="1 of"):
+    with pytest.raises(SchemaError, match=r"ts_rho_s.*15"):
+        write_gltf(ds, tmp_path, mesh=mesh)
+    assert os.listdir(tmp_path) == []
+    ds["ts_rho_s"].values[tuple(chosen[-1])] = TS_RHO_S_MAX  # the top: F0 = 4 rho_s F0_ior = 1, a mirror
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FacestatsWarning)  # nothing beyond what glTF carries
         path = write_gltf(ds, tmp_path, mesh=mesh)
     doc = json.loads(open(path).read())
     assert "KHR_materials_specular" in doc["extensionsUsed"]
@@ -329,15 +336,38 @@ def test_gltf_specular_follows_rho_s_and_counts_the_texels_it_cannot_carry(tmp_p
     lo_f0, hi_f0 = (np.minimum(f0_ior * b[~exact], 1) - 1e-12 for b in (lo, hi))
     for got in (want[v, u][~exact], f0[v, u, 0][~exact]):
         assert np.all((lo_f0 <= got) & (got <= hi_f0 + 2e-12))
-    assert f0[tuple(chosen[-1])][0] == 1.0  # rho_s = 15: clamped at a mirror
-    # beyond the weight F0 is kept, to the sRGB step of a code near 50 (the planted 15 makes K = 1/F0_ior = 39)
+    assert f0[tuple(chosen[-1])][0] == pytest.approx(1.0, abs=1e-6)  # rho_s = 9.81: a mirror
+    # beyond the weight F0 is kept, to the sRGB step of a code near 50 (the planted 9.81 makes K = 1/F0_ior = 39)
     assert f0[tuple(chosen[-2])][0] == pytest.approx(4 * 1.2 * f0_ior, rel=0.02)
 
     report = doc["extras"]["facestats"]["specular"]
     assert report == read_gltf_summary(path)["specular"]
     assert report["texels_measured"] == np.count_nonzero(measured)
     assert report["texels_f90_capped"] == np.count_nonzero(measured & (rho > 0.25)) > 0
-    assert report["texels_clamped"] == np.count_nonzero(measured & (rho * 4 * f0_ior > 1)) == 1
+    assert report["texels_clamped"] == np.count_nonzero(measured & (rho * 4 * f0_ior > 1 + 1e-12)) == 0
+
+
+def test_gltf_roughness_counts_and_warns_of_the_texels_rougher_than_it_carries(tmp_path, subject, mesh):
+    """glTF's roughness ends at 1 (GGX alpha = 1, Beckmann m = 1/0.92 = 1.087); the schema allows m up to 10.
+    A rougher texel was written as roughness 1 without a word (a red team); now it is counted and warned of."""
+    from PIL import Image
+
+    from facestats.errors import FacestatsWarning
+    from facestats.io.gltf import M_ROUGHNESS_LIMIT, read_gltf_summary, write_gltf
+
+    ds = subject.copy(deep=True)
+    m = ds["ts_m"].values
+    v, u = np.argwhere(np.asarray(ds["region"].values) > 0)[[3, 99]].T
+    m[v[0], u[0]], m[v[1], u[1]] = 3.0, M_ROUGHNESS_LIMIT  # rougher than glTF carries; the limit itself
+    with pytest.warns(FacestatsWarning, match=r"1 of \d+ measured texels have m > 1\.087"):
+        path = write_gltf(ds, tmp_path, mesh=mesh)
+    report = read_gltf_summary(path)["roughness_clamp"]
+    measured = (np.asarray(ds["region"].values) > 0) & np.isfinite(m)
+    assert report == {"texels_measured": int(measured.sum()), "texels_clamped": 1, "m_limit": M_ROUGHNESS_LIMIT}
+    with Image.open(tmp_path / "metallic_roughness.png") as im:
+        g = np.asarray(im)[..., 1]
+    assert g[v[0], u[0]] == g[v[1], u[1]] == 255  # both roughness 1
+    assert M_ROUGHNESS_LIMIT == pytest.approx(1.0870, abs=1e-4)
 
 
 def test_export_subject_is_atomic_and_refuses_non_empty_directories(tmp_path, subject):

@@ -312,6 +312,18 @@ def _whitener(cov, rcond=1e-10):
     return v[:, keep] / np.sqrt(w[keep])
 
 
+def _centred(x, mean):
+    """``x − mean`` with the columns of one repeated value exactly 0.
+
+    Centring a constant column can leave a rounding residual (0.1 − mean(0.1, …) = −4e-17), which
+    :func:`_unit_scaled` would scale up to a column of ±1: a variable that passes the ``rcond`` cut and
+    changes the degrees of freedom and p-values (a red team).
+    """
+    xc = x - mean
+    xc[:, np.ptp(x, axis=0) == 0] = 0.0
+    return xc
+
+
 def _unit_scaled(xc):
     """``(xc / s, s)`` with s the largest magnitude of each column (1 for a column of zeros)."""
     s = np.max(np.abs(xc), axis=0, initial=0.0)
@@ -391,7 +403,7 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
     # Each centred variable divided by its largest magnitude: the correlations do not depend on the units, but
     # `rcond` compares eigenvalues across variables (a variable in metres beside others in millimetres was
     # dropped as collinear) and covariances of values near 1e±160 under- or overflow (a red team).
-    (xc, sx), (yc, sy) = _unit_scaled(x - x_mean), _unit_scaled(y - y_mean)
+    (xc, sx), (yc, sy) = _unit_scaled(_centred(x, x_mean)), _unit_scaled(_centred(y, y_mean))
     sxx = _shrink(xc.T @ xc / (n - 1), reg[0])
     syy = _shrink(yc.T @ yc / (n - 1), reg[1])
     wx, wy = _whitener(sxx, rcond), _whitener(syy, rcond)

@@ -229,3 +229,16 @@ def test_correlations_do_not_depend_on_the_units_of_a_variable(rng):
         cca(x, np.zeros((200, 0)))
     with pytest.raises(ValidationError, match="variables must name one or more"):
         brdf_cca(make_population(n=12, seed=4), variables=())
+
+
+@pytest.mark.parametrize("value", [0.1, 0.25, 7.3, -1e-3])
+def test_a_constant_variable_is_dropped_whatever_its_value(rng, value):
+    """Centring 0.1 left a residual of -4e-17 that the unit scaling made a column of -1: a fourth variable in the
+    degrees of freedom and p-values (6 -> 8), while 0.25 (an exact mean) was dropped (a red team)."""
+    x = rng.standard_normal((40, 3))
+    y = rng.standard_normal((40, 2)) + 0.5 * x[:, :2]
+    base, with_constant = cca(x, y), cca(np.c_[x, np.full(40, value)], y)
+    np.testing.assert_allclose(with_constant.correlations, base.correlations, rtol=1e-12)
+    assert with_constant.df.tolist() == base.df.tolist() == [6, 2]
+    np.testing.assert_allclose(with_constant.p_value, base.p_value, rtol=1e-9)
+    np.testing.assert_allclose(with_constant.direct_p_value, base.direct_p_value, rtol=1e-9)

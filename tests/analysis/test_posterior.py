@@ -254,6 +254,44 @@ def test_population_hierarchical_model_against_mcmc_of_the_full_joint():
     assert shrink[4] == shrink.max()  # the 5 subjects of type VI borrow the most
 
 
+def test_hierarchical_tau_keeps_its_heavy_tail_with_three_types():
+    """With a flat prior and J = 3 the posterior of τ falls as τ⁻²: a grid cut at 100 s put the 95 % quantile
+    14 % low (a red team). Reference: the same density (BDA3 eq. 5.21) by trapezoid to 10⁸ s, a grid 10⁴ times
+    longer than the sampler's, whose missing mass is then about 10⁻⁸."""
+    from facestats.analysis.posterior.hierarchical import hierarchical_draws
+
+    ybar, var = np.array([0.55, 0.60, 0.52]), np.array([1e-4, 4e-4, 1e-3])
+    scale = float(np.sqrt(np.var(ybar) + np.max(var)))
+    t = np.concatenate([[0.0], np.geomspace(1e-4 * scale, 1e8 * scale, 400000)])
+    tot = var + t[:, None] ** 2
+    v_mu = 1 / np.sum(1 / tot, 1)
+    mu_hat = v_mu * np.sum(ybar / tot, 1)
+    logp = 0.5 * np.log(v_mu) - 0.5 * np.sum(np.log(tot) + (ybar - mu_hat[:, None]) ** 2 / tot, 1)
+    d = np.exp(logp - logp.max())
+    cdf = np.concatenate([[0], np.cumsum(0.5 * (d[1:] + d[:-1]) * np.diff(t))])
+    want = np.interp([0.05, 0.5, 0.95, 0.99], cdf / cdf[-1], t)
+    _, _, tau = hierarchical_draws(ybar, var, 400000, np.random.default_rng(0))
+    # Monte Carlo: the 99 % quantile's standard error is about 1.5 % here (density 0.0026 at 3.9)
+    got = np.quantile(tau, [0.05, 0.5, 0.95, 0.99])
+    assert np.all(np.abs(got / want - 1) <= [0.02, 0.02, 0.02, 0.05]), (got, want)
+    assert want[2] > 0.75  # the cut grid gave 0.669
+    with pytest.raises(ValidationError, match=">= 3 groups"):
+        hierarchical_draws(ybar[:2], var[:2], 10, np.random.default_rng(0))
+    with pytest.raises(ValidationError, match="var finite and > 0"):
+        hierarchical_draws(ybar, var * 0, 10, np.random.default_rng(0))
+
+
+def test_hierarchical_model_without_spread_within_types_is_refused_by_name():
+    """Every subject of a type alike: a raw numpy error (all alike) or silent NaN summaries (types apart)."""
+    alike = [np.full(n, 0.55) for n in (14, 67, 48, 15, 5)]
+    apart = [np.full(n, m) for n, m in zip((14, 67, 48, 15, 5), (0.52, 0.55, 0.57, 0.60, 0.66))]
+    for groups in (alike, apart):
+        with pytest.raises(ValidationError, match="within-type variance of 0 .*independent"):
+            population_sigma_tr(_frame(groups), n_draws=100)
+        res = population_sigma_tr(_frame(groups), model="independent", n_draws=100)
+        np.testing.assert_allclose(res.summary["median"], res.summary["sample_mean"], rtol=1e-12)
+
+
 def test_population_on_store_and_errors():
     store = make_population(n=40, seed=8)
     res = population_sigma_tr(store, n_draws=4000)

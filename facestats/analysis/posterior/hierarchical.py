@@ -12,8 +12,9 @@ with the within-type variance σ_w² pooled over all types and plugged in
 (it is well determined by all subjects; between-subject spread and
 measurement noise are both in it).  The skin-type means θ_j borrow strength
 from each other (types V and VI have few subjects).  μ and θ are
-integrated in closed form and τ on a grid, so the draws are exact, with no
-Markov chain to converge.  It needs at least three skin types (the flat prior
+integrated in closed form and τ on a grid with its power-law tail beyond in
+closed form (:func:`hierarchical_draws`), so the draws are exact up to the
+grid's quadrature, with no Markov chain to converge.  It needs at least three skin types (the flat prior
 on τ gives an improper posterior otherwise).  ``model="independent"`` treats
 each type alone with the Jeffreys prior p(θ_j, σ_j) ∝ 1/σ_j: θ_j ~ ȳ_j +
 s_j/√n_j · t_{n_j−1}.
@@ -138,21 +139,56 @@ class PopulationSigmaTr:
 def hierarchical_draws(ybar, var, n_draws, rng):
     """Draws of (θ_j, μ, τ) of the normal hierarchical model with known variances (Gelman et al. BDA3 §5.4).
 
-    ybar_j ~ N(θ_j, var_j), θ_j ~ N(μ, τ²), p(μ, τ) ∝ 1.  p(τ | y) on a grid:
+    ybar_j ~ N(θ_j, var_j), θ_j ~ N(μ, τ²), p(μ, τ) ∝ 1 (BDA3 eq. 5.21):
     p(τ|y) ∝ V_μ^{1/2} Π_j (var_j + τ²)^{-1/2} exp(−(ȳ_j − μ̂)²/(2(var_j + τ²))),
     μ̂ = Σ ȳ_j/(var_j + τ²) / Σ 1/(var_j + τ²), V_μ = 1/Σ 1/(var_j + τ²); then
     μ | τ ~ N(μ̂, V_μ) and θ_j | μ, τ ~ N((ȳ_j τ² + μ var_j)/(var_j + τ²), var_j τ²/(var_j + τ²)).
+
+    τ is drawn from p(τ|y) on a grid from 0 to τ_max = 10⁴ s (s = √(var(ȳ) + max var_j)), trapezoid rule,
+    and beyond τ_max from its tail in closed form: there var_j + τ² = τ²(1 + O(10⁻⁸)) and the exponent is 1
+    to the same order, so p(τ|y) ∝ τ^{−(J−1)}, whose mass beyond τ_max is p(τ_max) τ_max/(J − 2) and whose
+    draws are τ_max w^{−1/(J−2)} with w uniform on (0, 1] (a Pareto tail).  With the flat prior and J = 3
+    the tail falls only as τ⁻²: a grid cut at 100 s without it left out enough mass to put the 95 %
+    quantile of τ 14 % low (a red team's check against a grid to 10⁶ s).
+
+    Parameters
+    ----------
+    ybar : ndarray, shape (J,)
+        Group means, J ≥ 3 (the posterior of τ is improper for fewer).
+    var : ndarray, shape (J,)
+        Their variances, > 0.
+    n_draws : int
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    theta : ndarray, shape (n_draws, J)
+    mu : ndarray, shape (n_draws,)
+    tau : ndarray, shape (n_draws,)
     """
+    ybar, var = np.asarray(ybar, np.float64), np.asarray(var, np.float64)
+    j = ybar.size
+    if j < 3 or var.shape != ybar.shape:
+        raise ValidationError(
+            f"ybar and var must hold one value per group for >= 3 groups, got {ybar.shape}, {var.shape}"
+        )
+    if not (np.all(np.isfinite(ybar)) and np.all(np.isfinite(var)) and np.all(var > 0)):
+        raise ValidationError(
+            f"ybar must be finite and var finite and > 0, got ybar {ybar.tolist()}, var {var.tolist()}"
+        )
     scale = float(np.sqrt(np.var(ybar) + np.max(var)))
-    tau = np.concatenate([[0.0], np.geomspace(1e-4 * scale, 100 * scale, 4000)])
+    tau = np.concatenate([[0.0], np.geomspace(1e-4 * scale, 1e4 * scale, 6000)])
     tot = var[None, :] + tau[:, None] ** 2  # (T, J)
     v_mu = 1 / np.sum(1 / tot, axis=1)
     mu_hat = v_mu * np.sum(ybar[None] / tot, axis=1)
     logp = 0.5 * np.log(v_mu) - 0.5 * np.sum(np.log(tot) + (ybar[None] - mu_hat[:, None]) ** 2 / tot, axis=1)
     dens = np.exp(logp - logp.max())
     cdf = np.concatenate([[0.0], np.cumsum(0.5 * (dens[1:] + dens[:-1]) * np.diff(tau))])
-    cdf /= cdf[-1]
-    tau_d = np.interp(rng.uniform(size=n_draws), cdf, tau)  # inverse-CDF draws of τ (piecewise linear)
+    tail = dens[-1] * tau[-1] / (j - 2)  # the mass of p(τ|y) ∝ τ^-(J-1) beyond the grid
+    u = rng.uniform(size=n_draws) * (cdf[-1] + tail)
+    beyond = u > cdf[-1]
+    tau_d = np.interp(u, cdf, tau)  # inverse-CDF draws of τ (piecewise linear) on the grid
+    tau_d[beyond] = tau[-1] * ((u[beyond] - cdf[-1]) / tail) ** (-1.0 / (j - 2))
     tot_d = var[None, :] + tau_d[:, None] ** 2
     v_mu_d = 1 / np.sum(1 / tot_d, axis=1)
     mu_d = v_mu_d * np.sum(ybar[None] / tot_d, axis=1) + np.sqrt(v_mu_d) * rng.standard_normal(n_draws)
@@ -247,6 +283,13 @@ def _hierarchical_channel(groups, skin_types, n_draws, rng, q):
         )
     ybar = np.array([g.mean() for g in groups if g.size])
     s_w2 = sum(float(np.sum((g - g.mean()) ** 2)) for g in groups if g.size) / dof
+    if not s_w2 > (64 * np.finfo(float).eps * np.max(np.abs(ybar))) ** 2:  # 0 up to the rounding of the means
+        raise ValidationError(
+            "the hierarchical model needs spread within the skin types, got a pooled within-type variance of 0 "
+            f"(up to rounding: every subject of a type has the same sigma_tr; type means {ybar.tolist()}): use the "
+            "independent "
+            "model (model='independent' in Python, `analyze posterior` without --population)"
+        )
     theta, mu_d, tau_d = hierarchical_draws(ybar, s_w2 / n[present], n_draws, rng)
     mq, tq = np.quantile(mu_d, q), np.quantile(tau_d, q)
     hyper = {

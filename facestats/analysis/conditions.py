@@ -139,7 +139,12 @@ class ConditionDifferences:
 
 
 def _combine(rows, rho_col, lobe_col, rho_std_col, lobe_std_col, n_col):
-    """n-weighted mean and pooled spread of repeated measurements of one condition and region."""
+    """n-weighted mean and pooled spread of repeated measurements of one condition and region.
+
+    The stored spreads are sample standard deviations (ddof 1, :mod:`facestats.io.summary`), so the pooled
+    one is the sample standard deviation of all N = Σ n_i values: the within sums of squares (n_i − 1) s_i²
+    plus the between term n_i (m_i − m)², over N − 1 (0 for N = 1).
+    """
     n = rows[n_col].to_numpy(float)
     keep = n > 0
     if not keep.any():
@@ -150,7 +155,8 @@ def _combine(rows, rho_col, lobe_col, rho_std_col, lobe_std_col, n_col):
         m = rows[mcol].to_numpy(float)[keep]
         s = np.nan_to_num(rows[scol].to_numpy(float)[keep])
         mean = np.sum(n * m) / n.sum()
-        var = np.sum(n * (s * s + (m - mean) ** 2)) / n.sum()  # law of total variance
+        ss = np.sum((n - 1) * s * s + n * (m - mean) ** 2)  # within + between sums of squares
+        var = ss / (n.sum() - 1) if n.sum() > 1 else 0.0
         out += [mean, np.sqrt(var)]
     return out[0], out[2], out[1], out[3], int(n.sum())
 

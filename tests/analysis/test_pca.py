@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from facestats.analysis import condition_differences, principal_axes, region_pca, select_population
@@ -163,6 +164,25 @@ def test_condition_differences_against_index(store):
     np.testing.assert_allclose(dist, dist.T)
     assert np.all(np.diag(dist) == 0)
     assert dist[0, 6] > dist[0, 1] > 0  # powder (shift 0.18) is further from normal than cold (0.03)
+
+
+def test_repeated_measurements_pool_to_the_sample_spread_of_all_their_values(store, rng):
+    """Two measurements of the reference condition combine into the mean and the sample standard deviation (ddof 1,
+    as the index's) of their values together; the pooling used ddof 0 for the within part (a review)."""
+    idx = store.subjects()
+    a, b = rng.normal(0.20, 0.03, 40), rng.normal(0.26, 0.05, 7)  # the texels of region 2 in two captures
+    twice = idx.loc[["C0", "C0"]].copy()
+    twice.index = ["C0", "C0-again"]
+    for row, x in zip(twice.index, (a, b)):
+        twice.loc[row, ["ts_rho_s_mean_r2", "ts_rho_s_std_r2", "n_ts_r2"]] = [x.mean(), x.std(ddof=1), x.size]
+    frame = pd.concat([idx.drop(index="C0"), twice])
+    res = condition_differences(frame, person_id="P-cond")
+    both = np.concatenate([a, b])
+    d = res.differences.loc[("cold", 2)]
+    want_d = idx.loc["C1", "ts_rho_s_mean_r2"] - both.mean()
+    assert d["d_rho_s"] == pytest.approx(want_d, rel=1e-12)
+    s_ref = np.sqrt(2 * (want_d / d["z_rho_s"]) ** 2 - idx.loc["C1", "ts_rho_s_std_r2"] ** 2)
+    assert s_ref == pytest.approx(both.std(ddof=1), rel=1e-9)
 
 
 def test_condition_differences_needs_a_series():

@@ -178,7 +178,8 @@ def _start(path, folder, geometry, dome, fingerprint, chunk, subject_id):
                 "work directory"
             )
         return CaptureWriter.reopen(path), state
-    if os.path.isdir(path) and os.listdir(path):  # never write over a folder that is not this ingest's capture
+    if os.path.isdir(path) and os.listdir(path) and not _setup_of(path, fingerprint):
+        # never write over a folder that is not this ingest's capture
         raise FormatError(
             f"work folder {path} is not empty and holds no ingest: choose an empty or new folder "
             "(the capture is written there)"
@@ -203,7 +204,6 @@ def _start(path, folder, geometry, dome, fingerprint, chunk, subject_id):
             }
         ),
     )
-    attrs[_ATTR] = json.dumps(state)
     writer = CaptureWriter(
         path,
         n_lumitexels=geometry.n_points,
@@ -227,7 +227,31 @@ def _start(path, folder, geometry, dome, fingerprint, chunk, subject_id):
             "irradiance": e_perp.astype(np.float32),
         }
         writer.write_block(a, {k: arrays[k] for k in PER_LUMITEXEL if k != "radiance"})
+    # The state last: a capture that has it holds every per-lumitexel array, so a rerun may resume it.
+    writer.group.attrs[_ATTR] = json.dumps(state)
     return writer, state
+
+
+def _setup_of(path, fingerprint) -> bool:
+    """True when ``path`` holds a capture group this ingest began but left before its per-lumitexel arrays were
+    written (no ``ingest`` state yet; the same manifest): it is made again from the start.
+
+    An ingest interrupted there used to record its state first, so every rerun resumed a capture without
+    those arrays and failed on a missing chunk (a red team).
+    """
+    import zarr
+
+    try:
+        attrs = zarr.open_group(str(path), mode="r").attrs
+        prov = json.loads(attrs.get("provenance") or "{}")
+    except Exception:  # not a zarr group, or not ours: zarr and json raise several types
+        return False
+    return (
+        _ATTR not in attrs
+        and isinstance(prov, dict)
+        and prov.get("source") == "photographs"
+        and prov.get("manifest_sha256") == fingerprint["manifest"]
+    )
 
 
 def footprint_px(dome, geometry, camera: int) -> np.ndarray:

@@ -193,6 +193,19 @@ class CaptureFolder:
         """Exposure times (E,) of one frame, s."""
         return self.exposure_s[pose, camera, led]
 
+    def inside(self, rel: str, what: str) -> pathlib.Path:
+        """The path of the folder's file ``rel`` (a relative path without '..', :func:`relative_inside`), refused
+        when it resolves out of the folder: a symbolic link (of the file, or of a folder on its way) to
+        elsewhere would read a file the folder does not hold."""
+        p = self.path / rel
+        root = os.path.realpath(self.path)
+        if os.path.commonpath([root, os.path.realpath(p)]) != root:
+            raise FormatError(
+                f"{what} {rel} listed in {MANIFEST} must lie inside {self.path}, got a symbolic link to "
+                f"{os.path.realpath(p)}"
+            )
+        return p
+
     def read_codes(self, camera: int, led: int, exposure: int, pose: int = 0, size=None) -> np.ndarray:
         """The codes (H, W, 3) of one frame, after the checks of the module docstring.
 
@@ -204,7 +217,7 @@ class CaptureFolder:
         from facestats.io.layout import read_regular_file
 
         rel = self.files[pose, camera, led, exposure]
-        p = self.path / rel
+        p = self.inside(rel, "frame")
         try:
             data = read_regular_file(p)  # a FIFO planted as a frame is refused, never read
         except OSError as exc:
@@ -275,8 +288,11 @@ class CaptureFolder:
                 f"{MANIFEST} needs the field 'sensor' naming the contact-sensor file inside the folder (a relative "
                 f"path without '..'), got {name!r:.60}"
             )
+        # local import: keeps facestats.io (24 modules) out of this module's import
+        from facestats.io.layout import read_regular_file
+
         try:
-            doc = json.loads((self.path / name).read_text())
+            doc = json.loads(read_regular_file(self.inside(name, "sensor file")))  # a FIFO is refused, never read
         except (OSError, ValueError, RecursionError) as exc:
             raise FormatError(f"sensor file {name} of {self.path} cannot be read: {exc}") from None
         if not isinstance(doc, dict) or doc.get("format") != SENSOR_FORMAT:
@@ -463,6 +479,11 @@ def open_folder(path) -> CaptureFolder:
     cameras = _cameras(doc, n_cam)
     cols = _parse_frames(doc.get("frames"), n_cam, n_led)
     n_poses, n_exp, files, sha, times = _frame_table(p, cols, n_cam, n_led, cameras)
+    if n_poses > 1 and doc.get("kind", "face") != "target":  # an ingest reads pose 0: the rest would be ignored
+        raise FormatError(
+            f"{MANIFEST} frames of a face capture must all be pose 0 (poses are for LED calibration targets, "
+            f"'kind': 'target'), got poses 0..{n_poses - 1}"
+        )
     return CaptureFolder(p, doc, bits, n_cam, n_led, n_poses, n_exp, cameras, files, sha, times)
 
 
@@ -521,7 +542,8 @@ def bilinear_taps(pixels, size):
     Returns
     -------
     index : ndarray of int64, shape (N, 4)
-        Flat pixel indices (row-major), clamped to the image.
+        Flat pixel indices (row-major), clamped to the image: within half a pixel of an edge (the image spans
+        [−1/2, W − 1/2)) both taps across it are the edge pixel, so the value is the edge pixel's (clamp to edge).
     weight : ndarray of float32, shape (N, 4)
         Bilinear weights, summing to 1.
     """
@@ -529,10 +551,11 @@ def bilinear_taps(pixels, size):
     u, v = np.asarray(pixels, np.float64)[:, 0], np.asarray(pixels, np.float64)[:, 1]
     u0, v0 = np.floor(u), np.floor(v)
     fu, fv = u - u0, v - v0
+    # Each tap clamped on its own: x1 from u0 + 1, not from the clamped x0 (for u in [−1/2, 0) that read pixel 1).
     x0 = np.clip(u0.astype(np.int64), 0, w - 1)
-    x1 = np.clip(x0 + 1, 0, w - 1)
+    x1 = np.clip(u0.astype(np.int64) + 1, 0, w - 1)
     y0 = np.clip(v0.astype(np.int64), 0, h - 1)
-    y1 = np.clip(y0 + 1, 0, h - 1)
+    y1 = np.clip(v0.astype(np.int64) + 1, 0, h - 1)
     index = np.stack([y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1], -1)
     weight = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], -1).astype(np.float32)
     return index, weight

@@ -120,10 +120,16 @@ def _set_parent_death_signal() -> None:
 
 
 def _watch_parent(parent: int, stop) -> None:
-    """Exit this worker as soon as the build asks (``stop``) or its parent is gone."""
-    while not stop.wait(0.25):
+    """Exit this worker as soon as the build asks (``stop``, a shared flag) or its parent is gone.
+
+    ``stop`` is a lock-free shared byte polled every 0.25 s, not a ``multiprocessing.Event``: setting an
+    Event notifies its waiters and blocks until each has woken, so a worker killed while it waited (the
+    out-of-memory killer) made the build hang for ever when it stopped the others (a red team).
+    """
+    while not stop.value:
         if os.getppid() != parent:
             break
+        time.sleep(0.25)
     os._exit(1)
 
 
@@ -136,22 +142,94 @@ def _worker_init(parent: int, stop) -> None:
     threading.Thread(target=_watch_parent, args=(parent, stop), daemon=True).start()
 
 
-def _run_local(tasks, n_workers: int, progress: bool) -> list:
-    """Run the build tasks on a local process pool whose workers die with this process (module docstring)."""
+def _pool_round(args, retries, n_workers: int, progress: bool) -> list:
+    """One run of :func:`_build_task` over ``args`` on a local process pool whose workers die with this process
+    (module docstring); raises ``BrokenProcessPool`` when a worker dies."""
 
     import dask
 
     ctx = multiprocessing.get_context("spawn")
-    stop = ctx.Event()
+    stop = ctx.RawValue(ctypes.c_bool, False)
     pool = ProcessPoolExecutor(n_workers, mp_context=ctx, initializer=_worker_init, initargs=(os.getpid(), stop))
+    tasks = [dask.delayed(_build_task, pure=False)(retries, *a) for a in args]
     try:
         with TaskProgress(len(tasks), enabled=progress):
             return list(dask.compute(*tasks, scheduler="processes", pool=pool))
     except BaseException:
-        stop.set()  # the workers exit within 0.25 s; nothing they were writing gets committed
+        stop.value = True  # the workers exit within 0.25 s; nothing they were writing gets committed
         raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _run_local(args, retries, n_workers: int, progress: bool) -> list:
+    """Run the build tasks on local worker processes; a subject whose worker process dies is retried, then reported.
+
+    A task's own errors are retried inside it (:func:`facestats.pipeline.journal.run_journalled`); a worker that
+    dies (killed by a signal: the out-of-memory killer) breaks the whole pool and loses the results of that round.
+    Then the store and the journal say what happened to each subject: stored ones are done, ones that failed
+    every attempt are failed, and ones whose record says *running* were on a worker when the pool broke. Each of
+    those runs again alone on a one-worker pool, so that a subject is blamed only for its own death; after
+    ``retries`` + 1 deaths it is reported failed. Subjects not started run again on a new pool of ``n_workers``.
+    """
+    from concurrent.futures.process import BrokenProcessPool
+
+    results, deaths = {}, {}
+    pending, alone = list(args), []
+    while pending or alone:
+        batch = [alone.pop(0)] if alone else pending
+        if not alone and batch is pending:
+            pending = []
+        began = time.time()
+        try:
+            for sid, state, err in _pool_round(batch, retries, 1 if len(batch) == 1 else n_workers, progress):
+                results[sid] = (state, err)
+        except BrokenProcessPool:
+            for a, fate in zip(batch, _fates(batch, retries, began)):
+                sid = a[5]
+                if fate[0] in ("done", "failed"):
+                    results[sid] = fate
+                elif fate[0] == "not started":
+                    pending.append(a)
+                else:  # on a worker when the pool broke
+                    deaths[sid] = deaths.get(sid, 0) + 1
+                    if deaths[sid] > retries:
+                        error = _WorkerDied(
+                            f"its worker process died on each of {deaths[sid]} attempts (killed by a signal: out of "
+                            "memory?)"
+                        )
+                        BuildJournal(a[0]).fail(sid, deaths[sid], error)
+                        results[sid] = ("failed", f"{type(error).__name__}: {error}")
+                    else:
+                        alone.append(a)
+    return [(a[5], *results[a[5]]) for a in args]
+
+
+class _WorkerDied(RuntimeError):
+    """A build worker process died (killed by a signal) while it worked on a subject."""
+
+
+def _fates(batch, retries, began) -> list:
+    """After a broken pool: per argument tuple, ``("done", None)``, ``("failed", error)``, ``("running", None)``
+    (on a worker when it broke) or ``("not started", None)``, from the store's index and the build journal
+    (records written before the round ``began``, time.time(), are an earlier build's: not started)."""
+    store_path = batch[0][0]
+    with open_store(store_path, mode="r") as store:
+        stored = set(store.ids())
+    journal = BuildJournal(store_path)
+    out = []
+    for a in batch:
+        written = journal.written_at(a[5])
+        rec = journal.read(a[5]) if written is not None and written >= began else None
+        if a[5] in stored:
+            out.append(("done", None))
+        elif rec is not None and rec.get("state") == "failed" and rec.get("attempts") == retries + 1:
+            out.append(("failed", rec.get("error")))
+        elif rec is not None:  # running, or failed with attempts left: its task did not finish
+            out.append(("running", None))
+        else:
+            out.append(("not started", None))
+    return out
 
 
 @dataclass
@@ -250,27 +328,36 @@ def sensor_fits(population, map_size: int, specular: str = "torrance_sparrow", f
 DERIVED = ("modulation",)
 
 
-def _check_same_build(store, pop, present, geometry, specular):
-    """Refuse to add to a store whose simulated subjects came from another seed, size, face or specular model.
+def _check_same_build(store, pop, present, geometry, specular, micro_normals=None, keep_derived=None):
+    """Refuse to add to a store whose simulated subjects came from another seed, size, face, specular model or
+    maps kept.
 
     Resuming is by subject id: a subject already present is skipped, so a build with other parameters would
     count another person as present and mix two populations (and two σtrAvg) in one store.  Each present
-    subject's capture provenance records its seed, geometry and specular model; imported subjects (no
-    simulator provenance) are left out of the comparison.
+    subject's capture provenance records its seed, geometry and specular model, and its variables say whether
+    it keeps micro-normal maps (``micro_normals``, ``--no-micro-normals``) and the derived modulation
+    (``keep_derived``); None leaves one out. Imported subjects (no simulator provenance) are left out of the
+    comparison.
     """
     seeds = {t.subject_id: t.seed for t in pop.subjects}
-    for sid in sorted(present):  # the attributes only: no map is read
+    for sid in sorted(present):  # the attributes and variable names only: no map is read
+        ds = store.subject(sid, lazy=True)
         try:
-            prov = json.loads(store.subject(sid, lazy=True).attrs.get("provenance", "{}"))
+            prov = json.loads(ds.attrs.get("provenance", "{}"))
         except (ValueError, TypeError):
             continue
         cap = prov.get("capture_provenance") or {}
         if cap.get("source") != "facestats simulator":
             continue
         ours = {"geometry": geometry, "specular": specular}
+        stored = {k: cap.get(k) for k in ours}
         if sid in seeds:
-            ours["seed"] = int(seeds[sid])
-        differ = {k: (cap.get(k), v) for k, v in ours.items() if cap.get(k) != v}
+            ours["seed"], stored["seed"] = int(seeds[sid]), cap.get("seed")
+        for key, var, wanted in (("micro-normal maps", "micro_normal", micro_normals),
+                                 ("modulation map", "modulation", keep_derived)):  # fmt: skip
+            if wanted is not None:
+                ours[key], stored[key] = bool(wanted), var in ds.data_vars
+        differ = {k: (stored[k], v) for k, v in ours.items() if stored[k] != v}
         if differ:
             names = {"seed": "its subject seed (derived from --seed)"}
             what = "; ".join(
@@ -278,7 +365,7 @@ def _check_same_build(store, pop, present, geometry, specular):
             )
             raise ValidationError(
                 f"store {store.label} holds {sid} built with other parameters ({what}): a resumed build must use "
-                "the same --seed, --size, --face and --specular; build into another store"
+                "the same --seed, --size, --face, --specular and --no-micro-normals; build into another store"
             )
 
 
@@ -397,31 +484,35 @@ def build_store(
         raise ValidationError(f"subjects must be ids of the population, got unknown {unknown[:5]}")
     resolve_engine(None)  # $FACESTATS_ENGINE, which every task's fit reads, checked once here
     own = connect(address) if address is not None else None  # an unreachable scheduler leaves no store
+    journal = BuildJournal(store_path)
     try:
         store = open_store(store_path, mode="a")  # only now: bad arguments leave no empty store behind
-        store.gc()  # the leftovers of a killed build, if any (never a live writer's data)
-        key = ("sensor_fits", seed, map_size, conditions, specular, face)
-        if key not in _WORKER_CACHE:  # the same draws every time: computed once per process
-            _WORKER_CACHE[key] = sensor_fits(pop, map_size, specular, face)
-        fits = _WORKER_CACHE[key]
-        normal = [s.subject_id for s in pop.subjects if s.condition == "normal"]
-        stra = population_sigma_tr_avg(np.stack([fits[s].sigma_tr for s in normal]), SITES)
-        present = set(store.ids())
-        _check_same_build(store, pop, present, _geometry(map_size, face).name, specular)
-        todo = [s for s in wanted if s not in present]
-        skipped = [s for s in wanted if s in present]
-        journal = BuildJournal(store_path)
-        for sid in skipped:  # committed by a build killed before it removed the record: the record goes
-            journal.finish(sid)
-        common = (micro_normals, keep_derived, face)
-        args = [(str(store_path), seed, map_size, conditions, specular, sid, stra, fits[sid], *common) for sid in todo]
-        with sigterm_as_interrupt():
-            results = _run_tasks(args, retries, own or client, n_workers, progress)
-        size = n_workers if own is None and client is None else len((own or client).scheduler_info()["workers"])
+        with journal.planned(wanted):  # until the build returns: `--status` counts what was not started
+            store.gc()  # the leftovers of a killed build, if any (never a live writer's data)
+            key = ("sensor_fits", seed, map_size, conditions, specular, face)
+            if key not in _WORKER_CACHE:  # the same draws every time: computed once per process
+                _WORKER_CACHE[key] = sensor_fits(pop, map_size, specular, face)
+            fits = _WORKER_CACHE[key]
+            normal = [s.subject_id for s in pop.subjects if s.condition == "normal"]
+            stra = population_sigma_tr_avg(np.stack([fits[s].sigma_tr for s in normal]), SITES)
+            present = set(store.ids())
+            _check_same_build(
+                store, pop, present, _geometry(map_size, face).name, specular, micro_normals, keep_derived
+            )
+            todo = [s for s in wanted if s not in present]
+            skipped = [s for s in wanted if s in present]
+            for sid in skipped:  # committed by a build killed before it removed the record: the record goes
+                journal.finish(sid)
+            common = (micro_normals, keep_derived, face)
+            args = [
+                (str(store_path), seed, map_size, conditions, specular, sid, stra, fits[sid], *common) for sid in todo
+            ]
+            with sigterm_as_interrupt():
+                results = _run_tasks(args, retries, own or client, n_workers, progress)
+            size = n_workers if own is None and client is None else len((own or client).scheduler_info()["workers"])
     finally:
         if own is not None:
             own.close()
-    journal.prune()
     return BuildReport(
         store=str(store_path),
         written=sorted(sid for sid, state, _ in results if state == "done"),
@@ -445,9 +536,7 @@ def _run_tasks(args, retries, client, n_workers, progress):
         return [gathered(f, futures[f][0], futures[f][5]) for f in done]
     if n_workers == 1 or len(args) <= 1:
         return [_build_task(retries, *a) for a in subject_bar(args, len(args), progress)]
-    import dask
-
-    return _run_local([dask.delayed(_build_task, pure=False)(retries, *a) for a in args], n_workers, progress)
+    return _run_local(args, retries, n_workers, progress)
 
 
 def build_default(*, workers: int | None = None, progress: bool = False, out=None) -> BuildReport:

@@ -19,6 +19,14 @@ still fails its record stays ``failed``, with the last error, until a later
 build writes it.  A ``running`` record whose process no longer exists on this
 host is reported as *interrupted* (its host and pid say where it ran).
 
+A build also records what it was asked for, in ``<store>/.build/.plan.json``
+(``{"subjects": [...], "host", "pid", "started"}``), written before any
+subject starts and removed when the build returns (with or without failures).
+A plan that is still there names a build that is running or that stopped
+before its end (killed, interrupted): ``--status`` then counts the requested
+subjects that were not started, which a killed build would otherwise hide (a
+store with no subject looked like a finished build of none).
+
 The journal lives in the store directory, so every worker of a cluster that
 shares the store (a POSIX file system) writes to the same one; it is advisory
 bookkeeping, never read to decide what to build (that is the store's index),
@@ -27,6 +35,7 @@ and :meth:`facestats.io.store.Store.gc` leaves it alone.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import json
 import os
@@ -40,14 +49,16 @@ from facestats.core.conventions import EDIT_SOURCE
 from facestats.core.processes import process_gone
 from facestats.errors import ValidationError
 from facestats.io.ids import check_subject_id
-from facestats.io.layout import BUILD_JOURNAL
+from facestats.io.layout import BUILD_JOURNAL, read_regular_file
 from facestats.io.store import open_store
 from facestats.pipeline.cluster import store_directory
 
-__all__ = ["JOURNAL_DIR", "BuildJournal", "BuildStatus", "build_status", "gathered", "run_journalled"]
+__all__ = ["JOURNAL_DIR", "PLAN", "BuildJournal", "BuildStatus", "build_status", "gathered", "run_journalled"]
 
 #: Folder of the journal inside a directory store.
 JOURNAL_DIR = BUILD_JOURNAL
+#: File of the running build's plan in the journal (not a subject id, so never a subject's record).
+PLAN = ".plan.json"
 
 
 def _now() -> str:
@@ -64,20 +75,32 @@ class BuildJournal:
         return self.root / f"{check_subject_id(sid)}.json"  # an id is a file name: never a path out of the store
 
     def _write(self, sid: str, record: dict) -> None:
-        target = self._path(sid)
+        self._write_file(self._path(sid), record)
+
+    def _write_file(self, target: Path, record: dict) -> None:
         self.root.mkdir(parents=True, exist_ok=True)
         tmp = self.root / f".{target.name}.tmp-{os.getpid()}-{secrets.token_hex(3)}"
-        tmp.write_text(json.dumps(record, sort_keys=True))
-        os.replace(tmp, target)
+        try:
+            tmp.write_text(json.dumps(record, sort_keys=True))
+            os.replace(tmp, target)
+        except BaseException:  # a full disk: no half-written temporary is left in the journal
+            tmp.unlink(missing_ok=True)
+            raise
 
     def read(self, sid: str) -> dict | None:
         """The record of ``sid``, or None (also for a file that is not a record: damaged, or not JSON)."""
-        path = self._path(sid)
         try:
-            rec = json.loads(path.read_text())
-        except (FileNotFoundError, ValueError):
+            rec = json.loads(read_regular_file(self._path(sid), follow_links=False))
+        except (OSError, ValueError, RecursionError):  # missing, not a regular file (a FIFO, a link), not JSON
             return None
         return rec if isinstance(rec, dict) and rec.get("state") in ("running", "failed") else None
+
+    def written_at(self, sid: str) -> float | None:
+        """When the record of ``sid`` was last written (the file's modification time, s since the epoch), or None."""
+        try:
+            return self._path(sid).stat().st_mtime
+        except FileNotFoundError:
+            return None
 
     def records(self) -> dict:
         """Every record, by subject id (files whose names are not subject ids are left out)."""
@@ -117,6 +140,45 @@ class BuildJournal:
         rec.update(state="failed", attempts=int(attempt), updated=_now(), error=last)
         self._write(sid, rec)
 
+    def begin(self, subjects) -> None:
+        """A build asked for ``subjects`` (ids) starts: its plan is recorded (module docstring)."""
+        record = {"subjects": [check_subject_id(s) for s in subjects], "host": socket.gethostname(),
+                  "pid": os.getpid(), "started": _now()}  # fmt: skip
+        self._write_file(self.root / PLAN, record)
+
+    def end(self) -> None:
+        """The build of the recorded plan returned: the plan goes."""
+        (self.root / PLAN).unlink(missing_ok=True)
+
+    @contextlib.contextmanager
+    def planned(self, subjects):
+        """The plan of ``subjects`` recorded for the block (:meth:`begin`), removed when it ends or fails.
+
+        An interruption (:class:`KeyboardInterrupt`: SIGINT, SIGTERM) keeps it: the build stopped before its
+        end, and ``--status`` says what it did not start. An error ends the build and leaves no plan.
+        """
+        self.begin(subjects)
+        try:
+            yield self
+        except KeyboardInterrupt:
+            raise
+        except BaseException:
+            self.end()
+            self.prune()
+            raise
+        self.end()
+        self.prune()
+
+    def plan(self) -> dict | None:
+        """The recorded plan (module docstring), or None (none, or a file that is not a plan)."""
+        try:
+            rec = json.loads(read_regular_file(self.root / PLAN, follow_links=False))
+        except (OSError, ValueError, RecursionError):  # missing, not a regular file (a FIFO, a link), not JSON
+            return None
+        if not isinstance(rec, dict) or not isinstance(rec.get("subjects"), list):
+            return None
+        return rec
+
     def finish(self, sid: str) -> None:
         """``sid`` is committed to the store: its record goes."""
         self._path(sid).unlink(missing_ok=True)
@@ -150,13 +212,16 @@ def run_journalled(journal, sid, fn, retries):
         never raised, so the other subjects of a build go on.
     """
     for attempt in range(1, int(retries) + 2):
-        if journal is not None:
-            journal.start(sid, attempt)
         try:
+            if journal is not None:
+                journal.start(sid, attempt)  # a journal that cannot be written (a full disk) fails the attempt
             result = fn()
         except Exception as exc:  # every failure is recorded and retried, then reported
             if journal is not None:
-                journal.fail(sid, attempt, exc)
+                try:
+                    journal.fail(sid, attempt, exc)
+                except OSError:  # the journal cannot be written either: the failure is still reported
+                    pass
             error = f"{type(exc).__name__}: {exc}"
             continue
         if journal is not None:
@@ -177,6 +242,15 @@ class BuildStatus:
     records: dict = field(default_factory=dict)
     #: Subjects of the store that no build wrote: edits (source ``facestats.edit``) and imported sample subjects.
     others: list = field(default_factory=list)
+    #: The plan of a build that has not returned (module docstring), or None.
+    plan: dict | None = None
+    #: Subjects of that plan neither stored nor in the journal: not started yet (or lost with a killed build).
+    not_started: list = field(default_factory=list)
+
+    @property
+    def unfinished(self) -> bool:
+        """A build's plan is left and its process is gone: it stopped before its end (rerun it to resume)."""
+        return self.plan is not None and not _alive(self.plan)
 
     def to_dict(self) -> dict:
         """JSON-ready: counts and ids per state, the failed subjects' last errors."""
@@ -187,6 +261,9 @@ class BuildStatus:
             "interrupted": self.interrupted,
             "failed": self.failed,
             "others": len(self.others),
+            "requested": None if self.plan is None else len(self.plan["subjects"]),
+            "not_started": self.not_started,
+            "build": None if self.plan is None else ("stopped" if self.unfinished else "running"),
         }
 
     def to_text(self) -> str:
@@ -194,8 +271,20 @@ class BuildStatus:
         lines = [
             f"store {self.store}: {len(self.done)} done, {len(self.running)} running, "
             f"{len(self.interrupted)} interrupted, {len(self.failed)} failed"
+            + (f", {len(self.not_started)} not started" if self.plan is not None else "")
             + (f" (and {len(self.others)} edited or imported subject(s), not built)" if self.others else "")
         ]
+        if self.plan is not None:
+            p = self.plan
+            state = (
+                f"stopped before its end (pid {p.get('pid', '?')} is gone): rerun the same command to resume"
+                if self.unfinished
+                else "running"
+            )
+            lines.append(
+                f"  build of {len(p['subjects'])} subject(s) begun {p.get('started', '?')} on {p.get('host', '?')}: "
+                f"{state}"
+            )
         for sid in self.running:
             r = self.records[sid]
             lines.append(
@@ -230,4 +319,7 @@ def build_status(store_path) -> BuildStatus:
     running = sorted(s for s, r in records.items() if r.get("state") == "running" and _alive(r))
     interrupted = sorted(s for s, r in records.items() if r.get("state") == "running" and s not in running)
     failed = {s: r.get("error") for s, r in sorted(records.items()) if r.get("state") == "failed"}
-    return BuildStatus(str(store_path), done, running, interrupted, failed, records, others)
+    journal = BuildJournal(store_path)
+    plan = journal.plan()
+    not_started = [] if plan is None else [s for s in plan["subjects"] if s not in rows and s not in records]
+    return BuildStatus(str(store_path), done, running, interrupted, failed, records, others, plan, not_started)

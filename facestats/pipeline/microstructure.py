@@ -12,8 +12,10 @@ as :mod:`facestats.pipeline.build` for populations.
 
 Output: a zarr group at ``out`` with ``displacement`` (frame, v, u) float32 in
 µm, ``normal`` (frame, v, u, 3) float32 tangent-space normals, ``stretch``
-(frame, 7) — percentiles 1/50/99 of r_s and r_t over the mesh's texels and the
-count of degenerate triangles —, and ``done`` (frame,) bool; optionally
+(frame, 7) — percentiles 1/50/99 of r_s and r_t over the mesh's texels (NaN,
+with a :class:`~facestats.errors.FacestatsWarning`, for a frame whose every
+triangle is degenerate: no strain is measured) and the count of degenerate
+triangles —, and ``done`` (frame,) bool; optionally
 ``displacement.NNNNN.exr`` (channel Y, units um) and ``normal.NNNNN.exr`` (R, G,
 B = n_u, n_v, n_n) per frame in ``exr_dir``.  A frame is marked done only after
 all its outputs are written (EXR files through a temporary name and an atomic
@@ -45,6 +47,7 @@ import os
 import pathlib
 import re
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -56,7 +59,7 @@ from facestats.core.outputs import OutputSet, check_output_file
 from facestats.core.progress import progress_bar
 from facestats.core.validate import as_scalar, check_choice, check_integer
 from facestats.core.version import __version__
-from facestats.errors import FacestatsError, StoreError, ValidationError
+from facestats.errors import FacestatsError, FacestatsWarning, StoreError, ValidationError
 from facestats.io.displacement import read_displacement, write_displacement
 from facestats.io.ict_facekit import read_ict_facekit
 from facestats.io.images import read_exr_attributes, write_exr
@@ -390,8 +393,18 @@ def _render_frame(ms, vertices, neutral, map_shape, window, table, tile, halos, 
         stats.append((strain.r_s[sl][ok], strain.r_t[sl][ok], strain.n_degenerate))
     r_s = np.concatenate([s[0] for s in stats])
     r_t = np.concatenate([s[1] for s in stats])
-    pct = (np.percentile(r_s, [1, 50, 99]), np.percentile(r_t, [1, 50, 99])) if r_s.size else (np.ones(3), np.ones(3))
-    group["stretch"][index] = np.concatenate([*pct, [stats[0][2] if stats else 0]])
+    n_degenerate = stats[0][2] if stats else 0
+    if r_s.size and n_degenerate < len(ms.triangles):
+        pct = (np.percentile(r_s, [1, 50, 99]), np.percentile(r_t, [1, 50, 99]))
+    else:  # every triangle degenerate (a collapsed frame): no strain measured, not "no strain"
+        pct = (np.full(3, np.nan), np.full(3, np.nan))
+        warnings.warn(
+            f"frame {index}: no valid strain ({n_degenerate} of {len(ms.triangles)} triangles degenerate: a "
+            "collapsed frame?); its maps are the neutral ones and its stretch percentiles NaN",
+            FacestatsWarning,
+            stacklevel=3,
+        )
+    group["stretch"][index] = np.concatenate([*pct, [n_degenerate]])
 
 
 def _exr_targets(exr_dir, index):

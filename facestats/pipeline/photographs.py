@@ -239,7 +239,8 @@ def _removed_on_error(path, keep):
     """Remove ``path`` and the missing folders above it that the block created, if the block fails with an error.
 
     Folders that existed before the block are never removed, nor one that holds ``keep`` (the store, whose
-    creation :func:`facestats.io.root.new_store_guard` undoes).  An interruption (:class:`KeyboardInterrupt`)
+    creation :func:`facestats.io.root.new_store_guard` undoes); when ``path`` itself existed (an empty ``--work``
+    folder), what the block wrote into it goes and the folder stays.  An interruption (:class:`KeyboardInterrupt`)
     keeps them: a partial capture is resumed by the next run.  A failed ingest leaves nothing behind, even
     after some cameras were finished: its input needs fixing, and the next run starts afresh.
     """
@@ -249,9 +250,19 @@ def _removed_on_error(path, keep):
         if not keep.is_relative_to(p):
             created = p
         p = p.parent
+    own = pathlib.Path(os.fspath(path)).absolute()
+    existing = own.is_dir() and not own.is_symlink()
+    before = set(os.listdir(own)) if existing else set()
     try:
         yield
     except Exception:
         if created is not None and os.path.isdir(created) and not os.path.islink(created):
             shutil.rmtree(created, ignore_errors=True)
+        elif existing and own.is_dir():  # the user's folder stays; what this run wrote in it goes
+            for name in set(os.listdir(own)) - before:
+                entry = own / name
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.rmtree(entry, ignore_errors=True)
+                else:
+                    entry.unlink(missing_ok=True)
         raise

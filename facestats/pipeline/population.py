@@ -11,6 +11,8 @@ subject is stored (:class:`facestats.errors.FitError`), never skipped silently.
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 
 from facestats.acquire.capture import Capture, open_capture
@@ -122,8 +124,10 @@ def fit_population(
         if store is not None:
             with open_store(store, mode="a") as stored:
                 present = set(stored.ids())
-        tasks = [(sid, c.path or c, stra, st, f, store, retries) for sid, c, f in zip(ids, caps, fits)]
-        results = _run([t for t in tasks if t[0] not in present], own or client, local, num_workers, progress)
+        # until the run returns: `facestats build --status` counts what was not started
+        with BuildJournal(store).planned(ids) if store is not None else contextlib.nullcontext():
+            tasks = [(sid, c.path or c, stra, st, f, store, retries) for sid, c, f in zip(ids, caps, fits)]
+            results = _run([t for t in tasks if t[0] not in present], own or client, local, num_workers, progress)
     finally:
         if own is not None:
             own.close()

@@ -65,11 +65,39 @@ def test_folder_layout_and_frames(tiny):
     assert prof.shape == (3, sensor.n_fibers, 3) and np.all(std > 0)
 
 
+def test_a_sensor_file_that_is_a_fifo_or_a_link_out_is_refused_not_read(copy, tmp_path):
+    """The sensor file was read with Path.read_text: a FIFO there hung the ingest (a red team)."""
+    name = json.loads((copy / "manifest.json").read_text())["sensor"]
+    (copy / name).rename(tmp_path / "sensor-elsewhere.json")
+    os.mkfifo(copy / name)
+    with pytest.raises(FacestatsError, match=f"sensor file {name} of .* cannot be read: .*not a regular file"):
+        open_folder(copy).sensor()
+    (copy / name).unlink()
+    (copy / name).symlink_to(tmp_path / "sensor-elsewhere.json")
+    with pytest.raises(FacestatsError, match=f"sensor file {name} listed in manifest.json must lie inside"):
+        open_folder(copy).sensor()
+
+
 def test_bilinear_taps_interpolate_a_linear_ramp():
     img = np.add.outer(np.arange(5.0), 10 * np.arange(7.0))  # value = row + 10 col
     index, weight = bilinear_taps(np.array([[2.25, 1.5], [0.0, 0.0], [6.0, 4.0]]), (7, 5))
     vals = np.sum(img.reshape(-1)[index] * weight, axis=1)
     np.testing.assert_allclose(vals, [1.5 + 22.5, 0.0, 4.0 + 60.0])
+
+
+def test_bilinear_taps_agree_with_scipy_up_to_the_image_edges(rng):
+    """Against scipy.ndimage.map_coordinates (order 1, clamp to edge) everywhere an image spans, [-1/2, W - 1/2):
+    within half a pixel of the left and top edges the second tap read pixel 1 (u = -0.25 gave 0.75 on f = x)."""
+    from scipy.ndimage import map_coordinates
+
+    w, h = 9, 6
+    img = rng.random((h, w))
+    pts = np.c_[rng.uniform(-0.5, w - 0.5, 4000), rng.uniform(-0.5, h - 0.5, 4000)]
+    pts[:8] = [[-0.5, 2], [-0.25, 3], [-0.01, 0], [4, -0.5], [2, -0.3], [-0.4, -0.4], [w - 0.51, 1], [1, h - 0.51]]
+    index, weight = bilinear_taps(pts, (w, h))
+    got = np.sum(img.reshape(-1)[index] * weight, axis=1)
+    want = map_coordinates(img, [pts[:, 1], pts[:, 0]], order=1, mode="nearest")
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)  # float32 weights
 
 
 def test_ingest_recovers_the_simulated_radiance(tiny, tmp_path):
@@ -217,6 +245,7 @@ def test_non_monotonic_exposure_times_and_exif_disagreement(copy):
 
 
 def test_bad_manifests(copy):
+    original = (copy / "manifest.json").read_text()
     _edit_manifest(copy, lambda d: d.update(format="something/2"))
     with pytest.raises(FacestatsError, match=r"field 'format' must be 'facestats.capture-folder/1', got 'something/2'"):
         open_folder(copy)
@@ -228,6 +257,11 @@ def test_bad_manifests(copy):
         open_folder(copy)
     with pytest.raises(FacestatsError, match="has no readable manifest.json"):
         open_folder(copy / "cam00")
+    # A second full set of frames as pose 1: an ingest reads pose 0, so they were ignored without a word.
+    (copy / "manifest.json").write_text(original)
+    _edit_manifest(copy, lambda d: d["frames"].extend([dict(f, pose=1) for f in d["frames"]]))
+    with pytest.raises(FacestatsError, match=r"frames of a face capture must all be pose 0 .*got poses 0\.\.1"):
+        open_folder(copy)
 
 
 @pytest.mark.parametrize(
@@ -329,6 +363,37 @@ def test_interrupted_ingest_leaves_no_subject_and_resumes(tiny, tmp_path, monkey
     prov = json.loads(ds.attrs["provenance"])
     assert prov["capture_provenance"]["source"] == "photographs" and ds.attrs["age"] == truth.age
     assert ingest_subject(*args).skipped  # rerunning a finished ingest does nothing
+
+
+def test_an_ingest_interrupted_while_it_sets_its_capture_up_starts_it_again(tiny, tmp_path, monkeypatch):
+    """The capture recorded its ingest state before its per-lumitexel arrays: a rerun resumed a capture without
+    them and failed on a missing chunk, every time (a red team). The state is written last now."""
+    from facestats.acquire.capture import CaptureWriter
+    from facestats.io import open_store
+    from facestats.pipeline import FitSettings
+    from facestats.pipeline.photographs import ingest_subject
+
+    _, pc, _ = tiny
+    folder = pc.folder.parent
+    store = tmp_path / "s.zarr"
+    write_block = CaptureWriter.write_block
+
+    def cut(self, start, arrays):
+        write_block(self, start, dict(list(arrays.items())[:3]))  # half the arrays, then Ctrl-C
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(CaptureWriter, "write_block", cut)
+    args = (folder, folder / "face.obj", pc.calibration, store, "PH002")
+    few = FitSettings(min_samples=4, micro_normals=False)
+    with pytest.raises(KeyboardInterrupt):
+        ingest_subject(*args, workers=1, settings=few, min_footprint_px=1)
+    work = tmp_path / "s.zarr.ingest" / "PH002" / "capture.zarr"
+    assert ingest_state(work) is None and os.listdir(work)  # begun, but not an ingest to resume
+    monkeypatch.setattr(CaptureWriter, "write_block", write_block)
+    report = ingest_subject(*args, workers=1, settings=few, min_footprint_px=1)
+    assert report.subject_id == "PH002" and ingest_state(work)["complete"]
+    with open_store(store) as st:
+        assert "PH002" in st
 
 
 def test_8_bit_jpeg_frames_with_exif(tmp_path):

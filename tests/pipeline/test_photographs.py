@@ -124,6 +124,38 @@ def test_ingest_command_reports_bad_input_without_a_traceback(case, tmp_path):
     assert "two.json has 2 cameras" in r.stderr, r.stderr
 
 
+def test_a_failed_ingest_empties_the_work_folder_it_was_given_and_links_out_are_refused(case, tmp_path):
+    """A red team: with --work an existing empty folder, a corrupt frame in the last camera left the 15 cameras
+    already ingested in it; a frame that is a symbolic link out of the photo folder was read."""
+    import hashlib
+    import os
+
+    _, pc, _, _ = case
+    photos = tmp_path / "photos"
+    shutil.copytree(pc.folder.parent, photos)
+    man = json.loads((photos / "manifest.json").read_text())
+    last = max(man["frames"], key=lambda f: f["camera"])
+    frame = photos / last["file"]
+    data = frame.read_bytes()[:200]  # truncated: undecodable, with the manifest's checksum made to match
+    frame.write_bytes(data)
+    last["sha256"] = hashlib.sha256(data).hexdigest()
+    (photos / "manifest.json").write_text(json.dumps(man))
+    work = tmp_path / "work"
+    work.mkdir()
+    args = ["--mesh", photos / "face.obj", "--calibration", photos / "dome.json", "--subject", "S001", "--quiet"]
+    r = run_cli("ingest", photos, *args, "--store", tmp_path / "s.zarr", "--work", work)
+    assert r.returncode == 2 and f"frame {last['file']} cannot be decoded" in r.stderr, r.stderr
+    assert work.is_dir() and os.listdir(work) == [] and not (tmp_path / "s.zarr").exists()
+
+    outside = tmp_path / "elsewhere.png"
+    first = photos / man["frames"][0]["file"]
+    shutil.copyfile(first, outside)  # the same bytes: the checksum alone cannot tell
+    first.unlink()
+    first.symlink_to(outside)
+    r = run_cli("ingest", photos, *args, "--store", tmp_path / "t.zarr")
+    assert r.returncode == 2 and f"frame {man['frames'][0]['file']} listed in manifest.json must lie inside" in r.stderr
+
+
 def test_16_bit_tiff_frames_hold_the_png_codes_and_ingest(case, tmp_path):
     """The same capture written as 16-bit TIFF: an independent reader (tifffile) sees the PNG frames' codes
     exactly, and ``facestats ingest`` fits the TIFF folder within the issue's 3 % median error."""

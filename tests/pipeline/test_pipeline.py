@@ -376,7 +376,8 @@ def test_a_resumed_build_with_other_parameters_never_mixes_populations(tmp_path)
     store = tmp_path / "s.zarr"
     assert build_store(store, map_size=8, subjects=["S001"], workers=1).written == ["S001"]
     for kw, differ in (({"seed": 7}, "seed"), ({"map_size": 12}, "geometry 'ict-8' stored, 'ict-12'"),
-                       ({"specular": "blinn_phong"}, "specular")):  # fmt: skip
+                       ({"specular": "blinn_phong"}, "specular"),  # and resumed with --no-micro-normals (a red team):
+                       ({"micro_normals": False}, "micro-normal maps True stored, False in this build")):  # fmt: skip
         with pytest.raises(FacestatsError, match=f"holds S001 built with other parameters.*{differ}"):
             build_store(store, **{"map_size": 8, **kw}, subjects=["S001", "S002"], workers=1)
     with open_store(store) as st:

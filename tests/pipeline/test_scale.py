@@ -157,6 +157,58 @@ def test_status_reports_running_and_interrupted_subjects(tmp_path):
     assert build_status(store).running == []
 
 
+def test_status_counts_what_a_build_killed_early_did_not_start(tmp_path):
+    """Killed before its first subject started, a build left a store that --status reported as "0 done, 0 running,
+    0 interrupted, 0 failed" with exit 0, as if finished (a red team): a build records its plan first now."""
+    from facestats.pipeline.journal import PLAN
+
+    store = tmp_path / "p.zarr"
+    open_store(store, mode="a").close()
+    BuildJournal(store).begin(["S001", "S002", "S003"])
+    plan = json.loads((store / JOURNAL_DIR / PLAN).read_text())
+    plan["pid"] = 2**22 + 12345  # the killed build's process: gone
+    (store / JOURNAL_DIR / PLAN).write_text(json.dumps(plan))
+    BuildJournal(store).start("S002", 1)  # this process: alive
+    status = build_status(store)
+    assert status.not_started == ["S001", "S003"] and status.running == ["S002"] and status.unfinished
+    res = run_cli("build", "--status", str(store))
+    assert res.returncode == 1 and "0 done, 1 running, 0 interrupted, 0 failed, 2 not started" in res.stdout
+    assert "build of 3 subject(s) begun" in res.stdout and "rerun the same command to resume" in res.stdout
+    # a build that returns, or fails with an error, leaves no plan
+    build_module.build_store(store, map_size=8, subjects=["S001"], workers=1, conditions=False, micro_normals=False)
+    assert BuildJournal(store).plan() is None and build_status(store).not_started == []
+    with pytest.raises(FacestatsError, match="built with other parameters"):
+        build_module.build_store(store, map_size=8, seed=7, subjects=["S001"], workers=1, conditions=False)
+    assert BuildJournal(store).plan() is None
+
+
+def test_a_journal_that_cannot_be_written_fails_the_subject_not_the_build(tmp_path, monkeypatch):
+    """On a full disk the record of a starting subject could not be written: the error left run_journalled and
+    aborted the whole build, naming no subject, and left 0-byte temporaries in .build/ (a red team)."""
+    import errno
+    import pathlib
+
+    from facestats.pipeline.journal import run_journalled
+
+    store = tmp_path / "s.zarr"
+    open_store(store, mode="a").close()
+    real = pathlib.Path.write_text
+
+    def full(self, text, *args, **kwargs):
+        if self.name.startswith(".S005.json.tmp-"):
+            real(self, "", *args, **kwargs)  # the file is made, its bytes do not fit
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(self, text, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "write_text", full)
+    calls = []
+    state, error = run_journalled(BuildJournal(store), "S005", lambda: calls.append(1), retries=2)
+    assert (state, calls) == ("failed", [])  # reported, not raised; the work never began without its record
+    assert error == "OSError: [Errno 28] No space left on device"
+    assert os.listdir(store / JOURNAL_DIR) == []  # no temporaries left
+    assert run_journalled(BuildJournal(store), "S006", lambda: "ok", retries=0) == ("done", "ok")
+
+
 def test_a_record_left_by_a_build_killed_after_its_commit_goes_on_resume(tmp_path):
     """Killed between a subject's commit and its record's removal, a build leaves a ``running`` record of a
     stored subject; the resumed build skips the subject and removes the record (and the empty journal)."""
@@ -164,7 +216,9 @@ def test_a_record_left_by_a_build_killed_after_its_commit_goes_on_resume(tmp_pat
     build_module.build_store(store, map_size=8, subjects=["S001"], workers=1, conditions=False, micro_normals=False)
     BuildJournal(store).start("S001", 1)  # as the killed build left it
     assert (store / JOURNAL_DIR / "S001.json").exists()
-    report = build_module.build_store(store, map_size=8, subjects=["S001"], workers=1, conditions=False)
+    report = build_module.build_store(
+        store, map_size=8, subjects=["S001"], workers=1, conditions=False, micro_normals=False
+    )
     assert report.skipped == ["S001"] and not (store / JOURNAL_DIR).exists()
     with open_store(store) as st:
         assert st.validate().ok and not st.validate().notes

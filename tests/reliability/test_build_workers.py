@@ -125,3 +125,81 @@ def test_killed_build_leaves_no_worker_and_resumes(tmp_path):
     after = subject_digests(store)
     assert sorted(after) == SUBJECTS and all(after[s] == d for s, d in before.items())
     assert f"{len(before)} already present" in r.stdout
+
+
+#: Installed through PYTHONPATH in the build's processes: the worker that builds $FACESTATS_TEST_DIE_ON kills itself
+#: with SIGKILL, as the out-of-memory killer would (the spawned workers import it too, before any task).
+_DYING_WORKER = """
+import os
+import signal
+
+if os.environ.get("FACESTATS_TEST_DIE_ON"):
+    import facestats.pipeline.build as build
+
+    _build_one = build._build_one
+
+    def _dying(*args, **kwargs):
+        if args[5] == os.environ["FACESTATS_TEST_DIE_ON"]:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return _build_one(*args, **kwargs)
+
+    build._build_one = _dying
+"""
+
+
+def _build(store, subjects, **env):
+    argv = [*facestats_exe(), "build", "--store", str(store), "--size", "8", "--workers", "2", "--quiet"]
+    argv += ["--no-conditions", "--subjects", *subjects]
+    return subprocess.Popen(argv, env=dict(os.environ, MPLBACKEND="Agg", **env), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)  # fmt: skip
+
+
+@pytest.mark.slow
+def test_a_worker_killed_mid_subject_is_survived_and_the_subject_redone(tmp_path):
+    """A dead worker broke the process pool, and stopping the others then waited for ever on the dead one's
+    Event: the build hung at 0 % CPU (a red team). Now the round's subjects are sorted out from the store and
+    the journal, and the one that was running is built again (alone)."""
+    store, subjects = tmp_path / "s.zarr", SUBJECTS[:6]
+    proc = _build(store, subjects)
+    try:
+        deadline = time.monotonic() + 300
+        record = None
+        while record is None and time.monotonic() < deadline:
+            found = sorted((store / ".build").glob("S*.json")) if (store / ".build").is_dir() else []
+            try:
+                record = json.loads(found[0].read_text()) if found else None
+            except (OSError, ValueError):  # replaced as we read it
+                record = None
+            time.sleep(0.02)
+        assert record is not None, "no subject got going"
+        os.kill(record["pid"], signal.SIGKILL)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    assert "6 subject(s) written" in out and _count(store) == 6
+    status = subprocess.run([*facestats_exe(), "build", "--status", str(store)], capture_output=True, text=True)
+    assert "6 done, 0 running, 0 interrupted, 0 failed" in status.stdout
+
+
+@pytest.mark.slow
+def test_a_subject_whose_worker_always_dies_is_reported_failed_and_the_others_are_built(tmp_path):
+    """Retried alone (so that only its own deaths count), then reported failed: exit 1, the journal says why."""
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(_DYING_WORKER)
+    store, subjects = tmp_path / "s.zarr", SUBJECTS[:4]
+    path = os.pathsep.join([str(hook), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    tag = uuid.uuid4().hex
+    proc = _build(store, subjects, FACESTATS_TEST_DIE_ON="S002", PYTHONPATH=path, FACESTATS_TEST_TAG=tag)
+    out, err = proc.communicate(timeout=600)
+    assert proc.returncode == 1, err
+    assert "3 subject(s) written" in out and "1 FAILED" in out
+    assert "failed S002: _WorkerDied: its worker process died on each of 3 attempts" in out
+    status = subprocess.run([*facestats_exe(), "build", "--status", str(store)], capture_output=True, text=True)
+    assert "3 done, 0 running, 0 interrupted, 1 failed" in status.stdout and "S002" in status.stdout
+    gone = time.monotonic() + 3
+    while _tagged(tag) and time.monotonic() < gone:
+        time.sleep(0.05)
+    assert _tagged(tag) == [], "worker processes survived the build"

@@ -60,7 +60,7 @@ def _build_command(args) -> int:
 
         status = build_status(args.status)
         print(status.to_text())
-        return 1 if status.failed else 0
+        return 1 if status.failed or status.unfinished else 0
     if args.default:
         mode = (
             f"--default builds the embedded store on this machine (seed {DEFAULT_SEED}, {DEFAULT_MAP_SIZE}² maps, "
@@ -116,7 +116,10 @@ def add_build(sub):
     p.add_argument(
         "--status",
         metavar="STORE",
-        help="report what builds into STORE have done, what is running and what failed (exit 1 if any failed)",
+        help=(
+            "report what builds into STORE have done, what is running, what failed and what a build that stopped "
+            "before its end did not start (exit 1 if any failed or a build stopped before its end)"
+        ),
     )
     p.add_argument(
         "--scheduler",

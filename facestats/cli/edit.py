@@ -14,6 +14,7 @@ Registered in :mod:`facestats.cli` with :func:`add_edit`.
 from __future__ import annotations
 
 import os
+import sys
 
 from facestats.cli.options import (
     add_store_option,
@@ -139,6 +140,13 @@ def _report(edit, args) -> int:
             f"saved in {args.images} ({reason}); free space or choose another --images folder and rerun the same "
             "command with --overwrite"
         ) from None
+    except KeyboardInterrupt:  # the subject is committed: say so, not only "interrupted"
+        print(
+            f"facestats: interrupted: the edited subject {edit.subject_id!r} was written to store {edit.store}, its "
+            f"images were not saved in {args.images}; rerun the same command with --overwrite to make them",
+            file=sys.stderr,
+        )
+        return 130
     print(edit.to_text(images=files, directory=args.images))
     return 0
 
@@ -151,7 +159,8 @@ def _check_outputs(args) -> None:
     from facestats.io.store import default_store_path
 
     if args.new_id is not None:
-        check_subject_id(args.new_id)
+        with named_options(subject_id="--id"):
+            check_subject_id(args.new_id)
     if args.out_store is not None and not args.out_store.strip():
         raise ValidationError("--out-store must name a directory store, got ''")
     if args.out_store is not None and args.out_store.lower().endswith(".zip"):
@@ -159,7 +168,17 @@ def _check_outputs(args) -> None:
             "--out-store must name a directory store (e.g. edits.zarr; a zip store is read-only), got "
             f"{args.out_store!r}"
         )
-    check_output_dir(args.images, "--images")
+    images = check_output_dir(args.images, "--images")
+    if args.new_id is not None and not args.overwrite:  # a default id names a subject that exists too: refused
+        from facestats.edit.plots import edit_image_names
+
+        there = [n for n in edit_image_names(args.new_id) if os.path.lexists(os.path.join(images, n))]
+        if there:
+            raise ValidationError(
+                f"--images folder {os.fspath(images)!r} already holds {there[0]}"
+                + (f" and {len(there) - 1} more of this edit's images" if len(there) > 1 else "")
+                + ": pass --overwrite to replace them, or choose another --images folder or --id"
+            )
     source = store_path_option(args.store) if args.store is not None else default_store_path()
     check_apart(args.images, source, "--images", "the source store")
     if args.out_store is not None:  # the source store itself, or a store elsewhere; never one nested inside it
@@ -178,9 +197,10 @@ def _run(args, edit_function, target, **kwargs) -> int:
     with new_store_guard(args.out_store):
         store, out = _open(args)
         with store, out:
-            edit = edit_function(
-                store, args.subject, target, out_store=out, new_id=args.new_id, overwrite=args.overwrite, **kwargs
-            )
+            with named_options(t="--t", feather="--feather", seed="--seed"):  # the options, not the API's names
+                edit = edit_function(
+                    store, args.subject, target, out_store=out, new_id=args.new_id, overwrite=args.overwrite, **kwargs
+                )
             return _report(edit, args)
 
 

@@ -61,6 +61,11 @@ def _check_subject_options(args):
         )
 
 
+#: Coarsest light-stage grid ``--lights`` takes (θ × φ): a white Lambertian under a uniform probe then gets
+#: 0.93-1.08 of its albedo whatever its normal (4x2: 0.71-1.41; docs/relighting.md, tests/cli/test_relight.py).
+MIN_LIGHTS = (8, 4)
+
+
 def _lights(text):
     from facestats.errors import ValidationError
 
@@ -68,6 +73,12 @@ def _lights(text):
     if len(sizes) != 2 or None in sizes or min(sizes) < 1:
         raise ValidationError(
             f"--lights must be N_THETAxN_PHI, two whole numbers >= 1 in ASCII digits such as 64x32, got {text!r}"
+        )
+    if sizes[0] < MIN_LIGHTS[0] or sizes[1] < MIN_LIGHTS[1]:  # 1x1 lit the face from behind only: a black image
+        raise ValidationError(
+            f"--lights must be at least {MIN_LIGHTS[0]}x{MIN_LIGHTS[1]}: a coarser grid relights a white Lambertian "
+            "under a uniform probe 29 % dark to 41 % bright (4x2), or black (1x1), got "
+            f"{text!r} (docs/relighting.md)"
         )
     return tuple(sizes)
 

@@ -15,7 +15,13 @@ from __future__ import annotations
 import math
 import pathlib
 
-from facestats.cli.options import add_store_option, ascii_int, check_apart_from_store, open_store_option
+from facestats.cli.options import (
+    add_store_option,
+    ascii_int,
+    check_apart_from_store,
+    named_options,
+    open_store_option,
+)
 
 __all__ = ["add_render"]
 
@@ -77,7 +83,6 @@ def _cmd_render(args) -> int:
     from facestats.acquire.capture import open_capture
     from facestats.core.conventions import DEFAULT_SEED
     from facestats.core.outputs import OutputSet, check_apart, check_output_dir, check_output_file
-    from facestats.errors import ValidationError
     from facestats.io.exr_set import check_map_subject
     from facestats.io.images import write_image
     from facestats.io.subject_export import store_subject
@@ -102,15 +107,11 @@ def _cmd_render(args) -> int:
         cap = None  # nothing to compare with: the subject's face suffices
     else:
         cap = default_capture(ds, seed=DEFAULT_SEED if args.seed is None else args.seed)
-    if args.probe:
-        try:
+    with named_options(samples="--probe-lights", camera="--camera", light="--light"):  # the options, not the API's
+        if args.probe:
             res = render_probe(ds, cap, args.camera, args.probe, mesh=args.mesh, samples=args.probe_lights)
-        except ValidationError as exc:  # the option, not the API's argument
-            if not str(exc).startswith("samples"):
-                raise
-            raise ValidationError("--probe-lights" + str(exc)[len("samples") :]) from None
-    else:
-        res = render_led(ds, cap, args.camera, args.light)
+        else:
+            res = render_led(ds, cap, args.camera, args.light)
     with OutputSet(out) as files:  # every file or none
         write_image(files.path(names[0]), np.nan_to_num(res.rendered).clip(0))
         if res.reference is not None:

@@ -98,6 +98,7 @@ def transfer_colour(
     feather = check_feather(feather)
     labels, _ = mask_labels(mask, src.shape[:2])
     inside = np.ones(src.shape[:2], bool) if labels is None else labels > 0
+    weights = feather_weights(inside, feather)  # checked before the work
     basis, hists = _target_colour(target, target_mask, bins)
     if t == 0.0:
         return src.copy()
@@ -105,4 +106,4 @@ def transfer_colour(
     for c in range(3):
         planes[c][inside] = match_histogram(planes[c][inside], hists[c], t=t)
     edited = np.clip(basis.to_rgb(planes), 0.0, 1.0)
-    return blend(src, edited, feather_weights(inside, feather))
+    return blend(src, edited, weights)

@@ -18,11 +18,13 @@ re-exported by :mod:`facestats.edit`).
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from facestats.core.conventions import parse_region
 from facestats.core.validate import as_float, check_finite, check_range
-from facestats.errors import ValidationError
+from facestats.errors import FacestatsWarning, ValidationError
 
 __all__ = [
     "mask_labels",
@@ -113,14 +115,37 @@ def feather_weights(inside: np.ndarray, feather: float) -> np.ndarray:
     Returns
     -------
     numpy.ndarray of float64, shape of ``inside``
+
+    Raises
+    ------
+    ValidationError
+        ``feather`` wider than the image.
+
+    Warns
+    -----
+    FacestatsWarning
+        ``feather`` wider than the mask's depth: no pixel gets the whole edit.
     """
     if inside.all():
         return np.ones(inside.shape, np.float64)
     if feather <= 0:
         return inside.astype(np.float64)
+    if feather > max(inside.shape):
+        raise ValidationError(
+            f"feather must be at most the image's size, {max(inside.shape)} pixels (a blend wider than the image "
+            f"leaves almost nothing of the edit), got {feather:g}"
+        )
     from scipy import ndimage
 
     d = ndimage.distance_transform_edt(inside)
+    depth = float(d.max())
+    if feather > depth:  # a red team: feather 1000 on a 48² map kept 0.04 % of the edit, without a word
+        warnings.warn(
+            f"feather {feather:g} pixels exceeds the depth of the mask, {depth:g} pixels (the largest distance of "
+            f"a pixel inside from its edge): no pixel gets the whole edit, at most {depth / feather:.0%} of it",
+            FacestatsWarning,
+            stacklevel=3,
+        )
     return np.clip(d / feather, 0.0, 1.0)
 
 

@@ -15,10 +15,16 @@ import numpy as np
 from facestats.core.outputs import OutputSet, check_output_dir
 from facestats.edit.histogram import Histogram, interpolate_histograms
 from facestats.edit.pyramid import band_names
-from facestats.edit.result import SubjectEdit
+from facestats.edit.result import BRDF_VARIABLES, SubjectEdit
 from facestats.errors import ValidationError
 
-__all__ = ["plot_texture_transfer", "plot_histogram_interpolation", "plot_subject_edit", "save_edit_images"]
+__all__ = [
+    "plot_texture_transfer",
+    "plot_histogram_interpolation",
+    "plot_subject_edit",
+    "save_edit_images",
+    "edit_image_names",
+]
 
 
 def _figure(**kwargs):
@@ -225,6 +231,15 @@ def plot_subject_edit(edit: SubjectEdit, *, title: str | None = None):
 def _upscale(img, min_side=256):
     k = max(1, -(-min_side // max(img.shape[:2])))
     return np.repeat(np.repeat(img, k, axis=0), k, axis=1)
+
+
+def edit_image_names(subject_id: str) -> list[str]:
+    """Every file name :func:`save_edit_images` may write for the edited subject ``subject_id`` (a superset of
+    one edit's: the BRDF maps it did not change are not written)."""
+    maps = ("albedo", *BRDF_VARIABLES)
+    return [f"{subject_id}_{m}_{when}.png" for m in maps for when in ("before", "after")] + [
+        f"{subject_id}_summary.png"
+    ]
 
 
 def save_edit_images(edit: SubjectEdit, directory=".") -> list[pathlib.Path]:

@@ -379,6 +379,7 @@ def _transfer_texture(
     dtype = np.float32
 
     inside = None if labels is None else labels > 0
+    weights = np.ones(shape) if inside is None else feather_weights(inside, feather)  # checked before the work
     index = {r: region_index(None if labels is None else labels == r, shape, padded, levels) for r in ids}
     union = np.zeros(padded, bool)
     union[: shape[0], : shape[1]] = True if inside is None else inside
@@ -394,7 +395,6 @@ def _transfer_texture(
     dist = _synthesise(planes, source, outside, index, stats, pyr, iterations, SOURCE_BINS)
 
     edited = np.clip(basis.to_rgb(planes[:, : shape[0], : shape[1]]), 0.0, 1.0).astype(src.dtype, copy=False)
-    weights = np.ones(shape) if inside is None else feather_weights(inside, feather)
     albedo = blend(src, edited, weights)
     return TextureTransfer(
         albedo=albedo,

@@ -61,6 +61,40 @@ def test_skin_type_writes_a_new_subject_and_images(pop, tmp_path):
     assert r2.returncode == 2 and f"subject {sid!r} already exists" in r2.stderr and "overwrite" in r2.stderr
 
 
+def test_images_of_the_same_name_are_kept_without_overwrite_and_an_interruption_says_what_was_written(
+    pop, tmp_path, monkeypatch, capsys
+):
+    """A red team: a user's X1_summary.png was replaced without --overwrite (refused now, before any work), and
+    Ctrl-C while the images were saved said only "interrupted" though the subject was committed."""
+    import shutil
+
+    import facestats.edit.plots
+    from facestats.cli import main
+
+    store = tmp_path / "pop.zarr"
+    shutil.copytree(pop, store)
+    img = tmp_path / "img"
+    img.mkdir()
+    (img / "X1_summary.png").write_bytes(b"mine")
+    args = ["edit", "skin-type", "F3", "V", "--store", str(store), "--images", str(img), "--id", "X1"]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert f"--images folder {str(img)!r} already holds X1_summary.png: pass --overwrite" in err
+    assert (img / "X1_summary.png").read_bytes() == b"mine"
+    with open_store(store) as st:
+        assert "X1" not in st  # refused before the edit
+
+    def interrupted(edit, directory):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(facestats.edit.plots, "save_edit_images", interrupted)
+    assert main([*args[:-1], "X2"]) == 130
+    err = capsys.readouterr().err
+    assert f"interrupted: the edited subject 'X2' was written to store {store}, its images were not saved" in err
+    with open_store(store) as st:
+        assert "X2" in st
+
+
 def test_brdf_lotion_half_way_from_the_default_store(tmp_path):
     out = tmp_path / "edits.zarr"
     r = run_cli(
@@ -148,7 +182,14 @@ def test_errors_exit_2_with_clear_messages(pop, tmp_path):
     r = run_cli("edit", "skin-type", "F3", "VII", "--store", pop, "--images", tmp_path)
     assert r.returncode == 2 and "skin type must be I-VI or 1-6, got 'VII'" in r.stderr
     r = run_cli("edit", "brdf", "F3", "--skin-type", "V", "--t", "2", "--store", pop, "--images", tmp_path)
-    assert r.returncode == 2 and "t must lie in [0, 1], got 2.0" in r.stderr
+    assert r.returncode == 2 and "facestats: error: --t must lie in [0, 1], got 2.0" in r.stderr  # the option's name
+    for option, value, message in (("--id", "../x", "--id must be 1-64 characters"),
+                                   ("--seed", "-1", "--seed must be an integer in [0, inf], got -1"),
+                                   ("--feather", "-3", "--feather must lie in [0, inf] pixels, got -3.0")):  # fmt: skip
+        command = "colour" if option == "--feather" else "skin-type"
+        target = ["--skin-type", "V"] if command == "colour" else ["V"]
+        r = run_cli("edit", command, "F3", *target, option, value, "--store", pop, "--images", tmp_path)
+        assert r.returncode == 2 and f"facestats: error: {message}" in r.stderr, (option, r.stderr)
     r = run_cli("edit")
     assert r.returncode == 2 and "skin-type" in r.stdout
     r = run_cli("edit", "skin-type", "F3", "V", "--store", pop, "--images", pop)  # images into the store

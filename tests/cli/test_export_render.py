@@ -258,6 +258,12 @@ def test_probe_lights_take_a_median_cut_or_blocks_and_name_bad_values(tmp_path, 
         err = capsys.readouterr().err
         assert "--probe-lights" in err and len(err) < 300, bad[:20]
     assert not (tmp_path / "bad").exists()
+    for bad, message in ((["--camera", "99"], "--camera must be an integer in [0, 15], got 99"),
+                         (["--light", "999"], "--light must be an integer in [0, 149], got 999")):  # fmt: skip
+        command = ["render", "S003"] if bad[0] == "--light" else args  # an LED render has no probe
+        assert main([*command, *bad, "--out", str(tmp_path / "bad")]) == 2
+        assert f"facestats: error: {message}" in capsys.readouterr().err  # the option, not the API's argument
+    assert not (tmp_path / "bad").exists()
     from facestats.acquire.lights import EnvironmentLight
     from facestats.errors import ValidationError
     from facestats.pipeline.validation import probe_lights

@@ -1,6 +1,7 @@
 """``facestats relight``: a subject or a field store under a probe → EXR + PNG; bad input leaves nothing."""
 
 import numpy as np
+import pytest
 
 from facestats.io.images import read_exr, read_image, write_pfm
 from facestats.io.probes import write_light_probe
@@ -258,6 +259,21 @@ def test_a_turntable_of_few_lights_lowers_the_default_ratio_and_refuses_an_expli
     assert 8 <= float(read_exr(tmp_path / "t_001.exr")[1]["compression_ratio"]) < 16  # a minimum ratio, met
 
 
+@pytest.mark.parametrize("grid, low, high", [((4, 2), 0.70, 1.42), ((8, 4), 0.92, 1.09), ((64, 32), 0.998, 1.002)])
+def test_the_coarsest_grid_relights_a_white_lambertian_within_its_stated_bounds(grid, low, high):
+    """The bounds MIN_LIGHTS and the docs quote: Σ_cells δA max(N·l, 0) / π for a uniform unit probe, over 4000
+    random normals (exact: 1 for every normal)."""
+    from facestats.cli.relight import MIN_LIGHTS
+    from facestats.model.sphere import light_stage_directions
+
+    assert MIN_LIGHTS == (8, 4)
+    n = np.random.default_rng(0).normal(size=(4000, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    d, a = light_stage_directions(*grid)
+    e = (np.maximum(n @ d.reshape(-1, 3).T, 0) * a.ravel()).sum(1) / np.pi
+    assert low <= e.min() and e.max() <= high and (e.min() < low + 0.02 or grid == (64, 32))
+
+
 def test_stage_options_are_checked_by_their_flags_before_any_work(tmp_path, capsys):
     from facestats.cli import main
 
@@ -266,6 +282,8 @@ def test_stage_options_are_checked_by_their_flags_before_any_work(tmp_path, caps
         (("--lights", "0x4"), "--lights must be N_THETAxN_PHI, two whole numbers >= 1 in ASCII digits such as "
                               "64x32, got '0x4'"),
         (("--lights", "8x-1"), "--lights must be N_THETAxN_PHI, two whole numbers >= 1"),
+        (("--lights", "1x1"), "--lights must be at least 8x4: a coarser grid relights a white Lambertian"),
+        (("--lights", "4x2"), "--lights must be at least 8x4"),
         (("--elevation", "95"), "--elevation must be an angle in [-90, 90] degrees, got 95.0"),
         (("--elevation", "nan"), "--elevation must be an angle in [-90, 90] degrees, got nan"),
         (("--azimuth", "inf"), "--azimuth must be a finite angle in degrees, got inf"),

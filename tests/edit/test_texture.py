@@ -170,6 +170,32 @@ def test_mask_leaves_outside_bit_identical(images):
     assert np.abs(res.albedo[edge] - src[edge]).mean() < 0.6 * np.abs(res.albedo[core] - src[core]).mean()
 
 
+def test_a_feather_wider_than_the_mask_warns_and_one_wider_than_the_image_is_refused(images):
+    """A red team: feather 1000 on a 48² map kept 0.04 % of the edit, 1e300 none of it, exit 0, without a word."""
+    import warnings
+
+    from facestats.edit import transfer_colour
+    from facestats.edit.masks import feather_weights
+    from facestats.errors import FacestatsWarning
+
+    src, tgt, _ = images
+    mask = np.zeros(src.shape[:2], bool)
+    mask[40:60, 30:90] = True  # depth 10 pixels (the middle rows are 10 from the edge)
+    depth = ndimage.distance_transform_edt(mask).max()
+    assert depth == 10
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FacestatsWarning)
+        w = feather_weights(mask, 10.0)  # reaches the whole edit in the middle: no warning
+    assert w.max() == 1.0
+    with pytest.warns(FacestatsWarning, match=r"feather 40 pixels exceeds the depth of the mask, 10 pixels.*25%"):
+        assert feather_weights(mask, 40.0).max() == pytest.approx(0.25)
+    for call in (lambda f: transfer_texture(src, tgt, mask, levels=3, iterations=1, seed=0, feather=f),
+                 lambda f: transfer_colour(src, tgt, mask, feather=f)):  # fmt: skip
+        for f in (129.0, 1e300):  # refused before any work
+            with pytest.raises(ValidationError, match=r"feather must be at most the image's size, 128 pixels"):
+                call(f)
+
+
 def test_float64_source_keeps_dtype_and_outside(images):
     src, tgt, _ = images
     src64 = src.astype(np.float64) + 1e-9  # values a float32 cannot hold

@@ -249,15 +249,17 @@ def test_outputs_are_safe(tmp_path, smile, neutral_map):
     ]  # fmt: skip
 
 
-def _grid_obj(path, size_mm):
-    """A 3 x 3 vertex planar quad mesh of side ``size_mm`` with UVs, as OBJ text."""
-    lines = [f"v {x * size_mm / 2} {y * size_mm / 2} 0" for y in range(3) for x in range(3)]
-    lines += [f"vt {x / 2} {y / 2}" for y in range(3) for x in range(3)]
-    for y in range(2):
-        for x in range(2):
-            a = y * 3 + x + 1
-            lines.append(f"f {a}/{a} {a + 1}/{a + 1} {a + 4}/{a + 4} {a + 3}/{a + 3}")
+def _grid_obj(path, size_mm, xy=lambda u, v: (u, v), n=3):
+    """An n x n vertex planar quad mesh of side ``size_mm`` with UVs over [0, 1]², as OBJ text; ``xy(u, v)`` places
+    each vertex (in units of the side: the identity is the flat square)."""
+    uv = [(x / (n - 1), y / (n - 1)) for y in range(n) for x in range(n)]
+    lines = [f"v {xy(u, v)[0] * size_mm} {xy(u, v)[1] * size_mm} 0" for u, v in uv] + [f"vt {u} {v}" for u, v in uv]
+    for y in range(n - 1):
+        for x in range(n - 1):
+            a = y * n + x + 1
+            lines.append(f"f {a}/{a} {a + 1}/{a + 1} {a + n + 1}/{a + n + 1} {a + n}/{a + n}")
     path.write_text("\n".join(lines) + "\n")
+    return path
 
 
 def test_frames_in_other_units_and_targets_with_frames_are_refused(tmp_path):
@@ -352,3 +354,21 @@ def test_absurd_blendshape_weights_are_refused_by_name():
     assert len(BlendshapeSequence(neutral, targets, np.array([[0.0], [MAX_WEIGHT], [-MAX_WEIGHT]]))) == 3
     with pytest.raises(ValidationError, match=r"weights must lie in \[-10, 10\], got 1000000000.0"):
         BlendshapeSequence(neutral, targets, np.array([[0.5], [1e9]]))
+
+
+def test_a_collapsed_frame_reports_no_strain_measured_not_no_strain(tmp_path):
+    """Every triangle of a frame squashed to zero area: its stretch percentiles read 1 (no strain) although nothing
+    was measured (a red team); they are NaN now, with a warning, and the degenerate count stays."""
+    from facestats.errors import FacestatsWarning
+    from facestats.io.mesh_sequence import FrameSequence, read_obj
+
+    neutral = read_obj(_grid_obj(tmp_path / "neutral.obj", 0.96, n=5))
+    frames = [_grid_obj(tmp_path / "squeeze.obj", 0.96, lambda u, v: (0.6 * u, v), n=5),
+              _grid_obj(tmp_path / "collapse.obj", 0.96, lambda u, v: (0.0, v), n=5)]  # fmt: skip
+    seq = FrameSequence(neutral, frames)
+    flat = procedural_microstructure((64, 64), 15.0, seed=1)
+    with pytest.warns(FacestatsWarning, match=r"frame 1: no valid strain \(32 of 32 triangles degenerate"):
+        render_sequence(seq, flat, tmp_path / "r.zarr", progress=False)
+    stretch = zarr.open_group(str(tmp_path / "r.zarr"), mode="r")["stretch"][:]
+    np.testing.assert_allclose(stretch[0, :6], [1, 1, 1, 0.6, 0.6, 0.6], rtol=1e-9)
+    assert np.isnan(stretch[1, :6]).all() and stretch[1, 6] == 32

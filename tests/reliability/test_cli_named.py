@@ -192,7 +192,7 @@ def _cases(root, store, s):
                 "--images",
                 new / "i4",
             ],
-            ["subject_id", "a/b"],
+            ["--id must be", "a/b"],  # the option, not the API's subject_id
             [new],
         ),
         (

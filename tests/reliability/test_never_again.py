@@ -127,7 +127,7 @@ def test_ids_from_the_api_cli_and_merl_prefixes_follow_one_rule(store, tmp_path,
     code, out = run(
         "edit", "colour", "R1", "--store", store, "--target", "R2", "--id", bad, "--out-store", tmp_path / "e.zarr"
     )
-    assert code == 2 and "subject_id must be" in out and not (tmp_path / "e.zarr").exists()
+    assert code == 2 and "--id must be" in out and not (tmp_path / "e.zarr").exists()  # named by the option
 
 
 # -- 3. repair that destroys --------------------------------------------------------------------------

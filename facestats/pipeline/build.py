@@ -174,35 +174,60 @@ def _run_local(args, retries, n_workers: int, progress: bool) -> list:
     """
     from concurrent.futures.process import BrokenProcessPool
 
-    results, deaths = {}, {}
-    pending, alone = list(args), []
-    while pending or alone:
-        batch = [alone.pop(0)] if alone else pending
-        if not alone and batch is pending:
-            pending = []
+    rounds = _Rounds(pending=list(args))
+    while rounds.pending or rounds.alone:
+        batch, workers = rounds.next_batch(n_workers)
         began = time.time()
         try:
-            for sid, state, err in _pool_round(batch, retries, 1 if len(batch) == 1 else n_workers, progress):
-                results[sid] = (state, err)
+            for sid, state, err in _pool_round(batch, retries, min(workers, len(batch)), progress):
+                rounds.results[sid] = (state, err)
         except BrokenProcessPool:
-            for a, fate in zip(batch, _fates(batch, retries, began)):
-                sid = a[5]
-                if fate[0] in ("done", "failed"):
-                    results[sid] = fate
-                elif fate[0] == "not started":
-                    pending.append(a)
-                else:  # on a worker when the pool broke
-                    deaths[sid] = deaths.get(sid, 0) + 1
-                    if deaths[sid] > retries:
-                        error = _WorkerDied(
-                            f"its worker process died on each of {deaths[sid]} attempts (killed by a signal: out of "
-                            "memory?)"
-                        )
-                        BuildJournal(a[0]).fail(sid, deaths[sid], error)
-                        results[sid] = ("failed", f"{type(error).__name__}: {error}")
-                    else:
-                        alone.append(a)
-    return [(a[5], *results[a[5]]) for a in args]
+            rounds.broken(batch, _fates(batch, retries, began), retries)
+    return [(a[5], *rounds.results[a[5]]) for a in args]
+
+
+@dataclass
+class _Rounds:
+    """The bookkeeping of :func:`_run_local`: what runs next, what is settled, how often workers died."""
+
+    pending: list
+    alone: list = field(default_factory=list)
+    results: dict = field(default_factory=dict)
+    deaths: dict = field(default_factory=dict)
+    blind: int = 0  # rounds whose pool broke before any subject began
+
+    def next_batch(self, n_workers):
+        """The next round: one subject that was running when a pool broke, alone; else every pending one."""
+        if self.alone:
+            return [self.alone.pop(0)], 1
+        batch, self.pending = self.pending, []
+        return batch, n_workers
+
+    def broken(self, batch, fates, retries):
+        """Sort out a round whose pool broke from the subjects' fates (:func:`_fates`)."""
+        if all(f[0] == "not started" for f in fates):  # no subject began: workers that die on their own
+            self.blind += 1
+        for a, fate in zip(batch, fates):
+            sid = a[5]
+            if fate[0] in ("done", "failed"):
+                self.results[sid] = fate
+            elif fate[0] == "running":  # on a worker when the pool broke
+                self.deaths[sid] = self.deaths.get(sid, 0) + 1
+                if self.deaths[sid] > retries:
+                    self.results[sid] = _died(a, f"its worker process died on each of {self.deaths[sid]} attempts")
+                else:
+                    self.alone.append(a)
+            elif self.blind > retries:
+                self.results[sid] = _died(a, f"the worker processes died {self.blind} times before any subject began")
+            else:
+                self.pending.append(a)
+
+
+def _died(args, why):
+    """``("failed", error)`` of a subject whose worker process died (recorded in the journal)."""
+    error = _WorkerDied(f"{why} (killed by a signal: out of memory?)")
+    BuildJournal(args[0]).fail(args[5], 1, error)
+    return "failed", f"{type(error).__name__}: {error}"
 
 
 class _WorkerDied(RuntimeError):

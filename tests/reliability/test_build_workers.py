@@ -133,6 +133,14 @@ _DYING_WORKER = """
 import os
 import signal
 
+if os.environ.get("FACESTATS_TEST_DIE_AT_START"):  # every worker dies in its initializer, before any subject
+    import facestats.pipeline.build as build
+
+    def _die(*args):
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    build._worker_init = _die
+
 if os.environ.get("FACESTATS_TEST_DIE_ON"):
     import facestats.pipeline.build as build
 
@@ -203,3 +211,19 @@ def test_a_subject_whose_worker_always_dies_is_reported_failed_and_the_others_ar
     while _tagged(tag) and time.monotonic() < gone:
         time.sleep(0.05)
     assert _tagged(tag) == [], "worker processes survived the build"
+
+
+@pytest.mark.slow
+def test_workers_that_die_before_any_subject_end_the_build_with_every_subject_reported(tmp_path):
+    """Workers that die on their own (here in their initializer) would break every new pool before any subject
+    began: without a bound the build would start pools for ever."""
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(_DYING_WORKER)
+    store = tmp_path / "s.zarr"
+    path = os.pathsep.join([str(hook), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    proc = _build(store, SUBJECTS[:3], FACESTATS_TEST_DIE_AT_START="1", PYTHONPATH=path)
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 1, err
+    assert "0 subject(s) written" in out and "3 FAILED" in out
+    assert out.count("the worker processes died 3 times before any subject began") == 3

@@ -418,13 +418,14 @@ def write_mitsuba_scene(ds, out_dir, *, probe=None, material="surface", mesh=Non
         than obj, an unreadable probe, a subject map named like a file of the scene (:data:`SCENE_FILES`), or
         for ``material="subsurface"`` a channel with σa + σ's = 0 (:func:`check_medium`).
     SchemaError
-        A subject the store would refuse (:func:`facestats.io.exr_set.check_export_subject`).
+        A subject the store would refuse (:func:`facestats.io.exr_set.check_export_subject`, through
+        :func:`~facestats.io.exr_set.write_exr_set`, before anything is written).
     """
 
     # local import: keeps facestats.acquire (5 modules) out of this module's import
-    from facestats.io.exr_set import FaceFill, check_export_subject, write_exr_set
+    from facestats.io.exr_set import FaceFill, check_map_subject, write_exr_set
 
-    check_export_subject(ds, "a Mitsuba scene")
+    check_map_subject(ds, "a Mitsuba scene")  # the schema: write_exr_set's check, the first thing it does
     check_choice(material, "material", MATERIALS)
     taken = sorted(set(ds.data_vars) & set(SCENE_FILES))
     if taken:

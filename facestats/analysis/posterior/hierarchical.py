@@ -287,8 +287,7 @@ def _hierarchical_channel(groups, skin_types, n_draws, rng, q):
         raise ValidationError(
             "the hierarchical model needs spread within the skin types, got a pooled within-type variance of 0 "
             f"(up to rounding: every subject of a type has the same sigma_tr; type means {ybar.tolist()}): use the "
-            "independent "
-            "model (model='independent' in Python, `analyze posterior` without --population)"
+            "independent model (model='independent' in Python, `analyze posterior` without --population)"
         )
     theta, mu_d, tau_d = hierarchical_draws(ybar, s_w2 / n[present], n_draws, rng)
     mq, tq = np.quantile(mu_d, q), np.quantile(tau_d, q)

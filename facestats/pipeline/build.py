@@ -214,19 +214,21 @@ class _Rounds:
             elif fate[0] == "running":  # on a worker when the pool broke
                 self.deaths[sid] = self.deaths.get(sid, 0) + 1
                 if self.deaths[sid] > retries:
-                    self.results[sid] = _died(a, f"its worker process died on each of {self.deaths[sid]} attempts")
+                    why = f"its worker process died on each of {self.deaths[sid]} attempts"
+                    self.results[sid] = _died(a, why, self.deaths[sid])
                 else:
                     self.alone.append(a)
             elif self.blind > retries:
-                self.results[sid] = _died(a, f"the worker processes died {self.blind} times before any subject began")
+                why = f"the worker processes died {self.blind} times before any subject began"
+                self.results[sid] = _died(a, why, self.blind)
             else:
                 self.pending.append(a)
 
 
-def _died(args, why):
-    """``("failed", error)`` of a subject whose worker process died (recorded in the journal)."""
+def _died(args, why, attempts):
+    """``("failed", error)`` of a subject whose worker process died (recorded in the journal with its ``attempts``)."""
     error = _WorkerDied(f"{why} (killed by a signal: out of memory?)")
-    BuildJournal(args[0]).fail(args[5], 1, error)
+    BuildJournal(args[0]).fail(args[5], attempts, error)
     return "failed", f"{type(error).__name__}: {error}"
 
 

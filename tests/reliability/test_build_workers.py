@@ -207,6 +207,7 @@ def test_a_subject_whose_worker_always_dies_is_reported_failed_and_the_others_ar
     assert "failed S002: _WorkerDied: its worker process died on each of 3 attempts" in out
     status = subprocess.run([*facestats_exe(), "build", "--status", str(store)], capture_output=True, text=True)
     assert "3 done, 0 running, 0 interrupted, 1 failed" in status.stdout and "S002" in status.stdout
+    assert json.loads((store / ".build" / "S002.json").read_text())["attempts"] == 3  # was 1 (the first death)
     gone = time.monotonic() + 3
     while _tagged(tag) and time.monotonic() < gone:
         time.sleep(0.05)

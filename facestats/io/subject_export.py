@@ -163,9 +163,10 @@ def _check_options(format, options) -> dict:
     foreign = [k for k in given if format not in EXPORT_OPTIONS[k]]
     if foreign:
         described = (
-            f"{k}={given[k]!r} (--{k.replace('_', '-')}: {', '.join(EXPORT_OPTIONS[k])} only)" for k in foreign
+            f"{k}={given[k]!r} (--{k.replace('_', '-')} applies to {' and '.join(EXPORT_OPTIONS[k])} only)"
+            for k in foreign
         )
-        raise ValidationError(f"options must apply to format {format!r}, got {', '.join(described)}")
+        raise ValidationError(f"options given that do not apply to format {format!r}: {', '.join(described)}")
     return given
 
 

@@ -25,9 +25,10 @@ def test_export_subject_refuses_options_of_another_format_by_their_flags(tmp_pat
     bad = ["--probe", "nan.exr", "--width", "5", "--material", "subsurface", "--mesh-format", "ply"]
     assert main(args + bad) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("facestats: error: options must apply to format 'gltf', got mesh_format='ply' (--mesh-format")
+    assert err.startswith("facestats: error: options given that do not apply to format 'gltf': mesh_format='ply'")
+    assert "(--mesh-format applies to exr and mitsuba only)" in err
     for flag in ("--probe", "--width", "--material"):
-        assert f"({flag}: mitsuba only)" in err
+        assert f"({flag} applies to mitsuba only)" in err
     mitsuba = ["export-subject", "S001", "--format", "mitsuba", "--mesh-format", "ply", "--out", str(tmp_path / "m")]
     assert main(mitsuba) == 2
     assert "mesh_format must be 'obj' for a Mitsuba scene" in capsys.readouterr().err

@@ -94,11 +94,11 @@ def test_unknown_options_and_options_of_another_format_are_refused(tmp_path, sub
             subject, tmp_path / "o", "gltf", probe="nan.exr", width=5, material="subsurface", mesh_format="ply"
         )
     assert str(err.value) == (
-        "options must apply to format 'gltf', got probe='nan.exr' (--probe: mitsuba only), width=5 (--width: "
-        "mitsuba only), material='subsurface' (--material: mitsuba only), mesh_format='ply' (--mesh-format: exr, "
-        "mitsuba only)"
+        "options given that do not apply to format 'gltf': probe='nan.exr' (--probe applies to mitsuba only), "
+        "width=5 (--width applies to mitsuba only), material='subsurface' (--material applies to mitsuba only), "
+        "mesh_format='ply' (--mesh-format applies to exr and mitsuba only)"
     )
-    with pytest.raises(ValidationError, match=r"got spp=4 \(--spp: mitsuba only\)"):
+    with pytest.raises(ValidationError, match=r"spp=4 \(--spp applies to mitsuba only\)"):
         export_subject(subject, tmp_path / "o", "exr", spp=4)
     assert os.listdir(tmp_path) == []
     # None is "not given" (what the command line passes for options left out)

@@ -284,7 +284,9 @@ def separate_field(field, s=WHITE, *, view=None, ramp: bool = True, mirror_deg: 
     samples (luminance ≥ ``shadow_threshold`` × the pixel's maximum, the
     brightness thresholding of §4.4), ramp fit (α₀, α₁) on the original
     samples with those within ``mirror_deg`` of the mirror direction of the view
-    left out, final separation with the ramp chromaticity, final normal, diffuse
+    left out, separation with the ramp chromaticity, the ramp fitted again about
+    the normal of that diffuse part (not in the paper: the rough normal is tilted by
+    the ramp itself), final separation, final normal, diffuse
     albedo ρd (Lambertian fit of D) and specular energy ρs = Σ_l mean_c(S) δA (the
     specular radiance per channel under uniform unit white light, a grey reflectance).
 
@@ -395,20 +397,28 @@ def _far_from_mirror(r, dirs, v, lit, mirror_deg):
 
 
 def _separate_pixels(r, dirs, sa, v, d0, s_unit, ramp, mirror_deg, shadow_threshold):
-    """The §4.2 procedure on separable pixels: r (L, N, 3), v (N, 3), d0 (N, 3) → dict of results."""
+    """The §4.2 procedure on separable pixels: r (L, N, 3), v (N, 3), d0 (N, 3) → dict of results.
+
+    With ``ramp``, the ramp is fitted twice: about the normal of the rough separation (the paper's order),
+    then about the normal of the diffuse part that fit gives. The rough diffuse part still holds the ramp's
+    shift towards s, which tilts its normal; the ramp fitted about that normal was biased even on data without
+    specular light (α₀ −0.058 for −0.05), and on a strong ramp ρs came out up to 68 % low (a red team,
+    2026-12-06). Further refits change the result by less than the lobe's tail does (``docs/relighting.md``, D3).
+    """
     n = r.shape[1]
     lum = r.sum(-1)
     lit = _lit(r, shadow_threshold)
-    rough_d, _, _, _ = separate_colour(r, d0[None], s_unit)
-    far_from_mirror, cos_i, cos_r = _far_from_mirror(rough_d, dirs, v, lit, mirror_deg)
-    if ramp:
-        wts = lum * lit * far_from_mirror * (cos_i > 0)
-        a0, a1 = fit_chromaticity_ramp(r, np.clip(cos_i, 0, 1), cos_r, d0, s_unit, weights=wts)
-    else:
-        a0 = a1 = np.zeros(n)
-    fr = ramp_factor(np.clip(cos_i, 0, 1), cos_r[None, :], np.nan_to_num(a0)[None, :], np.nan_to_num(a1)[None, :])
-    d_ramp = ramp_chromaticity(np.broadcast_to(d0, r.shape), s_unit, fr)
-    diffuse, spec, _, clamped = separate_colour(r, d_ramp, s_unit)
+    diffuse, _, _, _ = separate_colour(r, d0[None], s_unit)  # the rough separation, with d₀
+    for _ in range(2 if ramp else 1):
+        far_from_mirror, cos_i, cos_r = _far_from_mirror(diffuse, dirs, v, lit, mirror_deg)
+        if ramp:
+            wts = lum * lit * far_from_mirror * (cos_i > 0)
+            a0, a1 = fit_chromaticity_ramp(r, np.clip(cos_i, 0, 1), cos_r, d0, s_unit, weights=wts)
+        else:
+            a0 = a1 = np.zeros(n)
+        fr = ramp_factor(np.clip(cos_i, 0, 1), cos_r[None, :], np.nan_to_num(a0)[None, :], np.nan_to_num(a1)[None, :])
+        d_ramp = ramp_chromaticity(np.broadcast_to(d0, r.shape), s_unit, fr)
+        diffuse, spec, _, clamped = separate_colour(r, d_ramp, s_unit)
     normal, albedo = lambertian_fit(diffuse, dirs, lit * 1.0)
     size = np.linalg.norm(spec, axis=-1)
     peak = np.argmax(size, axis=0)

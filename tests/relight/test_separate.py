@@ -122,12 +122,30 @@ def test_a_broad_lobe_does_not_bias_d0_or_read_as_a_ramp():
     assert np.degrees(np.arccos(np.clip(d0 @ sep.unit_rgb(SKIN), -1, 1))).max() < 0.2  # 0.054° measured
     assert abs(_median_rho_s_error(sep.separate_field(f, [1, 1, 1], ramp=False), spec, f)) < 0.01  # 0.1 %
     assert abs(_median_rho_s_error(sep.separate_field(f, [1, 1, 1]), spec, f)) < 0.07  # 5.5 %
-    assert abs(_median_rho_s_error(sep.separate_field(f, [1, 1, 1], mirror_deg=45), spec, f)) > 0.1  # 14.3 %
+    assert abs(_median_rho_s_error(sep.separate_field(f, [1, 1, 1], mirror_deg=45), spec, f)) > 0.1  # 14.5 %
 
 
 def test_a_true_ramp_is_fitted_and_needed():
     f, spec, _ = ts_lambert_field(7, 7, albedo=SKIN * 0.8, rho_s=0.25, m=0.3, ramp=(-0.05, -0.3))
-    assert abs(_median_rho_s_error(sep.separate_field(f, [1, 1, 1]), spec, f)) < 0.02  # 0.2 %
+    assert abs(_median_rho_s_error(sep.separate_field(f, [1, 1, 1]), spec, f)) < 0.025  # 1.9 %, as flat data's 1.8 %
+
+
+def test_the_ramp_is_refitted_about_the_normal_of_its_own_diffuse_part():
+    """The rough separation (d₀ alone) leaves the ramp's shift towards s in the diffuse part, which tilts its
+    normal: the ramp fitted about it was off even without specular light, and a narrow lobe's ρs came out up to
+    9.5 % high (68 % low on a strong ramp; a red team). Fitted again about the normal of the first ramp
+    separation, it is recovered."""
+    f, _, _ = ts_lambert_field(7, 7, albedo=SKIN * 0.8, rho_s=0.0, ramp=(-0.05, -0.4))
+    m = f["mask"].values
+    out = sep.separate_field(f, [1, 1, 1], d0=SKIN)
+    assert np.abs(out["alpha0"].values[m] + 0.05).max() < 2e-3  # 7.4e-4 (1.1e-2 fitted once)
+    assert np.abs(out["alpha1"].values[m] + 0.4).max() < 1e-3  # 1.4e-4 (3.5e-3)
+    f, spec, _ = ts_lambert_field(7, 7, albedo=SKIN * 0.8, rho_s=0.25, m=0.2, ramp=(-0.05, -0.4))
+    truth = (spec * f["solid_angle"].values[..., None, None]).sum((0, 1))
+    m &= truth > 0
+    for d0 in (None, SKIN):  # estimated, given
+        err = sep.separate_field(f, [1, 1, 1], d0=d0)["rho_s"].values[m] / truth[m] - 1
+        assert np.abs(err).max() < 0.03  # 1.6 % and 1.1 % (9.5 % and 7.3 % fitted once)
     assert _median_rho_s_error(sep.separate_field(f, [1, 1, 1], ramp=False), spec, f) < -0.2  # 30.8 % low
 
 

@@ -59,3 +59,48 @@ def test_caches_are_cleared_once_and_again_after_a_change(tmp_path):
 def test_the_installed_package_carries_its_digest():
     stamp = PACKAGE / "__pycache__" / STAMP
     assert not stamp.exists() or stamp.read_text().strip() == source_digest(PACKAGE)
+
+
+def test_caches_outside_the_package_are_cleared_too(tmp_path, monkeypatch):
+    """numba keeps the caches in NUMBA_CACHE_DIR when it is set, and in a user-wide folder when the package's
+    __pycache__ cannot be written; only the package's own were cleared (an install red team)."""
+    refresh = kernel_cache.refresh_kernel_caches.__wrapped__
+    package = tmp_path / "pkg"
+    _package(package)
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba-dir"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    places = kernel_cache.cache_places(package)
+    want = [package / "__pycache__", tmp_path / "numba-dir", tmp_path / "xdg" / "numba"]
+    assert [p[0].parent for p in places] == want
+    for _, folders in places[1:]:
+        for rel, folder in zip(KERNEL_MODULES, folders):
+            folder.mkdir(parents=True, exist_ok=True)
+            (folder / f"{Path(rel).stem}.kernel-12.py311.nbi").write_bytes(b"index")
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "elsewhere"))  # a user-wide folder without our caches
+    assert refresh(str(package)) is True
+    assert list((tmp_path / "elsewhere").iterdir()) == []  # is not written to
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert refresh(str(package)) is True
+    assert _caches(package) == ["unrelated.f-1.py311.nbi"] and not _caches(tmp_path / "numba-dir")
+    assert not _caches(tmp_path / "xdg")
+    assert refresh(str(package)) is False  # each place carries the digest now
+    (package / "io" / "deflate_numba.py").write_text("# changed\n")
+    lm = places[1][1][KERNEL_MODULES.index("model/fitting/kernels/lm.py")] / "lm.solve-3.py311.nbi"
+    lm.write_bytes(b"new index")
+    assert refresh(str(package)) is True and not lm.exists()
+
+
+def test_the_places_outside_the_package_are_where_numba_puts_its_caches(tmp_path, monkeypatch):
+    from numba.core.caching import UserProvidedCacheLocator, UserWideCacheLocator
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba-dir"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    places = kernel_cache.cache_places(PACKAGE)
+    for i, rel in enumerate(KERNEL_MODULES):
+        path = str(PACKAGE / rel)
+        assert places[1][1][i] == tmp_path / "numba-dir" / UserProvidedCacheLocator.get_suitable_cache_subpath(path)
+        assert places[2][1][i] == tmp_path / "xdg" / "numba" / UserWideCacheLocator.get_suitable_cache_subpath(path)
+    import numba.misc.appdirs as appdirs
+
+    assert appdirs.AppDirs(appname="numba", appauthor=False).user_cache_dir == str(tmp_path / "xdg" / "numba")

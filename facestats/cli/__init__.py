@@ -111,7 +111,20 @@ def main(argv=None) -> int:
         if os.environ.get("FACESTATS_DEBUG"):
             raise
         print(f"facestats: error: {_describe_failure(exc)}", file=sys.stderr)
-        return 2 if isinstance(exc, (OSError, MemoryError)) else 3
+        return 2 if isinstance(exc, (OSError, MemoryError)) or _missing_package(exc) else 3
+
+
+#: Import names whose package on PyPI is called otherwise.
+_PIP_NAMES = {"cv2": "opencv-python-headless", "serial": "pyserial", "colour": "colour-science", "yaml": "pyyaml"}
+
+
+def _missing_package(exc: BaseException) -> str | None:
+    """The top-level name of a module that is not installed (a dependency: a damaged environment or an install
+    with ``--no-deps``), or None; a missing module of facestats itself is a bug, not a dependency."""
+    if not isinstance(exc, ModuleNotFoundError) or not exc.name:
+        return None
+    top = exc.name.split(".")[0]
+    return None if top == "facestats" else top
 
 
 def _describe_failure(exc: BaseException) -> str:
@@ -121,6 +134,12 @@ def _describe_failure(exc: BaseException) -> str:
         return f"{exc.strerror or exc}{where}"
     if isinstance(exc, MemoryError):
         return f"out of memory ({exc or 'the computation needs more memory than this machine has'})"
+    missing = _missing_package(exc)
+    if missing:
+        return (
+            f"the package {missing!r} is not installed, and facestats needs it here: "
+            f"pip install {_PIP_NAMES.get(missing, missing)} (or reinstall facestats with its dependencies)"
+        )
     return (
         f"unexpected {type(exc).__name__}: {exc} — this is a bug in facestats; rerun with FACESTATS_DEBUG=1 "
         "for the traceback and report it"

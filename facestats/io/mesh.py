@@ -17,7 +17,7 @@ Conventions and checks:
   v upwards, so v is flipped unless ``flip_v=False``.
 * Areas: each vertex represents one third of the area of its triangles.
 * Region image: integer labels 0-10 (0 = not face) as a PNG/TIFF (read with
-  scikit-image), a ``.npy`` file or an array; its side is the output map size.
+  :func:`facestats.io.images.read_integer_image`), a ``.npy`` file or an array; its side is the output map size.
 """
 
 from __future__ import annotations

@@ -1,6 +1,7 @@
 """``facestats export-subject``, ``render`` and ``serve`` on the command line."""
 
 import os
+import sys
 
 import numpy as np
 import pytest
@@ -18,6 +19,33 @@ def test_export_subject_writes_the_set_and_reports_errors_like_every_command(tmp
     assert main(["export-subject", "S404", "--out", str(tmp_path / "x")]) == 2
     assert capsys.readouterr().err.strip() == "facestats: error: subject 'S404' is not in store default (155 subjects)"
     assert not (tmp_path / "x").exists()
+
+
+def test_a_missing_dependency_is_named_with_its_install_command_not_called_a_bug(tmp_path, capsys, monkeypatch):
+    """With a required package missing (an install with --no-deps, a damaged environment) the command said
+    "unexpected ModuleNotFoundError … this is a bug in facestats", exit 3 (an install red team)."""
+    monkeypatch.setitem(sys.modules, "trimesh", None)  # `import trimesh` now raises ModuleNotFoundError
+    assert main(["export-subject", "S001", "--out", str(tmp_path / "x"), "--format", "exr"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        "facestats: error: the package 'trimesh' is not installed, and facestats needs it here: pip install trimesh "
+        "(or reinstall facestats with its dependencies)"
+    )
+    assert not (tmp_path / "x").exists()
+    import facestats.io.subject_export as subject_export
+
+    for name, code, said in [
+        ("cv2.gapi", 2, "the package 'cv2' is not installed, and facestats needs it here: pip install "
+                        "opencv-python-headless"),  # an import name unlike its package's
+        ("facestats.io.gone", 3, "unexpected ModuleNotFoundError: No module named 'facestats.io.gone' — this is a bug"),
+    ]:  # fmt: skip
+
+        def missing(*args, name=name, **kwargs):
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+
+        monkeypatch.setattr(subject_export, "export_subject", missing)
+        assert main(["export-subject", "S001", "--out", str(tmp_path / "y")]) == code
+        assert capsys.readouterr().err.startswith(f"facestats: error: {said}")
 
 
 def test_export_subject_refuses_options_of_another_format_by_their_flags(tmp_path, capsys):

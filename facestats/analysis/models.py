@@ -23,6 +23,7 @@ import numpy as np
 from facestats.analysis.population import select_population
 from facestats.analysis.serialize import json_ready
 from facestats.core.conventions import FLAG_BITS, REGION_IDS, REGIONS
+from facestats.core.progress import progress_bar
 from facestats.errors import InsufficientDataError
 
 __all__ = ["ModelErrors", "model_errors"]
@@ -121,7 +122,7 @@ def _number(x) -> str:
     return f"{x:.1f}" if np.isfinite(x) else "-"
 
 
-def model_errors(store, subjects=None, conditions=("normal",)) -> ModelErrors:
+def model_errors(store, subjects=None, conditions=("normal",), *, progress: bool = False) -> ModelErrors:
     """Compare the two specular fits of the map subjects of a store, region by region (module docstring).
 
     Parameters
@@ -132,6 +133,8 @@ def model_errors(store, subjects=None, conditions=("normal",)) -> ModelErrors:
         Subject ids (default: all).
     conditions : sequence of str or None
         Conditions to keep (default normal; None: all).
+    progress : bool
+        A progress bar over the subjects, whose maps are read one by one (about 75 ms each on a directory store).
 
     Returns
     -------
@@ -160,7 +163,8 @@ def model_errors(store, subjects=None, conditions=("normal",)) -> ModelErrors:
     face_ratio = np.full(len(ids), np.nan)
     counts = np.zeros((4, len(REGION_IDS)))  # texels, TS flagged, BP flagged, BP implausible
     exponents = [[] for _ in REGION_IDS]
-    for i, sid in enumerate(ids):
+    bar = progress_bar(ids, enabled=progress, desc="fit errors", unit="subject", leave=False)
+    for i, sid in enumerate(bar):
         ds = opened.pop(sid)
         region, e_ts, e_bp, f_ts, f_bp, n_bp = (np.asarray(ds[v].values) for v in _VARIABLES)
         both = (f_ts == 0) & (f_bp == 0) & (e_ts > 0)

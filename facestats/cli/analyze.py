@@ -107,7 +107,7 @@ def _models(store, args):
     from facestats.analysis import model_errors
     from facestats.analysis.plots import plot_model_errors
 
-    res = model_errors(store)
+    res = model_errors(store, progress=True)  # hidden by FACESTATS_PROGRESS=0
     return plot_model_errors(res), res.to_dict(), res.to_text()
 
 

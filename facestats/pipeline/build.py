@@ -355,7 +355,7 @@ def sensor_fits(population, map_size: int, specular: str = "torrance_sparrow", f
 DERIVED = ("modulation",)
 
 
-def _check_same_build(store, pop, present, geometry, specular, micro_normals=None, keep_derived=None):
+def _check_same_build(store, pop, present, geometry, specular, micro_normals=None, keep_derived=None, limit=None):
     """Refuse to add to a store whose simulated subjects came from another seed, size, face, specular model or
     maps kept.
 
@@ -364,10 +364,13 @@ def _check_same_build(store, pop, present, geometry, specular, micro_normals=Non
     subject's capture provenance records its seed, geometry and specular model, and its variables say whether
     it keeps micro-normal maps (``micro_normals``, ``--no-micro-normals``) and the derived modulation
     (``keep_derived``); None leaves one out. Imported subjects (no simulator provenance) are left out of the
-    comparison.
+    comparison. ``present`` is checked in its order, up to ``limit`` simulated subjects (None: all).
     """
     seeds = {t.subject_id: t.seed for t in pop.subjects}
-    for sid in sorted(present):  # the attributes and variable names only: no map is read
+    checked = 0
+    for sid in present:  # the attributes and variable names only: no map is read
+        if limit is not None and checked >= limit:
+            return
         ds = store.subject(sid, lazy=True)
         try:
             prov = json.loads(ds.attrs.get("provenance", "{}"))
@@ -376,6 +379,7 @@ def _check_same_build(store, pop, present, geometry, specular, micro_normals=Non
         cap = prov.get("capture_provenance") or {}
         if cap.get("source") != "facestats simulator":
             continue
+        checked += 1
         ours = {"geometry": geometry, "specular": specular}
         stored = {k: cap.get(k) for k in ours}
         if sid in seeds:
@@ -412,14 +416,26 @@ def _build_one(
     """Simulate, fit and store one subject (runs in a worker process)."""
 
     pop = _population(seed, map_size, conditions, face)
+    store = open_store(store_path, mode="r+")
+    same = (pop, _geometry(map_size, face).name, specular, micro_normals, keep_derived)
+    _check_still_same_build(store, subject_id, *same)  # a retry after a refusal fails before the work
     truth = pop[subject_id]
     capture = _simulator(map_size, specular, face).simulate(truth)
     ds = fit_subject(capture, sigma_tr_avg, _settings(micro_normals), sensor_fit=sensor_fit)
     if not keep_derived:
         ds = ds.drop_vars([v for v in DERIVED if v in ds.data_vars])
-    store = open_store(store_path, mode="r+")
+    _check_still_same_build(store, subject_id, *same)
     store.write_subject(ds, overwrite=True)
     return subject_id
+
+
+def _check_still_same_build(store, subject_id, pop, geometry, specular, micro_normals, keep_derived):
+    """:func:`_check_same_build` in a worker, before its commit: another build (other parameters, started before
+    any subject was stored) may have written into the store since this build checked it.  The subject itself (a
+    concurrent build's) and one other stand for the store: each was checked when it was committed."""
+    present = store.ids()
+    order = [subject_id] * (subject_id in present) + [s for s in present if s != subject_id]
+    _check_same_build(store, pop, order, geometry, specular, micro_normals, keep_derived, limit=2)
 
 
 def _build_task(retries, *args):
@@ -496,7 +512,7 @@ def build_store(
     if workers is not None:
         check_integer(workers, "workers", 1)
     n_workers = workers or os.cpu_count() or 1
-    if client is None:
+    if client is None and address is None:  # a cluster's workers have their own memory
         _check_memory(map_size, n_workers)
     if isinstance(subjects, str):
         raise ValidationError(f"subjects must be a sequence of subject ids, got the string {subjects!r}")
@@ -523,8 +539,15 @@ def build_store(
             normal = [s.subject_id for s in pop.subjects if s.condition == "normal"]
             stra = population_sigma_tr_avg(np.stack([fits[s].sigma_tr for s in normal]), SITES)
             present = set(store.ids())
-            _check_same_build(
-                store, pop, present, _geometry(map_size, face).name, specular, micro_normals, keep_derived
+            _check_same_build(  # two stand for the store: each stored subject was checked at its commit
+                store,
+                pop,
+                sorted(present),
+                _geometry(map_size, face).name,
+                specular,
+                micro_normals,
+                keep_derived,
+                limit=2,
             )
             todo = [s for s in wanted if s not in present]
             skipped = [s for s in wanted if s in present]
@@ -557,8 +580,9 @@ def _run_tasks(args, retries, client, n_workers, progress):
     if client is not None:
         from distributed import as_completed
 
-        # Task failures are retried inside the task; Dask's retries cover a lost worker.
-        futures = {client.submit(_build_task, retries, *a, pure=False, retries=retries): a for a in args}
+        # Task failures are retried inside the task (which never raises); a task lost with its worker is
+        # resubmitted by the scheduler as `distributed.scheduler.allowed-failures` says.
+        futures = {client.submit(_build_task, retries, *a, pure=False): a for a in args}
         done = subject_bar(as_completed(futures, loop=client.loop), len(futures), progress)
         return [gathered(f, futures[f][0], futures[f][5]) for f in done]
     if n_workers == 1 or len(args) <= 1:

@@ -30,7 +30,7 @@ from urllib.parse import urlparse
 
 from facestats.errors import StoreError, ValidationError
 
-__all__ = ["SCHEDULER_VARIABLE", "LOCAL", "scheduler_address", "connect", "store_directory", "is_url"]
+__all__ = ["SCHEDULER_VARIABLE", "LOCAL", "scheduler_address", "connect", "store_directory", "local_path", "is_url"]
 
 #: Environment variable naming the scheduler (read by Dask too).
 SCHEDULER_VARIABLE = "DASK_SCHEDULER_ADDRESS"
@@ -115,13 +115,45 @@ def _check_connectable(address):
 
 
 def is_url(path) -> bool:
-    """True for ``scheme://…`` locations other than plain local paths (and other than ``file://``)."""
-    scheme = urlparse(str(path)).scheme
+    """True for ``scheme://…`` locations other than plain local paths (and other than ``file://``; schemes are
+    compared without regard to case, as RFC 3986 §3.1 has them)."""
+    scheme = urlparse(str(path)).scheme.lower()
     return "://" in str(path) and len(scheme) > 1 and scheme != "file"
 
 
+def local_path(path, name="path") -> str:
+    """The absolute local path of a path or ``file://`` URL: what every worker of a build resolves alike.
+
+    A relative path would be resolved against each worker's own working directory (another folder, or another
+    machine's), so workers would read another capture or write another store than the caller named.
+
+    Raises
+    ------
+    ValidationError
+        A ``file://`` URL naming a host (``file://host/path``: facestats reads local files only; fsspec and this
+        function would disagree on where it points), or a path that begins like a URL with one slash
+        (``s3:/bucket``), which would make a local folder ``s3:``.
+    """
+    text = str(path)
+    parsed = urlparse(text)
+    if parsed.scheme.lower() == "file" and text[5:7] == "//":
+        if parsed.netloc not in ("", "localhost"):
+            raise ValidationError(
+                f"{name} must be a local path or a file:///absolute/path URL, got {text!r} (it names the host "
+                f"{parsed.netloc!r}; write file:/// with three slashes for an absolute path)"
+            )
+        text = parsed.path
+    elif len(parsed.scheme) > 1 and text[len(parsed.scheme) + 1 : len(parsed.scheme) + 3] != "//" and ":/" in text:
+        raise ValidationError(f"{name} must be a local path or a URL scheme://…, got {text!r} (one slash after the "
+                              f"scheme {parsed.scheme!r}: did you mean {parsed.scheme}://?)")  # fmt: skip
+    if not text:
+        raise ValidationError(f"{name} must name a file or folder, got {str(path)!r}")
+    return os.path.abspath(text)
+
+
 def store_directory(path, name="store") -> str:
-    """The local directory of a store location for writing (``file://`` URLs accepted; object stores refused)."""
+    """The absolute local directory of a store location for writing (:func:`local_path`; ``file://`` URLs
+    accepted; object stores refused)."""
     text = str(path)
     if is_url(text):
         raise StoreError(
@@ -130,6 +162,4 @@ def store_directory(path, name="store") -> str:
             "commits could overwrite each other). Build into a directory on a shared POSIX file system and "
             "upload it afterwards."
         )
-    if text.startswith("file://"):
-        text = urlparse(text).path
-    return text
+    return local_path(text, name)

@@ -136,7 +136,7 @@ class BuildJournal:
     def fail(self, sid: str, attempt: int, exc: BaseException) -> None:
         """Attempt ``attempt`` of ``sid`` raised ``exc``."""
         rec = self.read(sid) or {"subject_id": sid, "host": socket.gethostname(), "pid": os.getpid()}
-        last = traceback.format_exception_only(type(exc), exc)[-1].strip()
+        last = " ".join(traceback.format_exception_only(type(exc), exc)[-1].split())  # one line for --status
         rec.update(state="failed", attempts=int(attempt), updated=_now(), error=last)
         self._write(sid, rec)
 
@@ -193,13 +193,24 @@ class BuildJournal:
 
 def gathered(future, store, sid):
     """The ``(id, state, result)`` of a task future; a task lost with its workers (e.g. ``KilledWorker`` after
-    Dask's own retries) is recorded as failed in the journal of ``store`` (None: not recorded), not raised."""
+    Dask's own resubmissions) is recorded as failed in the journal of ``store`` (None: not recorded), not raised.
+
+    A lost task whose subject is in the store anyway is done: its worker committed it before the task was lost
+    (the scheduler lost a worker that had finished, or a worker shared with a subject that killed it).  A failed
+    subject keeps the number of attempts its record counts."""
     try:
         return future.result()
     except Exception as exc:  # the worker died or the task could not run: reported with the others
+        error = " ".join(f"{type(exc).__name__}: {exc}".split())  # Dask's messages run over several lines
         if store is not None:
-            BuildJournal(store).fail(sid, 1, exc)
-        return sid, "failed", f"{type(exc).__name__}: {exc}"
+            with open_store(store, mode="r") as st:
+                committed = sid in st
+            journal = BuildJournal(store)
+            if committed:
+                journal.finish(sid)
+                return sid, "done", None
+            journal.fail(sid, int((journal.read(sid) or {}).get("attempts") or 1), exc)
+        return sid, "failed", error
 
 
 def run_journalled(journal, sid, fn, retries):

@@ -17,12 +17,12 @@ import numpy as np
 
 from facestats.acquire.capture import Capture, open_capture
 from facestats.core.conventions import SITES
-from facestats.core.validate import check_choice, check_integer
+from facestats.core.validate import check_integer
 from facestats.errors import FitError, ValidationError
 from facestats.io.ids import check_subject_id
 from facestats.io.store import open_store
 from facestats.model import fitting
-from facestats.pipeline.cluster import connect, scheduler_address, store_directory
+from facestats.pipeline.cluster import connect, is_url, local_path, scheduler_address, store_directory
 from facestats.pipeline.journal import BuildJournal, gathered, run_journalled
 from facestats.pipeline.progress import TaskProgress, subject_bar
 from facestats.pipeline.settings import FitSettings, checked_settings
@@ -37,7 +37,10 @@ def _fit_capture_task(sid, capture, sigma_tr_avg, settings, sensor_fit, store, r
     """Fit one capture (with retries), write it to ``store`` if given: ``(id, "done"/"failed", dataset/id/error)``."""
 
     def run():
-        ds = fit_subject(capture, sigma_tr_avg, settings, sensor_fit=sensor_fit)
+        cap = capture if isinstance(capture, Capture) else open_capture(capture)
+        if cap.metadata["subject_id"] != sid:  # a worker that sees other files than the caller did
+            raise FitError(f"capture {cap.path} holds subject {cap.metadata['subject_id']!r} here, not {sid!r}")
+        ds = fit_subject(cap, sigma_tr_avg, settings, sensor_fit=sensor_fit)
         if store is None:
             return ds
 
@@ -75,7 +78,8 @@ def fit_population(
         workers can read).
     scheduler : str, optional
         ``"processes"``, ``"threads"`` or ``"synchronous"`` (Dask's local schedulers),
-        or the address of a distributed scheduler (``tcp://host:8786``).  Default:
+        or the address of a distributed scheduler (``tcp://host:8786``), or ``"local"``
+        (``"processes"`` whatever ``$DASK_SCHEDULER_ADDRESS`` says).  Default:
         ``$DASK_SCHEDULER_ADDRESS`` if set, else ``"processes"``.
     num_workers : int, optional
         Local workers (default: number of cores).
@@ -126,7 +130,8 @@ def fit_population(
                 present = set(stored.ids())
         # until the run returns: `facestats build --status` counts what was not started
         with BuildJournal(store).planned(ids) if store is not None else contextlib.nullcontext():
-            tasks = [(sid, c.path or c, stra, st, f, store, retries) for sid, c, f in zip(ids, caps, fits)]
+            tasks = [(sid, _location(c.path) if c.path else c, stra, st, f, store, retries)
+                     for sid, c, f in zip(ids, caps, fits)]  # fmt: skip
             results = _run([t for t in tasks if t[0] not in present], own or client, local, num_workers, progress)
     finally:
         if own is not None:
@@ -146,7 +151,7 @@ def fit_population(
 
 def _captures(captures):
     """The captures opened, and their subject ids: valid ids (they name files), each once."""
-    caps = [c if isinstance(c, Capture) else open_capture(c) for c in captures]
+    caps = [c if isinstance(c, Capture) else open_capture(_location(c)) for c in captures]
     if not caps:
         raise ValidationError("captures must contain at least one capture, got none")
     ids = [check_subject_id(c.metadata["subject_id"]) for c in caps]
@@ -154,6 +159,12 @@ def _captures(captures):
     if twice:
         raise ValidationError(f"captures must hold each subject once, got {twice} more than once")
     return caps, ids
+
+
+def _location(path) -> str:
+    """A capture's location as every worker resolves it alike: a URL as given, a local path made absolute
+    (:func:`facestats.pipeline.cluster.local_path`)."""
+    return str(path) if is_url(path) else local_path(path, "capture")
 
 
 def _settings(settings, store):
@@ -177,9 +188,7 @@ def _where(scheduler, client):
         if scheduler is not None:
             raise ValidationError("pass either client or a scheduler address, not both")
         return None, None
-    address = scheduler_address(scheduler)
-    if scheduler is not None and address is None:  # pragma: no cover - scheduler_address raises first
-        check_choice(scheduler, "scheduler", _LOCAL)
+    address = scheduler_address(scheduler)  # "local": None whatever $DASK_SCHEDULER_ADDRESS says
     return ("processes" if address is None else None), address
 
 

@@ -139,6 +139,7 @@ def test_model_errors_per_region(tmp_path):
     out = tmp_path / "an"
     cli = run_cli("analyze", "models", "--store", str(tmp_path / "m.zarr"), "--out", str(out))
     assert cli.returncode == 0, cli.stderr
+    assert "fit errors:" in cli.stderr and "/6 " in cli.stderr  # a bar over the subjects (it was silent: a red team)
     doc = json.loads((out / "models.json").read_text())
     assert doc["action"] == "models" and doc["regions"][0]["error_ratio"] == pytest.approx(4.5)
     assert (out / "models.png").stat().st_size > 1000

@@ -385,6 +385,33 @@ def test_a_resumed_build_with_other_parameters_never_mixes_populations(tmp_path)
     assert build_store(store, map_size=8, subjects=["S001", "S001"], workers=1).skipped == ["S001"]  # same build
 
 
+def test_a_build_with_other_parameters_that_commits_meanwhile_is_caught_at_the_commit(tmp_path, monkeypatch):
+    """Two builds with other seeds started into one empty store both passed the check made before anything ran,
+    and the later commits replaced the other build's subjects: a store of two populations, every build reported
+    "written" (a red team, with a distributed and a local build). Each commit checks the store again."""
+    from facestats.io import open_store
+    from facestats.pipeline import build
+
+    other = tmp_path / "other.zarr"
+    assert build.build_store(other, map_size=8, seed=7, subjects=["S001"], workers=1).written == ["S001"]
+    with open_store(other) as st:
+        foreign = st.subject("S001")
+    store = tmp_path / "s.zarr"
+    real_fit = build.fit_subject
+
+    def fit_while_another_build_commits(*args, **kwargs):  # the other build commits while this one fits
+        with open_store(store, mode="r+") as st:
+            if "S001" not in st:
+                st.write_subject(foreign)
+        return real_fit(*args, **kwargs)
+
+    monkeypatch.setattr(build, "fit_subject", fit_while_another_build_commits)
+    report = build.build_store(store, map_size=8, subjects=["S002"], workers=1, retries=1)
+    assert report.written == [] and "holds S001 built with other parameters" in report.failed["S002"]
+    with open_store(store) as st:
+        assert st.ids() == ["S001"]  # the other build's subject, and nothing of this one
+
+
 _DETERMINISM = """
 import hashlib, sys
 import numpy as np

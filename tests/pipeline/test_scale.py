@@ -96,6 +96,26 @@ def test_population_fit_into_a_store_on_a_distributed_cluster_from_capture_urls(
     np.testing.assert_array_equal(got.ts_m.values, ref.ts_m.values)
 
 
+@pytest.mark.slow
+def test_relative_paths_mean_the_callers_files_on_workers_elsewhere(tmp_path, captures, monkeypatch):
+    """Workers resolved a relative capture path or store in their own working directory: a worker fitted another
+    subject's capture that lay under the same name there and the caller was told its subject was stored; a
+    relative store made a stray one in the worker's folder (a red team on the distributed path)."""
+    import shutil
+
+    distributed = pytest.importorskip("distributed")
+    client_dir, worker_dir = tmp_path / "client", tmp_path / "worker"
+    shutil.copytree(captures[0], client_dir / "caps" / "S.zarr")
+    shutil.copytree(captures[1], worker_dir / "caps" / "S.zarr")  # another subject under the same name
+    monkeypatch.chdir(worker_dir)  # worker processes start here
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as lc:
+        monkeypatch.chdir(client_dir)
+        ids, _ = fit_population(["caps/S.zarr"], QUICK, scheduler=lc.scheduler_address, store="pop.zarr")
+    want = open_capture(captures[0]).metadata["subject_id"]
+    assert ids == [want] and open_store(client_dir / "pop.zarr").ids() == [want]
+    assert not (worker_dir / "pop.zarr").exists()
+
+
 def test_captures_from_an_in_memory_fsspec_location(captures):
     cap = open_capture(captures[0])
     url = cap.to_zarr("memory://facestats-test/cap.zarr", chunk=128)

@@ -80,17 +80,67 @@ def connect(address, timeout: float = 30.0):
         from distributed import Client
     except ImportError:  # pragma: no cover - distributed is in the test extra
         raise ValidationError(
-            f"scheduler {address!r} needs the 'distributed' package: pip install 'facestats[distributed]'"
+            f"the Dask scheduler at {address!r} needs the 'distributed' package: pip install 'facestats[distributed]'"
         ) from None
     _check_connectable(address)  # a Client built from a malformed address fails half-made
+    if address.lower().startswith("tcp://"):
+        _probe_tcp(address, timeout)
     try:
         # Not made Dask's default scheduler: a Client that fails to connect would stay the default, and the
         # process's later Dask computations would wait for it. facestats passes the client explicitly.
         return Client(address, timeout=timeout, set_as_default=False)
     except (OSError, TimeoutError) as exc:
-        raise ValidationError(f"scheduler {address!r} did not answer within {timeout:g} s: {exc}") from None
+        raise ValidationError(f"the Dask scheduler at {address!r} did not answer within {timeout:g} s: {exc}") from None
     except (ValueError, TypeError, KeyError) as exc:  # e.g. an in-process address that no cluster listens on
-        raise ValidationError(f"scheduler {address!r} is not an address Dask can connect to: {exc}") from None
+        raise ValidationError(f"the Dask scheduler at {address!r}: not an address Dask can connect to: {exc}") from None
+    except MemoryError:  # another service's reply read as the length of a message
+        raise ValidationError(f"the Dask scheduler at {address!r} is not one (its reply is not Dask's)") from None
+
+
+#: Longest first message of a Dask scheduler's handshake that :func:`_probe_tcp` accepts (bytes).
+_MAX_HANDSHAKE = 1 << 24
+
+
+def _probe_tcp(address, timeout: float) -> None:
+    """ValidationError unless a Dask scheduler answers at the ``tcp://`` ``address`` within ``timeout`` s.
+
+    A Dask listener speaks first: on a new connection it sends its handshake, a message whose first 8 bytes
+    are its length (an unsigned 64-bit integer in the machine's byte order, ``distributed.comm.tcp``).  Another
+    service (Dask's dashboard on 8787 instead of the scheduler's 8786, a web server) sends nothing, which made
+    the client wait past its timeout for ever, or a reply whose first bytes read as a length of exabytes, which
+    ended in MemoryError; a refused connection waited the whole timeout.  A test checks this against a real
+    scheduler, so a change of Dask's framing shows.
+    """
+    import socket
+    import struct
+    import time
+
+    from distributed.comm.addressing import get_address_host_port
+
+    host, port = get_address_host_port(address)
+    start = time.monotonic()
+    try:
+        with socket.create_connection((host, port), timeout=timeout) as sock:
+            head = b""
+            while len(head) < 8:
+                sock.settimeout(max(0.1, timeout - (time.monotonic() - start)))
+                part = sock.recv(8 - len(head))
+                if not part:
+                    break
+                head += part
+    except TimeoutError:
+        raise ValidationError(
+            f"the Dask scheduler at {address!r} did not answer within {timeout:g} s (is it a scheduler's address? the "
+            "scheduler listens on 8786 by default, its dashboard on 8787)"
+        ) from None
+    except OSError as exc:
+        raise ValidationError(f"the Dask scheduler at {address!r} cannot be reached: {exc.strerror or exc}") from None
+    if len(head) < 8 or not 0 < struct.unpack("Q", head)[0] <= _MAX_HANDSHAKE:
+        shown = head[:8].decode("ascii", "replace") if head else "nothing"
+        raise ValidationError(
+            f"the Dask scheduler at {address!r} is not one: it answered {shown!r}, not Dask's handshake (the "
+            "scheduler listens on 8786 by default, its dashboard on 8787)"
+        )
 
 
 def _check_connectable(address):
@@ -104,14 +154,16 @@ def _check_connectable(address):
         scheme, location = parse_address(address)
         get_backend(scheme)
         if scheme != "inproc":
-            get_address_host_port(address)
+            _, port = get_address_host_port(address)
+            if not 0 < int(port) < 65536:
+                raise ValueError(f"port {port} is not in 1..65535")
         else:  # an in-process scheduler either listens in this process now or cannot be reached at all
             from distributed.comm.inproc import global_manager
 
             if global_manager.get_listener_for(location) is None:
                 raise ValueError("no in-process scheduler of this process listens there")
     except (ValueError, TypeError, KeyError) as exc:
-        raise ValidationError(f"scheduler {address!r} is not an address Dask can connect to: {exc}") from None
+        raise ValidationError(f"the Dask scheduler at {address!r}: not an address Dask can connect to: {exc}") from None
 
 
 def is_url(path) -> bool:

@@ -19,13 +19,17 @@ still fails its record stays ``failed``, with the last error, until a later
 build writes it.  A ``running`` record whose process no longer exists on this
 host is reported as *interrupted* (its host and pid say where it ran).
 
-A build also records what it was asked for, in ``<store>/.build/.plan.json``
+A build also records what it was asked for, in its own plan file
+``<store>/.build/.plan-<host>-<pid>-<random>.json``
 (``{"subjects": [...], "host", "pid", "started"}``), written before any
-subject starts and removed when the build returns (with or without failures).
-A plan that is still there names a build that is running or that stopped
-before its end (killed, interrupted): ``--status`` then counts the requested
-subjects that were not started, which a killed build would otherwise hide (a
-store with no subject looked like a finished build of none).
+subject starts and removed by that build when it returns (with or without
+failures).  A plan that is still there names a build that is running or that
+stopped before its end (killed, interrupted): ``--status`` then counts the
+requested subjects that were not started, which a killed build would otherwise
+hide (a store with no subject looked like a finished build of none).  Builds
+that share a store each keep their own plan (one shared file was replaced by
+the next build's and removed by whichever returned first, which hid a killed
+build: a red team).
 
 The journal lives in the store directory, so every worker of a cluster that
 shares the store (a POSIX file system) writes to the same one; it is advisory
@@ -57,8 +61,8 @@ __all__ = ["JOURNAL_DIR", "PLAN", "BuildJournal", "BuildStatus", "build_status",
 
 #: Folder of the journal inside a directory store.
 JOURNAL_DIR = BUILD_JOURNAL
-#: File of the running build's plan in the journal (not a subject id, so never a subject's record).
-PLAN = ".plan.json"
+#: Name pattern of the builds' plan files in the journal (not subject ids, so never a subject's record).
+PLAN = ".plan-*.json"
 
 
 def _now() -> str:
@@ -70,6 +74,7 @@ class BuildJournal:
 
     def __init__(self, store_path):
         self.root = Path(store_path) / JOURNAL_DIR
+        self._plan = None  # this journal's own plan file, once begun
 
     def _path(self, sid: str) -> Path:
         return self.root / f"{check_subject_id(sid)}.json"  # an id is a file name: never a path out of the store
@@ -144,11 +149,19 @@ class BuildJournal:
         """A build asked for ``subjects`` (ids) starts: its plan is recorded (module docstring)."""
         record = {"subjects": [check_subject_id(s) for s in subjects], "host": socket.gethostname(),
                   "pid": os.getpid(), "started": _now()}  # fmt: skip
-        self._write_file(self.root / PLAN, record)
+        for path in sorted(self.root.glob(PLAN)) if self.root.is_dir() else []:  # builds killed before: this
+            rec = self._plan_record(path)  # one resumes them (or was asked for other subjects), so theirs go
+            if rec is not None and not _alive(rec):
+                path.unlink(missing_ok=True)
+        host = "".join(c if c.isalnum() or c in "-_" else "_" for c in record["host"])[:64]
+        self._plan = self.root / PLAN.replace("*", f"{host}-{os.getpid()}-{secrets.token_hex(4)}")
+        self._write_file(self._plan, record)
 
     def end(self) -> None:
-        """The build of the recorded plan returned: the plan goes."""
-        (self.root / PLAN).unlink(missing_ok=True)
+        """The build of this journal's plan returned: its plan goes (other builds' stay)."""
+        if self._plan is not None:
+            self._plan.unlink(missing_ok=True)
+            self._plan = None
 
     @contextlib.contextmanager
     def planned(self, subjects):
@@ -169,15 +182,20 @@ class BuildJournal:
         self.end()
         self.prune()
 
-    def plan(self) -> dict | None:
-        """The recorded plan (module docstring), or None (none, or a file that is not a plan)."""
+    def plans(self) -> list:
+        """The recorded plans of builds that have not returned (module docstring), oldest first; files that are
+        not plans (damaged, not JSON, not regular files) are left out."""
+        found = (self._plan_record(p) for p in sorted(self.root.glob(PLAN))) if self.root.is_dir() else ()
+        return sorted((r for r in found if r is not None), key=lambda r: str(r.get("started", "")))
+
+    @staticmethod
+    def _plan_record(path) -> dict | None:
+        """The plan in the file ``path``, or None (gone, not a regular file, not JSON, not a plan)."""
         try:
-            rec = json.loads(read_regular_file(self.root / PLAN, follow_links=False))
-        except (OSError, ValueError, RecursionError):  # missing, not a regular file (a FIFO, a link), not JSON
+            rec = json.loads(read_regular_file(path, follow_links=False))
+        except (OSError, ValueError, RecursionError):
             return None
-        if not isinstance(rec, dict) or not isinstance(rec.get("subjects"), list):
-            return None
-        return rec
+        return rec if isinstance(rec, dict) and isinstance(rec.get("subjects"), list) else None
 
     def finish(self, sid: str) -> None:
         """``sid`` is committed to the store: its record goes."""
@@ -253,15 +271,15 @@ class BuildStatus:
     records: dict = field(default_factory=dict)
     #: Subjects of the store that no build wrote: edits (source ``facestats.edit``) and imported sample subjects.
     others: list = field(default_factory=list)
-    #: The plan of a build that has not returned (module docstring), or None.
-    plan: dict | None = None
-    #: Subjects of that plan neither stored nor in the journal: not started yet (or lost with a killed build).
+    #: The plans of builds that have not returned (module docstring), oldest first.
+    plans: list = field(default_factory=list)
+    #: Subjects of those plans neither stored nor in the journal: not started yet (or lost with a killed build).
     not_started: list = field(default_factory=list)
 
     @property
     def unfinished(self) -> bool:
         """A build's plan is left and its process is gone: it stopped before its end (rerun it to resume)."""
-        return self.plan is not None and not _alive(self.plan)
+        return any(not _alive(p) for p in self.plans)
 
     def to_dict(self) -> dict:
         """JSON-ready: counts and ids per state, the failed subjects' last errors."""
@@ -272,9 +290,19 @@ class BuildStatus:
             "interrupted": self.interrupted,
             "failed": self.failed,
             "others": len(self.others),
-            "requested": None if self.plan is None else len(self.plan["subjects"]),
+            "requested": None if not self.plans else len({s for p in self.plans for s in p["subjects"]}),
             "not_started": self.not_started,
-            "build": None if self.plan is None else ("stopped" if self.unfinished else "running"),
+            "build": None if not self.plans else ("stopped" if self.unfinished else "running"),
+            "builds": [
+                {
+                    "subjects": len(p["subjects"]),
+                    "host": p.get("host"),
+                    "pid": p.get("pid"),
+                    "started": p.get("started"),
+                    "state": "running" if _alive(p) else "stopped",
+                }
+                for p in self.plans
+            ],  # fmt: skip
         }
 
     def to_text(self) -> str:
@@ -282,15 +310,14 @@ class BuildStatus:
         lines = [
             f"store {self.store}: {len(self.done)} done, {len(self.running)} running, "
             f"{len(self.interrupted)} interrupted, {len(self.failed)} failed"
-            + (f", {len(self.not_started)} not started" if self.plan is not None else "")
+            + (f", {len(self.not_started)} not started" if self.plans else "")
             + (f" (and {len(self.others)} edited or imported subject(s), not built)" if self.others else "")
         ]
-        if self.plan is not None:
-            p = self.plan
+        for p in self.plans:
             state = (
-                f"stopped before its end (pid {p.get('pid', '?')} is gone): rerun the same command to resume"
-                if self.unfinished
-                else "running"
+                "running"
+                if _alive(p)
+                else f"stopped before its end (pid {p.get('pid', '?')} is gone): rerun the same command to resume"
             )
             lines.append(
                 f"  build of {len(p['subjects'])} subject(s) begun {p.get('started', '?')} on {p.get('host', '?')}: "
@@ -330,7 +357,7 @@ def build_status(store_path) -> BuildStatus:
     running = sorted(s for s, r in records.items() if r.get("state") == "running" and _alive(r))
     interrupted = sorted(s for s, r in records.items() if r.get("state") == "running" and s not in running)
     failed = {s: r.get("error") for s, r in sorted(records.items()) if r.get("state") == "failed"}
-    journal = BuildJournal(store_path)
-    plan = journal.plan()
-    not_started = [] if plan is None else [s for s in plan["subjects"] if s not in rows and s not in records]
-    return BuildStatus(str(store_path), done, running, interrupted, failed, records, others, plan, not_started)
+    plans = BuildJournal(store_path).plans()
+    asked = dict.fromkeys(s for p in plans for s in p["subjects"])  # once each, in the plans' order
+    not_started = [s for s in asked if s not in rows and s not in records]
+    return BuildStatus(str(store_path), done, running, interrupted, failed, records, others, plans, not_started)

@@ -11,7 +11,7 @@ from facestats.acquire.capture import open_capture
 from facestats.acquire.synthetic.face import procedural_face
 from facestats.acquire.synthetic.population import synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator
-from facestats.errors import FitError, StoreError
+from facestats.errors import FitError, StoreError, ValidationError
 from facestats.pipeline import FitSettings, fit_population, fit_subject
 from facestats.pipeline import build as build_module
 from facestats.pipeline.cluster import SCHEDULER_VARIABLE, scheduler_address, store_directory
@@ -185,9 +185,10 @@ def test_status_counts_what_a_build_killed_early_did_not_start(tmp_path):
     store = tmp_path / "p.zarr"
     open_store(store, mode="a").close()
     BuildJournal(store).begin(["S001", "S002", "S003"])
-    plan = json.loads((store / JOURNAL_DIR / PLAN).read_text())
+    (path,) = (store / JOURNAL_DIR).glob(PLAN)
+    plan = json.loads(path.read_text())
     plan["pid"] = 2**22 + 12345  # the killed build's process: gone
-    (store / JOURNAL_DIR / PLAN).write_text(json.dumps(plan))
+    path.write_text(json.dumps(plan))
     BuildJournal(store).start("S002", 1)  # this process: alive
     status = build_status(store)
     assert status.not_started == ["S001", "S003"] and status.running == ["S002"] and status.unfinished
@@ -196,10 +197,33 @@ def test_status_counts_what_a_build_killed_early_did_not_start(tmp_path):
     assert "build of 3 subject(s) begun" in res.stdout and "rerun the same command to resume" in res.stdout
     # a build that returns, or fails with an error, leaves no plan
     build_module.build_store(store, map_size=8, subjects=["S001"], workers=1, conditions=False, micro_normals=False)
-    assert BuildJournal(store).plan() is None and build_status(store).not_started == []
+    assert BuildJournal(store).plans() == [] and build_status(store).not_started == []
     with pytest.raises(FacestatsError, match="built with other parameters"):
         build_module.build_store(store, map_size=8, seed=7, subjects=["S001"], workers=1, conditions=False)
-    assert BuildJournal(store).plan() is None
+    assert BuildJournal(store).plans() == []
+
+
+def test_builds_that_share_a_store_keep_a_plan_each(tmp_path):
+    """One shared plan file was replaced by the next build's and removed by whichever returned first: a build
+    killed beside another one vanished from --status, which exited 0 (a red team)."""
+    store = tmp_path / "p.zarr"
+    open_store(store, mode="a").close()
+    long_build, short_build = BuildJournal(store), BuildJournal(store)
+    long_build.begin(["S001", "S002", "S003", "S004"])
+    short_build.begin(["S005"])
+    short_build.end()  # the short build returned: only its own plan goes
+    (plan,) = build_status(store).plans
+    assert plan["subjects"] == ["S001", "S002", "S003", "S004"]
+    from facestats.pipeline.journal import PLAN
+
+    (path,) = (store / JOURNAL_DIR).glob(PLAN)  # the long build is killed: its process is gone
+    path.write_text(json.dumps(dict(plan, pid=2**22 + 12345)))
+    status = build_status(store)
+    assert status.unfinished and status.not_started == ["S001", "S002", "S003", "S004"]
+    assert status.to_dict()["builds"][0]["state"] == "stopped"
+    BuildJournal(store).begin(["S001"])  # the rerun: the killed build's plan goes, the new one is running
+    status = build_status(store)
+    assert not status.unfinished and [p["subjects"] for p in status.plans] == [["S001"]]
 
 
 def test_a_journal_that_cannot_be_written_fails_the_subject_not_the_build(tmp_path, monkeypatch):
@@ -317,6 +341,64 @@ def test_a_rerun_into_a_store_skips_the_stored_subjects(tmp_path, captures, monk
     again, _ = fit_population(captures[:1], QUICK, scheduler="synchronous", store=store)
     assert again == ids
     np.testing.assert_array_equal(open_store(store).subject(ids[0]).ts_m.values, before)
+
+
+def _service(reply):
+    """A TCP service on 127.0.0.1 that accepts connections and sends ``reply`` (None: nothing), and its address."""
+    import socket
+    import threading
+
+    server = socket.create_server(("127.0.0.1", 0))
+    held = []
+
+    def serve():
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:  # closed
+                return
+            held.append(conn)
+            if reply is not None:
+                conn.sendall(reply)
+
+    threading.Thread(target=serve, daemon=True).start()
+    return server, f"tcp://127.0.0.1:{server.getsockname()[1]}"
+
+
+def test_an_address_where_no_scheduler_listens_is_named_not_waited_for():
+    """Dask's dashboard port (a web server) given for the scheduler's: a silent service hung the build past
+    300 s, an HTTP reply ended in "out of memory (Unable to allocate 3.07 EiB)", a refused connection waited the
+    whole timeout, and a port beyond 65535 too (a red team)."""
+    import time
+
+    distributed = pytest.importorskip("distributed")
+    from facestats.pipeline.cluster import connect
+
+    for reply, said in ((None, "did not answer within 2 s"), (b"HTTP/1.1 400 Bad Request\r\n\r\n",
+                        "is not one: it answered 'HTTP/1.1', not Dask's handshake")):  # fmt: skip
+        server, address = _service(reply)
+        start = time.monotonic()
+        with pytest.raises(ValidationError, match=f"the Dask scheduler at '{address}' {said}"):
+            connect(address, timeout=2)
+        assert time.monotonic() - start < 5
+        server.close()
+    import socket
+
+    with socket.socket() as unused:  # a port bound for a moment, never listened on
+        unused.bind(("127.0.0.1", 0))
+        address = f"tcp://127.0.0.1:{unused.getsockname()[1]}"
+    start = time.monotonic()
+    with pytest.raises(ValidationError, match="cannot be reached: Connection refused"):
+        connect(address, timeout=30)
+    with pytest.raises(ValidationError, match="port 99999 is not in 1..65535"):
+        connect("tcp://127.0.0.1:99999", timeout=30)
+    assert time.monotonic() - start < 5
+    # A real scheduler passes the probe (which reads Dask's framing: a change of it would show here).
+    with distributed.LocalCluster(n_workers=0, processes=False, protocol="tcp", dashboard_address=None) as lc:
+        assert lc.scheduler_address.startswith("tcp://")
+        client = connect(lc.scheduler_address, timeout=10)
+        assert client.scheduler_info()["address"] == lc.scheduler_address
+        client.close()
 
 
 def test_settings_and_schedulers_that_cannot_work_are_refused_before_the_store_exists(tmp_path, captures, monkeypatch):

@@ -100,6 +100,9 @@ def make_field(
     solid_angles : array_like, optional
         δA per light (sr).  Default: exact lat-long cells for a grid, spherical
         Voronoi cells (:func:`facestats.model.sphere.voronoi_solid_angles`) for a list.
+        Used by sums over the lights (ρs of the separation, the compression's weights);
+        relighting by a probe integrates the probe over the lights' own cells
+        (:func:`facestats.relight.relighting.lighting_for`), whatever is given here.
     intensity : array_like, shape (light dims) or (light dims, 3), optional
         RGB irradiance of each light in the capture (default 1).
     mask : array_like of bool, shape (H, W), optional

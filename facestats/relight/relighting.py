@@ -32,7 +32,10 @@ def lighting_for(field, probe, *, layout: str = "latlong", rotate: float = 0.0, 
 
     A lat-long light-stage field gets the exact cell integrals; any other light
     set the spherical-Voronoi integrals (:func:`facestats.relight.lighting.resample_probe`).
-    ``rotate`` rotates the environment about +y first (radians).
+    ``rotate`` rotates the environment about +y first (radians).  The field's own
+    ``solid_angle`` is not used: the probe's integral over each light's cell already
+    is L·δA (with ``solid_angles`` given to :func:`~facestats.relight.field.make_field`,
+    e.g. a rig's calibration, pass ``lighting=`` computed from them instead).
     """
     f = as_field(field)
     d = np.asarray(f["direction"].values, np.float64)

@@ -426,6 +426,47 @@ def bench_separation(
     return out
 
 
+_RELIGHT_MEMORY_CHILD = r"""
+import json, resource, sys, time
+import facestats
+from facestats.io.probes import studio_probe
+from facestats.relight.camera import stage_camera, subject_geometry
+from facestats.relight.stage import relight_subject
+size, n_theta, n_phi = (int(a) for a in sys.argv[1:4])
+subject = facestats.open_store().subject("S001").load()
+geometry = subject_geometry(subject)
+before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+t0 = time.perf_counter()
+_, mask = relight_subject(subject, studio_probe(32), camera=stage_camera(0, 0, size=size), lights=(n_theta, n_phi),
+                          geometry=geometry, shadows=False)
+wall = time.perf_counter() - t0
+peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(json.dumps({"wall_s": wall, "peak_above_subject_mb": (peak - before) / 1024, "face_pixels": int(mask.sum())}))
+"""
+
+
+def bench_relight_memory(cases=((512, 64, 32), (256, 128, 64))):
+    """Peak memory of ``relight_subject`` (S001, studio probe, no shadows) above the loaded subject, each case
+    (size, n_theta, n_phi) in a fresh process, beside the (face pixels × lights) float64 product and its bool
+    mask (9 B each) that finding the lights facing the surface held whole until 2026-12-06 (the baseline)."""
+    import json
+    import subprocess
+    import sys
+
+    out = {}
+    print(f"{'size':>5} {'lights':>7} {'wall s':>7} {'peak MB':>8} {'dense product MB (before)':>26}")
+    for size, n_theta, n_phi in cases:
+        res = subprocess.run([sys.executable, "-c", _RELIGHT_MEMORY_CHILD, str(size), str(n_theta), str(n_phi)],
+                             capture_output=True, text=True, check=True)  # fmt: skip
+        got = json.loads(res.stdout.strip().splitlines()[-1])
+        lights = n_theta * n_phi
+        got["dense_product_mb"] = got["face_pixels"] * lights * 9 / 2**20
+        out[f"{size}/{lights}"] = got
+        print(f"{size:5d} {lights:7d} {got['wall_s']:7.2f} {got['peak_above_subject_mb']:8.0f} "
+              f"{got['dense_product_mb']:26.0f}")  # fmt: skip
+    return out
+
+
 BENCHMARKS = [
     ("relight", bench_relight),
     ("stage", bench_stage),
@@ -437,6 +478,7 @@ BENCHMARKS = [
     ("region_floor", bench_region_floor),
     ("parts", bench_parts),
     ("separation", bench_separation),
+    ("relight_memory", bench_relight_memory),
 ]
 
 #: The tiny field, ratio and lightings of the sweeps' smoke runs.
@@ -454,4 +496,5 @@ SMOKE = {
     "region_floor": {**_TINY_SWEEP, "floors": (0.2, 1.0), "seeds": (0,)},
     "parts": {**_TINY_SWEEP, "parts": (1, 2), "seeds": (0,)},
     "separation": {"size": 4, "lobes": (0.35,), "views": ((0, 0, 1),), "noises": (0.02,)},
+    "relight_memory": {"cases": ((16, 8, 4),)},
 }

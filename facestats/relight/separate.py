@@ -402,8 +402,8 @@ def _separate_pixels(r, dirs, sa, v, d0, s_unit, ramp, mirror_deg, shadow_thresh
     With ``ramp``, the ramp is fitted twice: about the normal of the rough separation (the paper's order),
     then about the normal of the diffuse part that fit gives. The rough diffuse part still holds the ramp's
     shift towards s, which tilts its normal; the ramp fitted about that normal was biased even on data without
-    specular light (α₀ −0.058 for −0.05), and on a strong ramp ρs came out up to 68 % low (a red team,
-    2026-12-06). Further refits change the result by less than the lobe's tail does (``docs/relighting.md``, D3).
+    specular light (α₀ off by up to 0.011 for a ramp (−0.05, −0.4)), and a narrow lobe's ρs by up to 9.5 % at
+    single pixels (a red team, 2026-12-06; ``docs/relighting.md``, D3).
     """
     n = r.shape[1]
     lum = r.sum(-1)

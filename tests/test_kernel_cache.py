@@ -104,3 +104,23 @@ def test_the_places_outside_the_package_are_where_numba_puts_its_caches(tmp_path
     import numba.misc.appdirs as appdirs
 
     assert appdirs.AppDirs(appname="numba", appauthor=False).user_cache_dir == str(tmp_path / "xdg" / "numba")
+
+
+def test_a_cache_place_that_cannot_be_entered_is_left_alone(tmp_path, monkeypatch):
+    """`import facestats` crashed with PermissionError where HOME (or NUMBA_CACHE_DIR) was another user's folder
+    (a review): Path.is_dir raises there instead of returning False."""
+    refresh = kernel_cache.refresh_kernel_caches.__wrapped__
+    package = tmp_path / "pkg"
+    _package(package)
+    locked = tmp_path / "locked"
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(locked))
+    real_is_dir = Path.is_dir
+
+    def is_dir(self):
+        if str(self).startswith(str(locked)):
+            raise PermissionError(13, "Permission denied", str(self))
+        return real_is_dir(self)
+
+    monkeypatch.setattr(Path, "is_dir", is_dir)
+    assert refresh(str(package)) is True  # the package's own caches are still cleared
+    assert _caches(package) == ["unrelated.f-1.py311.nbi"]

@@ -111,20 +111,38 @@ def main(argv=None) -> int:
         if os.environ.get("FACESTATS_DEBUG"):
             raise
         print(f"facestats: error: {_describe_failure(exc)}", file=sys.stderr)
-        return 2 if isinstance(exc, (OSError, MemoryError)) or _missing_package(exc) else 3
+        foreign = isinstance(exc, ModuleNotFoundError) and (exc.name or "facestats").split(".")[0] != "facestats"
+        return 2 if isinstance(exc, (OSError, MemoryError)) or foreign else 3
 
 
-#: Import names whose package on PyPI is called otherwise.
-_PIP_NAMES = {"cv2": "opencv-python-headless", "serial": "pyserial", "colour": "colour-science", "yaml": "pyyaml"}
+#: What to install for an import name: packages called otherwise on PyPI, and facestats' extras.
+_PIP_NAMES = {
+    "cv2": "opencv-python-headless",
+    "serial": "pyserial",
+    "colour": "colour-science",
+    "yaml": "pyyaml",
+    "distributed": "'facestats[distributed]'",
+    "flask": "'facestats[web]'",
+    "mitsuba": "'facestats[render]'",
+}
 
 
 def _missing_package(exc: BaseException) -> str | None:
-    """The top-level name of a module that is not installed (a dependency: a damaged environment or an install
-    with ``--no-deps``), or None; a missing module of facestats itself is a bug, not a dependency."""
+    """The top-level name of a package that is not installed (a dependency: a damaged environment or an install
+    with ``--no-deps``), or None: a missing module of facestats itself is a bug, and a missing module of an
+    installed package is a broken installation of it (:func:`_describe_failure`)."""
     if not isinstance(exc, ModuleNotFoundError) or not exc.name:
         return None
     top = exc.name.split(".")[0]
-    return None if top == "facestats" else top
+    if top == "facestats":
+        return None
+    import importlib.util
+
+    try:
+        found = importlib.util.find_spec(top) is not None
+    except (ImportError, ValueError):
+        found = False
+    return None if found and top != exc.name else top
 
 
 def _describe_failure(exc: BaseException) -> str:
@@ -139,6 +157,12 @@ def _describe_failure(exc: BaseException) -> str:
         return (
             f"the package {missing!r} is not installed, and facestats needs it here: "
             f"pip install {_PIP_NAMES.get(missing, missing)} (or reinstall facestats with its dependencies)"
+        )
+    if isinstance(exc, ModuleNotFoundError) and exc.name and exc.name.split(".")[0] != "facestats":
+        top = exc.name.split(".")[0]
+        return (
+            f"the package {top!r} is installed but its module {exc.name!r} cannot be found: the installation is "
+            f"broken; reinstall it (pip install --force-reinstall {_PIP_NAMES.get(top, top)})"
         )
     return (
         f"unexpected {type(exc).__name__}: {exc} — this is a bug in facestats; rerun with FACESTATS_DEBUG=1 "

@@ -94,7 +94,10 @@ def refresh_kernel_caches(package: str | None = None) -> bool:
 def _refresh_place(stamp: Path, folders: list, text: str, in_tree: bool) -> bool:
     """One place of :func:`refresh_kernel_caches`; ``folders`` in :data:`KERNEL_MODULES` order.  The package's own
     ``__pycache__`` is made if missing; a place outside it without a folder of facestats' caches is left alone."""
-    if not in_tree and not any(folder.is_dir() for folder in folders):
+    try:  # Path.is_dir raises where a folder cannot be entered (a HOME of another user): such a place is left
+        if not in_tree and not any(folder.is_dir() for folder in folders):
+            return False
+    except OSError:
         return False
     try:
         if stamp.read_text().strip() == text:

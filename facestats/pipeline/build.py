@@ -419,6 +419,8 @@ def _build_one(
     store = open_store(store_path, mode="r+")
     same = (pop, _geometry(map_size, face).name, specular, micro_normals, keep_derived)
     _check_still_same_build(store, subject_id, *same)  # a retry after a refusal fails before the work
+    if subject_id in store:  # committed by this task before its worker was lost (Dask resubmits it), or meanwhile
+        return subject_id  # by a concurrent build of the same parameters
     truth = pop[subject_id]
     capture = _simulator(map_size, specular, face).simulate(truth)
     ds = fit_subject(capture, sigma_tr_avg, _settings(micro_normals), sensor_fit=sensor_fit)
@@ -539,15 +541,8 @@ def build_store(
             normal = [s.subject_id for s in pop.subjects if s.condition == "normal"]
             stra = population_sigma_tr_avg(np.stack([fits[s].sigma_tr for s in normal]), SITES)
             present = set(store.ids())
-            _check_same_build(  # two stand for the store: each stored subject was checked at its commit
-                store,
-                pop,
-                sorted(present),
-                _geometry(map_size, face).name,
-                specular,
-                micro_normals,
-                keep_derived,
-                limit=2,
+            _check_same_build(  # every stored subject: a store may have been mixed by an older build or a script
+                store, pop, sorted(present), _geometry(map_size, face).name, specular, micro_normals, keep_derived
             )
             todo = [s for s in wanted if s not in present]
             skipped = [s for s in wanted if s in present]

@@ -188,7 +188,11 @@ def local_path(path, name="path") -> str:
     """
     text = str(path)
     parsed = urlparse(text)
-    if parsed.scheme.lower() == "file" and text[5:7] == "//":
+    if "::" in text:  # fsspec's chained URLs (simplecache::s3://…) are not local folders
+        raise ValidationError(f"{name} must be a local path or a file:// URL, got the chained URL {text!r}")
+    if parsed.scheme.lower() == "file" and text[5:7] != "//" and text[5:6] == "/":  # file:/abs/path (RFC 8089)
+        text = parsed.path
+    elif parsed.scheme.lower() == "file" and text[5:7] == "//":
         if parsed.netloc not in ("", "localhost"):
             raise ValidationError(
                 f"{name} must be a local path or a file:///absolute/path URL, got {text!r} (it names the host "
@@ -200,7 +204,9 @@ def local_path(path, name="path") -> str:
                               f"scheme {parsed.scheme!r}: did you mean {parsed.scheme}://?)")  # fmt: skip
     if not text:
         raise ValidationError(f"{name} must name a file or folder, got {str(path)!r}")
-    return os.path.abspath(text)
+    # joined to the working folder, not normalised: "link/../x" is x beside the link's target, as the system
+    # opens it, and os.path.abspath would make it x beside the link
+    return os.path.join(os.getcwd(), text)
 
 
 def store_directory(path, name="store") -> str:

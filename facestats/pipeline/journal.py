@@ -57,12 +57,23 @@ from facestats.io.layout import BUILD_JOURNAL, read_regular_file
 from facestats.io.store import open_store
 from facestats.pipeline.cluster import store_directory
 
-__all__ = ["JOURNAL_DIR", "PLAN", "BuildJournal", "BuildStatus", "build_status", "gathered", "run_journalled"]
+__all__ = [
+    "JOURNAL_DIR",
+    "PLAN",
+    "LEGACY_PLAN",
+    "BuildJournal",
+    "BuildStatus",
+    "build_status",
+    "gathered",
+    "run_journalled",
+]
 
 #: Folder of the journal inside a directory store.
 JOURNAL_DIR = BUILD_JOURNAL
 #: Name pattern of the builds' plan files in the journal (not subject ids, so never a subject's record).
 PLAN = ".plan-*.json"
+#: The one plan file of facestats before 2026-12-06 (read, and removed like the others).
+LEGACY_PLAN = ".plan.json"
 
 
 def _now() -> str:
@@ -149,9 +160,9 @@ class BuildJournal:
         """A build asked for ``subjects`` (ids) starts: its plan is recorded (module docstring)."""
         record = {"subjects": [check_subject_id(s) for s in subjects], "host": socket.gethostname(),
                   "pid": os.getpid(), "started": _now()}  # fmt: skip
-        for path in sorted(self.root.glob(PLAN)) if self.root.is_dir() else []:  # builds killed before: this
-            rec = self._plan_record(path)  # one resumes them (or was asked for other subjects), so theirs go
-            if rec is not None and not _alive(rec):
+        for path in self._plan_files():  # builds killed before whose subjects this one asks for: it resumes them
+            rec = self._plan_record(path)
+            if rec is not None and not _alive(rec) and set(rec["subjects"]) <= set(record["subjects"]):
                 path.unlink(missing_ok=True)
         host = "".join(c if c.isalnum() or c in "-_" else "_" for c in record["host"])[:64]
         self._plan = self.root / PLAN.replace("*", f"{host}-{os.getpid()}-{secrets.token_hex(4)}")
@@ -185,8 +196,14 @@ class BuildJournal:
     def plans(self) -> list:
         """The recorded plans of builds that have not returned (module docstring), oldest first; files that are
         not plans (damaged, not JSON, not regular files) are left out."""
-        found = (self._plan_record(p) for p in sorted(self.root.glob(PLAN))) if self.root.is_dir() else ()
+        found = (self._plan_record(p) for p in self._plan_files())
         return sorted((r for r in found if r is not None), key=lambda r: str(r.get("started", "")))
+
+    def _plan_files(self) -> list:
+        """The plan files in the journal (:data:`PLAN`, and :data:`LEGACY_PLAN` of an older build)."""
+        if not self.root.is_dir():
+            return []
+        return sorted(self.root.glob(PLAN)) + [p for p in [self.root / LEGACY_PLAN] if p.exists()]
 
     @staticmethod
     def _plan_record(path) -> dict | None:

@@ -37,8 +37,12 @@ def _fit_capture_task(sid, capture, sigma_tr_avg, settings, sensor_fit, store, r
     """Fit one capture (with retries), write it to ``store`` if given: ``(id, "done"/"failed", dataset/id/error)``."""
 
     def run():
+        if store is not None:
+            with open_store(store, mode="r") as st:
+                if sid in st:  # committed by this task before its worker was lost (Dask resubmitted it)
+                    return sid
         cap = capture if isinstance(capture, Capture) else open_capture(capture)
-        if cap.metadata["subject_id"] != sid:  # a worker that sees other files than the caller did
+        if check_subject_id(cap.metadata["subject_id"]) != sid:  # a worker that sees other files than the caller
             raise FitError(f"capture {cap.path} holds subject {cap.metadata['subject_id']!r} here, not {sid!r}")
         ds = fit_subject(cap, sigma_tr_avg, settings, sensor_fit=sensor_fit)
         if store is None:

@@ -35,8 +35,12 @@ def test_a_missing_dependency_is_named_with_its_install_command_not_called_a_bug
     import facestats.io.subject_export as subject_export
 
     for name, code, said in [
-        ("cv2.gapi", 2, "the package 'cv2' is not installed, and facestats needs it here: pip install "
-                        "opencv-python-headless"),  # an import name unlike its package's
+        ("cv2", 2, "the package 'cv2' is not installed, and facestats needs it here: pip install "
+                   "opencv-python-headless"),  # an import name unlike its package's
+        ("distributed", 2, "the package 'distributed' is not installed, and facestats needs it here: pip install "
+                           "'facestats[distributed]'"),  # an extra
+        ("numpy._core.gone", 2, "the package 'numpy' is installed but its module 'numpy._core.gone' cannot be found: "
+                                "the installation is broken"),  # a review: not "pip install numpy"
         ("facestats.io.gone", 3, "unexpected ModuleNotFoundError: No module named 'facestats.io.gone' — this is a bug"),
     ]:  # fmt: skip
 

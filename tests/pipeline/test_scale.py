@@ -195,8 +195,9 @@ def test_status_counts_what_a_build_killed_early_did_not_start(tmp_path):
     res = run_cli("build", "--status", str(store))
     assert res.returncode == 1 and "0 done, 1 running, 0 interrupted, 0 failed, 2 not started" in res.stdout
     assert "build of 3 subject(s) begun" in res.stdout and "rerun the same command to resume" in res.stdout
-    # a build that returns, or fails with an error, leaves no plan
-    build_module.build_store(store, map_size=8, subjects=["S001"], workers=1, conditions=False, micro_normals=False)
+    # the rerun removes the killed build's plan; a build that returns, or fails with an error, leaves no plan
+    rerun = ["S001", "S002", "S003"]
+    build_module.build_store(store, map_size=8, subjects=rerun, workers=1, conditions=False, micro_normals=False)
     assert BuildJournal(store).plans() == [] and build_status(store).not_started == []
     with pytest.raises(FacestatsError, match="built with other parameters"):
         build_module.build_store(store, map_size=8, seed=7, subjects=["S001"], workers=1, conditions=False)
@@ -221,9 +222,29 @@ def test_builds_that_share_a_store_keep_a_plan_each(tmp_path):
     status = build_status(store)
     assert status.unfinished and status.not_started == ["S001", "S002", "S003", "S004"]
     assert status.to_dict()["builds"][0]["state"] == "stopped"
-    BuildJournal(store).begin(["S001"])  # the rerun: the killed build's plan goes, the new one is running
+    other = BuildJournal(store)
+    other.begin(["S020"])  # a build of other subjects leaves the killed build's plan (a review)
+    assert build_status(store).unfinished
+    other.end()
+    BuildJournal(store).begin(["S001", "S002", "S003", "S004"])  # the rerun: the killed build's plan goes
     status = build_status(store)
-    assert not status.unfinished and [p["subjects"] for p in status.plans] == [["S001"]]
+    assert not status.unfinished and [len(p["subjects"]) for p in status.plans] == [4]
+
+
+def test_the_plan_file_of_an_older_build_is_read_and_resumed(tmp_path):
+    """Before per-build plans a build kept `.build/.plan.json`: after an upgrade, a killed build's plan there was
+    ignored and never removed (a review)."""
+    from facestats.pipeline.journal import LEGACY_PLAN
+
+    store = tmp_path / "p.zarr"
+    open_store(store, mode="a").close()
+    (store / JOURNAL_DIR).mkdir()
+    old = {"subjects": ["S001", "S002"], "host": os.uname().nodename, "pid": 2**22 + 12345, "started": "2026-12-05"}
+    (store / JOURNAL_DIR / LEGACY_PLAN).write_text(json.dumps(old))
+    status = build_status(store)
+    assert status.unfinished and status.not_started == ["S001", "S002"]
+    BuildJournal(store).begin(["S001", "S002"])
+    assert not (store / JOURNAL_DIR / LEGACY_PLAN).exists()
 
 
 def test_a_journal_that_cannot_be_written_fails_the_subject_not_the_build(tmp_path, monkeypatch):

@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -78,6 +79,23 @@ def test_object_stores_are_refused_before_anything_runs(tmp_path, captures):
         fit_population(captures[:1], QUICK, scheduler="synchronous", store="gs://bucket/pop.zarr")
     assert store_directory(f"file://{tmp_path}/x.zarr") == f"{tmp_path}/x.zarr"
     assert not (tmp_path / "x.zarr").exists()
+
+
+def test_store_locations_are_absolute_as_the_system_opens_them_and_odd_urls_are_refused(tmp_path, monkeypatch):
+    """Workers resolved relative paths in their own folders; `file://host/x` lost its host, `s3:/x` and `FILE:///x`
+    made local folders `s3:` and `FILE:` (a red team); `link/../x` was normalised to beside the link (a review)."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "real" / "deep").mkdir(parents=True)
+    (tmp_path / "link").symlink_to(tmp_path / "real" / "deep")
+    assert store_directory("pop.zarr") == str(tmp_path / "pop.zarr")
+    through = store_directory("link/../pop.zarr")  # the system opens real/pop.zarr there
+    assert os.path.realpath(os.path.dirname(through)) == str(tmp_path / "real")
+    assert store_directory("FILE:///tmp/x.zarr") == store_directory("file:/tmp/x.zarr") == "/tmp/x.zarr"
+    for bad, said in (("file://tmp/x.zarr", "it names the host 'tmp'"), ("s3:/bucket/x", "did you mean s3://"),
+                      ("file://", "must name a file or folder"), ("simplecache::/tmp/x", "chained URL")):  # fmt: skip
+        with pytest.raises(ValidationError, match=re.escape(said)):
+            store_directory(bad)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link", "real"]  # nothing made
 
 
 def test_population_fit_into_a_store_on_a_distributed_cluster_from_capture_urls(tmp_path, captures):

@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 
 from facestats.cli.analyze import add_analyze
 from facestats.cli.build import add_build
@@ -90,6 +91,8 @@ def main(argv=None) -> int:
     if not hasattr(args, "func"):
         parser.print_help()
         return 0
+    shown = warnings.formatwarning
+    warnings.formatwarning = _one_line_warning  # "facestats: warning: …", not a source line of facestats
     try:
         return int(args.func(args) or 0)
     except FacestatsError as exc:
@@ -113,6 +116,15 @@ def main(argv=None) -> int:
         print(f"facestats: error: {_describe_failure(exc)}", file=sys.stderr)
         foreign = isinstance(exc, ModuleNotFoundError) and (exc.name or "facestats").split(".")[0] != "facestats"
         return 2 if isinstance(exc, (OSError, MemoryError)) or foreign else 3
+    finally:
+        warnings.formatwarning = shown
+
+
+def _one_line_warning(message, category, filename, lineno, line=None) -> str:
+    """A warning as the command line shows it: ``facestats: warning: <message>`` (its category when not a plain
+    UserWarning), without the file and source line of the code that raised it."""
+    kind = "" if category is UserWarning else f" ({category.__name__})"
+    return f"facestats: warning{kind}: {message}\n"
 
 
 #: What to install for an import name: packages called otherwise on PyPI, and facestats' extras.

@@ -20,6 +20,7 @@ def _cmd_export_subject(args) -> int:
         store=store_path_option(args.store),
         overwrite=args.overwrite,
         mesh=args.mesh,
+        mesh_scale=args.mesh_scale,
         mesh_format=args.mesh_format,
         probe=args.probe,
         material=args.material,
@@ -60,6 +61,13 @@ def add_export_subject(sub):
         metavar="PATH",
         help="OBJ/PLY scan the maps belong to (default: the face the subject's provenance records; an edit's: its "
         "source's)",
+    )
+    p.add_argument(
+        "--mesh-scale",
+        type=float,
+        default=None,
+        metavar="FACTOR",
+        help="factor from the --mesh file's unit to mm (10 for cm, 1000 for m; default 1)",
     )
     p.add_argument(
         "--mesh-format", choices=("obj", "ply"), default=None, help="EXR set: mesh file (default obj; Mitsuba: obj)"

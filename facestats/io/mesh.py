@@ -23,6 +23,7 @@ Conventions and checks:
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -547,6 +548,10 @@ def recorded_geometry(ds) -> str | None:
     return None
 
 
+#: Extent (largest side of the bounding box, mm) of a face or head scan outside which :func:`subject_mesh` warns.
+FACE_SIZE_MM = (50.0, 1000.0)
+
+
 def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = None) -> FaceMesh:
     """The face mesh a subject's maps belong to, for export (which one is recorded in ``geometry``).
 
@@ -565,7 +570,8 @@ def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = N
         An OBJ/PLY scan with per-vertex UVs (v up in the file) whose UV layout
         the subject's maps follow.
     scale : float
-        Factor from the mesh file's unit to mm (with ``mesh``).
+        Factor from the mesh file's unit to mm (with ``mesh``).  A mesh whose extent after it lies
+        outside :data:`FACE_SIZE_MM` is warned about (a scan in cm or m read as mm).
     mesh_grid : int, optional
         Grid of the procedural mesh (default 128: 2 × 127² triangles over the head).
 
@@ -575,6 +581,14 @@ def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = N
     """
     if mesh is not None:
         verts, faces, stored = read_triangle_mesh(mesh, scale=scale, uv=True)
+        across = float(np.ptp(verts, axis=0).max()) if len(verts) else 0.0
+        if not FACE_SIZE_MM[0] <= across <= FACE_SIZE_MM[1]:  # a scan in cm or m taken as mm (a user's run)
+            warnings.warn(
+                f"the mesh {os.fspath(mesh)} is {across:.3g} mm across with scale {scale:g}, not a face's "
+                f"{FACE_SIZE_MM[0]:g}-{FACE_SIZE_MM[1]:g} mm: if the file is in cm or m, pass scale 10 or 1000 "
+                "(--mesh-scale); the σ maps are per mm",
+                stacklevel=2,
+            )
         path = os.path.abspath(os.fspath(mesh))  # recorded in every export: absolute, so it says which file
         geometry = {"kind": "mesh", "name": os.path.basename(path), "path": path, "scale": scale}
         return _face_mesh(verts, faces, _checked_uv(stored, len(verts), mesh, True), geometry)

@@ -256,7 +256,8 @@ def load_trimesh(path):
     ``u``/``v`` or ``texture_u``/``texture_v`` vertex properties), finite, or None.
     An OBJ file is first parsed as :func:`read_obj` does, with checks trimesh does not
     make (a ``v`` line with two numbers drops z from every vertex in trimesh, the
-    invalid index 0 becomes vertex 1).
+    invalid index 0 becomes vertex 1), and read without its materials: the UVs as stored,
+    not repacked into a texture atlas of the materials' images.
 
     Raises
     ------
@@ -266,10 +267,14 @@ def load_trimesh(path):
     import trimesh
 
     name = os.fspath(path)
+    options = {}
     if os.path.splitext(name)[1].lower() == ".obj":
         _parse_obj(name)
+        # With its materials (an .mtl beside it naming textures), trimesh packs the parts' textures into one atlas
+        # and rewrites the UVs into it: the maps would land on the wrong vertices (a user's real-data run).
+        options["skip_materials"] = True
     try:
-        mesh = trimesh.load(name, force="mesh", process=False)
+        mesh = trimesh.load(name, force="mesh", process=False, **options)
     except Exception as exc:  # trimesh raises many types for unreadable files
         raise FormatError(f"cannot read the mesh {name}: {exc}") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.vertices) == 0:

@@ -18,7 +18,7 @@ import stat
 
 from facestats.core.outputs import check_apart, check_output_dir, missing_folders
 from facestats.core.processes import process_gone
-from facestats.core.validate import check_choice
+from facestats.core.validate import as_scalar, check_choice
 from facestats.errors import StoreError, ValidationError
 from facestats.io.gltf import write_gltf
 from facestats.io.ids import check_subject_id
@@ -30,6 +30,7 @@ EXPORT_FORMATS = ("exr", "mitsuba", "gltf")
 #: The formats each option of :func:`export_subject` applies to.
 EXPORT_OPTIONS = {
     "mesh": EXPORT_FORMATS,
+    "mesh_scale": EXPORT_FORMATS,
     "mesh_format": ("exr", "mitsuba"),
     "probe": ("mitsuba",),
     "material": ("mitsuba",),
@@ -64,6 +65,10 @@ class UnknownSubjectError(StoreError):
 
 
 def _write(fmt, ds, tmp, options):
+    if options.get("mesh") is not None and options.get("mesh_scale") is not None:  # a scan in another unit than mm
+        from facestats.io.mesh import subject_mesh
+
+        options = dict(options, mesh=subject_mesh(ds, options["mesh"], scale=options["mesh_scale"]))
     if fmt == "exr":
         # local import: keeps facestats.acquire (5 modules) out of this module's import
         from facestats.io.exr_set import write_exr_set
@@ -100,7 +105,8 @@ def export_subject(subject, out, format="exr", *, store=None, overwrite=False, *
     overwrite : bool
         Replace an existing non-empty ``out``.
     **options
-        :data:`EXPORT_OPTIONS`: ``mesh`` (scan path; every format), ``mesh_format`` (``obj``/``ply`` for
+        :data:`EXPORT_OPTIONS`: ``mesh`` (scan path; every format), ``mesh_scale`` (factor from the scan's
+        unit to mm, default 1), ``mesh_format`` (``obj``/``ply`` for
         ``exr``; only ``obj`` for ``mitsuba``), ``probe``, ``material``, ``width``, ``height``, ``spp``,
         ``fov`` (``mitsuba``).  An option of None is not given.
 
@@ -120,6 +126,10 @@ def export_subject(subject, out, format="exr", *, store=None, overwrite=False, *
     """
     check_choice(format, "format", EXPORT_FORMATS)
     options = _check_options(format, options)
+    if "mesh_scale" in options:
+        if "mesh" not in options:
+            raise ValidationError("mesh_scale applies to a mesh given with mesh= (--mesh), and none is given")
+        options["mesh_scale"] = as_scalar(options["mesh_scale"], "mesh_scale", 0, None, low_inclusive=False)
     out = _check_out(out, overwrite)
     for name in _INPUTS:
         if isinstance(options.get(name), (str, os.PathLike)):

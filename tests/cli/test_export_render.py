@@ -21,6 +21,30 @@ def test_export_subject_writes_the_set_and_reports_errors_like_every_command(tmp
     assert not (tmp_path / "x").exists()
 
 
+def test_a_scan_in_cm_is_warned_about_and_scaled_with_mesh_scale(tmp_path):
+    """The export took every --mesh as mm: a head scanned in cm became 34 mm tall, with σ per mm (a user's run on
+    ICT-FaceKit's mesh); there was no way to say the unit."""
+    import json
+
+    from tests.helpers import run_cli
+
+    quad = tmp_path / "quad.obj"  # 20 units across: a face-sized patch in cm
+    quad.write_text("v 0 0 0\nv 20 0 0\nv 0 20 0\nv 20 20 0\nvt 0 0\nvt 1 0\nvt 0 1\nvt 1 1\nf 1/1 2/2 3/3\n"
+                    "f 2/2 4/4 3/3\n")  # fmt: skip
+    shown = {"PYTHONWARNINGS": "default"}  # run_cli hides warnings
+    as_mm = run_cli("export-subject", "S001", "--out", tmp_path / "mm", "--mesh", quad, env=shown)
+    assert as_mm.returncode == 0, as_mm.stderr
+    assert as_mm.stderr.startswith(f"facestats: warning: the mesh {quad} is 20 mm across with scale 1, not a face's")
+    as_cm = run_cli("export-subject", "S001", "--out", tmp_path / "cm", "--mesh", quad, "--mesh-scale", "10", env=shown)
+    assert as_cm.returncode == 0 and "warning" not in as_cm.stderr, as_cm.stderr
+    verts = [line.split()[1:] for line in (tmp_path / "cm" / "mesh.obj").read_text().splitlines() if line[:2] == "v "]
+    assert max(float(v[0]) for v in verts) == 200.0  # mm
+    manifest = json.loads((tmp_path / "cm" / "manifest.json").read_text())
+    assert '"scale": 10.0' in json.dumps(manifest)
+    bad = run_cli("export-subject", "S001", "--out", tmp_path / "x", "--mesh-scale", "10")
+    assert bad.returncode == 2 and "mesh_scale applies to a mesh given with mesh= (--mesh)" in bad.stderr
+
+
 def test_a_missing_dependency_is_named_with_its_install_command_not_called_a_bug(tmp_path, capsys, monkeypatch):
     """With a required package missing (an install with --no-deps, a damaged environment) the command said
     "unexpected ModuleNotFoundError … this is a bug in facestats", exit 3 (an install red team)."""

@@ -119,3 +119,23 @@ def test_a_transform_must_be_rigid_in_both_mesh_readers(tmp_path, transform, mat
     turn[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]  # 90 degrees about z, then moved
     turn[:3, 3] = [5.0, 0.0, 0.0]
     assert np.allclose(read_obj(path, transform=turn).vertices[1], [5.0, 1.0, 0.0])
+
+
+def test_an_obj_with_textured_materials_keeps_its_own_uvs(tmp_path):
+    """With an .mtl naming a texture per part beside it, trimesh packed the parts' textures into one atlas and
+    rewrote the UVs (0.1..0.9 became 0.16..0.83 across): export --mesh put the maps on the wrong vertices (a
+    user's run on ICT-FaceKit's full mesh)."""
+    from PIL import Image
+
+    from facestats.io.mesh import read_triangle_mesh
+
+    for name, grey in (("a", 100), ("b", 200)):
+        Image.fromarray(np.full((4, 4, 3), grey, np.uint8)).save(tmp_path / f"{name}.png")
+    (tmp_path / "m.mtl").write_text("newmtl A\nmap_Kd a.png\nnewmtl B\nmap_Kd b.png\n")
+    (tmp_path / "m.obj").write_text(
+        "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvt 0.1 0.1\nvt 0.9 0.1\nvt 0.1 0.9\nvt 0.9 0.9\n"
+        "usemtl A\nf 1/1 2/2 3/3\nusemtl B\nf 2/2 4/4 3/3\n"
+    )
+    verts, faces, uv = read_triangle_mesh(tmp_path / "m.obj", uv=True)
+    corners = {tuple(np.round(verts[i], 6)): tuple(np.round(uv[i], 6)) for i in faces.ravel()}
+    assert corners == {(0, 0, 0): (0.1, 0.1), (1, 0, 0): (0.9, 0.1), (0, 1, 0): (0.1, 0.9), (1, 1, 0): (0.9, 0.9)}

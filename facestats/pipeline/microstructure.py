@@ -17,7 +17,10 @@ with a :class:`~facestats.errors.FacestatsWarning`, for a frame whose every
 triangle is degenerate: no strain is measured) and the count of degenerate
 triangles —, and ``done`` (frame,) bool; optionally
 ``displacement.NNNNN.exr`` (channel Y, units um) and ``normal.NNNNN.exr`` (R, G,
-B = n_u, n_v, n_n) per frame in ``exr_dir``.  A frame is marked done only after
+B = n_u, −n_v, n_n: G up the texture, the OpenGL / glTF convention of the export's
+tangent-space maps, recorded in the header ``normal_space``; the group keeps n_v
+down the map) per frame in ``exr_dir``, each with the headers ``map_shape`` and
+``window`` (JSON, texels).  A frame is marked done only after
 all its outputs are written (EXR files through a temporary name and an atomic
 rename), so an interrupted run leaves the finished frames intact and the next
 run with the same inputs continues where it stopped; different inputs at the
@@ -302,6 +305,11 @@ def _reuse(path, config, overwrite) -> bool:
     )
 
 
+#: The normal files' convention (header ``normal_space``), that of the export's tangent-space maps
+#: (:data:`facestats.io.exr_set.TANGENT_SPACE`).
+EXR_NORMAL_SPACE = (
+    "tangent space: R = along +u, G = up the texture (-v; glTF/OpenGL +Y up), B = surface normal; unit vectors"
+)
 _EXR_NAME = re.compile(r"^(displacement|normal)\.(\d{5,})\.exr$")
 
 
@@ -433,14 +441,17 @@ def _write_exr(group, index, exr_dir, name, render_id):
     whether a file in the folder is this frame of this render (:func:`_exr_current`).
     """
     os.makedirs(exr_dir, exist_ok=True)
-    attributes = {"frame": name, "facestats_render": f"{render_id}:{index}"}
+    config = json.loads(group.attrs["config"])
+    where = {"map_shape": json.dumps(config["map_shape"]), "window": json.dumps(config["window"])}
+    attributes = {"frame": name, "facestats_render": f"{render_id}:{index}", **where}
     for kind, target in _exr_targets(exr_dir, index).items():
         tmp = target[:-4] + ".partial.exr"
         data = np.asarray(group[kind][index])
         if kind == "displacement":
             write_displacement(tmp, data, attributes=attributes)
-        else:
-            write_exr(tmp, {"R": data[..., 0], "G": data[..., 1], "B": data[..., 2]}, attributes=attributes)
+        else:  # as the export's tangent-space maps: G up the texture (the group keeps t_v down the map)
+            write_exr(tmp, {"R": data[..., 0], "G": -data[..., 1], "B": data[..., 2]},
+                      attributes={**attributes, "units": "1", "normal_space": EXR_NORMAL_SPACE})  # fmt: skip
         os.replace(tmp, target)
 
 

@@ -215,7 +215,11 @@ def test_outputs_are_safe(tmp_path, smile, neutral_map):
     n_later = zarr.open_group(str(later), mode="r")["normal"][:]
     for i in range(len(smile)):
         assert np.array_equal(read_exr(exr2 / f"displacement.{i:05d}.exr")[0]["Y"], d[i])
-        assert np.array_equal(read_exr(exr2 / f"normal.{i:05d}.exr")[0]["B"], n_later[i, ..., 2])
+        channels, header = read_exr(exr2 / f"normal.{i:05d}.exr")
+        assert np.array_equal(channels["B"], n_later[i, ..., 2])
+        # G up the texture, as the export's tangent-space maps (it was n_v, down the map: a user's run)
+        assert np.array_equal(channels["G"], -n_later[i, ..., 1]) and "glTF/OpenGL +Y up" in header["normal_space"]
+        assert header["units"] == "1" and json.loads(header["window"])[2:] == list(n_later.shape[1:3])
     (exr2 / "normal.00009.exr").write_bytes(b"old")
     with pytest.raises(FacestatsError, match="holds frame files beyond this sequence's 4 frames .normal.00009.exr"):
         render_sequence(smile, neutral_map, tmp_path / "x.zarr", exr_dir=exr2, **opts)

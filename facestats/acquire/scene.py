@@ -126,7 +126,13 @@ def patch_radiance(image, camera: PinholeCamera, patches, *, eta=1.3, shadow_res
     vals = sample_image(img, pix)
     seen &= np.all(np.isfinite(vals), axis=1)
     if np.any(vals[seen] < 0):
-        raise ValidationError(f"image must hold radiance ≥ 0 where the camera sees patches, got {vals[seen].min()!r}")
+        k = np.flatnonzero(seen)[np.argmin(vals[seen].min(axis=1))]  # the patch with the most negative sample
+        x, y = (float(c) for c in pix[k])
+        raise ValidationError(
+            f"image must hold radiance ≥ 0 where the camera sees patches, got {float(vals[k].min()):.4g} at pixel "
+            f"(x {x:.1f}, y {y:.1f}) (patch {k}); a negative value is not a radiance (an image with its black "
+            "level subtracted? clip it at 0)"
+        )
     to_cam = camera.position - patches.centre
     cos_o = np.einsum("mk,mk->m", patches.normal, to_cam) / np.linalg.norm(to_cam, axis=1)
     out = np.zeros(vals.shape)

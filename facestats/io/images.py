@@ -593,16 +593,36 @@ def _rgbe_multipliers(line: bytes, key: bytes, count: int, p) -> np.ndarray:
     return values
 
 
+#: Longest header line and header (bytes) a Radiance file may have before its empty line.
+_RGBE_MAX_LINE, _RGBE_MAX_HEADER = 1 << 16, 1 << 20
+
+
+def _rgbe_header_lines(data: bytes, p):
+    """The header lines of a Radiance file's bytes (without line ends) and the offset after its empty line; CRLF
+    line ends are accepted (files written on Windows: "no end of header" before)."""
+    header, pos = [], 0
+    while True:
+        nl = data.find(b"\n", pos, pos + _RGBE_MAX_LINE)
+        if nl < 0 or pos > _RGBE_MAX_HEADER:
+            raise ImageFormatError(
+                f"Radiance file {str(p)!r} has no end of header (an empty line) within its first "
+                f"{_RGBE_MAX_HEADER // 1024} KiB"
+            )
+        line = data[pos:nl].rstrip(b"\r")
+        pos = nl + 1
+        if not line:
+            return header, pos
+        header.append(line)
+
+
 def _rgbe_header(data: bytes, p):
     """(height, width, offset of the pixel data, the RGB multipliers applied to the pixels: the product of the
     ``EXPOSURE=`` and ``COLORCORR=`` lines) of a Radiance file's bytes."""
     if not (data.startswith(b"#?RADIANCE") or data.startswith(b"#?RGBE")):
         raise ImageFormatError(f"Radiance file {str(p)!r} must start with '#?RADIANCE' or '#?RGBE'")
-    end = data.find(b"\n\n")
-    if end < 0:
-        raise ImageFormatError(f"Radiance file {str(p)!r} has no end of header (empty line)")
+    header, pos = _rgbe_header_lines(data, p)
     applied = np.ones(3)
-    for line in data[:end].split(b"\n"):
+    for line in header:
         if line.startswith(b"FORMAT=") and line.strip() != b"FORMAT=32-bit_rle_rgbe":
             shown = line.decode("ascii", "backslashreplace")[:60]
             raise ImageFormatError(f"Radiance file {str(p)!r} must be FORMAT=32-bit_rle_rgbe, got {shown!r}")
@@ -610,8 +630,8 @@ def _rgbe_header(data: bytes, p):
             applied *= _rgbe_multipliers(line, b"EXPOSURE=", 1, p)
         elif line.startswith(b"COLORCORR="):
             applied *= _rgbe_multipliers(line, b"COLORCORR=", 3, p)
-    nl = data.find(b"\n", end + 2)
-    size_line = data[end + 2 : nl if nl >= 0 else len(data)].strip()
+    nl = data.find(b"\n", pos)
+    size_line = data[pos : nl if nl >= 0 else len(data)].strip()
     m = _RGBE_SIZE.match(size_line) if len(size_line) <= 40 else None  # Python refuses ints of > 4300 digits
     if not m:
         raise ImageFormatError(

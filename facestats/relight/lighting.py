@@ -76,7 +76,10 @@ def check_probe(probe, layout: str = "latlong", name: str = "probe") -> np.ndarr
         raise ValidationError(f"{name}: a light probe must have shape (H, W, 3), got {p.shape}")
     h, w = p.shape[:2]
     if layout == "latlong" and w != 2 * h:
-        raise ValidationError(f"{name}: a lat-long probe must be twice as wide as high, got {h} x {w} (H x W)")
+        raise ValidationError(
+            f"{name}: a lat-long probe must be twice as wide as high, got {h} x {w} (H x W)"
+            + (" (a square probe: an angular map? pass layout='angular', --layout angular)" if h == w else "")
+        )
     if layout == "angular" and w != h:
         raise ValidationError(f"{name}: an angular probe must be square, got {h} x {w} (H x W)")
     p = as_float(p, f"{name}: radiance", np.float32)

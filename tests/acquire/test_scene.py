@@ -181,6 +181,13 @@ def test_patch_radiance_reads_back_a_rendered_image(tmp_path, ext):
     np.testing.assert_allclose(l[seen], ref, rtol=1e-3 if ext == ".exr" else 1e-5)
     with pytest.raises(ValidationError, match="to match the camera's image_size"):
         patch_radiance(back[:-1], scene.camera, p)
+    k = int(np.flatnonzero(seen)[0])
+    x, y = scene.camera.project(p.centre[k : k + 1])[0][0]
+    dark = back.copy()
+    dark[int(np.floor(y)) - 2 : int(np.floor(y)) + 3, int(np.floor(x)) - 2 : int(np.floor(x)) + 3] = -0.25
+    # the value as a number and where it is (it was "got np.float64(-0.25)": a user's run)
+    with pytest.raises(ValidationError, match=r"radiance ≥ 0 .*got -0\.25 at pixel \(x [0-9.]+, y [0-9.]+\) \(patch"):
+        patch_radiance(dark, scene.camera, p)
 
 
 def test_renderer_is_the_point_kernel_and_reciprocal():

@@ -38,6 +38,20 @@ def test_rgbe_exposure_and_colour_correction_are_divided_out(tmp_path):
             images.read_rgbe(tmp_path / "b.hdr")
 
 
+def test_a_radiance_header_with_crlf_line_ends_is_read(tmp_path):
+    """A header written on Windows (CRLF) was "no end of header (empty line)" (a user's real-data run)."""
+    img = _bright()
+    raw = images.write_rgbe(tmp_path / "x.hdr", img).read_bytes()
+    cut = raw.index(b"\n\n") + 2
+    size_end = raw.index(b"\n", cut) + 1
+    header = raw[:size_end].replace(b"\n", b"\r\n")
+    (tmp_path / "crlf.hdr").write_bytes(header + raw[size_end:])
+    np.testing.assert_array_equal(images.read_rgbe(tmp_path / "crlf.hdr"), images.read_rgbe(tmp_path / "x.hdr"))
+    (tmp_path / "none.hdr").write_bytes(raw[: raw.index(b"\n\n")] + b"\n" + b"#" * 70_000)
+    with pytest.raises(images.ImageFormatError, match="has no end of header .an empty line. within its first"):
+        images.read_rgbe(tmp_path / "none.hdr")
+
+
 def test_exr_half_channels_and_attributes(tmp_path):
     rng = np.random.default_rng(0)
     chans = {

@@ -39,6 +39,9 @@ from facestats.errors import FormatError, ValidationError
 __all__ = ["RESPONSE_FORMAT", "ResponseCalibration", "read_bracket", "calibrate_response", "read_response"]
 
 RESPONSE_FORMAT = "facestats.camera-response/1"
+#: Median disagreement of two consecutive exposures above which :meth:`ResponseCalibration.warnings` warns (noise
+#: and compression leave 3-4 % for 8-bit JPEGs, ``docs/photographs.md``).
+AGREEMENT_LIMIT = 0.10
 
 
 def read_bracket(paths, exposure_times=None):
@@ -186,6 +189,21 @@ class ResponseCalibration:
         with open(path, "w", encoding="utf-8") as f:
             json.dump(self.to_dict(), f, indent=1, allow_nan=False)
             f.write("\n")
+
+    def warnings(self) -> list:
+        """What makes this response doubtful, one sentence each: consecutive exposures whose median disagreement
+        exceeds :data:`AGREEMENT_LIMIT` (their times do not match the frames, or the scene changed)."""
+        order = np.argsort(self.exposure_times, kind="stable")
+        out = []
+        for (m, _), a, b in zip(self.agreement, order[:-1], order[1:]):
+            if np.isfinite(m) and m > AGREEMENT_LIMIT:
+                out.append(
+                    f"exposures {_seconds(self.exposure_times[a])} -> {_seconds(self.exposure_times[b])} disagree by "
+                    f"a median {m:.0%} (noise and compression leave a few per cent; more than {AGREEMENT_LIMIT:.0%} "
+                    "here): their times do not match the frames (wrong --times or EXIF, frames swapped), or the scene, "
+                    "its light or the camera's settings changed between them; this response is not reliable"
+                )
+        return out
 
     def to_text(self) -> str:
         """The frames, the consecutive exposures' agreement and g at a few codes."""

@@ -182,6 +182,8 @@ def _cmd_response(args) -> int:
             white_level=args.white_level,
         )
     print(result.to_text())
+    for line in result.warnings():
+        print(f"facestats: warning: {line}", file=sys.stderr)
     # Everything that can fail before any file is written (a file replaced by a failed command is lost).
     applied = result.apply(dome, args.cameras) if args.write_calibration else None
     figure = None

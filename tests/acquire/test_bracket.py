@@ -103,6 +103,28 @@ def test_bad_brackets_name_the_file_and_the_field(bracket, tmp_path):
         read_response(other)
 
 
+def test_exposures_that_disagree_are_warned_about(bracket, tmp_path):
+    """A bracket whose frames do not follow their times (here the same frame at twice the time) passed with
+    exposure agreements of 48-100 % and no word (a user's run on a real bracket: 45-147 %)."""
+    import shutil
+    import subprocess
+
+    from tests.helpers import facestats_exe
+
+    files, _ = bracket
+    assert calibrate_response(files).warnings() == []  # agreements of 2 %
+    twin = tmp_path / "twin.png"
+    shutil.copy(files[1], twin)
+    times = [TIMES[0], TIMES[1], 2 * TIMES[1], TIMES[2], TIMES[3]]
+    res = calibrate_response([files[0], files[1], twin, files[2], files[3]], exposure_times=times)
+    said = res.warnings()
+    assert len(said) == 2 and said[0].startswith("exposures 1/125 s -> 1/62.5 s disagree by a median 100%")
+    argv = [*facestats_exe(), "calibrate", "response", str(files[0]), str(files[1]), str(twin), str(files[2]),
+            str(files[3]), "--times", *map(str, times)]  # fmt: skip
+    cli = subprocess.run(argv, capture_output=True, text=True)
+    assert cli.returncode == 0 and cli.stderr.count("facestats: warning: exposures") == 2, cli.stderr
+
+
 def test_times_that_do_not_match_the_frames_give_a_falling_response_which_is_refused(tmp_path):
     """The real CC0 bracket with an auto-bracket's order (0, -2, +2 EV) and its times given ascending: g fell at
     130 of 254 steps, the exposures disagreed by 554 %, and the file was written (a red team); now refused, and a

@@ -154,11 +154,12 @@ def fit_chromaticity_ramp(values, cos_i, cos_r, d0, s=WHITE, weights=None):
     sxx, sxf = (w * x * x).sum(0), (w * x * f).sum(0)
     det = sw * sxx - sx * sx
     ok = det > 1e-12 * np.maximum(sw * sxx, 1e-300)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # the pixels not ok are NaN anyway
         slope = (sw * sxf - sx * sf) / det
         icpt = (sf - slope * sx) / sw
+        both = icpt + slope  # inf - inf where det is 0 (a RuntimeWarning on real data before: a user's run)
     alpha1 = np.where(ok, icpt, np.nan)
-    alpha0 = np.where(ok, icpt + slope, np.nan)
+    alpha0 = np.where(ok, both, np.nan)
     return alpha0, alpha1
 
 

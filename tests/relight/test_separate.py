@@ -160,3 +160,21 @@ def test_the_specular_part_never_exceeds_the_sample():
     np.testing.assert_allclose(diffuse + spec, r, rtol=0, atol=1e-15)
     assert clamped[0] and np.isclose(diffuse[0].min(), 0, atol=1e-15)  # one channel left with no diffuse light
     assert mu[1, 1] < 0 and np.all(spec[1] == 0) and clamped[1]  # a negative mu_s is clamped to 0, as before
+
+
+def test_a_pixel_with_one_usable_sample_gets_no_ramp_and_no_runtime_warning():
+    """One weighted sample makes the line fit singular: its α are NaN, and inf − inf leaked a RuntimeWarning
+    ("invalid value encountered in add") on a real DiLiGenT-layout field (a user's run)."""
+    import warnings
+
+    rng = np.random.default_rng(0)
+    n = 5000
+    f = rng.uniform(-0.5, 0.5, n)
+    colours = sep.ramp_chromaticity(np.broadcast_to(sep.unit_rgb(SKIN), (n, 3)), sep.WHITE, f)
+    values = np.stack([colours, colours], 0) * rng.uniform(0.1, 5, (1, n, 1))
+    cos_i = np.stack([rng.uniform(0.05, 1, n), np.full(n, 0.3)])
+    weights = np.stack([rng.uniform(0.1, 5, n), np.zeros(n)])  # the second sample left out
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        a0, a1 = sep.fit_chromaticity_ramp(values, cos_i, np.ones(n), SKIN, weights=weights)
+    assert np.isnan(a0).all() and np.isnan(a1).all()

@@ -157,27 +157,35 @@ def _check_apart(args, out, png) -> None:
             check_apart_from_store(p, name, args.store)
 
 
+def _check_numbers(args) -> None:
+    """The one-number options, each by its flag: --turntable, --ratio, --rotate, --exposure."""
+    from facestats.errors import ValidationError
+
+    if args.turntable is not None and not 1 <= args.turntable <= 3600:
+        raise ValidationError(f"--turntable must be a number of frames in [1, 3600], got {args.turntable}")
+    if args.ratio is not None and args.turntable is None:
+        raise ValidationError("--ratio applies to --turntable (a single relight uses the dense field)")
+    if args.ratio is not None and not (math.isfinite(args.ratio) and args.ratio > 0):
+        raise ValidationError(f"--ratio must be a finite number > 0, got {args.ratio!r}")
+    if not math.isfinite(args.rotate):
+        raise ValidationError(f"--rotate must be a finite angle in degrees, got {args.rotate!r}")
+    if args.exposure is not None and not (math.isfinite(args.exposure) and args.exposure > 0):
+        raise ValidationError(f"--exposure must be a finite factor > 0, got {args.exposure!r}")
+
+
 def _cmd_relight(args) -> int:
     import numpy as np
 
     from facestats.core.outputs import OutputSet, check_output_file
-    from facestats.errors import ValidationError
     from facestats.io.images import write_image
     from facestats.io.probes import read_light_probe
     from facestats.relight.display import exposure_scale
 
     # Outputs first: a bad path must not cost a relight, and nothing is replaced unless all are written.
-    if args.turntable is not None and not 1 <= args.turntable <= 3600:
-        raise ValidationError(f"--turntable must be a number of frames in [1, 3600], got {args.turntable}")
+    _check_numbers(args)
     frames = args.turntable
-    if args.ratio is not None and frames is None:
-        raise ValidationError("--ratio applies to --turntable (a single relight uses the dense field)")
-    if args.ratio is not None and not (math.isfinite(args.ratio) and args.ratio > 0):
-        raise ValidationError(f"--ratio must be a finite number > 0, got {args.ratio!r}")
     out = check_output_file(args.out, "--out", (".exr",))
     png = check_output_file(args.png if args.png else out.with_suffix(".png"), "--png", (".png",))
-    if not math.isfinite(args.rotate):
-        raise ValidationError(f"--rotate must be a finite angle in degrees, got {args.rotate!r}")
     _check_subject_options(args)
     if not pathlib.Path(args.source).is_dir():
         _check_subject_values(args)
@@ -205,7 +213,7 @@ def _cmd_relight(args) -> int:
         image, mask = relight_subject(subject, probe, layout=args.layout, rotate=rotate, camera=camera,
                                       lights=_lights(args.lights), geometry=geometry,
                                       progress=not args.quiet)  # fmt: skip
-    scale = exposure_scale(image, mask)
+    scale = exposure_scale(image, mask) if args.exposure is None else args.exposure
     attrs = {"source": str(args.source), "probe": str(args.probe), "rotate_deg": str(args.rotate),
              "units": "radiance in the probe's unit", "method": "Debevec et al. 2000 eq. 4"}  # fmt: skip
     with OutputSet(out.parent) as files:  # both files or neither
@@ -258,7 +266,7 @@ def _turntable(args, probe, targets) -> int:
         return comp.relight(probe=probe, layout=args.layout, rotate=math.radians(angle))
 
     first = frame(angles[0])
-    scale = exposure_scale(first, mask)
+    scale = exposure_scale(first, mask) if args.exposure is None else args.exposure
     with OutputSet(targets[0][0].parent) as files:  # every frame or none; one frame in memory at a time
         for k, ((exr, png), angle) in enumerate(zip(targets, angles)):
             image = first if k == 0 else frame(angle)
@@ -292,6 +300,14 @@ def add_relight(sub):
                    help="rotate the environment about +y by DEG degrees (right-handed)")  # fmt: skip
     p.add_argument("--out", required=True, metavar="FILE.exr", help="linear OpenEXR output")
     p.add_argument("--png", default=None, metavar="FILE.png", help="tone-mapped PNG (default: next to --out)")
+    p.add_argument(
+        "--exposure",
+        type=float,
+        default=None,
+        metavar="SCALE",
+        help="PNG exposure: radiance times SCALE before the sRGB encoding (default: the 99th percentile of the face "
+        "at 0.9, printed as 'PNG exposure xS'; pass one SCALE to compare relights)",
+    )
     p.add_argument(
         "--size",
         type=ascii_int,

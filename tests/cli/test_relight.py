@@ -43,6 +43,27 @@ def test_relight_a_field_store_and_a_subject(tmp_path):
     assert not (tmp_path / "g.exr").exists()
 
 
+def test_one_png_exposure_for_relights_to_compare(tmp_path):
+    """Each PNG took its own exposure, so a subject and its darker edit looked alike (a user's run: x13.8 and
+    x20.2); --exposure fixes one."""
+    probe = sky_probe(32)
+    write_light_probe(tmp_path / "sky.hdr", probe)
+    f, _, inside = lambertian_field(6, 6)
+    write_field(tmp_path / "f.zarr", f)
+    r = run_cli("relight", tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", "--out", tmp_path / "f.exr",
+                "--exposure", "2.5")  # fmt: skip
+    assert r.returncode == 0 and "PNG exposure x2.5" in r.stdout, r.stderr
+    from facestats.io.images import srgb_to_linear
+
+    png = srgb_to_linear(read_image(tmp_path / "f.png"))
+    want = np.clip(read_image(tmp_path / "f.exr") * 2.5, 0, 1)
+    np.testing.assert_allclose(png[inside], want[inside], atol=0.01)  # 8-bit sRGB codes
+    for bad in ("0", "-1", "nan"):
+        r = run_cli("relight", tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", "--out", tmp_path / "g.exr",
+                    "--exposure", bad)  # fmt: skip
+        assert r.returncode == 2 and "--exposure must be a finite factor > 0" in r.stderr
+
+
 def test_bad_probe_or_existing_output_leaves_no_side_effect(tmp_path):
     bad = np.ones((8, 16, 3), np.float32)
     bad[1, 2, 0] = np.nan

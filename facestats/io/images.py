@@ -25,7 +25,9 @@ Formats, by extension:
   be finite and > 0); the writer writes none (multiplier 1);
 * ``.pfm`` — Portable Float Map, grey (``Pf``) or colour (``PF``), either byte order;
 * ``.png``, ``.jpg``, ``.jpeg`` — through OpenCV (8- and 16-bit, grey or RGB(A);
-  Pillow, under imageio, reads 16-bit RGB PNG as 8-bit);
+  Pillow, under imageio, reads 16-bit RGB PNG as 8-bit); an EXIF ``Orientation``
+  is not applied: pixels are read in the sensor's layout, the one a camera
+  calibration (intrinsics, image size) describes;
 * ``.tif``, ``.tiff`` — the first image of the file through libtiff
   (``imagecodecs.tiff_decode``), which reads every layout TIFF 6.0 and BigTIFF
   allow: strips or tiles, contiguous or planar samples (PlanarConfiguration 1

@@ -5,6 +5,7 @@ before the lights): photograph a static scene with a wide range of brightness at
 several exposure times (a tripod, fixed aperture, focus and white balance), then
 
     facestats calibrate response IMG_1.jpg IMG_2.jpg IMG_3.jpg --output response.json
+    facestats calibrate merge IMG_1.jpg IMG_2.jpg IMG_3.jpg --response response.json --out scene.exr
 
 :func:`read_bracket` reads the frames (8-bit JPEG/PNG, 16-bit PNG/TIFF through
 :func:`facestats.io.images.read_integer_image`) and their exposure times (EXIF
@@ -14,7 +15,8 @@ several exposure times (a tripod, fixed aperture, focus and white balance), then
 :func:`facestats.acquire.response.exposure_agreement`; :class:`ResponseCalibration`
 saves it as JSON (``facestats.camera-response/1``) and puts it into a dome
 calibration (:meth:`ResponseCalibration.apply`, the ``camera_log_response`` of
-:class:`facestats.acquire.dome.Dome`).
+:class:`facestats.acquire.dome.Dome`); :func:`merge_bracket` merges a bracket
+into one radiance image with a saved response.
 
 **Exposure ratios.** Debevec & Malik's g is determined only up to what the
 bracket can tell apart: with two exposures, or with one constant ratio between
@@ -32,11 +34,19 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from facestats.acquire.response import check_white_level, exposure_agreement, recover_response
+from facestats.acquire.response import check_white_level, exposure_agreement, merge_photographs, recover_response
 from facestats.core.validate import check_integer
 from facestats.errors import FormatError, ValidationError
 
-__all__ = ["RESPONSE_FORMAT", "ResponseCalibration", "read_bracket", "calibrate_response", "read_response"]
+__all__ = [
+    "RESPONSE_FORMAT",
+    "SATURATED_FILLS",
+    "ResponseCalibration",
+    "read_bracket",
+    "calibrate_response",
+    "read_response",
+    "merge_bracket",
+]
 
 RESPONSE_FORMAT = "facestats.camera-response/1"
 #: Median disagreement of two consecutive exposures above which :meth:`ResponseCalibration.warnings` warns (noise
@@ -362,3 +372,58 @@ def read_response(path) -> np.ndarray:
         raise FormatError(f"{p} field 'log_response' must be 3 channels of 2**bits finite values, got shape {g.shape}")
     g[0] = np.where(np.isfinite(g[0]), g[0], -np.inf)  # code 0 (weight 0) may be stored as null
     return g
+
+
+#: How :func:`merge_bracket` fills a pixel saturated in every exposure (no radiance is measured there).
+SATURATED_FILLS = ("clip", "zero")
+
+
+def merge_bracket(paths, response, exposure_times=None, *, saturated: str = "clip"):
+    """One radiance image from a bracket of photographs and a saved response (Debevec & Malik 1997 eq. 6).
+
+    Parameters
+    ----------
+    paths : sequence of str or path-like
+        The bracket (:func:`read_bracket`: at least two files, any order).
+    response : str or path-like
+        A ``facestats.camera-response/1`` file (:meth:`ResponseCalibration.save`); its black and white levels
+        are the merge's (:func:`facestats.acquire.response.merge_photographs`).
+    exposure_times : sequence of float, optional
+        Seconds, one per file; default each file's EXIF ``ExposureTime``.
+    saturated : {"clip", "zero"}
+        A pixel channel saturated in every exposure has no measured radiance (NaN from the merge): ``clip`` gives
+        it the largest radiance of its channel in the image (a clipped highlight stays the brightest), ``zero``
+        gives it 0.
+
+    Returns
+    -------
+    radiance : ndarray of float32, shape (H, W, 3)
+        Linear, in the response's units exp(g)/s, finite.
+    saturated_pixels : int
+        Pixels with a channel saturated in every exposure (filled).
+
+    Raises
+    ------
+    FormatError
+        An unreadable response file or frame (named).
+    ValidationError
+        Frames of another bit depth than the response's levels, an unknown ``saturated``.
+    """
+    from facestats.core.validate import check_choice
+    from facestats.io.layout import read_regular_file
+
+    check_choice(saturated, "saturated", SATURATED_FILLS)
+    g = read_response(response)
+    doc = json.loads(read_regular_file(os.fspath(response)))  # read_response has read and checked it
+    black = check_integer(doc.get("black_level") or 0, f"{os.fspath(response)} field 'black_level'", 0)
+    white = doc.get("white_level")
+    if white is not None:
+        white = check_white_level(white, g.shape[0], black)
+    images, times, _ = read_bracket(paths, exposure_times)
+    radiance = merge_photographs(images, times, g, black_level=black, white_level=white)
+    lost = ~np.isfinite(radiance)
+    if lost.any():
+        top = np.where(lost, -np.inf, radiance).reshape(-1, radiance.shape[-1]).max(axis=0)
+        fill = np.where(np.isfinite(top), top, 0.0) if saturated == "clip" else np.zeros_like(top)
+        radiance = np.where(lost, fill.astype(radiance.dtype), radiance)
+    return radiance.astype(np.float32), int(lost.any(axis=-1).sum())

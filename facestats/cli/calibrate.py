@@ -201,6 +201,40 @@ def _cmd_response(args) -> int:
     return 0
 
 
+def _cmd_merge(args) -> int:
+    import json
+
+    import numpy as np
+
+    from facestats.acquire.bracket import merge_bracket
+    from facestats.io.images import write_image
+
+    existing = _check_outputs([(args.out, "--out", (".exr", ".hdr", ".pfm"))])
+    inputs = [(f, f"IMAGE {os.fspath(f)!r}") for f in args.images] + [(args.response, "--response")]
+    _refuse_inputs(existing, inputs)
+    radiance, saturated = merge_bracket(args.images, args.response, args.times, saturated=args.saturated)
+    attrs = {"units": "exp(g)/s (the response's)", "response": os.fspath(args.response),
+             "frames": json.dumps([os.fspath(f) for f in args.images]), "saturated_fill": args.saturated,
+             "method": "Debevec & Malik 1997 eq. 6 (facestats.acquire.response.merge_photographs)"}  # fmt: skip
+    lum = radiance.mean(-1)
+    h, w = lum.shape
+    print(
+        f"merged {len(args.images)} photographs: {w} x {h}, radiance {float(lum.min()):.4g} to {float(lum.max()):.4g} "
+        f"(median {float(np.median(lum)):.4g}) in the response's units"
+    )
+    if saturated:
+        print(
+            f"facestats: warning: {saturated} pixel(s) saturated in every exposure ({saturated / (h * w):.2%}); "
+            + ("given their channel's largest radiance (--saturated clip)" if args.saturated == "clip"
+               else "set to 0 (--saturated zero)")
+            + ": add a shorter exposure to measure them",
+            file=sys.stderr,
+        )  # fmt: skip
+    attrs_only = attrs if args.out.lower().endswith(".exr") else None
+    _write_all([(args.out, lambda p: write_image(p, radiance, attributes=attrs_only), f"wrote {args.out}")])
+    return 0
+
+
 def _check_white_level(white_level, bits) -> None:
     """Refuse a ``--white-level`` (DN, the Z_max of Debevec & Malik 1997 eq. 4) that is no code of ``bits`` bits
     above mid-range, (2**bits / 2, 2**bits − 1] (g is pinned at 2**bits / 2, below the white level); without
@@ -315,6 +349,26 @@ def add_calibrate(sub):
     leds.add_argument("--output", help="write the LED calibration file (facestats.led-calibration/1)")
     leds.add_argument("--write-calibration", metavar="PATH", help="write the dome calibration with the fitted LEDs")
     leds.set_defaults(func=_cmd_leds)
+    merge = csub.add_parser(
+        "merge",
+        help="merge a bracket of photographs into one radiance image with a recovered response",
+        description=(
+            "Read photographs of one static scene at several exposure times (as 'calibrate response' does; times "
+            "from EXIF unless given) and merge them with a response file written by 'calibrate response --output' "
+            "(Debevec & Malik 1997 eq. 6, the response's black and white levels). Pixels saturated in every "
+            "exposure have no measured radiance: --saturated clip (default) gives them their channel's largest "
+            "radiance, zero gives them 0; a warning counts them. Writes OpenEXR (.exr), Radiance (.hdr) or PFM."
+        ),
+    )
+    merge.add_argument("images", metavar="IMAGE", nargs="+", help="the bracket's photographs, any order")
+    merge.add_argument("--response", required=True, metavar="FILE.json", help="response file (calibrate response)")
+    merge.add_argument(
+        "--times", type=ascii_float, nargs="+", metavar="SECONDS", help="exposure times, one per IMAGE (default EXIF)"
+    )
+    merge.add_argument("--out", required=True, metavar="FILE", help="radiance image: .exr, .hdr or .pfm")
+    merge.add_argument("--saturated", choices=("clip", "zero"), default="clip",
+                       help="fill of pixels saturated in every exposure (default clip)")  # fmt: skip
+    merge.set_defaults(func=_cmd_merge)
     resp = csub.add_parser(
         "response",
         help="recover a camera's response curve from a bracket of photographs (Debevec & Malik 1997)",

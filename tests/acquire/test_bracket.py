@@ -125,6 +125,36 @@ def test_exposures_that_disagree_are_warned_about(bracket, tmp_path):
     assert cli.returncode == 0 and cli.stderr.count("facestats: warning: exposures") == 2, cli.stderr
 
 
+def test_a_bracket_is_merged_with_a_saved_response_and_saturation_is_filled(bracket, tmp_path):
+    """There was no command to merge a bracket, and the merge's NaN (saturated in every exposure) could not be
+    written (a user's run on a real bracket)."""
+    import subprocess
+
+    from facestats.acquire.bracket import merge_bracket
+    from facestats.acquire.response import merge_photographs
+    from facestats.io.images import read_image
+    from tests.helpers import facestats_exe
+
+    files, camera = bracket
+    calibrate_response(files).save(tmp_path / "g.json")
+    images, times, _ = read_bracket(files)
+    want = merge_photographs(images, times, read_response(tmp_path / "g.json"))
+    argv = [*facestats_exe(), "calibrate", "merge", *map(str, files), "--response", str(tmp_path / "g.json"),
+            "--out", str(tmp_path / "m.exr")]  # fmt: skip
+    cli = subprocess.run(argv, capture_output=True, text=True)
+    lost = ~np.isfinite(want)  # the scene's brightest pixels clip even in the shortest exposure
+    assert cli.returncode == 0 and f"{lost.any(-1).sum()} pixel(s) saturated in every exposure" in cli.stderr
+    got = read_image(tmp_path / "m.exr")
+    np.testing.assert_array_equal(got[~lost], want[~lost])  # float32 EXR: the same values
+    top = np.where(lost, -np.inf, want).reshape(-1, 3).max(0)
+    np.testing.assert_array_equal(got[lost], np.broadcast_to(top, want.shape)[lost])  # clip: the channel's largest
+    zero, count = merge_bracket(files, tmp_path / "g.json", saturated="zero")
+    assert count == lost.any(-1).sum() > 0 and np.all(zero[lost] == 0) and np.isfinite(zero).all()
+    argv[-1] = str(files[0])  # an output that is an input: refused before any work
+    cli = subprocess.run(argv, capture_output=True, text=True)
+    assert cli.returncode == 2 and "--out" in cli.stderr, cli.stderr
+
+
 def test_times_that_do_not_match_the_frames_give_a_falling_response_which_is_refused(tmp_path):
     """The real CC0 bracket with an auto-bracket's order (0, -2, +2 EV) and its times given ascending: g fell at
     130 of 254 steps, the exposures disagreed by 554 %, and the file was written (a red team); now refused, and a

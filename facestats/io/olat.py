@@ -10,7 +10,9 @@ optional ``light_intensities.txt`` (RGB per line), ``mask.png`` and ground-truth
 normals (``Normal_gt.mat`` variable ``Normal_gt``, ``normal.txt`` with one vector
 per pixel in row-major order, or ``normals.npy``).  DiLiGenT's frame — x right,
 y up, z towards the camera — is facestats's world frame seen by the frontal
-camera, so directions and normals are used as given.
+camera, so directions and normals are used as given, and every pixel's view is
++z (:data:`DILIGENT_VIEW`, the orthographic approximation; the separation of
+:func:`facestats.relight.separate.separate_field` needs a view).
 
 **facestats OLAT manifest** (``olat.json``, for light stages)::
 
@@ -223,7 +225,12 @@ def _diligent(folder: pathlib.Path, srgb):
         raise ValidationError(f"{str(inten_file)!r}: light intensities must be > 0, got {inten[row].tolist()} on "
                               f"line {row + 1}")  # fmt: skip
     return {"names": names, "directions": dirs, "intensity": inten, "mask": "mask.png", "mask_required": False,
-            "srgb": srgb, "view": None, "skipped": [], "layout": "diligent"}  # fmt: skip
+            "srgb": srgb, "view": DILIGENT_VIEW, "skipped": [], "layout": "diligent"}  # fmt: skip
+
+
+#: The view of every pixel of a DiLiGenT folder: towards the camera along +z, the orthographic approximation the
+#: layout's light directions and normals are given in (its frame: x right, y up, z towards the camera).
+DILIGENT_VIEW = (0.0, 0.0, 1.0)
 
 
 def _numbers(value, path, what):

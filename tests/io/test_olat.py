@@ -57,6 +57,18 @@ def test_diligent_folder_gives_photometric_stereo_normals(tmp_path, bits):
     assert np.allclose(np.nanmedian(albedo[inside], 0), np.array([0.7, 0.5, 0.4]) * 0.9 * np.pi, rtol=0.02)
 
 
+def test_a_diligent_folder_has_the_view_the_separation_needs(tmp_path):
+    """separate_field refused a DiLiGenT field without view= (a user's run), though the layout's frame has the
+    camera along +z."""
+    from facestats.relight.separate import separate_field
+
+    _, inside, _, _ = _diligent_folder(tmp_path)
+    f = read_olat_folder(tmp_path)
+    assert np.array_equal(f["view"].values, np.broadcast_to([0.0, 0.0, 1.0], f["view"].shape))
+    out = separate_field(f, ramp=False, d0=[0.7, 0.5, 0.4])  # grey light on a Lambertian ball: no specular
+    assert float(np.abs(out["specular"].values[:, inside]).max()) < 1e-4
+
+
 def test_a_real_olat_folder_a_ball_under_eight_leds(tmp_path):
     """tests/data/hales-sphere-olat (README there): real photographs, normals against the ball's sphere.
 

@@ -314,7 +314,9 @@ def fit_profile_grid(
     if n_used < 3:
         raise FitError(
             f"eq. 36 needs at least 3 levels with R' > 0 within max_distance={dmax:g} mm to fit 2 parameters, "
-            f"got {n_used} (of {int(in_range.sum())} levels in range)"
+            f"got {n_used} (of {int(in_range.sum())} levels in range, of {d.size}): too few lit patches seen at "
+            "distinct distances from the light (check the light's placement and the mesh's unit), or raise "
+            "max_distance"
         )
     du, y = d[used], np.log(r[used])
     cost = profile_cost(du, y, grid, eta)

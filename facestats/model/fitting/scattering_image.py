@@ -268,7 +268,10 @@ def _check_inputs(points, areas, irradiance, radiance, visible):
                 f"visible must be a bool array of shape ({m},), got dtype {vis.dtype} shape {vis.shape}"
             )
     if not vis.any():
-        raise ValidationError("visible must select at least one patch (no visible rows), got none")
+        raise ValidationError(
+            "visible must select at least one patch (no visible rows), got none: the camera sees none of the mesh's "
+            "patches (its pose, or the mesh's unit: a mesh in m or cm given as mm, --scale)"
+        )
     if not np.any(c > 0):
         raise ValidationError("irradiance must be > 0 on at least one patch (nothing is lit), got all 0")
     return p, a, c, l, vis

@@ -161,7 +161,7 @@ def test_a_too_narrow_spot_leaves_levels_unsupported(edge):
         (dict(areas="negative"), "areas must be > 0"),
         (dict(areas="nan"), "areas must be finite"),
         (dict(points="short"), "areas must have one value per point"),
-        (dict(visible="none"), "no visible rows"),
+        (dict(visible="none"), "no visible rows.*the camera sees none of the mesh"),
         (dict(width=0.0), "width must lie in"),
         (dict(width=-1.0), "width must lie in"),
         (dict(width="fine"), "width must be one of"),

@@ -209,9 +209,8 @@ class ResponseCalibration:
             if np.isfinite(m) and m > AGREEMENT_LIMIT:
                 out.append(
                     f"exposures {_seconds(self.exposure_times[a])} -> {_seconds(self.exposure_times[b])} disagree by "
-                    f"a median {m:.0%} (noise and compression leave a few per cent; more than {AGREEMENT_LIMIT:.0%} "
-                    "here): their times do not match the frames (wrong --times or EXIF, frames swapped), or the scene, "
-                    "its light or the camera's settings changed between them; this response is not reliable"
+                    f"a median {m:.1%} (over {AGREEMENT_LIMIT:.0%}; noise and compression leave a few per cent): "
+                    "their times do not match the frames, or the scene, its light or the camera changed between them"
                 )
         return out
 
@@ -419,7 +418,13 @@ def merge_bracket(paths, response, exposure_times=None, *, saturated: str = "cli
     white = doc.get("white_level")
     if white is not None:
         white = check_white_level(white, g.shape[0], black)
-    images, times, _ = read_bracket(paths, exposure_times)
+    images, times, bits = read_bracket(paths, exposure_times)
+    levels = g.shape[0]
+    if (bits == 8) != (levels == 256):  # 8-bit codes read with a deeper response pass every code check
+        raise ValidationError(
+            f"the frames hold {bits}-bit codes, and the response {os.fspath(response)} has {levels} levels "
+            f"({levels.bit_length() - 1} bits): recover a response from frames of this camera and bit depth"
+        )
     radiance = merge_photographs(images, times, g, black_level=black, white_level=white)
     lost = ~np.isfinite(radiance)
     if lost.any():

@@ -5,15 +5,24 @@ Parses, calls :func:`facestats.io.subject_export.export_subject` and prints what
 
 from __future__ import annotations
 
-from facestats.cli.options import add_store_option, ascii_int, store_path_option
+from facestats.cli.options import add_store_option, ascii_int, named_options, store_path_option
 
 __all__ = ["add_export_subject"]
 
 
 def _cmd_export_subject(args) -> int:
+    with named_options(mesh_scale="--mesh-scale"):
+        res = _export(args)
+    print(f"exported {res['subject_id']} as {res['format']} to {res['out']}: {len(res['files'])} files")
+    for name in res["files"]:
+        print(f"  {name}")
+    return 0
+
+
+def _export(args):
     from facestats.io.subject_export import export_subject
 
-    res = export_subject(
+    return export_subject(
         args.subject_id,
         args.out,
         args.format,
@@ -28,10 +37,6 @@ def _cmd_export_subject(args) -> int:
         height=args.height,
         spp=args.spp,
     )
-    print(f"exported {res['subject_id']} as {res['format']} to {res['out']}: {len(res['files'])} files")
-    for name in res["files"]:
-        print(f"  {name}")
-    return 0
 
 
 def add_export_subject(sub):

@@ -169,8 +169,8 @@ def _check_numbers(args) -> None:
         raise ValidationError(f"--ratio must be a finite number > 0, got {args.ratio!r}")
     if not math.isfinite(args.rotate):
         raise ValidationError(f"--rotate must be a finite angle in degrees, got {args.rotate!r}")
-    if args.exposure is not None and not (math.isfinite(args.exposure) and args.exposure > 0):
-        raise ValidationError(f"--exposure must be a finite factor > 0, got {args.exposure!r}")
+    if args.exposure is not None and not (math.isfinite(args.exposure) and 0 < args.exposure <= 1e12):
+        raise ValidationError(f"--exposure must be a factor in (0, 1e12], got {args.exposure!r}")
 
 
 def _cmd_relight(args) -> int:

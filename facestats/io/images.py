@@ -595,8 +595,8 @@ def _rgbe_multipliers(line: bytes, key: bytes, count: int, p) -> np.ndarray:
     return values
 
 
-#: Longest header line and header (bytes) a Radiance file may have before its empty line.
-_RGBE_MAX_LINE, _RGBE_MAX_HEADER = 1 << 16, 1 << 20
+#: Longest header (bytes) a Radiance file may have before its empty line.
+_RGBE_MAX_HEADER = 1 << 20
 
 
 def _rgbe_header_lines(data: bytes, p):
@@ -604,8 +604,8 @@ def _rgbe_header_lines(data: bytes, p):
     line ends are accepted (files written on Windows: "no end of header" before)."""
     header, pos = [], 0
     while True:
-        nl = data.find(b"\n", pos, pos + _RGBE_MAX_LINE)
-        if nl < 0 or pos > _RGBE_MAX_HEADER:
+        nl = data.find(b"\n", pos, _RGBE_MAX_HEADER)
+        if nl < 0:
             raise ImageFormatError(
                 f"Radiance file {str(p)!r} has no end of header (an empty line) within its first "
                 f"{_RGBE_MAX_HEADER // 1024} KiB"

@@ -583,10 +583,11 @@ def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = N
         verts, faces, stored = read_triangle_mesh(mesh, scale=scale, uv=True)
         across = float(np.ptp(verts, axis=0).max()) if len(verts) else 0.0
         if not FACE_SIZE_MM[0] <= across <= FACE_SIZE_MM[1]:  # a scan in cm or m taken as mm (a user's run)
+            unit = "in cm or m, pass scale 10 or 1000" if across < FACE_SIZE_MM[0] else "in µm, pass scale 0.001"
             warnings.warn(
-                f"the mesh {os.fspath(mesh)} is {across:.3g} mm across with scale {scale:g}, not a face's "
-                f"{FACE_SIZE_MM[0]:g}-{FACE_SIZE_MM[1]:g} mm: if the file is in cm or m, pass scale 10 or 1000 "
-                "(--mesh-scale); the σ maps are per mm",
+                f"the mesh {os.fspath(mesh)} is {across:.6g} mm across with scale {scale:g}, outside a face's "
+                f"{FACE_SIZE_MM[0]:g}-{FACE_SIZE_MM[1]:g} mm: if the file is {unit} (--mesh-scale, the factor from "
+                "its unit to mm); the σ maps are per mm",
                 stacklevel=2,
             )
         path = os.path.abspath(os.fspath(mesh))  # recorded in every export: absolute, so it says which file

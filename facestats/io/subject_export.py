@@ -39,6 +39,8 @@ EXPORT_OPTIONS = {
     "spp": ("mitsuba",),
     "fov": ("mitsuba",),
 }
+#: Largest ``mesh_scale`` (mm per unit of the file): a mesh in km; beyond, positions overflow in the maps' frames.
+MAX_MESH_SCALE = 1e6
 #: Options that name input files (refused inside ``out``, which an export may replace).
 _INPUTS = ("mesh", "probe")
 
@@ -129,7 +131,7 @@ def export_subject(subject, out, format="exr", *, store=None, overwrite=False, *
     if "mesh_scale" in options:
         if "mesh" not in options:
             raise ValidationError("mesh_scale applies to a mesh given with mesh= (--mesh), and none is given")
-        options["mesh_scale"] = as_scalar(options["mesh_scale"], "mesh_scale", 0, None, low_inclusive=False)
+        options["mesh_scale"] = as_scalar(options["mesh_scale"], "mesh_scale", 0, MAX_MESH_SCALE, low_inclusive=False)
     out = _check_out(out, overwrite)
     for name in _INPUTS:
         if isinstance(options.get(name), (str, os.PathLike)):

@@ -423,13 +423,18 @@ def _exr_targets(exr_dir, index):
 
 
 def _exr_current(exr_dir, index, render_id) -> bool:
-    """Whether both EXR files of frame ``index`` exist and were written from this render (their header says so)."""
+    """Whether both EXR files of frame ``index`` exist and were written from this render (their header says so),
+    the normals in today's convention (``normal_space``: files of before 2026-12-06 held G down the texture and
+    were kept by a rerun, a review)."""
     token = f"{render_id}:{index}"
-    for target in _exr_targets(exr_dir, index).values():
+    for kind, target in _exr_targets(exr_dir, index).items():
         try:
-            if read_exr_attributes(target).get("facestats_render") != token:
-                return False
+            attrs = read_exr_attributes(target)
         except (FacestatsError, OSError):
+            return False
+        if attrs.get("facestats_render") != token or (
+            kind == "normal" and attrs.get("normal_space") != EXR_NORMAL_SPACE
+        ):
             return False
     return True
 

@@ -118,7 +118,7 @@ def test_exposures_that_disagree_are_warned_about(bracket, tmp_path):
     times = [TIMES[0], TIMES[1], 2 * TIMES[1], TIMES[2], TIMES[3]]
     res = calibrate_response([files[0], files[1], twin, files[2], files[3]], exposure_times=times)
     said = res.warnings()
-    assert len(said) == 2 and said[0].startswith("exposures 1/125 s -> 1/62.5 s disagree by a median 100%")
+    assert len(said) == 2 and said[0].startswith("exposures 1/125 s -> 1/62.5 s disagree by a median 100.0% (over 10%")
     argv = [*facestats_exe(), "calibrate", "response", str(files[0]), str(files[1]), str(twin), str(files[2]),
             str(files[3]), "--times", *map(str, times)]  # fmt: skip
     cli = subprocess.run(argv, capture_output=True, text=True)
@@ -150,6 +150,12 @@ def test_a_bracket_is_merged_with_a_saved_response_and_saturation_is_filled(brac
     np.testing.assert_array_equal(got[lost], np.broadcast_to(top, want.shape)[lost])  # clip: the channel's largest
     zero, count = merge_bracket(files, tmp_path / "g.json", saturated="zero")
     assert count == lost.any(-1).sum() > 0 and np.all(zero[lost] == 0) and np.isfinite(zero).all()
+    deep = json.loads((tmp_path / "g.json").read_text())  # a 12-bit response: 8-bit codes pass its code checks
+    deep["log_response"] = [np.interp(np.arange(4096) / 16, np.arange(256), [v if v is not None else -30 for v in ch])
+                            .tolist() for ch in deep["log_response"]]  # fmt: skip
+    (tmp_path / "g12.json").write_text(json.dumps(deep))
+    with pytest.raises(FacestatsError, match=r"the frames hold 8-bit codes, and the response .*g12\.json has 4096"):
+        merge_bracket(files, tmp_path / "g12.json")  # silently wrong radiance before (a review)
     argv[-1] = str(files[0])  # an output that is an input: refused before any work
     cli = subprocess.run(argv, capture_output=True, text=True)
     assert cli.returncode == 2 and "--out" in cli.stderr, cli.stderr

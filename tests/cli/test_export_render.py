@@ -34,7 +34,7 @@ def test_a_scan_in_cm_is_warned_about_and_scaled_with_mesh_scale(tmp_path):
     shown = {"PYTHONWARNINGS": "default"}  # run_cli hides warnings
     as_mm = run_cli("export-subject", "S001", "--out", tmp_path / "mm", "--mesh", quad, env=shown)
     assert as_mm.returncode == 0, as_mm.stderr
-    assert as_mm.stderr.startswith(f"facestats: warning: the mesh {quad} is 20 mm across with scale 1, not a face's")
+    assert as_mm.stderr.startswith(f"facestats: warning: the mesh {quad} is 20 mm across with scale 1, outside a face's")
     as_cm = run_cli("export-subject", "S001", "--out", tmp_path / "cm", "--mesh", quad, "--mesh-scale", "10", env=shown)
     assert as_cm.returncode == 0 and "warning" not in as_cm.stderr, as_cm.stderr
     verts = [line.split()[1:] for line in (tmp_path / "cm" / "mesh.obj").read_text().splitlines() if line[:2] == "v "]
@@ -42,7 +42,11 @@ def test_a_scan_in_cm_is_warned_about_and_scaled_with_mesh_scale(tmp_path):
     manifest = json.loads((tmp_path / "cm" / "manifest.json").read_text())
     assert '"scale": 10.0' in json.dumps(manifest)
     bad = run_cli("export-subject", "S001", "--out", tmp_path / "x", "--mesh-scale", "10")
-    assert bad.returncode == 2 and "mesh_scale applies to a mesh given with mesh= (--mesh)" in bad.stderr
+    assert bad.returncode == 2 and "--mesh-scale applies to a mesh given with mesh= (--mesh)" in bad.stderr
+    for value in ("-10", "nan", "1e300"):  # named by the flag; 1e300 overflowed into a temporary file's name
+        bad = run_cli("export-subject", "S001", "--out", tmp_path / "x", "--mesh", quad, "--mesh-scale", value)
+        assert bad.returncode == 2 and bad.stderr.startswith("facestats: error: --mesh-scale must"), bad.stderr
+    assert not (tmp_path / "x").exists()
 
 
 def test_a_missing_dependency_is_named_with_its_install_command_not_called_a_bug(tmp_path, capsys, monkeypatch):

@@ -47,7 +47,10 @@ def test_a_radiance_header_with_crlf_line_ends_is_read(tmp_path):
     header = raw[:size_end].replace(b"\n", b"\r\n")
     (tmp_path / "crlf.hdr").write_bytes(header + raw[size_end:])
     np.testing.assert_array_equal(images.read_rgbe(tmp_path / "crlf.hdr"), images.read_rgbe(tmp_path / "x.hdr"))
-    (tmp_path / "none.hdr").write_bytes(raw[: raw.index(b"\n\n")] + b"\n" + b"#" * 70_000)
+    long = raw.replace(b"\n\n", b"\n#" + b"c" * 70_000 + b"\n\n", 1)  # a comment line of 70 KiB is read (a review)
+    (tmp_path / "long.hdr").write_bytes(long)
+    np.testing.assert_array_equal(images.read_rgbe(tmp_path / "long.hdr"), images.read_rgbe(tmp_path / "x.hdr"))
+    (tmp_path / "none.hdr").write_bytes(raw[: raw.index(b"\n\n")] + b"\n" + b"#" * (1 << 21))
     with pytest.raises(images.ImageFormatError, match="has no end of header .an empty line. within its first"):
         images.read_rgbe(tmp_path / "none.hdr")
 

@@ -12,7 +12,7 @@ from facestats.cli import main
 from facestats.errors import FacestatsError, QuantisationWarning, ValidationError
 from facestats.io.displacement import read_displacement, write_displacement
 from facestats.io.ict_facekit import read_ict_facekit
-from facestats.io.images import read_exr, write_image
+from facestats.io.images import read_exr, write_exr, write_image
 from facestats.io.mesh_sequence import BlendshapeSequence
 from facestats.pipeline.microstructure import render_sequence
 from tests.helpers import TEST_DATA
@@ -220,6 +220,12 @@ def test_outputs_are_safe(tmp_path, smile, neutral_map):
         # G up the texture, as the export's tangent-space maps (it was n_v, down the map: a user's run)
         assert np.array_equal(channels["G"], -n_later[i, ..., 1]) and "glTF/OpenGL +Y up" in header["normal_space"]
         assert header["units"] == "1" and json.loads(header["window"])[2:] == list(n_later.shape[1:3])
+    # A normal file of before the flip (G down, no normal_space) is written again, not kept (a review)
+    channels, header = read_exr(exr2 / "normal.00002.exr")
+    old = {k: v for k, v in header.items() if k in ("frame", "facestats_render")}
+    write_exr(exr2 / "normal.00002.exr", dict(channels, G=-channels["G"]), attributes=old)
+    render_sequence(smile, neutral_map, later, exr_dir=exr2, **opts)
+    assert read_exr(exr2 / "normal.00002.exr")[1].get("normal_space", "").startswith("tangent space")
     (exr2 / "normal.00009.exr").write_bytes(b"old")
     with pytest.raises(FacestatsError, match="holds frame files beyond this sequence's 4 frames .normal.00009.exr"):
         render_sequence(smile, neutral_map, tmp_path / "x.zarr", exr_dir=exr2, **opts)

@@ -34,7 +34,8 @@ def test_a_scan_in_cm_is_warned_about_and_scaled_with_mesh_scale(tmp_path):
     shown = {"PYTHONWARNINGS": "default"}  # run_cli hides warnings
     as_mm = run_cli("export-subject", "S001", "--out", tmp_path / "mm", "--mesh", quad, env=shown)
     assert as_mm.returncode == 0, as_mm.stderr
-    assert as_mm.stderr.startswith(f"facestats: warning: the mesh {quad} is 20 mm across with scale 1, outside a face's")
+    said = f"facestats: warning: the mesh {quad} is 20 mm across with scale 1, outside a face's"
+    assert as_mm.stderr.startswith(said)
     as_cm = run_cli("export-subject", "S001", "--out", tmp_path / "cm", "--mesh", quad, "--mesh-scale", "10", env=shown)
     assert as_cm.returncode == 0 and "warning" not in as_cm.stderr, as_cm.stderr
     verts = [line.split()[1:] for line in (tmp_path / "cm" / "mesh.obj").read_text().splitlines() if line[:2] == "v "]

@@ -352,6 +352,11 @@ def calibrate_response(
 
 def read_response(path) -> np.ndarray:
     """g (levels, 3) of a ``facestats.camera-response/1`` file (code 0, stored as null, is −inf)."""
+    return _response_file(path)[0]
+
+
+def _response_file(path):
+    """(g, the file's JSON document) of a response file (:func:`read_response`), read once."""
     from facestats.io.layout import read_regular_file
 
     p = os.fspath(path)
@@ -370,7 +375,7 @@ def read_response(path) -> np.ndarray:
     if g.ndim != 2 or g.shape[1] != 3 or levels < 2 or levels & (levels - 1) or not np.all(np.isfinite(g[1:])):
         raise FormatError(f"{p} field 'log_response' must be 3 channels of 2**bits finite values, got shape {g.shape}")
     g[0] = np.where(np.isfinite(g[0]), g[0], -np.inf)  # code 0 (weight 0) may be stored as null
-    return g
+    return g, d
 
 
 #: How :func:`merge_bracket` fills a pixel saturated in every exposure (no radiance is measured there).
@@ -409,11 +414,9 @@ def merge_bracket(paths, response, exposure_times=None, *, saturated: str = "cli
         Frames of another bit depth than the response's levels, an unknown ``saturated``.
     """
     from facestats.core.validate import check_choice
-    from facestats.io.layout import read_regular_file
 
     check_choice(saturated, "saturated", SATURATED_FILLS)
-    g = read_response(response)
-    doc = json.loads(read_regular_file(os.fspath(response)))  # read_response has read and checked it
+    g, doc = _response_file(response)
     black = check_integer(doc.get("black_level") or 0, f"{os.fspath(response)} field 'black_level'", 0)
     white = doc.get("white_level")
     if white is not None:

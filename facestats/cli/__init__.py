@@ -114,8 +114,7 @@ def main(argv=None) -> int:
         if os.environ.get("FACESTATS_DEBUG"):
             raise
         print(f"facestats: error: {_describe_failure(exc)}", file=sys.stderr)
-        foreign = isinstance(exc, ModuleNotFoundError) and (exc.name or "facestats").split(".")[0] != "facestats"
-        return 2 if isinstance(exc, (OSError, MemoryError)) or foreign else 3
+        return 2 if isinstance(exc, (OSError, MemoryError)) or _foreign_module(exc) else 3
     finally:
         warnings.formatwarning = shown
 
@@ -139,14 +138,21 @@ _PIP_NAMES = {
 }
 
 
+def _foreign_module(exc: BaseException) -> str | None:
+    """The top-level name of the module another package's ModuleNotFoundError names (None for facestats' own,
+    a bug, and for any other error)."""
+    if not isinstance(exc, ModuleNotFoundError) or not exc.name:
+        return None
+    top = exc.name.split(".")[0]
+    return None if top == "facestats" else top
+
+
 def _missing_package(exc: BaseException) -> str | None:
     """The top-level name of a package that is not installed (a dependency: a damaged environment or an install
     with ``--no-deps``), or None: a missing module of facestats itself is a bug, and a missing module of an
     installed package is a broken installation of it (:func:`_describe_failure`)."""
-    if not isinstance(exc, ModuleNotFoundError) or not exc.name:
-        return None
-    top = exc.name.split(".")[0]
-    if top == "facestats":
+    top = _foreign_module(exc)
+    if top is None:
         return None
     import importlib.util
 
@@ -170,8 +176,8 @@ def _describe_failure(exc: BaseException) -> str:
             f"the package {missing!r} is not installed, and facestats needs it here: "
             f"pip install {_PIP_NAMES.get(missing, missing)} (or reinstall facestats with its dependencies)"
         )
-    if isinstance(exc, ModuleNotFoundError) and exc.name and exc.name.split(".")[0] != "facestats":
-        top = exc.name.split(".")[0]
+    top = _foreign_module(exc)
+    if top is not None:
         return (
             f"the package {top!r} is installed but its module {exc.name!r} cannot be found: the installation is "
             f"broken; reinstall it (pip install --force-reinstall {_PIP_NAMES.get(top, top)})"

@@ -5,7 +5,7 @@ Parses, calls :func:`facestats.io.subject_export.export_subject` and prints what
 
 from __future__ import annotations
 
-from facestats.cli.options import add_store_option, ascii_int, named_options, store_path_option
+from facestats.cli.options import add_store_option, ascii_float, ascii_int, named_options, store_path_option
 
 __all__ = ["add_export_subject"]
 
@@ -69,7 +69,7 @@ def add_export_subject(sub):
     )
     p.add_argument(
         "--mesh-scale",
-        type=float,
+        type=ascii_float,
         default=None,
         metavar="FACTOR",
         help="factor from the --mesh file's unit to mm (10 for cm, 1000 for m; default 1)",

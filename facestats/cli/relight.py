@@ -302,7 +302,7 @@ def add_relight(sub):
     p.add_argument("--png", default=None, metavar="FILE.png", help="tone-mapped PNG (default: next to --out)")
     p.add_argument(
         "--exposure",
-        type=float,
+        type=ascii_float,
         default=None,
         metavar="SCALE",
         help="PNG exposure: radiance times SCALE before the sRGB encoding (default: the 99th percentile of the face "

@@ -46,6 +46,8 @@ __all__ = [
     "calibrate_response",
     "read_response",
     "merge_bracket",
+    "MergedBracket",
+    "agreement_warnings",
 ]
 
 RESPONSE_FORMAT = "facestats.camera-response/1"
@@ -201,18 +203,8 @@ class ResponseCalibration:
             f.write("\n")
 
     def warnings(self) -> list:
-        """What makes this response doubtful, one sentence each: consecutive exposures whose median disagreement
-        exceeds :data:`AGREEMENT_LIMIT` (their times do not match the frames, or the scene changed)."""
-        order = np.argsort(self.exposure_times, kind="stable")
-        out = []
-        for (m, _), a, b in zip(self.agreement, order[:-1], order[1:]):
-            if np.isfinite(m) and m > AGREEMENT_LIMIT:
-                out.append(
-                    f"exposures {_seconds(self.exposure_times[a])} -> {_seconds(self.exposure_times[b])} disagree by "
-                    f"a median {m:.1%} (over {AGREEMENT_LIMIT:.0%}; noise and compression leave a few per cent): "
-                    "their times do not match the frames, or the scene, its light or the camera changed between them"
-                )
-        return out
+        """What makes this response doubtful, one sentence each (:func:`agreement_warnings`)."""
+        return agreement_warnings(self.agreement, self.exposure_times)
 
     def to_text(self) -> str:
         """The frames, the consecutive exposures' agreement and g at a few codes."""
@@ -378,8 +370,43 @@ def _response_file(path):
     return g, d
 
 
+def agreement_warnings(agreement, exposure_times) -> list:
+    """One sentence per pair of consecutive exposures whose median disagreement exceeds :data:`AGREEMENT_LIMIT`
+    (``agreement`` as :func:`facestats.acquire.response.exposure_agreement` gives it, in order of time): their times
+    do not match the frames, or the scene changed between them."""
+    times = np.asarray(exposure_times, np.float64)
+    order = np.argsort(times, kind="stable")
+    out = []
+    for (m, _), a, b in zip(np.asarray(agreement, np.float64), order[:-1], order[1:]):
+        if np.isfinite(m) and m > AGREEMENT_LIMIT:
+            out.append(
+                f"exposures {_seconds(times[a])} -> {_seconds(times[b])} disagree by a median {m:.1%} (over "
+                f"{AGREEMENT_LIMIT:.0%}; noise and compression leave a few per cent): their times do not match the "
+                "frames, or the scene, its light or the camera changed between them"
+            )
+    return out
+
+
 #: How :func:`merge_bracket` fills a pixel saturated in every exposure (no radiance is measured there).
 SATURATED_FILLS = ("clip", "zero")
+
+
+@dataclass
+class MergedBracket:
+    """What :func:`merge_bracket` gives: the radiance and how much to trust it."""
+
+    #: Linear radiance (H, W, 3) float32 in the response's units exp(g)/s, finite.
+    radiance: np.ndarray
+    #: Pixels with a channel saturated in every exposure (filled).
+    saturated_pixels: int
+    #: Seconds, in the order of the files.
+    exposure_times: np.ndarray
+    #: Median and 90th percentile of consecutive exposures' disagreement (:func:`exposure_agreement`).
+    agreement: np.ndarray
+
+    def warnings(self) -> list:
+        """Consecutive exposures that disagree (:func:`agreement_warnings`)."""
+        return agreement_warnings(self.agreement, self.exposure_times)
 
 
 def merge_bracket(paths, response, exposure_times=None, *, saturated: str = "clip"):
@@ -401,10 +428,9 @@ def merge_bracket(paths, response, exposure_times=None, *, saturated: str = "cli
 
     Returns
     -------
-    radiance : ndarray of float32, shape (H, W, 3)
-        Linear, in the response's units exp(g)/s, finite.
-    saturated_pixels : int
-        Pixels with a channel saturated in every exposure (filled).
+    MergedBracket
+        The radiance, the saturated pixels, the times and the consecutive exposures' agreement with this
+        response (:meth:`MergedBracket.warnings`).
 
     Raises
     ------
@@ -434,4 +460,5 @@ def merge_bracket(paths, response, exposure_times=None, *, saturated: str = "cli
         top = np.where(lost, -np.inf, radiance).reshape(-1, radiance.shape[-1]).max(axis=0)
         fill = np.where(np.isfinite(top), top, 0.0) if saturated == "clip" else np.zeros_like(top)
         radiance = np.where(lost, fill.astype(radiance.dtype), radiance)
-    return radiance.astype(np.float32), int(lost.any(axis=-1).sum())
+    agreement = exposure_agreement(images, times, g, black_level=black, white_level=white)
+    return MergedBracket(radiance.astype(np.float32), int(lost.any(axis=-1).sum()), times, agreement)

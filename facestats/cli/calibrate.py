@@ -212,9 +212,11 @@ def _cmd_merge(args) -> int:
     existing = _check_outputs([(args.out, "--out", (".exr", ".hdr", ".pfm"))])
     inputs = [(f, f"IMAGE {os.fspath(f)!r}") for f in args.images] + [(args.response, "--response")]
     _refuse_inputs(existing, inputs)
-    radiance, saturated = merge_bracket(args.images, args.response, args.times, saturated=args.saturated)
+    merged = merge_bracket(args.images, args.response, args.times, saturated=args.saturated)
+    radiance, saturated = merged.radiance, merged.saturated_pixels
     attrs = {"units": "exp(g)/s (the response's)", "response": os.fspath(args.response),
              "frames": json.dumps([os.fspath(f) for f in args.images]), "saturated_fill": args.saturated,
+             "exposure_times_s": json.dumps([float(t) for t in merged.exposure_times]),
              "method": "Debevec & Malik 1997 eq. 6 (facestats.acquire.response.merge_photographs)"}  # fmt: skip
     lum = radiance.mean(-1)
     h, w = lum.shape
@@ -230,6 +232,8 @@ def _cmd_merge(args) -> int:
             + ": add a shorter exposure to measure them",
             file=sys.stderr,
         )  # fmt: skip
+    for line in merged.warnings():
+        print(f"facestats: warning: {line}", file=sys.stderr)
     attrs_only = attrs if args.out.lower().endswith(".exr") else None
     _write_all([(args.out, lambda p: write_image(p, radiance, attributes=attrs_only), f"wrote {args.out}")])
     return 0

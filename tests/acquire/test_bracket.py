@@ -132,7 +132,7 @@ def test_a_bracket_is_merged_with_a_saved_response_and_saturation_is_filled(brac
 
     from facestats.acquire.bracket import merge_bracket
     from facestats.acquire.response import merge_photographs
-    from facestats.io.images import read_image
+    from facestats.io.images import read_exr, read_image
     from tests.helpers import facestats_exe
 
     files, camera = bracket
@@ -148,8 +148,15 @@ def test_a_bracket_is_merged_with_a_saved_response_and_saturation_is_filled(brac
     np.testing.assert_array_equal(got[~lost], want[~lost])  # float32 EXR: the same values
     top = np.where(lost, -np.inf, want).reshape(-1, 3).max(0)
     np.testing.assert_array_equal(got[lost], np.broadcast_to(top, want.shape)[lost])  # clip: the channel's largest
-    zero, count = merge_bracket(files, tmp_path / "g.json", saturated="zero")
-    assert count == lost.any(-1).sum() > 0 and np.all(zero[lost] == 0) and np.isfinite(zero).all()
+    zero = merge_bracket(files, tmp_path / "g.json", saturated="zero")
+    assert zero.saturated_pixels == lost.any(-1).sum() > 0 and zero.warnings() == []
+    assert np.all(zero.radiance[lost] == 0) and np.isfinite(zero.radiance).all()
+    assert json.loads(read_exr(tmp_path / "m.exr")[1]["exposure_times_s"]) == list(TIMES)  # EXIF rationals
+    twin = tmp_path / "twin.png"  # frames that do not follow their times: warned about, as by calibrate response
+    twin.write_bytes(files[1].read_bytes())
+    times = [TIMES[0], TIMES[1], 2 * TIMES[1], TIMES[2], TIMES[3]]
+    said = merge_bracket([files[0], files[1], twin, files[2], files[3]], tmp_path / "g.json", times).warnings()
+    assert said and said[0].startswith("exposures 1/125 s -> 1/62.5 s disagree by a median")
     deep = json.loads((tmp_path / "g.json").read_text())  # a 12-bit response: 8-bit codes pass its code checks
     deep["log_response"] = [np.interp(np.arange(4096) / 16, np.arange(256), [v if v is not None else -30 for v in ch])
                             .tolist() for ch in deep["log_response"]]  # fmt: skip

@@ -190,9 +190,7 @@ def local_path(path, name="path") -> str:
     parsed = urlparse(text)
     if "::" in text:  # fsspec's chained URLs (simplecache::s3://…) are not local folders
         raise ValidationError(f"{name} must be a local path or a file:// URL, got the chained URL {text!r}")
-    if parsed.scheme.lower() == "file" and text[5:7] != "//" and text[5:6] == "/":  # file:/abs/path (RFC 8089)
-        text = parsed.path
-    elif parsed.scheme.lower() == "file" and text[5:7] == "//":
+    if parsed.scheme.lower() == "file":  # file:///abs/path, or file:/abs/path (RFC 8089)
         if parsed.netloc not in ("", "localhost"):
             raise ValidationError(
                 f"{name} must be a local path or a file:///absolute/path URL, got {text!r} (it names the host "

@@ -319,7 +319,7 @@ class BuildStatus:
                     "state": "running" if _alive(p) else "stopped",
                 }
                 for p in self.plans
-            ],  # fmt: skip
+            ],
         }
 
     def to_text(self) -> str:

@@ -417,7 +417,7 @@ class Store:
         return self._load(str(subject_id), lazy=lazy, variables=variables)
 
     # -- writing -----------------------------------------------------------------
-    def write_subject(self, dataset, *, overwrite: bool = False) -> str:
+    def write_subject(self, dataset, *, overwrite: bool = False, precondition=None) -> str:
         """Write one subject atomically; return its id.
 
         The Dataset is validated first (:func:`facestats.io.schema.validate_subject`)
@@ -425,11 +425,12 @@ class Store:
         raises :class:`StoreError` unless ``overwrite=True``, which replaces
         the subject atomically (readers see the old or the new version).
         Edits must write a new id with ``source_subject`` and ``edit`` in
-        their provenance rather than overwrite their source.
+        their provenance rather than overwrite their source.  ``precondition``
+        as in :meth:`write_subjects`.
         """
-        return self.write_subjects([dataset], overwrite=overwrite)[0]
+        return self.write_subjects([dataset], overwrite=overwrite, precondition=precondition)[0]
 
-    def write_subjects(self, datasets, *, overwrite: bool = False) -> list[str]:
+    def write_subjects(self, datasets, *, overwrite: bool = False, precondition=None) -> list[str]:
         """Write several subjects and commit them together (all or none); return their ids.
 
         Parameters
@@ -438,6 +439,11 @@ class Store:
             Valid subjects with distinct ids; all are checked before anything is written.
         overwrite : bool
             Replace subjects that exist (otherwise :class:`StoreError`, nothing written).
+        precondition : callable, optional
+            ``precondition(store)``, called while the store's commit lock is held, after the subjects'
+            data are written and just before the index names them: no other writer can commit between
+            its check and this commit.  An exception it raises aborts the write (nothing is committed,
+            the data written are removed) and propagates.  It may read the store, never write to it.
 
         Returns
         -------
@@ -458,7 +464,15 @@ class Store:
                 gen, lock = reserve_generation(self.path, sid, when)
                 written.append((sid, gen, lock, when))
                 write_generation(self.path, sid, gen, ds, when)
-            self._commit(batch_commit(prepared, written, overwrite, superseded))
+            commit = batch_commit(prepared, written, overwrite, superseded)
+            if precondition is not None:
+                unchecked = commit
+
+                def commit(index):
+                    precondition(self)
+                    return unchecked(index)
+
+            self._commit(commit)
         except BaseException:
             abandon_generations(self.path, written)
             raise

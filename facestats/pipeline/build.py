@@ -426,15 +426,15 @@ def _build_one(
     ds = fit_subject(capture, sigma_tr_avg, _settings(micro_normals), sensor_fit=sensor_fit)
     if not keep_derived:
         ds = ds.drop_vars([v for v in DERIVED if v in ds.data_vars])
-    _check_still_same_build(store, subject_id, *same)
-    store.write_subject(ds, overwrite=True)
+    store.write_subject(ds, overwrite=True, precondition=lambda st: _check_still_same_build(st, subject_id, *same))
     return subject_id
 
 
 def _check_still_same_build(store, subject_id, pop, geometry, specular, micro_normals, keep_derived):
-    """:func:`_check_same_build` in a worker, before its commit: another build (other parameters, started before
-    any subject was stored) may have written into the store since this build checked it.  The subject itself (a
-    concurrent build's) and one other stand for the store: each was checked when it was committed."""
+    """:func:`_check_same_build` in a worker, before its work and under the store's commit lock at its commit:
+    another build (other parameters, started before any subject was stored) may have written into the store since
+    this build checked it.  The subject itself (a concurrent build's) and one other stand for the store: each was
+    checked when it was committed, under the same lock, so no build commits between a check and its commit."""
     present = store.ids()
     order = [subject_id] * (subject_id in present) + [s for s in present if s != subject_id]
     _check_same_build(store, pop, order, geometry, specular, micro_normals, keep_derived, limit=2)

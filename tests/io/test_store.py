@@ -378,6 +378,35 @@ def test_batch_write_is_all_or_nothing(tmp_path):
         )
 
 
+def test_a_precondition_runs_under_the_commit_lock_and_aborts_the_write(tmp_path):
+    """``precondition`` is the check a build makes before it commits: it must run while no other writer can
+    commit (the store's lock is held: a second lock on the file fails), see the store as it is, and a refusal
+    must leave the store as it was, with no generation of the refused subject left behind."""
+    from facestats.io.locking import FileLock
+
+    path = tmp_path / "s.zarr"
+    seen = []
+
+    def check(store):
+        probe = FileLock(path / ".lock", timeout=0)
+        seen.append((probe.acquire(blocking=False), store.ids()))
+
+    with open_store(path, mode="a") as st:
+        st.write_subject(make_map_subject("P1"))
+        assert st.write_subject(make_map_subject("P2"), precondition=check) == "P2"
+        assert seen == [(False, ["P1"])]  # the lock was held; P2 not yet in the index
+
+        def refuse(store):
+            raise ValidationError("another build wrote P1")
+
+        with pytest.raises(ValidationError, match="another build wrote P1"):
+            st.write_subjects([make_map_subject("P3"), make_map_subject("P1")], overwrite=True, precondition=refuse)
+        assert st.ids() == ["P1", "P2"]
+        assert not list((path / "subjects" / "P3").glob("g*"))
+        assert len(list((path / "subjects" / "P1").glob("g*"))) == 1
+        assert st.validate().ok
+
+
 # -- bad stores -------------------------------------------------------------------------
 def _gen_dir(path, sid):
     return next((path / "subjects" / sid).glob("g*"))

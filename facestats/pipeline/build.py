@@ -65,7 +65,7 @@ from facestats.model.fitting import TranslucencyFit, fit_translucency, populatio
 from facestats.model.fitting.engine import resolve_engine
 from facestats.model.skin import SPECULAR_MODELS
 from facestats.pipeline import FitSettings, fit_subject
-from facestats.pipeline.cluster import LOCAL, connect, scheduler_address, store_directory
+from facestats.pipeline.cluster import LOCAL, connect, run_tasks, scheduler_address, store_directory
 from facestats.pipeline.journal import BuildJournal, gathered, run_journalled
 from facestats.pipeline.progress import TaskProgress, subject_bar
 
@@ -572,14 +572,9 @@ def build_store(
 
 def _run_tasks(args, retries, client, n_workers, progress):
     """Run :func:`_build_task` on every argument tuple: on ``client``, local processes or in-process."""
-    if client is not None:
-        from distributed import as_completed
-
-        # Task failures are retried inside the task (which never raises); a task lost with its worker is
-        # resubmitted by the scheduler as `distributed.scheduler.allowed-failures` says.
-        futures = {client.submit(_build_task, retries, *a, pure=False): a for a in args}
-        done = subject_bar(as_completed(futures, loop=client.loop), len(futures), progress)
-        return [gathered(f, futures[f][0], futures[f][5]) for f in done]
+    if client is not None:  # task failures are retried inside the task, which never raises
+        futures = run_tasks(client, _build_task, [(retries, *a) for a in args], progress)
+        return [gathered(f, a[0], a[5]) for f, a in zip(futures, args)]
     if n_workers == 1 or len(args) <= 1:
         return [_build_task(retries, *a) for a in subject_bar(args, len(args), progress)]
     return _run_local(args, retries, n_workers, progress)

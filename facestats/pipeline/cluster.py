@@ -6,7 +6,9 @@
   ``DASK_SCHEDULER_ADDRESS`` (Dask's own name for it), or None: run locally
   (also when given ``"local"``, which ignores the variable);
 * :func:`connect` — a :class:`distributed.Client` for such an address;
-* :func:`store_directory` — the directory of a store the workers write to.
+* :func:`store_directory` — the directory of a store the workers write to;
+* :func:`run_tasks` — one task per subject on a cluster, a task lost with a
+  shared worker submitted again alone.
 
 Commit guarantees.  A store commits a subject by replacing ``index.json``
 atomically under a POSIX ``flock`` (:mod:`facestats.io.store`), so workers
@@ -29,8 +31,18 @@ import os
 from urllib.parse import urlparse
 
 from facestats.errors import StoreError, ValidationError
+from facestats.pipeline.progress import subject_bar
 
-__all__ = ["SCHEDULER_VARIABLE", "LOCAL", "scheduler_address", "connect", "store_directory", "local_path", "is_url"]
+__all__ = [
+    "SCHEDULER_VARIABLE",
+    "LOCAL",
+    "scheduler_address",
+    "connect",
+    "store_directory",
+    "local_path",
+    "is_url",
+    "run_tasks",
+]
 
 #: Environment variable naming the scheduler (read by Dask too).
 SCHEDULER_VARIABLE = "DASK_SCHEDULER_ADDRESS"
@@ -219,3 +231,42 @@ def store_directory(path, name="store") -> str:
             "upload it afterwards."
         )
     return local_path(text, name)
+
+
+def run_tasks(client, task, tasks, progress=False, desc="build"):
+    """Run ``task(*t)`` for every tuple ``t`` of ``tasks`` on ``client``; return the finished futures, in order.
+
+    ``task`` must never raise (it reports its own failures in its result), so a future in error is a task
+    lost with its worker: Dask resubmits such a task until ``distributed.scheduler.allowed-failures`` deaths
+    of workers that held it, then raises ``KilledWorker``.  The scheduler cannot tell which task killed a
+    worker and counts the death against every task the worker held, so a subject sharing a worker with one
+    that runs it out of memory is lost too.  Each lost task is therefore submitted again after the others,
+    alone on the cluster, so that only its own deaths count; its future is then final.
+
+    Parameters
+    ----------
+    client : distributed.Client
+    task : callable
+        Picklable by reference; never raises.
+    tasks : list of tuple
+        The arguments of each task.
+    progress : bool
+        A bar per round, over the subjects (the second one, ``"<desc> again, alone"``, only if a task was lost).
+    desc : str
+        The bars' label.
+
+    Returns
+    -------
+    list of distributed.Future
+        One per tuple of ``tasks``, each finished or in error.
+    """
+    from distributed import as_completed, wait
+
+    futures = [client.submit(task, *t, pure=False) for t in tasks]
+    for _ in subject_bar(as_completed(futures, loop=client.loop), len(futures), progress, desc=desc):
+        pass
+    lost = [i for i, f in enumerate(futures) if f.status == "error"] if len(futures) > 1 else []
+    for i in subject_bar(lost, len(lost), progress, desc=f"{desc} again, alone"):
+        futures[i] = client.submit(task, *tasks[i], pure=False)
+        wait(futures[i])
+    return futures

@@ -22,7 +22,7 @@ from facestats.errors import FitError, ValidationError
 from facestats.io.ids import check_subject_id
 from facestats.io.store import open_store
 from facestats.model import fitting
-from facestats.pipeline.cluster import connect, is_url, local_path, scheduler_address, store_directory
+from facestats.pipeline.cluster import connect, is_url, local_path, run_tasks, scheduler_address, store_directory
 from facestats.pipeline.journal import BuildJournal, gathered, run_journalled
 from facestats.pipeline.progress import TaskProgress, subject_bar
 from facestats.pipeline.settings import FitSettings, checked_settings
@@ -199,11 +199,7 @@ def _where(scheduler, client):
 def _run(tasks, client, local, num_workers, progress):
     """Every subject task on the client, or Dask's local scheduler, in the order of ``tasks``."""
     if client is not None:
-        from distributed import as_completed
-
-        futures = [client.submit(_fit_capture_task, *t, pure=False) for t in tasks]
-        for _ in subject_bar(as_completed(futures, loop=client.loop), len(futures), progress, desc="fit"):
-            pass
+        futures = run_tasks(client, _fit_capture_task, tasks, progress, desc="fit")
         return [gathered(f, t[5], t[0]) for f, t in zip(futures, tasks)]
     if local == "synchronous" or len(tasks) == 1:
         return [_fit_capture_task(*t) for t in subject_bar(tasks, len(tasks), progress, desc="fit")]

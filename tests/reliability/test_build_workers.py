@@ -228,3 +228,30 @@ def test_workers_that_die_before_any_subject_end_the_build_with_every_subject_re
     assert proc.returncode == 1, err
     assert "0 subject(s) written" in out and "3 FAILED" in out
     assert out.count("the worker processes died 3 times before any subject began") == 3
+
+
+@pytest.mark.slow
+def test_on_a_cluster_a_subject_sharing_a_worker_with_one_that_kills_it_is_built_alone(tmp_path, monkeypatch):
+    """Dask counts a worker's death against every task the worker held, so a subject that shared a worker with
+    one that killed it was reported ``KilledWorker`` too (a red team). A lost task now runs again alone. Two
+    threads on one worker make S001 share it with S002, whose task kills its process; with
+    ``allowed-failures`` 0 the scheduler gives up on every task the worker held at its first death."""
+    import dask
+    import distributed
+
+    from facestats.pipeline.build import build_store
+    from facestats.pipeline.journal import build_status
+
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(_DYING_WORKER)
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(hook), os.environ.get("PYTHONPATH", "")]).rstrip(":"))
+    monkeypatch.setenv("FACESTATS_TEST_DIE_ON", "S002")
+    store = tmp_path / "s.zarr"
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=True, dashboard_address=None) as lc:
+            with distributed.Client(lc) as client:
+                report = build_store(store, map_size=8, conditions=False, subjects=SUBJECTS[:2], client=client)
+    assert report.written == ["S001"]
+    assert list(report.failed) == ["S002"] and "KilledWorker" in report.failed["S002"]
+    assert set(build_status(store).failed) == {"S002"}

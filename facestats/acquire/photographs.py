@@ -615,8 +615,16 @@ def exposure_consistency(
 
     Parameters
     ----------
+    stack : sequence of ndarray of int, shape (H, W, 3)
+        One frame's codes per exposure.
+    times : ndarray, shape (P,)
+        Exposure times of ``stack``, s (any order: the shortest and the longest are compared).
+    response : ndarray, shape (levels, 3)
+        g(Z) = ln exposure per code and channel (Debevec & Malik 1997 eq. 2).
     box : (x0, y0, x1, y1)
         Pixel bounds (end exclusive) of the face in the frame.
+    min_weight : float
+        Hat weight, relative to its peak, a code needs in both exposures to be compared.
     jump : float
         |d| counted as a disagreement (0.5: a factor e^0.5 ≈ 1.65).
     black_level : int

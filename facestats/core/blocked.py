@@ -36,6 +36,8 @@ def blockwise(kernel, operands, dtype, n_out=1, block=BLOCK):
         Computation and output dtype; operands are cast to it.
     n_out : int
         Number of outputs.
+    block : int
+        Elements per block (bounds the kernel's temporaries).
 
     Returns
     -------

@@ -152,6 +152,8 @@ class Survey:
         Files and folders inside generation folders that Zarr did not write (e.g.
         ``subjects/R1/<generation>/notes.txt``): reported, never deleted, and the generation holding
         them is kept (of the generations the index names only when asked: :func:`survey`).
+    kept_trash : set of (str, str)
+        ``(subject id, generation)`` of trash folders kept (with their records) because they hold strays.
     """
 
     garbage: list = field(default_factory=list)

@@ -64,6 +64,8 @@ class UVMesh:
     polygon : ndarray of int, shape (F,)
         Index of the file's polygon each triangle comes from.
     name : str
+    meta : dict
+        What the reader knows beyond the geometry (e.g. ``area="face"`` for ICT-FaceKit's face area).
     """
 
     vertices: np.ndarray

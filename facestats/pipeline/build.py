@@ -482,16 +482,16 @@ def build_store(
         Local worker processes, ≥ 1 (default: the number of cores); 1 runs in-process.
     client : dask.distributed.Client, optional
         Run on a cluster instead (workers must see ``store_path``).
-    scheduler : str, optional
-        Address of a Dask scheduler (``tcp://host:8786``) to run on instead; default
-        ``$DASK_SCHEDULER_ADDRESS`` when set (:mod:`facestats.pipeline.cluster`); ``"local"``:
-        this machine whatever the variable says.
     micro_normals : bool
         Keep per-camera micro-normal maps (the default store drops them to stay small).
     keep_derived : bool
         Keep variables derived from others (:data:`DERIVED`; the default store drops them).
     progress : bool
         Show a progress bar with ETA.
+    scheduler : str, optional
+        Address of a Dask scheduler (``tcp://host:8786``) to run on instead; default
+        ``$DASK_SCHEDULER_ADDRESS`` when set (:mod:`facestats.pipeline.cluster`); ``"local"``:
+        this machine whatever the variable says.
     retries : int
         Attempts after the first for a subject that fails (≥ 0); it is then reported in
         :attr:`BuildReport.failed` and the journal (``facestats build --status``).

@@ -327,8 +327,12 @@ def render_probe(
 
     Parameters
     ----------
+    subject : xarray.Dataset
+        A fitted map subject (``normal`` required; ``micro_normal`` used if present).
     capture : Capture, FaceView or None
         The subject's capture (its lumitexels and dome calibration), or None (:func:`face_view`).
+    camera : int
+        Dome camera.
     probe : str, os.PathLike or ndarray (H, W, 3)
         Lat-long probe (a file is read with :func:`facestats.io.probes.read_light_probe`).
     samples : int or (int, int), optional
@@ -340,6 +344,10 @@ def render_probe(
         Probulator (pisa, ennis, wells), park, lobby and studio probes; 16 × 32 blocks 0.8-13.6 % /
         1.6-25.7 % (the studio's small softbox the worst).  The cost grows with the lights: at 48² about 4 s
         for 512.
+    specular : {"torrance_sparrow", "blinn_phong"}
+        The subject's fitted model to render.
+    eta : float
+        Relative index of refraction of the Fresnel terms.
     mesh : str or os.PathLike, optional
         The scan the subject's maps belong to (OBJ/PLY with per-vertex UVs), for a subject whose recorded face
         facestats cannot rebuild (ingested photographs): the shadowing mesh, and without ``capture`` the
@@ -442,6 +450,13 @@ def default_capture(subject, seed: int = DEFAULT_SEED):
         A subject whose capture cannot be re-simulated, saying what to pass instead: an edit (never captured),
         a subject fitted from photographs or another capture, another population seed.
 
+    Returns
+    -------
+    facestats.acquire.capture.Capture
+        The re-simulated capture.
+
+    Notes
+    -----
     The last two simulations are cached (a simulation takes seconds); treat the capture as read-only.
     """
 

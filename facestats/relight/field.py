@@ -27,7 +27,7 @@ On disk (:func:`write_field` / :func:`open_field`) the field is a zarr group
 whose ``reflectance`` is chunked as whole light sets over image tiles
 (all lights × ``tile`` × ``tile`` × 3), so one tile under every light reads alone
 and fields larger than memory are relit tile by tile
-(:func:`facestats.relight.relighting.relight_tiles`).
+(:func:`facestats.relight.relighting.relight`).
 """
 
 from __future__ import annotations

@@ -234,6 +234,8 @@ def novel_view_field(separation, view_new, *, eta=ETA_SKIN, shadow=None, s=None)
         the field's ``view``.
     view_new : array_like, shape (y, x, 3) or (3,)
         Unit novel view direction per pixel (or one for all pixels).
+    eta : float
+        Relative index of refraction of the Fresnel terms.
     shadow : array_like of bool, shape (n_phi, n_theta, y, x), optional
     s : array_like, shape (3,), optional
         Light chromaticity (default white).

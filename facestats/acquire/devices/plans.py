@@ -225,6 +225,8 @@ class SensorPlan(_Plan):
         Time to read out one frame (duration estimate).
     sites : tuple of int
         Indices of :data:`SITES` in capture order.
+    extension : str
+        Frame file extension.
     """
 
     subject: dict

@@ -22,6 +22,8 @@ def plot_contact_sheet(folder, camera: int = 0, exposure: int = -1, leds=None, *
         Which camera and exposure (default the longest).
     leds : sequence of int, optional
         LEDs to show (default all, at most 60 evenly spread).
+    columns : int
+        Thumbnails per row.
     g : ndarray, shape (levels, 3), optional
         The cameras' response (ln exposure per code); shown linear in exposure when given, else as codes.
     """

@@ -75,6 +75,8 @@ def subject_truth(subject_id: str, *, store=None, map_size: int = 16, seed: int 
         face its capture provenance names (``ict-48`` for the embedded default).
     map_size : int
         Map side of a population subject (a store subject keeps its own).
+    seed : int
+        Seed of the synthetic population (``store=None`` only).
 
     Notes
     -----

@@ -415,6 +415,8 @@ def run_session(
         The calibration file the plan was made from (copied into ``out``).
     resume : bool
         Continue the unfinished session in ``out``.
+    progress : bool
+        Show a progress bar over the plan's steps.
     frame_timeout : float
         Seconds to wait for a camera's frame of a trigger.
     attempts : int

@@ -315,6 +315,8 @@ def write_capture_photographs(
         Errors of the written calibration (None: the true calibration).
     moved_frames : sequence of (camera, led)
         Frames whose long exposure sees the head rotated by ``motion_deg`` (between the two passes).
+    motion_deg : float
+        The rotation of the head in ``moved_frames``, degrees.
     seed : int
         Seeds the noise, the calibration errors and the motion axes.
     noise : bool

@@ -543,7 +543,6 @@ def _person_record(draws, i, sid, condition, region_map, texel_mm, freckle_fract
         freckles=freckled,
         moles=n_moles,
         condition=condition,
-        gender=gender,
     )
     if condition != "normal":
         f_rho, f_m = CONDITION_EFFECTS[condition]

@@ -38,7 +38,7 @@ def _spots(rng, shape, count, radius_px, strength_sampler):
     return out * (2 * np.pi * sigma * sigma)
 
 
-def albedo_map(region_map, base_rgb, rng, *, texel_mm=2.5, freckles=False, moles=0, condition="normal", gender="M"):
+def albedo_map(region_map, base_rgb, rng, *, texel_mm=2.5, freckles=False, moles=0, condition="normal"):
     """A textured albedo map for a face (module docstring).
 
     Parameters
@@ -54,6 +54,9 @@ def albedo_map(region_map, base_rgb, rng, *, texel_mm=2.5, freckles=False, moles
         Add freckles (melanin spots, 2 mm) on cheeks, nose and forehead.
     moles : int
         Number of moles (4 mm dark spots).
+    condition : {"normal", "makeup", "powder", "hot", ...}
+        The external condition of Weyrich et al. 2006 §7 (module docstring): makeup pulls the texture 40 % towards its
+        mean and lightens it by 4 %, powder lightens by 5 %, heat reddens by 5 %; the others leave it as is.
 
     Returns
     -------

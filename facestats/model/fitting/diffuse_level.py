@@ -57,12 +57,16 @@ def fit_diffuse_level(model, y, s1, a, d, n_use, good, rho, q, limits, steps=STE
     y, s1, a, d : ndarray, shape (S,)
         y = f_s cos θi, the lobe factors (z, A) and d = ∂y/∂α of every sample, in
         per-texel runs of ``n_use`` samples.
+    n_use : ndarray of int, shape (T,)
+        Samples of each texel.
     good : ndarray of bool, shape (T,)
         Texels to refine (the others keep their values, δ NaN).
     rho, q : ndarray of float64, shape (T,)
         The two-parameter solution (ρs and ln p).
     limits : tuple
         (ρs low, ρs high, ln p low, ln p high).
+    steps : int
+        Gauss-Newton steps (:data:`STEPS`).
 
     Returns
     -------

@@ -39,7 +39,7 @@ L/E⊥ = f_r cos θi, which pulls the choice towards lights near the normal: on
 synthetic lumitexels with a known normal (150 lights, 16 cameras) the median
 angle of the micro-normal to the true normal was 6.7° (Blinn-Phong n = 30) and
 13.1° (Torrance-Sparrow m = 0.3); ranking f_r over the 80° domain gives 3.3° and
-8.4° (``tests/model/fitting/test_normals.py``).
+8.4° (``tests/model/fitting/test_stages.py``).
 """
 
 from __future__ import annotations

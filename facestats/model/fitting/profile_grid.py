@@ -153,6 +153,13 @@ def profile_cost(distances, log_profile, grid: ProfileGrid, eta) -> np.ndarray:
     eta : float
         Relative index of refraction.
 
+    Returns
+    -------
+    ndarray, shape ``grid.shape``
+        The cost of each model of the grid, ≥ 0.
+
+    Notes
+    -----
     Models whose R underflows to 0 at one of the levels cost ``inf`` (module docstring).
     """
     d = np.asarray(distances, np.float64)

@@ -156,6 +156,8 @@ class ScatteringImageFit:
         Reduced scattering and absorption coefficients, mm⁻¹.
     sigma_s_prime_interval, sigma_a_interval, sigma_tr_interval : tuple of float
         (low, high) at ``interval_level`` (profile likelihood over the grid).
+    interval_level : float
+        Probability content of the intervals.
     levels : ndarray
         The quantised distances d'_i after merging, mm.
     profile : ndarray
@@ -187,6 +189,8 @@ class ScatteringImageFit:
     self_term : str
         How W took the light of a patch itself and of its near neighbours: ``"point"``, ``"footprint"`` or
         ``"surface"`` (module docstring, step 2).
+    eta : float
+        Relative index of refraction the dipole was evaluated with.
     """
 
     sigma_s_prime: float
@@ -644,6 +648,8 @@ def quantisation_error(system: QuantisedSystem, points, weights, fit, *, rows=QU
     fit : ScatteringImageFit
     rows : int
         At most this many visible rows, sampled with ``seed``.
+    seed : int
+        Seeds the choice of rows.
 
     Returns
     -------

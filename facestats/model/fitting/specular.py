@@ -198,11 +198,15 @@ def fit_specular_models(
 
     Parameters
     ----------
-    samples, normal, f_s, use, eta, min_samples, max_iter, tol, max_relative_error, start, cos, engine
+    samples, normal, f_s, use
         As :func:`fit_specular_samples`.
     models : sequence of {"torrance_sparrow", "blinn_phong"}
+    eta
+        As :func:`fit_specular_samples`.
     bounds : dict, optional
         Bounds per model (as :func:`fit_specular`); missing models use :data:`DEFAULT_BOUNDS`.
+    min_samples, max_iter, tol, max_relative_error, start, cos, engine
+        As :func:`fit_specular_samples`.
     ft2 : ndarray, shape (S,), optional
         F_t(θi) F_t(θo) per sample, with which eq. 10 subtracted the diffuse term from ``f_s``:
         the grey diffuse level is then fitted with each lobe (:mod:`facestats.model.fitting.diffuse_level`),

@@ -93,6 +93,8 @@ class KernelFit:
     extent : float
         Histogram half-width in normal components.
     method : str
+    meta : dict
+        The fit's setting: stretch ratios ``r``, ``r_t``, the stretch ``axis``, ``texel_um``, ``margin``, ``bins``.
     """
 
     alpha: float

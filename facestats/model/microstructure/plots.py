@@ -33,6 +33,8 @@ def plot_kernel_table(table=FOREHEAD, fits=None, *, profiles=None, published=Tru
         Profile points: α fitted with σ fixed to the table's, σ with α fixed.
     published : bool
         Also plot the published Fig. 11 points.
+    r_range : (float, float)
+        The stretch ratios r plotted (1: neutral).
     """
     r = np.linspace(*r_range, 400)
     fig, axes = _figure(1, 2, (10, 3.8))
@@ -125,6 +127,11 @@ def plot_before_after(neutral, deformed, neutral_normals, *, bins=64, extent=Non
     neutral : ndarray (H, W)
     deformed : DeformedMicrostructure
     neutral_normals : ndarray (H, W, 3)
+    bins : int
+        Bins per axis of the normal histograms (:func:`facestats.model.microstructure.surface.normal_histogram`).
+    extent : float, optional
+        Half-width of the histograms in tangent slope, in (0, 1]; default 1.1 × the 99.9th percentile of |n_u|,
+        |n_v| over both maps.
     crop : (slice, slice), optional
         Part of the maps to show (histograms use the whole maps).
     """

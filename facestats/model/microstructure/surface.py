@@ -78,6 +78,8 @@ def tangent_normals(displacement, jacobian, dtype=np.float32):
         Heights (µm when ``jacobian`` carries 1/texel_µm).
     jacobian : array_like, shape (2, 2) or (H, W, 2, 2)
         Texel gradient → tangent slope (module docstring).
+    dtype : numpy dtype
+        Of the returned normals.
     """
     gx, gy = slopes(displacement, jacobian)
     inv = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy)

@@ -113,8 +113,14 @@ def flatten_grid(rad_bits, irradiance, keep_camera):
 
     Returns
     -------
-    texel : int32 (S,); camera_index, light_index, grid_index : intp (S,)
-        t, t C + c, t L + l and (t C + c) L + l of every sample.
+    texel : ndarray of int32, shape (S,)
+        The lumitexel t of every sample.
+    camera_index : ndarray of intp, shape (S,)
+        t C + c of every sample.
+    light_index : ndarray of intp, shape (S,)
+        t L + l of every sample.
+    grid_index : ndarray of intp, shape (S,)
+        (t C + c) L + l of every sample.
     rad : float32 (3, S)
         Radiance, channel-major (converted from float16 exactly).
     irr : float32 (3, S)

@@ -392,21 +392,91 @@ SATURATED_FILLS = ("clip", "zero")
 
 
 @dataclass
+class _Lost:
+    """The samples (pixel, channel) the merge could not measure, sorted out by :func:`_fill_lost`."""
+
+    radiance: np.ndarray
+    clipped_pixels: int
+    gap_pixels: int
+    gap_times: tuple  # (longest exposure that saw them dark, shortest that clipped them), s: the commonest pair
+
+
+def _fill_lost(radiance, images, times, g, black, white, saturated):
+    """Fill the samples ``merge_photographs`` left NaN: no exposure saw them with a usable code.
+
+    Each exposure j saw such a sample dark (code ≤ black level B) or clipped (code ≥ white level W), where the
+    weights of Debevec & Malik 1997 eq. 4 vanish.  Eq. 2 at those codes bounds its radiance: E ≥ exp(g(W))/Δt_j
+    for an exposure that clipped it, E ≤ exp(g(B + 1))/Δt_j for one that saw it dark (units exp(g)/s).
+
+    * Clipped in the shortest exposure (saturated in every exposure, in a consistent bracket): only the lower
+      bound exp(g(W))/Δt_min is known.  It is at least every measured radiance of the channel (a measured code
+      z < W in an exposure of Δt ≥ Δt_min gives exp(g(z))/Δt below it), so ``saturated="clip"`` gives the sample
+      that bound: a clipped highlight stays the brightest; ``"zero"`` gives it 0.
+    * Dark in the exposures up to one time and clipped from a longer one on (a gap in the bracket): the tightest
+      bounds are the shortest clipping and the longest dark exposure's; the sample gets their geometric mean,
+      which is within the square root of their ratio of the truth, whatever ``saturated`` says.
+    """
+    lost = ~np.isfinite(radiance)
+    if not lost.any():
+        return _Lost(radiance, 0, 0, ())
+    where = np.nonzero(lost)
+    channel = where[-1]
+    t = np.asarray(times, np.float64)
+    order = np.argsort(t, kind="stable")
+    codes = np.stack([images[j][where] for j in order]).astype(np.int64)  # (P, K), shortest exposure first
+    ln_t = np.log(t[order])[:, None]
+    top = g.shape[0] - 1 if white is None else white
+    high = codes >= top
+    ln_low = np.where(high, g[top, channel][None, :] - ln_t, -np.inf).max(axis=0)  # the tightest lower bound
+    ln_high = np.where(~high, g[black + 1, channel][None, :] - ln_t, np.inf).min(axis=0)  # and upper bound
+    clipped = high[0]
+    gap = ~clipped
+    fill = np.where(clipped, np.exp(ln_low) if saturated == "clip" else 0.0, np.exp(0.5 * (ln_low + ln_high)))
+    out = radiance.copy()
+    out[where] = fill.astype(out.dtype)
+    per_pixel = np.zeros((2,) + lost.shape[:-1], bool)
+    per_pixel[(np.zeros_like(channel),) + where[:-1]] |= clipped
+    per_pixel[(np.ones_like(channel),) + where[:-1]] |= gap
+    pairs = ()
+    if gap.any():  # the commonest (longest dark, shortest clipped) pair of exposures, to name the missing times
+        dark_j = (len(order) - 1) - np.argmax(~high[::-1, gap], axis=0)
+        clip_j = np.argmax(high[:, gap], axis=0)
+        keys, counts = np.unique(dark_j * len(order) + clip_j, return_counts=True)
+        k = int(keys[np.argmax(counts)])
+        pairs = (float(t[order[k // len(order)]]), float(t[order[k % len(order)]]))
+    return _Lost(out, int(per_pixel[0].sum()), int(per_pixel[1].sum()), pairs)
+
+
+@dataclass
 class MergedBracket:
     """What :func:`merge_bracket` gives: the radiance and how much to trust it."""
 
     #: Linear radiance (H, W, 3) float32 in the response's units exp(g)/s, finite.
     radiance: np.ndarray
-    #: Pixels with a channel saturated in every exposure (filled).
+    #: Pixels with a channel saturated in every exposure (filled as ``saturated`` says).
     saturated_pixels: int
     #: Seconds, in the order of the files.
     exposure_times: np.ndarray
     #: Median and 90th percentile of consecutive exposures' disagreement (:func:`exposure_agreement`).
     agreement: np.ndarray
+    #: Pixels with a channel dark in the shorter exposures and clipped in the longer ones: no exposure measured
+    #: them (filled with the geometric mean of their bounds).
+    gap_pixels: int = 0
+    #: The commonest gap: (longest exposure that saw such a channel dark, shortest that clipped it), s; () if none.
+    gap_times: tuple = ()
 
     def warnings(self) -> list:
-        """Consecutive exposures that disagree (:func:`agreement_warnings`)."""
-        return agreement_warnings(self.agreement, self.exposure_times)
+        """Pixels in a gap of the bracket, then consecutive exposures that disagree (:func:`agreement_warnings`)."""
+        out = []
+        if self.gap_pixels:
+            share = self.gap_pixels / (self.radiance.shape[0] * self.radiance.shape[1])
+            dark, clipped = (_seconds(t) for t in self.gap_times)
+            out.append(
+                f"{self.gap_pixels} pixel(s) dark in the shorter exposures and clipped in the longer ones "
+                f"({share:.2%}; most dark at {dark} and clipped at {clipped}): no exposure measured them, so they "
+                "were given the geometric mean of their bounds; add exposures between these"
+            )
+        return out + agreement_warnings(self.agreement, self.exposure_times)
 
 
 def merge_bracket(paths, response, exposure_times=None, *, saturated: str = "clip"):
@@ -423,8 +493,10 @@ def merge_bracket(paths, response, exposure_times=None, *, saturated: str = "cli
         Seconds, one per file; default each file's EXIF ``ExposureTime``.
     saturated : {"clip", "zero"}
         A pixel channel saturated in every exposure has no measured radiance (NaN from the merge): ``clip`` gives
-        it the largest radiance of its channel in the image (a clipped highlight stays the brightest), ``zero``
-        gives it 0.
+        it the lower bound of its radiance, exp(g(W))/Δt_min with W the white level, which is at least every
+        measured radiance of its channel (a clipped highlight stays the brightest); ``zero`` gives it 0.  A pixel
+        channel dark in the shorter exposures and clipped in the longer ones (a gap in the bracket) gets the
+        geometric mean of its two bounds either way (:attr:`MergedBracket.gap_pixels`).
 
     Returns
     -------
@@ -455,10 +527,13 @@ def merge_bracket(paths, response, exposure_times=None, *, saturated: str = "cli
             f"({levels.bit_length() - 1} bits): recover a response from frames of this camera and bit depth"
         )
     radiance = merge_photographs(images, times, g, black_level=black, white_level=white)
-    lost = ~np.isfinite(radiance)
-    if lost.any():
-        top = np.where(lost, -np.inf, radiance).reshape(-1, radiance.shape[-1]).max(axis=0)
-        fill = np.where(np.isfinite(top), top, 0.0) if saturated == "clip" else np.zeros_like(top)
-        radiance = np.where(lost, fill.astype(radiance.dtype), radiance)
+    lost = _fill_lost(radiance, images, times, g, black, white, saturated)
     agreement = exposure_agreement(images, times, g, black_level=black, white_level=white)
-    return MergedBracket(radiance.astype(np.float32), int(lost.any(axis=-1).sum()), times, agreement)
+    return MergedBracket(
+        lost.radiance.astype(np.float32, copy=False),
+        lost.clipped_pixels,
+        times,
+        agreement,
+        lost.gap_pixels,
+        lost.gap_times,
+    )

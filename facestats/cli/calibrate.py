@@ -227,11 +227,12 @@ def _cmd_merge(args) -> int:
     if saturated:
         print(
             f"facestats: warning: {saturated} pixel(s) saturated in every exposure ({saturated / (h * w):.2%}); "
-            + ("given their channel's largest radiance (--saturated clip)" if args.saturated == "clip"
+            + ("given the lower bound of their radiance (--saturated clip)" if args.saturated == "clip"
                else "set to 0 (--saturated zero)")
             + ": add a shorter exposure to measure them",
             file=sys.stderr,
         )  # fmt: skip
+
     for line in merged.warnings():
         print(f"facestats: warning: {line}", file=sys.stderr)
     attrs_only = attrs if args.out.lower().endswith(".exr") else None

@@ -125,6 +125,39 @@ def test_exposures_that_disagree_are_warned_about(bracket, tmp_path):
     assert cli.returncode == 0 and cli.stderr.count("facestats: warning: exposures") == 2, cli.stderr
 
 
+def test_pixels_in_a_gap_of_the_bracket_are_told_apart_from_saturated_ones_and_kept_within_their_bounds(
+    bracket, tmp_path
+):
+    """Two exposures 4,000× apart: pixels dark in the short one and clipped in the long one were counted as
+    "saturated in every exposure" and given the image's largest radiance, hundreds of times their own (a red
+    team). They lie between exp(g(1))/Δt_short and exp(g(255))/Δt_long, get the geometric mean of the two and a
+    warning naming the exposures; the same pixels merged from the full bracket lie within those bounds."""
+    from facestats.acquire.bracket import merge_bracket
+
+    files, camera = bracket
+    calibrate_response(files).save(tmp_path / "g.json")
+    g = read_response(tmp_path / "g.json")
+    full = merge_bracket(files, tmp_path / "g.json").radiance
+    rng = np.random.default_rng(5)
+    short, long = 1 / 4000, 1.0
+    pair = []
+    for k, t in enumerate((short, long)):
+        pair.append(tmp_path / f"far{k}.png")
+        pair[-1].write_bytes(encode_frame(camera.encode(_scene() * t, rng), t))
+    merged = merge_bracket(pair, tmp_path / "g.json")
+    images, _, _ = read_bracket(pair)
+    gap = (images[0] == 0) & (images[1] == 255)
+    clipped = images[0] == 255
+    assert gap.any(-1).sum() == merged.gap_pixels > 100 and merged.saturated_pixels == clipped.any(-1).sum()
+    low, high = (np.broadcast_to(b, gap.shape) for b in (np.exp(g[255]) / long, np.exp(g[1]) / short))
+    np.testing.assert_allclose(merged.radiance[gap], np.sqrt(low * high)[gap], rtol=1e-6)
+    seen = gap & np.isfinite(full)  # what the full bracket measured there lies within the bounds (noise aside)
+    assert seen.sum() > 100 and np.all(full[seen] >= 0.9 * low[seen]) and np.all(full[seen] <= 1.1 * high[seen])
+    said = merged.warnings()[0]
+    assert f"{merged.gap_pixels} pixel(s) dark in the shorter exposures" in said
+    assert "most dark at 1/4000 s and clipped at 1 s" in said and "add exposures between these" in said
+
+
 def test_a_bracket_is_merged_with_a_saved_response_and_saturation_is_filled(bracket, tmp_path):
     """There was no command to merge a bracket, and the merge's NaN (saturated in every exposure) could not be
     written (a user's run on a real bracket)."""
@@ -147,7 +180,9 @@ def test_a_bracket_is_merged_with_a_saved_response_and_saturation_is_filled(brac
     got = read_image(tmp_path / "m.exr")
     np.testing.assert_array_equal(got[~lost], want[~lost])  # float32 EXR: the same values
     top = np.where(lost, -np.inf, want).reshape(-1, 3).max(0)
-    np.testing.assert_array_equal(got[lost], np.broadcast_to(top, want.shape)[lost])  # clip: the channel's largest
+    bound = np.exp(read_response(tmp_path / "g.json")[255]) / min(TIMES)  # what code 255 at the shortest proves
+    np.testing.assert_allclose(got[lost], np.broadcast_to(bound, want.shape)[lost], rtol=1e-6)  # clip: that bound,
+    assert np.all(bound >= top)  # which is at least every measured radiance of its channel
     zero = merge_bracket(files, tmp_path / "g.json", saturated="zero")
     assert zero.saturated_pixels == lost.any(-1).sum() > 0 and zero.warnings() == []
     assert np.all(zero.radiance[lost] == 0) and np.isfinite(zero.radiance).all()

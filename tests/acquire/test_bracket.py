@@ -208,7 +208,7 @@ def test_times_that_do_not_match_the_frames_give_a_falling_response_which_is_ref
     130 of 254 steps, the exposures disagreed by 554 %, and the file was written (a red team); now refused, and a
     dome calibration holding a falling g is refused when loaded."""
     files = [UNIS / "UNIS_EV0.jpg", UNIS / "UNIS_EV-2.jpg", UNIS / "UNIS_EV2.jpg"]
-    with pytest.raises(FacestatsError, match=r"must rise with the code .* falls at \d+ of 254 steps .*\(their order"):
+    with pytest.raises(FacestatsError, match=r"must rise with the code .* falls at \d+ of \d+ steps .*\(their order"):
         calibrate_response(files, exposure_times=[0.0008, 0.003125, 0.025])
     good = calibrate_response(files)  # the EXIF times: the same frames give a rising g
     falling = good.log_response.copy()

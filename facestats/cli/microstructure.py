@@ -109,7 +109,9 @@ def add_microstructure(sub):
     )
     r.add_argument("--table", default="forehead", help="kernel table (default: forehead, Nagano eq. 8-9)")
     r.add_argument("--scale", type=ascii_float, default=1.0, help="mesh units to mm (e.g. 10 for cm)")
-    r.add_argument("--tile", type=ascii_int, default=512, help="tile side in texels (memory bound)")
+    r.add_argument("--tile", type=ascii_int, default=512,
+                   help="tile side in texels (default 512); each tile carries a halo of up to several hundred "
+                   "texels, so smaller tiles cost more time and memory, not less")  # fmt: skip
     r.add_argument("--overwrite", action="store_true", help="replace an output holding another render")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=_cmd_render)

@@ -436,6 +436,10 @@ class BlendshapeSequence:
                     f"target {n!r}: topology differs from the neutral: shape {t.shape}, "
                     f"expected {neutral.vertices.shape}"
                 )
+            bad = ~np.isfinite(t).all(axis=1)
+            if bad.any():
+                k = int(np.argmax(bad))
+                raise ValidationError(f"target {n!r} must hold finite vertices, got {t[k].tolist()} at vertex {k}")
         self.deltas = np.stack([np.asarray(targets[n], np.float64) - neutral.vertices for n in self.names])
         w = as_finite(weights, "weights", -MAX_WEIGHT, MAX_WEIGHT, dtype=np.float64)
         if w.ndim == 1 and len(self.names) == 1:

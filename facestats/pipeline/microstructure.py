@@ -333,14 +333,15 @@ def _check_exr_dir(exr_dir, n):
 
 
 def _open_group(out, config, n, window, tile, overwrite):
-    """The render's zarr group: reopened if it holds the same render, else created (atomically, by a rename)."""
+    """``(group, created)``: the render's zarr group, reopened if it holds the same render (``created`` False), else
+    created (atomically, by a rename)."""
     import shutil
 
     import zarr
 
     path = os.fspath(out)
     if _reuse(path, config, overwrite):
-        return zarr.open_group(path, mode="r+")
+        return zarr.open_group(path, mode="r+"), False
     parent, base = os.path.split(os.path.abspath(path))
     os.makedirs(parent, exist_ok=True)
     tmp = os.path.join(parent, f".{base}.creating")
@@ -372,7 +373,7 @@ def _open_group(out, config, n, window, tile, overwrite):
     elif os.path.lexists(path):  # a render of other inputs, replaced (overwrite)
         shutil.rmtree(path)
     os.replace(tmp, path)
-    return zarr.open_group(path, mode="r+")
+    return zarr.open_group(path, mode="r+"), True
 
 
 def _tiles(window, tile):
@@ -555,17 +556,31 @@ def render_sequence(
     names = sequence.frame_names()
     exr = _check_exr_dir(exr_dir, n)
     config = _config(sequence, neutral, map_shape, window, table, names)
-    group = _open_group(out, config, n, window, tile, overwrite)
+    group, created = _open_group(out, config, n, window, tile, overwrite)
+    report = SequenceReport(os.fspath(out), n, map_shape=map_shape, window=window)
+    try:
+        _render_frames(sequence, ms, neutral, map_shape, window, table, tile, backend, group, exr, names, config,
+                       progress, report)  # fmt: skip
+    except FacestatsError:  # bad input found while rendering (a mesh, a frame): a new render leaves nothing behind
+        if created:
+            import shutil
+
+            shutil.rmtree(os.fspath(out), ignore_errors=True)
+        raise
+    return report
+
+
+def _render_frames(sequence, ms, neutral, map_shape, window, table, tile, backend, group, exr, names, config,
+                   progress, report):  # fmt: skip
+    """The frames of :func:`render_sequence` not yet done, into ``group`` (and ``exr``), counted in ``report``."""
     render_id = hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()
     density = _TexelDensity(ms, map_shape)
     halos = {  # per tile, the same for every frame (the rest mesh decides them)
         (tr, tc): density.halo((window[0] + tr, window[1] + tc, th, tw)) for tr, tc, th, tw in _tiles(window, tile)
     }
-    report = SequenceReport(os.fspath(out), n, map_shape=map_shape, window=window)
     done = np.asarray(group["done"][:])
     start = time.perf_counter()
-    frames = range(n)
-    frames = progress_bar(frames, desc="microstructure", unit="frame", enabled=progress)
+    frames = progress_bar(range(len(sequence)), desc="microstructure", unit="frame", enabled=progress)
     for i in frames:  # loop over frames
         if done[i]:
             report.skipped.append(i)
@@ -577,7 +592,6 @@ def render_sequence(
             _write_exr(group, i, exr, names[i], render_id)
         group["done"][i] = True
     report.seconds = time.perf_counter() - start
-    return report
 
 
 def open_sequence(neutral, *, frames=None, targets=None, weights=None, scale=1.0):
@@ -607,6 +621,8 @@ def open_sequence(neutral, *, frames=None, targets=None, weights=None, scale=1.0
         raise ValidationError("targets go with weights (blendshapes), not with frames; got both frames and targets")
     if os.path.isdir(os.fspath(neutral)):
         names_w, w = read_weights(weights) if weights is not None else (None, None)
+        if targets is not None and names_w is not None:
+            _check_targets_weighted([str(t) for t in targets], names_w, weights)
         mesh, shapes = read_ict_facekit(neutral, names_w if targets is None else list(targets))
         if frames is not None:
             return FrameSequence(mesh, frames, scale=scale)
@@ -620,10 +636,21 @@ def open_sequence(neutral, *, frames=None, targets=None, weights=None, scale=1.0
             f"neutral), got weights {os.fspath(weights)!r} and no targets"
         )
     names_w, w = read_weights(weights)
+    _check_targets_weighted([os.path.splitext(os.path.basename(os.fspath(t)))[0] for t in targets], names_w, weights)
     shapes = {
         os.path.splitext(os.path.basename(os.fspath(t)))[0]: read_vertices(t, mesh, scale=scale) for t in targets or []
     }
     return BlendshapeSequence(mesh, shapes, w, names=names_w)
+
+
+def _check_targets_weighted(names, columns, weights) -> None:
+    """Refuse targets that no column of the weights CSV names: they would be read and then ignored."""
+    unweighted = [n for n in names if n not in columns]
+    if unweighted:
+        raise ValidationError(
+            f"targets {unweighted} are not columns of the weights {os.fspath(weights)!r} (its columns: "
+            f"{list(columns)}): a target without weights would be ignored; add its column or leave it out"
+        )
 
 
 def render_files(neutral, neutral_map, out, *, frames=None, targets=None, weights=None, scale=1.0,

@@ -143,6 +143,21 @@ def test_quads_are_split_and_a_window_is_a_crop_of_the_map():
         assert np.allclose(getattr(win, name), getattr(full, name)[crop], rtol=0, atol=1e-12), name
 
 
+def test_overlapping_uv_charts_are_refused_and_shared_edges_are_not():
+    """A whole ICT-FaceKit head (its eyes and mouth share the face's UV square) gave 96 % of the face texels the
+    eyes' strain, silently (a red team): overlapping UVs are now refused; a clean mesh's shared edges pass. Here
+    a second sheet 10 mm above the first, on the same UVs, overlaps it everywhere; the map must be fine enough
+    that the shared edges of one sheet stay under the limit."""
+    v, t, uv = _plane(12)
+    window = (0, 0, 256, 256)
+    MeshStrain(v, t, uv).raster((256, 256), window)  # one sheet: its shared edges are within the limit
+    two = MeshStrain(np.vstack([v, v + [0, 0, 10.0]]), np.vstack([t, t + len(v)]), np.vstack([uv, uv]))
+    with pytest.raises(FacestatsError, match=r"UV triangles overlap: .* inside 2\.00 triangles each .*\(1\.01 allowed"):
+        two.raster((256, 256), window)
+    with pytest.raises(FacestatsError, match="UV triangles overlap"):
+        two.texels_strain(np.vstack([v, v + [0, 0, 10.0]]), (256, 256))
+
+
 def test_bad_meshes_raise_naming_the_field():
     v, tri, uv = _plane(4)
     with pytest.raises(FacestatsError, match="deformed_vertices must have the rest mesh's 16 vertices"):

@@ -307,6 +307,50 @@ def test_a_generated_map_of_another_texel_size_than_the_mesh_is_refused(tmp_path
     assert report.rendered == [0]
 
 
+def test_a_render_that_fails_on_its_mesh_leaves_nothing_and_the_corrected_rerun_runs(tmp_path):
+    """A render that failed after its checks (a mesh whose UVs overlap, a sliver, a NaN target) left its new group
+    behind, and the corrected rerun was refused as "a render of other inputs" (a red team). Here a mesh of two
+    sheets on the same UVs: refused by name, nothing written, and the one-sheet mesh then renders to the same path."""
+    from facestats.pipeline.microstructure import generate_neutral_map, render_files
+
+    generate_neutral_map(tmp_path / "n.exr", 64, texel_um=15.0, seed=1)
+    one = _grid_obj(tmp_path / "one.obj", 64 * 0.015).read_text().splitlines()
+    verts = [ln for ln in one if ln.startswith("v ")]
+    faces = [ln for ln in one if ln.startswith("f ")]
+    lifted = [" ".join(ln.split()[:3] + ["1.0"]) for ln in verts]  # the second sheet, 1 mm up
+    shifted = ["f " + " ".join(f"{int(a) + len(verts)}/{b}" for a, b in (c.split("/") for c in ln.split()[1:]))
+               for ln in faces]  # fmt: skip
+    two = [ln for ln in one if not ln.startswith("f ")] + lifted + faces + shifted
+    (tmp_path / "two.obj").write_text("\n".join(two) + "\n")
+    with pytest.raises(ValidationError, match="UV triangles overlap"):
+        render_files(tmp_path / "two.obj", tmp_path / "n.exr", tmp_path / "r.zarr", frames=[tmp_path / "two.obj"],
+                     progress=False)  # fmt: skip
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["n.exr", "one.obj", "two.obj"]
+    report = render_files(tmp_path / "one.obj", tmp_path / "n.exr", tmp_path / "r.zarr", frames=[tmp_path / "one.obj"],
+                          progress=False)  # fmt: skip
+    assert report.rendered == [0]
+
+
+def test_targets_that_no_weight_column_names_are_refused(tmp_path):
+    """``--targets jawOpen`` with a weights CSV of the smile's columns rendered the smile alone, silently (a red
+    team): a target must be a column of the weights, for an ICT-FaceKit folder and for target files alike."""
+    from facestats.pipeline.microstructure import open_sequence
+
+    (tmp_path / "w.csv").write_text("frame,mouthSmile_L\n0,0.5\n")
+    with pytest.raises(ValidationError, match=r"targets \['jawOpen'\] are not columns of the weights .*mouthSmile_L"):
+        open_sequence(DATA, targets=["mouthSmile_L", "jawOpen"], weights=tmp_path / "w.csv")
+    _grid_obj(tmp_path / "n.obj", 10.0)
+    _grid_obj(tmp_path / "jawOpen.obj", 10.0)
+    with pytest.raises(ValidationError, match=r"targets \['jawOpen'\] are not columns"):
+        open_sequence(tmp_path / "n.obj", targets=[tmp_path / "jawOpen.obj"], weights=tmp_path / "w.csv")
+    assert len(open_sequence(DATA, targets=["mouthSmile_L"], weights=tmp_path / "w.csv")) == 1
+    neutral, targets = read_ict_facekit(DATA, ["mouthSmile_L"])  # a NaN in a target, named (it was found later,
+    targets["mouthSmile_L"] = targets["mouthSmile_L"].copy()  # as deformed_vertices, after the render had begun)
+    targets["mouthSmile_L"][17, 1] = np.nan
+    with pytest.raises(ValidationError, match=r"target .mouthSmile_L. must hold finite vertices, .*nan.* vertex 17"):
+        BlendshapeSequence(neutral, targets, np.ones((1, 1)))
+
+
 def _read(path):
     from facestats.io.mesh_sequence import read_mesh
 

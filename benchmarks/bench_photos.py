@@ -269,8 +269,37 @@ def bench_ingest(grid=48, side=1024, leds=None, workers=2, min_footprint_px=2.0)
     return figures
 
 
+def bench_agreement_memory(side=4096):
+    """Peak memory of the agreement diagnostic and the merge of a ``side``² three-exposure 8-bit bracket.
+
+    The baseline is the codes themselves: before 2026-12-06 :func:`exposure_agreement` made int64 copies of whole
+    frames, masks and gathers, 37 bytes a sample (a red team: 2.7 GB beside a 24-megapixel bracket); it now reads
+    at most ``AGREEMENT_SAMPLES`` samples on a grid of pixels.
+    """
+    import tracemalloc
+
+    from facestats.acquire.hdr import merge_photographs
+    from facestats.acquire.response import exposure_agreement
+
+    cam, _, imgs = _stack(side)
+    g = cam.log_exposure() - cam.log_exposure()[128]
+    codes = sum(a.nbytes for a in imgs)
+    out = {"megapixels": side * side / 1e6, "codes_mb": codes / 1e6}
+    for name, fn in (("agreement", lambda: exposure_agreement(imgs, TIMES, g)),
+                     ("merge", lambda: merge_photographs(imgs, TIMES, g))):  # fmt: skip
+        tracemalloc.start()
+        t0 = time.perf_counter()
+        fn()
+        out[f"{name}_s"] = time.perf_counter() - t0
+        out[f"{name}_peak_mb"] = tracemalloc.get_traced_memory()[1] / 1e6
+        tracemalloc.stop()
+        out[f"{name}_bytes_per_sample"] = out[f"{name}_peak_mb"] * 1e6 / imgs[0].size
+    return out
+
+
 BENCHMARKS = [
     ("merge", bench_merge),
+    ("agreement_memory", bench_agreement_memory),
     ("recover", bench_recover),
     ("real_bracket", bench_real_bracket),
     ("ingest", bench_ingest),
@@ -279,6 +308,7 @@ BENCHMARKS = [
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
 SMOKE = {
     "merge": {"side": 64, "repeat": 1},
+    "agreement_memory": {"side": 64},
     "recover": {"side": 64, "repeat": 1},
     "real_bracket": {"side": 128, "repeat": 1},
     "ingest": {"grid": 16, "side": 64, "leds": 8, "workers": 1, "min_footprint_px": 0.5},

@@ -117,6 +117,8 @@ __all__ = [
     "ResponseCurve",
     "MAX_KNOTS",
     "WELL_EXPOSED",
+    "AGREEMENT_SAMPLES",
+    "MIN_EXPOSURE_S",
     "MAX_SMOOTHNESS",
     "check_rising",
 ]
@@ -125,6 +127,12 @@ __all__ = [
 MAX_KNOTS = 1024
 #: A code is well exposed (:func:`exposure_agreement`) when its hat weight is at least this fraction of the peak.
 WELL_EXPOSED = 0.25
+#: Shortest exposure time accepted, s: a picosecond, far below any shutter (a subnormal time such as 1e-320 was
+#: accepted and its reciprocal printed as infinity).
+MIN_EXPOSURE_S = 1e-12
+#: Samples (pixel and channel) above which :func:`exposure_agreement` takes its statistics on a regular grid of
+#: pixels: a diagnostic, it took 37 bytes a sample, 2.7 GB beside a 24-megapixel bracket.
+AGREEMENT_SAMPLES = 1 << 22
 #: Largest smoothness λ :func:`recover_response` accepts.  Far below it g is already the straight line the term
 #: tends to (an 8-bit bracket of 512 samples reaches it by λ ≈ 1e4); beyond it the solve loses precision (at λ =
 #: 1e8 the same bracket's exposures disagree 5 times more, at 1e10 g is flat, at 1e200 it overflows).
@@ -245,7 +253,7 @@ def _check_stack(images, exposure_times, bits, name="images"):
     ``order[k]`` is the caller's index of the k-th sorted image (for messages).
     """
     seq = list(images)
-    t = as_finite(exposure_times, "exposure_times", 0, None, low_inclusive=False, unit="s", dtype=np.float64)
+    t = as_finite(exposure_times, "exposure_times", MIN_EXPOSURE_S, None, unit="s", dtype=np.float64)
     if t.ndim != 1 or t.size != len(seq):
         raise ValidationError(f"exposure_times must hold one time per image ({len(seq)}), got shape {t.shape}")
     if np.unique(t).size < 2:
@@ -592,8 +600,10 @@ def merge_photographs(
 
     Parameters
     ----------
-    images : sequence of ndarray of int, each (..., C)
-        Codes of each exposure (e.g. (H, W, 3)); their bit depth is that of ``response``.
+    images : sequence of ndarray of int, each (..., C), or (H, W) with a one-channel ``response``
+        Codes of each exposure (e.g. (H, W, 3), or (N, 3) samples); their bit depth is that of ``response``.
+        With a one-channel response, (H, W) frames are one channel (before 2026-12-06 their width was taken
+        for the channels, and the tables grew with it).
     exposure_times : array_like, shape (P,)
         Seconds, any order, at least two distinct.
     response : ndarray, shape (levels, C) or (levels,)
@@ -625,6 +635,11 @@ def merge_photographs(
     """
     check_choice(weighting, "weighting", ("hat", "hat_time"))
     stack, t, _, _ = _check_stack(images, exposure_times, None)
+    resp = np.asarray(response)
+    one = resp.ndim == 1 or (resp.ndim == 2 and resp.shape[1] == 1)  # a one-channel response
+    grey = stack[0].ndim == 2 and one and stack[0].shape[-1] != 1  # (H, W) frames, not (N, C) samples
+    if grey:
+        stack = [a[..., None] for a in stack]
     channels = stack[0].shape[-1]
     g = _check_response(response, channels)
     levels = g.shape[0]
@@ -648,6 +663,8 @@ def merge_photographs(
     dark = g32 - np.float32(np.log(t[-1]))  # the longest exposure's estimate, where no exposure is usable
     ln_e, den = log_radiance(stack, tables, weights, dark, backend=backend)
     np.exp(ln_e, out=ln_e)
+    if grey:
+        ln_e, den = ln_e[..., 0], den[..., 0]
     return (ln_e, den) if return_weight else ln_e
 
 
@@ -661,7 +678,9 @@ def exposure_agreement(
     (Debevec & Malik 1997 eq. 2).  For each pair of consecutive exposures this
     returns the median and 90th percentile of |exp(difference) − 1| over the
     samples (pixel and channel) whose codes have a hat weight (eq. 4) of at least
-    :data:`WELL_EXPOSED` of its peak in both; NaN for a pair without such samples.
+    :data:`WELL_EXPOSED` of its peak in both; NaN for a pair without such samples.  Frames of more than
+    :data:`AGREEMENT_SAMPLES` samples are read on a regular grid of pixels (every k-th row and column, the
+    smallest k that keeps them within it).
     Noise and compression set a floor (a few per cent for 8-bit JPEGs); a wrong
     curve adds a level-dependent disagreement.
 
@@ -691,6 +710,9 @@ def exposure_agreement(
     levels = g.shape[0]
     g = np.broadcast_to(g, (levels, channels))
     top = max(int(a.max(initial=0)) for a in stack)
+    step = int(np.ceil(np.sqrt(stack[0].size / AGREEMENT_SAMPLES)))
+    if step > 1:  # a regular grid of pixels holds the statistics (every step-th row and column)
+        stack = [a[::step, ::step] for a in stack]
     if top > levels - 1:
         raise ValidationError(f"images must hold codes below {levels} (the response has {levels} levels), got {top}")
     black_level = check_black_level(black_level, levels)
@@ -699,7 +721,7 @@ def exposure_agreement(
     ch = np.arange(channels)
     out = np.full((len(t) - 1, 2), np.nan)
     for j in range(len(t) - 1):  # loop over consecutive pairs (a handful), vectorised over samples
-        za, zb = stack[j].astype(np.int64), stack[j + 1].astype(np.int64)
+        za, zb = stack[j], stack[j + 1]  # codes index the tables as they are (no int64 copies)
         ok = well[za] & well[zb]
         if ok.any():
             c = np.broadcast_to(ch, za.shape)[ok]

@@ -9,7 +9,7 @@ import os
 import pathlib
 import sys
 
-from facestats.cli.options import ascii_float, ascii_int
+from facestats.cli.options import ascii_float, ascii_int, named_options
 from facestats.errors import ValidationError
 
 __all__ = ["add_calibrate"]
@@ -89,14 +89,16 @@ def _cmd_leds(args) -> int:
         [(calibration, f"--calibration {calibration!r}"), (folder.path / MANIFEST, "the target folder's manifest")]
         + [(f, f"the target photograph {str(f)!r}") for f in frames],
     )
-    result = calibrate_leds(
-        folder,
-        dome,
-        grid=args.grid,
-        reference_camera=args.reference_camera,
-        black_level=args.black_level,
-        white_level=args.white_level,
-    )
+    with named_options(grid="--grid", reference_camera="--reference-camera", black_level="--black-level",
+                       white_level="--white-level"):  # fmt: skip
+        result = calibrate_leds(
+            folder,
+            dome,
+            grid=args.grid,
+            reference_camera=args.reference_camera,
+            black_level=args.black_level,
+            white_level=args.white_level,
+        )
     print(result.to_text())
     _warn_leds(result, args)
     applied = result.apply(dome) if args.write_calibration else None  # any error before any file is written
@@ -171,7 +173,8 @@ def _cmd_response(args) -> int:
 
         dome = Dome.load(args.calibration)  # read before the fit: a bad calibration must not cost one
         _check_apply(dome, args)
-    with _level_options(args):  # the levels' bounds known only from the files: name the options
+    options = named_options(exposure_times="--times", bits="--bits", smoothness="--smoothness", samples="--samples")
+    with options, _level_options(args):  # the levels' bounds known only from the files: name the options
         result = calibrate_response(
             args.images,
             args.times,
@@ -212,7 +215,8 @@ def _cmd_merge(args) -> int:
     existing = _check_outputs([(args.out, "--out", (".exr", ".hdr", ".pfm"))])
     inputs = [(f, f"IMAGE {os.fspath(f)!r}") for f in args.images] + [(args.response, "--response")]
     _refuse_inputs(existing, inputs)
-    merged = merge_bracket(args.images, args.response, args.times, saturated=args.saturated)
+    with named_options(exposure_times="--times"):
+        merged = merge_bracket(args.images, args.response, args.times, saturated=args.saturated)
     radiance, saturated = merged.radiance, merged.saturated_pixels
     attrs = {"units": "exp(g)/s (the response's)", "response": os.fspath(args.response),
              "frames": json.dumps([os.fspath(f) for f in args.images]), "saturated_fill": args.saturated,

@@ -157,8 +157,10 @@ def test_fewer_than_two_distinct_exposures_is_an_error(times, bracket8):
 
 def test_bad_arguments_name_the_argument(bracket8):
     _, _, imgs = bracket8
-    with pytest.raises(FacestatsError, match=r"exposure_times must lie in \(0, inf\] s, got -1"):
+    with pytest.raises(FacestatsError, match=r"exposure_times must lie in \[1e-12, inf\] s, got -1"):
         recover_response(imgs[:2], [0.1, -1.0])
+    with pytest.raises(FacestatsError, match=r"exposure_times must lie in \[1e-12, inf\] s, got 1e-320"):
+        recover_response(imgs[:2], [1e-320, 2e-320])  # accepted, and its reciprocal printed as infinity, before
     with pytest.raises(FacestatsError, match="exposure_times must hold one time per image"):
         recover_response(imgs, [0.1, 0.2])
     with pytest.raises(FacestatsError, match="images must be integer code images"):
@@ -551,3 +553,45 @@ def test_a_deep_gamma_camera_with_read_noise_is_accepted_and_its_merge_is_right(
     assert abs(bias[0]) < 0.04 and np.max(np.abs(bias[1:])) < 0.005, bias
     with pytest.raises(FacestatsError, match=r"falls at \d+ of \d+ steps .* the exposure times likely do not match"):
         recover_response(imgs, times[::-1], bits=bits)  # the same frames with their times reversed
+
+
+def test_grey_frames_are_one_channel_in_the_merge_as_in_the_recovery():
+    """recover_response takes (H, W) frames as one channel; merge_photographs took their width for the channels,
+    and its look-up tables grew with it: 1.5 GB for three 16-bit frames 1,000 pixels wide (a red team)."""
+    import tracemalloc
+
+    g = np.log(np.maximum(np.arange(2**16), 0.25))
+    rng = np.random.default_rng(0)
+    imgs = [rng.integers(1, 2**16 - 1, (8, 1000), dtype=np.uint16) for _ in range(3)]
+    merge_photographs(imgs[:2], [1.0, 2.0], g)  # compile and warm up outside the measurement
+    tracemalloc.start()
+    grey = merge_photographs(imgs, [1.0, 2.0, 4.0], g)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert grey.shape == (8, 1000) and peak < 20e6, peak  # two tables of 65,536 codes: 0.8 MB
+    one = merge_photographs([i[..., None] for i in imgs], [1.0, 2.0, 4.0], g[:, None])
+    np.testing.assert_array_equal(grey, one[..., 0])
+
+
+def test_the_agreement_of_large_frames_is_read_on_a_grid_of_pixels(monkeypatch):
+    """exposure_agreement took 37 bytes a sample (int64 copies of whole frames): 2.7 GB beside a 24-megapixel
+    bracket (a red team). Above AGREEMENT_SAMPLES it reads a regular grid of pixels; its statistics agree with
+    the whole frame's."""
+    import tracemalloc
+
+    import facestats.acquire.response as response
+
+    rng = np.random.default_rng(2)
+    rate = np.exp(rng.uniform(np.log(5.0), np.log(500.0), (512, 512, 3)))
+    times = np.array([1 / 1000, 1 / 500, 1 / 250])
+    g = np.log(np.maximum(np.arange(256), 0.5) / 255.0)
+    imgs = [np.clip(np.rint(rate * t * 255 * (1 + 0.02 * rng.standard_normal(rate.shape))), 0, 255).astype(np.uint8)
+            for t in times]  # fmt: skip
+    whole = response.exposure_agreement(imgs, times, g)
+    monkeypatch.setattr(response, "AGREEMENT_SAMPLES", 1 << 16)  # 786,432 samples: every 4th row and column
+    tracemalloc.start()
+    grid = response.exposure_agreement(imgs, times, g)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert np.all(np.isfinite(whole)) and np.abs(grid - whole).max() < 0.002, (whole, grid)
+    assert peak < 3e6, peak  # the whole frames' int64 copies alone would take 12.6 MB

@@ -126,6 +126,13 @@ def test_out_of_range_options_are_refused_before_any_work(bracket, tmp_path):
     assert r.returncode == 2 and "--black-level must be an integer in [0, inf], got -3" in r.stderr, r.stderr
     r = run_cli("calibrate", "response", *bracket, "--samples", "foo")  # the message names every accepted form
     assert r.returncode == 2 and "--samples: must be histogram, stratified or a number of samples" in r.stderr
+    # checks the API makes are named by the options too (they named exposure_times, bits, samples: a red team)
+    for argv, said in ((["--times", "1", "2"], "--times must hold one time per photograph (3), got 2"),
+                       (["--bits", "12"], "--bits must be at most 8 for these 8-bit files, got 12"),
+                       (["--samples", "1"], "--samples must be an integer in [2, "),
+                       (["--times", "1e-320", "2e-320", "4e-320"], "--times must lie in [1e-12, inf] s")):  # fmt: skip
+        r = run_cli("calibrate", "response", *bracket, *argv)
+        assert r.returncode == 2 and said in r.stderr, (argv, r.stderr)
 
 
 def test_12_bit_codes_in_16_bit_files_need_bits_and_a_black_level_is_recorded(tmp_path):

@@ -70,6 +70,7 @@ __all__ = [
     "ITERATIONS",
     "MAX_GRID",
     "MIN_OBSERVATIONS",
+    "NOISY_RESIDUAL",
 ]
 
 LED_FORMAT = "facestats.led-calibration/1"
@@ -84,6 +85,10 @@ MAX_GRID = 100
 #: coefficients of the beam polynomial.  An LED with fewer is not calibrated (NaN; :meth:`LedCalibration.apply`
 #: keeps its previous photometry).
 MIN_OBSERVATIONS = 12
+#: RMS relative residual of one observation above which a fitted LED is named :attr:`LedCalibration.noisy`: a
+#: well-exposed target leaves about 1 %; a target at 1 % of the full scale 7-29 %, with intensities up to 9 % high
+#: (observations near the noise floor read high).
+NOISY_RESIDUAL = 0.10
 
 
 # -- OpenCV camera files ---------------------------------------------------------------------------------------
@@ -209,6 +214,25 @@ class LedCalibration:
         fitted = np.isfinite(self.intensity).all(1)
         with np.errstate(invalid="ignore"):
             return np.nonzero(fitted & ~(self.beam_error <= self.rms_residual))[0]
+
+    @property
+    def noisy(self) -> np.ndarray:
+        """Indices of the fitted LEDs whose ``rms_residual`` exceeds :data:`NOISY_RESIDUAL`."""
+        with np.errstate(invalid="ignore"):
+            return np.nonzero(np.isfinite(self.intensity).all(1) & (self.rms_residual > NOISY_RESIDUAL))[0]
+
+    def noisy_text(self) -> str:
+        """One line naming the :attr:`noisy` LEDs and their residuals, or '' if there is none."""
+        bad = self.noisy
+        if bad.size == 0:
+            return ""
+        r = self.rms_residual[bad]
+        return (
+            f"LED{'s' if bad.size > 1 else ''} {', '.join(map(str, bad))}: RMS residual of one observation "
+            f"{r.min():.0%}-{r.max():.0%} (over {NOISY_RESIDUAL:.0%}; a well-exposed target leaves about 1 %): the "
+            "target is underexposed under these LEDs (observations near the noise floor read high, and so do the "
+            "intensities), or the target moved; lengthen the exposures"
+        )
 
     def uncalibrated_text(self) -> str:
         """One line naming the LEDs without a fit and why, or '' if every LED was fitted."""
@@ -467,7 +491,8 @@ def _observe(folder, dome, pose, cam, pts, geometry, workers, out, black_level=0
         return led, folder.read_stack(cam, led, pose=pose, size=dome.image_size[cam])
 
     for led, (stack, times) in prefetch(read, range(dome.n_leds), workers):  # loop over LEDs; arrays inside
-        val = merge_at(stack, times, g, index, weight, black_level=black_level, white_level=white_level)
+        val = merge_at(stack, times, g, index, weight, black_level=black_level, white_level=white_level,
+                       measured_only=True)  # fmt: skip  # a dark tap's floor is a bound, not an observation
         val /= dome.camera_scale
         ok = np.all(np.isfinite(val) & (val > 0), axis=1)
         out["point"].append(pts[keep[ok]])

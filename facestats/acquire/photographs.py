@@ -575,18 +575,24 @@ def merge_at(
     weighting: str = "hat_time",
     black_level: int = 0,
     white_level: int | None = None,
+    measured_only: bool = False,
 ) -> np.ndarray:
     """HDR radiance (N, 3) of a frame at the taps of :func:`bilinear_taps` (NaN if a tap is saturated).
 
     Debevec & Malik 1997 eq. 6 at each of the four pixels
     (:func:`facestats.acquire.response.merge_photographs`, by default with the
     shot-noise weights w(z)·Δt, zero at and below ``black_level`` and at and above ``white_level``, both in DN:
-    Z_min and Z_max of eq. 4; ``white_level`` None is the top code), then bilinear interpolation.
+    Z_min and Z_max of eq. 4; ``white_level`` None is the top code), then bilinear interpolation.  A tap dark in
+    every exposure takes the longest exposure's floor, an upper bound of its radiance; ``measured_only`` makes it
+    NaN too (for a fit, where such bounds taken as data bias the result upwards).
     """
     taps = _gather(stack, index)
-    e = merge_photographs(
-        taps, times, response, weighting=weighting, black_level=black_level, white_level=white_level
-    )  # (N, 4, 3)
+    e, den = merge_photographs(
+        taps, times, response, weighting=weighting, return_weight=True, black_level=black_level,
+        white_level=white_level,
+    )  # fmt: skip  # (N, 4, 3)
+    if measured_only:
+        e[den == 0] = np.nan
     return np.einsum("nk,nkc->nc", weight, e)
 
 

@@ -124,6 +124,8 @@ def _warn_leds(result, args) -> None:
         print(f"facestats: warning: {text}" + (f"; {', '.join(held)}" if held else ""), file=sys.stderr)
     for line in result.poorly_determined_text():
         print(f"facestats: warning: {line}", file=sys.stderr)
+    if result.noisy_text():
+        print(f"facestats: warning: {result.noisy_text()}", file=sys.stderr)
 
 
 @contextlib.contextmanager

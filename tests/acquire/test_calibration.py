@@ -167,11 +167,35 @@ def test_led_calibration_recovers_the_simulated_leds_within_one_percent(target, 
     text = res.to_text()
     assert text.count("\n") >= 9 and "rms res" in text and "camera gains relative to camera" in text
     # every beam determined over the target (its standard error below one observation's residual) ...
-    assert res.poorly_determined.size == 0 and res.uncalibrated.size == 0
+    assert res.poorly_determined.size == 0 and res.uncalibrated.size == 0 and res.noisy_text() == ""
     assert np.all(res.beam_error < res.rms_residual / 4)  # measured at most 0.15 of it
     # ... and standard errors that describe the errors: |fit - truth| / stderr of c1..c5 like a normal deviate
     z = np.abs(res.beam - truth.led_beam)[:, 1:] / res.beam_stderr[:, 1:]
     assert 0.4 < np.median(z) < 1.2 and z.max() < 5  # measured median 0.76, max 3.8
+
+
+def test_an_underexposed_target_is_named_and_its_dark_taps_are_not_taken_for_data(tmp_path):
+    """A target photographed at 0.3 % of the full scale gave intensities up to 129 % high without a word (a red
+    team): all-dark taps entered the fit at the longest exposure's floor, an upper bound. They are left out now
+    (``merge_at(measured_only=True)``), and LEDs whose residual says the target is underexposed are named."""
+    from facestats.acquire.photographs import merge_at
+
+    camera = ResponseCurve(12, 20000.0, 5.0)
+    g = np.repeat(camera.log_exposure()[:, None], 3, axis=1)
+    stack = np.zeros((2, 4, 4, 3), np.uint16)  # two exposures of a 4 x 4 frame: one pixel dark in both
+    stack[:, 1:, :] = 1500
+    index, weight = np.array([[0, 1, 4, 5], [10, 11, 14, 15]]), np.full((2, 4), 0.25)
+    floor = merge_at(stack, np.array([0.01, 0.04]), g, index, weight)
+    measured = merge_at(stack, np.array([0.01, 0.04]), g, index, weight, measured_only=True)
+    assert np.isfinite(floor).all() and np.isnan(measured[0]).all() and np.array_equal(measured[1], floor[1])
+    leds = [0, 20, 41, 60]
+    dome = default_dome().select(leds=leds).resized(64, 64)
+    dome = replace(dome, camera_log_response=g[None].repeat(16, 0), camera_scale=dome.camera_scale * 0.003)
+    write_target_photographs(tmp_path, dome, [_pose((0, 0, 1)), _pose((3.7, 0, 1))], cameras=[3, 4], camera=camera)
+    unknown = replace(dome, led_intensity=np.ones((4, 3)), led_beam=np.tile([1.0, 0, 0, 0, 0, 0], (4, 1)))
+    res = calibrate_leds(tmp_path, unknown)
+    assert res.noisy.size > 0 and "the target is underexposed under these LEDs" in res.noisy_text()
+    assert np.all(res.rms_residual[res.noisy] > 0.10)
 
 
 def test_led_calibration_rejects_a_face_folder_and_a_mismatched_rig(target):

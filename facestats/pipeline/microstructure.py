@@ -393,7 +393,18 @@ def _render_frame(ms, vertices, neutral, map_shape, window, table, tile, halos, 
         # The expanded tile, clipped to the window (the neutral map covers only the window).
         er0, ec0, er1, ec1 = max(er0, r0), max(ec0, c0), min(er1, r0 + h), min(ec1, c0 + w)
         strain = ms.texels_strain(vertices, map_shape, (er0, ec0, er1 - er0, ec1 - ec0))
-        res = deform_microstructure(neutral[er0 - r0 : er1 - r0, ec0 - c0 : ec1 - c0], strain, table, backend=backend)
+        try:
+            res = deform_microstructure(neutral[er0 - r0 : er1 - r0, ec0 - c0 : ec1 - c0], strain, table,
+                                        backend=backend)  # fmt: skip
+        except ValidationError as exc:
+            if not str(exc).startswith("texel_um "):
+                raise
+            raise ValidationError(
+                f"frame {index}: the mesh maps texels of the map rows {er0}-{er1 - 1}, columns {ec0}-{ec1 - 1} to "
+                f"far less surface than a texel of the kernels needs ({exc}): a mesh in another unit than mm (pass "
+                "--scale, e.g. 1000 for m), or a sliver triangle (near-zero area) there in the neutral mesh, whose "
+                "UV-to-surface scale spreads to its neighbours' texels"
+            ) from None
         ir, ic = r0 + tr - er0, c0 + tc - ec0
         sl = (slice(ir, ir + th), slice(ic, ic + tw))
         group["displacement"][index, tr : tr + th, tc : tc + tw] = res.displacement[sl]

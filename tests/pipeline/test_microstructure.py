@@ -351,6 +351,21 @@ def test_targets_that_no_weight_column_names_are_refused(tmp_path):
         BlendshapeSequence(neutral, targets, np.ones((1, 1)))
 
 
+def test_a_mesh_in_metres_is_named_as_such_when_its_texels_are_too_small_for_the_kernels(tmp_path):
+    """A mesh in metres read as mm (or a sliver triangle) ended in "texel_um must be at least 0.028 um", a parameter
+    the user never set (a red team); the message now says where and what to check."""
+    from facestats.pipeline.microstructure import open_sequence
+
+    _grid_obj(tmp_path / "m.obj", 64 * 0.003 / 1000)  # 0.19 mm written in metres: 0.003 um texels as mm
+    _grid_obj(tmp_path / "s.obj", 64 * 0.003 / 1000, xy=lambda u, v: (1.2 * u, v))  # stretched by 1.2 along u
+    seq = open_sequence(tmp_path / "m.obj", frames=[tmp_path / "s.obj"])
+    neutral = procedural_microstructure((64, 64), 15.0, seed=4)
+    with pytest.raises(ValidationError, match=r"frame 0: the mesh maps texels of the map rows 0-63, columns 0-63 to "
+                       r"far less surface .*texel_um must be at least .*pass --scale, e.g. 1000 for m"):  # fmt: skip
+        render_sequence(seq, neutral, tmp_path / "r.zarr", map_shape=(64, 64), progress=False)
+    assert not (tmp_path / "r.zarr").exists()
+
+
 def _read(path):
     from facestats.io.mesh_sequence import read_mesh
 

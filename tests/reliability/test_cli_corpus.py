@@ -190,7 +190,7 @@ CASES += (
         "calibrate response",
         "--times",
         [("nan", "1", "2"), ("-1", "1", "2"), ("0", "1", "2")],
-        ["exposure_times"],
+        ["--times must"],  # the option, not the API's exposure_times
         base=("--",) + _UNIS,
     )
     + _case("calibrate response", "--times", ["abc", "١"], ["times"], base=("--",) + _UNIS)

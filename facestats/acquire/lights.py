@@ -290,6 +290,11 @@ def patch_irradiance(patches, lights, *, eta=SUZUKI_ETA, shadows=True, resolutio
         Self-shadowing by the patches' mesh (shadow maps).
     resolution : int
         Shadow-map side in pixels.
+
+    Returns
+    -------
+    ndarray, shape (m, 3)
+        c_k per patch and channel.
     """
     if not lights:
         raise ValidationError("lights must hold at least one light, got none")

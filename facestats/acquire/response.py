@@ -216,6 +216,11 @@ def hat_weights(levels: int, black_level: int = 0, white_level: int | None = Non
         Z_min in DN (the sensor's pedestal; 0: none).
     white_level : int, optional
         Z_max in DN, the code at which the sensor clips; default None, the top code levels − 1.
+
+    Returns
+    -------
+    ndarray of float64, shape (levels,)
+        w(z) per code.
     """
     z = np.arange(levels, dtype=np.float64)
     low = float(black_level)
@@ -309,6 +314,11 @@ def stratified_samples(reference, n: int, levels: int, seed: int = 0) -> np.ndar
         Number of codes (2^bits).
     seed : int
         Seed of the random tie-breaking order.
+
+    Returns
+    -------
+    ndarray of int, shape (n,)
+        Flat pixel indices, sorted.
     """
     ref = np.asarray(reference)
     flat = ref.reshape(-1).astype(np.int64)

@@ -345,6 +345,11 @@ class RegionPCA:
         ----------
         k : float
             Half-axes of the drawn ellipses in standard deviations (recorded as ``k``).
+
+        Returns
+        -------
+        dict
+            JSON-ready (numbers, lists and strings only).
         """
         regions = [
             {

@@ -110,6 +110,11 @@ def plot_region_pca(result, k=1.0, ax=None, annotate=True):
     ax : matplotlib Axes, optional
     annotate : bool
         Write the region number at each centre.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure.
     """
     from matplotlib.patches import Ellipse
 
@@ -192,6 +197,11 @@ def plot_cca(result, dims=(0, 1), ax=None, skin_type=None, gender=None, age=None
     ax : matplotlib Axes, optional
     skin_type, gender, age : array_like, optional
         Encodings per row of the projections.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure.
     """
     fig, ax = _axes(ax, (6.5, 5))
     st, g, a = _encoding_columns(result, skin_type, gender, age)
@@ -320,6 +330,11 @@ def plot_sigma_posterior(post, labels=None, parameters=("sigma_s_prime", "sigma_
     truth : dict, optional
         ``{label: {parameter: value}}`` drawn as black lines (simulations).
     bins : int
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure.
     """
     labels = list(post.labels if labels is None else labels)
     p = len(parameters)

@@ -107,6 +107,11 @@ def check_output_file(path, name: str = "out", suffixes=None, *, overwrite: bool
     overwrite : bool
         Whether an existing file may be replaced (False: refused, pointing at ``--overwrite``).
 
+    Returns
+    -------
+    pathlib.Path
+        ``path``, checked.
+
     Raises
     ------
     ValidationError

@@ -49,6 +49,11 @@ def process_gone(pid, host: str | None = None) -> bool:
     host : str, optional
         The host name that was recorded with it (``socket.gethostname()``); another host's process
         cannot be checked and counts as alive.
+
+    Returns
+    -------
+    bool
+        True only when the process is known to have ended (False when unsure).
     """
     if host is not None and host != socket.gethostname():
         return False

@@ -41,6 +41,11 @@ def nearest_depth(x, y, z, faces, resolution, depth):
         Buffer side in pixels.
     depth : ndarray of float64, shape (resolution², )
         Lowered in place and returned.
+
+    Returns
+    -------
+    ndarray
+        ``depth``, lowered in place.
     """
     for t in range(faces.shape[0]):
         i, j, k = faces[t, 0], faces[t, 1], faces[t, 2]

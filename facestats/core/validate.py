@@ -334,6 +334,11 @@ def json_numbers(value, name: str, size: int | None = None) -> np.ndarray:
     size : int, optional
         The number of values it must hold (a list of that length).
 
+    Returns
+    -------
+    ndarray of float64
+        The value, checked.
+
     Raises
     ------
     FormatError

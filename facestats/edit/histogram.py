@@ -215,6 +215,11 @@ class Histogram:
             Probabilities in [0, 1].
         side : {"left", "right"}
             Which limit at a jump.
+
+        Returns
+        -------
+        ndarray
+            Q(u), the shape of ``u``.
         """
         if side not in ("left", "right"):
             raise ValidationError(f"side must be 'left' or 'right', got {side!r}")

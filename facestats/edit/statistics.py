@@ -276,6 +276,11 @@ class TextureStatistics:
             Colour basis; default the PCA of the analysed pixels.
         workers : int
             FFT threads.
+
+        Returns
+        -------
+        TextureStatistics
+            The statistics.
         """
         img = check_finite(as_float(albedo, "albedo"), "albedo")
         check_shape(img, "albedo", (None, None, 3))

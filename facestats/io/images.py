@@ -751,6 +751,11 @@ def read_npy(path, what: str = "array") -> np.ndarray:
     what : str
         The array's name in messages (e.g. ``"region image"``).
 
+    Returns
+    -------
+    ndarray
+        The array.
+
     Raises
     ------
     FormatError

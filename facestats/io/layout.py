@@ -386,6 +386,11 @@ def confined(root, path, *, through_links: bool = False) -> str:
         Allow links among the folders between the root and the path, as long as
         they resolve inside the store (reads only: they never change anything).
 
+    Returns
+    -------
+    str
+        ``path``, checked.
+
     Raises
     ------
     StoreError

@@ -218,6 +218,11 @@ def survey(root, index: dict, *, live_strays: bool = False) -> Survey:
     live_strays : bool
         Also look for items Zarr did not write inside the generations the index names
         (:attr:`Survey.strays`; ``facestats validate`` does, garbage collection needs not).
+
+    Returns
+    -------
+    Survey
+        The store's entries, sorted out.
     """
     s = Survey()
     for name in sorted_names(root):
@@ -656,6 +661,11 @@ def directory_notes(root, label: str, index) -> tuple[list[str], list[str]]:
         The store's name in messages.
     index : dict or None
         The index document (None if it cannot be read: no survey then).
+
+    Returns
+    -------
+    problems, notes : list of str
+        What makes the store invalid, and what is only worth knowing.
     """
     problems, notes = [], []
     if not os.path.lexists(os.path.join(root, SUBJECTS)):

@@ -149,6 +149,11 @@ def write_record(root, sid: str, gen: str, state: str, **fields) -> dict:
     state : {"writing", "committed", "retired"}
     **fields
         Further entries (``created``, ``committed_revision``, ``retired_revision``).
+
+    Returns
+    -------
+    dict
+        The record written.
     """
     if state not in STATES or not is_generation(gen):
         raise ValueError(f"bad record state {state!r} or generation {gen!r}")  # a bug, not bad input

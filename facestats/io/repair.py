@@ -226,6 +226,11 @@ def plan_repair(
     progress : bool
         Show a progress bar while the subjects are checked.
 
+    Returns
+    -------
+    RepairPlan
+        What a repair would do.
+
     Raises
     ------
     StoreError

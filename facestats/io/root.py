@@ -215,6 +215,11 @@ def read_root_attrs(backend, label: str) -> dict:
     label : str
         The store's name in messages.
 
+    Returns
+    -------
+    dict
+        The root group's attributes.
+
     Raises
     ------
     StoreError

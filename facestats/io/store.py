@@ -106,6 +106,11 @@ def open_store(path=None, mode: str = "r", *, lock_timeout: float = 60.0) -> "St
     lock_timeout : float
         Seconds a writer waits for the store lock before :class:`StoreError`, in [0, 86400].
 
+    Returns
+    -------
+    Store
+        The store (close it, or use it as a context manager).
+
     Raises
     ------
     ValidationError
@@ -603,6 +608,11 @@ class Store:
             unmounted or half-present and repair refuses).
         progress : bool
             Show a progress bar while the subjects are checked.
+
+        Returns
+        -------
+        facestats.io.repair.RepairPlan
+            What :meth:`repair` would do.
 
         Raises
         ------

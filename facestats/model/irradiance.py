@@ -157,6 +157,11 @@ def environment_irradiance(normals, directions, radiance_solid_angle, *, visible
     visible : array_like of bool, shape (m, D), optional
         Whether each patch sees each direction unoccluded.
     eta : float
+
+    Returns
+    -------
+    ndarray, shape (m, 3)
+        c_k per patch and channel.
     """
     n = check_shape(as_finite(normals, "normals"), "normals", (None, 3))
     d = np.atleast_2d(as_finite(directions, "directions"))

@@ -548,6 +548,11 @@ def voronoi_solid_angles(directions, *, grid: int = 256, reach="auto") -> np.nda
     reach : "auto", float or None
         How far a light's cell extends (radians): ``"auto"`` :func:`light_reach`, a number in (0, π], or None
         (unbounded cells: the sum is always 4π, as before 2026-12-06).
+
+    Returns
+    -------
+    ndarray, shape (L,)
+        Solid angles, sr (they sum to 4π when ``reach`` is None).
     """
     from scipy.spatial import SphericalVoronoi
 

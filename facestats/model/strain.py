@@ -528,6 +528,11 @@ class MeshStrain:
             Size of the whole map in texels, ``(height, width)`` (an int for a square map).
         window : (row0, col0, height, width), optional
             Texels to rasterise (default: the whole map), e.g. a tile of a 16K map.
+
+        Returns
+        -------
+        TexelStrain
+            The strain of every texel of the window.
         """
         map_shape, window = _window(map_shape, window)
         t, valid, n_deg = self.triangle_t(deformed_vertices)

@@ -72,6 +72,11 @@ def render_scene(
         A patch's own light: eq. 17's R(0) c_j A_j (default, the paper's discretisation and its Table 3) or over
         the disk of its area, as a continuous surface gives it, and with ``"surface"`` the near neighbours' over
         theirs too (:mod:`facestats.model.fitting.quantised`); the studies' W takes it the same way.
+
+    Returns
+    -------
+    RenderedScene
+        The rendered scene.
     """
 
     check_choice(kernel, "kernel", ("point", "quantised"))

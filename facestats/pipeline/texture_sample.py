@@ -163,6 +163,11 @@ def texture_sample(*, rebuild: bool = False, quiet: bool = False) -> pathlib.Pat
     quiet : bool
         Do not tell stderr that the sample is being built.
 
+    Returns
+    -------
+    pathlib.Path
+        The sample's path.
+
     Raises
     ------
     StoreError

@@ -209,6 +209,11 @@ def ratio_bound(directions, sectors: int = 4, parts: int = 2) -> float:
         The field's light directions.
     sectors, parts : int
         As :func:`compress` takes them (its defaults).
+
+    Returns
+    -------
+    float
+        The compression ratio.
     """
     d = as_finite(directions, "directions", dtype=np.float64).reshape(-1, 3)
     regions = np.unique(light_regions(d, sectors)).size

@@ -88,6 +88,11 @@ class Trigger:
             The frame id the host asked for: a reply naming another (firmware with a stale frame register) would
             file this exposure's pictures under another trigger's id.
 
+        Returns
+        -------
+        Trigger
+            The trigger the payload names.
+
         Raises
         ------
         DeviceError

@@ -26,6 +26,11 @@ def plot_contact_sheet(folder, camera: int = 0, exposure: int = -1, leds=None, *
         Thumbnails per row.
     g : ndarray, shape (levels, 3), optional
         The cameras' response (ln exposure per code); shown linear in exposure when given, else as codes.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The contact sheet.
     """
     import matplotlib.pyplot as plt
 

@@ -78,6 +78,11 @@ def subject_truth(subject_id: str, *, store=None, map_size: int = 16, seed: int 
     seed : int
         Seed of the synthetic population (``store=None`` only).
 
+    Returns
+    -------
+    facestats.acquire.synthetic.population.SubjectTruth
+        The subject's truth on its face.
+
     Notes
     -----
     A store subject's fitted maps become the truth on its face texels; texels

@@ -73,6 +73,11 @@ def named_face(name: str, map_size: int | None = None, *, mesh_grid: int | None 
     mesh_grid : int, optional
         As :func:`face_geometry`.
 
+    Returns
+    -------
+    FaceGeometry
+        The face, as the record's simulation built it.
+
     Raises
     ------
     ValidationError

@@ -483,6 +483,11 @@ def subject_microstructure_parameters(subject, defaults=None) -> dict:
         A map subject of the store (``region`` and ``ts_m`` maps).
     defaults : dict of int to SkinMicrostructure, optional
         The other statistics per region (default ``REGION_DEFAULTS``).
+
+    Returns
+    -------
+    dict
+        Region label → :class:`SkinMicrostructure`.
     """
     if "region" not in subject or "ts_m" not in subject:
         raise ValidationError(

@@ -325,6 +325,11 @@ def write_capture_photographs(
         Threads encoding the frames.
     progress : bool
         Progress bar over cameras.
+
+    Returns
+    -------
+    PhotoCapture
+        The folder's manifest, calibration, mesh and regions, the true dome, the moved frames and the geometry.
     """
     # local import: keeps facestats.io (23 modules) out of this module's import
     from facestats.io.mesh import load_face_mesh, save_face_mesh

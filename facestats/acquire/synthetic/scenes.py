@@ -92,6 +92,11 @@ def face_site_scene(site="cheek", light="stripe", *, spacing=0.3, half_width=9.0
         Half side of the window, mm (≥ 6: the pattern must fit with a margin).
     pixel_fraction : float
         Camera pixel size as a fraction of ``spacing``.
+
+    Returns
+    -------
+    PatchScene
+        The patches, lights and camera of the window.
     """
 
     check_choice(site, "site", tuple(SITE_CENTRES))

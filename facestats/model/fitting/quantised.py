@@ -195,6 +195,11 @@ def uniform_levels(width, max_distance) -> np.ndarray:
         Quantisation width w in mm, > 0.
     max_distance : float
         Largest patch distance to cover, mm, ≥ 0.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The levels d'_i, mm.
     """
     w = as_scalar(width, "width", 0, None, low_inclusive=False, unit="mm")
     dmax = as_scalar(max_distance, "max_distance", 0, None, unit="mm")

@@ -365,6 +365,11 @@ def convolve_pass(src, out, au, av, alpha, sigma_um, texel_um, island, reach, *,
     truncate : float
         Gaussian truncation in standard deviations.
     backend : {"numba", "numpy"}
+
+    Returns
+    -------
+    ndarray
+        ``out``, written.
     """
     if backend == "numpy":
         return _convolve_pass_numpy(src, out, au, av, alpha, sigma_um, texel_um, island, truncate)
@@ -449,6 +454,11 @@ def histogram_tv(g0x, g0y, dgx, dgy, alphas, target, lo, scale, nb, *, backend):
     nb : int
         Bins per axis.
     backend : {"numba", "numpy"}
+
+    Returns
+    -------
+    ndarray
+        The total variation for each α.
     """
     args = (g0x, g0y, dgx, dgy, np.asarray(alphas, np.float64), target, float(lo), float(scale), int(nb))
     if backend == "numpy":

@@ -108,6 +108,11 @@ def kernel_taps(alpha: float, sigma_um: float, texel_um: float) -> np.ndarray:
         fitting range [1, 100] µm is enforced by the map-level functions).
     texel_um : float
         Texel size along the kernel's axis, µm.
+
+    Returns
+    -------
+    ndarray, shape (2R + 1,)
+        The taps, summing to 1.
     """
     a = as_scalar(alpha, "alpha", *ALPHA_RANGE)  # check_alpha of one number
     s = as_scalar(sigma_um, "sigma_um", 0.0, unit="um")

@@ -35,6 +35,11 @@ def plot_kernel_table(table=FOREHEAD, fits=None, *, profiles=None, published=Tru
         Also plot the published Fig. 11 points.
     r_range : (float, float)
         The stretch ratios r plotted (1: neutral).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure.
     """
     r = np.linspace(*r_range, 400)
     fig, axes = _figure(1, 2, (10, 3.8))
@@ -134,6 +139,11 @@ def plot_before_after(neutral, deformed, neutral_normals, *, bins=64, extent=Non
         |n_v| over both maps.
     crop : (slice, slice), optional
         Part of the maps to show (histograms use the whole maps).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure.
     """
 
     crop = crop or (slice(None), slice(None))

@@ -80,6 +80,11 @@ def tangent_normals(displacement, jacobian, dtype=np.float32):
         Texel gradient → tangent slope (module docstring).
     dtype : numpy dtype
         Of the returned normals.
+
+    Returns
+    -------
+    ndarray, shape (H, W, 3)
+        Unit normals (n_u, n_v, n_n), of ``dtype``.
     """
     gx, gy = slopes(displacement, jacobian)
     inv = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy)

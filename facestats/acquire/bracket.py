@@ -34,7 +34,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from facestats.acquire.response import check_white_level, exposure_agreement, merge_photographs, recover_response
+from facestats.acquire.response import (
+    check_rising,
+    check_white_level,
+    exposure_agreement,
+    merge_photographs,
+    recover_response,
+)
 from facestats.core.validate import check_integer
 from facestats.errors import FormatError, ValidationError
 
@@ -367,6 +373,11 @@ def _response_file(path):
     if g.ndim != 2 or g.shape[1] != 3 or levels < 2 or levels & (levels - 1) or not np.all(np.isfinite(g[1:])):
         raise FormatError(f"{p} field 'log_response' must be 3 channels of 2**bits finite values, got shape {g.shape}")
     g[0] = np.where(np.isfinite(g[0]), g[0], -np.inf)  # code 0 (weight 0) may be stored as null
+    bits = d.get("bits")
+    if bits is not None and (isinstance(bits, bool) or not isinstance(bits, int) or 2**bits != levels):
+        raise FormatError(
+            f"{p} field 'bits' is {bits!r}, but its 'log_response' has {levels} levels ({levels.bit_length() - 1} bits)"
+        )
     return g, d
 
 
@@ -519,6 +530,7 @@ def merge_bracket(paths, response, exposure_times=None, *, saturated: str = "cli
     white = doc.get("white_level")
     if white is not None:
         white = check_white_level(white, g.shape[0], black)
+    check_rising(g, black, f"{os.fspath(response)} field 'log_response'")  # a hand-edited file is merged otherwise
     images, times, bits = read_bracket(paths, exposure_times)
     levels = g.shape[0]
     if (bits == 8) != (levels == 256):  # 8-bit codes read with a deeper response pass every code check

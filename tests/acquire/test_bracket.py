@@ -195,6 +195,7 @@ def test_a_bracket_is_merged_with_a_saved_response_and_saturation_is_filled(brac
     deep = json.loads((tmp_path / "g.json").read_text())  # a 12-bit response: 8-bit codes pass its code checks
     deep["log_response"] = [np.interp(np.arange(4096) / 16, np.arange(256), [v if v is not None else -30 for v in ch])
                             .tolist() for ch in deep["log_response"]]  # fmt: skip
+    deep["bits"] = 12
     (tmp_path / "g12.json").write_text(json.dumps(deep))
     with pytest.raises(FacestatsError, match=r"the frames hold 8-bit codes, and the response .*g12\.json has 4096"):
         merge_bracket(files, tmp_path / "g12.json")  # silently wrong radiance before (a review)
@@ -232,3 +233,21 @@ def test_a_bracket_that_varies_iso_with_the_time_is_refused(tmp_path):
         read_bracket(files)
     _, times, _ = read_bracket(files, [0.01, 0.04, 0.16])  # the user's effective exposures t·ISO/100: not checked
     assert times.tolist() == [0.01, 0.04, 0.16]
+
+
+def test_a_response_file_that_falls_or_misstates_its_bits_is_refused_by_the_merge(bracket, tmp_path):
+    """A hand-edited response whose g falls was merged with only agreement warnings, and a file's 'bits' field
+    was never compared with its curve (a red team)."""
+    from facestats.acquire.bracket import merge_bracket
+
+    files, _ = bracket
+    calibrate_response(files).save(tmp_path / "g.json")
+    doc = json.loads((tmp_path / "g.json").read_text())
+    falling = dict(doc, log_response=[ch[:1] + ch[1:][::-1] for ch in doc["log_response"]])
+    (tmp_path / "falling.json").write_text(json.dumps(falling))
+    with pytest.raises(FacestatsError, match=r"falling\.json field 'log_response' must rise with the code"):
+        merge_bracket(files, tmp_path / "falling.json")
+    (tmp_path / "bits.json").write_text(json.dumps(dict(doc, bits=12)))
+    with pytest.raises(FacestatsError, match=r"bits\.json field 'bits' is 12, but its 'log_response' has 256 levels"):
+        merge_bracket(files, tmp_path / "bits.json")
+    assert merge_bracket(files, tmp_path / "g.json").radiance.shape == (96, 128, 3)

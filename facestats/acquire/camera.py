@@ -152,6 +152,7 @@ class PinholeCamera:
         return np.abs(depth) / float(np.sqrt(self.matrix[0, 0] * self.matrix[1, 1]))
 
     def to_dict(self) -> dict:
+        """The camera as a JSON-ready dict (K, R, position in mm, image size)."""
         return {
             "matrix": self.matrix.tolist(),
             "rotation": self.rotation.tolist(),
@@ -176,6 +177,7 @@ class PinholeCamera:
             raise FormatError(f"camera description is missing the key {exc.args[0]!r}") from None
 
     def save(self, path):
+        """Write :meth:`to_dict` to ``path`` as JSON."""
         with open(path, "w") as f:
             json.dump(self.to_dict(), f, indent=1)
 

@@ -108,6 +108,7 @@ class PointLight:
         return ok
 
     def to_dict(self) -> dict:
+        """The light as a JSON-ready dict (position in mm, intensity, cuts, cone)."""
         out = {"type": "point", "position_mm": self.position.tolist(), "intensity": self.intensity.tolist()}
         if self.cuts:
             out["cuts"] = [n.tolist() for n in self.cuts]
@@ -141,6 +142,7 @@ class DirectionalLight:
         return ok
 
     def to_dict(self) -> dict:
+        """The light as a JSON-ready dict (direction, irradiance, cuts)."""
         out = {"type": "directional", "direction": self.direction.tolist(), "irradiance": self.irradiance.tolist()}
         if self.cuts:
             out["cuts"] = [{"normal": n.tolist(), "point_mm": p.tolist()} for n, p in self.cuts]
@@ -187,6 +189,7 @@ class EnvironmentLight:
         return cls(directions, power, shadows)
 
     def to_dict(self) -> dict:
+        """The light as a JSON-ready dict (directions, radiance × solid angle)."""
         return {
             "type": "environment",
             "directions": self.directions.tolist(),
@@ -224,6 +227,7 @@ def lights_from_dict(d: dict):
 
 
 def lights_to_dict(lights, eta=SUZUKI_ETA) -> dict:
+    """The lights and the relative index of refraction ``eta`` as one JSON-ready dict."""
     return {"eta": float(eta), "lights": [light.to_dict() for light in lights]}
 
 
@@ -238,6 +242,7 @@ def load_lights(path):
 
 
 def save_lights(path, lights, eta=SUZUKI_ETA):
+    """Write :func:`lights_to_dict` to ``path`` as JSON; return the path."""
     with open(path, "w") as f:
         json.dump(lights_to_dict(lights, eta), f, indent=1)
     return os.fspath(path)

@@ -43,9 +43,11 @@ class QuietBar:
         return len(self.iterable) if self.total is None else self.total
 
     def update(self, n=1):
+        """Count ``n`` more steps (nothing is shown)."""
         self.n += n
 
     def close(self):
+        """Nothing to close: the bar shows nothing."""
         pass
 
     def __enter__(self):

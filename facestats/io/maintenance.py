@@ -109,6 +109,7 @@ class ValidationReport:
         return not self.problems
 
     def to_text(self) -> str:
+        """The report as the lines ``facestats validate`` prints."""
         lines = [f"store: {self.path}", f"subjects checked: {self.n_checked} of {self.n_subjects}"]
         lines += [f"problem: {p}" for p in self.problems]
         lines += [f"note: {n}" for n in self.notes]

@@ -400,6 +400,7 @@ class FrameSequence:
         return read_vertices(self.paths[index], self.neutral, scale=self.scale, transform=self.transform)
 
     def frame_names(self) -> list[str]:
+        """The frames' file names, in order."""
         return [os.path.basename(p) for p in self.paths]
 
 
@@ -454,6 +455,7 @@ class BlendshapeSequence:
         return self.neutral.vertices + np.tensordot(self.weights[index], self.deltas, axes=1)
 
     def frame_names(self) -> list[str]:
+        """``frame00000``, ``frame00001``, ... one per row of the weights."""
         return [f"frame{i:05d}" for i in range(len(self))]
 
 

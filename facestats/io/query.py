@@ -140,6 +140,7 @@ class Stat:
     texel_se: float | None = None
 
     def to_dict(self) -> dict:
+        """The statistic as a JSON-ready dict (NaN as null; the optional fields when present)."""
         d = {"mean": _num(self.mean), "std": _num(self.std), "n": int(self.n)}
         for key in ("within_std", "mean_se", "texel_se"):
             if getattr(self, key) is not None:
@@ -311,6 +312,7 @@ class QueryResult:
         }
 
     def to_json(self, indent: int | None = 2) -> str:
+        """The result as JSON text (:meth:`to_dict`; NaN as null)."""
         return json.dumps(self.to_dict(), indent=indent, allow_nan=False)
 
     # -- CSV -----------------------------------------------------------------------

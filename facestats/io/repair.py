@@ -133,6 +133,7 @@ class RepairAction:
     reason: str = ""
 
     def describe(self) -> str:
+        """What the action does, in one sentence."""
         sid = repr(self.subject)
         what = {
             "quarantine-index": f"move {INDEX_NAME} to the quarantine",
@@ -191,6 +192,7 @@ class RepairPlan:
         return any(a.kind != "heal-record" or a.reason for a in self.actions)
 
     def to_text(self, *, applied: bool = False) -> str:
+        """The plan (or, ``applied``, what was done) as the lines ``facestats validate --repair`` prints."""
         head = "repair" if applied else "repair plan (dry run: nothing was changed; add --yes to apply it)"
         lines = [f"{head} for store {self.store}:"]
         heals = [a for a in self.actions if a.kind == "heal-record" and not a.reason]

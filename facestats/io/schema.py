@@ -139,6 +139,7 @@ class Domain:
     nan: bool = False
 
     def describe(self) -> str:
+        """The domain as an interval, e.g. ``(0, inf)`` or ``[0, 1]``."""
         lo = "-inf" if self.low is None else f"{self.low:g}"
         hi = "inf" if self.high is None else f"{self.high:g}"
         return (

@@ -94,6 +94,7 @@ class SequenceReport:
     window: tuple = ()
 
     def to_text(self) -> str:
+        """What the render did, on one line."""
         per = self.seconds / max(len(self.rendered), 1)
         return (
             f"{self.path}: {self.n_frames} frame{'s' if self.n_frames != 1 else ''}, window {self.window} of a "

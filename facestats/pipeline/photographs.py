@@ -54,6 +54,7 @@ class IngestReport:
     skipped: bool = False
 
     def to_text(self) -> str:
+        """What the ingest did, as the lines ``facestats ingest`` prints."""
         if self.skipped:
             return f"{self.subject_id} is already in {self.store}: nothing to do"
         lines = [

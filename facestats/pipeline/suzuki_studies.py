@@ -172,6 +172,7 @@ class NoiseStudy:
         )
 
     def summary(self) -> dict:
+        """The study's figures as a JSON-ready dict: seeds, noise, largest errors, spreads and interval coverage."""
         s, a = self.truth
         ds, da = self.sigma_s_prime - s, self.sigma_a - a
         return {

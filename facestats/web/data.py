@@ -89,6 +89,7 @@ class RegionSamples:
         return self.from_index or self.frame is not None or self.error is not None
 
     def wait(self, timeout=None) -> bool:
+        """Wait (up to ``timeout`` s) for the samples being read in the background; return whether they are ready."""
         if not self.from_index and self._thread.is_alive():
             self._thread.join(timeout)
         return self.ready

@@ -166,6 +166,7 @@ class EmulatedCameras(CameraBackend):
         self._pool = ThreadPoolExecutor(self.workers)
 
     def frame(self, camera: int, trigger: Trigger) -> Frame:
+        """The encoded frame ``camera`` takes for ``trigger``, rendered from the emulated scene."""
         # local import: keeps numpy out of this module's import
         from facestats.acquire.synthetic.photographs import encode_frame
 
@@ -278,6 +279,7 @@ class HotFolderCameras(CameraBackend):
             )
 
     def path(self, camera: int, frame: int) -> pathlib.Path:
+        """The file the camera writes for ``frame``, by the folder's name pattern."""
         return self.folder / self.pattern.format(camera=camera, frame=frame, ext=self.extension)
 
     def stray_frames(self) -> list:
@@ -391,6 +393,7 @@ class HotFolderWriter:
         self.written = 0
 
     def submit(self, trigger: Trigger):
+        """Write the frames of the cameras ``trigger`` fires into the hot folder (in the background)."""
         cams = [c for c in self.cameras.cameras if trigger.fires(c)]
         if not cams:
             return
@@ -424,5 +427,6 @@ class HotFolderWriter:
                 self._slots.release()
 
     def close(self):
+        """Wait for the frames being written, then close the cameras."""
         self._pool.shutdown(wait=True)
         self.cameras.close()

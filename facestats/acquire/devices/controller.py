@@ -81,6 +81,7 @@ class Controller:
         return self._state.get(key) != value
 
     def remember(self, key, value):
+        """Record that the device now holds ``value`` for ``key`` (what :meth:`ensure` need not set again)."""
         self._state[key] = value
 
     def forget(self):

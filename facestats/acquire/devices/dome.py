@@ -63,6 +63,7 @@ class DomeStatus:
 
     @classmethod
     def from_fields(cls, f: dict, port: str = "") -> "DomeStatus":
+        """The status of a ``status`` reply's fields; :class:`DeviceError` naming a missing or malformed field."""
         try:
             st = cls(
                 n_leds=int(f["leds"]),
@@ -92,6 +93,7 @@ class DomeController(Controller):
     kind = "dome"
 
     def dome_status(self) -> DomeStatus:
+        """The dome's current status (a ``status`` request)."""
         return DomeStatus.from_fields(self.status(), self.port)
 
     def __init__(self, port: str | None = None, **kwargs):
@@ -110,10 +112,12 @@ class DomeController(Controller):
         self.remember("led", int(led))
 
     def set_brightness(self, value: int):
+        """Set the LEDs' brightness, 0-255."""
         self.link.request("sb", check_integer(value, "brightness", 0, 255))
         self.remember("brightness", int(value))
 
     def set_colour(self, colour):
+        """Set the LEDs' colour, three values 0-255 (R, G, B)."""
         rgb = tuple(check_integer(v, "colour", 0, 255) for v in colour)
         if len(rgb) != 3:
             raise DeviceError(f"colour must be three values 0-255 (R, G, B), got {colour!r}")
@@ -121,6 +125,7 @@ class DomeController(Controller):
         self.remember("colour", rgb)
 
     def set_exposure(self, k: int):
+        """Select the cameras' exposure setting ``k`` (an index into the status's exposures)."""
         self.link.request("se", check_integer(k, "exposure", 0))
         self.remember("exposure", int(k))
 

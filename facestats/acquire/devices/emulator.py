@@ -94,6 +94,7 @@ class EmulatedDevice(abc.ABC):
         return f"facestats-{self.kind} emulator {VERSION} protocol=1"
 
     def own_commands(self) -> dict:
+        """The device's commands beyond the common ones: name → (handler, argument counts, help)."""
         return {}
 
     def reset(self):
@@ -193,6 +194,7 @@ class DomeDevice(EmulatedDevice):
         super().__init__(on_trigger=on_trigger)
 
     def own_commands(self):
+        """The dome's commands: name → (handler, argument counts, help)."""
         return {
             "l": (self._light, (1,), "light LED i alone"),
             "sb": (self._brightness, (1,), "brightness 0-255"),
@@ -273,6 +275,7 @@ class SensorDevice(EmulatedDevice):
         super().__init__(on_trigger=on_trigger)
 
     def own_commands(self):
+        """The contact sensor's commands: name → (handler, argument counts, help)."""
         return {
             "lamp": (self._lamp, (1,), "source lamp 0/1"),
             "sh": (self._shutter, (1,), "shutter 0/1"),
@@ -426,6 +429,7 @@ class PtyServer:
             self._fds = None
 
     def start(self) -> "PtyServer":
+        """Open the pseudo-terminal, send the boot banner and serve requests in a thread; return self."""
         self._open()
         self._send(self.device.boot())
         self._thread = threading.Thread(target=self._serve, name=f"facestats-{self.device.kind}-emulator", daemon=True)
@@ -433,6 +437,7 @@ class PtyServer:
         return self
 
     def stop(self):
+        """Stop serving, close the pseudo-terminal and remove its link."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=10)

@@ -66,9 +66,11 @@ class _Plan:
     kind = ""
 
     def to_dict(self) -> dict:
+        """The plan as a JSON-ready dict, with its format and kind."""
         return {"format": PLAN_FORMAT, "kind": self.kind, **asdict(self)}
 
     def fingerprint(self) -> str:
+        """SHA-256 of the plan's canonical JSON: a resumed session must match it."""
         return hashlib.sha256(_canonical(self.to_dict())).hexdigest()
 
     @property
@@ -157,6 +159,7 @@ class DomePlan(_Plan):
         return {"exposure": s // self.n_leds, "led": s % self.n_leds}
 
     def ensure(self, controller, s: int):
+        """Bring the dome to step ``s`` (its LED and exposure, the plan's brightness and colour)."""
         st = self.step(s)
         controller.ensure(st["led"], st["exposure"], self.brightness, self.colour)
 
@@ -176,6 +179,7 @@ class DomePlan(_Plan):
         return max(self.exposure_s[self.step(s)["exposure"]], self.frame_interval_s) + link_timeout
 
     def file(self, s: int, camera: int) -> str:
+        """The capture folder's file name of ``camera``'s frame at step ``s``."""
         # local import: keeps 22 modules out of this module's import
         from facestats.acquire.synthetic.photographs import frame_name
 
@@ -187,6 +191,7 @@ class DomePlan(_Plan):
         return float(sum(max(t, self.frame_interval_s) for t in self.exposure_s) * self.n_leds)
 
     def describe(self) -> str:
+        """A few lines for the operator: steps, frames, exposures and the data to expect."""
         w, h = self.image_size[0]
         raw = self.n_steps * self.n_cameras * sum(wc * hc for wc, hc in self.image_size) / self.n_cameras * 6
         return "\n".join(
@@ -249,6 +254,7 @@ class SensorPlan(_Plan):
 
     @classmethod
     def from_calibration(cls, sensor, layout, calibration_bytes: bytes, subject: dict, **options) -> "SensorPlan":
+        """The plan for a sensor, its fibre layout and the calibration file it was made from."""
         return cls(
             subject=subject,
             exposure_s=tuple(float(t) for t in sensor.exposure_times),
@@ -269,14 +275,17 @@ class SensorPlan(_Plan):
         return 1
 
     def step(self, s: int) -> dict:
+        """The site and exposure of step ``s`` (sites in order, each through the bracket)."""
         e = len(self.exposure_s)
         return {"site": self.sites[s // e], "exposure": s % e}
 
     def ensure(self, controller, s: int):
+        """Bring the sensor to step ``s`` (its site and exposure)."""
         st = self.step(s)
         controller.ensure(st["site"], st["exposure"])
 
     def matches(self, s: int, trigger) -> bool:
+        """Whether ``trigger`` is the frame of step ``s`` (its site and exposure, lamp on, shutter open)."""
         st = self.step(s)
         return (trigger.site, trigger.exposure, trigger.lamp, trigger.shutter) == (st["site"], st["exposure"], 1, 1)
 
@@ -285,16 +294,20 @@ class SensorPlan(_Plan):
         controller.check(self.n_fibers, self.exposure_s, self.image_size)
 
     def trigger_timeout(self, s: int, link_timeout: float) -> float:
+        """Seconds to wait for the frame of step ``s``: its exposure, the readout and ``link_timeout``."""
         return self.exposure_s[self.step(s)["exposure"]] + self.readout_s + link_timeout
 
     def file(self, s: int, camera: int = 0) -> str:
+        """The capture folder's file name of the frame at step ``s``."""
         st = self.step(s)
         return f"sensor/{SITES[st['site']]}_e{st['exposure']:02d}{self.extension}"
 
     def duration_s(self) -> float:
+        """Estimated seconds of the whole capture: every site's exposures and readouts."""
         return float(len(self.sites) * (sum(self.exposure_s) + self.readout_s * len(self.exposure_s)))
 
     def describe(self) -> str:
+        """A few lines for the operator: sites, bracket, fibres and frame size."""
         t = self.exposure_s
         return "\n".join(
             [

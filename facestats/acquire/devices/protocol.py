@@ -253,6 +253,7 @@ class FrameReader:
         self.pending = b""
 
     def feed(self, data: bytes) -> list:
+        """Add received bytes; return the complete replies they finish, in order."""
         buf = self.pending + data
         items = []
         start = max(0, len(self.pending) - len(TERMINATOR) + 1)  # the pending bytes hold no terminator

@@ -101,6 +101,7 @@ class FiberLayout:
         return np.where(inside, k, -1)
 
     def to_dict(self) -> dict:
+        """The layout as a JSON-ready dict."""
         return asdict(self)
 
 
@@ -233,6 +234,7 @@ class SensorStatus:
 
     @classmethod
     def from_fields(cls, f: dict, port: str = "") -> "SensorStatus":
+        """The status of a ``status`` reply's fields; :class:`DeviceError` naming a missing or malformed field."""
         try:
             w, h = (int(v) for v in f["image"].split("x"))
             return cls(
@@ -254,17 +256,21 @@ class SensorController(Controller):
     kind = "sensor"
 
     def sensor_status(self) -> SensorStatus:
+        """The sensor's current status (a ``status`` request)."""
         return SensorStatus.from_fields(self.status(), self.port)
 
     def lamp(self, on: bool):
+        """Switch the source lamp on or off."""
         self.link.request("lamp", int(bool(on)))
         self.remember("lamp", int(bool(on)))
 
     def shutter(self, open_: bool):
+        """Open or close the shutter."""
         self.link.request("sh", int(bool(open_)))
         self.remember("shutter", int(bool(open_)))
 
     def set_exposure(self, j: int):
+        """Select the bracket's exposure ``j``."""
         self.link.request("se", check_integer(j, "exposure", 0))
         self.remember("exposure", int(j))
 

@@ -54,9 +54,11 @@ class LinkStats:
     bytes_received: int = 0
 
     def as_dict(self) -> dict:
+        """The counters as a dict."""
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
     def to_text(self) -> str:
+        """The counters that are not zero (and always requests and retries), on one line."""
         return ", ".join(f"{k} {v}" for k, v in self.as_dict().items() if v or k in ("requests", "retries"))
 
 
@@ -169,6 +171,7 @@ class SerialLink:
 
     # -- life cycle ----------------------------------------------------------------------------
     def close(self):
+        """Close the port (once; a port that failed is let go)."""
         if self._ser is not None:
             try:
                 self._ser.close()

@@ -68,6 +68,7 @@ class SessionLog:
         self.path, self.lines, self.echo = None, [], echo
 
     def __call__(self, line: str):
+        """Log ``line`` with a time stamp: to the log file once attached, else kept until then."""
         text = f"{time.strftime('%Y-%m-%d %H:%M:%S')} {line}"
         if self.echo is not None:
             self.echo(line)
@@ -78,6 +79,7 @@ class SessionLog:
             f.write(text + "\n")
 
     def attach(self, path):
+        """Write the lines kept so far to ``path`` and log there from now on."""
         self.path = pathlib.Path(path)
         with open(self.path, "a") as f:
             f.writelines(t + "\n" for t in self.lines)
@@ -104,6 +106,7 @@ class SessionReport:
     stray_frames: list = field(default_factory=list)
 
     def to_text(self) -> str:
+        """What the session did, for the operator."""
         head = f"{self.kind} session of {self.subject_id} in {self.out}: "
         if self.complete and not self.steps_taken:
             return head + f"complete ({self.steps_total} steps), nothing to do"

@@ -414,6 +414,7 @@ class TargetPose:
     size_mm: tuple = (300.0, 300.0)
 
     def to_dict(self) -> dict:
+        """The pose as a JSON-ready dict (centre and size in mm, normal, u axis)."""
         return {
             "centre_mm": list(map(float, self.centre)),
             "normal": list(map(float, self.normal)),

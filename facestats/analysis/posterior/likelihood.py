@@ -129,5 +129,6 @@ class LogPosterior:
         return np.sum(np.where(self.mask, z * z, 0.0), axis=1)
 
     def __call__(self, theta):
+        """The log posterior of ``theta`` and its blocks: columns (total, block 1, block 2, ...)."""
         b = self.blocks(theta)
         return np.concatenate([b.sum(axis=1, keepdims=True), b], axis=1)

@@ -96,6 +96,7 @@ class KernelTable:
             return np.clip(np.where(r >= 1, a_s * r + b_s, a_c * r + b_c), *SIGMA_RANGE_UM)
 
     def __call__(self, r):
+        """(α, σ in µm) of the kernel at stretch ratio ``r`` (Nagano et al. 2015 eq. 8-9)."""
         return self.alpha(r), self.sigma(r)
 
     def _held(self, r) -> np.ndarray:

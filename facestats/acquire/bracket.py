@@ -374,7 +374,8 @@ def _response_file(path):
         raise FormatError(f"{p} field 'log_response' must be 3 channels of 2**bits finite values, got shape {g.shape}")
     g[0] = np.where(np.isfinite(g[0]), g[0], -np.inf)  # code 0 (weight 0) may be stored as null
     bits = d.get("bits")
-    if bits is not None and (isinstance(bits, bool) or not isinstance(bits, int) or 2**bits != levels):
+    if bits is not None and (isinstance(bits, bool) or not isinstance(bits, int) or not 1 <= bits <= 16
+                             or 1 << bits != levels):  # fmt: skip
         raise FormatError(
             f"{p} field 'bits' is {bits!r}, but its 'log_response' has {levels} levels ({levels.bit_length() - 1} bits)"
         )
@@ -400,6 +401,8 @@ def agreement_warnings(agreement, exposure_times) -> list:
 
 #: How :func:`merge_bracket` fills a pixel saturated in every exposure (no radiance is measured there).
 SATURATED_FILLS = ("clip", "zero")
+#: Lost samples :func:`_fill_lost` bounds at once (about 60 bytes each).
+FILL_CHUNK = 1 << 20
 
 
 @dataclass
@@ -413,7 +416,7 @@ class _Lost:
 
 
 def _fill_lost(radiance, images, times, g, black, white, saturated):
-    """Fill the samples ``merge_photographs`` left NaN: no exposure saw them with a usable code.
+    """Fill, in place, the samples ``merge_photographs`` left NaN: no exposure saw them with a usable code.
 
     Each exposure j saw such a sample dark (code ≤ black level B) or clipped (code ≥ white level W), where the
     weights of Debevec & Malik 1997 eq. 4 vanish.  Eq. 2 at those codes bounds its radiance: E ≥ exp(g(W))/Δt_j
@@ -430,32 +433,46 @@ def _fill_lost(radiance, images, times, g, black, white, saturated):
     lost = ~np.isfinite(radiance)
     if not lost.any():
         return _Lost(radiance, 0, 0, ())
-    where = np.nonzero(lost)
-    channel = where[-1]
+    flat_lost = np.flatnonzero(lost)
+    channels = radiance.shape[-1]
     t = np.asarray(times, np.float64)
-    order = np.argsort(t, kind="stable")
-    codes = np.stack([images[j][where] for j in order]).astype(np.int64)  # (P, K), shortest exposure first
-    ln_t = np.log(t[order])[:, None]
+    order = np.argsort(t, kind="stable")  # shortest exposure first
+    p = len(order)
     top = g.shape[0] - 1 if white is None else white
-    high = codes >= top
-    ln_low = np.where(high, g[top, channel][None, :] - ln_t, -np.inf).max(axis=0)  # the tightest lower bound
-    ln_high = np.where(~high, g[black + 1, channel][None, :] - ln_t, np.inf).min(axis=0)  # and upper bound
-    clipped = high[0]
-    gap = ~clipped
-    fill = np.where(clipped, np.exp(ln_low) if saturated == "clip" else 0.0, np.exp(0.5 * (ln_low + ln_high)))
-    out = radiance.copy()
-    out[where] = fill.astype(out.dtype)
-    per_pixel = np.zeros((2,) + lost.shape[:-1], bool)
-    per_pixel[(np.zeros_like(channel),) + where[:-1]] |= clipped
-    per_pixel[(np.ones_like(channel),) + where[:-1]] |= gap
+    out = radiance.reshape(-1)  # filled in place (merge_bracket's own array)
+    flat_images = [images[j].reshape(-1) for j in order]
+    per_pixel = np.zeros((2, lost[..., 0].size), bool)  # (clipped, gap) per pixel, any channel
+    pair_counts = np.zeros(p * p, np.int64)  # (longest dark, shortest clipped) exposure of the gap samples
+    for start in range(0, flat_lost.size, FILL_CHUNK):  # chunks of lost samples: bounded memory
+        flat = flat_lost[start : start + FILL_CHUNK]
+        channel = flat % channels
+        g_top, g_dark = g[top, channel], g[black + 1, channel]
+        ln_low = np.full(flat.size, -np.inf)  # the tightest lower bound, and upper bound, of ln E
+        ln_high = np.full(flat.size, np.inf)
+        dark_j = np.full(flat.size, -1, np.int64)
+        clip_j = np.full(flat.size, p, np.int64)
+        clipped = None
+        for k in range(p):  # exposures, shortest first
+            high = flat_images[k][flat] >= top
+            if k == 0:
+                clipped = high
+            ln_t = np.log(t[order[k]])
+            np.maximum(ln_low, np.where(high, g_top - ln_t, -np.inf), out=ln_low)
+            np.minimum(ln_high, np.where(high, np.inf, g_dark - ln_t), out=ln_high)
+            dark_j[~high] = k
+            clip_j[high & (clip_j == p)] = k
+        gap = ~clipped
+        fill = np.where(clipped, np.exp(ln_low) if saturated == "clip" else 0.0, np.exp(0.5 * (ln_low + ln_high)))
+        out[flat] = fill
+        pixel = flat // channels
+        per_pixel[0, pixel[clipped]] = True
+        per_pixel[1, pixel[gap]] = True
+        pair_counts += np.bincount(dark_j[gap] * p + clip_j[gap], minlength=p * p)
     pairs = ()
-    if gap.any():  # the commonest (longest dark, shortest clipped) pair of exposures, to name the missing times
-        dark_j = (len(order) - 1) - np.argmax(~high[::-1, gap], axis=0)
-        clip_j = np.argmax(high[:, gap], axis=0)
-        keys, counts = np.unique(dark_j * len(order) + clip_j, return_counts=True)
-        k = int(keys[np.argmax(counts)])
-        pairs = (float(t[order[k // len(order)]]), float(t[order[k % len(order)]]))
-    return _Lost(out, int(per_pixel[0].sum()), int(per_pixel[1].sum()), pairs)
+    if pair_counts.any():  # the commonest pair of exposures, to name the missing times
+        k = int(np.argmax(pair_counts))
+        pairs = (float(t[order[k // p]]), float(t[order[k % p]]))
+    return _Lost(out.reshape(radiance.shape), int(per_pixel[0].sum()), int(per_pixel[1].sum()), pairs)
 
 
 @dataclass

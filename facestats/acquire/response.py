@@ -484,7 +484,10 @@ def recover_response(
     ndarray of float64, shape (2**bits, C)
         g(z) in natural-log exposure (ln of seconds × radiance units), g(2**bits / 2) = 0
         (g(128) = 0 for 8-bit input); codes at and below ``black_level`` take g(black_level),
-        codes at and above ``white_level`` g(white_level).
+        codes at and above ``white_level`` g(white_level).  Below and above the codes the data reach
+        (:data:`SUPPORT_QUANTILES` of the usable sampled codes) g is held monotonic: no lower code gets a
+        higher g than the lowest reached code's, no higher code a lower g than the highest's (there the
+        smoothness term alone shapes it, and may make it fall).
 
     Raises
     ------
@@ -540,7 +543,13 @@ def recover_response(
             )
         out[:, ch] = _solve_channel(codes, log_t, levels, lam, black_level, white_level)
         reached = codes[usable[codes]]
-        support[:, ch] = np.quantile(reached, SUPPORT_QUANTILES, method="inverted_cdf")
+        lo, hi = support[:, ch] = np.quantile(reached, SUPPORT_QUANTILES, method="inverted_cdf")
+        # Beyond the codes the data reach only the smoothness term shapes g, and it may fall there (a 16-bit gamma
+        # camera's darkest codes): g is monotonic (§2.1), so it is held at least as low below them, and at least
+        # as high above them, as at their ends.
+        below = out[black_level + 1 : lo + 1, ch]
+        out[black_level + 1 : lo + 1, ch] = np.minimum.accumulate(below[::-1])[::-1]
+        out[hi:, ch] = np.maximum.accumulate(out[hi:, ch])
     return check_rising(out, black_level, "the recovered response", support)
 
 

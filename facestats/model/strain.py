@@ -73,6 +73,8 @@ DEGENERATE_SINE = 1e-9
 #: shared edges leave a few (9 of 1,002,904 texels of ICT-FaceKit's face area at 1,024²); overlapping UV charts
 #: (a whole head whose eyes and mouth share the face's UV square: 97.7 %; a mirrored layout) far more.
 MAX_UV_OVERLAP = 0.01
+#: Texels along the longer side of the UV layout when :meth:`MeshStrain.check_uv_overlap` rasterises it.
+OVERLAP_RASTER = 1024
 #: Barycentric coordinate at or below which a texel centre lies on a triangle's edge (:meth:`MeshStrain.raster`).
 _EDGE = 1e-9
 
@@ -462,40 +464,61 @@ class MeshStrain:
     def raster(self, map_shape, window):
         """Triangle covering each texel of a window, (h, w) int32, -1 where none (cached per map and window).
 
-        A texel stands for one place on the surface, so UV triangles must not overlap: where the texels whose
-        centres lie strictly inside a triangle lie inside more than 1 + :data:`MAX_UV_OVERLAP` triangles each on
-        average (a whole head whose eyes share the face's UV square, a mirrored layout) a :class:`ValidationError`
-        says so.
-        A centre on a shared edge (every barycentric coordinate but one or two ≤ 1e-9) is not an overlap; there,
-        and below the limit, the last triangle wins.
+        Where UV triangles overlap the last one wins; :meth:`texels_strain` refuses a mesh whose UVs overlap
+        (:meth:`check_uv_overlap`).
         """
         key = (tuple(map_shape), tuple(window))
         if key not in self._rasters:
-            x, y = self._pixel_corners(map_shape, window)
-            h, w = window[2], window[3]
-            corners = np.arange(3 * len(self.triangles)).reshape(-1, 3)
-            sel = np.nonzero(~self.rest_degenerate)[0]
-            tri_map = np.full(h * w, -1, np.int32)
-            inside = np.zeros(h * w, bool)  # texel centres strictly inside a triangle (not on its edges)
-            events = 0  # and how many times: beyond the texels, each is one of an overlap
-            for tri, row, col, l0, l1, l2 in triangle_coverage(x.reshape(-1), y.reshape(-1), corners[sel], w, h):
-                flat = row * w + col
-                tri_map[flat] = sel[tri]
-                strict = (l0 > _EDGE) & (l1 > _EDGE) & (l2 > _EDGE)
-                events += int(np.count_nonzero(strict))
-                inside[flat[strict]] = True
-            inner = int(np.count_nonzero(inside))
-            if events - inner > MAX_UV_OVERLAP * inner:
-                raise ValidationError(
-                    f"the mesh's UV triangles overlap: the {inner} texels of the window {tuple(int(v) for v in window)}"
-                    f" of a {map_shape[0]} x {map_shape[1]} map whose centres lie inside a triangle lie inside "
-                    f"{events / inner:.2f} triangles each on average ({1 + MAX_UV_OVERLAP:.2f} allowed), so a texel "
-                    "would stand for several places on the surface; give a mesh whose UVs do not overlap (e.g. "
-                    "ICT-FaceKit's face area: its folder, not generic_neutral_mesh.obj, whose eyes and mouth share "
-                    "the face's UVs)"
-                )
-            self._rasters[key] = tri_map.reshape(h, w)
+            self._rasters[key] = self._coverage(map_shape, window)[0].reshape(window[2], window[3])
         return self._rasters[key]
+
+    def _coverage(self, map_shape, window):
+        """``(tri_map (h w,), inner, events)``: the last triangle over each texel of the window, the texels whose
+        centres lie strictly inside a triangle, and how many (texel, triangle) pairs hold such a centre."""
+        x, y = self._pixel_corners(map_shape, window)
+        h, w = window[2], window[3]
+        corners = np.arange(3 * len(self.triangles)).reshape(-1, 3)
+        sel = np.nonzero(~self.rest_degenerate)[0]
+        tri_map = np.full(h * w, -1, np.int32)
+        inside = np.zeros(h * w, bool)  # texel centres strictly inside a triangle (not on its edges)
+        events = 0  # and how many times: beyond the texels, each is one of an overlap
+        for tri, row, col, l0, l1, l2 in triangle_coverage(x.reshape(-1), y.reshape(-1), corners[sel], w, h):
+            flat = row * w + col
+            tri_map[flat] = sel[tri]
+            strict = (l0 > _EDGE) & (l1 > _EDGE) & (l2 > _EDGE)
+            events += int(np.count_nonzero(strict))
+            inside[flat[strict]] = True
+        return tri_map, int(np.count_nonzero(inside)), events
+
+    def check_uv_overlap(self) -> None:
+        """Refuse a mesh whose UV triangles overlap (:class:`ValidationError`; checked once, then cached).
+
+        A texel stands for one place on the surface.  The whole UV layout is rasterised with
+        :data:`OVERLAP_RASTER` texels along its longer side; where the texels whose centres lie strictly inside
+        a triangle lie inside more than 1 + :data:`MAX_UV_OVERLAP` triangles each on average (a whole head whose
+        eyes share the face's UV square, a mirrored layout), the mesh is refused.  A centre on a shared edge
+        (a barycentric coordinate ≤ 1e-9) is not an overlap.  The test depends on the mesh alone, not on the map,
+        window or tile a render uses.
+        """
+        if getattr(self, "_overlap_checked", False):
+            return
+        uv = self.uv_corners.reshape(-1, 2)
+        lo, hi = uv.min(axis=0), uv.max(axis=0)
+        n = int(OVERLAP_RASTER / max(float((hi - lo).max()), 1e-12))
+        n = max(1, min(n, 1 << 20))
+        c0, r0 = (int(np.floor(v * n)) for v in lo)
+        c1, r1 = (int(np.ceil(v * n)) for v in hi)
+        window = (r0, c0, max(r1 - r0, 1), max(c1 - c0, 1))
+        _, inner, events = self._coverage((n, n), window)
+        if inner and events - inner > MAX_UV_OVERLAP * inner:
+            raise ValidationError(
+                f"the mesh's UV triangles overlap: rasterised with {OVERLAP_RASTER} texels along its UV layout, the "
+                f"{inner} texels whose centres lie inside a triangle lie inside {events / inner:.2f} triangles each "
+                f"on average ({1 + MAX_UV_OVERLAP:.2f} allowed), so a texel would stand for several places on the "
+                "surface; give a mesh whose UVs do not overlap (e.g. ICT-FaceKit's face area: its folder, not "
+                "generic_neutral_mesh.obj, whose eyes and mouth share the face's UVs)"
+            )
+        self._overlap_checked = True
 
     def _pixel_corners(self, map_shape, window):
         """Triangle corners in the window's pixel units: x, y (F, 3)."""
@@ -535,6 +558,7 @@ class MeshStrain:
             The strain of every texel of the window.
         """
         map_shape, window = _window(map_shape, window)
+        self.check_uv_overlap()
         t, valid, n_deg = self.triangle_t(deformed_vertices)
         tv, _ = self._uv_vertex_average(t, valid)
         tri_map = self.raster(map_shape, window).reshape(-1)

@@ -42,6 +42,7 @@ __all__ = [
     "local_path",
     "is_url",
     "run_tasks",
+    "Outcome",
 ]
 
 #: Environment variable naming the scheduler (read by Dask too).
@@ -233,15 +234,37 @@ def store_directory(path, name="store") -> str:
     return local_path(text, name)
 
 
-def run_tasks(client, task, tasks, progress=False, desc="build"):
-    """Run ``task(*t)`` for every tuple ``t`` of ``tasks`` on ``client``; return the finished futures, in order.
+class Outcome:
+    """A finished task's result or exception, held by the client: its future is released on the cluster, so a
+    worker lost later does not make the scheduler compute it again."""
+
+    def __init__(self, future):
+        self.status = future.status
+        try:
+            self._value, self._error = future.result(), None
+        except BaseException as exc:  # the task was lost with its worker (KilledWorker), or cancelled
+            self._value, self._error = None, exc
+        future.release()
+
+    def result(self, timeout=None):
+        """The task's result; its exception raised again if it was lost (``timeout``, as a future's, is moot)."""
+        if self._error is not None:
+            raise self._error
+        return self._value
+
+
+def run_tasks(client, task, tasks, progress=False, desc="build", poll_s: float = 5.0, grace_s: float = 60.0):
+    """Run ``task(*t)`` for every tuple ``t`` of ``tasks`` on ``client``; return their outcomes, in order.
 
     ``task`` must never raise (it reports its own failures in its result), so a future in error is a task
     lost with its worker: Dask resubmits such a task until ``distributed.scheduler.allowed-failures`` deaths
     of workers that held it, then raises ``KilledWorker``.  The scheduler cannot tell which task killed a
     worker and counts the death against every task the worker held, so a subject sharing a worker with one
     that runs it out of memory is lost too.  Each lost task is therefore submitted again after the others,
-    alone on the cluster, so that only its own deaths count; its future is then final.
+    alone on the cluster, so that only its own deaths count.  The finished tasks' results are taken to the
+    client first (:class:`Outcome`), so that a worker the lone task kills takes no finished result with it.
+    A lone task is not submitted to a cluster left without workers for ``grace_s`` seconds, and one whose cluster
+    stays without a worker that long while it waits is cancelled: both keep their first outcome.
 
     Parameters
     ----------
@@ -254,19 +277,47 @@ def run_tasks(client, task, tasks, progress=False, desc="build"):
         A bar per round, over the subjects (the second one, ``"<desc> again, alone"``, only if a task was lost).
     desc : str
         The bars' label.
+    poll_s : float
+        Seconds between the checks that a lone task's cluster still has workers.
+    grace_s : float
+        Seconds a cluster without workers is given to get one (a nanny restarts a dead worker in a second or two).
 
     Returns
     -------
-    list of distributed.Future
-        One per tuple of ``tasks``, each finished or in error.
+    list of Outcome
+        One per tuple of ``tasks``: :meth:`Outcome.result` gives the task's result or raises its loss.
     """
     from distributed import as_completed, wait
 
     futures = [client.submit(task, *t, pure=False) for t in tasks]
     for _ in subject_bar(as_completed(futures, loop=client.loop), len(futures), progress, desc=desc):
         pass
-    lost = [i for i, f in enumerate(futures) if f.status == "error"] if len(futures) > 1 else []
+    outcomes = [Outcome(f) for f in futures]
+    lost = [i for i, o in enumerate(outcomes) if o.status == "error"] if len(outcomes) > 1 else []
     for i in subject_bar(lost, len(lost), progress, desc=f"{desc} again, alone"):
-        futures[i] = client.submit(task, *tasks[i], pure=False)
-        wait(futures[i])
-    return futures
+        if not _workers_within(client, grace_s):
+            continue  # no worker left to run it: its first outcome stands
+        future = client.submit(task, *tasks[i], pure=False)
+        while True:
+            try:
+                wait(future, timeout=poll_s)
+                break
+            except TimeoutError:  # (distributed's is the built-in one)
+                if not _workers_within(client, grace_s):
+                    future.cancel()
+                    future = None
+                    break
+        if future is not None:
+            outcomes[i] = Outcome(future)
+    return outcomes
+
+
+def _workers_within(client, grace_s) -> bool:
+    """Whether the cluster has a worker, or gets one within ``grace_s`` seconds (a nanny restarting a dead one)."""
+    if client.scheduler_info().get("workers"):
+        return True
+    try:
+        client.wait_for_workers(1, timeout=grace_s)
+    except TimeoutError:
+        return False
+    return True

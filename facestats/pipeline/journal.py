@@ -227,8 +227,9 @@ class BuildJournal:
 
 
 def gathered(future, store, sid):
-    """The ``(id, state, result)`` of a task future; a task lost with its workers (e.g. ``KilledWorker`` after
-    Dask's own resubmissions) is recorded as failed in the journal of ``store`` (None: not recorded), not raised.
+    """The ``(id, state, result)`` of a task's future or :class:`facestats.pipeline.cluster.Outcome`; a task lost
+    with its workers (e.g. ``KilledWorker`` after Dask's own resubmissions) is recorded as failed in the journal of
+    ``store`` (None: not recorded), not raised.
 
     A lost task whose subject is in the store anyway is done: its worker committed it before the task was lost
     (the scheduler lost a worker that had finished, or a worker shared with a subject that killed it).  A failed

@@ -521,3 +521,23 @@ def test_status_of_a_store_given_as_a_file_url(tmp_path):
     assert build_status(f"file://{store}").running == ["S009"]
     res = run_cli("build", "--status", f"file://{store}")
     assert res.returncode == 0 and "1 running" in res.stdout
+
+
+def test_outcomes_hold_results_on_the_client_and_release_them_on_the_cluster():
+    """run_tasks reruns a lost task alone; the worker it may kill must not take finished results with it (Dask
+    recomputed them, beside the lone task, a review): each finished result is taken to the client first and its
+    future released, and a loss is raised again by ``result()``."""
+    import distributed
+
+    from facestats.pipeline.cluster import Outcome
+
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as lc:
+        with distributed.Client(lc) as client:
+            ok, bad = client.submit(sum, [1, 2], pure=False), client.submit(int, "x", pure=False)
+            distributed.wait([ok, bad])
+            key = ok.key
+            done, lost = Outcome(ok), Outcome(bad)
+            assert done.status == "finished" and done.result() == 3 and key not in client.refcount
+            assert lost.status == "error"
+            with pytest.raises(ValueError, match="invalid literal"):
+                lost.result()

@@ -142,12 +142,13 @@ MAX_SMOOTHNESS = 1e6
 #: noise dip by 0.06 % of the range) and the solve's rounding where the smoothness term alone decides g, not data.
 #: Times that do not match the frames make g fall by tens of per cent of its range.
 FALL_TOLERANCE = 0.01
-#: The codes :func:`recover_response` checks for a fall: between these quantiles of the usable sampled codes.  The
-#: rarest dark and bright codes are reached by a few noisy samples, where g is as loose as where none reach it.
+#: The codes the data of :func:`recover_response` reach: between these quantiles of the usable sampled codes (the
+#: rarest dark and bright codes are reached by a few noisy samples, where g is as loose as where none reach it).
+#: Beyond them g is held monotonic.
 SUPPORT_QUANTILES = (0.01, 0.99)
 
 
-def check_rising(response, black_level: int = 0, name: str = "response", support=None) -> np.ndarray:
+def check_rising(response, black_level: int = 0, name: str = "response") -> np.ndarray:
     """``response`` g (levels, C) if it rises with the code above ``black_level``; else a :class:`ValidationError`.
 
     Debevec & Malik 1997 §2.1 assume the sensor's response f is monotonic, so g = ln f⁻¹ only rises: a g
@@ -167,9 +168,6 @@ def check_rising(response, black_level: int = 0, name: str = "response", support
         Codes at and below it are not checked (g is constant there; code 0 may be −inf).
     name : str
         What ``response`` is, for the message.
-    support : ndarray of int, shape (2, C), optional
-        Per channel, the lowest and highest code the data reached (:func:`recover_response`): beyond them the
-        smoothness term alone extrapolates g, and only the codes between are checked.  Default: all codes.
 
     Returns
     -------
@@ -181,15 +179,14 @@ def check_rising(response, black_level: int = 0, name: str = "response", support
     first = int(black_level) + 1
     spans = np.maximum(np.ptp(g2[first:], axis=0), 1e-300)  # g's range above the pedestal, per channel
     for c in range(g2.shape[1]):
-        lo, hi = (first, g2.shape[0] - 1) if support is None else (max(first, int(support[0][c])), int(support[1][c]))
-        seg = g2[lo : hi + 1, c]  # code 0 may be -inf; below the pedestal g is constant
+        seg = g2[first:, c]  # code 0 may be -inf; below the pedestal g is constant
         if seg.size < 2:
             continue
         drawdown = np.maximum.accumulate(seg) - seg  # how far g lies below its largest earlier value
         if drawdown.max() <= FALL_TOLERANCE * spans[c]:
             continue
-        z = int(np.argmax(drawdown)) + lo  # the deepest point of the fall, and the code it fell from
-        peak = int(np.argmax(seg[: z - lo + 1])) + lo
+        z = int(np.argmax(drawdown)) + first  # the deepest point of the fall, and the code it fell from
+        peak = int(np.argmax(seg[: z - first + 1])) + first
         steps = int((np.diff(seg) < 0).sum())
         raise ValidationError(
             f"{name} must rise with the code (a camera's response is monotonic, Debevec & Malik 1997 §2.1), got a g "
@@ -534,7 +531,6 @@ def recover_response(
     log_t = np.log(t)
     out = np.empty((levels, stack[0].shape[-1]))
     usable = hat_weights(levels, black_level, white_level) > 0
-    support = np.empty((2, stack[0].shape[-1]), np.int64)  # the codes the data reach, per channel
     for ch in range(stack[0].shape[-1]):  # loop over channels (3), vectorised over samples
         codes = _sample_codes(stack, ch, samples, levels, n).astype(np.int64)
         if not np.any(np.count_nonzero(usable[codes], axis=1) >= 2):  # one usable exposure: ln E absorbs it
@@ -542,15 +538,15 @@ def recover_response(
                 _no_samples_message(stack, t, order, ch, levels, codes.shape[0], black_level, white_level)
             )
         out[:, ch] = _solve_channel(codes, log_t, levels, lam, black_level, white_level)
-        reached = codes[usable[codes]]
-        lo, hi = support[:, ch] = np.quantile(reached, SUPPORT_QUANTILES, method="inverted_cdf")
+        reached = codes[usable[codes]]  # the codes the data reach
+        lo, hi = np.quantile(reached, SUPPORT_QUANTILES, method="inverted_cdf")
         # Beyond the codes the data reach only the smoothness term shapes g, and it may fall there (a 16-bit gamma
         # camera's darkest codes): g is monotonic (§2.1), so it is held at least as low below them, and at least
         # as high above them, as at their ends.
         below = out[black_level + 1 : lo + 1, ch]
         out[black_level + 1 : lo + 1, ch] = np.minimum.accumulate(below[::-1])[::-1]
         out[hi:, ch] = np.maximum.accumulate(out[hi:, ch])
-    return check_rising(out, black_level, "the recovered response", support)
+    return check_rising(out, black_level, "the recovered response")
 
 
 def _check_full_scale(stack, bits) -> None:

@@ -69,13 +69,14 @@ __all__ = [
 
 #: A triangle is degenerate when |e1 × e2| ≤ DEGENERATE_SINE · |e1| |e2| (rest, deformed or UV).
 DEGENERATE_SINE = 1e-9
-#: Largest share of a window's covered texels that more than one UV triangle may cover (:meth:`MeshStrain.raster`):
-#: shared edges leave a few (9 of 1,002,904 texels of ICT-FaceKit's face area at 1,024²); overlapping UV charts
-#: (a whole head whose eyes and mouth share the face's UV square: 97.7 %; a mirrored layout) far more.
+#: How far beyond one triangle each texel of a mesh's UV layout may lie on average
+#: (:meth:`MeshStrain.check_uv_overlap`): ICT-FaceKit's face area gives 1.00 (shared edges do not count); its whole
+#: head, whose eyes and mouth share the face's UV square, 2.39; a mirrored layout 2.
 MAX_UV_OVERLAP = 0.01
 #: Texels along the longer side of the UV layout when :meth:`MeshStrain.check_uv_overlap` rasterises it.
 OVERLAP_RASTER = 1024
-#: Barycentric coordinate at or below which a texel centre lies on a triangle's edge (:meth:`MeshStrain.raster`).
+#: Barycentric coordinate at or below which a texel centre lies on a triangle's edge
+#: (:meth:`MeshStrain.check_uv_overlap`).
 _EDGE = 1e-9
 
 
@@ -469,12 +470,13 @@ class MeshStrain:
         """
         key = (tuple(map_shape), tuple(window))
         if key not in self._rasters:
-            self._rasters[key] = self._coverage(map_shape, window)[0].reshape(window[2], window[3])
+            self._rasters[key] = self._coverage(map_shape, window, count=False)[0].reshape(window[2], window[3])
         return self._rasters[key]
 
-    def _coverage(self, map_shape, window):
+    def _coverage(self, map_shape, window, count=True):
         """``(tri_map (h w,), inner, events)``: the last triangle over each texel of the window, the texels whose
-        centres lie strictly inside a triangle, and how many (texel, triangle) pairs hold such a centre."""
+        centres lie strictly inside a triangle, and how many (texel, triangle) pairs hold such a centre (both 0
+        without ``count``)."""
         x, y = self._pixel_corners(map_shape, window)
         h, w = window[2], window[3]
         corners = np.arange(3 * len(self.triangles)).reshape(-1, 3)
@@ -485,6 +487,8 @@ class MeshStrain:
         for tri, row, col, l0, l1, l2 in triangle_coverage(x.reshape(-1), y.reshape(-1), corners[sel], w, h):
             flat = row * w + col
             tri_map[flat] = sel[tri]
+            if not count:
+                continue
             strict = (l0 > _EDGE) & (l1 > _EDGE) & (l2 > _EDGE)
             events += int(np.count_nonzero(strict))
             inside[flat[strict]] = True

@@ -315,12 +315,9 @@ def region_statistics(
         Region labels (0 = none), e.g. the regions 1-10 of Weyrich Fig. 15.
     regions : iterable of int, optional
         Regions to analyse (default: every nonzero label present).
-    levels, orientations, bins : int
-        Pyramid levels, orientations per level, bins per histogram (§8: 7, 4, 256).
-    basis : ColourBasis, optional
-        Colour basis; default the PCA of the labelled pixels.
-    workers : int
-        FFT threads.
+    levels, orientations, bins, basis, workers
+        As :meth:`TextureStatistics.from_image` (one colour basis for all regions: default the PCA of the
+        labelled pixels).
 
     Returns
     -------

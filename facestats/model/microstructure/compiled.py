@@ -5,12 +5,13 @@ or candidates, cached on disk by numba) and in vectorised numpy
 (``backend="numpy"``, the reference the compiled one is tested against):
 
 * :func:`convolve_pass` — one spatially varying 1-D pass of Nagano et al. 2015
-  eq. 3 / 5: at every texel, taps at integer steps along the texel's axis,
-  bilinear samples, Gaussian weights of the texel's σ, mixed with the centre as
-  in eq. 6.  Taps walk outwards from the centre on each side and stop at the
-  first tap whose bilinear footprint (corners of non-zero weight) leaves the
-  map or the texel's UV island; the Gaussian part is renormalised over the taps
-  used.  Texels of island 0 (gutter) are copied.
+  eq. 3 / 5: at every texel, taps along the texel's axis at whole texels of its
+  major direction, read across it by Lanczos-3 (:mod:`~facestats.model.microstructure.taps`),
+  Gaussian weights of the texel's σ, mixed with the centre as in eq. 6.  Taps
+  walk outwards from the centre on each side and stop at the first tap that
+  reads a texel (of non-zero weight) outside the map or the texel's UV island;
+  the Gaussian part is renormalised over the taps used.  Texels of island 0
+  (gutter) are copied.
 * :func:`histogram_tv` — total variation (eq. 7) between a target normal
   histogram and the histograms of ``g0 + α Δg`` for many α at once (the
   brute-force fit of §5 "Parameter Fitting").
@@ -26,6 +27,14 @@ import math
 import numpy as np
 
 from facestats.core.compiled import numba_available
+from facestats.model.microstructure.taps import (
+    FOOTPRINT,
+    LANCZOS,
+    LANCZOS_LOBES,
+    gaussian_spacing,
+    major_axis,
+    tap_across,
+)
 
 __all__ = ["HAVE_NUMBA", "convolve_pass", "histogram_tv", "padded_empty"]
 
@@ -36,78 +45,69 @@ if HAVE_NUMBA:
 
 
 # -- one convolution pass ------------------------------------------------------------------------
-# Tap positions: the offset i·(a_u, a_v) of tap i is formed in float32 and shifted by B = R + 2 texels
-# (so that truncation is the floor): column = c + int(B + i a_u) − B, fraction = (B + i a_u) − int(B + i a_u).
-# Positions are exact for axis-aligned axes and within 2e-4 texel otherwise, whatever the map size.
-# Gaussian weights g_i = exp(−i²/(2σ²)) by the recursion g_i = g_(i−1) q^(2i−1), q = exp(−1/(2σ²)).
+# Tap i of a texel lies i texels along its axis's major direction and i·slope across it, read by the
+# Lanczos-3 weights of its rounded fraction from the six texels y0 − 2 … y0 + 3 across
+# (:mod:`~facestats.model.microstructure.taps`).  Gaussian weights g_i = exp(−i²/(2 s²)), s = σ_px · |a_major|
+# the σ in taps, by the recursion g_i = g_(i−1) q^(2i−1), q = exp(−1/(2 s²)).
 
 
-def _numpy_tap(src, island, label, rows, cols, off_u, off_v, bias):
-    """Bilinear samples at (rows, cols) + offsets, and whether every corner of non-zero weight is usable."""
+def _numpy_tap(src, island, label, rows, cols, u_major, i, slope, bias):
+    """Lanczos-3 samples of the taps ``i`` (signed) of texels (rows, cols), and whether every texel of non-zero
+    weight is in the map and the island."""
     h, w = src.shape
-    xp, yp = bias + off_u, bias + off_v  # float32
-    x0, y0 = xp.astype(np.int64), yp.astype(np.int64)
-    fx, fy = xp - x0.astype(np.float32), yp - y0.astype(np.float32)
-    col, row = cols + x0 - bias.astype(np.int64), rows + y0 - bias.astype(np.int64)
-    always = np.ones(len(rows), bool)
-    ok = always.copy()
-    corners = []
-    for dy, need_y in ((0, always), (1, fy > 0)):  # the four corners
-        for dx, need_x in ((0, always), (1, fx > 0)):
-            need = need_y & need_x
-            rr, cc = row + dy, col + dx
-            inside = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
-            rr, cc = np.clip(rr, 0, h - 1), np.clip(cc, 0, w - 1)
-            if island is not None:
-                inside &= island[rr, cc] == label
-            ok &= inside | ~need
-            corners.append((src[rr, cc], need))
-    (s00, _), (s01, n01), (s10, n10), (s11, n11) = corners
-    s01 = np.where(n01, s01, s00)
-    s10 = np.where(n10, s10, s00)
-    s11 = np.where(n11, s11, np.where(n10, s10, s01))
-    top, bottom = s00 + fx * (s01 - s00), s10 + fx * (s11 - s10)
-    return top + fy * (bottom - top), ok
+    y0, t = tap_across(slope, i, bias)
+    ok = np.ones(len(rows), bool)
+    val = np.zeros(len(rows))
+    for k in range(FOOTPRINT):  # the six texels across, in the order the compiled kernel sums them
+        across = y0 + (k + 1 - LANCZOS_LOBES)
+        rr = np.where(u_major, rows + across, rows + i)
+        cc = np.where(u_major, cols + i, cols + across)
+        wk = LANCZOS[t, k]
+        inside = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
+        rr, cc = np.clip(rr, 0, h - 1), np.clip(cc, 0, w - 1)
+        if island is not None:
+            inside &= island[rr, cc] == label
+        ok &= inside | (wk == 0)
+        val = val + wk * src[rr, cc].astype(np.float64)
+    return val, ok
 
 
 def _convolve_pass_numpy(src, out, au, av, alpha, sigma_um, texel_um, island, truncate):
     """The numpy twin of the compiled pass: Nagano et al. 2015 eq. 3 / 5 with the kernel of eq. 6.
 
-    At each texel, out = (1 − α) src + α Σ_i g_i src(x + i·a) / Σ_i g_i over the taps i = −R..R
-    along the texel's unit axis a (texels), g_i = exp(−i²/(2 s²)), s = σ/texel (σ and the texel
-    size in µm, so s in texels), R = ceil(``truncate`` · s); each side stops at its first tap whose
-    bilinear footprint leaves the map or the island, and the Gaussian is normalised over the taps
-    used (eq. 6's G is a normalised discrete Gaussian; near an edge, over what stays inside).
-    g_i is built by the recursion g_i = g_{i−1} q^(2i−1), q = exp(−1/(2 s²)), the same products in
-    the same order as the compiled kernel.  Loops over tap offsets, vectorised over texels;
-    arguments as :func:`convolve_pass`.
+    At each texel, out = (1 − α) src + α Σ_i g_i src(tap i) / Σ_i g_i over the taps i = −n..n of
+    :mod:`~facestats.model.microstructure.taps` (whole texels along the axis's major direction,
+    Lanczos-3 across it), g_i = exp(−i²/(2 s²)) with s = σ_px · |a_major| (σ_px = σ/texel, σ and the
+    texel size in µm), n = ceil(``truncate`` · s); each side stops at its first tap that reads a
+    texel outside the map or the island, and the Gaussian is normalised over the taps used (eq. 6's
+    G is a normalised discrete Gaussian; near an edge, over what stays inside).  g_i is built by the
+    recursion g_i = g_{i−1} q^(2i−1), q = exp(−1/(2 s²)), the same products in the same order as the
+    compiled kernel.  Loops over tap offsets, vectorised over texels; arguments as :func:`convolve_pass`.
     """
     h, w = src.shape
     rows, cols = (i.reshape(-1) for i in np.indices((h, w)))
     a = alpha.reshape(-1).astype(np.float64)
+    u_major, slope, major = major_axis(au.reshape(-1), av.reshape(-1))
     sp = (sigma_um.reshape(-1).astype(np.float32) / texel_um.reshape(-1).astype(np.float32)).astype(np.float64)
+    sp = gaussian_spacing(sp, major)
     label = None if island is None else island.reshape(-1)
     centre = src.reshape(-1)
     active = (a != 0) & (sp > 0) & (True if label is None else label != 0)
     radius = np.where(active, np.ceil(truncate * sp), 0).astype(np.int64)
     acc, wsum = centre.astype(np.float64), np.ones(h * w)
-    du, dv = au.reshape(-1).astype(np.float32), av.reshape(-1).astype(np.float32)
-    bias = (radius + 2).astype(np.float32)
+    bias = (radius + LANCZOS_LOBES).astype(np.float64)
     with np.errstate(divide="ignore", under="ignore"):
         q = np.where(active, np.exp(-0.5 / np.where(active, sp, 1.0) ** 2), 0.0)
     alive = np.stack([active, active])  # the two sides of the kernel
     g, ratio, q2 = np.ones(h * w), q.copy(), q * q
     for i in range(1, int(radius.max(initial=0)) + 1):  # loop over tap offsets, vectorised over texels
         g, ratio = g * ratio, ratio * q2
-        fi = np.float32(i)
         for side, sign in enumerate((1, -1)):
             idx = np.nonzero(alive[side] & (radius >= i))[0]
-            off_u, off_v = fi * du[idx], fi * dv[idx]
-            if sign < 0:
-                off_u, off_v = -off_u, -off_v
             val, ok = _numpy_tap(
-                src, island, None if label is None else label[idx], rows[idx], cols[idx], off_u, off_v, bias[idx]
-            )
+                src, island, None if label is None else label[idx], rows[idx], cols[idx], u_major[idx],
+                sign * i, slope[idx], bias[idx],
+            )  # fmt: skip
             acc[idx[ok]] += g[idx[ok]] * val[ok]
             wsum[idx[ok]] += g[idx[ok]]
             alive[side, idx[~ok]] = False
@@ -118,86 +118,103 @@ def _convolve_pass_numpy(src, out, au, av, alpha, sigma_um, texel_um, island, tr
 
 if HAVE_NUMBA:
     _FAST = {"nsz", "arcp", "contract", "reassoc"}  # no assumptions about NaN/inf (inputs are checked finite)
+    # The Lanczos table's shape (steps, 2 · lobes) is read from the table passed in, not from taps.py's
+    # constants: numba's cache would keep constants of another module after they changed.
+
+    @numba.njit(cache=True, inline="always")
+    def _log2(n):
+        """log2 of a power of 2."""
+        k = 0
+        while (1 << k) < n:
+            k += 1
+        return k
 
     @numba.njit(cache=True, inline="always", fastmath=_FAST)
-    def _checked_tap(src, island, label, use_islands, r, c, off_u, off_v, bias, ibias):
-        """Bilinear sample at (r, c) + offset and whether every corner of non-zero weight is usable."""
+    def _across(slope, i, bias, steps, shift):
+        """Cross-axis texel y0 (relative) and Lanczos row of tap ``i``: :func:`taps.tap_across`, exactly.
+
+        ``steps`` = 2 ** ``shift`` (a shift and a mask, not an integer division).
+        """
+        qq = np.int64((bias + np.float64(i) * np.float64(slope)) * steps + 0.5)  # positive: truncation = floor
+        return (qq >> shift) - np.int64(bias), qq & (steps - 1)
+
+    @numba.njit(cache=True, inline="always", fastmath=_FAST)
+    def _checked_tap(src, island, label, use_islands, r, c, u_major, i, slope, bias, table):
+        """Lanczos-3 sample of tap ``i`` and whether every texel of non-zero weight is usable."""
         h, w = src.shape
-        xp = bias + off_u
-        yp = bias + off_v
-        x0 = np.int32(xp)
-        y0 = np.int32(yp)
-        fx = xp - np.float32(x0)
-        fy = yp - np.float32(y0)
-        col = c + x0 - ibias
-        row = r + y0 - ibias
-        nx = 2 if fx > 0 else 1
-        ny = 2 if fy > 0 else 1
-        if row < 0 or col < 0 or row + ny > h or col + nx > w:
-            return False, 0.0
-        if use_islands:
-            for dy in range(ny):
-                for dx in range(nx):
-                    if island[row + dy, col + dx] != label:
-                        return False, 0.0
-        s00 = src[row, col]
-        s01 = src[row, col + 1] if nx == 2 else s00
-        s10 = src[row + 1, col] if ny == 2 else s00
-        s11 = src[row + 1, col + 1] if nx == 2 and ny == 2 else (s10 if ny == 2 else s01)
-        top = s00 + fx * (s01 - s00)
-        bottom = s10 + fx * (s11 - s10)
-        return True, top + fy * (bottom - top)
+        steps, foot = table.shape
+        lobes = foot // 2
+        y0, t = _across(slope, i, bias, steps, _log2(steps))
+        for k in range(foot):
+            if table[t, k] == 0.0:
+                continue
+            across = y0 + k + 1 - lobes
+            rr = r + across if u_major else r + i
+            cc = c + i if u_major else c + across
+            if rr < 0 or cc < 0 or rr >= h or cc >= w:
+                return False, 0.0
+            if use_islands and island[rr, cc] != label:
+                return False, 0.0
+        val = 0.0
+        for k in range(foot):
+            across = y0 + k + 1 - lobes
+            rr = r + across if u_major else r + i
+            cc = c + i if u_major else c + across
+            wk = table[t, k]
+            if wk != 0.0:
+                val += wk * np.float64(src[rr, cc])
+        return True, val
 
-    # The interior ("fast") path, where every tap's bilinear footprint is known to lie in the map and
-    # the texel's island, is split in two loops.  Profiled on the 4096² benchmark (one thread, one pass):
-    # the former single loop was bound by floating-point issue (about 45 scalar FP operations per pair
-    # of taps: float→int→float round trips for both coordinates of both sides), not by memory.
+    # The interior ("fast") path, where every tap's texels are known to lie in the map and the texel's
+    # island, is split in two loops (profiled on the 4096² benchmark: a single loop was bound by
+    # floating-point issue, not by memory):
     #
-    # 1. _tap_positions: the flat offset and the bilinear fractions of every tap.  Nothing in it
-    #    depends on the map, so LLVM vectorises it (8 lanes); the arithmetic is the same float32
-    #    expression as before and in the numpy twin (bias ± i·a in float32, truncation = floor as the
-    #    position is positive), so the positions are bit-identical.
-    # 2. _interior_sum: the taps themselves, scalar loads.  The Gaussian weight is advanced in the
-    #    loop by the recursion above (the same multiplications in the same order as the former weight
-    #    table, hence the same values); the recursion is also what keeps LLVM from turning the loads
-    #    into AVX-512 gathers, which are slower than scalar loads on this (Zen 4) machine.  Offsets
-    #    are used as unsigned integers: they are ≥ 0 by the fast-path test, and numba then skips its
-    #    negative-index wrap-around (a compare and a select per load).
-    # The accumulation (float64, tap pairs in order of i) is unchanged.
+    # 1. _tap_positions: the flat offset of the first of the six texels of every tap and its Lanczos row.
+    #    Nothing in it depends on the map, so LLVM vectorises it; the arithmetic is exact (see taps.py),
+    #    so the positions are those of the numpy twin.
+    # 2. _interior_sum: the taps themselves, six contiguous loads each: u-major taps are read from the
+    #    map's transpose, whose rows are the map's columns.  The Gaussian weight is advanced in the loop by
+    #    the recursion above.  The six products and their sum are in the map's precision (float32 for
+    #    float32 maps: the weights differ from the float64 table by ≤ 6e-8 relative), the checked path and
+    #    the numpy twin's in float64.  Offsets are used as unsigned integers: they are ≥ 0 by the fast-path test,
+    #    and numba then skips its negative-index wrap-around (a compare and a select per load).
+    # The accumulation (float64, tap pairs in order of i) is that of the checked path.
 
     @numba.njit(cache=True, inline="always", fastmath=_FAST)
-    def _tap_positions(rad, base, w, du, dv, bias, off, fxs, fys):
-        """Flat offset of the top-left corner and the fractions of taps +i (slot 2i − 2) and −i (slot 2i − 1)."""
+    def _tap_positions(rad, along, across, stride, slope, bias, steps, shift, lobes, off, rows):
+        """Flat offset of texel y0 − 2 and the Lanczos row of taps +i (slot 2i − 2) and −i (slot 2i − 1).
+
+        ``along``, ``across``: the texel's index along the major direction (the map's row in ``flat``) and
+        across it; ``stride``: the row stride of ``flat``.
+        """
         for k in range(2 * rad):
-            fi = np.float32((k >> 1) + 1)
-            ou = fi * du
-            ov = fi * dv
+            i = (k >> 1) + 1
             if k & 1:
-                ou = -ou
-                ov = -ov
-            xp = bias + ou
-            yp = bias + ov
-            x0 = np.int32(xp)
-            y0 = np.int32(yp)
-            fxs[k] = xp - np.float32(x0)
-            fys[k] = yp - np.float32(y0)
-            off[k] = base + y0 * w + x0
+                i = -i
+            qq = np.int64((bias + np.float64(i) * np.float64(slope)) * steps + 0.5)
+            rows[k] = qq & (steps - 1)
+            off[k] = (along + i) * stride + across + ((qq >> shift) - np.int64(bias)) + 1 - lobes
 
     @numba.njit(cache=True, inline="always", fastmath=_FAST)
-    def _bilinear(flat, o, w, fx, fy):
-        """Bilinear sample with top-left corner at flat offset ``o`` (≥ 0, all four corners in the map)."""
+    def _lanczos(flat, o, table, t):
+        """Σ_k table[t, k] · flat[o + k] over the six texels (all in the map), in the map's precision.
+
+        Written out for six texels (Lanczos-3); :func:`convolve_pass` refuses a table of another width.
+        """
         i = numba.uint64(o)
-        s00 = flat[i]
-        s01 = flat[i + numba.uint64(1)]
-        s10 = flat[i + numba.uint64(w)]
-        s11 = flat[i + numba.uint64(w + 1)]
-        top = s00 + fx * (s01 - s00)
-        bottom = s10 + fx * (s11 - s10)
-        return top + fy * (bottom - top)
+        w = table[t]
+        return (
+            w[0] * flat[i]
+            + w[1] * flat[i + numba.uint64(1)]
+            + w[2] * flat[i + numba.uint64(2)]
+            + w[3] * flat[i + numba.uint64(3)]
+            + w[4] * flat[i + numba.uint64(4)]
+            + w[5] * flat[i + numba.uint64(5)]
+        )
 
     @numba.njit(cache=True, inline="always", fastmath=_FAST)
-    def _interior_sum(flat, w, rad, q, centre, off, fxs, fys):
-        """Σ over taps −R … R of g_i · sample and Σ g_i (g_0 = 1), taps from :func:`_tap_positions`."""
+    def _interior_sum(flat, rad, q, centre, off, rows, table):
+        """Σ over taps −n … n of g_i · sample and Σ g_i (g_0 = 1), taps from :func:`_tap_positions`."""
         q2 = q * q
         ratio = q
         g = 1.0
@@ -206,37 +223,33 @@ if HAVE_NUMBA:
         for i in range(rad):
             g *= ratio
             ratio *= q2
-            vp = _bilinear(flat, off[2 * i], w, fxs[2 * i], fys[2 * i])
-            vn = _bilinear(flat, off[2 * i + 1], w, fxs[2 * i + 1], fys[2 * i + 1])
+            vp = _lanczos(flat, off[2 * i], table, rows[2 * i])
+            vn = _lanczos(flat, off[2 * i + 1], table, rows[2 * i + 1])
             acc += g * (vp + vn)
             wsum += 2.0 * g
         return acc, wsum
 
     @numba.njit(cache=True, inline="always", fastmath=_FAST)
-    def _checked_sum(src, r, c, rad, q, du, dv, label, island, use_islands):
+    def _checked_sum(src, r, c, rad, q, u_major, slope, label, island, use_islands, table):
         """As :func:`_interior_sum` near borders and islands: each side stops at its first unusable tap."""
         q2 = q * q
         ratio = q
         g = 1.0
         acc = np.float64(src[r, c])
         wsum = 1.0
-        ibias = rad + 2
-        bias = np.float32(ibias)
+        bias = np.float64(rad + table.shape[1] // 2)
         alive_p = True
         alive_n = True
         for i in range(1, rad + 1):
             g *= ratio
             ratio *= q2
-            fi = np.float32(i)
-            ou = fi * du
-            ov = fi * dv
             if alive_p:
-                alive_p, val = _checked_tap(src, island, label, use_islands, r, c, ou, ov, bias, ibias)
+                alive_p, val = _checked_tap(src, island, label, use_islands, r, c, u_major, i, slope, bias, table)
                 if alive_p:
                     acc += g * val
                     wsum += g
             if alive_n:
-                alive_n, val = _checked_tap(src, island, label, use_islands, r, c, -ou, -ov, bias, ibias)
+                alive_n, val = _checked_tap(src, island, label, use_islands, r, c, u_major, -i, slope, bias, table)
                 if alive_n:
                     acc += g * val
                     wsum += g
@@ -251,9 +264,12 @@ if HAVE_NUMBA:
         return numba.types.Array(dtype, 2, "A", readonly=True)
 
     def _pass_signature(t):
+        flat = numba.types.Array(t, 1, "C", readonly=True)
         return numba.void(
             numba.types.Array(t, 2, "A", readonly=True),
-            numba.types.Array(t, 1, "C", readonly=True),
+            flat,
+            numba.int64,
+            flat,
             numba.int64,
             numba.types.Array(t, 2, "A"),
             *[_ro(numba.float32)] * 5,
@@ -262,42 +278,78 @@ if HAVE_NUMBA:
             numba.boolean,
             numba.float64,
             numba.int64,
+            numba.types.Array(numba.float64, 2, "C", readonly=True),
+            numba.types.Array(t, 2, "C", readonly=True),
         )
 
     #: Columns per strip: the rows a strip's taps touch stay in the L2 cache.
     STRIP = 256
 
     def _convolve_pass_py(
-        src, flat, rs, out, au, av, alpha, sigma_um, texel_um, island, reach, use_islands, truncate, rmax
-    ):
+        src, flat, rs, flat_t, rs_t, out, au, av, alpha, sigma_um, texel_um, island, reach, use_islands, truncate,
+        rmax, table, table_map,
+    ):  # fmt: skip
         h, w = src.shape
+        steps, foot = table.shape
+        lobes = foot // 2
+        shift = _log2(steps)
         for c0 in range(0, w, STRIP):  # column strips (serial), rows in parallel
             c1 = min(w, c0 + STRIP)
             for r in numba.prange(h):
                 off = np.empty(2 * rmax, np.int64)  # per-row scratch of _tap_positions
-                fxs = np.empty(2 * rmax, np.float32)
-                fys = np.empty(2 * rmax, np.float32)
+                rows = np.empty(2 * rmax, np.int64)
                 for c in range(c0, c1):
                     a = alpha[r, c]
                     label = island[r, c] if use_islands else 1
-                    sp = np.float64(sigma_um[r, c] / texel_um[r, c])
+                    du = au[r, c]
+                    dv = av[r, c]
+                    u_major = abs(du) >= abs(dv)
+                    major = abs(du) if u_major else abs(dv)
+                    slope = dv / du if u_major else du / dv
+                    sp = np.float64(sigma_um[r, c] / texel_um[r, c]) * np.float64(major)
                     centre = src[r, c]
                     if a == 0.0 or label == 0 or not sp > 0.0:
                         out[r, c] = centre
                         continue
                     rad = int(math.ceil(truncate * sp))
                     q = math.exp(-0.5 / (sp * sp))
-                    fast = c - rad - 1 >= 0 and c + rad + 1 < w and r - rad - 1 >= 0 and r + rad + 1 < h
-                    if use_islands and reach[r, c] <= rad + 3:
+                    # along: rad texels each way; across: the six texels of a point up to rad texels off
+                    along, across, n_along, n_across = (c, r, w, h) if u_major else (r, c, h, w)
+                    fast = along - rad >= 0 and along + rad < n_along
+                    fast = fast and across - rad - lobes >= 0 and across + rad + lobes < n_across
+                    if use_islands and reach[r, c] <= rad / np.float64(major) + lobes + 1:
                         fast = False
                     if fast:
-                        ibias = rad + 2
-                        base = (r - ibias) * rs + (c - ibias)
-                        _tap_positions(rad, base, rs, au[r, c], av[r, c], np.float32(ibias), off, fxs, fys)
-                        acc, wsum = _interior_sum(flat, rs, rad, q, centre, off, fxs, fys)
+                        bias = np.float64(rad + lobes)
+                        if u_major:
+                            _tap_positions(rad, along, across, rs_t, slope, bias, steps, shift, lobes, off, rows)
+                            acc, wsum = _interior_sum(flat_t, rad, q, centre, off, rows, table_map)
+                        else:
+                            _tap_positions(rad, along, across, rs, slope, bias, steps, shift, lobes, off, rows)
+                            acc, wsum = _interior_sum(flat, rad, q, centre, off, rows, table_map)
                     else:
-                        acc, wsum = _checked_sum(src, r, c, rad, q, au[r, c], av[r, c], label, island, use_islands)
+                        acc, wsum = _checked_sum(src, r, c, rad, q, u_major, slope, label, island, use_islands, table)
                     out[r, c] = (1.0 - a) * centre + a * (acc / wsum)
+
+    #: Side of the square blocks of the transpose (two 64 × 64 float32 blocks fit in the L1 cache).
+    BLOCK = 64
+
+    def _transpose_signature(t):
+        return numba.void(numba.types.Array(t, 2, "A", readonly=True), numba.types.Array(t, 2, "A"))
+
+    # One compiled version per dtype, for any layout (a padded view and a contiguous map alike).
+    @numba.njit([_transpose_signature(numba.float32), _transpose_signature(numba.float64)], cache=True, parallel=True)
+    def _transpose_into(src, dst):
+        """dst[j, i] = src[i, j], by square blocks, block rows in parallel."""
+        h, w = src.shape
+        for b in numba.prange((h + BLOCK - 1) // BLOCK):
+            r0 = b * BLOCK
+            r1 = min(h, r0 + BLOCK)
+            for c0 in range(0, w, BLOCK):
+                c1 = min(w, c0 + BLOCK)
+                for c in range(c0, c1):
+                    for r in range(r0, r1):
+                        dst[c, r] = src[r, c]
 
     _PASS_KERNELS = {}
 
@@ -346,6 +398,24 @@ def _rows(src):
     return src, flat, rs
 
 
+_LANCZOS_BY_DTYPE = {}
+
+
+def _lanczos_in(dtype):
+    """:data:`taps.LANCZOS` in the map's dtype: the interior path interpolates in the map's precision."""
+    key = np.dtype(dtype).name
+    if key not in _LANCZOS_BY_DTYPE:
+        _LANCZOS_BY_DTYPE[key] = np.ascontiguousarray(LANCZOS, dtype=dtype)
+    return _LANCZOS_BY_DTYPE[key]
+
+
+def _transposed(src):
+    """The transpose of ``src`` in rows that do not alias in the caches (:func:`padded_empty`)."""
+    t = padded_empty(src.shape[::-1], src.dtype)
+    _transpose_into(src, t)
+    return t
+
+
 def convolve_pass(src, out, au, av, alpha, sigma_um, texel_um, island, reach, *, truncate, backend):
     """One spatially varying 1-D pass (eq. 3 / 5 with the kernel of eq. 6), written into ``out``.
 
@@ -373,14 +443,21 @@ def convolve_pass(src, out, au, av, alpha, sigma_um, texel_um, island, reach, *,
     """
     if backend == "numpy":
         return _convolve_pass_numpy(src, out, au, av, alpha, sigma_um, texel_um, island, truncate)
+    steps, foot = LANCZOS.shape
+    if foot != 6 or steps & (steps - 1):
+        raise RuntimeError(f"the compiled pass needs a Lanczos-3 table of 2**k rows, got shape {LANCZOS.shape}")
     use = island is not None
     if not use:
         island = np.zeros((1, 1), np.int32)
         reach = np.zeros((1, 1), np.float32)
     src, flat, rs = _rows(src)
+    _, flat_t, rs_t = _rows(_transposed(src))  # u-major taps read six texels of a column: a row of the transpose
     rmax = int(np.ceil(truncate * float(np.max(sigma_um)) / float(np.min(texel_um)))) + 1  # bounds every radius
     kernel = _pass_kernel(src.dtype)
-    kernel(src, flat, rs, out, au, av, alpha, sigma_um, texel_um, island, reach, use, float(truncate), rmax)
+    kernel(
+        src, flat, rs, flat_t, rs_t, out, au, av, alpha, sigma_um, texel_um, island, reach, use, float(truncate), rmax,
+        LANCZOS, _lanczos_in(src.dtype),
+    )  # fmt: skip
     return out
 
 

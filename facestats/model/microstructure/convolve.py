@@ -12,8 +12,10 @@ Conventions: ``displacement`` is indexed ``[v, u]`` (u indexes columns), heights
 in µm (any unit works: the filter is linear); axes are unit vectors ``(a_u,
 a_v)`` in texel units (u right, v down), t ⟂ s unless given; σ in µm of skin,
 converted to texels by ``texel_um`` (µm per texel along each axis: a scalar,
-(H, W), a pair ``(s, t)`` or (H, W, 2)).  Taps are bilinear samples at 1-texel
-spacing.  Borders: taps stop at the first one whose footprint leaves the map or
+(H, W), a pair ``(s, t)`` or (H, W, 2)).  Taps lie at whole texels of the axis's
+major direction and are read across it by Lanczos-3
+(:mod:`~facestats.model.microstructure.taps`; on the grid every tap is a texel).
+Borders: taps stop at the first one that reads a texel outside the map or
 the texel's UV island (``islands``; island 0 = gutter, copied unchanged) and the
 Gaussian is renormalised over the taps used, so nothing is read across a gutter
 or from outside the map.
@@ -122,9 +124,12 @@ def _check_kernel_size(s_s, px_s, s_t, px_t):
 def island_reach(islands) -> np.ndarray:
     """Distance (texels, float32) from each texel to the nearest texel with another island in its 3 × 3 block.
 
-    Texels next to the map border count as next to another island.  A texel whose
-    reach exceeds R + 3 has every bilinear corner of its taps up to R texels away
-    inside its own island, so the compiled pass skips the per-tap checks there.
+    Texels next to the map border count as next to another island.  Every texel a
+    straight line from the texel to a point d texels away passes through lies within
+    d + √2/2 of the texel, so where the reach exceeds d + 1 every texel up to d away is
+    in the texel's own island.  Taps lie up to n / |a_major| texels away (n taps each
+    side) and read up to 3 texels across (Lanczos-3), so the compiled pass skips the
+    per-tap checks where the reach exceeds n / |a_major| + 4.
     """
     from scipy.ndimage import distance_transform_edt, maximum_filter, minimum_filter
 

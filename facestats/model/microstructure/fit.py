@@ -14,10 +14,12 @@ How it is computed (same result as convolving every candidate, much faster):
   σ (199), then all α at once (:func:`facestats.model.microstructure.compiled.histogram_tv`).
 * The Gaussian pass is the interior operator of
   :func:`~facestats.model.microstructure.convolve.convolve_displacement`
-  (bilinear taps at 1-texel spacing along the axis, same tap positions and
-  weights) applied as a 2-D stencil by FFT; histograms use the patch interior
-  (a margin of the largest kernel radius + 2 texels) where no tap leaves the
-  patch, so border handling plays no part.
+  (taps at whole texels of the axis's major direction, read across it by
+  Lanczos-3: same positions and weights, :mod:`~facestats.model.microstructure.taps`)
+  applied as a 2-D stencil by FFT; histograms use the patch interior (a margin
+  of the largest kernel radius + 3 texels, + 5 for an axis off the grid, whose
+  taps read 3 texels across) where no tap leaves the patch, so border handling
+  plays no part.
 * "Resampled to the deformed shape" is the chain rule on the slopes: the patch
   deformed by A (stretch r along the axis, r_t across it) has slopes
   ``A⁻ᵀ ∇h`` (:mod:`~facestats.model.microstructure.surface`), exact for a
@@ -53,6 +55,7 @@ from facestats.core.compiled import resolve_backend
 from facestats.core.progress import progress_bar
 from facestats.core.validate import as_finite, as_scalar, check_choice
 from facestats.errors import ValidationError
+from facestats.model.microstructure import taps
 from facestats.model.microstructure.compiled import histogram_tv
 from facestats.model.microstructure.kernel import ALPHA_RANGE, SIGMA_RANGE_UM, kernel_radius
 from facestats.model.microstructure.surface import histogram_extent, normal_histogram, slopes, tv_noise
@@ -138,30 +141,27 @@ def deformation_matrix(axis, r, r_t=1.0) -> np.ndarray:
 def gaussian_stencil(axis, sigma_px):
     """The 2-D stencil of one Gaussian pass along a constant axis (interior of eq. 3 with G of eq. 6).
 
-    Tap i (|i| ≤ R) at offset ``i a`` (float32, as the compiled pass forms it)
-    spreads its weight g_i = exp(−i²/(2σ²)) over its four bilinear corners; the
-    stencil sums to 1.  Returns ``(stencil (2R+3, 2R+3), R)``, centred at ``[R+1, R+1]``.
+    Tap i (1 ≤ |i| ≤ n) lies i texels along the axis's major direction and i·slope across it, and is
+    read by Lanczos-3 from six texels across (:mod:`~facestats.model.microstructure.taps`, as the
+    compiled pass reads it); it spreads its weight g_i = exp(−i²/(2 s²)), s = σ_px |a_major| the σ in
+    taps, over those texels.  The stencil sums to 1.  Returns ``(stencil, half)``: the stencil is
+    (2 half + 1) × (2 half + 1), centred at ``[half, half]``, half = n + 3.
     """
-    sp = float(sigma_px)
-    rad = int(kernel_radius(sp))
-    size = 2 * rad + 3
-    st = np.zeros((size, size))
-    st[rad + 1, rad + 1] = 1.0
-    du, dv = np.float32(axis[0]), np.float32(axis[1])
-    bias = np.float32(rad + 2)
-    i = np.arange(1, rad + 1)
+    u_major, slope, major = taps.major_axis(np.float32(axis[0]), np.float32(axis[1]))
+    sp = float(taps.gaussian_spacing(sigma_px, major))
+    n = int(kernel_radius(sp))
+    half = n + taps.LANCZOS_LOBES
+    st = np.zeros((2 * half + 1, 2 * half + 1))
+    st[half, half] = 1.0
+    i = np.arange(1, n + 1)
     g = np.exp(-(i * i) / (2 * sp * sp))
-    for sign in (1.0, -1.0):  # the two sides
-        ou = np.float32(sign) * (i.astype(np.float32) * du)
-        ov = np.float32(sign) * (i.astype(np.float32) * dv)
-        xp, yp = bias + ou, bias + ov
-        x0, y0 = xp.astype(np.int64), yp.astype(np.int64)
-        fx, fy = (xp - x0.astype(np.float32)).astype(np.float64), (yp - y0.astype(np.float32)).astype(np.float64)
-        col, row = x0 - (rad + 2) + rad + 1, y0 - (rad + 2) + rad + 1
-        for dy, wy in ((0, 1 - fy), (1, fy)):
-            for dx, wx in ((0, 1 - fx), (1, fx)):
-                np.add.at(st, (row + dy, col + dx), g * wy * wx)
-    return st / (1.0 + 2.0 * g.sum()), rad
+    for sign in (1, -1):  # the two sides
+        y0, t = taps.tap_across(slope, sign * i, half)
+        for k in range(taps.FOOTPRINT):  # the six texels across
+            across, along = y0 + (k + 1 - taps.LANCZOS_LOBES), sign * i
+            r, c = (across, along) if u_major else (along, across)
+            np.add.at(st, (half + r, half + c), g * taps.LANCZOS[t, k])
+    return st / (1.0 + 2.0 * g.sum()), half
 
 
 def _patch(value, name):
@@ -192,10 +192,9 @@ class _Problem:
 
     def delta(self, sigma_px):
         """Slope change Δg of a unit α for one σ (interior, flat)."""
-        st, rad = gaussian_stencil(self.axis, sigma_px)
+        st, c = gaussian_stencil(self.axis, sigma_px)
         h, w = self.neutral.shape
         kernel = np.zeros((h, w))
-        c = rad + 1
         rows, cols = (np.arange(st.shape[0]) - c) % h, (np.arange(st.shape[1]) - c) % w
         kernel[np.ix_(rows, cols)] = st  # centred at (0, 0), wrapped
         blurred = np.fft.irfft2(self.spectrum * np.fft.rfft2(kernel), s=(h, w))
@@ -310,6 +309,8 @@ def fit_kernel(
     check_choice(method, "method", ("brute", "coarse-to-fine"))
     backend = resolve_backend(backend)
     margin = int(kernel_radius(SIGMA_RANGE_UM[1] / texel)) + 3
+    if a[0] != 0 and a[1] != 0:  # off the grid the taps read up to 3 texels across their position, not 1
+        margin += taps.LANCZOS_LOBES - 1
     for name, p in (("neutral", n), ("deformed", d)):
         if min(p.shape) < 2 * margin + 8:
             raise ValidationError(

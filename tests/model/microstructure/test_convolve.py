@@ -144,31 +144,112 @@ def test_bad_input_names_the_argument(kwargs, match):
         convolve_displacement(**args)
 
 
-def test_compiled_tap_positions_equal_the_float32_formula_of_the_numpy_twin():
-    """The vectorised position loop of the compiled pass computes bias ± i·a exactly as the numpy twin does."""
+def test_compiled_tap_positions_equal_the_exact_formula_of_the_numpy_twin():
+    """The vectorised position loop of the compiled pass finds the texels and Lanczos rows of taps.tap_across."""
     compiled = pytest.importorskip("facestats.model.microstructure.compiled")
     if not compiled.HAVE_NUMBA:
         pytest.skip("numba is not available")
     import numba
 
+    from facestats.model.microstructure.taps import LANCZOS_LOBES, LANCZOS_STEPS, major_axis, tap_across
+
     @numba.njit
-    def positions(rad, base, w, du, dv, bias):
-        off, fx, fy = np.empty(2 * rad, np.int64), np.empty(2 * rad, np.float32), np.empty(2 * rad, np.float32)
-        compiled._tap_positions(rad, base, w, du, dv, bias, off, fx, fy)
-        return off, fx, fy
+    def positions(rad, along, across, stride, slope, bias):
+        off, rows = np.empty(2 * rad, np.int64), np.empty(2 * rad, np.int64)
+        compiled._tap_positions(rad, along, across, stride, slope, bias, LANCZOS_STEPS, 10, LANCZOS_LOBES, off, rows)
+        return off, rows
 
     rng = np.random.default_rng(5)
-    w, base = 4099, 12345
+    stride, along, across = 4099, 700, 900
     for rad in list(range(1, 40)) * 20:  # every remainder of the vector loop, random axes
         theta = rng.uniform(0, 2 * np.pi)
-        du, dv, bias = np.float32(np.cos(theta)), np.float32(np.sin(theta)), np.float32(rad + 2)
-        off, fx, fy = positions(rad, base, w, du, dv, bias)
-        i = np.repeat(np.arange(1, rad + 1, dtype=np.float32), 2)  # slots +1, -1, +2, -2, ...
-        sign = np.tile(np.array([1, -1], np.float32), rad)
-        xp, yp = bias + sign * (i * du), bias + sign * (i * dv)  # as in _numpy_tap
-        x0, y0 = xp.astype(np.int64), yp.astype(np.int64)
-        assert np.array_equal(off, base + y0 * w + x0)
-        assert np.array_equal(fx, xp - x0.astype(np.float32)) and np.array_equal(fy, yp - y0.astype(np.float32))
+        _, slope, _ = major_axis(np.float32(np.cos(theta)), np.float32(np.sin(theta)))
+        off, rows = positions(rad, along, across, stride, slope[()], float(rad + LANCZOS_LOBES))
+        i = np.repeat(np.arange(1, rad + 1), 2) * np.tile([1, -1], rad)  # slots +1, -1, +2, -2, ...
+        y0, t = tap_across(slope, i, rad + LANCZOS_LOBES)
+        assert np.array_equal(rows, t)
+        assert np.array_equal(off, (along + i) * stride + across + y0 + 1 - LANCZOS_LOBES)
+
+
+def _wave(shape, direction, omega, phase=0.3):
+    y, x = np.indices(shape, dtype=np.float64)
+    return np.cos(omega * (direction[0] * x + direction[1] * y) + phase)
+
+
+def _gain(out, wave, margin):
+    """Amplitude the convolution kept of a plane wave (least squares, interior)."""
+    o, w = out[margin:-margin, margin:-margin].ravel(), wave[margin:-margin, margin:-margin].ravel()
+    return float(o @ w / (w @ w))
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_a_pass_along_s_leaves_a_wave_across_s_at_every_angle(backend):
+    """Eq. 3 samples D on the line through the texel along s: a wave that is constant along s passes a pass along s
+    unchanged, whatever the angle.  Bilinear taps kept 0.81-0.84 of it at omega = pi/2 off the grid (a red team:
+    compression then blurred instead of sharpening); Lanczos-3 taps across the major direction keep 1.00-1.02."""
+    n, texel = (96, 96) if backend == "numpy" else (160, 160), 6.0
+    for deg in (0.0, 10.0, 22.5, 26.57, 35.0, 45.0, 60.0, 80.0, 100.0, 135.0, 170.0):
+        th = np.radians(deg)
+        axis = (np.cos(th), np.sin(th))
+        d = _wave(n, (-axis[1], axis[0]), np.pi / 2)
+        out = convolve_displacement(d, axis, 1.0, 57.5, 0.0, 1.0, texel, backend=backend)  # r = 2.2 (FOREHEAD)
+        assert abs(_gain(out, d, 35) - 1) < 0.02, deg
+
+
+def test_compression_across_a_diagonal_stretch_sharpens_as_eq6_says():
+    """Both passes (stretch r_s = 2.2 along s, compression r_t = 0.65 across: FOREHEAD's kernels) on a wave across s
+    at omega = pi/2: eq. 6 gives K_t = 2.02.  Every angle within 9 % of it (bilinear taps: 1.65-1.72, 15-18 % low).
+    At 45 degrees the taps of the narrow compression kernel (sigma 0.76 texel) are a diagonal sqrt 2 apart, and its
+    discrete Gaussian is coarser there: 1.85."""
+    texel, omega = 6.0, np.pi / 2
+    (a_s, s_s), (a_t, s_t) = (1.0, 57.54), (-2.0, 4.565)
+    expected = frequency_response(kernel_taps(a_t, s_t, texel), omega)[()]
+    assert abs(expected - 2.018) < 1e-3
+    gains = []
+    for deg in (0.0, 10.0, 22.5, 35.0, 45.0, 60.0, 80.0):
+        th = np.radians(deg)
+        axis = (np.cos(th), np.sin(th))
+        d = _wave((192, 192), (-axis[1], axis[0]), omega)
+        gains.append(_gain(convolve_displacement(d, axis, a_s, s_s, a_t, s_t, texel), d, 40))
+    assert abs(gains[0] - expected) < 1e-3
+    assert all(abs(g / expected - 1) < 0.09 for g in gains), gains
+
+
+def test_a_45_degree_axis_reads_whole_texels_on_the_diagonal():
+    """At 45 degrees every tap is a texel (slope 1): the pass is the 1-D kernel of taps sqrt 2 apart on the diagonal."""
+    rng = np.random.default_rng(11)
+    d = rng.normal(size=(90, 90))
+    texel, alpha, sigma = 5.0, 0.75, 20.0  # alpha exact in float32, as the map-level API holds it
+    out = convolve_displacement(d, (np.sqrt(0.5), np.sqrt(0.5)), alpha, sigma, 0.0, 1.0, texel)
+    s = np.float64(np.float32(sigma) / np.float32(texel)) * np.float64(np.float32(np.sqrt(0.5)))  # sigma in taps
+    n = int(np.ceil(3 * s))
+    i = np.arange(-n, n + 1)
+    g = np.exp(-(i * i) / (2 * s * s))
+    g /= g.sum()
+    ref = np.zeros_like(d)
+    for k, gk in zip(i, g):
+        ref += gk * np.roll(d, (-k, -k), axis=(0, 1))
+    ref = (1 - alpha) * d + alpha * ref
+    m = n + 1
+    assert np.abs(out - ref)[m:-m, m:-m].max() < 1e-12
+
+
+def test_the_fit_stencil_is_the_pass_applied_to_an_impulse():
+    """fit.gaussian_stencil (the fit's forward model) and the compiled pass read the same texels with the same
+    weights."""
+    from facestats.model.microstructure.fit import gaussian_stencil
+
+    for axis in ((1.0, 0.0), (0.6, 0.8), (np.cos(0.3), -np.sin(0.3)), (-0.28, 0.96)):
+        st, half = gaussian_stencil(axis, 2.75)  # 27.5 um at 10 um a texel, exact in float32
+        size = 4 * half + 9
+        d = np.zeros((size, size))
+        c = size // 2
+        d[c, c] = 1.0
+        out = convolve_displacement(d, axis, 1.0, 27.5, 0.0, 1.0, 10.0)  # gather: out[x] = K[x - c]
+        # The pass gathers out[x] = sum_y K[y - x] d[y]; the stencil is the kernel as a convolution, K reversed.
+        got = out[c - half : c + half + 1, c - half : c + half + 1][::-1, ::-1]
+        assert np.abs(got - st).max() < 1e-12, axis
+        assert abs(st.sum() - 1) < 1e-12
 
 
 def test_row_layout_does_not_change_the_result():

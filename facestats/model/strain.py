@@ -36,7 +36,9 @@ square maps) with ``texel_um_s``/``texel_um_t`` the µm of skin per texel step
 along them.  Quads are split into two triangles.  Triangles of (near) zero
 area in 3-D (rest or deformed) or in UV, or with non-finite data, are
 *degenerate*: masked, counted, excluded from vertex averages, and given T = I,
-never NaN.  The construction is orientation-blind: both tangent frames are
+never NaN.  So are rest *slivers* (:data:`SLIVER_RATIO`, :func:`slivers`):
+triangles of near-zero 3-D area under a UV triangle of ordinary size.  The
+construction is orientation-blind: both tangent frames are
 built from the same UV layout, so ``det T = area'/area > 0`` always and a
 triangle turned over by the deformation gives the T of its mirror image (the
 paper's recipe has no notion of inversion; facestats does not add one).
@@ -65,10 +67,18 @@ __all__ = [
     "vertex_strain",
     "texel_strain",
     "uv_islands",
+    "slivers",
 ]
 
 #: A triangle is degenerate when |e1 × e2| ≤ DEGENERATE_SINE · |e1| |e2| (rest, deformed or UV).
 DEGENERATE_SINE = 1e-9
+#: A rest triangle is a *sliver* (masked like a degenerate one) when the largest UV length it gives a mm of skin
+#: (the larger eigenvalue of its M) exceeds SLIVER_RATIO × the median of the mesh's other triangles: near-zero area
+#: in 3-D under a UV triangle of ordinary size.  ICT-FaceKit's face area reaches 45.8 × its median (eyelids and lip
+#: corners), so none of its triangles is one.  A sliver's M would otherwise set the texel size of its own texels and,
+#: through the UV-vertex averages, of its neighbours', far below the rest of the map's (to 1/1000 of it and less,
+#: where the kernels need more taps than a pass may read).
+SLIVER_RATIO = 100.0
 #: How far beyond one triangle each texel of a mesh's UV layout may lie on average
 #: (:meth:`MeshStrain.check_uv_overlap`): ICT-FaceKit's face area gives 1.00 (shared edges do not count); its whole
 #: head, whose eyes and mouth share the face's UV square, 2.39; a mirrored layout 2.
@@ -220,6 +230,30 @@ def uv_metric(vertices, triangles, uv_corners, uv_edges=None):
     g_inv, _ = inv2x2(gram)
     m = _sqrt_spd2(w @ g_inv @ np.swapaxes(w, -1, -2))
     return m, degenerate
+
+
+def slivers(m, degenerate, ratio=SLIVER_RATIO):
+    """Rest triangles whose largest UV per mm exceeds ``ratio`` × the median of the other triangles' (bool (F,)).
+
+    Parameters
+    ----------
+    m : ndarray, shape (F, 2, 2)
+        The UV metric M of :func:`uv_metric` (symmetric; UV per mm).
+    degenerate : ndarray of bool, shape (F,)
+        Triangles already masked (left out of the median, never slivers).
+    ratio : float
+        :data:`SLIVER_RATIO` by default.
+
+    Returns
+    -------
+    ndarray of bool, shape (F,)
+    """
+    a, b, c = m[:, 0, 0], m[:, 0, 1], m[:, 1, 1]
+    top = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)  # the larger eigenvalue of [[a, b], [b, c]]
+    ok = ~degenerate
+    if not ok.any():
+        return np.zeros(len(m), bool)
+    return ok & (top > ratio * np.median(top[ok]))
 
 
 def tangent_frames(vertices, triangles, uv_corners):
@@ -407,7 +441,11 @@ class MeshStrain:
         self.rest, self.triangles, self.uv, self.uv_triangles = _check_mesh(rest_vertices, triangles, uv, uv_triangles)
         self.uv_corners = self.uv[self.uv_triangles]
         self.uv_edges = _uv_edges(self.uv_corners)
-        self.m, self.rest_degenerate = uv_metric(self.rest, self.triangles, self.uv_corners, self.uv_edges)
+        m, degenerate = uv_metric(self.rest, self.triangles, self.uv_corners, self.uv_edges)
+        #: Rest triangles masked as slivers (:data:`SLIVER_RATIO`); they are also in ``rest_degenerate``.
+        self.rest_slivers = slivers(m, degenerate)
+        self.rest_degenerate = degenerate | self.rest_slivers
+        self.m = np.where(self.rest_slivers[:, None, None], np.eye(2), m)  # as uv_metric gives degenerate ones
         self._rasters = {}
 
     @property

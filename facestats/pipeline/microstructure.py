@@ -70,7 +70,7 @@ from facestats.io.mesh_sequence import BlendshapeSequence, FrameSequence, read_m
 from facestats.model.microstructure.deform import deform_microstructure
 from facestats.model.microstructure.kernel import SIGMA_RANGE_UM, TRUNCATE
 from facestats.model.microstructure.tables import TABLES, KernelTable
-from facestats.model.strain import MeshStrain
+from facestats.model.strain import SLIVER_RATIO, MeshStrain
 
 __all__ = ["SequenceReport", "render_sequence", "tile_halo", "mesh_texel_um", "TEXEL_SIZE_TOLERANCE"]
 
@@ -562,6 +562,16 @@ def render_sequence(
     backend = resolve_backend(backend)
     mesh = sequence.neutral.require_uv()
     ms = MeshStrain(mesh.vertices, mesh.triangles, mesh.uv, mesh.uv_triangles)
+    n_slivers = int(np.count_nonzero(ms.rest_slivers))
+    if n_slivers:
+        warnings.warn(
+            f"the neutral mesh has {n_slivers} sliver triangle(s) (near-zero area under UV triangles of ordinary "
+            f"size: more than {SLIVER_RATIO:g}x the median UV per mm), e.g. triangle "
+            f"{int(np.flatnonzero(ms.rest_slivers)[0])}; they are masked like degenerate ones: their texels get no "
+            "strain and their neighbours' texel sizes leave them out",
+            FacestatsWarning,
+            stacklevel=2,
+        )
     if isinstance(neutral_map, (str, os.PathLike)):
         _check_texel_size(neutral_map, ms, map_shape)
     n = len(sequence)

@@ -184,3 +184,30 @@ def test_bad_meshes_raise_naming_the_field():
         triangle_strain(v, v, tri + 10, uv)
     with pytest.raises(FacestatsError, match="window must lie inside"):
         texel_strain(v, v, tri, uv, 32, window=(20, 20, 20, 20))
+
+
+def test_ict_facekit_has_no_sliver_and_a_near_needle_is_one():
+    """SLIVER_RATIO leaves a real face alone (ICT-FaceKit's face area: its largest UV per mm is 45.8 x the median) and
+    masks a triangle squeezed to 1e-3 of its height in 3-D under an unchanged UV triangle (1000 x)."""
+    from facestats.io.ict_facekit import read_ict_facekit
+    from facestats.model.strain import SLIVER_RATIO, slivers, uv_metric
+    from tests.helpers import TEST_DATA
+
+    mesh, _ = read_ict_facekit(TEST_DATA / "ict-facekit", [])
+    ms = MeshStrain(mesh.vertices, mesh.triangles, mesh.uv, mesh.uv_triangles)
+    assert not ms.rest_slivers.any()
+    corners = mesh.uv[mesh.uv_triangles]
+    m, degenerate = uv_metric(mesh.vertices, mesh.triangles, corners)
+    top = np.linalg.eigvalsh(m[~degenerate])[:, 1]
+    assert np.max(top) / np.median(top) == pytest.approx(45.8, abs=0.05) and 45.8 < SLIVER_RATIO / 2
+    # The same mesh with one vertex pulled onto the line through two neighbours: its triangles there become slivers.
+    f = int(np.argsort(top)[len(top) // 2])  # an ordinary triangle
+    a, b, c = mesh.triangles[~degenerate][f]
+    squeezed = mesh.vertices.copy()
+    foot = squeezed[a] + np.dot(squeezed[c] - squeezed[a], squeezed[b] - squeezed[a]) / np.sum(
+        (squeezed[b] - squeezed[a]) ** 2
+    ) * (squeezed[b] - squeezed[a])
+    squeezed[c] = foot + 1e-3 * (squeezed[c] - foot)
+    m2, deg2 = uv_metric(squeezed, mesh.triangles, corners)
+    hit = slivers(m2, deg2)
+    assert hit[np.flatnonzero(~degenerate)[f]] and not hit[~np.any(mesh.triangles == c, axis=1)].any()

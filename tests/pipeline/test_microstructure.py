@@ -9,7 +9,7 @@ import zarr
 
 from facestats.acquire.synthetic.microstructure import procedural_microstructure
 from facestats.cli import main
-from facestats.errors import FacestatsError, QuantisationWarning, ValidationError
+from facestats.errors import FacestatsError, FacestatsWarning, QuantisationWarning, ValidationError
 from facestats.io.displacement import read_displacement, write_displacement
 from facestats.io.ict_facekit import read_ict_facekit
 from facestats.io.images import read_exr, write_exr, write_image
@@ -441,3 +441,33 @@ def test_a_collapsed_frame_reports_no_strain_measured_not_no_strain(tmp_path):
     stretch = zarr.open_group(str(tmp_path / "r.zarr"), mode="r")["stretch"][:]
     np.testing.assert_allclose(stretch[0, :6], [1, 1, 1, 0.6, 0.6, 0.6], rtol=1e-9)
     assert np.isnan(stretch[1, :6]).all() and stretch[1, 6] == 32
+
+
+def test_a_sliver_in_the_neutral_mesh_is_masked_not_fatal(tmp_path):
+    """A vertex of the neutral moved to 1e-5 of an edge from its neighbour makes two sliver triangles (their UV
+    triangles of ordinary size over almost no surface).  Their UV per mm, 10^5 x the others', set the texel size of
+    their texels and, through the UV-vertex averages, of their neighbours': the render was refused ("far less
+    surface than a texel of the kernels needs").  They are masked now, with a warning, and the rest renders."""
+    from facestats.model.strain import MeshStrain
+    from facestats.pipeline.microstructure import open_sequence
+
+    eps = 1e-5
+
+    def sliver(u, v):
+        return (5 / 8 - eps / 8, 4 / 8) if (u, v) == (4 / 8, 4 / 8) else (u, v)
+
+    _grid_obj(tmp_path / "n.obj", 10.0, xy=sliver, n=9)
+    _grid_obj(tmp_path / "s.obj", 10.0, xy=lambda u, v: (1.2 * sliver(u, v)[0], sliver(u, v)[1]), n=9)
+    seq = open_sequence(tmp_path / "n.obj", frames=[tmp_path / "s.obj"])
+    mesh = seq.neutral.require_uv()
+    ms = MeshStrain(mesh.vertices, mesh.triangles, mesh.uv, mesh.uv_triangles)
+    corners = [set(t) for t in mesh.triangles[ms.rest_slivers]]
+    p, q = 4 * 9 + 4, 4 * 9 + 5  # the moved vertex and the neighbour it sits next to
+    assert len(corners) == 2 and all({p, q} <= c for c in corners)  # the two triangles of the edge p-q
+    strain = ms.texels_strain(seq.frame(0), (64, 64))
+    texel = strain.texel_um_s[strain.valid]
+    assert texel.min() > 0.3 * np.median(texel)  # no texel near the sliver shrinks to the sliver's scale
+    neutral = procedural_microstructure((64, 64), 156.25, seed=4)
+    with pytest.warns(FacestatsWarning, match=r"2 sliver triangle\(s\) .*masked like degenerate ones"):
+        report = render_sequence(seq, neutral, tmp_path / "r.zarr", map_shape=(64, 64), progress=False)
+    assert report.rendered == [0]

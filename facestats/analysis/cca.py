@@ -492,7 +492,7 @@ def _complete_blocks(X, Y, regularization, n_permutations, missing, seed=0):
     x, y = x[ok], y[ok]
     index = tuple(lab for lab, k in zip(x_index, ok) if k)
     if x.shape[0] < 3:
-        raise ValidationError(f"cca needs at least 3 complete rows, got {x.shape[0]}")
+        raise InsufficientDataError(f"cca needs at least 3 complete rows, got {x.shape[0]}")
     return x, y, x_names, y_names, index, dropped, reg
 
 

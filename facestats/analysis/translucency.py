@@ -43,7 +43,7 @@ from facestats.analysis.serialize import by_channel, json_ready
 from facestats.core.conventions import CHANNELS, SITES
 from facestats.core.published import ELL_D_MAX, ELL_D_MIN, SIGMA_TR_AVG, TABLE1_MEAN, TABLE1_VAR
 from facestats.core.validate import check_choice, check_integer
-from facestats.errors import InsufficientDataError, ValidationError
+from facestats.errors import InsufficientDataError
 
 __all__ = ["TranslucencyTable", "translucency_table", "subject_sigma_tr"]
 
@@ -247,8 +247,9 @@ def translucency_table(source, subjects=None, conditions=("normal",), ddof=1, ra
 
     Raises
     ------
-    ValidationError
-        If no selected subject has a cheek or forehead σtr.
+    InsufficientDataError
+        If no selected subject has a cheek or forehead σtr, or a site has σtr for at most ``ddof`` subjects
+        (a :class:`ValidationError` too).
     """
     import pandas as pd
 
@@ -264,8 +265,8 @@ def translucency_table(source, subjects=None, conditions=("normal",), ddof=1, ra
         vals.columns = list(CHANNELS)
         n = vals.notna().sum(axis=0)
         few = (n > 0) & (n <= ddof)  # the variance would be NaN or negative: say so rather than print it
-        if few.any():
-            raise ValidationError(
+        if few.any():  # too few subjects for the variance asked for (analyze all skips the table and says why)
+            raise InsufficientDataError(
                 f"ddof must be less than the number of subjects with a {site} sigma_tr ({int(n[few].min())}), "
                 f"got {ddof}"
             )

@@ -367,8 +367,10 @@ def add_calibrate(sub):
             "Read photographs of one static scene at several exposure times (as 'calibrate response' does; times "
             "from EXIF unless given) and merge them with a response file written by 'calibrate response --output' "
             "(Debevec & Malik 1997 eq. 6, the response's black and white levels). Pixels saturated in every "
-            "exposure have no measured radiance: --saturated clip (default) gives them their channel's largest "
-            "radiance, zero gives them 0; a warning counts them. Writes OpenEXR (.exr), Radiance (.hdr) or PFM."
+            "exposure have no measured radiance: --saturated clip (default) gives them the lower bound of their "
+            "radiance, exp(g(white level)) / the shortest time, zero gives them 0; pixels dark in the short "
+            "exposures and clipped in the long ones get the geometric mean of their bounds. Warnings count both. "
+            "Writes OpenEXR (.exr), Radiance (.hdr) or PFM."
         ),
     )
     merge.add_argument("images", metavar="IMAGE", nargs="+", help="the bracket's photographs, any order")
@@ -378,7 +380,8 @@ def add_calibrate(sub):
     )
     merge.add_argument("--out", required=True, metavar="FILE", help="radiance image: .exr, .hdr or .pfm")
     merge.add_argument("--saturated", choices=("clip", "zero"), default="clip",
-                       help="fill of pixels saturated in every exposure (default clip)")  # fmt: skip
+                       help="fill of pixels saturated in every exposure: clip, the lower bound of their radiance "
+                            "(default); zero")  # fmt: skip
     merge.set_defaults(func=_cmd_merge)
     resp = csub.add_parser(
         "response",

@@ -207,7 +207,7 @@ class Survey:
         return out
 
 
-def survey(root, index: dict, *, live_strays: bool = False) -> Survey:
+def survey(root, index: dict, *, live_strays: bool = False, absent=frozenset()) -> Survey:
     """Walk the store at ``root`` (no link followed) and sort its entries against ``index`` (module docstring).
 
     Parameters
@@ -219,6 +219,9 @@ def survey(root, index: dict, *, live_strays: bool = False) -> Survey:
     live_strays : bool
         Also look for items Zarr did not write inside the generations the index names
         (:attr:`Survey.strays`; ``facestats validate`` does, garbage collection needs not).
+    absent : set of (str, str)
+        ``(subject, generation)`` pairs to survey as if gone, folder and record (a repair's plan surveys the
+        store as its moves to the quarantine will leave it).
 
     Returns
     -------
@@ -236,7 +239,7 @@ def survey(root, index: dict, *, live_strays: bool = False) -> Survey:
     s.records = sorted(recorded)
     pairs = recorded | _survey_subjects(s, root)
     kept = set()
-    for sid, gen in sorted(pairs):
+    for sid, gen in sorted(pairs - set(absent)):
         if _survey_generation(s, root, sid, gen, index):
             kept.add(sid)
     if live_strays:

@@ -199,10 +199,9 @@ class RepairPlan:
         lines += [f"  - {a.describe()}" for a in self.actions if a.kind != "heal-record" or a.reason]
         if heals:
             lines.append(f"  - mark {len(heals)} generation(s) the index names as committed in their records")
-        if self.garbage:
-            lines.append(
-                f"  - remove {len(self.garbage)} leftover item(s) of interrupted writes (e.g. {self.garbage[0]})"
-            )
+        if self.garbage:  # leftovers of interrupted writes, and folders of subjects the repair leaves empty
+            shown = ", ".join(self.garbage[:GARBAGE_SHOWN]) + (", ..." if len(self.garbage) > GARBAGE_SHOWN else "")
+            lines.append(f"  - remove {len(self.garbage)} leftover item(s): {shown}")
         if self.empty:
             lines.append("  nothing to repair")
         lines += [f"  cannot repair: {p}" for p in self.problems]
@@ -210,6 +209,10 @@ class RepairPlan:
 
 
 # -- planning ----------------------------------------------------------------------------------
+#: Leftovers a plan's text names one by one (the rest are counted).
+GARBAGE_SHOWN = 10
+
+
 def plan_repair(
     root, *, label: str, open_generation, allow_missing: bool = False, progress: bool = False
 ) -> RepairPlan:
@@ -277,12 +280,9 @@ def _garbage_after(plan: RepairPlan, root, index) -> list[str]:
     for a in plan.actions:
         _change_index(after["subjects"], a)
     after["revision"] = plan.base_revision + any(a.kind in _INDEX_KINDS for a in plan.actions)
-    moved = set()
-    for a in plan.actions:
-        if a.kind in ("quarantine-generation", "quarantine-record"):
-            moved |= {generation_rel(a.subject, a.source), f"{RECORDS}/{record_name(a.subject, a.source)}"}
-    s = survey(root, after)
-    return [g for g in s.garbage if g not in moved] + [f"{SUBJECTS}/{sid}" for sid in s.empty_subjects]
+    moved = {(a.subject, a.source) for a in plan.actions if a.kind in ("quarantine-generation", "quarantine-record")}
+    s = survey(root, after, absent=moved)  # as the moves leave it: a subject whose last generation goes is empty
+    return s.garbage + [f"{SUBJECTS}/{sid}" for sid in s.empty_subjects]
 
 
 def _preflight(root) -> None:

@@ -300,3 +300,24 @@ def test_store_without_condition_series(tmp_path):
     assert r.returncode == 2 and "--out must lie outside the store" in r.stderr
     doc = _doc(tmp_path / "all", "translucency")
     assert doc["n_subjects"] == 6 and doc["store"] == str(path)
+
+
+@pytest.mark.parametrize("n", [1, 2])
+def test_all_on_a_store_of_one_or_two_subjects_skips_what_it_cannot_do(tmp_path, n):
+    """``analyze all`` on the store a first ingest makes (one subject) exited 2 on the CCA's "at least 3 complete
+    rows" and, with one subject, on Table 1's variance (ValidationErrors, not InsufficientDataErrors), and wrote
+    nothing (the docs audit)."""
+    path = tmp_path / "few.zarr"
+    with open_store(path, mode="a") as st:
+        st.write_subjects([make_map_subject(f"P{k}", skin_type=3 + k, gender="F", age=30, seed=k) for k in range(n)])
+    r = run_cli("analyze", "all", "--store", path, "--permutations", "0", "--out", tmp_path / "all")
+    assert r.returncode == 0, r.stderr
+    assert f"cca: skipped (cca needs at least 3 complete rows, got {n})" in r.stdout
+    written = {p.name for p in (tmp_path / "all").iterdir()}
+    assert {"pca.json", "scatter.json", "models.json"} <= written
+    if n == 1:  # Table 1's sample variance needs two subjects
+        assert "translucency: skipped (ddof must be less than the number of subjects with a cheek sigma_tr (1)" in (
+            r.stdout
+        )
+    else:
+        assert "translucency.json" in written

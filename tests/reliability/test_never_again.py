@@ -205,6 +205,19 @@ def _overwrite_without_removal(store, monkeypatch, times: int) -> list[str]:
     return gens
 
 
+def test_the_plan_lists_the_folder_of_a_subject_its_repair_leaves_empty(store, base):
+    """The only generation of R1 damaged: the repair quarantines it and drops R1, and the garbage collection after it
+    removes the emptied subjects/R1 folder.  The plan did not list that (it surveyed the store with the damaged
+    generation still in place, an adoptable committed one under the new index); the docs audit found it."""
+    gen = generation_dir(store, "R1")
+    flip_albedo_bit(gen)
+    code, out = run("validate", "--store", store, "--repair")
+    assert code == 1 and "drop subject 'R1'" in out and "remove 1 leftover item(s): subjects/R1" in out, out
+    code, out = run("validate", "--store", store, "--repair", "--yes")
+    assert code == 0 and "removed 1 leftover item(s)" in out, out
+    assert not (store / "subjects" / "R1").exists() and quarantined_generations(store) == {gen.name}
+
+
 def test_a_damaged_earlier_generation_is_quarantined_not_deleted(store, base, monkeypatch):
     """The index names a missing generation and the only earlier one is damaged: the subject is dropped, and its
     damaged data go to the quarantine (the plan says so) instead of being collected as leftovers."""

@@ -16,7 +16,7 @@ Benchmarks
   sampler per channel with the stretch move, run to the same 50 τ criterion.
 * ``calibration``: coverage of the 90 % intervals on 600 simulated profiles.
 * ``default_store``: the whole non-posterior analysis of ``facestats.open_store()``
-  (the embedded store: 156 subjects, 48 × 48 maps), opening the store included.
+  (the embedded store: 155 records, 48 × 48 maps), opening the store included.
   Target: ≤ 10 s.
 * ``default_store_cli``: ``facestats analyze all`` on the embedded store, in
   process: the same analysis plus rendering and writing the five PNG figures

@@ -315,14 +315,15 @@ def bench_calibration(n_subjects=4, grid=48, face="procedural", transport="dipol
     return out
 
 
-def bench_calibration_variants(subjects=(0, 51, 103, 155), grid=48, face="procedural"):
+def bench_calibration_variants(subjects=None, grid=48, face="procedural"):
     """Coverage of nominal 90 % intervals with other nuisance columns than the pipeline's (docs/scale.md).
 
     The variants among which the pipeline's columns were chosen: the HC3 sandwich of (ρs, ln p, δ) with
     no tilt (``none``), the lobe's two tilts (``lobe``), the diffuse term's two (``diffuse``), one tilt
     shared by both (``shared``: the columns summed) and both (``both``, the pipeline's).  Stages 1-4 as
     the pipeline runs them (numpy engine), on ``subjects`` of the default population on ``face`` at
-    ``grid``, each model on captures rendered with it (dipole transport, camera noise).  The columns
+    ``grid`` (default: four spread over it, those of :func:`bench_calibration`), each model on captures rendered
+    with it (dipole transport, camera noise).  The columns
     are formed here from the package's slopes (:func:`facestats.model.fitting.normal_tilt.tilt_slopes`).
     """
     from facestats.acquire.synthetic.faces import named_face
@@ -338,6 +339,8 @@ def bench_calibration_variants(subjects=(0, 51, 103, 155), grid=48, face="proced
     z90 = 1.6448536269514722
     geometry = named_face(f"{face}-{grid}")
     pop = synthesize_population(map_size=grid, geometry=geometry)
+    if subjects is None:  # four spread over the population, as bench_calibration picks them
+        subjects = np.linspace(0, len(pop.subjects) - 1, 4).astype(int).tolist()
     v, u = geometry.face_texel_index().T
     hits = {}
     for subject in subjects:

@@ -3,7 +3,9 @@
 Each ``plot_*`` function returns a :class:`matplotlib.figure.Figure` (no pyplot
 state, no ``show``); :func:`save_edit_images` writes PNGs.  matplotlib is
 imported when a function is called.  Linear-RGB albedo is displayed with the
-sRGB transfer function (colour-science's ``cctf_encoding``).
+sRGB transfer function (colour-science's ``cctf_encoding``, through
+:func:`facestats.io.images.linear_to_srgb`).  The summary figure draws maps of at
+most :data:`PANEL_MAX` texels a side; the PNGs of each map are full size.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from facestats.edit.histogram import Histogram, interpolate_histograms
 from facestats.edit.pyramid import band_names
 from facestats.edit.result import BRDF_VARIABLES, SubjectEdit
 from facestats.errors import ValidationError
+from facestats.io.images import linear_to_srgb
 
 __all__ = [
     "plot_texture_transfer",
@@ -34,10 +37,19 @@ def _figure(**kwargs):
 
 
 def _display(rgb):
-    """Linear RGB in [0, 1] → sRGB-encoded values for imshow."""
-    import colour
+    """Linear RGB in [0, 1] → sRGB-encoded float32 values for imshow (:func:`facestats.io.images.linear_to_srgb`)."""
+    return np.clip(linear_to_srgb(rgb), 0.0, 1.0)
 
-    return np.clip(colour.cctf_encoding(np.clip(np.asarray(rgb, np.float64), 0.0, 1.0)), 0.0, 1.0)
+
+#: Largest side of a panel of :func:`plot_subject_edit`: a panel is drawn about 250 pixels wide, and full-size
+#: float64 copies of every map (and matplotlib's masked copies of them) took 3.2 GB at 4096² (the speed red team).
+PANEL_MAX = 512
+
+
+def _thumbnail(img, max_side=PANEL_MAX):
+    """Every k-th texel of a map (k the smallest step that brings its longer side to at most ``max_side``)."""
+    k = max(1, -(-max(img.shape[:2]) // max_side))
+    return img[::k, ::k]
 
 
 def _window(img, crop):
@@ -220,9 +232,10 @@ def plot_subject_edit(edit: SubjectEdit, *, title: str | None = None):
     fig = _figure(figsize=(10.0, 3.0 * len(rows)), layout="constrained")
     # Columns: before, after, their colour bar, difference, its colour bar (same widths in every row).
     grid = fig.add_gridspec(len(rows), 5, width_ratios=[1, 1, 0.05, 1, 0.05])
-    for k, var in enumerate(rows):
-        before = np.asarray(edit.source[var].values, np.float64)
-        after = np.asarray(edit.dataset[var].values, np.float64)
+    face = _thumbnail(face)
+    for k, var in enumerate(rows):  # panels of at most PANEL_MAX texels a side, in float32
+        before = np.asarray(_thumbnail(edit.source[var].values), np.float32)
+        after = np.asarray(_thumbnail(edit.dataset[var].values), np.float32)
         _edit_row(fig, grid, k, var, before, after, face)
     fig.suptitle(title or f"{edit.subject_id} ({edit.edit['name']} of {edit.source.attrs['subject_id']})")
     return fig
@@ -230,7 +243,7 @@ def plot_subject_edit(edit: SubjectEdit, *, title: str | None = None):
 
 def _upscale(img, min_side=256):
     k = max(1, -(-min_side // max(img.shape[:2])))
-    return np.repeat(np.repeat(img, k, axis=0), k, axis=1)
+    return img if k == 1 else np.repeat(np.repeat(img, k, axis=0), k, axis=1)
 
 
 def edit_image_names(subject_id: str) -> list[str]:
@@ -280,12 +293,12 @@ def save_edit_images(edit: SubjectEdit, directory=".") -> list[pathlib.Path]:
                 out.path(f"{edit.subject_id}_albedo_{when}.png"), _upscale(_display(np.asarray(ds["albedo"].values)))
             )
         for var in edit.brdf_variables:
-            before = np.asarray(edit.source[var].values, np.float64)
-            after = np.asarray(edit.dataset[var].values, np.float64)
+            before = np.asarray(edit.source[var].values, np.float32)
+            after = np.asarray(edit.dataset[var].values, np.float32)
             lo, hi = _map_range(before, after, face)
             for when, img in (("before", before), ("after", after)):
-                rgb = cmap(np.clip((img - lo) / (hi - lo), 0.0, 1.0))[..., :3]
-                rgb[~face] = 0.0
+                rgb = cmap(np.clip((img - lo) / (hi - lo), 0.0, 1.0), bytes=True)[..., :3]  # 8-bit, as written
+                rgb[~face] = 0
                 imsave(out.path(f"{edit.subject_id}_{var}_{when}.png"), _upscale(rgb))
         fig = plot_subject_edit(edit)
         try:

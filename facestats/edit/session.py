@@ -188,7 +188,10 @@ class EditSession:
         self.source, self.region = read_map_subject(self.store, subject)
         self.source_id = str(subject)
         self.present = present_regions(self.region)
-        self.dataset = self.source.copy(deep=True)
+        # A shallow copy: every edit replaces whole variables and attributes (replace_values, assignment), never
+        # the source's arrays in place; a deep one held a second copy of every map (about 1 GB of a 2048²
+        # subject with its micro-normals; the speed red team).  tests/edit/test_subjects.py checks the source.
+        self.dataset = self.source.copy(deep=False)
         return self
 
     def regions(self, regions, name="regions"):

@@ -45,8 +45,9 @@ MAX_MESH_SCALE = 1e6
 _INPUTS = ("mesh", "probe")
 
 
-def store_subject(store, subject_id):
-    """``store.subject(id)`` after checking the id (:func:`facestats.io.ids.check_subject_id`) and its presence.
+def store_subject(store, subject_id, *, lazy: bool = False):
+    """``store.subject(id, lazy=lazy)`` after checking the id (:func:`facestats.io.ids.check_subject_id`) and its
+    presence.
 
     Raises
     ------
@@ -59,7 +60,7 @@ def store_subject(store, subject_id):
     sid = check_subject_id(subject_id)
     if sid not in store:
         raise UnknownSubjectError(f"subject {sid!r} is not in store {store.label} ({len(store)} subjects)")
-    return store.subject(sid)
+    return store.subject(sid, lazy=lazy)
 
 
 class UnknownSubjectError(StoreError):

@@ -378,3 +378,20 @@ def test_default_store_is_read_only_and_edits_go_to_another_store(tmp_path):
     np.testing.assert_allclose(img[::6, ::6], expect, atol=1 / 255 + 1e-6)
     fig = plot_subject_edit(e)
     assert len([ax for ax in fig.axes if ax.images]) == 3 * 4  # 4 BRDF maps (albedo unchanged), before/after/diff
+
+
+def test_every_edit_leaves_the_source_it_read_unchanged_in_memory(store):
+    """An edit works on a shallow copy of the source (a deep one held every map twice): each edit must replace
+    whole variables, never write into the source's arrays.  The edit's ``source`` stays equal, bit for bit, to a
+    fresh read of the stored subject after each kind of edit."""
+    edits = [
+        lambda: change_skin_type(store, "A2", 5, new_id="A2-shallow-skin"),
+        lambda: transfer_colour_subject(store, "A2", "V1", regions=["cheeks"], new_id="A2-shallow-colour"),
+        lambda: transfer_brdf_subject(store, "A2", "V1", regions=[2, "cheeks"], model="ts", new_id="A2-shallow-brdf"),
+        lambda: transfer_texture_subject(store, "A2", "V1", new_id="A2-shallow-tex", levels=2, iterations=2),
+    ]
+    for make in edits:
+        e = make()
+        xr.testing.assert_identical(e.source, store.subject("A2"))
+        changed = [v for v in e.variables if v in e.source]
+        assert changed and any(not np.array_equal(e.source[v].values, e.dataset[v].values) for v in changed)

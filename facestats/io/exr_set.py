@@ -282,21 +282,37 @@ def _measured_normals(ds):
     return n, ~n.any(axis=-1) | (np.asarray(ds["region"].values) == 0)
 
 
-def _object_normals(ds, mesh: FaceMesh) -> np.ndarray:
-    """The unit normals, the mesh's own normal where none is measured."""
+def _object_normals(ds, frames) -> np.ndarray:
+    """The unit normals, the mesh's own normal (``frames()[2]``) where none is measured."""
     n, absent = _measured_normals(ds)
     if absent.any():
-        n[absent] = mesh.tangent_frames(n.shape[0])[2][absent]
+        n[absent] = frames()[2][absent]
     return n
 
 
-def _tangent_normals(ds, mesh: FaceMesh) -> np.ndarray:
-    """The normals in the mesh's tangent frames (T, B, N): n_t = (n·T, n·B, n·N); (0, 0, 1) where none is measured."""
+def _tangent_normals(ds, frames) -> np.ndarray:
+    """The normals in the mesh's tangent frames (T, B, N) = ``frames()``: n_t = (n·T, n·B, n·N); (0, 0, 1) where
+    none is measured."""
     n, absent = _measured_normals(ds)
-    frames = mesh.tangent_frames(n.shape[0])
-    nt = np.stack([np.einsum("vuk,vuk->vu", n, f) for f in frames], -1)
+    nt = np.stack([np.einsum("vuk,vuk->vu", n, f) for f in frames()], -1)
     nt[absent] = (0.0, 0.0, 1.0)
     return nt
+
+
+def _shared_frames(mesh: FaceMesh, size: int):
+    """A callable giving ``mesh.tangent_frames(size)``, computed once for both normal textures (their threads
+    would otherwise each compute it, at once)."""
+    import threading
+
+    lock, memo = threading.Lock(), []
+
+    def frames():
+        with lock:
+            if not memo:
+                memo.append(mesh.tangent_frames(size))
+            return memo[0]
+
+    return frames
 
 
 def _normal_textures(ds, mesh: FaceMesh):
@@ -304,11 +320,12 @@ def _normal_textures(ds, mesh: FaceMesh):
     if "normal" not in ds.data_vars:
         return []
     quantity = VARIABLES["normal"][2]
+    frames = _shared_frames(mesh, int(ds.sizes["v"]))
     return [
         _texture(
             "normal",
             "RGB",
-            lambda: _planes(_object_normals(ds, mesh)),
+            lambda: _planes(_object_normals(ds, frames)),
             kind="half",
             units="1",
             quantity=quantity,
@@ -317,7 +334,7 @@ def _normal_textures(ds, mesh: FaceMesh):
         _texture(
             "normal_tangent",
             "RGB",
-            lambda: _planes(_tangent_normals(ds, mesh)),
+            lambda: _planes(_tangent_normals(ds, frames)),
             kind="half",
             units="1",
             quantity=quantity,

@@ -151,7 +151,9 @@ class EditSession:
     present : list of int
         The regions of its region map.
     dataset : xarray.Dataset
-        The working copy the edit changes (a deep copy of :attr:`source`).
+        The working copy the edit changes: a shallow copy of :attr:`source`, whose variables the edit replaces
+        whole (:func:`replace_values`); unedited variables share their arrays with :attr:`source`, so write
+        new arrays into it, never into ``dataset[v].values``.
     new_id : str
         Id of the new subject (set by :meth:`assign_id`).
 

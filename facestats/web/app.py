@@ -110,6 +110,22 @@ class _SubjectCache:
                 self._items.popitem(last=False)
             return ds
 
+    def read(self, sid, work):
+        """``work(subject)``, once more on the new generation if the subject was replaced while ``work`` read it.
+
+        A lazy subject reads its chunks when ``work`` asks for them; a writer that replaced the subject meanwhile
+        has removed those files, which reads as a damaged chunk (``StoreError``).  A subject still at the same
+        generation is really damaged: its error stands.
+        """
+        ds = self.get(sid)
+        try:
+            return work(ds)
+        except StoreError:
+            again = self.get(sid)
+            if again is ds:
+                raise
+            return work(again)
+
 
 def _filters(args) -> dict:
     """The whitelisted, length-bounded filters of a request (empty values mean "any")."""
@@ -301,20 +317,20 @@ def _register_subject_routes(app, ctx):
 
     @app.get("/api/subject/<sid>")
     def api_subject(sid):
-        return jsonify(json_ready(subject_document(cache.get(sid))))
+        return jsonify(json_ready(cache.read(sid, subject_document)))
 
     @app.get("/subject/<sid>")
     def subject_page(sid):
-        doc = subject_document(cache.get(sid))
+        doc = cache.read(sid, subject_document)
         return render_template("subject.html", doc=doc, sid=doc["subject"]["subject_id"])
 
     @app.get("/subject/<sid>/map/<name>.png")
     def subject_map(sid, name):
-        return Response(bounded(lambda: map_png(cache.get(sid), name)), mimetype="image/png")
+        return Response(bounded(lambda: cache.read(sid, lambda ds: map_png(ds, name))), mimetype="image/png")
 
     @app.get("/subject/<sid>/preview.png")
     def subject_preview(sid):
-        return Response(bounded(lambda: preview_png(cache.get(sid))), mimetype="image/png")
+        return Response(bounded(lambda: cache.read(sid, preview_png)), mimetype="image/png")
 
     @app.get("/subject/<sid>/exr.zip")
     def subject_exr(sid):
@@ -322,8 +338,7 @@ def _register_subject_routes(app, ctx):
             return _exr_head(cache.get(sid))
 
         def build():  # the subject is read inside the slot too: at most MAX_HEAVY loaded at once
-            ds = cache.get(sid)
-            return _exr_zip(ds), ds.attrs["subject_id"]
+            return cache.read(sid, lambda ds: (_exr_zip(ds), ds.attrs["subject_id"]))
 
         archive, name = bounded(build)
         size = os.fstat(archive.fileno()).st_size

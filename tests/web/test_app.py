@@ -223,8 +223,8 @@ def test_edited_subjects_are_left_out_unless_asked_for_as_in_the_cli(tmp_path, c
 
 
 def test_images_of_large_maps_are_strided_to_the_image_size(tmp_path):
-    """A 1,500² subject: its map images are 750 pixels a side (every 2nd texel: at most MAX_IMAGE_SIDE = 1024),
-    its preview 500 texels a side (every 3rd: PREVIEW_SIDE = 512, then enlarged twice to 1,000 pixels), and both
+    """A 1,030² subject: its map images are 515 pixels a side (every 2nd texel: at most MAX_IMAGE_SIDE = 1024),
+    its preview 344 texels a side (every 3rd: PREVIEW_SIDE = 512, then enlarged twice to 688 pixels), and both
     equal the images of the strided subject itself.
     At full size a 2048² preview took 5.2 s and 1.4 GB (the speed red team)."""
     import cv2
@@ -235,13 +235,13 @@ def test_images_of_large_maps_are_strided_to_the_image_size(tmp_path):
     from tests.helpers import make_map_subject
 
     path = tmp_path / "big.zarr"
-    ds = make_map_subject("B1", size=1500, seed=3)
+    ds = make_map_subject("B1", size=1030, seed=3)
     with open_store(path, mode="a") as st:
         st.write_subject(ds)
     client = create_app(path, preload=False).test_client()
     for url, side, strided, make in (
-        ("/subject/B1/map/ts_m.png", 750, ds.isel(v=slice(None, None, 2), u=slice(None, None, 2)), map_png),
-        ("/subject/B1/preview.png", 1000, ds.isel(v=slice(None, None, 3), u=slice(None, None, 3)), preview_png),
+        ("/subject/B1/map/ts_m.png", 515, ds.isel(v=slice(None, None, 2), u=slice(None, None, 2)), map_png),
+        ("/subject/B1/preview.png", 688, ds.isel(v=slice(None, None, 3), u=slice(None, None, 3)), preview_png),
     ):
         r = client.get(url)
         assert r.status_code == 200
@@ -250,3 +250,35 @@ def test_images_of_large_maps_are_strided_to_the_image_size(tmp_path):
         args = (strided, "ts_m") if make is map_png else (strided,)
         ref = cv2.imdecode(np.frombuffer(make(*args), np.uint8), cv2.IMREAD_COLOR)
         np.testing.assert_array_equal(img, ref)
+
+
+def test_a_subject_replaced_while_a_request_reads_it_is_read_again(tmp_path):
+    """Subjects are read lazily: a writer that replaces one while a request reads it removes the files the request
+    was about to read, which read as a damaged chunk.  The request reads the new generation instead of answering a
+    false 409 (the review of 2026-12-07); a subject damaged at its current generation still fails."""
+    from facestats.errors import StoreError
+    from facestats.io import open_store
+    from facestats.web import create_app
+    from facestats.web.data import map_png
+    from tests.helpers import make_map_subject
+
+    path = tmp_path / "s.zarr"
+    with open_store(path, mode="a") as st:
+        st.write_subject(make_map_subject("B1", size=32, seed=3))
+    cache = create_app(path, preload=False).config["FACESTATS"]["subjects"]
+    seen = []
+
+    def work(ds):  # a request: its subject is replaced after it opened it, before it reads the maps
+        if not seen:
+            with open_store(path, mode="a") as w:
+                w.write_subject(make_map_subject("B1", size=32, seed=4), overwrite=True)
+        seen.append(ds)
+        return map_png(ds, "albedo")
+
+    png = cache.read("B1", work)
+    assert len(seen) == 2 and seen[0] is not seen[1] and png[:4] == b"\x89PNG"
+    with open_store(path) as st:
+        gen = path / "subjects" / "B1" / st.index_entries()["B1"]["generation"]
+    (gen / "albedo" / "c" / "0" / "0" / "0").unlink()  # damaged where it is
+    with pytest.raises(StoreError, match="albedo"):
+        cache.read("B1", lambda ds: map_png(ds, "albedo"))

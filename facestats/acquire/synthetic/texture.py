@@ -17,7 +17,8 @@ __all__ = ["albedo_map", "smooth_noise", "wrap_gaussian"]
 
 #: Widest Gaussian (taps) :func:`wrap_gaussian` applies directly; wider ones go through the FFT.  The direct filter
 #: costs taps × texels, and the callers' σ grows with the map (n / 10): at 4096² it took 50 s, against 0.8 s by FFT.
-#: Maps up to 160² (the default store's 48², σ = 4.8) keep the direct filter and its bits.
+#: 65 taps is σ < 8.125 (truncated at 4σ): albedo noise of maps up to 81² (the default store's 48², σ = 4.8) and the
+#: population's σ = n / 48 up to 389² keep the direct filter and its bits.
 DIRECT_TAPS = 65
 
 
@@ -34,6 +35,7 @@ def wrap_gaussian(x, sigma_px, truncate=4.0):
     radius = int(truncate * float(sigma_px) + 0.5)
     if 2 * radius + 1 <= DIRECT_TAPS:
         return gaussian_filter(x, sigma_px, mode="wrap", truncate=truncate)
+    dtype = np.asarray(x).dtype if np.asarray(x).dtype.kind == "f" else np.float64  # as gaussian_filter returns
     offsets = np.arange(-radius, radius + 1)
     w = np.exp(-0.5 * (offsets / float(sigma_px)) ** 2)
     w /= w.sum()
@@ -46,7 +48,7 @@ def wrap_gaussian(x, sigma_px, truncate=4.0):
         shape[axis] = n // 2 + 1
         spectrum = np.fft.rfft(h).reshape(shape)  # real and even: convolution equals SciPy's correlation
         out = np.fft.irfft(np.fft.rfft(out, axis=axis) * spectrum, n=n, axis=axis)
-    return out
+    return out.astype(dtype, copy=False)
 
 
 def smooth_noise(rng, shape, sigma_px):

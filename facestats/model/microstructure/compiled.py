@@ -31,6 +31,7 @@ from facestats.model.microstructure.taps import (
     FOOTPRINT,
     LANCZOS,
     LANCZOS_LOBES,
+    LANCZOS_STEPS,
     gaussian_spacing,
     major_axis,
     tap_across,
@@ -52,24 +53,35 @@ if HAVE_NUMBA:
 
 
 def _numpy_tap(src, island, label, rows, cols, u_major, i, slope, bias):
-    """Lanczos-3 samples of the taps ``i`` (signed) of texels (rows, cols), and whether every texel of non-zero
-    weight is in the map and the island."""
+    """Samples of the taps ``i`` (signed) of texels (rows, cols) and whether each is usable: Lanczos-3 where all six
+    texels of non-zero weight are in the map and the island, else linear between the two nearest texels where
+    those are (next to a border), else unusable."""
     h, w = src.shape
-    y0, t = tap_across(slope, i, bias)
-    ok = np.ones(len(rows), bool)
-    val = np.zeros(len(rows))
-    for k in range(FOOTPRINT):  # the six texels across, in the order the compiled kernel sums them
-        across = y0 + (k + 1 - LANCZOS_LOBES)
+
+    def read(across, wk):
+        """Texels ``across`` of the taps: values (0 where unusable) and whether each is usable or of weight 0."""
         rr = np.where(u_major, rows + across, rows + i)
         cc = np.where(u_major, cols + i, cols + across)
-        wk = LANCZOS[t, k]
         inside = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
         rr, cc = np.clip(rr, 0, h - 1), np.clip(cc, 0, w - 1)
         if island is not None:
             inside &= island[rr, cc] == label
-        ok &= inside | (wk == 0)
-        val = val + wk * src[rr, cc].astype(np.float64)
-    return val, ok
+        return src[rr, cc].astype(np.float64), inside | (wk == 0)
+
+    y0, t = tap_across(slope, i, bias)
+    full = np.ones(len(rows), bool)
+    val = np.zeros(len(rows))
+    for k in range(FOOTPRINT):  # the six texels across, in the order the compiled kernel sums them
+        wk = LANCZOS[t, k]
+        v, ok = read(y0 + (k + 1 - LANCZOS_LOBES), wk)
+        full &= ok
+        val = val + wk * v
+    frac = t / LANCZOS_STEPS
+    v0, ok0 = read(y0, np.ones(len(rows)))
+    v1, ok1 = read(y0 + 1, frac)
+    near = ok0 & ok1 & ~full  # next to a border: linear between the two nearest texels
+    val = np.where(near, np.where(t > 0, v0 + frac * (v1 - v0), v0), val)
+    return val, full | near
 
 
 def _convolve_pass_numpy(src, out, au, av, alpha, sigma_um, texel_um, island, truncate):
@@ -140,21 +152,36 @@ if HAVE_NUMBA:
 
     @numba.njit(cache=True, inline="always", fastmath=_FAST)
     def _checked_tap(src, island, label, use_islands, r, c, u_major, i, slope, bias, table):
-        """Lanczos-3 sample of tap ``i`` and whether every texel of non-zero weight is usable."""
+        """Sample of tap ``i`` and whether it is usable: Lanczos-3 where its six texels are in the map and the
+        island, else linear between the two texels around it where those are (next to a border), else unusable."""
         h, w = src.shape
         steps, foot = table.shape
         lobes = foot // 2
         y0, t = _across(slope, i, bias, steps, _log2(steps))
+        full = True
         for k in range(foot):
             if table[t, k] == 0.0:
                 continue
             across = y0 + k + 1 - lobes
             rr = r + across if u_major else r + i
             cc = c + i if u_major else c + across
-            if rr < 0 or cc < 0 or rr >= h or cc >= w:
-                return False, 0.0
-            if use_islands and island[rr, cc] != label:
-                return False, 0.0
+            if rr < 0 or cc < 0 or rr >= h or cc >= w or (use_islands and island[rr, cc] != label):
+                full = False
+                break
+        if not full:  # the two nearest texels, y0 and (for a fraction > 0) y0 + 1
+            for k in range(2 if t > 0 else 1):
+                rr = r + y0 + k if u_major else r + i
+                cc = c + i if u_major else c + y0 + k
+                if rr < 0 or cc < 0 or rr >= h or cc >= w or (use_islands and island[rr, cc] != label):
+                    return False, 0.0
+            rr = r + y0 if u_major else r + i
+            cc = c + i if u_major else c + y0
+            v0 = np.float64(src[rr, cc])
+            if t == 0:
+                return True, v0
+            f = np.float64(t) / steps
+            v1 = np.float64(src[rr + 1, cc] if u_major else src[rr, cc + 1])
+            return True, v0 + f * (v1 - v0)
         val = 0.0
         for k in range(foot):
             across = y0 + k + 1 - lobes

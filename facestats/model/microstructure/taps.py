@@ -19,7 +19,10 @@ blurred where eq. 6 sharpens.  Here:
   major) or row (v major) only, by a Lanczos-3 filter (the sinc windowed by a sinc three times as
   wide, weights normalised to sum 1): six texels, y0 − 2 … y0 + 3 for a point at y0 + f.  The
   fraction f is rounded to 1/``LANCZOS_STEPS`` of a texel (≤ 4.9e-4 texel) and the weights are
-  read from :data:`LANCZOS`; f = 0 reads the one texel y0 exactly.
+  read from :data:`LANCZOS`; f = 0 reads the one texel y0 exactly.  Next to a border (a texel of the
+  six outside the map or the texel's UV island) the point is read linearly between y0 and y0 + 1;
+  a side of the kernel ends at the first tap whose two texels are not both usable.  Off the grid
+  Lanczos-3's negative weights let a blur overshoot a step by about 0.5 %.
 
 On the grid (a = (±1, 0) or (0, ±1)) every tap is a texel, exactly as before.  At 45° every tap
 is a texel too (slope ±1).  In between, with the stretch kernel above, pass 1 keeps 1.000-1.014 of

@@ -282,3 +282,22 @@ def test_kernels_beyond_the_tap_limit_or_below_a_texel_are_refused_or_an_impulse
         for texel in (1e-300, 1e-40, 1e-3):
             with pytest.raises(FacestatsError, match="texel_um must be at least 0.00732 um for sigma up to 10 um"):
                 convolve_displacement(d, [1.0, 0.0], 0.5, 10.0, 0.5, 10.0, texel, backend=backend)
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_texels_next_to_a_border_are_filtered_at_every_angle(backend):
+    """A tap whose six Lanczos texels leave the island or the map is read linearly between its two nearest texels
+    (as the bilinear taps read it) instead of ending that side: the first version stopped both sides at tap 1 within
+    two texels of a border parallel to an axis a degree off the grid, and copied those texels unfiltered (the
+    review of 2026-12-07)."""
+    rng = np.random.default_rng(0)
+    d = rng.standard_normal((40, 200))
+    islands = np.ones(d.shape, np.int32)
+    islands[20:, :] = 2
+    for deg in (0.0, 1.0, 10.0, 30.0):
+        th = np.radians(deg)
+        out = convolve_displacement(d, (np.cos(th), np.sin(th)), 1.0, 30.0, 0.0, 1.0, 6.0, islands=islands,
+                                    backend=backend)  # fmt: skip
+        for row in (0, 1, 18, 19, 20, 21, 38, 39):  # next to the island border and the map's edges
+            changed = np.abs(out[row, 40:160] - d[row, 40:160])
+            assert changed.min() > 0 and np.median(changed) > 0.1, (deg, row)

@@ -147,8 +147,13 @@ if HAVE_NUMBA:
 
         ``steps`` = 2 ** ``shift`` (a shift and a mask, not an integer division).
         """
-        qq = np.int64((bias + np.float64(i) * np.float64(slope)) * steps + 0.5)  # positive: truncation = floor
-        return (qq >> shift) - np.int64(bias), qq & (steps - 1)
+        qq = np.int64((bias + np.float64(abs(i)) * np.float64(slope)) * steps + 0.5)  # positive: truncation = floor
+        y0 = (qq >> shift) - np.int64(bias)
+        row = qq & (steps - 1)
+        if i < 0:  # the mirror image of tap |i| (taps.tap_across)
+            y0 = -y0 - (1 if row > 0 else 0)
+            row = (steps - row) & (steps - 1)
+        return y0, row
 
     @numba.njit(cache=True, inline="always", fastmath=_FAST)
     def _checked_tap(src, island, label, use_islands, r, c, u_major, i, slope, bias, table):
@@ -209,35 +214,45 @@ if HAVE_NUMBA:
 
     @numba.njit(cache=True, inline="always", fastmath=_FAST)
     def _tap_positions(rad, along, across, stride, slope, bias, steps, shift, lobes, off, rows):
-        """Flat offset of texel y0 − 2 and the Lanczos row of taps +i (slot 2i − 2) and −i (slot 2i − 1).
+        """Flat offset of the first texel each tap reads and the Lanczos row of taps +i (slot 2i − 2) and −i
+        (slot 2i − 1; the interior sum reads it with row +i reversed, from texel −y0₊ − 3).
 
         ``along``, ``across``: the texel's index along the major direction (the map's row in ``flat``) and
         across it; ``stride``: the row stride of ``flat``.
         """
-        for k in range(2 * rad):
-            i = (k >> 1) + 1
-            if k & 1:
-                i = -i
+        for k in range(rad):  # the pair ±i: tap −i is tap i mirrored through the centre (taps.tap_across)
+            i = k + 1
             qq = np.int64((bias + np.float64(i) * np.float64(slope)) * steps + 0.5)
-            rows[k] = qq & (steps - 1)
-            off[k] = (along + i) * stride + across + ((qq >> shift) - np.int64(bias)) + 1 - lobes
+            row = qq & (steps - 1)
+            y0 = (qq >> shift) - np.int64(bias)
+            rows[2 * k] = row
+            rows[2 * k + 1] = (steps - row) & (steps - 1)
+            off[2 * k] = (along + i) * stride + across + y0 + 1 - lobes
+            # tap −i read with row ``row`` reversed: its run of six starts at −y0 − 1 − 2 (for a whole-texel
+            # position, row 0, that is one texel below tap_across's y0 − 2; the reversed row weighs −y0 alone)
+            off[2 * k + 1] = (along - i) * stride + across - y0 - lobes
 
     @numba.njit(cache=True, inline="always", fastmath=_FAST)
-    def _lanczos(flat, o, table, t):
-        """Σ_k table[t, k] · flat[o + k] over the six texels (all in the map), in the map's precision.
+    def _lanczos_pair(flat, op, on, table, t):
+        """The pair of taps ±i: Σ_k w_k · flat[op + k] and Σ_k w_(5−k) · flat[on + k], w = table row ``t`` of tap +i.
 
-        Written out for six texels (Lanczos-3); :func:`convolve_pass` refuses a table of another width.
+        Tap −i's row is row ``t`` reversed (the table is mirror-symmetric, taps.py), so one row serves both.
+        The six texels of each (all in the map) in the map's precision; written out for six texels
+        (Lanczos-3): :func:`convolve_pass` refuses a table of another width.
         """
-        i = numba.uint64(o)
         w = table[t]
-        return (
-            w[0] * flat[i]
-            + w[1] * flat[i + numba.uint64(1)]
-            + w[2] * flat[i + numba.uint64(2)]
-            + w[3] * flat[i + numba.uint64(3)]
-            + w[4] * flat[i + numba.uint64(4)]
-            + w[5] * flat[i + numba.uint64(5)]
-        )
+        a = numba.uint64(op)
+        b = numba.uint64(on)
+        one = numba.uint64(1)
+        vp = (
+            w[0] * flat[a] + w[1] * flat[a + one] + w[2] * flat[a + 2 * one]
+            + w[3] * flat[a + 3 * one] + w[4] * flat[a + 4 * one] + w[5] * flat[a + 5 * one]
+        )  # fmt: skip
+        vn = (
+            w[5] * flat[b] + w[4] * flat[b + one] + w[3] * flat[b + 2 * one]
+            + w[2] * flat[b + 3 * one] + w[1] * flat[b + 4 * one] + w[0] * flat[b + 5 * one]
+        )  # fmt: skip
+        return vp, vn
 
     @numba.njit(cache=True, inline="always", fastmath=_FAST)
     def _interior_sum(flat, rad, q, centre, off, rows, table):
@@ -250,8 +265,7 @@ if HAVE_NUMBA:
         for i in range(rad):
             g *= ratio
             ratio *= q2
-            vp = _lanczos(flat, off[2 * i], table, rows[2 * i])
-            vn = _lanczos(flat, off[2 * i + 1], table, rows[2 * i + 1])
+            vp, vn = _lanczos_pair(flat, off[2 * i], off[2 * i + 1], table, rows[2 * i])
             acc += g * (vp + vn)
             wsum += 2.0 * g
         return acc, wsum

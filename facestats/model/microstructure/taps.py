@@ -33,10 +33,13 @@ so a kernel narrower than that is sampled coarsely (docs/microstructure.md).  Th
 contiguous run in a map laid out with the minor direction along its rows: the
 compiled pass reads u-major taps from the map's transpose.
 
-Positions agree between implementations: ``i · slope`` of a float32 slope and an integer
+Positions agree between implementations: ``|i| · slope`` of a float32 slope and an integer
 |i| ≤ 8192 is exact in float64, and so is ×1024; the sum with the bias and the rounding are the same
 float64 operations in the compiled pass, its numpy twin and the fit's stencil, so all three find the
 same texels and the same fraction (a test checks the compiled positions against :func:`tap_across`).
+Tap −i is tap i mirrored through the centre, and the table is exactly mirror-symmetric, so the
+compiled pass reads one table row for both taps of a pair, and every kernel is exactly symmetric (a
+linear ramp passes a blur unchanged).
 
 Reference: the Lanczos window, C. E. Duchon (1979), "Lanczos filtering in one and two dimensions",
 *J. Appl. Meteorology* 18, 1016-1022; here its usual image-resampling form with a = 3 lobes.
@@ -68,6 +71,11 @@ def _lanczos_table(steps=LANCZOS_STEPS, lobes=LANCZOS_LOBES):
     w /= w.sum(axis=1, keepdims=True)
     w[0] = 0.0
     w[0, lobes - 1] = 1.0
+    # Exactly mirror-symmetric: the point y0 + j/steps seen from the other side is −y0 − 1 + (steps − j)/steps, whose
+    # weights are row j's reversed (so a tap pair ±i needs one row, and the compiled pass loads it once).
+    half = steps // 2
+    w[half] = 0.5 * (w[half] + w[half, ::-1])
+    w[half + 1 :] = w[1:half][::-1, ::-1]
     return w
 
 
@@ -104,12 +112,18 @@ def gaussian_spacing(sigma_px, major):
 def tap_across(slope, i, bias):
     """Cross-axis texel y0 (relative to the centre) and Lanczos row of tap ``i`` (signed), exactly.
 
-    The point lies ``i · slope`` texels across; ``bias`` (an integer > |i|, float) keeps the position
-    positive so that the integer part is the floor.  Returns ``(y0, row)`` as int64 arrays: the point
-    is y0 + row / LANCZOS_STEPS texels across (rounded to the nearest step).
+    The point of tap |i| lies ``|i| · slope`` texels across; ``bias`` (an integer > |i|, float) keeps the
+    position positive so that the integer part is the floor.  Tap −|i| is its mirror image through the
+    centre: y0 = −y0₊ − 1 and row = LANCZOS_STEPS − row₊ (y0 = −y0₊, row 0 where row₊ is 0), so the two
+    taps of a pair are rounded alike.  Returns ``(y0, row)`` as int64 arrays: the point is
+    y0 + row / LANCZOS_STEPS texels across (rounded to the nearest step).
     """
     b = np.asarray(bias, np.float64)
-    across = np.asarray(i, np.float64) * np.asarray(slope, np.float32).astype(np.float64)
-    q = np.floor((b + across) * LANCZOS_STEPS + 0.5)
-    q = q.astype(np.int64)
-    return q // LANCZOS_STEPS - b.astype(np.int64), q % LANCZOS_STEPS
+    i = np.asarray(i)
+    across = np.abs(i).astype(np.float64) * np.asarray(slope, np.float32).astype(np.float64)
+    q = np.floor((b + across) * LANCZOS_STEPS + 0.5).astype(np.int64)
+    y0, row = q // LANCZOS_STEPS - b.astype(np.int64), q % LANCZOS_STEPS
+    mirror = i < 0
+    y0 = np.where(mirror, -y0 - (row > 0), y0)
+    row = np.where(mirror, (LANCZOS_STEPS - row) % LANCZOS_STEPS, row)
+    return y0, row

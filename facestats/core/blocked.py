@@ -23,7 +23,7 @@ def components(v):
     return v[..., 0], v[..., 1], v[..., 2]
 
 
-def blockwise(kernel, operands, dtype, n_out=1, block=BLOCK):
+def blockwise(kernel, operands, dtype, n_out=1, block=BLOCK, out_dtype=None):
     """Apply ``kernel(*blocks) -> array or tuple`` over the broadcast of ``operands``.
 
     Parameters
@@ -33,11 +33,14 @@ def blockwise(kernel, operands, dtype, n_out=1, block=BLOCK):
     operands : sequence of array_like
         Broadcastable operands (scalars allowed).
     dtype : numpy dtype
-        Computation and output dtype; operands are cast to it.
+        Computation dtype: each block of an operand is cast to it as it is fed (no whole-array copy, so a float32
+        map computed on in float64 takes block-sized temporaries only).
     n_out : int
         Number of outputs.
     block : int
         Elements per block (bounds the kernel's temporaries).
+    out_dtype : numpy dtype, optional
+        Dtype of the outputs (default ``dtype``); each block's result is cast to it as it is stored.
 
     Returns
     -------
@@ -45,19 +48,21 @@ def blockwise(kernel, operands, dtype, n_out=1, block=BLOCK):
         Outputs of the broadcast shape.
     """
     dtype = np.dtype(dtype)
-    ops = [np.asarray(o, dtype=dtype) for o in operands]
+    out_dtype = dtype if out_dtype is None else np.dtype(out_dtype)
+    ops = [np.asarray(o) for o in operands]
     shape = np.broadcast_shapes(*(o.shape for o in ops))
     size = int(np.prod(shape))
     if size <= block:
-        res = kernel(*(np.broadcast_to(o, shape).reshape(-1) for o in ops))
+        res = kernel(*(np.broadcast_to(np.asarray(o, dtype=dtype), shape).reshape(-1) for o in ops))
         res = res if isinstance(res, tuple) else (res,)
-        outs = tuple(np.asarray(r, dtype=dtype).reshape(shape) for r in res)
+        outs = tuple(np.asarray(r, dtype=dtype).astype(out_dtype, copy=False).reshape(shape) for r in res)
         return outs if n_out > 1 else outs[0]
     flags = ["external_loop", "buffered", "zerosize_ok"]
     op_flags = [["readonly"]] * len(ops) + [["writeonly", "allocate"]] * n_out
     it = np.nditer(
-        ops + [None] * n_out, flags=flags, op_flags=op_flags, op_dtypes=[dtype] * (len(ops) + n_out), buffersize=block
-    )
+        ops + [None] * n_out, flags=flags, op_flags=op_flags, op_dtypes=[dtype] * len(ops) + [out_dtype] * n_out,
+        casting="unsafe", buffersize=block,
+    )  # fmt: skip
     with it:
         for blocks in it:
             res = kernel(*blocks[: len(ops)])

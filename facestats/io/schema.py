@@ -55,6 +55,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from facestats.core.blocked import blockwise
 from facestats.core.conventions import CHANNELS, CONDITIONS, FLAG_BITS, GENDERS, REGIONS, SITES
 from facestats.core.published import ETA_SKIN
 from facestats.errors import SchemaError
@@ -130,7 +131,7 @@ VARIABLES = {
 
 
 #: Values :meth:`Domain.outside` converts to float64 at a time.
-DOMAIN_CHUNK = 1 << 20
+DOMAIN_BLOCK = 1 << 18
 
 
 @dataclass(frozen=True)
@@ -163,22 +164,15 @@ class Domain:
     def outside(self, values: np.ndarray) -> np.ndarray:
         """Boolean mask of the values outside the domain (inf always; NaN unless allowed).
 
-        Compared in float64 (a bound is never rounded to the values' precision), :data:`DOMAIN_CHUNK` values at
-        a time: a whole float32 map in float64 at once doubled a subject's size in memory at every read, write
-        and export (1 GB more for a 2048² subject with micro-normals; the speed red team).
+        Compared in float64 (a bound is never rounded to the values' precision), block by block
+        (:func:`facestats.core.blocked.blockwise`): a whole float32 map in float64 at once doubled a subject's size
+        in memory at every read, write and export (1 GB more for a 2048² subject with micro-normals; the speed red
+        team).
         """
         v = np.asarray(values)
         if v.dtype.kind not in "fiub":
             return np.zeros(v.shape, bool)
-        if v.dtype == np.float64 or v.size <= DOMAIN_CHUNK:
-            return self._outside(v.astype(np.float64, copy=False))
-        out = np.empty(v.shape, bool)
-        flat_v, flat_out = v.reshape(-1), out.reshape(-1)
-        for start in range(0, flat_v.size, DOMAIN_CHUNK):  # pieces of the map, each vectorised
-            flat_out[start : start + DOMAIN_CHUNK] = self._outside(
-                flat_v[start : start + DOMAIN_CHUNK].astype(np.float64)
-            )
-        return out
+        return blockwise(self._outside, [v], np.float64, block=DOMAIN_BLOCK, out_dtype=bool)
 
     def _outside(self, v: np.ndarray) -> np.ndarray:
         """:meth:`outside` of float64 values."""

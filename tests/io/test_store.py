@@ -766,16 +766,16 @@ def test_a_store_opens_from_a_file_url_and_refuses_other_urls(tmp_path):
 
 
 def test_domain_checks_of_large_float32_maps_are_chunked_and_exact():
-    """Domain.outside converts DOMAIN_CHUNK values at a time to float64 (a whole map at once doubled a subject in
-    memory at every read, write and export); the mask is the one of the whole float64 array, NaN, inf and values a
-    float32 rounding above a bound included."""
-    from facestats.io.schema import DOMAIN_CHUNK, DOMAINS
+    """Domain.outside converts DOMAIN_BLOCK values at a time to float64 (core.blocked.blockwise; a whole map at once
+    doubled a subject in memory at every read, write and export); the mask is the one of the whole float64 array,
+    NaN, inf and values a float32 rounding above a bound included."""
+    from facestats.io.schema import DOMAIN_BLOCK, DOMAINS
 
     d = DOMAINS["ts_rho_s"]
-    v = np.random.default_rng(0).uniform(-0.1, 2 * d.high, DOMAIN_CHUNK * 2 + 12345).astype(np.float32)
-    v[[3, DOMAIN_CHUNK + 1, -1]] = [np.nan, np.inf, np.nextafter(np.float32(d.high), np.float32(np.inf))]
-    v[DOMAIN_CHUNK] = np.float32(d.high) if np.float32(d.high) <= d.high else np.nextafter(np.float32(d.high), 0)
+    v = np.random.default_rng(0).uniform(-0.1, 2 * d.high, DOMAIN_BLOCK * 2 + 12345).astype(np.float32)
+    v[[3, DOMAIN_BLOCK + 1, -1]] = [np.nan, np.inf, np.nextafter(np.float32(d.high), np.float32(np.inf))]
+    v[DOMAIN_BLOCK] = np.float32(d.high) if np.float32(d.high) <= d.high else np.nextafter(np.float32(d.high), 0)
     expected = np.isinf(v) | np.isnan(v) | (v.astype(np.float64) < d.low) | (v.astype(np.float64) > d.high)
-    got = d.outside(v.reshape(-1, 12345 + 2 * DOMAIN_CHUNK))
+    got = d.outside(v.reshape(-1, 12345 + 2 * DOMAIN_BLOCK))
     np.testing.assert_array_equal(got.reshape(-1), expected)
-    assert got[0, -1] and not got[0, DOMAIN_CHUNK]
+    assert got[0, -1] and not got[0, DOMAIN_BLOCK]

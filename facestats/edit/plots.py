@@ -19,7 +19,7 @@ from facestats.edit.histogram import Histogram, interpolate_histograms
 from facestats.edit.pyramid import band_names
 from facestats.edit.result import BRDF_VARIABLES, SubjectEdit
 from facestats.errors import ValidationError
-from facestats.io.images import linear_to_srgb
+from facestats.io.images import linear_to_srgb, stride_step
 
 __all__ = [
     "plot_texture_transfer",
@@ -48,7 +48,7 @@ PANEL_MAX = 512
 
 def _thumbnail(img, max_side=PANEL_MAX):
     """Every k-th texel of a map (k the smallest step that brings its longer side to at most ``max_side``)."""
-    k = max(1, -(-max(img.shape[:2]) // max_side))
+    k = stride_step(*img.shape[:2], max_side)
     return img[::k, ::k]
 
 

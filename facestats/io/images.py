@@ -64,6 +64,7 @@ from facestats.io.png import PNG_SIGNATURE
 __all__ = [
     "HDR_EXTENSIONS",
     "INTEGER_EXTENSIONS",
+    "stride_step",
     "read_image",
     "read_integer_image",
     "decode_integer_image",
@@ -145,6 +146,12 @@ def linear_to_srgb(values) -> np.ndarray:
 
 #: Values :func:`linear_to_srgb` encodes at a time (colour-science's per-call overhead favours large blocks).
 SRGB_BLOCK = 1 << 18
+
+
+def stride_step(height: int, width: int, max_side: int) -> int:
+    """The smallest step k (≥ 1) for which every k-th pixel of a ``height`` × ``width`` image is at most
+    ``max_side`` pixels a side: what a preview of a large map strides by."""
+    return max(1, -(-max(int(height), int(width)) // int(max_side)))
 
 
 # -- public entry points --------------------------------------------------------------------

@@ -66,20 +66,24 @@ os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (REPO, os.environ.get("PYT
 
 
 def pytest_configure(config):
-    """Under ``-n N`` (N > 1), compile the fit's numba kernels once before the workers start.
+    """Under ``-n N`` (N > 1), compile the numba kernels once before the workers start.
 
     numba compiles a kernel on its first call and caches it on disk; on a fresh install the workers and
     the processes they start (the default-store regeneration's two build workers, the build-worker
-    test's builds of three processes each, console scripts) would otherwise all compile the same
-    kernels at the same time, some 20 CPU-seconds each.  One small fit here fills the cache for all of
-    them (about 25 s with an empty cache, 3 s with a warm one).
+    test's builds of three processes each, console scripts, the microstructure notebook's kernel) would
+    otherwise all compile the same kernels at the same time, some 20 CPU-seconds a family each.  The
+    fit's kernels compile here while the microstructure's compile in a second process, on the other
+    core (about 25 s with an empty cache, 3 s with a warm one).
     """
     if hasattr(config, "workerinput") or (config.getoption("numprocesses", default=None) or 0) in (0, 1):
         return  # an xdist worker, or a run in one process: nothing to share
-    from facestats.acquire.synthetic.face import procedural_face
-    from facestats.acquire.synthetic.population import synthesize_population
-    from facestats.acquire.synthetic.simulate import DomeSimulator
-    from facestats.pipeline import fit_subject
+    import subprocess
 
-    truth = synthesize_population(map_size=8, geometry=procedural_face(8), subjects=["S001"], conditions=False)["S001"]
-    fit_subject(DomeSimulator(procedural_face(8)).simulate(truth))
+    from tests import warmup
+
+    other = subprocess.Popen([sys.executable, "-m", "tests.warmup", "microstructure"], cwd=REPO)
+    try:
+        warmup.fit_kernels()
+    finally:
+        if other.wait() != 0:  # the tests that need these kernels will fail and say why
+            print("tests.warmup microstructure failed: the workers compile these kernels themselves", file=sys.stderr)

@@ -484,11 +484,14 @@ def _write_integer(p, img, *, bits, srgb):
         raise ValidationError(f"bits must be 8 or 16 (8 for JPEG), got {bits!r} for {str(p)!r}")
     if img.shape[2] not in (1, 3, 4):
         raise ValidationError(f"image for {p.suffix} must have 1, 3 or 4 channels, got {img.shape[2]}")
-    v = np.asarray(img, np.float64)
-    if not np.all(np.isfinite(v)):
-        raise ValidationError(f"image must be finite to write {str(p)!r}, got NaN or inf")
-    v = linear_to_srgb(v) if srgb else np.clip(v, 0, 1)
-    q = np.round(v * (2**bits - 1)).astype(np.uint8 if bits == 8 else np.uint16)
+    top = 2**bits - 1
+
+    def codes(v):  # one block, float64: its codes (an image's float64 copies were four times its size)
+        if not np.all(np.isfinite(v)):
+            raise ValidationError(f"image must be finite to write {str(p)!r}, got NaN or inf")
+        return np.round((linear_to_srgb(v) if srgb else np.clip(v, 0, 1)) * top)
+
+    q = blockwise(codes, [img], np.float64, block=SRGB_BLOCK, out_dtype=np.uint8 if bits == 8 else np.uint16)
     q = q[..., 0] if q.shape[2] == 1 else q[..., [2, 1, 0, 3][: q.shape[2]]]  # OpenCV writes BGR(A)
     if not cv2.imwrite(str(p), q):
         raise ValidationError(f"path must be a writable {p.suffix} file, could not write {str(p)!r}")

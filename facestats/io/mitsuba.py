@@ -222,7 +222,8 @@ def check_medium(sigma_a, sigma_s_prime):
         if not (sa[k] >= 0 and sp[k] >= 0 and sa[k] + sp[k] > 0):
             raise ValidationError(
                 "a subsurface medium needs sigma_a >= 0, sigma_s_prime >= 0 and sigma_t = sigma_a + sigma_s_prime "
-                f"> 0 in every channel, got sigma_a = {sa[k]!r}, sigma_s_prime = {sp[k]!r} mm-1 in channel {k}"
+                f"> 0 in every channel, got sigma_a = {float(sa[k])!r}, sigma_s_prime = {float(sp[k])!r} mm-1 in "
+                f"channel {k}"
             )
     return sa, sp
 

@@ -336,3 +336,26 @@ def test_truncated_tiffs_name_the_file(tmp_path):
         images.decode_integer_image(data[: len(data) // 2], "cut.tif")
     with pytest.raises(ValidationError, match=r"TIFF file 'head\.tif' could not be decoded: .*corrupt"):
         images.decode_integer_image(data[:12], "head.tif")
+
+
+@pytest.mark.parametrize("srgb, bits", [(True, 8), (False, 8), (False, 16), (True, 16)])
+def test_integer_images_over_many_blocks_hold_the_codes_of_the_whole_image_formula(tmp_path, srgb, bits):
+    """PNG codes are computed block by block (an image's float64 copies were four times its size): an image of
+    several blocks, NaN-free, with values outside [0, 1], gets round(encode(clip(x)) * (2**bits - 1))."""
+    import colour
+    import cv2
+
+    from facestats.io.images import SRGB_BLOCK, write_image
+
+    rng = np.random.default_rng(5)
+    img = rng.uniform(-0.1, 1.1, size=(SRGB_BLOCK // 300 + 7, 300, 3)).astype(np.float32)  # > one block
+    path = write_image(tmp_path / "x.png", img, srgb=srgb, bits=bits)
+    v = np.clip(img.astype(np.float64), 0, 1)
+    v = colour.cctf_encoding(v, function="sRGB").astype(np.float32) if srgb else v
+    codes = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)[..., ::-1]  # OpenCV reads BGR
+    assert codes.dtype == (np.uint8 if bits == 8 else np.uint16)
+    np.testing.assert_array_equal(codes, np.round(v * (2**bits - 1)))
+    img[3, 4, 1] = np.nan
+    with pytest.raises(ValidationError, match="finite"):
+        write_image(tmp_path / "y.png", img, srgb=srgb, bits=bits)
+    assert not (tmp_path / "y.png").exists()

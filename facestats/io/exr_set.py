@@ -90,6 +90,7 @@ __all__ = [
     "write_exr_set",
     "read_exr_set",
     "exr_set_textures",
+    "tangent_space_normals",
 ]
 
 #: Version tag of the manifest (2: micro-normals one file per camera).
@@ -290,11 +291,28 @@ def _object_normals(ds, frames) -> np.ndarray:
     return n
 
 
-def _tangent_normals(ds, frames) -> np.ndarray:
-    """The normals in the mesh's tangent frames (T, B, N) = ``frames()``: n_t = (n·T, n·B, n·N); (0, 0, 1) where
-    none is measured."""
+def tangent_space_normals(ds, frames) -> np.ndarray:
+    """A map subject's diffuse normals in its mesh's tangent frames: n_t = (n·T, n·B, n·N), float32 (v, u, 3).
+
+    The normals are normalised first (:func:`_unit_normals`); a texel with none measured (off the face, or an
+    absent, zero or non-finite normal) gets the mesh's own, (0, 0, 1).  One computation for the EXR set's
+    ``normal_tangent`` file and the glTF export's normal texture.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A map subject (``normal``, ``region``).
+    frames : tuple of ndarray
+        ``(T, B, N)``, each (v, u, 3), as :meth:`facestats.io.mesh.FaceMesh.tangent_frames` gives them.
+
+    Returns
+    -------
+    ndarray
+        Tangent-space normals, float32, shape (v, u, 3); unit where measured (to about 1e-7: the frames are
+        orthonormal to that).
+    """
     n, absent = _measured_normals(ds)
-    nt = np.stack([np.einsum("vuk,vuk->vu", n, f) for f in frames()], -1)
+    nt = np.stack([np.einsum("vuk,vuk->vu", n, f) for f in frames], -1)
     nt[absent] = (0.0, 0.0, 1.0)
     return nt
 
@@ -334,7 +352,7 @@ def _normal_textures(ds, mesh: FaceMesh):
         _texture(
             "normal_tangent",
             "RGB",
-            lambda: _planes(_tangent_normals(ds, frames)),
+            lambda: _planes(tangent_space_normals(ds, frames())),
             kind="half",
             units="1",
             quantity=quantity,

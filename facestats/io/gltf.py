@@ -115,10 +115,10 @@ import warnings
 import numpy as np
 
 from facestats.errors import DependencyError, FacestatsWarning, ValidationError
-from facestats.io.exr_set import FaceFill, check_export_subject
+from facestats.io.exr_set import FaceFill, check_export_subject, tangent_space_normals
 from facestats.io.ids import SUBJECT_ID_PATTERN
 from facestats.io.images import linear_to_srgb, srgb_to_linear, write_image
-from facestats.io.mesh import FRAME_BAND, FaceMesh, subject_mesh
+from facestats.io.mesh import FaceMesh, subject_mesh
 
 __all__ = [
     "GGX_PER_BECKMANN",
@@ -202,7 +202,9 @@ def _textures(ds, mesh, out):
     face = fill.face
     alb = fill(np.asarray(ds["albedo"].values, np.float64))
     write_image(os.path.join(out, "base_color.png"), alb, srgb=True)
-    write_image(os.path.join(out, "normal.png"), _tangent_normal_texture(ds["normal"].values, face, mesh))
+    nt = tangent_space_normals(ds, mesh.tangent_frames(int(ds.sizes["v"])))  # (0, 0, 1) where none is measured
+    write_image(os.path.join(out, "normal.png"), (nt + 1) / 2)
+    del nt
     m = np.asarray(ds["ts_m"].values, np.float64)
     rough = beckmann_to_gltf_roughness(fill(m))
     mr = np.stack([np.zeros_like(rough), rough, np.zeros_like(rough)], -1)
@@ -210,26 +212,6 @@ def _textures(ds, mesh, out):
     colour_factor, report = _specular_textures(ds, fill, out)
     names = ("base_color.png", "normal.png", "metallic_roughness.png", "specular.png", "specular_color.png")
     return names, colour_factor, report, _roughness_report(ds, m[face & np.isfinite(m)])
-
-
-def _tangent_normal_texture(normal, face, mesh):
-    """The normal texture's values, (n_tangent + 1) / 2 in [0, 1], float64 (H, W, 3), computed in bands of rows.
-
-    A texel with no fitted normal (off the face, non-finite or zero) gets the mesh's own, (0, 0, 1), as in the
-    EXR set.  Band by band, so the temporaries are a band's (a 2048² map's float64 copies were 100 MB each).
-    """
-    t, b, g = mesh.tangent_frames(normal.shape[0])
-    out = np.empty(normal.shape[:2] + (3,), np.float64)
-    for lo in range(0, normal.shape[0], FRAME_BAND):
-        rows = slice(lo, lo + FRAME_BAND)
-        n = np.asarray(normal[rows], np.float64)
-        absent = ~face[rows] | ~np.all(np.isfinite(n), axis=-1) | (np.linalg.norm(np.nan_to_num(n), axis=-1) == 0)
-        n = np.nan_to_num(n)
-        nt = np.stack([np.einsum("vuk,vuk->vu", n, f[rows]) for f in (t, b, g)], -1)
-        nt /= np.maximum(np.linalg.norm(nt, axis=-1, keepdims=True), 1e-12)
-        nt[absent] = (0.0, 0.0, 1.0)
-        out[rows] = (nt + 1) / 2
-    return out
 
 
 def _roughness_report(ds, measured_m) -> dict:

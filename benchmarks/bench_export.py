@@ -15,6 +15,13 @@ none, RLE, ZIPS, ZIP, PIZ) on one file of each kind of the set, CPU seconds
 of one thread and MB: the figures behind the set's choice of ZIP
 (docs/export.md).
 
+``gltf``: :func:`facestats.io.gltf.write_gltf` (its face mesh built
+beforehand; buffer and five PNGs) of the representative subject without
+micro-normals: seconds and the peak of the
+memory it allocates (``tracemalloc``), against the bytes of the maps it reads
+(albedo, normal, ``ts_rho_s``, ``ts_m``, region): the ratio is what the export
+needs beyond holding its inputs.
+
 ``web_query``: the web app's ``/api/query`` against calling
 ``Store.query(...).to_dict()`` directly (the CLI's code path), so the ratio is
 the HTTP/JSON overhead.  Targets: page load with the default store ≤ 1 s; a
@@ -157,6 +164,39 @@ def bench_exr_set(size=2048, cameras=16, repeat=3):
         "files": len(sizes),
         "load_avg": float(np.mean(loads)),
         "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+    }
+
+
+def bench_gltf(size=2048):
+    """Seconds and traced peak MB of ``write_gltf`` for the representative size² subject (module docstring)."""
+    import tracemalloc
+
+    from facestats.io.gltf import write_gltf
+    from facestats.io.mesh import subject_mesh
+
+    ds = representative_subject(size, cameras=1).drop_vars("micro_normal")
+    mesh = subject_mesh(ds)  # built first: its one-time cost is not the export's
+    inputs = sum(ds[v].nbytes for v in ("albedo", "normal", "ts_rho_s", "ts_m", "region"))
+    every = slice(None, None, max(1, size // 16))
+    with tempfile.TemporaryDirectory() as d:  # a 16² export first: imports (colour, pygltflib) are not measured
+        write_gltf(ds.isel(u=every, v=every), d, mesh=mesh)
+    with tempfile.TemporaryDirectory() as d:
+        load = _load()
+        tracemalloc.start()
+        t = time.perf_counter()
+        write_gltf(ds, d, mesh=mesh)
+        wall = time.perf_counter() - t
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        png = sum(os.path.getsize(os.path.join(d, f)) for f in os.listdir(d) if f.endswith(".png"))
+    return {
+        "gltf_s": wall,
+        "size": size,
+        "peak_MB": peak / 2**20,
+        "input_maps_MB": inputs / 2**20,
+        "peak_over_inputs": peak / inputs,
+        "png_MB": png / 1e6,
+        "load_avg": load,
     }
 
 
@@ -322,6 +362,7 @@ def bench_page_load(repeat=5):
 BENCHMARKS = [
     ("exr_set", bench_exr_set),
     ("exr_compression", bench_exr_compression),
+    ("gltf", bench_gltf),
     ("web_query", bench_web_query),
     ("page_load", bench_page_load),
     ("held_out", bench_held_out),
@@ -330,6 +371,7 @@ BENCHMARKS = [
 SMOKE = {
     "exr_set": {"size": 64, "cameras": 16, "repeat": 1},
     "exr_compression": {"size": 64, "repeat": 1},
+    "gltf": {"size": 64},
     "web_query": {"n": 2},
     "page_load": {"repeat": 1},
     "held_out": {"subjects": ("S003",), "cameras": (5,)},

@@ -9,10 +9,18 @@ albedo with 7 levels, 4 orientations, 256 bins and 5 iterations, with the
 target given as an albedo map (its statistics are computed inside the timed
 call).  Requirement: ours ≤ 30 s and ≥ 5× faster.  The pyrtools run takes a few
 minutes.
+
+``colour_edit_2048`` times one store-level skin-colour transfer
+(:func:`facestats.edit.transfer_colour_subject`) of the representative 2048²
+subject with a 16-camera micro-normal map (``bench_export.representative_subject``)
+and traces its peak memory.  The baseline is the size of the subject in memory:
+an edit that held the whole source, as every edit did before the micro-normals
+were left on disk (2026-12-07), peaked above it.
 """
 
 from __future__ import annotations
 
+import tempfile
 import time
 
 import numpy as np
@@ -157,13 +165,49 @@ def bench_pyramid(size=SIZE, levels=LEVELS):
     return figures
 
 
+def bench_colour_edit(size=SIZE, cameras=16):
+    """Seconds and traced peak MB of a colour edit of a size² subject with ``cameras`` micro-normal cameras."""
+    import tracemalloc
+
+    from bench_export import representative_subject
+
+    import facestats
+    from facestats.edit import transfer_colour_subject
+
+    source = representative_subject(size, cameras=cameras)
+    subject_mb = sum(v.nbytes for v in source.variables.values()) / 2**20
+    micro_mb = source["micro_normal"].nbytes / 2**20
+    target = representative_subject(max(16, size // 8), cameras=1, seed=1)
+    target.attrs["subject_id"] = "T001"
+    with tempfile.TemporaryDirectory() as d, facestats.open_store(f"{d}/s.zarr", mode="a") as store:
+        store.write_subjects([source, target])
+        del source, target
+        tracemalloc.start()
+        t = time.perf_counter()
+        edit = transfer_colour_subject(store, "S001", "T001")
+        wall = time.perf_counter() - t
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        same = bool(np.array_equal(store.subject(edit.subject_id)["micro_normal"].values, edit.source["micro_normal"]))
+    return {
+        "peak_over_subject": peak / 2**20 / subject_mb,
+        "edit_s": wall,
+        "peak_MB": peak / 2**20,
+        "subject_MB": subject_mb,
+        "micro_normal_MB": micro_mb,
+        "micro_normals_copied_exactly": same,
+    }
+
+
 BENCHMARKS = [
     ("pyramid_2048", bench_pyramid),
     ("texture_transfer_2048", bench_texture_transfer),
+    ("colour_edit_2048", bench_colour_edit),
 ]
 
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
 SMOKE = {
     "pyramid_2048": {"size": 64, "levels": 3},
     "texture_transfer_2048": {"size": 64, "levels": 3, "iterations": 1},
+    "colour_edit_2048": {"size": 64, "cameras": 2},
 }

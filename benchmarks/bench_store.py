@@ -6,6 +6,14 @@ subprocess (interpreter start-up included), median of several runs, on a zip
 store of 160 factory subjects (the size of the paper's population, 149, plus
 margin) packed like the embedded default.  Baseline: ``facestats --version``,
 the start-up cost of the interpreter and the CLI without any store work.
+
+``subject_io_2048`` writes and reads back (a full, verified and validated
+read) the representative 2048² subject with a 16-camera micro-normal map
+(``bench_export.representative_subject``): seconds and traced peak memory of
+each, against the subject's own size in memory, which a full read must hold
+anyway.  Before 2026-12-07 the map's 25 MB Zarr chunks of all cameras, about ten
+of them decoded at once, and the validation's copy of its face texels held some
+800 MB more at a read.
 """
 
 from __future__ import annotations
@@ -102,10 +110,39 @@ def bench_query_cli(n_subjects=N_SUBJECTS, runs=RUNS):
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-BENCHMARKS = [("query_cli", bench_query_cli)]
+def bench_subject_io(size=2048, cameras=16):
+    """Seconds and traced peak MB of writing and of fully reading one size² subject with ``cameras`` micro-normals."""
+    import tracemalloc
+
+    from bench_export import representative_subject
+
+    from facestats.io import open_store
+
+    ds = representative_subject(size, cameras=cameras)
+    subject_mb = sum(v.nbytes for v in ds.variables.values()) / 2**20
+    figures = {}
+    with tempfile.TemporaryDirectory() as d, open_store(f"{d}/s.zarr", mode="a") as st:
+        for step in ("write", "read"):
+            tracemalloc.start()
+            t = time.perf_counter()
+            back = st.write_subject(ds) if step == "write" else st.subject("S001")
+            figures[f"{step}_s"] = time.perf_counter() - t
+            figures[f"{step}_peak_MB"] = tracemalloc.get_traced_memory()[1] / 2**20
+            tracemalloc.stop()
+            if step == "write":
+                del ds  # the read starts with nothing held
+    return {
+        "read_peak_over_subject": figures["read_peak_MB"] / subject_mb,
+        **figures,
+        "subject_MB": subject_mb,
+        "subject_id": back.attrs["subject_id"],
+    }
+
+
+BENCHMARKS = [("query_cli", bench_query_cli), ("subject_io_2048", bench_subject_io)]
 
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
-SMOKE = {"query_cli": {"n_subjects": 4, "runs": 1}}
+SMOKE = {"query_cli": {"n_subjects": 4, "runs": 1}, "subject_io_2048": {"size": 64, "cameras": 2}}
 
 if __name__ == "__main__":
     for name, fn in BENCHMARKS:

@@ -433,3 +433,12 @@ def colour_hdri_merge(imgs, times):
         stack.append(im)
     crfs = camera_response_functions_Debevec1997(stack, sampling_function_kwargs={"samples": 200})
     return image_stack_to_HDRI(stack, camera_response_functions=crfs)
+
+
+def with_micro_normals(ds, cameras=3, seed=0):
+    """``ds`` with a ``cameras``-camera micro-normal map (``camera``, ``v``, ``u``, ``component``): random unit
+    vectors on the face texels, 0 outside."""
+    n = np.random.default_rng(seed).standard_normal((cameras,) + ds["region"].shape + (3,)).astype(np.float32)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    n[:, ds["region"].values == 0] = 0
+    return ds.assign(micro_normal=(("camera", "v", "u", "component"), n, {"units": "1"}))

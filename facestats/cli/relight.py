@@ -105,7 +105,7 @@ def _subject_and_camera(args):
     from facestats.relight.camera import stage_camera, subject_geometry
 
     with open_store_option(args.store) as store:
-        subject = store.subject(args.source).load()
+        subject = store.subject(args.source, exclude=["micro_normal"])  # rendering uses the diffuse normal
     geometry = subject_geometry(subject, args.mesh)
     return subject, geometry, stage_camera(args.azimuth, args.elevation, size=args.size)
 

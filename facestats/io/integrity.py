@@ -36,6 +36,7 @@ import zlib
 
 import numpy as np
 
+from facestats.core.crc32 import crc32_combine
 from facestats.core.version import __version__
 from facestats.errors import SchemaError, StoreError
 from facestats.io.layout import ROOT_META, generation_rel, map_chunk_rows
@@ -65,10 +66,14 @@ def digest(values) -> tuple[str, int]:
     if a.dtype.kind in "UOST":
         text = "\x1f".join(str(x) for x in a.reshape(-1).tolist())
         return "str", zlib.crc32(text.encode("utf-8"))
-    a = np.ascontiguousarray(a)
-    if a.dtype.byteorder == ">":
-        a = a.astype(a.dtype.newbyteorder("<"))
+    a = _little_endian(a)
     return a.dtype.str, zlib.crc32(a.reshape(-1).view(np.uint8))
+
+
+def _little_endian(a: np.ndarray) -> np.ndarray:
+    """``a`` C-contiguous and little-endian (a copy only where it is not)."""
+    a = np.ascontiguousarray(a)
+    return a.astype(a.dtype.newbyteorder("<")) if a.dtype.byteorder == ">" else a
 
 
 def _band(values: np.ndarray, axis: int, lo: int, hi: int) -> np.ndarray:
@@ -78,22 +83,54 @@ def _band(values: np.ndarray, axis: int, lo: int, hi: int) -> np.ndarray:
     return values[tuple(index)]
 
 
+def _along(axis: int, step) -> tuple:
+    """The index taking every ``step``-th element along ``axis``."""
+    return (slice(None),) * axis + (slice(None, None, step),)
+
+
 def manifest_entry(var) -> dict:
     """The manifest entry of one variable: ``{"dims", "shape", "dtype", "crc32"}``.
 
     Map variables (chunked along ``v``, :func:`facestats.io.layout.map_chunk_rows`)
     also get ``chunk_rows`` and ``chunk_crc32``: the CRC-32 of each band of
     ``chunk_rows`` rows of ``v``, the unit a lazy read verifies.
+
+    A map variable is read band by band (``var[{"v": band}]``), so one left on disk (a lazily read or
+    dask-backed variable, e.g. the micro-normals an edit copies from its source) is never whole in memory.
+    Its ``crc32`` is that of all its bytes in C order: one running CRC per index of the dims before ``v``
+    (the cameras of a micro-normal map), joined with :func:`facestats.core.crc32.crc32_combine`.
     """
-    values = np.asarray(var.values)
-    dtype, crc = digest(values)
-    entry = {"dims": list(var.dims), "shape": list(var.shape), "dtype": dtype, "crc32": crc}
     rows = map_chunk_rows(var.dims, var.shape)
-    if rows is not None and dtype != "str":
-        axis, n = list(var.dims).index("v"), var.shape[list(var.dims).index("v")]
-        entry["chunk_rows"] = rows
-        entry["chunk_crc32"] = [digest(_band(values, axis, lo, lo + rows))[1] for lo in range(0, n, rows)]
-    return entry
+    if rows is None or var.dtype.kind in "UOST":
+        dtype, crc = digest(np.asarray(var.values))
+        return {"dims": list(var.dims), "shape": list(var.shape), "dtype": dtype, "crc32": crc}
+    axis = list(var.dims).index("v")
+    lead = int(np.prod(var.shape[:axis], dtype=np.int64))
+    running, chunks = [0] * lead, []  # 0 = the CRC-32 of no bytes
+    for lo in range(0, var.shape[axis], rows):
+        band = _little_endian(np.asarray(var[{"v": slice(lo, lo + rows)}].values))
+        parts = band.reshape(lead, band.size // max(lead, 1)).view(np.uint8)
+        crcs = [zlib.crc32(part) for part in parts]  # every byte once: the band's and the variable's CRC follow
+        chunks.append(_joined(crcs, parts.shape[1]))
+        running = [crc32_combine(r, c, parts.shape[1]) for r, c in zip(running, crcs)]
+    crc = _joined(running, int(np.prod(var.shape[axis:], dtype=np.int64)) * var.dtype.itemsize)
+    dtype = digest(np.empty(0, var.dtype))[0]
+    return {
+        "dims": list(var.dims),
+        "shape": list(var.shape),
+        "dtype": dtype,
+        "crc32": crc,
+        "chunk_rows": rows,
+        "chunk_crc32": chunks,
+    }
+
+
+def _joined(crcs, length: int) -> int:
+    """CRC-32 of the concatenation of parts of ``length`` bytes each whose CRC-32s are ``crcs`` (0 for none)."""
+    out = 0
+    for c in crcs:
+        out = crc32_combine(out, c, length)
+    return out
 
 
 def store_attr_json(generation: str, written: str, manifest: dict) -> str:
@@ -110,7 +147,15 @@ def store_attr_json(generation: str, written: str, manifest: dict) -> str:
 
 
 def open_generation(
-    backend, sid: str, gen: str, *, label: str, lazy: bool = False, variables=None, check_chunks: bool = False
+    backend,
+    sid: str,
+    gen: str,
+    *,
+    label: str,
+    lazy: bool = False,
+    variables=None,
+    check_chunks: bool = False,
+    exclude=(),
 ):
     """Open and check one generation of a subject.
 
@@ -131,6 +176,8 @@ def open_generation(
         Also check the per-chunk checksums of the variables loaded against their bytes (``validate``
         and repair: a damaged ``chunk_crc32`` would fail every later lazy read of its band; a full
         read needs no more than each variable's own checksum).
+    exclude : sequence of str
+        Optional variables to leave out of the Dataset, never read (their metadata are checked).
 
     Returns
     -------
@@ -147,6 +194,10 @@ def open_generation(
     ds = _open_group(backend, sid, rel, label)
     manifest = _take_store_attr(ds, sid, rel)
     _check_variables(ds, manifest, sid, rel)
+    left_out = [n for n in exclude if n in ds.data_vars]
+    if left_out:
+        ds = ds.drop_vars(left_out)
+        manifest = {n: m for n, m in manifest.items() if n not in left_out}
     if lazy:  # small, in memory anyway: index coordinates and strings are verified now
         now = set(variables or []) | {n for n, v in ds.variables.items() if n in ds.indexes or v.dtype.kind in "OTUS"}
         check = [n for n in manifest if n in now] + [n for n in (variables or []) if n not in manifest]
@@ -433,7 +484,11 @@ class _VerifiedChunks:
             return np.empty(self.shape, self.dtype)[key] if np.prod(self.shape) == 0 else self._empty(key)
         lo = int(idx.min()) // self.rows * self.rows
         hi = min((int(idx.max()) // self.rows + 1) * self.rows, n)
-        band = np.take(self._load((lo, hi)), idx - lo, axis=self.axis)
+        band = self._load((lo, hi))
+        if isinstance(k, slice) and (k.step or 1) > 0:  # a view: np.take copied a whole variable read at once
+            band = _band(band, self.axis, int(idx[0]) - lo, int(idx[-1]) - lo + 1)[_along(self.axis, k.step)]
+        else:
+            band = np.take(band, idx - lo, axis=self.axis)
         rest = list(key)
         rest[self.axis] = slice(None) if isinstance(k, slice) else 0
         return band[tuple(rest)]

@@ -59,6 +59,7 @@ from facestats.core.blocked import blockwise
 from facestats.core.conventions import CHANNELS, CONDITIONS, FLAG_BITS, GENDERS, REGIONS, SITES
 from facestats.core.published import ETA_SKIN
 from facestats.errors import SchemaError
+from facestats.io.layout import map_chunk_rows
 
 __all__ = [
     "check_subject_metadata",
@@ -257,20 +258,36 @@ def check_domain(name: str, values, *, what: str, unit: str | None = None) -> No
     unit : str, optional
         Units for the message (default: the variable's).
     """
-    domain = DOMAINS[name]
     v = np.asarray(values)
-    if v.dtype.kind not in "fiub":  # strings, complex or objects would pass the range test unseen
-        raise SchemaError(f"{what}: variable {name!r} must be numeric (float, int or bool), got dtype {v.dtype}")
-    bad = domain.outside(v)
-    if bad.any():
-        first = v[bad].reshape(-1)[0].item()
-        unit = VARIABLES[name][1] if unit is None else unit
-        unit_s = "" if unit == "1" else f" {unit}"
-        raise SchemaError(
-            f"{what}: variable {name!r} must lie in {domain.describe()}{unit_s}"
-            + (" or be NaN (missing)" if domain.nan else "")
-            + f", got {first!r} ({int(bad.sum())} value(s) outside)"
-        )
+    _check_numeric(name, v.dtype, what)
+    _raise_outside(name, *_outside_count(name, v), what=what, unit=unit)
+
+
+def _check_numeric(name: str, dtype, what: str) -> None:
+    """Strings, complex or objects would pass the range test unseen: refuse them."""
+    if np.dtype(dtype).kind not in "fiub":
+        raise SchemaError(f"{what}: variable {name!r} must be numeric (float, int or bool), got dtype {dtype}")
+
+
+def _outside_count(name: str, values: np.ndarray) -> tuple[int, object]:
+    """(number of ``values`` outside the domain of ``name``, the first of them or None)."""
+    bad = DOMAINS[name].outside(values)
+    count = int(bad.sum())
+    return count, (values[bad].reshape(-1)[0].item() if count else None)
+
+
+def _raise_outside(name: str, count: int, first, *, what: str, unit: str | None = None) -> None:
+    """The :class:`SchemaError` of :func:`check_domain` when ``count`` values (``first`` the first) are outside."""
+    if not count:
+        return
+    domain = DOMAINS[name]
+    unit = VARIABLES[name][1] if unit is None else unit
+    unit_s = "" if unit == "1" else f" {unit}"
+    raise SchemaError(
+        f"{what}: variable {name!r} must lie in {domain.describe()}{unit_s}"
+        + (" or be NaN (missing)" if domain.nan else "")
+        + f", got {first!r} ({count} value(s) outside)"
+    )
 
 
 #: Standard-error map of each BRDF parameter map (optional: stores written before they existed,
@@ -497,11 +514,25 @@ def _check_maps(ds, label) -> None:
     if not face.any():
         raise SchemaError(f"subject {label!r}: the region map has no face texel")
     for var in ("albedo", "ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent"):
-        vals = np.asarray(ds[var].values)[face]
-        if not np.all(np.isfinite(vals)):
-            raise SchemaError(
-                f"subject {label!r}: variable {var!r} has {int((~np.isfinite(vals)).sum())} non-finite face texel(s)"
-            )
+        bad = sum(int((~np.isfinite(vals)).sum()) for vals in _face_bands(ds[var].variable, face))
+        if bad:
+            raise SchemaError(f"subject {label!r}: variable {var!r} has {bad} non-finite face texel(s)")
+
+
+def _face_bands(var, face):
+    """The face texels of map variable ``var``, band by band of rows of ``v``: arrays (texels, *other dims*).
+
+    A band is a chunk of the stored layout (:func:`facestats.io.layout.map_chunk_rows`), so a lazily read
+    variable loads (and CRC-verifies) each chunk once and the whole variable is never in memory twice: the
+    face texels of a 2048² subject's 16-camera micro-normal map gathered at once were a 480 MB copy at every
+    read and write.  Texels come in row-major order of (``v``, ``u``), as ``values[face]`` would give them.
+    """
+    dims = tuple(var.dims)
+    rows = map_chunk_rows(dims, var.shape)
+    for lo in range(0, var.shape[dims.index("v")], rows):
+        hi = lo + rows
+        band = np.asarray(var[{"v": slice(lo, hi)}].values)
+        yield np.moveaxis(band, [dims.index("v"), dims.index("u")], [0, 1])[face[lo:hi]]
 
 
 def _check_samples(ds, label) -> None:
@@ -512,13 +543,23 @@ def _check_samples(ds, label) -> None:
 
 
 def _check_domains(ds, label, kind) -> None:
-    """Every known variable inside its physical domain (:data:`DOMAINS`); maps on the face texels only."""
+    """Every known variable inside its physical domain (:data:`DOMAINS`); maps on the face texels only.
+
+    Maps are checked band by band (:func:`_face_bands`); the message gives the first value outside in
+    row-major texel order and the count over the whole map, as one check of all face texels would.
+    """
     face = np.asarray(ds["region"].values) > 0 if kind == "maps" else None
+    what = f"subject {label!r}"
     for name in ds.variables:
         if name not in DOMAINS or name == "region":
             continue
-        values = np.asarray(ds[name].values)
-        dims = tuple(ds[name].dims)
-        if face is not None and "v" in dims and "u" in dims:
-            values = np.moveaxis(values, [dims.index("v"), dims.index("u")], [0, 1])[face]
-        check_domain(name, values, what=f"subject {label!r}")
+        var = ds.variables[name]
+        _check_numeric(name, var.dtype, what)
+        if face is None or "v" not in var.dims or "u" not in var.dims:
+            _raise_outside(name, *_outside_count(name, np.asarray(var.values)), what=what)
+            continue
+        count, first = 0, None
+        for values in _face_bands(var, face):
+            n, f = _outside_count(name, values)
+            count, first = count + n, f if first is None else first
+        _raise_outside(name, count, first, what=what)

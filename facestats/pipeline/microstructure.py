@@ -732,7 +732,7 @@ def generate_neutral_map(out, size, *, texel_um=15.0, subject=None, store=None, 
         attrs = {"source": "facestats procedural microstructure (REGION_DEFAULTS, one region)"}
     else:
         with facestats.open_store(store) as st:
-            ds = st.subject(subject)
+            ds = st.subject(subject, exclude=["micro_normal"])  # not used by the microstructure
             h = subject_microstructure(ds, size, texel_um, seed=seed)
         attrs = {"source": f"facestats procedural microstructure of subject {subject}"}
     attrs["texel_um"] = f"{texel_um:g}"

@@ -5,6 +5,7 @@ import pytest
 import xarray as xr
 
 import facestats
+from facestats.core.published import ETA_SKIN
 from facestats.edit import (
     SubjectEdit,
     TextureStatistics,
@@ -21,7 +22,7 @@ from facestats.errors import StoreError, ValidationError
 from facestats.io import open_store
 from facestats.io.schema import provenance, set_provenance
 from facestats.model import dipole
-from tests.helpers import make_map_subject, make_sample_subject
+from tests.helpers import make_map_subject, make_sample_subject, with_micro_normals
 
 SIZE = 24
 # (id, skin type, condition, seed, rho_shift, person)
@@ -175,6 +176,21 @@ def test_translucency_follows_the_new_albedo(store, pop):
     for var in ("ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent", "site_sigma_tr", "sensor_profile"):
         np.testing.assert_array_equal(new[var].values, src[var].values)
     assert set(e.variables) == {"albedo", "albedo_avg", "sigma_s_prime", "sigma_a"}
+
+
+def test_translucency_from_the_face_texels_equals_that_of_the_whole_masked_map(pop):
+    """follow_translucency averages the face texels alone (the whole map in float64 held ~400 MB beside a 2048²
+    subject): the same values in the same order as the whole map masked by the face, so the same bits."""
+    from facestats.edit.translucency import follow_translucency
+    from facestats.model.fitting import scattering_parameters
+
+    ds = pop[1]["V1"].copy()
+    face = _face(ds)
+    alb = np.clip(np.asarray(ds["albedo"].values, np.float64), 1e-4, 1 - 1e-4)
+    want = scattering_parameters(np.where(face[..., None], alb, 0.0), face, ds["sigma_tr"].values, ETA_SKIN)[:3]
+    assert follow_translucency(ds, keep=False) == ["albedo_avg", "sigma_s_prime", "sigma_a"]
+    for name, value in zip(("albedo_avg", "sigma_s_prime", "sigma_a"), want):
+        np.testing.assert_array_equal(ds[name].values, value, err_msg=name)
 
 
 def test_keep_translucency(store, pop):
@@ -395,3 +411,47 @@ def test_every_edit_leaves_the_source_it_read_unchanged_in_memory(store):
         xr.testing.assert_identical(e.source, store.subject("A2"))
         changed = [v for v in e.variables if v in e.source]
         assert changed and any(not np.array_equal(e.source[v].values, e.dataset[v].values) for v in changed)
+
+
+def _generations(path):
+    return sorted(str(p.relative_to(path)) for p in (path / "subjects").glob("*/g*"))
+
+
+def test_micro_normals_go_from_the_source_files_to_the_new_subject_band_by_band(tmp_path, monkeypatch):
+    """No edit reads the micro-normals (session.ON_DISK): they stay on disk as dask arrays of one stored band each,
+    are CRC-verified and validated when written, and arrive bit for bit.  A source whose micro-normals are damaged
+    on disk, or out of their domain under valid checksums (a hostile writer), makes the edit fail and writes
+    nothing."""
+    from facestats.edit.session import read_map_subject
+
+    path = tmp_path / "mn.zarr"
+    src = with_micro_normals(make_map_subject("MN", size=70, seed=11), cameras=4)
+    with open_store(path, mode="a") as st:
+        st.write_subjects([src, make_map_subject("T", size=70, skin_type=5, seed=12)])
+        ds, _ = read_map_subject(st, "MN")
+        assert ds["micro_normal"].chunks == ((4,), (64, 6), (70,), (3,))  # lazy, one task per stored band
+        assert ds["albedo"].chunks is None  # what edits read is in memory
+        e = transfer_colour_subject(st, "MN", "T")
+        new = st.subject(e.subject_id)
+    np.testing.assert_array_equal(new["micro_normal"].values, src["micro_normal"].values)
+    np.testing.assert_array_equal(e.dataset["micro_normal"].values, src["micro_normal"].values)
+    assert not np.array_equal(new["albedo"].values, src["albedo"].values)
+
+    hostile = src["micro_normal"].values.copy()
+    hostile[2, 66, 30, 1] = 1.5  # a face texel of the second band
+    assert src["region"].values[66, 30] > 0
+    with open_store(path, mode="r+") as st:
+        monkeypatch.setattr("facestats.io.batch.validate_subject", lambda ds, **kw: "maps")  # a writer that skips it
+        st.write_subject(src.assign(micro_normal=(src["micro_normal"].dims, hostile)), overwrite=True)
+        monkeypatch.undo()
+        ids, gens = st.ids(), _generations(path)
+        match = r"'micro_normal' must lie in .*got 1.5 \(1 value.*edit of subject 'MN'.*nothing was written"
+        with pytest.raises(facestats.errors.SchemaError, match=match):
+            transfer_colour_subject(st, "MN", "T", new_id="MN-hostile")
+        assert st.ids() == ids and _generations(path) == gens
+
+        gen = next((path / "subjects" / "MN").glob("g*"))
+        (gen / "micro_normal" / "c" / "1" / "1" / "0" / "0").unlink()  # camera 1, rows 64..69
+        with pytest.raises(facestats.errors.SchemaError, match=r"'MN'.*'micro_normal'.*checksum, chunk\(s\) \[1\]"):
+            transfer_colour_subject(st, "MN", "T", new_id="MN-damaged")
+        assert st.ids() == ids and _generations(path) == gens

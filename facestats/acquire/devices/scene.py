@@ -106,7 +106,7 @@ def _truth_from_store(store, subject_id):
     from facestats.io.schema import provenance
 
     st = open_store() if store == "default" else open_store(store) if isinstance(store, (str, pathlib.Path)) else store
-    ds = st.subject(subject_id)
+    ds = st.subject(subject_id, exclude=["micro_normal"])  # the emulated scene uses the diffuse normal
     missing = [v for v in ("region", "albedo", "ts_rho_s", "ts_m", "site_sigma_s_prime", "site_sigma_a") if v not in ds]
     if missing:
         raise ValidationError(

@@ -38,7 +38,11 @@ class SubjectEdit:
     dataset : xarray.Dataset
         The new subject as written.
     source : xarray.Dataset
-        The source subject as read (unchanged).
+        The source subject as read (unchanged).  In both, the variables no edit reads
+        (:data:`facestats.edit.session.ON_DISK`: micro-normals) are dask arrays read from the
+        source's files on access; once the source is replaced or deleted in its store, reading
+        them raises :class:`~facestats.errors.StoreError` saying so (read the new subject from
+        the store instead).
     edit : dict
         The edit record stored in the provenance: ``name``, ``parameters``,
         ``target``, ``regions_edited``.

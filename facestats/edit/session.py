@@ -77,11 +77,11 @@ def read_map_subject(store, subject):
 
     Every variable is loaded, CRC-verified and validated against the schema, as
     :meth:`facestats.io.Store.subject` does, except those of :data:`ON_DISK`: they
-    are left on disk as dask arrays of one band of the store's chunk rows
-    (:func:`facestats.io.layout.map_chunk_rows`) each, every band CRC-verified when
-    it is read and the values validated when the new subject is written.  Reading
-    them needs the source's generation: a concurrent writer that replaces the
-    source before then makes the edit fail (nothing is written).
+    stay on disk as dask arrays of one stored band of rows each (``on_disk``),
+    each band CRC-verified when it is read, the values validated when the new
+    subject is written.  Reading them needs the source's generation: if a writer
+    replaces or deletes the source first, the edit fails with a
+    :class:`~facestats.errors.StoreError` saying so and writes nothing.
 
     Parameters
     ----------
@@ -96,24 +96,15 @@ def read_map_subject(store, subject):
         The region map (0 outside the face, 1-10 the regions of Weyrich Fig. 15).
     """
     # local import: keeps facestats.io (22 modules) out of this module's import
-    from facestats.io.layout import map_chunk_rows
-    from facestats.io.schema import subject_kind, validate_subject
+    from facestats.io.schema import subject_kind
 
     sid = str(subject)
-    ds = store.subject(sid, lazy=True)
+    ds = store.subject(sid, on_disk=ON_DISK)
     if subject_kind(ds) != "maps":
         raise ValidationError(
             f"subject must be a map subject (fitted maps), got {sid!r}, a sample subject imported from a "
             "statistics file: it has no maps to edit"
         )
-    on_disk = [name for name in ON_DISK if name in ds.data_vars]
-    for name, var in ds.variables.items():
-        if name not in on_disk:
-            var.load()  # the chunks verified as they are read (facestats.io.integrity)
-    validate_subject(ds.drop_vars(on_disk), name=sid)
-    for name in on_disk:
-        var = ds[name]
-        ds[name] = var.chunk({"v": map_chunk_rows(var.dims, var.shape)})
     return ds, np.asarray(ds["region"].values)
 
 
@@ -141,14 +132,21 @@ def _writable(out, name="out_store"):
 
 
 def _local_scheduler(needed: bool):
-    """A context computing dask arrays with threads of this process (:data:`ON_DISK` variables read from the source's
-    files), whatever scheduler (e.g. a distributed client) is the default; nothing (and no dask import) if not needed.
+    """A context computing dask arrays in this thread, one task at a time (:data:`ON_DISK` variables read from the
+    source's files), whatever scheduler (e.g. a distributed client) is the default; nothing (and no dask import) if
+    not needed.
+
+    One task at a time holds one band of every camera (25 MB at 2048² with 16 cameras) however many cores the
+    machine has, and leaves no task running after a failure, which could write chunks into the new generation after
+    it was abandoned (a helper's red team found such strays with a thread pool).  It is no slower: zarr-python decodes
+    and encodes the chunks of a band concurrently itself (a colour edit of the 2048² subject of
+    ``bench_edit.bench_colour_edit``: 11.9-13.1 s either way, 2026-12-07).
     """
     if not needed:
         return contextlib.nullcontext()
     import dask  # local import: only an edit of a subject with micro-normals needs it
 
-    return dask.config.set(scheduler="threads")
+    return dask.config.set(scheduler="synchronous")
 
 
 def _same_store(a, b) -> bool:

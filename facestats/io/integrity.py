@@ -38,7 +38,7 @@ import numpy as np
 
 from facestats.core.crc32 import crc32_combine
 from facestats.core.version import __version__
-from facestats.errors import SchemaError, StoreError
+from facestats.errors import SchemaError, StoreError, ValidationError
 from facestats.io.layout import ROOT_META, generation_rel, map_chunk_rows
 from facestats.io.schema import SCHEMA_VERSION, validate_subject
 
@@ -156,6 +156,7 @@ def open_generation(
     variables=None,
     check_chunks: bool = False,
     exclude=(),
+    on_disk=(),
 ):
     """Open and check one generation of a subject.
 
@@ -178,6 +179,12 @@ def open_generation(
         read needs no more than each variable's own checksum).
     exclude : sequence of str
         Optional variables to leave out of the Dataset, never read (their metadata are checked).
+    on_disk : sequence of str
+        With ``lazy=False``: variables to leave on disk as dask arrays of one band of ``chunk_rows`` rows
+        per chunk, each band verified when it is computed; they are not validated (whoever writes them
+        again validates them).  The others are loaded, verified and validated.  A variable whose
+        manifest has no chunk checksums (written by facestats before they existed) is loaded too:
+        every band of it would read and verify the whole variable.
 
     Returns
     -------
@@ -194,21 +201,43 @@ def open_generation(
     ds = _open_group(backend, sid, rel, label)
     manifest = _take_store_attr(ds, sid, rel)
     _check_variables(ds, manifest, sid, rel)
+    _check_data_variables(ds, exclude, "exclude")
+    _check_data_variables(ds, on_disk, "on_disk")
     left_out = [n for n in exclude if n in ds.data_vars]
     if left_out:
         ds = ds.drop_vars(left_out)
         manifest = {n: m for n, m in manifest.items() if n not in left_out}
+    banded = [n for n in on_disk if n in ds.data_vars and manifest[n].get("chunk_crc32") and "v" in ds[n].dims]
     if lazy:  # small, in memory anyway: index coordinates and strings are verified now
         now = set(variables or []) | {n for n, v in ds.variables.items() if n in ds.indexes or v.dtype.kind in "OTUS"}
         check = [n for n in manifest if n in now] + [n for n in (variables or []) if n not in manifest]
     else:
-        check = list(manifest)
+        check = [n for n in manifest if n not in banded]
     _verify_checksums(ds, manifest, check, sid, check_chunks)
     ds = _strings_to_str(ds, set(check) | set(ds.indexes))
+    gone = functools.partial(_gone, backend, rel)
     if lazy:
-        return _verify_on_read(ds, manifest, set(check), sid)
-    validate_subject(ds, name=sid)
-    return ds
+        return _verify_on_read(ds, manifest, set(check), sid, gone)
+    validate_subject(ds.drop_vars(banded), name=sid)
+    if not banded:
+        return ds
+    ds = _verify_on_read(ds, manifest, set(check), sid, gone)
+    return ds.assign({n: ds[n].chunk({"v": manifest[n]["chunk_rows"]}) for n in banded})
+
+
+def _check_data_variables(ds, names, argument: str) -> None:
+    """:class:`ValidationError` if ``names`` (``exclude``, ``on_disk``) include a coordinate of the subject."""
+    coords = [n for n in names if n in ds.coords]
+    if coords:
+        raise ValidationError(f"{argument} may name data variables only, got the coordinate {coords[0]!r}")
+
+
+def _gone(backend, rel: str) -> bool:
+    """True if the generation ``rel`` is no longer in the store (a writer replaced the subject, or it was deleted)."""
+    try:
+        return not backend.exists(f"{rel}/zarr.json")
+    except OSError:
+        return False
 
 
 def read_failure(exc: BaseException, sid: str, what: str) -> StoreError:
@@ -423,8 +452,11 @@ def _strings_to_str(ds, names):
     return ds.assign(data) if data else ds
 
 
-def _verify_on_read(ds, manifest: dict, verified: set, sid: str):
-    """``ds`` with every variable not in ``verified`` wrapped so that its chunks are verified as they are read."""
+def _verify_on_read(ds, manifest: dict, verified: set, sid: str, gone=lambda: False):
+    """``ds`` with every variable not in ``verified`` wrapped so that its chunks are verified as they are read.
+
+    ``gone()`` tells whether the generation has left the store since (then a failed read is no damage).
+    """
     import xarray as xr
     from xarray.core import indexing
 
@@ -432,7 +464,7 @@ def _verify_on_read(ds, manifest: dict, verified: set, sid: str):
     for name, var in ds.variables.items():
         if name in verified:
             continue
-        lazy = indexing.LazilyIndexedArray(_verified_chunks_class()(var, manifest[name], sid, name))
+        lazy = indexing.LazilyIndexedArray(_verified_chunks_class()(var, manifest[name], sid, name, gone))
         new = xr.Variable(var.dims, lazy, var.attrs, var.encoding)
         (coords if name in ds.coords else data)[name] = new
     out = ds.assign_coords(coords) if coords else ds
@@ -455,12 +487,14 @@ class _VerifiedChunks:
     each against its ``chunk_crc32`` entry, then cuts the request out of them.
     Without chunk checksums (older generations, variables without ``v``) the
     variable is one chunk checked against its ``crc32``.  Raises
-    :class:`SchemaError` (damaged) or :class:`StoreError` (I/O) naming the
+    :class:`SchemaError` (damaged) or :class:`StoreError` (I/O, or a
+    generation that ``gone()`` says has left the store since it was opened:
+    replaced by a writer or deleted, the data were not damaged) naming the
     subject, the variable and the rows.
     """
 
-    def __init__(self, raw, entry: dict, sid: str, name: str):
-        self.raw, self.sid, self.name = raw, sid, name
+    def __init__(self, raw, entry: dict, sid: str, name: str, gone=lambda: False):
+        self.raw, self.sid, self.name, self.gone = raw, sid, name, gone
         self.shape, self.dtype = tuple(raw.shape), raw.dtype
         dims = list(raw.dims)
         rows, crcs = entry.get("chunk_rows"), entry.get("chunk_crc32")
@@ -506,7 +540,7 @@ class _VerifiedChunks:
             part = self.raw if rows is None else self.raw.isel(v=slice(*rows))
             values = np.asarray(part.values)
         except Exception as exc:
-            raise read_failure(exc, self.sid, what) from None
+            raise self._replaced(what) or read_failure(exc, self.sid, what) from None
         if rows is None:
             bad = [0] if digest(values)[1] != self.crcs[0] else []
         else:
@@ -518,8 +552,20 @@ class _VerifiedChunks:
             ]
         if bad:
             where = "" if rows is None else f", chunk(s) {bad} of {self.rows} rows of v"
+            replaced = self._replaced(what)
+            if replaced:
+                raise replaced
             raise SchemaError(
                 f"subject {self.sid!r}: variable {self.name!r} does not match its checksum{where} "
                 "(a chunk file is missing, truncated or altered)"
             )
         return values
+
+    def _replaced(self, what: str) -> StoreError | None:
+        """The :class:`StoreError` of a read that failed because the generation left the store, else None."""
+        if not self.gone():
+            return None
+        return StoreError(
+            f"subject {self.sid!r}: {what} cannot be read: the subject was replaced or deleted in the store after "
+            "this lazy read opened it (its data were not damaged); read the subject again"
+        )

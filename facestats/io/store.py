@@ -393,9 +393,9 @@ class Store:
         )
 
     # -- reading subjects ----------------------------------------------------------
-    def _open_generation(self, sid: str, gen: str, *, lazy: bool = False, variables=None, exclude=()):
-        """Open and check one generation; ``variables`` (with lazy=True): load and verify just these."""
-        return open_generation(self._b, sid, gen, label=self.label, lazy=lazy, variables=variables, exclude=exclude)
+    def _open_generation(self, sid: str, gen: str, **kw):
+        """Open and check one generation (:func:`facestats.io.integrity.open_generation`'s keywords)."""
+        return open_generation(self._b, sid, gen, label=self.label, **kw)
 
     def _check_generation(self, sid: str, gen: str):
         """Open one generation and check everything, the per-chunk checksums too (validate, repair)."""
@@ -415,7 +415,7 @@ class Store:
                 err = exc
         raise err
 
-    def subject(self, subject_id, *, lazy: bool = False, variables=None, exclude=None):
+    def subject(self, subject_id, *, lazy: bool = False, variables=None, exclude=None, on_disk=None):
         """One subject as an :class:`xarray.Dataset`.
 
         With ``lazy=False`` (default) every variable is loaded, checked
@@ -423,19 +423,33 @@ class Store:
         schema.  With ``lazy=True`` only metadata are checked (dims, shapes,
         dtypes) and variables are read on access, chunk by chunk (e.g. a
         64-row band of a map); a lazy Dataset may fail if a concurrent writer
-        replaces the subject before it is read.  ``variables`` (with
-        ``lazy=True``) names variables to load and CRC-verify now; the others
-        stay lazy.  ``exclude`` names optional variables to leave out, never
-        read (e.g. ``["micro_normal"]``, 805 MB of a 2048² subject fitted from
-        16 cameras, for a reader that needs the other maps); names the subject
+        replaces the subject before it is read (a :class:`StoreError` saying
+        so).  ``variables`` (with ``lazy=True``) names variables to load and
+        CRC-verify now; the others stay lazy.
+
+        ``exclude`` names optional data variables to leave out, never read
+        (e.g. ``["micro_normal"]``, 805 MB of a 2048² subject fitted from 16
+        cameras, for a reader that needs the other maps); names the subject
         lacks are ignored, and the rest is loaded and checked as without it.
+        ``on_disk`` (with ``lazy=False``) names map variables to leave on disk
+        as dask arrays of one stored band of rows per chunk, each band
+        CRC-verified when computed but not validated (an edit passes the
+        source's micro-normals on this way; writing them validates them); the
+        others are loaded and checked as without it
+        (:func:`facestats.io.integrity.open_generation`).
         """
         if variables is not None and not lazy:
             raise ValidationError("variables requires lazy=True (without it every variable is loaded and verified)")
-        if variables is not None:
-            variables = _variable_names(variables)
+        if on_disk is not None and lazy:
+            raise ValidationError("on_disk requires lazy=False (with lazy=True every variable stays on disk)")
+        variables = None if variables is None else _variable_names(variables)
         exclude = () if exclude is None else _excluded_names(exclude)
-        return self._load(str(subject_id), lazy=lazy, variables=variables, exclude=exclude)
+        on_disk = () if on_disk is None else _variable_names(on_disk, "on_disk")
+        both = sorted(set(exclude) & (set(variables or ()) | set(on_disk)))
+        if both:
+            other = "variables" if variables else "on_disk"
+            raise ValidationError(f"exclude and {other} both name {both[0]!r}: a variable is either read or left out")
+        return self._load(str(subject_id), lazy=lazy, variables=variables, exclude=exclude, on_disk=on_disk)
 
     # -- writing -----------------------------------------------------------------
     def write_subject(self, dataset, *, overwrite: bool = False, precondition=None) -> str:

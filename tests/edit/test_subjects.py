@@ -455,3 +455,53 @@ def test_micro_normals_go_from_the_source_files_to_the_new_subject_band_by_band(
         with pytest.raises(facestats.errors.SchemaError, match=r"'MN'.*'micro_normal'.*checksum, chunk\(s\) \[1\]"):
             transfer_colour_subject(st, "MN", "T", new_id="MN-damaged")
         assert st.ids() == ids and _generations(path) == gens
+
+
+def test_a_source_replaced_before_its_micro_normals_are_copied_fails_the_edit_as_no_damage(tmp_path):
+    """The micro-normals an edit leaves on disk need the source's generation: a writer that replaces the source
+    first makes the edit fail with a StoreError saying so (not a checksum error inviting a repair); nothing is
+    written, and the store validates clean."""
+    from facestats.edit.session import EditSession
+
+    path = tmp_path / "mn.zarr"
+    src = with_micro_normals(make_map_subject("MN", size=70, seed=11), cameras=2)
+    with open_store(path, mode="a") as st:
+        st.write_subjects([src, make_map_subject("T", size=70, skin_type=5, seed=12)])
+        e = transfer_colour_subject(st, "MN", "T")
+        session = EditSession(st).open("MN")
+        session.assign_id("test", {"name": "test"})
+        st.write_subject(src, overwrite=True)  # another writer: the source's generation is gone
+        ids, gens = st.ids(), _generations(path)
+        with pytest.raises(StoreError, match="'MN'.*'micro_normal'.*replaced or deleted.*not damaged"):
+            session.write({"name": "test"}, variables=[])
+        with pytest.raises(StoreError, match="'MN'.*'micro_normal'.*replaced or deleted"):
+            e.source["micro_normal"].values
+        assert st.ids() == ids and _generations(path) == gens
+        assert st.validate().ok
+        np.testing.assert_array_equal(st.subject(e.subject_id)["micro_normal"].values, src["micro_normal"].values)
+
+
+def test_micro_normals_of_a_generation_without_chunk_checksums_are_loaded(tmp_path):
+    """A generation written before chunk checksums existed verifies a variable only whole: streaming it band by band
+    would read it whole for every band, so on_disk loads it (a helper's red team: 96 whole reads of 805 MB)."""
+    import json
+
+    from facestats.edit.session import read_map_subject
+    from facestats.io.integrity import STORE_ATTR
+
+    path = tmp_path / "old.zarr"
+    src = with_micro_normals(make_map_subject("MN", size=70, seed=11), cameras=2)
+    with open_store(path, mode="a") as st:
+        st.write_subjects([src, make_map_subject("T", size=70, skin_type=5, seed=12)])
+    group = next((path / "subjects" / "MN").glob("g*")) / "zarr.json"
+    meta = json.loads(group.read_text())
+    attr = json.loads(meta["attributes"][STORE_ATTR])
+    for entry in attr["manifest"].values():
+        entry.pop("chunk_rows", None), entry.pop("chunk_crc32", None)
+    meta["attributes"][STORE_ATTR] = json.dumps(attr)
+    group.write_text(json.dumps(meta))
+    with open_store(path, mode="r+") as st:
+        ds, _ = read_map_subject(st, "MN")
+        assert ds["micro_normal"].chunks is None
+        e = transfer_colour_subject(st, "MN", "T")
+        np.testing.assert_array_equal(st.subject(e.subject_id)["micro_normal"].values, src["micro_normal"].values)

@@ -909,3 +909,12 @@ def test_exclude_leaves_optional_variables_unread(tmp_path):
         ):
             with pytest.raises(ValidationError, match=message):
                 st.subject("EX", exclude=bad)
+        for kwargs, message in (
+            ({"exclude": ["fiber_distance"]}, "exclude may name data variables only, got the coordinate"),
+            ({"on_disk": ["u"]}, "on_disk may name data variables only, got the coordinate 'u'"),
+            ({"lazy": True, "on_disk": ["micro_normal"]}, "on_disk requires lazy=False"),
+            ({"lazy": True, "variables": ["ts_error"], "exclude": ["ts_error"]}, "exclude and variables both name"),
+            ({"on_disk": ["micro_normal"], "exclude": ["micro_normal"]}, "exclude and on_disk both name"),
+        ):
+            with pytest.raises(ValidationError, match=message):
+                st.subject("EX", **kwargs)

@@ -16,7 +16,7 @@ B (``len(B) = n``) the conditioned CRC obeys
 identity zlib's own ``crc32_combine`` rests on, M. Adler, zlib 1.2).  Z(1) is
 eight applications of the one-bit step r ↦ (r >> 1) ⊕ (0xEDB88320 if r is odd),
 and Z(n) is built by squaring, one square per bit of ``n``.  Checked against
-:func:`zlib.crc32` of the concatenation in ``tests/core/test_crc32.py``.
+:func:`zlib.crc32` of the concatenation in ``tests/test_crc32.py``.
 """
 
 from __future__ import annotations

@@ -215,9 +215,10 @@ def _variable_names(variables, name: str = "variables") -> list[str]:
 
 
 def _excluded_names(exclude) -> list[str]:
-    """``exclude`` of :meth:`Store.subject`: optional data variables only (a subject without one stays valid)."""
+    """``exclude`` of :meth:`Store.subject`: optional data variables only (a subject without one stays valid;
+    coordinates are refused when the subject is opened, :func:`facestats.io.integrity.open_generation`)."""
     names = _variable_names(exclude, "exclude")
-    required = [n for n in names if n in MAP_REQUIRED or n in SAMPLE_REQUIRED or n in ("channel", "site", "fiber")]
+    required = [n for n in names if n in MAP_REQUIRED or n in SAMPLE_REQUIRED]
     if required:
         raise ValidationError(
             f"exclude may name optional variables only (e.g. 'micro_normal'), got {required[0]!r}, which a subject "

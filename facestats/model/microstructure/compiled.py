@@ -43,6 +43,8 @@ __all__ = ["HAVE_NUMBA", "convolve_pass", "histogram_tv", "padded_empty"]
 HAVE_NUMBA = numba_available()
 if HAVE_NUMBA:
     import numba
+    from llvmlite import ir
+    from numba.extending import intrinsic
 
 
 # -- one convolution pass ------------------------------------------------------------------------
@@ -130,6 +132,7 @@ def _convolve_pass_numpy(src, out, au, av, alpha, sigma_um, texel_um, island, tr
 
 if HAVE_NUMBA:
     _FAST = {"nsz", "arcp", "contract", "reassoc"}  # no assumptions about NaN/inf (inputs are checked finite)
+    _IR_FAST = tuple(sorted(_FAST))  # the same flags on the instructions of the intrinsic below
     # The Lanczos table's shape (steps, 2 · lobes) is read from the table passed in, not from taps.py's
     # constants: numba's cache would keep constants of another module after they changed.
 
@@ -202,15 +205,16 @@ if HAVE_NUMBA:
     # floating-point issue, not by memory):
     #
     # 1. _tap_positions: the flat offset of the first of the six texels of every tap and its Lanczos row.
-    #    Nothing in it depends on the map, so LLVM vectorises it; the arithmetic is exact (see taps.py),
+    #    Nothing in it depends on the map, so LLVM vectorises it (eight taps a step: the caller rounds the
+    #    count up to a multiple of 8, so no scalar remainder runs); the arithmetic is exact (see taps.py),
     #    so the positions are those of the numpy twin.
-    # 2. _interior_sum: the taps themselves, six contiguous loads each: u-major taps are read from the
-    #    map's transpose, whose rows are the map's columns.  The Gaussian weight is advanced in the loop by
-    #    the recursion above.  The six products and their sum are in the map's precision (float32 for
-    #    float32 maps: the weights differ from the float64 table by ≤ 6e-8 relative), the checked path and
-    #    the numpy twin's in float64.  Offsets are used as unsigned integers: they are ≥ 0 by the fast-path test,
-    #    and numba then skips its negative-index wrap-around (a compare and a select per load).
-    # The accumulation (float64, tap pairs in order of i) is that of the checked path.
+    # 2. _interior_sum: the taps themselves, a pair ±i at a time, each tap an eight-texel vector load
+    #    (_lanczos_pair): u-major taps are read from the map's transpose, whose rows are the map's
+    #    columns.  The Gaussian weight is advanced in the loop by the recursion above.  A pair's twelve
+    #    products and their sum are in the map's precision (float32 for float32 maps: the weights differ
+    #    from the float64 table by ≤ 6e-8 relative), the checked path and the numpy twin's in float64.
+    #    Offsets are unsigned: they are ≥ 0 by the fast-path test.
+    # The accumulation over the pairs (float64, in order of i) is that of the checked path.
 
     @numba.njit(cache=True, inline="always", fastmath=_FAST)
     def _tap_positions(rad, along, across, stride, slope, bias, steps, shift, lobes, off, rows):
@@ -232,31 +236,62 @@ if HAVE_NUMBA:
             # position, row 0, that is one texel below tap_across's y0 − 2; the reversed row weighs −y0 alone)
             off[2 * k + 1] = (along - i) * stride + across - y0 - lobes
 
-    @numba.njit(cache=True, inline="always", fastmath=_FAST)
-    def _lanczos_pair(flat, op, on, table, t):
-        """The pair of taps ±i: Σ_k w_k · flat[op + k] and Σ_k w_(5−k) · flat[on + k], w = table row ``t`` of tap +i.
+    def _halves(builder, v, n):
+        """The two halves of the n-lane vector ``v``, added lane by lane (one step of a horizontal sum)."""
+        lanes = ir.VectorType(ir.IntType(32), n // 2)
+        lo = builder.shuffle_vector(v, v, ir.Constant(lanes, list(range(n // 2))))
+        hi = builder.shuffle_vector(v, v, ir.Constant(lanes, list(range(n // 2, n))))
+        return builder.fadd(lo, hi, flags=_IR_FAST)
 
-        Tap −i's row is row ``t`` reversed (the table is mirror-symmetric, taps.py), so one row serves both.
-        The six texels of each (all in the map) in the map's precision; written out for six texels
-        (Lanczos-3): :func:`convolve_pass` refuses a table of another width.
+    @intrinsic
+    def _lanczos_pair(typingctx, flat, op, on, lanes, t):
+        """The pair of taps ±i: Σ_k lanes[t, k] · flat[op + k] + lanes[t, 8 + k] · flat[on + k], k = 0 … 7.
+
+        Row ``t`` of :func:`_lanczos_lanes` holds tap +i's six Lanczos weights and tap −i's (the same row
+        reversed: the table is mirror-symmetric, taps.py), each followed by two zeros.  Two unaligned
+        eight-texel loads of the map, two of the row, a multiply, a fused multiply-add and a horizontal sum
+        of the eight lanes, all in the map's precision (numba does not vectorise the scalar form: its
+        straight-line vectoriser is off by default).  All sixteen texels must be in the map: the fast
+        path of :func:`convolve_pass` keeps two texels more from the map's far edge for the two lanes of
+        weight 0.  ``flat``: 1-D C-contiguous map; ``op``, ``on``: uint64 offsets; ``t``: int64 row.
         """
-        w = table[t]
-        a = numba.uint64(op)
-        b = numba.uint64(on)
-        one = numba.uint64(1)
-        vp = (
-            w[0] * flat[a] + w[1] * flat[a + one] + w[2] * flat[a + 2 * one]
-            + w[3] * flat[a + 3 * one] + w[4] * flat[a + 4 * one] + w[5] * flat[a + 5 * one]
+        ok = (
+            isinstance(flat, numba.types.Array) and flat.ndim == 1 and flat.layout == "C"
+            and flat.dtype in (numba.float32, numba.float64)
+            and isinstance(lanes, numba.types.Array) and lanes.ndim == 2 and lanes.layout == "C"
+            and lanes.dtype == flat.dtype and op == numba.uint64 and on == numba.uint64 and t == numba.int64
         )  # fmt: skip
-        vn = (
-            w[5] * flat[b] + w[4] * flat[b + one] + w[3] * flat[b + 2 * one]
-            + w[2] * flat[b + 3 * one] + w[1] * flat[b + 4 * one] + w[0] * flat[b + 5 * one]
-        )  # fmt: skip
-        return vp, vn
+        if not ok:
+            return None
+        sig = flat.dtype(flat, op, on, lanes, t)
+
+        def codegen(context, builder, signature, args):
+            flat_v, op_v, on_v, lanes_v, t_v = args
+            data = context.make_array(signature.args[0])(context, builder, flat_v).data
+            table = context.make_array(signature.args[3])(context, builder, lanes_v).data
+            vec = ir.VectorType(context.get_value_type(signature.args[0].dtype), 8)
+
+            def load8(base, index):
+                return builder.load(builder.bitcast(builder.gep(base, [index]), vec.as_pointer()), align=1)
+
+            row = builder.mul(t_v, ir.Constant(t_v.type, 16))
+            plus = builder.fmul(load8(data, op_v), load8(table, row), flags=_IR_FAST)
+            minus = builder.fmul(load8(data, on_v), load8(table, builder.add(row, ir.Constant(t_v.type, 8))),
+                                 flags=_IR_FAST)  # fmt: skip
+            two = _halves(builder, _halves(builder, builder.fadd(plus, minus, flags=_IR_FAST), 8), 4)
+            first = builder.extract_element(two, ir.Constant(ir.IntType(32), 0))
+            second = builder.extract_element(two, ir.Constant(ir.IntType(32), 1))
+            return builder.fadd(first, second, flags=_IR_FAST)
+
+        return sig, codegen
 
     @numba.njit(cache=True, inline="always", fastmath=_FAST)
-    def _interior_sum(flat, rad, q, centre, off, rows, table):
-        """Σ over taps −n … n of g_i · sample and Σ g_i (g_0 = 1), taps from :func:`_tap_positions`."""
+    def _interior_sum(flat, rad, q, centre, off, rows, lanes):
+        """Σ over taps −n … n of g_i · sample and Σ g_i (g_0 = 1), taps from :func:`_tap_positions`.
+
+        Nagano et al. 2015 eq. 3 with the Gaussian part of eq. 6 (renormalised by the caller); ``lanes``:
+        :func:`_lanczos_lanes` in the map's dtype.
+        """
         q2 = q * q
         ratio = q
         g = 1.0
@@ -265,8 +300,8 @@ if HAVE_NUMBA:
         for i in range(rad):
             g *= ratio
             ratio *= q2
-            vp, vn = _lanczos_pair(flat, off[2 * i], off[2 * i + 1], table, rows[2 * i])
-            acc += g * (vp + vn)
+            pair = _lanczos_pair(flat, numba.uint64(off[2 * i]), numba.uint64(off[2 * i + 1]), lanes, rows[2 * i])
+            acc += g * np.float64(pair)
             wsum += 2.0 * g
         return acc, wsum
 
@@ -328,7 +363,7 @@ if HAVE_NUMBA:
 
     def _convolve_pass_py(
         src, flat, rs, flat_t, rs_t, out, au, av, alpha, sigma_um, texel_um, island, reach, use_islands, truncate,
-        rmax, table, table_map,
+        rmax, table, lanes,
     ):  # fmt: skip
         h, w = src.shape
         steps, foot = table.shape
@@ -337,8 +372,8 @@ if HAVE_NUMBA:
         for c0 in range(0, w, STRIP):  # column strips (serial), rows in parallel
             c1 = min(w, c0 + STRIP)
             for r in numba.prange(h):
-                off = np.empty(2 * rmax, np.int64)  # per-row scratch of _tap_positions
-                rows = np.empty(2 * rmax, np.int64)
+                off = np.empty(2 * rmax + 16, np.int64)  # per-row scratch of _tap_positions (up to rmax + 7 taps)
+                rows = np.empty(2 * rmax + 16, np.int64)
                 for c in range(c0, c1):
                     a = alpha[r, c]
                     label = island[r, c] if use_islands else 1
@@ -357,17 +392,19 @@ if HAVE_NUMBA:
                     # along: rad texels each way; across: the six texels of a point up to rad texels off
                     along, across, n_along, n_across = (c, r, w, h) if u_major else (r, c, h, w)
                     fast = along - rad >= 0 and along + rad < n_along
-                    fast = fast and across - rad - lobes >= 0 and across + rad + lobes < n_across
+                    # (+ 2: a tap's eight-texel load reads two texels of weight 0 past its six, _lanczos_pair)
+                    fast = fast and across - rad - lobes >= 0 and across + rad + lobes + 2 < n_across
                     if use_islands and reach[r, c] <= rad / np.float64(major) + lobes + 1:
                         fast = False
                     if fast:
                         bias = np.float64(rad + lobes)
+                        n8 = (rad + 7) & ~7  # positions of taps past rad are computed, not read
                         if u_major:
-                            _tap_positions(rad, along, across, rs_t, slope, bias, steps, shift, lobes, off, rows)
-                            acc, wsum = _interior_sum(flat_t, rad, q, centre, off, rows, table_map)
+                            _tap_positions(n8, along, across, rs_t, slope, bias, steps, shift, lobes, off, rows)
+                            acc, wsum = _interior_sum(flat_t, rad, q, centre, off, rows, lanes)
                         else:
-                            _tap_positions(rad, along, across, rs, slope, bias, steps, shift, lobes, off, rows)
-                            acc, wsum = _interior_sum(flat, rad, q, centre, off, rows, table_map)
+                            _tap_positions(n8, along, across, rs, slope, bias, steps, shift, lobes, off, rows)
+                            acc, wsum = _interior_sum(flat, rad, q, centre, off, rows, lanes)
                     else:
                         acc, wsum = _checked_sum(src, r, c, rad, q, u_major, slope, label, island, use_islands, table)
                     out[r, c] = (1.0 - a) * centre + a * (acc / wsum)
@@ -442,11 +479,16 @@ def _rows(src):
 _LANCZOS_BY_DTYPE = {}
 
 
-def _lanczos_in(dtype):
-    """:data:`taps.LANCZOS` in the map's dtype: the interior path interpolates in the map's precision."""
+def _lanczos_lanes(dtype):
+    """:data:`taps.LANCZOS` as the interior path reads it, in the map's dtype: row j holds row j's six weights,
+    two zeros, row j reversed and two zeros (the weights of taps +i and −i in eight lanes each)."""
     key = np.dtype(dtype).name
     if key not in _LANCZOS_BY_DTYPE:
-        _LANCZOS_BY_DTYPE[key] = np.ascontiguousarray(LANCZOS, dtype=dtype)
+        steps, foot = LANCZOS.shape
+        lanes = np.zeros((steps, 2, 8), dtype)
+        lanes[:, 0, :foot] = LANCZOS
+        lanes[:, 1, :foot] = LANCZOS[:, ::-1]
+        _LANCZOS_BY_DTYPE[key] = lanes.reshape(steps, 16)
     return _LANCZOS_BY_DTYPE[key]
 
 
@@ -497,7 +539,7 @@ def convolve_pass(src, out, au, av, alpha, sigma_um, texel_um, island, reach, *,
     kernel = _pass_kernel(src.dtype)
     kernel(
         src, flat, rs, flat_t, rs_t, out, au, av, alpha, sigma_um, texel_um, island, reach, use, float(truncate), rmax,
-        LANCZOS, _lanczos_in(src.dtype),
+        LANCZOS, _lanczos_lanes(src.dtype),
     )  # fmt: skip
     return out
 

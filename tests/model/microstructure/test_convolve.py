@@ -173,6 +173,38 @@ def test_compiled_tap_positions_equal_the_exact_formula_of_the_numpy_twin():
         assert np.array_equal(off, (along + i) * stride + across + start)
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_compiled_lanczos_pair_is_the_dot_product_of_both_taps(dtype):
+    """The vector intrinsic of the interior path: tap +i's six texels weighed by its Lanczos row, tap -i's by the
+    row reversed, the two lanes of weight 0 past each ignored, summed in the map's precision."""
+    compiled = pytest.importorskip("facestats.model.microstructure.compiled")
+    if not compiled.HAVE_NUMBA:
+        pytest.skip("numba is not available")
+    import numba
+
+    @numba.njit
+    def pair(flat, op, on, lanes, t):
+        return compiled._lanczos_pair(flat, numba.uint64(op), numba.uint64(on), lanes, t)
+
+    from facestats.model.microstructure.taps import LANCZOS
+
+    lanes = compiled._lanczos_lanes(dtype)
+    assert lanes.dtype == dtype and lanes.shape == (LANCZOS.shape[0], 16)
+    rng = np.random.default_rng(11)
+    flat = rng.normal(0.0, 100.0, 500).astype(dtype)
+    eps = np.finfo(dtype).eps
+    for _ in range(200):
+        op, on = rng.integers(0, flat.size - 8, 2)
+        t = int(rng.integers(0, LANCZOS.shape[0]))
+        w = LANCZOS[t]
+        fp, fn = flat[op : op + 6].astype(np.float64), flat[on : on + 6].astype(np.float64)
+        want = w @ fp + w[::-1] @ fn
+        scale = np.abs(w) @ np.abs(fp) + np.abs(w[::-1]) @ np.abs(fn)  # rounding of 12 products and 11 sums
+        assert abs(pair(flat, op, on, lanes, t) - want) <= 16 * eps * scale, (op, on, t)
+    flat[6:8] = np.nan  # the lanes of weight 0 must be texels of the map, and are: a NaN there would show
+    assert np.isnan(pair(flat, 0, 100, lanes, 5))
+
+
 def _wave(shape, direction, omega, phase=0.3):
     y, x = np.indices(shape, dtype=np.float64)
     return np.cos(omega * (direction[0] * x + direction[1] * y) + phase)

@@ -30,6 +30,10 @@
 * ``contactless`` — σtr of cheek and forehead from one simulated image each for
   the default population's first ``n_subjects`` subjects: median relative error
   against the truth and against the contact-sensor fit (requirement ≤ 10 %).
+* ``contactless_population_2048`` — seconds and traced peak memory of
+  ``contactless_population`` writing back one ``size``² subject with ``cameras``
+  micro-normal cameras (``bench_export.representative_subject``): the
+  micro-normals stay on disk and are copied band by band.
 """
 
 from __future__ import annotations
@@ -258,6 +262,41 @@ def bench_contactless(n_subjects=20, spacing=0.3, sites=("cheek", "forehead")):
     }
 
 
+def bench_contactless_population(size=2048, cameras=16, spacing=0.3):
+    import tempfile
+
+    from bench_export import representative_subject
+
+    import facestats
+    from facestats.acquire.synthetic.population import default_population
+    from facestats.pipeline.contactless import contactless_population
+
+    source = representative_subject(size, cameras=cameras)
+    subject_mb = sum(v.nbytes for v in source.variables.values()) / 2**20
+    micro = source["micro_normal"].values.copy()
+    pop = default_population()
+    with tempfile.TemporaryDirectory() as d, warnings.catch_warnings():
+        warnings.simplefilter("ignore", QuantisationWarning)
+        with facestats.open_store(f"{d}/s.zarr", mode="a") as store:
+            store.write_subject(source)
+            del source
+            tracemalloc.start()
+            t = time.perf_counter()
+            contactless_population(store, ["S001"], pop, spacing=spacing, progress=False)
+            wall = time.perf_counter() - t
+            peak = tracemalloc.get_traced_memory()[1] / 2**20
+            tracemalloc.stop()
+            back = store.subject("S001")
+    return {
+        "peak_over_subject": peak / subject_mb,
+        "seconds": wall,
+        "peak_MB": peak,
+        "subject_MB": subject_mb,
+        "micro_normals_copied_exactly": bool(np.array_equal(back["micro_normal"].values, micro)),
+        "image_sigma_tr_finite": bool(np.isfinite(back["image_sigma_tr"].values[:2]).all()),
+    }
+
+
 BENCHMARKS = [
     ("w_build", bench_w_build),
     ("grid_fit", bench_grid_fit),
@@ -266,6 +305,7 @@ BENCHMARKS = [
     ("continuous_surface", bench_continuous_surface),
     ("face_window_surface", bench_face_window_surface),
     ("contactless", bench_contactless),
+    ("contactless_population_2048", bench_contactless_population),
 ]
 
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
@@ -277,4 +317,5 @@ SMOKE = {
     "continuous_surface": {"n": 15, "sub": 2, "media": ((1.0, 0.001),)},
     "face_window_surface": {"spacing": 1.0},
     "contactless": {"n_subjects": 1, "spacing": 0.8, "sites": ("cheek",)},
+    "contactless_population_2048": {"size": 64, "cameras": 2, "spacing": 0.8},
 }

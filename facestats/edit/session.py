@@ -28,7 +28,6 @@ which :class:`EditSession` holds once:
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import os
@@ -129,24 +128,6 @@ def _writable(out, name="out_store"):
             "(a directory store, created if missing; CLI: --out-store PATH)"
         )
     return out
-
-
-def _local_scheduler(needed: bool):
-    """A context computing dask arrays in this thread, one task at a time (:data:`ON_DISK` variables read from the
-    source's files), whatever scheduler (e.g. a distributed client) is the default; nothing (and no dask import) if
-    not needed.
-
-    One task at a time holds one band of every camera (25 MB at 2048² with 16 cameras) however many cores the
-    machine has, and leaves no task running after a failure, which could write chunks into the new generation after
-    it was abandoned (a helper's red team found such strays with a thread pool).  It is no slower: zarr-python decodes
-    and encodes the chunks of a band concurrently itself (a colour edit of the 2048² subject of
-    ``bench_edit.bench_colour_edit``: 11.9-13.1 s either way, 2026-12-07).
-    """
-    if not needed:
-        return contextlib.nullcontext()
-    import dask  # local import: only an edit of a subject with micro-normals needs it
-
-    return dask.config.set(scheduler="synchronous")
 
 
 def _same_store(a, b) -> bool:
@@ -352,8 +333,7 @@ class EditSession:
         )
         set_variable_attrs(ds)
         try:
-            with _local_scheduler(any(ds[n].chunks is not None for n in ON_DISK if n in ds.data_vars)):
-                self.out.write_subject(ds, overwrite=self.overwrite)
+            self.out.write_subject(ds, overwrite=self.overwrite)  # ON_DISK variables band by band (Store docs)
         except SchemaError as exc:  # e.g. a source variable left on disk (ON_DISK), checked only now
             raise SchemaError(
                 f"{exc} (in the edit of subject {self.source_id!r}, whose unedited variables are copied as stored; "

@@ -43,6 +43,7 @@ when a subject or a DataFrame is needed.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import zipfile
 from pathlib import Path
@@ -228,6 +229,24 @@ def _excluded_names(exclude) -> list[str]:
 
 
 # -- the store ---------------------------------------------------------------------
+def _lazy_data_computed_here(datasets):
+    """A context computing dask arrays in this thread, one task at a time, whatever scheduler (e.g. a distributed
+    client) is the default; nothing (and no dask import) if no variable of ``datasets`` is a dask array.
+
+    One task at a time holds one band (25 MB of a 2048² micro-normal map of 16 cameras) however many cores the
+    machine has, and leaves no task running after a failure, which could write chunks into a generation after it
+    was abandoned (a helper's red team found such strays with a thread pool).  It is no slower: zarr-python decodes
+    and encodes the chunks of a band concurrently itself (a colour edit of the 2048² subject of
+    ``bench_edit.bench_colour_edit``: 11.9-13.1 s either way, 2026-12-07).
+    """
+    lazy = any(var.chunks is not None for ds in datasets if hasattr(ds, "data_vars") for var in ds.data_vars.values())
+    if not lazy:
+        return contextlib.nullcontext()
+    import dask  # local import: only a write of data read with on_disk (or built lazily) needs it
+
+    return dask.config.set(scheduler="synchronous")
+
+
 class Store:
     """A facestats parameter store (see the module docstring); create with :func:`open_store`.
 
@@ -481,12 +500,22 @@ class Store:
             its check and this commit.  An exception it raises aborts the write (nothing is committed,
             the data written are removed) and propagates.  It may read the store, never write to it.
 
+        Variables held as dask arrays (e.g. read with ``on_disk``) are validated, checksummed and
+        written band by band, computed in this thread one task at a time whatever dask scheduler is
+        the default (a distributed client included): one band of a variable is in memory at once,
+        and no task is left running after a failure, when the generation being written is removed.
+
         Returns
         -------
         list of str
             The subject ids, in order.
         """
         self._require_writable()
+        datasets = list(datasets)
+        with _lazy_data_computed_here(datasets):
+            return self._write_subjects(datasets, overwrite, precondition)
+
+    def _write_subjects(self, datasets, overwrite, precondition):
         prepared = prepare_batch(datasets)
         if not prepared:
             return []

@@ -134,8 +134,16 @@ def test_contactless_windows_land_in_their_regions_on_the_ict_face(face48):
     labels = face48.region_map[..., None].astype(float)
     for site, region in (("cheek", 7), ("forehead", 2)):
         patches = face_site_scene(site).patches
-        assert np.all(patch_modulation(patches, labels, modulation_face("ict-48", 48)) == region)
-    assert modulation_face("procedural-48", 48) is None and modulation_face("scan.obj", 48) is None
+        assert np.all(patch_modulation(patches, labels, modulation_face("ict-48")) == region)
+    assert modulation_face("procedural-48") is None and modulation_face("scan.obj") is None
+    # The lumitexels patch_modulation reads do not depend on the maps' size: the face is built at its grid.
+    from facestats.acquire.synthetic.faces import named_face
+
+    big = named_face("ict-48", 160)
+    small = modulation_face("ict-48")
+    assert small.map_size == 48
+    np.testing.assert_array_equal(small.position, big.position)
+    np.testing.assert_array_equal(small.uv, big.uv)
 
 
 @pytest.mark.slow

@@ -171,6 +171,40 @@ def test_micro_normals_are_chunked_per_camera_and_verified_per_band(tmp_path):
             st.subject("MN1")
 
 
+def test_dask_backed_variables_are_written_in_this_thread_and_a_failed_write_leaves_nothing(tmp_path):
+    """Store.write_subjects computes dask arrays one task at a time in the calling thread whatever scheduler is the
+    default (a thread pool held a band per thread and, after a failure, kept writing chunks into the abandoned
+    generation: a red team's stray folders); a failure in a band leaves no generation, record or index entry."""
+    import threading
+
+    import dask
+    import dask.array as da
+
+    ds = with_micro_normals(make_map_subject("MN3", size=150, seed=5), cameras=2)
+    want = ds["micro_normal"].values
+    threads = set()
+
+    def band(block, block_info=None):
+        threads.add(threading.get_ident())
+        if fail and block_info[0]["chunk-location"][1] == 1:  # the second band of rows
+            raise OSError("disk gone")
+        return block
+
+    lazy = da.from_array(want, chunks=(2, 64, 150, 3)).map_blocks(band, dtype=want.dtype)
+    path = tmp_path / "s.zarr"
+    with open_store(path, mode="a") as st, dask.config.set(scheduler="threads"):
+        fail = True
+        with pytest.raises(OSError, match="disk gone"):
+            st.write_subject(ds.assign(micro_normal=(ds["micro_normal"].dims, lazy)))
+        assert "MN3" not in st.subjects()
+        assert not list((path / "subjects").glob("MN3/g*")) and not list((path / ".records").glob("MN3~*"))
+        fail = False
+        st.write_subject(ds.assign(micro_normal=(ds["micro_normal"].dims, lazy)))
+        assert threads == {threading.get_ident()}
+        np.testing.assert_array_equal(st.subject("MN3")["micro_normal"].values, want)
+        assert dask.config.get("scheduler") == "threads"  # the caller's choice is back
+
+
 def test_a_lazy_read_of_a_whole_variable_makes_no_copy_of_it(tmp_path):
     """A lazily read variable read whole (``.values``) is the verified band itself, not a copy of it (np.take made
     one: 1.6 GB peak for a 2048² 16-camera micro-normal map of 805 MB); strided and reversed reads stay right."""

@@ -11,6 +11,7 @@ from facestats.errors import FitError
 from facestats.io.schema import provenance, validate_subject
 from facestats.pipeline import contactless
 from facestats.pipeline.contactless import contactless_population, fit_contactless
+from tests.helpers import with_micro_normals
 
 pytestmark = pytest.mark.slow  # end to end: a whole subject through the pipeline
 
@@ -79,6 +80,33 @@ def test_store_gets_the_subject_only_when_every_fit_completed(subject_and_fit, t
         back = st.subject("S001")
         assert np.isfinite(back["image_sigma_tr"].values[:2]).all()
         assert "contactless_translucency" in provenance(back)
+
+
+def test_the_population_write_copies_the_micro_normals_from_disk_without_loading_them(
+    subject_and_fit, tmp_path, monkeypatch
+):
+    """The fit never reads the micro-normals: they reach it as dask arrays of stored bands and are written band by
+    band into the subject's new generation, the same values."""
+    pop, _, subject, _, fitted = subject_and_fit
+    subject = with_micro_normals(subject, cameras=3)
+    path = tmp_path / "st.zarr"
+    with facestats.open_store(path, mode="a") as st:
+        st.write_subject(subject)
+    seen = {}
+
+    def fit(ds, images, **k):
+        seen["chunks"] = ds["micro_normal"].chunks
+        return ds.assign({name: fitted[name] for name in contactless._VARS})
+
+    monkeypatch.setattr(contactless, "simulate_site_image", lambda *a, **k: (None, None))
+    monkeypatch.setattr(contactless, "fit_contactless", fit)
+    with facestats.open_store(path, mode="r+") as st:
+        assert contactless_population(st, ["S001"], pop, spacing=SPACING, progress=False) == ["S001"]
+    assert seen["chunks"] is not None  # on disk while the fit ran
+    with facestats.open_store(path) as st:
+        back = st.subject("S001")
+    np.testing.assert_array_equal(back["micro_normal"].values, subject["micro_normal"].values)
+    np.testing.assert_array_equal(back["image_sigma_tr"].values, fitted["image_sigma_tr"].values)
 
 
 def test_the_exitance_fit_with_the_surface_self_term_is_an_option_recorded_in_the_provenance(subject_and_fit):

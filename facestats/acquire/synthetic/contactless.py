@@ -47,14 +47,19 @@ __all__ = ["CONTACTLESS_SITES", "modulation_face", "patch_modulation", "simulate
 CONTACTLESS_SITES = ("cheek", "forehead")
 
 
-def modulation_face(name: str, map_size: int):
+def modulation_face(name: str):
     """The face whose layout a modulation map follows, for :func:`patch_modulation`: None for the
     procedural head (and for a name facestats cannot rebuild: a scan), else
-    :func:`facestats.acquire.synthetic.faces.named_face` (``ict-N``)."""
+    :func:`facestats.acquire.synthetic.faces.named_face` (``ict-N``).
+
+    :func:`patch_modulation` reads the lumitexels' positions and UVs, which do not depend on the map
+    size, so the face is built with maps of its lumitexel grid (built with a 2048² subject's maps it
+    took 3.5 s and 734 MiB, for the same lumitexels).
+    """
     if not name or name.startswith("procedural-"):
         return None
     try:
-        return named_face(name, map_size)
+        return named_face(name)
     except ValidationError:
         return None
 
@@ -114,7 +119,7 @@ def simulate_site_image(truth, site="cheek", light="stripe", *, spacing=0.3, mod
     if modulation:
         face = truth.region_map > 0
         avg = truth.albedo[face].mean(axis=0)
-        geometry = modulation_face(truth.geometry, truth.region_map.shape[0])
+        geometry = modulation_face(truth.geometry)
         l = l * patch_modulation(p, np.where(face[..., None], truth.albedo / avg, 1.0), geometry)
     to_cam = scene.camera.position - p.centre
     cos_o = np.clip(np.einsum("mk,mk->m", p.normal, to_cam) / np.linalg.norm(to_cam, axis=1), 0, 1)

@@ -29,7 +29,29 @@ GRIDS = {"table2": TABLE2_GRID, "skin": ProfileGrid.log_spaced((0.05, 20.0), (1e
 
 
 def load_scene_inputs(mesh, lights, camera, image, *, spacing=1.0, scale=1.0):
-    """``(patches, lights, eta, camera, image)`` from a mesh (OBJ/PLY), lights and camera (JSON) and an HDR image."""
+    """``(patches, lights, eta, camera, image)`` from a mesh (OBJ/PLY), lights and camera (JSON) and an HDR image.
+
+    Parameters
+    ----------
+    mesh : path
+        Triangle mesh of the lit surface (OBJ or PLY), in the frame of the lights and camera.
+    lights : path
+        JSON description of the lights and the relative index of refraction
+        (:func:`facestats.acquire.lights.load_lights`).
+    camera : path
+        JSON pinhole camera (:meth:`facestats.acquire.camera.PinholeCamera.load`).
+    image : path
+        Linear radiance image (OpenEXR, PFM or ``.npz``: :func:`facestats.acquire.scene.read_radiance_image`).
+    spacing : float
+        Target patch edge, mm (:func:`facestats.acquire.patches.mesh_patches`).
+    scale : float
+        Mesh units to mm.
+
+    Returns
+    -------
+    tuple
+        ``(patches, lights, eta, camera, image)``: the inputs of :func:`fit_image_translucency`.
+    """
 
     light_list, eta = load_lights(lights)
     cam = PinholeCamera.load(camera)

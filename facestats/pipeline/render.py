@@ -96,6 +96,29 @@ def held_out_camera_error(
     RMSE over the valid samples of ``camera`` whose θi and θo (about the fitted
     normal) lie within ``max_angle_deg`` — the domain eq. 14 fits — and all
     channels, divided by the RMS of the measured radiance.
+
+    Parameters
+    ----------
+    subject : xarray.Dataset
+        A fitted map subject (its ``normal`` and the BRDF maps of ``specular``).
+    capture : Capture
+        The capture the subject was fitted from (or a re-simulation of it).
+    camera : int
+        Camera index, 0 … ``capture.dome.n_cameras`` − 1.
+    specular : {"torrance_sparrow", "blinn_phong"}
+        Specular model of the prediction (:func:`predict_radiance`).
+    max_angle_deg : float
+        Largest θi and θo counted, degrees in (0, 90] (default: the fit's 80°).
+
+    Returns
+    -------
+    float
+        RMS of (predicted − measured) over RMS of measured, dimensionless.
+
+    Raises
+    ------
+    ValidationError
+        A camera out of range, an angle outside (0, 90], or no valid sample within it.
     """
     check_integer(camera, "camera", 0, capture.dome.n_cameras - 1)
     as_finite(max_angle_deg, "max_angle_deg", 0, 90, low_inclusive=False, unit="deg")

@@ -191,6 +191,26 @@ def noise_study(rendered: RenderedScene, *, noise=0.01, seeds=20, width="auto", 
 
     With ``width="auto"`` the width is chosen once (on the first image) and the
     system reused: the choice depends on the geometry, not on the noise.
+
+    Parameters
+    ----------
+    rendered : RenderedScene
+        The noise-free render (its patches, visibility, exitance and true σ's, σa).
+    noise : float
+        Relative standard deviation of the radiance noise, in [0, 1].
+    seeds : int
+        Number of noisy images (seeds 0 … seeds − 1 of numpy's default generator).
+    width : "auto" or float
+        Quantisation width, mm (:func:`facestats.model.fitting.fit_scattering_image`).
+    method : str
+        Solve of the quantised system, as :func:`facestats.model.fitting.fit_scattering_system`.
+    progress : bool
+        Show a progress bar over the seeds.
+
+    Returns
+    -------
+    NoiseStudy
+        Per seed: σ's, σa (mm⁻¹), their intervals and the width used.
     """
 
     check_integer(seeds, "seeds", 1)

@@ -404,6 +404,33 @@ def camera_rmse(
     Samples count where θi and θo about the fitted normal are within
     ``max_angle_deg`` (the domain eq. 14 fits, as
     :func:`facestats.pipeline.render.held_out_camera_error`).
+
+    Parameters
+    ----------
+    subject : xarray.Dataset
+        A fitted map subject.
+    capture : Capture
+        The capture it was fitted from (or a re-simulation of it).
+    camera : int
+        Camera index.
+    specular : {"torrance_sparrow", "blinn_phong"}
+        Specular model of the prediction.
+    lights : iterable of int, optional
+        LED indices to pool (default every LED of the dome).
+    eta : float
+        Relative index of refraction of the subsurface term (default skin's 1.38).
+    max_angle_deg : float
+        Largest θi and θo counted, degrees.
+
+    Returns
+    -------
+    float
+        sqrt(Σ (predicted − measured)² / Σ measured²) over the counted samples and channels.
+
+    Raises
+    ------
+    ValidationError
+        Bad arguments, or no lit lumitexel within the angle.
     """
     _check(subject, capture, camera, None, specular)
     lt, v, u = _texels(subject, capture)

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import threading
 import zipfile
 from pathlib import Path
 from urllib.parse import urlparse
@@ -229,22 +230,56 @@ def _excluded_names(exclude) -> list[str]:
 
 
 # -- the store ---------------------------------------------------------------------
+class _SynchronousDask:
+    """Dask's scheduler set to ``"synchronous"`` while at least one write of lazy data runs, then restored.
+
+    ``dask.config.set`` changes the whole process's configuration, not one thread's: two threads each
+    setting and restoring it would undo each other's setting (a red team: the first writer to finish
+    restored the thread pool under the second, whose tasks then outlived its failed write, and the last
+    to finish left ``"synchronous"`` for good).  Here the first writer sets it, the last one restores what
+    was there before the first, and a lock orders them.
+    """
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._users = 0
+        self._restore = None
+
+    @contextlib.contextmanager
+    def __call__(self):
+        import dask  # local import: only a write of data read with on_disk (or built lazily) needs it
+
+        with self._lock:
+            if self._users == 0:
+                self._restore = dask.config.set(scheduler="synchronous")
+            self._users += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._users -= 1
+                if self._users == 0:
+                    self._restore.__exit__(None, None, None)
+                    self._restore = None
+
+
+_synchronous_dask = _SynchronousDask()
+
+
 def _lazy_data_computed_here(datasets):
-    """A context computing dask arrays in this thread, one task at a time, whatever scheduler (e.g. a distributed
-    client) is the default; nothing (and no dask import) if no variable of ``datasets`` is a dask array.
+    """A context computing dask arrays in the calling thread, one task at a time, whatever scheduler (e.g. a
+    distributed client) is the default; nothing (and no dask import) if no variable of ``datasets`` is a dask array.
 
     One task at a time holds one band (25 MB of a 2048² micro-normal map of 16 cameras) however many cores the
     machine has, and leaves no task running after a failure, which could write chunks into a generation after it
     was abandoned (a helper's red team found such strays with a thread pool).  It is no slower: zarr-python decodes
     and encodes the chunks of a band concurrently itself (a colour edit of the 2048² subject of
-    ``bench_edit.bench_colour_edit``: 11.9-13.1 s either way, 2026-12-07).
+    ``bench_edit.bench_colour_edit``: 11.9-13.1 s either way, 2026-12-07).  Writes in several threads at once
+    share the setting (:class:`_SynchronousDask`); meanwhile other dask work of the process runs synchronously
+    too.
     """
     lazy = any(var.chunks is not None for ds in datasets if hasattr(ds, "data_vars") for var in ds.data_vars.values())
-    if not lazy:
-        return contextlib.nullcontext()
-    import dask  # local import: only a write of data read with on_disk (or built lazily) needs it
-
-    return dask.config.set(scheduler="synchronous")
+    return _synchronous_dask() if lazy else contextlib.nullcontext()
 
 
 class Store:

@@ -205,6 +205,53 @@ def test_dask_backed_variables_are_written_in_this_thread_and_a_failed_write_lea
         assert dask.config.get("scheduler") == "threads"  # the caller's choice is back
 
 
+def test_two_threads_writing_lazy_subjects_at_once_each_compute_in_their_own_thread(tmp_path):
+    """dask.config.set is process-wide: the first of two concurrent writers to finish restored the thread pool under
+    the other, and the last left "synchronous" for good (a red team).  The setting is now shared: each writer's bands
+    run in its own thread and the caller's configuration is back afterwards."""
+    import threading
+    import time
+
+    import dask
+    import dask.array as da
+
+    seen = {}
+
+    def lazy_subject(sid, delay):
+        ds = with_micro_normals(make_map_subject(sid, size=150, seed=5), cameras=2)
+        want = ds["micro_normal"].values
+
+        def band(block):
+            seen.setdefault(sid, set()).add(threading.current_thread().name)
+            time.sleep(delay)
+            return block
+
+        meta = np.empty((0,) * 4, want.dtype)  # given: map_blocks would call band here to infer it
+        lazy = da.from_array(want, chunks=(2, 64, 150, 3)).map_blocks(band, dtype=want.dtype, meta=meta)
+        return ds.assign(micro_normal=(ds["micro_normal"].dims, lazy)), want
+
+    path = tmp_path / "s.zarr"
+    open_store(path, mode="a").close()
+    (a, want_a), (b, want_b) = lazy_subject("SA", 0.01), lazy_subject("SB", 0.1)
+
+    def write(ds):
+        with open_store(path, mode="r+") as st:
+            st.write_subject(ds)
+
+    with dask.config.set(scheduler="threads"):
+        threads = [threading.Thread(target=write, args=(ds,), name=f"writer-{ds.attrs['subject_id']}") for ds in (a, b)]
+        threads[0].start()
+        time.sleep(0.05)  # A starts first and finishes first, while B still writes
+        threads[1].start()
+        for t in threads:
+            t.join()
+        assert dask.config.get("scheduler") == "threads"
+    assert seen == {"SA": {"writer-SA"}, "SB": {"writer-SB"}}
+    with open_store(path) as st:
+        np.testing.assert_array_equal(st.subject("SA")["micro_normal"].values, want_a)
+        np.testing.assert_array_equal(st.subject("SB")["micro_normal"].values, want_b)
+
+
 def test_a_lazy_read_of_a_whole_variable_makes_no_copy_of_it(tmp_path):
     """A lazily read variable read whole (``.values``) is the verified band itself, not a copy of it (np.take made
     one: 1.6 GB peak for a 2048² 16-camera micro-normal map of 805 MB); strided and reversed reads stay right."""

@@ -20,12 +20,15 @@ BACKENDS = ("auto", "numba", "numpy")
 
 @functools.lru_cache(maxsize=1)
 def numba_available() -> bool:
-    """True when numba imports (ImportError, or an llvmlite that fails to load, gives False)."""
+    """True when numba imports and compiles: False on an ImportError, an llvmlite that fails to load, or
+    ``NUMBA_DISABLE_JIT=1``.  With the JIT off the kernels would run as Python loops over every texel and sample
+    (hours where the numpy twins take seconds), and a kernel that emits LLVM directly (the microstructure pass's
+    ``_lanczos_pair``) cannot run at all, so ``backend="auto"`` takes the numpy twins."""
     try:
-        import numba  # noqa: F401
+        import numba
     except Exception:
         return False
-    return True
+    return not numba.config.DISABLE_JIT
 
 
 def resolve_backend(backend: str) -> str:
@@ -38,7 +41,10 @@ def resolve_backend(backend: str) -> str:
     """
     check_choice(backend, "backend", BACKENDS)
     if backend == "numba" and not numba_available():
-        raise ValidationError("backend 'numba' needs the numba package, which cannot be imported")
+        raise ValidationError(
+            "backend 'numba' needs the numba package, which cannot be imported or has its JIT disabled "
+            "(NUMBA_DISABLE_JIT=1)"
+        )
     if backend == "auto":
         return "numba" if numba_available() else "numpy"
     return backend

@@ -26,6 +26,7 @@ import os
 import pathlib
 import secrets
 import shutil
+import tempfile
 
 from facestats.errors import FacestatsError, ValidationError
 
@@ -62,8 +63,27 @@ def _as_path(path, name: str) -> pathlib.Path:
     return pathlib.Path(os.fspath(path)).expanduser()
 
 
+def _writable_dir(directory: pathlib.Path, name: str, p: pathlib.Path, what: str) -> None:
+    """``directory`` must let this process create entries: checked by creating and removing an empty folder.
+
+    ``os.access`` answers "writable" to root almost everywhere: in ``/proc`` (where nothing can be created) and
+    on some read-only mounts, so a command running as root checked ``--images /proc/x``, did its work, then failed
+    to write (after committing an edited subject).  Only writing tells; the probe leaves nothing behind.
+    """
+    if not os.access(directory, os.W_OK | os.X_OK):
+        raise ValidationError(f"{name} must be a path that can be {what}, got {str(p)!r} ({directory} is not writable)")
+    try:
+        probe = tempfile.mkdtemp(prefix=".facestats-probe-", dir=directory)
+    except OSError as exc:
+        raise ValidationError(
+            f"{name} must be a path that can be {what}, got {str(p)!r} ({directory}: {exc.strerror or exc})"
+        ) from None
+    os.rmdir(probe)
+
+
 def _creatable(p: pathlib.Path, name: str) -> None:
-    """The nearest existing ancestor of ``p`` must be a writable directory (nothing is created)."""
+    """The nearest existing ancestor of ``p`` must be a directory this process can create entries in (nothing
+    is left created)."""
     parent = p.absolute().parent
     while not os.path.lexists(parent) and parent != parent.parent:
         parent = parent.parent
@@ -71,8 +91,7 @@ def _creatable(p: pathlib.Path, name: str) -> None:
         raise ValidationError(
             f"{name} must be a path that can be created, got {str(p)!r} ({parent} is not a directory)"
         )
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise ValidationError(f"{name} must be a path that can be created, got {str(p)!r} ({parent} is not writable)")
+    _writable_dir(parent, name, p, "created")
 
 
 def check_output_dir(path, name: str = "out") -> pathlib.Path:
@@ -89,6 +108,7 @@ def check_output_dir(path, name: str = "out") -> pathlib.Path:
             raise ValidationError(f"{name} must be a directory, got {str(p)!r}, which exists and is not one")
         if not os.access(p, os.W_OK | os.X_OK):
             raise ValidationError(f"{name} must be a writable directory, got {str(p)!r}")
+        _writable_dir(p, name, p, "written in")
         return p
     _creatable(p, name)
     return p
@@ -132,6 +152,7 @@ def check_output_file(path, name: str = "out", suffixes=None, *, overwrite: bool
             raise ValidationError(f"{name} must be a file, got {str(p)!r}, which exists and is not a regular file")
         if not os.access(p, os.W_OK) or not os.access(p.parent, os.W_OK | os.X_OK):
             raise ValidationError(f"{name} must be writable, got {str(p)!r}")
+        _writable_dir(p.absolute().parent, name, p, "replaced")  # replaced by a file written beside it, renamed
         if not overwrite:
             raise ValidationError(f"output {str(p)!r} exists (pass --overwrite to replace it)")
         return p

@@ -38,3 +38,32 @@ def test_temporaries_are_unique_and_names_are_not_reused(tmp_path):
             out.path("x.txt")
     assert (tmp_path / "x.txt").read_text() == "x" and not (tmp_path / "victim").exists()
     assert out.written == [tmp_path / "x.txt"]
+
+
+def test_output_checks_write_to_know_a_folder_is_writable(tmp_path, monkeypatch):
+    """os.access says "writable" to root in /proc and on some read-only mounts: an edit checked --images /proc/x,
+    committed the edited subject, then failed to save its images (a fresh-user red team).  The checks now create
+    and remove an empty folder where the output will go; a refusal names the argument, and nothing is left."""
+    real_mkdtemp = outputs.tempfile.mkdtemp
+    refused = tmp_path / "refuses"
+    refused.mkdir()
+
+    def mkdtemp(prefix="", dir=None):
+        if os.fspath(dir) == os.fspath(refused):
+            raise OSError(30, "Read-only file system")
+        return real_mkdtemp(prefix=prefix, dir=dir)
+
+    monkeypatch.setattr(outputs.tempfile, "mkdtemp", mkdtemp)
+    assert os.access(refused, os.W_OK)  # what the checks relied on
+    with pytest.raises(ValidationError, match=r"--images must be a path that can be created, got .*Read-only"):
+        outputs.check_output_dir(refused / "images", "--images")
+    with pytest.raises(ValidationError, match=r"--images must be a path that can be written in, got .*Read-only"):
+        outputs.check_output_dir(refused, "--images")
+    (refused / "plot.png").write_text("old")
+    with pytest.raises(ValidationError, match=r"--plot must be a path that can be replaced, got .*Read-only"):
+        outputs.check_output_file(refused / "plot.png", "--plot")
+    with pytest.raises(ValidationError, match=r"--out must be a path that can be created"):
+        outputs.check_output_file(refused / "new.exr", "--out")
+    ok = tmp_path / "fine"
+    assert outputs.check_output_dir(ok / "a" / "b", "--images") == ok / "a" / "b"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["refuses"] and sorted(os.listdir(refused)) == ["plot.png"]

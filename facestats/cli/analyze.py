@@ -43,10 +43,12 @@ The printed summaries are the results' ``to_text()``.
 from __future__ import annotations
 
 import json
+import os
 import sys
 import warnings
 
 from facestats.cli.options import add_store_option, ascii_int, open_store_option
+from facestats.errors import ValidationError
 
 __all__ = ["add_analyze", "ACTIONS", "BATCH_ACTIONS"]
 
@@ -146,11 +148,25 @@ _HANDLERS = {
 
 
 # -- writing ------------------------------------------------------------------------
-def _out_dir(path):
-    """``--out``, checked before any work (created when the files are written, all at the end)."""
+def _out_dir(args):
+    """``--out``, checked before any work (created when the files are written, all at the end): without
+    ``--overwrite``, none of the files the action(s) may write may exist already."""
     from facestats.core.outputs import check_output_dir
 
-    return check_output_dir(path, "--out")
+    out = check_output_dir(args.out, "--out")
+    if not args.overwrite:
+        if args.action == "posterior":
+            names = ("posterior_population",) if args.population else ("posterior",)
+        else:
+            names = BATCH_ACTIONS if args.action == "all" else (args.action,)
+        there = [f for n in names for f in (f"{n}.{args.format}", f"{n}.json") if os.path.lexists(out / f)]
+        if there:
+            raise ValidationError(
+                f"--out folder {str(out)!r} already holds {there[0]}"
+                + (f" and {len(there) - 1} more file(s) of this analysis" if len(there) > 1 else "")
+                + ": pass --overwrite to replace them, or choose another --out"
+            )
+    return out
 
 
 def _write(files, name, fig, doc, fmt, store):
@@ -175,7 +191,7 @@ def _summary(text, files) -> str:
 def _cmd_analyze(args) -> int:
     from facestats.core.outputs import OutputSet, check_apart
 
-    out = _out_dir(args.out)
+    out = _out_dir(args)
     report = []
     with open_store_option(args.store) as store:
         check_apart(out, store.path, "--out")  # before OutputSet creates any folder
@@ -187,7 +203,7 @@ def _cmd_analyze(args) -> int:
 
 def _run_actions(args, store, files, report) -> None:
     """Run the action(s) of ``args``, writing into the OutputSet ``files``; append each summary to ``report``."""
-    from facestats.errors import InsufficientDataError, ValidationError
+    from facestats.errors import InsufficientDataError
 
     if args.action == "posterior":
         if args.population:
@@ -221,6 +237,7 @@ def _common(p, model=False):
     add_store_option(p)
     p.add_argument("--out", default=".", metavar="DIR", help="output directory (created if missing; default: .)")
     p.add_argument("--format", choices=("png", "svg"), default="png", help="figure format (default png)")
+    p.add_argument("--overwrite", action="store_true", help="replace this analysis's files in --out")
     if model:
         p.add_argument(
             "--model",

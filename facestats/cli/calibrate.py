@@ -31,8 +31,9 @@ def _check_outputs(outputs) -> list:
     return existing
 
 
-def _refuse_inputs(existing, inputs) -> None:
-    """Refuse, before any work, an output that is one of the command's inputs ``(path, what)``.
+def _refuse_inputs(existing, inputs, overwrite: bool) -> None:
+    """Refuse, before any work, an output that is one of the command's inputs ``(path, what)``, then (without
+    ``overwrite``, ``--overwrite``) any output that exists.
 
     ``existing`` is what :func:`_check_outputs` returned.  An output is an input when both name
     the same file (:func:`os.path.samestat`: the same device and inode, whatever links or
@@ -52,6 +53,9 @@ def _refuse_inputs(existing, inputs) -> None:
                     f"{option} must not be one of the inputs, got {os.fspath(path)!r}, which is {what} "
                     "(writing it would replace it)"
                 )
+    if not overwrite:
+        _, path, option = existing[0]
+        raise ValidationError(f"{option} {os.fspath(path)!r} exists (pass --overwrite to replace it)")
 
 
 def _write_all(writers) -> None:
@@ -88,6 +92,7 @@ def _cmd_leds(args) -> int:
         existing,
         [(calibration, f"--calibration {calibration!r}"), (folder.path / MANIFEST, "the target folder's manifest")]
         + [(f, f"the target photograph {str(f)!r}") for f in frames],
+        args.overwrite,
     )
     with named_options(grid="--grid", reference_camera="--reference-camera", black_level="--black-level",
                        white_level="--white-level"):  # fmt: skip
@@ -166,7 +171,7 @@ def _cmd_response(args) -> int:
     inputs = [(f, f"IMAGE {os.fspath(f)!r}") for f in args.images]
     if args.calibration:
         inputs.append((args.calibration, f"--calibration {args.calibration!r}"))
-    _refuse_inputs(_check_outputs(outputs), inputs)
+    _refuse_inputs(_check_outputs(outputs), inputs, args.overwrite)
     if args.write_calibration and not args.calibration:
         raise ValidationError("--write-calibration needs --calibration (the dome calibration to put the response into)")
     dome = None
@@ -216,7 +221,7 @@ def _cmd_merge(args) -> int:
 
     existing = _check_outputs([(args.out, "--out", (".exr", ".hdr", ".pfm"))])
     inputs = [(f, f"IMAGE {os.fspath(f)!r}") for f in args.images] + [(args.response, "--response")]
-    _refuse_inputs(existing, inputs)
+    _refuse_inputs(existing, inputs, args.overwrite)
     with named_options(exposure_times="--times"):
         merged = merge_bracket(args.images, args.response, args.times, saturated=args.saturated)
     radiance, saturated = merged.radiance, merged.saturated_pixels
@@ -359,6 +364,7 @@ def add_calibrate(sub):
     )
     leds.add_argument("--output", help="write the LED calibration file (facestats.led-calibration/1)")
     leds.add_argument("--write-calibration", metavar="PATH", help="write the dome calibration with the fitted LEDs")
+    leds.add_argument("--overwrite", action="store_true", help="replace existing output files")
     leds.set_defaults(func=_cmd_leds)
     merge = csub.add_parser(
         "merge",
@@ -382,6 +388,7 @@ def add_calibrate(sub):
     merge.add_argument("--saturated", choices=("clip", "zero"), default="clip",
                        help="fill of pixels saturated in every exposure: clip, the lower bound of their radiance "
                             "(default); zero")  # fmt: skip
+    merge.add_argument("--overwrite", action="store_true", help="replace existing output files")
     merge.set_defaults(func=_cmd_merge)
     resp = csub.add_parser(
         "response",
@@ -428,5 +435,6 @@ def add_calibrate(sub):
         help="cameras that get this response in --write-calibration (default all)",
     )
     resp.add_argument("--write-calibration", metavar="PATH", help="write the dome calibration with this response")
+    resp.add_argument("--overwrite", action="store_true", help="replace existing output files")
     resp.set_defaults(func=_cmd_response)
     p.set_defaults(func=lambda args: p.print_help() or 2)

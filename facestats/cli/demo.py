@@ -43,7 +43,7 @@ def _cmd_demo(args) -> int:
     if args.plot:  # before any work, as every plot of the CLI; '' (as before) is no plot
         from facestats.core.outputs import check_output_file
 
-        plot = check_output_file(args.plot, "--plot", PLOT_SUFFIXES)
+        plot = check_output_file(args.plot, "--plot", PLOT_SUFFIXES, overwrite=args.overwrite)
     if args.albedo is not None:
         _check(args.albedo, "--albedo", ALBEDO)
     if args.sigma_tr is not None:
@@ -95,4 +95,5 @@ def add_demo(sub):
         metavar="PATH",
         help="write the dipole profiles here (.png, .svg or .pdf); default: no plot",
     )
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --plot file")
     p.set_defaults(func=_cmd_demo)

@@ -182,6 +182,21 @@ def test_conditions_blinn_phong_svg(tmp_path, store):
     assert "d exponent" in r.stdout
 
 
+def test_an_analysis_keeps_earlier_results_unless_told_to_replace_them(tmp_path, store):
+    """`analyze pca --out DIR` replaced DIR/pca.json silently on a rerun (a fresh-user red team): refused before
+    any work, naming the file, unless --overwrite; other actions' files do not count."""
+    (tmp_path / "pca.json").write_text("mine")
+    (tmp_path / "cca.png").write_text("another analysis")
+    r = run_cli("analyze", "pca", "--out", tmp_path)
+    assert r.returncode == 2 and "already holds pca.json: pass --overwrite to replace them" in r.stderr
+    assert (tmp_path / "pca.json").read_text() == "mine" and not (tmp_path / "pca.png").exists()
+    r = run_cli("analyze", "pca", "--out", tmp_path, "--overwrite")
+    assert r.returncode == 0, r.stderr
+    assert _doc(tmp_path, "pca")["action"] == "pca" and (tmp_path / "cca.png").read_text() == "another analysis"
+    r = run_cli("analyze", "conditions", "--out", tmp_path)  # its own files are not there yet
+    assert r.returncode == 0, r.stderr
+
+
 def test_posterior_matches_the_api(tmp_path, store):
     r = run_cli(
         "analyze",

@@ -30,6 +30,19 @@ def test_demo_prints_consistent_parameters_and_writes_plot(tmp_path):
     assert out.exists() and out.stat().st_size > 10_000
 
 
+def test_demo_keeps_an_existing_plot_file_unless_told_to_replace_it(tmp_path):
+    """`demo --plot keep.png` replaced the user's file silently (a fresh-user red team), where relight, export and
+    the other writers refuse without --overwrite."""
+    keep = tmp_path / "keep.png"
+    keep.write_bytes(b"mine")
+    r = run_cli("demo", "--plot", keep)
+    assert r.returncode == 2 and "keep.png' exists (pass --overwrite to replace it)" in r.stderr
+    assert keep.read_bytes() == b"mine"
+    r = run_cli("demo", "--plot", keep, "--overwrite")
+    assert r.returncode == 0, r.stderr
+    assert keep.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
 def test_demo_rejects_bad_albedo():
     r = run_cli("demo", "--albedo", "1.5", "0.3", "0.2", "--plot", "")
     assert r.returncode == 2

@@ -62,9 +62,11 @@ def test_calibrate_response_from_the_real_bracket_into_a_dome(tmp_path):
     assert r.returncode == 2 and "one time per photograph (2), got 1" in r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # failed commands write nothing
     (tmp_path / "g.json").write_text("OLD")  # a fit that cannot be applied replaces no output
+    r = run_cli("calibrate", "response", *frames, "--output", tmp_path / "g.json")
+    assert r.returncode == 2 and "g.json' exists (pass --overwrite to replace it)" in r.stderr
     r = run_cli("calibrate", "response", *frames, "--output", tmp_path / "g.json", "--plot", tmp_path / "new.png",
                 "--calibration", tmp_path / "dome.json", "--write-calibration", tmp_path / "n.json",
-                "--cameras", "99")  # fmt: skip
+                "--cameras", "99", "--overwrite")  # fmt: skip
     assert r.returncode == 2 and "cameras must be in [0, 16), got [99]" in r.stderr
     assert (tmp_path / "g.json").read_text() == "OLD" and not (tmp_path / "new.png").exists()
     r = run_cli("calibrate", "response", *frames, "--bits", "12")  # 8-bit JPEGs

@@ -37,7 +37,7 @@ def scene_files(tmp_path_factory):
 def test_cli_prints_the_estimate_interval_and_rank_and_plots(scene_files):
     d = scene_files
     plot, out = d / "fig5.png", d / "fit.json"
-    r = run_cli(
+    args = (
         "translucency",
         d / "pyramid.obj",
         "--lights",
@@ -53,6 +53,7 @@ def test_cli_prints_the_estimate_interval_and_rank_and_plots(scene_files):
         "--json",
         out,
     )
+    r = run_cli(*args)
     assert r.returncode == 0, r.stderr
     line = next(x for x in r.stdout.splitlines() if x.startswith("R:"))
     s, a = (float(x) for x in re.findall(r"sigma_s' = ([\d.]+).*sigma_a = ([\d.]+)", line)[0])
@@ -61,6 +62,10 @@ def test_cli_prints_the_estimate_interval_and_rank_and_plots(scene_files):
     fits = json.loads(out.read_text())
     assert set(fits) == {"R", "G", "B"} and fits["R"]["rank"] <= fits["R"]["n_levels"]
     assert plot.exists() and plot.stat().st_size > 10_000
+    before = out.read_bytes()
+    r = run_cli(*args)  # the same command: both outputs exist now (replaced silently before a red team)
+    assert r.returncode == 2 and "fit.json' exists (pass --overwrite to replace it)" in r.stderr
+    assert out.read_bytes() == before
 
 
 def test_cli_rejects_a_missing_image_and_a_bad_width(scene_files, capsys):

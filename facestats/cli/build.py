@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 from facestats.cli.interrupts import is_interrupt
-from facestats.cli.options import ascii_int, named_options
+from facestats.cli.options import ascii_int, check_store_to_write, named_options
 from facestats.core.conventions import DEFAULT_FACE, DEFAULT_MAP_SIZE, DEFAULT_SEED
 
 __all__ = ["add_build"]
@@ -74,6 +74,7 @@ def _build_command(args) -> int:
         if not args.store:
             print("facestats: error: pass --store PATH (a directory store) or --default", file=sys.stderr)
             return 2
+        check_store_to_write(args.store, "--store")
         with named_options(
             map_size="--size",
             seed="--seed",

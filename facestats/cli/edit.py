@@ -21,6 +21,7 @@ from facestats.cli.options import (
     ascii_float,
     ascii_int,
     check_apart_from_store,
+    check_store_to_write,
     named_options,
     open_store_option,
     store_path_option,
@@ -163,6 +164,7 @@ def _check_outputs(args) -> None:
             check_subject_id(args.new_id)
     if args.out_store is not None and not args.out_store.strip():
         raise ValidationError("--out-store must name a directory store, got ''")
+    check_store_to_write(args.out_store, "--out-store")
     if args.out_store is not None and args.out_store.lower().endswith(".zip"):
         raise ValidationError(
             "--out-store must name a directory store (e.g. edits.zarr; a zip store is read-only), got "

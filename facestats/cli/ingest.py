@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from facestats.cli.options import ascii_float, ascii_int
+from facestats.cli.options import ascii_float, ascii_int, check_store_to_write
 
 __all__ = ["add_ingest"]
 
@@ -14,7 +14,7 @@ def _cmd_ingest(args) -> int:
         args.photo_dir,
         args.mesh,
         args.calibration,
-        args.store,
+        check_store_to_write(args.store, "--store"),
         args.subject,
         regions=args.regions,
         work=args.work,

@@ -135,6 +135,28 @@ def store_path_option(value):
     return value
 
 
+def check_store_to_write(value, name: str):
+    """``value`` of an option naming a directory store to write (``--out-store``, ``build --store``, ...), refused if
+    it is a bare ``default`` or ``texture-sample``: every ``--store`` reads those names as the embedded stores, so a
+    folder written under such a name would seem to vanish (a fresh-user red team: ``edit colour ... --out-store
+    default`` wrote ``./default``, and ``info --store default`` then showed the embedded store).
+
+    Raises
+    ------
+    ValidationError
+        Naming the option and the value, with the ``./NAME`` spelling that writes such a folder.
+    """
+    from facestats.errors import ValidationError
+
+    if value in (DEFAULT_STORE, TEXTURE_SAMPLE):
+        what = "the embedded default store" if value == DEFAULT_STORE else "the texture sample"
+        raise ValidationError(
+            f"{name} must name a directory store to write, got {value!r}, which every --store reads as {what} "
+            f"(read-only): to write a folder of that name, pass ./{value}"
+        )
+    return value
+
+
 def check_apart_from_store(path, name: str, value) -> None:
     """Refuse an output ``path`` (option ``name``) that is the store a ``--store`` value names, or lies inside it.
 

@@ -9,7 +9,13 @@ import json
 import os
 import sys
 
-from facestats.cli.options import add_store_option, named_options, open_store_option, store_path_option
+from facestats.cli.options import (
+    add_store_option,
+    check_store_to_write,
+    named_options,
+    open_store_option,
+    store_path_option,
+)
 
 __all__ = ["add_query", "add_info", "add_validate", "add_export", "add_import_merl"]
 
@@ -249,7 +255,8 @@ def add_export(sub):
 def _cmd_import_merl(args) -> int:
     from facestats.io.merl import import_merl
 
-    data = import_merl(args.path, args.store, prefix=args.prefix, overwrite=args.overwrite)
+    out = check_store_to_write(args.store, "--store")
+    data = import_merl(args.path, out, prefix=args.prefix, overwrite=args.overwrite)
     ids = data.ids
     print(f"imported {len(ids)} subjects ({ids[0]} ... {ids[-1]}) from {data.path} into {args.store}")
     print(

@@ -216,3 +216,22 @@ def test_the_papers_seven_levels_from_a_fresh_install_with_the_texture_sample(tm
         assert ds["albedo"].shape == (512, 512, 3) and provenance(ds)["edit"]["parameters"]["levels"] == 7
     r = run_cli("query", "--store", "texture-sample", "--skin-type", "VI", env=env)  # reused: built once
     assert r.returncode == 0 and "building" not in r.stderr and "matching subjects: 1" in r.stdout, r.stdout + r.stderr
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ("edit", "colour", "S001", "--target", "S006", "--out-store", "{name}"),
+        ("build", "--store", "{name}", "--subjects", "S001"),
+        ("import-merl", "ts_data.mat", "--store", "{name}"),
+    ],
+)
+@pytest.mark.parametrize("name", ["default", "texture-sample"])
+def test_a_store_to_write_may_not_be_named_as_an_embedded_store(tmp_path, command, name):
+    """Every --store reads 'default' and 'texture-sample' as the embedded stores, so a folder written under such a
+    name seemed to vanish (a fresh-user red team: `edit colour ... --out-store default` wrote ./default, which
+    `info --store default` never showed).  Refused before any work; ./default is the spelling for such a folder."""
+    r = run_cli(*[a.format(name=name) for a in command], cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert f"must name a directory store to write, got '{name}'" in r.stderr and f"pass ./{name}" in r.stderr
+    assert list(tmp_path.iterdir()) == []

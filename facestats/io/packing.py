@@ -16,7 +16,7 @@ import os
 import zipfile
 from pathlib import Path
 
-from facestats.core.outputs import check_apart
+from facestats.core.outputs import check_apart, check_output_file
 from facestats.errors import StoreError
 from facestats.io.index import INDEX_NAME, read_index_file
 from facestats.io.layout import ROOT_META, SUBJECTS, group_meta, store_lock, walk
@@ -56,7 +56,8 @@ def pack_store(src, zip_path, *, overwrite: bool = False) -> Path:
     Raises
     ------
     ValidationError
-        ``zip_path`` is the store or lies inside it (it would replace or mix into the store's files).
+        ``zip_path`` is the store or lies inside it (it would replace or mix into the store's files), or cannot
+        be written (:func:`facestats.core.outputs.check_output_file`).
     StoreError
         ``zip_path`` exists (without ``overwrite``), or the store is not valid.
     """
@@ -64,6 +65,7 @@ def pack_store(src, zip_path, *, overwrite: bool = False) -> Path:
     zip_path = Path(zip_path)
     if zip_path.exists() and not overwrite:
         raise StoreError(f"{zip_path} exists; pass overwrite=True to replace it")
+    check_output_file(zip_path, "zip_path")  # before the validation: a path that cannot be written (e.g. in /proc)
     store = open_store(src, mode="r")
     if store.kind != "directory":
         raise StoreError(f"pack_store needs a directory store, got {store.kind} store {src}")

@@ -767,6 +767,9 @@ def test_pack_store_to_zip_and_read_it(built, tmp_path):
         open_store(z, mode="a")
     with pytest.raises(StoreError, match="exists"):
         pack_store(path, z)
+    (tmp_path / "file").write_text("")  # a zip path that cannot be created: named, before any work (was an OSError)
+    with pytest.raises(ValidationError, match=r"zip_path must be a path that can be created, got .*file/pop.zip"):
+        pack_store(path, tmp_path / "file" / "pop.zip")
 
 
 def test_a_zip_made_by_other_tools_opens_too(built, tmp_path):

@@ -352,7 +352,7 @@ def add_edit(sub) -> None:
 
     a = actions.add_parser(
         "texture",
-        help="Heeger-Bergen texture transfer (e.g. freckles) from a subject or saved statistics",
+        help="Heeger-Bergen texture transfer (band statistics, e.g. of freckled skin) from a subject or statistics",
         description="Give the albedo of SUBJECT the texture statistics (histograms of the steerable-pyramid bands in "
         "a decorrelated colour space) of another subject or of a statistics file, optionally only in "
         "some regions (each matched on its own; texels outside are unchanged).",

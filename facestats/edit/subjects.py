@@ -11,8 +11,8 @@ subject of a store and write the result as a **new** subject:
 * :func:`transfer_colour_subject`: albedo histogram transfer in a decorrelated
   colour space (:func:`facestats.edit.transfer_colour`);
 * :func:`transfer_texture_subject`: Heeger-Bergen texture transfer
-  (:func:`facestats.edit.transfer_texture`), e.g. freckles, optionally within
-  face regions;
+  (:func:`facestats.edit.transfer_texture`), e.g. of freckled skin, optionally
+  within face regions;
 * :func:`change_skin_type`: colour and BRDF transfer towards the population
   subset of a Fitzpatrick skin type, e.g. II → V;
 * :func:`subject_texture_statistics`: the §8 texture statistics of a subject,
@@ -392,11 +392,14 @@ def transfer_texture_subject(
     new_id=None,
     overwrite: bool = False,
 ) -> SubjectEdit:
-    """Skin-texture transfer by Heeger-Bergen histogram matching (Weyrich et al. 2006 §8), e.g. freckles.
+    """Skin-texture transfer by Heeger-Bergen histogram matching (Weyrich et al. 2006 §8), e.g. of freckled skin.
 
     The subject's albedo receives the target's texture statistics
     (:func:`facestats.edit.transfer_texture`): the histograms of the albedo
-    and of its steerable-pyramid bands in a decorrelated colour space.  With
+    and of its steerable-pyramid bands in a decorrelated colour space.  Each
+    band is matched on its own, so the statistics carry over, not the shapes
+    of sparse features: the texture sample's isolated freckles come out as a
+    faint mottling, not as spots (README, *What the transfer does not do*).  With
     ``regions`` the synthesis is restricted to those regions of the subject's
     region map, each region matched on its own (to the same region of a target
     subject, or to the given statistics) and blended over ``feather`` texels

@@ -114,6 +114,7 @@ def select_population(source, subjects=None, conditions=("normal",)):
         If an id is unknown or nothing is left.
     """
     frame = population_index(source)
+    n_edited = 0
     if subjects is not None:
         ids = [str(s) for s in ([subjects] if isinstance(subjects, str) else subjects)]
         unknown = [s for s in ids if s not in frame.index]
@@ -121,14 +122,22 @@ def select_population(source, subjects=None, conditions=("normal",)):
             raise ValidationError(f"subjects must be ids of the store, got unknown id(s) {unknown[:5]}")
         frame = frame.loc[ids]
     elif "source" in frame.columns:  # edited subjects are not measurements: only ids asked for by name enter
-        frame = frame[frame["source"] != EDIT_SOURCE]
+        edited = frame["source"] == EDIT_SOURCE
+        n_edited = int(edited.sum())
+        frame = frame[~edited]
+    before = len(frame)
     if conditions is not None:
         conds = [parse_condition(c) for c in ([conditions] if isinstance(conditions, str) else conditions)]
         frame = frame[frame["condition"].isin(conds)]
     if len(frame) == 0:
-        raise ValidationError(
-            f"the selection (subjects={subjects!r}, conditions={conditions!r}) leaves no subject in the population"
-        )
+        if before:
+            who = "the subjects named" if subjects is not None else "the store's measured subjects"
+            what = f"none of {who} was measured under condition(s) {', '.join(map(str, conds))}"
+        else:
+            what = "the store holds no measured subject"
+        if n_edited:
+            what += f" ({n_edited} edited subject(s) left out: an edit is no measurement; name them to analyse them)"
+        raise ValidationError(f"no subject to analyse: {what}")
     return frame
 
 

@@ -323,6 +323,8 @@ def _read_ply(path, scale, transform, flip_v) -> UVMesh:
 
 def read_mesh(path, *, scale=1.0, transform=None, flip_v=True) -> UVMesh:
     """Read an OBJ (:func:`read_obj`) or PLY (through trimesh, per-vertex UVs) mesh."""
+    if not os.path.exists(path):  # before the suffix: '/nope' was "must be .obj or .ply" (a fresh-user red team)
+        raise ValidationError(f"mesh file must name an existing .obj or .ply file, got {os.fspath(path)!r}")
     ext = os.path.splitext(os.fspath(path))[1].lower()
     if ext == ".obj":
         return read_obj(path, scale=scale, transform=transform, flip_v=flip_v)

@@ -138,8 +138,13 @@ def test_select_population_and_errors(store):
     assert list(select_population(store, subjects=["S001", "S002"]).index) == ["S001", "S002"]
     with pytest.raises(ValidationError, match="unknown"):
         select_population(store, subjects=["nope"])
-    with pytest.raises(ValidationError, match="no subject"):
+    with pytest.raises(ValidationError, match="none of the subjects named was measured under condition.s. cold"):
         select_population(store, subjects=["S001"], conditions=["cold"])
+    # A store of edits only (a fresh-user red team got the selection's Python repr): says what was left out and why.
+    frame = store.subjects().copy()
+    frame["source"] = "facestats.edit"
+    with pytest.raises(ValidationError, match=r"holds no measured subject \(\d+ edited subject\(s\) left out"):
+        select_population(frame)
     with pytest.raises(ValidationError, match="source"):
         region_pca(42)
     with pytest.raises(ValidationError, match="model"):

@@ -139,3 +139,12 @@ def test_an_obj_with_textured_materials_keeps_its_own_uvs(tmp_path):
     verts, faces, uv = read_triangle_mesh(tmp_path / "m.obj", uv=True)
     corners = {tuple(np.round(verts[i], 6)): tuple(np.round(uv[i], 6)) for i in faces.ravel()}
     assert corners == {(0, 0, 0): (0.1, 0.1), (1, 0, 0): (0.9, 0.1), (0, 1, 0): (0.1, 0.9), (1, 1, 0): (0.9, 0.9)}
+
+
+def test_a_missing_mesh_is_named_as_missing(tmp_path):
+    """'/nope' was refused as "must be .obj or .ply" (a fresh-user red team); a wrong suffix still says so."""
+    with pytest.raises(FacestatsError, match="must name an existing .obj or .ply file, got '.*nope.obj'"):
+        read_mesh(tmp_path / "nope.obj")
+    (tmp_path / "mesh.stl").write_text("solid x\nendsolid x\n")
+    with pytest.raises(FacestatsError, match=r"must be .obj or .ply, got '.*mesh.stl'"):
+        read_mesh(tmp_path / "mesh.stl")

@@ -424,7 +424,15 @@ class QueryResult:
                 if any(s.n for s in stats):
                     rows.append([f"{sym[p]} {site}"] + [_fmt_stat(s, pm) for s in stats])
         rows.append(["albedo"] + [_fmt_stat(self.albedo[ch], pm) for ch in CHANNELS])
-        return lines + _grid(["", *CHANNELS], rows)
+        lines += _grid(["", *CHANNELS], rows)
+        tr = [self.scattering["sigma_tr"][ch] for ch in CHANNELS]
+        if all(t.n > 1 and t.std == 0 for t in tr):  # "± 0" read like a fault (a fresh-user red team)
+            lines += [
+                f"({sym['sigma_tr']} is the same in every subject: the population's average, from which the maps' "
+                f"{sym['sigma_a']} and {sym['sigma_s_prime']} follow",
+                " (Weyrich et al. 2006, section 5.4); the site rows are the contact sensor's measurements)",
+            ]
+        return lines
 
     def _histogram_lines(self, columns: int, ascii: bool) -> list[str]:
         if self.albedo_histogram is None:

@@ -489,6 +489,19 @@ def test_query_documents_json_csv_and_table(built):
     assert "+-" in res.to_table(ascii=True) and "σ" not in res.to_table(ascii=True)
 
 
+def test_the_table_says_why_sigma_tr_does_not_vary_between_subjects():
+    """Every subject's maps use the population's average σtr (Weyrich §5.4): "0.5517 ± 0" read like a fault (a
+    fresh-user red team); the table says why, in both alphabets, and only where it is so."""
+    with open_store() as st:
+        res = st.query(skin_type="IV")
+    assert all(res.scattering["sigma_tr"][ch].std == 0 for ch in CHANNELS)
+    assert "σtr is the same in every subject: the population's average" in res.to_table()
+    assert "sigma_tr is the same in every subject" in res.to_table(ascii=True)
+    assert res.to_table(ascii=True).isascii()
+    res.scattering["sigma_tr"]["G"] = res.scattering["sigma_tr"]["G"].__class__(0.98, 0.01, 40)
+    assert "same in every subject" not in res.to_table()
+
+
 # -- writes -----------------------------------------------------------------------------
 def test_invalid_subjects_are_refused_without_touching_the_store(tmp_path):
     path = tmp_path / "s.zarr"

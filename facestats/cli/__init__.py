@@ -39,6 +39,7 @@ from facestats.cli.export import add_export_subject
 from facestats.cli.ingest import add_ingest
 from facestats.cli.interrupts import is_interrupt
 from facestats.cli.microstructure import add_microstructure
+from facestats.cli.options import Parser
 from facestats.cli.relight import add_relight
 from facestats.cli.render import add_render
 from facestats.cli.serve import add_serve
@@ -74,7 +75,7 @@ COMMANDS = [
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="facestats",
         description="Measure, analyse and edit the appearance of human facial skin (Weyrich et al. 2006).",
     )

@@ -1,4 +1,5 @@
-"""Options several command groups share: numbers typed in ASCII, and how a ``--store`` value opens a store.
+"""Options several command groups share: numbers typed in ASCII, how a ``--store`` value opens a store, and
+options given once.
 
 Numbers on the command line are ASCII: Python's ``int`` and ``float`` accept
 the digits of every script (``int('١٤')`` is 14, ``float('١.٤')`` 1.4), which no
@@ -14,7 +15,9 @@ import argparse
 import contextlib
 
 __all__ = [
+    "Parser",
     "add_store_option",
+    "check_store_to_write",
     "store_path_option",
     "open_store_option",
     "check_apart_from_store",
@@ -26,6 +29,42 @@ __all__ = [
     "ascii_float",
     "named_options",
 ]
+
+#: The namespace attribute in which :class:`_StoreOnce` notes the options given (removed after parsing).
+_GIVEN = "_facestats_options_given"
+
+
+class _StoreOnce(argparse.Action):
+    """argparse's ``store``, refusing an option given twice: argparse keeps the last value silently, so
+    ``query --skin-type IV --skin-type V`` answered for V alone (a fresh-user red team)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if option_string is not None:  # positionals are counted by argparse itself
+            given = namespace.__dict__.setdefault(_GIVEN, {})
+            if self.dest in given:
+                first, value = given[self.dest]
+                parser.error(
+                    f"argument {option_string}: given twice ({first} {value!r}, then {option_string} {values!r}); "
+                    "give it once"
+                )
+            given[self.dest] = (option_string, values)
+        setattr(namespace, self.dest, values)
+
+
+class Parser(argparse.ArgumentParser):
+    """:class:`argparse.ArgumentParser` whose single-valued options (the default ``store`` action) may be given
+    once; its subcommands' parsers are of this class too (argparse makes them of the parent's class)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.register("action", None, _StoreOnce)
+        self.register("action", "store", _StoreOnce)
+
+    def parse_known_args(self, args=None, namespace=None):
+        namespace, extras = super().parse_known_args(args, namespace)
+        vars(namespace).pop(_GIVEN, None)
+        return namespace, extras
+
 
 #: What a number of each kind must look like, for messages.
 _EXPECTED = {int: "an integer (ASCII digits 0-9)", float: "a number (ASCII digits 0-9)"}

@@ -43,7 +43,6 @@ The printed summaries are the results' ``to_text()``.
 from __future__ import annotations
 
 import json
-import os
 import sys
 import warnings
 
@@ -74,8 +73,6 @@ def _cca(store, args):
     from facestats.analysis.plots import plot_cca
 
     if args.permutations < 0:
-        from facestats.errors import ValidationError
-
         raise ValidationError(f"--permutations must be >= 0, got {args.permutations}")
     res = brdf_cca(store, model=args.model, n_permutations=args.permutations, seed=args.seed)
     return plot_cca(res), res.to_dict(), res.to_text()
@@ -151,7 +148,7 @@ _HANDLERS = {
 def _out_dir(args):
     """``--out``, checked before any work (created when the files are written, all at the end): without
     ``--overwrite``, none of the files the action(s) may write may exist already."""
-    from facestats.core.outputs import check_output_dir
+    from facestats.core.outputs import check_names_free, check_output_dir
 
     out = check_output_dir(args.out, "--out")
     if not args.overwrite:
@@ -159,13 +156,8 @@ def _out_dir(args):
             names = ("posterior_population",) if args.population else ("posterior",)
         else:
             names = BATCH_ACTIONS if args.action == "all" else (args.action,)
-        there = [f for n in names for f in (f"{n}.{args.format}", f"{n}.json") if os.path.lexists(out / f)]
-        if there:
-            raise ValidationError(
-                f"--out folder {str(out)!r} already holds {there[0]}"
-                + (f" and {len(there) - 1} more file(s) of this analysis" if len(there) > 1 else "")
-                + ": pass --overwrite to replace them, or choose another --out"
-            )
+        files = [f for n in names for f in (f"{n}.{args.format}", f"{n}.json")]
+        check_names_free(out, files, "--out", "this analysis's files")
     return out
 
 

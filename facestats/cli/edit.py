@@ -154,7 +154,7 @@ def _report(edit, args) -> int:
 
 def _check_outputs(args) -> None:
     """The new id and the images folder, checked before any work (a failed command leaves no side effects)."""
-    from facestats.core.outputs import check_apart, check_output_dir
+    from facestats.core.outputs import check_apart, check_names_free, check_output_dir
     from facestats.errors import ValidationError
     from facestats.io.ids import check_subject_id
     from facestats.io.store import default_store_path
@@ -174,13 +174,7 @@ def _check_outputs(args) -> None:
     if args.new_id is not None and not args.overwrite:  # a default id names a subject that exists too: refused
         from facestats.edit.plots import edit_image_names
 
-        there = [n for n in edit_image_names(args.new_id) if os.path.lexists(os.path.join(images, n))]
-        if there:
-            raise ValidationError(
-                f"--images folder {os.fspath(images)!r} already holds {there[0]}"
-                + (f" and {len(there) - 1} more of this edit's images" if len(there) > 1 else "")
-                + ": pass --overwrite to replace them, or choose another --images folder or --id"
-            )
+        check_names_free(images, edit_image_names(args.new_id), "--images", "this edit's images", " or --id")
     source = store_path_option(args.store) if args.store is not None else default_store_path()
     check_apart(args.images, source, "--images", "the source store")
     if args.out_store is not None:  # the source store itself, or a store elsewhere; never one nested inside it

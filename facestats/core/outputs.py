@@ -30,7 +30,15 @@ import tempfile
 
 from facestats.errors import FacestatsError, ValidationError
 
-__all__ = ["check_output_dir", "check_output_file", "check_apart", "missing_folders", "json_ready", "OutputSet"]
+__all__ = [
+    "check_output_dir",
+    "check_output_file",
+    "check_names_free",
+    "check_apart",
+    "missing_folders",
+    "json_ready",
+    "OutputSet",
+]
 
 
 def json_ready(value):
@@ -158,6 +166,27 @@ def check_output_file(path, name: str = "out", suffixes=None, *, overwrite: bool
         return p
     _creatable(p, name)
     return p
+
+
+def check_names_free(folder, names, name: str, what: str, other: str = "") -> None:
+    """Refuse, before any work, a command's output ``folder`` (option ``name``) that already holds any of the
+    file ``names`` the command may write (without ``--overwrite``).
+
+    ``what`` says whose files they are in the message (e.g. "this edit's images"); ``other`` adds another way
+    out (e.g. "or --id").
+
+    Raises
+    ------
+    ValidationError
+        Naming the option, the folder, the first file found and how many more, and pointing at ``--overwrite``.
+    """
+    there = [n for n in names if os.path.lexists(os.path.join(folder, n))]
+    if there:
+        raise ValidationError(
+            f"{name} folder {os.fspath(folder)!r} already holds {there[0]}"
+            + (f" and {len(there) - 1} more of {what}" if len(there) > 1 else "")
+            + f": pass --overwrite to replace them, or choose another {name} folder{other}"
+        )
 
 
 def missing_folders(path) -> list[pathlib.Path]:

@@ -411,6 +411,25 @@ def region_sample_frame(source, model="ts", subjects=None):
 
     A store's samples come from :func:`facestats.analysis.population.region_samples`;
     a DataFrame with those columns is filtered to ``subjects``.
+
+    Parameters
+    ----------
+    source : Store or pandas.DataFrame
+        A parameter store, or samples already in long form.
+    model : {"ts", "bp"}
+        Specular model of a store's samples: Torrance-Sparrow (ρs, m) or Blinn-Phong (ρs, n).
+    subjects : sequence of str, optional
+        Subject ids to keep (default all).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per sample: ``subject_id``, ``region`` (1-10, Weyrich Fig. 15), ``rho_s``, ``lobe`` (m or n).
+
+    Raises
+    ------
+    ValidationError
+        A source of another type, or a DataFrame without those columns.
     """
     import pandas as pd
 

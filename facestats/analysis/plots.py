@@ -243,7 +243,21 @@ def plot_absorption_scattering(result):
 
 
 def plot_translucency(table, ax=None, published=True):
-    """Table 1 as bars: mean σtr per site and channel with ±1 standard deviation; the paper's means as markers."""
+    """Table 1 as bars: mean σtr per site and channel with ±1 standard deviation; the paper's means as markers.
+
+    Parameters
+    ----------
+    table : TranslucencyTable
+        :func:`facestats.analysis.translucency_table`'s result (σtr in mm⁻¹).
+    ax : matplotlib.axes.Axes, optional
+        Axes to draw into (default a new figure).
+    published : bool
+        Mark Weyrich et al. 2006 Table 1's means beside the bars.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
 
     fig, ax = _axes(ax, (7, 4.5))
     sites = list(dict.fromkeys(table.table.columns.get_level_values("site")))

@@ -82,7 +82,20 @@ _MEMORY_PER_TEXEL = 0.16e6
 
 
 def estimated_memory(map_size: int, workers: int = 1) -> float:
-    """Bytes a build of ``map_size``² maps needs with ``workers`` processes (:data:`_MEMORY_PER_TEXEL`)."""
+    """Bytes a build of ``map_size``² maps needs with ``workers`` processes (:data:`_MEMORY_PER_TEXEL`).
+
+    Parameters
+    ----------
+    map_size : int
+        Side of the UV maps (and of the lumitexel grid) in texels.
+    workers : int
+        Worker processes, each holding one subject's fit.
+
+    Returns
+    -------
+    float
+        Estimated peak bytes: ``workers`` × (a fixed part + a part per texel), measured constants.
+    """
     return workers * (_MEMORY_FIXED + _MEMORY_PER_TEXEL * float(map_size) ** 2)
 
 
@@ -588,6 +601,20 @@ def build_default(*, workers: int | None = None, progress: bool = False, out=Non
     per texel would triple its size) and stored without the derived modulation texture, so it
     stays under 20 MB.  It is built on this machine (``$DASK_SCHEDULER_ADDRESS`` is not read): the
     build goes to a local temporary directory that a cluster's workers could not see.
+
+    Parameters
+    ----------
+    workers : int, optional
+        Local worker processes, ≥ 1 (default: the number of cores), as :func:`build_store`.
+    progress : bool
+        Show a progress bar with ETA.
+    out : path, optional
+        Zip file to write instead of the package's embedded store.
+
+    Returns
+    -------
+    BuildReport
+        What the build wrote, skipped and failed, and where the store went.
     """
 
     target = Path(out) if out is not None else default_store_path()

@@ -349,7 +349,25 @@ def calibrate_response(
 
 
 def read_response(path) -> np.ndarray:
-    """g (levels, 3) of a ``facestats.camera-response/1`` file (code 0, stored as null, is −inf)."""
+    """g (levels, 3) of a ``facestats.camera-response/1`` file (code 0, stored as null, is −inf).
+
+    Parameters
+    ----------
+    path : str or path-like
+        A response file as :meth:`ResponseCalibration.save` writes it.
+
+    Returns
+    -------
+    ndarray of float64, shape (levels, 3)
+        g = ln f⁻¹ per code and channel; levels is a power of 2, code 0 may be −inf.
+
+    Raises
+    ------
+    FormatError
+        The file cannot be read or is not JSON, its ``format`` is not ``facestats.camera-response/1``, its
+        ``log_response`` is missing, not 3 channels of 2**bits values or not finite above code 0, or its
+        ``bits`` disagrees with the number of levels.
+    """
     return _response_file(path)[0]
 
 
@@ -383,9 +401,22 @@ def _response_file(path):
 
 
 def agreement_warnings(agreement, exposure_times) -> list:
-    """One sentence per pair of consecutive exposures whose median disagreement exceeds :data:`AGREEMENT_LIMIT`
-    (``agreement`` as :func:`facestats.acquire.response.exposure_agreement` gives it, in order of time): their times
-    do not match the frames, or the scene changed between them."""
+    """One sentence per pair of consecutive exposures whose median disagreement exceeds :data:`AGREEMENT_LIMIT`:
+    their times do not match the frames, or the scene changed between them.
+
+    Parameters
+    ----------
+    agreement : array_like, shape (P − 1, 2)
+        Median and 90th percentile per consecutive pair in order of time, as
+        :func:`facestats.acquire.response.exposure_agreement` gives it; NaN medians are skipped.
+    exposure_times : array_like, shape (P,)
+        The bracket's exposure times in seconds, any order (sorted here to name each pair).
+
+    Returns
+    -------
+    list of str
+        One warning per disagreeing pair; empty when all agree.
+    """
     times = np.asarray(exposure_times, np.float64)
     order = np.argsort(times, kind="stable")
     out = []

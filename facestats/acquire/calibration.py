@@ -93,7 +93,27 @@ NOISY_RESIDUAL = 0.10
 
 # -- OpenCV camera files ---------------------------------------------------------------------------------------
 def write_opencv_camera(path, dome: Dome, camera: int):
-    """Write camera ``camera`` of ``dome`` as an OpenCV FileStorage file (.yml, .yaml or .json)."""
+    """Write camera ``camera`` of ``dome`` as an OpenCV FileStorage file (.yml, .yaml or .json).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file to write; OpenCV picks YAML or JSON by its extension.
+    dome : Dome
+        The calibration holding the camera.
+    camera : int
+        0-based camera index in ``dome``.
+
+    Returns
+    -------
+    str
+        ``path`` as a string.
+
+    Raises
+    ------
+    FormatError
+        OpenCV cannot open ``path`` for writing.
+    """
     import cv2
 
     p = os.fspath(path)
@@ -116,10 +136,23 @@ def write_opencv_camera(path, dome: Dome, camera: int):
 def read_opencv_camera(path) -> dict:
     """One camera from an OpenCV FileStorage file: the ``camera_dict`` fields of :class:`Dome` (K, dist, R, t, size).
 
+    Parameters
+    ----------
+    path : str or path-like
+        A YAML or JSON FileStorage file (module docstring; ``camera_matrix``, ``distortion_coefficients`` and ``T``
+        are read as ``K``, ``dist`` and ``t``).
+
+    Returns
+    -------
+    dict
+        ``K`` (3 × 3 nested list), ``dist`` (list), ``R`` (3 × 3 nested list, world to camera), ``t`` (3 floats,
+        mm), ``image_width`` and ``image_height`` (int); no ``gain``.
+
     Raises
     ------
     FormatError
-        The file cannot be parsed or lacks a field (the message names both).
+        The file does not exist, cannot be parsed or lacks a field (the message names both), a field is not a
+        matrix, or K, R or t has the wrong shape.
     """
     import cv2
 
@@ -323,7 +356,25 @@ def _num(x):
 
 
 def read_led_calibration(path) -> dict:
-    """Arrays of an LED file: ``position``, ``axis``, ``intensity``, ``beam`` (L, ·), ``camera_gain`` (C, 3)."""
+    """Arrays of an LED file: ``position``, ``axis``, ``intensity``, ``beam`` (L, ·), ``camera_gain`` (C, 3).
+
+    Parameters
+    ----------
+    path : str or path-like
+        A ``facestats.led-calibration/1`` file (:meth:`LedCalibration.save`).
+
+    Returns
+    -------
+    dict of ndarray of float
+        ``position`` (L, 3, mm), ``axis`` (L, 3), ``intensity`` (L, 3), ``beam`` (L, 6) and ``camera_gain``
+        (C, 3); values stored as null are NaN.
+
+    Raises
+    ------
+    FormatError
+        The file cannot be read or is not JSON, its ``format`` is not ``facestats.led-calibration/1``, or a field
+        is missing or malformed.
+    """
     p = pathlib.Path(path)
     try:
         doc = json.loads(p.read_text())
@@ -407,6 +458,21 @@ def target_observations(
     Debevec & Malik 1997 eq. 4) divided by ``camera_scale``; saturated or unlit observations are
     dropped.  ``grid`` is in [2, :data:`MAX_GRID`].
 
+    Parameters
+    ----------
+    folder : str, path-like or CaptureFolder
+        A capture folder of ``kind`` ``"target"`` (:mod:`facestats.acquire.photographs`).
+    dome : Dome
+        The calibration: geometry, camera responses and exposure times of the rig.
+    grid : int
+        Points per side of each pose's lattice, in [2, :data:`MAX_GRID`].
+    cameras : sequence of int, optional
+        The cameras to read (default the folder's ``cameras``).
+    workers : int
+        Threads decoding frames (:func:`facestats.acquire.photographs.prefetch`).
+    black_level, white_level : int, optional
+        Pedestal and clipping code in DN (above); default the calibration's.
+
     Returns
     -------
     dict
@@ -449,9 +515,22 @@ def target_observations(
 def target_hits(dome: Dome, camera: int, pixels, geometry):
     """Where the rays of ``pixels`` (N, 2; centres at integers) of ``camera`` meet a planar target.
 
-    ``geometry`` is ``(centre, normal, u_axis, size)`` (mm, unit vectors, (width, height) mm).
-    Returns the world points (N, 3) on the target's plane and whether each lies in
-    front of the camera and inside the target's rectangle (N,) bool.
+    Parameters
+    ----------
+    dome : Dome
+    camera : int
+        0-based camera index.
+    pixels : array_like, shape (N, 2)
+        (u, v) pixel positions, OpenCV convention.
+    geometry : tuple
+        ``(centre, normal, u_axis, size)`` of the target (mm, unit vectors, (width, height) mm).
+
+    Returns
+    -------
+    points : ndarray of float64, shape (N, 3)
+        The world points where the rays meet the target's plane, mm (non-finite for a ray parallel to it).
+    inside : ndarray of bool, shape (N,)
+        The point lies in front of the camera and inside the target's rectangle.
     """
     centre, normal, u_axis, size = (np.asarray(x, np.float64) for x in geometry)
     rays = dome.pixel_rays(camera, pixels)
@@ -575,7 +654,26 @@ def _gains(dome, obs, intensity, beam, reference):
 
 
 def fit_leds(dome: Dome, obs: dict, *, reference_camera: int | None = None) -> LedCalibration:
-    """The photometric LED calibration (module docstring) from :func:`target_observations`."""
+    """The photometric LED calibration (module docstring) from :func:`target_observations`.
+
+    Parameters
+    ----------
+    dome : Dome
+        The calibration whose LED and camera geometry the fit uses.
+    obs : dict
+        :func:`target_observations`'s result.
+    reference_camera : int, optional
+        The camera of gain 1 that starts the fit; default the camera with the most observations.
+
+    Returns
+    -------
+    LedCalibration
+
+    Raises
+    ------
+    ValidationError
+        ``reference_camera`` is not a camera of ``dome`` with observations.
+    """
     counts = np.bincount(obs["camera"], minlength=dome.n_cameras)
     ref = int(np.argmax(counts)) if reference_camera is None else check_integer(reference_camera, "reference_camera")
     if not 0 <= ref < dome.n_cameras or counts[ref] == 0:
@@ -610,8 +708,31 @@ def calibrate_leds(
 ):
     """Fit every LED's intensity and beam polynomial, and the camera gains, from a target folder (module docstring).
 
-    ``grid``, ``workers``, ``black_level`` and ``white_level`` (DN; Z_min and Z_max of the hat weights of
-    Debevec & Malik 1997 eq. 4, default the calibration's) are those of :func:`target_observations`.
+    Parameters
+    ----------
+    folder : str, path-like or CaptureFolder
+        A capture folder of ``kind`` ``"target"`` (:mod:`facestats.acquire.photographs`).
+    dome : Dome
+        The calibration: geometry, camera responses and exposure times of the rig.
+    grid : int
+        As :func:`target_observations`.
+    reference_camera : int, optional
+        As :func:`fit_leds`.
+    workers, black_level, white_level
+        As :func:`target_observations` (``black_level`` and ``white_level`` in DN; Z_min and Z_max of the hat
+        weights of Debevec & Malik 1997 eq. 4, default the calibration's).
+
+    Returns
+    -------
+    LedCalibration
+
+    Raises
+    ------
+    FormatError
+        The folder is not a target capture, its ``target`` description is malformed, it does not match ``dome``
+        (cameras, LEDs, response levels, exposure times), or no camera sees a target pose.
+    ValidationError
+        A bad ``grid``, ``black_level``, ``white_level`` or ``reference_camera``.
     """
     obs = target_observations(
         folder, dome, grid=grid, workers=workers, black_level=black_level, white_level=white_level

@@ -44,7 +44,26 @@ __all__ = [
 
 
 def look_at(position, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
-    """World-to-camera rotation (rows: camera x right, y down, z forward) looking from ``position`` at ``target``."""
+    """World-to-camera rotation (rows: camera x right, y down, z forward) looking from ``position`` at ``target``.
+
+    Parameters
+    ----------
+    position, target : array_like, shape (..., 3)
+        Camera centre and the point it looks at, mm (world frame); stacked for several cameras.
+    up : array_like, shape (3,) or (..., 3)
+        World direction that appears up in the image; where it is parallel to the view direction,
+        (1, 0, 0) is used in its place.
+
+    Returns
+    -------
+    ndarray of float64, shape (..., 3, 3)
+        The rotation R, rows right, down, forward (unit vectors).
+
+    Raises
+    ------
+    ValidationError
+        A ``target`` equal to its ``position`` (or NaN).
+    """
     p = np.asarray(position, float)
     fwd = np.asarray(target, float) - p
     length = np.linalg.norm(fwd, axis=-1, keepdims=True)
@@ -67,8 +86,25 @@ def look_at(position, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
 def project_points(points, position, rotation, matrix):
     """Pixel coordinates (N, C, 2) and depths (N, C) of points (N, 3) in cameras (C) given as stacked arrays.
 
-    ``position`` (C, 3) mm, ``rotation`` (C, 3, 3) world-to-camera, ``matrix`` (C, 3, 3) intrinsics
-    (module docstring).  Points behind a camera get depth ≤ 0 and non-finite pixels are possible there.
+    Points behind a camera get depth ≤ 0 and non-finite pixels are possible there.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3)
+        World points, mm.
+    position : array_like, shape (C, 3)
+        Camera centres, mm.
+    rotation : array_like, shape (C, 3, 3)
+        World-to-camera rotations (module docstring).
+    matrix : array_like, shape (C, 3, 3)
+        Intrinsics K.
+
+    Returns
+    -------
+    pixels : ndarray of float64, shape (N, C, 2)
+        (u, v) with pixel (0, 0) the top-left corner of the image (module docstring).
+    depth : ndarray of float64, shape (N, C)
+        Camera z of each point, mm.
     """
     d = np.asarray(points, np.float64)[:, None, :] - np.asarray(position, np.float64)[None, :, :]
     cam = np.einsum("cij,ncj->nci", np.asarray(rotation, np.float64), d)
@@ -197,6 +233,18 @@ def sample_image(image, pixels) -> np.ndarray:
 
     Pixel centres lie at integer + 0.5; samples outside the image, or touching a
     NaN pixel, are NaN.
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W, C) or (H, W)
+        The image, indexed [v, u]; (H, W) is one channel.
+    pixels : array_like, shape (N, 2)
+        (u, v) pixel coordinates; finite ones in [0, W] × [0, H] are sampled (clamped to the edge pixels).
+
+    Returns
+    -------
+    ndarray of float64, shape (N, C)
+        Samples; C = 1 for an (H, W) image.
     """
     from scipy.ndimage import map_coordinates
 

@@ -385,7 +385,24 @@ class CaptureWriter:
 
 
 def open_capture(path) -> Capture:
-    """Open a capture written by :meth:`Capture.to_zarr` (arrays stay on disk until sliced)."""
+    """Open a capture written by :meth:`Capture.to_zarr` (arrays stay on disk until sliced).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The capture's zarr group.
+
+    Returns
+    -------
+    Capture
+        Its arrays are zarr arrays, read when sliced; ``path`` is kept as a string.
+
+    Raises
+    ------
+    FormatError
+        The group cannot be opened, lacks an array of :data:`CAPTURE_ARRAYS` or a required attribute, has arrays
+        of different lumitexel counts, or (when written with every chunk) has a chunk missing on disk.
+    """
     import zarr
 
     try:

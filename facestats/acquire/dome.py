@@ -71,7 +71,17 @@ __all__ = ["Dome", "default_dome", "beam_terms"]
 
 
 def beam_terms(s, t) -> np.ndarray:
-    """The monomials (1, s, t, s², s t, t²) of the LED beam polynomial (module docstring), last axis of length 6."""
+    """The monomials (1, s, t, s², s t, t²) of the LED beam polynomial (module docstring), last axis of length 6.
+
+    Parameters
+    ----------
+    s, t : ndarray, same shape (...)
+        Beam-plane (tangent) coordinates of directions from the LED.
+
+    Returns
+    -------
+    ndarray, shape (..., 6)
+    """
     return np.stack([np.ones_like(s), s, t, s * s, s * t, t * t], axis=-1)
 
 
@@ -586,11 +596,20 @@ def default_dome(seed: int = 2006) -> Dome:
       fall-off of 30 % per unit tan² off-axis and 2 % random tilt and curvature terms;
       ``seed`` fixes the draw.
     * **Cameras.** 16 cameras at 1200 mm in two rows (elevation −12° and +18°) of 8,
-      azimuths −84°..84°, looking at the face centre (0, 0, 50) mm; 1024 × 1024
+      azimuths −84°..84° (the upper row turned a further 12°), looking at the face centre (0, 0, 50) mm; 1024 × 1024
       pixels with a 17° field of view, enough to frame the face.
     * **Exposures.** Two passes (§5, HDR from two exposures) of 1/60 s and 1/8 s; with
       ``camera_scale`` chosen so that diffuse skin reads about a third of the full
       well in the long pass, highlights clip there and are read from the short one.
+
+    Parameters
+    ----------
+    seed : int
+        Seed of the random draw of the LED intensities and beam terms.
+
+    Returns
+    -------
+    Dome
     """
     rng = np.random.default_rng(seed)
     sphere = geodesic_points(8)

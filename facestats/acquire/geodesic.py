@@ -8,7 +8,18 @@ __all__ = ["geodesic_points", "farthest_point_subset"]
 
 
 def geodesic_points(frequency: int = 4) -> np.ndarray:
-    """Vertices of a geodesic sphere: an icosahedron, each edge split ``frequency`` times, on the unit sphere."""
+    """Vertices of a geodesic sphere: an icosahedron, each edge split ``frequency`` times, on the unit sphere.
+
+    Parameters
+    ----------
+    frequency : int
+        Segments per icosahedron edge, ≥ 1.
+
+    Returns
+    -------
+    ndarray of float64, shape (10·frequency² + 2, 3)
+        Unit vectors, each vertex once (in the order first met over the faces).
+    """
     t = (1 + 5**0.5) / 2
     v = np.array(
         [
@@ -67,7 +78,24 @@ def geodesic_points(frequency: int = 4) -> np.ndarray:
 
 
 def farthest_point_subset(points, k, start):
-    """Deterministic farthest-point sampling of ``k`` points (loop over the k picks)."""
+    """Deterministic farthest-point sampling of ``k`` points (loop over the k picks).
+
+    Each pick is the point farthest (Euclidean) from those already chosen; ties go to the lowest index.
+
+    Parameters
+    ----------
+    points : ndarray, shape (M, D)
+        Candidate points.
+    k : int
+        Number of points to pick, ≥ 1 (at most M for distinct picks).
+    start : int
+        Index of the first pick.
+
+    Returns
+    -------
+    ndarray of int, shape (k,)
+        Indices into ``points`` in the order picked, ``start`` first.
+    """
     chosen = [start]
     d = np.linalg.norm(points - points[start], axis=1)
     for _ in range(k - 1):

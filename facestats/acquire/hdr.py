@@ -287,6 +287,19 @@ def merged_std(rate, times, response: CameraResponse):
     for the default camera).  Before 2026-12-06 the test was e ≥ saturation ×
     full_well (19,000 e⁻), which counted exposures the merge drops: fibres whose
     signal fell between the two were 1.06-1.28 × noisier than modelled (an audit).
+
+    Parameters
+    ----------
+    rate : array_like, shape (...)
+        True rate in electrons per unit of ``times`` (negative values count as 0).
+    times : array_like, shape (E,)
+        Exposure times.
+    response : CameraResponse
+
+    Returns
+    -------
+    ndarray of float64, shape (...)
+        Standard deviation of the merged rate (electrons per unit time); inf where every exposure clips.
     """
     r = np.asarray(rate, dtype=np.float64)
     t = np.asarray(times, dtype=np.float64)

@@ -144,7 +144,19 @@ def _check_inputs(folder: CaptureFolder, dome, geometry, calibration="the calibr
 
 
 def ingest_state(path) -> dict | None:
-    """The ``ingest`` attribute of a capture being (or made by) an ingest, or None if there is none."""
+    """The ``ingest`` attribute of a capture being (or made by) an ingest, or None if there is none.
+
+    Parameters
+    ----------
+    path : str or path-like
+        A capture's zarr group.
+
+    Returns
+    -------
+    dict or None
+        The attribute (decoded when stored as a JSON string); None when the attribute is absent or no zarr group
+        can be opened at ``path``.
+    """
     import zarr
 
     try:
@@ -260,6 +272,20 @@ def footprint_px(dome, geometry, camera: int) -> np.ndarray:
     A lumitexel represents ``area`` mm² of surface; seen at depth z under the
     angle θo its patch spans √area · f/z pixels across and √area · cos θo · f/z
     along the foreshortened axis (f the camera's mean focal length in pixels).
+
+    Parameters
+    ----------
+    dome : Dome
+        The calibration.
+    geometry : FaceGeometry
+        Lumitexel positions, normals and areas (mm²).
+    camera : int
+        0-based camera index.
+
+    Returns
+    -------
+    ndarray of float64, shape (N,)
+        √area · cos θo · f/z in pixels; 0 for lumitexels behind the camera or facing away from it.
     """
     _, z = dome.project(geometry.position, [camera])
     wo = dome.view_directions(geometry.position)[:, camera]
@@ -422,10 +448,21 @@ def ingest_photographs(
 def open_ingested(path):
     """Open a capture made by :func:`ingest_photographs`; a partial ingest is refused.
 
+    Parameters
+    ----------
+    path : str or path-like
+        The capture's zarr group.
+
+    Returns
+    -------
+    Capture
+        As :func:`facestats.acquire.capture.open_capture` gives it.
+
     Raises
     ------
     FormatError
-        The capture is not complete (the message says how many cameras are done).
+        The capture is not complete (the message says how many cameras are done), or
+        :func:`~facestats.acquire.capture.open_capture` refuses it.
     """
     state = ingest_state(path)
     if state is not None and not state.get("complete"):

@@ -22,7 +22,17 @@ __all__ = ["distort_normalised", "undistort_normalised"]
 def distort_normalised(x, y, dist):
     """OpenCV's lens distortion of normalised image coordinates (module docstring), broadcasting.
 
-    ``dist`` has (k₁, k₂, p₁, p₂, k₃, k₄, k₅, k₆) on its last axis; returns (x'', y'').
+    Parameters
+    ----------
+    x, y : ndarray
+        Normalised coordinates (x', y') = (x_c/z_c, y_c/z_c), broadcast with ``dist``'s leading axes.
+    dist : array_like, shape (..., 8)
+        (k₁, k₂, p₁, p₂, k₃, k₄, k₅, k₆) on the last axis (zeros for the terms a lens does not have).
+
+    Returns
+    -------
+    xd, yd : ndarray of float64
+        The distorted coordinates (x'', y'').
     """
     k1, k2, p1, p2, k3, k4, k5, k6 = np.moveaxis(np.asarray(dist, np.float64), -1, 0)
     r2 = x * x + y * y
@@ -37,6 +47,20 @@ def undistort_normalised(xd, yd, dist, iterations: int = 20):
     x ← (x_d − Δx(x, y)) / radial(x, y), starting from x = x_d; converges for the
     mild distortion of calibrated lenses (|residual| < 1e-10 after 20 iterations at
     |k₁| ≤ 0.3 inside the image).
+
+    Parameters
+    ----------
+    xd, yd : array_like
+        Distorted normalised coordinates (x'', y''), same or broadcastable shapes.
+    dist : array_like, shape (8,)
+        (k₁, k₂, p₁, p₂, k₃, k₄, k₅, k₆) of one camera (no leading axes, unlike :func:`distort_normalised`).
+    iterations : int
+        Fixed-point iterations; no convergence test is made.
+
+    Returns
+    -------
+    x, y : ndarray of float64
+        The undistorted normalised coordinates (x', y').
     """
     k1, k2, p1, p2, k3, k4, k5, k6 = np.asarray(dist, np.float64)
     x, y = np.array(xd, np.float64), np.array(yd, np.float64)

@@ -219,7 +219,26 @@ def _light_from_dict(d: dict):
 
 
 def lights_from_dict(d: dict):
-    """``(lights, eta)`` from the JSON form of the module docstring (``eta`` defaults to 1.3)."""
+    """``(lights, eta)`` from the JSON form of the module docstring (``eta`` defaults to 1.3).
+
+    Parameters
+    ----------
+    d : dict
+        The parsed JSON object: ``lights`` (a non-empty list) and optionally ``eta``.
+
+    Returns
+    -------
+    lights : list of PointLight, DirectionalLight or EnvironmentLight
+    eta : float
+        Relative index of refraction, in [1, 3].
+
+    Raises
+    ------
+    FormatError
+        Not an object with a non-empty list ``lights``, a light of unknown ``type`` or missing a key.
+    ValidationError
+        ``eta`` outside [1, 3], or a light's values out of their domain.
+    """
     if not isinstance(d, dict) or not isinstance(d.get("lights"), list) or not d["lights"]:
         raise FormatError("a light description must be an object with a non-empty list 'lights'")
     eta = float(check_dipole_eta(d.get("eta", SUZUKI_ETA)))  # the dipole's domain: the fit needs it
@@ -227,12 +246,41 @@ def lights_from_dict(d: dict):
 
 
 def lights_to_dict(lights, eta=SUZUKI_ETA) -> dict:
-    """The lights and the relative index of refraction ``eta`` as one JSON-ready dict."""
+    """The lights and the relative index of refraction ``eta`` as one JSON-ready dict.
+
+    Parameters
+    ----------
+    lights : iterable of PointLight, DirectionalLight or EnvironmentLight
+    eta : float
+        Relative index of refraction (default Suzuki et al.'s 1.3); not checked here.
+
+    Returns
+    -------
+    dict
+        ``{"eta": eta, "lights": [...]}``, the form :func:`lights_from_dict` reads.
+    """
     return {"eta": float(eta), "lights": [light.to_dict() for light in lights]}
 
 
 def load_lights(path):
-    """``(lights, eta)`` from a JSON file (module docstring)."""
+    """``(lights, eta)`` from a JSON file (module docstring).
+
+    Parameters
+    ----------
+    path : str or path-like
+
+    Returns
+    -------
+    lights : list of PointLight, DirectionalLight or EnvironmentLight
+    eta : float
+
+    Raises
+    ------
+    FormatError
+        The file cannot be read or is not JSON, or its content is malformed (naming the file).
+    ValidationError
+        A value out of its domain (:func:`lights_from_dict`), naming the file.
+    """
     try:
         with open(path) as f:
             doc = json.load(f)
@@ -242,7 +290,19 @@ def load_lights(path):
 
 
 def save_lights(path, lights, eta=SUZUKI_ETA):
-    """Write :func:`lights_to_dict` to ``path`` as JSON; return the path."""
+    """Write :func:`lights_to_dict` to ``path`` as JSON; return the path.
+
+    Parameters
+    ----------
+    path : str or path-like
+    lights, eta
+        As :func:`lights_to_dict`.
+
+    Returns
+    -------
+    str
+        ``path`` as a string.
+    """
     with open(path, "w") as f:
         json.dump(lights_to_dict(lights, eta), f, indent=1)
     return os.fspath(path)
@@ -260,6 +320,20 @@ def light_masks(patches, lights, *, shadows=True, resolution=512) -> list:
 
     Combines each light's cuts and cone with self-shadowing from shadow maps of
     the patches' mesh (when ``shadows`` and the patches carry a mesh).
+
+    Parameters
+    ----------
+    patches : facestats.acquire.patches.Patches
+    lights : sequence of PointLight, DirectionalLight or EnvironmentLight
+    shadows : bool
+        Self-shadowing by the patches' mesh (an environment light also needs its own ``shadows``).
+    resolution : int
+        Shadow-map side in pixels.
+
+    Returns
+    -------
+    list of ndarray of bool
+        One (m, 1) mask per point or directional light, one (m, K) per environment light of K directions.
     """
 
     out = []

@@ -105,6 +105,19 @@ def subdivide_triangles(tri, k):
     """The k² congruent sub-triangles, shape (T, k², 3, 3), of triangles ``tri`` (T, 3, 3) split k times per edge.
 
     Corners keep the orientation of their triangle; all k² have its area / k².
+
+    Parameters
+    ----------
+    tri : ndarray, shape (T, 3, 3)
+        Triangle corners a, b, c.
+    k : int
+        Splits per edge, ≥ 1.
+
+    Returns
+    -------
+    ndarray, shape (T, k², 3, 3)
+        Corners of the sub-triangles: first the k(k + 1)/2 pointing like their triangle, then the k(k − 1)/2
+        inverted ones (turned by 180°, same winding).
     """
     i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
     up = (i + j) <= k - 1
@@ -183,7 +196,29 @@ def mesh_patches(vertices, faces, *, spacing, occluder=True) -> Patches:
 
 
 def read_mesh_patches(path, *, spacing, scale=1.0, transform=None) -> Patches:
-    """Patches of a mesh file (OBJ, PLY; :func:`facestats.io.mesh.read_triangle_mesh`), see :func:`mesh_patches`."""
+    """Patches of a mesh file (OBJ, PLY; :func:`facestats.io.mesh.read_triangle_mesh`), see :func:`mesh_patches`.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The mesh file.
+    spacing : float or None
+        Target patch edge length in mm, as :func:`mesh_patches`.
+    scale, transform
+        As :func:`facestats.io.mesh.read_triangle_mesh` (factor to mm; a 4 × 4 rigid transform after scaling).
+
+    Returns
+    -------
+    Patches
+        With the mesh kept as the occluder.
+
+    Raises
+    ------
+    FormatError
+        An unreadable mesh file (:func:`facestats.io.mesh.read_triangle_mesh`).
+    ValidationError
+        A bad ``spacing``, or no triangle of positive area (:func:`mesh_patches`).
+    """
     # local import: keeps facestats.io (25 modules) out of this module's import
     from facestats.io.mesh import read_triangle_mesh
 

@@ -91,7 +91,21 @@ EXPOSURE_TOLERANCE = 0.01
 def write_sensor_file(path, sensor, profile, profile_std, **fields) -> pathlib.Path:
     """Write contact-sensor profiles (site, fiber, channel; mm⁻²) and the sensor's description as JSON.
 
-    ``fields`` add entries (e.g. the raw bracket frames of a device capture); readers ignore them.
+    Parameters
+    ----------
+    path : str or path-like
+        The file to write (format ``facestats.sensor-profiles/1``).
+    sensor : ContactSensor
+        The sensor's description (stored through :meth:`ContactSensor.to_attrs`).
+    profile, profile_std : array_like, shape (sites, fibers, 3)
+        Profile and its standard deviation in mm⁻² per site, fiber and channel; NaN is written as ``NaN``.
+    **fields
+        Further top-level entries (e.g. the raw bracket frames of a device capture); readers ignore them.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
     """
     doc = {
         "format": SENSOR_FORMAT,
@@ -106,7 +120,26 @@ def write_sensor_file(path, sensor, profile, profile_std, **fields) -> pathlib.P
 
 
 def frame_entry(folder, file, camera: int, led: int, exposure: int, exposure_s: float, pose: int = 0) -> dict:
-    """The manifest entry of one frame already written at ``folder/file`` (its SHA-256 computed here)."""
+    """The manifest entry of one frame already written at ``folder/file`` (its SHA-256 computed here).
+
+    Parameters
+    ----------
+    folder : str or path-like
+        The capture folder.
+    file : str or path-like
+        The frame's path relative to ``folder`` (stored as ``str(file)``).
+    camera, led, exposure : int
+        0-based camera, LED and exposure indices.
+    exposure_s : float
+        Exposure time in seconds.
+    pose : int
+        Target pose index (0 for a face capture).
+
+    Returns
+    -------
+    dict
+        ``camera``, ``led``, ``exposure``, ``exposure_s``, ``file``, ``sha256`` (hex) and ``pose``.
+    """
     data = (pathlib.Path(folder) / file).read_bytes()
     return {
         "camera": int(camera),
@@ -120,7 +153,31 @@ def frame_entry(folder, file, camera: int, led: int, exposure: int, exposure_s: 
 
 
 def write_manifest(folder, frames, *, kind="face", bits, n_cameras, n_leds, **fields) -> pathlib.Path:
-    """Write ``manifest.json`` (module docstring) into ``folder``; ``fields`` add e.g. ``subject``, ``target``."""
+    """Write ``manifest.json`` (module docstring) into ``folder``; ``fields`` add e.g. ``subject``, ``target``.
+
+    Nothing is checked here (:func:`open_folder` checks on reading); the file is written to a temporary name and
+    moved into place.
+
+    Parameters
+    ----------
+    folder : str or path-like
+        The capture folder (must exist).
+    frames : iterable of dict
+        Manifest entries, one per frame (:func:`frame_entry`).
+    kind : {"face", "target"}
+        A face capture or LED calibration target photographs.
+    bits : int
+        Code depth of the frames (8-16).
+    n_cameras, n_leds : int
+        Cameras and LEDs of the rig.
+    **fields
+        Further top-level manifest fields (JSON-serialisable).
+
+    Returns
+    -------
+    pathlib.Path
+        The path of the written ``manifest.json``.
+    """
     doc = {"format": FORMAT, "kind": kind, "bits": int(bits), "n_cameras": int(n_cameras), "n_leds": int(n_leds)}
     doc.update(fields)
     doc["frames"] = list(frames)
@@ -327,7 +384,19 @@ class CaptureFolder:
 def check_response(folder: "CaptureFolder", dome, calibration: str = "the calibration") -> None:
     """Raise unless ``dome`` has camera responses with one level per code of the folder's ``bits``.
 
-    ``calibration`` names the calibration in messages (its file when known).
+    Parameters
+    ----------
+    folder : CaptureFolder
+        The opened capture folder (:func:`open_folder`).
+    dome : Dome
+        The calibration whose ``camera_log_response`` merges the folder's frames.
+    calibration : str
+        Names the calibration in messages (its file when known).
+
+    Raises
+    ------
+    FormatError
+        ``dome`` has no ``camera_log_response``, or its number of levels is not 2**``folder.bits``.
     """
     if dome.camera_log_response is None:
         raise FormatError(
@@ -349,13 +418,22 @@ def check_exposures(folder: "CaptureFolder", dome, calibration: str = "the calib
     ``dome.exposure_times[e]`` (``exposure_times_s`` of the calibration file); they must agree within
     :data:`EXPOSURE_TOLERANCE` (relative), the tolerance ``facestats capture`` allows between the device's
     settings and the calibration.  This catches times written in another unit (milliseconds: a factor 1000 in
-    every merged radiance) in frames without EXIF, and frames of another rig set-up.  ``calibration`` names the
-    calibration in messages (its file when known).
+    every merged radiance) in frames without EXIF, and frames of another rig set-up.
+
+    Parameters
+    ----------
+    folder : CaptureFolder
+        The opened capture folder (:func:`open_folder`).
+    dome : Dome
+        The calibration whose ``exposure_times`` (s) the frames must match.
+    calibration : str
+        Names the calibration in messages (its file when known).
 
     Raises
     ------
     FormatError
-        Naming the manifest, or the first disagreeing frame with its ``exposure_s`` and the calibration's time.
+        Naming the manifest (a number of exposures other than the calibration's), or the first disagreeing frame
+        with its ``exposure_s`` and the calibration's time.
     """
     want = np.asarray(dome.exposure_times, np.float64)
     manifest = folder.path / MANIFEST
@@ -376,7 +454,18 @@ def check_exposures(folder: "CaptureFolder", dome, calibration: str = "the calib
 
 
 def relative_inside(name: str) -> bool:
-    """A relative path without ``..``: it names a file inside the folder, never one elsewhere."""
+    """A relative path without ``..``: it names a file inside the folder, never one elsewhere.
+
+    Parameters
+    ----------
+    name : str
+        A file name from a manifest, read as a POSIX path.
+
+    Returns
+    -------
+    bool
+        False for an empty name, an absolute path, a name starting with ``~``, or one with a ``..`` component.
+    """
     p = pathlib.PurePosixPath(name)
     return bool(name) and not p.is_absolute() and not name.startswith("~") and ".." not in p.parts
 
@@ -457,7 +546,24 @@ def _frame_table(path, cols, n_cameras, n_leds, cameras):
 
 
 def open_folder(path) -> CaptureFolder:
-    """Open and check a capture folder (module docstring); raises :class:`FormatError` on any violation."""
+    """Open and check a capture folder (module docstring); raises :class:`FormatError` on any violation.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The folder holding ``manifest.json`` and the frames it lists.
+
+    Returns
+    -------
+    CaptureFolder
+        The manifest and its frame tables; no frame is decoded or hashed here.
+
+    Raises
+    ------
+    FormatError
+        No readable ``manifest.json``, invalid JSON, or any rule of the module docstring broken (the message
+        names the file, the field and the value).
+    """
     # local import: keeps facestats.io (24 modules) out of this module's import
     from facestats.io.layout import read_regular_file
 
@@ -513,6 +619,20 @@ def prefetch(fn, items, workers: int):
     """``fn(item)`` for each item in order on ``workers`` threads, at most ``workers + 1`` ahead (bounded memory).
 
     Frames are decoded and hashed this way: both release the GIL.
+
+    Parameters
+    ----------
+    fn : callable
+        Called once per item.
+    items : iterable
+        The items (read into a list first when ``workers`` > 1).
+    workers : int
+        Threads; 1 or fewer calls ``fn`` in the caller's thread, lazily.
+
+    Yields
+    ------
+    object
+        ``fn(item)`` in the order of ``items``; an exception of ``fn`` is raised when its result is reached.
     """
     if workers <= 1:
         yield from map(fn, items)
@@ -585,6 +705,30 @@ def merge_at(
     Z_min and Z_max of eq. 4; ``white_level`` None is the top code), then bilinear interpolation.  A tap dark in
     every exposure takes the longest exposure's floor, an upper bound of its radiance; ``measured_only`` makes it
     NaN too (for a fit, where such bounds taken as data bias the result upwards).
+
+    Parameters
+    ----------
+    stack : sequence of ndarray of int, each (H, W, 3)
+        The frame's codes per exposure.
+    times : array_like, shape (P,)
+        Exposure times in seconds.
+    response : ndarray, shape (levels, 3)
+        g = ln f⁻¹ per channel.
+    index, weight : ndarray, shape (N, 4)
+        Flat pixel indices and bilinear weights from :func:`bilinear_taps`.
+    weighting : {"hat_time", "hat"}
+        As :func:`facestats.acquire.response.merge_photographs`.
+    black_level : int
+        Pedestal in DN (Z_min).
+    white_level : int, optional
+        Clipping code in DN (Z_max); None: the top code.
+    measured_only : bool
+        NaN instead of the floor where a tap is dark in every exposure.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        Radiance in the units of exp(g)/s (float32 with :func:`bilinear_taps`'s weights).
     """
     taps = _gather(stack, index)
     e, den = merge_photographs(

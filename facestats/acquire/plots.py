@@ -12,7 +12,21 @@ __all__ = ["plot_response", "plot_hdr_frame", "plot_led_calibration"]
 
 
 def plot_response(response, truth=None, *, labels=("R", "G", "B")):
-    """Debevec-Malik g(z) per channel (ln exposure against code), with a true curve if given."""
+    """Debevec-Malik g(z) per channel (ln exposure against code), with a true curve if given.
+
+    Parameters
+    ----------
+    response : array_like, shape (levels, C), C ≤ 3
+        The recovered g per code and channel (drawn red, green, blue).
+    truth : array_like, shape (levels,), optional
+        A true g, drawn dashed.
+    labels : sequence of str
+        Channel names for the legend.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     import matplotlib.pyplot as plt
 
     g = np.asarray(response)
@@ -30,7 +44,20 @@ def plot_response(response, truth=None, *, labels=("R", "G", "B")):
 
 
 def plot_hdr_frame(radiance, *, title="HDR frame"):
-    """A merged frame (H, W, 3 linear radiance) shown with a log tone map, NaN (saturated) in magenta."""
+    """A merged frame (H, W, 3 linear radiance) shown with a log tone map, NaN (saturated) in magenta.
+
+    Parameters
+    ----------
+    radiance : array_like, shape (H, W, 3)
+        Linear radiance; the tone map spans its 1st to 99.9th percentile of positive values, and a pixel with
+        any non-finite channel is magenta.
+    title : str
+        Axes title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     import matplotlib.pyplot as plt
 
     e = np.asarray(radiance, np.float64)
@@ -47,7 +74,19 @@ def plot_hdr_frame(radiance, *, title="HDR frame"):
 
 
 def plot_led_calibration(result, truth=None):
-    """Fitted LED intensities (and their ratio to ``truth`` (L, 3) if given) and RMS residuals per LED."""
+    """Fitted LED intensities (and their ratio to ``truth`` (L, 3) if given) and RMS residuals per LED.
+
+    Parameters
+    ----------
+    result : LedCalibration
+        :func:`facestats.acquire.calibration.fit_leds`'s result.
+    truth : ndarray, shape (L, 3), optional
+        True intensities I₀; given, the left panel shows the relative error in per cent instead of I₀.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     import matplotlib.pyplot as plt
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.2))

@@ -226,7 +226,24 @@ def hat_weights(levels: int, black_level: int = 0, white_level: int | None = Non
 
 
 def check_black_level(black_level, levels: int) -> int:
-    """``black_level`` as an int, checked: a code in [0, levels/2) (g is pinned at levels/2, above it)."""
+    """``black_level`` as an int, checked: a code in [0, levels/2) (g is pinned at levels/2, above it).
+
+    Parameters
+    ----------
+    black_level : int
+        The sensor's pedestal in DN (module docstring).
+    levels : int
+        Number of codes, 2**bits.
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    ValidationError
+        Not an integer, or outside [0, levels/2 − 1].
+    """
     return check_integer(black_level, "black_level", 0, levels // 2 - 1)
 
 
@@ -237,10 +254,25 @@ def check_white_level(white_level, levels: int, black_level: int = 0) -> int:
     sensor clips.  g is pinned at levels/2, so that code must lie strictly between the black level (below levels/2,
     :func:`check_black_level`) and the white level; ``black_level`` is the hat's Z_min, which then lies below it.
 
+    Parameters
+    ----------
+    white_level : int or None
+        The clipping code in DN; None for the top code.
+    levels : int
+        Number of codes, 2**bits.
+    black_level : int
+        The pedestal in DN; the white level must also exceed it.
+
+    Returns
+    -------
+    int
+        The white level in DN.
+
     Raises
     ------
     ValidationError
-        Naming ``white_level`` and the value: not an integer, at or below levels/2, or above the top code.
+        Naming ``white_level`` and the value: not an integer, at or below levels/2 (or the black level), or above
+        the top code.
     """
     if white_level is None:
         return levels - 1
@@ -341,9 +373,21 @@ def stratified_samples(reference, n: int, levels: int, seed: int = 0) -> np.ndar
 def histogram_samples(codes, n: int) -> np.ndarray:
     """Grossberg & Nayar 2003 §5 "virtual pixels": codes at ``n`` equal quantiles of each exposure, (n, P).
 
-    ``codes`` is (P, npix) of one channel; the quantile (k + ½)/n of exposure j is
+    The quantile (k + ½)/n of exposure j is
     the code of rank ⌊(k + ½) npix / n⌋ in its cumulative histogram, so row k pairs
     codes of equal rank (an O(npix) histogram per exposure, no sort).
+
+    Parameters
+    ----------
+    codes : array_like of non-negative int, shape (P, npix) or (P, ...)
+        One channel's codes per exposure (trailing axes are flattened to npix).
+    n : int
+        Number of quantiles (virtual pixels).
+
+    Returns
+    -------
+    ndarray of int64, shape (n, P)
+        Row k: the code at quantile (k + ½)/n of each exposure.
     """
     c = np.asarray(codes).reshape(np.shape(codes)[0], -1)
     npix = c.shape[1]

@@ -30,7 +30,26 @@ __all__ = ["camera_sees", "patch_radiance", "read_radiance_image", "write_radian
 
 
 def read_radiance_image(path) -> np.ndarray:
-    """A linear radiance image (H, W, C) float64 from OpenEXR, PFM or ``.npz`` (array ``radiance``)."""
+    """A linear radiance image (H, W, C) float64 from OpenEXR, PFM or ``.npz`` (array ``radiance``).
+
+    Parameters
+    ----------
+    path : str or path-like
+        An ``.exr``, ``.pfm`` or ``.npz`` file.
+
+    Returns
+    -------
+    ndarray of float64, shape (H, W, C)
+        Values as stored; an (H, W) image gets C = 1, and an RGBA OpenEXR becomes RGB with NaN where alpha is ≤ 0
+        (the coverage :func:`write_radiance_image` writes).
+
+    Raises
+    ------
+    ValidationError
+        ``path`` is not an existing file, or not ``.exr``, ``.pfm`` or ``.npz``.
+    FormatError
+        An ``.npz`` without ``radiance`` or unreadable, or an image not of shape (H, W[, C]).
+    """
     p = os.fspath(path)
     if not os.path.isfile(p):
         raise ValidationError(f"image must name an existing file, got {p!r}")
@@ -59,7 +78,27 @@ def read_radiance_image(path) -> np.ndarray:
 
 
 def write_radiance_image(path, image) -> str:
-    """Write a linear radiance image: ``.npz`` (array ``radiance``) or OpenEXR/PFM (float32) by extension."""
+    """Write a linear radiance image: ``.npz`` (array ``radiance``) or OpenEXR/PFM (float32) by extension.
+
+    An OpenEXR image with non-finite pixels gets an alpha channel of coverage (0 there, those pixels 0).
+
+    Parameters
+    ----------
+    path : str or path-like
+        Ending in ``.exr``, ``.pfm`` or ``.npz``.
+    image : array_like, shape (H, W[, C])
+        Linear radiance (``.npz`` keeps its dtype).
+
+    Returns
+    -------
+    str
+        ``path`` as a string.
+
+    Raises
+    ------
+    ValidationError
+        Another extension.
+    """
     p = os.fspath(path)
     img = np.asarray(image)
     if p.lower().endswith(".npz"):
@@ -80,7 +119,20 @@ def write_radiance_image(path, image) -> str:
 
 
 def camera_sees(camera: PinholeCamera, patches, *, shadow_resolution=512) -> np.ndarray:
-    """(m,) bool: patches facing the camera, in frame and (with a mesh) not occluded (shadow map)."""
+    """(m,) bool: patches facing the camera, in frame and (with a mesh) not occluded (shadow map).
+
+    Parameters
+    ----------
+    camera : PinholeCamera
+    patches : facestats.acquire.patches.Patches
+        Their centres and normals are tested; their mesh, if any, occludes.
+    shadow_resolution : int
+        Side of the camera's shadow map in pixels.
+
+    Returns
+    -------
+    ndarray of bool, shape (m,)
+    """
     to_cam = camera.position - patches.centre
     seen = (np.einsum("mk,mk->m", patches.normal, to_cam) > 0) & camera.in_frame(patches.centre)
     if patches.has_mesh:

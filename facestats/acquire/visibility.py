@@ -131,6 +131,21 @@ def rasterize(vertices, faces, eye, rot, focal, resolution):
     Depths are compared in float32 (as the shadow maps store them); ties go to
     the smaller triangle index.
 
+    Parameters
+    ----------
+    vertices : array_like, shape (V, 3)
+        Mesh vertices, mm.
+    faces : array_like of int, shape (F, 3)
+        Triangles.
+    eye : array_like, shape (3,)
+        Camera centre, mm.
+    rot : ndarray, shape (3, 3)
+        World-to-camera rotation.
+    focal : float
+        Focal length in pixels.
+    resolution : int
+        Image side in pixels.
+
     Returns
     -------
     triangle : ndarray of int64, shape (resolution, resolution)
@@ -216,7 +231,18 @@ class ShadowMaps:
 def visible_from(points, normals, vertices, faces, eyes, *, target=None, resolution=256, bias_px=1.5):
     """Which points each viewpoint sees (front-facing and not occluded by the mesh): (N, K) bool.
 
-    Convenience for :class:`ShadowMaps` (see there for the parameters).
+    Convenience for :class:`ShadowMaps`.
+
+    Parameters
+    ----------
+    points, normals : array_like, shape (N, 3)
+        Points (mm) and their normals.
+    vertices, faces, eyes, target, resolution, bias_px
+        As :class:`ShadowMaps` (``eyes`` (K, 3), mm).
+
+    Returns
+    -------
+    ndarray of bool, shape (N, K)
     """
     return ShadowMaps(vertices, faces, eyes, target=target, resolution=resolution, bias_px=bias_px).visible(
         points, normals
@@ -231,6 +257,21 @@ def dome_shadow_maps(geometry, dome, resolution: int | None = None, *, camera_pi
     ``camera_pixels`` the cameras' buffers have the cameras' own resolution over
     the mesh (capped at 2,048): photographs show occlusion edges at image
     resolution, and a lumitexel next to an edge must be tested at that scale.
+
+    Parameters
+    ----------
+    geometry : FaceGeometry
+        Its mesh occludes.
+    dome : Dome
+    resolution : int, optional
+        Buffer side in pixels (default above); with ``camera_pixels`` the cameras' minimum.
+    camera_pixels : bool
+        Cameras' buffers at their own resolution over the mesh.
+
+    Returns
+    -------
+    ShadowMaps
+        L + C viewpoints: the LEDs, then the cameras.
     """
     res = int(resolution or 2 * int(geometry.meta.get("mesh_grid", 128)))
     eyes = np.concatenate([dome.led_position, dome.camera_position])
@@ -280,9 +321,20 @@ class SampleVisibility:
 def sample_visibility(dome, shadows: ShadowMaps, points, normals) -> SampleVisibility:
     """Valid samples of points with ``normals`` (Weyrich et al. 2006 §5: shadow maps per light and camera).
 
-    ``shadows`` holds the maps of the LEDs then the cameras (:func:`dome_shadow_maps`).
     The simulator renders exactly these samples and the photograph ingest keeps
     exactly these, so both paths agree on what a valid sample is.
+
+    Parameters
+    ----------
+    dome : Dome
+    shadows : ShadowMaps
+        The maps of the LEDs then the cameras (:func:`dome_shadow_maps`).
+    points, normals : array_like, shape (N, 3)
+        Surface points (mm) and their unit normals.
+
+    Returns
+    -------
+    SampleVisibility
     """
     pts, nrm = np.asarray(points, np.float64), np.asarray(normals, np.float64)
     n_led = dome.n_leds

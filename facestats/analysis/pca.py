@@ -101,7 +101,20 @@ def principal_axes(samples, ddof=1):
 
 
 def covariance_axes(cov):
-    """Eigenvalues (descending, clipped at 0) and unit eigenvectors (columns, largest component positive) of ``cov``."""
+    """Eigenvalues (descending, clipped at 0) and unit eigenvectors (columns, largest component positive) of ``cov``.
+
+    Parameters
+    ----------
+    cov : array_like, shape (d, d)
+        Symmetric covariance matrix (only its lower triangle is read, :func:`numpy.linalg.eigh`).
+
+    Returns
+    -------
+    w : numpy.ndarray, shape (d,)
+        Eigenvalues (variances), float64.
+    v : numpy.ndarray, shape (d, d)
+        Eigenvectors as columns, in the order of ``w``, each signed so its largest-magnitude component is positive.
+    """
     w, v = np.linalg.eigh(np.asarray(cov, np.float64))
     order = np.argsort(w)[::-1]
     w = np.maximum(w[order], 0.0)
@@ -523,7 +536,27 @@ def region_pca(source, model="ts", subjects=None, conditions=("normal",), ddof=1
 
 def has_index_moments(source, model="ts") -> bool:
     """True if the population index of ``source`` (a store or the index) holds the per-region moments of
-    every subject that :func:`region_pca` pools instead of reading samples."""
+    every subject that :func:`region_pca` pools instead of reading samples.
+
+    Every row of the index is checked (not only a selected population): each region's count, covariance,
+    means and standard deviations must be columns, and finite for every subject with samples.
+
+    Parameters
+    ----------
+    source : store or pandas.DataFrame
+        A parameter store (``subjects()`` returns its index) or the index itself.
+    model : {"ts", "bp"}
+        Torrance-Sparrow or Blinn-Phong columns.
+
+    Returns
+    -------
+    bool
+
+    Raises
+    ------
+    ValidationError
+        For another ``model``, or a ``source`` that :func:`population_index` refuses.
+    """
     check_choice(model, "model", ("ts", "bp"))
     return _index_moments(population_index(source), model) is not None
 

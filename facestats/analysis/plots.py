@@ -38,7 +38,18 @@ _MARKERS = {"F": "D", "M": "o"}
 
 
 def skin_type_color(skin_type):
-    """RGB colour of a Fitzpatrick skin type: light for I-II, black for VI (linear in between)."""
+    """RGB colour of a Fitzpatrick skin type: light for I-II, black for VI (linear in between).
+
+    Parameters
+    ----------
+    skin_type : int or array_like
+        Skin type(s) as numbers 1-6 (values outside are clipped to the end colours).
+
+    Returns
+    -------
+    numpy.ndarray, shape (..., 3)
+        RGB in [0, 1], one colour per skin type (shape ``(3,)`` for a scalar).
+    """
     t = np.clip((np.asarray(skin_type, dtype=float) - 2) / 4, 0, 1)
     return _LIGHT * (1 - t)[..., None]
 
@@ -226,7 +237,17 @@ def plot_cca(result, dims=(0, 1), ax=None, skin_type=None, gender=None, age=None
 
 
 def plot_absorption_scattering(result):
-    """Fig. 14: σa against σ's (mm⁻¹) for all subjects, one panel per channel, with the paper's encoding."""
+    """Fig. 14: σa against σ's (mm⁻¹) for all subjects, one panel per channel, with the paper's encoding.
+
+    Parameters
+    ----------
+    result : AbsorptionScattering
+        :func:`facestats.analysis.absorption_scattering`'s result.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     fig = _new_figure((12, 4))
     axes = fig.subplots(1, 3)
     d = result.data
@@ -291,7 +312,18 @@ def plot_translucency(table, ax=None, published=True):
 
 
 def plot_conditions(result):
-    """Per-region differences of ρs and the lobe parameter against the reference condition, and condition distances."""
+    """Per-region differences of ρs and the lobe parameter against the reference condition, and condition distances.
+
+    Parameters
+    ----------
+    result : ConditionDifferences
+        :func:`facestats.analysis.condition_differences`'s result.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Heat maps of ``d_rho_s`` and ``d_lobe`` (condition × region) and of the distance matrix.
+    """
     fig = _new_figure((13, 4))
     axes = fig.subplots(1, 3, width_ratios=[1, 1, 0.8])
     diff = result.differences
@@ -368,7 +400,18 @@ def plot_sigma_posterior(post, labels=None, parameters=("sigma_s_prime", "sigma_
 
 
 def plot_site_posterior(post):
-    """:func:`plot_sigma_posterior` of a site's profile, titled with its subject and site (``facestats analyze``)."""
+    """:func:`plot_sigma_posterior` of a site's profile, titled with its subject and site (``facestats analyze``).
+
+    Parameters
+    ----------
+    post : SigmaPosterior
+        From :func:`facestats.analysis.site_sigma_posterior` (or ``store_sigma_posterior``), which sets
+        ``subject_id`` and ``site``; every channel is drawn, with σ's, σa and σtr.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     fig = plot_sigma_posterior(post)
     fig.suptitle(f"Posterior of the scattering coefficients: {post.subject_id}, {post.site} profile", fontsize=10)
     return fig
@@ -433,7 +476,18 @@ def _corner_axes(ax, i, j, p, pi, pj):
 
 
 def plot_population_sigma_tr(result):
-    """Posterior median and credible interval of the mean σtr per skin type, one panel per channel."""
+    """Posterior median and credible interval of the mean σtr per skin type, one panel per channel.
+
+    Parameters
+    ----------
+    result : PopulationSigmaTr
+        :func:`facestats.analysis.population_sigma_tr`'s result (σtr in mm⁻¹); the sample means are drawn too,
+        and the population mean's interval where ``result.hyper`` is given.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     fig = _new_figure((11, 3.8))
     axes = fig.subplots(1, 3)
     s = result.summary
@@ -473,7 +527,14 @@ def plot_population_sigma_tr(result):
 def plot_model_errors(result):
     """Blinn-Phong / Torrance-Sparrow error ratio per region (median and IQR over subjects), flagged shares beside.
 
-    ``result`` is a :class:`facestats.analysis.models.ModelErrors`.
+    Parameters
+    ----------
+    result : ModelErrors
+        :func:`facestats.analysis.model_errors`'s result.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
     """
 
     fig = _new_figure((8.0, 3.6))

@@ -43,7 +43,23 @@ MODEL_NAMES = {"ts": "Torrance-Sparrow", "bp": "Blinn-Phong"}
 
 
 def index_columns(model: str) -> tuple[str, str, str]:
-    """Column stems of a specular model in the population index: (scale, lobe, lobe short name)."""
+    """Column stems of a specular model in the population index: (scale, lobe, lobe short name).
+
+    Parameters
+    ----------
+    model : {"ts", "bp"}
+        Torrance-Sparrow or Blinn-Phong.
+
+    Returns
+    -------
+    tuple of str
+        ``LOBE_NAMES[model]``, e.g. ``("ts_rho_s", "ts_m", "m")``.
+
+    Raises
+    ------
+    ValidationError
+        For another ``model``.
+    """
     check_choice(model, "model", tuple(LOBE_NAMES))
     return LOBE_NAMES[model]
 
@@ -204,6 +220,17 @@ def region_samples(store, model="ts", subjects=None):
 
 def default_subject(store) -> str:
     """The first subject (by id) measured under normal conditions, else the first subject.
+
+    Parameters
+    ----------
+    store : parameter store
+        Anything with ``subjects()`` (the population index, rows sorted by id, with a ``condition`` column) and
+        ``label``.
+
+    Returns
+    -------
+    str
+        The subject id.
 
     Raises
     ------

@@ -23,11 +23,33 @@ __all__ = ["json_ready", "by_channel", "records"]
 
 
 def by_channel(values) -> dict:
-    """``{"R": v0, "G": v1, "B": v2}`` of three values."""
+    """``{"R": v0, "G": v1, "B": v2}`` of three values.
+
+    Parameters
+    ----------
+    values : iterable
+        One value per channel, in R, G, B order (extra values past the third are dropped by the ``zip``).
+
+    Returns
+    -------
+    dict
+        Channel name to value; the values are not converted (see :func:`json_ready`).
+    """
 
     return {ch: v for ch, v in zip(CHANNELS, values)}
 
 
 def records(frame) -> list:
-    """Rows of a DataFrame (index reset) as a list of dicts."""
+    """Rows of a DataFrame (index reset) as a list of dicts.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        Table to convert; its index levels become columns of each record.
+
+    Returns
+    -------
+    list of dict
+        One dict per row, column name to value (numpy scalars kept; see :func:`json_ready`).
+    """
     return frame.reset_index().to_dict(orient="records")

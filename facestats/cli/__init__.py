@@ -75,6 +75,14 @@ COMMANDS = [
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``facestats`` argument parser with ``--version`` and every command of :data:`COMMANDS`.
+
+    Returns
+    -------
+    facestats.cli.options.Parser
+        An :class:`argparse.ArgumentParser` whose single-valued options may be given once; each command sets
+        ``func`` to its handler.
+    """
     parser = Parser(
         prog="facestats",
         description="Measure, analyse and edit the appearance of human facial skin (Weyrich et al. 2006).",
@@ -87,6 +95,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """Run the ``facestats`` command line; every error becomes one ``facestats: error: …`` line on stderr.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments after the program name (default ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        The exit code: the command's own (0 on success; also 0 when no command is given, after printing the
+        help, and when stdout's reader closed early), 2 for a :class:`~facestats.errors.FacestatsError`, an
+        OSError, a MemoryError or a missing module of another package, 130 when interrupted, 3 for any other
+        error (a bug; ``FACESTATS_DEBUG=1`` raises it instead).  argparse itself exits (``SystemExit``) for
+        ``--help``, ``--version`` and a malformed command line (status 2).
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     if not hasattr(args, "func"):

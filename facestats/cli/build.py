@@ -102,6 +102,20 @@ def _build_command(args) -> int:
 
 
 def add_build(sub):
+    """Register ``facestats build`` (population build, ``--default``, ``--status``).
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handler (``func``) returns 0, or 1 if a subject failed (with ``--status``: if one failed or a build stopped
+        before its end), 2 for conflicting options or neither ``--store`` nor ``--default``, 130 when interrupted; a
+        :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in :func:`facestats.cli.main`.
+    """
     p = sub.add_parser(
         "build",
         help="simulate and fit a synthetic population into a store (resumable)",

@@ -321,6 +321,20 @@ def _samples(text: str):
 
 
 def add_calibrate(sub):
+    """Register ``facestats calibrate`` and its ``leds``, ``response`` and ``merge`` commands.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handlers (``func``) return 0, or 1 from ``leds`` when ``--write-calibration`` kept LEDs uncalibrated;
+        ``calibrate`` alone prints its help and returns 2; a :class:`~facestats.errors.FacestatsError` raised becomes
+        exit status 2 in :func:`facestats.cli.main`.
+    """
     p = sub.add_parser(
         "calibrate",
         help="calibrate cameras and LEDs from photographs (response from a bracket, LEDs from a diffuse target)",

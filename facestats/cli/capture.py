@@ -133,6 +133,19 @@ def _common(p, calibration_help):
 
 
 def add_capture(sub):
+    """Register ``facestats capture`` and its ``dome`` and ``sensor`` sequences.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handlers (``func``) return 0; ``capture`` alone prints its help and returns 2; a
+        :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in :func:`facestats.cli.main`.
+    """
     p = sub.add_parser(
         "capture",
         help="run the dome's or the contact sensor's capture sequence on the lab's devices (resumable)",

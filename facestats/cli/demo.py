@@ -60,6 +60,19 @@ def _cmd_demo(args) -> int:
 
 
 def add_demo(sub):
+    """Register ``facestats demo``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handler (``func``) returns 0; a :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in
+        :func:`facestats.cli.main`.
+    """
     p = sub.add_parser(
         "demo",
         help="physics demo: scattering coefficients and dipole profiles from a skin albedo",

@@ -274,7 +274,20 @@ def _cmd_stats(args) -> int:
 
 
 def add_edit(sub) -> None:
-    """Register ``facestats edit`` and its actions on the top-level subparsers ``sub``."""
+    """Register ``facestats edit`` and its actions on the top-level subparsers ``sub``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handlers (``func``) return 0, or 130 when interrupted after the subject was written but before its images
+        were saved; ``edit`` alone prints its help and returns 2; a :class:`~facestats.errors.FacestatsError` raised
+        becomes exit status 2 in :func:`facestats.cli.main`.
+    """
     p = sub.add_parser(
         "edit",
         help="appearance edits (§8): skin type, BRDF, colour, texture; writes a new subject",

@@ -169,6 +169,19 @@ def _common(p):
 
 
 def add_emulate(sub):
+    """Register ``facestats emulate`` and its ``dome`` and ``sensor`` devices.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handlers (``func``) return 0 when the emulator stops; ``emulate`` alone prints its help and returns 2; a
+        :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in :func:`facestats.cli.main`.
+    """
     p = sub.add_parser(
         "emulate",
         help="emulate the dome or the contact sensor on a pseudo-terminal (for capture without hardware)",

@@ -40,6 +40,19 @@ def _export(args):
 
 
 def add_export_subject(sub):
+    """Register ``facestats export-subject``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handler (``func``) returns 0; a :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in
+        :func:`facestats.cli.main`.
+    """
     p = sub.add_parser(
         "export-subject",
         help="write one subject for a renderer: EXR texture set, Mitsuba 3 scene or glTF 2.0",

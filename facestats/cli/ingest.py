@@ -28,6 +28,19 @@ def _cmd_ingest(args) -> int:
 
 
 def add_ingest(sub):
+    """Register ``facestats ingest``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handler (``func``) returns 0; a :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in
+        :func:`facestats.cli.main`.
+    """
     p = sub.add_parser(
         "ingest",
         help="turn a folder of dome photographs into a fitted subject in a store (resumable)",

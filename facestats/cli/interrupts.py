@@ -11,7 +11,19 @@ __all__ = ["is_interrupt"]
 
 
 def is_interrupt(exc: BaseException) -> bool:
-    """True if ``exc`` is a KeyboardInterrupt or was raised while one was being handled (its chain holds one)."""
+    """True if ``exc`` is a KeyboardInterrupt or was raised while one was being handled (its chain holds one).
+
+    Parameters
+    ----------
+    exc : BaseException or None
+        The exception caught.
+
+    Returns
+    -------
+    bool
+        Whether a KeyboardInterrupt is ``exc`` or on its chain (each step follows ``__cause__``, else
+        ``__context__``; a cycle ends the walk).
+    """
     seen = set()
     while exc is not None and id(exc) not in seen:
         if isinstance(exc, KeyboardInterrupt):

@@ -74,6 +74,19 @@ def _cmd_generate(args) -> int:
 
 
 def add_microstructure(sub):
+    """Register ``facestats microstructure`` and its ``render`` and ``generate`` commands.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handlers (``func``) return 0; ``microstructure`` alone prints its help and returns 0; a
+        :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in :func:`facestats.cli.main`.
+    """
     p = sub.add_parser(
         "microstructure",
         help="dynamic skin microstructure: strain-driven displacement-map convolution (Nagano et al. 2015)",

@@ -126,6 +126,15 @@ def _typed(text, kind):
 def ascii_int(text) -> int:
     """argparse ``type=`` of an integer option: ASCII only (``type=int`` also takes other scripts' digits).
 
+    Parameters
+    ----------
+    text : str
+        The value as typed (``int``'s syntax: sign, blanks and ``_`` separators allowed).
+
+    Returns
+    -------
+    int
+
     Raises
     ------
     argparse.ArgumentTypeError
@@ -136,6 +145,15 @@ def ascii_int(text) -> int:
 
 def ascii_float(text) -> float:
     """argparse ``type=`` of a real-valued option: ASCII only (``type=float`` also takes other scripts' digits).
+
+    Parameters
+    ----------
+    text : str
+        The value as typed (``float``'s syntax; ``nan`` and ``inf`` pass: ranges are checked by the command).
+
+    Returns
+    -------
+    float
 
     Raises
     ------
@@ -158,13 +176,36 @@ def add_store_option(
     help="a store directory (X.zarr) or zip, or texture-sample (six subjects with 512² maps, built once into "
     "the cache); default (or 'default'): the store embedded in facestats",
 ):
-    """``--store PATH`` (default None: the embedded store)."""
+    """``--store PATH`` (default None: the embedded store).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The command's parser, to which the option is added.
+    help : str
+        The option's help text (default: what a ``--store`` value may be).
+
+    Returns
+    -------
+    None
+    """
     parser.add_argument("--store", default=None, metavar="PATH", help=help)
 
 
 def store_path_option(value):
     """The store a ``--store`` value names: None (the embedded default) for None or ``default``, the texture
-    sample's zip (built into the cache on first use) for ``texture-sample``, else ``value`` itself."""
+    sample's zip (built into the cache on first use) for ``texture-sample``, else ``value`` itself.
+
+    Parameters
+    ----------
+    value : str or None
+        The ``--store`` value.
+
+    Returns
+    -------
+    str or None
+        What :func:`facestats.open_store` takes as its ``path``.
+    """
     if value == DEFAULT_STORE:
         return None
     if value == TEXTURE_SAMPLE:
@@ -179,6 +220,18 @@ def check_store_to_write(value, name: str):
     it is a bare ``default`` or ``texture-sample``: every ``--store`` reads those names as the embedded stores, so a
     folder written under such a name would seem to vanish (a fresh-user red team: ``edit colour ... --out-store
     default`` wrote ``./default``, and ``info --store default`` then showed the embedded store).
+
+    Parameters
+    ----------
+    value : str or None
+        The option's value.
+    name : str
+        The option's name for the message, e.g. ``"--out-store"``.
+
+    Returns
+    -------
+    str or None
+        ``value`` itself.
 
     Raises
     ------
@@ -202,6 +255,24 @@ def check_apart_from_store(path, name: str, value) -> None:
     Writing there would mix files into the store (:func:`facestats.core.outputs.check_apart`).  The
     embedded default and the texture sample are zip files nothing can be written into: not looked up
     (so the texture sample is never built just for this check).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output path.
+    name : str
+        The output's option name, e.g. ``"--out"``.
+    value : str or None
+        The ``--store`` value (None, ``default``, ``texture-sample`` or a URL: nothing is checked).
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    ValidationError
+        ``path`` is the store or lies inside it (links resolved).
     """
     from facestats.core.outputs import check_apart
 
@@ -211,7 +282,25 @@ def check_apart_from_store(path, name: str, value) -> None:
 
 
 def open_store_option(value, mode: str = "r"):
-    """:func:`facestats.open_store` of what a ``--store`` value names (:func:`store_path_option`)."""
+    """:func:`facestats.open_store` of what a ``--store`` value names (:func:`store_path_option`).
+
+    Parameters
+    ----------
+    value : str or None
+        The ``--store`` value.
+    mode : {"r", "r+", "a"}
+        :func:`facestats.open_store`'s mode (default read-only).
+
+    Returns
+    -------
+    facestats.io.store.Store
+        The open store (close it, or use it as a context manager).
+
+    Raises
+    ------
+    StoreError
+        As :func:`facestats.open_store` (a missing or unreadable store, ...).
+    """
     from facestats.io.store import open_store
 
     return open_store(store_path_option(value), mode=mode)
@@ -225,6 +314,21 @@ def named_options(**options):
     :class:`~facestats.errors.ValidationError` whose message starts with a parameter's name
     (``"map_size must be an integer in [8, inf], got 2"``) is raised again with the option's
     (``"--size must be ..."``); every other error passes unchanged.
+
+    Parameters
+    ----------
+    **options : str
+        Option name (e.g. ``"--size"``) per parameter name.
+
+    Returns
+    -------
+    contextlib.AbstractContextManager
+        Use in a ``with`` statement; it yields None.
+
+    Raises
+    ------
+    ValidationError
+        Of the same class as the block's, the option's name in place of the parameter's.
     """
     from facestats.errors import ValidationError
 

@@ -283,6 +283,19 @@ def _turntable(args, probe, targets) -> int:
 
 
 def add_relight(sub):
+    """Register ``facestats relight``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handler (``func``) returns 0; a :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in
+        :func:`facestats.cli.main`.
+    """
     p = sub.add_parser(
         "relight",
         help="relight a subject or a reflectance field under a light probe (EXR + PNG)",

@@ -128,6 +128,19 @@ def _cmd_render(args) -> int:
 
 
 def add_render(sub):
+    """Register ``facestats render``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handler (``func``) returns 0; a :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in
+        :func:`facestats.cli.main`.
+    """
     p = sub.add_parser(
         "render",
         help="validation render of a fitted subject beside its capture, with the error image and RMSE",

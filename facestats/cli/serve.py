@@ -23,6 +23,19 @@ def _cmd_serve(args) -> int:
 
 
 def add_serve(sub):
+    """Register ``facestats serve``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handler (``func``) serves until Ctrl-C (:func:`facestats.cli.main` then exits 130); an address it cannot
+        listen on raises a :class:`~facestats.errors.ValidationError` (exit 2).
+    """
     p = sub.add_parser(
         "serve",
         help="the population statistics as a local web application (filters, tables, plots, subject pages)",

@@ -53,6 +53,19 @@ def _cmd_query(args) -> int:
 
 
 def add_query(sub):
+    """Register ``facestats query``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handler (``func``) returns 0, or 1 when no subject matches the filters; a
+        :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in :func:`facestats.cli.main`.
+    """
     p = sub.add_parser(
         "query",
         help="population statistics of the subjects matching skin type, gender, age, condition",
@@ -125,6 +138,19 @@ def _cmd_info(args) -> int:
 
 
 def add_info(sub):
+    """Register ``facestats info``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handler (``func``) returns 0; a :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in
+        :func:`facestats.cli.main`.
+    """
     p = sub.add_parser(
         "info",
         help="schema and writer versions, subject counts and size of a store",
@@ -196,6 +222,20 @@ def _purge(store, yes: bool) -> int:
 
 
 def add_validate(sub):
+    """Register ``facestats validate``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handler (``func``) returns 0 for a valid store, 1 for problems or a store that cannot be opened (with
+        ``--repair`` without ``--yes``: 1 if the plan finds anything to fix); a
+        :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in :func:`facestats.cli.main`.
+    """
     p = sub.add_parser(
         "validate",
         help="check every subject of a store and the index (exit 1 if invalid); repair with a plan first",
@@ -234,6 +274,19 @@ def _cmd_export(args) -> int:
 
 
 def add_export(sub):
+    """Register ``facestats export``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handler (``func``) returns 0; a :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in
+        :func:`facestats.cli.main`.
+    """
     p = sub.add_parser(
         "export",
         help="write the per-subject statistics release (CSV/JSON)",
@@ -273,6 +326,19 @@ def _cmd_import_merl(args) -> int:
 
 
 def add_import_merl(sub):
+    """Register ``facestats import-merl``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handler (``func``) returns 0; a :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in
+        :func:`facestats.cli.main`.
+    """
     p = sub.add_parser(
         "import-merl",
         help="import a MERL/ETH ts_data.mat file into a store",

@@ -118,6 +118,19 @@ def _cmd_translucency(args) -> int:
 
 
 def add_translucency(sub):
+    """Register ``facestats translucency``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        What ``add_subparsers()`` returned for the ``facestats`` parser.
+
+    Returns
+    -------
+    None
+        The handler (``func``) returns 0; a :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in
+        :func:`facestats.cli.main`.
+    """
     p = sub.add_parser(
         "translucency",
         help="dipole scattering coefficients of a homogeneous object from one HDR image (Suzuki et al.)",

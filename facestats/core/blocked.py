@@ -18,7 +18,18 @@ BLOCK = 16384
 
 
 def components(v):
-    """The x, y, z components of vectors on the last axis, as views."""
+    """The x, y, z components of vectors on the last axis, as views.
+
+    Parameters
+    ----------
+    v : array_like
+        (..., k) vectors, k ≥ 3 (only the first three components are taken).
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(x, y, z)``, each of shape (...), views of ``numpy.asarray(v)``.
+    """
     v = np.asarray(v)
     return v[..., 0], v[..., 1], v[..., 2]
 

@@ -34,6 +34,16 @@ def numba_available() -> bool:
 def resolve_backend(backend: str) -> str:
     """``"numba"`` or ``"numpy"`` from a ``backend`` argument in :data:`BACKENDS` (``"auto"``: numba if it imports).
 
+    Parameters
+    ----------
+    backend : {"auto", "numba", "numpy"}
+        The argument given; ``"auto"`` takes numba when :func:`numba_available` (it imports and its JIT is on).
+
+    Returns
+    -------
+    str
+        ``"numba"`` or ``"numpy"``.
+
     Raises
     ------
     ValidationError

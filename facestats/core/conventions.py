@@ -82,7 +82,23 @@ def _ascii_int(text: str):
 
 
 def parse_skin_type(value) -> int:
-    """Fitzpatrick skin type as an int 1-6 from ``3``, ``"3"``, ``"III"`` or ``"iii"``."""
+    """Fitzpatrick skin type as an int 1-6 from ``3``, ``"3"``, ``"III"`` or ``"iii"``.
+
+    Parameters
+    ----------
+    value : int, float or str
+        An integral number 1-6 (``3.0`` passes), its ASCII digits, or a Roman numeral I-VI (any case, stripped).
+
+    Returns
+    -------
+    int
+        The skin type, 1-6.
+
+    Raises
+    ------
+    ValidationError
+        Anything else.
+    """
     if isinstance(value, str):
         v = value.strip().upper()
         if v in _FROM_ROMAN:
@@ -100,12 +116,45 @@ def parse_skin_type(value) -> int:
 
 
 def skin_type_roman(value) -> str:
-    """Roman numeral of a skin type (``4`` → ``"IV"``)."""
+    """Roman numeral of a skin type (``4`` → ``"IV"``).
+
+    Parameters
+    ----------
+    value : int, float or str
+        A skin type as :func:`parse_skin_type` reads it.
+
+    Returns
+    -------
+    str
+        ``"I"`` to ``"VI"``.
+
+    Raises
+    ------
+    ValidationError
+        ``value`` is not a skin type.
+    """
     return ROMAN[parse_skin_type(value)]
 
 
 def parse_gender(value) -> str:
-    """``"M"`` or ``"F"`` from M/F, male/female (any case) or the paper's code 0 = M, 1 = F."""
+    """``"M"`` or ``"F"`` from M/F, male/female (any case) or the paper's code 0 = M, 1 = F.
+
+    Parameters
+    ----------
+    value : str, bytes or number
+        ``"M"``, ``"male"``, ``"0"`` or 0 for M; ``"F"``, ``"female"``, ``"W"``, ``"1"`` or 1 for F (strings and
+        UTF-8 bytes stripped, any case).
+
+    Returns
+    -------
+    str
+        ``"M"`` or ``"F"``.
+
+    Raises
+    ------
+    ValidationError
+        Anything else.
+    """
     if isinstance(value, bytes):
         value = value.decode()
     if isinstance(value, str):
@@ -126,7 +175,24 @@ def parse_gender(value) -> str:
 
 
 def parse_region(value) -> int:
-    """Region number 1-10 from a number or a name of :data:`REGIONS` (singular accepted)."""
+    """Region number 1-10 from a number or a name of :data:`REGIONS` (singular accepted).
+
+    Parameters
+    ----------
+    value : int, float or str
+        An integral number 1-10, its ASCII digits, or a region name (any case, stripped; ``"under-eye"`` also as
+        ``"undereye"`` or ``"under eye"``).
+
+    Returns
+    -------
+    int
+        The region number of Weyrich et al. 2006 Fig. 15, 1-10.
+
+    Raises
+    ------
+    ValidationError
+        An unknown name or a number outside 1-10.
+    """
     if isinstance(value, str):
         v = value.strip().lower()
         if _ascii_int(v) is not None:
@@ -146,7 +212,23 @@ def parse_region(value) -> int:
 
 
 def parse_condition(value) -> str:
-    """A condition name of :data:`CONDITIONS` (case-insensitive)."""
+    """A condition name of :data:`CONDITIONS` (case-insensitive).
+
+    Parameters
+    ----------
+    value : str
+        The name (``str()`` of it is taken, stripped).
+
+    Returns
+    -------
+    str
+        The lower-case name, one of :data:`CONDITIONS`.
+
+    Raises
+    ------
+    ValidationError
+        Not a condition name.
+    """
     v = str(value).strip().lower()
     if v not in CONDITIONS:
         raise ValidationError(f"condition must be one of {list(CONDITIONS)}, got {value!r}")
@@ -154,7 +236,24 @@ def parse_condition(value) -> str:
 
 
 def parse_age(value) -> tuple[int, int]:
-    """An inclusive age range from ``"20s"``, ``"30s"``, ``"40s"``, ``"50s+"``, ``"MIN-MAX"`` or one age."""
+    """An inclusive age range from ``"20s"``, ``"30s"``, ``"40s"``, ``"50s+"``, ``"MIN-MAX"`` or one age.
+
+    Parameters
+    ----------
+    value : str, int, or tuple/list of two
+        A group label of :data:`AGE_GROUPS` (any case; ``"50s"`` and ``"50+"`` mean ``"50s+"``), ``"MIN-MAX"`` or
+        one age in years (ASCII digits or an int), or a pair ``(MIN, MAX)`` of integers or digit strings.
+
+    Returns
+    -------
+    tuple of int
+        ``(min, max)`` in years, inclusive, with 0 ≤ min ≤ max ≤ 200 (one age gives ``(age, age)``).
+
+    Raises
+    ------
+    ValidationError
+        Unreadable, or not 0 ≤ MIN ≤ MAX ≤ 200.
+    """
     if isinstance(value, (tuple, list)) and len(value) == 2:
         lo, hi = (_age_number(x) for x in value)
         if lo is None or hi is None:
@@ -185,7 +284,23 @@ def _age_number(x):
 
 
 def age_group(age) -> str:
-    """The §7 age group label of an age in years."""
+    """The §7 age group label of an age in years.
+
+    Parameters
+    ----------
+    age : int
+        Age in years.
+
+    Returns
+    -------
+    str
+        A label of :data:`AGE_GROUPS`: ``"20s"`` (0-29), ``"30s"``, ``"40s"`` or ``"50s+"`` (50-200).
+
+    Raises
+    ------
+    ValidationError
+        No group holds ``age`` (outside 0-200; also a fractional age between two groups, e.g. 29.5).
+    """
     for label, lo, hi in AGE_GROUPS:
         if lo <= age <= hi:
             return label

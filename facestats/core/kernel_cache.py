@@ -45,7 +45,18 @@ STAMP = "numba-kernels.sha256"
 
 def source_digest(root) -> str:
     """SHA-256 (hex) of the relative names and contents of :data:`KERNEL_MODULES` under ``root`` (a missing
-    module counts as a marker)."""
+    module counts as a marker).
+
+    Parameters
+    ----------
+    root : str or os.PathLike
+        The package's directory (the folder holding ``core/``, ``model/``, ...).
+
+    Returns
+    -------
+    str
+        64 hex digits.
+    """
     digest = hashlib.sha256()
     for rel in KERNEL_MODULES:
         digest.update(rel.encode())
@@ -58,7 +69,20 @@ def source_digest(root) -> str:
 
 def cache_places(root) -> list:
     """``(stamp, folders)`` for each place numba may keep the caches of the kernel modules under ``root``
-    (module docstring): the digest's file there and, per :data:`KERNEL_MODULES` entry, the folder of its caches."""
+    (module docstring): the digest's file there and, per :data:`KERNEL_MODULES` entry, the folder of its caches.
+
+    Parameters
+    ----------
+    root : str or os.PathLike
+        The package's directory; made absolute without resolving links, as numba does.
+
+    Returns
+    -------
+    list of tuple
+        ``(pathlib.Path, list of pathlib.Path)`` pairs: first the package's own ``__pycache__`` places, then the
+        ``NUMBA_CACHE_DIR`` folder (only when that variable is set), then the user-wide folder.  Nothing is
+        created or checked for existence.
+    """
     root = Path(os.path.abspath(root))  # as numba takes a module's file: absolute, links not resolved
     modules = [root / rel for rel in KERNEL_MODULES]
     places = [(root / "__pycache__" / STAMP, [m.parent / "__pycache__" for m in modules])]

@@ -47,6 +47,16 @@ def json_ready(value):
 
     Recursively through dicts (keys as str), lists, tuples and arrays (tuples and arrays become lists); numpy
     scalars become Python bool, int or float; a value of any other type becomes its ``str``.
+
+    Parameters
+    ----------
+    value : object
+        A number, string, None, numpy array or scalar, or a dict/list/tuple of these (nested).
+
+    Returns
+    -------
+    object
+        A new structure of dicts, lists, str, int, float, bool and None (the input is not changed).
     """
     if isinstance(value, dict):
         return {str(k): json_ready(v) for k, v in value.items()}
@@ -104,6 +114,20 @@ def _creatable(p: pathlib.Path, name: str) -> None:
 
 def check_output_dir(path, name: str = "out") -> pathlib.Path:
     """``path`` as an output folder: an existing writable directory, or a path that can be created.
+
+    Nothing is left created: writability is probed with an empty folder that is removed again.
+
+    Parameters
+    ----------
+    path : str, bytes or os.PathLike
+        The folder (``~`` expanded).
+    name : str
+        The argument's name in messages (default ``"out"``).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``, checked, with ``~`` expanded.
 
     Raises
     ------
@@ -175,6 +199,23 @@ def check_names_free(folder, names, name: str, what: str, other: str = "") -> No
     ``what`` says whose files they are in the message (e.g. "this edit's images"); ``other`` adds another way
     out (e.g. "or --id").
 
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        The output folder (it need not exist).
+    names : iterable of str
+        File names relative to ``folder``.
+    name : str
+        The option's name, e.g. ``"--out"``.
+    what : str
+        Whose files they are, for the message.
+    other : str
+        Text appended to the message's advice, e.g. ``" or --id"`` (default none).
+
+    Returns
+    -------
+    None
+
     Raises
     ------
     ValidationError
@@ -190,7 +231,18 @@ def check_names_free(folder, names, name: str, what: str, other: str = "") -> No
 
 
 def missing_folders(path) -> list[pathlib.Path]:
-    """The folders of ``path`` (itself included) that do not exist yet, innermost first (what a ``mkdir -p`` makes)."""
+    """The folders of ``path`` (itself included) that do not exist yet, innermost first (what a ``mkdir -p`` makes).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A folder path.
+
+    Returns
+    -------
+    list of pathlib.Path
+        Absolute paths (links not resolved); empty if ``path`` exists.
+    """
     missing = []
     d = pathlib.Path(os.path.abspath(path))
     while not os.path.lexists(d) and d != d.parent:
@@ -210,6 +262,25 @@ def check_apart(
     With ``same``, ``path`` may be ``protected`` itself (an output store that is
     the source store), only not inside it.  URLs (``scheme://``) are not local
     paths and are not checked.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output path.
+    protected : str, os.PathLike or None
+        The path to keep apart from; None, empty or a URL: nothing is checked.
+    name : str
+        The output's option name in messages (default ``"out"``).
+    what : str
+        What ``protected`` is, for messages (default ``"the store"``).
+    replaced : bool
+        ``path`` is replaced as a whole: also refuse a ``path`` that contains ``protected``.
+    same : bool
+        Allow ``path`` to be ``protected`` itself.
+
+    Returns
+    -------
+    None
 
     Raises
     ------

@@ -26,7 +26,18 @@ PROGRESS_ENV = "FACESTATS_PROGRESS"
 
 
 def bars_enabled(enabled=True) -> bool:
-    """Whether a bar the caller asked for (``enabled``) is shown: not when ``FACESTATS_PROGRESS=0``."""
+    """Whether a bar the caller asked for (``enabled``) is shown: not when ``FACESTATS_PROGRESS=0``.
+
+    Parameters
+    ----------
+    enabled : bool
+        Whether the caller asks for a bar (any truthy value; default True).
+
+    Returns
+    -------
+    bool
+        ``enabled`` and the environment variable :data:`PROGRESS_ENV` is not ``0`` (blanks stripped).
+    """
     return bool(enabled) and os.environ.get(PROGRESS_ENV, "").strip() != "0"
 
 
@@ -59,7 +70,30 @@ class QuietBar:
 
 def progress_bar(iterable=None, *, enabled=True, desc=None, unit="it", total=None, initial=0, leave=True):
     """A tqdm bar over ``iterable`` (or a manual one, advanced with ``update``) if :func:`bars_enabled`, else a
-    :class:`QuietBar`."""
+    :class:`QuietBar`.
+
+    Parameters
+    ----------
+    iterable : iterable, optional
+        What to iterate over; None for a manual bar.
+    enabled : bool
+        Whether the caller asks for a bar (see :func:`bars_enabled`).
+    desc : str, optional
+        The bar's label.
+    unit : str
+        Name of one step (default ``"it"``).
+    total : int, optional
+        Number of steps expected (default ``len(iterable)`` where tqdm can take it).
+    initial : int
+        Steps already done (default 0).
+    leave : bool
+        Keep the finished bar on screen (tqdm's ``leave``).
+
+    Returns
+    -------
+    tqdm.auto.tqdm or QuietBar
+        The bar; both iterate, take ``update(n)`` and ``close()`` and work as context managers.
+    """
     if not bars_enabled(enabled):
         return QuietBar(iterable, total, initial)
     from tqdm.auto import tqdm

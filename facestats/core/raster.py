@@ -87,12 +87,27 @@ def triangle_coverage(x, y, triangles, width, height, *, max_candidates=2_000_00
 def triangle_setup(x, y, triangles, width, height):
     """Per-triangle set-up of :func:`triangle_coverage`: vertices, edge-function denominator, candidate box.
 
-    Returns ``(ax, ay, bx, by, cx, cy, den, x0, y0, size, usable)``, each of shape (F,): the three
-    vertices in pixel units (non-finite ones replaced by 0), den = (by − cy)(ax − cx) + (cx − bx)(ay − cy)
-    (twice the signed area), the first candidate column and row, the side of the square candidate box
-    (the power of two at or above the bounding box's larger side) and whether the triangle can cover
-    anything (finite, |den| > 1e-12, its box on the grid).  The compiled depth buffer
-    (:mod:`facestats.core.raster_numba`) tests the same candidates with the same arithmetic.
+    The compiled depth buffer (:mod:`facestats.core.raster_numba`) tests the same candidates with the same
+    arithmetic.
+
+    Parameters
+    ----------
+    x, y : array_like, shape (V,)
+        Vertex positions in pixel units (x along columns, y along rows).
+    triangles : array_like of int, shape (F, 3)
+        Vertex indices.
+    width, height : int
+        Size of the pixel grid.
+
+    Returns
+    -------
+    tuple of ndarray
+        ``(ax, ay, bx, by, cx, cy, den, x0, y0, size, usable)``, each of shape (F,): the three
+        vertices in pixel units (float64; a triangle with a non-finite vertex has all three replaced by 0),
+        den = (by − cy)(ax − cx) + (cx − bx)(ay − cy) (twice the signed area), the first candidate column and
+        row (int64), the side of the square candidate box (int64, the power of two at or above the bounding
+        box's larger side) and whether the triangle can cover anything (bool: finite, |den| > 1e-12, its box
+        on the grid).
     """
     triangles = np.asarray(triangles, np.int64)
     tx, ty = np.asarray(x, float)[triangles], np.asarray(y, float)[triangles]  # (F, 3)

@@ -59,6 +59,17 @@ def result_dtype(*arrays) -> np.dtype:
 
     Integer and Python-scalar inputs do not force float64, so a float32 map
     combined with a Python ``eta=1.38`` stays float32.
+
+    Parameters
+    ----------
+    *arrays : array_like
+        The inputs of the computation; only those of ≥ 1 dimension (lists included) and numpy scalars count
+        (Python numbers and 0-d arrays do not).
+
+    Returns
+    -------
+    numpy.dtype
+        ``float32`` if at least one counted input is floating and all such are float32, else ``float64``.
     """
     kinds = [np.asarray(a).dtype for a in arrays if np.ndim(a) > 0 or isinstance(a, np.generic)]
     floats = [d for d in kinds if d.kind == "f"]
@@ -69,7 +80,27 @@ def result_dtype(*arrays) -> np.dtype:
 
 def as_float(value, name: str, dtype=None) -> np.ndarray:
     """Convert ``value`` to a float array (float32 or float64), rejecting non-numeric input (booleans too: True is
-    not a quantity, and a mask passed where a number belongs must not be taken as 1)."""
+    not a quantity, and a mask passed where a number belongs must not be taken as 1).
+
+    Parameters
+    ----------
+    value : array_like
+        Integer or float input (any shape).
+    name : str
+        The argument's name, for the messages.
+    dtype : numpy.dtype, optional
+        The float dtype wanted; default: float32/float64 input keeps its dtype, anything else becomes float64.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``value`` as a float array of the same shape (no copy if it already has the dtype).
+
+    Raises
+    ------
+    ValidationError
+        ``value`` is not numeric (bool, string, object, ragged), or a finite float overflows the narrower ``dtype``.
+    """
     try:
         arr = np.asarray(value)
     except Exception:  # numpy raises many types here (ragged lists, objects with broken __array__)
@@ -104,10 +135,30 @@ def as_finite(
     """:func:`as_float`, then :func:`check_finite`, then (if a bound is given) :func:`check_range`.
 
     The common validation of a numeric argument in one call, so the argument's
-    name is written once; ``bounds`` are the keyword arguments of
-    :func:`check_range` (``low_inclusive``, ``high_inclusive``, ``unit``).
-    Returns the array :func:`as_float` made (no copy of float input of the
-    requested dtype).
+    name is written once.
+
+    Parameters
+    ----------
+    value : array_like
+        Integer or float input (any shape).
+    name : str
+        The argument's name, for the messages.
+    low, high : float, optional
+        Bounds of :func:`check_range` (default none: no range check).
+    dtype : numpy.dtype, optional
+        As in :func:`as_float`.
+    **bounds
+        The keyword arguments of :func:`check_range` (``low_inclusive``, ``high_inclusive``, ``unit``).
+
+    Returns
+    -------
+    numpy.ndarray
+        The array :func:`as_float` made (no copy of float input of the requested dtype).
+
+    Raises
+    ------
+    ValidationError
+        Not numeric, not finite, or outside the bounds.
     """
     arr = check_finite(as_float(value, name, dtype), name)
     if low is not None or high is not None:
@@ -120,6 +171,27 @@ def as_scalar(value, name: str, low: float | None = None, high: float | None = N
 
     An array of any other shape (a list of one value included) is refused naming the argument, where
     ``float()`` of it would raise a bare ``TypeError``.
+
+    Parameters
+    ----------
+    value : float or 0-d array_like
+        The number.
+    name : str
+        The argument's name, for the messages.
+    low, high : float, optional
+        Bounds passed to :func:`check_range` (default none).
+    **bounds
+        Keyword arguments of :func:`as_finite` (``dtype``) and :func:`check_range` (``low_inclusive``,
+        ``high_inclusive``, ``unit``).
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    ValidationError
+        Not numeric, not finite, outside the bounds, or not 0-dimensional.
     """
     arr = as_finite(value, name, low, high, **bounds)
     if arr.ndim:
@@ -155,7 +227,25 @@ def as_rgb_image(value, name: str) -> np.ndarray:
 
 
 def check_finite(arr: np.ndarray, name: str) -> np.ndarray:
-    """Raise unless every element of ``arr`` is finite."""
+    """Raise unless every element of ``arr`` is finite.
+
+    Parameters
+    ----------
+    arr : numpy.ndarray
+        A numeric array.
+    name : str
+        The argument's name, for the message.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``arr`` itself.
+
+    Raises
+    ------
+    ValidationError
+        Some element is NaN or ±inf.
+    """
     if not np.all(np.isfinite(arr)):
         bad = arr[~np.isfinite(arr)]
         raise ValidationError(
@@ -174,7 +264,31 @@ def check_range(
     high_inclusive: bool = True,
     unit: str = "",
 ) -> np.ndarray:
-    """Raise unless every element of ``arr`` lies in the stated interval (NaN fails)."""
+    """Raise unless every element of ``arr`` lies in the stated interval (NaN fails).
+
+    Parameters
+    ----------
+    arr : numpy.ndarray
+        A numeric array.
+    name : str
+        The argument's name, for the message.
+    low, high : float, optional
+        The bounds; None leaves that side open.
+    low_inclusive, high_inclusive : bool
+        Whether each bound itself is allowed (default both).
+    unit : str
+        Unit written after the interval in the message (e.g. ``"mm^-1"``).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``arr`` itself.
+
+    Raises
+    ------
+    ValidationError
+        An element lies outside the interval or is NaN.
+    """
     ok = np.ones(arr.shape, dtype=bool)
     if low is not None:
         ok &= (arr >= low) if low_inclusive else (arr > low)
@@ -197,6 +311,25 @@ def check_shape(arr: np.ndarray, name: str, shape: Iterable) -> np.ndarray:
     """Check ``arr.shape`` against a pattern; ``None`` entries match any length.
 
     A leading ``...`` matches any number of leading dimensions, e.g. ``(..., 3)``.
+
+    Parameters
+    ----------
+    arr : numpy.ndarray
+        The array.
+    name : str
+        The argument's name, for the message.
+    shape : iterable of int, None or Ellipsis
+        The pattern (e.g. ``(None, None, 3)``).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``arr`` itself.
+
+    Raises
+    ------
+    ValidationError
+        The shape does not match.
     """
     pattern = tuple(shape)
     if pattern and pattern[0] is Ellipsis:
@@ -220,6 +353,29 @@ def check_unit_vectors(
     norms with (1 ± ``tol``)² (one pass, no square roots: 0.12 s for 10⁷ vectors, against 0.29 s through
     :func:`numpy.linalg.norm`); ``norms=True`` computes :func:`numpy.linalg.norm` for callers that divide
     by it (the same bits as before).
+
+    Parameters
+    ----------
+    arr : numpy.ndarray
+        (..., k) float, vectors on the last axis.
+    name : str
+        The argument's name, for the message.
+    tol : float
+        Allowed deviation of the norm from 1 (default 1e-3).
+    allow_zero : bool
+        Let zero vectors pass.
+    norms : bool
+        Return the norms.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        With ``norms``, the (...) norms of the vectors; else None.
+
+    Raises
+    ------
+    ValidationError
+        A vector's norm is outside 1 ± ``tol`` (and not 0 when ``allow_zero``).
     """
     if norms:
         norm = np.linalg.norm(arr, axis=-1)
@@ -265,14 +421,53 @@ def check_broadcastable(**arrays) -> tuple:
 
 
 def check_choice(value, name: str, choices) -> object:
-    """Raise unless ``value`` is one of ``choices``."""
+    """Raise unless ``value`` is one of ``choices``.
+
+    Parameters
+    ----------
+    value : object
+        The value given.
+    name : str
+        The argument's name, for the message.
+    choices : container
+        The allowed values (tested with ``in``).
+
+    Returns
+    -------
+    object
+        ``value`` itself.
+
+    Raises
+    ------
+    ValidationError
+        ``value`` is not in ``choices``.
+    """
     if value not in choices:
         raise ValidationError(f"{name} must be one of {sorted(map(str, choices))}, got {_short(value)}")
     return value
 
 
 def check_integer(value, name: str, low: int | None = None, high: int | None = None) -> int:
-    """Raise unless ``value`` is an integer (Python or numpy, not bool) in ``[low, high]``; return it as ``int``."""
+    """Raise unless ``value`` is an integer (Python or numpy, not bool) in ``[low, high]``; return it as ``int``.
+
+    Parameters
+    ----------
+    value : int or numpy.integer
+        The value given (a float such as ``3.0`` is refused).
+    name : str
+        The argument's name, for the message.
+    low, high : int, optional
+        Inclusive bounds; None leaves that side open.
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    ValidationError
+        Not an integer (or a bool), or outside ``[low, high]``.
+    """
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
         raise ValidationError(f"{name} must be an integer, got {value!r}")
     iv = int(value)
@@ -288,6 +483,23 @@ def check_seed(seed, name: str = "seed"):
 
     These are what :func:`numpy.random.default_rng` accepts as a reproducible seed
     (a negative integer or a string would fail there with a bare ``ValueError``/``TypeError``).
+
+    Parameters
+    ----------
+    seed : None, int or numpy.random.Generator
+        The seed given.
+    name : str
+        The argument's name, for the message (default ``"seed"``).
+
+    Returns
+    -------
+    None, int or numpy.random.Generator
+        ``seed`` (an integer as a Python ``int``).
+
+    Raises
+    ------
+    ValidationError
+        Anything else (a negative integer, a bool, a float, a string).
     """
     if seed is None or isinstance(seed, np.random.Generator):
         return seed
@@ -310,6 +522,25 @@ def finite_result(out, what: str, **inputs) -> np.ndarray:
     For functions whose finite inputs can still overflow the float range (a
     BRDF with ρs = 1e308, a lobe so sharp its peak 1/m² exceeds it): a clear
     error instead of a silent inf or NaN.
+
+    Parameters
+    ----------
+    out : array_like
+        The computed result.
+    what : str
+        What the result is, for the message (e.g. the function name ``"dipole_profile"``).
+    **inputs
+        The inputs by name; the message gives each one's value or range.
+
+    Returns
+    -------
+    array_like
+        ``out`` itself (non-float results are passed without a check).
+
+    Raises
+    ------
+    ValidationError
+        ``out`` is a float array with a NaN or ±inf.
     """
     arr = np.asarray(out)
     if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
@@ -370,6 +601,27 @@ def described(parse, doc, what: str):
     ``ValueError``, ``AttributeError``, ``KeyError`` or ``IndexError`` (a field of
     the wrong JSON type reaching numpy or a constructor) becomes a
     :class:`~facestats.errors.FormatError` naming ``what``.
+
+    Parameters
+    ----------
+    parse : callable
+        The parser, called as ``parse(doc)``.
+    doc : object
+        The document read (e.g. a parsed JSON object).
+    what : str
+        What the document is, put in front of every error message.
+
+    Returns
+    -------
+    object
+        What ``parse(doc)`` returns.
+
+    Raises
+    ------
+    ValidationError
+        The parser's own, with ``what`` in front.
+    FormatError
+        The parser's own with ``what`` in front, or a TypeError/ValueError/AttributeError/KeyError/IndexError of it.
     """
     try:
         return parse(doc)

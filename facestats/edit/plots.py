@@ -248,7 +248,19 @@ def _upscale(img, min_side=256):
 
 def edit_image_names(subject_id: str) -> list[str]:
     """Every file name :func:`save_edit_images` may write for the edited subject ``subject_id`` (a superset of
-    one edit's: the BRDF maps it did not change are not written)."""
+    one edit's: the BRDF maps it did not change are not written).
+
+    Parameters
+    ----------
+    subject_id : str
+        The new subject's id.
+
+    Returns
+    -------
+    list of str
+        ``<id>_<map>_before.png`` and ``<id>_<map>_after.png`` for the albedo and every BRDF map, then
+        ``<id>_summary.png`` (bare names, no folder).
+    """
     maps = ("albedo", *BRDF_VARIABLES)
     return [f"{subject_id}_{m}_{when}.png" for m in maps for when in ("before", "after")] + [
         f"{subject_id}_summary.png"

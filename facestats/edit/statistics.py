@@ -93,13 +93,23 @@ def check_settings(levels, orientations, bins):
 def statistics_path(path, *, overwrite: bool = True) -> pathlib.Path:
     """The file :meth:`TextureStatistics.save` writes for ``path``: ``.npz`` appended if missing, checked writable.
 
-    ``overwrite=False`` refuses an existing file (pointing at ``--overwrite``).
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file; ``.npz`` is appended unless the suffix is exactly ``.npz``.
+    overwrite : bool
+        Whether an existing file may be replaced (False: refused, pointing at ``--overwrite``).
+
+    Returns
+    -------
+    pathlib.Path
+        The checked path, ending in ``.npz``.
 
     Raises
     ------
     ValidationError
         The path cannot be written (a folder, a device, an uncreatable folder:
-        :func:`facestats.core.outputs.check_output_file`).
+        :func:`facestats.core.outputs.check_output_file`), or exists and ``overwrite`` is False.
     """
     if isinstance(path, (str, os.PathLike)) and os.fspath(path).strip() and pathlib.Path(os.fspath(path)).name:
         path = pathlib.Path(os.fspath(path))

@@ -108,6 +108,13 @@ def read_leading_entries(path: str, names) -> dict:
     the caller falls back to :class:`zipfile.ZipFile` for whatever was not
     found.  CRCs are checked.
 
+    Parameters
+    ----------
+    path : str
+        The zip file.
+    names : collection of str
+        The entry names wanted (e.g. ``("zarr.json", "index.json")``).
+
     Returns
     -------
     dict

@@ -61,7 +61,20 @@ def prepare_batch(datasets) -> list:
 
 
 def refuse_existing(index: dict, ids) -> None:
-    """Raise :class:`StoreError` if any of ``ids`` is already in the index document."""
+    """Raise :class:`StoreError` if any of ``ids`` is already in the index document.
+
+    Parameters
+    ----------
+    index : dict
+        The index document (:mod:`facestats.io.index`); only its ``subjects`` mapping is read.
+    ids : iterable of str
+        Subject ids about to be written.
+
+    Raises
+    ------
+    StoreError
+        Naming the ids (sorted) the index already holds.
+    """
     clash = sorted(set(ids) & set(index["subjects"]))
     if clash:
         raise StoreError(

@@ -44,7 +44,18 @@ __all__ = ["generations_of", "commit_index"]
 
 
 def generations_of(index: dict | None) -> dict:
-    """``{subject id: generation}`` named by an index document (empty for None)."""
+    """``{subject id: generation}`` named by an index document (empty for None).
+
+    Parameters
+    ----------
+    index : dict or None
+        An index document (:mod:`facestats.io.index`), or None (no index).
+
+    Returns
+    -------
+    dict of str to str
+        The generation each subject's entry names.
+    """
     return {} if index is None else {sid: e["generation"] for sid, e in index["subjects"].items()}
 
 

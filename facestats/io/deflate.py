@@ -129,6 +129,17 @@ def canonical_codes(lengths) -> np.ndarray:
     RFC 1951's construction in closed form.  The returned value of a symbol of length L is its L-bit
     code read backwards, so that OR-ing it at the current bit position of a little-endian accumulator
     sends the code's most significant bit first, as deflate requires.  Symbols of length 0 get 0.
+
+    Parameters
+    ----------
+    lengths : array_like of int, shape (n,)
+        Code length of every symbol in bits (0: no code), e.g. from :func:`huffman_code_lengths`; not checked
+        (lengths obeying Kraft's inequality, Σ 2^−L ≤ 1, are assumed).
+
+    Returns
+    -------
+    ndarray of int64, shape (n,)
+        Each symbol's code, its ``lengths[i]`` bits reversed; 0 where the length is 0.
     """
     lengths = np.asarray(lengths, np.int64)
     top = int(lengths.max())
@@ -223,8 +234,20 @@ def _pack_numpy(samples, code, length, prefix_code, prefix_length, tail, start, 
 
 
 def prefixed_rows(samples, prefix: int = 0) -> np.ndarray:
-    """The bytes :func:`deflate_rows` compresses: (H, 1 + N·itemsize) uint8, each row ``prefix`` then its
-    samples, 16-bit samples big-endian (PNG's filtered scanlines with filter type ``prefix``)."""
+    """The bytes :func:`deflate_rows` compresses: each row ``prefix`` then its samples, 16-bit samples big-endian
+    (PNG's filtered scanlines with filter type ``prefix``).
+
+    Parameters
+    ----------
+    samples : array_like, shape (H, N)
+        The rows' samples (uint8 or uint16 for :func:`deflate_rows`; not checked here).
+    prefix : int
+        The byte before every row (PNG's filter type; 0 = None).
+
+    Returns
+    -------
+    ndarray of uint8, shape (H, 1 + N·itemsize)
+    """
     a = np.asarray(samples)
     h = a.shape[0]
     rows = np.empty((h, 1 + a[0].size * a.itemsize), np.uint8)

@@ -148,7 +148,27 @@ def read_displacement(path, *, height_range_um=None, midpoint=0.5) -> np.ndarray
 
 
 def write_displacement(path, displacement, *, attributes=None):
-    """Write a displacement map (µm) to an EXR file (single channel ``Y``, ``units = um``)."""
+    """Write a displacement map (µm) to an EXR file (single channel ``Y``, ``units = um``).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file to write; must end in ``.exr``.
+    displacement : array_like, shape (H, W)
+        Heights in µm, row 0 at the top; stored as float32 (must be finite: :func:`facestats.io.images.write_exr`).
+    attributes : dict, optional
+        Further string header attributes (values converted with ``str``); a ``units`` entry here replaces ``um``.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+
+    Raises
+    ------
+    ValidationError
+        ``path`` does not end in ``.exr``, or ``displacement`` is not 2-D (or not finite).
+    """
     p = pathlib.Path(os.fspath(path))
     if p.suffix.lower() != ".exr":
         raise ValidationError(f"path must end in .exr, got {str(p)!r}")

@@ -233,6 +233,17 @@ def _png_exif(data):
 def read_exif(path) -> dict:
     """The exposure tags (module docstring) of a JPEG, TIFF or PNG file; ``{}`` when it has no EXIF data.
 
+    Parameters
+    ----------
+    path : str or path-like
+        The file; only its first MiB is read (EXIF blocks precede the image data).
+
+    Returns
+    -------
+    dict
+        The tags found among ``Make``, ``Model`` (str), ``ExposureTime`` (s), ``FNumber`` and ``ISOSpeedRatings``
+        (numbers); ``FNumber`` and ``ISOSpeedRatings`` are left out unless they are one positive number.
+
     Raises
     ------
     FormatError
@@ -248,7 +259,26 @@ def read_exif(path) -> dict:
 
 
 def parse_exif(data: bytes, name: str = "<bytes>") -> dict:
-    """:func:`read_exif` of the bytes of a file (``name`` for messages)."""
+    """:func:`read_exif` of the bytes of a file (``name`` for messages).
+
+    Parameters
+    ----------
+    data : bytes
+        The file's bytes (or their first part holding the EXIF block).
+    name : str
+        The file's name, for messages.
+
+    Returns
+    -------
+    dict
+        As :func:`read_exif`; ``{}`` when the file has no EXIF data.
+
+    Raises
+    ------
+    FormatError
+        ``data`` is not a JPEG, TIFF or PNG file, its EXIF structure is corrupt, or its ``ExposureTime`` is not one
+        positive number.
+    """
     try:
         if data[:2] == b"\xff\xd8":
             base = _jpeg_app1(data)
@@ -266,7 +296,23 @@ def parse_exif(data: bytes, name: str = "<bytes>") -> dict:
 
 
 def read_exposure_time(path) -> float | None:
-    """EXIF ``ExposureTime`` of a photograph in seconds, or None when the file does not record it."""
+    """EXIF ``ExposureTime`` of a photograph in seconds, or None when the file does not record it.
+
+    Parameters
+    ----------
+    path : str or path-like
+        A JPEG, TIFF or PNG file.
+
+    Returns
+    -------
+    float or None
+        Seconds.
+
+    Raises
+    ------
+    FormatError
+        As :func:`read_exif` (including an ``ExposureTime`` that is not one positive number).
+    """
     t = read_exif(path).get("ExposureTime")
     return None if t is None else float(t)
 
@@ -276,6 +322,22 @@ def exif_payload(exposure_time: float, *, f_number: float | None = None, iso: in
 
     ``exposure_time`` (s) is written as the rational closest to it with a
     denominator ≤ 10⁶.
+
+    Parameters
+    ----------
+    exposure_time : float
+        ``ExposureTime`` in seconds (not checked; it must be ≥ 0 to be packed).
+    f_number : float, optional
+        ``FNumber``, written as the closest rational with a denominator ≤ 1000; omitted when None.
+    iso : int, optional
+        ``ISOSpeedRatings`` (one unsigned 16-bit value); omitted when None.
+    make, model : str
+        ``Make`` and ``Model`` (latin-1 text) in IFD0; omitted when empty.
+
+    Returns
+    -------
+    bytes
+        The TIFF structure, ready for :func:`embed_exif`.
     """
     blobs = []
     for tag, text in ((0x010F, make), (0x0110, model)):
@@ -324,6 +386,23 @@ def embed_exif(encoded: bytes, payload: bytes) -> bytes:
     """An encoded PNG or JPEG file (bytes) with the EXIF ``payload`` of :func:`exif_payload` inserted.
 
     PNG: an ``eXIf`` chunk after ``IHDR``; JPEG: an APP1 ``Exif`` segment after SOI.
+
+    Parameters
+    ----------
+    encoded : bytes
+        A whole PNG or JPEG file.
+    payload : bytes
+        The TIFF structure (:func:`exif_payload`).
+
+    Returns
+    -------
+    bytes
+        The file with the EXIF block added (an existing one is not removed).
+
+    Raises
+    ------
+    FormatError
+        ``encoded`` starts with neither the PNG signature nor a JPEG SOI marker.
     """
     if encoded[:8] == PNG_SIGNATURE:
         (ihdr_len,) = struct.unpack(">I", encoded[8:12])

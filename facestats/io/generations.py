@@ -66,6 +66,18 @@ def store_folder(root, rel: str) -> str:
 
     Raises :class:`StoreError` unless it is a real folder inside the store (not
     a file, not a symbolic link, not reached through one).
+
+    Parameters
+    ----------
+    root : str or os.PathLike
+        The store directory.
+    rel : str
+        The folder, relative to ``root`` (e.g. ``subjects/<id>``); its parent must exist.
+
+    Returns
+    -------
+    str
+        ``os.path.join(root, rel)``.
     """
     path = os.path.join(root, rel)
     confined(root, path)
@@ -88,6 +100,15 @@ def reserve_generation(root, sid: str, when: str = ""):
 
     A failure (e.g. a full disk) leaves nothing behind: the subject folder made for it (if it was
     missing) is removed again with the lock.
+
+    Parameters
+    ----------
+    root : str
+        The store directory.
+    sid : str
+        The subject id (not checked here: callers check it, it names folders).
+    when : str
+        The write time, recorded as the record's ``created``.
 
     Returns
     -------
@@ -141,7 +162,13 @@ def reserve_generation(root, sid: str, when: str = ""):
 
 
 def drop_writer_lock(lock) -> None:
-    """Delete a writer lock file, then release the lock."""
+    """Delete a writer lock file, then release the lock.
+
+    Parameters
+    ----------
+    lock : facestats.io.locking.FileLock
+        A held writer lock (:func:`reserve_generation`); a file already gone is no error.
+    """
     try:
         os.remove(lock.path)
     except OSError:
@@ -244,6 +271,20 @@ def map_chunks(dims, shape, rows: int) -> tuple:
     at once, so the 25 MB chunks held some 480 MB beside the variable at every read and write of such a subject
     (measured with tracemalloc; 30 MB with per-camera chunks, at the same speed).  The unit a lazy read verifies
     stays the band of ``rows`` rows across all cameras (:func:`facestats.io.integrity.manifest_entry`).
+
+    Parameters
+    ----------
+    dims : sequence of str
+        The variable's dims; must include ``v``.
+    shape : sequence of int
+        The variable's shape.
+    rows : int
+        Rows of ``v`` per chunk (:func:`facestats.io.layout.map_chunk_rows`).
+
+    Returns
+    -------
+    tuple of int
+        One chunk size per dim (size-0 dims after ``v`` get 1).
     """
     iv = list(dims).index("v")
     return tuple(rows if i == iv else 1 if i < iv else max(1, s) for i, s in enumerate(shape))

@@ -386,6 +386,11 @@ def read_gltf_summary(path) -> dict:
     present, a metallic-roughness material whose three textures exist, and
     the textures of its ``KHR_materials_specular`` when it has one.
 
+    Parameters
+    ----------
+    path : str or path-like
+        The ``.gltf`` file (its buffer and textures beside it).
+
     Returns
     -------
     dict

@@ -42,7 +42,23 @@ def _model_dir(root) -> str:
 
 
 def ict_expressions(root) -> list[str]:
-    """Names of the expression shapes present in a checkout (``identity*`` shapes excluded), sorted."""
+    """Names of the expression shapes present in a checkout (``identity*`` shapes excluded), sorted.
+
+    Parameters
+    ----------
+    root : path-like
+        An ICT-FaceKit checkout, or its ``FaceXModel`` directory.
+
+    Returns
+    -------
+    list of str
+        File names without ``.obj`` (the neutral mesh excluded).
+
+    Raises
+    ------
+    ValidationError
+        ``root`` holds no ``FaceXModel/generic_neutral_mesh.obj`` (nor ``generic_neutral_mesh.obj`` itself).
+    """
     d = _model_dir(root)
     names = [f[:-4] for f in os.listdir(d) if f.endswith(".obj") and f != _NEUTRAL and not f.startswith("identity")]
     return sorted(names)

@@ -99,7 +99,15 @@ class ImageFormatError(ValidationError):
 
 def check_image_size(height, width, name) -> None:
     """Raise :class:`ImageFormatError` unless a file's declared ``height`` × ``width`` is at most
-    :data:`MAX_IMAGE_PIXELS` (``name``: the file, for the message)."""
+    :data:`MAX_IMAGE_PIXELS`.
+
+    Parameters
+    ----------
+    height, width : int
+        The size the file's header declares, pixels.
+    name : str
+        The file, for the message.
+    """
     if int(height) * int(width) > MAX_IMAGE_PIXELS:
         raise ImageFormatError(
             f"image file {name!r} declares {int(width)} x {int(height)} pixels, more than the {MAX_IMAGE_PIXELS} "
@@ -124,7 +132,18 @@ def _extension(p: pathlib.Path) -> str:
 
 # -- colour transfer ------------------------------------------------------------------------
 def srgb_to_linear(values) -> np.ndarray:
-    """Linear values from sRGB-encoded values in [0, 1] (IEC 61966-2-1, via colour-science), float32."""
+    """Linear values from sRGB-encoded values in [0, 1] (IEC 61966-2-1, via colour-science), float32.
+
+    Parameters
+    ----------
+    values : array_like
+        sRGB-encoded values, any shape, nominally in [0, 1] (not clipped).
+
+    Returns
+    -------
+    ndarray of float32
+        Linear values, the shape of ``values``.
+    """
     import colour
 
     return np.asarray(colour.cctf_decoding(np.asarray(values, np.float64), function="sRGB"), np.float32)
@@ -135,6 +154,16 @@ def linear_to_srgb(values) -> np.ndarray:
 
     IEC 61966-2-1 through colour-science's ``cctf_encoding``, block by block in float64
     (:func:`facestats.core.blocked.blockwise`): a 4096² RGB map at once took about 1.2 GB of temporaries.
+
+    Parameters
+    ----------
+    values : array_like
+        Linear values, any shape.
+
+    Returns
+    -------
+    ndarray of float32
+        sRGB-encoded values in [0, 1], the shape of ``values``.
     """
     import colour
 
@@ -150,7 +179,20 @@ SRGB_BLOCK = 1 << 18
 
 def stride_step(height: int, width: int, max_side: int) -> int:
     """The smallest step k (≥ 1) for which every k-th pixel of a ``height`` × ``width`` image is at most
-    ``max_side`` pixels a side: what a preview of a large map strides by."""
+    ``max_side`` pixels a side: what a preview of a large map strides by.
+
+    Parameters
+    ----------
+    height, width : int
+        The image's size, pixels.
+    max_side : int
+        Longest side wanted, pixels (≥ 1; not checked).
+
+    Returns
+    -------
+    int
+        ⌈max(height, width) / max_side⌉, at least 1.
+    """
     return max(1, -(-max(int(height), int(width)) // int(max_side)))
 
 
@@ -225,6 +267,26 @@ def decode_integer_image(data: bytes, name: str = "<bytes>"):
 
     The format is told by the data's signature, not by ``name``: TIFF (classic or
     BigTIFF) through libtiff, anything else through OpenCV (module docstring).
+
+    Parameters
+    ----------
+    data : bytes
+        The whole file.
+    name : str
+        The file's name, for messages.
+
+    Returns
+    -------
+    codes : ndarray of uint8 or uint16, shape (H, W, C), C-contiguous
+        As :func:`read_integer_image`.
+    bits : int
+        8 or 16, or 9-15 for a TIFF with packed samples.
+
+    Raises
+    ------
+    ImageFormatError
+        Empty or undecodable data, a PNG/JPEG/TIFF header declaring more than :data:`MAX_IMAGE_PIXELS` pixels,
+        samples that are not 8- or 16-bit integers, or an unsupported TIFF layout (module docstring).
     """
     if len(data) == 0:  # OpenCV would fail an internal assertion
         raise ImageFormatError(f"image file {name!r} is empty (0 bytes)")
@@ -526,6 +588,11 @@ def require_openexr():
 def read_exr(path):
     """All channels of an EXR file and its string header attributes.
 
+    Parameters
+    ----------
+    path : str or path-like
+        An existing EXR file.
+
     Returns
     -------
     channels : dict of str to ndarray (H, W)
@@ -551,7 +618,27 @@ def read_exr(path):
 
 
 def read_exr_attributes(path) -> dict:
-    """The string header attributes of an EXR file, without reading its pixels (see :func:`read_exr`)."""
+    """The string header attributes of an EXR file, without reading its pixels (see :func:`read_exr`).
+
+    Parameters
+    ----------
+    path : str or path-like
+        An existing EXR file.
+
+    Returns
+    -------
+    dict of str to str
+        Header attributes whose values are strings.
+
+    Raises
+    ------
+    ValidationError
+        ``path`` is not an existing file.
+    ImageFormatError
+        The file cannot be read as EXR.
+    DependencyError
+        The OpenEXR package is not installed.
+    """
     OpenEXR = require_openexr()
 
     p = _path(path)
@@ -565,8 +652,30 @@ def read_exr_attributes(path) -> dict:
 def write_exr(path, channels: dict, *, half: bool = False, attributes=None):
     """Write named 2-D channels (same shape) to an EXR file, ZIP-compressed.
 
-    ``half`` stores float channels as half floats; ``attributes`` are string header
-    attributes.  Integer channels are stored as uint32.
+    Parameters
+    ----------
+    path : str or path-like
+        The file to write (its extension is not checked here).
+    channels : dict of str to array_like, shape (H, W)
+        At least one channel.  Float channels must be finite; integer (and bool) channels are stored as uint32
+        (cast without a range check).
+    half : bool
+        Store float channels as half floats instead of float32.
+    attributes : dict, optional
+        String header attributes (keys and values converted with ``str``).
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+
+    Raises
+    ------
+    ValidationError
+        No channel, channels that are not 2-D of one shape, a float channel with NaN or inf, or a finite value
+        beyond the range of the stored float type.
+    DependencyError
+        The OpenEXR package is not installed.
     """
     OpenEXR = require_openexr()
 
@@ -702,7 +811,26 @@ def _rle_scanline(buf, pos, width, p, row):
 
 
 def read_rgbe(path) -> np.ndarray:
-    """A Radiance RGBE file as float32 (H, W, 3) (module docstring for the decoding)."""
+    """A Radiance RGBE file as float32 (H, W, 3) (module docstring for the decoding).
+
+    Parameters
+    ----------
+    path : str or path-like
+        An existing Radiance RGBE file (``.hdr``, ``.pic``).
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W, 3)
+        Linear values, row 0 at the top, divided by the header's ``EXPOSURE`` × ``COLORCORR``.
+
+    Raises
+    ------
+    ValidationError
+        ``path`` is not an existing file.
+    ImageFormatError
+        A bad or oversized header (more than :data:`MAX_IMAGE_PIXELS`), a truncated file, an invalid run, or
+        old-style run-length encoding.
+    """
     p = _path(path)
     data = p.read_bytes()
     height, width, pos, applied = _rgbe_header(data, p)
@@ -730,7 +858,25 @@ def read_rgbe(path) -> np.ndarray:
 
 
 def write_rgbe(path, image):
-    """Write a float (H, W, 3) image (finite, ≥ 0) as a Radiance RGBE file with flat scanlines."""
+    """Write a float (H, W, 3) image (finite, ≥ 0) as a Radiance RGBE file with flat scanlines.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file to write (its extension is not checked here).
+    image : array_like, shape (H, W, 3)
+        Linear values, finite, ≥ 0 and below 2^127; a pixel whose largest component is below 1e-32 is written black.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+
+    Raises
+    ------
+    ValidationError
+        ``image`` of another shape, with NaN, inf or negative values, or a value ≥ 2^127.
+    """
     p = _path(path, must_exist=False)
     img = np.asarray(image, np.float64)
     if img.ndim != 3 or img.shape[2] != 3:
@@ -803,7 +949,26 @@ def read_npy(path, what: str = "array") -> np.ndarray:
 
 
 def read_pfm(path) -> np.ndarray:
-    """A Portable Float Map as float32 (H, W, C), row 0 at the top (PFM stores rows bottom-up)."""
+    """A Portable Float Map as float32 (H, W, C), row 0 at the top (PFM stores rows bottom-up).
+
+    Parameters
+    ----------
+    path : str or path-like
+        An existing PFM file.
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W, C)
+        C = 3 for ``PF``, 1 for ``Pf``; values as stored: the sign of the header's scale gives the byte order, its
+        magnitude is not applied.
+
+    Raises
+    ------
+    ValidationError
+        ``path`` is not an existing file.
+    ImageFormatError
+        A bad header (width or height < 1, scale 0 or not finite) or a truncated file.
+    """
     p = _path(path)
     data = p.read_bytes()
     m = _PFM_HEADER.match(data)
@@ -825,7 +990,25 @@ def read_pfm(path) -> np.ndarray:
 
 
 def write_pfm(path, image):
-    """Write a float (H, W, 1|3) image as a little-endian PFM file (rows stored bottom-up)."""
+    """Write a float (H, W, 1|3) image as a little-endian PFM file (rows stored bottom-up).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file to write (its extension is not checked here).
+    image : array_like, shape (H, W), (H, W, 1) or (H, W, 3)
+        Numeric values, stored as float32 (NaN and inf are written as they are).
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+
+    Raises
+    ------
+    ValidationError
+        ``image`` of another shape, not numeric, or with a finite value beyond the float32 range.
+    """
     p = _path(path, must_exist=False)
     img = as_float(image, f"image for {str(p)!r}", np.float32)
     if img.ndim == 2:

@@ -192,6 +192,18 @@ def entry_problem(sid, entry) -> str | None:
     name, ``written``, the row (metadata of :data:`_META`, ``subject_id`` equal
     to the id, ``source`` a string, every other value a finite number or null)
     and the histogram (3 lists of 256 non-negative integers).
+
+    Parameters
+    ----------
+    sid : object
+        The entry's key in the index's ``subjects`` mapping.
+    entry : object
+        The entry as decoded from JSON.
+
+    Returns
+    -------
+    str or None
+        What is wrong (naming the field), or None.
     """
     try:
         check_subject_id(sid)
@@ -295,6 +307,13 @@ def parse_index(data: bytes | str, *, where: str = INDEX_NAME) -> dict:
 def split_index(data: bytes | str, *, where: str = INDEX_NAME) -> tuple[dict, dict]:
     """Like :func:`parse_index`, but keep the valid entries and return the invalid ones apart.
 
+    Parameters
+    ----------
+    data : bytes or str
+        The JSON text.
+    where : str
+        Its name in messages.
+
     Returns
     -------
     index : dict
@@ -328,7 +347,23 @@ def read_index_file(root) -> dict:
 
 
 def read_index_bytes(root) -> bytes:
-    """The bytes of ``<root>/index.json``; :class:`StoreError` if it is missing or not a readable file."""
+    """The bytes of ``<root>/index.json``; :class:`StoreError` if it is missing or not a readable file.
+
+    Parameters
+    ----------
+    root : str or os.PathLike
+        The store directory.
+
+    Returns
+    -------
+    bytes
+        The file's content, not checked (:func:`parse_index` does that).
+
+    Raises
+    ------
+    StoreError
+        ``index.json`` is missing (the message names the repair), a symbolic link, not a regular file or unreadable.
+    """
     path = os.path.join(os.fspath(root), INDEX_NAME)
     try:
         return read_regular_file(path, follow_links=False)
@@ -372,7 +407,17 @@ def write_index_file(root, index: dict) -> None:
 
 
 def is_index_temp(name: str) -> bool:
-    """True for the temporary files :func:`write_index_file` creates."""
+    """True for the temporary files :func:`write_index_file` creates.
+
+    Parameters
+    ----------
+    name : str
+        A file name in the store root (not a path).
+
+    Returns
+    -------
+    bool
+    """
     return name.startswith(_TMP_PREFIX)
 
 

@@ -99,6 +99,17 @@ def manifest_entry(var) -> dict:
     dask-backed variable, e.g. the micro-normals an edit copies from its source) is never whole in memory.
     Its ``crc32`` is that of all its bytes in C order: one running CRC per index of the dims before ``v``
     (the cameras of a micro-normal map), joined with :func:`facestats.core.crc32.crc32_combine`.
+
+    Parameters
+    ----------
+    var : xarray.Variable
+        The variable as it is about to be written (in memory or lazily read).
+
+    Returns
+    -------
+    dict
+        ``dims`` (list of str), ``shape`` (list of int), ``dtype`` (:func:`digest`'s tag), ``crc32`` (int) and, for a
+        non-string map variable, ``chunk_rows`` (int) and ``chunk_crc32`` (list of int, one per band).
     """
     rows = map_chunk_rows(var.dims, var.shape)
     if rows is None or var.dtype.kind in "UOST":
@@ -134,7 +145,22 @@ def _joined(crcs, length: int) -> int:
 
 
 def store_attr_json(generation: str, written: str, manifest: dict) -> str:
-    """The value of :data:`STORE_ATTR` for a generation written now by this facestats."""
+    """The value of :data:`STORE_ATTR` for a generation written now by this facestats.
+
+    Parameters
+    ----------
+    generation : str
+        The generation's name.
+    written : str
+        When it was written (UTC, ISO 8601).
+    manifest : dict
+        ``{variable: manifest_entry(...)}``.
+
+    Returns
+    -------
+    str
+        JSON of ``{"schema", "facestats_version", "written", "generation", "manifest"}``.
+    """
     return json.dumps(
         {
             "schema": SCHEMA_VERSION,
@@ -247,6 +273,20 @@ def read_failure(exc: BaseException, sid: str, what: str) -> StoreError:
     about the data, so it becomes a plain :class:`StoreError` ("could not be
     read now"); anything else (undecodable bytes, missing chunk files, bad
     metadata) means damaged data and becomes a :class:`SchemaError`.
+
+    Parameters
+    ----------
+    exc : BaseException
+        The exception the read raised.
+    sid : str
+        The subject id, for the message.
+    what : str
+        What was being read (e.g. ``"variable 'albedo'"``), for the message.
+
+    Returns
+    -------
+    StoreError
+        A :class:`SchemaError` (a subclass) for damaged data; to be raised by the caller.
     """
     structural = (FileNotFoundError, IsADirectoryError, NotADirectoryError)
     if isinstance(exc, OSError) and not isinstance(exc, structural):

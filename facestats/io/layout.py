@@ -118,6 +118,18 @@ def map_chunk_rows(dims, shape) -> int | None:
     """Rows of ``v`` per chunk of a variable with ``dims`` and ``shape``: None unless it is a map (``v`` and ≥ 2 dims).
 
     Map variables are chunked along ``v`` only (all of ``u`` and the trailing dims in each chunk).
+
+    Parameters
+    ----------
+    dims : sequence of str
+        The variable's dims.
+    shape : sequence of int
+        The variable's shape.
+
+    Returns
+    -------
+    int or None
+        ``min(MAP_CHUNK_ROWS, rows of v)``, at least 1; None for a variable that is not a map.
     """
     dims = tuple(dims)
     if "v" not in dims or len(dims) < 2:
@@ -126,7 +138,17 @@ def map_chunk_rows(dims, shape) -> int | None:
 
 
 def is_generation(name: str) -> bool:
-    """True if ``name`` is a generation name (:data:`GENERATION_PATTERN`, matched in full)."""
+    """True if ``name`` is a generation name (:data:`GENERATION_PATTERN`, matched in full).
+
+    Parameters
+    ----------
+    name : str
+        A folder name.
+
+    Returns
+    -------
+    bool
+    """
     return GENERATION_PATTERN.fullmatch(name) is not None
 
 
@@ -136,27 +158,84 @@ def new_generation() -> str:
 
 
 def generation_rel(sid: str, gen: str) -> str:
-    """The folder of generation ``gen`` of subject ``sid``, relative to the store root."""
+    """The folder of generation ``gen`` of subject ``sid``, relative to the store root.
+
+    Parameters
+    ----------
+    sid, gen : str
+        Subject id and generation name (not checked).
+
+    Returns
+    -------
+    str
+        ``subjects/<sid>/<gen>``, with ``/`` separators.
+    """
     return f"{SUBJECTS}/{sid}/{gen}"
 
 
 def writer_lock_path(root, sid: str, gen: str) -> str:
-    """The writer lock file of generation ``gen`` of subject ``sid`` in the store at ``root``."""
+    """The writer lock file of generation ``gen`` of subject ``sid`` in the store at ``root``.
+
+    Parameters
+    ----------
+    root : str or os.PathLike
+        The store directory.
+    sid, gen : str
+        Subject id and generation name (not checked).
+
+    Returns
+    -------
+    str
+        ``<root>/.writers/<sid>~<gen>.lock``.
+    """
     return os.path.join(root, WRITERS, f"{sid}~{gen}.lock")
 
 
 def store_lock(root, timeout: float) -> FileLock:
-    """The (not yet acquired) store lock of the store at ``root``."""
+    """The (not yet acquired) store lock of the store at ``root``.
+
+    Parameters
+    ----------
+    root : str or os.PathLike
+        The store directory.
+    timeout : float
+        Seconds to wait for the lock before :class:`StoreError`.
+
+    Returns
+    -------
+    facestats.io.locking.FileLock
+        On ``<root>/.lock`` (created when acquired if missing).
+    """
     return FileLock(os.path.join(root, LOCK_NAME), timeout=timeout)
 
 
 def is_meta_temp(name: str) -> bool:
-    """True for the temporary files :func:`write_json_atomic` leaves beside a ``zarr.json`` or a record."""
+    """True for the temporary files :func:`write_json_atomic` leaves beside a ``zarr.json`` or a record.
+
+    Parameters
+    ----------
+    name : str
+        A file name (not a path).
+
+    Returns
+    -------
+    bool
+    """
     return _JSON_TEMP.fullmatch(name) is not None
 
 
 def is_plain_dir(path) -> bool:
-    """True if ``path`` is a directory and not a symbolic link (``lstat``)."""
+    """True if ``path`` is a directory and not a symbolic link (``lstat``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    bool
+        False also when ``path`` is missing or cannot be examined.
+    """
     try:
         return stat.S_ISDIR(os.lstat(path).st_mode)
     except OSError:
@@ -164,7 +243,17 @@ def is_plain_dir(path) -> bool:
 
 
 def is_plain_file(path) -> bool:
-    """True if ``path`` is a regular file and not a symbolic link (``lstat``)."""
+    """True if ``path`` is a regular file and not a symbolic link (``lstat``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    bool
+        False also when ``path`` is missing or cannot be examined.
+    """
     try:
         return stat.S_ISREG(os.lstat(path).st_mode)
     except OSError:
@@ -182,6 +271,19 @@ def read_regular_file(path, limit: int | None = None, *, follow_links: bool = Tr
     planted where a store file should be raises :class:`OSError` (EINVAL,
     "not a regular file") instead of hanging or reading forever; a directory
     raises :class:`IsADirectoryError`, a missing file :class:`FileNotFoundError`.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+    limit : int, optional
+        Most bytes to read (default: all).
+    follow_links : bool
+        Follow a symbolic link at ``path``.
+
+    Returns
+    -------
+    bytes
     """
     flags = os.O_RDONLY | os.O_NONBLOCK | (0 if follow_links else os.O_NOFOLLOW)
     try:
@@ -213,6 +315,18 @@ def walk(top):
     folder level, so a store holding a tree of about a thousand nested folders
     (hostile input) made validate, repair and gc fail with ``RecursionError``;
     every walk of a store goes through here instead.
+
+    Parameters
+    ----------
+    top : str or os.PathLike
+        The folder to walk (a link at ``top`` itself is followed).
+
+    Yields
+    ------
+    folder : str
+        The folder's path (``top`` joined with the names below it).
+    dirs, files : list of str
+        Names in it, in listing order.
     """
     stack = [os.fspath(top)]
     while stack:
@@ -262,6 +376,11 @@ def remove_tree(path) -> None:
     other failure raises :class:`OSError`, and so do ``path`` being a link (also written ``L/`` or ``L/.``)
     and ``path`` not being a folder.  Links *above* ``path`` are followed, as by :func:`shutil.rmtree`:
     callers check them (:func:`confined`).  Whether the folder is gone afterwards is the caller's to check.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The folder to delete.
     """
     path = os.path.normpath(os.fspath(path))  # "L/", "L/." and "L/x/.." name the link L itself
     if os.path.islink(path):
@@ -353,6 +472,13 @@ def copy_tree(src, dst) -> None:
 
     A folder's permissions and times are copied after its contents, as :func:`shutil.copytree` does (a
     read-only folder can be filled, and its time is not changed by the filling).
+
+    Parameters
+    ----------
+    src : str or os.PathLike
+        The folder to copy.
+    dst : str or os.PathLike
+        The copy; must not exist (:class:`FileExistsError` otherwise), its parent must.
     """
     src, dst = os.fspath(src), os.fspath(dst)
     folders = []
@@ -429,6 +555,16 @@ def generation_strays(path) -> list[str]:
     else (a note, a file where a variable's folder is due, a link, a FIFO) was
     put there by someone else: maintenance never deletes a generation holding such
     entries.  A missing or unreadable folder gives an empty list.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The generation folder.
+
+    Returns
+    -------
+    list of str
+        Paths relative to ``path`` (e.g. ``notes.txt``, ``<variable>/c/x``); empty when it holds only Zarr's.
     """
     out = []
     for name in sorted_names(path):
@@ -446,7 +582,17 @@ def generation_strays(path) -> list[str]:
 
 
 def sorted_names(path) -> list[str]:
-    """The names in folder ``path``, sorted; none if it is missing or unreadable."""
+    """The names in folder ``path``, sorted; none if it is missing or unreadable.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The folder.
+
+    Returns
+    -------
+    list of str
+    """
     try:
         return sorted(os.listdir(path))
     except OSError:
@@ -481,12 +627,36 @@ def _chunk_strays(var: str, top: str) -> list[str]:
 
 
 def group_meta(attributes=None) -> dict:
-    """The ``zarr.json`` document of a Zarr v3 group with ``attributes``."""
+    """The ``zarr.json`` document of a Zarr v3 group with ``attributes``.
+
+    Parameters
+    ----------
+    attributes : dict, optional
+        The group's attributes (copied; default none).
+
+    Returns
+    -------
+    dict
+        ``{"zarr_format": 3, "node_type": "group", "attributes": {...}}``.
+    """
     return {"zarr_format": 3, "node_type": "group", "attributes": dict(attributes or {})}
 
 
 def fsync_path(path, directory: bool = False) -> None:
-    """Flush a file (or, with ``directory=True``, a directory entry list) to disk."""
+    """Flush a file (or, with ``directory=True``, a directory entry list) to disk.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file or directory (opened read-only).
+    directory : bool
+        ``path`` is a directory (opened with ``O_DIRECTORY``: anything else raises :class:`NotADirectoryError`).
+
+    Raises
+    ------
+    OSError
+        ``path`` cannot be opened or the flush fails.
+    """
     fd = os.open(path, os.O_RDONLY | (os.O_DIRECTORY if directory else 0))
     try:
         os.fsync(fd)
@@ -515,6 +685,16 @@ def fsync_tree(path) -> None:
     Since Linux 5.8 it reports write-back errors like ``fsync`` does.  Where
     there is no ``syncfs`` (or it fails for want of support), every file and
     directory is ``fsync``-ed in turn.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A folder (or a file: ``syncfs`` is then called on its folder).
+
+    Raises
+    ------
+    OSError
+        ``syncfs`` fails for another reason than missing support, or a file-by-file ``fsync`` fails.
     """
     fn = _syncfs()
     if fn is not None:
@@ -539,6 +719,15 @@ def write_json_atomic(path, obj, *, durable: bool = True) -> None:
     """Replace ``path`` by ``obj`` as indented JSON: temporary file, ``fsync`` (if ``durable``), ``os.replace``.
 
     A failure (e.g. a full disk) removes the temporary file and leaves ``path`` as it was.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to replace (or create); the temporary file ``<path>.tmp-<pid>-<6 hex>`` is made beside it.
+    obj : object
+        A JSON-serialisable document.
+    durable : bool
+        ``fsync`` the temporary file before the rename (the folder itself is not ``fsync``-ed).
     """
     tmp = f"{path}.tmp-{os.getpid()}-{secrets.token_hex(3)}"
     try:

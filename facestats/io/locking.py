@@ -123,6 +123,22 @@ def try_lock(path, *, create: bool = True) -> FileLock | None:
     """Take the lock on ``path`` without waiting; the held :class:`FileLock`, or None if busy.
 
     With ``create=False`` a missing file raises :class:`FileNotFoundError` instead of being created.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The lock file.
+    create : bool
+        Create ``path`` if it is missing.
+
+    Returns
+    -------
+    FileLock or None
+
+    Raises
+    ------
+    StoreError
+        ``path`` cannot be opened (a symbolic link, its folder missing with ``create=True``) or ``flock`` fails.
     """
     lock = FileLock(path, timeout=0, create=create)
     return lock if lock.acquire(blocking=False) else None
@@ -133,6 +149,20 @@ def is_locked(path) -> bool:
 
     Never creates ``path``: a file that is missing (or vanishes while it is
     checked) is not locked.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The lock file.
+
+    Returns
+    -------
+    bool
+
+    Raises
+    ------
+    StoreError
+        ``path`` exists but cannot be opened for locking (a symbolic link, no permission) or ``flock`` fails.
     """
     try:
         lock = try_lock(path, create=False)
@@ -151,6 +181,16 @@ def create_locked(path) -> FileLock:
     place, so no other process can ever observe ``path`` unlocked while its
     creator is alive (garbage collection relies on this).  Raises
     :class:`StoreError` if ``path`` already exists.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The lock file to create; its folder must exist.
+
+    Returns
+    -------
+    FileLock
+        Held, its ``path`` set to ``path``.
     """
     path = os.fspath(path)
     folder, name = os.path.split(path)
@@ -174,5 +214,15 @@ def create_locked(path) -> FileLock:
 
 
 def is_lock_temp(name: str) -> bool:
-    """True for the temporary names :func:`create_locked` uses."""
+    """True for the temporary names :func:`create_locked` uses.
+
+    Parameters
+    ----------
+    name : str
+        A file name (not a path).
+
+    Returns
+    -------
+    bool
+    """
     return name.startswith(".tmp-")

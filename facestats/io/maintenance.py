@@ -417,6 +417,18 @@ def collect_garbage(root, lock) -> list[str]:
     renamed or removed; directory trees are removed without following links,
     and never while they hold items Zarr did not write.
 
+    Parameters
+    ----------
+    root : str
+        The store directory.
+    lock : facestats.io.locking.FileLock
+        The store lock (:func:`facestats.io.layout.store_lock`), acquired and released here.
+
+    Returns
+    -------
+    list of str
+        The paths removed, relative to ``root``.
+
     Raises
     ------
     StoreError

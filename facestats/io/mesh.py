@@ -273,6 +273,11 @@ def geometry_mesh(geometry: FaceGeometry):
     procedural head, the mesh as it is for a geometry that carries one UV per mesh vertex (``mesh_uv``:
     the ICT face, :func:`facestats.acquire.synthetic.ict_face.ict_face`, split along its UV seams).
 
+    Parameters
+    ----------
+    geometry : facestats.acquire.geometry.FaceGeometry
+        A procedural head or a geometry with ``mesh_uv``.
+
     Returns
     -------
     vertices : ndarray, shape (V, 3)

@@ -253,13 +253,25 @@ def read_obj(path, *, scale=1.0, transform=None, flip_v=True, faces=True) -> UVM
 def load_trimesh(path):
     """A mesh file read by trimesh (no processing) and checked: ``(vertices, faces, uv)``.
 
-    vertices (V, 3) float64 as stored; faces (F, 3) int64 indexing them; per-vertex
-    UVs (V, 2) float64 as stored (v upwards; texture visuals, or PLY ``s``/``t``,
-    ``u``/``v`` or ``texture_u``/``texture_v`` vertex properties), finite, or None.
     An OBJ file is first parsed as :func:`read_obj` does, with checks trimesh does not
     make (a ``v`` line with two numbers drops z from every vertex in trimesh, the
     invalid index 0 becomes vertex 1), and read without its materials: the UVs as stored,
     not repacked into a texture atlas of the materials' images.
+
+    Parameters
+    ----------
+    path : str or path-like
+        A mesh file trimesh reads (OBJ, PLY, ...).
+
+    Returns
+    -------
+    vertices : ndarray of float64, shape (V, 3)
+        As stored (no scale, no transform).
+    faces : ndarray of int64, shape (F, 3)
+        Indexing ``vertices``.
+    uv : ndarray of float64, shape (V, 2), or None
+        Per-vertex UVs as stored (v upwards; texture visuals, or PLY ``s``/``t``, ``u``/``v`` or
+        ``texture_u``/``texture_v`` vertex properties), finite.
 
     Raises
     ------
@@ -322,7 +334,32 @@ def _read_ply(path, scale, transform, flip_v) -> UVMesh:
 
 
 def read_mesh(path, *, scale=1.0, transform=None, flip_v=True) -> UVMesh:
-    """Read an OBJ (:func:`read_obj`) or PLY (through trimesh, per-vertex UVs) mesh."""
+    """Read an OBJ (:func:`read_obj`) or PLY (through trimesh, per-vertex UVs) mesh.
+
+    Parameters
+    ----------
+    path : str or path-like
+        An existing ``.obj`` or ``.ply`` file.
+    scale : float
+        Factor to mm (> 0; e.g. 10 for cm).
+    transform : array_like (4, 4), optional
+        Rigid transform applied after scaling.
+    flip_v : bool
+        Flip v (files store v up; facestats has v down).
+
+    Returns
+    -------
+    UVMesh
+        ``uv`` None when the file has no texture coordinates; a PLY's UVs are per vertex (``uv_triangles`` equals
+        ``triangles``).
+
+    Raises
+    ------
+    ValidationError
+        ``path`` does not exist, ``scale`` is not > 0 or ``transform`` is not rigid.
+    FormatError
+        Another extension, or a file that cannot be read as a mesh (the message names it).
+    """
     if not os.path.exists(path):  # before the suffix: '/nope' was "must be .obj or .ply" (a fresh-user red team)
         raise ValidationError(f"mesh file must name an existing .obj or .ply file, got {os.fspath(path)!r}")
     ext = os.path.splitext(os.fspath(path))[1].lower()
@@ -336,10 +373,30 @@ def read_mesh(path, *, scale=1.0, transform=None, flip_v=True) -> UVMesh:
 def read_vertices(path, neutral: UVMesh, *, scale=1.0, transform=None) -> np.ndarray:
     """The vertex positions of a frame or target file, checked against the neutral's topology.
 
+    Parameters
+    ----------
+    path : str or path-like
+        An OBJ or PLY file (read as :func:`read_obj` / :func:`read_mesh` do, v not flipped).
+    neutral : UVMesh
+        The rest mesh, in mm.
+    scale : float
+        Factor to mm (> 0; e.g. 10 for cm).
+    transform : array_like (4, 4), optional
+        Rigid transform applied after scaling.
+
+    Returns
+    -------
+    ndarray of float64, shape (V, 3)
+        Positions, mm.
+
     Raises
     ------
     FormatError
-        If the vertex count differs, or the file's faces differ from the neutral's.
+        If the vertex count differs, the file's faces (if it has any) differ from the neutral's, or the
+        frame's extent (bounding-box diagonal) is not within 0.5-2 times the neutral's (a unit mismatch);
+        or the file cannot be read.
+    ValidationError
+        ``scale`` not > 0 or ``transform`` not rigid; a missing PLY file.
     """
     name = os.fspath(path)
     ext = os.path.splitext(name)[1].lower()
@@ -465,6 +522,11 @@ def read_weights(path) -> tuple[list[str], np.ndarray]:
     """Per-frame blendshape weights from a CSV file: a header of target names, one row per frame.
 
     A first column named ``frame`` (frame numbers) is ignored.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The CSV file.
 
     Returns
     -------

@@ -157,6 +157,16 @@ def blend_weight(albedo) -> float:
     """The ``blendbsdf`` weight w of the surface material: min(0.5, 1 − max α), at least 1e-3 (module docstring).
 
     The diffuse map α/(1 − w) then stays within [0, 1], which Mitsuba's spectral variants clamp a reflectance to.
+
+    Parameters
+    ----------
+    albedo : array_like
+        The diffuse albedo α (any shape); NaN is ignored.
+
+    Returns
+    -------
+    float
+        w in [1e-3, 0.5]; 0.5 for an albedo ≤ 0.5 (or all NaN).
     """
     top = float(np.nanmax(np.asarray(albedo, np.float64), initial=0.0))
     return float(min(0.5, max(1.0 - top, 1e-3)))
@@ -203,6 +213,11 @@ def check_medium(sigma_a, sigma_s_prime):
 
     Mitsuba's ``homogeneous`` medium takes albedo σ's/σt and σt (module docstring); with σt = 0 in a channel
     the albedo is 0/0, a NaN that Mitsuba renders as NaN pixels without complaint.
+
+    Parameters
+    ----------
+    sigma_a, sigma_s_prime : array_like, shape (C,)
+        Absorption and reduced scattering coefficients per channel, mm⁻¹.
 
     Returns
     -------
@@ -319,7 +334,25 @@ def scene_spec(
 
 
 def spec_to_dict(spec, base_dir=None):
-    """A :func:`scene_spec` as the dict ``mitsuba.load_dict`` takes (file names joined to ``base_dir``)."""
+    """A :func:`scene_spec` as the dict ``mitsuba.load_dict`` takes (file names joined to ``base_dir``).
+
+    Parameters
+    ----------
+    spec : dict
+        A :func:`scene_spec` (not modified).
+    base_dir : str or os.PathLike, optional
+        Folder of the scene's files (default: file names left as they are).
+
+    Returns
+    -------
+    dict
+        Transforms as ``mitsuba.ScalarTransform4f``.
+
+    Raises
+    ------
+    DependencyError
+        Mitsuba 3 is not installed.
+    """
     mi = require_mitsuba()
 
     def convert(key, value):
@@ -377,7 +410,18 @@ def _xml_plugin(parent, spec, name=None, ident=None):
 
 
 def spec_to_xml(spec) -> str:
-    """A :func:`scene_spec` as Mitsuba 3 scene XML (``version="3.0.0"``); needs no Mitsuba installed."""
+    """A :func:`scene_spec` as Mitsuba 3 scene XML (``version="3.0.0"``); needs no Mitsuba installed.
+
+    Parameters
+    ----------
+    spec : dict
+        A :func:`scene_spec`.
+
+    Returns
+    -------
+    str
+        The XML document, indented, ending in a newline.
+    """
     root = ET.Element("scene", version="3.0.0")
     for key, value in spec.items():
         if key != "type":
@@ -473,6 +517,17 @@ def write_mitsuba_scene(ds, out_dir, *, probe=None, material="surface", mesh=Non
 
 def render_scene(scene, *, base_dir=None, spp=None, seed=0) -> np.ndarray:
     """Render a scene with Mitsuba 3 (``scalar_rgb``): a :func:`scene_spec` dict or a ``scene.xml`` path.
+
+    Parameters
+    ----------
+    scene : dict or str or path-like
+        A :func:`scene_spec` dict, or the path of an existing ``scene.xml``.
+    base_dir : str or path-like, optional
+        For a dict: the folder its file names are relative to (:func:`spec_to_dict`).
+    spp : int, optional
+        Samples per pixel in [1, 65536], instead of the scene's own.
+    seed : int
+        Seed of the sampler.
 
     Returns
     -------

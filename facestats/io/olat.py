@@ -156,7 +156,29 @@ def _read_mask(path: pathlib.Path, shape):
 
 
 def read_ground_truth_normals(folder, shape=None):
-    """Ground-truth normals of a DiLiGenT-style folder (H, W, 3), or None if the folder has none."""
+    """Ground-truth normals of a DiLiGenT-style folder (H, W, 3), or None if the folder has none.
+
+    Parameters
+    ----------
+    folder : str or path-like
+        The DiLiGenT-style folder; ``Normal_gt.mat`` is read first, else ``normals.npy``, else ``normal.txt``.
+    shape : tuple of int, optional
+        ``(H, W)`` of the images: checked against the normals, and needed to read ``normal.txt`` (one row per pixel,
+        row-major), which is ignored without it.
+
+    Returns
+    -------
+    ndarray of float64, shape (H, W, 3) or None
+        Unit normals, (0, 0, 0) off the object, as stored.
+
+    Raises
+    ------
+    FormatError
+        A ``Normal_gt.mat`` without the variable ``Normal_gt``, an unreadable file, non-numeric values, or a
+        ``normal.txt`` whose row count is not H·W.
+    ValidationError
+        Normals of another shape, or not unit length (within 1e-3) nor (0, 0, 0).
+    """
     folder = pathlib.Path(os.fspath(folder))
     mat, txt, npy = folder / "Normal_gt.mat", folder / "normal.txt", folder / "normals.npy"
     if mat.is_file():
@@ -423,8 +445,34 @@ def write_olat_manifest(folder, files, directions, intensities=None, *, encoding
                         extra_frames=None):  # fmt: skip
     """Write ``olat.json`` for images already in ``folder`` (lights in the facestats world frame).
 
-    ``extra_frames`` are ``(file, kind)`` pairs of auxiliary frames (full-on,
-    tracking) that readers skip.  Returns the manifest path.
+    Parameters
+    ----------
+    folder : str or path-like
+        The folder of the images; ``olat.json`` is written (replaced) there.
+    files : sequence of str
+        The light images' file names, relative to ``folder``.
+    directions : array_like, shape (N, 3)
+        Direction towards each file's light (world frame), written as given (the reader checks unit length).
+    intensities : array_like, shape (N, 3), optional
+        RGB intensity of each light (default all 1).
+    encoding : {"srgb", "linear"}
+        How the reader decodes 8-bit images.
+    mask : str, optional
+        File name of the mask image.
+    view : array_like, shape (3,), optional
+        Unit vector towards the camera.
+    extra_frames : iterable of (str, str), optional
+        ``(file, kind)`` pairs of auxiliary frames (full-on, tracking) that readers skip.
+
+    Returns
+    -------
+    pathlib.Path
+        The manifest written.
+
+    Raises
+    ------
+    ValidationError
+        ``directions`` or ``intensities`` not one 3-vector per file, or an unknown ``encoding``.
     """
     folder = pathlib.Path(os.fspath(folder))
     d = np.asarray(directions, np.float64).reshape(-1, 3)

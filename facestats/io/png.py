@@ -45,7 +45,24 @@ _COLOUR_TYPE = {1: 0, 3: 2, 4: 6}
 
 
 def png_chunk(tag: bytes, data: bytes) -> bytes:
-    """One PNG chunk: length (4 bytes, big-endian), type, data, CRC-32 of type and data."""
+    """One PNG chunk: length (4 bytes, big-endian), type, data, CRC-32 of type and data.
+
+    Parameters
+    ----------
+    tag : bytes
+        The chunk type, 4 bytes (e.g. ``b"IDAT"``).
+    data : bytes
+        The chunk data.
+
+    Returns
+    -------
+    bytes
+
+    Raises
+    ------
+    ValidationError
+        ``tag`` is not 4 bytes.
+    """
     if not isinstance(tag, bytes) or len(tag) != 4:
         raise ValidationError(f"a PNG chunk type has 4 bytes, got {tag!r}")
     body = tag + data

@@ -95,6 +95,27 @@ def write_light_probe(path, probe, layout: str = "latlong", *, half: bool = Fals
     The probe is checked as :func:`read_light_probe` checks it (finite, ≥ 0, the
     aspect ratio of ``layout``).  ``half`` stores half floats in EXR.  The layout
     is recorded in an EXR ``layout`` attribute (other formats cannot carry it).
+
+    Parameters
+    ----------
+    path : str or path-like
+        ``.hdr``, ``.pic``, ``.exr`` or ``.pfm``, in an existing folder.
+    probe : array_like, shape (H, W, 3)
+        Linear radiance.
+    layout : {"latlong", "angular"}
+        The probe's layout (W = 2H or W = H).
+    half : bool
+        EXR only: half floats instead of float32.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+
+    Raises
+    ------
+    ValidationError
+        Another extension, a missing folder, an unknown layout, or a probe that fails the checks.
     """
     # local imports: facestats.io imports this module, so `facestats query` would load them (and facestats.model)
     from facestats.io.images import write_image
@@ -139,6 +160,19 @@ def studio_probe(height: int = 32, *, key=(0.45, 0.5, 0.77), key_radiance=40.0, 
 
 
 def write_studio_probe(path, height: int = 32) -> str:
-    """Write :func:`studio_probe` as an EXR (layout recorded in its header); returns ``path`` as a string."""
+    """Write :func:`studio_probe` as a lat-long light probe file; returns ``path`` as a string.
+
+    Parameters
+    ----------
+    path : str or path-like
+        ``.exr`` (the layout recorded in its header; what :mod:`facestats.io.mitsuba` writes), or ``.hdr``,
+        ``.pic``, ``.pfm``, in an existing folder.
+    height : int
+        Rows of the probe (width twice this).
+
+    Returns
+    -------
+    str
+    """
     write_light_probe(path, studio_probe(height))
     return os.fspath(path)

@@ -57,7 +57,19 @@ _FOLDER = re.compile(r"[0-9]{8}T[0-9]{6}Z-[0-9a-f]{6}")
 
 
 def open_quarantine(root, reason: str) -> str:
-    """Create a new quarantine folder in the store at ``root`` and describe it; its absolute path.
+    """Create a new quarantine folder in the store at ``root`` and describe it; its path.
+
+    Parameters
+    ----------
+    root : str
+        The store directory.
+    reason : str
+        Why (recorded in ``QUARANTINE.json``).
+
+    Returns
+    -------
+    str
+        ``<root>/quarantine/<YYYYMMDDTHHMMSSZ>-<6 hex>`` (absolute only if ``root`` is).
 
     Raises
     ------
@@ -82,6 +94,17 @@ def open_quarantine(root, reason: str) -> str:
 
 def quarantine_move(root, qdir: str, rel: str, why: str) -> None:
     """Move ``rel`` (a path of the store) into the quarantine folder ``qdir``, keeping its relative path.
+
+    Parameters
+    ----------
+    root : str
+        The store directory.
+    qdir : str
+        A folder made by :func:`open_quarantine`.
+    rel : str
+        The path to move, relative to ``root`` (e.g. ``subjects/S001/<generation>``).
+    why : str
+        Listed with the item in ``QUARANTINE.json``.
 
     Raises
     ------
@@ -116,7 +139,24 @@ def _copy_then_remove(src: str, dst: str) -> None:
 
 
 def write_quarantine_json(qdir: str, name: str, obj, why: str) -> None:
-    """Save ``obj`` as ``<qdir>/<name>`` (e.g. the index entries a repair dropped) and list it."""
+    """Save ``obj`` as ``<qdir>/<name>`` (e.g. the index entries a repair dropped) and list it.
+
+    Parameters
+    ----------
+    qdir : str
+        A folder made by :func:`open_quarantine`.
+    name : str
+        The file name inside it.
+    obj : object
+        A JSON-serialisable document.
+    why : str
+        Listed with the item in ``QUARANTINE.json``.
+
+    Raises
+    ------
+    StoreError
+        The file could not be written.
+    """
     try:
         write_json_atomic(os.path.join(qdir, name), obj)
     except OSError as exc:
@@ -151,7 +191,17 @@ def _read_manifest(qdir: str) -> tuple[dict | None, str | None]:
 
 
 def manifest_problem(doc) -> str | None:
-    """What is wrong with a ``QUARANTINE.json`` document (naming the field and the value), or None if it is valid."""
+    """What is wrong with a ``QUARANTINE.json`` document (naming the field and the value), or None if it is valid.
+
+    Parameters
+    ----------
+    doc : object
+        The document as decoded from JSON.
+
+    Returns
+    -------
+    str or None
+    """
 
     def show(v) -> str:
         text = repr(v)
@@ -198,6 +248,11 @@ def _size(path: str) -> int:
 def list_quarantine(root) -> list[dict]:
     """The quarantine folders of the store at ``root``, oldest first.
 
+    Parameters
+    ----------
+    root : str
+        The store directory.
+
     Returns
     -------
     list of dict
@@ -227,6 +282,13 @@ def list_quarantine(root) -> list[dict]:
 
 def purge_quarantine(root, names=None) -> list[str]:
     """Delete quarantine folders (all, or those in ``names``) that carry a valid ``QUARANTINE.json``.
+
+    Parameters
+    ----------
+    root : str
+        The store directory.
+    names : collection of str, optional
+        Names of the folders to remove (as :func:`list_quarantine` gives them); default all.
 
     Returns
     -------

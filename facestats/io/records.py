@@ -56,12 +56,34 @@ STATES = ("writing", "committed", "retired")
 
 
 def record_name(sid: str, gen: str) -> str:
-    """The file name of the record of generation ``gen`` of subject ``sid`` (in ``.records/``)."""
+    """The file name of the record of generation ``gen`` of subject ``sid`` (in ``.records/``).
+
+    Parameters
+    ----------
+    sid, gen : str
+        Subject id and generation name (not checked).
+
+    Returns
+    -------
+    str
+        ``<sid>~<gen>.json``.
+    """
     return f"{sid}~{gen}.json"
 
 
 def parse_record_name(name: str):
-    """``(sid, gen)`` of a record file name, or None if ``name`` is not one (the id is not checked here)."""
+    """``(sid, gen)`` of a record file name, or None if ``name`` is not one (the id is not checked here).
+
+    Parameters
+    ----------
+    name : str
+        A file name in ``.records/``.
+
+    Returns
+    -------
+    tuple of str or None
+        ``gen`` is a generation name (:func:`facestats.io.layout.is_generation`) and ``sid`` is not empty.
+    """
     if not name.endswith(".json") or "~" not in name:
         return None
     sid, _, gen = name[:-5].rpartition("~")
@@ -69,7 +91,20 @@ def parse_record_name(name: str):
 
 
 def record_path(root, sid: str, gen: str) -> str:
-    """The record file of generation ``gen`` of subject ``sid`` in the store at ``root``."""
+    """The record file of generation ``gen`` of subject ``sid`` in the store at ``root``.
+
+    Parameters
+    ----------
+    root : str or os.PathLike
+        The store directory.
+    sid, gen : str
+        Subject id and generation name (not checked).
+
+    Returns
+    -------
+    str
+        ``<root>/.records/<sid>~<gen>.json``.
+    """
     return os.path.join(os.fspath(root), RECORDS, record_name(sid, gen))
 
 
@@ -80,6 +115,18 @@ def read_record(root, sid: str, gen: str) -> dict | None:
     names this very subject and generation in the current format, with a known
     state and revisions that are integers >= 0 (:func:`inspect_record` says
     what is wrong with one that does not).
+
+    Parameters
+    ----------
+    root : str or os.PathLike
+        The store directory.
+    sid, gen : str
+        Subject id and generation name.
+
+    Returns
+    -------
+    dict or None
+        The record document.
     """
     return inspect_record(root, sid, gen)[0]
 
@@ -95,6 +142,18 @@ def inspect_record(root, sid: str, gen: str) -> tuple[dict | None, str | None]:
     field and the value.  Anything else that is not a valid record (a link,
     unreadable, not JSON, about another generation) is not provably the
     store's: ``(None, None)``.
+
+    Parameters
+    ----------
+    root : str or os.PathLike
+        The store directory.
+    sid, gen : str
+        Subject id and generation name.
+
+    Returns
+    -------
+    record : dict or None
+    problem : str or None
     """
     path = record_path(root, sid, gen)
     try:
@@ -126,7 +185,18 @@ def _is_revision(v) -> bool:
 
 
 def record_problem(rec: dict) -> str | None:
-    """What is wrong with the fields of a record document (its state, revisions, creation time), or None."""
+    """What is wrong with the fields of a record document (its state, revisions, creation time), or None.
+
+    Parameters
+    ----------
+    rec : dict
+        A record document (its identity fields are not checked here).
+
+    Returns
+    -------
+    str or None
+        The first problem found, naming the field and the value.
+    """
     if rec.get("state") not in STATES:
         return f"field 'state' must be one of {list(STATES)}, got {rec.get('state')!r}"
     for key in ("committed_revision", "retired_revision"):
@@ -168,6 +238,24 @@ def mark_record(root, sid: str, gen: str, state: str, revision: int) -> None:
     A missing record (a generation written before records existed) is created.
     Called under the store lock by the commit; failures are left to
     ``facestats validate --repair`` to heal (the index is the commit point).
+
+    Parameters
+    ----------
+    root : str or os.PathLike
+        The store directory.
+    sid, gen : str
+        Subject id and generation name.
+    state : {"committed", "retired"}
+        The new state; ``<state>_revision`` is set to ``revision``.
+    revision : int
+        The index revision.
+
+    Raises
+    ------
+    OSError
+        The record could not be written.
+    StoreError
+        The record's path passes through a symbolic link (:func:`facestats.io.layout.confined`).
     """
     rec = read_record(root, sid, gen) or {}
     fields = {k: v for k, v in rec.items() if k not in ("facestats_generation", "subject", "generation", "state")}

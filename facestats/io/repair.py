@@ -580,6 +580,26 @@ def apply_repair(root, plan: RepairPlan, *, label: str, lock, root_attrs: dict) 
 
     Actions whose premise no longer holds are skipped and said so.
 
+    Parameters
+    ----------
+    root : str
+        The store directory.
+    plan : RepairPlan
+        From :func:`plan_repair`.
+    label : str
+        The store's name in messages.
+    lock : facestats.io.locking.FileLock
+        The store lock, not yet held (acquired and released here).
+    root_attrs : dict
+        The root group's attributes as the caller knows them.
+
+    Returns
+    -------
+    done : list of str
+        What was done (and skipped), one sentence each.
+    root_attrs : dict
+        The root attributes after the commit (as given if nothing was committed).
+
     Raises
     ------
     StoreError

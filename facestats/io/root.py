@@ -100,6 +100,16 @@ def enclosing_store(p) -> Path | None:
 
     A folder is a store if its ``zarr.json`` is a Zarr group with the ``facestats_schema`` attribute
     (:func:`read_root_attrs`' test); every folder above ``p`` is looked at.
+
+    Parameters
+    ----------
+    p : str or os.PathLike
+        A path (it need not exist).
+
+    Returns
+    -------
+    pathlib.Path or None
+        The innermost such store folder.
     """
     here = Path(os.path.realpath(os.fspath(p)))
     for folder in here.parents:
@@ -259,8 +269,18 @@ def remove_empty_store(p, *, keep_folder: bool = False) -> bool:
     """Remove the store at ``p`` if it is exactly an empty store (no subject, nothing but its own files).
 
     Used to undo the creation of a store by a command that then failed.
-    With ``keep_folder`` the folder itself stays (it existed, empty, before the store was made in it).
-    Returns True if it was removed.
+
+    Parameters
+    ----------
+    p : str or os.PathLike
+        The store directory.
+    keep_folder : bool
+        Keep the folder itself (it existed, empty, before the store was made in it).
+
+    Returns
+    -------
+    bool
+        True if it was removed; False if it is not such a store, or an OSError or StoreError stopped it.
     """
     p = Path(p)
     own = {ROOT_META, INDEX_NAME, LOCK_NAME, WRITERS, RECORDS, SUBJECTS}
@@ -296,6 +316,15 @@ def new_store_guard(path):
     with an invalid argument found late, or ``facestats import-merl`` on a
     full disk).  A store made in a folder that existed empty is emptied again,
     the folder kept.
+
+    Parameters
+    ----------
+    path : str or os.PathLike or None
+        Where the block may create a store (None: the guard does nothing).
+
+    Yields
+    ------
+    None
     """
     created = []  # the store folder and the missing folders above it, innermost first
     was_empty = False

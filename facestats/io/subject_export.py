@@ -49,6 +49,20 @@ def store_subject(store, subject_id, *, lazy: bool = False):
     """``store.subject(id, lazy=lazy)`` after checking the id (:func:`facestats.io.ids.check_subject_id`) and its
     presence.
 
+    Parameters
+    ----------
+    store : facestats.io.store.Store
+        An open store.
+    subject_id : str
+        The subject's id.
+    lazy : bool
+        Passed to :meth:`facestats.io.store.Store.subject`.
+
+    Returns
+    -------
+    xarray.Dataset
+        The subject.
+
     Raises
     ------
     ValidationError

@@ -97,7 +97,20 @@ def column(kind: str, **keys) -> str:
 
 
 def region_sample_variables(kind: str, model: str = "ts") -> list:
-    """The variables :func:`region_samples` reads from a subject of ``kind`` ("maps" or "samples")."""
+    """The variables :func:`region_samples` reads from a subject of ``kind`` ("maps" or "samples").
+
+    Parameters
+    ----------
+    kind : str
+        The subject's kind; anything but ``"maps"`` is taken as ``"samples"``.
+    model : {"ts", "bp"}
+        The BRDF model of a map subject (:data:`MODEL_PARAMS`); sample subjects are Torrance-Sparrow only.
+
+    Returns
+    -------
+    list of str
+        ``region`` and the model's scale, lobe and flag maps, or the three ``ts_sample_*`` variables.
+    """
     if kind == "maps":
         return ["region", *MODEL_PARAMS[model]]
     return ["ts_sample_region", "ts_sample_rho_s", "ts_sample_m"]

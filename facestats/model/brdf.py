@@ -76,6 +76,21 @@ def half_vector(wi, wo):
     above the horizon, where it is always defined.  ``wi`` and ``wo`` are unit
     3-vectors on the last axis, broadcast against each other; their shapes are
     checked, their norms are not.
+
+    Parameters
+    ----------
+    wi, wo : array_like
+        (..., 3) directions towards the light and towards the viewer (unit vectors, not checked).
+
+    Returns
+    -------
+    ndarray
+        (..., 3) H, unit vectors, broadcast shape of ``wi`` and ``wo``.
+
+    Raises
+    ------
+    ValidationError
+        Non-numeric input, a last axis other than 3, or shapes that do not broadcast.
     """
     a = check_shape(as_float(wi, "wi"), "wi", (..., 3))
     b = check_shape(as_float(wo, "wo"), "wo", (..., 3))
@@ -292,6 +307,13 @@ def torrance_sparrow_geometry(normal, wi, wo, eta=ETA_SKIN):
     exponential per sample.  K = 0 where ωi or ωo is at or below the horizon.
     Only the types are checked (numeric arrays, :class:`~facestats.errors.ValidationError`
     otherwise): callers pass unit vectors (see :func:`torrance_sparrow`).
+
+    Parameters
+    ----------
+    normal, wi, wo : array_like, shape (..., 3)
+        Unit vectors pointing away from the surface (shapes checked, norms not).
+    eta : array_like, optional
+        Relative index of refraction of F_r, default 1.38 (not range-checked).
 
     Returns
     -------

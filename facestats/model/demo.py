@@ -63,7 +63,24 @@ class DemoReport:
 
 
 def plot_dipole_profiles(report: DemoReport, r_max: float = 10.0):
-    """Figure of R_d(r) (mm⁻², Jensen et al. 2001 dipole) per channel, r in [0, ``r_max``] mm, log scale, ℓd marked."""
+    """Figure of R_d(r) (mm⁻², Jensen et al. 2001 dipole) per channel, r in [0, ``r_max``] mm, log scale, ℓd marked.
+
+    Parameters
+    ----------
+    report : DemoReport
+        :func:`physics_demo`'s result: per-channel σ's, σa (mm⁻¹), σtr (ℓd = 1/σtr in mm) and η.
+    r_max : float
+        Largest distance plotted in mm, > 0 (400 samples from 0).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Raises
+    ------
+    ValidationError
+        A non-finite or non-positive ``r_max``.
+    """
     as_finite(r_max, "r_max", 0, None, low_inclusive=False, unit="mm")
     import matplotlib
 

@@ -81,6 +81,21 @@ def boundary_coefficient(eta=ETA_SKIN):
     gives R_d = 0.436, 0.227, 0.131 (R, G, B) against the tabulated 0.44, 0.22,
     0.13, where A = 1 (no mismatch) would give 0.547, 0.291, 0.161
     (``tests/model/test_dipole.py`` checks the red channel).
+
+    Parameters
+    ----------
+    eta : array_like, optional
+        Relative index of refraction in [1, 3] (range of the F_dr polynomial), default 1.38.
+
+    Returns
+    -------
+    ndarray
+        A, dimensionless, > 1 (3.116 at η = 1.38), the shape and float dtype of ``eta``.
+
+    Raises
+    ------
+    ValidationError
+        A non-numeric or non-finite η, or one outside [1, 3].
     """
     return _boundary(check_dipole_eta(eta))
 

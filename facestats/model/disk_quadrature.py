@@ -58,7 +58,20 @@ DISK_RULE = (8, 16)
 def is_near(distance, radius):
     """Whether a point at ``distance`` (mm) from a disk's centre takes the disk's integral instead of the point kernel:
     distance < NEAR_RADII × ``radius`` (mm), elementwise (module docstring).  The caller leaves out a patch and itself,
-    which takes its own footprint instead."""
+    which takes its own footprint instead.
+
+    Parameters
+    ----------
+    distance : array_like
+        Point-to-centre distances d in mm (not validated).
+    radius : array_like
+        Disk radii ρ = sqrt(A/π) in mm, broadcast against ``distance``.
+
+    Returns
+    -------
+    ndarray of bool
+        d < NEAR_RADII ρ, broadcast shape of the inputs (a numpy bool for scalars).
+    """
     return np.asarray(distance) < NEAR_RADII * np.asarray(radius)
 
 

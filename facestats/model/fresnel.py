@@ -146,7 +146,23 @@ def fresnel_transmittance(cos_theta, eta=ETA_SKIN):
     equations the transmittance from inside to the outside direction ω equals the
     transmittance from outside along ω.
 
-    Parameters and return as :func:`fresnel_reflectance`.
+    Parameters
+    ----------
+    cos_theta : array_like
+        Cosine of the incidence angle, in [0, 1] (as :func:`fresnel_reflectance`).
+    eta : array_like, optional
+        Relative index n_t / n_i, > 0.  Default 1.38 (air into skin).
+
+    Returns
+    -------
+    ndarray
+        Transmittance in [0, 1], broadcast shape of the inputs (a 0-d array for scalars); float32 if all float
+        inputs are float32, else float64.
+
+    Raises
+    ------
+    ValidationError
+        As :func:`fresnel_reflectance`: a non-finite or out-of-range cosine or η.
     """
     return np.asarray(1 - fresnel_reflectance(cos_theta, eta))  # a 0-d array for scalars, as fresnel_reflectance
 

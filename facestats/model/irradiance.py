@@ -206,7 +206,27 @@ def exitance_from_radiance(radiance, cos_o, eta=SUZUKI_ETA):
 
 
 def radiance_from_exitance(exitance, cos_o, eta=SUZUKI_ETA):
-    """L_o = F_t,o(η, ω_o) l_j / π, the inverse of :func:`exitance_from_radiance` (Suzuki eq. 14-15)."""
+    """L_o = F_t,o(η, ω_o) l_j / π, the inverse of :func:`exitance_from_radiance` (Suzuki eq. 14-15).
+
+    Parameters
+    ----------
+    exitance : array_like, shape (m,) or (m, C)
+        Exitance l_j in an irradiance unit (e.g. W mm⁻²), ≥ 0.
+    cos_o : array_like, shape (m,)
+        N·ω_o of each patch towards the camera, in [0, 1].
+    eta : float
+        Relative index of refraction (default 1.3, Suzuki §3.2).
+
+    Returns
+    -------
+    ndarray
+        L_o (e.g. W mm⁻² sr⁻¹), shape of ``exitance``; 0 where cos_o = 0 (F_t,o = 0).
+
+    Raises
+    ------
+    ValidationError
+        A negative or non-finite exitance, a cos_o outside [0, 1], or an invalid η.
+    """
     l = as_finite(exitance, "exitance", 0, None)
     ft = _exit_transmittance(cos_o, eta)
     return ft.reshape(ft.shape + (1,) * (l.ndim - ft.ndim)) * l / np.pi

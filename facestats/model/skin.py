@@ -208,7 +208,26 @@ def directional_lights(normals, directions, irradiance):
 
 
 def view_directions(positions, camera_positions):
-    """Unit directions from surface points towards camera centres, shape (N, C, 3)."""
+    """Unit directions from surface points towards camera centres, shape (N, C, 3).
+
+    Parameters
+    ----------
+    positions : array_like, shape (N, 3)
+        Surface points, mm.
+    camera_positions : array_like, shape (C, 3)
+        Camera centres, mm.
+
+    Returns
+    -------
+    ndarray, shape (N, C, 3)
+        Unit vectors ωo from each point towards each camera.
+
+    Raises
+    ------
+    ValidationError
+        Non-finite or wrongly shaped points, a camera at a surface point (distance 0), or one so far away
+        (about 1e154 mm) that the squared distance overflows.
+    """
     p = _points(positions, "positions")
     c = _points(camera_positions, "camera_positions")
     d = c[None, :, :] - p[:, None, :]
@@ -444,7 +463,33 @@ class SubsurfaceTransport:
 
 
 def specular_brdf(model, normal, wi, wo, rho_s, roughness, eta=ETA_SKIN):
-    """Evaluate the named specular BRDF: ``"torrance_sparrow"`` (roughness m) or ``"blinn_phong"`` (exponent)."""
+    """Evaluate the named specular BRDF: ``"torrance_sparrow"`` (roughness m) or ``"blinn_phong"`` (exponent).
+
+    Parameters
+    ----------
+    model : str
+        A key of :data:`SPECULAR_MODELS`: ``"torrance_sparrow"`` (Weyrich et al. 2006 eq. 12-13) or
+        ``"blinn_phong"`` (eq. 11).
+    normal, wi, wo : array_like, shape (..., 3)
+        Unit vectors pointing away from the surface.
+    rho_s : array_like
+        Specular scaling coefficient ρs ≥ 0.
+    roughness : array_like
+        Beckmann roughness m > 0 (Torrance-Sparrow) or specular exponent n ≥ 0 (Blinn-Phong).
+    eta : float or array_like, optional
+        Relative index of refraction, default 1.38; used by Torrance-Sparrow only (ignored by Blinn-Phong).
+
+    Returns
+    -------
+    ndarray
+        BRDF in sr⁻¹, broadcast shape of the inputs without the vector axis.
+
+    Raises
+    ------
+    ValidationError
+        An unknown ``model``, or the errors of :func:`facestats.model.brdf.torrance_sparrow` /
+        :func:`facestats.model.brdf.blinn_phong`.
+    """
     check_choice(model, "specular", SPECULAR_MODELS)
     if model == "torrance_sparrow":
         return _brdf.torrance_sparrow(normal, wi, wo, rho_s, roughness, eta)

@@ -101,7 +101,18 @@ def direction_from_angles(phi, theta):
 
 def angles_from_direction(directions):
     """(φ, θ) of unit directions: φ ∈ [0, π] from +y, θ ∈ (−π, π] from −z towards +x (inverse of
-    :func:`direction_from_angles`)."""
+    :func:`direction_from_angles`).
+
+    Parameters
+    ----------
+    directions : array_like, shape (..., 3)
+        Unit vectors (not validated: φ is the arccos of the clipped y component, so it assumes norm 1).
+
+    Returns
+    -------
+    phi, theta : ndarray, shape (...)
+        Polar angle and azimuth, radians, float64.
+    """
     d = np.asarray(directions, np.float64)
     phi = np.arccos(np.clip(d[..., 1], -1.0, 1.0))
     theta = np.arctan2(d[..., 0], -d[..., 2])
@@ -115,7 +126,25 @@ def _check_size(height, width):
 
 
 def latlong_edges(height: int, width: int):
-    """Cell edges of the lat-long layout: polar edges φ (H + 1,) and azimuth edges θ (W + 1,), radians."""
+    """Cell edges of the lat-long layout: polar edges φ (H + 1,) and azimuth edges θ (W + 1,), radians.
+
+    Parameters
+    ----------
+    height, width : int
+        Rows H and columns W of the image, ≥ 1.
+
+    Returns
+    -------
+    phi_edges : ndarray, shape (H + 1,)
+        φ from 0 (+y) to π, radians.
+    theta_edges : ndarray, shape (W + 1,)
+        θ from −π to π, radians.
+
+    Raises
+    ------
+    ValidationError
+        ``height`` or ``width`` not an integer ≥ 1.
+    """
     h, w = _check_size(height, width)
     return np.linspace(0.0, np.pi, h + 1), np.linspace(-np.pi, np.pi, w + 1)
 
@@ -125,6 +154,23 @@ def latlong_directions(height: int, width: int, rows: slice | None = None) -> np
 
     Pixel (i, j) has φ = π (i + ½)/H and θ = 2π (j + ½)/W − π (module docstring).  ``rows`` (a slice with
     step 1): only those rows, shape (len, W, 3), the same values as the full image's.
+
+    Parameters
+    ----------
+    height, width : int
+        Rows H and columns W, ≥ 1.
+    rows : slice, optional
+        Consecutive rows to compute (step 1); default all H.
+
+    Returns
+    -------
+    ndarray, shape (H, W, 3) or (len(rows), W, 3)
+        Unit light directions, float64.
+
+    Raises
+    ------
+    ValidationError
+        ``height`` or ``width`` not an integer ≥ 1, or ``rows`` with a step other than 1.
     """
     h, w = _check_size(height, width)
     r = range(h) if rows is None else range(h)[rows]
@@ -142,6 +188,21 @@ def latlong_solid_angles(height: int, width: int) -> np.ndarray:
     spaced in polar angle, so the area of a cell is its azimuth width times the
     difference of the cosines of its polar edges (Debevec et al. 2000 eq. 4, δA;
     the paper's δA = sin φ is its first-order form).
+
+    Parameters
+    ----------
+    height, width : int
+        Rows H and columns W, ≥ 1.
+
+    Returns
+    -------
+    ndarray, shape (H, W)
+        ΔΩ_ij in sr, float64 (equal along a row).
+
+    Raises
+    ------
+    ValidationError
+        ``height`` or ``width`` not an integer ≥ 1.
     """
     phi_e, _ = latlong_edges(height, width)
     w = int(width)
@@ -154,6 +215,23 @@ def latlong_coordinates(directions, height: int, width: int):
 
     Row = H φ/π − ½, column = W (θ + π)/(2π) − ½, with θ ∈ (−π, π]; columns
     wrap (a caller interpolating must take them modulo W).
+
+    Parameters
+    ----------
+    directions : array_like, shape (..., 3)
+        Unit light directions (not validated, see :func:`angles_from_direction`).
+    height, width : int
+        Rows H and columns W of the image, ≥ 1.
+
+    Returns
+    -------
+    row, column : ndarray, shape (...)
+        Continuous pixel coordinates (pixel centres at integers), float64; columns are not wrapped.
+
+    Raises
+    ------
+    ValidationError
+        ``height`` or ``width`` not an integer ≥ 1.
     """
     h, w = _check_size(height, width)
     phi, theta = angles_from_direction(directions)
@@ -333,6 +411,13 @@ def light_stage_directions(n_theta: int = 64, n_phi: int = 32):
     180/32°): it is :func:`latlong_directions` ``(n_phi, n_theta)``, so a light
     probe in the lat-long layout resamples to it by exact cell overlaps.
 
+    Parameters
+    ----------
+    n_theta : int
+        Azimuths θ (columns), ≥ 1; 64 on the light stage.
+    n_phi : int
+        Inclinations φ (rows), ≥ 1; 32 on the light stage.
+
     Returns
     -------
     directions : ndarray, shape (n_phi, n_theta, 3)
@@ -372,6 +457,13 @@ def angular_directions(size: int, rows: slice | None = None):
     """Unit directions of the pixel centres of an angular (light-probe) image (``rows``: only those rows, the same
     values as the full image's).
 
+    Parameters
+    ----------
+    size : int
+        Side S of the image in pixels, ≥ 1.
+    rows : slice, optional
+        Consecutive rows to compute (step 1); default all S (the arrays below then have len(rows) rows).
+
     Returns
     -------
     directions : ndarray, shape (S, S, 3)
@@ -395,6 +487,25 @@ def angular_solid_angles(size: int, order: int = 8, rows: slice | None = None) -
     S = 8, 1e-7 at S = 256).  Pixels wholly inside the disc, where the integrand is analytic, take
     min(``order``, :data:`INTERIOR_ORDER`)²: checked against order 8, the same to 5e-8 relative at
     S = 3, 2e-11 at S = 8 and 1e-14 from S = 32 (four times fewer evaluations than order 8 everywhere).
+
+    Parameters
+    ----------
+    size : int
+        Side S of the image in pixels, ≥ 1.
+    order : int
+        Gauss-Legendre order per axis on the rim pixels, in [1, 64].
+    rows : slice, optional
+        Consecutive rows to compute (step 1); default all S.
+
+    Returns
+    -------
+    ndarray, shape (S, S) or (len(rows), S)
+        Solid angles in sr, float64; 0 for pixels wholly outside the disc.
+
+    Raises
+    ------
+    ValidationError
+        ``size`` or ``order`` not an integer in range, or ``rows`` with a step other than 1.
     """
     s = check_integer(size, "size", 1)
     n = check_integer(order, "order", 1, 64)
@@ -425,7 +536,25 @@ def _pixel_quadrature(u0, v0, half, n):
 
 def angular_coordinates(directions, size: int):
     """Continuous (row, column) of directions in an angular image of side ``size`` (inverse of
-    :func:`angular_directions`; the direction +z maps to the disc's rim)."""
+    :func:`angular_directions`; the direction +z maps to the disc's rim).
+
+    Parameters
+    ----------
+    directions : array_like, shape (..., 3)
+        Unit light directions (not validated).
+    size : int
+        Side S of the image in pixels, ≥ 1.
+
+    Returns
+    -------
+    row, column : ndarray, shape (...)
+        Continuous pixel coordinates (pixel centres at integers), float64.
+
+    Raises
+    ------
+    ValidationError
+        ``size`` not an integer ≥ 1.
+    """
     s = check_integer(size, "size", 1)
     d = np.asarray(directions, np.float64)
     alpha = np.arccos(np.clip(-d[..., 2], -1.0, 1.0))
@@ -437,14 +566,48 @@ def angular_coordinates(directions, size: int):
 
 
 def rotation_y(angle) -> np.ndarray:
-    """Right-handed rotation matrix about +y by ``angle`` radians (module docstring), shape (3, 3)."""
+    """Right-handed rotation matrix about +y by ``angle`` radians (module docstring), shape (3, 3).
+
+    Parameters
+    ----------
+    angle : float
+        Rotation angle β, radians (one finite number).
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+        R_y(β), float64; it maps azimuth θ to θ − β.
+
+    Raises
+    ------
+    ValidationError
+        A non-numeric, non-finite or non-scalar ``angle``.
+    """
     b = as_scalar(angle, "angle")
     c, s = np.cos(b), np.sin(b)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
 def rotate_directions(directions, angle) -> np.ndarray:
-    """Directions rotated about +y by ``angle`` radians (right-handed): R_y(angle) d on the last axis."""
+    """Directions rotated about +y by ``angle`` radians (right-handed): R_y(angle) d on the last axis.
+
+    Parameters
+    ----------
+    directions : array_like, shape (..., 3)
+        Finite 3-vectors (norms are not checked and are kept).
+    angle : float
+        Rotation angle, radians (one finite number).
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        The rotated vectors, float64.
+
+    Raises
+    ------
+    ValidationError
+        Non-finite or wrongly shaped ``directions``, or an invalid ``angle`` (see :func:`rotation_y`).
+    """
     d = check_shape(as_finite(directions, "directions", dtype=np.float64), "directions", (..., 3))
     return d @ rotation_y(angle).T
 
@@ -453,7 +616,29 @@ def unit_directions(value, name: str = "directions", tol: float = 1e-3, *, allow
     """Validate finite 3-vectors of norm 1 ± ``tol`` on the last axis; returned normalised, float64.
 
     ``allow_zero``: zero vectors are accepted and stay zero (per-pixel maps that hold 0 where there is no
-    surface, such as a stage field's ``view`` off the face)."""
+    surface, such as a stage field's ``view`` off the face).
+
+    Parameters
+    ----------
+    value : array_like, shape (..., 3)
+        The vectors.
+    name : str
+        The argument's name, for error messages.
+    tol : float
+        Tolerance of the norm, |‖d‖ − 1| ≤ ``tol``.
+    allow_zero : bool
+        Accept zero vectors (returned as zero).
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        The vectors divided by their norms, float64.
+
+    Raises
+    ------
+    ValidationError
+        Non-numeric or non-finite values, a last axis other than 3, or a norm outside 1 ± ``tol``.
+    """
     d = check_shape(as_finite(value, name, dtype=np.float64), name, (..., 3))
     norm = check_unit_vectors(d, name, tol, allow_zero=allow_zero, norms=True)
     return d / np.where(norm == 0, 1.0, norm)[..., None]
@@ -488,6 +673,16 @@ def light_reach(directions) -> float:
     from behind gave the front LEDs all of its 2π sr (found by a red team on the real folder).  With at most a
     third of the other lights (k = 2 there, still past a twin) the reach is 59°: the cells cover 7.09 sr, the
     front hemisphere whole, and 0.81 sr of the back-lit probe's 2π reaches the LEDs.
+
+    Parameters
+    ----------
+    directions : array_like, shape (L, 3)
+        Unit light directions (not validated; any shape is read as rows of 3).
+
+    Returns
+    -------
+    float
+        The reach in radians, at most π.
     """
     from scipy.spatial import cKDTree
 
@@ -502,7 +697,25 @@ def light_reach(directions) -> float:
 
 def resolve_reach(reach, directions) -> float:
     """The reach (radians) of ``reach``: ``"auto"`` → :func:`light_reach`, None → π (cells unbounded), else the
-    angle, checked in (0, π]."""
+    angle, checked in (0, π].
+
+    Parameters
+    ----------
+    reach : "auto", float or None
+        The requested reach.
+    directions : array_like, shape (L, 3)
+        Unit light directions, used only for ``"auto"``.
+
+    Returns
+    -------
+    float
+        The reach in radians, in (0, π].
+
+    Raises
+    ------
+    ValidationError
+        A ``reach`` that is not ``"auto"``, None or one finite angle in (0, π].
+    """
     if isinstance(reach, str) and reach == "auto":
         return light_reach(directions)
     if reach is None:
@@ -515,7 +728,22 @@ def resolve_reach(reach, directions) -> float:
 
 def nearest_light(directions, samples, reach: float):
     """Index of the nearest light of each sample direction (its Voronoi cell); ``len(directions)`` where no light
-    lies within ``reach`` radians (:func:`light_reach`).  Both arguments unit vectors, (L, 3) and (N, 3)."""
+    lies within ``reach`` radians (:func:`light_reach`).
+
+    Parameters
+    ----------
+    directions : array_like, shape (L, 3)
+        Unit light directions (not validated).
+    samples : array_like, shape (N, 3)
+        Unit sample directions (not validated).
+    reach : float
+        Largest angle from a sample to its light, radians; ≥ π leaves the cells unbounded.
+
+    Returns
+    -------
+    ndarray of int, shape (N,)
+        Light index in [0, L) per sample, or L where no light lies within ``reach``.
+    """
     from scipy.spatial import cKDTree
 
     d = np.asarray(directions, np.float64).reshape(-1, 3)

@@ -95,6 +95,23 @@ def triangulate(polygons) -> tuple[np.ndarray, np.ndarray]:
 
     A quad ``(a, b, c, d)`` becomes ``(a, b, c)`` and ``(a, c, d)`` (fan split;
     the winding is kept).
+
+    Parameters
+    ----------
+    polygons : array_like of int, shape (F, 3) or (F, 4)
+        Vertex indices of triangles or quads.
+
+    Returns
+    -------
+    triangles : ndarray of int64, shape (F', 3)
+        F' = F for triangles (returned as given), 2F for quads (a quad's two triangles next to each other).
+    source : ndarray of int, shape (F',)
+        Index of the polygon each triangle comes from.
+
+    Raises
+    ------
+    ValidationError
+        ``polygons`` not an integer array of shape (F, 3) or (F, 4).
     """
     p = np.asarray(polygons)
     if p.ndim != 2 or p.shape[1] not in (3, 4) or p.dtype.kind not in "iu":
@@ -709,6 +726,18 @@ def vertex_strain(rest_vertices, deformed_vertices, triangles, uv, *, uv_triangl
 
     Parameters as :func:`triangle_strain`; the result has one entry per UV
     coordinate (per vertex when ``uv_triangles`` is None).
+
+    Parameters
+    ----------
+    rest_vertices, deformed_vertices, triangles, uv
+        As :func:`triangle_strain` (positions in mm, UV in [0, 1], u right, v down).
+    uv_triangles : array_like of int, optional
+        Per-corner UV indices (meshes with UV seams).
+
+    Returns
+    -------
+    Strain
+        One entry per UV coordinate.
     """
     return MeshStrain(rest_vertices, triangles, uv, uv_triangles).vertices_strain(deformed_vertices)
 
@@ -718,8 +747,22 @@ def texel_strain(
 ) -> TexelStrain:
     """Per-texel strain: per-UV-vertex T and M interpolated as tensors into texels, then eq. 11-13.
 
-    Parameters as :func:`triangle_strain`, plus ``map_shape`` (int or
-    ``(height, width)``) and an optional ``window = (row0, col0, height, width)``
-    of it.  Texels no triangle covers have ``valid`` False, ``island`` 0 and r = 1.
+    Texels no triangle covers have ``valid`` False, ``island`` 0 and r = 1.
+
+    Parameters
+    ----------
+    rest_vertices, deformed_vertices, triangles, uv
+        As :func:`triangle_strain` (positions in mm, UV in [0, 1], u right, v down).
+    map_shape : int or (int, int)
+        Size of the whole map in texels, ``(height, width)`` (an int for a square map).
+    uv_triangles : array_like of int, optional
+        Per-corner UV indices (meshes with UV seams).
+    window : (row0, col0, height, width), optional
+        Texels to rasterise (default: the whole map).
+
+    Returns
+    -------
+    TexelStrain
+        The strain of every texel of the window, arrays indexed ``[v, u]``.
     """
     return MeshStrain(rest_vertices, triangles, uv, uv_triangles).texels_strain(deformed_vertices, map_shape, window)

@@ -57,6 +57,17 @@ def scheduler_address(scheduler=None):
 
     ``scheduler="local"`` (:data:`LOCAL`) gives None whatever the variable says.
 
+    Parameters
+    ----------
+    scheduler : str, optional
+        A scheduler address (``tcp://host:8786``; protocols tcp, tls, ucx, inproc, ws, wss), ``"local"``, or
+        None to read :data:`SCHEDULER_VARIABLE` (unset or empty: None).
+
+    Returns
+    -------
+    str or None
+        The address, stripped of blanks, or None to run on this machine.
+
     Raises
     ------
     ValidationError
@@ -83,6 +94,20 @@ def scheduler_address(scheduler=None):
 
 def connect(address, timeout: float = 30.0):
     """A :class:`distributed.Client` connected to the scheduler at ``address``.
+
+    A ``tcp://`` address is first probed for a Dask handshake, so another service on that port fails fast.
+
+    Parameters
+    ----------
+    address : str
+        The scheduler's address, e.g. from :func:`scheduler_address`.
+    timeout : float
+        Seconds to wait for the scheduler (default 30).
+
+    Returns
+    -------
+    distributed.Client
+        Connected, not set as Dask's default scheduler.
 
     Raises
     ------
@@ -181,7 +206,19 @@ def _check_connectable(address):
 
 def is_url(path) -> bool:
     """True for ``scheme://…`` locations other than plain local paths (and other than ``file://``; schemes are
-    compared without regard to case, as RFC 3986 §3.1 has them)."""
+    compared without regard to case, as RFC 3986 §3.1 has them).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The location (its ``str`` is parsed).
+
+    Returns
+    -------
+    bool
+        Whether it holds ``://`` after a scheme of two or more characters (a drive letter is not one) other than
+        ``file``.
+    """
     scheme = urlparse(str(path)).scheme.lower()
     return "://" in str(path) and len(scheme) > 1 and scheme != "file"
 
@@ -192,12 +229,26 @@ def local_path(path, name="path") -> str:
     A relative path would be resolved against each worker's own working directory (another folder, or another
     machine's), so workers would read another capture or write another store than the caller named.
 
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A local path (absolute or relative to the working directory) or a ``file:///…`` URL (``file:/…`` and
+        ``file://localhost/…`` too). Other URLs are not refused here: callers test :func:`is_url` first.
+    name : str
+        The argument's name in messages (default ``"path"``).
+
+    Returns
+    -------
+    str
+        The path joined to the working directory (not normalised: ``..`` and links are left as written).
+
     Raises
     ------
     ValidationError
         A ``file://`` URL naming a host (``file://host/path``: facestats reads local files only; fsspec and this
         function would disagree on where it points), or a path that begins like a URL with one slash
-        (``s3:/bucket``), which would make a local folder ``s3:``.
+        (``s3:/bucket``), which would make a local folder ``s3:``; also an fsspec chained URL (``a::b``) or an
+        empty path.
     """
     text = str(path)
     parsed = urlparse(text)
@@ -222,7 +273,27 @@ def local_path(path, name="path") -> str:
 
 def store_directory(path, name="store") -> str:
     """The absolute local directory of a store location for writing (:func:`local_path`; ``file://`` URLs
-    accepted; object stores refused)."""
+    accepted; object stores refused).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The store's location.
+    name : str
+        The argument's name in messages (default ``"store"``).
+
+    Returns
+    -------
+    str
+        The absolute path, as :func:`local_path` gives it.
+
+    Raises
+    ------
+    StoreError
+        ``path`` is a URL (:func:`is_url`) of an object store.
+    ValidationError
+        As :func:`local_path`.
+    """
     text = str(path)
     if is_url(text):
         raise StoreError(

@@ -205,6 +205,26 @@ def contactless_population(
     writer replaces or deletes the subject meanwhile, a
     :class:`~facestats.errors.StoreError` says so and nothing is written.
 
+    Parameters
+    ----------
+    store : Store
+        A store open for writing that holds the subjects.
+    ids : iterable of str
+        The subjects, in order.
+    population : Population
+        The synthetic population whose truth (``population[id]``) the site images are simulated from
+        (e.g. :func:`facestats.acquire.synthetic.population.default_population`).
+    light : {"stripe", "spot"}
+        The projector pattern.
+    noise : float
+        Relative standard deviation of the images' multiplicative pixel noise, in [0, 1) (default 1 %).
+    spacing : float
+        Grid spacing of the site's window mesh, mm (default 0.3).
+    progress : bool
+        Show a bar over the subjects.
+    **options
+        Passed to :func:`fit_contactless` (``use_modulation``) and :func:`estimate_site`.
+
     Returns
     -------
     list of str
@@ -242,7 +262,26 @@ def contactless_study(
 ):
     """σtr from images against the truth and the contact-sensor fit, per subject, site and channel (no writing).
 
-    ``sites`` are among cheek and forehead (default both).
+    Parameters
+    ----------
+    ids : iterable of str
+        The subjects, in order.
+    store : Store
+        The store holding them (only read).
+    population : Population
+        The synthetic population whose truth (``population[id]``) gives the site images and the ``truth`` column.
+    light : {"stripe", "spot"}
+        The projector pattern.
+    noise : float
+        Relative standard deviation of the images' multiplicative pixel noise, in [0, 1) (default 1 %).
+    spacing : float
+        Grid spacing of the site's window mesh, mm (default 0.3).
+    sites : sequence of str
+        Sites among cheek and forehead (default both).
+    progress : bool
+        Show a bar over the subjects.
+    **options
+        Passed to :func:`fit_contactless` (``use_modulation``) and :func:`estimate_site`.
 
     Returns
     -------

@@ -233,7 +233,23 @@ def gathered(future, store, sid):
 
     A lost task whose subject is in the store anyway is done: its worker committed it before the task was lost
     (the scheduler lost a worker that had finished, or a worker shared with a subject that killed it).  A failed
-    subject keeps the number of attempts its record counts."""
+    subject keeps the number of attempts its record counts.
+
+    Parameters
+    ----------
+    future : distributed.Future or facestats.pipeline.cluster.Outcome
+        The subject's task; its result is the task's own ``(id, state, result)``.
+    store : str or None
+        The store directory the task writes to (and whose journal records it), or None.
+    sid : str
+        The task's subject id.
+
+    Returns
+    -------
+    tuple
+        The task's result; for a lost task ``(sid, "failed", error text)``, or ``(sid, "done", None)`` if the
+        subject is in ``store``.
+    """
     try:
         return future.result()
     except Exception as exc:  # the worker died or the task could not run: reported with the others
@@ -251,6 +267,17 @@ def gathered(future, store, sid):
 
 def run_journalled(journal, sid, fn, retries):
     """``fn()`` for subject ``sid`` with up to ``retries`` retries, recorded in ``journal`` (None: not recorded).
+
+    Parameters
+    ----------
+    journal : BuildJournal or None
+        Where each attempt's start, failure and finish are recorded.
+    sid : str
+        The subject id.
+    fn : callable
+        The work, called without arguments once per attempt; an ``Exception`` it raises fails the attempt.
+    retries : int
+        Attempts after the first, ≥ 0 (the callers check it).
 
     Returns
     -------
@@ -364,7 +391,22 @@ def _alive(record) -> bool:
 
 
 def build_status(store_path) -> BuildStatus:
-    """Done, running, interrupted and failed subjects of builds into the store at ``store_path``."""
+    """Done, running, interrupted and failed subjects of builds into the store at ``store_path``.
+
+    Parameters
+    ----------
+    store_path : str or os.PathLike
+        A directory store (a ``file://`` URL accepted).
+
+    Returns
+    -------
+    BuildStatus
+
+    Raises
+    ------
+    StoreError
+        ``store_path`` is an object store URL, or no readable store is there.
+    """
 
     store_path = store_directory(store_path)  # a file:// URL, as `facestats build --store` takes, is its path
     with open_store(store_path, mode="r") as store:

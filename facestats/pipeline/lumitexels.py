@@ -35,8 +35,17 @@ def fit_lumitexels(lt, settings: FitSettings | None = None, *, timings: dict | N
     ``settings.refine_albedo``; the grey specular residual (eq. 10); and the
     batch fit of each of ``settings.models`` (eq. 14), the later ones started
     from the first.  Lumitexels are independent: a block runs in pieces of
-    :data:`PIECE` lumitexels (cache-sized), concatenated.  ``timings``, if given, accumulates the
-    wall time of each stage (seconds, by stage name; ``benchmarks/bench_scale.bench_fit_stages``).
+    :data:`PIECE` lumitexels (cache-sized), concatenated.
+
+    Parameters
+    ----------
+    lt : facestats.acquire.capture.Lumitexels
+        The block of n lumitexels with their samples.
+    settings : FitSettings, optional
+        The fit's settings (default ``FitSettings()``); validated again (:func:`checked_settings`).
+    timings : dict, optional
+        If given, accumulates the wall time of each stage (seconds, by stage name;
+        ``benchmarks/bench_scale.bench_fit_stages``).
 
     Returns
     -------

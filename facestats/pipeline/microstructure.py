@@ -116,6 +116,20 @@ def tile_halo(mesh_strain: MeshStrain, map_shape, tile=None) -> int:
     = reach(tile) + reach(tile widened by reach(tile)) + 2.  Before 2026-12-06 one halo served every tile,
     from the smallest texel of the whole mesh: ICT-FaceKit's at 16K has a triangle of 0.31 µm texels, so
     every 512-texel tile of a face window grew by 1,940 texels a side (a 2,048² window took 88 s a frame).
+
+    Parameters
+    ----------
+    mesh_strain : facestats.model.strain.MeshStrain
+        The rest mesh's UV metrics.
+    map_shape : tuple of int
+        (H, W) of the map, texels.
+    tile : tuple of int, optional
+        (row0, col0, height, width) in texels; default the whole map.
+
+    Returns
+    -------
+    int
+        The halo, texels on each side of ``tile``.
     """
     h, w = map_shape
     return _TexelDensity(mesh_strain, map_shape).halo((0, 0, h, w) if tile is None else tile)
@@ -172,6 +186,18 @@ def mesh_texel_um(mesh_strain: MeshStrain, map_shape) -> float:
     A triangle's texels per mm are the singular values of diag(W, H) M (M: the UV metric of
     :class:`facestats.model.strain.MeshStrain`, columns = UV per mm); their geometric mean sqrt(|det|) gives its
     µm per texel, 1000 / sqrt(|det|).  NaN for a mesh with no valid triangle.
+
+    Parameters
+    ----------
+    mesh_strain : facestats.model.strain.MeshStrain
+        The rest mesh's UV metrics (degenerate rest triangles are left out).
+    map_shape : tuple of int
+        (H, W) of the map, texels.
+
+    Returns
+    -------
+    float
+        µm per texel (NaN without a triangle of nonzero area in UV).
     """
     h, w = map_shape
     m = mesh_strain.m[~mesh_strain.rest_degenerate] * np.array([w, h], float)[None, :, None]

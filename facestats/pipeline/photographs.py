@@ -67,13 +67,42 @@ class IngestReport:
 
 
 def default_work_path(store, subject_id) -> pathlib.Path:
-    """Where the capture of an ingest is kept by default: ``<store>.ingest/<subject_id>/capture.zarr``."""
+    """Where the capture of an ingest is kept by default: ``<store>.ingest/<subject_id>/capture.zarr``.
+
+    Parameters
+    ----------
+    store : str or os.PathLike
+        The store the ingest writes to.
+    subject_id : str
+        The subject's id.
+
+    Returns
+    -------
+    pathlib.Path
+        The capture's path beside the store (nothing is created).
+    """
     s = pathlib.Path(store)
     return s.with_name(s.name + ".ingest") / str(subject_id) / "capture.zarr"
 
 
 def find_region_image(mesh) -> pathlib.Path:
-    """The face-region image next to a mesh: ``<stem>.regions.png`` or ``<stem>.regions.npy``."""
+    """The face-region image next to a mesh: ``<stem>.regions.png``, ``<stem>.regions.npy`` or ``<stem>.regions.tif``.
+
+    Parameters
+    ----------
+    mesh : str or os.PathLike
+        The face mesh's file.
+
+    Returns
+    -------
+    pathlib.Path
+        The first of the three that is a file, in that order.
+
+    Raises
+    ------
+    FormatError
+        None of them is there.
+    """
     m = pathlib.Path(mesh)
     candidates = [m.with_name(f"{m.stem}.regions{ext}") for ext in (".png", ".npy", ".tif")]
     for c in candidates:

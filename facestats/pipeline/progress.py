@@ -11,7 +11,24 @@ __all__ = ["subject_bar", "TaskProgress"]
 
 
 def subject_bar(items, total, enabled, desc="build"):
-    """``items`` through a bar over ``total`` subjects (with ETA) when ``enabled``."""
+    """``items`` through a bar over ``total`` subjects (with ETA) when ``enabled``.
+
+    Parameters
+    ----------
+    items : iterable
+        What the loop iterates over (one item per subject).
+    total : int
+        Number of subjects (the bar's length).
+    enabled : bool
+        Show the bar (unless ``FACESTATS_PROGRESS=0``, :func:`facestats.core.progress.bars_enabled`).
+    desc : str
+        The bar's label (default ``"build"``).
+
+    Returns
+    -------
+    tqdm.auto.tqdm or facestats.core.progress.QuietBar
+        An iterable over ``items`` (:func:`facestats.core.progress.progress_bar`).
+    """
     return progress_bar(items, enabled=enabled, total=total, desc=desc, unit="subject")
 
 

@@ -160,7 +160,22 @@ def _samples(subject, capture, models, cameras, predict_radiance):
 
 
 def plot_residual_by_angle(result, ax=None):
-    """RMS and mean residual of each model against max(θi, θo) (a :class:`AngleResiduals`); returns the figure."""
+    """RMS and mean residual of each model against max(θi, θo) (a :class:`AngleResiduals`); returns the figure.
+
+    The share of the samples per bin is drawn as grey bars on a second y axis.
+
+    Parameters
+    ----------
+    result : AngleResiduals
+        :func:`residuals_by_angle`'s result.
+    ax : matplotlib.axes.Axes, optional
+        Axes to draw into (default a new :class:`matplotlib.figure.Figure`, not registered with pyplot).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure of ``ax``.
+    """
     from matplotlib.figure import Figure
 
     if ax is None:

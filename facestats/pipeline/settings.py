@@ -113,7 +113,23 @@ class FitSettings:
 
 def checked_settings(settings) -> FitSettings:
     """``settings`` validated again as a copy (its fields may have been assigned since construction), or the
-    default :class:`FitSettings` for None; anything else is a :class:`ValidationError`."""
+    default :class:`FitSettings` for None; anything else is a :class:`ValidationError`.
+
+    Parameters
+    ----------
+    settings : FitSettings or None
+        The settings given.
+
+    Returns
+    -------
+    FitSettings
+        A new, validated instance (``settings`` itself is not changed).
+
+    Raises
+    ------
+    ValidationError
+        ``settings`` is not a FitSettings, or a field assigned since its construction is invalid.
+    """
     if settings is None:
         return FitSettings()
     if not isinstance(settings, FitSettings):

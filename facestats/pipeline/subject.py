@@ -40,6 +40,14 @@ def fit_sensor(capture, eta=ETA_SKIN):
     Weighted by the recorded noise model (``sensor_profile_std``) when the capture
     has one, else the log-space fit (:func:`facestats.model.fitting.fit_translucency`).
 
+    Parameters
+    ----------
+    capture : Capture
+        A capture holding ``fiber_distance`` (F,) in mm, ``sensor_profile`` (site, F, channel) in mm⁻² and
+        ``sensor_profile_std`` (same shape; all ≤ 0 where no noise model was recorded).
+    eta : float
+        Relative index of refraction, in [1, 3] (default 1.38).
+
     Returns
     -------
     TranslucencyFit

@@ -105,11 +105,24 @@ def _system(rendered, width):
 def table3(rendered: RenderedScene, widths=tuple(SUZUKI_TABLE3), methods=("pinv", "monotone"), **fit_options) -> list:
     """Suzuki Table 3 on a rendered scene: one row per width with each method's estimate and the paper's.
 
+    Parameters
+    ----------
+    rendered : RenderedScene
+        :func:`render_scene`'s result; its visible rows' exitance is fitted.
+    widths : sequence of float
+        Quantisation widths, mm (default the widths of Suzuki Table 3, 8 … 0.03125 mm).
+    methods : sequence of str
+        Solve methods of :func:`facestats.model.fitting.fit_scattering_system` (default the paper's ``"pinv"``
+        and the default ``"monotone"``).
+    **fit_options
+        Further keyword arguments of :func:`facestats.model.fitting.fit_scattering_system` (not ``method``,
+        ``eta`` or ``width``, which this function passes).
+
     Returns
     -------
     list of dict
         ``{"width": w, "paper": (σ's, σa), method: (σ's, σa) or None, method + "_fit": fit}``
-        (None where the fit failed: fewer than 3 usable levels).
+        (None where the fit failed: fewer than 3 usable levels; ``"paper"`` is None for a width not in Table 3).
     """
 
     rows = []
@@ -130,7 +143,20 @@ def table3(rendered: RenderedScene, widths=tuple(SUZUKI_TABLE3), methods=("pinv"
 
 
 def format_table3(rows, truth=(SUZUKI_TABLE1["sigma_s_prime"], SUZUKI_TABLE1["sigma_a"])) -> str:
-    """Table 3 as text: the paper's estimates beside ours, per width (σ's, σa in mm⁻¹)."""
+    """Table 3 as text: the paper's estimates beside ours, per width (σ's, σa in mm⁻¹).
+
+    Parameters
+    ----------
+    rows : list of dict
+        :func:`table3`'s rows (at least one); the methods are taken from the first row's keys.
+    truth : tuple of float
+        (σ's, σa) in mm⁻¹ printed as the ``truth`` row, default Suzuki Table 1 (2.19, 0.0021).
+
+    Returns
+    -------
+    str
+        A header, a rule, the truth row and one row per width; a cell whose estimate is None reads ``failed``.
+    """
     methods = [k for k in rows[0] if k not in ("width", "paper") and not k.endswith("_fit")]
     head = f"{'width (mm)':>11} | {'paper':^15} | " + " | ".join(f"{m:^15}" for m in methods)
     lines = [

@@ -128,6 +128,15 @@ def build_texture_sample(path, *, size: int = TEXTURE_SAMPLE_SIZE, subjects=TEXT
     Deterministic: the draws are seeded, so the same code writes the same subjects bit for bit
     (the store's creation time and generation names differ between builds).
 
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The zip file to write (its folder is created if missing).
+    size : int
+        Map side in texels, ≥ 16 (default 512).
+    subjects : sequence of str
+        Population subject ids (default :data:`TEXTURE_SAMPLE_SUBJECTS`, one per skin type I-VI).
+
     Returns
     -------
     pathlib.Path

@@ -20,6 +20,20 @@ def plot_profile_fit(fits, labels=None, *, title=None):
 
     Levels left out of the fit (beyond its range or with R' ≤ 0) are drawn hollow;
     the dashed line marks the fit range.
+
+    Parameters
+    ----------
+    fits : ScatteringImageFit or list/tuple of ScatteringImageFit
+        Results of :func:`facestats.model.fitting.fit_scattering_image` (levels in mm, R' in mm⁻²).
+    labels : sequence of str, optional
+        One name per fit (default ``"fit 1"``, ``"fit 2"``, ...).
+    title : str, optional
+        The axes' title (default names Suzuki et al. Fig. 5).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        A pyplot figure (close it when done).
     """
     import matplotlib.pyplot as plt
 
@@ -51,7 +65,20 @@ def plot_profile_fit(fits, labels=None, *, title=None):
 
 
 def plot_noise_study(study, *, title=None):
-    """Estimates and intervals of a :class:`~facestats.pipeline.suzuki_studies.NoiseStudy` against the truth."""
+    """Estimates and intervals of a :class:`~facestats.pipeline.suzuki_studies.NoiseStudy` against the truth.
+
+    Parameters
+    ----------
+    study : NoiseStudy
+        :func:`facestats.pipeline.suzuki_studies.noise_study`'s result.
+    title : str, optional
+        The figure's title (default: the noise level and the share of intervals that cover the truth).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        A pyplot figure with two panels, σ's and σa (mm⁻¹) per seed (close it when done).
+    """
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(8, 3.4))
@@ -71,7 +98,21 @@ def plot_noise_study(study, *, title=None):
 
 
 def plot_contactless(table, *, title=None):
-    """σtr from images against the truth and the contact sensor, per site and channel (a study's DataFrame)."""
+    """σtr from images against the truth and the contact sensor, per site and channel (a study's DataFrame).
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        :func:`facestats.pipeline.contactless.contactless_study`'s result: columns ``site``, ``channel``,
+        ``truth``, ``sensor`` and ``image`` (σtr, mm⁻¹); rows of sites other than cheek and forehead are not drawn.
+    title : str, optional
+        The figure's title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        A pyplot figure with two panels, image against truth and against the sensor (close it when done).
+    """
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(8, 3.8))

@@ -244,6 +244,20 @@ def face_view(subject, mesh=None, *, scale: float = 1.0) -> FaceView:
     ``scale``, in the dome's frame), for a subject fitted on a scan (ingested photographs), whose lumitexels are
     the scan's vertices labelled by the subject's ``region`` map (:func:`facestats.io.mesh.load_face_mesh`).
 
+    Parameters
+    ----------
+    subject : xarray.Dataset
+        A stored subject (its ``subject_id`` attribute, provenance and, with ``mesh``, its ``region`` map).
+    mesh : str or os.PathLike, optional
+        The scan the subject's maps belong to; default the face its provenance records.
+    scale : float
+        Factor from the mesh file's units to mm (default 1: the file is in mm); used with ``mesh`` only.
+
+    Returns
+    -------
+    FaceView
+        The face's lumitexels seen by :func:`facestats.acquire.dome.default_dome` (no samples).
+
     Raises
     ------
     ValidationError

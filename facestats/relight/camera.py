@@ -91,11 +91,35 @@ def stage_camera(
     (the subject's left), positive elevations upwards: the camera sits at
     ``target + distance (cos e sin a, sin e, cos e cos a)``.  The default field
     of view frames the procedural head at 1.2 m.
+
+    Parameters
+    ----------
+    azimuth_deg : float
+        Azimuth a, degrees (any finite value).
+    elevation_deg : float
+        Elevation e, degrees, in [-90, 90].
+    distance : float
+        Distance from ``target``, mm, > 0.
+    size : int
+        Image side, pixels, in [1, 8192].
+    fov_deg : float
+        Full field of view, degrees, in (0, 180).
+    target : array_like, shape (3,)
+        Point the camera looks at, mm (world frame).
+
+    Returns
+    -------
+    StageCamera
+
+    Raises
+    ------
+    ValidationError
+        For an argument outside the ranges above, or a non-finite one.
     """
     a = np.radians(as_scalar(azimuth_deg, "azimuth_deg"))
     e = np.radians(as_scalar(elevation_deg, "elevation_deg", -90, 90))
     dist = as_scalar(distance, "distance", 0, None, low_inclusive=False, unit="mm")
-    t = np.asarray(as_finite(target, "target", dtype=np.float64))
+    t = check_shape(as_finite(target, "target", dtype=np.float64), "target", (3,))
     pos = t + dist * np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
     return StageCamera(pos, t, fov_deg, size)
 
@@ -111,11 +135,30 @@ def subject_geometry(subject, mesh=None, *, scale: float = 1.0, mesh_grid: int =
     ``mesh``, an OBJ/PLY with per-vertex UVs (v up in the file, mm times ``scale``) whose UV layout the maps
     follow, loaded with :func:`facestats.io.mesh.load_face_mesh` and the subject's own ``region`` map.
 
+    Parameters
+    ----------
+    subject : xarray.Dataset
+        A map subject of a store (its ``region`` map is used with ``mesh``, its provenance otherwise).
+    mesh : str or os.PathLike, optional
+        The scan the maps belong to (OBJ/PLY with per-vertex UVs); None: the face the provenance names.
+    scale : float
+        Factor from the mesh file's units to mm (``mesh`` only).
+    mesh_grid : int
+        Side of the rendering mesh of a procedural head, in [8, 1024] (checked even when unused).
+
+    Returns
+    -------
+    FaceGeometry
+
     Raises
     ------
     ValidationError
         A subject of region samples (``facestats import-merl``: no maps to render), or one whose recorded face
-        cannot be rebuilt and no ``mesh`` (the message names ``--mesh``, the command line's option).
+        cannot be rebuilt and no ``mesh`` (the message names ``--mesh``, the command line's option), or
+        ``mesh_grid`` out of range.
+    FormatError
+        A ``mesh`` that cannot be read, has no valid UVs or no vertex in the face regions
+        (:func:`facestats.io.mesh.load_face_mesh`).
     """
     # local imports: keep facestats.io (21 modules) out of this module's import
     from facestats.io.exr_set import check_map_subject
@@ -144,6 +187,21 @@ def mesh_uv(geometry: FaceGeometry) -> np.ndarray:
     Loaded scans: the lumitexels are mesh vertices, so each vertex takes the UV of
     the nearest lumitexel (exact on the face; off-face vertices only matter as
     background).
+
+    Parameters
+    ----------
+    geometry : FaceGeometry
+        The face; its ``mesh_vertices`` (V, 3) get the UVs.
+
+    Returns
+    -------
+    numpy.ndarray, shape (V, 2)
+        Texture coordinates (u, v) per mesh vertex.
+
+    Raises
+    ------
+    ValidationError
+        A procedural geometry whose vertex count is not a square.
     """
     verts = np.asarray(geometry.mesh_vertices)
     if geometry.mesh_uv is not None:
@@ -162,7 +220,20 @@ def mesh_uv(geometry: FaceGeometry) -> np.ndarray:
 
 
 def vertex_normals(verts, faces):
-    """Area-weighted vertex normals of a triangle mesh (zero-area vertices get +z)."""
+    """Area-weighted vertex normals of a triangle mesh (zero-area vertices get +z).
+
+    Parameters
+    ----------
+    verts : numpy.ndarray, shape (V, 3)
+        Vertex positions (float).
+    faces : numpy.ndarray of int, shape (F, 3)
+        Vertex indices of each triangle; the normal follows their winding (right-hand rule).
+
+    Returns
+    -------
+    numpy.ndarray, shape (V, 3)
+        Unit normals: the normalised sum of the (area-scaled) face normals around each vertex.
+    """
     tri = verts[faces]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     out = np.zeros_like(verts)
@@ -211,7 +282,20 @@ class ViewSurface:
 
 
 def view_surface(geometry: FaceGeometry, camera: StageCamera) -> ViewSurface:
-    """Rasterise the geometry's mesh into ``camera`` and intersect every covered pixel's ray with its triangle."""
+    """Rasterise the geometry's mesh into ``camera`` and intersect every covered pixel's ray with its triangle.
+
+    Parameters
+    ----------
+    geometry : FaceGeometry
+        The face, with its rendering mesh (``mesh_vertices``, ``mesh_faces``, mm).
+    camera : StageCamera
+
+    Returns
+    -------
+    ViewSurface
+        The covered pixels whose ray meets the triangle in front of the camera (finite t > 0); UVs clipped to
+        [0, 1].
+    """
 
     verts = np.asarray(geometry.mesh_vertices, np.float64)
     faces = np.asarray(geometry.mesh_faces, np.int64)

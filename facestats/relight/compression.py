@@ -172,7 +172,18 @@ ROWS = 3
 
 def per_pixel_values(n_parts: int) -> int:
     """Values stored per pixel besides its coefficients: its cluster label, its bit mask of zero rows
-    (3 colour rows × ``n_parts`` (region, part) bits, in 32-bit values) and its diffuse colour (3)."""
+    (3 colour rows × ``n_parts`` (region, part) bits, in 32-bit values) and its diffuse colour (3).
+
+    Parameters
+    ----------
+    n_parts : int
+        Number of (light region, part) pairs of the field.
+
+    Returns
+    -------
+    int
+        ``1 + ceil(3 n_parts / 32) + 3``.
+    """
     return 1 + -(-ROWS * n_parts // 32) + 3
 
 
@@ -192,7 +203,18 @@ def _ratio(value):
 
 
 def default_clusters(n_pixels: int) -> int:
-    """About one cluster per :data:`PIXELS_PER_CLUSTER` face pixels (at least 1)."""
+    """About one cluster per :data:`PIXELS_PER_CLUSTER` face pixels (at least 1).
+
+    Parameters
+    ----------
+    n_pixels : int
+        Number of face pixels stored.
+
+    Returns
+    -------
+    int
+        ``max(1, round(n_pixels / PIXELS_PER_CLUSTER))``.
+    """
     return max(1, int(round(n_pixels / PIXELS_PER_CLUSTER)))
 
 
@@ -225,6 +247,23 @@ def light_regions(directions, sectors: int = 4) -> np.ndarray:
 
     Region h · ``sectors`` + s: hemisphere h = 0 for y ≥ 0, 1 below; azimuth sector
     s = ⌊(atan2(x, z) + π) / (2π / ``sectors``)⌋ about +y (sector 0 starts at −z, turning through −x).
+
+    Parameters
+    ----------
+    directions : array_like, shape (..., 3)
+        Light directions (finite; need not be unit vectors).
+    sectors : int
+        Azimuth sectors per hemisphere, ≥ 1.
+
+    Returns
+    -------
+    numpy.ndarray of int64, shape (...)
+        The region of each direction.
+
+    Raises
+    ------
+    ValidationError
+        Non-finite directions, a last axis other than 3, or ``sectors`` < 1.
     """
     d = as_finite(directions, "directions", dtype=np.float64)
     if d.ndim < 1 or d.shape[-1] != 3:
@@ -325,6 +364,23 @@ def diffuse_colours(rows, specular=WHITE) -> np.ndarray:
     lies that little towards s (9e-5 for a Torrance-Sparrow lobe of m = 0.35 in the tests).  A pixel whose d
     would lie within :data:`GREY_ANGLE` of s (grey), or with no offset at all, gets d = u (a unit vector
     orthogonal to s) instead.
+
+    Parameters
+    ----------
+    rows : array_like, shape (n, 3, L)
+        Channel functions per pixel (finite; read as float32), at least one light.
+    specular : array_like, shape (3,)
+        Light colour s: components ≥ 0, not all zero (normalised here); default white.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n, 3)
+        Unit diffuse colours d, float64 (d = u also for a pixel without lit samples).
+
+    Raises
+    ------
+    ValidationError
+        For non-finite ``rows`` or another shape, or an invalid ``specular``.
     """
     r = as_finite(rows, "rows", dtype=np.float32)
     if r.ndim != 3 or r.shape[1] != 3 or r.shape[2] < 1:

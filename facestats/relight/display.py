@@ -21,6 +21,27 @@ def exposure_scale(image, mask=None, *, percentile: float = 99.0, target: float 
 
     ``image`` is linear radiance (not sRGB-encoded), shape (..., ≥3); its "luminance" here is the plain
     mean of R, G and B, not Rec. 709 Y: a scale for a preview, the same for any channel balance.
+
+    Parameters
+    ----------
+    image : array_like, shape (..., C), C ≥ 3
+        Linear relit image (finite); channels past the third are ignored.
+    mask : array_like of bool, shape (...), optional
+        The subject's pixels (default: every pixel).  Only pixels of positive luminance count.
+    percentile : float
+        Percentile of the luminance, in [0, 100].
+    target : float
+        Value that percentile is mapped to, in (0, 1].
+
+    Returns
+    -------
+    float
+        The scale s (1.0 when no pixel has positive luminance).
+
+    Raises
+    ------
+    ValidationError
+        For a non-finite ``image`` or ``percentile``/``target`` out of range.
     """
     img = as_finite(image, "image", dtype=np.float64)
     p = as_scalar(percentile, "percentile", 0, 100)

@@ -180,7 +180,26 @@ def _pixel_vectors(arr, name, size) -> np.ndarray:
 
 
 def as_field(field):
-    """Validate a reflectance field (Dataset, or a DataArray of its ``reflectance``) and return it as a Dataset."""
+    """Validate a reflectance field (Dataset, or a DataArray of its ``reflectance``) and return it as a Dataset.
+
+    Only the structure is checked: the dims of ``reflectance`` and the presence of the ``direction`` and
+    ``solid_angle`` coordinates (not the values; a DataArray must carry those coordinates itself).
+
+    Parameters
+    ----------
+    field : xarray.Dataset or xarray.DataArray
+        The field, or its ``reflectance`` with the light coordinates.
+
+    Returns
+    -------
+    xarray.Dataset
+        ``field`` itself, or the DataArray as a Dataset with variable ``reflectance``.
+
+    Raises
+    ------
+    ValidationError
+        If ``field`` is neither, ``reflectance`` has other dims, or a coordinate is missing.
+    """
     import xarray as xr
 
     if isinstance(field, xr.DataArray):
@@ -202,17 +221,68 @@ def as_field(field):
 
 
 def light_dims(field) -> tuple:
-    """The light dims of a field: ``("light",)`` or ``("light_phi", "light_theta")``."""
+    """The light dims of a field: ``("light",)`` or ``("light_phi", "light_theta")``.
+
+    Parameters
+    ----------
+    field : xarray.Dataset or xarray.DataArray
+        A reflectance field, or its ``reflectance`` variable (:func:`as_field`).
+
+    Returns
+    -------
+    tuple of str
+        :data:`LIST_DIMS` or :data:`GRID_DIMS`.
+
+    Raises
+    ------
+    ValidationError
+        If ``field`` is not a reflectance field (:func:`as_field`).
+    """
     return GRID_DIMS if "light_phi" in as_field(field)["reflectance"].dims else LIST_DIMS
 
 
 def is_grid(field) -> bool:
-    """True for a lat-long light-stage field (dims ``light_phi``, ``light_theta``)."""
+    """True for a lat-long light-stage field (dims ``light_phi``, ``light_theta``).
+
+    Parameters
+    ----------
+    field : xarray.Dataset or xarray.DataArray
+        A reflectance field, or its ``reflectance`` variable (:func:`as_field`).
+
+    Returns
+    -------
+    bool
+
+    Raises
+    ------
+    ValidationError
+        If ``field`` is not a reflectance field (:func:`as_field`).
+    """
     return light_dims(field) == GRID_DIMS
 
 
 def light_table(field):
-    """The light set of a field as flat arrays: ``(directions (L, 3), solid_angles (L,), intensity (L, 3))``."""
+    """The light set of a field as flat arrays: ``(directions (L, 3), solid_angles (L,), intensity (L, 3))``.
+
+    Parameters
+    ----------
+    field : xarray.Dataset or xarray.DataArray
+        A reflectance field, or its ``reflectance`` variable (:func:`as_field`).
+
+    Returns
+    -------
+    directions : numpy.ndarray, shape (L, 3)
+        The ``direction`` coordinate (unit vectors towards the lights), float64; a grid's in row-major (φ, θ) order.
+    solid_angles : numpy.ndarray, shape (L,)
+        δA per light, sr.
+    intensity : numpy.ndarray, shape (L, 3)
+        RGB irradiance of each light in the capture (ones when the field has no ``intensity``).
+
+    Raises
+    ------
+    ValidationError
+        If ``field`` is not a reflectance field (:func:`as_field`).
+    """
     f = as_field(field)
     nl = len(light_dims(f))
     d = np.asarray(f["direction"].values, np.float64)
@@ -223,7 +293,24 @@ def light_table(field):
 
 
 def flatten_lights(field):
-    """A grid field with its two light dims stacked into one ``light`` dim (row-major: φ then θ); lists unchanged."""
+    """A grid field with its two light dims stacked into one ``light`` dim (row-major: φ then θ); lists unchanged.
+
+    Parameters
+    ----------
+    field : xarray.Dataset or xarray.DataArray
+        A reflectance field, or its ``reflectance`` variable (:func:`as_field`).
+
+    Returns
+    -------
+    xarray.Dataset
+        For a grid: ``reflectance`` with dims (``light``, ``y``, ``x``, ``channel``), no ``light`` index, the
+        ``layout`` attribute dropped and ``grid_shape`` = [n_phi, n_theta] added.  A list field is returned as is.
+
+    Raises
+    ------
+    ValidationError
+        If ``field`` is not a reflectance field (:func:`as_field`).
+    """
     f = as_field(field)
     if not is_grid(f):
         return f
@@ -398,6 +485,23 @@ def open_field(path):
 
     ``reflectance`` keeps its stored dtype until computed; relighting converts
     each tile to float32.
+
+    Parameters
+    ----------
+    path : str or path-like
+        Directory of the zarr store.
+
+    Returns
+    -------
+    xarray.Dataset
+        The field (checked by :func:`as_field`), string coordinates as ``str``.
+
+    Raises
+    ------
+    StoreError
+        If ``path`` is not a directory or cannot be opened as a zarr store.
+    ValidationError
+        If the store holds no reflectance field.
     """
     import xarray as xr
 
@@ -412,7 +516,26 @@ def open_field(path):
 
 
 def image_tiles(field, tile: int | None = None):
-    """``(y slice, x slice)`` pairs covering the image, one per stored chunk (or per ``tile`` × ``tile`` block)."""
+    """``(y slice, x slice)`` pairs covering the image, one per stored chunk (or per ``tile`` × ``tile`` block).
+
+    Parameters
+    ----------
+    field : xarray.Dataset or xarray.DataArray
+        A reflectance field, or its ``reflectance`` variable (:func:`as_field`).
+    tile : int, optional
+        Tile side in pixels, ≥ 1 (edge tiles are smaller).  Default: the chunks of a dask-backed ``reflectance``,
+        else one tile over the whole image.
+
+    Returns
+    -------
+    list of tuple of slice
+        Row-major over the tiles.
+
+    Raises
+    ------
+    ValidationError
+        If ``field`` is not a reflectance field, or ``tile`` < 1.
+    """
     f = as_field(field)
     h, w = f.sizes["y"], f.sizes["x"]
     if tile is None:

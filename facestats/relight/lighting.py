@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-from facestats.core.validate import as_finite, as_float, check_choice, check_integer, check_shape
+from facestats.core.validate import as_finite, as_float, check_broadcast, check_choice, check_integer, check_shape
 from facestats.errors import ValidationError
 from facestats.model.sphere import (
     angles_from_direction,
@@ -66,9 +66,26 @@ LAYOUTS = ("latlong", "angular")
 def check_probe(probe, layout: str = "latlong", name: str = "probe") -> np.ndarray:
     """A light probe as float32 (H, W, 3): finite, ≥ 0, with the aspect ratio of its layout.
 
-    Raises :class:`ValidationError` naming ``name`` (e.g. the file), the field
-    and the value: unknown layout, wrong shape or aspect ratio (lat-long W = 2H,
-    angular W = H), NaN/inf or negative radiance.  Values are never rescaled.
+    Values are never rescaled.
+
+    Parameters
+    ----------
+    probe : array_like, shape (H, W, 3)
+        Linear radiance (numeric).
+    layout : {"latlong", "angular"}
+        Layout of :mod:`facestats.model.sphere`: lat-long W = 2H, angular W = H.
+    name : str
+        What the probe is in messages (e.g. the file).
+
+    Returns
+    -------
+    numpy.ndarray of float32, shape (H, W, 3)
+
+    Raises
+    ------
+    ValidationError
+        Naming ``name`` (e.g. the file), the field and the value: unknown layout, non-numeric data, wrong shape or
+        aspect ratio, NaN/inf (also a value that overflows float32) or negative radiance.
     """
     check_choice(layout, "layout", LAYOUTS)
     p = as_float(probe, f"{name}: radiance")
@@ -127,6 +144,29 @@ def probe_samples(probe, layout: str = "latlong", supersample: int = 1, rows: sl
     constant over a pixel, so Σ L·δΩ equals that of the pixels exactly.
     ``rows`` (a slice of consecutive probe rows): the samples of those rows alone, so a large probe can be
     integrated band by band in bounded memory.
+
+    Parameters
+    ----------
+    probe : array_like, shape (H, W, 3)
+        Linear radiance (checked by :func:`check_probe`).
+    layout : {"latlong", "angular"}
+    supersample : int
+        Sub-cells per pixel side, 1-16.
+    rows : slice, optional
+        Probe rows to sample (step 1); default all.
+
+    Returns
+    -------
+    directions : numpy.ndarray, shape (N, 3)
+        Unit vectors of the sub-cells (those of positive solid angle only: an angular probe's corners outside
+        the disc are dropped).
+    weights : numpy.ndarray of float64, shape (N, 3)
+        L·δΩ per sub-cell and channel (the probe's unit × sr).
+
+    Raises
+    ------
+    ValidationError
+        For an invalid probe, ``supersample`` outside 1-16, or ``rows`` with a step other than 1.
     """
     p = check_probe(probe, layout)
     s = check_integer(supersample, "supersample", 1, 16)
@@ -310,7 +350,25 @@ def latlong_to_angular(probe, size: int | None = None, *, supersample: int = 2) 
     """An angular (light-probe) image of side ``size`` (default H) from a lat-long probe.
 
     Each output pixel is the mean of ``supersample``² bilinear lookups at its
-    sub-pixel directions; pixels outside the disc are 0.
+    sub-pixel directions (those inside the disc); pixels outside the disc are 0.
+
+    Parameters
+    ----------
+    probe : array_like, shape (H, 2H, 3)
+        Lat-long probe, linear radiance (:func:`check_probe`).
+    size : int, optional
+        Side of the angular image, ≥ 1 (default H).
+    supersample : int
+        Lookups per output pixel side, 1-8.
+
+    Returns
+    -------
+    numpy.ndarray of float32, shape (size, size, 3)
+
+    Raises
+    ------
+    ValidationError
+        For an invalid probe, ``size`` or ``supersample``.
     """
     p = check_probe(probe, "latlong")
     n = p.shape[0] if size is None else check_integer(size, "size", 1)
@@ -325,7 +383,26 @@ def latlong_to_angular(probe, size: int | None = None, *, supersample: int = 2) 
 
 
 def angular_to_latlong(probe, height: int | None = None, *, supersample: int = 2) -> np.ndarray:
-    """A lat-long probe (``height`` × 2 ``height``, default S/2 rows) from an angular probe (bilinear, supersampled)."""
+    """A lat-long probe (``height`` × 2 ``height``, default S/2 rows) from an angular probe (bilinear, supersampled).
+
+    Parameters
+    ----------
+    probe : array_like, shape (S, S, 3)
+        Angular probe, linear radiance (:func:`check_probe`); only pixels inside its disc are looked up.
+    height : int, optional
+        Rows of the result, ≥ 1 (default max(1, S // 2)).
+    supersample : int
+        Bilinear lookups per output pixel side (averaged), 1-8.
+
+    Returns
+    -------
+    numpy.ndarray of float32, shape (height, 2 height, 3)
+
+    Raises
+    ------
+    ValidationError
+        For an invalid probe, ``height`` or ``supersample``.
+    """
     p = check_probe(probe, "angular")
     h = max(1, p.shape[0] // 2) if height is None else check_integer(height, "height", 1)
     s = check_integer(supersample, "supersample", 1, 8)
@@ -335,9 +412,26 @@ def angular_to_latlong(probe, height: int | None = None, *, supersample: int = 2
 
 
 def uniform_probe(height: int = 32, radiance=1.0) -> np.ndarray:
-    """A constant lat-long environment of the given RGB radiance, (H, 2H, 3) float32 (tests, white furnace)."""
+    """A constant lat-long environment of the given RGB radiance, (H, 2H, 3) float32 (tests, white furnace).
+
+    Parameters
+    ----------
+    height : int
+        Rows H, ≥ 1.
+    radiance : float or array_like, shape (3,)
+        Radiance, finite and ≥ 0: one value for all channels or one per channel.
+
+    Returns
+    -------
+    numpy.ndarray of float32, shape (height, 2 height, 3)
+
+    Raises
+    ------
+    ValidationError
+        For ``height`` < 1, or a negative, non-finite or mis-shaped ``radiance``.
+    """
     h = check_integer(height, "height", 1)
-    r = np.broadcast_to(as_finite(radiance, "radiance", 0, None), (3,))
+    r = check_broadcast(as_finite(radiance, "radiance", 0, None), "radiance", (3,), "one value per RGB channel")
     return np.broadcast_to(r.astype(np.float32), (h, 2 * h, 3)).copy()
 
 
@@ -354,17 +448,44 @@ def sky_probe(
 
     For demonstrations and tests when no measured probe is at hand; not a
     physical sky model.  Radiances are relative (sky ≈ 0.5, sun ``sun_radiance``).
+
+    Parameters
+    ----------
+    height : int
+        Rows H of the probe, ≥ 2.
+    sun_direction : array_like, shape (3,)
+        Direction towards the sun, world frame (+y up); non-zero, normalised here.
+    sun_radiance : float
+        Radiance of the sun's disc (all channels), finite and ≥ 0.
+    sun_radius_deg : float
+        Angular radius of the disc, degrees, in (0, 90]; at least the pixel nearest the sun is lit.
+    sky, ground : array_like, shape (3,)
+        RGB radiance of the sky at the zenith (scaled by 0.6 + 0.4 y, 0.6 at the horizon) and of the ground,
+        finite and ≥ 0.
+
+    Returns
+    -------
+    numpy.ndarray of float32, shape (height, 2 height, 3)
+
+    Raises
+    ------
+    ValidationError
+        For an invalid ``height``, ``sun_direction``, ``sun_radiance``, ``sun_radius_deg``, ``sky`` or ``ground``.
     """
     h = check_integer(height, "height", 2)
+    sun_radiance = float(as_finite(sun_radiance, "sun_radiance", 0.0))
+    sky, ground = (
+        check_shape(as_finite(v, n, 0.0, dtype=np.float64), n, (3,)) for v, n in ((sky, "sky"), (ground, "ground"))
+    )
     sun = check_shape(as_finite(sun_direction, "sun_direction", dtype=np.float64), "sun_direction", (3,))
     if np.linalg.norm(sun) == 0:
         raise ValidationError("sun_direction must be a non-zero vector, got (0, 0, 0)")
     sun = sun / np.linalg.norm(sun)
     d = latlong_directions(h, 2 * h)
     up = np.clip(d[..., 1:2], 0, 1)
-    env = np.where(d[..., 1:2] >= 0, np.asarray(sky) * (0.6 + 0.4 * up), np.asarray(ground))
+    env = np.where(d[..., 1:2] >= 0, sky * (0.6 + 0.4 * up), ground)
     cos_r = np.cos(np.radians(as_finite(sun_radius_deg, "sun_radius_deg", 0, 90, low_inclusive=False)))
     cos_sun = d @ sun
     disc = (cos_sun >= cos_r) | (cos_sun == cos_sun.max())  # at least the pixel nearest the sun
-    env = np.where(disc[..., None], float(sun_radiance), env)
+    env = np.where(disc[..., None], sun_radiance, env)
     return env.astype(np.float32)

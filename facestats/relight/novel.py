@@ -79,7 +79,21 @@ def _unit(v):
 def specular_terms(normal, light, view, eta=ETA_SKIN, min_cos: float = 0.02):
     """G(v, l, n) F(v·h) / (v·n), the non-D factor of eq. 8 (up to the constant 1/4), broadcast; 0 below the horizon.
 
-    v·n is clamped at ``min_cos`` (grazing views).
+    v·n is clamped at ``min_cos`` (grazing views).  No input is checked (the callers have).
+
+    Parameters
+    ----------
+    normal, light, view : array_like, shape (..., 3)
+        Unit surface normal n, unit direction towards the light l and towards the viewer v; broadcast together.
+    eta : float
+        Relative index of refraction of the Fresnel term (default skin's 1.38).
+    min_cos : float
+        Lower clamp of the denominator v·n.
+
+    Returns
+    -------
+    numpy.ndarray of float64, shape (...)
+        The factor; 0 where n·l, n·v, n·h or v·h is ≤ 0.
     """
     n, l, v = (np.asarray(a, np.float64) for a in (normal, light, view))
     h = _unit(l + v)
@@ -94,7 +108,20 @@ def specular_terms(normal, light, view, eta=ETA_SKIN, min_cos: float = 0.02):
 
 
 def mirror_light(light, view_new, view_old):
-    """l_q = 2 (h·v₀) h − v₀ with h = normalize(vₙ + lₚ) (§4.3): the original light that probed the same facets."""
+    """l_q = 2 (h·v₀) h − v₀ with h = normalize(vₙ + lₚ) (§4.3): the original light that probed the same facets.
+
+    Parameters
+    ----------
+    light : array_like, shape (..., 3)
+        Unit direction lₚ towards the light, for the novel view.
+    view_new, view_old : array_like, shape (..., 3)
+        Unit directions towards the novel (vₙ) and original (v₀) viewpoints; broadcast with ``light``.
+
+    Returns
+    -------
+    numpy.ndarray of float64, shape (..., 3)
+        l_q (a unit vector for unit inputs; NaN where lₚ = −vₙ).
+    """
     h = _unit(np.asarray(light, np.float64) + np.asarray(view_new, np.float64))
     v0 = np.asarray(view_old, np.float64)
     return 2 * _dot(h, v0)[..., None] * h - v0

@@ -81,6 +81,25 @@ def rank_weights(luminance, dark: float = 0.25, bright: float = 0.1):
     (Barsky & Petrou 2003 detect them by other means).  ``luminance`` is any brightness that
     orders the samples (callers pass R + G + B).  Samples of zero luminance are always dropped.
     ``dark`` + ``bright`` < 1.
+
+    Parameters
+    ----------
+    luminance : array_like, shape (L, N)
+        Brightness of each pixel's samples, lights on axis 0 (ties are ranked in light order).
+    dark : float
+        Fraction of each pixel's darkest samples dropped (⌊dark · L⌋ of them), in [0, 1).
+    bright : float
+        Fraction of its brightest samples dropped (⌊bright · L⌋), in [0, 1).
+
+    Returns
+    -------
+    numpy.ndarray of float64, shape of ``luminance``
+        1 for the samples kept, 0 for the others (and for every sample of luminance ≤ 0).
+
+    Raises
+    ------
+    ValidationError
+        For ``dark`` or ``bright`` outside [0, 1), or ``dark`` + ``bright`` ≥ 1.
     """
     lum = np.asarray(luminance, np.float64)
     d = as_scalar(dark, "dark", 0, 1, high_inclusive=False)
@@ -134,11 +153,29 @@ def photometric_stereo(field, *, dark: float = 0.25, bright: float = 0.1, mask=N
 
 
 def angular_error_deg(normal, reference, mask=None) -> np.ndarray:
-    """Angle between estimated and reference unit normals, degrees, over ``mask`` (flattened)."""
+    """Angle between estimated and reference unit normals, degrees, over ``mask`` (flattened).
+
+    Parameters
+    ----------
+    normal, reference : array_like, shape (..., 3)
+        Normals of the same shape (both are normalised here; NaN normals give NaN angles).
+    mask : array_like of bool, shape (...), optional
+        Pixels to compare (default all).
+
+    Returns
+    -------
+    numpy.ndarray of float64, shape (M,)
+        Angles in [0, 180] degrees, one per selected pixel (M = number of True values of ``mask``).
+
+    Raises
+    ------
+    ValidationError
+        If the shapes differ, the last axis is not 3, or ``mask`` is not of the normals' shape without it.
+    """
     a = np.asarray(normal, np.float64)
     b = np.asarray(reference, np.float64)
     if a.shape != b.shape or a.shape[-1] != 3:
         raise ValidationError(f"normal and reference must have the same shape (..., 3), got {a.shape}, {b.shape}")
-    m = np.ones(a.shape[:-1], bool) if mask is None else np.asarray(mask, bool)
+    m = np.ones(a.shape[:-1], bool) if mask is None else check_shape(np.asarray(mask, bool), "mask", a.shape[:-1])
     cos = np.einsum("...k,...k->...", a[m], b[m]) / (np.linalg.norm(a[m], axis=-1) * np.linalg.norm(b[m], axis=-1))
     return np.degrees(np.arccos(np.clip(cos, -1, 1)))

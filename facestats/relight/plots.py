@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from facestats.core.validate import check_integer
 from facestats.errors import ValidationError
 from facestats.relight.display import exposure_scale
 
@@ -35,10 +36,32 @@ def plot_relit(images: dict, mask=None, *, shared_exposure: bool = False, ncols:
 
     Each image gets its own exposure (its 99th luminance percentile at 0.9)
     unless ``shared_exposure``, which uses the first image's for all (to compare brightness).
+
+    Parameters
+    ----------
+    images : dict
+        Title → linear image, shape (H, W, 3), in panel order; at least one.
+    mask : array_like of bool, shape (H, W), optional
+        The subject's pixels, over which the exposure is chosen (:func:`~facestats.relight.display.exposure_scale`).
+    shared_exposure : bool
+        One exposure (the first image's) for all.
+    ncols : int
+        Panels per row at most, ≥ 1.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Raises
+    ------
+    ValidationError
+        If ``images`` is empty or ``ncols`` < 1.
     """
     names = list(images)
     n = len(names)
-    cols = min(ncols, n)
+    if n == 0:
+        raise ValidationError("images must hold at least one relit image, got an empty dict")
+    cols = min(check_integer(ncols, "ncols", 1), n)
     rows = int(np.ceil(n / cols))
     fig = _figure(figsize=(2.6 * cols, 2.7 * rows))
     axes = fig.subplots(rows, cols, squeeze=False)
@@ -52,7 +75,23 @@ def plot_relit(images: dict, mask=None, *, shared_exposure: bool = False, ncols:
 
 
 def plot_compression(ratios, errors: dict, *, target: float = 0.03, metric: str = "max relative error"):
-    """Relighting error against compression ratio, one curve per probe (``errors``: name → values per ratio)."""
+    """Relighting error against compression ratio, one curve per probe (``errors``: name → values per ratio).
+
+    Parameters
+    ----------
+    ratios : array_like, shape (n,)
+        Compression ratios (dense / stored values), the x axis (log scale).
+    errors : dict
+        Probe name → error at each ratio, shape (n,) (log scale: positive values).
+    target : float
+        Error drawn as a dashed horizontal line.
+    metric : str
+        Label of the y axis.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     fig = _figure(figsize=(5, 3.4))
     ax = fig.subplots()
     for name, err in errors.items():
@@ -68,7 +107,21 @@ def plot_compression(ratios, errors: dict, *, target: float = 0.03, metric: str 
 
 
 def plot_separation(separation, mask=None):
-    """Normals (RGB = xyz/2 + ½), diffuse albedo ρd, specular energy ρs and the ramp α₀, α₁ of a separation."""
+    """Normals (RGB = xyz/2 + ½), diffuse albedo ρd, specular energy ρs and the ramp α₀, α₁ of a separation.
+
+    Parameters
+    ----------
+    separation : xarray.Dataset
+        :func:`facestats.relight.separate.separate_field`'s result (``normal``, ``albedo``, ``rho_s``, ``alpha0``,
+        ``alpha1`` are used); the albedo is tone-mapped with its own exposure.
+    mask : array_like of bool, shape (y, x), optional
+        Pixels to show (default all); outside it normals are white and the scalar maps blank.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        One row of five panels, colour bars on ρs, α₀ and α₁.
+    """
     m = np.ones(separation["rho_s"].shape, bool) if mask is None else np.asarray(mask, bool)
     normal = np.nan_to_num(separation["normal"].values) * 0.5 + 0.5
     albedo = np.nan_to_num(separation["albedo"].values)
@@ -95,6 +148,26 @@ def plot_reflectance_functions(field, pixels, *, centre_camera: bool = True):
 
     With ``centre_camera`` the azimuth is rolled so that the frontal camera's
     direction (+z) is in the middle, as Debevec displays them.
+
+    Parameters
+    ----------
+    field : xarray.Dataset
+        A lat-long grid field (``reflectance`` dims ``light_phi``, ``light_theta``, ``y``, ``x``, ``channel``); its
+        values are read into memory.
+    pixels : sequence of (int, int)
+        (y, x) of the pixels to show, one panel each.
+    centre_camera : bool
+        Roll the azimuth by half a turn (+z to the centre column).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Each function tone-mapped with its own exposure, sRGB.
+
+    Raises
+    ------
+    ValidationError
+        If ``reflectance`` is not 5-dimensional (a list field).
     """
     vals = np.asarray(field["reflectance"].values)
     if vals.ndim != 5:

@@ -36,6 +36,28 @@ def lighting_for(field, probe, *, layout: str = "latlong", rotate: float = 0.0, 
     ``solid_angle`` is not used: the probe's integral over each light's cell already
     is L·δA (with ``solid_angles`` given to :func:`~facestats.relight.field.make_field`,
     e.g. a rig's calibration, pass ``lighting=`` computed from them instead).
+
+    Parameters
+    ----------
+    field : xarray.Dataset
+        A reflectance field; only its ``direction`` coordinate is read.
+    probe : array_like, shape (H, W, 3)
+        Linear radiance in ``layout`` (:func:`facestats.relight.lighting.check_probe`).
+    layout : {"latlong", "angular"}
+    rotate : float
+        Rotation of the environment about +y, radians (right-handed).
+    supersample : int
+        Sub-cells per probe pixel side for the Voronoi integration (and angular probes), 1-16.
+
+    Returns
+    -------
+    numpy.ndarray of float64, shape (light dims..., 3)
+        ∫_cell L dΩ per light and channel, in the probe's unit × sr.
+
+    Raises
+    ------
+    ValidationError
+        For a field that is not a reflectance field, or an invalid probe, layout, rotation or supersampling.
     """
     f = as_field(field)
     d = np.asarray(f["direction"].values, np.float64)
@@ -63,7 +85,20 @@ def relight_block(values, weights) -> np.ndarray:
     """Σ_l R[l, ..., c] W[l, c] for an array of light-major values (L, ..., 3) and weights (L, 3).
 
     One float32 matrix product W.T (3 × L) @ R (L × P·3) that reads the block once;
-    the three channel products are the diagonal blocks of its result.
+    the three channel products are the diagonal blocks of its result.  Nothing is checked (overflow is left to
+    :func:`check_relit`).
+
+    Parameters
+    ----------
+    values : array_like, shape (L, ..., 3)
+        Reflectance per light (light dims flattened into the first axis), read as float32.
+    weights : numpy.ndarray, shape (L, 3)
+        L·δA per light and channel.
+
+    Returns
+    -------
+    numpy.ndarray of float32, shape (...) + (3,)
+        The relit values, ``values.shape[1:]``.
     """
     r = np.asarray(values, np.float32)
     n = r.shape[0]
@@ -166,6 +201,23 @@ def indirect_field(white, black):
     Both fields must share their lights and image size (captured with the same
     stage and camera).  Negative differences (noise) are kept: the sum
     black + tint · difference reproduces the white capture exactly at tint 1.
+
+    Parameters
+    ----------
+    white, black : xarray.Dataset
+        Reflectance fields of the subject in white and in black clothing.
+
+    Returns
+    -------
+    xarray.Dataset
+        A copy of ``black`` with ``reflectance`` = white − black (lazy if the inputs are) and the attributes
+        ``source`` and ``signed`` = True.
+
+    Raises
+    ------
+    ValidationError
+        If either is not a reflectance field, their ``reflectance`` shapes differ, or their light directions do
+        not match (:func:`numpy.allclose`).
     """
     w, b = as_field(white), as_field(black)
     if w["reflectance"].shape != b["reflectance"].shape:
@@ -190,6 +242,22 @@ def tint_indirect(black, white, tint):
     one (1, 1, 1 gives the white capture; 0 the black one).  Linear, so it
     commutes with relighting: tinting relit images equals relighting tinted
     fields.
+
+    Parameters
+    ----------
+    black, white : array_like, shape (..., 3)
+        Images (or field values) under black and white clothing, finite, the same shape.
+    tint : array_like, shape (3,)
+        RGB tint, finite and ≥ 0.
+
+    Returns
+    -------
+    numpy.ndarray of float32, shape of ``black``
+
+    Raises
+    ------
+    ValidationError
+        For non-finite inputs, mismatched shapes, a last axis other than 3, or a negative tint.
     """
     b = as_finite(black, "black", dtype=np.float32)
     w = as_finite(white, "white", dtype=np.float32)

@@ -66,7 +66,24 @@ WHITE = np.full(3, 1 / np.sqrt(3))
 
 
 def unit_rgb(value, name: str = "colour") -> np.ndarray:
-    """RGB vectors scaled to unit length (chromaticities as unit vectors, §4.1), float64; zero vectors refused."""
+    """RGB vectors scaled to unit length (chromaticities as unit vectors, §4.1), float64; zero vectors refused.
+
+    Parameters
+    ----------
+    value : array_like, shape (..., 3)
+        RGB vectors, finite.
+    name : str
+        The argument's name in messages.
+
+    Returns
+    -------
+    numpy.ndarray of float64, shape (..., 3)
+
+    Raises
+    ------
+    ValidationError
+        For non-finite values, a last axis other than 3, or a zero vector.
+    """
     v = check_shape(as_finite(value, name, dtype=np.float64), name, (..., 3))
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     if np.any(n == 0):
@@ -75,7 +92,20 @@ def unit_rgb(value, name: str = "colour") -> np.ndarray:
 
 
 def ramp_factor(cos_i, cos_r, alpha0, alpha1):
-    """f(θi, θr) = α₀ cos θi cos θr + α₁ (1 − cos θi cos θr) (Debevec et al. 2000 eq. 7), broadcast."""
+    """f(θi, θr) = α₀ cos θi cos θr + α₁ (1 − cos θi cos θr) (Debevec et al. 2000 eq. 7), broadcast.
+
+    Parameters
+    ----------
+    cos_i, cos_r : array_like
+        cos θi (N·l) and cos θr (N·v); not checked.
+    alpha0, alpha1 : array_like
+        The ramp's parameters (NaN passes through).
+
+    Returns
+    -------
+    numpy.ndarray
+        f, the broadcast shape of the inputs.
+    """
     x = np.asarray(cos_i, np.float64) * np.asarray(cos_r, np.float64)
     return np.asarray(alpha0) * x + np.asarray(alpha1) * (1 - x)
 
@@ -85,6 +115,25 @@ def ramp_chromaticity(d0, s, f):
 
     ``d0`` and ``s`` are normalised first; ``f`` broadcasts against them without
     their last axis.
+
+    Parameters
+    ----------
+    d0 : array_like, shape (..., 3)
+        Diffuse chromaticity at f = 0 (non-zero RGB).
+    s : array_like, shape (..., 3)
+        Light chromaticity (non-zero RGB).
+    f : array_like, shape (...)
+        Ramp factor of eq. 7 (:func:`ramp_factor`).
+
+    Returns
+    -------
+    numpy.ndarray of float64, shape (..., 3)
+        Unit RGB vectors.
+
+    Raises
+    ------
+    ValidationError
+        For a zero or non-finite ``d0`` or ``s``, or an ``f`` at which d₀ + f (d₀ − s) vanishes.
     """
     d0 = unit_rgb(d0, "d0")
     s = unit_rgb(s, "s")
@@ -100,6 +149,22 @@ def ramp_factor_from_chromaticity(c, d0, s):
 
     From c × (d₀ + f (d₀ − s)) = 0: f = −(c × d₀)·(c × u)/‖c × u‖² with u = d₀ − s.
     NaN where c × u = 0 (c parallel to d₀ − s).
+
+    Parameters
+    ----------
+    c : array_like, shape (..., 3)
+        Chromaticities (any length: f does not depend on it; not checked).
+    d0, s : array_like, shape (3,) or broadcastable to ``c``
+        Diffuse and light chromaticities (non-zero RGB; normalised here).
+
+    Returns
+    -------
+    numpy.ndarray of float64, shape (...)
+
+    Raises
+    ------
+    ValidationError
+        For a zero or non-finite ``d0`` or ``s``.
     """
     c = np.asarray(c, np.float64)
     d0 = unit_rgb(d0, "d0")
@@ -218,14 +283,45 @@ def diffuse_chromaticity(values, low: float = 25.0, high: float = 75.0, use=None
 
 def separation_basis(d, s=WHITE) -> np.ndarray:
     """The matrices [d s d×s] (..., 3, 3) of §4.2, columns d, s and e = d × s, for unit RGB vectors ``d`` (..., 3)
-    and ``s`` (3,): R = μd d + μs s + μe e (the coordinates μ of :func:`separate_colour`)."""
+    and ``s`` (3,): R = μd d + μs s + μe e (the coordinates μ of :func:`separate_colour`).
+
+    Parameters
+    ----------
+    d : array_like, shape (..., 3)
+        Unit diffuse colours (not normalised or checked here).
+    s : array_like, shape (3,)
+        Unit light colour (default white), broadcast to ``d``.
+
+    Returns
+    -------
+    numpy.ndarray of float64, shape (..., 3, 3)
+        Columns d, s, d × s.
+    """
     d = np.asarray(d, np.float64)
     s = np.broadcast_to(np.asarray(s, np.float64), d.shape)
     return np.stack([d, s, np.cross(d, s)], axis=-1)
 
 
 def separation_matrix_condition(d, s=WHITE) -> np.ndarray:
-    """2-norm condition number of [d s d×s] per chromaticity (∞ when d ∥ s)."""
+    """2-norm condition number of [d s d×s] per chromaticity (∞ when d ∥ s).
+
+    Parameters
+    ----------
+    d : array_like, shape (..., 3)
+        Diffuse chromaticities (non-zero RGB; normalised here).
+    s : array_like, shape (3,)
+        Light chromaticity (default white; normalised here).
+
+    Returns
+    -------
+    numpy.ndarray of float64, shape (...)
+        σ_max / σ_min of each matrix, ≥ 1.
+
+    Raises
+    ------
+    ValidationError
+        For a zero or non-finite ``d`` or ``s``.
+    """
     m = separation_basis(unit_rgb(d, "d"), unit_rgb(s, "s"))
     sv = np.linalg.svd(m, compute_uv=False)
     with np.errstate(divide="ignore"):

@@ -17,7 +17,29 @@ __all__ = ["create_app", "serve", "make_server"]
 
 
 def create_app(store=None, *, preload=True, allowed_hosts=None):
-    """See :func:`facestats.web.app.create_app`."""
+    """The Flask app over ``store``; see :func:`facestats.web.app.create_app` (imported on first call).
+
+    Parameters
+    ----------
+    store : str, os.PathLike, Store or None
+        Store path or a read-only :class:`~facestats.io.store.Store` (None: the embedded default).
+    preload : bool
+        Start reading the region samples for Fig. 15 in the background now.
+    allowed_hosts : iterable of str, optional
+        Host names a request's ``Host`` header may carry (others get 400; default: any).
+
+    Returns
+    -------
+    flask.Flask
+
+    Raises
+    ------
+    DependencyError
+        If Flask is not installed.
+    StoreError
+        If a given :class:`~facestats.io.store.Store` is not read-only, or the path cannot be opened
+        (:func:`facestats.io.store.open_store`).
+    """
     # local import: keeps 23 modules out of this module's import
     from facestats.web.app import create_app as _create_app
 

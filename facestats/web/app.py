@@ -63,7 +63,17 @@ _LOG = logging.getLogger("facestats.web")
 
 
 def error_text(exc) -> str:
-    """The message the CLI prints for a :class:`FacestatsError` (``facestats: error: ...``)."""
+    """The message the CLI prints for a :class:`FacestatsError` (``facestats: error: ...``).
+
+    Parameters
+    ----------
+    exc : Exception
+        The error; its ``str()`` is the message.
+
+    Returns
+    -------
+    str
+    """
     return f"facestats: error: {exc}"
 
 

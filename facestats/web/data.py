@@ -101,7 +101,24 @@ class RegionSamples:
 
 
 def pca_document(samples: RegionSamples, subject_ids) -> dict:
-    """Fig. 15 ellipses (centre, σ half-axes, angle) of the matching subjects, or a pending/error status."""
+    """Fig. 15 ellipses (centre, σ half-axes, first principal axis) of the matching subjects, or a pending/error status.
+
+    Parameters
+    ----------
+    samples : RegionSamples
+        The app's source of the PCA (the store's index, or the samples read in the background).
+    subject_ids : iterable of str
+        Subjects to pool (every condition of them is used).
+
+    Returns
+    -------
+    dict
+        ``status``: ``"pending"`` (samples still being read), ``"error"`` (with ``error``: the samples, or those of
+        a selected subject, could not be read), ``"empty"`` (with ``error``: :func:`region_pca` refused the
+        selection) or ``"ok"``, then with ``variables``, ``k`` (1), ``n_subjects`` and ``regions``: per region
+        ``region``, ``name``, ``mean`` (ρs, m), ``half_axes`` (σ along each principal axis), ``axis`` (the first
+        eigenvector) and ``n_samples``.
+    """
 
     if not samples.ready:
         return {"status": "pending"}
@@ -136,7 +153,23 @@ def pca_document(samples: RegionSamples, subject_ids) -> dict:
 
 
 def scatter_document(store, subject_ids) -> dict:
-    """Fig. 14: σa and σ's (mm⁻¹) of the matching subjects per channel, with skin type, gender and age."""
+    """Fig. 14: σa and σ's (mm⁻¹) of the matching subjects per channel, with skin type, gender and age.
+
+    Parameters
+    ----------
+    store : parameter store
+        Anything with ``subjects()`` (the population index).
+    subject_ids : iterable of str
+        Subjects to show (every condition of them).
+
+    Returns
+    -------
+    dict
+        ``points`` (one dict per subject and channel: ``subject_id``, ``channel``, ``sigma_a``,
+        ``sigma_s_prime``, ``skin_type``, ``gender``, ``age``; subjects without positive finite σ in a channel are
+        left out of it) and ``units`` (``"mm-1"``); ``points`` is empty, with ``error``, where
+        :func:`~facestats.analysis.scatter.absorption_scattering` refused the selection.
+    """
 
     ids = list(subject_ids)
     if not ids:
@@ -156,7 +189,19 @@ def scatter_document(store, subject_ids) -> dict:
 
 
 def map_names(ds) -> list:
-    """Names of the maps a subject page shows: every (v, u[, 3]) variable plus ``modulation``."""
+    """Names of the maps a subject page shows: every (v, u[, 3]) variable plus ``modulation``.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A subject.
+
+    Returns
+    -------
+    list of str
+        Variables whose first two dimensions are (v, u) and that have 2 or 3 dimensions, sorted, then
+        ``modulation`` if ``albedo`` is among them (empty for a region-sample subject).
+    """
     names = [v for v in sorted(ds.data_vars) if tuple(ds[v].dims[:2]) == ("v", "u") and ds[v].ndim in (2, 3)]
     return names + (["modulation"] if "albedo" in names and "modulation" not in names else [])
 
@@ -179,7 +224,20 @@ def image_view(ds, max_side=None):
     """``ds`` with every k-th texel along v and u, k the smallest step that brings the maps to at most
     ``max_side`` (default :data:`MAX_IMAGE_SIDE`) texels a side: a web image never needs more, and a lazy
     subject then reads and converts only what is shown (a 2048² map took a 688 MB transient for a 50 MB map;
-    the speed red team)."""
+    the speed red team).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A subject (eager or lazy); without a ``v`` or ``u`` dimension that side counts as 1.
+    max_side : int, optional
+        Largest side in texels (default :data:`MAX_IMAGE_SIDE`).
+
+    Returns
+    -------
+    xarray.Dataset
+        ``ds`` itself when no striding is needed, else a strided view (``isel``).
+    """
     # local import: keeps facestats.io (24 modules) out of this module's import
     from facestats.io.images import stride_step
 
@@ -205,10 +263,28 @@ def _encode_png(rgb, scale: int) -> bytes:
 def map_png(ds, name: str, scale: int = 4) -> bytes:
     """One map of a subject as a PNG (albedo and modulation sRGB-encoded, normals as (n + 1)/2, others colour-mapped).
 
+    The map is first strided to at most :data:`MAX_IMAGE_SIDE` texels a side (:func:`image_view`); texels outside
+    the face (``region`` 0) are black.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A map subject, with a ``region`` map.
+    name : str
+        One of :func:`map_names`.
+    scale : int
+        Enlargement (texels as ``scale`` × ``scale`` blocks), reduced so the image stays within
+        :data:`MAX_IMAGE_SIDE` pixels a side.
+
+    Returns
+    -------
+    bytes
+        The PNG file, 8-bit RGB.
+
     Raises
     ------
     ValidationError
-        ``name`` is not one of :func:`map_names`.
+        ``name`` is not one of :func:`map_names`, or ``ds`` is a region-sample subject.
     """
     # local import: keeps facestats.io (24 modules) out of this module's import
     from facestats.io.exr_set import check_map_subject
@@ -283,7 +359,26 @@ def preview_radiance(ds, lights=PREVIEW_LIGHTS, view=(0.0, 0.0, 1.0)):
 
 
 def preview_png(ds, scale: int = 4) -> bytes:
-    """:func:`preview_radiance` tone-mapped (99th percentile to white, sRGB) as a PNG."""
+    """:func:`preview_radiance` tone-mapped (99th percentile to white, sRGB) as a PNG.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A map subject (strided to at most :data:`PREVIEW_SIDE` texels a side first).
+    scale : int
+        Enlargement (texels as ``scale`` × ``scale`` blocks), reduced so the image stays within
+        :data:`MAX_IMAGE_SIDE` pixels a side.
+
+    Returns
+    -------
+    bytes
+        The PNG file, 8-bit RGB.
+
+    Raises
+    ------
+    ValidationError
+        ``ds`` is a region-sample subject: it has no maps to relight.
+    """
     # local import: keeps facestats.io (24 modules) out of this module's import
     from facestats.io.images import linear_to_srgb
 

@@ -169,6 +169,10 @@ def test_missing_fibres_short_chains_and_validation():
         sigma_posterior(R, measured, n_walkers=7)
     with pytest.raises(ValidationError, match="bounds"):
         sigma_posterior(R, measured, bounds={"sigma_a": (1.0, 0.1)})
+    with pytest.raises(ValidationError, match=r"bounds\['sigma_a'\] \(low, high\) must have shape"):
+        sigma_posterior(R, measured, bounds={"sigma_a": (0.1,)})
+    with pytest.raises(ValidationError, match=r"bounds\['sigma_a'\] must be numeric"):
+        sigma_posterior(R, measured, bounds={"sigma_a": ("low", "high")})
 
 
 def test_site_posterior_of_a_stored_subject():

@@ -204,3 +204,31 @@ def test_resample_probe_checks_its_arguments_first():
         lighting.resample_probe(p, np.zeros((0, 3)))
     total = lighting.resample_probe(p).sum(axis=(0, 1))
     np.testing.assert_allclose(lighting.resample_probe(p, rotate=0.3).sum(axis=(0, 1)), total)  # energy kept
+
+
+def test_synthetic_probes_cameras_plots_and_angles_check_their_arguments():
+    from facestats.relight.camera import stage_camera
+    from facestats.relight.photometric import angular_error_deg
+    from facestats.relight.plots import plot_relit
+
+    with pytest.raises(ValidationError, match="sun_radiance"):
+        lighting.sky_probe(8, sun_radiance=-1.0)
+    with pytest.raises(ValidationError, match="sky must be finite"):
+        lighting.sky_probe(8, sky=(0.3, np.nan, 0.8))
+    with pytest.raises(ValidationError, match=r"ground must have shape \(3\)"):
+        lighting.sky_probe(8, ground=(0.1, 0.1))
+    sky = lighting.sky_probe(8, sun_radiance=7.0)
+    assert sky.max() == 7.0 and np.all(sky >= 0)
+    with pytest.raises(ValidationError, match=r"radiance of shape \(2,\) does not broadcast"):
+        lighting.uniform_probe(4, radiance=(1.0, 2.0))
+    assert lighting.uniform_probe(2, radiance=(1.0, 2.0, 3.0))[1, 3].tolist() == [1.0, 2.0, 3.0]
+    with pytest.raises(ValidationError, match=r"target must have shape \(3\), got shape \(2,\)"):
+        stage_camera(target=(0.0, 40.0))
+    n = np.tile([0.0, 0.0, 1.0], (2, 3, 1))
+    with pytest.raises(ValidationError, match=r"mask must have shape \(2, 3\), got shape \(3, 2\)"):
+        angular_error_deg(n, n, np.ones((3, 2), bool))
+    assert angular_error_deg(n, n, np.eye(2, 3, dtype=bool)).tolist() == [0.0, 0.0]
+    with pytest.raises(ValidationError, match="at least one relit image"):
+        plot_relit({})
+    with pytest.raises(ValidationError, match="ncols"):
+        plot_relit({"a": np.ones((2, 2, 3))}, ncols=0)

@@ -34,7 +34,23 @@ def _read(path) -> bytes:
 
 
 def read_subject_record(path) -> dict:
-    """The subject record of a JSON file (fields of :func:`~facestats.acquire.devices.plans.subject_record`)."""
+    """The subject record of a JSON file (fields of :func:`~facestats.acquire.devices.plans.subject_record`).
+
+    Parameters
+    ----------
+    path : str or path-like
+        A JSON file holding one object.
+
+    Returns
+    -------
+    dict
+        The object as read; its fields are not checked here.
+
+    Raises
+    ------
+    FormatError
+        The file cannot be read, is not valid JSON, or is not an object.
+    """
     try:
         doc = json.loads(pathlib.Path(path).read_text())
     except (OSError, json.JSONDecodeError) as exc:
@@ -45,7 +61,31 @@ def read_subject_record(path) -> dict:
 
 
 def dome_plan(calibration, subject: dict, **options) -> tuple:
-    """``(DomePlan, calibration bytes)`` of a dome calibration file (:meth:`facestats.acquire.dome.Dome.load`)."""
+    """``(DomePlan, calibration bytes)`` of a dome calibration file (:meth:`facestats.acquire.dome.Dome.load`).
+
+    Parameters
+    ----------
+    calibration : str or path-like
+        The dome calibration (JSON).
+    subject : dict
+        The subject record (:func:`~facestats.acquire.devices.plans.subject_record`).
+    **options
+        Fields of :class:`~facestats.acquire.devices.plans.DomePlan` (``bits``, ``brightness``, ``colour``,
+        ``frame_interval_s``, ``extension``); ``bits`` defaults to that of the calibration's camera response, else 12.
+
+    Returns
+    -------
+    plan : DomePlan
+    data : bytes
+        The calibration file's bytes (the plan holds their SHA-256).
+
+    Raises
+    ------
+    FormatError
+        The file cannot be read, is not valid JSON, or lacks a field or has a malformed one.
+    ValidationError
+        A calibration value out of its domain, or a bad plan option.
+    """
 
     data = _read(calibration)
     try:
@@ -56,7 +96,30 @@ def dome_plan(calibration, subject: dict, **options) -> tuple:
 
 
 def sensor_plan(calibration, subject: dict, **options) -> tuple:
-    """``(SensorPlan, calibration bytes)`` of a sensor calibration file (``facestats.sensor-calibration/1``)."""
+    """``(SensorPlan, calibration bytes)`` of a sensor calibration file (``facestats.sensor-calibration/1``).
+
+    Parameters
+    ----------
+    calibration : str or path-like
+        The sensor calibration (:func:`~facestats.acquire.devices.sensor.load_sensor_calibration`).
+    subject : dict
+        The subject record (:func:`~facestats.acquire.devices.plans.subject_record`).
+    **options
+        Fields of :class:`~facestats.acquire.devices.plans.SensorPlan` (``readout_s``, ``sites``, ``extension``).
+
+    Returns
+    -------
+    plan : SensorPlan
+    data : bytes
+        The calibration file's bytes (the plan holds their SHA-256).
+
+    Raises
+    ------
+    FormatError
+        The file cannot be read or is not a valid sensor calibration.
+    ValidationError
+        A bad plan option.
+    """
 
     data = _read(calibration)
     sensor, layout = load_sensor_calibration(calibration)
@@ -82,10 +145,38 @@ def capture(
 ) -> SessionReport:
     """Run ``plan`` on the device at ``port`` with the frames of ``hot_folder`` into ``out`` (module docstring).
 
-    ``link_options`` are keyword arguments of
-    :class:`~facestats.acquire.devices.serial_link.SerialLink` (baudrate, bytesize,
-    parity, stopbits, timeout, retries); ``echo`` receives the session's log lines
-    as they happen.  Every argument is checked before the port is opened or anything is written.
+    Every argument is checked before the port is opened or anything is written.  A session already complete
+    (and, with ``resume``, missing no frame) returns at once without opening the port.
+
+    Parameters
+    ----------
+    plan : DomePlan or SensorPlan
+        From :func:`dome_plan` or :func:`sensor_plan`.
+    calibration : bytes
+        The calibration file the plan was made from (copied into ``out``).
+    port : str
+        The controller's device path or pyserial URL.
+    out : str or path-like
+        The capture directory.
+    hot_folder : str or path-like
+        Where the cameras deliver their frames
+        (:class:`~facestats.acquire.devices.cameras.HotFolderCameras`).
+    resume : bool
+        Continue the unfinished session in ``out`` (:func:`~facestats.acquire.devices.session.run_session`).
+    link_options : dict, optional
+        Keyword arguments of :class:`~facestats.acquire.devices.serial_link.SerialLink` (baudrate, bytesize,
+        parity, stopbits, timeout, retries).
+    pattern : str
+        A frame's file name relative to ``hot_folder``, with ``{camera}``, ``{frame}`` and ``{ext}``.
+    frame_timeout, durable, verify, progress, on_site
+        As :func:`~facestats.acquire.devices.session.run_session` (``frame_timeout`` in s, > 0).
+    echo : callable, optional
+        Receives the session's log lines as they happen.
+
+    Returns
+    -------
+    SessionReport
+        With ``stray_frames``: frame files left in the hot folder after the run (frames no run collected).
     """
     as_finite(frame_timeout, "frame_timeout", 0, None, low_inclusive=False)
     finished = session_state(out, plan, resume=resume) == "complete"

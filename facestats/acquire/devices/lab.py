@@ -45,9 +45,21 @@ __all__ = ["emulated_rig", "emulated_dome", "emulated_sensor"]
 def emulated_rig(resolution: int | None = None, leds: int | None = None, cameras: int | None = None):
     """The simulator's dome (:func:`facestats.acquire.dome.default_dome`), optionally smaller for quick runs.
 
-    ``leds`` and ``cameras`` keep that many, evenly spread over the rig's
-    indices; ``resolution`` resamples every camera to ``resolution``² pixels
-    (default: the rig's 1024²).
+    Parameters
+    ----------
+    resolution : int, optional
+        Resample every camera to ``resolution``² pixels, 8 to 8192 (default: the rig's 1024²).
+    leds, cameras : int, optional
+        Keep that many LEDs or cameras, evenly spread over the rig's indices (1 to the rig's count; default all).
+
+    Returns
+    -------
+    Dome
+
+    Raises
+    ------
+    ValidationError
+        A count or resolution out of range.
     """
 
     dome = default_dome()
@@ -169,7 +181,7 @@ def emulated_dome(
     store : str or path-like, optional
         None for the synthetic population (at ``map_size``), a store path or ``"default"`` for a store subject.
     map_size : int
-        Map side of a synthetic subject (>= 2).
+        Map side of a synthetic subject (>= 8).
     resolution, leds, cameras : int, optional
         A smaller rig (:func:`emulated_rig`).
     faults : Faults
@@ -257,7 +269,23 @@ def emulated_sensor(
 ) -> PtyServer:
     """Build and start the emulated contact sensor on ``subject_id``'s three sites; returns the running server.
 
-    The arguments are those of :func:`emulated_dome` (checked before any work, module docstring).
+    The arguments are checked before any work (module docstring).  Writes ``sensor-calibration.json`` and
+    ``subject.json`` into ``lab``.
+
+    Parameters
+    ----------
+    subject_id, hot_folder, lab, store, map_size, faults, link, realtime, seed, log
+        As :func:`emulated_dome`.
+
+    Returns
+    -------
+    PtyServer
+        Started; ``stop()`` ends it.
+
+    Raises
+    ------
+    ValidationError
+        An argument out of its domain (before anything is created).
     """
 
     _check_common(hot_folder, lab, map_size, faults, link, seed)

@@ -41,7 +41,32 @@ SUBJECT_FIELDS = ("subject_id", "person_id", "age", "gender", "skin_type", "cond
 
 
 def subject_record(subject_id, *, person_id=None, age, gender, skin_type, condition="normal") -> dict:
-    """The subject metadata a capture folder's manifest holds, checked."""
+    """The subject metadata a capture folder's manifest holds, checked.
+
+    Parameters
+    ----------
+    subject_id : str
+        The subject's id (:func:`facestats.io.ids.check_subject_id`).
+    person_id : str, optional
+        The person measured (several subjects may be one person); default ``subject_id``.
+    age : int
+        Years, 0 to 150.
+    gender : {"M", "F"}
+    skin_type : int
+        Fitzpatrick skin type, 1 to 6.
+    condition : str
+        One of :data:`facestats.core.conventions.CONDITIONS`, default ``"normal"``.
+
+    Returns
+    -------
+    dict
+        ``subject_id``, ``person_id``, ``age``, ``gender``, ``skin_type`` and ``condition``.
+
+    Raises
+    ------
+    ValidationError
+        Naming the first field that is invalid.
+    """
     # local import: keeps facestats.io (22 modules) out of this module's import
     from facestats.io.ids import check_subject_id
 

@@ -59,7 +59,17 @@ def plot_contact_sheet(folder, camera: int = 0, exposure: int = -1, leds=None, *
 def plot_sensor_bracket(bracket, site: int = 0):
     """The raw bracket of one site (fibre readings per exposure, saturation marked) and the merged profiles.
 
-    ``bracket`` is a :class:`facestats.acquire.devices.sensor.SensorBracket`.
+    Parameters
+    ----------
+    bracket : SensorBracket
+        :func:`facestats.acquire.devices.sensor.read_bracket`'s result.
+    site : int
+        Index into ``bracket.sites`` of the site whose raw bracket (green channel, DN) is drawn; the profiles of
+        every site are drawn beside it.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
     """
     import matplotlib.pyplot as plt
 
@@ -96,7 +106,20 @@ def plot_sensor_bracket(bracket, site: int = 0):
 
 
 def plot_link_events(report, injected=None):
-    """What the link met during a session (:class:`SessionReport`), beside what an emulator injected."""
+    """What the link met during a session (:class:`SessionReport`), beside what an emulator injected.
+
+    Parameters
+    ----------
+    report : SessionReport
+        A session's report; its ``link`` counters are drawn.
+    injected : dict, optional
+        The emulator's fault counts (``PtyServer.injected``: ``drop``, ``garble``, ``truncate``, ``duplicate``,
+        ``stall``, ``disconnect``, ``reboot``), drawn beside the link's counters they should cause.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     import matplotlib.pyplot as plt
 
     keys = ["retries", "garbled", "truncated", "timeouts", "out_of_order", "duplicates", "reboots", "reconnects"]

@@ -107,6 +107,15 @@ def crc16(data: bytes) -> int:
     detection algorithms*, 1993, parameter model "CRC-16/CCITT-FALSE", since
     renamed CRC-16/IBM-3740) is ``crc16(b"123456789") == 0x29B1``; computed by the
     C implementation of :func:`binascii.crc_hqx`.
+
+    Parameters
+    ----------
+    data : bytes-like
+
+    Returns
+    -------
+    int
+        The CRC, in [0, 0xFFFF].
     """
     return binascii.crc_hqx(data, 0xFFFF)
 
@@ -199,12 +208,39 @@ class Reply:
 
 
 def quoted(data: bytes) -> str:
-    """Bytes of the link quoted for a message: ASCII as text, other bytes and control characters escaped."""
+    """Bytes of the link quoted for a message: ASCII as text, other bytes and control characters escaped.
+
+    Parameters
+    ----------
+    data : bytes
+
+    Returns
+    -------
+    str
+        A Python string literal of ``data`` read as Latin-1 (quotes included, ``\\xNN`` escapes).
+    """
     return ascii(data.decode("latin-1"))
 
 
 def parse_request(line: bytes) -> Request:
-    """The request of one line (without its LF); raises :class:`ProtocolViolation` with the device's error number."""
+    """The request of one line (without its LF); raises :class:`ProtocolViolation` with the device's error number.
+
+    Parameters
+    ----------
+    line : bytes
+        One request line; a trailing CR is ignored.
+
+    Returns
+    -------
+    Request
+        Its name, integer arguments and id (0 for a plain request).
+
+    Raises
+    ------
+    ProtocolViolation
+        Code 7 for a line over :data:`MAX_LINE` bytes, a malformed request or an id ≥ 2³¹; code 2 for a bad
+        checksum.
+    """
     line = line.rstrip(b"\r")
     if len(line) > MAX_LINE:
         raise ProtocolViolation(f"line of {len(line)} bytes exceeds {MAX_LINE}", 7)
@@ -228,6 +264,20 @@ def parse_reply(chunk: bytes) -> Reply:
 
     Bytes before the frame's last ``@`` (the remains of a truncated frame) are
     ignored here; :class:`FrameReader` reports them.
+
+    Parameters
+    ----------
+    chunk : bytes
+        The bytes read up to the terminator (excluded).
+
+    Returns
+    -------
+    Reply
+
+    Raises
+    ------
+    FrameError
+        ``kind="garbled"``: no ``@``, a frame of wrong syntax, or a wrong CRC.
     """
     start = chunk.rfind(b"@")
     m = _FRAME.match(chunk[start:]) if start >= 0 else None

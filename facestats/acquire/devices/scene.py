@@ -162,6 +162,16 @@ def dark_code_table(camera: ResponseCurve) -> np.ndarray:
     noiseless encoding steps to k, so P(code ≤ k) = Φ(x_{k+1}/σ_read); entry u of
     the table (u in [0, 65536)) is the smallest k with P(code ≤ k) > (u + ½)/65536.
     Tails below 2⁻¹⁶ (beyond about 4.2 σ) are not represented.
+
+    Parameters
+    ----------
+    camera : ResponseCurve
+        The camera's encoding: its ``read_noise`` (electrons), ``bits`` and ``encode``.
+
+    Returns
+    -------
+    ndarray of uint8 (8-bit camera) or uint16, shape (65536,)
+        The code of each uniform index; all 0 for a camera without read noise.
     """
     from scipy.special import ndtr
 

@@ -169,7 +169,25 @@ class SensorBracket:
 
 
 def read_bracket(folder) -> SensorBracket:
-    """The sensor session of a capture folder: its ``sensor.json`` and the raw frames it lists."""
+    """The sensor session of a capture folder: its ``sensor.json`` and the raw frames it lists.
+
+    Fibre spots are located with the default :class:`FiberLayout` of the sensor's fibre count.
+
+    Parameters
+    ----------
+    folder : str or path-like
+        A capture directory holding a completed sensor session (:mod:`facestats.acquire.devices.session`).
+
+    Returns
+    -------
+    SensorBracket
+        Sites in the order of the frames (capture order); profiles as stored in ``sensor.json``.
+
+    Raises
+    ------
+    FormatError
+        No readable ``sensor.json``, or one without ``frames``.
+    """
     # local import: keeps facestats.io (23 modules) out of this module's import
     from facestats.io.images import decode_integer_image
 
@@ -198,7 +216,22 @@ def read_bracket(folder) -> SensorBracket:
 
 
 def save_sensor_calibration(path, sensor, layout: FiberLayout) -> pathlib.Path:
-    """Write the sensor's calibration (module docstring) as JSON."""
+    """Write the sensor's calibration (module docstring) as JSON.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file to write (format ``facestats.sensor-calibration/1``).
+    sensor : ContactSensor
+        The sensor's description (:meth:`~facestats.acquire.sensor.ContactSensor.to_attrs`).
+    layout : FiberLayout
+        Where its fibres appear in the sensor camera's image.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     p = pathlib.Path(path)
     doc = {"format": CALIBRATION_FORMAT, "sensor": sensor.to_attrs(), "fiber_layout": layout.to_dict()}
     p.write_text(json.dumps(doc, indent=1))
@@ -206,7 +239,24 @@ def save_sensor_calibration(path, sensor, layout: FiberLayout) -> pathlib.Path:
 
 
 def load_sensor_calibration(path):
-    """``(ContactSensor, FiberLayout)`` of a sensor calibration file; :class:`FormatError` naming what is wrong."""
+    """``(ContactSensor, FiberLayout)`` of a sensor calibration file; :class:`FormatError` naming what is wrong.
+
+    Parameters
+    ----------
+    path : str or path-like
+        A file written by :func:`save_sensor_calibration`.
+
+    Returns
+    -------
+    sensor : ContactSensor
+    layout : FiberLayout
+
+    Raises
+    ------
+    FormatError
+        The file cannot be read or is not JSON, its ``format`` is not ``facestats.sensor-calibration/1``, or a
+        field is missing or malformed.
+    """
 
     try:
         doc = json.loads(pathlib.Path(path).read_text())

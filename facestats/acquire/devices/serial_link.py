@@ -63,7 +63,34 @@ class LinkStats:
 
 
 def open_port(port: str, *, baudrate: int = BAUDRATE, bytesize: int = 8, parity: str = "N", stopbits: float = 1):
-    """Open a pyserial port or URL with the given line settings; a :class:`DeviceError` says what to do if it fails."""
+    """Open a pyserial port or URL with the given line settings; a :class:`DeviceError` says what to do if it fails.
+
+    Parameters
+    ----------
+    port : str
+        A device path or a pyserial URL (module docstring); a device path is opened exclusively.
+    baudrate : int
+        Line speed in baud, 50 to 4,000,000 (default the protocol's :data:`BAUDRATE`).
+    bytesize : {5, 6, 7, 8}
+        Data bits.
+    parity : {"N", "E", "O", "M", "S"}
+        Parity.
+    stopbits : {1, 1.5, 2}
+        Stop bits.
+
+    Returns
+    -------
+    serial.SerialBase
+        The open port (a :class:`serial.Serial` for a device path): reads time out after :data:`POLL_S` s,
+        writes after 5 s; its input buffer emptied.
+
+    Raises
+    ------
+    ValidationError
+        A line setting out of range or not among the choices.
+    DeviceError
+        ``port`` is not a non-empty string, or pyserial cannot open it (the message advises).
+    """
     import serial
 
     check_integer(baudrate, "baudrate", 50, 4_000_000)

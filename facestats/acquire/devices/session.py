@@ -145,6 +145,27 @@ def missing_steps(out, plan, log=None, *, verify: bool = True) -> int:
     Without ``verify`` every committed frame is only looked up (a stat each: cheap); with it every frame is read
     and hashed.  Only a journal line cut short by an interruption is changed (removed, as on resume: its step
     counts as missing).
+
+    Parameters
+    ----------
+    out : str or path-like
+        The capture directory.
+    plan : DomePlan or SensorPlan
+        The plan whose journal (``session/<kind>.journal``) is read.
+    log : callable, optional
+        Receives the lines about removed or missing entries (default a :class:`SessionLog` that keeps them).
+    verify : bool
+        Hash every committed frame against its SHA-256.
+
+    Returns
+    -------
+    int
+        Number of the plan's steps without a committed, present frame set (all of them without a journal).
+
+    Raises
+    ------
+    SessionError
+        A corrupt journal line, or one naming a step outside the plan.
     """
     return plan.n_steps - len(_Journal(pathlib.Path(out), plan, log or SessionLog()).load(verify))
 
@@ -153,6 +174,27 @@ def session_state(out, plan, *, resume: bool) -> str:
     """``"new"``, ``"resume"`` or ``"complete"`` for ``plan`` in ``out``; :class:`SessionError` for every refusal.
 
     Reads only: nothing is created or changed.
+
+    Parameters
+    ----------
+    out : str or path-like
+        The capture directory.
+    plan : DomePlan or SensorPlan
+        The plan to run there.
+    resume : bool
+        Whether the caller means to continue an unfinished session.
+
+    Returns
+    -------
+    str
+        ``"complete"`` if the plan's product (manifest or sensor file) exists, ``"resume"`` for an unfinished
+        session with ``resume``, ``"new"`` for a directory without a session of this kind.
+
+    Raises
+    ------
+    SessionError
+        Every refusal of the module docstring: another subject's directory, a journal of another plan, an
+        unfinished session without ``resume``, ``resume`` with nothing to resume, a directory of other files.
     """
     out = pathlib.Path(out)
     sdir = out / SESSION_DIR

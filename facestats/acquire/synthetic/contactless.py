@@ -55,6 +55,15 @@ def modulation_face(name: str):
     :func:`patch_modulation` reads the lumitexels' positions and UVs, which do not depend on the map
     size, so the face is built with maps of its lumitexel grid (built with a 2048² subject's maps it
     took 3.5 s and 734 MiB, for the same lumitexels).
+
+    Parameters
+    ----------
+    name : str
+        The face's name (:attr:`FaceGeometry.name`, e.g. ``"ict-48"``), or empty.
+
+    Returns
+    -------
+    FaceGeometry or None
     """
     if not name or name.startswith("procedural-"):
         return None
@@ -67,9 +76,20 @@ def modulation_face(name: str):
 def patch_modulation(patches, modulation_map, geometry=None) -> np.ndarray:
     """M (m, 3) at the patches of a procedural-face window from a modulation map [v, u, channel].
 
-    ``geometry``: the face the map is laid out on, when it is not the procedural head (whose UV the
-    patches' positions give exactly); each patch then takes the UV of the face's lumitexel nearest
-    to it in (x, y), the frontal plane.
+    Parameters
+    ----------
+    patches : facestats.acquire.patches.Patches
+        The window's patches (centres in mm).
+    modulation_map : array_like, shape (S, S, C)
+        The map, indexed [v, u, channel]; each patch reads the texel containing its UV (no interpolation).
+    geometry : FaceGeometry, optional
+        The face the map is laid out on, when it is not the procedural head (whose UV the patches'
+        positions give exactly); each patch then takes the UV of the face's lumitexel nearest to it in
+        (x, y), the frontal plane.  None (or a procedural face): the procedural head.
+
+    Returns
+    -------
+    ndarray of float64, shape (m, C)
     """
 
     mod = np.asarray(modulation_map, np.float64)

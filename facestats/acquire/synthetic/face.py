@@ -82,7 +82,18 @@ def _regions(x, y):
 
 
 def face_uv(x, y):
-    """Texture coordinates (u, v) in [0, 1] of face coordinates x, y (mm): the inverse of the UV → surface map."""
+    """Texture coordinates (u, v) in [0, 1] of face coordinates x, y (mm): the inverse of the UV → surface map.
+
+    Parameters
+    ----------
+    x, y : array_like
+        Face coordinates of the procedural head, mm (x right, y up).
+
+    Returns
+    -------
+    u, v : ndarray
+        Texture coordinates (v down), clipped to [0, 1].
+    """
     return np.clip(np.asarray(x) / _UV_WIDTH + 0.5, 0, 1), np.clip(0.5 - np.asarray(y) / _UV_HEIGHT, 0, 1)
 
 
@@ -171,6 +182,15 @@ def face_window(site, *, half_width=9.0, spacing=0.3):
     The window is the height field z(x, y) of the procedural head over
     |x − x₀|, |y − y₀| ≤ ``half_width`` around the site (:data:`SITE_CENTRES`),
     sampled every ``spacing`` mm, two triangles per grid cell, normals towards +z.
+
+    Parameters
+    ----------
+    site : str
+        A key of :data:`SITE_CENTRES`.
+    half_width : float
+        Half the window's side, mm (> 0).
+    spacing : float
+        Grid step, mm (> 0; at most 4000 samples a side).
 
     Returns
     -------

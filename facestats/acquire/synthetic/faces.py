@@ -30,9 +30,30 @@ _NAME = re.compile(r"^(procedural|ict)-(\d+)$")
 def face_geometry(
     face: str, lumitexel_grid: int, map_size: int | None = None, *, mesh_grid: int | None = None
 ) -> FaceGeometry:
-    """The face ``face`` (one of :data:`FACES`) with lumitexels on a ``lumitexel_grid``² UV grid and
-    ``map_size``² maps (default ``lumitexel_grid``).  ``mesh_grid`` is the procedural head's rendering
-    mesh (its default otherwise); the ICT face's mesh is the scan's."""
+    """The face ``face`` (one of :data:`FACES`) with lumitexels on a ``lumitexel_grid``² UV grid.
+
+    Parameters
+    ----------
+    face : {"procedural", "ict"}
+        Which face.
+    lumitexel_grid : int
+        Side of the UV grid of lumitexels.
+    map_size : int, optional
+        Side of the UV maps (default ``lumitexel_grid``).
+    mesh_grid : int, optional
+        The procedural head's rendering mesh, 8 to 4096 (default: that of
+        :func:`~facestats.acquire.synthetic.face.procedural_face`); ignored for the ICT face, whose mesh is the
+        scan's.
+
+    Returns
+    -------
+    FaceGeometry
+
+    Raises
+    ------
+    ValidationError
+        An unknown ``face`` or a ``mesh_grid`` out of range (or a grid the face refuses).
+    """
     check_choice(face, "face", FACES)
     if face == "ict":
         from facestats.acquire.synthetic.ict_face import ict_face
@@ -46,6 +67,18 @@ def face_geometry(
 
 def parse_face_name(name: str) -> tuple[str, int]:
     """The face and lumitexel grid N of a face name ``"procedural-N"`` or ``"ict-N"`` (:attr:`FaceGeometry.name`).
+
+    Parameters
+    ----------
+    name : str
+        The name (converted with ``str``).
+
+    Returns
+    -------
+    face : str
+        ``"procedural"`` or ``"ict"``.
+    n : int
+        The lumitexel grid N.
 
     Raises
     ------

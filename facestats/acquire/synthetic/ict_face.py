@@ -90,7 +90,18 @@ def _inside(x, y, x0, y0, ax, ay):
 
 
 def ict_regions(x, y):
-    """Region labels (Weyrich Fig. 15 numbering, 0: not face) of points of the ICT face at x, y (mm, model frame)."""
+    """Region labels (Weyrich Fig. 15 numbering, 0: not face) of points of the ICT face at x, y (mm, model frame).
+
+    Parameters
+    ----------
+    x, y : array_like, same shape
+        Coordinates in mm.
+
+    Returns
+    -------
+    ndarray of uint8, shape of ``x``
+        Labels 0-10.
+    """
     x, y = np.asarray(x, float), np.asarray(y, float)
     reg = np.full(x.shape, 7, np.uint8)  # cheeks by default
     reg[y > 52] = 2  # forehead

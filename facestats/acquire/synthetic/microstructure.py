@@ -512,6 +512,29 @@ def subject_microstructure(subject, shape, texel_um=15.0, *, seed=None, deformat
 
     The subject's region map (upsampled) places the regions; the seed defaults
     to one derived from the subject id, so a subject always gets the same skin.
+
+    Parameters
+    ----------
+    subject : xarray.Dataset
+        A map subject of the store (``region`` and ``ts_m`` maps, :func:`subject_microstructure_parameters`).
+    shape : int or (int, int)
+        Map size in texels ``(height, width)``.
+    texel_um : float
+        µm of skin per texel.
+    seed : int, optional
+        Seed of the realisation; default the CRC-32 of the subject's ``subject_id`` attribute.
+    deformation : array_like (2, 2), optional
+        As :func:`procedural_microstructure`.
+
+    Returns
+    -------
+    ndarray of float32, shape (height, width)
+        Heights in µm, indexed ``[v, u]``.
+
+    Raises
+    ------
+    ValidationError
+        A subject without ``region`` or ``ts_m``, or a bad ``shape``, ``texel_um``, ``seed`` or ``deformation``.
     """
 
     params = subject_microstructure_parameters(subject)

@@ -210,6 +210,26 @@ def encode_frame(codes, exposure_s, extension=".png", *, model="simulated dome c
     PNG goes through :func:`facestats.io.png.encode_png` (rows unfiltered; Huffman-only deflate from 65,536
     samples on, libdeflate level 1 below: about ten times as fast as OpenCV's writer on a 1024² noisy
     12-bit frame, and smaller); JPEG and TIFF through OpenCV.
+
+    Parameters
+    ----------
+    codes : ndarray of uint8 or uint16, shape (H, W, 3)
+        RGB codes (uint8 for JPEG).
+    exposure_s : float
+        Exposure time in seconds, written as EXIF ``ExposureTime`` (PNG and JPEG).
+    extension : {".png", ".jpg", ".tif"}
+        The file type.
+    model : str
+        EXIF ``Model`` (``Make`` is ``facestats``).
+
+    Returns
+    -------
+    bytes
+
+    Raises
+    ------
+    ValidationError
+        OpenCV cannot encode the codes in that format.
     """
     # local import: keeps facestats.io (23 modules) out of this module's import
     from facestats.io.exif import embed_exif, exif_payload
@@ -236,7 +256,22 @@ def _encode(path, codes, exposure_s):
 
 
 def frame_name(camera, led, exposure, ext, pose=None):
-    """Relative path of a frame in the simulator's capture folders: ``cam00/led000_e0.png`` (targets: ``pose0/…``)."""
+    """Relative path of a frame in the simulator's capture folders: ``cam00/led000_e0.png`` (targets: ``pose0/…``).
+
+    Parameters
+    ----------
+    camera, led, exposure : int
+        0-based indices.
+    ext : str
+        File extension with its dot.
+    pose : int, optional
+        Target pose (LED calibration captures); None for a face capture.
+
+    Returns
+    -------
+    str
+        A POSIX relative path.
+    """
     head = f"cam{camera:02d}" if pose is None else f"pose{pose}/cam{camera:02d}"
     return f"{head}/led{led:03d}_e{exposure}{ext}"
 
@@ -439,7 +474,31 @@ def write_target_photographs(
     Radiance on the target is L = ρ/π · E⊥ · max(n·ωi, 0) (:meth:`Dome.incident`);
     each pixel's ray (:meth:`Dome.pixel_rays`) is intersected with the plane.
     Only ``cameras`` (default all) photograph; the manifest lists them in its ``cameras`` field.
-    Returns the manifest's path; the manifest's ``target`` field records ρ and the poses.
+    The manifest's ``target`` field records ρ and the poses.
+
+    Parameters
+    ----------
+    folder : str or path-like
+        The capture folder (created).
+    dome : Dome
+        The rig: LEDs, cameras, exposure times and ``camera_scale``.
+    poses : sequence of TargetPose
+        The target's poses, one frame set each (``pose<p>/…`` files).
+    albedo : sequence of float
+        ρ per channel.
+    camera : ResponseCurve, optional
+        The cameras' encoding (default a 12-bit curve with the dome's full well and read noise).
+    cameras : iterable of int, optional
+        The cameras that photograph (default all).
+    seed : int
+        Seed of the noise.
+    workers : int
+        Threads encoding and writing frames.
+
+    Returns
+    -------
+    pathlib.Path
+        The path of ``manifest.json``.
     """
     folder = pathlib.Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

@@ -501,7 +501,18 @@ def _population_draws(seed, table1_spread) -> _Draws:
 
 def condition_person(skin_type, gender, age) -> int:
     """Index of the subject also measured under the other conditions of §7: the type III man whose age is nearest
-    34 (the first such), from the population's demographic draws (arrays over subjects)."""
+    34 (the first such), from the population's demographic draws.
+
+    Parameters
+    ----------
+    skin_type, gender, age : array_like, shape (n,)
+        Per subject: Fitzpatrick type (int), ``"M"`` or ``"F"``, age in years; at least one type III man.
+
+    Returns
+    -------
+    int
+        0-based index into the arrays.
+    """
     st, g, a = (np.asarray(x) for x in (skin_type, gender, age))
     men = np.flatnonzero((st == 3) & (g == "M"))
     return int(men[np.argmin(np.abs(a[men] - 34))])
@@ -620,5 +631,17 @@ def _make_subject(meta, region_map, alb, rho, m, sigma_tr_sites, *, seed, featur
 
 
 def default_population(map_size: int = DEFAULT_MAP_SIZE, seed: int = DEFAULT_SEED) -> Population:
-    """The embedded default population: :func:`synthesize_population` with its defaults."""
+    """The embedded default population: :func:`synthesize_population` with its defaults.
+
+    Parameters
+    ----------
+    map_size : int
+        Side of the UV maps (default 48).
+    seed : int
+        Seed of every random draw (default 2006).
+
+    Returns
+    -------
+    Population
+    """
     return synthesize_population(seed=seed, map_size=map_size)

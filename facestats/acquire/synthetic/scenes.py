@@ -53,7 +53,27 @@ class PatchScene:
 
 
 def square_pyramid(base=50.0, height=25.0):
-    """A square pyramid (vertices (5, 3) mm, faces (6, 3)): base on z = 0, apex at (0, 0, height), outward normals."""
+    """A square pyramid (vertices (5, 3) mm, faces (6, 3)): base on z = 0, apex at (0, 0, height), outward normals.
+
+    Parameters
+    ----------
+    base : float
+        Side of the square base centred on the origin, mm (> 0).
+    height : float
+        mm (> 0).
+
+    Returns
+    -------
+    vertices : ndarray of float64, shape (5, 3)
+        The four base corners, then the apex.
+    faces : ndarray of int, shape (6, 3)
+        The four lateral triangles, then the base's two.
+
+    Raises
+    ------
+    ValidationError
+        ``base`` or ``height`` not a number > 0.
+    """
     b = as_scalar(base, "base", 0, None, low_inclusive=False, unit="mm") / 2
     h = as_scalar(height, "height", 0, None, low_inclusive=False, unit="mm")
     v = np.array([[b, b, 0], [-b, b, 0], [-b, -b, 0], [b, -b, 0], [0, 0, h]], float)
@@ -66,6 +86,27 @@ def pyramid_scene(spacing=1.8, light="edge", *, base=50.0, height=25.0, image_si
 
     Only the four lateral faces become patches (the base faces away from light
     and camera); the whole pyramid is the occluder.
+
+    Parameters
+    ----------
+    spacing : float
+        Target patch edge length in mm (:func:`facestats.acquire.patches.mesh_patches`).
+    light : {"edge", "oblique", "uniform"}
+        The distant light (:data:`PYRAMID_LIGHTS`, E⊥ = 1).
+    base, height : float
+        As :func:`square_pyramid`, mm.
+    image_size : int
+        Side of the square camera image in pixels; the base spans about 80 % of it.
+
+    Returns
+    -------
+    PatchScene
+        With η = 1.3 and the name ``"pyramid-<light>"``.
+
+    Raises
+    ------
+    ValidationError
+        An unknown ``light``, or a bad ``spacing``, ``base`` or ``height``.
     """
     check_choice(light, "light", PYRAMID_LIGHTS)
     v, f = square_pyramid(base, height)

@@ -491,7 +491,28 @@ class DomeSimulator:
 
 def simulate_capture(truth, geometry: FaceGeometry | None = None, **kwargs) -> Capture:
     """Simulate one subject on ``geometry`` (default: the face its truth was drawn on, ``truth.geometry``,
-    rebuilt by :func:`facestats.acquire.synthetic.faces.named_face` at the truth's map size)."""
+    rebuilt by :func:`facestats.acquire.synthetic.faces.named_face` at the truth's map size).
+
+    Parameters
+    ----------
+    truth : SubjectTruth
+        The subject's ground truth (:mod:`facestats.acquire.synthetic.population`); its ``seed`` seeds the noise.
+    geometry : FaceGeometry, optional
+        The face to simulate on.
+    **kwargs
+        Keyword arguments of :class:`DomeSimulator` (``dome``, ``sensor``, ``noise``, ``eta``, …).
+
+    Returns
+    -------
+    Capture
+        In memory (:meth:`DomeSimulator.simulate`).
+
+    Raises
+    ------
+    ValidationError
+        ``truth.geometry`` names no face facestats can rebuild (when ``geometry`` is None), or an argument of
+        :class:`DomeSimulator` out of its domain.
+    """
     if geometry is None:
         geometry = named_face(truth.geometry, truth.region_map.shape[0])
     return DomeSimulator(geometry, **kwargs).simulate(truth)

@@ -65,6 +65,25 @@ def cutoff_radius(sigma_s_prime, sigma_a, eta, tail=DEFAULT_TAIL) -> float:
 
     Solves E(ρ) = (1 − tail) R_total with E the closed-form radial energy
     (:func:`facestats.model.dipole.dipole_radial_energy`) by bracketing.
+
+    Parameters
+    ----------
+    sigma_s_prime, sigma_a : array_like, scalar or shape (C,)
+        Reduced scattering and absorption coefficients in mm⁻¹ per channel (≥ 0, not both 0).
+    eta : float
+        Relative index of refraction, in [1, 3].
+    tail : float
+        Energy fraction left beyond the radius, in (0, 1) (default :data:`DEFAULT_TAIL`, 10⁻⁴).
+
+    Returns
+    -------
+    float
+        The largest of the channels' radii, mm.
+
+    Raises
+    ------
+    ValidationError
+        Coefficients, ``eta`` or ``tail`` out of their domains.
     """
     from scipy.optimize import brentq
 

@@ -29,6 +29,20 @@ def wrap_gaussian(x, sigma_px, truncate=4.0):
     :func:`scipy.ndimage.gaussian_filter1d` builds it) applied along each axis as a circular convolution by FFT:
     the periodic extension of ``mode="wrap"`` is exactly circular.  Equal to SciPy's to rounding (≤ 1e-15 of the
     input's scale, tested); kernels of at most :data:`DIRECT_TAPS` taps go to SciPy directly.
+
+    Parameters
+    ----------
+    x : array_like, shape (H, W)
+        The field, periodic in both axes.
+    sigma_px : float
+        Gaussian σ in pixels, the same along both axes.
+    truncate : float
+        Kernel radius in σ.
+
+    Returns
+    -------
+    ndarray, shape of ``x``
+        ``x``'s float dtype, float64 for an integer ``x``.
     """
     from scipy.ndimage import gaussian_filter
 
@@ -52,7 +66,21 @@ def wrap_gaussian(x, sigma_px, truncate=4.0):
 
 
 def smooth_noise(rng, shape, sigma_px):
-    """Gaussian-filtered white noise (periodic, :func:`wrap_gaussian`), scaled to unit standard deviation."""
+    """Gaussian-filtered white noise (periodic, :func:`wrap_gaussian`), scaled to unit standard deviation.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Source of the white noise.
+    shape : tuple of int
+        Shape of the field, e.g. (H, W).
+    sigma_px : float
+        Gaussian σ in pixels.
+
+    Returns
+    -------
+    ndarray of float64, shape ``shape``
+    """
     z = wrap_gaussian(rng.standard_normal(shape), sigma_px)
     return z / max(z.std(), 1e-12)
 

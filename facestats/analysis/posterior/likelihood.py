@@ -38,6 +38,26 @@ DERIVED = ("sigma_tr", "ell_d")
 def validate_profiles(r, profile, std):
     """Checked fibre distances, profiles (F, K), their std (or None) and the mask of valid fibres.
 
+    Parameters
+    ----------
+    r : array_like, shape (F,)
+        Fibre distances in mm, finite and > 0.
+    profile : array_like, shape (F,) or (F, K)
+        Readings in mm⁻², one column per channel (block); NaN marks a missing fibre.
+    std : array_like or None
+        Standard deviations of the readings in mm⁻², the shape of ``profile``; None to use the sensor's noise model.
+
+    Returns
+    -------
+    r : numpy.ndarray, shape (F,)
+        Distances as float64.
+    y : numpy.ndarray, shape (F, K)
+        Profiles as float64 (a 1-D profile becomes one column), NaN kept.
+    s : numpy.ndarray, shape (F, K), or None
+        ``std`` as float64, or None if it was None.
+    mask : numpy.ndarray of bool, shape (F, K)
+        True where the reading is finite.
+
     Raises
     ------
     ValidationError
@@ -76,12 +96,29 @@ def validate_profiles(r, profile, std):
 
 
 def prior_bounds(bounds):
-    """:data:`DEFAULT_BOUNDS` overridden by ``bounds``, checked: 0 < low < high < inf (mm⁻¹)."""
+    """:data:`DEFAULT_BOUNDS` overridden by ``bounds``, checked: 0 < low < high < inf (mm⁻¹).
+
+    Parameters
+    ----------
+    bounds : dict or None
+        ``{name: (low, high)}`` in mm⁻¹ for some of :data:`PARAMETERS`; None or empty keeps the defaults.
+
+    Returns
+    -------
+    dict
+        ``{name: (low, high)}`` as floats for every key of :data:`DEFAULT_BOUNDS`.
+
+    Raises
+    ------
+    ValidationError
+        For a key not in :data:`PARAMETERS`, or bounds that do not satisfy 0 < low < high < inf.
+    """
     b = dict(DEFAULT_BOUNDS)
     if bounds:
         for key, val in bounds.items():
             check_choice(key, "bounds key", PARAMETERS)
-            b[key] = tuple(float(v) for v in val)
+            pair = np.asarray(as_float(val, f"bounds[{key!r}]", dtype=np.float64))
+            b[key] = tuple(float(v) for v in check_shape(pair, f"bounds[{key!r}] (low, high)", (2,)))
     for key, (lo, hi) in b.items():
         if not (0 < lo < hi < np.inf):
             raise ValidationError(f"bounds[{key!r}] must satisfy 0 < low < high < inf (mm^-1), got {(lo, hi)}")

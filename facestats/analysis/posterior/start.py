@@ -73,7 +73,26 @@ def least_squares_start(post, y, std_fixed, mask):
 
     A grid search (:func:`_grid_start`), then trust-region least squares
     (:func:`scipy.optimize.least_squares`) in log space; the covariance is
-    (JᵀJ)⁻¹ of the standardised residuals.
+    (JᵀJ)⁻¹ of the standardised residuals, or 1e-4 I where that inverse is singular, non-finite or not positive
+    definite.
+
+    Parameters
+    ----------
+    post : LogPosterior
+        The posterior; gives the fibre distances, η and the (ln σ's, ln σa) bounds.
+    y : numpy.ndarray, shape (F, K)
+        Profiles in mm⁻², with missing fibres set to 0 (they are masked out).
+    std_fixed : numpy.ndarray, shape (F, K)
+        Fixed weights: standard deviations of the readings in mm⁻² (not re-evaluated at the model).
+    mask : numpy.ndarray of bool, shape (F, K)
+        Valid fibres.
+
+    Returns
+    -------
+    theta : numpy.ndarray, shape (K, 2)
+        Fitted (ln σ's, ln σa) per block, σ in mm⁻¹.
+    cov : numpy.ndarray, shape (K, 2, 2)
+        Their covariance.
     """
 
     lo, hi = post.lo, post.hi
@@ -103,7 +122,34 @@ def least_squares_start(post, y, std_fixed, mask):
 
 
 def initial_walkers(post, theta, cov, n_walkers, rng):
-    """Walkers ~ N(θ̂, Σ̂) per block, inside the bounds and at finite log-probability."""
+    """Walkers ~ N(θ̂, Σ̂) per block, inside the bounds and at finite log-probability.
+
+    Draws are clipped into the bounds; walkers at a non-finite log-probability are redrawn from N(θ̂, 10⁻⁶ I)
+    (clipped too), up to 20 times.
+
+    Parameters
+    ----------
+    post : LogPosterior
+        The posterior whose :meth:`~LogPosterior.blocks` the walkers must be finite under.
+    theta : numpy.ndarray, shape (K, 2)
+        Centre (ln σ's, ln σa) per block, e.g. from :func:`least_squares_start`.
+    cov : numpy.ndarray, shape (K, 2, 2)
+        Covariance per block (positive definite: it is Cholesky-factored).
+    n_walkers : int
+        Number of walkers.
+    rng : numpy.random.Generator
+        Source of the draws.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n_walkers, 2K)
+        Starting positions, block-major: (ln σ's, ln σa) of block 1, then block 2, ...
+
+    Raises
+    ------
+    ValidationError
+        If some walker still has a non-finite log-probability after 20 redraws.
+    """
     k = theta.shape[0]
     pad = 1e-9
     lo, hi = post.lo + pad, post.hi - pad

@@ -89,9 +89,23 @@ def fresnel_factors(samples, normal, eta=ETA_SKIN):
     them clipped to [0, 1]).  ``normal`` must have shape (n_texels, 3) and hold
     unit vectors (not checked).
 
+    Parameters
+    ----------
+    samples : Samples
+        The samples (their direction grids and indices).
+    normal : ndarray, shape (n_texels, 3)
+        Unit normal per lumitexel.
+    eta : float
+        Relative index of refraction, default 1.38.
+
     Returns
     -------
     cos_i, cos_o, ft2 : ndarray of float32, shape (S,)
+
+    Raises
+    ------
+    ValidationError
+        ``normal`` not of shape (n_texels, 3), or an invalid ``eta``.
     """
     ci_g, co_g, ft_i, ft_o = _fresnel_grids(samples, normal, eta)
     return samples.at_lights(ci_g), samples.at_cameras(co_g), samples.at_lights(ft_i) * samples.at_cameras(ft_o)
@@ -127,6 +141,27 @@ def brdf_samples(samples, normal, eta=ETA_SKIN, max_angle_deg=80.0) -> BrdfSampl
     below ``max_angle_deg`` (eq. 14's domain: 80° in the paper), compared in float32; ``f_r`` is NaN or inf
     where cos θi ≤ 0 (such samples are outside ``use``).  Irradiance E_i is per unit area normal to the light,
     so the cosine is the surface's.
+
+    Parameters
+    ----------
+    samples : Samples
+        The valid samples (radiance and beam-normal irradiance E⊥, channel-major (3, S)).
+    normal : ndarray, shape (n_texels, 3)
+        Unit normal per lumitexel (not checked to be unit).
+    eta : float
+        Relative index of refraction of F_t, default 1.38.
+    max_angle_deg : float
+        Largest θi and θo of a usable sample, degrees, in [0, 90].
+
+    Returns
+    -------
+    BrdfSamples
+        ``cos_i``, ``cos_o``, ``ft2`` (float32) and ``use`` (bool), shape (S,); ``f_r`` (3, S) float32, sr⁻¹.
+
+    Raises
+    ------
+    ValidationError
+        ``max_angle_deg`` outside [0, 90], ``normal`` not of shape (n_texels, 3), or an invalid ``eta``.
     """
     lim = np.float32(np.cos(np.radians(as_scalar(max_angle_deg, "max_angle_deg", 0.0, 90.0, unit="deg"))))
     if samples.resolved_engine == "numba" and not samples.paired:
@@ -245,7 +280,26 @@ def albedo_stable_minimum(
 def specular_residual(samples, brdf, albedo, ft2):
     """Grey specular BRDF samples f_s = mean_RGB(f_r − (α/π) F_t F_t), eq. 10, shape (S,), float32, sr⁻¹.
 
-    ``brdf`` is channel-major (3, S); ``albedo`` (n, 3); ``ft2`` (S,) is F_t(θi) F_t(θo).
+    Parameters
+    ----------
+    samples : Samples
+        The samples (for their lumitexel runs).
+    brdf : ndarray, shape (3, S)
+        BRDF samples f_r (eq. 8), channel-major, sr⁻¹.
+    albedo : ndarray, shape (n, 3)
+        Diffuse albedo α per lumitexel and channel (e.g. :func:`albedo_stable_minimum`).
+    ft2 : ndarray, shape (S,)
+        F_t(θi) F_t(θo) per sample.
+
+    Returns
+    -------
+    ndarray of float32, shape (S,)
+        f_s in sr⁻¹; NaN where the lumitexel's albedo is NaN.
+
+    Raises
+    ------
+    ValidationError
+        An argument whose shape does not match ``samples``.
     """
     _check_per_sample(samples, brdf, ft2=ft2)
     check_shape(np.asarray(albedo), "albedo", (samples.n_texels, 3))

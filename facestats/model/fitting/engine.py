@@ -48,7 +48,23 @@ def default_engine() -> str:
 
 
 def resolve_engine(engine=None) -> str:
-    """``engine`` checked (``"numba"`` or ``"numpy"``), or :func:`default_engine` for None."""
+    """``engine`` checked (``"numba"`` or ``"numpy"``), or :func:`default_engine` for None.
+
+    Parameters
+    ----------
+    engine : {"numba", "numpy"} or None
+        The engine asked for; None: ``$FACESTATS_ENGINE``, else numba if it imports, else numpy.
+
+    Returns
+    -------
+    str
+        ``"numba"`` or ``"numpy"``.
+
+    Raises
+    ------
+    ValidationError
+        An unknown engine (argument or ``$FACESTATS_ENGINE``), or ``"numba"`` when numba cannot be imported.
+    """
     if engine is None:
         return default_engine()
     if engine not in ENGINES:

@@ -22,7 +22,20 @@ __all__ = ["lobe_rate", "lobe_base", "lobe_sums", "lobe_moments", "lobe_scale"]
 
 
 def lobe_rate(model, p):
-    """Per-texel rate c of the lobe's exponential u = A e^{c z}: −1/m² (TS, z = tan²δ) or n (BP, z = ln cos δ)."""
+    """Per-texel rate c of the lobe's exponential u = A e^{c z}: −1/m² (TS, z = tan²δ) or n (BP, z = ln cos δ).
+
+    Parameters
+    ----------
+    model : str
+        ``"torrance_sparrow"``; any other value is read as ``"blinn_phong"``.
+    p : float or ndarray
+        Lobe parameter per texel: roughness m (TS) or exponent n (BP), not its logarithm.
+
+    Returns
+    -------
+    float or ndarray
+        c, shape of ``p``.
+    """
     return -1 / (p * p) if model == "torrance_sparrow" else p
 
 
@@ -31,6 +44,24 @@ def lobe_base(model, q, counts, z, a, out=None):
 
     The lobe is g = s(p) u with s = 1/m² (TS: g = A e^{−t/m²}/m²) or n + 2
     (BP: g = A (n+2) cosⁿδ); see :func:`lobe_moments`.
+
+    Parameters
+    ----------
+    model : str
+        ``"torrance_sparrow"``; any other value is read as ``"blinn_phong"``.
+    q : array_like, shape (k,)
+        ln p per texel (ln m or ln n).
+    counts : ndarray of int, shape (k,)
+        Samples per texel (their runs are consecutive); they sum to S.
+    z, a : ndarray, shape (S,)
+        Per-sample abscissa z (tan²δ or ln cos δ) and factor A; ``z``'s float dtype is the computation's.
+    out : ndarray, shape (S,), optional
+        Buffer of ``z``'s dtype to write u into.
+
+    Returns
+    -------
+    ndarray, shape (S,)
+        u, in ``z``'s dtype (``out`` when given).
     """
     u = np.multiply(z, np.repeat(lobe_rate(model, np.exp(np.asarray(q, np.float64))).astype(z.dtype), counts), out=out)
     np.exp(u, out=u)
@@ -43,6 +74,25 @@ def lobe_sums(model, q, counts, starts, z, a, y, scratch):
 
     One exponential and five products per sample: everything the Gauss-Newton
     step and E(p) need (:func:`lobe_moments`); float32 sums are pairwise.
+
+    Parameters
+    ----------
+    model : str
+        ``"torrance_sparrow"``; any other value is read as ``"blinn_phong"``.
+    q : array_like, shape (k,)
+        ln p per texel.
+    counts, starts : ndarray of int, shape (k,)
+        Length and offset of each texel's run of samples (runs consecutive and non-empty: ``np.add.reduceat``).
+    z, a : ndarray, shape (S,)
+        Per-sample abscissa and factor A, as :func:`lobe_base`.
+    y : ndarray, shape (S,)
+        Per-sample observations (grey specular f_s cos θi).
+    scratch : ndarray, shape (3, S)
+        Work buffers of ``z``'s dtype, overwritten.
+
+    Returns
+    -------
+    s_yu, s_yuz, s_uu, s_uuz, s_uuzz : ndarray of float64, shape (k,)
     """
     u = lobe_base(model, q, counts, z, a, out=scratch[0])
     yu = np.multiply(y, u, out=scratch[1])
@@ -66,6 +116,20 @@ def lobe_moments(model, q, sums):
     Blinn-Phong (eq. 11): g = (n+2) u, u = A e^{n ln cos δ}, and
     ∂g/∂ln n = g (n/(n+2) + n ln cos δ) = n u (1 + (n+2) z), z = ln cos δ.
     (Both derivatives checked against finite differences in the tests.)
+
+    Parameters
+    ----------
+    model : str
+        ``"torrance_sparrow"``; any other value is read as ``"blinn_phong"``.
+    q : array_like, shape (k,)
+        ln p per texel.
+    sums : sequence of 5 ndarray, shape (k,), or ndarray, shape (5, k)
+        The five sums of :func:`lobe_sums` at ``q``.
+
+    Returns
+    -------
+    syg, sgg, sydg, sgdg, sdgdg : ndarray of float64, shape (k,)
+        Σ y g, Σ g², Σ y g', Σ g g' and Σ g'² (the last clipped at 0).
     """
     s_yu, s_yuz, s_uu, s_uuz, s_uuzz = sums
     p = np.exp(np.asarray(q, np.float64))
@@ -85,6 +149,19 @@ def lobe_moments(model, q, sums):
 
 
 def lobe_scale(model, q):
-    """s(p) with g = s u: 1/m² (TS) or n + 2 (BP), per texel."""
+    """s(p) with g = s u: 1/m² (TS) or n + 2 (BP), per texel.
+
+    Parameters
+    ----------
+    model : str
+        ``"torrance_sparrow"``; any other value is read as ``"blinn_phong"``.
+    q : array_like
+        ln p per texel.
+
+    Returns
+    -------
+    ndarray of float64
+        s, shape of ``q``.
+    """
     p = np.exp(np.asarray(q, np.float64))
     return 1 / (p * p) if model == "torrance_sparrow" else p + 2

@@ -108,7 +108,25 @@ class TiltInputs:
 
 def tilt_inputs(samples, index, cosines, grids, diffuse):
     """:class:`TiltInputs` of the kept samples ``index`` of :class:`~facestats.model.fitting.samples.Samples`,
-    with ``cosines`` = (N·ωi, N·ωo, ωi·ωo) per sample and ``grids`` from :func:`tilt_grids`."""
+    with ``cosines`` = (N·ωi, N·ωo, ωi·ωo) per sample and ``grids`` from :func:`tilt_grids`.
+
+    Parameters
+    ----------
+    samples : Samples
+        The samples (for their ``light_index`` and ``camera_index``).
+    index : array_like of int, shape (S',)
+        Indices of the kept samples (those of the domain of eq. 14) among the S samples.
+    cosines : tuple of 3 array_like, shape (S,)
+        N·ωi, N·ωo and ωi·ωo of every sample (stored as float32).
+    grids : tuple of 2 ndarray
+        The light (n L, 4) and camera (n C, 4) grids of :func:`tilt_grids`.
+    diffuse : bool
+        Whether the diffuse term's normal tilts too.
+
+    Returns
+    -------
+    TiltInputs
+    """
     ci, co, io = (np.ascontiguousarray(x, np.float32) for x in cosines)
     light, camera = grids
     return TiltInputs(
@@ -128,7 +146,20 @@ def tilt_slopes(model, tilt):
     """float32 (4, S') with rows ∂z₁, ∂ln A₁, ∂z₂, ∂ln A₂ of ``model``'s factors along the two tilts for the kept
     samples of :class:`TiltInputs` ``tilt`` (:func:`factor_slopes`), and with its ``diffuse`` (6, S') with
     ∂ln D₁, ∂ln D₂ = κi d(N·ωi) + κo d(N·ωo) of the diffuse term (module docstring).  The numpy reference; the
-    compiled fit forms the same per texel (:func:`facestats.model.fitting.kernels.factors.texel_tilt_slopes`)."""
+    compiled fit forms the same per texel (:func:`facestats.model.fitting.kernels.factors.texel_tilt_slopes`).
+
+    Parameters
+    ----------
+    model : str
+        ``"torrance_sparrow"``; any other value is read as ``"blinn_phong"``.
+    tilt : TiltInputs
+        :func:`tilt_inputs` of the kept samples.
+
+    Returns
+    -------
+    ndarray of float32, shape (4, S') or (6, S')
+        The slopes per radian of tilt; 6 rows when ``tilt.diffuse``.
+    """
     ci, co, io = (x.take(tilt.index) for x in (tilt.ci, tilt.co, tilt.io))
     dci = tilt.light.take(tilt.light_index.take(tilt.index), axis=0).T
     dco = tilt.camera.take(tilt.camera_index.take(tilt.index), axis=0).T
@@ -140,8 +171,18 @@ def tilt_slopes(model, tilt):
 
 
 def tangent_pair(normal):
-    """Two unit tangents (t₁, t₂) per normal, float64 (n, 3) each: t₁ = N × ŷ normalised (perpendicular to N and
-    +y; N × x̂ where N is within 0.06° of ±y), t₂ = N × t₁.  ``normal`` (n, 3) unit vectors."""
+    """Two unit tangents (t₁, t₂) per normal: t₁ = N × ŷ normalised (perpendicular to N and +y; N × x̂ where N
+    is within 0.06° of ±y), t₂ = N × t₁.
+
+    Parameters
+    ----------
+    normal : array_like, shape (n, 3)
+        Unit normals (not validated; t₂ is unit only if N is).
+
+    Returns
+    -------
+    t1, t2 : ndarray of float64, shape (n, 3)
+    """
     n = np.asarray(normal, np.float64)
     t1 = np.cross(n, (0.0, 1.0, 0.0))
     near_y = np.linalg.norm(t1, axis=1) < 1e-3
@@ -156,7 +197,24 @@ def tilt_grids(samples, normal, eta, engine="numpy"):
     (lumitexel, camera) grid, flat as ``samples.light_index`` and ``camera_index`` index them; t₁, t₂ of
     :func:`tangent_pair`, κ of :func:`diffuse_coefficients` (κ and 1/N·ω 0 where the direction is at or below
     the horizon of ``normal``), formed by ``engine`` ("numba": one compiled pass per grid,
-    :func:`facestats.model.fitting.kernels.factors.tilt_grid`)."""
+    :func:`facestats.model.fitting.kernels.factors.tilt_grid`).
+
+    Parameters
+    ----------
+    samples : Samples
+        The samples (for their ``wi_grid`` and ``wo_grid``).
+    normal : array_like, shape (n, 3)
+        Unit normal per lumitexel.
+    eta : float
+        Relative index of refraction of F_t (not validated).
+    engine : str
+        ``"numba"``; any other value forms the grids with numpy.
+
+    Returns
+    -------
+    light : ndarray of float32, shape (n L, 4)
+    camera : ndarray of float32, shape (n C, 4)
+    """
     t1, t2 = tangent_pair(normal)
     if engine == "numba":
         # local import: the kernels import numba
@@ -180,8 +238,19 @@ def tilt_grids(samples, normal, eta, engine="numpy"):
 def factor_slopes(model, ci, co, io, dci, dco):
     """(∂z, ∂ln A) per sample along a tilt with cosine changes ``dci`` = ωi·t, ``dco`` = ωo·t (module docstring).
 
-    ``ci``, ``co``, ``io``: N·ωi, N·ωo (both > 0) and ωi·ωo per sample.  float32, in the
-    shape of the inputs; computed in float64.
+    Parameters
+    ----------
+    model : str
+        ``"torrance_sparrow"``; any other value is read as ``"blinn_phong"``.
+    ci, co, io : array_like, shape (S,)
+        N·ωi, N·ωo (both > 0) and ωi·ωo per sample.
+    dci, dco : array_like, shape (S,)
+        ωi·t and ωo·t, the changes of N·ωi and N·ωo per radian of tilt along t.
+
+    Returns
+    -------
+    dz, d_ln_a : ndarray of float32
+        ∂z and ∂ln A per radian, broadcast shape of the inputs (computed in float64).
     """
     ci, co, io, dci, dco = (np.asarray(x, np.float64) for x in (ci, co, io, dci, dco))
     inv = 1 / np.sqrt(np.maximum(2 + 2 * io, 1e-300))
@@ -201,8 +270,20 @@ def factor_slopes(model, ci, co, io, dci, dco):
 
 
 def diffuse_coefficients(ci, co, eta):
-    """(κi, κo) with ∂ln(F_t(θi) F_t(θo) cos θi) = κi d(N·ωi) + κo d(N·ωo) (module docstring), float64;
-    ``ci``, ``co`` in (0, 1], relative index ``eta``."""
+    """(κi, κo) with ∂ln(F_t(θi) F_t(θo) cos θi) = κi d(N·ωi) + κo d(N·ωo) (module docstring).
+
+    Parameters
+    ----------
+    ci, co : array_like
+        N·ωi and N·ωo, in (0, 1] (values above 1 are read as 1; not validated).
+    eta : float
+        Relative index of refraction.
+
+    Returns
+    -------
+    kappa_i, kappa_o : ndarray of float64
+        κi = 1/cos θi − F_r'(θi)/F_t(θi) (shape of ``ci``) and κo = −F_r'(θo)/F_t(θo) (shape of ``co``).
+    """
     out = []
     for c in (np.asarray(ci, np.float64), np.asarray(co, np.float64)):
         c = np.minimum(c, 1.0)

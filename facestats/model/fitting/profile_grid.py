@@ -355,8 +355,25 @@ def exitance_cost(levels, gram, rhs, n_rows, grid: ProfileGrid, eta) -> np.ndarr
     """Σ_j (W_j R(d') / l_j − 1)² = Rᵀ G R − 2 gᵀ R + n for every model of the grid, shape ``grid.shape``.
 
     The exitance fit of the module docstring (Suzuki eq. 34 with the dipole of eq. 3-13 for r), from the
-    normal equations of the relative-residual problem: ``gram`` G (n_levels, n_levels), ``rhs`` g (n_levels,),
-    ``n_rows`` n, over the ``levels`` d' (mm).
+    normal equations of the relative-residual problem.  No input checks (see :func:`fit_exitance_grid`).
+
+    Parameters
+    ----------
+    levels : array_like, shape (k,)
+        The levels d' of W, mm.
+    gram, rhs : ndarray, shapes (k, k) and (k,)
+        G = AᵀA and g = Aᵀ1 with A = diag(1/l) W (R in mm⁻²).
+    n_rows : int
+        n, the rows that entered G.
+    grid : ProfileGrid
+        The (σ's, σa) models, mm⁻¹.
+    eta : float
+        Relative index of refraction of the dipole.
+
+    Returns
+    -------
+    ndarray of float64, shape ``grid.shape``
+        The dimensionless cost per (σ's, σa), clipped at 0 (rounding of the expanded form).
     """
     d = np.asarray(levels, np.float64)
     total = int(np.prod(grid.shape))

@@ -125,8 +125,24 @@ def fit_distance(system: QuantisedSystem, neq: NormalEquations, profile) -> floa
     spacing when the width is finer; the system itself otherwise), the thinned
     problem is solved (monotone), and the relative standard errors of its R'
     come from :func:`~facestats.model.fitting.quantised.profile_covariance`
-    with the noise floored at ``NOISE_FLOOR``.  ``neq`` are the weighted
-    normal equations of ``system``.
+    with the noise floored at ``NOISE_FLOOR``.
+
+    Parameters
+    ----------
+    system : QuantisedSystem
+        W of Suzuki eq. 33 and its levels d'_i (mm).
+    neq : NormalEquations
+        The weighted normal equations of ``system``
+        (:func:`~facestats.model.fitting.quantised.normal_equations`, ``weighted=True``).
+    profile : ndarray, shape (n,)
+        R'_i at the system's levels, mm⁻² (the monotone solve of ``neq``); re-solved on the thinned levels when
+        they are fewer.
+
+    Returns
+    -------
+    float
+        The fit's maximum distance, mm: the last thinned level before the first (beyond d'_1 = 0) whose R' is
+        not positive or has a relative standard error above ``MAX_RELATIVE_ERROR``; the last level if none.
     """
     lev = system.levels
     keep = np.zeros(lev.size, bool)

@@ -179,6 +179,23 @@ def self_term_keywords(self_term, areas) -> dict:
 
     ``"point"``: none (the paper's eq. 17); ``"footprint"``: a patch's own light over the disk of its area;
     ``"surface"``: that, and the near neighbours' over theirs (module docstring).
+
+    Parameters
+    ----------
+    self_term : str
+        One of :data:`SELF_TERMS`.
+    areas : array_like, shape (m,) or None
+        Patch areas, mm², passed on unchecked (:func:`quantised_system` checks them).
+
+    Returns
+    -------
+    dict
+        ``{}`` for ``"point"``, else ``{"areas": areas, "near": self_term == "surface"}``.
+
+    Raises
+    ------
+    ValidationError
+        A ``self_term`` not in :data:`SELF_TERMS`.
     """
     check_choice(self_term, "self_term", SELF_TERMS)
     if self_term == "point":
@@ -232,8 +249,34 @@ def _farthest(rows_xyz, cols_xyz, rho=None) -> float:
 
 def planned_levels(points, weights, rows=None, *, width, areas=None, near=False) -> int:
     """Number of levels :func:`quantised_system` allocates W with at ``width`` (before trimming to the farthest
-    pair): W then takes len(rows) × this × 8 bytes.  Raises :class:`ValidationError` where the width would give
-    more than :data:`MAX_LEVELS`, as :func:`quantised_system` does."""
+    pair): W then takes len(rows) × this × 8 bytes.
+
+    Parameters
+    ----------
+    points : array_like, shape (m, 3)
+        Patch centres, mm (not validated).
+    weights : array_like, shape (m,)
+        c_k A_k (lit patches > 0).
+    rows : array_like of int, optional
+        Indices of the visible patches (default: all).
+    width : float
+        Quantisation width w in mm, > 0.
+    areas : array_like, shape (m,), optional
+        Patch areas A_k, mm²; read only with ``near`` (needed then).
+    near : bool
+        Whether :func:`quantised_system` takes the near neighbours over their disks (their radii extend the range).
+
+    Returns
+    -------
+    int
+        The level count n.
+
+    Raises
+    ------
+    ValidationError
+        An invalid ``width``, or one that would give more than :data:`MAX_LEVELS`, as :func:`quantised_system`
+        does.
+    """
     p = np.asarray(points, np.float64)
     wk = np.asarray(weights, np.float64)
     idx = np.arange(p.shape[0]) if rows is None else np.asarray(rows)
@@ -606,6 +649,18 @@ def interpolation_matrix(levels, coarse) -> np.ndarray:
     ``coarse`` must be a subset of ``levels`` holding its first and last entry, so
     that every hat function of the coarse levels is a combination of the fine
     ones and W_coarse = W_fine P exactly.
+
+    Parameters
+    ----------
+    levels : array_like, shape (n_fine,)
+        The fine levels d'_i, mm, increasing.
+    coarse : array_like, shape (n_coarse,)
+        The kept levels, mm (≥ 2; not validated).
+
+    Returns
+    -------
+    ndarray of float64, shape (n_fine, n_coarse)
+        P; each row sums to 1.
     """
     lev = np.asarray(levels, np.float64)
     cl = np.asarray(coarse, np.float64)
@@ -622,6 +677,24 @@ def merge_levels(system: QuantisedSystem, keep) -> QuantisedSystem:
     """Remove the levels not in ``keep`` (bool mask), widening their neighbours' hats (module docstring).
 
     The first level (d'_1 = 0, eq. 22) and the last (eq. 23) are always kept.
+
+    Parameters
+    ----------
+    system : QuantisedSystem
+        The system to coarsen.
+    keep : array_like of bool, shape (n,)
+        The levels to keep, one entry per level of ``system``.
+
+    Returns
+    -------
+    QuantisedSystem
+        A copy with W P, the kept levels, the support mapped by P and the removed levels appended to ``merged``;
+        ``system`` itself when nothing is removed.
+
+    Raises
+    ------
+    ValidationError
+        ``keep`` of another shape than the levels.
     """
     k = np.asarray(keep, bool).copy()
     if k.shape != system.levels.shape:
@@ -671,7 +744,29 @@ def _check_exitance(exitance, n_rows):
 
 
 def normal_equations(system: QuantisedSystem, exitance, *, weighted=True) -> NormalEquations:
-    """(G, g, yy) of the weighted (relative, rows with l_j > 0) or plain problem (see :class:`NormalEquations`)."""
+    """(G, g, yy) of the weighted (relative, rows with l_j > 0) or plain problem (see :class:`NormalEquations`).
+
+    Parameters
+    ----------
+    system : QuantisedSystem
+        W of Suzuki eq. 33 on the visible rows.
+    exitance : array_like, shape (rows,)
+        l_j of eq. 15 for the system's rows, ≥ 0.
+    weighted : bool
+        True: A = diag(1/l) W over the rows with l_j > 0, y = 1 (the monotone solve); False: A = W, y = l
+        (the paper's solve).
+
+    Returns
+    -------
+    NormalEquations
+
+    Raises
+    ------
+    ValidationError
+        A negative or non-finite exitance, or one not of shape (rows,).
+    FitError
+        ``weighted`` with l = 0 on every row.
+    """
     l = _check_exitance(exitance, system.matrix.shape[0])
     if weighted:
         use = l > 0
@@ -710,6 +805,22 @@ def conditioning(neq: NormalEquations, rcond=1e-10) -> Conditioning:
     Gram matrix: exact to rounding for singular values above about 10⁻⁷ s_max,
     so ranks at ``rcond`` ≥ 10⁻⁷ and condition numbers up to about 10⁷ are
     resolved; larger condition numbers are reported as at least that.
+
+    Parameters
+    ----------
+    neq : NormalEquations
+        The problem (its Gram matrix G = AᵀA).
+    rcond : float
+        Relative threshold of the rank, in (0, 1).
+
+    Returns
+    -------
+    Conditioning
+
+    Raises
+    ------
+    ValidationError
+        An ``rcond`` outside (0, 1).
     """
     from scipy.linalg import eigvalsh
 
@@ -728,6 +839,18 @@ def dependent_levels(neq: NormalEquations, rcond=1e-10) -> np.ndarray:
     The pivoted Cholesky factorisation of the scaled Gram matrix (LAPACK
     ``dpstrf``, tolerance rcond²) orders the columns as a column-pivoted QR of
     A would; the columns after the rank are those a rank-revealing solve drops.
+
+    Parameters
+    ----------
+    neq : NormalEquations
+        The problem (its Gram matrix G = AᵀA).
+    rcond : float
+        Relative singular-value threshold (not validated).
+
+    Returns
+    -------
+    ndarray of int64
+        0-based level indices, empty at full rank.
     """
     from scipy.linalg.lapack import dpstrf
 
@@ -786,7 +909,18 @@ def _monotone_triangle(neq: NormalEquations):
 
 
 def solve_monotone_normal(neq: NormalEquations) -> np.ndarray:
-    """r ≥ 0, non-increasing, minimising ‖A r − y‖ for weighted normal equations (module docstring)."""
+    """r ≥ 0, non-increasing, minimising ‖A r − y‖ for weighted normal equations (module docstring).
+
+    Parameters
+    ----------
+    neq : NormalEquations
+        The problem, usually weighted (:func:`normal_equations`).
+
+    Returns
+    -------
+    ndarray of float64, shape (n,)
+        R'_i in mm⁻², non-negative and non-increasing.
+    """
     from scipy.optimize import nnls
 
     tri, z, scale = _monotone_triangle(neq)
@@ -819,6 +953,18 @@ def profile_covariance(neq: NormalEquations, profile) -> np.ndarray:
 
     Used to judge which levels the data determine; the constraints of the
     monotone solve are ignored (the local, unconstrained spread).
+
+    Parameters
+    ----------
+    neq : NormalEquations
+        The problem.
+    profile : array_like, shape (n,)
+        The solution r (R'_i, mm⁻²) whose residual gives σ̂².
+
+    Returns
+    -------
+    ndarray of float64, shape (n, n)
+        The covariance of r, in the square of r's unit.
     """
     from scipy.linalg import pinvh
 

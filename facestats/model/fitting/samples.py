@@ -38,7 +38,18 @@ __all__ = ["Samples", "run_starts", "segment_sum", "masked", "order_keys", "vali
 
 
 def run_starts(counts):
-    """Start offsets (int64) of consecutive runs of ``counts`` samples: one per run, none for no runs."""
+    """Start offsets (int64) of consecutive runs of ``counts`` samples: one per run, none for no runs.
+
+    Parameters
+    ----------
+    counts : array_like of int, shape (k,)
+        Length of each run (≥ 0).
+
+    Returns
+    -------
+    ndarray of int64, shape (k,)
+        Offset of each run: 0, counts[0], counts[0] + counts[1], ….
+    """
     c = np.asarray(counts, np.int64)
     return np.cumsum(c) - c
 
@@ -49,6 +60,18 @@ def segment_sum(values, starts, counts):
     ``values`` is (S,) or (K, S) (summed along the last axis); the result has one
     entry per run, 0 for empty runs, in the dtype of ``values`` (float32 sums are
     pairwise, accurate to about 1e-7 relative).
+
+    Parameters
+    ----------
+    values : array_like, shape (S,) or (K, S)
+        Per-sample values.
+    starts, counts : ndarray of int, shape (k,)
+        Offset and length of each run (:func:`run_starts`).
+
+    Returns
+    -------
+    ndarray, shape (k,) or (K, k)
+        The sums, float in the dtype of ``values`` or int64 for integer or bool ``values``.
     """
     v = np.asarray(values)
     nonempty = counts > 0
@@ -66,6 +89,18 @@ def masked(values, mask):
 
     A product with the mask, which streams (``np.where`` is several times slower);
     masked-out products that are not finite are then zeroed in place.
+
+    Parameters
+    ----------
+    values : array_like
+        The values.
+    mask : array_like of bool
+        Broadcast against ``values``.
+
+    Returns
+    -------
+    ndarray
+        ``values`` × ``mask``, broadcast shape; NaN or inf values where ``mask`` holds stay as they are.
     """
     v = np.asarray(values)
     m = np.asarray(mask, bool)
@@ -85,6 +120,21 @@ def order_keys(values):
     non-negative floats; flipping the magnitude bits of the negative ones
     (``bits ^ ((bits >> 31) & 0x7FFFFFFF)``) extends the order to them (−0 just
     below +0).  The lower word holds the position (fewer than 2³¹ values, none NaN).
+
+    Parameters
+    ----------
+    values : array_like, shape (S,)
+        Values, read as float32.
+
+    Returns
+    -------
+    ndarray of int64, shape (S,)
+        One key per value.
+
+    Raises
+    ------
+    ValidationError
+        ``values`` not 1-D, or with 2³¹ entries or more.
     """
     v = np.ascontiguousarray(values, np.float32)
     if v.ndim != 1 or v.size >= 2**31:
@@ -105,6 +155,18 @@ def valid_samples(radiance, irradiance):
     capture format) is tested on its bit patterns, without conversion: a
     half-precision value is ≥ 0 and not NaN exactly when its pattern is at most
     0x7C00 (+∞) or equals 0x8000 (−0).
+
+    Parameters
+    ----------
+    radiance : array_like, shape (n, C, L, 3)
+        Radiance per lumitexel, camera, light and channel (any float dtype; float16 as captured).
+    irradiance : array_like, shape (n, L, 3)
+        Beam-normal irradiance E⊥ per lumitexel, light and channel.
+
+    Returns
+    -------
+    ndarray of bool, shape (n, C, L)
+        True where the sample is valid (+∞ radiance counts as valid).
     """
     r = np.asarray(radiance)
     if r.dtype == np.float16:

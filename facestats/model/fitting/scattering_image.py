@@ -408,8 +408,34 @@ def fit_scattering_system(
 ) -> ScatteringImageFit:
     """Steps 3-5 of :func:`fit_scattering_image` on a built system (reuse W for many images of one scene).
 
-    ``exitance`` holds l_j for the system's rows (``system.rows``).  Other
-    parameters as :func:`fit_scattering_image`; ``width`` is only recorded.
+    Parameters
+    ----------
+    system : QuantisedSystem
+        W of Suzuki eq. 33 (:func:`~facestats.model.fitting.quantised.quantised_system`).
+    exitance : array_like, shape (len(system.rows),)
+        l_j of eq. 15 (≥ 0) for the system's rows, in the order of ``system.rows``.
+    method, eta, grid, max_distance, min_pairs, rcond, refine, level
+        As :func:`fit_scattering_image`.
+    width : float, optional
+        Only recorded in the result (default the system's second level d'_2).
+
+    Returns
+    -------
+    ScatteringImageFit
+
+    Raises
+    ------
+    ValidationError
+        Invalid arguments (an invalid ``exitance`` is reported as ``radiance``), or a ``max_distance`` beyond
+        the farthest pair (or given with ``method="exitance"``).
+    FitError
+        No row with l > 0 (except for ``method="pinv"``), fewer than 3 levels left after merging (for
+        ``"exitance"`` R' is then NaN instead), or fewer than 3 rows with l > 0 for the exitance fit.
+
+    Warns
+    -----
+    QuantisationWarning
+        Levels merged, rank deficit, ill-conditioning or rows left out (also listed in ``notes``).
     """
     check_choice(method, "method", METHODS)
     check_integer(min_pairs, "min_pairs", 1)
@@ -569,6 +595,19 @@ def fit_scattering_channels(points, areas, irradiance, radiance, *, width, visib
     ``irradiance`` is (m,) (one light colour for all channels) or (m, C); channels
     whose irradiance columns are equal share one W (a white light: one build for
     R, G and B).  Other parameters (``self_term`` too) as :func:`fit_scattering_image`.
+
+    Parameters
+    ----------
+    points, areas
+        As :func:`fit_scattering_image`.
+    irradiance : array_like, shape (m,) or (m, C)
+        c_k of eq. 16, ≥ 0, for all channels or per channel.
+    radiance : array_like, shape (m, C)
+        l_j of eq. 15 per channel, ≥ 0.
+    width, visible
+        As :func:`fit_scattering_image`.
+    **options
+        The other keywords of :func:`fit_scattering_image` (``self_term``, ``block_bytes``, ``progress`` too).
 
     Returns
     -------

@@ -323,6 +323,51 @@ def solve_specular(
     allow the lobe's normal two tilts, and with its ``diffuse`` and ``d`` the normal of the diffuse
     term eq. 10 removed with the grey albedo ``albedo`` (T,) too
     (:mod:`facestats.model.fitting.normal_tilt`).
+
+    Parameters
+    ----------
+    model : {"torrance_sparrow", "blinn_phong"}
+        The lobe (not validated here: :func:`~facestats.model.fitting.specular.fit_specular_models` checks it).
+    y : ndarray, shape (S,)
+        y = f_s cos θi of the kept samples (w = 1), each texel's samples one contiguous run.
+    s1, a : ndarray, shape (S,)
+        The per-sample factors (z, A) of :func:`~facestats.model.fitting.specular.specular_factors`.
+    n_use : array_like of int, shape (T,)
+        Samples per texel (the run lengths).
+    bounds : ((rho_lo, rho_hi), (lobe_lo, lobe_hi)) or None
+        Bounds of ρs and of the lobe parameter (m or n), 0 ≤ rho_lo < rho_hi, 0 < lobe_lo < lobe_hi;
+        None: :data:`DEFAULT_BOUNDS`.
+    min_samples : int
+        Texels with fewer samples are not solved (flag ``few_samples``, values NaN), ≥ 2.
+    max_iter : int
+        Iteration cap, ≥ 0 (flag ``not_converged`` when reached).
+    tol : float
+        Relative convergence tolerance on E(p)², ≥ 0.
+    max_relative_error : float
+        Relative standard error above which a texel is flagged ``ill_conditioned``, > 0.
+    dtype : numpy dtype
+        Float dtype of the result's arrays (and of the numpy iteration's parameters).
+    start : array_like, shape (T,), optional
+        Starting lobe parameter per texel; non-finite or non-positive entries take the log-linear start.
+    engine : {"numba", "numpy"}, optional
+        Default: the configured one.
+    d : ndarray, shape (S,), optional
+        ∂y/∂α per sample: fit the grey diffuse level δ too.
+    tilt : TiltInputs, optional
+        Normal tilts allowed in the standard errors.
+    albedo : ndarray, shape (T,), optional
+        Grey albedo α_R + α_G + α_B per texel, with a ``tilt`` whose diffuse normal tilts.
+
+    Returns
+    -------
+    SpecularFit
+        One entry per texel; ρs, its standard error, E(p) and δ are those of the unscaled ``y`` (module
+        docstring: Scale).
+
+    Raises
+    ------
+    ValidationError
+        Invalid ``bounds``, ``min_samples``, ``max_iter``, ``tol``, ``max_relative_error`` or ``engine``.
     """
     (r_lo, r_hi), (p_lo, p_hi) = _check_solver_args(model, bounds, min_samples, max_iter, tol, max_relative_error)
     engine = resolve_engine(engine)

@@ -65,6 +65,28 @@ def specular_factors(samples, normal, model, eta=ETA_SKIN, cos=None):
     s1 = ln cos δ, A = cos θi / (2π).  A = 0 where a direction is below the
     horizon.  ``cos`` = (N·ωi, N·ωo) per sample may be passed when already known
     (``normal`` is then not used).
+
+    Parameters
+    ----------
+    samples : Samples
+        The samples (for ωi·ωo and, without ``cos``, their direction grids).
+    normal : array_like, shape (n, 3)
+        Unit normal per lumitexel.
+    model : {"torrance_sparrow", "blinn_phong"}
+        The lobe.
+    eta : float
+        Relative index of refraction of the Torrance-Sparrow Fresnel term (one number > 0), default 1.38.
+    cos : tuple of 2 ndarray, shape (S,), optional
+        (N·ωi, N·ωo) per sample.
+
+    Returns
+    -------
+    s1, a : ndarray of float32, shape (S,)
+
+    Raises
+    ------
+    ValidationError
+        An unknown ``model`` or an invalid ``eta``.
     """
     check_choice(model, "model", DEFAULT_BOUNDS)
     eta = check_eta(eta, scalar=True)
@@ -95,6 +117,23 @@ def equivalent_lobe(lobe, source, target):
     the two distributions very similar.  It is only a starting point: one
     model's fit starts the other's, which then converges on its own.  ``m`` is
     clamped at 10⁻³ (so the result stays finite) and ``n`` at 0, in and out (m > 1 gives n = 0).
+
+    Parameters
+    ----------
+    lobe : array_like
+        Lobe parameter of ``source``: roughness m (Torrance-Sparrow) or exponent n (Blinn-Phong).
+    source, target : {"torrance_sparrow", "blinn_phong"}
+        The models to convert from and to.
+
+    Returns
+    -------
+    ndarray of float64
+        The ``target`` lobe parameter, shape of ``lobe`` (``lobe`` itself as float64 when the models agree).
+
+    Raises
+    ------
+    ValidationError
+        An unknown model name.
     """
     check_choice(source, "source", DEFAULT_BOUNDS)
     check_choice(target, "target", DEFAULT_BOUNDS)

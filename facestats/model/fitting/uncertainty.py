@@ -62,6 +62,22 @@ def lobe_jacobian(model, q, u, z):
 
     Torrance-Sparrow (eq. 12-13): g = w u, w = 1/m², ∂g/∂ln m = 2 w u (w z − 1).
     Blinn-Phong (eq. 11): g = (n + 2) u, ∂g/∂ln n = n u (1 + (n + 2) z).
+
+    Parameters
+    ----------
+    model : str
+        ``"torrance_sparrow"``; any other value is read as ``"blinn_phong"``.
+    q : ndarray, shape (S,)
+        ln p of each sample's texel.
+    u : ndarray, shape (S,)
+        The lobe base of :func:`facestats.model.fitting.lobes.lobe_base`.
+    z : ndarray, shape (S,)
+        The per-sample abscissa (tan²δ or ln cos δ).
+
+    Returns
+    -------
+    g, dg : ndarray, shape (S,)
+        The lobe g and ∂g/∂q (float64 for float64 inputs).
     """
     p = np.exp(q)
     if model == "torrance_sparrow":
@@ -79,8 +95,36 @@ def robust_variances(model, y, s1, a, d, n_use, good, rho, q, delta=None, tilt=N
     lobe's normal per sample (:mod:`facestats.model.fitting.normal_tilt`), two more columns
     ρs g (∂ln A + c ∂z); (6, S) with ``d``: also ∂ln D of two tilts of the diffuse term's normal,
     two more columns (α + δ)(−d) ∂ln D with ``albedo`` α (T,) the grey albedo eq. 10 removed.
-    Texels not ``good`` get NaN.  Returns ``(e2, var_rho, var_q)``,
-    float64, of the scale of ``y``.
+    Texels not ``good`` get NaN.
+
+    Parameters
+    ----------
+    model : str
+        ``"torrance_sparrow"``; any other value is read as ``"blinn_phong"``.
+    y : ndarray, shape (S,)
+        y = f_s cos θi per sample.
+    s1, a : ndarray, shape (S,)
+        The per-sample factors (z, A) of :func:`facestats.model.fitting.specular.specular_factors`.
+    d : ndarray, shape (S,) or None
+        ∂y/∂α per sample, or None without the diffuse level.
+    n_use : ndarray of int, shape (T,)
+        Samples per texel (consecutive runs).
+    good : ndarray of bool, shape (T,)
+        The texels solved.
+    rho, q : ndarray, shape (T,)
+        ρs and q = ln p at the solution.
+    delta : ndarray, shape (T,), optional
+        δ per texel; required with ``d``.
+    tilt : ndarray, shape (4, S) or (6, S), optional
+        The tilts' slopes per sample of ``y`` (:func:`facestats.model.fitting.normal_tilt.tilt_slopes`); 6 rows
+        only with ``d``.
+    albedo : ndarray, shape (T,), optional
+        Grey albedo α per texel; required with a 6-row ``tilt``.
+
+    Returns
+    -------
+    e2, var_rho, var_q : ndarray of float64, shape (T,)
+        E² = Σ r² and the robust variances of ρs and q, of the scale of ``y`` (as given, not scaled back).
     """
     n_tex = n_use.size
     e2, var_rho, var_q = (np.full(n_tex, np.nan) for _ in range(3))
@@ -124,7 +168,21 @@ def robust_variances(model, y, s1, a, d, n_use, good, rho, q, delta=None, tilt=N
 
 def gram_stack(left, right, starts):
     """Per-run Σ left_i right_j as (T, P, Q) for rows ``left`` (P, S) and ``right`` (Q, S) (float64 sums; when
-    ``right`` is ``left``, each symmetric pair once)."""
+    ``right`` is ``left``, each symmetric pair once).
+
+    Parameters
+    ----------
+    left : ndarray, shape (P, S)
+        Rows of per-sample values (e.g. Jacobian columns).
+    right : ndarray, shape (Q, S)
+        Rows of per-sample values; ``left`` itself for a Gram matrix.
+    starts : ndarray of int, shape (T,)
+        Offsets of the T runs (consecutive and non-empty: ``np.add.reduceat``).
+
+    Returns
+    -------
+    ndarray of float64, shape (T, P, Q)
+    """
     out = np.empty((starts.size, left.shape[0], right.shape[0]))
     for i in range(left.shape[0]):  # P, Q ≤ 7: segmented sums, each over all samples
         for j in range(right.shape[0]):
@@ -148,6 +206,16 @@ def inverse_stack(h):
     ≥ 1 for a positive definite H: rounding in a rank-deficient H can make it negative).  For two columns
     this is the test |det| > 1e-12 × the diagonal's product; for more it does not shrink with
     their number as that determinant test does.
+
+    Parameters
+    ----------
+    h : ndarray, shape (T, P, P)
+        Gram matrices (:func:`gram_stack`).
+
+    Returns
+    -------
+    ndarray, shape (T, P, P)
+        H⁻¹ per matrix, in ``h``'s dtype; all NaN where H is singular.
     """
     det = np.linalg.det(h)
     diag = np.diagonal(h, axis1=1, axis2=2)
@@ -170,6 +238,28 @@ def rms_error(model, y, s1, a, n_use, rho, lobe, d=None, shift=None):
     sample) and ``shift`` (δ per texel) the residuals are y + δ d − ρs g
     (:mod:`facestats.model.fitting.diffuse_level`).  The compiled twin is
     :func:`facestats.model.fitting.kernels.lm.rms_runs`.
+
+    Parameters
+    ----------
+    model : str
+        ``"torrance_sparrow"``; any other value is read as ``"blinn_phong"``.
+    y : ndarray, shape (S,)
+        y = f_s cos θi per sample.
+    s1, a : ndarray, shape (S,)
+        The per-sample factors (z, A) of :func:`facestats.model.fitting.specular.specular_factors`.
+    n_use : array_like of int, shape (T,)
+        Samples per texel (consecutive runs).
+    rho, lobe : ndarray, shape (T,)
+        ρs and the lobe parameter p (m or n, not its logarithm) per texel.
+    d : ndarray, shape (S,), optional
+        ∂y/∂α per sample; used only with ``shift``.
+    shift : ndarray, shape (T,), optional
+        The diffuse level δ per texel; used only with ``d``.
+
+    Returns
+    -------
+    ndarray of float64, shape (T,)
+        E(p) in the unit of ``y``; NaN for texels without samples or with a non-finite ρs or lobe or a lobe ≤ 0.
     """
     n_use = np.asarray(n_use, np.int64)
     out = np.full(n_use.size, np.nan)
@@ -196,6 +286,33 @@ def standard_errors(model, n_use, good, rho, q, all_sums, e2, var_rho, var_q, ma
     ``all_sums`` are the five lobe sums at the solution (:func:`facestats.model.fitting.lobes.lobe_sums`),
     which give the classic (JᵀJ)⁻¹ of (ρs, q); ``e2``, ``var_rho``, ``var_q`` those of
     :func:`robust_variances` (or of the compiled solve).
+
+    Parameters
+    ----------
+    model : str
+        ``"torrance_sparrow"``; any other value is read as ``"blinn_phong"``.
+    n_use : ndarray of int, shape (T,)
+        Samples per texel.
+    good : ndarray of bool, shape (T,)
+        The texels that were solved.
+    rho, q : ndarray, shape (T,)
+        ρs and q = ln p at the solution.
+    all_sums : ndarray, shape (5, T)
+        The five lobe sums at the solution.
+    e2, var_rho, var_q : ndarray, shape (T,)
+        E² = Σ r² and the robust variances of ρs and q.
+    max_relative_error : float
+        Classic relative standard error of ρs or of q above which a texel is ill-conditioned.
+
+    Returns
+    -------
+    err : ndarray of float64, shape (T,)
+        E(p) = sqrt(E²/n), in the unit of y; NaN where not ``good`` (as the two below).
+    rho_std, lobe_std : ndarray of float64, shape (T,)
+        Robust standard errors of ρs and of p (p σ_q).
+    ill : ndarray of bool, shape (T,)
+        Good texels whose classic JᵀJ is singular, whose robust variances are not finite, or whose classic
+        relative error exceeds ``max_relative_error``.
     """
     n_tex = n_use.size
     err, r_std, p_std = (np.full(n_tex, np.nan) for _ in range(3))

@@ -451,6 +451,18 @@ def padded_empty(shape, dtype) -> np.ndarray:
     """An uninitialised (H, W) map whose rows do not alias in the CPU caches (a view of a wider buffer).
 
     The pass reads such a map without a copy (see :data:`ROW_PAD_BYTES`); other maps are copied once.
+
+    Parameters
+    ----------
+    shape : tuple of 2 int
+        (H, W).
+    dtype : numpy dtype
+        Of the map.
+
+    Returns
+    -------
+    ndarray, shape (H, W)
+        Uninitialised; rows are :data:`ROW_PAD_BYTES` longer in memory when W texels fill a multiple of 1024 bytes.
     """
     h, w = shape
     item = np.dtype(dtype).itemsize

@@ -130,6 +130,17 @@ def island_reach(islands) -> np.ndarray:
     in the texel's own island.  Taps lie up to n / |a_major| texels away (n taps each
     side) and read up to 3 texels across (Lanczos-3), so the compiled pass skips the
     per-tap checks where the reach exceeds n / |a_major| + 4.
+
+    Parameters
+    ----------
+    islands : array_like of int, shape (H, W)
+        UV island label of each texel (0 = gutter; labels ≥ 0, as −1 marks the outside of the map).
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W)
+        The Euclidean distance in texels (0 on a texel that has another island, or the border, among its
+        8 neighbours).
     """
     from scipy.ndimage import distance_transform_edt, maximum_filter, minimum_filter
 

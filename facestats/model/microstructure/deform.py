@@ -56,6 +56,24 @@ def strain_kernels(strain, table="forehead"):
     """Per-texel (α_s, σ_s, α_t, σ_t) from a :class:`~facestats.model.strain.TexelStrain` (eq. 8-9), float32.
 
     Texels off the mesh (``valid`` False) get the identity kernel (α = 0).
+
+    Parameters
+    ----------
+    strain : TexelStrain
+        Per-texel principal stretches ``r_s ≥ r_t`` and ``valid`` mask, (H, W).
+    table : str or KernelTable
+        ``"forehead"`` (eq. 8-9, the default) or a table from
+        :func:`facestats.model.microstructure.tables.fit_kernel_table`.
+
+    Returns
+    -------
+    alpha_s, sigma_s, alpha_t, sigma_t : ndarray of float32, shape (H, W)
+        α ∈ [−2, 1] and σ in µm along the s and t axes (r_t is taken as at least 1e-6).
+
+    Raises
+    ------
+    ValidationError
+        An unknown ``table``.
     """
     a_s, s_s = kernel_parameters(np.where(strain.valid, strain.r_s, 1.0), table)
     a_t, s_t = kernel_parameters(np.where(strain.valid, np.maximum(strain.r_t, 1e-6), 1.0), table)
@@ -67,6 +85,18 @@ def normal_jacobian(strain, deformed=True) -> np.ndarray:
     """Per-texel map (H, W, 2, 2) from a texel gradient of heights in µm to tangent slopes (module docstring).
 
     ``deformed=False`` gives the rest surface's (T = I).
+
+    Parameters
+    ----------
+    strain : TexelStrain
+        The frame's per-texel T and M = Q Rᵀ, and the whole map's shape (W, H texels).
+    deformed : bool
+        Slopes along the deformed tangent frame (T⁻ᵀ Mᵀ diag(W, H) / 1000), else the rest one's.
+
+    Returns
+    -------
+    ndarray of float64, shape (H, W, 2, 2)
+        The ``jacobian`` of :func:`facestats.model.microstructure.surface.slopes` (per µm of height).
     """
     h, w = strain.map_shape
     m_t = np.swapaxes(strain.m, -1, -2)

@@ -132,7 +132,22 @@ class KernelFit:
 
 
 def deformation_matrix(axis, r, r_t=1.0) -> np.ndarray:
-    """A = r a aᵀ + r_t b bᵀ: stretch r along the unit axis a and r_t across it (b ⟂ a)."""
+    """A = r a aᵀ + r_t b bᵀ: stretch r along the unit axis a and r_t across it (b ⟂ a).
+
+    Parameters
+    ----------
+    axis : array_like, shape (2,)
+        Unit axis a = (a_u, a_v) (not normalised here); b = (−a_v, a_u).
+    r : float
+        Stretch ratio along a (> 1 stretch, < 1 compression).
+    r_t : float
+        Stretch ratio across a (default 1: no change).
+
+    Returns
+    -------
+    ndarray of float64, shape (2, 2)
+        A, symmetric.
+    """
     a = np.asarray(axis, np.float64)
     b = np.array([-a[1], a[0]])
     return r * np.outer(a, a) + r_t * np.outer(b, b)
@@ -144,8 +159,21 @@ def gaussian_stencil(axis, sigma_px):
     Tap i (1 ≤ |i| ≤ n) lies i texels along the axis's major direction and i·slope across it, and is
     read by Lanczos-3 from six texels across (:mod:`~facestats.model.microstructure.taps`, as the
     compiled pass reads it); it spreads its weight g_i = exp(−i²/(2 s²)), s = σ_px |a_major| the σ in
-    taps, over those texels.  The stencil sums to 1.  Returns ``(stencil, half)``: the stencil is
-    (2 half + 1) × (2 half + 1), centred at ``[half, half]``, half = n + 3.
+    taps, over those texels.  The stencil sums to 1.
+
+    Parameters
+    ----------
+    axis : array_like, shape (2,)
+        Unit axis (a_u, a_v) of the pass.
+    sigma_px : float
+        Gaussian standard deviation in texels, ≥ 0.
+
+    Returns
+    -------
+    stencil : ndarray of float64, shape (2 half + 1, 2 half + 1)
+        Weights indexed [v, u], centred at ``[half, half]``, summing to 1.
+    half : int
+        n + 3, with n = ceil(TRUNCATE · s) the taps each side.
     """
     u_major, slope, major = taps.major_axis(np.float32(axis[0]), np.float32(axis[1]))
     sp = float(taps.gaussian_spacing(sigma_px, major))

@@ -62,22 +62,85 @@ GAUSSIAN_RESPONSE_FLOOR = 2e-3
 
 
 def check_alpha(alpha, name="alpha") -> np.ndarray:
-    """α as a finite float array in [−2, 1] (eq. 6), else a ValidationError naming ``name``."""
+    """α as a finite float array in [−2, 1] (eq. 6), else a ValidationError naming ``name``.
+
+    Parameters
+    ----------
+    alpha : array_like
+        Filter strength α of eq. 6.
+    name : str
+        The argument's name, for the message.
+
+    Returns
+    -------
+    ndarray
+        α as float32 or float64 (float64 for integer input), shape of ``alpha``.
+
+    Raises
+    ------
+    ValidationError
+        A non-numeric or non-finite α, or one outside [−2, 1].
+    """
     return as_finite(alpha, name, *ALPHA_RANGE)
 
 
 def check_sigma(sigma_um, name="sigma") -> np.ndarray:
-    """σ as a finite float array in [1, 100] µm (the fitted range of §5), else a ValidationError."""
+    """σ as a finite float array in [1, 100] µm (the fitted range of §5), else a ValidationError.
+
+    Parameters
+    ----------
+    sigma_um : array_like
+        Gaussian standard deviation σ, µm of skin.
+    name : str
+        The argument's name, for the message.
+
+    Returns
+    -------
+    ndarray
+        σ in µm as float32 or float64 (float64 for integer input), shape of ``sigma_um``.
+
+    Raises
+    ------
+    ValidationError
+        A non-numeric or non-finite σ, or one outside [1, 100] µm.
+    """
     return as_finite(sigma_um, name, *SIGMA_RANGE_UM, unit="um")
 
 
 def kernel_radius(sigma_px) -> np.ndarray:
-    """Half-width R = ceil(TRUNCATE · σ_px) of the discrete Gaussian, in taps (int)."""
+    """Half-width R = ceil(TRUNCATE · σ_px) of the discrete Gaussian, in taps (int).
+
+    Parameters
+    ----------
+    sigma_px : array_like
+        Gaussian standard deviation in texels (not validated).
+
+    Returns
+    -------
+    ndarray or numpy.int64
+        R, int64, shape of ``sigma_px`` (a scalar for a scalar).
+    """
     return np.ceil(TRUNCATE * np.asarray(sigma_px, np.float64)).astype(np.int64)
 
 
 def gaussian_taps(sigma_px: float) -> np.ndarray:
-    """The truncated, renormalised discrete Gaussian G (eq. 6) of ``sigma_px`` texels, taps −R … R."""
+    """The truncated, renormalised discrete Gaussian G (eq. 6) of ``sigma_px`` texels, taps −R … R.
+
+    Parameters
+    ----------
+    sigma_px : float
+        Standard deviation in texels, finite and ≥ 0 (0 gives the unit impulse).
+
+    Returns
+    -------
+    ndarray of float64, shape (2R + 1,)
+        The taps, summing to 1 (R = :func:`kernel_radius`; a single 1 for σ_px = 0).
+
+    Raises
+    ------
+    ValidationError
+        A negative or non-finite ``sigma_px``, or one whose radius exceeds :data:`MAX_RADIUS`.
+    """
     s = float(sigma_px)
     if not (math.isfinite(s) and s >= 0):
         raise ValidationError(f"sigma_px must be finite and >= 0, got {sigma_px!r}")
@@ -123,7 +186,20 @@ def kernel_taps(alpha: float, sigma_um: float, texel_um: float) -> np.ndarray:
 
 
 def frequency_response(taps, omega) -> np.ndarray:
-    """Real frequency response Σ_i k_i cos(ω i) of a symmetric kernel (taps −R … R), ω in rad/texel."""
+    """Real frequency response Σ_i k_i cos(ω i) of a symmetric kernel (taps −R … R), ω in rad/texel.
+
+    Parameters
+    ----------
+    taps : array_like, shape (2R + 1,)
+        The kernel, centre tap in the middle (e.g. :func:`kernel_taps`).
+    omega : array_like
+        Angular frequencies, rad/texel.
+
+    Returns
+    -------
+    ndarray of float64
+        K(ω), shape of ``omega``.
+    """
     k = np.asarray(taps, np.float64)
     i = np.arange(len(k)) - len(k) // 2
     return np.cos(np.multiply.outer(np.asarray(omega, np.float64), i)) @ k

@@ -70,7 +70,19 @@ def plot_kernel_table(table=FOREHEAD, fits=None, *, profiles=None, published=Tru
 
 
 def plot_fit(fit):
-    """TV landscape of a :class:`~facestats.model.microstructure.fit.KernelFit` with its ridge, and both histograms."""
+    """TV landscape of a :class:`~facestats.model.microstructure.fit.KernelFit` with its ridge, and both histograms.
+
+    Parameters
+    ----------
+    fit : KernelFit
+        The fit: its total-variation grid (eq. 7) over (α, σ µm), ridge, argmin and target and fitted normal
+        histograms.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure.
+    """
     fig, axes = _figure(1, 3, (13, 3.8))
     grid = np.ma.masked_invalid(fit.tv_grid)
     im = axes[0].pcolormesh(fit.sigmas_um, fit.alphas, grid, shading="auto", cmap="viridis")
@@ -97,6 +109,20 @@ def plot_strain(strain, *, step=None, limits=(0.8, 1.25)):
     """Stretches r_s, r_t and the stretch axis field of a :class:`~facestats.model.strain.TexelStrain` (Fig. 13).
 
     Axes are drawn as headless segments (their sign is meaningless), coloured by r_s.
+
+    Parameters
+    ----------
+    strain : TexelStrain
+        Per-texel stretches, axes and ``valid`` mask (texels off the mesh are masked).
+    step : int, optional
+        Texels between drawn axes; default min(H, W) // 40 (at least 1).
+    limits : (float, float)
+        Colour range of the stretch ratios, below and above 1 (the neutral ratio is the colour map's centre).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure.
     """
     from matplotlib.colors import TwoSlopeNorm
 

@@ -43,7 +43,22 @@ __all__ = [
 
 
 def height_gradient(displacement):
-    """Central-difference gradient ``(∂h/∂u, ∂h/∂v)`` in height units per texel, float64 (H, W) each."""
+    """Central-difference gradient ``(∂h/∂u, ∂h/∂v)`` in height units per texel, float64 (H, W) each.
+
+    Parameters
+    ----------
+    displacement : array_like, shape (H, W)
+        Heights, H, W ≥ 2 (one-sided differences at the edges).
+
+    Returns
+    -------
+    gu, gv : ndarray of float64, shape (H, W)
+
+    Raises
+    ------
+    ValidationError
+        ``displacement`` not 2-D or smaller than 2 × 2.
+    """
     h = np.asarray(displacement, np.float64)
     if h.ndim != 2 or min(h.shape) < 2:
         raise ValidationError(f"displacement must be a 2-D map of at least 2 x 2 texels, got shape {h.shape}")
@@ -59,7 +74,25 @@ def _jacobian(jacobian):
 
 
 def slopes(displacement, jacobian):
-    """Tangent-frame slopes ``g = J ∇h`` (dimensionless), float64 (H, W) each (module docstring)."""
+    """Tangent-frame slopes ``g = J ∇h`` (dimensionless), float64 (H, W) each (module docstring).
+
+    Parameters
+    ----------
+    displacement : array_like, shape (H, W)
+        Heights (µm when ``jacobian`` carries 1/texel_µm).
+    jacobian : array_like, shape (2, 2) or (H, W, 2, 2)
+        Texel gradient → tangent slope, one for the map or one per texel.
+
+    Returns
+    -------
+    gx, gy : ndarray of float64, shape (H, W)
+        Slopes along t_u and t_v.
+
+    Raises
+    ------
+    ValidationError
+        A ``displacement`` not 2-D of at least 2 × 2 texels, or a non-finite or wrongly shaped ``jacobian``.
+    """
     gu, gv = height_gradient(displacement)
     j = _jacobian(jacobian)
     if j.shape not in ((2, 2), gu.shape + (2, 2)):
@@ -96,7 +129,22 @@ def _bins(bins):
 
 
 def histogram_extent(*slope_pairs, quantile=0.999, margin=1.1) -> float:
-    """A histogram half-width covering the normal components of the given slopes (``quantile`` × ``margin``)."""
+    """A histogram half-width covering the normal components of the given slopes (``quantile`` × ``margin``).
+
+    Parameters
+    ----------
+    *slope_pairs : tuple of 2 ndarray
+        One or more (gx, gy) slope maps (:func:`slopes`).
+    quantile : float
+        Quantile, in [0, 1], of max(|n_u|, |n_v|) over all their texels.
+    margin : float
+        Factor applied to that quantile.
+
+    Returns
+    -------
+    float
+        The half-width ``extent`` for :func:`normal_histogram`, clipped to [1e-6, 1].
+    """
     parts = []
     for gx, gy in slope_pairs:
         inv = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy)
@@ -106,7 +154,27 @@ def histogram_extent(*slope_pairs, quantile=0.999, margin=1.1) -> float:
 
 
 def normal_histogram(gx, gy, *, bins=64, extent):
-    """Histogram (fractions, shape (bins, bins), [n_v, n_u]) of the tangent normals of slopes (gx, gy)."""
+    """Histogram (fractions, shape (bins, bins), [n_v, n_u]) of the tangent normals of slopes (gx, gy).
+
+    Parameters
+    ----------
+    gx, gy : array_like
+        Tangent-frame slopes of one shape, non-empty, finite.
+    bins : int
+        Buckets per axis, in [2, 4096] (64 in Nagano et al. 2015 §5).
+    extent : float
+        Half-width of the histogram in normal components, in (0, 1]; values beyond go to the edge buckets.
+
+    Returns
+    -------
+    ndarray of float64, shape (bins, bins)
+        Fractions summing to 1, indexed [n_v bucket, n_u bucket].
+
+    Raises
+    ------
+    ValidationError
+        An invalid ``bins`` or ``extent``, non-finite slopes, or slopes of different shapes or none.
+    """
     nb = _bins(bins)
     e = as_finite(extent, "extent", 0, 1, low_inclusive=False)
     if e.ndim:
@@ -124,7 +192,17 @@ def normal_histogram(gx, gy, *, bins=64, extent):
 
 
 def total_variation(h1, h2) -> float:
-    """Σ_b |H_b − Ĥ_b| of two histograms (eq. 7), in [0, 2] for histograms of fractions."""
+    """Σ_b |H_b − Ĥ_b| of two histograms (eq. 7), in [0, 2] for histograms of fractions.
+
+    Parameters
+    ----------
+    h1, h2 : array_like
+        Two histograms of one shape (:func:`normal_histogram`).
+
+    Returns
+    -------
+    float
+    """
     return float(np.abs(np.asarray(h1) - np.asarray(h2)).sum())
 
 
@@ -135,6 +213,18 @@ def tv_noise(histogram, n_samples) -> float:
     of two independent estimates has E|Δ| = √(4 p (1 − p) / (π N)) (half-normal
     mean), summed over the buckets.  The TV values of a fit are not resolved
     below this level.
+
+    Parameters
+    ----------
+    histogram : array_like
+        Bucket probabilities p (fractions summing to 1).
+    n_samples : int
+        N, the samples (texels) of each histogram.
+
+    Returns
+    -------
+    float
+        Expected total variation.
     """
     p = np.asarray(histogram, np.float64).reshape(-1)
     return float(np.sqrt(4 * p * (1 - p) / (np.pi * float(n_samples))).sum())

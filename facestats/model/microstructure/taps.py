@@ -87,6 +87,11 @@ LANCZOS.flags.writeable = False
 def major_axis(au, av):
     """The major direction, slope and major component of unit axes (a_u, a_v) (float32 arrays or scalars).
 
+    Parameters
+    ----------
+    au, av : array_like
+        Components of unit axes, read as float32, broadcast against each other.
+
     Returns
     -------
     u_major : ndarray of bool
@@ -105,7 +110,20 @@ def major_axis(au, av):
 
 
 def gaussian_spacing(sigma_px, major):
-    """σ in taps, σ_px · |a_major| (float64): the Gaussian of σ_px texels sampled every 1/|a_major| texels."""
+    """σ in taps, σ_px · |a_major| (float64): the Gaussian of σ_px texels sampled every 1/|a_major| texels.
+
+    Parameters
+    ----------
+    sigma_px : array_like
+        Gaussian standard deviation in texels.
+    major : array_like
+        |a_major| of :func:`major_axis`, in [1/√2, 1].
+
+    Returns
+    -------
+    ndarray of float64
+        σ in taps, broadcast shape of the inputs.
+    """
     return np.asarray(sigma_px, np.float64) * np.asarray(major, np.float64)
 
 
@@ -115,8 +133,22 @@ def tap_across(slope, i, bias):
     The point of tap |i| lies ``|i| · slope`` texels across; ``bias`` (an integer > |i|, float) keeps the
     position positive so that the integer part is the floor.  Tap −|i| is its mirror image through the
     centre: y0 = −y0₊ − 1 and row = LANCZOS_STEPS − row₊ (y0 = −y0₊, row 0 where row₊ is 0), so the two
-    taps of a pair are rounded alike.  Returns ``(y0, row)`` as int64 arrays: the point is
-    y0 + row / LANCZOS_STEPS texels across (rounded to the nearest step).
+    taps of a pair are rounded alike.
+
+    Parameters
+    ----------
+    slope : array_like
+        Cross-axis texels per tap (:func:`major_axis`), read as float32.
+    i : array_like of int
+        Signed tap index.
+    bias : float or array_like
+        An integer-valued float > |i| that keeps the position positive.
+
+    Returns
+    -------
+    y0, row : ndarray of int64
+        The point is y0 + row / LANCZOS_STEPS texels across (rounded to the nearest step); broadcast shape of
+        the inputs.
     """
     b = np.asarray(bias, np.float64)
     i = np.asarray(i)

@@ -377,8 +377,8 @@ def read_led_calibration(path) -> dict:
     """
     p = pathlib.Path(path)
     try:
-        doc = json.loads(p.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+        doc = json.loads(p.read_bytes())
+    except (OSError, ValueError, RecursionError) as exc:  # ValueError: not JSON, or not UTF-8
         raise FormatError(f"cannot read the LED calibration {p}: {exc}") from None
     if not isinstance(doc, dict) or doc.get("format") != LED_FORMAT:
         raise FormatError(f"{p} field 'format' must be {LED_FORMAT!r}")

@@ -221,9 +221,9 @@ class PinholeCamera:
     def load(cls, path) -> "PinholeCamera":
         """The camera of a JSON file (:meth:`from_dict`); every error names the file."""
         try:
-            with open(path) as f:
+            with open(path, "rb") as f:
                 doc = json.load(f)
-        except (OSError, json.JSONDecodeError) as exc:
+        except (OSError, ValueError, RecursionError) as exc:  # ValueError: not JSON, or not UTF-8
             raise FormatError(f"cannot read the camera file {os.fspath(path)}: {exc}") from None
         return described(cls.from_dict, doc, f"camera file {os.fspath(path)}")
 

@@ -282,9 +282,9 @@ def load_lights(path):
         A value out of its domain (:func:`lights_from_dict`), naming the file.
     """
     try:
-        with open(path) as f:
+        with open(path, "rb") as f:
             doc = json.load(f)
-    except (OSError, json.JSONDecodeError) as exc:
+    except (OSError, ValueError, RecursionError) as exc:  # ValueError: not JSON, or not UTF-8
         raise FormatError(f"cannot read the light description {os.fspath(path)}: {exc}") from None
     return described(lights_from_dict, doc, f"light description {os.fspath(path)}")
 

@@ -56,6 +56,7 @@ import numpy as np
 
 from facestats.acquire.response import hat_weights, merge_photographs
 from facestats.acquire.sensor import ContactSensor
+from facestats.core.outputs import json_ready
 from facestats.errors import FormatError, SchemaError
 from facestats.io.schema import check_subject_metadata
 
@@ -98,7 +99,8 @@ def write_sensor_file(path, sensor, profile, profile_std, **fields) -> pathlib.P
     sensor : ContactSensor
         The sensor's description (stored through :meth:`ContactSensor.to_attrs`).
     profile, profile_std : array_like, shape (sites, fibers, 3)
-        Profile and its standard deviation in mm⁻² per site, fiber and channel; NaN is written as ``NaN``.
+        Profile and its standard deviation in mm⁻² per site, fiber and channel; NaN (or ±inf) is written as
+        ``null``, as anywhere in the file (strict JSON has no NaN; the readers read ``null`` back as NaN).
     **fields
         Further top-level entries (e.g. the raw bracket frames of a device capture); readers ignore them.
 
@@ -110,12 +112,12 @@ def write_sensor_file(path, sensor, profile, profile_std, **fields) -> pathlib.P
     doc = {
         "format": SENSOR_FORMAT,
         "sensor": sensor.to_attrs(),
-        "profile": np.asarray(profile, np.float64).tolist(),
-        "profile_std": np.asarray(profile_std, np.float64).tolist(),
+        "profile": np.asarray(profile, np.float64),
+        "profile_std": np.asarray(profile_std, np.float64),
         **fields,
     }
     p = pathlib.Path(path)
-    p.write_text(json.dumps(doc))
+    p.write_text(json.dumps(json_ready(doc), allow_nan=False))
     return p
 
 

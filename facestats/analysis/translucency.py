@@ -65,6 +65,13 @@ def subject_sigma_tr(frame, sites=AVERAGE_SITES):
     forehead, "ignoring the neck").  Missing sites are skipped; a subject with
     none of them gets NaN.
 
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        One row per subject, with columns ``site_sigma_tr_{site}_{ch}`` (mm⁻¹) for ch in R, G, B.
+    sites : sequence of str
+        Measurement sites to average (default cheek and forehead).
+
     Returns
     -------
     pandas.DataFrame

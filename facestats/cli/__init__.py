@@ -15,7 +15,7 @@ prints.  Heavy modules are imported inside the commands so that ``facestats
 * :mod:`~facestats.cli.microstructure` — ``microstructure render``, ``microstructure generate``;
 * :mod:`~facestats.cli.translucency` — ``translucency``;
 * :mod:`~facestats.cli.ingest` — ``ingest``;
-* :mod:`~facestats.cli.calibrate` — ``calibrate response``, ``calibrate leds``;
+* :mod:`~facestats.cli.calibrate` — ``calibrate response``, ``calibrate leds``, ``calibrate merge``;
 * :mod:`~facestats.cli.emulate` — ``emulate dome|sensor``;
 * :mod:`~facestats.cli.capture` — ``capture dome|sensor``;
 * :mod:`~facestats.cli.relight` — ``relight``.

@@ -57,7 +57,10 @@ def add_ingest(sub):
     p.add_argument("--calibration", required=True, help="dome calibration JSON (cameras K, dist, R, t; LEDs; response)")
     p.add_argument("--store", required=True, help="directory store to write the subject into (created if missing)")
     p.add_argument("--subject", required=True, metavar="ID", help="subject id in the store")
-    p.add_argument("--regions", help="face-region label image (default: <mesh stem>.regions.png|.npy next to the mesh)")
+    p.add_argument(
+        "--regions",
+        help="face-region label image, PNG, TIFF or .npy (default: <mesh stem>.regions.png|.npy|.tif next to the mesh)",
+    )
     p.add_argument("--work", help="where the capture is kept (default: <store>.ingest/<ID>/capture.zarr)")
     p.add_argument("--workers", type=ascii_int, default=2, help="threads decoding photographs (default 2)")
     p.add_argument(

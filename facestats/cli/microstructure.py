@@ -84,7 +84,8 @@ def add_microstructure(sub):
     Returns
     -------
     None
-        The handlers (``func``) return 0; ``microstructure`` alone prints its help and returns 0; a
+        The handlers (``func``) return 0; ``microstructure`` alone prints its help and returns 2 (as
+        ``calibrate``, ``capture``, ``emulate`` and ``edit`` do without a subcommand); a
         :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in :func:`facestats.cli.main`.
     """
     p = sub.add_parser(
@@ -141,4 +142,4 @@ def add_microstructure(sub):
     g.add_argument("--seed", type=ascii_int, help="seed, >= 0 (default: from the subject id)")
     g.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     g.set_defaults(func=_cmd_generate)
-    p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
+    p.set_defaults(func=lambda args: p.print_help() or 2)  # no subcommand: a usage error, as calibrate's

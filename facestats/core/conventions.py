@@ -81,13 +81,22 @@ def _ascii_int(text: str):
     return int(text) if _ASCII_INT.fullmatch(text) else None
 
 
+def _is_boolean(value) -> bool:
+    """Whether ``value`` is a Python or numpy boolean (``int(True)`` is 1: a flag is no number here).
+
+    Duck-typed on the numpy dtype kind, so that this module does not import numpy.
+    """
+    return isinstance(value, bool) or getattr(getattr(value, "dtype", None), "kind", None) == "b"
+
+
 def parse_skin_type(value) -> int:
     """Fitzpatrick skin type as an int 1-6 from ``3``, ``"3"``, ``"III"`` or ``"iii"``.
 
     Parameters
     ----------
     value : int, float or str
-        An integral number 1-6 (``3.0`` passes), its ASCII digits, or a Roman numeral I-VI (any case, stripped).
+        An integral number 1-6 (``3.0`` passes; a boolean does not), its ASCII digits, or a Roman numeral I-VI (any
+        case, stripped).
 
     Returns
     -------
@@ -97,8 +106,10 @@ def parse_skin_type(value) -> int:
     Raises
     ------
     ValidationError
-        Anything else.
+        Anything else (also ``True``/``False``).
     """
+    if _is_boolean(value):
+        raise ValidationError(f"skin type must be I-VI or 1-6, got the boolean {value!r}")
     if isinstance(value, str):
         v = value.strip().upper()
         if v in _FROM_ROMAN:
@@ -180,8 +191,8 @@ def parse_region(value) -> int:
     Parameters
     ----------
     value : int, float or str
-        An integral number 1-10, its ASCII digits, or a region name (any case, stripped; ``"under-eye"`` also as
-        ``"undereye"`` or ``"under eye"``).
+        An integral number 1-10 (not a boolean), its ASCII digits, or a region name (any case, stripped;
+        ``"under-eye"`` also as ``"undereye"`` or ``"under eye"``).
 
     Returns
     -------
@@ -191,8 +202,10 @@ def parse_region(value) -> int:
     Raises
     ------
     ValidationError
-        An unknown name or a number outside 1-10.
+        An unknown name, a number outside 1-10, or a boolean.
     """
+    if _is_boolean(value):
+        raise ValidationError(f"region must be 1-10 or a region name, got the boolean {value!r}")
     if isinstance(value, str):
         v = value.strip().lower()
         if _ascii_int(v) is not None:
@@ -273,23 +286,27 @@ def parse_age(value) -> tuple[int, int]:
 
 
 def _age_number(x):
-    """An age bound: an integer (Python or numpy, not bool) or ASCII digits; None otherwise."""
+    """An age bound: an integral number (Python or numpy, not a boolean) or ASCII digits; None otherwise."""
     if isinstance(x, str):
         return _ascii_int(x.strip())
+    if _is_boolean(x):
+        return None
     try:
         iv = int(x)
     except (TypeError, ValueError, OverflowError):
         return None
-    return iv if iv == x and not isinstance(x, bool) else None
+    return iv if iv == x else None
 
 
 def age_group(age) -> str:
     """The §7 age group label of an age in years.
 
+    Ages are whole years, as in the store's index; the groups' integer bounds leave no room for a fraction.
+
     Parameters
     ----------
     age : int
-        Age in years.
+        Age in whole years, 0-200 (an integral number, Python or numpy; ``30.0`` passes, a boolean does not).
 
     Returns
     -------
@@ -299,10 +316,13 @@ def age_group(age) -> str:
     Raises
     ------
     ValidationError
-        No group holds ``age`` (outside 0-200; also a fractional age between two groups, e.g. 29.5).
+        Not a whole number of years (e.g. 29.5, a string or a boolean), or outside 0-200.
     """
+    a = None if isinstance(age, str) else _age_number(age)
+    if a is None:
+        raise ValidationError(f"age must be a whole number of years (an integer 0-200), got {age!r}")
     for label, lo, hi in AGE_GROUPS:
-        if lo <= age <= hi:
+        if lo <= a <= hi:
             return label
     raise ValidationError(f"age must be in 0-200 years, got {age!r}")
 

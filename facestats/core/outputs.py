@@ -27,6 +27,7 @@ import pathlib
 import secrets
 import shutil
 import tempfile
+from urllib.parse import urlparse
 
 from facestats.errors import FacestatsError, ValidationError
 
@@ -36,6 +37,7 @@ __all__ = [
     "check_names_free",
     "check_apart",
     "missing_folders",
+    "url_scheme",
     "json_ready",
     "OutputSet",
 ]
@@ -251,6 +253,34 @@ def missing_folders(path) -> list[pathlib.Path]:
     return missing
 
 
+def url_scheme(path) -> str:
+    """The lower-case scheme of a ``scheme://…`` location, else ``""`` (RFC 3986 §3.1: schemes are compared
+    without regard to case).
+
+    Parameters
+    ----------
+    path : str, bytes or os.PathLike
+        A path or URL; anything else has no scheme.
+
+    Returns
+    -------
+    str
+        ``"file"``, ``"s3"``, …; ``""`` for a local path, including ``C:\\…`` (a one-letter scheme is a drive letter).
+    """
+    if isinstance(path, bytes):
+        path = os.fsdecode(path)
+    if not isinstance(path, (str, os.PathLike)) or "://" not in os.fspath(path):
+        return ""
+    scheme = urlparse(os.fspath(path)).scheme.lower()
+    return scheme if len(scheme) > 1 else ""
+
+
+def _local_location(path):
+    """``path`` as :func:`check_apart` compares it: a ``file://`` URL's path (as :func:`facestats.open_store` reads
+    it), anything else unchanged."""
+    return urlparse(os.fspath(path)).path if url_scheme(path) == "file" else path
+
+
 def check_apart(
     path, protected, name: str = "out", what: str = "the store", *, replaced: bool = False, same: bool = False
 ) -> None:
@@ -260,15 +290,17 @@ def check_apart(
     ``replaced`` (an output folder replaced as a whole) a ``path`` that contains
     ``protected`` is refused too: replacing it would destroy ``protected``.
     With ``same``, ``path`` may be ``protected`` itself (an output store that is
-    the source store), only not inside it.  URLs (``scheme://``) are not local
-    paths and are not checked.
+    the source store), only not inside it.  A ``file://`` URL, given for either,
+    stands for its path (as :func:`facestats.open_store` reads it); another URL
+    (``s3://…``) is not on this file system, so it can neither lie inside a
+    local path nor hold one: nothing is checked.
 
     Parameters
     ----------
     path : str or os.PathLike
-        The output path.
+        The output path (a ``file://`` URL: its path; another URL: nothing is checked).
     protected : str, os.PathLike or None
-        The path to keep apart from; None, empty or a URL: nothing is checked.
+        The path to keep apart from; None or empty: nothing is checked; URLs as for ``path``.
     name : str
         The output's option name in messages (default ``"out"``).
     what : str
@@ -287,10 +319,10 @@ def check_apart(
     ValidationError
         Naming ``name``, the path and ``what``.
     """
-    if not protected or "://" in os.fspath(protected):
-        return
-    guard = os.path.realpath(_as_path(protected, what))
-    real = os.path.realpath(_as_path(path, name))
+    if not protected or url_scheme(protected) not in ("", "file") or url_scheme(path) not in ("", "file"):
+        return  # a remote location (s3://…) neither lies inside a local path nor holds one
+    guard = os.path.realpath(_as_path(_local_location(protected), what))
+    real = os.path.realpath(_as_path(_local_location(path), name))
     common = os.path.commonpath([guard, real])
     if (common == guard and not (same and real == guard)) or (replaced and common == real):
         rule = "lie outside {w} and not contain it" if replaced else "lie outside {w}"

@@ -8,7 +8,8 @@ tags live in the Exif sub-IFD that tag 0x8769 of IFD0 points to.  This module
 reads that structure from
 
 * JPEG: the APP1 segment starting ``Exif\\0\\0``;
-* TIFF: the file itself (its IFD0 is the EXIF IFD0);
+* TIFF: the file itself (its IFD0 is the EXIF IFD0; its IFDs may lie anywhere
+  in it, libtiff writes them after the image data: they are read by seeking);
 * PNG: the ``eXIf`` chunk (PNG 1.5 extension, the TIFF structure without the
   ``Exif\\0\\0`` prefix),
 
@@ -30,7 +31,7 @@ from dataclasses import dataclass
 from fractions import Fraction
 
 from facestats.errors import FormatError
-from facestats.io.layout import read_regular_file
+from facestats.io.layout import open_regular_file
 from facestats.io.png import PNG_SIGNATURE, png_chunk
 
 __all__ = [
@@ -76,6 +77,39 @@ _TYPES = {
 #: Byte-order marks and magic numbers (TIFF 6.0 §2; BigTIFF: 43, then offset size 8 and a reserved 0).
 _CLASSIC_HEADERS = (b"II*\0", b"MM\0*")
 _BIG_HEADERS = (b"II+\0", b"MM\0+")
+#: Bytes of a file :func:`read_exif` reads first: a JPEG's or PNG's EXIF block precedes its image data, within them.
+_HEAD = 1 << 20
+#: Most bytes :func:`read_exif` reads at once past those of a TIFF file (one IFD, or one value of a tag): the
+#: values read are a few bytes and an IFD at most 65535 entries, but a corrupt entry can claim gigabytes.
+_MAX_READ = 1 << 24
+
+
+class _FileData:
+    """A TIFF file's bytes sliced like :class:`bytes` (``data[a:b]``, ``len(data)``), but read on demand.
+
+    A TIFF file's IFDs and the values they point to may lie anywhere in it
+    (libtiff, hence OpenCV, writes IFD0 after the image data): they are read by
+    seeking, never the whole file.  ``head`` is the file's first bytes, already read.
+    """
+
+    def __init__(self, fh, head: bytes):
+        self._fh, self._head = fh, head
+        self._size = os.fstat(fh.fileno()).st_size
+
+    def __len__(self) -> int:
+        return self._size
+
+    def __getitem__(self, key: slice) -> bytes:
+        start, stop, step = key.indices(self._size)
+        if step != 1:
+            raise TypeError("a TIFF file is read in contiguous slices only")
+        if stop <= len(self._head):
+            return self._head[start:stop]
+        n = max(stop - start, 0)
+        if n > _MAX_READ:
+            raise FormatError(f"TIFF field of {n} bytes at offset {start} is too large to read (at most {_MAX_READ})")
+        self._fh.seek(start)
+        return self._fh.read(n)
 
 
 @dataclass(frozen=True)
@@ -106,7 +140,8 @@ def _value(data, layout, typ, count, field, base):
     if n <= len(field):  # the value fits in the entry
         raw = field[:n]
     else:
-        raw = data[base + struct.unpack(layout.order + layout.offset_code, field)[0] :][:n]
+        start = base + struct.unpack(layout.order + layout.offset_code, field)[0]
+        raw = b"" if start + n > len(data) else data[start : start + n]
     if len(raw) < n:
         raise FormatError("TIFF entry points beyond the end of its data")
     if typ == 2:
@@ -131,10 +166,13 @@ def _ifd(data, layout, offset, base, wanted):
     head = layout.order + "HH" + layout.offset_code  # tag, type, count
     out = {}
     first, size = pos + count_size, layout.entry_size
+    if first + size * count > len(data):
+        raise FormatError("TIFF IFD is truncated")
+    entries = data[first : first + size * count]  # one read of the whole IFD
+    if len(entries) < size * count:
+        raise FormatError("TIFF IFD is truncated")
     for k in range(count):  # loop over the IFD's entries (a few dozen at most)
-        entry = data[first + size * k : first + size * (k + 1)]
-        if len(entry) < size:
-            raise FormatError("TIFF IFD is truncated")
+        entry = entries[size * k : size * (k + 1)]
         tag, typ, n = struct.unpack(head, entry[: 4 + layout.offset_size])
         if typ in _TYPES and tag in wanted:
             out[tag] = _value(data, layout, typ, n, entry[4 + layout.offset_size :], base)
@@ -236,7 +274,9 @@ def read_exif(path) -> dict:
     Parameters
     ----------
     path : str or path-like
-        The file; only its first MiB is read (EXIF blocks precede the image data).
+        The file.  Of a JPEG or PNG file only the first MiB is read (EXIF blocks precede the image data); of a
+        TIFF file the header, the first IFD, the Exif IFD and the values of the tags read, wherever they are
+        (libtiff writes the first IFD after the image data), never the whole file.
 
     Returns
     -------
@@ -247,15 +287,17 @@ def read_exif(path) -> dict:
     Raises
     ------
     FormatError
-        The file is not a JPEG, TIFF or PNG, or its EXIF structure is corrupt (the
-        message names the file).
+        The file cannot be read (a FIFO or a device is refused, never read), is not a JPEG, TIFF or PNG, or its
+        EXIF structure is corrupt (the message names the file).
     """
     p = os.fspath(path)
     try:
-        data = read_regular_file(p, 1 << 20)  # EXIF blocks precede the image data: the first MiB holds them
-    except OSError as exc:  # a FIFO or a device is refused, never read
+        with open_regular_file(p) as fh:  # a FIFO or a device is refused, never read
+            head = fh.read(_HEAD)
+            tiff = head[:4] in _CLASSIC_HEADERS + _BIG_HEADERS
+            return _parse(_FileData(fh, head) if tiff else head, p)
+    except OSError as exc:
         raise FormatError(f"cannot read EXIF data of {p}: {exc}") from None
-    return parse_exif(data, p)
 
 
 def parse_exif(data: bytes, name: str = "<bytes>") -> dict:
@@ -279,6 +321,11 @@ def parse_exif(data: bytes, name: str = "<bytes>") -> dict:
         ``data`` is not a JPEG, TIFF or PNG file, its EXIF structure is corrupt, or its ``ExposureTime`` is not one
         positive number.
     """
+    return _parse(data, name)
+
+
+def _parse(data, name):
+    """:func:`parse_exif` of ``data``: bytes, or a TIFF file's :class:`_FileData`."""
     try:
         if data[:2] == b"\xff\xd8":
             base = _jpeg_app1(data)

@@ -649,6 +649,10 @@ def read_exr_attributes(path) -> dict:
         raise ImageFormatError(f"EXR file {str(p)!r} could not be read: {exc}") from exc
 
 
+#: Largest value of an integer EXR channel (stored as uint32).
+_UINT32_MAX = 2**32 - 1
+
+
 def write_exr(path, channels: dict, *, half: bool = False, attributes=None):
     """Write named 2-D channels (same shape) to an EXR file, ZIP-compressed.
 
@@ -658,7 +662,7 @@ def write_exr(path, channels: dict, *, half: bool = False, attributes=None):
         The file to write (its extension is not checked here).
     channels : dict of str to array_like, shape (H, W)
         At least one channel.  Float channels must be finite; integer (and bool) channels are stored as uint32
-        (cast without a range check).
+        and must hold values in [0, 4294967295].
     half : bool
         Store float channels as half floats instead of float32.
     attributes : dict, optional
@@ -672,8 +676,9 @@ def write_exr(path, channels: dict, *, half: bool = False, attributes=None):
     Raises
     ------
     ValidationError
-        No channel, channels that are not 2-D of one shape, a float channel with NaN or inf, or a finite value
-        beyond the range of the stored float type.
+        No channel, channels that are not 2-D of one shape, a float channel with NaN or inf, a finite value
+        beyond the range of the stored float type, or an integer channel with a value outside [0, 4294967295]
+        (the message names the channel and the value).
     DependencyError
         The OpenEXR package is not installed.
     """
@@ -689,6 +694,12 @@ def write_exr(path, channels: dict, *, half: bool = False, attributes=None):
     for name, v in channels.items():
         a = np.asarray(v)
         if a.dtype.kind in "iub":
+            lo, hi = (int(a.min()), int(a.max())) if a.size else (0, 0)
+            if lo < 0 or hi > _UINT32_MAX:  # the cast would wrap: -1 stored as 4294967295, 2**33 as 0
+                raise ValidationError(
+                    f"channel {name!r} for {str(p)!r} must hold integers in [0, {_UINT32_MAX}] (stored as uint32), "
+                    f"got {lo if lo < 0 else hi}"
+                )
             data[name] = np.ascontiguousarray(a.astype(np.uint32))
         else:
             if not np.all(np.isfinite(a)):

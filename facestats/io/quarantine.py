@@ -12,7 +12,10 @@ repair under ``quarantine/`` in the store::
 
 Items are moved with :func:`os.rename` (atomic, no copy); if the data live on
 another volume than the store root (``subjects/`` a mount point) they are
-copied, flushed and only then removed from their place.  ``facestats
+copied, flushed and listed in ``QUARANTINE.json``, and only then removed from
+their place (a failed copy is removed from the quarantine again; a removal that
+fails leaves the whole copy in the quarantine and says what is left in the
+store).  ``facestats
 validate`` lists the quarantine; only an explicit purge (``facestats validate
 --purge --yes``, :meth:`facestats.io.store.Store.purge_quarantine`) removes
 it, and it removes only folders that carry a valid ``QUARANTINE.json``.
@@ -20,6 +23,7 @@ it, and it removes only folders that carry a valid ``QUARANTINE.json``.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
@@ -109,33 +113,62 @@ def quarantine_move(root, qdir: str, rel: str, why: str) -> None:
     Raises
     ------
     StoreError
-        It could not be moved (it stays where it was).
+        It could not be moved (it stays where it was; a partial copy across volumes is removed from the
+        quarantine), or, moved across volumes, its whole copy is in the quarantine (and listed) but removing
+        the original failed: the message names the copy and says what is left of the original in the store.
     """
     src = confined(root, os.path.join(root, rel))
     dst = os.path.join(qdir, rel)
+    folder = is_plain_dir(src)
     try:
         os.makedirs(os.path.dirname(dst), exist_ok=True)
         try:
             os.rename(src, dst)
+            copied = False
         except OSError as exc:
             if exc.errno != errno.EXDEV:
                 raise
-            _copy_then_remove(src, dst)
+            _copy(src, dst, folder)
+            copied = True
     except OSError as exc:
         raise StoreError(f"cannot move {rel} into the quarantine: {exc.strerror}; it was left in place") from None
-    _add_item(qdir, rel, why)
+    _add_item(qdir, rel, why)  # across volumes: the whole copy is listed before the original goes
+    if not copied:
+        return
+    try:
+        if folder:
+            remove_tree(src)
+        else:
+            os.remove(src)
+    except OSError as exc:
+        left = "only partly removed (what is left of it is incomplete)" if folder else "left in place as well"
+        raise StoreError(
+            f"cannot finish moving {rel} into the quarantine: it was copied whole to {dst} (another volume), "
+            f"but removing the original failed ({exc.strerror}): {src} was {left}"
+        ) from None
 
 
-def _copy_then_remove(src: str, dst: str) -> None:
-    """Move across volumes: copy (links kept as links), flush the copy, then remove the original."""
-    if is_plain_dir(src):
-        copy_tree(src, dst)
-        fsync_tree(dst)
-        remove_tree(src)
-    else:
-        shutil.copy2(src, dst, follow_symlinks=False)
-        fsync_tree(os.path.dirname(dst))
-        os.remove(src)
+def _copy(src: str, dst: str, folder: bool) -> None:
+    """Copy ``src`` (a folder if ``folder``) to ``dst`` on another volume, links kept as links, and flush the copy.
+
+    ``dst`` must not exist; a copy that fails is removed again (the original is whole, a partial copy is no use).
+    """
+    if os.path.lexists(dst):
+        raise FileExistsError(errno.EEXIST, "the quarantine already holds that name", dst)
+    try:
+        if folder:
+            copy_tree(src, dst)
+            fsync_tree(dst)
+        else:
+            shutil.copy2(src, dst, follow_symlinks=False)
+            fsync_tree(os.path.dirname(dst))
+    except OSError:
+        with contextlib.suppress(OSError):
+            if folder:
+                remove_tree(dst)
+            else:
+                os.remove(dst)
+        raise
 
 
 def write_quarantine_json(qdir: str, name: str, obj, why: str) -> None:

@@ -34,7 +34,7 @@ import json
 import os
 
 from facestats.errors import StoreError
-from facestats.io.layout import RECORDS, confined, is_generation, is_plain_file, write_json_atomic
+from facestats.io.layout import RECORDS, confined, is_generation, read_regular_file, write_json_atomic
 
 __all__ = [
     "RECORD_FORMAT",
@@ -160,11 +160,8 @@ def inspect_record(root, sid: str, gen: str) -> tuple[dict | None, str | None]:
         confined(root, path)  # a record read through a link planted in the store proves nothing
     except StoreError:
         return None, None
-    if not is_plain_file(path):
-        return None, None
-    try:
-        with open(path, "rb") as fh:
-            rec = json.loads(fh.read(65536))
+    try:  # a link, a FIFO or a device is refused (OSError) without blocking, never read
+        rec = json.loads(read_regular_file(path, 65536, follow_links=False))
     except (OSError, ValueError, RecursionError):
         return None, None
     if (

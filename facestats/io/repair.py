@@ -706,7 +706,8 @@ class _Apply:
         try:
             quarantine_move(self.root, self.qdir, rel, why)
         except BaseException:
-            if fresh and os.path.lexists(os.path.join(self.root, rel)):  # refused before anything moved
+            moved = os.path.lexists(os.path.join(self.qdir, rel))  # a whole copy whose original was not removed
+            if fresh and not moved and os.path.lexists(os.path.join(self.root, rel)):  # refused before anything moved
                 _remove_empty_quarantine(self.qdir)
                 self.qdir = None
             raise

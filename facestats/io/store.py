@@ -52,6 +52,7 @@ from urllib.parse import urlparse
 
 import numpy as np
 
+from facestats.core.outputs import url_scheme
 from facestats.core.validate import check_choice
 from facestats.errors import SchemaError, StoreError, ValidationError
 from facestats.io.backends import DirectoryBackend, ZipBackend
@@ -186,10 +187,10 @@ def _store_path(path) -> Path:
     text = os.fspath(path)
     if not text.strip() or "\x00" in text:
         raise ValidationError(f"path must name a store (a directory or a zip file), got {text!r}")
-    scheme = urlparse(text).scheme if "://" in text else ""
+    scheme = url_scheme(text)
     if scheme == "file":  # file:///data/pop.zarr, as `facestats build --store` accepts
         text = urlparse(text).path
-    elif len(scheme) > 1:  # not a Windows drive letter
+    elif scheme:
         raise StoreError(
             f"store {text!r} is a {scheme}:// location: facestats opens stores on a file system (a path or a "
             "file:// URL); copy it to a local or shared disk first"

@@ -116,6 +116,9 @@ def angles_from_direction(directions):
     d = np.asarray(directions, np.float64)
     phi = np.arccos(np.clip(d[..., 1], -1.0, 1.0))
     theta = np.arctan2(d[..., 0], -d[..., 2])
+    # arctan2 gives −π for x = −0.0 behind (z ≥ 0), and for a negative x too small to move the result off −π:
+    # that azimuth is π in the documented range
+    theta = np.where(theta == -np.pi, np.pi, theta)[()]
     return phi, theta
 
 

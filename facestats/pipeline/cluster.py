@@ -30,6 +30,7 @@ from __future__ import annotations
 import os
 from urllib.parse import urlparse
 
+from facestats.core.outputs import url_scheme
 from facestats.errors import StoreError, ValidationError
 from facestats.pipeline.progress import subject_bar
 
@@ -219,8 +220,7 @@ def is_url(path) -> bool:
         Whether it holds ``://`` after a scheme of two or more characters (a drive letter is not one) other than
         ``file``.
     """
-    scheme = urlparse(str(path)).scheme.lower()
-    return "://" in str(path) and len(scheme) > 1 and scheme != "file"
+    return url_scheme(str(path)) not in ("", "file")
 
 
 def local_path(path, name="path") -> str:

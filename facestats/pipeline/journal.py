@@ -51,6 +51,7 @@ from pathlib import Path
 
 from facestats.core.conventions import EDIT_SOURCE
 from facestats.core.processes import process_gone
+from facestats.core.validate import check_integer
 from facestats.errors import ValidationError
 from facestats.io.ids import check_subject_id
 from facestats.io.layout import BUILD_JOURNAL, read_regular_file
@@ -277,15 +278,21 @@ def run_journalled(journal, sid, fn, retries):
     fn : callable
         The work, called without arguments once per attempt; an ``Exception`` it raises fails the attempt.
     retries : int
-        Attempts after the first, ≥ 0 (the callers check it).
+        Attempts after the first, an integer ≥ 0.
 
     Returns
     -------
     tuple
-        ``("done", result)`` or ``("failed", last error text)``: a failure is reported,
+        ``("done", result)`` or ``("failed", last error text)``: a failure of ``fn`` is reported,
         never raised, so the other subjects of a build go on.
+
+    Raises
+    ------
+    ValidationError
+        ``retries`` is not an integer ≥ 0 (checked before any attempt or journal record).
     """
-    for attempt in range(1, int(retries) + 2):
+    retries = check_integer(retries, "retries", 0)
+    for attempt in range(1, retries + 2):
         try:
             if journal is not None:
                 journal.start(sid, attempt)  # a journal that cannot be written (a full disk) fails the attempt

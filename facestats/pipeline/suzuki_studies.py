@@ -28,7 +28,7 @@ from facestats.acquire.synthetic.subsurface import render_exitance
 from facestats.core.progress import progress_bar
 from facestats.core.published import SUZUKI_TABLE1, SUZUKI_TABLE3
 from facestats.core.validate import as_scalar, check_choice, check_integer
-from facestats.errors import FitError, QuantisationWarning
+from facestats.errors import FitError, QuantisationWarning, ValidationError
 from facestats.model.dipole import dipole_profile
 from facestats.model.fitting.quantisation_choice import auto_width
 from facestats.model.fitting.quantised import SELF_TERMS, quantised_system, self_term_keywords
@@ -155,8 +155,17 @@ def format_table3(rows, truth=(SUZUKI_TABLE1["sigma_s_prime"], SUZUKI_TABLE1["si
     Returns
     -------
     str
-        A header, a rule, the truth row and one row per width; a cell whose estimate is None reads ``failed``.
+        A header, a rule, the truth row and one row per width; a cell whose estimate is None reads ``failed``, the
+        paper's cell of a width not in Suzuki Table 3 reads ``-``.
+
+    Raises
+    ------
+    ValidationError
+        ``rows`` is empty.
     """
+    rows = list(rows)
+    if not rows:
+        raise ValidationError("rows must hold at least one row of table3 (one per width), got none")
     methods = [k for k in rows[0] if k not in ("width", "paper") and not k.endswith("_fit")]
     head = f"{'width (mm)':>11} | {'paper':^15} | " + " | ".join(f"{m:^15}" for m in methods)
     lines = [
@@ -166,11 +175,12 @@ def format_table3(rows, truth=(SUZUKI_TABLE1["sigma_s_prime"], SUZUKI_TABLE1["si
         + " | ".join(f"{truth[0]:6.2f} {truth[1]:7.4f}" for _ in methods),
     ]
 
-    def cell(v):
-        return f"{'failed':^15}" if v is None else f"{v[0]:6.2f} {v[1]:7.4f}"
+    def cell(v, missing="failed"):
+        return f"{missing:^15}" if v is None else f"{v[0]:6.2f} {v[1]:7.4f}"
 
     for r in rows:
-        lines.append(f"{r['width']:>11g} | {cell(r['paper'])} | " + " | ".join(cell(r[m]) for m in methods))
+        paper = cell(r["paper"], missing="-")  # None: a width Suzuki Table 3 does not list
+        lines.append(f"{r['width']:>11g} | {paper} | " + " | ".join(cell(r[m]) for m in methods))
     return "\n".join(lines)
 
 

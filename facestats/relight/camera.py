@@ -318,6 +318,22 @@ def ray_triangle(origin, rays, a, b, c):
     Returns ``t`` (N,) (NaN/inf for rays parallel to the plane) and the
     barycentric weights (N, 3) of (a, b, c), clipped to [0, 1] (rasterised pixel
     centres lie inside their triangle up to rounding).
+
+    Parameters
+    ----------
+    origin : array_like, shape (3,) or (N, 3)
+        Ray origin(s), e.g. the camera position (mm).
+    rays : ndarray, shape (N, 3)
+        Ray directions (``t`` is in units of their length).
+    a, b, c : ndarray, shape (N, 3)
+        The triangles' vertices, one triangle per ray.
+
+    Returns
+    -------
+    t : ndarray, shape (N,)
+        Ray parameter of the hit point origin + t·ray (NaN/inf for rays parallel to the plane).
+    bary : ndarray, shape (N, 3)
+        Barycentric weights of (a, b, c), clipped to [0, 1].
     """
     e1, e2 = b - a, c - a
     p = np.cross(rays, e2)

@@ -324,9 +324,23 @@ def rotate_probe(probe, angle: float, *, layout: str = "latlong") -> np.ndarray:
     source pixels), so Σ L·δΩ is conserved exactly and a shift by whole
     columns is a roll.  Angular probes are resampled bilinearly.
 
+    Parameters
+    ----------
+    probe : array_like, shape (H, W, 3)
+        Linear radiance, checked by :func:`check_probe`.
+    angle : float
+        Rotation about +y (radians, right-handed); any finite value (taken modulo 2π).
+    layout : {"latlong", "angular"}
+        Layout of :mod:`facestats.model.sphere`: lat-long W = 2H, angular W = H.
+
     Returns
     -------
     ndarray of float32, shape of ``probe``
+
+    Raises
+    ------
+    ValidationError
+        A probe :func:`check_probe` refuses, or an ``angle`` that is not one finite number.
     """
     p = check_probe(probe, layout)
     a = as_finite(angle, "angle", dtype=np.float64)

@@ -578,11 +578,41 @@ def relight_subject(
     (:func:`light_stage_field`) with the same probe, without storing the field.  ``progress``: a progress bar
     over the rendered chunks.
 
+    Parameters
+    ----------
+    subject : xarray.Dataset
+        A map subject of the store (fitted maps, σ's, σa).
+    probe : array_like, shape (H, W, 3)
+        Linear radiance of the light probe (any unit).
+    layout : {"latlong", "angular"}
+        Layout of the probe (:func:`facestats.relight.lighting.check_probe`).
+    rotate : float
+        Rotate the environment about +y by this angle first (radians, right-handed,
+        :func:`facestats.relight.lighting.rotate_probe`).
+    camera : StageCamera, optional
+        Default: the frontal camera of :func:`stage_camera`.
+    lights : tuple of int
+        (n_theta, n_phi) of the lat-long light stage the probe is resampled to
+        (:func:`facestats.model.sphere.light_stage_directions`).
+    geometry : FaceGeometry, optional
+        Default: the subject's recorded procedural head (:func:`subject_geometry`).
+    specular : {"torrance_sparrow", "blinn_phong"}
+        Which fitted specular model renders highlights.
+    shadows : bool
+        Cast shadows from the face mesh (False: only the N·l > 0 test).
+    progress : bool
+        Show a progress bar over the rendered chunks.
+
     Returns
     -------
     image : ndarray of float32, shape (size, size, 3)
         Linear radiance in the probe's unit.
     mask : ndarray of bool, shape (size, size)
+
+    Raises
+    ------
+    ValidationError
+        ``lights`` not two integers ≥ 1, or a probe or option the resampling or the renderer refuses.
     """
 
     if np.ndim(lights) != 1 or np.size(lights) != 2:

@@ -62,10 +62,24 @@ def _check_host(host):
 def make_server(app, host: str = "127.0.0.1", port: int = 8000):
     """A threaded WSGI server (werkzeug) for ``app`` bound to ``host:port`` (port 0: any free port).
 
+    Parameters
+    ----------
+    app : callable
+        The WSGI application, e.g. :func:`create_app`'s.
+    host : str
+        Address to listen on (a non-empty name or address of this machine).
+    port : int
+        Port to listen on, 0-65535 (0: any free port).
+
     Returns
     -------
     werkzeug.serving.BaseWSGIServer
         ``server.server_port`` is the bound port; call ``serve_forever()`` / ``shutdown()``.
+
+    Raises
+    ------
+    ValidationError
+        A port out of range, an empty host, a host that does not resolve, or an address in use or not available.
     """
     from werkzeug.serving import make_server as _make_server
 

@@ -12,6 +12,7 @@ from facestats.acquire.bracket import RESPONSE_FORMAT, calibrate_response, read_
 from facestats.acquire.dome import default_dome
 from facestats.acquire.response import ResponseCurve
 from facestats.acquire.synthetic.photographs import encode_frame
+from facestats.io.exif import read_exposure_time
 from facestats.io.png import encode_png
 
 UNIS = pathlib.Path(__file__).resolve().parents[1] / "data" / "unis-bracket"
@@ -251,3 +252,14 @@ def test_a_response_file_that_falls_or_misstates_its_bits_is_refused_by_the_merg
     with pytest.raises(FacestatsError, match=r"bits\.json field 'bits' is 12, but its 'log_response' has 256 levels"):
         merge_bracket(files, tmp_path / "bits.json")
     assert merge_bracket(files, tmp_path / "g.json").radiance.shape == (96, 128, 3)
+
+
+@pytest.mark.parametrize("ext", [".jpeg", ".JPG", ".JPEG"])
+def test_every_spelling_of_jpeg_gets_quality_95_and_the_exif_exposure_time(tmp_path, ext):
+    """encode_frame embedded EXIF (and set quality 95) for ".jpg" only: ".jpeg" frames had no exposure time."""
+    codes = ResponseCurve(bits=8).encode(_scene(48, 64) * 0.01)
+    data = encode_frame(codes, 0.01, ext)
+    assert data == encode_frame(codes, 0.01, ".jpg")
+    path = tmp_path / f"frame{ext}"
+    path.write_bytes(data)
+    assert read_exposure_time(path) == pytest.approx(0.01)

@@ -20,6 +20,7 @@ from facestats.acquire.calibration import (
 from facestats.acquire.dome import Dome, beam_terms, default_dome
 from facestats.acquire.response import ResponseCurve
 from facestats.acquire.synthetic.photographs import TargetPose, write_target_photographs
+from facestats.errors import FormatError
 
 
 def _distorted_dome():
@@ -110,6 +111,9 @@ def test_bad_calibration_files_name_the_field(tmp_path):
     d["camera_log_response"] = np.zeros((100, 3)).tolist()
     with pytest.raises(FacestatsError, match=r"camera_log_response must have shape \(16, levels, 3\)"):
         Dome.from_dict(d)
+    (tmp_path / "bad.json").write_bytes(b'{"format": "\xff"}')  # not UTF-8: raised UnicodeDecodeError
+    with pytest.raises(FormatError, match="cannot read the LED calibration"):
+        read_led_calibration(tmp_path / "bad.json")
 
 
 # -- photometric LED calibration --------------------------------------------------------------------------------

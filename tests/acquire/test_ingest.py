@@ -289,6 +289,24 @@ def test_sensor_profiles_must_be_finite(copy):
         open_folder(copy).sensor()
 
 
+def test_a_nan_profile_is_written_as_null_and_read_back_as_nan(copy):
+    """write_sensor_file wrote NaN as the bare token NaN, which strict JSON readers refuse (a reviewer)."""
+    from facestats.acquire.photographs import write_sensor_file
+
+    path = copy / json.loads((copy / "manifest.json").read_text())["sensor"]
+    sensor, profile, std = open_folder(copy).sensor()
+    profile[1, 2, 0] = np.nan
+    write_sensor_file(path, sensor, profile, std)
+
+    def refuse(token):
+        raise ValueError(f"not strict JSON: {token}")
+
+    doc = json.loads(path.read_text(), parse_constant=refuse)
+    assert doc["profile"][1][2][0] is None
+    with pytest.raises(FacestatsError, match=r"field 'profile' must be finite, got nan at .* \(1, 2, 0\)"):
+        open_folder(copy).sensor()
+
+
 def test_mesh_without_face_region(copy):
     from facestats.pipeline.photographs import find_region_image
 

@@ -21,7 +21,7 @@ from facestats.acquire.scene import camera_sees, patch_radiance, read_radiance_i
 from facestats.acquire.synthetic.patch_image import render_patch_image
 from facestats.acquire.synthetic.scenes import pyramid_scene, square_pyramid
 from facestats.acquire.synthetic.subsurface import cutoff_radius, render_exitance
-from facestats.errors import FacestatsError, ValidationError
+from facestats.errors import FacestatsError, FormatError, ValidationError
 from facestats.model.dipole import dipole_profile, dipole_radial_energy, total_diffuse_reflectance
 from facestats.model.fresnel import fresnel_transmittance
 from facestats.model.irradiance import (
@@ -148,6 +148,9 @@ def test_lights_masks_shadows_and_json(tmp_path):
     path.write_text(json.dumps({"lights": [{"type": "laser"}]}))
     with pytest.raises(FacestatsError, match="light type must be one of"):
         load_lights(path)
+    path.write_bytes(b'{"eta": 1.3, "lights": ["\xff"]}')  # not UTF-8: raised UnicodeDecodeError
+    with pytest.raises(FormatError, match="cannot read the light description"):
+        load_lights(path)
 
 
 def test_camera_matches_the_dome_and_round_trips(tmp_path):
@@ -162,6 +165,9 @@ def test_camera_matches_the_dome_and_round_trips(tmp_path):
     np.testing.assert_allclose(back.project(pts)[0], cam.project(pts)[0])
     with pytest.raises(ValidationError, match="rotation must be a rotation matrix"):
         PinholeCamera(cam.matrix, 2 * cam.rotation, cam.position, cam.image_size)
+    (tmp_path / "cam.json").write_bytes(b'{"matrix": "\xff"}')  # not UTF-8: raised UnicodeDecodeError
+    with pytest.raises(FormatError, match="cannot read the camera file"):
+        PinholeCamera.load(tmp_path / "cam.json")
 
 
 @pytest.mark.parametrize("ext", [".npz", ".exr", ".pfm"])

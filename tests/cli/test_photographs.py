@@ -1,6 +1,6 @@
 """``facestats calibrate leds`` and ``calibrate response`` through the console script.
 
-``facestats ingest``: tests/pipeline/test_photographs.py.
+``facestats ingest`` end to end: tests/pipeline/test_photographs.py; its --regions help here.
 """
 
 import json
@@ -73,3 +73,19 @@ def test_calibrate_response_from_the_real_bracket_into_a_dome(tmp_path):
     assert r.returncode == 2 and "bits must be at most 8 for these 8-bit files, got 12" in r.stderr
     r = run_cli("calibrate", "response", *frames, "--samples", "100000000")
     assert r.returncode == 2 and "samples must be" in r.stderr
+
+
+def test_ingest_regions_help_names_every_file_the_default_looks_for(tmp_path, capsys):
+    """``--regions`` said ``.png|.npy`` while :func:`find_region_image` also takes ``<stem>.regions.tif``."""
+    from facestats.cli import main
+    from facestats.errors import FormatError
+    from facestats.pipeline.photographs import find_region_image
+
+    with pytest.raises(FormatError) as exc:
+        find_region_image(tmp_path / "face.obj")
+    looked_for = str(exc.value).split("looked for ")[1].split(")")[0].split(", ")  # face.regions.png, ...
+    with pytest.raises(SystemExit):
+        main(["ingest", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())  # argparse wraps lines
+    default = help_text.split("default: <mesh stem>.regions")[1].split(" next to the mesh")[0]  # .png|.npy|...
+    assert [f"face.regions{ext}" for ext in default.split("|")] == looked_for

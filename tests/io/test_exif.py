@@ -115,3 +115,76 @@ def test_informative_tags_out_of_their_domain_are_dropped_not_fatal():
     data = b"II*\0" + struct.pack("<I", 8) + ifd + struct.pack("<I", 0)
     data += struct.pack("<II", 1, 60) + struct.pack("<II", 0, 0)
     assert parse_exif(data, "f.tif") == {"ExposureTime": 1 / 60}
+
+
+def _tiff_with_ifds_at_the_end(path, make="dome", exposure=(1, 125), make_count=None):
+    """A grey 8-bit TIFF of 1.5 MiB laid out as libtiff (and so OpenCV) writes it: the header, the image data,
+    then IFD0 (Make) and the Exif IFD (ExposureTime), past the first MiB."""
+    import struct
+
+    h, w = 1024, 1536
+    pixels = np.arange(h * w, dtype=np.uint32).astype(np.uint8).tobytes()
+    ifd0_at = 8 + len(pixels)
+    text = make.encode("latin-1") + b"\0"
+    short = lambda v: struct.pack("<HH", v, 0)  # noqa: E731
+    long = lambda v: struct.pack("<I", v)  # noqa: E731
+    entries = [
+        (256, 4, 1, long(w)),
+        (257, 4, 1, long(h)),
+        (258, 3, 1, short(8)),
+        (259, 3, 1, short(1)),
+        (262, 3, 1, short(1)),
+        (271, 2, make_count or len(text), None),  # Make, after IFD0
+        (273, 4, 1, long(8)),
+        (277, 3, 1, short(1)),
+        (278, 4, 1, long(h)),
+        (279, 4, 1, long(len(pixels))),
+        (0x8769, 4, 1, None),  # the Exif IFD, after Make
+    ]
+    make_at = ifd0_at + 2 + 12 * len(entries) + 4
+    exif_at = make_at + len(text) + len(text) % 2
+    value_at = exif_at + 2 + 12 + 4
+    ifd0 = struct.pack("<H", len(entries))
+    for tag, typ, count, field in entries:
+        field = field or long(make_at if tag == 271 else exif_at)
+        ifd0 += struct.pack("<HHI", tag, typ, count) + field
+    ifd0 += long(0) + text + b"\0" * (len(text) % 2)
+    sub = struct.pack("<H", 1) + struct.pack("<HHII", 0x829A, 5, 1, value_at) + long(0) + struct.pack("<II", *exposure)
+    path.write_bytes(b"II*\0" + long(ifd0_at) + pixels + ifd0 + sub)
+    return path
+
+
+def test_tiff_whose_ifds_follow_the_image_data_past_the_first_mib(tmp_path):
+    from PIL import Image
+
+    p = _tiff_with_ifds_at_the_end(tmp_path / "end.tif")
+    with Image.open(p) as im:  # an independent reader agrees: a valid TIFF, its Exif IFD past the first MiB
+        assert im.size == (1536, 1024) and im.getexif()[271] == "dome"
+        assert im.getexif().get_ifd(0x8769)[0x829A] == pytest.approx(1 / 125)
+    assert read_exif(p) == {"Make": "dome", "ExposureTime": 1 / 125}  # "IFD offset ... beyond the end" before
+    assert read_exposure_time(p) == 1 / 125
+
+
+def test_tiff_written_by_opencv_has_its_ifd_at_the_end(tmp_path):
+    import struct
+
+    import cv2
+
+    p = tmp_path / "cv.tif"
+    noise = np.random.default_rng(0).integers(0, 1 << 16, (512, 512, 3), dtype=np.uint16)  # 1.5 MiB, LZW or not
+    cv2.imwrite(str(p), noise)
+    assert struct.unpack("<I", p.read_bytes()[4:8])[0] > 1 << 20  # libtiff writes IFD0 after the image data
+    assert read_exif(p) == {} and read_exposure_time(p) is None  # no EXIF in it: a FormatError before
+
+
+def test_tiff_values_past_the_first_mib_are_bounded(tmp_path, monkeypatch):
+    from facestats.io import exif
+
+    huge = _tiff_with_ifds_at_the_end(tmp_path / "huge.tif", make_count=0xFFFFFFF0)
+    with pytest.raises(FacestatsError, match=r"huge\.tif is corrupt: TIFF entry points beyond the end of its data"):
+        read_exif(huge)
+    long_make = _tiff_with_ifds_at_the_end(tmp_path / "long.tif", make="x" * 9000)
+    assert read_exif(long_make)["Make"] == "x" * 9000
+    monkeypatch.setattr(exif, "_MAX_READ", 4096)  # a value (or an IFD) is read only up to a size, never the file
+    with pytest.raises(FacestatsError, match=r"long\.tif is corrupt: TIFF field of 9001 bytes at offset \d+ is too"):
+        read_exif(long_make)

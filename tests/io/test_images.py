@@ -70,6 +70,18 @@ def test_exr_half_channels_and_attributes(tmp_path):
     np.testing.assert_array_equal(back["region"], chans["region"])
 
 
+def test_exr_integer_channels_out_of_the_uint32_range_are_refused(tmp_path):
+    ok = {"region": np.array([[0, 2**32 - 1]], np.int64), "mask": np.array([[True, False]])}
+    images.write_exr(tmp_path / "ok.exr", ok)
+    back, _ = images.read_exr(tmp_path / "ok.exr")
+    assert back["region"].tolist() == [[0, 2**32 - 1]] and back["mask"].tolist() == [[1, 0]]
+    for value in (-1, 2**33):  # stored as 4294967295 and 0 before
+        with pytest.raises(ValidationError, match=rf"channel 'region' for .*must hold integers in \[0, 4294967295\] "
+                           rf"\(stored as uint32\), got {value}"):  # fmt: skip
+            images.write_exr(tmp_path / "bad.exr", {"region": np.array([[1, value]], np.int64)})
+        assert not (tmp_path / "bad.exr").exists()
+
+
 def test_pfm_is_stored_bottom_up_little_endian(tmp_path):
     img = _bright(c=1)[..., 0]
     raw = images.write_pfm(tmp_path / "g.pfm", img).read_bytes()

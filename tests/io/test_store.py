@@ -929,11 +929,14 @@ def test_fsync_tree_falls_back_to_every_file_and_reports_syncfs_errors(tmp_path,
     from facestats.io import layout
 
     g, fsyncs = _tree(tmp_path), []
-    real = layout.fsync_path
-    monkeypatch.setattr(layout, "fsync_path", lambda p, directory=False: fsyncs.append(p) or real(p, directory))
+    real = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: fsyncs.append(fd) or real(fd))
     monkeypatch.setattr(layout, "_syncfs", lambda: None)
     layout.fsync_tree(g)
     assert len(fsyncs) == 5  # three files and two folders
+    fsyncs.clear()
+    layout.fsync_tree(g / "zarr.json")  # a file: it and its folder
+    assert len(fsyncs) == 2
 
     def failing(err):
         def fn(fd):
@@ -949,6 +952,55 @@ def test_fsync_tree_falls_back_to_every_file_and_reports_syncfs_errors(tmp_path,
     monkeypatch.setattr(layout, "_syncfs", failing(errno.EIO))  # a write-back error is an error
     with pytest.raises(OSError, match="syncfs failed"):
         layout.fsync_tree(g)
+
+
+def test_fsync_tree_without_syncfs_skips_a_planted_fifo_instead_of_blocking(tmp_path, monkeypatch):
+    import threading
+
+    from facestats.io import layout
+
+    g, fsyncs = _tree(tmp_path), []
+    os.mkfifo(g / "a" / "fifo")  # opened read-only it would block until a writer came
+    os.symlink(g / "a" / "fifo", g / "link")
+    real = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: fsyncs.append(fd) or real(fd))
+    monkeypatch.setattr(layout, "_syncfs", lambda: None)
+    t = threading.Thread(target=layout.fsync_tree, args=(g,), daemon=True)
+    t.start()
+    t.join(5)
+    assert not t.is_alive(), "fsync_tree blocked on a FIFO"
+    assert len(fsyncs) == 5  # the three files and two folders; the FIFO and the link are left alone
+
+
+def test_a_record_swapped_for_a_fifo_after_its_checks_is_refused_without_blocking(tmp_path, monkeypatch):
+    import stat
+    import threading
+
+    from facestats.io import records
+    from facestats.io.layout import RECORDS, new_generation
+
+    root, gen = tmp_path / "s.zarr", new_generation()
+    (root / RECORDS).mkdir(parents=True)
+    records.write_record(root, "S001", gen, "writing")
+    assert records.inspect_record(root, "S001", gen)[0]["state"] == "writing"
+    path, real_lstat = records.record_path(root, "S001", gen), os.lstat
+    regular = real_lstat(path)
+
+    def lstat(p, *args, **kwargs):  # every lstat check sees the record, then a FIFO is put in its place
+        if os.fspath(p) != path:
+            return real_lstat(p, *args, **kwargs)
+        if stat.S_ISREG(real_lstat(path).st_mode):
+            os.remove(path)
+            os.mkfifo(path)
+        return regular
+
+    monkeypatch.setattr(os, "lstat", lstat)
+    out = []
+    t = threading.Thread(target=lambda: out.append(records.inspect_record(root, "S001", gen)), daemon=True)
+    t.start()
+    t.join(5)
+    assert not t.is_alive(), "inspect_record blocked on a FIFO"  # opened with open() after the lstat check before
+    assert out == [(None, None)]
 
 
 def test_a_store_opens_from_a_file_url_and_refuses_other_urls(tmp_path):
@@ -1015,3 +1067,103 @@ def test_exclude_leaves_optional_variables_unread(tmp_path):
         ):
             with pytest.raises(ValidationError, match=message):
                 st.subject("EX", **kwargs)
+
+
+# -- The quarantine across volumes ------------------------------------------------------------------------
+def _across_volumes(monkeypatch):
+    """``os.rename`` into a quarantine fails with EXDEV, as when ``subjects/`` is another volume's mount point."""
+    import errno
+
+    real = os.rename
+
+    def rename(src, dst, *args, **kwargs):
+        if f"{os.sep}quarantine{os.sep}" in os.fspath(dst):
+            raise OSError(errno.EXDEV, os.strerror(errno.EXDEV))
+        return real(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(os, "rename", rename)
+
+
+def _remove_partly(path):
+    """``remove_tree`` that removes one file of the tree, then fails."""
+    import errno
+
+    os.remove(os.path.join(path, "zarr.json"))
+    raise OSError(errno.EIO, os.strerror(errno.EIO), path)
+
+
+def _files(top):
+    return sorted(p.relative_to(top).as_posix() for p in pathlib.Path(top).rglob("*") if p.is_file())
+
+
+def test_quarantine_across_volumes_copies_then_says_what_is_where_when_a_step_fails(tmp_path, monkeypatch):
+    from facestats.io import quarantine as q
+
+    root, rel = tmp_path / "s.zarr", "subjects/S1/g0000000000000001-1-aaaaaa"
+    (root / rel / "a").mkdir(parents=True)
+    for name in ("zarr.json", "a/c0", "a/c1"):
+        (root / rel / name).write_bytes(name.encode())
+    _across_volumes(monkeypatch)
+    qdir = q.open_quarantine(str(root), "test")
+    real_copy = q.copy_tree
+
+    def copy_partly(src, dst):
+        real_copy(src, dst)
+        raise OSError(28, os.strerror(28), dst)  # a full disk at the last file
+
+    monkeypatch.setattr(q, "copy_tree", copy_partly)
+    with pytest.raises(StoreError, match=rf"cannot move {rel} into the quarantine: No space left on device; it was le"):
+        q.quarantine_move(str(root), qdir, rel, "damaged")
+    assert _files(root / rel) == ["a/c0", "a/c1", "zarr.json"] and not os.path.lexists(os.path.join(qdir, rel))
+    assert q.list_quarantine(root)[0]["items"] == []  # the partial copy was removed again, nothing listed
+    monkeypatch.setattr(q, "copy_tree", real_copy)
+    monkeypatch.setattr(q, "remove_tree", _remove_partly)
+    with pytest.raises(StoreError) as info:  # "it was left in place" before: the original had lost a file
+        q.quarantine_move(str(root), qdir, rel, "damaged")
+    assert str(info.value) == (
+        f"cannot finish moving {rel} into the quarantine: it was copied whole to {os.path.join(qdir, rel)} (another "
+        f"volume), but removing the original failed (Input/output error): {root / rel} was only partly removed "
+        "(what is left of it is incomplete)"
+    )
+    assert _files(os.path.join(qdir, rel)) == ["a/c0", "a/c1", "zarr.json"] and _files(root / rel) == ["a/c0", "a/c1"]
+    [folder] = q.list_quarantine(root)
+    assert folder["valid"] and folder["items"] == [{"path": rel, "why": "damaged"}]  # the whole copy is listed
+
+
+def test_quarantine_across_volumes_moves_a_file_and_a_folder_whole(tmp_path, monkeypatch):
+    from facestats.io import quarantine as q
+
+    root, rel = tmp_path / "s.zarr", "subjects/S1/g0000000000000001-1-aaaaaa"
+    (root / rel / "a").mkdir(parents=True)
+    for name in ("zarr.json", "a/c0", "index.json"):
+        (root / (name if name == "index.json" else f"{rel}/{name}")).write_bytes(name.encode())
+    _across_volumes(monkeypatch)
+    qdir = q.open_quarantine(str(root), "test")
+    q.quarantine_move(str(root), qdir, rel, "damaged")
+    q.quarantine_move(str(root), qdir, "index.json", "unreadable")
+    assert _files(qdir) == ["QUARANTINE.json", "index.json", f"{rel}/a/c0", f"{rel}/zarr.json"]
+    assert not (root / rel).exists() and not (root / "index.json").exists()
+    assert [i["path"] for i in q.list_quarantine(root)[0]["items"]] == [rel, "index.json"]
+
+
+def test_a_repair_stopped_after_copying_across_volumes_keeps_the_quarantine_manifest(tmp_path, monkeypatch):
+    from facestats.io import quarantine as q
+
+    path = tmp_path / "r.zarr"
+    with open_store(path, mode="a") as st:
+        st.write_subject(make_map_subject("R1", size=16))
+        gen = path / "subjects" / "R1" / st.index_entries()["R1"]["generation"]
+    chunk = gen / "albedo" / "c" / "0" / "0" / "0"
+    data = bytearray(chunk.read_bytes())
+    data[len(data) // 2] ^= 0x10
+    chunk.write_bytes(bytes(data))
+    _across_volumes(monkeypatch)
+    monkeypatch.setattr(q, "remove_tree", _remove_partly)
+    with open_store(path, mode="r+") as st:
+        with pytest.raises(StoreError, match=r"repair of .* stopped: cannot finish moving .* was only partly removed"):
+            st.repair()
+        [folder] = st.quarantine()  # its QUARANTINE.json was removed before: the copy neither listed nor purgeable
+    rel = f"subjects/R1/{gen.name}"
+    assert folder["valid"] and folder["items"] == [{"path": rel, "why": folder["items"][0]["why"]}]
+    copy = path / "quarantine" / folder["name"] / rel
+    assert (copy / "albedo" / "c" / "0" / "0" / "0").read_bytes() == bytes(data) and (copy / "zarr.json").is_file()

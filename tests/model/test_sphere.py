@@ -49,6 +49,15 @@ def test_latlong_coordinates_invert_the_directions(rng):
     assert np.allclose(sphere.direction_from_angles(phi, theta), d)
 
 
+def test_azimuth_stays_in_its_documented_range_for_signed_zeros():
+    """θ ∈ (−π, π]: arctan2 gave −π for x = −0.0 with z ≥ 0 (and for an x too small to leave −π)."""
+    d = np.array([[-0.0, 0.0, 1.0], [-1e-20, 0.0, 1.0], [-0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    _, theta = sphere.angles_from_direction(d)
+    np.testing.assert_array_equal(theta, np.pi)
+    _, one = sphere.angles_from_direction(d[0])
+    assert one == np.pi and np.ndim(one) == 0
+
+
 def test_light_stage_is_the_64_by_32_lat_long_grid():
     d, sa = sphere.light_stage_directions()
     assert d.shape == (32, 64, 3) and sa.shape == (32, 64)

@@ -292,6 +292,19 @@ def test_a_journal_that_cannot_be_written_fails_the_subject_not_the_build(tmp_pa
     assert run_journalled(BuildJournal(store), "S006", lambda: "ok", retries=0) == ("done", "ok")
 
 
+@pytest.mark.parametrize("retries", [-1, 1.5, True])
+def test_run_journalled_refuses_a_negative_or_non_integer_retry_count_before_any_record(tmp_path, retries):
+    """``retries=-1`` made no attempt and raised UnboundLocalError of the unset error text."""
+    from facestats.pipeline.journal import run_journalled
+
+    store = tmp_path / "s.zarr"
+    open_store(store, mode="a").close()
+    calls = []
+    with pytest.raises(ValidationError, match="retries must be an integer"):
+        run_journalled(BuildJournal(store), "S005", lambda: calls.append(1), retries)
+    assert calls == [] and not (store / JOURNAL_DIR).exists()
+
+
 def test_a_record_left_by_a_build_killed_after_its_commit_goes_on_resume(tmp_path):
     """Killed between a subject's commit and its record's removal, a build leaves a ``running`` record of a
     stored subject; the resumed build skips the subject and removes the record (and the empty journal)."""

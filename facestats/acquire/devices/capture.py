@@ -52,8 +52,8 @@ def read_subject_record(path) -> dict:
         The file cannot be read, is not valid JSON, or is not an object.
     """
     try:
-        doc = json.loads(pathlib.Path(path).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+        doc = json.loads(pathlib.Path(path).read_bytes())
+    except (OSError, ValueError, RecursionError) as exc:  # ValueError: not JSON, or not UTF-8
         raise FormatError(f"cannot read the subject record {path}: {exc}") from None
     if not isinstance(doc, dict):
         raise FormatError(f"subject record {path} must be a JSON object, got {type(doc).__name__}")
@@ -90,7 +90,7 @@ def dome_plan(calibration, subject: dict, **options) -> tuple:
     data = _read(calibration)
     try:
         doc = json.loads(data)
-    except json.JSONDecodeError as exc:
+    except (ValueError, RecursionError) as exc:  # ValueError: not JSON, or not UTF-8
         raise FormatError(f"dome calibration {calibration} is not valid JSON: {exc}") from None
     return DomePlan.from_calibration(Dome.from_dict(doc), data, subject, **options), data
 

@@ -41,6 +41,7 @@ from facestats.acquire.devices.controller import Controller
 from facestats.acquire.hdr import merge_exposures
 from facestats.acquire.photographs import EXPOSURE_TOLERANCE
 from facestats.acquire.sensor import ContactSensor
+from facestats.core.conventions import SITES
 from facestats.core.published import N_FIBERS
 from facestats.core.validate import check_integer
 from facestats.errors import DeviceError, FormatError, ValidationError
@@ -148,6 +149,7 @@ class SensorBracket:
     Attributes
     ----------
     sites : tuple of str
+        :data:`~facestats.core.conventions.SITES`, the order of the site axis of ``readings`` and the profiles.
     fiber_distance : ndarray, shape (F,)
         mm.
     exposure_s : ndarray, shape (E,)
@@ -171,7 +173,8 @@ class SensorBracket:
 def read_bracket(folder) -> SensorBracket:
     """The sensor session of a capture folder: its ``sensor.json`` and the raw frames it lists.
 
-    Fibre spots are located with the default :class:`FiberLayout` of the sensor's fibre count.
+    Fibre spots are located with the :class:`FiberLayout` the session merged with (``sensor.json`` field
+    ``fiber_layout``); a file written before that field was stored: the default layout of the sensor's fibre count.
 
     Parameters
     ----------
@@ -181,38 +184,81 @@ def read_bracket(folder) -> SensorBracket:
     Returns
     -------
     SensorBracket
-        Sites in the order of the frames (capture order); profiles as stored in ``sensor.json``.
+        Sites in :data:`~facestats.core.conventions.SITES` order (cheek, forehead, neck), whatever order they were
+        captured in: the order ``sensor.json`` stores the profiles in.
 
     Raises
     ------
     FormatError
-        No readable ``sensor.json``, or one without ``frames``.
+        No readable ``sensor.json``, or one without ``frames``; a missing or malformed field (``sensor``,
+        ``fiber_layout``, ``profile``, ``profile_std``, a frame's ``site``, ``exposure`` or ``file``); a frame that
+        cannot be read or whose size is not the fibre layout's.
     """
     # local import: keeps facestats.io (23 modules) out of this module's import
     from facestats.io.images import decode_integer_image
 
     folder = pathlib.Path(folder)
-    try:
-        doc = json.loads((folder / "sensor.json").read_text())
-        frames = doc["frames"]
-    except (OSError, json.JSONDecodeError, KeyError) as exc:
-        raise FormatError(f"{folder} holds no completed sensor session (sensor.json with its frames): {exc}") from None
-    sensor = ContactSensor.from_attrs(doc["sensor"])
-    profile, std = np.asarray(doc["profile"], np.float64), np.asarray(doc["profile_std"], np.float64)
-    labels = FiberLayout(sensor.n_fibers).labels()
+    frames, sensor, layout, profile, std = _read_sensor_file(folder)
+    labels = layout.labels()
     spot = labels >= 0
-    count = np.bincount(labels[spot], minlength=sensor.n_fibers)[:, None]
-    sites = tuple(dict.fromkeys(f["site"] for f in frames))
-    n_exp = sensor.n_exposures
-    readings = np.zeros((len(sites), n_exp, sensor.n_fibers, 3))
+    k = labels[spot]
+    count = np.bincount(k, minlength=sensor.n_fibers)[:, None]
+    readings = np.zeros((len(SITES), sensor.n_exposures, sensor.n_fibers, 3))
     for f in frames:
-        codes = decode_integer_image((folder / f["file"]).read_bytes(), f["file"])[0].astype(np.float64)
-        k = labels[spot]
+        site, j, name = _frame_of(f, folder, sensor.n_exposures)
+        try:
+            codes = decode_integer_image((folder / name).read_bytes(), name)[0].astype(np.float64)
+        except OSError as exc:
+            raise FormatError(f"sensor frame {folder / name} cannot be read: {exc.strerror or exc}") from None
+        if codes.shape != (*labels.shape, 3):
+            raise FormatError(
+                f"sensor frame {folder / name} has shape {codes.shape} (height, width, channel), the fibre layout "
+                f"{layout.to_dict()} needs {(*labels.shape, 3)}"
+            )
         sums = np.stack([np.bincount(k, codes[spot][:, c], sensor.n_fibers) for c in range(3)], 1)
-        readings[sites.index(f["site"]), f["exposure"]] = sums / count
+        readings[site, j] = sums / count
     return SensorBracket(
-        sites, sensor.fiber_distance, sensor.exposure_times, readings, profile, std, sensor.camera.max_dn
+        SITES, sensor.fiber_distance, sensor.exposure_times, readings, profile, std, sensor.camera.max_dn
     )
+
+
+def _read_sensor_file(folder):
+    """``(frames, sensor, layout, profile, profile_std)`` of ``folder/sensor.json``, checked (:func:`read_bracket`)."""
+    path = folder / "sensor.json"
+    try:
+        doc = json.loads(path.read_bytes())
+        frames = list(doc["frames"])
+    except (OSError, ValueError, RecursionError, KeyError, TypeError) as exc:
+        raise FormatError(f"{folder} holds no completed sensor session (sensor.json with its frames): {exc}") from None
+    try:
+        sensor = ContactSensor.from_attrs(doc["sensor"])
+        layout = FiberLayout(**doc.get("fiber_layout", {"n_fibers": sensor.n_fibers}))  # older files: the default
+        profile, std = np.asarray(doc["profile"], np.float64), np.asarray(doc["profile_std"], np.float64)
+    except KeyError as exc:
+        raise FormatError(f"{path} lacks the field {exc}") from None
+    except (AttributeError, TypeError, ValueError) as exc:
+        raise FormatError(f"{path} has a malformed field ('sensor', 'fiber_layout' or a profile): {exc}") from None
+    if layout.n_fibers != sensor.n_fibers:
+        raise FormatError(f"{path} field 'fiber_layout' has {layout.n_fibers} fibres, its sensor {sensor.n_fibers}")
+    if profile.shape != (len(SITES), sensor.n_fibers, 3) or std.shape != profile.shape:
+        raise FormatError(
+            f"{path} fields 'profile' and 'profile_std' must be (site {len(SITES)}, fiber {sensor.n_fibers}, "
+            f"channel 3), got {profile.shape} and {std.shape}"
+        )
+    return frames, sensor, layout, profile, std
+
+
+def _frame_of(entry, folder, n_exposures):
+    """``(site index in SITES, exposure index, file)`` of a ``sensor.json`` frame entry, checked."""
+    try:
+        site, j, name = SITES.index(entry["site"]), entry["exposure"], entry["file"]
+        if not isinstance(j, int) or isinstance(j, bool) or not 0 <= j < n_exposures or not isinstance(name, str):
+            raise ValueError(f"exposure {j!r} (0..{n_exposures - 1}) and file {name!r:.60}")
+    except (KeyError, TypeError, ValueError) as exc:
+        raise FormatError(
+            f"{folder / 'sensor.json'} has a frame with a missing or malformed field {exc} (sites {SITES})"
+        ) from None
+    return site, j, name
 
 
 def save_sensor_calibration(path, sensor, layout: FiberLayout) -> pathlib.Path:
@@ -259,8 +305,8 @@ def load_sensor_calibration(path):
     """
 
     try:
-        doc = json.loads(pathlib.Path(path).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+        doc = json.loads(pathlib.Path(path).read_bytes())
+    except (OSError, ValueError, RecursionError) as exc:  # ValueError: not JSON, or not UTF-8
         raise FormatError(f"cannot read sensor calibration {path}: {exc}") from None
     if not isinstance(doc, dict) or doc.get("format") != CALIBRATION_FORMAT:
         raise FormatError(f"sensor calibration {path} field 'format' must be {CALIBRATION_FORMAT!r}")

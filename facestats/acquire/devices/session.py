@@ -132,8 +132,8 @@ class SessionReport:
 
 def _read_json(path, what):
     try:
-        return json.loads(pathlib.Path(path).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+        return json.loads(pathlib.Path(path).read_bytes())
+    except (OSError, ValueError, RecursionError) as exc:  # ValueError: not JSON, or not UTF-8
         raise SessionError(
             f"{what} {path} cannot be read ({exc}): delete the session directory to start over"
         ) from None
@@ -584,5 +584,6 @@ def _finish(plan, out, done):
         stack = [decode_integer_image((out / e["file"]).read_bytes(), e["file"])[0] for e in site_entries]
         profile[site], std[site] = merge_bracket(np.stack(stack), plan.exposure_s, sensor, layout)
     tmp = out / "sensor.json.part"
-    write_sensor_file(tmp, sensor, profile, std, frames=entries, subject=plan.subject)
+    # the layout goes with the frames: read_bracket finds the fibre spots where this merge found them
+    write_sensor_file(tmp, sensor, profile, std, frames=entries, subject=plan.subject, fiber_layout=layout.to_dict())
     os.replace(tmp, out / "sensor.json")

@@ -217,8 +217,8 @@ def encode_frame(codes, exposure_s, extension=".png", *, model="simulated dome c
         RGB codes (uint8 for JPEG).
     exposure_s : float
         Exposure time in seconds, written as EXIF ``ExposureTime`` (PNG and JPEG).
-    extension : {".png", ".jpg", ".tif"}
-        The file type.
+    extension : {".png", ".jpg", ".jpeg", ".tif"}
+        The file type, in any case (``".JPEG"`` is JPEG).
     model : str
         EXIF ``Model`` (``Make`` is ``facestats``).
 
@@ -236,16 +236,18 @@ def encode_frame(codes, exposure_s, extension=".png", *, model="simulated dome c
     from facestats.io.png import encode_png
 
     payload = exif_payload(exposure_s, make="facestats", model=model)
-    if extension == ".png":
+    kind = str(extension).lower()
+    if kind == ".png":
         return encode_png(codes, chunks=[(b"eXIf", payload)])
     import cv2
 
-    params = [cv2.IMWRITE_JPEG_QUALITY, 95] if extension == ".jpg" else []
-    ok, buf = cv2.imencode(extension, np.ascontiguousarray(codes[..., ::-1]), params)
+    jpeg = kind in (".jpg", ".jpeg")
+    params = [cv2.IMWRITE_JPEG_QUALITY, 95] if jpeg else []
+    ok, buf = cv2.imencode(kind, np.ascontiguousarray(codes[..., ::-1]), params)
     if not ok:
         raise ValidationError(f"could not encode a {codes.shape} {codes.dtype} frame as {extension}")
     data = buf.tobytes()
-    return embed_exif(data, payload) if extension == ".jpg" else data
+    return embed_exif(data, payload) if jpeg else data
 
 
 def _encode(path, codes, exposure_s):

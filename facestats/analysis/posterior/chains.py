@@ -32,6 +32,21 @@ def run_to_convergence(sampler, start, n_blocks, block_dim, min_tau, max_steps, 
     The chain grows in chunks: ``initial_steps`` first, then to 1.1 times the
     length τ asks for (at least 100 steps more, at most ``max_steps`` in all).
 
+    Parameters
+    ----------
+    sampler : emcee.EnsembleSampler
+        A fresh sampler (no steps yet) over ``n_blocks · block_dim`` parameters; it is advanced in place.
+    start : ndarray, shape (n_walkers, n_blocks · block_dim)
+        Initial walker positions.
+    n_blocks, block_dim : int
+        Number of parameter blocks and parameters per block (the shape ``tau`` is reported in).
+    min_tau : float
+        Required chain length in autocorrelation times (of the largest τ).
+    max_steps : int
+        Cap on the chain length.
+    initial_steps : int
+        Steps before the first autocorrelation estimate.
+
     Returns
     -------
     steps : int

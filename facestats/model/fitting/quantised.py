@@ -262,9 +262,10 @@ def planned_levels(points, weights, rows=None, *, width, areas=None, near=False)
     width : float
         Quantisation width w in mm, > 0.
     areas : array_like, shape (m,), optional
-        Patch areas A_k, mm²; read only with ``near`` (needed then).
+        Patch areas A_k, mm² (> 0); read only with ``near`` (needed then).
     near : bool
-        Whether :func:`quantised_system` takes the near neighbours over their disks (their radii extend the range).
+        Whether :func:`quantised_system` takes the near neighbours over their disks (their radii extend the range);
+        True only with ``areas``.
 
     Returns
     -------
@@ -274,14 +275,16 @@ def planned_levels(points, weights, rows=None, *, width, areas=None, near=False)
     Raises
     ------
     ValidationError
-        An invalid ``width``, or one that would give more than :data:`MAX_LEVELS`, as :func:`quantised_system`
-        does.
+        An invalid ``width``, or one that would give more than :data:`MAX_LEVELS`, a ``near`` that is not a bool
+        or True without ``areas``, or invalid ``areas`` with ``near``, as :func:`quantised_system` does.
     """
     p = np.asarray(points, np.float64)
     wk = np.asarray(weights, np.float64)
     idx = np.arange(p.shape[0]) if rows is None else np.asarray(rows)
     lit = np.nonzero(wk > 0)[0]
-    rho = np.sqrt(np.asarray(areas, np.float64)[lit] / np.pi) if near else None
+    if not isinstance(near, (bool, np.bool_)) or (near and areas is None):  # as quantised_system
+        raise ValidationError(f"near must be True or False, and True only with areas, got {near!r}")
+    rho = np.sqrt(_check_areas(areas, p.shape[0])[lit] / np.pi) if near else None
     w = as_scalar(width, "width", 0, None, low_inclusive=False, unit="mm")
     return int(uniform_levels(w, _farthest(p[idx], p[lit], rho)).size)
 

@@ -426,8 +426,8 @@ def fit_scattering_system(
     Raises
     ------
     ValidationError
-        Invalid arguments (an invalid ``exitance`` is reported as ``radiance``), or a ``max_distance`` beyond
-        the farthest pair (or given with ``method="exitance"``).
+        Invalid arguments (e.g. an ``exitance`` that is negative, not finite or not of length
+        ``len(system.rows)``), or a ``max_distance`` beyond the farthest pair (or given with ``method="exitance"``).
     FitError
         No row with l > 0 (except for ``method="pinv"``), fewer than 3 levels left after merging (for
         ``"exitance"`` R' is then NaN instead), or fewer than 3 rows with l > 0 for the exitance fit.
@@ -439,7 +439,7 @@ def fit_scattering_system(
     """
     check_choice(method, "method", METHODS)
     check_integer(min_pairs, "min_pairs", 1)
-    l = check_shape(as_finite(exitance, "radiance", 0, None, dtype=np.float64), "radiance", (system.rows.size,))
+    l = check_shape(as_finite(exitance, "exitance", 0, None, dtype=np.float64), "exitance", (system.rows.size,))
     if method == "exitance":
         system, pf, r, cond, n_rows, notes = _exitance_fit(
             system,

@@ -56,7 +56,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.core.conventions import FLAG_BITS
-from facestats.core.validate import as_finite, check_integer
+from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.errors import ValidationError
 from facestats.model.brdf import blinn_phong_albedo
 from facestats.model.fitting.diffuse_level import STEPS, fit_diffuse_level
@@ -140,6 +140,7 @@ class SpecularFit:
 
 def _check_solver_args(model, bounds, min_samples, max_iter, tol, max_relative_error):
     """The bounds ((ρ_lo, ρ_hi), (p_lo, p_hi)) of ``model``, after checking every solver argument."""
+    check_choice(model, "model", DEFAULT_BOUNDS)  # first: the default bounds and PLAUSIBLE_LOBE are looked up by it
     try:
         (r_lo, r_hi), (p_lo, p_hi) = DEFAULT_BOUNDS[model] if bounds is None else bounds
         ordered = 0 <= r_lo < r_hi and 0 < p_lo < p_hi
@@ -327,7 +328,7 @@ def solve_specular(
     Parameters
     ----------
     model : {"torrance_sparrow", "blinn_phong"}
-        The lobe (not validated here: :func:`~facestats.model.fitting.specular.fit_specular_models` checks it).
+        The lobe (a key of :data:`DEFAULT_BOUNDS`).
     y : ndarray, shape (S,)
         y = f_s cos θi of the kept samples (w = 1), each texel's samples one contiguous run.
     s1, a : ndarray, shape (S,)
@@ -367,7 +368,7 @@ def solve_specular(
     Raises
     ------
     ValidationError
-        Invalid ``bounds``, ``min_samples``, ``max_iter``, ``tol``, ``max_relative_error`` or ``engine``.
+        Invalid ``model``, ``bounds``, ``min_samples``, ``max_iter``, ``tol``, ``max_relative_error`` or ``engine``.
     """
     (r_lo, r_hi), (p_lo, p_hi) = _check_solver_args(model, bounds, min_samples, max_iter, tol, max_relative_error)
     engine = resolve_engine(engine)

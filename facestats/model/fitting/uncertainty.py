@@ -39,7 +39,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.model.fitting.lobes import lobe_base, lobe_moments, lobe_rate, lobe_scale
+from facestats.core.validate import check_choice
+from facestats.model.fitting.lobes import LOBE_MODELS, lobe_base, lobe_moments, lobe_rate, lobe_scale
 from facestats.model.fitting.samples import run_starts
 
 __all__ = [
@@ -99,8 +100,8 @@ def robust_variances(model, y, s1, a, d, n_use, good, rho, q, delta=None, tilt=N
 
     Parameters
     ----------
-    model : str
-        ``"torrance_sparrow"``; any other value is read as ``"blinn_phong"``.
+    model : {"torrance_sparrow", "blinn_phong"}
+        The lobe.
     y : ndarray, shape (S,)
         y = f_s cos θi per sample.
     s1, a : ndarray, shape (S,)
@@ -125,7 +126,13 @@ def robust_variances(model, y, s1, a, d, n_use, good, rho, q, delta=None, tilt=N
     -------
     e2, var_rho, var_q : ndarray of float64, shape (T,)
         E² = Σ r² and the robust variances of ρs and q, of the scale of ``y`` (as given, not scaled back).
+
+    Raises
+    ------
+    ValidationError
+        ``model`` is not one of :data:`~facestats.model.fitting.lobes.LOBE_MODELS`.
     """
+    check_choice(model, "model", LOBE_MODELS)
     n_tex = n_use.size
     e2, var_rho, var_q = (np.full(n_tex, np.nan) for _ in range(3))
     if not good.any():
@@ -241,8 +248,8 @@ def rms_error(model, y, s1, a, n_use, rho, lobe, d=None, shift=None):
 
     Parameters
     ----------
-    model : str
-        ``"torrance_sparrow"``; any other value is read as ``"blinn_phong"``.
+    model : {"torrance_sparrow", "blinn_phong"}
+        The lobe.
     y : ndarray, shape (S,)
         y = f_s cos θi per sample.
     s1, a : ndarray, shape (S,)
@@ -260,7 +267,13 @@ def rms_error(model, y, s1, a, n_use, rho, lobe, d=None, shift=None):
     -------
     ndarray of float64, shape (T,)
         E(p) in the unit of ``y``; NaN for texels without samples or with a non-finite ρs or lobe or a lobe ≤ 0.
+
+    Raises
+    ------
+    ValidationError
+        ``model`` is not one of :data:`~facestats.model.fitting.lobes.LOBE_MODELS`.
     """
+    check_choice(model, "model", LOBE_MODELS)
     n_use = np.asarray(n_use, np.int64)
     out = np.full(n_use.size, np.nan)
     good = (n_use > 0) & np.isfinite(rho) & np.isfinite(lobe) & (lobe > 0)
@@ -289,8 +302,8 @@ def standard_errors(model, n_use, good, rho, q, all_sums, e2, var_rho, var_q, ma
 
     Parameters
     ----------
-    model : str
-        ``"torrance_sparrow"``; any other value is read as ``"blinn_phong"``.
+    model : {"torrance_sparrow", "blinn_phong"}
+        The lobe.
     n_use : ndarray of int, shape (T,)
         Samples per texel.
     good : ndarray of bool, shape (T,)
@@ -313,7 +326,13 @@ def standard_errors(model, n_use, good, rho, q, all_sums, e2, var_rho, var_q, ma
     ill : ndarray of bool, shape (T,)
         Good texels whose classic JᵀJ is singular, whose robust variances are not finite, or whose classic
         relative error exceeds ``max_relative_error``.
+
+    Raises
+    ------
+    ValidationError
+        ``model`` is not one of :data:`~facestats.model.fitting.lobes.LOBE_MODELS`.
     """
+    check_choice(model, "model", LOBE_MODELS)
     n_tex = n_use.size
     err, r_std, p_std = (np.full(n_tex, np.nan) for _ in range(3))
     ill = np.zeros(n_tex, bool)

@@ -134,7 +134,8 @@ def island_reach(islands) -> np.ndarray:
     Parameters
     ----------
     islands : array_like of int, shape (H, W)
-        UV island label of each texel (0 = gutter; labels ≥ 0, as −1 marks the outside of the map).
+        UV island label of each texel (0 = gutter; any integers: the map border is marked as such, not by a
+        label reserved for the outside).
 
     Returns
     -------
@@ -144,9 +145,14 @@ def island_reach(islands) -> np.ndarray:
     """
     from scipy.ndimage import distance_transform_edt, maximum_filter, minimum_filter
 
-    lab = np.pad(np.asarray(islands, np.int64), 1, constant_values=-1)
-    boundary = (maximum_filter(lab, 3) != lab) | (minimum_filter(lab, 3) != lab)
-    return distance_transform_edt(~boundary)[1:-1, 1:-1].astype(np.float32)
+    lab = np.asarray(islands, np.int64)
+    if lab.size == 0:
+        return np.zeros(lab.shape, np.float32)
+    # no padding label for the outside: an island could carry it (e.g. −1) and hide the border
+    boundary = (maximum_filter(lab, 3, mode="nearest") != lab) | (minimum_filter(lab, 3, mode="nearest") != lab)
+    boundary[[0, -1], :] = True  # the texels next to the map border
+    boundary[:, [0, -1]] = True
+    return distance_transform_edt(~boundary).astype(np.float32)
 
 
 def _islands(islands, shape):

@@ -139,11 +139,10 @@ def gaussian_taps(sigma_px: float) -> np.ndarray:
     Raises
     ------
     ValidationError
-        A negative or non-finite ``sigma_px``, or one whose radius exceeds :data:`MAX_RADIUS`.
+        A ``sigma_px`` that is not one number (a string, an array), negative or not finite, or one whose radius
+        exceeds :data:`MAX_RADIUS`.
     """
-    s = float(sigma_px)
-    if not (math.isfinite(s) and s >= 0):
-        raise ValidationError(f"sigma_px must be finite and >= 0, got {sigma_px!r}")
+    s = as_scalar(sigma_px, "sigma_px", 0.0)
     if s == 0:
         return np.ones(1)
     if TRUNCATE * s > MAX_RADIUS:  # compared as floats: a huge sigma's radius does not fit an integer

@@ -161,8 +161,9 @@ def plot_before_after(neutral, deformed, neutral_normals, *, bins=64, extent=Non
     bins : int
         Bins per axis of the normal histograms (:func:`facestats.model.microstructure.surface.normal_histogram`).
     extent : float, optional
-        Half-width of the histograms in tangent slope, in (0, 1]; default 1.1 × the 99.9th percentile of |n_u|,
-        |n_v| over both maps.
+        Half-width of the histograms in normal components (n_u, n_v), in (0, 1], as in
+        :func:`~facestats.model.microstructure.surface.normal_histogram`; default 1.1 × the 99.9th percentile of
+        |n_u|, |n_v| over both maps.
     crop : (slice, slice), optional
         Part of the maps to show (histograms use the whole maps).
 

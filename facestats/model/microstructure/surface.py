@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.core.validate import as_finite, check_integer
+from facestats.core.validate import as_finite, as_scalar, check_integer
 from facestats.errors import ValidationError
 
 __all__ = [
@@ -134,22 +134,46 @@ def histogram_extent(*slope_pairs, quantile=0.999, margin=1.1) -> float:
     Parameters
     ----------
     *slope_pairs : tuple of 2 ndarray
-        One or more (gx, gy) slope maps (:func:`slopes`).
+        One or more (gx, gy) slope maps (:func:`slopes`), each pair of one shape, finite (as
+        :func:`normal_histogram` takes them); at least one texel in all.
     quantile : float
         Quantile, in [0, 1], of max(|n_u|, |n_v|) over all their texels.
     margin : float
-        Factor applied to that quantile.
+        Factor applied to that quantile, > 0.
 
     Returns
     -------
     float
         The half-width ``extent`` for :func:`normal_histogram`, clipped to [1e-6, 1].
+
+    Raises
+    ------
+    ValidationError
+        No slope pairs or no texels, a pair that is not two slope maps of one shape, non-finite slopes, or an
+        invalid ``quantile`` or ``margin``.
     """
+    if not slope_pairs:
+        raise ValidationError("slope_pairs must hold at least one (gx, gy) pair of slope maps, got none")
+    q = as_scalar(quantile, "quantile", 0, 1)
+    k = as_scalar(margin, "margin", 0, None, low_inclusive=False)
     parts = []
-    for gx, gy in slope_pairs:
+    for i, pair in enumerate(slope_pairs):
+        try:
+            gx, gy = pair
+        except (TypeError, ValueError):  # not iterable, or not of length 2
+            raise ValidationError(
+                f"slope pair {i} must be a (gx, gy) pair of slope maps, got {type(pair).__name__}"
+            ) from None
+        gx = as_finite(gx, f"gx of slope pair {i}", dtype=np.float64)  # a NaN would make the quantile NaN
+        gy = as_finite(gy, f"gy of slope pair {i}", dtype=np.float64)
+        if gx.shape != gy.shape:
+            raise ValidationError(f"slope pair {i} must be gx and gy of one shape, got {gx.shape} and {gy.shape}")
         inv = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy)
         parts.append(np.maximum(np.abs(gx * inv), np.abs(gy * inv)).reshape(-1))
-    ext = float(np.quantile(np.concatenate(parts), quantile)) * margin
+    components = np.concatenate(parts)
+    if components.size == 0:
+        raise ValidationError("slope_pairs must hold at least one texel, got only empty slope maps")
+    ext = float(np.quantile(components, q)) * k
     return min(max(ext, 1e-6), 1.0)
 
 

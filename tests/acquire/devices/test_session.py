@@ -384,3 +384,115 @@ def test_a_lamp_switched_off_behind_the_drivers_back_is_noticed_and_set_again(tm
     assert report.retakes == 1 and report.complete
     assert tree(tmp_path / "out") == tree(tmp_path / "clean")
     assert "lamp=0" in (tmp_path / "out" / "session" / "log.txt").read_text()
+
+
+def _sensor_session(tmp_path, layout, sites):
+    """A sensor session captured from an emulated sensor whose camera images its fibres with ``layout``."""
+    from facestats.acquire.devices.cameras import EmulatedCameras, HotFolderWriter
+    from facestats.acquire.devices.capture import sensor_plan
+    from facestats.acquire.devices.emulator import PtyServer, SensorDevice
+    from facestats.acquire.devices.scene import SensorScene
+    from facestats.acquire.devices.sensor import save_sensor_calibration
+
+    sp = np.array([[1.0, 1.2, 1.5], [2.0, 2.4, 3.0], [0.6, 0.7, 0.9]])  # the three sites differ
+    sa = np.array([[0.03, 0.08, 0.2], [0.01, 0.02, 0.05], [0.1, 0.2, 0.4]])
+    scene = SensorScene(sp, sa, layout=layout, seed=4)
+    save_sensor_calibration(tmp_path / "sensor-calibration.json", scene.sensor, layout)
+    writer = HotFolderWriter(EmulatedCameras(scene, workers=1), tmp_path / "hot")
+    device = SensorDevice(scene.sensor.n_fibers, scene.sensor.exposure_times, layout.size, on_trigger=writer.submit)
+    server = PtyServer(device)
+    server.closers.append(writer.close)
+    server.start()
+    subject = {"subject_id": "S001", "person_id": "S001", "age": 30, "gender": "F", "skin_type": 3}
+    try:
+        plan, calibration = sensor_plan(tmp_path / "sensor-calibration.json", {**subject, "condition": "normal"},
+                                        sites=sites)  # fmt: skip
+        report = capture(plan, calibration, server.port, tmp_path / "out", tmp_path / "hot", durable=False,
+                         progress=False, link_options={"timeout": 0.3, "backoff": 0.005})  # fmt: skip
+    finally:
+        server.stop()
+    assert report.complete
+    return tmp_path / "out", scene
+
+
+def test_read_bracket_finds_the_spots_of_the_sessions_layout_and_names_each_profile_by_its_site(tmp_path):
+    """read_bracket located the spots with the default layout (a calibration with another pitch failed) and named
+    the sites in capture order while the profiles are stored in SITES order (a reviewer)."""
+    from facestats.acquire.devices.sensor import FiberLayout, merge_bracket, read_bracket
+    from facestats.core.conventions import SITES
+    from facestats.io.images import decode_integer_image
+
+    layout = FiberLayout(pitch_px=10, radius_px=3.5, margin_px=5)
+    out, scene = _sensor_session(tmp_path, layout, sites=(2, 0, 1))  # neck first
+    doc = json.loads((out / "sensor.json").read_text())
+    assert doc["fiber_layout"] == layout.to_dict() and doc["frames"][0]["site"] == "neck"
+    bracket = read_bracket(out)
+    assert bracket.sites == SITES
+    labels = layout.labels()
+    times = scene.sensor.exposure_times
+    for k, site in enumerate(bracket.sites):
+        stack = np.stack(
+            [decode_integer_image((out / f"sensor/{site}_e{j:02d}.png").read_bytes())[0] for j in range(len(times))]
+        )
+        profile, std = merge_bracket(stack, times, scene.sensor, layout)
+        np.testing.assert_array_equal(bracket.profile[k], profile)  # row k is the profile of site k
+        np.testing.assert_array_equal(bracket.profile_std[k], std)
+        spot = stack[7][labels == 3].astype(np.float64)  # fibre 3 in exposure 7: the mean code of its spot
+        np.testing.assert_allclose(bracket.readings[k, 7, 3], spot.mean(axis=0))
+    assert not np.allclose(bracket.profile[0], bracket.profile[2])
+    # a profile value written as null (NaN) reads back as NaN
+    doc["profile"][1][4][2] = None
+    (out / "sensor.json").write_text(json.dumps(doc))
+    assert np.isnan(read_bracket(out).profile[1, 4, 2])
+
+
+def test_read_bracket_names_the_file_and_the_field_of_a_bad_sensor_file(tmp_path):
+    from facestats.acquire.devices.sensor import FiberLayout, read_bracket
+    from facestats.errors import FormatError
+
+    out, _ = _sensor_session(tmp_path, FiberLayout(), sites=(0, 1, 2))
+    good = json.loads((out / "sensor.json").read_text())
+    old = {k: v for k, v in good.items() if k != "fiber_layout"}  # written before the layout was stored: the default
+    (out / "sensor.json").write_text(json.dumps(old))
+    np.testing.assert_array_equal(read_bracket(out).profile, np.asarray(good["profile"]))
+    cases = [
+        ({k: v for k, v in good.items() if k != "sensor"}, r"sensor\.json lacks the field 'sensor'"),
+        ({**good, "fiber_layout": {**good["fiber_layout"], "pitch_px": 9}}, r"sensor/cheek_e00\.png has shape"),
+        ({**good, "fiber_layout": {"n_fibers": 5}}, "'fiber_layout' has 5 fibres, its sensor 28"),
+        ({**good, "frames": [{**good["frames"][0], "site": "chin"}]}, "a frame with a missing or malformed field"),
+    ]
+    for doc, message in cases:
+        (out / "sensor.json").write_text(json.dumps(doc))
+        with pytest.raises(FormatError, match=message):
+            read_bracket(out)
+    (out / "sensor.json").write_bytes(b"\xff\xfe{")
+    with pytest.raises(FormatError, match="holds no completed sensor session"):
+        read_bracket(out)
+
+
+def test_files_that_are_not_utf8_are_format_errors(tmp_path):
+    """A calibration, subject record or plan that is not UTF-8 raised UnicodeDecodeError (a reviewer)."""
+    from facestats.acquire.devices.capture import read_subject_record, sensor_plan
+    from facestats.acquire.devices.sensor import load_sensor_calibration
+    from facestats.errors import FormatError
+
+    bad = tmp_path / "bad.json"
+    bad.write_bytes(b'{"format": "\xff\xfe"}')
+    for read, message in (
+        (read_subject_record, "cannot read the subject record"),
+        (lambda p: dome_plan(p, {}), "dome calibration .* is not valid JSON"),
+        (lambda p: sensor_plan(p, {}), "cannot read sensor calibration"),
+        (load_sensor_calibration, "cannot read sensor calibration"),
+    ):
+        with pytest.raises(FormatError, match=message):
+            read(bad)
+
+
+def test_a_session_plan_that_is_not_utf8_is_a_session_error(small, tmp_path):
+    root, _ = small
+    plan, calibration = dome_plan(root / "lab" / "dome.json", record(root / "lab"))
+    out = tmp_path / "out"
+    shutil.copytree(root / "clean", out)
+    (out / "session" / "dome.plan.json").write_bytes(b'{"kind": "\xff"}')
+    with pytest.raises(SessionError, match="capture plan .*dome.plan.json cannot be read"):
+        capture(plan, calibration, "/dev/null", out, root / "hot")

@@ -259,3 +259,7 @@ def test_near_disks_of_a_tiny_scene_converge_and_bad_input_is_named():
     assert errors[0] < 0.01 and errors[1] < 1e-4, errors  # measured 4.4e-3 and 4.3e-5
     with pytest.raises(ValidationError, match="near must be True or False, got 'yes'"):
         point_kernel_exitance(p, c, [0], lambda d: d, areas=area, energy=lambda r: r, near="yes")
+    with pytest.raises(ValidationError, match="near must be True or False, and True only with areas"):
+        planned_levels(p, c * area, width=0.1, near=True)  # was a bare IndexError; quantised_system's message
+    with pytest.raises(ValidationError, match="areas must have shape"):
+        planned_levels(p, c * area, width=0.1, areas=area[:1], near=True)

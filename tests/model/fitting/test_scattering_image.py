@@ -365,6 +365,20 @@ def test_the_exitance_fit_stands_where_r_prime_cannot_be_solved_and_warns_only_a
     assert abs(fit.sigma_s_prime / 5.0 - 1) < 0.08 and abs(fit.sigma_a / 0.02 - 1) < 0.15  # measured 4.70, 0.0219
 
 
+def test_fit_scattering_system_names_its_exitance_argument():
+    """A bad ``exitance`` given straight to fit_scattering_system is reported under that name, not ``radiance``."""
+    from facestats.acquire.synthetic.subsurface import half_lit_plate
+    from facestats.model.fitting.quantised import quantised_system
+    from facestats.model.fitting.scattering_image import fit_scattering_system
+
+    centres, areas, c, l = half_lit_plate(*TRUTH, n=4, sub=8)
+    system = quantised_system(centres, c * areas, width=0.1, areas=areas, near=True)
+    with pytest.raises(ValidationError, match="exitance must lie in"):
+        fit_scattering_system(system, -l, method="exitance")
+    with pytest.raises(ValidationError, match="exitance must have shape"):
+        fit_scattering_system(system, l[:-1], method="exitance")
+
+
 def test_each_channel_warns_about_the_width_it_keeps_and_warnings_point_at_the_caller():
     """Two channels under width='auto', method='exitance': one keeps its candidate, one is narrowed; the warnings
     are those of the widths kept (a second red team saw the narrowed channel's discarded 12 % candidate replayed),

@@ -182,6 +182,29 @@ def test_rms_error_engines_agree_with_a_direct_sum(rng, model):
     assert np.all(np.abs(plain - expected) > 1e-6)  # δ d matters
 
 
+def test_an_unknown_lobe_model_is_refused_by_name(rng):
+    """solve_specular checks ``model`` before anything else (it was a bare KeyError without bounds, and a fit
+    thrown away with them); the uncertainty entry points refuse it instead of reading it as Blinn-Phong."""
+    from facestats.errors import ValidationError
+    from facestats.model.fitting.uncertainty import rms_error, robust_variances, standard_errors
+
+    t, s = 2, 40
+    _, _, _, rho, m, _, _, y, s1, a = _shifted_case(rng, t, s, (-0.01, 0.01), 0.002)
+    y, counts, good = y.reshape(-1), np.full(t, s), np.ones(t, bool)
+    args = dict(min_samples=30, max_iter=20, tol=1e-8, max_relative_error=0.5, engine="numpy")
+    for bounds in (None, ((0.0, 5.0), (0.03, 1.0))):
+        with pytest.raises(ValidationError, match="model must be one of .* got 'ward'"):
+            solve_specular("ward", y, s1, a, counts, bounds=bounds, **args)
+    q, zeros = np.log(m), np.zeros(t)
+    for call in (
+        lambda: robust_variances("ward", y, s1, a, None, counts, good, rho, q),
+        lambda: rms_error("ward", y, s1, a, counts, rho, m),
+        lambda: standard_errors("ward", counts, good, rho, q, np.ones((5, t)), zeros, zeros, zeros, 0.5),
+    ):
+        with pytest.raises(ValidationError, match="model must be one of"):
+            call()
+
+
 @pytest.mark.parametrize("engine", ["numba", "numpy"])
 def test_texels_whose_errors_cannot_be_formed_are_flagged(rng, engine):
     """Two samples cannot fix three parameters: the 3 × 3 JᵀJ is singular, its robust errors are NaN, and the

@@ -349,3 +349,23 @@ def test_a_linear_ramp_passes_unchanged_at_any_angle(backend):
         out = convolve_displacement(ramp, (np.cos(th), np.sin(th)), 1.0, 40.0, 1.0, 25.0, 6.0, backend=backend)
         m = 2 * (20 + 3) + 1  # both passes' reach (20 taps, 3 texels across): one-sided kernels nearer the edges
         assert np.abs(out - ramp)[m:-m, m:-m].max() < 1e-9, deg
+
+
+def test_gaussian_taps_refuses_a_sigma_that_is_not_one_number_by_name():
+    """float(sigma_px) took the string "1.0" and raised a bare ValueError for "x"."""
+    for bad in ("1.0", "x", [1.0], -1.0, np.nan):
+        with pytest.raises(FacestatsError, match="sigma_px must"):
+            gaussian_taps(bad)
+    np.testing.assert_array_equal(gaussian_taps(np.float32(0.0)), [1.0])
+
+
+def test_island_reach_counts_the_border_whatever_the_labels():
+    """The map was padded with label −1 for the outside, so an island labelled −1 hid the border (a reviewer)."""
+    from facestats.model.microstructure.convolve import island_reach
+
+    pos = np.ones((12, 16), np.int64)
+    pos[:, 10:] = 2
+    expected = island_reach(pos)
+    assert expected[0, 0] == 0 and expected[5, 5] == 4  # 5 texels from the top row, the nearest boundary texels
+    for labels in ((-1, 2), (-1, -2), (0, 7)):
+        np.testing.assert_array_equal(island_reach(np.where(pos == 1, *labels)), expected)

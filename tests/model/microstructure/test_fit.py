@@ -125,3 +125,22 @@ def test_normal_histogram_names_a_nan_slope_and_a_bad_extent():
     for extent in ("a", None, 0.0, 1.5, [0.5, 0.5]):
         with pytest.raises(FacestatsError, match="extent"):
             normal_histogram(np.zeros(3), np.zeros(3), bins=4, extent=extent)
+
+
+def test_histogram_extent_names_nan_slopes_and_missing_pairs():
+    """A NaN slope gave a NaN extent (Python's max/min with NaN skip the clip); no pairs gave a bare ValueError."""
+    from facestats.errors import ValidationError
+    from facestats.model.microstructure.surface import histogram_extent
+
+    g = np.array([0.1, -0.2, 0.3])
+    assert 1e-6 <= histogram_extent((g, g)) <= 1.0
+    with pytest.raises(ValidationError, match="gx of slope pair 1 must be finite"):
+        histogram_extent((g, g), (np.array([np.nan, 0.0, 0.0]), g))
+    with pytest.raises(ValidationError, match="slope_pairs must hold at least one"):
+        histogram_extent()
+    with pytest.raises(ValidationError, match="slope_pairs must hold at least one texel"):
+        histogram_extent((np.zeros(0), np.zeros(0)))
+    with pytest.raises(ValidationError, match="slope pair 0 must be gx and gy of one shape"):
+        histogram_extent((g, g[:2]))
+    with pytest.raises(ValidationError, match="quantile"):
+        histogram_extent((g, g), quantile=1.5)

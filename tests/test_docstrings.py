@@ -3,40 +3,49 @@
 Every function a module lists in ``__all__`` (and defines itself) that takes parameters documents them in a
 numpy-style ``Parameters`` section, parsed with numpydoc's :class:`~numpydoc.docscrape.FunctionDoc`, the
 parser Sphinx's numpydoc extension uses; the names documented are exactly the signature's, in its order
-(``*args`` and ``**kwargs`` spelled so). A parameter renamed, added or removed without its docstring fails here.
+(``*args`` and ``**kwargs`` spelled so). So does every public method of the classes in ``__all__``, and each
+class documents its constructor's parameters in its ``Parameters`` or (a dataclass's fields) ``Attributes``
+section. A parameter renamed, added or removed without its docstring fails here.
 """
 
 from __future__ import annotations
 
+import enum
 import importlib
 import inspect
 import pkgutil
 import warnings
 
 import pytest
-from numpydoc.docscrape import FunctionDoc
+from numpydoc.docscrape import ClassDoc, FunctionDoc
 
 import facestats
 
-# ``main(argv)`` of the command-line entry point: its documentation is ``facestats --help``.
-EXEMPT = {("facestats.cli", "main")}
 
-
-def _public_functions():
-    """``[(module name, function name, function)]`` for every function of every module's ``__all__``."""
-    found = []
+def _public_api():
+    """``([(qualified name, function)], [(qualified name, class)])`` of every module's ``__all__``: its functions,
+    its classes (not exceptions or enumerations: their members are their documentation) and their public methods."""
+    functions, classes = [], []
     for info in pkgutil.walk_packages(facestats.__path__, "facestats."):
         if info.name.endswith("__main__"):
             continue
         module = importlib.import_module(info.name)
         for name in getattr(module, "__all__", ()):
             obj = getattr(module, name)
-            if inspect.isfunction(obj) and obj.__module__ == module.__name__ and (module.__name__, name) not in EXEMPT:
-                found.append((module.__name__, name, obj))
-    return found
+            if getattr(obj, "__module__", None) != module.__name__:
+                continue
+            if inspect.isfunction(obj):
+                functions.append((f"{module.__name__}.{name}", obj))
+            elif inspect.isclass(obj) and not issubclass(obj, (BaseException, enum.Enum)):
+                classes.append((f"{module.__name__}.{name}", obj))
+                for method, fn in vars(obj).items():
+                    fn = fn.__func__ if isinstance(fn, (staticmethod, classmethod)) else fn
+                    if not method.startswith("_") and inspect.isfunction(fn):
+                        functions.append((f"{module.__name__}.{name}.{method}", fn))
+    return functions, classes
 
 
-FUNCTIONS = _public_functions()
+FUNCTIONS, CLASSES = _public_api()
 
 
 def _signature_names(func):
@@ -50,31 +59,54 @@ def _signature_names(func):
     return names
 
 
-def _documented_names(func):
-    """The names of the ``Parameters`` section; a line ``a, b : float`` documents both."""
+def _names(section):
+    """The names of a ``Parameters``/``Attributes`` section; a line ``a, b : float`` documents both."""
+    return [n.strip() for param in section for n in param.name.split(",")]
+
+
+def _parsed(kind, obj, **config):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # numpydoc warns of unknown sections and malformed headings
-        doc = FunctionDoc(func, config={})
-    names = []
-    for param in doc["Parameters"]:
-        names.extend(n.strip() for n in param.name.split(","))
-    return names, doc
+        return kind(obj, config=config)
+
+
+def _documented_names(func):
+    """The names of the ``Parameters`` section of ``func``'s docstring, and the parsed docstring."""
+    doc = _parsed(FunctionDoc, func)
+    return _names(doc["Parameters"]), doc
 
 
 def test_the_walk_finds_the_public_api():
-    modules = {m for m, _, _ in FUNCTIONS}
-    assert len(FUNCTIONS) > 700 and len(modules) > 150
-    assert ("facestats.model.dipole", "reduced_albedo") in {(m, n) for m, n, _ in FUNCTIONS}
+    names = {name for name, _ in FUNCTIONS}
+    assert len(FUNCTIONS) > 1000 and len(CLASSES) > 120
+    assert {"facestats.model.dipole.reduced_albedo", "facestats.io.store.Store.subject"} <= names
+    assert "facestats.errors.ValidationError" not in {name for name, _ in CLASSES}
 
 
-@pytest.mark.parametrize("module, name, func", FUNCTIONS, ids=[f"{m}.{n}" for m, n, _ in FUNCTIONS])
-def test_parameters_section_matches_signature(module, name, func):
+@pytest.mark.parametrize("name, func", FUNCTIONS, ids=[n for n, _ in FUNCTIONS])
+def test_parameters_section_matches_signature(name, func):
     expected = _signature_names(func)
     documented, doc = _documented_names(func)
     if expected:
-        assert documented, f"{module}.{name}: no numpy-style 'Parameters' section for {expected}"
-    assert documented == expected, f"{module}.{name}: documents {documented}, signature has {expected}"
-    assert doc["Summary"], f"{module}.{name}: no summary line"
+        assert documented, f"{name}: no numpy-style 'Parameters' section for {expected}"
+    assert documented == expected, f"{name}: documents {documented}, signature has {expected}"
+    assert doc["Summary"], f"{name}: no summary line"
+
+
+@pytest.mark.parametrize("name, cls", CLASSES, ids=[n for n, _ in CLASSES])
+def test_class_documents_its_constructor(name, cls):
+    doc = _parsed(ClassDoc, cls, show_class_members=False)
+    assert doc["Summary"], f"{name}: no summary line"
+    try:
+        signature = inspect.signature(cls)
+    except (TypeError, ValueError):  # no introspectable constructor
+        return
+    expected = [p.name for p in signature.parameters.values() if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
+    documented = _names(doc["Parameters"]) + _names(doc["Attributes"])
+    missing = [p for p in expected if p not in documented]
+    assert not missing, f"{name}: constructor parameters {missing} not in its Parameters or Attributes section"
+    stale = [p for p in _names(doc["Parameters"]) if p not in expected]
+    assert not stale, f"{name}: documents parameters {stale} its constructor does not take"
 
 
 def test_a_stale_docstring_is_caught():

@@ -203,7 +203,13 @@ class ResponseCalibration:
         }
 
     def save(self, path) -> None:
-        """Write :meth:`to_dict` as JSON (``facestats.camera-response/1``)."""
+        """Write :meth:`to_dict` as JSON (``facestats.camera-response/1``).
+
+        Parameters
+        ----------
+        path : str or path-like
+            The file to write (replaced if it exists); :func:`read_response` and :func:`merge_bracket` read it.
+        """
         with open(path, "w", encoding="utf-8") as f:
             json.dump(self.to_dict(), f, indent=1, allow_nan=False)
             f.write("\n")
@@ -240,6 +246,26 @@ class ResponseCalibration:
         each for all cameras: applying to some cameras of a dome whose black or white level differs
         is refused; a white level of None and one at the top code are the same), which the ingest
         and the LED calibration then merge with.
+
+        Parameters
+        ----------
+        dome : Dome
+            The calibration to update (:class:`facestats.acquire.dome.Dome`); it is not modified.
+        cameras : sequence of int, optional
+            Indices of the cameras that take this response, in [0, ``dome.n_cameras``); default every camera.
+
+        Returns
+        -------
+        Dome
+            A copy of ``dome`` with ``camera_log_response`` (C, 2**bits, 3), ``camera_black_level`` and
+            ``camera_white_level`` set; g's non-finite values (code 0, −inf) are replaced by g(1).
+
+        Raises
+        ------
+        ValidationError
+            A camera index out of range; some cameras only when the dome has no responses yet; a response of
+            another number of levels than the dome's; some cameras only with a black or white level other than
+            the dome's.
         """
         g = np.where(np.isfinite(self.log_response), self.log_response, self.log_response[1])  # code 0: weight 0
         n_cam = dome.n_cameras
@@ -508,20 +534,31 @@ def _fill_lost(radiance, images, times, g, black, white, saturated):
 
 @dataclass
 class MergedBracket:
-    """What :func:`merge_bracket` gives: the radiance and how much to trust it."""
+    """What :func:`merge_bracket` gives: the radiance and how much to trust it.
 
-    #: Linear radiance (H, W, 3) float32 in the response's units exp(g)/s, finite.
+    Attributes
+    ----------
+    radiance : ndarray of float32, shape (H, W, 3)
+        Linear radiance in the response's units exp(g)/s, finite.
+    saturated_pixels : int
+        Pixels with a channel saturated in every exposure (filled as ``saturated`` says).
+    exposure_times : ndarray of float64, shape (P,)
+        Seconds, in the order of the files.
+    agreement : ndarray, shape (P − 1, 2)
+        Median and 90th percentile of consecutive exposures' disagreement (:func:`exposure_agreement`), in order
+        of exposure time.
+    gap_pixels : int
+        Pixels with a channel dark in the shorter exposures and clipped in the longer ones: no exposure measured
+        them (filled with the geometric mean of their bounds).  Default 0.
+    gap_times : tuple of float
+        The commonest gap: (longest exposure that saw such a channel dark, shortest that clipped it), s; () if none.
+    """
+
     radiance: np.ndarray
-    #: Pixels with a channel saturated in every exposure (filled as ``saturated`` says).
     saturated_pixels: int
-    #: Seconds, in the order of the files.
     exposure_times: np.ndarray
-    #: Median and 90th percentile of consecutive exposures' disagreement (:func:`exposure_agreement`).
     agreement: np.ndarray
-    #: Pixels with a channel dark in the shorter exposures and clipped in the longer ones: no exposure measured
-    #: them (filled with the geometric mean of their bounds).
     gap_pixels: int = 0
-    #: The commonest gap: (longest exposure that saw such a channel dark, shortest that clipped it), s; () if none.
     gap_times: tuple = ()
 
     def warnings(self) -> list:

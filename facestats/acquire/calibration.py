@@ -292,7 +292,18 @@ class LedCalibration:
         return lines
 
     def apply(self, dome: Dome) -> Dome:
-        """``dome`` with these LED intensities, beams and camera gains (LEDs or cameras without data keep theirs)."""
+        """``dome`` with these LED intensities, beams and camera gains (LEDs or cameras without data keep theirs).
+
+        Parameters
+        ----------
+        dome : Dome
+            The calibration the fit was made with (the same L LEDs and C cameras); it is not modified.
+
+        Returns
+        -------
+        Dome
+            A copy with ``led_intensity``, ``led_beam`` and ``camera_gain`` replaced where they are finite here.
+        """
         ok = np.isfinite(self.intensity).all(1)
         gain_ok = np.isfinite(self.camera_gain).all(1)
         return replace(
@@ -303,7 +314,20 @@ class LedCalibration:
         )
 
     def to_dict(self, dome: Dome) -> dict:
-        """The LED file (``facestats.led-calibration/1``) with ``dome``'s LED positions and axes."""
+        """The LED file (``facestats.led-calibration/1``) with ``dome``'s LED positions and axes.
+
+        Parameters
+        ----------
+        dome : Dome
+            The calibration whose LEDs (at least L of them, in the same order) give each LED's position (mm)
+            and axis.
+
+        Returns
+        -------
+        dict
+            JSON-ready: ``format``, ``reference_camera``, ``camera_gain`` and one entry per LED in ``leds``; NaN
+            values are null.
+        """
         leds = [
             {
                 "index": i,
@@ -329,7 +353,15 @@ class LedCalibration:
         }
 
     def save(self, path, dome: Dome):
-        """Write :meth:`to_dict` as JSON."""
+        """Write :meth:`to_dict` as JSON.
+
+        Parameters
+        ----------
+        path : str or path-like
+            The file to write (replaced if it exists); :func:`read_led_calibration` reads it.
+        dome : Dome
+            As :meth:`to_dict`.
+        """
         pathlib.Path(path).write_text(json.dumps(self.to_dict(dome), indent=1))
 
     def to_text(self) -> str:

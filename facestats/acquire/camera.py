@@ -156,7 +156,28 @@ class PinholeCamera:
 
     @classmethod
     def looking_at(cls, position, target, *, focal_px, image_size) -> "PinholeCamera":
-        """A camera at ``position`` (mm) looking at ``target``, focal length ``focal_px``, principal point centred."""
+        """A camera at ``position`` (mm) looking at ``target``, focal length ``focal_px``, principal point centred.
+
+        Parameters
+        ----------
+        position : array_like, shape (3,)
+            Camera centre, mm (world frame).
+        target : array_like, shape (3,)
+            The point it looks at, mm; the world's +y appears up (:func:`look_at`).
+        focal_px : float
+            Focal length in pixels (fx = fy), > 0.
+        image_size : sequence of int
+            (width, height) in pixels; the principal point is (width / 2, height / 2).
+
+        Returns
+        -------
+        PinholeCamera
+
+        Raises
+        ------
+        ValidationError
+            ``focal_px`` not > 0, ``target`` equal to ``position``, or a camera the constructor refuses.
+        """
         w, h = (int(x) for x in image_size)
         f = as_scalar(focal_px, "focal_px", 0, None, low_inclusive=False)
         k = np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1.0]])
@@ -164,26 +185,81 @@ class PinholeCamera:
 
     @classmethod
     def from_dome(cls, dome, index: int) -> "PinholeCamera":
-        """Camera ``index`` of a :class:`facestats.acquire.dome.Dome` calibration."""
+        """Camera ``index`` of a :class:`facestats.acquire.dome.Dome` calibration.
+
+        K, R, the centre and the image size are copied unchanged; the dome's lens distortion is not carried
+        over, and the dome's K puts pixel centres at integer coordinates (OpenCV), not at + 0.5 as here.
+
+        Parameters
+        ----------
+        dome : Dome
+            The calibration.
+        index : int
+            The camera, in [0, ``dome.n_cameras``).
+
+        Returns
+        -------
+        PinholeCamera
+
+        Raises
+        ------
+        ValidationError
+            ``index`` out of range.
+        """
         i = int(index)
         if not 0 <= i < dome.n_cameras:
             raise ValidationError(f"index must name one of the dome's {dome.n_cameras} cameras, got {index!r}")
         return cls(dome.camera_matrix[i], dome.camera_rotation[i], dome.camera_position[i], tuple(dome.image_size[i]))
 
     def project(self, points):
-        """Pixel coordinates (N, 2) and depths along the optical axis (N,) of points (N, 3), mm."""
+        """Pixel coordinates (N, 2) and depths along the optical axis (N,) of points (N, 3), mm.
+
+        Parameters
+        ----------
+        points : array_like, shape (N, 3)
+            World points, mm.
+
+        Returns
+        -------
+        pixels : ndarray of float64, shape (N, 2)
+            (u, v) with pixel (0, 0) the top-left corner of the image (module docstring).
+        depth : ndarray of float64, shape (N,)
+            Camera z, mm (≤ 0 behind the camera, where the pixels mean nothing).
+        """
         pix, depth = project_points(points, self.position[None], self.rotation[None], self.matrix[None])
         return pix[:, 0], depth[:, 0]
 
     def in_frame(self, points) -> np.ndarray:
-        """(N,) bool: in front of the camera and inside the image."""
+        """(N,) bool: in front of the camera and inside the image.
+
+        Parameters
+        ----------
+        points : array_like, shape (N, 3)
+            World points, mm.
+
+        Returns
+        -------
+        ndarray of bool, shape (N,)
+            Depth > 0 and the pixel in [0, width) × [0, height).
+        """
         pix, depth = self.project(points)
         w, h = self.image_size
         with np.errstate(invalid="ignore"):
             return (depth > 0) & (pix[:, 0] >= 0) & (pix[:, 1] >= 0) & (pix[:, 0] < w) & (pix[:, 1] < h)
 
     def pixel_footprint(self, points) -> np.ndarray:
-        """Side of a pixel at each point's depth, mm (depth / focal length)."""
+        """Side of a pixel at each point's depth, mm (depth / focal length).
+
+        Parameters
+        ----------
+        points : array_like, shape (N, 3)
+            World points, mm.
+
+        Returns
+        -------
+        ndarray of float64, shape (N,)
+            |depth| / sqrt(fx fy), mm.
+        """
         _, depth = self.project(points)
         return np.abs(depth) / float(np.sqrt(self.matrix[0, 0] * self.matrix[1, 1]))
 
@@ -198,7 +274,25 @@ class PinholeCamera:
 
     @classmethod
     def from_dict(cls, d: dict) -> "PinholeCamera":
-        """Inverse of :meth:`to_dict`; ``look_at`` form accepted (module docstring)."""
+        """Inverse of :meth:`to_dict`; ``look_at`` form accepted (module docstring).
+
+        Parameters
+        ----------
+        d : dict
+            A decoded camera description: ``matrix``, ``rotation``, ``position_mm`` and ``image_size``, or
+            ``position_mm``, ``target_mm``, ``focal_px`` and ``image_size`` (:meth:`looking_at`).
+
+        Returns
+        -------
+        PinholeCamera
+
+        Raises
+        ------
+        FormatError
+            ``d`` is not a dict, or a key is missing.
+        ValidationError
+            A field out of its domain (the constructor's or :meth:`looking_at`'s checks).
+        """
         if not isinstance(d, dict):
             raise FormatError(f"camera description must be a JSON object, got {type(d).__name__}")
         try:
@@ -213,13 +307,36 @@ class PinholeCamera:
             raise FormatError(f"camera description is missing the key {exc.args[0]!r}") from None
 
     def save(self, path):
-        """Write :meth:`to_dict` to ``path`` as JSON."""
+        """Write :meth:`to_dict` to ``path`` as JSON.
+
+        Parameters
+        ----------
+        path : str or path-like
+            The file to write (replaced if it exists); :meth:`load` reads it.
+        """
         with open(path, "w") as f:
             json.dump(self.to_dict(), f, indent=1)
 
     @classmethod
     def load(cls, path) -> "PinholeCamera":
-        """The camera of a JSON file (:meth:`from_dict`); every error names the file."""
+        """The camera of a JSON file (:meth:`from_dict`); every error names the file.
+
+        Parameters
+        ----------
+        path : str or path-like
+            A camera file (module docstring).
+
+        Returns
+        -------
+        PinholeCamera
+
+        Raises
+        ------
+        FormatError
+            The file cannot be read or is not JSON, or a field is missing or of the wrong type.
+        ValidationError
+            A field out of its domain.
+        """
         try:
             with open(path, "rb") as f:
                 doc = json.load(f)

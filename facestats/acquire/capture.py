@@ -133,11 +133,33 @@ class Lumitexels:
         return valid_samples(self.radiance, self.irradiance)
 
     def cos_incident(self, normal) -> np.ndarray:
-        """N·ωi, shape (n, L)."""
+        """N·ωi, shape (n, L).
+
+        Parameters
+        ----------
+        normal : array_like, shape (n, 3)
+            Unit normal of each lumitexel.
+
+        Returns
+        -------
+        ndarray, shape (n, L)
+            Cosine of each LED's direction, unclipped (negative below the horizon).
+        """
         return np.einsum("nk,nlk->nl", normal, self.wi)
 
     def cos_outgoing(self, normal) -> np.ndarray:
-        """N·ωo, shape (n, C)."""
+        """N·ωo, shape (n, C).
+
+        Parameters
+        ----------
+        normal : array_like, shape (n, 3)
+            Unit normal of each lumitexel.
+
+        Returns
+        -------
+        ndarray, shape (n, C)
+            Cosine of each camera's direction, unclipped (negative below the horizon).
+        """
         return np.einsum("nk,nck->nc", normal, self.wo)
 
     def brdf(self, normal=None) -> np.ndarray:
@@ -145,6 +167,16 @@ class Lumitexels:
 
         NaN where the sample is invalid or the light is at or below the horizon of
         ``normal`` (default: the scanned normal).
+
+        Parameters
+        ----------
+        normal : array_like, shape (n, 3), optional
+            Unit normal of each lumitexel; default :attr:`scan_normal`.
+
+        Returns
+        -------
+        ndarray of float32, shape (n, C, L, 3)
+            f_r in sr⁻¹ (radiance in dome units / sr over irradiance in dome units).
         """
         nrm = self.scan_normal if normal is None else normal
         e = self.irradiance * np.maximum(self.cos_incident(nrm), 0)[..., None]
@@ -155,7 +187,24 @@ class Lumitexels:
 
 @dataclass
 class Capture:
-    """One subject's capture (module docstring): arrays in memory or on disk, calibration and metadata."""
+    """One subject's capture (module docstring): arrays in memory or on disk, calibration and metadata.
+
+    Attributes
+    ----------
+    arrays : dict
+        Every array of :data:`CAPTURE_ARRAYS` by name (numpy arrays in memory or zarr arrays on disk, read when
+        sliced); the per-lumitexel ones share their first length.
+    attrs : dict
+        ``dome`` and ``sensor`` (JSON strings or dicts), ``map_size``, the subject metadata (``subject_id``,
+        ``person_id``, ``age``, ``gender``, ``skin_type``, ``condition``) and optionally ``provenance``.
+    path : str or None
+        Where the capture is on disk (None: in memory); used in messages.
+
+    Raises
+    ------
+    FormatError
+        A missing array or attribute, or per-lumitexel arrays of different lengths.
+    """
 
     arrays: dict
     attrs: dict
@@ -215,7 +264,25 @@ class Capture:
 
     def array(self, name, sl=slice(None)) -> np.ndarray:
         """An array (or a lumitexel slice of it) as numpy; a damaged chunk is a :class:`FormatError` naming the
-        capture, the array and the lumitexels."""
+        capture, the array and the lumitexels.
+
+        Parameters
+        ----------
+        name : str
+            An array of :data:`CAPTURE_ARRAYS`.
+        sl : slice
+            The part to read along the first axis (default all).
+
+        Returns
+        -------
+        ndarray
+            In the stored dtype.
+
+        Raises
+        ------
+        FormatError
+            A chunk cannot be read or decoded.
+        """
         try:
             return np.asarray(self.arrays[name][sl])
         except (RuntimeError, ValueError, OSError) as exc:  # e.g. "error during blosc decompression: -1"
@@ -228,8 +295,27 @@ class Capture:
     def lumitexels(self, start: int = 0, stop: int | None = None, cameras=None) -> Lumitexels:
         """Lumitexels ``start:stop`` with their samples (directions from the calibration).
 
-        ``cameras`` (indices), if given, keeps only those cameras' samples (the
-        others become NaN, i.e. invalid).
+        Parameters
+        ----------
+        start : int
+            First lumitexel, 0 ≤ ``start`` < ``stop``.
+        stop : int, optional
+            One past the last lumitexel (default, and at most, :attr:`n_lumitexels`).
+        cameras : array_like of int, optional
+            If given, keeps only those cameras' samples (the others become NaN, i.e. invalid).
+
+        Returns
+        -------
+        Lumitexels
+            Geometry as float64, ``wi`` and ``wo`` as float32 (:meth:`facestats.acquire.dome.Dome.directions32`),
+            ``irradiance`` and ``radiance`` in the stored dtypes.
+
+        Raises
+        ------
+        ValidationError
+            An empty or out-of-range lumitexel range, or camera indices that are not integers in [0, C).
+        FormatError
+            A chunk cannot be read (:meth:`array`).
         """
         stop = self.n_lumitexels if stop is None else min(int(stop), self.n_lumitexels)
         if not (0 <= start < stop):
@@ -262,14 +348,43 @@ class Capture:
         )
 
     def blocks(self, size: int = 4096):
-        """Yield ``(start, stop)`` lumitexel ranges aligned to ``size`` (≥ 1)."""
+        """Yield ``(start, stop)`` lumitexel ranges aligned to ``size`` (≥ 1).
+
+        Parameters
+        ----------
+        size : int
+            Lumitexels per range (the last may be shorter), ≥ 1.
+
+        Yields
+        ------
+        start, stop : int
+            Covering 0 to :attr:`n_lumitexels` in order.
+
+        Raises
+        ------
+        ValidationError
+            ``size`` not an integer ≥ 1 (when iterated).
+        """
         check_integer(size, "size", 1)
         for start in range(0, self.n_lumitexels, int(size)):
             yield start, min(start + int(size), self.n_lumitexels)
 
     # -- persistence -----------------------------------------------------------------
     def to_zarr(self, path, chunk: int = 2048):
-        """Write the capture as a zarr v3 group (``chunk`` lumitexels per chunk); returns the path."""
+        """Write the capture as a zarr v3 group (``chunk`` lumitexels per chunk); returns the path.
+
+        Parameters
+        ----------
+        path : str or path-like
+            The group to create (an existing one there is overwritten); :func:`open_capture` reads it.
+        chunk : int
+            Lumitexels per chunk and per block written, ≥ 1.
+
+        Returns
+        -------
+        str
+            ``path``.
+        """
         writer = CaptureWriter(
             path,
             n_lumitexels=self.n_lumitexels,

@@ -248,6 +248,13 @@ class Dome:
     def beam_coordinates(self, points, leds=None):
         """Where ``points`` lie in the LEDs' beams (module docstring).
 
+        Parameters
+        ----------
+        points : ndarray, shape (N, 3)
+            Surface points, mm.
+        leds : array_like of int, optional
+            Subset of LEDs (default all); L is its length.
+
         Returns
         -------
         wi : ndarray, shape (N, L, 3)
@@ -296,7 +303,21 @@ class Dome:
         return wi, gain[..., None] * self.led_intensity[sel][None, :, :]
 
     def select(self, leds=None, cameras=None) -> "Dome":
-        """The rig restricted to some LEDs and/or cameras (indices; default all)."""
+        """The rig restricted to some LEDs and/or cameras (indices; default all).
+
+        Parameters
+        ----------
+        leds : array_like of int, optional
+            Indices of the LEDs to keep, in that order (default all).
+        cameras : array_like of int, optional
+            Indices of the cameras to keep, in that order (default all); their distortion, gain and response go
+            with them.
+
+        Returns
+        -------
+        Dome
+            A new calibration; this one is not modified.
+        """
 
         lsel = slice(None) if leds is None else np.asarray(leds)
         csel = slice(None) if cameras is None else np.asarray(cameras)
@@ -326,21 +347,56 @@ class Dome:
         return d / np.sqrt(r2)[..., None], r2, d
 
     def light_directions(self, points):
-        """Unit directions (N, L, 3) from ``points`` (N, 3, mm) towards every LED (the ``wi`` of :meth:`incident`)."""
+        """Unit directions (N, L, 3) from ``points`` (N, 3, mm) towards every LED (the ``wi`` of :meth:`incident`).
+
+        Parameters
+        ----------
+        points : array_like, shape (N, 3)
+            World points, mm.
+
+        Returns
+        -------
+        ndarray of float64, shape (N, L, 3)
+        """
         return self._towards(self.led_position, points)[0]
 
     def view_directions(self, points):
-        """Unit directions (N, C, 3) from ``points`` (N, 3, mm) towards every camera centre (``wo`` of :meth:`view`)."""
+        """Unit directions (N, C, 3) from ``points`` (N, 3, mm) towards every camera centre (``wo`` of :meth:`view`).
+
+        Parameters
+        ----------
+        points : array_like, shape (N, 3)
+            World points, mm.
+
+        Returns
+        -------
+        ndarray of float64, shape (N, C, 3)
+        """
         return self._towards(self.camera_position, points)[0]
 
     def directions32(self, points, backend="auto"):
         """(ωi (N, L, 3), ωo (N, C, 3)) from ``points`` (N, 3, mm): :meth:`light_directions` and
         :meth:`view_directions` rounded to float32 (as the fit stores them).
 
-        ``backend`` (:data:`facestats.core.compiled.BACKENDS`): ``"numba"`` computes them in one compiled
-        pass (:func:`facestats.acquire.dome_numba.unit_directions32`, the same float64 arithmetic, so the
-        same bits) without the float64 (N, T, 3) temporaries; ``"auto"`` uses it when numba imports (the fit's
-        engine setting does not choose here: both give the same bits).
+        Parameters
+        ----------
+        points : array_like, shape (N, 3)
+            World points, mm.
+        backend : {"auto", "numba", "numpy"}
+            :data:`facestats.core.compiled.BACKENDS`: ``"numba"`` computes them in one compiled
+            pass (:func:`facestats.acquire.dome_numba.unit_directions32`, the same float64 arithmetic, so the
+            same bits) without the float64 (N, T, 3) temporaries; ``"auto"`` uses it when numba imports (the fit's
+            engine setting does not choose here: both give the same bits).
+
+        Returns
+        -------
+        wi : ndarray of float32, shape (N, L, 3)
+        wo : ndarray of float32, shape (N, C, 3)
+
+        Raises
+        ------
+        ValidationError
+            ``points`` not of shape (N, 3), an unknown ``backend``, or ``"numba"`` when numba cannot be used.
         """
         pts = np.ascontiguousarray(points, np.float64)
         check_shape(pts, "points", (None, 3))
@@ -353,7 +409,18 @@ class Dome:
 
     def resized(self, width: int, height: int) -> "Dome":
         """The same rig with every camera's image resampled to ``width`` × ``height`` pixels (K scaled, pixel
-        centres at integers: u' = (u + ½)·s − ½)."""
+        centres at integers: u' = (u + ½)·s − ½).
+
+        Parameters
+        ----------
+        width, height : int
+            The new image size in pixels, the same for every camera; s is its ratio to each camera's old size.
+
+        Returns
+        -------
+        Dome
+            A new calibration with ``camera_matrix`` and ``image_size`` changed.
+        """
 
         sx = int(width) / self.image_size[:, 0]
         sy = int(height) / self.image_size[:, 1]
@@ -404,6 +471,13 @@ class Dome:
     def view(self, points, cameras=None):
         """Unit directions from ``points`` towards the camera centres and whether each point is in frame.
 
+        Parameters
+        ----------
+        points : ndarray, shape (N, 3)
+            World points, mm.
+        cameras : array_like of int, optional
+            Subset of cameras (default all); C is its length.
+
         Returns
         -------
         wo : ndarray, shape (N, C, 3)
@@ -428,7 +502,20 @@ class Dome:
         return wo, in_frame, pix
 
     def pixel_rays(self, camera: int, pixels) -> np.ndarray:
-        """Unit world directions (N, 3) of the rays through ``pixels`` (N, 2) of one camera (distortion undone)."""
+        """Unit world directions (N, 3) of the rays through ``pixels`` (N, 2) of one camera (distortion undone).
+
+        Parameters
+        ----------
+        camera : int
+            Index of the camera.
+        pixels : array_like, shape (N, 2)
+            Image coordinates (u, v) in pixels, OpenCV convention (pixel centres at integers).
+
+        Returns
+        -------
+        ndarray of float64, shape (N, 3)
+            Unit directions in the world frame, from the camera centre into the scene.
+        """
         k = self.camera_matrix[camera]
         px = np.asarray(pixels, np.float64)
         yd = (px[:, 1] - k[1, 2]) / k[1, 1]
@@ -468,7 +555,18 @@ class Dome:
         return out
 
     def camera_dict(self, c: int) -> dict:
-        """Camera ``c`` as OpenCV names it: ``K``, ``dist`` (5 or 8), ``R``, ``t`` (mm), image size, gain."""
+        """Camera ``c`` as OpenCV names it: ``K``, ``dist`` (5 or 8), ``R``, ``t`` (mm), image size, gain.
+
+        Parameters
+        ----------
+        c : int
+            Index of the camera.
+
+        Returns
+        -------
+        dict
+            JSON-ready: ``K``, ``dist``, ``R``, ``t``, ``image_width``, ``image_height`` and ``gain`` (RGB).
+        """
         dist = self.camera_distortion[c]
         return {
             "K": self.camera_matrix[c].tolist(),
@@ -514,7 +612,24 @@ class Dome:
 
     @classmethod
     def from_dict(cls, d: dict) -> "Dome":
-        """Inverse of :meth:`to_dict` (e.g. a real rig's calibration file; legacy camera arrays accepted)."""
+        """Inverse of :meth:`to_dict` (e.g. a real rig's calibration file; legacy camera arrays accepted).
+
+        Parameters
+        ----------
+        d : dict
+            A decoded calibration document as :meth:`to_dict` writes it.
+
+        Returns
+        -------
+        Dome
+
+        Raises
+        ------
+        FormatError
+            A required key is missing or a field is malformed (the wrong type or shape to read).
+        ValidationError
+            A field is out of its domain (the checks of the constructor).
+        """
         try:
             resp = d.get("camera_log_response")
             return cls(
@@ -538,7 +653,13 @@ class Dome:
             raise FormatError(f"dome calibration has a malformed field: {exc}") from None
 
     def save(self, path):
-        """Write the calibration as JSON."""
+        """Write the calibration as JSON.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The file to write (replaced if it exists); :meth:`load` reads it.
+        """
         with open(path, "w") as f:
             json.dump(self.to_dict(), f)
 

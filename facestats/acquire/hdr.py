@@ -101,6 +101,16 @@ class CameraResponse:
         max(e, 0) + σ_read² + g²/12 (Poisson shot noise, Gaussian read noise and the
         uniform quantisation error of one DN of g electrons: EMVA 1288 Release 3.1 §2,
         in electrons instead of DN); float input keeps its dtype.
+
+        Parameters
+        ----------
+        electrons : array_like
+            Expected signal in electrons, any shape; negative values count as 0 in the shot noise.
+
+        Returns
+        -------
+        ndarray
+            Variance in e⁻², the shape of ``electrons``; its dtype if float, else float64.
         """
         e = np.asarray(electrons)
         if e.dtype.kind == "f":

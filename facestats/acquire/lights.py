@@ -80,12 +80,25 @@ def _rgb(v, name):
 
 @dataclass
 class PointLight:
-    """Isotropic point light (module docstring): position (mm), intensity (per channel), cuts, cone."""
+    """Isotropic point light (module docstring).
+
+    Attributes
+    ----------
+    position : ndarray of float64, shape (3,)
+        Position, mm.
+    intensity : ndarray of float64, shape (3,)
+        Radiant intensity per channel, ≥ 0 (e.g. W sr⁻¹); a scalar is repeated to the three channels.
+    cuts : tuple of ndarray, each shape (3,)
+        Normals n of planes through the light, normalised; lit points x satisfy n·(x − position) ≥ 0.  Default none.
+    cone : tuple or None
+        (unit axis, half-angle in radians, in (0, π/2]): a spot lighting only points within the half-angle of the
+        axis; default None (no cone).
+    """
 
     position: np.ndarray
     intensity: np.ndarray
     cuts: tuple = ()
-    cone: tuple | None = None  # (unit axis, half-angle in radians)
+    cone: tuple | None = None
 
     def __post_init__(self):
         self.position = check_shape(as_finite(self.position, "position", dtype=np.float64), "position", (3,))
@@ -97,7 +110,17 @@ class PointLight:
             self.cone = (_unit(axis, "cone axis"), half)
 
     def mask(self, points) -> np.ndarray:
-        """(m,) bool: points inside every cut's half-space and the cone."""
+        """(m,) bool: points inside every cut's half-space and the cone.
+
+        Parameters
+        ----------
+        points : array_like, shape (m, 3)
+            Points, mm.
+
+        Returns
+        -------
+        ndarray of bool, shape (m,)
+        """
         d = np.asarray(points, np.float64) - self.position
         ok = np.ones(d.shape[0], bool)
         for n in self.cuts:  # loop over the few cut planes
@@ -119,11 +142,22 @@ class PointLight:
 
 @dataclass
 class DirectionalLight:
-    """Distant light (module docstring): unit direction towards the light, E⊥ (per channel), cuts."""
+    """Distant light (module docstring).
+
+    Attributes
+    ----------
+    direction : ndarray of float64, shape (3,)
+        Unit direction towards the light (normalised).
+    irradiance : ndarray of float64, shape (3,)
+        E⊥ per channel, the irradiance on a plane facing the light, ≥ 0 (e.g. W mm⁻²); a scalar is repeated to
+        the three channels.
+    cuts : tuple of (ndarray, ndarray)
+        ((normal, point), …): half-spaces n·(x − p) ≥ 0 that are lit, n normalised and p in mm.  Default none.
+    """
 
     direction: np.ndarray
     irradiance: np.ndarray
-    cuts: tuple = ()  # ((normal, point), …)
+    cuts: tuple = ()
 
     def __post_init__(self):
         self.direction = _unit(self.direction, "direction")
@@ -134,7 +168,17 @@ class DirectionalLight:
         )
 
     def mask(self, points) -> np.ndarray:
-        """(m,) bool: points in every cut's half-space n·(x − p) ≥ 0."""
+        """(m,) bool: points in every cut's half-space n·(x − p) ≥ 0.
+
+        Parameters
+        ----------
+        points : array_like, shape (m, 3)
+            Points, mm.
+
+        Returns
+        -------
+        ndarray of bool, shape (m,)
+        """
         x = np.asarray(points, np.float64)
         ok = np.ones(x.shape[0], bool)
         for n, p in self.cuts:  # loop over the few cut planes
@@ -151,7 +195,19 @@ class DirectionalLight:
 
 @dataclass
 class EnvironmentLight:
-    """Environment lighting as directions (D, 3) with radiance × solid angle (D, 3) (module docstring)."""
+    """Environment lighting as directions (D, 3) with radiance × solid angle (D, 3) (module docstring).
+
+    Attributes
+    ----------
+    directions : ndarray of float64, shape (D, 3)
+        Directions towards the lights, normalised (non-zero).
+    radiance_solid_angle : ndarray of float64, shape (D, 3)
+        L·δΩ per direction and channel, ≥ 0 (the irradiance of each as a distant light); (D,) is repeated to the
+        three channels.
+    shadows : bool
+        Self-shadowing by the patches' mesh for this light (:func:`light_masks`); default True.  Not written by
+        :meth:`to_dict`.
+    """
 
     directions: np.ndarray
     radiance_solid_angle: np.ndarray
@@ -175,6 +231,25 @@ class EnvironmentLight:
         :func:`facestats.io.probes.read_light_probe`; it becomes ``samples`` = (rows, columns)
         directional lights of L·δΩ each (:func:`facestats.model.sphere.latlong_light_samples`), or, for an
         int N, the N lights of a median cut (:func:`facestats.model.sphere.median_cut_light_samples`).
+
+        Parameters
+        ----------
+        probe : ndarray or str or path-like
+            An (H, W, 3) lat-long array of linear radiance (W = 2H), or a probe file (anything not an ndarray is
+            read as one).
+        samples : tuple of int or int
+            (rows, columns) of blocks, which must divide H and W; or an int N, the most lights of a median cut.
+        shadows : bool
+            As the class's ``shadows``.
+
+        Returns
+        -------
+        EnvironmentLight
+
+        Raises
+        ------
+        ValidationError
+            ``samples`` neither an int nor a pair, or a probe or sample count the sampling refuses.
         """
         # local import: keeps facestats.io (22 modules) out of this module's import
         from facestats.io.probes import read_light_probe

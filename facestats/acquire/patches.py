@@ -89,7 +89,23 @@ class Patches:
         return self.mesh_vertices is not None and self.mesh_faces is not None
 
     def subset(self, index) -> "Patches":
-        """The patches selected by ``index`` (the occluding mesh is kept whole)."""
+        """The patches selected by ``index`` (the occluding mesh is kept whole).
+
+        Parameters
+        ----------
+        index : array_like of int or bool
+            Indices or a boolean mask of length m, as numpy indexes the per-patch arrays.
+
+        Returns
+        -------
+        Patches
+            A new set of patches; this one is not modified.
+
+        Raises
+        ------
+        ValidationError
+            ``index`` selects no patch.
+        """
         idx = np.asarray(index)
         return Patches(
             self.centre[idx],

@@ -249,13 +249,45 @@ class CaptureFolder:
         return self.manifest.get("kind", "face")
 
     def times(self, camera: int, led: int, pose: int = 0) -> np.ndarray:
-        """Exposure times (E,) of one frame, s."""
+        """Exposure times (E,) of one frame, s.
+
+        Parameters
+        ----------
+        camera, led : int
+            The camera and the LED of the frame.
+        pose : int
+            The target pose (0 for a face capture).
+
+        Returns
+        -------
+        ndarray of float64, shape (E,)
+            Field ``exposure_s`` of each exposure index, increasing (NaN for a camera without frames); a view of
+            :attr:`exposure_s`.
+        """
         return self.exposure_s[pose, camera, led]
 
     def inside(self, rel: str, what: str) -> pathlib.Path:
         """The path of the folder's file ``rel`` (a relative path without '..', :func:`relative_inside`), refused
         when it resolves out of the folder: a symbolic link (of the file, or of a folder on its way) to
-        elsewhere would read a file the folder does not hold."""
+        elsewhere would read a file the folder does not hold.
+
+        Parameters
+        ----------
+        rel : str
+            The file's name as the manifest lists it.
+        what : str
+            What the file is, for the message (e.g. ``"frame"``).
+
+        Returns
+        -------
+        pathlib.Path
+            ``path / rel``, unresolved.
+
+        Raises
+        ------
+        FormatError
+            ``rel`` resolves to a place outside the folder.
+        """
         p = self.path / rel
         root = os.path.realpath(self.path)
         if os.path.commonpath([root, os.path.realpath(p)]) != root:
@@ -268,7 +300,28 @@ class CaptureFolder:
     def read_codes(self, camera: int, led: int, exposure: int, pose: int = 0, size=None) -> np.ndarray:
         """The codes (H, W, 3) of one frame, after the checks of the module docstring.
 
-        ``size`` is the calibration's (width, height) of the camera.
+        Parameters
+        ----------
+        camera, led : int
+            The camera and the LED of the frame.
+        exposure : int
+            The exposure index, in [0, :attr:`n_exposures`).
+        pose : int
+            The target pose (0 for a face capture).
+        size : sequence of int, optional
+            The calibration's (width, height) of the camera, which the frame must match (default not checked).
+
+        Returns
+        -------
+        ndarray of uint8 or uint16, shape (H, W, 3)
+            The frame's codes, at most 2**bits − 1.
+
+        Raises
+        ------
+        FormatError
+            The frame lies outside the folder, cannot be read or decoded, its SHA-256 differs from the manifest's,
+            it is not RGB, of another bit depth or size, or its EXIF ``ExposureTime`` differs from ``exposure_s``
+            by more than :data:`EXPOSURE_TOLERANCE` (relative).
         """
         # local import: keeps facestats.io (24 modules) out of this module's import
         from facestats.io.exif import parse_exif
@@ -319,7 +372,29 @@ class CaptureFolder:
             )
 
     def read_stack(self, camera: int, led: int, pose: int = 0, size=None):
-        """``(codes of each exposure, exposure times)`` of one (pose, camera, LED)."""
+        """``(codes of each exposure, exposure times)`` of one (pose, camera, LED).
+
+        Parameters
+        ----------
+        camera, led : int
+            The camera and the LED of the frames.
+        pose : int
+            The target pose (0 for a face capture).
+        size : sequence of int, optional
+            As :meth:`read_codes`.
+
+        Returns
+        -------
+        codes : list of ndarray, each (H, W, 3)
+            :meth:`read_codes` of each exposure index in order.
+        times : ndarray of float64, shape (E,)
+            :meth:`times`, s.
+
+        Raises
+        ------
+        FormatError
+            As :meth:`read_codes`.
+        """
         return [self.read_codes(camera, led, e, pose, size) for e in range(self.n_exposures)], self.times(
             camera, led, pose
         )

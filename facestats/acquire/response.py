@@ -840,7 +840,21 @@ class ResponseCurve:
         return 2**self.bits
 
     def encode(self, electrons, rng: np.random.Generator | None = None) -> np.ndarray:
-        """Codes (uint8 for ≤ 8 bits, else uint16) of pixels with ``electrons`` expected; noiseless without ``rng``."""
+        """Codes (uint8 for ≤ 8 bits, else uint16) of pixels with ``electrons`` expected; noiseless without ``rng``.
+
+        Parameters
+        ----------
+        electrons : array_like
+            Expected electrons per pixel, any shape of at least one dimension (a 0-d value fails); computed in
+            float32.
+        rng : numpy.random.Generator, optional
+            Source of the shot and read noise (class docstring); None: no noise.
+
+        Returns
+        -------
+        ndarray of uint8 or uint16
+            Codes in [0, 2^bits − 1], the shape of ``electrons``.
+        """
         e = np.asarray(electrons, np.float32)
         if rng is not None:
             noise = rng.standard_normal(e.shape, dtype=np.float32)

@@ -121,6 +121,16 @@ class ContactSensor:
         :func:`facestats.acquire.hdr.merged_std` of the expected electron rate
         ``profile × scale`` over the bracket, divided by ``scale``; inf where every
         exposure would clip.
+
+        Parameters
+        ----------
+        profile : array_like
+            True R(r), mm⁻², any shape (e.g. (..., F, 3)); negative values count as 0.
+
+        Returns
+        -------
+        ndarray of float64, shape of ``profile``
+            Standard deviation, mm⁻².
         """
         p = np.asarray(profile, dtype=np.float64)
         return merged_std(p * self.scale, self.exposure_times, self.camera) / self.scale
@@ -144,7 +154,23 @@ class ContactSensor:
 
     @classmethod
     def from_attrs(cls, attrs: dict) -> "ContactSensor":
-        """Inverse of :meth:`to_attrs`."""
+        """Inverse of :meth:`to_attrs`.
+
+        Parameters
+        ----------
+        attrs : dict
+            As :meth:`to_attrs` writes it; ``camera`` may be absent (the default :class:`CameraResponse`), the
+            other keys are required (a missing one raises KeyError).
+
+        Returns
+        -------
+        ContactSensor
+
+        Raises
+        ------
+        ValidationError
+            A value out of its domain (the constructor's and :class:`CameraResponse`'s checks).
+        """
         cam = attrs.get("camera", {})
         return cls(
             fiber_distance=np.asarray(attrs["fiber_distance_mm"], float),

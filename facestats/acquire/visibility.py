@@ -207,7 +207,21 @@ class ShadowMaps:
         return len(self.maps)
 
     def visible(self, points, normals) -> np.ndarray:
-        """(N, K) bool: each point faces viewpoint k and is not occluded."""
+        """(N, K) bool: each point faces viewpoint k and is not occluded.
+
+        Parameters
+        ----------
+        points : array_like, shape (N, 3)
+            Points, mm.
+        normals : array_like, shape (N, 3)
+            Their unit normals (the depth tolerance is scaled by the cosine to each viewpoint).
+
+        Returns
+        -------
+        ndarray of bool, shape (N, K)
+            True where N·ω > 0, the point projects inside viewpoint k's buffer, in front of it, and its depth is
+            within ``bias_px`` pixel footprints of the buffer's.
+        """
         pts = np.asarray(points, float)
         nrm = np.asarray(normals, float)
         out = np.zeros((pts.shape[0], len(self.maps)), bool)

@@ -183,7 +183,26 @@ class CCAResult:
         return table
 
     def transform(self, X, Y=None):
-        """Canonical variates of new data: (X − x̄)·a (and (Y − ȳ)·b if Y is given)."""
+        """Canonical variates of new data: (X − x̄)·a (and (Y − ȳ)·b if Y is given).
+
+        Parameters
+        ----------
+        X : array_like or pandas.DataFrame, shape (m, p)
+            New X-block rows, columns in the order of ``x_names`` (taken by position, not by name); 1-D is one
+            variable.
+        Y : array_like or pandas.DataFrame, shape (m, q), optional
+            New Y-block rows, columns in the order of ``y_names``.
+
+        Returns
+        -------
+        ndarray, shape (m, k), or tuple of two
+            The X variates, or (X variates, Y variates) if ``Y`` is given.
+
+        Raises
+        ------
+        ValidationError
+            ``X`` or ``Y`` not numeric, not 1-D or 2-D, or without columns.
+        """
         x = _as_block(X, "X")[0] - self.x_mean
         if Y is None:
             return x @ self.x_weights

@@ -204,7 +204,18 @@ class RegionEllipse:
         return float(self.eigenvalues.sum())
 
     def half_axes(self, k=1.0) -> np.ndarray:
-        """Half-axis lengths k·σ_i of the drawn ellipse (k = 1: one standard deviation)."""
+        """Half-axis lengths k·σ_i of the drawn ellipse (k = 1: one standard deviation).
+
+        Parameters
+        ----------
+        k : float
+            Number of standard deviations.
+
+        Returns
+        -------
+        ndarray, shape (2,)
+            Major then minor half axis, in (ρs, lobe) units.
+        """
         return k * self.std
 
     @property
@@ -219,7 +230,21 @@ class RegionEllipse:
         return a
 
     def boundary(self, k=1.0, n_points=100) -> np.ndarray:
-        """Points (n_points, 2) on the ellipse mean + V·diag(kσ)·(cos t, sin t)."""
+        """Points (n_points, 2) on the ellipse mean + V·diag(kσ)·(cos t, sin t).
+
+        Parameters
+        ----------
+        k : float
+            Number of standard deviations of the half axes (:meth:`half_axes`).
+        n_points : int
+            Number of points, t evenly spaced over [0, 2π] with both ends included (the last point repeats the
+            first, closing the curve).
+
+        Returns
+        -------
+        ndarray, shape (n_points, 2)
+            (ρs, lobe) coordinates.
+        """
         t = np.linspace(0, 2 * np.pi, n_points)
         circle = np.stack([np.cos(t), np.sin(t)])
         return (self.mean[:, None] + self.eigenvectors @ (self.half_axes(k)[:, None] * circle)).T

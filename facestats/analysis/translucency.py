@@ -120,11 +120,32 @@ class TranslucencyTable:
     ddof: int
 
     def mean(self, site) -> np.ndarray:
-        """Mean σtr (R, G, B) of a site, mm⁻¹."""
+        """Mean σtr (R, G, B) of a site, mm⁻¹.
+
+        Parameters
+        ----------
+        site : str
+            ``"cheek"``, ``"forehead"`` or ``"neck"``, one of the sites in ``table`` (else pandas' KeyError).
+
+        Returns
+        -------
+        ndarray, shape (3,)
+        """
         return self.table[(site, "mean")].to_numpy()
 
     def var(self, site) -> np.ndarray:
-        """Variance of σtr (R, G, B) of a site, mm⁻²."""
+        """Variance of σtr (R, G, B) of a site, mm⁻².
+
+        Parameters
+        ----------
+        site : str
+            ``"cheek"``, ``"forehead"`` or ``"neck"``, one of the sites in ``table`` (else pandas' KeyError).
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            Sample variance with ``ddof``.
+        """
         return self.table[(site, "var")].to_numpy()
 
     def compare_published(self):

@@ -61,6 +61,22 @@ class Parser(argparse.ArgumentParser):
         self.register("action", "store", _StoreOnce)
 
     def parse_known_args(self, args=None, namespace=None):
+        """:meth:`argparse.ArgumentParser.parse_known_args`, dropping the record of the options given.
+
+        Parameters
+        ----------
+        args : list of str, optional
+            The arguments to parse (default ``sys.argv[1:]``, as argparse).
+        namespace : argparse.Namespace, optional
+            The namespace to fill (default a new one).
+
+        Returns
+        -------
+        namespace : argparse.Namespace
+            The parsed options, without the attribute in which each option given was noted.
+        extras : list of str
+            The arguments not recognised.
+        """
         namespace, extras = super().parse_known_args(args, namespace)
         vars(namespace).pop(_GIVEN, None)
         return namespace, extras

@@ -376,7 +376,23 @@ class OutputSet:
         self._created = missing + self._created  # innermost first, newest first
 
     def path(self, name) -> pathlib.Path:
-        """The temporary path to write the file ``name`` (of :attr:`directory`, or a path elsewhere) to."""
+        """The temporary path to write the file ``name`` (of :attr:`directory`, or a path elsewhere) to.
+
+        Parameters
+        ----------
+        name : str or os.PathLike
+            The target, relative to :attr:`directory` or absolute; its missing folders are created.
+
+        Returns
+        -------
+        pathlib.Path
+            An empty file, reserved under a unique hidden name beside the target; renamed into place on success.
+
+        Raises
+        ------
+        ValidationError
+            If the target is named twice, or its folder cannot be created.
+        """
         final = pathlib.Path(os.path.abspath(self.directory / name))
         if any(final == f for _, f in self._temps):
             raise ValidationError(f"output {str(final)!r} is named twice")

@@ -42,7 +42,17 @@ def bars_enabled(enabled=True) -> bool:
 
 
 class QuietBar:
-    """The hidden bar: iterates over ``iterable`` unchanged; ``update``, ``close`` and ``with`` do nothing else."""
+    """The hidden bar: iterates over ``iterable`` unchanged; ``update``, ``close`` and ``with`` do nothing else.
+
+    Parameters
+    ----------
+    iterable : iterable, optional
+        What to iterate over; None for a manual bar (which cannot be iterated).
+    total : int, optional
+        Number of steps expected: the bar's ``len`` (default ``len(iterable)``).
+    initial : int
+        Steps already done: the starting count ``n`` (default 0).
+    """
 
     def __init__(self, iterable=None, total=None, initial=0):
         self.iterable, self.total, self.n = iterable, total, initial
@@ -54,7 +64,13 @@ class QuietBar:
         return len(self.iterable) if self.total is None else self.total
 
     def update(self, n=1):
-        """Count ``n`` more steps (nothing is shown)."""
+        """Count ``n`` more steps (nothing is shown).
+
+        Parameters
+        ----------
+        n : int
+            Steps done since the last update (default 1).
+        """
         self.n += n
 
     def close(self):

@@ -55,7 +55,26 @@ class ColourBasis:
         object.__setattr__(self, "variances", v)
 
     def to_decorrelated(self, rgb, dtype=None) -> np.ndarray:
-        """Channel planes ``y[c] = Σ_k P[c, k] (rgb[..., k] - μ[k])``, shape (3, ...)."""
+        """Channel planes ``y[c] = Σ_k P[c, k] (rgb[..., k] - μ[k])``, shape (3, ...).
+
+        Parameters
+        ----------
+        rgb : array_like, shape (..., 3)
+            Linear RGB, channel last.
+        dtype : numpy.dtype, optional
+            Float dtype of the computation and result; default float32/float64 input keeps its dtype, anything
+            else becomes float64.
+
+        Returns
+        -------
+        numpy.ndarray, shape (3, ...)
+            The decorrelated planes, channel first.
+
+        Raises
+        ------
+        ValidationError
+            ``rgb`` not numeric or its last axis not of length 3.
+        """
         x = as_float(rgb, "rgb", dtype)
         check_shape(x, "rgb", (..., 3))
         out = np.empty((3,) + x.shape[:-1], x.dtype)
@@ -68,7 +87,23 @@ class ColourBasis:
         return out
 
     def to_rgb(self, planes) -> np.ndarray:
-        """Inverse of :meth:`to_decorrelated`: ``rgb[..., k] = Σ_c P[c, k] y[c] + μ[k]``, channel last."""
+        """Inverse of :meth:`to_decorrelated`: ``rgb[..., k] = Σ_c P[c, k] y[c] + μ[k]``, channel last.
+
+        Parameters
+        ----------
+        planes : array_like, shape (3, ...)
+            Decorrelated planes, channel first (float32/float64 keeps its dtype, anything else becomes float64).
+
+        Returns
+        -------
+        numpy.ndarray, shape (..., 3)
+            Linear RGB in the dtype of ``planes``.
+
+        Raises
+        ------
+        ValidationError
+            ``planes`` not numeric or its first axis not of length 3.
+        """
         y = as_float(planes, "planes")
         if y.shape[:1] != (3,):
             raise ValidationError(f"planes must have shape (3, ...), got shape {y.shape}")

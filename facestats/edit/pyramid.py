@@ -265,7 +265,19 @@ class SteerablePyramid:
         return out
 
     def band_level(self, index: int) -> int:
-        """Grid level of band ``index`` (0 for the high-pass, ``levels`` for the low-pass)."""
+        """Grid level of band ``index`` (0 for the high-pass, ``levels`` for the low-pass).
+
+        Parameters
+        ----------
+        index : int
+            Band index in band order, 0 to ``n_bands - 1`` (not checked).
+
+        Returns
+        -------
+        int
+            The level ``i`` whose grid the band lies on (shape ``band_shapes[index]``); an oriented band of
+            level ``i`` has index ``1 + i * orientations + b``.
+        """
         if index == 0:
             return 0
         if index == self.n_bands - 1:
@@ -314,6 +326,21 @@ class SteerablePyramid:
 
         Exact inverse of :meth:`decompose` to rounding; for modified bands it is
         the least-squares image of the (tight-frame) pyramid.
+
+        Parameters
+        ----------
+        bands : sequence of array_like
+            ``n_bands`` real arrays of the shapes :attr:`band_shapes`, in band order; computed in ``self.dtype``.
+
+        Returns
+        -------
+        numpy.ndarray, shape ``self.shape``
+            The image, in ``self.dtype``.
+
+        Raises
+        ------
+        ValidationError
+            The wrong number of bands, or a band of the wrong shape.
         """
         if len(bands) != self.n_bands:
             raise ValidationError(f"bands must hold {self.n_bands} arrays, got {len(bands)}")

@@ -197,7 +197,20 @@ class TextureStatistics:
         return ["image"] + band_names(self.levels, self.orientations)
 
     def histogram(self, channel: int, band: int) -> Histogram:
-        """The histogram of one decorrelated channel and band."""
+        """The histogram of one decorrelated channel and band.
+
+        Parameters
+        ----------
+        channel : int
+            Decorrelated channel, 0-2 (0 = first principal component).
+        band : int
+            Band index, 0 to ``n_bands - 1`` in the order of :attr:`band_names`.
+
+        Returns
+        -------
+        Histogram
+            Its edges and counts.
+        """
         return Histogram(self.edges[channel, band], self.counts[channel, band])
 
     def to_vector(self) -> np.ndarray:
@@ -212,7 +225,23 @@ class TextureStatistics:
         return (self.counts / self.counts.sum(axis=-1, keepdims=True)).ravel()
 
     def save(self, path) -> pathlib.Path:
-        """Write the statistics to an ``.npz`` file (:func:`statistics_path`; written all or nothing)."""
+        """Write the statistics to an ``.npz`` file (:func:`statistics_path`; written all or nothing).
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            Output file; ``.npz`` is appended unless the suffix is exactly ``.npz``.  An existing file is replaced.
+
+        Returns
+        -------
+        pathlib.Path
+            The file written.
+
+        Raises
+        ------
+        ValidationError
+            The path cannot be written (:func:`statistics_path`).
+        """
         path = statistics_path(path)
         with OutputSet(path.parent) as out:
             self._savez(out.path(path.name))
@@ -234,7 +263,23 @@ class TextureStatistics:
 
     @classmethod
     def load(cls, path) -> "TextureStatistics":
-        """Read statistics written by :meth:`save`."""
+        """Read statistics written by :meth:`save`.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The ``.npz`` file (taken as given: no suffix is appended).
+
+        Returns
+        -------
+        TextureStatistics
+
+        Raises
+        ------
+        FormatError
+            The path is missing or not a regular file, not an ``.npz`` archive, not a facestats texture-statistics
+            file of this version, or holds invalid statistics.
+        """
         path = pathlib.Path(path)
         if not path.is_file():  # a FIFO would block np.load forever; a folder or nothing is no statistics file
             what = "does not exist" if not os.path.lexists(path) else "is not a regular file"

@@ -42,11 +42,31 @@ class DirectoryBackend:
         self.root = root
 
     def read(self, rel: str) -> bytes:
-        """The bytes of the regular file ``rel`` (:class:`OSError` if missing, a link or not a regular file)."""
+        """The bytes of the regular file ``rel`` (:class:`OSError` if missing, a link or not a regular file).
+
+        Parameters
+        ----------
+        rel : str
+            The file's path relative to the store root, ``/``-separated.
+
+        Returns
+        -------
+        bytes
+        """
         return read_regular_file(os.path.join(self.root, rel), follow_links=False)
 
     def exists(self, rel: str) -> bool:
-        """True if ``rel`` exists."""
+        """True if ``rel`` exists.
+
+        Parameters
+        ----------
+        rel : str
+            The path relative to the store root (a file or a folder; links are followed).
+
+        Returns
+        -------
+        bool
+        """
         return os.path.exists(os.path.join(self.root, rel))
 
     def index_key(self):
@@ -58,7 +78,18 @@ class DirectoryBackend:
         return (st.st_ino, st.st_mtime_ns, st.st_size)
 
     def zarr_target(self, rel: str):
-        """``(store, group)`` arguments for :func:`xarray.open_zarr` of the group ``rel``."""
+        """``(store, group)`` arguments for :func:`xarray.open_zarr` of the group ``rel``.
+
+        Parameters
+        ----------
+        rel : str
+            The group's folder relative to the store root.
+
+        Returns
+        -------
+        tuple
+            ``(path, None)``: the group's folder, opened as a store of its own.
+        """
         return os.path.join(self.root, rel), None
 
     def strange_entry(self, rel: str) -> str | None:
@@ -67,6 +98,17 @@ class DirectoryBackend:
         A FIFO planted where a chunk should be would make Zarr block forever on
         reading it, and a link could lead reads out of the store; such entries
         are found (without following links) before the group is opened.
+
+        Parameters
+        ----------
+        rel : str
+            The group's folder relative to the store root.
+
+        Returns
+        -------
+        str or None
+            The entry's path relative to the store root; ``rel`` itself if the group, or a folder above it, is a
+            link leading out of the store.
         """
         top = os.path.join(self.root, rel)
         try:
@@ -169,7 +211,22 @@ class ZipBackend:
         return self._zip
 
     def read(self, rel: str) -> bytes:
-        """The bytes of the entry ``rel`` (:class:`FileNotFoundError` if missing)."""
+        """The bytes of the entry ``rel`` (:class:`FileNotFoundError` if missing).
+
+        Parameters
+        ----------
+        rel : str
+            The entry's name: its path relative to the store root, ``/``-separated.
+
+        Returns
+        -------
+        bytes
+
+        Raises
+        ------
+        StoreError
+            If the zip file cannot be opened (an entry not read from its head needs its directory).
+        """
         if rel in self._lead:
             return self._lead[rel]
         try:
@@ -178,7 +235,22 @@ class ZipBackend:
             raise FileNotFoundError(rel) from None
 
     def exists(self, rel: str) -> bool:
-        """True if the zip has the entry ``rel``."""
+        """True if the zip has the entry ``rel``.
+
+        Parameters
+        ----------
+        rel : str
+            The entry's name, relative to the store root.
+
+        Returns
+        -------
+        bool
+
+        Raises
+        ------
+        StoreError
+            If the zip file cannot be opened (an entry not read from its head needs its directory).
+        """
         if rel in self._lead:
             return True
         self._zf()
@@ -189,11 +261,32 @@ class ZipBackend:
         return "zip" if self.exists(INDEX_NAME) else None
 
     def strange_entry(self, rel: str) -> None:
-        """Entries of a zip are bytes: never a FIFO or a link (None)."""
+        """Entries of a zip are bytes: never a FIFO or a link (None).
+
+        Parameters
+        ----------
+        rel : str
+            The group, relative to the store root (not looked at).
+
+        Returns
+        -------
+        None
+        """
         return None
 
     def zarr_target(self, rel: str):
-        """``(store, group)`` arguments for :func:`xarray.open_zarr` of the group ``rel``."""
+        """``(store, group)`` arguments for :func:`xarray.open_zarr` of the group ``rel``.
+
+        Parameters
+        ----------
+        rel : str
+            The group's path inside the zip.
+
+        Returns
+        -------
+        tuple
+            ``(zarr.storage.ZipStore, rel)``: the read-only zip store (opened once, shared) and the group in it.
+        """
         if self._zarr is None:
             from zarr.storage import ZipStore
 

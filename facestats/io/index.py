@@ -424,10 +424,18 @@ def is_index_temp(name: str) -> bool:
 class IndexTable:
     """The index as columns: ``ids`` (sorted), ``columns[name]`` arrays, ``hists`` (n, 3, bins).
 
-    Integer columns without missing values (``age``, ``skin_type``, sample
-    counts) are int64 arrays, other numeric columns float64 (missing values
-    NaN); text columns (``subject_id``, ``person_id``, ``gender``,
-    ``condition``, ``kind``, ``source``) are object arrays.
+    Built by :func:`index_table`; ``len(table)`` is the number of subjects and ``table[name]`` a column.
+
+    Parameters
+    ----------
+    ids : iterable of str
+        The subject ids, sorted (kept as a list).
+    columns : dict of str to ndarray, shape (n,)
+        One array per index column, rows aligned with ``ids``. Integer columns without missing values (``age``,
+        ``skin_type``, sample counts) are int64 arrays, other numeric columns float64 (missing values NaN); text
+        columns (``subject_id``, ``person_id``, ``gender``, ``condition``, ``kind``, ``source``) are object arrays.
+    hists : ndarray of int64, shape (n, 3, bins)
+        Albedo histogram counts per subject and channel (R, G, B), ``bins`` (256) equal bins over [0, 1].
     """
 
     TEXT = ("subject_id", "person_id", "gender", "condition", "kind", "source")

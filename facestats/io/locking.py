@@ -62,7 +62,24 @@ class FileLock:
         return self._fd is not None
 
     def acquire(self, blocking: bool = True) -> bool:
-        """Take the lock; return False (non-blocking) or raise :class:`StoreError` (timeout) if busy."""
+        """Take the lock; return False (non-blocking) or raise :class:`StoreError` (timeout) if busy.
+
+        Parameters
+        ----------
+        blocking : bool
+            Wait up to :attr:`timeout` seconds for the lock (default); False: try once.
+
+        Returns
+        -------
+        bool
+            True once the lock is held; False if it is busy and ``blocking`` is False.
+
+        Raises
+        ------
+        StoreError
+            The lock is already held by this object; the file cannot be opened (a symbolic link, its folder
+            missing with ``create=True``); ``flock`` fails; or the timeout passes while it is busy.
+        """
         if self._fd is not None:
             raise StoreError(f"lock {self.path} is already held by this object")
         flags = os.O_RDWR | os.O_NOFOLLOW | (os.O_CREAT if self.create else 0)

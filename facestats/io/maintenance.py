@@ -92,9 +92,20 @@ _ROOT_NAMES = {ROOT_META, "index.json", LOCK_NAME, WRITERS, RECORDS, SUBJECTS, Q
 class ValidationReport:
     """Outcome of :meth:`facestats.io.store.Store.validate`.
 
-    ``problems`` make the store invalid (``ok`` is False); ``notes`` are
-    harmless findings (leftovers of interrupted writes, items that are not
-    the store's, the quarantine); ``repaired`` lists what a repair changed.
+    Attributes
+    ----------
+    path : str
+        The store, as its label names it.
+    n_subjects : int
+        Subjects the index lists (0 if the index cannot be read).
+    n_checked : int
+        Subjects opened and checked without error.
+    problems : list of str
+        Findings that make the store invalid (``ok`` is False).
+    notes : list of str
+        Harmless findings (leftovers of interrupted writes, items that are not the store's, the quarantine).
+    repaired : list of str
+        What a repair changed.
     """
 
     path: str

@@ -460,6 +460,11 @@ class FaceMesh:
         stored in float32 (orthonormal to about 1e-7): whole-map float64 temporaries took 4 GB at 4096²
         (the speed red team); the outputs take 36 bytes a texel.
 
+        Parameters
+        ----------
+        size : int
+            Side of the map in texels (≥ 1).
+
         Returns
         -------
         tangent, bitangent, normal : ndarray of float32, shape (size, size, 3)

@@ -455,7 +455,19 @@ class FrameSequence:
         return len(self.paths)
 
     def frame(self, index: int) -> np.ndarray:
-        """Vertex positions of frame ``index`` (mm)."""
+        """Vertex positions of frame ``index`` (mm).
+
+        Parameters
+        ----------
+        index : int
+            The frame's position in :attr:`paths` (Python indexing: negative counts from the end).
+
+        Returns
+        -------
+        ndarray of float64, shape (V, 3)
+            Positions, mm (:func:`read_vertices`, which raises :class:`FormatError` for a frame whose topology
+            or extent differs from the neutral's).
+        """
         return read_vertices(self.paths[index], self.neutral, scale=self.scale, transform=self.transform)
 
     def frame_names(self) -> list[str]:
@@ -510,7 +522,18 @@ class BlendshapeSequence:
         return int(self.weights.shape[0])
 
     def frame(self, index: int) -> np.ndarray:
-        """Vertex positions of frame ``index``: neutral + Σ_k w_k Δ_k (mm)."""
+        """Vertex positions of frame ``index``: neutral + Σ_k w_k Δ_k (mm).
+
+        Parameters
+        ----------
+        index : int
+            The frame: a row of the weights (Python indexing: negative counts from the end).
+
+        Returns
+        -------
+        ndarray of float64, shape (V, 3)
+            Positions, mm.
+        """
         return self.neutral.vertices + np.tensordot(self.weights[index], self.deltas, axes=1)
 
     def frame_names(self) -> list[str]:

@@ -130,6 +130,19 @@ class Stat:
 
     BRDF statistics also carry ``within_std`` (spread inside a subject's region),
     ``mean_se`` and ``texel_se`` (the fit's standard errors; module docstring).
+
+    Attributes
+    ----------
+    mean, std : float
+        Mean and sample standard deviation (ddof = 1) across the subjects' values; NaN for no value (``std``:
+        fewer than two); the quantity's units (mm⁻¹ for σ, 1 otherwise).
+    n : int
+        Subjects that have the quantity (finite values).
+    within_std : float or None
+        BRDF statistics: the mean over subjects of the parameter's spread inside a subject's region; None otherwise.
+    mean_se, texel_se : float or None
+        BRDF statistics: RMS over subjects of the standard error of a subject's region mean and of one texel
+        (NaN when no subject has them); None otherwise.
     """
 
     mean: float
@@ -312,7 +325,17 @@ class QueryResult:
         }
 
     def to_json(self, indent: int | None = 2) -> str:
-        """The result as JSON text (:meth:`to_dict`; NaN as null)."""
+        """The result as JSON text (:meth:`to_dict`; NaN as null).
+
+        Parameters
+        ----------
+        indent : int or None
+            Spaces per indentation level (default 2); None writes one line.
+
+        Returns
+        -------
+        str
+        """
         return json.dumps(self.to_dict(), indent=indent, allow_nan=False)
 
     # -- CSV -----------------------------------------------------------------------
@@ -356,7 +379,25 @@ class QueryResult:
 
     # -- text ----------------------------------------------------------------------
     def to_table(self, *, ascii: bool = False, columns: int = 32) -> str:
-        """A human-readable report; histograms drawn as ``columns``-wide bar strips."""
+        """A human-readable report; histograms drawn as ``columns``-wide bar strips.
+
+        Parameters
+        ----------
+        ascii : bool
+            ASCII characters only (``+-``, ``rho_s``, ``1/mm``, ``" .:-=+*#@"`` bars) instead of Unicode.
+        columns : int
+            Characters per histogram strip (default 32); must divide the 256 bins.
+
+        Returns
+        -------
+        str
+            The report's lines, each ending in a newline.
+
+        Raises
+        ------
+        ValidationError
+            If ``columns`` does not divide the histogram length (only checked when there is a histogram to draw).
+        """
         lines = [f"facestats query: {describe_filters(self.filters)}", f"store: {self.store} ({self.n_store} subjects)"]
         if self.n_edits_left_out:
             lines.append(

@@ -192,7 +192,18 @@ class RepairPlan:
         return any(a.kind != "heal-record" or a.reason for a in self.actions)
 
     def to_text(self, *, applied: bool = False) -> str:
-        """The plan (or, ``applied``, what was done) as the lines ``facestats validate --repair`` prints."""
+        """The plan (or, ``applied``, what was done) as the lines ``facestats validate --repair`` prints.
+
+        Parameters
+        ----------
+        applied : bool
+            Head the lines as a repair done rather than a dry run (default False).
+
+        Returns
+        -------
+        str
+            The lines, each ending in a newline.
+        """
         head = "repair" if applied else "repair plan (dry run: nothing was changed; add --yes to apply it)"
         lines = [f"{head} for store {self.store}:"]
         heals = [a for a in self.actions if a.kind == "heal-record" and not a.reason]

@@ -137,7 +137,19 @@ DOMAIN_BLOCK = 1 << 18
 
 @dataclass(frozen=True)
 class Domain:
-    """The values a variable may hold: ``low``/``high`` bounds (None: unbounded), open or closed, NaN or not."""
+    """The values a variable may hold: ``low``/``high`` bounds (None: unbounded), open or closed, NaN or not.
+
+    Infinite values are always outside (:meth:`outside`).
+
+    Attributes
+    ----------
+    low, high : float or None
+        The bounds, in the variable's units; None: unbounded on that side. ``high`` is always closed.
+    low_open : bool
+        ``low`` itself is outside (``(low, high]``); default closed (``[low, high]``).
+    nan : bool
+        NaN is allowed (a missing value).
+    """
 
     low: float | None = None
     high: float | None = None
@@ -155,7 +167,18 @@ class Domain:
         )
 
     def violated(self, value: float) -> str:
-        """The bound a single value outside the domain breaks, as text: ``"> 0"``, ``">= 0"`` or ``"<= 9.8"``."""
+        """The bound a single value outside the domain breaks, as text: ``"> 0"``, ``">= 0"`` or ``"<= 9.8"``.
+
+        Parameters
+        ----------
+        value : float
+            A value :meth:`outside` flags.
+
+        Returns
+        -------
+        str
+            ``"finite"`` for an infinite value (or a NaN the domain does not allow) within the bounds.
+        """
         if self.low is not None and (value <= self.low if self.low_open else value < self.low):
             return f"{'>' if self.low_open else '>='} {self.low:g}"
         if self.high is not None and value > self.high:
@@ -169,6 +192,16 @@ class Domain:
         (:func:`facestats.core.blocked.blockwise`): a whole float32 map in float64 at once doubled a subject's size
         in memory at every read, write and export (1 GB more for a 2048² subject with micro-normals; the speed red
         team).
+
+        Parameters
+        ----------
+        values : array_like
+            Values of any shape; non-numeric dtypes are never outside.
+
+        Returns
+        -------
+        ndarray of bool
+            Same shape as ``values``.
         """
         v = np.asarray(values)
         if v.dtype.kind not in "fiub":

@@ -286,6 +286,17 @@ def _lazy_data_computed_here(datasets):
 class Store:
     """A facestats parameter store (see the module docstring); create with :func:`open_store`.
 
+    Parameters
+    ----------
+    backend : DirectoryBackend or ZipBackend
+        Byte access to the store's files (:mod:`facestats.io.backends`); its root attributes are read at once.
+    read_only : bool
+        Refuse every write (:class:`StoreError`).
+    label : str
+        The store's name in messages and query reports (the path, or ``"default"``).
+    lock_timeout : float
+        Seconds a writer waits for the store lock before :class:`StoreError`.
+
     Attributes
     ----------
     path : str
@@ -435,6 +446,32 @@ class Store:
         See :mod:`facestats.io.query` for the filters (skin types I and II are
         grouped; ``edits=True`` also matches subjects written by an edit), the
         statistics and the JSON form.
+
+        Parameters
+        ----------
+        skin_type : int or str, optional
+            Fitzpatrick type, Roman (``"IV"``) or 1-6; I or II matches subjects of both.
+        gender : str or int, optional
+            ``"M"``/``"F"`` (also male/female, 0 = M, 1 = F).
+        age : str, int or pair, optional
+            ``"20s"``, ``"30s"``, ``"40s"``, ``"50s+"``, ``"MIN-MAX"``, one age or ``(MIN, MAX)`` (inclusive, years).
+        condition : str, optional
+            One of ``facestats.core.conventions.CONDITIONS``; None matches every condition.
+        region : int or str, optional
+            Restricts the per-region BRDF section to one region (1-10 or a name); it does not select subjects.
+        edits : bool
+            Also match subjects written by an edit (default: measured subjects only).
+
+        Returns
+        -------
+        facestats.io.query.QueryResult
+
+        Raises
+        ------
+        ValidationError
+            An invalid filter value.
+        StoreError
+            The index is missing or cannot be read.
         """
 
         return run_query(
@@ -474,25 +511,41 @@ class Store:
     def subject(self, subject_id, *, lazy: bool = False, variables=None, exclude=None, on_disk=None):
         """One subject as an :class:`xarray.Dataset`.
 
-        With ``lazy=False`` (default) every variable is loaded, checked
-        against its stored CRC-32 and the subject validated against the
-        schema.  With ``lazy=True`` only metadata are checked (dims, shapes,
-        dtypes) and variables are read on access, chunk by chunk (e.g. a
-        64-row band of a map); a lazy Dataset may fail if a concurrent writer
-        replaces the subject before it is read (a :class:`StoreError` saying
-        so).  ``variables`` (with ``lazy=True``) names variables to load and
-        CRC-verify now; the others stay lazy.
+        Parameters
+        ----------
+        subject_id : str
+            The subject's id (``str()`` of it is looked up in the index).
+        lazy : bool
+            With ``lazy=False`` (default) every variable is loaded, checked against its stored CRC-32 and the
+            subject validated against the schema.  With ``lazy=True`` only metadata are checked (dims, shapes,
+            dtypes) and variables are read on access, chunk by chunk (e.g. a 64-row band of a map); a lazy
+            Dataset may fail if a concurrent writer replaces the subject before it is read (a
+            :class:`StoreError` saying so).
+        variables : list of str, optional
+            With ``lazy=True``: names variables to load and CRC-verify now; the others stay lazy.
+        exclude : list of str, optional
+            Names optional data variables to leave out, never read (e.g. ``["micro_normal"]``, 805 MB of a
+            2048² subject fitted from 16 cameras, for a reader that needs the other maps); names the subject
+            lacks are ignored, and the rest is loaded and checked as without it.
+        on_disk : list of str, optional
+            With ``lazy=False``: names map variables to leave on disk as dask arrays of one stored band of rows
+            per chunk, each band CRC-verified when computed but not validated (an edit passes the source's
+            micro-normals on this way; writing them validates them); the others are loaded and checked as
+            without it (:func:`facestats.io.integrity.open_generation`).
 
-        ``exclude`` names optional data variables to leave out, never read
-        (e.g. ``["micro_normal"]``, 805 MB of a 2048² subject fitted from 16
-        cameras, for a reader that needs the other maps); names the subject
-        lacks are ignored, and the rest is loaded and checked as without it.
-        ``on_disk`` (with ``lazy=False``) names map variables to leave on disk
-        as dask arrays of one stored band of rows per chunk, each band
-        CRC-verified when computed but not validated (an edit passes the
-        source's micro-normals on this way; writing them validates them); the
-        others are loaded and checked as without it
-        (:func:`facestats.io.integrity.open_generation`).
+        Returns
+        -------
+        xarray.Dataset
+
+        Raises
+        ------
+        ValidationError
+            ``variables`` without ``lazy=True``, ``on_disk`` with it, a name list that is a string or holds
+            a non-string, ``exclude`` naming a required variable or a variable also in ``variables``/``on_disk``.
+        StoreError
+            No such subject, or the index or the data cannot be read.
+        SchemaError
+            The subject fails its checks (manifest, dims, CRC-32, schema, physical domains).
         """
         if variables is not None and not lazy:
             raise ValidationError("variables requires lazy=True (without it every variable is loaded and verified)")
@@ -516,13 +569,38 @@ class Store:
         raises :class:`StoreError` unless ``overwrite=True``, which replaces
         the subject atomically (readers see the old or the new version).
         Edits must write a new id with ``source_subject`` and ``edit`` in
-        their provenance rather than overwrite their source.  ``precondition``
-        as in :meth:`write_subjects`.
+        their provenance rather than overwrite their source.
+
+        Parameters
+        ----------
+        dataset : xarray.Dataset
+            A valid subject.
+        overwrite : bool
+            Replace the subject if its id exists.
+        precondition : callable, optional
+            As in :meth:`write_subjects`.
+
+        Returns
+        -------
+        str
+            The subject id.
+
+        Raises
+        ------
+        StoreError
+            The store is read-only, or the id exists and ``overwrite`` is False.
+        ValidationError, SchemaError
+            An invalid subject (:func:`facestats.io.batch.prepare_batch`).
         """
         return self.write_subjects([dataset], overwrite=overwrite, precondition=precondition)[0]
 
     def write_subjects(self, datasets, *, overwrite: bool = False, precondition=None) -> list[str]:
         """Write several subjects and commit them together (all or none); return their ids.
+
+        Variables held as dask arrays (e.g. read with ``on_disk``) are validated, checksummed and
+        written band by band, computed in this thread one task at a time whatever dask scheduler is
+        the default (a distributed client included): one band of a variable is in memory at once,
+        and no task is left running after a failure, when the generation being written is removed.
 
         Parameters
         ----------
@@ -536,15 +614,17 @@ class Store:
             its check and this commit.  An exception it raises aborts the write (nothing is committed,
             the data written are removed) and propagates.  It may read the store, never write to it.
 
-        Variables held as dask arrays (e.g. read with ``on_disk``) are validated, checksummed and
-        written band by band, computed in this thread one task at a time whatever dask scheduler is
-        the default (a distributed client included): one band of a variable is in memory at once,
-        and no task is left running after a failure, when the generation being written is removed.
-
         Returns
         -------
         list of str
             The subject ids, in order.
+
+        Raises
+        ------
+        StoreError
+            The store is read-only, or an id exists and ``overwrite`` is False.
+        ValidationError, SchemaError
+            An invalid subject or an id twice in the batch (:func:`facestats.io.batch.prepare_batch`).
         """
         self._require_writable()
         datasets = list(datasets)
@@ -584,7 +664,20 @@ class Store:
         return [sid for sid, *_ in written]
 
     def delete_subject(self, subject_id) -> None:
-        """Remove a subject (atomic: the index drops it, then its data are deleted)."""
+        """Remove a subject (atomic: the index drops it, then its data are deleted).
+
+        Parameters
+        ----------
+        subject_id : str
+            The subject's id.
+
+        Raises
+        ------
+        ValidationError
+            ``subject_id`` is not a valid subject id.
+        StoreError
+            The store is read-only, or has no such subject.
+        """
         self._require_writable()
         sid = check_subject_id(subject_id)
         gone = []
@@ -734,6 +827,15 @@ class Store:
         :meth:`validate`, deleted only by :meth:`purge_quarantine`), never
         deleted; see :mod:`facestats.io.repair` for the rules.
 
+        Parameters
+        ----------
+        plan : facestats.io.repair.RepairPlan, optional
+            The plan to apply (e.g. one :meth:`plan_repair` showed); default a plan made now.
+        allow_missing : bool
+            Without ``plan``: act even if most subject folders are missing (:meth:`plan_repair`).
+        progress : bool
+            Without ``plan``: show a progress bar while the subjects are checked.
+
         Returns
         -------
         ValidationReport
@@ -755,7 +857,23 @@ class Store:
         return list_quarantine(self.path) if self.kind == "directory" else []
 
     def purge_quarantine(self, names=None) -> list[str]:
-        """Delete the quarantine (all folders, or those named); the folders removed."""
+        """Delete the quarantine (all folders, or those named); the folders removed.
+
+        Parameters
+        ----------
+        names : collection of str, optional
+            Names of the quarantine folders to remove (as :meth:`quarantine` lists them); default all.
+
+        Returns
+        -------
+        list of str
+            The folders removed, relative to the store root.
+
+        Raises
+        ------
+        StoreError
+            The store is read-only (zip stores always are), or a folder cannot be removed.
+        """
         self._require_writable()
         return purge_quarantine(self.path, names)
 

@@ -29,7 +29,23 @@ def light_skin_albedo() -> np.ndarray:
 
 @dataclass
 class DemoReport:
-    """Per-channel subsurface parameters derived from an albedo."""
+    """Per-channel subsurface parameters derived from an albedo.
+
+    Attributes
+    ----------
+    albedo : ndarray, shape (3,)
+        Average albedo α_avg (R, G, B), the total diffuse reflectance the parameters reproduce.
+    sigma_tr : ndarray, shape (3,)
+        σtr in mm⁻¹, recomputed from ``sigma_a`` and ``sigma_s_prime`` (Weyrich eq. 15).
+    eta : float
+        Relative index of refraction.
+    reduced_albedo : ndarray, shape (3,)
+        α' from inverting Weyrich eq. 16 (:func:`facestats.model.dipole.reduced_albedo`).
+    sigma_s_prime, sigma_a : ndarray, shape (3,)
+        Reduced scattering and absorption coefficients in mm⁻¹.
+    total_reflectance : ndarray, shape (3,)
+        Total diffuse reflectance of the dipole with these coefficients (≈ ``albedo``).
+    """
 
     albedo: np.ndarray
     sigma_tr: np.ndarray

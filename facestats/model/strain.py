@@ -348,10 +348,26 @@ class Strain:
 class TexelStrain(Strain):
     """:class:`Strain` rasterised into texels of a map (or a window of it); arrays indexed ``[v, u]``.
 
-    Additional attributes
-    ---------------------
+    The fields of :class:`Strain` hold one entry per texel of the (H, W) window; those from ``texel_um_s`` on
+    are its own.
+
+    Attributes
+    ----------
+    t : ndarray, shape (H, W, 2, 2)
+        Deformation in tangent frames (eq. 10), interpolated from the UV vertices; identity where not valid.
+    m : ndarray, shape (H, W, 2, 2)
+        ``M = Q Rᵀ`` interpolated from the UV vertices; identity where not valid.
+    r_s, r_t : ndarray, shape (H, W)
+        Principal stretch ratios, ``r_s ≥ r_t`` (eq. 12); 1 where not valid.
     axis_s, axis_t : ndarray, shape (H, W, 2)
+        Unit directions of the strain axes (eq. 13).
         Here in texel units (equal to UV directions for square maps).
+    uv_per_um_s, uv_per_um_t : ndarray, shape (H, W)
+        UV length per µm of skin along the axes, as in :class:`Strain`.
+    valid : ndarray of bool, shape (H, W)
+        False for texels no (non-degenerate rest) triangle covers.
+    n_degenerate : int
+        Number of degenerate triangles of the frame.
     texel_um_s, texel_um_t : ndarray, shape (H, W)
         µm of rest skin per texel step along ``axis_s`` / ``axis_t``.
     island : ndarray of int32, shape (H, W)
@@ -480,7 +496,27 @@ class MeshStrain:
         return d
 
     def triangle_t(self, deformed_vertices):
-        """``(T (F, 2, 2), valid (F,), n_degenerate)`` of a deformed frame (eq. 10)."""
+        """``(T (F, 2, 2), valid (F,), n_degenerate)`` of a deformed frame (eq. 10).
+
+        Parameters
+        ----------
+        deformed_vertices : array_like, shape (V, 3)
+            Deformed positions, mm, in the rest mesh's vertex order.
+
+        Returns
+        -------
+        t : ndarray, shape (F, 2, 2)
+            T = M'⁻¹ M per triangle (not reset at invalid triangles).
+        valid : ndarray of bool, shape (F,)
+            False for triangles degenerate (or slivers) at rest or degenerate in the frame.
+        n_degenerate : int
+            Number of triangles not valid.
+
+        Raises
+        ------
+        ValidationError
+            ``deformed_vertices`` not finite, not of shape (V, 3), or of another vertex count than the rest mesh.
+        """
         d = self._deformed(deformed_vertices)
         m2, deg2 = uv_metric(d, self.triangles, self.uv_corners, self.uv_edges)
         m2_inv, _ = inv2x2(m2)
@@ -489,7 +525,23 @@ class MeshStrain:
         return t, valid, int(np.sum(~valid))
 
     def triangles_strain(self, deformed_vertices) -> Strain:
-        """Per-triangle :class:`Strain` of a deformed frame."""
+        """Per-triangle :class:`Strain` of a deformed frame.
+
+        Parameters
+        ----------
+        deformed_vertices : array_like, shape (V, 3)
+            Deformed positions, mm, in the rest mesh's vertex order.
+
+        Returns
+        -------
+        Strain
+            One entry per triangle (F,).
+
+        Raises
+        ------
+        ValidationError
+            ``deformed_vertices`` not finite, not of shape (V, 3), or of another vertex count than the rest mesh.
+        """
         t, valid, n_deg = self.triangle_t(deformed_vertices)
         return _strain(t, self.m, valid, n_deg)
 
@@ -512,7 +564,23 @@ class MeshStrain:
         return self._vertex_m
 
     def vertices_strain(self, deformed_vertices) -> Strain:
-        """Per-UV-vertex :class:`Strain` (T and M averaged over the valid triangles around the UV vertex)."""
+        """Per-UV-vertex :class:`Strain` (T and M averaged over the valid triangles around the UV vertex).
+
+        Parameters
+        ----------
+        deformed_vertices : array_like, shape (V, 3)
+            Deformed positions, mm, in the rest mesh's vertex order.
+
+        Returns
+        -------
+        Strain
+            One entry per UV coordinate (U,); ``valid`` False where no valid triangle touches the UV vertex.
+
+        Raises
+        ------
+        ValidationError
+            ``deformed_vertices`` not finite, not of shape (V, 3), or of another vertex count than the rest mesh.
+        """
         t, valid, n_deg = self.triangle_t(deformed_vertices)
         tv, ok = self._uv_vertex_average(t, valid)
         return _strain(tv, self.vertex_m, ok, n_deg)
@@ -521,7 +589,19 @@ class MeshStrain:
         """Triangle covering each texel of a window, (h, w) int32, -1 where none (cached per map and window).
 
         Where UV triangles overlap the last one wins; :meth:`texels_strain` refuses a mesh whose UVs overlap
-        (:meth:`check_uv_overlap`).
+        (:meth:`check_uv_overlap`).  Rest triangles that are degenerate or slivers cover no texel.
+
+        Parameters
+        ----------
+        map_shape : tuple of int
+            ``(height, width)`` of the whole map in texels (not checked here, unlike :meth:`texels_strain`).
+        window : tuple of int
+            ``(row0, col0, height, width)`` of the texels to rasterise (not checked).
+
+        Returns
+        -------
+        ndarray of int32, shape (height, width) of the window
+            Triangle index per texel, -1 where none.
         """
         key = (tuple(map_shape), tuple(window))
         if key not in self._rasters:

@@ -274,7 +274,28 @@ def _fates(batch, retries, began) -> list:
 
 @dataclass
 class BuildReport:
-    """What a build did; ``failed`` maps the subjects that failed every attempt to their last error."""
+    """What a build did (:func:`build_store`).
+
+    Attributes
+    ----------
+    store : str
+        The store directory.
+    written : list of str
+        Subjects this build wrote, sorted.
+    skipped : list of str
+        Subjects asked for that the store already held (not rebuilt).
+    sigma_tr_avg : ndarray, shape (3,)
+        σtrAvg (mm⁻¹, R, G, B) every fit used: the cheek and forehead mean of the population's sensor fits.
+    seconds : float
+        Wall-clock time of the build.
+    workers : int
+        Local worker processes, or the cluster's workers.
+    failed : dict of str to str
+        Maps the subjects that failed every attempt to their last error.
+    sigma_tr_subjects : int
+        How many subjects ``sigma_tr_avg`` averages: the drawn population's subjects under normal conditions,
+        whichever of them this build wrote (every fit uses the same value, so partial builds agree).
+    """
 
     store: str
     written: list
@@ -283,8 +304,6 @@ class BuildReport:
     seconds: float
     workers: int
     failed: dict = field(default_factory=dict)
-    #: How many subjects ``sigma_tr_avg`` averages: the drawn population's subjects under normal conditions,
-    #: whichever of them this build wrote (every fit uses the same value, so partial builds agree).
     sigma_tr_subjects: int = 0
 
     def to_text(self) -> str:

@@ -307,7 +307,14 @@ def store_directory(path, name="store") -> str:
 
 class Outcome:
     """A finished task's result or exception, held by the client: its future is released on the cluster, so a
-    worker lost later does not make the scheduler compute it again."""
+    worker lost later does not make the scheduler compute it again.
+
+    Parameters
+    ----------
+    future : distributed.Future
+        A finished future: its ``status`` is kept and its result (or the exception it raises: a task lost with
+        its worker, ``KilledWorker``, or cancelled) taken now, then it is released.
+    """
 
     def __init__(self, future):
         self.status = future.status
@@ -318,7 +325,18 @@ class Outcome:
         future.release()
 
     def result(self, timeout=None):
-        """The task's result; its exception raised again if it was lost (``timeout``, as a future's, is moot)."""
+        """The task's result; its exception raised again if it was lost (``timeout``, as a future's, is moot).
+
+        Parameters
+        ----------
+        timeout : float, optional
+            Ignored: the result is already held (accepted so that an outcome stands in for a future).
+
+        Returns
+        -------
+        object
+            What the task returned.
+        """
         if self._error is not None:
             raise self._error
         return self._value

@@ -82,7 +82,13 @@ def _now() -> str:
 
 
 class BuildJournal:
-    """The per-subject records of builds into the directory store at ``store_path`` (module docstring)."""
+    """The per-subject records of builds into the directory store at ``store_path`` (module docstring).
+
+    Parameters
+    ----------
+    store_path : str or os.PathLike
+        The directory store; the journal is its folder :data:`JOURNAL_DIR` (created at the first write).
+    """
 
     def __init__(self, store_path):
         self.root = Path(store_path) / JOURNAL_DIR
@@ -105,7 +111,18 @@ class BuildJournal:
             raise
 
     def read(self, sid: str) -> dict | None:
-        """The record of ``sid``, or None (also for a file that is not a record: damaged, or not JSON)."""
+        """The record of ``sid``, or None (also for a file that is not a record: damaged, or not JSON).
+
+        Parameters
+        ----------
+        sid : str
+            The subject id (one that is not a valid id gives None too).
+
+        Returns
+        -------
+        dict or None
+            The record (module docstring), whose ``state`` is ``"running"`` or ``"failed"``.
+        """
         try:
             rec = json.loads(read_regular_file(self._path(sid), follow_links=False))
         except (OSError, ValueError, RecursionError):  # missing, not a regular file (a FIFO, a link), not JSON
@@ -113,7 +130,23 @@ class BuildJournal:
         return rec if isinstance(rec, dict) and rec.get("state") in ("running", "failed") else None
 
     def written_at(self, sid: str) -> float | None:
-        """When the record of ``sid`` was last written (the file's modification time, s since the epoch), or None."""
+        """When the record of ``sid`` was last written (the file's modification time, s since the epoch), or None.
+
+        Parameters
+        ----------
+        sid : str
+            The subject id.
+
+        Returns
+        -------
+        float or None
+            None if there is no record.
+
+        Raises
+        ------
+        ValidationError
+            ``sid`` is not a valid subject id.
+        """
         try:
             return self._path(sid).stat().st_mtime
         except FileNotFoundError:
@@ -134,7 +167,20 @@ class BuildJournal:
         return out
 
     def start(self, sid: str, attempt: int) -> None:
-        """``sid`` is being worked on (attempt ``attempt``, from 1)."""
+        """``sid`` is being worked on (attempt ``attempt``, from 1).
+
+        Parameters
+        ----------
+        sid : str
+            The subject id.
+        attempt : int
+            The attempt's number, from 1; later attempts keep the first one's ``started`` time and the last error.
+
+        Raises
+        ------
+        ValidationError
+            ``sid`` is not a valid subject id.
+        """
         prev = self.read(sid) or {}
         self._write(
             sid,
@@ -151,14 +197,44 @@ class BuildJournal:
         )
 
     def fail(self, sid: str, attempt: int, exc: BaseException) -> None:
-        """Attempt ``attempt`` of ``sid`` raised ``exc``."""
+        """Attempt ``attempt`` of ``sid`` raised ``exc``.
+
+        Parameters
+        ----------
+        sid : str
+            The subject id.
+        attempt : int
+            The attempt's number, from 1.
+        exc : BaseException
+            What it raised; the record's ``error`` is the last entry of :func:`traceback.format_exception_only`
+            (type and message), whitespace collapsed to one line.
+
+        Raises
+        ------
+        ValidationError
+            ``sid`` is not a valid subject id.
+        """
         rec = self.read(sid) or {"subject_id": sid, "host": socket.gethostname(), "pid": os.getpid()}
         last = " ".join(traceback.format_exception_only(type(exc), exc)[-1].split())  # one line for --status
         rec.update(state="failed", attempts=int(attempt), updated=_now(), error=last)
         self._write(sid, rec)
 
     def begin(self, subjects) -> None:
-        """A build asked for ``subjects`` (ids) starts: its plan is recorded (module docstring)."""
+        """A build asked for ``subjects`` (ids) starts: its plan is recorded (module docstring).
+
+        Plans of builds that stopped before their end and whose subjects are all among ``subjects`` are removed
+        (this build resumes them).
+
+        Parameters
+        ----------
+        subjects : iterable of str
+            The subject ids the build asks for.
+
+        Raises
+        ------
+        ValidationError
+            An id that is not a valid subject id.
+        """
         record = {"subjects": [check_subject_id(s) for s in subjects], "host": socket.gethostname(),
                   "pid": os.getpid(), "started": _now()}  # fmt: skip
         for path in self._plan_files():  # builds killed before whose subjects this one asks for: it resumes them
@@ -181,6 +257,16 @@ class BuildJournal:
 
         An interruption (:class:`KeyboardInterrupt`: SIGINT, SIGTERM) keeps it: the build stopped before its
         end, and ``--status`` says what it did not start. An error ends the build and leaves no plan.
+
+        Parameters
+        ----------
+        subjects : iterable of str
+            The subject ids the build asks for.
+
+        Yields
+        ------
+        BuildJournal
+            This journal.
         """
         self.begin(subjects)
         try:
@@ -216,7 +302,18 @@ class BuildJournal:
         return rec if isinstance(rec, dict) and isinstance(rec.get("subjects"), list) else None
 
     def finish(self, sid: str) -> None:
-        """``sid`` is committed to the store: its record goes."""
+        """``sid`` is committed to the store: its record goes.
+
+        Parameters
+        ----------
+        sid : str
+            The subject id (no record: nothing happens).
+
+        Raises
+        ------
+        ValidationError
+            ``sid`` is not a valid subject id.
+        """
         self._path(sid).unlink(missing_ok=True)
 
     def prune(self) -> None:
@@ -313,7 +410,29 @@ def run_journalled(journal, sid, fn, retries):
 
 @dataclass
 class BuildStatus:
-    """What :func:`build_status` finds: subjects done (in the store), running, interrupted, failed."""
+    """What :func:`build_status` finds: subjects done (in the store), running, interrupted, failed.
+
+    Attributes
+    ----------
+    store : str
+        The store directory.
+    done : list of str
+        Built subjects in the store, sorted.
+    running : list of str
+        Subjects whose ``running`` record's process is alive (or cannot be told to be gone), sorted.
+    interrupted : list of str
+        Subjects whose ``running`` record's process is gone on this host, sorted.
+    failed : dict of str to str
+        The subjects whose record is ``failed``, with its last error.
+    records : dict of str to dict
+        The journal's records of subjects not in the store, by id.
+    others : list of str
+        Subjects of the store that no build wrote: edits (source ``facestats.edit``) and imported sample subjects.
+    plans : list of dict
+        The plans of builds that have not returned (module docstring), oldest first.
+    not_started : list of str
+        Subjects of those plans neither stored nor in the journal: not started yet (or lost with a killed build).
+    """
 
     store: str
     done: list
@@ -321,11 +440,8 @@ class BuildStatus:
     interrupted: list = field(default_factory=list)
     failed: dict = field(default_factory=dict)
     records: dict = field(default_factory=dict)
-    #: Subjects of the store that no build wrote: edits (source ``facestats.edit``) and imported sample subjects.
     others: list = field(default_factory=list)
-    #: The plans of builds that have not returned (module docstring), oldest first.
     plans: list = field(default_factory=list)
-    #: Subjects of those plans neither stored nor in the journal: not started yet (or lost with a killed build).
     not_started: list = field(default_factory=list)
 
     @property

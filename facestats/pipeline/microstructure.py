@@ -83,7 +83,25 @@ STRETCH_STATS = ("r_s_p1", "r_s_p50", "r_s_p99", "r_t_p1", "r_t_p50", "r_t_p99",
 
 @dataclass
 class SequenceReport:
-    """What :func:`render_sequence` did."""
+    """What :func:`render_sequence` did.
+
+    Attributes
+    ----------
+    path : str
+        The Zarr group written (``out``).
+    n_frames : int
+        Frames of the sequence.
+    rendered : list of int
+        Indices of the frames rendered by this call.
+    skipped : list of int
+        Indices of the frames the group already held (a continued render).
+    seconds : float
+        Wall-clock time of the frame loop.
+    map_shape : tuple of int
+        ``(height, width)`` of the whole UV map, texels.
+    window : tuple of int
+        ``(row0, col0, height, width)``: the part of the map rendered, texels.
+    """
 
     path: str
     n_frames: int

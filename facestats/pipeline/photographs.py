@@ -43,7 +43,25 @@ __all__ = ["ingest_subject", "IngestReport", "default_work_path", "find_region_i
 
 @dataclass
 class IngestReport:
-    """What :func:`ingest_subject` did."""
+    """What :func:`ingest_subject` did.
+
+    Attributes
+    ----------
+    subject_id : str
+        The subject's id in the store.
+    store : str
+        The store directory.
+    capture : str
+        The capture's path (the work path; empty when skipped).
+    n_lumitexels : int
+        Lumitexels of the capture.
+    samples_used : int
+        Samples the fit used (the provenance's ``counts``).
+    motion_flags : list of dict
+        Frames flagged for head motion (``camera``, ``led``, ``score``; the capture's provenance).
+    skipped : bool
+        The store already held the subject: nothing was done.
+    """
 
     subject_id: str
     store: str

@@ -36,6 +36,15 @@ class TaskProgress:
     """A bar advanced by Dask's local scheduler as tasks finish.
 
     Use as a context manager around ``dask.compute`` of ``total`` subject tasks.
+
+    Parameters
+    ----------
+    total : int
+        Tasks expected: the bar's total (one step per task that finishes).
+    enabled : bool
+        Whether the caller asks for a bar (:func:`facestats.core.progress.progress_bar`; default True).
+    desc : str
+        The bar's label (default ``"build"``).
     """
 
     def __init__(self, total, enabled=True, desc="build"):

@@ -39,7 +39,27 @@ __all__ = ["RenderedScene", "render_scene", "table3", "format_table3", "noise_st
 
 @dataclass
 class RenderedScene:
-    """A scene rendered with known (σ's, σa): patches, irradiance c (m,), exitance l (m,), visible rows."""
+    """A scene rendered with known (σ's, σa) (:func:`render_scene`).
+
+    Attributes
+    ----------
+    patches : facestats.acquire.patches.Patches
+        The scene's m patches.
+    irradiance : ndarray, shape (m,)
+        c (Suzuki eq. 16) per patch, in the rendered channel.
+    exitance : ndarray, shape (m,)
+        l per patch, in the unit of c: the point kernel (eq. 17) or the quantised model W r (eq. 34).
+    visible : ndarray of bool, shape (m,)
+        The patches the camera sees: the rows the studies fit.
+    sigma_s_prime, sigma_a : float
+        The true σ's and σa, mm⁻¹.
+    eta : float
+        The scene's relative index of refraction.
+    kernel : {"point", "quantised"}
+        The kernel the exitance was rendered with.
+    self_term : {"point", "footprint", "surface"}
+        How a patch's own light was taken (:func:`render_scene`); the studies' W takes it the same way.
+    """
 
     patches: object
     irradiance: np.ndarray
@@ -186,7 +206,21 @@ def format_table3(rows, truth=(SUZUKI_TABLE1["sigma_s_prime"], SUZUKI_TABLE1["si
 
 @dataclass
 class NoiseStudy:
-    """Estimates over noise seeds: arrays (seeds,) of σ's, σa, their intervals (seeds, 2) and coverage."""
+    """Estimates over noise seeds: arrays (seeds,) of σ's, σa, their intervals (seeds, 2) and coverage.
+
+    Attributes
+    ----------
+    sigma_s_prime, sigma_a : ndarray, shape (seeds,)
+        The estimates, mm⁻¹.
+    sigma_s_prime_interval, sigma_a_interval : ndarray, shape (seeds, 2)
+        Their intervals (low, high), mm⁻¹.
+    widths : ndarray, shape (seeds,)
+        The quantisation width used, mm (the same for every seed).
+    truth : tuple of float
+        The true (σ's, σa), mm⁻¹.
+    noise : float
+        Relative standard deviation of the radiance noise.
+    """
 
     sigma_s_prime: np.ndarray
     sigma_a: np.ndarray

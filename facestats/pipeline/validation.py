@@ -55,7 +55,23 @@ __all__ = ["Render", "render_led", "render_probe", "camera_rmse", "default_captu
 
 @dataclass
 class Render:
-    """A validation render: images (H, W, 3) in the capture's radiance units, NaN where nothing projects."""
+    """A validation render: images (H, W, 3) in the capture's radiance units, NaN where nothing projects.
+
+    Attributes
+    ----------
+    rendered : ndarray, shape (H, W, 3)
+        The fitted model's image.
+    reference : ndarray, shape (H, W, 3), or None
+        The capture's radiance (:func:`render_led`); None under a probe (:func:`render_probe`).
+    camera : int
+        The dome camera.
+    light : str
+        ``"LED k"`` or ``"probe"``.
+    rmse : float or None
+        Root mean square of rendered − captured radiance over the samples valid in both; None under a probe.
+    relative_rmse : float or None
+        ``rmse`` over the root mean square of the captured radiance; None under a probe.
+    """
 
     rendered: np.ndarray
     reference: np.ndarray | None
@@ -206,6 +222,15 @@ class FaceView:
     seen by ``dome`` (default :func:`facestats.acquire.dome.default_dome`, the simulator's); they hold no
     samples (``irradiance`` and ``radiance`` have no light or camera), so only a render without a reference can
     use them.  Made by :func:`face_view`.
+
+    Parameters
+    ----------
+    geometry : facestats.acquire.geometry.FaceGeometry
+        The face: its lumitexels' positions, normals, UVs, areas and regions, and its ``name``.
+    subject_id : str
+        The subject's id, kept with the geometry's name in :attr:`attrs`.
+    dome : facestats.acquire.dome.Dome, optional
+        The dome the lumitexels are seen by (default :func:`facestats.acquire.dome.default_dome`).
     """
 
     def __init__(self, geometry, subject_id: str, dome=None):
@@ -216,7 +241,25 @@ class FaceView:
         self._lumitexels = None
 
     def array(self, name, sl=slice(None)) -> np.ndarray:
-        """``position`` (N, 3) float32, as :meth:`facestats.acquire.capture.Capture.array` (the only array)."""
+        """``position`` (N, 3) float32, as :meth:`facestats.acquire.capture.Capture.array` (the only array).
+
+        Parameters
+        ----------
+        name : str
+            ``"position"``.
+        sl : slice
+            The lumitexels to read (default all).
+
+        Returns
+        -------
+        ndarray of float32, shape (N, 3)
+            Positions, mm.
+
+        Raises
+        ------
+        ValidationError
+            ``name`` is not ``"position"``.
+        """
         if name != "position":
             raise ValidationError(f"a face view holds the lumitexel positions only, not {name!r}")
         return self._position[sl]

@@ -274,7 +274,18 @@ class ViewSurface:
     size: int
 
     def subset(self, keep):
-        """The pixels selected by a boolean mask or index."""
+        """The pixels selected by a boolean mask or index.
+
+        Parameters
+        ----------
+        keep : ndarray of bool, shape (N,), or index array
+            The pixels to keep, along the first axis of every per-pixel array.
+
+        Returns
+        -------
+        ViewSurface
+            Of the same camera ``size``.
+        """
         return ViewSurface(
             self.pixel[keep], self.position[keep], self.view[keep], self.uv[keep], self.vertices[keep],
             self.bary[keep], self.size,

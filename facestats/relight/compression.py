@@ -864,7 +864,23 @@ class CompressedField:
 
     def truncate(self, ratio: float) -> "CompressedField":
         """The same field with the greedy prefix of its components that meets ``ratio`` (residuals only grow; a
-        ratio at or below :attr:`ratio` keeps them all)."""
+        ratio at or below :attr:`ratio` keeps them all).
+
+        Parameters
+        ----------
+        ratio : float
+            Dense face values over stored values to meet (> 0, finite; as :attr:`ratio`).
+
+        Returns
+        -------
+        CompressedField
+            A new field sharing the kept blocks' supports and rows; ``residual`` grows by the dropped coefficients.
+
+        Raises
+        ------
+        ValidationError
+            ``ratio`` is not a positive finite number, or leaves no room for the first component of the greedy order.
+        """
         r = _ratio(ratio)
         budget = _budget(self.n_lights, self.pixels.size, r, len(self.regions) * self.parts)
         cost = {key: int(b.support.sum()) + b.rows.size for key, b in self.blocks.items()}
@@ -906,14 +922,37 @@ class CompressedField:
 
         Per block: proj = B (W/√δA)_r per channel (one product per region over its blocks' stacked bases); each
         stored row q of pixel p then gives t_c = C · proj_c for the three channels c and adds A_p[c, q] t_c to
-        channel c.  ``lighting`` is L·δA per light (as :func:`facestats.relight.relighting.relight`); or pass a
-        ``probe`` (with ``layout``, ``rotate``) to resample.  ``backend`` (:data:`facestats.core.compiled.BACKENDS`):
-        ``"numba"`` computes the projections and the rows' products in compiled passes over the stored values on
-        all cores (:mod:`facestats.relight.compression_numba`; its cost does not grow with the number of blocks),
-        ``"numpy"`` one BLAS product per region and one small GEMM per block (a Python loop over the blocks); they
-        agree to float32 rounding.  For a :attr:`nonnegative` field, values below 0 (the truncated bases'
+        channel c.  For a :attr:`nonnegative` field, values below 0 (the truncated bases'
         ringing under lighting much narrower than their components) are returned as 0: its radiance is not
         negative; a field of differences keeps them.
+
+        Parameters
+        ----------
+        lighting : array_like, optional
+            L·δA per light (as :func:`facestats.relight.relighting.relight`), ≥ 0: shape (light dims..., 3) or
+            (L, 3), or one grey value per light.  Exactly one of ``lighting`` and ``probe``.
+        probe : array_like, shape (H, W, 3), optional
+            A light probe to resample to the field's lights (:func:`facestats.relight.lighting.resample_probe`).
+        layout : {"latlong", "angular"}
+            The probe's layout.
+        rotate : float
+            Rotate the probe's environment about +y first (radians); with a probe only.
+        backend : {"auto", "numba", "numpy"}
+            :data:`facestats.core.compiled.BACKENDS`: ``"numba"`` computes the projections and the rows' products
+            in compiled passes over the stored values on all cores (:mod:`facestats.relight.compression_numba`;
+            its cost does not grow with the number of blocks), ``"numpy"`` one BLAS product per region and one
+            small GEMM per block (a Python loop over the blocks); they agree to float32 rounding.
+
+        Returns
+        -------
+        ndarray of float32, shape (H, W, 3)
+            0 at the pixels not stored.
+
+        Raises
+        ------
+        ValidationError
+            Both or neither of ``lighting`` and ``probe``, ``rotate`` with ``lighting``, lighting of another
+            shape or negative, or a relit value that is not finite.
         """
         if (lighting is None) == (probe is None):
             raise ValidationError("pass exactly one of lighting (L·δA per light) and probe")
@@ -948,7 +987,17 @@ class CompressedField:
 
     def error_bound(self, lighting) -> np.ndarray:
         """Per-pixel bound on |relight(compressed) − relight(dense)| over the stored pixels (0 elsewhere):
-        Σ_q |A_cq| ρ_q ‖W_c/√δA‖, (H, W, 3) (Cauchy-Schwarz and the triangle inequality)."""
+        Σ_q |A_cq| ρ_q ‖W_c/√δA‖, (H, W, 3) (Cauchy-Schwarz and the triangle inequality).
+
+        Parameters
+        ----------
+        lighting : array_like
+            L·δA per light, ≥ 0, as :meth:`relight` takes it.
+
+        Returns
+        -------
+        ndarray of float32, shape (H, W, 3)
+        """
         w = self._weights(lighting)
         norm = np.sqrt(((w / self.sqrt_solid_angle[:, None]) ** 2).sum(0))
         out = np.zeros((self.image_shape[0] * self.image_shape[1], 3), np.float32)

@@ -458,7 +458,21 @@ class FieldStore:
         self._nl = len(ldims)
 
     def write(self, ys: slice, xs: slice, block):
-        """Store the values of all lights on the image tile ``[ys, xs]`` (block: light dims + (ty, tx, 3))."""
+        """Store the values of all lights on the image tile ``[ys, xs]`` (block: light dims + (ty, tx, 3)).
+
+        Parameters
+        ----------
+        ys, xs : slice
+            The tile's rows and columns in the image.
+        block : array_like, shape light dims + (ty, tx, 3)
+            Reflectance of every light on the tile (light dims may also be given flat, (L, ty, tx, 3)); stored in
+            the store's dtype.
+
+        Raises
+        ------
+        ValidationError
+            A value that is not finite, or overflows the dtype (float16).
+        """
         name = f"field block [y {ys.start}:{ys.stop}, x {xs.start}:{xs.stop}]"
         b = check_finite(as_float(block, name, self._dtype), name)  # as_float: float16 overflow is an error
         b = b.reshape(tuple(self._array.shape[: self._nl]) + b.shape[-3:])

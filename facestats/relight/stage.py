@@ -143,6 +143,28 @@ class SubjectShading:
         A pixel is on the face when at least half of its bilinear weight falls
         on face texels (region > 0); its parameters are the bilinear mean over
         the face texels only.
+
+        Parameters
+        ----------
+        subject : xarray.Dataset
+            A fitted map subject (``region``, ``normal``, ``albedo``, ``albedo_avg``, ``sigma_s_prime``, ``sigma_a``
+            and the specular model's two maps).
+        surface : ViewSurface
+            The pixels of the view and their UVs and view directions (:func:`view_surface`).
+        specular : {"torrance_sparrow", "blinn_phong"}
+            Which fitted specular model (``ts_rho_s``, ``ts_m`` or ``bp_rho_s``, ``bp_exponent``) to sample.
+        eta : float
+            Relative index of refraction of the Fresnel terms (default skin's).
+
+        Returns
+        -------
+        shading : SubjectShading
+        on_face : ndarray of bool, shape (N,)
+
+        Raises
+        ------
+        ValidationError
+            An unknown ``specular``, or a subject missing a variable it needs.
         """
         # local import: keeps facestats.io (21 modules) out of this module's import
         from facestats.io.schema import modulation
@@ -177,9 +199,33 @@ class SubjectShading:
                         specular="torrance_sparrow", eta=ETA_SKIN):  # fmt: skip
         """Shading from per-pixel skin-model parameters (normals need not be unit: they are normalised).
 
-        ``modulation`` is M (N, 3), ``transport`` a local-mode
-        :class:`~facestats.model.skin.SubsurfaceTransport` whose total reflectance
-        R_tot enters the diffuse colour; pixels with a zero normal take the view direction.
+        Pixels with a zero normal take the view direction.
+
+        Parameters
+        ----------
+        normal : array_like, shape (N, 3)
+            Diffuse normals.
+        view : array_like, shape (N, 3)
+            Unit vectors towards the camera.
+        modulation : array_like, shape (N, 3)
+            M per channel.
+        rho_s, roughness : array_like, shape (N,)
+            Specular parameters of ``specular`` (Beckmann m, at least 1e-3, or the Blinn-Phong exponent).
+        transport : facestats.model.skin.SubsurfaceTransport
+            A local-mode transport whose total reflectance R_tot enters the diffuse colour.
+        specular : {"torrance_sparrow", "blinn_phong"}
+            The specular model.
+        eta : float
+            Relative index of refraction of the Fresnel terms.
+
+        Returns
+        -------
+        SubjectShading
+
+        Raises
+        ------
+        ValidationError
+            An unknown ``specular``.
         """
         check_choice(specular, "specular", SPECULAR_MODELS)
         view = np.asarray(view, np.float64)
@@ -195,7 +241,17 @@ class SubjectShading:
         return cls(normal, colour, np.asarray(rho_s, np.float64), rough, cos_o, specular, float(eta))
 
     def subset(self, keep):
-        """The pixels selected by a mask or index."""
+        """The pixels selected by a mask or index.
+
+        Parameters
+        ----------
+        keep : ndarray of bool, shape (N,), or index array
+            The pixels to keep.
+
+        Returns
+        -------
+        SubjectShading
+        """
         return SubjectShading(
             self.normal[keep], self.colour[keep], self.rho_s[keep], self.roughness[keep], self.cos_o[keep],
             self.specular, self.eta,

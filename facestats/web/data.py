@@ -58,6 +58,13 @@ class RegionSamples:
     each subject: about 10 s for the 155 subjects of the default store), read
     through a store handle of its own so that requests never wait for it; the
     page asks again until :attr:`ready`.
+
+    Parameters
+    ----------
+    store : facestats.io.store.Store
+        The app's store; the background reader opens its own handle on the same path (or the default store).
+    start : bool
+        Start reading the samples now when the index lacks the moments (default True); False leaves them unread.
     """
 
     def __init__(self, store, start=True):
@@ -94,7 +101,18 @@ class RegionSamples:
         return self.from_index or self.frame is not None or self.error is not None
 
     def wait(self, timeout=None) -> bool:
-        """Wait (up to ``timeout`` s) for the samples being read in the background; return whether they are ready."""
+        """Wait (up to ``timeout`` s) for the samples being read in the background; return whether they are ready.
+
+        Parameters
+        ----------
+        timeout : float, optional
+            Seconds to wait at most; None waits until the reading ends.
+
+        Returns
+        -------
+        bool
+            :attr:`ready`: the PCA comes from the index, or the samples were read, or reading them failed.
+        """
         if not self.from_index and self._thread.is_alive():
             self._thread.join(timeout)
         return self.ready

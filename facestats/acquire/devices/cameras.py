@@ -52,11 +52,27 @@ _DECIMAL = re.compile(r"-?[0-9]{1,18}")
 class Trigger:
     """A device's report of one trigger: the frame id and the state the cameras exposed under.
 
-    Dome triggers use ``led`` (−1: none lit), ``exposure`` (index of the
-    calibration's exposure times), ``brightness`` and ``colour`` (0-255) and
-    ``lines`` (bit c set: camera c's trigger line pulsed; −1: every line); sensor
-    triggers use ``exposure`` (index in the bracket), ``lamp``, ``shutter`` and
-    ``site`` (index of :data:`facestats.core.conventions.SITES`).
+    Dome triggers use ``led``, ``exposure``, ``brightness``, ``colour`` and ``lines``; sensor triggers use
+    ``exposure``, ``lamp``, ``shutter`` and ``site``.
+
+    Attributes
+    ----------
+    frame : int
+        The frame id the host sent with ``tr``.
+    led : int
+        Dome: the LED lit (−1: none lit).
+    exposure : int
+        Dome: index of the calibration's exposure times; sensor: index in the bracket.
+    brightness : int
+        Dome: LED brightness, 0-255.
+    colour : tuple of int
+        Dome: LED colour (R, G, B), each 0-255.
+    lamp, shutter : int
+        Sensor: source lamp on (1) or off (0), shutter open (1) or closed (0).
+    site : int
+        Sensor: index of :data:`facestats.core.conventions.SITES`.
+    lines : int
+        Dome: bit c set: camera c's trigger line pulsed; −1: every line.
     """
 
     frame: int
@@ -70,7 +86,18 @@ class Trigger:
     lines: int = -1
 
     def fires(self, camera: int) -> bool:
-        """True if ``camera``'s trigger line was pulsed."""
+        """True if ``camera``'s trigger line was pulsed.
+
+        Parameters
+        ----------
+        camera : int
+            0-based camera index (bit of ``lines``).
+
+        Returns
+        -------
+        bool
+            True also when ``lines`` is negative (every line pulsed).
+        """
         return self.lines < 0 or bool(self.lines >> int(camera) & 1)
 
     @classmethod
@@ -122,7 +149,20 @@ class Trigger:
 class Frame:
     """One camera's picture of a trigger: file bytes, their SHA-256, the exposure time (s), the file's extension.
 
-    ``path`` is the file the bytes were read from (a hot folder's), if any.
+    Attributes
+    ----------
+    camera : int
+        0-based camera index.
+    data : bytes
+        The encoded file's bytes.
+    sha256 : str
+        Hex SHA-256 of ``data``.
+    exposure_s : float
+        Exposure time, s (NaN for a hot folder's frame: the backend does not know it).
+    extension : str
+        The file's extension with its dot.
+    path : pathlib.Path or None
+        The file the bytes were read from (a hot folder's), if any.
     """
 
     camera: int
@@ -143,10 +183,29 @@ class CameraBackend(ABC):
 
     @abstractmethod
     def collect(self, trigger: Trigger, timeout: float) -> list:
-        """The :class:`Frame` of every camera for ``trigger``, waiting at most ``timeout`` s per frame."""
+        """The :class:`Frame` of every camera for ``trigger``, waiting at most ``timeout`` s per frame.
+
+        Parameters
+        ----------
+        trigger : Trigger
+            The device's report of the trigger; only the cameras it fires (:meth:`Trigger.fires`) deliver.
+        timeout : float
+            Seconds to wait for each frame.
+
+        Returns
+        -------
+        list of Frame
+            One per camera of :attr:`cameras` that ``trigger`` fires, in the order of :attr:`cameras`.
+        """
 
     def release(self, trigger: Trigger):
-        """Forget the frames of ``trigger`` (stored, or taken under a wrong state)."""
+        """Forget the frames of ``trigger`` (stored, or taken under a wrong state).
+
+        Parameters
+        ----------
+        trigger : Trigger
+            The trigger whose frames to forget (a no-op here; a hot folder removes its files).
+        """
 
     def close(self):
         """Release the backend's resources."""
@@ -155,8 +214,17 @@ class CameraBackend(ABC):
 class EmulatedCameras(CameraBackend):
     """Frames rendered from a scene (``scene.render(camera, trigger) -> (codes, exposure_s)``, ``scene.cameras``).
 
-    ``workers`` threads encode the cameras' frames of a trigger in parallel
-    (noise generation and PNG encoding release the GIL).
+    Parameters
+    ----------
+    scene : DomeScene or SensorScene
+        What the cameras see (:mod:`facestats.acquire.devices.scene`); its ``cameras`` are the cameras.
+    extension : str
+        File type of the encoded frames (:func:`~facestats.acquire.synthetic.photographs.encode_frame`).
+    workers : int
+        Threads that encode the cameras' frames of a trigger in parallel (noise generation and PNG encoding
+        release the GIL); at least 1.
+    model : str
+        EXIF ``Model`` of the frames.
     """
 
     def __init__(self, scene, *, extension: str = ".png", workers: int = 2, model: str = "emulated camera"):
@@ -166,7 +234,20 @@ class EmulatedCameras(CameraBackend):
         self._pool = ThreadPoolExecutor(self.workers)
 
     def frame(self, camera: int, trigger: Trigger) -> Frame:
-        """The encoded frame ``camera`` takes for ``trigger``, rendered from the emulated scene."""
+        """The encoded frame ``camera`` takes for ``trigger``, rendered from the emulated scene.
+
+        Parameters
+        ----------
+        camera : int
+            0-based camera index.
+        trigger : Trigger
+            The state the frame is taken under.
+
+        Returns
+        -------
+        Frame
+            The encoded bytes, their SHA-256 and the exposure time the scene reports (no ``path``).
+        """
         # local import: keeps numpy out of this module's import
         from facestats.acquire.synthetic.photographs import encode_frame
 
@@ -175,6 +256,20 @@ class EmulatedCameras(CameraBackend):
         return Frame(camera, data, hashlib.sha256(data).hexdigest(), t, self.extension)
 
     def collect(self, trigger: Trigger, timeout: float = 0.0) -> list:
+        """The rendered :class:`Frame` of every camera ``trigger`` fires, encoded on the thread pool.
+
+        Parameters
+        ----------
+        trigger : Trigger
+            The state the frames are taken under.
+        timeout : float
+            Unused: rendered frames do not wait.
+
+        Returns
+        -------
+        list of Frame
+            In the order of :attr:`cameras`.
+        """
         return list(self._pool.map(lambda c: self.frame(c, trigger), [c for c in self.cameras if trigger.fires(c)]))
 
     def close(self):
@@ -279,7 +374,20 @@ class HotFolderCameras(CameraBackend):
             )
 
     def path(self, camera: int, frame: int) -> pathlib.Path:
-        """The file the camera writes for ``frame``, by the folder's name pattern."""
+        """The file the camera writes for ``frame``, by the folder's name pattern.
+
+        Parameters
+        ----------
+        camera : int
+            0-based camera index.
+        frame : int
+            The trigger's frame id.
+
+        Returns
+        -------
+        pathlib.Path
+            ``folder`` joined with ``pattern`` formatted with ``camera``, ``frame`` and the extension.
+        """
         return self.folder / self.pattern.format(camera=camera, frame=frame, ext=self.extension)
 
     def stray_frames(self) -> list:
@@ -309,6 +417,28 @@ class HotFolderCameras(CameraBackend):
             )
 
     def collect(self, trigger: Trigger, timeout: float) -> list:
+        """Wait for and read the frame file of every camera ``trigger`` fires (module docstring).
+
+        Parameters
+        ----------
+        trigger : Trigger
+            The trigger whose frames (by its frame id) to collect.
+        timeout : float
+            Seconds to wait for each camera's file.
+
+        Returns
+        -------
+        list of Frame
+            In the order of :attr:`cameras`; each with its ``path`` and ``exposure_s`` NaN.
+
+        Raises
+        ------
+        DeviceTimeout
+            A file did not arrive within ``timeout``.
+        DeviceError
+            A file that is not a regular file, cannot be read, disagrees with its sidecar, or (PNG) has another
+            size than the calibration's.
+        """
         return [self._wait(c, trigger.frame, timeout) for c in self.cameras if trigger.fires(c)]
 
     def _wait(self, camera, frame, timeout):
@@ -363,6 +493,13 @@ class HotFolderCameras(CameraBackend):
         return Frame(camera, data, digest, float("nan"), p.suffix, p)
 
     def release(self, trigger: Trigger):
+        """Remove the frame files of ``trigger`` and their sidecars from the hot folder (those still there).
+
+        Parameters
+        ----------
+        trigger : Trigger
+            The trigger whose files (by its frame id, every camera) to remove.
+        """
         for c in self.cameras:
             p = self.path(c, trigger.frame)
             for q in (p.with_name(p.name + ".sha256"), p):
@@ -379,6 +516,19 @@ class HotFolderWriter:
     task on a pool of ``workers`` threads (frames of consecutive triggers overlap).
     At most ``depth`` triggers are in progress; beyond that ``submit`` waits, as a
     camera that is not ready yet.
+
+    Parameters
+    ----------
+    cameras : EmulatedCameras
+        Renders the frames; its ``workers`` size the writing pool.
+    folder : path-like
+        The hot folder (created).
+    pattern : str
+        File name of a frame relative to ``folder``, with ``{camera}``, ``{frame}`` and ``{ext}``.
+    depth : int
+        Triggers in progress at most (at least 1).
+    log : callable, optional
+        Receives one line per frame that failed (which is then not written).
     """
 
     def __init__(self, cameras: EmulatedCameras, folder, *, pattern=DEFAULT_PATTERN, depth: int = 2, log=None):
@@ -393,7 +543,13 @@ class HotFolderWriter:
         self.written = 0
 
     def submit(self, trigger: Trigger):
-        """Write the frames of the cameras ``trigger`` fires into the hot folder (in the background)."""
+        """Write the frames of the cameras ``trigger`` fires into the hot folder (in the background).
+
+        Parameters
+        ----------
+        trigger : Trigger
+            The state to render the frames under; its frame id names the files.
+        """
         cams = [c for c in self.cameras.cameras if trigger.fires(c)]
         if not cams:
             return

@@ -31,8 +31,16 @@ class Controller:
         An open link to use instead of opening ``port``.
     log : callable, optional
         Receives one line per irregular event.
+
+    Other Parameters
+    ----------------
     **link_options
         Keyword arguments of :class:`SerialLink` (baudrate, parity, timeout, retries, …).
+
+    Raises
+    ------
+    DeviceError
+        The device does not identify itself as a facestats controller of this ``kind`` (or cannot be reached).
     """
 
     #: "dome" or "sensor": the device's identity must start with ``facestats-<kind>``.
@@ -74,14 +82,36 @@ class Controller:
 
     # -- remembered device state -------------------------------------------------------------------
     def changed(self, key, value) -> bool:
-        """True unless the device is known to hold ``value`` for ``key`` since its last reboot."""
+        """True unless the device is known to hold ``value`` for ``key`` since its last reboot.
+
+        Parameters
+        ----------
+        key : str
+            The state's name (``"led"``, ``"exposure"``, ``"lamp"``, …).
+        value
+            The value to compare with the one remembered (:meth:`remember`).
+
+        Returns
+        -------
+        bool
+            True also when nothing is remembered for ``key``, or the device rebooted since (then every
+            remembered value is forgotten).
+        """
         if self._state_epoch != self.link.epoch:
             self._state.clear()
             self._state_epoch = self.link.epoch
         return self._state.get(key) != value
 
     def remember(self, key, value):
-        """Record that the device now holds ``value`` for ``key`` (what :meth:`ensure` need not set again)."""
+        """Record that the device now holds ``value`` for ``key`` (what :meth:`ensure` need not set again).
+
+        Parameters
+        ----------
+        key : str
+            The state's name.
+        value
+            The value the device now holds.
+        """
         self._state[key] = value
 
     def forget(self):

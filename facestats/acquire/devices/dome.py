@@ -48,7 +48,31 @@ def _ints(text: str) -> tuple:
 
 @dataclass(frozen=True)
 class DomeStatus:
-    """A dome controller's ``st`` reply: its wiring, camera settings and present light state."""
+    """A dome controller's ``st`` reply: its wiring, camera settings and present light state.
+
+    Attributes
+    ----------
+    n_leds : int
+        LEDs the controller drives (``leds``).
+    n_cameras : int
+        Camera trigger lines (``cameras``).
+    exposure_s : tuple of float
+        The cameras' exposure settings, s (``exposure_us`` / 10⁶).
+    bits : int
+        Code depth of the cameras' frames.
+    frame_interval_s : float
+        Shortest time between triggers, s (``frame_us`` / 10⁶).
+    led : int
+        The LED lit (−1: none).
+    exposure : int
+        The exposure setting selected (index of ``exposure_s``).
+    brightness : int
+        LED brightness, 0-255.
+    colour : tuple of int
+        LED colour (R, G, B), 0-255.
+    lines : int
+        Trigger-line mask, bit c for camera c; −1 when the firmware reports none (it pulses every line).
+    """
 
     n_leds: int
     n_cameras: int
@@ -63,7 +87,24 @@ class DomeStatus:
 
     @classmethod
     def from_fields(cls, f: dict, port: str = "") -> "DomeStatus":
-        """The status of a ``status`` reply's fields; :class:`DeviceError` naming a missing or malformed field."""
+        """The status of a ``status`` reply's fields; :class:`DeviceError` naming a missing or malformed field.
+
+        Parameters
+        ----------
+        f : dict
+            The reply's ``key=value`` fields (:meth:`~facestats.acquire.devices.protocol.Reply.fields`).
+        port : str
+            The device's port, for the messages.
+
+        Returns
+        -------
+        DomeStatus
+
+        Raises
+        ------
+        DeviceError
+            A missing or malformed field, or fewer than one LED or camera.
+        """
         try:
             st = cls(
                 n_leds=int(f["leds"]),
@@ -88,7 +129,24 @@ class DomeStatus:
 
 
 class DomeController(Controller):
-    """Driver of the dome controller (module docstring); a context manager that switches every LED off on leaving."""
+    """Driver of the dome controller (module docstring); a context manager that switches every LED off on leaving.
+
+    Parameters
+    ----------
+    port : str, optional
+        Device path or pyserial URL (:class:`~facestats.acquire.devices.controller.Controller`).
+
+    Other Parameters
+    ----------------
+    **kwargs
+        Keyword arguments of :class:`~facestats.acquire.devices.controller.Controller` (``link``, ``log`` and the
+        :class:`~facestats.acquire.devices.serial_link.SerialLink` options).
+
+    Raises
+    ------
+    DeviceError
+        The device is not a facestats dome controller, or its status is missing or malformed.
+    """
 
     kind = "dome"
 
@@ -107,17 +165,40 @@ class DomeController(Controller):
         self.remember("lines", st.lines if st.lines >= 0 else (1 << st.n_cameras) - 1)
 
     def light(self, led: int):
-        """Light LED ``led`` alone."""
+        """Light LED ``led`` alone.
+
+        Parameters
+        ----------
+        led : int
+            0-based LED index (≥ 0; the device refuses one beyond its LEDs).
+        """
         self.link.request("l", check_integer(led, "led", 0))
         self.remember("led", int(led))
 
     def set_brightness(self, value: int):
-        """Set the LEDs' brightness, 0-255."""
+        """Set the LEDs' brightness, 0-255.
+
+        Parameters
+        ----------
+        value : int
+            Brightness, 0-255.
+        """
         self.link.request("sb", check_integer(value, "brightness", 0, 255))
         self.remember("brightness", int(value))
 
     def set_colour(self, colour):
-        """Set the LEDs' colour, three values 0-255 (R, G, B)."""
+        """Set the LEDs' colour, three values 0-255 (R, G, B).
+
+        Parameters
+        ----------
+        colour : sequence of int
+            (R, G, B) drive, each 0-255.
+
+        Raises
+        ------
+        DeviceError
+            Not three values.
+        """
         rgb = tuple(check_integer(v, "colour", 0, 255) for v in colour)
         if len(rgb) != 3:
             raise DeviceError(f"colour must be three values 0-255 (R, G, B), got {colour!r}")
@@ -125,12 +206,29 @@ class DomeController(Controller):
         self.remember("colour", rgb)
 
     def set_exposure(self, k: int):
-        """Select the cameras' exposure setting ``k`` (an index into the status's exposures)."""
+        """Select the cameras' exposure setting ``k`` (an index into the status's exposures).
+
+        Parameters
+        ----------
+        k : int
+            Index of :attr:`DomeStatus.exposure_s` (≥ 0).
+        """
         self.link.request("se", check_integer(k, "exposure", 0))
         self.remember("exposure", int(k))
 
     def set_trigger_lines(self, cameras):
-        """Pulse only these cameras' trigger lines at the next triggers."""
+        """Pulse only these cameras' trigger lines at the next triggers.
+
+        Parameters
+        ----------
+        cameras : iterable of int
+            0-based camera indices, 0 to 62.
+
+        Raises
+        ------
+        DeviceError
+            No camera given.
+        """
         mask = sum(1 << check_integer(c, "camera", 0, 62) for c in set(cameras))
         if not mask:
             raise DeviceError("set_trigger_lines needs at least one camera")
@@ -140,7 +238,18 @@ class DomeController(Controller):
     def ensure(self, led: int, exposure: int, brightness: int = 255, colour=(255, 255, 255), cameras=None):
         """Bring the device to this state, sending only what it is not known to hold (again after a reboot).
 
-        ``cameras``: the trigger lines to enable (default: every camera of the status).
+        Parameters
+        ----------
+        led : int
+            The LED to light alone.
+        exposure : int
+            The cameras' exposure setting.
+        brightness : int
+            LED brightness, 0-255.
+        colour : sequence of int
+            LED colour (R, G, B), 0-255.
+        cameras : iterable of int, optional
+            The trigger lines to enable (default: every camera of the status).
         """
         for _ in range(3):  # a reboot on the way loses what was set before it: set everything again
             epoch = self.epoch
@@ -159,12 +268,52 @@ class DomeController(Controller):
                 return
 
     def trigger(self, frame: int, timeout: float | None = None) -> Trigger:
-        """Pulse the cameras' trigger lines; the state the device reports the exposure was taken under."""
+        """Pulse the cameras' trigger lines; the state the device reports the exposure was taken under.
+
+        Parameters
+        ----------
+        frame : int
+            Frame id of the trigger (≥ 0); the reply must name it.
+        timeout : float, optional
+            Seconds to wait for the reply (answered after the exposure); default the link's timeout.
+
+        Returns
+        -------
+        Trigger
+            The reply's frame, LED, exposure, brightness, colour and trigger lines.
+
+        Raises
+        ------
+        DeviceError
+            A reply without a required field, with a malformed one, or naming another frame id.
+        """
         reply = self.link.request("tr", check_integer(frame, "frame", 0), timeout=timeout)
         return Trigger.from_fields(reply.fields(), DOME_TRIGGER_FIELDS, frame)
 
     def check(self, n_leds: int, n_cameras: int, exposure_s, bits: int | None = None) -> DomeStatus:
-        """Raise :class:`DeviceError` unless the device is wired and set up as the calibration says."""
+        """Raise :class:`DeviceError` unless the device is wired and set up as the calibration says.
+
+        Parameters
+        ----------
+        n_leds : int
+            The calibration's LED count.
+        n_cameras : int
+            The calibration's camera count (trigger lines).
+        exposure_s : sequence of float
+            The calibration's exposure times, s; the device's must agree within ``EXPOSURE_TOLERANCE``.
+        bits : int, optional
+            The code depth of the calibration's response (not checked when None).
+
+        Returns
+        -------
+        DomeStatus
+            The device's status.
+
+        Raises
+        ------
+        DeviceError
+            A count, exposure time or code depth that differs.
+        """
         st = self.dome_status()
         where = f"the dome on {self.port}"
         fix = "fix the wiring or the controller's configuration (or recalibrate); no picture was taken"

@@ -72,6 +72,12 @@ class EmulatedDevice(abc.ABC):
     """Firmware shared by the emulated controllers: framing, the request-id cache, ``? ver st x reboot``.
 
     A device (:class:`DomeDevice`, :class:`SensorDevice`) supplies :meth:`status` and :meth:`_off`.
+
+    Parameters
+    ----------
+    on_trigger : callable, optional
+        Receives the :class:`~facestats.acquire.devices.cameras.Trigger` of each ``tr`` command (the camera
+        system).
     """
 
     kind = ""
@@ -120,7 +126,19 @@ class EmulatedDevice(abc.ABC):
         return Reply(self.seq, rid, status, _clean(payload)).encode()
 
     def handle(self, line: bytes):
-        """The frame answering one request line (None for an empty line)."""
+        """The frame answering one request line (None for an empty line).
+
+        Parameters
+        ----------
+        line : bytes
+            One request line without its LF (:func:`~facestats.acquire.devices.protocol.parse_request`).
+
+        Returns
+        -------
+        bytes or None
+            The encoded reply frame: ``OK`` with the command's payload, or ``Enn`` with the refusal; for a
+            repeated request id the stored frame of its first execution.
+        """
         if not line.strip():
             return None
         self.busy_s = 0.0
@@ -324,7 +342,24 @@ class SensorDevice(EmulatedDevice):
 
 @dataclass(frozen=True)
 class Faults:
-    """Faults a :class:`PtyServer` injects (module docstring); fractions in [0, 1], counts of commands ≥ 1, seed ≥ 0."""
+    """Faults a :class:`PtyServer` injects (module docstring); fractions in [0, 1], counts of commands ≥ 1, seed ≥ 0.
+
+    Attributes
+    ----------
+    drop, garble, truncate, duplicate : float
+        Fractions of the reply frames not sent, sent with one byte changed, sent cut short, or sent twice; their
+        sum at most 1.
+    stall : float
+        Fraction of the commands before which the device freezes.
+    stall_s : float
+        Length of a stall, s (≥ 0).
+    disconnect_after : tuple of int
+        Command counts after which the line drops.
+    reboot_after : tuple of int
+        Command counts at which the device reboots instead of answering.
+    seed : int
+        Seed of the generator that draws the faults.
+    """
 
     drop: float = 0.0
     garble: float = 0.0

@@ -157,7 +157,24 @@ class DomePlan(_Plan):
 
     @classmethod
     def from_calibration(cls, dome, calibration_bytes: bytes, subject: dict, **options) -> "DomePlan":
-        """The plan of a calibrated dome (:class:`facestats.acquire.dome.Dome`); ``bits`` from its response."""
+        """The plan of a calibrated dome (:class:`facestats.acquire.dome.Dome`); ``bits`` from its response.
+
+        Parameters
+        ----------
+        dome : Dome
+            The calibration: LED and camera counts, exposure times, image sizes and camera response.
+        calibration_bytes : bytes
+            The calibration file's bytes (the plan holds their SHA-256).
+        subject : dict
+            Manifest metadata (:func:`subject_record`).
+        **options
+            Further fields (``brightness``, ``colour``, ``frame_interval_s``, ``extension``) and ``bits``, which
+            defaults to log2 of the response's levels, or 12 without a response.
+
+        Returns
+        -------
+        DomePlan
+        """
         levels = None if dome.camera_log_response is None else dome.camera_log_response.shape[1]
         bits = options.pop("bits", None) or (int(np.log2(levels)) if levels else 12)
         return cls(
@@ -180,31 +197,100 @@ class DomePlan(_Plan):
         return self.n_cameras
 
     def step(self, s: int) -> dict:
-        """The state of step ``s``: ``{"exposure": e, "led": l}``."""
+        """The state of step ``s``: ``{"exposure": e, "led": l}``.
+
+        Parameters
+        ----------
+        s : int
+            0-based step: exposure ``s // n_leds``, LED ``s % n_leds``.
+
+        Returns
+        -------
+        dict
+        """
         return {"exposure": s // self.n_leds, "led": s % self.n_leds}
 
     def ensure(self, controller, s: int):
-        """Bring the dome to step ``s`` (its LED and exposure, the plan's brightness and colour)."""
+        """Bring the dome to step ``s`` (its LED and exposure, the plan's brightness and colour).
+
+        Parameters
+        ----------
+        controller : DomeController
+            The open dome controller (its :meth:`~facestats.acquire.devices.dome.DomeController.ensure`).
+        s : int
+            0-based step.
+        """
         st = self.step(s)
         controller.ensure(st["led"], st["exposure"], self.brightness, self.colour)
 
     def matches(self, s: int, trigger) -> bool:
-        """True if the device reports the state of step ``s`` for ``trigger``."""
+        """True if the device reports the state of step ``s`` for ``trigger``.
+
+        Parameters
+        ----------
+        s : int
+            0-based step.
+        trigger : Trigger
+            The device's trigger reply.
+
+        Returns
+        -------
+        bool
+            The step's LED and exposure, the plan's brightness and colour, and every camera's line pulsed.
+        """
         st = self.step(s)
         state = (trigger.led, trigger.exposure, trigger.brightness, tuple(trigger.colour))
         every = all(trigger.fires(c) for c in range(self.n_cameras))  # every camera's trigger line pulsed
         return every and state == (st["led"], st["exposure"], self.brightness, tuple(self.colour))
 
     def check_device(self, controller):
-        """Raise before any picture unless the dome is wired and set up as planned."""
+        """Raise before any picture unless the dome is wired and set up as planned.
+
+        Parameters
+        ----------
+        controller : DomeController
+            The open dome controller (:meth:`~facestats.acquire.devices.dome.DomeController.check`).
+
+        Raises
+        ------
+        DeviceError
+            LED or camera count, exposure times or code depth differ from the plan's.
+        """
         controller.check(self.n_leds, self.n_cameras, self.exposure_s, self.bits)
 
     def trigger_timeout(self, s: int, link_timeout: float) -> float:
-        """How long the trigger's reply may take: the exposure (or frame interval) plus the link's timeout, s."""
+        """How long the trigger's reply may take: the exposure (or frame interval) plus the link's timeout, s.
+
+        Parameters
+        ----------
+        s : int
+            0-based step.
+        link_timeout : float
+            The serial link's reply timeout, s.
+
+        Returns
+        -------
+        float
+            max(exposure time of the step, frame interval) + ``link_timeout``, s.
+        """
         return max(self.exposure_s[self.step(s)["exposure"]], self.frame_interval_s) + link_timeout
 
     def file(self, s: int, camera: int) -> str:
-        """The capture folder's file name of ``camera``'s frame at step ``s``."""
+        """The capture folder's file name of ``camera``'s frame at step ``s``.
+
+        Parameters
+        ----------
+        s : int
+            0-based step.
+        camera : int
+            0-based camera index.
+
+        Returns
+        -------
+        str
+            ``cam{c:02d}/led{l:03d}_e{e}<extension>``
+            (:func:`~facestats.acquire.synthetic.photographs.frame_name`).
+        """
         # local import: keeps 22 modules out of this module's import
         from facestats.acquire.synthetic.photographs import frame_name
 
@@ -279,7 +365,25 @@ class SensorPlan(_Plan):
 
     @classmethod
     def from_calibration(cls, sensor, layout, calibration_bytes: bytes, subject: dict, **options) -> "SensorPlan":
-        """The plan for a sensor, its fibre layout and the calibration file it was made from."""
+        """The plan for a sensor, its fibre layout and the calibration file it was made from.
+
+        Parameters
+        ----------
+        sensor : ContactSensor
+            The sensor: exposure times, fibre count and description (:meth:`ContactSensor.to_attrs`).
+        layout : FiberLayout
+            Where the fibres appear in the sensor camera's image (its ``size`` is the plan's ``image_size``).
+        calibration_bytes : bytes
+            The calibration file's bytes (the plan holds their SHA-256).
+        subject : dict
+            Manifest metadata (:func:`subject_record`).
+        **options
+            Further fields: ``readout_s``, ``sites``, ``extension``.
+
+        Returns
+        -------
+        SensorPlan
+        """
         return cls(
             subject=subject,
             exposure_s=tuple(float(t) for t in sensor.exposure_times),
@@ -300,30 +404,99 @@ class SensorPlan(_Plan):
         return 1
 
     def step(self, s: int) -> dict:
-        """The site and exposure of step ``s`` (sites in order, each through the bracket)."""
+        """The site and exposure of step ``s`` (sites in order, each through the bracket).
+
+        Parameters
+        ----------
+        s : int
+            0-based step: site ``sites[s // E]``, exposure ``s % E`` for E exposures.
+
+        Returns
+        -------
+        dict
+            ``{"site": index of SITES, "exposure": j}``.
+        """
         e = len(self.exposure_s)
         return {"site": self.sites[s // e], "exposure": s % e}
 
     def ensure(self, controller, s: int):
-        """Bring the sensor to step ``s`` (its site and exposure)."""
+        """Bring the sensor to step ``s`` (its site and exposure).
+
+        Parameters
+        ----------
+        controller : SensorController
+            The open sensor controller (its :meth:`~facestats.acquire.devices.sensor.SensorController.ensure`:
+            also lamp on, shutter open).
+        s : int
+            0-based step.
+        """
         st = self.step(s)
         controller.ensure(st["site"], st["exposure"])
 
     def matches(self, s: int, trigger) -> bool:
-        """Whether ``trigger`` is the frame of step ``s`` (its site and exposure, lamp on, shutter open)."""
+        """Whether ``trigger`` is the frame of step ``s`` (its site and exposure, lamp on, shutter open).
+
+        Parameters
+        ----------
+        s : int
+            0-based step.
+        trigger : Trigger
+            The device's trigger reply.
+
+        Returns
+        -------
+        bool
+        """
         st = self.step(s)
         return (trigger.site, trigger.exposure, trigger.lamp, trigger.shutter) == (st["site"], st["exposure"], 1, 1)
 
     def check_device(self, controller):
-        """Raise before any picture unless the sensor has the planned fibres, bracket and image size."""
+        """Raise before any picture unless the sensor has the planned fibres, bracket and image size.
+
+        Parameters
+        ----------
+        controller : SensorController
+            The open sensor controller (:meth:`~facestats.acquire.devices.sensor.SensorController.check`).
+
+        Raises
+        ------
+        DeviceError
+            Fibre count, exposure times or image size differ from the plan's.
+        """
         controller.check(self.n_fibers, self.exposure_s, self.image_size)
 
     def trigger_timeout(self, s: int, link_timeout: float) -> float:
-        """Seconds to wait for the frame of step ``s``: its exposure, the readout and ``link_timeout``."""
+        """Seconds to wait for the frame of step ``s``: its exposure, the readout and ``link_timeout``.
+
+        Parameters
+        ----------
+        s : int
+            0-based step.
+        link_timeout : float
+            The serial link's reply timeout, s.
+
+        Returns
+        -------
+        float
+            Exposure time of the step + ``readout_s`` + ``link_timeout``, s.
+        """
         return self.exposure_s[self.step(s)["exposure"]] + self.readout_s + link_timeout
 
     def file(self, s: int, camera: int = 0) -> str:
-        """The capture folder's file name of the frame at step ``s``."""
+        """The capture folder's file name of the frame at step ``s``.
+
+        Parameters
+        ----------
+        s : int
+            0-based step.
+        camera : int
+            Unused: the sensor has one camera (the argument matches :meth:`DomePlan.file`).
+
+        Returns
+        -------
+        str
+            ``sensor/<site>_e{j:02d}<extension>``.
+        """
         st = self.step(s)
         return f"sensor/{SITES[st['site']]}_e{st['exposure']:02d}{self.extension}"
 

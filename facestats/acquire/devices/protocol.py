@@ -139,7 +139,17 @@ class ProtocolViolation(DeviceError):
 
 @dataclass(frozen=True)
 class Request:
-    """A command with integer arguments and the host's request id (0: a plain, unframed request)."""
+    """A command with integer arguments and the host's request id (0: a plain, unframed request).
+
+    Attributes
+    ----------
+    name : str
+        Command name: 1-8 lower-case letters or ``?``.
+    args : tuple of int
+        Integer arguments (not bool).
+    id : int
+        Request id, in [0, 2³¹); 0 for a plain request.
+    """
 
     name: str
     args: tuple = ()
@@ -168,7 +178,19 @@ class Request:
 
 @dataclass(frozen=True)
 class Reply:
-    """A reply frame (module docstring)."""
+    """A reply frame (module docstring).
+
+    Attributes
+    ----------
+    seq : int
+        The device's frame count since power-up (1 for the first).
+    id : int
+        The request id answered (0 for plain requests and unsolicited frames).
+    status : str
+        ``"OK"``, ``"Enn"`` (error number nn of :data:`ERRORS`) or ``"BOOT"``.
+    payload : str
+        Printable ASCII without ``@``, ``*`` or line breaks: ``key=value`` words, or an error message.
+    """
 
     seq: int
     id: int
@@ -303,7 +325,19 @@ class FrameReader:
         self.pending = b""
 
     def feed(self, data: bytes) -> list:
-        """Add received bytes; return the complete replies they finish, in order."""
+        """Add received bytes; return the complete replies they finish, in order.
+
+        Parameters
+        ----------
+        data : bytes
+            Bytes read from the link.
+
+        Returns
+        -------
+        list of Reply or FrameError
+            The frames completed by ``data``, and a :class:`FrameError` for each garbled or truncated one (and
+            for pending bytes dropped beyond :data:`MAX_PENDING`).
+        """
         buf = self.pending + data
         items = []
         start = max(0, len(self.pending) - len(TERMINATOR) + 1)  # the pending bytes hold no terminator

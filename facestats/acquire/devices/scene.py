@@ -295,7 +295,27 @@ class DomeScene:
         return replace(self.dome, camera_log_response=g)
 
     def render(self, camera: int, trigger):
-        """``(codes (H, W, 3), exposure time s)`` of ``camera`` for a dome :class:`~.cameras.Trigger`."""
+        """``(codes (H, W, 3), exposure time s)`` of ``camera`` for a dome :class:`~.cameras.Trigger`.
+
+        Parameters
+        ----------
+        camera : int
+            0-based camera index.
+        trigger : Trigger
+            Its ``exposure``, ``led`` (dark frame unless a LED of the dome), ``brightness`` and ``colour`` (the drive).
+
+        Returns
+        -------
+        codes : ndarray, shape (H, W, 3)
+            The camera's codes (uint16, uint8 for an 8-bit camera) at the dome's image size for ``camera``.
+        exposure_s : float
+            The exposure time of ``trigger.exposure``, s.
+
+        Raises
+        ------
+        ValidationError
+            ``camera`` or ``trigger.exposure`` out of range.
+        """
         check_integer(camera, "camera", 0, self.dome.n_cameras - 1)
         exposure = check_integer(trigger.exposure, "exposure", 0, len(self.dome.exposure_times) - 1)
         t = float(self.dome.exposure_times[exposure])
@@ -341,7 +361,19 @@ class SensorScene:
 
     @classmethod
     def of(cls, truth, **kwargs) -> "SensorScene":
-        """The scene of a :class:`SubjectTruth` (its site scattering)."""
+        """The scene of a :class:`SubjectTruth` (its site scattering).
+
+        Parameters
+        ----------
+        truth : SubjectTruth
+            Its :attr:`~facestats.acquire.synthetic.population.SubjectTruth.site_scattering` (σ's, σa), mm⁻¹.
+        **kwargs
+            Further arguments of :class:`SensorScene` (``sensor``, ``layout``, ``eta``, ``seed``).
+
+        Returns
+        -------
+        SensorScene
+        """
         sp, sa = truth.site_scattering
         return cls(sp, sa, **kwargs)
 
@@ -350,7 +382,27 @@ class SensorScene:
         return (0,)
 
     def render(self, camera: int, trigger):
-        """``(codes (H, W, 3) uint16, exposure time s)`` of the sensor camera for a sensor trigger."""
+        """``(codes (H, W, 3) uint16, exposure time s)`` of the sensor camera for a sensor trigger.
+
+        Parameters
+        ----------
+        camera : int
+            Unused: the sensor has one camera (0).
+        trigger : Trigger
+            Its ``exposure`` (index in the bracket), ``site``, ``lamp`` and ``shutter`` (dark unless both are on).
+
+        Returns
+        -------
+        codes : ndarray of uint16, shape (H, W, 3)
+            Linear codes at the layout's size.
+        exposure_s : float
+            The bracket's exposure time, s.
+
+        Raises
+        ------
+        ValidationError
+            ``trigger.exposure`` or ``trigger.site`` out of range.
+        """
         times = self.sensor.exposure_times
         j = check_integer(trigger.exposure, "exposure", 0, len(times) - 1)
         site = check_integer(trigger.site, "site", 0, self.profile.shape[0] - 1)

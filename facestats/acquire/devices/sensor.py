@@ -70,6 +70,17 @@ class FiberLayout:
     Fibre k's spot is centred at pixel (margin + k·pitch, margin) (pixel centres at
     integers) and holds the pixels within ``radius_px`` of it; the image is
     (2·margin + (n − 1)·pitch + 1) × (2·margin + 1) pixels.
+
+    Attributes
+    ----------
+    n_fibers : int
+        Detector fibres n (≥ 1).
+    pitch_px : int
+        Distance between neighbouring spot centres, pixels (≥ 1).
+    radius_px : float
+        Spot radius, pixels, in [0.5, min(pitch / 2, margin + 0.5)) so spots stay apart and inside the image.
+    margin_px : int
+        The margin around the row of spots: the first spot is centred at pixel (margin, margin) (≥ 1).
     """
 
     n_fibers: int = N_FIBERS
@@ -318,7 +329,23 @@ def load_sensor_calibration(path):
 
 @dataclass(frozen=True)
 class SensorStatus:
-    """A sensor controller's ``st`` reply."""
+    """A sensor controller's ``st`` reply.
+
+    Attributes
+    ----------
+    n_fibers : int
+        Detector fibres (``fibers``).
+    exposure_s : tuple of float
+        The bracket's exposure times, s (``exposure_us`` / 10⁶).
+    image_size : (int, int)
+        The sensor camera's frame (width, height) (``image=WxH``).
+    lamp, shutter : int
+        Source lamp on (1) or off (0); shutter open (1) or closed (0).
+    exposure : int
+        The bracket exposure selected (index of ``exposure_s``).
+    site : int
+        The placement label: 0 cheek, 1 forehead, 2 neck.
+    """
 
     n_fibers: int
     exposure_s: tuple
@@ -330,7 +357,24 @@ class SensorStatus:
 
     @classmethod
     def from_fields(cls, f: dict, port: str = "") -> "SensorStatus":
-        """The status of a ``status`` reply's fields; :class:`DeviceError` naming a missing or malformed field."""
+        """The status of a ``status`` reply's fields; :class:`DeviceError` naming a missing or malformed field.
+
+        Parameters
+        ----------
+        f : dict
+            The reply's ``key=value`` fields (:meth:`~facestats.acquire.devices.protocol.Reply.fields`).
+        port : str
+            The device's port, for the messages.
+
+        Returns
+        -------
+        SensorStatus
+
+        Raises
+        ------
+        DeviceError
+            A missing or malformed field.
+        """
         try:
             w, h = (int(v) for v in f["image"].split("x"))
             return cls(
@@ -347,7 +391,27 @@ class SensorStatus:
 
 
 class SensorController(Controller):
-    """Driver of the contact sensor (module docstring); a context manager that turns the lamp off on leaving."""
+    """Driver of the contact sensor (module docstring); a context manager that turns the lamp off on leaving.
+
+    Parameters
+    ----------
+    port : str, optional
+        Device path or pyserial URL (:class:`~facestats.acquire.devices.controller.Controller`).
+    link : SerialLink, optional
+        An open link to use instead of opening ``port``.
+    log : callable, optional
+        Receives one line per irregular event.
+
+    Other Parameters
+    ----------------
+    **link_options
+        Keyword arguments of :class:`~facestats.acquire.devices.serial_link.SerialLink`.
+
+    Raises
+    ------
+    DeviceError
+        The device does not identify itself as a facestats sensor controller (or cannot be reached).
+    """
 
     kind = "sensor"
 
@@ -356,27 +420,63 @@ class SensorController(Controller):
         return SensorStatus.from_fields(self.status(), self.port)
 
     def lamp(self, on: bool):
-        """Switch the source lamp on or off."""
+        """Switch the source lamp on or off.
+
+        Parameters
+        ----------
+        on : bool
+            True: lamp on.
+        """
         self.link.request("lamp", int(bool(on)))
         self.remember("lamp", int(bool(on)))
 
     def shutter(self, open_: bool):
-        """Open or close the shutter."""
+        """Open or close the shutter.
+
+        Parameters
+        ----------
+        open_ : bool
+            True: shutter open.
+        """
         self.link.request("sh", int(bool(open_)))
         self.remember("shutter", int(bool(open_)))
 
     def set_exposure(self, j: int):
-        """Select the bracket's exposure ``j``."""
+        """Select the bracket's exposure ``j``.
+
+        Parameters
+        ----------
+        j : int
+            Index of the bracket's exposure times (≥ 0; the device refuses one beyond its bracket).
+        """
         self.link.request("se", check_integer(j, "exposure", 0))
         self.remember("exposure", int(j))
 
     def place(self, site: int):
-        """Record the site the head now sits on (0 cheek, 1 forehead, 2 neck)."""
+        """Record the site the head now sits on (0 cheek, 1 forehead, 2 neck).
+
+        Parameters
+        ----------
+        site : int
+            Index of :data:`~facestats.core.conventions.SITES`, 0 to 2.
+        """
         self.link.request("pos", check_integer(site, "site", 0, 2))
         self.remember("site", int(site))
 
     def ensure(self, site: int, exposure: int, lamp: bool = True, shutter: bool = True):
-        """Bring the device to this state, sending only what it is not known to hold (again after a reboot)."""
+        """Bring the device to this state, sending only what it is not known to hold (again after a reboot).
+
+        Parameters
+        ----------
+        site : int
+            The placement label, 0 cheek, 1 forehead, 2 neck.
+        exposure : int
+            The bracket's exposure index.
+        lamp : bool
+            Source lamp on.
+        shutter : bool
+            Shutter open.
+        """
         for _ in range(3):  # a reboot on the way loses what was set before it: set everything again
             epoch = self.epoch
             if self.changed("site", site):
@@ -391,18 +491,74 @@ class SensorController(Controller):
                 return
 
     def trigger(self, frame: int, timeout: float | None = None) -> Trigger:
-        """Take one picture; the state the device reports it was taken under."""
+        """Take one picture; the state the device reports it was taken under.
+
+        Parameters
+        ----------
+        frame : int
+            Frame id of the picture (≥ 0); the reply must name it.
+        timeout : float, optional
+            Seconds to wait for the reply (answered after exposure and readout); default the link's timeout.
+
+        Returns
+        -------
+        Trigger
+            The reply's frame, exposure, lamp, shutter and site.
+
+        Raises
+        ------
+        DeviceError
+            A reply without a required field, with a malformed one, or naming another frame id.
+        """
         reply = self.link.request("tr", check_integer(frame, "frame", 0), timeout=timeout)
         return Trigger.from_fields(reply.fields(), SENSOR_TRIGGER_FIELDS, frame)
 
     def bracket(self, site: int, exposures, frames, timeout: float | None = None):
-        """The :class:`Trigger` of each exposure index of ``exposures`` at ``site``, frame ids from ``frames``."""
+        """The :class:`Trigger` of each exposure index of ``exposures`` at ``site``, frame ids from ``frames``.
+
+        A generator: each exposure is set (:meth:`ensure`, lamp on, shutter open) and triggered as it is consumed.
+
+        Parameters
+        ----------
+        site : int
+            The placement label, 0 cheek, 1 forehead, 2 neck.
+        exposures : iterable of int
+            Bracket exposure indices, in order.
+        frames : iterable of int
+            A frame id for each exposure (the pairs stop with the shorter).
+        timeout : float, optional
+            Seconds to wait for each trigger's reply; default the link's timeout.
+
+        Yields
+        ------
+        Trigger
+        """
         for j, frame in zip(exposures, frames):
             self.ensure(site, j)
             yield self.trigger(frame, timeout)
 
     def check(self, n_fibers: int, exposure_s, image_size) -> SensorStatus:
-        """Raise :class:`DeviceError` unless the sensor matches its calibration (fibres, bracket, image size)."""
+        """Raise :class:`DeviceError` unless the sensor matches its calibration (fibres, bracket, image size).
+
+        Parameters
+        ----------
+        n_fibers : int
+            The calibration's fibre count.
+        exposure_s : sequence of float
+            The calibration's bracket, s; the device's must agree within ``EXPOSURE_TOLERANCE``.
+        image_size : (int, int)
+            The fibre layout's (width, height).
+
+        Returns
+        -------
+        SensorStatus
+            The device's status.
+
+        Raises
+        ------
+        DeviceError
+            A fibre count, exposure time or image size that differs.
+        """
         st = self.sensor_status()
         where = f"the sensor on {self.port}"
         fix = "fix the sensor's configuration or use its calibration file; no picture was taken"

@@ -38,7 +38,31 @@ POLL_S = 0.05
 
 @dataclass
 class LinkStats:
-    """Counters of a link's traffic and of every irregularity it met."""
+    """Counters of a link's traffic and of every irregularity it met.
+
+    Attributes
+    ----------
+    requests : int
+        Requests made (:meth:`SerialLink.request` calls).
+    sent : int
+        Request lines written, retries included.
+    retries : int
+        Attempts after the first.
+    garbled, truncated : int
+        Reply frames dropped for a wrong CRC or syntax, or cut short.
+    timeouts : int
+        Attempts without a reply within the timeout.
+    out_of_order, duplicates : int
+        Late frames answering other requests, and repeated frames, discarded.
+    device_errors : int
+        ``Enn`` replies.
+    reboots : int
+        Reboots of the device seen.
+    reconnects : int
+        Times the port was reopened.
+    bytes_received : int
+        Bytes read from the port.
+    """
 
     requests: int = 0
     sent: int = 0
@@ -244,8 +268,28 @@ class SerialLink:
     def request(self, name: str, *args: int, timeout: float | None = None):
         """Send ``name.args`` and return the device's OK :class:`~facestats.acquire.devices.protocol.Reply`.
 
-        Raises :class:`DeviceReplyError` for a numbered error, :class:`DeviceTimeout`
-        when every attempt failed.
+        Parameters
+        ----------
+        name : str
+            The command name.
+        *args : int
+            Its integer arguments.
+        timeout : float, optional
+            Seconds to wait for the reply to each attempt; default the link's ``timeout``.
+
+        Returns
+        -------
+        Reply
+            The ``OK`` frame answering the request.
+
+        Raises
+        ------
+        DeviceReplyError
+            The device answered with a numbered error that is not retryable.
+        DeviceTimeout
+            Every attempt failed, or the port did not come back within ``reconnect_timeout``.
+        DeviceError
+            The port dropped the connection more than ``retries + 1`` times during the request.
         """
         rid = self._next_id
         self._next_id = self._next_id % (2**31 - 1) + 1

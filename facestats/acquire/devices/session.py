@@ -62,7 +62,13 @@ CALIBRATION = {"dome": "dome.json", "sensor": "sensor-calibration.json"}
 
 
 class SessionLog:
-    """Timestamped lines into ``session/log.txt``, held in memory until the session directory exists."""
+    """Timestamped lines into ``session/log.txt``, held in memory until the session directory exists.
+
+    Parameters
+    ----------
+    echo : callable, optional
+        Also receives each line (without its time stamp), e.g. to print it.
+    """
 
     def __init__(self, echo=None):
         self.path, self.lines, self.echo = None, [], echo
@@ -79,7 +85,13 @@ class SessionLog:
             f.write(text + "\n")
 
     def attach(self, path):
-        """Write the lines kept so far to ``path`` and log there from now on."""
+        """Write the lines kept so far to ``path`` and log there from now on.
+
+        Parameters
+        ----------
+        path : str or path-like
+            The log file (appended to).
+        """
         self.path = pathlib.Path(path)
         with open(self.path, "a") as f:
             f.writelines(t + "\n" for t in self.lines)
@@ -88,7 +100,35 @@ class SessionLog:
 
 @dataclass
 class SessionReport:
-    """What a run of :func:`run_session` did."""
+    """What a run of :func:`run_session` did.
+
+    Attributes
+    ----------
+    kind : str
+        ``"dome"`` or ``"sensor"``.
+    subject_id : str
+    out : pathlib.Path
+        The capture directory.
+    steps_total : int
+        Steps of the plan.
+    steps_before : int
+        Steps committed by earlier runs.
+    steps_taken : int
+        Steps committed by this run.
+    frames : int
+        Frames stored by this run.
+    retakes : int
+        Steps taken again (state not reached, frame not delivered).
+    elapsed_s : float
+        Duration of this run's capture, s.
+    link : dict
+        The link's counters (:meth:`~facestats.acquire.devices.serial_link.LinkStats.as_dict`).
+    complete : bool
+        The session's product (manifest or sensor file) is written.
+    stray_frames : list of str
+        Frame files left in the hot folder at the end of the run, of triggers no run collected
+        (:meth:`~facestats.acquire.devices.cameras.HotFolderCameras.stray_frames`); the session does not use them.
+    """
 
     kind: str
     subject_id: str
@@ -101,8 +141,6 @@ class SessionReport:
     elapsed_s: float = 0.0
     link: dict = field(default_factory=dict)
     complete: bool = False
-    #: Frame files left in the hot folder at the end of the run, of triggers no run collected
-    #: (:meth:`~facestats.acquire.devices.cameras.HotFolderCameras.stray_frames`); the session does not use them.
     stray_frames: list = field(default_factory=list)
 
     def to_text(self) -> str:

@@ -98,7 +98,21 @@ class CalibrationErrors:
     led_intensity: float = 0.003
 
     def apply(self, dome: Dome, rng: np.random.Generator) -> Dome:
-        """``dome`` with these errors drawn from ``rng``."""
+        """``dome`` with these errors drawn from ``rng``.
+
+        Parameters
+        ----------
+        dome : Dome
+            The true rig.
+        rng : numpy.random.Generator
+            Draws the errors (normal, with the standard deviations of the attributes).
+
+        Returns
+        -------
+        Dome
+            A copy with perturbed camera rotations, positions, focal lengths and principal points, LED positions
+            and LED intensities.
+        """
         c = dome.n_cameras
         axis = rng.standard_normal((c, 3))
         axis /= np.linalg.norm(axis, axis=1, keepdims=True)
@@ -126,7 +140,25 @@ def _rotation(axis, angle):
 
 @dataclass
 class PhotoCapture:
-    """What :func:`write_capture_photographs` wrote: paths, and the truth it was made from."""
+    """What :func:`write_capture_photographs` wrote: paths, and the truth it was made from.
+
+    Attributes
+    ----------
+    folder : pathlib.Path
+        The capture folder's manifest (``<folder>/manifest.json``; its ``parent`` is the folder).
+    calibration : pathlib.Path
+        The calibration file written (``dome.json``: the true dome with its calibration errors, if any).
+    mesh : pathlib.Path
+        The face mesh (``face.obj``).
+    regions : pathlib.Path
+        The mesh's region image (``face.regions.png``).
+    true_dome : Dome
+        The rig the photographs were rendered with (without calibration errors).
+    moved_frames : list of (int, int)
+        The (camera, LED) frames whose long exposure saw the moved head, sorted.
+    geometry : FaceGeometry
+        The simulated face: the mesh as written and read back.
+    """
 
     folder: pathlib.Path
     calibration: pathlib.Path
@@ -151,7 +183,20 @@ def _surface_samples(geometry, m):
 
 
 class FrameRenderer:
-    """Per-camera pixel → lumitexel interpolation of one geometry in one (true) dome (module docstring)."""
+    """Per-camera pixel → lumitexel interpolation of one geometry in one (true) dome (module docstring).
+
+    Parameters
+    ----------
+    geometry : FaceGeometry
+        The face: its mesh (with ``mesh_uv``), lumitexels and map size.
+    dome : Dome
+        The rig whose cameras (with lens distortion) see the face.
+
+    Raises
+    ------
+    ValidationError
+        The geometry's mesh has no UVs.
+    """
 
     def __init__(self, geometry: FaceGeometry, dome: Dome):
         self.geometry, self.dome = geometry, dome
@@ -168,7 +213,22 @@ class FrameRenderer:
         self.grid[tex[:, 0], tex[:, 1]] = np.arange(geometry.n_points)
 
     def pixels(self, camera, motion=None):
-        """(flat pixel index (P,), lumitexel of each pixel (P,), −1 off the face) of the pixels the face covers."""
+        """(flat pixel index (P,), lumitexel of each pixel (P,), −1 off the face) of the pixels the face covers.
+
+        Parameters
+        ----------
+        camera : int
+            0-based camera index.
+        motion : ndarray, shape (3, 3), optional
+            Rotation of the head about the centre of its mesh's bounding box (None: the head at rest).
+
+        Returns
+        -------
+        flat : ndarray of int64, shape (P,)
+            Flat indices v·W + u of the covered pixels, sorted.
+        lumitexel : ndarray of int64, shape (P,)
+            The lumitexel whose texel holds each pixel's visible surface point; −1 for a texel off the face.
+        """
         pts = self.points
         if motion is not None:  # rigid head motion (rotation about the head centre)
             centre = 0.5 * (self.geometry.mesh_vertices.min(0) + self.geometry.mesh_vertices.max(0))
@@ -195,7 +255,22 @@ class FrameRenderer:
 
     @staticmethod
     def image(pixels, values, size):
-        """Radiance image (H, W, 3) float32 from ``values`` (N, 3) per lumitexel (NaN: dark)."""
+        """Radiance image (H, W, 3) float32 from ``values`` (N, 3) per lumitexel (NaN: dark).
+
+        Parameters
+        ----------
+        pixels : tuple of ndarray
+            ``(flat, lumitexel)`` of :meth:`pixels`.
+        values : ndarray, shape (N, 3)
+            Radiance per lumitexel; NaN is written as 0 (dark).
+        size : (int, int)
+            The image's (width, height).
+
+        Returns
+        -------
+        ndarray of float32, shape (H, W, 3)
+            0 at pixels the face does not cover.
+        """
         flat, node = pixels
         img = np.zeros((int(size[1]) * int(size[0]), 3), np.float32)
         on = node >= 0
@@ -443,7 +518,19 @@ def _write_regions(path, region_map):
 # -- the LED calibration target ----------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class TargetPose:
-    """A planar diffuse target: centre (mm), unit normal, in-plane axis ``u_axis`` and size (mm)."""
+    """A planar diffuse target: centre (mm), unit normal, in-plane axis ``u_axis`` and size (mm).
+
+    Attributes
+    ----------
+    centre : tuple of float
+        The target's centre, mm (world coordinates).
+    normal : tuple of float
+        Unit normal of its front side (the side lit and photographed).
+    u_axis : tuple of float
+        Unit in-plane axis along its width.
+    size_mm : tuple of float
+        (width along ``u_axis``, height along normal × ``u_axis``), mm.
+    """
 
     centre: tuple
     normal: tuple

@@ -178,7 +178,43 @@ _CHANNEL_CORRELATION = 0.6
 
 @dataclass
 class SubjectTruth:
-    """Ground truth of one synthetic subject (maps on the UV grid, [v, u] indexed)."""
+    """Ground truth of one synthetic subject (maps on the UV grid, [v, u] indexed).
+
+    Attributes
+    ----------
+    subject_id : str
+        ``"S001"`` … ``"S149"``, or ``"<person>-<condition>"`` for the condition series.
+    person_id : str
+        The person measured (several records may be one person).
+    age : int
+        Years.
+    gender : {"M", "F"}
+    skin_type : int
+        Fitzpatrick skin type, 1 to 6.
+    condition : str
+        One of :data:`facestats.core.conventions.CONDITIONS`.
+    region_map : ndarray of uint8, shape (n, n)
+        Face region of each texel (:data:`~facestats.core.conventions.REGION_IDS`; 0 off the face).
+    albedo : ndarray, shape (n, n, 3)
+        Total diffuse reflectance, linear RGB.
+    ts_rho_s, ts_m : ndarray, shape (n, n)
+        Torrance-Sparrow ρs and m; 0 off the face.
+    bp_rho_s, bp_exponent : ndarray, shape (n, n)
+        Blinn-Phong ρs and exponent n; 0 off the face.
+    site_sigma_tr : ndarray, shape (site, channel)
+        σtr at the sites of :data:`~facestats.core.conventions.SITES`, mm⁻¹.
+    site_albedo : ndarray, shape (site, channel)
+        Total diffuse reflectance at each site.
+    sigma_tr : ndarray, shape (channel,)
+        σtrAvg, mm⁻¹, set by the population.
+    seed : int
+        Default seed of a simulated capture's noise
+        (:meth:`~facestats.acquire.synthetic.simulate.DomeSimulator.simulate`).
+    features : dict
+        Texture features drawn (the population's: ``freckles``, ``moles``, ``melanin``).
+    geometry : str
+        ``FaceGeometry.name`` of the face the maps are laid out on (``"ict-48"``); ``""`` if unknown.
+    """
 
     subject_id: str
     person_id: str
@@ -192,12 +228,12 @@ class SubjectTruth:
     ts_m: np.ndarray
     bp_rho_s: np.ndarray
     bp_exponent: np.ndarray
-    site_sigma_tr: np.ndarray  # (site, channel)
-    site_albedo: np.ndarray  # (site, channel)
-    sigma_tr: np.ndarray = None  # (channel,), set by the population (σtrAvg)
+    site_sigma_tr: np.ndarray
+    site_albedo: np.ndarray
+    sigma_tr: np.ndarray = None
     seed: int = 0
     features: dict = field(default_factory=dict)
-    geometry: str = ""  # FaceGeometry.name of the face the maps are laid out on ("ict-48"); "" if unknown
+    geometry: str = ""
 
     @property
     def face(self) -> np.ndarray:
@@ -272,7 +308,21 @@ class SubjectTruth:
 
 @dataclass
 class Population:
-    """A synthetic population: subjects' ground truth and the population σtrAvg."""
+    """A synthetic population: subjects' ground truth and the population σtrAvg.
+
+    Indexing takes a position or a subject id (``population["S001"]``).
+
+    Attributes
+    ----------
+    subjects : list of SubjectTruth
+        The subjects drawn, S001… first, then the condition series.
+    sigma_tr_avg : ndarray, shape (channel,)
+        σtrAvg, mm⁻¹: the mean over the 149 subjects of their cheek and forehead σtr (§5.4).
+    seed : int
+        The seed the population was drawn with.
+    settings : dict
+        ``map_size``, ``table1_spread`` and ``conditions`` of :func:`synthesize_population`.
+    """
 
     subjects: list
     sigma_tr_avg: np.ndarray

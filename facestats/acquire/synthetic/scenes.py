@@ -43,7 +43,19 @@ SITE_LIGHTS = ("stripe", "spot")
 
 @dataclass
 class PatchScene:
-    """Patches, lights and a camera of a known scene (all mm; lights as :mod:`facestats.acquire.lights`)."""
+    """Patches, lights and a camera of a known scene (all mm; lights as :mod:`facestats.acquire.lights`).
+
+    Attributes
+    ----------
+    patches : Patches
+        The surface patches (:mod:`facestats.acquire.patches`).
+    lights : list
+        :class:`~facestats.acquire.lights.DirectionalLight` or :class:`~facestats.acquire.lights.PointLight`.
+    camera : PinholeCamera
+    eta : float
+        Relative index of refraction of the scene's medium (1.3 for the pyramid, 1.38 for the face).
+    name : str
+    """
 
     patches: Patches
     lights: list

@@ -420,7 +420,26 @@ class DomeSimulator:
 
     # -- public -------------------------------------------------------------------------
     def simulate(self, truth, seed: int | None = None) -> Capture:
-        """Simulate one subject in memory (use :meth:`simulate_to_zarr` for large geometries)."""
+        """Simulate one subject in memory (use :meth:`simulate_to_zarr` for large geometries).
+
+        Parameters
+        ----------
+        truth : SubjectTruth
+            The subject; its maps must have the geometry's map size.
+        seed : int, optional
+            Seed of every random draw; default ``truth.seed``.
+
+        Returns
+        -------
+        Capture
+            Per-lumitexel geometry, scanner normals, irradiance and radiance (N, C, L, 3) float16 (NaN: invalid
+            sample), the region map and the contact-sensor profiles.
+
+        Raises
+        ------
+        ValidationError
+            Truth maps of another size, or without skin at a lumitexel's texel.
+        """
         self._check_truth(truth)
         seed = truth.seed if seed is None else seed
         ranges = self._ranges()
@@ -445,9 +464,29 @@ class DomeSimulator:
     def simulate_to_zarr(self, truth, path, seed: int | None = None, progress: bool = False, chunk: int = 2048) -> str:
         """Simulate one subject block by block straight into a zarr capture (bounded memory).
 
-        ``chunk`` is the lumitexel chunk of the zarr arrays (a fit reads blocks of
-        this size without decoding a chunk twice); it is independent of the
-        simulation block.
+        Parameters
+        ----------
+        truth : SubjectTruth
+            The subject; its maps must have the geometry's map size.
+        path : str or path-like
+            The zarr capture to write (:class:`~facestats.acquire.capture.CaptureWriter`).
+        seed : int, optional
+            Seed of every random draw; default ``truth.seed``.
+        progress : bool
+            Progress bar over the blocks.
+        chunk : int
+            The lumitexel chunk of the zarr arrays (a fit reads blocks of this size without decoding a chunk
+            twice); it is independent of the simulation block.
+
+        Returns
+        -------
+        str
+            ``path``.
+
+        Raises
+        ------
+        ValidationError
+            Truth maps of another size, or without skin at a lumitexel's texel.
         """
         self._check_truth(truth)
         seed = truth.seed if seed is None else seed

@@ -75,7 +75,13 @@ class PopulationSigmaTr:
     grouped_i_ii: bool = False
 
     def type_label(self, skin_type: int) -> str:
-        """The Roman numeral of a skin type, ``I-II`` for the pooled group of types I and II."""
+        """The Roman numeral of a skin type, ``I-II`` for the pooled group of types I and II.
+
+        Parameters
+        ----------
+        skin_type : int
+            Fitzpatrick skin type, 1 to 6 (2 stands for the pooled I-II where ``grouped_i_ii``).
+        """
         return "I-II" if self.grouped_i_ii and int(skin_type) == 2 else ROMAN[int(skin_type)]
 
     def compare_published(self):

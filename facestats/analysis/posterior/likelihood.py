@@ -131,6 +131,26 @@ class LogPosterior:
     Called with θ of shape (n, 2K) it returns an (n, 1 + K) array: the total
     log-probability, then one column per block (the emcee blobs that
     :class:`facestats.analysis.posterior.moves.BlockDEMove` uses).
+
+    The inputs are taken as checked (:func:`validate_profiles`, :func:`prior_bounds`); the constructor does not
+    check them again.
+
+    Parameters
+    ----------
+    r : numpy.ndarray, shape (F,)
+        Fibre distances in mm.
+    y : numpy.ndarray, shape (F, K)
+        Measured profiles in mm⁻², one column per block; values where ``mask`` is False are ignored (NaN allowed).
+    std : numpy.ndarray, shape (F, K), or None
+        Standard deviations of ``y`` in mm⁻²; None to use ``sensor``'s noise model at the model profile.
+    mask : numpy.ndarray of bool, shape (F, K)
+        True for the fibres that enter the likelihood.
+    sensor : ContactSensor
+        Its :meth:`~facestats.acquire.sensor.ContactSensor.profile_std` is the noise model when ``std`` is None.
+    eta : float
+        Relative index of refraction of the dipole.
+    lo, hi : numpy.ndarray, shape (2,)
+        Prior bounds of (ln σ's, ln σa), natural log of mm⁻¹.
     """
 
     def __init__(self, r, y, std, mask, sensor, eta, lo, hi):
@@ -154,14 +174,36 @@ class LogPosterior:
             return (self.y - mu) / sd, np.log(sd), inside
 
     def blocks(self, theta):
-        """Log-posterior (up to a constant) per block, shape (n, K); −inf outside the prior bounds."""
+        """Log-posterior (up to a constant) per block, shape (n, K); −inf outside the prior bounds.
+
+        Parameters
+        ----------
+        theta : array_like, shape (n, 2K) or (2K,)
+            Parameters per sample, (ln σ's, ln σa) of block 1, then of block 2, …, natural log of mm⁻¹.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n, K)
+            ln L per block (prior flat inside the bounds); −inf outside them or where ln L is not finite.
+        """
         z, log_sd, inside = self._residuals(theta)
         ll = -0.5 * np.sum(np.where(self.mask, z * z + 2 * log_sd, 0.0), axis=1)
         ll[~np.isfinite(ll)] = -np.inf
         return np.where(inside, ll, -np.inf)
 
     def chi2(self, theta):
-        """Σ over valid fibres of the squared standardised residuals, shape (n, K)."""
+        """Σ over valid fibres of the squared standardised residuals, shape (n, K).
+
+        Parameters
+        ----------
+        theta : array_like, shape (n, 2K) or (2K,)
+            Parameters as in :meth:`blocks`; values outside the prior bounds are clipped to them (no −inf here).
+
+        Returns
+        -------
+        numpy.ndarray, shape (n, K)
+            χ² per sample and block.
+        """
         z, _, _ = self._residuals(theta)
         return np.sum(np.where(self.mask, z * z, 0.0), axis=1)
 

@@ -35,6 +35,17 @@ class BlockDEMove(emcee.moves.RedBlueMove):
 
     Acceptance is counted per walker and block in :attr:`accepted`, over
     :attr:`n_proposals` proposals per walker.
+
+    Parameters
+    ----------
+    n_blocks : int
+        Number of independent blocks (channels).
+    block_dim : int
+        Parameters per block, d.
+    gamma0 : float, optional
+        Scale γ0 of the difference vector; default 2.38/sqrt(2 d).
+    sigma : float
+        Relative jitter ε of γ.
     """
 
     def __init__(self, n_blocks, block_dim, gamma0=None, sigma=1e-5):
@@ -47,6 +58,28 @@ class BlockDEMove(emcee.moves.RedBlueMove):
         self.n_proposals = 0
 
     def propose(self, model, state):
+        """Move every walker once, accepting or rejecting each block on its own log-probability.
+
+        Parameters
+        ----------
+        model : emcee.model.Model
+            The sampler's model (its ``random`` state and ``compute_log_prob_fn``), as emcee passes it.
+        state : emcee.State
+            Current coordinates (n_walkers, n_blocks · block_dim), log-probabilities and per-block blobs
+            (n_walkers, n_blocks); updated in place.
+
+        Returns
+        -------
+        state : emcee.State
+            ``state`` with the new coordinates, log-probabilities and blobs.
+        accepted : numpy.ndarray of bool, shape (n_walkers,)
+            True for a walker with at least one block accepted.
+
+        Raises
+        ------
+        ValidationError
+            The walkers' dimension is not ``n_blocks · block_dim``.
+        """
         nw, ndim = state.coords.shape
         k, d = self.n_blocks, self.block_dim
         if ndim != k * d:

@@ -124,11 +124,36 @@ class SigmaPosterior:
         return bool(self.diagnostics["converged"].all())
 
     def median(self, parameter) -> np.ndarray:
-        """Posterior median of a parameter per label."""
+        """Posterior median of a parameter per label.
+
+        Parameters
+        ----------
+        parameter : str
+            ``"sigma_s_prime"``, ``"sigma_a"``, ``"sigma_tr"`` (mm⁻¹) or ``"ell_d"`` (mm).
+
+        Returns
+        -------
+        numpy.ndarray, shape (n_labels,)
+            Medians in the order of ``labels``.
+        """
         return self.summary.xs(parameter, level="parameter")["median"].loc[list(self.labels)].to_numpy()
 
     def interval(self, parameter, level=None) -> np.ndarray:
-        """Equal-tailed credible interval per label, shape (n_labels, 2) (default: ``self.level``)."""
+        """Equal-tailed credible interval per label, shape (n_labels, 2) (default: ``self.level``).
+
+        Parameters
+        ----------
+        parameter : str
+            ``"sigma_s_prime"``, ``"sigma_a"``, ``"sigma_tr"`` (mm⁻¹) or ``"ell_d"`` (mm).
+        level : float, optional
+            Credible level in (0, 1); default the stored intervals at ``self.level``, otherwise quantiles of
+            ``samples`` (not checked).
+
+        Returns
+        -------
+        numpy.ndarray, shape (n_labels, 2)
+            (low, high) per label, in the order of ``labels``.
+        """
         if level is None:
             t = self.summary.xs(parameter, level="parameter").loc[list(self.labels)]
             return t[["lo", "hi"]].to_numpy()

@@ -124,8 +124,19 @@ def _fresnel_grids(samples, normal, eta):
 
 
 class BrdfSamples(NamedTuple):
-    """Per-sample geometry and BRDF values for one set of normals (:func:`brdf_samples`); arrays of shape (S,)
-    except ``f_r`` (3, S), channel-major."""
+    """Per-sample geometry and BRDF values for one set of normals (:func:`brdf_samples`).
+
+    Attributes
+    ----------
+    cos_i, cos_o : ndarray of float32, shape (S,)
+        cos θi and cos θo against the lumitexel's normal (below 0 as they are).
+    ft2 : ndarray of float32, shape (S,)
+        F_t(θi) F_t(θo), the Fresnel transmittances at both ends (:func:`fresnel_factors`).
+    use : ndarray of bool, shape (S,)
+        Samples with θi and θo below ``max_angle_deg``.
+    f_r : ndarray of float32, shape (3, S)
+        BRDF values in sr⁻¹, channel-major; NaN or inf where cos θi ≤ 0.
+    """
 
     cos_i: np.ndarray
     cos_o: np.ndarray

@@ -96,6 +96,18 @@ class ProfileGrid:
 
     Use :meth:`table2` for Suzuki Table 2 and :meth:`log_spaced` for media far
     from it (skin: σ's ≈ 0.5-3, σa ≈ 0.01-1 mm⁻¹).
+
+    Attributes
+    ----------
+    sigma_s_prime : ndarray of float64, shape (n_s,)
+        Reduced scattering coefficients σ's in mm⁻¹: finite, > 0, strictly increasing, at least 2.
+    sigma_a : ndarray of float64, shape (n_a,)
+        Absorption coefficients σa in mm⁻¹, likewise.
+
+    Raises
+    ------
+    ValidationError
+        A coefficient array that is not 1-D, not finite and > 0, or not at least 2 strictly increasing values.
     """
 
     sigma_s_prime: np.ndarray
@@ -119,7 +131,26 @@ class ProfileGrid:
 
     @classmethod
     def log_spaced(cls, sigma_s_prime=(0.05, 20.0), sigma_a=(1e-3, 5.0), n=(150, 150)) -> "ProfileGrid":
-        """A grid evenly spaced in ln σ's and ln σa over the given ranges (mm⁻¹), ``n`` values each."""
+        """A grid evenly spaced in ln σ's and ln σa over the given ranges (mm⁻¹), ``n`` values each.
+
+        Parameters
+        ----------
+        sigma_s_prime : tuple of float
+            (low, high) σ's in mm⁻¹, both ends included.
+        sigma_a : tuple of float
+            (low, high) σa in mm⁻¹, both ends included.
+        n : tuple of int
+            Number of σ's and of σa values.
+
+        Returns
+        -------
+        ProfileGrid
+
+        Raises
+        ------
+        ValidationError
+            low ≥ high, a negative range or fewer than 2 values (a low of 0 is numpy's ValueError).
+        """
         (s0, s1), (a0, a1) = sigma_s_prime, sigma_a
         return cls(np.geomspace(s0, s1, int(n[0])), np.geomspace(a0, a1, int(n[1])))
 
@@ -178,16 +209,35 @@ def profile_cost(distances, log_profile, grid: ProfileGrid, eta) -> np.ndarray:
 
 @dataclass
 class ProfileFit:
-    """Result of the eq. 36 fit.
+    """Result of the eq. 36 fit (:func:`fit_profile_grid`; also of the exitance fit, :func:`fit_exitance_grid`).
 
-    ``sigma_s_prime``, ``sigma_a`` (mm⁻¹): the best grid model, or the refined
-    values when refinement ran (``grid_sigma_s_prime``/``grid_sigma_a`` keep the
-    grid model); ``cost`` eq. 36 at the result; ``cost_surface`` over the grid;
-    ``sigma_s_prime_interval``, ``sigma_a_interval``, ``sigma_tr_interval``:
-    (low, high) in mm⁻¹ at ``interval_level`` (σtr over the grid models inside
-    the joint region); ``used`` the levels that entered the fit (R' > 0 and
-    d' ≤ ``max_distance``); ``n_nonpositive`` the levels within range left out
-    because R' ≤ 0.
+    Attributes
+    ----------
+    sigma_s_prime, sigma_a : float
+        σ's and σa in mm⁻¹: the best grid model, or the refined values when refinement ran.
+    grid_sigma_s_prime, grid_sigma_a : float
+        The best grid model, mm⁻¹ (kept when refinement ran).
+    cost : float
+        Eq. 36 at the result (the exitance fit: its sum of squared relative residuals); with refinement, the
+        smaller of the refined and the best grid model's cost.
+    cost_surface : ndarray, shape ``grid.shape``
+        The cost over the grid.
+    sigma_s_prime_interval, sigma_a_interval, sigma_tr_interval : tuple of float
+        (low, high) in mm⁻¹ at ``interval_level`` (σtr over the grid models inside the joint region).
+    interval_level : float
+        Confidence level of the intervals.
+    at_grid_edge : bool
+        The joint region touches an edge of the grid (the grid bounds the interval).
+    used : ndarray of bool, shape (n,)
+        The levels that entered the fit (R' > 0 and d' ≤ ``max_distance``; every level in the exitance fit).
+    n_nonpositive : int
+        The levels within range left out because R' ≤ 0 (0 in the exitance fit).
+    max_distance : float
+        Largest level distance within range, mm (the exitance fit: the last level).
+    eta : float
+        Relative index of refraction of the dipole.
+    grid : ProfileGrid
+        The grid searched.
     """
 
     sigma_s_prime: float

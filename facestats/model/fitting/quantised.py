@@ -725,6 +725,19 @@ class NormalEquations:
     (the paper's solve).  Everything the solves, the rank and the covariance
     need follows from (G, g, yy), and merging levels maps it exactly:
     G ← Pᵀ G P, g ← Pᵀ g (:func:`merge_levels`), so W is multiplied once.
+
+    Attributes
+    ----------
+    gram : ndarray of float64, shape (n, n)
+        G = AᵀA over the n levels.
+    rhs : ndarray of float64, shape (n,)
+        g = Aᵀy.
+    yy : float
+        yᵀy (``weighted``: the number of rows used, y being 1).
+    n_rows : int
+        Rows that entered A (``weighted``: those with l_j > 0).
+    weighted : bool
+        True for the relative-residual problem, False for the paper's.
     """
 
     gram: np.ndarray
@@ -734,11 +747,33 @@ class NormalEquations:
     weighted: bool
 
     def merged(self, p) -> "NormalEquations":
-        """The problem in the coarser basis r = P r_coarse."""
+        """The problem in the coarser basis r = P r_coarse.
+
+        Parameters
+        ----------
+        p : ndarray, shape (n, n_coarse)
+            P, e.g. :func:`interpolation_matrix` of the levels and the kept levels.
+
+        Returns
+        -------
+        NormalEquations
+            Pᵀ G P and Pᵀ g, with ``yy``, ``n_rows`` and ``weighted`` unchanged.
+        """
         return NormalEquations(p.T @ self.gram @ p, p.T @ self.rhs, self.yy, self.n_rows, self.weighted)
 
     def residual(self, r) -> float:
-        """‖A r − y‖² from the normal equations."""
+        """‖A r − y‖² from the normal equations.
+
+        Parameters
+        ----------
+        r : ndarray, shape (n,)
+            Profile R'_i at the levels, mm⁻².
+
+        Returns
+        -------
+        float
+            rᵀ G r − 2 rᵀ g + yy, clipped at 0 (rounding of the expanded form).
+        """
         return float(max(r @ self.gram @ r - 2 * r @ self.rhs + self.yy, 0.0))
 
 
@@ -785,8 +820,16 @@ def normal_equations(system: QuantisedSystem, exitance, *, weighted=True) -> Nor
 class Conditioning:
     """Singular values of W (columns scaled to unit norm, rows weighted as solved), numerical rank and condition.
 
-    ``condition`` is s_max / s_min (inf if a singular value is 0); ``rank`` counts
-    singular values above ``rcond`` × s_max.
+    Attributes
+    ----------
+    singular_values : ndarray, shape (n,)
+        Singular values, descending (square roots of the eigenvalues of the scaled Gram matrix, :func:`conditioning`).
+    rank : int
+        Numerical rank: singular values above ``rcond`` × s_max (0 if s_max is 0).
+    condition : float
+        s_max / s_min (inf if a singular value is 0).
+    rcond : float
+        The relative threshold of the rank.
     """
 
     singular_values: np.ndarray

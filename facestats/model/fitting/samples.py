@@ -220,6 +220,9 @@ class Samples:
     engine : {"numba", "numpy"} or None
         Implementation of the per-sample primitives and of the stages that take these
         samples (:mod:`facestats.model.fitting.engine`); None: the configured default.
+    _cache : dict
+        Derived arrays computed on demand (run lengths and starts, grid indices, ωi·ωo, …); internal, filled by
+        the constructors and methods, default empty.
     """
 
     n_texels: int
@@ -236,8 +239,31 @@ class Samples:
 
     @classmethod
     def from_grid(cls, wi, wo, irradiance, radiance, valid):
-        """Flatten a dome grid: ``wi`` (n, L, 3), ``wo`` (n, C, 3), ``irradiance`` (n, L, 3),
-        ``radiance`` (n, C, L, 3) of any float dtype (float16 as captured), ``valid`` (n, C, L)."""
+        """Flatten a dome grid to its valid samples.
+
+        Parameters
+        ----------
+        wi : array_like, shape (n, L, 3)
+            Unit directions from each lumitexel towards each light (stored as float32).
+        wo : array_like, shape (n, C, 3)
+            Unit directions from each lumitexel towards each camera (stored as float32).
+        irradiance : array_like, shape (n, L, 3)
+            Beam-normal irradiance E⊥ per lumitexel, light and channel (shape not checked).
+        radiance : array_like, shape (n, C, L, 3)
+            Radiance per lumitexel, camera, light and channel, any float dtype (float16 as captured).
+        valid : array_like of bool, shape (n, C, L)
+            Samples to keep (e.g. :func:`valid_samples`).
+
+        Returns
+        -------
+        Samples
+            The kept samples, radiance and irradiance as float32, ``engine`` None.
+
+        Raises
+        ------
+        ValidationError
+            The shapes of ``valid``, ``radiance``, ``wi`` and ``wo`` disagree.
+        """
         v = np.asarray(valid, bool)
         n, n_cam, n_led = v.shape
         if np.shape(radiance)[:3] != v.shape or np.shape(wi)[:2] != (n, n_led) or np.shape(wo)[:2] != (n, n_cam):
@@ -273,17 +299,36 @@ class Samples:
     def from_dome(cls, wi, wo, irradiance, radiance, *, keep_cameras=None, engine=None):
         """The valid samples of a dome grid (:func:`valid_samples`, minus cameras left out), and the invalid count.
 
-        ``wi`` (n, L, 3), ``wo`` (n, C, 3), ``irradiance`` (n, L, 3), ``radiance``
-        (n, C, L, 3) as :meth:`from_grid`; ``keep_cameras`` (C,) bool marks the
-        cameras whose samples may be used (default all).  With the numba engine
-        and float16 radiance (the capture format) one compiled pass
+        With the numba engine and float16 radiance (the capture format) one compiled pass
         (:func:`facestats.model.fitting.kernels.samples.flatten_grid`) does both.
+
+        Parameters
+        ----------
+        wi : array_like, shape (n, L, 3)
+            Unit directions towards the lights, as :meth:`from_grid`.
+        wo : array_like, shape (n, C, 3)
+            Unit directions towards the cameras, as :meth:`from_grid`.
+        irradiance : array_like, shape (n, L, 3)
+            Beam-normal irradiance E⊥, as :meth:`from_grid`.
+        radiance : array_like, shape (n, C, L, 3)
+            Radiance, as :meth:`from_grid`.
+        keep_cameras : array_like of bool, shape (C,), optional
+            Cameras whose samples may be used (default all).
+        engine : {"numba", "numpy"} or None
+            Engine of the result (:func:`facestats.model.fitting.engine.resolve_engine`); None: the configured
+            default.
 
         Returns
         -------
         samples : Samples
         n_invalid : ndarray of int64, shape (n,)
             Grid entries per lumitexel that are not used: invalid or of a camera left out.
+
+        Raises
+        ------
+        ValidationError
+            An unknown or unusable ``engine``, or grid shapes that disagree (checked by :meth:`from_grid`, so not
+            on the compiled float16 path).
         """
         engine = resolve_engine(engine)
         n, n_cam, n_led = np.shape(radiance)[:3]
@@ -316,7 +361,27 @@ class Samples:
 
     @classmethod
     def from_arrays(cls, wi, wo, valid, radiance=None, irradiance=None, engine=None):
-        """From per-texel sample arrays ``wi``, ``wo`` (T, S, 3) and ``valid`` (T, S)."""
+        """From per-texel sample arrays ``wi``, ``wo`` (T, S, 3) and ``valid`` (T, S).
+
+        The samples are ``paired``: sample ``s`` of texel ``t`` has its own (ωi, ωo) pair.  Nothing is checked.
+
+        Parameters
+        ----------
+        wi, wo : array_like, shape (T, S, 3)
+            Unit directions towards the light and the camera per texel and sample (stored as float32).
+        valid : array_like of bool, shape (T, S)
+            Samples to keep.
+        radiance : array_like, shape (T, S, 3), optional
+            Radiance per sample and channel; default 0.
+        irradiance : array_like, shape (T, S, 3), optional
+            Beam-normal irradiance E⊥ per sample and channel; default 1.
+        engine : {"numba", "numpy"} or None
+            Engine of the result (not resolved here); None: the configured default.
+
+        Returns
+        -------
+        Samples
+        """
         v = np.asarray(valid, bool)
         t, s = np.nonzero(v)
         n_s = t.size
@@ -391,7 +456,17 @@ class Samples:
 
     # -- per-lumitexel reductions and expansions ----------------------------------------
     def count(self, mask=None) -> np.ndarray:
-        """Samples per lumitexel (optionally only where ``mask``)."""
+        """Samples per lumitexel (optionally only where ``mask``).
+
+        Parameters
+        ----------
+        mask : array_like of bool, shape (S,), optional
+            Samples to count; default all.
+
+        Returns
+        -------
+        ndarray of int, shape (n_texels,)
+        """
         if mask is None:
             return self.counts
         return segment_sum(np.asarray(mask, bool).view(np.int8), self.starts, self.counts)
@@ -400,18 +475,50 @@ class Samples:
         """Per-lumitexel sum of per-sample ``values`` (S,) or (K, S) (optionally only where ``mask``), float64.
 
         Masked-out values may be non-finite (they are excluded, not multiplied by 0).
+
+        Parameters
+        ----------
+        values : array_like, shape (S,) or (K, S)
+            Per-sample values.
+        mask : array_like of bool, shape (S,), optional
+            Samples to include; default all.
+
+        Returns
+        -------
+        ndarray of float64, shape (n_texels,) or (K, n_texels)
         """
         v = np.asarray(values) if mask is None else masked(values, mask)
         return segment_sum(v, self.starts, self.counts).astype(np.float64)
 
     def expand(self, per_texel) -> np.ndarray:
-        """Per-lumitexel values (n_texels, ...) repeated for each sample of the lumitexel, shape (S, ...)."""
+        """Per-lumitexel values (n_texels, ...) repeated for each sample of the lumitexel, shape (S, ...).
+
+        Parameters
+        ----------
+        per_texel : array_like, shape (n_texels, ...)
+            One value (or row) per lumitexel.
+        """
         return np.repeat(np.asarray(per_texel), self.counts, axis=0)
 
     def on_grid(self, values) -> np.ndarray:
         """Per-sample ``values`` (S,) placed on the (lumitexel, camera, light) grid (n, C, L), 0 elsewhere.
 
         Only for samples on a dome grid (not ``paired``).
+
+        Parameters
+        ----------
+        values : array_like, shape (S,)
+            Per-sample values.
+
+        Returns
+        -------
+        ndarray, shape (n_texels, C, L)
+            In the dtype of ``values``.
+
+        Raises
+        ------
+        ValidationError
+            The samples are ``paired``.
         """
         if self.paired:
             raise ValidationError("on_grid needs samples on a dome grid (Samples.from_grid), not paired samples")
@@ -427,11 +534,31 @@ class Samples:
         return self._cache["grid_index"]
 
     def at_lights(self, grid) -> np.ndarray:
-        """Per-sample values of a (lumitexel, light) grid (n, L)."""
+        """Per-sample values of a (lumitexel, light) grid (n, L).
+
+        Parameters
+        ----------
+        grid : array_like, shape (n_texels, L)
+            One value per lumitexel and light (for ``paired`` samples: per texel and sample, (T, S)).
+
+        Returns
+        -------
+        ndarray, shape (S,)
+        """
         return np.asarray(grid).reshape(-1).take(self.light_index)
 
     def at_cameras(self, grid) -> np.ndarray:
-        """Per-sample values of a (lumitexel, camera) grid (n, C)."""
+        """Per-sample values of a (lumitexel, camera) grid (n, C).
+
+        Parameters
+        ----------
+        grid : array_like, shape (n_texels, C)
+            One value per lumitexel and camera (for ``paired`` samples: per texel and sample, (T, S)).
+
+        Returns
+        -------
+        ndarray, shape (S,)
+        """
         return np.asarray(grid).reshape(-1).take(self.camera_index)
 
     # -- geometry ------------------------------------------------------------------------
@@ -446,14 +573,39 @@ class Samples:
         return self.wo_grid.reshape(-1, 3).take(self.camera_index, axis=0)
 
     def cos_grids(self, normal, dtype=np.float32):
-        """(N·ωi on the light grid (n, L), N·ωo on the camera grid (n, C)) for normals (n, 3)."""
+        """(N·ωi on the light grid (n, L), N·ωo on the camera grid (n, C)) for normals (n, 3).
+
+        Parameters
+        ----------
+        normal : array_like, shape (n_texels, 3)
+            Unit normal per lumitexel (not checked).
+        dtype : numpy.dtype
+            Float dtype of the computation and results.
+
+        Returns
+        -------
+        cos_i : ndarray, shape (n_texels, L)
+        cos_o : ndarray, shape (n_texels, C)
+        """
         nrm = np.asarray(normal, dtype)
         return _dot3(self.wi_grid.astype(dtype, copy=False), nrm[:, None]), _dot3(
             self.wo_grid.astype(dtype, copy=False), nrm[:, None]
         )
 
     def cos(self, normal, dtype=np.float32):
-        """(N·ωi, N·ωo) per sample for per-lumitexel normals (n, 3)."""
+        """(N·ωi, N·ωo) per sample for per-lumitexel normals (n, 3).
+
+        Parameters
+        ----------
+        normal : array_like, shape (n_texels, 3)
+            Unit normal per lumitexel (not checked).
+        dtype : numpy.dtype
+            Float dtype of the results; float32 runs as a compiled kernel with the numba engine on a dome grid.
+
+        Returns
+        -------
+        cos_i, cos_o : ndarray, shape (S,)
+        """
         if self._compiled() and np.dtype(dtype) == np.float32:
             ci, co, io = self._kernel_cosines(normal)
             self._cache.setdefault("io", io)
@@ -500,7 +652,18 @@ class Samples:
         return self._cache["io"]
 
     def cos_half(self, cos_i, cos_o) -> np.ndarray:
-        """Per-sample N·H, H = (ωi + ωo)/‖ωi + ωo‖, from N·ωi and N·ωo: (cos θi + cos θo) / √(2 + 2 ωi·ωo)."""
+        """Per-sample N·H, H = (ωi + ωo)/‖ωi + ωo‖, from N·ωi and N·ωo: (cos θi + cos θo) / √(2 + 2 ωi·ωo).
+
+        Parameters
+        ----------
+        cos_i, cos_o : array_like, shape (S,)
+            N·ωi and N·ωo per sample (:meth:`cos`).
+
+        Returns
+        -------
+        ndarray, shape (S,)
+            N·H; the denominator is kept at least 1e-6 (√1e-12) where ωi and ωo are opposite.
+        """
         io = self.cos_io()
         cos_i, cos_o = np.asarray(cos_i), np.asarray(cos_o)
         if self._compiled() and cos_i.shape == cos_o.shape == io.shape and cos_i.dtype == cos_o.dtype == np.float32:
@@ -525,6 +688,17 @@ class Samples:
         ``texel`` and ``rank`` (S',) index the padded (lumitexel, rank) layout of the
         samples kept by ``mask`` (all by default); ``counts`` (n_texels,) is the
         number kept per lumitexel.  Relies on the samples being sorted by lumitexel.
+
+        Parameters
+        ----------
+        mask : array_like of bool, shape (S,), optional
+            Samples to keep; default all.
+
+        Returns
+        -------
+        texel : ndarray of int32, shape (S',)
+        rank : ndarray of int, shape (S',)
+        counts : ndarray of int, shape (n_texels,)
         """
         if mask is None:
             t, counts, start = self.texel, self.counts, self.starts
@@ -536,7 +710,24 @@ class Samples:
         return t, np.arange(t.size) - np.repeat(start, counts), counts
 
     def padded(self, values, fill, mask=None):
-        """Per-lumitexel padded view (n_texels, S_max) of ``values`` (S,) (only ``mask`` samples kept)."""
+        """Per-lumitexel padded view (n_texels, S_max) of ``values`` (S,) (only ``mask`` samples kept).
+
+        Parameters
+        ----------
+        values : array_like, shape (S,)
+            Per-sample values.
+        fill : scalar
+            Value of the slots past each lumitexel's kept samples.
+        mask : array_like of bool, shape (S,), optional
+            Samples to keep; default all.
+
+        Returns
+        -------
+        padded : ndarray, shape (n_texels, S_max)
+            A new array in the dtype of ``values``; S_max is the largest count kept, at least 1.
+        counts : ndarray of int, shape (n_texels,)
+            Samples kept per lumitexel.
+        """
         vals = np.asarray(values)
         if mask is None:
             counts, start = self.counts, self.starts

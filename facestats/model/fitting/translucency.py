@@ -56,14 +56,26 @@ _BOUNDS = ((0.02, 50.0), (1e-4, 20.0))  # σ's, σa in mm⁻¹
 class TranslucencyFit:
     """Dipole parameters fitted to profiles (arrays of the profiles' leading shape).
 
-    ``sigma_s_prime``, ``sigma_a``, ``sigma_tr`` and their ``*_std`` standard errors
-    in mm⁻¹; ``chi2`` the final cost (weighted squared residuals; in ln R without
-    std); ``n_points`` the readings used per profile; ``at_bound`` True where the
-    fit ended on a limit of its search (σtr 0.02 or 20 mm⁻¹, α' 0.0067 or
-    0.99988, σ's 0.02 or 50 mm⁻¹, σa 1e-4 or 20 mm⁻¹): the data ask for a
-    medium outside skin's range, typically distances not in mm or a profile not
-    in mm⁻² (e.g. distances in metres gave σ's = 0.02, the lower limit, without a
-    word before ``at_bound``).
+    Attributes
+    ----------
+    sigma_s_prime, sigma_a : ndarray
+        Reduced scattering and absorption coefficients in mm⁻¹.
+    sigma_s_prime_std, sigma_a_std : ndarray
+        Their standard errors in mm⁻¹.
+    sigma_tr : ndarray
+        σtr in mm⁻¹.
+    sigma_tr_std : ndarray
+        Its standard error in mm⁻¹ (delta method).
+    chi2 : ndarray
+        The final cost (weighted squared residuals; in ln R without std).
+    n_points : ndarray of int
+        The readings used per profile.
+    at_bound : ndarray of bool or None
+        True where the fit ended on a limit of its search (σtr 0.02 or 20 mm⁻¹, α' 0.0067 or
+        0.99988, σ's 0.02 or 50 mm⁻¹, σa 1e-4 or 20 mm⁻¹): the data ask for a
+        medium outside skin's range, typically distances not in mm or a profile not
+        in mm⁻² (e.g. distances in metres gave σ's = 0.02, the lower limit, without a
+        word before ``at_bound``).  :func:`fit_translucency` always sets it; None by default.
     """
 
     sigma_s_prime: np.ndarray

@@ -117,14 +117,46 @@ class KernelFit:
     meta: dict = field(default_factory=dict)
 
     def alpha_given_sigma(self, sigma_um: float) -> float:
-        """The α minimising TV on the grid column nearest ``sigma_um`` (the profile of the landscape)."""
+        """The α minimising TV on the grid column nearest ``sigma_um`` (the profile of the landscape).
+
+        Parameters
+        ----------
+        sigma_um : float
+            Kernel σ in µm; the nearest value of ``sigmas_um`` is used.
+
+        Returns
+        -------
+        float
+            α of the lowest evaluated TV in that column.
+
+        Raises
+        ------
+        ValidationError
+            No combination of that column was evaluated (coarse-to-fine).
+        """
         col = self.tv_grid[:, int(np.argmin(np.abs(self.sigmas_um - sigma_um)))]
         if np.all(np.isnan(col)):
             raise ValidationError(f"sigma_um={sigma_um} was not evaluated (coarse-to-fine); use method='brute'")
         return float(self.alphas[np.nanargmin(col)])
 
     def sigma_given_alpha(self, alpha: float) -> float:
-        """The σ (µm) minimising TV on the grid row nearest ``alpha``."""
+        """The σ (µm) minimising TV on the grid row nearest ``alpha``.
+
+        Parameters
+        ----------
+        alpha : float
+            Kernel α; the nearest value of ``alphas`` is used.
+
+        Returns
+        -------
+        float
+            σ in µm of the lowest evaluated TV in that row.
+
+        Raises
+        ------
+        ValidationError
+            No combination of that row was evaluated (coarse-to-fine).
+        """
         row = self.tv_grid[int(np.argmin(np.abs(self.alphas - alpha)))]
         if np.all(np.isnan(row)):
             raise ValidationError(f"alpha={alpha} was not evaluated (coarse-to-fine); use method='brute'")

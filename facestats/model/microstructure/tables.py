@@ -85,11 +85,43 @@ class KernelTable:
             raise ValidationError(f"min_ratio must be a stretch ratio in [0, 1), got {self.min_ratio!r}")
 
     def alpha(self, r) -> np.ndarray:
-        """α(r), clamped to [−2, 1] (eq. 8 form); r below ``min_ratio`` takes α(min_ratio)."""
+        """α(r), clamped to [−2, 1] (eq. 8 form); r below ``min_ratio`` takes α(min_ratio).
+
+        Parameters
+        ----------
+        r : array_like
+            Stretch ratio (> 1 stretch, < 1 compression), finite and > 0.
+
+        Returns
+        -------
+        ndarray
+            α, the shape of ``r``.
+
+        Raises
+        ------
+        ValidationError
+            A non-numeric, non-finite or non-positive ``r``.
+        """
         return np.clip(np.interp(self._held(r), self.alpha_knots, self.alpha_values), *ALPHA_RANGE)
 
     def sigma(self, r) -> np.ndarray:
-        """σ(r) in µm, clamped to [1, 100] µm (eq. 9 form); r below ``min_ratio`` takes σ(min_ratio)."""
+        """σ(r) in µm, clamped to [1, 100] µm (eq. 9 form); r below ``min_ratio`` takes σ(min_ratio).
+
+        Parameters
+        ----------
+        r : array_like
+            Stretch ratio (> 1 stretch, < 1 compression), finite and > 0.
+
+        Returns
+        -------
+        ndarray
+            σ in µm, the shape of ``r``.
+
+        Raises
+        ------
+        ValidationError
+            A non-numeric, non-finite or non-positive ``r``.
+        """
         r = self._held(r)
         (a_c, b_c), (a_s, b_s) = self.sigma_compress, self.sigma_stretch
         with np.errstate(over="ignore", invalid="ignore"):  # a ratio near 1e308 overflows to ±inf: clipped to the range

@@ -325,8 +325,8 @@ class LedCalibration:
         Returns
         -------
         dict
-            JSON-ready: ``format``, ``reference_camera``, ``camera_gain`` and one entry per LED in ``leds``; NaN
-            values are null.
+            JSON-ready: ``format``, ``reference_camera``, ``camera_gain`` and one entry per LED in ``leds`` (with
+            ``beam_stderr`` and ``beam_error`` when set, each on its own); NaN values are null.
         """
         leds = [
             {
@@ -338,11 +338,8 @@ class LedCalibration:
                 "rms_residual": _num(self.rms_residual[i]),
                 "n_observations": int(self.n_observations[i]),
             }
-            | (
-                {}
-                if self.beam_stderr is None
-                else {"beam_stderr": _list(self.beam_stderr[i]), "beam_error": _num(self.beam_error[i])}
-            )
+            | ({} if self.beam_stderr is None else {"beam_stderr": _list(self.beam_stderr[i])})
+            | ({} if self.beam_error is None else {"beam_error": _num(self.beam_error[i])})
             for i in range(len(self.intensity))
         ]
         return {

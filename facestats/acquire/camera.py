@@ -1,12 +1,14 @@
 """A calibrated pinhole camera: projection, which patches it sees, and the radiance it records at them.
 
-The camera model is the dome's (:class:`facestats.acquire.dome.Dome`): a point
-x (mm, world frame) has camera coordinates R (x − C) (rows of R: x right, y down,
-z forward), and pixel coordinates (u, v) = (K R (x − C))[:2] / z with
-intrinsics K; pixel (0, 0) is the top-left corner of the top-left pixel, whose
-centre is (0.5, 0.5), and images are indexed [row, column] = [v, u].
-:func:`project_points` and :func:`look_at` are the one implementation, used by
-the dome as well.
+The camera model is the dome's (:class:`facestats.acquire.dome.Dome`) without
+lens distortion: a point x (mm, world frame) has camera coordinates R (x − C)
+(rows of R: x right, y down, z forward), and pixel coordinates
+(u, v) = (K R (x − C))[:2] / z with intrinsics K; but pixel (0, 0) is the
+top-left corner of the top-left pixel, whose centre is (0.5, 0.5) (the dome's
+centre is (0, 0), as in OpenCV: :meth:`PinholeCamera.from_dome` moves the
+principal point), and images are indexed [row, column] = [v, u].
+:func:`look_at` is the one implementation, used by the dome as well
+(:meth:`facestats.acquire.dome.Dome.project` projects with distortion itself).
 
 For Suzuki, Mukaigawa & Yagi §3.3 only the patches the camera sees give rows:
 a patch is *seen* if it faces the camera, projects inside the image, is not
@@ -184,11 +186,14 @@ class PinholeCamera:
         return cls(k, look_at(position, target), np.asarray(position, float), (w, h))
 
     @classmethod
-    def from_dome(cls, dome, index: int) -> "PinholeCamera":
+    def from_dome(cls, dome, index: int, *, ignore_distortion: bool = False) -> "PinholeCamera":
         """Camera ``index`` of a :class:`facestats.acquire.dome.Dome` calibration.
 
-        K, R, the centre and the image size are copied unchanged; the dome's lens distortion is not carried
-        over, and the dome's K puts pixel centres at integer coordinates (OpenCV), not at + 0.5 as here.
+        R, the centre and the image size are copied unchanged; K too, but for its principal point, moved by
+        (+½, +½): the dome puts pixel centres at integer coordinates (OpenCV, an image spans [−½, W − ½)), this
+        class at integer + ½ (module docstring).  An undistorted camera projects every point to the dome's pixel
+        + (½, ½), and :meth:`in_frame` agrees with the dome's.  This class has no lens distortion: a dome camera
+        with distortion is refused unless ``ignore_distortion`` is true.
 
         Parameters
         ----------
@@ -196,6 +201,9 @@ class PinholeCamera:
             The calibration.
         index : int
             The camera, in [0, ``dome.n_cameras``).
+        ignore_distortion : bool, optional
+            Accept a camera with lens distortion and drop it (its projections are then off by the distortion,
+            most near the image edges).  Default False.
 
         Returns
         -------
@@ -204,12 +212,20 @@ class PinholeCamera:
         Raises
         ------
         ValidationError
-            ``index`` out of range.
+            ``index`` out of range, or the camera has lens distortion and ``ignore_distortion`` is false.
         """
         i = int(index)
         if not 0 <= i < dome.n_cameras:
             raise ValidationError(f"index must name one of the dome's {dome.n_cameras} cameras, got {index!r}")
-        return cls(dome.camera_matrix[i], dome.camera_rotation[i], dome.camera_position[i], tuple(dome.image_size[i]))
+        dist = np.asarray(dome.camera_distortion[i], np.float64)
+        if np.any(dist != 0) and not ignore_distortion:
+            raise ValidationError(
+                f"dome camera {i} has lens distortion {dist.tolist()}, which PinholeCamera cannot model; "
+                "pass ignore_distortion=True to drop it"
+            )
+        k = np.array(dome.camera_matrix[i], np.float64)
+        k[:2, 2] += 0.5  # pixel centres: integers (dome, OpenCV) -> integer + 0.5 (here)
+        return cls(k, dome.camera_rotation[i], dome.camera_position[i], tuple(dome.image_size[i]))
 
     def project(self, points):
         """Pixel coordinates (N, 2) and depths along the optical axis (N,) of points (N, 3), mm.

@@ -270,8 +270,8 @@ class Capture:
         ----------
         name : str
             An array of :data:`CAPTURE_ARRAYS`.
-        sl : slice
-            The part to read along the first axis (default all).
+        sl : slice or index
+            The part to read along the first axis (default all); any numpy/zarr index is passed on.
 
         Returns
         -------
@@ -281,14 +281,14 @@ class Capture:
         Raises
         ------
         FormatError
-            A chunk cannot be read or decoded.
+            A chunk cannot be read or decoded (naming the part read).
         """
         try:
             return np.asarray(self.arrays[name][sl])
         except (RuntimeError, ValueError, OSError) as exc:  # e.g. "error during blosc decompression: -1"
             raise FormatError(
-                f"capture {self.path or '(in memory)'}: array {name!r}, lumitexels {sl.start}:{sl.stop}, cannot be "
-                f"read (a damaged or truncated chunk): {exc}"
+                f"capture {self.path or '(in memory)'}: array {name!r}, {_part_read(name, sl, self.arrays[name])}, "
+                f"cannot be read (a damaged or truncated chunk): {exc}"
             ) from exc
 
     # -- lumitexel blocks ------------------------------------------------------------
@@ -403,6 +403,20 @@ class Capture:
 
 #: Group attribute of captures whose every chunk is on disk once written (module docstring).
 ALL_CHUNKS_ATTR = "all_chunks_written"
+
+
+def _part_read(name, sl, array) -> str:
+    """What ``array[sl]`` reads, for a message: ``lumitexels 0:300`` (bounds resolved), or the index itself."""
+    axis = CAPTURE_ARRAYS[name][0][0] if name in CAPTURE_ARRAYS else "row"
+    label = "lumitexels" if axis == "lumitexel" else f"axis {axis!r}"
+    if isinstance(sl, slice) and len(array.shape) > 0:
+        try:
+            start, stop, step = sl.indices(array.shape[0])
+        except TypeError:  # bounds that are not integers
+            pass
+        else:
+            return f"{label} {start}:{stop}" + (f":{step}" if step != 1 else "")
+    return f"{label} index {sl!r:.60}"
 
 
 def _lz4(shuffle):

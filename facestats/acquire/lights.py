@@ -27,7 +27,7 @@ JSON: ``{"eta": 1.3, "lights": [{"type": "point", "position_mm": [x, y, z],
 "half_angle_deg": a}}, {"type": "directional", "direction": […], "irradiance":
 v or [r, g, b], "cuts": [{"normal": […], "point_mm": […]}]}, {"type":
 "environment", "directions": [[…], …], "radiance_solid_angle": [v, …] or
-[[r, g, b], …]}]}``.
+[[r, g, b], …], "shadows": true}]}`` (``shadows`` optional, default true).
 """
 
 from __future__ import annotations
@@ -205,8 +205,8 @@ class EnvironmentLight:
         L·δΩ per direction and channel, ≥ 0 (the irradiance of each as a distant light); (D,) is repeated to the
         three channels.
     shadows : bool
-        Self-shadowing by the patches' mesh for this light (:func:`light_masks`); default True.  Not written by
-        :meth:`to_dict`.
+        Self-shadowing by the patches' mesh for this light (:func:`light_masks`); default True.  Written by
+        :meth:`to_dict` as ``"shadows"`` (a description without it: True).
     """
 
     directions: np.ndarray
@@ -264,11 +264,12 @@ class EnvironmentLight:
         return cls(directions, power, shadows)
 
     def to_dict(self) -> dict:
-        """The light as a JSON-ready dict (directions, radiance × solid angle)."""
+        """The light as a JSON-ready dict (directions, radiance × solid angle, shadows)."""
         return {
             "type": "environment",
             "directions": self.directions.tolist(),
             "radiance_solid_angle": self.radiance_solid_angle.tolist(),
+            "shadows": bool(self.shadows),
         }
 
 
@@ -287,7 +288,10 @@ def _light_from_dict(d: dict):
             cuts = tuple((c["normal"], c["point_mm"]) for c in d.get("cuts", ()))
             return DirectionalLight(d["direction"], d["irradiance"], cuts)
         if kind == "environment":
-            return EnvironmentLight(d["directions"], d["radiance_solid_angle"])
+            shadows = d.get("shadows", True)  # absent before facestats wrote it: the class's default
+            if not isinstance(shadows, bool):
+                raise FormatError(f"environment light's shadows must be true or false, got {shadows!r}")
+            return EnvironmentLight(d["directions"], d["radiance_solid_angle"], shadows)
     except KeyError as exc:
         raise FormatError(f"{kind} light is missing the key {exc.args[0]!r}") from None
     raise FormatError(f"light type must be one of ['directional', 'environment', 'point'], got {kind!r}")
@@ -310,7 +314,8 @@ def lights_from_dict(d: dict):
     Raises
     ------
     FormatError
-        Not an object with a non-empty list ``lights``, a light of unknown ``type`` or missing a key.
+        Not an object with a non-empty list ``lights``, a light of unknown ``type`` or missing a key, or an
+        environment light's ``shadows`` not a boolean.
     ValidationError
         ``eta`` outside [1, 3], or a light's values out of their domain.
     """

@@ -319,9 +319,10 @@ class CaptureFolder:
         Raises
         ------
         FormatError
-            The frame lies outside the folder, cannot be read or decoded, its SHA-256 differs from the manifest's,
-            it is not RGB, of another bit depth or size, or its EXIF ``ExposureTime`` differs from ``exposure_s``
-            by more than :data:`EXPOSURE_TOLERANCE` (relative).
+            The camera has no frames in the folder (not in :attr:`cameras`), the frame lies outside the folder,
+            cannot be read or decoded, its SHA-256 differs from the manifest's, it is not RGB, of another bit depth
+            or size, or its EXIF ``ExposureTime`` differs from ``exposure_s`` by more than
+            :data:`EXPOSURE_TOLERANCE` (relative).
         """
         # local import: keeps facestats.io (24 modules) out of this module's import
         from facestats.io.exif import parse_exif
@@ -329,6 +330,10 @@ class CaptureFolder:
         from facestats.io.layout import read_regular_file
 
         rel = self.files[pose, camera, led, exposure]
+        if rel is None:
+            raise FormatError(
+                f"camera {camera} has no frames in {self.path} (field 'cameras' of {MANIFEST} lists {self.cameras})"
+            )
         p = self.inside(rel, "frame")
         try:
             data = read_regular_file(p)  # a FIFO planted as a frame is refused, never read
@@ -435,7 +440,7 @@ class CaptureFolder:
             sensor = ContactSensor.from_attrs(doc["sensor"])
             prof = np.asarray(doc["profile"], np.float64)
             std = np.asarray(doc["profile_std"], np.float64)
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, FormatError) as exc:  # FormatError: the sensor's, named here
             raise FormatError(f"sensor file {name} has a missing or malformed field: {exc}") from None
         if prof.shape != (3, sensor.n_fibers, 3) or std.shape != prof.shape:
             raise FormatError(

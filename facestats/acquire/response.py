@@ -792,11 +792,12 @@ def exposure_agreement(
 # -- a known non-linear camera (simulation) -----------------------------------------------------------------
 def _bt709_oetf(x):
     """ITU-R BT.709 opto-electronic transfer function: 4.5x below 0.018, 1.099 x^0.45 − 0.099 above."""
-    x = np.clip(x, 0, 1)
+    x = np.clip(np.asarray(x), 0, 1)
+    shape, x = x.shape, np.atleast_1d(x)  # a 0-d x: its y would be a scalar, which takes no item assignment
     y = 4.5 * x
     hi = x >= 0.018
     y[hi] = 1.099 * np.power(x[hi], 0.45) - 0.099  # the power only where it applies (dark pixels dominate frames)
-    return y
+    return y.reshape(shape)
 
 
 def _bt709_inverse(v):
@@ -845,8 +846,7 @@ class ResponseCurve:
         Parameters
         ----------
         electrons : array_like
-            Expected electrons per pixel, any shape of at least one dimension (a 0-d value fails); computed in
-            float32.
+            Expected electrons per pixel, any shape (a 0-d value gives a 0-d array); computed in float32.
         rng : numpy.random.Generator, optional
             Source of the shot and read noise (class docstring); None: no noise.
 
@@ -861,7 +861,7 @@ class ResponseCurve:
             noise *= np.sqrt(np.maximum(e, 0) + np.float32(self.read_noise**2))
             e = e + noise
         v = _bt709_oetf(e / np.float32(self.full_well)) * (self.levels - 1)
-        return np.rint(v).astype(np.uint8 if self.bits <= 8 else np.uint16)
+        return np.asarray(np.rint(v).astype(np.uint8 if self.bits <= 8 else np.uint16))  # 0-d: rint gives a scalar
 
     def log_exposure(self) -> np.ndarray:
         """True g(z) = ln(electrons) at each code's centre, shape (levels,); code 0 at a quarter code (finite)."""

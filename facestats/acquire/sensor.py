@@ -31,7 +31,7 @@ import numpy as np
 from facestats.acquire.hdr import CameraResponse, expose, merge_exposures, merged_std
 from facestats.core.published import N_FIBERS, SENSOR_BRACKET_IMAGES, SENSOR_BRACKET_STOP
 from facestats.core.validate import as_finite, check_range, check_shape
-from facestats.errors import ValidationError
+from facestats.errors import FormatError, ValidationError
 
 __all__ = ["ContactSensor", "default_fiber_distances"]
 
@@ -160,7 +160,7 @@ class ContactSensor:
         ----------
         attrs : dict
             As :meth:`to_attrs` writes it; ``camera`` may be absent (the default :class:`CameraResponse`), the
-            other keys are required (a missing one raises KeyError).
+            other keys are required.
 
         Returns
         -------
@@ -168,15 +168,26 @@ class ContactSensor:
 
         Raises
         ------
+        FormatError
+            ``attrs`` not a dict, a required key missing (named), or a field of the wrong type.
         ValidationError
             A value out of its domain (the constructor's and :class:`CameraResponse`'s checks).
         """
-        cam = attrs.get("camera", {})
-        return cls(
-            fiber_distance=np.asarray(attrs["fiber_distance_mm"], float),
-            n_exposures=int(attrs["n_exposures"]),
-            stop=float(attrs["stop"]),
-            shortest_exposure=float(attrs["shortest_exposure_s"]),
-            scale=float(attrs["scale_e_per_s_per_mm-2"]),
-            camera=CameraResponse(**cam) if cam else CameraResponse(),
-        )
+        if not isinstance(attrs, dict):
+            raise FormatError(f"contact sensor description must be a JSON object, got {type(attrs).__name__}")
+        try:
+            cam = attrs.get("camera", {})
+            return cls(
+                fiber_distance=np.asarray(attrs["fiber_distance_mm"], float),
+                n_exposures=int(attrs["n_exposures"]),
+                stop=float(attrs["stop"]),
+                shortest_exposure=float(attrs["shortest_exposure_s"]),
+                scale=float(attrs["scale_e_per_s_per_mm-2"]),
+                camera=CameraResponse(**cam) if cam else CameraResponse(),
+            )
+        except KeyError as exc:
+            raise FormatError(f"contact sensor description is missing the key {exc.args[0]!r}") from None
+        except (TypeError, ValueError) as exc:
+            if isinstance(exc, ValidationError):
+                raise
+            raise FormatError(f"contact sensor description has a malformed field: {exc}") from None

@@ -188,10 +188,10 @@ class CCAResult:
         Parameters
         ----------
         X : array_like or pandas.DataFrame, shape (m, p)
-            New X-block rows, columns in the order of ``x_names`` (taken by position, not by name); 1-D is one
-            variable.
+            New X-block rows: a DataFrame's columns are taken by the names ``x_names`` (others are ignored), an
+            array's by position, in the order of ``x_names``; 1-D is one variable.
         Y : array_like or pandas.DataFrame, shape (m, q), optional
-            New Y-block rows, columns in the order of ``y_names``.
+            New Y-block rows, likewise with ``y_names``.
 
         Returns
         -------
@@ -201,12 +201,13 @@ class CCAResult:
         Raises
         ------
         ValidationError
-            ``X`` or ``Y`` not numeric, not 1-D or 2-D, or without columns.
+            ``X`` or ``Y`` not numeric, not 1-D or 2-D, a DataFrame without one of the fitted columns, or an array
+            with another number of columns.
         """
-        x = _as_block(X, "X")[0] - self.x_mean
+        x = _new_block(X, "X", self.x_names) - self.x_mean
         if Y is None:
             return x @ self.x_weights
-        return x @ self.x_weights, (_as_block(Y, "Y")[0] - self.y_mean) @ self.y_weights
+        return x @ self.x_weights, (_new_block(Y, "Y", self.y_names) - self.y_mean) @ self.y_weights
 
     def compare_published(self):
         """Principal and direct correlations beside Weyrich Fig. 16 (:mod:`facestats.core.published`).
@@ -316,6 +317,30 @@ def _as_block(a, name):
     if values.shape[1] == 0:
         raise ValidationError(f"{name} must hold at least one variable (column), got shape {values.shape}")
     return values, names, rows
+
+
+def _new_block(a, name, names):
+    """Values of new rows of a fitted block: a DataFrame's (or Series') columns by ``names``, an array's by
+    position, with as many columns as ``names``."""
+    import pandas as pd
+
+    if isinstance(a, pd.Series):
+        a = a.to_frame()
+    if isinstance(a, pd.DataFrame):
+        columns = {str(c): c for c in a.columns}
+        missing = [n for n in names if n not in columns]
+        if missing:
+            raise ValidationError(
+                f"{name} must have the fitted columns {list(names)}, got {[str(c) for c in a.columns]} "
+                f"(missing {missing}; pass an array to take columns by position)"
+            )
+        a = a[[columns[n] for n in names]]
+    values = _as_block(a, name)[0]
+    if values.shape[1] != len(names):
+        raise ValidationError(
+            f"{name} must have {len(names)} columns (in the order {list(names)}), got shape {values.shape}"
+        )
+    return values
 
 
 def _shrink(cov, lam):

@@ -125,13 +125,18 @@ class TranslucencyTable:
         Parameters
         ----------
         site : str
-            ``"cheek"``, ``"forehead"`` or ``"neck"``, one of the sites in ``table`` (else pandas' KeyError).
+            ``"cheek"``, ``"forehead"`` or ``"neck"``, one of the sites in ``table``.
 
         Returns
         -------
         ndarray, shape (3,)
+
+        Raises
+        ------
+        ValidationError
+            ``site`` is not a site of ``table``.
         """
-        return self.table[(site, "mean")].to_numpy()
+        return self.table[(self._site(site), "mean")].to_numpy()
 
     def var(self, site) -> np.ndarray:
         """Variance of σtr (R, G, B) of a site, mm⁻².
@@ -139,14 +144,23 @@ class TranslucencyTable:
         Parameters
         ----------
         site : str
-            ``"cheek"``, ``"forehead"`` or ``"neck"``, one of the sites in ``table`` (else pandas' KeyError).
+            ``"cheek"``, ``"forehead"`` or ``"neck"``, one of the sites in ``table``.
 
         Returns
         -------
         ndarray, shape (3,)
             Sample variance with ``ddof``.
+
+        Raises
+        ------
+        ValidationError
+            ``site`` is not a site of ``table``.
         """
-        return self.table[(site, "var")].to_numpy()
+        return self.table[(self._site(site), "var")].to_numpy()
+
+    def _site(self, site):
+        """``site`` if ``table`` has statistics of it, else ValidationError naming the sites it has."""
+        return check_choice(site, "site", set(self.table.columns.get_level_values(0)))
 
     def compare_published(self):
         """Our mean, variance and standard deviation beside Weyrich Table 1 (one row per site and channel)."""

@@ -270,14 +270,20 @@ class SteerablePyramid:
         Parameters
         ----------
         index : int
-            Band index in band order, 0 to ``n_bands - 1`` (not checked).
+            Band index in band order, 0 to ``n_bands - 1``.
 
         Returns
         -------
         int
             The level ``i`` whose grid the band lies on (shape ``band_shapes[index]``); an oriented band of
             level ``i`` has index ``1 + i * orientations + b``.
+
+        Raises
+        ------
+        ValidationError
+            ``index`` is not an integer in [0, ``n_bands - 1``].
         """
+        index = check_integer(index, "index", 0, self.n_bands - 1)
         if index == 0:
             return 0
         if index == self.n_bands - 1:

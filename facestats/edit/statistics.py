@@ -268,7 +268,8 @@ class TextureStatistics:
         Parameters
         ----------
         path : str or os.PathLike
-            The ``.npz`` file (taken as given: no suffix is appended).
+            The ``.npz`` file, or the path :meth:`save` was given: when ``path`` does not exist and its suffix is
+            not ``.npz``, ``path`` with ``.npz`` appended is read (as :func:`numpy.load` users expect).
 
         Returns
         -------
@@ -281,8 +282,13 @@ class TextureStatistics:
             file of this version, or holds invalid statistics.
         """
         path = pathlib.Path(path)
+        alt = path.with_name(path.name + ".npz") if path.name and path.suffix != ".npz" else None
+        if alt is not None and not os.path.lexists(path) and os.path.lexists(alt):
+            path = alt  # the file save(path) wrote
         if not path.is_file():  # a FIFO would block np.load forever; a folder or nothing is no statistics file
             what = "does not exist" if not os.path.lexists(path) else "is not a regular file"
+            if alt is not None and not os.path.lexists(path):
+                what += f" (nor does {str(alt)!r})"
             raise FormatError(f"cannot read texture statistics from {str(path)!r}: it {what}")
         with open(path, "rb") as fh:
             zipped = fh.read(4) == b"PK\x03\x04"  # an .npz is a zip archive; anything else is not ours

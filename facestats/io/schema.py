@@ -166,24 +166,28 @@ class Domain:
             + ("]" if self.high is not None else ")")
         )
 
-    def violated(self, value: float) -> str:
-        """The bound a single value outside the domain breaks, as text: ``"> 0"``, ``">= 0"`` or ``"<= 9.8"``.
+    def violated(self, value: float) -> str | None:
+        """The bound a single value breaks, as text: ``"> 0"``, ``">= 0"`` or ``"<= 9.8"``; None if it is inside.
 
         Parameters
         ----------
         value : float
-            A value :meth:`outside` flags.
+            One value, compared in float64 as :meth:`outside` compares it.
 
         Returns
         -------
-        str
-            ``"finite"`` for an infinite value (or a NaN the domain does not allow) within the bounds.
+        str or None
+            The bound; ``"finite"`` for an infinite value (or a NaN the domain does not allow) within the bounds;
+            None for a value inside the domain (one :meth:`outside` does not flag, an allowed NaN included).
         """
+        value = float(value)  # a float32 against a float bound compares in float32 (NEP 50), outside() in float64
         if self.low is not None and (value <= self.low if self.low_open else value < self.low):
             return f"{'>' if self.low_open else '>='} {self.low:g}"
         if self.high is not None and value > self.high:
             return f"<= {self.high:g}"
-        return "finite" if not np.isnan(value) or not self.nan else self.describe()
+        if np.isinf(value) or (np.isnan(value) and not self.nan):
+            return "finite"
+        return None
 
     def outside(self, values: np.ndarray) -> np.ndarray:
         """Boolean mask of the values outside the domain (inf always; NaN unless allowed).

@@ -68,6 +68,7 @@ __all__ = [
     "texel_strain",
     "uv_islands",
     "slivers",
+    "RASTER_CACHE_BYTES",
 ]
 
 #: A triangle is degenerate when |e1 × e2| ≤ DEGENERATE_SINE · |e1| |e2| (rest, deformed or UV).
@@ -85,6 +86,11 @@ SLIVER_RATIO = 100.0
 MAX_UV_OVERLAP = 0.01
 #: Texels along the longer side of the UV layout when :meth:`MeshStrain.check_uv_overlap` rasterises it.
 OVERLAP_RASTER = 1024
+#: Bytes of rasters a :class:`MeshStrain` keeps (:meth:`MeshStrain.raster`), stored as runs of one triangle along
+#: the rows: the least recently used are dropped beyond it.  ICT-FaceKit's face area on a whole 16K map in the
+#: 512-texel tiles of :func:`facestats.pipeline.microstructure.render_sequence`, with their halos: 425 M texels in
+#: 5.5 M runs, 42 MiB, where int32 rasters kept for ever took 1.6 GiB.
+RASTER_CACHE_BYTES = 256 * 2**20
 #: Barycentric coordinate at or below which a texel centre lies on a triangle's edge
 #: (:meth:`MeshStrain.check_uv_overlap`).
 _EDGE = 1e-9
@@ -479,7 +485,8 @@ class MeshStrain:
         self.rest_slivers = slivers(m, degenerate)
         self.rest_degenerate = degenerate | self.rest_slivers
         self.m = np.where(self.rest_slivers[:, None, None], np.eye(2), m)  # as uv_metric gives degenerate ones
-        self._rasters = {}
+        self._rasters = {}  # (map_shape, window) -> (triangle, run length) of the raster, least recently used first
+        self._raster_bytes = 0
 
     @property
     def n_vertices(self) -> int:
@@ -586,27 +593,42 @@ class MeshStrain:
         return _strain(tv, self.vertex_m, ok, n_deg)
 
     def raster(self, map_shape, window):
-        """Triangle covering each texel of a window, (h, w) int32, -1 where none (cached per map and window).
+        """Triangle covering each texel of a window, (h, w) int32, -1 where none.
 
         Where UV triangles overlap the last one wins; :meth:`texels_strain` refuses a mesh whose UVs overlap
-        (:meth:`check_uv_overlap`).  Rest triangles that are degenerate or slivers cover no texel.
+        (:meth:`check_uv_overlap`).  Rest triangles that are degenerate or slivers cover no texel.  Rasters are
+        cached per map and window, as runs of one triangle, up to :data:`RASTER_CACHE_BYTES` (the least recently
+        used dropped first), so the tiles of a sequence's frames are rasterised once however large the map.
 
         Parameters
         ----------
-        map_shape : tuple of int
-            ``(height, width)`` of the whole map in texels (not checked here, unlike :meth:`texels_strain`).
-        window : tuple of int
-            ``(row0, col0, height, width)`` of the texels to rasterise (not checked).
+        map_shape : int or (int, int)
+            ``(height, width)`` of the whole map in texels (an int for a square map).
+        window : (row0, col0, height, width) or None
+            The texels to rasterise, inside the map; None: the whole map.
 
         Returns
         -------
         ndarray of int32, shape (height, width) of the window
-            Triangle index per texel, -1 where none.
+            Triangle index per texel, -1 where none (a new array: changing it leaves the cache alone).
+
+        Raises
+        ------
+        ValidationError
+            ``map_shape`` or ``window`` not integers ≥ 1 (≥ 0 for the window's origin), or the window not inside
+            the map.
         """
-        key = (tuple(map_shape), tuple(window))
-        if key not in self._rasters:
-            self._rasters[key] = self._coverage(map_shape, window, count=False)[0].reshape(window[2], window[3])
-        return self._rasters[key]
+        map_shape, window = _window(map_shape, window)
+        key = (map_shape, window)
+        runs = self._rasters.pop(key, None)  # re-inserted below: most recently used last
+        if runs is None:
+            runs = _runs(self._coverage(map_shape, window, count=False)[0])
+            self._raster_bytes += runs[0].nbytes + runs[1].nbytes
+        self._rasters[key] = runs
+        while self._raster_bytes > RASTER_CACHE_BYTES:  # drop the least recently used (the new one, if it alone is)
+            old = self._rasters.pop(next(iter(self._rasters)))
+            self._raster_bytes -= old[0].nbytes + old[1].nbytes
+        return np.repeat(*runs).reshape(window[2], window[3])
 
     def _coverage(self, map_shape, window, count=True):
         """``(tri_map (h w,), inner, events)``: the last triangle over each texel of the window, the texels whose
@@ -733,16 +755,26 @@ class MeshStrain:
         return res
 
 
+def _runs(values):
+    """``(value, length)`` of the runs of equal values of a non-empty 1-D array: ``np.repeat`` of them gives it
+    (lengths int32 when the array is shorter than 2³¹, else int64)."""
+    start = np.concatenate([[0], np.flatnonzero(values[1:] != values[:-1]) + 1])
+    length = np.diff(np.append(start, values.size))
+    return values[start], length.astype(np.int32) if values.size < 2**31 else length
+
+
 def _window(map_shape, window):
-    if np.ndim(map_shape) == 0:
+    """``((height, width), (row0, col0, h, w))`` as ints, checked: the window (default the whole map) inside the
+    map."""
+    if isinstance(map_shape, (int, np.integer)):
         map_shape = (map_shape, map_shape)
-    if len(map_shape) != 2:
+    if not isinstance(map_shape, (tuple, list, np.ndarray)) or len(map_shape) != 2:
         raise ValidationError(f"map_shape must be an int or (height, width), got {map_shape!r}")
     height = check_integer(map_shape[0], "map_shape height", 1)
     width = check_integer(map_shape[1], "map_shape width", 1)
     if window is None:
         window = (0, 0, height, width)
-    if len(window) != 4:
+    if not isinstance(window, (tuple, list, np.ndarray)) or len(window) != 4:
         raise ValidationError(f"window must be (row0, col0, height, width), got {window!r}")
     r0, c0 = check_integer(window[0], "window row0", 0), check_integer(window[1], "window col0", 0)
     h, w = check_integer(window[2], "window height", 1), check_integer(window[3], "window width", 1)

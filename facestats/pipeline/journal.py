@@ -52,7 +52,6 @@ from pathlib import Path
 from facestats.core.conventions import EDIT_SOURCE
 from facestats.core.processes import process_gone
 from facestats.core.validate import check_integer
-from facestats.errors import ValidationError
 from facestats.io.ids import check_subject_id
 from facestats.io.layout import BUILD_JOURNAL, read_regular_file
 from facestats.io.store import open_store
@@ -158,10 +157,7 @@ class BuildJournal:
             return {}
         out = {}
         for p in sorted(self.root.glob("*.json")):
-            try:
-                rec = self.read(p.stem)
-            except ValidationError:  # not a subject id: not ours
-                continue
+            rec = self.read(p.stem)  # None for a name that is not a subject id (the plans) and for a damaged record
             if rec is not None:
                 out[p.stem] = rec
         return out
@@ -206,8 +202,8 @@ class BuildJournal:
         attempt : int
             The attempt's number, from 1.
         exc : BaseException
-            What it raised; the record's ``error`` is the last entry of :func:`traceback.format_exception_only`
-            (type and message), whitespace collapsed to one line.
+            What it raised; the record's ``error`` is its type and message as :func:`traceback.format_exception_only`
+            writes them, followed by its notes (``add_note``) in parentheses, whitespace collapsed to one line.
 
         Raises
         ------
@@ -215,8 +211,7 @@ class BuildJournal:
             ``sid`` is not a valid subject id.
         """
         rec = self.read(sid) or {"subject_id": sid, "host": socket.gethostname(), "pid": os.getpid()}
-        last = " ".join(traceback.format_exception_only(type(exc), exc)[-1].split())  # one line for --status
-        rec.update(state="failed", attempts=int(attempt), updated=_now(), error=last)
+        rec.update(state="failed", attempts=int(attempt), updated=_now(), error=_error_text(exc))
         self._write(sid, rec)
 
     def begin(self, subjects) -> None:
@@ -322,6 +317,22 @@ class BuildJournal:
             self.root.rmdir()
         except OSError:  # missing, or records left
             pass
+
+
+def _error_text(exc: BaseException) -> str:
+    """``exc``'s type and message, then its notes in parentheses: one line for ``--status``.
+
+    :func:`traceback.format_exception_only` ends with the notes (``add_note``), one entry per line of each, after
+    the message (itself after a syntax error's file and line): the message is the last entry of the exception
+    formatted without its notes.
+    """
+    full = traceback.format_exception_only(type(exc), exc)
+    own = traceback.TracebackException(type(exc), exc, None)
+    own.__notes__ = None
+    message = list(own.format_exception_only())
+    notes = [" ".join(line.split()) for line in full[len(message) :]]
+    notes = [n for n in notes if n]
+    return " ".join(message[-1].split()) + (f" ({'; '.join(notes)})" if notes else "")
 
 
 def gathered(future, store, sid):

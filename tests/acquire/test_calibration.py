@@ -210,6 +210,38 @@ def test_led_calibration_rejects_a_face_folder_and_a_mismatched_rig(target):
     assert manifest["kind"] == "target" and manifest["cameras"] == [3, 4, 11]
 
 
+def test_reading_a_frame_of_a_camera_without_frames_names_the_camera(target):
+    """A target folder of cameras 3, 4 and 11 asked for camera 0 failed with a TypeError (a reviewer)."""
+    from facestats.acquire.photographs import open_folder
+
+    folder = open_folder(target[0])
+    assert folder.read_codes(3, 0, 0).shape[2] == 3
+    with pytest.raises(
+        FormatError, match=r"camera 0 has no frames in .* \(field 'cameras' of manifest.json lists \[3, 4, 11\]\)"
+    ):
+        folder.read_codes(0, 0, 0)
+
+
+def test_an_led_calibration_with_standard_errors_but_no_beam_error_is_written():
+    """``beam_stderr`` set with ``beam_error`` None raised TypeError in to_dict (a reviewer)."""
+    from facestats.acquire.calibration import LedCalibration
+
+    dome = default_dome().select(leds=[0, 1])
+    base = dict(
+        intensity=np.ones((2, 3)),
+        beam=np.tile([1.0, 0, 0, 0, 0, 0], (2, 1)),
+        camera_gain=np.ones((16, 3)),
+        rms_residual=np.full(2, 0.01),
+        n_observations=np.array([40, 40]),
+        reference_camera=0,
+    )
+    leds = LedCalibration(**base, beam_stderr=np.full((2, 6), 0.02)).to_dict(dome)["leds"]
+    assert leds[1]["beam_stderr"] == [0.02] * 6 and "beam_error" not in leds[1]
+    leds = LedCalibration(**base, beam_error=np.array([0.1, np.nan])).to_dict(dome)["leds"]
+    assert [x["beam_error"] for x in leds] == [0.1, None] and "beam_stderr" not in leds[0]
+    assert set(LedCalibration(**base).to_dict(dome)["leds"][0]).isdisjoint({"beam_stderr", "beam_error"})
+
+
 @pytest.fixture(scope="module")
 def sparse_target(tmp_path_factory):
     """Two poses that light LED 1 from behind only and LEDs 2 and 3 over one pose only (3 cameras, 96²)."""

@@ -104,3 +104,18 @@ def test_invalid_inputs_name_the_argument(rng):
         CameraResponse(full_well=0.0)
     with pytest.raises(FacestatsError, match=r"profile must have shape \(\.\.\., 28, 3\)"):
         ContactSensor().capture(np.ones((27, 3)), rng)
+
+
+def test_a_sensor_description_without_a_key_names_it():
+    """A missing key raised a bare KeyError, through ``Capture.sensor`` as well (a reviewer)."""
+    from facestats.errors import FormatError
+
+    attrs = ContactSensor().to_attrs()
+    assert ContactSensor.from_attrs(attrs).n_fibers == ContactSensor().n_fibers
+    del attrs["stop"]
+    with pytest.raises(FormatError, match="contact sensor description is missing the key 'stop'"):
+        ContactSensor.from_attrs(attrs)
+    with pytest.raises(FormatError, match="malformed field"):
+        ContactSensor.from_attrs({**ContactSensor().to_attrs(), "n_exposures": [3]})
+    with pytest.raises(FormatError, match="must be a JSON object, got list"):
+        ContactSensor.from_attrs([])

@@ -78,6 +78,15 @@ def test_a_sensor_file_that_is_a_fifo_or_a_link_out_is_refused_not_read(copy, tm
         open_folder(copy).sensor()
 
 
+def test_a_sensor_file_missing_a_key_names_the_file_and_the_key(copy):
+    name = json.loads((copy / "manifest.json").read_text())["sensor"]
+    doc = json.loads((copy / name).read_text())
+    del doc["sensor"]["scale_e_per_s_per_mm-2"]
+    (copy / name).write_text(json.dumps(doc))
+    with pytest.raises(FacestatsError, match=f"sensor file {name} has .*missing the key 'scale_e_per_s_per_mm-2'"):
+        open_folder(copy).sensor()
+
+
 def test_bilinear_taps_interpolate_a_linear_ramp():
     img = np.add.outer(np.arange(5.0), 10 * np.arange(7.0))  # value = row + 10 col
     index, weight = bilinear_taps(np.array([[2.25, 1.5], [0.0, 0.0], [6.0, 4.0]]), (7, 5))

@@ -53,6 +53,14 @@ def bracket8():
     return cam, rate, imgs
 
 
+def test_the_simulated_camera_encodes_a_single_value():
+    """A 0-d value raised TypeError ('numpy.float32' object does not support item assignment) (a reviewer)."""
+    cam = ResponseCurve(bits=12)
+    code = cam.encode(100.0)
+    assert code.shape == () and code.dtype == np.uint16 and code == cam.encode([100.0])[0]
+    assert cam.encode(np.float32(3e4)) == 4095 and cam.encode(100.0, np.random.default_rng(0)).shape == ()
+
+
 def test_hat_weights_are_zero_at_the_clipping_ends():
     w = hat_weights(256)
     assert w[0] == w[255] == 0 and w[127] == w[128] == 127 and np.all(w[1:255] > 0)

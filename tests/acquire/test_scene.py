@@ -153,12 +153,33 @@ def test_lights_masks_shadows_and_json(tmp_path):
         load_lights(path)
 
 
+def test_an_environment_light_keeps_its_shadows_setting_through_a_file(tmp_path):
+    """``shadows=False`` was not written and came back True (a reviewer); old files without it keep the default."""
+    from facestats.acquire.lights import lights_from_dict
+
+    path = save_lights(tmp_path / "lights.json", [EnvironmentLight([[0, 0, 1.0]], [0.5], shadows=False)])
+    (back,), _ = load_lights(path)
+    assert back.shadows is False
+    (old,), _ = lights_from_dict(
+        {"lights": [{"type": "environment", "directions": [[0, 0, 1]], "radiance_solid_angle": [1]}]}
+    )
+    assert old.shadows is True
+    with pytest.raises(FormatError, match="environment light's shadows must be true or false, got 'no'"):
+        lights_from_dict(
+            {
+                "lights": [
+                    {"type": "environment", "directions": [[0, 0, 1]], "radiance_solid_angle": [1], "shadows": "no"}
+                ]
+            }
+        )
+
+
 def test_camera_matches_the_dome_and_round_trips(tmp_path):
     dome = default_dome()
     cam = PinholeCamera.from_dome(dome, 3)
     pts = np.random.default_rng(1).uniform(-50, 50, (20, 3))
     _, in_frame, pix = dome.view(pts, cameras=[3])
-    np.testing.assert_allclose(cam.project(pts)[0], pix[:, 0])
+    np.testing.assert_allclose(cam.project(pts)[0], pix[:, 0] + 0.5)  # pixel centres: dome integers, here + ½
     np.testing.assert_array_equal(cam.in_frame(pts), in_frame[:, 0])
     cam.save(tmp_path / "cam.json")
     back = PinholeCamera.load(tmp_path / "cam.json")
@@ -168,6 +189,31 @@ def test_camera_matches_the_dome_and_round_trips(tmp_path):
     (tmp_path / "cam.json").write_bytes(b'{"matrix": "\xff"}')  # not UTF-8: raised UnicodeDecodeError
     with pytest.raises(FormatError, match="cannot read the camera file"):
         PinholeCamera.load(tmp_path / "cam.json")
+
+
+def test_a_camera_from_the_dome_agrees_with_it_at_the_image_edges():
+    """from_dome copied the dome's K (pixel centres at integers) into a camera with pixel centres at + ½: every
+    projection was half a pixel off and points just inside or outside an edge were classed wrongly; the dome's lens
+    distortion was dropped without a word (a reviewer)."""
+    from dataclasses import replace
+
+    dome = default_dome()
+    cam = PinholeCamera.from_dome(dome, 3)
+    w, h = dome.image_size[3]
+    edges = [(-0.5 + e, h / 2) for e in (-1e-3, 1e-3)] + [(w - 0.5 + e, h / 2) for e in (-1e-3, 1e-3)]
+    edges += [(w / 2, -0.5 + e) for e in (-1e-3, 1e-3)] + [(w / 2, h - 0.5 + e) for e in (-1e-3, 1e-3)]
+    pts = dome.camera_position[3] + 400.0 * dome.pixel_rays(3, np.array(edges))
+    _, in_frame, pix = dome.view(pts, cameras=[3])
+    np.testing.assert_array_equal(in_frame[:, 0], [False, True, True, False] * 2)
+    np.testing.assert_allclose(cam.project(pts)[0], pix[:, 0] + 0.5, atol=1e-6)
+    np.testing.assert_array_equal(cam.in_frame(pts), in_frame[:, 0])
+    dist = np.zeros((dome.n_cameras, 5))
+    dist[3, 0] = 0.1
+    distorted = replace(dome, camera_distortion=dist)
+    with pytest.raises(ValidationError, match=r"dome camera 3 has lens distortion \[0.1, 0.0"):
+        PinholeCamera.from_dome(distorted, 3)
+    np.testing.assert_array_equal(PinholeCamera.from_dome(distorted, 2).matrix, PinholeCamera.from_dome(dome, 2).matrix)
+    np.testing.assert_array_equal(PinholeCamera.from_dome(distorted, 3, ignore_distortion=True).matrix, cam.matrix)
 
 
 @pytest.mark.parametrize("ext", [".npz", ".exr", ".pfm"])

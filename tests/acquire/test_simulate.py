@@ -192,6 +192,38 @@ def test_a_deleted_capture_chunk_is_refused_while_an_all_invalid_one_reads(tmp_p
         open_capture(path)
 
 
+def test_a_capture_names_a_missing_sensor_key_and_the_part_it_could_not_read(pop32, sim32):
+    """``Capture.sensor`` let a KeyError through; an unreadable array's message said "lumitexels None:None" for a
+    whole read and hit an AttributeError for an index that is not a slice (a reviewer)."""
+    import json
+
+    from facestats.acquire.capture import Capture
+
+    cap = sim32.simulate(pop32[1])
+    sensor = json.loads(cap.attrs["sensor"])
+    del sensor["n_exposures"]
+    with pytest.raises(FormatError, match="contact sensor description is missing the key 'n_exposures'"):
+        Capture(dict(cap.arrays), {**cap.attrs, "sensor": json.dumps(sensor)}).sensor
+
+    class Damaged:
+        shape = cap.arrays["radiance"].shape
+
+        def __getitem__(self, sl):
+            raise RuntimeError("error during blosc decompression: -1")
+
+    n = cap.n_lumitexels
+    cap.arrays["radiance"] = Damaged()
+    for sl, part in (
+        (slice(None), f"lumitexels 0:{n}"),
+        (slice(100, 400), "lumitexels 100:400"),
+        (slice(-5, None), f"lumitexels {n - 5}:{n}"),
+        (7, "lumitexels index 7"),
+        ([1, 2], r"lumitexels index \[1, 2\]"),
+    ):
+        with pytest.raises(FormatError, match=f"array 'radiance', {part}, cannot be read .*blosc"):
+            cap.array("radiance", sl)
+
+
 def test_streaming_simulation_equals_in_memory(tmp_path, pop32):
     sim = DomeSimulator(procedural_face(32), block=256)
     path = sim.simulate_to_zarr(pop32[2], tmp_path / "s.zarr")

@@ -62,6 +62,22 @@ def test_linnerud_matches_sklearn(linnerud):
         assert abs(abs(np.corrcoef(res.projections[:, i], u[:, i])[0, 1]) - 1) < 1e-5
 
 
+def test_transform_takes_a_dataframe_s_columns_by_name_and_checks_an_array_s_count(linnerud):
+    x, y = linnerud
+    res = cca(x, y)
+    reordered = x[["Pulse", "Weight", "Waist"]].assign(extra=1.0)  # was taken by position: Pulse as Weight
+    np.testing.assert_allclose(res.transform(reordered), res.projections, atol=1e-10)
+    u, v = res.transform(reordered, y[["Jumps", "Chins", "Situps"]])
+    np.testing.assert_allclose(v, res.y_projections, atol=1e-10)
+    np.testing.assert_allclose(res.transform(x.to_numpy()), res.projections, atol=1e-10)
+    with pytest.raises(ValidationError, match=r"X must have the fitted columns .*missing \['Pulse'\]"):
+        res.transform(x.drop(columns="Pulse"))
+    with pytest.raises(ValidationError, match=r"X must have 3 columns .*got shape \(20, 2\)"):
+        res.transform(x.to_numpy()[:, :2])  # was numpy's bare matmul ValueError
+    with pytest.raises(ValidationError, match=r"Y must have 3 columns .*got shape \(20, 4\)"):
+        res.transform(x.to_numpy(), np.c_[y.to_numpy(), y.to_numpy()[:, :1]])  # numpy broadcast ValueError before
+
+
 def test_against_covariance_blocks_and_projection_properties(rng):
     x, y = _structured(rng)
     res = cca(x, y)

@@ -175,6 +175,23 @@ def test_missing_fibres_short_chains_and_validation():
         sigma_posterior(R, measured, bounds={"sigma_a": ("low", "high")})
 
 
+def test_interval_and_median_refuse_a_bad_level_or_parameter_by_name():
+    """level 1.5 gave quantiles (-0.25, 1.25) (numpy's bare ValueError); an unknown parameter was pandas' KeyError."""
+    measured, *_ = simulate(1, np.random.default_rng(5))
+    with pytest.warns(ConvergenceWarning):
+        post = sigma_posterior(R, measured[:, 0], initial_steps=50, max_steps=50)
+    assert post.interval("sigma_a", level=0.5).shape == (1, 2)
+    for bad in (0, 1, 1.5, -0.2, np.nan, "0.9", [0.9]):
+        with pytest.raises(ValidationError, match="level"):
+            post.interval("sigma_a", level=bad)
+    with pytest.raises(ValidationError, match=r"level must lie in \(0, 1\).*got 1.5"):
+        post.interval("sigma_a", level=1.5)
+    with pytest.raises(ValidationError, match=r"parameter must be one of .*'sigma_tr'.*got 'sigma_s'"):
+        post.interval("sigma_s")
+    with pytest.raises(ValidationError, match=r"parameter must be one of .*got 'albedo'"):
+        post.median("albedo")
+
+
 def test_site_posterior_of_a_stored_subject():
     store = make_population(n=3, conditions=False)
     ds = store.subject("S001")

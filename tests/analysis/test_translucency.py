@@ -97,6 +97,13 @@ def test_missing_sites_and_errors(store):
         translucency_table(empty)
 
 
+def test_mean_and_var_of_an_unknown_site_are_refused_naming_the_sites(store):
+    t = translucency_table(store)
+    for method in (t.mean, t.var):
+        with pytest.raises(ValidationError, match=r"site must be one of \['cheek', 'forehead', 'neck'\], got 'nose'"):
+            method("nose")  # was pandas' KeyError: ('nose', 'mean')
+
+
 def test_absorption_scattering_fig14(store):
     res = absorption_scattering(store)
     idx = store.subjects()

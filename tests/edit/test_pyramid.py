@@ -115,3 +115,13 @@ def test_validation():
         pyr.decompose(np.full((64, 64), np.nan))
     with pytest.raises(ValidationError, match="bands must hold"):
         pyr.reconstruct([np.zeros((64, 64))])
+
+
+def test_band_level_names_each_band_s_grid_and_refuses_an_index_out_of_range():
+    pyr = SteerablePyramid((64, 64), 2, 4)
+    assert [pyr.band_level(i) for i in range(pyr.n_bands)] == [0, 0, 0, 0, 0, 1, 1, 1, 1, 2]
+    for bad in (-1, 10, 2.0, True):  # -1 and 10 gave levels -1 and 2 (a band that does not exist)
+        with pytest.raises(ValidationError, match="index must be an integer"):
+            pyr.band_level(bad)
+    with pytest.raises(ValidationError, match=r"index must be an integer in \[0, 9\], got 10"):
+        pyr.band_level(10)

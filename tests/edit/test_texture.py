@@ -102,6 +102,18 @@ def test_save_load_roundtrip(tmp_path, images):
         TextureStatistics.load(tmp_path / "other.npz")
 
 
+def test_load_reads_what_save_wrote_for_a_suffixless_name(tmp_path, images):
+    _, tgt, _ = images
+    st = TextureStatistics.from_image(tgt, levels=3, bins=32)
+    st.save(tmp_path / "freckles")  # writes freckles.npz
+    back = TextureStatistics.load(tmp_path / "freckles")
+    np.testing.assert_array_equal(back.counts, st.counts)
+    back = TextureStatistics.load(str(tmp_path / "freckles"))
+    np.testing.assert_array_equal(back.edges, st.edges)
+    with pytest.raises(FormatError, match=r"does not exist \(nor does '.*missing\.npz'\)"):
+        TextureStatistics.load(tmp_path / "missing")
+
+
 def test_transfer_moves_statistics_to_target(images):
     src, tgt, tgt2 = images
     target = TextureStatistics.from_image(tgt, levels=4)

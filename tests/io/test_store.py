@@ -1028,6 +1028,28 @@ def test_domain_checks_of_large_float32_maps_are_chunked_and_exact():
     assert got[0, -1] and not got[0, DOMAIN_BLOCK]
 
 
+def test_domain_violated_names_the_broken_bound_and_none_for_a_value_inside():
+    """Domain.violated answered "finite" for a value inside the domain and the interval for an allowed NaN, and
+    compared a float32 in float32 (inside, where outside() flags it); None for any value outside() does not flag."""
+    from facestats.io.schema import Domain
+
+    d, missing = Domain(0.0, 0.1, low_open=True), Domain(0.0, nan=True)
+    for domain, value, bound in (
+        (d, 0.05, None),
+        (d, 0.1, None),
+        (missing, float("nan"), None),
+        (missing, 0.0, None),
+        (d, 0.0, "> 0"),
+        (missing, -1.0, ">= 0"),
+        (d, np.float32(0.1), "<= 0.1"),  # 0.10000000149 in float64
+        (d, float("nan"), "finite"),
+        (missing, float("inf"), "finite"),
+        (missing, -float("inf"), ">= 0"),
+    ):
+        assert domain.violated(value) == bound, (domain, value)
+        assert bool(domain.outside(np.array([value]))[0]) == (bound is not None), (domain, value)
+
+
 def test_exclude_leaves_optional_variables_unread(tmp_path):
     """``Store.subject(exclude=[...])`` leaves optional variables out and never reads them (a damaged one does not
     matter); the rest is loaded, verified and validated as in a full read; required variables cannot be left out."""

@@ -143,6 +143,49 @@ def test_quads_are_split_and_a_window_is_a_crop_of_the_map():
         assert np.allclose(getattr(win, name), getattr(full, name)[crop], rtol=0, atol=1e-12), name
 
 
+def test_raster_refuses_a_bad_map_or_window_naming_it():
+    v, t, uv = _plane(4)
+    ms = MeshStrain(v, t, uv)
+    assert ms.raster(32, None).shape == (32, 32) and ms.raster((32, 48), (4, 8, 10, 20)).shape == (10, 20)
+    bad = [
+        ((32, 32), (20, 20, 20, 20), "window must lie inside the 32 x 32 map"),  # was rasterised past the map...
+        ((32, 32), (0, 0, 0, 5), r"window height must be an integer in \[1, inf\], got 0"),
+        ((32, 32), (-1, 0, 5, 5), r"window row0 must be an integer in \[0, inf\], got -1"),
+        ((32, 32), 5, r"window must be \(row0, col0, height, width\), got 5"),  # ...or a bare TypeError
+        ((32,), (0, 0, 5, 5), r"map_shape must be an int or \(height, width\), got \(32,\)"),
+        ((32.0, 32), (0, 0, 5, 5), "map_shape height must be an integer, got 32.0"),
+    ]
+    for map_shape, window, match in bad:
+        with pytest.raises(FacestatsError, match=match):
+            ms.raster(map_shape, window)
+
+
+def test_rasters_are_cached_as_runs_within_a_byte_budget(monkeypatch):
+    """Every tile's raster was kept as int32 for ever: about 1.6 GiB over a tiled 16K map. They are now kept as runs,
+    the least recently used dropped beyond RASTER_CACHE_BYTES, and a raster given out is the caller's own."""
+    from facestats.model import strain
+
+    v, t, uv = _plane(10)
+    ms = MeshStrain(v, t, uv)
+    tiles = [(r, c, 32, 32) for r in (0, 32) for c in (0, 32)]
+    fresh = [MeshStrain(v, t, uv).raster((64, 64), w) for w in tiles]  # each from its own, empty cache
+    for window, want in zip(tiles, fresh):
+        np.testing.assert_array_equal(ms.raster((64, 64), window), want)
+    assert len(ms._rasters) == 4 and ms._raster_bytes < 0.5 * sum(r.nbytes for r in fresh)  # runs, not texels
+    got = ms.raster((64, 64), tiles[0])
+    got[:] = -7  # the caller's array, not the cache
+    np.testing.assert_array_equal(ms.raster((64, 64), tiles[0]), fresh[0])  # served from the cache
+    one = ms._raster_bytes // 4
+    monkeypatch.setattr(strain, "RASTER_CACHE_BYTES", 2 * one + one // 2)  # room for two of the four tiles
+    ms.raster((64, 64), tiles[3])  # tiles 1 and 2 are the least recently used: dropped
+    assert list(ms._rasters) == [((64, 64), tiles[0]), ((64, 64), tiles[3])]
+    assert ms._raster_bytes <= strain.RASTER_CACHE_BYTES
+    np.testing.assert_array_equal(ms.raster((64, 64), tiles[1]), fresh[1])  # rasterised again when asked for
+    monkeypatch.setattr(strain, "RASTER_CACHE_BYTES", 0)
+    np.testing.assert_array_equal(ms.raster((64, 64), tiles[2]), fresh[2])  # nothing kept, still right
+    assert ms._rasters == {} and ms._raster_bytes == 0
+
+
 def test_overlapping_uv_charts_are_refused_and_shared_edges_are_not():
     """A whole ICT-FaceKit head (its eyes and mouth share the face's UV square) gave 96 % of the face texels the
     eyes' strain, silently (a red team): overlapping UVs are now refused; a clean mesh's shared edges pass. Here

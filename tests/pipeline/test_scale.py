@@ -491,6 +491,28 @@ def test_a_task_lost_with_its_worker_is_reported_and_journalled(tmp_path):
     assert build_status(store).failed == {"S007": "RuntimeError: KilledWorker: the worker died"}
 
 
+def test_a_failed_record_keeps_the_message_of_an_exception_with_notes(tmp_path):
+    """The record's error was the last entry of traceback.format_exception_only, which for an exception with notes
+    (add_note) is its last note: the message was lost from --status."""
+    store = tmp_path / "n.zarr"
+    open_store(store, mode="a").close()
+    journal = BuildJournal(store)
+    exc = RuntimeError("fit diverged\n at iteration 7")
+    exc.add_note("while fitting S001")
+    exc.add_note("camera 3\nsite forehead")
+    journal.fail("S001", 1, exc)
+    error = "RuntimeError: fit diverged at iteration 7 (while fitting S001; camera 3; site forehead)"
+    assert journal.read("S001")["error"] == error and build_status(store).failed == {"S001": error}
+    journal.fail("S002", 1, ValueError("no notes"))
+    assert journal.read("S002")["error"] == "ValueError: no notes"
+    try:
+        compile("x = (", "f.py", "exec")
+    except SyntaxError as syntax:
+        syntax.add_note("in a plug-in")
+        journal.fail("S003", 1, syntax)
+    assert journal.read("S003")["error"] == "SyntaxError: '(' was never closed (in a plug-in)"
+
+
 def test_status_reads_damaged_journal_records_without_failing(tmp_path):
     store = tmp_path / "j.zarr"
     open_store(store, mode="a").close()
@@ -502,6 +524,7 @@ def test_status_reads_damaged_journal_records_without_failing(tmp_path):
     (root / "S005.json").write_text(json.dumps({"state": "running", "pid": 2**70, "host": os.uname().nodename}))
     status = build_status(store)
     assert status.failed == {"S004": None} and "S001" in status.running and "S005" in status.running
+    assert set(journal.records()) == {"S001", "S004", "S005"}  # "..bad" is not a subject id: left out
     text = status.to_text()
     assert "failed       S004  after ? attempt(s)" in text
     res = run_cli("build", "--status", str(store))

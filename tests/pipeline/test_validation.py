@@ -29,7 +29,7 @@ def test_a_truly_held_out_camera_matches_within_the_fit_figures(case):
     held = fit_subject(cap, prov["sigma_tr_avg"], settings)  # the default's fit, camera 5 never seen
     assert json.loads(held.attrs["provenance"])["fit_settings"]["exclude_cameras"] == [5]
     err = camera_rmse(held, cap, 5, lights=range(0, 150, 3))
-    assert err < 0.03  # measured 2.06 % (1.91 % with camera 5 in the fit)
+    assert err < 0.03  # measured 2.10 % (1.93 % with camera 5 in the fit), 2026-12-07
 
 
 @pytest.mark.slow

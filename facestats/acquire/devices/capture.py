@@ -71,7 +71,8 @@ def dome_plan(calibration, subject: dict, **options) -> tuple:
         The subject record (:func:`~facestats.acquire.devices.plans.subject_record`).
     **options
         Fields of :class:`~facestats.acquire.devices.plans.DomePlan` (``bits``, ``brightness``, ``colour``,
-        ``frame_interval_s``, ``extension``); ``bits`` defaults to that of the calibration's camera response, else 12.
+        ``frame_interval_s``, ``extension``); ``bits`` (8 to 16) defaults to that of the calibration's camera response,
+        else 12.
 
     Returns
     -------

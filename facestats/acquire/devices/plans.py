@@ -122,7 +122,7 @@ class DomePlan(_Plan):
     image_size : tuple of (int, int)
         Each camera's (width, height).
     bits : int
-        Code depth of the frames.
+        Code depth of the frames, 8 to 16 (a capture folder's range).
     calibration_sha256 : str
         SHA-256 of the calibration file the plan was made from.
     brightness, colour
@@ -148,6 +148,7 @@ class DomePlan(_Plan):
     kind = "dome"
 
     def __post_init__(self):
+        object.__setattr__(self, "bits", check_integer(self.bits, "bits", 8, 16))  # frozen: set through object
         check_integer(self.brightness, "brightness", 0, 255)
         if len(self.colour) != 3:
             raise ValidationError(f"colour must be three LED drive values (R, G, B), got {self.colour!r}")
@@ -168,22 +169,30 @@ class DomePlan(_Plan):
         subject : dict
             Manifest metadata (:func:`subject_record`).
         **options
-            Further fields (``brightness``, ``colour``, ``frame_interval_s``, ``extension``) and ``bits``, which
-            defaults to log2 of the response's levels, or 12 without a response.
+            Further fields (``brightness``, ``colour``, ``frame_interval_s``, ``extension``) and ``bits`` (an
+            integer in [8, 16]), which defaults (when absent or None) to log2 of the response's levels, or 12
+            without a response.
 
         Returns
         -------
         DomePlan
+
+        Raises
+        ------
+        ValidationError
+            ``bits`` (given or from the response) not an integer in [8, 16], or another field out of its domain.
         """
         levels = None if dome.camera_log_response is None else dome.camera_log_response.shape[1]
-        bits = options.pop("bits", None) or (int(np.log2(levels)) if levels else 12)
+        bits = options.pop("bits", None)
+        if bits is None:  # not ``or``: a given 0 is refused, not replaced by the default
+            bits = int(np.log2(levels)) if levels else 12
         return cls(
             subject=subject,
             n_leds=dome.n_leds,
             n_cameras=dome.n_cameras,
             exposure_s=tuple(float(t) for t in dome.exposure_times),
             image_size=tuple((int(w), int(h)) for w, h in dome.image_size),
-            bits=int(bits),
+            bits=bits,
             calibration_sha256=hashlib.sha256(calibration_bytes).hexdigest(),
             **options,
         )

@@ -347,9 +347,9 @@ class FrameReader:
             if end < 0:
                 break
             chunk, buf = buf[:end], buf[end + len(TERMINATOR) :]
-            start = chunk.rfind(b"@")
-            if start > 0 and chunk[:start].strip():
-                head = chunk[:start]
+            at = chunk.rfind(b"@")  # not ``start``: the next search runs from the start of the rest of ``buf``
+            if at > 0 and chunk[:at].strip():
+                head = chunk[:at]
                 items.append(FrameError(f"truncated reply frame {quoted(head[-60:])}", "truncated", head))
             try:
                 items.append(parse_reply(chunk))

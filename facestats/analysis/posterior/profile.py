@@ -135,7 +135,13 @@ class SigmaPosterior:
         -------
         numpy.ndarray, shape (n_labels,)
             Medians in the order of ``labels``.
+
+        Raises
+        ------
+        ValidationError
+            An unknown ``parameter``.
         """
+        check_choice(parameter, "parameter", REPORTED)
         return self.summary.xs(parameter, level="parameter")["median"].loc[list(self.labels)].to_numpy()
 
     def interval(self, parameter, level=None) -> np.ndarray:
@@ -147,13 +153,21 @@ class SigmaPosterior:
             ``"sigma_s_prime"``, ``"sigma_a"``, ``"sigma_tr"`` (mm⁻¹) or ``"ell_d"`` (mm).
         level : float, optional
             Credible level in (0, 1); default the stored intervals at ``self.level``, otherwise quantiles of
-            ``samples`` (not checked).
+            ``samples``.
 
         Returns
         -------
         numpy.ndarray, shape (n_labels, 2)
             (low, high) per label, in the order of ``labels``.
+
+        Raises
+        ------
+        ValidationError
+            An unknown ``parameter``, or ``level`` not a number in (0, 1).
         """
+        check_choice(parameter, "parameter", REPORTED)
+        if level is not None:
+            level = check_level(level)
         if level is None:
             t = self.summary.xs(parameter, level="parameter").loc[list(self.labels)]
             return t[["lo", "hi"]].to_numpy()

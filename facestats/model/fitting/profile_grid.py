@@ -17,7 +17,11 @@ grid's corner σ's 20, σa 5 mm⁻¹ at 39 mm) costs +∞, where the expansion w
 give ∞ − ∞ = NaN; if every model of the grid does, the fit raises
 :class:`~facestats.errors.FitError`.  An optional refinement continues from the
 best grid model with a bounded least-squares solve in (ln σ's, ln σa)
-(:func:`scipy.optimize.least_squares`).
+(:func:`scipy.optimize.least_squares`); its optimum is kept only if its cost,
+evaluated as the grid's is, does not exceed the best grid model's (the solve's
+own objective can disagree with it: rounding, or below an ill-conditioned
+Gram matrix in the exitance fit), so the reported σ's, σa and cost are always
+those of one model.
 
 Interval (profile likelihood over the grid): treating the log residuals as
 independent with a common variance estimated from the best fit,
@@ -116,8 +120,15 @@ class ProfileGrid:
     def __post_init__(self):
         for name in ("sigma_s_prime", "sigma_a"):
             v = check_shape(as_finite(getattr(self, name), name, 0, None, low_inclusive=False), name, (None,))
-            if v.size < 2 or np.any(np.diff(v) <= 0):
-                raise ValidationError(f"{name} of a grid must hold at least 2 increasing values, got {v!r}")
+            if v.size < 2:
+                raise ValidationError(f"{name} of a grid must hold at least 2 increasing values, got {v.size}")
+            down = np.flatnonzero(np.diff(v) <= 0)
+            if down.size:  # name the first pair out of order, not every value of a long grid
+                i = int(down[0])
+                raise ValidationError(
+                    f"{name} of a grid must hold strictly increasing values, got {name}[{i}] = {float(v[i])!r} "
+                    f"then {name}[{i + 1}] = {float(v[i + 1])!r}"
+                )
             object.__setattr__(self, name, v.astype(np.float64))
 
     @property
@@ -149,10 +160,33 @@ class ProfileGrid:
         Raises
         ------
         ValidationError
-            low ≥ high, a negative range or fewer than 2 values (a low of 0 is numpy's ValueError).
+            A range that is not a (low, high) pair of finite numbers with 0 < low < high, or ``n`` not a pair of
+            integers ≥ 2.
         """
-        (s0, s1), (a0, a1) = sigma_s_prime, sigma_a
-        return cls(np.geomspace(s0, s1, int(n[0])), np.geomspace(a0, a1, int(n[1])))
+        counts = _pair(n, "n")
+        return cls(
+            np.geomspace(*_log_range(sigma_s_prime, "sigma_s_prime"), check_integer(counts[0], "n[0]", 2)),
+            np.geomspace(*_log_range(sigma_a, "sigma_a"), check_integer(counts[1], "n[1]", 2)),
+        )
+
+
+def _pair(value, name):
+    """``value`` as a tuple of two items, else ValidationError naming ``name``."""
+    try:
+        first, second = value
+    except (TypeError, ValueError):  # not iterable, or not two items
+        raise ValidationError(f"{name} must be a pair of values, got {value!r}") from None
+    return first, second
+
+
+def _log_range(value, name):
+    """A (low, high) range of :meth:`ProfileGrid.log_spaced`: two finite numbers with 0 < low < high."""
+    low, high = _pair(value, name)
+    low = as_scalar(low, f"{name} low", 0, None, low_inclusive=False, unit="mm⁻¹")
+    high = as_scalar(high, f"{name} high", 0, None, low_inclusive=False, unit="mm⁻¹")
+    if high <= low:
+        raise ValidationError(f"{name} must be a (low, high) range with low < high, got {value!r}")
+    return low, high
 
 
 #: Suzuki Table 2.
@@ -214,12 +248,12 @@ class ProfileFit:
     Attributes
     ----------
     sigma_s_prime, sigma_a : float
-        σ's and σa in mm⁻¹: the best grid model, or the refined values when refinement ran.
+        σ's and σa in mm⁻¹: the refined values when refinement ran and did not raise the cost, else the best grid
+        model.
     grid_sigma_s_prime, grid_sigma_a : float
         The best grid model, mm⁻¹ (kept when refinement ran).
     cost : float
-        Eq. 36 at the result (the exitance fit: its sum of squared relative residuals); with refinement, the
-        smaller of the refined and the best grid model's cost.
+        Eq. 36 at ``sigma_s_prime``, ``sigma_a`` (the exitance fit: its sum of squared relative residuals).
     cost_surface : ndarray, shape ``grid.shape``
         The cost over the grid.
     sigma_s_prime_interval, sigma_a_interval, sigma_tr_interval : tuple of float
@@ -279,35 +313,38 @@ def _bracketing(grid, s, a):
     return mask
 
 
-def _refine(resid, s0, a0, grid, offset=0.0):
-    """Continuous least squares of ‖resid(σ's, σa)‖² + offset in (ln σ's, ln σa) from the grid model, within the
-    grid's range; returns (σ's, σa, cost)."""
+def _refine(resid, s0, a0, grid):
+    """Continuous least squares of ‖resid(σ's, σa)‖² in (ln σ's, ln σa) from the grid model, within the grid's
+    range; returns (σ's, σa)."""
     from scipy.optimize import least_squares
 
     lo = np.log([grid.sigma_s_prime[0], grid.sigma_a[0]])
     hi = np.log([grid.sigma_s_prime[-1], grid.sigma_a[-1]])
     x0 = np.clip(np.log([s0, a0]), lo, hi)
     sol = least_squares(lambda x: resid(*np.exp(x)), x0, bounds=(lo, hi), x_scale=1.0, xtol=1e-12, ftol=1e-14)
-    return float(np.exp(sol.x[0])), float(np.exp(sol.x[1])), float(2 * sol.cost) + offset
+    return float(np.exp(sol.x[0])), float(np.exp(sol.x[1]))
 
 
-def _grid_fit(cost, grid, n_data, refine_resid, level, **fields) -> ProfileFit:
+def _grid_fit(cost, grid, n_data, refine, level, **fields) -> ProfileFit:
     """The best grid model of a cost surface, its optional refinement and the interval (module docstring).
 
-    ``n_data`` residuals entered the cost; ``refine_resid`` is None or (resid, offset) for :func:`_refine`;
-    ``fields`` are the rest of :class:`ProfileFit`.
+    ``n_data`` residuals entered the cost; ``refine`` is None or (resid, model_cost): the residuals
+    :func:`_refine` minimises and the cost of one model (σ's, σa) as the surface computes it; ``fields`` are the
+    rest of :class:`ProfileFit`.
     """
     best = np.unravel_index(int(np.argmin(cost)), cost.shape)
     gs, ga = float(grid.sigma_s_prime[best[0]]), float(grid.sigma_a[best[1]])
     cmin = float(cost[best])
     s, a, c = (gs, ga, cmin)
-    if refine_resid is not None:
-        resid, offset = refine_resid
-        s, a, c = _refine(resid, gs, ga, grid, offset)
-        c = min(c, cmin)
+    if refine is not None:
+        resid, model_cost = refine
+        rs, ra = _refine(resid, gs, ga, grid)
+        rc = model_cost(rs, ra)
+        if rc <= model_cost(gs, ga):  # both by one formula; else the grid model stays, with its own cost
+            s, a, c = rs, ra, rc
     s2 = max(cmin, 1e-300) / max(n_data - 2, 1)
     inside = (cost - cmin) / s2 <= -2 * np.log1p(-level)  # χ² quantile of 2 degrees of freedom
-    if refine_resid is not None:  # the continuous optimum may lie several steps along a valley from the best model
+    if refine is not None:  # the continuous optimum may lie several steps along a valley from the best model
         inside |= _bracketing(grid, s, a)
     inside = _dilate(inside)  # the grid's own resolution: the optimum may lie a step beyond a grid model
     si, ai = np.nonzero(inside)
@@ -386,13 +423,18 @@ def fit_profile_grid(
         )
 
     def resid(sp, sa):
-        return np.log(dipole_profile_unchecked(du, sp, sa, eta)) - y
+        with np.errstate(divide="ignore"):  # R underflowing to 0: ln R = -inf, an infinite cost (module docstring)
+            return np.log(dipole_profile_unchecked(du, sp, sa, eta)) - y
+
+    def model_cost(sp, sa):
+        r = resid(sp, sa)
+        return float(r @ r)
 
     return _grid_fit(
         cost,
         grid,
         n_used,
-        (resid, 0.0) if refine else None,
+        (resid, model_cost) if refine else None,
         lvl,
         used=used,
         n_nonpositive=int((in_range & (r <= 0)).sum()),
@@ -475,22 +517,25 @@ def fit_exitance_grid(levels, gram, rhs, n_rows, *, grid: ProfileGrid | None = N
     if not isinstance(grid, ProfileGrid):
         raise ValidationError(f"grid must be a ProfileGrid, got {type(grid).__name__}")
     cost = exitance_cost(d, g, b, n, grid, eta)
-    refine_resid = None
-    if refine:  # ‖Λ^½ Vᵀ R − Λ^-½ Vᵀ g‖² + n − Σ (Vᵀg)²/λ over the eigenpairs of G with λ > 0
+    refine_with = None
+    if refine:  # ‖Λ^½ Vᵀ R − Λ^-½ Vᵀ g‖² (+ a constant) over the eigenpairs of G with λ > 0
         lam, vec = np.linalg.eigh(g)
         keep = lam > lam.max() * 1e-13
         root, vg = np.sqrt(lam[keep]), vec[:, keep].T @ b
-        offset = n - float(np.sum(vg**2 / lam[keep]))
 
         def resid(sp, sa):
             return root * (vec[:, keep].T @ dipole_profile_unchecked(d, sp, sa, eta)) - vg / root
 
-        refine_resid = (resid, offset)
+        def model_cost(sp, sa):  # as exitance_cost
+            m = dipole_profile_unchecked(d, sp, sa, eta)
+            return max(float(m @ g @ m - 2 * (m @ b) + n), 0.0)
+
+        refine_with = (resid, model_cost)
     return _grid_fit(
         cost,
         grid,
         n,
-        refine_resid,
+        refine_with,
         lvl,
         used=np.ones(d.size, bool),
         n_nonpositive=0,

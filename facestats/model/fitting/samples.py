@@ -182,6 +182,25 @@ def valid_samples(radiance, irradiance):
     return ok & ((e[..., 0] > 0) & (e[..., 1] > 0) & (e[..., 2] > 0))[:, None, :]
 
 
+def _check_dome(wi, wo, irradiance, radiance, keep_cameras=None):
+    """(n, C, L) of a dome grid whose arrays have the documented shapes, else ValidationError naming the first
+    array that does not (shapes only: nothing is converted or copied)."""
+    r = np.shape(radiance)
+    if len(r) != 4 or r[3] != 3:
+        raise ValidationError(f"radiance must have shape (n, C, L, 3), got {r}")
+    n, n_cam, n_led = r[:3]
+    wanted = [("wi", wi, (n, n_led, 3), "(n, L, 3)"), ("wo", wo, (n, n_cam, 3), "(n, C, 3)")]
+    wanted.append(("irradiance", irradiance, (n, n_led, 3), "(n, L, 3)"))
+    if keep_cameras is not None:
+        wanted.append(("keep_cameras", keep_cameras, (n_cam,), "(C,)"))
+    for name, value, shape, text in wanted:
+        if np.shape(value) != shape:
+            raise ValidationError(
+                f"{name} must have shape {text} = {shape} to match radiance {r}, got {np.shape(value)}"
+            )
+    return n, n_cam, n_led
+
+
 def _dot3(a, b):
     """Dot products of 3-vectors on the last axis, broadcast, as three products and two sums.
 
@@ -195,6 +214,9 @@ def _dot3(a, b):
 @dataclass
 class Samples:
     """Valid samples of ``n_texels`` lumitexels, sorted by lumitexel, then camera.
+
+    Derived arrays (run lengths and starts, grid indices, ωi·ωo, …) are cached privately, not a constructor
+    argument: a new instance (also one from :func:`dataclasses.replace`) starts with an empty cache.
 
     Attributes
     ----------
@@ -220,9 +242,6 @@ class Samples:
     engine : {"numba", "numpy"} or None
         Implementation of the per-sample primitives and of the stages that take these
         samples (:mod:`facestats.model.fitting.engine`); None: the configured default.
-    _cache : dict
-        Derived arrays computed on demand (run lengths and starts, grid indices, ωi·ωo, …); internal, filled by
-        the constructors and methods, default empty.
     """
 
     n_texels: int
@@ -235,7 +254,7 @@ class Samples:
     irradiance: np.ndarray
     paired: bool = False
     engine: str | None = None
-    _cache: dict = field(default_factory=dict, repr=False)
+    _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @classmethod
     def from_grid(cls, wi, wo, irradiance, radiance, valid):
@@ -248,7 +267,7 @@ class Samples:
         wo : array_like, shape (n, C, 3)
             Unit directions from each lumitexel towards each camera (stored as float32).
         irradiance : array_like, shape (n, L, 3)
-            Beam-normal irradiance E⊥ per lumitexel, light and channel (shape not checked).
+            Beam-normal irradiance E⊥ per lumitexel, light and channel.
         radiance : array_like, shape (n, C, L, 3)
             Radiance per lumitexel, camera, light and channel, any float dtype (float16 as captured).
         valid : array_like of bool, shape (n, C, L)
@@ -262,14 +281,14 @@ class Samples:
         Raises
         ------
         ValidationError
-            The shapes of ``valid``, ``radiance``, ``wi`` and ``wo`` disagree.
+            An array whose shape is not the one above (``radiance`` sets n, C and L).
         """
+        n, n_cam, n_led = _check_dome(wi, wo, irradiance, radiance)
         v = np.asarray(valid, bool)
-        n, n_cam, n_led = v.shape
-        if np.shape(radiance)[:3] != v.shape or np.shape(wi)[:2] != (n, n_led) or np.shape(wo)[:2] != (n, n_cam):
+        if v.shape != (n, n_cam, n_led):
             raise ValidationError(
-                f"grid shapes disagree: valid {v.shape}, radiance {np.shape(radiance)}, "
-                f"wi {np.shape(wi)}, wo {np.shape(wo)}"
+                f"valid must have shape (n, C, L) = {(n, n_cam, n_led)} to match radiance {np.shape(radiance)}, "
+                f"got {v.shape}"
             )
         # Sample positions in the row-major (lumitexel, camera, light) grid, and the run length of
         # every (lumitexel, camera): indices follow from repeats, with no division.
@@ -327,13 +346,13 @@ class Samples:
         Raises
         ------
         ValidationError
-            An unknown or unusable ``engine``, or grid shapes that disagree (checked by :meth:`from_grid`, so not
-            on the compiled float16 path).
+            An unknown or unusable ``engine``, or an array whose shape is not the one above (``radiance`` sets n,
+            C and L).
         """
         engine = resolve_engine(engine)
-        n, n_cam, n_led = np.shape(radiance)[:3]
+        n, n_cam, n_led = _check_dome(wi, wo, irradiance, radiance, keep_cameras)
         keep = np.ones(n_cam, bool) if keep_cameras is None else np.asarray(keep_cameras, bool)
-        if engine == "numba" and np.asarray(radiance).dtype == np.float16 and np.shape(irradiance) == (n, n_led, 3):
+        if engine == "numba" and np.asarray(radiance).dtype == np.float16:
             # local import: the kernels import numba
             from facestats.model.fitting.kernels.samples import flatten_grid
 

@@ -84,6 +84,22 @@ def test_a_truncated_frame_followed_by_a_whole_one_gives_both_items():
     assert Reply(3, 9, "OK", "leds=150 colour=1,2,3 ready").fields() == {"leds": "150", "colour": "1,2,3", "ready": ""}
 
 
+def test_junk_before_a_frame_does_not_hide_a_short_frame_after_it():
+    """The offset of the junk's '@' was reused as the search offset for the next terminator: a short frame after a
+    long junk prefix was missed, kept pending and at last reported truncated (a reviewer)."""
+    a, b = Reply(1, 7, "OK", "x=1").encode(), Reply(2, 8, "OK", "y=2").encode()
+    junk = b"noise " * 20 + b"@17 4"  # 125 bytes of a frame cut short: longer than frame b
+    assert len(junk) > len(b)
+    items = FrameReader().feed(junk + a + b)
+    assert [type(i) for i in items] == [FrameError, Reply, Reply] and items[0].kind == "truncated"
+    assert items[1:] == [Reply(1, 7, "OK", "x=1"), Reply(2, 8, "OK", "y=2")]
+    for cut in (len(junk) + len(a), len(junk) + len(a) + 3, len(junk) + len(a) + len(b) - 1):
+        reader, data = FrameReader(), junk + a + b
+        items = reader.feed(data[:cut]) + reader.feed(data[cut:])
+        assert items[1:] == [Reply(1, 7, "OK", "x=1"), Reply(2, 8, "OK", "y=2")], cut
+        assert reader.pending == b"" and reader.flush() is None
+
+
 def _ask(device, name, *args, rid=0):
     items = FrameReader().feed(device.handle(Request(name, args, rid).encode()[:-1]))
     assert len(items) == 1

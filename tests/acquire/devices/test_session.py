@@ -298,6 +298,27 @@ def test_dry_run_durations_follow_the_paper():
     assert sensor.file(68) == "sensor/neck_e22.png" and sensor.n_steps == 69
 
 
+def test_a_dome_plan_takes_its_bits_as_given_and_checks_them():
+    """``bits=0`` fell back to the response's depth through ``or``; any value was accepted (a reviewer)."""
+    from dataclasses import replace
+
+    from facestats.acquire.dome import default_dome
+    from facestats.acquire.response import ResponseCurve
+    from facestats.errors import ValidationError
+
+    subject = {"subject_id": "S001", "person_id": "S001", "age": 30, "gender": "F", "skin_type": 3}
+    dome = default_dome()
+    g = np.repeat(ResponseCurve(bits=10).log_exposure()[:, None], 3, axis=1)
+    assert DomePlan.from_calibration(dome, b"{}", subject).bits == 12  # no response
+    assert DomePlan.from_calibration(replace(dome, camera_log_response=g), b"{}", subject).bits == 10
+    assert DomePlan.from_calibration(dome, b"{}", subject, bits=None).bits == 12
+    plan = DomePlan.from_calibration(dome, b"{}", subject, bits=np.int64(14))
+    assert plan.bits == 14 and type(plan.bits) is int and plan.fingerprint()  # JSON-ready
+    for bits in (0, 7, 17, 12.0, True):
+        with pytest.raises(ValidationError, match=f"bits must be an integer( in \\[8, 16\\])?, got {bits!r}"):
+            DomePlan.from_calibration(dome, b"{}", subject, bits=bits)
+
+
 @pytest.mark.slow
 def test_a_disconnect_that_outlasts_the_link_ends_the_run_and_resume_completes(small, tmp_path):
     root, _ = small

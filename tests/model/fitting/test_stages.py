@@ -90,6 +90,43 @@ def test_samples_from_grid_match_the_dense_grid(rng):
     np.testing.assert_array_equal(s.expand(np.arange(s.n_texels)), s.texel)
 
 
+def test_samples_cache_is_private_state_not_a_constructor_argument(rng):
+    import dataclasses
+    import inspect
+    import pickle
+
+    assert "_cache" not in inspect.signature(Samples).parameters
+    wi, wo, irr, rad = _grid(rng)
+    s = Samples.from_grid(wi, wo, irr, rad, valid_samples(rad, irr))
+    assert "counts" in s._cache and "_cache" not in repr(s)
+    t = dataclasses.replace(s, engine="numpy")  # a new instance: its own (empty) cache, not a shared dict
+    assert t._cache == {} and t._cache is not s._cache
+    np.testing.assert_array_equal(t.counts, s.counts)
+    back = pickle.loads(pickle.dumps(s))  # as sent to Dask workers: the cache travels with it
+    np.testing.assert_array_equal(back.counts, s.counts)
+    np.testing.assert_array_equal(back.cos_io(), s.cos_io())
+
+
+@pytest.mark.parametrize("engine", ["numpy", "numba"])
+def test_dome_samples_refuse_grids_whose_shapes_disagree(rng, engine):
+    """The compiled float16 path of from_dome checked nothing: a short keep_cameras was read out of bounds."""
+    wi, wo, irr, rad = _grid(rng)  # n 7, C 4, L 9
+    with pytest.raises(ValidationError, match=r"keep_cameras must have shape \(C,\) = \(4,\).*got \(3,\)"):
+        Samples.from_dome(wi, wo, irr, rad, keep_cameras=[True, False, True], engine=engine)
+    with pytest.raises(ValidationError, match=r"wi must have shape \(n, L, 3\) = \(7, 9, 3\).*got \(7, 8, 3\)"):
+        Samples.from_dome(wi[:, :8], wo, irr, rad, engine=engine)
+    with pytest.raises(ValidationError, match=r"wo must have shape \(n, C, 3\) = \(7, 4, 3\).*got \(7, 4, 2\)"):
+        Samples.from_dome(wi, wo[..., :2], irr, rad, engine=engine)
+    with pytest.raises(ValidationError, match=r"irradiance must have shape \(n, L, 3\) = \(7, 9, 3\).*got \(9, 3\)"):
+        Samples.from_dome(wi, wo, irr[0], rad, engine=engine)
+    with pytest.raises(ValidationError, match=r"radiance must have shape \(n, C, L, 3\), got \(7, 4, 9\)"):
+        Samples.from_dome(wi, wo, irr, rad[..., 0], engine=engine)
+    with pytest.raises(ValidationError, match=r"irradiance must have shape .*got \(7, 9, 1\)"):
+        Samples.from_grid(wi, wo, irr[..., :1], rad, valid_samples(rad, irr))
+    with pytest.raises(ValidationError, match=r"valid must have shape \(n, C, L\) = \(7, 4, 9\).*got \(7, 4, 8\)"):
+        Samples.from_grid(wi, wo, irr, rad, valid_samples(rad, irr)[..., :8])
+
+
 def test_ranks_follow_sample_order(rng):
     wi, wo, irr, rad = _grid(rng)
     s = Samples.from_grid(wi, wo, irr, rad, valid_samples(rad, irr))

@@ -56,6 +56,7 @@ from facestats.acquire.photographs import (
 from facestats.acquire.response import check_black_level, check_white_level
 from facestats.core.validate import check_integer, json_numbers
 from facestats.errors import FormatError, ValidationError
+from facestats.io.layout import read_regular_file
 
 __all__ = [
     "read_opencv_camera",
@@ -406,7 +407,7 @@ def read_led_calibration(path) -> dict:
     """
     p = pathlib.Path(path)
     try:
-        doc = json.loads(p.read_bytes())
+        doc = json.loads(read_regular_file(p))
     except (OSError, ValueError, RecursionError) as exc:  # ValueError: not JSON, or not UTF-8
         raise FormatError(f"cannot read the LED calibration {p}: {exc}") from None
     if not isinstance(doc, dict) or doc.get("format") != LED_FORMAT:

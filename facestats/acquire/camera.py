@@ -36,6 +36,7 @@ import numpy as np
 
 from facestats.core.validate import as_finite, as_scalar, check_shape, described
 from facestats.errors import FormatError, ValidationError
+from facestats.io.layout import read_regular_file
 
 __all__ = [
     "PinholeCamera",
@@ -354,8 +355,7 @@ class PinholeCamera:
             A field out of its domain.
         """
         try:
-            with open(path, "rb") as f:
-                doc = json.load(f)
+            doc = json.loads(read_regular_file(path))
         except (OSError, ValueError, RecursionError) as exc:  # ValueError: not JSON, or not UTF-8
             raise FormatError(f"cannot read the camera file {os.fspath(path)}: {exc}") from None
         return described(cls.from_dict, doc, f"camera file {os.fspath(path)}")

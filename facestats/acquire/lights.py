@@ -41,6 +41,7 @@ import numpy as np
 from facestats.acquire.visibility import ShadowMaps
 from facestats.core.validate import as_finite, as_scalar, check_shape, described
 from facestats.errors import FormatError, ValidationError
+from facestats.io.layout import read_regular_file
 from facestats.model.dipole import check_dipole_eta
 from facestats.model.irradiance import (
     SUZUKI_ETA,
@@ -362,8 +363,7 @@ def load_lights(path):
         A value out of its domain (:func:`lights_from_dict`), naming the file.
     """
     try:
-        with open(path, "rb") as f:
-            doc = json.load(f)
+        doc = json.loads(read_regular_file(path))
     except (OSError, ValueError, RecursionError) as exc:  # ValueError: not JSON, or not UTF-8
         raise FormatError(f"cannot read the light description {os.fspath(path)}: {exc}") from None
     return described(lights_from_dict, doc, f"light description {os.fspath(path)}")

@@ -32,7 +32,15 @@ import math
 
 import numpy as np
 
-from facestats.core.validate import as_finite, as_float, check_broadcast, check_choice, check_integer, check_shape
+from facestats.core.validate import (
+    as_finite,
+    as_float,
+    as_scalar,
+    check_broadcast,
+    check_choice,
+    check_integer,
+    check_shape,
+)
 from facestats.errors import ValidationError
 from facestats.model.sphere import (
     angles_from_direction,
@@ -487,7 +495,7 @@ def sky_probe(
         For an invalid ``height``, ``sun_direction``, ``sun_radiance``, ``sun_radius_deg``, ``sky`` or ``ground``.
     """
     h = check_integer(height, "height", 2)
-    sun_radiance = float(as_finite(sun_radiance, "sun_radiance", 0.0))
+    sun_radiance = as_scalar(sun_radiance, "sun_radiance", 0.0)
     sky, ground = (
         check_shape(as_finite(v, n, 0.0, dtype=np.float64), n, (3,)) for v, n in ((sky, "sky"), (ground, "ground"))
     )

@@ -333,3 +333,12 @@ def test_the_half_lit_plate_is_centred_and_refuses_an_odd_subdivision():
     assert l[row][0] == pytest.approx(l[row][1], rel=1e-12) and np.all(np.diff(l[row][1:]) < 0)
     with pytest.raises(ValidationError, match="sub must be even"):
         half_lit_plate(2.19, 0.0021, sub=3)
+
+
+def test_a_fifo_planted_as_a_light_or_camera_file_is_refused_without_blocking(tmp_path):
+    import os
+
+    for name, read in (("lights.json", load_lights), ("camera.json", PinholeCamera.load)):
+        os.mkfifo(tmp_path / name)  # opening it for reading would wait for a writer for ever
+        with pytest.raises(FormatError, match="not a regular file"):
+            read(tmp_path / name)

@@ -22,13 +22,14 @@ from facestats.acquire.devices.session import SessionLog, SessionReport, missing
 from facestats.acquire.dome import Dome
 from facestats.core.validate import as_finite
 from facestats.errors import FormatError
+from facestats.io.layout import read_regular_file
 
 __all__ = ["dome_plan", "sensor_plan", "capture", "read_subject_record"]
 
 
 def _read(path) -> bytes:
     try:
-        return pathlib.Path(path).read_bytes()
+        return read_regular_file(path)
     except OSError as exc:
         raise FormatError(f"cannot read calibration {path}: {exc.strerror}") from None
 
@@ -52,7 +53,7 @@ def read_subject_record(path) -> dict:
         The file cannot be read, is not valid JSON, or is not an object.
     """
     try:
-        doc = json.loads(pathlib.Path(path).read_bytes())
+        doc = json.loads(read_regular_file(path))
     except (OSError, ValueError, RecursionError) as exc:  # ValueError: not JSON, or not UTF-8
         raise FormatError(f"cannot read the subject record {path}: {exc}") from None
     if not isinstance(doc, dict):

@@ -45,6 +45,7 @@ from facestats.core.conventions import SITES
 from facestats.core.published import N_FIBERS
 from facestats.core.validate import check_integer
 from facestats.errors import DeviceError, FormatError, ValidationError
+from facestats.io.layout import read_regular_file
 
 __all__ = [
     "FiberLayout",
@@ -237,7 +238,7 @@ def _read_sensor_file(folder):
     """``(frames, sensor, layout, profile, profile_std)`` of ``folder/sensor.json``, checked (:func:`read_bracket`)."""
     path = folder / "sensor.json"
     try:
-        doc = json.loads(path.read_bytes())
+        doc = json.loads(read_regular_file(path))
         frames = list(doc["frames"])
     except (OSError, ValueError, RecursionError, KeyError, TypeError) as exc:
         raise FormatError(f"{folder} holds no completed sensor session (sensor.json with its frames): {exc}") from None
@@ -316,7 +317,7 @@ def load_sensor_calibration(path):
     """
 
     try:
-        doc = json.loads(pathlib.Path(path).read_bytes())
+        doc = json.loads(read_regular_file(path))
     except (OSError, ValueError, RecursionError) as exc:  # ValueError: not JSON, or not UTF-8
         raise FormatError(f"cannot read sensor calibration {path}: {exc}") from None
     if not isinstance(doc, dict) or doc.get("format") != CALIBRATION_FORMAT:

@@ -51,6 +51,7 @@ from dataclasses import dataclass, field
 from facestats.core.conventions import SITES
 from facestats.core.progress import progress_bar
 from facestats.errors import DeviceError, SessionError
+from facestats.io.layout import read_regular_file
 
 __all__ = ["run_session", "SessionReport", "SessionLog", "session_state", "missing_steps"]
 
@@ -170,7 +171,7 @@ class SessionReport:
 
 def _read_json(path, what):
     try:
-        return json.loads(pathlib.Path(path).read_bytes())
+        return json.loads(read_regular_file(path))
     except (OSError, ValueError, RecursionError) as exc:  # ValueError: not JSON, or not UTF-8
         raise SessionError(
             f"{what} {path} cannot be read ({exc}): delete the session directory to start over"

@@ -18,12 +18,12 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["LOBE_MODELS", "lobe_rate", "lobe_base", "lobe_sums", "lobe_moments", "lobe_scale"]
+__all__ = ["lobe_rate", "lobe_base", "lobe_sums", "lobe_moments", "lobe_scale"]
 
-#: The lobe models.  The functions here run inside the fit's iterations and do not check their ``model``
-#: (any value other than ``"torrance_sparrow"`` is read as ``"blinn_phong"``); the entry points that call
-#: them (:func:`facestats.model.fitting.solver.solve_specular`, :mod:`facestats.model.fitting.uncertainty`) do.
-LOBE_MODELS = ("torrance_sparrow", "blinn_phong")
+# The functions here run inside the fit's iterations and do not check their ``model`` (any value other than
+# ``"torrance_sparrow"`` is read as ``"blinn_phong"``); the entry points that call them
+# (:func:`facestats.model.fitting.solver.solve_specular`, :mod:`facestats.model.fitting.uncertainty`) check it
+# against :data:`facestats.model.skin.SPECULAR_MODELS`.
 
 
 def lobe_rate(model, p):

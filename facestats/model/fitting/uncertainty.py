@@ -40,8 +40,9 @@ from __future__ import annotations
 import numpy as np
 
 from facestats.core.validate import check_choice
-from facestats.model.fitting.lobes import LOBE_MODELS, lobe_base, lobe_moments, lobe_rate, lobe_scale
+from facestats.model.fitting.lobes import lobe_base, lobe_moments, lobe_rate, lobe_scale
 from facestats.model.fitting.samples import run_starts
+from facestats.model.skin import SPECULAR_MODELS
 
 __all__ = [
     "robust_variances",
@@ -130,9 +131,9 @@ def robust_variances(model, y, s1, a, d, n_use, good, rho, q, delta=None, tilt=N
     Raises
     ------
     ValidationError
-        ``model`` is not one of :data:`~facestats.model.fitting.lobes.LOBE_MODELS`.
+        ``model`` is not one of :data:`~facestats.model.skin.SPECULAR_MODELS`.
     """
-    check_choice(model, "model", LOBE_MODELS)
+    check_choice(model, "model", SPECULAR_MODELS)
     n_tex = n_use.size
     e2, var_rho, var_q = (np.full(n_tex, np.nan) for _ in range(3))
     if not good.any():
@@ -271,9 +272,9 @@ def rms_error(model, y, s1, a, n_use, rho, lobe, d=None, shift=None):
     Raises
     ------
     ValidationError
-        ``model`` is not one of :data:`~facestats.model.fitting.lobes.LOBE_MODELS`.
+        ``model`` is not one of :data:`~facestats.model.skin.SPECULAR_MODELS`.
     """
-    check_choice(model, "model", LOBE_MODELS)
+    check_choice(model, "model", SPECULAR_MODELS)
     n_use = np.asarray(n_use, np.int64)
     out = np.full(n_use.size, np.nan)
     good = (n_use > 0) & np.isfinite(rho) & np.isfinite(lobe) & (lobe > 0)
@@ -330,9 +331,9 @@ def standard_errors(model, n_use, good, rho, q, all_sums, e2, var_rho, var_q, ma
     Raises
     ------
     ValidationError
-        ``model`` is not one of :data:`~facestats.model.fitting.lobes.LOBE_MODELS`.
+        ``model`` is not one of :data:`~facestats.model.skin.SPECULAR_MODELS`.
     """
-    check_choice(model, "model", LOBE_MODELS)
+    check_choice(model, "model", SPECULAR_MODELS)
     n_tex = n_use.size
     err, r_std, p_std = (np.full(n_tex, np.nan) for _ in range(3))
     ill = np.zeros(n_tex, bool)

@@ -56,6 +56,7 @@ import numpy as np
 
 from facestats.acquire.response import hat_weights, merge_photographs
 from facestats.acquire.sensor import ContactSensor
+from facestats.core.conventions import CHANNELS, SITES
 from facestats.core.outputs import json_ready
 from facestats.errors import FormatError, SchemaError
 from facestats.io.schema import check_subject_metadata
@@ -419,7 +420,22 @@ class CaptureFolder:
         return {k: sub[k] for k in SUBJECT_FIELDS}
 
     def sensor(self):
-        """``(ContactSensor, profile, profile_std)`` of the manifest's ``sensor`` file (format ``SENSOR_FORMAT``)."""
+        """``(ContactSensor, profile, profile_std)`` of the manifest's ``sensor`` file (format ``SENSOR_FORMAT``).
+
+        Returns
+        -------
+        sensor : ContactSensor
+        profile, profile_std : ndarray, shape (site 3, fiber, channel 3)
+            R(r) and its standard deviation, mm⁻², sites in :data:`~facestats.core.conventions.SITES` order. NaN in
+            both (null in the file) where a fibre has no reading: its spot clipped in every exposure of the bracket.
+            The dipole fit leaves those fibres out.
+
+        Raises
+        ------
+        FormatError
+            The file is missing, unreadable or malformed; a value is ±inf, a standard deviation negative, or null in
+            only one of the two fields; or a site and channel has fewer than 3 readings (the fit's 2 parameters).
+        """
 
         name = self.manifest.get("sensor")
         if not isinstance(name, str) or not relative_inside(name):
@@ -447,20 +463,48 @@ class CaptureFolder:
                 f"sensor file {name} fields 'profile' and 'profile_std' must be (site 3, fiber {sensor.n_fibers}, "
                 f"channel 3), got {prof.shape} and {std.shape}"
             )
-        # A measured profile may dip below 0 by noise (dark-frame subtraction); its standard error may not.
-        for field, a, low in (("profile", prof, -np.inf), ("profile_std", std, 0.0)):
-            bad = ~np.isfinite(a) | (a < low)
-            if bad.any():
-                at = tuple(int(i) for i in np.argwhere(bad)[0])
-                rule = "finite" if low == -np.inf else "finite and >= 0"
-                raise FormatError(
-                    f"sensor file {name} field {field!r} must be {rule}, got {a[at]} at (site, fiber, channel) {at}"
-                )
-        return sensor, prof, std
+        return (sensor, *_checked_profiles(prof, std, f"sensor file {name}"))
 
     def fingerprint(self) -> str:
         """SHA-256 of the manifest file (identifies the capture an ingest was made from)."""
         return hashlib.sha256((self.path / MANIFEST).read_bytes()).hexdigest()
+
+
+def _checked_profiles(prof, std, what):
+    """``(prof, std)`` of a sensor file, checked: NaN (null) only as a missing reading, ≥ 3 readings per profile.
+
+    A fibre whose spot clipped in every exposure of the bracket has no reading (:func:`merge_bracket
+    <facestats.acquire.devices.sensor.merge_bracket>` gives NaN for it and its standard deviation, written as
+    null). Such readings are kept as NaN: the dipole fit leaves them out (:func:`facestats.model.fitting.
+    fit_translucency`), which needs at least 3 readings per site and channel for its 2 parameters.
+    """
+
+    missing = np.isnan(prof)
+    if not np.array_equal(missing, np.isnan(std)):
+        at = tuple(int(i) for i in np.argwhere(missing != np.isnan(std))[0])
+        raise FormatError(
+            f"{what} fields 'profile' and 'profile_std' must both be null where a fibre has no reading, got "
+            f"{prof[at]} and {std[at]} at (site, fiber, channel) {at}"
+        )
+    # A measured profile may dip below 0 by noise (dark-frame subtraction); its standard error may not.
+    for field, a, low in (("profile", prof, -np.inf), ("profile_std", std, 0.0)):
+        bad = (~np.isfinite(a) & ~missing) | (a < low)
+        if bad.any():
+            at = tuple(int(i) for i in np.argwhere(bad)[0])
+            rule = "finite" if low == -np.inf else "finite and >= 0"
+            raise FormatError(
+                f"{what} field {field!r} must be {rule} (or null where a fibre has no reading), got {a[at]} at "
+                f"(site, fiber, channel) {at}"
+            )
+    count = (~missing).sum(axis=1)  # (site, channel)
+    if np.any(count < 3):
+        s, c = (int(i) for i in np.argwhere(count < 3)[0])
+        raise FormatError(
+            f"{what} has {count[s, c]} readings for site {SITES[s]} channel {CHANNELS[c]} (the other fibres have "
+            "none: clipped in every exposure); the dipole fit needs at least 3: take that site's bracket again "
+            "with shorter exposures"
+        )
+    return prof, std
 
 
 def check_response(folder: "CaptureFolder", dome, calibration: str = "the calibration") -> None:

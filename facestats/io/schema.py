@@ -44,8 +44,9 @@ says so (a quantity that may be missing).  The bounds and where they come from:
 * σ's, σa ≥ 0 and σtr > 0 (mm⁻¹; eq. 15 with σa, σ's ≥ 0), their standard
   errors ≥ 0; normals have components in [-1, 1]; fit errors E(p) ≥ 0 (eq.
   14); flags hold the bits of :data:`FLAG_BITS`; sample counts ≥ 0;
-* ``sensor_profile`` is only required to be finite: a dark-subtracted HDR
-  profile may dip slightly below zero in its noise.
+* ``sensor_profile`` may dip slightly below zero in its noise (a dark-subtracted
+  HDR profile); NaN marks a fibre without a reading (its spot clipped in every
+  exposure), which the dipole fit leaves out.
 """
 
 from __future__ import annotations

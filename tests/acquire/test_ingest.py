@@ -289,13 +289,70 @@ def test_hostile_manifest_fields_are_refused_before_any_allocation_or_read(copy,
         open_folder(copy).sensor()
 
 
-def test_sensor_profiles_must_be_finite(copy):
-    sensor = copy / json.loads((copy / "manifest.json").read_text())["sensor"]
-    doc = json.loads(sensor.read_text())
-    doc["profile"][1][2][0] = float("nan")
-    sensor.write_text(json.dumps(doc))
-    with pytest.raises(FacestatsError, match=r"field 'profile' must be finite, got nan at .* \(1, 2, 0\)"):
+def _edit_sensor(folder, fn):
+    path = folder / json.loads((folder / "manifest.json").read_text())["sensor"]
+    doc = json.loads(path.read_text())
+    fn(doc)
+    path.write_text(json.dumps(doc))
+
+
+def _set(field, at, value):
+    return lambda doc: doc[field][at[0]][at[1]].__setitem__(at[2], value)
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (_set("profile", (1, 2, 0), None), r"'profile' and 'profile_std' must both be null .* \(1, 2, 0\)"),
+        (_set("profile_std", (0, 3, 2), None), r"must both be null .*got .* and nan at .* \(0, 3, 2\)"),
+        (_set("profile", (2, 1, 1), float("inf")), r"field 'profile' must be finite .*inf at .*\(2, 1, 1\)"),
+        (_set("profile_std", (2, 0, 0), -1e-9), r"'profile_std' must be finite and >= 0 .*\(2, 0, 0\)"),
+    ],
+)
+def test_sensor_profiles_are_finite_or_null_in_both_fields(copy, edit, message):
+    _edit_sensor(copy, edit)
+    with pytest.raises(FacestatsError, match=message):
         open_folder(copy).sensor()
+
+
+def _null_fibres(fibres, site=0):
+    """An edit of the sensor file: ``fibres`` of ``site`` have no reading (clipped in every exposure)."""
+
+    def edit(doc):
+        for f in fibres:
+            doc["profile"][site][f] = doc["profile_std"][site][f] = [None, None, None]
+
+    return edit
+
+
+def test_a_fibre_without_a_reading_is_ingested_as_nan_and_left_out_of_the_fit(tiny, copy, tmp_path):
+    """A device session writes null where a fibre clipped in every exposure; the ingest refused such a folder while
+    read_bracket and the fit accepted it. Both readers now keep it as a missing reading."""
+    from facestats.pipeline.subject import fit_sensor
+
+    _, pc, _ = tiny
+    full = open_ingested(
+        ingest_photographs(pc.folder.parent, _geometry(copy), pc.calibration, tmp_path / "a.zarr", min_footprint_px=1)
+    )
+    _edit_sensor(copy, _null_fibres([0, 1]))
+    _, prof, std = open_folder(copy).sensor()
+    assert np.isnan(prof[0, :2]).all() and np.isnan(std[0, :2]).all() and np.isfinite(prof[1:]).all()
+    path = ingest_photographs(copy, _geometry(copy), pc.calibration, tmp_path / "b.zarr", min_footprint_px=1)
+    cap = open_ingested(path)
+    np.testing.assert_array_equal(cap.array("sensor_profile"), prof)
+    a, b = fit_sensor(full), fit_sensor(cap)
+    np.testing.assert_array_equal(b.sigma_tr[1:], a.sigma_tr[1:])  # the other sites' fits are untouched
+    assert np.isfinite(b.sigma_tr[0]).all() and not np.array_equal(b.sigma_tr[0], a.sigma_tr[0])
+    np.testing.assert_allclose(b.sigma_tr[0], a.sigma_tr[0], rtol=0.01)  # 26 of 28 fibres: nearly the same fit (0.1 %)
+
+
+def test_a_site_with_fewer_than_three_readings_is_refused_before_any_work(copy, tiny):
+    _, pc, _ = tiny
+    n = len(json.loads((copy / json.loads((copy / "manifest.json").read_text())["sensor"]).read_text())["profile"][0])
+    _edit_sensor(copy, _null_fibres(range(n - 2), site=2))
+    with pytest.raises(FacestatsError, match="has 2 readings for site neck channel R .*at least 3.*shorter exposures"):
+        ingest_photographs(copy, _geometry(copy), pc.calibration, copy.parent / "a.zarr")
+    assert not (copy.parent / "a.zarr").exists()
 
 
 def test_a_nan_profile_is_written_as_null_and_read_back_as_nan(copy):
@@ -304,16 +361,17 @@ def test_a_nan_profile_is_written_as_null_and_read_back_as_nan(copy):
 
     path = copy / json.loads((copy / "manifest.json").read_text())["sensor"]
     sensor, profile, std = open_folder(copy).sensor()
-    profile[1, 2, 0] = np.nan
+    profile[1, 2, 0] = std[1, 2, 0] = np.nan
     write_sensor_file(path, sensor, profile, std)
 
     def refuse(token):
         raise ValueError(f"not strict JSON: {token}")
 
     doc = json.loads(path.read_text(), parse_constant=refuse)
-    assert doc["profile"][1][2][0] is None
-    with pytest.raises(FacestatsError, match=r"field 'profile' must be finite, got nan at .* \(1, 2, 0\)"):
-        open_folder(copy).sensor()
+    assert doc["profile"][1][2][0] is None and doc["profile_std"][1][2][0] is None
+    _, back, back_std = open_folder(copy).sensor()
+    np.testing.assert_array_equal(back, profile)  # NaN where it was, equal elsewhere
+    np.testing.assert_array_equal(back_std, std)
 
 
 def test_mesh_without_face_region(copy):

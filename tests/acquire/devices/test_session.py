@@ -407,7 +407,7 @@ def test_a_lamp_switched_off_behind_the_drivers_back_is_noticed_and_set_again(tm
     assert "lamp=0" in (tmp_path / "out" / "session" / "log.txt").read_text()
 
 
-def _sensor_session(tmp_path, layout, sites):
+def _sensor_session(tmp_path, layout, sites, sensor=None, subject_id="S001"):
     """A sensor session captured from an emulated sensor whose camera images its fibres with ``layout``."""
     from facestats.acquire.devices.cameras import EmulatedCameras, HotFolderWriter
     from facestats.acquire.devices.capture import sensor_plan
@@ -417,14 +417,14 @@ def _sensor_session(tmp_path, layout, sites):
 
     sp = np.array([[1.0, 1.2, 1.5], [2.0, 2.4, 3.0], [0.6, 0.7, 0.9]])  # the three sites differ
     sa = np.array([[0.03, 0.08, 0.2], [0.01, 0.02, 0.05], [0.1, 0.2, 0.4]])
-    scene = SensorScene(sp, sa, layout=layout, seed=4)
+    scene = SensorScene(sp, sa, sensor=sensor, layout=layout, seed=4)
     save_sensor_calibration(tmp_path / "sensor-calibration.json", scene.sensor, layout)
     writer = HotFolderWriter(EmulatedCameras(scene, workers=1), tmp_path / "hot")
     device = SensorDevice(scene.sensor.n_fibers, scene.sensor.exposure_times, layout.size, on_trigger=writer.submit)
     server = PtyServer(device)
     server.closers.append(writer.close)
     server.start()
-    subject = {"subject_id": "S001", "person_id": "S001", "age": 30, "gender": "F", "skin_type": 3}
+    subject = {"subject_id": subject_id, "person_id": subject_id, "age": 30, "gender": "F", "skin_type": 3}
     try:
         plan, calibration = sensor_plan(tmp_path / "sensor-calibration.json", {**subject, "condition": "normal"},
                                         sites=sites)  # fmt: skip
@@ -465,6 +465,29 @@ def test_read_bracket_finds_the_spots_of_the_sessions_layout_and_names_each_prof
     doc["profile"][1][4][2] = None
     (out / "sensor.json").write_text(json.dumps(doc))
     assert np.isnan(read_bracket(out).profile[1, 4, 2])
+
+
+def test_a_session_whose_nearest_fibres_clip_in_every_exposure_is_read_for_the_ingest_and_fitted(small, tmp_path):
+    """merge_bracket gives NaN for a fibre that clipped in every exposure; CaptureFolder.sensor (the ingest) refused
+    such a session while read_bracket accepted it. The fibre is now a missing reading the fit leaves out."""
+    from facestats.acquire.devices.sensor import FiberLayout
+    from facestats.acquire.sensor import ContactSensor
+    from facestats.model.fitting import fit_translucency
+
+    root, _ = small
+    shutil.copytree(root / "clean", tmp_path / "out")  # the sensor session joins a dome session's folder
+    sensor = ContactSensor(shortest_exposure=0.03, n_exposures=8)  # 30 ms first: the nearest fibres clip throughout
+    out, scene = _sensor_session(tmp_path, FiberLayout(), sites=(0, 1, 2), sensor=sensor, subject_id="S002")
+    _, profile, std = open_folder(out).sensor()
+    clipped = np.isnan(profile)
+    assert clipped[:, 0].all() and clipped[0, 1].all() and not clipped[:, 4:].any()  # the near fibres, not the far
+    assert np.array_equal(clipped, np.isnan(std))
+    fit = fit_translucency(sensor.fiber_distance, np.moveaxis(profile, 1, 2), np.moveaxis(std, 1, 2))
+    sp = np.array([[1.0, 1.2, 1.5], [2.0, 2.4, 3.0], [0.6, 0.7, 0.9]])  # _sensor_session's scene
+    sa = np.array([[0.03, 0.08, 0.2], [0.01, 0.02, 0.05], [0.1, 0.2, 0.4]])
+    assert clipped.sum(1).tolist() == [[3, 2, 2], [3, 3, 3], [1, 1, 1]]  # fibres without a reading, (site, channel)
+    np.testing.assert_allclose(fit.sigma_s_prime, sp, rtol=0.015)  # measured: within 0.53 %
+    np.testing.assert_allclose(fit.sigma_a, sa, rtol=0.015)  # within 0.31 %
 
 
 def test_read_bracket_names_the_file_and_the_field_of_a_bad_sensor_file(tmp_path):

@@ -678,6 +678,9 @@ def group_meta(attributes=None) -> dict:
 def fsync_path(path, directory: bool = False) -> None:
     """Flush a file (or, with ``directory=True``, a directory entry list) to disk.
 
+    A file is opened without blocking and must be a regular file (:func:`open_regular_file`): a FIFO planted where
+    a file should be raises instead of blocking the open.
+
     Parameters
     ----------
     path : str or os.PathLike
@@ -688,9 +691,13 @@ def fsync_path(path, directory: bool = False) -> None:
     Raises
     ------
     OSError
-        ``path`` cannot be opened or the flush fails.
+        ``path`` cannot be opened, is not a regular file (``directory=False``), or the flush fails.
     """
-    fd = os.open(path, os.O_RDONLY | (os.O_DIRECTORY if directory else 0))
+    if not directory:
+        with open_regular_file(path) as f:
+            os.fsync(f.fileno())
+        return
+    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
     try:
         os.fsync(fd)
     finally:

@@ -972,6 +972,33 @@ def test_fsync_tree_without_syncfs_skips_a_planted_fifo_instead_of_blocking(tmp_
     assert len(fsyncs) == 5  # the three files and two folders; the FIFO and the link are left alone
 
 
+def test_fsync_path_refuses_a_fifo_instead_of_blocking(tmp_path):
+    """fsync_path opened a file with a plain blocking open: a FIFO there blocked until a writer came."""
+    import threading
+
+    from facestats.io.layout import fsync_path
+
+    os.mkfifo(tmp_path / "fifo")
+    (tmp_path / "file").write_bytes(b"x")
+    errors = []
+
+    def run():
+        try:
+            fsync_path(tmp_path / "fifo")
+        except OSError as exc:
+            errors.append(exc)
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    t.join(5)
+    assert not t.is_alive(), "fsync_path blocked on a FIFO"
+    assert len(errors) == 1 and "not a regular file" in str(errors[0])
+    fsync_path(tmp_path / "file")  # a regular file and a directory still flush
+    fsync_path(tmp_path, directory=True)
+    with pytest.raises(NotADirectoryError):
+        fsync_path(tmp_path / "file", directory=True)
+
+
 def test_a_record_swapped_for_a_fifo_after_its_checks_is_refused_without_blocking(tmp_path, monkeypatch):
     import stat
     import threading

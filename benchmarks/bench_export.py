@@ -22,6 +22,19 @@ memory it allocates (``tracemalloc``), against the bytes of the maps it reads
 (albedo, normal, ``ts_rho_s``, ``ts_m``, region): the ratio is what the export
 needs beyond holding its inputs.
 
+``gltf_specular``: the glTF specular mapping (docs/export.md, ``KHR_materials_specular``) on every subject of
+the embedded default store: :func:`facestats.io.gltf.write_gltf` per subject, its counts
+(:func:`facestats.io.gltf.read_gltf_summary`: measured texels, and those with ρs above
+:data:`facestats.io.gltf.RHO_S_EXACT`, whose F90 glTF caps) summed over the store, with the median, 99th
+percentile and maximum of ρs over the measured texels (region > 0, finite ρs) and 4 × the maximum (how far the
+weight alone, min(4ρs, 1), would cut F0 = 4ρs F0_η); then F0 decoded from each subject's two PNGs
+(F0_η s k, s the linear alpha of ``specular.png``, k = ``specularColorFactor`` × the sRGB-decoded
+``specular_color.png``) against 4ρs F0_η: the largest relative error per named subject and over the store,
+the factor K (``specularColorFactor``), and the least ratio the weight alone (F0_η s) would give.  Also the
+error of glTF's Fresnel form (Schlick's F0_η + (1 − F0_η)(1 − V·H)⁵, KHR_materials_specular) against the exact
+F_r of η = 1.38 (:func:`facestats.model.fresnel.fresnel_reflectance`) at 20°, 30° and 40°, and its most negative
+and most positive relative error over V·H = cos 0°-90° (steps of 0.0001°) with their angles.
+
 ``web_query``: the web app's ``/api/query`` against calling
 ``Store.query(...).to_dict()`` directly (the CLI's code path), so the ratio is
 the HTTP/JSON overhead.  Targets: page load with the default store ≤ 1 s; a
@@ -291,6 +304,98 @@ def bench_held_out(subjects=("S001", "S003", "S030", "S100"), cameras=(0, 5, 9, 
     }
 
 
+def _decoded_f0(path):
+    """(F0 decoded from a written glTF's specular PNGs, F0 of the weight alone, F0_η, K), maps of the texture."""
+    import json
+
+    from facestats.io.images import read_image
+
+    folder = os.path.dirname(path)
+    with open(path) as f:
+        doc = json.load(f)
+    ext = doc["materials"][0]["extensions"]
+    spec, ior = ext["KHR_materials_specular"], ext["KHR_materials_ior"]["ior"]
+
+    def image(kind):
+        return os.path.join(folder, doc["images"][doc["textures"][spec[kind]["index"]]["source"]]["uri"])
+
+    f0_eta = ((ior - 1) / (ior + 1)) ** 2
+    weight = spec.get("specularFactor", 1.0) * read_image(image("specularTexture")).astype(np.float64)[..., 3]
+    factor = spec["specularColorFactor"][0]
+    colour = factor * read_image(image("specularColorTexture"), srgb=True).astype(np.float64)[..., 0]
+    return np.minimum(f0_eta * colour, 1) * weight, f0_eta * weight, f0_eta, factor
+
+
+def _schlick_error(degrees):
+    """Relative error of glTF's Schlick Fresnel against the exact F_r of η = 1.38 at angles θ (degrees) of V·H."""
+    from facestats.model.fresnel import fresnel_reflectance
+
+    eta = 1.38  # KHR_materials_ior of the export (Weyrich et al. 2006 §3)
+    f0_eta, c = ((eta - 1) / (eta + 1)) ** 2, np.cos(np.radians(degrees))
+    return (f0_eta + (1 - f0_eta) * (1 - c) ** 5) / fresnel_reflectance(c, eta) - 1
+
+
+def bench_gltf_specular(subjects=None, named=("S003", "S078")):
+    """ρs against glTF's specular on the default store, and F0 decoded from the files (module docstring)."""
+    import facestats
+    from facestats.io.gltf import RHO_S_EXACT, read_gltf_summary, write_gltf
+
+    measured, capped, values, holder = 0, 0, [], []
+    worst = {}  # subject -> (largest relative F0 error, K, least weight-alone ratio)
+    with facestats.open_store() as st, tempfile.TemporaryDirectory() as d:
+        ids = st.ids() if subjects is None else sorted(set(subjects) | set(named))
+        for sid in ids:
+            ds = st.subject(sid)
+            out = os.path.join(d, sid)
+            os.mkdir(out)
+            path = write_gltf(ds, out)
+            report = read_gltf_summary(path)["specular"]
+            measured += report["texels_measured"]
+            capped += report["texels_f90_capped"]
+            rho = np.asarray(ds["ts_rho_s"].values, np.float64)
+            face = (np.asarray(ds["region"].values) > 0) & np.isfinite(rho)
+            f0, weight_alone, f0_eta, factor = _decoded_f0(path)
+            want = 4 * rho[face] * f0_eta
+            worst[sid] = (
+                float(np.max(np.abs(f0[face] - want) / want)),
+                factor,
+                float(np.min(weight_alone[face] / want)),
+            )
+            values.append(rho[face])
+            holder.append(np.full(face.sum(), sid))
+    values, holder = np.concatenate(values), np.concatenate(holder)
+    top = int(np.argmax(values))
+    out = {
+        "f90_capped_pct": 100 * capped / measured,
+        "texels_measured": measured,
+        "rho_s_exact": RHO_S_EXACT,
+        "rho_s_min": float(values.min()),
+        "rho_s_median": float(np.median(values)),
+        "rho_s_p99": float(np.percentile(values, 99)),
+        "rho_s_max": float(values[top]),
+        "rho_s_max_subject": str(holder[top]),
+        "weight_alone_cut_max": 4 * float(values[top]),
+        "f0_rel_error_max_pct": 100 * max(w[0] for w in worst.values()),
+        "f0_rel_error_max_subject": max(worst, key=lambda k: worst[k][0]),
+        "subjects": len(ids),
+    }
+    for sid in named:
+        err, factor, alone = worst[sid]
+        out.update({f"{sid}_f0_rel_error_max_pct": 100 * err, f"{sid}_K": factor, f"{sid}_weight_alone_min": alone})
+    out.update({f"schlick_error_{a}deg_pct": 100 * float(_schlick_error(a)) for a in (20, 30, 40)})
+    angles = np.arange(900_000) * 1e-4  # 0° to 89.9999°: F_r = 1 at grazing incidence, where both meet
+    error = _schlick_error(angles)
+    low, high = int(np.argmin(error)), int(np.argmax(error))
+    out.update({
+        "schlick_error_min_pct": 100 * float(error[low]),
+        "schlick_error_min_deg": float(angles[low]),
+        "schlick_error_max_pct": 100 * float(error[high]),
+        "schlick_error_max_deg": float(angles[high]),
+        "schlick_error_positive_from_deg": float(angles[np.argmax((error > 0) & (angles > 1))]),
+    })  # fmt: skip
+    return out
+
+
 def _chromium():
     """A headless Chromium driven by Selenium, or the reason there is none."""
     import shutil
@@ -366,6 +471,7 @@ BENCHMARKS = [
     ("web_query", bench_web_query),
     ("page_load", bench_page_load),
     ("held_out", bench_held_out),
+    ("gltf_specular", bench_gltf_specular),
 ]
 
 SMOKE = {
@@ -375,6 +481,7 @@ SMOKE = {
     "web_query": {"n": 2},
     "page_load": {"repeat": 1},
     "held_out": {"subjects": ("S003",), "cameras": (5,)},
+    "gltf_specular": {"subjects": (), "named": ("S003",)},
 }
 
 if __name__ == "__main__":

@@ -25,6 +25,15 @@ Figures:
   from disk in one process, on Dask's local process scheduler with 2 workers,
   and on a ``distributed`` cluster of 1 and 2 workers (warmed up), with the
   speed-ups.  (Full resolution: ``bench_scale.py``.)
+* ``determined_texels``: on the embedded default store, the share of the unflagged texels
+  (:func:`facestats.io.summary.region_samples`) whose fitted ρs the fit does *not* determine: standard error
+  (:func:`facestats.io.summary.region_standard_errors`) not finite or above
+  :data:`facestats.io.summary.DETERMINED_RELATIVE_SE` × |ρs|, in all and per region, for Torrance-Sparrow and
+  Blinn-Phong, and the largest standard error / |ρs| among them; then, for one region and parameter of the
+  subjects of one skin type (default: the chin's Blinn-Phong n, type IV), ``Store.query``'s between-subject
+  mean ± std and its ``mean_se`` / ``texel_se`` (determined texels only) against the baseline that counts every
+  finite standard error (what the query did before 2026-12-05 evening): root mean squares over the subjects of
+  sqrt(Σσ²)/n and of the texels' RMS σ.
 
 Every benchmark takes its sizes as arguments; ``SMOKE`` gives tiny ones that the
 test suite runs (``tests/test_benchmarks.py``) so that no benchmark can rot.
@@ -314,11 +323,76 @@ def bench_dask_scaling(n=12, grid=48, workers=(1, 2)):
     return out
 
 
+def bench_determined_texels(subjects=None, skin_type="IV", region=9, param="bp_exponent"):
+    """Texels whose ρs the fit leaves open, on the default store, and their weight in the query (module docstring).
+
+    ``subjects``: the store's subjects to count (default all); the query's selection (``skin_type``) is read whole,
+    its baseline over those of ``subjects``.
+    """
+    import facestats
+    from facestats.core.conventions import REGIONS
+    from facestats.io.summary import (
+        DETERMINED_RELATIVE_SE,
+        MODEL_PARAMS,
+        region_samples,
+        region_standard_errors,
+    )
+
+    model, lobe = next((m, names.index(param)) for m, names in MODEL_PARAMS.items() if param in names)
+    counts = {m: np.zeros((2, len(REGIONS)), np.int64) for m in ("ts", "bp")}  # (open, all) per region
+    worst = dict.fromkeys(counts, 0.0)
+    baseline = []  # (sqrt(Σσ²)/n, RMS σ) of every finite σ of the region's `param`, per subject of the query
+    with facestats.open_store() as st:
+        q = st.query(skin_type=skin_type)
+        ids = st.ids() if subjects is None else list(subjects)
+        for sid in ids:
+            ds = st.subject(sid)
+            for m in counts:
+                values, errors = region_samples(ds, m), region_standard_errors(ds, m)
+                if errors is None:  # a subject without standard-error maps
+                    continue
+                for k, r in enumerate(REGIONS):
+                    rho, sd = values[r][0], errors[r][0]
+                    open_ = ~(np.isfinite(sd) & (sd <= DETERMINED_RELATIVE_SE * np.abs(rho)))
+                    counts[m][:, k] += open_.sum(), rho.size
+                    ratio = sd[open_ & np.isfinite(sd)] / np.abs(rho[open_ & np.isfinite(sd)])
+                    worst[m] = max(worst[m], float(ratio.max(initial=0.0)))
+            errors = region_standard_errors(ds, model)
+            if sid in q.subject_ids and errors is not None:
+                sd = errors[region][lobe]
+                sd = sd[np.isfinite(sd)]
+                if sd.size:
+                    baseline.append((np.sqrt(np.sum(sd**2)) / sd.size, np.sqrt(np.mean(sd**2))))
+        row = next(r for r in q.to_dict()["regions"] if r["region"] == region)[param]
+    out = {}
+    for m, (n_open, n_all) in counts.items():
+        out[f"{m}_open_pct"] = 100 * float(n_open.sum() / max(n_all.sum(), 1))
+        out.update({f"{m}_open_pct_{REGIONS[r]}": 100 * float(n_open[k] / max(n_all[k], 1))
+                    for k, r in enumerate(REGIONS)})  # fmt: skip
+        out[f"{m}_open_texels"] = int(n_open.sum())
+        out[f"{m}_texels"] = int(n_all.sum())
+        out[f"{m}_worst_se_over_value"] = worst[m]
+    rms = np.sqrt(np.mean(np.square(baseline), axis=0)) if baseline else (np.nan, np.nan)
+    name = f"{REGIONS[region]}_{param}_{skin_type}"
+    out.update({
+        f"{name}_mean": row["mean"],
+        f"{name}_std": row["std"],
+        f"{name}_mean_se": row["mean_se"],
+        f"{name}_texel_se": row["texel_se"],
+        f"{name}_every_se_mean_se": float(rms[0]),
+        f"{name}_every_se_texel_se": float(rms[1]),
+        "subjects": len(ids),
+        "query_subjects": q.count,
+    })  # fmt: skip
+    return out
+
+
 BENCHMARKS = [
     ("public_api_ratio", bench_public_api_ratio),
     ("slsqp_ratio", bench_slsqp_ratio),
     ("accuracy", bench_accuracy),
     ("dask_scaling", bench_dask_scaling),
+    ("determined_texels", bench_determined_texels),
 ]
 
 #: Tiny sizes for the test suite (the full-resolution case keeps its maps finer than its grid).
@@ -327,4 +401,5 @@ SMOKE = {
     "slsqp_ratio": {"n_baseline": 3, "grid": 16},
     "accuracy": {"n_subjects": 1, "grid": 16},
     "dask_scaling": {"n": 2, "grid": 16, "workers": (2,)},  # one cluster: the code path, not the ratio
+    "determined_texels": {"subjects": ("S001", "S003")},
 }

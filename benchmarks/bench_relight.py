@@ -17,6 +17,12 @@
 * ``probe_lights`` — a probe as the directional lights of ``facestats render --probe``: 512 lights by median
   cut against 16 × 32 equal blocks (the baseline, the default before 2026-12-06): the Lambertian irradiance
   of 2,000 random normals against the full probe's (median, 99th percentile, worst).
+* ``lights_grid`` — how coarse a ``--lights`` grid may be: a white Lambertian (albedo 1) under a uniform unit
+  probe reflects exactly its albedo whatever its normal (∫ max(N·ω, 0) dΩ / π = 1); relit from the lights of an
+  n_theta × n_phi stage (:func:`facestats.model.sphere.light_stage_directions`; each light's L·δA from
+  :func:`facestats.relight.lighting.resample_probe`, as ``facestats relight`` lights it) it reflects
+  Σ L·δA max(N·l, 0) / π.  Smallest and largest
+  over a Fibonacci sphere of normals, and for the frontal normal +z (the face's, the stage camera's direction).
 * ``separation`` — accuracy of the colour-space separation's ρs on analytic spheres, with and without a
   chromaticity ramp, for the mirror exclusions 45° and 60°.
 
@@ -249,6 +255,39 @@ def bench_probe_lights(lights=512, blocks=(16, 32), normals=2000, probe_height=N
             out[f"{name}_{label}_median_rel"] = float(np.median(err))
             out[f"{name}_{label}_p99_rel"] = float(np.percentile(err, 99))
             out[f"{name}_{label}_max_rel"] = float(err.max())
+    return out
+
+
+def _fibonacci_normals(n):
+    """``n`` unit vectors spread evenly over the sphere (a Fibonacci lattice)."""
+    k = np.arange(n) + 0.5
+    z = 1 - 2 * k / n
+    r, azimuth = np.sqrt(1 - z * z), np.pi * (1 + 5**0.5) * k
+    return np.stack([r * np.cos(azimuth), r * np.sin(azimuth), z], 1)
+
+
+def bench_lights_grid(
+    grids=((1, 1), (2, 1), (4, 2), (8, 4), (16, 8), (32, 16), (64, 32)), normals=100_000, probe_height=64
+):
+    """A white Lambertian under a uniform probe relit from each n_theta × n_phi grid: least and greatest fraction
+    of its albedo over ``normals`` normals, and the frontal normal's (module docstring)."""
+    from facestats.model.sphere import light_stage_directions
+    from facestats.relight.lighting import resample_probe
+
+    n = _fibonacci_normals(normals)
+    front = np.array([[0.0, 0.0, 1.0]])
+    uniform = np.ones((probe_height, 2 * probe_height, 3))  # unit radiance from every direction
+    out = {"normals": normals}
+    for grid in grids:
+        d, _ = light_stage_directions(*grid)
+        solid = resample_probe(uniform, d)[..., 0].ravel()  # L·δA of each light: its cell's solid angle
+        d = d.reshape(-1, 3)
+        chunks = np.array_split(n, max(1, normals * len(solid) // 2**24))  # about 128 MB of products at a time
+        e = np.concatenate([np.maximum(c @ d.T, 0) @ solid for c in chunks]) / np.pi
+        name = f"{grid[0]}x{grid[1]}"
+        out[f"{name}_min"] = float(e.min())
+        out[f"{name}_max"] = float(e.max())
+        out[f"{name}_front"] = float((np.maximum(front @ d.T, 0) @ solid)[0] / np.pi)
     return out
 
 
@@ -507,6 +546,7 @@ BENCHMARKS = [
     ("discretisation", bench_discretisation),
     ("stream", bench_stream),
     ("probe_lights", bench_probe_lights),
+    ("lights_grid", bench_lights_grid),
     ("compression_sweep", bench_compression_sweep),
     ("cluster_density", bench_cluster_density),
     ("region_floor", bench_region_floor),
@@ -526,6 +566,7 @@ SMOKE = {
     "discretisation": {"size": 8, "probe_height": 8, "n_theta": 8, "n_phi": 4},
     "stream": {"size": 12, "n_theta": 8, "n_phi": 4},
     "probe_lights": {"lights": 16, "blocks": (2, 4), "normals": 50, "probe_height": 8},
+    "lights_grid": {"grids": ((1, 1), (8, 4)), "normals": 200, "probe_height": 8},
     "compression_sweep": {"size": 16, "n_theta": 16, "n_phi": 8, "ratios": (4, 2), "rotations": (0, 90)},
     "cluster_density": {**_TINY_SWEEP, "pixels_per_cluster": (64, 16), "seeds": (0, 1)},
     "region_floor": {**_TINY_SWEEP, "floors": (0.2, 1.0), "seeds": (0,)},

@@ -15,6 +15,14 @@ Figures:
   (:mod:`inputs`: the fit benchmark reuses it while the code is unchanged), with
   the peak resident memory of the process (it runs in a subprocess so the peak
   is its own).
+* ``valid_samples``: valid samples per lumitexel (16 cameras × 150 LEDs = 2,400
+  (camera, LED) pairs; a sample is valid when the fit may use it:
+  :attr:`facestats.acquire.capture.Lumitexels.valid`) over every lumitexel of the
+  default population (seed 2006, 48² grid, the 155 records of the embedded
+  default) simulated on the ICT face, as ``facestats build --default`` simulates
+  it, and on the procedural head (``--face procedural``): median, 5th and 95th
+  percentile, mean, minimum and maximum (the README's figures; the paper: about
+  900, up to 1,200).
 
 Every benchmark takes its sizes as arguments; ``SMOKE`` gives tiny ones that the
 test suite runs (``tests/test_benchmarks.py``) so that no benchmark can rot.
@@ -130,10 +138,41 @@ def bench_full_resolution(grid=FULL_GRID, map_size=FULL_MAP_SIZE):
     return fig
 
 
+def bench_valid_samples(grid=48, faces=("ict", "procedural"), n_subjects=None):
+    """Valid samples per lumitexel of the default population simulated on each face (module docstring)."""
+    from facestats.acquire.synthetic.faces import face_geometry
+    from facestats.acquire.synthetic.population import synthesize_population
+    from facestats.acquire.synthetic.simulate import DomeSimulator
+    from facestats.core.conventions import DEFAULT_SEED
+
+    out = {}
+    for face in faces:
+        t0 = time.perf_counter()
+        geometry = face_geometry(face, grid)
+        pop = synthesize_population(seed=DEFAULT_SEED, map_size=grid, geometry=geometry)
+        sim = DomeSimulator(geometry)  # the build's simulator: default dome, noise, Torrance-Sparrow highlights
+        truths = pop.subjects[:n_subjects]
+        counts = np.concatenate([sim.simulate(t).lumitexels().valid.sum(axis=(1, 2)) for t in truths])
+        p5, median, p95 = np.percentile(counts, [5, 50, 95])
+        out.update({
+            f"{face}_median": float(median),
+            f"{face}_p5": float(p5),
+            f"{face}_p95": float(p95),
+            f"{face}_mean": float(counts.mean()),
+            f"{face}_min": int(counts.min()),
+            f"{face}_max": int(counts.max()),
+            f"{face}_subjects": len(truths),
+            f"{face}_lumitexels": geometry.n_points,
+            f"{face}_s": time.perf_counter() - t0,
+        })  # fmt: skip
+    return out
+
+
 BENCHMARKS = [
     ("one_subject", bench_one_subject),
     ("population", bench_population),
     ("full_resolution", bench_full_resolution),
+    ("valid_samples", bench_valid_samples),
 ]
 
 #: Tiny sizes for the test suite (the full-resolution case keeps its maps finer than its grid).
@@ -141,4 +180,5 @@ SMOKE = {
     "one_subject": {"grid": 16, "repeats": 1},
     "population": {"grid": 16, "n_subjects": 4},
     "full_resolution": {"grid": 24, "map_size": 64},
+    "valid_samples": {"grid": 16, "n_subjects": 2},
 }

@@ -62,7 +62,7 @@ def _check_subject_options(args):
 
 
 #: Coarsest light-stage grid ``--lights`` takes (θ × φ): a white Lambertian under a uniform probe then gets
-#: 0.93-1.08 of its albedo whatever its normal (4x2: 0.71-1.41; docs/relighting.md, tests/cli/test_relight.py).
+#: 0.92-1.08 of its albedo whatever its normal (4x2: 0.71-1.41; docs/relighting.md, bench_relight.bench_lights_grid).
 MIN_LIGHTS = (8, 4)
 
 

@@ -24,9 +24,9 @@ Column names (``r`` = region 1-10, ``ch`` = R/G/B, ``site`` = cheek/forehead/nec
   (texel fits are independent) — the within-subject uncertainty; NaN for
   subjects without standard-error maps (older stores, imported or edited parameters).  A texel is
   determined when its standard error is at most its value's magnitude (:data:`DETERMINED_RELATIVE_SE`).
-  The others (on the default store 5.6 % of the unflagged Blinn-Phong texels, 27 % of the chin's and 15 % of the
+  The others (on the default store 5.5 % of the unflagged Blinn-Phong texels, 27 % of the chin's and 15 % of the
   lips', and 1.0 % of the Torrance-Sparrow ones, 12 % of the lips' and 6 % of the nose's; counted for ρs) have
-  linearised errors up to 5e4 times their value,
+  linearised errors up to 7.8e3 times their value (``bench_fit.bench_determined_texels()``),
   which say only that the fit leaves the value open; one of them would outweigh a region's hundreds of
   determined texels in both sums;
 * ``site_sigma_tr_{site}_{ch}``, ``site_sigma_s_prime_{site}_{ch}``,

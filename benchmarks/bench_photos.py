@@ -21,6 +21,23 @@
   subprocess (peak resident memory of that process; target ≤ 5 minutes for the
   ingest), with the albedo, ρs and m errors against the truth beside those of
   the in-memory path on the same subject.
+* ``led_calibration``: the photometric LED calibration on the set-up of
+  ``tests/acquire/test_calibration.py`` (8 LEDs, 3 cameras, 4 target poses, 128²
+  12-bit frames): intensity, E⊥ over the face and over shells up to 150 mm from
+  the head centre, linear and quadratic beam coefficients against the truth,
+  residuals, and the beams' standard errors relative to the residual.
+* ``led_sparse``: a sparse target (the first 40 LEDs, 2 poses, grid 8): LEDs not
+  calibrated, beams flagged ``poorly_determined`` and how wrong they are on the
+  target, the others' errors, and the standard error over each LED's own points.
+* ``led_underexposed``: the tests' 4-LED target at 100 %, 1 % and 0.3 % of the
+  full scale: residuals, intensity errors, LEDs named ``noisy``, and at 0.3 % the
+  intensities with all-dark taps taken as observations (as before 2026-12-06).
+* ``tiff``: 16-bit TIFF decoding by libtiff against OpenCV: the codes each
+  returns from a planar file, and decode times for LZW and uncompressed frames.
+* ``frobisher``: the real bracket ``frobisher_001`` of colour-hdri-tests-datasets
+  from ``$FACESTATS_COLOUR_HDRI_DATASETS`` (not in the repository; ``skipped``
+  without it): merge agreement with OpenCV and colour-hdri, same g and own g
+  (histogram and stratified samples).
 """
 
 from __future__ import annotations
@@ -34,6 +51,9 @@ import time
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+if ROOT not in sys.path:  # tests.helpers (colour-hdri's merge) from a clean clone, however run.py is called
+    sys.path.insert(0, ROOT)
 TARGET_MERGE_S = 0.2
 TARGET_RECOVER_S = 1.0
 TARGET_INGEST_S = 300.0
@@ -299,12 +319,321 @@ def bench_agreement_memory(side=4096):
     return out
 
 
+# -- LED calibration from a simulated target (tests/acquire/test_calibration.py's set-ups) ---------------------------
+def _target_pose(normal, centre=(0.0, 0.0, 40.0)):
+    """A 300 mm square target at ``centre`` facing ``normal`` (the tests' ``_pose``)."""
+    from facestats.acquire.synthetic.photographs import TargetPose
+
+    n = np.asarray(normal, float) / np.linalg.norm(normal)
+    u = np.cross([0.0, 1.0, 0.0], n)
+    return TargetPose(centre, tuple(n), tuple(u / np.linalg.norm(u)), (300.0, 300.0))
+
+
+def _target_rig(leds, side, exposure=1.0):
+    """The default dome restricted to ``leds``, ``side``² frames, the tests' 12-bit camera (full well 20,000 e⁻,
+    read noise 5 e⁻) as its response; ``exposure`` scales ``camera_scale`` (0.01: the target at 1 % of the full
+    scale)."""
+    from dataclasses import replace
+
+    from facestats.acquire.dome import default_dome
+    from facestats.acquire.response import ResponseCurve
+
+    camera = ResponseCurve(12, 20000.0, 5.0)
+    dome = default_dome().select(leds=leds).resized(side, side)
+    g = np.repeat(camera.log_exposure()[:, None], 3, axis=1)
+    return camera, replace(dome, camera_log_response=g, camera_scale=dome.camera_scale * exposure)
+
+
+def _unknown_leds(dome):
+    """``dome`` with its LED photometry forgotten: intensity 1, a flat beam."""
+    from dataclasses import replace
+
+    flat = np.tile([1.0, 0, 0, 0, 0, 0], (dome.n_leds, 1))
+    return replace(dome, led_intensity=np.ones((dome.n_leds, 3)), led_beam=flat)
+
+
+def _beam_error_on(dome, fitted_beam, led, points):
+    """Largest |P_fit / P_true − 1| of ``led``'s beam over the ``points`` (K, 3) in front of it."""
+    from facestats.acquire.dome import beam_terms
+
+    _, _, s, t, front = dome.beam_coordinates(points, [led])
+    m = beam_terms(s[front[:, 0], 0], t[front[:, 0], 0])
+    return float(np.max(np.abs(m @ fitted_beam / (m @ dome.led_beam[led]) - 1)))
+
+
+def _e_perp_error(truth, fitted, points):
+    """Largest relative error of the fitted rig's E⊥ over ``points`` where the true E⊥ exceeds 1e-3."""
+    e_true, e_fit = truth.incident(points)[1], fitted.incident(points)[1]
+    lit = e_true > 1e-3
+    return float(np.max(np.abs(e_fit[lit] / e_true[lit] - 1)))
+
+
+def bench_led_calibration(side=128, grid=24, face_grid=24, shell_points=1000):
+    """The photometric LED calibration on the set-up of ``tests/acquire/test_calibration.py`` (8 LEDs spread over
+    the dome, 3 cameras, 4 poses of a Fluorilon target of albedo 0.99, ``side``² 12-bit frames): the fitted
+    intensities, E⊥ over the face and over shells of radius 50, 100 and 150 mm around the head centre, the beam
+    coefficients against the simulator's truth, the residuals and the beams' standard errors."""
+    import tempfile
+
+    from facestats.acquire.calibration import calibrate_leds
+    from facestats.acquire.synthetic.face import procedural_face
+    from facestats.acquire.synthetic.photographs import write_target_photographs
+
+    camera, truth = _target_rig([0, 20, 41, 60, 83, 101, 122, 147], side)
+    poses = [_target_pose((0, 0, 1)), _target_pose((3.7, 0, 1)), _target_pose((-3.7, 0, 1)), _target_pose((0, 0.9, 1))]
+    with tempfile.TemporaryDirectory() as folder:
+        write_target_photographs(folder, truth, poses, cameras=[3, 4, 11], camera=camera)
+        t0 = time.perf_counter()
+        res = calibrate_leds(folder, _unknown_leds(truth), grid=grid)
+        fit_s = time.perf_counter() - t0
+    fitted = res.apply(truth)
+    d = np.random.default_rng(1).standard_normal((3 * shell_points, 3))
+    radius = np.repeat([50.0, 100.0, 150.0], shell_points)[:, None]
+    shells = np.array([0.0, 0.0, 40.0]) + d / np.linalg.norm(d, axis=1, keepdims=True) * radius
+    beam_err = np.abs(res.beam - truth.led_beam)
+    return {
+        "intensity_max_rel_err": float(np.max(np.abs(res.intensity / truth.led_intensity - 1))),
+        "e_perp_face_max_rel_err": _e_perp_error(truth, fitted, procedural_face(face_grid).position),
+        "e_perp_shells_max_rel_err": _e_perp_error(truth, fitted, shells),
+        "rms_residual_min": float(np.min(res.rms_residual)),
+        "rms_residual_max": float(np.max(res.rms_residual)),
+        "beam_linear_max_abs_err": float(beam_err[:, 1:3].max()),  # c1, c2: s, t
+        "beam_quadratic_max_abs_err": float(beam_err[:, 3:].max()),  # c3..c5: s², st, t²
+        "beam_error_over_residual_max": float(np.max(res.beam_error / res.rms_residual)),
+        "poorly_determined": int(res.poorly_determined.size),
+        "camera_gain_max_abs_err": float(np.max(np.abs(res.camera_gain[[3, 4, 11]] - 1))),
+        "observations_min": int(res.n_observations.min()),
+        "calibrate_s": fit_s,
+    }
+
+
+def bench_led_sparse(leds=40, side=96, grid=8):
+    """``calibrate leds --grid 8`` on a sparse target: the first ``leds`` LEDs of the dome, 3 cameras, 2 poses
+    (facing the dome's axis and tilted by 75° about y; the set-up of the tests' ``sparse_target`` with more LEDs).
+
+    Prints how many LEDs are not calibrated and flagged (``poorly_determined``), how wrong the flagged and the other
+    beams are on the target (largest |P_fit / P_true − 1| over the target points in front of the LED), the flagged
+    LED with the largest such error (its c₃ ± standard error and the truth), the others' standard errors relative to
+    their residual, and the same ratio over only the points each LED was fitted from (lit from the front at more
+    than 0.05 in cosine, the fit's own rule: a least-squares fit is never less certain there than one observation,
+    leverage at most 1).
+    """
+    import tempfile
+
+    from facestats.acquire.calibration import fit_leds, target_observations
+    from facestats.acquire.synthetic.photographs import write_target_photographs
+
+    camera, truth = _target_rig(np.arange(leds), side)
+    with tempfile.TemporaryDirectory() as folder:
+        write_target_photographs(
+            folder, truth, [_target_pose((0, 0, 1)), _target_pose((3.7, 0, 1))], cameras=[3, 4, 11], camera=camera
+        )
+        obs = target_observations(folder, truth, grid=grid)
+    res = fit_leds(truth, obs)
+    fitted = np.nonzero(np.isfinite(res.intensity).all(1))[0]
+    flagged = res.poorly_determined
+    good = np.setdiff1d(fitted, flagged)
+    err = {int(i): _beam_error_on(truth, res.beam[i], i, obs["target_points"]) for i in fitted}
+    own = []  # beam_error over the points each LED was fitted from (lit from the front at cosine > 0.05)
+    for i in fitted:  # one small fit per LED
+        pts, normal = obs["point"][obs["led"] == i], obs["normal"][obs["led"] == i]
+        wi, _, _, _, front = truth.beam_coordinates(pts, [i])
+        used = front[:, 0] & (np.einsum("nk,nk->n", wi[:, 0], normal) > 0.05)
+        mine = fit_leds(truth, dict(obs, target_points=pts[used]))
+        own.append(mine.beam_error[i] / mine.rms_residual[i])
+    out = {
+        "leds": leds,
+        "uncalibrated": int(res.uncalibrated.size),
+        "poorly_determined": int(flagged.size),
+        "well_determined": int(good.size),
+    }
+    if flagged.size:
+        worst = max(flagged, key=lambda i: err[int(i)])
+        out.update(
+            flagged_leds=flagged.tolist(),
+            flagged_beam_err=[err[int(i)] for i in flagged],
+            flagged_beam_err_min=min(err[int(i)] for i in flagged),
+            flagged_beam_err_max=err[int(worst)],
+            worst_flagged_led=int(worst),
+            worst_flagged_c3=float(res.beam[worst, 3]),
+            worst_flagged_c3_stderr=float(res.beam_stderr[worst, 3]),
+            worst_flagged_c3_true=float(truth.led_beam[worst, 3]),
+        )
+    if good.size:
+        out.update(
+            others_beam_err_max=max(err[int(i)] for i in good),
+            others_beam_error_over_residual_max=float(np.max(res.beam_error[good] / res.rms_residual[good])),
+        )
+    out["own_points_beam_error_over_residual_max"] = float(np.max(own))
+    return out
+
+
+def _worst_intensity(res, truth, skip=()):
+    """The signed relative intensity error of largest magnitude over the fitted LEDs not in ``skip``."""
+    ratio = res.intensity / truth.led_intensity - 1
+    ratio[np.asarray(skip, dtype=np.int64)] = np.nan
+    return float(ratio.flat[np.nanargmax(np.abs(ratio))]) if np.isfinite(ratio).any() else float("nan")
+
+
+def bench_led_underexposed(side=64, grid=24, exposures=(1.0, 0.01, 0.003), leds=(0, 20, 41, 60)):
+    """The LED calibration of a target photographed at a fraction of the full scale: the set-up of the tests'
+    underexposed target (``leds``, default 0, 20, 41 and 60; cameras 3 and 4, 2 poses, ``side``² 12-bit frames),
+    ``camera_scale`` times each of ``exposures``.
+
+    For each exposure: the residuals (min-max), the LEDs named ``noisy``, and the largest intensity error (signed:
+    observations near the noise floor read high) over the fitted LEDs and over those whose beam is not
+    ``poorly_determined`` (an extrapolated beam has its own error); at the smallest exposure also the intensity
+    errors when the all-dark taps are taken as observations at the merge's floor, as before 2026-12-06 (``merge_at``
+    called without ``measured_only``: the calibration module's ``merge_at`` is patched for that one run)."""
+    import tempfile
+
+    import facestats.acquire.calibration as calibration
+    from facestats.acquire.photographs import merge_at
+    from facestats.acquire.synthetic.photographs import write_target_photographs
+
+    out = {}
+    for exposure in exposures:  # one small target each
+        camera, truth = _target_rig(list(leds), side, exposure)
+        key = f"x{exposure:g}"
+        with tempfile.TemporaryDirectory() as folder:
+            write_target_photographs(
+                folder, truth, [_target_pose((0, 0, 1)), _target_pose((3.7, 0, 1))], cameras=[3, 4], camera=camera
+            )
+            res = calibration.calibrate_leds(folder, _unknown_leds(truth), grid=grid)
+            if exposure == min(exposures):
+                calibration.merge_at = lambda *a, **k: merge_at(*a, **{**k, "measured_only": False})
+                try:
+                    old = calibration.calibrate_leds(folder, _unknown_leds(truth), grid=grid)
+                finally:
+                    calibration.merge_at = merge_at
+        out[f"{key}_rms_residual_min"] = float(np.nanmin(res.rms_residual))
+        out[f"{key}_rms_residual_max"] = float(np.nanmax(res.rms_residual))
+        out[f"{key}_noisy"] = int(res.noisy.size)
+        out[f"{key}_poorly_determined"] = int(res.poorly_determined.size)
+        out[f"{key}_intensity_err_max"] = _worst_intensity(res, truth)
+        out[f"{key}_intensity_err_max_well_determined"] = _worst_intensity(res, truth, res.poorly_determined)
+    low = f"x{min(exposures):g}"
+    out[f"{low}_dark_taps_as_data_intensity_err_max"] = _worst_intensity(old, truth)
+    out[f"{low}_dark_taps_as_data_intensity_err_max_well_determined"] = _worst_intensity(
+        old, truth, old.poorly_determined
+    )
+    return out
+
+
+# -- 16-bit TIFF frames ---------------------------------------------------------------------------------------------
+def bench_tiff(side=1024, repeat=5):
+    """16-bit RGB TIFF frames: libtiff (:func:`facestats.io.images.decode_integer_image`) against OpenCV.
+
+    A planar (PlanarConfiguration 2) TIFF of random codes with a constant blue channel of 30000 (the tests' layout,
+    ``side``²): the fraction of codes each decoder returns exactly, and the first blue codes OpenCV returns.
+    A contiguous TIFF of a simulated 12-bit photograph (the middle exposure of the ``recover`` scene), LZW and
+    uncompressed: decode time (best of ``repeat``) of ours and of ``cv2.imdecode`` (BGR, as OpenCV returns it).
+    """
+    import io
+
+    import cv2
+    import tifffile
+
+    from facestats.io.images import decode_integer_image
+
+    rgb = np.random.default_rng(16).integers(0, 65536, (side, side, 3), dtype=np.uint16)
+    rgb[..., 2] = 30000
+    buf = io.BytesIO()
+    tifffile.imwrite(buf, np.ascontiguousarray(np.moveaxis(rgb, -1, 0)), photometric="rgb", planarconfig="separate")
+    planar = buf.getvalue()
+    cv = cv2.imdecode(np.frombuffer(planar, np.uint8), cv2.IMREAD_UNCHANGED)[..., ::-1]
+    out = {
+        "planar_ours_matching": float(np.mean(decode_integer_image(planar, "planar.tif")[0] == rgb)),
+        "planar_opencv_matching": float(np.mean(cv == rgb)),
+        "planar_opencv_blue_first_codes": cv[0, :4, 2].tolist(),
+        "megapixels": side * side / 1e6,
+    }
+    frame = np.ascontiguousarray(_stack(side, bits=12)[2][1])
+    for compression in ("lzw", None):
+        buf = io.BytesIO()
+        tifffile.imwrite(buf, frame, photometric="rgb", compression=compression)
+        data = buf.getvalue()
+        name = compression or "uncompressed"
+        t_ours, ours = _best(lambda: decode_integer_image(data, "frame.tif"), repeat)
+        t_cv, cv = _best(lambda: cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED), repeat)
+        assert np.array_equal(ours[0], frame) and np.array_equal(cv[..., ::-1], frame)
+        out[f"{name}_ours_ms"], out[f"{name}_opencv_ms"] = 1e3 * t_ours, 1e3 * t_cv
+    return out
+
+
+# -- a real bracket outside the repository ---------------------------------------------------------------------------
+COLOUR_HDRI_DATASETS = "FACESTATS_COLOUR_HDRI_DATASETS"
+
+
+def bench_frobisher(side=None):
+    """``frobisher_001`` of colour-science/colour-hdri-tests-datasets (three Canon EOS 5D Mark II JPEGs, 1/8, 1 and
+    8 s from EXIF), read from ``$FACESTATS_COLOUR_HDRI_DATASETS/frobisher_001`` as ``tests/acquire/test_response.py``
+    does (not in the repository: the JPEGs carry no licence file of their own). Without it the benchmark returns
+    only ``skipped``, saying why.
+
+    Median relative differences after a global scale (as ``real_bracket``): our merge with OpenCV's recovered g
+    against OpenCV's merge; each library's own recovered g (ours from histogram and from stratified samples)
+    against OpenCV's merge and colour-hdri's; and each curve's median exposure disagreement. ``side`` crops the
+    frames to their central ``side``² pixels.
+    """
+    import cv2
+
+    from facestats.acquire.response import exposure_agreement, merge_photographs, recover_response
+    from facestats.io.exif import read_exposure_time
+    from facestats.io.images import read_integer_image
+
+    root = os.environ.get(COLOUR_HDRI_DATASETS)
+    folder = os.path.join(root, "frobisher_001") if root else None
+    if folder is None or not os.path.isfile(os.path.join(folder, "IMG_2600.jpg")):
+        return {
+            "skipped": f"real bracket absent: set {COLOUR_HDRI_DATASETS} to a checkout of "
+            "colour-science/colour-hdri-tests-datasets (frobisher_001: three Canon JPEGs, 1/8, 1 and 8 s)"
+            + (f"; {root}/frobisher_001/IMG_2600.jpg not found" if root else "")
+        }
+    files = [os.path.join(folder, f"IMG_260{k}.jpg") for k in (0, 1, 2)]
+    times = np.array([read_exposure_time(f) for f in files])
+    imgs = [read_integer_image(f)[0] for f in files]
+    if side is not None:
+        h, w = imgs[0].shape[:2]
+        y0, x0 = (h - side) // 2, (w - side) // 2
+        imgs = [np.ascontiguousarray(i[y0 : y0 + side, x0 : x0 + side]) for i in imgs]
+    bgr = [np.ascontiguousarray(i[..., ::-1]) for i in imgs]
+    t32 = times.astype(np.float32)
+    resp = cv2.createCalibrateDebevec().process(bgr, t32)
+    e_cv = cv2.createMergeDebevec().process(bgr, t32, resp)[..., ::-1]
+    g_cv = np.log(resp[:, 0, ::-1].astype(np.float64))
+    g_hist, g_strat = recover_response(imgs, times), recover_response(imgs, times, samples="stratified")
+    own, strat = merge_photographs(imgs, times, g_hist), merge_photographs(imgs, times, g_strat)
+    out = {
+        "exposure_times_s": times.tolist(),
+        "agreement_same_g": _scaled_rel(merge_photographs(imgs, times, g_cv), e_cv),
+        "agreement_own_g_histogram": _scaled_rel(own, e_cv),
+        "agreement_own_g_stratified": _scaled_rel(strat, e_cv),
+        "exposure_disagreement_median_ours": exposure_agreement(imgs, times, g_hist)[:, 0].tolist(),
+        "exposure_disagreement_median_opencv": exposure_agreement(imgs, times, g_cv)[:, 0].tolist(),
+    }
+    try:
+        from tests.helpers import colour_hdri_merge
+
+        e_ch = colour_hdri_merge(imgs, times)
+        out["agreement_colour_hdri_opencv"] = _scaled_rel(e_cv, e_ch)
+        out["agreement_colour_hdri_ours"] = _scaled_rel(own, e_ch)
+    except ImportError:  # colour-hdri is a test extra
+        pass
+    return out
+
+
 BENCHMARKS = [
     ("merge", bench_merge),
     ("agreement_memory", bench_agreement_memory),
     ("recover", bench_recover),
     ("real_bracket", bench_real_bracket),
     ("ingest", bench_ingest),
+    ("led_calibration", bench_led_calibration),
+    ("led_sparse", bench_led_sparse),
+    ("led_underexposed", bench_led_underexposed),
+    ("tiff", bench_tiff),
+    ("frobisher", bench_frobisher),
 ]
 
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
@@ -314,4 +643,9 @@ SMOKE = {
     "recover": {"side": 64, "repeat": 1},
     "real_bracket": {"side": 128, "repeat": 1},
     "ingest": {"grid": 16, "side": 64, "leds": 8, "workers": 1, "min_footprint_px": 0.5},
+    "led_calibration": {"side": 48, "grid": 6, "face_grid": 8, "shell_points": 20},
+    "led_sparse": {"leds": 6, "side": 48, "grid": 4},
+    "led_underexposed": {"side": 32, "grid": 4, "exposures": (1.0, 0.003)},
+    "tiff": {"side": 32, "repeat": 1},
+    "frobisher": {"side": 64},
 }

@@ -87,8 +87,9 @@ MAX_GRID = 100
 #: keeps its previous photometry).
 MIN_OBSERVATIONS = 12
 #: RMS relative residual of one observation above which a fitted LED is named :attr:`LedCalibration.noisy`: a
-#: well-exposed target leaves about 1 %; a target at 1 % of the full scale 7-29 %, with intensities up to 9 % high
-#: (observations near the noise floor read high).
+#: well-exposed target leaves about 1 %; the tests' 4-LED target at 1 % of the full scale 7.343-11.48 %, with
+#: intensities up to 1.549 % high (observations near the noise floor read high;
+#: ``benchmarks/bench_photos.py``'s ``bench_led_underexposed``).
 NOISY_RESIDUAL = 0.10
 
 

@@ -108,6 +108,20 @@ def test_uniform_sky_irradiance_matches_the_hemispherical_integral():
     np.testing.assert_allclose(one, directional_light_irradiance(np.array([[0.0, 0, 1]]), d[:1], 1.0))
 
 
+def test_environment_irradiance_of_more_patches_than_one_block():
+    """The environment sum runs in blocks of 4,096 patches: every patch of every block gets its light."""
+    rng = np.random.default_rng(5)
+    normals = rng.normal(size=(9000, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    d = rng.normal(size=(6, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    normals[4095:4097] = normals[8191:8193] = d[0]  # the patches at the blocks' ends face a light
+    l_omega = rng.uniform(0.1, 1.0, (6, 3))
+    c = environment_irradiance(normals, d, l_omega)
+    np.testing.assert_allclose(c, directional_light_irradiance(normals, d, l_omega), rtol=1e-12, atol=0)
+    assert np.all(c[[4095, 4096, 8191, 8192]] > 0)
+
+
 def test_eq_15_exitance_and_its_inverse():
     lo = np.array([0.1, 0.2])
     cos = np.array([1.0, 0.5])

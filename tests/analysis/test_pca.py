@@ -256,3 +256,20 @@ def test_region_pca_checks_ddof_on_both_paths(ddof):
     for from_index in ("auto", False):
         with pytest.raises(ValidationError, match="ddof must be an integer"):
             region_pca(store, ddof=ddof, from_index=from_index)
+
+
+def test_ellipse_angle_range_and_smoothest_lobe_of_each_model():
+    """A vertical major axis (along the lobe parameter) has angle π/2, the closed end of (−π/2, π/2]; the smoothest
+    lobe is the smallest mean m (Torrance-Sparrow) but the largest mean exponent n (Blinn-Phong)."""
+    from facestats.analysis.pca import RegionEllipse, RegionPCA
+
+    def ellipse(region, mean, axes):
+        return RegionEllipse(region, np.array(mean), np.array([2.0, 1.0]), np.array(axes), n=10, n_subjects=2)
+
+    upright = ellipse(1, [0.1, 0.3], [[0.0, 1.0], [1.0, 0.0]])
+    assert upright.angle == np.pi / 2
+    assert ellipse(1, [0.1, 0.3], [[1.0, 0.0], [0.0, 1.0]]).angle == 0.0
+    means = {1: [0.1, 0.30], 2: [0.2, 0.25], 3: [0.3, 0.40]}
+    regions = {r: ellipse(r, m, np.eye(2)) for r, m in means.items()}
+    assert RegionPCA("ts", ("rho_s", "m"), regions, 2).orderings()["smallest_lobe"] == 2
+    assert RegionPCA("bp", ("rho_s", "exponent"), regions, 2).orderings()["smallest_lobe"] == 3

@@ -72,6 +72,13 @@ def test_match_histogram_partial_follows_interpolation(rng):
     assert histogram_distance(Histogram.from_data(out, 512), h) < 0.01
 
 
+def test_constant_values_move_the_fraction_t_towards_the_target_mean():
+    """Constant values have no distribution to match: they go to (1 - t) x + t mean(target) (match_histogram)."""
+    target = Histogram([0.0, 1.0, 2.0, 3.0], [1.0, 2.0, 1.0])
+    out = match_histogram(np.full((4, 5), 7.0), target, t=0.25)
+    np.testing.assert_allclose(out, 0.75 * 7.0 + 0.25 * 1.5, rtol=1e-12)
+
+
 def test_quantile_inverts_cdf_and_jumps_over_empty_bins():
     h = Histogram([0.0, 1.0, 2.0, 3.0, 4.0], [2.0, 0.0, 0.0, 2.0])
     np.testing.assert_allclose(h.cdf, [0.0, 0.5, 0.5, 0.5, 1.0])

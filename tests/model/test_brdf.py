@@ -36,9 +36,11 @@ def test_helmholtz_reciprocity(rng, model):
     np.testing.assert_allclose(a, b, rtol=1e-10, atol=0)
 
 
-def test_torrance_sparrow_against_independent_angles():
-    # θi = 30°, θo = 50°, azimuths opposite: H, δ and all terms by hand.
-    ti, to = np.radians(30), np.radians(50)
+@pytest.mark.parametrize("theta_i, theta_o", [(30, 50), (80, 20), (20, 80)])
+def test_torrance_sparrow_against_independent_angles(theta_i, theta_o):
+    # Azimuths opposite: H, δ and all terms by hand.  At 80°/20° the V-groove term of the grazing direction
+    # (eq. 13, 0.468) is the smallest of the three, so G < 1 and the minimum must pick the smaller cosine.
+    ti, to = np.radians(theta_i), np.radians(theta_o)
     wi = np.array([np.sin(ti), 0, np.cos(ti)])
     wo = np.array([-np.sin(to), 0, np.cos(to)])
     h = (wi + wo) / np.linalg.norm(wi + wo)
@@ -47,8 +49,19 @@ def test_torrance_sparrow_against_independent_angles():
     d = np.exp(-((np.tan(delta) / m) ** 2)) / (m**2 * np.cos(delta) ** 4)
     c = wo @ h
     g = min(1, 2 * h[2] * wo[2] / c, 2 * h[2] * wi[2] / c)
+    assert (g < 1) == (max(theta_i, theta_o) == 80)
     f = rho / np.pi * d * g / (wi[2] * wo[2]) * fresnel_reflectance(c, eta)
     assert brdf.torrance_sparrow(N, wi, wo, rho, m, eta) == pytest.approx(f, rel=1e-12)
+    assert brdf.v_groove_shadowing(h[2], wi[2], wo[2], c) == pytest.approx(g, rel=1e-12)
+
+
+def test_half_vector_is_the_unit_bisector(rng):
+    wi, wo = random_hemisphere(rng, 200), random_hemisphere(rng, 200)
+    h = brdf.half_vector(wi, wo)
+    np.testing.assert_allclose(np.linalg.norm(h, axis=-1), 1.0, rtol=1e-12)
+    np.testing.assert_allclose(np.sum(h * wi, -1), np.sum(h * wo, -1), atol=1e-12)  # equal angles to ωi and ωo
+    np.testing.assert_allclose(np.cross(h, wi + wo), 0.0, atol=1e-12)  # along ωi + ωo
+    assert np.all(np.sum(h * (wi + wo), -1) > 0)
 
 
 def test_blinn_phong_against_formula():

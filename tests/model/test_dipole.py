@@ -129,8 +129,9 @@ def test_coefficients_whose_sum_overflows_keep_their_reduced_albedo():
     ref = dipole.total_diffuse_reflectance(1.0, 1.0)
     assert dipole.total_diffuse_reflectance(1e308, 1e308) == ref
     assert dipole.total_diffuse_reflectance(np.float32(2e38), np.float32(2e38)) == pytest.approx(ref, rel=1e-6)
-    assert dipole.total_diffuse_reflectance(1e308, 0.5e308) == pytest.approx(
-        dipole.total_diffuse_reflectance(2.0, 1.0), rel=1e-15
+    # Unequal coefficients whose sum overflows (1.5e308 + 0.5e308; 1e308 + 0.5e308 did not): α' = 3/4, not 1/4.
+    assert dipole.total_diffuse_reflectance(1.5e308, 0.5e308) == pytest.approx(
+        dipole.total_diffuse_reflectance(3.0, 1.0), rel=1e-15
     )
     assert dipole.reduced_albedo_unchecked(np.array([0.74, 1e308]), np.array([0.032, 1e308]))[0] == 0.74 / 0.772
     with pytest.raises(FacestatsError, match="dipole_radial_energy is not finite"):  # was NaN, as dipole_profile

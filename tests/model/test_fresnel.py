@@ -62,6 +62,9 @@ def test_diffuse_fresnel_range_and_monotone():
 def test_errors_name_argument_and_value():
     with pytest.raises(FacestatsError, match=r"cos_theta must lie in \[0, 1\], got 1.5"):
         fresnel_reflectance(1.5, 1.38)
+    with pytest.raises(FacestatsError, match=r"cos_theta must lie in \[0, 1\], got 1.001"):
+        fresnel_reflectance(1.001, 1.38)  # beyond the 1e-6 rounding tolerance
+    assert fresnel_reflectance(1 + 1e-7, 1.38) == fresnel_reflectance(1.0, 1.38)  # rounding overshoot: clipped
     with pytest.raises(FacestatsError, match="eta"):
         fresnel_reflectance(0.5, -1.0)
     with pytest.raises(FacestatsError, match="cos_theta must be finite"):

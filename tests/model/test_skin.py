@@ -149,6 +149,54 @@ def test_point_light_inverse_square():
     np.testing.assert_allclose(wi[0, 0], [0, 0, 1])
 
 
+def test_lights_behind_the_surface_give_no_irradiance():
+    n = [[0.0, 0.0, 1.0]]
+    _, e = skin.directional_lights(n, [[0.0, 0.0, -1.0], [0.6, 0.0, 0.8], [0.6, 0.0, -0.8]], [1.0, 1.0, 1.0])
+    np.testing.assert_allclose(e[0, :, 0], [0.0, 0.8, 0.0], atol=1e-15)
+    _, e = skin.point_lights([[0.0, 0.0, 0.0]], n, [[0.0, 0.0, -10.0], [0.0, 6.0, -8.0]], [1.0, 1.0])
+    assert np.all(e == 0)
+
+
+def _impulse_response(h, source_area_factor=1.0):
+    """Exitance of a 16 x 16 plane of spacing h (mm) when one sample near the centre receives unit flux."""
+    pos, area = _plane(h, 8 * h)
+    src = np.argmin(np.linalg.norm(pos - [h / 2, h / 2, 0], axis=1))
+    area[src] *= source_area_factor
+    flux = np.zeros((len(pos), 3))
+    flux[src] = 1.0
+    out = skin.SubsurfaceTransport(SIGMA_S, SIGMA_A, 1.38, positions=pos, areas=area, radius=7.2 * h).apply(flux)
+    along = [np.argmin(np.linalg.norm(pos - pos[src] - [k * h, 0, 0], axis=1)) for k in (1, 2, 3)]
+    return out[along]
+
+
+def test_surface_transport_is_the_dipole_kernel_times_the_source_area():
+    """Weyrich eq. 6 by quadrature: a neighbour at distance r of a lit sample of area A receives R_d(r) A Φ.  At
+    0.25 mm spacing the samples 1-3 spacings away get 0.95-1.06 of it (0.75 at one spacing if the footprint disk
+    had radius √A instead of √(A/π)), and twice as much from a source of twice the area."""
+    h = 0.25
+    one = _impulse_response(h)
+    kernel = dipole.dipole_profile(h * np.arange(1, 4)[:, None], SIGMA_S, SIGMA_A, 1.38) * h * h
+    np.testing.assert_allclose(one / kernel, 1.0, atol=0.08)
+    twice = _impulse_response(h, source_area_factor=2.0)
+    np.testing.assert_allclose(twice[1:] / one[1:], 2.0, rtol=0.05)
+
+
+def test_a_sample_without_neighbours_keeps_all_its_diffuse_energy():
+    pos = [[0.0, 0.0, 0.0], [100.0, 0.0, 0.0]]
+    transport = skin.SubsurfaceTransport(SIGMA_S, SIGMA_A, 1.38, positions=pos, areas=[0.25, 0.25], radius=2.0)
+    out = transport.apply(np.ones((2, 3)))
+    np.testing.assert_allclose(out, np.tile(dipole.total_diffuse_reflectance(SIGMA_S, SIGMA_A), (2, 1)), rtol=1e-12)
+
+
+def test_default_radius_is_capped_at_about_max_neighbors_samples():
+    """The class docstring: at 0.25 mm spacing the cap of 128 neighbours makes the radius 0.25 √(128/π) = 1.60 mm
+    (the red channel of these coefficients would need about 10 mm)."""
+    pos, area = _plane(0.25, 3.0)
+    transport = skin.SubsurfaceTransport(SIGMA_S, SIGMA_A, 1.38, positions=pos, areas=area)
+    assert transport.radius == pytest.approx(0.25 * np.sqrt(128 / np.pi), rel=1e-12)
+    assert transport.radius == pytest.approx(1.60, abs=0.005)
+
+
 def test_validation():
     n = np.array([[0, 0, 1.0]])
     with pytest.raises(FacestatsError, match="specular must be one of"):

@@ -166,6 +166,18 @@ def test_median_cut_conserves_power_and_gives_pi_l_irradiance():
         np.testing.assert_allclose(np.clip(d @ np.array(n), 0, None) @ power, np.pi * L, rtol=0.01)
 
 
+def test_median_cut_measures_a_region_along_its_middle_parallel():
+    """Debevec's median cut cuts a region across its longer side in angle, the width taken along the region's middle
+    parallel.  A uniform 8 x 16 probe cut into 16 lights: after four rounds of column cuts and one of row cuts each
+    4 x 4 block is π/2 tall and (π/2) sin 45° = 1.11 wide, so it is cut across its rows (measured without the
+    sin φ its width would be π/2 and it would be cut across its columns): the lights lie at four polar angles."""
+    d, power = sphere.median_cut_light_samples(np.ones((8, 16, 3)), 16)
+    phi, _ = sphere.angles_from_direction(d)
+    polar = np.unique(np.round(np.degrees(phi), 6))
+    np.testing.assert_allclose(polar, [40.1454, 77.6189, 102.3811, 139.8546], atol=1e-4)
+    np.testing.assert_allclose(power.sum(0), 4 * np.pi, rtol=1e-12)
+
+
 @pytest.mark.parametrize("level", [1e307, 1e-300])
 def test_light_samples_of_probes_near_the_float_limits(level, rng):
     """Probes near the float64 maximum gave lights of zero-length direction (their sums overflowed); both

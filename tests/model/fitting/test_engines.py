@@ -113,7 +113,14 @@ def test_stages_agree_between_engines(rng):
         assert_equal_bits(ft2, fitting.fresnel_factors(s, normal)[2])
         alb, n_used = fitting.albedo_stable_minimum(s, f_r, ci, co, ft2, use, discard=2, grazing_penalty=1.5)
         cos_half = s.cos_half(ci, co)
-        ref, n_ref = fitting.refine_albedo(s, f_r, ft2, cos_half, use, min_half_angle=0.3)
+        ref, n_ref, grey_std = fitting.refine_albedo(s, f_r, ft2, cos_half, use, min_half_angle=0.3, with_std=True)
+        # The standard error of the grey albedo by hand: std (n − 1) of v_R + v_G + v_B over √n, v = π f_r/F_t F_t.
+        sel = use & (cos_half < np.cos(0.3))
+        t = int(np.argmax(n_ref))
+        run = slice(s.starts[t], s.starts[t] + s.counts[t])
+        v = (np.pi * f_r[:, run][:, sel[run]] / ft2[run][sel[run]]).sum(0)
+        assert v.size == n_ref[t] > 3
+        assert grey_std[t] == pytest.approx(np.std(v, ddof=1) / np.sqrt(v.size), rel=1e-5)
         out[eng] = (normal, cam, micro, *brdf, cos_half, alb, n_used, ref, n_ref)
     (*same0, r0, k0), (*same1, r1, k1) = out["numpy"], out["numba"]
     assert np.isfinite(same0[0]).all() and np.isfinite(same0[-2][:, 0]).sum() > 40

@@ -67,3 +67,51 @@ def test_a_log_spaced_grid_refuses_bad_ranges_naming_the_argument_and_value():
         ProfileGrid(np.geomspace(20.0, 0.05, 150), np.geomspace(1e-3, 5.0, 150))
     assert "sigma_s_prime[0] = 20.0 then sigma_s_prime[1] = " in str(info.value) and len(str(info.value)) < 200
     assert ProfileGrid.log_spaced(n=(np.int64(3), 4)).shape == (3, 4)
+
+
+def test_the_intervals_are_the_grid_models_inside_the_chi2_region():
+    """The module docstring's interval: the grid models whose cost exceeds the minimum by at most s² χ²₂(level),
+    s² = cost/(n − 2) the residual variance of 2 fitted parameters, grown by one grid step; σtr over them by
+    Weyrich eq. 15 (here by :func:`facestats.model.dipole.transport_coefficient`, the χ² quantile by scipy)."""
+    from scipy.ndimage import binary_dilation
+    from scipy.stats import chi2
+
+    from facestats.model.dipole import dipole_profile, transport_coefficient
+    from facestats.model.fitting.profile_grid import ProfileGrid, fit_profile_grid
+
+    rng = np.random.default_rng(1)
+    d = np.linspace(0.2, 4.0, 15)
+    profile = dipole_profile(d, 1.0, 0.05, 1.3) * np.exp(0.2 * rng.standard_normal(d.size))
+    grid = ProfileGrid.log_spaced((0.3, 3.0), (0.005, 0.5), (40, 40))
+    fit = fit_profile_grid(d, profile, grid=grid, eta=1.3, level=0.9)
+    core = (fit.cost_surface - fit.cost) / (fit.cost / (d.size - 2)) <= chi2.ppf(0.9, 2)
+    assert 5 < core.sum() < 100  # a region of several grid models, well inside the grid
+    si, ai = np.nonzero(binary_dilation(core, structure=np.ones((3, 3), bool)))
+    s, a = grid.sigma_s_prime[si], grid.sigma_a[ai]
+    assert fit.sigma_s_prime_interval == (s.min(), s.max())
+    assert fit.sigma_a_interval == (a.min(), a.max())
+    tr = transport_coefficient(a, s)
+    np.testing.assert_allclose(fit.sigma_tr_interval, (tr.min(), tr.max()), rtol=1e-12)
+    assert fit.sigma_tr == pytest.approx(float(transport_coefficient(fit.sigma_a, fit.sigma_s_prime)), rel=1e-12)
+    assert fit.sigma_tr_interval[0] < np.sqrt(3 * 0.05 * 1.05) < fit.sigma_tr_interval[1]  # holds the truth
+
+
+def test_a_refined_exitance_fit_recovers_coefficients_between_grid_models():
+    """Noise-free rows of two neighbouring levels each (out to 3 mm): the refinement finds the truth, σ's 1.0 and
+    σa 0.06 mm⁻¹, which lies between the models of a 20 x 20 grid (the best of them: 0.98, 0.053)."""
+    from facestats.model.dipole import dipole_profile
+    from facestats.model.fitting.profile_grid import ProfileGrid, fit_exitance_grid
+
+    rng = np.random.default_rng(0)
+    d = np.linspace(0.1, 3.0, 12)
+    w = np.zeros((60, d.size))
+    for r in range(60):  # a loop over 60 rows of a test matrix
+        j = r % (d.size - 1)
+        w[r, j : j + 2] = rng.uniform(0.2, 1.0, 2)
+    a = w / (w @ dipole_profile(d, 1.0, 0.06, 1.3))[:, None]
+    grid = ProfileGrid.log_spaced((0.3, 5.0), (0.01, 2.0), (20, 20))
+    fit = fit_exitance_grid(d, a.T @ a, a.T @ np.ones(60), 60, grid=grid, refine=True)
+    assert abs(fit.grid_sigma_s_prime - 1.0) > 0.01 and abs(fit.grid_sigma_a - 0.06) > 0.005
+    assert fit.sigma_s_prime == pytest.approx(1.0, rel=1e-6)
+    assert fit.sigma_a == pytest.approx(0.06, rel=1e-6)
+    assert fit.cost < 1e-10

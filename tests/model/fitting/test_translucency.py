@@ -66,3 +66,15 @@ def test_a_fit_on_a_limit_of_its_search_says_so():
     assert per_m2.at_bound.tolist() == [True] and per_m2.sigma_tr[0] == pytest.approx(0.02)  # sigma_tr limit
     both = fit_translucency(r, np.stack([p, p * 1e6]))  # per profile
     assert both.at_bound.tolist() == [False, True]
+
+
+def test_sigma_tr_avg_is_the_mean_of_cheek_and_forehead_as_published():
+    """Weyrich §5.4: σtrAvg is the mean over subjects of the cheek and forehead σtr, ignoring the neck; with Table 1's
+    site means it is the published [0.5508, 0.9791, 1.5497] mm⁻¹ (a NaN subject is left out)."""
+    from facestats.core.published import SIGMA_TR_AVG, TABLE1_MEAN
+    from facestats.model.fitting import population_sigma_tr_avg
+
+    sites = ("neck", "cheek", "forehead")
+    table1 = np.stack([TABLE1_MEAN[s] for s in sites])
+    subjects = np.stack([table1 - 0.05, table1 + 0.05, np.full((3, 3), np.nan)])  # mean over subjects: Table 1
+    np.testing.assert_allclose(population_sigma_tr_avg(subjects, sites), SIGMA_TR_AVG, atol=1e-4)

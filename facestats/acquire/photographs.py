@@ -72,6 +72,7 @@ __all__ = [
     "open_folder",
     "write_manifest",
     "write_sensor_file",
+    "read_sensor_file",
     "frame_entry",
     "bilinear_taps",
     "merge_at",
@@ -443,68 +444,92 @@ class CaptureFolder:
                 f"{MANIFEST} needs the field 'sensor' naming the contact-sensor file inside the folder (a relative "
                 f"path without '..'), got {name!r:.60}"
             )
-        # local import: keeps facestats.io (24 modules) out of this module's import
-        from facestats.io.layout import read_regular_file
-
-        try:
-            doc = json.loads(read_regular_file(self.inside(name, "sensor file")))  # a FIFO is refused, never read
-        except (OSError, ValueError, RecursionError) as exc:
-            raise FormatError(f"sensor file {name} of {self.path} cannot be read: {exc}") from None
-        if not isinstance(doc, dict) or doc.get("format") != SENSOR_FORMAT:
-            raise FormatError(f"sensor file {name} field 'format' must be {SENSOR_FORMAT!r}")
-        try:
-            sensor = ContactSensor.from_attrs(doc["sensor"])
-            prof = np.asarray(doc["profile"], np.float64)
-            std = np.asarray(doc["profile_std"], np.float64)
-        except (KeyError, TypeError, ValueError, FormatError) as exc:  # FormatError: the sensor's, named here
-            raise FormatError(f"sensor file {name} has a missing or malformed field: {exc}") from None
-        if prof.shape != (3, sensor.n_fibers, 3) or std.shape != prof.shape:
+        label = f"sensor file {name} of {self.path}"
+        _, sensor, prof, std = read_sensor_file(self.inside(name, "sensor file"), label)
+        count = np.isfinite(prof).sum(axis=1)  # (site, channel): the dipole fit's 2 parameters need 3 readings
+        if np.any(count < 3):
+            s, c = (int(i) for i in np.argwhere(count < 3)[0])
             raise FormatError(
-                f"sensor file {name} fields 'profile' and 'profile_std' must be (site 3, fiber {sensor.n_fibers}, "
-                f"channel 3), got {prof.shape} and {std.shape}"
+                f"{label} has {count[s, c]} readings for site {SITES[s]} channel {CHANNELS[c]} (the other fibres "
+                "have none: clipped in every exposure); the dipole fit needs at least 3: take that site's bracket "
+                "again with shorter exposures"
             )
-        return (sensor, *_checked_profiles(prof, std, f"sensor file {name}"))
+        return sensor, prof, std
 
     def fingerprint(self) -> str:
         """SHA-256 of the manifest file (identifies the capture an ingest was made from)."""
         return hashlib.sha256((self.path / MANIFEST).read_bytes()).hexdigest()
 
 
-def _checked_profiles(prof, std, what):
-    """``(prof, std)`` of a sensor file, checked: NaN (null) only as a missing reading, ≥ 3 readings per profile.
+def read_sensor_file(path, label=None):
+    """The contact-sensor file ``path`` (format ``SENSOR_FORMAT``, :func:`write_sensor_file`), read and checked.
 
-    A fibre whose spot clipped in every exposure of the bracket has no reading (:func:`merge_bracket
-    <facestats.acquire.devices.sensor.merge_bracket>` gives NaN for it and its standard deviation, written as
-    null). Such readings are kept as NaN: the dipole fit leaves them out (:func:`facestats.model.fitting.
-    fit_translucency`), which needs at least 3 readings per site and channel for its 2 parameters.
+    A fibre whose spot clipped in every exposure of the bracket has no reading: :func:`merge_bracket
+    <facestats.acquire.devices.sensor.merge_bracket>` gives NaN for it and for its standard deviation, written as
+    null. Such readings are kept as NaN; the dipole fit leaves them out (:func:`facestats.model.fitting.
+    fit_translucency`). A measured profile may dip below 0 by noise (dark-frame subtraction); its standard deviation
+    may not.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file (read without blocking: a FIFO there is refused).
+    label : str, optional
+        Names the file in messages (default ``"sensor file <path>"``).
+
+    Returns
+    -------
+    document : dict
+        The whole JSON document (a device session's ``frames``, ``subject`` and ``fiber_layout`` too).
+    sensor : ContactSensor
+    profile, profile_std : ndarray, shape (site 3, fiber, channel 3)
+        R(r) and its standard deviation, mm⁻², sites in :data:`~facestats.core.conventions.SITES` order; NaN in both
+        where a fibre has no reading.
+
+    Raises
+    ------
+    FormatError
+        The file cannot be read or is not JSON of this format; ``sensor``, ``profile`` or ``profile_std`` is missing
+        or malformed; a value is ±inf, a standard deviation negative, or null in only one of the two fields.
     """
+    # local import: keeps facestats.io (24 modules) out of this module's import
+    from facestats.io.layout import read_regular_file
 
+    label = f"sensor file {path}" if label is None else label
+    try:
+        doc = json.loads(read_regular_file(path))
+    except (OSError, ValueError, RecursionError) as exc:
+        raise FormatError(f"{label} cannot be read: {exc}") from None
+    if not isinstance(doc, dict) or doc.get("format") != SENSOR_FORMAT:
+        raise FormatError(f"{label} field 'format' must be {SENSOR_FORMAT!r}")
+    try:
+        sensor = ContactSensor.from_attrs(doc["sensor"])
+        prof = np.asarray(doc["profile"], np.float64)
+        std = np.asarray(doc["profile_std"], np.float64)
+    except (KeyError, TypeError, ValueError, FormatError) as exc:  # FormatError: the sensor's, named here
+        raise FormatError(f"{label} has a missing or malformed field: {exc}") from None
+    if prof.shape != (len(SITES), sensor.n_fibers, 3) or std.shape != prof.shape:
+        raise FormatError(
+            f"{label} fields 'profile' and 'profile_std' must be (site {len(SITES)}, fiber {sensor.n_fibers}, "
+            f"channel 3), got {prof.shape} and {std.shape}"
+        )
     missing = np.isnan(prof)
     if not np.array_equal(missing, np.isnan(std)):
         at = tuple(int(i) for i in np.argwhere(missing != np.isnan(std))[0])
         raise FormatError(
-            f"{what} fields 'profile' and 'profile_std' must both be null where a fibre has no reading, got "
+            f"{label} fields 'profile' and 'profile_std' must both be null where a fibre has no reading, got "
             f"{prof[at]} and {std[at]} at (site, fiber, channel) {at}"
         )
-    # A measured profile may dip below 0 by noise (dark-frame subtraction); its standard error may not.
     for field, a, low in (("profile", prof, -np.inf), ("profile_std", std, 0.0)):
         bad = (~np.isfinite(a) & ~missing) | (a < low)
         if bad.any():
             at = tuple(int(i) for i in np.argwhere(bad)[0])
             rule = "finite" if low == -np.inf else "finite and >= 0"
             raise FormatError(
-                f"{what} field {field!r} must be {rule} (or null where a fibre has no reading), got {a[at]} at "
+                f"{label} field {field!r} must be {rule} (or null where a fibre has no reading), got {a[at]} at "
                 f"(site, fiber, channel) {at}"
             )
-    count = (~missing).sum(axis=1)  # (site, channel)
-    if np.any(count < 3):
-        s, c = (int(i) for i in np.argwhere(count < 3)[0])
-        raise FormatError(
-            f"{what} has {count[s, c]} readings for site {SITES[s]} channel {CHANNELS[c]} (the other fibres have "
-            "none: clipped in every exposure); the dipole fit needs at least 3: take that site's bracket again "
-            "with shorter exposures"
-        )
-    return prof, std
+    return doc, sensor, prof, std
 
 
 def check_response(folder: "CaptureFolder", dome, calibration: str = "the calibration") -> None:

@@ -83,7 +83,8 @@ def test_a_sensor_file_missing_a_key_names_the_file_and_the_key(copy):
     doc = json.loads((copy / name).read_text())
     del doc["sensor"]["scale_e_per_s_per_mm-2"]
     (copy / name).write_text(json.dumps(doc))
-    with pytest.raises(FacestatsError, match=f"sensor file {name} has .*missing the key 'scale_e_per_s_per_mm-2'"):
+    message = f"sensor file {name} of .* has .*missing the key 'scale_e_per_s_per_mm-2'"
+    with pytest.raises(FacestatsError, match=message):
         open_folder(copy).sensor()
 
 

@@ -39,7 +39,7 @@ import numpy as np
 from facestats.acquire.devices.cameras import Trigger
 from facestats.acquire.devices.controller import Controller
 from facestats.acquire.hdr import merge_exposures
-from facestats.acquire.photographs import EXPOSURE_TOLERANCE
+from facestats.acquire.photographs import EXPOSURE_TOLERANCE, read_sensor_file
 from facestats.acquire.sensor import ContactSensor
 from facestats.core.conventions import SITES
 from facestats.core.published import N_FIBERS
@@ -237,26 +237,19 @@ def read_bracket(folder) -> SensorBracket:
 def _read_sensor_file(folder):
     """``(frames, sensor, layout, profile, profile_std)`` of ``folder/sensor.json``, checked (:func:`read_bracket`)."""
     path = folder / "sensor.json"
+    if not path.exists():
+        raise FormatError(f"{folder} holds no completed sensor session (no sensor.json)")
+    doc, sensor, profile, std = read_sensor_file(path)
     try:
-        doc = json.loads(read_regular_file(path))
         frames = list(doc["frames"])
-    except (OSError, ValueError, RecursionError, KeyError, TypeError) as exc:
-        raise FormatError(f"{folder} holds no completed sensor session (sensor.json with its frames): {exc}") from None
+    except (KeyError, TypeError) as exc:
+        raise FormatError(f"{path} holds no frames (not a device session's file): {exc}") from None
     try:
-        sensor = ContactSensor.from_attrs(doc["sensor"])
         layout = FiberLayout(**doc.get("fiber_layout", {"n_fibers": sensor.n_fibers}))  # older files: the default
-        profile, std = np.asarray(doc["profile"], np.float64), np.asarray(doc["profile_std"], np.float64)
-    except KeyError as exc:
-        raise FormatError(f"{path} lacks the field {exc}") from None
     except (AttributeError, TypeError, ValueError) as exc:
-        raise FormatError(f"{path} has a malformed field ('sensor', 'fiber_layout' or a profile): {exc}") from None
+        raise FormatError(f"{path} has a malformed field 'fiber_layout': {exc}") from None
     if layout.n_fibers != sensor.n_fibers:
         raise FormatError(f"{path} field 'fiber_layout' has {layout.n_fibers} fibres, its sensor {sensor.n_fibers}")
-    if profile.shape != (len(SITES), sensor.n_fibers, 3) or std.shape != profile.shape:
-        raise FormatError(
-            f"{path} fields 'profile' and 'profile_std' must be (site {len(SITES)}, fiber {sensor.n_fibers}, "
-            f"channel 3), got {profile.shape} and {std.shape}"
-        )
     return frames, sensor, layout, profile, std
 
 

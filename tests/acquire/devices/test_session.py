@@ -15,7 +15,7 @@ from facestats.acquire.devices.emulator import Faults
 from facestats.acquire.devices.lab import emulated_dome, emulated_sensor
 from facestats.acquire.devices.plans import DomePlan, SensorPlan
 from facestats.acquire.photographs import open_folder
-from facestats.errors import DeviceError, SessionError
+from facestats.errors import DeviceError, FormatError, SessionError
 from tests.acquire.devices.helpers import record, run_capture, tree
 
 
@@ -461,10 +461,14 @@ def test_read_bracket_finds_the_spots_of_the_sessions_layout_and_names_each_prof
         spot = stack[7][labels == 3].astype(np.float64)  # fibre 3 in exposure 7: the mean code of its spot
         np.testing.assert_allclose(bracket.readings[k, 7, 3], spot.mean(axis=0))
     assert not np.allclose(bracket.profile[0], bracket.profile[2])
-    # a profile value written as null (NaN) reads back as NaN
-    doc["profile"][1][4][2] = None
+    # a fibre without a reading (null in both fields) reads back as NaN; null in one field only is refused
+    doc["profile"][1][4][2] = doc["profile_std"][1][4][2] = None
     (out / "sensor.json").write_text(json.dumps(doc))
-    assert np.isnan(read_bracket(out).profile[1, 4, 2])
+    assert np.isnan(read_bracket(out).profile[1, 4, 2]) and np.isnan(read_bracket(out).profile_std[1, 4, 2])
+    doc["profile_std"][1][4][2] = 0.5
+    (out / "sensor.json").write_text(json.dumps(doc))
+    with pytest.raises(FormatError, match=r"must both be null where a fibre has no reading, got nan and 0\.5"):
+        read_bracket(out)
 
 
 def test_a_session_whose_nearest_fibres_clip_in_every_exposure_is_read_for_the_ingest_and_fitted(small, tmp_path):
@@ -492,7 +496,6 @@ def test_a_session_whose_nearest_fibres_clip_in_every_exposure_is_read_for_the_i
 
 def test_read_bracket_names_the_file_and_the_field_of_a_bad_sensor_file(tmp_path):
     from facestats.acquire.devices.sensor import FiberLayout, read_bracket
-    from facestats.errors import FormatError
 
     out, _ = _sensor_session(tmp_path, FiberLayout(), sites=(0, 1, 2))
     good = json.loads((out / "sensor.json").read_text())
@@ -500,7 +503,9 @@ def test_read_bracket_names_the_file_and_the_field_of_a_bad_sensor_file(tmp_path
     (out / "sensor.json").write_text(json.dumps(old))
     np.testing.assert_array_equal(read_bracket(out).profile, np.asarray(good["profile"]))
     cases = [
-        ({k: v for k, v in good.items() if k != "sensor"}, r"sensor\.json lacks the field 'sensor'"),
+        ({k: v for k, v in good.items() if k != "sensor"}, r"sensor\.json has a missing or malformed field: 'sensor'"),
+        ({k: v for k, v in good.items() if k != "frames"}, r"sensor\.json holds no frames"),
+        ({**good, "profile_std": good["profile"][:2]}, r"'profile_std' must be \(site 3, fiber 28, channel 3\)"),
         ({**good, "fiber_layout": {**good["fiber_layout"], "pitch_px": 9}}, r"sensor/cheek_e00\.png has shape"),
         ({**good, "fiber_layout": {"n_fibers": 5}}, "'fiber_layout' has 5 fibres, its sensor 28"),
         ({**good, "frames": [{**good["frames"][0], "site": "chin"}]}, "a frame with a missing or malformed field"),
@@ -510,7 +515,10 @@ def test_read_bracket_names_the_file_and_the_field_of_a_bad_sensor_file(tmp_path
         with pytest.raises(FormatError, match=message):
             read_bracket(out)
     (out / "sensor.json").write_bytes(b"\xff\xfe{")
-    with pytest.raises(FormatError, match="holds no completed sensor session"):
+    with pytest.raises(FormatError, match=r"sensor file .*sensor\.json cannot be read"):
+        read_bracket(out)
+    (out / "sensor.json").unlink()
+    with pytest.raises(FormatError, match=r"holds no completed sensor session \(no sensor\.json\)"):
         read_bracket(out)
 
 
@@ -518,7 +526,6 @@ def test_files_that_are_not_utf8_are_format_errors(tmp_path):
     """A calibration, subject record or plan that is not UTF-8 raised UnicodeDecodeError (a reviewer)."""
     from facestats.acquire.devices.capture import read_subject_record, sensor_plan
     from facestats.acquire.devices.sensor import load_sensor_calibration
-    from facestats.errors import FormatError
 
     bad = tmp_path / "bad.json"
     bad.write_bytes(b'{"format": "\xff\xfe"}')

@@ -35,6 +35,9 @@
 * ``contactless`` — σtr of cheek and forehead from one simulated image each for
   the default population's first ``n_subjects`` subjects: median relative error
   against the truth and against the contact-sensor fit (requirement ≤ 10 %).
+* ``contactless_methods`` — the same study for the default estimator (monotone, point self term) and for
+  exitance + surface over the first ``n_subjects`` subjects: median and largest error, the fits more than 10 %
+  off, interval coverage.
 * ``contactless_population_2048`` — seconds and traced peak memory of
   ``contactless_population`` writing back one ``size``² subject with ``cameras``
   micro-normal cameras (``bench_export.representative_subject``): the
@@ -464,6 +467,40 @@ def bench_contactless(n_subjects=20, spacing=0.3, sites=("cheek", "forehead")):
     }
 
 
+def bench_contactless_methods(
+    n_subjects=10, spacing=0.3, sites=("cheek", "forehead"), methods=(("monotone", "point"), ("exitance", "surface"))
+):
+    """The contactless study (``contactless_study``, stripe, 1 % noise) per estimator over the same subjects: median
+    and largest |relative error| of σtr against the truth, the (site, channel) fits more than 10 % off (count and
+    names), interval coverage."""
+    import facestats
+    from facestats.acquire.synthetic.population import default_population
+    from facestats.pipeline.contactless import contactless_study
+
+    pop = default_population()
+    out = {}
+    with facestats.open_store() as store, warnings.catch_warnings():
+        warnings.simplefilter("ignore", QuantisationWarning)
+        ids = [s for s in store.ids() if s.startswith("S")][: int(n_subjects)]
+        for method, self_term in methods:
+            t0 = time.perf_counter()
+            df = contactless_study(
+                ids, store, pop, spacing=spacing, sites=tuple(sites), method=method, self_term=self_term
+            )
+            err = df["error_vs_truth"].abs()
+            off = df[err > 0.10]
+            key = f"{method}+{self_term}"
+            out[f"{key}_median_rel_error"] = float(err.median())
+            out[f"{key}_max_rel_error"] = float(err.max())
+            out[f"{key}_fits_off_10pct"] = int(off.shape[0])
+            out[f"{key}_off"] = " ".join(f"{r.subject}/{r.site}/{r.channel}" for r in off.itertuples()) or "-"
+            covered = (df["image_low"] <= df["truth"]) & (df["truth"] <= df["image_high"])
+            out[f"{key}_interval_coverage"] = float(covered.mean())
+            out[f"{key}_seconds_per_subject"] = (time.perf_counter() - t0) / max(len(ids), 1)
+    out["fits_per_method"] = len(ids) * len(sites) * 3
+    return out
+
+
 def bench_contactless_population(size=2048, cameras=16, spacing=0.3):
     import tempfile
 
@@ -508,6 +545,7 @@ BENCHMARKS = [
     ("exitance_refinement", bench_exitance_refinement),
     ("face_window_surface", bench_face_window_surface),
     ("contactless", bench_contactless),
+    ("contactless_methods", bench_contactless_methods),
     ("contactless_population_2048", bench_contactless_population),
 ]
 
@@ -528,5 +566,6 @@ SMOKE = {
     },
     "face_window_surface": {"spacing": 1.0},
     "contactless": {"n_subjects": 1, "spacing": 0.8, "sites": ("cheek",)},
+    "contactless_methods": {"n_subjects": 1, "spacing": 0.8, "sites": ("cheek",)},
     "contactless_population_2048": {"size": 64, "cameras": 2, "spacing": 0.8},
 }

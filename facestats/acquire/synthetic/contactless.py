@@ -8,9 +8,14 @@ of :func:`facestats.acquire.synthetic.scenes.face_site_scene`:
    :func:`facestats.acquire.lights.patch_irradiance`);
 2. the exitance l_j = Σ_k R(d_jk) c_k A_k with the site's true (σ's, σa) per
    channel (:func:`facestats.acquire.synthetic.subsurface.render_exitance`,
-   the point kernel with its documented radius cut-off): the skin under the
+   the point kernel over every pair, no radius cut-off): the skin under the
    window is homogeneous with the site's coefficients, as the contact sensor
-   assumes;
+   assumes.  Before 2026-12-07 the renderer's default cut-off (where all but
+   10⁻⁴ of the dipole's energy is in) applied: it dropped little light in
+   total but much or all of the own light of the rows near or beyond it from
+   the stripe, and fits by relative residuals read that as a faster fall
+   (exitance + surface up to 89 % off in σtr on the cheeks of S003, S004 and
+   S007, ``bench_contactless_methods``);
 3. the radiance L = M F_t,o l / π with the modulation texture M = α/α_avg of
    the truth's albedo map at each patch (Weyrich et al. 2006 eq. 6-7: the
    dome-fitted albedo varies across the site), or M = 1.  The window is the
@@ -135,7 +140,7 @@ def simulate_site_image(truth, site="cheek", light="stripe", *, spacing=0.3, mod
     c = patch_irradiance(p, scene.lights, eta=ETA_SKIN)
     sp, sa = truth.site_scattering
     i = SITES.index(site)
-    l = render_exitance(p.centre, p.area, c, sp[i], sa[i], eta=ETA_SKIN)
+    l = render_exitance(p.centre, p.area, c, sp[i], sa[i], eta=ETA_SKIN, radius=np.inf)  # every pair: step 2
     if modulation:
         face = truth.region_map > 0
         avg = truth.albedo[face].mean(axis=0)

@@ -30,7 +30,11 @@ radius is where the dipole's radial energy
 (:func:`facestats.model.dipole.dipole_radial_energy`) reaches all but
 ``tail`` = 10⁻⁴ of the total diffuse reflectance in the most translucent
 channel, so the light dropped is below 10⁻⁴ of the light transported; pass
-``radius=numpy.inf`` for none.
+``radius=numpy.inf`` for none.  The bound is on the total, not per row: a row
+near or beyond the radius from the lit patches loses much or all of its own
+exitance (the contactless study's simulator before 2026-12-07: ``bench_contactless_methods``).
+Images to be fitted by relative residuals (``method="monotone"`` and
+``"exitance"`` weight the rows by 1/l) need ``radius=numpy.inf``.
 
 Blocked evaluation: rows (exiting patches) in blocks whose distances to all lit
 patches fit ``block_bytes``; only pairs within the radius are evaluated

@@ -199,3 +199,16 @@ def test_rank_weights_keep_the_samples_between_the_dark_and_bright_fractions():
     assert keep.tolist() == [1.0 if 3 <= x <= 9 else 0.0 for x in lum]
     lum[3] = 0.0  # rank 0 now: the darkest two are 0 and 1
     assert rank_weights(lum[:, None], dark=0.0, bright=0.0)[:, 0].tolist() == [float(x > 0) for x in lum]
+
+
+def test_rho_s_under_coloured_light_is_the_channel_mean_of_the_specular_part():
+    """Light of colour c = (1, 0.8, 0.6) on the sphere: the specular part is the white lobe times c, and ρs =
+    Σ_l mean_c(S) δA = mean(c) Σ_l lobe δA (0.8 of the white-light value; the channel maximum would give 1)."""
+    albedo, colour = SKIN * 0.8, np.array([1.0, 0.8, 0.6])
+    f, spec_true, _ = ts_lambert_field(7, 7, albedo=albedo, rho_s=0.25, m=0.35)
+    lit = make_field(f["reflectance"].values * colour, f["direction"].values, view=f["view"].values,
+                     mask=f["mask"].values)  # fmt: skip
+    out = sep.separate_field(lit, colour, ramp=False, d0=albedo * colour)
+    m = f["mask"].values
+    rho_true = (spec_true * f["solid_angle"].values[..., None, None]).sum((0, 1)) * colour.mean()
+    assert np.allclose(out["rho_s"].values[m], rho_true[m], rtol=1e-5)

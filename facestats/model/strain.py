@@ -220,16 +220,26 @@ def _gram(vertices, triangles):
     return np.stack([e1, e2], -1), np.stack([np.stack([g11, g12], -1), np.stack([g12, g22], -1)], -2)
 
 
-def _thin(gram):
-    """|e1 × e2| ≤ DEGENERATE_SINE |e1| |e2| from the Gram matrix (det G = |e1 × e2|²); NaN counts as thin."""
-    g11, g12, g22 = gram[:, 0, 0], gram[:, 0, 1], gram[:, 1, 1]
-    return ~(g11 * g22 - g12 * g12 > DEGENERATE_SINE**2 * g11 * g22)
+def _thin(edges):
+    """|e1 × e2| ≤ DEGENERATE_SINE |e1| |e2| for edge columns (F, 3, 2) or (F, 2, 2); NaN counts as thin.
+
+    The cross product is formed from the coordinates, whose rounding leaves about 1e-16 |e1| |e2| in it.  The Gram
+    determinant |e1|²|e2|² − (e1·e2)² it replaced cancels to about 1e-16 |e1|²|e2|², a sine of about 1e-8, above
+    DEGENERATE_SINE: triangles collapsed onto a line passed as valid with r_t ~ 1e-8 (a mutation audit).
+    """
+    a, b = edges[..., 0], edges[..., 1]
+    if a.shape[-1] == 3:
+        c = np.cross(a, b)
+        cross2 = np.einsum("fi,fi->f", c, c)
+    else:
+        cross2 = (a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]) ** 2
+    return ~(cross2 > DEGENERATE_SINE**2 * np.einsum("fi,fi->f", a, a) * np.einsum("fi,fi->f", b, b))
 
 
 def _uv_edges(uv_corners):
     """UV edges as columns W (F, 2, 2) and the degenerate (zero UV area) flags."""
     w = np.stack([uv_corners[:, 1] - uv_corners[:, 0], uv_corners[:, 2] - uv_corners[:, 0]], -1)
-    return w, _thin(np.swapaxes(w, -1, -2) @ w)
+    return w, _thin(w)
 
 
 def uv_metric(vertices, triangles, uv_corners, uv_edges=None):
@@ -246,8 +256,8 @@ def uv_metric(vertices, triangles, uv_corners, uv_edges=None):
         Zero 3-D or UV area, or non-finite data.
     """
     w, deg_uv = _uv_edges(uv_corners) if uv_edges is None else uv_edges
-    _, gram = _gram(vertices, triangles)
-    degenerate = _thin(gram) | deg_uv
+    e, gram = _gram(vertices, triangles)
+    degenerate = _thin(e) | deg_uv
     gram = np.where(degenerate[:, None, None], np.eye(2), gram)
     w = np.where(degenerate[:, None, None], np.eye(2), w)
     g_inv, _ = inv2x2(gram)
@@ -300,7 +310,7 @@ def tangent_frames(vertices, triangles, uv_corners):
     """
     w, deg_uv = _uv_edges(uv_corners)
     e, gram = _gram(vertices, triangles)
-    degenerate = _thin(gram) | deg_uv
+    degenerate = _thin(e) | deg_uv
     gram = np.where(degenerate[:, None, None], np.eye(2), gram)
     w = np.where(degenerate[:, None, None], np.eye(2), w)
     e = np.where(degenerate[:, None, None], np.eye(3, 2), e)

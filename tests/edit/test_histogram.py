@@ -70,6 +70,10 @@ def test_match_histogram_partial_follows_interpolation(rng):
     assert out.std() == pytest.approx(1.5, rel=0.01)
     h = interpolate_histograms(h0, h1, 0.5)
     assert histogram_distance(Histogram.from_data(out, 512), h) < 0.01
+    # Exactly (1 − t) x + t T(x), T the full match: within each source bin both ends interpolate alike
+    full = match_histogram(x, h1, t=1.0)
+    for t in (0.3, 0.5):
+        assert np.abs(match_histogram(x, h1, t=t) - ((1 - t) * x + t * full)).max() < 1e-9
 
 
 def test_constant_values_move_the_fraction_t_towards_the_target_mean():

@@ -7,7 +7,9 @@ from facestats.edit.pyramid import SteerablePyramid, band_names, max_levels
 from facestats.errors import ValidationError
 
 
-@pytest.mark.parametrize("shape,levels", [((64, 64), 4), ((64, 128), 3), ((96, 64), 2), ((256, 256), 6)])
+@pytest.mark.parametrize(
+    "shape,levels", [((64, 64), 4), ((64, 128), 3), ((96, 64), 2), ((256, 256), 6), ((40, 48), 3), ((48, 40), 3)]
+)  # (40, 48) at 3 levels: a low-pass grid of 5 rows, whose spectrum's crop keeps frequencies 0, 1, 2 and -2, -1
 def test_reconstruction_float64(rng, shape, levels):
     img = rng.standard_normal(shape)
     pyr = SteerablePyramid(shape, levels, 4, dtype=np.float64)

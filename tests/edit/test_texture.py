@@ -309,3 +309,19 @@ def test_histogram_std_of_a_piecewise_uniform_distribution(rng):
     x = rng.gamma(3.0, 0.1, 100_000)
     assert Histogram.from_data(x, bins=512).std() == pytest.approx(x.std(), rel=2e-3)
     assert Histogram([0.0, 1.0], [5.0]).std() == pytest.approx(np.sqrt(1 / 12), rel=1e-12)
+
+
+def test_distances_are_averaged_over_regions():
+    """Two identical halves (the pyramid is circular: their coefficients are equal at every level) labelled as two
+    regions give the distances of the whole map as one region: the mean over regions, not their sum."""
+    rng = np.random.default_rng(7)
+    half = _skin(rng, 64, 0.03, 3.0)
+    src = np.concatenate([half, half], 1)
+    labels = np.ones((64, 128), np.int32)
+    labels[:, 64:] = 2
+    stats = TextureStatistics.from_image(_freckled(rng, 128), levels=3)
+    one = transfer_texture(src, stats, None, noise=0.0, iterations=1, feather=0.0)
+    two = transfer_texture(src, stats, labels, noise=0.0, iterations=1, feather=0.0)
+    assert one.distance[0] > 0.3
+    np.testing.assert_allclose(two.distance, one.distance, rtol=1e-6)
+    np.testing.assert_allclose(two.band_distance, one.band_distance, rtol=1e-6, atol=1e-9)

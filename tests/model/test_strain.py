@@ -254,3 +254,91 @@ def test_ict_facekit_has_no_sliver_and_a_near_needle_is_one():
     m2, deg2 = uv_metric(squeezed, mesh.triangles, corners)
     hit = slivers(m2, deg2)
     assert hit[np.flatnonzero(~degenerate)[f]] and not hit[~np.any(mesh.triangles == c, axis=1)].any()
+
+
+def test_anisotropic_uv_on_a_non_square_map_gives_each_axis_its_own_texel_size():
+    """uv = (x / 100, y / 40) on 64 rows x 128 columns: a mm is W/100 = 1.28 texels along x, H/40 = 1.6 along y.
+    A stretch of 1.2 at 30 deg and 0.9 across (in the sheet's plane): r_s, r_t are those (T = M'⁻¹ M, eq. 10;
+    M M'⁻¹ has other singular values where M is not a multiple of I), the s axis in texels is along (1.28 cos 30,
+    1.6 sin 30) with 1000 / |that| um per texel, the t axis along (−1.28 sin 30, 1.6 cos 30), and the UV per um
+    of each axis is the UV length of a um along it (eq. 13's column norms)."""
+    n = 8
+    x, y = np.meshgrid(np.linspace(0, 50.0, n), np.linspace(0, 40.0, n))
+    v = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], 1)
+    uv = np.stack([x.ravel() / 100 + 0.2, y.ravel() / 40 + 0.02], 1)
+    tri = grid_triangles(np.ones((n, n), bool))
+    deformed = (v @ _stretch(30, 1.2, 0.9).T) @ ROT3.T
+    st = texel_strain(v, deformed, tri, uv, (64, 128))
+    ok = st.valid
+    assert ok.sum() > 1000
+    assert np.abs(st.r_s[ok] - 1.2).max() < 1e-12 and np.abs(st.r_t[ok] - 0.9).max() < 1e-12
+    c, s = np.cos(np.radians(30)), np.sin(np.radians(30))
+    for axis, texel, uv_um, along, world in (
+        (st.axis_s, st.texel_um_s, st.uv_per_um_s, np.array([1.28 * c, 1.6 * s]), np.array([c, s])),
+        (st.axis_t, st.texel_um_t, st.uv_per_um_t, np.array([-1.28 * s, 1.6 * c]), np.array([-s, c])),
+    ):
+        unit = along / np.linalg.norm(along)
+        assert np.abs(np.abs(axis[ok] @ unit) - 1).max() < 1e-9  # parallel (either sign)
+        assert np.abs(texel[ok] - 1000 / np.linalg.norm(along)).max() < 1e-6
+        assert np.abs(uv_um[ok] - np.linalg.norm(world / [100, 40]) / 1000).max() < 1e-15
+
+
+def test_texel_strain_interpolates_the_uv_vertex_averages_of_t_at_texel_centres():
+    """A bent sheet (not a uniform strain): each UV vertex takes the mean T of its triangles (checked against
+    triangle_strain), and a texel the barycentric interpolation of its triangle's three vertex tensors at its centre
+    ((column + 0.5) / W, (row + 0.5) / H in UV), computed here by solving for the barycentric coordinates."""
+    n = 7
+    x, y = np.meshgrid(np.linspace(0, 30.0, n), np.linspace(0, 24.0, n))
+    v = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], 1)
+    uv = np.stack([x.ravel() / 40 + 0.1, y.ravel() / 30 + 0.1], 1)
+    tri = grid_triangles(np.ones((n, n), bool))
+    deformed = v + np.stack([0.004 * v[:, 0] ** 2, 0.01 * v[:, 0] * v[:, 1], 0.002 * v[:, 1] ** 2], 1)
+    per_tri = triangle_strain(v, deformed, tri, uv)
+    vert = vertex_strain(v, deformed, tri, uv)
+    for k in range(len(uv)):
+        around = np.nonzero((tri == k).any(1))[0]
+        assert np.abs(vert.t[k] - per_tri.t[around].mean(0)).max() < 1e-12
+    shape = (24, 40)
+    mesh = MeshStrain(v, tri, uv)
+    st = mesh.texels_strain(deformed, shape)
+    owner = mesh.raster(shape, (0, 0) + shape)
+    rows, cols = np.nonzero(st.valid)
+    assert rows.size > 300
+    p = np.stack([(cols + 0.5) / shape[1], (rows + 0.5) / shape[0]], 1)
+    corners = uv[tri[owner[rows, cols]]]  # (K, 3, 2)
+    lam12 = np.linalg.solve(np.stack([corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]], -1),
+                            (p - corners[:, 0])[..., None])[..., 0]  # fmt: skip
+    bary = np.concatenate([1 - lam12.sum(1, keepdims=True), lam12], 1)
+    expected = np.einsum("kc,kcij->kij", bary, vert.t[tri[owner[rows, cols]]])
+    assert np.abs(st.t[rows, cols] - expected).max() < 1e-12
+
+
+def test_invalid_entries_read_the_identity_and_thin_is_a_sine_below_1e_9():
+    """Entries not valid carry T = I (r = 1, docstring of Strain) whatever their triangles did; a triangle is
+    degenerate when |e1 × e2| ≤ 1e-9 |e1| |e2|: a sine of 2e-6 is thin but valid.  A triangle collapsed onto a line
+    in general position (sine ~1e-16 from rounding) is degenerate: the sine was taken from the Gram determinant
+    |e1|²|e2|² − (e1·e2)², whose cancellation leaves ~1e-16 |e1|²|e2|² (a sine of ~1e-8), and 74 of 200 such
+    triangles passed as valid with r_t ~ 1e-8 (a mutation audit)."""
+    v, tri, uv = _plane(6)
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        deformed = v * [1.3, 1.0, 1.0]
+        deformed[tri[3]] = rng.uniform(-50, 50, 3) + rng.uniform(0, 1, (3, 1)) * rng.uniform(-50, 50, 3)
+        st = triangle_strain(v, deformed, tri, uv)
+        assert np.nonzero(~st.valid)[0].tolist() == [3] and st.n_degenerate == 1
+    assert np.array_equal(st.t[~st.valid], np.broadcast_to(np.eye(2), (int((~st.valid).sum()), 2, 2)))
+    assert np.all(st.r_s[~st.valid] == 1) and np.all(st.r_t[~st.valid] == 1)
+    thin = np.array([[0.0, 0, 0], [1.0, 0, 0], [0.5, 1e-6, 0]])  # sine 2e-6 in 3-D
+    st = triangle_strain(thin, thin * [1.1, 1, 1], np.array([[0, 1, 2]]), np.array([[0, 0], [1, 0], [0, 1.0]]) / 10)
+    assert st.valid.all() and st.r_s[0] > 1.0
+
+
+def test_slivers_compare_with_the_median_of_the_valid_triangles_only():
+    """A sliver's largest eigenvalue of M exceeds SLIVER_RATIO (100) × the median over the *other valid*
+    triangles: many degenerate ones (their M is set to I) must not move that median."""
+    from facestats.model.strain import slivers
+
+    top = np.array([1.0, 1.0, 1.0, 150.0] + [1000.0] * 5)
+    m = top[:, None, None] * np.eye(2)
+    degenerate = np.array([False] * 4 + [True] * 5)
+    assert slivers(m, degenerate).tolist() == [False, False, False, True] + [False] * 5

@@ -263,3 +263,60 @@ def test_near_disks_of_a_tiny_scene_converge_and_bad_input_is_named():
         planned_levels(p, c * area, width=0.1, near=True)  # was a bare IndexError; quantised_system's message
     with pytest.raises(ValidationError, match="areas must have shape"):
         planned_levels(p, c * area, width=0.1, areas=area[:1], near=True)
+
+
+def test_a_lit_patch_is_not_its_own_near_neighbour():
+    """The surface self term integrates the *other* lit patches within NEAR_RADII radii over their disks; a patch's
+    own light is the footprint already: a lone lit patch's row is that of the footprint self term."""
+    from facestats.model.fitting.quantised import self_term_keywords
+
+    p = np.array([[0.0, 0, 0], [5.0, 0, 0]])
+    area, w, rows = np.array([0.2, 0.2]), np.array([1.0, 0.0]), np.array([0, 1])
+    foot = quantised_system(p, w, rows, width=0.05, **self_term_keywords("footprint", area))
+    surf = quantised_system(p, w, rows, width=0.05, **self_term_keywords("surface", area))
+    np.testing.assert_array_equal(surf.matrix, foot.matrix)
+
+
+def test_levels_ending_at_the_largest_distance_are_refused():
+    """Eq. 23: d'_n > max d_jk, strictly (a pair at d'_n has no level beyond it to interpolate towards)."""
+    p = np.array([[0.0, 0, 0], [1.0, 0, 0]])
+    with pytest.raises(ValidationError, match=r"levels must extend beyond the largest patch distance"):
+        quantised_system(p, np.ones(2), np.arange(2), levels=[0.0, 0.5, 1.0])
+    assert quantised_system(p, np.ones(2), np.arange(2), levels=[0.0, 0.5, 1.0 + 1e-9]).matrix.shape == (2, 3)
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+def test_residual_and_covariance_of_the_normal_equations_match_a_direct_least_squares(cloud, weighted):
+    """residual(r) = ‖A r − y‖² (A = W, y = l; weighted: A = W / l, y = 1 over the rows with l > 0) and the
+    covariance s² (AᵀA)⁻¹ with s² = residual / (rows − levels), both computed here from A directly."""
+    from facestats.model.fitting.quantised import profile_covariance
+
+    p, c, rows = cloud
+    s = quantised_system(p, c, rows, width=1.0)
+    rng = np.random.default_rng(4)
+    l = s.matrix @ np.linspace(1.0, 0.1, s.n_levels) * rng.uniform(0.9, 1.1, rows.size)
+    l[:5] = 0.0  # rows the weighted problem leaves out
+    use = l > 0 if weighted else np.ones(rows.size, bool)
+    a = s.matrix[use] / l[use, None] if weighted else s.matrix
+    y = np.ones(use.sum()) if weighted else l
+    neq = normal_equations(s, l, weighted=weighted)
+    r = np.linalg.lstsq(a, y, rcond=None)[0] * 1.01  # not the minimum: the residual's cross term counts
+    direct = float(np.sum((a @ r - y) ** 2))
+    assert neq.residual(r) == pytest.approx(direct, rel=1e-9)
+    cov = np.sum((a @ r - y) ** 2) / (a.shape[0] - a.shape[1]) * np.linalg.inv(a.T @ a)
+    np.testing.assert_allclose(profile_covariance(neq, r), cov, rtol=1e-6)
+
+
+def test_rank_and_dependent_levels_use_rcond_on_singular_values_not_on_their_squares():
+    """Scaled Gram [[1, c], [c, 1]]: singular values √(1 ± c).  c = 1 − 5e-7 gives s_min/s_max = 5.0e-4: full rank
+    at rcond 1e-4 (its pivoted Cholesky's second pivot 1 − c² = 1e-6 is above rcond² = 1e-8), rank 1 at 1e-3."""
+    from facestats.model.fitting.quantised import NormalEquations
+
+    c = 1 - 5e-7
+    neq = NormalEquations(np.array([[4.0, 2 * c], [2 * c, 1.0]]), np.zeros(2), 0.0, 10, False)  # scales 2 and 1
+    np.testing.assert_allclose(conditioning(neq).singular_values, np.sqrt([1 + c, 1 - c]), rtol=1e-6)
+    assert conditioning(neq, rcond=1e-4).rank == 2 and dependent_levels(neq, rcond=1e-4).size == 0
+    assert conditioning(neq, rcond=1e-3).rank == 1 and dependent_levels(neq, rcond=1e-3).size == 1
+    c = 1 - 2e-12  # s_min/s_max = 1e-6
+    neq = NormalEquations(np.array([[1.0, c], [c, 1.0]]), np.zeros(2), 0.0, 10, False)
+    assert conditioning(neq, rcond=1e-4).rank == 1 and conditioning(neq, rcond=1e-7).rank == 2

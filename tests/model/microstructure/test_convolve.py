@@ -313,7 +313,7 @@ def test_kernels_beyond_the_tap_limit_or_below_a_texel_are_refused_or_an_impulse
     np.testing.assert_array_equal(kernel_taps(0.5, 1e-200, 1.0), [0.0, 1.0, 0.0])
     d = np.random.default_rng(0).normal(size=(8, 8)).astype(np.float32)
     for backend in ("numpy", "numba"):
-        for texel in (1e-300, 1e-40, 1e-3):
+        for texel in (1e-300, 1e-40, 1e-3, 0.005):  # 0.005: 4096 taps reach 2 sigma, short of the 3 needed
             with pytest.raises(FacestatsError, match="texel_um must be at least 0.00732 um for sigma up to 10 um"):
                 convolve_displacement(d, [1.0, 0.0], 0.5, 10.0, 0.5, 10.0, texel, backend=backend)
 
@@ -367,5 +367,6 @@ def test_island_reach_counts_the_border_whatever_the_labels():
     pos[:, 10:] = 2
     expected = island_reach(pos)
     assert expected[0, 0] == 0 and expected[5, 5] == 4  # 5 texels from the top row, the nearest boundary texels
+    assert expected[2, 5] == 2 and expected[9, 5] == 2  # the top and bottom rows count as boundary (4 from column 9)
     for labels in ((-1, 2), (-1, -2), (0, 7)):
         np.testing.assert_array_equal(island_reach(np.where(pos == 1, *labels)), expected)

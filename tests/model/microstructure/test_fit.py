@@ -144,3 +144,51 @@ def test_histogram_extent_names_nan_slopes_and_missing_pairs():
         histogram_extent((g, g[:2]))
     with pytest.raises(ValidationError, match="quantile"):
         histogram_extent((g, g), quantile=1.5)
+
+
+def test_slopes_and_normals_of_a_tilted_plane_follow_the_conventions_of_the_surface_module():
+    """h = 2 u + 3 v (u the column): ∂h/∂u = 2, ∂h/∂v = 3 (one-sided at the edges too), g = J ∇h with J applied
+    as a matrix (row i of J times the gradient), and the normal (−g_u, −g_v, 1)/√(1 + |g|²) leans against the
+    slope: a plane rising along +u has a normal pointing towards −u."""
+    from facestats.model.microstructure.surface import height_gradient, slopes, tangent_normals
+
+    v, u = np.indices((5, 7), dtype=np.float64)
+    h = 2.0 * u + 3.0 * v
+    gu, gv = height_gradient(h)
+    assert np.allclose(gu, 2.0) and np.allclose(gv, 3.0)
+    gx, gy = slopes(h, np.array([[1.0, 2.0], [3.0, 4.0]]))
+    assert np.allclose(gx, 1 * 2 + 2 * 3) and np.allclose(gy, 3 * 2 + 4 * 3)
+    n = tangent_normals(h, np.eye(2) / 10.0, dtype=np.float64)  # 10 um texels: slopes 0.2 and 0.3
+    assert np.allclose(n, np.array([-0.2, -0.3, 1.0]) / np.sqrt(1.13))
+
+
+def test_normal_histogram_puts_a_tilted_normal_in_its_bucket_and_tv_noise_is_the_binomial_mean():
+    """A single slope g_u = 0.2 has n_u = −0.2/√1.04 = −0.196: bucket floor((n_u + 0.5) · 4) = 1 of 4 over
+    [−0.5, 0.5], n_v = 0 bucket 2; the histogram is indexed [n_v, n_u].  tv_noise against the exact mean of
+    |X − Y|/N for two independent binomials X, Y ~ B(N, p) on two buckets (each bucket counts it once)."""
+    from scipy.stats import binom
+
+    from facestats.model.microstructure.surface import normal_histogram, tv_noise
+
+    h = normal_histogram(np.array([0.2]), np.array([0.0]), bins=4, extent=0.5)
+    assert h[2, 1] == 1.0 and h.sum() == 1.0
+    n, p = 400, 0.3
+    pmf = binom.pmf(np.arange(n + 1), n, p)
+    diff = np.abs(np.subtract.outer(np.arange(n + 1), np.arange(n + 1))) / n
+    exact = 2 * float(pmf @ diff @ pmf)  # both buckets of the pair (p, 1 − p) differ by the same amount
+    assert tv_noise([p, 1 - p], n) == pytest.approx(exact, rel=0.01)
+
+
+def test_coarse_to_fine_refines_one_coarse_step_on_both_sides_of_its_best_start():
+    """The fine grid is searched within one coarse step (0.1 in alpha, 5 um in sigma) of the best coarse points, on
+    both sides: alpha = -1.23 lies between the coarse -1.3 and -1.2 and is recovered exactly."""
+    neutral = _patch(136, 1)
+    target = convolve_displacement(neutral, (0.6, 0.8), -1.23, 17.0, 0.0, 1.0, TEXEL)
+    fit = fit_kernel(neutral, target, (0.6, 0.8), 1.0, TEXEL, method="coarse-to-fine")
+    assert (fit.alpha, fit.sigma_um) == (-1.23, 17.0) and fit.tv == 0.0
+    coarse_s = np.unique(np.append(np.arange(0, 199, 10), 198))
+    coarse = fit.tv_grid[np.ix_(np.arange(0, 301, 10), coarse_s)]
+    i, j = np.unravel_index(np.argmin(coarse), coarse.shape)
+    rows = slice(max(10 * i - 10, 0), min(10 * i + 10, 300) + 1)
+    cols = slice(coarse_s[max(j - 1, 0)], coarse_s[min(j + 1, len(coarse_s) - 1)] + 1)
+    assert not np.isnan(fit.tv_grid[rows, cols]).any()  # the whole box around the best start was evaluated

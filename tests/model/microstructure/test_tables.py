@@ -37,6 +37,7 @@ def test_forehead_table_is_eq_8_9_clamped_everywhere():
     held = np.maximum(r, 0.73)  # below Fig. 11's smallest ratio, its parameters
     assert np.abs(a - _eq8(held)).max() < 1e-12 and np.abs(s - _eq9(held)).max() < 1e-12
     assert kernel_parameters(1.0)[0] == 0.0  # neutral: identity
+    assert kernel_parameters(1.0)[1] == pytest.approx(38.2 - 26.5)  # eq. 9's stretch line holds from r = 1 on
     assert a.min() == -2 and a.max() == 1  # clamped to the fitted range
     assert s.min() == pytest.approx(70.5 * 0.73 - 46.9)  # never the 1 um clamp (an identity kernel)
 
@@ -90,6 +91,15 @@ def test_fitted_table_passes_through_the_neutral_case_exactly():
     table = fit_kernel_table(r, alpha, sigma, [0.8, 0.9, 1.05, 1.3])
     assert abs(table.alpha(1.0)) < 1e-12
     assert table.sigma(0.999) != pytest.approx(table.sigma(1.0))  # one line per side
+    # A knot at 1 is set to 0 exactly: the constrained least squares leaves ~1e-16 there (1.2e-16 here), and a
+    # kernel of alpha 1e-16 is not skipped as the identity
+    assert fit_kernel_table(r, alpha, sigma, [0.8, 0.9, 1.0, 1.3]).alpha(1.0) == 0.0
+
+
+def test_a_patch_at_r_1_belongs_to_the_stretch_line():
+    """Eq. 9's lines: r < 1 compression, r >= 1 stretch; the line through (1, 5) and (1.2, 25) um."""
+    table = fit_kernel_table([0.8, 0.9, 1.0, 1.2], [-1.0, -0.3, 0.0, 0.6], [10.0, 20.0, 5.0, 25.0], [0.8, 1.2])
+    assert table.sigma_stretch == pytest.approx((100.0, -95.0)) and table.sigma_compress == pytest.approx((100, -70))
 
 
 def test_bad_input():

@@ -25,16 +25,18 @@ median (0.42 % at worst; :func:`half_lit_plate`, 21-41 patches a side).  The rad
 a camera sees is L_o = F_t,o l / π (eq. 14-15,
 :func:`facestats.model.irradiance.radiance_from_exitance`).
 
-Radius cut-off: pairs farther apart than ``radius`` are left out.  The default
-radius is where the dipole's radial energy
+Radius cut-off (optional): pairs farther apart than ``radius`` are left out; by
+default none is (``radius=numpy.inf``), so the exitance is exact.
+:func:`cutoff_radius` gives the radius where the dipole's radial energy
 (:func:`facestats.model.dipole.dipole_radial_energy`) reaches all but
 ``tail`` = 10⁻⁴ of the total diffuse reflectance in the most translucent
-channel, so the light dropped is below 10⁻⁴ of the light transported; pass
-``radius=numpy.inf`` for none.  The bound is on the total, not per row: a row
-near or beyond the radius from the lit patches loses much or all of its own
-exitance (the contactless study's simulator before 2026-12-07: ``bench_contactless_methods``).
-Images to be fitted by relative residuals (``method="monotone"`` and
-``"exitance"`` weight the rows by 1/l) need ``radius=numpy.inf``.
+channel: the light dropped is then below 10⁻⁴ of the light transported.  That
+bound is on the total, not per row: a row near or beyond the radius from the
+lit patches loses much or all of its own exitance (the contactless study's
+simulator, which used it by default before 2026-12-07, was up to 89 % off in
+σtr: ``bench_contactless_methods``).  Images to be fitted by relative residuals
+(``method="monotone"`` and ``"exitance"`` weight the rows by 1/l) must not use
+it.
 
 Blocked evaluation: rows (exiting patches) in blocks whose distances to all lit
 patches fit ``block_bytes``; only pairs within the radius are evaluated
@@ -127,7 +129,7 @@ def render_exitance(
     *,
     eta=1.3,
     rows=None,
-    radius=None,
+    radius=np.inf,
     self_term="point",
     block_bytes=64 * 2**20,
 ):
@@ -148,7 +150,9 @@ def render_exitance(
     rows : array_like of int, optional
         Patches whose exitance is wanted (default all).
     radius : float, optional
-        Cut-off distance in mm (> 0; ``inf`` for none); default :func:`cutoff_radius`.
+        Cut-off distance in mm (> 0); default ``inf``, none: the exact exitance. :func:`cutoff_radius` gives a
+        radius that drops below 10⁻⁴ of the transported light in total, but up to all of a far row's (module
+        docstring); before 2026-12-07 it was the default.
     self_term : {"footprint", "point", "surface"}
         A patch's own light: eq. 17's R(0) c_j A_j (default, the paper's) or over the disk of its area; with
         ``"surface"`` the near neighbours' over theirs too (module docstring).
@@ -175,12 +179,12 @@ def render_exitance(
     s = np.broadcast_to(s, (n_ch,)) if s.ndim == 0 or s.size == 1 else check_shape(s, "sigma_s_prime", (n_ch,))
     a = np.broadcast_to(a, (n_ch,)) if a.ndim == 0 or a.size == 1 else check_shape(a, "sigma_a", (n_ch,))
     eta = float(check_dipole_eta(eta))
-    if radius is None:
-        rad = cutoff_radius(s, a, eta)
-    else:
+    try:
         rad = float(radius)
-        if not rad > 0:  # inf allowed (no cut-off); NaN and ≤ 0 are not
-            raise ValidationError(f"radius must be > 0 mm (inf for no cut-off), got {radius!r}")
+    except (TypeError, ValueError):
+        raise ValidationError(f"radius must be a number of mm (> 0, inf for no cut-off), got {radius!r:.60}") from None
+    if not rad > 0:  # inf allowed (no cut-off); NaN and ≤ 0 are not
+        raise ValidationError(f"radius must be > 0 mm (inf for no cut-off), got {radius!r}")
     check_integer(block_bytes, "block_bytes", 2**20)
     check_choice(self_term, "self_term", SELF_TERMS)
     idx = np.arange(m) if rows is None else np.asarray(rows, np.int64)

@@ -347,8 +347,9 @@ def bench_determined_texels(subjects=None, skin_type="IV", region=9, param="bp_e
         ids = st.ids() if subjects is None else list(subjects)
         for sid in ids:
             ds = st.subject(sid)
+            errors_of = {m: region_standard_errors(ds, m) for m in counts}
             for m in counts:
-                values, errors = region_samples(ds, m), region_standard_errors(ds, m)
+                values, errors = region_samples(ds, m), errors_of[m]
                 if errors is None:  # a subject without standard-error maps
                     continue
                 for k, r in enumerate(REGIONS):
@@ -357,7 +358,7 @@ def bench_determined_texels(subjects=None, skin_type="IV", region=9, param="bp_e
                     counts[m][:, k] += open_.sum(), rho.size
                     ratio = sd[open_ & np.isfinite(sd)] / np.abs(rho[open_ & np.isfinite(sd)])
                     worst[m] = max(worst[m], float(ratio.max(initial=0.0)))
-            errors = region_standard_errors(ds, model)
+            errors = errors_of[model]
             if sid in q.subject_ids and errors is not None:
                 sd = errors[region][lobe]
                 sd = sd[np.isfinite(sd)]

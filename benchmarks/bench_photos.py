@@ -30,8 +30,7 @@
   calibrated, beams flagged ``poorly_determined`` and how wrong they are on the
   target, the others' errors, and the standard error over each LED's own points.
 * ``led_underexposed``: the tests' 4-LED target at 100 %, 1 % and 0.3 % of the
-  full scale: residuals, intensity errors, LEDs named ``noisy``, and at 0.3 % the
-  intensities with all-dark taps taken as observations (as before 2026-12-06).
+  full scale: residuals, intensity errors, LEDs named ``noisy``.
 * ``tiff``: 16-bit TIFF decoding by libtiff against OpenCV: the codes each
   returns from a planar file, and decode times for LZW and uncompressed frames.
 * ``frobisher``: the real bracket ``frobisher_001`` of colour-hdri-tests-datasets
@@ -482,13 +481,10 @@ def bench_led_underexposed(side=64, grid=24, exposures=(1.0, 0.01, 0.003), leds=
 
     For each exposure: the residuals (min-max), the LEDs named ``noisy``, and the largest intensity error (signed:
     observations near the noise floor read high) over the fitted LEDs and over those whose beam is not
-    ``poorly_determined`` (an extrapolated beam has its own error); at the smallest exposure also the intensity
-    errors when the all-dark taps are taken as observations at the merge's floor, as before 2026-12-06 (``merge_at``
-    called without ``measured_only``: the calibration module's ``merge_at`` is patched for that one run)."""
+    ``poorly_determined`` (an extrapolated beam has its own error)."""
     import tempfile
 
-    import facestats.acquire.calibration as calibration
-    from facestats.acquire.photographs import merge_at
+    from facestats.acquire.calibration import calibrate_leds
     from facestats.acquire.synthetic.photographs import write_target_photographs
 
     out = {}
@@ -499,24 +495,13 @@ def bench_led_underexposed(side=64, grid=24, exposures=(1.0, 0.01, 0.003), leds=
             write_target_photographs(
                 folder, truth, [_target_pose((0, 0, 1)), _target_pose((3.7, 0, 1))], cameras=[3, 4], camera=camera
             )
-            res = calibration.calibrate_leds(folder, _unknown_leds(truth), grid=grid)
-            if exposure == min(exposures):
-                calibration.merge_at = lambda *a, **k: merge_at(*a, **{**k, "measured_only": False})
-                try:
-                    old = calibration.calibrate_leds(folder, _unknown_leds(truth), grid=grid)
-                finally:
-                    calibration.merge_at = merge_at
+            res = calibrate_leds(folder, _unknown_leds(truth), grid=grid)
         out[f"{key}_rms_residual_min"] = float(np.nanmin(res.rms_residual))
         out[f"{key}_rms_residual_max"] = float(np.nanmax(res.rms_residual))
         out[f"{key}_noisy"] = int(res.noisy.size)
         out[f"{key}_poorly_determined"] = int(res.poorly_determined.size)
         out[f"{key}_intensity_err_max"] = _worst_intensity(res, truth)
         out[f"{key}_intensity_err_max_well_determined"] = _worst_intensity(res, truth, res.poorly_determined)
-    low = f"x{min(exposures):g}"
-    out[f"{low}_dark_taps_as_data_intensity_err_max"] = _worst_intensity(old, truth)
-    out[f"{low}_dark_taps_as_data_intensity_err_max_well_determined"] = _worst_intensity(
-        old, truth, old.poorly_determined
-    )
     return out
 
 

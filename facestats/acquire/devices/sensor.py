@@ -168,7 +168,8 @@ class SensorBracket:
     readings : ndarray, shape (site, E, F, 3)
         Mean code of each fibre's spot in each frame, DN (black level included).
     profile, profile_std : ndarray, shape (site, F, 3)
-        Merged R(r), mm⁻², and its standard deviation.
+        Merged R(r), mm⁻², and its standard deviation; NaN in both where a fibre has no reading (its spot clipped in
+        every exposure).
     max_dn : int
         The camera's largest code (saturation).
     """
@@ -202,15 +203,16 @@ def read_bracket(folder) -> SensorBracket:
     Raises
     ------
     FormatError
-        No readable ``sensor.json``, or one without ``frames``; a missing or malformed field (``sensor``,
-        ``fiber_layout``, ``profile``, ``profile_std``, a frame's ``site``, ``exposure`` or ``file``); a frame that
-        cannot be read or whose size is not the fibre layout's.
+        No ``sensor.json``, or one :func:`~facestats.acquire.photographs.read_sensor_file` refuses (format,
+        ``sensor``, ``profile``, ``profile_std``: shapes, ±inf, negative standard deviations, null in one field
+        only), or one without ``frames``; a malformed ``fiber_layout`` or frame entry (``site``, ``exposure``,
+        ``file``); a frame that cannot be read or whose size is not the fibre layout's.
     """
     # local import: keeps facestats.io (23 modules) out of this module's import
     from facestats.io.images import decode_integer_image
 
     folder = pathlib.Path(folder)
-    frames, sensor, layout, profile, std = _read_sensor_file(folder)
+    frames, sensor, layout, profile, std = _read_session_file(folder)
     labels = layout.labels()
     spot = labels >= 0
     k = labels[spot]
@@ -234,7 +236,7 @@ def read_bracket(folder) -> SensorBracket:
     )
 
 
-def _read_sensor_file(folder):
+def _read_session_file(folder):
     """``(frames, sensor, layout, profile, profile_std)`` of ``folder/sensor.json``, checked (:func:`read_bracket`)."""
     path = folder / "sensor.json"
     if not path.exists():

@@ -98,6 +98,7 @@ import numpy as np
 from facestats.core.validate import as_finite, as_scalar, check_integer, check_shape
 from facestats.errors import FitError, ValidationError
 from facestats.model.dipole import check_dipole_eta, dipole_profile_unchecked
+from facestats.model.fitting.quantised import equilibrate
 
 __all__ = [
     "ProfileGrid",
@@ -546,9 +547,8 @@ def fit_exitance_grid(levels, gram, rhs, n_rows, *, grid: ProfileGrid | None = N
     cost = exitance_cost(d, g, b, n, grid, eta)
     refine_with = None
     if refine:  # ‖Λ^½ Vᵀ D R − Λ^-½ Vᵀ D⁻¹ g‖² = cost − a constant, (Λ, V) of D⁻¹ G D⁻¹ (module docstring)
-        scale = np.sqrt(np.diag(g))  # D: the equilibration
-        scale[scale == 0] = 1.0  # a level no row sees: its row and column of G and its g are 0
-        lam, vec = np.linalg.eigh(g / np.outer(scale, scale))
+        scaled, scale = equilibrate(g)  # D = diag(scale); a level no row sees keeps 1 (its G row and g are 0)
+        lam, vec = np.linalg.eigh(scaled)
         keep = lam > lam.max() * 1e-13
         root, v = np.sqrt(lam[keep]), vec[:, keep]
         vg = v.T @ (b / scale)

@@ -104,6 +104,7 @@ __all__ = [
     "merge_levels",
     "NormalEquations",
     "normal_equations",
+    "equilibrate",
     "conditioning",
     "dependent_levels",
     "solve_pinv",
@@ -838,10 +839,32 @@ class Conditioning:
     rcond: float
 
 
-def _scaled_gram(neq: NormalEquations):
-    d = np.sqrt(np.diag(neq.gram))
+def equilibrate(gram):
+    """A Gram matrix scaled to a unit diagonal: ``(D⁻¹ G D⁻¹, d)`` with D = diag(d), d = sqrt(diag G).
+
+    The columns of A scaled to unit norm (G = AᵀA): the 1/l² weights of the exitance rows spread G's diagonal over
+    tens of decades, and rank, condition and eigenpairs are only resolved after this scaling. A level no row sees
+    (a zero on the diagonal, with its row and column of G zero) keeps d = 1.
+
+    Parameters
+    ----------
+    gram : ndarray, shape (n, n)
+        A symmetric positive semi-definite matrix (negative diagonal entries, rounding, count as 0).
+
+    Returns
+    -------
+    scaled : ndarray, shape (n, n)
+    d : ndarray, shape (n,)
+        The scale, > 0.
+    """
+    g = np.asarray(gram, np.float64)
+    d = np.sqrt(np.maximum(np.diag(g), 0))
     d = np.where(d > 0, d, 1.0)
-    return neq.gram / np.outer(d, d)
+    return g / np.outer(d, d), d
+
+
+def _scaled_gram(neq: NormalEquations):
+    return equilibrate(neq.gram)[0]
 
 
 def conditioning(neq: NormalEquations, rcond=1e-10) -> Conditioning:
@@ -941,9 +964,7 @@ def _monotone_triangle(neq: NormalEquations):
     gu = np.cumsum(np.cumsum(neq.gram, axis=1), axis=0)
     gu = 0.5 * (gu + gu.T)
     bu = np.cumsum(neq.rhs)
-    d = np.sqrt(np.maximum(np.diag(gu), 0))
-    scale = np.where(d > 0, d, 1.0)
-    gs = gu / np.outer(scale, scale)
+    gs, scale = equilibrate(gu)
     try:
         tri = cholesky(gs, lower=False, check_finite=False)
     except LinAlgError:  # numerically singular: the PSD square root keeps what the data determine
@@ -1016,6 +1037,5 @@ def profile_covariance(neq: NormalEquations, profile) -> np.ndarray:
 
     n = neq.gram.shape[0]
     s2 = neq.residual(np.asarray(profile, np.float64)) / max(neq.n_rows - n, 1)
-    d = np.sqrt(np.diag(neq.gram))
-    d = np.where(d > 0, d, 1.0)
-    return s2 * pinvh(neq.gram / np.outer(d, d), check_finite=False) / np.outer(d, d)
+    scaled, d = equilibrate(neq.gram)
+    return s2 * pinvh(scaled, check_finite=False) / np.outer(d, d)

@@ -156,17 +156,9 @@ def bench_real_bracket(side=None, repeat=3):
     import cv2
 
     from facestats.acquire.response import exposure_agreement, merge_photographs, recover_response
-    from facestats.io.exif import read_exposure_time
-    from facestats.io.images import read_integer_image
 
     folder = os.path.join(HERE, os.pardir, "tests", "data", "unis-bracket")
-    files = [os.path.join(folder, f"UNIS_EV{ev}.jpg") for ev in ("-2", "0", "2")]
-    times = np.array([read_exposure_time(f) for f in files])
-    imgs = [read_integer_image(f)[0] for f in files]
-    if side is not None:
-        h, w = imgs[0].shape[:2]
-        y0, x0 = (h - side) // 2, (w - side) // 2
-        imgs = [np.ascontiguousarray(i[y0 : y0 + side, x0 : x0 + side]) for i in imgs]
+    imgs, times = _bracket([os.path.join(folder, f"UNIS_EV{ev}.jpg") for ev in ("-2", "0", "2")], side)
     bgr = [np.ascontiguousarray(i[..., ::-1]) for i in imgs]
     t32 = times.astype(np.float32)
     t_rec, g = _best(lambda: recover_response(imgs, times), repeat)
@@ -191,15 +183,34 @@ def bench_real_bracket(side=None, repeat=3):
         "megapixels": imgs[0].shape[0] * imgs[0].shape[1] / 1e6,
         "exposure_times_s": times.tolist(),
     }
+    return {**out, **_against_colour_hdri(imgs, times, own, e_cv)}
+
+
+def _bracket(files, side):
+    """``(images, exposure times from EXIF)`` of a bracket's files, cropped to their central ``side``² pixels."""
+    from facestats.io.exif import read_exposure_time
+    from facestats.io.images import read_integer_image
+
+    times = np.array([read_exposure_time(f) for f in files])
+    imgs = [read_integer_image(f)[0] for f in files]
+    if side is not None:
+        h, w = imgs[0].shape[:2]
+        y0, x0 = (h - side) // 2, (w - side) // 2
+        imgs = [np.ascontiguousarray(i[y0 : y0 + side, x0 : x0 + side]) for i in imgs]
+    return imgs, times
+
+
+def _against_colour_hdri(imgs, times, own, e_cv):
+    """colour-hdri's merge of the bracket against ours and OpenCV's (empty without colour-hdri, a test extra)."""
     try:
         from tests.helpers import colour_hdri_merge
-
-        e_ch = colour_hdri_merge(imgs, times)
-        out["agreement_colour_hdri_ours"] = _scaled_rel(own, e_ch)
-        out["agreement_colour_hdri_opencv"] = _scaled_rel(e_cv, e_ch)
-    except ImportError:  # colour-hdri is a test extra
-        pass
-    return out
+    except ImportError:
+        return {}
+    e_ch = colour_hdri_merge(imgs, times)
+    return {
+        "agreement_colour_hdri_ours": _scaled_rel(own, e_ch),
+        "agreement_colour_hdri_opencv": _scaled_rel(e_cv, e_ch),
+    }
 
 
 _INGEST = r"""
@@ -564,8 +575,6 @@ def bench_frobisher(side=None):
     import cv2
 
     from facestats.acquire.response import exposure_agreement, merge_photographs, recover_response
-    from facestats.io.exif import read_exposure_time
-    from facestats.io.images import read_integer_image
 
     root = os.environ.get(COLOUR_HDRI_DATASETS)
     folder = os.path.join(root, "frobisher_001") if root else None
@@ -575,13 +584,7 @@ def bench_frobisher(side=None):
             "colour-science/colour-hdri-tests-datasets (frobisher_001: three Canon JPEGs, 1/8, 1 and 8 s)"
             + (f"; {root}/frobisher_001/IMG_2600.jpg not found" if root else "")
         }
-    files = [os.path.join(folder, f"IMG_260{k}.jpg") for k in (0, 1, 2)]
-    times = np.array([read_exposure_time(f) for f in files])
-    imgs = [read_integer_image(f)[0] for f in files]
-    if side is not None:
-        h, w = imgs[0].shape[:2]
-        y0, x0 = (h - side) // 2, (w - side) // 2
-        imgs = [np.ascontiguousarray(i[y0 : y0 + side, x0 : x0 + side]) for i in imgs]
+    imgs, times = _bracket([os.path.join(folder, f"IMG_260{k}.jpg") for k in (0, 1, 2)], side)
     bgr = [np.ascontiguousarray(i[..., ::-1]) for i in imgs]
     t32 = times.astype(np.float32)
     resp = cv2.createCalibrateDebevec().process(bgr, t32)
@@ -597,15 +600,7 @@ def bench_frobisher(side=None):
         "exposure_disagreement_median_ours": exposure_agreement(imgs, times, g_hist)[:, 0].tolist(),
         "exposure_disagreement_median_opencv": exposure_agreement(imgs, times, g_cv)[:, 0].tolist(),
     }
-    try:
-        from tests.helpers import colour_hdri_merge
-
-        e_ch = colour_hdri_merge(imgs, times)
-        out["agreement_colour_hdri_opencv"] = _scaled_rel(e_cv, e_ch)
-        out["agreement_colour_hdri_ours"] = _scaled_rel(own, e_ch)
-    except ImportError:  # colour-hdri is a test extra
-        pass
-    return out
+    return {**out, **_against_colour_hdri(imgs, times, own, e_cv)}
 
 
 BENCHMARKS = [

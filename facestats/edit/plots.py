@@ -3,7 +3,7 @@
 Each ``plot_*`` function returns a :class:`matplotlib.figure.Figure` (no pyplot
 state, no ``show``); :func:`save_edit_images` writes PNGs.  matplotlib is
 imported when a function is called.  Linear-RGB albedo is displayed with the
-sRGB transfer function (colour-science's ``cctf_encoding``, through
+sRGB transfer function of IEC 61966-2-1 (through
 :func:`facestats.io.images.linear_to_srgb`).  The summary figure draws maps of at
 most :data:`PANEL_MAX` texels a side; the PNGs of each map are full size.
 """

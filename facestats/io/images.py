@@ -7,7 +7,7 @@ float32: they are never normalised.  Integer images are returned either raw
 (:func:`read_integer_image`, for camera-response work) or scaled to [0, 1] by
 the largest code value of their bit depth, optionally decoded from sRGB to
 linear (:func:`read_image` with ``srgb=True``; the sRGB transfer function of
-IEC 61966-2-1 as implemented by colour-science).
+IEC 61966-2-1).
 
 Formats, by extension:
 
@@ -131,29 +131,59 @@ def _extension(p: pathlib.Path) -> str:
 
 
 # -- colour transfer ------------------------------------------------------------------------
+#: IEC 61966-2-1:1999 (sRGB), §5.2: the encoded value below which the decoding is linear, the linear value below
+#: which the encoding is, the slope of that segment, and the power segment's offset and exponent.  The two
+#: thresholds are the standard's rounded ones (0.04045 = 12.92 · 0.0031308 to 5 digits); colour-science's
+#: ``eotf_sRGB`` uses 12.92 · 0.0031308 = 0.040449936 exactly, so the two decodings differ only for encoded
+#: values in (0.040449936, 0.04045], by under 3e-9 (tests/io/test_images.py compares them).
+SRGB_DECODE_KNEE = 0.04045
+SRGB_ENCODE_KNEE = 0.0031308
+SRGB_SLOPE = 12.92
+SRGB_OFFSET = 0.055
+SRGB_GAMMA = 2.4
+
+
+def _decode_srgb(v: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 §5.2 decoding (``v`` float64, any sign): v / 12.92 to 0.04045, ((v + 0.055) / 1.055)^2.4 above."""
+    power = ((np.maximum(v, SRGB_DECODE_KNEE) + SRGB_OFFSET) / (1 + SRGB_OFFSET)) ** SRGB_GAMMA
+    return np.where(v <= SRGB_DECODE_KNEE, v / SRGB_SLOPE, power)
+
+
+def _encode_srgb(v: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 §5.2 encoding of ``v`` clipped to [0, 1]: 12.92 v to 0.0031308, 1.055 v^(1/2.4) − 0.055 above."""
+    v = np.clip(v, 0, 1)
+    power = (1 + SRGB_OFFSET) * np.maximum(v, SRGB_ENCODE_KNEE) ** (1 / SRGB_GAMMA) - SRGB_OFFSET
+    return np.where(v <= SRGB_ENCODE_KNEE, SRGB_SLOPE * v, power)
+
+
 def srgb_to_linear(values) -> np.ndarray:
-    """Linear values from sRGB-encoded values in [0, 1] (IEC 61966-2-1, via colour-science), float32.
+    """Linear values from sRGB-encoded values (IEC 61966-2-1:1999 §5.2), float32.
+
+    Computed block by block in float64 (:func:`facestats.core.blocked.blockwise`), so a large map takes
+    block-sized temporaries only.  The formula is written out here rather than taken from colour-science,
+    whose import costs about a second of every command that reads or writes an sRGB image; the two agree
+    to float32 precision (tests/io/test_images.py).
 
     Parameters
     ----------
     values : array_like
-        sRGB-encoded values, any shape, nominally in [0, 1] (not clipped).
+        sRGB-encoded values, any shape, nominally in [0, 1] (not clipped: values below 0.04045, negative ones
+        included, take the linear segment; values above 1 the power segment).
 
     Returns
     -------
     ndarray of float32
         Linear values, the shape of ``values``.
     """
-    import colour
-
-    return np.asarray(colour.cctf_decoding(np.asarray(values, np.float64), function="sRGB"), np.float32)
+    return blockwise(_decode_srgb, [values], np.float64, block=SRGB_BLOCK, out_dtype=np.float32)
 
 
 def linear_to_srgb(values) -> np.ndarray:
-    """sRGB-encoded values in [0, 1] from linear values (clipped to [0, 1] first), float32.
+    """sRGB-encoded values in [0, 1] from linear values (clipped to [0, 1] first; IEC 61966-2-1:1999 §5.2), float32.
 
-    IEC 61966-2-1 through colour-science's ``cctf_encoding``, block by block in float64
-    (:func:`facestats.core.blocked.blockwise`): a 4096² RGB map at once took about 1.2 GB of temporaries.
+    Block by block in float64 (:func:`facestats.core.blocked.blockwise`): a 4096² RGB map at once took about
+    1.2 GB of temporaries.  Written out as :func:`srgb_to_linear` is, and checked against colour-science's
+    ``cctf_encoding`` in the tests.
 
     Parameters
     ----------
@@ -165,15 +195,10 @@ def linear_to_srgb(values) -> np.ndarray:
     ndarray of float32
         sRGB-encoded values in [0, 1], the shape of ``values``.
     """
-    import colour
-
-    def encode(v):
-        return colour.cctf_encoding(np.clip(v, 0, 1), function="sRGB")
-
-    return blockwise(encode, [values], np.float64, block=SRGB_BLOCK, out_dtype=np.float32)
+    return blockwise(_encode_srgb, [values], np.float64, block=SRGB_BLOCK, out_dtype=np.float32)
 
 
-#: Values :func:`linear_to_srgb` encodes at a time (colour-science's per-call overhead favours large blocks).
+#: Values :func:`srgb_to_linear` and :func:`linear_to_srgb` transfer at a time (bounds their float64 temporaries).
 SRGB_BLOCK = 1 << 18
 
 

@@ -157,6 +157,27 @@ def test_integer_images_scale_and_srgb(tmp_path, bits):
     assert abs(float(images.linear_to_srgb(0.5)) - 0.735357) < 1e-5
 
 
+def test_srgb_transfer_agrees_with_colour_science_and_round_trips():
+    """The IEC 61966-2-1 formulas written out in facestats.io.images against colour-science's, an independent
+    implementation: negative and over-range encoded values, both knees and a dense grid between."""
+    import colour
+
+    v = np.concatenate([np.linspace(-0.2, 1.3, 20001), [0.04045, 0.040449936, 0.0031308, 0.0, 1.0]])
+    theirs = colour.cctf_decoding(v, function="sRGB")
+    # within float32 rounding, except between the two thresholds (0.040449936, 0.04045] (images.SRGB_DECODE_KNEE)
+    np.testing.assert_allclose(images.srgb_to_linear(v), theirs, rtol=2e-7, atol=3e-9)
+    linear = np.linspace(-0.5, 1.5, 20001)
+    theirs = colour.cctf_encoding(np.clip(linear, 0, 1), function="sRGB")
+    np.testing.assert_allclose(images.linear_to_srgb(linear), theirs, rtol=2e-7, atol=1e-9)
+    grid = np.linspace(0, 1, 1001)
+    np.testing.assert_allclose(images.srgb_to_linear(images.linear_to_srgb(grid)), grid, rtol=1e-6, atol=1e-8)
+    # continuous at both knees (a sign or constant typo would break one of them)
+    for f, knee in ((images.srgb_to_linear, 0.04045), (images.linear_to_srgb, 0.0031308)):
+        below, above = f(np.array([knee * (1 - 1e-7), knee * (1 + 1e-7)], np.float64))
+        assert abs(above - below) < 1e-6 * max(abs(above), 1e-3)
+    assert images.srgb_to_linear(np.ones((3, 2), np.float32)).dtype == np.float32
+
+
 def test_bad_files_and_arguments_name_the_problem(tmp_path):
     with pytest.raises(ValidationError, match="existing image file"):
         images.read_image(tmp_path / "missing.exr")

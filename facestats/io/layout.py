@@ -763,15 +763,18 @@ def fsync_tree(path) -> None:
 
 
 def _fsync_regular(path) -> None:
-    """``fsync`` the file ``path`` if it is a regular file; a FIFO, socket, device or link is left alone."""
-    if not is_plain_file(path):  # lstat: opening a FIFO read-only would block until a writer came
-        return
-    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOFOLLOW)  # swapped for a FIFO since: never blocks
+    """``fsync`` the file ``path`` if it is a regular file; a FIFO, socket, device or link is left alone.
+
+    Opened by :func:`open_regular_file` (without blocking and without following a link), whose refusals of
+    anything but a regular file (EINVAL, ELOOP, EISDIR) mean "leave it alone" here, as does a file gone since
+    it was listed (ENOENT).
+    """
     try:
-        if stat.S_ISREG(os.fstat(fd).st_mode):
-            os.fsync(fd)
-    finally:
-        os.close(fd)
+        with open_regular_file(path, follow_links=False) as f:
+            os.fsync(f.fileno())
+    except OSError as exc:
+        if exc.errno not in (errno.EINVAL, errno.ELOOP, errno.EISDIR, errno.ENOENT):
+            raise
 
 
 def write_json_atomic(path, obj, *, durable: bool = True) -> None:

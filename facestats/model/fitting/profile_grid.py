@@ -495,9 +495,13 @@ def exitance_cost(levels, gram, rhs, n_rows, grid: ProfileGrid, eta) -> np.ndarr
     chunk = max(16, min(_CHUNK_MODELS, _CHUNK_VALUES // max(d.size, 1)))  # the dipole's temporaries: ~8 × chunk × n
     for start in range(0, total, chunk):  # loop over chunks of models, vectorised within
         rows = np.arange(start, min(start + chunk, total))
-        m = _models(grid, d, eta, rows)
-        cost[rows] = np.einsum("ij,ij->i", m @ gram, m) - 2 * (m @ rhs) + n_rows
+        cost[rows] = _expanded_cost(_models(grid, d, eta, rows), gram, rhs, n_rows)
     return np.maximum(cost, 0).reshape(grid.shape)
+
+
+def _expanded_cost(models, gram, rhs, n_rows) -> np.ndarray:
+    """Rᵀ G R − 2 gᵀ R + n for each row R of ``models`` (shape (m, k)): :func:`exitance_cost`'s formula, unclipped."""
+    return np.einsum("ij,ij->i", models @ gram, models) - 2 * (models @ rhs) + n_rows
 
 
 def fit_exitance_grid(levels, gram, rhs, n_rows, *, grid: ProfileGrid | None = None, eta=1.3, refine=False, level=0.95):
@@ -556,9 +560,9 @@ def fit_exitance_grid(levels, gram, rhs, n_rows, *, grid: ProfileGrid | None = N
         def resid(sp, sa):
             return root * (v.T @ (scale * dipole_profile_unchecked(d, sp, sa, eta))) - vg / root
 
-        def model_cost(sp, sa):  # as exitance_cost
+        def model_cost(sp, sa):
             m = dipole_profile_unchecked(d, sp, sa, eta)
-            return max(float(m @ g @ m - 2 * (m @ b) + n), 0.0)
+            return max(float(_expanded_cost(m[None], g, b, n)[0]), 0.0)
 
         refine_with = (resid, model_cost)
     return _grid_fit(

@@ -69,6 +69,7 @@ __all__ = [
     "check_exposures",
     "relative_inside",
     "EXPOSURE_TOLERANCE",
+    "exposures_agree",
     "open_folder",
     "write_manifest",
     "write_sensor_file",
@@ -89,6 +90,23 @@ _FRAME_FIELDS = ("camera", "led", "exposure", "exposure_s", "file", "sha256")
 #: its manifest ``exposure_s``, ``exposure_s`` and the calibration's ``exposure_times_s`` (:func:`check_exposures`),
 #: and a device's reported exposure settings and the calibration's (``facestats capture``).
 EXPOSURE_TOLERANCE = 0.01
+
+
+def exposures_agree(got, want) -> bool:
+    """True if the exposure times ``got`` have ``want``'s shape and each agrees with its own within
+    :data:`EXPOSURE_TOLERANCE` (relative); times in s.
+
+    Parameters
+    ----------
+    got, want : array_like
+        Exposure times, s (``want`` > 0).
+
+    Returns
+    -------
+    bool
+    """
+    got, want = np.asarray(got, float), np.asarray(want, float)
+    return got.shape == want.shape and bool(np.all(np.abs(got / want - 1) <= EXPOSURE_TOLERANCE))
 
 
 def write_sensor_file(path, sensor, profile, profile_std, **fields) -> pathlib.Path:

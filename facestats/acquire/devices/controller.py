@@ -17,7 +17,29 @@ from __future__ import annotations
 from facestats.acquire.devices.serial_link import SerialLink
 from facestats.errors import DeviceError
 
-__all__ = ["Controller"]
+__all__ = ["Controller", "status_field_error"]
+
+
+def status_field_error(kind: str, port, exc: BaseException, fields: dict) -> DeviceError:
+    """The error for a status reply of the ``kind`` device on ``port`` whose ``fields`` lack or garble one.
+
+    Parameters
+    ----------
+    kind : str
+        "dome" or "sensor".
+    port : str
+        The device's port, for the message.
+    exc : BaseException
+        The ``KeyError`` (missing field) or ``ValueError`` (malformed value) the parse raised.
+    fields : dict
+        The reply's fields (shown, cut to 120 characters).
+
+    Returns
+    -------
+    DeviceError
+        To be raised by the caller (``from None``).
+    """
+    return DeviceError(f"the {kind} on {port} sent a status without a valid field {exc}: {fields!r:.120}")
 
 
 class Controller:

@@ -31,8 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.acquire.devices.cameras import Trigger
-from facestats.acquire.devices.controller import Controller
-from facestats.acquire.photographs import EXPOSURE_TOLERANCE
+from facestats.acquire.devices.controller import Controller, status_field_error
+from facestats.acquire.photographs import EXPOSURE_TOLERANCE, exposures_agree
 from facestats.core.validate import check_integer
 from facestats.errors import DeviceError
 
@@ -119,7 +119,7 @@ class DomeStatus:
                 lines=int(f.get("lines", -1)),  # firmware without trigger masks pulses every line
             )
         except (KeyError, ValueError) as exc:
-            raise DeviceError(f"the dome on {port} sent a status without a valid field {exc}: {f!r:.120}") from None
+            raise status_field_error("dome", port, exc, f) from None
         if st.n_leds < 1 or st.n_cameras < 1:  # camera c is bit c of the trigger-line mask: a shift by c
             raise DeviceError(
                 f"the dome on {port} reports {st.n_leds} LEDs and {st.n_cameras} cameras; expected at least one "
@@ -325,7 +325,7 @@ class DomeController(Controller):
             )
         want = np.asarray(exposure_s, float)
         got = np.asarray(st.exposure_s, float)
-        if got.shape != want.shape or np.any(np.abs(got / want - 1) > EXPOSURE_TOLERANCE):
+        if not exposures_agree(got, want):
             raise DeviceError(
                 f"{where} exposes for {[round(float(v), 6) for v in got]} s, the calibration for "
                 f"{[round(float(v), 6) for v in want]} s (agreement within {EXPOSURE_TOLERANCE * 100:g} % "

@@ -37,9 +37,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from facestats.acquire.devices.cameras import Trigger
-from facestats.acquire.devices.controller import Controller
+from facestats.acquire.devices.controller import Controller, status_field_error
 from facestats.acquire.hdr import merge_exposures
-from facestats.acquire.photographs import EXPOSURE_TOLERANCE, read_sensor_file
+from facestats.acquire.photographs import EXPOSURE_TOLERANCE, exposures_agree, read_sensor_file
 from facestats.acquire.sensor import ContactSensor
 from facestats.core.conventions import SITES
 from facestats.core.published import N_FIBERS
@@ -383,7 +383,7 @@ class SensorStatus:
                 site=int(f["site"]),
             )
         except (KeyError, ValueError) as exc:
-            raise DeviceError(f"the sensor on {port} sent a status without a valid field {exc}: {f!r:.120}") from None
+            raise status_field_error("sensor", port, exc, f) from None
 
 
 class SensorController(Controller):
@@ -561,7 +561,7 @@ class SensorController(Controller):
         if st.n_fibers != n_fibers:
             raise DeviceError(f"{where} reports {st.n_fibers} detector fibres, the calibration has {n_fibers}: {fix}")
         want, got = np.asarray(exposure_s, float), np.asarray(st.exposure_s, float)
-        if got.shape != want.shape or np.any(np.abs(got / want - 1) > EXPOSURE_TOLERANCE):
+        if not exposures_agree(got, want):
             raise DeviceError(
                 f"{where} brackets {got.size} exposures {[round(float(v), 6) for v in got[:3]]}… s, the calibration "
                 f"{want.size} exposures {[round(float(v), 6) for v in want[:3]]}… s (agreement within "

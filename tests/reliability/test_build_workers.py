@@ -21,7 +21,7 @@ import pytest
 
 from tests.helpers import facestats_exe
 
-from .helpers import subject_digests
+from .helpers import run, subject_digests
 
 #: Enough that work is left when the first subject is committed: with five, a build whose kernels were
 #: already compiled could finish before the signal arrived (a SIGINT'd build then exited 0, done).
@@ -101,30 +101,13 @@ def test_killed_build_leaves_no_worker_and_resumes(tmp_path):
     # a killed build resumes: the same command completes the store, skipping what is there
     store = runs[signal.SIGKILL][0]
     before = subject_digests(store)
-    r = subprocess.run(
-        [
-            *facestats_exe(),
-            "build",
-            "--store",
-            str(store),
-            "--size",
-            "8",
-            "--workers",
-            "1",
-            "--quiet",
-            "--no-conditions",
-            "--subjects",
-            *SUBJECTS,
-        ],
-        capture_output=True,
-        text=True,
-        timeout=900,
-        env=dict(os.environ, MPLBACKEND="Agg"),
-    )
-    assert r.returncode == 0, r.stderr
+    # in this process (the command's own code, parsed by its own parser): the process boundary was the kill's
+    code, out = run("build", "--store", store, "--size", "8", "--workers", "1", "--quiet", "--no-conditions",
+                    "--subjects", *SUBJECTS, timeout=900)  # fmt: skip
+    assert code == 0, out
     after = subject_digests(store)
     assert sorted(after) == SUBJECTS and all(after[s] == d for s, d in before.items())
-    assert f"{len(before)} already present" in r.stdout
+    assert f"{len(before)} already present" in out
 
 
 #: Installed through PYTHONPATH in the build's processes: the worker that builds $FACESTATS_TEST_DIE_ON kills itself
@@ -187,8 +170,8 @@ def test_a_worker_killed_mid_subject_is_survived_and_the_subject_redone(tmp_path
             proc.kill()
     assert proc.returncode == 0, err
     assert "6 subject(s) written" in out and _count(store) == 6
-    status = subprocess.run([*facestats_exe(), "build", "--status", str(store)], capture_output=True, text=True)
-    assert "6 done, 0 running, 0 interrupted, 0 failed" in status.stdout
+    code, status = run("build", "--status", store)  # the journal as the build left it, read in this process
+    assert code == 0 and "6 done, 0 running, 0 interrupted, 0 failed" in status, status
 
 
 @pytest.mark.slow
@@ -205,8 +188,8 @@ def test_a_subject_whose_worker_always_dies_is_reported_failed_and_the_others_ar
     assert proc.returncode == 1, err
     assert "3 subject(s) written" in out and "1 FAILED" in out
     assert "failed S002: _WorkerDied: its worker process died on each of 3 attempts" in out
-    status = subprocess.run([*facestats_exe(), "build", "--status", str(store)], capture_output=True, text=True)
-    assert "3 done, 0 running, 0 interrupted, 1 failed" in status.stdout and "S002" in status.stdout
+    code, status = run("build", "--status", store)  # the journal as the build left it, read in this process
+    assert "3 done, 0 running, 0 interrupted, 1 failed" in status and "S002" in status, status
     assert json.loads((store / ".build" / "S002.json").read_text())["attempts"] == 3  # was 1 (the first death)
     gone = time.monotonic() + 3
     while _tagged(tag) and time.monotonic() < gone:

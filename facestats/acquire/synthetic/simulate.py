@@ -49,7 +49,7 @@ from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.hdr import expose, merge_exposures
 from facestats.acquire.sensor import ContactSensor
 from facestats.acquire.synthetic.faces import named_face
-from facestats.acquire.visibility import dome_shadow_maps, sample_visibility
+from facestats.acquire.visibility import ShadowMaps, dome_shadow_maps, sample_visibility
 from facestats.core.progress import progress_bar
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_choice, check_integer
@@ -166,9 +166,21 @@ class DomeSimulator:
         self.camera_visibility = bool(camera_visibility)
         mesh_grid = int(geometry.meta.get("mesh_grid", 128))
         self.shadow_resolution = int(shadow_resolution or 2 * mesh_grid)
-        self.shadows = dome_shadow_maps(geometry, self.dome, self.shadow_resolution)
+        self._shadows = None  # made on first use: a build's own process only draws the sensor profiles
         self._cache: dict = {}
         self._texels = None  # face texel of every lumitexel (FaceGeometry.face_texel_index), on first use
+
+    @property
+    def shadows(self) -> ShadowMaps:
+        """Shadow maps of the geometry's mesh from every LED, then every camera (:func:`dome_shadow_maps` at
+        ``shadow_resolution``), made on first use and kept.
+
+        Only the rendering of a capture reads them: the process of a build with worker processes draws the
+        sensor profiles of every subject with its simulator but renders none, and no longer makes them.
+        """
+        if self._shadows is None:
+            self._shadows = dome_shadow_maps(self.geometry, self.dome, self.shadow_resolution)
+        return self._shadows
 
     @property
     def single_block(self) -> bool:

@@ -301,7 +301,10 @@ def run_main(*args, env=None):
     console script's process: each :func:`run_cli` costs a Python start-up and the imports (1-2 s), while the
     console script is ``sys.exit(main())``, so the code ``main`` returns is the process's exit status.  argparse's
     ``SystemExit`` (a malformed command line) becomes the returned code as the process would exit with it.
-    ``env`` (name -> value) is set for the call and restored afterwards.
+    ``env`` (name -> value) is set for the call and restored afterwards.  It sees what Python code writes to
+    ``sys.stdout`` and ``sys.stderr``, not what a library writes to the file descriptors, nor warnings (pytest
+    records them; the console script under :func:`run_cli` ignores them): a check that a stream stays empty
+    (``--quiet``) or that a warning is shown belongs to :func:`run_cli`.
 
     Returns
     -------

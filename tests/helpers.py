@@ -294,6 +294,49 @@ def run_cli(*args, cwd=None, timeout=600, env=None):
     )
 
 
+def run_main(*args, env=None):
+    """``facestats ARGS`` run by :func:`facestats.cli.main` in this process, reported as :func:`run_cli` reports it.
+
+    For the checks whose subject is the command's answer (its exit code, its message, what it wrote), not the
+    console script's process: each :func:`run_cli` costs a Python start-up and the imports (1-2 s), while the
+    console script is ``sys.exit(main())``, so the code ``main`` returns is the process's exit status.  argparse's
+    ``SystemExit`` (a malformed command line) becomes the returned code as the process would exit with it.
+    ``env`` (name -> value) is set for the call and restored afterwards.  It sees what Python code writes to
+    ``sys.stdout`` and ``sys.stderr``, not what a library writes to the file descriptors, nor warnings (pytest
+    records them; the console script under :func:`run_cli` ignores them): a check that a stream stays empty
+    (``--quiet``) or that a warning is shown belongs to :func:`run_cli`.
+
+    Returns
+    -------
+    subprocess.CompletedProcess
+        ``returncode``, ``stdout`` and ``stderr`` (text) of the call.
+    """
+    import contextlib
+    import io
+
+    from facestats.cli import main
+
+    argv = [str(a) for a in args]
+    before = {name: os.environ.get(name) for name in env or {}}
+    os.environ.update({name: str(value) for name, value in (env or {}).items()})
+    out, err = io.StringIO(), io.StringIO()
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                code = main(argv)
+            except SystemExit as exc:  # as the interpreter exits with it: None is 0, a message is printed and 1
+                code = 0 if exc.code is None else exc.code if isinstance(exc.code, int) else 1
+                if not isinstance(exc.code, (int, type(None))):
+                    print(exc.code, file=sys.stderr)
+    finally:
+        for name, value in before.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+    return subprocess.CompletedProcess(facestats_exe() + argv, code, out.getvalue(), err.getvalue())
+
+
 # -- notebooks -------------------------------------------------------------------------------
 
 

@@ -3,7 +3,8 @@
 Each action's JSON is checked against a direct call of the analysis API (same
 seeds, so the numbers must agree to rounding), the figures against their file
 formats, and the reproduction of the paper's numbers against
-:mod:`facestats.core.published` with tolerances stated per test.
+:mod:`facestats.core.published` with tolerances stated per test.  Refusals and repeated runs call
+:func:`facestats.cli.main` in the test's process (:func:`tests.helpers.run_main`), which the console script runs.
 """
 
 import json
@@ -17,7 +18,7 @@ from facestats import analysis as fa
 from facestats.core import published
 from facestats.core.conventions import CHANNELS, CONDITIONS, SITES
 from facestats.io import open_store
-from tests.helpers import make_map_subject, once_per_session, run_cli
+from tests.helpers import make_map_subject, once_per_session, run_cli, run_main
 
 BATCH = ("pca", "cca", "scatter", "translucency", "conditions")
 
@@ -190,10 +191,10 @@ def test_an_analysis_keeps_earlier_results_unless_told_to_replace_them(tmp_path,
     r = run_cli("analyze", "pca", "--out", tmp_path)
     assert r.returncode == 2 and "already holds pca.json: pass --overwrite to replace them" in r.stderr
     assert (tmp_path / "pca.json").read_text() == "mine" and not (tmp_path / "pca.png").exists()
-    r = run_cli("analyze", "pca", "--out", tmp_path, "--overwrite")
+    r = run_main("analyze", "pca", "--out", tmp_path, "--overwrite")
     assert r.returncode == 0, r.stderr
     assert _doc(tmp_path, "pca")["action"] == "pca" and (tmp_path / "cca.png").read_text() == "another analysis"
-    r = run_cli("analyze", "conditions", "--out", tmp_path)  # its own files are not there yet
+    r = run_main("analyze", "conditions", "--out", tmp_path)  # its own files are not there yet
     assert r.returncode == 0, r.stderr
 
 
@@ -243,7 +244,7 @@ def test_posterior_defaults_and_population(tmp_path, store):
     idx = store.subjects()
     assert doc["subject_id"] == idx.index[idx["condition"] == "normal"][0] and doc["site"] == "cheek"
     assert doc["noise"] == "explicit std" and doc["seed"] == 0
-    r = run_cli("analyze", "posterior", "--population", "--out", tmp_path)
+    r = run_main("analyze", "posterior", "--population", "--out", tmp_path)
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "posterior_population.png").exists()
     doc = _doc(tmp_path, "posterior_population")
@@ -274,7 +275,7 @@ def test_posterior_defaults_and_population(tmp_path, store):
     ],
 )
 def test_errors_exit_2_with_a_message(tmp_path, args, message):
-    r = run_cli("analyze", *args, "--out", tmp_path)
+    r = run_main("analyze", *args, "--out", tmp_path)
     assert r.returncode == 2
     assert f"facestats: error: {message}" in r.stderr
     assert "Traceback" not in r.stderr
@@ -286,7 +287,7 @@ def test_bad_out_and_format(tmp_path):
     f.write_text("x")
     r = run_cli("analyze", "translucency", "--out", f)
     assert r.returncode == 2 and "--out must be a directory" in r.stderr
-    r = run_cli("analyze", "translucency", "--format", "pdf", "--out", tmp_path)
+    r = run_main("analyze", "translucency", "--format", "pdf", "--out", tmp_path)
     assert r.returncode == 2 and "invalid choice: 'pdf'" in r.stderr
 
 
@@ -301,7 +302,7 @@ def test_store_without_condition_series(tmp_path):
                 )
             ]
         )
-    r = run_cli("analyze", "conditions", "--store", path, "--out", tmp_path / "c")
+    r = run_main("analyze", "conditions", "--store", path, "--out", tmp_path / "c")
     assert r.returncode == 2 and "another condition" in r.stderr
     r = run_cli("analyze", "all", "--store", path, "--permutations", "0", "--out", tmp_path / "all")
     assert r.returncode == 0, r.stderr
@@ -311,7 +312,7 @@ def test_store_without_condition_series(tmp_path):
     # models: the factories store fitted error maps, so §5.3's model comparison runs too
     ran = [a for a in (*BATCH[:-1], "models") if a != "cca"]
     assert written == sorted(f"{a}.{e}" for a in ran for e in ("json", "png"))
-    r = run_cli("analyze", "pca", "--store", path, "--out", path)  # never into the store
+    r = run_main("analyze", "pca", "--store", path, "--out", path)  # never into the store
     assert r.returncode == 2 and "--out must lie outside the store" in r.stderr
     doc = _doc(tmp_path / "all", "translucency")
     assert doc["n_subjects"] == 6 and doc["store"] == str(path)

@@ -2,6 +2,9 @@
 
 Found by a red-team review: ``--output`` or ``--plot`` naming one of the bracket's photographs replaced it with JSON
 or a plot (exit 0), and ``calibrate leds --output TARGET/manifest.json`` replaced the target's manifest.
+
+Refusals and repeated runs call :func:`facestats.cli.main` in the test's process (:func:`tests.helpers.run_main`, or
+``main`` itself), which the console script runs; the tests that ran the console script still run it.
 """
 
 import hashlib
@@ -14,7 +17,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tests.helpers import TEST_DATA, run_cli
+from tests.helpers import TEST_DATA, run_cli, run_main
 
 UNIS = sorted((TEST_DATA / "unis-bracket").glob("*.jpg"))
 
@@ -86,7 +89,7 @@ def test_response_outputs_that_are_inputs_are_refused_before_the_fit(tmp_path):
         (("--calibration", dome, "--write-calibration", bracket[1]), "--write-calibration must not be one of the"),
     ]  # fmt: skip
     for extra, message in cases:
-        r = run_cli("calibrate", "response", *bracket, "--bits", "12", *extra)
+        r = run_main("calibrate", "response", *bracket, "--bits", "12", *extra)
         assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, (extra, r.stderr)
         assert "exposure agreement" not in r.stdout  # refused before the fit
     assert _digests(bracket + [dome]) == before
@@ -108,7 +111,7 @@ def test_led_outputs_that_are_inputs_are_refused_before_the_fit(target, tmp_path
         (("--calibration", work / "dome.json", "--output", work / "dome.json"), "--output must not be one of"),
     ]
     for extra, message in cases:
-        r = run_cli("calibrate", "leds", work, *extra)
+        r = run_main("calibrate", "leds", work, *extra)
         assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, (extra, r.stderr)
         assert "camera gains" not in r.stdout
     assert _digests(inputs) == before
@@ -120,18 +123,18 @@ def test_out_of_range_options_are_refused_before_any_work(bracket, tmp_path):
     """--smoothness 1e300 ended in "response must be finite"; --grid 100000 in "out of memory (74.5 GiB)"."""
     r = run_cli("calibrate", "response", *bracket, "--smoothness", "1e300")
     assert r.returncode == 2 and "--smoothness must lie in [0, 1e+06], got 1e+300" in r.stderr, r.stderr
-    r = run_cli("calibrate", "leds", tmp_path / "absent", "--grid", "100000")  # checked before the folder is read
+    r = run_main("calibrate", "leds", tmp_path / "absent", "--grid", "100000")  # checked before the folder is read
     assert r.returncode == 2 and "--grid must be an integer in [2, 100], got 100000" in r.stderr, r.stderr
-    r = run_cli("calibrate", "response", *bracket, "--black-level", "-3")
+    r = run_main("calibrate", "response", *bracket, "--black-level", "-3")
     assert r.returncode == 2 and "--black-level must be an integer in [0, inf], got -3" in r.stderr, r.stderr
-    r = run_cli("calibrate", "response", *bracket, "--samples", "foo")  # the message names every accepted form
+    r = run_main("calibrate", "response", *bracket, "--samples", "foo")  # the message names every accepted form
     assert r.returncode == 2 and "--samples: must be histogram, stratified or a number of samples" in r.stderr
     # checks the API makes are named by the options too (they named exposure_times, bits, samples: a red team)
     for argv, said in ((["--times", "1", "2"], "--times must hold one time per photograph (3), got 2"),
                        (["--bits", "12"], "--bits must be at most 8 for these 8-bit files, got 12"),
                        (["--samples", "1"], "--samples must be an integer in [2, "),
                        (["--times", "1e-320", "2e-320", "4e-320"], "--times must lie in [1e-12, inf] s")):  # fmt: skip
-        r = run_cli("calibrate", "response", *bracket, *argv)
+        r = run_main("calibrate", "response", *bracket, *argv)
         assert r.returncode == 2 and said in r.stderr, (argv, r.stderr)
 
 
@@ -141,7 +144,7 @@ def test_12_bit_codes_in_16_bit_files_need_bits_and_a_black_level_is_recorded(tm
     assert r.returncode == 2 and not (tmp_path / "g.json").exists()
     assert "highest code is 4095, below a quarter of the full scale 65535" in r.stderr and "--bits 12" in r.stderr
     g_json = tmp_path / "g.json"
-    r = run_cli("calibrate", "response", *frames, "--bits", "12", "--black-level", "128", "--output", g_json)
+    r = run_main("calibrate", "response", *frames, "--bits", "12", "--black-level", "128", "--output", g_json)
     assert r.returncode == 0, r.stderr
     assert "4 photographs, 12-bit codes, black level 128:" in r.stdout
     doc = json.loads((tmp_path / "g.json").read_text())
@@ -152,8 +155,8 @@ def test_12_bit_codes_in_16_bit_files_need_bits_and_a_black_level_is_recorded(tm
     from facestats.acquire.dome import default_dome
 
     default_dome().save(tmp_path / "dome.json")
-    r = run_cli("calibrate", "response", *frames, "--bits", "12", "--black-level", "128",
-                "--calibration", tmp_path / "dome.json", "--write-calibration", tmp_path / "new.json")  # fmt: skip
+    r = run_main("calibrate", "response", *frames, "--bits", "12", "--black-level", "128",
+                 "--calibration", tmp_path / "dome.json", "--write-calibration", tmp_path / "new.json")  # fmt: skip
     assert r.returncode == 0, r.stderr  # the calibration records the pedestal the ingest then merges with
     assert json.loads((tmp_path / "new.json").read_text())["camera_black_level"] == 128
 
@@ -186,7 +189,7 @@ def test_response_options_for_the_calibration_are_checked_before_the_fit(target,
     ]  # fmt: skip
     for extra, message in cases:
         bits = () if "--bits" in extra else ("--bits", "12")  # an option given twice is refused (cli.options.Parser)
-        r = run_cli("calibrate", "response", *frames, *bits, *extra)
+        r = run_main("calibrate", "response", *frames, *bits, *extra)
         assert r.returncode == 2 and r.stderr == f"facestats: error: {message}\n", (extra, r.stderr)
         assert r.stdout == "" and not (tmp_path / "new.json").exists()  # before the fit
     r = run_cli("calibrate", "response", *frames, "--bits", "12", "--calibration", with_g, "--cameras", "2", *new)
@@ -245,7 +248,7 @@ def test_leds_left_uncalibrated_or_poorly_determined_are_named(sparse_target, tm
     np.testing.assert_array_equal(written.led_beam[1], old.led_beam[1])
     led1 = json.loads((tmp_path / "o.json").read_text())["leds"][1]
     assert led1["intensity"] == [None] * 3 and led1["n_observations"] == 0 and led1["beam_error"] is None
-    r = run_cli("calibrate", "leds", sparse_target, "--grid", "8", "--output", tmp_path / "o2.json")
+    r = run_main("calibrate", "leds", sparse_target, "--grid", "8", "--output", tmp_path / "o2.json")
     assert r.returncode == 0, r.stderr  # nothing kept from before: the LED file says null
     assert r.stderr.splitlines()[0].endswith("LED 1; --output records null for them")
 
@@ -304,7 +307,7 @@ def test_a_white_level_is_recovered_below_and_recorded(tmp_path):
     assert json.loads((tmp_path / "new.json").read_text())["camera_white_level"] == 3800
     # Without --bits the 16-bit files set the levels: the refusal names the option and the way out (it named the
     # API's white_level, and said nothing of --bits; a red team).
-    r = run_cli("calibrate", "response", *frames, "--white-level", "3800")
+    r = run_main("calibrate", "response", *frames, "--white-level", "3800")
     assert r.returncode == 2 and "--white-level must be an integer in [32769, 65535], got 3800" in r.stderr
     assert "pass --bits N for N-bit codes" in r.stderr
 

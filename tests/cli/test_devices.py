@@ -12,7 +12,7 @@ import pytest
 from facestats.acquire.devices.lab import emulated_dome
 from facestats.acquire.photographs import open_folder
 from tests.acquire.devices.helpers import run_capture, tree
-from tests.helpers import facestats_exe, run_cli
+from tests.helpers import facestats_exe, run_cli, run_main
 
 
 @pytest.fixture(scope="module")
@@ -114,13 +114,13 @@ def test_bad_input_gets_a_message_and_no_traceback(emulator, tmp_path):
         (("--pattern", "{frame}{ext}"), "it lacks {camera}"),
         (("--pattern", "../x{camera}{frame}.png"), "must name a file inside the hot folder"),
     ]:
-        r = run_cli("capture", "dome", "--port", "/dev/ttyNOPE", "--subject", "S003", "--out", tmp_path / "d",
-                    "--calibration", root / "lab" / "dome.json", "--hot-folder", root / "hot", "--metadata",
-                    root / "lab" / "subject.json", *extra)  # fmt: skip
+        r = run_main("capture", "dome", "--port", "/dev/ttyNOPE", "--subject", "S003", "--out", tmp_path / "d",
+                     "--calibration", root / "lab" / "dome.json", "--hot-folder", root / "hot", "--metadata",
+                     root / "lab" / "subject.json", *extra)  # fmt: skip
         assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, (extra, r.stderr)
         assert not (tmp_path / "d").exists(), extra
-    missing = run_cli("capture", "dome", "--port", "x", "--subject", "S9", "--out", tmp_path / "c", "--calibration",
-                      root / "lab" / "dome.json", "--hot-folder", root / "hot", "--dry-run")  # fmt: skip
+    missing = run_main("capture", "dome", "--port", "x", "--subject", "S9", "--out", tmp_path / "c", "--calibration",
+                       root / "lab" / "dome.json", "--hot-folder", root / "hot", "--dry-run")  # fmt: skip
     assert missing.returncode == 2 and "needs the subject's age, gender, skin_type" in missing.stderr
 
 
@@ -136,9 +136,9 @@ def test_sensor_dry_run_prints_the_bracket_and_its_duration(tmp_path):
     assert "3 sites (cheek, forehead, neck) × 23 exposures = 69 frames" in r.stdout
     assert "89 s per site" in r.stdout and not (tmp_path / "cap").exists()
     for readout in ("nan", "-1"):
-        bad = run_cli("capture", "sensor", "--port", "/dev/null", "--subject", "S001", "--out", tmp_path / "cap",
-                      "--calibration", tmp_path / "sensor.json", "--hot-folder", tmp_path, "--age", "31", "--gender",
-                      "F", "--skin-type", "3", "--readout", readout, "--dry-run")  # fmt: skip
+        bad = run_main("capture", "sensor", "--port", "/dev/null", "--subject", "S001", "--out", tmp_path / "cap",
+                       "--calibration", tmp_path / "sensor.json", "--hot-folder", tmp_path, "--age", "31", "--gender",
+                       "F", "--skin-type", "3", "--readout", readout, "--dry-run")  # fmt: skip
         assert bad.returncode == 2 and "readout_s must" in bad.stderr, bad.stderr
 
 

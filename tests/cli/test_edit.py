@@ -1,4 +1,8 @@
-"""``facestats edit`` of the installed console script, run in a subprocess."""
+"""``facestats edit`` of the installed console script, run in a subprocess.
+
+Each test runs the console script end to end at least once; the refusals and repeats around it call
+:func:`facestats.cli.main` in the test's process (:func:`tests.helpers.run_main`), which the console script runs.
+"""
 
 import numpy as np
 import pytest
@@ -7,7 +11,7 @@ from matplotlib.image import imread
 from facestats.edit import TextureStatistics
 from facestats.io import open_store
 from facestats.io.schema import provenance
-from tests.helpers import make_map_subject, run_cli
+from tests.helpers import make_map_subject, run_cli, run_main
 
 SIZE = 24
 
@@ -57,7 +61,7 @@ def test_skin_type_writes_a_new_subject_and_images(pop, tmp_path):
     inside = np.kron(face, np.ones((11, 11), bool))
     assert after[inside, :3].mean() < before[inside, :3].mean()  # darker skin in the after image
     # The same edit again: refused (the id exists; --overwrite would replace it).
-    r2 = run_cli("edit", "skin-type", "F3", "V", "--store", pop, "--images", tmp_path / "img")
+    r2 = run_main("edit", "skin-type", "F3", "V", "--store", pop, "--images", tmp_path / "img")
     assert r2.returncode == 2 and f"subject {sid!r} already exists" in r2.stderr and "overwrite" in r2.stderr
 
 
@@ -137,21 +141,23 @@ def test_texture_with_regions_and_saved_stats(pop, tmp_path):
     assert stats.levels == 2 and stats.bins == 256 and str(tmp_path / "f5a.npz") in r.stdout
     before = (tmp_path / "f5a.npz").read_bytes()
     again = ("edit", "stats", "F3", "--store", pop, "--out", tmp_path / "f5a")
-    r = run_cli(*again)  # another subject's statistics over the file: refused without --overwrite
+    r = run_main(*again)  # another subject's statistics over the file: refused without --overwrite
     assert r.returncode == 2 and "f5a.npz' exists (pass --overwrite to replace it)" in r.stderr
     assert (tmp_path / "f5a.npz").read_bytes() == before
-    assert run_cli(*again, "--overwrite").returncode == 0 and (tmp_path / "f5a.npz").read_bytes() != before
-    r = run_cli("edit", "stats", "F5a", "--store", pop, "--regions", "cheeks", "--out", tmp_path / "f5a", "--overwrite")
+    assert run_main(*again, "--overwrite").returncode == 0 and (tmp_path / "f5a.npz").read_bytes() != before
+    r = run_main(
+        "edit", "stats", "F5a", "--store", pop, "--regions", "cheeks", "--out", tmp_path / "f5a", "--overwrite"
+    )
     assert r.returncode == 0 and (tmp_path / "f5a.npz").read_bytes() == before
     out = tmp_path / "out.zarr"
     common = ("--store", pop, "--out-store", out, "--images", tmp_path / "img", "--iterations", "2", "--seed", "5")
     r1 = run_cli("edit", "texture", "F3", "--target", "F5a", "--regions", "forehead", "6", "7", "--id", "T1", *common)
-    r3 = run_cli("edit", "texture", "F3", "--stats", tmp_path / "f5a.npz", "--regions", "7", "--id", "T3", *common)
+    r3 = run_main("edit", "texture", "F3", "--stats", tmp_path / "f5a.npz", "--regions", "7", "--id", "T3", *common)
     for r in (r1, r3):
         assert r.returncode == 0, r.stderr
     assert "histogram distance to the target" in r1.stdout
     # statistics fix the bins: another --bins was ignored (the summary said bins=256); now refused, nothing written
-    r = run_cli("edit", "texture", "F3", "--stats", tmp_path / "f5a.npz", "--bins", "16", "--id", "T4", *common)
+    r = run_main("edit", "texture", "F3", "--stats", tmp_path / "f5a.npz", "--bins", "16", "--id", "T4", *common)
     assert r.returncode == 2 and "--bins must be the target statistics' 256 (they fix the pyramid" in r.stderr
     with open_store(out) as st, open_store(pop) as src_store:
         src = src_store.subject("F3")
@@ -171,30 +177,30 @@ def test_texture_with_regions_and_saved_stats(pop, tmp_path):
 def test_errors_exit_2_with_clear_messages(pop, tmp_path):
     r = run_cli("edit", "skin-type", "F3", "V", "--store", pop, "--out-store", tmp_path / "e.zip")
     assert r.returncode == 2 and "--out-store must name a directory store (e.g. edits.zarr; a zip store" in r.stderr
-    r = run_cli("edit", "skin-type", "S008", "V", "--images", tmp_path)
+    r = run_main("edit", "skin-type", "S008", "V", "--images", tmp_path)
     assert r.returncode == 2 and "embedded default store is read-only: pass --out-store PATH" in r.stderr
-    r = run_cli("edit", "brdf", "F3", "--store", pop, "--images", tmp_path)
+    r = run_main("edit", "brdf", "F3", "--store", pop, "--images", tmp_path)
     assert r.returncode == 2 and "give exactly one target" in r.stderr
-    r = run_cli("edit", "brdf", "F3", "--target", "F5a", "--condition", "lotion", "--store", pop)
+    r = run_main("edit", "brdf", "F3", "--target", "F5a", "--condition", "lotion", "--store", pop)
     assert r.returncode == 2 and "give exactly one target" in r.stderr
-    r = run_cli("edit", "brdf", "F3", "--target", "nobody", "--store", pop, "--images", tmp_path)
+    r = run_main("edit", "brdf", "F3", "--target", "nobody", "--store", pop, "--images", tmp_path)
     assert r.returncode == 2 and "target 'nobody' is not a subject of store" in r.stderr
-    r = run_cli("edit", "skin-type", "F3", "VII", "--store", pop, "--images", tmp_path)
+    r = run_main("edit", "skin-type", "F3", "VII", "--store", pop, "--images", tmp_path)
     assert r.returncode == 2 and "skin type must be I-VI or 1-6, got 'VII'" in r.stderr
-    r = run_cli("edit", "brdf", "F3", "--skin-type", "V", "--t", "2", "--store", pop, "--images", tmp_path)
+    r = run_main("edit", "brdf", "F3", "--skin-type", "V", "--t", "2", "--store", pop, "--images", tmp_path)
     assert r.returncode == 2 and "facestats: error: --t must lie in [0, 1], got 2.0" in r.stderr  # the option's name
     for option, value, message in (("--id", "../x", "--id must be 1-64 characters"),
                                    ("--seed", "-1", "--seed must be an integer in [0, inf], got -1"),
                                    ("--feather", "-3", "--feather must lie in [0, inf] pixels, got -3.0")):  # fmt: skip
         command = "colour" if option == "--feather" else "skin-type"
         target = ["--skin-type", "V"] if command == "colour" else ["V"]
-        r = run_cli("edit", command, "F3", *target, option, value, "--store", pop, "--images", tmp_path)
+        r = run_main("edit", command, "F3", *target, option, value, "--store", pop, "--images", tmp_path)
         assert r.returncode == 2 and f"facestats: error: {message}" in r.stderr, (option, r.stderr)
-    r = run_cli("edit")
+    r = run_main("edit")
     assert r.returncode == 2 and "skin-type" in r.stdout
-    r = run_cli("edit", "skin-type", "F3", "V", "--store", pop, "--images", pop)  # images into the store
+    r = run_main("edit", "skin-type", "F3", "V", "--store", pop, "--images", pop)  # images into the store
     assert r.returncode == 2 and "--images must lie outside the source store" in r.stderr
-    r = run_cli("edit", "skin-type", "F3", "V", "--store", pop, "--out-store", pop / "subjects" / "n.zarr")
+    r = run_main("edit", "skin-type", "F3", "V", "--store", pop, "--out-store", pop / "subjects" / "n.zarr")
     assert r.returncode == 2 and "--out-store must lie outside the source store" in r.stderr
     assert not (pop / "subjects" / "n.zarr").exists()
     with open_store(pop) as st:  # failed edits wrote nothing
@@ -204,7 +210,7 @@ def test_errors_exit_2_with_clear_messages(pop, tmp_path):
 def test_the_papers_seven_levels_from_a_fresh_install_with_the_texture_sample(tmp_path):
     env = {"FACESTATS_CACHE_DIR": str(tmp_path / "cache")}
     common = ("--out-store", tmp_path / "out.zarr", "--images", tmp_path / "img", "--seed", "1")
-    r = run_cli("edit", "texture", "S001", "--target", "S030", "--levels", "7", *common, env=env)
+    r = run_main("edit", "texture", "S001", "--target", "S030", "--levels", "7", *common, env=env)
     assert r.returncode == 2 and "levels must be at most 3" in r.stderr and "--store texture-sample" in r.stderr
     assert not (tmp_path / "cache").exists()  # the default store's error builds nothing
     args = ("edit", "texture", "S001", "--target", "S030", "--levels", "7", "--store", "texture-sample", "--id", "T7")
@@ -214,7 +220,7 @@ def test_the_papers_seven_levels_from_a_fresh_install_with_the_texture_sample(tm
     with open_store(tmp_path / "out.zarr") as st:
         ds = st.subject("T7")
         assert ds["albedo"].shape == (512, 512, 3) and provenance(ds)["edit"]["parameters"]["levels"] == 7
-    r = run_cli("query", "--store", "texture-sample", "--skin-type", "VI", env=env)  # reused: built once
+    r = run_main("query", "--store", "texture-sample", "--skin-type", "VI", env=env)  # reused: built once
     assert r.returncode == 0 and "building" not in r.stderr and "matching subjects: 1" in r.stdout, r.stdout + r.stderr
 
 

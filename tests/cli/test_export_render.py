@@ -26,7 +26,7 @@ def test_a_scan_in_cm_is_warned_about_and_scaled_with_mesh_scale(tmp_path):
     ICT-FaceKit's mesh); there was no way to say the unit."""
     import json
 
-    from tests.helpers import run_cli
+    from tests.helpers import run_cli, run_main
 
     quad = tmp_path / "quad.obj"  # 20 units across: a face-sized patch in cm
     quad.write_text("v 0 0 0\nv 20 0 0\nv 0 20 0\nv 20 20 0\nvt 0 0\nvt 1 0\nvt 0 1\nvt 1 1\nf 1/1 2/2 3/3\n"
@@ -42,10 +42,10 @@ def test_a_scan_in_cm_is_warned_about_and_scaled_with_mesh_scale(tmp_path):
     assert max(float(v[0]) for v in verts) == 200.0  # mm
     manifest = json.loads((tmp_path / "cm" / "manifest.json").read_text())
     assert '"scale": 10.0' in json.dumps(manifest)
-    bad = run_cli("export-subject", "S001", "--out", tmp_path / "x", "--mesh-scale", "10")
+    bad = run_main("export-subject", "S001", "--out", tmp_path / "x", "--mesh-scale", "10")
     assert bad.returncode == 2 and "--mesh-scale applies to a mesh given with mesh= (--mesh)" in bad.stderr
     for value in ("-10", "nan", "1e300"):  # named by the flag; 1e300 overflowed into a temporary file's name
-        bad = run_cli("export-subject", "S001", "--out", tmp_path / "x", "--mesh", quad, "--mesh-scale", value)
+        bad = run_main("export-subject", "S001", "--out", tmp_path / "x", "--mesh", quad, "--mesh-scale", value)
         assert bad.returncode == 2 and bad.stderr.startswith("facestats: error: --mesh-scale must"), bad.stderr
     assert not (tmp_path / "x").exists()
 

@@ -1,4 +1,8 @@
-"""``facestats relight``: a subject or a field store under a probe → EXR + PNG; bad input leaves nothing."""
+"""``facestats relight``: a subject or a field store under a probe → EXR + PNG; bad input leaves nothing.
+
+Refusals and repeated runs call :func:`facestats.cli.main` in the test's process (:func:`tests.helpers.run_main`,
+or ``main`` itself), which the console script runs; the tests that ran the console script still run it.
+"""
 
 import numpy as np
 import pytest
@@ -8,7 +12,7 @@ from facestats.io.probes import write_light_probe
 from facestats.relight.field import write_field
 from facestats.relight.lighting import sky_probe
 from facestats.relight.relighting import relight
-from tests.helpers import run_cli
+from tests.helpers import run_cli, run_main
 from tests.relight.fields import lambertian_field
 
 
@@ -28,17 +32,17 @@ def test_relight_a_field_store_and_a_subject(tmp_path):
     assert read_exr(tmp_path / "f.exr")[1]["rotate_deg"] == "90.0"
     png = read_image(tmp_path / "f.png")
     assert png.shape == (6, 6, 3) and png[inside].max() > 0.5
-    r = run_cli("relight", "S001", "--probe", tmp_path / "sky.hdr", "--size", "16", "--lights", "16x8",
-                "--out", tmp_path / "s.exr", "--png", tmp_path / "s_preview.png")  # fmt: skip
+    r = run_main("relight", "S001", "--probe", tmp_path / "sky.hdr", "--size", "16", "--lights", "16x8",
+                 "--out", tmp_path / "s.exr", "--png", tmp_path / "s_preview.png")  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert read_image(tmp_path / "s.exr").shape == (16, 16, 3) and (tmp_path / "s_preview.png").exists()
     assert "wrote" in r.stdout and "shadow maps:" in r.stderr  # the progress bars
     r = run_cli("relight", "S001", "--probe", tmp_path / "sky.hdr", "--size", "16", "--lights", "16x8",
                 "--out", tmp_path / "q.exr", "--quiet")  # fmt: skip
-    assert r.returncode == 0 and r.stderr == ""
+    assert r.returncode == 0 and r.stderr == ""  # a process: nothing at all on its stderr
     # A field store has its camera and lights: the subject's render options are refused, not ignored.
-    r = run_cli("relight", tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", "--size", "999", "--lights", "0x0",
-                "--out", tmp_path / "g.exr")  # fmt: skip
+    r = run_main("relight", tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", "--size", "999", "--lights", "0x0",
+                 "--out", tmp_path / "g.exr")  # fmt: skip
     assert r.returncode == 2 and "--size, --lights apply to a subject" in r.stderr
     assert not (tmp_path / "g.exr").exists()
 
@@ -59,8 +63,8 @@ def test_one_png_exposure_for_relights_to_compare(tmp_path):
     want = np.clip(read_image(tmp_path / "f.exr") * 2.5, 0, 1)
     np.testing.assert_allclose(png[inside], want[inside], atol=0.01)  # 8-bit sRGB codes
     for bad in ("0", "-1", "nan", "1e39"):  # 1e39 overflowed float32 and failed after the relight (a review)
-        r = run_cli("relight", tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", "--out", tmp_path / "g.exr",
-                    "--exposure", bad)  # fmt: skip
+        r = run_main("relight", tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", "--out", tmp_path / "g.exr",
+                     "--exposure", bad)  # fmt: skip
         assert r.returncode == 2 and "--exposure must be a factor in (0, 1e12]" in r.stderr
 
 
@@ -73,9 +77,9 @@ def test_bad_probe_or_existing_output_leaves_no_side_effect(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.pfm"]
     (tmp_path / "o.exr").write_text("keep me")
     write_light_probe(tmp_path / "sky.pfm", sky_probe(8))
-    r = run_cli("relight", "S001", "--probe", tmp_path / "sky.pfm", "--size", "8", "--out", tmp_path / "o.exr")
+    r = run_main("relight", "S001", "--probe", tmp_path / "sky.pfm", "--size", "8", "--out", tmp_path / "o.exr")
     assert r.returncode == 2 and "exists" in r.stderr and (tmp_path / "o.exr").read_text() == "keep me"
-    r = run_cli("relight", "NOPE", "--probe", tmp_path / "sky.pfm", "--out", tmp_path / "n.exr")
+    r = run_main("relight", "NOPE", "--probe", tmp_path / "sky.pfm", "--out", tmp_path / "n.exr")
     assert r.returncode == 2 and not (tmp_path / "n.exr").exists()
 
 
@@ -90,19 +94,19 @@ def test_outputs_are_checked_first_and_replaced_together(tmp_path):
     assert r.returncode == 2 and "--png must be a file" in r.stderr and "a.png" in r.stderr
     assert (tmp_path / "a.exr").read_text() == "keep"
     for png in ("c.exr", "d.jpg"):  # a PNG under another name, or the EXR's own name
-        r = run_cli("relight", src, "--probe", probe, "--out", tmp_path / "c.exr", "--png", tmp_path / png)
+        r = run_main("relight", src, "--probe", probe, "--out", tmp_path / "c.exr", "--png", tmp_path / png)
         assert r.returncode == 2 and "--png must end in one of ['.png']" in r.stderr
     # Temporaries are unique: files or links under the old fixed names are neither used nor followed.
     (tmp_path / "victim.txt").write_text("mine")
     (tmp_path / ".o.png.tmp.png").symlink_to(tmp_path / "victim.txt")
     (tmp_path / ".o.exr.tmp.exr").write_text("also mine")
-    r = run_cli("relight", src, "--probe", probe, "--out", tmp_path / "o.exr", "--rotate", "1.7e308")
+    r = run_main("relight", src, "--probe", probe, "--out", tmp_path / "o.exr", "--rotate", "1.7e308")
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "victim.txt").read_text() == "mine" and (tmp_path / ".o.exr.tmp.exr").read_text() == "also mine"
     assert read_image(tmp_path / "o.png").shape == (4, 4, 3)
-    r = run_cli("relight", src, "--probe", probe, "--out", tmp_path / "new" / "n.exr", "--rotate", "nan")
+    r = run_main("relight", src, "--probe", probe, "--out", tmp_path / "new" / "n.exr", "--rotate", "nan")
     assert r.returncode == 2 and "--rotate must be a finite angle" in r.stderr and not (tmp_path / "new").exists()
-    r = run_cli("relight", src, "--probe", probe, "--out", tmp_path / "new" / "n.exr", "--rotate", "1e20")
+    r = run_main("relight", src, "--probe", probe, "--out", tmp_path / "new" / "n.exr", "--rotate", "1e20")
     assert r.returncode == 0 and (tmp_path / "new" / "n.png").is_file()  # folders created on success
     ref = relight(f, probe=sky_probe(8), rotate=np.radians(1e20 % 360))  # 280°, not the unrotated image
     assert np.allclose(read_image(tmp_path / "new" / "n.exr"), ref, rtol=1e-5, atol=1e-7)
@@ -136,16 +140,16 @@ def test_turntable_relights_the_compressed_field_frame_by_frame(tmp_path):
     assert not np.allclose(read_image(tmp_path / "t_000.exr"), read_image(tmp_path / "t_002.exr"))
     # one existing frame stops the command before any work; nothing is written or replaced
     (tmp_path / "u_002.png").write_text("keep")
-    r = run_cli("relight", tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", "--turntable", "4",
-                "--out", tmp_path / "u.exr")  # fmt: skip
+    r = run_main("relight", tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", "--turntable", "4",
+                 "--out", tmp_path / "u.exr")  # fmt: skip
     assert r.returncode == 2 and "u_002.png" in r.stderr and "exists" in r.stderr
     assert not any(p.name.startswith("u_") and p.name != "u_002.png" for p in tmp_path.iterdir())
     for bad, message in ((("--turntable", "0"), "--turntable"), (("--turntable", "2", "--ratio", "-1"), "--ratio"),
                          (("--ratio", "5"), "--ratio applies to --turntable")):  # fmt: skip
-        r = run_cli("relight", tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", *bad, "--out", tmp_path / "v.exr")
+        r = run_main("relight", tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", *bad, "--out", tmp_path / "v.exr")
         assert r.returncode == 2 and message in r.stderr and not any(p.name.startswith("v") for p in tmp_path.iterdir())
-    r = run_cli("relight", "S001", "--probe", tmp_path / "sky.hdr", "--size", "12", "--lights", "8x4",
-                "--turntable", "2", "--ratio", "2", "--out", tmp_path / "s.exr")  # fmt: skip
+    r = run_main("relight", "S001", "--probe", tmp_path / "sky.hdr", "--size", "12", "--lights", "8x4",
+                 "--turntable", "2", "--ratio", "2", "--out", tmp_path / "s.exr")  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert read_image(tmp_path / "s_001.exr").shape == (12, 12, 3) and "2 frames every 180°" in r.stdout
 

@@ -1,4 +1,8 @@
-"""The store commands of the installed ``facestats`` console script, run in a subprocess."""
+"""The store commands of the installed ``facestats`` console script, run in a subprocess.
+
+Each test runs the console script end to end at least once; the refusals and repeats around it call
+:func:`facestats.cli.main` in the test's process (:func:`tests.helpers.run_main`), which the console script runs.
+"""
 
 import csv
 import io
@@ -11,7 +15,7 @@ import scipy.io
 
 from facestats.io import open_store, pack_store
 from facestats.io.store import default_store_path
-from tests.helpers import make_map_subject, make_sample_subject, merl_dict, run_cli
+from tests.helpers import make_map_subject, make_sample_subject, merl_dict, run_cli, run_main
 
 POP = [
     ("P1", 4, "M", 24),
@@ -87,7 +91,7 @@ def test_query_csv(stores):
 def test_query_no_match_and_bad_values(stores):
     r = run_cli("query", "--skin-type", "VI", "--store", stores[1])
     assert r.returncode == 1 and "no subject matches" in r.stdout
-    r = run_cli("query", "--skin-type", "VI", "--store", stores[1], "--format", "json")
+    r = run_main("query", "--skin-type", "VI", "--store", stores[1], "--format", "json")
     assert r.returncode == 1 and json.loads(r.stdout)["count"] == 0
     for args, msg in (
         (("--skin-type", "VII"), "skin type must be I-VI or 1-6, got 'VII'"),
@@ -96,9 +100,9 @@ def test_query_no_match_and_bad_values(stores):
         (("--condition", "wet"), "condition must be one of"),
         (("--region", "ear"), "region must be 1-10"),
     ):
-        r = run_cli("query", *args, "--store", stores[1])
+        r = run_main("query", *args, "--store", stores[1])
         assert r.returncode == 2 and r.stderr.startswith("facestats: error: ") and msg in r.stderr, r.stderr
-    r = run_cli("query", "--store", stores[0].parent / "nope.zarr")
+    r = run_main("query", "--store", stores[0].parent / "nope.zarr")
     assert r.returncode == 2 and "does not exist" in r.stderr
 
 
@@ -108,7 +112,7 @@ def test_query_default_store():
         assert r.returncode in (0, 1) and "facestats query" in r.stdout
         # every subject's σtr is σtrAvg: no spread, exactly (it printed 0.5517 ± 1.1e-16, the sums' rounding)
         assert re.search(r"σtr +0\.5517 ± 0 +0\.9801 ± 0 +1\.56 ± 0\n", r.stdout), r.stdout
-        doc = json.loads(run_cli("query", "--skin-type", "IV", "--format", "json").stdout)
+        doc = json.loads(run_main("query", "--skin-type", "IV", "--format", "json").stdout)
         assert [doc["scattering"]["sigma_tr"][c]["std"] for c in "RGB"] == [0, 0, 0]
     else:
         assert r.returncode == 2 and "default store has not been built" in r.stderr
@@ -120,9 +124,9 @@ def test_info(stores):
     assert "schema version:  1" in r.stdout and "subjects:        7" in r.stdout
     assert "skin type      I 1, II 1, III 1, IV 4" in r.stdout
     assert "(zip, read-only)" in r.stdout
-    r = run_cli("info", "--store", stores[0])  # a directory store: what it allows, not how info opened it
+    r = run_main("info", "--store", stores[0])  # a directory store: what it allows, not how info opened it
     assert r.returncode == 0 and "(directory, writable)" in r.stdout, r.stderr
-    r = run_cli("info", "--store", stores[0], "--format", "json")
+    r = run_main("info", "--store", stores[0], "--format", "json")
     info = json.loads(r.stdout)
     assert info["by_gender"] == {"M": 4, "F": 3} and info["by_kind"] == {"maps": 6, "samples": 1}
 
@@ -130,25 +134,25 @@ def test_info(stores):
 def test_validate_and_repair(stores, tmp_path):
     import shutil
 
-    r = run_cli("validate", "--store", stores[1])
+    r = run_main("validate", "--store", stores[1])
     assert r.returncode == 0 and "store is valid" in r.stdout and "subject/s" in r.stderr  # its progress bar
-    r = run_cli("validate", "--store", stores[1], "--quiet")
+    r = run_cli("validate", "--store", stores[1], "--quiet")  # a process: nothing at all on its stderr
     assert r.returncode == 0 and "store is valid" in r.stdout and r.stderr == ""
     path = shutil.copytree(stores[0], tmp_path / "c.zarr")
     gen = next((path / "subjects" / "P2").glob("g*"))
     chunk = gen / "ts_m" / "c" / "0" / "0"
     chunk.write_bytes(chunk.read_bytes()[:10])
-    r = run_cli("validate", "--store", path)
+    r = run_main("validate", "--store", path)
     assert r.returncode == 1 and "problem: subject 'P2': variable 'ts_m' cannot be read" in r.stdout
-    r = run_cli("validate", "--store", path, "--repair")  # a dry run: the plan, nothing changed
+    r = run_main("validate", "--store", path, "--repair")  # a dry run: the plan, nothing changed
     assert r.returncode == 1 and "drop subject 'P2' from the index" in r.stdout and "dry run" in r.stdout
     assert (path / "subjects" / "P2").exists()
-    r = run_cli("validate", "--store", path, "--repair", "--yes")  # damaged data go to the quarantine
+    r = run_main("validate", "--store", path, "--repair", "--yes")  # damaged data go to the quarantine
     assert r.returncode == 0 and "drop subject 'P2' from the index" in r.stdout and "store is valid" in r.stdout
     assert len(list((path / "quarantine").glob("*/subjects/P2/g*"))) == 1
-    r = run_cli("validate", "--store", tmp_path / "missing")
+    r = run_main("validate", "--store", tmp_path / "missing")
     assert r.returncode == 1 and "INVALID" in r.stdout
-    r = run_cli("validate", "--store", stores[1], "--purge", "--yes")  # a valid zip store is not "INVALID"
+    r = run_main("validate", "--store", stores[1], "--purge", "--yes")  # a valid zip store is not "INVALID"
     assert r.returncode == 2 and "is a read-only zip store: --purge --yes needs a directory store" in r.stderr
 
 
@@ -192,16 +196,16 @@ def test_export(stores, tmp_path):
     assert p1["albedo_histogram"]["B"] == hists[1, 2].tolist()
     assert doc["subjects"][0]["sites"]["cheek"]["sigma_tr"]["R"] is None
     assert (out / "README.txt").exists()
-    r = run_cli("export", "--store", stores[1], "--out", tmp_path / "j", "--format", "json")
+    r = run_main("export", "--store", stores[1], "--out", tmp_path / "j", "--format", "json")
     assert r.returncode == 0 and sorted(p.name for p in (tmp_path / "j").iterdir()) == ["README.txt", "statistics.json"]
     (out / "notes.txt").write_text("mine")  # a release in the other format replaces the first, and only it
-    r = run_cli("export", "--store", stores[0], "--out", out, "--format", "json")
+    r = run_main("export", "--store", stores[0], "--out", out, "--format", "json")
     assert r.returncode == 2 and "which holds an earlier statistics release" in r.stderr  # only with --overwrite
-    r = run_cli("export", "--store", stores[0], "--out", out, "--format", "json", "--overwrite")
+    r = run_main("export", "--store", stores[0], "--out", out, "--format", "json", "--overwrite")
     assert r.returncode == 0, r.stderr
     assert sorted(p.name for p in out.iterdir()) == ["README.txt", "notes.txt", "statistics.json"]
     before = sorted(p.name for p in (stores[0] / "subjects").iterdir())
-    r = run_cli("export", "--store", stores[0], "--out", stores[0] / "subjects")  # never into the store
+    r = run_main("export", "--store", stores[0], "--out", stores[0] / "subjects")  # never into the store
     assert r.returncode == 2 and "--out must lie outside the store" in r.stderr
     assert sorted(p.name for p in (stores[0] / "subjects").iterdir()) == before
 
@@ -213,19 +217,19 @@ def test_import_merl(tmp_path):
     r = run_cli("import-merl", mat, "--store", out)
     assert r.returncode == 0, r.stderr
     assert "imported 4 subjects (merl-001 ... merl-004)" in r.stdout
-    r = run_cli("query", "--store", out, "--gender", "F", "--format", "json")
+    r = run_main("query", "--store", out, "--gender", "F", "--format", "json")
     assert r.returncode == 0 and json.loads(r.stdout)["subject_ids"] == ["merl-002", "merl-004"]
-    r = run_cli("import-merl", mat, "--store", out)
+    r = run_main("import-merl", mat, "--store", out)
     assert r.returncode == 2 and "already exist" in r.stderr
-    assert run_cli("import-merl", mat, "--store", out, "--overwrite").returncode == 0
+    assert run_main("import-merl", mat, "--store", out, "--overwrite").returncode == 0
     bad = tmp_path / "bad.mat"
     d = merl_dict()
     d["ts_region"][3, 0] = 12
     scipy.io.savemat(bad, d)
-    r = run_cli("import-merl", bad, "--store", tmp_path / "bad.zarr")
+    r = run_main("import-merl", bad, "--store", tmp_path / "bad.zarr")
     assert r.returncode == 2 and "ts_region[4] must be a region 1-10, got 12" in r.stderr
     zp = pack_store(out, tmp_path / "m.zip")
-    r = run_cli("import-merl", mat, "--store", zp)
+    r = run_main("import-merl", mat, "--store", zp)
     assert r.returncode == 2 and "read-only" in r.stderr
 
 
@@ -237,7 +241,7 @@ def test_export_into_a_folder_of_other_files_needs_overwrite_and_removes_nothing
     assert r.returncode == 2 and "--overwrite: replace an earlier release, or write into any folder" in r.stderr
     assert "'statistics.json'" in r.stderr
     assert sorted(p.name for p in out.iterdir()) == ["statistics.json"]
-    r = run_cli("export", "--store", stores[1], "--out", out, "--format", "csv", "--overwrite")
+    r = run_main("export", "--store", stores[1], "--out", out, "--format", "csv", "--overwrite")
     assert r.returncode == 0, r.stderr
     assert (out / "statistics.json").read_text() == '{"my": 1}'  # a file of the other format is not removed
     assert sorted(p.name for p in out.iterdir()) == [
@@ -253,9 +257,9 @@ def test_errors_name_the_commands_options_not_the_api_parameters(tmp_path):
     (tmp_path / "full" / "mine.txt").write_text("mine")
     res = run_cli("export", "--out", str(tmp_path / "full"))
     assert res.returncode == 2 and "error: --out must be a new or empty folder" in res.stderr
-    res = run_cli("build", "--store", str(tmp_path / "x.zarr"), "--size", "2")
+    res = run_main("build", "--store", str(tmp_path / "x.zarr"), "--size", "2")
     assert res.returncode == 2 and "error: --size must be an integer in [8, inf], got 2" in res.stderr
-    res = run_cli("build", "--store", str(tmp_path / "x.zarr"), "--size", "8", "--subjects", "S999")
+    res = run_main("build", "--store", str(tmp_path / "x.zarr"), "--size", "8", "--subjects", "S999")
     assert res.returncode == 2 and "error: --subjects must be ids of the population, got unknown ['S999']" in res.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["full"]  # nothing written
 

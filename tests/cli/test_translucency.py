@@ -12,7 +12,7 @@ from facestats.acquire.synthetic.patch_image import render_patch_image
 from facestats.acquire.synthetic.scenes import pyramid_scene, square_pyramid
 from facestats.model.irradiance import radiance_from_exitance
 from facestats.pipeline.suzuki_studies import render_scene
-from tests.helpers import run_cli
+from tests.helpers import run_cli, run_main
 
 
 @pytest.fixture(scope="module")
@@ -63,7 +63,7 @@ def test_cli_prints_the_estimate_interval_and_rank_and_plots(scene_files):
     assert set(fits) == {"R", "G", "B"} and fits["R"]["rank"] <= fits["R"]["n_levels"]
     assert plot.exists() and plot.stat().st_size > 10_000
     before = out.read_bytes()
-    r = run_cli(*args)  # the same command: both outputs exist now (replaced silently before a red team)
+    r = run_main(*args)  # the same command: both outputs exist now (replaced silently before a red team)
     assert r.returncode == 2 and "fit.json' exists (pass --overwrite to replace it)" in r.stderr
     assert out.read_bytes() == before
 
@@ -101,8 +101,8 @@ def test_bad_inputs_are_named_by_file_and_field_before_the_fit(scene_files, tmp_
         path = tmp_path / f"{kind}.json"
         path.write_text(json.dumps(doc))
         files = {"camera": d / "camera.json", "lights": d / "lights.json", kind: path}
-        r = run_cli("translucency", d / "pyramid.obj", "--lights", files["lights"], "--camera", files["camera"],
-                    "--image", d / "pyramid.exr", "--spacing", "2.5")  # fmt: skip
+        r = run_main("translucency", d / "pyramid.obj", "--lights", files["lights"], "--camera", files["camera"],
+                     "--image", d / "pyramid.exr", "--spacing", "2.5")  # fmt: skip
         assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
         assert re.search(f"{kind if kind == 'camera' else 'light description'}.*{kind}.json: ", r.stderr) or (
             "is malformed" in message and f"{kind}.json is malformed" in r.stderr
@@ -112,7 +112,7 @@ def test_bad_inputs_are_named_by_file_and_field_before_the_fit(scene_files, tmp_
             "--image", d / "pyramid.exr", "--spacing", "2.5"]  # fmt: skip
     r = run_cli(*base, "--eta", "0.5")
     assert r.returncode == 2 and "--eta must lie in [1, 3], got 0.5" in r.stderr
-    r = run_cli(*base, "--json", tmp_path / "o.json", "--plot", tmp_path / "f.xyz")
+    r = run_main(*base, "--json", tmp_path / "o.json", "--plot", tmp_path / "f.xyz")
     assert r.returncode == 2 and "--plot must end in one of" in r.stderr and not (tmp_path / "o.json").exists()
 
 

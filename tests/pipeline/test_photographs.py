@@ -3,7 +3,8 @@
 The default subject S001 at a small size (16² lumitexel grid, 160² 12-bit PNG frames, 16 cameras, every fifth LED,
 calibration with small errors, two frames with head motion), against its truth and against the in-memory path on the
 same subject and rig.  The full-size run (48² grid, 1024² frames, all 150 LEDs) is ``benchmarks/bench_photos.py``
-(``ingest``); its figures are in ``docs/photographs.md``.
+(``ingest``); its figures are in ``docs/photographs.md``.  Each test runs the console script; the refusals and
+repeats after its first run call :func:`facestats.cli.main` in the test's process (:func:`tests.helpers.run_main`).
 """
 
 import json
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 
 from facestats.acquire.dome import Dome
-from tests.helpers import run_cli
+from tests.helpers import run_cli, run_main
 
 pytestmark = pytest.mark.slow  # end to end: a whole subject through the pipeline
 
@@ -69,12 +70,12 @@ def test_ingest_command_fits_the_photographed_subject(case):
         assert photo[name][1] <= 0.08, (name, photo[name])  # p90 (measured 4.1 %, 5.9 %, 3.5 %)
         # the in-memory path on the same subject: measured ratios 1.74, 1.75, 1.61 at this size (2026-12-04)
         assert photo[name][0] <= 2.0 * mem[name][0], (name, photo[name], mem[name])
-    again = run_cli(*args)
+    again = run_main(*args)
     assert again.returncode == 0 and "already in" in again.stdout
     # The finished work capture is S001's: it never becomes another subject's.
     work = root / "s.zarr.ingest" / "S001" / "capture.zarr"
     other = ["ingest", folder, "--mesh", pc.mesh, "--calibration", pc.calibration, "--store", root / "t.zarr"]
-    r = run_cli(*other, "--subject", "S002", "--work", work, "--quiet")
+    r = run_main(*other, "--subject", "S002", "--work", work, "--quiet")
     assert r.returncode == 2 and "holds an ingest of other inputs (subject_id differ)" in r.stderr
     assert not (root / "t.zarr").exists()
 
@@ -95,8 +96,8 @@ def test_ingest_never_writes_over_a_folder_that_is_not_its_capture(case, tmp_pat
     man = json.loads((photos / "manifest.json").read_text())
     man["subject"]["age"] = "old"
     (photos / "manifest.json").write_text(json.dumps(man))
-    r = run_cli("ingest", photos, "--mesh", photos / "face.obj", "--calibration", photos / "dome.json",
-                "--store", tmp_path / "s.zarr", "--subject", "S001", "--quiet")  # fmt: skip
+    r = run_main("ingest", photos, "--mesh", photos / "face.obj", "--calibration", photos / "dome.json",
+                 "--store", tmp_path / "s.zarr", "--subject", "S001", "--quiet")  # fmt: skip
     assert r.returncode == 2 and "manifest.json field 'subject': attribute age must be an integer" in r.stderr
     assert not (tmp_path / "s.zarr").exists()
 
@@ -108,9 +109,9 @@ def test_ingest_command_reports_bad_input_without_a_traceback(case, tmp_path):
     (bad / "cam05" / "led003_e1.png").unlink()
     store = tmp_path / "s.zarr"
 
-    def ingest(calibration):
+    def ingest(calibration, run=run_cli):
         args = ["ingest", bad, "--mesh", bad / "face.obj", "--calibration", calibration, "--store", store]
-        return run_cli(*args, "--subject", "S001", "--quiet")
+        return run(*args, "--subject", "S001", "--quiet")
 
     r = ingest(bad / "dome.json")
     assert r.returncode == 2 and "Traceback" not in r.stderr
@@ -119,7 +120,7 @@ def test_ingest_command_reports_bad_input_without_a_traceback(case, tmp_path):
     # A calibration of another rig: the error names its file.
     (bad / "cam05" / "led003_e1.png").write_bytes((pc.folder.parent / "cam05" / "led003_e1.png").read_bytes())
     Dome.load(bad / "dome.json").select(cameras=[0, 1]).save(bad / "two.json")
-    r = ingest(bad / "two.json")
+    r = ingest(bad / "two.json", run=run_main)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "two.json has 2 cameras" in r.stderr, r.stderr
 
@@ -152,7 +153,7 @@ def test_a_failed_ingest_empties_the_work_folder_it_was_given_and_links_out_are_
     shutil.copyfile(first, outside)  # the same bytes: the checksum alone cannot tell
     first.unlink()
     first.symlink_to(outside)
-    r = run_cli("ingest", photos, *args, "--store", tmp_path / "t.zarr")
+    r = run_main("ingest", photos, *args, "--store", tmp_path / "t.zarr")
     assert r.returncode == 2 and f"frame {man['frames'][0]['file']} listed in manifest.json must lie inside" in r.stderr
 
 

@@ -19,6 +19,7 @@ import scipy.io
 import xarray as xr
 from nbclient import NotebookClient
 
+import facestats.cli
 from facestats.acquire.sensor import default_fiber_distances
 from facestats.core.conventions import CHANNELS, CONDITIONS, SITES
 from facestats.io.schema import set_variable_attrs
@@ -294,14 +295,73 @@ def run_cli(*args, cwd=None, timeout=600, env=None):
     )
 
 
-def run_main(*args, env=None):
+class Hung(Exception):
+    """A command run by :func:`run_main` did not finish within its ``timeout``."""
+
+
+def _alarm(signum, frame):
+    raise Hung("the command did not finish in time (blocked on a FIFO or a lock?)")
+
+
+#: ``(parser, [(action, copy of its default)])`` of :func:`_shared_parser`, built on first use.
+_PARSER: tuple | None = None
+
+
+def _mutable_defaults(parser) -> list:
+    """The actions of ``parser`` and of all its subcommands' parsers whose default is a list, dict or set."""
+    import argparse
+    import copy
+
+    out = []
+    for action in parser._actions:
+        if isinstance(action.default, (list, dict, set)):
+            out.append((action, copy.deepcopy(action.default)))
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in dict.fromkeys(action.choices.values()):  # aliases map to the same parser
+                out += _mutable_defaults(sub)
+    return out
+
+
+def _shared_parser():
+    """The ``facestats`` parser every :func:`run_main` of this process uses, built by ``build_parser`` once.
+
+    Building it takes about 17 ms, as long as many of the commands the corpora run (hundreds of runs per module).
+    argparse keeps no state between two parses but the default values it puts into the namespace: a command that
+    changed a mutable default in place would change the next run's, so :func:`run_main` checks after every command
+    that none did (:func:`_check_defaults`).
+    """
+    global _PARSER
+    if _PARSER is None:
+        parser = _BUILD_PARSER()
+        _PARSER = (parser, _mutable_defaults(parser))
+    return _PARSER[0]
+
+
+def _check_defaults() -> None:
+    """Fail (and drop the shared parser) if a command changed a mutable default of :func:`_shared_parser`'s parser."""
+    global _PARSER
+    if _PARSER is None:
+        return
+    changed = [a.dest for a, value in _PARSER[1] if a.default != value]
+    if changed:
+        _PARSER = None
+        raise AssertionError(f"a command changed the parser's defaults of {changed}: the next run would see them")
+
+
+#: The command line's own ``build_parser``, which :func:`run_main` swaps for :func:`_shared_parser` while it runs.
+_BUILD_PARSER = facestats.cli.build_parser
+
+
+def run_main(*args, cwd=None, env=None, timeout: float = 600.0):
     """``facestats ARGS`` run by :func:`facestats.cli.main` in this process, reported as :func:`run_cli` reports it.
 
     For the checks whose subject is the command's answer (its exit code, its message, what it wrote), not the
     console script's process: each :func:`run_cli` costs a Python start-up and the imports (1-2 s), while the
     console script is ``sys.exit(main())``, so the code ``main`` returns is the process's exit status.  argparse's
     ``SystemExit`` (a malformed command line) becomes the returned code as the process would exit with it.
-    ``env`` (name -> value) is set for the call and restored afterwards.  It sees what Python code writes to
+    ``cwd`` is the working directory and ``env`` (name -> value) is set for the call, both restored afterwards;
+    the command line is parsed by one parser per process (:func:`_shared_parser`).  A command still running after
+    ``timeout`` seconds raises :class:`Hung` (a test failure, not a hang).  It sees what Python code writes to
     ``sys.stdout`` and ``sys.stderr``, not what a library writes to the file descriptors, nor warnings (pytest
     records them; the console script under :func:`run_cli` ignores them): a check that a stream stays empty
     (``--quiet``) or that a warning is shown belongs to :func:`run_cli`.
@@ -313,27 +373,37 @@ def run_main(*args, env=None):
     """
     import contextlib
     import io
-
-    from facestats.cli import main
+    import signal
 
     argv = [str(a) for a in args]
     before = {name: os.environ.get(name) for name in env or {}}
-    os.environ.update({name: str(value) for name, value in (env or {}).items()})
     out, err = io.StringIO(), io.StringIO()
+    old_cwd = os.getcwd()
+    previous = signal.signal(signal.SIGALRM, _alarm)
+    signal.setitimer(signal.ITIMER_REAL, timeout)
+    facestats.cli.build_parser = _shared_parser
     try:
+        os.environ.update({name: str(value) for name, value in (env or {}).items()})
+        if cwd is not None:
+            os.chdir(cwd)
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             try:
-                code = main(argv)
+                code = facestats.cli.main(argv)
             except SystemExit as exc:  # as the interpreter exits with it: None is 0, a message is printed and 1
                 code = 0 if exc.code is None else exc.code if isinstance(exc.code, int) else 1
                 if not isinstance(exc.code, (int, type(None))):
                     print(exc.code, file=sys.stderr)
     finally:
+        facestats.cli.build_parser = _BUILD_PARSER
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+        os.chdir(old_cwd)
         for name, value in before.items():
             if value is None:
                 os.environ.pop(name, None)
             else:
                 os.environ[name] = value
+    _check_defaults()
     return subprocess.CompletedProcess(facestats_exe() + argv, code, out.getvalue(), err.getvalue())
 
 

@@ -5,34 +5,26 @@
 * A **sentinel tree** (:func:`make_sentinel`) is planted beside every store: files, folders and a
   folder named like a generation.  Cases that plant links point them into it; :func:`snapshot` of it
   before and after a case must be equal (nothing outside the store touched).
-* :func:`run` runs ``facestats.cli.main`` in this process (fast) and returns (exit code, stdout +
-  stderr); an exception escaping ``main`` fails the test — that is a traceback.  The CLI's last-resort
-  handler returns 3 for unexpected exceptions, which every case also rejects.  Every run parses with one
-  parser built once per process (:func:`_shared_parser`).
+* :func:`run` runs ``facestats.cli.main`` in this process (fast; :func:`tests.helpers.run_main`) and returns
+  (exit code, stdout + stderr); an exception escaping ``main`` fails the test — that is a traceback.  The CLI's
+  last-resort handler returns 3 for unexpected exceptions, which every case also rejects.
 * :func:`subject_digests` reads every subject fully (checksums verified) and returns a digest of its
   data, so "no intact data lost" is a comparison of two dicts.
 """
 
 from __future__ import annotations
 
-import argparse
-import contextlib
-import copy
 import hashlib
-import io
 import os
 import shutil
-import signal
 import stat
 from pathlib import Path
 
 import numpy as np
 
-import facestats.cli
-from facestats.cli import main
 from facestats.errors import StoreError
 from facestats.io import open_store
-from tests.helpers import make_map_subject, make_sample_subject
+from tests.helpers import make_map_subject, make_sample_subject, run_main
 
 MAP_IDS = ("R1", "R2")
 SAMPLE_IDS = ("RM",)
@@ -89,85 +81,10 @@ def snapshot(path: Path) -> dict:
     return out
 
 
-class Hung(Exception):
-    """A command ran longer than the test allows (e.g. blocked on a FIFO)."""
-
-
-def _alarm(signum, frame):
-    raise Hung("the command did not finish in time (blocked on a FIFO or a lock?)")
-
-
-#: ``(parser, [(action, copy of its default)])`` of :func:`_shared_parser`, built on first use.
-_PARSER: tuple | None = None
-
-
-def _mutable_defaults(parser) -> list:
-    """The actions of ``parser`` and of all its subcommands' parsers whose default is a list, dict or set."""
-    out = []
-    for action in parser._actions:
-        if isinstance(action.default, (list, dict, set)):
-            out.append((action, copy.deepcopy(action.default)))
-        if isinstance(action, argparse._SubParsersAction):
-            for sub in dict.fromkeys(action.choices.values()):  # aliases map to the same parser
-                out += _mutable_defaults(sub)
-    return out
-
-
-def _shared_parser():
-    """The ``facestats`` parser every :func:`run` of this process uses, built by ``build_parser`` once.
-
-    Building it takes about 17 ms, as long as many of the commands the corpora run (hundreds of runs per module).
-    argparse keeps no state between two parses but the default values it puts into the namespace: a command that
-    changed a mutable default in place would change the next run's, so :func:`run` checks after every command that
-    none did (:func:`_check_defaults`).
-    """
-    global _PARSER
-    if _PARSER is None:
-        parser = _build_parser()
-        _PARSER = (parser, _mutable_defaults(parser))
-    return _PARSER[0]
-
-
-def _check_defaults() -> None:
-    """Fail (and drop the shared parser) if a command changed a mutable default of :func:`_shared_parser`'s parser."""
-    global _PARSER
-    if _PARSER is None:
-        return
-    changed = [a.dest for a, value in _PARSER[1] if a.default != value]
-    if changed:
-        _PARSER = None
-        raise AssertionError(f"a command changed the parser's defaults of {changed}: the next run would see them")
-
-
-_build_parser = facestats.cli.build_parser
-
-
 def run(*argv, cwd=None, timeout: float = 120.0) -> tuple[int, str]:
-    """``facestats ARGV`` in this process: (exit code, stdout + stderr).  argparse errors exit 2.
-
-    ``facestats.cli.main`` parses ``ARGV`` with :func:`_shared_parser`'s parser.  A command still running after
-    ``timeout`` seconds raises :class:`Hung` (a test failure, not a hang).
-    """
-    out, err = io.StringIO(), io.StringIO()
-    old = os.getcwd()
-    previous = signal.signal(signal.SIGALRM, _alarm)
-    signal.setitimer(signal.ITIMER_REAL, timeout)
-    before, facestats.cli.build_parser = facestats.cli.build_parser, _shared_parser
-    try:
-        if cwd is not None:
-            os.chdir(cwd)
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            try:
-                code = main([str(a) for a in argv])
-            except SystemExit as exc:  # argparse
-                code = exc.code if isinstance(exc.code, int) else 2
-    finally:
-        facestats.cli.build_parser = before
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
-        os.chdir(old)
-    _check_defaults()
-    return code, out.getvalue() + err.getvalue()
+    """``facestats ARGV`` in this process (:func:`tests.helpers.run_main`): (exit code, stdout + stderr)."""
+    r = run_main(*argv, cwd=cwd, timeout=timeout)
+    return r.returncode, r.stdout + r.stderr
 
 
 def digest_dataset(ds) -> str:

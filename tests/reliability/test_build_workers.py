@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.helpers import facestats_exe
+from tests.helpers import facestats_exe, run_main
 
 from .helpers import run, subject_digests
 
@@ -102,12 +102,12 @@ def test_killed_build_leaves_no_worker_and_resumes(tmp_path):
     store = runs[signal.SIGKILL][0]
     before = subject_digests(store)
     # in this process (the command's own code, parsed by its own parser): the process boundary was the kill's
-    code, out = run("build", "--store", store, "--size", "8", "--workers", "1", "--quiet", "--no-conditions",
-                    "--subjects", *SUBJECTS, timeout=900)  # fmt: skip
-    assert code == 0, out
+    r = run_main("build", "--store", store, "--size", "8", "--workers", "1", "--quiet", "--no-conditions",
+                  "--subjects", *SUBJECTS, timeout=900)  # fmt: skip
+    assert r.returncode == 0, r.stdout + r.stderr
     after = subject_digests(store)
     assert sorted(after) == SUBJECTS and all(after[s] == d for s, d in before.items())
-    assert f"{len(before)} already present" in out
+    assert f"{len(before)} already present" in r.stdout
 
 
 #: Installed through PYTHONPATH in the build's processes: the worker that builds $FACESTATS_TEST_DIE_ON kills itself

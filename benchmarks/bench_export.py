@@ -52,8 +52,8 @@ default subject and camera, the subject's capture is re-simulated, refitted
 with the default store's settings without that camera
 (``FitSettings(exclude_cameras=...)``) and camera-rendered against the
 capture (:func:`facestats.pipeline.validation.camera_rmse`, every third
-LED, θ ≤ 80°); median and worst relative RMSE over all pairs, against the
-fit issue's ≈ 3 %.
+LED by default (``light_step``), θ ≤ 80°); median and worst relative RMSE over
+all pairs, against the fit issue's ≈ 3 %.
 
 The machine may be shared: every timing prints the 1-minute load average
 beside it, and ``exr_set`` reports the best and the worst of its runs and the

@@ -563,7 +563,7 @@ _TINY_SWEEP = {"size": 16, "n_theta": 16, "n_phi": 8, "ratio": 2.0, "rotations":
 SMOKE = {
     "relight": {"size": 16, "n_theta": 16, "n_phi": 8, "repeat": 1, "ratio": 2.0},
     "stage": {"size": 12, "n_theta": 8, "n_phi": 4},
-    "discretisation": {"size": 8, "probe_height": 8, "n_theta": 8, "n_phi": 4},
+    "discretisation": {"size": 8, "probe_height": 4, "n_theta": 4, "n_phi": 2},  # 32 probe lights, 8 stage lights
     "stream": {"size": 12, "n_theta": 8, "n_phi": 4},
     "probe_lights": {"lights": 16, "blocks": (2, 4), "normals": 50, "probe_height": 8},
     "lights_grid": {"grids": ((1, 1), (8, 4)), "normals": 200, "probe_height": 8},

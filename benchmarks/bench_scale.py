@@ -597,7 +597,9 @@ SMOKE = {
     "full_resolution": {"workers": 1, "block": 256, "grid": 24, "map_size": 64},
     "fit_stages": {"blocks": 2, "block": 64, "grid": 24, "map_size": 64},
     "codec": {"grid": 16, "map_size": 32, "lumitexels": 200},
-    "cluster_scaling": {"n": 2, "grid": 16, "map_size": 32, "workers": (2,), "block": 256},  # one cluster
+    # one cluster of one worker: every code path runs (the efficiency and plan figures then compare the size with
+    # itself), with one worker process started instead of two
+    "cluster_scaling": {"n": 2, "grid": 16, "map_size": 32, "workers": (1,), "block": 256},
     "calibration": {"n_subjects": 1, "grid": 16},
     "calibration_variants": {"subjects": (0,), "grid": 16},
     "calibration_budget": {"grid": 16},

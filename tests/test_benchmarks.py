@@ -2,8 +2,9 @@
 
 Each ``benchmarks/bench_*.py`` lists its benchmarks in ``BENCHMARKS`` and tiny
 arguments for each in ``SMOKE``; this runs every one with its smoke arguments
-(inputs rebuilt in a temporary ``FACESTATS_BENCH_DIR``) and checks the figures
-it returns.  Timings are not asserted: they belong to the benchmarks.
+(inputs rebuilt in a temporary ``FACESTATS_BENCH_DIR``: the test's own, or one
+folder per session for the benchmarks of ``SHARED_INPUTS``) and checks the
+figures it returns.  Timings are not asserted: they belong to the benchmarks.
 """
 
 from __future__ import annotations
@@ -19,6 +20,11 @@ import pytest
 
 BENCH = pathlib.Path(__file__).resolve().parents[1] / "benchmarks"
 MODULES = sorted(BENCH.glob("bench_*.py"))
+#: Benchmarks whose inputs are built once per session (in one ``FACESTATS_BENCH_DIR`` shared by the xdist
+#: workers, ``inputs.cached_input`` locking each build): they ask for the same input with the same arguments
+#: (the 24² full-resolution capture, simulated in a subprocess) and never rebuild or delete one.  The first to
+#: run builds it, the other reuses it.  (``simulate.full_resolution`` rebuilds that capture: it keeps its own folder.)
+SHARED_INPUTS = {"scale.full_resolution", "scale.fit_stages"}
 
 
 @functools.cache
@@ -48,8 +54,12 @@ def test_every_benchmark_has_smoke_arguments():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("module, name, fn", list(_cases()))
-def test_benchmark_runs_at_a_tiny_size(module, name, fn, tmp_path, monkeypatch):
-    monkeypatch.setenv("FACESTATS_BENCH_DIR", str(tmp_path))
+def test_benchmark_runs_at_a_tiny_size(module, name, fn, tmp_path, tmp_path_factory, monkeypatch):
+    from tests.helpers import once_per_session
+
+    shared = f"{module.__name__[len('bench_') :]}.{name}" in SHARED_INPUTS
+    folder = once_per_session("benchmark-inputs", tmp_path_factory, lambda folder: None) if shared else tmp_path
+    monkeypatch.setenv("FACESTATS_BENCH_DIR", str(folder))
     monkeypatch.syspath_prepend(str(BENCH))
     figures = fn(**module.SMOKE[name])
     assert isinstance(figures, dict) and figures

@@ -177,21 +177,13 @@ def bench_fit_stages(blocks=20, block=2048, grid=None, map_size=None, engine="nu
 def bench_codec(grid=256, map_size=512, lumitexels=8192):
     """Radiance decoding: Blosc-LZ4 (captures) against zarr's default zstd (module docstring)."""
     import zarr
-    from inputs import cached_input
     from zarr.codecs import BloscCodec
 
     from facestats.acquire.capture import open_capture
 
-    def make(path):
-        from facestats.acquire.synthetic.face import procedural_face
-        from facestats.acquire.synthetic.population import synthesize_population
-        from facestats.acquire.synthetic.simulate import DomeSimulator
-
-        geom = procedural_face(grid, map_size=map_size)
-        pop = synthesize_population(map_size=map_size, geometry=geom, conditions=False, seed=11, subjects=["S001"])
-        DomeSimulator(geom, block=8192).simulate_to_zarr(pop[0], path)
-
-    path, _ = cached_input(f"capture_{grid}_{map_size}.zarr", {"grid": grid, "map_size": map_size}, make)
+    # The capture of bench_simulate.full_resolution_capture at these sizes (one input, one key: the codec's own
+    # copy of it was named alike with other parameters, and each rebuilt the other's under the same name).
+    path, _ = _capture(grid, map_size)
     data = open_capture(path).arrays["radiance"][:lumitexels]
     out = {"lumitexels": int(data.shape[0])}
     with tempfile.TemporaryDirectory() as tmp:

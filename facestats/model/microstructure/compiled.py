@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from facestats.core.compiled import numba_available
+from facestats.core.compiled import numba_available, threads_at_most
 from facestats.model.microstructure.taps import (
     FOOTPRINT,
     LANCZOS,
@@ -637,14 +637,5 @@ def histogram_tv(g0x, g0y, dgx, dgy, alphas, target, lo, scale, nb, *, backend):
     args = (g0x, g0y, dgx, dgy, np.asarray(alphas, np.float64), target, float(lo), float(scale), int(nb))
     if backend == "numpy":
         return _histogram_tv_numpy(*args)
-    threads = numba.get_num_threads()
-    if args[4].size >= threads:
+    with threads_at_most(args[4].size):  # a profile's one α per σ: one thread
         return _tv_kernel()(*args)
-    # Fewer candidates than threads (a profile's one α per σ): the idle threads only cost their start-up and
-    # OpenMP's spin-wait, several ms of CPU a call against the ~0.2 ms of one α. Each α is one thread's work,
-    # so the results are the same bits.
-    numba.set_num_threads(max(args[4].size, 1))
-    try:
-        return _tv_kernel()(*args)
-    finally:
-        numba.set_num_threads(threads)

@@ -7,6 +7,10 @@ import sys
 # here. numba's ``prange`` kernels keep their own thread count (its OpenMP layer does not read OMP_NUM_THREADS).
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
+# numba's OpenMP threads spin-wait between parallel regions by default (GNU OpenMP), burning the core the other
+# worker needs: tests/model/microstructure + tests/relight took 36-43 s of CPU with it, 27-29 s passive (same
+# results: only how idle threads wait changes). Read when libgomp loads, so set before any kernel runs.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 # The processes the tests start import the checkout's sources: let them keep its bytecode in __pycache__
 # (git ignores it; numba's kernel caches live there already). Where PYTHONDONTWRITEBYTECODE is set, as in
 # this workplace, every console script, notebook kernel and worker compiled facestats afresh: about 0.2-0.3 s

@@ -29,7 +29,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from facestats.core.compiled import resolve_backend
+from facestats.core.compiled import resolve_backend, threads_at_most
 
 __all__ = ["log_radiance"]
 
@@ -69,7 +69,8 @@ def log_radiance(stack, tables, weights, dark, *, backend: str = "auto"):
         t = np.ascontiguousarray(tables, np.float32)
         w = np.ascontiguousarray(weights, np.float32)
         d = np.ascontiguousarray(dark, np.float32)
-        lookup_pass(flat, t, w, d, out.reshape(-1), den.reshape(-1), CHUNK)
+        with threads_at_most(-(-out.size // CHUNK)):  # an image of up to CHUNK samples: one thread
+            lookup_pass(flat, t, w, d, out.reshape(-1), den.reshape(-1), CHUNK)
         return out, den
     rows = shape[0] if len(shape) == 3 else 1
     blocks = [slice(a, min(a + BLOCK_ROWS, rows)) for a in range(0, rows, BLOCK_ROWS)] if rows > 1 else [slice(None)]

@@ -7,12 +7,13 @@ first question (importing it costs about a second), never at facestats' import.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 
 from facestats.core.validate import check_choice
 from facestats.errors import ValidationError
 
-__all__ = ["BACKENDS", "numba_available", "resolve_backend"]
+__all__ = ["BACKENDS", "numba_available", "resolve_backend", "threads_at_most"]
 
 #: Values of a ``backend`` argument.
 BACKENDS = ("auto", "numba", "numpy")
@@ -58,3 +59,29 @@ def resolve_backend(backend: str) -> str:
     if backend == "auto":
         return "numba" if numba_available() else "numpy"
     return backend
+
+
+@contextlib.contextmanager
+def threads_at_most(n: int):
+    """Run numba's parallel regions started in the ``with`` block on at most ``n`` threads (at least one).
+
+    A ``prange`` of fewer iterations than threads leaves the extra threads idle, yet starting the OpenMP team
+    and its threads' wait afterwards cost milliseconds of CPU a call, far more than a small kernel's work.  Each
+    iteration is still one thread's work, so the results are the same bits.  Only for code that uses numba.
+
+    Parameters
+    ----------
+    n : int
+        Parallel iterations of the kernels called in the block.
+    """
+    import numba
+
+    before = numba.get_num_threads()
+    if n >= before:
+        yield
+        return
+    numba.set_num_threads(max(int(n), 1))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)

@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from facestats.core.compiled import numba_available
+from facestats.core.compiled import numba_available, threads_at_most
 from facestats.model.microstructure.taps import (
     FOOTPRINT,
     LANCZOS,
@@ -614,6 +614,8 @@ if HAVE_NUMBA:
 def histogram_tv(g0x, g0y, dgx, dgy, alphas, target, lo, scale, nb, *, backend):
     """Total variation Σ_b |H_b(α) − target_b| (eq. 7) for the slopes ``g0 + α Δg``, every α at once.
 
+    The compiled kernel runs the α in parallel, on at most one thread per α.
+
     Parameters
     ----------
     g0x, g0y, dgx, dgy : ndarray (N,), float64
@@ -635,4 +637,5 @@ def histogram_tv(g0x, g0y, dgx, dgy, alphas, target, lo, scale, nb, *, backend):
     args = (g0x, g0y, dgx, dgy, np.asarray(alphas, np.float64), target, float(lo), float(scale), int(nb))
     if backend == "numpy":
         return _histogram_tv_numpy(*args)
-    return _tv_kernel()(*args)
+    with threads_at_most(args[4].size):  # a profile's one α per σ: one thread
+        return _tv_kernel()(*args)

@@ -1,8 +1,10 @@
 """The serial link and the drivers over a real pseudo-terminal: faults are detected, retried and counted."""
 
+import contextlib
 import os
 import pty
 import re
+import select
 import socket
 import stat
 import threading
@@ -17,6 +19,51 @@ from facestats.acquire.devices.serial_link import SerialLink
 from facestats.errors import DeviceError, DeviceReplyError, DeviceTimeout
 
 EXPOSURES = [1 / 60, 1 / 8]
+
+
+@contextlib.contextmanager
+def _device_on_pty(serve):
+    """A pseudo-terminal whose master ``serve(master, stop)`` handles in a thread; yields the slave's path.
+
+    On leaving, ``stop`` is set, the thread joined, and only then both ends closed: a thread of a finished test
+    that read or wrote a descriptor number after its close could reach whatever reused it (a later test's
+    pseudo-terminal took the request meant for its own device: "0 bytes received", once in CI).  The master is
+    non-blocking; ``serve`` waits with :func:`_ready` before each read and writes with :func:`_write_all`.
+    """
+    master, slave = pty.openpty()
+    os.set_blocking(master, False)
+    stop = threading.Event()
+    thread = threading.Thread(target=serve, args=(master, stop), daemon=True)
+    thread.start()
+    try:
+        yield os.ttyname(slave)
+    finally:
+        stop.set()
+        thread.join(10)
+        os.close(slave)
+        os.close(master)
+    assert not thread.is_alive(), "the device thread did not stop"
+
+
+def _ready(fd, stop, write=False) -> bool:
+    """Wait until ``fd`` can be read (``write``: written) or ``stop`` is set; True if it can."""
+    while not stop.is_set():
+        r, w, _ = select.select([] if write else [fd], [fd] if write else [], [], 0.05)
+        if r or w:
+            return True
+    return False
+
+
+def _write_all(fd, data, stop) -> bool:
+    """Write all of ``data`` to the non-blocking ``fd`` in order (as a blocking write would); False if stopped."""
+    while data:
+        if not _ready(fd, stop, write=True):
+            return False
+        try:
+            data = data[os.write(fd, data) :]
+        except BlockingIOError:
+            continue
+    return True
 
 
 def _server(faults=Faults(), link=None, **device):
@@ -127,29 +174,30 @@ def test_a_device_that_never_answers_times_out_with_advice():
         os.close(slave)
 
 
-def _answer_forever(master, text):
-    """A device of another protocol: answers every line with ``text``."""
-    buf = b""
-    while True:
-        try:
-            data = os.read(master, 1024)
-        except OSError:
-            return
-        buf += data
-        while b"\n" in buf:
-            _, _, buf = buf.partition(b"\n")
-            os.write(master, text)
+def _answer_forever(text):
+    """A device of another protocol, for :func:`_device_on_pty`: answers every line with ``text``."""
+
+    def serve(master, stop):
+        buf = b""
+        while _ready(master, stop):
+            try:
+                buf += os.read(master, 1024)
+            except BlockingIOError:
+                continue
+            except OSError:
+                return
+            while b"\n" in buf:
+                _, _, buf = buf.partition(b"\n")
+                if not _write_all(master, text, stop):
+                    return
+
+    return serve
 
 
 def test_a_device_of_another_protocol_is_named_as_such():
-    master, slave = pty.openpty()
-    threading.Thread(target=_answer_forever, args=(master, b"OK\r\n"), daemon=True).start()
-    try:
+    with _device_on_pty(_answer_forever(b"OK\r\n")) as port:
         with pytest.raises(DeviceTimeout, match="not facestats protocol frames .*: it speaks another protocol"):
-            DomeController(os.ttyname(slave), timeout=0.1, retries=1)
-    finally:
-        os.close(slave)
-        os.close(master)
+            DomeController(port, timeout=0.1, retries=1)
     with pytest.raises(DeviceTimeout, match="another protocol"):  # pyserial URL: the request comes back unanswered
         DomeController("loop://", timeout=0.1, retries=1)
 
@@ -264,27 +312,19 @@ def test_a_flood_of_stray_frames_is_counted_not_logged_line_by_line():
     from facestats.acquire.devices.protocol import Reply
     from facestats.acquire.devices.serial_link import MAX_NOTES
 
-    master, slave = pty.openpty()
-    stop = threading.Event()
-
-    def flood():
+    def flood(master, stop):
         k = 0
-        while not stop.is_set():
-            try:
-                os.write(master, b"".join(Reply(1000 + k + i, 999_999, "OK", "x").encode() for i in range(200)))
-            except OSError:
-                return
+        while _write_all(master, b"".join(Reply(1000 + k + i, 999_999, "OK", "x").encode() for i in range(200)), stop):
             k += 200
 
-    threading.Thread(target=flood, daemon=True).start()
     lines = []
-    try:
-        with pytest.raises(DeviceTimeout, match=r"answered 'ver' only with \d+ frames for other requests"):
-            SerialLink(os.ttyname(slave), timeout=0.3, retries=1, backoff=0.01, log=lines.append).request("ver")
-    finally:
-        stop.set()
-        os.close(slave)
-        os.close(master)
+    with _device_on_pty(flood) as port:
+        link = SerialLink(port, timeout=0.3, retries=1, backoff=0.01, log=lines.append)
+        try:
+            with pytest.raises(DeviceTimeout, match=r"answered 'ver' only with \d+ frames for other requests"):
+                link.request("ver")
+        finally:
+            link.close()
     summary = [ln for ln in lines if "more frames discarded while waiting for 'ver'" in ln]
     # The first MAX_NOTES one line each, then the count; a few more lines: a truncated frame at each attempt's end.
     assert len(summary) == 1 and MAX_NOTES < len(lines) < MAX_NOTES + 8
@@ -302,29 +342,29 @@ def test_a_garbled_line_before_each_valid_reply_does_not_hide_the_reply():
     device that sends one noise line before every intact reply was never understood (a red team)."""
     from facestats.acquire.devices.protocol import TERMINATOR, Reply
 
-    master, slave = pty.openpty()
-
-    def noisy_device():
+    def noisy_device(master, stop):
         buf, seq = b"", 0
-        while True:
+        while _ready(master, stop):
             try:
                 buf += os.read(master, 1024)
+            except BlockingIOError:
+                continue
             except OSError:
                 return
             while b"\n" in buf:
                 line, _, buf = buf.partition(b"\n")
                 seq += 1
                 reply = Reply(seq, parse_request(line).id, "OK", "facestats-dome test")
-                os.write(master, b"noise" + TERMINATOR + reply.encode())  # both in one write
+                if not _write_all(master, b"noise" + TERMINATOR + reply.encode(), stop):  # both in one write
+                    return
 
-    threading.Thread(target=noisy_device, daemon=True).start()
     lines = []
-    try:
-        link = SerialLink(os.ttyname(slave), timeout=0.5, retries=3, log=lines.append)
-        assert link.request("ver").payload == "facestats-dome test"
-        assert link.stats.garbled >= 1
-        # The log quotes the line as text, as the errors do, not as a Python bytes repr (b'noise').
-        assert any(re.fullmatch(r"garbled reply frame while waiting for request \d+: 'noise'", ln) for ln in lines)
-    finally:
-        os.close(slave)
-        os.close(master)
+    with _device_on_pty(noisy_device) as port:
+        link = SerialLink(port, timeout=0.5, retries=3, log=lines.append)
+        try:
+            assert link.request("ver").payload == "facestats-dome test"
+        finally:
+            link.close()
+    assert link.stats.garbled >= 1
+    # The log quotes the line as text, as the errors do, not as a Python bytes repr (b'noise').
+    assert any(re.fullmatch(r"garbled reply frame while waiting for request \d+: 'noise'", ln) for ln in lines)

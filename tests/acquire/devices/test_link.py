@@ -174,8 +174,8 @@ def test_a_device_that_never_answers_times_out_with_advice():
         os.close(slave)
 
 
-def _answer_forever(text):
-    """A device of another protocol, for :func:`_device_on_pty`: answers every line with ``text``."""
+def _line_device(answer):
+    """A device for :func:`_device_on_pty` that writes ``answer(line)`` (bytes) for every line it reads."""
 
     def serve(master, stop):
         buf = b""
@@ -187,15 +187,15 @@ def _answer_forever(text):
             except OSError:
                 return
             while b"\n" in buf:
-                _, _, buf = buf.partition(b"\n")
-                if not _write_all(master, text, stop):
+                line, _, buf = buf.partition(b"\n")
+                if not _write_all(master, answer(line), stop):
                     return
 
     return serve
 
 
 def test_a_device_of_another_protocol_is_named_as_such():
-    with _device_on_pty(_answer_forever(b"OK\r\n")) as port:
+    with _device_on_pty(_line_device(lambda line: b"OK\r\n")) as port:  # another protocol
         with pytest.raises(DeviceTimeout, match="not facestats protocol frames .*: it speaks another protocol"):
             DomeController(port, timeout=0.1, retries=1)
     with pytest.raises(DeviceTimeout, match="another protocol"):  # pyserial URL: the request comes back unanswered
@@ -342,24 +342,13 @@ def test_a_garbled_line_before_each_valid_reply_does_not_hide_the_reply():
     device that sends one noise line before every intact reply was never understood (a red team)."""
     from facestats.acquire.devices.protocol import TERMINATOR, Reply
 
-    def noisy_device(master, stop):
-        buf, seq = b"", 0
-        while _ready(master, stop):
-            try:
-                buf += os.read(master, 1024)
-            except BlockingIOError:
-                continue
-            except OSError:
-                return
-            while b"\n" in buf:
-                line, _, buf = buf.partition(b"\n")
-                seq += 1
-                reply = Reply(seq, parse_request(line).id, "OK", "facestats-dome test")
-                if not _write_all(master, b"noise" + TERMINATOR + reply.encode(), stop):  # both in one write
-                    return
+    seq = iter(range(1, 1000))
+
+    def noisy(line):  # a noise line and the reply, in one write
+        return b"noise" + TERMINATOR + Reply(next(seq), parse_request(line).id, "OK", "facestats-dome test").encode()
 
     lines = []
-    with _device_on_pty(noisy_device) as port:
+    with _device_on_pty(_line_device(noisy)) as port:
         link = SerialLink(port, timeout=0.5, retries=3, log=lines.append)
         try:
             assert link.request("ver").payload == "facestats-dome test"

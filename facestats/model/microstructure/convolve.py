@@ -23,6 +23,8 @@ or from outside the map.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from facestats.core.compiled import resolve_backend
@@ -30,8 +32,51 @@ from facestats.core.validate import as_finite, as_float
 from facestats.errors import ValidationError
 from facestats.model.microstructure.compiled import convolve_pass, padded_empty
 from facestats.model.microstructure.kernel import ALPHA_RANGE, MAX_RADIUS, SIGMA_RANGE_UM, TRUNCATE
+from facestats.model.microstructure.taps import LANCZOS
 
-__all__ = ["convolve_displacement", "island_reach"]
+__all__ = [
+    "convolve_displacement",
+    "island_reach",
+    "displacement_limit",
+    "MAX_PASS_GAIN",
+    "LANCZOS_GAIN",
+    "MAX_WEIGHT_SUM",
+]
+
+#: Bound of max|out| / max|in| of one pass: Σ|k_i| ≤ 1 + 2 max|α| (eq. 6: for α < 0 the centre tap is
+#: 1 + |α| (1 − G_0) and the side taps sum to |α| (1 − G_0); for α ≥ 0 all taps are ≥ 0 and sum to 1;
+#: renormalising at a border keeps both), times :data:`LANCZOS_GAIN`.
+LANCZOS_GAIN = float(np.abs(LANCZOS).sum(axis=1).max())
+MAX_PASS_GAIN = (1.0 + 2.0 * max(abs(a) for a in ALPHA_RANGE)) * LANCZOS_GAIN
+#: Bound of Σ g_i, the unnormalised Gaussian weights a pass sums before dividing by them:
+#: Σ_i exp(−i² / (2 s²)) ≤ 1 + 2 ∫_0^∞ exp(−x² / (2 s²)) dx = 1 + s √(2π) (a decreasing summand), with
+#: s ≤ MAX_RADIUS / TRUNCATE taps (the largest kernel :func:`convolve_displacement` accepts).
+MAX_WEIGHT_SUM = 1.0 + math.sqrt(2.0 * math.pi) * MAX_RADIUS / TRUNCATE
+
+
+def displacement_limit(dtype) -> float:
+    """Largest |value| of a displacement map of ``dtype`` that the two passes convolve without overflow.
+
+    Each pass stores its result in the map's dtype, at most :data:`MAX_PASS_GAIN` times its input, so two
+    passes need ``max|D| · MAX_PASS_GAIN² ≤`` the dtype's largest number.  Each tap reads its value from
+    Lanczos-3 weights in the map's dtype (at most :data:`LANCZOS_GAIN` times the input) and the pass sums
+    ``g_i`` times these in float64 before dividing by Σ g_i, so the second pass also needs
+    ``max|D| · MAX_PASS_GAIN · LANCZOS_GAIN · MAX_WEIGHT_SUM ≤`` float64's largest number.  The smaller bound,
+    with 0.1 % to spare for rounding: about 5.7e36 for float32 and 4.4e303 for float64, far beyond any
+    displacement (µm), so only damaged or hostile maps meet it (a float32 map of ±3e38 sharpened to inf).
+
+    Parameters
+    ----------
+    dtype : numpy dtype
+        float32 or float64.
+
+    Returns
+    -------
+    float
+    """
+    stored = float(np.finfo(dtype).max) / MAX_PASS_GAIN**2
+    summed = float(np.finfo(np.float64).max) / (MAX_PASS_GAIN * LANCZOS_GAIN * MAX_WEIGHT_SUM)
+    return min(stored, summed) / 1.001
 
 
 def _bounded(arr, name, low=None, high=None, unit=""):
@@ -55,7 +100,8 @@ def _map(displacement):
         raise ValidationError(f"displacement must be a float32 or float64 map, got dtype {d.dtype}")
     if d.ndim != 2 or min(d.shape) < 1:
         raise ValidationError(f"displacement must be a 2-D map (v, u), got shape {d.shape}")
-    return _bounded(d, "displacement")
+    limit = displacement_limit(d.dtype)
+    return _bounded(d, "displacement", -limit, limit)
 
 
 def _field(value, name, shape, bounds, unit=""):
@@ -183,7 +229,7 @@ def convolve_displacement(
     Parameters
     ----------
     displacement : ndarray, shape (H, W), float32 or float64
-        Neutral displacement map D, indexed ``[v, u]``.
+        Neutral displacement map D, indexed ``[v, u]``; |values| at most :func:`displacement_limit` of its dtype.
     axis_s : array_like, shape (2,) or (H, W, 2)
         Unit direction ``(a_u, a_v)`` of the first pass (the stretch axis), texel units.
     alpha_s, sigma_s : float or ndarray (H, W)
@@ -204,6 +250,12 @@ def convolve_displacement(
     -------
     ndarray, shape (H, W), dtype of ``displacement``
         The deformed displacement map D'.
+
+    Raises
+    ------
+    ValidationError
+        A bad argument, named; among them a displacement beyond :func:`displacement_limit` of its dtype (a
+        sharpening pass could overflow it to inf).
     """
     d = _map(displacement)
     shape = d.shape

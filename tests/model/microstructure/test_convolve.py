@@ -144,6 +144,27 @@ def test_bad_input_names_the_argument(kwargs, match):
         convolve_displacement(**args)
 
 
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_maps_up_to_the_limit_stay_finite_and_beyond_it_are_refused(backend, dtype):
+    from facestats.model.microstructure.convolve import MAX_PASS_GAIN, displacement_limit
+
+    limit = displacement_limit(dtype)
+    assert limit * MAX_PASS_GAIN**2 <= np.finfo(dtype).max
+    assert limit > {np.float32: 5e36, np.float64: 4e303}[dtype]  # not stricter than the docstring says
+    rng = np.random.default_rng(4)
+    d = np.where(rng.random((40, 40)) < 0.5, -limit, limit).astype(dtype)
+    d[20] = -limit  # a row sharpened against its neighbours: the largest overshoot of the test
+    d[20, 20] = limit
+    args = dict(axis_s=(0.8, 0.6), alpha_s=-2.0, sigma_s=4.0, alpha_t=-2.0, sigma_t=4.0, texel_um=2.0)
+    out = convolve_displacement(d, **args, backend=backend)
+    assert np.isfinite(out).all() and np.abs(out).max() > 2 * limit  # sharpened well beyond the input
+    # An eighth of the dtype's largest number: sharpened to inf before the limit (float32 maps of 3e38).
+    over = (d * (np.finfo(dtype).max / limit / 8)).astype(dtype)
+    with pytest.raises(FacestatsError, match=r"displacement must lie in \[-"):
+        convolve_displacement(over, **args, backend=backend)
+
+
 def test_compiled_tap_positions_equal_the_exact_formula_of_the_numpy_twin():
     """The vectorised position loop of the compiled pass finds the texels and Lanczos rows of taps.tap_across."""
     compiled = pytest.importorskip("facestats.model.microstructure.compiled")

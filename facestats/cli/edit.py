@@ -1,10 +1,14 @@
 """``facestats edit``: appearance edits of store subjects (Weyrich et al. 2006 §8).
 
 Parsing and printing only.  Each action makes one call to
-:mod:`facestats.edit.subjects`, which writes the edited subject under a new id
-with its provenance, then saves before/after PNGs
-(:func:`facestats.edit.plots.save_edit_images`) and prints the report of the
-result (:meth:`facestats.edit.SubjectEdit.to_text`).  The target options
+:mod:`facestats.edit.subjects` with ``commit=False``, which makes the edited
+subject (new id, provenance) without writing it
+(:class:`facestats.edit.session.PendingEdit`); then, all or none as far as the
+file system allows, the before/after PNGs are rendered under temporary names in
+the ``--images`` folder (:func:`facestats.edit.plots.stage_edit_images` in a
+:class:`facestats.core.outputs.OutputSet`), the subject is committed, and the
+PNGs are renamed into place; the report of the result
+(:meth:`facestats.edit.SubjectEdit.to_text`) is printed last.  The target options
 become an API target through :func:`facestats.edit.targets.target_from_options`.
 Heavy modules are imported inside the commands.
 
@@ -128,32 +132,58 @@ def _open(args):
     return store, store
 
 
-def _report(edit, args) -> int:
-    from facestats.edit.plots import save_edit_images
-    from facestats.errors import FacestatsError
+def _report(pending, images) -> int:
+    """Save the images of a pending edit and commit it, all or none as far as the file system allows; print it.
 
+    The PNGs are rendered under temporary names beside their targets in the ``--images`` folder ``images``
+    (:func:`facestats.edit.plots.stage_edit_images` in a :class:`facestats.core.outputs.OutputSet`), then the
+    subject is committed (:meth:`facestats.edit.session.PendingEdit.commit`), then the PNGs are renamed into
+    place (:func:`os.replace`, atomic per file; an existing PNG, with ``--overwrite``, is put back if a rename
+    fails).  A failure or an interruption before the commit leaves neither the subject nor a PNG (a folder
+    made for them is removed); one while renaming, after the commit, leaves the folder as it was, and the
+    message says that the subject was written.  The exit code: 0, or 130 when interrupted after the commit.
+    """
+    from facestats.core.outputs import OutputSet
+    from facestats.edit.plots import stage_edit_images
+    from facestats.errors import FacestatsError, StoreError
+
+    edit = pending.edit
     try:
-        files = save_edit_images(edit, args.images)
-    except (OSError, FacestatsError) as exc:
-        reason = exc.strerror if isinstance(exc, OSError) else str(exc)
+        with OutputSet(images) as out:  # the PNGs under temporary names; renamed into place when the block ends
+            stage_edit_images(edit, out)
+            try:
+                pending.commit()
+            except OSError as exc:  # the store's failure: the OutputSet would report an OSError as the images'
+                raise StoreError(
+                    f"cannot write subject {edit.subject_id!r} to store {edit.store}: {exc.strerror or exc}; "
+                    "nothing was written"
+                ) from None
+    except FacestatsError as exc:
+        if not pending.committed:
+            raise
         raise FacestatsError(
             f"the edited subject {edit.subject_id!r} was written to store {edit.store}, but its images could not be "
-            f"saved in {args.images} ({reason}); free space or choose another --images folder and rerun the same "
-            "command with --overwrite"
+            f"moved into {images}, which is as it was ({exc}); rerun the same command with --overwrite to make them"
         ) from None
-    except KeyboardInterrupt:  # the subject is committed: say so, not only "interrupted"
-        print(
+    except KeyboardInterrupt:
+        if not pending.committed:
+            raise
+        print(  # the subject is committed: say so, not only "interrupted"
             f"facestats: interrupted: the edited subject {edit.subject_id!r} was written to store {edit.store}, its "
-            f"images were not saved in {args.images}; rerun the same command with --overwrite to make them",
+            f"images were not moved into {images}, which is as it was; rerun the same command with --overwrite to "
+            "make them",
             file=sys.stderr,
         )
         return 130
-    print(edit.to_text(images=files, directory=args.images))
+    print(edit.to_text(images=out.written, directory=images))
     return 0
 
 
-def _check_outputs(args) -> None:
-    """The new id and the images folder, checked before any work (a failed command leaves no side effects)."""
+def _check_outputs(args):
+    """The new id and the images folder, checked before any work (a failed command leaves no side effects).
+
+    Returns the ``--images`` folder (``~`` expanded, :func:`facestats.core.outputs.check_output_dir`).
+    """
     from facestats.core.outputs import check_apart, check_names_free, check_output_dir
     from facestats.errors import ValidationError
     from facestats.io.ids import check_subject_id
@@ -180,24 +210,33 @@ def _check_outputs(args) -> None:
     if args.out_store is not None:  # the source store itself, or a store elsewhere; never one nested inside it
         check_apart(args.out_store, source, "--out-store", "the source store", same=True)
         check_apart(args.images, args.out_store, "--images", "the output store")
+    return images
 
 
 def _run(args, edit_function, target, **kwargs) -> int:
-    """Open the stores, make the edit ``edit_function(store, SUBJECT, target, ...)``, report it; the exit code.
+    """Open the stores, make the edit ``edit_function(store, SUBJECT, target, ..., commit=False)``, save its images
+    and commit it (:func:`_report`), report it; the exit code.
 
-    A store created by ``--out-store`` is removed again if the edit fails before writing into it.
+    A store created by ``--out-store`` is removed again if the command fails before the subject is written.
     """
     from facestats.io.root import new_store_guard
 
-    _check_outputs(args)
+    images = _check_outputs(args)
     with new_store_guard(args.out_store):
         store, out = _open(args)
         with store, out:
             with named_options(t="--t", feather="--feather", seed="--seed"):  # the options, not the API's names
-                edit = edit_function(
-                    store, args.subject, target, out_store=out, new_id=args.new_id, overwrite=args.overwrite, **kwargs
+                pending = edit_function(
+                    store,
+                    args.subject,
+                    target,
+                    out_store=out,
+                    new_id=args.new_id,
+                    overwrite=args.overwrite,
+                    commit=False,
+                    **kwargs,
                 )
-            return _report(edit, args)
+            return _report(pending, images)
 
 
 def _cmd_skin_type(args) -> int:
@@ -284,9 +323,9 @@ def add_edit(sub) -> None:
     Returns
     -------
     None
-        The handlers (``func``) return 0, or 130 when interrupted after the subject was written but before its images
-        were saved; ``edit`` alone prints its help and returns 2; a :class:`~facestats.errors.FacestatsError` raised
-        becomes exit status 2 in :func:`facestats.cli.main`.
+        The handlers (``func``) return 0, or 130 when interrupted after the subject was written, while its images
+        were moved into place; ``edit`` alone prints its help and returns 2; a
+        :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in :func:`facestats.cli.main`.
     """
     p = sub.add_parser(
         "edit",

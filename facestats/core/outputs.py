@@ -444,12 +444,7 @@ class OutputSet:
                 os.replace(tmp, final)
                 placed.append(final)
         except BaseException:
-            restored = {final for _, final in kept}
-            for final in placed:
-                if final not in restored:
-                    _remove(final)
-            for backup, final in kept:
-                os.replace(backup, final)
+            _put_back(placed, kept)
             raise
         for backup, _ in kept:
             _remove(backup)
@@ -463,6 +458,22 @@ class OutputSet:
                 os.rmdir(d)
             except OSError:
                 pass
+
+
+def _put_back(placed, kept) -> None:
+    """Undo the renames of :meth:`OutputSet._commit`: remove the new files ``placed`` that had no old file, put each
+    old file back from its backup (``kept``: (backup, target) pairs), and remove the backups of targets that were
+    not reached, which still are the old files (their backup is a second name for them, and a rename of one name
+    of a file onto another does nothing: POSIX ``rename``)."""
+    restored = {final for _, final in kept}
+    for final in placed:
+        if final not in restored:
+            _remove(final)
+    for backup, final in kept:
+        if final in placed:
+            os.replace(backup, final)
+        else:
+            _remove(backup)
 
 
 def _remove(path) -> None:

@@ -20,7 +20,8 @@ Store-level edits that write a new subject with its provenance
 :func:`transfer_texture_subject`, :func:`subject_texture_statistics`; their
 targets (:func:`select_subjects`, :mod:`~facestats.edit.targets`), the edit
 session that reads the source and writes the result
-(:mod:`~facestats.edit.session`), the result :class:`SubjectEdit`
+(:mod:`~facestats.edit.session`), the result :class:`SubjectEdit` (or, with
+``commit=False``, a :class:`PendingEdit` written by its ``commit()``)
 (:mod:`~facestats.edit.result`) and the translucency that follows the albedo
 (:mod:`~facestats.edit.translucency`).
 
@@ -44,6 +45,7 @@ from facestats.edit.histogram import (
 )
 from facestats.edit.pyramid import SteerablePyramid, band_names, max_levels
 from facestats.edit.result import SubjectEdit
+from facestats.edit.session import PendingEdit
 from facestats.edit.statistics import TextureStatistics, region_statistics
 from facestats.edit.subjects import (
     change_skin_type,
@@ -58,6 +60,7 @@ from facestats.edit.texture import TextureTransfer, transfer_texture
 __all__ = [
     "ColourBasis",
     "Histogram",
+    "PendingEdit",
     "SteerablePyramid",
     "SubjectEdit",
     "TextureStatistics",

@@ -1,7 +1,8 @@
 """Figures of appearance edits: before/after maps, convergence, histogram interpolation, PNG export.
 
 Each ``plot_*`` function returns a :class:`matplotlib.figure.Figure` (no pyplot
-state, no ``show``); :func:`save_edit_images` writes PNGs.  matplotlib is
+state, no ``show``); :func:`save_edit_images` writes PNGs (:func:`stage_edit_images` into an
+:class:`~facestats.core.outputs.OutputSet` of the caller's).  matplotlib is
 imported when a function is called.  Linear-RGB albedo is displayed with the
 sRGB transfer function of IEC 61966-2-1 (through
 :func:`facestats.io.images.linear_to_srgb`).  The summary figure draws maps of at
@@ -26,6 +27,7 @@ __all__ = [
     "plot_histogram_interpolation",
     "plot_subject_edit",
     "save_edit_images",
+    "stage_edit_images",
     "edit_image_names",
 ]
 
@@ -267,6 +269,54 @@ def edit_image_names(subject_id: str) -> list[str]:
     ]
 
 
+def stage_edit_images(edit: SubjectEdit, outputs: OutputSet) -> None:
+    """Render the before/after PNGs of an edit into an open :class:`~facestats.core.outputs.OutputSet`.
+
+    Each file is written under the temporary name ``outputs.path(name)`` gives (hidden, beside its target, in the
+    set's folder); they are renamed into place, all or none, when the set's ``with`` block ends, and removed if it
+    fails.  The files and their contents are those of :func:`save_edit_images`, which is this function in a set
+    of its own.  ``facestats edit`` stages them before it commits a pending edit
+    (:class:`~facestats.edit.session.PendingEdit`) in the same block, so that the images appear only for a
+    subject that was written, and a failure to write them leaves the store as it was.
+
+    Parameters
+    ----------
+    edit : SubjectEdit
+        Result of one of the subject edits (written or pending: only its datasets are drawn).
+    outputs : facestats.core.outputs.OutputSet
+        The set, inside its ``with`` block; the names are relative to its folder.
+
+    Returns
+    -------
+    None
+        After the block, ``outputs.written`` lists the files.
+    """
+    import matplotlib.pyplot as plt
+    from matplotlib import colormaps
+    from matplotlib.image import imsave
+
+    _check_edit(edit)
+    face = np.asarray(edit.source["region"].values) > 0
+    cmap = colormaps["viridis"]
+    for when, ds in (("before", edit.source), ("after", edit.dataset)):
+        imsave(
+            outputs.path(f"{edit.subject_id}_albedo_{when}.png"), _upscale(_display(np.asarray(ds["albedo"].values)))
+        )
+    for var in edit.brdf_variables:
+        before = np.asarray(edit.source[var].values, np.float32)
+        after = np.asarray(edit.dataset[var].values, np.float32)
+        lo, hi = _map_range(before, after, face)
+        for when, img in (("before", before), ("after", after)):
+            rgb = cmap(np.clip((img - lo) / (hi - lo), 0.0, 1.0), bytes=True)[..., :3]  # 8-bit, as written
+            rgb[~face] = 0
+            imsave(outputs.path(f"{edit.subject_id}_{var}_{when}.png"), _upscale(rgb))
+    fig = plot_subject_edit(edit)
+    try:
+        fig.savefig(outputs.path(f"{edit.subject_id}_summary.png"), dpi=100)
+    finally:
+        plt.close(fig)
+
+
 def save_edit_images(edit: SubjectEdit, directory=".") -> list[pathlib.Path]:
     """Write before/after PNGs of an edit.
 
@@ -277,6 +327,8 @@ def save_edit_images(edit: SubjectEdit, directory=".") -> list[pathlib.Path]:
     for both, 1st-99th percentile of the face texels; black outside the face),
     and ``<id>_summary.png`` (:func:`plot_subject_edit`, with colour bars).
     Small maps are enlarged by pixel repetition to at least 256 pixels a side.
+    To write them together with something else, all or none, use
+    :func:`stage_edit_images` in an :class:`~facestats.core.outputs.OutputSet`.
 
     Parameters
     ----------
@@ -291,30 +343,8 @@ def save_edit_images(edit: SubjectEdit, directory=".") -> list[pathlib.Path]:
     list of pathlib.Path
         The files written.
     """
-    import matplotlib.pyplot as plt
-    from matplotlib import colormaps
-    from matplotlib.image import imsave
-
     _check_edit(edit)
     d = check_output_dir(directory, "directory")
-    face = np.asarray(edit.source["region"].values) > 0
-    cmap = colormaps["viridis"]
     with OutputSet(d) as out:  # all files or none
-        for when, ds in (("before", edit.source), ("after", edit.dataset)):
-            imsave(
-                out.path(f"{edit.subject_id}_albedo_{when}.png"), _upscale(_display(np.asarray(ds["albedo"].values)))
-            )
-        for var in edit.brdf_variables:
-            before = np.asarray(edit.source[var].values, np.float32)
-            after = np.asarray(edit.dataset[var].values, np.float32)
-            lo, hi = _map_range(before, after, face)
-            for when, img in (("before", before), ("after", after)):
-                rgb = cmap(np.clip((img - lo) / (hi - lo), 0.0, 1.0), bytes=True)[..., :3]  # 8-bit, as written
-                rgb[~face] = 0
-                imsave(out.path(f"{edit.subject_id}_{var}_{when}.png"), _upscale(rgb))
-        fig = plot_subject_edit(edit)
-        try:
-            fig.savefig(out.path(f"{edit.subject_id}_summary.png"), dpi=100)
-        finally:
-            plt.close(fig)
+        stage_edit_images(edit, out)
     return out.written

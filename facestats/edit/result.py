@@ -1,6 +1,6 @@
 """The result of a store-level edit: the new subject and what was done (:class:`SubjectEdit`).
 
-Written by :meth:`facestats.edit.session.EditSession.write`; summarised by
+Made by :meth:`facestats.edit.session.EditSession.write`; summarised by
 :meth:`SubjectEdit.region_means` (a table of means before/after/target),
 :meth:`SubjectEdit.to_dict` (plain data) and :meth:`SubjectEdit.to_text` (the
 report ``facestats edit`` prints); drawn by
@@ -36,7 +36,7 @@ class SubjectEdit:
     subject_id : str
         Id of the new subject.
     dataset : xarray.Dataset
-        The new subject as written.
+        The new subject as written (or, in a :class:`~facestats.edit.session.PendingEdit`, as it will be).
     source : xarray.Dataset
         The source subject as read (unchanged).  In both, the variables no edit reads
         (:data:`facestats.edit.session.ON_DISK`: micro-normals) are dask arrays read from the
@@ -47,7 +47,7 @@ class SubjectEdit:
         The edit record stored in the provenance: ``name``, ``parameters``,
         ``target``, ``regions_edited``.
     store : str
-        Label of the store the subject was written to.
+        Label of the store the subject was (or, pending, will be) written to.
     variables : tuple of str
         Variables whose values the edit changed.
     targets : tuple of str

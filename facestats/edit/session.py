@@ -23,7 +23,10 @@ which :class:`EditSession` holds once:
    ``source_provenance`` (the source's own provenance), ``edit`` (``name``,
    ``parameters``, ``target``, ``regions_edited``) and ``software``; writes the
    subject with :meth:`facestats.io.Store.write_subject` and returns a
-   :class:`~facestats.edit.result.SubjectEdit`.
+   :class:`~facestats.edit.result.SubjectEdit`.  With ``commit=False`` it
+   writes nothing and returns a :class:`PendingEdit`: the complete result, whose
+   :meth:`PendingEdit.commit` writes it later (``facestats edit`` saves the
+   before/after images first, so that a failure there leaves the store as it was).
 """
 
 from __future__ import annotations
@@ -40,7 +43,15 @@ from facestats.edit.masks import parse_regions, present_regions
 from facestats.edit.result import SubjectEdit
 from facestats.errors import SchemaError, StoreError, ValidationError
 
-__all__ = ["EDIT_SOURCE", "ON_DISK", "EditSession", "check_store", "read_map_subject", "replace_values"]
+__all__ = [
+    "EDIT_SOURCE",
+    "ON_DISK",
+    "EditSession",
+    "PendingEdit",
+    "check_store",
+    "read_map_subject",
+    "replace_values",
+]
 
 
 def check_store(store, name):
@@ -288,7 +299,9 @@ class EditSession:
         """
         replace_values(self.dataset, name, values)
 
-    def write(self, record, *, variables, targets=(), target_means=None, texture=None, attrs=None) -> SubjectEdit:
+    def write(
+        self, record, *, variables, targets=(), target_means=None, texture=None, attrs=None, commit=True
+    ) -> SubjectEdit | PendingEdit:
         """Set id, attributes and provenance of the working copy, write it to :attr:`out` and return the result.
 
         Parameters
@@ -306,10 +319,14 @@ class EditSession:
             Convergence report of a texture transfer.
         attrs : dict, optional
             Attributes that change with the edit (e.g. ``skin_type``).
+        commit : bool
+            Write the new subject now (default); False: write nothing and return a :class:`PendingEdit`, whose
+            :meth:`~PendingEdit.commit` writes it.
 
         Returns
         -------
-        SubjectEdit
+        SubjectEdit or PendingEdit
+            The result, written; with ``commit=False`` the result to write.
         """
         # local import: keeps facestats.io (22 modules) out of this module's import
         from facestats.io.schema import STANDARD_ERRORS, provenance, set_provenance, set_variable_attrs
@@ -332,14 +349,7 @@ class EditSession:
             software=f"facestats {__version__}",
         )
         set_variable_attrs(ds)
-        try:
-            self.out.write_subject(ds, overwrite=self.overwrite)  # ON_DISK variables band by band (Store docs)
-        except SchemaError as exc:  # e.g. a source variable left on disk (ON_DISK), checked only now
-            raise SchemaError(
-                f"{exc} (in the edit of subject {self.source_id!r}, whose unedited variables are copied as stored; "
-                "nothing was written)"
-            ) from None
-        return SubjectEdit(
+        edit = SubjectEdit(
             subject_id=self.new_id,
             dataset=ds,
             source=self.source,
@@ -350,3 +360,75 @@ class EditSession:
             target_means=target_means or {},
             texture=texture,
         )
+        pending = PendingEdit(self.out, edit, overwrite=self.overwrite)
+        return pending.commit() if commit else pending
+
+
+class PendingEdit:
+    """An edit made but not yet written: what a store-level edit returns with ``commit=False``.
+
+    :attr:`edit` is the complete result (the new subject with its id, attributes and provenance, exactly as it
+    will be written), so a caller can first do what must succeed before the store changes, then write it with
+    :meth:`commit`.  Until then the output store is untouched; a pending edit never committed leaves nothing
+    behind.  ``facestats edit`` saves the before/after images under temporary names, commits, then renames
+    them into place, so that a failed command leaves neither a subject nor images.  Commit while the stores are
+    open: the variables left on disk (:data:`ON_DISK`) are read from the source's files as the subject is
+    written, and :meth:`facestats.io.Store.write_subject` checks again that the id is free (unless
+    ``overwrite``), so a subject written meanwhile by another writer is not replaced.
+
+    Parameters
+    ----------
+    out : facestats.io.Store
+        The writable store the subject goes to.
+    edit : SubjectEdit
+        The result to write (:meth:`EditSession.write` with ``commit=False`` makes both).
+    overwrite : bool
+        Replace an existing subject of the same id (checked by :meth:`EditSession.assign_id`).
+
+    Attributes
+    ----------
+    edit : SubjectEdit
+        The result; its ``store`` is the label of ``out``.
+    committed : bool
+        Whether :meth:`commit` has written it.
+    """
+
+    def __init__(self, out, edit: SubjectEdit, *, overwrite: bool = False):
+        self.edit = edit
+        self.committed = False
+        self._out = out
+        self._overwrite = bool(overwrite)
+
+    def __repr__(self) -> str:
+        state = "committed" if self.committed else "not written"
+        return f"PendingEdit({self.edit.subject_id!r} -> store {self.edit.store}, {state})"
+
+    def commit(self) -> SubjectEdit:
+        """Write the new subject to the output store (atomic: :meth:`facestats.io.Store.write_subject`).
+
+        Writes once: a second call returns the result without writing again.
+
+        Returns
+        -------
+        SubjectEdit
+            :attr:`edit`, now written.
+
+        Raises
+        ------
+        StoreError
+            The id was taken meanwhile (without ``overwrite``), the store is closed, or the write failed (e.g. a
+            full disk); nothing was written.
+        SchemaError
+            A source variable left on disk (:data:`ON_DISK`) is invalid, found only now; nothing was written.
+        """
+        if self.committed:
+            return self.edit
+        try:
+            self._out.write_subject(self.edit.dataset, overwrite=self._overwrite)  # ON_DISK band by band (Store)
+        except SchemaError as exc:  # e.g. a source variable left on disk (ON_DISK), checked only now
+            raise SchemaError(
+                f"{exc} (in the edit of subject {self.edit.source.attrs['subject_id']!r}, whose unedited variables "
+                "are copied as stored; nothing was written)"
+            ) from None
+        self.committed = True
+        return self.edit

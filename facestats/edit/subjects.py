@@ -27,6 +27,11 @@ Each edit is the same few steps around its own computation:
 * the **translucency** (§5.4) follows the new albedo after a colour, texture or
   skin-type edit unless ``keep_translucency``: :mod:`facestats.edit.translucency`.
 
+Each writes the new subject before it returns; with ``commit=False`` it writes
+nothing and returns a :class:`~facestats.edit.session.PendingEdit` whose
+``commit()`` writes it, so that a caller can first do what must succeed
+before the store changes (``facestats edit`` saves its images first).
+
 The new subject is a copy of the source with the edited variables replaced.
 ``skin_type`` (:func:`change_skin_type`) and ``condition``
 (:func:`transfer_brdf_subject` with a ``condition`` query) become the target's
@@ -48,7 +53,7 @@ from facestats.edit.grids import supported_levels
 from facestats.edit.histogram import check_t
 from facestats.edit.masks import face_mask, parse_regions, present_regions, region_labels
 from facestats.edit.result import SubjectEdit
-from facestats.edit.session import EDIT_SOURCE, EditSession, check_store, read_map_subject
+from facestats.edit.session import EDIT_SOURCE, EditSession, PendingEdit, check_store, read_map_subject
 from facestats.edit.statistics import TextureStatistics
 from facestats.edit.targets import (
     MAX_ALBEDO_SAMPLES,
@@ -64,6 +69,7 @@ from facestats.errors import ValidationError
 
 __all__ = [
     "EDIT_SOURCE",
+    "PendingEdit",
     "SubjectEdit",
     "change_skin_type",
     "transfer_brdf_subject",
@@ -119,7 +125,8 @@ def transfer_brdf_subject(
     out_store=None,
     new_id=None,
     overwrite: bool = False,
-) -> SubjectEdit:
+    commit: bool = True,
+) -> SubjectEdit | PendingEdit:
     """BRDF transfer per face region from a subject or a population subset (Weyrich et al. 2006 §8).
 
     Per region and parameter the source texels' values move to the target's
@@ -154,10 +161,14 @@ def transfer_brdf_subject(
         Id of the new subject (default ``<subject>.<edit>-<digest>``, :mod:`facestats.edit.session`).
     overwrite : bool
         Replace an existing subject ``new_id`` of ``out_store`` (never the source itself).
+    commit : bool
+        Write the new subject (default); False: write nothing and return a :class:`PendingEdit`, whose
+        ``commit()`` writes it (:mod:`facestats.edit.session`).
 
     Returns
     -------
-    SubjectEdit
+    SubjectEdit or PendingEdit
+        The result, written; with ``commit=False`` the result to write.
     """
     session = EditSession(store, out_store)
     t = check_t(t)
@@ -177,7 +188,9 @@ def transfer_brdf_subject(
     attrs = {}
     if t == 1.0 and target.record.get("query", {}).get("condition") is not None:
         attrs["condition"] = target.record["query"]["condition"]
-    return session.write(record, variables=changed, targets=target.subjects, target_means=means, attrs=attrs)
+    return session.write(
+        record, variables=changed, targets=target.subjects, target_means=means, attrs=attrs, commit=commit
+    )
 
 
 def transfer_colour_subject(
@@ -194,7 +207,8 @@ def transfer_colour_subject(
     out_store=None,
     new_id=None,
     overwrite: bool = False,
-) -> SubjectEdit:
+    commit: bool = True,
+) -> SubjectEdit | PendingEdit:
     """Skin-colour transfer: albedo histograms in a decorrelated colour space (Weyrich et al. 2006 §8).
 
     The albedo of the face (or of ``regions``) is matched, channel by channel
@@ -231,10 +245,14 @@ def transfer_colour_subject(
         Id of the new subject (default ``<subject>.<edit>-<digest>``, :mod:`facestats.edit.session`).
     overwrite : bool
         Replace an existing subject ``new_id`` of ``out_store`` (never the source itself).
+    commit : bool
+        Write the new subject (default); False: write nothing and return a :class:`PendingEdit`, whose
+        ``commit()`` writes it (:mod:`facestats.edit.session`).
 
     Returns
     -------
-    SubjectEdit
+    SubjectEdit or PendingEdit
+        The result, written; with ``commit=False`` the result to write.
     """
     session = EditSession(store, out_store)
     t = check_t(t)
@@ -262,7 +280,7 @@ def transfer_colour_subject(
     )
     changed = ["albedo"] + follow_translucency(session.dataset, keep_translucency)
     record["regions_edited"] = regions or list(session.present)
-    return session.write(record, variables=changed, targets=target.subjects, target_means=means)
+    return session.write(record, variables=changed, targets=target.subjects, target_means=means, commit=commit)
 
 
 def change_skin_type(
@@ -280,7 +298,8 @@ def change_skin_type(
     out_store=None,
     new_id=None,
     overwrite: bool = False,
-) -> SubjectEdit:
+    commit: bool = True,
+) -> SubjectEdit | PendingEdit:
     """Change a face's skin type with the statistics of the population subset of that type (§8, e.g. II → V).
 
     The target is the subset of ``store`` with Fitzpatrick type ``skin_type``
@@ -320,10 +339,14 @@ def change_skin_type(
         Id of the new subject (default ``<subject>.<edit>-<digest>``, :mod:`facestats.edit.session`).
     overwrite : bool
         Replace an existing subject ``new_id`` of ``out_store`` (never the source itself).
+    commit : bool
+        Write the new subject (default); False: write nothing and return a :class:`PendingEdit`, whose
+        ``commit()`` writes it (:mod:`facestats.edit.session`).
 
     Returns
     -------
-    SubjectEdit
+    SubjectEdit or PendingEdit
+        The result, written; with ``commit=False`` the result to write.
     """
     session = EditSession(store, out_store)
     st = parse_skin_type(skin_type)
@@ -360,7 +383,9 @@ def change_skin_type(
         edited.update(e)
     record["regions_edited"] = edited
     attrs = {"skin_type": st} if t == 1.0 else {}
-    return session.write(record, variables=changed, targets=target.subjects, target_means=means, attrs=attrs)
+    return session.write(
+        record, variables=changed, targets=target.subjects, target_means=means, attrs=attrs, commit=commit
+    )
 
 
 def _subject_texture_target(store, target_id, region, regions, levels, orientations, bins):
@@ -391,7 +416,8 @@ def transfer_texture_subject(
     out_store=None,
     new_id=None,
     overwrite: bool = False,
-) -> SubjectEdit:
+    commit: bool = True,
+) -> SubjectEdit | PendingEdit:
     """Skin-texture transfer by Heeger-Bergen histogram matching (Weyrich et al. 2006 §8), e.g. of freckled skin.
 
     The subject's albedo receives the target's texture statistics
@@ -441,11 +467,15 @@ def transfer_texture_subject(
         Id of the new subject (default ``<subject>.<edit>-<digest>``, :mod:`facestats.edit.session`).
     overwrite : bool
         Replace an existing subject ``new_id`` of ``out_store`` (never the source itself).
+    commit : bool
+        Write the new subject (default); False: write nothing and return a :class:`PendingEdit`, whose
+        ``commit()`` writes it (:mod:`facestats.edit.session`).
 
     Returns
     -------
-    SubjectEdit
-        ``texture`` holds the convergence report (:class:`TextureTransfer`).
+    SubjectEdit or PendingEdit
+        The result, written; with ``commit=False`` the result to write.  ``texture`` holds the convergence
+        report (:class:`TextureTransfer`).
     """
     session = EditSession(store, out_store).open(subject)
     regions = session.regions(regions)
@@ -499,7 +529,7 @@ def transfer_texture_subject(
         start_distance=float(res.distance[0]),
         final_distance=float(res.distance[-1]),
     )
-    return session.write(record, variables=changed, targets=target.subjects, texture=res)
+    return session.write(record, variables=changed, targets=target.subjects, texture=res, commit=commit)
 
 
 def subject_texture_statistics(

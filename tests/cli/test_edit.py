@@ -4,6 +4,11 @@ Each test runs the console script end to end at least once; the refusals and rep
 :func:`facestats.cli.main` in the test's process (:func:`tests.helpers.run_main`), which the console script runs.
 """
 
+import errno
+import os
+import pathlib
+import shutil
+
 import numpy as np
 import pytest
 from matplotlib.image import imread
@@ -14,6 +19,9 @@ from facestats.io.schema import provenance
 from tests.helpers import make_map_subject, run_cli, run_main
 
 SIZE = 24
+#: The maps a skin-type edit draws before and after (albedo and the four BRDF maps).
+MAPS = ("albedo", "ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent")
+WHEN = ("before", "after")
 
 
 @pytest.fixture(scope="module")
@@ -65,38 +73,162 @@ def test_skin_type_writes_a_new_subject_and_images(pop, tmp_path):
     assert r2.returncode == 2 and f"subject {sid!r} already exists" in r2.stderr and "overwrite" in r2.stderr
 
 
-def test_images_of_the_same_name_are_kept_without_overwrite_and_an_interruption_says_what_was_written(
-    pop, tmp_path, monkeypatch, capsys
-):
-    """A red team: a user's X1_summary.png was replaced without --overwrite (refused now, before any work), and
-    Ctrl-C while the images were saved said only "interrupted" though the subject was committed."""
-    import shutil
+def _tree(path):
+    """``{relative path: bytes}`` of every file under ``path`` (folders as None): what a failed command must leave."""
+    return {
+        str(p.relative_to(path)): None if p.is_dir() else p.read_bytes() for p in sorted(pathlib.Path(path).rglob("*"))
+    }
 
-    import facestats.edit.plots
-    from facestats.cli import main
 
+@pytest.fixture
+def own(pop, tmp_path):
+    """A copy of the population store the test may write into, and a folder of the user's holding one PNG."""
     store = tmp_path / "pop.zarr"
     shutil.copytree(pop, store)
     img = tmp_path / "img"
     img.mkdir()
+    (img / "mine.png").write_bytes(b"mine")
+    return store, img
+
+
+def _skin_type(store, img, *more):
+    return ["edit", "skin-type", "F3", "V", "--store", str(store), "--images", str(img), *map(str, more)]
+
+
+def test_images_of_the_same_name_are_kept_without_overwrite(own, capsys):
+    """A red team: a user's X1_summary.png was replaced without --overwrite (refused now, before any work)."""
+    from facestats.cli import main
+
+    store, img = own
     (img / "X1_summary.png").write_bytes(b"mine")
-    args = ["edit", "skin-type", "F3", "V", "--store", str(store), "--images", str(img), "--id", "X1"]
-    assert main(args) == 2
+    assert main(_skin_type(store, img, "--id", "X1")) == 2
     err = capsys.readouterr().err
     assert f"--images folder {str(img)!r} already holds X1_summary.png: pass --overwrite" in err
     assert (img / "X1_summary.png").read_bytes() == b"mine"
     with open_store(store) as st:
         assert "X1" not in st  # refused before the edit
 
-    def interrupted(edit, directory):
-        raise KeyboardInterrupt
 
-    monkeypatch.setattr(facestats.edit.plots, "save_edit_images", interrupted)
-    assert main([*args[:-1], "X2"]) == 130
-    err = capsys.readouterr().err
-    assert f"interrupted: the edited subject 'X2' was written to store {store}, its images were not saved" in err
+def test_images_that_cannot_be_saved_leave_no_subject_and_the_folders_as_they_were(own, tmp_path, monkeypatch):
+    """The images are saved (under temporary names) before the subject is committed: a full disk while saving
+    them used to fail the command after the subject was written; now nothing is written, in the store, in the
+    --images folder, or as a folder the command made (an --out-store, an --images path)."""
+    import matplotlib.image
+
+    store, img = own
+    real, calls = matplotlib.image.imsave, []
+
+    def full_disk(path, *args, **kwargs):
+        calls.append(path)
+        if len(calls) == 3:  # two images written, the third finds the disk full
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.image, "imsave", full_disk)
+    before, folder = _tree(store), _tree(img)
+    r = run_main(*_skin_type(store, img, "--id", "X2"))
+    assert r.returncode == 2 and len(calls) == 3
+    assert f"cannot write the output files in {img} ({calls[2]}): No space left on device; nothing was" in r.stderr
+    assert "X2" not in r.stdout and "written to store" not in r.stderr
+    assert _tree(store) == before and _tree(img) == folder  # no subject X2, no image, no temporary
+    calls.clear()
+    new = tmp_path / "new"
+    r = run_main(*_skin_type(store, new / "a" / "img", "--id", "X2", "--out-store", new / "out.zarr"))
+    assert r.returncode == 2 and "No space left on device" in r.stderr
+    assert not new.exists() and _tree(store) == before  # the store and the folders it made are gone
+
+
+@pytest.mark.parametrize("failure", ["interrupted", "id taken", "OSError"])
+def test_a_commit_that_fails_leaves_no_images(own, tmp_path, monkeypatch, failure):
+    """The subject is committed after its images are staged and before they are renamed into place: a commit that
+    fails (Ctrl-C, another writer taking the id, an OSError) removes them, and a folder made for them."""
+    from facestats.io.store import Store
+
+    store, img = own
+    real, written = Store.write_subject, []
+
+    def write_subject(self, ds, **kwargs):
+        written.append(len([p for p in images.iterdir() if ".tmp-" in p.name]))  # staged under temporary names
+        if failure == "interrupted":
+            raise KeyboardInterrupt
+        if failure == "OSError":
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        real(self, make_map_subject("X3", size=SIZE, seed=9))  # another writer, between the edit and its commit
+        return real(self, ds, **kwargs)
+
+    monkeypatch.setattr(Store, "write_subject", write_subject)
+    before, folder = _tree(store), _tree(img)
+    for images in (img, tmp_path / "new"):
+        r = run_main(*_skin_type(store, images, "--id", "X3"))
+        assert written[-1] == 11, written  # albedo and 4 BRDF maps before and after, the summary
+        if failure == "interrupted":
+            assert r.returncode == 130 and r.stderr.strip() == "facestats: interrupted"
+        elif failure == "OSError":
+            assert r.returncode == 2
+            assert f"cannot write subject 'X3' to store {store}: No space left on device; nothing was" in r.stderr
+        else:
+            assert r.returncode == 2 and "['X3'] already exist in the store" in r.stderr
+        assert _tree(img) == folder and not (tmp_path / "new").exists()
+        if failure == "id taken":
+            with open_store(store) as st:
+                assert provenance(st.subject("X3"))["source"] == "tests.helpers"  # the other writer's subject
+            with open_store(store, mode="r+") as st:
+                st.delete_subject("X3")
+        else:
+            assert _tree(store) == before
+
+
+def test_images_that_cannot_be_moved_after_the_commit_are_put_back_and_the_message_says_what_is_where(own, monkeypatch):
+    """Once the subject is committed, the staged images are renamed into place (os.replace); if a rename fails or
+    is interrupted, the images folder is put back as it was (a user's files of the same names, replaced with
+    --overwrite, come back byte for byte) and the message says the subject was written and how to make the
+    images.  Without a fault, the same command writes both, and no temporary is left."""
+    import facestats.core.outputs as outputs
+
+    store, img = own
+    r = run_main(*_skin_type(store, img, "--id", "X4"))  # the normal path: the subject and its 11 images
+    assert r.returncode == 0, r.stderr
+    names = sorted(p.name for p in img.iterdir())
+    assert names == sorted(["mine.png", "X4_summary.png", *[f"X4_{m}_{w}.png" for m in MAPS for w in WHEN]])
     with open_store(store) as st:
-        assert "X2" in st
+        generation = st.index_entries()["X4"]["generation"]
+    for name in names:  # the user's files now, to be replaced by --overwrite
+        (img / name).write_bytes(name.encode())
+    folder = _tree(img)
+    real, renames = os.replace, []
+
+    def replace(src, dst, fault=None):
+        if os.path.dirname(dst) == str(img) and ".tmp-" in os.path.basename(src):  # a staged image
+            renames.append(dst)
+            if len(renames) == 3:  # two images in place, the third cannot be
+                raise fault
+        return real(src, dst)
+
+    for fault, code, message in (
+        (OSError(errno.EACCES, os.strerror(errno.EACCES)), 2, "facestats: error: the edited subject 'X4' was written"),
+        (KeyboardInterrupt(), 130, "facestats: interrupted: the edited subject 'X4' was written"),
+    ):
+        renames.clear()
+        monkeypatch.setattr(outputs.os, "replace", lambda s, d, f=fault: replace(s, d, f))
+        r = run_main(*_skin_type(store, img, "--id", "X4", "--overwrite"))
+        monkeypatch.setattr(outputs.os, "replace", real)
+        assert r.returncode == code and len(renames) == 3
+        assert r.stderr.startswith(f"{message} to store {store}, ")
+        assert (
+            f"moved into {img}, which is as it was" in r.stderr
+            and "rerun the same command with --overwrite" in r.stderr
+        )
+        if code == 2:
+            assert "Permission denied; nothing was written" in r.stderr
+        assert _tree(img) == folder  # the user's files back, byte for byte; no temporary, no backup left
+        with open_store(store) as st:  # the new subject is committed, as the message says
+            assert st.index_entries()["X4"]["generation"] != generation
+            generation = st.index_entries()["X4"]["generation"]
+    r = run_main(*_skin_type(store, img, "--id", "X4", "--overwrite"))
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in img.iterdir()) == names
+    for name in names:
+        assert ((img / name).read_bytes() == name.encode()) == (name == "mine.png"), name
 
 
 def test_brdf_lotion_half_way_from_the_default_store(tmp_path):

@@ -7,6 +7,7 @@ import xarray as xr
 import facestats
 from facestats.core.published import ETA_SKIN
 from facestats.edit import (
+    PendingEdit,
     SubjectEdit,
     TextureStatistics,
     change_skin_type,
@@ -394,6 +395,35 @@ def test_default_store_is_read_only_and_edits_go_to_another_store(tmp_path):
     np.testing.assert_allclose(img[::6, ::6], expect, atol=1 / 255 + 1e-6)
     fig = plot_subject_edit(e)
     assert len([ax for ax in fig.axes if ax.images]) == 3 * 4  # 4 BRDF maps (albedo unchanged), before/after/diff
+
+
+def test_an_edit_made_with_commit_false_is_written_by_its_commit_only(store, tmp_path):
+    """``commit=False`` makes the whole edit and writes nothing (``facestats edit`` saves its images first); the
+    pending edit's ``commit()`` writes exactly what the default call writes, once, and is refused, with nothing
+    replaced, when another writer took the id meanwhile."""
+    out = open_store(tmp_path / "out.zarr", mode="a")
+    pending = transfer_brdf_subject(store, "A2", "V1", t=0.5, out_store=out, new_id="P1", commit=False)
+    assert isinstance(pending, PendingEdit) and not pending.committed and pending.edit.subject_id == "P1"
+    assert out.ids() == [] and pending.edit.store == out.label
+    done = transfer_brdf_subject(store, "A2", "V1", t=0.5, out_store=out, new_id="P2")  # the default: written
+    assert isinstance(done, SubjectEdit) and out.ids() == ["P2"]
+    e = pending.commit()
+    assert e is pending.edit and pending.committed and out.ids() == ["P1", "P2"]
+    assert pending.commit() is e and out.ids() == ["P1", "P2"]  # written once
+    p1, p2, src = out.subject("P1"), out.subject("P2"), store.subject("A2")
+    face = src["region"].values > 0
+    assert not np.allclose(p1["ts_rho_s"].values[face], src["ts_rho_s"].values[face])  # the edit is in it
+    for var in ("ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent", "albedo"):
+        np.testing.assert_array_equal(p1[var].values, e.dataset[var].values)
+        np.testing.assert_array_equal(p1[var].values, p2[var].values)
+    assert provenance(p1)["edit"] == provenance(p2)["edit"] and provenance(p1)["source_subject"] == "A2"
+    # Another writer takes the id between the edit and its commit: refused, its subject kept.
+    p3 = transfer_brdf_subject(store, "A2", "V1", out_store=out, new_id="P3", commit=False)
+    out.write_subject(make_map_subject("P3", size=SIZE, seed=21))
+    with pytest.raises(StoreError, match=r"\['P3'\] already exist"):
+        p3.commit()
+    assert not p3.committed and provenance(out.subject("P3"))["source"] == "tests.helpers"  # not the edit
+    out.close()
 
 
 def test_every_edit_leaves_the_source_it_read_unchanged_in_memory(store):

@@ -28,6 +28,28 @@ def test_a_failed_rename_puts_every_target_back(tmp_path, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]  # no temporaries, backups or new folders
 
 
+def test_a_failed_rename_leaves_no_backup_of_the_targets_not_yet_replaced(tmp_path, monkeypatch):
+    """Each existing target is kept under a hard link before the renames; a target not yet replaced when one fails
+    is still the old file, and renaming its link back onto it does nothing (POSIX rename of two names of one
+    file), so the links stayed as hidden .old- files (``facestats edit --overwrite`` whose images could not be
+    moved into place left nine)."""
+    for name in "abc":
+        (tmp_path / f"{name}.txt").write_text(f"old {name}")
+    real_replace = os.replace
+
+    def failing(src, dst):  # a is placed, b cannot be, c is not reached
+        if str(dst).endswith("b.txt") and ".tmp-" in os.path.basename(src):
+            raise OSError(13, "Permission denied", str(dst))
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(outputs.os, "replace", failing)
+    with pytest.raises(FacestatsError, match="Permission denied; nothing was written"):
+        with OutputSet(tmp_path) as out:
+            for name in "abc":
+                out.path(f"{name}.txt").write_text(f"new {name}")
+    assert {p.name: p.read_text() for p in tmp_path.iterdir()} == {"a.txt": "old a", "b.txt": "old b", "c.txt": "old c"}
+
+
 def test_temporaries_are_unique_and_names_are_not_reused(tmp_path):
     (tmp_path / "link").symlink_to(tmp_path / "victim")
     with OutputSet(tmp_path) as out:

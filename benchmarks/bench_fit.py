@@ -401,8 +401,8 @@ SMOKE = {
     "public_api_ratio": {"samples": (40,), "n_texels": 30, "n_baseline": 2, "grid": 16},
     "slsqp_ratio": {"n_baseline": 3, "grid": 16},
     "accuracy": {"n_subjects": 1, "grid": 16},
-    # one cluster of one worker: the distributed code path, not the ratio (n=2: the local process pool runs only for
-    # two or more subjects)
-    "dask_scaling": {"n": 2, "grid": 16, "workers": (1,)},
+    # clusters of one and two workers: the distributed code path and its speedup (tests/test_benchmarks.py checks the
+    # ratio; the second cluster adds about 3 s); n=2: the local process pool runs only for two or more subjects
+    "dask_scaling": {"n": 2, "grid": 16, "workers": (1, 2)},
     "determined_texels": {"subjects": ("S001", "S003")},
 }

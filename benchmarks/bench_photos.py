@@ -50,9 +50,20 @@ import time
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-ROOT = os.path.dirname(HERE)
-if ROOT not in sys.path:  # tests.helpers (colour-hdri's merge) from a clean clone, however run.py is called
-    sys.path.insert(0, ROOT)
+if HERE not in sys.path:  # inputs.py, however this module is loaded (run.py, the tests, the ingest subprocess)
+    sys.path.insert(0, HERE)
+from inputs import (  # noqa: E402
+    beam_error_on,
+    cached_input,
+    colour_hdri_merge,
+    e_perp_error,
+    fit_errors,
+    scaled_difference,
+    target_pose,
+    target_rig,
+    unknown_leds,
+)
+
 TARGET_MERGE_S = 0.2
 TARGET_RECOVER_S = 1.0
 TARGET_INGEST_S = 300.0
@@ -80,12 +91,6 @@ def _best(fn, repeat=3):
     return best, out
 
 
-def _scaled_rel(a, b):
-    r = np.asarray(a, np.float64) / np.asarray(b, np.float64)
-    ok = np.isfinite(r) & (r > 0)
-    return float(np.median(np.abs(r[ok] / np.median(r[ok]) - 1)))
-
-
 def bench_merge(side=1024, repeat=3):
     import cv2
 
@@ -106,16 +111,14 @@ def bench_merge(side=1024, repeat=3):
         "opencv_s": t_cv,
         "opencv_over_ours": t_cv / t_ours,
         "target_s": TARGET_MERGE_S,
-        "agreement_same_g": _scaled_rel(e_ours, e_cv),
-        "agreement_own_g": _scaled_rel(own, e_cv),
-        "ours_vs_truth": _scaled_rel(own, rate),
-        "opencv_vs_truth": _scaled_rel(e_cv, rate),
+        "agreement_same_g": scaled_difference(e_ours, e_cv),
+        "agreement_own_g": scaled_difference(own, e_cv),
+        "ours_vs_truth": scaled_difference(own, rate),
+        "opencv_vs_truth": scaled_difference(e_cv, rate),
         "megapixels": side * side / 1e6,
     }
     try:
-        from tests.helpers import colour_hdri_merge
-
-        out["agreement_colour_hdri"] = _scaled_rel(own, colour_hdri_merge(imgs, TIMES))
+        out["agreement_colour_hdri"] = scaled_difference(own, colour_hdri_merge(imgs, TIMES))
     except ImportError:  # colour-hdri is a test extra
         pass
     return out
@@ -176,8 +179,8 @@ def bench_real_bracket(side=None, repeat=3):
         "merge_opencv_over_ours": t_merge_cv / t_merge,
         "recover_ours_s": t_rec,
         "recover_opencv_s": t_rec_cv,
-        "agreement_same_g": _scaled_rel(e_same, e_cv),
-        "agreement_own_g": _scaled_rel(own, e_cv),
+        "agreement_same_g": scaled_difference(e_same, e_cv),
+        "agreement_own_g": scaled_difference(own, e_cv),
         "exposure_disagreement_median_ours": agree[:, 0].tolist(),
         "exposure_disagreement_median_opencv": agree_cv[:, 0].tolist(),
         "megapixels": imgs[0].shape[0] * imgs[0].shape[1] / 1e6,
@@ -187,12 +190,11 @@ def bench_real_bracket(side=None, repeat=3):
 
 
 def _bracket(files, side):
-    """``(images, exposure times from EXIF)`` of a bracket's files, cropped to their central ``side``² pixels."""
-    from facestats.io.exif import read_exposure_time
-    from facestats.io.images import read_integer_image
+    """``(images, exposure times from EXIF)`` of a bracket's files (:func:`facestats.acquire.bracket.read_bracket`),
+    cropped to their central ``side``² pixels."""
+    from facestats.acquire.bracket import read_bracket
 
-    times = np.array([read_exposure_time(f) for f in files])
-    imgs = [read_integer_image(f)[0] for f in files]
+    imgs, times, _ = read_bracket(files)
     if side is not None:
         h, w = imgs[0].shape[:2]
         y0, x0 = (h - side) // 2, (w - side) // 2
@@ -203,20 +205,19 @@ def _bracket(files, side):
 def _against_colour_hdri(imgs, times, own, e_cv):
     """colour-hdri's merge of the bracket against ours and OpenCV's (empty without colour-hdri, a test extra)."""
     try:
-        from tests.helpers import colour_hdri_merge
+        e_ch = colour_hdri_merge(imgs, times)
     except ImportError:
         return {}
-    e_ch = colour_hdri_merge(imgs, times)
     return {
-        "agreement_colour_hdri_ours": _scaled_rel(own, e_ch),
-        "agreement_colour_hdri_opencv": _scaled_rel(e_cv, e_ch),
+        "agreement_colour_hdri_ours": scaled_difference(own, e_ch),
+        "agreement_colour_hdri_opencv": scaled_difference(e_cv, e_ch),
     }
 
 
 _INGEST = r"""
 import json, sys, time
 sys.path.insert(0, sys.argv[5])
-from bench_photos import _errors
+from inputs import fit_errors
 from facestats.acquire.dome import Dome
 from facestats.acquire.ingest import ingest_photographs, open_ingested
 from facestats.acquire.synthetic.faces import face_geometry
@@ -236,26 +237,13 @@ ds = fit_subject(cap)
 grid = int(sys.argv[4])
 truth = synthesize_population(map_size=grid, geometry=face_geometry("procedural", grid), subjects=["S001"])["S001"]
 print(json.dumps({"ingest_s": t1 - t0, "fit_s": time.perf_counter() - t1, "peak_rss_ingest_mb": peak,
-                  "motion_flags": len(cap.provenance.get("motion_flags", [])), **_errors(ds, truth)}))
+                  "motion_flags": len(cap.provenance.get("motion_flags", [])), "errors": fit_errors(ds, truth)}))
 """
-
-
-def _errors(ds, truth):
-    face = truth.region_map > 0
-    ok = face & (ds.ts_flag.values == 0)
-    out = {}
-    for name, mask in (("albedo", face), ("ts_rho_s", ok), ("ts_m", ok)):
-        e = np.abs(ds[name].values[mask] / getattr(truth, name)[mask] - 1)
-        out[f"{name}_median"], out[f"{name}_p90"] = float(np.median(e)), float(np.percentile(e, 90))
-    return out
 
 
 def bench_ingest(grid=48, side=1024, leds=None, workers=2, min_footprint_px=2.0):
     """Whole-capture ingest and fit of the default subject S001 (module docstring)."""
     import shutil
-
-    sys.path.insert(0, HERE)
-    from inputs import cached_input
 
     from facestats.acquire.dome import default_dome
     from facestats.acquire.synthetic.face import procedural_face
@@ -292,12 +280,13 @@ def bench_ingest(grid=48, side=1024, leds=None, workers=2, min_footprint_px=2.0)
     figures = {k: result.pop(k) for k in ("ingest_s", "peak_rss_ingest_mb", "fit_s", "motion_flags")}
     figures.update({f"simulate_{k}": v for k, v in made.items()})
     figures.update(frames=2 * dome.n_cameras * dome.n_leds, target_s=TARGET_INGEST_S, moved_frames=len(moved))
-    memory = _errors(fit_subject(DomeSimulator(geometry, dome).simulate(truth)), truth)
-    for k in result:
-        figures[f"photo_{k}"] = result[k]
-        figures[f"memory_{k}"] = memory[k]
-    for k in ("albedo", "ts_rho_s", "ts_m"):
-        figures[f"{k}_median_ratio_photo_over_memory"] = result[f"{k}_median"] / memory[f"{k}_median"]
+    photo, memory = result["errors"], fit_errors(fit_subject(DomeSimulator(geometry, dome).simulate(truth)), truth)
+    for k in photo:
+        for j, stat in enumerate(("median", "p90")):
+            figures[f"photo_{k}_{stat}"] = photo[k][j]
+            figures[f"memory_{k}_{stat}"] = memory[k][j]
+    for k in photo:
+        figures[f"{k}_median_ratio_photo_over_memory"] = photo[k][0] / memory[k][0]
     return figures
 
 
@@ -330,54 +319,6 @@ def bench_agreement_memory(side=4096):
 
 
 # -- LED calibration from a simulated target (tests/acquire/test_calibration.py's set-ups) ---------------------------
-def _target_pose(normal, centre=(0.0, 0.0, 40.0)):
-    """A 300 mm square target at ``centre`` facing ``normal`` (the tests' ``_pose``)."""
-    from facestats.acquire.synthetic.photographs import TargetPose
-
-    n = np.asarray(normal, float) / np.linalg.norm(normal)
-    u = np.cross([0.0, 1.0, 0.0], n)
-    return TargetPose(centre, tuple(n), tuple(u / np.linalg.norm(u)), (300.0, 300.0))
-
-
-def _target_rig(leds, side, exposure=1.0):
-    """The default dome restricted to ``leds``, ``side``² frames, the tests' 12-bit camera (full well 20,000 e⁻,
-    read noise 5 e⁻) as its response; ``exposure`` scales ``camera_scale`` (0.01: the target at 1 % of the full
-    scale)."""
-    from dataclasses import replace
-
-    from facestats.acquire.dome import default_dome
-    from facestats.acquire.response import ResponseCurve
-
-    camera = ResponseCurve(12, 20000.0, 5.0)
-    dome = default_dome().select(leds=leds).resized(side, side)
-    g = np.repeat(camera.log_exposure()[:, None], 3, axis=1)
-    return camera, replace(dome, camera_log_response=g, camera_scale=dome.camera_scale * exposure)
-
-
-def _unknown_leds(dome):
-    """``dome`` with its LED photometry forgotten: intensity 1, a flat beam."""
-    from dataclasses import replace
-
-    flat = np.tile([1.0, 0, 0, 0, 0, 0], (dome.n_leds, 1))
-    return replace(dome, led_intensity=np.ones((dome.n_leds, 3)), led_beam=flat)
-
-
-def _beam_error_on(dome, fitted_beam, led, points):
-    """Largest |P_fit / P_true − 1| of ``led``'s beam over the ``points`` (K, 3) in front of it."""
-    from facestats.acquire.dome import beam_terms
-
-    _, _, s, t, front = dome.beam_coordinates(points, [led])
-    m = beam_terms(s[front[:, 0], 0], t[front[:, 0], 0])
-    return float(np.max(np.abs(m @ fitted_beam / (m @ dome.led_beam[led]) - 1)))
-
-
-def _e_perp_error(truth, fitted, points):
-    """Largest relative error of the fitted rig's E⊥ over ``points`` where the true E⊥ exceeds 1e-3."""
-    e_true, e_fit = truth.incident(points)[1], fitted.incident(points)[1]
-    lit = e_true > 1e-3
-    return float(np.max(np.abs(e_fit[lit] / e_true[lit] - 1)))
-
-
 def bench_led_calibration(side=128, grid=24, face_grid=24, shell_points=1000):
     """The photometric LED calibration on the set-up of ``tests/acquire/test_calibration.py`` (8 LEDs spread over
     the dome, 3 cameras, 4 poses of a Fluorilon target of albedo 0.99, ``side``² 12-bit frames): the fitted
@@ -389,12 +330,12 @@ def bench_led_calibration(side=128, grid=24, face_grid=24, shell_points=1000):
     from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.photographs import write_target_photographs
 
-    camera, truth = _target_rig([0, 20, 41, 60, 83, 101, 122, 147], side)
-    poses = [_target_pose((0, 0, 1)), _target_pose((3.7, 0, 1)), _target_pose((-3.7, 0, 1)), _target_pose((0, 0.9, 1))]
+    camera, truth = target_rig([0, 20, 41, 60, 83, 101, 122, 147], side)
+    poses = [target_pose((0, 0, 1)), target_pose((3.7, 0, 1)), target_pose((-3.7, 0, 1)), target_pose((0, 0.9, 1))]
     with tempfile.TemporaryDirectory() as folder:
         write_target_photographs(folder, truth, poses, cameras=[3, 4, 11], camera=camera)
         t0 = time.perf_counter()
-        res = calibrate_leds(folder, _unknown_leds(truth), grid=grid)
+        res = calibrate_leds(folder, unknown_leds(truth), grid=grid)
         fit_s = time.perf_counter() - t0
     fitted = res.apply(truth)
     d = np.random.default_rng(1).standard_normal((3 * shell_points, 3))
@@ -403,8 +344,8 @@ def bench_led_calibration(side=128, grid=24, face_grid=24, shell_points=1000):
     beam_err = np.abs(res.beam - truth.led_beam)
     return {
         "intensity_max_rel_err": float(np.max(np.abs(res.intensity / truth.led_intensity - 1))),
-        "e_perp_face_max_rel_err": _e_perp_error(truth, fitted, procedural_face(face_grid).position),
-        "e_perp_shells_max_rel_err": _e_perp_error(truth, fitted, shells),
+        "e_perp_face_max_rel_err": e_perp_error(truth, fitted, procedural_face(face_grid).position),
+        "e_perp_shells_max_rel_err": e_perp_error(truth, fitted, shells),
         "rms_residual_min": float(np.min(res.rms_residual)),
         "rms_residual_max": float(np.max(res.rms_residual)),
         "beam_linear_max_abs_err": float(beam_err[:, 1:3].max()),  # c1, c2: s, t
@@ -433,17 +374,17 @@ def bench_led_sparse(leds=40, side=96, grid=8):
     from facestats.acquire.calibration import fit_leds, target_observations
     from facestats.acquire.synthetic.photographs import write_target_photographs
 
-    camera, truth = _target_rig(np.arange(leds), side)
+    camera, truth = target_rig(np.arange(leds), side)
     with tempfile.TemporaryDirectory() as folder:
         write_target_photographs(
-            folder, truth, [_target_pose((0, 0, 1)), _target_pose((3.7, 0, 1))], cameras=[3, 4, 11], camera=camera
+            folder, truth, [target_pose((0, 0, 1)), target_pose((3.7, 0, 1))], cameras=[3, 4, 11], camera=camera
         )
         obs = target_observations(folder, truth, grid=grid)
     res = fit_leds(truth, obs)
     fitted = np.nonzero(np.isfinite(res.intensity).all(1))[0]
     flagged = res.poorly_determined
     good = np.setdiff1d(fitted, flagged)
-    err = {int(i): _beam_error_on(truth, res.beam[i], i, obs["target_points"]) for i in fitted}
+    err = {int(i): beam_error_on(truth, res.beam[i], i, obs["target_points"]) for i in fitted}
     own = []  # beam_error over the points each LED was fitted from (lit from the front at cosine > 0.05)
     for i in fitted:  # one small fit per LED
         pts, normal = obs["point"][obs["led"] == i], obs["normal"][obs["led"] == i]
@@ -500,13 +441,13 @@ def bench_led_underexposed(side=64, grid=24, exposures=(1.0, 0.01, 0.003), leds=
 
     out = {}
     for exposure in exposures:  # one small target each
-        camera, truth = _target_rig(list(leds), side, exposure)
+        camera, truth = target_rig(list(leds), side, exposure)
         key = f"x{exposure:g}"
         with tempfile.TemporaryDirectory() as folder:
             write_target_photographs(
-                folder, truth, [_target_pose((0, 0, 1)), _target_pose((3.7, 0, 1))], cameras=[3, 4], camera=camera
+                folder, truth, [target_pose((0, 0, 1)), target_pose((3.7, 0, 1))], cameras=[3, 4], camera=camera
             )
-            res = calibrate_leds(folder, _unknown_leds(truth), grid=grid)
+            res = calibrate_leds(folder, unknown_leds(truth), grid=grid)
         out[f"{key}_rms_residual_min"] = float(np.nanmin(res.rms_residual))
         out[f"{key}_rms_residual_max"] = float(np.nanmax(res.rms_residual))
         out[f"{key}_noisy"] = int(res.noisy.size)
@@ -594,9 +535,9 @@ def bench_frobisher(side=None):
     own, strat = merge_photographs(imgs, times, g_hist), merge_photographs(imgs, times, g_strat)
     out = {
         "exposure_times_s": times.tolist(),
-        "agreement_same_g": _scaled_rel(merge_photographs(imgs, times, g_cv), e_cv),
-        "agreement_own_g_histogram": _scaled_rel(own, e_cv),
-        "agreement_own_g_stratified": _scaled_rel(strat, e_cv),
+        "agreement_same_g": scaled_difference(merge_photographs(imgs, times, g_cv), e_cv),
+        "agreement_own_g_histogram": scaled_difference(own, e_cv),
+        "agreement_own_g_stratified": scaled_difference(strat, e_cv),
         "exposure_disagreement_median_ours": exposure_agreement(imgs, times, g_hist)[:, 0].tolist(),
         "exposure_disagreement_median_opencv": exposure_agreement(imgs, times, g_cv)[:, 0].tolist(),
     }

@@ -533,21 +533,6 @@ def store_from_default(path, ids=("S001", "S002", "S003", "S004", "S005", "S006"
     return str(path)
 
 
-def colour_hdri_merge(imgs, times):
-    """colour-hdri's Debevec 1997 response and HDRI merge of 8-bit images (values scaled to [0, 1])."""
-    from colour_hdri import Image, ImageStack, camera_response_functions_Debevec1997, image_stack_to_HDRI
-    from colour_hdri.utilities.image import Metadata
-
-    stack = ImageStack()
-    for img, t in zip(imgs, times):
-        im = Image()
-        im.data = img.astype(np.float64) / 255
-        im.metadata = Metadata(8.0, float(t), 100.0)
-        stack.append(im)
-    crfs = camera_response_functions_Debevec1997(stack, sampling_function_kwargs={"samples": 200})
-    return image_stack_to_HDRI(stack, camera_response_functions=crfs)
-
-
 def with_micro_normals(ds, cameras=3, seed=0):
     """``ds`` with a ``cameras``-camera micro-normal map (``camera``, ``v``, ``u``, ``component``): random unit
     vectors on the face texels, 0 outside."""

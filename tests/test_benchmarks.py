@@ -27,6 +27,17 @@ MODULES = sorted(BENCH.glob("bench_*.py"))
 SHARED_INPUTS = {"scale.full_resolution", "scale.fit_stages"}
 
 
+def _distributed_speedup(figures):
+    """``fit.dask_scaling`` at its smoke size runs clusters of 1 and 2 workers: its speedup is their rates' ratio."""
+    one, two = (figures[f"subjects_per_min_distributed_{w}_workers"] for w in (1, 2))
+    assert one > 0 and two > 0
+    assert figures["speedup_distributed"] == pytest.approx(two / one) and figures["speedup_distributed"] > 0
+
+
+#: What particular figures must be, beyond finite: a check per benchmark (its ``group.name``), given its figures.
+CHECKS = {"fit.dask_scaling": _distributed_speedup}
+
+
 @functools.cache
 def _load(path):
     """Import a benchmark script once, under its own name (process pools pickle its functions by name)."""
@@ -67,6 +78,9 @@ def test_benchmark_runs_at_a_tiny_size(module, name, fn, tmp_path, tmp_path_fact
         assert isinstance(key, str)
         if isinstance(value, (int, float)):
             assert math.isfinite(value), (key, value)
+    check = CHECKS.get(f"{module.__name__[len('bench_') :]}.{name}")
+    if check is not None:
+        check(figures)
 
 
 def test_an_input_asked_for_twice_at_once_is_built_once(tmp_path, monkeypatch):

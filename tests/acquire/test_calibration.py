@@ -1,11 +1,11 @@
 """Calibration files (OpenCV camera layout, dome JSON, LED files) and the photometric LED calibration from a target."""
 
 import json
-from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from benchmarks.inputs import beam_error_on, e_perp_error, target_pose, target_rig, unknown_leds
 from facestats import FacestatsError
 from facestats.acquire.calibration import (
     LED_FORMAT,
@@ -17,9 +17,8 @@ from facestats.acquire.calibration import (
     target_observations,
     write_opencv_camera,
 )
-from facestats.acquire.dome import Dome, beam_terms, default_dome
-from facestats.acquire.response import ResponseCurve
-from facestats.acquire.synthetic.photographs import TargetPose, write_target_photographs
+from facestats.acquire.dome import Dome, default_dome
+from facestats.acquire.synthetic.photographs import write_target_photographs
 from facestats.errors import FormatError
 
 
@@ -117,20 +116,11 @@ def test_bad_calibration_files_name_the_field(tmp_path):
 
 
 # -- photometric LED calibration --------------------------------------------------------------------------------
-def _pose(normal, centre=(0.0, 0.0, 40.0)):
-    n = np.asarray(normal, float) / np.linalg.norm(normal)
-    u = np.cross([0.0, 1.0, 0.0], n)
-    return TargetPose(centre, tuple(n), tuple(u / np.linalg.norm(u)), (300.0, 300.0))
-
-
 @pytest.fixture(scope="module")
 def target(tmp_path_factory):
     """Target photographs of 8 LEDs spread over the dome, 3 cameras, 4 poses, 128² 12-bit frames."""
-    camera = ResponseCurve(12, 20000.0, 5.0)
-    leds = [0, 20, 41, 60, 83, 101, 122, 147]
-    dome = default_dome().select(leds=leds).resized(128, 128)
-    dome = replace(dome, camera_log_response=np.repeat(camera.log_exposure()[:, None], 3, axis=1))
-    poses = [_pose((0, 0, 1)), _pose((3.7, 0, 1)), _pose((-3.7, 0, 1)), _pose((0, 0.9, 1))]
+    camera, dome = target_rig([0, 20, 41, 60, 83, 101, 122, 147], 128)
+    poses = [target_pose((0, 0, 1)), target_pose((3.7, 0, 1)), target_pose((-3.7, 0, 1)), target_pose((0, 0.9, 1))]
     folder = tmp_path_factory.mktemp("target")
     write_target_photographs(folder, dome, poses, cameras=[3, 4, 11], camera=camera)
     return folder, dome
@@ -140,7 +130,7 @@ def test_led_calibration_recovers_the_simulated_leds_within_one_percent(target, 
     from facestats.acquire.synthetic.face import procedural_face
 
     folder, truth = target
-    unknown = replace(truth, led_intensity=np.ones((truth.n_leds, 3)), led_beam=np.tile([1.0, 0, 0, 0, 0, 0], (8, 1)))
+    unknown = unknown_leds(truth)
     res = calibrate_leds(folder, unknown)
     assert np.all(res.n_observations > 100)
     np.testing.assert_allclose(res.intensity, truth.led_intensity, rtol=0.01)  # the issue's 1 %
@@ -148,10 +138,7 @@ def test_led_calibration_recovers_the_simulated_leds_within_one_percent(target, 
     assert np.all(res.rms_residual < 0.03)  # per-point noise of single pixels
     np.testing.assert_allclose(res.camera_gain[[3, 4, 11]], 1, atol=0.005)
     fitted = res.apply(unknown)
-    face = procedural_face(24).position
-    e_true, e_fit = truth.incident(face)[1], fitted.incident(face)[1]
-    lit = e_true > 1e-3
-    assert np.max(np.abs(e_fit[lit] / e_true[lit] - 1)) < 0.01  # the LED truth over the face, within 1 %
+    assert e_perp_error(truth, fitted, procedural_face(24).position) < 0.01  # the LED truth over the face, within 1 %
     # ... and over the whole head volume: shells up to 150 mm around the centre, i.e. the beam polynomial
     # wherever a head can be (measured max 0.29 %; 4.6 % when target points whose bilinear taps reach past
     # the target's edge were kept).
@@ -160,9 +147,7 @@ def test_led_calibration_recovers_the_simulated_leds_within_one_percent(target, 
         np.array([0.0, 0.0, 40.0])
         + (d / np.linalg.norm(d, axis=1, keepdims=True)) * np.repeat([50, 100, 150], 1000)[:, None]
     )
-    e_true, e_fit = truth.incident(shells)[1], fitted.incident(shells)[1]
-    lit = e_true > 1e-3
-    assert np.max(np.abs(e_fit[lit] / e_true[lit] - 1)) < 0.01
+    assert e_perp_error(truth, fitted, shells) < 0.01
     res.save(tmp_path / "leds.json", fitted)
     back = read_led_calibration(tmp_path / "leds.json")
     assert json.loads((tmp_path / "leds.json").read_text())["format"] == LED_FORMAT
@@ -184,20 +169,17 @@ def test_an_underexposed_target_is_named_and_its_dark_taps_are_not_taken_for_dat
     (``merge_at(measured_only=True)``), and LEDs whose residual says the target is underexposed are named."""
     from facestats.acquire.photographs import merge_at
 
-    camera = ResponseCurve(12, 20000.0, 5.0)
-    g = np.repeat(camera.log_exposure()[:, None], 3, axis=1)
+    camera, dome = target_rig([0, 20, 41, 60], 64, exposure=0.003)
+    g = dome.camera_log_response[0]
     stack = np.zeros((2, 4, 4, 3), np.uint16)  # two exposures of a 4 x 4 frame: one pixel dark in both
     stack[:, 1:, :] = 1500
     index, weight = np.array([[0, 1, 4, 5], [10, 11, 14, 15]]), np.full((2, 4), 0.25)
     floor = merge_at(stack, np.array([0.01, 0.04]), g, index, weight)
     measured = merge_at(stack, np.array([0.01, 0.04]), g, index, weight, measured_only=True)
     assert np.isfinite(floor).all() and np.isnan(measured[0]).all() and np.array_equal(measured[1], floor[1])
-    leds = [0, 20, 41, 60]
-    dome = default_dome().select(leds=leds).resized(64, 64)
-    dome = replace(dome, camera_log_response=g[None].repeat(16, 0), camera_scale=dome.camera_scale * 0.003)
-    write_target_photographs(tmp_path, dome, [_pose((0, 0, 1)), _pose((3.7, 0, 1))], cameras=[3, 4], camera=camera)
-    unknown = replace(dome, led_intensity=np.ones((4, 3)), led_beam=np.tile([1.0, 0, 0, 0, 0, 0], (4, 1)))
-    res = calibrate_leds(tmp_path, unknown)
+    poses = [target_pose((0, 0, 1)), target_pose((3.7, 0, 1))]
+    write_target_photographs(tmp_path, dome, poses, cameras=[3, 4], camera=camera)
+    res = calibrate_leds(tmp_path, unknown_leds(dome))
     assert res.noisy.size > 0 and "the target is underexposed under these LEDs" in res.noisy_text()
     assert np.all(res.rms_residual[res.noisy] > 0.10)
 
@@ -245,11 +227,10 @@ def test_an_led_calibration_with_standard_errors_but_no_beam_error_is_written():
 @pytest.fixture(scope="module")
 def sparse_target(tmp_path_factory):
     """Two poses that light LED 1 from behind only and LEDs 2 and 3 over one pose only (3 cameras, 96²)."""
-    camera = ResponseCurve(12, 20000.0, 5.0)
-    dome = default_dome().select(leds=[0, 3, 33, 81]).resized(96, 96)
-    dome = replace(dome, camera_log_response=np.repeat(camera.log_exposure()[:, None], 3, axis=1))
+    camera, dome = target_rig([0, 3, 33, 81], 96)
     folder = tmp_path_factory.mktemp("sparse")
-    write_target_photographs(folder, dome, [_pose((0, 0, 1)), _pose((3.7, 0, 1))], cameras=[3, 4, 11], camera=camera)
+    poses = [target_pose((0, 0, 1)), target_pose((3.7, 0, 1))]
+    write_target_photographs(folder, dome, poses, cameras=[3, 4, 11], camera=camera)
     return folder, dome
 
 
@@ -272,9 +253,7 @@ def test_uncalibrated_leds_and_extrapolated_beams_are_named(sparse_target):
     # the flagged beams are wrong on the target by several percent; LED 0's is not
     pts = obs["target_points"]
     for led, worst in ((0, 0.005), (2, None), (3, None)):
-        _, _, s, t, front = truth.beam_coordinates(pts, [led])
-        m = beam_terms(s[front[:, 0], 0], t[front[:, 0], 0])
-        err = np.max(np.abs(m @ res.beam[led] / (m @ truth.led_beam[led]) - 1))
+        err = beam_error_on(truth, res.beam[led], led, pts)
         assert err < worst if worst else err > 0.05, (led, err)  # measured 0.16 %, 20 % and 20 %
     # over the points an LED was fitted from (the tilted pose, which it lights from the front) its beam is never
     # less certain than one observation

@@ -6,6 +6,7 @@ import pathlib
 import numpy as np
 import pytest
 
+from benchmarks.inputs import colour_hdri_merge, scaled_difference
 from facestats import FacestatsError
 from facestats.acquire.hdr import merge_photographs, recover_response
 from facestats.acquire.response import (
@@ -17,7 +18,6 @@ from facestats.acquire.response import (
     histogram_samples,
     stratified_samples,
 )
-from tests.helpers import colour_hdri_merge
 
 TIMES = np.array([1 / 30, 1 / 8, 1 / 2, 2.0])
 
@@ -37,13 +37,6 @@ def _bracket(camera, times=TIMES, seed=1, scene=None):
 def _true_g(camera):
     g = camera.log_exposure()
     return g - g[camera.levels // 2]
-
-
-def _scaled_rel(a, b):
-    """Median |a/b − 1| after the best global scale (median ratio), over finite positive pixels."""
-    r = np.asarray(a, np.float64) / np.asarray(b, np.float64)
-    ok = np.isfinite(r) & (r > 0)
-    return float(np.median(np.abs(r[ok] / np.median(r[ok]) - 1)))
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +69,7 @@ def test_recovers_a_known_8_bit_response_and_its_radiance(bracket8):
     assert np.abs(g_strat[z] - _true_g(cam)[z, None]).max() < 0.03
     e = merge_photographs(imgs, TIMES, g)
     assert e.dtype == np.float32 and e.shape == rate.shape
-    assert _scaled_rel(e, rate) < 0.015
+    assert scaled_difference(e, rate) < 0.015
 
 
 def test_recovers_a_12_bit_response_from_16_bit_arrays():
@@ -87,7 +80,7 @@ def test_recovers_a_12_bit_response_from_16_bit_arrays():
     assert g.shape == (4096, 3) and np.all(g[2048] == 0)
     z = np.arange(200, 4000)
     assert np.abs(g[z] - _true_g(cam)[z, None]).max() < 0.02
-    assert _scaled_rel(merge_photographs(imgs, [1 / 60, 1 / 8, 1.0], g), rate) < 0.02  # shot noise: 1.3 %
+    assert scaled_difference(merge_photographs(imgs, [1 / 60, 1 / 8, 1.0], g), rate) < 0.02  # shot noise: 1.3 %
     with pytest.raises(FacestatsError, match=r"images\[0\] must hold 8-bit codes in \[0, 255\].*wrong bit depth"):
         recover_response(imgs, [1 / 60, 1 / 8, 1.0], bits=8)
 
@@ -120,7 +113,7 @@ def test_saturated_darkest_frame_and_all_dark_pixels():
     # the all-dark estimate is the floor of the longest exposure exp(g(0))/Δt, below the darkest real pixel
     np.testing.assert_allclose(dark, np.broadcast_to(np.exp(g[0]) / TIMES[-1], dark.shape), rtol=1e-5)
     assert dark.max() < np.nanmin(e[20:-20])
-    assert _scaled_rel(e[20:-20], rate[20:-20]) < 0.015
+    assert scaled_difference(e[20:-20], rate[20:-20]) < 0.015
 
 
 @pytest.mark.parametrize("bits", [8, 12])
@@ -209,13 +202,13 @@ def test_agrees_with_opencv_debevec(bracket8):
     e_cv = cv2.createMergeDebevec().process(bgr, t32, resp)[..., ::-1]
     g_cv = np.log(resp[:, 0, ::-1].astype(np.float64))
     # The merge: same response, same images -> the same radiance (OpenCV's weights are the hat plus a tiny epsilon).
-    assert _scaled_rel(merge_photographs(imgs, TIMES, g_cv), e_cv) < 0.005
+    assert scaled_difference(merge_photographs(imgs, TIMES, g_cv), e_cv) < 0.005
     # The recovery: both land on the true curve; ours at least as close.
     z = np.arange(20, 251)
     err_cv = np.abs(g_cv[z] - g_cv[128] - _true_g(cam)[z, None]).max()
     err_ours = np.abs(recover_response(imgs, TIMES)[z] - _true_g(cam)[z, None]).max()
     assert err_ours <= err_cv < 0.1
-    assert _scaled_rel(merge_photographs(imgs, TIMES, recover_response(imgs, TIMES)), e_cv) < 0.02
+    assert scaled_difference(merge_photographs(imgs, TIMES, recover_response(imgs, TIMES)), e_cv) < 0.02
 
 
 @pytest.mark.slow
@@ -225,8 +218,8 @@ def test_agrees_with_colour_hdri(bracket8):
     e_ch = colour_hdri_merge(imgs, TIMES)
     ours = merge_photographs(imgs, TIMES, recover_response(imgs, TIMES))
     # colour-hdri merges in the linear domain with its own weights: a few per cent apart, both near the truth.
-    assert _scaled_rel(ours, e_ch) < 0.05
-    assert _scaled_rel(ours, rate) <= _scaled_rel(e_ch, rate)
+    assert scaled_difference(ours, e_ch) < 0.05
+    assert scaled_difference(ours, rate) <= scaled_difference(e_ch, rate)
 
 
 def test_exposure_agreement_is_small_for_the_true_curve_and_large_for_a_wrong_one(bracket8):
@@ -270,10 +263,10 @@ def test_real_cc0_jpeg_bracket_exif_merge_and_exposure_agreement():
     resp = cv2.createCalibrateDebevec().process(bgr, times.astype(np.float32))
     e_cv = cv2.createMergeDebevec().process(bgr, times.astype(np.float32), resp)[..., ::-1]
     g_cv = np.log(resp[:, 0, ::-1]).astype(np.float64)
-    assert _scaled_rel(merge_photographs(imgs, times, g_cv), e_cv) < 0.005  # the same g: the same merge
+    assert scaled_difference(merge_photographs(imgs, times, g_cv), e_cv) < 0.005  # the same g: the same merge
     ours, theirs = exposure_agreement(imgs, times, g)[:, 0], exposure_agreement(imgs, times, g_cv)[:, 0]
     assert max(ours) < 0.05 and all(a < b for a, b in zip(ours, theirs))
-    assert _scaled_rel(merge_photographs(imgs, times, g), e_cv) < 0.1  # the curves differ (measured 4.9 %)
+    assert scaled_difference(merge_photographs(imgs, times, g), e_cv) < 0.1  # the curves differ (measured 4.9 %)
 
 
 # -- a real bracket outside the repository -----------------------------------------------------------------------------
@@ -305,8 +298,8 @@ def test_real_jpeg_bracket_exif_times_and_agreement_with_opencv():
     bgr = [np.ascontiguousarray(i[..., ::-1]) for i in imgs]
     resp = cv2.createCalibrateDebevec().process(bgr, times.astype(np.float32))
     e_cv = cv2.createMergeDebevec().process(bgr, times.astype(np.float32), resp)[..., ::-1]
-    assert _scaled_rel(merge_photographs(imgs, times, np.log(resp[:, 0, ::-1])), e_cv) < 0.005  # same g
-    assert _scaled_rel(ours, e_cv) < 0.05  # measured 3.2 %: the two recovered curves differ, not the merges
+    assert scaled_difference(merge_photographs(imgs, times, np.log(resp[:, 0, ::-1])), e_cv) < 0.005  # same g
+    assert scaled_difference(ours, e_cv) < 0.05  # measured 3.2 %: the two recovered curves differ, not the merges
 
 
 def test_frames_without_information_are_an_error_naming_the_frames():

@@ -13,6 +13,7 @@ import shutil
 import numpy as np
 import pytest
 
+from benchmarks.inputs import fit_errors
 from facestats.acquire.dome import Dome
 from tests.helpers import run_cli, run_main
 
@@ -38,16 +39,6 @@ def case(tmp_path_factory):
     return root, pc, truth, memory
 
 
-def _errors(ds, truth):
-    face = truth.region_map > 0
-    ok = face & (ds.ts_flag.values == 0)
-    out = {}
-    for name, mask in (("albedo", face), ("ts_rho_s", ok), ("ts_m", ok)):
-        e = np.abs(ds[name].values[mask] / getattr(truth, name)[mask] - 1)
-        out[name] = (float(np.median(e)), float(np.percentile(e, 90)))
-    return out
-
-
 @pytest.mark.slow
 def test_ingest_command_fits_the_photographed_subject(case):
     from facestats.io import open_store
@@ -64,7 +55,7 @@ def test_ingest_command_fits_the_photographed_subject(case):
         ds = st.subject("S001")
     prov = json.loads(ds.attrs["provenance"])["capture_provenance"]
     assert sorted((f["camera"], f["led"]) for f in prov["motion_flags"]) == MOVED  # exactly the moved frames
-    photo, mem = _errors(ds, truth), _errors(memory, truth)
+    photo, mem = fit_errors(ds, truth), fit_errors(memory, truth)
     for name in ("albedo", "ts_rho_s", "ts_m"):
         assert photo[name][0] <= 0.03, (name, photo[name])  # issue 16: median relative error ≤ 3 %
         assert photo[name][1] <= 0.08, (name, photo[name])  # p90 (measured 4.1 %, 5.9 %, 3.5 %)
@@ -185,6 +176,6 @@ def test_16_bit_tiff_frames_hold_the_png_codes_and_ingest(case, tmp_path):
     r = run_cli(*args, "--store", tmp_path / "s.zarr", "--subject", "S001", "--quiet")
     assert r.returncode == 0, r.stderr
     with open_store(tmp_path / "s.zarr") as st:
-        errors = _errors(st.subject("S001"), truth)
+        errors = fit_errors(st.subject("S001"), truth)
     for name, (median, p90) in errors.items():
         assert median <= 0.03 and p90 <= 0.08, (name, median, p90)

@@ -236,6 +236,11 @@ def _run(args, edit_function, target, **kwargs) -> int:
                     commit=False,
                     **kwargs,
                 )
+            if args.new_id is None and not args.overwrite:  # the default id is known only now: before any write
+                from facestats.core.outputs import check_names_free
+                from facestats.edit.plots import edit_image_names
+
+                check_names_free(images, edit_image_names(pending.edit.subject_id), "--images", "this edit's images")
             return _report(pending, images)
 
 

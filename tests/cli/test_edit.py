@@ -109,6 +109,25 @@ def test_images_of_the_same_name_are_kept_without_overwrite(own, capsys):
         assert "X1" not in st  # refused before the edit
 
 
+def test_images_of_the_default_id_are_kept_without_overwrite(own, capsys):
+    """The default id (``<subject>.<edit>-<digest>``) is known only after the edit: its images are checked then,
+    before anything is written (a helper found them replaced without --overwrite when the subject was not stored)."""
+    from facestats.cli import main
+
+    store, img = own
+    assert main(_skin_type(store, img, "--out-store", img.parent / "a.zarr")) == 0
+    sid = next(p.name[: -len("_summary.png")] for p in img.glob("*_summary.png"))
+    (img / f"{sid}_summary.png").write_bytes(b"mine")
+    before = _tree(img.parent / "pop.zarr")
+    assert main(_skin_type(store, img, "--out-store", img.parent / "b.zarr")) == 2  # another store: id is free
+    err = capsys.readouterr().err
+    assert f"already holds {sid}_albedo_before.png and 10 more of this edit's images: pass --overwrite" in err, err
+    assert (img / f"{sid}_summary.png").read_bytes() == b"mine"
+    assert not (img.parent / "b.zarr").exists() and _tree(img.parent / "pop.zarr") == before
+    assert main(_skin_type(store, img, "--out-store", img.parent / "b.zarr", "--overwrite")) == 0
+    assert (img / f"{sid}_summary.png").read_bytes() != b"mine"
+
+
 def test_images_that_cannot_be_saved_leave_no_subject_and_the_folders_as_they_were(own, tmp_path, monkeypatch):
     """The images are saved (under temporary names) before the subject is committed: a full disk while saving
     them used to fail the command after the subject was written; now nothing is written, in the store, in the

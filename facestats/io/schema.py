@@ -532,11 +532,15 @@ def _check_dims(ds, label) -> None:
 
 
 def _check_coords(ds, label) -> None:
-    """``channel`` coords are R, G, B; ``site`` coords are known sites."""
+    """``channel`` coords are R, G, B; ``site`` coords are known sites, each once."""
     if "channel" in ds.dims and tuple(str(c) for c in ds["channel"].values) != CHANNELS:
         raise SchemaError(f"subject {label!r}: channel coords must be {CHANNELS}, got {list(ds['channel'].values)}")
-    if "site" in ds.dims and not set(str(s) for s in ds["site"].values) <= set(SITES):
-        raise SchemaError(f"subject {label!r}: site coords must be among {SITES}, got {list(ds['site'].values)}")
+    if "site" in ds.dims:
+        sites = [str(s) for s in ds["site"].values]
+        if not set(sites) <= set(SITES):
+            raise SchemaError(f"subject {label!r}: site coords must be among {SITES}, got {sites}")
+        if len(set(sites)) != len(sites):  # a second row of one site: which would the statistics take?
+            raise SchemaError(f"subject {label!r}: site coords must name each site once, got {sites}")
 
 
 def _check_maps(ds, label) -> None:

@@ -311,14 +311,15 @@ def _add_brdf_columns(row: dict, ds) -> None:
 
 def _add_scattering_columns(row: dict, ds) -> None:
     """Per-site, then per-subject scattering coefficients per channel (NaN where missing)."""
-    sites = [str(s) for s in ds["site"].values] if "site" in ds.dims else []
+    sites = [str(s) for s in ds["site"].values] if "site" in ds.dims else []  # each once (the schema)
     for param in ("sigma_tr", "sigma_s_prime", "sigma_a"):
         var = f"site_{param}"
+        values = np.asarray(ds[var].transpose("site", "channel").values, float) if var in ds.data_vars else None
         for site in SITES:
             for c, ch in enumerate(CHANNELS):
                 val = np.nan
-                if var in ds.data_vars and site in sites:
-                    val = float(ds[var].sel(site=site).values[c])
+                if values is not None and site in sites:
+                    val = float(values[sites.index(site), c])
                 row[column("site", param=param, site=site, channel=ch)] = val
     for param in ("sigma_s_prime", "sigma_a", "sigma_tr"):
         vals = np.asarray(ds[param].values, float) if param in ds.data_vars else np.full(3, np.nan)

@@ -530,6 +530,11 @@ def test_invalid_subjects_are_refused_without_touching_the_store(tmp_path):
         bad["region"] = bad["region"].astype("float64") + 0.5 * (bad["region"] == 2)  # 2.5: in no region
         with pytest.raises(SchemaError, match="region labels must be integers 0-10, got dtype float64"):
             st.write_subject(bad)
+        bad = make_map_subject("BAD5").assign_coords(site=["cheek", "cheek", "neck"])  # a TypeError in the index row
+        with pytest.raises(
+            SchemaError, match=r"site coords must name each site once, got \['cheek', 'cheek', 'neck'\]"
+        ):
+            st.write_subject(bad)
         assert st.revision == rev
         assert sorted(p.relative_to(path) for p in path.rglob("*")) == listing
 

@@ -15,7 +15,7 @@ from facestats.core.conventions import CHANNELS, REGIONS, SITES
 from facestats.errors import SchemaError, StoreError, ValidationError
 from facestats.io import QueryResult, open_store, pack_store
 from facestats.io import store as store_mod
-from facestats.io.schema import SCHEMA_VERSION, provenance, set_provenance
+from facestats.io.schema import SCHEMA_VERSION, provenance, set_provenance, validate_subject
 from facestats.io.summary import albedo_histogram, region_samples, summarise_subject
 from tests.helpers import make_map_subject, make_sample_subject, with_micro_normals
 
@@ -535,8 +535,19 @@ def test_invalid_subjects_are_refused_without_touching_the_store(tmp_path):
             SchemaError, match=r"site coords must name each site once, got \['cheek', 'cheek', 'neck'\]"
         ):
             st.write_subject(bad)
+        bad = make_map_subject("BAD6")
+        bad = bad.assign_coords(u=bad["u"].values[::-1])  # read by index everywhere: the maps' meaning would flip
+        with pytest.raises(SchemaError, match=r"u coords must be the texel centres \(k \+ 1/2\) / 24, got 0.979"):
+            st.write_subject(bad)
+        bad = make_map_subject("BAD7")
+        r = bad["fiber_distance"].values.copy()
+        r[3] = np.nan  # the σ posterior fits the profile against these distances
+        with pytest.raises(SchemaError, match=r"fiber_distance must be .* strictly increasing .* got nan at index 3"):
+            st.write_subject(bad.assign_coords(fiber_distance=("fiber", r)))
         assert st.revision == rev
         assert sorted(p.relative_to(path) for p in path.rglob("*")) == listing
+    ok = make_map_subject("F32")  # float32 coordinates are the same texel centres
+    validate_subject(ok.assign_coords(u=ok["u"].astype(np.float32), v=ok["v"].astype(np.float32)), name="F32")
 
 
 def test_overwrite_and_edits(tmp_path):

@@ -17,6 +17,7 @@ import os
 import sys
 
 from facestats.cli.options import (
+    QUERY_FILTER_OPTIONS,
     add_store_option,
     ascii_float,
     ascii_int,
@@ -182,10 +183,12 @@ def _check_outputs(args) -> None:
         check_apart(args.images, args.out_store, "--images", "the output store")
 
 
-def _run(args, edit_function, target, **kwargs) -> int:
+def _run(args, edit_function, target, target_names=QUERY_FILTER_OPTIONS, **kwargs) -> int:
     """Open the stores, make the edit ``edit_function(store, SUBJECT, target, ...)``, report it; the exit code.
 
-    A store created by ``--out-store`` is removed again if the edit fails before writing into it.
+    A store created by ``--out-store`` is removed again if the edit fails before writing into it.  Errors name
+    the options; ``target_names`` (:func:`~facestats.cli.options.named_options`) those of the target, the subset
+    filters unless the command takes the target otherwise (``skin-type``'s positional TYPE).
     """
     from facestats.io.root import new_store_guard
 
@@ -193,7 +196,8 @@ def _run(args, edit_function, target, **kwargs) -> int:
     with new_store_guard(args.out_store):
         store, out = _open(args)
         with store, out:
-            with named_options(t="--t", feather="--feather", seed="--seed"):  # the options, not the API's names
+            # the options, not the API's names
+            with named_options(t="--t", feather="--feather", seed="--seed", region="--regions", **target_names):
                 edit = edit_function(
                     store, args.subject, target, out_store=out, new_id=args.new_id, overwrite=args.overwrite, **kwargs
                 )
@@ -207,6 +211,7 @@ def _cmd_skin_type(args) -> int:
         args,
         change_skin_type,
         args.skin_type,
+        target_names={"skin type": "TYPE"},
         t=args.t,
         brdf=not args.no_brdf,
         colour=not args.no_colour,
@@ -259,9 +264,10 @@ def _cmd_stats(args) -> int:
     from facestats.edit.statistics import statistics_path
     from facestats.edit.subjects import subject_texture_statistics
 
-    path = statistics_path(args.out, overwrite=args.overwrite)  # checked before the work
+    with named_options(path="--out"):
+        path = statistics_path(args.out, overwrite=args.overwrite)  # checked before the work
     check_apart_from_store(path, "--out", args.store)  # never a file mixed into the store
-    with open_store_option(args.store) as store:
+    with open_store_option(args.store) as store, named_options(levels="--levels", bins="--bins", region="--regions"):
         stats = subject_texture_statistics(
             store, args.subject, regions=args.regions, levels=args.levels, bins=args.bins
         )

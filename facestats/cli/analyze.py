@@ -46,7 +46,7 @@ import json
 import sys
 import warnings
 
-from facestats.cli.options import add_store_option, ascii_int, open_store_option
+from facestats.cli.options import add_store_option, ascii_int, named_options, open_store_option
 from facestats.errors import ValidationError
 
 __all__ = ["add_analyze", "ACTIONS", "BATCH_ACTIONS"]
@@ -187,8 +187,8 @@ def _cmd_analyze(args) -> int:
     report = []
     with open_store_option(args.store) as store:
         check_apart(out, store.path, "--out")  # before OutputSet creates any folder
-        with OutputSet(out) as files:  # every file or none
-            _run_actions(args, store, files, report)
+        with OutputSet(out) as files, named_options(seed="--seed", site="--site", subject_id="--subject"):
+            _run_actions(args, store, files, report)  # every file or none; errors name the options
     print("\n\n".join(report))  # once the files are in place: "wrote" is then true
     return 0
 

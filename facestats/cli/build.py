@@ -81,6 +81,7 @@ def _build_command(args) -> int:
             retries="--retries",
             workers="--workers",
             subjects="--subjects",
+            subject_id="--subjects",  # one id of --subjects that is no id at all ('')
             scheduler="--scheduler",
         ):
             report = _build.build_store(

@@ -5,10 +5,19 @@ from __future__ import annotations
 
 import sys
 
-from facestats.cli.options import ascii_float, ascii_int, number_option
+from facestats.cli.options import ascii_float, ascii_int, named_options, number_option
 from facestats.core.processes import sigterm_as_interrupt
 
 __all__ = ["add_capture"]
+
+#: The option of each subject-record field (a field read from ``--metadata`` keeps its JSON name in messages).
+_RECORD_OPTIONS = {
+    "person_id": "--person",
+    "age": "--age",
+    "gender": "--gender",
+    "skin_type": "--skin-type",
+    "condition": "--condition",
+}
 
 
 def _subject(args) -> dict:
@@ -27,7 +36,9 @@ def _subject(args) -> dict:
             f"the capture folder's manifest needs the subject's {', '.join(missing)}: pass --age, --gender and "
             "--skin-type, or --metadata FILE (a JSON subject record)"
         )
-    return subject_record(args.subject, **record)
+    given = {key: option for key, option in _RECORD_OPTIONS.items() if getattr(args, key) is not None}
+    with named_options(subject_id="--subject", **given):
+        return subject_record(args.subject, **record)
 
 
 def _run(args, plan, calibration, on_site=None) -> int:
@@ -47,7 +58,10 @@ def _run(args, plan, calibration, on_site=None) -> int:
     from tqdm.auto import tqdm
 
     echo = None if args.quiet else (lambda line: tqdm.write(f"[session] {line}", file=sys.stderr))
-    with sigterm_as_interrupt():  # the driver's context manager switches the lights off
+    names = dict(frame_timeout="--frame-timeout", pattern="--pattern", timeout="--timeout", retries="--retries")
+    names.update(baudrate="--baudrate", bytesize="--bytesize", parity="--parity", stopbits="--stopbits")
+    # the driver's context manager switches the lights off
+    with sigterm_as_interrupt(), named_options(**names):
         report = capture(
             plan,
             calibration,
@@ -72,20 +86,20 @@ def _cmd_dome(args) -> int:
     from facestats.acquire.devices.capture import dome_plan
 
     colour = tuple(number_option(v, int, "--colour") for v in args.colour.split(","))
-    plan, calibration = dome_plan(
-        args.calibration,
-        _subject(args),
-        brightness=args.brightness,
-        colour=colour,
-        frame_interval_s=args.frame_interval,
-    )
+    subject = _subject(args)
+    with named_options(brightness="--brightness", colour="--colour", frame_interval_s="--frame-interval"):
+        plan, calibration = dome_plan(
+            args.calibration, subject, brightness=args.brightness, colour=colour, frame_interval_s=args.frame_interval
+        )
     return _run(args, plan, calibration)
 
 
 def _cmd_sensor(args) -> int:
     from facestats.acquire.devices.capture import sensor_plan
 
-    plan, calibration = sensor_plan(args.calibration, _subject(args), readout_s=args.readout)
+    subject = _subject(args)
+    with named_options(readout_s="--readout"):
+        plan, calibration = sensor_plan(args.calibration, subject, readout_s=args.readout)
 
     def place(site):
         print(f"place the sensor head on the {site}" + ("" if args.yes else " and press Enter"), file=sys.stderr)

@@ -21,6 +21,7 @@ import os
 import sys
 
 from facestats.cli.options import (
+    QUERY_FILTER_OPTIONS,
     add_store_option,
     ascii_float,
     ascii_int,
@@ -213,11 +214,13 @@ def _check_outputs(args):
     return images
 
 
-def _run(args, edit_function, target, **kwargs) -> int:
+def _run(args, edit_function, target, target_names=QUERY_FILTER_OPTIONS, **kwargs) -> int:
     """Open the stores, make the edit ``edit_function(store, SUBJECT, target, ..., commit=False)``, save its images
     and commit it (:func:`_report`), report it; the exit code.
 
-    A store created by ``--out-store`` is removed again if the command fails before the subject is written.
+    A store created by ``--out-store`` is removed again if the command fails before the subject is written.  Errors
+    name the options; ``target_names`` (:func:`~facestats.cli.options.named_options`) those of the target, the subset
+    filters unless the command takes the target otherwise (``skin-type``'s positional TYPE).
     """
     from facestats.io.root import new_store_guard
 
@@ -225,7 +228,8 @@ def _run(args, edit_function, target, **kwargs) -> int:
     with new_store_guard(args.out_store):
         store, out = _open(args)
         with store, out:
-            with named_options(t="--t", feather="--feather", seed="--seed"):  # the options, not the API's names
+            # the options, not the API's names
+            with named_options(t="--t", feather="--feather", seed="--seed", region="--regions", **target_names):
                 pending = edit_function(
                     store,
                     args.subject,
@@ -251,6 +255,7 @@ def _cmd_skin_type(args) -> int:
         args,
         change_skin_type,
         args.skin_type,
+        target_names={"skin type": "TYPE"},
         t=args.t,
         brdf=not args.no_brdf,
         colour=not args.no_colour,
@@ -303,9 +308,10 @@ def _cmd_stats(args) -> int:
     from facestats.edit.statistics import statistics_path
     from facestats.edit.subjects import subject_texture_statistics
 
-    path = statistics_path(args.out, overwrite=args.overwrite)  # checked before the work
+    with named_options(path="--out"):
+        path = statistics_path(args.out, overwrite=args.overwrite)  # checked before the work
     check_apart_from_store(path, "--out", args.store)  # never a file mixed into the store
-    with open_store_option(args.store) as store:
+    with open_store_option(args.store) as store, named_options(levels="--levels", bins="--bins", region="--regions"):
         stats = subject_texture_statistics(
             store, args.subject, regions=args.regions, levels=args.levels, bins=args.bins
         )

@@ -7,10 +7,29 @@ import signal
 import sys
 import threading
 
-from facestats.cli.options import ascii_float, ascii_int
+from facestats.cli.options import ascii_float, ascii_int, named_options
 from facestats.core.processes import sigterm_as_interrupt
 
 __all__ = ["add_emulate"]
+
+#: The options of :func:`facestats.acquire.devices.lab.emulated_dome`'s and ``emulated_sensor``'s parameters
+#: (``subjects``: the synthetic population's check of the one ``--subject``).
+_NAMES = dict(
+    subject_id="--subject",
+    subjects="--subject",
+    hot_folder="--hot-folder",
+    lab="--lab",
+    store="--store",
+    map_size="--map-size",
+    link="--link",
+    seed="--seed",
+    resolution="--resolution",
+    leds="--leds",
+    cameras="--cameras",
+    wired_leds="--wired-leds",
+    workers="--workers",
+    cache="--cache",
+)
 
 
 def _faults(args):
@@ -89,7 +108,8 @@ def _cmd_dome(args) -> int:
     from facestats.acquire.devices.lab import emulated_dome
 
     _check_duration(args.duration)
-    with sigterm_as_interrupt():  # building takes minutes: a kill then removes the half-built folders as Ctrl-C does
+    # building takes minutes: a kill then removes the half-built folders as Ctrl-C does
+    with sigterm_as_interrupt(), named_options(**_NAMES):
         server = emulated_dome(
             args.subject,
             args.hot_folder,
@@ -119,7 +139,7 @@ def _cmd_sensor(args) -> int:
     from facestats.acquire.devices.lab import emulated_sensor
 
     _check_duration(args.duration)
-    with sigterm_as_interrupt():
+    with sigterm_as_interrupt(), named_options(**_NAMES):
         server = emulated_sensor(
             args.subject,
             args.hot_folder,

@@ -11,7 +11,16 @@ __all__ = ["add_export_subject"]
 
 
 def _cmd_export_subject(args) -> int:
-    with named_options(mesh_scale="--mesh-scale"):
+    with named_options(
+        mesh_scale="--mesh-scale",
+        mesh_format="--mesh-format",
+        out="--out",
+        width="--width",
+        height="--height",
+        spp="--spp",
+        subject_id="ID",
+        **{"light probe": "--probe"},
+    ):
         res = _export(args)
     print(f"exported {res['subject_id']} as {res['format']} to {res['out']}: {len(res['files'])} files")
     for name in res["files"]:

@@ -2,27 +2,44 @@
 
 from __future__ import annotations
 
-from facestats.cli.options import ascii_float, ascii_int, check_store_to_write
+from facestats.cli.options import ascii_float, ascii_int, check_store_to_write, named_options
 
 __all__ = ["add_ingest"]
+
+#: The options of :func:`facestats.pipeline.photographs.ingest_subject`'s parameters (``path``: the store's, as
+#: :func:`facestats.open_store` names it).
+_NAMES = dict(
+    photo_dir="PHOTO_DIR",
+    mesh="--mesh",
+    calibration="--calibration",
+    store="--store",
+    path="--store",
+    subject_id="--subject",
+    regions="--regions",
+    work="--work",
+    workers="--workers",
+    motion_tolerance="--motion-tolerance",
+    min_footprint_px="--min-footprint",
+)
 
 
 def _cmd_ingest(args) -> int:
     from facestats.pipeline.photographs import ingest_subject
 
-    report = ingest_subject(
-        args.photo_dir,
-        args.mesh,
-        args.calibration,
-        check_store_to_write(args.store, "--store"),
-        args.subject,
-        regions=args.regions,
-        work=args.work,
-        workers=args.workers,
-        motion_tolerance=args.motion_tolerance,
-        min_footprint_px=args.min_footprint,
-        progress=not args.quiet,
-    )
+    with named_options(**_NAMES):
+        report = ingest_subject(
+            args.photo_dir,
+            args.mesh,
+            args.calibration,
+            check_store_to_write(args.store, "--store"),
+            args.subject,
+            regions=args.regions,
+            work=args.work,
+            workers=args.workers,
+            motion_tolerance=args.motion_tolerance,
+            min_footprint_px=args.min_footprint,
+            progress=not args.quiet,
+        )
     print(report.to_text())
     return 0
 

@@ -17,7 +17,14 @@ def _cmd_render(args) -> int:
     if args.frames is not None and args.targets is not None:
         raise ValidationError("--targets go with --weights (blendshapes), not with --frames; got both")
     with named_options(
-        height_range_um="--height-range-um", tile="--tile", scale="--scale", table="--table", weights="--weights"
+        height_range_um="--height-range-um",
+        tile="--tile",
+        scale="--scale",
+        table="--table",
+        weights="--weights",
+        window="--window",
+        neutral_map="--map",
+        path="--map",  # read_image's name for the one image read, the map
     ):
         report = render_files(
             args.neutral,

@@ -28,6 +28,7 @@ __all__ = [
     "ascii_int",
     "ascii_float",
     "named_options",
+    "QUERY_FILTER_OPTIONS",
 ]
 
 #: The namespace attribute in which :class:`_StoreOnce` notes the options given (removed after parsing).
@@ -316,10 +317,25 @@ def open_store_option(value, mode: str = "r"):
     ------
     StoreError
         As :func:`facestats.open_store` (a missing or unreadable store, ...).
+    ValidationError
+        A value that names no store (``''``), the message naming ``--store``.
     """
     from facestats.io.store import open_store
 
-    return open_store(store_path_option(value), mode=mode)
+    with named_options(path="--store"):
+        return open_store(store_path_option(value), mode=mode)
+
+
+#: :func:`named_options` of the subset filters ``query`` and ``edit`` share: the words
+#: :func:`facestats.core.conventions.parse_skin_type` and its siblings (``parse_gender``, ``parse_age``,
+#: ``parse_condition``) start their messages with, and the options typed.
+QUERY_FILTER_OPTIONS = {
+    "skin type": "--skin-type",
+    "gender": "--gender",
+    "age range": "--age",
+    "age": "--age",
+    "condition": "--condition",
+}
 
 
 @contextlib.contextmanager
@@ -329,7 +345,10 @@ def named_options(**options):
     ``options`` maps parameter names to option names (``map_size="--size"``): a
     :class:`~facestats.errors.ValidationError` whose message starts with a parameter's name
     (``"map_size must be an integer in [8, inf], got 2"``) is raised again with the option's
-    (``"--size must be ..."``); every other error passes unchanged.
+    (``"--size must be ..."``); every other error passes unchanged.  The longest name that starts the message
+    wins, so a subject a message names in words can be mapped beside a parameter its first word is
+    (``**{"light probe": "--probe"}`` beside ``light="--light"``: ``"light probe 'x' does not exist"`` names
+    ``--probe``, not ``--light``).
 
     Parameters
     ----------
@@ -352,7 +371,7 @@ def named_options(**options):
         yield
     except ValidationError as exc:
         message = str(exc)
-        for param, option in options.items():
+        for param, option in sorted(options.items(), key=lambda item: -len(item[0])):
             if message.startswith(f"{param} "):
                 raise type(exc)(option + message[len(param) :]) from None
         raise

@@ -93,7 +93,7 @@ def _cmd_render(args) -> int:
     check_apart_from_store(out, "--out", args.store)  # never images mixed into the store
     if args.capture:  # nor into the capture compared with
         check_apart(out, args.capture, "--out", "the capture")
-    with open_store_option(args.store) as st:
+    with open_store_option(args.store) as st, named_options(subject_id="ID"):
         ds = store_subject(st, args.subject_id)
     check_map_subject(ds, "a validation render")
     stem = _stem(ds.attrs.get("subject_id", args.subject_id), args)
@@ -107,7 +107,8 @@ def _cmd_render(args) -> int:
         cap = None  # nothing to compare with: the subject's face suffices
     else:
         cap = default_capture(ds, seed=DEFAULT_SEED if args.seed is None else args.seed)
-    with named_options(samples="--probe-lights", camera="--camera", light="--light"):  # the options, not the API's
+    # the options, not the API's names ("light probe 'x' ..." is --probe's, not --light's)
+    with named_options(samples="--probe-lights", camera="--camera", light="--light", **{"light probe": "--probe"}):
         if args.probe:
             res = render_probe(ds, cap, args.camera, args.probe, mesh=args.mesh, samples=args.probe_lights)
         else:

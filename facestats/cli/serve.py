@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from facestats.cli.options import add_store_option, ascii_int, store_path_option
+from facestats.cli.options import add_store_option, ascii_int, named_options, store_path_option
 
 __all__ = ["add_serve"]
 
@@ -14,7 +14,8 @@ def _cmd_serve(args) -> int:
         print(f"facestats: serving {args.store or 'the default store'} read-only at {url} (Ctrl-C to stop)", flush=True)
 
     try:
-        serve(store_path_option(args.store), host=args.host, port=args.port, ready=ready)
+        with named_options(host="--host", port="--port", path="--store"):
+            serve(store_path_option(args.store), host=args.host, port=args.port, ready=ready)
     except OSError as exc:
         from facestats.errors import ValidationError
 

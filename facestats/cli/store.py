@@ -10,6 +10,7 @@ import os
 import sys
 
 from facestats.cli.options import (
+    QUERY_FILTER_OPTIONS,
     add_store_option,
     check_store_to_write,
     named_options,
@@ -30,7 +31,7 @@ def _can_encode(text: str) -> bool:
 
 def _cmd_query(args) -> int:
 
-    with open_store_option(args.store) as store:
+    with open_store_option(args.store) as store, named_options(region="--region", **QUERY_FILTER_OPTIONS):
         result = store.query(
             skin_type=args.skin_type,
             gender=args.gender,
@@ -309,7 +310,8 @@ def _cmd_import_merl(args) -> int:
     from facestats.io.merl import import_merl
 
     out = check_store_to_write(args.store, "--store")
-    data = import_merl(args.path, out, prefix=args.prefix, overwrite=args.overwrite)
+    with named_options(prefix="--prefix", path="--store"):  # path: open_store's name for the store
+        data = import_merl(args.path, out, prefix=args.prefix, overwrite=args.overwrite)
     ids = data.ids
     print(f"imported {len(ids)} subjects ({ids[0]} ... {ids[-1]}) from {data.path} into {args.store}")
     print(

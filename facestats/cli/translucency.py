@@ -6,7 +6,7 @@ import json
 import sys
 import warnings
 
-from facestats.cli.options import ascii_float, number_option
+from facestats.cli.options import ascii_float, named_options, number_option
 from facestats.errors import FacestatsError, QuantisationWarning, ValidationError
 
 __all__ = ["add_translucency"]
@@ -29,10 +29,8 @@ def _checked_options(args):
     if out_json is not None and plot is not None and out_json.absolute() == plot.absolute():
         raise ValidationError(f"--plot must differ from --json, got {str(plot)!r} for both")
     if args.eta is not None:
-        try:
+        with named_options(eta="--eta"):
             check_dipole_eta(args.eta)
-        except ValidationError as exc:
-            raise ValidationError(f"--{exc}") from None
     return out_json, plot
 
 
@@ -59,25 +57,27 @@ def _cmd_translucency(args) -> int:
     from facestats.pipeline.image_translucency import fit_image_translucency, load_scene_inputs
 
     out_json, plot = _checked_options(args)
-    patches, lights, eta, camera, image = load_scene_inputs(
-        args.mesh, args.lights, args.camera, args.image, spacing=args.spacing, scale=args.scale
-    )
+    with named_options(spacing="--spacing", scale="--scale", image="--image"):
+        patches, lights, eta, camera, image = load_scene_inputs(
+            args.mesh, args.lights, args.camera, args.image, spacing=args.spacing, scale=args.scale
+        )
     eta = args.eta if args.eta is not None else eta
     width = args.width if args.width == "auto" else number_option(args.width, float, "--width")
-    fits = _with_notes(
-        fit_image_translucency,
-        patches,
-        lights,
-        camera,
-        image,
-        eta=eta,
-        width=width,
-        method=args.method,
-        grid=args.grid,
-        refine=args.refine,
-        self_term=args.self_term,
-        progress=not args.quiet,
-    )
+    with named_options(width="--width"):
+        fits = _with_notes(
+            fit_image_translucency,
+            patches,
+            lights,
+            camera,
+            image,
+            eta=eta,
+            width=width,
+            method=args.method,
+            grid=args.grid,
+            refine=args.refine,
+            self_term=args.self_term,
+            progress=not args.quiet,
+        )
     names = ["R", "G", "B"] if len(fits) == 3 else [f"channel {k}" for k in range(len(fits))]
     print(
         f"patches: {len(patches)} (--spacing {args.spacing:g} mm: sub-triangle edges at most {args.spacing:g} mm; "

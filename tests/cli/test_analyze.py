@@ -262,9 +262,11 @@ def test_posterior_defaults_and_population(tmp_path, store):
         (("posterior", "--subject", "nobody"), "no subject 'nobody'"),
         (
             ("posterior", "--subject", "S001", "--site", "ear"),
-            "site must be one of ['cheek', 'forehead', 'neck'], got 'ear'",
+            "--site must be one of ['cheek', 'forehead', 'neck'], got 'ear'",  # the option, not the API's `site`
         ),
-        (("scatter", "--site", "ear"), "site must be one of"),
+        (("scatter", "--site", "ear"), "--site must be one of ['cheek', 'forehead', 'neck'], got 'ear'"),
+        (("cca", "--seed", "-1"), "--seed must be an integer in [0, inf], got -1"),
+        (("posterior", "--seed", "-2"), "--seed must be an integer in [0, inf], got -2"),
         (("posterior", "--population", "--subject", "S001"), "posterior --population takes no --subject, --site or"),
         (
             ("posterior", "--population", "--noise", "stored"),

@@ -1,5 +1,6 @@
 """``facestats emulate`` and ``facestats capture`` through the console script; SIGKILL of the capture and --resume."""
 
+import json
 import os
 import pty
 import signal
@@ -103,13 +104,17 @@ def test_bad_input_gets_a_message_and_no_traceback(emulator, tmp_path):
     # Bad values are refused before the port is opened and before anything is written (a port that does not
     # exist would otherwise be the first error).
     for extra, message in [
-        (("--brightness", "300"), "brightness must be an integer in [0, 255], got 300"),
-        (("--brightness", "300", "--dry-run"), "brightness must be an integer in [0, 255]"),
-        (("--colour", "1,2"), "colour must be three LED drive values"),
-        (("--frame-interval", "nan"), "frame_interval_s must be finite"),
-        (("--frame-interval", "-1"), "frame_interval_s must lie in"),
-        (("--frame-timeout", "nan"), "frame_timeout must be finite"),
-        (("--frame-timeout", "-1"), "frame_timeout must lie in"),
+        (("--brightness", "300"), "--brightness must be an integer in [0, 255], got 300"),  # the options' names
+        (("--brightness", "300", "--dry-run"), "--brightness must be an integer in [0, 255]"),
+        (("--colour", "1,2"), "--colour must be three LED drive values"),
+        (("--colour", "1,2,999"), "--colour must be an integer in [0, 255], got 999"),
+        (("--frame-interval", "nan"), "--frame-interval must be finite"),  # was frame_interval_s
+        (("--frame-interval", "-1"), "--frame-interval must lie in"),
+        (("--frame-timeout", "nan"), "--frame-timeout must be finite"),
+        (("--frame-timeout", "-1"), "--frame-timeout must lie in (0, inf], got -1.0"),
+        (("--timeout", "0"), "--timeout must lie in (0, inf] s, got 0.0"),
+        (("--baudrate", "0"), "--baudrate must be an integer in [50, 4000000], got 0"),
+        (("--retries", "-1"), "--retries must be an integer in [0, 100], got -1"),
         (("--pattern", "foo"), "must name each frame's file apart: it lacks {frame}"),
         (("--pattern", "{frame}{ext}"), "it lacks {camera}"),
         (("--pattern", "../x{camera}{frame}.png"), "must name a file inside the hot folder"),
@@ -119,6 +124,23 @@ def test_bad_input_gets_a_message_and_no_traceback(emulator, tmp_path):
                      root / "lab" / "subject.json", *extra)  # fmt: skip
         assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, (extra, r.stderr)
         assert not (tmp_path / "d").exists(), extra
+    for extra, message in [  # the subject record from options, named by them (from --metadata: by its JSON keys)
+        (("--subject", ""), "--subject must be 1-64 characters of letters"),
+        (("--age", "-1"), "--age must be an integer in [0, 150], got -1"),
+        (("--skin-type", "9"), "--skin-type must be an integer in [1, 6], got 9"),
+        (("--condition", "wet"), "--condition must be one of ['cold', 'hot', "),
+    ]:
+        subject = () if "--subject" in extra else ("--subject", "S003")
+        record = dict(zip(("--age", "--gender", "--skin-type"), ("30", "M", "3")), **dict(zip(extra[::2], extra[1::2])))
+        r = run_main("capture", "dome", "--port", "/dev/ttyNOPE", *subject, "--out", tmp_path / "d", "--calibration",
+                     root / "lab" / "dome.json", "--hot-folder", root / "hot", *sum(record.items(), ()))  # fmt: skip
+        assert r.returncode == 2 and f"facestats: error: {message}" in r.stderr, (extra, r.stderr)
+        assert not (tmp_path / "d").exists(), extra
+    (tmp_path / "record.json").write_text(json.dumps({"age": 30, "gender": "M", "skin_type": 9}))
+    r = run_main("capture", "dome", "--port", "/dev/ttyNOPE", "--subject", "S003", "--out", tmp_path / "d",
+                 "--calibration", root / "lab" / "dome.json", "--hot-folder", root / "hot",
+                 "--metadata", tmp_path / "record.json")  # fmt: skip
+    assert "facestats: error: skin_type must be an integer in [1, 6], got 9" in r.stderr  # the file's key, not typed
     missing = run_main("capture", "dome", "--port", "x", "--subject", "S9", "--out", tmp_path / "c", "--calibration",
                        root / "lab" / "dome.json", "--hot-folder", root / "hot", "--dry-run")  # fmt: skip
     assert missing.returncode == 2 and "needs the subject's age, gender, skin_type" in missing.stderr
@@ -139,7 +161,27 @@ def test_sensor_dry_run_prints_the_bracket_and_its_duration(tmp_path):
         bad = run_main("capture", "sensor", "--port", "/dev/null", "--subject", "S001", "--out", tmp_path / "cap",
                        "--calibration", tmp_path / "sensor.json", "--hot-folder", tmp_path, "--age", "31", "--gender",
                        "F", "--skin-type", "3", "--readout", readout, "--dry-run")  # fmt: skip
-        assert bad.returncode == 2 and "readout_s must" in bad.stderr, bad.stderr
+        assert bad.returncode == 2 and "facestats: error: --readout must" in bad.stderr, bad.stderr  # not readout_s
+
+
+def test_emulate_errors_name_the_options_not_the_api_parameters(tmp_path):
+    for sub, extra, message in [
+        ("dome", ("--map-size", "0"), "--map-size must be an integer in [8, inf], got 0"),  # was map_size
+        ("sensor", ("--map-size", "4"), "--map-size must be an integer in [8, inf], got 4"),
+        ("dome", ("--seed", "-1"), "--seed must be an integer in [0, inf], got -1"),
+        ("dome", ("--resolution", "0"), "--resolution must be an integer in [8, 8192], got 0"),
+        ("dome", ("--leds", "0"), "--leds must be an integer in [1, 150], got 0"),
+        ("dome", ("--cameras", "99"), "--cameras must be an integer in [1, 16], got 99"),
+        ("dome", ("--wired-leds", "-1"), "--wired-leds must be an integer in [1, inf], got -1"),
+        ("dome", ("--workers", "0"), "--workers must be an integer in [1, inf], got 0"),
+        ("dome", ("--subject", "S999"), "--subject must be ids of the population (S001-S149, S008-<condition>), got"),
+        ("sensor", ("--subject", ""), "--subject must be ids of the population"),
+        ("dome", ("--cache", tmp_path / "afile"), f"--cache must be a directory, got '{tmp_path / 'afile'}'"),
+    ]:
+        (tmp_path / "afile").write_text("x")
+        r = run_main("emulate", sub, *extra, "--hot-folder", tmp_path / "hot", "--lab", tmp_path / "lab", "--quiet")
+        assert r.returncode == 2 and f"facestats: error: {message}" in r.stderr, (extra, r.stderr)
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"], extra  # no folder left behind
 
 
 def test_emulate_fault_percentages_that_exceed_the_replies_name_the_options(tmp_path):

@@ -337,7 +337,26 @@ def test_errors_exit_2_with_clear_messages(pop, tmp_path):
     r = run_main("edit", "brdf", "F3", "--target", "nobody", "--store", pop, "--images", tmp_path)
     assert r.returncode == 2 and "target 'nobody' is not a subject of store" in r.stderr
     r = run_main("edit", "skin-type", "F3", "VII", "--store", pop, "--images", tmp_path)
-    assert r.returncode == 2 and "skin type must be I-VI or 1-6, got 'VII'" in r.stderr
+    assert r.returncode == 2 and "facestats: error: TYPE must be I-VI or 1-6, got 'VII'" in r.stderr  # positional
+    for option, value, message in (("--skin-type", "VII", "--skin-type must be I-VI or 1-6, got 'VII'"),
+                                   ("--gender", "X", "--gender must be M or F (or 0 = M, 1 = F), got 'X'"),
+                                   ("--age", "300", "--age must satisfy 0 <= MIN <= MAX <= 200, got '300'"),
+                                   ("--condition", "wet", "--condition must be one of ['normal', ")):  # fmt: skip
+        subset = () if option in ("--skin-type", "--condition") else ("--skin-type", "V")
+        r = run_main("edit", "brdf", "F3", *subset, option, value, "--store", pop, "--images", tmp_path)
+        assert r.returncode == 2 and f"facestats: error: {message}" in r.stderr, (option, r.stderr)
+    for argv in (("brdf", "F3", "--target", "F5a", "--images", tmp_path), ("stats", "F3", "--out", tmp_path / "s")):
+        r = run_main("edit", *argv, "--regions", "ear", "--store", pop)
+        assert r.returncode == 2 and "facestats: error: --regions must be 1-10 or one of [" in r.stderr, r.stderr
+        assert "got 'ear'" in r.stderr
+    for option, value, message in (("--out", "", "--out must be a file system path, got ''"),  # was `path`
+                                   ("--levels", "9", "--levels must be at most "),
+                                   ("--bins", "1", "--bins must be an integer in [2, 65536], got 1")):  # fmt: skip
+        out = () if option == "--out" else ("--out", tmp_path / "s.npz")
+        r = run_main("edit", "stats", "F3", *out, option, value, "--store", pop)
+        assert r.returncode == 2 and f"facestats: error: {message}" in r.stderr, (option, r.stderr)
+        assert option != "--levels" or "got 9" in r.stderr
+    assert not (tmp_path / "s.npz").exists()
     r = run_main("edit", "brdf", "F3", "--skin-type", "V", "--t", "2", "--store", pop, "--images", tmp_path)
     assert r.returncode == 2 and "facestats: error: --t must lie in [0, 1], got 2.0" in r.stderr  # the option's name
     for option, value, message in (("--id", "../x", "--id must be 1-64 characters"),

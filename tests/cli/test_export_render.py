@@ -92,10 +92,28 @@ def test_export_subject_refuses_options_of_another_format_by_their_flags(tmp_pat
         assert f"({flag} applies to mitsuba only)" in err
     mitsuba = ["export-subject", "S001", "--format", "mitsuba", "--mesh-format", "ply", "--out", str(tmp_path / "m")]
     assert main(mitsuba) == 2
-    assert "mesh_format must be 'obj' for a Mitsuba scene" in capsys.readouterr().err
+    assert "facestats: error: --mesh-format must be 'obj' for a Mitsuba scene" in capsys.readouterr().err
     assert os.listdir(tmp_path) == []
     assert main(args) == 0  # the options' defaults are not passed as options
     assert "face.gltf" in capsys.readouterr().out
+
+
+def test_export_subject_errors_name_the_options_and_the_id_not_the_api_parameters(tmp_path, capsys):
+    (tmp_path / "afile").write_text("x")
+    mitsuba = ["export-subject", "S001", "--format", "mitsuba", "--out", str(tmp_path / "m")]
+    for argv, message in [
+        (["export-subject", "", "--out", str(tmp_path / "e")], "ID must be 1-64 characters of letters"),  # subject_id
+        (["export-subject", "S001", "--out", str(tmp_path / "afile")], "--out must be a directory, got '"),  # out
+        (["export-subject", "S001", "--out", ""], "--out must be a file system path, got ''"),
+        (mitsuba + ["--width", "0"], "--width must be an integer in [1, 16384], got 0"),
+        (mitsuba + ["--height", "100000"], "--height must be an integer in [1, 16384], got 100000"),
+        (mitsuba + ["--spp", "0"], "--spp must be an integer in [1, 16384], got 0"),
+        (mitsuba + ["--probe", str(tmp_path / "no.hdr")], f"--probe '{tmp_path / 'no.hdr'}' does not exist"),
+    ]:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.startswith(f"facestats: error: {message}"), (argv, err)
+    assert os.listdir(tmp_path) == ["afile"]
 
 
 @pytest.mark.slow  # re-simulates a default capture (about 10 s); tests/pipeline/test_validation.py covers the API
@@ -115,6 +133,13 @@ def test_render_checks_its_outputs_before_rendering(tmp_path, capsys):
     assert "--out must be a directory, got" in capsys.readouterr().err
     assert main(["render", "S003", "--out", ""]) == 2
     assert "--out must be a file system path, got ''" in capsys.readouterr().err
+    assert main(["render", "", "--out", str(tmp_path / "r0")]) == 2  # the positional, not the API's subject_id
+    assert capsys.readouterr().err.startswith("facestats: error: ID must be 1-64 characters of letters")
+    for probe in ("no.hdr", "afile"):  # "light probe ..." was renamed by the --light mapping: "--light probe 'x'"
+        assert main(["render", "S003", "--out", str(tmp_path / "r0"), "--probe", str(tmp_path / probe)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"facestats: error: --probe '{tmp_path / probe}' "), err
+    assert not (tmp_path / "r0").exists()
     (tmp_path / "r" / "S003-cam05-led020.png").mkdir(parents=True)  # one target is a folder: nothing is written
     assert main(["render", "S003", "--out", str(tmp_path / "r")]) == 2
     assert "S003-cam05-led020.png" in capsys.readouterr().err and os.listdir(tmp_path / "r") == [
@@ -295,6 +320,10 @@ def test_serve_refuses_a_port_it_cannot_bind(capsys):
         port = s.getsockname()[1]
         assert main(["serve", "--port", str(port)]) == 2
     assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err
+    assert main(["serve", "--port", "70000"]) == 2  # named by the options, not by serve()'s parameters
+    assert "facestats: error: --port must be an integer in [0, 65535], got 70000" in capsys.readouterr().err
+    assert main(["serve", "--host", ""]) == 2
+    assert capsys.readouterr().err.startswith("facestats: error: --host must be an address such as 127.0.0.1")
 
 
 def test_probe_lights_take_a_median_cut_or_blocks_and_name_bad_values(tmp_path, capsys):

@@ -57,3 +57,34 @@ def test_the_module_docstring_names_every_subcommand_of_the_groups_it_details():
         if subs and line is not None:  # a group listed with its subcommands lists all of them
             named = {w for part in line.split("``")[1::2] for w in part.split(" ", 1)[1].split("|")}
             assert named == set(subs[0]), (command, named)
+
+
+def test_named_options_renames_the_longest_name_that_starts_the_message():
+    """``light probe 'x' ...`` is ``--probe``'s message, not ``--light``'s (render named it ``--light probe``)."""
+    from facestats.cli.options import named_options
+    from facestats.errors import InsufficientDataError, ValidationError
+
+    names = {"light": "--light", "light probe": "--probe"}  # the shorter first: the order must not matter
+    with pytest.raises(ValidationError) as exc, named_options(**names):
+        raise ValidationError("light probe 'x.hdr' does not exist")
+    assert str(exc.value) == "--probe 'x.hdr' does not exist"
+    with pytest.raises(InsufficientDataError) as exc, named_options(**names):  # the class is kept
+        raise InsufficientDataError("light must be an integer in [0, 149], got 150")
+    assert str(exc.value) == "--light must be an integer in [0, 149], got 150"
+    with pytest.raises(ValidationError) as exc, named_options(**names):  # a name inside a word is not renamed
+        raise ValidationError("lighting must be on, got 'off'")
+    assert str(exc.value) == "lighting must be on, got 'off'"
+
+
+def test_an_empty_store_value_is_named_as_the_option_by_every_command_that_opens_it(tmp_path):
+    """open_store's message names its parameter ``path``; the commands name the option typed."""
+    import scipy.io
+
+    from tests.helpers import merl_dict, run_main
+
+    scipy.io.savemat(tmp_path / "ts_data.mat", merl_dict())
+    for argv in (("query",), ("info",), ("analyze", "pca"), ("serve",), ("import-merl", "ts_data.mat")):
+        r = run_main(*argv, "--store", "", cwd=tmp_path)
+        assert r.returncode == 2, (argv, r.stderr)
+        assert "facestats: error: --store must name a store (a directory or a zip file), got ''" in r.stderr, argv
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ts_data.mat"]  # nothing written

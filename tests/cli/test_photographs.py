@@ -4,6 +4,7 @@
 """
 
 import json
+import os
 import pathlib
 from dataclasses import replace
 
@@ -73,6 +74,22 @@ def test_calibrate_response_from_the_real_bracket_into_a_dome(tmp_path):
     assert r.returncode == 2 and "bits must be at most 8 for these 8-bit files, got 12" in r.stderr
     r = run_cli("calibrate", "response", *frames, "--samples", "100000000")
     assert r.returncode == 2 and "samples must be" in r.stderr
+
+
+def test_ingest_errors_name_the_options_not_the_api_parameters(tmp_path, capsys):
+    from facestats.cli import main
+
+    base = ["ingest", str(tmp_path), "--mesh", str(tmp_path / "m.obj"), "--calibration", str(tmp_path / "c.json")]
+    base += ["--store", str(tmp_path / "s.zarr")]
+    for extra, message in [
+        (["--subject", ""], "--subject must be 1-64 characters of letters"),  # was subject_id
+        (["--subject", "S1", "--workers", "0"], "--workers must be an integer in [1, inf], got 0"),
+        (["--subject", "S1", "--motion-tolerance", "-1"], "--motion-tolerance must lie in (0, inf], got -1.0"),
+        (["--subject", "S1", "--min-footprint", "-1"], "--min-footprint must lie in [0, inf], got -1.0"),
+    ]:
+        assert main(base + extra) == 2, extra
+        assert f"facestats: error: {message}" in capsys.readouterr().err, extra
+    assert os.listdir(tmp_path) == []
 
 
 def test_ingest_regions_help_names_every_file_the_default_looks_for(tmp_path, capsys):

@@ -94,14 +94,15 @@ def test_query_no_match_and_bad_values(stores):
     r = run_main("query", "--skin-type", "VI", "--store", stores[1], "--format", "json")
     assert r.returncode == 1 and json.loads(r.stdout)["count"] == 0
     for args, msg in (
-        (("--skin-type", "VII"), "skin type must be I-VI or 1-6, got 'VII'"),
-        (("--gender", "X"), "gender must be M or F"),
-        (("--age", "old"), "age must be 20s, 30s, 40s, 50s+, MIN-MAX"),
-        (("--condition", "wet"), "condition must be one of"),
-        (("--region", "ear"), "region must be 1-10"),
+        (("--skin-type", "VII"), "--skin-type must be I-VI or 1-6, got 'VII'"),  # the options, not the API's names
+        (("--gender", "X"), "--gender must be M or F (or 0 = M, 1 = F), got 'X'"),
+        (("--age", "old"), "--age must be 20s, 30s, 40s, 50s+, MIN-MAX or an age in years, got 'old'"),
+        (("--age", "50-20"), "--age must satisfy 0 <= MIN <= MAX <= 200, got '50-20'"),  # was "age range must"
+        (("--condition", "wet"), "--condition must be one of ['normal', 'cold', 'hot', 'sweaty', "),
+        (("--region", "ear"), "--region must be 1-10 or one of ["),
     ):
         r = run_main("query", *args, "--store", stores[1])
-        assert r.returncode == 2 and r.stderr.startswith("facestats: error: ") and msg in r.stderr, r.stderr
+        assert r.returncode == 2 and r.stderr.startswith(f"facestats: error: {msg}"), r.stderr
     r = run_main("query", "--store", stores[0].parent / "nope.zarr")
     assert r.returncode == 2 and "does not exist" in r.stderr
 
@@ -231,6 +232,9 @@ def test_import_merl(tmp_path):
     zp = pack_store(out, tmp_path / "m.zip")
     r = run_main("import-merl", mat, "--store", zp)
     assert r.returncode == 2 and "read-only" in r.stderr
+    r = run_main("import-merl", mat, "--store", tmp_path / "p.zarr", "--prefix", "a/b")  # the option, not `prefix`
+    assert r.returncode == 2 and r.stderr.startswith("facestats: error: --prefix must make subject ids")
+    assert "got 'a/b'" in r.stderr and not (tmp_path / "p.zarr").exists()
 
 
 def test_export_into_a_folder_of_other_files_needs_overwrite_and_removes_nothing(stores, tmp_path):
@@ -261,6 +265,9 @@ def test_errors_name_the_commands_options_not_the_api_parameters(tmp_path):
     assert res.returncode == 2 and "error: --size must be an integer in [8, inf], got 2" in res.stderr
     res = run_main("build", "--store", str(tmp_path / "x.zarr"), "--size", "8", "--subjects", "S999")
     assert res.returncode == 2 and "error: --subjects must be ids of the population, got unknown ['S999']" in res.stderr
+    res = run_main("build", "--store", str(tmp_path / "x.zarr"), "--size", "8", "--subjects", "S001", "")
+    assert res.returncode == 2 and "error: --subjects must be 1-64 characters of letters" in res.stderr  # subject_id
+    assert res.stderr.rstrip().endswith("got ''"), res.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["full"]  # nothing written
 
 

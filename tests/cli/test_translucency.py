@@ -75,13 +75,18 @@ def test_cli_rejects_a_missing_image_and_a_bad_width(scene_files, capsys):
     base = ["translucency", str(d / "pyramid.obj"), "--lights", str(d / "lights.json")]
     base += ["--camera", str(d / "camera.json")]
     assert main(base + ["--image", str(d / "missing.exr")]) == 2
-    assert "image must name an existing file" in capsys.readouterr().err
+    assert "facestats: error: --image must name an existing file" in capsys.readouterr().err  # not the API's `image`
     out, plot = d / "failed.json", d / "failed.png"
     assert (
         main(base + ["--image", str(d / "pyramid.exr"), "--width", "-1", "--json", str(out), "--plot", str(plot)]) == 2
     )
-    assert "width must lie in" in capsys.readouterr().err
+    assert "facestats: error: --width must lie in (0, inf] mm, got -1.0" in capsys.readouterr().err
     assert not out.exists() and not plot.exists()  # a failed command writes nothing
+    for option, value, message in (("--spacing", "0", "--spacing must lie in (0, inf] mm, got 0.0"),
+                                   ("--scale", "-2", "--scale must be > 0, got -2.0"),
+                                   ("--eta", "0.5", "--eta must lie in [1, 3], got 0.5")):  # fmt: skip
+        assert main(base + ["--image", str(d / "pyramid.exr"), option, value]) == 2
+        assert f"facestats: error: {message}" in capsys.readouterr().err, option
 
 
 def test_bad_inputs_are_named_by_file_and_field_before_the_fit(scene_files, tmp_path):

@@ -411,7 +411,14 @@ def test_command_line_generates_and_renders(tmp_path, capsys):
     assert zarr.open_group(str(tmp_path / "o.zarr"), mode="r")["done"][:].all()
     bad = [a.replace("o.zarr", "p.zarr").replace("n.exr", "missing.exr") for a in args]
     assert main(bad) == 2
-    assert "path must name an existing image file" in capsys.readouterr().err
+    assert "facestats: error: --map must name an existing image file, got '" in capsys.readouterr().err  # not `path`
+    window = args.index("--window")
+    for corner, message in [
+        (["-1", "4200", "64", "64"], "--window row0 must be an integer in [0, 16383], got -1"),
+        (["9050", "4200", "0", "64"], "--window height must be an integer in [1, inf], got 0"),
+    ]:
+        assert main(args[: window + 1] + corner + args[window + 5 :]) == 2
+        assert f"facestats: error: {message}" in capsys.readouterr().err  # not the API's `window`
     assert not (tmp_path / "p.zarr").exists()
 
 

@@ -25,8 +25,9 @@ so at most :data:`MAX_HEAVY` are loaded for such work at once.  The last few
 subjects read are kept by id *and* generation: a subject another process
 rewrote or removed is read again or answered 404, never served from memory.
 JSON answers hold no NaN or infinities (``null`` instead).  Errors
-are JSON (API) or a short page: the text is the one the CLI prints
-(``facestats: error: ...``), with 400 (bad value), 404 (unknown subject or
+are JSON (API) or a short page: the text is the Python API's message as the CLI prints it
+(``facestats: error: ...``; the CLI names its options where the message starts with a parameter, e.g.
+``--skin-type must ...`` for ``skin type must ...``), with 400 (bad value), 404 (unknown subject or
 page), 409 (store fails its checks), 424 (missing optional dependency), 503
 (image or export requests waited too long for their turn); an
 unexpected exception is logged on the server and answered with a generic 500,
@@ -63,7 +64,7 @@ _LOG = logging.getLogger("facestats.web")
 
 
 def error_text(exc) -> str:
-    """The message the CLI prints for a :class:`FacestatsError` (``facestats: error: ...``).
+    """The message of a :class:`FacestatsError` as the CLI prints it (``facestats: error: ...``), in the API's words.
 
     Parameters
     ----------

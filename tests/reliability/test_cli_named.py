@@ -94,7 +94,7 @@ def _cases(root, store, s):
     """(name, argv, words the output must contain, paths that must not exist afterwards)."""
     new = root / "new"
     return [
-        ("query skin-type ²", ["query", "--skin-type", "²", "--store", store], ["skin type", "'²'"], []),
+        ("query skin-type ²", ["query", "--skin-type", "²", "--store", store], ["--skin-type must", "'²'"], []),
         ("query region ³", ["query", "--region", "³", "--store", store], ["region", "'³'"], []),
         (
             "edit regions ²",
@@ -219,7 +219,7 @@ def _cases(root, store, s):
             ["--out-store"],
             [new],
         ),
-        ("store '' (query)", ["query", "--store", ""], ["path", "''"], []),
+        ("store '' (query)", ["query", "--store", ""], ["--store must name a store", "''"], []),
         (
             "foreign directory",
             ["import-merl", root / "ts_data.mat", "--store", root / "foreign"],

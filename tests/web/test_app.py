@@ -41,12 +41,19 @@ def test_query_json_is_the_cli_json(client, store_path, capsys):
     assert csv.status_code == 200 and csv.mimetype == "text/csv" and csv.data.decode().startswith("section,")
 
 
-def test_errors_carry_the_cli_text_and_4xx_never_a_traceback(client, store_path, capsys, monkeypatch):
-    capsys.readouterr()
-    assert cli_main(["query", "--store", store_path, "--skin-type", "VII"]) == 2
-    cli_err = capsys.readouterr().err.strip()
+def test_errors_carry_the_api_text_and_4xx_never_a_traceback(client, store_path, capsys, monkeypatch):
+    from facestats.errors import FacestatsError
+    from facestats.io import open_store
+    from facestats.web.app import error_text
+
+    with open_store(store_path) as st, pytest.raises(FacestatsError) as api:
+        st.query(skin_type="VII")
     r = client.get("/api/query?skin_type=VII")
-    assert r.status_code == 400 and r.get_json()["error"] == cli_err
+    assert r.status_code == 400 and r.get_json()["error"] == error_text(api.value)
+    assert error_text(api.value) == "facestats: error: skin type must be I-VI or 1-6, got 'VII'"
+    capsys.readouterr()  # the command line prints the same, naming the option typed
+    assert cli_main(["query", "--store", store_path, "--skin-type", "VII"]) == 2
+    assert capsys.readouterr().err.strip() == "facestats: error: --skin-type must be I-VI or 1-6, got 'VII'"
     assert client.get("/api/query?evil=1").status_code == 400
     assert client.get("/api/query?age=" + "1" * 40).status_code == 400
     assert client.get("/api/query?gender=M&x=" + "a" * 2000).status_code == 414
@@ -178,7 +185,7 @@ def test_missing_openexr_is_424_with_the_install_hint(client, monkeypatch):
 
     monkeypatch.setitem(sys.modules, "OpenEXR", None)  # import OpenEXR now raises ImportError
     r = client.get("/subject/S002/exr.zip")
-    assert r.status_code == 424  # an HTML page (not under /api/) with the CLI's text
+    assert r.status_code == 424  # an HTML page (not under /api/) with the API's text, as the CLI prints it
     assert b"facestats: error: the OpenEXR package is not installed" in r.data and b"pip install OpenEXR" in r.data
     assert b"Traceback" not in r.data
     assert client.get("/subject/S002/map/albedo.png").status_code == 200  # the rest of the app works

@@ -164,20 +164,25 @@ def test_population_page_numbers_equal_cli_json_and_plots_render(driver, server,
     _screenshot(driver, "population.png")
 
 
-def test_invalid_filter_shows_the_cli_error_text(driver, server, store_path, capsys):
+def test_invalid_filter_shows_the_api_error_text(driver, server, store_path, capsys):
     from selenium.webdriver.common.by import By
     from selenium.webdriver.common.keys import Keys
+
+    from facestats.errors import FacestatsError
+    from facestats.io import open_store
+    from facestats.web.app import error_text
 
     driver.get(server)
     _wait(driver, lambda d: d.find_element(By.TAG_NAME, "body").get_attribute("data-count") is not None)
     box = driver.find_element(By.NAME, "age")
     box.send_keys("ninety", Keys.TAB)
     _wait(driver, lambda d: d.find_element(By.TAG_NAME, "body").get_attribute("data-count") == "error")
-    capsys.readouterr()
-    rc = cli_main(["query", "--store", store_path, "--age", "ninety"])
-    assert rc == 2
-    cli_text = capsys.readouterr().err.strip()
-    assert driver.find_element(By.ID, "error").text == cli_text
+    with open_store(store_path) as st, pytest.raises(FacestatsError) as api:
+        st.query(age="ninety")
+    assert driver.find_element(By.ID, "error").text == error_text(api.value)
+    capsys.readouterr()  # the command line prints the same message, naming its option (--age) for the field
+    assert cli_main(["query", "--store", store_path, "--age", "ninety"]) == 2
+    assert capsys.readouterr().err.strip() == error_text(api.value).replace("error: age must", "error: --age must")
 
 
 def test_subject_page_shows_its_maps_and_preview(driver, server):

@@ -531,15 +531,11 @@ def _check_dims(ds, label) -> None:
             )
 
 
-#: How far ``u`` and ``v`` coords may lie from the texel centres: float32 rounding (6e-8), far below half a texel
-#: of the largest maps (3e-5 at 16384²).
-COORD_ATOL = 1e-6
-
-
 def _check_coords(ds, label) -> None:
-    """``channel`` coords are R, G, B; ``site`` coords are known sites, each once; ``u`` and ``v`` are the texel
-    centres (k + ½) / n that every reader assumes (maps are read by index); ``fiber_distance`` is a contact
-    sensor's (finite, > 0 mm, strictly increasing: :class:`facestats.acquire.sensor.ContactSensor`)."""
+    """``channel`` coords are R, G, B; ``site`` coords are known sites, each once; ``u`` and ``v`` are UV positions
+    of texels, strictly increasing inside (0, 1) (the texel centres (k + ½) / n of a whole map; a crop or a
+    strided copy keeps its texels' positions); ``fiber_distance`` is a contact sensor's (finite, > 0 mm,
+    strictly increasing: :class:`facestats.acquire.sensor.ContactSensor`)."""
     if "channel" in ds.dims and tuple(str(c) for c in ds["channel"].values) != CHANNELS:
         raise SchemaError(f"subject {label!r}: channel coords must be {CHANNELS}, got {list(ds['channel'].values)}")
     if "site" in ds.dims:
@@ -550,17 +546,14 @@ def _check_coords(ds, label) -> None:
             raise SchemaError(f"subject {label!r}: site coords must name each site once, got {sites}")
     for dim in ("u", "v"):
         if dim in ds.coords and dim in ds.dims:
-            c = np.asarray(ds[dim].values)
-            n = c.shape[0]
-            centres = (np.arange(n) + 0.5) / n
-            if c.dtype.kind != "f" or not np.allclose(c, centres, rtol=0, atol=COORD_ATOL):
+            problem = _increasing_problem(np.asarray(ds[dim].values), 0.0, 1.0)
+            if problem:
                 raise SchemaError(
-                    f"subject {label!r}: {dim} coords must be the texel centres (k + 1/2) / {n}, got "
-                    f"{_first_off(c, centres)}"
+                    f"subject {label!r}: {dim} coords must be UV positions of texels, strictly increasing inside "
+                    f"(0, 1), got {problem}"
                 )
     if "fiber_distance" in ds.coords:
-        r = np.asarray(ds["fiber_distance"].values)
-        problem = _fiber_problem(r)
+        problem = _increasing_problem(np.asarray(ds["fiber_distance"].values), 0.0, np.inf)
         if problem:
             raise SchemaError(
                 f"subject {label!r}: fiber_distance must be finite, > 0 mm and strictly increasing (a contact "
@@ -568,27 +561,19 @@ def _check_coords(ds, label) -> None:
             )
 
 
-def _fiber_problem(r) -> str | None:
-    """What is wrong with the fibre distances ``r`` (for a message), or None."""
+def _increasing_problem(r, low: float, high: float) -> str | None:
+    """What keeps the 1-D coordinate ``r`` from being finite, strictly increasing and inside (low, high) (for a
+    message: the first offending value), or None."""
     if r.dtype.kind not in "fiu" or r.ndim != 1:
         return f"dtype {r.dtype}, shape {r.shape}"
     r = r.astype(np.float64)
-    bad = ~np.isfinite(r) | (r <= 0)
+    bad = ~np.isfinite(r) | (r <= low) | (r >= high)
     bad[1:] |= ~(r[1:] > r[:-1])
     if not bad.any():
         return None
     k = int(np.flatnonzero(bad)[0])
     after = f" after {float(r[k - 1])!r}" if k > 0 else ""
     return f"{float(r[k])!r} at index {k}{after}"
-
-
-def _first_off(values, expected) -> str:
-    """``values`` described by their first element that differs from ``expected`` (for a message)."""
-    values = np.asarray(values)
-    if values.dtype.kind != "f":
-        return f"dtype {values.dtype}"
-    k = int(np.flatnonzero(~np.isclose(values, expected, rtol=0, atol=COORD_ATOL))[0])
-    return f"{float(values[k])!r} at index {k} (expected {float(expected[k])!r})"
 
 
 def _check_maps(ds, label) -> None:

@@ -536,8 +536,10 @@ def test_invalid_subjects_are_refused_without_touching_the_store(tmp_path):
         ):
             st.write_subject(bad)
         bad = make_map_subject("BAD6")
-        bad = bad.assign_coords(u=bad["u"].values[::-1])  # read by index everywhere: the maps' meaning would flip
-        with pytest.raises(SchemaError, match=r"u coords must be the texel centres \(k \+ 1/2\) / 24, got 0.979"):
+        bad = bad.assign_coords(u=bad["u"].values[::-1])  # the maps are read by index: left and right would swap
+        with pytest.raises(
+            SchemaError, match=r"u coords must be .* strictly increasing inside \(0, 1\), got 0.9375 at"
+        ):
             st.write_subject(bad)
         bad = make_map_subject("BAD7")
         r = bad["fiber_distance"].values.copy()
@@ -546,8 +548,9 @@ def test_invalid_subjects_are_refused_without_touching_the_store(tmp_path):
             st.write_subject(bad.assign_coords(fiber_distance=("fiber", r)))
         assert st.revision == rev
         assert sorted(p.relative_to(path) for p in path.rglob("*")) == listing
-    ok = make_map_subject("F32")  # float32 coordinates are the same texel centres
+    ok = make_map_subject("F32")  # float32 coordinates, a crop and a strided copy keep their texels' UV positions
     validate_subject(ok.assign_coords(u=ok["u"].astype(np.float32), v=ok["v"].astype(np.float32)), name="F32")
+    validate_subject(ok.isel(u=slice(3, 20), v=slice(None, None, 4)), name="F32")
 
 
 def test_overwrite_and_edits(tmp_path):

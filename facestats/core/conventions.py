@@ -14,6 +14,7 @@ from facestats.errors import ValidationError
 
 __all__ = [
     "CHANNELS",
+    "COMPONENTS",
     "REGIONS",
     "REGION_IDS",
     "SITES",
@@ -35,6 +36,8 @@ __all__ = [
 
 #: Colour channels (linear RGB).
 CHANNELS = ("R", "G", "B")
+#: Labels of the ``component`` dimension of vector maps (normals): x, y, z of the facestats world frame.
+COMPONENTS = ("x", "y", "z")
 
 #: Face regions of Weyrich et al. 2006 Fig. 15 (left).  The text names all but
 #: region 5; facestats places it below the eyes, between eyelids and cheeks

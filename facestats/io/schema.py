@@ -57,7 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.core.blocked import blockwise
-from facestats.core.conventions import CHANNELS, CONDITIONS, FLAG_BITS, GENDERS, REGIONS, SITES
+from facestats.core.conventions import CHANNELS, COMPONENTS, CONDITIONS, FLAG_BITS, GENDERS, REGIONS, SITES
 from facestats.core.published import ETA_SKIN
 from facestats.errors import SchemaError
 from facestats.io.layout import map_chunk_rows
@@ -532,18 +532,31 @@ def _check_dims(ds, label) -> None:
 
 
 def _check_coords(ds, label) -> None:
-    """``channel`` coords are R, G, B; ``site`` coords are known sites, each once; ``u`` and ``v`` are UV positions
-    of texels, strictly increasing inside (0, 1) (the texel centres (k + ½) / n of a whole map; a crop or a
-    strided copy keeps its texels' positions); ``fiber_distance`` is a contact sensor's (finite, > 0 mm,
-    strictly increasing: :class:`facestats.acquire.sensor.ContactSensor`)."""
-    if "channel" in ds.dims and tuple(str(c) for c in ds["channel"].values) != CHANNELS:
-        raise SchemaError(f"subject {label!r}: channel coords must be {CHANNELS}, got {list(ds['channel'].values)}")
+    """The subject's coordinates: labels (:func:`_check_labels`) and positions (:func:`_check_positions`)."""
+    _check_labels(ds, label)
+    _check_positions(ds, label)
+
+
+def _check_labels(ds, label) -> None:
+    """``channel`` coords are R, G, B; ``component`` coords x, y, z (readers take both by index); ``site`` coords
+    are known sites, each once."""
+    for dim, expected in (("channel", CHANNELS), ("component", COMPONENTS)):
+        if dim in ds.coords and tuple(str(c) for c in ds[dim].values) != expected:
+            raise SchemaError(
+                f"subject {label!r}: {dim} coords must be {expected}, got {[str(c) for c in ds[dim].values]}"
+            )
     if "site" in ds.dims:
         sites = [str(s) for s in ds["site"].values]
         if not set(sites) <= set(SITES):
             raise SchemaError(f"subject {label!r}: site coords must be among {SITES}, got {sites}")
         if len(set(sites)) != len(sites):  # a second row of one site: which would the statistics take?
             raise SchemaError(f"subject {label!r}: site coords must name each site once, got {sites}")
+
+
+def _check_positions(ds, label) -> None:
+    """``u`` and ``v`` are UV positions of texels, strictly increasing inside (0, 1) (the texel centres
+    (k + ½) / n of a whole map; a crop or a strided copy keeps its texels' positions); ``fiber_distance`` is a
+    contact sensor's (finite, > 0 mm, strictly increasing: :class:`facestats.acquire.sensor.ContactSensor`)."""
     for dim in ("u", "v"):
         if dim in ds.coords and dim in ds.dims:
             problem = _increasing_problem(np.asarray(ds[dim].values), 0.0, 1.0)

@@ -19,7 +19,7 @@ import numpy as np
 
 from facestats.acquire.capture import Capture, open_capture
 from facestats.acquire.geometry import uv_to_texel
-from facestats.core.conventions import CHANNELS, SITES
+from facestats.core.conventions import CHANNELS, COMPONENTS, SITES
 from facestats.core.progress import progress_bar
 from facestats.core.published import ETA_SKIN, SIGMA_TR_AVG
 from facestats.core.validate import as_finite, check_integer, check_shape
@@ -240,7 +240,7 @@ def _subject_dataset(capture, maps, micro, tf, scattering, provenance):
             "v": (np.arange(n) + 0.5) / n,
             "channel": list(CHANNELS),
             "site": list(SITES),
-            "component": ["x", "y", "z"],
+            "component": list(COMPONENTS),
             "fiber_distance": ("fiber", capture.array("fiber_distance")),
         },
         attrs={

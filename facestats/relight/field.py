@@ -39,7 +39,7 @@ import uuid
 
 import numpy as np
 
-from facestats.core.conventions import CHANNELS
+from facestats.core.conventions import CHANNELS, COMPONENTS
 from facestats.core.validate import (
     as_finite,
     as_float,
@@ -71,7 +71,6 @@ __all__ = [
 
 GRID_DIMS = ("light_phi", "light_theta")
 LIST_DIMS = ("light",)
-COMPONENTS = ("x", "y", "z")
 _UNITS = "sr-1"
 
 

@@ -551,6 +551,10 @@ def test_invalid_subjects_are_refused_without_touching_the_store(tmp_path):
     ok = make_map_subject("F32")  # float32 coordinates, a crop and a strided copy keep their texels' UV positions
     validate_subject(ok.assign_coords(u=ok["u"].astype(np.float32), v=ok["v"].astype(np.float32)), name="F32")
     validate_subject(ok.isel(u=slice(3, 20), v=slice(None, None, 4)), name="F32")
+    with open_store() as st:  # normals are read by index: x, y, z relabelled would contradict them
+        ds = st.subject("S001")
+    with pytest.raises(SchemaError, match=r"component coords must be \('x', 'y', 'z'\), got \['z', 'y', 'x'\]"):
+        validate_subject(ds.assign_coords(component=["z", "y", "x"]), name="S001")
 
 
 def test_overwrite_and_edits(tmp_path):

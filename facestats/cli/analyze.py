@@ -46,7 +46,7 @@ import json
 import sys
 import warnings
 
-from facestats.cli.options import add_store_option, ascii_int, named_options, open_store_option
+from facestats.cli.options import add_store_option, ascii_int, named_options, non_empty, open_store_option
 from facestats.errors import ValidationError
 
 __all__ = ["add_analyze", "ACTIONS", "BATCH_ACTIONS"]
@@ -299,6 +299,7 @@ def add_analyze(subparsers):
     _common(a)
     a.add_argument(
         "--site",
+        type=non_empty,
         default=None,
         metavar="SITE",
         help="cheek, forehead or neck: coefficients fitted at that site (default: subject-level, "
@@ -337,11 +338,14 @@ def add_analyze(subparsers):
     _common(a)
     a.add_argument(
         "--subject",
+        type=non_empty,
         default=None,
         metavar="ID",
         help="subject id (default: the first subject measured under normal conditions)",
     )
-    a.add_argument("--site", default=None, metavar="SITE", help="cheek, forehead or neck (default cheek)")
+    a.add_argument(
+        "--site", type=non_empty, default=None, metavar="SITE", help="cheek, forehead or neck (default cheek)"
+    )
     a.add_argument(
         "--noise",
         choices=("model", "stored"),

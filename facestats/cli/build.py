@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 from facestats.cli.interrupts import is_interrupt
-from facestats.cli.options import ascii_int, check_store_to_write, named_options
+from facestats.cli.options import ascii_int, check_store_to_write, named_options, non_empty
 from facestats.core.conventions import DEFAULT_FACE, DEFAULT_MAP_SIZE, DEFAULT_SEED
 
 __all__ = ["add_build"]
@@ -131,6 +131,7 @@ def add_build(sub):
     p.add_argument("--default", action="store_true", help="regenerate the embedded default store")
     p.add_argument(
         "--status",
+        type=non_empty,
         metavar="STORE",
         help=(
             "report what builds into STORE have done, what is running, what failed and what a build that stopped "

@@ -9,7 +9,7 @@ import os
 import pathlib
 import sys
 
-from facestats.cli.options import ascii_float, ascii_int, named_options
+from facestats.cli.options import ascii_float, ascii_int, named_options, non_empty
 from facestats.errors import ValidationError
 
 __all__ = ["add_calibrate"]
@@ -355,7 +355,9 @@ def add_calibrate(sub):
         ),
     )
     leds.add_argument("target_dir", metavar="TARGET_DIR", help="target folder with manifest.json")
-    leds.add_argument("--calibration", help="dome calibration JSON with the cameras (default TARGET_DIR/dome.json)")
+    leds.add_argument(
+        "--calibration", type=non_empty, help="dome calibration JSON with the cameras (default TARGET_DIR/dome.json)"
+    )
     leds.add_argument("--grid", type=ascii_int, default=24, help="target points per side per pose, 2-100 (default 24)")
     leds.add_argument(
         "--reference-camera", type=ascii_int, default=None, help="camera whose gain is 1 (default: most data)"
@@ -440,7 +442,11 @@ def add_calibrate(sub):
     )
     resp.add_argument("--output", help="write the response (JSON, facestats.camera-response/1)")
     resp.add_argument("--plot", help="draw g(z) per channel (.png, .svg or .pdf)")
-    resp.add_argument("--calibration", help="dome calibration JSON to put the response into (with --write-calibration)")
+    resp.add_argument(
+        "--calibration",
+        type=non_empty,
+        help="dome calibration JSON to put the response into (with --write-calibration)",
+    )
     resp.add_argument(
         "--cameras",
         type=ascii_int,

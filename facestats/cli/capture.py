@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from facestats.cli.options import ascii_float, ascii_int, named_options, number_option
+from facestats.cli.options import ascii_float, ascii_int, named_options, non_empty, number_option
 from facestats.core.processes import sigterm_as_interrupt
 
 __all__ = ["add_capture"]
@@ -110,11 +110,17 @@ def _cmd_sensor(args) -> int:
 
 
 def _common(p, calibration_help):
-    p.add_argument("--port", required=True, help="serial device or pyserial URL (loop://, socket://, rfc2217://)")
+    p.add_argument(
+        "--port", required=True, type=non_empty, help="serial device or pyserial URL (loop://, socket://, rfc2217://)"
+    )
     p.add_argument("--subject", required=True, metavar="ID", help="subject id written into the manifest")
-    p.add_argument("--out", required=True, metavar="CAPTURE_DIR", help="capture directory (new, or with --resume)")
+    p.add_argument(
+        "--out", required=True, type=non_empty, metavar="CAPTURE_DIR", help="capture directory (new, or with --resume)"
+    )
     p.add_argument("--calibration", required=True, help=calibration_help)
-    p.add_argument("--hot-folder", required=True, help="directory the camera software drops frames into")
+    p.add_argument(
+        "--hot-folder", required=True, type=non_empty, help="directory the camera software drops frames into"
+    )
     p.add_argument(
         "--resume",
         action="store_true",
@@ -122,8 +128,10 @@ def _common(p, calibration_help):
     )
     p.add_argument("--dry-run", action="store_true", help="print the plan and its duration; touch nothing")
     s = p.add_argument_group("subject record (or --metadata FILE)")
-    s.add_argument("--metadata", help="JSON subject record (person_id, age, gender, skin_type, condition)")
-    s.add_argument("--person", dest="person_id", help="person id (default: the subject id)")
+    s.add_argument(
+        "--metadata", type=non_empty, help="JSON subject record (person_id, age, gender, skin_type, condition)"
+    )
+    s.add_argument("--person", dest="person_id", type=non_empty, help="person id (default: the subject id)")
     s.add_argument("--age", type=ascii_int)
     s.add_argument("--gender", choices=("M", "F"))
     s.add_argument("--skin-type", type=ascii_int, help="Fitzpatrick skin type 1-6")

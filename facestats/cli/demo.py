@@ -18,7 +18,7 @@ or .pdf); like ``translucency --plot`` and ``calibrate response --plot``, no plo
 
 from __future__ import annotations
 
-from facestats.cli.options import ascii_float
+from facestats.cli.options import ascii_float, non_empty
 from facestats.core.published import ETA_SKIN
 
 __all__ = ["add_demo"]
@@ -40,7 +40,7 @@ def _check(values, option: str, domain) -> None:
 
 def _cmd_demo(args) -> int:
     plot = None
-    if args.plot:  # before any work, as every plot of the CLI; '' (as before) is no plot
+    if args.plot is not None:  # before any work, as every plot of the CLI ('' is refused by argparse)
         from facestats.core.outputs import check_output_file
 
         plot = check_output_file(args.plot, "--plot", PLOT_SUFFIXES, overwrite=args.overwrite)
@@ -54,7 +54,7 @@ def _cmd_demo(args) -> int:
 
     report = physics_demo(albedo=args.albedo, sigma_tr=args.sigma_tr, eta=args.eta, plot=plot)
     print(report.to_text())
-    if plot:
+    if plot is not None:
         print(f"\nwrote {args.plot}")
     return 0
 
@@ -104,6 +104,7 @@ def add_demo(sub):
     )
     p.add_argument(
         "--plot",
+        type=non_empty,
         default=None,
         metavar="PATH",
         help="write the dipole profiles here (.png, .svg or .pdf); default: no plot",

@@ -28,6 +28,7 @@ from facestats.cli.options import (
     check_apart_from_store,
     check_store_to_write,
     named_options,
+    non_empty,
     open_store_option,
     store_path_option,
 )
@@ -75,15 +76,20 @@ def _common(p, images=True):
 
 
 def _query_args(p, what):
-    p.add_argument("--target", metavar="ID", help=f"take the {what} of this subject")
+    p.add_argument("--target", type=non_empty, metavar="ID", help=f"take the {what} of this subject")
     p.add_argument(
         "--skin-type",
+        type=non_empty,
         metavar="TYPE",
         help="... or of the subjects of this skin type (I-VI or 1-6; condition normal unless --condition)",
     )
-    p.add_argument("--condition", metavar="NAME", help="... or of the subjects measured under this condition")
-    p.add_argument("--gender", metavar="M|F", help="restrict the subset to one gender")
-    p.add_argument("--age", metavar="RANGE", help="restrict the subset to an age range (20s, 30s, MIN-MAX, ...)")
+    p.add_argument(
+        "--condition", type=non_empty, metavar="NAME", help="... or of the subjects measured under this condition"
+    )
+    p.add_argument("--gender", type=non_empty, metavar="M|F", help="restrict the subset to one gender")
+    p.add_argument(
+        "--age", type=non_empty, metavar="RANGE", help="restrict the subset to an age range (20s, 30s, MIN-MAX, ...)"
+    )
 
 
 def _regions_arg(p, help_text):
@@ -398,7 +404,9 @@ def add_edit(sub) -> None:
     )
     a.add_argument("subject", metavar="SUBJECT", help="subject id")
     _query_args(a, "albedo")
-    a.add_argument("--stats", metavar="FILE", help="... or use the image histograms of saved texture statistics")
+    a.add_argument(
+        "--stats", type=non_empty, metavar="FILE", help="... or use the image histograms of saved texture statistics"
+    )
     _t_arg(a)
     _regions_arg(a, "regions to edit and take the target albedo from, 1-10 or names (default: the face)")
     a.add_argument("--feather", type=ascii_float, default=0.0, help="blend width in texels inside the edge (default 0)")
@@ -415,8 +423,8 @@ def add_edit(sub) -> None:
         "some regions (each matched on its own; texels outside are unchanged).",
     )
     a.add_argument("subject", metavar="SUBJECT", help="subject id")
-    a.add_argument("--target", metavar="ID", help="take the texture of this subject")
-    a.add_argument("--stats", metavar="FILE", help="... or of saved statistics (facestats edit stats)")
+    a.add_argument("--target", type=non_empty, metavar="ID", help="take the texture of this subject")
+    a.add_argument("--stats", type=non_empty, metavar="FILE", help="... or of saved statistics (facestats edit stats)")
     _regions_arg(a, "regions to edit, 1-10 or names, e.g. 2 6 7 (forehead, nose, cheeks); default: the face")
     a.add_argument("--seed", type=ascii_int, default=None, help="seed of the start noise (same seed, same result)")
     a.add_argument("--iterations", type=ascii_int, default=5, help="Heeger-Bergen iterations, 0-100 (default 5)")

@@ -24,6 +24,9 @@ def _cmd_render(args) -> int:
         weights="--weights",
         window="--window",
         neutral_map="--map",
+        neutral="--neutral",
+        frames="--frames",
+        targets="--targets",
         path="--map",  # read_image's name for the one image read, the map
     ):
         report = render_files(

@@ -1,5 +1,9 @@
-"""Options several command groups share: numbers typed in ASCII, how a ``--store`` value opens a store, and
-options given once.
+"""Options several command groups share: numbers typed in ASCII, text and paths that may not be empty, how a
+``--store`` value opens a store, and options given once.
+
+A text or path option whose empty value has no meaning (``--plot ''``, ``relight ''``) is parsed by
+:func:`non_empty`: argparse refuses ``''`` naming the option, where the commands took it for "not given" or
+``pathlib.Path('')`` made it the current folder.
 
 Numbers on the command line are ASCII: Python's ``int`` and ``float`` accept
 the digits of every script (``int('١٤')`` is 14, ``float('١.٤')`` 1.4), which no
@@ -27,6 +31,7 @@ __all__ = [
     "number_option",
     "ascii_int",
     "ascii_float",
+    "non_empty",
     "named_options",
     "QUERY_FILTER_OPTIONS",
 ]
@@ -178,6 +183,33 @@ def ascii_float(text) -> float:
         ``text`` is not a number typed in ASCII; argparse reports it naming the option (exit 2).
     """
     return _typed(text, float)
+
+
+def non_empty(text) -> str:
+    """argparse ``type=`` of a text or path option that has no meaning when empty: ``text`` itself, or an error.
+
+    Without it ``''`` reached commands that test ``if args.plot:`` (and took it for "not given": no plot, no
+    filter) or turned it into the current folder (``pathlib.Path('')`` is ``.``) (a red team of the CLI).
+
+    Parameters
+    ----------
+    text : str
+        The value as typed.
+
+    Returns
+    -------
+    str
+        ``text``, unchanged.
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        ``text`` is empty; argparse reports it naming the option (``argument --plot: must not be empty, got ''``,
+        exit 2, before the command runs).
+    """
+    if text == "":
+        raise argparse.ArgumentTypeError("must not be empty, got ''")
+    return text
 
 
 #: The ``--store`` value that names the texture sample (:mod:`facestats.pipeline.texture_sample`);

@@ -35,6 +35,7 @@ from facestats.cli.options import (
     ascii_number,
     check_apart_from_store,
     named_options,
+    non_empty,
     open_store_option,
 )
 
@@ -67,12 +68,25 @@ MIN_LIGHTS = (8, 4)
 
 
 def _lights(text):
+    """``(n_theta, n_phi)`` of a ``--lights`` value ``NxM``, checked before any array of the grid is made: ASCII whole
+    numbers, at least :data:`MIN_LIGHTS`, and at most :data:`facestats.io.images.MAX_IMAGE_PIXELS` lights in all, the
+    most pixels of a light probe facestats reads (the grid is a lat-long image the probe is resampled to, one light
+    per cell: a finer grid only splits the probe's pixels).  At that limit the grid's directions alone take 6 GiB
+    (2^28 x 3 float64), where 100000x100000 failed late asking 74.5 GiB."""
     from facestats.errors import ValidationError
+    from facestats.io.images import MAX_IMAGE_PIXELS
 
     sizes = [ascii_number(x, int) for x in text.lower().split("x")]
     if len(sizes) != 2 or None in sizes or min(sizes) < 1:
         raise ValidationError(
             f"--lights must be N_THETAxN_PHI, two whole numbers >= 1 in ASCII digits such as 64x32, got {text!r}"
+        )
+    if sizes[0] * sizes[1] > MAX_IMAGE_PIXELS:
+        side = math.isqrt(MAX_IMAGE_PIXELS)
+        raise ValidationError(
+            f"--lights must make at most {MAX_IMAGE_PIXELS} lights ({side} x {side}, the most "
+            f"pixels of a light probe facestats reads: a finer grid only splits its pixels), got {text!r} = "
+            f"{sizes[0] * sizes[1]} lights"
         )
     if sizes[0] < MIN_LIGHTS[0] or sizes[1] < MIN_LIGHTS[1]:  # 1x1 lit the face from behind only: a black image
         raise ValidationError(
@@ -185,7 +199,7 @@ def _cmd_relight(args) -> int:
     _check_numbers(args)
     frames = args.turntable
     out = check_output_file(args.out, "--out", (".exr",))
-    png = check_output_file(args.png if args.png else out.with_suffix(".png"), "--png", (".png",))
+    png = check_output_file(args.png if args.png is not None else out.with_suffix(".png"), "--png", (".png",))
     _check_subject_options(args)
     if not pathlib.Path(args.source).is_dir():
         _check_subject_values(args)
@@ -306,13 +320,17 @@ def add_relight(sub):
             "OpenEXR and a tone-mapped sRGB PNG."
         ),
     )
-    p.add_argument("source", help="subject id in the store, or a reflectance field store directory (*.zarr)")
+    p.add_argument(
+        "source", type=non_empty, help="subject id in the store, or a reflectance field store directory (*.zarr)"
+    )
     p.add_argument("--probe", required=True, metavar="FILE", help="light probe (.hdr/.exr/.pfm)")
     p.add_argument("--layout", choices=("latlong", "angular"), default="latlong", help="probe layout")
     p.add_argument("--rotate", type=ascii_float, default=0.0, metavar="DEG",
                    help="rotate the environment about +y by DEG degrees (right-handed)")  # fmt: skip
     p.add_argument("--out", required=True, metavar="FILE.exr", help="linear OpenEXR output")
-    p.add_argument("--png", default=None, metavar="FILE.png", help="tone-mapped PNG (default: next to --out)")
+    p.add_argument(
+        "--png", type=non_empty, default=None, metavar="FILE.png", help="tone-mapped PNG (default: next to --out)"
+    )
     p.add_argument(
         "--exposure",
         type=ascii_float,

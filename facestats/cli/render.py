@@ -20,6 +20,7 @@ from facestats.cli.options import (
     ascii_int,
     check_apart_from_store,
     named_options,
+    non_empty,
     open_store_option,
 )
 
@@ -159,7 +160,9 @@ def add_render(sub):
     p.add_argument("--out", required=True, metavar="DIR", help="directory for the images")
     p.add_argument("--camera", type=ascii_int, default=5, help="dome camera (default 5)")
     p.add_argument("--light", type=ascii_int, default=None, help="dome LED (default 20; not with --probe)")
-    p.add_argument("--probe", metavar="FILE", help="render under this lat-long HDR probe instead of an LED")
+    p.add_argument(
+        "--probe", type=non_empty, metavar="FILE", help="render under this lat-long HDR probe instead of an LED"
+    )
     p.add_argument(
         "--probe-lights",
         metavar="N|ROWSxCOLUMNS",
@@ -172,6 +175,7 @@ def add_render(sub):
     )
     p.add_argument(
         "--capture",
+        type=non_empty,
         metavar="PATH",
         help="the subject's capture (zarr); default: re-simulate a subject of the synthetic population",
     )

@@ -6,7 +6,7 @@ import json
 import sys
 import warnings
 
-from facestats.cli.options import ascii_float, named_options, number_option
+from facestats.cli.options import ascii_float, named_options, non_empty, number_option
 from facestats.errors import FacestatsError, QuantisationWarning, ValidationError
 
 __all__ = ["add_translucency"]
@@ -22,9 +22,9 @@ def _checked_options(args):
     check_choice(args.self_term, "--self-term", SELF_TERMS)
 
     out_json = plot = None
-    if args.json:
+    if args.json is not None:
         out_json = check_output_file(args.json, "--json", (".json",), overwrite=args.overwrite)
-    if args.plot:
+    if args.plot is not None:
         plot = check_output_file(args.plot, "--plot", (".png", ".svg", ".pdf"), overwrite=args.overwrite)
     if out_json is not None and plot is not None and out_json.absolute() == plot.absolute():
         raise ValidationError(f"--plot must differ from --json, got {str(plot)!r} for both")
@@ -175,8 +175,10 @@ def add_translucency(sub):
         "(see docs/translucency_from_image.md, Limits)",
     )
     p.add_argument("--eta", type=ascii_float, default=None, help="relative index (default: the light file's, else 1.3)")
-    p.add_argument("--json", default="", help="also write the estimates and diagnostics as JSON here")
-    p.add_argument("--plot", default="", help="write the Fig. 5 style plot (measured R' and fitted dipole) here")
+    p.add_argument("--json", type=non_empty, default=None, help="also write the estimates and diagnostics as JSON here")
+    p.add_argument(
+        "--plot", type=non_empty, default=None, help="write the Fig. 5 style plot (measured R' and fitted dipole) here"
+    )
     p.add_argument("--overwrite", action="store_true", help="replace existing --json and --plot files")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_translucency)

@@ -38,6 +38,7 @@ __all__ = [
     "UVMesh",
     "read_obj",
     "read_mesh",
+    "check_mesh_file",
     "load_trimesh",
     "read_vertices",
     "FrameSequence",
@@ -356,18 +357,44 @@ def read_mesh(path, *, scale=1.0, transform=None, flip_v=True) -> UVMesh:
     Raises
     ------
     ValidationError
-        ``path`` does not exist, ``scale`` is not > 0 or ``transform`` is not rigid.
+        ``path`` does not exist or has another extension (:func:`check_mesh_file`), ``scale`` is not > 0 or
+        ``transform`` is not rigid.
     FormatError
-        Another extension, or a file that cannot be read as a mesh (the message names it).
+        A file that cannot be read as a mesh (the message names it).
     """
-    if not os.path.exists(path):  # before the suffix: '/nope' was "must be .obj or .ply" (a fresh-user red team)
-        raise ValidationError(f"mesh file must name an existing .obj or .ply file, got {os.fspath(path)!r}")
-    ext = os.path.splitext(os.fspath(path))[1].lower()
-    if ext == ".obj":
+    if check_mesh_file(path) == ".obj":
         return read_obj(path, scale=scale, transform=transform, flip_v=flip_v)
-    if ext == ".ply":
-        return _read_ply(path, scale, transform, flip_v)
-    raise FormatError(f"mesh file must be .obj or .ply, got {os.fspath(path)!r}")
+    return _read_ply(path, scale, transform, flip_v)
+
+
+def check_mesh_file(path, name: str = "mesh file") -> str:
+    """The suffix (``.obj`` or ``.ply``, lower case) of ``path``, which must exist: the files :func:`read_mesh` reads.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file.
+    name : str
+        What ``path`` was given as, for the message (e.g. ``"frames"``: the parameter of
+        :func:`facestats.pipeline.microstructure.open_sequence`, which the command line names by its option).
+
+    Returns
+    -------
+    str
+        ``".obj"`` or ``".ply"``.
+
+    Raises
+    ------
+    ValidationError
+        ``path`` does not exist (checked first: ``/nope`` was "must be .obj or .ply", a fresh-user red team), or
+        its extension is another; the message starts with ``name`` and gives ``path``.
+    """
+    if not os.path.exists(path):
+        raise ValidationError(f"{name} must name an existing .obj or .ply file, got {os.fspath(path)!r}")
+    ext = os.path.splitext(os.fspath(path))[1].lower()
+    if ext not in (".obj", ".ply"):
+        raise ValidationError(f"{name} must be .obj or .ply, got {os.fspath(path)!r}")
+    return ext
 
 
 def read_vertices(path, neutral: UVMesh, *, scale=1.0, transform=None) -> np.ndarray:

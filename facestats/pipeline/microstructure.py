@@ -66,7 +66,14 @@ from facestats.errors import FacestatsError, FacestatsWarning, StoreError, Valid
 from facestats.io.displacement import read_displacement, write_displacement
 from facestats.io.ict_facekit import read_ict_facekit
 from facestats.io.images import read_exr_attributes, write_exr
-from facestats.io.mesh_sequence import BlendshapeSequence, FrameSequence, read_mesh, read_vertices, read_weights
+from facestats.io.mesh_sequence import (
+    BlendshapeSequence,
+    FrameSequence,
+    check_mesh_file,
+    read_mesh,
+    read_vertices,
+    read_weights,
+)
 from facestats.model.microstructure.deform import deform_microstructure
 from facestats.model.microstructure.kernel import SIGMA_RANGE_UM, TRUNCATE
 from facestats.model.microstructure.tables import TABLES, KernelTable
@@ -679,17 +686,27 @@ def open_sequence(neutral, *, frames=None, targets=None, weights=None, scale=1.0
         whatever ``scale`` is, but frame files given with it are scaled by ``scale`` (ICT-FaceKit's own
         OBJ files are in cm: pass 10).  A frame whose extent differs from the neutral's by more than 2×
         is refused (wrong units).
+
+    Raises
+    ------
+    ValidationError
+        Among others, a neutral, frame or target file that does not exist or is not .obj/.ply, the message
+        starting with its parameter (``frames must be .obj or .ply, got 'f.txt'``), before any file is read.
     """
     scale = as_scalar(scale, "scale", 0, None, low_inclusive=False)  # checked also for an ICT-FaceKit folder
     if (frames is None) == (weights is None):
         raise ValidationError("pass either frames or weights (with targets), got " + ("both" if frames else "neither"))
     if frames is not None and targets is not None:
         raise ValidationError("targets go with weights (blendshapes), not with frames; got both frames and targets")
-    if os.path.isdir(os.fspath(neutral)):
+    ict = os.path.isdir(os.fspath(neutral))
+    if not ict:  # every file before any is read (an ICT-FaceKit folder is checked as it is read, then its frames)
+        _check_mesh_files(neutral=[neutral], frames=frames, targets=targets)
+    if ict:
         names_w, w = read_weights(weights) if weights is not None else (None, None)
         if targets is not None and names_w is not None:
             _check_targets_weighted([str(t) for t in targets], names_w, weights)
         mesh, shapes = read_ict_facekit(neutral, names_w if targets is None else list(targets))
+        _check_mesh_files(frames=frames)
         if frames is not None:
             return FrameSequence(mesh, frames, scale=scale)
         return BlendshapeSequence(mesh, shapes, w, names=names_w)
@@ -707,6 +724,15 @@ def open_sequence(neutral, *, frames=None, targets=None, weights=None, scale=1.0
         os.path.splitext(os.path.basename(os.fspath(t)))[0]: read_vertices(t, mesh, scale=scale) for t in targets or []
     }
     return BlendshapeSequence(mesh, shapes, w, names=names_w)
+
+
+def _check_mesh_files(**paths) -> None:
+    """Refuse a file of ``paths`` (parameter name: its paths, or None) that is not an existing .obj or .ply file,
+    naming the parameter and the file (:func:`facestats.io.mesh_sequence.check_mesh_file`): ``mesh file must be
+    .obj`` did not say whether the neutral, a frame or a target (a red team of the command line)."""
+    for name, files in paths.items():
+        for path in files or []:
+            check_mesh_file(path, name)
 
 
 def _check_targets_weighted(names, columns, weights) -> None:

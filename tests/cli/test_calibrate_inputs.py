@@ -326,3 +326,13 @@ def test_calibrate_leds_merges_with_the_white_level(target, tmp_path, capsys):
     assert given.shape == plain.shape and not np.array_equal(given, plain)  # the hat ends at 3000 (codes to 3706)
     assert main(["calibrate", "leds", str(target), "--grid", "6", "--white-level", "3000"]) == 0
     assert "camera gains" in capsys.readouterr().out
+
+
+def test_an_empty_calibration_is_refused_by_name_not_taken_for_the_default(target, bracket, tmp_path):
+    """``calibrate leds T --calibration ''`` read T/dome.json as if it were not given, and ``calibrate response ...
+    --calibration ''`` was ignored (a red team): argparse refuses both, naming the option, before any work."""
+    before = sorted(p.name for p in tmp_path.iterdir())
+    for argv in (("leds", target), ("response", *bracket, "--write-calibration", tmp_path / "dome.json")):
+        r = run_main("calibrate", *argv, "--calibration", "", cwd=tmp_path)
+        assert r.returncode == 2 and "argument --calibration: must not be empty, got ''" in r.stderr, r.stderr
+        assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written

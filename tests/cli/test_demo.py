@@ -44,7 +44,7 @@ def test_demo_keeps_an_existing_plot_file_unless_told_to_replace_it(tmp_path):
 
 
 def test_demo_rejects_bad_albedo():
-    r = run_cli("demo", "--albedo", "1.5", "0.3", "0.2", "--plot", "")
+    r = run_cli("demo", "--albedo", "1.5", "0.3", "0.2")
     assert r.returncode == 2
     assert "--albedo must lie in [1e-10, 1), got 1.5" in r.stderr  # named as the argument it came from
 
@@ -95,3 +95,12 @@ def test_demo_plots_only_when_asked_and_checks_plot_as_the_other_commands(tmp_pa
     help_text = " ".join(run_cli("demo", "--help").stdout.split())  # as argparse wraps it
     assert "(.png, .svg or .pdf); default: no plot" in help_text and "in [1e-10, 1)" in help_text
     assert "in [1e-100, 1e80]" in help_text and "in [1, 3]" in help_text
+
+
+def test_an_empty_plot_is_refused_by_name_not_taken_for_no_plot(tmp_path):
+    """``--plot ''`` printed the demo and exited 0 without a plot (a red team): argparse refuses it, naming it."""
+    from tests.helpers import run_main
+
+    r = run_main("demo", "--plot", "", cwd=tmp_path)
+    assert r.returncode == 2 and "argument --plot: must not be empty, got ''" in r.stderr, r.stderr
+    assert r.stdout == "" and list(tmp_path.iterdir()) == []  # no report, nothing written

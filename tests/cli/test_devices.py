@@ -164,6 +164,28 @@ def test_sensor_dry_run_prints_the_bracket_and_its_duration(tmp_path):
         assert bad.returncode == 2 and "facestats: error: --readout must" in bad.stderr, bad.stderr  # not readout_s
 
 
+def test_capture_refuses_empty_values_and_a_file_for_the_hot_folder_by_name(tmp_path):
+    """``--person ''`` and ``--metadata ''`` were "not given", ``--out ''`` the current folder (". is not empty"),
+    ``--port ''`` a DeviceError naming the API's ``port``, and a file given as ``--hot-folder`` "does not exist"
+    (a red team): each is refused naming the option and the value, before anything is written."""
+    from facestats.acquire.devices.sensor import FiberLayout, save_sensor_calibration
+    from facestats.acquire.sensor import ContactSensor
+
+    save_sensor_calibration(tmp_path / "sensor.json", ContactSensor(), FiberLayout())
+    (tmp_path / "hot").write_text("a file, not the camera software's folder")
+    given = {"--port": "/dev/null", "--subject": "S001", "--out": tmp_path / "cap",
+             "--calibration": tmp_path / "sensor.json", "--hot-folder": tmp_path, "--age": "31", "--gender": "F",
+             "--skin-type": "3"}  # fmt: skip
+    for option in ("--port", "--out", "--hot-folder", "--person", "--metadata"):
+        argv = {**given, option: ""}
+        r = run_main("capture", "sensor", *sum(argv.items(), ()), "--quiet", cwd=tmp_path)
+        assert r.returncode == 2 and f"argument {option}: must not be empty, got ''" in r.stderr, (option, r.stderr)
+    r = run_main("capture", "sensor", *sum({**given, "--hot-folder": tmp_path / "hot"}.items(), ()), "--quiet")
+    assert r.returncode == 2, r.stderr
+    assert f"facestats: error: hot folder {tmp_path / 'hot'} is not a folder: point --hot-folder at" in r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["hot", "sensor.json"]  # no capture folder, no journal
+
+
 def test_emulate_errors_name_the_options_not_the_api_parameters(tmp_path):
     for sub, extra, message in [
         ("dome", ("--map-size", "0"), "--map-size must be an integer in [8, inf], got 0"),  # was map_size
@@ -174,8 +196,17 @@ def test_emulate_errors_name_the_options_not_the_api_parameters(tmp_path):
         ("dome", ("--cameras", "99"), "--cameras must be an integer in [1, 16], got 99"),
         ("dome", ("--wired-leds", "-1"), "--wired-leds must be an integer in [1, inf], got -1"),
         ("dome", ("--workers", "0"), "--workers must be an integer in [1, inf], got 0"),
-        ("dome", ("--subject", "S999"), "--subject must be ids of the population (S001-S149, S008-<condition>), got"),
-        ("sensor", ("--subject", ""), "--subject must be ids of the population"),
+        # one id, named in the singular with its value (was "must be ids ..., got unknown ['S999']")
+        (
+            "dome",
+            ("--subject", "S999"),
+            "--subject must be an id of the population (S001-S149, S008-<condition>), got 'S999'",
+        ),
+        (
+            "sensor",
+            ("--subject", ""),
+            "--subject must be an id of the population (S001-S149, S008-<condition>), got ''",
+        ),
         ("dome", ("--cache", tmp_path / "afile"), f"--cache must be a directory, got '{tmp_path / 'afile'}'"),
     ]:
         (tmp_path / "afile").write_text("x")

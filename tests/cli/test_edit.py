@@ -411,3 +411,20 @@ def test_a_store_to_write_may_not_be_named_as_an_embedded_store(tmp_path, comman
     assert r.returncode == 2, r.stderr
     assert f"must name a directory store to write, got '{name}'" in r.stderr and f"pass ./{name}" in r.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    "action, option",
+    [("brdf", "--target"), ("brdf", "--skin-type"), ("brdf", "--condition"), ("brdf", "--gender"), ("brdf", "--age"),
+     ("colour", "--target"), ("colour", "--stats"), ("texture", "--target"), ("texture", "--stats")],
+)  # fmt: skip
+def test_an_empty_target_or_filter_is_refused_by_name(pop, tmp_path, action, option):
+    """``--target ''`` and the other target options given '' were taken for "not given" ("give exactly one target",
+    or with another filter the subset unfiltered: ``--skin-type IV --gender ''`` edited a subject from every gender,
+    a red team): argparse refuses them, naming the option, before a store is opened or created."""
+    before = _tree(pop)
+    subset = ("--skin-type", "V") if option in ("--gender", "--age") else ()
+    r = run_main("edit", action, "F3", *subset, option, "", "--store", pop, "--out-store", tmp_path / "e.zarr",
+                 "--images", tmp_path / "img", cwd=tmp_path)  # fmt: skip
+    assert r.returncode == 2 and f"argument {option}: must not be empty, got ''" in r.stderr, r.stderr
+    assert list(tmp_path.iterdir()) == [] and _tree(pop) == before  # no output store, no images, the input as it was

@@ -364,3 +364,14 @@ def test_probe_lights_take_a_median_cut_or_blocks_and_name_bad_values(tmp_path, 
             probe_lights((8, 16, 3), bad)
         with pytest.raises(ValidationError, match="samples must be an int"):
             EnvironmentLight.from_probe(sky_probe(8), bad)
+
+
+def test_render_refuses_an_empty_probe_or_capture_by_name(tmp_path):
+    """``render S001 --probe ''`` rendered under LED 20 as if no probe were given, and ``--capture ''`` re-simulated
+    the capture (a red team): argparse refuses both, naming the option, before anything is rendered or written."""
+    from tests.helpers import run_main
+
+    for option in ("--probe", "--capture"):
+        r = run_main("render", "S001", "--out", tmp_path / "out", option, "", cwd=tmp_path)
+        assert r.returncode == 2 and f"render: error: argument {option}: must not be empty, got ''" in r.stderr
+        assert list(tmp_path.iterdir()) == [], option

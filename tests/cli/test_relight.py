@@ -318,3 +318,26 @@ def test_stage_options_are_checked_by_their_flags_before_any_work(tmp_path, caps
         assert code == 2 and io.err.strip().startswith(f"facestats: error: {message}"), (bad, io.err)
         assert "n_theta" not in io.err and "elevation_deg" not in io.err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["sky.hdr"]
+
+
+def test_empty_paths_and_a_light_grid_beyond_the_limit_are_refused_by_name(tmp_path):
+    """``relight ''`` said "field store '.' cannot be opened" ('' became the current folder) and ``--png ''`` was
+    taken for "next to --out"; ``--lights 100000x100000`` failed late, out of memory (74.5 GiB): each is refused
+    before any work, naming the option and the value, and nothing is written."""
+    from facestats.io.images import MAX_IMAGE_PIXELS
+
+    write_light_probe(tmp_path / "sky.hdr", sky_probe(8))
+    common = ("--probe", tmp_path / "sky.hdr", "--out", tmp_path / "o.exr")
+    for argv, message in (
+        (("", *common), "argument source: must not be empty, got ''"),
+        (("S001", *common, "--png", ""), "argument --png: must not be empty, got ''"),
+        (("S001", *common, "--lights", "100000x100000"),
+         f"facestats: error: --lights must make at most {MAX_IMAGE_PIXELS} lights (16384 x 16384, the most pixels of "
+         "a light probe facestats reads: a finer grid only splits its pixels), got '100000x100000' = 10000000000 "
+         "lights"),
+        (("S001", *common, "--lights", "16385x16384"), "got '16385x16384' = 268451840 lights"),
+    ):  # fmt: skip
+        r = run_main("relight", *argv, cwd=tmp_path)
+        assert r.returncode == 2 and message in r.stderr, (argv, r.stderr)
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["sky.hdr"], argv
+    assert MAX_IMAGE_PIXELS == 16384 * 16384  # the limit the message spells out

@@ -235,6 +235,9 @@ def test_import_merl(tmp_path):
     r = run_main("import-merl", mat, "--store", tmp_path / "p.zarr", "--prefix", "a/b")  # the option, not `prefix`
     assert r.returncode == 2 and r.stderr.startswith("facestats: error: --prefix must make subject ids")
     assert "got 'a/b'" in r.stderr and not (tmp_path / "p.zarr").exists()
+    r = run_main("import-merl", "", "--store", tmp_path / "e.zarr", cwd=tmp_path)  # was "<cwd>: not a readable ..."
+    assert r.returncode == 2 and "import-merl: error: argument path: must not be empty, got ''" in r.stderr, r.stderr
+    assert not (tmp_path / "e.zarr").exists()
 
 
 def test_export_into_a_folder_of_other_files_needs_overwrite_and_removes_nothing(stores, tmp_path):
@@ -268,6 +271,8 @@ def test_errors_name_the_commands_options_not_the_api_parameters(tmp_path):
     res = run_main("build", "--store", str(tmp_path / "x.zarr"), "--size", "8", "--subjects", "S001", "")
     assert res.returncode == 2 and "error: --subjects must be 1-64 characters of letters" in res.stderr  # subject_id
     assert res.stderr.rstrip().endswith("got ''"), res.stderr
+    res = run_main("build", "--status", "", cwd=tmp_path)  # was "pass --store PATH (a directory store) or --default"
+    assert res.returncode == 2 and "build: error: argument --status: must not be empty, got ''" in res.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["full"]  # nothing written
 
 

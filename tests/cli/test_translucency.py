@@ -87,6 +87,11 @@ def test_cli_rejects_a_missing_image_and_a_bad_width(scene_files, capsys):
                                    ("--eta", "0.5", "--eta must lie in [1, 3], got 0.5")):  # fmt: skip
         assert main(base + ["--image", str(d / "pyramid.exr"), option, value]) == 2
         assert f"facestats: error: {message}" in capsys.readouterr().err, option
+    before = sorted(p.name for p in d.iterdir())
+    for option in ("--json", "--plot"):  # '' was "not given": the fit ran and wrote nothing asked for (a red team)
+        r = run_main(*base, "--image", d / "pyramid.exr", option, "", cwd=d)
+        assert r.returncode == 2 and f"argument {option}: must not be empty, got ''" in r.stderr, r.stderr
+        assert r.stdout == "" and sorted(p.name for p in d.iterdir()) == before  # no fit, nothing written
 
 
 def test_bad_inputs_are_named_by_file_and_field_before_the_fit(scene_files, tmp_path):

@@ -95,6 +95,15 @@ CASES = (
     + _case("demo", "--albedo", [("1.5", "0.3", "0.2"), ("nan", "0.3", "0.2"), ("abc", "1", "1")], ["albedo"])
     + _case("demo", "--sigma-tr", [("-1", "1", "1"), ("0", "0", "0"), ("inf", "1", "1")], ["sigma"])
     + _case("demo", "--eta", ["0.5", "nan", "abc", "1e999", "١.٤"], ["eta"])
+    + _case("demo", "--plot", [""], ["argument --plot: must not be empty"])
+    + _case("analyze posterior", "--subject", [""], ["argument --subject: must not be empty"])
+    + _case("analyze posterior", "--site", [""], ["argument --site: must not be empty"], base=("--subject", "R1"))
+    + _case("analyze scatter", "--site", [""], ["argument --site: must not be empty"])
+    + _case("import-merl", "PATH", [""], ["argument path: must not be empty"])
+    + _case("build", "--status", [""], ["argument --status: must not be empty"])
+    + _case("edit brdf R1", "--condition", [""], ["argument --condition: must not be empty"])
+    + _case("edit brdf R1", "--gender", [""], ["argument --gender: must not be empty"], base=("--skin-type", "IV"))
+    + _case("edit colour R1", "--stats", [""], ["argument --stats: must not be empty"])
     + _case("demo", "--plot", ["/dev/null/x.png", "{emptydir}", "{fifo}", "x.xyz", "{file}.txt"], ["plot"])
 )
 
@@ -141,6 +150,9 @@ CASES += (
     + _case("relight", "--probe", ["{missing}", "{fifo}", "{file}.txt"], ["probe"], base=_RELIT)
     + _case("relight", "--out", ["x.png", ""], ["out"], base=("R1",) + _PROBE)
     + _case("relight", "--size", ["١"], ["size"], base=_RELIT + _PROBE)
+    + _case("relight", "SOURCE", [""], ["argument source: must not be empty"], base=("--out", "{new}.exr") + _PROBE)
+    + _case("relight", "--png", [""], ["argument --png: must not be empty"], base=_RELIT + _PROBE)
+    + _case("relight", "--lights", ["100000x100000"], ["--lights must make at most 268435456"], base=_RELIT + _PROBE)
     + _case("relight", "--rotate", ["abc"], ["rotate"], base=_RELIT + _PROBE)
     + _case("relight", "--layout", ["bogus"], ["--layout"], base=_RELIT + _PROBE)
     + _case("relight", "--turntable", ["abc", "١", "0", "-3", "100000"], ["turntable"], base=_RELIT + _PROBE)
@@ -154,13 +166,21 @@ CASES += (
     + _case("microstructure generate", "--out", ["x.xyz"], ["out", ".exr"])
     + _case("microstructure generate", "--out", ["/dev/null/x.exr", "{emptydir}", "{fifo}", "{file}", ""], ["--out"])
     + _case("microstructure generate", "--seed", ["-1"], ["--seed"], base=_GENERATE)
-    + _case("microstructure render", "--neutral", ["{missing}", "{emptydir}"], ["mesh", "root"], base=_MICRO_INPUTS)
+    + _case(
+        "microstructure render", "--neutral", ["{missing}"], ["--neutral must name an existing"], base=_MICRO_INPUTS
+    )
+    + _case("microstructure render", "--neutral", ["{emptydir}"], ["root must be an ICT-FaceKit"], base=_MICRO_INPUTS)
+    + _case(
+        "microstructure render", "--neutral", ["{file}.txt"], ["--neutral must be .obj or .ply"], base=_MICRO_INPUTS
+    )
     + _case("microstructure render", "--tile", ["١"], ["tile"], base=_MICRO)
     + _case("microstructure render", "--window", [("1", "2", "3", "x")], ["window"], base=_MICRO)
     + _case("translucency", "--lights", ["{missing}", "{emptydir}"], ["light"], base=_SCENE[:1] + _SCENE_FILES)
     + _case("translucency", "--spacing", ["١"], ["spacing"], base=_SCENE)
     + _case("translucency", "--eta", ["١.٤"], ["eta"], base=_SCENE)
     + _case("translucency", "--method", ["bogus"], ["--method"], base=_SCENE)
+    + _case("translucency", "--json", [""], ["argument --json: must not be empty"], base=_SCENE)
+    + _case("translucency", "--plot", [""], ["argument --plot: must not be empty"], base=_SCENE)
     + _case("ingest", "--subject", ["../x", "S9\n"], ["--subject"], base=_INGEST)
     + _case("ingest", "--subject", ["X1"], ["mesh"], base=_INGEST)  # the store is created after the inputs' checks
     + _case("ingest", "--mesh", ["{fifo}", "{emptydir}", "{file}"], ["mesh"], base=_INGEST_NO_MESH)
@@ -236,6 +256,9 @@ CASES += (
     + _case("capture dome", "--bytesize", ["9"], ["bytesize"], base=_CAPTURE)
     + _case("capture dome", "--stopbits", ["3"], ["stopbits"], base=_CAPTURE)
     + _case("capture sensor", "--timeout", ["abc"], ["timeout"], base=_CAPTURE)
+    + _case("capture sensor", "--port", [""], ["argument --port: must not be empty"], base=_CAPTURE[2:])
+    + _case("capture sensor", "--out", [""], ["argument --out: must not be empty"], base=_CAPTURE[:2] + _CAPTURE[4:])
+    + _case("capture sensor", "--person", [""], ["argument --person: must not be empty"], base=_CAPTURE)
     + _case("capture sensor", "--age", ["١", "300"], ["age"], base=_LINE + _X1 + _CALIBRATION + _RECORD[2:])
     + _case(
         "capture sensor",

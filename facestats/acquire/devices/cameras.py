@@ -411,8 +411,9 @@ class HotFolderCameras(CameraBackend):
 
     def prepare(self):
         if not self.folder.is_dir():
+            what = "is not a folder" if self.folder.exists() else "does not exist"  # a file given for the folder
             raise DeviceError(
-                f"hot folder {self.folder} does not exist: point --hot-folder at the directory the camera software "
+                f"hot folder {self.folder} {what}: point --hot-folder at the directory the camera software "
                 "(or `facestats emulate`) writes frames into"
             )
 

@@ -47,7 +47,7 @@ from facestats.acquire.response import ResponseCurve
 from facestats.acquire.sensor import ContactSensor
 from facestats.acquire.synthetic.faces import face_geometry, named_face
 from facestats.acquire.synthetic.photographs import FrameRenderer
-from facestats.acquire.synthetic.population import SubjectTruth, synthesize_population
+from facestats.acquire.synthetic.population import SubjectTruth, check_population_id, synthesize_population
 from facestats.core.compiled import resolve_backend
 from facestats.core.progress import progress_bar
 from facestats.core.published import ETA_SKIN
@@ -95,6 +95,7 @@ def subject_truth(subject_id: str, *, store=None, map_size: int = 16, seed: int 
     """
 
     if store is None:
+        check_population_id(subject_id, seed)  # one id, named as such: before the head is built
         head = face_geometry("procedural", map_size)
         return synthesize_population(seed=seed, map_size=map_size, geometry=head, subjects=[subject_id])[subject_id]
     return _truth_from_store(store, subject_id)

@@ -107,6 +107,7 @@ __all__ = [
     "SubjectTruth",
     "Population",
     "synthesize_population",
+    "check_population_id",
     "default_population",
     "condition_person",
 ]
@@ -574,18 +575,54 @@ def _series_ids(draws):
     return {c: f"{sid}-{c}" for c in CONDITIONS if c != "normal"}
 
 
-def _check_wanted(wanted, draws, conditions):
-    """Raise unless every wanted id is an id of the population."""
+def _check_wanted(wanted, draws, conditions, one=None):
+    """Raise unless every wanted id is an id of the population; ``one``: the parameter a single id was given as
+    (named in the singular with the id), else the ids are ``subjects``."""
     if wanted is None:
         return
     n = len(draws.skin_type)
     series = set(_series_ids(draws).values()) if conditions else set()
     unknown = sorted(wanted - ({f"S{i + 1:03d}" for i in range(n)} | series))
     if unknown:
-        extra = f", {min(series)[:4]}-<condition>" if series else ""
-        raise ValidationError(
-            f"subjects must be ids of the population (S001-S{n:03d}{extra}), got unknown {unknown[:5]}"
-        )
+        ids = f"S001-S{n:03d}" + (f", {min(series)[:4]}-<condition>" if series else "")
+        if one is not None:
+            raise ValidationError(f"{one} must be an id of the population ({ids}), got {unknown[0]!r}")
+        raise ValidationError(f"subjects must be ids of the population ({ids}), got unknown {unknown[:5]}")
+
+
+def check_population_id(subject_id, seed: int = 2006, *, conditions: bool = True, name: str = "subject_id") -> str:
+    """``subject_id`` if it is an id of the synthetic population drawn with ``seed``, else an error naming it.
+
+    The ids :func:`synthesize_population` knows (``S001`` … ``S149``; with ``conditions``, the condition person's
+    ``<id>-<condition>`` too), checked from the population's demographic draws alone (about 10 ms), before any
+    subject is materialised.
+
+    Parameters
+    ----------
+    subject_id : str
+        The id to check.
+    seed : int
+        Seed of the population (≥ 0).
+    conditions : bool
+        Whether the condition person's records count (as :func:`synthesize_population`'s ``conditions``).
+    name : str
+        The parameter ``subject_id`` was given as, for the message.
+
+    Returns
+    -------
+    str
+        ``subject_id``.
+
+    Raises
+    ------
+    ValidationError
+        ``name must be an id of the population (S001-S149, S008-<condition>), got 'S999'``, or a bad ``seed``.
+    """
+    check_integer(seed, "seed", 0)
+    if not isinstance(subject_id, str):
+        raise ValidationError(f"{name} must be a subject id (a string), got {subject_id!r}")
+    _check_wanted({subject_id}, _population_draws(seed, "std"), conditions, one=name)
+    return subject_id
 
 
 def _person_record(draws, i, sid, condition, region_map, texel_mm, freckle_fraction, seed):

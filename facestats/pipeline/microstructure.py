@@ -698,10 +698,7 @@ def open_sequence(neutral, *, frames=None, targets=None, weights=None, scale=1.0
         raise ValidationError("pass either frames or weights (with targets), got " + ("both" if frames else "neither"))
     if frames is not None and targets is not None:
         raise ValidationError("targets go with weights (blendshapes), not with frames; got both frames and targets")
-    ict = os.path.isdir(os.fspath(neutral))
-    if not ict:  # every file before any is read (an ICT-FaceKit folder is checked as it is read, then its frames)
-        _check_mesh_files(neutral=[neutral], frames=frames, targets=targets)
-    if ict:
+    if os.path.isdir(os.fspath(neutral)):  # an ICT-FaceKit folder: checked as it is read, then the frames
         names_w, w = read_weights(weights) if weights is not None else (None, None)
         if targets is not None and names_w is not None:
             _check_targets_weighted([str(t) for t in targets], names_w, weights)
@@ -710,6 +707,7 @@ def open_sequence(neutral, *, frames=None, targets=None, weights=None, scale=1.0
         if frames is not None:
             return FrameSequence(mesh, frames, scale=scale)
         return BlendshapeSequence(mesh, shapes, w, names=names_w)
+    _check_mesh_files(neutral=[neutral], frames=frames, targets=targets)  # every file before any is read
     mesh = read_mesh(neutral, scale=scale).require_uv()
     if frames is not None:
         return FrameSequence(mesh, frames, scale=scale)

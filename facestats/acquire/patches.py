@@ -188,8 +188,8 @@ def mesh_patches(vertices, faces, *, spacing, occluder=True) -> Patches:
     n = float(np.sum(kf * kf))
     if n > MAX_PATCHES:  # checked in float64, before any allocation
         raise ValidationError(
-            f"spacing={h:g} mm gives {n:.3g} patches, more than MAX_PATCHES = {MAX_PATCHES:,}; use a spacing of at "
-            f"least {h * np.sqrt(n / MAX_PATCHES):.3g} mm"
+            f"spacing must be at least {h * np.sqrt(n / MAX_PATCHES):.3g} mm, got {h:g} mm: it gives {n:.3g} patches, "
+            f"more than MAX_PATCHES = {MAX_PATCHES:,}"
         )
     ks = kf.astype(np.int64)
     centres, normals, areas, corners = [], [], [], []

@@ -25,6 +25,7 @@ def _cmd_render(args) -> int:
         window="--window",
         neutral_map="--map",
         neutral="--neutral",
+        root="--neutral",  # read_ict_facekit's name for a neutral given as a folder
         frames="--frames",
         targets="--targets",
         path="--map",  # read_image's name for the one image read, the map

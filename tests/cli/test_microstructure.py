@@ -28,3 +28,15 @@ def test_a_bad_mesh_file_is_named_by_its_option_and_value(tmp_path):
         r = run_main("microstructure", "render", *argv, *tail)
         assert r.returncode == 2 and f"facestats: error: {message}" in r.stderr, (argv, r.stderr)
         assert sorted(p.name for p in tmp_path.iterdir()) == ["frame.txt", "neutral.obj", "w.csv"], argv
+
+
+def test_a_folder_that_is_no_ict_facekit_checkout_is_named_as_neutral(tmp_path):
+    """A folder given as --neutral is read as an ICT-FaceKit checkout; one that is not was "root must be ..." (the
+    API's parameter, a red team)."""
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "w.csv").write_text("jawOpen\n0.5\n")
+    r = run_main("microstructure", "render", "--neutral", tmp_path / "empty", "--weights", tmp_path / "w.csv",
+                 "--map", tmp_path / "missing.exr", "--out", tmp_path / "o.zarr", "--quiet")  # fmt: skip
+    assert r.returncode == 2, r.stderr
+    assert "facestats: error: --neutral must be an ICT-FaceKit checkout" in r.stderr and "empty" in r.stderr, r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty", "w.csv"]

@@ -84,7 +84,10 @@ def test_cli_rejects_a_missing_image_and_a_bad_width(scene_files, capsys):
     assert not out.exists() and not plot.exists()  # a failed command writes nothing
     for option, value, message in (("--spacing", "0", "--spacing must lie in (0, inf] mm, got 0.0"),
                                    ("--scale", "-2", "--scale must be > 0, got -2.0"),
-                                   ("--eta", "0.5", "--eta must lie in [1, 3], got 0.5")):  # fmt: skip
+                                   ("--eta", "0.5", "--eta must lie in [1, 3], got 0.5"),
+                                   # bounds that come from the work they would make, named as the option too
+                                   ("--spacing", "1e-6", "--spacing must be at least "),
+                                   ("--width", "1e-9", "--width must be at least ")):  # fmt: skip
         assert main(base + ["--image", str(d / "pyramid.exr"), option, value]) == 2
         assert f"facestats: error: {message}" in capsys.readouterr().err, option
     before = sorted(p.name for p in d.iterdir())

@@ -458,13 +458,13 @@ def test_sizes_that_would_exhaust_memory_are_refused_by_name():
         kernel_taps(0.5, 1e12, 1.0)
     assert kernel_taps(0.5, MAX_RADIUS / 3.0, 1.0).size == 2 * MAX_RADIUS + 1  # the largest allowed
     p = np.random.default_rng(0).random((40, 3)) * 100
-    with pytest.raises(ValidationError, match=r"width=1e-09 mm gives .* levels .* use a width of at least"):
+    with pytest.raises(ValidationError, match=r"width must be at least .* mm, got 1e-09 mm: it gives .* levels"):
         fit_scattering_image(p, np.ones(40), np.ones(40), np.ones(40), width=1e-9)
     assert uniform_levels(1.0, MAX_LEVELS - 2).size == MAX_LEVELS
     from facestats.acquire.patches import MAX_PATCHES, mesh_patches
 
     tri = np.array([[0.0, 0, 0], [50, 0, 0], [0, 50, 0]]), np.array([[0, 1, 2]])
-    with pytest.raises(ValidationError, match=r"spacing=1e-09 mm gives 5e\+21 patches, .* at least 0.0707 mm"):
+    with pytest.raises(ValidationError, match=r"spacing must be at least 0.0707 mm, got 1e-09 mm: it gives 5e\+21"):
         mesh_patches(*tri, spacing=1e-9)  # was a raw out-of-memory error (373 GiB)
     assert len(mesh_patches(*tri, spacing=0.0708)) <= MAX_PATCHES
 

@@ -224,8 +224,8 @@ def uniform_levels(width, max_distance) -> np.ndarray:
     n = np.floor(dmax / w) + 2
     if n > MAX_LEVELS:
         raise ValidationError(
-            f"width={w:g} mm gives {n:.4g} levels over {dmax:.4g} mm, more than MAX_LEVELS = {MAX_LEVELS}; "
-            f"use a width of at least {dmax / (MAX_LEVELS - 2):.4g} mm"
+            f"width must be at least {dmax / (MAX_LEVELS - 2):.4g} mm, got {w:g} mm: it gives {n:.4g} levels over "
+            f"{dmax:.4g} mm, more than MAX_LEVELS = {MAX_LEVELS}"
         )
     return np.arange(int(n)) * w
 

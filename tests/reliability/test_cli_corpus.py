@@ -169,7 +169,7 @@ CASES += (
     + _case(
         "microstructure render", "--neutral", ["{missing}"], ["--neutral must name an existing"], base=_MICRO_INPUTS
     )
-    + _case("microstructure render", "--neutral", ["{emptydir}"], ["root must be an ICT-FaceKit"], base=_MICRO_INPUTS)
+    + _case("microstructure render", "--neutral", ["{emptydir}"], ["--neutral must be an ICT-FaceKit"], base=_MICRO_INPUTS)
     + _case(
         "microstructure render", "--neutral", ["{file}.txt"], ["--neutral must be .obj or .ply"], base=_MICRO_INPUTS
     )

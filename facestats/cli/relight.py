@@ -321,7 +321,10 @@ def add_relight(sub):
         ),
     )
     p.add_argument(
-        "source", type=non_empty, help="subject id in the store, or a reflectance field store directory (*.zarr)"
+        "source",
+        type=non_empty,
+        metavar="SOURCE",
+        help="subject id in the store, or a reflectance field store directory (*.zarr)",
     )
     p.add_argument("--probe", required=True, metavar="FILE", help="light probe (.hdr/.exr/.pfm)")
     p.add_argument("--layout", choices=("latlong", "angular"), default="latlong", help="probe layout")

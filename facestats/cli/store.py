@@ -348,7 +348,7 @@ def add_import_merl(sub):
         description="Import the Torrance-Sparrow (and albedo) samples of the MERL/ETH Skin "
         "Reflectance Database file ts_data.mat as sample subjects merl-001 ...",
     )
-    p.add_argument("path", type=non_empty, help="the ts_data.mat file")
+    p.add_argument("path", type=non_empty, metavar="PATH", help="the ts_data.mat file")
     p.add_argument("--store", required=True, metavar="OUT", help="store directory to write (created if missing)")
     p.add_argument("--prefix", default="merl", help="subject id prefix (default merl)")
     p.add_argument("--overwrite", action="store_true", help="replace subjects of the same ids")

@@ -141,7 +141,7 @@ def add_translucency(sub):
             "dipole fit; prints the estimate per channel with its interval and the rank diagnostics."
         ),
     )
-    p.add_argument("mesh", help="object mesh (OBJ or PLY), in mm unless --scale")
+    p.add_argument("mesh", metavar="MESH", help="object mesh (OBJ or PLY), in mm unless --scale")
     p.add_argument("--lights", required=True, help="light description (JSON, see docs/translucency_from_image.md)")
     p.add_argument("--camera", required=True, help="pinhole camera (JSON: matrix, rotation, position_mm, image_size)")
     p.add_argument("--image", required=True, help="linear radiance image (.exr, .pfm, or .npz with 'radiance')")

@@ -329,7 +329,7 @@ def test_empty_paths_and_a_light_grid_beyond_the_limit_are_refused_by_name(tmp_p
     write_light_probe(tmp_path / "sky.hdr", sky_probe(8))
     common = ("--probe", tmp_path / "sky.hdr", "--out", tmp_path / "o.exr")
     for argv, message in (
-        (("", *common), "argument source: must not be empty, got ''"),
+        (("", *common), "argument SOURCE: must not be empty, got ''"),
         (("S001", *common, "--png", ""), "argument --png: must not be empty, got ''"),
         (("S001", *common, "--lights", "100000x100000"),
          f"facestats: error: --lights must make at most {MAX_IMAGE_PIXELS} lights (16384 x 16384, the most pixels of "

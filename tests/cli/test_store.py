@@ -236,7 +236,7 @@ def test_import_merl(tmp_path):
     assert r.returncode == 2 and r.stderr.startswith("facestats: error: --prefix must make subject ids")
     assert "got 'a/b'" in r.stderr and not (tmp_path / "p.zarr").exists()
     r = run_main("import-merl", "", "--store", tmp_path / "e.zarr", cwd=tmp_path)  # was "<cwd>: not a readable ..."
-    assert r.returncode == 2 and "import-merl: error: argument path: must not be empty, got ''" in r.stderr, r.stderr
+    assert r.returncode == 2 and "import-merl: error: argument PATH: must not be empty, got ''" in r.stderr, r.stderr
     assert not (tmp_path / "e.zarr").exists()
 
 

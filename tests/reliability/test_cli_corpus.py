@@ -99,7 +99,7 @@ CASES = (
     + _case("analyze posterior", "--subject", [""], ["argument --subject: must not be empty"])
     + _case("analyze posterior", "--site", [""], ["argument --site: must not be empty"], base=("--subject", "R1"))
     + _case("analyze scatter", "--site", [""], ["argument --site: must not be empty"])
-    + _case("import-merl", "PATH", [""], ["argument path: must not be empty"])
+    + _case("import-merl", "PATH", [""], ["argument PATH: must not be empty"])
     + _case("build", "--status", [""], ["argument --status: must not be empty"])
     + _case("edit brdf R1", "--condition", [""], ["argument --condition: must not be empty"])
     + _case("edit brdf R1", "--gender", [""], ["argument --gender: must not be empty"], base=("--skin-type", "IV"))
@@ -150,7 +150,7 @@ CASES += (
     + _case("relight", "--probe", ["{missing}", "{fifo}", "{file}.txt"], ["probe"], base=_RELIT)
     + _case("relight", "--out", ["x.png", ""], ["out"], base=("R1",) + _PROBE)
     + _case("relight", "--size", ["١"], ["size"], base=_RELIT + _PROBE)
-    + _case("relight", "SOURCE", [""], ["argument source: must not be empty"], base=("--out", "{new}.exr") + _PROBE)
+    + _case("relight", "SOURCE", [""], ["argument SOURCE: must not be empty"], base=("--out", "{new}.exr") + _PROBE)
     + _case("relight", "--png", [""], ["argument --png: must not be empty"], base=_RELIT + _PROBE)
     + _case("relight", "--lights", ["100000x100000"], ["--lights must make at most 268435456"], base=_RELIT + _PROBE)
     + _case("relight", "--rotate", ["abc"], ["rotate"], base=_RELIT + _PROBE)
@@ -169,7 +169,9 @@ CASES += (
     + _case(
         "microstructure render", "--neutral", ["{missing}"], ["--neutral must name an existing"], base=_MICRO_INPUTS
     )
-    + _case("microstructure render", "--neutral", ["{emptydir}"], ["--neutral must be an ICT-FaceKit"], base=_MICRO_INPUTS)
+    + _case(
+        "microstructure render", "--neutral", ["{emptydir}"], ["--neutral must be an ICT-FaceKit"], base=_MICRO_INPUTS
+    )
     + _case(
         "microstructure render", "--neutral", ["{file}.txt"], ["--neutral must be .obj or .ply"], base=_MICRO_INPUTS
     )

@@ -224,9 +224,10 @@ def _cmd_relight(args) -> int:
         from facestats.relight.stage import relight_subject
 
         subject, geometry, camera = _subject_and_camera(args)
-        image, mask = relight_subject(subject, probe, layout=args.layout, rotate=rotate, camera=camera,
-                                      lights=_lights(args.lights), geometry=geometry,
-                                      progress=not args.quiet)  # fmt: skip
+        with named_options(lights="--lights"):  # more lights than the memory holds
+            image, mask = relight_subject(subject, probe, layout=args.layout, rotate=rotate, camera=camera,
+                                          lights=_lights(args.lights), geometry=geometry,
+                                          progress=not args.quiet)  # fmt: skip
     scale = exposure_scale(image, mask) if args.exposure is None else args.exposure
     attrs = {"source": str(args.source), "probe": str(args.probe), "rotate_deg": str(args.rotate),
              "units": "radiance in the probe's unit", "method": "Debevec et al. 2000 eq. 4"}  # fmt: skip
@@ -267,9 +268,10 @@ def _turntable(args, probe, targets) -> int:
             subject, geometry, camera = _subject_and_camera(args)
             d, _ = light_stage_directions(*_lights(args.lights))
             ratio = _ratio(args, d)  # before the field is rendered
-            field = light_stage_field(subject, camera, geometry=geometry, directions=d,
-                                      out=pathlib.Path(tmp) / "field.zarr", dtype="float16",
-                                      progress=not args.quiet)  # fmt: skip
+            with named_options(lights="--lights"):  # more lights than the memory holds
+                field = light_stage_field(subject, camera, geometry=geometry, directions=d,
+                                          out=pathlib.Path(tmp) / "field.zarr", dtype="float16",
+                                          progress=not args.quiet)  # fmt: skip
         mask = field["mask"].values if "mask" in field.data_vars else None
         with named_options(ratio="--ratio"):  # a ratio whose budget cannot hold the first component
             comp = compress(field, ratio=ratio, progress=not args.quiet)

@@ -1,4 +1,5 @@
-"""Process life: whether a process that left something behind is known to be gone, and SIGTERM as Ctrl-C.
+"""Process life: whether a process that left something behind is known to be gone, SIGTERM as Ctrl-C, and the
+memory a process can still take.
 
 The liveness test of crash clean-ups (:func:`process_gone`).  A process is *known to be gone* only when it ran on this
 host and ``kill(pid, 0)`` says there is no such process; on another host, or when the answer is unclear
@@ -14,7 +15,7 @@ import signal
 import socket
 import threading
 
-__all__ = ["process_gone", "sigterm_as_interrupt"]
+__all__ = ["available_memory", "process_gone", "sigterm_as_interrupt"]
 
 
 @contextlib.contextmanager
@@ -64,3 +65,26 @@ def process_gone(pid, host: str | None = None) -> bool:
     except (PermissionError, OSError, ValueError, TypeError, OverflowError):  # another user's, or no usable pid
         return False
     return False
+
+
+def available_memory() -> float | None:
+    """Bytes of memory available now: Linux's ``MemAvailable``, else the physical memory, else None (unknown).
+
+    For checks made before large work (a build's simulated captures, a relight's visibility table): a
+    refusal that names the need and this figure is clearer than the out-of-memory killer.
+
+    Returns
+    -------
+    float or None
+    """
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return None

@@ -55,7 +55,7 @@ from facestats.acquire.synthetic.faces import FACES, face_geometry
 from facestats.acquire.synthetic.population import synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator
 from facestats.core.conventions import DEFAULT_FACE, DEFAULT_MAP_SIZE, DEFAULT_SEED, SITES
-from facestats.core.processes import sigterm_as_interrupt
+from facestats.core.processes import available_memory, sigterm_as_interrupt
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
 from facestats.io.ids import check_subject_id
@@ -99,23 +99,8 @@ def estimated_memory(map_size: int, workers: int = 1) -> float:
     return workers * (_MEMORY_FIXED + _MEMORY_PER_TEXEL * float(map_size) ** 2)
 
 
-def _available_memory() -> float | None:
-    """Bytes of memory available now (Linux ``MemAvailable``; else physical memory; None if unknown)."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return float(line.split()[1]) * 1024
-    except OSError:
-        pass
-    try:
-        return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
 def _check_memory(map_size: int, workers: int) -> None:
-    need, have = estimated_memory(map_size, workers), _available_memory()
+    need, have = estimated_memory(map_size, workers), available_memory()
     if have is not None and need > have:
         raise ValidationError(
             f"map_size {map_size} needs about {need / 2**30:.1f} GiB with {workers} worker(s) (the capture of "

@@ -7,6 +7,7 @@ or ``main`` itself), which the console script runs; the tests that ran the conso
 import numpy as np
 import pytest
 
+from facestats.errors import ValidationError
 from facestats.io.images import read_exr, read_image, write_pfm
 from facestats.io.probes import write_light_probe
 from facestats.relight.field import write_field
@@ -341,3 +342,26 @@ def test_empty_paths_and_a_light_grid_beyond_the_limit_are_refused_by_name(tmp_p
         assert r.returncode == 2 and message in r.stderr, (argv, r.stderr)
         assert sorted(p.name for p in tmp_path.iterdir()) == ["sky.hdr"], argv
     assert MAX_IMAGE_PIXELS == 16384 * 16384  # the limit the message spells out
+
+
+def test_more_lights_than_the_memory_holds_are_refused_before_the_shadow_maps(tmp_path, capsys, monkeypatch):
+    """The visibility table (4 bytes per mesh vertex and light) is checked against the memory available before any
+    shadow map: 100000x100000 failed late asking 74.5 GiB.  Here the machine is made to have 10 MB: 8x4 lights fit
+    (32 reach S001's 4,392 vertices: 0.56 MB), 64x32 do not (2,048 lights: 36 MB), and the message says how many
+    would."""
+    import facestats.relight.stage as stage
+    from facestats.cli import main
+
+    monkeypatch.setattr(stage, "available_memory", lambda: 10e6)
+    write_light_probe(tmp_path / "sky.hdr", sky_probe(8))
+    args = ("S001", "--probe", tmp_path / "sky.hdr", "--out", tmp_path / "o.exr", "--quiet")
+    code, io = _relight(main, capsys, *args, "--lights", "64x32")
+    assert code == 2 and "facestats: error: --lights must be fewer than 569 on this machine: " in io.err, io.err
+    assert "reach the face, and their visibility at its 4,392 mesh vertices needs " in io.err, io.err
+    assert " MiB, more than the 10 MiB available" in io.err, io.err
+    assert not any(tmp_path.glob("o.*"))
+    with pytest.raises(ValidationError, match="lights must be fewer than 569 on this machine"):
+        stage._check_visibility_memory(4392, 570)
+    stage._check_visibility_memory(4392, 569)  # 9.99 MB: fits
+    code, io = _relight(main, capsys, *args, "--lights", "8x4")
+    assert code == 0 and (tmp_path / "o.exr").is_file(), io.err

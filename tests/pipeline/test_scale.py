@@ -577,3 +577,14 @@ def test_outcomes_hold_results_on_the_client_and_release_them_on_the_cluster():
             assert lost.status == "error"
             with pytest.raises(ValueError, match="invalid literal"):
                 lost.result()
+
+
+def test_a_build_larger_than_the_memory_available_is_refused_before_anything_runs(tmp_path, monkeypatch):
+    """The estimate (workers × (fixed + per texel), measured constants) against the memory available now."""
+    import facestats.pipeline.build as build
+
+    need = build.estimated_memory(8, 1)
+    monkeypatch.setattr(build, "available_memory", lambda: 0.5 * need)
+    with pytest.raises(FacestatsError, match=r"map_size 8 needs about .* GiB with 1 worker\(s\) .* available"):
+        build.build_store(tmp_path / "s.zarr", map_size=8, subjects=["S001"], workers=1, conditions=False)
+    assert not (tmp_path / "s.zarr").exists()

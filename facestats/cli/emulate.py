@@ -13,10 +13,9 @@ from facestats.core.processes import sigterm_as_interrupt
 __all__ = ["add_emulate"]
 
 #: The options of :func:`facestats.acquire.devices.lab.emulated_dome`'s and ``emulated_sensor``'s parameters
-#: (``subjects``: the synthetic population's check of the one ``--subject``).
+#: (``subject_id``: also :func:`facestats.acquire.synthetic.population.check_population_id`'s, of ``--subject``).
 _NAMES = dict(
     subject_id="--subject",
-    subjects="--subject",
     hot_folder="--hot-folder",
     lab="--lab",
     store="--store",

@@ -21,9 +21,8 @@
 * :mod:`facestats.io.merl`: the MERL/ETH Skin Reflectance Database ``ts_data.mat``.
 * :mod:`facestats.io.mesh`: real face scans (OBJ/PLY with UVs) as geometries.
 * :func:`read_light_probe` (:mod:`facestats.io.probes`): light probes (Radiance,
-  OpenEXR, PFM) in lat-long or angular layout; :mod:`facestats.io.olat`:
-  one-light-at-a-time folders (DiLiGenT layout or a JSON manifest) as
-  reflectance fields.
+  OpenEXR, PFM) in lat-long or angular layout (one-light-at-a-time folders are read
+  as reflectance fields by :mod:`facestats.relight.olat`).
 
 Importing this package loads numpy only; xarray, zarr and pandas are imported
 when a subject or a DataFrame is needed.

@@ -6,7 +6,7 @@ in SciPy 1.17, found by a fuzzing red team: single changed bytes of a small
 valid file), which would end the caller with no message.  The child costs
 about 0.4 s per file (starting Python and importing SciPy).  Used by the MERL importer
 (:mod:`facestats.io.merl`) and for DiLiGenT ground-truth normals
-(:mod:`facestats.io.olat`).
+(:mod:`facestats.relight.olat`).
 """
 
 from __future__ import annotations

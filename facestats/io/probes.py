@@ -25,7 +25,6 @@ from facestats.errors import ValidationError
 
 __all__ = [
     "PROBE_EXTENSIONS",
-    "PROBE_LAYOUTS",
     "read_light_probe",
     "write_light_probe",
     "studio_probe",
@@ -34,8 +33,6 @@ __all__ = [
 
 #: File types a probe can be read from (high dynamic range only: an 8-bit image is not a measurement of light).
 PROBE_EXTENSIONS = (".hdr", ".pic", ".exr", ".pfm")
-#: The layouts of :mod:`facestats.model.sphere`.
-PROBE_LAYOUTS = ("latlong", "angular")
 
 
 def _probe_path(path, must_exist=True) -> pathlib.Path:
@@ -75,11 +72,11 @@ def read_light_probe(path, layout: str = "latlong") -> np.ndarray:
         As stored (never rescaled).  Grey files are repeated to three channels;
         an alpha channel is dropped.
     """
-    # local imports: facestats.io imports this module, so `facestats query` would load them (and facestats.model)
+    # local imports: facestats.io imports this module, so `facestats query` would load them
     from facestats.io.images import read_image
-    from facestats.relight.lighting import check_probe
+    from facestats.model.sphere import LAYOUTS, check_probe
 
-    check_choice(layout, "layout", PROBE_LAYOUTS)
+    check_choice(layout, "layout", LAYOUTS)
     p = _probe_path(path)
     img = read_image(p)
     if img.ndim == 3 and img.shape[2] == 1:
@@ -117,9 +114,9 @@ def write_light_probe(path, probe, layout: str = "latlong", *, half: bool = Fals
     ValidationError
         Another extension, a missing folder, an unknown layout, or a probe that fails the checks.
     """
-    # local imports: facestats.io imports this module, so `facestats query` would load them (and facestats.model)
+    # local imports: facestats.io imports this module, so `facestats query` would load them
     from facestats.io.images import write_image
-    from facestats.relight.lighting import check_probe
+    from facestats.model.sphere import check_probe
 
     p = _probe_path(path, must_exist=False)
     img = check_probe(probe, layout, name=f"light probe for {str(p)!r}")

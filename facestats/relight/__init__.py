@@ -17,13 +17,14 @@ One module per job:
   the chromaticity ramp (eq. 6-7);
 * :mod:`~facestats.relight.novel` — reflectance functions for novel views (eq. 8-9);
 * :mod:`~facestats.relight.shadows` — shadow maps by brightness thresholding (§4.4);
+* :mod:`~facestats.relight.olat` — one-light-at-a-time and photometric-stereo folders (DiLiGenT
+  layout or a JSON manifest) read as reflectance fields;
 * :mod:`~facestats.relight.photometric` — photometric stereo (normals, albedo);
 * :mod:`~facestats.relight.display`, :mod:`~facestats.relight.plots` — previews and figures.
 
 Spherical geometry (directions, exact solid angles, rotation about +y, Voronoi
 cells) lives in :mod:`facestats.model.sphere` and is re-exported here; probe files
-and OLAT folders are read by :func:`facestats.io.read_light_probe` and
-:func:`facestats.io.olat.read_olat_folder`.
+are read by :func:`facestats.io.read_light_probe`.
 """
 
 from facestats.model.sphere import (
@@ -41,6 +42,7 @@ from facestats.relight.compression import CompressedField, compress
 from facestats.relight.field import make_field, open_field, write_field
 from facestats.relight.lighting import angular_to_latlong, latlong_to_angular, resample_probe, rotate_probe
 from facestats.relight.novel import novel_view_field, reproject
+from facestats.relight.olat import read_olat_folder, write_olat_manifest
 from facestats.relight.photometric import photometric_stereo
 from facestats.relight.relighting import lighting_for, relight, tint_indirect
 from facestats.relight.separate import separate_field
@@ -77,4 +79,6 @@ __all__ = [
     "reproject",
     "threshold_shadow_maps",
     "photometric_stereo",
+    "read_olat_folder",
+    "write_olat_manifest",
 ]

@@ -34,10 +34,8 @@ import numpy as np
 
 from facestats.core.validate import (
     as_finite,
-    as_float,
     as_scalar,
     check_broadcast,
-    check_choice,
     check_integer,
     check_shape,
 )
@@ -47,6 +45,7 @@ from facestats.model.sphere import (
     angular_coordinates,
     angular_directions,
     angular_solid_angles,
+    check_probe,
     latlong_coordinates,
     latlong_directions,
     latlong_edges,
@@ -57,8 +56,6 @@ from facestats.model.sphere import (
 )
 
 __all__ = [
-    "LAYOUTS",
-    "check_probe",
     "probe_samples",
     "resample_probe",
     "rotate_probe",
@@ -67,62 +64,6 @@ __all__ = [
     "uniform_probe",
     "sky_probe",
 ]
-
-LAYOUTS = ("latlong", "angular")
-
-
-def check_probe(probe, layout: str = "latlong", name: str = "probe") -> np.ndarray:
-    """A light probe as float32 (H, W, 3): finite, ≥ 0, with the aspect ratio of its layout.
-
-    Values are never rescaled.
-
-    Parameters
-    ----------
-    probe : array_like, shape (H, W, 3)
-        Linear radiance (numeric).
-    layout : {"latlong", "angular"}
-        Layout of :mod:`facestats.model.sphere`: lat-long W = 2H, angular W = H.
-    name : str
-        What the probe is in messages (e.g. the file).
-
-    Returns
-    -------
-    numpy.ndarray of float32, shape (H, W, 3)
-
-    Raises
-    ------
-    ValidationError
-        Naming ``name`` (e.g. the file), the field and the value: unknown layout, non-numeric data, wrong shape or
-        aspect ratio, NaN/inf (also a value that overflows float32) or negative radiance.
-    """
-    check_choice(layout, "layout", LAYOUTS)
-    p = as_float(probe, f"{name}: radiance")
-    if p.ndim != 3 or p.shape[2] != 3:
-        raise ValidationError(f"{name}: a light probe must have shape (H, W, 3), got {p.shape}")
-    h, w = p.shape[:2]
-    if layout == "latlong" and w != 2 * h:
-        raise ValidationError(
-            f"{name}: a lat-long probe must be twice as wide as high, got {h} x {w} (H x W)"
-            + (" (a square probe: an angular map? pass layout='angular', --layout angular)" if h == w else "")
-        )
-    if layout == "angular" and w != h:
-        raise ValidationError(f"{name}: an angular probe must be square, got {h} x {w} (H x W)")
-    p = as_float(p, f"{name}: radiance", np.float32)
-    bad = ~np.isfinite(p)
-    if bad.any():
-        i = np.argwhere(bad)[0]
-        raise ValidationError(
-            f"{name}: radiance must be finite, got {float(p[tuple(i)])!r} at row {i[0]}, column {i[1]}, channel {i[2]} "
-            f"({int(bad.sum())} non-finite value(s))"
-        )
-    neg = p < 0
-    if neg.any():
-        i = np.argwhere(neg)[0]
-        raise ValidationError(
-            f"{name}: radiance must be >= 0, got {float(p[tuple(i)])!r} at row {i[0]}, column {i[1]}, "
-            f"channel {i[2]} ({int(neg.sum())} negative value(s))"
-        )
-    return p
 
 
 def _overlap_1d(target_edges, source_edges, measure):

@@ -3,7 +3,7 @@
 One job: the per-pixel least-squares fit of a Lambertian lobe R = ρ/π max(N·l, 0)
 to reflectance functions, used for the normals of one-light-at-a-time data
 (:func:`photometric_stereo`, e.g. DiLiGenT folders read by
-:func:`facestats.io.olat.read_olat_folder`) and for the diffuse normal of the
+:func:`facestats.relight.olat.read_olat_folder`) and for the diffuse normal of the
 colour-space separation (Debevec et al. 2000 §4.2, "fit a Lambertian lobe to the
 diffuse component").  Samples that do not follow the lobe — attached and cast
 shadows, specular highlights — are left out by weights: per pixel the darkest
@@ -121,7 +121,7 @@ def photometric_stereo(field, *, dark: float = 0.25, bright: float = 0.1, mask=N
     Parameters
     ----------
     field : xarray.Dataset
-        A reflectance field (any light set, e.g. :func:`facestats.io.olat.read_olat_folder`).
+        A reflectance field (any light set, e.g. :func:`facestats.relight.olat.read_olat_folder`).
     dark, bright : float
         Fractions of each pixel's darkest (shadows) and brightest (highlights)
         samples left out (:func:`rank_weights`).

@@ -42,7 +42,7 @@ def lighting_for(field, probe, *, layout: str = "latlong", rotate: float = 0.0, 
     field : xarray.Dataset
         A reflectance field; only its ``direction`` coordinate is read.
     probe : array_like, shape (H, W, 3)
-        Linear radiance in ``layout`` (:func:`facestats.relight.lighting.check_probe`).
+        Linear radiance in ``layout`` (:func:`facestats.model.sphere.check_probe`).
     layout : {"latlong", "angular"}
     rotate : float
         Rotation of the environment about +y, radians (right-handed).

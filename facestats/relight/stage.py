@@ -660,7 +660,7 @@ def relight_subject(
     probe : array_like, shape (H, W, 3)
         Linear radiance of the light probe (any unit).
     layout : {"latlong", "angular"}
-        Layout of the probe (:func:`facestats.relight.lighting.check_probe`).
+        Layout of the probe (:func:`facestats.model.sphere.check_probe`).
     rotate : float
         Rotate the environment about +y by this angle first (radians, right-handed,
         :func:`facestats.relight.lighting.rotate_probe`).

@@ -226,7 +226,7 @@ def test_npy_files_are_checked_before_they_are_built(tmp_path):
 
 
 def test_ground_truth_normals_must_be_unit_or_zero(tmp_path):
-    from facestats.io.olat import read_ground_truth_normals
+    from facestats.relight.olat import read_ground_truth_normals
 
     n = np.zeros((4, 4, 3), np.float32)
     n[1:3, 1:3] = (0, 0, 1)  # unit on the object, zero off it (DiLiGenT)

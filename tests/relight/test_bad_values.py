@@ -83,7 +83,7 @@ def test_probe_paths_and_values_of_the_wrong_kind(tmp_path):
         read_light_probe(tmp_path / "d.hdr")
     for value in (np.full((2, 4, 3), "a"), np.full((2, 4, 3), None), np.ones((2, 4, 3), complex)):
         with pytest.raises(ValidationError, match="radiance must be numeric"):
-            lighting.check_probe(value)
+            sphere.check_probe(value)
 
 
 def test_rotation_by_a_huge_angle_is_the_rotation_by_its_remainder(rng):

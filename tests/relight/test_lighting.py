@@ -95,7 +95,7 @@ def test_a_small_real_rig_takes_little_light_from_behind():
     its whole 2π sr, so the ball relit as bright as under the matching front-only probe (a red team)."""
     import pathlib
 
-    from facestats.io.olat import read_olat_folder
+    from facestats.relight.olat import read_olat_folder
     from facestats.relight.relighting import relight
 
     field = read_olat_folder(pathlib.Path(__file__).parents[1] / "data" / "hales-sphere-olat")
@@ -181,16 +181,16 @@ def test_bad_probes_are_refused_with_the_field_and_value():
     bad = good.copy()
     bad[2, 3, 1] = np.nan
     with pytest.raises(ValidationError, match=r"finite, got nan at row 2, column 3, channel 1"):
-        lighting.check_probe(bad)
+        sphere.check_probe(bad)
     bad = good.copy()
     bad[1, 1, 0] = -0.5
     with pytest.raises(ValidationError, match=r">= 0, got -0.5"):
         lighting.resample_probe(bad)
     with pytest.raises(ValidationError, match="twice as wide"):
-        lighting.check_probe(np.ones((8, 8, 3)), "latlong")
+        sphere.check_probe(np.ones((8, 8, 3)), "latlong")
     with pytest.raises(ValidationError, match="square"):
-        lighting.check_probe(np.ones((8, 16, 3)), "angular")
+        sphere.check_probe(np.ones((8, 16, 3)), "angular")
     with pytest.raises(ValidationError, match="layout must be one of"):
-        lighting.check_probe(good, "cubemap")
+        sphere.check_probe(good, "cubemap")
     with pytest.raises(ValidationError, match=r"shape \(H, W, 3\)"):
-        lighting.check_probe(np.ones((8, 16)))
+        sphere.check_probe(np.ones((8, 16)))

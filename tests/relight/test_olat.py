@@ -9,8 +9,8 @@ import pytest
 
 from facestats.errors import FacestatsError, FormatError, ValidationError
 from facestats.io.images import srgb_to_linear, write_image, write_pfm
-from facestats.io.olat import read_olat_folder, write_olat_manifest
 from facestats.model.sphere import latlong_directions, light_stage_directions
+from facestats.relight.olat import read_olat_folder, write_olat_manifest
 from facestats.relight.photometric import angular_error_deg, photometric_stereo
 from tests.helpers import TEST_DATA
 from tests.relight.fields import sphere_normals

@@ -1,7 +1,7 @@
 """One-light-at-a-time (OLAT) and photometric-stereo folders read as reflectance fields.
 
 One job: turn a folder of images, each lit by one known distant light, into a
-reflectance field (:mod:`facestats.relight.field`): each image divided by its
+reflectance field (:func:`facestats.relight.field.make_field`): each image divided by its
 light's RGB intensity, in linear radiometry.  Two layouts:
 
 **DiLiGenT** (Shi et al. 2016): ``filenames.txt`` (one image per line),
@@ -58,6 +58,7 @@ from facestats.core.validate import as_float, check_choice, json_numbers
 from facestats.errors import FacestatsWarning, FormatError, ValidationError
 from facestats.io.images import INTEGER_EXTENSIONS, read_image, read_integer_image
 from facestats.model.sphere import direction_from_angles, latlong_directions
+from facestats.relight.field import make_field
 
 __all__ = ["MANIFEST_NAME", "read_olat_folder", "write_olat_manifest", "read_ground_truth_normals"]
 
@@ -382,9 +383,6 @@ def read_olat_folder(path, *, srgb=None):
         biases them low; a :class:`~facestats.errors.FacestatsWarning` says how
         many).
     """
-    # local import: keeps facestats.acquire and facestats.model (26 modules) out of this module's import
-    from facestats.relight.field import make_field
-
     folder = pathlib.Path(os.fspath(path))
     if not folder.is_dir():
         raise ValidationError(f"OLAT folder {str(folder)!r} does not exist")

@@ -50,9 +50,9 @@ import numpy as np
 
 def _default_case(index=0, specular="torrance_sparrow", grid=48):
     """The default population (at ``grid``), subject ``index`` and a dome simulator of the procedural face."""
-    from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
+    from facestats.face.procedural import procedural_face
 
     geometry = procedural_face(grid)
     pop = synthesize_population(map_size=grid, geometry=geometry)

@@ -220,7 +220,7 @@ sys.path.insert(0, sys.argv[5])
 from inputs import fit_errors
 from facestats.acquire.dome import Dome
 from facestats.acquire.ingest import ingest_photographs, open_ingested
-from facestats.acquire.synthetic.faces import face_geometry
+from facestats.face.named import face_geometry
 from facestats.acquire.synthetic.population import synthesize_population
 from facestats.io.mesh import load_face_mesh
 from facestats.pipeline import fit_subject
@@ -246,10 +246,10 @@ def bench_ingest(grid=48, side=1024, leds=None, workers=2, min_footprint_px=2.0)
     import shutil
 
     from facestats.acquire.dome import default_dome
-    from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.photographs import write_capture_photographs
     from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
+    from facestats.face.procedural import procedural_face
     from facestats.pipeline import fit_subject
 
     geometry = procedural_face(grid)
@@ -327,8 +327,8 @@ def bench_led_calibration(side=128, grid=24, face_grid=24, shell_points=1000):
     import tempfile
 
     from facestats.acquire.calibration import calibrate_leds
-    from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.photographs import write_target_photographs
+    from facestats.face.procedural import procedural_face
 
     camera, truth = target_rig([0, 20, 41, 60, 83, 101, 122, 147], side)
     poses = [target_pose((0, 0, 1)), target_pose((3.7, 0, 1)), target_pose((-3.7, 0, 1)), target_pose((0, 0.9, 1))]

@@ -280,9 +280,9 @@ def bench_calibration(n_subjects=4, grid=48, face="procedural", transport="dipol
     over the surface or the local (flat-patch) transport of a simulator streaming in three blocks
     (``transport="local"``); ``normal_tilt`` as :class:`facestats.pipeline.FitSettings`.
     """
-    from facestats.acquire.synthetic.faces import named_face
     from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
+    from facestats.face.named import named_face
     from facestats.pipeline import FitSettings, fit_subject
 
     z90 = 1.6448536269514722
@@ -318,10 +318,10 @@ def bench_calibration_variants(subjects=None, grid=48, face="procedural"):
     with it (dipole transport, camera noise).  The columns
     are formed here from the package's slopes (:func:`facestats.model.fitting.normal_tilt.tilt_slopes`).
     """
-    from facestats.acquire.synthetic.faces import named_face
     from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
     from facestats.core.published import ETA_SKIN
+    from facestats.face.named import named_face
     from facestats.model import fitting
     from facestats.model.fitting.lobes import lobe_base, lobe_rate, lobe_scale
     from facestats.model.fitting.normal_tilt import tilt_grids, tilt_inputs, tilt_slopes
@@ -421,9 +421,9 @@ def bench_calibration_budget(subject=0, grid=48, passes=None):
     ``passes``: the photometric-stereo passes (None: the default of
     :func:`facestats.model.fitting.photometric_normals`; 3 gives the fit before 2026-12-04).
     """
-    from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
+    from facestats.face.procedural import procedural_face
     from facestats.model import fitting
 
     geometry = procedural_face(grid)
@@ -510,9 +510,9 @@ def bench_normal_passes(subject=0, grid=48, passes=(1, 2, 3, 4, 5, 6)):
     with the local transport (several simulator blocks), without and with camera noise
     (:func:`facestats.model.fitting.photometric_normals`, its module docstring quotes the figures).
     """
-    from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
+    from facestats.face.procedural import procedural_face
     from facestats.model import fitting
 
     geometry = procedural_face(grid)

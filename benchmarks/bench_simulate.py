@@ -43,9 +43,9 @@ from inputs import cached_input  # noqa: E402
 
 
 def bench_one_subject(grid=48, repeats=5):
-    from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
+    from facestats.face.procedural import procedural_face
 
     pop = synthesize_population(map_size=grid, geometry=procedural_face(grid))
     t0 = time.perf_counter()
@@ -67,9 +67,9 @@ def bench_one_subject(grid=48, repeats=5):
 
 
 def _simulate_many(ids, grid):
-    from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
+    from facestats.face.procedural import procedural_face
 
     pop = synthesize_population(map_size=grid, geometry=procedural_face(grid))
     sim = DomeSimulator(procedural_face(grid))
@@ -94,7 +94,7 @@ def bench_population(grid=48, n_subjects=None):
 
 _FULL = r"""
 import json, resource, sys, time
-from facestats.acquire.synthetic.face import procedural_face
+from facestats.face.procedural import procedural_face
 from facestats.acquire.synthetic.population import synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator
 t0 = time.perf_counter()
@@ -140,10 +140,10 @@ def bench_full_resolution(grid=FULL_GRID, map_size=FULL_MAP_SIZE):
 
 def bench_valid_samples(grid=48, faces=("ict", "procedural"), n_subjects=None):
     """Valid samples per lumitexel of the default population simulated on each face (module docstring)."""
-    from facestats.acquire.synthetic.faces import face_geometry
     from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
     from facestats.core.conventions import DEFAULT_SEED
+    from facestats.face.named import face_geometry
 
     out = {}
     for face in faces:

@@ -1,4 +1,5 @@
-"""The package's import structure: no module uses another module's private names, and no import cycles.
+"""The package's import structure: no module uses another module's private names, no import cycles, and no
+import from a folder to one above it (docs/architecture.md, *Package layout*).
 
 Every ``import`` and ``from ... import`` of the package is read with :mod:`ast`, wherever it stands
 (module level or inside a function: a cycle held off by a local import is still a cycle).
@@ -101,6 +102,48 @@ def test_no_import_cycles():
         if m not in state:
             visit(m)
     assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
+
+
+#: The floors of docs/architecture.md, from the ground up: a folder may import its own floor's modules and those of
+#: the floors below, never a folder above, nor another folder of its own floor unless :data:`SIDEWAYS` lists the pair.
+FLOORS = {
+    "errors": 0,
+    "core": 1,
+    "model": 2,
+    "face": 2,
+    "io": 3,
+    "acquire": 4,
+    "pipeline": 5,
+    "relight": 5,
+    "analysis": 5,
+    "edit": 6,
+    "web": 6,
+    "cli": 7,
+    "__main__": 8,
+}
+#: Imports between folders of one floor that docs/architecture.md names: edit/ takes the region samples of
+#: analysis.population, web/ the region statistics of analysis.
+SIDEWAYS = {("edit", "analysis"), ("web", "analysis")}
+
+
+def _folder(module):
+    """The folder (or top-level module) of ``facestats.<folder>...``; None for the package itself."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else None
+
+
+def test_no_folder_imports_a_folder_above_it():
+    assert {_folder(m) for m in MODULES} - {None} == set(FLOORS), "a folder without a floor: add it to FLOORS"
+    bad = []
+    for module in MODULES:
+        here = _folder(module)
+        for target, name, line in _imports(module)[1]:
+            there = _folder(target)
+            if here is None or there is None or here == there:
+                continue
+            if FLOORS[there] > FLOORS[here] or (FLOORS[there] == FLOORS[here] and (here, there) not in SIDEWAYS):
+                bad.append(f"{module}:{line} imports {target} ({there}/ is not below {here}/)")
+    assert not bad, "imports that run up the floors:\n" + "\n".join(bad)
 
 
 def test_the_walk_sees_the_package():

@@ -13,9 +13,9 @@ import numpy as np
 
 def fit_kernels():
     """The fit's kernels (about 24 CPU-s with an empty cache): one 8² subject simulated and fitted."""
-    from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
+    from facestats.face.procedural import procedural_face
     from facestats.pipeline import fit_subject
 
     truth = synthesize_population(map_size=8, geometry=procedural_face(8), subjects=["S001"], conditions=False)["S001"]

@@ -7,7 +7,7 @@ calibration; real rigs are described with the same object (:meth:`Dome.from_dict
 / :meth:`Dome.load` of a JSON file), the simulator's default rig with
 :func:`default_dome`.
 
-Conventions: world frame of :mod:`facestats.acquire.geometry` (mm, +y up, +z towards
+Conventions: world frame of :mod:`facestats.face.geometry` (mm, +y up, +z towards
 the frontal camera).  Irradiance is in *dome units*: the calibrated LEDs give
 E⊥ ≈ 1 at the head on their axis; radiance is in dome units per sr.  Only
 ratios L/E enter the model, so the unit needs no physical scale.

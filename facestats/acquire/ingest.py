@@ -6,7 +6,7 @@ and gather, at every mesh vertex, a lumitexel of BRDF samples.
 (:mod:`facestats.acquire.photographs`):
 
 1. **Geometry and visibility**: lumitexels from the mesh
-   (:class:`facestats.acquire.geometry.FaceGeometry`), projected into every
+   (:class:`facestats.face.geometry.FaceGeometry`), projected into every
    calibrated camera with lens distortion (:meth:`Dome.project`); valid samples
    from the shadow maps of every LED and camera, front-facing and in frame
    (:func:`facestats.acquire.visibility.sample_visibility`, the simulator's rule;
@@ -51,7 +51,6 @@ import numpy as np
 
 from facestats.acquire.capture import PER_LUMITEXEL, CaptureWriter, open_capture
 from facestats.acquire.dome import Dome
-from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.photographs import (
     MANIFEST,
     CaptureFolder,
@@ -69,6 +68,7 @@ from facestats.core.progress import progress_bar
 from facestats.core.validate import as_scalar, check_integer
 from facestats.core.version import __version__
 from facestats.errors import FormatError, ValidationError
+from facestats.face.geometry import FaceGeometry
 
 __all__ = [
     "ingest_photographs",

@@ -9,7 +9,7 @@ triangles of different sizes the areas differ by the rounding of k, and every
 function downstream takes the areas explicitly.  :func:`read_mesh_patches` reads
 the mesh with :func:`facestats.io.mesh.read_triangle_mesh` (OBJ, PLY).  Patches
 made from arrays (e.g. the lumitexels of a
-:class:`facestats.acquire.geometry.FaceGeometry`) need only centres, normals and
+:class:`facestats.face.geometry.FaceGeometry`) need only centres, normals and
 areas; the sub-triangles are kept when known, for rendering images.
 
 Conventions: mm, mm²; unit normals pointing out of the object; the source mesh is

@@ -41,7 +41,7 @@ COMPONENTS = ("x", "y", "z")
 
 #: Face regions of Weyrich et al. 2006 Fig. 15 (left).  The text names all but
 #: region 5; facestats places it below the eyes, between eyelids and cheeks
-#: (an assumption, see ``facestats.acquire.geometry``).
+#: (an assumption, see ``facestats.face.geometry``).
 REGIONS = {
     1: "mustache",
     2: "forehead",
@@ -331,8 +331,8 @@ def age_group(age) -> str:
 
 
 #: Seed, map size (= lumitexel grid) and face of the embedded default store (``facestats build --default``):
-#: the face is one of :data:`facestats.acquire.synthetic.faces.FACES`, ``"ict"`` the face area of
-#: ICT-FaceKit's neutral head (:mod:`facestats.acquire.synthetic.ict_face`).
+#: the face is one of :data:`facestats.face.named.FACES`, ``"ict"`` the face area of
+#: ICT-FaceKit's neutral head (:mod:`facestats.face.ict`).
 DEFAULT_SEED = 2006
 DEFAULT_MAP_SIZE = 48
 DEFAULT_FACE = "ict"

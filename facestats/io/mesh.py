@@ -28,11 +28,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.acquire.geometry import FaceGeometry, uv_to_texel
-from facestats.acquire.synthetic.faces import face_geometry, parse_face_name
 from facestats.core.raster import triangle_coverage
 from facestats.core.validate import as_finite, check_integer, check_shape
 from facestats.errors import FormatError, ValidationError
+from facestats.face.geometry import FaceGeometry, uv_to_texel
+from facestats.face.named import face_geometry, parse_face_name
 from facestats.io.mesh_sequence import load_trimesh, place_vertices
 from facestats.io.schema import provenance
 
@@ -232,7 +232,7 @@ def _vertex_normals_and_areas(verts: np.ndarray, faces: np.ndarray):
 def procedural_mesh(geometry: FaceGeometry):
     """The triangle mesh of a procedural geometry with the UV of every vertex (unused grid vertices dropped).
 
-    The vertices of :func:`facestats.acquire.synthetic.face.procedural_face`'s
+    The vertices of :func:`facestats.face.procedural.procedural_face`'s
     mesh lie on a regular ``mesh_grid``² grid in UV: vertex ``(i, j)`` sits at
     u = (j + 0.5)/n, v = (i + 0.5)/n (facestats' UV convention, v down).
 
@@ -271,11 +271,11 @@ def procedural_mesh(geometry: FaceGeometry):
 def geometry_mesh(geometry: FaceGeometry):
     """The triangle mesh of a face geometry with the UV of every vertex: :func:`procedural_mesh` for a
     procedural head, the mesh as it is for a geometry that carries one UV per mesh vertex (``mesh_uv``:
-    the ICT face, :func:`facestats.acquire.synthetic.ict_face.ict_face`, split along its UV seams).
+    the ICT face, :func:`facestats.face.ict.ict_face`, split along its UV seams).
 
     Parameters
     ----------
-    geometry : facestats.acquire.geometry.FaceGeometry
+    geometry : facestats.face.geometry.FaceGeometry
         A procedural head or a geometry with ``mesh_uv``.
 
     Returns
@@ -554,7 +554,7 @@ def recorded_geometry(ds) -> str | None:
     """The name of the face a subject's maps belong to, from its provenance: the one place it is read.
 
     ``capture_provenance.geometry`` of a fitted subject (``ict-N`` or ``procedural-N`` for the synthetic
-    population, which :func:`facestats.acquire.synthetic.faces.named_face` rebuilds; the scan's file name, e.g.
+    population, which :func:`facestats.face.named.named_face` rebuilds; the scan's file name, e.g.
     ``face.obj``, for a subject ingested from photographs), else ``geometry`` of generated truth (the texture
     sample).  A subject written by ``facestats edit`` keeps the face of its source: without a geometry of its
     own, its ``source_provenance`` is followed (through edits of edits).  Used by :func:`subject_mesh` (the
@@ -598,9 +598,9 @@ def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = N
         a fitted subject, ``geometry`` of generated truth such as the texture
         sample, the source's for an edit):
         ``procedural-N`` (every subject of the embedded default; that head is
-        rebuilt with :func:`facestats.acquire.synthetic.face.procedural_face`)
+        rebuilt with :func:`facestats.face.procedural.procedural_face`)
         or ``ict-N`` (the shipped ICT-FaceKit face area,
-        :func:`facestats.acquire.synthetic.ict_face.ict_face_uv_mesh`).
+        :func:`facestats.face.ict.ict_face_uv_mesh`).
     mesh : str or os.PathLike, optional
         An OBJ/PLY scan with per-vertex UVs (v up in the file) whose UV layout
         the subject's maps follow.
@@ -644,7 +644,7 @@ def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = N
     geometry = {
         "kind": "procedural" if procedural else "ict-facekit",
         "name": name,
-        "function": "facestats.acquire.synthetic.faces.named_face",
+        "function": "facestats.face.named.named_face",
     }
     if procedural:
         geometry["mesh_grid"] = int(grid)

@@ -6,7 +6,7 @@ carries the solid angle δA it stands for).  Pure functions of arrays, no I/O.
 
 Convention (the one facestats uses everywhere)
 ----------------------------------------------
-* World frame of :mod:`facestats.acquire.geometry`: right-handed, +y up, +z out of
+* World frame of :mod:`facestats.face.geometry`: right-handed, +y up, +z out of
   the face towards the frontal camera, +x to the subject's left (the frontal
   camera's right).
 * A *light direction* is the unit vector from the surface **towards** the light

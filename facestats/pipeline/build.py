@@ -51,13 +51,13 @@ from pathlib import Path
 
 import numpy as np
 
-from facestats.acquire.synthetic.faces import FACES, face_geometry
 from facestats.acquire.synthetic.population import synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator
 from facestats.core.conventions import DEFAULT_FACE, DEFAULT_MAP_SIZE, DEFAULT_SEED, SITES
 from facestats.core.processes import available_memory, sigterm_as_interrupt
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
+from facestats.face.named import FACES, face_geometry
 from facestats.io.ids import check_subject_id
 from facestats.io.packing import pack_store
 from facestats.io.store import default_store_path, open_store
@@ -513,7 +513,7 @@ def build_store(
         Attempts after the first for a subject that fails (≥ 0); it is then reported in
         :attr:`BuildReport.failed` and the journal (``facestats build --status``).
     face : {"ict", "procedural"}
-        The face the population lives on (:func:`facestats.acquire.synthetic.faces.face_geometry`):
+        The face the population lives on (:func:`facestats.face.named.face_geometry`):
         ICT-FaceKit's real face (the embedded default's, :data:`DEFAULT_FACE`) or the procedural head.
 
     Returns

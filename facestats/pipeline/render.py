@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.acquire.geometry import uv_to_texel
 from facestats.core.published import ETA_SKIN, GRAZING_LIMIT_DEG
 from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.errors import ValidationError
+from facestats.face.geometry import uv_to_texel
 from facestats.io.schema import modulation as _modulation
 from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport, skin_radiance
 from facestats.pipeline.settings import MAP_VARS, MODEL_PREFIX

@@ -20,10 +20,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.acquire.geometry import uv_to_texel
 from facestats.core.published import GRAZING_LIMIT_DEG
 from facestats.core.validate import as_finite, check_integer
 from facestats.errors import ValidationError
+from facestats.face.geometry import uv_to_texel
 from facestats.pipeline.render import predict_radiance
 from facestats.pipeline.settings import MAP_VARS, MODEL_PREFIX
 

@@ -18,13 +18,13 @@ from dataclasses import asdict
 import numpy as np
 
 from facestats.acquire.capture import Capture, open_capture
-from facestats.acquire.geometry import uv_to_texel
 from facestats.core.conventions import CHANNELS, COMPONENTS, SITES
 from facestats.core.progress import progress_bar
 from facestats.core.published import ETA_SKIN, SIGMA_TR_AVG
 from facestats.core.validate import as_finite, check_integer, check_shape
 from facestats.core.version import __version__
 from facestats.errors import ValidationError
+from facestats.face.geometry import uv_to_texel
 from facestats.io.schema import SCHEMA_VERSION, set_variable_attrs
 from facestats.model import fitting
 from facestats.pipeline.lumitexels import fit_lumitexels

@@ -89,8 +89,8 @@ def texture_sample_datasets(*, size: int = TEXTURE_SAMPLE_SIZE, subjects=TEXTURE
         head (``geometry`` = ``procedural-N``, which export rebuilds) and the
         subject's drawn features (freckles, moles, melanin).
     """
-    from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.population import synthesize_population
+    from facestats.face.procedural import procedural_face
     from facestats.io.schema import set_variable_attrs
 
     check_integer(size, "size", 16)

@@ -33,8 +33,6 @@ import numpy as np
 
 from facestats.acquire.capture import Lumitexels
 from facestats.acquire.dome import default_dome
-from facestats.acquire.geometry import uv_to_texel
-from facestats.acquire.synthetic.faces import named_face, parse_face_name
 from facestats.acquire.synthetic.population import default_population, synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator, simulate_capture
 from facestats.acquire.visibility import ShadowMaps
@@ -42,6 +40,8 @@ from facestats.core.conventions import DEFAULT_SEED
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
+from facestats.face.geometry import uv_to_texel
+from facestats.face.named import named_face, parse_face_name
 from facestats.io.mesh import load_face_mesh, recorded_geometry, subject_mesh
 from facestats.io.probes import read_light_probe
 from facestats.io.schema import modulation, provenance
@@ -225,7 +225,7 @@ class FaceView:
 
     Parameters
     ----------
-    geometry : facestats.acquire.geometry.FaceGeometry
+    geometry : facestats.face.geometry.FaceGeometry
         The face: its lumitexels' positions, normals, UVs, areas and regions, and its ``name``.
     subject_id : str
         The subject's id, kept with the geometry's name in :attr:`attrs`.

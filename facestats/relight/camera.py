@@ -1,6 +1,6 @@
 """The camera view of a face mesh: a square pinhole camera and the surface seen by each of its pixels.
 
-One job: for a :class:`StageCamera`, rasterise a :class:`~facestats.acquire.geometry.FaceGeometry`'s mesh
+One job: for a :class:`StageCamera`, rasterise a :class:`~facestats.face.geometry.FaceGeometry`'s mesh
 (:func:`facestats.acquire.visibility.rasterize`), intersect every covered pixel's ray with its triangle
 (Möller-Trumbore) and return the surface point, its barycentric coordinates and texture coordinates
 (:class:`ViewSurface`).  Used by the virtual light stage (:mod:`facestats.relight.stage`) and by the
@@ -15,11 +15,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.acquire.dome import look_at
-from facestats.acquire.geometry import FaceGeometry
-from facestats.acquire.synthetic.faces import named_face
 from facestats.acquire.visibility import rasterize
 from facestats.core.validate import as_finite, as_scalar, check_integer, check_shape
 from facestats.errors import ValidationError
+from facestats.face.geometry import FaceGeometry
+from facestats.face.named import named_face
 
 __all__ = ["StageCamera", "stage_camera", "subject_geometry", "mesh_uv", "vertex_normals", "ViewSurface",
            "view_surface", "ray_triangle"]  # fmt: skip
@@ -130,7 +130,7 @@ def subject_geometry(subject, mesh=None, *, scale: float = 1.0, mesh_grid: int =
     The name is read by :func:`facestats.io.mesh.recorded_geometry` (the one place, shared with the exporters):
     ``"ict-N"`` (the ICT-FaceKit face of the default, its own mesh) or ``"procedural-N"`` (the procedural head of
     lumitexel grid N, rebuilt here with a ``mesh_grid``² rendering mesh), both through
-    :func:`facestats.acquire.synthetic.faces.named_face`; an edit (``facestats edit``) has its source's face.
+    :func:`facestats.face.named.named_face`; an edit (``facestats edit``) has its source's face.
     Subjects fitted on a real scan (ingested photographs: the scan's file name is recorded) need that scan:
     ``mesh``, an OBJ/PLY with per-vertex UVs (v up in the file, mm times ``scale``) whose UV layout the maps
     follow, loaded with :func:`facestats.io.mesh.load_face_mesh` and the subject's own ``region`` map.

@@ -44,11 +44,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.acquire.geometry import grid_triangles
 from facestats.acquire.visibility import rasterize
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, as_float, check_shape
 from facestats.errors import ValidationError
+from facestats.face.geometry import grid_triangles
 from facestats.model.brdf import v_groove_shadowing_unchecked
 from facestats.model.fresnel import check_eta, fresnel_reflectance_unchecked
 from facestats.model.sphere import latlong_coordinates, latlong_directions, unit_directions

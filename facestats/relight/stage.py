@@ -50,7 +50,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.visibility import ShadowMaps
 from facestats.core.blocked import blockwise
 from facestats.core.processes import available_memory
@@ -58,6 +57,7 @@ from facestats.core.progress import progress_bar
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, as_float, check_choice, check_integer, check_shape
 from facestats.errors import ValidationError
+from facestats.face.geometry import FaceGeometry
 from facestats.model.brdf import (
     beckmann_distribution_unchecked,
     blinn_phong_lobe_unchecked,

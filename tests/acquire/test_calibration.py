@@ -127,7 +127,7 @@ def target(tmp_path_factory):
 
 
 def test_led_calibration_recovers_the_simulated_leds_within_one_percent(target, tmp_path):
-    from facestats.acquire.synthetic.face import procedural_face
+    from facestats.face.procedural import procedural_face
 
     folder, truth = target
     unknown = unknown_leds(truth)

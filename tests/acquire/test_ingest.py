@@ -12,9 +12,9 @@ from facestats import FacestatsError
 from facestats.acquire.dome import Dome, default_dome
 from facestats.acquire.ingest import ingest_photographs, ingest_state, open_ingested
 from facestats.acquire.photographs import CaptureFolder, bilinear_taps, open_folder
-from facestats.acquire.synthetic.face import procedural_face
 from facestats.acquire.synthetic.photographs import write_capture_photographs
 from facestats.acquire.synthetic.population import synthesize_population
+from facestats.face.procedural import procedural_face
 from facestats.io.mesh import load_face_mesh
 
 CAMERAS = [3, 4, 11, 12]

@@ -37,7 +37,7 @@ def _plane(n=20, size=2.0, z=0.0):
     x = np.linspace(-size / 2, size / 2, n)
     xx, yy = np.meshgrid(x, -x)
     v = np.stack([xx.ravel(), yy.ravel(), np.full(n * n, z)], 1)
-    from facestats.acquire.geometry import grid_triangles
+    from facestats.face.geometry import grid_triangles
 
     return v, grid_triangles(np.ones((n, n), bool))
 

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from facestats.acquire.dome import default_dome
-from facestats.acquire.synthetic.faces import face_geometry
 from facestats.acquire.visibility import shadow_map
+from facestats.face.named import face_geometry
 
 pytest.importorskip("numba")
 

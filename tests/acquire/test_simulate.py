@@ -9,12 +9,12 @@ import pytest
 
 from facestats.acquire.capture import ALL_CHUNKS_ATTR, open_capture
 from facestats.acquire.dome import Dome, default_dome, look_at
-from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.hdr import CameraResponse
-from facestats.acquire.synthetic.face import procedural_face
 from facestats.acquire.synthetic.population import SubjectTruth, synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator
 from facestats.errors import FormatError, ValidationError
+from facestats.face.geometry import FaceGeometry
+from facestats.face.procedural import procedural_face
 from facestats.model import brdf, dipole
 from facestats.model.fresnel import fresnel_reflectance, fresnel_transmittance
 
@@ -317,7 +317,7 @@ def test_real_mesh_loader_round_trip(tmp_path):
 
 
 def test_uv_to_texel_is_the_map_cell_containing_the_uv():
-    from facestats.acquire.geometry import uv_to_texel
+    from facestats.face.geometry import uv_to_texel
 
     uv = np.array([[0.0, 0.0], [0.999, 0.0], [1.0, 1.0], [0.26, 0.74], [0.5, 0.25]])
     np.testing.assert_array_equal(uv_to_texel(uv, 4), [[0, 0], [0, 3], [3, 3], [2, 1], [1, 2]])  # (v, u)

@@ -187,7 +187,7 @@ def test_mesh_files_carry_uvs_read_back_by_load_face_mesh(tmp_path, subject):
 
 
 def _kept(m, ds):
-    from facestats.acquire.geometry import uv_to_texel
+    from facestats.face.geometry import uv_to_texel
 
     t = uv_to_texel(m.uv, 48)
     return np.nonzero(ds["region"].values[t[:, 0], t[:, 1]] > 0)[0]

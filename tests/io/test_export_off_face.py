@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from facestats.acquire.geometry import uv_to_texel
 from facestats.errors import ValidationError
+from facestats.face.geometry import uv_to_texel
 from facestats.io.exr_set import FILLED_MAPS, FaceFill, write_exr_set
 from facestats.io.images import read_exr, read_image, write_image
 from facestats.io.mesh import subject_mesh

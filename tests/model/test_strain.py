@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from facestats.acquire.geometry import grid_triangles
 from facestats.errors import FacestatsError
+from facestats.face.geometry import grid_triangles
 from facestats.model.strain import (
     MeshStrain,
     inv2x2,

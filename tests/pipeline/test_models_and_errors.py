@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from facestats import open_store
-from facestats.acquire.synthetic.face import procedural_face
 from facestats.acquire.synthetic.population import synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator
 from facestats.analysis import model_errors
 from facestats.analysis.plots import plot_model_errors
 from facestats.errors import FitError
+from facestats.face.procedural import procedural_face
 from facestats.io.schema import FLAG_BITS
 from facestats.model.fitting.solver import PLAUSIBLE_LOBE
 from facestats.pipeline import FitSettings, fit_subject

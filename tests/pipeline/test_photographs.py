@@ -25,10 +25,10 @@ MOVED = [(4, 7), (11, 3)]
 @pytest.fixture(scope="module")
 def case(tmp_path_factory):
     from facestats.acquire.dome import default_dome
-    from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.photographs import write_capture_photographs
     from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
+    from facestats.face.procedural import procedural_face
     from facestats.pipeline import fit_subject
 
     truth = synthesize_population(map_size=16, geometry=procedural_face(16), subjects=["S001"])["S001"]
@@ -155,8 +155,8 @@ def test_16_bit_tiff_frames_hold_the_png_codes_and_ingest(case, tmp_path):
     import tifffile
 
     from facestats.acquire.dome import default_dome
-    from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.photographs import write_capture_photographs
+    from facestats.face.procedural import procedural_face
     from facestats.io import open_store
 
     _, pc, truth, _ = case

@@ -8,9 +8,9 @@ import pytest
 
 from facestats import FacestatsError
 from facestats.acquire.capture import open_capture
-from facestats.acquire.synthetic.face import procedural_face
 from facestats.acquire.synthetic.population import synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator
+from facestats.face.procedural import procedural_face
 from facestats.io.schema import FLAG_BITS, validate_subject
 from facestats.model import brdf
 from facestats.model.fitting import fit_specular

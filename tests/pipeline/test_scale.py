@@ -9,10 +9,10 @@ import pytest
 
 from facestats import FacestatsError, open_store
 from facestats.acquire.capture import open_capture
-from facestats.acquire.synthetic.face import procedural_face
 from facestats.acquire.synthetic.population import synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator
 from facestats.errors import FitError, StoreError, ValidationError
+from facestats.face.procedural import procedural_face
 from facestats.pipeline import FitSettings, fit_population, fit_subject
 from facestats.pipeline import build as build_module
 from facestats.pipeline.cluster import SCHEDULER_VARIABLE, scheduler_address, store_directory

@@ -297,9 +297,9 @@ def test_a_fifo_calibration_is_refused_at_once(tmp_path):
 def photos(tmp_path_factory):
     """A capture folder: a 16-grid subject photographed by 4 cameras under 6 LEDs at 96² pixels (about 3 s)."""
     from facestats.acquire.dome import default_dome
-    from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.photographs import write_capture_photographs
     from facestats.acquire.synthetic.population import synthesize_population
+    from facestats.face.procedural import procedural_face
 
     truth = synthesize_population(map_size=16, geometry=procedural_face(16), conditions=False, subjects=["S011"])[
         "S011"

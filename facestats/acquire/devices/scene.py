@@ -45,7 +45,6 @@ from facestats.acquire.devices.sensor import FiberLayout
 from facestats.acquire.hdr import expose
 from facestats.acquire.response import ResponseCurve
 from facestats.acquire.sensor import ContactSensor
-from facestats.acquire.synthetic.faces import face_geometry, named_face
 from facestats.acquire.synthetic.photographs import FrameRenderer
 from facestats.acquire.synthetic.population import SubjectTruth, check_population_id, synthesize_population
 from facestats.core.compiled import resolve_backend
@@ -53,6 +52,7 @@ from facestats.core.progress import progress_bar
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import check_integer
 from facestats.errors import ValidationError
+from facestats.face.named import face_geometry, named_face
 from facestats.model.dipole import dipole_profile, total_diffuse_reflectance, transport_coefficient
 
 __all__ = ["subject_truth", "DomeScene", "SensorScene", "dark_code_table"]

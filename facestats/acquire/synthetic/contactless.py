@@ -33,10 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facestats.acquire.geometry import uv_to_texel
 from facestats.acquire.lights import patch_irradiance
-from facestats.acquire.synthetic.face import face_uv
-from facestats.acquire.synthetic.faces import named_face
 from facestats.acquire.synthetic.patch_image import render_patch_image
 from facestats.acquire.synthetic.scenes import face_site_scene
 from facestats.acquire.synthetic.subsurface import render_exitance
@@ -44,6 +41,9 @@ from facestats.core.conventions import SITES
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_scalar, check_choice
 from facestats.errors import ValidationError
+from facestats.face.geometry import uv_to_texel
+from facestats.face.named import named_face
+from facestats.face.procedural import face_uv
 from facestats.model.irradiance import radiance_from_exitance
 
 __all__ = ["CONTACTLESS_SITES", "modulation_face", "patch_modulation", "simulate_site_image"]
@@ -55,7 +55,7 @@ CONTACTLESS_SITES = ("cheek", "forehead")
 def modulation_face(name: str):
     """The face whose layout a modulation map follows, for :func:`patch_modulation`: None for the
     procedural head (and for a name facestats cannot rebuild: a scan), else
-    :func:`facestats.acquire.synthetic.faces.named_face` (``ict-N``).
+    :func:`facestats.face.named.named_face` (``ict-N``).
 
     :func:`patch_modulation` reads the lumitexels' positions and UVs, which do not depend on the map
     size, so the face is built with maps of its lumitexel grid (built with a 2048² subject's maps it

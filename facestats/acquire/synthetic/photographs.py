@@ -46,14 +46,14 @@ import numpy as np
 
 from facestats.acquire.calibration import target_hits
 from facestats.acquire.dome import Dome, default_dome
-from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.photographs import MANIFEST, write_manifest, write_sensor_file
 from facestats.acquire.response import ResponseCurve
-from facestats.acquire.synthetic.faces import named_face
 from facestats.acquire.synthetic.simulate import DomeSimulator
 from facestats.core.progress import progress_bar
 from facestats.core.validate import as_finite, check_choice
 from facestats.errors import ValidationError
+from facestats.face.geometry import FaceGeometry
+from facestats.face.named import named_face
 
 #: Depth band (mm) behind the nearest surface sample of a pixel that still counts as the visible surface.
 FRONT_MM = 1.0
@@ -412,7 +412,7 @@ def write_capture_photographs(
         Output folder (created).
     geometry : FaceGeometry, optional
         The face, with the truth's map size; default the face the truth was drawn on
-        (``truth.geometry``, :func:`facestats.acquire.synthetic.faces.named_face`).  The
+        (``truth.geometry``, :func:`facestats.face.named.named_face`).  The
         simulated truth is its mesh as written and read back (``PhotoCapture.geometry``):
         every labelled mesh vertex becomes a lumitexel, so a procedural face whose mesh
         grid equals its lumitexel grid keeps its lumitexels; the ICT face has about

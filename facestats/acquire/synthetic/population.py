@@ -81,7 +81,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from facestats.acquire.synthetic.faces import face_geometry
 from facestats.acquire.synthetic.texture import albedo_map, smooth_noise
 from facestats.core.conventions import (
     CHANNELS,
@@ -95,6 +94,7 @@ from facestats.core.conventions import (
 from facestats.core.published import AGE_COUNTS, ETA_SKIN, TABLE1_MEAN, TABLE1_VAR, TABLE2_COUNTS
 from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.errors import ValidationError
+from facestats.face.named import face_geometry
 from facestats.model import dipole, fresnel
 from facestats.model.skin_colour import skin_albedo
 

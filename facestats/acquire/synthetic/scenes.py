@@ -11,7 +11,7 @@
   lighting two faces unequally, or ``"uniform"`` from +z, which lights all four
   faces equally (the ill-posed case).  The camera looks down −z from 400 mm.
 * :func:`face_site_scene` — a window of the procedural face
-  (:func:`facestats.acquire.synthetic.face.face_window`) around the cheek or
+  (:func:`facestats.face.procedural.face_window`) around the cheek or
   forehead site, lit by a projector (a point light 300 mm away along the site
   normal with planar cuts, :class:`facestats.acquire.lights.PointLight`): a
   ``"stripe"`` 4 mm wide and 10 mm long, or a ``"spot"`` of 3 mm radius, both
@@ -29,9 +29,9 @@ import numpy as np
 from facestats.acquire.camera import PinholeCamera
 from facestats.acquire.lights import DirectionalLight, PointLight
 from facestats.acquire.patches import Patches, mesh_patches
-from facestats.acquire.synthetic.face import SITE_CENTRES, face_window
 from facestats.core.validate import as_scalar, check_choice
 from facestats.errors import ValidationError
+from facestats.face.procedural import SITE_CENTRES, face_window
 
 __all__ = ["PatchScene", "square_pyramid", "pyramid_scene", "face_site_scene", "PYRAMID_LIGHTS", "SITE_LIGHTS"]
 

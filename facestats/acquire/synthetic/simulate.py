@@ -45,16 +45,16 @@ import numpy as np
 
 from facestats.acquire.capture import PER_LUMITEXEL, Capture, CaptureWriter
 from facestats.acquire.dome import Dome, default_dome
-from facestats.acquire.geometry import FaceGeometry
 from facestats.acquire.hdr import expose, merge_exposures
 from facestats.acquire.sensor import ContactSensor
-from facestats.acquire.synthetic.faces import named_face
 from facestats.acquire.visibility import ShadowMaps, dome_shadow_maps, sample_visibility
 from facestats.core.progress import progress_bar
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_choice, check_integer
 from facestats.core.version import __version__
 from facestats.errors import ValidationError
+from facestats.face.geometry import FaceGeometry
+from facestats.face.named import named_face
 from facestats.model import brdf as _brdf
 from facestats.model import dipole
 from facestats.model.dipole import check_dipole_eta, dipole_profile
@@ -542,7 +542,7 @@ class DomeSimulator:
 
 def simulate_capture(truth, geometry: FaceGeometry | None = None, **kwargs) -> Capture:
     """Simulate one subject on ``geometry`` (default: the face its truth was drawn on, ``truth.geometry``,
-    rebuilt by :func:`facestats.acquire.synthetic.faces.named_face` at the truth's map size).
+    rebuilt by :func:`facestats.face.named.named_face` at the truth's map size).
 
     Parameters
     ----------

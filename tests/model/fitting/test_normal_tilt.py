@@ -175,9 +175,9 @@ def test_tilt_errors_against_brute_force(rng, model):
 def test_engines_agree_on_tilt_errors(rng):
     """Both engines' tilt errors on a simulated capture agree to 2e-3 relative, as their errors without the tilt
     do (up to 1.4e-3 here: HC3 weights amplify the engines' differences in the estimates, ≤ 2.2e-4)."""
-    from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator
+    from facestats.face.procedural import procedural_face
 
     geometry = procedural_face(16)
     truth = synthesize_population(map_size=16, geometry=geometry, subjects=["S001"])[0]

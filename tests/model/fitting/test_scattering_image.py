@@ -427,8 +427,8 @@ def test_a_window_of_the_real_ict_face_mesh_is_fitted_through_w_with_the_surface
     mm^2, spacing 1 mm), half lit, rendered with the surface term; exitance + surface recovers the medium, eq. 36 with
     the point or footprint term does not (2.178 / 0.00214 against 2.091 / 0.0025 and 2.418 / 0.00137)."""
     from facestats.acquire.patches import mesh_patches
-    from facestats.acquire.synthetic.ict_face import ict_face_mesh
     from facestats.acquire.synthetic.subsurface import render_exitance
+    from facestats.face.ict import ict_face_mesh
 
     v, f = ict_face_mesh()[:2]
     centroid = v[f].mean(1)

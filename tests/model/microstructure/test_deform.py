@@ -3,7 +3,7 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from facestats.acquire.geometry import grid_triangles
+from facestats.face.geometry import grid_triangles
 from facestats.model.microstructure.deform import normal_jacobian
 from facestats.model.strain import MeshStrain
 

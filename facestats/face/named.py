@@ -1,9 +1,9 @@
 """The faces the synthetic population can live on, by name: ``"procedural"`` and ``"ict"``.
 
-* ``"ict"`` — :func:`facestats.acquire.synthetic.ict_face.ict_face`, the face area of ICT-FaceKit's
+* ``"ict"`` — :func:`facestats.face.ict.ict_face`, the face area of ICT-FaceKit's
   neutral head (a real face, registered from light-stage scans; MIT licence): the face of the
   embedded default (:data:`facestats.core.conventions.DEFAULT_FACE`);
-* ``"procedural"`` — :func:`facestats.acquire.synthetic.face.procedural_face`, a parametric head
+* ``"procedural"`` — :func:`facestats.face.procedural.procedural_face`, a parametric head
   (an ellipsoidal cap with a nose), kept as an option.
 
 A geometry records which face it is in :attr:`FaceGeometry.name` (``"ict-48"``: the ICT face with
@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import re
 
-from facestats.acquire.geometry import FaceGeometry
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
+from facestats.face.geometry import FaceGeometry
 
 __all__ = ["FACES", "face_geometry", "named_face", "parse_face_name"]
 
@@ -42,7 +42,7 @@ def face_geometry(
         Side of the UV maps (default ``lumitexel_grid``).
     mesh_grid : int, optional
         The procedural head's rendering mesh, 8 to 4096 (default: that of
-        :func:`~facestats.acquire.synthetic.face.procedural_face`); ignored for the ICT face, whose mesh is the
+        :func:`~facestats.face.procedural.procedural_face`); ignored for the ICT face, whose mesh is the
         scan's.
 
     Returns
@@ -56,10 +56,10 @@ def face_geometry(
     """
     check_choice(face, "face", FACES)
     if face == "ict":
-        from facestats.acquire.synthetic.ict_face import ict_face
+        from facestats.face.ict import ict_face
 
         return ict_face(lumitexel_grid, map_size)
-    from facestats.acquire.synthetic.face import procedural_face
+    from facestats.face.procedural import procedural_face
 
     mesh_grid = None if mesh_grid is None else check_integer(mesh_grid, "mesh_grid", 8, 4096)
     return procedural_face(lumitexel_grid, map_size, mesh_grid)

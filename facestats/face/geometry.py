@@ -6,7 +6,7 @@ Weyrich et al. 2006 §5) its 3D position (mm), its scanned normal, the surface
 area it represents (mm²), its UV texture coordinates, its face region
 (Weyrich Fig. 15), and a triangle mesh for shadow mapping.  It comes from
 
-* :func:`facestats.acquire.synthetic.face.procedural_face` — the embedded
+* :func:`facestats.face.procedural.procedural_face` — the embedded
   default: a parametric head whose lumitexels sit on a regular UV grid, or
 * :func:`facestats.io.mesh.load_face_mesh` — a real scan (OBJ/PLY with UVs and a
   region label image).

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 import facestats
-from facestats.acquire.synthetic.face import SITE_CENTRES
-from facestats.acquire.synthetic.faces import face_geometry, named_face
-from facestats.acquire.synthetic.ict_face import FRONTAL_LIMIT_DEG, ICT_OFFSET_MM, ict_face, ict_face_mesh, ict_regions
 from facestats.errors import ValidationError
+from facestats.face.ict import FRONTAL_LIMIT_DEG, ICT_OFFSET_MM, ict_face, ict_face_mesh, ict_regions
+from facestats.face.named import face_geometry, named_face
+from facestats.face.procedural import SITE_CENTRES
 from facestats.io.ict_facekit import read_ict_facekit
 from tests.helpers import TEST_DATA
 
@@ -86,7 +86,7 @@ def test_the_face_area_stops_at_80_degrees_from_the_front(face48):
     assert FRONTAL_LIMIT_DEG == 80.0
     assert face48.normal[:, 2].min() > np.cos(np.radians(80.0))
     # What it leaves out is under the jaw and chin (and behind the eyeballs), not the front of the face.
-    from facestats.acquire.synthetic import ict_face as module
+    from facestats.face import ict as module
 
     pos, nrm, _, row, col = module._surface(48)
     model = pos - np.asarray(ICT_OFFSET_MM)
@@ -97,10 +97,10 @@ def test_the_face_area_stops_at_80_degrees_from_the_front(face48):
 
 
 def test_the_default_population_lives_on_the_ict_face():
-    from facestats.acquire.synthetic.face import procedural_face
     from facestats.acquire.synthetic.population import synthesize_population
     from facestats.acquire.synthetic.simulate import DomeSimulator, simulate_capture
     from facestats.core.conventions import DEFAULT_FACE
+    from facestats.face.procedural import procedural_face
 
     assert DEFAULT_FACE == "ict"
     truth = synthesize_population(map_size=16, conditions=False, subjects=["S001"])["S001"]
@@ -113,7 +113,7 @@ def test_the_default_population_lives_on_the_ict_face():
 
 
 def test_the_ict_face_is_written_and_read_back_as_a_lab_mesh(tmp_path, face48):
-    from facestats.acquire.geometry import uv_to_texel
+    from facestats.face.geometry import uv_to_texel
     from facestats.io.mesh import load_face_mesh, save_face_mesh
 
     path = save_face_mesh(face48, tmp_path / "face.obj", tmp_path / "regions.npy")
@@ -137,7 +137,7 @@ def test_contactless_windows_land_in_their_regions_on_the_ict_face(face48):
         assert np.all(patch_modulation(patches, labels, modulation_face("ict-48")) == region)
     assert modulation_face("procedural-48") is None and modulation_face("scan.obj") is None
     # The lumitexels patch_modulation reads do not depend on the maps' size: the face is built at its grid.
-    from facestats.acquire.synthetic.faces import named_face
+    from facestats.face.named import named_face
 
     big = named_face("ict-48", 160)
     small = modulation_face("ict-48")
@@ -162,7 +162,7 @@ def test_a_population_builds_and_fits_on_the_real_face(tmp_path):
     rel = np.abs(ds["albedo"].values[face] / truth.albedo[face] - 1)
     assert np.median(rel) < 0.02  # the fit recovers the truth on the real face as on the procedural one
     # Export rebuilds the ICT face from the provenance: one vertex per UV vertex, normals out of the face.
-    from facestats.acquire.synthetic.ict_face import ict_face_mesh
+    from facestats.face.ict import ict_face_mesh
     from facestats.io.gltf import read_gltf_summary
     from facestats.io.mesh import subject_mesh
     from facestats.io.subject_export import export_subject

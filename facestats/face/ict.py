@@ -12,7 +12,7 @@ the face, +x to the subject's left; UV with v down) and is moved by
 
 Lumitexels are the texel centres of a ``lumitexel_grid``² grid in the mesh's UV
 layout that a UV triangle covers, as for the procedural head
-(:func:`facestats.acquire.synthetic.face.procedural_face`): position and normal
+(:func:`facestats.face.procedural.procedural_face`): position and normal
 interpolated barycentrically (area-weighted vertex normals), and the area each
 texel represents is the triangle's 3-D area over its UV area in texels.
 
@@ -30,7 +30,7 @@ frontal photograph, where such surface is seen edge-on, and the dome lights it o
 on a first build of the default population with the limit at 90°, those 8 % of face texels had 42 % of
 their Blinn-Phong fits flagged (1.4 % elsewhere), which made the Blinn-Phong maps of chin and beard
 mostly filled values.
-``facestats.acquire.synthetic.ict_face.ict_face(256).region_map`` is the label
+``facestats.face.ict.ict_face(256).region_map`` is the label
 image in the mesh's UV layout.
 """
 
@@ -41,9 +41,9 @@ from importlib import resources
 
 import numpy as np
 
-from facestats.acquire.geometry import FaceGeometry
 from facestats.core.raster import triangle_coverage
 from facestats.core.validate import check_integer
+from facestats.face.geometry import FaceGeometry
 
 __all__ = ["ict_face", "ict_face_mesh", "ict_face_uv_mesh", "ict_regions", "FRONTAL_LIMIT_DEG", "ICT_OFFSET_MM"]
 

@@ -6,15 +6,15 @@ follow Weyrich et al. 2006 Fig. 15: forehead (2) above the eyebrows (3),
 eyelids (4) below them, region 5 (not named in the paper; placed as the
 under-eye band between eyelids and cheeks), nose (6) down the midline, cheeks
 (7), mustache (1) between nose and upper lip, lips (8), chin (9) below the lips
-and beard (10) along the jaw.  Frame and UV conventions: :mod:`facestats.acquire.geometry`.
+and beard (10) along the jaw.  Frame and UV conventions: :mod:`facestats.face.geometry`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from facestats.acquire.geometry import FaceGeometry, grid_triangles
 from facestats.errors import ValidationError
+from facestats.face.geometry import FaceGeometry, grid_triangles
 
 __all__ = ["procedural_face", "face_window", "face_uv", "SITE_CENTRES"]
 

@@ -47,6 +47,9 @@ Fig. 15 ellipses are drawn (the browser's own start-up excluded); the first
 load after the server starts (its caches cold) and the best of the reloads.
 Target ≤ 1 s.  Without the browser it reports why and measures nothing.
 
+``micro_normals``: validation renders of a subject of ``facestats build`` (which keeps micro-normal maps) with the
+fitted normal and with its per-view micro-normals (:func:`bench_micro_normals`).
+
 ``held_out``: validation renders of cameras the fit never saw.  For each
 default subject and camera, the subject's capture is re-simulated, refitted
 with the default store's settings without that camera
@@ -314,6 +317,59 @@ def bench_held_out(subjects=("S001", "S003", "S030", "S100"), cameras=(0, 5, 9, 
     }
 
 
+def _angles_deg(a, b):
+    """Angles (degrees) between unit-normalised vectors ``a`` and ``b`` along the last axis."""
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=-1), -1, 1)))
+
+
+def bench_micro_normals(size=24, subject="S001", camera=5, light=20, cameras=(0, 5, 9), light_step=5):
+    """Validation renders with and without the stored micro-normals, for a subject of ``facestats build``.
+
+    ``subject`` of the default seed's population is built at ``size``² on the default face with micro-normal maps
+    (:func:`facestats.pipeline.build.build_store`, ``micro_normals=True``, as ``facestats build`` does), then:
+    the angle of the fitted normal to the simulated face's normal (the truth: the capture is rendered with it and
+    the skin has no micro-geometry) and of each camera's micro-normal to the fitted normal, over the face
+    lumitexels (median and 90th percentile, degrees); the relative RMSE of ``camera`` under LED ``light``
+    (:func:`facestats.pipeline.validation.render_led`) and over every ``light_step``-th LED for each of
+    ``cameras`` (:func:`facestats.pipeline.validation.camera_rmse`), with the diffuse normal (the default) and
+    with ``micro_normals=True`` (docs/export.md, *Validation render*).
+    """
+    from facestats.core.conventions import DEFAULT_FACE
+    from facestats.face import face_geometry
+    from facestats.io.store import open_store
+    from facestats.pipeline.build import build_store
+    from facestats.pipeline.validation import camera_rmse, default_capture, render_led
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "built.zarr")
+        build_store(path, map_size=size, subjects=[subject], conditions=False, workers=1, micro_normals=True)
+        with open_store(path) as st:
+            ds = st.subject(subject).load()
+    geom = face_geometry(DEFAULT_FACE, size, size)
+    v, u = geom.grid_index.T
+    fitted = ds["normal"].values[v, u]
+    micro = ds["micro_normal"].values[:, v, u]  # (camera, lumitexel, 3)
+    truth_angle = _angles_deg(fitted, geom.normal)
+    micro_angle = _angles_deg(micro, fitted[None])
+    micro_angle = micro_angle[np.isfinite(micro_angle)]
+    cap = default_capture(ds)
+    out = {
+        "fitted_to_truth_median_deg": float(np.median(truth_angle)),
+        "fitted_to_truth_p90_deg": float(np.percentile(truth_angle, 90)),
+        "micro_to_fitted_median_deg": float(np.median(micro_angle)),
+        "micro_to_fitted_p90_deg": float(np.percentile(micro_angle, 90)),
+    }
+    for name, micro_normals in (("diffuse_normal", False), ("micro_normals", True)):
+        res = render_led(ds, cap, camera, light, micro_normals=micro_normals)
+        out[f"cam{camera:02d}_led{light:03d}_{name}_pct"] = 100 * res.relative_rmse
+        for cam in cameras:
+            err = camera_rmse(ds, cap, cam, lights=range(0, cap.dome.n_leds, light_step), micro_normals=micro_normals)
+            out[f"cam{cam:02d}_{name}_pct"] = 100 * err
+    return out
+
+
 def _decoded_f0(path):
     """(F0 decoded from a written glTF's specular PNGs, F0 of the weight alone, F0_η, K), maps of the texture."""
     import json
@@ -482,6 +538,7 @@ BENCHMARKS = [
     ("page_load", bench_page_load),
     ("held_out", bench_held_out),
     ("gltf_specular", bench_gltf_specular),
+    ("micro_normals", bench_micro_normals),
 ]
 
 SMOKE = {
@@ -492,6 +549,7 @@ SMOKE = {
     "page_load": {"repeat": 1},
     "held_out": {"subjects": ("S003",), "cameras": (5,), "light_step": 30},  # 5 of the 150 LEDs pooled
     "gltf_specular": {"subjects": (), "named": ("S003",)},
+    "micro_normals": {"size": 12, "cameras": (5,), "light_step": 50},
 }
 
 if __name__ == "__main__":

@@ -87,7 +87,7 @@ def _cmd_render(args) -> int:
     from facestats.io.exr_set import check_map_subject
     from facestats.io.images import write_image
     from facestats.io.subject_export import store_subject
-    from facestats.pipeline.validation import default_capture, render_led, render_probe
+    from facestats.pipeline.validation import check_micro_normals, default_capture, render_led, render_probe
 
     _check_options(args)
     out = check_output_dir(args.out, "--out")  # before rendering: a bad folder must not cost a render
@@ -97,6 +97,8 @@ def _cmd_render(args) -> int:
     with open_store_option(args.store) as st, named_options(subject_id="ID"):
         ds = store_subject(st, args.subject_id)
     check_map_subject(ds, "a validation render")
+    with named_options(**{"micro_normals=True": "--micro-normals"}):  # before a capture is simulated
+        check_micro_normals(ds, args.micro_normals)
     stem = _stem(ds.attrs.get("subject_id", args.subject_id), args)
     names = [f"{stem}-rendered.exr", f"{stem}-capture.exr", f"{stem}-error.exr", f"{stem}.png"]
     written = names[:1] + names[3:] if args.probe else names
@@ -111,9 +113,10 @@ def _cmd_render(args) -> int:
     # the options, not the API's names ("light probe 'x' ..." is --probe's, not --light's)
     with named_options(samples="--probe-lights", camera="--camera", light="--light", **{"light probe": "--probe"}):
         if args.probe:
-            res = render_probe(ds, cap, args.camera, args.probe, mesh=args.mesh, samples=args.probe_lights)
+            res = render_probe(ds, cap, args.camera, args.probe, mesh=args.mesh, samples=args.probe_lights,
+                               micro_normals=args.micro_normals)  # fmt: skip
         else:
-            res = render_led(ds, cap, args.camera, args.light)
+            res = render_led(ds, cap, args.camera, args.light, micro_normals=args.micro_normals)
     with OutputSet(out) as files:  # every file or none
         write_image(files.path(names[0]), np.nan_to_num(res.rendered).clip(0))
         if res.reference is not None:
@@ -147,13 +150,13 @@ def add_render(sub):
         "render",
         help="validation render of a fitted subject beside its capture, with the error image and RMSE",
         description=(
-            "Render a fitted subject with the skin model (specular with per-view micro-normals where stored, "
-            "diffuse through the spatial dipole transport) for one dome camera under one LED (with the capture's "
-            "radiance, the error image and the RMSE) or under a lat-long light probe. Without --capture, subjects "
-            "of the synthetic population (the embedded default, or a store written by facestats build) are "
-            "re-simulated from their recorded provenance for an LED; under a probe nothing is compared and the "
-            "face the subject records suffices (for a subject ingested from photographs: --mesh, its scan). "
-            "Files: ID-camCC-ledLLL-*.exr or ID-camCC-probe-NAME-*.exr."
+            "Render a fitted subject with the skin model (specular with the fitted normal, or with the per-view "
+            "micro-normals under --micro-normals; diffuse through the spatial dipole transport) for one dome "
+            "camera under one LED (with the capture's radiance, the error image and the RMSE) or under a lat-long"
+            " light probe. Without --capture, subjects of the synthetic population (the embedded default, or a "
+            "store written by facestats build) are re-simulated from their recorded provenance for an LED; under "
+            "a probe nothing is compared and the face the subject records suffices (for a subject ingested from "
+            "photographs: --mesh, its scan). Files: ID-camCC-ledLLL-*.exr or ID-camCC-probe-NAME-*.exr."
         ),
     )
     p.add_argument("subject_id", metavar="ID")
@@ -191,6 +194,12 @@ def add_render(sub):
         default=None,
         help="population seed of the re-simulated capture: the --seed of the facestats build that wrote the store "
         "(default 2006, build's default)",
+    )
+    p.add_argument(
+        "--micro-normals",
+        action="store_true",
+        help="evaluate the specular lobe with the camera's stored micro-normals (Weyrich et al. 2006 Fig. 6c) instead "
+        "of the fitted normal; they are the half vector of each view's brightest sample, on the LED grid",
     )
     p.add_argument("--overwrite", action="store_true", help="replace existing images of the same names")
     add_store_option(p)

@@ -298,10 +298,15 @@ def test_render_resimulates_the_capture_of_a_subject_facestats_build_wrote(tmp_p
     err = capsys.readouterr().err
     assert "was not fitted from the default simulation of that subject" in err and "--seed N" in err
     assert not out.exists()
+    rel = {}
     for light in ("20", "30"):
         assert main(["render", "S002", "--store", store, "--out", str(out), "--seed", "7", "--light", light]) == 0
-        rel = float(capsys.readouterr().out.split("relative ")[1].split(" %")[0])
-        assert rel < 15  # an 8² fit of its own capture (another capture would be far off)
+        rel[light] = float(capsys.readouterr().out.split("relative ")[1].split(" %")[0])
+        assert rel[light] < 15  # an 8² fit of its own capture (another capture would be far off)
+    # The build kept micro-normal maps; --micro-normals renders the specular with them (on the LED grid: worse).
+    micro = ["render", "S002", "--store", store, "--out", str(tmp_path / "m"), "--seed", "7", "--micro-normals"]
+    assert main(micro) == 0
+    assert float(capsys.readouterr().out.split("relative ")[1].split(" %")[0]) > rel["20"]  # 5.72 against 4.38 %
     assert sorted(os.listdir(out)) == [
         f"S002-cam05-led0{n}{tail}"
         for n in ("20", "30")
@@ -309,6 +314,16 @@ def test_render_resimulates_the_capture_of_a_subject_facestats_build_wrote(tmp_p
     ]
     assert main(["render", "S002", "--store", store, "--out", str(out), "--seed", "7", "--probe", "x.hdr"]) == 2
     assert "--seed applies to the LED render without --capture" in capsys.readouterr().err
+
+
+def test_render_with_micro_normals_of_a_subject_without_them_is_refused_before_any_work(tmp_path, capsys):
+    out = tmp_path / "r"
+    assert main(["render", "S001", "--out", str(out), "--micro-normals"]) == 2
+    assert capsys.readouterr().err == (
+        "facestats: error: --micro-normals needs the subject's micro-normal maps, and subject 'S001' has none (the "
+        "embedded default and builds with --no-micro-normals store none)\n"
+    )
+    assert not out.exists()
 
 
 def test_serve_refuses_a_port_it_cannot_bind(capsys):

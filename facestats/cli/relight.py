@@ -56,8 +56,9 @@ def _check_subject_options(args):
 
     given = [f"--{k}" for k, v in _SUBJECT_OPTIONS.items() if getattr(args, k) != v]
     if given and pathlib.Path(args.source).is_dir():
+        verb = "applies" if len(given) == 1 else "apply"
         raise ValidationError(
-            f"{', '.join(given)} apply to a subject rendered through the virtual stage; {args.source!r} is a "
+            f"{', '.join(given)} {verb} to a subject rendered through the virtual stage; {args.source!r} is a "
             "field store, whose camera and lights are fixed (leave them out)"
         )
 

@@ -243,7 +243,7 @@ def test_a_subject_fitted_on_a_scan_is_relit_with_mesh(tmp_path, capsys):
     write_field(tmp_path / "f.zarr", f)
     code, io = _relight(main, capsys, tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", "--mesh",
                         tmp_path / "face.obj", "--out", tmp_path / "z.exr")  # fmt: skip
-    assert code == 2 and "--mesh apply to a subject rendered through the virtual stage" in io.err
+    assert code == 2 and "--mesh applies to a subject rendered through the virtual stage" in io.err
     assert not any((tmp_path / n).exists() for n in ("y.exr", "z.exr"))
 
 

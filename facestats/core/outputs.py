@@ -102,8 +102,12 @@ def _writable_dir(directory: pathlib.Path, name: str, p: pathlib.Path, what: str
 
 
 def _creatable(p: pathlib.Path, name: str) -> None:
-    """The nearest existing ancestor of ``p`` must be a directory this process can create entries in (nothing
-    is left created)."""
+    """The nearest existing ancestor of ``p`` must be a directory this process can create entries in, and the
+    names to create in it no longer than its file system allows (nothing is left created).
+
+    The probe creates one short name: a 300-byte folder name passed it, the command did its work and then failed
+    to make the folder (``File name too long``), leaving the folders above it that it had made.
+    """
     parent = p.absolute().parent
     while not os.path.lexists(parent) and parent != parent.parent:
         parent = parent.parent
@@ -112,6 +116,16 @@ def _creatable(p: pathlib.Path, name: str) -> None:
             f"{name} must be a path that can be created, got {str(p)!r} ({parent} is not a directory)"
         )
     _writable_dir(parent, name, p, "created")
+    try:
+        longest = os.pathconf(parent, "PC_NAME_MAX")
+    except (OSError, ValueError, AttributeError):  # not known here (another system): 255 bytes, POSIX's usual
+        longest = 255
+    for part in p.absolute().relative_to(parent).parts:
+        if len(os.fsencode(part)) > longest:
+            raise ValidationError(
+                f"{name} must be a path that can be created, got {str(p)!r} (a name of {len(os.fsencode(part))} "
+                f"bytes, {part[:20]}…; the file system of {parent} allows at most {longest})"
+            )
 
 
 def check_output_dir(path, name: str = "out") -> pathlib.Path:
@@ -371,7 +385,14 @@ class OutputSet:
         missing = missing_folders(directory)
         try:
             directory.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
+        except BaseException as exc:  # the folders made before the failure go again (a name too long for the last)
+            for d in missing:  # innermost first
+                try:
+                    os.rmdir(d)
+                except OSError:
+                    pass
+            if not isinstance(exc, OSError):
+                raise
             raise ValidationError(f"cannot create the output folder {directory}: {exc.strerror}") from None
         self._created = missing + self._created  # innermost first, newest first
 

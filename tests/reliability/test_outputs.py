@@ -89,3 +89,27 @@ def test_output_checks_write_to_know_a_folder_is_writable(tmp_path, monkeypatch)
     ok = tmp_path / "fine"
     assert outputs.check_output_dir(ok / "a" / "b", "--images") == ok / "a" / "b"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["refuses"] and sorted(os.listdir(refused)) == ["plot.png"]
+
+
+def test_a_name_too_long_for_the_file_system_is_refused_by_the_check_and_leaves_no_folder(tmp_path):
+    """``--images new/<300 bytes>`` passed check_output_dir (its probe creates one short name), the edit did its
+    work, then OutputSet failed to make the folder ("File name too long") and left ``new`` behind.  The check now
+    compares each name to create with the file system's NAME_MAX; OutputSet removes the folders it made before a
+    failure of its own."""
+    longest = os.pathconf(tmp_path, "PC_NAME_MAX")
+    long = tmp_path / "new" / ("x" * (longest + 1))
+    for check in (outputs.check_output_dir, outputs.check_output_file):
+        with pytest.raises(ValidationError, match=rf"--images must be a path that can be created, got .*a name of "
+                           rf"{longest + 1} bytes, xxxxxxxxxxxxxxxxxxxx…; the file system of {tmp_path} allows at "
+                           rf"most {longest}\)"):  # fmt: skip
+            check(long, "--images")
+        with pytest.raises(ValidationError, match=f"a name of {longest + 1} bytes"):
+            check(long / "a", "--images")  # a name further down
+    assert outputs.check_output_dir(tmp_path / "new" / ("x" * longest), "--images").name == "x" * longest
+    with pytest.raises(ValidationError, match="cannot create the output folder .*: File name too long"):
+        with OutputSet(long):
+            pass
+    with pytest.raises(ValidationError, match="cannot create the output folder .*: File name too long"):
+        with OutputSet(tmp_path / "ok") as out:
+            out.path(tmp_path / "other" / ("y" * (longest + 1)) / "a.png")
+    assert os.listdir(tmp_path) == []  # neither new/, nor ok/, nor other/

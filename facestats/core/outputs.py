@@ -412,11 +412,14 @@ class OutputSet:
         Raises
         ------
         ValidationError
-            If the target is named twice, or its folder cannot be created.
+            If the target is named twice, is a folder (a rename cannot replace one by a file), or its folder cannot
+            be created.
         """
         final = pathlib.Path(os.path.abspath(self.directory / name))
         if any(final == f for _, f in self._temps):
             raise ValidationError(f"output {str(final)!r} is named twice")
+        if os.path.isdir(final) and not os.path.islink(final):  # refused now, not when the renames fail
+            raise ValidationError(f"output {str(final)!r} is a folder: move it away or choose another output folder")
         self._make_dirs(final.parent)
         tmp = final.with_name(f".{final.name}.tmp-{os.getpid()}-{secrets.token_hex(6)}{final.suffix}")
         # Reserve the name: O_EXCL never opens an existing file or follows a symlink left there.

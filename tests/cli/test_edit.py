@@ -428,3 +428,19 @@ def test_an_empty_target_or_filter_is_refused_by_name(pop, tmp_path, action, opt
                  "--images", tmp_path / "img", cwd=tmp_path)  # fmt: skip
     assert r.returncode == 2 and f"argument {option}: must not be empty, got ''" in r.stderr, r.stderr
     assert list(tmp_path.iterdir()) == [] and _tree(pop) == before  # no output store, no images, the input as it was
+
+
+def test_a_folder_of_an_images_name_is_refused_before_the_commit(own, capsys):
+    """With --overwrite, a folder named like one of the images (X5_summary.png/) let the edit commit the subject,
+    then the rename onto the folder failed ("Is a directory"), and the advised rerun with --overwrite failed the
+    same way.  OutputSet refuses a target that is a folder as it is staged: the command fails before the commit."""
+    from facestats.cli import main
+
+    store, img = own
+    (img / "X5_summary.png").mkdir()
+    before, folder = _tree(store), _tree(img)
+    assert main(_skin_type(store, img, "--id", "X5", "--overwrite")) == 2
+    err = capsys.readouterr().err
+    assert f"facestats: error: output {str(img / 'X5_summary.png')!r} is a folder: move it away" in err, err
+    assert "was written" not in err
+    assert _tree(store) == before and _tree(img) == folder  # no subject X5, no image, no temporary

@@ -21,6 +21,7 @@ failure while writing (a full disk) must leave nothing half-written:
 
 from __future__ import annotations
 
+import errno
 import math
 import os
 import pathlib
@@ -365,14 +366,21 @@ class OutputSet:
     disappears), and if any rename fails, or the process is interrupted, every
     target is put back as it was.
 
+    Without ``overwrite`` a target is placed only where no file is (a hard link, which fails on an existing
+    name, then the temporary removed): a file that appeared under a target's name since the command checked the
+    folder (another process writing there) is kept, and the set fails as a whole.
+
     Parameters
     ----------
     directory : str or os.PathLike
         The folder of the files (created if missing, removed again on failure if it was created).
+    overwrite : bool
+        Whether a target may replace an existing file (default True; False: the set fails, nothing replaced).
     """
 
-    def __init__(self, directory):
+    def __init__(self, directory, *, overwrite: bool = True):
         self.directory = pathlib.Path(directory)
+        self.overwrite = bool(overwrite)
         self.written: list[pathlib.Path] = []
         self._temps: list[tuple[pathlib.Path, pathlib.Path]] = []
         self._created: list[pathlib.Path] = []
@@ -457,6 +465,8 @@ class OutputSet:
         placed: list[pathlib.Path] = []
         try:
             for _, final in self._temps:
+                if not self.overwrite and os.path.lexists(final):  # appeared since the check: nothing is replaced
+                    raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), str(final))
                 if os.path.lexists(final) and not os.path.isdir(final):
                     backup = final.with_name(f".{final.name}.old-{os.getpid()}-{secrets.token_hex(6)}")
                     try:
@@ -465,7 +475,10 @@ class OutputSet:
                         shutil.copy2(final, backup, follow_symlinks=False)
                     kept.append((backup, final))
             for tmp, final in self._temps:
-                os.replace(tmp, final)
+                if self.overwrite:
+                    os.replace(tmp, final)
+                else:
+                    _place_new(tmp, final)
                 placed.append(final)
         except BaseException:
             _put_back(placed, kept)
@@ -482,6 +495,24 @@ class OutputSet:
                 os.rmdir(d)
             except OSError:
                 pass
+
+
+def _place_new(tmp, final) -> None:
+    """Rename ``tmp`` to ``final`` unless a file of that name exists (:class:`FileExistsError`, nothing changed).
+
+    A hard link fails on an existing name (POSIX ``link``), so a file that appears meanwhile is never replaced;
+    where hard links are not possible, the name is checked just before :func:`os.replace`.
+    """
+    try:
+        os.link(tmp, final)
+    except FileExistsError:  # named by the target (link() names the temporary first)
+        raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), str(final)) from None
+    except OSError:  # no hard links on this file system
+        if os.path.lexists(final):
+            raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), str(final)) from None
+        os.replace(tmp, final)
+        return
+    _remove(tmp)
 
 
 def _put_back(placed, kept) -> None:

@@ -113,3 +113,44 @@ def test_a_name_too_long_for_the_file_system_is_refused_by_the_check_and_leaves_
         with OutputSet(tmp_path / "ok") as out:
             out.path(tmp_path / "other" / ("y" * (longest + 1)) / "a.png")
     assert os.listdir(tmp_path) == []  # neither new/, nor ok/, nor other/
+
+
+@pytest.mark.parametrize("links", [True, False])
+@pytest.mark.parametrize("when", ["before the renames", "while renaming"])
+def test_without_overwrite_a_file_that_appeared_is_kept_and_nothing_is_placed(tmp_path, monkeypatch, links, when):
+    """OutputSet(overwrite=False) places each target by a hard link, which fails on an existing name; where links
+    are not possible, by a rename after a check.  A file that appears before or during the renames is kept, the
+    targets placed before it are removed, and the failure names it."""
+    real_link, real_lexists = os.link, os.path.lexists
+
+    def theirs(path):  # another process writes c.txt after the names were checked
+        if os.path.basename(path) == "c.txt" and when == "while renaming" and not real_lexists(path):
+            with open(path, "w") as fh:
+                fh.write("theirs")
+
+    def link(src, dst, **kwargs):
+        theirs(dst)
+        if not links:
+            raise PermissionError(1, "Operation not permitted")
+        return real_link(src, dst, **kwargs)
+
+    def lexists(path):  # the check just before the rename, where links are not possible
+        if not links and ".tmp-" not in os.fspath(path):
+            theirs(path)
+        return real_lexists(path)
+
+    with OutputSet(tmp_path, overwrite=False) as out:
+        out.path("a.txt").write_text("a")
+    assert (tmp_path / "a.txt").read_text() == "a" and out.written == [tmp_path / "a.txt"]
+    (tmp_path / "a.txt").unlink()
+    monkeypatch.setattr(outputs.os, "link", link)
+    with pytest.raises(FacestatsError, match=r"\(.*c\.txt\): File exists; nothing was written"):
+        with OutputSet(tmp_path, overwrite=False) as out:
+            for name in ("a.txt", "b.txt", "c.txt"):
+                out.path(name).write_text(name)
+            if when == "before the renames":
+                (tmp_path / "c.txt").write_text("theirs")
+            else:
+                monkeypatch.setattr(outputs.os.path, "lexists", lexists)
+    monkeypatch.undo()
+    assert sorted(os.listdir(tmp_path)) == ["c.txt"] and (tmp_path / "c.txt").read_text() == "theirs"

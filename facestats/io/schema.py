@@ -541,10 +541,11 @@ def _check_labels(ds, label) -> None:
     """``channel`` coords are R, G, B; ``component`` coords x, y, z (readers take both by index); ``site`` coords
     are known sites, each once."""
     for dim, expected in (("channel", CHANNELS), ("component", COMPONENTS)):
-        if dim in ds.coords and tuple(str(c) for c in ds[dim].values) != expected:
-            raise SchemaError(
-                f"subject {label!r}: {dim} coords must be {expected}, got {[str(c) for c in ds[dim].values]}"
-            )
+        if dim in ds.coords:
+            values = np.asarray(ds[dim].values)  # a scalar coordinate (isel(channel=0)) is no list of labels
+            got = [str(c) for c in values] if values.ndim == 1 else f"a {values.ndim}-D coordinate {values.tolist()!r}"
+            if got != list(expected):
+                raise SchemaError(f"subject {label!r}: {dim} coords must be {expected}, got {got}")
     if "site" in ds.dims:
         sites = [str(s) for s in ds["site"].values]
         if not set(sites) <= set(SITES):

@@ -557,6 +557,19 @@ def test_invalid_subjects_are_refused_without_touching_the_store(tmp_path):
         validate_subject(ds.assign_coords(component=["z", "y", "x"]), name="S001")
 
 
+def test_a_scalar_label_coordinate_is_refused_by_name():
+    """A scalar ``component`` or ``channel`` coordinate (``assign_coords(component="x")``, what ``isel`` of one
+    label leaves) failed validate_subject with a bare TypeError ("iteration over a 0-d array")."""
+    ok = make_map_subject("C1")
+    with pytest.raises(SchemaError, match=r"subject 'C1': component coords must be \('x', 'y', 'z'\), got a 0-D "
+                       r"coordinate 'x'"):  # fmt: skip
+        validate_subject(ok.assign_coords(component="x"))
+    samples = make_sample_subject("C2").drop_vars(["albedo_sample", "albedo_sample_region"])
+    with pytest.raises(SchemaError, match=r"channel coords must be \('R', 'G', 'B'\), got a 0-D coordinate 'R'"):
+        validate_subject(samples.isel(channel=0))
+    assert validate_subject(samples) == "samples"
+
+
 def test_overwrite_and_edits(tmp_path):
     with open_store(tmp_path / "s.zarr", mode="a") as st:
         st.write_subject(make_map_subject("S1", seed=1))

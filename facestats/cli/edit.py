@@ -139,16 +139,17 @@ def _open(args):
     return store, store
 
 
-def _report(pending, images) -> int:
+def _report(pending, images, overwrite) -> int:
     """Save the images of a pending edit and commit it, all or none as far as the file system allows; print it.
 
     The PNGs are rendered under temporary names beside their targets in the ``--images`` folder ``images``
     (:func:`facestats.edit.plots.stage_edit_images` in a :class:`facestats.core.outputs.OutputSet`), then the
     subject is committed (:meth:`facestats.edit.session.PendingEdit.commit`), then the PNGs are renamed into
-    place (:func:`os.replace`, atomic per file; an existing PNG, with ``--overwrite``, is put back if a rename
-    fails).  A failure or an interruption before the commit leaves neither the subject nor a PNG (a folder
-    made for them is removed); one while renaming, after the commit, leaves the folder as it was, and the
-    message says that the subject was written.  The exit code: 0, or 130 when interrupted after the commit.
+    place (:func:`os.replace`, atomic per file; an existing PNG, with ``--overwrite`` (``overwrite``), is put back
+    if a rename fails; without it, a PNG that appeared since the check is kept and the renames fail).  A failure
+    or an interruption before the commit leaves neither the subject nor a PNG (a folder made for them is
+    removed); one while renaming, after the commit, leaves the folder as it was, and the message says that the
+    subject was written.  The exit code: 0, or 130 when interrupted after the commit.
     """
     from facestats.core.outputs import OutputSet
     from facestats.edit.plots import stage_edit_images
@@ -156,7 +157,9 @@ def _report(pending, images) -> int:
 
     edit = pending.edit
     try:
-        with OutputSet(images) as out:  # the PNGs under temporary names; renamed into place when the block ends
+        # the PNGs under temporary names, renamed into place when the block ends (without --overwrite, never onto
+        # a file that appeared meanwhile: another edit's of the same --id)
+        with OutputSet(images, overwrite=overwrite) as out:
             stage_edit_images(edit, out)
             try:
                 pending.commit()
@@ -251,7 +254,7 @@ def _run(args, edit_function, target, target_names=QUERY_FILTER_OPTIONS, **kwarg
                 from facestats.edit.plots import edit_image_names
 
                 check_names_free(images, edit_image_names(pending.edit.subject_id), "--images", "this edit's images")
-            return _report(pending, images)
+            return _report(pending, images, args.overwrite)
 
 
 def _cmd_skin_type(args) -> int:

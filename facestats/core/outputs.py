@@ -21,6 +21,7 @@ failure while writing (a full disk) must leave nothing half-written:
 
 from __future__ import annotations
 
+import errno
 import math
 import os
 import pathlib
@@ -102,8 +103,12 @@ def _writable_dir(directory: pathlib.Path, name: str, p: pathlib.Path, what: str
 
 
 def _creatable(p: pathlib.Path, name: str) -> None:
-    """The nearest existing ancestor of ``p`` must be a directory this process can create entries in (nothing
-    is left created)."""
+    """The nearest existing ancestor of ``p`` must be a directory this process can create entries in, and the
+    names to create in it no longer than its file system allows (nothing is left created).
+
+    The probe creates one short name: a 300-byte folder name passed it, the command did its work and then failed
+    to make the folder (``File name too long``), leaving the folders above it that it had made.
+    """
     parent = p.absolute().parent
     while not os.path.lexists(parent) and parent != parent.parent:
         parent = parent.parent
@@ -112,6 +117,16 @@ def _creatable(p: pathlib.Path, name: str) -> None:
             f"{name} must be a path that can be created, got {str(p)!r} ({parent} is not a directory)"
         )
     _writable_dir(parent, name, p, "created")
+    try:
+        longest = os.pathconf(parent, "PC_NAME_MAX")
+    except (OSError, ValueError, AttributeError):  # not known here (another system): 255 bytes, POSIX's usual
+        longest = 255
+    for part in p.absolute().relative_to(parent).parts:
+        if len(os.fsencode(part)) > longest:
+            raise ValidationError(
+                f"{name} must be a path that can be created, got {str(p)!r} (a name of {len(os.fsencode(part))} "
+                f"bytes, {part[:20]}…; the file system of {parent} allows at most {longest})"
+            )
 
 
 def check_output_dir(path, name: str = "out") -> pathlib.Path:
@@ -351,14 +366,21 @@ class OutputSet:
     disappears), and if any rename fails, or the process is interrupted, every
     target is put back as it was.
 
+    Without ``overwrite`` a target is placed only where no file is (a hard link, which fails on an existing
+    name, then the temporary removed): a file that appeared under a target's name since the command checked the
+    folder (another process writing there) is kept, and the set fails as a whole.
+
     Parameters
     ----------
     directory : str or os.PathLike
         The folder of the files (created if missing, removed again on failure if it was created).
+    overwrite : bool
+        Whether a target may replace an existing file (default True; False: the set fails, nothing replaced).
     """
 
-    def __init__(self, directory):
+    def __init__(self, directory, *, overwrite: bool = True):
         self.directory = pathlib.Path(directory)
+        self.overwrite = bool(overwrite)
         self.written: list[pathlib.Path] = []
         self._temps: list[tuple[pathlib.Path, pathlib.Path]] = []
         self._created: list[pathlib.Path] = []
@@ -371,7 +393,14 @@ class OutputSet:
         missing = missing_folders(directory)
         try:
             directory.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
+        except BaseException as exc:  # the folders made before the failure go again (a name too long for the last)
+            for d in missing:  # innermost first
+                try:
+                    os.rmdir(d)
+                except OSError:
+                    pass
+            if not isinstance(exc, OSError):
+                raise
             raise ValidationError(f"cannot create the output folder {directory}: {exc.strerror}") from None
         self._created = missing + self._created  # innermost first, newest first
 
@@ -391,11 +420,14 @@ class OutputSet:
         Raises
         ------
         ValidationError
-            If the target is named twice, or its folder cannot be created.
+            If the target is named twice, is a folder (a rename cannot replace one by a file), or its folder cannot
+            be created.
         """
         final = pathlib.Path(os.path.abspath(self.directory / name))
         if any(final == f for _, f in self._temps):
             raise ValidationError(f"output {str(final)!r} is named twice")
+        if os.path.isdir(final) and not os.path.islink(final):  # refused now, not when the renames fail
+            raise ValidationError(f"output {str(final)!r} is a folder: move it away or choose another output folder")
         self._make_dirs(final.parent)
         tmp = final.with_name(f".{final.name}.tmp-{os.getpid()}-{secrets.token_hex(6)}{final.suffix}")
         # Reserve the name: O_EXCL never opens an existing file or follows a symlink left there.
@@ -433,6 +465,8 @@ class OutputSet:
         placed: list[pathlib.Path] = []
         try:
             for _, final in self._temps:
+                if not self.overwrite and os.path.lexists(final):  # appeared since the check: nothing is replaced
+                    raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), str(final))
                 if os.path.lexists(final) and not os.path.isdir(final):
                     backup = final.with_name(f".{final.name}.old-{os.getpid()}-{secrets.token_hex(6)}")
                     try:
@@ -441,7 +475,10 @@ class OutputSet:
                         shutil.copy2(final, backup, follow_symlinks=False)
                     kept.append((backup, final))
             for tmp, final in self._temps:
-                os.replace(tmp, final)
+                if self.overwrite:
+                    os.replace(tmp, final)
+                else:
+                    _place_new(tmp, final)
                 placed.append(final)
         except BaseException:
             _put_back(placed, kept)
@@ -458,6 +495,24 @@ class OutputSet:
                 os.rmdir(d)
             except OSError:
                 pass
+
+
+def _place_new(tmp, final) -> None:
+    """Rename ``tmp`` to ``final`` unless a file of that name exists (:class:`FileExistsError`, nothing changed).
+
+    A hard link fails on an existing name (POSIX ``link``), so a file that appears meanwhile is never replaced;
+    where hard links are not possible, the name is checked just before :func:`os.replace`.
+    """
+    try:
+        os.link(tmp, final)
+    except FileExistsError:  # named by the target (link() names the temporary first)
+        raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), str(final)) from None
+    except OSError:  # no hard links on this file system
+        if os.path.lexists(final):
+            raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), str(final)) from None
+        os.replace(tmp, final)
+        return
+    _remove(tmp)
 
 
 def _put_back(placed, kept) -> None:

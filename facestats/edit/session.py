@@ -34,6 +34,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import threading
 
 import numpy as np
 
@@ -398,6 +399,7 @@ class PendingEdit:
         self.committed = False
         self._out = out
         self._overwrite = bool(overwrite)
+        self._lock = threading.Lock()  # one commit at a time: a second caller waits for the first's result
 
     def __repr__(self) -> str:
         state = "committed" if self.committed else "not written"
@@ -406,7 +408,9 @@ class PendingEdit:
     def commit(self) -> SubjectEdit:
         """Write the new subject to the output store (atomic: :meth:`facestats.io.Store.write_subject`).
 
-        Writes once: a second call returns the result without writing again.
+        Writes once: a second call returns the result without writing again, also from another thread (it waits
+        for the first: two threads both wrote, the second failing on the id the first had taken, or writing it
+        twice with ``overwrite``).
 
         Returns
         -------
@@ -421,14 +425,15 @@ class PendingEdit:
         SchemaError
             A source variable left on disk (:data:`ON_DISK`) is invalid, found only now; nothing was written.
         """
-        if self.committed:
-            return self.edit
-        try:
-            self._out.write_subject(self.edit.dataset, overwrite=self._overwrite)  # ON_DISK band by band (Store)
-        except SchemaError as exc:  # e.g. a source variable left on disk (ON_DISK), checked only now
-            raise SchemaError(
-                f"{exc} (in the edit of subject {self.edit.source.attrs['subject_id']!r}, whose unedited variables "
-                "are copied as stored; nothing was written)"
-            ) from None
-        self.committed = True
+        with self._lock:
+            if self.committed:
+                return self.edit
+            try:
+                self._out.write_subject(self.edit.dataset, overwrite=self._overwrite)  # ON_DISK band by band (Store)
+            except SchemaError as exc:  # e.g. a source variable left on disk (ON_DISK), checked only now
+                raise SchemaError(
+                    f"{exc} (in the edit of subject {self.edit.source.attrs['subject_id']!r}, whose unedited "
+                    "variables are copied as stored; nothing was written)"
+                ) from None
+            self.committed = True
         return self.edit

@@ -541,10 +541,11 @@ def _check_labels(ds, label) -> None:
     """``channel`` coords are R, G, B; ``component`` coords x, y, z (readers take both by index); ``site`` coords
     are known sites, each once."""
     for dim, expected in (("channel", CHANNELS), ("component", COMPONENTS)):
-        if dim in ds.coords and tuple(str(c) for c in ds[dim].values) != expected:
-            raise SchemaError(
-                f"subject {label!r}: {dim} coords must be {expected}, got {[str(c) for c in ds[dim].values]}"
-            )
+        if dim in ds.coords:
+            values = np.asarray(ds[dim].values)  # a scalar coordinate (isel(channel=0)) is no list of labels
+            got = [str(c) for c in values] if values.ndim == 1 else f"a {values.ndim}-D coordinate {values.tolist()!r}"
+            if got != list(expected):
+                raise SchemaError(f"subject {label!r}: {dim} coords must be {expected}, got {got}")
     if "site" in ds.dims:
         sites = [str(s) for s in ds["site"].values]
         if not set(sites) <= set(SITES):
@@ -556,7 +557,8 @@ def _check_labels(ds, label) -> None:
 def _check_positions(ds, label) -> None:
     """``u`` and ``v`` are UV positions of texels, strictly increasing inside (0, 1) (the texel centres
     (k + ½) / n of a whole map; a crop or a strided copy keeps its texels' positions); ``fiber_distance`` is a
-    contact sensor's (finite, > 0 mm, strictly increasing: :class:`facestats.acquire.sensor.ContactSensor`)."""
+    contact sensor's (finite, > 0 mm, strictly increasing: :class:`facestats.acquire.sensor.ContactSensor`), the
+    coordinate of the ``fiber`` dimension whenever there is one."""
     for dim in ("u", "v"):
         if dim in ds.coords and dim in ds.dims:
             problem = _increasing_problem(np.asarray(ds[dim].values), 0.0, 1.0)
@@ -565,7 +567,13 @@ def _check_positions(ds, label) -> None:
                     f"subject {label!r}: {dim} coords must be UV positions of texels, strictly increasing inside "
                     f"(0, 1), got {problem}"
                 )
-    if "fiber_distance" in ds.coords:
+    if "fiber" in ds.dims or "fiber_distance" in ds.coords:  # the σ posterior reads the profile at these distances
+        dims = ds["fiber_distance"].dims if "fiber_distance" in ds.coords else None
+        if dims != ("fiber",):
+            raise SchemaError(
+                f"subject {label!r}: fiber_distance must be the coordinate of the fiber dimension (each fibre's "
+                f"distance in mm, as sensor_profile is measured), got {'none' if dims is None else f'dims {dims}'}"
+            )
         problem = _increasing_problem(np.asarray(ds["fiber_distance"].values), 0.0, np.inf)
         if problem:
             raise SchemaError(

@@ -74,6 +74,7 @@ from facestats.io.mesh_sequence import (
     read_vertices,
     read_weights,
 )
+from facestats.model.microstructure.convolve import displacement_limit
 from facestats.model.microstructure.deform import deform_microstructure
 from facestats.model.microstructure.kernel import SIGMA_RANGE_UM, TRUNCATE
 from facestats.model.microstructure.tables import TABLES, KernelTable
@@ -257,13 +258,27 @@ def _check_texel_size(path, mesh_strain, map_shape) -> None:
 
 
 def _neutral_map(neutral_map):
+    """The neutral map as float32 µm, finite and within :func:`~facestats.model.microstructure.convolve.
+    displacement_limit` of float32 (what the render's passes keep finite), checked before any work.
+
+    A float64 map beyond float32's range became ±inf in the cast, and one beyond the limit was refused by the
+    first tile's convolution as ``displacement`` (a name the caller never gave) after the output was opened.
+    """
     if isinstance(neutral_map, (str, os.PathLike)):
-        return read_displacement(neutral_map)
-    d = np.asarray(neutral_map)
-    if d.dtype not in (np.float32, np.float64) or d.ndim != 2:
-        raise ValidationError(f"neutral_map must be a 2-D float32/float64 map (µm), got {d.dtype} {d.shape}")
-    if not np.all(np.isfinite(d)):
-        raise ValidationError(f"neutral_map must be finite, got {int(np.sum(~np.isfinite(d)))} NaN/inf texels")
+        d, where = read_displacement(neutral_map), f" in {os.fspath(neutral_map)!r}"
+    else:
+        d, where = np.asarray(neutral_map), ""
+        if d.dtype not in (np.float32, np.float64) or d.ndim != 2:
+            raise ValidationError(f"neutral_map must be a 2-D float32/float64 map (µm), got {d.dtype} {d.shape}")
+        if not np.all(np.isfinite(d)):
+            raise ValidationError(f"neutral_map must be finite, got {int(np.sum(~np.isfinite(d)))} NaN/inf texels")
+    limit = displacement_limit(np.float32)
+    worst = max(float(np.max(d)), -float(np.min(d))) if d.size else 0.0
+    if worst > limit:
+        raise ValidationError(
+            f"neutral_map must hold displacements within ±{limit:.4g} um (displacement_limit of float32: the "
+            f"render's sharpening passes keep them finite), got |{worst:.4g}| um{where}"
+        )
     return d.astype(np.float32)
 
 

@@ -428,3 +428,44 @@ def test_an_empty_target_or_filter_is_refused_by_name(pop, tmp_path, action, opt
                  "--images", tmp_path / "img", cwd=tmp_path)  # fmt: skip
     assert r.returncode == 2 and f"argument {option}: must not be empty, got ''" in r.stderr, r.stderr
     assert list(tmp_path.iterdir()) == [] and _tree(pop) == before  # no output store, no images, the input as it was
+
+
+def test_a_folder_of_an_images_name_is_refused_before_the_commit(own, capsys):
+    """With --overwrite, a folder named like one of the images (X5_summary.png/) let the edit commit the subject,
+    then the rename onto the folder failed ("Is a directory"), and the advised rerun with --overwrite failed the
+    same way.  OutputSet refuses a target that is a folder as it is staged: the command fails before the commit."""
+    from facestats.cli import main
+
+    store, img = own
+    (img / "X5_summary.png").mkdir()
+    before, folder = _tree(store), _tree(img)
+    assert main(_skin_type(store, img, "--id", "X5", "--overwrite")) == 2
+    err = capsys.readouterr().err
+    assert f"facestats: error: output {str(img / 'X5_summary.png')!r} is a folder: move it away" in err, err
+    assert "was written" not in err
+    assert _tree(store) == before and _tree(img) == folder  # no subject X5, no image, no temporary
+
+
+def test_an_image_that_appears_during_the_edit_is_kept_without_overwrite(own, monkeypatch):
+    """Two edits of the same --id into one --images folder (another store each): both found the names free,
+    and the second renamed its PNGs over the first's without --overwrite.  Without it, the images are now placed
+    only where no file is: a file that appeared meanwhile is kept, none of this edit's images is placed, and the
+    message says the subject was written."""
+    from facestats.io.store import Store
+
+    store, img = own
+    real = Store.write_subject
+
+    def write_subject(self, ds, **kwargs):  # another process writes its image while this edit commits
+        (img / "X6_summary.png").write_bytes(b"theirs")
+        return real(self, ds, **kwargs)
+
+    monkeypatch.setattr(Store, "write_subject", write_subject)
+    r = run_main(*_skin_type(store, img, "--id", "X6"))
+    assert r.returncode == 2, r.stderr
+    assert f"the edited subject 'X6' was written to store {store}, but its images could not be moved" in r.stderr
+    assert "File exists" in r.stderr and "X6_summary.png" in r.stderr, r.stderr
+    assert sorted(p.name for p in img.iterdir()) == ["X6_summary.png", "mine.png"]  # no image of ours, no temporary
+    assert (img / "X6_summary.png").read_bytes() == b"theirs"
+    with open_store(store) as st:
+        assert "X6" in st

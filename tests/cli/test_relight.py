@@ -356,11 +356,11 @@ def test_more_lights_than_the_memory_holds_are_refused_before_the_shadow_maps(tm
     write_light_probe(tmp_path / "sky.hdr", sky_probe(8))
     args = ("S001", "--probe", tmp_path / "sky.hdr", "--out", tmp_path / "o.exr", "--quiet")
     code, io = _relight(main, capsys, *args, "--lights", "64x32")
-    assert code == 2 and "facestats: error: --lights must be fewer than 569 on this machine: " in io.err, io.err
-    assert "reach the face, and their visibility at its 4,392 mesh vertices needs " in io.err, io.err
+    assert code == 2 and "facestats: error: --lights must be at most 569 on this machine: " in io.err, io.err
+    assert "or more reach the face, and their visibility at its 4,392 mesh vertices needs " in io.err, io.err
     assert " MiB, more than the 10 MiB available" in io.err, io.err
     assert not any(tmp_path.glob("o.*"))
-    with pytest.raises(ValidationError, match="lights must be fewer than 569 on this machine"):
+    with pytest.raises(ValidationError, match="lights must be at most 569 on this machine"):
         stage._check_visibility_memory(4392, 570)
     stage._check_visibility_memory(4392, 569)  # 9.99 MB: fits
     code, io = _relight(main, capsys, *args, "--lights", "8x4")

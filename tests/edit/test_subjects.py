@@ -426,6 +426,42 @@ def test_an_edit_made_with_commit_false_is_written_by_its_commit_only(store, tmp
     out.close()
 
 
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_a_commit_from_two_threads_writes_once_and_both_get_the_edit(store, tmp_path, monkeypatch, overwrite):
+    """Two threads committing one pending edit both wrote it: the second failed on the id the first had taken
+    ("already exist"), or, with overwrite, wrote a second generation.  The second now waits for the first and
+    gets its result."""
+    import threading
+
+    out = open_store(tmp_path / "out.zarr", mode="a")
+    pending = transfer_brdf_subject(store, "A2", "V1", out_store=out, new_id="P4", overwrite=overwrite, commit=False)
+    real, calls, inside = type(out).write_subject, [], threading.Event()
+
+    def write_subject(self, ds, **kwargs):
+        calls.append(ds.attrs["subject_id"])
+        inside.set()
+        threading.Event().wait(0.3)  # the first writer is still writing when the second commits
+        return real(self, ds, **kwargs)
+
+    monkeypatch.setattr(type(out), "write_subject", write_subject)
+    results = []
+
+    def commit():
+        try:
+            results.append(pending.commit())
+        except StoreError as exc:
+            results.append(exc)
+
+    first = threading.Thread(target=commit)
+    first.start()
+    assert inside.wait(10)
+    commit()  # the second caller, while the first is inside write_subject
+    first.join()
+    assert calls == ["P4"] and len(results) == 2 and all(r is pending.edit for r in results) and pending.committed
+    assert out.ids() == ["P4"] and len(out.index_entries()) == 1
+    out.close()
+
+
 def test_every_edit_leaves_the_source_it_read_unchanged_in_memory(store):
     """An edit works on a shallow copy of the source (a deep one held every map twice): each edit must replace
     whole variables, never write into the source's arrays.  The edit's ``source`` stays equal, bit for bit, to a

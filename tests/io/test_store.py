@@ -557,6 +557,39 @@ def test_invalid_subjects_are_refused_without_touching_the_store(tmp_path):
         validate_subject(ds.assign_coords(component=["z", "y", "x"]), name="S001")
 
 
+def test_a_scalar_label_coordinate_is_refused_by_name():
+    """A scalar ``component`` or ``channel`` coordinate (``assign_coords(component="x")``, what ``isel`` of one
+    label leaves) failed validate_subject with a bare TypeError ("iteration over a 0-d array")."""
+    ok = make_map_subject("C1")
+    with pytest.raises(SchemaError, match=r"subject 'C1': component coords must be \('x', 'y', 'z'\), got a 0-D "
+                       r"coordinate 'x'"):  # fmt: skip
+        validate_subject(ok.assign_coords(component="x"))
+    samples = make_sample_subject("C2").drop_vars(["albedo_sample", "albedo_sample_region"])
+    with pytest.raises(SchemaError, match=r"channel coords must be \('R', 'G', 'B'\), got a 0-D coordinate 'R'"):
+        validate_subject(samples.isel(channel=0))
+    assert validate_subject(samples) == "samples"
+
+
+def test_fibre_distances_must_be_the_fiber_dimensions_coordinate():
+    """A subject whose sensor_profile had no fiber_distance, or had it on another dimension (3 values along site
+    for 28 fibres), passed the schema; the σ posterior then failed with a bare KeyError, or said "profile must have
+    shape (3,) or (3, K) to match r", about a stored subject it was never given."""
+    from facestats.analysis.posterior.profile import site_sigma_posterior
+
+    ok = make_map_subject("D1")
+    assert validate_subject(ok) == "maps"
+    with pytest.raises(SchemaError, match=r"subject 'D1': fiber_distance must be the coordinate of the fiber "
+                       r"dimension .*, got none$"):  # fmt: skip
+        validate_subject(ok.drop_vars("fiber_distance"))
+    with pytest.raises(KeyError):  # what the schema let through
+        site_sigma_posterior(ok.drop_vars("fiber_distance"), "cheek")
+    moved = ok.drop_vars("fiber_distance").assign_coords(fiber_distance=("site", [1.0, 2.0, 3.0]))
+    with pytest.raises(SchemaError, match=r"fiber_distance must be the coordinate .*, got dims \('site',\)$"):
+        validate_subject(moved)
+    samples = make_sample_subject("D2")
+    assert validate_subject(samples) == "samples"  # no fibres, no distances: nothing to check
+
+
 def test_overwrite_and_edits(tmp_path):
     with open_store(tmp_path / "s.zarr", mode="a") as st:
         st.write_subject(make_map_subject("S1", seed=1))

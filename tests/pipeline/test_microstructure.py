@@ -1,6 +1,7 @@
 """Rendering a sequence (zarr/EXR, resumable), reading user maps, and the ``facestats microstructure`` command."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -160,6 +161,34 @@ def test_bad_render_input(tmp_path, smile, neutral_map):
         with pytest.raises(FacestatsError, match=match):
             render_sequence(smile, neutral_map, tmp_path / "c.zarr", progress=False, **kw)
     assert sorted(p.name for p in tmp_path.iterdir()) == []  # checked before any output
+
+
+def test_a_neutral_map_beyond_the_displacement_limit_is_refused_by_name_before_any_output(tmp_path, smile):
+    """A float64 map of 1e39 um passed "finite", became ±inf in the cast to float32 and was refused by the first
+    tile as "displacement must be finite"; one of 1e37 as "displacement must lie in" (a name the caller never
+    gave), after the output was opened.  Both are refused as neutral_map (--map) before any work; a map at the
+    limit renders."""
+    from facestats.model.microstructure.convolve import displacement_limit
+
+    limit = displacement_limit(np.float32)
+    base = np.zeros((WINDOW[2], WINDOW[3]))
+    base[5, 7] = -1.0
+    for scale, shown in ((1e39, "1e+39"), (1e37, "1e+37"), (limit * 1.001, f"{limit * 1.001:.4g}")):
+        for dtype in (np.float64, np.float32):
+            if scale > float(np.finfo(dtype).max):
+                continue
+            with pytest.raises(ValidationError, match=rf"neutral_map must hold displacements within ±5\.708e\+36 um "
+                               rf"\(displacement_limit of float32.*got \|{re.escape(shown)}\| um$"):  # fmt: skip
+                render_sequence(smile, (base * scale).astype(dtype), tmp_path / "a.zarr", map_shape=MAP,
+                                window=WINDOW, progress=False)  # fmt: skip
+    path = tmp_path / "d.exr"
+    write_displacement(path, base * 1e37)
+    with pytest.raises(ValidationError, match=rf"got \|1e\+37\| um in {re.escape(repr(str(path)))}"):
+        render_sequence(smile, path, tmp_path / "a.zarr", map_shape=MAP, window=WINDOW, progress=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.exr"]  # nothing opened
+    report = render_sequence(smile, (base * limit).astype(np.float32), tmp_path / "b.zarr", map_shape=MAP,
+                             window=WINDOW, progress=False)  # fmt: skip
+    assert report.rendered == [0, 1, 2, 3]
 
 
 class _Edited:

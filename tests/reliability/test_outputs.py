@@ -89,3 +89,68 @@ def test_output_checks_write_to_know_a_folder_is_writable(tmp_path, monkeypatch)
     ok = tmp_path / "fine"
     assert outputs.check_output_dir(ok / "a" / "b", "--images") == ok / "a" / "b"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["refuses"] and sorted(os.listdir(refused)) == ["plot.png"]
+
+
+def test_a_name_too_long_for_the_file_system_is_refused_by_the_check_and_leaves_no_folder(tmp_path):
+    """``--images new/<300 bytes>`` passed check_output_dir (its probe creates one short name), the edit did its
+    work, then OutputSet failed to make the folder ("File name too long") and left ``new`` behind.  The check now
+    compares each name to create with the file system's NAME_MAX; OutputSet removes the folders it made before a
+    failure of its own."""
+    longest = os.pathconf(tmp_path, "PC_NAME_MAX")
+    long = tmp_path / "new" / ("x" * (longest + 1))
+    for check in (outputs.check_output_dir, outputs.check_output_file):
+        with pytest.raises(ValidationError, match=rf"--images must be a path that can be created, got .*a name of "
+                           rf"{longest + 1} bytes, xxxxxxxxxxxxxxxxxxxx…; the file system of {tmp_path} allows at "
+                           rf"most {longest}\)"):  # fmt: skip
+            check(long, "--images")
+        with pytest.raises(ValidationError, match=f"a name of {longest + 1} bytes"):
+            check(long / "a", "--images")  # a name further down
+    assert outputs.check_output_dir(tmp_path / "new" / ("x" * longest), "--images").name == "x" * longest
+    with pytest.raises(ValidationError, match="cannot create the output folder .*: File name too long"):
+        with OutputSet(long):
+            pass
+    with pytest.raises(ValidationError, match="cannot create the output folder .*: File name too long"):
+        with OutputSet(tmp_path / "ok") as out:
+            out.path(tmp_path / "other" / ("y" * (longest + 1)) / "a.png")
+    assert os.listdir(tmp_path) == []  # neither new/, nor ok/, nor other/
+
+
+@pytest.mark.parametrize("links", [True, False])
+@pytest.mark.parametrize("when", ["before the renames", "while renaming"])
+def test_without_overwrite_a_file_that_appeared_is_kept_and_nothing_is_placed(tmp_path, monkeypatch, links, when):
+    """OutputSet(overwrite=False) places each target by a hard link, which fails on an existing name; where links
+    are not possible, by a rename after a check.  A file that appears before or during the renames is kept, the
+    targets placed before it are removed, and the failure names it."""
+    real_link, real_lexists = os.link, os.path.lexists
+
+    def theirs(path):  # another process writes c.txt after the names were checked
+        if os.path.basename(path) == "c.txt" and when == "while renaming" and not real_lexists(path):
+            with open(path, "w") as fh:
+                fh.write("theirs")
+
+    def link(src, dst, **kwargs):
+        theirs(dst)
+        if not links:
+            raise PermissionError(1, "Operation not permitted")
+        return real_link(src, dst, **kwargs)
+
+    def lexists(path):  # the check just before the rename, where links are not possible
+        if not links and ".tmp-" not in os.fspath(path):
+            theirs(path)
+        return real_lexists(path)
+
+    with OutputSet(tmp_path, overwrite=False) as out:
+        out.path("a.txt").write_text("a")
+    assert (tmp_path / "a.txt").read_text() == "a" and out.written == [tmp_path / "a.txt"]
+    (tmp_path / "a.txt").unlink()
+    monkeypatch.setattr(outputs.os, "link", link)
+    with pytest.raises(FacestatsError, match=r"\(.*c\.txt\): File exists; nothing was written"):
+        with OutputSet(tmp_path, overwrite=False) as out:
+            for name in ("a.txt", "b.txt", "c.txt"):
+                out.path(name).write_text(name)
+            if when == "before the renames":
+                (tmp_path / "c.txt").write_text("theirs")
+            else:
+                monkeypatch.setattr(outputs.os.path, "lexists", lexists)
+    monkeypatch.undo()
+    assert sorted(os.listdir(tmp_path)) == ["c.txt"] and (tmp_path / "c.txt").read_text() == "theirs"

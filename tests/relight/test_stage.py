@@ -160,3 +160,33 @@ def test_the_lights_facing_the_surface_are_found_block_by_block():
     assert 0 < want.sum() < 300
     for block in (1, 299, 300, 7_000, 1 << 22):  # one normal a block, ..., all at once
         np.testing.assert_array_equal(_lights_facing(normals, directions, block), want)
+
+
+def test_a_light_grid_too_large_for_the_memory_is_refused_before_the_full_facing_pass(subject, monkeypatch):
+    """The memory check of the visibility table came after the lights facing the surface were found among all its
+    normals (pixels x lights products): 4096x2048 lights had not reached the refusal after 3 minutes.  A lower
+    bound from a sample of the normals is checked first (4096x2048 refused in 9 s on 22 GB); and a render
+    without shadows, whose table of ones is as large, is checked too (it was not)."""
+    calls = []
+    real = stage._lights_facing
+
+    def lights_facing(normals, directions, *args):
+        calls.append((len(normals), int(np.count_nonzero(facing := real(normals, directions, *args)))))
+        return facing
+
+    monkeypatch.setattr(stage, "_lights_facing", lights_facing)
+    per_light = 4 * 468  # bytes: the 468 mesh vertices the 24-pixel camera sees
+    monkeypatch.setattr(stage, "available_memory", lambda: 534.5 * per_light)
+    camera = stage.stage_camera(size=SIZE)
+    with pytest.raises(ValidationError, match=r"lights must be at most 534 on this machine: 1,9[0-9]{2} or more reach"):
+        stage.relight_subject(subject, sky_probe(16), lights=(64, 32), camera=camera)
+    assert len(calls) == 1 and calls[0][0] <= 2 * stage.VISIBILITY_SAMPLE  # the sample only
+    calls.clear()
+    monkeypatch.setattr(stage, "VISIBILITY_SAMPLE", 1)  # one normal: 1,024 lights, a bound that fits
+    monkeypatch.setattr(stage, "available_memory", lambda: 1500.5 * per_light)
+    with pytest.raises(ValidationError, match=r"lights must be at most 1,500 on this machine: 1,9[0-9]{2} reach the "):
+        stage.relight_subject(subject, sky_probe(16), lights=(64, 32), camera=camera, shadows=False)
+    assert calls[0] == (1, 1024) and calls[1][0] == 156 and len(calls) == 2  # then all 156 normals of the face
+    stage._check_visibility_memory(468, 1500)  # fits: "at most", not "fewer than"
+    with pytest.raises(ValidationError, match="at most 1,500"):
+        stage._check_visibility_memory(468, 1501)

@@ -420,8 +420,9 @@ class PendingEdit:
         Raises
         ------
         StoreError
-            The id was taken meanwhile (without ``overwrite``), the store is closed, or the write failed (e.g. a
-            full disk); nothing was written.
+            The id was taken meanwhile (without ``overwrite``), the store is read-only, or the write failed (e.g.
+            a full disk); nothing was written.  (A directory store holds nothing open, so a commit after its
+            ``close()`` writes as before.)
         SchemaError
             A source variable left on disk (:data:`ON_DISK`) is invalid, found only now; nothing was written.
         """

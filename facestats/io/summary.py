@@ -216,16 +216,15 @@ def _albedo_bands(ds):
 def _albedo_values(ds) -> np.ndarray:
     """Albedo values (n, 3), float64, of the face texels or of the stored albedo samples (:func:`_albedo_bands`).
 
-    Filled band by band: beside the result, one band of the map (the map and its face texels in float32 were
-    another 1.5 times the result, 100 MB at 2048²).
+    Filled band by band: beside the result, one band of the map (the whole map and a float32 copy of its face
+    texels were held beside it before).
     """
     if subject_kind(ds) != "maps":
         return next(_albedo_bands(ds), np.empty((0, 3)))
-    face = np.asarray(ds["region"].values) > 0
-    out = np.empty((int(np.count_nonzero(face)), 3))
+    out = np.empty((int(np.count_nonzero(np.asarray(ds["region"].values) > 0)), 3))
     n = 0
-    for band in face_bands(ds["albedo"].variable, face):
-        out[n : n + len(band)] = band  # float32 to float64: exact
+    for band in _albedo_bands(ds):
+        out[n : n + len(band)] = band
         n += len(band)
     return out
 

@@ -48,9 +48,9 @@ def _full_read_error(path, sid="B1"):
 
 
 def test_validate_holds_bands_of_a_large_map_not_the_subject(tmp_path):
-    """1024 rows of v (16 bands) and 16 micro-normal cameras: 29 MB of subject, 24 MB of micro-normals, 1.5 MB a band
-    of them.  Loading every variable first (before 2026-12-07) traced a 38 MB peak, more than the subject; reading
-    large maps band by band, 6.9 MB (the band as read, its face texels, the domain test's blocks, and the index row's
+    """1024 rows of v (16 bands) and 16 micro-normal cameras: 29 MiB of subject, 24 MiB of micro-normals, 1.5 MiB a band
+    of them.  Loading every variable first (before 2026-12-07) traced a 38 MiB peak, more than the subject; reading
+    large maps band by band, 6.9 MiB (the band as read, its face texels, the domain test's blocks, and the index row's
     per-region samples).  The bound, a third of the subject, is five bands of the micro-normals."""
     ds = _subject(rows=1024, width=128, cameras=16, seed=1)
     subject = sum(v.nbytes for v in ds.variables.values())
@@ -167,3 +167,30 @@ def test_a_stale_index_entry_of_a_banded_subject_is_reported_and_its_recomputed_
         plan = st.plan_repair()
     (action,) = plan.actions
     assert action.entry["row"] == written["row"] and action.entry["albedo_hist"] == written["albedo_hist"]
+
+
+def test_a_subject_replaced_between_its_checksums_and_its_schema_check_is_checked_in_its_new_version(
+    tmp_path, monkeypatch
+):
+    """A writer replaces the subject (and removes the old generation) after validate read the checksums of its maps,
+    before the schema reads them again: the new version is checked, no problem reported (the reads of the old one
+    fail as "replaced", a StoreError, which validate looks up again as it does a damaged read)."""
+    from facestats.io import integrity
+
+    path = tmp_path / "s.zarr"
+    first = _write(path, _subject(seed=6))
+    check = integrity.validate_subject
+    replaced = []
+
+    def replace_then_check(ds, **kw):
+        if not replaced:
+            with open_store(path, mode="r+") as writer:
+                writer.write_subject(_subject(seed=7), overwrite=True)
+            replaced.append(True)
+        return check(ds, **kw)
+
+    monkeypatch.setattr(integrity, "validate_subject", replace_then_check)
+    with open_store(path) as st:
+        report = st.validate()
+        assert report.problems == [] and report.n_checked == 1 and replaced
+        assert st.index_entries()["B1"]["generation"] != first.name and not first.exists()

@@ -14,10 +14,18 @@ each, against the subject's own size in memory, which a full read must hold
 anyway.  Before 2026-12-07 the map's 25 MB Zarr chunks of all cameras, about ten
 of them decoded at once, and the validation's copy of its face texels held some
 800 MB more at a read.
+
+``validate_2048`` validates a store holding that subject in a fresh process (``Store.validate``: every checksum,
+the schema, the index row recomputed) and reports its peak RSS and seconds, with the interpreter's own RSS after
+importing what validation imports (the floor), beside :data:`VALIDATE_BASELINE`, the same benchmark run with the
+code of commit a1bce51, which loaded every variable of a subject before checking it (``bench_validate(code=...)``
+runs it with any checkout's code).
 """
 
 from __future__ import annotations
 
+import json
+import os
 import pathlib
 import shutil
 import statistics
@@ -139,10 +147,82 @@ def bench_subject_io(size=2048, cameras=16):
     }
 
 
-BENCHMARKS = [("query_cli", bench_query_cli), ("subject_io_2048", bench_subject_io)]
+#: ``bench_validate()`` run with the code of commit a1bce51 (every variable of a subject loaded, then checked):
+#: peak RSS (MiB) and seconds, medians of 3 runs, 2026-12-07, in 2 batches alternating with this version on a
+#: shared 2-core machine (1,323 and 1,328 MiB, 3.14 s both times; this version 345 and 353 MiB, 3.92 and 3.93 s,
+#: with a floor of 90 MiB: its large maps are read twice, for their checksums and again for the schema).
+VALIDATE_BASELINE = {"peak_rss_MB": 1325.0, "s": 3.14}
+
+#: What the child of :func:`bench_validate` runs: validate the store ``argv[1]``, print JSON figures.
+#: The peak is the process's VmHWM (Linux): ru_maxrss would carry the parent's peak over the fork.
+_VALIDATE_CHILD = """
+import json, re, sys, time
+import xarray, zarr
+from facestats.io import open_store
+def hwm():
+    with open("/proc/self/status") as f:
+        return int(re.search(r"VmHWM:\\s*(\\d+) kB", f.read()).group(1)) / 1024
+floor = hwm()
+t = time.perf_counter()
+with open_store(sys.argv[1]) as st:
+    report = st.validate()
+seconds = time.perf_counter() - t
+print(json.dumps({"peak_rss_MB": hwm(), "s": seconds, "floor_rss_MB": floor, "problems": report.problems}))
+"""
+
+
+def bench_validate(size=2048, cameras=16, runs=3, code=None):
+    """Peak RSS (MiB) and seconds of ``Store.validate`` on a store of one representative size² subject.
+
+    Each run is a fresh ``python -c`` (the peak RSS of that process, VmHWM: the interpreter and its imports included,
+    given apart as ``floor_rss_MB``); medians of ``runs``.  ``code``: the checkout whose ``facestats`` the child imports
+    (default this one), to measure a baseline such as :data:`VALIDATE_BASELINE` with the same store and method.
+    """
+    from bench_export import representative_subject
+
+    from facestats.io import open_store
+
+    ds = representative_subject(size, cameras=cameras)
+    subject_mb = sum(v.nbytes for v in ds.variables.values()) / 2**20
+    env = {**os.environ, "PYTHONPATH": str(code or ROOT)}
+    with tempfile.TemporaryDirectory() as d:
+        with open_store(f"{d}/s.zarr", mode="a") as st:
+            st.write_subject(ds)
+        del ds
+        out = []
+        for _ in range(runs):
+            r = subprocess.run(
+                [sys.executable, "-c", _VALIDATE_CHILD, f"{d}/s.zarr"], capture_output=True, text=True, env=env
+            )
+            if r.returncode != 0:
+                raise RuntimeError(f"validate failed: {r.stderr}")
+            out.append(json.loads(r.stdout.strip().splitlines()[-1]))
+    if any(o["problems"] for o in out):
+        raise RuntimeError(f"the store is not valid: {out[0]['problems']}")
+    figures = {k: statistics.median(o[k] for o in out) for k in ("peak_rss_MB", "s", "floor_rss_MB")}
+    base = VALIDATE_BASELINE if (size, cameras) == (2048, 16) else {}
+    return {
+        "peak_rss_MB": figures["peak_rss_MB"],
+        "baseline_a1bce51_peak_rss_MB": base.get("peak_rss_MB"),
+        "s": figures["s"],
+        "baseline_a1bce51_s": base.get("s"),
+        "floor_rss_MB": figures["floor_rss_MB"],
+        "subject_MB": subject_mb,
+    }
+
+
+BENCHMARKS = [
+    ("query_cli", bench_query_cli),
+    ("subject_io_2048", bench_subject_io),
+    ("validate_2048", bench_validate),
+]
 
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
-SMOKE = {"query_cli": {"n_subjects": 4, "runs": 1}, "subject_io_2048": {"size": 64, "cameras": 2}}
+SMOKE = {
+    "query_cli": {"n_subjects": 4, "runs": 1},
+    "subject_io_2048": {"size": 64, "cameras": 2},
+    "validate_2048": {"size": 64, "cameras": 2, "runs": 1},
+}
 
 if __name__ == "__main__":
     for name, fn in BENCHMARKS:

@@ -13,7 +13,8 @@ bytes are checked when they are read: every variable left on disk is wrapped
 so that each chunk is verified as it is loaded (a band of rows of a map reads
 and verifies only its own chunks; generations written before chunk checksums
 existed verify the whole variable on its first read).  So *every* read path
-verifies.
+verifies.  Validation (``banded=True``) checks the maps of many bands that way too, one band in memory at a
+time, with the checks and messages of a full read.
 
 Two kinds of failure are kept apart, because repair acts on one only:
 
@@ -42,7 +43,15 @@ from facestats.errors import SchemaError, StoreError, ValidationError
 from facestats.io.layout import ROOT_META, generation_rel, map_chunk_rows
 from facestats.io.schema import SCHEMA_VERSION, validate_subject
 
-__all__ = ["STORE_ATTR", "digest", "manifest_entry", "store_attr_json", "open_generation", "read_failure"]
+__all__ = [
+    "STORE_ATTR",
+    "digest",
+    "manifest_entry",
+    "store_attr_json",
+    "open_generation",
+    "banded_variables",
+    "read_failure",
+]
 
 #: Group attribute holding the store's bookkeeping (removed from ``Dataset.attrs`` on read).
 STORE_ATTR = "facestats_store"
@@ -183,6 +192,7 @@ def open_generation(
     check_chunks: bool = False,
     exclude=(),
     on_disk=(),
+    banded: bool = False,
 ):
     """Open and check one generation of a subject.
 
@@ -211,6 +221,14 @@ def open_generation(
         again validates them).  The others are loaded, verified and validated.  A variable whose
         manifest has no chunk checksums (written by facestats before they existed) is loaded too:
         every band of it would read and verify the whole variable.
+    banded : bool
+        With ``lazy=False``: check map variables of more than one band of rows without holding them
+        (``validate`` and repair, :func:`banded_variables`): each is read band by band for its checksums
+        (:func:`manifest_entry`, the write's own computation), then left on disk, wrapped so that every later
+        read verifies its bands, and the schema reads it band by band again
+        (:func:`facestats.io.schema.validate_subject`).  The checks and their messages are those of a full
+        read; memory holds one band of such a map at a time (25 MB for the 16 micro-normal cameras of a
+        2048² subject) where a full read holds the whole subject.
 
     Returns
     -------
@@ -233,22 +251,53 @@ def open_generation(
     if left_out:
         ds = ds.drop_vars(left_out)
         manifest = {n: m for n, m in manifest.items() if n not in left_out}
-    banded = [n for n in on_disk if n in ds.data_vars and manifest[n].get("chunk_crc32") and "v" in ds[n].dims]
+    kept = [n for n in on_disk if n in ds.data_vars and manifest[n].get("chunk_crc32") and "v" in ds[n].dims]
     if lazy:  # small, in memory anyway: index coordinates and strings are verified now
         now = set(variables or []) | {n for n, v in ds.variables.items() if n in ds.indexes or v.dtype.kind in "OTUS"}
         check = [n for n in manifest if n in now] + [n for n in (variables or []) if n not in manifest]
     else:
-        check = [n for n in manifest if n not in banded]
-    _verify_checksums(ds, manifest, check, sid, check_chunks)
+        check = [n for n in manifest if n not in kept]
+    streamed = set(banded_variables(ds, manifest)) & set(check) if banded and not lazy else set()
+    _verify_checksums(ds, manifest, check, sid, check_chunks, streamed)
     ds = _strings_to_str(ds, set(check) | set(ds.indexes))
     gone = functools.partial(_gone, backend, rel)
     if lazy:
         return _verify_on_read(ds, manifest, set(check), sid, gone)
-    validate_subject(ds.drop_vars(banded), name=sid)
-    if not banded:
+    ds = _verify_on_read(ds, manifest, set(check) - streamed, sid, gone)  # the streamed and kept variables
+    validate_subject(ds.drop_vars(kept), name=sid)
+    if not kept:
         return ds
-    ds = _verify_on_read(ds, manifest, set(check), sid, gone)
-    return ds.assign({n: ds[n].chunk({"v": manifest[n]["chunk_rows"]}) for n in banded})
+    return ds.assign({n: ds[n].chunk({"v": manifest[n]["chunk_rows"]}) for n in kept})
+
+
+def banded_variables(ds, manifest: dict) -> list:
+    """The map variables of ``ds`` that ``open_generation(..., banded=True)`` checks band by band.
+
+    Those of more than one band of rows of ``v`` whose manifest has the chunk checksums of the stored layout
+    (:func:`facestats.io.layout.map_chunk_rows`), except ``region``: the face mask of every map check is
+    loaded whole, once (a 2048² label map is 4 MB), where the schema and the index row would read it again
+    and again.  A map of one band (the default store's 48² maps) is loaded as in a full read: streaming it
+    would read the same bytes twice.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        The generation as opened (variables on disk).
+    manifest : dict
+        Its manifest (well formed).
+
+    Returns
+    -------
+    list of str
+    """
+    out = []
+    for name, var in ds.variables.items():
+        m, rows = manifest.get(name, {}), map_chunk_rows(var.dims, var.shape)
+        if name == "region" or rows is None or var.dtype.kind in "OTUS" or var.shape[var.dims.index("v")] <= rows:
+            continue
+        if m.get("chunk_rows") == rows and m.get("chunk_crc32"):
+            out.append(name)
+    return out
 
 
 def _check_data_variables(ds, names, argument: str) -> None:
@@ -442,40 +491,76 @@ def _check_variable(var, name: str, m: dict, sid: str) -> None:
         raise SchemaError(f"subject {sid!r}: variable {name!r} has dtype {dt}, expected {m['dtype']}")
 
 
-def _verify_checksums(ds, manifest: dict, names, sid: str, chunks: bool = False) -> None:
-    """Load the variables ``names`` and compare their CRC-32 with the manifest (and, with ``chunks``, each chunk's)."""
+def _verify_checksums(ds, manifest: dict, names, sid: str, chunks: bool = False, streamed=()) -> None:
+    """Load the variables ``names`` and compare their CRC-32 with the manifest (and, with ``chunks``, each chunk's).
+
+    The variables ``streamed`` are not loaded but read band by band (:func:`_verify_bands`).
+    """
     for name in names:
         if name not in manifest:
             raise SchemaError(f"subject {sid!r}: no variable {name!r}")
         var = ds.variables[name]
+        if name in streamed:
+            _verify_bands(var, manifest[name], sid, name, chunks)
+            continue
         try:
             var.load()
         except Exception as exc:
             raise read_failure(exc, sid, f"variable {name!r}") from None
         if digest(var.values)[1] != manifest[name]["crc32"]:
-            raise SchemaError(
-                f"subject {sid!r}: variable {name!r} does not match its checksum "
-                "(a chunk file is missing, truncated or altered)"
-            )
+            raise _checksum_error(sid, name)
         if chunks:
             _verify_chunk_checksums(var, manifest[name], sid, name)
 
 
-def _verify_chunk_checksums(var, m: dict, sid: str, name: str) -> None:
-    """The chunk checksums of a loaded (and whole-checksum verified) map variable agree with its bytes.
+def _checksum_error(sid: str, name: str) -> SchemaError:
+    """The error of a variable whose bytes do not match its CRC-32."""
+    return SchemaError(
+        f"subject {sid!r}: variable {name!r} does not match its checksum "
+        "(a chunk file is missing, truncated or altered)"
+    )
 
-    The whole variable matched its CRC-32, so a chunk checksum that disagrees is a damaged manifest,
-    on which every lazy read of that band would fail: damage, named here.
+
+def _verify_bands(var, m: dict, sid: str, name: str, chunks: bool) -> None:
+    """The CRC-32 of a map variable left on disk (and, with ``chunks``, of each band), one band read at a time.
+
+    The CRCs are computed as the write computed them (:func:`manifest_entry`), so the variable's checksum is
+    compared first and the chunk checksums after, as for a loaded variable.
     """
+    try:
+        found = manifest_entry(var)
+    except Exception as exc:
+        raise read_failure(exc, sid, f"variable {name!r}") from None
+    if found["crc32"] != m["crc32"]:
+        raise _checksum_error(sid, name)
+    if chunks:
+        _compare_chunk_checksums(found["chunk_crc32"], m, var.shape[list(var.dims).index("v")], sid, name)
+
+
+def _verify_chunk_checksums(var, m: dict, sid: str, name: str) -> None:
+    """The chunk checksums of a loaded (and whole-checksum verified) map variable agree with its bytes."""
     crcs = m.get("chunk_crc32")
     if not crcs or "v" not in var.dims:
         return
     rows, axis, values = int(m["chunk_rows"]), list(var.dims).index("v"), np.asarray(var.values)
-    for j, lo in enumerate(range(0, values.shape[axis], rows)):
-        if digest(_band(values, axis, lo, lo + rows))[1] != crcs[j]:
+    found = [digest(_band(values, axis, lo, lo + rows))[1] for lo in range(0, values.shape[axis], rows)]
+    _compare_chunk_checksums(found, m, values.shape[axis], sid, name)
+
+
+def _compare_chunk_checksums(found, m: dict, n: int, sid: str, name: str) -> None:
+    """The CRC-32 ``found`` of the bands of ``chunk_rows`` rows of a variable with ``n`` rows of ``v`` are those of
+    its manifest entry ``m``.
+
+    The whole variable matched its CRC-32, so a chunk checksum that disagrees is a damaged manifest,
+    on which every lazy read of that band would fail: damage, named here (the first such band).
+    """
+    rows = int(m["chunk_rows"])
+    for j, (crc, expected) in enumerate(zip(found, m["chunk_crc32"])):
+        if crc != expected:
+            lo = j * rows
             raise SchemaError(
                 f"subject {sid!r}: variable {name!r}: chunk_crc32[{j}] of its manifest (rows {lo}-"
-                f"{min(lo + rows, values.shape[axis]) - 1} of v) does not match the data, which match the "
+                f"{min(lo + rows, n) - 1} of v) does not match the data, which match the "
                 "variable's checksum: the manifest is damaged"
             )
 

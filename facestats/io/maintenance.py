@@ -617,21 +617,21 @@ def check_subjects(
             gen = entry["generation"]
             try:
                 ds = open_generation(sid, gen)
-            except SchemaError as exc:
+                problem = entry_disagreement(sid, entry, gen, ds)  # may read maps left on disk
+            except StoreError as exc:  # SchemaError: damaged; else an I/O error (the data may be intact)
                 fresh = reread().get(sid) if reread is not None else None
                 if fresh is not None and fresh["generation"] != gen:
                     entry = fresh  # replaced meanwhile: check the new version
                     continue
-                gone = generation_exists is not None and not generation_exists(sid, gen)
-                (out.missing if gone else out.damaged)[sid] = (gen, str(exc))
-                report.problems.append(str(exc))
-            except StoreError as exc:  # an I/O error: the data may be intact
-                out.unreadable[sid] = str(exc)
+                if isinstance(exc, SchemaError):
+                    gone = generation_exists is not None and not generation_exists(sid, gen)
+                    (out.missing if gone else out.damaged)[sid] = (gen, str(exc))
+                else:
+                    out.unreadable[sid] = str(exc)
                 report.problems.append(str(exc))
             else:
                 out.current[sid] = gen
                 report.n_checked += 1
-                problem = entry_disagreement(sid, entry, gen, ds)
                 if problem:
                     report.problems.append(problem[0])
                     out.stale[sid] = (gen, problem[1], problem[0])

@@ -77,6 +77,7 @@ __all__ = [
     "check_domain",
     "subject_kind",
     "validate_subject",
+    "face_bands",
     "set_variable_attrs",
     "provenance",
     "set_provenance",
@@ -610,18 +611,30 @@ def _check_maps(ds, label) -> None:
     if not face.any():
         raise SchemaError(f"subject {label!r}: the region map has no face texel")
     for var in ("albedo", "ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent"):
-        bad = sum(int((~np.isfinite(vals)).sum()) for vals in _face_bands(ds[var].variable, face))
+        bad = sum(int((~np.isfinite(vals)).sum()) for vals in face_bands(ds[var].variable, face))
         if bad:
             raise SchemaError(f"subject {label!r}: variable {var!r} has {bad} non-finite face texel(s)")
 
 
-def _face_bands(var, face):
+def face_bands(var, face):
     """The face texels of map variable ``var``, band by band of rows of ``v``: arrays (texels, *other dims*).
 
     A band is a chunk of the stored layout (:func:`facestats.io.layout.map_chunk_rows`), so a lazily read
     variable loads (and CRC-verifies) each chunk once and the whole variable is never in memory twice: the
     face texels of a 2048² subject's 16-camera micro-normal map gathered at once were a 480 MB copy at every
     read and write.  Texels come in row-major order of (``v``, ``u``), as ``values[face]`` would give them.
+
+    Parameters
+    ----------
+    var : xarray.Variable
+        A map variable (dims ``v`` and ``u`` among others), in memory or left on disk.
+    face : ndarray of bool, shape (v, u)
+        The face texels (``region > 0``).
+
+    Yields
+    ------
+    ndarray
+        The face texels of one band, shape (texels, *other dims*).
     """
     dims = tuple(var.dims)
     rows = map_chunk_rows(dims, var.shape)
@@ -641,7 +654,7 @@ def _check_samples(ds, label) -> None:
 def _check_domains(ds, label, kind) -> None:
     """Every known variable inside its physical domain (:data:`DOMAINS`); maps on the face texels only.
 
-    Maps are checked band by band (:func:`_face_bands`); the message gives the first value outside in
+    Maps are checked band by band (:func:`face_bands`); the message gives the first value outside in
     row-major texel order and the count over the whole map, as one check of all face texels would.
     """
     face = np.asarray(ds["region"].values) > 0 if kind == "maps" else None
@@ -655,7 +668,7 @@ def _check_domains(ds, label, kind) -> None:
             _raise_outside(name, *_outside_count(name, np.asarray(var.values)), what=what)
             continue
         count, first = 0, None
-        for values in _face_bands(var, face):
+        for values in face_bands(var, face):
             n, f = _outside_count(name, values)
             count, first = count + n, f if first is None else first
         _raise_outside(name, count, first, what=what)

@@ -491,8 +491,9 @@ class Store:
         return open_generation(self._b, sid, gen, label=self.label, **kw)
 
     def _check_generation(self, sid: str, gen: str):
-        """Open one generation and check everything, the per-chunk checksums too (validate, repair)."""
-        return open_generation(self._b, sid, gen, label=self.label, check_chunks=True)
+        """Open one generation and check everything, the per-chunk checksums too, large maps band by band (validate,
+        repair)."""
+        return open_generation(self._b, sid, gen, label=self.label, check_chunks=True, banded=True)
 
     def _load(self, sid: str, **kw):
         """Open the current generation of ``sid``, retrying if a concurrent writer replaced it."""

@@ -43,7 +43,7 @@ from __future__ import annotations
 import numpy as np
 
 from facestats.core.conventions import CHANNELS, REGION_IDS, SITES
-from facestats.io.schema import provenance, subject_kind
+from facestats.io.schema import face_bands, provenance, subject_kind
 
 __all__ = [
     "HIST_BINS",
@@ -202,21 +202,40 @@ def _standard_errors(sd, value):
     return scale * float(np.sqrt(var.mean())), scale * float(np.sqrt(var.sum())) / sd.size
 
 
-def _albedo_values(ds) -> np.ndarray:
-    """Albedo values (n, 3) of the face texels or of the stored albedo samples."""
+def _albedo_bands(ds):
+    """Albedo values (texels, 3) of the face texels, band by band of rows of a map (:func:`face_bands`: a map left on
+    disk is never whole in memory), or of the stored albedo samples in one piece; float64, in row-major texel order."""
     if subject_kind(ds) == "maps":
         face = np.asarray(ds["region"].values) > 0
-        return np.asarray(ds["albedo"].values)[face].astype(np.float64)
-    if "albedo_sample" in ds.variables:  # a 2-D variable named like its dim: xarray makes it a coordinate
-        return np.asarray(ds["albedo_sample"].values, dtype=np.float64).reshape(-1, 3)
-    return np.empty((0, 3))
+        for band in face_bands(ds["albedo"].variable, face):
+            yield band.astype(np.float64)
+    elif "albedo_sample" in ds.variables:  # a 2-D variable named like its dim: xarray makes it a coordinate
+        yield np.asarray(ds["albedo_sample"].values, dtype=np.float64).reshape(-1, 3)
+
+
+def _albedo_values(ds) -> np.ndarray:
+    """Albedo values (n, 3), float64, of the face texels or of the stored albedo samples (:func:`_albedo_bands`).
+
+    Filled band by band: beside the result, one band of the map (the whole map and a float32 copy of its face
+    texels were held beside it before).
+    """
+    if subject_kind(ds) != "maps":
+        return next(_albedo_bands(ds), np.empty((0, 3)))
+    out = np.empty((int(np.count_nonzero(np.asarray(ds["region"].values) > 0)), 3))
+    n = 0
+    for band in _albedo_bands(ds):
+        out[n : n + len(band)] = band
+        n += len(band)
+    return out
 
 
 def albedo_histogram(ds, bins: int = HIST_BINS) -> np.ndarray:
     """Counts of albedo values per channel in ``bins`` equal bins over [0, 1].
 
     Values are the face texels of a map subject or the stored albedo samples,
-    clipped to [0, 1].
+    clipped to [0, 1]; value a (float64) falls in bin min(floor(a · bins), bins − 1).
+    Counted band by band of rows of a map (:func:`_albedo_bands`): integer sums, the same counts as all texels at
+    once.
 
     Parameters
     ----------
@@ -227,9 +246,12 @@ def albedo_histogram(ds, bins: int = HIST_BINS) -> np.ndarray:
     -------
     ndarray of int64, shape (3, bins)
     """
-    vals = np.clip(_albedo_values(ds), 0, 1)
-    idx = np.minimum((vals * bins).astype(np.int64), bins - 1)
-    return np.stack([np.bincount(idx[:, c], minlength=bins) for c in range(3)]).astype(np.int64)
+    counts = np.zeros((3, bins), np.int64)
+    for vals in _albedo_bands(ds):
+        idx = np.minimum((np.clip(vals, 0, 1) * bins).astype(np.int64), bins - 1)
+        for c in range(3):
+            counts[c] += np.bincount(idx[:, c], minlength=bins)
+    return counts
 
 
 def _mean_std(x):

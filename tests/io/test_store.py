@@ -302,7 +302,7 @@ def test_manifest_of_a_variable_read_band_by_band_equals_that_of_the_whole_array
 
 
 def test_domain_errors_of_maps_checked_band_by_band_name_the_first_value_and_the_total_count(tmp_path):
-    """Maps are validated one band of rows at a time (schema._face_bands): the message still gives the first value
+    """Maps are validated one band of rows at a time (schema.face_bands): the message still gives the first value
     outside the domain in row-major texel order and the count over the whole face."""
     ds = with_micro_normals(make_map_subject("MN3", size=150, seed=6), cameras=2)
     face = np.argwhere(ds["region"].values > 0)

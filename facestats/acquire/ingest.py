@@ -17,7 +17,10 @@ and gather, at every mesh vertex, a lumitexel of BRDF samples.
    patch (``area``) must span at least ``min_footprint_px`` pixels along its
    foreshortened axis (:func:`footprint_px`), otherwise the bilinear taps read
    the neighbouring surface — the registration problem of grazing views that
-   makes Weyrich et al. exclude samples beyond 80° (§5.3).  How many samples
+   makes Weyrich et al. exclude samples beyond 80° (§5.3).  Each of the four taps
+   must also see the lumitexel's own surface (:func:`taps_on_surface`): a lumitexel
+   at the mesh's edge or beside an occluding silhouette, though resolved, has taps
+   on the background or on the occluder, which read it up to half as bright.  How many samples
    the rule dropped is recorded in the capture's provenance (``footprint``,
    :func:`footprint_note`): frames too coarse for the mesh leave too few samples
    to fit, and the fit's error then says why.
@@ -78,6 +81,7 @@ __all__ = [
     "open_ingested",
     "ingest_state",
     "footprint_px",
+    "taps_on_surface",
     "footprint_note",
     "MOTION_TOLERANCE",
     "MIN_FOOTPRINT_PX",
@@ -312,15 +316,60 @@ def footprint_px(dome, geometry, camera: int) -> np.ndarray:
         return np.where(z[:, 0] > 0, np.sqrt(geometry.area) * cos_o * f / z[:, 0], 0.0)
 
 
-def _footprint_counts(vis, camera: int, footprint, resolved) -> dict:
+def taps_on_surface(dome, shadows, camera: int, position, normal, pixel) -> np.ndarray:
+    """Whether every bilinear tap around each lumitexel's projection sees the lumitexel's own surface, shape (N,).
+
+    A tap pixel's ray (:meth:`Dome.pixel_rays`, distortion undone) is intersected with the lumitexel's tangent
+    plane; the camera's depth buffer (:meth:`ShadowMaps.on_surface`) must hold a surface at that point and none
+    in front of it.  A lumitexel at the mesh's edge has taps beyond the silhouette (the background), one beside an
+    occluding silhouette taps on the occluder; either reads it too dark or too bright.  Taps of zero weight do not
+    count.  The LED calibration keeps its target points on the target in the same way (its target is a bounded
+    plane: :func:`facestats.acquire.calibration.target_observations`).
+
+    Parameters
+    ----------
+    dome : Dome
+        The calibration.
+    shadows : ShadowMaps
+        The LEDs' then the cameras' depth buffers (:func:`~facestats.acquire.visibility.dome_shadow_maps` with
+        ``camera_pixels``: the cameras' at their own resolution).
+    camera : int
+        0-based camera index.
+    position, normal : ndarray, shape (N, 3)
+        The lumitexels' positions (mm) and unit normals.
+    pixel : ndarray, shape (N, 2)
+        Their projections in the camera (:meth:`Dome.view`).
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+    """
+    size = dome.image_size[camera]
+    index, weight = bilinear_taps(pixel, size)
+    width = int(size[0])
+    centres = np.stack([index % width, index // width], -1).reshape(-1, 2).astype(np.float64)
+    rays = dome.pixel_rays(camera, centres).reshape(-1, 4, 3)
+    eye = dome.camera_position[camera]
+    facing = np.einsum("nk,ntk->nt", normal, rays)  # < 0: the ray meets the plane's front
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.einsum("nk,nk->n", position - eye, normal)[:, None] / facing
+    hit = (facing < 0) & (t > 0)
+    points = eye + np.where(hit, t, 0)[..., None] * rays
+    on = shadows.on_surface(points.reshape(-1, 3), np.repeat(normal, 4, axis=0), dome.n_leds + camera)
+    return np.all((hit & on.reshape(-1, 4)) | (weight <= 0), axis=1)
+
+
+def _footprint_counts(vis, camera: int, footprint, resolved, on_surface) -> dict:
     """Of the samples camera ``camera`` sees lit (front-facing, in frame, unshadowed), how many the footprint rule
-    drops, and the median footprint (pixels) of the lumitexels it sees."""
+    drops, how many more the taps' surface test (:func:`taps_on_surface`) drops, and the median footprint
+    (pixels) of the lumitexels it sees."""
     seen = vis.seen[:, camera]
     per = vis.lit[seen].sum(axis=1)  # lit samples of each lumitexel the camera sees
     return {
         "camera": int(camera),
         "visible": int(per.sum()),
         "dropped": int(per[~resolved[seen]].sum()),
+        "off_surface": int(per[(resolved & ~on_surface)[seen]].sum()),
         "median_px": round(float(np.median(footprint[seen])), 4) if seen.any() else None,
     }
 
@@ -335,6 +384,7 @@ def _footprint_summary(counts, min_footprint_px: float, n_cameras: int) -> dict 
         "min_footprint_px": float(min_footprint_px),
         "visible_samples": int(sum(c["visible"] for c in counts)),
         "dropped_samples": int(sum(c["dropped"] for c in counts)),
+        "off_surface_samples": int(sum(c.get("off_surface", 0) for c in counts)),
         "median_px": round(float(np.median(medians)), 4) if medians else None,
     }
 
@@ -499,13 +549,18 @@ def ingest_photographs(
     for cam in it:  # loop over cameras: one camera's samples in memory at a time
         footprint = footprint_px(dome, geometry, cam)
         resolved = footprint >= min_footprint_px
+        on_surface = np.zeros(geometry.n_points, bool)
+        test = np.nonzero(vis.seen[:, cam] & resolved)[0]
+        on_surface[test] = taps_on_surface(
+            dome, shadows, cam, geometry.position[test], geometry.normal[test], vis.pixel[test, cam]
+        )
         rad, _, flags = _camera_samples(
-            folder, dome, vis, cam, motion_tolerance, workers, resolved, black_level, white_level
+            folder, dome, vis, cam, motion_tolerance, workers, resolved & on_surface, black_level, white_level
         )
         writer.array("radiance")[:, cam] = rad.astype(np.float16)
         state["cameras_done"].append(int(cam))
         state["motion_flags"].extend(flags)
-        state["footprint"].append(_footprint_counts(vis, cam, footprint, resolved))
+        state["footprint"].append(_footprint_counts(vis, cam, footprint, resolved, on_surface))
         writer.group.attrs[_ATTR] = json.dumps(state)  # the camera is on disk: record it
     sensor, prof, std = folder.sensor()
     writer.write_global(

@@ -126,9 +126,13 @@ def test_ingest_recovers_the_simulated_radiance(tiny, tmp_path):
     a, b = cap.array("radiance").astype(np.float64), clean.array("radiance").astype(np.float64)
     b[:, 1, 2] = np.nan  # the moved frame
     both = np.isfinite(a) & np.isfinite(b) & (b > 0.01)
-    assert both.sum() > 0.75 * np.isfinite(b).sum()  # grazing and unresolved samples are dropped
+    # grazing and unresolved samples are dropped, and those whose taps fall beyond the mesh's edge or on an occluder
+    assert both.sum() > 0.7 * np.isfinite(b).sum()  # 0.71 (0.78 before the taps' surface test)
     ratio = a[both] / b[both]
     assert abs(np.median(ratio) - 1) < 0.01 and np.percentile(np.abs(ratio - 1), 75) < 0.05
+    # An e2e red team: taps beyond the silhouette read the background, samples up to half as bright (1st percentile
+    # of the ratio 0.813, 1.6 % of samples below 0.9; now 0.947 and 0.26 %)
+    assert np.percentile(ratio, 1) > 0.9 and np.mean(ratio < 0.9) < 0.005
     np.testing.assert_allclose(cap.array("irradiance"), clean.array("irradiance"), rtol=0.03)  # calibration errors
     np.testing.assert_array_equal(cap.array("sensor_profile"), json_profile(folder))
 
@@ -154,12 +158,13 @@ def test_the_capture_counts_the_samples_the_footprint_rule_drops(tiny, tmp_path)
         cameras = ingest_state(path)["footprint"]
         assert [c["camera"] for c in cameras] == [0, 1, 2, 3]
         assert sum(c["dropped"] for c in cameras) == records[px]["dropped_samples"]
+        assert sum(c["off_surface"] for c in cameras) == records[px]["off_surface_samples"] > 0
         for c in cameras:  # every sample kept is in the capture (camera 1 also lost its moved frame, LED 2)
             kept = int(np.isfinite(radiance[:, c["camera"]]).all(-1).sum())
             if c["camera"] == 1:
-                assert kept < c["visible"] - c["dropped"]
+                assert kept < c["visible"] - c["dropped"] - c["off_surface"]
             else:
-                assert kept == c["visible"] - c["dropped"], (px, c)
+                assert kept == c["visible"] - c["dropped"] - c["off_surface"], (px, c)
     note = footprint_note(open_ingested(paths[3]).provenance)
     d = records[3]["dropped_samples"]
     assert note.startswith(f"the ingest dropped {d:,} of the {visible:,} lit samples its cameras see ")

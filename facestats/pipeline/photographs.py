@@ -194,6 +194,10 @@ def ingest_subject(
     FormatError
         The mesh, its region image, the calibration or the photo folder cannot be read (before anything
         is created), or a frame is corrupt (the store and work folders this call created are removed).
+    FitError, ValidationError
+        The capture leaves too few samples to fit (:func:`facestats.pipeline.fit_subject`); the message adds how
+        many the footprint rule dropped (:func:`facestats.acquire.ingest.footprint_note`), and the folders this call
+        created are removed.
     """
 
     sid = check_subject_id(subject_id)

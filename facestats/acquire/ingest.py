@@ -17,7 +17,13 @@ and gather, at every mesh vertex, a lumitexel of BRDF samples.
    patch (``area``) must span at least ``min_footprint_px`` pixels along its
    foreshortened axis (:func:`footprint_px`), otherwise the bilinear taps read
    the neighbouring surface — the registration problem of grazing views that
-   makes Weyrich et al. exclude samples beyond 80° (§5.3).
+   makes Weyrich et al. exclude samples beyond 80° (§5.3).  Each of the four taps
+   must also see the lumitexel's own surface (:func:`taps_on_surface`): a lumitexel
+   at the mesh's edge or beside an occluding silhouette, though resolved, has taps
+   on the background or on the occluder, which read it up to half as bright.  How many samples
+   the rule dropped is recorded in the capture's provenance (``footprint``,
+   :func:`footprint_note`): frames too coarse for the mesh leave too few samples
+   to fit, and the fit's error then says why.
 2. **HDR per (camera, LED)**: the frame's exposures are decoded once (checksums,
    bit depth and size checked), merged with the camera's response (Debevec &
    Malik 1997 eq. 6) at the four pixels around each lumitexel's projection and
@@ -75,6 +81,8 @@ __all__ = [
     "open_ingested",
     "ingest_state",
     "footprint_px",
+    "taps_on_surface",
+    "footprint_note",
     "MOTION_TOLERANCE",
     "MIN_FOOTPRINT_PX",
 ]
@@ -91,10 +99,19 @@ _ATTR = "ingest"
 
 
 def _fingerprint(
-    folder: CaptureFolder, dome, geometry: FaceGeometry, subject_id=None, black_level=0, white_level=None
+    folder: CaptureFolder,
+    dome,
+    geometry: FaceGeometry,
+    subject_id=None,
+    black_level=0,
+    white_level=None,
+    min_footprint_px=MIN_FOOTPRINT_PX,
+    motion_tolerance=MOTION_TOLERANCE,
 ) -> dict:
     """What an ingest was made from: manifest, calibration and geometry digests, the black and white levels of the
-    merge (DN; white None: the top code 2**bits − 1) and the subject id it is for."""
+    merge (DN; white None: the top code 2**bits − 1), the subject id it is for, and the two rules that decide
+    which samples of a camera are kept (``min_footprint_px``, ``motion_tolerance``): a resumed ingest under
+    other rules would keep some cameras' samples by one rule and the rest by the other."""
     geo = hashlib.sha256()
     for a in (geometry.position, geometry.normal, geometry.uv, geometry.mesh_vertices, geometry.mesh_faces):
         geo.update(np.ascontiguousarray(a).tobytes())
@@ -107,6 +124,8 @@ def _fingerprint(
         "subject_id": sid,
         "black_level": int(black_level),
         "white_level": int(2**folder.bits - 1 if white_level is None else white_level),
+        "min_footprint_px": float(min_footprint_px),
+        "motion_tolerance": float(motion_tolerance),
     }
 
 
@@ -183,6 +202,8 @@ def _start(path, folder, geometry, dome, fingerprint, chunk, subject_id):
             stored["subject_id"] = _capture_subject_id(path)
         stored.setdefault("black_level", 0)  # an ingest begun before the black level was part of the key
         stored.setdefault("white_level", 2**folder.bits - 1)  # one begun before the white level was: the top code
+        for rule in ("min_footprint_px", "motion_tolerance"):  # one begun before the rules were: unknown, this run's
+            stored.setdefault(rule, fingerprint[rule])
         if stored != fingerprint:
             changed = [k for k in fingerprint if stored.get(k) != fingerprint[k]]
             raise FormatError(
@@ -200,7 +221,7 @@ def _start(path, folder, geometry, dome, fingerprint, chunk, subject_id):
     meta = dict(folder.subject(), **({"subject_id": subject_id} if subject_id else {}))
     if subject_id and meta.get("person_id") in (None, folder.subject()["subject_id"]):
         meta["person_id"] = subject_id
-    state = {"fingerprint": fingerprint, "cameras_done": [], "complete": False, "motion_flags": []}
+    state = {"fingerprint": fingerprint, "cameras_done": [], "complete": False, "motion_flags": [], "footprint": []}
     attrs = dict(
         meta,
         dome=json.dumps(dome.to_dict()),
@@ -293,6 +314,109 @@ def footprint_px(dome, geometry, camera: int) -> np.ndarray:
     f = 0.5 * (dome.camera_matrix[camera, 0, 0] + dome.camera_matrix[camera, 1, 1])
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(z[:, 0] > 0, np.sqrt(geometry.area) * cos_o * f / z[:, 0], 0.0)
+
+
+def taps_on_surface(dome, shadows, camera: int, position, normal, pixel) -> np.ndarray:
+    """Whether every bilinear tap around each lumitexel's projection sees the lumitexel's own surface, shape (N,).
+
+    A tap pixel's ray (:meth:`Dome.pixel_rays`, distortion undone) is intersected with the lumitexel's tangent
+    plane; the camera's depth buffer (:meth:`ShadowMaps.on_surface`) must hold a surface at that point and none
+    in front of it.  A lumitexel at the mesh's edge has taps beyond the silhouette (the background), one beside an
+    occluding silhouette taps on the occluder; either reads it too dark or too bright.  Taps of zero weight do not
+    count.  The LED calibration keeps its target points on the target in the same way (its target is a bounded
+    plane: :func:`facestats.acquire.calibration.target_observations`).
+
+    Parameters
+    ----------
+    dome : Dome
+        The calibration.
+    shadows : ShadowMaps
+        The LEDs' then the cameras' depth buffers (:func:`~facestats.acquire.visibility.dome_shadow_maps` with
+        ``camera_pixels``: the cameras' at their own resolution).
+    camera : int
+        0-based camera index.
+    position, normal : ndarray, shape (N, 3)
+        The lumitexels' positions (mm) and unit normals.
+    pixel : ndarray, shape (N, 2)
+        Their projections in the camera (:meth:`Dome.view`).
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+    """
+    size = dome.image_size[camera]
+    index, weight = bilinear_taps(pixel, size)
+    width = int(size[0])
+    centres = np.stack([index % width, index // width], -1).reshape(-1, 2).astype(np.float64)
+    rays = dome.pixel_rays(camera, centres).reshape(-1, 4, 3)
+    eye = dome.camera_position[camera]
+    facing = np.einsum("nk,ntk->nt", normal, rays)  # < 0: the ray meets the plane's front
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.einsum("nk,nk->n", position - eye, normal)[:, None] / facing
+    hit = (facing < 0) & (t > 0)
+    points = eye + np.where(hit, t, 0)[..., None] * rays
+    on = shadows.on_surface(points.reshape(-1, 3), np.repeat(normal, 4, axis=0), dome.n_leds + camera)
+    return np.all((hit & on.reshape(-1, 4)) | (weight <= 0), axis=1)
+
+
+def _footprint_counts(vis, camera: int, footprint, resolved, on_surface) -> dict:
+    """Of the samples camera ``camera`` sees lit (front-facing, in frame, unshadowed), how many the footprint rule
+    drops, how many more the taps' surface test (:func:`taps_on_surface`) drops, and the median footprint
+    (pixels) of the lumitexels it sees."""
+    seen = vis.seen[:, camera]
+    per = vis.lit[seen].sum(axis=1)  # lit samples of each lumitexel the camera sees
+    return {
+        "camera": int(camera),
+        "visible": int(per.sum()),
+        "dropped": int(per[~resolved[seen]].sum()),
+        "off_surface": int(per[(resolved & ~on_surface)[seen]].sum()),
+        "median_px": round(float(np.median(footprint[seen])), 4) if seen.any() else None,
+    }
+
+
+def _footprint_summary(counts, min_footprint_px: float, n_cameras: int) -> dict | None:
+    """The provenance's ``footprint`` record from every camera's :func:`_footprint_counts` (None when an ingest
+    resumed from a version that did not count leaves some cameras without counts)."""
+    if len(counts) != n_cameras:
+        return None
+    medians = [c["median_px"] for c in counts if c["median_px"] is not None]
+    return {
+        "min_footprint_px": float(min_footprint_px),
+        "visible_samples": int(sum(c["visible"] for c in counts)),
+        "dropped_samples": int(sum(c["dropped"] for c in counts)),
+        "off_surface_samples": int(sum(c.get("off_surface", 0) for c in counts)),
+        "median_px": round(float(np.median(medians)), 4) if medians else None,
+    }
+
+
+def footprint_note(provenance) -> str:
+    """How many samples an ingest's footprint rule dropped, as a sentence for error messages ("" if none or unknown).
+
+    Parameters
+    ----------
+    provenance : dict
+        The capture's provenance (:attr:`Capture.provenance` of :func:`open_ingested`), whose ``footprint``
+        record :func:`ingest_photographs` writes.
+
+    Returns
+    -------
+    str
+        E.g. ``"the ingest dropped 40,110 of the 40,110 lit samples its cameras see (100.0 %) as unresolved: their
+        lumitexels span fewer than --min-footprint 2 pixels (median footprint 0.6 pixels; pass a lower
+        --min-footprint or photographs of higher resolution)"``; "" when it dropped none, or for a capture
+        ingested before the record existed.
+    """
+    fp = (provenance or {}).get("footprint") or {}
+    visible, dropped = int(fp.get("visible_samples", 0)), int(fp.get("dropped_samples", 0))
+    if dropped <= 0 or visible <= 0:
+        return ""
+    median = fp.get("median_px")
+    median = "" if median is None else f"median footprint {median:.3g} pixels; "
+    return (
+        f"the ingest dropped {dropped:,} of the {visible:,} lit samples its cameras see ({100 * dropped / visible:.1f} "
+        f"%) as unresolved: their lumitexels span fewer than --min-footprint {fp['min_footprint_px']:g} pixels "
+        f"({median}pass a lower --min-footprint or photographs of higher resolution)"
+    )
 
 
 def _camera_samples(folder, dome, vis, camera, motion_tolerance, workers, resolved, black_level=0, white_level=None):
@@ -409,7 +533,9 @@ def ingest_photographs(
     white_level = check_white_level(
         dome.camera_white_level if white_level is None else white_level, 2**folder.bits, black_level
     )
-    fingerprint = _fingerprint(folder, dome, geometry, subject_id, black_level, white_level)
+    fingerprint = _fingerprint(
+        folder, dome, geometry, subject_id, black_level, white_level, min_footprint_px, motion_tolerance
+    )
     writer, state = _start(path, folder, geometry, dome, fingerprint, chunk, subject_id)
     if state["complete"]:
         return str(path)
@@ -419,14 +545,22 @@ def ingest_photographs(
     it = progress_bar(
         todo, desc=f"ingest {folder.path.name}", unit="camera", initial=dome.n_cameras - len(todo), enabled=progress
     )
+    state.setdefault("footprint", [])  # absent from an ingest begun before the counts were kept
     for cam in it:  # loop over cameras: one camera's samples in memory at a time
-        resolved = footprint_px(dome, geometry, cam) >= min_footprint_px
+        footprint = footprint_px(dome, geometry, cam)
+        resolved = footprint >= min_footprint_px
+        on_surface = np.zeros(geometry.n_points, bool)
+        test = np.nonzero(vis.seen[:, cam] & resolved)[0]
+        on_surface[test] = taps_on_surface(
+            dome, shadows, cam, geometry.position[test], geometry.normal[test], vis.pixel[test, cam]
+        )
         rad, _, flags = _camera_samples(
-            folder, dome, vis, cam, motion_tolerance, workers, resolved, black_level, white_level
+            folder, dome, vis, cam, motion_tolerance, workers, resolved & on_surface, black_level, white_level
         )
         writer.array("radiance")[:, cam] = rad.astype(np.float16)
         state["cameras_done"].append(int(cam))
         state["motion_flags"].extend(flags)
+        state["footprint"].append(_footprint_counts(vis, cam, footprint, resolved, on_surface))
         writer.group.attrs[_ATTR] = json.dumps(state)  # the camera is on disk: record it
     sensor, prof, std = folder.sensor()
     writer.write_global(
@@ -439,6 +573,9 @@ def ingest_photographs(
     )
     prov = json.loads(writer.group.attrs["provenance"])
     prov["motion_flags"] = state["motion_flags"]
+    summary = _footprint_summary(state["footprint"], min_footprint_px, dome.n_cameras)
+    if summary is not None:
+        prov["footprint"] = summary
     writer.group.attrs["provenance"] = json.dumps(prov)
     state["complete"] = True
     writer.group.attrs[_ATTR] = json.dumps(state)

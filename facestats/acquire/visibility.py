@@ -24,6 +24,7 @@ import numpy as np
 from facestats.acquire.camera import look_at
 from facestats.core.compiled import resolve_backend
 from facestats.core.raster import triangle_coverage
+from facestats.core.validate import check_integer
 from facestats.errors import ValidationError
 
 __all__ = [
@@ -225,21 +226,53 @@ class ShadowMaps:
         pts = np.asarray(points, float)
         nrm = np.asarray(normals, float)
         out = np.zeros((pts.shape[0], len(self.maps)), bool)
-        for k, (depth, (e, rot, focal, res)) in enumerate(self.maps):  # loop over viewpoints
-            x, y, z = _project(pts, e, rot, focal, res)
-            to_eye = e - pts
-            cos = np.einsum("nk,nk->n", nrm, to_eye) / np.linalg.norm(to_eye, axis=1)
-            with np.errstate(invalid="ignore"):
-                ix = np.floor(x).astype(np.int64)
-                iy = np.floor(y).astype(np.int64)
-            inb = (ix >= 0) & (iy >= 0) & (ix < res) & (iy < res) & (z > 0)
-            buf = np.full(pts.shape[0], np.inf)
-            buf[inb] = depth[iy[inb], ix[inb]]
-            tol = (
-                self.bias_px * (z / focal) / np.maximum(cos, 0.2)
-            )  # pixel footprint at the point's depth, slope-scaled
+        for k in range(len(self.maps)):  # loop over viewpoints
+            z, buf, tol, cos, inb = self._depth_test(pts, nrm, k)
             out[:, k] = (cos > 0) & inb & (z <= buf + tol)
         return out
+
+    def on_surface(self, points, normals, viewpoint: int) -> np.ndarray:
+        """(N,) bool: viewpoint ``viewpoint``'s ray through each point meets the mesh there, neither in front of it
+        (occluded) nor nowhere (the point lies beyond the mesh's silhouette, where the buffer holds no surface).
+
+        :meth:`visible` counts a point off the mesh as unoccluded; this test is for points that stand for what a
+        camera pixel sees, e.g. where a pixel's ray meets a surface point's tangent plane
+        (:func:`facestats.acquire.ingest.taps_on_surface`).
+
+        Parameters
+        ----------
+        points : array_like, shape (N, 3)
+            Points, mm.
+        normals : array_like, shape (N, 3)
+            Unit normals of the surface the points stand for (the depth tolerance is scaled by the cosine).
+        viewpoint : int
+            Index of the viewpoint, in [0, len(self)).
+
+        Returns
+        -------
+        ndarray of bool, shape (N,)
+            True where N·ω > 0, the point projects inside the buffer onto a surface (a finite depth), and it lies
+            no more than ``bias_px`` pixel footprints behind that surface (as :meth:`visible`).
+        """
+        k = check_integer(viewpoint, "viewpoint", 0, len(self.maps) - 1)
+        z, buf, tol, cos, inb = self._depth_test(np.asarray(points, float), np.asarray(normals, float), k)
+        return (cos > 0) & inb & np.isfinite(buf) & (z <= buf + tol)
+
+    def _depth_test(self, pts, nrm, k):
+        """Depth z of the points in viewpoint k's buffer, the buffer's depth there (inf outside it or where it
+        holds no surface), the slope-scaled tolerance, the cosine to the viewpoint and the in-buffer mask."""
+        depth, (e, rot, focal, res) = self.maps[k]
+        x, y, z = _project(pts, e, rot, focal, res)
+        to_eye = e - pts
+        cos = np.einsum("nk,nk->n", nrm, to_eye) / np.linalg.norm(to_eye, axis=1)
+        with np.errstate(invalid="ignore"):
+            ix = np.floor(x).astype(np.int64)
+            iy = np.floor(y).astype(np.int64)
+        inb = (ix >= 0) & (iy >= 0) & (ix < res) & (iy < res) & (z > 0)
+        buf = np.full(pts.shape[0], np.inf)
+        buf[inb] = depth[iy[inb], ix[inb]]
+        tol = self.bias_px * (z / focal) / np.maximum(cos, 0.2)  # pixel footprint at the point's depth, slope-scaled
+        return z, buf, tol, cos, inb
 
 
 def visible_from(points, normals, vertices, faces, eyes, *, target=None, resolution=256, bias_px=1.5):

@@ -26,11 +26,17 @@ import stat
 from dataclasses import dataclass, field
 
 from facestats.acquire.dome import Dome
-from facestats.acquire.ingest import MIN_FOOTPRINT_PX, MOTION_TOLERANCE, ingest_photographs, open_ingested
+from facestats.acquire.ingest import (
+    MIN_FOOTPRINT_PX,
+    MOTION_TOLERANCE,
+    footprint_note,
+    ingest_photographs,
+    open_ingested,
+)
 from facestats.acquire.photographs import open_folder
 from facestats.core.outputs import check_output_dir
 from facestats.core.validate import as_scalar, check_integer
-from facestats.errors import FormatError, ValidationError
+from facestats.errors import FitError, FormatError, ValidationError
 from facestats.io import open_store
 from facestats.io.ids import check_subject_id
 from facestats.io.layout import ROOT_META
@@ -188,6 +194,10 @@ def ingest_subject(
     FormatError
         The mesh, its region image, the calibration or the photo folder cannot be read (before anything
         is created), or a frame is corrupt (the store and work folders this call created are removed).
+    FitError, ValidationError
+        The capture leaves too few samples to fit (:func:`facestats.pipeline.fit_subject`); the message adds how
+        many the footprint rule dropped (:func:`facestats.acquire.ingest.footprint_note`), and the folders this call
+        created are removed.
     """
 
     sid = check_subject_id(subject_id)
@@ -230,7 +240,7 @@ def ingest_subject(
                 progress=progress,
             )
             capture = open_ingested(work)
-            ds = fit_subject(capture, sigma_tr_avg, settings, progress=progress)
+            ds = _fit(capture, sigma_tr_avg, settings, progress)
             with open_store(store, "a") as st:
                 st.write_subject(ds)
         except KeyboardInterrupt as exc:  # an interruption keeps the store and the partial capture to resume
@@ -247,6 +257,19 @@ def ingest_subject(
         samples_used=int(counts["samples_used"]),
         motion_flags=list(prov.get("motion_flags", [])),
     )
+
+
+def _fit(capture, sigma_tr_avg, settings, progress):
+    """:func:`fit_subject` of an ingested capture; a fit that cannot be made for want of samples also says how many
+    the ingest dropped as unresolved (:func:`facestats.acquire.ingest.footprint_note`): frames too coarse for the
+    mesh's lumitexels leave none, and the fit alone cannot tell that cause from a dark or badly aimed rig."""
+    try:
+        return fit_subject(capture, sigma_tr_avg, settings, progress=progress)
+    except (FitError, ValidationError) as exc:
+        note = footprint_note(capture.provenance)
+        if not note:
+            raise
+        raise type(exc)(f"{exc}; {note}") from exc
 
 
 def _input_file(path, what: str) -> pathlib.Path:

@@ -140,6 +140,10 @@ def held_out_camera_error(
 def camera_image(values, capture, camera: int, light: int, channel=None):
     """Splat per-lumitexel sample values of one (camera, light) into the camera's image (for figures).
 
+    The image crops the face's bounding box at about one pixel per lumitexel; a pixel holds the mean of the
+    finite values of the lumitexels that project into it (a sample invalid in this camera, NaN, never hides a
+    valid one in the same pixel; until 2026-12-07 the last lumitexel in a pixel won, NaN or not).
+
     Parameters
     ----------
     values : ndarray, shape (n, C, L, 3) or (n, 3)
@@ -153,7 +157,7 @@ def camera_image(values, capture, camera: int, light: int, channel=None):
     Returns
     -------
     ndarray, shape (H, W[, 3])
-        NaN where no lumitexel projects.
+        NaN where no lumitexel with a finite value projects.
     """
     check_integer(camera, "camera", 0, capture.dome.n_cameras - 1)
     check_integer(light, "light", 0, capture.dome.n_leds - 1)
@@ -171,7 +175,12 @@ def camera_image(values, capture, camera: int, light: int, channel=None):
     ix = np.clip(((x - x0) * res).astype(np.int64), 0, n_px - 1)
     iy = np.clip(((y - y0) * res).astype(np.int64), 0, n_px - 1)
     sel = values if values.ndim == 2 else values[:, camera, light, :]
-    vals = sel if channel is None else sel[:, channel : channel + 1]
-    img = np.full((n_px, n_px, vals.shape[-1]), np.nan)
-    img[iy[ok], ix[ok]] = vals[ok]
+    vals = np.asarray(sel if channel is None else sel[:, channel : channel + 1], np.float64)
+    good = ok & np.all(np.isfinite(vals), axis=1)
+    pixel = iy[good] * n_px + ix[good]
+    sums = np.zeros((n_px * n_px, vals.shape[1]))
+    np.add.at(sums, pixel, vals[good])
+    count = np.bincount(pixel, minlength=n_px * n_px)[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        img = np.where(count > 0, sums / count, np.nan).reshape(n_px, n_px, vals.shape[1])
     return img if channel is None else img[..., 0]

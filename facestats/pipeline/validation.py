@@ -28,8 +28,8 @@ Model (eq. 6 with eq. 5's 1/π, :func:`facestats.model.skin.skin_radiance`):
   (:class:`facestats.model.skin.SubsurfaceTransport` in surface mode, σ's and
   σa of the subject, §5.4), with the diffuse normal.
 
-Images are splatted lumitexels in the camera's image (one pixel per lumitexel,
-:func:`facestats.pipeline.render.camera_image`); error = rendered − reference;
+Images are splatted lumitexels in the camera's image (about one pixel per lumitexel, each pixel the mean of
+the finite values that land in it, :func:`facestats.pipeline.render.camera_image`); error = rendered − reference;
 relative RMSE = RMSE / RMS(reference) over the pixels valid in both, all channels.
 """
 

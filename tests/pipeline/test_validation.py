@@ -112,3 +112,26 @@ def test_probe_render_is_lit_and_shadowed(case):
     assert np.nansum(render_probe(ds, cap, 5, back, samples=(8, 16)).rendered) < 0.05 * np.nansum(lit.rendered)
     with pytest.raises(FacestatsError, match="camera must be"):
         render_led(ds, cap, 99, 0)
+
+
+def test_a_splatted_pixel_is_the_mean_of_its_finite_lumitexels():
+    """An e2e red team: the last lumitexel projecting into a pixel won, NaN or not, so a sample invalid in the camera
+    blanked a valid one (11 of 409 such pixels of default S030, camera 11, LED 5)."""
+    from types import SimpleNamespace
+
+    from facestats.acquire.dome import default_dome
+    from facestats.pipeline.render import camera_image
+
+    dome = default_dome()
+    corners = [[-60.0, -80.0, 60.0], [60.0, -80.0, 60.0], [-60.0, 80.0, 60.0], [60.0, 80.0, 60.0]]
+    centre = [[0.0, 0.0, 90.0]] * 4  # four lumitexels at one point: one pixel
+    pos = np.array(corners + centre)
+    capture = SimpleNamespace(dome=dome, array=lambda name: pos)
+    values = np.array([[1.0, 2.0, 3.0]] * 4 + [[np.nan] * 3, [2.0, 4.0, 6.0], [4.0, 8.0, 10.0], [np.nan] * 3])
+    img = camera_image(values, capture, 11, 0)
+    finite = np.isfinite(img).all(-1)
+    assert finite.sum() == 5  # the four corners and the centre, whatever order the lumitexels come in
+    np.testing.assert_allclose(np.sort(img[finite][:, 0]), [1, 1, 1, 1, 3])  # the centre: the mean of 2 and 4
+    np.testing.assert_allclose(img[finite][img[finite][:, 0] == 3], [[3.0, 6.0, 8.0]])
+    np.testing.assert_array_equal(camera_image(values, capture, 11, 0, channel=2)[finite], img[finite][:, 2])
+    assert not np.isfinite(camera_image(np.full((8, 3), np.nan), capture, 11, 0)).any()

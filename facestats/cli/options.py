@@ -18,6 +18,8 @@ from __future__ import annotations
 import argparse
 import contextlib
 
+from facestats.core.conventions import DEFAULT_STORE, TEXTURE_SAMPLE
+
 __all__ = [
     "Parser",
     "add_store_option",
@@ -25,8 +27,6 @@ __all__ = [
     "store_path_option",
     "open_store_option",
     "check_apart_from_store",
-    "TEXTURE_SAMPLE",
-    "DEFAULT_STORE",
     "ascii_number",
     "number_option",
     "ascii_int",
@@ -210,14 +210,6 @@ def non_empty(text) -> str:
     if text == "":
         raise argparse.ArgumentTypeError("must not be empty, got ''")
     return text
-
-
-#: The ``--store`` value that names the texture sample (:mod:`facestats.pipeline.texture_sample`);
-#: a directory of that name is written ``./texture-sample``.
-TEXTURE_SAMPLE = "texture-sample"
-#: The ``--store`` value that names the embedded store, as leaving ``--store`` out does (and as
-#: ``facestats emulate --store default`` takes it); a directory of that name is written ``./default``.
-DEFAULT_STORE = "default"
 
 
 def add_store_option(

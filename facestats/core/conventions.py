@@ -31,6 +31,8 @@ __all__ = [
     "age_group",
     "DEFAULT_SEED",
     "DEFAULT_MAP_SIZE",
+    "DEFAULT_STORE",
+    "TEXTURE_SAMPLE",
     "FLAG_BITS",
 ]
 
@@ -336,6 +338,14 @@ def age_group(age) -> str:
 DEFAULT_SEED = 2006
 DEFAULT_MAP_SIZE = 48
 DEFAULT_FACE = "ict"
+
+#: The ``--store`` value that names the embedded store, as leaving ``--store`` out does (and as
+#: ``facestats emulate --store default`` takes it); a directory of that name is written ``./default``.
+#: ``open_store()`` with no path opens that store.
+DEFAULT_STORE = "default"
+#: The ``--store`` value that names the texture sample (:mod:`facestats.pipeline.texture_sample`);
+#: a directory of that name is written ``./texture-sample``.
+TEXTURE_SAMPLE = "texture-sample"
 
 #: Bit flags of the fits of a texel (the ``ts_flag`` / ``bp_flag`` maps of a subject).
 FLAG_BITS = {

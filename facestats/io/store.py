@@ -52,6 +52,7 @@ from urllib.parse import urlparse
 
 import numpy as np
 
+from facestats.core.conventions import DEFAULT_STORE, TEXTURE_SAMPLE
 from facestats.core.outputs import url_scheme
 from facestats.core.validate import check_choice
 from facestats.errors import SchemaError, StoreError, ValidationError
@@ -136,11 +137,24 @@ def open_store(path=None, mode: str = "r", *, lock_timeout: float = 60.0) -> "St
     if not p.exists() or (p.is_dir() and not (p / ROOT_META).exists()):
         if mode != "a":
             what = "does not exist" if not p.exists() else "is not a facestats store (no zarr.json)"
-            raise StoreError(f"store {p} {what}")
+            raise StoreError(f"store {p} {what}{_embedded_name_hint(path)}")
         if p.suffix == ".zip":
             raise StoreError(f"cannot create zip store {p}: create a directory store and pack it with pack_store")
         create_store(p)
     return Store(DirectoryBackend(str(p)), read_only=(mode == "r"), label=str(p), lock_timeout=lock_timeout)
+
+
+def _embedded_name_hint(path) -> str:
+    """What a missing store named like the command line's embedded stores (``--store default``,
+    ``--store texture-sample``) is opened with in Python, or ''."""
+    if path == DEFAULT_STORE:
+        return f"; the command line's --store {DEFAULT_STORE} is open_store() with no path (the embedded store)"
+    if path == TEXTURE_SAMPLE:
+        return (
+            f"; the command line's --store {TEXTURE_SAMPLE} is open_store(texture_sample()), texture_sample from "
+            "facestats.pipeline.texture_sample (built into the cache on first use)"
+        )
+    return ""
 
 
 #: Longest wait for the store lock ``open_store`` accepts (a day): commits hold it for milliseconds.

@@ -1272,3 +1272,16 @@ def test_a_repair_stopped_after_copying_across_volumes_keeps_the_quarantine_mani
     assert folder["valid"] and folder["items"] == [{"path": rel, "why": folder["items"][0]["why"]}]
     copy = path / "quarantine" / folder["name"] / rel
     assert (copy / "albedo" / "c" / "0" / "0" / "0").read_bytes() == bytes(data) and (copy / "zarr.json").is_file()
+
+
+def test_a_missing_store_named_like_an_embedded_one_says_how_python_opens_that(tmp_path, monkeypatch):
+    """``--store default`` and ``--store texture-sample`` name the embedded stores on the command line; in Python
+    the same words are paths, and a missing one says what opens the embedded store instead."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(StoreError, match=r"store default does not exist; the command line's --store default is "
+                       r"open_store\(\) with no path \(the embedded store\)$"):  # fmt: skip
+        facestats.open_store("default")
+    with pytest.raises(StoreError, match=r"store texture-sample does not exist; .*open_store\(texture_sample\(\)\)"):
+        facestats.open_store("texture-sample")
+    with pytest.raises(StoreError, match=r"store other does not exist$"):
+        facestats.open_store("other")

@@ -305,9 +305,13 @@ def bench_default_store_accuracy(path=None, n_subjects=None):
     with its truth, drawn again from the default population (``DEFAULT_SEED``, the store's map size,
     the default face): the relative error |fit − truth| / truth over the face texels of the albedo
     (three channels), Torrance-Sparrow ρs and m (median and 90th percentile), and the share of face
-    texels flagged for each model, and the principal correlations of Fig. 16 of the truth's region means
-    beside the store's (:func:`facestats.analysis.brdf_cca`).  ``n_subjects`` limits the comparison to the
-    first subjects (the CCA needs at least 25).
+    texels flagged for each model, the relative errors of the 20 region means of ρs and m that the CCA reads,
+    and the principal correlations of Fig. 16 of the truth's region means beside the store's
+    (:func:`facestats.analysis.brdf_cca`).  The Blinn-Phong maps against the Blinn-Phong truth (n = 2/m² − 2,
+    ρs_BP = ρs F_r(0)), over the texels neither model flagged: the ratios' median and 10th-90th percentiles, and on
+    the chin (region 9) the share above 5× and the largest; they are fits to the Torrance-Sparrow-rendered
+    captures, not estimates of that truth (README, "BRDF").  ``n_subjects`` limits the comparison to the first
+    subjects (the CCA needs at least 25).
     """
     import facestats
     from facestats.acquire.synthetic.population import synthesize_population
@@ -320,23 +324,19 @@ def bench_default_store_accuracy(path=None, n_subjects=None):
     ids = sorted(table.index[table.condition == "normal"])[:n_subjects]
     size = int(store.subject(ids[0]).sizes["u"])
     truths = {t.subject_id: t for t in synthesize_population(DEFAULT_SEED, size, subjects=ids)}
-    errors = {"albedo": [], "ts_rho_s": [], "ts_m": []}
-    flagged = {"ts": [], "bp": []}
-    for sid in ids:
-        ds, truth = store.subject(sid), truths[sid]
-        face = ds.region.values > 0
-        for var in errors:
-            fit, true = ds[var].values[face], getattr(truth, var)[face]
-            errors[var].append(np.abs(fit - true).ravel() / true.ravel())
-        for key in flagged:
-            flagged[key].append(ds[f"{key}_flag"].values[face] != 0)
-    out = {"subjects": len(ids), "face_texels": int(sum(f.size for f in flagged["ts"]))}
-    for var, e in errors.items():
-        e = np.concatenate(e)
-        out[f"{var}_median_rel_error"] = float(np.median(e))
-        out[f"{var}_p90_rel_error"] = float(np.percentile(e, 90))
-    for key, f in flagged.items():
-        out[f"{key}_flagged"] = float(np.concatenate(f).mean())
+    per_subject = [_fit_against_truth(store.subject(sid), truths[sid]) for sid in ids]
+    parts = {key: np.concatenate([p[key] for p in per_subject]) for key in per_subject[0]}
+    out = {"subjects": len(ids), "face_texels": int(parts["ts_flagged"].size)}
+    for var in ("albedo", "ts_rho_s", "ts_m", "region_mean"):
+        out[f"{var}_median_rel_error"] = float(np.median(parts[var]))
+        out[f"{var}_p90_rel_error"] = float(np.percentile(parts[var], 90))
+    for key in ("ts", "bp"):
+        out[f"{key}_flagged"] = float(parts[f"{key}_flagged"].mean())
+    for var in ("bp_rho_s", "bp_exponent"):
+        out[f"{var}_over_truth_median"] = float(np.median(parts[var]))
+        out[f"{var}_over_truth_p10_p90"] = [float(v) for v in np.percentile(parts[var], [10, 90])]
+    out["chin_bp_rho_s_over_truth_share_above_5"] = float(np.mean(parts["chin_bp_rho_s"] > 5))
+    out["chin_bp_rho_s_over_truth_max"] = float(parts["chin_bp_rho_s"].max())
     if len(ids) >= 25:
         t = [truths[sid] for sid in ids]
         x = [[getattr(s, v)[s.region_map == r].mean() for r in range(1, 11) for v in ("ts_rho_s", "ts_m")] for s in t]
@@ -345,6 +345,32 @@ def bench_default_store_accuracy(path=None, n_subjects=None):
         store_r = fa.brdf_cca(store, n_permutations=0).correlations
         out.update(truth_cca_r1=float(truth_r[0]), truth_cca_r2=float(truth_r[1]))
         out.update(store_cca_r1=float(store_r[0]), store_cca_r2=float(store_r[1]))
+    return out
+
+
+def _fit_against_truth(ds, truth):
+    """One subject's fitted maps against its truth (:func:`bench_default_store_accuracy`): relative errors of the
+    face texels and of the 20 region means, flags, and the Blinn-Phong maps over the Blinn-Phong truth where
+    neither model flagged the texel (all, and on the chin)."""
+    region = ds.region.values
+    face = region > 0
+    out = {}
+    for var in ("albedo", "ts_rho_s", "ts_m"):
+        out[var] = (np.abs(ds[var].values[face] - getattr(truth, var)[face]) / getattr(truth, var)[face]).ravel()
+    out["region_mean"] = np.array(
+        [
+            abs(ds[var].values[region == r].mean() / getattr(truth, var)[region == r].mean() - 1)
+            for var in ("ts_rho_s", "ts_m")
+            for r in range(1, 11)
+        ]
+    )
+    for key in ("ts", "bp"):
+        out[f"{key}_flagged"] = ds[f"{key}_flag"].values[face] != 0
+    fitted = face & (ds.ts_flag.values == 0) & (ds.bp_flag.values == 0)
+    for var in ("bp_rho_s", "bp_exponent"):
+        out[var] = ds[var].values[fitted] / getattr(truth, var)[fitted]
+    chin = fitted & (region == 9)
+    out["chin_bp_rho_s"] = ds.bp_rho_s.values[chin] / truth.bp_rho_s[chin]
     return out
 
 

@@ -99,9 +99,9 @@ def test_cca_json_matches_the_api_and_fig16(all_run, store):
     assert doc["published_direct"] == published.CCA_DIRECT
     # Fig. 16 reproduced within the tolerances of the truth's own test (tests/acquire/test_population.py: one
     # draw of 149 subjects). The default's 149 normal-condition truths give 0.751 / 0.582, the fitted store
-    # 0.719 / 0.600: the fit's errors of the 20 region means (median 0.3 %) move a CCA of 149 subjects by a
-    # few hundredths (0.708 / 0.612 before the diffuse level was fitted, 0.737 / 0.596 with the 3-pass
-    # photometric stereo before 2026-12-04).
+    # 0.715 / 0.601: the fit's errors of the 20 region means (median 0.34 %) move a CCA of 149 subjects by a
+    # few hundredths (0.719 / 0.600 before the albedo's sub-texel spots were fixed, cf69114; 0.708 / 0.612 before
+    # the diffuse level was fitted, 0.737 / 0.596 with the 3-pass photometric stereo before 2026-12-04).
     np.testing.assert_allclose(doc["principal_correlations"][:2], published.CCA_PRINCIPAL, atol=0.08)
     for v, r in published.CCA_DIRECT.items():
         assert doc["direct_correlations"][v] == pytest.approx(r, abs=0.09)

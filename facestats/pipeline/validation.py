@@ -44,7 +44,7 @@ from facestats.acquire.capture import Lumitexels
 from facestats.acquire.dome import default_dome
 from facestats.acquire.synthetic.population import default_population, synthesize_population
 from facestats.acquire.synthetic.simulate import DomeSimulator, simulate_capture
-from facestats.acquire.visibility import ShadowMaps
+from facestats.acquire.visibility import DISTANT_LIGHT_MM, ShadowMaps
 from facestats.core.conventions import DEFAULT_SEED
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import check_choice, check_integer
@@ -62,6 +62,7 @@ from facestats.pipeline.settings import MAP_VARS, MODEL_PREFIX
 __all__ = [
     "Render",
     "render_led",
+    "probe_radiance",
     "render_probe",
     "camera_rmse",
     "check_micro_normals",
@@ -405,7 +406,7 @@ def probe_lights(shape, samples=None, name="samples"):
     return r, c
 
 
-def render_probe(
+def probe_radiance(
     subject,
     capture,
     camera: int,
@@ -418,16 +419,23 @@ def render_probe(
     scale: float = 1.0,
     micro_normals=False,
 ):
-    """The fitted model for ``camera`` under a lat-long light probe, shadowed by the face mesh.
+    """Radiance of the fitted model at each lumitexel seen by ``camera`` under a lat-long light probe.
 
     The probe is summed into directional lights (:func:`probe_lights`): by default 512 regions of a median cut
     (:func:`facestats.model.sphere.median_cut_light_samples`), or ``samples`` = (rows, columns) equal blocks
     (:func:`facestats.model.sphere.latlong_light_samples`); each light has irradiance E = (Σ L Δω) (N·ω) from
-    its region's power-weighted mean direction, occluded
-    where the subject's face mesh (:func:`facestats.io.mesh.subject_mesh`: the face its provenance records, or
-    ``mesh``) shadows it.
+    its region's power-weighted mean direction, occluded where the subject's face mesh
+    (:func:`facestats.io.mesh.subject_mesh`: the face its provenance records, or ``mesh``) shadows it, seen
+    from :data:`facestats.acquire.visibility.DISTANT_LIGHT_MM` away (a distant light, as the relighting's
+    stage sees it; until 2026-12-07 from 2 m, whose diverging rays shadowed more of the face under light from
+    high above).  The radiance is Weyrich et al. 2006 eq. 6 through :func:`facestats.model.skin.skin_radiance`
+    (the fitted specular lobe, and the diffuse term carried between lumitexels by the dipole, as the fit
+    models the capture).  Lumitexels the camera does not see (facing away from it, or hidden behind the face
+    by the mesh, by a shadow map from the camera) are NaN: until 2026-12-07 they were rendered as if seen and
+    splatted into the image with the surface in front of them (17 % of the default S001's lumitexels in
+    camera 5's frame, at radiance 0 when facing away).
 
-    Nothing is compared with a capture, so none is needed: ``capture`` None renders the lumitexels of the
+    Nothing is compared with a capture, so none is needed: ``capture`` None takes the lumitexels of the
     subject's face seen by the default dome (:func:`face_view`; for a simulated subject the same lumitexels and
     dome as its capture's; for a subject fitted on a scan, the vertices of ``mesh``, which must then be in the
     default dome's frame: pass the capture otherwise).
@@ -441,7 +449,7 @@ def render_probe(
     camera : int
         Dome camera.
     probe : str, os.PathLike or ndarray (H, W, 3)
-        Lat-long probe (a file is read with :func:`facestats.io.probes.read_light_probe`).
+        Lat-long probe (a file is read with :func:`facestats.io.probes.read_light_probe`), radiance per sr.
     samples : int or (int, int), optional
         The lights: N regions of a median cut, or (rows, columns) equal blocks, each dividing the probe's size;
         at most :data:`MAX_PROBE_LIGHTS` in all (each light costs a shadow map).  Default: a median cut into
@@ -466,8 +474,11 @@ def render_probe(
 
     Returns
     -------
-    Render
-        Without a reference.
+    values : ndarray of float64, shape (N, 3)
+        Radiance per lumitexel of ``capture`` (``capture.array("position")``'s order), in the probe's unit; NaN
+        where ``camera`` does not see the lumitexel.
+    capture : Capture or FaceView
+        The lumitexels' source (``capture``, or the :func:`face_view` made for None).
 
     Raises
     ------
@@ -486,7 +497,8 @@ def render_probe(
     else:
         d, power = latlong_light_samples(img, *lights)
     lt, v, u = _texels(subject, capture)
-    _, in_frame, _ = capture.dome.view(lt.position.astype(np.float64), cameras=[camera])
+    position = lt.position.astype(np.float64)
+    _, in_frame, _ = capture.dome.view(position, cameras=[camera])
     if not in_frame.any():  # before the shadow maps: a scan in another frame must not cost them
         raise ValidationError(
             f"camera {camera} sees none of the {lt.n} lumitexels of subject {subject.attrs.get('subject_id', '?')!r} "
@@ -495,14 +507,53 @@ def render_probe(
     normal = _unit(np.asarray(subject["normal"].values)[v, u])
     mesh = subject_mesh(subject, mesh, scale=scale, mesh_grid=64)
     centre = mesh.vertices.mean(0)
-    vis = ShadowMaps(mesh.vertices, mesh.faces, centre + 2000.0 * d, target=centre, resolution=128).visible(
-        lt.position.astype(np.float64), normal
+    vis = ShadowMaps(mesh.vertices, mesh.faces, centre + DISTANT_LIGHT_MM * d, target=centre, resolution=128).visible(
+        position, normal
     )
+    eye = np.asarray(capture.dome.camera_position, np.float64)[camera : camera + 1]
+    seen = ShadowMaps(mesh.vertices, mesh.faces, eye, target=centre, resolution=512).visible(position, normal)[:, 0]
     cos = np.clip(normal @ d.T, 0, None) * vis
     irr = cos[..., None] * power[None]
     wi = np.broadcast_to(d, (len(normal),) + d.shape)
     pred, _ = _radiance(subject, capture, camera, wi, irr, specular=specular, eta=eta, micro_normals=micro_normals)
-    values = np.where(in_frame[:, :1], pred.sum(axis=1), np.nan)
+    return np.where((in_frame[:, 0] & seen)[:, None], pred.sum(axis=1), np.nan), capture
+
+
+def render_probe(
+    subject,
+    capture,
+    camera: int,
+    probe,
+    *,
+    samples=None,
+    specular="torrance_sparrow",
+    eta=ETA_SKIN,
+    mesh=None,
+    scale: float = 1.0,
+    micro_normals=False,
+):
+    """The fitted model for ``camera`` under a lat-long light probe, shadowed by the face mesh: the image of
+    :func:`probe_radiance`'s values (:func:`facestats.pipeline.render.camera_image`).
+
+    Parameters
+    ----------
+    subject, capture, camera, probe, samples, specular, eta, mesh, scale, micro_normals
+        As :func:`probe_radiance`.
+
+    Returns
+    -------
+    Render
+        Without a reference.
+
+    Raises
+    ------
+    ValidationError
+        As :func:`probe_radiance`.
+    """
+    values, capture = probe_radiance(
+        subject, capture, camera, probe, samples=samples, specular=specular, eta=eta, mesh=mesh, scale=scale,
+        micro_normals=micro_normals,
+    )  # fmt: skip
     return Render(camera_image(values, capture, camera, 0), None, camera, "probe")
 
 

@@ -50,7 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from facestats.acquire.visibility import ShadowMaps
+from facestats.acquire.visibility import DISTANT_LIGHT_MM, ShadowMaps
 from facestats.core.blocked import blockwise
 from facestats.core.processes import available_memory
 from facestats.core.progress import progress_bar
@@ -89,8 +89,6 @@ __all__ = [
     "relight_subject",
 ]
 
-#: Distance (mm) of the viewpoint of a distant light's shadow map.
-LIGHT_DISTANCE = 1e5
 #: Lights whose shadow maps are held in memory at once.
 SHADOW_BATCH = 256
 #: Normals whose lights give a lower bound of the lights that reach the face, checked against the memory first.
@@ -337,7 +335,7 @@ def _visibility_setup(geometry, surface, normals, directions, shadow_resolution,
     faces = np.asarray(geometry.mesh_faces, np.int64)
     vn = vertex_normals(verts, faces)
     target = 0.5 * (verts.min(0) + verts.max(0))
-    eyes = target + LIGHT_DISTANCE * directions[active]
+    eyes = target + DISTANT_LIGHT_MM * directions[active]
     vis = np.empty((used.size, active.size), np.float32)
     with progress_bar(total=active.size, desc="shadow maps", unit="light", enabled=progress, leave=False) as bar:
         for a in range(0, active.size, SHADOW_BATCH):  # batches of lights: bounded memory for many lights

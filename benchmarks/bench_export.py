@@ -47,6 +47,9 @@ Fig. 15 ellipses are drawn (the browser's own start-up excluded); the first
 load after the server starts (its caches cold) and the best of the reloads.
 Target ≤ 1 s.  Without the browser it reports why and measures nothing.
 
+``mitsuba_slab``: Mitsuba's ``subsurface`` material on a flat slab of a default subject's medium against a
+Monte Carlo solution of the same transport and against the dipole (:func:`bench_mitsuba_slab`).
+
 ``micro_normals``: validation renders of a subject of ``facestats build`` (which keeps micro-normal maps) with the
 fitted normal and with its per-view micro-normals (:func:`bench_micro_normals`).
 
@@ -462,6 +465,77 @@ def bench_gltf_specular(subjects=None, named=("S003", "S078")):
     return out
 
 
+def bench_mitsuba_slab(subject="S003", seeds=(0, 1), spp=1024, photons=50_000, reference_seeds=(0, 1, 2, 3)):
+    """Mitsuba's subsurface material on a flat slab of ``subject``'s medium against Monte Carlo and the dipole.
+
+    The scene of ``tests/io/test_export_formats.py``'s slab test (its helpers ``_flat_slab`` and
+    ``_slab_reflectance``): the subject's σa, σ's in a ``subsurface`` scene (boundary m = 0.01) on a flat
+    300 mm square under uniform radiance 1, seen along its normal (16² pixels, ``spp`` samples each), rendered
+    once per sampler seed of ``seeds``; its mean radiance per channel against the Monte Carlo reflectance of
+    the same transport (``photons`` per channel, seed 0) as ratios, the render's standard error (the pixels'
+    standard deviation over √pixels, first seed, relative), the reference's spread over ``reference_seeds``
+    ((max − min) / mean) and the dipole's R_d + F(0) (what a fitted albedo means), relative to both
+    (docs/export.md, *Mitsuba 3*).  Without Mitsuba it reports why and measures nothing.
+    """
+    import facestats
+    from facestats.errors import DependencyError
+    from facestats.io.images import write_exr
+    from facestats.io.mitsuba import render_scene, require_mitsuba, write_mitsuba_scene
+    from facestats.model.dipole import total_diffuse_reflectance
+    from facestats.model.fresnel import fresnel_reflectance
+    from tests.io.test_export_formats import _flat_slab, _slab_reflectance
+
+    try:
+        require_mitsuba()
+    except DependencyError as exc:
+        return {"skipped": str(exc)}
+    with facestats.open_store() as st:
+        ds = st.subject(subject).load()
+    sp, sa = np.asarray(ds["sigma_s_prime"].values, np.float64), np.asarray(ds["sigma_a"].values, np.float64)
+    albedo = sp / (sp + sa)
+    by_seed = {s: _slab_reflectance(albedo, 1.38, photons=photons, seed=s) for s in {0, *reference_seeds}}
+    references, want = np.array([by_seed[s] for s in reference_seeds]), by_seed[0]
+    dipole = total_diffuse_reflectance(sp, sa, 1.38) + float(fresnel_reflectance(1.0, 1.38))
+    slab = ds.copy()
+    slab["ts_m"] = slab["ts_m"] * 0 + np.float32(0.01)
+    out = {}
+    renders = []
+    with tempfile.TemporaryDirectory() as tmp:
+        probe = os.path.join(tmp, "white.exr")
+        write_exr(probe, {c: np.ones((8, 16), np.float32) for c in "RGB"})
+        scene = os.path.join(tmp, "scene")
+        os.mkdir(scene)
+        spec = write_mitsuba_scene(slab, scene, probe=probe, material="subsurface", mesh=_flat_slab(), width=16,
+                                   height=16, spp=spp, fov=10.0)  # fmt: skip
+        for seed in seeds:
+            img = render_scene(spec, base_dir=scene, seed=seed).reshape(-1, 3).astype(np.float64)
+            renders.append(img.mean(0))
+            if not out:
+                out.update({
+                    f"render_stderr_pct_{c}": 100 * float(img[:, i].std() / np.sqrt(len(img)) / img[:, i].mean())
+                    for i, c in enumerate("rgb")
+                })  # fmt: skip
+    renders = np.array(renders)
+    ratio = renders / want
+    for i, c in enumerate("rgb"):
+        out[f"albedo_{c}"] = float(albedo[i])
+        out[f"reference_{c}"] = float(want[i])
+        out[f"reference_spread_pct_{c}"] = 100 * float(np.ptp(references[:, i]) / references[:, i].mean())
+        out[f"dipole_{c}"] = float(dipole[i])
+        for k, seed in enumerate(seeds):
+            out[f"render_seed{seed}_{c}"] = float(renders[k, i])
+    over_reference, over_render = 100 * (dipole / want - 1), 100 * (dipole / renders - 1)
+    out.update({
+        "ratio_min": float(ratio.min()),
+        "ratio_max": float(ratio.max()),
+        "dipole_over_reference_min_pct": float(over_reference.min()),
+        "dipole_over_reference_max_pct": float(over_reference.max()),
+        "dipole_over_render_min_pct": float(over_render.min()),
+        "dipole_over_render_max_pct": float(over_render.max()),
+    })  # fmt: skip
+    return out
+
+
 def _chromium():
     """A headless Chromium driven by Selenium, or the reason there is none."""
     import shutil
@@ -539,6 +613,7 @@ BENCHMARKS = [
     ("held_out", bench_held_out),
     ("gltf_specular", bench_gltf_specular),
     ("micro_normals", bench_micro_normals),
+    ("mitsuba_slab", bench_mitsuba_slab),
 ]
 
 SMOKE = {
@@ -550,6 +625,7 @@ SMOKE = {
     "held_out": {"subjects": ("S003",), "cameras": (5,), "light_step": 30},  # 5 of the 150 LEDs pooled
     "gltf_specular": {"subjects": (), "named": ("S003",)},
     "micro_normals": {"size": 12, "cameras": (5,), "light_step": 50},
+    "mitsuba_slab": {"seeds": (0,), "spp": 4, "photons": 500, "reference_seeds": (0,)},
 }
 
 if __name__ == "__main__":

@@ -267,7 +267,7 @@ def test_render_under_a_probe_takes_the_scan_of_an_ingested_subject_as_mesh(tmp_
     ict = read_image(tmp_path / "default" / "S003-cam05-probe-sky-rendered.exr")  # the same face, its 48² lumitexels
     # other samplings of one face under one probe (the scan's 4819 face vertices against 48² lumitexels): the mean
     # radiance over the pixels a lumitexel lands on (the files hold 0 elsewhere) agrees within 2 % in every channel
-    # (measured: -0.4, -0.2, +0.2 %)
+    # (measured: -1.1, -1.0, -0.5 %, 2026-12-07, cf69114)
     mean_scan, mean_ict = (x[x.sum(-1) > 0].mean(0) for x in (scan, ict))
     assert np.all(np.abs(mean_scan / mean_ict - 1) < 0.02), (mean_scan, mean_ict)
 
@@ -306,7 +306,7 @@ def test_render_resimulates_the_capture_of_a_subject_facestats_build_wrote(tmp_p
     # The build kept micro-normal maps; --micro-normals renders the specular with them (on the LED grid: worse).
     micro = ["render", "S002", "--store", store, "--out", str(tmp_path / "m"), "--seed", "7", "--micro-normals"]
     assert main(micro) == 0
-    assert float(capsys.readouterr().out.split("relative ")[1].split(" %")[0]) > rel["20"]  # 5.72 against 4.38 %
+    assert float(capsys.readouterr().out.split("relative ")[1].split(" %")[0]) > rel["20"]  # 74.06 against 3.54 %
     assert sorted(os.listdir(out)) == [
         f"S002-cam05-led0{n}{tail}"
         for n in ("20", "30")

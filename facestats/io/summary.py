@@ -26,7 +26,7 @@ Column names (``r`` = region 1-10, ``ch`` = R/G/B, ``site`` = cheek/forehead/nec
   determined when its standard error is at most its value's magnitude (:data:`DETERMINED_RELATIVE_SE`).
   The others (on the default store 5.5 % of the unflagged Blinn-Phong texels, 27 % of the chin's and 15 % of the
   lips', and 1.0 % of the Torrance-Sparrow ones, 12 % of the lips' and 6 % of the nose's; counted for ρs) have
-  linearised errors up to 7.8e3 times their value (``bench_fit.bench_determined_texels()``),
+  linearised errors up to 8.0e3 times their value (``bench_fit.bench_determined_texels()``),
   which say only that the fit leaves the value open; one of them would outweigh a region's hundreds of
   determined texels in both sums;
 * ``site_sigma_tr_{site}_{ch}``, ``site_sigma_s_prime_{site}_{ch}``,

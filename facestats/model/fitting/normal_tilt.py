@@ -48,8 +48,8 @@ finite differences of the factors in the tests.  The compiled twin is
 :func:`facestats.model.fitting.kernels.factors.texel_tilt_slopes` (the same
 quantities without a square root).  On simulated captures (procedural and ICT
 face, dipole and local transport) the nominal 90 % intervals of all four
-parameters cover the truth in 87.5-94.5 % of the texels with both tilts,
-79.9-90.1 % without (``docs/scale.md``).
+parameters cover the truth in 87.6-94.8 % of the texels with both tilts,
+79.6-90.4 % without (``docs/scale.md``, 2026-12-07).
 """
 
 from __future__ import annotations

@@ -19,13 +19,14 @@ left by the previous one about threefold.  Measured on S001 of the default popul
 (procedural face, 48², ``benchmarks/bench_scale.bench_normal_passes``), the
 median angle to the true normal after 1, 2, 3, 4 and 5 passes is 1.06°, 0.24°,
 0.082°, 0.022° and 0.021° for noise-free captures with local subsurface transport.
-With camera noise it is 1.08°, 0.25°, 0.12°, 0.082° and 0.084°: from the fourth pass on,
+With camera noise it is 1.08°, 0.25°, 0.12°, 0.080° and 0.082°: from the fourth pass on,
 the noise, not the passes, sets the error.  The median hides a tail: after four passes the
-99th percentile is 0.42° and the largest error 1.11° (noise-free; 0.41° and 1.19° with noise),
-and more passes do not shrink them (0.43° and 1.13° after six), so the fixed point is not
-what limits those texels (the same benchmark reports both figures).  Three passes, the default before 2026-12-04,
-left a tilt shared by all cameras that biased the albedo (+0.24 %) and, through it,
-Blinn-Phong's ρs (−1.5 %) (median over S001's lumitexels, local transport with noise,
+99th percentile is 0.40° and the largest error 1.04° (noise-free; 0.39° and 1.11° with noise),
+and more passes do not shrink them (0.42° and 1.06° after six), so the fixed point is not
+what limits those texels (the same benchmark reports both figures; 2026-12-07).  Three passes, the default
+before 2026-12-04, left a tilt shared by all cameras that biased the albedo (+0.24 %) and, through it,
+Blinn-Phong's ρs (−1.5 % in the fit of then, without the diffuse level; −0.28 % with today's fit held to three
+passes, −0.08 % with four) (median over S001's lumitexels, local transport with noise,
 ``bench_calibration_budget(passes=3)``).
 
 Micro-normals (§5.1): "For each camera viewpoint, we choose the sample with

@@ -20,7 +20,8 @@
   (kept by :func:`inputs.cached_input`), then ingested and fitted in a
   subprocess (peak resident memory of that process; target ≤ 5 minutes for the
   ingest), with the albedo, ρs and m errors against the truth beside those of
-  the in-memory path on the same subject.
+  the in-memory path on the same subject, and the frames flagged for head motion
+  (``motion_flagged``: camera, LED, score) beside the moved frames.
 * ``led_calibration``: the photometric LED calibration on the set-up of
   ``tests/acquire/test_calibration.py`` (8 LEDs, 3 cameras, 4 target poses, 128²
   12-bit frames): intensity, E⊥ over the face and over shells up to 150 mm from
@@ -236,8 +237,10 @@ cap = open_ingested(out)
 ds = fit_subject(cap)
 grid = int(sys.argv[4])
 truth = synthesize_population(map_size=grid, geometry=face_geometry("procedural", grid), subjects=["S001"])["S001"]
+flags = cap.provenance.get("motion_flags", [])
 print(json.dumps({"ingest_s": t1 - t0, "fit_s": time.perf_counter() - t1, "peak_rss_ingest_mb": peak,
-                  "motion_flags": len(cap.provenance.get("motion_flags", [])), "errors": fit_errors(ds, truth)}))
+                  "motion_flags": len(flags), "motion_flagged": [[f["camera"], f["led"], f["score"]] for f in flags],
+                  "errors": fit_errors(ds, truth)}))
 """
 
 
@@ -277,9 +280,10 @@ def bench_ingest(grid=48, side=1024, leds=None, workers=2, min_footprint_px=2.0)
     )
     shutil.rmtree(out_path, ignore_errors=True)
     result = json.loads(run.stdout.strip().splitlines()[-1])
-    figures = {k: result.pop(k) for k in ("ingest_s", "peak_rss_ingest_mb", "fit_s", "motion_flags")}
+    figures = {k: result.pop(k) for k in ("ingest_s", "peak_rss_ingest_mb", "fit_s", "motion_flags", "motion_flagged")}
     figures.update({f"simulate_{k}": v for k, v in made.items()})
     figures.update(frames=2 * dome.n_cameras * dome.n_leds, target_s=TARGET_INGEST_S, moved_frames=len(moved))
+    figures["moved"] = moved
     photo, memory = result["errors"], fit_errors(fit_subject(DomeSimulator(geometry, dome).simulate(truth)), truth)
     for k in photo:
         for j, stat in enumerate(("median", "p90")):

@@ -90,7 +90,8 @@ __all__ = [
 #: Default head-motion threshold: fraction of well-exposed face pixels whose two exposures disagree by more than a
 #: factor e^0.5 (:func:`facestats.acquire.photographs.exposure_consistency`).  Still frames of simulated 12-bit PNG
 #: and 8-bit JPEG captures score 0 (noise alone never reaches the factor); 1° head rotations between the passes
-#: scored 0.2-1.5 %.
+#: scored 0.2-1.5 % (2026-12-01), but since the synthetic albedo's sub-texel spots were fixed (cf69114) one of the
+#: two moved frames of ``bench_photos.bench_ingest``'s 16² and 24² rigs stays below 0.1 % (docs/photographs.md).
 MOTION_TOLERANCE = 0.001
 #: Default resolution limit: a lumitexel must span 2 pixels along its foreshortened axis, so that the four
 #: bilinear taps around its projection (±1 pixel) stay on its own surface patch.

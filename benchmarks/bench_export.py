@@ -35,6 +35,10 @@ error of glTF's Fresnel form (Schlick's F0_η + (1 − F0_η)(1 − V·H)⁵, KH
 F_r of η = 1.38 (:func:`facestats.model.fresnel.fresnel_reflectance`) at 20°, 30° and 40°, and its most negative
 and most positive relative error over V·H = cos 0°-90° (steps of 0.0001°) with their angles.
 
+``validation_images``: the share of empty pixels inside the face of ``facestats render --probe`` images
+(:func:`facestats.pipeline.render.camera_image`, lumitexels triangulated) against the drawing before
+2026-12-07 (each lumitexel splatted into one pixel), on default S003 in three cameras.
+
 ``web_query``: the web app's ``/api/query`` against calling
 ``Store.query(...).to_dict()`` directly (the CLI's code path), so the ratio is
 the HTTP/JSON overhead.  Targets: page load with the default store ≤ 1 s; a
@@ -604,6 +608,63 @@ def bench_page_load(repeat=5):
     }
 
 
+def _splat(values, capture, camera):
+    """Validation images as drawn before 2026-12-07 (baseline of :func:`bench_validation_images`): each lumitexel
+    in one pixel of a grid of 1.6 √n pixels over the face's bounding box, a pixel the mean of its finite values."""
+    _, _, pix = capture.dome.view(capture.array("position").astype(np.float64)[: len(values)], cameras=[camera])
+    xy = pix[:, 0, :2]
+    ok = np.isfinite(xy).all(1)
+    lo, hi = xy[ok].min(0) - 2, xy[ok].max(0) + 2
+    n_px = int(np.clip(np.sqrt(ok.sum()) * 1.6, 16, 1024))
+    ij = np.clip(((xy[ok] - lo) * (n_px / (hi - lo).max())).astype(np.int64), 0, n_px - 1)
+    vals = values[ok]
+    good = np.isfinite(vals).all(1)
+    flat = ij[good, 1] * n_px + ij[good, 0]
+    count = np.bincount(flat, minlength=n_px * n_px)[:, None]
+    sums = np.stack([np.bincount(flat, vals[good, c], n_px * n_px) for c in range(3)], -1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, sums / count, np.nan).reshape(n_px, n_px, 3)
+
+
+def _empty_share(img):
+    """Share of the pixels inside an image's silhouette (its finite pixels closed twice, holes filled) that are
+    empty (NaN), and the silhouette's pixels."""
+    from scipy import ndimage
+
+    finite = np.isfinite(img).all(-1)
+    silhouette = ndimage.binary_fill_holes(ndimage.binary_closing(finite, iterations=2))
+    return float(1 - finite.sum() / max(int(silhouette.sum()), 1)), int(silhouette.sum())
+
+
+def bench_validation_images(subject="S003", cameras=(0, 5, 9), probe_size=32, probe_lights=128):
+    """Empty pixels inside the face of validation images (``facestats render --probe``), against one pixel per
+    lumitexel (the drawing before 2026-12-07).
+
+    ``subject`` of the embedded default store under the studio probe (:func:`probe_radiance`, ``probe_lights``
+    lights of a ``probe_size`` lat-long probe), per camera: the share of the pixels inside the image's silhouette
+    left empty by :func:`facestats.pipeline.render.camera_image` (the lumitexels triangulated) and by the baseline,
+    and the silhouettes' sizes in pixels (the images are 4 √n and 1.6 √n pixels across).
+    """
+    import facestats
+    from facestats.io.probes import studio_probe
+    from facestats.pipeline.render import camera_image
+    from facestats.pipeline.validation import default_capture, probe_radiance
+
+    with facestats.open_store() as store:
+        ds = store.subject(subject)
+    capture = default_capture(subject)
+    out = {}
+    for camera in cameras:
+        values, _ = probe_radiance(ds, capture, camera, studio_probe(probe_size), samples=probe_lights)
+        out[f"cam{camera}_empty_share"], out[f"cam{camera}_silhouette_px"] = _empty_share(
+            camera_image(values, capture, camera, 0)
+        )
+        out[f"cam{camera}_baseline_empty_share"], out[f"cam{camera}_baseline_silhouette_px"] = _empty_share(
+            _splat(values, capture, camera)
+        )
+    return out
+
+
 BENCHMARKS = [
     ("exr_set", bench_exr_set),
     ("exr_compression", bench_exr_compression),
@@ -614,6 +675,7 @@ BENCHMARKS = [
     ("gltf_specular", bench_gltf_specular),
     ("micro_normals", bench_micro_normals),
     ("mitsuba_slab", bench_mitsuba_slab),
+    ("validation_images", bench_validation_images),
 ]
 
 SMOKE = {
@@ -626,6 +688,7 @@ SMOKE = {
     "gltf_specular": {"subjects": (), "named": ("S003",)},
     "micro_normals": {"size": 12, "cameras": (5,), "light_step": 50},
     "mitsuba_slab": {"seeds": (0,), "spp": 4, "photons": 500, "reference_seeds": (0,)},
+    "validation_images": {"cameras": (5,), "probe_size": 8, "probe_lights": 8},
 }
 
 if __name__ == "__main__":

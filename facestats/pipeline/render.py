@@ -2,7 +2,7 @@
 
 :func:`predict_radiance` evaluates the fitted skin model for a capture's
 calibrated lights and cameras; :func:`held_out_camera_error` compares it with a
-camera left out of the fit; :func:`camera_image` splats per-sample values into
+camera left out of the fit; :func:`camera_image` interpolates per-sample values into
 a camera's image for figures.
 """
 
@@ -137,12 +137,25 @@ def held_out_camera_error(
     return float(np.sqrt(np.mean((p[ok] - m[ok]) ** 2)) / np.sqrt(np.mean(m[ok] ** 2)))
 
 
-def camera_image(values, capture, camera: int, light: int, channel=None):
-    """Splat per-lumitexel sample values of one (camera, light) into the camera's image (for figures).
+#: Longest triangle edge on the surface that :func:`camera_image` interpolates across, in its corners' spacings.
+MAX_GAP = 3.0
 
-    The image crops the face's bounding box at about one pixel per lumitexel; a pixel holds the mean of the
-    finite values of the lumitexels that project into it (a sample invalid in this camera, NaN, never hides a
-    valid one in the same pixel; until 2026-12-07 the last lumitexel in a pixel won, NaN or not).
+
+def camera_image(values, capture, camera: int, light: int, channel=None, *, size=None):
+    """Per-lumitexel sample values of one (camera, light) as the camera's image (for figures).
+
+    The image crops the face's bounding box in the camera at ``size`` × ``size`` pixels.  A pixel inside a
+    triangle of the Delaunay triangulation of the finite values' projections (:class:`scipy.spatial.Delaunay`)
+    holds their linear interpolation, if the triangle lies on the surface: its longest edge in 3-D is at most
+    :data:`MAX_GAP` times the largest spacing of its corners (each lumitexel's distance to its nearest neighbour
+    in 3-D), so triangles across a hole of the face or a step in depth (a silhouette in front of the surface
+    behind it) are left out; a pixel within half its nearest lumitexel's spacing in the image (the patch the
+    lumitexel stands for) holds that lumitexel's value.  Other pixels are NaN: shadows, unlit and hidden
+    lumitexels (NaN values), holes and the background stay empty, and a NaN value never hides a finite one.
+    Until 2026-12-07 each lumitexel was splatted into one pixel of a grid of about one pixel per lumitexel: the
+    projections are uneven (foreshortening), so 40-45 % of the pixels inside the face of default S003's probe
+    renders in cameras 0, 5 and 9 were empty; 2.9-3.1 % now, the eyes' holes included
+    (``benchmarks/bench_export.py`` ``bench_validation_images``).
 
     Parameters
     ----------
@@ -153,34 +166,76 @@ def camera_image(values, capture, camera: int, light: int, channel=None):
     camera, light : int
     channel : int, optional
         Channel to return; default all three (RGB image).
+    size : int, optional
+        Image side in pixels, in [16, 4096]; default 4 √n (n the lumitexels in the camera's frame), within
+        [64, 1024].
 
     Returns
     -------
-    ndarray, shape (H, W[, 3])
-        NaN where no lumitexel with a finite value projects.
+    ndarray, shape (size, size[, 3])
+        NaN where no finite value is near (see above).
     """
+    from scipy.spatial import Delaunay, QhullError, cKDTree
+
     check_integer(camera, "camera", 0, capture.dome.n_cameras - 1)
     check_integer(light, "light", 0, capture.dome.n_leds - 1)
     if channel is not None:
         check_integer(channel, "channel", 0, 2)
     pos = capture.array("position").astype(np.float64)[: values.shape[0]]
     _, _, pix = capture.dome.view(pos, cameras=[camera])
-    x, y = pix[:, 0, 0], pix[:, 0, 1]
-    ok = np.isfinite(x) & np.isfinite(y)
-    # Crop to the face's bounding box, about one image pixel per lumitexel.
-    x0, x1 = np.floor(x[ok].min()) - 2, np.ceil(x[ok].max()) + 2
-    y0, y1 = np.floor(y[ok].min()) - 2, np.ceil(y[ok].max()) + 2
-    n_px = int(np.clip(np.sqrt(ok.sum()) * 1.6, 16, 1024))
-    res = n_px / max(x1 - x0, y1 - y0)
-    ix = np.clip(((x - x0) * res).astype(np.int64), 0, n_px - 1)
-    iy = np.clip(((y - y0) * res).astype(np.int64), 0, n_px - 1)
+    xy = pix[:, 0, :2]
+    ok = np.isfinite(xy).all(1)
+    n_px = int(np.clip(4 * np.sqrt(ok.sum()), 64, 1024)) if size is None else check_integer(size, "size", 16, 4096)
     sel = values if values.ndim == 2 else values[:, camera, light, :]
     vals = np.asarray(sel if channel is None else sel[:, channel : channel + 1], np.float64)
+    img = np.full((n_px * n_px, vals.shape[1]), np.nan)
+    if not ok.any():
+        return _image_shape(img, n_px, channel)
+    # Crop to the face's bounding box (a margin of 2 % of its side); pixel centres in the camera's pixel units.
+    lo, hi = xy[ok].min(0), xy[ok].max(0)
+    side = max(float((hi - lo).max()), 1e-9) * 1.04
+    corner = 0.5 * (lo + hi) - side / 2
+    centres = corner + (np.stack(np.meshgrid(np.arange(n_px), np.arange(n_px)), -1).reshape(-1, 2) + 0.5) * (
+        side / n_px
+    )
     good = ok & np.all(np.isfinite(vals), axis=1)
-    pixel = iy[good] * n_px + ix[good]
-    sums = np.zeros((n_px * n_px, vals.shape[1]))
-    np.add.at(sums, pixel, vals[good])
-    count = np.bincount(pixel, minlength=n_px * n_px)[:, None]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        img = np.where(count > 0, sums / count, np.nan).reshape(n_px, n_px, vals.shape[1])
+    if not good.any():
+        return _image_shape(img, n_px, channel)
+    pts, known, pts3 = xy[good], vals[good], pos[good]
+    tree = cKDTree(pts)
+    dist, nearest = tree.query(centres)
+    pixel = side / n_px
+    # Each lumitexel's own spacing on the surface (mm) and in the image (pixels): its nearest neighbour's distance
+    # there, at most its surface spacing seen face-on at its depth (a lumitexel alone in the image is a patch).
+    depth = ((pts3 - capture.dome.camera_position[camera]) @ capture.dome.camera_rotation[camera].T)[:, 2]
+    face_on = capture.dome.camera_matrix[camera][0, 0] / depth  # pixels per mm
+    surface = pos[ok]  # every lumitexel in the frame samples the surface, whatever its value
+    spacing3 = cKDTree(surface).query(pts3, k=2)[0][:, 1] if len(surface) > 1 else np.full(len(pts3), np.inf)
+    spacing = spacing3 * face_on
+    if len(pts) > 1:
+        spacing = np.minimum(tree.query(pts, k=2)[0][:, 1], spacing)
+    edge = dist <= np.maximum(0.5 * spacing[nearest], 0.5 * pixel)  # the patch a lumitexel stands for
+    img[edge] = known[nearest[edge]]
+    try:
+        tri = Delaunay(pts)
+    except (QhullError, ValueError):  # fewer than three points, or all on a line: the nearest value only
+        return _image_shape(img, n_px, channel)
+    # A triangle whose longest edge on the surface (mm) exceeds MAX_GAP times its corners' own spacing spans a gap,
+    # a hole of the face or a step in depth (a silhouette over the surface behind it), not the surface.
+    corners = pts3[tri.simplices]
+    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(1)
+    on_surface = longest <= MAX_GAP * spacing3[tri.simplices].max(1)
+    simplex = tri.find_simplex(centres)
+    hit = simplex >= 0
+    hit[hit] = on_surface[simplex[hit]]
+    inside, simplex = np.flatnonzero(hit), simplex[hit]
+    affine = tri.transform[simplex]  # barycentric coordinates: T (x − r)
+    b = np.einsum("nij,nj->ni", affine[:, :2], centres[inside] - affine[:, 2])
+    weights = np.c_[b, 1 - b.sum(1)]
+    img[inside] = np.einsum("nk,nkc->nc", weights, known[tri.simplices[simplex]])
+    return _image_shape(img, n_px, channel)
+
+
+def _image_shape(img, n_px, channel):
+    img = img.reshape(n_px, n_px, -1)
     return img if channel is None else img[..., 0]

@@ -28,9 +28,9 @@ Model (eq. 6 with eq. 5's 1/π, :func:`facestats.model.skin.skin_radiance`):
   (:class:`facestats.model.skin.SubsurfaceTransport` in surface mode, σ's and
   σa of the subject, §5.4), with the diffuse normal.
 
-Images are splatted lumitexels in the camera's image (about one pixel per lumitexel, each pixel the mean of
-the finite values that land in it, :func:`facestats.pipeline.render.camera_image`); error = rendered − reference;
-relative RMSE = RMSE / RMS(reference) over the pixels valid in both, all channels.
+Images interpolate the lumitexels' values between their projections in the camera's image
+(:func:`facestats.pipeline.render.camera_image`); error = rendered − reference; relative RMSE = RMSE /
+RMS(reference) over the samples valid in both (the lumitexels, not the image's pixels), all channels.
 """
 
 from __future__ import annotations
@@ -432,7 +432,7 @@ def probe_radiance(
     (the fitted specular lobe, and the diffuse term carried between lumitexels by the dipole, as the fit
     models the capture).  Lumitexels the camera does not see (facing away from it, or hidden behind the face
     by the mesh, by a shadow map from the camera) are NaN: until 2026-12-07 they were rendered as if seen and
-    splatted into the image with the surface in front of them (17 % of the default S001's lumitexels in
+    drawn into the image over the surface in front of them (17 % of the default S001's lumitexels in
     camera 5's frame, at radiance 0 when facing away).
 
     Nothing is compared with a capture, so none is needed: ``capture`` None takes the lumitexels of the

@@ -772,9 +772,9 @@ def test_a_missing_face_normal_is_exported_as_the_mesh_normal_in_gltf_as_in_exr(
 
 
 def test_the_mitsuba_diffuse_map_stays_within_what_spectral_variants_take(tmp_path):
-    """The blend of weight 0.5 wrote 2α, above 1 wherever α > 0.5 (a red team counted 18.6 % of the default's face texels in
-    2026-12; 20.4 % since its albedo's sub-texel spots were fixed, cf69114), which
-    Mitsuba's spectral variants clamp: S141's red rendered x0.77 (a red team).  The weight is now min(0.5, 1 − max α)
+    """The blend of weight 0.5 wrote 2α, above 1 wherever α > 0.5 (a red team counted 18.6 % of the default's face
+    texels in 2026-12; 20.4 % since its albedo's sub-texel spots were fixed, cf69114), which Mitsuba's spectral
+    variants clamp: S141's red rendered x0.77 (a red team).  The weight is now min(0.5, 1 − max α)
     and the maps α/(1 − w), 4ρs/w, so the blend still sums to α + 4ρs f."""
     import facestats
     from facestats.io.mitsuba import blend_weight, write_mitsuba_scene

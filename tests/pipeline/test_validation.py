@@ -117,26 +117,40 @@ def test_probe_render_is_lit_and_shadowed(case):
         render_led(ds, cap, 99, 0)
 
 
-def test_a_splatted_pixel_is_the_mean_of_its_finite_lumitexels():
-    """An e2e red team: the last lumitexel projecting into a pixel won, NaN or not, so a sample invalid in the camera
-    blanked a valid one (11 of 409 such pixels of default S030, camera 11, LED 5)."""
+def test_camera_image_interpolates_between_the_lumitexels_and_leaves_the_rest_empty():
+    """A plane facing camera 11 (the image of a plane at constant depth is affine in its coordinates), sampled by a
+    21 × 21 grid of lumitexels: a value linear in the plane's x is linear in the image, exactly, on every pixel
+    between the lumitexels; a NaN lumitexel (invalid in the camera) never blanks its neighbourhood; a gap of five
+    spacings between two halves stays empty.  Until 2026-12-07 each lumitexel was splatted into one pixel (an e2e
+    red team found the last one in a pixel won, NaN or not; then a pixel was the mean of the finite ones)."""
     from types import SimpleNamespace
 
     from facestats.acquire.dome import default_dome
     from facestats.pipeline.render import camera_image
 
     dome = default_dome()
-    corners = [[-60.0, -80.0, 60.0], [60.0, -80.0, 60.0], [-60.0, 80.0, 60.0], [60.0, 80.0, 60.0]]
-    centre = [[0.0, 0.0, 90.0]] * 4  # four lumitexels at one point: one pixel
-    pos = np.array(corners + centre)
+    eye, rot = dome.camera_position[11], dome.camera_rotation[11]
+    u, v = np.meshgrid(np.linspace(-40, 40, 21), np.linspace(-40, 40, 21))
+    u, v = u.ravel(), v.ravel()
+    pos = eye + np.c_[u, v, np.full(u.size, 900.0)] @ rot  # camera frame (u, v, 900 mm) to world: rows of rot
     capture = SimpleNamespace(dome=dome, array=lambda name: pos)
-    values = np.array([[1.0, 2.0, 3.0]] * 4 + [[np.nan] * 3, [2.0, 4.0, 6.0], [4.0, 8.0, 10.0], [np.nan] * 3])
-    img = camera_image(values, capture, 11, 0)
+    values = np.c_[u, 2 * u + 1, v]
+    values[[100, 230]] = np.nan  # two lumitexels invalid in this camera
+    img = camera_image(values, capture, 11, 0, size=128)
     finite = np.isfinite(img).all(-1)
-    assert finite.sum() == 5  # the four corners and the centre, whatever order the lumitexels come in
-    np.testing.assert_allclose(np.sort(img[finite][:, 0]), [1, 1, 1, 1, 3])  # the centre: the mean of 2 and 4
-    np.testing.assert_allclose(img[finite][img[finite][:, 0] == 3], [[3.0, 6.0, 8.0]])
-    np.testing.assert_array_equal(camera_image(values, capture, 11, 0, channel=2)[finite], img[finite][:, 2])
+    assert finite[4:-4, 4:-4].all() and finite.mean() > 0.98  # the crop's 2 % margin: half a spacing from a value
+    inner = img[4:-4, 4:-4]  # inside the grid's hull: interpolated
+    rows, cols = np.indices(inner.shape[:2]).reshape(2, -1)
+    design = np.c_[np.ones(rows.size), cols, rows]
+    for c in range(3):
+        coef = np.linalg.lstsq(design, inner[..., c].ravel(), rcond=None)[0]
+        assert np.abs(design @ coef - inner[..., c].ravel()).max() < 1e-9
+    np.testing.assert_allclose(img[finite][:, 1], 2 * img[finite][:, 0] + 1, atol=1e-9)
+    np.testing.assert_allclose(camera_image(values, capture, 11, 0, channel=2, size=128), img[..., 2], atol=1e-12)
+    gap = values.copy()
+    gap[np.abs(u) < 10] = np.nan  # columns −8..8 mm: a gap of five 4-mm spacings
+    empty = ~np.isfinite(camera_image(gap, capture, 11, 0, size=128)).any(-1)
+    assert empty[:, 60:68].all() and not empty[4:-4, 10:20].any()
     assert not np.isfinite(camera_image(np.full((8, 3), np.nan), capture, 11, 0)).any()
 
 

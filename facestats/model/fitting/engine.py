@@ -16,10 +16,10 @@ The choice, in order: the ``engine`` argument of a fit function (or
 The two engines are each deterministic and independent of the CPU (see
 :mod:`facestats.model.fitting.kernels`) but not bit-identical: the kernels sum
 in float64 where numpy sums pairwise in float32, and Levenberg-Marquardt
-amplifies that on ill-determined texels.  On one 48² subject the median
-relative difference of the maps is ~2e-7 and the largest 7.6e-4 (ρs) and
-2.3e-3 (Blinn-Phong exponent); ``docs/scale.md`` gives the figures and the
-benchmark that prints them.
+amplifies that on ill-determined texels.  On subject S001 of the default
+population at 48² the albedo differs by at most 2.4e-7 relative and the
+unflagged Torrance-Sparrow ρs and m by at most 5.5e-5 and 4.9e-5
+(``docs/scale.md``, *Fit engines*: section 1 of ``notebooks/population_scale.ipynb``).
 """
 
 from __future__ import annotations

@@ -422,13 +422,16 @@ class PendingEdit:
         StoreError
             The id was taken meanwhile (without ``overwrite``), the store is read-only, or the write failed (e.g.
             a full disk); nothing was written.  (A directory store holds nothing open, so a commit after its
-            ``close()`` writes as before.)
+            ``close()`` writes as before.)  An exception (e.g. ``KeyboardInterrupt``) that arrives after the
+            store's commit landed is raised with :attr:`committed` True: the subject is written.
         SchemaError
             A source variable left on disk (:data:`ON_DISK`) is invalid, found only now; nothing was written.
         """
         with self._lock:
             if self.committed:
                 return self.edit
+            sid = self.edit.subject_id
+            before = self._generation(sid)
             try:
                 self._out.write_subject(self.edit.dataset, overwrite=self._overwrite)  # ON_DISK band by band (Store)
             except SchemaError as exc:  # e.g. a source variable left on disk (ON_DISK), checked only now
@@ -436,5 +439,18 @@ class PendingEdit:
                     f"{exc} (in the edit of subject {self.edit.source.attrs['subject_id']!r}, whose unedited "
                     "variables are copied as stored; nothing was written)"
                 ) from None
+            except BaseException:  # e.g. Ctrl-C: after the store's commit landed, the subject is written all the same
+                if self._generation(sid) not in (None, before):
+                    self.committed = True
+                raise
             self.committed = True
         return self.edit
+
+    def _generation(self, sid):
+        """The output store's generation of subject ``sid`` (a new one per write), or None; None also when the
+        index cannot be read (then :meth:`commit` cannot tell that its write landed, and says it did not)."""
+        try:
+            entry = self._out.index_entries().get(sid)
+        except Exception:  # noqa: BLE001 - only asked after a failure, whose exception is the one to report
+            return None
+        return None if entry is None else entry.get("generation")

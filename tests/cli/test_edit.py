@@ -197,6 +197,33 @@ def test_a_commit_that_fails_leaves_no_images(own, tmp_path, monkeypatch, failur
             assert _tree(store) == before
 
 
+def test_an_interrupt_after_the_store_committed_says_the_subject_was_written(own, monkeypatch):
+    """A Ctrl-C inside write_subject after its commit landed (a red team's window): the subject is in the store,
+    so the message says so and how to make the images (exit 130), as for an interrupt while renaming them; it
+    said only "interrupted", and a rerun then found the id taken."""
+    from facestats.io.store import Store
+
+    store, img = own
+    real = Store.write_subject
+
+    def write_subject(self, ds, **kwargs):
+        real(self, ds, **kwargs)
+        raise KeyboardInterrupt  # after the commit, before write_subject returns
+
+    monkeypatch.setattr(Store, "write_subject", write_subject)
+    folder = _tree(img)
+    r = run_main(*_skin_type(store, img, "--id", "X5"))
+    assert r.returncode == 130
+    assert r.stderr.startswith(f"facestats: interrupted: the edited subject 'X5' was written to store {store}, ")
+    assert _tree(img) == folder  # the images were not moved in: the message says how to make them
+    with open_store(store) as st:
+        assert "X5" in st
+    monkeypatch.setattr(Store, "write_subject", real)
+    r = run_main(*_skin_type(store, img, "--id", "X5", "--overwrite"))  # what the message says to run
+    assert r.returncode == 0, r.stderr
+    assert (img / "X5_summary.png").is_file()
+
+
 def test_images_that_cannot_be_moved_after_the_commit_are_put_back_and_the_message_says_what_is_where(own, monkeypatch):
     """Once the subject is committed, the staged images are renamed into place (os.replace); if a rename fails or
     is interrupted, the images folder is put back as it was (a user's files of the same names, replaced with

@@ -209,11 +209,14 @@ def camera_image(values, capture, camera: int, light: int, channel=None, *, size
     # there, at most its surface spacing seen face-on at its depth (a lumitexel alone in the image is a patch).
     depth = ((pts3 - capture.dome.camera_position[camera]) @ capture.dome.camera_rotation[camera].T)[:, 2]
     face_on = capture.dome.camera_matrix[camera][0, 0] / depth  # pixels per mm
-    surface = pos[ok]  # every lumitexel in the frame samples the surface, whatever its value
+    # Every lumitexel in the frame samples the surface, whatever its value; a position held twice (a scan's vertices
+    # split at UV seams, or one per triangle) is one sample: the spacing is to the nearest other position.
+    surface = np.unique(pos[ok], axis=0)
     spacing3 = cKDTree(surface).query(pts3, k=2)[0][:, 1] if len(surface) > 1 else np.full(len(pts3), np.inf)
     spacing = spacing3 * face_on
-    if len(pts) > 1:
-        spacing = np.minimum(tree.query(pts, k=2)[0][:, 1], spacing)
+    flat = np.unique(pts, axis=0)
+    if len(flat) > 1:
+        spacing = np.minimum(cKDTree(flat).query(pts, k=2)[0][:, 1], spacing)
     edge = dist <= np.maximum(0.5 * spacing[nearest], 0.5 * pixel)  # the patch a lumitexel stands for
     img[edge] = known[nearest[edge]]
     try:

@@ -114,3 +114,15 @@ def test_run_refuses_an_unknown_group(capsys):
     spec.loader.exec_module(run)
     assert run.main(["relight", "nosuch"]) == 2  # before running anything
     assert "unknown group(s) nosuch; the groups are analysis," in capsys.readouterr().err
+
+
+def test_validation_images_empty_share_counts_a_face_that_touches_the_border():
+    """bench_export's empty share: a face filling the image but for one empty pixel has 1 % empty.  A red team:
+    the closing eroded the silhouette where the face touches the image's border (as the baseline's does), and
+    the finite pixels cut off still counted, so this image's share was negative and the baseline's 3-4 points low."""
+    import numpy as np
+
+    bench_export = _load(BENCH / "bench_export.py")
+    img = np.ones((10, 10, 3))
+    img[5, 5] = np.nan
+    assert bench_export._empty_share(img) == (pytest.approx(0.01), 100)

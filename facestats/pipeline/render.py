@@ -153,8 +153,8 @@ def camera_image(values, capture, camera: int, light: int, channel=None, *, size
     lumitexel stands for) holds that lumitexel's value.  Other pixels are NaN: shadows, unlit and hidden
     lumitexels (NaN values), holes and the background stay empty, and a NaN value never hides a finite one.
     Until 2026-12-07 each lumitexel was splatted into one pixel of a grid of about one pixel per lumitexel: the
-    projections are uneven (foreshortening), so 40-45 % of the pixels inside the face of default S003's probe
-    renders in cameras 0, 5 and 9 were empty; 2.9-3.1 % now, the eyes' holes included
+    projections are uneven (foreshortening), so 43-49 % of the pixels inside the face of default S003's probe
+    renders in cameras 0, 5 and 9 were empty; 2.9-3.2 % now, the eyes' holes included
     (``benchmarks/bench_export.py`` ``bench_validation_images``).
 
     Parameters

@@ -126,3 +126,31 @@ def test_validation_images_empty_share_counts_a_face_that_touches_the_border():
     img = np.ones((10, 10, 3))
     img[5, 5] = np.nan
     assert bench_export._empty_share(img) == (pytest.approx(0.01), 100)
+
+
+def test_default_store_accuracy_region_means_are_those_the_cca_reads():
+    """bench_analysis's region-mean errors: a subject's region means are the store index's (flagged texels left
+    out, :func:`facestats.io.summary.region_samples`), which the CCA reads.  A red team: flagged texels (filled
+    from neighbours) counted, so a flagged texel far off moved the error of its region's mean."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    import xarray as xr
+
+    bench_analysis = _load(BENCH / "bench_analysis.py")
+    region = np.repeat(np.arange(1, 11), 4).reshape(5, 8)
+    maps = {v: np.full((5, 8), 0.3) for v in ("ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent")}
+    truth = SimpleNamespace(albedo=np.full((5, 8, 3), 0.5), **{v: m.copy() for v, m in maps.items()})
+    flag = np.zeros((5, 8), np.uint8)
+    flag[0, 0] = 1
+    maps["ts_rho_s"][0, 0] = 3.0  # flagged: not a measurement
+    ds = xr.Dataset(
+        {
+            "region": (("v", "u"), region),
+            "albedo": (("v", "u", "c"), truth.albedo),
+            "ts_flag": (("v", "u"), flag),
+            "bp_flag": (("v", "u"), flag),
+            **{v: (("v", "u"), m) for v, m in maps.items()},
+        }
+    )
+    assert np.abs(bench_analysis._fit_against_truth(ds, truth)["region_mean"]).max() < 1e-12

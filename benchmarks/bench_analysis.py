@@ -357,9 +357,10 @@ def _fit_against_truth(ds, truth):
     out = {}
     for var in ("albedo", "ts_rho_s", "ts_m"):
         out[var] = (np.abs(ds[var].values[face] - getattr(truth, var)[face]) / getattr(truth, var)[face]).ravel()
+    measured = ds.ts_flag.values == 0  # the index's region means (which the CCA reads) leave flagged texels out
     out["region_mean"] = np.array(
         [
-            abs(ds[var].values[region == r].mean() / getattr(truth, var)[region == r].mean() - 1)
+            abs(ds[var].values[(region == r) & measured].mean() / getattr(truth, var)[region == r].mean() - 1)
             for var in ("ts_rho_s", "ts_m")
             for r in range(1, 11)
         ]

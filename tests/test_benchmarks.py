@@ -114,3 +114,43 @@ def test_run_refuses_an_unknown_group(capsys):
     spec.loader.exec_module(run)
     assert run.main(["relight", "nosuch"]) == 2  # before running anything
     assert "unknown group(s) nosuch; the groups are analysis," in capsys.readouterr().err
+
+
+def test_validation_images_empty_share_counts_a_face_that_touches_the_border():
+    """bench_export's empty share: a face filling the image but for one empty pixel has 1 % empty.  A red team:
+    the closing eroded the silhouette where the face touches the image's border (as the baseline's does), and
+    the finite pixels cut off still counted, so this image's share was negative and the baseline's 3-4 points low."""
+    import numpy as np
+
+    bench_export = _load(BENCH / "bench_export.py")
+    img = np.ones((10, 10, 3))
+    img[5, 5] = np.nan
+    assert bench_export._empty_share(img) == (pytest.approx(0.01), 100)
+
+
+def test_default_store_accuracy_region_means_are_those_the_cca_reads():
+    """bench_analysis's region-mean errors: a subject's region means are the store index's (flagged texels left
+    out, :func:`facestats.io.summary.region_samples`), which the CCA reads.  A red team: flagged texels (filled
+    from neighbours) counted, so a flagged texel far off moved the error of its region's mean."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    import xarray as xr
+
+    bench_analysis = _load(BENCH / "bench_analysis.py")
+    region = np.repeat(np.arange(1, 11), 4).reshape(5, 8)
+    maps = {v: np.full((5, 8), 0.3) for v in ("ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent")}
+    truth = SimpleNamespace(albedo=np.full((5, 8, 3), 0.5), **{v: m.copy() for v, m in maps.items()})
+    flag = np.zeros((5, 8), np.uint8)
+    flag[0, 0] = 1
+    maps["ts_rho_s"][0, 0] = 3.0  # flagged: not a measurement
+    ds = xr.Dataset(
+        {
+            "region": (("v", "u"), region),
+            "albedo": (("v", "u", "c"), truth.albedo),
+            "ts_flag": (("v", "u"), flag),
+            "bp_flag": (("v", "u"), flag),
+            **{v: (("v", "u"), m) for v, m in maps.items()},
+        }
+    )
+    assert np.abs(bench_analysis._fit_against_truth(ds, truth)["region_mean"]).max() < 1e-12

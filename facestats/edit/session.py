@@ -440,7 +440,7 @@ class PendingEdit:
                     "variables are copied as stored; nothing was written)"
                 ) from None
             except BaseException:  # e.g. Ctrl-C: after the store's commit landed, the subject is written all the same
-                if self._generation(sid) not in (None, before):
+                if self._generation(sid) not in (None, before) and self._stored_is_this_edit(sid):
                     self.committed = True
                 raise
             self.committed = True
@@ -454,3 +454,16 @@ class PendingEdit:
         except Exception:  # noqa: BLE001 - only asked after a failure, whose exception is the one to report
             return None
         return None if entry is None else entry.get("generation")
+
+    def _stored_is_this_edit(self, sid):
+        """Whether the subject ``sid`` now stored carries this edit's provenance (every entry of it; the store adds
+        ``software_version``): a new generation after a failed write may be another writer's (the same id committed
+        meanwhile, which made this write fail), not this one.  False when it cannot be read (as :meth:`_generation`).
+        """
+        from facestats.io.schema import provenance
+
+        try:
+            stored = provenance(self._out.subject(sid, lazy=True))
+        except Exception:  # noqa: BLE001 - only asked after a failure, whose exception is the one to report
+            return False
+        return all(stored.get(k, self) == v for k, v in provenance(self.edit.dataset).items())

@@ -153,8 +153,8 @@ def camera_image(values, capture, camera: int, light: int, channel=None, *, size
     lumitexel stands for) holds that lumitexel's value.  Other pixels are NaN: shadows, unlit and hidden
     lumitexels (NaN values), holes and the background stay empty, and a NaN value never hides a finite one.
     Until 2026-12-07 each lumitexel was splatted into one pixel of a grid of about one pixel per lumitexel: the
-    projections are uneven (foreshortening), so 40-45 % of the pixels inside the face of default S003's probe
-    renders in cameras 0, 5 and 9 were empty; 2.9-3.1 % now, the eyes' holes included
+    projections are uneven (foreshortening), so 43-49 % of the pixels inside the face of default S003's probe
+    renders in cameras 0, 5 and 9 were empty; 2.9-3.2 % now, the eyes' holes included
     (``benchmarks/bench_export.py`` ``bench_validation_images``).
 
     Parameters
@@ -209,11 +209,14 @@ def camera_image(values, capture, camera: int, light: int, channel=None, *, size
     # there, at most its surface spacing seen face-on at its depth (a lumitexel alone in the image is a patch).
     depth = ((pts3 - capture.dome.camera_position[camera]) @ capture.dome.camera_rotation[camera].T)[:, 2]
     face_on = capture.dome.camera_matrix[camera][0, 0] / depth  # pixels per mm
-    surface = pos[ok]  # every lumitexel in the frame samples the surface, whatever its value
+    # Every lumitexel in the frame samples the surface, whatever its value; a position held twice (a scan's vertices
+    # split at UV seams, or one per triangle) is one sample: the spacing is to the nearest other position.
+    surface = np.unique(pos[ok], axis=0)
     spacing3 = cKDTree(surface).query(pts3, k=2)[0][:, 1] if len(surface) > 1 else np.full(len(pts3), np.inf)
     spacing = spacing3 * face_on
-    if len(pts) > 1:
-        spacing = np.minimum(tree.query(pts, k=2)[0][:, 1], spacing)
+    flat = np.unique(pts, axis=0)
+    if len(flat) > 1:
+        spacing = np.minimum(cKDTree(flat).query(pts, k=2)[0][:, 1], spacing)
     edge = dist <= np.maximum(0.5 * spacing[nearest], 0.5 * pixel)  # the patch a lumitexel stands for
     img[edge] = known[nearest[edge]]
     try:

@@ -224,6 +224,34 @@ def test_an_interrupt_after_the_store_committed_says_the_subject_was_written(own
     assert (img / "X5_summary.png").is_file()
 
 
+def test_an_id_taken_by_another_writer_during_the_commit_is_not_reported_as_written(own, monkeypatch):
+    """Another writer commits the same --id while this edit writes (a red team's race): the store refuses this
+    write (the id exists), and the new generation in the index is the other writer's.  It was taken as this
+    edit's (committed True): the message said the subject was written and advised --overwrite, which would have
+    replaced the other writer's subject."""
+    from facestats.io.store import Store
+
+    store, img = own
+    real = Store.write_subject
+    with open_store(store) as st:
+        theirs = st.subject("F5a")
+    theirs.attrs["subject_id"] = "X7"
+
+    def write_subject(self, ds, **kwargs):
+        with open_store(store, mode="a") as other:  # the other writer commits first
+            real(other, theirs)
+        return real(self, ds, **kwargs)
+
+    monkeypatch.setattr(Store, "write_subject", write_subject)
+    folder = _tree(img)
+    r = run_main(*_skin_type(store, img, "--id", "X7"))
+    assert r.returncode == 2
+    assert "already exist" in r.stderr and "was written" not in r.stderr
+    assert _tree(img) == folder
+    with open_store(store) as st:
+        assert provenance(st.subject("X7")) == provenance(theirs)
+
+
 def test_images_that_cannot_be_moved_after_the_commit_are_put_back_and_the_message_says_what_is_where(own, monkeypatch):
     """Once the subject is committed, the staged images are renamed into place (os.replace); if a rename fails or
     is interrupted, the images folder is put back as it was (a user's files of the same names, replaced with

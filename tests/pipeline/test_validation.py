@@ -154,6 +154,29 @@ def test_camera_image_interpolates_between_the_lumitexels_and_leaves_the_rest_em
     assert not np.isfinite(camera_image(np.full((8, 3), np.nan), capture, 11, 0)).any()
 
 
+def test_camera_image_of_lumitexels_held_twice_is_the_image_of_each_once():
+    """Lumitexels at the same position (a scan's vertices split at UV seams, or one per triangle: load_face_mesh
+    keeps them all) are one sample of the surface.  A red team: each one's spacing (to its nearest neighbour) was
+    0, so no triangle was on the surface and a plane whose lumitexels are all held twice filled 3 % of the image
+    instead of 98 % (a triangle-soup OBJ of the default S003 face: 5 % instead of 46 % in camera 5)."""
+    from types import SimpleNamespace
+
+    from facestats.acquire.dome import default_dome
+    from facestats.pipeline.render import camera_image
+
+    dome = default_dome()
+    eye, rot = dome.camera_position[11], dome.camera_rotation[11]
+    u, v = np.meshgrid(np.linspace(-40, 40, 21), np.linspace(-40, 40, 21))
+    u, v = u.ravel(), v.ravel()
+    pos = eye + np.c_[u, v, np.full(u.size, 900.0)] @ rot
+    values = np.c_[u, 2 * u + 1, v]
+    once = camera_image(values, SimpleNamespace(dome=dome, array=lambda name: pos), 11, 0, size=128)
+    twice = SimpleNamespace(dome=dome, array=lambda name: np.r_[pos, pos])
+    np.testing.assert_allclose(camera_image(np.r_[values, values], twice, 11, 0, size=128), once, atol=1e-9)
+    # the second copy invalid in this camera (NaN): the same image
+    np.testing.assert_allclose(camera_image(np.r_[values, values * np.nan], twice, 11, 0, size=128), once, atol=1e-9)
+
+
 @pytest.mark.slow
 def test_probe_radiance_agrees_with_the_relighting_stage_where_the_camera_sees_the_face():
     """Two renders of one subject under the same 256 directional lights: the validation path (lumitexels, dipole

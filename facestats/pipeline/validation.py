@@ -483,7 +483,8 @@ def probe_radiance(
     Raises
     ------
     ValidationError
-        ``camera`` sees none of the lumitexels (e.g. a scan outside the default dome's frame without its capture).
+        ``camera`` sees none of the lumitexels (e.g. a scan outside the default dome's frame without its capture,
+        or a normal map that faces away from the camera).
     """
 
     check_micro_normals(subject, micro_normals)
@@ -515,8 +516,14 @@ def probe_radiance(
     cos = np.clip(normal @ d.T, 0, None) * vis
     irr = cos[..., None] * power[None]
     wi = np.broadcast_to(d, (len(normal),) + d.shape)
+    seen &= in_frame[:, 0]
+    if not seen.any():  # as render_led: an image with nothing on it is an error, not a black file
+        raise ValidationError(
+            f"camera {camera} sees none of the {lt.n} lumitexels of subject {subject.attrs.get('subject_id', '?')!r}: "
+            "those in its frame face away from it or are hidden by the face (check the subject's normal map)"
+        )
     pred, _ = _radiance(subject, capture, camera, wi, irr, specular=specular, eta=eta, micro_normals=micro_normals)
-    return np.where((in_frame[:, 0] & seen)[:, None], pred.sum(axis=1), np.nan), capture
+    return np.where(seen[:, None], pred.sum(axis=1), np.nan), capture
 
 
 def render_probe(

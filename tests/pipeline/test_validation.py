@@ -109,6 +109,11 @@ def test_probe_render_is_lit_and_shadowed(case):
     # Under light from everywhere every lumitexel the camera sees is lit: no black pixel (lumitexels facing away
     # from the camera were rendered black into the image until 2026-12-07).
     assert np.nanmin(render_probe(ds, cap, 5, np.ones((16, 32, 3)), samples=(8, 16)).rendered) > 0
+    # A normal map facing away from the camera: nothing is seen, an error as under an LED (it wrote a black image)
+    back = cap.array("position").mean(0) - cap.dome.camera_position[5]
+    away = ds.assign(normal=ds["normal"] * 0 + back / np.linalg.norm(back))
+    with pytest.raises(FacestatsError, match="camera 5 sees none of the 857 lumitexels of subject 'S003': those in"):
+        render_probe(away, cap, 5, probe, samples=(8, 16))
     # A probe dark everywhere but behind the head lights almost nothing the camera sees (rims only).
     d = latlong_directions(16, 32)
     back = np.where((d[..., 2] < -0.5)[..., None], probe, 0)

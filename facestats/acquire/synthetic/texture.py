@@ -89,11 +89,13 @@ def _spots(rng, shape, count, radius_px, strength_sampler):
     """A field of Gaussian spots scaled by strengths: each spot's integral is strength × 2π radius² texels.
 
     A spot of radius r (the Gaussian's σ, in texels) and strength s is s·exp(−d²/2r²): its peak is s and its
-    integral s·2π r², i.e. s·2π r_mm² in mm² at any texel size.  A spot narrower than a texel cannot be drawn
-    at that width, so it is blurred to σ = 0.35 texels (its footprint) and keeps its integral, which lowers its
-    peak to s·(r / 0.35)²: the map holds each texel's area average.  Scaling by 2π·0.35² instead (the
-    blurred kernel's own integral) made every sub-texel spot remove 0.77 s texels whatever its size in mm, so
-    pores darkened the 48² default's face by about 7 % instead of 0.2 % and coarser maps more.
+    integral s·2π r², i.e. s·2π r_mm² in mm² at any texel size (sampled on texels, a narrow spot's peak is
+    lower: 0.72 s at r = 0.35, 0.97 s at 0.5; the integral is exact away from the map's edge).  A spot narrower
+    than a texel cannot be drawn at that width, so it is blurred to σ = 0.35 texels (its footprint) and keeps
+    its integral, which lowers its peak by a further (r / 0.35)²: the map holds each texel's area average.
+    Scaling by 2π·0.35² instead (the blurred kernel's own integral, until 2026-12-07) made every sub-texel spot
+    remove 0.77 s texels whatever its size in mm: the face-mean albedo of the default population's 149 subjects
+    was 12 %, 3 % and 0.6 % darker at 24², 48² and 96² than it is now.
     """
     from scipy.ndimage import gaussian_filter
 

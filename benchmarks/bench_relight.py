@@ -25,6 +25,9 @@
   over a Fibonacci sphere of normals, and for the frontal normal +z (the face's, the stage camera's direction).
 * ``separation`` — accuracy of the colour-space separation's ρs on analytic spheres, with and without a
   chromaticity ramp, for the mirror exclusions 45° and 60°.
+* ``shadow_agreement`` — shadow maps thresholded from a stage field against its geometric visibility.
+* ``off_plane`` — the share of a rendered field's pixels off the plane of their diffuse and light colours
+  (what decides whether ``compress`` stores a pixel's third colour row).
 
 Inputs (the fields) are built once per code version under ``FACESTATS_BENCH_DIR``
 (:mod:`inputs`).  The real probes are the committed CC0 Poly Haven samples
@@ -138,6 +141,12 @@ def bench_relight(size=512, n_theta=64, n_phi=32, repeat=5, ratio=20.0):
         lum = ref.mean(-1)
         bright = mask & (lum >= 0.1 * np.median(lum[mask]))
         out[f"max_rel_error_{p}_above_10pct_median"] = _max_rel(img, ref, bright)
+        # Which pixels err: the median brightness (dense relit luminance over the face's median) of the pixels
+        # with a channel above 3 % and of the others (None when there are none).
+        above, brightness = rel.max(-1) > 0.03, lum[mask] / np.median(lum[mask])
+        for label, sel in (("above", above), ("within", ~above)):
+            value = float(np.median(brightness[sel])) if sel.any() else None
+            out[f"median_brightness_{label}_3pct_{p}"] = value
     w0 = next(iter(weights.values()))
     dense_ms = _best_ms(lambda: relight_block(dense_vals, w0), repeat)
     comp_ms = _best_ms(lambda: comp.relight(w0), repeat)
@@ -414,6 +423,56 @@ def bench_parts(size=256, n_theta=64, n_phi=32, parts=(1, 2, 3, 4), seeds=(0, 1,
     return _setting_sweep("parts", parts, size, n_theta, n_phi, seeds, ratio, rotations)
 
 
+def bench_off_plane(size=256, n_theta=64, n_phi=32, chunk=2048):
+    """How far a rendered field's pixels leave the plane of their diffuse colour d and the light's colour s (white).
+
+    Per face pixel of the cached stage field (:func:`bench_relight`'s), the share ‖(d×s) μe‖ / ‖y‖ of its
+    √δA-weighted channel rows y (3, L) that lies along d × s, d from
+    :func:`facestats.relight.compression.diffuse_colours`: what ``compress(off_plane=1e-3)`` compares to decide
+    whether a pixel stores a third, off-plane row.  With d and s unit vectors, (d×s) μe is y's projection on the
+    unit normal of their plane.  Median, 99th percentile and largest share, and how many pixels exceed 1e-3.
+    """
+    from facestats.relight.compression import diffuse_colours
+    from facestats.relight.field import light_table, open_field
+    from facestats.relight.separate import WHITE
+
+    path, _ = _stage_input(size, n_theta, n_phi)
+    field = open_field(path)
+    _, solid, _ = light_table(field)
+    mask = field["mask"].values
+    values = field["reflectance"].values.reshape(n_theta * n_phi, size * size, 3)[:, mask.ravel()]
+    shares = []
+    for i in range(0, values.shape[1], chunk):
+        rows = np.transpose(values[:, i : i + chunk], (1, 2, 0)).astype(np.float32) * np.sqrt(solid, dtype=np.float32)
+        normal = np.cross(diffuse_colours(rows, WHITE), WHITE)
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        off = np.linalg.norm(np.einsum("nc,ncl->nl", normal, rows, dtype=np.float64), axis=1)
+        shares.append(off / np.maximum(np.linalg.norm(rows.reshape(len(rows), -1), axis=1), 1e-300))
+    share = np.concatenate(shares)
+    return {"face_pixels": int(mask.sum()), "median_share": float(np.median(share)),
+            "p99_share": float(np.percentile(share, 99)), "max_share": float(share.max()),
+            "pixels_above_1e-3": int((share > 1e-3).sum())}  # fmt: skip
+
+
+def bench_shadow_agreement(size=128, n_theta=64, n_phi=32, threshold=0.02):
+    """Shadow maps thresholded from S001's stage field (Debevec et al. 2000 §4.4,
+    :func:`facestats.relight.shadows.threshold_shadow_maps`) against the stage's geometric visibility (light reaches
+    the front side unoccluded): the share of face samples that agree away from a one-cell band around the
+    visibility's boundaries, and over all samples (:func:`facestats.relight.shadows.shadow_agreement`)."""
+    from facestats.model.sphere import light_stage_directions
+    from facestats.relight.shadows import shadow_agreement, threshold_shadow_maps
+    from facestats.relight.stage import light_stage_field, stage_camera
+
+    d, _ = light_stage_directions(n_theta, n_phi)
+    field = light_stage_field(_subject(), stage_camera(size=size), directions=d, visibility=True)
+    mask, visible = field["mask"].values, field["visibility"].values > 0.5
+    lit = threshold_shadow_maps(field, threshold)
+    away, every = (shadow_agreement(lit, visible, band=band, mask=mask) for band in (1, 0))
+    return {"face_pixels": int(mask.sum()), "agreement_off_boundaries": away["agreement"],
+            "agreement_all": every["agreement"], "false_lit_off_boundaries": int(away["false_lit"]),
+            "false_shadow_off_boundaries": int(away["false_shadow"])}  # fmt: skip
+
+
 def bench_separation(
     size=7,
     lobes=(0.2, 0.3, 0.35, 0.4, 0.5),
@@ -551,6 +610,8 @@ BENCHMARKS = [
     ("cluster_density", bench_cluster_density),
     ("region_floor", bench_region_floor),
     ("parts", bench_parts),
+    ("off_plane", bench_off_plane),
+    ("shadow_agreement", bench_shadow_agreement),
     ("separation", bench_separation),
     ("separation_by_tilt", bench_separation_by_tilt),
     ("relight_memory", bench_relight_memory),
@@ -571,6 +632,8 @@ SMOKE = {
     "cluster_density": {**_TINY_SWEEP, "pixels_per_cluster": (64, 16), "seeds": (0, 1)},
     "region_floor": {**_TINY_SWEEP, "floors": (0.2, 1.0), "seeds": (0,)},
     "parts": {**_TINY_SWEEP, "parts": (1, 2), "seeds": (0,)},
+    "off_plane": {"size": 16, "n_theta": 16, "n_phi": 8, "chunk": 100},
+    "shadow_agreement": {"size": 12, "n_theta": 16, "n_phi": 8},
     "separation": {"size": 4, "lobes": (0.35,), "views": ((0, 0, 1),), "noises": (0.02,)},
     "separation_by_tilt": {"size": 5, "lobes": (0.35,), "edges": (0, 45, 90)},
     "relight_memory": {"cases": ((16, 8, 4),)},

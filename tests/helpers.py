@@ -270,6 +270,22 @@ def save_mat(tmp_path, d, name="ts_data.mat"):
 
 
 # -- the command line ------------------------------------------------------------------------
+def real_bracket_dir():
+    """``frobisher_001`` of colour-science/colour-hdri-tests-datasets (three Canon EOS 5D Mark II JPEGs, 1/8, 1 and
+    8 s on a tripod; BSD-licensed project, no licence file of its own, so not committed):
+    ``$FACESTATS_COLOUR_HDRI_DATASETS/frobisher_001``; the test is skipped without it."""
+    import pytest
+
+    root = os.environ.get("FACESTATS_COLOUR_HDRI_DATASETS")
+    d = pathlib.Path(root) / "frobisher_001" if root else None
+    if d is None or not (d / "IMG_2600.jpg").is_file():
+        pytest.skip(
+            "real bracket absent: set FACESTATS_COLOUR_HDRI_DATASETS to a checkout of "
+            "colour-science/colour-hdri-tests-datasets (frobisher_001: three Canon JPEGs, 1/8, 1 and 8 s)"
+        )
+    return d
+
+
 def facestats_exe():
     exe = pathlib.Path(sys.executable).parent / "facestats"
     if exe.exists():

@@ -1,6 +1,5 @@
 """Debevec & Malik response recovery and merge against known responses, OpenCV, colour-hdri and a real bracket."""
 
-import os
 import pathlib
 
 import numpy as np
@@ -18,6 +17,7 @@ from facestats.acquire.response import (
     histogram_samples,
     stratified_samples,
 )
+from tests.helpers import real_bracket_dir
 
 TIMES = np.array([1 / 30, 1 / 8, 1 / 2, 2.0])
 
@@ -270,25 +270,12 @@ def test_real_cc0_jpeg_bracket_exif_merge_and_exposure_agreement():
 
 
 # -- a real bracket outside the repository -----------------------------------------------------------------------------
-def _real_bracket_dir():
-    """``frobisher_001`` of colour-science/colour-hdri-tests-datasets (BSD-licensed project; no licence file of
-    its own, so not committed): ``$FACESTATS_COLOUR_HDRI_DATASETS/frobisher_001``."""
-    root = os.environ.get("FACESTATS_COLOUR_HDRI_DATASETS")
-    d = pathlib.Path(root) / "frobisher_001" if root else None
-    if d is None or not (d / "IMG_2600.jpg").is_file():
-        pytest.skip(
-            "real bracket absent: set FACESTATS_COLOUR_HDRI_DATASETS to a checkout of "
-            "colour-science/colour-hdri-tests-datasets (frobisher_001: three Canon JPEGs, 1/8, 1 and 8 s)"
-        )
-    return d
-
-
 def test_real_jpeg_bracket_exif_times_and_agreement_with_opencv():
     cv2 = pytest.importorskip("cv2")
     from facestats.io.exif import read_exposure_time
     from facestats.io.images import read_integer_image
 
-    d = _real_bracket_dir()
+    d = real_bracket_dir()
     files = [d / f"IMG_260{k}.jpg" for k in (2, 0, 1)]  # unsorted on purpose
     times = np.array([read_exposure_time(f) for f in files])
     np.testing.assert_allclose(times, [8.0, 0.125, 1.0])

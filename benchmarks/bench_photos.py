@@ -38,6 +38,9 @@
   from ``$FACESTATS_COLOUR_HDRI_DATASETS`` (not in the repository; ``skipped``
   without it): merge agreement with OpenCV and colour-hdri, same g and own g
   (histogram and stratified samples).
+* ``motion_brackets``: the head-motion statistic on those real brackets (UNIS
+  always, ``frobisher_001`` when present), each pair of frames whole: their shift by
+  phase correlation and the score with 0-8 pixels around clipped pixels left out.
 """
 
 from __future__ import annotations
@@ -59,6 +62,7 @@ from inputs import (  # noqa: E402
     colour_hdri_merge,
     e_perp_error,
     fit_errors,
+    phase_shift_px,
     scaled_difference,
     target_pose,
     target_rig,
@@ -188,6 +192,39 @@ def bench_real_bracket(side=None, repeat=3):
         "exposure_times_s": times.tolist(),
     }
     return {**out, **_against_colour_hdri(imgs, times, own, e_cv)}
+
+
+def bench_motion_brackets(radii=(0, 2, 4, 8), side=None):
+    """The head-motion statistic on real brackets, whole frames (module docstring, ``motion_brackets``).
+
+    For each pair of frames: the shift between them by phase correlation (:func:`inputs.phase_shift_px`), and
+    :func:`facestats.acquire.photographs.exposure_consistency`'s score (%) with each ``clip_radius`` in ``radii``;
+    the response recovered from the pair's bracket. UNIS always; ``frobisher_001`` when
+    ``$FACESTATS_COLOUR_HDRI_DATASETS`` holds it. ``side`` crops the frames to their central ``side``² pixels.
+    """
+    from facestats.acquire.photographs import exposure_consistency
+    from facestats.acquire.response import recover_response
+
+    brackets = {"unis": [os.path.join(HERE, os.pardir, "tests", "data", "unis-bracket", f"UNIS_EV{ev}.jpg")
+                         for ev in ("-2", "0", "2")]}  # fmt: skip
+    root = os.environ.get(COLOUR_HDRI_DATASETS)
+    if root and os.path.isfile(os.path.join(root, "frobisher_001", "IMG_2600.jpg")):
+        brackets["frobisher"] = [os.path.join(root, "frobisher_001", f"IMG_260{k}.jpg") for k in (0, 1, 2)]
+    out = {}
+    for name, files in brackets.items():
+        imgs, times = _bracket(files, side)
+        g = recover_response(imgs, times)
+        box = (0, 0, imgs[0].shape[1], imgs[0].shape[0])
+        for a, b in ((0, 1), (1, 2)):
+            pair, pair_t = (imgs[a], imgs[b]), times[[a, b]]
+            out[f"{name}_{a}{b}"] = {
+                "times_s": pair_t.tolist(),
+                "shift_px": round(phase_shift_px(pair, pair_t, g), 3),
+                "score_pct": {
+                    r: round(100 * exposure_consistency(pair, pair_t, g, box, clip_radius=r)[0], 4) for r in radii
+                },  # fmt: skip
+            }
+    return out
 
 
 def _bracket(files, side):
@@ -559,6 +596,7 @@ BENCHMARKS = [
     ("led_underexposed", bench_led_underexposed),
     ("tiff", bench_tiff),
     ("frobisher", bench_frobisher),
+    ("motion_brackets", bench_motion_brackets),
 ]
 
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
@@ -573,4 +611,5 @@ SMOKE = {
     "led_underexposed": {"side": 32, "grid": 4, "exposures": (1.0, 0.003)},
     "tiff": {"side": 32, "repeat": 1},
     "frobisher": {"side": 64},
+    "motion_brackets": {"radii": (0, 4), "side": 128},
 }

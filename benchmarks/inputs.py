@@ -119,6 +119,33 @@ def scaled_difference(a, b) -> float:
     return float(np.median(np.abs(r[ok] / np.median(r[ok]) - 1)))
 
 
+def phase_shift_px(imgs, times, response):
+    """How far apart two frames of a bracket are, px: OpenCV's phase correlation of their log radiance
+    (Debevec & Malik 1997 eq. 2, mean over channels), over the pixels well exposed (hat weight ≥ 0.2 of its peak)
+    in both, the others filled with the mean; an estimate of camera or scene motion independent of
+    :func:`facestats.acquire.photographs.exposure_consistency`.
+
+    Parameters
+    ----------
+    imgs : (ndarray, ndarray) of uint8, each (H, W, 3)
+        The two frames' codes.
+    times : ndarray, shape (2,)
+        Their exposure times, s.
+    response : ndarray, shape (256, 3)
+        g(Z) = ln exposure per code and channel.
+    """
+    import cv2
+
+    from facestats.acquire.response import hat_weights
+
+    w = hat_weights(256)
+    ok = np.all((w[imgs[0]] >= 0.2 * w.max()) & (w[imgs[1]] >= 0.2 * w.max()), axis=-1)
+    logs = [(response[im, np.arange(3)] - np.log(t)).mean(-1) for im, t in zip(imgs, times)]
+    a, b = (np.where(ok, x, x[ok].mean()).astype(np.float32) for x in logs)
+    (dx, dy), _ = cv2.phaseCorrelate(a, b, cv2.createHanningWindow(a.shape[::-1], cv2.CV_32F))
+    return float(np.hypot(dx, dy))
+
+
 def colour_hdri_merge(imgs, times):
     """colour-hdri's Debevec 1997 response and HDRI merge of 8-bit images (values scaled to [0, 1]).
 

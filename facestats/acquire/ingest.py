@@ -33,7 +33,7 @@ and gather, at every mesh vertex, a lumitexel of BRDF samples.
    (§5); a head that moved between them makes them disagree.  Each frame's
    :func:`facestats.acquire.photographs.exposure_consistency` (the fraction of
    well-exposed pixels over the face whose two exposures disagree by more than
-   a factor e^0.5, less the response curve's error at their code) above
+   a factor e^0.5; pixels within 4 of a clipped pixel are left out) above
    ``motion_tolerance`` flags the frame: its samples become
    invalid and the flag is recorded in the capture's provenance
    (``motion_flags``).  Motion within one pass, between consecutive LEDs, is not
@@ -93,8 +93,8 @@ __all__ = [
 #: and 8-bit JPEG captures score 0 (noise alone never reaches the factor); 1° head rotations between the passes
 #: scored 0.2-1.5 % (2026-12-01), but since the synthetic albedo's sub-texel spots were fixed (cf69114) one of the
 #: two moved frames of ``bench_photos.bench_ingest``'s 16² and 24² rigs stays below 0.1 % (docs/photographs.md).
-#: A real still JPEG bracket (1 s and 8 s, colour-hdri's frobisher_001) scores 0.084 % with the statistic's
-#: per-code median taken out (0.48 % without it): the threshold has little margin on real 8-bit frames.
+#: Real still JPEG brackets score 0.0006-0.0016 % with the pixels around clipped highlights left out (0.48-0.49 %
+#: with them; docs/photographs.md), a real bracket whose camera moved 0.27 px 2.1 %.
 MOTION_TOLERANCE = 0.001
 #: Default resolution limit: a lumitexel must span 2 pixels along its foreshortened axis, so that the four
 #: bilinear taps around its projection (±1 pixel) stay on its own surface patch.

@@ -457,10 +457,15 @@ def bench_off_plane(size=256, n_theta=64, n_phi=32, chunk=2048):
 def bench_shadow_agreement(size=128, n_theta=64, n_phi=32, threshold=0.02):
     """Shadow maps thresholded from S001's stage field (Debevec et al. 2000 §4.4,
     :func:`facestats.relight.shadows.threshold_shadow_maps`) against the stage's geometric visibility (light reaches
-    the front side unoccluded): the share of face samples that agree away from a one-cell band around the
-    visibility's boundaries, and over all samples (:func:`facestats.relight.shadows.shadow_agreement`)."""
+    the front side unoccluded): the share of face samples that agree away from a band of one grid step of arc around
+    the visibility's boundaries, and over all samples (:func:`facestats.relight.shadows.shadow_agreement`).
+
+    Then why the others disagree (:func:`facestats.relight.shadows.disagreement_causes`), off the band and over all
+    samples, each cause split by the pixel's view cosine N·v (below 0.3: the silhouette; 0.3-0.6; above 0.6):
+    printed as a table, returned keyed ``cause/band/N·v bin`` (counts) and ``cause/band`` (% of compared).
+    """
     from facestats.model.sphere import light_stage_directions
-    from facestats.relight.shadows import shadow_agreement, threshold_shadow_maps
+    from facestats.relight.shadows import CAUSES, disagreement_causes, shadow_agreement, threshold_shadow_maps
     from facestats.relight.stage import light_stage_field, stage_camera
 
     d, _ = light_stage_directions(n_theta, n_phi)
@@ -468,9 +473,28 @@ def bench_shadow_agreement(size=128, n_theta=64, n_phi=32, threshold=0.02):
     mask, visible = field["mask"].values, field["visibility"].values > 0.5
     lit = threshold_shadow_maps(field, threshold)
     away, every = (shadow_agreement(lit, visible, band=band, mask=mask) for band in (1, 0))
-    return {"face_pixels": int(mask.sum()), "agreement_off_boundaries": away["agreement"],
-            "agreement_all": every["agreement"], "false_lit_off_boundaries": int(away["false_lit"]),
-            "false_shadow_off_boundaries": int(away["false_shadow"])}  # fmt: skip
+    out = {"face_pixels": int(mask.sum()), "agreement_off_boundaries": away["agreement"],
+           "agreement_all": every["agreement"], "false_lit_off_boundaries": int(away["false_lit"]),
+           "false_shadow_off_boundaries": int(away["false_shadow"])}  # fmt: skip
+    cos_view = np.einsum("yxk,yxk->yx", field["normal"].values, field["view"].values)
+    bins = {"N.v<0.3": cos_view < 0.3, "0.3-0.6": (cos_view >= 0.3) & (cos_view < 0.6), "N.v>=0.6": cos_view >= 0.6}
+    print(f"S001 at {size}², {n_theta} x {n_phi} lights, threshold {threshold:g}: {int(mask.sum())} face pixels "
+          f"({', '.join(f'{k} {int((v & mask).sum())}' for k, v in bins.items())})")  # fmt: skip
+    print(f"agreement {100 * away['agreement']:.2f} % off a one-step band ({away['compared']:,} samples), "
+          f"{100 * every['agreement']:.2f} % over all ({every['compared']:,})")  # fmt: skip
+    for band, totals in ((1, away), (0, every)):
+        code = disagreement_causes(field, threshold, band=band)
+        print(f"\n{'band ' + str(band):<38} {'count':>10} {'% compared':>11} " + " ".join(f"{k:>10}" for k in bins))
+        for i, cause in enumerate(CAUSES):
+            hit = code == i
+            count = int(hit.sum())
+            out[f"{cause}/band{band}"] = round(100 * count / totals["compared"], 4)
+            per_bin = [int(hit[:, :, sel].sum()) for sel in bins.values()]
+            for key, n in zip(bins, per_bin):
+                out[f"{cause}/band{band}/{key}"] = n
+            print(f"{cause:<38} {count:>10,} {100 * count / totals['compared']:>10.3f}% "
+                  + " ".join(f"{n:>10,}" for n in per_bin))  # fmt: skip
+    return out
 
 
 def bench_separation(

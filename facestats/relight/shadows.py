@@ -11,20 +11,40 @@ then cleaned morphologically — an opening removes isolated lit samples
 (specular-free holes) — with a 3 × 3 neighbourhood that wraps around in
 azimuth.  The result is compared with the geometric visibility of the virtual
 light stage by :func:`shadow_agreement`, which ignores a band of ``band``
-cells around the geometric boundary (the terminator and cast-shadow edges,
+grid steps of arc around the geometric boundary (the terminator and cast-shadow edges,
 where the 64 × 32 sampling and the cos θ fall-off make any threshold
-ambiguous).
+ambiguous; one step is the grid's diagonal at the equator, as wide on the sphere
+near the poles as there).  :func:`disagreement_causes` says, for a field of the
+virtual stage, why each compared sample that disagrees does (grazing light, a
+specular peak, partial visibility, the cleaning).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_scalar, check_finite, check_integer
 from facestats.errors import ValidationError
+from facestats.model.fresnel import fresnel_reflectance
+from facestats.model.sphere import latlong_directions
 from facestats.relight.field import as_field, is_grid
 
-__all__ = ["threshold_shadow_maps", "shadow_agreement"]
+__all__ = ["threshold_shadow_maps", "shadow_agreement", "disagreement_causes", "CAUSES", "NOT_COMPARED"]
+
+#: What :func:`disagreement_causes` finds for a compared sample, indexed by its codes (0: the map agrees).
+CAUSES = (
+    "agree",
+    "false shadow: cleaning",
+    "false shadow: partial visibility",
+    "false shadow: grazing",
+    "false shadow: specular peak",
+    "false lit: cleaning",
+    "false lit: partial visibility",
+    "false lit: light in geometric shadow",
+)
+#: The code of :func:`disagreement_causes` for samples not compared (off the mask, or in the boundary band).
+NOT_COMPARED = -1
 
 
 def _wrap_morphology(lit, op, iterations):
@@ -93,6 +113,33 @@ def threshold_shadow_maps(field, threshold: float = 0.02, *, clean: int = 1):
     return lit
 
 
+def _near_boundary(visible, band):
+    """Samples (n_phi, n_theta, ...) whose light lies within ``band`` grid steps of arc of a light whose ``visible``
+    differs.
+
+    The step is the lat-long grid's diagonal at the equator, √(Δφ² + Δθ²) with Δφ = π/n_phi and Δθ = 2π/n_theta
+    (7.9° on the 64 × 32 stage): at the equator the band of one step is the 3 × 3 neighbourhood of cells; towards
+    the poles, where a cell's width in azimuth shrinks as sin φ, it spans more columns, and it reaches across the
+    pole.  A band of 3 × 3 cells there was 0.27° wide in azimuth in the rows next to the poles of the 64 × 32 grid,
+    narrower than the 3.6° above the horizon where a 2 % threshold cannot tell grazing light from shadow (an
+    audit, 2026-12-08: 1,786 of the 2,146 grazing false shadows of S001 at 64² lay in those four rows).
+    """
+    from scipy.spatial import cKDTree
+
+    if not band:
+        return np.zeros_like(visible)
+    n_phi, n_theta = visible.shape[:2]
+    arc = min(band * np.hypot(np.pi / n_phi, 2 * np.pi / n_theta), np.pi)
+    tree = cKDTree(latlong_directions(n_phi, n_theta).reshape(-1, 3))
+    # Pairs of lights within the arc (chord 2 sin(arc / 2), a hair more for rounding), as a sparse matrix.
+    pairs = tree.sparse_distance_matrix(tree, 2 * np.sin(arc / 2) * (1 + 1e-9), output_type="coo_matrix").tocsr()
+    pairs.data[:] = 1
+    v = visible.reshape(n_phi * n_theta, -1)
+    lit_near = (pairs @ v.astype(np.float32)) > 0
+    dark_near = (pairs @ (~v).astype(np.float32)) > 0
+    return np.where(v, dark_near, lit_near).reshape(visible.shape)
+
+
 def shadow_agreement(lit, visible, band: int = 1, mask=None) -> dict:
     """Agreement of a thresholded shadow map with geometric visibility, away from the boundaries.
 
@@ -102,8 +149,10 @@ def shadow_agreement(lit, visible, band: int = 1, mask=None) -> dict:
         Thresholded map and geometric visibility (light reaches the front side
         unoccluded) on a lat-long light grid.
     band : int
-        Cells within ``band`` (3 × 3 steps, θ wrapping) of a change of ``visible``
-        are excluded.
+        Samples whose light lies within ``band`` steps of arc of a light with the other
+        ``visible`` are excluded; a step is √(Δφ² + Δθ²), the grid's diagonal at the equator
+        (7.9° on the 64 × 32 stage, 31.8° on 16 × 8): the 3 × 3 cells there, more columns
+        towards the poles and across them.
     mask : array_like of bool, shape (y, x), optional
         Pixels to compare (default all).
 
@@ -113,20 +162,13 @@ def shadow_agreement(lit, visible, band: int = 1, mask=None) -> dict:
         ``agreement`` (fraction of compared samples equal), ``compared``,
         ``false_lit`` and ``false_shadow`` counts, ``excluded`` (boundary samples).
     """
-    from scipy import ndimage
-
     a = np.asarray(lit, bool)
     v = np.asarray(visible, bool)
     if a.shape != v.shape or a.ndim != 4:
         raise ValidationError(
             f"lit and visible must have the same shape (n_phi, n_theta, y, x), got {a.shape}, {v.shape}"
         )
-    b = check_integer(band, "band", 0, 16)
-    near = np.zeros_like(v)
-    if b:
-        grown = _wrap_morphology(v, ndimage.binary_dilation, b)
-        shrunk = _wrap_morphology(v, ndimage.binary_erosion, b)
-        near = grown & ~shrunk
+    near = _near_boundary(v, check_integer(band, "band", 0, 16))
     use = ~near
     if mask is not None:
         use &= np.asarray(mask, bool)[None, None]
@@ -140,3 +182,89 @@ def shadow_agreement(lit, visible, band: int = 1, mask=None) -> dict:
         "false_shadow": int((~a & v)[use].sum()),
         "excluded": int((near & (np.ones_like(v) if mask is None else np.asarray(mask, bool)[None, None])).sum()),
     }
+
+
+def disagreement_causes(field, threshold: float = 0.02, *, clean: int = 1, band: int = 1):
+    """Why the thresholded shadow maps of a virtual-stage field disagree with its geometric visibility, per sample.
+
+    The field must come from :func:`facestats.relight.stage.light_stage_field` with ``visibility=True``: its
+    reflectance is R = f_s (N·l) V + colour · F_t(N·l) (N·l) V per sample (Weyrich et al. 2006 eq. 6 with local
+    transport, F_t = 1 − F_r the Fresnel transmittance at the field's ``eta``; N the ``normal``, l the light's
+    ``direction``, V ∈ [0, 1] the ``visibility``, the fraction of the light reaching the pixel's front side).
+    "Visible" is V > 0.5, "lit" the map of :func:`threshold_shadow_maps` (luminance R + G + B above ``threshold``
+    × the pixel's maximum over the lights, then ``clean`` steps of opening and closing), and the samples compared
+    are those :func:`shadow_agreement` compares (face pixels, off a ``band``-cell band around a change of
+    visibility).  Each compared sample gets the first cause that holds (codes index :data:`CAUSES`):
+
+    0. agree: lit == visible.
+    1. false shadow, cleaning: above the threshold, removed by the opening.
+    2. false shadow, partial visibility: the unshadowed value R / V is above the threshold but V < 1 dims it below
+       (a cast-shadow edge crosses the pixel's mesh triangle: V is interpolated from the vertices).
+    3. false shadow, grazing: the diffuse shape F_t(N·l) N·l is below ``threshold`` × its maximum over the pixel's
+       lights (weighted by V), so even a pixel without highlights would be thresholded as shadowed: the threshold
+       on brightness cannot tell light near the horizon from shadow (for a pixel whose brightest diffuse light is
+       head-on, N·l below 0.062 at ``threshold`` = 0.02 and η = 1.38).
+    4. false shadow, specular peak: the diffuse shape clears ``threshold`` × its own maximum, yet R is below
+       ``threshold`` × the pixel's maximum: R ≥ colour · F_t(N·l) N·l, so that maximum exceeds the diffuse one — a
+       specular highlight (strongest at grazing view, where the Torrance-Sparrow lobe grows) raised the threshold.
+    5. false lit, cleaning: below the threshold, filled by the closing.
+    6. false lit, partial visibility: 0 < V ≤ 0.5 and V R above the threshold.
+    7. false lit, light in geometric shadow: V = 0 yet R above the threshold (subsurface light bleeding into the
+       shadow, or indirect light; none in the stage's local transport, where V multiplies both terms).
+
+    Parameters
+    ----------
+    field : xarray.Dataset
+        A lat-long grid field of the virtual stage with ``visibility``, ``normal`` and ``mask``
+        (attribute ``eta``, default skin's 1.38).
+    threshold, clean
+        As :func:`threshold_shadow_maps`.
+    band
+        As :func:`shadow_agreement`.
+
+    Returns
+    -------
+    ndarray of int8, shape (n_phi, n_theta, y, x)
+        The code of each sample, :data:`NOT_COMPARED` (−1) for samples not compared.
+
+    Raises
+    ------
+    ValidationError
+        A field that is not a lat-long grid, or lacks ``visibility``, ``normal`` or ``mask``.
+    """
+    f = as_field(field)
+    missing = [name for name in ("visibility", "normal", "mask") if name not in f.data_vars]
+    if missing or not is_grid(f):
+        raise ValidationError(
+            "field must be a lat-long stage field made with light_stage_field(..., visibility=True), "
+            f"missing {missing}" + ("" if is_grid(f) else " and not a grid")
+        )
+    t = as_scalar(threshold, "threshold", 0, 1, low_inclusive=False, high_inclusive=False)
+    vals = np.asarray(f["reflectance"].values, np.float32)
+    vis = np.asarray(f["visibility"].values, np.float32)
+    lit = threshold_shadow_maps(vals, t, clean=clean)
+    raw = threshold_shadow_maps(vals, t, clean=0)
+    visible = vis > 0.5
+    compare = ~_near_boundary(visible, check_integer(band, "band", 0, 16))
+    compare &= np.asarray(f["mask"].values, bool)[None, None]
+    lum = vals.sum(-1)
+    level = t * lum.max(axis=(0, 1), keepdims=True)  # the threshold_shadow_maps level
+    unshadowed = lum / np.where(vis > 0, vis, 1)
+    cos = np.clip(np.einsum("pqk,yxk->pqyx", f["direction"].values, f["normal"].values).astype(np.float32), 0, 1)
+    shape = (1 - fresnel_reflectance(cos, float(f.attrs.get("eta", ETA_SKIN)))) * cos
+    grazing = shape <= t * (shape * vis).max(axis=(0, 1), keepdims=True)
+    false_shadow, false_lit = visible & ~lit, ~visible & lit
+    code = np.select(
+        [
+            false_shadow & raw,
+            false_shadow & (unshadowed > level),
+            false_shadow & grazing,
+            false_shadow,
+            false_lit & ~raw,
+            false_lit & (vis > 0),
+            false_lit,
+        ],
+        [1, 2, 3, 4, 5, 6, 7],
+        0,
+    ).astype(np.int8)
+    return np.where(compare, code, np.int8(NOT_COMPARED))

@@ -172,6 +172,8 @@ def test_separation_shadows_and_photometric_stereo_check_their_parameters():
         shadows.threshold_shadow_maps(np.full((8, 16, 2, 2, 3), np.nan))
     with pytest.raises(ValidationError, match="one or two light dims"):
         shadows.threshold_shadow_maps(np.ones((8, 3)))
+    with pytest.raises(ValidationError, match=r"visibility=True\), missing \['visibility'\]"):
+        shadows.disagreement_causes(f)
     with pytest.raises(ValidationError, match="mask must have shape"):
         photometric.photometric_stereo(f, mask=np.ones((2, 2), bool))
 

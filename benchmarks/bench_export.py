@@ -472,8 +472,8 @@ def bench_gltf_specular(subjects=None, named=("S003", "S078")):
 def bench_mitsuba_slab(subject="S003", seeds=(0, 1), spp=1024, photons=50_000, reference_seeds=(0, 1, 2, 3)):
     """Mitsuba's subsurface material on a flat slab of ``subject``'s medium against Monte Carlo and the dipole.
 
-    The scene of ``tests/io/test_export_formats.py``'s slab test (its helpers ``_flat_slab`` and
-    ``_slab_reflectance``): the subject's σa, σ's in a ``subsurface`` scene (boundary m = 0.01) on a flat
+    The scene of ``tests/io/test_export_formats.py``'s slab test (``tests.helpers.flat_slab`` and
+    ``slab_reflectance``): the subject's σa, σ's in a ``subsurface`` scene (boundary m = 0.01) on a flat
     300 mm square under uniform radiance 1, seen along its normal (16² pixels, ``spp`` samples each), rendered
     once per sampler seed of ``seeds``; its mean radiance per channel against the Monte Carlo reflectance of
     the same transport (``photons`` per channel, seed 0) as ratios, the render's standard error (the pixels'
@@ -487,7 +487,7 @@ def bench_mitsuba_slab(subject="S003", seeds=(0, 1), spp=1024, photons=50_000, r
     from facestats.io.mitsuba import render_scene, require_mitsuba, write_mitsuba_scene
     from facestats.model.dipole import total_diffuse_reflectance
     from facestats.model.fresnel import fresnel_reflectance
-    from tests.io.test_export_formats import _flat_slab, _slab_reflectance
+    from tests.helpers import flat_slab, slab_reflectance
 
     try:
         require_mitsuba()
@@ -497,7 +497,7 @@ def bench_mitsuba_slab(subject="S003", seeds=(0, 1), spp=1024, photons=50_000, r
         ds = st.subject(subject).load()
     sp, sa = np.asarray(ds["sigma_s_prime"].values, np.float64), np.asarray(ds["sigma_a"].values, np.float64)
     albedo = sp / (sp + sa)
-    by_seed = {s: _slab_reflectance(albedo, 1.38, photons=photons, seed=s) for s in {0, *reference_seeds}}
+    by_seed = {s: slab_reflectance(albedo, 1.38, photons=photons, seed=s) for s in {0, *reference_seeds}}
     references, want = np.array([by_seed[s] for s in reference_seeds]), by_seed[0]
     dipole = total_diffuse_reflectance(sp, sa, 1.38) + float(fresnel_reflectance(1.0, 1.38))
     slab = ds.copy()
@@ -509,7 +509,7 @@ def bench_mitsuba_slab(subject="S003", seeds=(0, 1), spp=1024, photons=50_000, r
         write_exr(probe, {c: np.ones((8, 16), np.float32) for c in "RGB"})
         scene = os.path.join(tmp, "scene")
         os.mkdir(scene)
-        spec = write_mitsuba_scene(slab, scene, probe=probe, material="subsurface", mesh=_flat_slab(), width=16,
+        spec = write_mitsuba_scene(slab, scene, probe=probe, material="subsurface", mesh=flat_slab(), width=16,
                                    height=16, spp=spp, fov=10.0)  # fmt: skip
         for seed in seeds:
             img = render_scene(spec, base_dir=scene, seed=seed).reshape(-1, 3).astype(np.float64)

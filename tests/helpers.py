@@ -241,6 +241,54 @@ def make_population(n=40, seed=0, size=24, conditions=True):
     return MemoryStore(datasets)
 
 
+# -- a flat slab and its reference reflectance (the Mitsuba export's check) ------------------------------------
+def flat_slab(half_width=150.0, cells=8):
+    """A flat square mesh in the plane z = 0 facing +z (mm), UVs over [0, 1]²: a semi-infinite slab's surface."""
+    g = np.linspace(-half_width, half_width, cells + 1)
+    x, y = np.meshgrid(g, g)
+    vertices = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], 1)
+    uv = np.stack([x.ravel() + half_width, half_width - y.ravel()], 1) / (2 * half_width)
+    idx = np.arange(len(vertices)).reshape(cells + 1, cells + 1)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([b, d, c], 1)])  # counter-clockwise seen from +z
+    normals = np.tile([0.0, 0.0, 1.0], (len(vertices), 1))
+    from facestats.io.mesh import FaceMesh
+
+    return FaceMesh(vertices, faces, uv, normals, {"kind": "mesh", "name": "flat-slab"})
+
+
+def slab_reflectance(albedo, eta, photons=50_000, seed=0):
+    """Reflectance at normal incidence of a semi-infinite isotropically scattering medium of single-scattering
+    albedo ``albedo`` (per channel) under a smooth boundary of relative index ``eta``, by Monte Carlo.
+
+    Photons enter along the normal with weight 1 − F(0); free paths are exponential in units of 1/σt (the
+    slab has no other length, so the result does not depend on σt); at each scattering the weight is
+    multiplied by the albedo and the direction cosine redrawn uniformly in [−1, 1] (isotropic); at the
+    boundary F_r(μ, 1/η) (total internal reflection included) is reflected back and 1 − F_r leaves.
+    Photons below 1e-4 of their weight are dropped (a bias below 1e-4).  Under uniform radiance 1 the
+    reflected radiance towards the normal equals this reflectance (reciprocity)."""
+    from facestats.model.fresnel import fresnel_reflectance
+
+    rng = np.random.default_rng(seed)
+    albedo = np.asarray(albedo, np.float64)
+    channel = np.repeat(np.arange(albedo.size), photons)
+    f0 = float(fresnel_reflectance(1.0, eta))
+    z, mu, w = np.zeros(channel.size), -np.ones(channel.size), np.full(channel.size, 1 - f0)
+    out = np.zeros(albedo.size)
+    while w.size:
+        z = z + mu * rng.exponential(size=w.size)
+        hit = z >= 0
+        r = fresnel_reflectance(mu[hit], 1 / eta)
+        out += np.bincount(channel[hit], w[hit] * (1 - r), minlength=albedo.size)
+        w[hit] *= r
+        z[hit], mu[hit] = 0.0, -mu[hit]  # reflected back in: a fresh free path (exponential: memoryless)
+        w[~hit] *= albedo[channel[~hit]]
+        mu[~hit] = rng.uniform(-1, 1, np.count_nonzero(~hit))
+        keep = w > 1e-4
+        z, mu, w, channel = z[keep], mu[keep], w[keep], channel[keep]
+    return f0 + out / photons
+
+
 # -- MERL/ETH files --------------------------------------------------------------------------
 def merl_dict(rng=None, n=4, k=200, ka=120, albedo_cols=3):
     """A valid ts_data.mat content: column vectors, numeric codes."""

@@ -16,8 +16,9 @@ import pytest
 from facestats.errors import DependencyError, FacestatsError, FormatError, SchemaError, ValidationError
 from facestats.io.exr_set import COLOUR_SPACE, EXR_SET_FORMAT, FILLED_MAPS, read_exr_set, write_exr_set
 from facestats.io.images import read_exr, read_image, srgb_to_linear, write_exr
-from facestats.io.mesh import FaceMesh, load_face_mesh, subject_mesh
+from facestats.io.mesh import load_face_mesh, subject_mesh
 from facestats.io.subject_export import export_subject
+from tests.helpers import flat_slab, slab_reflectance
 
 MITSUBA_ABSENT = "Mitsuba 3 is not installed (pip install mitsuba; in the test extra)"
 
@@ -592,56 +593,11 @@ def test_mitsuba_surface_bsdf_is_lambert_plus_weyrich_eq_12(mitsuba, tmp_path, s
         assert np.all((ratio > 0.95) & (ratio < 0.99)), ratio
 
 
-def _flat_slab(half_width=150.0, cells=8):
-    """A flat square mesh in the plane z = 0 facing +z (mm), UVs over [0, 1]²: a semi-infinite slab's surface."""
-    g = np.linspace(-half_width, half_width, cells + 1)
-    x, y = np.meshgrid(g, g)
-    vertices = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], 1)
-    uv = np.stack([x.ravel() + half_width, half_width - y.ravel()], 1) / (2 * half_width)
-    idx = np.arange(len(vertices)).reshape(cells + 1, cells + 1)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([b, d, c], 1)])  # counter-clockwise seen from +z
-    normals = np.tile([0.0, 0.0, 1.0], (len(vertices), 1))
-    return FaceMesh(vertices, faces, uv, normals, {"kind": "mesh", "name": "flat-slab"})
-
-
-def _slab_reflectance(albedo, eta, photons=50_000, seed=0):
-    """Reflectance at normal incidence of a semi-infinite isotropically scattering medium of single-scattering
-    albedo ``albedo`` (per channel) under a smooth boundary of relative index ``eta``, by Monte Carlo.
-
-    Photons enter along the normal with weight 1 − F(0); free paths are exponential in units of 1/σt (the
-    slab has no other length, so the result does not depend on σt); at each scattering the weight is
-    multiplied by the albedo and the direction cosine redrawn uniformly in [−1, 1] (isotropic); at the
-    boundary F_r(μ, 1/η) (total internal reflection included) is reflected back and 1 − F_r leaves.
-    Photons below 1e-4 of their weight are dropped (a bias below 1e-4).  Under uniform radiance 1 the
-    reflected radiance towards the normal equals this reflectance (reciprocity)."""
-    from facestats.model.fresnel import fresnel_reflectance
-
-    rng = np.random.default_rng(seed)
-    albedo = np.asarray(albedo, np.float64)
-    channel = np.repeat(np.arange(albedo.size), photons)
-    f0 = float(fresnel_reflectance(1.0, eta))
-    z, mu, w = np.zeros(channel.size), -np.ones(channel.size), np.full(channel.size, 1 - f0)
-    out = np.zeros(albedo.size)
-    while w.size:
-        z = z + mu * rng.exponential(size=w.size)
-        hit = z >= 0
-        r = fresnel_reflectance(mu[hit], 1 / eta)
-        out += np.bincount(channel[hit], w[hit] * (1 - r), minlength=albedo.size)
-        w[hit] *= r
-        z[hit], mu[hit] = 0.0, -mu[hit]  # reflected back in: a fresh free path (exponential: memoryless)
-        w[~hit] *= albedo[channel[~hit]]
-        mu[~hit] = rng.uniform(-1, 1, np.count_nonzero(~hit))
-        keep = w > 1e-4
-        z, mu, w, channel = z[keep], mu[keep], w[keep], channel[keep]
-    return f0 + out / photons
-
-
 @pytest.mark.slow  # a Monte Carlo reference and two Mitsuba renders
 def test_mitsuba_subsurface_slab_reflects_what_the_transport_equation_gives(mitsuba, tmp_path, subject):
     """A flat slab of the subsurface material (S003's σa, σ's; boundary m = 0.01, i.e. smooth) under uniform
     radiance 1, seen along its normal, reflects per channel what a Monte Carlo solution of the same radiative
-    transfer gives (:func:`_slab_reflectance` with σ's/(σa + σ's) = 0.98, 0.88, 0.80 and η = 1.38: about
+    transfer gives (:func:`tests.helpers.slab_reflectance` with σ's/(σa + σ's) = 0.98, 0.88, 0.80 and η = 1.38: about
     0.519, 0.258, 0.181).
 
     Tolerance 3 %: measured ratios 0.990-1.005 (two render seeds, three channels; 2026-12-07, cf69114,
@@ -660,11 +616,11 @@ def test_mitsuba_subsurface_slab_reflects_what_the_transport_equation_gives(mits
     slab["ts_m"] = slab["ts_m"] * 0 + np.float32(0.01)
     out = tmp_path / "scene"
     out.mkdir()
-    spec = write_mitsuba_scene(slab, out, probe=probe, material="subsurface", mesh=_flat_slab(), width=16,
+    spec = write_mitsuba_scene(slab, out, probe=probe, material="subsurface", mesh=flat_slab(), width=16,
                                height=16, spp=1024, fov=10.0)  # fmt: skip
     img = render_scene(spec, base_dir=out)  # the slab fills the view: ±61 mm at 700 mm
     sp, sa = subject["sigma_s_prime"].values, subject["sigma_a"].values
-    want = _slab_reflectance(sp / (sp + sa), 1.38)
+    want = slab_reflectance(sp / (sp + sa), 1.38)
     np.testing.assert_allclose(img.reshape(-1, 3).mean(0), want, rtol=0.03)
 
 

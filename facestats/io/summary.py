@@ -200,13 +200,7 @@ def region_samples(ds, model: str = "ts", texels: FaceTexels | None = None) -> d
     rho_name, lobe_name, flag_name = MODEL_PARAMS[model]
     out = {}
     if subject_kind(ds) == "maps":
-        texels = FaceTexels(ds) if texels is None else texels
-        region, good = texels.region, texels(flag_name) == 0
-        rho, lobe = texels(rho_name), texels(lobe_name)
-        for r in REGION_IDS:
-            sel = (region == r) & good
-            out[r] = (rho[sel].astype(np.float64), lobe[sel].astype(np.float64))
-        return out
+        return dict(_region_texels(ds, model, (rho_name, lobe_name), texels))
     if model != "ts":
         return {r: (np.empty(0), np.empty(0)) for r in REGION_IDS}
     reg = np.asarray(ds["ts_sample_region"].values)
@@ -235,16 +229,25 @@ def region_standard_errors(ds, model: str = "ts", texels: FaceTexels | None = No
         standard-error map (a sample subject, a store written before they existed, an edited parameter).
     """
     names = MODEL_STD[model]
-    if subject_kind(ds) != "maps" or not any(n in ds.data_vars for n in names):
+    if not _has_standard_errors(ds, model):
         return None
+    return dict(_region_texels(ds, model, names, texels))
+
+
+def _has_standard_errors(ds, model: str) -> bool:
+    """True for a map subject with a standard-error map of ``model`` (:func:`region_standard_errors`)."""
+    return subject_kind(ds) == "maps" and any(n in ds.data_vars for n in MODEL_STD[model])
+
+
+def _region_texels(ds, model: str, names, texels: FaceTexels | None = None):
+    """``(region, arrays)`` per region 1-10, one region at a time: the float64 values of the maps ``names`` (NaN for
+    a map the subject lacks) on the region's texels whose ``model`` fit was not flagged, in row-major order."""
     texels = FaceTexels(ds) if texels is None else texels
-    region, good = texels.region, texels(MODEL_PARAMS[model][2]) == 0
-    maps = [texels(n) if n in ds.data_vars else None for n in names]  # each map is optional
-    out = {}
+    good = texels(MODEL_PARAMS[model][2]) == 0
+    maps = [texels(n) if n in ds.data_vars else None for n in names]  # standard-error maps are optional
     for r in REGION_IDS:
-        sel = (region == r) & good
-        out[r] = tuple(np.full(int(sel.sum()), np.nan) if m is None else m[sel].astype(np.float64) for m in maps)
-    return out
+        sel = (texels.region == r) & good
+        yield r, tuple(np.full(int(sel.sum()), np.nan) if m is None else m[sel].astype(np.float64) for m in maps)
 
 
 #: Largest standard error, relative to the value's magnitude, of a texel counted in the region's standard errors.
@@ -377,21 +380,32 @@ def summarise_subject(ds, texels: FaceTexels | None = None) -> dict:
     return row
 
 
+def _brdf_regions(ds, model: str, texels: FaceTexels | None):
+    """``(region, (rho_s, lobe), (rho_s_std, lobe_std) or None)`` per region 1-10: :func:`region_samples` and
+    :func:`region_standard_errors`, for a map subject one region's float64 arrays at a time (all regions of one
+    model at once were the peak of the index row: 118-129 MiB traced at 2048²)."""
+    if subject_kind(ds) != "maps":
+        samples = region_samples(ds, model)
+        yield from ((r, samples[r], None) for r in REGION_IDS)
+        return
+    errors = _has_standard_errors(ds, model)
+    names = MODEL_PARAMS[model][:2] + (MODEL_STD[model] if errors else ())
+    for r, arrays in _region_texels(ds, model, names, texels):
+        yield r, arrays[:2], (arrays[2:] if errors else None)
+
+
 def _add_brdf_columns(row: dict, ds, texels: FaceTexels | None) -> None:
     """Per model and region: sample count, mean, spread and standard errors of both BRDF parameters."""
     for model in ("ts", "bp"):
         rho_name, lobe_name, _ = MODEL_PARAMS[model]
-        samples = region_samples(ds, model, texels)
-        errors = region_standard_errors(ds, model, texels)
-        for r in REGION_IDS:
-            rho, lobe = samples[r]
+        for r, (rho, lobe), errors in _brdf_regions(ds, model, texels):
             row[column("n", model=model, region=r)] = int(rho.size)
             row[column("cov", model=model, region=r)] = _covariance(rho, lobe)
             for k, (name, x) in enumerate(((rho_name, rho), (lobe_name, lobe))):
                 mean, std = _mean_std(x)
                 row[column("mean", param=name, region=r)] = mean
                 row[column("std", param=name, region=r)] = std
-                se, mean_se = (np.nan, np.nan) if errors is None else _standard_errors(errors[r][k], x)
+                se, mean_se = (np.nan, np.nan) if errors is None else _standard_errors(errors[k], x)
                 row[column("se", param=name, region=r)] = se
                 row[column("mean_se", param=name, region=r)] = mean_se
 

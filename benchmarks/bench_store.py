@@ -150,7 +150,9 @@ def bench_subject_io(size=2048, cameras=16):
 #: ``bench_validate()`` run with the code of commit a1bce51 (every variable of a subject loaded, then checked):
 #: peak RSS (MiB) and seconds, medians of 3 runs, 2026-12-07, in 2 batches alternating with this version on a
 #: shared 2-core machine (1,323 and 1,328 MiB, 3.14 s both times; this version 345 and 353 MiB, 3.92 and 3.93 s,
-#: with a floor of 90 MiB: its large maps are read twice, for their checksums and again for the schema).
+#: with a floor of 90 MiB: its large maps were read twice, for their checksums and again for the schema).  Since
+#: 68d1132 each band is read once (2026-12-08, alternating with a59b93e, one child each: 371-380 MiB and 4.0-5.0 s
+#: against 361-363 MiB and 5.4-9.0 s; docs/store.md).
 VALIDATE_BASELINE = {"peak_rss_MB": 1325.0, "s": 3.14}
 
 #: What the child of :func:`bench_validate` runs: validate the store ``argv[1]``, print JSON figures.

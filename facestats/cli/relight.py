@@ -70,12 +70,15 @@ MIN_LIGHTS = (8, 4)
 
 def _lights(text):
     """``(n_theta, n_phi)`` of a ``--lights`` value ``NxM``, checked before any array of the grid is made: ASCII whole
-    numbers, at least :data:`MIN_LIGHTS`, and at most :data:`facestats.io.images.MAX_IMAGE_PIXELS` lights in all, the
+    numbers, at least :data:`MIN_LIGHTS`, at most :data:`facestats.io.images.MAX_IMAGE_PIXELS` lights in all, the
     most pixels of a light probe facestats reads (the grid is a lat-long image the probe is resampled to, one light
-    per cell: a finer grid only splits the probe's pixels).  At that limit the grid's directions alone take 6 GiB
-    (2^28 x 3 float64), where 100000x100000 failed late asking 74.5 GiB."""
+    per cell: a finer grid only splits the probe's pixels), and a grid whose own arrays fit in the memory available
+    (:func:`facestats.relight.stage.check_light_grid`: at the limit its directions alone take 6 GiB, 2^28 x 3
+    float64, built before the visibility table's memory check refused it; 100000x100000 failed late asking
+    74.5 GiB)."""
     from facestats.errors import ValidationError
     from facestats.io.images import MAX_IMAGE_PIXELS
+    from facestats.relight.stage import check_light_grid
 
     sizes = [ascii_number(x, int) for x in text.lower().split("x")]
     if len(sizes) != 2 or None in sizes or min(sizes) < 1:
@@ -95,6 +98,7 @@ def _lights(text):
             "under a uniform probe 29 % dark to 41 % bright (4x2), or black (1x1), got "
             f"{text!r} (docs/relighting.md)"
         )
+    check_light_grid(*sizes, name="--lights", value=text)
     return tuple(sizes)
 
 

@@ -41,7 +41,8 @@ from facestats.core.crc32 import crc32_combine
 from facestats.core.version import __version__
 from facestats.errors import SchemaError, StoreError, ValidationError
 from facestats.io.layout import ROOT_META, generation_rel, map_chunk_rows
-from facestats.io.schema import SCHEMA_VERSION, validate_subject
+from facestats.io.schema import SCHEMA_VERSION, MapChecks, face_texels, subject_kind, validate_subject
+from facestats.io.summary import GATHERED_TEXELS, SUMMARY_MAPS
 
 __all__ = [
     "STORE_ATTR",
@@ -97,7 +98,7 @@ def _along(axis: int, step) -> tuple:
     return (slice(None),) * axis + (slice(None, None, step),)
 
 
-def manifest_entry(var) -> dict:
+def manifest_entry(var, each_band=None) -> dict:
     """The manifest entry of one variable: ``{"dims", "shape", "dtype", "crc32"}``.
 
     Map variables (chunked along ``v``, :func:`facestats.io.layout.map_chunk_rows`)
@@ -113,6 +114,9 @@ def manifest_entry(var) -> dict:
     ----------
     var : xarray.Variable
         The variable as it is about to be written (in memory or lazily read).
+    each_band : callable, optional
+        ``each_band(lo, band)``, called with every band of a map as read (rows ``lo:lo + len`` of ``v``, before its
+        checksums are compared with anything): a reader that checks the values too does it on the same read.
 
     Returns
     -------
@@ -129,6 +133,8 @@ def manifest_entry(var) -> dict:
     running, chunks = [0] * lead, []  # 0 = the CRC-32 of no bytes
     for lo in range(0, var.shape[axis], rows):
         band = _little_endian(np.asarray(var[{"v": slice(lo, lo + rows)}].values))
+        if each_band is not None:
+            each_band(lo, band)
         parts = band.reshape(lead, band.size // max(lead, 1)).view(np.uint8)
         crcs = [zlib.crc32(part) for part in parts]  # every byte once: the band's and the variable's CRC follow
         chunks.append(_joined(crcs, parts.shape[1]))
@@ -223,12 +229,15 @@ def open_generation(
         every band of it would read and verify the whole variable.
     banded : bool
         With ``lazy=False``: check map variables of more than one band of rows without holding them
-        (``validate`` and repair, :func:`banded_variables`): each is read band by band for its checksums
-        (:func:`manifest_entry`, the write's own computation), then left on disk, wrapped so that every later
-        read verifies its bands, and the schema reads it band by band again
-        (:func:`facestats.io.schema.validate_subject`).  The checks and their messages are those of a full
-        read; memory holds one band of such a map at a time (25 MB for the 16 micro-normal cameras of a
-        2048² subject) where a full read holds the whole subject.
+        (``validate`` and repair, :func:`banded_variables`): each is read once, band by band, for its checksums
+        (:func:`manifest_entry`, the write's own computation), and each band as read is handed on: its face
+        texels to the schema's map checks (:class:`facestats.io.schema.MapChecks`, passed to
+        :func:`facestats.io.schema.validate_subject`) and, for the maps the index row reads
+        (:data:`facestats.io.summary.SUMMARY_MAPS`), gathered for it (``ds.encoding[GATHERED_TEXELS]``, which
+        :class:`facestats.io.summary.FaceTexels` takes).  The map is then left on disk, wrapped so that any later
+        read verifies its bands.  The checks, their order and their messages are those of a full read; memory
+        holds one band of such a map at a time (25 MB for the 16 micro-normal cameras of a 2048² subject) and the
+        face texels of the index row's maps (72 MB at 2048²), where a full read holds the whole subject.
 
     Returns
     -------
@@ -258,16 +267,20 @@ def open_generation(
     else:
         check = [n for n in manifest if n not in kept]
     streamed = set(banded_variables(ds, manifest)) & set(check) if banded and not lazy else set()
-    _verify_checksums(ds, manifest, check, sid, check_chunks, streamed)
+    feed = _BandFeed(ds) if streamed else None
+    _verify_checksums(ds, manifest, check, sid, check_chunks, streamed, feed)
     ds = _strings_to_str(ds, set(check) | set(ds.indexes))
     gone = functools.partial(_gone, backend, rel)
     if lazy:
         return _verify_on_read(ds, manifest, set(check), sid, gone)
     ds = _verify_on_read(ds, manifest, set(check) - streamed, sid, gone)  # the streamed and kept variables
-    validate_subject(ds.drop_vars(kept), name=sid)
-    if not kept:
-        return ds
-    return ds.assign({n: ds[n].chunk({"v": manifest[n]["chunk_rows"]}) for n in kept})
+    validate_subject(ds.drop_vars(kept), name=sid, checked=feed.checks if feed else None)
+    if kept:
+        ds = ds.assign({n: ds[n].chunk({"v": manifest[n]["chunk_rows"]}) for n in kept})
+    if feed and feed.gathered:
+        gathered = {n: (ds.variables[n], t) for n, t in feed.gathered.items()}
+        ds.encoding[GATHERED_TEXELS] = {"region": (ds.variables["region"], None), **gathered}
+    return ds
 
 
 def banded_variables(ds, manifest: dict) -> list:
@@ -491,26 +504,49 @@ def _check_variable(var, name: str, m: dict, sid: str) -> None:
         raise SchemaError(f"subject {sid!r}: variable {name!r} has dtype {dt}, expected {m['dtype']}")
 
 
-def _verify_checksums(ds, manifest: dict, names, sid: str, chunks: bool = False, streamed=()) -> None:
+def _verify_checksums(ds, manifest: dict, names, sid: str, chunks: bool = False, streamed=(), feed=None) -> None:
     """Load the variables ``names`` and compare their CRC-32 with the manifest (and, with ``chunks``, each chunk's).
 
-    The variables ``streamed`` are not loaded but read band by band (:func:`_verify_bands`).
+    The variables ``streamed`` are not loaded but read band by band (:func:`_verify_bands`), each band handed to
+    ``feed`` (a :class:`_BandFeed`) as read.  With ``feed``, the maps whose face texels it gathers for the index row
+    are read last (:meth:`_BandFeed.gathers`: they are not held while the other large maps are read); the error
+    raised is still the first in the order of ``names``, as a full read raises it: when a variable fails, those
+    before it not yet checked are checked first.
     """
-    for name in names:
-        if name not in manifest:
-            raise SchemaError(f"subject {sid!r}: no variable {name!r}")
-        var = ds.variables[name]
-        if name in streamed:
-            _verify_bands(var, manifest[name], sid, name, chunks)
-            continue
+    names = list(names)
+    order = (
+        names
+        if feed is None
+        else [n for n in names if not feed.gathers(n, streamed)] + [n for n in names if feed.gathers(n, streamed)]
+    )
+    done = set()
+    for name in order:
         try:
-            var.load()
-        except Exception as exc:
-            raise read_failure(exc, sid, f"variable {name!r}") from None
-        if digest(var.values)[1] != manifest[name]["crc32"]:
-            raise _checksum_error(sid, name)
-        if chunks:
-            _verify_chunk_checksums(var, manifest[name], sid, name)
+            _verify_one(ds, manifest, name, sid, chunks, streamed, feed)
+        except StoreError:
+            for earlier in names[: names.index(name)]:
+                if earlier not in done:
+                    _verify_one(ds, manifest, earlier, sid, chunks, streamed, None)
+            raise
+        done.add(name)
+
+
+def _verify_one(ds, manifest: dict, name: str, sid: str, chunks: bool, streamed, feed) -> None:
+    """:func:`_verify_checksums` of one variable."""
+    if name not in manifest:
+        raise SchemaError(f"subject {sid!r}: no variable {name!r}")
+    var = ds.variables[name]
+    if name in streamed:
+        _verify_bands(var, manifest[name], sid, name, chunks, feed.consumer(name, var) if feed else None)
+        return
+    try:
+        var.load()
+    except Exception as exc:
+        raise read_failure(exc, sid, f"variable {name!r}") from None
+    if digest(var.values)[1] != manifest[name]["crc32"]:
+        raise _checksum_error(sid, name)
+    if chunks:
+        _verify_chunk_checksums(var, manifest[name], sid, name)
 
 
 def _checksum_error(sid: str, name: str) -> SchemaError:
@@ -521,14 +557,15 @@ def _checksum_error(sid: str, name: str) -> SchemaError:
     )
 
 
-def _verify_bands(var, m: dict, sid: str, name: str, chunks: bool) -> None:
+def _verify_bands(var, m: dict, sid: str, name: str, chunks: bool, each_band=None) -> None:
     """The CRC-32 of a map variable left on disk (and, with ``chunks``, of each band), one band read at a time.
 
     The CRCs are computed as the write computed them (:func:`manifest_entry`), so the variable's checksum is
-    compared first and the chunk checksums after, as for a loaded variable.
+    compared first and the chunk checksums after, as for a loaded variable.  ``each_band(lo, band)`` gets every band
+    as read (it raises nothing: :meth:`_BandFeed.consumer`).
     """
     try:
-        found = manifest_entry(var)
+        found = manifest_entry(var, each_band)
     except Exception as exc:
         raise read_failure(exc, sid, f"variable {name!r}") from None
     if found["crc32"] != m["crc32"]:
@@ -563,6 +600,73 @@ def _compare_chunk_checksums(found, m: dict, n: int, sid: str, name: str) -> Non
                 f"{min(lo + rows, n) - 1} of v) does not match the data, which match the "
                 "variable's checksum: the manifest is damaged"
             )
+
+
+class _BandFeed:
+    """Where the checksum pass of ``open_generation(..., banded=True)`` hands the bands of the large maps it reads.
+
+    The face texels of each band go to the schema's map checks (:attr:`checks`, a
+    :class:`facestats.io.schema.MapChecks`) and, for the maps of :data:`facestats.io.summary.SUMMARY_MAPS`, are
+    gathered for the index row (:attr:`gathered`, ``{name: (texels, *other dims)}``), so that neither reads the map
+    again.  Nothing is fed unless the subject is a map subject whose ``region`` (dims ``v``, ``u``) can be loaded
+    before the first large map (at construction); a variable whose feeding failed is left out of both (the schema
+    and the index row read it themselves, with the messages of a full read).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        The generation as opened (variables on disk).
+    """
+
+    def __init__(self, ds):
+        self.ds = ds
+        self.checks: MapChecks | None = None
+        self.gathered: dict = {}
+        self._start()
+
+    def gathers(self, name: str, streamed) -> bool:
+        """True if the face texels of variable ``name`` (read band by band if in ``streamed``) are gathered."""
+        return self.checks is not None and name in streamed and name in SUMMARY_MAPS and "u" in self.ds[name].dims
+
+    def _start(self) -> None:
+        """Load the face mask (``region``, verified later in its own turn), if the subject has one."""
+        try:
+            if subject_kind(self.ds) != "maps" or tuple(self.ds.variables["region"].dims) != ("v", "u"):
+                return
+            region = self.ds.variables["region"]
+            region.load()
+            self.checks = MapChecks(np.asarray(region.values) > 0)
+        except Exception:  # the schema or the checksum pass names what is wrong, in their order
+            self.checks = None
+
+    def consumer(self, name: str, var):
+        """``each_band(lo, band)`` feeding the bands of map variable ``name`` (None if nothing wants them)."""
+        dims = tuple(var.dims)
+        check = self.checks is not None and MapChecks.wants(name, dims)
+        gather = self.gathers(name, {name})
+        if not (check or gather):
+            return None
+        face, axis, n = self.checks.face, dims.index("v"), int(np.count_nonzero(self.checks.face))
+        state = {"ok": True, "at": 0}
+
+        def each_band(lo: int, band) -> None:
+            if not state["ok"]:
+                return
+            try:
+                texels = face_texels(band, dims, face[lo : lo + band.shape[axis]])
+                if check:
+                    self.checks.add(name, texels)
+                if gather:
+                    if name not in self.gathered:
+                        self.gathered[name] = np.empty((n, *texels.shape[1:]), texels.dtype)
+                    self.gathered[name][state["at"] : state["at"] + len(texels)] = texels
+                    state["at"] += len(texels)
+            except Exception:  # not read here after all: the schema and the index row read it (full-read messages)
+                state["ok"] = False
+                self.checks.found.pop(name, None)
+                self.gathered.pop(name, None)
+
+        return each_band
 
 
 def _strings_to_str(ds, names):

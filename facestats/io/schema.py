@@ -78,6 +78,9 @@ __all__ = [
     "subject_kind",
     "validate_subject",
     "face_bands",
+    "face_texels",
+    "FINITE_MAPS",
+    "MapChecks",
     "set_variable_attrs",
     "provenance",
     "set_provenance",
@@ -455,7 +458,7 @@ def modulation(ds):
     return (ds["albedo"] / ds["albedo_avg"]).where(face, 0.0)
 
 
-def validate_subject(ds, *, name: str | None = None):
+def validate_subject(ds, *, name: str | None = None, checked: MapChecks | None = None):
     """Check a subject Dataset against the schema; raise :class:`SchemaError` naming the problem.
 
     Checks: required attributes and their values, the variables of its kind, the
@@ -469,6 +472,10 @@ def validate_subject(ds, *, name: str | None = None):
         A subject.
     name : str, optional
         The subject's name in messages (default: its ``subject_id`` attribute).
+    checked : MapChecks, optional
+        The map checks of some variables already made, fed every band of them on the face of ``ds``'s ``region``
+        (``open_generation(..., banded=True)`` feeds the bands its checksum pass reads): those variables are not read
+        again.  The checks, their order and their messages are the same as without it.
 
     Returns
     -------
@@ -480,11 +487,12 @@ def validate_subject(ds, *, name: str | None = None):
     kind = subject_kind(ds)
     _check_dims(ds, label)
     _check_coords(ds, label)
+    checks = None
     if kind == "maps":
-        _check_maps(ds, label)
+        checks = _check_maps(ds, label, checked)
     else:
         _check_samples(ds, label)
-    _check_domains(ds, label, kind)
+    _check_domains(ds, label, checks)
     return kind
 
 
@@ -598,8 +606,15 @@ def _increasing_problem(r, low: float, high: float) -> str | None:
     return f"{float(r[k])!r} at index {k}{after}"
 
 
-def _check_maps(ds, label) -> None:
-    """Region labels 0-10 with at least one face texel; finite fitted maps in the face."""
+#: The fitted maps whose face texels must be finite.
+FINITE_MAPS = ("albedo", "ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent")
+
+
+def _check_maps(ds, label, checked: MapChecks | None = None) -> MapChecks:
+    """Region labels 0-10 with at least one face texel; finite fitted maps in the face.
+
+    Returns the :class:`MapChecks` of the subject's face (``checked`` if given), fed the maps checked here.
+    """
     region = np.asarray(ds["region"].values)
     if region.dtype.kind not in "iu":  # 2.5 would silently belong to no region of any statistic
         raise SchemaError(f"subject {label!r}: region labels must be integers 0-10, got dtype {region.dtype}")
@@ -610,10 +625,32 @@ def _check_maps(ds, label) -> None:
     face = region > 0
     if not face.any():
         raise SchemaError(f"subject {label!r}: the region map has no face texel")
-    for var in ("albedo", "ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent"):
-        bad = sum(int((~np.isfinite(vals)).sum()) for vals in face_bands(ds[var].variable, face))
+    checks = MapChecks(face) if checked is None else checked
+    for var in FINITE_MAPS:
+        bad = checks.of(var, ds[var].variable).nonfinite
         if bad:
             raise SchemaError(f"subject {label!r}: variable {var!r} has {bad} non-finite face texel(s)")
+    return checks
+
+
+def face_texels(band, dims, face_rows):
+    """The face texels of one band of rows of a map: an array (texels, *other dims*), in row-major order of (v, u).
+
+    Parameters
+    ----------
+    band : ndarray
+        Rows ``lo:hi`` of ``v`` of a map variable with ``dims`` (``v`` and ``u`` among them).
+    dims : sequence of str
+        The variable's dims.
+    face_rows : ndarray of bool, shape (hi - lo, u)
+        The face texels of those rows (``region > 0``).
+
+    Returns
+    -------
+    ndarray
+    """
+    dims = tuple(dims)
+    return np.moveaxis(np.asarray(band), [dims.index("v"), dims.index("u")], [0, 1])[face_rows]
 
 
 def face_bands(var, face):
@@ -634,14 +671,76 @@ def face_bands(var, face):
     Yields
     ------
     ndarray
-        The face texels of one band, shape (texels, *other dims*).
+        The face texels of one band, shape (texels, *other dims*) (:func:`face_texels`).
     """
     dims = tuple(var.dims)
     rows = map_chunk_rows(dims, var.shape)
     for lo in range(0, var.shape[dims.index("v")], rows):
         hi = lo + rows
-        band = np.asarray(var[{"v": slice(lo, hi)}].values)
-        yield np.moveaxis(band, [dims.index("v"), dims.index("u")], [0, 1])[face[lo:hi]]
+        yield face_texels(var[{"v": slice(lo, hi)}].values, dims, face[lo:hi])
+
+
+@dataclass
+class FaceCheck:
+    """What the schema found on the face texels of one map variable (:class:`MapChecks`).
+
+    Attributes
+    ----------
+    nonfinite : int
+        Non-finite face texel values (counted for :data:`FINITE_MAPS` only, else 0).
+    outside : int
+        Face texel values outside the variable's domain (:data:`DOMAINS`; 0 for a variable without one).
+    first : object
+        The first of them in row-major texel order, or None.
+    """
+
+    nonfinite: int = 0
+    outside: int = 0
+    first: object = None
+
+
+class MapChecks:
+    """The schema's checks of map variables on the face texels (finite values, domains), fed band by band.
+
+    :func:`validate_subject` reads each map it checks through :func:`face_bands` and feeds it here; a caller that
+    reads the bands anyway (``open_generation(..., banded=True)``, which reads every band of a large map for its
+    checksums) feeds them with :meth:`add` as it reads them and passes this object on, so no map is read twice.
+    Counts are sums over bands and the first value outside is that of the first band holding one: the same as one
+    check of all face texels at once.
+
+    Parameters
+    ----------
+    face : ndarray of bool, shape (v, u)
+        The face texels (``region > 0``).
+    """
+
+    def __init__(self, face):
+        self.face = np.asarray(face, bool)
+        self.found: dict[str, FaceCheck] = {}
+
+    @staticmethod
+    def wants(name: str, dims) -> bool:
+        """True if the schema checks the face texels of a variable ``name`` with ``dims`` (a map with a domain or
+        one of :data:`FINITE_MAPS`, on ``v`` and ``u``)."""
+        return (name in FINITE_MAPS or (name in DOMAINS and name != "region")) and "v" in dims and "u" in dims
+
+    def add(self, name: str, texels) -> None:
+        """Feed the face texels of the next band of rows of ``name`` (:func:`face_texels`), in order of ``v``."""
+        found = self.found.setdefault(name, FaceCheck())
+        if name in FINITE_MAPS:
+            found.nonfinite += int((~np.isfinite(texels)).sum())
+        if name in DOMAINS:
+            n, first = _outside_count(name, texels)
+            found.outside += n
+            found.first = first if found.first is None else found.first
+
+    def of(self, name: str, var) -> FaceCheck:
+        """The checks of map variable ``name``: those fed already, else made now from ``var`` band by band."""
+        if name not in self.found:
+            self.found[name] = FaceCheck()
+            for texels in face_bands(var, self.face):
+                self.add(name, texels)
+        return self.found[name]
 
 
 def _check_samples(ds, label) -> None:
@@ -651,24 +750,21 @@ def _check_samples(ds, label) -> None:
         raise SchemaError(f"subject {label!r}: ts_sample_region must be 1-10, got {int(reg.min())}..{int(reg.max())}")
 
 
-def _check_domains(ds, label, kind) -> None:
+def _check_domains(ds, label, checks: MapChecks | None) -> None:
     """Every known variable inside its physical domain (:data:`DOMAINS`); maps on the face texels only.
 
-    Maps are checked band by band (:func:`face_bands`); the message gives the first value outside in
-    row-major texel order and the count over the whole map, as one check of all face texels would.
+    ``checks``: those of a map subject's face (None for a sample subject).  Maps are checked band by band
+    (:class:`MapChecks`); the message gives the first value outside in row-major texel order and the count over the
+    whole map, as one check of all face texels would.
     """
-    face = np.asarray(ds["region"].values) > 0 if kind == "maps" else None
     what = f"subject {label!r}"
     for name in ds.variables:
         if name not in DOMAINS or name == "region":
             continue
         var = ds.variables[name]
         _check_numeric(name, var.dtype, what)
-        if face is None or "v" not in var.dims or "u" not in var.dims:
+        if checks is None or "v" not in var.dims or "u" not in var.dims:
             _raise_outside(name, *_outside_count(name, np.asarray(var.values)), what=what)
             continue
-        count, first = 0, None
-        for values in face_bands(var, face):
-            n, f = _outside_count(name, values)
-            count, first = count + n, f if first is None else first
-        _raise_outside(name, count, first, what=what)
+        found = checks.of(name, var)
+        _raise_outside(name, found.outside, found.first, what=what)

@@ -50,6 +50,9 @@ __all__ = [
     "IDENTITY_COLUMNS",
     "BRDF_PARAMS",
     "MODEL_PARAMS",
+    "SUMMARY_MAPS",
+    "GATHERED_TEXELS",
+    "FaceTexels",
     "region_samples",
     "region_standard_errors",
     "region_sample_variables",
@@ -66,6 +69,61 @@ BRDF_PARAMS = ("ts_rho_s", "ts_m", "bp_rho_s", "bp_exponent")
 MODEL_PARAMS = {"ts": ("ts_rho_s", "ts_m", "ts_flag"), "bp": ("bp_rho_s", "bp_exponent", "bp_flag")}
 #: model -> the standard-error maps of its (scale, lobe) parameters.
 MODEL_STD = {"ts": ("ts_rho_s_std", "ts_m_std"), "bp": ("bp_rho_s_std", "bp_exponent_std")}
+#: The map variables whose face texels a map subject's index row and albedo histogram read.
+SUMMARY_MAPS = ("albedo", *MODEL_PARAMS["ts"], *MODEL_STD["ts"], *MODEL_PARAMS["bp"], *MODEL_STD["bp"])
+#: Texels :meth:`FaceTexels.bands` yields at a time from gathered texels.
+GATHERED_BLOCK = 1 << 14
+#: Key of ``Dataset.encoding`` where a reader that read the bands of maps anyway leaves their face texels,
+#: ``{name: (variable, texels)}`` and ``"region": (variable, None)`` (``open_generation(..., banded=True)``):
+#: :class:`FaceTexels` takes them instead of reading the maps again as long as each ``ds.variables[name]``, the
+#: region's included, is still that very variable (a Dataset derived from it reads its maps again).
+GATHERED_TEXELS = "facestats_face_texels"
+
+
+class FaceTexels:
+    """The face texels (``region > 0``) of a map subject's variables, in row-major order of (``v``, ``u``).
+
+    Everything the index row reads from a map is on the face (the regions are 1-10, the albedo statistics and the
+    flagged fraction are the face's), so the summary reads maps through this: band by band from the Dataset
+    (:func:`facestats.io.schema.face_bands`: a map left on disk is never whole in memory), or from the face texels a
+    reader gathered while reading the bands anyway (:data:`GATHERED_TEXELS`), then not read again.  ``texels(name)``
+    equals ``values[region > 0]`` of the map (texels, *other dims*), element for element.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A map subject.
+    """
+
+    def __init__(self, ds):
+        self.ds = ds
+        region = np.asarray(ds["region"].values)
+        self.face = region > 0
+        self.region = region[self.face]
+        gathered = ds.encoding.get(GATHERED_TEXELS) or {}
+        same = all(ds.variables.get(n) is var for n, (var, _) in gathered.items())  # the region too
+        self.gathered = {n: t for n, (_, t) in gathered.items() if n != "region"} if same else {}
+
+    def bands(self, name: str):
+        """The face texels of map ``name`` in pieces (bands of rows, or all at once if gathered), in texel order."""
+        if name in self.gathered:
+            texels = self.gathered[name]
+            for lo in range(0, len(texels), GATHERED_BLOCK):  # views: a float64 copy of one block at a time
+                yield texels[lo : lo + GATHERED_BLOCK]
+        else:
+            yield from face_bands(self.ds[name].variable, self.face)
+
+    def __call__(self, name: str) -> np.ndarray:
+        """The face texels of map ``name``: an array (texels, *other dims*) in its own dtype."""
+        if name in self.gathered:
+            return self.gathered[name]
+        out, n = None, 0
+        for part in self.bands(name):
+            if out is None:
+                out = np.empty((self.region.size, *part.shape[1:]), part.dtype)
+            out[n : n + len(part)] = part
+            n += len(part)
+        return np.empty(0) if out is None else out
 
 
 def column(kind: str, **keys) -> str:
@@ -116,7 +174,7 @@ def region_sample_variables(kind: str, model: str = "ts") -> list:
     return ["ts_sample_region", "ts_sample_rho_s", "ts_sample_m"]
 
 
-def region_samples(ds, model: str = "ts") -> dict:
+def region_samples(ds, model: str = "ts", texels: FaceTexels | None = None) -> dict:
     """Per-region parameter samples of one subject: ``{region: (rho_s, lobe)}`` arrays.
 
     For map subjects these are the texels of the region whose fit was not
@@ -130,23 +188,19 @@ def region_samples(ds, model: str = "ts") -> dict:
         A subject of either kind.
     model : {"ts", "bp"}
         Torrance-Sparrow or Blinn-Phong (:data:`MODEL_PARAMS`).
+    texels : FaceTexels, optional
+        The face texels of a map subject ``ds`` (default: read from ``ds``).
 
     Returns
     -------
     dict
-        ``{region 1-10: (rho_s, lobe)}`` float64 arrays (empty for a region without samples).
+        ``{region 1-10: (rho_s, lobe)}`` float64 arrays (empty for a region without samples), texels in row-major
+        order.
     """
     rho_name, lobe_name, flag_name = MODEL_PARAMS[model]
     out = {}
     if subject_kind(ds) == "maps":
-        region = np.asarray(ds["region"].values)
-        good = np.asarray(ds[flag_name].values) == 0
-        rho = np.asarray(ds[rho_name].values)
-        lobe = np.asarray(ds[lobe_name].values)
-        for r in REGION_IDS:
-            sel = (region == r) & good
-            out[r] = (rho[sel].astype(np.float64), lobe[sel].astype(np.float64))
-        return out
+        return dict(_region_texels(ds, model, (rho_name, lobe_name), texels))
     if model != "ts":
         return {r: (np.empty(0), np.empty(0)) for r in REGION_IDS}
     reg = np.asarray(ds["ts_sample_region"].values)
@@ -158,13 +212,15 @@ def region_samples(ds, model: str = "ts") -> dict:
     return out
 
 
-def region_standard_errors(ds, model: str = "ts"):
+def region_standard_errors(ds, model: str = "ts", texels: FaceTexels | None = None):
     """Per-region standard errors of the texels :func:`region_samples` returns: ``{region: (rho_s_std, lobe_std)}``.
 
     Parameters
     ----------
     ds : xarray.Dataset
     model : {"ts", "bp"}
+    texels : FaceTexels, optional
+        The face texels of a map subject ``ds`` (default: read from ``ds``).
 
     Returns
     -------
@@ -173,16 +229,25 @@ def region_standard_errors(ds, model: str = "ts"):
         standard-error map (a sample subject, a store written before they existed, an edited parameter).
     """
     names = MODEL_STD[model]
-    if subject_kind(ds) != "maps" or not any(n in ds.data_vars for n in names):
+    if not _has_standard_errors(ds, model):
         return None
-    region = np.asarray(ds["region"].values)
-    good = np.asarray(ds[MODEL_PARAMS[model][2]].values) == 0
-    maps = [np.asarray(ds[n].values) if n in ds.data_vars else None for n in names]  # each map is optional
-    out = {}
+    return dict(_region_texels(ds, model, names, texels))
+
+
+def _has_standard_errors(ds, model: str) -> bool:
+    """True for a map subject with a standard-error map of ``model`` (:func:`region_standard_errors`)."""
+    return subject_kind(ds) == "maps" and any(n in ds.data_vars for n in MODEL_STD[model])
+
+
+def _region_texels(ds, model: str, names, texels: FaceTexels | None = None):
+    """``(region, arrays)`` per region 1-10, one region at a time: the float64 values of the maps ``names`` (NaN for
+    a map the subject lacks) on the region's texels whose ``model`` fit was not flagged, in row-major order."""
+    texels = FaceTexels(ds) if texels is None else texels
+    good = texels(MODEL_PARAMS[model][2]) == 0
+    maps = [texels(n) if n in ds.data_vars else None for n in names]  # standard-error maps are optional
     for r in REGION_IDS:
-        sel = (region == r) & good
-        out[r] = tuple(np.full(int(sel.sum()), np.nan) if m is None else m[sel].astype(np.float64) for m in maps)
-    return out
+        sel = (texels.region == r) & good
+        yield r, tuple(np.full(int(sel.sum()), np.nan) if m is None else m[sel].astype(np.float64) for m in maps)
 
 
 #: Largest standard error, relative to the value's magnitude, of a texel counted in the region's standard errors.
@@ -202,34 +267,31 @@ def _standard_errors(sd, value):
     return scale * float(np.sqrt(var.mean())), scale * float(np.sqrt(var.sum())) / sd.size
 
 
-def _albedo_bands(ds):
-    """Albedo values (texels, 3) of the face texels, band by band of rows of a map (:func:`face_bands`: a map left on
-    disk is never whole in memory), or of the stored albedo samples in one piece; float64, in row-major texel order."""
+def _albedo_bands(ds, texels: FaceTexels | None = None):
+    """Albedo values (texels, 3) of the face texels, band by band of rows of a map (:meth:`FaceTexels.bands`: a map
+    left on disk is never whole in memory), or of the stored albedo samples in one piece; float64, in row-major texel
+    order."""
     if subject_kind(ds) == "maps":
-        face = np.asarray(ds["region"].values) > 0
-        for band in face_bands(ds["albedo"].variable, face):
+        texels = FaceTexels(ds) if texels is None else texels
+        for band in texels.bands("albedo"):
             yield band.astype(np.float64)
     elif "albedo_sample" in ds.variables:  # a 2-D variable named like its dim: xarray makes it a coordinate
         yield np.asarray(ds["albedo_sample"].values, dtype=np.float64).reshape(-1, 3)
 
 
-def _albedo_values(ds) -> np.ndarray:
-    """Albedo values (n, 3), float64, of the face texels or of the stored albedo samples (:func:`_albedo_bands`).
+def _albedo_values(ds, texels: FaceTexels | None = None) -> np.ndarray:
+    """Albedo values (n, 3) of the face texels (:class:`FaceTexels`, the map's dtype) or of the stored albedo samples
+    (float64), in row-major texel order.
 
-    Filled band by band: beside the result, one band of the map (the whole map and a float32 copy of its face
-    texels were held beside it before).
+    In the map's own dtype: each channel becomes float64 on its own (:func:`_mean_std`), a third of the float64
+    copy of all three the index row held before (beside the float32 face texels gathered by a validation).
     """
     if subject_kind(ds) != "maps":
         return next(_albedo_bands(ds), np.empty((0, 3)))
-    out = np.empty((int(np.count_nonzero(np.asarray(ds["region"].values) > 0)), 3))
-    n = 0
-    for band in _albedo_bands(ds):
-        out[n : n + len(band)] = band
-        n += len(band)
-    return out
+    return (FaceTexels(ds) if texels is None else texels)("albedo")
 
 
-def albedo_histogram(ds, bins: int = HIST_BINS) -> np.ndarray:
+def albedo_histogram(ds, bins: int = HIST_BINS, texels: FaceTexels | None = None) -> np.ndarray:
     """Counts of albedo values per channel in ``bins`` equal bins over [0, 1].
 
     Values are the face texels of a map subject or the stored albedo samples,
@@ -241,13 +303,15 @@ def albedo_histogram(ds, bins: int = HIST_BINS) -> np.ndarray:
     ----------
     ds : xarray.Dataset
     bins : int
+    texels : FaceTexels, optional
+        The face texels of a map subject ``ds`` (default: read from ``ds``).
 
     Returns
     -------
     ndarray of int64, shape (3, bins)
     """
     counts = np.zeros((3, bins), np.int64)
-    for vals in _albedo_bands(ds):
+    for vals in _albedo_bands(ds, texels):
         idx = np.minimum((np.clip(vals, 0, 1) * bins).astype(np.int64), bins - 1)
         for c in range(3):
             counts[c] += np.bincount(idx[:, c], minlength=bins)
@@ -276,13 +340,15 @@ def _covariance(x, y) -> float:
 IDENTITY_COLUMNS = ("subject_id", "person_id", "age", "gender", "skin_type", "condition", "kind", "source")
 
 
-def summarise_subject(ds) -> dict:
+def summarise_subject(ds, texels: FaceTexels | None = None) -> dict:
     """The population-index row of a subject (see the module docstring for the columns).
 
     Parameters
     ----------
     ds : xarray.Dataset
         A subject of either kind.
+    texels : FaceTexels, optional
+        The face texels of a map subject ``ds`` (default: read from ``ds``, each map once per use).
 
     Returns
     -------
@@ -290,6 +356,8 @@ def summarise_subject(ds) -> dict:
         ``{column: value}`` in a fixed column order; missing quantities are NaN.
     """
     a = ds.attrs
+    if texels is None and subject_kind(ds) == "maps":
+        texels = FaceTexels(ds)
     identity = (
         str(a["subject_id"]),
         str(a.get("person_id", a["subject_id"])),
@@ -301,32 +369,43 @@ def summarise_subject(ds) -> dict:
         str(provenance(ds).get("source", "")),
     )
     row = dict(zip(IDENTITY_COLUMNS, identity))
-    _add_brdf_columns(row, ds)
+    _add_brdf_columns(row, ds, texels)
     _add_scattering_columns(row, ds)
-    alb = _albedo_values(ds)
+    alb = _albedo_values(ds, texels)
     for c, ch in enumerate(CHANNELS):
         mean, std = _mean_std(alb[:, c])
         row[f"albedo_mean_{ch}"] = mean
         row[f"albedo_std_{ch}"] = std
-    row["flagged_fraction"] = _flagged_fraction(ds)
+    row["flagged_fraction"] = _flagged_fraction(ds, texels)
     return row
 
 
-def _add_brdf_columns(row: dict, ds) -> None:
+def _brdf_regions(ds, model: str, texels: FaceTexels | None):
+    """``(region, (rho_s, lobe), (rho_s_std, lobe_std) or None)`` per region 1-10: :func:`region_samples` and
+    :func:`region_standard_errors`, for a map subject one region's float64 arrays at a time (all regions of one
+    model at once were the peak of the index row: 118-129 MiB traced at 2048²)."""
+    if subject_kind(ds) != "maps":
+        samples = region_samples(ds, model)
+        yield from ((r, samples[r], None) for r in REGION_IDS)
+        return
+    errors = _has_standard_errors(ds, model)
+    names = MODEL_PARAMS[model][:2] + (MODEL_STD[model] if errors else ())
+    for r, arrays in _region_texels(ds, model, names, texels):
+        yield r, arrays[:2], (arrays[2:] if errors else None)
+
+
+def _add_brdf_columns(row: dict, ds, texels: FaceTexels | None) -> None:
     """Per model and region: sample count, mean, spread and standard errors of both BRDF parameters."""
     for model in ("ts", "bp"):
         rho_name, lobe_name, _ = MODEL_PARAMS[model]
-        samples = region_samples(ds, model)
-        errors = region_standard_errors(ds, model)
-        for r in REGION_IDS:
-            rho, lobe = samples[r]
+        for r, (rho, lobe), errors in _brdf_regions(ds, model, texels):
             row[column("n", model=model, region=r)] = int(rho.size)
             row[column("cov", model=model, region=r)] = _covariance(rho, lobe)
             for k, (name, x) in enumerate(((rho_name, rho), (lobe_name, lobe))):
                 mean, std = _mean_std(x)
                 row[column("mean", param=name, region=r)] = mean
                 row[column("std", param=name, region=r)] = std
-                se, mean_se = (np.nan, np.nan) if errors is None else _standard_errors(errors[r][k], x)
+                se, mean_se = (np.nan, np.nan) if errors is None else _standard_errors(errors[k], x)
                 row[column("se", param=name, region=r)] = se
                 row[column("mean_se", param=name, region=r)] = mean_se
 
@@ -349,10 +428,9 @@ def _add_scattering_columns(row: dict, ds) -> None:
             row[column("subject", param=param, channel=ch)] = float(vals[c])
 
 
-def _flagged_fraction(ds) -> float:
+def _flagged_fraction(ds, texels: FaceTexels | None = None) -> float:
     """Fraction of face texels whose Torrance-Sparrow fit was flagged (NaN for sample subjects)."""
     if subject_kind(ds) == "maps":
-        face = np.asarray(ds["region"].values) > 0
-        flags = np.asarray(ds["ts_flag"].values)[face]
+        flags = (FaceTexels(ds) if texels is None else texels)("ts_flag")
         return float(np.mean(flags != 0))
     return np.nan

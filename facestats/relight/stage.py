@@ -46,6 +46,7 @@ a stage field must reproduce.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,6 +88,8 @@ __all__ = [
     "light_stage_field",
     "render_subject",
     "relight_subject",
+    "LIGHT_GRID_BYTES",
+    "check_light_grid",
 ]
 
 #: Lights whose shadow maps are held in memory at once.
@@ -95,6 +98,18 @@ SHADOW_BATCH = 256
 VISIBILITY_SAMPLE = 64
 #: Samples (pixels × lights) evaluated per chunk of the direct render.
 RENDER_SAMPLES = 1 << 22
+#: Bytes per light of a lat-long grid that :func:`relight_subject` holds at once before the memory check of the
+#: visibility table (:func:`check_light_grid`), counted from the code: the grid's directions (3 float64: 24 bytes),
+#: kept throughout, with its solid angles (8, dropped on return) and their temporaries (8): 40; in
+#: :func:`facestats.relight.lighting.resample_probe`, the directions' unit-normalised copy (24) and the test that
+#: they form a lat-long grid (``np.allclose`` against a fresh grid, 24, with its temporaries, 2 × 24 and a boolean
+#: 3): 123 with the directions, the peak; then in :func:`render_subject` beside the directions and the resampled
+#: probe (3 float64, 24): the directions' unit copy and its norms (32), the float32 weights (12), the weights'
+#: finite test (3) and the lights facing the surface (1; beyond 4 M lights a float64 product row and its mask per
+#: light, 9): 96 counted, 109 measured with the checks' temporaries.  tracemalloc's slopes between 512x256,
+#: 1024x512 and 2048x1024 lights (2026-12-08): 40, 123 and 109 bytes a light for these three steps, 117 over
+#: ``relight_subject``; 128 leaves a margin.
+LIGHT_GRID_BYTES = 128
 
 
 def _map_weights(uv, size):
@@ -343,6 +358,44 @@ def _visibility_setup(geometry, surface, normals, directions, shadow_resolution,
             vis[:, a : a + SHADOW_BATCH] = maps.visible(verts[used], vn[used])
             bar.update(min(SHADOW_BATCH, active.size - a))
     return vis, active, inverse.reshape(surface.vertices.shape)
+
+
+def check_light_grid(n_theta: int, n_phi: int, *, name: str = "lights", value=None) -> None:
+    """Refuse, before any array of it is made, a lat-long light grid whose own arrays exceed the memory available.
+
+    A grid's directions, solid angles, resampled probe and their temporaries take :data:`LIGHT_GRID_BYTES` per
+    light before the visibility table is checked (:func:`_check_visibility_memory`): a grid just under the cap of
+    ``--lights`` (2^28 lights) built 6 GiB of directions and more before that check refused it.
+
+    Parameters
+    ----------
+    n_theta, n_phi : int
+        The grid (azimuths θ × inclinations φ), integers ≥ 1.
+    name : str
+        The option or argument for the message (``"--lights"`` on the command line).
+    value : object, optional
+        Its value as given, for the message (default ``(n_theta, n_phi)``).
+
+    Raises
+    ------
+    ValidationError
+        Naming ``name``, the value, the bytes needed and available, and the most lights (and the largest 2:1 grid,
+        the stage's layout) that fit.
+    """
+    n = int(n_theta) * int(n_phi)  # Python integers: no overflow
+    need, have = LIGHT_GRID_BYTES * n, available_memory()
+    if have is None or need <= have:
+        return
+    fit = int(have // LIGHT_GRID_BYTES)
+    side = math.isqrt(fit // 2)
+    largest = f"{2 * side}x{side}" if side else "none"
+    shown = (n_theta, n_phi) if value is None else value
+    raise ValidationError(
+        f"{name} must make at most {fit:,} lights on this machine (the largest 2:1 grid that fits: {largest}), got "
+        f"{shown!r} = {n:,} lights, whose directions, resampled probe and their temporaries need "
+        f"{need / 2**20:,.0f} MiB ({LIGHT_GRID_BYTES} bytes a light, before the shadow maps' visibility table), more "
+        f"than the {have / 2**20:,.0f} MiB available"
+    )
 
 
 def _check_visibility_memory(n_vertices: int, n_lights: int, *, at_least: bool = False) -> None:
@@ -695,12 +748,14 @@ def relight_subject(
     Raises
     ------
     ValidationError
-        ``lights`` not two integers ≥ 1, or a probe or option the resampling or the renderer refuses.
+        ``lights`` not two integers ≥ 1 or a grid whose arrays exceed the memory available (:func:`check_light_grid`),
+        or a probe or option the resampling or the renderer refuses.
     """
 
     if np.ndim(lights) != 1 or np.size(lights) != 2:
         raise ValidationError(f"lights must be (n_theta, n_phi), two integers, got {lights!r}")
-    n_theta, n_phi = lights
+    n_theta, n_phi = check_integer(lights[0], "n_theta", 1), check_integer(lights[1], "n_phi", 1)
+    check_light_grid(n_theta, n_phi, value=lights)  # before any array of the grid
     d, _ = light_stage_directions(n_theta, n_phi)
     w = resample_probe(probe, d, layout=layout, rotate=rotate)
     return render_subject(

@@ -365,3 +365,28 @@ def test_more_lights_than_the_memory_holds_are_refused_before_the_shadow_maps(tm
     stage._check_visibility_memory(4392, 569)  # 9.99 MB: fits
     code, io = _relight(main, capsys, *args, "--lights", "8x4")
     assert code == 0 and (tmp_path / "o.exr").is_file(), io.err
+
+
+def test_a_lights_grid_larger_than_the_memory_holds_is_refused_before_any_array_of_it(tmp_path, capsys, monkeypatch):
+    """--lights is checked against the memory its grid's own arrays need (128 bytes a light) before the probe is read
+    or any of them made: with 100 MiB available 2048x1024 (256 MiB) is refused naming the flag and the value, and
+    the largest 2:1 grid that fits; 64x32 is not."""
+    import facestats.relight.stage as stage
+    from facestats.cli import main
+
+    made = []
+    real = stage.light_stage_directions
+    monkeypatch.setattr(stage, "light_stage_directions", lambda *a: made.append(a) or real(*a))
+    monkeypatch.setattr(stage, "available_memory", lambda: 100 * 2**20)
+    write_light_probe(tmp_path / "sky.hdr", sky_probe(8))
+    args = ("S001", "--probe", tmp_path / "sky.hdr", "--out", tmp_path / "o.exr", "--quiet", "--size", "24")
+    code, io = _relight(main, capsys, *args, "--lights", "2048x1024")
+    assert code == 2 and made == [], io.err
+    assert (
+        "facestats: error: --lights must make at most 819,200 lights on this machine (the largest 2:1 grid that "
+        "fits: 1280x640), got '2048x1024' = 2,097,152 lights, whose directions, resampled probe and their "
+        "temporaries need 256 MiB" in io.err
+    ), io.err
+    assert "more than the 100 MiB available" in io.err and not any(tmp_path.glob("o.*"))
+    code, io = _relight(main, capsys, *args, "--lights", "64x32")
+    assert code == 0 and made == [(64, 32)] and (tmp_path / "o.exr").is_file(), io.err

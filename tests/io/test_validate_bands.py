@@ -194,3 +194,45 @@ def test_a_subject_replaced_between_its_checksums_and_its_schema_check_is_checke
         report = st.validate()
         assert report.problems == [] and report.n_checked == 1 and replaced
         assert st.index_entries()["B1"]["generation"] != first.name and not first.exists()
+
+
+def test_validate_reads_each_chunk_of_the_subject_once(tmp_path, monkeypatch):
+    """Every chunk file is read from the store once by ``validate``: the checksums, the chunk checksums, the schema's
+    checks and the recomputed index row of a map of many bands all come from that one read (the schema's finite and
+    domain checks and the index row read ``ts_m`` again before 2026-12-08: each of its chunks four times)."""
+    import collections
+
+    from zarr.storage import LocalStore
+
+    _write(tmp_path / "s.zarr", _subject())
+    reads = collections.Counter()
+    get = LocalStore.get
+
+    async def counted(self, key, *args, **kwargs):
+        reads[key] += 1
+        return await get(self, key, *args, **kwargs)
+
+    monkeypatch.setattr(LocalStore, "get", counted)
+    assert _problems(tmp_path / "s.zarr") == []
+    chunks = {key: n for key, n in reads.items() if "/c/" in key}
+    for name, bands in (("ts_m", 3), ("albedo", 3), ("micro_normal", 6)):  # 150 rows: bands of 64, 64, 22
+        assert len([key for key in chunks if key.startswith(f"{name}/c/")]) == bands, name
+    assert chunks and set(chunks.values()) == {1}, {k: n for k, n in chunks.items() if n != 1}
+
+
+def test_damaged_bands_of_two_maps_are_reported_in_the_order_of_a_full_read(tmp_path):
+    """The maps the index row reads are read after the others (their face texels are not held meanwhile), yet with
+    ``micro_normal`` and ``ts_m`` both damaged the message is the full read's, which reaches ``ts_m`` first."""
+    gen = _write(tmp_path / "s.zarr", _subject())
+    meta = json.loads((gen / "zarr.json").read_text())
+    order = list(json.loads(meta["attributes"][store_mod.STORE_ATTR])["manifest"])
+    assert order.index("ts_m") < order.index("micro_normal")
+    (gen / "micro_normal" / "c" / "1" / "2" / "0" / "0").unlink()
+    (gen / "ts_m" / "c" / "2" / "0").write_bytes(b"not a blosc frame")  # the last band of ts_m
+    want = _full_read_error(tmp_path / "s.zarr")
+    assert "'ts_m' cannot be read (truncated or corrupt chunk)" in want
+    assert _problems(tmp_path / "s.zarr") == [want]
+    (gen / "ts_m" / "c" / "2" / "0").unlink()  # now a checksum mismatch of ts_m (its last band reads as NaN)
+    want = _full_read_error(tmp_path / "s.zarr")
+    assert "'ts_m' does not match its checksum" in want
+    assert _problems(tmp_path / "s.zarr") == [want]

@@ -258,3 +258,64 @@ def test_a_light_grid_too_large_for_the_memory_is_refused_before_the_full_facing
     stage._check_visibility_memory(468, 1500)  # fits: "at most", not "fewer than"
     with pytest.raises(ValidationError, match="at most 1,500"):
         stage._check_visibility_memory(468, 1501)
+
+
+def test_a_light_grid_whose_arrays_exceed_the_memory_is_refused_before_any_of_them_is_made(
+    subject, geometry, monkeypatch
+):
+    """A grid just under the cap of --lights (2^28 lights) built 6 GiB of directions and more before the visibility
+    table's memory check refused it.  With 100 MiB available, 128 bytes a light fit 819,200 lights (1280x640): a
+    2048x1024 grid (256 MiB) is refused before its directions are made, a fitting grid is not."""
+    import tracemalloc
+
+    made = []
+    real = stage.light_stage_directions
+    monkeypatch.setattr(stage, "light_stage_directions", lambda *a: made.append(a) or real(*a))
+    monkeypatch.setattr(stage, "available_memory", lambda: 100 * 2**20)
+    camera = stage.stage_camera(size=SIZE)
+    tracemalloc.start()
+    try:
+        with pytest.raises(ValidationError) as err:
+            stage.relight_subject(subject, sky_probe(16), lights=(2048, 1024), camera=camera, geometry=geometry)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert made == [] and peak < 2**20  # the grid's directions alone would be 48 MiB
+    assert str(err.value) == (
+        "lights must make at most 819,200 lights on this machine (the largest 2:1 grid that fits: 1280x640), got "
+        "(2048, 1024) = 2,097,152 lights, whose directions, resampled probe and their temporaries need 256 MiB (128 "
+        "bytes a light, before the shadow maps' visibility table), more than the 100 MiB available"
+    )
+    stage.check_light_grid(1280, 640)  # exactly the memory: fits
+    with pytest.raises(ValidationError, match="at most 819,200 lights"):
+        stage.check_light_grid(1281, 640)
+    image, mask = stage.relight_subject(subject, sky_probe(16), lights=LIGHTS, camera=camera, geometry=geometry)
+    assert made == [LIGHTS] and mask.any() and np.isfinite(image).all() and image[mask].max() > 0
+
+
+def test_the_light_grid_bytes_bound_what_relight_subject_holds_per_light(subject, geometry, monkeypatch):
+    """LIGHT_GRID_BYTES, counted from the code, against tracemalloc: the growth of the peak held up to the
+    visibility table's check between two grids, per light added (117 bytes, 2026-12-08), stays within it, and is
+    most of it (an estimate far above the need would refuse grids that fit).  Both grids have at least 65,536
+    lights, so that the blocks of the lights-facing test hold their fixed 4 M products in both (below, a block
+    holds fewer: 64 sampled normals x 32,768 lights are 2 M)."""
+    import tracemalloc
+
+    class Reached(Exception):
+        pass
+
+    def reached(*args, **kwargs):
+        raise Reached
+
+    monkeypatch.setattr(stage, "_check_visibility_memory", reached)
+    camera, peaks = stage.stage_camera(size=SIZE), []
+    for lights in ((512, 256), (1024, 512)):
+        tracemalloc.start()
+        try:
+            with pytest.raises(Reached):
+                stage.relight_subject(subject, sky_probe(16), lights=lights, camera=camera, geometry=geometry)
+            peaks.append(tracemalloc.get_traced_memory()[1])
+        finally:
+            tracemalloc.stop()
+    per_light = (peaks[1] - peaks[0]) / (1024 * 512 - 512 * 256)
+    assert 0.8 * stage.LIGHT_GRID_BYTES < per_light <= stage.LIGHT_GRID_BYTES, per_light

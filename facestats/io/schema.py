@@ -721,11 +721,27 @@ class MapChecks:
     @staticmethod
     def wants(name: str, dims) -> bool:
         """True if the schema checks the face texels of a variable ``name`` with ``dims`` (a map with a domain or
-        one of :data:`FINITE_MAPS`, on ``v`` and ``u``)."""
+        one of :data:`FINITE_MAPS`, on ``v`` and ``u``).
+
+        Parameters
+        ----------
+        name : str
+            The variable's name.
+        dims : sequence of str
+            Its dimensions.
+        """
         return (name in FINITE_MAPS or (name in DOMAINS and name != "region")) and "v" in dims and "u" in dims
 
     def add(self, name: str, texels) -> None:
-        """Feed the face texels of the next band of rows of ``name`` (:func:`face_texels`), in order of ``v``."""
+        """Feed the face texels of the next band of rows of ``name`` (:func:`face_texels`), in order of ``v``.
+
+        Parameters
+        ----------
+        name : str
+            The map variable's name.
+        texels : ndarray, shape (texels, ...)
+            The face texels of the band, in texel order.
+        """
         found = self.found.setdefault(name, FaceCheck())
         if name in FINITE_MAPS:
             found.nonfinite += int((~np.isfinite(texels)).sum())
@@ -735,7 +751,20 @@ class MapChecks:
             found.first = first if found.first is None else found.first
 
     def of(self, name: str, var) -> FaceCheck:
-        """The checks of map variable ``name``: those fed already, else made now from ``var`` band by band."""
+        """The checks of map variable ``name``: those fed already, else made now from ``var`` band by band.
+
+        Parameters
+        ----------
+        name : str
+            The map variable's name.
+        var : xarray.Variable
+            The variable, read band by band if nothing was fed for it.
+
+        Returns
+        -------
+        FaceCheck
+            Its counts of non-finite and out-of-domain face texels and the first value outside.
+        """
         if name not in self.found:
             self.found[name] = FaceCheck()
             for texels in face_bands(var, self.face):

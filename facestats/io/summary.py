@@ -105,7 +105,18 @@ class FaceTexels:
         self.gathered = {n: t for n, (_, t) in gathered.items() if n != "region"} if same else {}
 
     def bands(self, name: str):
-        """The face texels of map ``name`` in pieces (bands of rows, or all at once if gathered), in texel order."""
+        """The face texels of map ``name`` in pieces (bands of rows, or all at once if gathered), in texel order.
+
+        Parameters
+        ----------
+        name : str
+            The map variable's name.
+
+        Yields
+        ------
+        ndarray, shape (texels, ...)
+            The face texels of the next piece, in the map's own dtype.
+        """
         if name in self.gathered:
             texels = self.gathered[name]
             for lo in range(0, len(texels), GATHERED_BLOCK):  # views: a float64 copy of one block at a time

@@ -78,10 +78,21 @@ def add_query(sub):
             "I and II are grouped, as in the paper. Exit status 1 when nothing matches."
         ),
     )
-    p.add_argument("--skin-type", metavar="TYPE", help="Fitzpatrick type I-VI or 1-6 (I and II match both)")
+    p.add_argument(
+        "--skin-type",
+        metavar="TYPE",
+        help="Fitzpatrick type I-VI or 1-6, or several separated by commas (V,VI); I and II match both",
+    )
     p.add_argument("--gender", metavar="M|F", help="M or F")
     p.add_argument("--age", metavar="RANGE", help="20s, 30s, 40s, 50s+, MIN-MAX or one age in years")
-    p.add_argument("--condition", metavar="NAME", help="one of: " + ", ".join(_conditions()))
+    p.add_argument(
+        "--condition",
+        metavar="NAME",
+        default="normal",
+        help="one of: " + ", ".join(_conditions()) + "; or 'any' to pool every condition (default: normal, the "
+        "population as the paper analyses it; one person measured under several conditions would otherwise count "
+        "once per condition)",
+    )
     p.add_argument("--region", metavar="NAME|N", help="report the BRDF of one face region (1-10 or a name)")
     p.add_argument(
         "--edits",

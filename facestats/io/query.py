@@ -12,14 +12,17 @@ that their fields cannot drift apart.
 
 Filters
 -------
-* ``skin_type``: Fitzpatrick type, Roman (``"IV"``) or 1-6.  The paper groups
-  types I and II (Table 2), so asking for I or for II matches subjects of both.
+* ``skin_type``: Fitzpatrick type, Roman (``"IV"``) or 1-6, or several (``"V,VI"``
+  or a list).  The paper groups types I and II (Table 2), so asking for I or for
+  II matches subjects of both.
 * ``gender``: ``"M"``/``"F"`` (also male/female, 0 = M, 1 = F).
 * ``age``: ``"20s"``, ``"30s"``, ``"40s"``, ``"50s+"``, ``"MIN-MAX"`` or one age (inclusive, years).
-* ``condition``: one of ``facestats.core.conventions.CONDITIONS``.  ``None`` means
-  any condition: records of one person measured under several conditions
-  (§7) then count separately (``n_persons`` counts distinct people); pass
-  ``condition="normal"`` for the population as the paper analyses it.
+* ``condition``: one of ``facestats.core.conventions.CONDITIONS``, or ``"any"``
+  (:data:`ANY_CONDITION`; ``None`` too) for every condition: records of one
+  person measured under several conditions (§7) then count separately
+  (``n_persons`` counts distinct people).  :meth:`facestats.io.Store.query` and
+  ``facestats query`` default to ``"normal"``, the population as the paper
+  analyses it (and as :mod:`facestats.analysis` does).
 * ``region``: restricts the per-region BRDF section to one region (1-10 or a
   name); it does not select subjects.
 
@@ -106,6 +109,8 @@ from facestats.errors import ValidationError
 from facestats.io.summary import BRDF_PARAMS, HIST_BINS, column
 
 __all__ = [
+    "ANY_CONDITION",
+    "parse_skin_types",
     "QUERY_FORMAT",
     "Stat",
     "QueryResult",
@@ -189,6 +194,43 @@ def _stat(x: np.ndarray, within: np.ndarray | None = None) -> Stat:
     return Stat(mean, std, n, w)
 
 
+#: The ``condition`` filter's value that matches every condition (as None does).
+ANY_CONDITION = "any"
+
+
+def parse_skin_types(value) -> list:
+    """The skin types a ``skin_type`` filter matches: sorted ints 1-6, types I and II grouped (Weyrich Table 2).
+
+    Parameters
+    ----------
+    value : int, str or sequence
+        One type (``"IV"``, ``4``), several separated by commas (``"V,VI"``), or a sequence of them.
+
+    Returns
+    -------
+    list of int
+        E.g. ``[1, 2]`` for ``"II"``, ``[5, 6]`` for ``"V,VI"``.
+
+    Raises
+    ------
+    ValidationError
+        A value that is not a skin type (:func:`facestats.core.conventions.parse_skin_type`), or no value.
+    """
+    if isinstance(value, str):
+        items = value.split(",")
+    elif isinstance(value, (list, tuple)):
+        items = list(value)
+    else:
+        items = [value]
+    if not items:
+        raise ValidationError(f"skin type must name at least one of I-VI or 1-6, got {value!r}")
+    types = set()
+    for item in items:
+        t = parse_skin_type(item)
+        types.update((1, 2) if t in (1, 2) else (t,))
+    return sorted(types)
+
+
 def normalise_filters(skin_type=None, gender=None, age=None, condition=None, region=None, edits=False) -> dict:
     """Parse the query filters (raises :class:`facestats.errors.ValidationError` on a bad value).
 
@@ -209,13 +251,12 @@ def normalise_filters(skin_type=None, gender=None, age=None, condition=None, reg
         raise ValidationError(f"edits must be True or False, got {edits!r}")
     out = {"skin_type": None, "gender": None, "age": None, "condition": None, "region": None, "edits": bool(edits)}
     if skin_type is not None:
-        t = parse_skin_type(skin_type)
-        out["skin_type"] = [1, 2] if t in (1, 2) else [t]
+        out["skin_type"] = parse_skin_types(skin_type)
     if gender is not None:
         out["gender"] = parse_gender(gender)
     if age is not None:
         out["age"] = list(parse_age(age))
-    if condition is not None:
+    if condition is not None and str(condition).strip().lower() != ANY_CONDITION:
         out["condition"] = parse_condition(condition)
     if region is not None:
         out["region"] = parse_region(region)

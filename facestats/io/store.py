@@ -454,7 +454,7 @@ class Store:
         """Albedo histogram counts, shape (n_subjects, 3, 256), rows aligned with :meth:`subjects`."""
         return self._table().hists.copy()
 
-    def query(self, skin_type=None, gender=None, age=None, condition=None, region=None, edits=False):
+    def query(self, skin_type=None, gender=None, age=None, condition="normal", region=None, edits=False):
         """Population statistics of the subjects matching the filters (:class:`facestats.io.query.QueryResult`).
 
         See :mod:`facestats.io.query` for the filters (skin types I and II are
@@ -463,14 +463,17 @@ class Store:
 
         Parameters
         ----------
-        skin_type : int or str, optional
-            Fitzpatrick type, Roman (``"IV"``) or 1-6; I or II matches subjects of both.
+        skin_type : int, str or sequence, optional
+            Fitzpatrick type, Roman (``"IV"``) or 1-6, or several (``"V,VI"``, a list); I or II matches subjects of
+            both.
         gender : str or int, optional
             ``"M"``/``"F"`` (also male/female, 0 = M, 1 = F).
         age : str, int or pair, optional
             ``"20s"``, ``"30s"``, ``"40s"``, ``"50s+"``, ``"MIN-MAX"``, one age or ``(MIN, MAX)`` (inclusive, years).
-        condition : str, optional
-            One of ``facestats.core.conventions.CONDITIONS``; None matches every condition.
+        condition : str or None
+            One of ``facestats.core.conventions.CONDITIONS`` (default ``"normal"``, the population as the paper
+            analyses it); ``"any"`` or None match every condition (one person's records under several conditions
+            then count separately).
         region : int or str, optional
             Restricts the per-region BRDF section to one region (1-10 or a name); it does not select subjects.
         edits : bool

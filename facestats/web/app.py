@@ -139,7 +139,8 @@ class _SubjectCache:
 
 
 def _filters(args) -> dict:
-    """The whitelisted, length-bounded filters of a request (empty values mean "any")."""
+    """The whitelisted, length-bounded filters of a request (empty values mean "any", but an empty or absent
+    ``condition`` means the query's default, ``normal``, as ``facestats query``; ``condition=any`` pools them)."""
 
     unknown = sorted(set(args) - set(FILTERS))
     if unknown:
@@ -152,6 +153,8 @@ def _filters(args) -> dict:
         if len(value) > MAX_VALUE:
             raise ValidationError(f"{key} must be at most {MAX_VALUE} characters, got {len(value)}")
         out[key] = value or None
+    if out["condition"] is None:  # not given: the query's default (normal), as the CLI's; "any" pools them all
+        del out["condition"]
     edits = (out.pop("edits") or "").lower()
     if edits not in EDITS_VALUES:
         raise ValidationError(f"filter edits must be one of {sorted(set(EDITS_VALUES) - {''})}, got {edits!r}")

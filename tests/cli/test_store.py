@@ -64,7 +64,7 @@ def test_query_json_matches_the_api(stores):
         "skin_type": [4],
         "gender": "M",
         "age": [20, 60],
-        "condition": None,
+        "condition": "normal",
         "region": None,
         "edits": False,
     }

@@ -402,22 +402,32 @@ def test_query_filters(built):
         # the paper groups I and II: either matches both
         assert set(st.query(skin_type="I").subject_ids) == {"A01", "A02"}
         assert set(st.query(skin_type=2).subject_ids) == {"A01", "A02"}
-        iv = st.query(skin_type="iv")
+        iv = st.query(skin_type="iv", condition="any")
         assert set(iv.subject_ids) == {"A06", "A07", "A08", "A11", "M001"}
         assert iv.n_persons == 4  # A11 is A06 under lotion
         assert iv.breakdown["condition"] == {"normal": 4, "lotion": 1}
         assert iv.breakdown["kind"] == {"maps": 4, "samples": 1}
-        assert set(st.query(skin_type="IV", gender="male").subject_ids) == {"A06", "A07", "A11"}
-        assert set(st.query(age="20s").subject_ids) == {"A01", "A02", "A06", "A08", "A11"}
+        # by default the normal condition only (as analysis): A11 is not counted twice with A06
+        assert set(st.query(skin_type="iv").subject_ids) == {"A06", "A07", "A08", "M001"}
+        assert st.query(skin_type="iv", condition=None).subject_ids == iv.subject_ids  # None: any, too
+        assert set(st.query(skin_type="IV", gender="male", condition="any").subject_ids) == {"A06", "A07", "A11"}
+        assert set(st.query(age="20s", condition="ANY").subject_ids) == {"A01", "A02", "A06", "A08", "A11"}
         assert set(st.query(age="50s+").subject_ids) == {"A05", "A10"}
         assert set(st.query(age="30-41").subject_ids) == {"A03", "A07", "A09", "M001"}
         assert st.query(condition="lotion").subject_ids == ("A11",)
-        one = st.query(region="nose")
+        # several skin types: a union (I and II still grouped)
+        both = st.query(skin_type="I,IV", condition="any")
+        assert set(both.subject_ids) == {"A01", "A02"} | set(iv.subject_ids)
+        assert both.filters["skin_type"] == [1, 2, 4]
+        assert st.query(skin_type=["iv", 2]).filters["skin_type"] == [1, 2, 4]
+        one = st.query(region="nose", condition="any")
         assert [r["region"] for r in one.regions] == [6] and one.count == len(subjects)
         # the sample subject has Torrance-Sparrow samples only
         assert one.regions[0]["ts_m"].n == len(subjects) and one.regions[0]["bp_exponent"].n == len(subjects) - 1
         for bad, msg in (
             (dict(skin_type="VII"), "skin type"),
+            (dict(skin_type="IV,VII"), "skin type"),
+            (dict(skin_type=[]), "skin type"),
             (dict(gender="X"), "gender"),
             (dict(age="old"), "age"),
             (dict(condition="wet"), "condition"),
@@ -438,7 +448,7 @@ def test_query_with_no_match_gives_an_empty_valid_document(built):
         "skin_type": [6],
         "gender": "M",
         "age": None,
-        "condition": None,
+        "condition": "normal",  # the default: the population as the paper analyses it
         "region": None,
         "edits": False,
     }
@@ -795,7 +805,7 @@ def test_lost_index_is_rebuilt_by_repair(built, tmp_path):
     with open_store(path, mode="r+") as st:
         report = st.validate(repair=True)
         assert report.ok and len(st) == len(built[1])
-        assert st.query(skin_type="IV").count == 5
+        assert st.query(skin_type="IV", condition="any").count == 5
 
 
 def test_corrupt_index_file(built, tmp_path):
@@ -828,7 +838,7 @@ def test_pack_store_to_zip_and_read_it(built, tmp_path):
         assert st.ids() == sorted(subjects)
         back = st.subject("A07")
         np.testing.assert_array_equal(back["albedo"].values, subjects["A07"]["albedo"].values)
-        assert st.query(skin_type="IV").count == 5
+        assert st.query(skin_type="IV", condition="any").count == 5
         with pytest.raises(StoreError, match="read-only zip store.*--store PATH"):
             st.write_subject(make_map_subject("new"))
         assert st.validate().ok

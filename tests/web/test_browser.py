@@ -118,7 +118,7 @@ def test_population_page_numbers_equal_cli_json_and_plots_render(driver, server,
     for skin, gender in (("III", ""), ("IV", "M")):
         Select(driver.find_element(By.NAME, "skin_type")).select_by_value(skin)
         Select(driver.find_element(By.NAME, "gender")).select_by_value(gender)
-        want = "skin_type=" + skin + (f"&gender={gender}" if gender else "")
+        want = "skin_type=" + skin + (f"&gender={gender}" if gender else "") + "&condition=normal"  # the default
         _wait(driver, lambda d: d.find_element(By.TAG_NAME, "body").get_attribute("data-query") == want)
         _, doc = _cli_json(store_path, "--skin-type", skin, *(["--gender", gender] if gender else []), capsys=capsys)
         assert driver.find_element(By.TAG_NAME, "body").get_attribute("data-count") == str(doc["count"])
@@ -147,9 +147,9 @@ def test_population_page_numbers_equal_cli_json_and_plots_render(driver, server,
     assert cells and all(
         float(c.get_attribute("data-value")) == _lookup(doc, c.get_attribute("data-key")) for c in cells
     )
-    Select(driver.find_element(By.NAME, "condition")).select_by_value("")
+    Select(driver.find_element(By.NAME, "condition")).select_by_value("any")
     Select(driver.find_element(By.NAME, "region")).select_by_value("")
-    _wait(driver, lambda d: d.find_element(By.TAG_NAME, "body").get_attribute("data-query") == "")
+    _wait(driver, lambda d: d.find_element(By.TAG_NAME, "body").get_attribute("data-query") == "condition=any")
     # Plots: three albedo histograms with bars, four region bar charts, the scatter, the PCA ellipses.
     hist = driver.find_elements(By.CSS_SELECTOR, "svg.histogram")
     assert [h.get_attribute("data-channel") for h in hist] == ["R", "G", "B"]

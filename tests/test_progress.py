@@ -33,3 +33,30 @@ def test_a_hidden_bar_is_no_tqdm_and_takes_no_lock(monkeypatch):
         manual.update(2)
         assert manual.n == 4
     assert taken == []
+
+
+class _Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+@pytest.mark.parametrize(("stream", "interval"), [(io.StringIO, 30.0), (_Terminal, None)])
+def test_a_bar_written_to_a_log_is_redrawn_seldom(monkeypatch, stream, interval):
+    """To a file or a pipe a bar is redrawn every LOG_INTERVAL_S seconds at most, its first and last states always:
+    a validate of the default store wrote about 150 carriage-return updates into a log (a user's walkthrough)."""
+    from facestats.core.progress import LOG_INTERVAL_S
+
+    err = stream()
+    monkeypatch.setattr(sys, "stderr", err)
+    monkeypatch.delenv(PROGRESS_ENV, raising=False)
+    clock = iter(range(0, 10_000, 1))  # every step takes 1 s: a terminal bar redraws at each, a logged one at 30
+    monkeypatch.setattr("tqdm.std.time", lambda: float(next(clock)))
+    with progress_bar(total=100, desc="work") as bar:
+        for _ in range(100):
+            bar.update(1)
+    draws = err.getvalue().count("\r")
+    if interval is None:
+        assert draws > 50, draws
+    else:
+        assert LOG_INTERVAL_S == interval and 2 <= draws <= 2 + 100 // int(interval) + 1, draws
+    assert "work: 100%" in err.getvalue()

@@ -38,6 +38,8 @@ __all__ = [
 
 #: The namespace attribute in which :class:`_StoreOnce` notes the options given (removed after parsing).
 _GIVEN = "_facestats_options_given"
+#: The namespace attribute naming the parser of the command given (removed by :meth:`Parser.parse_args`).
+_COMMAND_PARSER = "_facestats_command_parser"
 
 
 class _StoreOnce(argparse.Action):
@@ -65,6 +67,30 @@ class Parser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)
         self.register("action", None, _StoreOnce)
         self.register("action", "store", _StoreOnce)
+        self.set_defaults(**{_COMMAND_PARSER: self})  # a subcommand's parser overrides its parent's: the deepest
+
+    def parse_args(self, args=None, namespace=None):
+        """:meth:`argparse.ArgumentParser.parse_args`, with unrecognised arguments reported by the parser of the
+        command they were given to (its usage line: ``facestats query --skin-tpye IV`` shows ``query``'s options,
+        not the list of commands).
+
+        Parameters
+        ----------
+        args : list of str, optional
+            The arguments to parse (default ``sys.argv[1:]``, as argparse).
+        namespace : argparse.Namespace, optional
+            The namespace to fill (default a new one).
+
+        Returns
+        -------
+        argparse.Namespace
+            The parsed options.
+        """
+        namespace, extras = self.parse_known_args(args, namespace)
+        command = vars(namespace).pop(_COMMAND_PARSER, self)
+        if extras:
+            command.error("unrecognized arguments: " + " ".join(extras))
+        return namespace
 
     def parse_known_args(self, args=None, namespace=None):
         """:meth:`argparse.ArgumentParser.parse_known_args`, dropping the record of the options given.

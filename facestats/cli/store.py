@@ -190,6 +190,8 @@ def _cmd_validate(args) -> int:
             f"store {args.store or '(the embedded default)'} is a read-only zip store: {what} needs a directory "
             "store (unpack it, repair the directory, pack it again with facestats.io.pack_store)"
         )
+    if path is not None and not os.path.lexists(path):  # a typo, not a damaged store: exit 2 as every command
+        raise StoreError(f"store {args.store} does not exist")
     try:
         store = open_store_option(args.store, mode="r+" if writes else "r")
     except StoreError as exc:  # includes SchemaError: an unopenable store is invalid
@@ -245,9 +247,10 @@ def add_validate(sub):
     Returns
     -------
     None
-        The handler (``func``) returns 0 for a valid store, 1 for problems or a store that cannot be opened (with
-        ``--repair`` without ``--yes``: 1 if the plan finds anything to fix); a
-        :class:`~facestats.errors.FacestatsError` raised becomes exit status 2 in :func:`facestats.cli.main`.
+        The handler (``func``) returns 0 for a valid store, 1 for problems or a store that exists but cannot be
+        opened (with ``--repair`` without ``--yes``: 1 if the plan finds anything to fix); a
+        :class:`~facestats.errors.FacestatsError` raised (a store path that does not exist, among them) becomes exit
+        status 2 in :func:`facestats.cli.main`.
     """
     p = sub.add_parser(
         "validate",

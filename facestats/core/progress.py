@@ -3,9 +3,12 @@
 A bar is shown when the caller asks for it (``enabled``, the ``progress=``
 argument of the public functions; the command line asks for it), on stderr,
 whether or not stderr is a terminal, so that a log of a long job shows how far
-it got.  ``FACESTATS_PROGRESS=0`` in the environment hides every bar (for logs
-that should stay short).  Bars come from :mod:`tqdm.auto`: a widget in a
-notebook, text elsewhere, with the rate and the ETA tqdm estimates.
+it got.  Written to a file or a pipe, a bar is redrawn at most every
+:data:`LOG_INTERVAL_S` seconds (its first and last states always), not ten times
+a second: a log holds a line now and then, not hundreds of carriage-return
+updates.  ``FACESTATS_PROGRESS=0`` in the environment hides every bar.  Bars
+come from :mod:`tqdm.auto`: a widget in a notebook, text elsewhere, with the
+rate and the ETA tqdm estimates.
 
 A hidden bar is not a tqdm at all but :class:`QuietBar`, which iterates,
 updates and closes at no cost.  This matters beyond speed: every tqdm takes
@@ -18,11 +21,14 @@ touch it.
 from __future__ import annotations
 
 import os
+import sys
 
-__all__ = ["PROGRESS_ENV", "QuietBar", "progress_bar", "bars_enabled"]
+__all__ = ["PROGRESS_ENV", "LOG_INTERVAL_S", "QuietBar", "progress_bar", "bars_enabled"]
 
 #: Environment variable that hides every bar when set to ``0``.
 PROGRESS_ENV = "FACESTATS_PROGRESS"
+#: Seconds between two redraws of a bar whose stderr is not a terminal (a log file or a pipe).
+LOG_INTERVAL_S = 30.0
 
 
 def bars_enabled(enabled=True) -> bool:
@@ -114,4 +120,14 @@ def progress_bar(iterable=None, *, enabled=True, desc=None, unit="it", total=Non
         return QuietBar(iterable, total, initial)
     from tqdm.auto import tqdm
 
-    return tqdm(iterable, total=total, initial=initial, desc=desc, unit=unit, leave=leave)
+    widget = any(c.__module__ == "tqdm.notebook" for c in tqdm.__mro__)  # a notebook's bar: not a log
+    logged = {} if widget or _stderr_is_terminal() else {"mininterval": LOG_INTERVAL_S, "maxinterval": LOG_INTERVAL_S}
+    return tqdm(iterable, total=total, initial=initial, desc=desc, unit=unit, leave=leave, **logged)
+
+
+def _stderr_is_terminal() -> bool:
+    """Whether stderr, where tqdm draws, is a terminal (False for a file, a pipe, or a closed stream)."""
+    try:
+        return bool(sys.stderr.isatty())
+    except (AttributeError, ValueError, OSError):
+        return False

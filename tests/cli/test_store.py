@@ -151,7 +151,10 @@ def test_validate_and_repair(stores, tmp_path):
     r = run_main("validate", "--store", path, "--repair", "--yes")  # damaged data go to the quarantine
     assert r.returncode == 0 and "drop subject 'P2' from the index" in r.stdout and "store is valid" in r.stdout
     assert len(list((path / "quarantine").glob("*/subjects/P2/g*"))) == 1
-    r = run_main("validate", "--store", tmp_path / "missing")
+    r = run_main("validate", "--store", tmp_path / "missing")  # a typo is no damage: exit 2, as every command
+    assert r.returncode == 2 and "does not exist" in r.stderr and "INVALID" not in r.stdout
+    (tmp_path / "file.zarr").write_text("not a store")  # exists, cannot be opened: invalid
+    r = run_main("validate", "--store", tmp_path / "file.zarr")
     assert r.returncode == 1 and "INVALID" in r.stdout
     r = run_main("validate", "--store", stores[1], "--purge", "--yes")  # a valid zip store is not "INVALID"
     assert r.returncode == 2 and "is a read-only zip store: --purge --yes needs a directory store" in r.stderr

@@ -338,6 +338,11 @@ def add_calibrate(sub):
     p = sub.add_parser(
         "calibrate",
         help="calibrate cameras and LEDs from photographs (response from a bracket, LEDs from a diffuse target)",
+        description=(
+            "Calibrate a dome from photographs: 'response' recovers a camera's response curve g(Z) from an exposure "
+            "bracket (Debevec & Malik 1997), 'merge' merges a bracket into linear HDR radiance with it, 'leds' fits "
+            "every LED's intensity and beam from photographs of a white diffuse target (docs/photographs.md)."
+        ),
     )
     csub = p.add_subparsers(title="what", metavar="WHAT")
     leds = csub.add_parser(

@@ -334,7 +334,12 @@ def add_relight(sub):
         help="subject id in the store, or a reflectance field store directory (*.zarr)",
     )
     p.add_argument("--probe", required=True, metavar="FILE", help="light probe (.hdr/.exr/.pfm)")
-    p.add_argument("--layout", choices=("latlong", "angular"), default="latlong", help="probe layout")
+    p.add_argument(
+        "--layout",
+        choices=("latlong", "angular"),
+        default="latlong",
+        help="probe layout: latlong (equirectangular, default) or angular (a light probe's angular map)",
+    )
     p.add_argument("--rotate", type=ascii_float, default=0.0, metavar="DEG",
                    help="rotate the environment about +y by DEG degrees (right-handed)")  # fmt: skip
     p.add_argument("--out", required=True, metavar="FILE.exr", help="linear OpenEXR output")
@@ -356,9 +361,9 @@ def add_relight(sub):
         help="image side for a subject, pixels (default 256)",
     )
     p.add_argument("--azimuth", type=ascii_float, default=_SUBJECT_OPTIONS["azimuth"], metavar="DEG",
-                   help="camera azimuth (0: frontal)")  # fmt: skip
+                   help="camera azimuth in degrees (default 0: frontal)")  # fmt: skip
     p.add_argument("--elevation", type=ascii_float, default=_SUBJECT_OPTIONS["elevation"], metavar="DEG",
-                   help="camera elevation")  # fmt: skip
+                   help="camera elevation in degrees, -90 to 90 (default 0)")  # fmt: skip
     p.add_argument(
         "--lights", default=_SUBJECT_OPTIONS["lights"], metavar="NxM", help="light stage theta x phi (default 64x32)"
     )

@@ -83,7 +83,7 @@ def add_query(sub):
         metavar="TYPE",
         help="Fitzpatrick type I-VI or 1-6, or several separated by commas (V,VI); I and II match both",
     )
-    p.add_argument("--gender", metavar="M|F", help="M or F")
+    p.add_argument("--gender", metavar="M|F", help="M or F (also male/female, or 0 = M, 1 = F)")
     p.add_argument("--age", metavar="RANGE", help="20s, 30s, 40s, 50s+, MIN-MAX or one age in years")
     p.add_argument(
         "--condition",
@@ -171,7 +171,12 @@ def add_info(sub):
         "age group, condition and kind, and its size on disk.",
     )
     add_store_option(p)
-    p.add_argument("--format", choices=("text", "json"), default="text")
+    p.add_argument(
+        "--format",
+        choices=("text", "json"),
+        default="text",
+        help="text (default) or json (the same fields, for scripts)",
+    )
     p.set_defaults(func=_cmd_info)
 
 

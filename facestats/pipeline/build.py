@@ -407,9 +407,12 @@ def _check_same_build(store, pop, present, geometry, specular, micro_normals=Non
                 ours[key], stored[key] = bool(wanted), var in ds.data_vars
         differ = {k: (stored[k], v) for k, v in ours.items() if stored[k] != v}
         if differ:
-            names = {"seed": "its subject seed (derived from --seed)"}
             what = "; ".join(
-                f"{names.get(k, k)} {old!r} stored, {new!r} in this build" for k, (old, new) in differ.items()
+                "another --seed (the store keeps the subject seed drawn from it, "
+                f"{old!r}; this build's --seed draws {new!r})"
+                if k == "seed"
+                else f"{k} {old!r} stored, {new!r} in this build"
+                for k, (old, new) in differ.items()
             )
             raise ValidationError(
                 f"store {store.label} holds {sid} built with other parameters ({what}): a resumed build must use "

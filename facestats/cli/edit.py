@@ -160,7 +160,7 @@ def _report(pending, images, overwrite) -> int:
         # the PNGs under temporary names, renamed into place when the block ends (without --overwrite, never onto
         # a file that appeared meanwhile: another edit's of the same --id)
         with OutputSet(images, overwrite=overwrite) as out:
-            stage_edit_images(edit, out)
+            scales = stage_edit_images(edit, out)
             try:
                 pending.commit()
             except OSError as exc:  # the store's failure: the OutputSet would report an OSError as the images'
@@ -185,7 +185,7 @@ def _report(pending, images, overwrite) -> int:
             file=sys.stderr,
         )
         return 130
-    print(edit.to_text(images=out.written, directory=images))
+    print(edit.to_text(images=out.written, directory=images, scales=scales))
     return 0
 
 

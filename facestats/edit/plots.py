@@ -7,6 +7,10 @@ imported when a function is called.  Linear-RGB albedo is displayed with the
 sRGB transfer function of IEC 61966-2-1 (through
 :func:`facestats.io.images.linear_to_srgb`).  The summary figure draws maps of at
 most :data:`PANEL_MAX` texels a side; the PNGs of each map are full size.
+
+The PNG of each map is a plain image of it, one texel to k × k pixels (for viewing and compositing; the summary
+figure is the one with colour bars), and its text chunks carry its scale (:data:`SCALE_KEYS`): the map's name and
+units, the colour map, and the values drawn at the colour map's two ends.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from facestats.edit.pyramid import band_names
 from facestats.edit.result import BRDF_VARIABLES, SubjectEdit
 from facestats.errors import ValidationError
 from facestats.io.images import linear_to_srgb, stride_step
+from facestats.io.schema import VARIABLES
 
 __all__ = [
     "plot_texture_transfer",
@@ -29,7 +34,21 @@ __all__ = [
     "save_edit_images",
     "stage_edit_images",
     "edit_image_names",
+    "SCALE_KEYS",
 ]
+
+#: PNG text keys of a map's image (:func:`stage_edit_images`): the variable, its units (:data:`VARIABLES`'s, "1"
+#: dimensionless), the colour map ("viridis", or "sRGB" for the albedo: each channel's linear value sRGB-encoded,
+#: 0 black and 1 white), the values drawn at its low and high ends (``repr`` of a float; values beyond are clipped
+#: to them), and the pixels a side of one texel.  ``Description`` says the same in words.
+SCALE_KEYS = (
+    "facestats:variable",
+    "facestats:units",
+    "facestats:colormap",
+    "facestats:vmin",
+    "facestats:vmax",
+    "facestats:texel_pixels",
+)
 
 
 def _figure(**kwargs):
@@ -243,9 +262,40 @@ def plot_subject_edit(edit: SubjectEdit, *, title: str | None = None):
     return fig
 
 
-def _upscale(img, min_side=256):
-    k = max(1, -(-min_side // max(img.shape[:2])))
+def _upscale_factor(shape, min_side=256):
+    """Pixels a side of one texel in a map's PNG: the smallest k with k × the longer side ≥ ``min_side``."""
+    return max(1, -(-min_side // max(shape[:2])))
+
+
+def _upscale(img, k):
     return img if k == 1 else np.repeat(np.repeat(img, k, axis=0), k, axis=1)
+
+
+def _scale(var, colormap, lo, hi, k):
+    """``(PNG text chunks, one line in words)`` of a map's image drawn with ``colormap`` from ``lo`` to ``hi``."""
+    units = VARIABLES[var][1]
+    unit_words = "dimensionless" if units == "1" else f"in {units}"
+    if colormap == "sRGB":
+        words = f"linear {lo:g} (black) to {hi:g} (white) per channel, sRGB-encoded, {unit_words}"
+    else:
+        words = f"{colormap} from {lo:.4g} (dark purple) to {hi:.4g} (yellow), {unit_words}"
+    shared = (
+        ""
+        if colormap == "sRGB"
+        else "; the before and after images share it (1st-99th percentile of both images' face texels); black "
+        "outside the face"
+    )
+    text = {
+        "facestats:variable": var,
+        "facestats:units": units,
+        "facestats:colormap": colormap,
+        "facestats:vmin": repr(float(lo)),
+        "facestats:vmax": repr(float(hi)),
+        "facestats:texel_pixels": str(k),
+        "Description": f"{var} ({VARIABLES[var][2]}): {words}; values beyond clipped{shared}; one texel is {k} x {k} "
+        "pixels",
+    }
+    return text, words
 
 
 def edit_image_names(subject_id: str) -> list[str]:
@@ -269,7 +319,7 @@ def edit_image_names(subject_id: str) -> list[str]:
     ]
 
 
-def stage_edit_images(edit: SubjectEdit, outputs: OutputSet) -> None:
+def stage_edit_images(edit: SubjectEdit, outputs: OutputSet) -> dict[str, str]:
     """Render the before/after PNGs of an edit into an open :class:`~facestats.core.outputs.OutputSet`.
 
     Each file is written under the temporary name ``outputs.path(name)`` gives (hidden, beside its target, in the
@@ -288,8 +338,9 @@ def stage_edit_images(edit: SubjectEdit, outputs: OutputSet) -> None:
 
     Returns
     -------
-    None
-        After the block, ``outputs.written`` lists the files.
+    dict of str to str
+        File name → its scale in words (what ``facestats edit`` prints beside the name; the per-map PNGs also hold
+        it in their text chunks, :data:`SCALE_KEYS`).  After the block, ``outputs.written`` lists the files.
     """
     import matplotlib.pyplot as plt
     from matplotlib import colormaps
@@ -297,24 +348,33 @@ def stage_edit_images(edit: SubjectEdit, outputs: OutputSet) -> None:
 
     _check_edit(edit)
     face = np.asarray(edit.source["region"].values) > 0
+    k = _upscale_factor(face.shape)
     cmap = colormaps["viridis"]
+    scales = {}
+    text, words = _scale("albedo", "sRGB", 0.0, 1.0, k)
     for when, ds in (("before", edit.source), ("after", edit.dataset)):
-        imsave(
-            outputs.path(f"{edit.subject_id}_albedo_{when}.png"), _upscale(_display(np.asarray(ds["albedo"].values)))
-        )
+        name = f"{edit.subject_id}_albedo_{when}.png"
+        imsave(outputs.path(name), _upscale(_display(np.asarray(ds["albedo"].values)), k), metadata=text)
+        scales[name] = words
     for var in edit.brdf_variables:
         before = np.asarray(edit.source[var].values, np.float32)
         after = np.asarray(edit.dataset[var].values, np.float32)
         lo, hi = _map_range(before, after, face)
+        text, words = _scale(var, "viridis", lo, hi, k)
         for when, img in (("before", before), ("after", after)):
             rgb = cmap(np.clip((img - lo) / (hi - lo), 0.0, 1.0), bytes=True)[..., :3]  # 8-bit, as written
             rgb[~face] = 0
-            imsave(outputs.path(f"{edit.subject_id}_{var}_{when}.png"), _upscale(rgb))
+            name = f"{edit.subject_id}_{var}_{when}.png"
+            imsave(outputs.path(name), _upscale(rgb, k), metadata=text)
+            scales[name] = words
     fig = plot_subject_edit(edit)
     try:
-        fig.savefig(outputs.path(f"{edit.subject_id}_summary.png"), dpi=100)
+        name = f"{edit.subject_id}_summary.png"
+        fig.savefig(outputs.path(name), dpi=100)
+        scales[name] = "before, after and difference of each map, with colour bars"
     finally:
         plt.close(fig)
+    return scales
 
 
 def save_edit_images(edit: SubjectEdit, directory=".") -> list[pathlib.Path]:
@@ -327,6 +387,8 @@ def save_edit_images(edit: SubjectEdit, directory=".") -> list[pathlib.Path]:
     for both, 1st-99th percentile of the face texels; black outside the face),
     and ``<id>_summary.png`` (:func:`plot_subject_edit`, with colour bars).
     Small maps are enlarged by pixel repetition to at least 256 pixels a side.
+    The maps' PNGs have no colour bar: their text chunks hold the scale
+    (:data:`SCALE_KEYS`).
     To write them together with something else, all or none, use
     :func:`stage_edit_images` in an :class:`~facestats.core.outputs.OutputSet`.
 

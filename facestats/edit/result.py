@@ -133,7 +133,7 @@ class SubjectEdit:
             out["iterations"] = self.texture.iterations
         return out
 
-    def to_text(self, images=None, directory=".") -> str:
+    def to_text(self, images=None, directory=".", scales=None) -> str:
         """The report of the edit, as ``facestats edit`` prints it.
 
         Parameters
@@ -142,6 +142,9 @@ class SubjectEdit:
             Files written by :func:`facestats.edit.plots.save_edit_images`, listed by name.
         directory : str or pathlib.Path
             The directory they are in (shown as an absolute path).
+        scales : dict of str to str, optional
+            File name → its scale in words, shown after the name (what
+            :func:`facestats.edit.plots.stage_edit_images` returns).
 
         Returns
         -------
@@ -163,7 +166,10 @@ class SubjectEdit:
         ]
         if images is not None:
             lines.append(f"images ({len(images)}) in {os.path.abspath(directory)}:")
-            lines += [f"  {pathlib.Path(f).name}" for f in images]
+            scales = scales or {}
+            for f in images:
+                name = pathlib.Path(f).name
+                lines.append(f"  {name}: {scales[name]}" if name in scales else f"  {name}")
         if self.texture is not None:
             dist = d["distance"]
             lines.append(

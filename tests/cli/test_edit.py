@@ -63,6 +63,17 @@ def test_skin_type_writes_a_new_subject_and_images(pop, tmp_path):
     for name in ("albedo_before", "albedo_after", "ts_rho_s_before", "ts_rho_s_after", "bp_exponent_after", "summary"):
         f = tmp_path / "img" / f"{sid}_{name}.png"
         assert f.is_file() and f.name in r.stdout
+    # each map's PNG has no colour bar: its scale is printed beside its name and held in its text chunks
+    from PIL import Image
+
+    for var in MAPS[1:]:
+        for when in WHEN:
+            name = f"{sid}_{var}_{when}.png"
+            text = Image.open(tmp_path / "img" / name).text
+            lo, hi = float(text["facestats:vmin"]), float(text["facestats:vmax"])
+            assert f"  {name}: viridis from {lo:.4g} (dark purple) to {hi:.4g} (yellow), dimensionless\n" in r.stdout
+    assert f"  {sid}_albedo_before.png: linear 0 (black) to 1 (white) per channel, sRGB-encoded" in r.stdout
+    assert f"  {sid}_summary.png: before, after and difference of each map, with colour bars" in r.stdout
     before = imread(tmp_path / "img" / f"{sid}_albedo_before.png")
     after = imread(tmp_path / "img" / f"{sid}_albedo_after.png")
     assert before.shape[:2] == (264, 264)  # 24 x 11 pixels

@@ -227,3 +227,55 @@ def test_cli_self_term_footprint_reaches_the_fit(scene_files, capsys):
     assert (fit["self_term"], fit["method"]) == ("surface", "exitance")
     assert main(_scene_args(scene_files) + ["--quiet", "--self-term", "disk"]) == 2
     assert "--self-term must be one of ['footprint', 'point', 'surface'], got 'disk'" in capsys.readouterr().err
+
+
+def _doc_section_blocks(doc, heading):
+    """``[(info string, text)]`` of the fenced code blocks of the section ``heading`` (``## ...``) of ``doc``."""
+    text = doc.read_text(encoding="utf-8")
+    start = text.index(f"\n{heading}\n")
+    end = text.find("\n## ", start + 1)
+    return re.findall(r"```(\w*)\n(.*?)```", text[start : None if end < 0 else end], re.S)
+
+
+def test_docs_making_inputs_runs_as_written(tmp_path):
+    """docs/translucency_from_image.md, *Making inputs*: its script (run as a file, in an empty folder) writes the
+    four inputs, its command runs on them, and what the doc shows it printing is what it prints: Table 1's medium."""
+    import pathlib
+    import shlex
+    import subprocess
+    import sys
+
+    from facestats.core.published import SUZUKI_TABLE1
+
+    doc = pathlib.Path(__file__).resolve().parents[2] / "docs" / "translucency_from_image.md"
+    (lang, script), (_, command), (_, shown) = _doc_section_blocks(doc, "## Making inputs")
+    assert lang == "python"
+    (tmp_path / "make_inputs.py").write_text(script, encoding="utf-8")
+    r = subprocess.run([sys.executable, "make_inputs.py"], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "camera.json", "lights.json", "make_inputs.py", "pyramid.exr", "pyramid.obj"
+    ]  # fmt: skip
+    argv = shlex.split(command.strip())
+    assert argv[:2] == ["facestats", "translucency"]
+    r = run_cli(*argv[1:], cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    printed = r.stdout.splitlines()
+    for line in shown.strip("\n").splitlines():
+        assert line in printed, (line, r.stdout)
+    # what the doc shows is the truth the scene was rendered with, in every channel ("the same for G and B")
+    pattern = r"sigma_s' = ([\d.]+) .*sigma_a = ([\d.]+) "
+    for name in ("R", "G", "B"):
+        line = next(x for x in printed if x.startswith(f"{name}:"))
+        s, a = (float(x) for x in re.findall(pattern, line)[0])
+        assert (s, a) == (SUZUKI_TABLE1["sigma_s_prime"], SUZUKI_TABLE1["sigma_a"]), line
+    # the doc's convention: "direction" points from the surface towards the light, so (1, 0, -0.1) lights the
+    # +x face (normal (1, 0, 2)/sqrt 5) and no other; light travelling along it would light the -x face
+    from facestats.acquire.lights import load_lights, patch_irradiance
+    from facestats.acquire.patches import read_mesh_patches
+
+    lights, eta = load_lights(tmp_path / "lights.json")
+    assert lights[0].direction.tolist() == pytest.approx(np.array([1, 0, -0.1]) / np.sqrt(1.01))
+    patches = read_mesh_patches(tmp_path / "pyramid.obj", spacing=2.5)
+    lit = patch_irradiance(patches, lights, eta=eta)[:, 0] > 0
+    assert np.array_equal(lit, patches.normal[:, 0] > 0.5) and lit.sum() == len(patches) // 4

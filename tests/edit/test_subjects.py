@@ -397,6 +397,53 @@ def test_default_store_is_read_only_and_edits_go_to_another_store(tmp_path):
     assert len([ax for ax in fig.axes if ax.images]) == 3 * 4  # 4 BRDF maps (albedo unchanged), before/after/diff
 
 
+def test_map_images_hold_their_scale_in_their_png_text(skin_v, tmp_path):
+    """Each map's PNG is a plain image (no colour bar): its text chunks give the values at the colour map's ends,
+    the 1st and 99th percentiles of the face texels of before and after; decoding its pixels with them gives the map
+    back; ``stage_edit_images`` returns the same scale in words (what ``facestats edit`` prints)."""
+    from matplotlib import colormaps
+    from PIL import Image
+
+    from facestats.core.outputs import OutputSet
+    from facestats.edit.plots import SCALE_KEYS, stage_edit_images
+
+    before, _, e = skin_v
+    with OutputSet(tmp_path) as out:
+        scales = stage_edit_images(e, out)
+    sid, face = e.subject_id, before["region"].values > 0
+    assert sorted(scales) == sorted(f.name for f in out.written) and len(scales) == 2 + 2 * 4 + 1
+    lut = colormaps["viridis"](np.arange(256), bytes=True)[:, :3].astype(int)  # the 256 colours an 8-bit PNG holds
+    for var in e.brdf_variables:
+        maps = {"before": before[var].values, "after": e.dataset[var].values}
+        lo, hi = np.percentile(np.concatenate([maps["before"][face], maps["after"][face]]).astype(np.float32), [1, 99])
+        for when, values in maps.items():
+            png = Image.open(tmp_path / f"{sid}_{var}_{when}.png")
+            text = png.text
+            assert set(SCALE_KEYS) <= set(text) and text["facestats:variable"] == var
+            assert (text["facestats:colormap"], text["facestats:units"], text["facestats:texel_pixels"]) == (
+                "viridis", "1", "11"
+            )  # fmt: skip
+            vmin, vmax = float(text["facestats:vmin"]), float(text["facestats:vmax"])
+            assert (vmin, vmax) == (lo, hi) and vmin < vmax, (var, when)
+            assert f"viridis from {vmin:.4g} (dark purple) to {vmax:.4g} (yellow)" in text["Description"]
+            assert scales[png.filename.rsplit("/", 1)[1]] in text["Description"]
+            rgb = np.asarray(png.convert("RGB"))[5::11, 5::11]  # one pixel per texel (24 x 11 pixels)
+            # colour k of 256 stands for [vmin + k/256 (vmax - vmin), vmin + (k + 1)/256 (vmax - vmin)); two pairs of
+            # neighbouring viridis colours are equal in 8 bits: a colour stands for the bins of all its indices
+            same = np.all(rgb[:, :, None, :] == lut[None, None], axis=-1)  # (24, 24, 256)
+            first, last = np.argmax(same, axis=-1), 255 - np.argmax(same[..., ::-1], axis=-1)
+            step, eps = (vmax - vmin) / 256, 1e-6 * (vmax - vmin)
+            inside = face & (values >= vmin) & (values <= vmax)
+            assert inside.sum() > 0.9 * face.sum() and same[inside].any(axis=-1).all()
+            assert np.all(vmin + first[inside] * step - eps <= values[inside]), (var, when)
+            assert np.all(values[inside] <= vmin + (last[inside] + 1) * step + eps), (var, when)
+            assert np.all(rgb[~face] == 0)
+    for when in ("before", "after"):
+        text = Image.open(tmp_path / f"{sid}_albedo_{when}.png").text
+        assert (text["facestats:colormap"], text["facestats:vmin"], text["facestats:vmax"]) == ("sRGB", "0.0", "1.0")
+    assert "colour bars" in scales[f"{sid}_summary.png"]
+
+
 def test_an_edit_made_with_commit_false_is_written_by_its_commit_only(store, tmp_path):
     """``commit=False`` makes the whole edit and writes nothing (``facestats edit`` saves its images first); the
     pending edit's ``commit()`` writes exactly what the default call writes, once, and is refused, with nothing

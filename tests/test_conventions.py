@@ -8,7 +8,7 @@ whereas :func:`facestats.core.validate.check_integer` refuses a flag.  ``age_gro
 import numpy as np
 import pytest
 
-from facestats.core.conventions import age_group, parse_age, parse_region, parse_skin_type
+from facestats.core.conventions import age_group, parse_age, parse_region, parse_skin_type, skin_type_label
 from facestats.errors import ValidationError
 
 
@@ -38,3 +38,11 @@ def test_age_range_refuses_numpy_booleans():
     with pytest.raises(ValidationError, match="age range must be two ages"):
         parse_age((np.True_, 30))
     assert parse_age((np.int64(20), 30.0)) == (20, 30)
+
+
+def test_skin_type_label_names_the_pooled_group_i_ii():
+    """Pooled types I and II are coded 2; the CCA legend and posterior_population.json called that group 'II'."""
+    assert [skin_type_label(t, grouped_i_ii=True) for t in (2, 3, 6)] == ["I-II", "III", "VI"]
+    assert [skin_type_label(t) for t in (1, 2, "iv")] == ["I", "II", "IV"]
+    with pytest.raises(ValidationError, match="skin type must be I-VI or 1-6, got 7"):
+        skin_type_label(7, grouped_i_ii=True)

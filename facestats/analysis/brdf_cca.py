@@ -25,7 +25,7 @@ __all__ = ["brdf_cca", "EXPERIMENTAL_VARIABLES", "CODING"]
 EXPERIMENTAL_VARIABLES = ("skin_type", "gender", "age")
 #: How :func:`brdf_cca` codes the experimental variables (recorded in its result's ``coding``).
 CODING = {
-    "skin_type": "Fitzpatrick number, type I grouped into II (2-6)",
+    "skin_type": "Fitzpatrick number, types I and II grouped as 2 (labelled I-II), 2-6",
     "gender": "0 = M, 1 = F",
     "age": "years",
 }

@@ -454,14 +454,7 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
     xw, yw = xc @ wx, yc @ wy
     plain = not reg.any()
     if plain and n - 1 < wx.shape[1] + wy.shape[1]:
-        # The centred rows span at most n − 1 dimensions: with more variables, some combination of X equals one
-        # of Y exactly, whatever the data, and every test statistic is meaningless.
-        raise InsufficientDataError(
-            f"cca needs more complete rows (subjects) than variables: {n} rows for {wx.shape[1]} + {wy.shape[1]} "
-            f"independent variables give a canonical correlation of 1 by construction (need at least "
-            f"{wx.shape[1] + wy.shape[1] + 1} rows; the Python API's cca(regularization=) shrinks the covariances "
-            "instead, at the price of a criterion that is no longer a correlation)"
-        )
+        raise InsufficientDataError(_too_few_rows(n, xc, yc, wx.shape[1], wy.shape[1]))
     upper = 1.0 if plain else np.inf
     r, u, v = _canonical(xw, yw, upper)
     a, b, proj_x, proj_y, x_load, y_load = _oriented(xc, yc, wx @ u, wy @ v)
@@ -505,6 +498,27 @@ def cca(X, Y, *, regularization=0.0, n_permutations=0, seed=0, missing="raise", 
         y_data=y_data,
         dropped=dropped,
         seed=seed,
+    )
+
+
+def _too_few_rows(n, xc, yc, rx, ry):
+    """The message of a plain CCA with too few rows for its variables (:func:`cca` refuses it).
+
+    The centred rows span at most n − 1 dimensions, so the whitened blocks have ranks rx, ry ≤ n − 1; when
+    rx + ry > n − 1, some combination of X equals one of Y exactly, whatever the data, and every test
+    statistic is meaningless.  The condition n − 1 ≥ rx + ry holds for generic data from n = p + q + 1 rows on,
+    where p and q count the variables that are not constant (a constant column has rank 0 at any n; a
+    collinear combination of others, which only more rows can reveal, lowers the need).  The ranks after
+    whitening cannot state the need: they are capped by the rows at hand (12 rows of 20 variables: rank 11),
+    which made the hint ask for 3 rows more than there were, whatever their number.
+    """
+    p, q = int(np.count_nonzero(np.any(xc, axis=0))), int(np.count_nonzero(np.any(yc, axis=0)))
+    return (
+        f"cca needs more complete rows (subjects) than variables: {n} rows for {p} + {q} variables "
+        f"(X, Y; ranks {rx} + {ry} at these rows, which span at most {n - 1} dimensions) give a canonical "
+        f"correlation of 1 by construction (need at least {p + q + 1} rows: {p} + {q} + 1, fewer only if some "
+        "variables are linear combinations of others; the Python API's cca(regularization=) shrinks the "
+        "covariances instead, at the price of a criterion that is no longer a correlation)"
     )
 
 

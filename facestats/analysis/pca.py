@@ -29,7 +29,7 @@ Conventions
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -265,6 +265,8 @@ class RegionPCA:
     n_subjects : int
         Subjects in the analysed population.
     ddof : int
+    left_out : dict of int to str
+        The other regions, with the reason (``"no texels"``, or too few samples for the covariance).
     """
 
     model: str
@@ -272,6 +274,7 @@ class RegionPCA:
     regions: dict
     n_subjects: int
     ddof: int = 1
+    left_out: dict = field(default_factory=dict)
 
     def __getitem__(self, region) -> RegionEllipse:
         return self.regions[region]
@@ -336,7 +339,13 @@ class RegionPCA:
         }
 
     def compare_published(self, as_sets=False):
-        """Our §7 orderings (:meth:`orderings`) beside the paper's.
+        """Our §7 orderings (:meth:`orderings`) beside the paper's, over the regions present here.
+
+        The paper ranks all ten regions.  Where some are left out here (:attr:`left_out`), its orderings are
+        restricted to the regions present (removing a region from a ranking keeps the order of the others), and
+        ours are cut to as many regions: the paper's five of largest variance 8 1 3 9 10 become 8 3 9 10
+        without region 1, beside our four of largest variance.  The paper's smoothest region is None if it is
+        left out.
 
         Parameters
         ----------
@@ -357,8 +366,13 @@ class RegionPCA:
         ours = self.orderings()
         pub = self.published_orderings()
         keys = ("highest_rho_s", "largest_variance", "smallest_lobe")
-        paper = [None] * 3 if pub is None else [pub["highest_rho_s"], pub["largest_variance"], pub["smallest_m"]]
         ours = [ours[k] for k in keys]
+        if pub is None:
+            paper = [None] * 3
+        else:
+            paper = [[r for r in pub[k] if r in self.regions] for k in ("highest_rho_s", "largest_variance")]
+            ours = [ours[0][: len(paper[0])], ours[1][: len(paper[1])], ours[2]]
+            paper.append(pub["smallest_m"] if pub["smallest_m"] in self.regions else None)
         if as_sets:
             ours = [sorted(np.atleast_1d(v).tolist()) for v in ours]
             paper = [None if v is None else sorted(np.atleast_1d(v).tolist()) for v in paper]
@@ -376,8 +390,10 @@ class RegionPCA:
         angle_deg (major axis from the ρs axis), total_variance (λ1 + λ2)}``;
         ``orderings``: ``{highest_rho_s: 5 regions, largest_variance: 5 regions
         (by total variance), smallest_lobe: region}`` (:meth:`orderings`) and
-        ``published`` (the §7 orderings of the Torrance-Sparrow fit, ``null``
-        for Blinn-Phong).
+        ``published`` (the §7 orderings of the Torrance-Sparrow fit over all ten
+        regions, ``null`` for Blinn-Phong; :meth:`compare_published` restricts
+        them to the regions present); ``left_out``: a list of ``{region, name,
+        reason}`` for the regions without an ellipse.
 
         Parameters
         ----------
@@ -413,6 +429,7 @@ class RegionPCA:
             "regions": regions,
             "orderings": self.orderings(),
             "published": self.published_orderings(),
+            "left_out": [{"region": r, "name": REGIONS[r], "reason": why} for r, why in self.left_out.items()],
         }
         return json_ready(doc)
 
@@ -429,14 +446,29 @@ class RegionPCA:
                 f"{r:>2} {e.name:<10}{e.n:>7}  {e.mean[0]:7.4f}  {e.mean[1]:8.4f}  {e.std[0]:8.4f}  "
                 f"{e.std[1]:8.4f}  {np.degrees(e.angle):5.0f}d"
             )
+        if self.left_out:
+            lines.append("left out: " + self.left_out_text())
         cmp = self.compare_published()
         smooth = "smallest m" if self.model == "ts" else "largest n"
+        paper_name = "paper" if not self.left_out else f"paper without {_regions(self.left_out)}"
+        if self.left_out and self.model == "ts":
+            lines.append(f"orderings over the {len(self.regions)} regions present (the paper's restricted to them):")
         for key, label in (("highest_rho_s", "highest rho_s:"), ("largest_variance", "largest variance:")):
             ours, paper = cmp.loc[key, "ours"], cmp.loc[key, "paper"]
-            lines.append(f"{label:<18}{_regions(ours)}" + (f"   (paper: {_regions(paper)})" if paper else ""))
+            lines.append(
+                f"{label:<18}{_regions(ours)}" + ("" if paper is None else f"   ({paper_name}: {_regions(paper)})")
+            )
         ours, paper = cmp.loc["smallest_lobe", "ours"], cmp.loc["smallest_lobe", "paper"]
-        lines.append(f"{smooth + ':':<18}{ours}" + ("" if paper is None else f"   (paper: {paper})"))
+        if self.model == "ts" and paper is None:
+            paper_text = f"   (paper: {SMALLEST_M}, left out here)"
+        else:
+            paper_text = "" if paper is None else f"   ({paper_name}: {paper})"
+        lines.append(f"{smooth + ':':<18}{ours}{paper_text}")
         return "\n".join(lines)
+
+    def left_out_text(self) -> str:
+        """The regions without an ellipse and why (``"region 1 mustache (no texels)"``; ``""`` if none)."""
+        return "; ".join(f"region {r} {REGIONS[r]} ({why})" for r, why in self.left_out.items())
 
 
 def _regions(ids):
@@ -525,7 +557,7 @@ def region_pca(source, model="ts", subjects=None, conditions=("normal",), ddof=1
     Returns
     -------
     RegionPCA
-        Regions with more than ``ddof`` samples; others are left out.
+        Regions with more than ``ddof`` samples; the others are named in its ``left_out`` with the reason.
     """
     import pandas as pd
 
@@ -546,17 +578,23 @@ def region_pca(source, model="ts", subjects=None, conditions=("normal",), ddof=1
     values = samples[["rho_s", "lobe"]].to_numpy(np.float64)
     sid = samples["subject_id"].to_numpy()
     finite = np.all(np.isfinite(values), axis=1)
-    ellipses = {}
+    ellipses, left_out = {}, {}
     for r in REGION_IDS:
         sel = (region == r) & finite
         if sel.sum() <= ddof:
+            left_out[r] = _too_few(int(sel.sum()), ddof)
             continue
         mean, w, v = principal_axes(values[sel], ddof=ddof)
         ellipses[r] = RegionEllipse(r, mean, w, v, int(sel.sum()), int(pd.unique(sid[sel]).size))
     if not ellipses:
         raise ValidationError(f"no region has more than {ddof} finite {model} samples in the selected subjects")
     n_subjects = int(pd.unique(sid[finite]).size)
-    return RegionPCA(model, ("rho_s", lobe_name), ellipses, n_subjects, ddof)
+    return RegionPCA(model, ("rho_s", lobe_name), ellipses, n_subjects, ddof, left_out)
+
+
+def _too_few(n, ddof):
+    """Why a region of ``n`` samples has no ellipse."""
+    return "no texels" if n == 0 else f"{n} sample{'s' * (n != 1)}, a covariance with ddof={ddof} needs more"
 
 
 def has_index_moments(source, model="ts") -> bool:
@@ -615,13 +653,14 @@ def _index_moments(rows, model):
 def _pca_from_moments(moments, model, lobe_name, ddof):
     """:class:`RegionPCA` from :func:`_index_moments` (:func:`pooled_moments` per region)."""
     per_region, n_subjects = moments
-    ellipses = {}
+    ellipses, left_out = {}, {}
     for r, (n, means, covs) in per_region.items():
         if n.sum() <= ddof:
+            left_out[r] = _too_few(int(n.sum()), ddof)
             continue
         mean, cov, total = pooled_moments(n, means, covs, ddof)
         w, v = covariance_axes(cov)
         ellipses[r] = RegionEllipse(r, mean, w, v, total, int(n.size))
     if not ellipses:
         raise ValidationError(f"no region has more than {ddof} finite {model} samples in the selected subjects")
-    return RegionPCA(model, ("rho_s", lobe_name), ellipses, n_subjects, ddof)
+    return RegionPCA(model, ("rho_s", lobe_name), ellipses, n_subjects, ddof, left_out)

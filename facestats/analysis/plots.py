@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from facestats.analysis.population import MODEL_NAMES
-from facestats.core.conventions import CHANNELS, REGIONS, ROMAN
+from facestats.core.conventions import CHANNELS, REGIONS, skin_type_label
 from facestats.core.published import TABLE1_MEAN
 
 __all__ = [
@@ -84,15 +84,15 @@ def _encoded_scatter(ax, x, y, skin_type, gender, age):
             ax.scatter(x[sel], y[sel], s=sizes[sel], c=colors[sel], marker=marker, edgecolors="0.35", linewidths=0.5)
 
 
-def _encoding_legend(ax, skin_types, genders, ages):
-    """Legend of the encoding: the skin types and genders present, the youngest and oldest age."""
+def _encoding_legend(ax, skin_types, genders, ages, grouped_i_ii=False):
+    """Legend of the encoding: the skin types and genders present, the youngest and oldest age (2 is "I-II" where
+    ``grouped_i_ii``)."""
     from matplotlib.lines import Line2D
 
     handles = []
     for st in sorted(set(int(s) for s in skin_types)):
-        handles.append(
-            Line2D([], [], ls="", marker="s", ms=8, mfc=skin_type_color(st), mec="0.35", label=f"type {ROMAN[st]}")
-        )
+        label = f"type {skin_type_label(st, grouped_i_ii)}"
+        handles.append(Line2D([], [], ls="", marker="s", ms=8, mfc=skin_type_color(st), mec="0.35", label=label))
     present = set(np.asarray(genders).astype(str))
     for g, marker in _MARKERS.items():
         if g in present:
@@ -160,9 +160,10 @@ def plot_region_pca(result, k=1.0, ax=None, annotate=True):
     lobe = {"m": "m (Beckmann roughness)", "exponent": "n (Blinn-Phong exponent)"}[result.parameters[1]]
     ax.set_xlabel(r"$\rho_s$ (specular scale)")
     ax.set_ylabel(lobe)
+    left_out = f"\nleft out: {result.left_out_text()}" if result.left_out else ""
     ax.set_title(
         f"{MODEL_NAMES[result.model]} parameters per region, {result.n_subjects} subjects\n"
-        f"ellipses: mean ± {k:g}σ along the principal axes",
+        f"ellipses: mean ± {k:g}σ along the principal axes{left_out}",
         fontsize=10,
     )
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), title="region", title_fontsize=8)
@@ -227,12 +228,14 @@ def plot_cca(result, dims=(0, 1), ax=None, skin_type=None, gender=None, age=None
         ax.set_xlabel(f"BRDF canonical variate 1 (r = {r[0]:.3f})")
         ax.set_ylabel("experimental canonical variate 1")
     _encoded_scatter(ax, x, y, st, g, a)
+    # brdf_cca codes the skin type with types I and II pooled as 2 (its CODING); given values are taken as they are
+    grouped = skin_type is None and "skin_type" in (result.coding or {})
     direct = ", ".join(f"{n} {v:.3f}" for n, v in zip(result.y_names, result.direct_correlations))
     ax.set_title(
         f"CCA, n = {result.n}; principal r = " + ", ".join(f"{v:.3f}" for v in r[:2]) + f"\ndirect r: {direct}",
         fontsize=9,
     )
-    _encoding_legend(ax, st, g, a)
+    _encoding_legend(ax, st, g, a, grouped_i_ii=grouped)
     return fig
 
 
@@ -322,9 +325,13 @@ def plot_conditions(result):
     Returns
     -------
     matplotlib.figure.Figure
-        Heat maps of ``d_rho_s`` and ``d_lobe`` (condition × region) and of the distance matrix.
+        Heat maps of ``d_rho_s`` and ``d_lobe`` (condition × region) and of the distance matrix.  A region with
+        no value (no texels: :attr:`ConditionDifferences.left_out`) is a hatched column marked ``n/a``, and
+        the figure names the regions left out.
     """
-    fig = _new_figure((13, 4))
+    from matplotlib.patches import Rectangle
+
+    fig = _new_figure((13, 4.4))
     axes = fig.subplots(1, 3, width_ratios=[1, 1, 0.8])
     diff = result.differences
     conds = [c for c in result.conditions if c != result.reference]
@@ -336,6 +343,9 @@ def plot_conditions(result):
         m = np.array([[diff.loc[(c, r), col] for r in regions] for c in conds], dtype=float)
         lim = np.nanmax(np.abs(m)) if np.isfinite(m).any() else 1.0
         im = ax.imshow(m, cmap="RdBu_r", vmin=-lim, vmax=lim, aspect="auto")
+        for k in np.flatnonzero(~np.isfinite(m).any(axis=0)):  # a blank column: say it is empty, not white
+            ax.add_patch(Rectangle((k - 0.5, -0.5), 1, len(conds), fill=False, hatch="///", edgecolor="0.6", lw=0))
+            ax.text(k, (len(conds) - 1) / 2, "n/a", rotation=90, ha="center", va="center", fontsize=8, color="0.3")
         ax.set_xticks(range(len(regions)), [str(r) for r in regions])
         ax.set_yticks(range(len(conds)), conds)
         ax.set_xlabel("region")
@@ -345,9 +355,12 @@ def plot_conditions(result):
     im = axes[2].imshow(dist.to_numpy(), cmap="viridis")
     axes[2].set_xticks(range(len(dist)), dist.columns, rotation=60)
     axes[2].set_yticks(range(len(dist)), dist.index)
-    axes[2].set_title("distance (within-region sd units)", fontsize=10)
+    axes[2].set_title("distance: RMS over texels,\nin pooled within-region sd", fontsize=10)
     fig.colorbar(im, ax=axes[2], shrink=0.8)
-    fig.suptitle(f"BRDF under external conditions, person {result.person_id}", fontsize=10)
+    title = f"BRDF under external conditions, person {result.person_id}"
+    if result.left_out:
+        title += "\nleft out: " + result.left_out_text()
+    fig.suptitle(title, fontsize=10)
     return fig
 
 

@@ -317,7 +317,10 @@ def add_analyze(subparsers):
         "conditions",
         help="BRDF differences of the person measured under seven conditions (§7)",
         description="Per-region differences of the specular parameters of one person between external "
-        "conditions (normal, cold, hot, sweaty, makeup, lotion, powder), Weyrich §7.",
+        "conditions (normal, cold, hot, sweaty, makeup, lotion, powder), Weyrich §7, and the distance between "
+        "every two conditions: the root mean square over the face's texels of their region means' differences, in "
+        "one within-region spread per parameter pooled over the person's regions and conditions (a metric). "
+        "Regions without texels under some condition are left out and named.",
     )
     _common(a, model=True)
     a = sub.add_parser(

@@ -24,6 +24,7 @@ __all__ = [
     "AGE_GROUPS",
     "parse_skin_type",
     "skin_type_roman",
+    "skin_type_label",
     "parse_gender",
     "parse_region",
     "parse_condition",
@@ -150,6 +151,33 @@ def skin_type_roman(value) -> str:
         ``value`` is not a skin type.
     """
     return ROMAN[parse_skin_type(value)]
+
+
+def skin_type_label(value, grouped_i_ii=False) -> str:
+    """Label of a skin type in text, figures and JSON: its Roman numeral, ``"I-II"`` for the pooled group.
+
+    Weyrich et al. 2006 group types I and II (Table 2, Fig. 16 "II-VI"); an analysis that pools them codes
+    the group as 2, which is labelled ``"I-II"``, not ``"II"``.
+
+    Parameters
+    ----------
+    value : int, float or str
+        A skin type as :func:`parse_skin_type` reads it.
+    grouped_i_ii : bool
+        Types I and II are pooled under 2.
+
+    Returns
+    -------
+    str
+        ``"I"`` to ``"VI"``, or ``"I-II"`` for 2 where ``grouped_i_ii``.
+
+    Raises
+    ------
+    ValidationError
+        ``value`` is not a skin type.
+    """
+    st = parse_skin_type(value)
+    return "I-II" if grouped_i_ii and st == 2 else ROMAN[st]
 
 
 def parse_gender(value) -> str:

@@ -204,10 +204,28 @@ def test_brdf_cca_on_store():
 def test_too_few_subjects_for_the_variables_is_refused_not_a_perfect_fit():
     rng = np.random.default_rng(3)
     X, Y = rng.standard_normal((12, 18)), rng.standard_normal((12, 3))  # noise: a plain CCA would give r = 1
-    with pytest.raises(ValidationError, match=r"12 rows for 11 \+ 3 independent variables .*need at least 15"):
+    with pytest.raises(ValidationError, match=r"12 rows for 18 \+ 3 variables .*ranks 11 \+ 3.*need at least 22 rows"):
         cca(X, Y)
     res = cca(X, Y, regularization=0.5)  # shrinkage keeps the problem well posed; no parametric tests then
     assert np.isfinite(res.correlations).all() and np.isnan(res.p_value).all()
+
+
+@pytest.mark.parametrize("n", [12, 15, 23])
+def test_the_rows_needed_are_stated_from_the_variables_not_from_the_ranks_the_rows_allow(n):
+    """20 BRDF variables and 3 experimental ones need 24 rows, whatever the rows at hand; the hint took the
+    variables' count after whitening (rank <= n - 1) and asked for 15 rows of 12, then 18 of 15 (a walkthrough
+    of a 10-region MERL import).  24 rows are accepted and 23 are not: the need stated is the need."""
+    rng = np.random.default_rng(n)
+    X, Y = rng.standard_normal((n, 20)), rng.standard_normal((n, 3))
+    with pytest.raises(ValidationError, match=rf"{n} rows for 20 \+ 3 variables .*need at least 24 rows"):
+        cca(X, Y)
+    X, Y = rng.standard_normal((24, 20)), rng.standard_normal((24, 3))
+    assert cca(X, Y).correlations.size == 3
+    # a constant variable carries nothing at any number of rows: 19 + 3 + 1 rows suffice
+    X[:, 4] = 0.7
+    assert cca(X[:23], Y[:23]).correlations.size == 3
+    with pytest.raises(ValidationError, match=r"22 rows for 19 \+ 3 variables .*need at least 23 rows"):
+        cca(X[:22], Y[:22])
 
 
 @pytest.mark.parametrize(

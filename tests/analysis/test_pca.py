@@ -151,24 +151,128 @@ def test_select_population_and_errors(store):
         region_pca(store, model="lafortune")
 
 
+def _pooled_distance(idx, rows, regions, model="ts", lobe="m"):
+    """Independent computation of the condition distance (conditions.py's module docstring) from the index rows
+    ``rows`` (one per condition, in order) over ``regions``: the spreads pooled over every (condition, region)
+    cell with texels, s² = Σ (n − 1) s² / Σ (n − 1), and the regions weighted by their texels."""
+    cells = [(c, r) for c in rows for r in REGION_IDS if idx.loc[c, f"n_{model}_r{r}"] > 0]
+    spread = {}
+    for p in ("rho_s", lobe):
+        dof = np.array([idx.loc[c, f"n_{model}_r{r}"] - 1 for c, r in cells], float)
+        var = np.array([idx.loc[c, f"{model}_{p}_std_r{r}"] ** 2 for c, r in cells])
+        spread[p] = np.sqrt(np.sum(dof * var) / np.sum(dof))
+    n = np.array([[idx.loc[c, f"n_{model}_r{r}"] for r in regions] for c in rows], float)
+    w = n.sum(0) / n.sum()
+    d = np.zeros((len(rows), len(rows)))
+    for i, a in enumerate(rows):
+        for j, b in enumerate(rows):
+            for p in ("rho_s", lobe):
+                diff = np.array(
+                    [idx.loc[a, f"{model}_{p}_mean_r{r}"] - idx.loc[b, f"{model}_{p}_mean_r{r}"] for r in regions]
+                )
+                d[i, j] += np.sum(w * (diff / spread[p]) ** 2)
+    return np.sqrt(d), spread, w
+
+
+def _triangle_excess(dist):
+    """max over all triples of d(a, c) − d(a, b) − d(b, c) (≤ 0, up to rounding, for a metric)."""
+    d = np.asarray(dist)
+    return float(np.max(d[:, None, :] - d[:, :, None] - d.T[None, :, :]))
+
+
 def test_condition_differences_against_index(store):
     res = condition_differences(store)
     assert res.person_id == "P-cond"
     assert res.conditions == CONDITIONS
     idx = store.subjects()
+    rows = [f"C{j}" for j in range(len(CONDITIONS))]
+    want_dist, spread, w = _pooled_distance(idx, rows, REGION_IDS)
+    assert res.spread["rho_s_std"] == pytest.approx(spread["rho_s"], rel=1e-12)
+    assert res.spread["lobe_std"] == pytest.approx(spread["m"], rel=1e-12)
+    np.testing.assert_allclose(res.weights.to_numpy(), w, rtol=1e-12)
     for j, cond in enumerate(CONDITIONS[1:], start=1):
         for r in (2, 6, 8):
             want = idx.loc[f"C{j}", f"ts_rho_s_mean_r{r}"] - idx.loc["C0", f"ts_rho_s_mean_r{r}"]
             assert res.differences.loc[(cond, r), "d_rho_s"] == pytest.approx(want, rel=1e-12)
-            s = np.sqrt((idx.loc[f"C{j}", f"ts_rho_s_std_r{r}"] ** 2 + idx.loc["C0", f"ts_rho_s_std_r{r}"] ** 2) / 2)
-            assert res.differences.loc[(cond, r), "z_rho_s"] == pytest.approx(want / s, rel=1e-10)
+            assert res.differences.loc[(cond, r), "z_rho_s"] == pytest.approx(want / spread["rho_s"], rel=1e-10)
     # rho_shift grows 0.03 per condition, so d_rho_s ≈ 0.03 j in every region
     d = res.differences["d_rho_s"].xs("powder", level="condition")
     np.testing.assert_allclose(d, 0.18, atol=0.01)
     dist = res.distance.to_numpy()
+    np.testing.assert_allclose(dist, want_dist, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(dist, dist.T)
     assert np.all(np.diag(dist) == 0)
     assert dist[0, 6] > dist[0, 1] > 0  # powder (shift 0.18) is further from normal than cold (0.03)
+    assert _triangle_excess(dist) <= 1e-12
+    assert not res.left_out and "left out" not in res.to_text()
+    assert "pooled within-region sd" in res.to_text()
+
+
+def test_condition_distance_is_a_metric_when_the_spread_changes_with_the_condition(store):
+    """Each pair standardised by its own spread sqrt((s_a² + s_b²)/2) broke the triangle inequality where two
+    conditions have a small spread (a walkthrough: cold–lotion 62.0 against normal–cold 11.8 + normal–lotion 19.5
+    on a 16² store); one pooled spread makes it a Euclidean distance, over every triple."""
+    idx = store.subjects().copy()
+    std = [c for c in idx.columns if c.startswith(("ts_rho_s_std_r", "ts_m_std_r"))]
+    idx.loc[["C1", "C5"], std] *= 1e-3  # cold and lotion: texels nearly alike within each region
+    res = condition_differences(idx)
+    dist = res.distance.to_numpy()
+    assert _triangle_excess(dist) <= 1e-12
+    np.testing.assert_allclose(dist, _pooled_distance(idx, [f"C{j}" for j in range(7)], REGION_IDS)[0], rtol=1e-10)
+
+    # the old figure, independently: cold–lotion far beyond cold–normal + normal–lotion
+    def pairwise(a, b):
+        z = [
+            (idx.loc[a, f"ts_{p}_mean_r{r}"] - idx.loc[b, f"ts_{p}_mean_r{r}"])
+            / np.sqrt((idx.loc[a, f"ts_{p}_std_r{r}"] ** 2 + idx.loc[b, f"ts_{p}_std_r{r}"] ** 2) / 2)
+            for r in REGION_IDS
+            for p in ("rho_s", "m")
+        ]
+        return np.sqrt(np.sum(np.square(z)) / len(REGION_IDS))
+
+    assert pairwise("C1", "C5") > 10 * (pairwise("C1", "C0") + pairwise("C0", "C5"))
+
+
+def test_a_region_of_few_texels_does_not_dominate_the_condition_distance(store):
+    """Two texels per condition whose spread is near 0 (the eyelids of a 16² store) made 73 % of d² even with the
+    regions weighted by texels, while the spread was the region's own: with one spread pooled over the regions and
+    the region weighted by its texels, it moves the distances by about its share of the texels."""
+    idx = store.subjects().copy()
+    full = condition_differences(idx).distance.to_numpy()
+    rows = [f"C{j}" for j in range(7)]
+    idx.loc[rows, "n_ts_r4"] = 2
+    idx.loc[rows, ["ts_rho_s_std_r4", "ts_m_std_r4"]] = 1e-5
+    few = condition_differences(idx)
+    off = ~np.eye(7, dtype=bool)
+    np.testing.assert_allclose(few.distance.to_numpy()[off], full[off], rtol=0.1)
+    assert few.weights[4] == pytest.approx(14 / idx.loc[rows, [f"n_ts_r{r}" for r in REGION_IDS]].to_numpy().sum())
+    np.testing.assert_allclose(few.distance.to_numpy(), _pooled_distance(idx, rows, REGION_IDS)[0], rtol=1e-10)
+
+
+def test_regions_without_texels_are_left_out_by_name(store):
+    idx = store.subjects().copy()
+    rows = [f"C{j}" for j in range(7)]
+    region1 = [c for c in idx.columns if c.endswith("_r1") and c.startswith(("ts_", "n_ts"))]
+    idx.loc[rows, region1] = np.nan
+    idx.loc[rows, "n_ts_r1"] = 0
+    res = condition_differences(idx)
+    assert res.left_out == {1: "no texels"} and res.weights[1] == 0
+    np.testing.assert_allclose(res.distance.to_numpy(), _pooled_distance(idx, rows, REGION_IDS[1:])[0], rtol=1e-10)
+    assert "left out: region 1 mustache (no texels)" in res.to_text()
+    doc = res.to_dict()
+    assert doc["left_out"] == [{"region": 1, "name": "mustache", "reason": "no texels"}]
+    assert doc["weights"]["1"] == 0 and doc["spread"]["dof"] == res.spread["dof"]
+    # a region measured under some conditions only: its differences where it has values, no distance
+    idx = store.subjects().copy()
+    idx.loc["C1", [c for c in idx.columns if c.endswith("_r3") and c.startswith("ts_")]] = np.nan
+    idx.loc["C1", "n_ts_r3"] = 0
+    res = condition_differences(idx)
+    assert res.left_out == {3: "no texels under cold"}
+    assert np.isfinite(res.differences.loc[("hot", 3), "z_rho_s"])
+    assert _triangle_excess(res.distance) <= 1e-12
+    want, spread, _ = _pooled_distance(idx, rows, [r for r in REGION_IDS if r != 3])
+    np.testing.assert_allclose(res.distance.to_numpy(), want, rtol=1e-10)  # region 3 out of the distance ...
+    assert res.spread["rho_s_std"] == pytest.approx(spread["rho_s"], rel=1e-12)  # ... not out of the spread
 
 
 def test_repeated_measurements_pool_to_the_sample_spread_of_all_their_values(store, rng):
@@ -183,11 +287,14 @@ def test_repeated_measurements_pool_to_the_sample_spread_of_all_their_values(sto
     frame = pd.concat([idx.drop(index="C0"), twice])
     res = condition_differences(frame, person_id="P-cond")
     both = np.concatenate([a, b])
+    ref = res.values.loc[("normal", 2)]
+    assert ref["rho_s"] == pytest.approx(both.mean(), rel=1e-12)
+    assert ref["rho_s_std"] == pytest.approx(both.std(ddof=1), rel=1e-9)
+    assert ref["n"] == both.size
     d = res.differences.loc[("cold", 2)]
     want_d = idx.loc["C1", "ts_rho_s_mean_r2"] - both.mean()
     assert d["d_rho_s"] == pytest.approx(want_d, rel=1e-12)
-    s_ref = np.sqrt(2 * (want_d / d["z_rho_s"]) ** 2 - idx.loc["C1", "ts_rho_s_std_r2"] ** 2)
-    assert s_ref == pytest.approx(both.std(ddof=1), rel=1e-9)
+    assert d["z_rho_s"] == pytest.approx(want_d / res.spread["rho_s_std"], rel=1e-12)
 
 
 def test_condition_differences_needs_a_series():
@@ -273,3 +380,34 @@ def test_ellipse_angle_range_and_smoothest_lobe_of_each_model():
     regions = {r: ellipse(r, m, np.eye(2)) for r, m in means.items()}
     assert RegionPCA("ts", ("rho_s", "m"), regions, 2).orderings()["smallest_lobe"] == 2
     assert RegionPCA("bp", ("rho_s", "exponent"), regions, 2).orderings()["smallest_lobe"] == 3
+
+
+def test_regions_without_an_ellipse_are_named_and_the_orderings_compare_the_regions_present(store):
+    """A 16² store has no mustache texels (region 1): the table left it out without a word, and the orderings
+    were compared with the paper's sets, which hold region 1 ('largest variance: 3 9 10 8 4 (paper: 8 1 3 9 10)';
+    a walkthrough)."""
+    from facestats.analysis.plots import plot_region_pca
+    from tests.helpers import MemoryStore
+
+    datasets = [ds.assign(region=ds["region"].where(ds["region"] != 1, 2)) for ds in store.datasets()]
+    no_mustache = MemoryStore(datasets)
+    for res in (region_pca(no_mustache), region_pca(no_mustache, from_index=False)):
+        assert 1 not in res.regions and res.left_out == {1: "no texels"}
+        ours = res.orderings()
+        cmp = res.compare_published()
+        assert cmp.loc["largest_variance", "paper"] == [8, 3, 9, 10]  # the paper's ranking without region 1
+        assert cmp.loc["largest_variance", "ours"] == ours["largest_variance"][:4]
+        assert cmp.loc["highest_rho_s", "paper"] == [6, 3, 4, 8, 2] and len(cmp.loc["highest_rho_s", "ours"]) == 5
+        text = res.to_text()
+        assert "left out: region 1 mustache (no texels)" in text
+        assert "orderings over the 9 regions present" in text and "(paper without 1: 8 3 9 10)" in text
+        assert res.to_dict()["left_out"] == [{"region": 1, "name": "mustache", "reason": "no texels"}]
+        assert "left out: region 1 mustache (no texels)" in plot_region_pca(res).axes[0].get_title()
+    full = region_pca(store)
+    assert full.left_out == {} and "left out" not in full.to_text() and "(paper: 8 1 3 9 10)" in full.to_text()
+    assert full.compare_published().loc["largest_variance", "paper"] == [8, 1, 3, 9, 10]
+    # too few samples for the covariance: named with the count
+    samples = store_region_samples(store, "ts", subjects=["S000"])
+    one = pd.concat([samples[samples["region"] != 5], samples[samples["region"] == 5].head(1)])
+    res = region_pca(one)
+    assert res.left_out == {5: "1 sample, a covariance with ddof=1 needs more"}

@@ -65,6 +65,9 @@ def test_cca_figure(store, tmp_path):
         np.sort(np.concatenate([c.get_offsets()[:, 0] for c in ax.collections])), np.sort(res.projections[:, 0])
     )
     assert f"{res.correlations[0]:.3f}" in ax.get_xlabel()
+    # brdf_cca pools types I and II (the store has type I subjects): the legend says so, as the posterior does
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert "type I-II" in labels and "type II" not in labels and "type III" in labels
     # a single-dimension CCA plots X against Y variate
     one = fa.cca(res.projections[:, :2], res.y_data[["skin_type"]])
     _save(plots.plot_cca(one), tmp_path / "cca1.png")
@@ -102,6 +105,23 @@ def test_conditions_figure(store, tmp_path):
     want = res.differences["d_rho_s"].unstack("region").loc[list(res.conditions[1:])].to_numpy()
     np.testing.assert_allclose(d_rho, want)
     np.testing.assert_allclose(images[2].get_array(), res.distance.to_numpy())
+    assert not any(t.get_text() == "n/a" for ax in fig.axes for t in ax.texts)
+    assert "pooled within-region sd" in fig.axes[2].get_title()  # the distance's axes (the colour bars follow)
+
+
+def test_conditions_figure_marks_a_region_without_texels(store, tmp_path):
+    """A 16² store has no mustache texels: the heat maps showed a blank column for region 1, unexplained."""
+    idx = store.subjects().copy()
+    rows = idx.index[idx["person_id"] == "P-cond"]
+    idx.loc[rows, [c for c in idx.columns if c.endswith("_r1") and c.startswith("ts_")]] = np.nan
+    idx.loc[rows, "n_ts_r1"] = 0
+    res = fa.condition_differences(idx)
+    fig = _save(plots.plot_conditions(res), tmp_path / "conditions.png")
+    for ax in fig.axes[:2]:  # the two heat maps of differences (the colour bars follow the three axes)
+        hatched = [p for p in ax.patches if isinstance(p, Rectangle) and p.get_hatch()]
+        assert len(hatched) == 1 and hatched[0].get_x() == pytest.approx(-0.5)  # column 0: region 1
+        assert [t.get_text() for t in ax.texts] == ["n/a"]
+    assert "left out: region 1 mustache (no texels)" in fig._suptitle.get_text()
 
 
 @pytest.mark.slow

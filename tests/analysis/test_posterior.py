@@ -319,6 +319,9 @@ def test_population_on_store_and_errors():
     assert res.skin_types == (2, 3, 4, 5, 6)  # type I grouped with II
     assert "type I-II " in res.to_text() and res.to_dict()["grouped_i_ii"] is True  # not "type II" (a red team)
     assert res.type_label(2) == "I-II" and res.type_label(3) == "III"
+    doc = res.to_dict()  # one label everywhere: the JSON said "II" for the pooled group
+    assert doc["skin_types"] == ["I-II", "III", "IV", "V", "VI"] and doc["skin_type_numbers"] == [2, 3, 4, 5, 6]
+    assert {row["skin_type"] for row in doc["summary"]} == set(doc["skin_types"])
     assert res.draws.shape == (4000, 5, 3) and np.isfinite(res.draws).all()
     frame = select_population(store)
     sig = subject_sigma_tr(frame)
@@ -331,5 +334,6 @@ def test_population_on_store_and_errors():
         population_sigma_tr(two_types)
     apart = population_sigma_tr(two_types, model="independent", group_i_ii=False)
     assert apart.summary.shape[0] == 6 and apart.type_label(2) == "II" and apart.to_dict()["grouped_i_ii"] is False
+    assert apart.to_dict()["skin_types"] == ["III", "IV"]
     with pytest.raises(ValidationError, match="model"):
         population_sigma_tr(store, model="pooled")

@@ -249,9 +249,12 @@ def test_posterior_defaults_and_population(tmp_path, store):
     assert (tmp_path / "posterior_population.png").exists()
     doc = _doc(tmp_path, "posterior_population")
     res = fa.population_sigma_tr(store, seed=0)
-    assert doc["skin_types"] == ["II", "III", "IV", "V", "VI"] and doc["model"] == "hierarchical"
+    # types I and II pooled: labelled I-II, as in the text and the figure (the JSON read "II")
+    assert doc["skin_types"] == ["I-II", "III", "IV", "V", "VI"] and doc["model"] == "hierarchical"
+    assert doc["skin_type_numbers"] == [2, 3, 4, 5, 6] and doc["grouped_i_ii"] is True
+    assert "type I-II " in r.stdout
     for row in doc["summary"]:
-        want = res.summary.loc[(("I", "II", "III", "IV", "V", "VI").index(row["skin_type"]) + 1, row["channel"])]
+        want = res.summary.loc[(doc["skin_type_numbers"][doc["skin_types"].index(row["skin_type"])], row["channel"])]
         assert row["n"] == want["n"] and row["median"] == pytest.approx(want["median"], rel=1e-12)
     assert doc["hyper"]["G"]["mu_median"] == pytest.approx(res.hyper.loc["G", "mu_median"], rel=1e-12)
 

@@ -4,8 +4,16 @@ import pytest
 
 import facestats
 from facestats import analysis as fa
-
-from tests.helpers import NOTEBOOKS, assert_nothing_left, assert_no_errors, cell_text, execute_once, read_committed, shows_figure, tagged
+from tests.helpers import (
+    NOTEBOOKS,
+    assert_no_errors,
+    assert_nothing_left,
+    cell_text,
+    execute_once,
+    read_committed,
+    shows_figure,
+    tagged,
+)
 
 NOTEBOOK = NOTEBOOKS / "population_analysis.ipynb"
 
@@ -39,6 +47,7 @@ def test_tables_show_our_numbers_beside_the_paper(executed):
     with facestats.open_store() as store:
         cca = fa.brdf_cca(store, n_permutations=0)
         tr = fa.translucency_table(store)
+        cond = fa.condition_differences(store)
     text = cell_text(tagged(executed[0], "fig16-table"))
     assert "Weyrich Fig. 16" in text and "0.768" in text and "0.537" in text
     assert f"{cca.correlations[0]:.4f}" in text and f"{cca.direct_correlations[0]:.4f}" in text
@@ -47,5 +56,8 @@ def test_tables_show_our_numbers_beside_the_paper(executed):
     assert f"{tr.table.loc['R', ('cheek', 'std')]:.4f}" in text and tr.max_subject in text
     text = cell_text(tagged(executed[0], "fig15-table"))
     assert "Weyrich §7" in text and "[1, 3, 8, 9, 10]" in text
+    text = cell_text(tagged(executed[0], "conditions-table"))
+    a, b, d = cond.most_different_pair()
+    assert f"most different pair: {a} / {b} ({d:.1f} pooled within-region sd)" in text
     text = cell_text(tagged(executed[0], "posterior-table"))
     assert "stored fit" in text and "converged" in text and "False" not in text

@@ -33,7 +33,7 @@ from facestats.analysis.population import select_population
 from facestats.analysis.posterior.credible import check_level, interval_quantiles
 from facestats.analysis.serialize import json_ready, records
 from facestats.analysis.translucency import subject_sigma_tr
-from facestats.core.conventions import CHANNELS, ROMAN
+from facestats.core.conventions import CHANNELS, skin_type_label
 from facestats.core.published import SIGMA_TR_AVG
 from facestats.core.validate import check_choice, check_seed
 from facestats.errors import ValidationError
@@ -82,7 +82,7 @@ class PopulationSigmaTr:
         skin_type : int
             Fitzpatrick skin type, 1 to 6 (2 stands for the pooled I-II where ``grouped_i_ii``).
         """
-        return "I-II" if self.grouped_i_ii and int(skin_type) == 2 else ROMAN[int(skin_type)]
+        return skin_type_label(skin_type, self.grouped_i_ii)
 
     def compare_published(self):
         """Posterior median and interval of each skin type's mean σtr beside the paper's σtrAvg.
@@ -105,19 +105,22 @@ class PopulationSigmaTr:
         """The JSON document (``facestats analyze posterior --population`` writes it as ``posterior_population.json``).
 
         Keys (conventions: :mod:`facestats.analysis.serialize`): ``model``,
-        ``level``, ``skin_types`` (Roman numerals; II stands for the pooled I-II where
-        ``grouped_i_ii``), ``grouped_i_ii``, ``seed``; ``summary``: a list of
-        ``{skin_type, channel, n, sample_mean, median, mean, lo, hi}``; ``hyper``: by channel
-        ``{sigma_w, mu_median, mu_lo, mu_hi, tau_median, tau_lo, tau_hi}`` (``null`` for the independent model).
+        ``level``, ``skin_types`` (labels, :meth:`type_label`: Roman numerals, ``"I-II"`` for the
+        pooled group where ``grouped_i_ii``; before 2026-12-08 that group read ``"II"``),
+        ``skin_type_numbers`` (the same as Fitzpatrick numbers, 2 for the pooled I-II), ``grouped_i_ii``,
+        ``seed``; ``summary``: a list of ``{skin_type (label), channel, n, sample_mean, median, mean, lo, hi}``;
+        ``hyper``: by channel ``{sigma_w, mu_median, mu_lo, mu_hi, tau_median, tau_lo, tau_hi}`` (``null`` for
+        the independent model).
         """
         summary = records(self.summary)
         for row in summary:
-            row["skin_type"] = ROMAN[int(row["skin_type"])]
+            row["skin_type"] = self.type_label(row["skin_type"])
         hyper = None if self.hyper is None else {ch: row.to_dict() for ch, row in self.hyper.iterrows()}
         doc = {
             "model": self.model,
             "level": self.level,
-            "skin_types": [ROMAN[t] for t in self.skin_types],
+            "skin_types": [self.type_label(t) for t in self.skin_types],
+            "skin_type_numbers": list(self.skin_types),
             "grouped_i_ii": self.grouped_i_ii,
             "seed": self.seed,
             "summary": summary,

@@ -228,7 +228,7 @@ def _run_actions(args, store, files, report) -> None:
 def _common(p, model=False):
     add_store_option(p)
     p.add_argument("--out", default=".", metavar="DIR", help="output directory (created if missing; default: .)")
-    p.add_argument("--format", choices=("png", "svg"), default="png", help="figure format (default png)")
+    p.add_argument("--format", choices=("png", "svg", "pdf"), default="png", help="figure format (default png)")
     p.add_argument("--overwrite", action="store_true", help="replace this analysis's files in --out")
     if model:
         p.add_argument(

@@ -346,3 +346,12 @@ def test_all_on_a_store_of_one_or_two_subjects_skips_what_it_cannot_do(tmp_path,
         )
     else:
         assert "translucency.json" in written
+
+
+def test_translucency_as_pdf(tmp_path, store):
+    """``--format pdf``, as ``demo --plot`` takes (a user's walkthrough: analyze offered png and svg only)."""
+    r = run_cli("analyze", "translucency", "--format", "pdf", "--out", tmp_path)
+    assert r.returncode == 0, r.stderr
+    pdf = (tmp_path / "translucency.pdf").read_bytes()
+    assert pdf.startswith(b"%PDF-") and pdf.rstrip().endswith(b"%%EOF")
+    assert _doc(tmp_path, "translucency")["figure"] == "translucency.pdf"

@@ -36,8 +36,9 @@ F_r of η = 1.38 (:func:`facestats.model.fresnel.fresnel_reflectance`) at 20°, 
 and most positive relative error over V·H = cos 0°-90° (steps of 0.0001°) with their angles.
 
 ``validation_images``: the share of empty pixels inside the face of ``facestats render --probe`` images
-(:func:`facestats.pipeline.render.camera_image`, lumitexels triangulated) against the drawing before
-2026-12-07 (each lumitexel splatted into one pixel), on default S003 in three cameras.
+(:func:`facestats.pipeline.render.camera_image`, lumitexels triangulated on the surface) against the drawing
+before 2026-12-07 (each lumitexel splatted into one pixel), on default S003 in four cameras, and the images'
+enclosed holes against the face's own.
 
 ``web_query``: the web app's ``/api/query`` against calling
 ``Store.query(...).to_dict()`` directly (the CLI's code path), so the ratio is
@@ -331,7 +332,7 @@ def _angles_deg(a, b):
     return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=-1), -1, 1)))
 
 
-def bench_micro_normals(size=24, subject="S001", camera=5, light=20, cameras=(0, 5, 9), light_step=5):
+def bench_micro_normals(size=24, subject="S001", camera=11, light=0, cameras=(0, 5, 9), light_step=5):
     """Validation renders with and without the stored micro-normals, for a subject of ``facestats build``.
 
     ``subject`` of the default seed's population is built at ``size``² on the default face with micro-normal maps
@@ -640,14 +641,27 @@ def _empty_share(img):
     return float(1 - (finite & silhouette).sum() / max(int(silhouette.sum()), 1)), int(silhouette.sum())
 
 
-def bench_validation_images(subject="S003", cameras=(0, 5, 9), probe_size=32, probe_lights=128):
+def _enclosed_holes(img):
+    """Empty (NaN) components of an image not connected to its border (4-connected): how many, and their pixels."""
+    from scipy import ndimage
+
+    labels, _ = ndimage.label(~np.isfinite(img).all(-1))
+    border = np.unique(np.r_[labels[0], labels[-1], labels[:, 0], labels[:, -1]])
+    inside = np.setdiff1d(np.unique(labels), np.r_[border, 0])  # 0: the finite pixels
+    return len(inside), int(np.isin(labels, inside).sum())
+
+
+def bench_validation_images(subject="S003", cameras=(0, 5, 9, 11), probe_size=32, probe_lights=128):
     """Empty pixels inside the face of validation images (``facestats render --probe``), against one pixel per
     lumitexel (the drawing before 2026-12-07).
 
     ``subject`` of the embedded default store under the studio probe (:func:`probe_radiance`, ``probe_lights``
     lights of a ``probe_size`` lat-long probe), per camera: the share of the pixels inside the image's silhouette
-    left empty by :func:`facestats.pipeline.render.camera_image` (the lumitexels triangulated) and by the baseline,
-    and the silhouettes' sizes in pixels (the images are 4 √n and 1.6 √n pixels across).
+    left empty by :func:`facestats.pipeline.render.camera_image` (the lumitexels triangulated on the surface) and
+    by the baseline, and the silhouettes' sizes in pixels (the images are 4 √n and 1.6 √n pixels across); the
+    enclosed holes of the image (empty components not connected to its border: count and pixels) and of the image
+    of the face itself (every lumitexel in the frame given a value: the face's own holes, the eyes and the mouth's
+    corners), which the render's should equal.
     """
     import facestats
     from facestats.io.probes import studio_probe
@@ -660,9 +674,11 @@ def bench_validation_images(subject="S003", cameras=(0, 5, 9), probe_size=32, pr
     out = {}
     for camera in cameras:
         values, _ = probe_radiance(ds, capture, camera, studio_probe(probe_size), samples=probe_lights)
-        out[f"cam{camera}_empty_share"], out[f"cam{camera}_silhouette_px"] = _empty_share(
-            camera_image(values, capture, camera, 0)
-        )
+        image = camera_image(values, capture, camera, 0)
+        out[f"cam{camera}_empty_share"], out[f"cam{camera}_silhouette_px"] = _empty_share(image)
+        out[f"cam{camera}_enclosed_holes"], out[f"cam{camera}_enclosed_px"] = _enclosed_holes(image)
+        face = camera_image(np.where(np.isfinite(values), values, 1.0), capture, camera, 0)
+        out[f"cam{camera}_face_holes"], out[f"cam{camera}_face_holes_px"] = _enclosed_holes(face)
         out[f"cam{camera}_baseline_empty_share"], out[f"cam{camera}_baseline_silhouette_px"] = _empty_share(
             _splat(values, capture, camera)
         )

@@ -12,7 +12,8 @@ The triangles are rasterised by :func:`facestats.core.raster.triangle_coverage`
 (vectorised over triangles, grouped by the size of their pixel bounding box) and
 the nearest depth per pixel is kept with ``numpy.minimum.at``.  The loop runs over
 viewpoints and size groups, never over triangles or points.  :func:`rasterize`
-keeps the nearest triangle per pixel instead, to render a camera view of a mesh.
+(:func:`nearest_triangle` for vertices already projected) keeps the nearest triangle per pixel instead, to render
+a camera view of a mesh.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ __all__ = [
     "DISTANT_LIGHT_MM",
     "shadow_map",
     "rasterize",
+    "nearest_triangle",
     "ShadowMaps",
     "visible_from",
     "SampleVisibility",
@@ -61,23 +63,22 @@ def _front_triangles(x, y, z, faces):
     return good, tz[good]
 
 
-def _fragments(vertices, faces, eye, rot, focal, resolution, triangles=False):
-    """Covered pixel centres of a mesh seen through a pinhole camera, one batch at a time.
+def _fragments(x, y, z, faces, width, height, triangles=False):
+    """Covered pixel centres of a projected mesh, one batch at a time.
 
-    Yields ``(pixel, depth, triangle)`` arrays for every (triangle, pixel) pair
-    whose pixel centre the triangle covers: the flat pixel index
-    (row · resolution + column), the depth along the view axis interpolated with
-    screen-space barycentrics, and the index of the triangle (None unless
-    ``triangles``).  Shared by :func:`shadow_map` (nearest depth) and
-    :func:`rasterize` (nearest triangle).
+    ``x``, ``y`` are the vertices' image coordinates in pixels (column, row; pixel centres at +0.5) and ``z``
+    their depths along the view axis.  Yields ``(pixel, depth, triangle)`` arrays for every (triangle, pixel)
+    pair whose pixel centre the triangle covers: the flat pixel index (row · width + column), the depth
+    interpolated with screen-space barycentrics, and the index of the triangle (None unless ``triangles``).
+    Triangles behind the viewpoint or with a non-finite projection cover nothing.  Shared by
+    :func:`shadow_map` (nearest depth) and :func:`nearest_triangle` (nearest triangle).
     """
-    x, y, z = _project(vertices, eye, rot, focal, resolution)
     good, tz = _front_triangles(x, y, z, faces)
     tri_index = np.nonzero(good)[0]
-    for tri, py, px, l0, l1, l2 in triangle_coverage(x, y, faces[good], resolution, resolution):
+    for tri, py, px, l0, l1, l2 in triangle_coverage(x, y, faces[good], width, height):
         t = tz[tri]
         depth = l0 * t[:, 0] + l1 * t[:, 1] + l2 * t[:, 2]
-        yield py * resolution + px, depth, (tri_index[tri] if triangles else None)
+        yield py * width + px, depth, (tri_index[tri] if triangles else None)
 
 
 def shadow_map(vertices, faces, eye, target, radius, resolution, *, backend="auto"):
@@ -125,7 +126,8 @@ def shadow_map(vertices, faces, eye, target, radius, resolution, *, backend="aut
         x, y, z = _project(vertices, eye, rot, focal, resolution)
         nearest_depth(x, y, z, np.ascontiguousarray(faces % n if n else faces), resolution, depth)
     else:
-        for pix, zz, _ in _fragments(vertices, faces, eye, rot, focal, resolution):
+        x, y, z = _project(vertices, eye, rot, focal, resolution)
+        for pix, zz, _ in _fragments(x, y, z, faces, resolution, resolution):
             np.minimum.at(depth, pix, zz)
     return depth.reshape(resolution, resolution), (eye, rot, focal, resolution)
 
@@ -162,12 +164,40 @@ def rasterize(vertices, faces, eye, rot, focal, resolution):
         Its depth along the view axis (inf where empty).
     """
     res = int(resolution)
-    n = res * res
+    x, y, z = _project(np.asarray(vertices, float), np.asarray(eye, float), rot, focal, res)
+    return nearest_triangle(x, y, z, faces, res, res)
+
+
+def nearest_triangle(x, y, z, faces, width, height):
+    """Nearest triangle and its depth at every pixel centre of an image, from the vertices' projections.
+
+    Depths are compared in float32 (as the shadow maps store them); ties go to the smaller triangle index.
+    Triangles with a vertex behind the viewpoint (z ≤ 0) or a non-finite projection cover nothing.
+
+    Parameters
+    ----------
+    x, y : array_like, shape (V,)
+        The vertices' image coordinates in pixels: x along columns, y along rows, pixel (row, col) centred at
+        (col + 0.5, row + 0.5) (:func:`facestats.core.raster.triangle_coverage`).
+    z : array_like, shape (V,)
+        Their depths along the view axis, mm (> 0 in front of the viewpoint).
+    faces : array_like of int, shape (F, 3)
+        Triangles.
+    width, height : int
+        Image size in pixels.
+
+    Returns
+    -------
+    triangle : ndarray of int64, shape (height, width)
+        Index into ``faces`` of the visible triangle, −1 where the pixel sees no triangle.
+    depth : ndarray of float32, shape (height, width)
+        Its depth along the view axis (inf where empty).
+    """
+    n = int(width) * int(height)
     empty = np.iinfo(np.int64).max
     key = np.full(n, empty, np.int64)
-    eye = np.asarray(eye, float)
-    frags = _fragments(np.asarray(vertices, float), np.asarray(faces), eye, rot, focal, res, triangles=True)
-    for pix, zz, tri in frags:
+    x, y, z = (np.asarray(a, float) for a in (x, y, z))
+    for pix, zz, tri in _fragments(x, y, z, np.asarray(faces), int(width), int(height), triangles=True):
         # Positive float32 bit patterns order like the floats: (depth bits, triangle) in one int64 key.
         bits = zz.astype(np.float32).view(np.int32).astype(np.int64)
         np.minimum.at(key, pix, (bits << 32) | tri.astype(np.int64))
@@ -175,7 +205,7 @@ def rasterize(vertices, faces, eye, rot, focal, resolution):
     triangle = np.where(hit, key & 0xFFFFFFFF, -1)
     depth = np.full(n, np.inf, np.float32)
     depth[hit] = (key[hit] >> 32).astype(np.int32).view(np.float32)
-    return triangle.reshape(res, res), depth.reshape(res, res)
+    return triangle.reshape(int(height), int(width)), depth.reshape(int(height), int(width))
 
 
 class ShadowMaps:

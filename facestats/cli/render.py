@@ -24,7 +24,15 @@ from facestats.cli.options import (
     open_store_option,
 )
 
-__all__ = ["add_render"]
+__all__ = ["add_render", "DEFAULT_CAMERA", "DEFAULT_LIGHT"]
+
+#: Camera of a render by default: the default dome's camera on the face's axis (azimuth 0°, 18° above).
+DEFAULT_CAMERA = 11
+
+#: LED of an LED render by default: the default dome's frontal LED (on the axis of the head).  With camera 11 it
+#: sees 96.3-96.5 % of the default store's lumitexels lit (S001, S003, S030, S100); camera 5 and LED 20, the
+#: defaults until 2026-12-08, 9.6-10.0 % (LED 20 lights the face from behind, above and to the side).
+DEFAULT_LIGHT = 0
 
 
 def _stem(subject_id, args) -> str:
@@ -43,7 +51,7 @@ def _check_options(args) -> None:
         )
     if args.probe and args.light is not None:
         raise ValidationError("--light names an LED to render under, --probe renders under a probe instead: got both")
-    args.light = 20 if args.light is None else args.light
+    args.light = DEFAULT_LIGHT if args.light is None else args.light
     if args.mesh is not None and not args.probe:
         raise ValidationError(
             "--mesh applies to a render under a light probe (--probe FILE); an LED render compares with the capture "
@@ -77,6 +85,8 @@ def _check_options(args) -> None:
 
 
 def _cmd_render(args) -> int:
+    import warnings
+
     import matplotlib
     import numpy as np
 
@@ -84,12 +94,22 @@ def _cmd_render(args) -> int:
     from facestats.acquire.capture import open_capture
     from facestats.core.conventions import DEFAULT_SEED
     from facestats.core.outputs import OutputSet, check_apart, check_output_dir, check_output_file
+    from facestats.core.validate import check_integer
+    from facestats.errors import FacestatsWarning
     from facestats.io.exr_set import check_map_subject
     from facestats.io.images import write_image
     from facestats.io.subject_export import store_subject
-    from facestats.pipeline.validation import check_micro_normals, default_capture, render_led, render_probe
+    from facestats.pipeline.validation import (
+        check_led_view,
+        check_micro_normals,
+        default_capture,
+        render_led,
+        render_probe,
+    )
 
     _check_options(args)
+    if args.size is not None:  # before any work
+        check_integer(args.size, "--size", 16, 2048)
     out = check_output_dir(args.out, "--out")  # before rendering: a bad folder must not cost a render
     check_apart_from_store(out, "--out", args.store)  # never images mixed into the store
     if args.capture:  # nor into the capture compared with
@@ -110,13 +130,19 @@ def _cmd_render(args) -> int:
         cap = None  # nothing to compare with: the subject's face suffices
     else:
         cap = default_capture(ds, seed=DEFAULT_SEED if args.seed is None else args.seed)
+    if not args.probe:  # a pair that sees too little of the face, refused naming the options
+        check_led_view(cap, args.camera, args.light, names=("--camera", "--light"))
     # the options, not the API's names ("light probe 'x' ..." is --probe's, not --light's)
-    with named_options(samples="--probe-lights", camera="--camera", light="--light", **{"light probe": "--probe"}):
+    with named_options(
+        samples="--probe-lights", camera="--camera", light="--light", size="--size", **{"light probe": "--probe"}
+    ):
         if args.probe:
             res = render_probe(ds, cap, args.camera, args.probe, mesh=args.mesh, samples=args.probe_lights,
-                               micro_normals=args.micro_normals)  # fmt: skip
+                               micro_normals=args.micro_normals, size=args.size)  # fmt: skip
         else:
-            res = render_led(ds, cap, args.camera, args.light, micro_normals=args.micro_normals)
+            with warnings.catch_warnings():  # check_led_view warned above, naming the options
+                warnings.filterwarnings("ignore", r"camera \d+ with light \d+ sees", FacestatsWarning)
+                res = render_led(ds, cap, args.camera, args.light, micro_normals=args.micro_normals, size=args.size)
     with OutputSet(out) as files:  # every file or none
         write_image(files.path(names[0]), np.nan_to_num(res.rendered).clip(0))
         if res.reference is not None:
@@ -161,8 +187,26 @@ def add_render(sub):
     )
     p.add_argument("subject_id", metavar="ID")
     p.add_argument("--out", required=True, metavar="DIR", help="directory for the images")
-    p.add_argument("--camera", type=ascii_int, default=5, help="dome camera (default 5)")
-    p.add_argument("--light", type=ascii_int, default=None, help="dome LED (default 20; not with --probe)")
+    p.add_argument(
+        "--camera",
+        type=ascii_int,
+        default=DEFAULT_CAMERA,
+        help=f"dome camera (default {DEFAULT_CAMERA}, the one facing the face, 18 degrees above its axis)",
+    )
+    p.add_argument(
+        "--light",
+        type=ascii_int,
+        default=None,
+        help=f"dome LED (default {DEFAULT_LIGHT}, the frontal LED; not with --probe). A camera and LED that see "
+        f"fewer than 50 lumitexels lit are refused, naming the pair that sees the most",
+    )
+    p.add_argument(
+        "--size",
+        type=ascii_int,
+        default=None,
+        help="image side in pixels, 16-2048 (default 4 sqrt(n) for the n lumitexels in the camera's frame, "
+        "64-1024: 117 for the default store's 857)",
+    )
     p.add_argument(
         "--probe", type=non_empty, metavar="FILE", help="render under this lat-long HDR probe instead of an LED"
     )

@@ -18,7 +18,7 @@ from facestats.io.schema import modulation as _modulation
 from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport, skin_radiance
 from facestats.pipeline.settings import MAP_VARS, MODEL_PREFIX
 
-__all__ = ["predict_radiance", "held_out_camera_error", "camera_image"]
+__all__ = ["predict_radiance", "held_out_camera_error", "camera_image", "surface_triangles"]
 
 
 def predict_radiance(
@@ -141,21 +141,69 @@ def held_out_camera_error(
 MAX_GAP = 3.0
 
 
+def surface_triangles(position, uv):
+    """Triangles of lumitexels on their surface: the Delaunay triangulation of their UVs, kept where on the surface.
+
+    The UV chart is the surface's parametrisation, so neighbours in UV are neighbours on the surface, and a
+    triangle of the UV triangulation follows the surface whatever the surface's folds in a camera's image.  A
+    triangle is kept when it lies on the surface: its longest edge in 3-D is at most :data:`MAX_GAP` times the
+    largest spacing of its corners (each lumitexel's distance to the nearest other position in 3-D; a position
+    held twice, as at a UV seam, is one sample), so triangles across a hole of the face (the eyes), across the
+    gaps between UV islands or across the UV chart's concave boundary are left out.
+
+    Parameters
+    ----------
+    position : ndarray, shape (n, 3)
+        Lumitexel positions, mm.
+    uv : ndarray, shape (n, 2)
+        Their texture coordinates.
+
+    Returns
+    -------
+    faces : ndarray of int64, shape (F, 3)
+        Lumitexel indices of the triangles on the surface (F = 0 for fewer than three lumitexels or UVs on a line).
+    spacing : ndarray of float64, shape (n,)
+        Each lumitexel's spacing, mm (inf for a lone position).
+    """
+    from scipy.spatial import Delaunay, QhullError, cKDTree
+
+    position = np.asarray(position, np.float64)
+    surface = np.unique(position, axis=0)
+    spacing = cKDTree(surface).query(position, k=2)[0][:, 1] if len(surface) > 1 else np.full(len(position), np.inf)
+    try:
+        tri = Delaunay(np.asarray(uv, np.float64)[:, :2])
+    except (QhullError, ValueError):  # fewer than three lumitexels, or UVs all on a line
+        return np.zeros((0, 3), np.int64), spacing
+    corners = position[tri.simplices]
+    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(1)
+    on_surface = longest <= MAX_GAP * spacing[tri.simplices].max(1)
+    return tri.simplices[on_surface].astype(np.int64), spacing
+
+
 def camera_image(values, capture, camera: int, light: int, channel=None, *, size=None):
     """Per-lumitexel sample values of one (camera, light) as the camera's image (for figures).
 
-    The image crops the face's bounding box in the camera at ``size`` × ``size`` pixels.  A pixel inside a
-    triangle of the Delaunay triangulation of the finite values' projections (:class:`scipy.spatial.Delaunay`)
-    holds their linear interpolation, if the triangle lies on the surface: its longest edge in 3-D is at most
-    :data:`MAX_GAP` times the largest spacing of its corners (each lumitexel's distance to its nearest neighbour
-    in 3-D), so triangles across a hole of the face or a step in depth (a silhouette in front of the surface
-    behind it) are left out; a pixel within half its nearest lumitexel's spacing in the image (the patch the
-    lumitexel stands for) holds that lumitexel's value.  Other pixels are NaN: shadows, unlit and hidden
-    lumitexels (NaN values), holes and the background stay empty, and a NaN value never hides a finite one.
-    Until 2026-12-07 each lumitexel was splatted into one pixel of a grid of about one pixel per lumitexel: the
-    projections are uneven (foreshortening), so 43-49 % of the pixels inside the face of default S003's probe
-    renders in cameras 0, 5 and 9 were empty; 2.9-3.2 % now, the eyes' holes included
-    (``benchmarks/bench_export.py`` ``bench_validation_images``).
+    The image crops the face's bounding box in the camera at ``size`` × ``size`` pixels.  The lumitexels in the
+    camera's frame are triangulated on the surface (:func:`surface_triangles`: in UV, whatever their values) and
+    the triangles drawn with a depth buffer (:func:`facestats.acquire.visibility.nearest_triangle`): each pixel
+    shows the surface nearest the camera, as a photograph does.  A pixel holds the linear interpolation of its
+    triangle's finite corner values, the barycentric weights renormalised over them: a corner with a NaN value
+    (hidden from the camera, unlit, invalid) gives way to its finite neighbours across the triangles it shares
+    with them, so the visible surface beside a hidden lumitexel (a cheek behind the nose's silhouette) is
+    filled, and a region of NaN lumitexels (a shadow) stays empty but for its rim of triangles, which take the
+    values of their lit corners.  A pixel no triangle covers holds the value of its nearest finite lumitexel in the image within
+    half that lumitexel's spacing there (the patch it stands for, beyond the surface's boundary).  Other pixels
+    (holes of the face, the background) are NaN.
+
+    Triangles facing away from the camera (the far side of the skin, seen through a hole of the face) are not
+    drawn.  Until 2026-12-08 the lumitexels with finite values were triangulated in the image (Delaunay of their
+    projections), which connected lumitexels across the surface's folds, and triangles across a step in depth
+    were left out: default S001's probe render in camera 5 had 23 enclosed empty components (169 pixels) along
+    the nose, the cheek and the eye; 7 now (75 pixels), the face's own holes (74 pixels: the eyes, the mouth's
+    corners, a sliver of the chin where the UV chart stretches a triangle past :data:`MAX_GAP`) but for one pixel
+    (``benchmarks/bench_export.py`` ``bench_validation_images``).  Until 2026-12-07 each lumitexel was splatted
+    into one pixel of a grid of about one pixel per lumitexel: 43-49 % of the pixels inside the face of default
+    S003's probe renders were empty.
 
     Parameters
     ----------
@@ -163,6 +211,7 @@ def camera_image(values, capture, camera: int, light: int, channel=None, *, size
         E.g. the output of :func:`predict_radiance`, or values already taken
         for this camera and light (one RGB value per lumitexel).
     capture : Capture
+        Its first n lumitexels' ``position`` and ``uv`` and its ``dome``.
     camera, light : int
     channel : int, optional
         Channel to return; default all three (RGB image).
@@ -175,13 +224,16 @@ def camera_image(values, capture, camera: int, light: int, channel=None, *, size
     ndarray, shape (size, size[, 3])
         NaN where no finite value is near (see above).
     """
-    from scipy.spatial import Delaunay, QhullError, cKDTree
+    from scipy.spatial import cKDTree
+
+    from facestats.acquire.visibility import nearest_triangle
 
     check_integer(camera, "camera", 0, capture.dome.n_cameras - 1)
     check_integer(light, "light", 0, capture.dome.n_leds - 1)
     if channel is not None:
         check_integer(channel, "channel", 0, 2)
-    pos = capture.array("position").astype(np.float64)[: values.shape[0]]
+    n = values.shape[0]
+    pos = capture.array("position").astype(np.float64)[:n]
     _, _, pix = capture.dome.view(pos, cameras=[camera])
     xy = pix[:, 0, :2]
     ok = np.isfinite(xy).all(1)
@@ -189,53 +241,61 @@ def camera_image(values, capture, camera: int, light: int, channel=None, *, size
     sel = values if values.ndim == 2 else values[:, camera, light, :]
     vals = np.asarray(sel if channel is None else sel[:, channel : channel + 1], np.float64)
     img = np.full((n_px * n_px, vals.shape[1]), np.nan)
-    if not ok.any():
+    finite = ok & np.all(np.isfinite(vals), axis=1)
+    if not finite.any():
         return _image_shape(img, n_px, channel)
-    # Crop to the face's bounding box (a margin of 2 % of its side); pixel centres in the camera's pixel units.
+    # Crop to the face's bounding box (a margin of 2 % of its side); image coordinates in pixels of the crop.
     lo, hi = xy[ok].min(0), xy[ok].max(0)
     side = max(float((hi - lo).max()), 1e-9) * 1.04
-    corner = 0.5 * (lo + hi) - side / 2
-    centres = corner + (np.stack(np.meshgrid(np.arange(n_px), np.arange(n_px)), -1).reshape(-1, 2) + 0.5) * (
-        side / n_px
-    )
-    good = ok & np.all(np.isfinite(vals), axis=1)
-    if not good.any():
-        return _image_shape(img, n_px, channel)
-    pts, known, pts3 = xy[good], vals[good], pos[good]
-    tree = cKDTree(pts)
-    dist, nearest = tree.query(centres)
     pixel = side / n_px
-    # Each lumitexel's own spacing on the surface (mm) and in the image (pixels): its nearest neighbour's distance
-    # there, at most its surface spacing seen face-on at its depth (a lumitexel alone in the image is a patch).
+    corner = 0.5 * (lo + hi) - side / 2
+    # A lumitexel held twice (same position and UV: a scan's triangle soup) is one vertex: its finite copies' mean.
+    frame = np.flatnonzero(ok)
+    uv = capture.array("uv")[:n][frame].astype(np.float64)
+    _, first, vertex = np.unique(np.c_[pos[frame], uv], axis=0, return_index=True, return_inverse=True)
+    vertex = vertex.ravel()
+    count = np.bincount(vertex, finite[frame], len(first))
+    sums = np.stack([np.bincount(vertex, np.where(finite[frame], vals[frame, c], 0.0), len(first))
+                     for c in range(vals.shape[1])], 1)  # fmt: skip
+    good = count > 0
+    known = sums / np.maximum(count, 1)[:, None]
+    frame = frame[first]
+    pts, pts3, uv = (xy[frame] - corner) / pixel, pos[frame], uv[first]
     depth = ((pts3 - capture.dome.camera_position[camera]) @ capture.dome.camera_rotation[camera].T)[:, 2]
-    face_on = capture.dome.camera_matrix[camera][0, 0] / depth  # pixels per mm
-    # Every lumitexel in the frame samples the surface, whatever its value; a position held twice (a scan's vertices
-    # split at UV seams, or one per triangle) is one sample: the spacing is to the nearest other position.
-    surface = np.unique(pos[ok], axis=0)
-    spacing3 = cKDTree(surface).query(pts3, k=2)[0][:, 1] if len(surface) > 1 else np.full(len(pts3), np.inf)
+    faces, spacing3 = surface_triangles(pts3, uv)
+    # Back faces culled: a triangle whose normal (its corners' cross product, turned to the side of their scan
+    # normals) faces away from the camera is the far side of the skin, seen only through a hole of the face.
+    scan_normal = capture.array("scan_normal")[:n][frame].astype(np.float64)
+    corners = pts3[faces]
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normal *= np.sign(np.einsum("fk,fk->f", normal, scan_normal[faces].sum(1)))[:, None]
+    faces = faces[np.einsum("fk,fk->f", normal, capture.dome.camera_position[camera] - corners.mean(1)) > 0]
+    tri = nearest_triangle(pts[:, 0], pts[:, 1], depth, faces, n_px, n_px)[0].ravel()
+    covered = np.flatnonzero(tri >= 0)
+    corners = faces[tri[covered]]  # (K, 3) lumitexels of each covered pixel's triangle
+    centre = np.stack([covered % n_px, covered // n_px], 1) + 0.5
+    a, b, c = pts[corners[:, 0]], pts[corners[:, 1]], pts[corners[:, 2]]
+    den = (b[:, 1] - c[:, 1]) * (a[:, 0] - c[:, 0]) + (c[:, 0] - b[:, 0]) * (a[:, 1] - c[:, 1])
+    l0 = ((b[:, 1] - c[:, 1]) * (centre[:, 0] - c[:, 0]) + (c[:, 0] - b[:, 0]) * (centre[:, 1] - c[:, 1])) / den
+    l1 = ((c[:, 1] - a[:, 1]) * (centre[:, 0] - c[:, 0]) + (a[:, 0] - c[:, 0]) * (centre[:, 1] - c[:, 1])) / den
+    weights = np.clip(np.c_[l0, l1, 1 - l0 - l1], 0, 1) * good[corners]
+    total = weights.sum(1)
+    fill = total > 0
+    img[covered[fill]] = np.einsum("nk,nkc->nc", weights[fill] / total[fill, None], known[corners[fill]])
+    # Beyond the triangles, each finite lumitexel's patch: within half its spacing in the image (its nearest
+    # neighbour's distance there, at most its surface spacing seen face-on at its depth) or half a pixel.
+    empty = np.ones(n_px * n_px, bool)
+    empty[covered] = False
+    face_on = capture.dome.camera_matrix[camera][0, 0] / depth / pixel  # crop pixels per mm
     spacing = spacing3 * face_on
     flat = np.unique(pts, axis=0)
     if len(flat) > 1:
         spacing = np.minimum(cKDTree(flat).query(pts, k=2)[0][:, 1], spacing)
-    edge = dist <= np.maximum(0.5 * spacing[nearest], 0.5 * pixel)  # the patch a lumitexel stands for
-    img[edge] = known[nearest[edge]]
-    try:
-        tri = Delaunay(pts)
-    except (QhullError, ValueError):  # fewer than three points, or all on a line: the nearest value only
-        return _image_shape(img, n_px, channel)
-    # A triangle whose longest edge on the surface (mm) exceeds MAX_GAP times its corners' own spacing spans a gap,
-    # a hole of the face or a step in depth (a silhouette over the surface behind it), not the surface.
-    corners = pts3[tri.simplices]
-    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(1)
-    on_surface = longest <= MAX_GAP * spacing3[tri.simplices].max(1)
-    simplex = tri.find_simplex(centres)
-    hit = simplex >= 0
-    hit[hit] = on_surface[simplex[hit]]
-    inside, simplex = np.flatnonzero(hit), simplex[hit]
-    affine = tri.transform[simplex]  # barycentric coordinates: T (x − r)
-    b = np.einsum("nij,nj->ni", affine[:, :2], centres[inside] - affine[:, 2])
-    weights = np.c_[b, 1 - b.sum(1)]
-    img[inside] = np.einsum("nk,nkc->nc", weights, known[tri.simplices[simplex]])
+    lumi = np.flatnonzero(good)
+    rest = np.flatnonzero(empty)
+    dist, nearest = cKDTree(pts[lumi]).query(np.stack([rest % n_px, rest // n_px], 1) + 0.5)
+    patch = dist <= np.maximum(0.5 * spacing[lumi[nearest]], 0.5)
+    img[rest[patch]] = known[lumi[nearest[patch]]]
     return _image_shape(img, n_px, channel)
 
 

@@ -66,6 +66,9 @@ __all__ = [
     "render_probe",
     "camera_rmse",
     "check_micro_normals",
+    "check_led_view",
+    "led_view_counts",
+    "MIN_LED_SAMPLES",
     "default_capture",
     "face_view",
     "FaceView",
@@ -195,7 +198,15 @@ def _led_samples(subject, capture, camera, light, specular, eta, micro_normals):
 
 
 def render_led(
-    subject, capture, camera: int, light: int, *, specular="torrance_sparrow", eta=ETA_SKIN, micro_normals=False
+    subject,
+    capture,
+    camera: int,
+    light: int,
+    *,
+    specular="torrance_sparrow",
+    eta=ETA_SKIN,
+    micro_normals=False,
+    size=None,
 ) -> Render:
     """The fitted model for ``camera`` under LED ``light``, beside the capture's radiance (module docstring).
 
@@ -212,22 +223,106 @@ def render_led(
     micro_normals : bool
         Evaluate the specular lobe with the camera's micro-normals (Fig. 6c) instead of the diffuse normal
         (module docstring: why that is not the default).
+    size : int, optional
+        Image side in pixels (:func:`facestats.pipeline.render.camera_image`).
 
     Returns
     -------
     Render
+
+    Raises
+    ------
+    ValidationError
+        Bad arguments, or a camera and LED that see fewer than :data:`MIN_LED_SAMPLES` lumitexels lit
+        (:func:`check_led_view`).
     """
 
     _check(subject, capture, camera, light, specular, micro_normals)
+    if size is not None:  # before the render
+        check_integer(size, "size", 16, 2048)
+    check_led_view(capture, camera, light)
     pred, meas = _led_samples(subject, capture, camera, light, specular, eta, micro_normals)
     ok = np.isfinite(pred).all(1) & np.isfinite(meas).all(1)
-    if not ok.any():
-        raise ValidationError(f"camera {camera} sees no lumitexel lit by LED {light} in this capture")
     rmse = float(np.sqrt(np.mean((pred[ok] - meas[ok]) ** 2)))
     rel = rmse / float(np.sqrt(np.mean(meas[ok] ** 2)))
-    rendered = camera_image(pred, capture, camera, light)
-    reference = camera_image(meas, capture, camera, light)
+    rendered = camera_image(pred, capture, camera, light, size=size)
+    reference = camera_image(meas, capture, camera, light, size=size)
     return Render(rendered, reference, camera, f"LED {light}", rmse, rel)
+
+
+#: Fewest lumitexels seen and lit that :func:`render_led` compares: the relative RMSE of n samples has a sampling
+#: error of about 1/√(2n) of itself (the standard error of a root mean square of n independent normal residuals),
+#: 10 % at 50.
+MIN_LED_SAMPLES = 50
+
+
+def led_view_counts(capture) -> np.ndarray:
+    """Lumitexels each (camera, LED) pair sees lit: valid samples of the capture (seen, lit, unshadowed, unclipped).
+
+    Parameters
+    ----------
+    capture : Capture
+        A capture (or a re-simulation) with its samples.
+
+    Returns
+    -------
+    ndarray of int64, shape (C, L)
+        The count per camera and LED.
+    """
+    return capture.lumitexels().valid.sum(0).astype(np.int64)
+
+
+def check_led_view(capture, camera: int, light: int, *, names=("camera", "light")) -> int:
+    """Refuse a (camera, LED) pair that sees too few lumitexels lit for a relative RMSE, suggesting the pair that
+    sees the most (:func:`led_view_counts`; the lowest camera, then LED, of equals).
+
+    The pair must see at least :data:`MIN_LED_SAMPLES` lumitexels lit, or, in a capture where no pair sees that
+    many (a build at 8² or 12²), half as many as the pair that sees the most; below :data:`MIN_LED_SAMPLES` a
+    :class:`~facestats.errors.FacestatsWarning` gives the figure's sampling error, 1/√(2n).
+
+    Parameters
+    ----------
+    capture : Capture
+    camera, light : int
+        Dome camera and LED (checked against the dome).
+    names : (str, str)
+        What the message calls the camera and the LED (the command line's ``("--camera", "--light")``).
+
+    Returns
+    -------
+    int
+        The lumitexels the pair sees lit.
+
+    Raises
+    ------
+    ValidationError
+        Too few lumitexels, the message naming both values, the count, the least count and the pair suggested.
+    """
+    import warnings
+
+    from facestats.errors import FacestatsWarning
+
+    check_integer(camera, names[0], 0, capture.dome.n_cameras - 1)
+    check_integer(light, names[1], 0, capture.dome.n_leds - 1)
+    counts = led_view_counts(capture)
+    n = int(counts[camera, light])
+    best_camera, best_light = np.unravel_index(int(np.argmax(counts)), counts.shape)
+    best = int(counts[best_camera, best_light])
+    least = max(1, min(MIN_LED_SAMPLES, -(-best // 2)))
+    if n < least:
+        raise ValidationError(
+            f"{names[0]} {camera} with {names[1]} {light} sees {n} of the {capture.n_lumitexels} lumitexels lit, "
+            f"fewer than the {least} a relative RMSE needs (its sampling error is about 1/sqrt(2n) of itself: 10 % "
+            f"at {MIN_LED_SAMPLES}); {names[0]} {best_camera} with {names[1]} {best_light} sees the most, {best}"
+        )
+    if n < MIN_LED_SAMPLES:
+        warnings.warn(
+            f"{names[0]} {camera} with {names[1]} {light} sees {n} lumitexels lit (this capture has "
+            f"{capture.n_lumitexels}): the relative RMSE's sampling error is about {100 / np.sqrt(2 * n):.0f} % of it",
+            FacestatsWarning,
+            stacklevel=2,
+        )
+    return n
 
 
 def _check(subject, capture, camera, light, specular, micro_normals):
@@ -291,28 +386,29 @@ class FaceView:
         self._lumitexels = None
 
     def array(self, name, sl=slice(None)) -> np.ndarray:
-        """``position`` (N, 3) float32, as :meth:`facestats.acquire.capture.Capture.array` (the only array).
+        """``position``, ``scan_normal`` (N, 3) or ``uv`` (N, 2), float32, as
+        :meth:`facestats.acquire.capture.Capture.array`.
 
         Parameters
         ----------
-        name : str
-            ``"position"``.
+        name : {"position", "scan_normal", "uv"}
+            The array: positions (mm), the geometry's unit normals, or texture coordinates (u right, v down).
         sl : slice
             The lumitexels to read (default all).
 
         Returns
         -------
-        ndarray of float32, shape (N, 3)
-            Positions, mm.
+        ndarray of float32, shape (N, 3) or (N, 2)
 
         Raises
         ------
         ValidationError
-            ``name`` is not ``"position"``.
+            ``name`` is none of them.
         """
-        if name != "position":
-            raise ValidationError(f"a face view holds the lumitexel positions only, not {name!r}")
-        return self._position[sl]
+        arrays = {"position": self._position, "scan_normal": self._geometry.normal, "uv": self._geometry.uv}
+        if name not in arrays:
+            raise ValidationError(f"a face view holds the lumitexels' position, scan_normal and uv only, not {name!r}")
+        return np.asarray(arrays[name], np.float32)[sl]
 
     def lumitexels(self) -> Lumitexels:
         """Every lumitexel with its directions to the dome's LEDs and cameras (computed once)."""
@@ -418,6 +514,7 @@ def probe_radiance(
     mesh=None,
     scale: float = 1.0,
     micro_normals=False,
+    hidden=False,
 ):
     """Radiance of the fitted model at each lumitexel seen by ``camera`` under a lat-long light probe.
 
@@ -471,12 +568,17 @@ def probe_radiance(
         Factor from ``mesh``'s unit to mm.
     micro_normals : bool
         As :func:`render_led`.
+    hidden : bool
+        Also the radiance of the lumitexels that face the camera but are hidden by the face (a cheek behind the
+        nose), for an image: :func:`facestats.pipeline.render.camera_image`'s depth buffer hides them, and their
+        values fill the visible surface beside them; NaN only where the lumitexel faces away or is out of frame.
+        :func:`render_probe` passes True; default False.
 
     Returns
     -------
     values : ndarray of float64, shape (N, 3)
         Radiance per lumitexel of ``capture`` (``capture.array("position")``'s order), in the probe's unit; NaN
-        where ``camera`` does not see the lumitexel.
+        where ``camera`` does not see the lumitexel (with ``hidden``: where it faces away).
     capture : Capture or FaceView
         The lumitexels' source (``capture``, or the :func:`face_view` made for None).
 
@@ -523,6 +625,8 @@ def probe_radiance(
             "those in its frame face away from it or are hidden by the face (check the subject's normal map)"
         )
     pred, _ = _radiance(subject, capture, camera, wi, irr, specular=specular, eta=eta, micro_normals=micro_normals)
+    if hidden:  # every lumitexel facing the camera in its frame: the image's depth buffer hides those behind
+        seen = in_frame[:, 0] & (np.einsum("nk,nk->n", normal, lt.wo[:, camera]) > 0)
     return np.where(seen[:, None], pred.sum(axis=1), np.nan), capture
 
 
@@ -538,14 +642,18 @@ def render_probe(
     mesh=None,
     scale: float = 1.0,
     micro_normals=False,
+    size=None,
 ):
     """The fitted model for ``camera`` under a lat-long light probe, shadowed by the face mesh: the image of
-    :func:`probe_radiance`'s values (:func:`facestats.pipeline.render.camera_image`).
+    :func:`probe_radiance`'s values for every lumitexel facing the camera (``hidden=True``), which the image's
+    depth buffer hides behind the face (:func:`facestats.pipeline.render.camera_image`).
 
     Parameters
     ----------
     subject, capture, camera, probe, samples, specular, eta, mesh, scale, micro_normals
         As :func:`probe_radiance`.
+    size : int, optional
+        Image side in pixels (:func:`facestats.pipeline.render.camera_image`).
 
     Returns
     -------
@@ -557,11 +665,13 @@ def render_probe(
     ValidationError
         As :func:`probe_radiance`.
     """
+    if size is not None:  # before the shadow maps
+        check_integer(size, "size", 16, 2048)
     values, capture = probe_radiance(
         subject, capture, camera, probe, samples=samples, specular=specular, eta=eta, mesh=mesh, scale=scale,
-        micro_normals=micro_normals,
+        micro_normals=micro_normals, hidden=True,
     )  # fmt: skip
-    return Render(camera_image(values, capture, camera, 0), None, camera, "probe")
+    return Render(camera_image(values, capture, camera, 0, size=size), None, camera, "probe")
 
 
 def camera_rmse(

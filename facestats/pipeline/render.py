@@ -191,9 +191,9 @@ def camera_image(values, capture, camera: int, light: int, channel=None, *, size
     (hidden from the camera, unlit, invalid) gives way to its finite neighbours across the triangles it shares
     with them, so the visible surface beside a hidden lumitexel (a cheek behind the nose's silhouette) is
     filled, and a region of NaN lumitexels (a shadow) stays empty but for its rim of triangles, which take the
-    values of their lit corners.  A pixel no triangle covers holds the value of its nearest finite lumitexel in the image within
-    half that lumitexel's spacing there (the patch it stands for, beyond the surface's boundary).  Other pixels
-    (holes of the face, the background) are NaN.
+    values of their lit corners.  A pixel no triangle covers holds the value of its nearest finite lumitexel in
+    the image within half that lumitexel's spacing there (the patch it stands for, beyond the surface's
+    boundary).  Other pixels (holes of the face, the background) are NaN.
 
     Triangles facing away from the camera (the far side of the skin, seen through a hole of the face) are not
     drawn.  Until 2026-12-08 the lumitexels with finite values were triangulated in the image (Delaunay of their

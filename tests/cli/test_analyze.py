@@ -296,8 +296,8 @@ def test_bad_out_and_format(tmp_path):
     f.write_text("x")
     r = run_cli("analyze", "translucency", "--out", f)
     assert r.returncode == 2 and "--out must be a directory" in r.stderr
-    r = run_main("analyze", "translucency", "--format", "pdf", "--out", tmp_path)
-    assert r.returncode == 2 and "invalid choice: 'pdf'" in r.stderr
+    r = run_main("analyze", "translucency", "--format", "tiff", "--out", tmp_path)
+    assert r.returncode == 2 and "invalid choice: 'tiff'" in r.stderr
 
 
 def test_store_without_condition_series(tmp_path):

@@ -120,7 +120,8 @@ def _near_boundary(visible, band):
     differs.
 
     The step is the lat-long grid's diagonal at the equator, √(Δφ² + Δθ²) with Δφ = π/n_phi and Δθ = 2π/n_theta
-    (7.9° on the 64 × 32 stage): at the equator the band of one step is the 3 × 3 neighbourhood of cells; towards
+    (7.9° on the 64 × 32 stage): at the equator of a 2:1 grid (Δφ = Δθ) the band of one step is the 3 × 3
+    neighbourhood of cells (on other grids more cells along the finer axis: 5 rows × 3 columns on 32 × 32); towards
     the poles, where a cell's width in azimuth shrinks as sin φ, it spans more columns, and it reaches across the
     pole.  A band of 3 × 3 cells there was 0.27° wide in azimuth in the rows next to the poles of the 64 × 32 grid,
     narrower than the 3.6° above the horizon where a 2 % threshold cannot tell grazing light from shadow (an
@@ -159,7 +160,7 @@ def shadow_agreement(lit, visible, band: int = 1, mask=None) -> dict:
     band : int
         Samples whose light lies within ``band`` steps of arc of a light with the other
         ``visible`` are excluded; a step is √(Δφ² + Δθ²), the grid's diagonal at the equator
-        (7.9° on the 64 × 32 stage, 31.8° on 16 × 8): the 3 × 3 cells there, more columns
+        (7.9° on the 64 × 32 stage, 31.8° on 16 × 8): the 3 × 3 cells there on a 2:1 grid, more columns
         towards the poles and across them.
     mask : array_like of bool, shape (y, x), optional
         Pixels to compare (default all).

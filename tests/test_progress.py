@@ -60,3 +60,25 @@ def test_a_bar_written_to_a_log_is_redrawn_seldom(monkeypatch, stream, interval)
     else:
         assert LOG_INTERVAL_S == interval and 2 <= draws <= 2 + 100 // int(interval) + 1, draws
     assert "work: 100%" in err.getvalue()
+
+
+class _KernelStream(io.StringIO):
+    """Stands for ipykernel's OutStream (a notebook's stderr), whose isatty() is False."""
+
+
+_KernelStream.__module__ = "ipykernel.iostream"
+
+
+def test_a_notebooks_text_bar_is_live_and_no_stderr_hides_the_bar(monkeypatch):
+    """In a Jupyter kernel without ipywidgets tqdm.auto draws text on the kernel's stderr, which is no terminal but
+    shown live: it was redrawn every LOG_INTERVAL_S seconds there (an nbclient kernel, 2026-12-08).  With no stderr
+    at all (pythonw) the bar raised AttributeError on its first draw."""
+    monkeypatch.delenv(PROGRESS_ENV, raising=False)
+    monkeypatch.setattr(sys, "stderr", _KernelStream())
+    with progress_bar(total=3, desc="work") as bar:
+        assert bar.mininterval == 0.1  # tqdm's own default, not LOG_INTERVAL_S
+    monkeypatch.setattr(sys, "stderr", io.StringIO())
+    with progress_bar(total=3, desc="work") as bar:
+        assert bar.mininterval == 30.0
+    monkeypatch.setattr(sys, "stderr", None)
+    assert sum(progress_bar(range(5), desc="work")) == 10

@@ -6,9 +6,11 @@ whether or not stderr is a terminal, so that a log of a long job shows how far
 it got.  Written to a file or a pipe, a bar is redrawn at most every
 :data:`LOG_INTERVAL_S` seconds (its first and last states always), not ten times
 a second: a log holds a line now and then, not hundreds of carriage-return
-updates.  ``FACESTATS_PROGRESS=0`` in the environment hides every bar.  Bars
-come from :mod:`tqdm.auto`: a widget in a notebook, text elsewhere, with the
-rate and the ETA tqdm estimates.
+updates (a notebook's bar, a widget or text, stays live).
+``FACESTATS_PROGRESS=0`` in the environment hides every bar, and so does a
+missing stderr (``sys.stderr`` None, as under ``pythonw``).  Bars come from
+:mod:`tqdm.auto`: a widget in a notebook, text elsewhere, with the rate and the
+ETA tqdm estimates.
 
 A hidden bar is not a tqdm at all but :class:`QuietBar`, which iterates,
 updates and closes at no cost.  This matters beyond speed: every tqdm takes
@@ -116,7 +118,7 @@ def progress_bar(iterable=None, *, enabled=True, desc=None, unit="it", total=Non
     tqdm.auto.tqdm or QuietBar
         The bar; both iterate, take ``update(n)`` and ``close()`` and work as context managers.
     """
-    if not bars_enabled(enabled):
+    if not bars_enabled(enabled) or sys.stderr is None:  # None: no stderr to draw on (pythonw)
         return QuietBar(iterable, total, initial)
     from tqdm.auto import tqdm
 
@@ -126,7 +128,11 @@ def progress_bar(iterable=None, *, enabled=True, desc=None, unit="it", total=Non
 
 
 def _stderr_is_terminal() -> bool:
-    """Whether stderr, where tqdm draws, is a terminal (False for a file, a pipe, or a closed stream)."""
+    """Whether stderr, where tqdm draws, is shown live: a terminal, or a Jupyter kernel's stream (a notebook renders
+    the carriage returns of a text bar, drawn there when ipywidgets is missing); False for a file, a pipe, or a
+    closed stream."""
+    if type(sys.stderr).__module__.split(".")[0] == "ipykernel":  # its isatty() is False
+        return True
     try:
         return bool(sys.stderr.isatty())
     except (AttributeError, ValueError, OSError):

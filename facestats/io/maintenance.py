@@ -616,8 +616,9 @@ def check_subjects(
         for _ in range(5):
             gen = entry["generation"]
             try:
-                ds = open_generation(sid, gen)
-                problem = entry_disagreement(sid, entry, gen, ds)  # may read maps left on disk
+                # never bound here: the subject (and the face texels a validation gathered for its index row,
+                # GATHERED_TEXELS) is not held while the next one is opened
+                problem = entry_disagreement(sid, entry, gen, open_generation(sid, gen))  # may read maps on disk
             except StoreError as exc:  # SchemaError: damaged; else an I/O error (the data may be intact)
                 fresh = reread().get(sid) if reread is not None else None
                 if fresh is not None and fresh["generation"] != gen:

@@ -226,7 +226,12 @@ def parse_skin_types(value) -> list:
         raise ValidationError(f"skin type must name at least one of I-VI or 1-6, got {value!r}")
     types = set()
     for item in items:
-        t = parse_skin_type(item)
+        try:
+            t = parse_skin_type(item)
+        except ValidationError as exc:  # name the whole value: "IV," fails on its empty second item
+            if len(items) == 1:
+                raise
+            raise ValidationError(f"{exc} (an item of {value!r})") from None
         types.update((1, 2) if t in (1, 2) else (t,))
     return sorted(types)
 
@@ -257,7 +262,10 @@ def normalise_filters(skin_type=None, gender=None, age=None, condition=None, reg
     if age is not None:
         out["age"] = list(parse_age(age))
     if condition is not None and str(condition).strip().lower() != ANY_CONDITION:
-        out["condition"] = parse_condition(condition)
+        try:
+            out["condition"] = parse_condition(condition)
+        except ValidationError as exc:  # "any" is a value too
+            raise ValidationError(f"{exc} (or {ANY_CONDITION!r} for every condition)") from None
     if region is not None:
         out["region"] = parse_region(region)
     return out

@@ -45,6 +45,8 @@ CAUSES = (
 )
 #: The code of :func:`disagreement_causes` for samples not compared (off the mask, or in the boundary band).
 NOT_COMPARED = -1
+#: Samples (lights × image columns) of the float32 blocks :func:`_near_boundary` counts neighbours in: 4 MiB.
+NEAR_BLOCK = 1 << 20
 
 
 def _wrap_morphology(lit, op, iterations):
@@ -118,7 +120,8 @@ def _near_boundary(visible, band):
     differs.
 
     The step is the lat-long grid's diagonal at the equator, √(Δφ² + Δθ²) with Δφ = π/n_phi and Δθ = 2π/n_theta
-    (7.9° on the 64 × 32 stage): at the equator the band of one step is the 3 × 3 neighbourhood of cells; towards
+    (7.9° on the 64 × 32 stage): at the equator of a 2:1 grid (Δφ = Δθ) the band of one step is the 3 × 3
+    neighbourhood of cells (on other grids more cells along the finer axis: 5 rows × 3 columns on 32 × 32); towards
     the poles, where a cell's width in azimuth shrinks as sin φ, it spans more columns, and it reaches across the
     pole.  A band of 3 × 3 cells there was 0.27° wide in azimuth in the rows next to the poles of the 64 × 32 grid,
     narrower than the 3.6° above the horizon where a 2 % threshold cannot tell grazing light from shadow (an
@@ -131,13 +134,19 @@ def _near_boundary(visible, band):
     n_phi, n_theta = visible.shape[:2]
     arc = min(band * np.hypot(np.pi / n_phi, 2 * np.pi / n_theta), np.pi)
     tree = cKDTree(latlong_directions(n_phi, n_theta).reshape(-1, 3))
-    # Pairs of lights within the arc (chord 2 sin(arc / 2), a hair more for rounding), as a sparse matrix.
+    # Pairs of lights within the arc (chord 2 sin(arc / 2), a hair more for rounding), as a sparse matrix of ones
+    # (float32: counts up to the lights within the arc, exact).  A visible light is near a dark one when fewer than
+    # all of its neighbours are visible, a dark light near a visible one when any is.
     pairs = tree.sparse_distance_matrix(tree, 2 * np.sin(arc / 2) * (1 + 1e-9), output_type="coo_matrix").tocsr()
-    pairs.data[:] = 1
+    pairs.data = np.ones(pairs.nnz, np.float32)
+    total = np.asarray(pairs.sum(axis=1), np.float32)  # (lights, 1)
     v = visible.reshape(n_phi * n_theta, -1)
-    lit_near = (pairs @ v.astype(np.float32)) > 0
-    dark_near = (pairs @ (~v).astype(np.float32)) > 0
-    return np.where(v, dark_near, lit_near).reshape(visible.shape)
+    out = np.empty_like(v)
+    step = max(1, NEAR_BLOCK // v.shape[0])  # columns (samples of the image) at a time: float32 blocks, not the field
+    for lo in range(0, v.shape[1], step):
+        lit_count = pairs @ v[:, lo : lo + step].astype(np.float32)
+        out[:, lo : lo + step] = np.where(v[:, lo : lo + step], lit_count < total, lit_count > 0)
+    return out.reshape(visible.shape)
 
 
 def shadow_agreement(lit, visible, band: int = 1, mask=None) -> dict:
@@ -151,7 +160,7 @@ def shadow_agreement(lit, visible, band: int = 1, mask=None) -> dict:
     band : int
         Samples whose light lies within ``band`` steps of arc of a light with the other
         ``visible`` are excluded; a step is √(Δφ² + Δθ²), the grid's diagonal at the equator
-        (7.9° on the 64 × 32 stage, 31.8° on 16 × 8): the 3 × 3 cells there, more columns
+        (7.9° on the 64 × 32 stage, 31.8° on 16 × 8): the 3 × 3 cells there on a 2:1 grid, more columns
         towards the poles and across them.
     mask : array_like of bool, shape (y, x), optional
         Pixels to compare (default all).

@@ -435,6 +435,15 @@ def test_query_filters(built):
         ):
             with pytest.raises(ValidationError, match=msg):
                 st.query(**bad)
+        # the messages name the whole value of an item that fails, and "any" among the conditions
+        for bad, msg in (
+            (dict(skin_type="IV,"), r"^skin type must be I-VI or 1-6, got '' \(an item of 'IV,'\)$"),
+            (dict(skin_type=["V", "x"]), r"^skin type must be I-VI or 1-6, got 'x' \(an item of \['V', 'x'\]\)$"),
+            (dict(skin_type="VII"), r"^skin type must be I-VI or 1-6, got 'VII'$"),
+            (dict(condition="all"), r"^condition must be one of \[.*\], got 'all' \(or 'any' for every condition\)$"),
+        ):
+            with pytest.raises(ValidationError, match=msg):
+                st.query(**bad)
 
 
 def test_query_with_no_match_gives_an_empty_valid_document(built):

@@ -236,3 +236,31 @@ def test_damaged_bands_of_two_maps_are_reported_in_the_order_of_a_full_read(tmp_
     want = _full_read_error(tmp_path / "s.zarr")
     assert "'ts_m' does not match its checksum" in want
     assert _problems(tmp_path / "s.zarr") == [want]
+
+
+def test_validate_does_not_hold_one_subjects_gathered_texels_while_checking_the_next(tmp_path):
+    """The face texels gathered for a subject's index row (``GATHERED_TEXELS``) go with its Dataset: validating a
+    store of two subjects peaks as one does.  The checking loop kept the previous subject's Dataset bound while it
+    opened the next (before 2026-12-08): the second peaked higher by the first one's gathered texels."""
+    from facestats.io.summary import SUMMARY_MAPS
+
+    subjects = [make_map_subject(f"S{i}", size=384, seed=i) for i in range(2)]
+    face = int((subjects[0]["region"] > 0).sum())
+    gathered = sum(face * v.nbytes // v["v"].size // v["u"].size for n, v in subjects[0].items() if n in SUMMARY_MAPS)
+    peaks = []
+    for n in (1, 2):
+        path = tmp_path / f"{n}.zarr"
+        with open_store(path, mode="a") as st:
+            for ds in subjects[:n]:
+                st.write_subject(ds)
+        with open_store(path) as st:
+            assert st.validate().problems == []  # the modules a validation imports, imported
+            tracemalloc.start()
+            try:
+                report = st.validate()
+                peaks.append(tracemalloc.get_traced_memory()[1])
+            finally:
+                tracemalloc.stop()
+        assert report.problems == [] and report.n_checked == n
+    assert gathered > 2**20
+    assert peaks[1] < peaks[0] + gathered / 4, (peaks, gathered)

@@ -84,7 +84,10 @@ def _query_args(p, what):
         help="... or of the subjects of this skin type (I-VI or 1-6; condition normal unless --condition)",
     )
     p.add_argument(
-        "--condition", type=non_empty, metavar="NAME", help="... or of the subjects measured under this condition"
+        "--condition",
+        type=non_empty,
+        metavar="NAME",
+        help="... or of the subjects measured under this condition ('any': every condition; default normal)",
     )
     p.add_argument("--gender", type=non_empty, metavar="M|F", help="restrict the subset to one gender")
     p.add_argument(

@@ -46,6 +46,7 @@ from facestats.edit.masks import face_mask
 from facestats.edit.session import EDIT_SOURCE, check_store
 from facestats.edit.statistics import TextureStatistics
 from facestats.errors import StoreError, ValidationError
+from facestats.io.query import ANY_CONDITION
 
 __all__ = [
     "MAX_ALBEDO_SAMPLES",
@@ -96,6 +97,8 @@ def _normalise_query(query) -> dict:
     q.setdefault("condition", "normal")
     if q.get("skin_type") is not None:
         q["skin_type"] = parse_skin_type(q["skin_type"])
+    if isinstance(q.get("condition"), str) and q["condition"].strip().lower() == ANY_CONDITION:
+        q["condition"] = None  # every condition, as facestats query --condition any
     if q.get("condition") is not None:
         q["condition"] = parse_condition(q["condition"])
     return q
@@ -118,7 +121,7 @@ def select_subjects(store, query, *, exclude=()) -> list[str]:
     query : dict
         Any of ``skin_type``, ``gender``, ``age``, ``condition``
         (:meth:`facestats.io.Store.query`; skin types I and II are grouped).
-        ``condition`` defaults to ``"normal"``; ``None`` means any condition.
+        ``condition`` defaults to ``"normal"``; ``None`` or ``"any"`` means any condition.
     exclude : iterable of str
         Ids to leave out (e.g. the subject being edited).
 

@@ -105,6 +105,7 @@ def test_select_subjects_excludes_edits_and_the_source(store):
     assert select_subjects(store, {"skin_type": "II"}) == ["A2", "M1"]  # I and II grouped; sample subjects count
     assert select_subjects(store, {"skin_type": "V"}, exclude=["V2"]) == ["V1"]
     assert select_subjects(store, {"skin_type": 5, "condition": None}) == ["V1", "V2", "V5"]
+    assert select_subjects(store, {"skin_type": 5, "condition": " Any"}) == ["V1", "V2", "V5"]  # as query's 'any'
     assert select_subjects(store, {"condition": "lotion"}) == ["N1-lotion", "V5"]
     with pytest.raises(ValidationError, match="target query keys must be among"):
         select_subjects(store, {"skin": 5})

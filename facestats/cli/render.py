@@ -85,8 +85,6 @@ def _check_options(args) -> None:
 
 
 def _cmd_render(args) -> int:
-    import warnings
-
     import matplotlib
     import numpy as np
 
@@ -95,17 +93,10 @@ def _cmd_render(args) -> int:
     from facestats.core.conventions import DEFAULT_SEED
     from facestats.core.outputs import OutputSet, check_apart, check_output_dir, check_output_file
     from facestats.core.validate import check_integer
-    from facestats.errors import FacestatsWarning
     from facestats.io.exr_set import check_map_subject
     from facestats.io.images import write_image
     from facestats.io.subject_export import store_subject
-    from facestats.pipeline.validation import (
-        check_led_view,
-        check_micro_normals,
-        default_capture,
-        render_led,
-        render_probe,
-    )
+    from facestats.pipeline.validation import check_micro_normals, default_capture, render_led, render_probe
 
     _check_options(args)
     if args.size is not None:  # before any work
@@ -130,8 +121,6 @@ def _cmd_render(args) -> int:
         cap = None  # nothing to compare with: the subject's face suffices
     else:
         cap = default_capture(ds, seed=DEFAULT_SEED if args.seed is None else args.seed)
-    if not args.probe:  # a pair that sees too little of the face, refused naming the options
-        check_led_view(cap, args.camera, args.light, names=("--camera", "--light"))
     # the options, not the API's names ("light probe 'x' ..." is --probe's, not --light's)
     with named_options(
         samples="--probe-lights", camera="--camera", light="--light", size="--size", **{"light probe": "--probe"}
@@ -140,9 +129,9 @@ def _cmd_render(args) -> int:
             res = render_probe(ds, cap, args.camera, args.probe, mesh=args.mesh, samples=args.probe_lights,
                                micro_normals=args.micro_normals, size=args.size)  # fmt: skip
         else:
-            with warnings.catch_warnings():  # check_led_view warned above, naming the options
-                warnings.filterwarnings("ignore", r"camera \d+ with light \d+ sees", FacestatsWarning)
-                res = render_led(ds, cap, args.camera, args.light, micro_normals=args.micro_normals, size=args.size)
+            # a pair that sees too little of the face is refused (check_led_view), naming the options
+            res = render_led(ds, cap, args.camera, args.light, micro_normals=args.micro_normals, size=args.size,
+                             names=("--camera", "--light"))  # fmt: skip
     with OutputSet(out) as files:  # every file or none
         write_image(files.path(names[0]), np.nan_to_num(res.rendered).clip(0))
         if res.reference is not None:

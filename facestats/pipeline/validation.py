@@ -207,6 +207,7 @@ def render_led(
     eta=ETA_SKIN,
     micro_normals=False,
     size=None,
+    names=("camera", "light"),
 ) -> Render:
     """The fitted model for ``camera`` under LED ``light``, beside the capture's radiance (module docstring).
 
@@ -225,6 +226,9 @@ def render_led(
         (module docstring: why that is not the default).
     size : int, optional
         Image side in pixels (:func:`facestats.pipeline.render.camera_image`).
+    names : (str, str)
+        What :func:`check_led_view`'s message and warning call the camera and the LED (the command line's
+        ``("--camera", "--light")``).
 
     Returns
     -------
@@ -240,7 +244,7 @@ def render_led(
     _check(subject, capture, camera, light, specular, micro_normals)
     if size is not None:  # before the render
         check_integer(size, "size", 16, 2048)
-    check_led_view(capture, camera, light)
+    check_led_view(capture, camera, light, names=names)
     pred, meas = _led_samples(subject, capture, camera, light, specular, eta, micro_normals)
     ok = np.isfinite(pred).all(1) & np.isfinite(meas).all(1)
     rmse = float(np.sqrt(np.mean((pred[ok] - meas[ok]) ** 2)))

@@ -301,13 +301,23 @@ def geometry_mesh(geometry: FaceGeometry):
     return np.asarray(geometry.mesh_vertices, float), np.asarray(geometry.mesh_faces, np.int64), np.asarray(uv, float)
 
 
-def write_mesh(path, vertices, faces, uv, normals=None) -> str:
-    """Write a triangle mesh with per-vertex UVs as OBJ (``vt``) or PLY (``s``/``t``), by extension.
+def write_mesh(path, vertices, faces, uv=None, normals=None) -> str:
+    """Write a triangle mesh as OBJ or PLY (by extension), with per-vertex UVs (``vt``; ``s``/``t``) or without.
 
     The OBJ has no material (``mtllib``): the maps are the material, written beside it by the caller.
 
     Files store v upwards (OBJ/PLY convention), so ``1 - v`` is written;
-    :func:`load_face_mesh` flips it back.
+    :func:`load_face_mesh` flips it back.  Without ``uv`` the file holds the
+    vertices and triangles only (OBJ ``v`` and ``f a b c`` lines): the plain
+    mesh :func:`read_triangle_mesh` (and so ``facestats translucency``) reads,
+    which :func:`load_face_mesh` refuses (it needs UVs).
+
+    An OBJ holds coordinates with 8 decimals (10⁻⁸ mm for a mesh in mm), a PLY
+    (binary) float32 values (trimesh's writer); the vertices keep their order and
+    the triangles their corners' (the normal (b − a) × (c − a), its direction).
+    Read back (:func:`read_triangle_mesh`), an OBJ loses the vertices no triangle
+    uses (trimesh's reader drops them and renumbers the faces): the triangles
+    are the same.
 
     Parameters
     ----------
@@ -315,8 +325,8 @@ def write_mesh(path, vertices, faces, uv, normals=None) -> str:
         ``.obj`` or ``.ply``.
     vertices : array_like, shape (V, 3)
     faces : array_like of int, shape (F, 3)
-    uv : array_like, shape (V, 2)
-        (u, v) in facestats' convention (v down), in [0, 1].
+    uv : array_like, shape (V, 2), optional
+        (u, v) in facestats' convention (v down), in [0, 1]; None (default): no texture coordinates.
     normals : array_like, shape (V, 3), optional
         Per-vertex unit normals to write (OBJ ``vn``, PLY ``nx ny nz``).
 
@@ -324,6 +334,12 @@ def write_mesh(path, vertices, faces, uv, normals=None) -> str:
     -------
     str
         ``path``.
+
+    Raises
+    ------
+    ValidationError
+        Another extension, arrays of the wrong shape or not finite, or a face index outside the vertices;
+        nothing is written then.
     """
     import trimesh
 
@@ -337,12 +353,13 @@ def write_mesh(path, vertices, faces, uv, normals=None) -> str:
     check_shape(f, "faces", (None, 3))
     if f.size and (f.min() < 0 or f.max() >= len(v)):
         raise ValidationError(f"faces must index 0..{len(v) - 1}, got {f.min()}..{f.max()}")
-    t = check_shape(as_finite(uv, "uv", dtype=np.float64), "uv", (len(v), 2))
+    t = None if uv is None else check_shape(as_finite(uv, "uv", dtype=np.float64), "uv", (len(v), 2))
     kw = {}
     if normals is not None:
         kw["vertex_normals"] = check_shape(as_finite(normals, "normals", dtype=np.float64), "normals", (len(v), 3))
     mesh = trimesh.Trimesh(v, f, process=False, **kw)
-    mesh.visual = trimesh.visual.TextureVisuals(uv=np.stack([t[:, 0], 1 - t[:, 1]], 1))
+    if t is not None:
+        mesh.visual = trimesh.visual.TextureVisuals(uv=np.stack([t[:, 0], 1 - t[:, 1]], 1))
     if ext == ".obj":
         from trimesh.exchange.obj import export_obj
 

@@ -374,3 +374,86 @@ def test_a_fifo_planted_as_a_light_or_camera_file_is_refused_without_blocking(tm
         os.mkfifo(tmp_path / name)  # opening it for reading would wait for a writer for ever
         with pytest.raises(FormatError, match="not a regular file"):
             read(tmp_path / name)
+
+
+def _fresnel_transmittance_by_hand(cos_o, eta):
+    """1 − (r_s² + r_p²)/2 of the Fresnel equations, written out here (independent of facestats.model.fresnel)."""
+    cos_t = np.sqrt(1 - (1 - cos_o**2) / eta**2)
+    r_s = (cos_o - eta * cos_t) / (cos_o + eta * cos_t)
+    r_p = (eta * cos_o - cos_t) / (eta * cos_o + cos_t)
+    return 1 - (r_s**2 + r_p**2) / 2
+
+
+@pytest.mark.parametrize(("elevation_deg", "eta"), [(0.0, 1.3), (60.0, 1.38)])
+def test_render_exitance_image_is_eq_15_per_pixel(elevation_deg, eta):
+    """A flat 20 mm square of two triangle patches of known exitance, seen from straight above or 60° off its normal:
+    every pixel wholly inside a triangle holds F_t,o(η, cos θo) l / π of that patch (cos θo at its centre, F_t,o by
+    hand), in each channel; pixels off the square are NaN in every channel; the image has the camera's (H, W)."""
+    from facestats.acquire.synthetic.patch_image import render_exitance_image
+
+    v = np.array([[-10, -10, 0], [10, -10, 0], [10, 10, 0], [-10, 10, 0]], float)
+    f = np.array([[0, 1, 2], [0, 2, 3]])  # counter-clockwise from +z: normals +z
+    patches = mesh_patches(v, f, spacing=None)
+    el = np.radians(elevation_deg)
+    position = 200.0 * np.array([0.0, np.sin(el), np.cos(el)])
+    camera = PinholeCamera.looking_at(position, (0, 0, 0), focal_px=800.0, image_size=(120, 100))  # 0.25 mm pixels
+    l = np.array([[1.0, 2.0, 3.0], [0.5, 4.0, 0.25]])  # W mm^-2, per patch and channel
+    img = render_exitance_image(camera, patches, l, eta=eta)
+    assert img.shape == (100, 120, 3) and img.dtype == np.float32
+    # by hand: cos θo at each patch's centre (the triangle's centroid), and the pixels' corners on the plane z = 0
+    centroid = v[f].mean(axis=1)
+    to_cam = position - centroid
+    cos_o = to_cam[:, 2] / np.linalg.norm(to_cam, axis=1)
+    expected = _fresnel_transmittance_by_hand(cos_o, eta)[:, None] * l / np.pi
+    if elevation_deg:
+        assert 0.49 < cos_o.min() < cos_o.max() < 0.52  # a test of the angle, not only of the normal incidence
+    cols, rows = np.meshgrid(np.arange(120), np.arange(100))
+
+    def on_plane(u, w):  # pixel coordinates (u right, w down) → the point of z = 0 the ray through them meets
+        ray = np.stack([u, w, np.ones_like(u)], -1) @ np.linalg.inv(camera.matrix).T @ camera.rotation
+        return position + ray * (-position[2] / ray[..., 2:3])
+
+    corners = np.stack([on_plane(cols + du, rows + dv) for du in (0, 1) for dv in (0, 1)], 0)  # (4, H, W, 3)
+    x, y = corners[..., 0], corners[..., 1]
+    inside_square = np.all((np.abs(x) < 10) & (np.abs(y) < 10), axis=0)
+    first = inside_square & np.all(x > y, axis=0)  # triangle 0: below the diagonal y = x
+    second = inside_square & np.all(x < y, axis=0)
+    assert first.sum() > 1000 and second.sum() > 1000
+    np.testing.assert_allclose(img[first], np.broadcast_to(expected[0], img[first].shape), rtol=1e-6)
+    np.testing.assert_allclose(img[second], np.broadcast_to(expected[1], img[second].shape), rtol=1e-6)
+    centre = on_plane(cols + 0.5, rows + 0.5)
+    off = np.max(np.abs(centre[..., :2]), axis=-1) > 10.5  # pixel centres more than 2 pixels off the square
+    assert off.sum() > 1000 and np.isnan(img[off]).all()
+    assert np.array_equal(np.isnan(img[..., 0]), np.isnan(img).any(axis=-1))  # NaN in all channels or none
+    # eq. 15 read back at the patches' centres (facestats.acquire.scene.patch_radiance): the exitance
+    back, seen = patch_radiance(img, camera, patches, eta=eta)
+    assert seen.all()
+    np.testing.assert_allclose(back, l, rtol=1e-6)
+
+
+def test_render_exitance_image_channels_and_errors():
+    """(m,) exitance gives one channel; C channels are rendered alike (each the one-channel image of its column);
+    exitance of another length, negative or not finite is refused naming it."""
+    from facestats.acquire.synthetic.patch_image import render_exitance_image
+
+    scene = pyramid_scene(5.0, "edge", image_size=120)
+    p = scene.patches
+    l = np.random.default_rng(7).uniform(0.1, 1.0, len(p))
+    one = render_exitance_image(scene.camera, p, l, eta=1.3)
+    assert one.shape == (120, 120, 1)
+    two = render_exitance_image(scene.camera, p, np.stack([l, 3 * l], 1), eta=1.3)
+    assert two.shape == (120, 120, 2)
+    np.testing.assert_array_equal(two[..., :1], one)
+    np.testing.assert_allclose(two[..., 1], 3 * one[..., 0], rtol=1e-6)
+    # NaN outside the pyramid: the image's corners see no patch, its centre (the apex) does
+    assert np.isnan(one[[0, 0, -1, -1], [0, -1, 0, -1]]).all() and np.isfinite(one[60, 60]).all()
+    m = len(p)
+    with pytest.raises(ValidationError, match=rf"exitance must have shape \({m},\) or \({m}, C\), got \(3,\)"):
+        render_exitance_image(scene.camera, p, np.ones(3), eta=1.3)
+    bad = l.copy()
+    bad[4] = -1.0
+    with pytest.raises(ValidationError, match="exitance"):
+        render_exitance_image(scene.camera, p, bad, eta=1.3)
+    bad[4] = np.nan
+    with pytest.raises(ValidationError, match="exitance"):
+        render_exitance_image(scene.camera, p, bad, eta=1.3)

@@ -22,7 +22,7 @@ of :func:`facestats.acquire.synthetic.scenes.face_site_scene`:
    procedural head's; a truth drawn on another face (``truth.geometry``, e.g. the
    default's ICT face) is read at that face's lumitexel nearest to each patch in
    the frontal plane (x, y), which puts both windows in the same region there;
-4. the image (:func:`facestats.acquire.synthetic.patch_image.render_patch_image`)
+4. the image (:func:`facestats.acquire.synthetic.patch_image.render_exitance_image`)
    with multiplicative Gaussian pixel noise of relative std ``noise``.
 
 Specular reflection is left out: a cross-polarised projector and camera (as in
@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from facestats.acquire.lights import patch_irradiance
-from facestats.acquire.synthetic.patch_image import render_patch_image
+from facestats.acquire.synthetic.patch_image import render_exitance_image
 from facestats.acquire.synthetic.scenes import face_site_scene
 from facestats.acquire.synthetic.subsurface import render_exitance
 from facestats.core.conventions import SITES
@@ -44,7 +44,6 @@ from facestats.errors import ValidationError
 from facestats.face.geometry import uv_to_texel
 from facestats.face.named import named_face
 from facestats.face.procedural import face_uv
-from facestats.model.irradiance import radiance_from_exitance
 
 __all__ = ["CONTACTLESS_SITES", "modulation_face", "patch_modulation", "simulate_site_image"]
 
@@ -146,9 +145,7 @@ def simulate_site_image(truth, site="cheek", light="stripe", *, spacing=0.3, mod
         avg = truth.albedo[face].mean(axis=0)
         geometry = modulation_face(truth.geometry)
         l = l * patch_modulation(p, np.where(face[..., None], truth.albedo / avg, 1.0), geometry)
-    to_cam = scene.camera.position - p.centre
-    cos_o = np.clip(np.einsum("mk,mk->m", p.normal, to_cam) / np.linalg.norm(to_cam, axis=1), 0, 1)
-    image = render_patch_image(scene.camera, p, radiance_from_exitance(l, cos_o, ETA_SKIN), samples=2)
+    image = render_exitance_image(scene.camera, p, l, eta=ETA_SKIN, samples=2)
     if nz > 0:
         rng = np.random.default_rng(seed)
         image = np.maximum(image * (1 + nz * rng.standard_normal(image.shape)), 0).astype(np.float32)

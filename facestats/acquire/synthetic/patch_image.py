@@ -10,6 +10,12 @@ kept if it faces the camera and passes the camera's shadow map
 mean radiance of the samples that land in it (an area average, as a sensor
 integrates over its pixel).  Pixels no sample reaches are NaN.  Work runs over
 blocks of patches; per block the samples are binned with ``numpy.bincount``.
+
+:func:`render_exitance_image` is the camera's image of a rendered scene: the
+patches' exitance l (e.g. :func:`facestats.pipeline.suzuki_studies.render_scene`'s)
+turned into the radiance each patch sends towards the camera (Suzuki eq. 15)
+and rendered as above; :func:`facestats.acquire.scene.patch_radiance` reads it
+back.
 """
 
 from __future__ import annotations
@@ -21,8 +27,9 @@ from facestats.acquire.patches import subdivide_triangles
 from facestats.acquire.visibility import ShadowMaps
 from facestats.core.validate import as_finite, check_integer
 from facestats.errors import ValidationError
+from facestats.model.irradiance import radiance_from_exitance
 
-__all__ = ["render_patch_image"]
+__all__ = ["render_patch_image", "render_exitance_image"]
 
 #: Sub-triangle samples per block (bounds memory).
 _BLOCK_SAMPLES = 2_000_000
@@ -86,3 +93,52 @@ def render_patch_image(camera: PinholeCamera, patches, radiance, *, samples=4, s
     with np.errstate(invalid="ignore", divide="ignore"):
         img = np.where(count[:, None] > 0, total / count[:, None], np.nan)
     return img.reshape(h, w, rad.shape[1]).astype(np.float32)
+
+
+def render_exitance_image(camera: PinholeCamera, patches, exitance, *, eta, samples=4, shadow_resolution=512):
+    """The camera's radiance image (H, W, C) float32 of patches of known exitance (Suzuki et al. eq. 15).
+
+    Each patch j sends L_o = F_t,o(η, cos θo) l_j / π towards the camera
+    (Suzuki, Mukaigawa & Yagi eq. 15, :func:`facestats.model.irradiance.radiance_from_exitance`;
+    F_t,o the unpolarised Fresnel transmittance, :func:`facestats.model.fresnel.fresnel_transmittance`),
+    with cos θo = N_j·ω_o taken at the patch's centre (ω_o the unit vector from
+    the centre to the camera, clipped to [0, 1]); each pixel holds the mean of
+    its patches' L_o (:func:`render_patch_image`: an area average, shadow-mapped
+    occlusion by the patches' mesh).  The inverse of
+    :func:`facestats.acquire.scene.patch_radiance`, which reads l_j back at the
+    patches' centres.
+
+    Parameters
+    ----------
+    camera : PinholeCamera
+    patches : facestats.acquire.patches.Patches
+        With ``corners`` (the patch triangles); their mesh, if any, occludes.
+    exitance : array_like, shape (m,) or (m, C)
+        l_j per patch (and channel) in an irradiance unit, ≥ 0 (e.g. W mm⁻²: the unit of the lights' irradiance
+        c, as :func:`facestats.acquire.synthetic.subsurface.render_exitance` gives it).
+    eta : float
+        Relative index of refraction of the medium (Suzuki: 1.3; skin 1.38): the η of the scene, which the
+        estimate (``facestats translucency``, :func:`patch_radiance`) must use too.
+    samples, shadow_resolution
+        As :func:`render_patch_image`.
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W, C)
+        Radiance in the unit of ``exitance`` per steradian (e.g. W mm⁻² sr⁻¹); (H, W) from the camera's
+        ``image_size`` (W, H); C = 1 for an ``exitance`` of shape (m,), else its C channels, in order.  NaN in
+        every channel where no patch is seen (facing away, outside the object, occluded).
+
+    Raises
+    ------
+    ValidationError
+        ``exitance`` of another shape, negative or not finite; an invalid ``eta``; patches without corners.
+    """
+    l = np.asarray(exitance)
+    if l.ndim not in (1, 2) or l.shape[0] != len(patches):
+        raise ValidationError(f"exitance must have shape ({len(patches)},) or ({len(patches)}, C), got {l.shape}")
+    to_camera = camera.position - patches.centre
+    cos_o = np.einsum("mk,mk->m", patches.normal, to_camera) / np.linalg.norm(to_camera, axis=1)
+    radiance = radiance_from_exitance(l, np.clip(cos_o, 0, 1), eta)
+    radiance = radiance[:, None] if radiance.ndim == 1 else radiance
+    return render_patch_image(camera, patches, radiance, samples=samples, shadow_resolution=shadow_resolution)

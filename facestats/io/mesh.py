@@ -349,7 +349,10 @@ def write_mesh(path, vertices, faces, uv=None, normals=None) -> str:
         raise ValidationError(f"mesh path must end in .obj or .ply, got {path!r}")
     v = as_finite(vertices, "vertices", dtype=np.float64)
     check_shape(v, "vertices", (None, 3))
-    f = np.asarray(faces, np.int64)
+    f = np.asarray(faces)
+    if f.size and not np.issubdtype(f.dtype, np.integer):
+        raise ValidationError(f"faces must be integer vertex indices, got dtype {f.dtype}")
+    f = f.astype(np.int64)
     check_shape(f, "faces", (None, 3))
     if f.size and (f.min() < 0 or f.max() >= len(v)):
         raise ValidationError(f"faces must index 0..{len(v) - 1}, got {f.min()}..{f.max()}")

@@ -79,6 +79,8 @@ def test_bad_arrays_are_refused_before_anything_is_written(tmp_path):
         write_mesh(tmp_path / "a.obj", vertices, faces, np.zeros((3, 2)))
     with pytest.raises(ValidationError, match=r"faces must index 0\.\.11, got 0\.\.12"):
         write_mesh(tmp_path / "a.obj", vertices, np.vstack([faces, [[0, 1, 12]]]))
+    with pytest.raises(ValidationError, match=r"faces must be integer vertex indices, got dtype float64"):
+        write_mesh(tmp_path / "a.obj", vertices, faces + 0.5)
     with pytest.raises(ValidationError, match=r"must end in \.obj or \.ply, got '.*a\.stl'"):
         write_mesh(tmp_path / "a.stl", vertices, faces)
     assert list(tmp_path.iterdir()) == []

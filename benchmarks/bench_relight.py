@@ -26,6 +26,8 @@
 * ``separation`` — accuracy of the colour-space separation's ρs on analytic spheres, with and without a
   chromaticity ramp, for the mirror exclusions 45° and 60°.
 * ``shadow_agreement`` — shadow maps thresholded from a stage field against its geometric visibility.
+* ``boundary_band`` — memory and time of ``shadow_agreement``'s boundary band against the kd-tree pairs it replaced;
+  ``boundary_band_pairs`` — its neighbours against the kd-tree's, pair by pair, on grids 8 × 4 to 256 × 128.
 * ``off_plane`` — the share of a rendered field's pixels off the plane of their diffuse and light colours
   (what decides whether ``compress`` stores a pixel's third colour row).
 
@@ -497,6 +499,158 @@ def bench_shadow_agreement(size=128, n_theta=64, n_phi=32, threshold=0.02):
     return out
 
 
+def _near_boundary_kdtree(visible, band, block=1 << 20):
+    """The boundary band as ``facestats.relight.shadows`` computed it until 2026-12-08 (the baseline of
+    :func:`bench_boundary_band`): every pair of lights within the band's chord from a kd-tree, as a sparse matrix
+    (its size grows with the lights × band²), times float32 blocks of the visibility."""
+    from scipy.spatial import cKDTree
+
+    from facestats.model.sphere import latlong_directions
+
+    if not band:
+        return np.zeros_like(visible)
+    n_phi, n_theta = visible.shape[:2]
+    arc = min(band * np.hypot(np.pi / n_phi, 2 * np.pi / n_theta), np.pi)
+    tree = cKDTree(latlong_directions(n_phi, n_theta).reshape(-1, 3))
+    pairs = tree.sparse_distance_matrix(tree, 2 * np.sin(arc / 2) * (1 + 1e-9), output_type="coo_matrix").tocsr()
+    pairs.data = np.ones(pairs.nnz, np.float32)
+    total = np.asarray(pairs.sum(axis=1), np.float32)
+    v = visible.reshape(n_phi * n_theta, -1)
+    out = np.empty_like(v)
+    step = max(1, block // v.shape[0])
+    for lo in range(0, v.shape[1], step):
+        lit_count = pairs @ v[:, lo : lo + step].astype(np.float32)
+        out[:, lo : lo + step] = np.where(v[:, lo : lo + step], lit_count < total, lit_count > 0)
+    return out.reshape(visible.shape)
+
+
+_BAND_CHILD = r"""
+import hashlib, json, resource, sys, time, tracemalloc
+import numpy as np
+import scipy.sparse, scipy.spatial  # imported before the figures, for both methods
+sys.path.insert(0, sys.argv[1])
+from bench_relight import _near_boundary_kdtree
+from facestats.model.sphere import latlong_directions
+from facestats.relight.shadows import _near_boundary
+method = sys.argv[2]
+n_theta, n_phi, band, size = (int(a) for a in sys.argv[3:7])
+near = _near_boundary if method == "after" else _near_boundary_kdtree
+normals = np.random.default_rng(0).normal(size=(size, size, 3))
+d = latlong_directions(n_phi, n_theta)
+visible = np.stack([np.einsum("qk,yxk->qyx", row, normals) > 0 for row in d])  # no float64 field: a row at a time
+before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+t0 = time.perf_counter()
+out = near(visible, band)
+wall = time.perf_counter() - t0
+rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+del out
+tracemalloc.start()
+out = near(visible, band)
+traced = tracemalloc.get_traced_memory()[1]
+tracemalloc.stop()
+print(json.dumps({"wall_s": wall, "traced_peak_mb": traced / 2**20, "rss_growth_mb": (rss - before) / 1024,
+                  "excluded": int(out.sum()), "digest": hashlib.sha1(np.packbits(out)).hexdigest()}))
+"""
+
+
+def bench_boundary_band(grids=((64, 64), (128, 128), (256, 128)), bands=(1, 4, 16), size=16):
+    """Memory and time of the boundary band of :func:`facestats.relight.shadows.shadow_agreement` (the samples
+    within ``band`` grid steps of arc of a light of the other visibility), now by windowed sums along the rows
+    against the kd-tree's sparse matrix of every pair of lights within the arc (:func:`_near_boundary_kdtree`, the
+    baseline until 2026-12-08).
+
+    Each case (n_theta × n_phi lights, band) runs in a fresh process per method, on the visibility of ``size``²
+    random normals (a light is visible when it faces the normal): the wall time of one call, the peak traced by
+    tracemalloc in a second call (numpy's arrays; scipy's kd-tree keeps its pairs in C++ vectors it does not see),
+    and the growth of the process's peak resident memory over the first call.  The two masks must be equal (a
+    digest of each); returned keyed ``n_theta x n_phi/band/method/figure``.
+    """
+    import json
+    import subprocess
+    import sys
+
+    here = str(pathlib.Path(__file__).resolve().parent)
+    out = {}
+    print(f"{'lights':>10} {'band':>4} {'method':>6} {'wall s':>8} {'traced MB':>10} {'RSS growth MB':>14} "
+          f"{'excluded':>10} (visibility {size}² per light)")  # fmt: skip
+    for n_theta, n_phi in grids:
+        for band in bands:
+            digests = set()
+            for method in ("before", "after"):
+                args = [sys.executable, "-c", _BAND_CHILD, here, method, str(n_theta), str(n_phi), str(band), str(size)]
+                res = subprocess.run(args, capture_output=True, text=True, check=True)
+                got = json.loads(res.stdout.strip().splitlines()[-1])
+                digests.add(got.pop("digest"))
+                for key, value in got.items():
+                    out[f"{n_theta}x{n_phi}/{band}/{method}/{key}"] = value
+                print(f"{f'{n_theta}x{n_phi}':>10} {band:4d} {method:>6} {got['wall_s']:8.3f} "
+                      f"{got['traced_peak_mb']:10.1f} {got['rss_growth_mb']:14.1f} {got['excluded']:10,}")  # fmt: skip
+            if len(digests) != 1:
+                raise AssertionError(f"the band differs from the baseline's: {n_theta} x {n_phi} lights, band {band}")
+            out[f"{n_theta}x{n_phi}/{band}/visibility_mb"] = n_theta * n_phi * size * size / 2**20
+    return out
+
+
+def bench_boundary_band_pairs(
+    columns=(8, 9, 12, 16, 24, 31, 32, 48, 64, 96, 128, 256), rows=(4, 5, 8, 12, 16, 32, 63, 64, 128), bands=range(17)
+):
+    """The boundary band's neighbours against the kd-tree's, pair by pair: on every grid of n_theta in ``columns``
+    and n_phi ≤ n_theta in ``rows`` and each band, the pairs of lights ``cKDTree.sparse_distance_matrix`` finds
+    within the band's chord (the baseline's, queried a block of rows at a time) must be exactly those of the row
+    windows of ``facestats.relight.shadows`` (columns within w[i, r] of the light's, circularly).
+
+    Also how close the grids' pairs come to the chord: the smallest relative gap |c² / c_max² − 1| over pairs
+    that are not at the arc exactly (those, a whole number of steps along a meridian or antipodes at an arc of π,
+    sit 2 × 10⁻⁹ inside, by the chord's 1 + 10⁻⁹), from c² = (cos φ_i − cos φ_r)² + (sin φ_i − sin φ_r)²
+    + 4 sin φ_i sin φ_r sin²(k Δθ / 2): far above float64's rounding of either computation.
+    """
+    from scipy.spatial import cKDTree
+
+    from facestats.model.sphere import latlong_directions
+    from facestats.relight.shadows import _band_half_widths
+
+    mismatched, pairs, at_arc, gap, where = [], 0, 0, math.inf, None
+    for n_theta in columns:
+        for n_phi in (r for r in rows if r <= n_theta):
+            d = latlong_directions(n_phi, n_theta).reshape(-1, 3)
+            tree, per_block = cKDTree(d), max(1, 4096 // n_theta)
+            meridian = latlong_directions(n_phi, 1)[:, 0]
+            c, s = meridian[:, 1], -meridian[:, 2]
+            along = np.sin(np.arange(n_theta // 2 + 1) * (np.pi / n_theta)) ** 2
+            across = (c[:, None] - c) ** 2 + (s[:, None] - s) ** 2  # (i, r): the squared chord at k = 0
+            chord2 = across[..., None] + (4 * s[:, None] * s)[..., None] * along  # (i, r, k)
+            for band in bands:
+                arc = min(band * np.hypot(np.pi / n_phi, 2 * np.pi / n_theta), np.pi)
+                chord = 2 * np.sin(arc / 2) * (1 + 1e-9)
+                half = _band_half_widths(n_phi, n_theta, band)
+                length = np.where(half < 0, 0, np.minimum(2 * half + 1, n_theta))
+                same = True
+                for i0 in range(0, n_phi, per_block):
+                    i1 = min(n_phi, i0 + per_block)
+                    found = cKDTree(d[i0 * n_theta : i1 * n_theta]).sparse_distance_matrix(
+                        tree, chord, output_type="coo_matrix"
+                    )
+                    i, j = np.divmod(found.row + i0 * n_theta, n_theta)
+                    r, k = np.divmod(found.col, n_theta)
+                    k = (k - j) % n_theta
+                    same &= bool((np.minimum(k, n_theta - k) <= half[i, r]).all())  # each kd-tree pair in a window
+                    same &= found.nnz == n_theta * int(length[i0:i1].sum())  # as many as the windows hold
+                    pairs += found.nnz
+                if not same:
+                    mismatched.append(f"{n_theta}x{n_phi}/{band}")
+                if band:
+                    rel = chord2 / chord**2 - 1
+                    tie = np.abs(rel + 2e-9) < 1e-12
+                    at_arc += int(tie.sum())
+                    if (~tie).any() and np.abs(rel[~tie]).min() < gap:
+                        gap, where = float(np.abs(rel[~tie]).min()), f"{n_theta}x{n_phi}/{band}"
+    print(f"{pairs:,} kd-tree pairs, {len(mismatched)} grid/band cases differing {mismatched}; "
+          f"(i, r, k) at the arc exactly: {at_arc:,}; smallest relative gap of c² to the chord's square "
+          f"otherwise {gap:.3g} ({where})")  # fmt: skip
+    return {"cases_differing": len(mismatched), "kd_tree_pairs": pairs, "at_arc": at_arc, "smallest_gap": gap,
+            "smallest_gap_case": where}  # fmt: skip
+
+
 def bench_separation(
     size=7,
     lobes=(0.2, 0.3, 0.35, 0.4, 0.5),
@@ -636,6 +790,8 @@ BENCHMARKS = [
     ("parts", bench_parts),
     ("off_plane", bench_off_plane),
     ("shadow_agreement", bench_shadow_agreement),
+    ("boundary_band", bench_boundary_band),
+    ("boundary_band_pairs", bench_boundary_band_pairs),
     ("separation", bench_separation),
     ("separation_by_tilt", bench_separation_by_tilt),
     ("relight_memory", bench_relight_memory),
@@ -658,6 +814,8 @@ SMOKE = {
     "parts": {**_TINY_SWEEP, "parts": (1, 2), "seeds": (0,)},
     "off_plane": {"size": 16, "n_theta": 16, "n_phi": 8, "chunk": 100},
     "shadow_agreement": {"size": 12, "n_theta": 16, "n_phi": 8},
+    "boundary_band": {"grids": ((16, 8),), "bands": (1, 16), "size": 4},
+    "boundary_band_pairs": {"columns": (8, 12), "rows": (4, 8), "bands": (0, 1, 3, 16)},
     "separation": {"size": 4, "lobes": (0.35,), "views": ((0, 0, 1),), "noises": (0.02,)},
     "separation_by_tilt": {"size": 5, "lobes": (0.35,), "edges": (0, 45, 90)},
     "relight_memory": {"cases": ((16, 8, 4),)},

@@ -45,7 +45,7 @@ CAUSES = (
 )
 #: The code of :func:`disagreement_causes` for samples not compared (off the mask, or in the boundary band).
 NOT_COMPARED = -1
-#: Samples (lights × image columns) of the float32 blocks :func:`_near_boundary` counts neighbours in: 4 MiB.
+#: Samples (lights × image samples) of the blocks :func:`_near_boundary` counts neighbours in (int16: 2 MiB).
 NEAR_BLOCK = 1 << 20
 
 
@@ -115,6 +115,38 @@ def threshold_shadow_maps(field, threshold: float = 0.02, *, clean: int = 1):
     return lit
 
 
+def _band_half_widths(n_phi, n_theta, band):
+    """Half-widths w[i, r] of the runs of columns of row r within ``band`` steps of arc of a light of row i.
+
+    With the rows' polar angles φ and the column step Δθ = 2π/n_theta of :func:`latlong_directions`, the lights
+    (i, j) and (r, j + k) are
+
+        |d_ij − d_r,j+k|² = (cos φ_i − cos φ_r)² + (sin φ_i − sin φ_r)² + 4 sin φ_i sin φ_r sin²(k Δθ / 2)
+
+    apart (squared chord, written without the cancellation of 2 − 2 cos γ at small angles).  It does not depend on
+    j, and it grows with |k| up to n_theta / 2 (sin φ ≥ 0 on every row): the lights of row r within a chord c of
+    (i, j) are the columns j − w … j + w taken circularly, w the largest k ≤ n_theta // 2 with the distance ≤ c
+    (−1 when even k = 0 is farther, n_theta // 2 when the whole row is within), centred on j even when the arc
+    reaches over the pole.  c is :func:`_near_boundary`'s chord.  Rows are taken one at a time:
+    (n_phi, n_theta // 2 + 1) floats each.
+
+    Returns
+    -------
+    ndarray of intp, shape (n_phi, n_phi)
+        w[i, r].
+    """
+    arc = min(band * np.hypot(np.pi / n_phi, 2 * np.pi / n_theta), np.pi)
+    limit = (2 * np.sin(arc / 2) * (1 + 1e-9)) ** 2  # the chord of the arc, a hair more for rounding, squared
+    meridian = latlong_directions(n_phi, 1)[:, 0]  # θ = 0: (0, cos φ, −sin φ)
+    c, s = meridian[:, 1], -meridian[:, 2]
+    along = np.sin(np.arange(n_theta // 2 + 1) * (np.pi / n_theta)) ** 2  # sin²(k Δθ / 2), k = 0 … n_theta // 2
+    half = np.empty((n_phi, n_phi), np.intp)
+    for r in range(n_phi):
+        chord2 = ((c - c[r]) ** 2 + (s - s[r]) ** 2)[:, None] + (4 * s * s[r])[:, None] * along
+        half[:, r] = np.count_nonzero(chord2 <= limit, axis=1) - 1
+    return half
+
+
 def _near_boundary(visible, band):
     """Samples (n_phi, n_theta, ...) whose light lies within ``band`` grid steps of arc of a light whose ``visible``
     differs.
@@ -126,26 +158,57 @@ def _near_boundary(visible, band):
     pole.  A band of 3 × 3 cells there was 0.27° wide in azimuth in the rows next to the poles of the 64 × 32 grid,
     narrower than the 3.6° above the horizon where a 2 % threshold cannot tell grazing light from shadow (an
     audit, 2026-12-08: 1,786 of the 2,146 grazing false shadows of S001 at 64² lay in those four rows).
-    """
-    from scipy.spatial import cKDTree
 
+    A light's neighbours are the lights of :func:`latlong_directions` within the chord 2 sin(arc / 2) (1 + 10⁻⁹)
+    of it, arc = min(``band`` steps, π), itself included.  A visible light is near a dark one when fewer than all of
+    its neighbours are visible, a dark light near a visible one when any is.  In row r the neighbours of the light
+    (i, j) are the columns j − w … j + w, circularly, with w = w[i, r] the same for every j
+    (:func:`_band_half_widths`), so its visible neighbours in that row are a difference of the row's prefix sums
+    of ``visible`` along the azimuth, and their count a sum over the rows.  Counts are integers, exact; image samples
+    are taken in blocks of :data:`NEAR_BLOCK` samples (lights × samples) and rows one at a time, so the memory is
+    a few blocks whatever ``band`` is.
+
+    These are the pairs of the kd-tree it replaced (``cKDTree.sparse_distance_matrix`` at the same chord, a sparse
+    matrix of every pair, whose size grew with the lights × band²: for 256 × 128 lights at band 16 and 16² image
+    samples it traced 2.8 GB (5.2 GB resident) and took 23 s, against 18 MB, the 8 MB result included, and 0.3 s).
+    Both compare a float64 squared distance between the same directions with the same chord, each within about
+    10⁻¹³ of the exact value (relative), so they can differ only on a pair whose exact distance is that close to
+    the chord.  The grids' pairs are either exactly at the arc (a whole number of steps along a meridian, or
+    antipodes when the arc is π), which the factor 1 + 10⁻⁹ keeps 2 × 10⁻⁹ inside, or at least 3 × 10⁻⁷ (relative,
+    squared) away from it on every grid of 8 to 256 columns and 4 to 128 rows at bands 0 to 16, where the two sets
+    of pairs were compared pair by pair and are equal (``benchmarks/bench_relight.py``, ``boundary_band_pairs``,
+    2026-12-08).
+    """
     if not band:
         return np.zeros_like(visible)
     n_phi, n_theta = visible.shape[:2]
-    arc = min(band * np.hypot(np.pi / n_phi, 2 * np.pi / n_theta), np.pi)
-    tree = cKDTree(latlong_directions(n_phi, n_theta).reshape(-1, 3))
-    # Pairs of lights within the arc (chord 2 sin(arc / 2), a hair more for rounding), as a sparse matrix of ones
-    # (float32: counts up to the lights within the arc, exact).  A visible light is near a dark one when fewer than
-    # all of its neighbours are visible, a dark light near a visible one when any is.
-    pairs = tree.sparse_distance_matrix(tree, 2 * np.sin(arc / 2) * (1 + 1e-9), output_type="coo_matrix").tocsr()
-    pairs.data = np.ones(pairs.nnz, np.float32)
-    total = np.asarray(pairs.sum(axis=1), np.float32)  # (lights, 1)
-    v = visible.reshape(n_phi * n_theta, -1)
-    out = np.empty_like(v)
-    step = max(1, NEAR_BLOCK // v.shape[0])  # columns (samples of the image) at a time: float32 blocks, not the field
-    for lo in range(0, v.shape[1], step):
-        lit_count = pairs @ v[:, lo : lo + step].astype(np.float32)
-        out[:, lo : lo + step] = np.where(v[:, lo : lo + step], lit_count < total, lit_count > 0)
+    half = _band_half_widths(n_phi, n_theta, band)
+    length = np.where(half < 0, 0, np.minimum(2 * half + 1, n_theta))  # (i, r): neighbours of (i, j) in row r
+    total = length.sum(axis=1)[:, None, None]  # (n_phi, 1, 1): neighbours of a light of row i
+    v = visible.reshape(n_phi, n_theta, -1)
+    out = np.empty(v.shape, bool)
+    cols = np.arange(n_theta)
+    # The smallest integers that hold the counts exactly: prefix sums reach 2 n_theta, a light's count its total
+    # (plus a prefix sum between the two updates of a row).
+    prefix_type = np.int16 if 2 * n_theta < 2**15 else np.int32
+    count_type = np.int16 if total.max() + 2 * n_theta < 2**15 else np.int32
+    # For each row r, the light rows with neighbours in it, [a, b): consecutive (|φ_i − φ_r| within the arc); a row
+    # between without any would add 0.
+    spans = [(r, near[0], near[-1] + 1) for r in range(n_phi) if (near := np.flatnonzero(length[:, r])).size]
+    step = max(1, NEAR_BLOCK // (n_phi * n_theta))  # samples of the image at a time: blocks, not the field
+    for lo in range(0, v.shape[2], step):
+        block = v[:, :, lo : lo + step]
+        # Prefix sums of each row along the azimuth, over the row twice (a run of ≤ n_theta columns from any start
+        # in the first copy ends in the second): window sum = prefix[start + length] − prefix[start].
+        prefix = np.zeros((n_phi, 2 * n_theta + 1, block.shape[2]), prefix_type)
+        np.cumsum(block, axis=1, dtype=prefix_type, out=prefix[:, 1 : n_theta + 1])
+        np.add(prefix[:, n_theta : n_theta + 1], prefix[:, 1 : n_theta + 1], out=prefix[:, n_theta + 1 :])
+        lit = np.zeros(block.shape, count_type)  # visible neighbours of each light
+        for r, a, b in spans:
+            start = (cols[None, :] - half[a:b, r, None]) % n_theta  # (rows, n_theta)
+            lit[a:b] += prefix[r][start + length[a:b, r, None]]
+            lit[a:b] -= prefix[r][start]
+        out[:, :, lo : lo + step] = np.where(block, lit < total, lit > 0)
     return out.reshape(visible.shape)
 
 

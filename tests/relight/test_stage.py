@@ -346,10 +346,130 @@ def test_the_boundary_band_is_the_lights_within_its_arc_found_block_by_block(mon
         assert shadow_agreement(visible, visible, band=1)["excluded"] == want_one.sum()
 
 
-def test_the_boundary_band_holds_float32_blocks_not_the_field_in_float64():
+def _light_angles(n_theta, n_phi):
+    """Angles between every pair of lights (flat indices) of the grid, atan2 of |a × b| and a · b (accurate at 0
+    and π alike): the brute force the band's row windows must equal."""
+    d, _ = light_stage_directions(n_theta, n_phi)
+    d = d.reshape(-1, 3)
+    return np.arctan2(np.linalg.norm(np.cross(d[:, None], d[None]), axis=-1), d @ d.T)
+
+
+def _within(angles, n_theta, n_phi, band):
+    """Pairs of lights within ``band`` steps of arc (√(Δφ² + Δθ²) each), a hair more for rounding."""
+    return angles <= band * np.hypot(np.pi / n_phi, 2 * np.pi / n_theta) + 1e-9
+
+
+# Grids (n_theta, n_phi): square and 2:1 cells, odd sizes, one row or column, and ratios whose meridian pairs lie
+# exactly a whole number of steps apart (12 x 8 at band 3: 5 rows; 24 x 16 at band 3) or whose arc reaches π.
+BAND_GRIDS = [(8, 4), (9, 5), (7, 3), (12, 8), (16, 8), (13, 7), (24, 16), (20, 20), (32, 16), (1, 1), (5, 1), (1, 6)]
+
+
+def test_the_rows_within_the_band_are_windows_of_columns_centred_on_the_light():
+    """The band's neighbours of a light (i, j) in row r are the columns j − w[i, r] … j + w[i, r] (circularly; the
+    whole row when 2w + 1 ≥ n_theta): the same set as every pair's angle within the arc, on every grid and band
+    0 … 16 (arcs beyond π take every light)."""
+    from facestats.relight import shadows
+
+    reached = 0
+    for n_theta, n_phi in BAND_GRIDS + [(64, 32)]:
+        angles = _light_angles(n_theta, n_phi)
+        cols = np.arange(n_theta)
+        offset = (cols[None, :] - cols[:, None]) % n_theta
+        circular = np.minimum(offset, n_theta - offset)  # (j, c): columns apart, circularly
+        for band in range(17):
+            want = _within(angles, n_theta, n_phi, band).reshape(n_phi, n_theta, n_phi, n_theta)
+            half = shadows._band_half_widths(n_phi, n_theta, band)
+            got = circular[None, :, None, :] <= half[:, None, :, None]
+            np.testing.assert_array_equal(got, want, err_msg=f"{n_theta} x {n_phi}, band {band}")
+            if band * np.hypot(np.pi / n_phi, 2 * np.pi / n_theta) >= np.pi:
+                assert (half == n_theta // 2).all()  # the arc reaches over the sphere: every light
+                reached += 1
+    assert reached > 50
+
+
+def _patterns(n_theta, n_phi, rng):
+    """Visibilities (n_phi, n_theta, y, x) that test the band: random, all, none, single lights (at the seam of
+    azimuth 0 / 2π, next to a pole, inside), columns either side of the seam, a polar cap, and half-spaces."""
+    shape = (n_phi, n_theta)
+    out = [rng.random(shape + (2, 3)) < p for p in (0.1, 0.5, 0.9)]
+    out += [np.ones(shape + (1, 2), bool), np.zeros(shape + (1, 2), bool)]
+    single = np.zeros(shape + (4, 1), bool)
+    for s, (i, j) in enumerate([(0, 0), (n_phi - 1, n_theta - 1), (n_phi // 2, n_theta // 2), (0, n_theta // 3)]):
+        single[i, j, s] = True
+    seam = np.zeros(shape + (1, 3), bool)
+    seam[:, 0, 0, 0] = seam[:, -1, 0, 1] = True
+    seam[:, [0, -1], 0, 2] = True
+    cap = np.zeros(shape + (1, 2), bool)
+    cap[0, :, 0, 0] = cap[-1, :, 0, 1] = True
+    d, _ = light_stage_directions(n_theta, n_phi)
+    half_spaces = np.einsum("pqk,yxk->pqyx", d, rng.normal(size=(2, 2, 3))) > 0
+    return [single, seam, cap, half_spaces] + out
+
+
+def test_the_boundary_band_equals_the_brute_force_on_many_grids_bands_and_visibilities(monkeypatch):
+    """The band's samples are those whose light has a light of the other visibility within the arc, counted
+    over every pair's angle, for all grids of BAND_GRIDS, bands 0 … 16 and the visibilities of ``_patterns``, in
+    blocks of one sample, of 7 lights' samples and whole."""
+    from facestats.relight import shadows
+
+    rng = np.random.default_rng(11)
+    for n_theta, n_phi in BAND_GRIDS:
+        patterns, angles = _patterns(n_theta, n_phi, rng), _light_angles(n_theta, n_phi)
+        for band in range(17):
+            pairs = _within(angles, n_theta, n_phi, band).astype(np.int64)
+            for visible in patterns:
+                v = visible.reshape(n_phi * n_theta, -1)
+                want = np.where(v, pairs @ ~v > 0, pairs @ v > 0).reshape(visible.shape)
+                for block in (1, 7 * n_theta * n_phi, shadows.NEAR_BLOCK) if band in (1, 3, 16) else (1 << 20,):
+                    monkeypatch.setattr(shadows, "NEAR_BLOCK", block)
+                    got = shadows._near_boundary(visible, band)
+                    assert got.dtype == bool and got.shape == visible.shape
+                    np.testing.assert_array_equal(got, want, err_msg=f"{n_theta} x {n_phi}, band {band}")
+
+
+def test_the_boundary_band_wraps_in_azimuth_and_reaches_over_the_poles():
+    """One visible light at (row 0, column 0) of the 16 × 8 grid (rows 22.5° apart, row 0 11.25° from the pole):
+    its one-step band (31.8°) holds the light across the seam where the columns wrap (column 15, 4.4° away), the
+    light across the pole in its row (column 8, 2 × 11.25° = 22.5°), the row's light a quarter turn away (column 4,
+    15.8°) and the next row's (22.5°); not the light across the pole two rows down (row 2, column 8: 11.25° +
+    56.25° = 67.5°) nor row 4's (90°)."""
+    from facestats.relight import shadows
+
+    visible = np.zeros((8, 16, 1, 1), bool)
+    visible[0, 0] = True
+    near = shadows._near_boundary(visible, 1)[..., 0, 0]
+    assert near[0, 0] and near[0, 15] and near[0, 1] and near[0, 8] and near[0, 4] and near[1, 0]
+    assert not near[2, 8] and not near[4, 0]
+    assert near.sum() == _within(_light_angles(16, 8), 16, 8, 1)[0].sum()  # the light's own neighbours, nothing else
+
+
+def test_the_boundary_band_memory_does_not_grow_with_the_band():
+    """The kd-tree's sparse matrix held every pair of lights within the arc, so its size grew with the lights ×
+    band²: on 128 × 64 lights with 8² image samples shadow_agreement traced 23 MiB at band 1 and 538 MiB at band
+    16 (2 GB at 256 × 128).  The row windows hold blocks of NEAR_BLOCK samples whatever the band (5 MiB here)."""
+    import tracemalloc
+
+    from facestats.relight import shadows
+
+    d, _ = light_stage_directions(128, 64)
+    visible = np.einsum("pqk,yxk->pqyx", d, np.random.default_rng(0).normal(size=(8, 8, 3))) > 0
+    peaks = []
+    for band in (1, 16):
+        tracemalloc.start()
+        try:
+            shadow_agreement(visible, visible, band=band)
+            peaks.append(tracemalloc.get_traced_memory()[1])
+        finally:
+            tracemalloc.stop()
+    assert peaks[1] < 1.05 * peaks[0], peaks
+    assert peaks[1] < 4 * shadows.NEAR_BLOCK + 8 * visible.nbytes, (peaks, visible.nbytes)
+
+
+def test_the_boundary_band_holds_blocks_not_the_field_in_float64():
     """The neighbours of each light were counted for all image samples at once, in float64 (scipy's product of a
     float64 pair matrix and float32 visibilities), twice: shadow_agreement on the 64 × 32 stage at 48² traced a
-    112 MiB peak for 4.5 MiB of visibility (42 MiB with the 3 × 3 cells of a59b93e); now 34 MiB."""
+    112 MiB peak for 4.5 MiB of visibility (42 MiB with the 3 × 3 cells of a59b93e); 34 MiB with float32 blocks and
+    the kd-tree's pairs, 17 MiB with integer window sums along the rows (2026-12-08)."""
     import tracemalloc
 
     d, _ = light_stage_directions(64, 32)

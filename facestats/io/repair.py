@@ -292,8 +292,7 @@ def _garbage_after(plan: RepairPlan, root, index) -> list[str]:
         _change_index(after["subjects"], a)
     after["revision"] = plan.base_revision + any(a.kind in _INDEX_KINDS for a in plan.actions)
     moved = {(a.subject, a.source) for a in plan.actions if a.kind in ("quarantine-generation", "quarantine-record")}
-    s = survey(root, after, absent=moved)  # as the moves leave it: a subject whose last generation goes is empty
-    return s.garbage + [f"{SUBJECTS}/{sid}" for sid in s.empty_subjects]
+    return survey(root, after, absent=moved).leftovers  # as the moves leave it: a subject losing its last one is empty
 
 
 def _preflight(root) -> None:

@@ -985,8 +985,11 @@ def test_gc_removes_dead_writers_leftovers_but_not_live_ones(tmp_path):
         unowned.mkdir()
         (path / "index.json.tmp-99-deadbeef").write_text("partial")
         notes = st.validate().notes
-        assert len(notes) == 2 and "6 leftover item(s)" in notes[0] and "not created by facestats" in notes[1]
+        # G9's folder counts too: it holds nothing once its generation goes ("6" before, and gc removed 7)
+        assert len(notes) == 2 and "7 leftover item(s)" in notes[0] and "not created by facestats" in notes[1]
+        assert len(st.plan_repair().garbage) == 7
         removed = st.gc()
+        assert len(removed) == 7 and "subjects/G9" in removed
         assert not dead.exists() and not (path / "subjects" / "G9").exists()
         assert not (path / "index.json.tmp-99-deadbeef").exists()
         assert not (path / ".writers" / f"G1~{gen}.lock").exists()

@@ -428,6 +428,21 @@ def test_validate_reports_exactly_what_gc_removes(store):
         assert len(removed) == n == 7 and not st.validate().notes
 
 
+def test_validate_counts_the_folder_of_a_new_subject_whose_write_was_interrupted(store):
+    """An interrupted build: a new subject's generation, record and writer lock (a dead writer). ``validate`` said
+    "3 leftover item(s)" where the repair plan removes 4, the subject folder they leave empty (a walkthrough)."""
+    gen, lock = reserve_generation(str(store), "R9")
+    (store / "subjects" / "R9" / gen).mkdir(parents=True)
+    lock.release()
+    code, out = run("validate", "--store", store, "--quiet")
+    assert code == 0 and f"4 leftover item(s) of interrupted writes (e.g. .writers/R9~{gen}.lock)" in out, out
+    code, out = run("validate", "--store", store, "--repair", "--quiet")
+    assert "remove 4 leftover item(s): " in out and out.rstrip().endswith(", subjects/R9"), out
+    code, out = run("validate", "--store", store, "--repair", "--yes", "--quiet")
+    assert code == 0 and "removed 4 leftover item(s)" in out and "note:" not in out, out
+    assert not (store / "subjects" / "R9").exists()
+
+
 def test_lock_checks_never_create_files(tmp_path):
     path = tmp_path / "nothing.lock"
     assert not is_locked(path) and not path.exists()

@@ -887,9 +887,20 @@ class Store:
         -------
         ValidationReport
             ``repaired`` lists what was done; problems and notes are those of the validation after it.
+
+        Raises
+        ------
+        StoreError
+            The store is read-only, or this process may not write where the plan would
+            (:func:`facestats.io.repair.check_writable`; nothing was changed).  A plan with nothing to do takes no
+            lock and writes nothing, so a store read-only to this user with nothing to repair is only validated.
         """
         self._require_writable()
         plan = self.plan_repair(allow_missing=allow_missing, progress=progress) if plan is None else plan
+        if plan.empty:  # no lock taken: a store this user may not write, with nothing to repair, is valid (exit 0)
+            report = self.validate()
+            report.repaired = []
+            return report
         done, attrs = apply_repair(self.path, plan, label=self.label, lock=self._lock(), root_attrs=self.root_attrs)
         self._set_root_attrs(attrs)
         removed = self.gc()

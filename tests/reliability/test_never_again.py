@@ -443,6 +443,72 @@ def test_validate_counts_the_folder_of_a_new_subject_whose_write_was_interrupted
     assert not (store / "subjects" / "R9").exists()
 
 
+def _deny_writes_under(monkeypatch, root):
+    """Make ``os.access`` say this process may not write under ``root`` (a store read-only to its user: root, which
+    runs these tests, bypasses file permissions)."""
+    real, root = os.access, os.fspath(root)
+
+    def access(path, mode, **kw):
+        inside = os.fspath(path) == root or os.fspath(path).startswith(root + os.sep)
+        return False if inside and mode & os.W_OK else real(path, mode, **kw)
+
+    monkeypatch.setattr(os, "access", access)
+
+
+def _refuse_lock_files(monkeypatch):
+    """Locking any lock file fails as opening one this user may not write does."""
+
+    def denied(self, blocking=True):
+        raise StoreError(f"cannot open lock file {self.path}: Permission denied")
+
+    monkeypatch.setattr(FileLock, "acquire", denied)
+
+
+def test_a_repair_with_nothing_to_do_takes_no_lock(store, monkeypatch):
+    """``validate --repair --yes`` of a store this user may only read, with nothing to repair, said "store is valid"
+    and then exited 2 with "Permission denied" on the store lock (a walkthrough): nothing to do, no lock."""
+    _refuse_lock_files(monkeypatch)
+    code, out = run("validate", "--store", store, "--repair", "--yes", "--quiet")
+    assert code == 0 and "store is valid" in out and "Permission denied" not in out, out
+
+
+def test_a_repair_this_user_may_not_write_fails_before_anything(store, monkeypatch):
+    """Something to repair in a store read-only to this user: refused before the lock, naming the place, with no
+    "store is valid" and nothing changed (with the lock file writable, the removals failed silently and the store
+    was reported valid, leftovers and all)."""
+    gen, lock = reserve_generation(str(store), "R9")
+    (store / "subjects" / "R9" / gen).mkdir(parents=True)
+    lock.release()
+    whole = snapshot(store)
+    _deny_writes_under(monkeypatch, store)
+    code, out = run("validate", "--store", store, "--repair", "--quiet")  # the plan is shown: it writes nothing
+    assert code == 0 and "remove 4 leftover item(s)" in out, out
+    code, out = run("validate", "--store", store, "--repair", "--yes", "--quiet")
+    assert code == 2 and "store is valid" not in out and "removed" not in out, out
+    assert f"store {store} cannot be repaired by this user: no write permission on .lock and 4 other place(s)" in out
+    assert "nothing was changed" in out and snapshot(store) == whole
+
+
+def test_a_dead_writers_lock_is_tested_in_a_store_this_user_may_only_read(store, monkeypatch):
+    """``validate`` of a store read-only to this user holding a dead writer's lock exited 2: the lock was opened for
+    writing to test it. ``flock`` needs no write access: it is tested through a read-only descriptor."""
+    from facestats.io.locking import is_locked
+
+    gen, lock = reserve_generation(str(store), "R9")  # held: a live writer
+    path = store / ".writers" / f"R9~{gen}.lock"
+    _deny_writes_under(monkeypatch, store)
+    _refuse_lock_files(monkeypatch)
+    assert is_locked(path)
+    lock.release()  # the writer died
+    assert not is_locked(path)
+    monkeypatch.undo()
+    (store / "subjects" / "R9" / gen).mkdir(parents=True)
+    _deny_writes_under(monkeypatch, store)
+    _refuse_lock_files(monkeypatch)
+    code, out = run("validate", "--store", store, "--quiet")
+    assert code == 0 and "4 leftover item(s)" in out, out
+
+
 def test_lock_checks_never_create_files(tmp_path):
     path = tmp_path / "nothing.lock"
     assert not is_locked(path) and not path.exists()

@@ -489,6 +489,19 @@ def test_a_repair_this_user_may_not_write_fails_before_anything(store, monkeypat
     assert "nothing was changed" in out and snapshot(store) == whole
 
 
+def test_the_plan_says_it_writes_a_missing_subjects_group_file(store):
+    """The repair writes a missing ``subjects/zarr.json``: its plan says so, and is not empty (a plan with nothing
+    to do is not applied, so that one would have been skipped)."""
+    (store / "subjects" / "zarr.json").unlink()
+    code, out = run("validate", "--store", store, "--repair", "--quiet")
+    assert "write the missing subjects/zarr.json" in out and "nothing to repair" not in out, out
+    code, out = run("validate", "--store", store, "--repair", "--yes", "--quiet")
+    assert code == 0 and "wrote the missing subjects/zarr.json" in out, out
+    assert json.loads((store / "subjects" / "zarr.json").read_text())["node_type"] == "group"
+    code, out = run("validate", "--store", store, "--repair", "--quiet")
+    assert "nothing to repair" in out, out
+
+
 def test_a_dead_writers_lock_is_tested_in_a_store_this_user_may_only_read(store, monkeypatch):
     """``validate`` of a store read-only to this user holding a dead writer's lock exited 2: the lock was opened for
     writing to test it. ``flock`` needs no write access: it is tested through a read-only descriptor."""

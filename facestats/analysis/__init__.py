@@ -22,6 +22,12 @@ index as a DataFrame, and returns a small result object; the functions of
 Every result object has ``to_dict()`` (its JSON document: what ``facestats analyze``
 writes; conventions in :mod:`facestats.analysis.serialize`), ``compare_published()``
 (our numbers beside the paper's, as data) and ``to_text()`` (the printed summary).
+Those whose result is a table also have ``to_frame()``, a :class:`pandas.DataFrame` with
+documented columns: :meth:`RegionPCA.to_frame` (one row per region),
+:meth:`TranslucencyTable.to_frame` (Table 1, one row per site and channel) and
+:meth:`CCAResult.to_frame` (one row per subject: the canonical variates of Fig. 16);
+:meth:`CCAResult.summary` and :meth:`CCAResult.direct_table` are its per-dimension and
+per-variable tables.
 
 The posterior (emcee) and plotting (matplotlib) modules are imported on first use and
 pandas/scipy inside the functions, so ``import facestats.analysis`` is cheap.

@@ -182,6 +182,30 @@ class CCAResult:
             table["permutation_p"] = self.permutation_p
         return table
 
+    def to_frame(self):
+        """One row per subject (observation) used: its canonical variates, the points of Fig. 16.
+
+        The per-dimension statistics are :meth:`summary`, the direct correlations :meth:`direct_table`.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Index ``subject_id`` (:attr:`index`, the rows used; :attr:`dropped` are not in it).  Columns
+            ``dimension_1`` … ``dimension_k``: the X block's canonical variates (:attr:`projections`, unit
+            variance; ``to_dict()["projections"]`` holds the first two), ``y_dimension_1`` … ``y_dimension_k``: the
+            Y block's (:attr:`y_projections`), then the Y variables as the analysis coded them (:attr:`y_data`,
+            named by :attr:`y_names`; left out when unknown).
+        """
+        import pandas as pd
+
+        k = self.projections.shape[1]
+        columns = {f"dimension_{i + 1}": self.projections[:, i] for i in range(k)}
+        columns.update({f"y_dimension_{i + 1}": self.y_projections[:, i] for i in range(k)})
+        frame = pd.DataFrame(columns, index=pd.Index([str(s) for s in self.index], name="subject_id"))
+        if self.y_data is not None:
+            frame[list(self.y_names)] = pd.DataFrame(self.y_data)[list(self.y_names)].to_numpy()
+        return frame
+
     def transform(self, X, Y=None):
         """Canonical variates of new data: (X − x̄)·a (and (Y − ȳ)·b if Y is given).
 

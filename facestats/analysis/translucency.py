@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.analysis.population import select_population
-from facestats.analysis.serialize import by_channel, json_ready
+from facestats.analysis.serialize import by_channel, json_ready, records
 from facestats.core.conventions import CHANNELS, SITES
 from facestats.core.published import ELL_D_MAX, ELL_D_MIN, SIGMA_TR_AVG, TABLE1_MEAN, TABLE1_VAR
 from facestats.core.validate import check_choice, check_integer
@@ -207,6 +207,22 @@ class TranslucencyTable:
             rows.append({"quantity": quantity, "source": "paper", "subject_id": None, **by_channel(paper)})
         return pd.DataFrame.from_records(rows).set_index(["quantity", "source"])
 
+    def to_frame(self):
+        """Table 1 as one row per site and channel, beside the paper's (the ``table`` of :meth:`to_dict`).
+
+        Returns
+        -------
+        pandas.DataFrame
+            Index (``site``, ``channel``): sites as in :attr:`table`, channels R, G, B.  Columns ``mean`` (σtr,
+            mm⁻¹), ``paper_mean`` (Weyrich Table 1, mm⁻¹), ``var`` (sample variance with :attr:`ddof`, mm⁻²),
+            ``std`` (mm⁻¹), ``paper_var`` (Table 1's "Var.", :data:`VAR_NOTE`) and ``n`` (subjects with a value,
+            int).
+        """
+        frame = self.compare_published()
+        counts = self.table.xs("n", axis=1, level="statistic").T.stack()  # (site, channel) -> n
+        frame["n"] = counts.reindex(frame.index).to_numpy(np.int64)
+        return frame
+
     def to_dict(self) -> dict:
         """The JSON document of the analysis (``facestats analyze translucency`` writes it as ``translucency.json``).
 
@@ -220,14 +236,10 @@ class TranslucencyTable:
         (:data:`VAR_NOTE`).
         """
 
-        table = [
-            {"site": site, "channel": ch, **row.to_dict(), "n": self.table.loc[ch, (site, "n")]}
-            for (site, ch), row in self.compare_published().iterrows()
-        ]
         doc = {
             "n_subjects": int(len(self.subjects)),
             "ddof": self.ddof,
-            "table": table,
+            "table": records(self.to_frame()),
             "sigma_tr_avg": by_channel(self.sigma_tr_avg),
             "published_sigma_tr_avg": by_channel(SIGMA_TR_AVG),
             "ell_d_min": {"subject_id": self.min_subject, **by_channel(self.ell_d_min)},

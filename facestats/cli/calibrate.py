@@ -229,12 +229,12 @@ def _cmd_merge(args) -> int:
              "frames": json.dumps([os.fspath(f) for f in args.images]), "saturated_fill": args.saturated,
              "exposure_times_s": json.dumps([float(t) for t in merged.exposure_times]),
              "method": "Debevec & Malik 1997 eq. 6 (facestats.acquire.response.merge_photographs)"}  # fmt: skip
-    lum = radiance.mean(-1)
-    h, w = lum.shape
-    print(
-        f"merged {len(args.images)} photographs: {w} x {h}, radiance {float(lum.min()):.4g} to {float(lum.max()):.4g} "
-        f"(median {float(np.median(lum)):.4g}) in the response's units"
-    )
+    h, w = radiance.shape[:2]
+    values = radiance.reshape(h * w, -1)  # what is written, per channel (a mean over channels hid their ranges)
+    low, high, mid = values.min(0), values.max(0), np.median(values, axis=0)
+    ranges = ", ".join(f"{ch} {lo:.4g} to {hi:.4g} (median {md:.4g})" for ch, lo, hi, md in zip("RGB", low, high, mid))
+    print(f"merged {len(args.images)} photographs: {w} x {h}, radiance written per channel: {ranges}")
+    print(f"  in the response's units (exp(g)/s); overall {float(low.min()):.4g} to {float(high.max()):.4g}")
     if saturated:
         print(
             f"facestats: warning: {saturated} pixel(s) saturated in every exposure ({saturated / (h * w):.2%}); "

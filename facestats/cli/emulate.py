@@ -8,6 +8,7 @@ import sys
 import threading
 
 from facestats.cli.options import ascii_float, ascii_int, named_options
+from facestats.core.conventions import DEFAULT_EMULATED_SUBJECT
 from facestats.core.processes import sigterm_as_interrupt
 
 __all__ = ["add_emulate"]
@@ -157,7 +158,9 @@ def _cmd_sensor(args) -> int:
 
 
 def _common(p):
-    p.add_argument("--subject", default="S001", help="subject to emulate (default S001)")
+    p.add_argument(
+        "--subject", default=DEFAULT_EMULATED_SUBJECT, help=f"subject to emulate (default {DEFAULT_EMULATED_SUBJECT})"
+    )
     p.add_argument(
         "--store", help="take the subject from this store ('default': the embedded one); default: the synthetic truth"
     )

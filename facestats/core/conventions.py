@@ -33,6 +33,7 @@ __all__ = [
     "DEFAULT_SEED",
     "DEFAULT_MAP_SIZE",
     "DEFAULT_STORE",
+    "DEFAULT_EMULATED_SUBJECT",
     "TEXTURE_SAMPLE",
     "FLAG_BITS",
 ]
@@ -371,6 +372,9 @@ DEFAULT_FACE = "ict"
 #: ``facestats emulate --store default`` takes it); a directory of that name is written ``./default``.
 #: ``open_store()`` with no path opens that store.
 DEFAULT_STORE = "default"
+#: The subject ``facestats emulate dome|sensor`` emulates without ``--subject``, and
+#: :func:`facestats.acquire.devices.lab.emulated_dome` and ``emulated_sensor`` without ``subject_id``.
+DEFAULT_EMULATED_SUBJECT = "S001"
 #: The ``--store`` value that names the texture sample (:mod:`facestats.pipeline.texture_sample`);
 #: a directory of that name is written ``./texture-sample``.
 TEXTURE_SAMPLE = "texture-sample"

@@ -179,16 +179,48 @@ def is_locked(path) -> bool:
     Raises
     ------
     StoreError
-        ``path`` exists but cannot be opened for locking (a symbolic link, no permission) or ``flock`` fails.
+        ``path`` exists but cannot be opened (a symbolic link, no read permission) or ``flock`` fails.
+
+    Notes
+    -----
+    A lock file this process may read but not write (a store read-only to this user) is tested through a read-only
+    descriptor: ``flock`` needs no write access on a local file system (``validate`` of such a store holding a
+    dead writer's lock stopped at "Permission denied").  Where it does (NFS, whose ``flock`` is a ``fcntl``
+    lock), the test fails with a :class:`StoreError` as before.
     """
     try:
         lock = try_lock(path, create=False)
     except FileNotFoundError:
         return False
+    except StoreError:
+        if os.path.islink(path) or not os.access(path, os.R_OK) or os.access(path, os.W_OK):
+            raise  # not a matter of write permission
+        return _locked_read_only(path)
     if lock is None:
         return True
     lock.release()
     return False
+
+
+def _locked_read_only(path) -> bool:
+    """:func:`is_locked` through a read-only descriptor (a lock file this process may not write)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
+    except FileNotFoundError:
+        return False
+    except OSError as exc:
+        raise StoreError(f"cannot open lock file {path}: {exc.strerror}") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError as exc:
+        raise StoreError(f"cannot lock {path}: {exc.strerror}") from None
+    else:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return False
+    finally:
+        os.close(fd)
 
 
 def create_locked(path) -> FileLock:

@@ -180,6 +180,16 @@ class Survey:
     strays: list = field(default_factory=list)
     kept_trash: set = field(default_factory=set, repr=False)  # (sid, gen) of trash folders kept for their strays
 
+    @property
+    def leftovers(self) -> list[str]:
+        """What :func:`collect_garbage` removes: the garbage, then the folders of subjects left empty by it.
+
+        ``facestats validate`` counts these and the repair plan lists them, so both say the same number (the
+        validation counted the garbage alone: "3 leftover item(s)" for a plan removing 4, the fourth the folder of
+        the subject whose interrupted write was the three).
+        """
+        return self.garbage + [f"{SUBJECTS}/{sid}" for sid in self.empty_subjects]
+
     def problems(self) -> list[str]:
         """The report problems of this survey: the store's own records that are malformed."""
         return [
@@ -191,9 +201,10 @@ class Survey:
     def notes(self) -> list[str]:
         """The report notes of this survey (none if there is nothing to say)."""
         out = []
-        if self.garbage:
+        leftovers = self.leftovers
+        if leftovers:
             out.append(
-                f"{len(self.garbage)} leftover item(s) of interrupted writes (e.g. {self.garbage[0]}); "
+                f"{len(leftovers)} leftover item(s) of interrupted writes (e.g. {leftovers[0]}); "
                 "`facestats validate --repair --yes` removes them"
             )
         if self.adoptable:

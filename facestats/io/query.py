@@ -51,7 +51,12 @@ JSON document (``QueryResult.to_dict()``, ``facestats query --format json``)
 -------------------------------------------------------------------------
 Format ``"facestats.query/1"``; keys are only ever added within a format
 version.  ``stat`` below is ``{"mean": float|null, "std": float|null,
-"n": int}`` (BRDF stats also carry ``"within_std"``, ``"mean_se"`` and ``"texel_se"``)::
+"n": int}`` (BRDF stats also carry ``"within_std"``, ``"mean_se"`` and ``"texel_se"``;
+the subject-level ``scattering`` stats carry ``"constant"``: true when at least two
+subjects have the quantity and all carry the same value, as every measured subject
+carries the population's σtrAvg (Weyrich §5.4), so ``std`` 0 is no spread of
+measurements but a population constant; the text report labels such a row
+"(population)" and prints the value without "± 0")::
 
     {
       "format": "facestats.query/1",
@@ -69,7 +74,7 @@ version.  ``stat`` below is ``{"mean": float|null, "std": float|null,
       "units": {"rho_s": "1", "m": "1", "exponent": "1", "sigma": "mm-1", "albedo": "1"},
       "regions": [{"region": int, "name": str,
                    "ts_rho_s": stat, "ts_m": stat, "bp_rho_s": stat, "bp_exponent": stat}],
-      "scattering": {"sigma_a" | "sigma_s_prime" | "sigma_tr": {"R"|"G"|"B": stat}},
+      "scattering": {"sigma_a" | "sigma_s_prime" | "sigma_tr": {"R"|"G"|"B": stat+constant}},
       "sites": {"cheek" | "forehead" | "neck": {"sigma_a" | "sigma_s_prime" | "sigma_tr": {"R"|"G"|"B": stat}}},
       "albedo": {"R"|"G"|"B": stat},
       "albedo_histogram": {"bins": 256, "range": [0.0, 1.0],
@@ -148,6 +153,10 @@ class Stat:
     mean_se, texel_se : float or None
         BRDF statistics: RMS over subjects of the standard error of a subject's region mean and of one texel
         (NaN when no subject has them); None otherwise.
+    constant : bool or None
+        Subject-level scattering statistics: True when at least two subjects have the quantity and all carry the
+        same value (``std`` 0), as every measured subject carries the population's σtrAvg (Weyrich §5.4) — a
+        population constant, not a spread of per-subject measurements; None for other statistics.
     """
 
     mean: float
@@ -156,6 +165,7 @@ class Stat:
     within_std: float | None = None
     mean_se: float | None = None
     texel_se: float | None = None
+    constant: bool | None = None
 
     def to_dict(self) -> dict:
         """The statistic as a JSON-ready dict (NaN as null; the optional fields when present)."""
@@ -163,6 +173,8 @@ class Stat:
         for key in ("within_std", "mean_se", "texel_se"):
             if getattr(self, key) is not None:
                 d[key] = _num(getattr(self, key))
+        if self.constant is not None:
+            d["constant"] = bool(self.constant)
         return d
 
 
@@ -177,8 +189,9 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if x.size else math.nan
 
 
-def _stat(x: np.ndarray, within: np.ndarray | None = None) -> Stat:
-    """Stat of the finite values of ``x`` (no warnings on empty input)."""
+def _stat(x: np.ndarray, within: np.ndarray | None = None, *, constant: bool = False) -> Stat:
+    """Stat of the finite values of ``x`` (no warnings on empty input); ``constant``: say whether every value is the
+    same (:attr:`Stat.constant`)."""
     x = np.asarray(x, dtype=np.float64)
     x = x[np.isfinite(x)]
     n = int(x.size)
@@ -191,7 +204,8 @@ def _stat(x: np.ndarray, within: np.ndarray | None = None) -> Stat:
         within = np.asarray(within, dtype=np.float64)
         within = within[np.isfinite(within)]
         w = float(within.mean()) if within.size else math.nan
-    return Stat(mean, std, n, w)
+    same = bool(n > 1 and std == 0.0) if constant else None
+    return Stat(mean, std, n, w, constant=same)
 
 
 #: The ``condition`` filter's value that matches every condition (as None does).
@@ -392,23 +406,26 @@ class QueryResult:
         """Long CSV: one row per statistic, arrays (ids, histograms) space-separated in ``values``.
 
         Columns: ``section, quantity, region, region_name, site, channel, n,
-        mean, std, within_std, values, mean_se, texel_se`` (the last two: the
-        fit's standard errors of BRDF statistics, added last so older readers
-        of the first eleven keep working).  Sections: ``meta`` (count,
+        mean, std, within_std, values, mean_se, texel_se, constant`` (the last
+        three added last so older readers of the first eleven keep working:
+        the fit's standard errors of BRDF statistics, and ``true``/``false`` for
+        subject-level scattering statistics, :attr:`Stat.constant`, empty
+        elsewhere).  Sections: ``meta`` (count,
         n_persons, subject_ids), ``brdf``, ``scattering``, ``site``,
         ``albedo``, ``histogram``.
         """
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
         w.writerow(_CSV_COLUMNS)
-        w.writerow(["meta", "count", "", "", "", "", self.count, "", "", "", "", "", ""])
-        w.writerow(["meta", "n_persons", "", "", "", "", self.n_persons, "", "", "", "", "", ""])
-        w.writerow(["meta", "subject_ids", "", "", "", "", self.count, "", "", "", " ".join(self.subject_ids), "", ""])
+        w.writerow(["meta", "count", "", "", "", "", self.count, "", "", "", "", "", "", ""])
+        w.writerow(["meta", "n_persons", "", "", "", "", self.n_persons, "", "", "", "", "", "", ""])
+        ids = " ".join(self.subject_ids)
+        w.writerow(["meta", "subject_ids", "", "", "", "", self.count, "", "", "", ids, "", "", ""])
         for section, quantity, s, where in self._stats():
             w.writerow(_csv_stat_row(section, quantity, s, **where))
         for c, ch in enumerate(CHANNELS):
             vals = "" if self.albedo_histogram is None else " ".join(repr(float(v)) for v in self.albedo_histogram[c])
-            w.writerow(["histogram", "albedo_histogram", "", "", "", ch, self.count, "", "", "", vals, "", ""])
+            w.writerow(["histogram", "albedo_histogram", "", "", "", ch, self.count, "", "", "", vals, "", "", ""])
         return buf.getvalue()
 
     def _stats(self):
@@ -505,9 +522,10 @@ class QueryResult:
         unit = "1/mm" if ascii else "mm⁻¹"
         lines = [f"Scattering ({unit}) and albedo: mean {pm} std across subjects"]
         sym = _ASCII_SYMBOL if ascii else _SYMBOL
-        rows = []
+        rows, constant = [], [p for p in SCATTERING if any(self.scattering[p][ch].constant for ch in CHANNELS)]
         for p in SCATTERING:
-            rows.append([sym[p]] + [_fmt_stat(self.scattering[p][ch], pm) for ch in CHANNELS])
+            label = f"{sym[p]} (population)" if p in constant else sym[p]
+            rows.append([label] + [_fmt_stat(self.scattering[p][ch], pm) for ch in CHANNELS])
         for site in SITES:
             for p in SCATTERING:
                 stats = [self.sites[site][p][ch] for ch in CHANNELS]
@@ -515,13 +533,17 @@ class QueryResult:
                     rows.append([f"{sym[p]} {site}"] + [_fmt_stat(s, pm) for s in stats])
         rows.append(["albedo"] + [_fmt_stat(self.albedo[ch], pm) for ch in CHANNELS])
         lines += _grid(["", *CHANNELS], rows)
-        tr = [self.scattering["sigma_tr"][ch] for ch in CHANNELS]
-        if all(t.n > 1 and t.std == 0 for t in tr):  # "± 0" read like a fault (a fresh-user red team)
+        if "sigma_tr" in constant:  # "± 0" read like a fault (fresh-user red teams): no spread shown, and why
             lines += [
-                f"({sym['sigma_tr']} is the same in every subject: the population's average, from which the maps' "
-                f"{sym['sigma_a']} and {sym['sigma_s_prime']} follow",
-                " (Weyrich et al. 2006, section 5.4); the site rows are the contact sensor's measurements)",
+                f"({sym['sigma_tr']} (population): one value shared by every subject, the population's average "
+                f"{sym['sigma_tr']}Avg (Weyrich et al. 2006,",
+                f" section 5.4), from which the maps' {sym['sigma_a']} and {sym['sigma_s_prime']} follow: a population "
+                "constant, not a per-subject measurement;",
+                " the site rows are the contact sensor's measurements)",
             ]
+        others = [sym[p] for p in constant if p != "sigma_tr"]
+        if others:
+            lines.append(f"({', '.join(others)} (population): one value shared by every subject, no spread)")
         return lines
 
     def _histogram_lines(self, columns: int, ascii: bool) -> list[str]:
@@ -551,6 +573,7 @@ _CSV_COLUMNS = (
     "values",
     "mean_se",
     "texel_se",
+    "constant",
 )
 
 
@@ -562,6 +585,7 @@ def _csv_num(x) -> str:
 def _csv_stat_row(section, quantity, s: Stat, region="", name="", site="", ch="") -> list:
     """One CSV row of a statistic."""
     within, mean_se, texel_se = ("" if v is None else _csv_num(v) for v in (s.within_std, s.mean_se, s.texel_se))
+    constant = "" if s.constant is None else str(bool(s.constant)).lower()
     return [
         section,
         quantity,
@@ -576,6 +600,7 @@ def _csv_stat_row(section, quantity, s: Stat, region="", name="", site="", ch=""
         "",
         mean_se,
         texel_se,
+        constant,
     ]
 
 
@@ -595,6 +620,8 @@ def _fmt_se(s: Stat) -> str:
 def _fmt_stat(s: Stat, pm: str) -> str:
     if s.n == 0:
         return "-"
+    if s.constant:  # the value every subject carries: no "± 0" (labelled as a population constant)
+        return _fmt_num(s.mean)
     if not math.isfinite(s.std):
         return f"{_fmt_num(s.mean)} (n={s.n})"
     return f"{_fmt_num(s.mean)} {pm} {s.std:.2g}"
@@ -713,7 +740,10 @@ def run_query(
         return _column_values(table, idx, name)
 
     region_ids = [filters["region"]] if filters["region"] is not None else list(REGIONS)
-    scattering = {p: {ch: _stat(col(column("subject", param=p, channel=ch))) for ch in CHANNELS} for p in SCATTERING}
+    scattering = {
+        p: {ch: _stat(col(column("subject", param=p, channel=ch)), constant=True) for ch in CHANNELS}
+        for p in SCATTERING
+    }
     sites = {
         site: {
             p: {ch: _stat(col(column("site", param=p, site=site, channel=ch))) for ch in CHANNELS} for p in SCATTERING

@@ -68,6 +68,7 @@ from facestats.io.ids import check_subject_id
 from facestats.io.index import INDEX_NAME, empty_index, make_entry, read_index_bytes, split_index
 from facestats.io.integrity import STORE_ATTR
 from facestats.io.layout import (
+    LOCK_NAME,
     RECORDS,
     ROOT_META,
     SUBJECTS,
@@ -88,7 +89,7 @@ from facestats.io.records import inspect_record, mark_record, read_record, recor
 from facestats.io.schema import SCHEMA_VERSION
 from facestats.io.summary import albedo_histogram, summarise_subject
 
-__all__ = ["RepairAction", "RepairPlan", "plan_repair", "apply_repair"]
+__all__ = ["RepairAction", "RepairPlan", "plan_repair", "apply_repair", "check_writable"]
 
 #: Order in which the kinds of action are applied (moves before the commit, records after it).
 _ORDER = (
@@ -169,6 +170,8 @@ class RepairPlan:
         The index is missing or unreadable and is rebuilt.
     base_revision : int
         The revision the new index continues from.
+    group_meta : bool
+        ``subjects/zarr.json`` (the subjects group's own file) is missing and is written.
     """
 
     store: str
@@ -177,11 +180,12 @@ class RepairPlan:
     problems: list = field(default_factory=list)
     index_lost: bool = False
     base_revision: int = 0
+    group_meta: bool = False
 
     @property
     def empty(self) -> bool:
-        """Nothing at all to do."""
-        return not self.actions and not self.garbage
+        """Nothing at all to do: :meth:`facestats.io.Store.repair` then takes no lock and writes nothing."""
+        return not self.actions and not self.garbage and not self.group_meta
 
     @property
     def fixes_problems(self) -> bool:
@@ -213,6 +217,8 @@ class RepairPlan:
         if self.garbage:  # leftovers of interrupted writes, and folders of subjects the repair leaves empty
             shown = ", ".join(self.garbage[:GARBAGE_SHOWN]) + (", ..." if len(self.garbage) > GARBAGE_SHOWN else "")
             lines.append(f"  - remove {len(self.garbage)} leftover item(s): {shown}")
+        if self.group_meta:
+            lines.append(f"  - write the missing {SUBJECTS}/{ROOT_META}")
         if self.empty:
             lines.append("  nothing to repair")
         lines += [f"  cannot repair: {p}" for p in self.problems]
@@ -279,6 +285,7 @@ def plan_repair(
         _plan_bad_records(plan, s, index)
     plan.actions.sort(key=lambda a: _ORDER.index(a.kind))
     plan.garbage = _garbage_after(plan, root, index)
+    plan.group_meta = not os.path.lexists(os.path.join(root, SUBJECTS, ROOT_META))
     return plan
 
 
@@ -292,8 +299,7 @@ def _garbage_after(plan: RepairPlan, root, index) -> list[str]:
         _change_index(after["subjects"], a)
     after["revision"] = plan.base_revision + any(a.kind in _INDEX_KINDS for a in plan.actions)
     moved = {(a.subject, a.source) for a in plan.actions if a.kind in ("quarantine-generation", "quarantine-record")}
-    s = survey(root, after, absent=moved)  # as the moves leave it: a subject whose last generation goes is empty
-    return s.garbage + [f"{SUBJECTS}/{sid}" for sid in s.empty_subjects]
+    return survey(root, after, absent=moved).leftovers  # as the moves leave it: a subject losing its last one is empty
 
 
 def _preflight(root) -> None:
@@ -614,9 +620,11 @@ def apply_repair(root, plan: RepairPlan, *, label: str, lock, root_attrs: dict) 
     Raises
     ------
     StoreError
-        The index became readable (or unreadable) since the plan was made, or a step failed (e.g. a
-        full disk); what was done until then is named in the message.
+        This process cannot write where the plan would (:func:`check_writable`: nothing was changed), the index
+        became readable (or unreadable) since the plan was made, or a step failed (e.g. a full disk); what was
+        done until then is named in the message.
     """
+    check_writable(root, plan, label)
     done = []
     with lock:
         current, bad = _current(root)
@@ -649,6 +657,52 @@ def apply_repair(root, plan: RepairPlan, *, label: str, lock, root_attrs: dict) 
                 + ("committed." if state.committed else "not changed.")
             ) from None
     return done, root_attrs
+
+
+def check_writable(root, plan: RepairPlan, label: str) -> None:
+    """Refuse, before anything changes, a repair this process may not write: :class:`StoreError` naming the folder.
+
+    A store read-only to this user (a shared store, a read-only mount) failed at the store lock, after the plan was
+    made, or, with a lock file left writable, removed nothing and reported the store valid.  Checked
+    (``os.access``, this process's permissions): read and write permission on the store lock, and write and
+    search permission on the folder holding each leftover the plan removes and, for a plan with actions, on the
+    store's root, ``subjects/`` and ``.records/``.  A plan with nothing to do is not checked (it writes nothing).
+
+    Parameters
+    ----------
+    root : str
+        The store directory.
+    plan : RepairPlan
+        The plan about to be applied.
+    label : str
+        The store's name in messages.
+
+    Raises
+    ------
+    StoreError
+        A folder (or the lock file) this process may not write; nothing was changed.
+    """
+    if plan.empty:
+        return
+    folders = {os.path.dirname(os.path.join(root, rel)) for rel in plan.garbage}
+    if plan.actions:  # the quarantine and the index in the root, records, subject folders
+        folders |= {root, os.path.join(root, SUBJECTS), os.path.join(root, RECORDS)}
+    if plan.group_meta:
+        folders.add(os.path.join(root, SUBJECTS))
+    lock = os.path.join(root, LOCK_NAME)
+    if not os.path.lexists(lock):
+        folders.add(root)  # the lock file is created
+    denied = sorted(f for f in folders if os.path.isdir(f) and not os.access(f, os.W_OK | os.X_OK))
+    if os.path.lexists(lock) and not os.access(lock, os.R_OK | os.W_OK):
+        denied.insert(0, lock)
+    if denied:
+        rel = os.path.relpath(denied[0], root)
+        more = f" and {len(denied) - 1} other place(s) it writes" if len(denied) > 1 else ""
+        raise StoreError(
+            f"store {label} cannot be repaired by this user: no write permission on "
+            f"{'the store folder' if rel == '.' else rel}{more}; nothing was changed (run the repair as the store's "
+            "owner, or on a writable copy)"
+        )
 
 
 #: The kinds of action that change the index (a commit follows).

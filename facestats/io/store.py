@@ -439,8 +439,37 @@ class Store:
     def subjects(self):
         """The population index as a :class:`pandas.DataFrame` indexed by ``subject_id``.
 
-        Columns are those of :func:`facestats.io.summary.summarise_subject`;
-        rows are sorted by id (the order of :meth:`albedo_histograms`).
+        One row per subject, sorted by id (the order of :meth:`albedo_histograms`); the columns are those of
+        :func:`facestats.io.summary.summarise_subject` (its module docstring has them all).  Missing quantities
+        are NaN.
+
+        Three different things are called "std" or "se" (``p`` a BRDF parameter ``ts_rho_s``, ``ts_m``,
+        ``bp_rho_s`` or ``bp_exponent``, ``r`` a region 1-10 of Weyrich Fig. 15):
+
+        * ``{p}_std_r{r}``: the **spread of the values** inside the region, the sample standard deviation
+          (ddof 1) of the region's unflagged texel values, beside their mean ``{p}_mean_r{r}`` and count
+          ``n_ts_r{r}`` / ``n_bp_r{r}`` — not an uncertainty;
+        * ``{p}_se_r{r}``: the typical **standard error of one texel's fit**, the root mean square of the
+          subject's ``{p}_std`` map (a per-texel standard error, :meth:`subject`) over the region's unflagged
+          texels that the fit *determines* only: standard error at most the value's magnitude
+          (:func:`facestats.io.summary.determined`).  The others have linearised errors of up to thousands of
+          times their value, which say only that the fit leaves the value open; they stay in the mean and the
+          spread but not here, so the RMS of the whole map over the region can be far larger (nose of S013 of
+          the default store: 0.93 over all 56 texels, 0.028 here, the three it leaves out up to 6.9 for
+          ρs ≈ 0.31).  :func:`facestats.io.summary.region_undetermined` counts them per region;
+        * ``{p}_mean_se_r{r}``: the **standard error of the region mean**, sqrt(Σσ²)/n over the same determined
+          texels.
+
+        The ``se`` columns are NaN for subjects without standard-error maps (sample subjects, stores written
+        before them, parameters changed by an edit).  Other columns: ``{ts,bp}_cov_r{r}`` (covariance of the
+        region's (scale, lobe) pairs, ddof 1), the scattering coefficients per site
+        (``site_sigma_tr_{site}_{ch}``, …) and per subject (``sigma_tr_{ch}``, …; ``sigma_tr`` is the population's
+        σtrAvg in every measured subject, Weyrich §5.4), ``albedo_mean_{ch}``, ``albedo_std_{ch}`` (the spread
+        over the face) and ``flagged_fraction``.  See also ``docs/store.md`` (The population index).
+
+        Returns
+        -------
+        pandas.DataFrame
         """
         import pandas as pd
 
@@ -858,9 +887,20 @@ class Store:
         -------
         ValidationReport
             ``repaired`` lists what was done; problems and notes are those of the validation after it.
+
+        Raises
+        ------
+        StoreError
+            The store is read-only, or this process may not write where the plan would
+            (:func:`facestats.io.repair.check_writable`; nothing was changed).  A plan with nothing to do takes no
+            lock and writes nothing, so a store read-only to this user with nothing to repair is only validated.
         """
         self._require_writable()
         plan = self.plan_repair(allow_missing=allow_missing, progress=progress) if plan is None else plan
+        if plan.empty:  # no lock taken: a store this user may not write, with nothing to repair, is valid (exit 0)
+            report = self.validate()
+            report.repaired = []
+            return report
         done, attrs = apply_repair(self.path, plan, label=self.label, lock=self._lock(), root_attrs=self.root_attrs)
         self._set_root_attrs(attrs)
         removed = self.gc()

@@ -12,7 +12,10 @@ Column names (``r`` = region 1-10, ``ch`` = R/G/B, ``site`` = cheek/forehead/nec
 * metadata: ``subject_id``, ``person_id``, ``age``, ``gender``, ``skin_type``,
   ``condition``, ``kind`` (``maps``/``samples``), ``source``;
 * ``{p}_mean_r{r}``, ``{p}_std_r{r}`` for p in ``ts_rho_s``, ``ts_m``,
-  ``bp_rho_s``, ``bp_exponent``, and ``n_ts_r{r}``, ``n_bp_r{r}`` (sample counts);
+  ``bp_rho_s``, ``bp_exponent``: the mean and the sample standard deviation (ddof 1) of the values of the
+  region's unflagged texels (all of them, determined or not: see below) — ``_std`` here is the *spread* of the
+  values within the region, not a standard error and not the subject's ``*_std`` maps;
+  ``n_ts_r{r}``, ``n_bp_r{r}`` (sample counts);
   ``{model}_cov_r{r}`` for model ``ts``/``bp``: the sample covariance (ddof 1) of
   the region's (scale, lobe) pairs, so that with the counts, means and standard
   deviations the pooled covariance of any selection of subjects follows exactly
@@ -28,7 +31,8 @@ Column names (``r`` = region 1-10, ``ch`` = R/G/B, ``site`` = cheek/forehead/nec
   lips', and 1.0 % of the Torrance-Sparrow ones, 12 % of the lips' and 6 % of the nose's; counted for ρs) have
   linearised errors up to 8.0e3 times their value (``bench_fit.bench_determined_texels()``),
   which say only that the fit leaves the value open; one of them would outweigh a region's hundreds of
-  determined texels in both sums;
+  determined texels in both sums.  The index holds no count of them: :func:`region_undetermined` counts them per
+  region from a subject's maps;
 * ``site_sigma_tr_{site}_{ch}``, ``site_sigma_s_prime_{site}_{ch}``,
   ``site_sigma_a_{site}_{ch}``;
 * ``sigma_s_prime_{ch}``, ``sigma_a_{ch}``, ``sigma_tr_{ch}``;
@@ -56,6 +60,9 @@ __all__ = [
     "region_samples",
     "region_standard_errors",
     "region_sample_variables",
+    "DETERMINED_RELATIVE_SE",
+    "determined",
+    "region_undetermined",
     "albedo_histogram",
     "summarise_subject",
     "column",
@@ -265,10 +272,70 @@ def _region_texels(ds, model: str, names, texels: FaceTexels | None = None):
 DETERMINED_RELATIVE_SE = 1.0
 
 
+def determined(sd, value) -> np.ndarray:
+    """Which texels the fit determines: a finite standard error at most :data:`DETERMINED_RELATIVE_SE` times the
+    value's magnitude (module docstring).
+
+    The index's ``{p}_se_r{r}`` and ``{p}_mean_se_r{r}`` are taken over these texels only; its ``{p}_mean_r{r}``
+    and ``{p}_std_r{r}`` over all of the region's unflagged texels, these and the others.
+
+    Parameters
+    ----------
+    sd : array_like
+        Per-texel standard errors (a ``*_std`` map's values), in the parameter's unit.
+    value : array_like
+        The fitted values they belong to (same shape).
+
+    Returns
+    -------
+    ndarray of bool
+        True where the texel is determined; False for a NaN or infinite standard error too.
+    """
+    sd = np.asarray(sd)
+    return np.isfinite(sd) & (sd <= DETERMINED_RELATIVE_SE * np.abs(np.asarray(value)))
+
+
+def region_undetermined(ds, model: str = "ts", texels: FaceTexels | None = None) -> dict | None:
+    """Per region, how many of the texels the index row summarises the fit leaves undetermined (:func:`determined`).
+
+    The index keeps no such column (a new column would make every row written before disagree with its data on
+    validation, and the shipped default store would have to be rebuilt): this counts them from the subject's maps,
+    over the same texels as the row (the region's unflagged ones, :func:`region_samples`).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A map subject.
+    model : {"ts", "bp"}
+        Torrance-Sparrow or Blinn-Phong (:data:`MODEL_PARAMS`).
+    texels : FaceTexels, optional
+        The face texels of ``ds`` (default: read from ``ds``).
+
+    Returns
+    -------
+    dict or None
+        ``{region 1-10: {"n": texels, <scale parameter>: undetermined, <lobe parameter>: undetermined}}``, e.g.
+        ``{6: {"n": 56, "ts_rho_s": 3, "ts_m": 1}, ...}``: ``n`` is the row's ``n_{model}_r{r}``, and the counts are
+        of texels left out of ``{p}_se_r{r}`` and ``{p}_mean_se_r{r}`` but in ``{p}_mean_r{r}`` and ``{p}_std_r{r}``
+        (a map the subject lacks counts all its texels); None for a subject without standard-error maps
+        (:func:`region_standard_errors`).
+    """
+    if not _has_standard_errors(ds, model):
+        return None
+    names = MODEL_PARAMS[model][:2]
+    out = {}
+    for r, arrays in _region_texels(ds, model, names + MODEL_STD[model], texels):
+        values, sds = arrays[:2], arrays[2:]
+        out[r] = {"n": int(values[0].size)}
+        for name, x, sd in zip(names, values, sds):
+            out[r][name] = int(np.count_nonzero(~determined(sd, x)))
+    return out
+
+
 def _standard_errors(sd, value):
-    """(RMS of the per-texel standard errors, standard error of their mean sqrt(Σσ²)/n) of the determined texels:
-    finite ``sd`` at most :data:`DETERMINED_RELATIVE_SE` × |``value``| (module docstring)."""
-    sd = sd[np.isfinite(sd) & (sd <= DETERMINED_RELATIVE_SE * np.abs(value))]
+    """(RMS of the per-texel standard errors, standard error of their mean sqrt(Σσ²)/n) of the determined texels
+    (:func:`determined`)."""
+    sd = sd[determined(sd, value)]
     if sd.size == 0:
         return np.nan, np.nan
     scale = float(np.max(np.abs(sd)))  # squares of values near 1e155 and above would overflow float64

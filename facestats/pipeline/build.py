@@ -131,13 +131,39 @@ def _watch_parent(parent: int, stop) -> None:
     os._exit(1)
 
 
+def _anonymous_locks() -> None:
+    """Make the ``multiprocessing`` locks that libraries create in this worker anonymous semaphores.
+
+    numcodecs' Blosc codec (every float map the worker writes) creates a ``multiprocessing.Lock`` on first use.
+    Under the spawn start method the workers inherit, that is a named POSIX semaphore registered with the build's
+    resource tracker and unlinked when the process exits normally; a worker stopped by ``os._exit`` (an interrupted
+    build, :func:`_watch_parent`) or killed never unlinks it, and the tracker warned at the build's end
+    "resource_tracker: There appear to be 2 leaked semaphore objects to clean up at shutdown" (Ctrl-C, 2 workers).
+    The fork method's locks are unlinked as they are made, so nothing is left whatever the worker's end; this
+    worker starts no process of its own.
+    """
+    if "fork" in multiprocessing.get_all_start_methods():
+        multiprocessing.set_start_method("fork", force=True)
+
+
 def _worker_init(parent: int, stop) -> None:
-    """Initializer of a local build worker: die with the parent and on request (module docstring)."""
+    """Initializer of a local build worker: die with the parent and on request (module docstring), leaving no named
+    semaphore behind (:func:`_anonymous_locks`)."""
     _set_parent_death_signal()
     if os.getppid() != parent:  # the parent died before this worker started
         os._exit(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides; Ctrl-C reaches the whole group
+    _anonymous_locks()
     threading.Thread(target=_watch_parent, args=(parent, stop), daemon=True).start()
+
+
+def _local_pool(n_workers: int):
+    """``(pool, stop)``: a spawn process pool of ``n_workers`` build workers (:func:`_worker_init`) and the shared
+    flag that makes them leave at once (``stop.value = True``)."""
+    ctx = multiprocessing.get_context("spawn")
+    stop = ctx.RawValue(ctypes.c_bool, False)
+    pool = ProcessPoolExecutor(n_workers, mp_context=ctx, initializer=_worker_init, initargs=(os.getpid(), stop))
+    return pool, stop
 
 
 def _pool_round(args, retries, n_workers: int, progress: bool) -> list:
@@ -146,9 +172,7 @@ def _pool_round(args, retries, n_workers: int, progress: bool) -> list:
 
     import dask
 
-    ctx = multiprocessing.get_context("spawn")
-    stop = ctx.RawValue(ctypes.c_bool, False)
-    pool = ProcessPoolExecutor(n_workers, mp_context=ctx, initializer=_worker_init, initargs=(os.getpid(), stop))
+    pool, stop = _local_pool(n_workers)
     tasks = [dask.delayed(_build_task, pure=False)(retries, *a) for a in args]
     try:
         with TaskProgress(len(tasks), enabled=progress):

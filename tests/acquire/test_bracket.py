@@ -2,6 +2,7 @@
 
 import json
 import pathlib
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -180,6 +181,14 @@ def test_a_bracket_is_merged_with_a_saved_response_and_saturation_is_filled(brac
     assert cli.returncode == 0 and f"{lost.any(-1).sum()} pixel(s) saturated in every exposure" in cli.stderr
     got = read_image(tmp_path / "m.exr")
     np.testing.assert_array_equal(got[~lost], want[~lost])  # float32 EXR: the same values
+    # the printed ranges are those of what was written, per channel (a mean over channels was printed before:
+    # "12.86 to 5893" for a file holding 0.92 to 7214)
+    said = re.findall(r"([RGB]) (\S+) to (\S+) \(median (\S+)\)", cli.stdout)
+    assert [c for c, *_ in said] == ["R", "G", "B"], cli.stdout
+    flat = got.reshape(-1, 3).astype(np.float64)
+    printed = np.array([[float(v) for v in vals] for _, *vals in said]).T  # (min, max, median) x channel
+    np.testing.assert_allclose(printed, [flat.min(0), flat.max(0), np.median(flat, 0)], rtol=5e-4)
+    assert f"overall {flat.min():.4g} to {flat.max():.4g}" in cli.stdout
     top = np.where(lost, -np.inf, want).reshape(-1, 3).max(0)
     bound = np.exp(read_response(tmp_path / "g.json")[255]) / min(TIMES)  # what code 255 at the shortest proves
     np.testing.assert_allclose(got[lost], np.broadcast_to(bound, want.shape)[lost], rtol=1e-6)  # clip: that bound,

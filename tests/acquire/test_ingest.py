@@ -740,3 +740,23 @@ def test_the_calibrations_white_level_is_what_the_ingest_merges_with(tiny, tmp_p
     assert ingest_photographs(folder, geometry, clipped, c, white_level=4095, **kw) == str(c)  # the top code
     with pytest.raises(FacestatsError, match=r"\(white_level differ\)"):
         ingest_photographs(folder, geometry, clipped, c, **kw)
+
+
+def test_the_repr_of_a_photo_capture_is_counts_not_arrays(tmp_path):
+    """``print(write_capture_photographs(...))`` dumped the true dome's and the face's arrays (thousands of lines, a
+    walkthrough): the repr names the files and gives the rig and the face as counts."""
+    from facestats.acquire.dome import default_dome
+    from facestats.acquire.synthetic.photographs import PhotoCapture
+    from facestats.face.procedural import procedural_face
+
+    dome, face = default_dome().select(leds=np.arange(0, 150, 5)).resized(160, 120), procedural_face(16)
+    folder = tmp_path / "photos"
+    pc = PhotoCapture(folder / "manifest.json", folder / "dome.json", folder / "face.obj", folder / "face.regions.png",
+                      dome, [(4, 7), (11, 3)], face)  # fmt: skip
+    text = repr(pc)
+    assert "array(" not in text and len(text.replace(str(folder), "F")) < 400, text  # 70 kB before
+    assert text.startswith(f"PhotoCapture(folder={str(folder)!r}, calibration={str(folder / 'dome.json')!r}")
+    assert "<Dome: 30 LEDs, 16 cameras, 160x120 px>" in text
+    mesh = f"mesh of {len(face.mesh_vertices)} vertices and {len(face.mesh_faces)} faces"
+    assert f"<FaceGeometry {face.name!r}: {face.n_points} lumitexels, 16x16 maps, {mesh}>" in text
+    assert text.endswith("moved_frames=[(4, 7), (11, 3)] (2))")

@@ -201,6 +201,30 @@ def test_brdf_cca_on_store():
     )
 
 
+def test_to_frame_holds_each_subjects_canonical_variates(rng):
+    """Only RegionPCA had ``to_frame()`` (a walkthrough): one row per subject used, the X and Y variates and the Y
+    variables; each pair of variates correlates by its canonical correlation, and the first two X columns are the
+    projections of ``to_dict()``."""
+    x, y = _structured(rng, n=60, p=4)
+    xf = pd.DataFrame(x, index=[f"s{i}" for i in range(60)], columns=list("abcd"))
+    yf = pd.DataFrame(y, index=xf.index, columns=["skin_type", "gender", "age"])
+    xf.iloc[3, 1] = np.nan
+    res = cca(xf, yf, missing="drop")
+    frame = res.to_frame()
+    k = res.correlations.size
+    dims = [f"dimension_{i + 1}" for i in range(k)]
+    assert list(frame.columns) == dims + [f"y_{d}" for d in dims] + ["skin_type", "gender", "age"]
+    assert frame.index.name == "subject_id" and "s3" not in frame.index and len(frame) == res.n == 59
+    proj = res.to_dict()["projections"]
+    assert proj["subject_id"] == list(frame.index)
+    np.testing.assert_allclose(frame[["dimension_1", "dimension_2"]].to_numpy().T, [proj["dimension_1"],
+                               proj["dimension_2"]], rtol=1e-12)  # fmt: skip
+    r = [np.corrcoef(frame[d], frame[f"y_{d}"])[0, 1] for d in dims]
+    np.testing.assert_allclose(r, res.correlations, atol=1e-10)
+    np.testing.assert_allclose(frame[dims].std(ddof=1), 1.0, rtol=1e-10)  # unit variance
+    np.testing.assert_array_equal(frame[["skin_type", "gender", "age"]], yf.drop(index="s3"))
+
+
 def test_too_few_subjects_for_the_variables_is_refused_not_a_perfect_fit():
     rng = np.random.default_rng(3)
     X, Y = rng.standard_normal((12, 18)), rng.standard_normal((12, 3))  # noise: a plain CCA would give r = 1

@@ -39,6 +39,24 @@ def test_table_against_datasets(store):
     )
 
 
+def test_to_frame_is_table_1_one_row_per_site_and_channel(store):
+    """Only RegionPCA had ``to_frame()`` (a walkthrough): Table 1 as a DataFrame, the rows of ``to_dict()["table"]``,
+    its numbers those of the subjects' own site σtr."""
+    t = translucency_table(store)
+    frame = t.to_frame()
+    assert frame.index.names == ["site", "channel"] and list(frame.index) == [(s, c) for s in SITES for c in CHANNELS]
+    assert (
+        list(frame.columns) == ["mean", "paper_mean", "var", "std", "paper_var", "n"] and frame["n"].dtype.kind == "i"
+    )
+    assert frame.reset_index().to_dict(orient="records") == t.to_dict()["table"]
+    for site in SITES:
+        _, vals = _site_values(store, site)
+        np.testing.assert_allclose(frame.loc[site, "mean"], vals.mean(0), rtol=1e-12)
+        np.testing.assert_allclose(frame.loc[site, "var"], vals.var(0, ddof=1), rtol=1e-10)
+        np.testing.assert_allclose(frame.loc[site, "paper_mean"], published.TABLE1_MEAN[site])
+        assert (frame.loc[site, "n"] == len(vals)).all()
+
+
 def test_sigma_tr_avg_and_ell_d_extremes(store):
     t = translucency_table(store)
     ids, cheek = _site_values(store, "cheek")

@@ -111,10 +111,13 @@ def test_query_default_store():
     r = run_cli("query", "--skin-type", "IV")
     if default_store_path().exists():
         assert r.returncode in (0, 1) and "facestats query" in r.stdout
-        # every subject's σtr is σtrAvg: no spread, exactly (it printed 0.5517 ± 1.1e-16, the sums' rounding)
-        assert re.search(r"σtr +0\.5517 ± 0 +0\.9801 ± 0 +1\.559 ± 0\n", r.stdout), r.stdout
+        # every subject's σtr is σtrAvg: no spread, exactly (it printed 0.5517 ± 1.1e-16, the sums' rounding), and
+        # labelled a population constant, not "mean ± std across subjects" of "0.5517 ± 0" (a walkthrough)
+        assert re.search(r"σtr \(population\) +0\.5517 +0\.9801 +1\.559\n", r.stdout), r.stdout
         doc = json.loads(run_main("query", "--skin-type", "IV", "--format", "json").stdout)
         assert [doc["scattering"]["sigma_tr"][c]["std"] for c in "RGB"] == [0, 0, 0]
+        assert [doc["scattering"]["sigma_tr"][c]["constant"] for c in "RGB"] == [True, True, True]
+        assert [doc["scattering"]["sigma_a"][c]["constant"] for c in "RGB"] == [False, False, False]
     else:
         assert r.returncode == 2 and "default store has not been built" in r.stderr
 

@@ -68,3 +68,46 @@ def test_undetermined_texels_are_left_out_of_the_standard_errors(subject):
     keep[0] = False  # the texel made undetermined (argwhere and boolean indexing share the row-major order)
     assert row["ts_m_se_r2"] == pytest.approx(np.sqrt(np.mean(sd[keep] ** 2)), rel=1e-9)
     assert row["ts_m_mean_se_r2"] == pytest.approx(np.sqrt(np.sum(sd[keep] ** 2)) / keep.sum(), rel=1e-9)
+
+
+def test_undetermined_texels_are_counted_per_region(subject):
+    """The index's ``_se`` columns leave out the texels the fit does not determine, its ``_mean`` and ``_std`` keep
+    them, and nothing in the row said how many (a walkthrough: 6 % of S013's nose): region_undetermined counts them
+    over the row's own texels."""
+    from facestats.io.summary import determined, region_undetermined, summarise_subject
+
+    sel = (subject["region"].values == 2) & (subject["ts_flag"].values == 0)
+    rho, sd_rho = (subject[n].values[sel].astype(np.float64) for n in ("ts_rho_s", "ts_rho_s_std"))
+    base = region_undetermined(subject)
+    assert base[2] == {"n": int(sel.sum()), "ts_rho_s": int((sd_rho > np.abs(rho)).sum()), "ts_m": 0}
+    ds = subject.copy(deep=True)
+    v, u = np.argwhere(sel)[:3].T
+    ds["ts_m_std"].values[v[0], u[0]] = 1e4 * abs(float(ds["ts_m"].values[v[0], u[0]]))  # open
+    ds["ts_m_std"].values[v[1], u[1]] = np.nan  # no error at all: not determined either
+    ds["ts_m_std"].values[v[2], u[2]] = abs(float(ds["ts_m"].values[v[2], u[2]]))  # σ = |m|: still determined
+    got = region_undetermined(ds)
+    assert got[2]["ts_m"] == 2 and got[2]["n"] == base[2]["n"] == summarise_subject(ds)["n_ts_r2"]
+    assert {r: c for r, c in got.items() if r != 2} == {r: c for r, c in base.items() if r != 2}
+    np.testing.assert_array_equal(determined([0.1, 0.2, np.inf, np.nan, 0.3], [0.2, -0.2, 1, 1, 0.29]),
+                                  [True, True, False, False, False])  # fmt: skip
+    bp = (subject["region"].values == 2) & (subject["bp_flag"].values == 0)
+    assert region_undetermined(subject, "bp")[2]["n"] == int(bp.sum())
+    assert region_undetermined(subject.drop_vars(["ts_rho_s_std", "ts_m_std"])) is None
+
+
+def test_store_subjects_documents_its_three_kinds_of_std():
+    """help(store.subjects) did not say that ``_std_r`` is a spread, ``_se_r`` the RMS of the ``*_std`` maps over
+    determined texels only (a walkthrough): it says so now, with the numbers of the shipped store's S013 nose."""
+    from facestats.io.summary import region_undetermined
+
+    doc = facestats.io.Store.subjects.__doc__
+    for phrase in ("spread of the values", "standard error of one texel", "determines", "region_undetermined",
+                   "standard error of the region mean"):  # fmt: skip
+        assert phrase in doc, phrase
+    with facestats.open_store() as store:
+        row, ds = store.subjects().loc["S013"], store.subject("S013")
+    nose = (ds["region"].values == 6) & (ds["ts_flag"].values == 0)
+    sd = ds["ts_rho_s_std"].values[nose].astype(np.float64)
+    whole = float(np.sqrt(np.mean(sd**2)))
+    assert f"{whole:.2f} over all {int(nose.sum())} texels, {row['ts_rho_s_se_r6']:.3f} here" in doc
+    assert region_undetermined(ds)[6]["ts_rho_s"] == 3 and f"the three it leaves out up to {sd.max():.1f}" in doc

@@ -1,8 +1,11 @@
 """The parameter store: round trips, index, queries, integrity checks, zip stores, gc."""
 
+import csv
+import io
 import json
 import os
 import pathlib
+import re
 import zipfile
 
 import numpy as np
@@ -514,11 +517,36 @@ def test_the_table_says_why_sigma_tr_does_not_vary_between_subjects():
     with open_store() as st:
         res = st.query(skin_type="IV")
     assert all(res.scattering["sigma_tr"][ch].std == 0 for ch in CHANNELS)
-    assert "σtr is the same in every subject: the population's average" in res.to_table()
-    assert "sigma_tr is the same in every subject" in res.to_table(ascii=True)
+    text = res.to_table()
+    assert "σtr (population): one value shared by every subject, the population's average σtrAvg" in text
+    assert "± 0 " not in text and not re.search(r"± 0$", text, re.M)  # no "± 0" under "mean ± std across subjects"
+    assert "sigma_tr (population): one value shared by every subject" in res.to_table(ascii=True)
     assert res.to_table(ascii=True).isascii()
-    res.scattering["sigma_tr"]["G"] = res.scattering["sigma_tr"]["G"].__class__(0.98, 0.01, 40)
-    assert "same in every subject" not in res.to_table()
+    # the JSON and the CSV say the same: a constant, beside the measured quantities that are not
+    doc = res.to_dict()["scattering"]
+    assert all(doc["sigma_tr"][ch]["constant"] is True and doc["sigma_tr"][ch]["std"] == 0 for ch in CHANNELS)
+    assert all(doc[p][ch]["constant"] is False for p in ("sigma_a", "sigma_s_prime") for ch in CHANNELS)
+    assert "constant" not in res.to_dict()["sites"]["cheek"]["sigma_tr"]["R"]
+    rows = list(csv.DictReader(io.StringIO(res.to_csv())))
+    flags = {(r["quantity"], r["channel"]): r["constant"] for r in rows if r["section"] == "scattering"}
+    assert flags[("sigma_tr", "G")] == "true" and flags[("sigma_a", "G")] == "false"
+    assert all(r["constant"] == "" for r in rows if r["section"] != "scattering")
+    tr = dict(res.scattering["sigma_tr"])
+    res.scattering["sigma_tr"]["G"] = res.scattering["sigma_tr"]["G"].__class__(0.98, 0.01, 40, constant=False)
+    res.scattering["sigma_tr"]["R"] = res.scattering["sigma_tr"]["R"].__class__(0.55, 0.02, 40, constant=False)
+    res.scattering["sigma_tr"]["B"] = res.scattering["sigma_tr"]["B"].__class__(1.5, 0.03, 40, constant=False)
+    assert "one value shared" not in res.to_table() and "(population)" not in res.to_table()
+    res.scattering["sigma_tr"].update(tr)
+
+
+def test_one_subject_shows_no_population_constant():
+    """One subject shares its σtr with nobody: no "(population)" label and no ``constant`` claim (n = 1)."""
+    with open_store() as st:
+        res = st.query(skin_type="VI", gender="F")
+    assert res.count == 1
+    s = res.scattering["sigma_tr"]["R"]
+    assert s.n == 1 and s.constant is False and res.to_dict()["scattering"]["sigma_tr"]["R"]["constant"] is False
+    assert "(population)" not in res.to_table() and "one value shared" not in res.to_table()
 
 
 # -- writes -----------------------------------------------------------------------------
@@ -957,8 +985,11 @@ def test_gc_removes_dead_writers_leftovers_but_not_live_ones(tmp_path):
         unowned.mkdir()
         (path / "index.json.tmp-99-deadbeef").write_text("partial")
         notes = st.validate().notes
-        assert len(notes) == 2 and "6 leftover item(s)" in notes[0] and "not created by facestats" in notes[1]
+        # G9's folder counts too: it holds nothing once its generation goes ("6" before, and gc removed 7)
+        assert len(notes) == 2 and "7 leftover item(s)" in notes[0] and "not created by facestats" in notes[1]
+        assert len(st.plan_repair().garbage) == 7
         removed = st.gc()
+        assert len(removed) == 7 and "subjects/G9" in removed
         assert not dead.exists() and not (path / "subjects" / "G9").exists()
         assert not (path / "index.json.tmp-99-deadbeef").exists()
         assert not (path / ".writers" / f"G1~{gen}.lock").exists()

@@ -428,6 +428,100 @@ def test_validate_reports_exactly_what_gc_removes(store):
         assert len(removed) == n == 7 and not st.validate().notes
 
 
+def test_validate_counts_the_folder_of_a_new_subject_whose_write_was_interrupted(store):
+    """An interrupted build: a new subject's generation, record and writer lock (a dead writer). ``validate`` said
+    "3 leftover item(s)" where the repair plan removes 4, the subject folder they leave empty (a walkthrough)."""
+    gen, lock = reserve_generation(str(store), "R9")
+    (store / "subjects" / "R9" / gen).mkdir(parents=True)
+    lock.release()
+    code, out = run("validate", "--store", store, "--quiet")
+    assert code == 0 and f"4 leftover item(s) of interrupted writes (e.g. .writers/R9~{gen}.lock)" in out, out
+    code, out = run("validate", "--store", store, "--repair", "--quiet")
+    assert "remove 4 leftover item(s): " in out and out.rstrip().endswith(", subjects/R9"), out
+    code, out = run("validate", "--store", store, "--repair", "--yes", "--quiet")
+    assert code == 0 and "removed 4 leftover item(s)" in out and "note:" not in out, out
+    assert not (store / "subjects" / "R9").exists()
+
+
+def _deny_writes_under(monkeypatch, root):
+    """Make ``os.access`` say this process may not write under ``root`` (a store read-only to its user: root, which
+    runs these tests, bypasses file permissions)."""
+    real, root = os.access, os.fspath(root)
+
+    def access(path, mode, **kw):
+        inside = os.fspath(path) == root or os.fspath(path).startswith(root + os.sep)
+        return False if inside and mode & os.W_OK else real(path, mode, **kw)
+
+    monkeypatch.setattr(os, "access", access)
+
+
+def _refuse_lock_files(monkeypatch):
+    """Locking any lock file fails as opening one this user may not write does."""
+
+    def denied(self, blocking=True):
+        raise StoreError(f"cannot open lock file {self.path}: Permission denied")
+
+    monkeypatch.setattr(FileLock, "acquire", denied)
+
+
+def test_a_repair_with_nothing_to_do_takes_no_lock(store, monkeypatch):
+    """``validate --repair --yes`` of a store this user may only read, with nothing to repair, said "store is valid"
+    and then exited 2 with "Permission denied" on the store lock (a walkthrough): nothing to do, no lock."""
+    _refuse_lock_files(monkeypatch)
+    code, out = run("validate", "--store", store, "--repair", "--yes", "--quiet")
+    assert code == 0 and "store is valid" in out and "Permission denied" not in out, out
+
+
+def test_a_repair_this_user_may_not_write_fails_before_anything(store, monkeypatch):
+    """Something to repair in a store read-only to this user: refused before the lock, naming the place, with no
+    "store is valid" and nothing changed (with the lock file writable, the removals failed silently and the store
+    was reported valid, leftovers and all)."""
+    gen, lock = reserve_generation(str(store), "R9")
+    (store / "subjects" / "R9" / gen).mkdir(parents=True)
+    lock.release()
+    whole = snapshot(store)
+    _deny_writes_under(monkeypatch, store)
+    code, out = run("validate", "--store", store, "--repair", "--quiet")  # the plan is shown: it writes nothing
+    assert code == 0 and "remove 4 leftover item(s)" in out, out
+    code, out = run("validate", "--store", store, "--repair", "--yes", "--quiet")
+    assert code == 2 and "store is valid" not in out and "removed" not in out, out
+    assert f"store {store} cannot be repaired by this user: no write permission on .lock and 4 other place(s)" in out
+    assert "nothing was changed" in out and snapshot(store) == whole
+
+
+def test_the_plan_says_it_writes_a_missing_subjects_group_file(store):
+    """The repair writes a missing ``subjects/zarr.json``: its plan says so, and is not empty (a plan with nothing
+    to do is not applied, so that one would have been skipped)."""
+    (store / "subjects" / "zarr.json").unlink()
+    code, out = run("validate", "--store", store, "--repair", "--quiet")
+    assert "write the missing subjects/zarr.json" in out and "nothing to repair" not in out, out
+    code, out = run("validate", "--store", store, "--repair", "--yes", "--quiet")
+    assert code == 0 and "wrote the missing subjects/zarr.json" in out, out
+    assert json.loads((store / "subjects" / "zarr.json").read_text())["node_type"] == "group"
+    code, out = run("validate", "--store", store, "--repair", "--quiet")
+    assert "nothing to repair" in out, out
+
+
+def test_a_dead_writers_lock_is_tested_in_a_store_this_user_may_only_read(store, monkeypatch):
+    """``validate`` of a store read-only to this user holding a dead writer's lock exited 2: the lock was opened for
+    writing to test it. ``flock`` needs no write access: it is tested through a read-only descriptor."""
+    from facestats.io.locking import is_locked
+
+    gen, lock = reserve_generation(str(store), "R9")  # held: a live writer
+    path = store / ".writers" / f"R9~{gen}.lock"
+    _deny_writes_under(monkeypatch, store)
+    _refuse_lock_files(monkeypatch)
+    assert is_locked(path)
+    lock.release()  # the writer died
+    assert not is_locked(path)
+    monkeypatch.undo()
+    (store / "subjects" / "R9" / gen).mkdir(parents=True)
+    _deny_writes_under(monkeypatch, store)
+    _refuse_lock_files(monkeypatch)
+    code, out = run("validate", "--store", store, "--quiet")
+    assert code == 0 and "4 leftover item(s)" in out, out
+
+
 def test_lock_checks_never_create_files(tmp_path):
     path = tmp_path / "nothing.lock"
     assert not is_locked(path) and not path.exists()

@@ -35,6 +35,7 @@ from facestats.acquire.devices.emulator import DomeDevice, Faults, PtyServer, Se
 from facestats.acquire.devices.scene import DomeScene, SensorScene, subject_truth
 from facestats.acquire.devices.sensor import save_sensor_calibration
 from facestats.acquire.dome import default_dome
+from facestats.core.conventions import DEFAULT_EMULATED_SUBJECT
 from facestats.core.outputs import check_output_dir
 from facestats.core.validate import check_integer
 from facestats.errors import DeviceError, ValidationError
@@ -149,7 +150,7 @@ def _write_subject(lab: pathlib.Path, truth):
 
 
 def emulated_dome(
-    subject_id: str,
+    subject_id: str = DEFAULT_EMULATED_SUBJECT,
     hot_folder=None,
     lab=None,
     *,
@@ -174,7 +175,8 @@ def emulated_dome(
     Parameters
     ----------
     subject_id : str
-        The subject: of the synthetic population, or of ``store``.
+        The subject: of the synthetic population, or of ``store`` (default
+        :data:`facestats.core.conventions.DEFAULT_EMULATED_SUBJECT`, ``"S001"``, as ``facestats emulate``).
     hot_folder, lab : path-like, optional
         Where the cameras drop frames and where the lab's files are written (created;
         None: in a new temporary directory).  The server's ``hot_folder`` and ``lab`` say where.
@@ -255,7 +257,7 @@ def _start(server, scene, writer, hot_folder, lab) -> PtyServer:
 
 
 def emulated_sensor(
-    subject_id: str,
+    subject_id: str = DEFAULT_EMULATED_SUBJECT,
     hot_folder=None,
     lab=None,
     *,

@@ -138,7 +138,7 @@ def _rotation(axis, angle):
     return np.eye(3) + np.sin(angle) * kx + (1 - np.cos(angle)) * (kx @ kx)
 
 
-@dataclass
+@dataclass(repr=False)
 class PhotoCapture:
     """What :func:`write_capture_photographs` wrote: paths, and the truth it was made from.
 
@@ -167,6 +167,21 @@ class PhotoCapture:
     true_dome: Dome
     moved_frames: list
     geometry: FaceGeometry
+
+    def __repr__(self) -> str:
+        """The folder, the files beside the manifest, and the rig and face as counts (their arrays are long)."""
+        d, g = self.true_dome, self.geometry
+        sizes = np.unique(np.asarray(d.image_size).reshape(-1, 2), axis=0)
+        size = f"{sizes[0][0]}x{sizes[0][1]} px" if len(sizes) == 1 else f"{len(sizes)} image sizes"
+        moved = ", ".join(map(str, self.moved_frames[:4])) + (", ..." if len(self.moved_frames) > 4 else "")
+        files = ", ".join(f"{k}={str(getattr(self, k))!r}" for k in ("calibration", "mesh", "regions"))
+        return (
+            f"PhotoCapture(folder={str(self.folder.parent)!r}, {files}, "
+            f"true_dome=<Dome: {d.n_leds} LEDs, {d.n_cameras} cameras, {size}>, "
+            f"geometry=<FaceGeometry {g.name!r}: {g.n_points} lumitexels, {g.map_size}x{g.map_size} maps, "
+            f"mesh of {len(g.mesh_vertices)} vertices and {len(g.mesh_faces)} faces>, "
+            f"moved_frames=[{moved}] ({len(self.moved_frames)}))"
+        )
 
 
 # -- rendering --------------------------------------------------------------------------------------------

@@ -547,3 +547,22 @@ def test_a_session_plan_that_is_not_utf8_is_a_session_error(small, tmp_path):
     (out / "session" / "dome.plan.json").write_bytes(b'{"kind": "\xff"}')
     with pytest.raises(SessionError, match="capture plan .*dome.plan.json cannot be read"):
         capture(plan, calibration, "/dev/null", out, root / "hot")
+
+
+def test_the_api_emulates_the_command_lines_default_subject(tmp_path):
+    """``emulated_dome()`` required a subject where ``facestats emulate`` defaults to S001 (a walkthrough): both
+    take one constant."""
+    import inspect
+
+    from facestats.cli import build_parser
+    from facestats.core.conventions import DEFAULT_EMULATED_SUBJECT
+
+    for kind, fn in (("dome", emulated_dome), ("sensor", emulated_sensor)):
+        args = build_parser().parse_args(["emulate", kind])
+        assert args.subject == inspect.signature(fn).parameters["subject_id"].default == DEFAULT_EMULATED_SUBJECT
+    server = emulated_sensor(hot_folder=tmp_path / "hot", lab=tmp_path / "lab")  # no subject given
+    try:
+        record = json.loads((tmp_path / "lab" / "subject.json").read_text())
+    finally:
+        server.stop()
+    assert record["subject_id"] == DEFAULT_EMULATED_SUBJECT == "S001"

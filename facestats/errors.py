@@ -87,7 +87,8 @@ class FacestatsWarning(UserWarning):
 
 
 class QuantisationWarning(FacestatsWarning):
-    """A quantised-distance system (Suzuki et al. eq. 33) had unsupported levels or lacked rank.
+    """A quantised-distance system (Suzuki et al. eq. 33) had unsupported levels or lacked rank, or its light barely
+    varies where the camera sees (:mod:`facestats.model.fitting.even_light`).
 
     The result records what was done (levels merged, numerical rank, condition number).
     """

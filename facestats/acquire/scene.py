@@ -13,6 +13,15 @@ Radiance images are linear: OpenEXR or PFM through
 ``.npz`` holding an array ``radiance`` (H, W[, C]); NaN marks pixels where
 nothing was recorded (in OpenEXR, which holds finite values only, an alpha
 channel of 0 marks them: RGBA files are read with A as coverage).
+
+The fit compares the exitance with the light that entered, so the image must
+hold radiance in the lights' unit per steradian.  A merged HDR image
+(``facestats calibrate merge``: exp(g)/s, the response's arbitrary scale per
+channel) becomes one by a factor per channel: with a flat, matte reference
+target of known reflectance ρ in view, under the same light and exposure,
+:func:`reference_radiance_scale` gives it as ρ E / (π L̄), E the lights'
+irradiance at the target and L̄ the image's mean over it (a Lambertian
+reflector's radiance is ρ E / π).
 """
 
 from __future__ import annotations
@@ -26,7 +35,7 @@ from facestats.acquire.visibility import ShadowMaps
 from facestats.errors import FormatError, ValidationError
 from facestats.model.irradiance import exitance_from_radiance
 
-__all__ = ["camera_sees", "patch_radiance", "read_radiance_image", "write_radiance_image"]
+__all__ = ["camera_sees", "patch_radiance", "read_radiance_image", "reference_radiance_scale", "write_radiance_image"]
 
 
 def read_radiance_image(path) -> np.ndarray:
@@ -190,3 +199,84 @@ def patch_radiance(image, camera: PinholeCamera, patches, *, eta=1.3, shadow_res
     out = np.zeros(vals.shape)
     out[seen] = exitance_from_radiance(vals[seen], np.clip(cos_o[seen], 0, 1), eta)
     return out, seen
+
+
+def reference_radiance_scale(image, mask, reflectance, lights, point, normal) -> np.ndarray:
+    """Factor per channel that turns an image's values into radiance, from a reference target in it (module docstring).
+
+    The target is flat and matte (Lambertian, e.g. a diffuse reflectance standard or a grey card of known
+    reflectance), photographed under the same lights and exposure as the object.  Its radiance is ρ E / π, with E
+    the lights' irradiance at ``point`` on a plane of ``normal`` (cones and cuts of the lights apply; no Fresnel
+    term, the target has no interface: :func:`facestats.acquire.lights.patch_irradiance` with η = 1, where
+    F_t = 1; no shadowing, so keep the target out of the object's shadow), so the factor is
+    ρ E / (π mean(image over ``mask``)).  Multiply the image by it (``--radiance-scale`` of
+    ``facestats translucency``).
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W) or (H, W, C)
+        The image as recorded (linear, any scale: e.g. the merge's exp(g)/s).
+    mask : array_like of bool, shape (H, W)
+        The target's pixels (inside its edges: every one finite and > 0).
+    reflectance : float or array_like, shape (3,)
+        The target's diffuse reflectance ρ in (0, 1], one value or one per R, G, B.
+    lights : list of lights (:mod:`facestats.acquire.lights`)
+        As the object's (``load_lights``), in mm.
+    point, normal : array_like, shape (3,)
+        The target's centre (mm) and its unit normal, towards the camera side, in the lights' frame.
+
+    Returns
+    -------
+    ndarray, shape (C,)
+        The factor per channel (C = 1 for a grey image, fitted against the mean of the lights' R, G and B as
+        :func:`facestats.pipeline.image_translucency.fit_image_translucency` does, so ρ and E are averaged alike).
+
+    Raises
+    ------
+    ValidationError
+        A mask of another shape or selecting no pixel, target pixels not finite or ≤ 0, a reflectance outside
+        (0, 1], a normal not of unit length, or a target the lights do not reach (E = 0).
+    """
+    from facestats.acquire.lights import patch_irradiance
+    from facestats.acquire.patches import Patches
+    from facestats.core.validate import as_finite, check_range, check_shape
+
+    img = np.asarray(image, np.float64)
+    img = img[..., None] if img.ndim == 2 else img
+    if img.ndim != 3:
+        raise ValidationError(f"image must have shape (H, W) or (H, W, C), got {np.shape(image)}")
+    m = np.asarray(mask)
+    if m.dtype != bool or m.shape != img.shape[:2]:
+        raise ValidationError(
+            f"mask must be a bool array of the image's shape {img.shape[:2]}, got {m.dtype} {m.shape}"
+        )
+    if not m.any():
+        raise ValidationError("mask must select the target's pixels, got none")
+    pixels = img[m]
+    bad = np.count_nonzero(~(np.isfinite(pixels) & (pixels > 0)))
+    if bad:
+        raise ValidationError(
+            f"image must be finite and > 0 over the target (mask), got {bad} of {pixels.size} values that are not "
+            "(unrecorded or black pixels: draw the mask inside the target)"
+        )
+    rho = np.atleast_1d(as_finite(reflectance, "reflectance", dtype=np.float64))
+    if rho.shape not in ((1,), (3,)):
+        raise ValidationError(f"reflectance must be one value or one per R, G, B, got shape {np.shape(reflectance)}")
+    check_range(rho, "reflectance", 0, 1, low_inclusive=False)
+    target = Patches(
+        check_shape(as_finite(point, "point", dtype=np.float64), "point", (3,))[None],
+        check_shape(as_finite(normal, "normal", dtype=np.float64), "normal", (3,))[None],
+        np.ones(1),
+    )
+    e = patch_irradiance(target, lights, eta=1.0, shadows=False)[0]
+    if not np.all(e > 0):
+        raise ValidationError(
+            f"point must be lit by the lights (irradiance > 0 in every channel at the target), got {e.tolist()}: "
+            "the target outside a spot or a cut, or its normal facing away from the lights"
+        )
+    radiance = rho * e / np.pi  # a Lambertian reflector's radiance, per R, G, B
+    if img.shape[2] == 1:
+        radiance = radiance.mean(keepdims=True)
+    elif img.shape[2] != 3:
+        raise ValidationError(f"image must have 1 or 3 channels, got {img.shape[2]}")
+    return radiance / pixels.mean(axis=0)

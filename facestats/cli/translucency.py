@@ -13,7 +13,8 @@ __all__ = ["add_translucency"]
 
 
 def _checked_options(args):
-    """``(json path, plot path)`` after checking them and ``--eta`` (before the fit: bad options must not cost one)."""
+    """``(json path, plot path, max distance)`` after checking them, ``--eta`` and ``--max-distance`` (before the
+    fit: bad options must not cost one)."""
     from facestats.core.outputs import check_output_file
     from facestats.core.validate import check_choice
     from facestats.model.dipole import check_dipole_eta
@@ -31,39 +32,82 @@ def _checked_options(args):
     if args.eta is not None:
         with named_options(eta="--eta"):
             check_dipole_eta(args.eta)
-    return out_json, plot
+    max_distance = _max_distance(args.max_distance)
+    if args.method == "exitance" and max_distance != "auto":
+        raise ValidationError(
+            f"--max-distance selects the levels of eq. 36 (--method monotone or pinv); --method exitance fits every "
+            f"row through W, got --max-distance {args.max_distance}"
+        )
+    return out_json, plot, max_distance
 
 
 def _with_notes(fit, *args, **kwargs):
     """``fit(*args, **kwargs)`` with its quantisation warnings held back: they are each fit's notes, printed as
-    "note:" lines with the result, or on stderr before a failure's error; other warnings pass on."""
+    "note:" lines with the result, or on stderr before a failure's error (each once: the channels of an image
+    share W and repeat its warnings); other warnings pass on, each once."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", QuantisationWarning)
         try:
             result = fit(*args, **kwargs)
         except FacestatsError:
-            for w in caught:
-                if issubclass(w.category, QuantisationWarning):
-                    print(f"note: {w.message}", file=sys.stderr)
+            for message in dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, QuantisationWarning)):
+                print(f"note: {message}", file=sys.stderr)
             raise
-    for w in caught:
-        if not issubclass(w.category, QuantisationWarning):
-            warnings.warn(w.message, w.category, stacklevel=2)
+    others = {(str(w.message), w.category): w for w in caught if not issubclass(w.category, QuantisationWarning)}
+    for w in others.values():
+        warnings.warn(w.message, w.category, stacklevel=2)
     return result
+
+
+def _notes_once(names, fits):
+    """``[(channels, note)]``: each distinct note of the fits once, in order of first appearance, with the names of
+    the channels whose fit has it (a grey light gives R, G and B the same notes)."""
+    where = {}
+    for name, fit in zip(names, fits):
+        for note in fit.notes:
+            where.setdefault(note, []).append(name)
+    return [(channels, note) for note, channels in where.items()]
+
+
+def _radiance_scale(text, image):
+    """``--radiance-scale``: one factor, or one per channel of ``image``, each a finite number > 0, as an array that
+    multiplies the image (broadcast over its last axis)."""
+    import numpy as np
+
+    values = [number_option(v.strip(), float, "--radiance-scale") for v in text.split(",")]
+    channels = 1 if image.ndim == 2 else image.shape[2]
+    if len(values) not in (1, channels) or not all(np.isfinite(v) and v > 0 for v in values):
+        raise ValidationError(
+            f"--radiance-scale must be one number > 0, or one per channel of the image ({channels}), got {text!r}"
+        )
+    return np.asarray(values) if image.ndim == 3 else values[0]
+
+
+def _max_distance(text):
+    """``--max-distance``: 'auto', 'all' (None: every level, the paper's eq. 36) or a distance in mm."""
+    if text in ("auto", "all"):
+        return None if text == "all" else "auto"
+    value = number_option(text, float, "--max-distance")
+    if not value > 0:
+        raise ValidationError(f"--max-distance must be 'auto', 'all' or a distance > 0 mm, got {text!r}")
+    return value
 
 
 def _cmd_translucency(args) -> int:
     from facestats.core.outputs import OutputSet
     from facestats.pipeline.image_translucency import fit_image_translucency, load_scene_inputs
 
-    out_json, plot = _checked_options(args)
+    out_json, plot, max_distance = _checked_options(args)
     with named_options(spacing="--spacing", scale="--scale", image="--image"):
         patches, lights, eta, camera, image = load_scene_inputs(
             args.mesh, args.lights, args.camera, args.image, spacing=args.spacing, scale=args.scale
         )
     eta = args.eta if args.eta is not None else eta
     width = args.width if args.width == "auto" else number_option(args.width, float, "--width")
-    with named_options(width="--width"):
+    scale = None if args.radiance_scale is None else _radiance_scale(args.radiance_scale, image)
+    if scale is not None:
+        image = image * scale
+    with named_options(width="--width", max_distance="--max-distance"):
         fits = _with_notes(
             fit_image_translucency,
             patches,
@@ -76,6 +120,7 @@ def _cmd_translucency(args) -> int:
             grid=args.grid,
             refine=args.refine,
             self_term=args.self_term,
+            max_distance=max_distance,
             progress=not args.quiet,
         )
     names = ["R", "G", "B"] if len(fits) == 3 else [f"channel {k}" for k in range(len(fits))]
@@ -83,6 +128,7 @@ def _cmd_translucency(args) -> int:
         f"patches: {len(patches)} (--spacing {args.spacing:g} mm: sub-triangle edges at most {args.spacing:g} mm; "
         f"neighbouring centres {patches.spacing:.4g} mm apart, median), eta {eta:g}, method {args.method}"
         + ("" if args.self_term == "point" else f", self term {args.self_term}")
+        + ("" if scale is None else f", radiance scale {args.radiance_scale}")
     )
     for name, fit in zip(names, fits):
         s = fit.summary()
@@ -97,8 +143,8 @@ def _cmd_translucency(args) -> int:
             f"condition {s['condition']:.3g}, {len(s['merged_levels_mm'])} level(s) merged, "
             f"fit up to {s['max_distance_mm']:.4g} mm, {s['n_rows']} rows"
         )
-        for note in s["notes"]:
-            print(f"   note: {note}")
+    for channels, note in _notes_once(names, fits):
+        print(f"note ({', '.join(channels)}): {note}")
     figure = None
     if plot is not None:
         from facestats.pipeline.translucency_plots import plot_profile_fit
@@ -144,7 +190,12 @@ def add_translucency(sub):
     p.add_argument("mesh", metavar="MESH", help="object mesh (OBJ or PLY), in mm unless --scale")
     p.add_argument("--lights", required=True, help="light description (JSON, see docs/translucency_from_image.md)")
     p.add_argument("--camera", required=True, help="pinhole camera (JSON: matrix, rotation, position_mm, image_size)")
-    p.add_argument("--image", required=True, help="linear radiance image (.exr, .pfm, or .npz with 'radiance')")
+    p.add_argument(
+        "--image",
+        required=True,
+        help="linear radiance image (.exr, .pfm, or .npz with 'radiance'), in the lights' unit per sr (else "
+        "--radiance-scale)",
+    )
     p.add_argument(
         "--spacing",
         type=ascii_float,
@@ -163,6 +214,20 @@ def add_translucency(sub):
         default="monotone",
         help="solve (default monotone); 'exitance' fits the dipole to the image through W (with --self-term surface "
         "for continuous surfaces; docs/translucency_from_image.md)",
+    )
+    p.add_argument(
+        "--max-distance",
+        default="auto",
+        metavar="auto|all|MM",
+        help="levels eq. 36 fits: 'auto' (default: up to where the image determines R' to 25 %%), 'all' (the "
+        "paper's), or up to a distance in mm; not with --method exitance",
+    )
+    p.add_argument(
+        "--radiance-scale",
+        default=None,
+        metavar="K[,K,K]",
+        help="factor(s) turning the image's values into radiance in the lights' unit per sr (e.g. the merge's "
+        "exp(g)/s; docs/translucency_from_image.md, Absolute radiance); default: the image holds it already",
     )
     p.add_argument("--grid", choices=("table2", "skin"), default="table2", help="eq. 36 grid (default Table 2)")
     p.add_argument("--refine", action="store_true", help="refine the grid optimum by continuous least squares")

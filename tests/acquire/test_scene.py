@@ -457,3 +457,40 @@ def test_render_exitance_image_channels_and_errors():
     bad[4] = np.nan
     with pytest.raises(ValidationError, match="exitance"):
         render_exitance_image(scene.camera, p, bad, eta=1.3)
+
+
+def test_reference_radiance_scale_is_the_lambertian_targets_radiance_over_its_pixels():
+    """A matte target of reflectance ρ at x with normal N under a point light of intensity I at y has radiance
+    ρ I (N·ω) / (π d²) (ω = (y − x)/d, no interface); an image k × too bright over it gives the factor 1/k per
+    channel, and a grey image the factor of the channels' mean."""
+    from facestats.acquire.scene import reference_radiance_scale
+
+    intensity = np.array([1e4, 2e4, 5e3])
+    lights = [PointLight(np.array([30.0, -20.0, 300.0]), intensity)]
+    point, normal = np.array([5.0, 3.0, 1.0]), np.array([0.3, 0.0, 1.0]) / np.hypot(0.3, 1.0)
+    to_light = lights[0].position - point
+    d = np.linalg.norm(to_light)
+    rho = np.array([0.5, 0.4, 0.6])
+    radiance = rho * intensity * (normal @ to_light / d) / (np.pi * d * d)  # independent evaluation
+    k = np.array([2.0, 3.5, 0.25])
+    image = np.full((20, 30, 3), np.nan)
+    mask = np.zeros((20, 30), bool)
+    mask[5:9, 10:20] = True
+    image[mask] = k * radiance
+    scale = reference_radiance_scale(image, mask, rho, lights, point, normal)
+    np.testing.assert_allclose(scale, 1 / k, rtol=1e-12)
+    grey = np.where(mask, 3.0, np.nan)  # a grey camera: the mean of the channels' radiance
+    scale = reference_radiance_scale(grey, mask, rho, lights, point, normal)
+    np.testing.assert_allclose(scale, [np.mean(radiance) / 3.0], rtol=1e-12)
+    cut = [PointLight(lights[0].position, intensity, (np.array([-1.0, 0.0, 0.0]),))]  # lights only x ≤ 30
+    far = point + np.array([40.0, 0.0, 0.0])
+    for args, message in (
+        ((image, mask, rho, cut, far, normal), r"point must be lit by the lights .* got \[0.0, 0.0, 0.0\]"),
+        ((image, mask[:, :20], rho, lights, point, normal), "mask must be a bool array of the image's shape"),
+        ((image, np.zeros_like(mask), rho, lights, point, normal), "mask must select the target's pixels"),
+        ((np.where(mask[..., None], 0.0, image), mask, rho, lights, point, normal), "got 120 of 120 values"),
+        ((image, mask, 1.5, lights, point, normal), "reflectance must lie in"),
+        ((image, mask, [0.5, 0.5], lights, point, normal), "reflectance must be one value or one per R, G, B"),
+    ):
+        with pytest.raises(ValidationError, match=message):
+            reference_radiance_scale(*args)

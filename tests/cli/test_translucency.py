@@ -279,3 +279,153 @@ def test_docs_making_inputs_runs_as_written(tmp_path):
     patches = read_mesh_patches(tmp_path / "pyramid.obj", spacing=2.5)
     lit = patch_irradiance(patches, lights, eta=eta)[:, 0] > 0
     assert np.array_equal(lit, patches.normal[:, 0] > 0.5) and lit.sum() == len(patches) // 4
+
+
+@pytest.fixture(scope="module")
+def plate_files(tmp_path_factory):
+    """The 40 mm plate (3,200 patches) under a 1° spot and lit all over, point-kernel renders of Table 1's medium."""
+    from facestats.acquire.synthetic.patch_image import render_exitance_image
+    from facestats.acquire.synthetic.scenes import plate_scene
+    from facestats.io.mesh import write_mesh
+
+    d = tmp_path_factory.mktemp("plate")
+    for light in ("spot", "uniform"):
+        scene = plate_scene(1.5, light)
+        r = render_scene(scene)
+        write_mesh(d / f"{light}.obj", scene.patches.mesh_vertices, scene.patches.mesh_faces)
+        save_lights(d / f"{light}_lights.json", scene.lights, eta=scene.eta)
+        scene.camera.save(d / f"{light}_camera.json")
+        rgb = np.repeat(r.exitance[:, None], 3, axis=1)
+        write_radiance_image(d / f"{light}.exr", render_exitance_image(scene.camera, r.patches, rgb, eta=scene.eta))
+    return d
+
+
+def _plate_args(d, light):
+    return ["translucency", d / f"{light}.obj", "--lights", d / f"{light}_lights.json", "--camera",
+            d / f"{light}_camera.json", "--image", d / f"{light}.exr", "--spacing", "1.5", "--quiet"]  # fmt: skip
+
+
+def test_a_plate_under_a_spot_is_fitted_and_one_lit_all_over_is_refused_naming_what_to_do(plate_files):
+    """A walkthrough's "spot" passed 1.0 as PointLight's cone half-angle, which is in radians: 57°, the whole plate
+    lit within 1.3 %. eq. 36 then gave σ's 1.57 [1.53, 1.61] for a truth of 2.19 with no warning (the fit range had
+    collapsed at the finer widths, and width='auto' moved on silently), and --width 0.3 failed asking to raise
+    max_distance, which the command did not have. A real 1° spot is fitted; the plate lit all over is refused."""
+    r = run_main(*_plate_args(plate_files, "spot"))
+    assert r.returncode == 0, r.stderr
+    for name in "RGB":
+        s, a = (float(x) for x in re.findall(rf"{name}: sigma_s' = ([\d.]+) .*sigma_a = ([\d.]+) ", r.stdout)[0])
+        assert (s, a) == (2.19, 0.0021), r.stdout
+    for width in ("auto", "0.3"):
+        r = run_main(*_plate_args(plate_files, "uniform"), "--width", width)
+        assert r.returncode == 2 and r.stdout == ""
+        assert "facestats: error: the light is nearly uniform where the camera sees: 3200 of 3200" in r.stderr
+        assert "3200 of 3200 patches are lit, at " in r.stderr and "--method exitance on the command line" in r.stderr
+        assert "max_distance" not in r.stderr.replace("--max-distance", "")
+    r = run_main(*_plate_args(plate_files, "uniform"), "--method", "exitance", "--width", "0.25")
+    assert r.returncode == 0, r.stderr
+    notes = [x for x in r.stdout.splitlines() if x.startswith("note (R, G, B): the light is nearly uniform")]
+    assert len(notes) == 1 and "rim" in notes[0]
+
+
+def test_notes_are_printed_once_naming_their_channels(scene_files):
+    r = run_main(*_scene_args(scene_files), "--quiet")
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    chose = [x for x in lines if "width='auto' chose" in x]
+    assert len(chose) == 1 and chose[0].startswith("note (R, G, B): width='auto' chose 0.5893 mm")
+    assert not any(x.lstrip().startswith("note:") for x in lines)
+
+
+def test_a_failed_fits_notes_are_printed_once(capsys):
+    import warnings
+
+    from facestats.cli.translucency import _with_notes
+    from facestats.errors import FitError, QuantisationWarning
+
+    def fit():
+        for _ in range(3):  # three channels sharing one W warn alike
+            warnings.warn("W is ill-conditioned", QuantisationWarning)
+        raise FitError("no")
+
+    with pytest.raises(FitError):
+        _with_notes(fit)
+    assert capsys.readouterr().err == "note: W is ill-conditioned\n"
+
+
+def _scaled_image(src, dst, factors):
+    from facestats.acquire.scene import read_radiance_image
+
+    write_radiance_image(dst, read_radiance_image(src) * np.asarray(factors, np.float32))
+
+
+def test_radiance_scale_turns_an_image_of_another_unit_into_radiance(scene_files, tmp_path):
+    """An image 2× too bright reads as another medium (σ's 1.46, docs); --radiance-scale 0.5 recovers Table 1's,
+    also one factor per channel (R 2×, G 4×, B ½× as bright)."""
+    from facestats.core.published import SUZUKI_TABLE1
+
+    truth = (SUZUKI_TABLE1["sigma_s_prime"], SUZUKI_TABLE1["sigma_a"])
+    d = scene_files
+    for factors, scale in (((2.0, 2.0, 2.0), "0.5"), ((2.0, 4.0, 0.5), "0.5,0.25,2")):
+        image, out = tmp_path / "scaled.exr", tmp_path / "fit.json"
+        _scaled_image(d / "pyramid.exr", image, factors)
+        args = ["translucency", d / "pyramid.obj", "--lights", d / "lights.json", "--camera", d / "camera.json",
+                "--image", image, "--spacing", "2.5", "--quiet", "--json", out, "--overwrite"]  # fmt: skip
+        for extra in ([], ["--radiance-scale", scale]):
+            r = run_main(*args, *extra)
+            assert r.returncode == 0, r.stderr
+            got = {k: (v["sigma_s_prime"], v["sigma_a"]) for k, v in json.loads(out.read_text()).items()}
+            if extra:
+                assert all(v == truth for v in got.values()), got
+                assert r.stdout.splitlines()[0].endswith(f"method monotone, radiance scale {scale}")
+            else:
+                assert all(v != truth for v in got.values()), got
+                if factors == (2.0, 2.0, 2.0):
+                    assert got["R"] == (1.46, 0.0024), got  # the documented misreading
+    # the route from a photograph: a matte target of known reflectance beside the object, in the same (2x) image
+    from facestats.acquire.camera import PinholeCamera
+    from facestats.acquire.lights import load_lights
+    from facestats.acquire.scene import read_radiance_image, reference_radiance_scale
+
+    lights, _ = load_lights(d / "lights.json")
+    camera = PinholeCamera.load(d / "camera.json")
+    point, normal, rho = np.array([28.0, 28.0, 0.0]), np.array([1.0, 0.0, 1.0]) / np.sqrt(2), 0.5
+    target = rho * float(normal @ lights[0].direction) * lights[0].irradiance / np.pi  # E⊥ (N·ω) ρ / π
+    image = read_radiance_image(d / "pyramid.exr") * 2
+    pix, _ = camera.project(point + np.array([[-2.0, -2.0, 0], [2.0, 2.0, 0]]))
+    (c0, r0), (c1, r1) = np.floor(pix.min(0)).astype(int), np.ceil(pix.max(0)).astype(int)
+    mask = np.zeros(image.shape[:2], bool)
+    mask[r0:r1, c0:c1] = True
+    assert np.isnan(image[mask]).all()  # beside the pyramid: no patch is seen there
+    image[mask] = 2 * target
+    scale = reference_radiance_scale(image, mask, rho, lights, point, normal)
+    np.testing.assert_allclose(scale, 0.5, rtol=1e-6)
+    write_radiance_image(tmp_path / "with_target.exr", image)
+    factors = ",".join(f"{x:.17g}" for x in scale)
+    r = run_main(*args[:7], tmp_path / "with_target.exr", *args[8:], "--radiance-scale", factors)
+    assert r.returncode == 0, r.stderr
+    got = {k: (v["sigma_s_prime"], v["sigma_a"]) for k, v in json.loads(out.read_text()).items()}
+    assert all(v == truth for v in got.values()), got
+    for bad, message in (("0", "--radiance-scale must be one number > 0, or one per channel of the image (3)"),
+                         ("1,2", "--radiance-scale must be one number > 0, or one per channel"),
+                         ("x", "--radiance-scale must be a number (ASCII digits 0-9), got 'x'")):  # fmt: skip
+        r = run_main(*_scene_args(scene_files), "--radiance-scale", bad)
+        assert r.returncode == 2 and message in r.stderr, r.stderr
+
+
+def test_max_distance_is_an_option(scene_files, tmp_path):
+    out = tmp_path / "fit.json"
+    got = {}
+    for value in ("all", "20", "auto"):
+        r = run_main(*_scene_args(scene_files), "--quiet", "--max-distance", value, "--json", out, "--overwrite")
+        assert r.returncode == 0, r.stderr
+        fit = json.loads(out.read_text())["R"]
+        got[value] = (fit["max_distance_mm"], fit["sigma_s_prime"], fit["sigma_a"])
+    assert got["all"][0] > 60 and got["20"][0] <= 20 and 30 < got["auto"][0] < 40, got
+    # the paper's every level reads the far levels too (2.26 / 0.002); auto stops where R' is determined (Table 1)
+    assert got["auto"][1:] == (2.19, 0.0021) and abs(got["20"][1] - 2.19) <= 0.05 and got["all"][1:] != got["auto"][1:]
+    for extra, message in ((["--max-distance", "-1"], "--max-distance must be 'auto', 'all' or a distance > 0 mm"),
+                           (["--max-distance", "1e6"], "--max-distance must not exceed the largest patch distance"),
+                           (["--max-distance", "5", "--method", "exitance"],
+                            "--max-distance selects the levels of eq. 36 (--method monotone or pinv)")):  # fmt: skip
+        r = run_main(*_scene_args(scene_files), "--quiet", *extra)
+        assert r.returncode == 2 and message in r.stderr, r.stderr

@@ -53,3 +53,15 @@ def test_the_skin_grid_fits_through_the_api_although_its_far_corner_underflows(w
     (s0, s1), (a0, a1) = red.summary()["sigma_s_prime_interval"], red.summary()["sigma_a_interval"]
     assert s0 <= 2.19 <= s1 and a0 <= 0.0021 <= a1
     assert abs(red.sigma_s_prime - 2.19) <= 0.05 and abs(red.sigma_a - 0.0021) <= 0.0003
+
+
+def test_file_names_are_refused_naming_the_loader(warm_scene, tmp_path):
+    """The API takes loaded inputs; a file name gave numpy's "image must have shape ... got ()" (a walkthrough)."""
+    scene, image = warm_scene
+    args = {"patches": scene.patches, "lights": scene.lights, "camera": scene.camera, "image": image}
+    for name in args:
+        bad = dict(args, **{name: tmp_path / f"{name}.x"})
+        with pytest.raises(ValidationError, match=rf"^{name} must be loaded, not a file name, got .*load_scene_inputs"):
+            fit_image_translucency(**bad)
+    with pytest.raises(ValidationError, match="camera must be a facestats.acquire.camera.PinholeCamera, got dict"):
+        fit_image_translucency(scene.patches, scene.lights, {"matrix": None}, image)

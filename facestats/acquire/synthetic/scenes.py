@@ -18,6 +18,11 @@
   entirely inside the window so that the window holds all the light that enters
   the skin; a close-up camera 250 mm away along the normal with pixels of a quarter of the
   grid spacing.
+* :func:`plate_scene` — a flat 40 mm plate under a point light 300 mm above: a
+  ``"spot"`` (a cone of 1° half-angle, radius 5.2 mm on the plate), a
+  ``"stripe"`` (a cut through the light: the half x ≥ 0 lit) or ``"uniform"``
+  (no cone, no cut: the whole plate lit within 1.3 %, the ill-posed case of
+  :mod:`facestats.model.fitting.light_edges`); the pyramid's camera.
 """
 
 from __future__ import annotations
@@ -33,10 +38,21 @@ from facestats.core.validate import as_scalar, check_choice
 from facestats.errors import ValidationError
 from facestats.face.procedural import SITE_CENTRES, face_window
 
-__all__ = ["PatchScene", "square_pyramid", "pyramid_scene", "face_site_scene", "PYRAMID_LIGHTS", "SITE_LIGHTS"]
+__all__ = [
+    "PatchScene",
+    "square_pyramid",
+    "pyramid_scene",
+    "plate_scene",
+    "face_site_scene",
+    "PYRAMID_LIGHTS",
+    "PLATE_LIGHTS",
+    "SITE_LIGHTS",
+]
 
 #: Directions towards the distant light of :func:`pyramid_scene`.
 PYRAMID_LIGHTS = {"edge": (1.0, 0.0, -0.1), "oblique": (1.0, 0.5, 0.5), "uniform": (0.0, 0.0, 1.0)}
+#: Lights of :func:`plate_scene`: a point light 300 mm above the plate's centre, with a 1° cone, one cut or neither.
+PLATE_LIGHTS = ("spot", "stripe", "uniform")
 #: Projector patterns of :func:`face_site_scene`.
 SITE_LIGHTS = ("stripe", "spot")
 
@@ -129,6 +145,49 @@ def pyramid_scene(spacing=1.8, light="edge", *, base=50.0, height=25.0, image_si
     focal = size / 2 / (0.6 * float(base)) * 400.0  # the base spans ~80 % of the image
     camera = PinholeCamera.looking_at((0.0, 0.0, 400.0), (0.0, 0.0, 0.0), focal_px=focal, image_size=(size, size))
     return PatchScene(patches, lights, camera, 1.3, name=f"pyramid-{light}")
+
+
+def plate_scene(spacing=1.0, light="spot", *, side=40.0, image_size=300) -> PatchScene:
+    """A flat square plate (z = 0, normal +z) under a point light 300 mm above its centre (module docstring).
+
+    The mesh is a grid of ``side`` / 2 mm squares of two triangles each (20 × 20 squares), counter-clockwise seen
+    from +z; patches of edge ``spacing`` (:func:`facestats.acquire.patches.mesh_patches`).  The light has radiant
+    intensity 4·10⁴ per channel (irradiance about 0.44 at the plate); ``"spot"`` adds a cone of half-angle 1°
+    around −z (``PointLight`` takes it in radians), ``"stripe"`` the cut n = (1, 0, 0) through the light.
+
+    Parameters
+    ----------
+    spacing : float
+        Target patch edge length in mm.
+    light : {"spot", "stripe", "uniform"}
+        :data:`PLATE_LIGHTS`.
+    side : float
+        Side of the plate, mm (> 0).
+    image_size : int
+        Side of the square image of the camera 400 mm above, which sees the plate over about 2/3 of it.
+
+    Returns
+    -------
+    PatchScene
+        With η = 1.3 and the name ``"plate-<light>"``.
+    """
+    check_choice(light, "light", PLATE_LIGHTS)
+    half = as_scalar(side, "side", 0, None, low_inclusive=False, unit="mm") / 2
+    n = 20
+    xs = np.linspace(-half, half, n + 1)
+    gx, gy = np.meshgrid(xs, xs)
+    v = np.c_[gx.ravel(), gy.ravel(), np.zeros(gx.size)]
+    a = (np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]).ravel()  # lower-left corner of each square
+    f = np.concatenate([np.c_[a, a + 1, a + n + 2], np.c_[a, a + n + 2, a + n + 1]])
+    patches = mesh_patches(v, f, spacing=spacing, occluder=False)
+    patches = Patches(patches.centre, patches.normal, patches.area, patches.corners, v, f)
+    cone = (np.array([0.0, 0.0, -1.0]), np.radians(1.0)) if light == "spot" else None
+    cuts = (np.array([1.0, 0.0, 0.0]),) if light == "stripe" else ()
+    lights = [PointLight(np.array([0.0, 0.0, 300.0]), 4e4, cuts, cone)]
+    size = int(image_size)
+    focal = size / 2 / (0.6 * 2 * half) * 400.0
+    camera = PinholeCamera.looking_at((0.0, 0.0, 400.0), (0.0, 0.0, 0.0), focal_px=focal, image_size=(size, size))
+    return PatchScene(patches, lights, camera, 1.3, name=f"plate-{light}")
 
 
 def face_site_scene(site="cheek", light="stripe", *, spacing=0.3, half_width=9.0, pixel_fraction=0.25) -> PatchScene:

@@ -103,6 +103,8 @@ from facestats.model.fitting.quantised import equilibrate
 __all__ = [
     "ProfileGrid",
     "TABLE2_GRID",
+    "LOG_GRID_SIGMA_S_PRIME",
+    "LOG_GRID_SIGMA_A",
     "ProfileFit",
     "profile_cost",
     "fit_profile_grid",
@@ -110,6 +112,10 @@ __all__ = [
     "fit_exitance_grid",
 ]
 
+#: Default ranges of :meth:`ProfileGrid.log_spaced`, mm⁻¹ (σ's, σa): skin-like media and far beyond (the command
+#: line's ``--grid skin``).
+LOG_GRID_SIGMA_S_PRIME = (0.05, 20.0)
+LOG_GRID_SIGMA_A = (1e-3, 5.0)
 #: Models evaluated per chunk of the grid search; the dipole's temporaries take about 8 × chunk × levels doubles.
 _CHUNK_MODELS = 4096
 #: The exitance fit's chunks hold at most this many model × level values (16 MB a temporary, ~130 MB in all).
@@ -163,7 +169,7 @@ class ProfileGrid:
         return cls(np.round(np.arange(1, 301) * 0.01, 2), np.round(np.arange(1, 31) * 1e-4, 4))
 
     @classmethod
-    def log_spaced(cls, sigma_s_prime=(0.05, 20.0), sigma_a=(1e-3, 5.0), n=(150, 150)) -> "ProfileGrid":
+    def log_spaced(cls, sigma_s_prime=LOG_GRID_SIGMA_S_PRIME, sigma_a=LOG_GRID_SIGMA_A, n=(150, 150)) -> "ProfileGrid":
         """A grid evenly spaced in ln σ's and ln σa over the given ranges (mm⁻¹), ``n`` values each.
 
         Parameters
@@ -432,7 +438,7 @@ def fit_profile_grid(
             f"eq. 36 needs at least 3 levels with R' > 0 within max_distance={dmax:g} mm to fit 2 parameters, "
             f"got {n_used} (of {int(in_range.sum())} levels in range, of {d.size}): too few lit patches seen at "
             "distinct distances from the light (check the light's placement and the mesh's unit), or raise "
-            "max_distance"
+            "max_distance (--max-distance on the command line)"
         )
     du, y = d[used], np.log(r[used])
     cost = profile_cost(du, y, grid, eta)
@@ -441,7 +447,8 @@ def fit_profile_grid(
         raise FitError(
             f"eq. 36: every model of the grid (sigma_s' {s0:g}-{s1:g}, sigma_a {a0:g}-{a1:g} 1/mm) has R "
             f"underflowing to 0 at some of the {n_used} levels up to {float(du.max()):g} mm; "
-            "fit fewer levels (max_distance) or use a grid of smaller coefficients"
+            "fit fewer levels (max_distance; --max-distance on the command line) or use a grid of smaller "
+            "coefficients"
         )
 
     def resid(sp, sa):

@@ -94,6 +94,7 @@ __all__ = [
     "QuantisedSystem",
     "Conditioning",
     "uniform_levels",
+    "patch_spacing",
     "planned_levels",
     "quantised_system",
     "point_kernel_exitance",
@@ -151,6 +152,10 @@ class QuantisedSystem:
         A patch's own light), or None for the paper's R(0) c_j A_j.
     near : bool
         The near neighbours' light was integrated over their disks (module docstring: Near neighbours' light).
+    spacing : float
+        The resolution of the patches W was built on, mm: :func:`patch_spacing` of the visible and the lit
+        patches (NaN for a system built otherwise).  The fit range of
+        :func:`facestats.model.fitting.quantisation_choice.fit_distance` is judged at no finer levels.
     """
 
     matrix: np.ndarray
@@ -162,6 +167,7 @@ class QuantisedSystem:
     merged: tuple = field(default=())
     areas: np.ndarray | None = None
     near: bool = False
+    spacing: float = float("nan")
 
     @property
     def n_levels(self) -> int:
@@ -238,6 +244,28 @@ def _check_levels(levels) -> np.ndarray:
             f"got {np.array2string(lev[:6], precision=4)}{' …' if lev.size > 6 else ''}"
         )
     return lev
+
+
+def patch_spacing(points) -> float:
+    """Median distance from each point to its nearest other point, mm (the patches' spacing h).
+
+    Parameters
+    ----------
+    points : array_like, shape (m, 3)
+        Patch centres, mm (not validated).
+
+    Returns
+    -------
+    float
+        NaN for fewer than two points.
+    """
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(points, np.float64)
+    if p.shape[0] < 2:
+        return float("nan")
+    d, _ = cKDTree(p).query(p, k=2)
+    return float(np.median(d[:, 1]))
 
 
 def _farthest(rows_xyz, cols_xyz, rho=None) -> float:
@@ -560,6 +588,7 @@ def quantised_system(
         n_pairs=int(idx.size) * int(lit.size),
         areas=area,
         near=bool(near),
+        spacing=patch_spacing(p[np.union1d(idx, lit)]),
     )
 
 

@@ -5,6 +5,10 @@ of eq. 16 and the exitance l_j of eq. 15 (see :mod:`facestats.model.irradiance`)
 and returns (σ's, σa) of the dipole with an interval and the diagnostics of the
 linear system:
 
+0. **Light** (beyond the paper): the solve learns R' from where the light changes near the seen
+   patches; when fewer than 30 are unevenly lit (:mod:`facestats.model.fitting.even_light`), eq. 36
+   (``"monotone"``, ``"pinv"``) is refused with a :class:`facestats.errors.FitError` that says what to do, and
+   ``"exitance"`` runs with a note.
 1. **Levels** (eq. 22-24): a width in mm, or ``"auto"`` (below).
 2. **W** (eq. 33) over the visible rows, streamed in row blocks
    (:func:`facestats.model.fitting.quantised.quantised_system`).  ``self_term``:
@@ -86,14 +90,17 @@ import numpy as np
 
 from facestats.core.validate import as_finite, as_scalar, check_choice, check_integer, check_shape
 from facestats.errors import FitError, QuantisationWarning, ValidationError
+from facestats.model.fitting.even_light import EVEN_CONTRAST, EVEN_NEIGHBOURS, UNEVEN_ROWS, evenly_lit_rows
 from facestats.model.fitting.profile_grid import (
+    LOG_GRID_SIGMA_A,
+    LOG_GRID_SIGMA_S_PRIME,
     TABLE2_GRID,
     ProfileFit,
     ProfileGrid,
     fit_exitance_grid,
     fit_profile_grid,
 )
-from facestats.model.fitting.quantisation_choice import auto_width, fit_distance
+from facestats.model.fitting.quantisation_choice import MAX_RELATIVE_ERROR, NOISE_FLOOR, auto_width, fit_distance
 from facestats.model.fitting.quantised import (
     DEFAULT_BLOCK_BYTES,
     MAX_LEVELS,
@@ -324,7 +331,19 @@ def _solve(system, neq, l, method, rcond, notes):
 def _fit_range(system, neq, l, r, method, max_distance):
     """The largest level distance of the fit, mm (``max_distance`` of :func:`fit_scattering_image`)."""
     if max_distance == "auto" and method == "monotone":
-        return fit_distance(system, neq, r)
+        dmax = fit_distance(system, neq, r)
+        n = int(np.count_nonzero((system.levels <= dmax) & (r > 0)))
+        if n < 3:
+            raise FitError(
+                f"max_distance='auto': the image determines R' to {100 * MAX_RELATIVE_ERROR:g} % (at "
+                f"{100 * NOISE_FLOOR:g} % noise or the solve's residual, at the patches' resolution) only up to "
+                f"{dmax:.4g} mm, {n} level(s) with R' > 0 where eq. 36 needs 3: the near levels are not resolved (the "
+                "light varies little near the patches the camera sees, or the image is noisy). A coarser width pools "
+                "them (width='auto' tries coarser ones); method='exitance' fits the dipole through W without R'; a "
+                "larger max_distance forces the range, but levels the data do not determine bias the fit (command "
+                "line: --width, --method exitance, --max-distance)"
+            )
+        return dmax
     if max_distance is None or max_distance == "auto":  # the paper fits every level
         return float(system.levels[-1])
     dmax = as_scalar(max_distance, "max_distance", 0, None, low_inclusive=False, unit="mm")
@@ -392,6 +411,34 @@ def _exitance_fit(system, l, *, max_distance, min_pairs, rcond, grid, eta, refin
     return shown, pf, r, cond, full.n_rows, [note, *shown_notes]
 
 
+def _grid_edge_note(pf) -> str:
+    """The note of an interval that reaches the grid's edge: which edge, and advice that depends on the grid run."""
+    g = pf.grid
+    ends = []
+    for name, values, (low, high) in (
+        ("sigma_s'", g.sigma_s_prime, pf.sigma_s_prime_interval),
+        ("sigma_a", g.sigma_a, pf.sigma_a_interval),
+    ):
+        ends += [f"{name} {values[0]:g} (lowest)"] if low <= values[0] else []
+        ends += [f"{name} {values[-1]:g} (highest)"] if high >= values[-1] else []
+    found = (
+        f"the interval reaches the edge of the grid at {' and '.join(ends)} (grid sigma_s' {g.sigma_s_prime[0]:g}-"
+        f"{g.sigma_s_prime[-1]:g}, sigma_a {g.sigma_a[0]:g}-{g.sigma_a[-1]:g} 1/mm): the grid bounds it"
+    )
+    (s0, s1), (a0, a1) = LOG_GRID_SIGMA_S_PRIME, LOG_GRID_SIGMA_A
+    if g.sigma_s_prime[0] > s0 or g.sigma_s_prime[-1] < s1 or g.sigma_a[0] > a0 or g.sigma_a[-1] < a1:
+        return (
+            f"{found}, and the medium may lie outside; fit on a wider grid (grid=ProfileGrid.log_spaced(), sigma_s' "
+            f"{s0:g}-{s1:g} and sigma_a {a0:g}-{a1:g} 1/mm; --grid skin on the command line)"
+        )
+    return (
+        f"{found}, which already spans the skin grid's sigma_s' {s0:g}-{s1:g} and sigma_a {a0:g}-{a1:g} 1/mm: the "
+        f"medium lies outside them, or the data do not determine that coefficient (sigma_a shapes the profile's fall "
+        f"over 1/sigma_tr, and the fit reaches {pf.max_distance:.4g} mm); a grid of other ranges is "
+        "grid=ProfileGrid.log_spaced((low, high), (low, high)), which the command line does not offer"
+    )
+
+
 def fit_scattering_system(
     system: QuantisedSystem,
     exitance,
@@ -430,7 +477,9 @@ def fit_scattering_system(
         ``len(system.rows)``), or a ``max_distance`` beyond the farthest pair (or given with ``method="exitance"``).
     FitError
         No row with l > 0 (except for ``method="pinv"``), fewer than 3 levels left after merging (for
-        ``"exitance"`` R' is then NaN instead), or fewer than 3 rows with l > 0 for the exitance fit.
+        ``"exitance"`` R' is then NaN instead), fewer than 3 rows with l > 0 for the exitance fit, or an automatic
+        fit range (``max_distance="auto"``, ``"monotone"``) of fewer than 3 levels with R' > 0.  The light is not
+        checked here (no patch positions: :func:`fit_scattering_image` checks it).
 
     Warns
     -----
@@ -468,12 +517,7 @@ def fit_scattering_system(
     if pf.n_nonpositive:
         notes.append(f"{pf.n_nonpositive} level(s) within the fit range with R' ≤ 0 left out of eq. 36 (log undefined)")
     if pf.at_grid_edge:
-        g = pf.grid
-        notes.append(
-            f"the interval reaches the edge of the grid (sigma_s' {g.sigma_s_prime[0]:g}-{g.sigma_s_prime[-1]:g}, "
-            f"sigma_a {g.sigma_a[0]:g}-{g.sigma_a[-1]:g} 1/mm): the grid bounds it, and the medium may lie outside; "
-            "fit on a wider grid (grid=ProfileGrid.log_spaced(); --grid skin on the command line)"
-        )
+        notes.append(_grid_edge_note(pf))
     return ScatteringImageFit(
         sigma_s_prime=pf.sigma_s_prime,
         sigma_a=pf.sigma_a,
@@ -572,6 +616,14 @@ def fit_scattering_image(
     Returns
     -------
     ScatteringImageFit
+
+    Raises
+    ------
+    FitError
+        As :func:`fit_scattering_system`; and before W is built, for ``method`` "monotone" or "pinv", light that
+        is nearly uniform where the camera sees (module docstring, step 0; the message gives the lit patches and
+        what to do).  With ``width="auto"`` a width whose fit fails moves on to the next candidate (the width kept
+        notes it); the error is raised when none is left.
     """
     p, a, c, l, vis = _check_inputs(points, areas, irradiance, radiance, visible)
     rows = np.nonzero(vis)[0]
@@ -585,8 +637,11 @@ def fit_scattering_image(
         refine=refine,
         level=level,
     )
+    check_choice(method, "method", METHODS)
+    uneven = _even_light(p, c, rows, method)
     own = self_term_keywords(self_term, a)
-    return _fit_over_widths(p, c * a, rows, [l[rows]], width, options, block_bytes, progress, own)[0]
+    fits = _fit_over_widths(p, c * a, rows, [l[rows]], width, options, block_bytes, progress, own)
+    return _with_light_note(fits, uneven)[0]
 
 
 def fit_scattering_channels(points, areas, irradiance, radiance, *, width, visible=None, **options) -> list:
@@ -613,6 +668,11 @@ def fit_scattering_channels(points, areas, irradiance, radiance, *, width, visib
     -------
     list of ScatteringImageFit
         One per channel.
+
+    Raises
+    ------
+    FitError
+        As :func:`fit_scattering_image` (the light is checked per distinct irradiance column).
     """
     lv = as_finite(radiance, "radiance", 0, None, dtype=np.float64)
     if lv.ndim != 2:
@@ -624,6 +684,7 @@ def fit_scattering_channels(points, areas, irradiance, radiance, *, width, visib
     block_bytes = options.pop("block_bytes", DEFAULT_BLOCK_BYTES)
     progress = options.pop("progress", False)
     self_term = check_choice(options.pop("self_term", "point"), "self_term", SELF_TERMS)
+    method = check_choice(options.get("method", "monotone"), "method", METHODS)
     out = [None] * lv.shape[1]
     for ch in range(lv.shape[1]):  # loop over channels; equal irradiance columns share one group
         if out[ch] is not None:
@@ -631,13 +692,57 @@ def fit_scattering_channels(points, areas, irradiance, radiance, *, width, visib
         group = [k for k in range(lv.shape[1]) if out[k] is None and np.array_equal(cv[:, k], cv[:, ch])]
         p, a, c, _, vis = _check_inputs(points, areas, cv[:, ch], lv[:, ch], visible)
         rows = np.nonzero(vis)[0]
+        uneven = _even_light(p, c, rows, method)
         own = self_term_keywords(self_term, a)
         fits = _fit_over_widths(
             p, c * a, rows, [lv[rows, k] for k in group], width, options, block_bytes, progress, own
         )
+        fits = _with_light_note(fits, uneven)
         for k, fit in zip(group, fits):
             out[k] = fit
     return out
+
+
+def _even_light(points, irradiance, rows, method):
+    """The check of :mod:`facestats.model.fitting.even_light` before W is built.
+
+    Returns None when enough visible patches are not evenly lit; else raises :class:`FitError` for eq. 36
+    (``method`` "monotone" or "pinv"), whose estimate is then biased beyond its interval, and returns the note for
+    ``"exitance"``, which fits the dipole through W from the surface's rim and shape alone.
+    """
+    even = evenly_lit_rows(points, irradiance, rows)
+    n = int(rows.size - even.sum())
+    if n >= UNEVEN_ROWS:
+        return None
+    lit = irradiance[irradiance > 0]
+    found = (
+        f"the light is nearly uniform where the camera sees: {rows.size - n} of {rows.size} visible patches are lit "
+        f"within {EVEN_CONTRAST:g}:1 over their {EVEN_NEIGHBOURS} nearest patches (at least {UNEVEN_ROWS} must not "
+        f"be: near a shadow edge or in the dark); {lit.size} of {irradiance.size} patches are lit, at "
+        f"{lit.min():.4g} to {lit.max():.4g}"
+    )
+    remedy = "light the object so that a shadow edge, a spot or a stripe falls where the camera sees it"
+    if method == "exitance":
+        return (
+            f"{found}: only where the surface ends (its rim, its shape) varies the exitance, and the dipole's "
+            f"half-space does not model a real object there; {remedy}"
+        )
+    raise FitError(
+        f"{found}. Suzuki's solve (eq. 35-36) learns R' level by level from where the light changes; under nearly "
+        "uniform light only the surface's rim and shape vary the exitance, the near levels are not determined, and "
+        f"eq. 36 is biased beyond its interval. {remedy[0].upper()}{remedy[1:]}; or use method='exitance' "
+        "(--method exitance on the command line), which fits the dipole through W without R', though under this "
+        "light only from the surface's rim, where a real object departs from the dipole's half-space"
+    )
+
+
+def _with_light_note(fits, note):
+    """``fits`` with the ``note`` of :func:`_even_light` appended to each and warned about once."""
+    if note is not None:
+        for fit in fits:
+            fit.notes.append(note)
+        warnings.warn(note, QuantisationWarning, stacklevel=3)
+    return fits
 
 
 def _try_width(system, exitance, w, options, candidates, skipped, auto):
@@ -654,14 +759,14 @@ def _try_width(system, exitance, w, options, candidates, skipped, auto):
             warnings.warn(x.message, x.category, stacklevel=_USER)
         raise error
     if auto and fit.rank_deficient and w != candidates[-1]:
-        skipped.append(f"{w:.4g} mm (rank {fit.rank} of {fit.n_levels}, condition {fit.condition:.3g})")
+        skipped.append((f"{w:.4g} mm (rank {fit.rank} of {fit.n_levels}, condition {fit.condition:.3g})", True))
         return None  # a rank deficit moves on to the next candidate
     if auto:
         fit.notes.insert(0, f"width='auto' chose {w:.4g} mm (candidates {np.round(candidates, 4).tolist()})")
         if skipped:
-            note = f"width='auto' skipped rank-deficient widths: {'; '.join(skipped)}"
+            note = f"width='auto' skipped finer widths: {'; '.join(text for text, _ in skipped)}"
             fit.notes.insert(1, note)
-            fit.rank_deficient = True
+            fit.rank_deficient = fit.rank_deficient or any(rank for _, rank in skipped)
             warnings.warn(note, QuantisationWarning, stacklevel=_USER)
     for x in caught:
         warnings.warn(x.message, x.category, stacklevel=_USER)
@@ -774,6 +879,8 @@ def _fit_candidates(p, weights, rows, exitances, width, options, block_bytes, pr
             results[i], errors[i] = _one_image(
                 system, p, weights, exitances[i], w, options, candidates, skipped[i], auto, sink
             )
+            if errors[i] is not None:  # a failed width is reported by the width the image keeps, if any
+                skipped[i].append((f"{w:.4g} mm (failed: {errors[i]})", False))
     for fit, error in zip(results, errors):
         if fit is None:
             if not auto:

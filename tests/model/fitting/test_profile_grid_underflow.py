@@ -35,5 +35,6 @@ def test_a_grid_whose_every_model_underflows_is_a_fit_error():
         fit_profile_grid(D, dipole_profile(D, 2.19, 0.0021, 1.3), grid=grid, eta=1.3)
     assert str(err.value) == (
         "eq. 36: every model of the grid (sigma_s' 100-200, sigma_a 50-100 1/mm) has R underflowing to 0 at some "
-        "of the 80 levels up to 39.5 mm; fit fewer levels (max_distance) or use a grid of smaller coefficients"
+        "of the 80 levels up to 39.5 mm; fit fewer levels (max_distance; --max-distance on the command line) or use a "
+        "grid of smaller coefficients"
     )

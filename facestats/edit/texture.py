@@ -266,15 +266,17 @@ def _texture_targets(target, target_mask, mask_is_labels, ids, settings, workers
 
 
 def _band_coefficients(index, padded, stats, grids):
-    """Region id → coefficients per statistics band: the fewer of the region's (on the band's grid) and the
-    target statistics' (their histogram's count); and the region's alone."""
-    fewer, own = {}, {}
+    """Region id → coefficients per statistics band: the region's (on the band's grid), the target statistics'
+    (their histogram's count; None for histograms of weights that are not counts) and the fewer of the two."""
+    own, target, fewer = {}, {}, {}
     for r, idx in index.items():
         on_grid = [(padded[0] >> g) * (padded[1] >> g) if i is None else len(i) for g, i in enumerate(idx)]
         own[r] = [on_grid[g] for g in grids]
-        target = [stats[r].histogram(0, b).total for b in range(len(grids))]
-        fewer[r] = [int(min(a, t)) for a, t in zip(own[r], target, strict=True)]
-    return fewer, own
+        hists = [stats[r].histogram(0, b) for b in range(len(grids))]
+        counted = all(np.array_equal(h.counts, np.round(h.counts)) for h in hists)
+        target[r] = [int(h.total) for h in hists] if counted else None
+        fewer[r] = own[r] if target[r] is None else [min(a, t) for a, t in zip(own[r], target[r], strict=True)]
+    return own, target, fewer
 
 
 def _span(values, plural=""):
@@ -338,15 +340,15 @@ def _warn_few_coefficients(fewer, own, grids, bins, shape, labelled):
     )
 
 
-def _floors(fewer, stats, grids):
+def _floors(own, target, stats, grids):
     """Sampling floor of the band distances: (3, n pyramid bands), mean over regions (as the distances)."""
     out = np.zeros((3, len(grids) - 1))
-    for r, counts in fewer.items():
+    for r, counts in own.items():
         s = stats[r]
         for c in range(3):  # the three decorrelated channels
             for k in range(len(grids) - 1):  # pyramid bands (statistics band k + 1)
-                h = s.histogram(c, k + 1)
-                out[c, k] += distance_floor(h, max(counts[k + 1], 1), h.total) / len(fewer)
+                m = None if target[r] is None else max(target[r][k + 1], 1)
+                out[c, k] += distance_floor(s.histogram(c, k + 1), max(counts[k + 1], 1), m) / len(own)
     return out
 
 
@@ -498,7 +500,7 @@ def _transfer_texture(
     weights = np.ones(shape) if inside is None else feather_weights(inside, feather)  # checked before the work
     index = {r: region_index(None if labels is None else labels == r, shape, padded, levels) for r in ids}
     grids = band_grids(levels, orientations)
-    fewer, own = _band_coefficients(index, padded, stats, grids)
+    own, target_counts, fewer = _band_coefficients(index, padded, stats, grids)
     _warn_few_coefficients(fewer, own, grids, first.bins, shape, mask_is_labels)
     union = np.zeros(padded, bool)
     union[: shape[0], : shape[1]] = True if inside is None else inside
@@ -515,7 +517,7 @@ def _transfer_texture(
 
     edited = np.clip(basis.to_rgb(planes[:, : shape[0], : shape[1]]), 0.0, 1.0).astype(src.dtype, copy=False)
     albedo = blend(src, edited, weights)
-    band_floor = _floors(fewer, stats, grids)
+    band_floor = _floors(own, target_counts, stats, grids)
     return TextureTransfer(
         albedo=albedo,
         distance=dist.mean(axis=(1, 2)),

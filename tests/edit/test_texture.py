@@ -348,6 +348,13 @@ def test_bands_with_fewer_coefficients_than_bins_are_named_with_what_helps():
     assert np.all(np.abs(measured / floor - 1) < 0.2), measured / floor
     assert floor[0] < 0.07 and floor[-1] > 0.3  # 16384 coefficients against 256: about 0.3 sqrt(bins / n)
     assert same.floor == pytest.approx(float(same.band_floor.mean()))
+    # statistics of weights, not counts (here probabilities): they say nothing of the coefficients behind them
+    stats = TextureStatistics.from_image(first, levels=3)
+    weights = TextureStatistics(stats.edges, stats.counts / 16384.0, stats.basis, 3, 4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FacestatsWarning)
+        res = transfer_texture(second, weights, noise=0.0, iterations=0)
+    assert res.coefficients == same.coefficients and np.all(res.band_floor < same.band_floor)  # an exact target
     with pytest.warns(FacestatsWarning) as record:  # 4 levels: the low-pass residual on grid 4 holds 64
         transfer_texture(second, TextureStatistics.from_image(first, levels=4), noise=0.0, iterations=0)
     text = str(record[0].message)

@@ -199,10 +199,87 @@ def bench_colour_edit(size=SIZE, cameras=16):
     }
 
 
+def _stationary_texture(seed, size):
+    """A stationary albedo of known statistics: 1/f^0.8 Gaussian fields per channel, modulated by a shared
+    log-normal field (heavy-tailed spots), about skin's colour; independent seeds are realisations of one texture."""
+    rng = np.random.default_rng(seed)
+    f = np.fft.fftfreq(size)
+    k = np.hypot(*np.meshgrid(f, f, indexing="ij"))
+    k[0, 0] = 1.0
+    x = np.stack([np.fft.ifft2(np.fft.fft2(rng.standard_normal((size, size))) / k**0.8).real for _ in range(3)], -1)
+    x /= x.std(axis=(0, 1))
+    spots = np.exp(0.6 * x[..., :1])
+    return np.clip(np.array([0.45, 0.3, 0.22]) * (1 + 0.15 * x) * spots / spots.mean(), 0, 1)
+
+
+def bench_band_noise(
+    size=512, levels=5, bins=256, sides=(16, 32, 64, 128, 256), draws=100, counts=(64, 256, 1024), faces=True
+):
+    """The sampling floor of the band-histogram distance against the coefficients a band holds (README,
+    *Texture transfer needs coefficients*): not a speed figure.
+
+    * ``iid_*``: ``draws`` samples of n values from a normal and a Laplace distribution against 256-bin
+      histograms of two million values of the same distribution, mean distance (what
+      ``MIN_COEFFICIENTS_PER_BIN`` rests on), beside ``distance_floor``'s expectation;
+    * ``pyramid_*``: a second realisation of a stationary synthetic texture, inside squares of side ``sides``,
+      against the first realisation's statistics (same texture, so every distance is sampling noise): each band's
+      distance after the image-histogram match (``iterations=0``), averaged over the bands whose coefficients
+      fall within a factor 1.5 of n, beside the formula's mean over the same bands;
+    * ``faces_*`` (``faces=True``; builds the texture sample once): what a band's distance must resolve, the
+      distances between different faces' bands where they hold thousands of coefficients (levels 1-4 of the
+      512² texture sample, 7 levels, the face), for three pairs of its subjects, at the start of a transfer.
+    """
+    from facestats.edit.histogram import SOURCE_BINS, Histogram, distance_floor, histogram_distance, source_histogram
+    from facestats.edit.statistics import TextureStatistics
+
+    rng = np.random.default_rng(0)
+    fig = {}
+    for name in ("normal", "laplace"):
+        draw = getattr(rng, name)
+        target = Histogram.from_data(draw(size=2_000_000), bins)
+        for n in counts:
+            d = [histogram_distance(source_histogram(draw(size=n), SOURCE_BINS)[0], target) for _ in range(draws)]
+            fig[f"iid_{name}_n{n}"] = float(np.mean(d))
+            fig[f"iid_{name}_n{n}_formula"] = distance_floor(target, n)
+    first, second = _stationary_texture(1, size), _stationary_texture(2, size)
+    stats = TextureStatistics.from_image(first, levels=levels, bins=bins)
+    measured = []  # (coefficients, distance, formula) per band and square
+    for side in sides:
+        mask = np.zeros((size, size), bool)
+        mask[:side, :side] = True
+        res = transfer_texture(second, stats, mask, iterations=0, noise=0.0, feather=0.0)
+        n = np.asarray(res.coefficients[1][1:], float)
+        measured += list(zip(n, res.band_distance[0].mean(0), res.band_floor.mean(0), strict=True))
+    measured = np.array(measured)
+    for n in counts:
+        near = np.abs(np.log(measured[:, 0] / n)) < np.log(1.5)
+        if near.any():
+            fig[f"pyramid_n{n}"] = float(measured[near, 1].mean())
+            fig[f"pyramid_n{n}_formula"] = float(measured[near, 2].mean())
+            fig[f"pyramid_n{n}_bands"] = int(near.sum())
+    if faces:
+        import facestats
+        from facestats.edit.grids import band_grids
+        from facestats.pipeline.texture_sample import texture_sample
+
+        grids = np.array(band_grids(7, 4)[1:])
+        between = []
+        with facestats.open_store(texture_sample()) as store:
+            for a, b in (("S001", "S030"), ("S006", "S021"), ("S001", "S006")):
+                face = store.subject(a)["region"].values > 0
+                target = TextureStatistics.from_image(store.subject(b)["albedo"].values, face, levels=7, bins=bins)
+                res = transfer_texture(store.subject(a)["albedo"].values, target, face, iterations=0, seed=1)
+                start = res.band_distance[0].mean(0)
+                between += [float(start[(grids == g)[: len(start)]].mean()) for g in range(1, 5)]
+        fig["faces_levels_1_4_min"], fig["faces_levels_1_4_max"] = min(between), max(between)
+    return fig
+
+
 BENCHMARKS = [
     ("pyramid_2048", bench_pyramid),
     ("texture_transfer_2048", bench_texture_transfer),
     ("colour_edit_2048", bench_colour_edit),
+    ("band_noise", bench_band_noise),
 ]
 
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
@@ -210,4 +287,5 @@ SMOKE = {
     "pyramid_2048": {"size": 64, "levels": 3},
     "texture_transfer_2048": {"size": 64, "levels": 3, "iterations": 1},
     "colour_edit_2048": {"size": 64, "cameras": 2},
+    "band_noise": {"size": 64, "levels": 2, "sides": (32, 64), "draws": 3, "counts": (64,), "faces": False},
 }

@@ -26,6 +26,10 @@ Requirements and baselines, printed side by side:
   eq. 7 for targets (0.5, 30 µm) and (−1, 20 µm) along u, at two patch sizes and several seeds, with
   each realisation's slope standard deviation and kurtosis along u and the TV at the argmin against
   the ridge tolerance (the histograms' sampling noise).
+* ``generate``: a store subject's neutral map (``subject_microstructure``, what ``facestats microstructure
+  generate --subject`` writes) as a window of the 16K map and as the whole 16K map: time and tracemalloc
+  peak.  The generator works in blocks of rows, so the whole map should need its float32 output plus about
+  100 MB (it held about 88 bytes a texel at once until 2026-12-09: about 22 GiB at 16,384²).
 """
 
 from __future__ import annotations
@@ -349,6 +353,27 @@ def bench_rotation(
     return fig
 
 
+def bench_generate(size=16384, texel_um=18.0, window=(9046, 6077, 2048, 2048), whole=True):
+    import facestats
+    from facestats.acquire.synthetic.microstructure import subject_microstructure
+
+    with facestats.open_store() as store:
+        ds = store.subject("S001", exclude=["micro_normal"])
+    fig = {}
+    for name, win in [("window", window)] + ([("whole", None)] if whole else []):
+        tracemalloc.start()
+        t0, c0 = time.perf_counter(), time.process_time()
+        h = subject_microstructure(ds, size, texel_um, window=win)
+        fig[f"{name}_s"], fig[f"{name}_cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        fig[f"{name}_texels"] = h.size
+        fig[f"{name}_peak_mb"] = peak / 2**20
+        fig[f"{name}_peak_beyond_output_mb"] = (peak - h.nbytes) / 2**20
+        del h
+    return fig
+
+
 BENCHMARKS = [
     ("convolve", bench_convolve),
     ("rotation", bench_rotation),
@@ -357,6 +382,7 @@ BENCHMARKS = [
     ("fit", bench_fit),
     ("independent", bench_independent),
     ("independent_dense", bench_independent_dense),
+    ("generate", bench_generate),
 ]
 
 #: Tiny sizes for the test suite (tests/test_benchmarks.py).
@@ -368,6 +394,7 @@ SMOKE = {
     "fit": {"size": 96, "brute": False},
     "independent": {"sizes": (96,), "seeds": (2,)},
     "independent_dense": {"sizes": (96,), "seeds": (2,), "truths": ((0.5, 30.0),)},
+    "generate": {"size": 1024, "texel_um": 290.0, "window": (560, 380, 64, 64)},
 }
 
 

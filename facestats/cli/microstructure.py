@@ -54,7 +54,7 @@ def _cmd_render(args) -> int:
 def _check_generate(args) -> None:
     """The options of ``microstructure generate``, checked before any work with messages naming them."""
     from facestats.core.outputs import check_output_file
-    from facestats.core.validate import as_finite, check_integer
+    from facestats.core.validate import as_finite, check_integer, check_window
     from facestats.errors import ValidationError
     from facestats.pipeline.microstructure import MAX_NEUTRAL_MAP_SIZE
 
@@ -63,6 +63,8 @@ def _check_generate(args) -> None:
     check_output_file(args.out, "--out", (".exr",), overwrite=args.overwrite)
     check_apart_from_store(args.out, "--out", args.store)  # never a file mixed into the store
     check_integer(args.size, "--size", 2, MAX_NEUTRAL_MAP_SIZE)
+    with named_options(window="--window"):
+        check_window(args.size, args.window)
     as_finite(args.texel_um, "--texel-um", 0.0, 1000.0, low_inclusive=False, unit="um")
     if args.seed is not None:
         check_integer(args.seed, "--seed", 0)
@@ -72,14 +74,16 @@ def _cmd_generate(args) -> int:
     from facestats.pipeline.microstructure import generate_neutral_map
 
     _check_generate(args)
-    path = generate_neutral_map(
-        args.out,
-        args.size,
-        texel_um=args.texel_um,
-        subject=args.subject,
-        store=store_path_option(args.store),
-        seed=args.seed,
-    )
+    with named_options(texel_um="--texel-um", size="--size", window="--window", subject="--subject"):
+        path = generate_neutral_map(
+            args.out,
+            args.size,
+            texel_um=args.texel_um,
+            subject=args.subject,
+            store=store_path_option(args.store),
+            seed=args.seed,
+            window=args.window,
+        )
     print(f"wrote {path}")
     return 0
 
@@ -143,10 +147,20 @@ def add_microstructure(sub):
     g = commands.add_parser(
         "generate",
         help="write a procedural neutral microstructure map (EXR, um), per region from a store subject",
-        description="Pores and fine anisotropic furrows, seeded; with --subject, per region from its maps.",
+        description=(
+            "Pores and fine anisotropic furrows, seeded; with --subject, per region from its maps. A subject's map "
+            "is its face: --size texels of --texel-um must be the size of its face's UV layout (refused otherwise); "
+            "--window writes the part of that map a render's --window covers, a patch of the face at that scale."
+        ),
     )
     g.add_argument("--out", required=True, metavar="EXR", help="output .exr file")
-    g.add_argument("--size", type=ascii_int, default=1024, help="map side in texels, 2-16384 (default 1024)")
+    g.add_argument("--size", type=ascii_int, default=1024,
+                   help="side of the whole UV map in texels, 2-16384 (default 1024): the file's without --window, "
+                   "render's --size with it")  # fmt: skip
+    g.add_argument(
+        "--window", type=ascii_int, nargs=4, metavar=("ROW0", "COL0", "H", "W"),
+        help="write only this part of the map (as render's --window)",
+    )  # fmt: skip
     g.add_argument("--texel-um", type=ascii_float, default=15.0, help="um per texel, in (0, 1000] (default 15)")
     g.add_argument("--subject", help="store subject id (e.g. S001)")
     g.add_argument("--store", help="store of --subject (default, or 'default': the embedded store)")

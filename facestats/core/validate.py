@@ -27,6 +27,7 @@ __all__ = [
     "check_choice",
     "check_integer",
     "check_seed",
+    "check_window",
     "finite_result",
     "result_dtype",
 ]
@@ -504,6 +505,48 @@ def check_seed(seed, name: str = "seed"):
     if seed is None or isinstance(seed, np.random.Generator):
         return seed
     return check_integer(seed, name, 0)
+
+
+def check_window(map_shape, window=None) -> tuple:
+    """``((height, width), (row0, col0, h, w))`` as ints, checked: a window of texels (default the whole map) inside
+    a map.
+
+    Parameters
+    ----------
+    map_shape : int or (int, int)
+        The whole map's size in texels, ``(height, width)`` (an int: a square map).
+    window : (int, int, int, int), optional
+        ``(row0, col0, height, width)``: the texels ``[row0, row0 + height) × [col0, col0 + width)``.
+
+    Returns
+    -------
+    tuple
+        ``(height, width), (row0, col0, h, w)``.
+
+    Raises
+    ------
+    ValidationError
+        A map side under 1, a window that is not four integers (row0, col0 >= 0, sides >= 1) or does not lie
+        inside the map; the message names ``map_shape`` or ``window`` and the part that is wrong.
+    """
+    if isinstance(map_shape, (int, np.integer)):
+        map_shape = (map_shape, map_shape)
+    if not isinstance(map_shape, (tuple, list, np.ndarray)) or len(map_shape) != 2:
+        raise ValidationError(f"map_shape must be an int or (height, width), got {map_shape!r}")
+    height = check_integer(map_shape[0], "map_shape height", 1)
+    width = check_integer(map_shape[1], "map_shape width", 1)
+    if window is None:
+        window = (0, 0, height, width)
+    if not isinstance(window, (tuple, list, np.ndarray)) or len(window) != 4:
+        raise ValidationError(f"window must be (row0, col0, height, width), got {window!r}")
+    r0, c0 = check_integer(window[0], "window row0", 0), check_integer(window[1], "window col0", 0)
+    h, w = check_integer(window[2], "window height", 1), check_integer(window[3], "window width", 1)
+    if r0 + h > height or c0 + w > width:
+        raise ValidationError(
+            f"window must lie inside the {height} x {width} map, got {tuple(int(x) for x in window)!r} "
+            f"(rows {r0}-{r0 + h}, columns {c0}-{c0 + w})"
+        )
+    return (height, width), (r0, c0, h, w)
 
 
 def _span(name: str, value) -> str:

@@ -32,6 +32,7 @@ the time of float64); results are returned in the source's dtype.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -39,16 +40,29 @@ import numpy as np
 
 from facestats.core.validate import as_float, as_rgb_image, check_finite, check_seed
 from facestats.edit.grids import band_grids, grid_values, pad_plane, padded_shape, region_index
-from facestats.edit.histogram import SOURCE_BINS, histogram_distance, match_flat, source_histogram
+from facestats.edit.histogram import SOURCE_BINS, distance_floor, histogram_distance, match_flat, source_histogram
 from facestats.edit.masks import blend, check_feather, feather_weights, mask_labels
 from facestats.edit.pyramid import SteerablePyramid
 from facestats.edit.statistics import TextureStatistics, check_int, image_statistics, region_statistics
-from facestats.errors import ValidationError
+from facestats.errors import FacestatsWarning, ValidationError
 
-__all__ = ["MAX_ITERATIONS", "TextureStatistics", "TextureTransfer", "region_statistics", "transfer_texture"]
+__all__ = [
+    "MAX_ITERATIONS",
+    "MIN_COEFFICIENTS_PER_BIN",
+    "TextureStatistics",
+    "TextureTransfer",
+    "region_statistics",
+    "transfer_texture",
+]
 
 #: Most Heeger-Bergen iterations a transfer runs (Heeger & Bergen 1995 use about five; the distance settles by ten).
 MAX_ITERATIONS = 100
+#: Fewest coefficients per histogram bin a band needs (region's and target's).  With fewer than one a bin, the
+#: distance of a band that follows the target exactly is above 0.3 (:func:`~facestats.edit.histogram.distance_floor`
+#: 0.27, measured 0.30 on pyramid bands of a synthetic texture at n = 256 with 256 bins), as large as the distance
+#: between two faces' bands (0.11-0.30 at levels 1-4 of the texture sample), so the band's histogram cannot tell
+#: whether it matches (``bench_edit.bench_band_noise``; README, *Texture transfer needs coefficients*).
+MIN_COEFFICIENTS_PER_BIN = 1.0
 
 
 # --------------------------------------------------------------------------- synthesis
@@ -153,6 +167,17 @@ class TextureTransfer:
         Region label → target :class:`TextureStatistics` used.
     seed, noise, iterations, feather
         Settings used.
+    floor : float
+        The sampling floor of ``distance``: its expected value for bands that follow the target exactly, given
+        how many coefficients each band holds in each region and the target was counted from
+        (:func:`~facestats.edit.histogram.distance_floor`; a lower bound, band coefficients being correlated).
+        A distance near it is as close as these histograms can show; a start near it, a source they cannot
+        tell from the target.
+    band_floor : numpy.ndarray, shape (3, n_pyramid_bands)
+        The same per channel and band (mean over regions).
+    coefficients : dict
+        Region label → the coefficients each statistics band is compared over, the fewer of the region's and
+        the target's (band order of ``TextureStatistics.band_names``; band 0 the image).
     """
 
     albedo: np.ndarray
@@ -165,6 +190,9 @@ class TextureTransfer:
     noise: float = 0.0
     iterations: int = 0
     feather: float = 0.0
+    floor: float = float("nan")
+    band_floor: np.ndarray | None = field(default=None, repr=False)
+    coefficients: dict = field(default_factory=dict, repr=False)
 
 
 # --------------------------------------------------------------------------- target statistics
@@ -232,6 +260,96 @@ def _texture_targets(target, target_mask, mask_is_labels, ids, settings, workers
         stats = _target_image_statistics(target, target_mask, mask_is_labels, ids, settings, workers, pyramid)
     _check_shared(stats, settings)
     return stats
+
+
+# --------------------------------------------------------------------------- coefficients per band
+
+
+def _band_coefficients(index, padded, stats, grids):
+    """Region id → coefficients per statistics band: the region's (on the band's grid), the target statistics'
+    (their histogram's count; None for histograms of weights that are not counts) and the fewer of the two."""
+    own, target, fewer = {}, {}, {}
+    for r, idx in index.items():
+        on_grid = [(padded[0] >> g) * (padded[1] >> g) if i is None else len(i) for g, i in enumerate(idx)]
+        own[r] = [on_grid[g] for g in grids]
+        hists = [stats[r].histogram(0, b) for b in range(len(grids))]
+        counted = all(np.array_equal(h.counts, np.round(h.counts)) for h in hists)
+        target[r] = [int(h.total) for h in hists] if counted else None
+        fewer[r] = own[r] if target[r] is None else [min(a, t) for a, t in zip(own[r], target[r], strict=True)]
+    return own, target, fewer
+
+
+def _span(values, plural=""):
+    """``a-b`` of the smallest and largest of ``values``, or the one value; ``plural`` goes before a range."""
+    lo, hi = min(values), max(values)
+    return f"{plural}{lo}-{hi}" if lo != hi else f"{' ' if plural else ''}{lo}"
+
+
+def _warn_few_coefficients(fewer, own, grids, bins, shape, labelled):
+    """Warn, naming regions, grids, counts and what helps, when bands hold fewer than the minimum coefficients."""
+    minimum = MIN_COEFFICIENTS_PER_BIN * bins
+    under = {r: [b for b, n in enumerate(c) if n < minimum] for r, c in fewer.items()}
+    n_under = sum(len(b) for b in under.values())
+    if not n_under:
+        return
+    parts = []
+    for r, bands in under.items():
+        if bands:
+            gs, ns = [grids[b] for b in bands], [fewer[r][b] for b in bands]
+            target_short = any(fewer[r][b] < own[r][b] for b in bands)
+            where = f"region {r}" if labelled else ("the mask" if own[r][0] < shape[0] * shape[1] else "the map")
+            parts.append(
+                f"{where} ({own[r][0]} texels of the {shape[0]} x {shape[1]} map): grid{_span(gs, 's ')} "
+                f"hold{'s' if len(set(gs)) == 1 else ''} "
+                f"{_span(ns)} coefficients" + (" (fewer in the target statistics)" if target_short else "")
+            )
+    ok = [
+        all(n >= minimum for c in fewer.values() for b, n in enumerate(c) if grids[b] == g)
+        for g in range(max(grids) + 1)
+    ]
+    keep = next((g for g, good in enumerate(ok) if not good), len(ok)) - 1
+    if keep >= 1:
+        advice = (
+            f"levels <= {keep} (--levels {keep}; saved statistics fix their own: edit stats --levels {keep}) keeps "
+            "every band at or above it"
+        )
+    else:
+        bigger = (
+            "use larger maps (the texture sample, 512 x 512: --store texture-sample), larger regions (--regions) or "
+            "fewer bins (--bins; edit stats --bins)"
+        )
+        if keep == 0:
+            advice = f"only grid 0 holds enough (one level puts its low-pass residual on grid 1): {bigger}"
+        else:
+            finest = [r for r, c in fewer.items() if c[0] < minimum]
+            whose = f"of region(s) {', '.join(str(r) for r in finest)} " if labelled else ""
+            advice = (
+                f"even the finest bands {whose}hold fewer: no band there can show a change, and matching them adds "
+                f"texture made of sampling noise; {bigger}"
+            )
+    total = sum(len(c) for c in fewer.values())
+    warnings.warn(
+        f"texture transfer: {n_under} of {total} band histograms (over regions) hold fewer coefficients than their "
+        f"{bins} bins, the minimum ({MIN_COEFFICIENTS_PER_BIN:g} a bin) below which a band's histogram distance is "
+        f"mostly sampling noise (about 0.3 sqrt(bins / n) for n coefficients; README, *Texture transfer needs "
+        f"coefficients*): {'; '.join(parts)} (grid g: one coefficient per 2^g x 2^g texels; grid 0 holds the "
+        f"image). Those bands are matched but cannot show whether they match, and they hold the reported distance "
+        f"near its sampling floor. {advice[0].upper() + advice[1:]}",
+        FacestatsWarning,
+        stacklevel=4,
+    )
+
+
+def _floors(own, target, stats, grids):
+    """Sampling floor of the band distances: (3, n pyramid bands), mean over regions (as the distances)."""
+    out = np.zeros((3, len(grids) - 1))
+    for r, counts in own.items():
+        s = stats[r]
+        for c in range(3):  # the three decorrelated channels
+            for k in range(len(grids) - 1):  # pyramid bands (statistics band k + 1)
+                m = None if target[r] is None else max(target[r][k + 1], 1)
+                out[c, k] += distance_floor(s.histogram(c, k + 1), max(counts[k + 1], 1), m) / len(own)
+    return out
 
 
 # --------------------------------------------------------------------------- transfer
@@ -381,6 +499,9 @@ def _transfer_texture(
     inside = None if labels is None else labels > 0
     weights = np.ones(shape) if inside is None else feather_weights(inside, feather)  # checked before the work
     index = {r: region_index(None if labels is None else labels == r, shape, padded, levels) for r in ids}
+    grids = band_grids(levels, orientations)
+    own, target_counts, fewer = _band_coefficients(index, padded, stats, grids)
+    _warn_few_coefficients(fewer, own, grids, first.bins, shape, mask_is_labels)
     union = np.zeros(padded, bool)
     union[: shape[0], : shape[1]] = True if inside is None else inside
     outside = None if union.all() else ~union
@@ -396,6 +517,7 @@ def _transfer_texture(
 
     edited = np.clip(basis.to_rgb(planes[:, : shape[0], : shape[1]]), 0.0, 1.0).astype(src.dtype, copy=False)
     albedo = blend(src, edited, weights)
+    band_floor = _floors(own, target_counts, stats, grids)
     return TextureTransfer(
         albedo=albedo,
         distance=dist.mean(axis=(1, 2)),
@@ -407,4 +529,7 @@ def _transfer_texture(
         noise=noise_amp,
         iterations=iterations,
         feather=feather,
+        floor=float(band_floor.mean()),
+        band_floor=band_floor,
+        coefficients=fewer,
     )

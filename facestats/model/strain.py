@@ -51,7 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.core.raster import triangle_coverage
-from facestats.core.validate import as_finite, check_integer, check_shape
+from facestats.core.validate import as_finite, check_shape, check_window
 from facestats.errors import ValidationError
 
 __all__ = [
@@ -628,7 +628,7 @@ class MeshStrain:
             ``map_shape`` or ``window`` not integers ≥ 1 (≥ 0 for the window's origin), or the window not inside
             the map.
         """
-        map_shape, window = _window(map_shape, window)
+        map_shape, window = check_window(map_shape, window)
         key = (map_shape, window)
         runs = self._rasters.pop(key, None)  # re-inserted below: most recently used last
         if runs is None:
@@ -728,7 +728,7 @@ class MeshStrain:
         TexelStrain
             The strain of every texel of the window.
         """
-        map_shape, window = _window(map_shape, window)
+        map_shape, window = check_window(map_shape, window)
         self.check_uv_overlap()
         t, valid, n_deg = self.triangle_t(deformed_vertices)
         tv, _ = self._uv_vertex_average(t, valid)
@@ -771,26 +771,6 @@ def _runs(values):
     start = np.concatenate([[0], np.flatnonzero(values[1:] != values[:-1]) + 1])
     length = np.diff(np.append(start, values.size))
     return values[start], length.astype(np.int32) if values.size < 2**31 else length
-
-
-def _window(map_shape, window):
-    """``((height, width), (row0, col0, h, w))`` as ints, checked: the window (default the whole map) inside the
-    map."""
-    if isinstance(map_shape, (int, np.integer)):
-        map_shape = (map_shape, map_shape)
-    if not isinstance(map_shape, (tuple, list, np.ndarray)) or len(map_shape) != 2:
-        raise ValidationError(f"map_shape must be an int or (height, width), got {map_shape!r}")
-    height = check_integer(map_shape[0], "map_shape height", 1)
-    width = check_integer(map_shape[1], "map_shape width", 1)
-    if window is None:
-        window = (0, 0, height, width)
-    if not isinstance(window, (tuple, list, np.ndarray)) or len(window) != 4:
-        raise ValidationError(f"window must be (row0, col0, height, width), got {window!r}")
-    r0, c0 = check_integer(window[0], "window row0", 0), check_integer(window[1], "window col0", 0)
-    h, w = check_integer(window[2], "window height", 1), check_integer(window[3], "window width", 1)
-    if r0 + h > height or c0 + w > width:
-        raise ValidationError(f"window must lie inside the {height} x {width} map, got {window!r}")
-    return (height, width), (r0, c0, h, w)
 
 
 def uv_islands(uv_triangles, n_uv=None) -> np.ndarray:

@@ -56,16 +56,22 @@ from dataclasses import dataclass, field
 import numpy as np
 
 import facestats
-from facestats.acquire.synthetic.microstructure import procedural_microstructure, subject_microstructure
+from facestats.acquire.synthetic.microstructure import (
+    procedural_microstructure,
+    region_labels,
+    subject_microstructure,
+)
 from facestats.core.compiled import resolve_backend
 from facestats.core.outputs import OutputSet, check_output_file
 from facestats.core.progress import progress_bar
-from facestats.core.validate import as_scalar, check_choice, check_integer
+from facestats.core.validate import as_scalar, check_choice, check_integer, check_window
 from facestats.core.version import __version__
 from facestats.errors import FacestatsError, FacestatsWarning, StoreError, ValidationError
+from facestats.face.named import parse_face_name
 from facestats.io.displacement import read_displacement, write_displacement
 from facestats.io.ict_facekit import read_ict_facekit
 from facestats.io.images import read_exr_attributes, write_exr
+from facestats.io.mesh import recorded_geometry, subject_mesh
 from facestats.io.mesh_sequence import (
     BlendshapeSequence,
     FrameSequence,
@@ -82,8 +88,9 @@ from facestats.model.strain import SLIVER_RATIO, MeshStrain
 
 __all__ = ["SequenceReport", "render_sequence", "tile_halo", "mesh_texel_um", "TEXEL_SIZE_TOLERANCE"]
 
-#: Largest side of a generated neutral map (:func:`generate_neutral_map`): 16384² texels, a 16K map, need
-#: about 17 GiB while they are generated (about 64 bytes per texel, measured at sides 512-2048).
+#: Largest side of a generated neutral map (:func:`generate_neutral_map`), and of the whole map a window of it is
+#: generated from: a 16K map.  The generator works in blocks of rows, so memory is the float32 map (1 GiB at
+#: 16384²) plus about 90 MB.
 MAX_NEUTRAL_MAP_SIZE = 16384
 
 STRETCH_STATS = ("r_s_p1", "r_s_p50", "r_s_p99", "r_t_p1", "r_t_p50", "r_t_p99", "n_degenerate")
@@ -206,12 +213,12 @@ class _TexelDensity:
 TEXEL_SIZE_TOLERANCE = 2.0
 
 
-def mesh_texel_um(mesh_strain: MeshStrain, map_shape) -> float:
-    """Median µm per texel of the rest mesh's triangles in a map of ``map_shape`` = (H, W) texels.
+def mesh_texel_um(mesh_strain: MeshStrain, map_shape, window=None) -> float:
+    """Median µm per texel of the rest mesh's triangles in a map of ``map_shape`` = (H, W) texels (or in a window).
 
     A triangle's texels per mm are the singular values of diag(W, H) M (M: the UV metric of
     :class:`facestats.model.strain.MeshStrain`, columns = UV per mm); their geometric mean sqrt(|det|) gives its
-    µm per texel, 1000 / sqrt(|det|).  NaN for a mesh with no valid triangle.
+    µm per texel, 1000 / sqrt(|det|).  NaN for a mesh with no valid triangle (in the window).
 
     Parameters
     ----------
@@ -219,41 +226,68 @@ def mesh_texel_um(mesh_strain: MeshStrain, map_shape) -> float:
         The rest mesh's UV metrics (degenerate rest triangles are left out).
     map_shape : tuple of int
         (H, W) of the map, texels.
+    window : (row0, col0, height, width), optional
+        Only the triangles whose UV bounding box meets these texels (default: all).  A UV layout's texel size
+        varies: ICT-FaceKit's face has 18.1 µm texels in a 16,384² map (median over all its triangles) and
+        10.6 µm ones in the cheek window (9046, 6077, 512, 512).
 
     Returns
     -------
     float
         µm per texel (NaN without a triangle of nonzero area in UV).
     """
-    h, w = map_shape
-    m = mesh_strain.m[~mesh_strain.rest_degenerate] * np.array([w, h], float)[None, :, None]
+    (h, w), (r0, c0, wh, ww) = check_window(map_shape, window)
+    keep = ~mesh_strain.rest_degenerate
+    if window is not None:
+        texels = mesh_strain.uv_corners * np.array([w, h], float)  # (F, 3, 2) (column, row) of the UV corners
+        low, high = texels.min(1), texels.max(1)
+        keep &= (high[:, 0] >= c0) & (low[:, 0] <= c0 + ww) & (high[:, 1] >= r0) & (low[:, 1] <= r0 + wh)
+    m = mesh_strain.m[keep] * np.array([w, h], float)[None, :, None]
     det = np.abs(np.linalg.det(m)) if len(m) else np.zeros(0)
     det = det[det > 0]
     return float(np.median(1000.0 / np.sqrt(det))) if det.size else float("nan")
 
 
-def _check_texel_size(path, mesh_strain, map_shape) -> None:
-    """Refuse a map ``facestats microstructure generate`` made for texels of another size than the mesh's.
+def _check_generated_map(path, mesh_strain, map_shape, window) -> None:
+    """Refuse a map ``facestats microstructure generate`` made for another place or texel size than the render's.
 
-    The generator records its ``texel_um``; pores and ridges made at 15 µm per texel and mapped at 117 µm per texel
-    come out 8× too large, and the table's kernels (σ of 5-40 µm) fall under a texel, a silent no-op.  Maps without
-    the attribute (not generated here) are not checked.
+    The generator records its ``texel_um`` and, for a subject's map (whose regions have places) or a window, the
+    ``map_shape`` and ``window`` it covers.  A subject's map generated for one window and rendered at another
+    puts the regions of one place on another (a whole face squeezed into the cheek window it was rendered at
+    did: forehead furrows on the cheek).  Pores and ridges made at 15 µm per texel and mapped at 117 µm per
+    texel come out 8× too large, and the table's kernels (σ of 5-40 µm) fall under a texel, a silent no-op;
+    the texel size compared is the mesh's in the window rendered (:func:`mesh_texel_um`).  Maps without the
+    attributes (not generated here, or older) are not checked.
     """
     if pathlib.Path(path).suffix.lower() != ".exr":
         return
-    recorded = read_exr_attributes(path).get("texel_um")
+    attrs = read_exr_attributes(path)
     try:
-        made = float(recorded)
+        made_shape, made_window = json.loads(attrs["map_shape"]), json.loads(attrs["window"])
+    except (KeyError, TypeError, ValueError):
+        made_shape = made_window = None
+    if made_shape is not None and (list(made_shape) != list(map_shape) or list(made_window) != list(window)):
+        raise ValidationError(
+            f"neutral_map {os.fspath(path)!r} was generated for the window {list(made_window)} of a "
+            f"{made_shape[0]} x {made_shape[1]} map ({attrs.get('source', 'facestats')}), but this render covers "
+            f"the window {list(window)} of a {map_shape[0]} x {map_shape[1]} map: its regions would land on "
+            f"another part of the face. Generate the map for this window (generate --size {map_shape[1]} "
+            f"--window {' '.join(str(x) for x in window)}; size, window), or render the window it was made for "
+            "(--size, --window; map_shape, window)"
+        )
+    try:
+        made = float(attrs.get("texel_um"))
     except (TypeError, ValueError):
         return
-    mesh = mesh_texel_um(mesh_strain, map_shape)
+    mesh = mesh_texel_um(mesh_strain, map_shape, window)
     if not (np.isfinite(mesh) and made > 0) or 1 / TEXEL_SIZE_TOLERANCE <= mesh / made <= TEXEL_SIZE_TOLERANCE:
         return
     raise ValidationError(
         f"neutral_map {os.fspath(path)!r} was generated at texel_um {made:g} um per texel, but the mesh maps a "
-        f"{map_shape[0]} x {map_shape[1]} map at {mesh:.3g} um per texel (median over its triangles): its "
-        f"microstructure would be {mesh / made:.2g}x its size. Generate it at that texel size (--texel-um "
-        f"{mesh:.3g}), or give the map size and window it was made for (--size, --window; map_shape, window)"
+        f"{map_shape[0]} x {map_shape[1]} map at {mesh:.3g} um per texel (median over its triangles in the window "
+        f"{list(window)}): its microstructure would be {mesh / made:.2g}x its size. Generate it at that texel "
+        f"size (--texel-um {mesh:.3g}), or give the map size and window it was made for (--size, --window; "
+        "map_shape, window)"
     )
 
 
@@ -639,7 +673,7 @@ def render_sequence(
             stacklevel=2,
         )
     if isinstance(neutral_map, (str, os.PathLike)):
-        _check_texel_size(neutral_map, ms, map_shape)
+        _check_generated_map(neutral_map, ms, map_shape, window)
     n = len(sequence)
     names = sequence.frame_names()
     exr = _check_exr_dir(exr_dir, n)
@@ -768,8 +802,50 @@ def render_files(neutral, neutral_map, out, *, frames=None, targets=None, weight
     return render_sequence(sequence, neutral_map, out, **options)
 
 
-def generate_neutral_map(out, size, *, texel_um=15.0, subject=None, store=None, seed=None):
-    """Write a procedural neutral microstructure map (EXR, µm) for a store subject or generic skin.
+def _check_subject_scale(ds, subject, size, texel_um, window) -> None:
+    """Refuse a subject's map that would not be its face at the stated texel size, or a window off its face.
+
+    The subject's region map spans its UV square; a map of ``size`` texels of ``texel_um`` µm covers a face only
+    when that is the texel size the face's UV layout has at that size (within :data:`TEXEL_SIZE_TOLERANCE`, the
+    render's rule, in the window): ``--size 512 --texel-um 15`` put all ten regions of a 200 mm face into 7.7 mm.
+    The face is rebuilt from the subject's recorded geometry (:func:`facestats.io.mesh.subject_mesh`); a subject
+    whose face facestats cannot rebuild (a scan) is not checked for scale.
+    """
+    (r0, c0, h, w) = window
+    labels = region_labels(np.asarray(ds["region"].values), size, window)
+    if not np.any(labels > 0):
+        raise ValidationError(
+            f"window {list(window)} of a {size} x {size} map holds no face texel of subject {subject!r} (its region "
+            "map is 0 there, off the face): give a window on the face (--window ROW0 COL0 H W)"
+        )
+    name = recorded_geometry(ds)
+    try:
+        parse_face_name(str(name or ""))
+    except ValidationError:
+        return
+    face = subject_mesh(ds)
+    local = mesh_texel_um(MeshStrain(face.vertices, face.faces, face.uv), (size, size), window)
+    if not np.isfinite(local) or 1 / TEXEL_SIZE_TOLERANCE <= local / texel_um <= TEXEL_SIZE_TOLERANCE:
+        return
+    where = "" if (h, w) == (size, size) else f" in the window {list(window)}"
+    fit = int(round(size * local / texel_um))
+    largest = ""
+    if fit > MAX_NEUTRAL_MAP_SIZE:
+        at_most = local * size / MAX_NEUTRAL_MAP_SIZE
+        largest = f", above the largest, {MAX_NEUTRAL_MAP_SIZE}, at which they are {at_most:.3g} um"
+    raise ValidationError(
+        f"texel_um {texel_um:g} um does not fit the face of subject {subject!r} ({name}): its UV layout maps a "
+        f"{size} x {size} map at {local:.3g} um per texel (median over its triangles{where}), so the microstructure "
+        f"would be {local / texel_um:.2g}x its size on the face and its regions squeezed as much ({size} texels "
+        f"of {texel_um:g} um span {size * texel_um / 1000:.3g} mm, {size} of the face's {size * local / 1000:.3g} "
+        f"mm). Give the face's texel size at this size (--texel-um {local:.3g}; texel_um), or "
+        f"the map size whose texels are {texel_um:g} um (--size about {fit}{largest}; size) with a window of it "
+        "(--window ROW0 COL0 H W; window) for a patch of the face at that scale (docs/microstructure.md)"
+    )
+
+
+def generate_neutral_map(out, size, *, texel_um=15.0, subject=None, store=None, seed=None, window=None):
+    """Write a procedural neutral microstructure map (EXR, µm) for a store subject or generic skin, or a window of one.
 
     Every argument is checked before any work (the output path first: an
     existing directory, a path under a file such as ``/dev/null/x.exr`` or
@@ -777,12 +853,19 @@ def generate_neutral_map(out, size, *, texel_um=15.0, subject=None, store=None, 
     temporary name and renamed into place, so a failure leaves no partial file
     and no folder the call created.
 
+    A subject's map is its face: ``size`` × ``texel_um`` must be the size its face's UV layout has at ``size``
+    (the median texel size of the face's triangles, in the window, within :data:`TEXEL_SIZE_TOLERANCE`;
+    refused otherwise, naming both), and a ``window`` of it is a patch of the face at that scale with the
+    regions that lie there, the window :func:`render_sequence` renders with ``map_shape = (size, size)``.  The
+    file records ``texel_um`` and, for a subject or a window, ``map_shape`` and ``window`` (JSON), which
+    :func:`render_sequence` compares with its own.
+
     Parameters
     ----------
     out : path-like
         ``.exr`` file to write (missing parent folders are created).
     size : int
-        Map side in texels, in [2, :data:`MAX_NEUTRAL_MAP_SIZE`].
+        Side in texels of the whole map, in [2, :data:`MAX_NEUTRAL_MAP_SIZE`] (the file's, without ``window``).
     texel_um : float
         µm per texel, in (0, 1000].
     subject : str, optional
@@ -792,6 +875,8 @@ def generate_neutral_map(out, size, *, texel_um=15.0, subject=None, store=None, 
         Store to read the subject from (default: the embedded store).
     seed : int, optional
         Seed, an integer >= 0 (default: from the subject id, or 0).
+    window : (row0, col0, height, width), optional
+        Write only these texels of the whole map (inside it; on the subject's face).
 
     Returns
     -------
@@ -810,15 +895,20 @@ def generate_neutral_map(out, size, *, texel_um=15.0, subject=None, store=None, 
     size = check_integer(size, "size", 2, MAX_NEUTRAL_MAP_SIZE)
     texel_um = as_scalar(texel_um, "texel_um", 0.0, 1000.0, low_inclusive=False, unit="um")
     seed = None if seed is None else check_integer(seed, "seed", 0)
+    placed = window is not None or subject is not None
+    _, window = check_window(size, window)
     if subject is None:
-        h = procedural_microstructure(size, texel_um, seed=0 if seed is None else seed)
+        h = procedural_microstructure(size, texel_um, seed=0 if seed is None else seed, window=window)
         attrs = {"source": "facestats procedural microstructure (REGION_DEFAULTS, one region)"}
     else:
         with facestats.open_store(store) as st:
             ds = st.subject(subject, exclude=["micro_normal"])  # not used by the microstructure
-            h = subject_microstructure(ds, size, texel_um, seed=seed)
+        _check_subject_scale(ds, subject, size, texel_um, window)
+        h = subject_microstructure(ds, size, texel_um, seed=seed, window=window)
         attrs = {"source": f"facestats procedural microstructure of subject {subject}"}
     attrs["texel_um"] = f"{texel_um:g}"
+    if placed:
+        attrs["map_shape"], attrs["window"] = json.dumps([size, size]), json.dumps(list(window))
     with OutputSet(path.parent) as files:
         try:
             write_displacement(files.path(path.name), h, attributes=attrs)

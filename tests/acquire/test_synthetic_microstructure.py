@@ -1,5 +1,7 @@
 """Procedural skin microstructure (seeded, per region from a store subject)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.ndimage import binary_erosion
@@ -108,3 +110,69 @@ def test_shot_noise_surface_has_the_stated_rms_slope_and_tiles():
         shot_noise_microstructure(64, density_mm2=0.0)
     with pytest.raises(FacestatsError, match="bump_radius_um must be at most"):
         shot_noise_microstructure(64, 10.0, bump_radius_um=200.0)
+
+
+def _s001_region():
+    with facestats.open_store() as store:
+        ds = store.subject("S001")
+    return ds, np.asarray(ds["region"].values).astype(np.int64)
+
+
+def test_a_window_holds_the_regions_that_lie_there_on_the_subjects_face():
+    """The render window of docs/microstructure.md (the cheek, rows 9046-9558 and columns 6077-6589 of the 16K
+    map) generated alone holds the regions of S001's region map over that window — cheeks, lips, beard — and
+    nothing of the other seven.  (Before, a map spanned its region map whatever it stood for: a 512² map at
+    15 µm held all ten regions, forehead furrows and brows included, in 7.7 mm.)"""
+    from scipy.ndimage import maximum_filter
+
+    from facestats.acquire.synthetic.microstructure import region_labels
+
+    _, region = _s001_region()
+    shape, window = 16384, (9046, 6077, 512, 512)
+    r0, c0, h, w = window
+    # the label cell each texel centre of the window lies in, counted here by hand: 48 cells over 16384 texels
+    rows = ((np.arange(r0, r0 + h) + 0.5) * 48 / 16384).astype(int)
+    cols = ((np.arange(c0, c0 + w) + 0.5) * 48 / 16384).astype(int)
+    cells = region[np.ix_(rows, cols)]
+    assert set(np.unique(cells).tolist()) == {7, 8, 10}
+    np.testing.assert_array_equal(region_labels(region, shape, window), cells)
+    # The heights say which regions lie where: only region k rough (the others and the off-face label 0 flat, no
+    # pores, no blend beyond the bilinear reading of the label cells), the window is rough where k lies and
+    # exactly flat where no label cell within one of the texel's holds k.
+    seen = set()
+    for k in range(1, 11):
+        flat = SkinMicrostructure(roughness=0.0, pore_share=0.0)
+        params = {j: flat for j in range(11)} | {k: SkinMicrostructure(roughness=0.3, pore_share=0.0)}
+        hk = procedural_microstructure(shape, 15.0, params=params, region_map=region, window=window, smooth_mm=0.0)
+        assert hk.shape == (h, w)
+        near = maximum_filter(region == k, size=3)[np.ix_(rows, cols)]
+        assert np.all(hk[cells == k] != 0), k
+        assert np.all(hk[~near] == 0), k
+        if np.any(hk != 0):
+            seen.add(k)
+    assert seen == {7, 8, 10}
+
+
+def test_a_window_is_the_whole_maps_texels_there(monkeypatch):
+    """A window of a map (several regions, pores, a deformation) equals the whole map's texels there, and a map
+    generated in blocks of rows equals it generated at once: the waves are evaluated at the texels' positions and
+    the pores drawn over the whole map, so a patch of a 16K face costs what its own size costs."""
+    import facestats.acquire.synthetic.microstructure as micro
+
+    rng = np.random.default_rng(0)
+    region = rng.integers(0, 11, (6, 5))  # cells of about 50 texels: borders, blends and label 0 in the window
+    params = {k: replace(p, pore_density_mm2=20.0) for k, p in micro.REGION_DEFAULTS.items()}  # ~400 pores
+    kw = dict(params=params, region_map=region, seed=9, deformation=deformation_matrix((0.6, 0.8), 1.3))
+    shape, (r0, c0, h, w) = (300, 280), (131, 97, 60, 75)
+    whole = procedural_microstructure(shape, 15.0, **kw)
+    assert whole.shape == shape
+    part = procedural_microstructure(shape, 15.0, window=(r0, c0, h, w), **kw)
+    assert part.shape == (h, w)
+    scale = float(np.abs(whole).max())
+    np.testing.assert_allclose(part, whole[r0 : r0 + h, c0 : c0 + w], rtol=0, atol=1e-5 * scale)
+    monkeypatch.setattr(micro, "BLOCK_TEXELS", 2000)  # 7 rows a block: 43 blocks, pores across their borders
+    np.testing.assert_allclose(procedural_microstructure(shape, 15.0, **kw), whole, rtol=0, atol=1e-5 * scale)
+    with pytest.raises(FacestatsError, match=r"window must lie inside the 300 x 280 map"):
+        procedural_microstructure(shape, 15.0, window=(250, 0, 60, 10))
+    with pytest.raises(FacestatsError, match=r"window height must be an integer in \[1, inf\], got 0"):
+        procedural_microstructure(shape, 15.0, window=(0, 0, 0, 10))

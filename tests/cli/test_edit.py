@@ -453,6 +453,7 @@ def test_the_papers_seven_levels_from_a_fresh_install_with_the_texture_sample(tm
     r = run_cli(*args, *common, env=env)
     assert r.returncode == 0, r.stderr
     assert "building the texture sample" in r.stderr and "levels=7" in r.stdout
+    assert "of the distance above it removed" in r.stdout and "no measurable change" not in r.stdout
     with open_store(tmp_path / "out.zarr") as st:
         ds = st.subject("T7")
         assert ds["albedo"].shape == (512, 512, 3) and provenance(ds)["edit"]["parameters"]["levels"] == 7
@@ -535,3 +536,27 @@ def test_an_image_that_appears_during_the_edit_is_kept_without_overwrite(own, mo
     assert (img / "X6_summary.png").read_bytes() == b"theirs"
     with open_store(store) as st:
         assert "X6" in st
+
+
+def test_a_texture_transfer_on_the_default_stores_small_regions_is_not_reported_as_a_change(tmp_path):
+    """The README's example until 2026-12-09, which a look-dev artist followed: forehead, nose and cheeks of the
+    48² default store hold 134, 56 and 312 texels, fewer than (or barely above) the 256 coefficients a 256-bin band
+    histogram needs, so its distance moved 0.708 -> 0.703 inside its sampling noise and the nose came out blotchy.
+    The transfer now warns, naming the regions, their texels, the map and what helps, and the report says that
+    nothing measurable changed."""
+    from facestats.errors import FacestatsWarning
+
+    assert run_main("edit", "stats", "S007", "--out", tmp_path / "s007.npz").returncode == 0
+    args = ("edit", "texture", "S058", "--stats", tmp_path / "s007.npz", "--regions", "2", "6", "7", "--seed", "1",
+            "--out-store", tmp_path / "e.zarr", "--images", tmp_path / "img")  # fmt: skip
+    with pytest.warns(FacestatsWarning) as record:
+        r = run_main(*args)
+    assert r.returncode == 0, r.stderr
+    text = " ".join(str(w.message) for w in record)
+    for part in ("region 2 (134 texels of the 48 x 48 map)", "region 6 (56 texels of the 48 x 48 map)",
+                 "than their 256 bins", "Even the finest bands of region(s) 2, 6 hold fewer",
+                 "--store texture-sample"):  # fmt: skip
+        assert part in text, part
+    line = next(x for x in r.stdout.splitlines() if x.startswith("histogram distance to the target"))
+    assert "0.708 at the start, 0.703 after 5 iteration(s); sampling floor 0." in line
+    assert "no measurable change" in line

@@ -176,3 +176,25 @@ def test_explicit_edges_must_cover_the_interpolated_values():
     with pytest.raises(ValidationError, match=r"edges must cover the interpolated values \[-5.47.*got \[-1, 1\]"):
         interpolate_histograms(h0, h1, 0.5, edges=np.linspace(-1, 1, 9))
     assert interpolate_histograms(h0, h1, 0.5, edges=np.linspace(-10, 12, 9)).total == pytest.approx(10000)
+
+
+def test_distance_floor_is_the_expected_distance_of_a_sample_of_the_target(rng):
+    """de Moivre's binomial mean absolute deviation against direct counting: one draw from two equal bins always
+    lies in one, TV = ½ (|1 − ½| + |0 − ½|) = ½; n draws of a normal against its own fine histogram, through the
+    measuring code of the texture transfer (source_histogram, histogram_distance), over 400 samples."""
+    from facestats.edit.histogram import SOURCE_BINS, distance_floor, source_histogram
+
+    assert distance_floor(Histogram([0.0, 1.0, 2.0], [1.0, 1.0]), 1) == pytest.approx(0.5, abs=1e-12)
+    # three equal bins, two draws: same bin (prob 1/3) TV = 2/3, different bins TV = 1/3 -> 4/9
+    assert distance_floor(Histogram([0.0, 1.0, 2.0, 3.0], [1.0, 1.0, 1.0]), 2) == pytest.approx(4 / 9, abs=1e-12)
+    target = Histogram.from_data(rng.normal(size=1_000_000), 256)
+    for n in (64, 256, 1024):
+        measured = np.mean(
+            [histogram_distance(source_histogram(rng.normal(size=n), SOURCE_BINS)[0], target) for _ in range(400)]
+        )
+        assert distance_floor(target, n) == pytest.approx(measured, rel=0.03), n
+    assert distance_floor(target, 4096) / distance_floor(target, 1024) == pytest.approx(0.5, rel=0.03)  # 1 / sqrt n
+    # a target counted from m values: the noise of both samples, n m / (n + m)
+    assert distance_floor(target, 256, reference=256) == pytest.approx(distance_floor(target, 128))
+    with pytest.raises(ValidationError, match="n must be > 0, got 0.0"):
+        distance_floor(target, 0)

@@ -325,3 +325,48 @@ def test_distances_are_averaged_over_regions():
     assert one.distance[0] > 0.3
     np.testing.assert_allclose(two.distance, one.distance, rtol=1e-6)
     np.testing.assert_allclose(two.band_distance, one.band_distance, rtol=1e-6, atol=1e-9)
+
+
+def test_bands_with_fewer_coefficients_than_bins_are_named_with_what_helps():
+    """A band histogram of n coefficients that follow the target exactly still lies about 0.3 sqrt(bins / n) from
+    it (the sampling floor): a second realisation of a texture against the first's statistics shows that
+    distance, which ``floor`` predicts to 20 % (binomial counts of independent coefficients; the target's own
+    noise folded in by an equal-variance sample size).  Bands under
+    one coefficient a bin are named in a warning with the levels that keep every band above it."""
+    import warnings
+
+    from facestats.edit.texture import MIN_COEFFICIENTS_PER_BIN
+    from facestats.errors import FacestatsWarning
+
+    assert MIN_COEFFICIENTS_PER_BIN == 1.0
+    first, second = (_skin(np.random.default_rng(s), 128, 0.05, 0.7) for s in (1, 2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FacestatsWarning)  # 128² at 3 levels: the low-pass holds 16² = 256
+        same = transfer_texture(second, TextureStatistics.from_image(first, levels=3), noise=0.0, iterations=0)
+    assert same.coefficients[1] == [16384, 16384] + [16384] * 4 + [4096] * 4 + [1024] * 4 + [256]
+    measured, floor = same.band_distance[0].mean(0), same.band_floor.mean(0)
+    assert np.all(np.abs(measured / floor - 1) < 0.2), measured / floor
+    assert floor[0] < 0.07 and floor[-1] > 0.3  # 16384 coefficients against 256: about 0.3 sqrt(bins / n)
+    assert same.floor == pytest.approx(float(same.band_floor.mean()))
+    # statistics of weights, not counts (here probabilities): they say nothing of the coefficients behind them
+    stats = TextureStatistics.from_image(first, levels=3)
+    weights = TextureStatistics(stats.edges, stats.counts / 16384.0, stats.basis, 3, 4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FacestatsWarning)
+        res = transfer_texture(second, weights, noise=0.0, iterations=0)
+    assert res.coefficients == same.coefficients and np.all(res.band_floor < same.band_floor)  # an exact target
+    with pytest.warns(FacestatsWarning) as record:  # 4 levels: the low-pass residual on grid 4 holds 64
+        transfer_texture(second, TextureStatistics.from_image(first, levels=4), noise=0.0, iterations=0)
+    text = str(record[0].message)
+    assert "1 of 19 band histograms (over regions) hold fewer coefficients than their 256 bins" in text
+    assert "the map (16384 texels of the 128 x 128 map): grid 4 holds 64 coefficients" in text
+    assert "Levels <= 3 (--levels 3; saved statistics fix their own: edit stats --levels 3)" in text
+    labels = np.zeros((128, 128), np.int32)
+    labels[:10, :10], labels[40:, :] = 1, 2  # region 1: 100 texels, fewer than 256 even at full resolution
+    with pytest.warns(FacestatsWarning) as record:
+        res = transfer_texture(second, TextureStatistics.from_image(first, levels=2), labels, iterations=1)
+    text = str(record[0].message)
+    assert "region 1 (100 texels of the 128 x 128 map): grids 0-2 hold 8-100 coefficients" in text
+    assert "region 2" not in text and "Even the finest bands of region(s) 1 hold fewer" in text
+    assert "--store texture-sample" in text and "(--regions)" in text and "(--bins; edit stats --bins)" in text
+    assert res.coefficients[1][0] == 100 and res.floor > 0.3

@@ -1,11 +1,13 @@
 """``notebooks/appearance_editing.ipynb`` runs at small size: freckles, skin type II → V, normal → lotion."""
 
+import re
+
 import pytest
 
 from tests.helpers import (
-    assert_nothing_left,
     NOTEBOOKS,
     assert_no_errors,
+    assert_nothing_left,
     cell_text,
     execute_once,
     read_committed,
@@ -63,6 +65,9 @@ def test_edits_and_their_provenance_are_shown(executed):
     text = cell_text(tagged(nb, "freckles"))
     assert f"target (freckled, type III): {freckled[0]}" in text
     assert '"regions_edited": [\n  2,\n  6,\n  7\n ]' in text
+    # 48² regions: the distances stay near their sampling floor (README, *Texture transfer needs coefficients*)
+    start, end, floor = (float(x) for x in re.search(r"distance (\S+) -> (\S+); sampling floor (\S+)", text).groups())
+    assert 0.3 < floor < end < start
     with facestats.open_store() as store:
         n_type_v = len(select_subjects(store, {"skin_type": 5}))
     assert f"skin type 5, target subset of {n_type_v} type V subjects" in cell_text(tagged(nb, "skin-type"))

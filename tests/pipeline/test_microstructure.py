@@ -411,7 +411,8 @@ def test_a_bad_scale_is_refused_also_with_an_ict_facekit_folder(scale):
 
 
 def test_command_line_generates_and_renders(tmp_path, capsys):
-    generate = ["microstructure", "generate", "--out", str(tmp_path / "n.exr"), "--size", "64", "--subject", "S003"]
+    generate = ["microstructure", "generate", "--out", str(tmp_path / "n.exr"), "--size", "16384",
+                "--window", "9050", "4200", "64", "64", "--subject", "S003"]  # fmt: skip
     assert main(generate) == 0
     neutral = (tmp_path / "n.exr").read_bytes()
     assert main(generate[:-1] + ["S004"]) == 2  # an existing map is replaced only with --overwrite
@@ -438,6 +439,13 @@ def test_command_line_generates_and_renders(tmp_path, capsys):
     assert main(args) == 0
     assert "2 frames" in capsys.readouterr().out
     assert zarr.open_group(str(tmp_path / "o.zarr"), mode="r")["done"][:].all()
+    # the map holds S003's face in the window it was generated for: rendered at another, refused by name
+    elsewhere = [a.replace("o.zarr", "q.zarr").replace("4200", "4264") for a in args]
+    assert main(elsewhere) == 2
+    assert "--map '" + str(tmp_path / "n.exr") + "' was generated for the window [9050, 4200, 64, 64] of a 16384 x "\
+        "16384 map (facestats procedural microstructure of subject S003), but this render covers the window "\
+        "[9050, 4264, 64, 64]" in capsys.readouterr().err  # fmt: skip
+    assert not (tmp_path / "q.zarr").exists()
     bad = [a.replace("o.zarr", "p.zarr").replace("n.exr", "missing.exr") for a in args]
     assert main(bad) == 2
     assert "facestats: error: --map must name an existing image file, got '" in capsys.readouterr().err  # not `path`
@@ -507,3 +515,48 @@ def test_a_sliver_in_the_neutral_mesh_is_masked_not_fatal(tmp_path):
     with pytest.warns(FacestatsWarning, match=r"2 sliver triangle\(s\) .*masked like degenerate ones"):
         report = render_sequence(seq, neutral, tmp_path / "r.zarr", map_shape=(64, 64), progress=False)
     assert report.rendered == [0]
+
+
+def test_mesh_texel_um_in_a_window_is_the_texel_size_of_the_triangles_there():
+    """Two UV islands of one 64² map: the left half of UV on a 10 x 20 mm patch (312.5 um texels), the right half
+    on a 40 x 20 mm one (1250 x 312.5 um, geometric mean 625 um); the whole map's median lies between."""
+    from facestats.model.strain import MeshStrain
+    from facestats.pipeline.microstructure import mesh_texel_um
+
+    xyz = np.array([[0, 0, 0], [10, 0, 0], [10, 20, 0], [0, 20, 0], [20, 0, 0], [60, 0, 0], [60, 20, 0], [20, 20, 0]])
+    uv = np.array([[0, 0], [0.5, 0], [0.5, 1], [0, 1], [0.5, 0], [1, 0], [1, 1], [0.5, 1]])
+    tri = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    ms = MeshStrain(xyz.astype(float), tri, uv.astype(float))
+    assert mesh_texel_um(ms, (64, 64), (0, 2, 64, 20)) == pytest.approx(312.5)
+    assert mesh_texel_um(ms, (64, 64), (10, 40, 20, 20)) == pytest.approx(625.0)
+    assert mesh_texel_um(ms, (64, 64)) == pytest.approx((312.5 + 625.0) / 2)
+
+
+def test_generate_writes_the_window_of_the_subjects_face_a_render_covers(tmp_path):
+    """A subject's map is its face: generate with a window writes that part of the whole map (its regions there,
+    :func:`subject_microstructure` of the window) and records map_shape and window; a whole map whose texels
+    are not the face's (512 texels of 15 um: the face squeezed into 7.7 mm, a look-dev artist's first run) and a
+    window off the face are refused by name, before any file is written."""
+    import facestats
+    from facestats.acquire.synthetic.microstructure import subject_microstructure
+    from facestats.io.images import read_exr_attributes
+    from facestats.pipeline.microstructure import generate_neutral_map
+
+    window = (9050, 4200, 64, 64)
+    path = generate_neutral_map(tmp_path / "n.exr", 16384, texel_um=15.0, subject="S001", window=window)
+    with facestats.open_store() as store:
+        ds = store.subject("S001")
+    np.testing.assert_array_equal(read_displacement(path), subject_microstructure(ds, 16384, 15.0, window=window))
+    attrs = read_exr_attributes(path)
+    assert json.loads(attrs["map_shape"]) == [16384, 16384] and json.loads(attrs["window"]) == list(window)
+    with pytest.raises(ValidationError, match=r"texel_um 15 um does not fit the face of subject 'S001' \(ict-48\): "
+                       r"its UV layout maps a 512 x 512 map at 579 um per texel .* 39x its size .*--texel-um 579.*"
+                       r"--size about 19763, above the largest, 16384, at which they are 18.1 um"):  # fmt: skip
+        generate_neutral_map(tmp_path / "w.exr", 512, texel_um=15.0, subject="S001")
+    assert generate_neutral_map(tmp_path / "w.exr", 512, texel_um=579.0, subject="S001")  # the whole face, coarse
+    with pytest.raises(ValidationError, match=r"window \[0, 0, 512, 512\] of a 16384 x 16384 map holds no face "
+                       r"texel of subject 'S001'"):  # fmt: skip
+        generate_neutral_map(tmp_path / "off.exr", 16384, subject="S001", window=(0, 0, 512, 512))
+    with pytest.raises(ValidationError, match=r"window must lie inside the 1024 x 1024 map"):
+        generate_neutral_map(tmp_path / "off.exr", 1024, subject="S001", window=(1000, 0, 64, 64))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["n.exr", "w.exr"]

@@ -58,7 +58,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from facestats.core.validate import as_finite, as_scalar, check_integer
+from facestats.core.validate import as_finite, as_scalar, check_integer, check_window
 from facestats.errors import ValidationError
 
 __all__ = [
@@ -70,6 +70,8 @@ __all__ = [
     "shot_noise_microstructure",
     "subject_microstructure_parameters",
     "subject_microstructure",
+    "region_labels",
+    "BLOCK_TEXELS",
 ]
 
 #: Wavelength range of the base roughness, µm.
@@ -212,17 +214,19 @@ _PIT_RADII_PX = np.geomspace(0.3, 200.0, 60)
 _PIT_TABLE = (_PIT_RADII_PX, np.array([_pit_msq_factor(r) if r < 50 else 1.0 for r in _PIT_RADII_PX]))
 
 
-def _region_maps(shape, params, region_map):
-    """Per-region parameters, and the labels at the map's texels (nearest) and as given: (dict, full, source)."""
+#: Texels per block of rows the map is generated in (bounded memory: about 85 bytes a texel of a block are live,
+#: besides the float32 output).
+BLOCK_TEXELS = 1 << 20
+
+
+def _region_maps(params, region_map):
+    """Per-region parameters and the label map as given: (dict, labels or None)."""
     if region_map is None:
         p = params if isinstance(params, SkinMicrostructure) else SkinMicrostructure()
-        return {None: p}, None, None
+        return {None: p}, None
     lab = np.asarray(region_map)
     if lab.ndim != 2 or lab.dtype.kind not in "iu":
         raise ValidationError(f"region_map must be a 2-D integer label map, got {lab.dtype} {lab.shape}")
-    rows = np.minimum((np.arange(shape[0]) + 0.5) * lab.shape[0] / shape[0], lab.shape[0] - 1).astype(int)
-    cols = np.minimum((np.arange(shape[1]) + 0.5) * lab.shape[1] / shape[1], lab.shape[1] - 1).astype(int)
-    full = lab[np.ix_(rows, cols)]
     table = dict(REGION_DEFAULTS) if params is None else dict(params)
     present = [int(k) for k in np.unique(lab) if int(k) in table]
     if not present:
@@ -230,26 +234,71 @@ def _region_maps(shape, params, region_map):
             f"region_map must contain a region with parameters ({sorted(table)}), got {np.unique(lab)}"
         )
     fallback = table[present[0]] if 0 not in table else table[0]
-    return {k: table.get(k, fallback) for k in np.unique(lab).tolist()}, full, lab
+    return {k: table.get(k, fallback) for k in np.unique(lab).tolist()}, lab
 
 
-def _weights(regions, getter, shape, smooth_px):
-    """A per-texel value map from per-region values, blurred across region borders.
+def region_labels(region_map, shape, window=None) -> np.ndarray:
+    """The region label of each texel of a map: the label map (spanning the whole map) read nearest.
 
-    The blur runs on the region map as given (cheap: it is coarse) and the result
-    is interpolated bilinearly onto the texels.
+    Texel (r, c) of a ``shape`` = (H, W) map reads label ``[⌊(r + ½) L_h / H⌋, ⌊(c + ½) L_w / W⌋]`` of an
+    L_h × L_w label map that covers the same UV area: the label cell its centre lies in.  These are the
+    labels :func:`procedural_microstructure` places each pore by (its per-region statistics are blended over
+    ``smooth_mm`` and one label cell across borders).
+
+    Parameters
+    ----------
+    region_map : ndarray of int, shape (L_h, L_w)
+        Region labels over the whole map's UV area (e.g. a store subject's ``region``).
+    shape : int or (int, int)
+        The whole map's size in texels.
+    window : (row0, col0, height, width), optional
+        Only these texels (default: all).
+
+    Returns
+    -------
+    ndarray, shape (height, width)
+        Labels, of ``region_map``'s dtype.
     """
-    per_region, _, lab = regions
-    if lab is None:
-        return np.full(shape, float(getter(per_region[None])))
-    from scipy.ndimage import gaussian_filter, map_coordinates
+    lab = np.asarray(region_map)
+    if lab.ndim != 2 or lab.dtype.kind not in "iu":
+        raise ValidationError(f"region_map must be a 2-D integer label map, got {lab.dtype} {lab.shape}")
+    shape, (r0, c0, h, w) = check_window(shape, window)
+    return lab[np.ix_(_label_index(np.arange(r0, r0 + h), lab.shape[0], shape[0]),
+                      _label_index(np.arange(c0, c0 + w), lab.shape[1], shape[1]))]  # fmt: skip
 
+
+def _label_index(texels, n_labels, n_texels):
+    """Index of the label cell holding the centres of ``texels`` (a label map of n_labels cells over n_texels)."""
+    return np.minimum((texels + 0.5) * n_labels / n_texels, n_labels - 1).astype(int)
+
+
+def _region_values(regions, getter, shape, smooth_px):
+    """Per-region values on the label map's grid, blurred across region borders by ``smooth_px`` texels of the map.
+
+    The blur runs on the region map as given (cheap: it is coarse); :func:`_at_texels` interpolates the result
+    onto texels.  One region: the value itself.
+    """
+    per_region, lab = regions
+    if lab is None:
+        return float(getter(per_region[None]))
     values = _lookup(per_region, getter)[lab]
     if smooth_px > 0:
-        values = gaussian_filter(values, smooth_px * lab.shape[0] / shape[0], mode="nearest")
-    rows = (np.arange(shape[0]) + 0.5) * lab.shape[0] / shape[0] - 0.5
-    cols = (np.arange(shape[1]) + 0.5) * lab.shape[1] / shape[1] - 0.5
-    rr, cc = np.meshgrid(rows, cols, indexing="ij")
+        from scipy.ndimage import gaussian_filter
+
+        sigma = (smooth_px * lab.shape[0] / shape[0], smooth_px * lab.shape[1] / shape[1])
+        values = gaussian_filter(values, sigma, mode="nearest")
+    return values
+
+
+def _at_texels(values, shape, rows, cols):
+    """Label-grid ``values`` (spanning a map of ``shape``) at the texels ``rows`` × ``cols``, bilinearly."""
+    if np.ndim(values) == 0:
+        return np.full((len(rows), len(cols)), values)
+    from scipy.ndimage import map_coordinates
+
+    lr = (rows + 0.5) * values.shape[0] / shape[0] - 0.5
+    lc = (cols + 0.5) * values.shape[1] / shape[1] - 0.5
+    rr, cc = np.meshgrid(lr, lc, indexing="ij")
     return map_coordinates(values, [rr, cc], order=1, mode="nearest")
 
 
@@ -268,27 +317,31 @@ def _lookup(per_region, getter):
     return table
 
 
-def _add_pores(out, rng, per_region, full, texel, a_inv):
-    """Poisson pits at the largest region density, thinned to each region's density (vectorised over pores)."""
-    shape = out.shape
+def _draw_pores(rng, regions, shape, texel):
+    """Poisson pits over the whole map at the largest region density, thinned to each region's density.
+
+    Returns centres (n, 2) in µm from the map's corner (x along u, y along v), Gaussian radii (µm) and depths
+    (µm), vectorised over pores.  Drawn over the whole map whatever part is rendered, so a window of the map
+    holds the pores of the whole map's realisation there.
+    """
+    per_region, lab = regions
     dmax = max(p.pore_density_mm2 for p in per_region.values())
     if dmax <= 0:
-        return
+        return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
     n = rng.poisson(dmax * 1e-6 * shape[0] * shape[1] * texel * texel)
     centres = rng.uniform(0, 1, (n, 2)) * np.array([shape[1] * texel, shape[0] * texel])
     thin, jitter = rng.uniform(0, 1, n), rng.uniform(0.7, 1.3, n)
-    if full is None:
+    if lab is None:
         p = per_region[None]
         dens, share, rough, radius = (
             np.full(n, v) for v in (p.pore_density_mm2, p.pore_share, p.roughness, p.pore_radius_um)
         )
     else:
-        lab = full[
-            np.clip((centres[:, 1] / texel).astype(int), 0, shape[0] - 1),
-            np.clip((centres[:, 0] / texel).astype(int), 0, shape[1] - 1),
-        ]
+        row = _label_index(np.clip((centres[:, 1] / texel).astype(int), 0, shape[0] - 1), lab.shape[0], shape[0])
+        col = _label_index(np.clip((centres[:, 0] / texel).astype(int), 0, shape[1] - 1), lab.shape[1], shape[1])
+        label = lab[row, col]
         dens, share, rough, radius = (
-            _lookup(per_region, g)[lab]
+            _lookup(per_region, g)[label]
             for g in (
                 lambda p: p.pore_density_mm2,
                 lambda p: p.pore_share,
@@ -301,16 +354,26 @@ def _add_pores(out, rng, per_region, full, texel, a_inv):
     # π λ d² = share · m², with π corrected for central differences at the pit's size in texels.
     factor = np.interp(radius / texel, *_PIT_TABLE)
     depth = rough[keep] * np.sqrt(share[keep] / (np.pi * factor * dens[keep] * 1e-6))
-    _render_pores(out, centres[keep], radius, depth, texel, a_inv, 0.0, 0.0)
+    return centres[keep], radius, depth
 
 
-def _render_pores(out, centres, radii, depth, texel_um, a_inv, xs0, ys0):
-    """Subtract Gaussian pits (depth per pore) into ``out``; each pore touches a window of ±3.5 ρ (deformed)."""
+def _pore_reach(radii, texel_um, a_inv):
+    """Half-width (texels) of the window each pore is rendered in: ±3.5 ρ of the largest pore, deformed, + 1."""
+    if radii.size == 0:
+        return 0
+    stretch = np.linalg.norm(np.linalg.inv(a_inv), 2)
+    return int(np.ceil(3.5 * radii.max() * stretch / texel_um)) + 1
+
+
+def _render_pores(out, centres, radii, depth, texel_um, a_inv, xs0, ys0, half):
+    """Subtract Gaussian pits (depth per pore) into ``out``, whose corner texel starts at (xs0, ys0) µm.
+
+    Each pore touches a window of ±``half`` texels around its deformed centre (:func:`_pore_reach`, the same for
+    every part of a map, so a part holds exactly what the whole map holds there).
+    """
     h, w = out.shape
     if centres.size == 0:
         return
-    stretch = np.linalg.norm(np.linalg.inv(a_inv), 2)
-    half = int(np.ceil(3.5 * radii.max() * stretch / texel_um)) + 1
     off = np.arange(-half, half + 1)
     for start in range(0, len(centres), 2048):  # blocks of pores, vectorised within
         c = centres[start : start + 2048] @ np.linalg.inv(a_inv).T  # deformed centres, µm
@@ -337,65 +400,93 @@ def _map_shape(shape, minimum):
 
 
 def procedural_microstructure(
-    shape, texel_um=15.0, *, params=None, region_map=None, seed=0, deformation=None, smooth_mm=0.5
+    shape, texel_um=15.0, *, params=None, region_map=None, seed=0, deformation=None, smooth_mm=0.5, window=None
 ) -> np.ndarray:
-    """A seeded procedural skin microstructure displacement map (module docstring).
+    """A seeded procedural skin microstructure displacement map (module docstring), or a window of one.
+
+    The map is generated in blocks of rows (:data:`BLOCK_TEXELS`), so memory is the float32 output plus a
+    block's work: a whole 16,384² map takes about 1.2 GB.  A ``window`` is computed alone, and equals the
+    whole map's texels there (the waves are evaluated at the window's texel positions and the pores are drawn
+    over the whole map): a patch of a large face map costs what its own size costs.
 
     Parameters
     ----------
     shape : int or (int, int)
-        Map size in texels ``(height, width)``.
+        Size in texels ``(height, width)`` of the whole map, over which ``region_map`` is spread.
     texel_um : float
         µm of skin per texel (10-20 in Nagano et al. 2015's measurements).
     params : SkinMicrostructure or dict of int to SkinMicrostructure, optional
         One set of statistics, or statistics per region label (default ``REGION_DEFAULTS``).
     region_map : ndarray of int, optional
-        Region labels over the same UV area (any resolution, resampled nearest); None: one region.
+        Region labels over the whole map's UV area (any resolution; :func:`region_labels`); None: one region.
     seed : int
         Seed of the realisation.
     deformation : array_like (2, 2), optional
-        Render the realisation deformed by A, h(A⁻¹ x) (x in µm from the map's corner).
+        Render the realisation deformed by A, h(A⁻¹ x) (x in µm from the whole map's corner).
     smooth_mm : float
         Width (Gaussian σ, mm) of the blend between regions.
+    window : (row0, col0, height, width), optional
+        Generate only these texels of the whole map (default: all of it).
 
     Returns
     -------
     ndarray of float32, shape (height, width)
-        Heights in µm, indexed ``[v, u]``.
+        Heights in µm, indexed ``[v, u]``: the whole map, or the window.
     """
     shape = _map_shape(shape, 2)
+    shape, (r0, c0, h, w) = check_window(shape, window)
     texel = as_scalar(texel_um, "texel_um", 0.0, 1000.0, low_inclusive=False, unit="um")
     seed = check_integer(seed, "seed", 0)
     a = np.eye(2) if deformation is None else as_finite(deformation, "deformation", dtype=np.float64)
     if a.shape != (2, 2) or not np.linalg.det(a) > 0:
         raise ValidationError(f"deformation must be a 2x2 matrix with a positive determinant, got {a.tolist()}")
     a_inv = np.linalg.inv(a)
-    regions = _region_maps(shape, params, region_map)
-    per_region, full, _ = regions
+    regions = _region_maps(params, region_map)
     smooth_px = float(smooth_mm) * 1000 / texel
-    xs, ys = (np.arange(shape[1]) + 0.5) * texel, (np.arange(shape[0]) + 0.5) * texel
     rng = np.random.default_rng(seed)
 
-    def msq(getter):
-        return _weights(regions, lambda p: p.roughness**2 * getter(p), shape, smooth_px)
+    def values(getter):
+        return _region_values(regions, getter, shape, smooth_px)
 
     # Base roughness: isotropic waves, amplitude ∝ wavelength.
     f, ph, lam = _waves(rng, N_WAVES, BASE_WAVELENGTH_UM, texel)
-    amp = lam / np.sqrt(_unit_msq(f, lam, texel))
-    out = np.sqrt(msq(lambda p: 1 - p.furrow_share - p.pore_share)) * _cosine_field(f @ a_inv, ph, amp, xs, ys)
+    base = (f @ a_inv, ph, lam / np.sqrt(_unit_msq(f, lam, texel)))
+    base_msq = values(lambda p: p.roughness**2 * (1 - p.furrow_share - p.pore_share))
     # Furrows: four orientation families of ridged fields, blended towards each region's direction.
-    furrow_scale = np.sqrt(msq(lambda p: p.furrow_share))
-    norm = _weights(regions, lambda p: sum(_family_weight(p, k) ** 2 for k in range(4)), shape, smooth_px)
+    families = []
     for k, fam in enumerate(FURROW_FAMILIES):  # four families
         f, ph, lam = _waves(rng, N_WAVES, FURROW_WAVELENGTH_UM, texel, fam + np.pi / 2, FURROW_SPREAD)
         amp = lam / np.sqrt(_unit_msq(f, lam, texel))
-        wk = _weights(regions, lambda p, k=k: _family_weight(p, k), shape, smooth_px)
-        if np.any(wk > 0):
-            ridged = _ridged(_cosine_field(f @ a_inv, ph, amp, xs, ys), amp, texel)
-            out += furrow_scale * wk / np.sqrt(np.maximum(norm, 1e-12)) * ridged
+        families.append((f @ a_inv, ph, amp, values(lambda p, k=k: _family_weight(p, k))))
+    furrow_msq = values(lambda p: p.roughness**2 * p.furrow_share)
+    norm = values(lambda p: sum(_family_weight(p, k) ** 2 for k in range(4)))
     # Pores: Poisson pits at the largest density, thinned per region; depth from π λ d² = pore share · m².
-    _add_pores(out, rng, per_region, full, texel, a_inv)
-    return out.astype(np.float32)
+    centres, radii, depth = _draw_pores(rng, regions, shape, texel)
+    half = _pore_reach(radii, texel, a_inv)
+    deformed = centres @ a.T / texel  # (col, row) of the deformed centres, texels
+
+    out = np.empty((h, w), np.float32)
+    cols = np.arange(c0, c0 + w)
+    step = max(1, BLOCK_TEXELS // w)
+    for start in range(r0, r0 + h, step):  # blocks of rows: bounded memory
+        rows = np.arange(start, min(start + step, r0 + h))
+        xs, ys = (cols + 0.5) * texel, (rows + 0.5) * texel
+        block = np.sqrt(_at_texels(base_msq, shape, rows, cols)) * _cosine_field(*base, xs, ys)
+        furrow_scale = np.sqrt(_at_texels(furrow_msq, shape, rows, cols))
+        furrow_norm = np.sqrt(np.maximum(_at_texels(norm, shape, rows, cols), 1e-12))
+        for f, ph, amp, weight in families:  # four families
+            wk = _at_texels(weight, shape, rows, cols)
+            if np.any(wk > 0):
+                block += furrow_scale * wk / furrow_norm * _ridged(_cosine_field(f, ph, amp, xs, ys), amp, texel)
+        near = (
+            (deformed[:, 1] >= rows[0] - half - 1)
+            & (deformed[:, 1] < rows[-1] + half + 2)
+            & (deformed[:, 0] >= c0 - half - 1)
+            & (deformed[:, 0] < c0 + w + half + 1)
+        )
+        _render_pores(block, centres[near], radii[near], depth[near], texel, a_inv, c0 * texel, rows[0] * texel, half)
+        out[start - r0 : start - r0 + len(rows)] = block
+    return out
 
 
 def shot_noise_microstructure(
@@ -507,34 +598,42 @@ def subject_microstructure_parameters(subject, defaults=None) -> dict:
     return out
 
 
-def subject_microstructure(subject, shape, texel_um=15.0, *, seed=None, deformation=None) -> np.ndarray:
+def subject_microstructure(subject, shape, texel_um=15.0, *, seed=None, deformation=None, window=None) -> np.ndarray:
     """:func:`procedural_microstructure` over a store subject's UV layout, per region from its parameters.
 
-    The subject's region map (upsampled) places the regions; the seed defaults
-    to one derived from the subject id, so a subject always gets the same skin.
+    The subject's region map spans the whole map of ``shape`` texels (its UV square), read nearest
+    (:func:`region_labels`); the seed defaults to one derived from the subject id, so a subject always gets the
+    same skin.  The map's texels are ``texel_um`` of skin each, so ``shape`` × ``texel_um`` should be the size
+    the subject's face has in that UV layout: ICT-FaceKit's maps its face at 18.1 µm per texel (median over its
+    triangles) in a 16,384² map, 290 µm in a 1,024² one.  A smaller map at 15 µm per texel squeezes the
+    whole face, forehead to chin, into a few mm; a ``window`` of the full-size map is a patch of the face at its
+    true scale, with the regions that lie there (docs/microstructure.md).
 
     Parameters
     ----------
     subject : xarray.Dataset
         A map subject of the store (``region`` and ``ts_m`` maps, :func:`subject_microstructure_parameters`).
     shape : int or (int, int)
-        Map size in texels ``(height, width)``.
+        Size in texels ``(height, width)`` of the whole map (the subject's UV square).
     texel_um : float
         µm of skin per texel.
     seed : int, optional
         Seed of the realisation; default the CRC-32 of the subject's ``subject_id`` attribute.
     deformation : array_like (2, 2), optional
         As :func:`procedural_microstructure`.
+    window : (row0, col0, height, width), optional
+        Generate only these texels of the whole map (the window a render covers; default: all).
 
     Returns
     -------
     ndarray of float32, shape (height, width)
-        Heights in µm, indexed ``[v, u]``.
+        Heights in µm, indexed ``[v, u]``: the whole map, or the window.
 
     Raises
     ------
     ValidationError
-        A subject without ``region`` or ``ts_m``, or a bad ``shape``, ``texel_um``, ``seed`` or ``deformation``.
+        A subject without ``region`` or ``ts_m``, or a bad ``shape``, ``texel_um``, ``seed``, ``deformation`` or
+        ``window``.
     """
 
     params = subject_microstructure_parameters(subject)
@@ -542,5 +641,5 @@ def subject_microstructure(subject, shape, texel_um=15.0, *, seed=None, deformat
         seed = zlib.crc32(str(subject.attrs.get("subject_id", "")).encode())
     region = np.asarray(subject["region"].values).astype(np.int64)
     return procedural_microstructure(
-        shape, texel_um, params=params, region_map=region, seed=seed, deformation=deformation
+        shape, texel_um, params=params, region_map=region, seed=seed, deformation=deformation, window=window
     )

@@ -29,7 +29,7 @@ Requirements and baselines, printed side by side:
 * ``generate``: a store subject's neutral map (``subject_microstructure``, what ``facestats microstructure
   generate --subject`` writes) as a window of the 16K map and as the whole 16K map: time and tracemalloc
   peak.  The generator works in blocks of rows, so the whole map should need its float32 output plus about
-  100 MB (it held about 88 bytes a texel at once until 2026-12-09: about 22 GiB at 16,384²).
+  100 MB (it held about 88 bytes a texel at once until 2026-12-08: about 22 GiB at 16,384²).
 """
 
 from __future__ import annotations

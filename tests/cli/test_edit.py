@@ -539,7 +539,7 @@ def test_an_image_that_appears_during_the_edit_is_kept_without_overwrite(own, mo
 
 
 def test_a_texture_transfer_on_the_default_stores_small_regions_is_not_reported_as_a_change(tmp_path):
-    """The README's example until 2026-12-09, which a look-dev artist followed: forehead, nose and cheeks of the
+    """The README's example until 2026-12-08, which a look-dev artist followed: forehead, nose and cheeks of the
     48² default store hold 134, 56 and 312 texels, fewer than (or barely above) the 256 coefficients a 256-bin band
     histogram needs, so its distance moved 0.708 -> 0.703 inside its sampling noise and the nose came out blotchy.
     The transfer now warns, naming the regions, their texels, the map and what helps, and the report says that

@@ -539,7 +539,10 @@ def check_window(map_shape, window=None) -> tuple:
         window = (0, 0, height, width)
     if not isinstance(window, (tuple, list, np.ndarray)) or len(window) != 4:
         raise ValidationError(f"window must be (row0, col0, height, width), got {window!r}")
-    r0, c0 = check_integer(window[0], "window row0", 0), check_integer(window[1], "window col0", 0)
+    r0, c0 = (
+        check_integer(window[0], "window row0", 0, height - 1),
+        check_integer(window[1], "window col0", 0, width - 1),
+    )
     h, w = check_integer(window[2], "window height", 1), check_integer(window[3], "window width", 1)
     if r0 + h > height or c0 + w > width:
         raise ValidationError(

@@ -574,27 +574,9 @@ def _write_exr(group, index, exr_dir, name, render_id):
 
 
 def _check_window(neutral, map_shape, window):
-    """(map_shape, window) as ints, checked: the window inside the map, the neutral map covering it."""
-    if map_shape is None:
-        map_shape = neutral.shape
-    if np.shape(map_shape) != (2,):
-        raise ValidationError(f"map_shape must be (height, width), got {map_shape!r}")
-    map_shape = (check_integer(map_shape[0], "map_shape height", 1), check_integer(map_shape[1], "map_shape width", 1))
-    if window is None:
-        window = (0, 0, *map_shape)
-    if np.shape(window) != (4,):
-        raise ValidationError(f"window must be (row0, col0, height, width), got {window!r}")
-    window = (
-        check_integer(window[0], "window row0", 0, map_shape[0] - 1),
-        check_integer(window[1], "window col0", 0, map_shape[1] - 1),
-        check_integer(window[2], "window height", 1),
-        check_integer(window[3], "window width", 1),
-    )
-    if window[0] + window[2] > map_shape[0] or window[1] + window[3] > map_shape[1]:
-        raise ValidationError(
-            f"window must lie inside the {map_shape[0]} x {map_shape[1]} map, got rows {window[0]}-"
-            f"{window[0] + window[2]}, columns {window[1]}-{window[1] + window[3]}"
-        )
+    """(map_shape, window) as ints, checked (:func:`~facestats.core.validate.check_window`), the neutral map covering
+    the window."""
+    map_shape, window = check_window(neutral.shape if map_shape is None else map_shape, window)
     if neutral.shape != (window[2], window[3]):
         raise ValidationError(f"neutral_map must cover the window {window[2]} x {window[3]}, got shape {neutral.shape}")
     return map_shape, window

@@ -150,7 +150,7 @@ def test_raster_refuses_a_bad_map_or_window_naming_it():
     bad = [
         ((32, 32), (20, 20, 20, 20), "window must lie inside the 32 x 32 map"),  # was rasterised past the map...
         ((32, 32), (0, 0, 0, 5), r"window height must be an integer in \[1, inf\], got 0"),
-        ((32, 32), (-1, 0, 5, 5), r"window row0 must be an integer in \[0, inf\], got -1"),
+        ((32, 32), (-1, 0, 5, 5), r"window row0 must be an integer in \[0, 31\], got -1"),
         ((32, 32), 5, r"window must be \(row0, col0, height, width\), got 5"),  # ...or a bare TypeError
         ((32,), (0, 0, 5, 5), r"map_shape must be an int or \(height, width\), got \(32,\)"),
         ((32.0, 32), (0, 0, 5, 5), "map_shape height must be an integer, got 32.0"),

@@ -55,6 +55,15 @@ Target ≤ 1 s.  Without the browser it reports why and measures nothing.
 ``mitsuba_slab``: Mitsuba's ``subsurface`` material on a flat slab of a default subject's medium against a
 Monte Carlo solution of the same transport and against the dipole (:func:`bench_mitsuba_slab`).
 
+``mitsuba_angles``: the exported surface material evaluated by Mitsuba against facestats' skin model (diffuse
+eq. 9-10, specular eq. 12-13) by angle (:func:`bench_mitsuba_angles`); ``mitsuba_relight``: the exported scene
+rendered against :func:`facestats.relight.stage.relight_subject` under the same probe and camera, face means
+(:func:`bench_mitsuba_relight`); ``mitsuba_open_mesh``: the ``subsurface`` scene on the open face mesh against
+the mesh closed over its openings (:func:`bench_mitsuba_open_mesh`).
+
+``normal_detail``: the fitted normals against the mesh normals the exported tangent-space maps are relative to, and
+how many of the maps' 8-bit codes are flat (:func:`bench_normal_detail`).
+
 ``micro_normals``: validation renders of a subject of ``facestats build`` (which keeps micro-normal maps) with the
 fitted normal and with its per-view micro-normals (:func:`bench_micro_normals`).
 
@@ -541,6 +550,253 @@ def bench_mitsuba_slab(subject="S003", seeds=(0, 1), spp=1024, photons=50_000, r
     return out
 
 
+#: Angles (degrees) of :func:`bench_mitsuba_angles`: θi = θo in the mirror configuration.
+MITSUBA_ANGLES = (0, 20, 40, 50, 60, 70, 80)
+
+
+def bench_mitsuba_angles(roughness=(0.2, 0.35, 0.5), angles=MITSUBA_ANGLES, eta=1.38):
+    """The exported surface material evaluated by Mitsuba (``bsdf.eval``) against facestats' model, by angle.
+
+    Diffuse: the ``plastic`` of the export (ρ = :func:`facestats.io.mitsuba.plastic_reflectance_scale`, mirror
+    lobe off) over α/π F_t(θi) F_t(θo) (Weyrich eq. 9-10) at view along the normal and θi of ``angles``, and the
+    Lambertian α/π of the export until 2026-12-08 over the same; also the old one at θi = θo.  Specular: the
+    Beckmann ``roughconductor`` (η, k = 0) times 4ρs over :func:`facestats.model.brdf.torrance_sparrow` (eq. 12-13)
+    in the mirror configuration θi = θo of ``angles`` for each m of ``roughness`` (Smith's G against the
+    V-cavity's).  Ratios; without Mitsuba it reports why and measures nothing.
+    """
+    from facestats.errors import DependencyError
+    from facestats.io.mitsuba import plastic_reflectance_scale, require_mitsuba
+    from facestats.model.brdf import torrance_sparrow
+    from facestats.model.fresnel import fresnel_transmittance
+
+    try:
+        mi = require_mitsuba()
+    except DependencyError as exc:
+        return {"skipped": str(exc)}
+
+    def local(theta, phi):
+        t, p = np.radians(theta), np.radians(phi)
+        return np.array([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)])
+
+    def evaluate(bsdf, wi, wo):  # f in sr⁻¹ on a surface facing +z
+        si = mi.SurfaceInteraction3f()
+        si.uv = mi.Point2f(0.5, 0.5)
+        si.n = mi.Normal3f(0.0, 0.0, 1.0)
+        si.sh_frame = mi.Frame3f(si.n)
+        si.wi = mi.Vector3f(*wi)
+        return float(np.array(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(*wo)))[0]) / wo[2]
+
+    out = {}
+    plastic = mi.load_dict({"type": "plastic", "diffuse_reflectance": plastic_reflectance_scale(eta),
+                            "specular_reflectance": 0.0, "int_ior": eta, "ext_ior": 1.0})  # fmt: skip
+    view = local(0, 0)
+    for theta in angles:
+        wi = local(theta, 0)
+        eq10 = float(fresnel_transmittance(wi[2], eta) * fresnel_transmittance(1.0, eta)) / np.pi
+        out[f"diffuse_{theta}"] = evaluate(plastic, wi, view) / eq10
+        out[f"lambert_{theta}"] = (1 / np.pi) / eq10
+        out[f"lambert_both_{theta}"] = (1 / np.pi) / (float(fresnel_transmittance(wi[2], eta)) ** 2 / np.pi)
+    for m in roughness:
+        lobe = mi.load_dict({"type": "roughconductor", "distribution": "beckmann", "alpha": m, "eta": eta, "k": 0.0})
+        for theta in angles:
+            wi, wo = local(theta, 0), local(theta, 180)
+            ts = float(torrance_sparrow([0.0, 0.0, 1.0], wi, wo, 0.25, m, eta=eta))
+            out[f"specular_m{m:g}_{theta}"] = evaluate(lobe, wi, wo) / ts  # 4ρs = 1
+    return out
+
+
+def bench_mitsuba_relight(subjects=("S001", "S003"), probes=("studio", "side", "park"), size=96, spp=256,
+                          lights=(64, 128)):  # fmt: skip
+    """The exported Mitsuba scene against ``relight_subject``: face means of the same subject, probe and camera.
+
+    For each subject and probe, the scene of ``export-subject --format mitsuba`` seen by ``relight_subject``'s
+    camera (:func:`facestats.relight.stage_camera` at ``size``²; ``spp`` samples per pixel) is rendered
+    with direct light only (``max_depth`` 2, what ``relight_subject`` computes) and with every bounce (the
+    export's default, −1), and with the export's material of before 2026-12-08 (a Lambertian α/π in place of
+    the ``plastic``; direct light), against ``relight_subject`` with ``lights`` = (n_theta, n_phi).  Ratios of
+    the face means per channel, over the face mask eroded by 2 pixels (``inner``: Mitsuba's Gaussian pixel
+    filter mixes the probe seen through eyes and mouth into their neighbours) and over the whole mask
+    (``whole``).  Probes: ``studio`` (:func:`facestats.io.probes.studio_probe`, the export's default), ``side``
+    (its 15° key light alone, 60° to the side and 20° up, no ambient), and the committed Poly Haven ``park``,
+    ``lobby``, ``studio_ph`` (``tests/data/polyhaven-probes``).  Without Mitsuba it reports why.
+    """
+    import pathlib
+
+    from scipy.ndimage import binary_erosion
+
+    import facestats
+    from facestats.errors import DependencyError
+    from facestats.io.images import read_exr, write_exr
+    from facestats.io.mitsuba import plastic_reflectance_scale, render_scene, require_mitsuba, write_mitsuba_scene
+    from facestats.io.probes import read_light_probe, studio_probe, write_light_probe
+    from facestats.relight import stage_camera
+    from facestats.relight.stage import relight_subject
+
+    try:
+        require_mitsuba()
+    except DependencyError as exc:
+        return {"skipped": str(exc)}
+    committed = pathlib.Path(__file__).resolve().parents[1] / "tests" / "data" / "polyhaven-probes"
+    side = np.array([np.sin(np.radians(60)) * np.cos(np.radians(20)), np.sin(np.radians(20)),
+                     np.cos(np.radians(60)) * np.cos(np.radians(20))])  # fmt: skip
+    made = {"studio": lambda: studio_probe(32), "side": lambda: studio_probe(32, key=side, ambient=0.0)}
+    cam = stage_camera(size=size)
+    out = {}
+    with facestats.open_store() as st, tempfile.TemporaryDirectory() as tmp:
+        for sid in subjects:
+            ds = st.subject(sid).load()
+            for name in probes:
+                if name in made:
+                    probe = made[name]()
+                else:
+                    probe = read_light_probe(committed / f"{'studio' if name == 'studio_ph' else name}.hdr")
+                scene = os.path.join(tmp, f"{sid}-{name}")
+                os.mkdir(scene)
+                path = write_light_probe(os.path.join(tmp, f"{sid}-{name}.exr"), probe)
+                spec = write_mitsuba_scene(ds, scene, probe=path, origin=cam.position, target=cam.target,
+                                           fov=cam.fov_deg, width=size, height=size, spp=spp)  # fmt: skip
+                ref, mask = relight_subject(ds, probe, camera=cam, lights=lights)
+                inner = binary_erosion(mask, iterations=2)
+                renders = {}
+                for depth in (2, -1):
+                    spec["integrator"]["max_depth"] = depth
+                    renders[f"depth{depth}"] = render_scene(spec, base_dir=scene)
+                # the material of before: a Lambertian α/π, its map α/(1 − w) = the plastic's c α/(1 − w) / c
+                diffuse = read_exr(os.path.join(scene, "mitsuba_diffuse.exr"))[0]
+                c = np.float32(plastic_reflectance_scale())
+                write_exr(os.path.join(scene, "lambert.exr"), {k: v / c for k, v in diffuse.items()})
+                plastic = spec["face"]["bsdf"]["diffuse"]
+                spec["face"]["bsdf"]["diffuse"] = {"type": "diffuse", "reflectance": dict(
+                    plastic["diffuse_reflectance"], filename="lambert.exr")}  # fmt: skip
+                spec["integrator"]["max_depth"] = 2
+                renders["before"] = render_scene(spec, base_dir=scene)
+                for key, img in renders.items():
+                    for where, sel in (("inner", inner), ("whole", mask)):
+                        r = img[sel].mean(0) / ref[sel].mean(0)
+                        out[f"{sid}_{name}_{key}_{where}"] = "/".join(f"{x:.4f}" for x in r)
+    return out
+
+
+def _capped(mesh):
+    """``mesh`` closed by a fan of triangles over each opening (a vertex at the opening's centroid, UV (0, 0)):
+    :meth:`facestats.io.mesh.FaceMesh.boundary_edges` followed around each loop, each edge (a, b) capped by the
+    triangle (b, a, centroid) so the cap faces out as the surface does.  Returns (mesh, loops, centroid list)."""
+    from facestats.io.mesh import FaceMesh
+
+    edges = mesh.boundary_edges()
+    nxt = dict(zip(edges[:, 0].tolist(), edges[:, 1].tolist()))
+    loops, seen = [], set()
+    for start in nxt:  # follow each loop (boundary vertices only)
+        if start in seen:
+            continue
+        loop, v = [], start
+        while v not in seen:
+            seen.add(v)
+            loop.append(v)
+            v = nxt[v]
+        loops.append(np.array(loop))
+    verts, faces = [mesh.vertices], [mesh.faces]
+    for k, loop in enumerate(loops):
+        c = len(mesh.vertices) + k
+        faces.append(np.stack([np.roll(loop, -1), loop, np.full(len(loop), c)], 1))
+        verts.append(mesh.vertices[loop].mean(0)[None])
+    n = len(loops)
+    closed = FaceMesh(np.concatenate(verts), np.concatenate(faces).astype(np.int64),
+                      np.concatenate([mesh.uv, np.zeros((n, 2))]), np.concatenate([mesh.normals, np.tile([0, 0, 1.0],
+                      (n, 1))]), dict(mesh.geometry, name=f"{mesh.geometry.get('name')}-capped"))  # fmt: skip
+    return closed, loops
+
+
+def bench_mitsuba_open_mesh(subject="S003", size=128, spp=256, bins=(0, 5, 10, 20, np.inf)):
+    """The ``subsurface`` scene on the subject's open face mesh against the same mesh closed by fans over its openings.
+
+    Mitsuba tracks a medium along each path, so inside an open mesh the medium has no end behind the face and
+    through the openings (docs/export.md).  Both scenes (the export's studio probe, :func:`stage_camera` at
+    ``size``², ``spp`` samples per pixel) are rendered and their ratio (open / closed) of mean radiance per channel
+    reported over the face's pixels binned by their distance (mm) to the nearest opening (eyes, mouth, rim), with
+    the openings' boundary edge counts.  Without Mitsuba it reports why and measures nothing.
+    """
+    import warnings
+
+    from scipy.spatial import cKDTree
+
+    import facestats
+    from facestats.errors import DependencyError, FacestatsWarning
+    from facestats.io.mesh import subject_mesh
+    from facestats.io.mitsuba import render_scene, require_mitsuba, write_mitsuba_scene
+    from facestats.relight import stage_camera
+    from facestats.relight.camera import subject_geometry, view_surface
+
+    try:
+        require_mitsuba()
+    except DependencyError as exc:
+        return {"skipped": str(exc)}
+    with facestats.open_store() as st:
+        ds = st.subject(subject).load()
+    mesh = subject_mesh(ds)
+    closed, loops = _capped(mesh)
+    out = {"boundary_edges": len(mesh.boundary_edges()), "closed_boundary_edges": len(closed.boundary_edges()),
+           "openings": "/".join(str(len(loop)) for loop in sorted(loops, key=len))}  # fmt: skip
+    cam = stage_camera(size=size)
+    images = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, m in (("open", mesh), ("closed", closed)):
+            scene = os.path.join(tmp, name)
+            os.mkdir(scene)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", FacestatsWarning)  # the open mesh's warning: measured here
+                view = dict(origin=cam.position, target=cam.target, fov=cam.fov_deg, width=size, height=size, spp=spp)
+                spec = write_mitsuba_scene(ds, scene, mesh=m, material="subsurface", **view)
+            images[name] = render_scene(spec, base_dir=scene).reshape(-1, 3)
+    surf = view_surface(subject_geometry(ds), cam)
+    rim = np.concatenate([mesh.vertices[loop] for loop in loops])
+    dist, _ = cKDTree(rim).query(surf.position)
+    for lo, hi in zip(bins[:-1], bins[1:]):
+        sel = surf.pixel[(dist >= lo) & (dist < hi)]
+        key = f"{lo:g}-{hi:g}mm" if np.isfinite(hi) else f"over{lo:g}mm"
+        out[f"pixels_{key}"] = int(sel.size)
+        if sel.size:
+            r = images["open"][sel].mean(0) / images["closed"][sel].mean(0)
+            out[f"open_over_closed_{key}"] = "/".join(f"{x:.4f}" for x in r)
+    return out
+
+
+def bench_normal_detail(subjects=("S001", "S003", "S100")):
+    """How much detail the exported tangent-space normal maps hold, per default subject (docs/export.md).
+
+    The angle between the fitted diffuse normal and the mesh normal the map is relative to
+    (:meth:`facestats.io.mesh.FaceMesh.tangent_frames`) over the measured texels (median, 95th percentile,
+    maximum, degrees), and the share of texels whose 8-bit code (glTF's ``normal.png``) is exactly the flat
+    (128, 128, 255) or within one code of it, on the face and over the whole map (off the face the maps hold
+    (0, 0, 1) by design), with the share of the map off the face.  One 8-bit code is 1/127.5 rad = 0.45°.
+    """
+    import facestats
+    from facestats.io.exr_set import tangent_space_normals
+    from facestats.io.mesh import subject_mesh
+
+    out = {}
+    with facestats.open_store() as st:
+        for sid in subjects:
+            ds = st.subject(sid).load()
+            face = np.asarray(ds["region"].values) > 0
+            frames = subject_mesh(ds).tangent_frames(int(ds.sizes["u"]))
+            n = np.asarray(ds["normal"].values, np.float64)[face]
+            n /= np.linalg.norm(n, axis=1, keepdims=True)
+            angle = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", n, frames[2][face]), -1, 1)))
+            nt = tangent_space_normals(ds, frames)
+            code = np.round((np.asarray(nt, np.float64) + 1) / 2 * 255)
+            off = np.abs(code - [128, 128, 255]).max(-1)
+            out[f"{sid}_angle_median_deg"] = float(np.median(angle))
+            out[f"{sid}_angle_p95_deg"] = float(np.percentile(angle, 95))
+            out[f"{sid}_angle_max_deg"] = float(angle.max())
+            out[f"{sid}_flat_8bit_face"] = float(np.mean(off[face] == 0))
+            out[f"{sid}_within_1_code_face"] = float(np.mean(off[face] <= 1))
+            out[f"{sid}_flat_8bit_map"] = float(np.mean(off == 0))
+            out[f"{sid}_within_1_code_map"] = float(np.mean(off <= 1))
+            out[f"{sid}_off_face_share"] = float(np.mean(~face))
+    return out
+
+
 def _chromium():
     """A headless Chromium driven by Selenium, or the reason there is none."""
     import shutil
@@ -695,6 +951,10 @@ BENCHMARKS = [
     ("gltf_specular", bench_gltf_specular),
     ("micro_normals", bench_micro_normals),
     ("mitsuba_slab", bench_mitsuba_slab),
+    ("mitsuba_angles", bench_mitsuba_angles),
+    ("mitsuba_relight", bench_mitsuba_relight),
+    ("mitsuba_open_mesh", bench_mitsuba_open_mesh),
+    ("normal_detail", bench_normal_detail),
     ("validation_images", bench_validation_images),
 ]
 
@@ -708,6 +968,10 @@ SMOKE = {
     "gltf_specular": {"subjects": (), "named": ("S003",)},
     "micro_normals": {"size": 12, "cameras": (5,), "light_step": 50},
     "mitsuba_slab": {"seeds": (0,), "spp": 4, "photons": 500, "reference_seeds": (0,)},
+    "mitsuba_angles": {"roughness": (0.3,), "angles": (0, 60)},
+    "mitsuba_open_mesh": {"size": 24, "spp": 2},
+    "normal_detail": {"subjects": ("S003",)},
+    "mitsuba_relight": {"subjects": ("S003",), "probes": ("side",), "size": 32, "spp": 4, "lights": (8, 16)},
     "validation_images": {"cameras": (5,), "probe_size": 8, "probe_lights": 8},
 }
 

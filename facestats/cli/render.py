@@ -84,6 +84,47 @@ def _check_options(args) -> None:
             raise ValidationError(f"--probe-lights must make at most {MAX_PROBE_LIGHTS} lights, got {shown!r}")
 
 
+#: ``facestats.format`` of a render's EXR images (their header attributes: :func:`_header`).
+RENDER_FORMAT = "facestats.render/1"
+
+#: What each EXR image of a render holds (``facestats.quantity``).
+_QUANTITIES = {
+    "rendered": "radiance the fitted skin model gives towards the camera (Weyrich et al. 2006 eq. 6)",
+    "capture": "radiance the capture recorded (the photograph, or its simulation)",
+    "error": "rendered minus captured radiance",
+}
+
+
+def _header(ds, res, args, variable) -> dict:
+    """The ``facestats.*`` EXR header attributes of one image of a render (the EXR set's, ``exr_header``): the
+    subject, what the image holds, its units and colour space, the camera, the light, the geometry, the
+    image's layout and, under an LED, the error figures."""
+    from facestats import __version__
+    from facestats.io.exr_set import COLOUR_SPACE, exr_header
+    from facestats.io.mesh import recorded_geometry
+
+    if args.probe:
+        light = {"light": f"probe {pathlib.Path(args.probe).name}", "probe": str(pathlib.Path(args.probe).resolve()),
+                 "probe_lights": "512 (median cut)" if args.probe_lights is None else args.probe_lights}  # fmt: skip
+        units = "the probe's radiance unit (the probe file's values, per sr)"
+    else:
+        light = {"light": f"LED {args.light}"}
+        units = "dome units / sr (the capture's radiance unit)"
+    if args.mesh is not None:
+        geometry = str(pathlib.Path(args.mesh).resolve())
+    else:
+        geometry = recorded_geometry(ds) or "unknown"
+    extra = {"camera": res.camera, **light, "geometry": geometry}
+    if args.capture:
+        extra["capture"] = str(pathlib.Path(args.capture).resolve())
+    extra["image"] = "row 0 at the top; pixels where no lumitexel projects are 0"
+    if res.relative_rmse is not None:
+        extra.update(rmse=repr(float(res.rmse)), relative_rmse=repr(float(res.relative_rmse)))
+    extra["software"] = f"facestats {__version__}"
+    return exr_header(ds, file_format=RENDER_FORMAT, variable=variable, quantity=_QUANTITIES[variable], units=units,
+                      colour_space=COLOUR_SPACE, **extra)  # fmt: skip
+
+
 def _cmd_render(args) -> int:
     import matplotlib
     import numpy as np
@@ -133,10 +174,12 @@ def _cmd_render(args) -> int:
             res = render_led(ds, cap, args.camera, args.light, micro_normals=args.micro_normals, size=args.size,
                              names=("--camera", "--light"))  # fmt: skip
     with OutputSet(out) as files:  # every file or none
-        write_image(files.path(names[0]), np.nan_to_num(res.rendered).clip(0))
+        write_image(files.path(names[0]), np.nan_to_num(res.rendered).clip(0),
+                    attributes=_header(ds, res, args, "rendered"))  # fmt: skip
         if res.reference is not None:
-            write_image(files.path(names[1]), np.nan_to_num(res.reference).clip(0))
-            write_image(files.path(names[2]), np.nan_to_num(res.error))
+            write_image(files.path(names[1]), np.nan_to_num(res.reference).clip(0),
+                        attributes=_header(ds, res, args, "capture"))  # fmt: skip
+            write_image(files.path(names[2]), np.nan_to_num(res.error), attributes=_header(ds, res, args, "error"))
         res.figure().savefig(files.path(names[3]), dpi=120)
     if res.relative_rmse is not None:
         print(

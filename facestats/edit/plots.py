@@ -25,7 +25,7 @@ from facestats.edit.pyramid import band_names
 from facestats.edit.result import BRDF_VARIABLES, SubjectEdit
 from facestats.errors import ValidationError
 from facestats.io.images import linear_to_srgb, stride_step
-from facestats.io.schema import VARIABLES
+from facestats.io.png import SCALE_KEYS, map_scale_text
 
 __all__ = [
     "plot_texture_transfer",
@@ -36,19 +36,6 @@ __all__ = [
     "edit_image_names",
     "SCALE_KEYS",
 ]
-
-#: PNG text keys of a map's image (:func:`stage_edit_images`): the variable, its units (:data:`VARIABLES`'s, "1"
-#: dimensionless), the colour map ("viridis", or "sRGB" for the albedo: each channel's linear value sRGB-encoded,
-#: 0 black and 1 white), the values drawn at its low and high ends (``repr`` of a float; values beyond are clipped
-#: to them), and the pixels a side of one texel.  ``Description`` says the same in words.
-SCALE_KEYS = (
-    "facestats:variable",
-    "facestats:units",
-    "facestats:colormap",
-    "facestats:vmin",
-    "facestats:vmax",
-    "facestats:texel_pixels",
-)
 
 
 def _figure(**kwargs):
@@ -271,31 +258,9 @@ def _upscale(img, k):
     return img if k == 1 else np.repeat(np.repeat(img, k, axis=0), k, axis=1)
 
 
-def _scale(var, colormap, lo, hi, k):
-    """``(PNG text chunks, one line in words)`` of a map's image drawn with ``colormap`` from ``lo`` to ``hi``."""
-    units = VARIABLES[var][1]
-    unit_words = "dimensionless" if units == "1" else f"in {units}"
-    if colormap == "sRGB":
-        words = f"linear {lo:g} (black) to {hi:g} (white) per channel, sRGB-encoded, {unit_words}"
-    else:
-        words = f"{colormap} from {lo:.4g} (dark purple) to {hi:.4g} (yellow), {unit_words}"
-    shared = (
-        ""
-        if colormap == "sRGB"
-        else "; the before and after images share it (1st-99th percentile of both images' face texels); black "
-        "outside the face"
-    )
-    text = {
-        "facestats:variable": var,
-        "facestats:units": units,
-        "facestats:colormap": colormap,
-        "facestats:vmin": repr(float(lo)),
-        "facestats:vmax": repr(float(hi)),
-        "facestats:texel_pixels": str(k),
-        "Description": f"{var} ({VARIABLES[var][2]}): {words}; values beyond clipped{shared}; one texel is {k} x {k} "
-        "pixels",
-    }
-    return text, words
+_SHARED = (
+    "; the before and after images share it (1st-99th percentile of both images' face texels); black outside the face"
+)
 
 
 def edit_image_names(subject_id: str) -> list[str]:
@@ -351,7 +316,7 @@ def stage_edit_images(edit: SubjectEdit, outputs: OutputSet) -> dict[str, str]:
     k = _upscale_factor(face.shape)
     cmap = colormaps["viridis"]
     scales = {}
-    text, words = _scale("albedo", "sRGB", 0.0, 1.0, k)
+    text, words = map_scale_text("albedo", "sRGB", 0.0, 1.0, k)
     for when, ds in (("before", edit.source), ("after", edit.dataset)):
         name = f"{edit.subject_id}_albedo_{when}.png"
         imsave(outputs.path(name), _upscale(_display(np.asarray(ds["albedo"].values)), k), metadata=text)
@@ -360,7 +325,7 @@ def stage_edit_images(edit: SubjectEdit, outputs: OutputSet) -> dict[str, str]:
         before = np.asarray(edit.source[var].values, np.float32)
         after = np.asarray(edit.dataset[var].values, np.float32)
         lo, hi = _map_range(before, after, face)
-        text, words = _scale(var, "viridis", lo, hi, k)
+        text, words = map_scale_text(var, "viridis", lo, hi, k, note=_SHARED)
         for when, img in (("before", before), ("after", after)):
             rgb = cmap(np.clip((img - lo) / (hi - lo), 0.0, 1.0), bytes=True)[..., :3]  # 8-bit, as written
             rgb[~face] = 0

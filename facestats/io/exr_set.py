@@ -84,6 +84,8 @@ __all__ = [
     "COLOUR_SPACE",
     "FILLED_MAPS",
     "UV_CONVENTION",
+    "DATA_SPACE",
+    "exr_header",
     "FaceFill",
     "check_map_subject",
     "check_export_subject",
@@ -465,19 +467,47 @@ def exr_set_textures(ds, mesh: FaceMesh, fill: FaceFill | None = None):
     return textures
 
 
-def _header(ds, tex, geometry) -> dict:
+def exr_header(ds, *, file_format, variable, quantity, units, colour_space, **extra) -> dict:
+    """The ``facestats.*`` string attributes of an EXR file facestats writes from a subject (module docstring).
+
+    Every file of the EXR set (``file_format`` :data:`EXR_SET_FORMAT`) and every image of ``facestats render`` carries
+    them: which format and subject, the variable the file holds, its quantity in words, its units and colour
+    space (:data:`COLOUR_SPACE` for linear RGB, ``data (not a colour)`` for other data), then ``extra``, in the
+    order given, each as ``facestats.<key>`` (values converted with ``str``).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        The subject (its ``subject_id`` attribute; empty if it has none).
+    file_format : str
+        The kind of file, e.g. ``"facestats.exr_set/2"``.
+    variable, quantity, units, colour_space : str
+        What the file holds.
+    **extra
+        Further attributes (e.g. ``uv``, ``geometry``, ``camera``).
+
+    Returns
+    -------
+    dict of str to str
+        For the ``attributes`` of :func:`facestats.io.images.write_exr`.
+    """
     attrs = {
-        "facestats.format": EXR_SET_FORMAT,
+        "facestats.format": str(file_format),
         "facestats.subject_id": str(ds.attrs.get("subject_id", "")),
-        "facestats.variable": tex["variable"],
-        "facestats.quantity": tex["quantity"],
-        "facestats.units": tex["units"],
-        "facestats.colour_space": tex["space"],
-        "facestats.uv": UV_CONVENTION,
-        "facestats.geometry": geometry["name"],
+        "facestats.variable": str(variable),
+        "facestats.quantity": str(quantity),
+        "facestats.units": str(units),
+        "facestats.colour_space": str(colour_space),
     }
-    attrs.update({f"facestats.{k}": str(v) for k, v in tex["extra"].items()})
+    attrs.update({f"facestats.{k}": str(v) for k, v in extra.items()})
     return attrs
+
+
+def _header(ds, tex, geometry) -> dict:
+    return exr_header(
+        ds, file_format=EXR_SET_FORMAT, variable=tex["variable"], quantity=tex["quantity"], units=tex["units"],
+        colour_space=tex["space"], uv=UV_CONVENTION, geometry=geometry["name"], **tex["extra"],
+    )  # fmt: skip
 
 
 def _default_workers() -> int:

@@ -457,6 +457,27 @@ class FaceMesh:
         w = np.where(np.einsum("ij,ij->i", np.cross(n, t), b) < 0, -1.0, 1.0)
         return t, w
 
+    def boundary_edges(self) -> np.ndarray:
+        """The edges of the surface's openings (holes and outer rim), directed as their one triangle runs them.
+
+        Vertices split along UV seams (one position, several UVs) are welded by exact position first, so a
+        seam is not an opening.  An edge (a, b) of a triangle is on the boundary when no triangle runs (b, a).
+        A closed (watertight) surface has none; the default store's ``ict-48`` face has 362: the eyes (42
+        each), the mouth (74) and the rim around the sides of the head and the neck (204).
+
+        Returns
+        -------
+        ndarray of int64, shape (E, 2)
+            Vertex indices into :attr:`vertices` (for a welded position, its first vertex).
+        """
+        _, first, welded = np.unique(self.vertices, axis=0, return_index=True, return_inverse=True)
+        welded = welded.reshape(-1)
+        f = welded[np.asarray(self.faces, np.int64)]
+        edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        n = int(welded.max(initial=-1)) + 1
+        open_ = ~np.isin(edges[:, 0] * n + edges[:, 1], edges[:, 1] * n + edges[:, 0])
+        return first[edges[open_]].astype(np.int64)
+
     def tangent_frames(self, size: int):
         """Tangent frames (T, B, N) at the texel centres of a ``size``² map, each shape (size, size, 3), float32.
 

@@ -23,11 +23,27 @@ Beckmann, Walter et al. 2007's rational fit of G1, exactly 1 while
 a = 1/(m tan θ) ≥ 1.6, i.e. θ ≤ 51° at m = 0.5), eq. 13's is the V-cavity
 term (1 unless 2(N·H) min(N·ωi, N·ωo) < ωo·H); below those angles both are 1
 and Mitsuba's BSDF equals eq. 12 to float32 precision (measured |ratio − 1|
-≤ 3e-5; at θi = θo = 60°, m = 0.5 Smith gives 0.979 of it); the diffuse term
-is the Lambertian α/π without the F_t(ωi) F_t(ωo) of eq. 10 (≥ 0.95 below 45°).
+≤ 3e-5; at θi = θo = 60°, m = 0.5 Smith gives 0.979 of it).  The diffuse term is
+eq. 9-10's α/π F_t(ωi) F_t(ωo), F_t = 1 − F_r the smooth Fresnel transmittance at
+η (what :mod:`facestats.relight` and the fit use).  Mitsuba's ``diffuse`` is α/π
+without them: 5.3 % bright at normal incidence and view, 6.3 % at θi = θo = 40°,
+15 % at 60°, and rendered faces 8-13 % brighter than :func:`facestats.relight.stage.relight_subject`
+under the same probe (docs/export.md).  Mitsuba's
+smooth ``plastic`` (``nonlinear`` false) evaluates its diffuse part as
+ρ/(1 − F_dr) · η⁻² · (1 − F_r(θi))(1 − F_r(θo))/π with F_dr the internal
+diffuse Fresnel reflectance (Egan & Hilgeman's fit, Mitsuba's
+``fresnel_diffuse_reflectance(1/η)``), exactly eq. 9-10's form; so the
+diffuse part is a ``plastic`` with ``specular_reflectance`` 0 (its mirror
+lobe off: the rough specular is the conductor's) and ``diffuse_reflectance``
+ρ = c α, c = η² (1 − F_dr(η)) = 0.9253 at η = 1.38 (:func:`plastic_reflectance_scale`,
+through :func:`facestats.model.fresnel.diffuse_fresnel_reflectance`, the same
+fit with constants rounded otherwise than Mitsuba's, whose 1 − F_dr is 1.6e-4
+relative lower: its diffuse is that much brighter).  The smooth
+F_t (not the rough interface's transmittance of ``roughplastic``, whose α is
+one number per material, not a texture) is eq. 10's.
 Mitsuba has no additive BSDF, so the sum is ``blendbsdf`` with weight w of
-a ``diffuse`` with reflectance α/(1 − w) and the specular with ``specular_reflectance``
-4ρs/w ((1 − w)·α/(1 − w) + w·4ρs/w·f = α + 4ρs·f exactly); these two scaled maps are
+that ``plastic`` with ρ = c α/(1 − w) and the specular with ``specular_reflectance``
+4ρs/w ((1 − w)·α F_t F_t/π + w·4ρs/w·f = α F_t F_t/π + 4ρs·f); these two scaled maps are
 written as ``mitsuba_diffuse.exr`` and ``mitsuba_specular.exr``.  w = min(0.5, 1 − max α)
 (:func:`blend_weight`; 0.5 for α ≤ 0.5): Mitsuba's spectral variants clamp a reflectance
 texture to [0, 1], so a diffuse map above 1 (2α with a fixed w = 0.5, on 18.6 % of the
@@ -50,9 +66,16 @@ coefficients assume).  Mitsuba takes RGB values in [0, 1], so ``sigma_t`` is
 σt / max(σt) with ``scale`` = max(σt) in mm⁻¹ (the scene is in mm).  The medium
 is homogeneous per subject (§5.4): the modulation texture M is not
 represented, and the boundary's Fresnel reflection stands for the specular
-lobe (it equals eq. 12 with ρs = 1/4).  The face mesh is an open shell, so the
-medium is a half-space under the face (a few mm of diffusion against a head
-75 mm deep).  Paths are unlimited in length (``max_depth`` −1, ended by
+lobe (it equals eq. 12 with ρs = 1/4).  The medium fills what the mesh encloses,
+tracked by Mitsuba along each path, and the face mesh encloses nothing: the default
+``ict-48`` face is open at the eyes, the mouth and a rim around the head's sides and
+neck (362 boundary edges, :meth:`facestats.io.mesh.FaceMesh.boundary_edges`), so the
+medium has no end behind the face and through those openings.  Against the mesh
+closed by fans over its openings the face renders 1.4-2.1 % brighter beyond 2 cm of
+them and 3-10 % within (docs/export.md); the mesh is kept open (closing it would
+invent geometry: skin over the eyes and mouth) and the export warns
+(:class:`facestats.errors.FacestatsWarning`) when a subsurface scene's mesh has
+openings.  Paths are unlimited in length (``max_depth`` −1, ended by
 Russian roulette): skin's red scatters hundreds of times before it leaves.
 Under uniform light a flat slab of this material reflects what a Monte Carlo
 solution of the same transport (semi-infinite medium, isotropic phase,
@@ -77,21 +100,24 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import warnings
 import xml.etree.ElementTree as ET
 
 import numpy as np
 
 from facestats.core.published import ETA_SKIN
 from facestats.core.validate import as_finite, check_choice, check_integer
-from facestats.errors import DependencyError, ValidationError
+from facestats.errors import DependencyError, FacestatsWarning, ValidationError
 from facestats.io.images import write_exr
 from facestats.io.probes import read_light_probe, write_studio_probe
+from facestats.model.fresnel import diffuse_fresnel_reflectance
 
 __all__ = [
     "MATERIALS",
     "SCENE_FILES",
     "check_medium",
     "blend_weight",
+    "plastic_reflectance_scale",
     "MITSUBA_VARIANT",
     "require_mitsuba",
     "scene_spec",
@@ -113,6 +139,7 @@ SCENE_FILES = {
 _TAGS = {
     "scene": "scene",
     "diffuse": "bsdf",
+    "plastic": "bsdf",
     "roughconductor": "bsdf",
     "roughdielectric": "bsdf",
     "blendbsdf": "bsdf",
@@ -156,7 +183,8 @@ def _rgb(values):
 def blend_weight(albedo) -> float:
     """The ``blendbsdf`` weight w of the surface material: min(0.5, 1 − max α), at least 1e-3 (module docstring).
 
-    The diffuse map α/(1 − w) then stays within [0, 1], which Mitsuba's spectral variants clamp a reflectance to.
+    The diffuse map c α/(1 − w) (c = :func:`plastic_reflectance_scale` < 1) then stays within [0, 1], which
+    Mitsuba's spectral variants clamp a reflectance to.
 
     Parameters
     ----------
@@ -172,13 +200,45 @@ def blend_weight(albedo) -> float:
     return float(min(0.5, max(1.0 - top, 1e-3)))
 
 
+def plastic_reflectance_scale(eta=ETA_SKIN) -> float:
+    """c = η² (1 − F_dr(η)): Mitsuba ``plastic``'s ``diffuse_reflectance`` per unit albedo α (module docstring).
+
+    Mitsuba 3's smooth ``plastic`` with ``nonlinear`` false evaluates its diffuse part as
+    ρ/(1 − F_dr) · η⁻² · F_t(θi) F_t(θo)/π (F_t = 1 − F_r, smooth Fresnel transmittance at relative index η;
+    F_dr the internal diffuse Fresnel reflectance); with ρ = c α it is Weyrich et al. 2006 eq. 9-10's diffuse
+    BRDF α/π F_t(ωi) F_t(ωo).  F_dr is Egan & Hilgeman's polynomial
+    (:func:`facestats.model.fresnel.diffuse_fresnel_reflectance`, Jensen et al. 2001; Suzuki et al. eq. 9),
+    which Mitsuba evaluates with its constants rounded to four digits: 1 − F_dr differs by 1.6e-4 relative at
+    η = 1.38.
+
+    Parameters
+    ----------
+    eta : float
+        Relative index of refraction of skin over air, in [1, 3].
+
+    Returns
+    -------
+    float
+        c, dimensionless (0.9253 at η = 1.38).
+    """
+    e = as_finite(eta, "eta", 1, 3)
+    return float(e * e * (1 - diffuse_fresnel_reflectance(e)))
+
+
 def _material(material, files, coefficients, eta, weight=0.5):
     """The shape's BSDF (and interior medium) for ``material`` (module docstring)."""
     if material == "surface":
         bsdf = {
             "type": "blendbsdf",
             "weight": float(weight),
-            "diffuse": {"type": "diffuse", "reflectance": _bitmap(files["mitsuba_diffuse"], raw=False)},
+            "diffuse": {  # α F_t F_t/π (module docstring): the map holds c α/(1 − w), the mirror lobe is off
+                "type": "plastic",
+                "diffuse_reflectance": _bitmap(files["mitsuba_diffuse"], raw=False),
+                "specular_reflectance": 0.0,
+                "int_ior": float(eta),
+                "ext_ior": 1.0,
+                "nonlinear": False,
+            },
             "specular": {
                 "type": "roughconductor",
                 "distribution": "beckmann",
@@ -282,18 +342,20 @@ def scene_spec(
         hundreds of scattering events, and a limit of 64 loses 3-4 % of its
         reflectance under uniform light (measured on a flat slab of subject S003).
     eta : float
-        Relative index of refraction of skin.
+        Relative index of refraction of skin, in [1, 3] (the surface material's ``plastic`` and conductor, the
+        subsurface boundary).
     probe_scale : float
         Factor on the probe's radiance.
     weight : float
-        The surface material's ``blendbsdf`` weight w, in (0, 1): the maps were written as α/(1 − w) and
-        4ρs/w (:func:`blend_weight`).
+        The surface material's ``blendbsdf`` weight w, in (0, 1): the maps were written as c α/(1 − w)
+        (c = :func:`plastic_reflectance_scale` of ``eta``) and 4ρs/w (:func:`blend_weight`).
 
     Returns
     -------
     dict
     """
     check_choice(material, "material", MATERIALS)
+    as_finite(eta, "eta", 1, 3)
     as_finite(weight, "weight", 0, 1, low_inclusive=False, high_inclusive=False)
     as_finite(fov, "fov", 1, 170, unit="deg")
     for name, value in (("width", width), ("height", height), ("spp", spp)):
@@ -485,15 +547,31 @@ def write_mitsuba_scene(ds, out_dir, *, probe=None, material="surface", mesh=Non
             "mesh_format must be 'obj' for a Mitsuba scene (Mitsuba reads a PLY's texture coordinates v up, "
             f"so the maps would lie upside down), got {mesh_format!r}"
         )
+    plastic = plastic_reflectance_scale(view.get("eta", ETA_SKIN))  # η checked before anything is written
     out = os.fspath(out_dir)
     if probe is not None:
         read_light_probe(probe)  # checked before anything is written
+    if material == "subsurface":  # the medium needs a closed surface around it (module docstring)
+        from facestats.io.mesh import FaceMesh, subject_mesh
+
+        mesh = mesh if isinstance(mesh, FaceMesh) else subject_mesh(ds, mesh)
+        openings = len(mesh.boundary_edges())
+        if openings:
+            warnings.warn(
+                f"the mesh {mesh.geometry.get('name', '')!r} is open ({openings} boundary edges, around its holes and "
+                "rim): the subsurface medium inside it is unbounded behind the face and through its openings, so "
+                "renders within about 2 cm of them are not those of a closed head (docs/export.md); pass a closed mesh "
+                "with the maps' UVs (--mesh) for a bounded interior",
+                FacestatsWarning,
+                stacklevel=2,
+            )
     fill = FaceFill(ds["region"].values)
     manifest = write_exr_set(ds, out, mesh=mesh, fill=fill)
     alb = fill(np.asarray(ds["albedo"].values, np.float32))
     rho = fill(np.asarray(ds["ts_rho_s"].values, np.float32))
     w = blend_weight(alb)
-    write_exr(os.path.join(out, "mitsuba_diffuse.exr"), {c: alb[..., i] / (1 - w) for i, c in enumerate("RGB")})
+    scale = np.float32(plastic / (1 - w))
+    write_exr(os.path.join(out, "mitsuba_diffuse.exr"), {c: alb[..., i] * scale for i, c in enumerate("RGB")})
     write_exr(os.path.join(out, "mitsuba_specular.exr"), {"Y": 4 * rho / w})
     if probe is None:
         probe_name = write_studio_probe(os.path.join(out, "probe.exr"))

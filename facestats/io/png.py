@@ -35,7 +35,15 @@ import numpy as np
 from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
 
-__all__ = ["COMPRESSIONS", "HUFFMAN_MIN_SAMPLES", "encode_png", "png_chunk", "PNG_SIGNATURE"]
+__all__ = [
+    "COMPRESSIONS",
+    "HUFFMAN_MIN_SAMPLES",
+    "encode_png",
+    "png_chunk",
+    "PNG_SIGNATURE",
+    "text_chunks",
+    "add_chunks",
+]
 
 #: The eight bytes every PNG file starts with.
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -67,6 +75,162 @@ def png_chunk(tag: bytes, data: bytes) -> bytes:
         raise ValidationError(f"a PNG chunk type has 4 bytes, got {tag!r}")
     body = tag + data
     return struct.pack(">I", len(data)) + body + struct.pack(">I", zlib.crc32(body) & 0xFFFFFFFF)
+
+
+def text_chunks(text) -> list:
+    """PNG text chunks ``(type, data)`` of a mapping of keywords to values (PNG specification §11.3.4).
+
+    A value in Latin-1 is a ``tEXt`` chunk (keyword, NUL, value); any other is an uncompressed ``iTXt`` chunk
+    (keyword, NUL, compression flag 0, method 0, empty language tag and translated keyword, each NUL-terminated,
+    then the UTF-8 value), which PNG readers decode alike (e.g. Pillow's ``Image.text``; matplotlib's
+    ``imsave(metadata=...)`` writes the same two kinds).
+
+    Parameters
+    ----------
+    text : mapping of str to str
+        Keywords of 1-79 Latin-1 characters without leading, trailing or double spaces; values without NUL.
+
+    Returns
+    -------
+    list of (bytes, bytes)
+        For :func:`encode_png`'s ``chunks`` or :func:`add_chunks`.
+
+    Raises
+    ------
+    ValidationError
+        A keyword or value the format cannot hold, named.
+    """
+    out = []
+    for key, value in text.items():
+        key, value = str(key), str(value)
+        try:
+            k = key.encode("latin-1")
+        except UnicodeEncodeError:
+            k = b""
+        if not 1 <= len(k) <= 79 or key != key.strip() or "  " in key or "\0" in key:
+            raise ValidationError(
+                f"a PNG text keyword has 1-79 Latin-1 characters, no outer or double spaces, got {key!r}"
+            )
+        if "\0" in value:
+            raise ValidationError(f"a PNG text value holds no NUL character, got one in {key!r}")
+        try:
+            out.append((b"tEXt", k + b"\0" + value.encode("latin-1")))
+        except UnicodeEncodeError:
+            out.append((b"iTXt", k + b"\0\0\0\0\0" + value.encode("utf-8")))
+    return out
+
+
+def add_chunks(png: bytes, chunks) -> bytes:
+    """A PNG file with ancillary chunks inserted after its ``IHDR`` (e.g. :func:`text_chunks` into a file another
+    encoder wrote).
+
+    Parameters
+    ----------
+    png : bytes
+        A PNG file (signature, then ``IHDR``, which the specification puts first).
+    chunks : iterable of (bytes, bytes)
+        Chunks ``(type, data)``.
+
+    Returns
+    -------
+    bytes
+
+    Raises
+    ------
+    ValidationError
+        ``png`` does not start with the PNG signature and an ``IHDR`` chunk.
+    """
+    end = len(PNG_SIGNATURE) + 8 + 13 + 4  # IHDR: length, type, 13 bytes of data, CRC
+    if not png.startswith(PNG_SIGNATURE) or png[len(PNG_SIGNATURE) + 4 : len(PNG_SIGNATURE) + 8] != b"IHDR":
+        raise ValidationError("png must be a PNG file starting with its signature and IHDR chunk")
+    return png[:end] + b"".join(png_chunk(tag, data) for tag, data in chunks) + png[end:]
+
+
+#: PNG text keys of a map's image (:func:`map_scale_text`: ``facestats edit``'s and the web app's images): the
+#: variable, its units (``facestats.io.schema.VARIABLES``'s, "1" dimensionless), the colour map (:data:`COLORMAPS`:
+#: "viridis", or "sRGB" for the albedo: each channel's linear value sRGB-encoded, 0 black and 1 white), the values
+#: drawn at its low and high ends (``repr`` of a float; values beyond are clipped to them), and the pixels a side
+#: of one texel.  ``Description`` says the same in words.
+SCALE_KEYS = (
+    "facestats:variable",
+    "facestats:units",
+    "facestats:colormap",
+    "facestats:vmin",
+    "facestats:vmax",
+    "facestats:texel_pixels",
+)
+
+
+#: Colour maps :func:`map_scale_text` describes.
+COLORMAPS = ("viridis", "sRGB", "(n + 1) / 2", "tab10")
+
+
+def map_scale_text(var, colormap, lo, hi, texel_pixels, *, units=None, long_name=None, note=""):
+    """``(PNG text chunks, one line in words)``: the scale of a map's image drawn with ``colormap`` from ``lo`` to
+    ``hi`` (:data:`SCALE_KEYS` and ``Description``).
+
+    Colour maps (:data:`COLORMAPS`): ``viridis`` (a scalar from ``lo`` to ``hi``), ``sRGB`` (each channel's
+    linear value from ``lo`` black to ``hi`` white, sRGB-encoded), ``(n + 1) / 2`` (each component of a unit vector
+    from ``lo`` = −1 to ``hi`` = 1 as 8-bit codes 0-255 per channel, x red, y green, z blue) and ``tab10`` (integer
+    labels ``lo`` to ``hi``, label k in tab10's colour (k − 1) mod 10).  Used by the ``edit`` images
+    (:func:`facestats.edit.plots.stage_edit_images`) and the web app's map images (:func:`facestats.web.data.map_png`),
+    so both carry one scale format; :func:`text_chunks` writes the text into a PNG.
+
+    Parameters
+    ----------
+    var : str
+        The map's variable.
+    colormap : str
+        One of :data:`COLORMAPS`.
+    lo, hi : float
+        The values drawn at the colour map's two ends (values beyond are clipped to them).
+    texel_pixels : int
+        Pixels a side of one texel.
+    units, long_name : str, optional
+        Default: the schema's (:data:`facestats.io.schema.VARIABLES`); "1" is dimensionless.
+    note : str
+        Words appended to the description (e.g. "; the before and after images share it").
+
+    Returns
+    -------
+    text : dict of str to str
+    words : str
+        The scale in one line (without the map's name).
+
+    Raises
+    ------
+    ValidationError
+        An unknown ``colormap``, or a ``var`` the schema does not know without ``units`` and ``long_name``.
+    """
+    from facestats.io.schema import VARIABLES  # local: keeps the schema out of this module's import
+
+    check_choice(colormap, "colormap", COLORMAPS)
+    if (units is None or long_name is None) and var not in VARIABLES:
+        raise ValidationError(f"map {var!r} is not a variable of the schema: give its units and long_name")
+    units = VARIABLES[var][1] if units is None else units
+    long_name = VARIABLES[var][2] if long_name is None else long_name
+    unit_words = "dimensionless" if units == "1" else f"in {units}"
+    if colormap == "sRGB":
+        words = f"linear {lo:g} (black) to {hi:g} (white) per channel, sRGB-encoded, {unit_words}"
+    elif colormap == "(n + 1) / 2":
+        words = (
+            f"components {lo:g} to {hi:g} as (n + 1) / 2 in 8-bit codes 0-255 (x red, y green, z blue), {unit_words}"
+        )
+    elif colormap == "tab10":
+        words = f"labels {lo:g} to {hi:g}, label k in matplotlib's tab10 colour (k - 1) mod 10, {unit_words}"
+    else:
+        words = f"{colormap} from {lo:.4g} (dark purple) to {hi:.4g} (yellow), {unit_words}"
+    text = {
+        "facestats:variable": var,
+        "facestats:units": units,
+        "facestats:colormap": colormap,
+        "facestats:vmin": repr(float(lo)),
+        "facestats:vmax": repr(float(hi)),
+        "facestats:texel_pixels": str(int(texel_pixels)),
+        "Description": f"{var} ({long_name}): {words}; values beyond clipped{note}; one texel is {int(texel_pixels)} x "
+        f"{int(texel_pixels)} pixels",
+    }
+    return text, words
 
 
 #: Values of :func:`encode_png`'s ``compression``.

@@ -6,10 +6,11 @@ Routes (GET only; every other method is 405):
 * ``/api/query`` — the ``facestats.query/1`` document of ``facestats query --format json``
   (the same call, :meth:`facestats.io.store.Store.query` → ``to_dict``); ``/api/query.csv`` its CSV;
 * ``/api/pca``, ``/api/scatter`` — Fig. 15 ellipses and Fig. 14 points of the matching subjects;
-* ``/subject/<id>`` — a subject page; ``/api/subject/<id>``, ``/subject/<id>/map/<name>.png``,
-  ``/subject/<id>/preview.png``, ``/subject/<id>/exr.zip`` (the EXR texture set).  Subjects that hold
-  region samples (``facestats import-merl``) have no maps: their page links no preview or EXR set, and
-  those two answer 400 saying so.
+* ``/subject/<id>`` — a subject page; ``/api/subject/<id>``, ``/subject/<id>/map/<name>.png`` (its scale in
+  the PNG's text chunks, as the ``edit`` images'), ``/subject/<id>/preview.png``, ``/subject/<id>/exr.zip``
+  (the EXR texture set) and ``/subject/<id>/gltf.zip`` (the glTF 2.0 asset of ``export-subject --format
+  gltf``).  Subjects that hold region samples (``facestats import-merl``) have no maps: their page links no
+  preview or downloads, and those answer 400 saying so.
 
 Safety: the store is opened read-only; filter names are whitelisted and values
 bounded in length; subject ids pass :func:`facestats.io.ids.check_subject_id`
@@ -19,7 +20,7 @@ that grows with a subject's maps (map and preview images, the EXR set) runs
 for at most :data:`MAX_HEAVY` requests at once; others wait their turn, up to
 :data:`HEAVY_WAIT` seconds, then get 503 and are asked to retry; images are
 enlarged only up to :data:`facestats.web.data.MAX_IMAGE_SIDE` pixels a side;
-the EXR set is zipped into a temporary file (stored, not recompressed) and
+the EXR set and the glTF asset are zipped into a temporary file (stored, not recompressed) and
 streamed from there, never held in memory; a subject is read inside its turn,
 so at most :data:`MAX_HEAVY` are loaded for such work at once.  The last few
 subjects read are kept by id *and* generation: a subject another process
@@ -48,7 +49,16 @@ from facestats.core.conventions import CONDITIONS, REGIONS, ROMAN
 from facestats.core.outputs import json_ready
 from facestats.errors import DependencyError, FacestatsError, StoreError, ValidationError
 
-__all__ = ["create_app", "FILTERS", "MAX_QUERY_STRING", "MAX_BODY", "MAX_HEAVY", "HEAVY_WAIT", "error_text"]
+__all__ = [
+    "create_app",
+    "DOWNLOADS",
+    "FILTERS",
+    "MAX_QUERY_STRING",
+    "MAX_BODY",
+    "MAX_HEAVY",
+    "HEAVY_WAIT",
+    "error_text",
+]
 
 FILTERS = ("skin_type", "gender", "age", "condition", "region", "edits")
 #: Values of the ``edits`` filter (``facestats query --edits``): include the subjects written by edits, or not.
@@ -312,7 +322,7 @@ def _register_routes(app, ctx):
 
 
 def _register_subject_routes(app, ctx):
-    from flask import Response, jsonify, render_template, request, send_file
+    from flask import Response, jsonify, render_template
     from werkzeug.exceptions import ServiceUnavailable
 
     # local import: keeps numpy out of this module's import
@@ -348,24 +358,37 @@ def _register_subject_routes(app, ctx):
 
     @app.get("/subject/<sid>/exr.zip")
     def subject_exr(sid):
-        if request.method == "HEAD":
-            return _exr_head(cache.get(sid))
+        return _download(cache, bounded, sid, "exr")
 
-        def build():  # the subject is read inside the slot too: at most MAX_HEAVY loaded at once
-            return cache.read(sid, lambda ds: (_exr_zip(ds), ds.attrs["subject_id"]))
-
-        archive, name = bounded(build)
-        size = os.fstat(archive.fileno()).st_size
-        response = send_file(archive, mimetype="application/zip", as_attachment=True, download_name=f"{name}-exr.zip")
-        response.content_length = size  # a file object gives werkzeug no length: say it, for download progress
-        return response
+    @app.get("/subject/<sid>/gltf.zip")
+    def subject_gltf(sid):
+        return _download(cache, bounded, sid, "gltf")
 
 
-def _exr_head(ds):
-    """The answer to ``HEAD .../exr.zip``: the checks and headers of a GET without building the set.
+#: The subject downloads, ``/subject/<id>/KIND.zip``: kind → what it is (in messages).
+DOWNLOADS = {"exr": "an EXR texture set", "gltf": "a glTF asset"}
+
+
+def _download(cache, bounded, sid, kind):
+    """GET or HEAD of one of :data:`DOWNLOADS`: the subject is read inside the slot ``bounded`` gives too, so at
+    most :data:`MAX_HEAVY` are loaded for exports at once."""
+    from flask import request, send_file
+
+    if request.method == "HEAD":
+        return _download_head(cache.get(sid), kind)
+    archive, name = bounded(lambda: cache.read(sid, lambda ds: (_zip_export(ds, kind), ds.attrs["subject_id"])))
+    size = os.fstat(archive.fileno()).st_size
+    response = send_file(archive, mimetype="application/zip", as_attachment=True, download_name=f"{name}-{kind}.zip")
+    response.content_length = size  # a file object gives werkzeug no length: say it, for download progress
+    return response
+
+
+def _download_head(ds, kind):
+    """The answer to ``HEAD .../KIND.zip``: the checks and headers of a GET without building the export.
 
     Building it costs seconds of CPU and a temporary copy on disk, too much for a download manager's probe,
-    so the response carries no ``Content-Length`` (RFC 9110 §9.3.2 allows a HEAD to omit it).
+    so the response carries no ``Content-Length`` (RFC 9110 §9.3.2 allows a HEAD to omit it).  Checked: a map
+    subject (not region samples) and, for the EXR set, OpenEXR installed.
     """
     # local imports: keep numpy (and flask, until an app is made) out of this module's import
     from flask import Response
@@ -373,29 +396,37 @@ def _exr_head(ds):
     from facestats.io.exr_set import check_map_subject
     from facestats.io.images import require_openexr
 
-    check_map_subject(ds, "an EXR texture set")
-    require_openexr()
+    check_map_subject(ds, DOWNLOADS[kind])
+    if kind == "exr":
+        require_openexr()
     name = ds.attrs["subject_id"]
     return Response(
         iter(()),  # an iterable, not a sequence: werkzeug then sets no Content-Length of 0
         mimetype="application/zip",
-        headers={"Content-Disposition": f"attachment; filename={name}-exr.zip"},
+        headers={"Content-Disposition": f"attachment; filename={name}-{kind}.zip"},
     )
 
 
-def _exr_zip(ds):
-    """The subject's EXR texture set (:func:`facestats.io.exr_set.write_exr_set`) zipped into a temporary file.
+def _zip_export(ds, kind):
+    """The subject's export of ``kind`` (:data:`DOWNLOADS`: the EXR texture set of
+    :func:`facestats.io.exr_set.write_exr_set`, or the glTF asset of :func:`facestats.io.gltf.write_gltf`, each with
+    the face mesh the subject records) zipped into a temporary file.
 
-    Returns an open binary file at its start, deleted when closed (the response closes it); the EXR files
+    Returns an open binary file at its start, deleted when closed (the response closes it); the EXR and PNG files
     are compressed already, so the zip stores them as they are.
     """
-    # local import: keeps numpy out of this module's import
-    from facestats.io.exr_set import write_exr_set
+    # local imports: keep numpy out of this module's import
+    from facestats.io.exr_set import check_map_subject, write_exr_set
+    from facestats.io.gltf import write_gltf
 
+    check_map_subject(ds, DOWNLOADS[kind])  # before any temporary file
     tmp = tempfile.mkdtemp(prefix="facestats-web-")
     archive = tempfile.TemporaryFile(prefix="facestats-web-", suffix=".zip")
     try:
-        write_exr_set(ds, tmp)
+        if kind == "exr":
+            write_exr_set(ds, tmp)
+        else:
+            write_gltf(ds, tmp)  # face.gltf, as facestats export-subject --format gltf writes it
         with zipfile.ZipFile(archive, "w", zipfile.ZIP_STORED) as zf:
             for name in sorted(os.listdir(tmp)):
                 zf.write(os.path.join(tmp, name), arcname=name)

@@ -225,17 +225,20 @@ def map_names(ds) -> list:
 
 
 def _scalar_rgb(values, face, name):
-    """A scalar map as colour: viridis over the 2-98 % range of the face (regions: tab10), outside black."""
+    """A scalar map as colour: viridis over the 2-98 % range of the face (flags 0-8; regions: tab10 labels 1-10),
+    outside black.  Returns ``(rgb, colormap, lo, hi)``: the image and its scale (:func:`map_png`'s text)."""
     from matplotlib import colormaps
 
     if name == "region":
         rgb = colormaps["tab10"]((values.astype(int) - 1) % 10)[..., :3]
+        cmap, lo, hi = "tab10", 1.0, 10.0
     else:
         v = values[face]
         lo, hi = (np.percentile(v, [2, 98]) if v.size else (0.0, 1.0)) if name.find("flag") < 0 else (0, 8)
         rgb = colormaps["viridis"](np.clip((values - lo) / max(hi - lo, 1e-12), 0, 1))[..., :3]
+        cmap = "viridis"
     rgb[~face] = 0
-    return rgb
+    return rgb, cmap, float(lo), float(hi)
 
 
 def image_view(ds, max_side=None):
@@ -264,18 +267,27 @@ def image_view(ds, max_side=None):
     return ds if k == 1 else ds.isel(v=slice(None, None, k), u=slice(None, None, k))
 
 
-def _encode_png(rgb, scale: int) -> bytes:
+def _png_scale(shape, scale: int) -> int:
+    """The enlargement :func:`_encode_png` applies: ``scale``, reduced to keep :data:`MAX_IMAGE_SIDE` pixels a side."""
+    return max(1, min(int(scale), MAX_IMAGE_SIDE // max(shape[:2])))
+
+
+def _encode_png(rgb, scale: int, text=None) -> bytes:
     """PNG bytes of an RGB image in [0, 1], enlarged ``scale`` times (texels as blocks) up to
-    :data:`MAX_IMAGE_SIDE` pixels a side; images larger than that are not enlarged."""
+    :data:`MAX_IMAGE_SIDE` pixels a side (:func:`_png_scale`); images larger than that are not enlarged.  ``text``:
+    PNG text chunks (:func:`facestats.io.png.text_chunks`) inserted after the header."""
     import cv2
 
+    # local import: keeps facestats.io (24 modules) out of this module's import
+    from facestats.io.png import add_chunks, text_chunks
+
     img = np.clip(np.asarray(rgb, np.float64), 0, 1)
-    scale = max(1, min(int(scale), MAX_IMAGE_SIDE // max(img.shape[:2])))
+    scale = _png_scale(img.shape, scale)
     if scale > 1:
         img = np.repeat(np.repeat(img, scale, 0), scale, 1)
     q = np.round(img * 255).astype(np.uint8)[..., ::-1]
     ok, buf = cv2.imencode(".png", q)
-    return buf.tobytes()
+    return add_chunks(buf.tobytes(), text_chunks(text)) if text else buf.tobytes()
 
 
 def map_png(ds, name: str, scale: int = 4) -> bytes:
@@ -306,13 +318,15 @@ def map_png(ds, name: str, scale: int = 4) -> bytes:
     """
     # local import: keeps facestats.io (24 modules) out of this module's import
     from facestats.io.exr_set import check_map_subject
-    from facestats.io.images import linear_to_srgb
-    from facestats.io.schema import modulation
+    from facestats.io.images import linear_to_srgb, stride_step
+    from facestats.io.png import map_scale_text
+    from facestats.io.schema import VARIABLES, modulation
 
     names = map_names(ds)
     if not names:  # a region-sample subject: say so, not "map must be one of []"
         check_map_subject(ds, "a map image")
     check_choice(name, "map", tuple(names))
+    step = stride_step(ds.sizes.get("v", 1), ds.sizes.get("u", 1), MAX_IMAGE_SIDE)  # image_view's
     ds = image_view(ds)
     face = np.asarray(ds["region"].values) > 0
     if name == "modulation":
@@ -320,16 +334,24 @@ def map_png(ds, name: str, scale: int = 4) -> bytes:
     else:
         vals = np.nan_to_num(np.asarray(ds[name].values, np.float64))
     if name in ("albedo", "modulation"):
-        rgb = linear_to_srgb(vals)
+        rgb, cmap, lo, hi = linear_to_srgb(vals), "sRGB", 0.0, 2.0 if name == "modulation" else 1.0  # M / 2 drawn
     elif vals.ndim == 3 and vals.shape[2] == 3:
-        rgb = (vals + 1) / 2
-    elif vals.ndim == 3:
-        rgb = _scalar_rgb(vals[..., 0], face, name)
-    else:
-        rgb = _scalar_rgb(vals, face, name)
+        rgb, cmap, lo, hi = (vals + 1) / 2, "(n + 1) / 2", -1.0, 1.0
+    else:  # a scalar map, or the first channel of another
+        rgb, cmap, lo, hi = _scalar_rgb(vals[..., 0] if vals.ndim == 3 else vals, face, name)
     rgb = np.array(rgb, np.float64)
     rgb[~face] = 0
-    return _encode_png(rgb, scale)
+    pixels = _png_scale(face.shape, scale)
+    known = name in VARIABLES
+    attrs = ds[name].attrs if name in ds.data_vars else {}
+    note = "; the 2nd-98th percentile of the face's texels" if cmap == "viridis" and "flag" not in name else ""
+    note += "; black outside the face" + (f"; every {step}th texel along v and u" if step > 1 else "")
+    text, _ = map_scale_text(
+        name, cmap, lo, hi, pixels, units=None if known else str(attrs.get("units", "unknown")),
+        long_name=None if known else str(attrs.get("long_name", name)), note=note,
+    )  # fmt: skip
+    text.update({"facestats:subject_id": str(ds.attrs.get("subject_id", "")), "facestats:texel_step": str(step)})
+    return _encode_png(rgb, scale, text)
 
 
 def preview_radiance(ds, lights=PREVIEW_LIGHTS, view=(0.0, 0.0, 1.0)):

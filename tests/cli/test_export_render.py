@@ -126,6 +126,18 @@ def test_render_prints_the_relative_rmse_and_writes_images(tmp_path, capsys):
         "S003-cam05-led020-capture.exr", "S003-cam05-led020-error.exr", "S003-cam05-led020-rendered.exr",
         "S003-cam05-led020.png",
     ]  # fmt: skip
+    from facestats.io.exr_set import COLOUR_SPACE
+    from facestats.io.images import read_exr
+
+    printed = float(line.split("relative ")[1].split(" %")[0])
+    for variable in ("rendered", "capture", "error"):  # the header says what each image is (as the EXR set's do)
+        attrs = read_exr(tmp_path / f"S003-cam05-led020-{variable}.exr")[1]
+        assert attrs["facestats.format"] == "facestats.render/1" and attrs["facestats.subject_id"] == "S003"
+        assert attrs["facestats.variable"] == variable and attrs["facestats.camera"] == "5"
+        assert attrs["facestats.light"] == "LED 20" and attrs["facestats.geometry"] == "ict-48"
+        assert attrs["facestats.units"].startswith("dome units / sr")
+        assert attrs["facestats.colour_space"] == COLOUR_SPACE
+        assert 100 * float(attrs["facestats.relative_rmse"]) == pytest.approx(printed, abs=0.005)
 
 
 def test_render_refuses_a_camera_and_led_that_see_too_little_of_the_face(tmp_path, capsys):
@@ -251,6 +263,15 @@ def test_render_under_a_probe_needs_no_capture_and_names_the_probe(tmp_path, cap
     ]  # fmt: skip
     a, b = (read_image(out / f"{sid}-cam11-probe-sky-rendered.exr") for sid in ("S003", "S003.edit"))
     assert np.array_equal(a, b) and np.nanmax(a) > 0  # same maps, same face
+    from facestats.io.images import read_exr
+
+    for sid in ("S003", "S003.edit"):  # the header names the subject, camera, light, geometry and units
+        attrs = read_exr(out / f"{sid}-cam11-probe-sky-rendered.exr")[1]
+        assert attrs["facestats.format"] == "facestats.render/1" and attrs["facestats.subject_id"] == sid
+        assert attrs["facestats.variable"] == "rendered" and attrs["facestats.camera"] == "11"
+        assert attrs["facestats.light"] == "probe sky.hdr" and attrs["facestats.probe"] == str(tmp_path / "sky.hdr")
+        assert attrs["facestats.geometry"] == "ict-48" and attrs["facestats.units"].startswith("the probe's radiance")
+        assert "facestats.relative_rmse" not in attrs  # nothing compared under a probe
     light = ["render", "S003", "--store", store, "--out", str(tmp_path / "x"), "--probe", str(tmp_path / "sky.hdr")]
     assert main(light + ["--light", "149"]) == 2  # it was ignored
     assert "--light names an LED to render under, --probe renders under a probe instead" in capsys.readouterr().err

@@ -463,23 +463,122 @@ def test_mitsuba_xml_is_written_without_mitsuba(tmp_path, subject, mesh):
     assert 'name="int_ior" value="1.38"' in xml
 
 
-def test_mitsuba_surface_scene_renders_albedo_under_uniform_light(mitsuba, tmp_path, subject, mesh):
+def _external_diffuse_fresnel(eta, n=20001):
+    """F_dr,ext = 2∫₀¹ F_r(μ, η) μ dμ: the share of uniform outside light a smooth boundary reflects (midpoints)."""
+    from facestats.model.fresnel import fresnel_reflectance
+
+    mu = (np.arange(n) + 0.5) / n
+    return float(2 * np.mean(fresnel_reflectance(mu, eta) * mu))
+
+
+def _tetrahedron():
+    """A closed surface: a tetrahedron of 100 mm (outward faces), UVs anywhere in [0, 1]²."""
+    from facestats.io.mesh import FaceMesh
+
+    v = np.array([[0, 0, 0], [100, 0, 0], [0, 100, 0], [0, 0, 100]], np.float64)
+    f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]], np.int64)
+    n = v - v.mean(0)
+    return FaceMesh(v, f, np.full((4, 2), 0.5), n / np.linalg.norm(n, axis=1, keepdims=True), {"kind": "mesh",
+                    "name": "tetrahedron"})  # fmt: skip
+
+
+def test_boundary_edges_are_the_openings_with_uv_seams_welded(subject, mesh):
+    """The ``ict-48`` face is open at the eyes (42 edges each), the mouth (74) and a rim around the sides of the head
+    and the neck (204): 362 edges; its 638 unwelded ones include the UV seams, which are no opening.  A flat grid of
+    8 × 8 cells has its 32 border edges, a tetrahedron none."""
+    edges = mesh.boundary_edges()
+    assert edges.shape == (362, 2)
+    nxt = dict(zip(edges[:, 0].tolist(), edges[:, 1].tolist()))
+    assert len(nxt) == 362 and set(nxt) == set(nxt.values())  # each boundary vertex starts one edge and ends one
+    loops, seen = [], set()
+    for start in nxt:
+        if start not in seen:
+            loop, v = 0, start
+            while v not in seen:
+                seen.add(v)
+                loop, v = loop + 1, nxt[v]
+            loops.append(loop)
+    assert sorted(loops) == [42, 42, 74, 204]
+    assert flat_slab(cells=8).boundary_edges().shape == (32, 2)
+    assert _tetrahedron().boundary_edges().shape == (0, 2)
+
+
+def test_a_subsurface_scene_on_an_open_mesh_warns_where_its_interior_is_undefined(tmp_path, subject, mesh):
+    """The medium of the subsurface material fills what the mesh encloses; an open mesh encloses nothing, so the
+    export says so (docs/export.md: the interior is unbounded behind the face and through its openings)."""
+    from facestats.errors import FacestatsWarning
+    from facestats.io.mitsuba import write_mitsuba_scene
+
+    (tmp_path / "open").mkdir()
+    with pytest.warns(FacestatsWarning, match=r"'ict-48' is open \(362 boundary edges, around its holes and rim\)"):
+        write_mitsuba_scene(subject, tmp_path / "open", material="subsurface", mesh=mesh)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FacestatsWarning)
+        for material, m in (("subsurface", _tetrahedron()), ("surface", mesh)):  # closed, or no medium: no warning
+            out = tmp_path / material
+            out.mkdir()
+            write_mitsuba_scene(subject, out, material=material, mesh=m)
+
+
+def test_mitsuba_surface_scene_renders_eq_10s_diffuse_under_uniform_light(mitsuba, tmp_path, subject):
+    """A flat slab of the surface material (ρs = 0) under uniform radiance 1, seen along its normal, reflects
+    L = α F_t(0) (1 − F_dr,ext): eq. 9-10's α/π F_t(ωi) F_t(ωo) integrated over the sky (F_dr,ext = 0.0737 at
+    η = 1.38, F_t(0) = 0.9745: 0.898 α).  The Lambertian α/π of the export until 2026-12-08 reflected α, 11 % more
+    (a walkthrough's renders were 14-21 % brighter than ``relight_subject``).  Measured 1.2e-4 low (two seeds);
+    tolerance 0.2 %."""
     from facestats.io.mitsuba import render_scene, write_mitsuba_scene
+    from facestats.model.fresnel import fresnel_transmittance
 
     probe = tmp_path / "white.exr"
     write_exr(probe, {c: np.ones((8, 16), np.float32) for c in "RGB"})
     flat = subject.copy()
-    flat["ts_rho_s"] = flat["ts_rho_s"] * 0  # diffuse only: a Lambertian under radiance 1 reflects L = α
-    flat["albedo"] = flat["albedo"] * 0 + np.array([0.6, 0.4, 0.2], np.float32)
+    flat["ts_rho_s"] = flat["ts_rho_s"] * 0  # diffuse only
+    albedo = np.array([0.6, 0.4, 0.2])
+    flat["albedo"] = flat["albedo"] * 0 + albedo.astype(np.float32)
     out = tmp_path / "scene"
     out.mkdir()
-    spec = write_mitsuba_scene(flat, out, probe=probe, mesh=mesh, width=64, height=64, spp=32, max_depth=2)
-    img = render_scene(spec, base_dir=out)
+    spec = write_mitsuba_scene(flat, out, probe=probe, mesh=flat_slab(), width=16, height=16, spp=64, max_depth=2,
+                               fov=10.0)  # fmt: skip
+    img = render_scene(spec, base_dir=out)  # the slab fills the view: ±61 mm at 700 mm, θo ≤ 7°
     img_xml = render_scene(out / "scene.xml")
     np.testing.assert_allclose(img, img_xml, atol=1e-5)  # the XML and the dict are one scene
-    face = np.abs(img - 1).max(-1) > 1e-3  # background: the probe itself, radiance 1
-    assert face.sum() > 300
-    np.testing.assert_allclose(np.median(img[face], axis=0), [0.6, 0.4, 0.2], rtol=0.08)
+    want = albedo * float(fresnel_transmittance(1.0, 1.38)) * (1 - _external_diffuse_fresnel(1.38))
+    np.testing.assert_allclose(img.reshape(-1, 3).mean(0), want, rtol=2e-3)
+
+
+@pytest.mark.slow  # two relight_subject renders (about 10 s each) and two Mitsuba renders
+def test_mitsuba_face_renders_what_relight_subject_renders(mitsuba, tmp_path, subject, mesh):
+    """The exported scene, seen by relight_subject's camera, has the face mean of ``relight_subject`` (the same
+    subject, probe and camera) under the studio probe and under a single 15° side light (60° to the side, 20° up).
+
+    Compared over the face mask eroded by 2 pixels: Mitsuba's Gaussian pixel filter (radius 2 pixels) mixes the
+    probe seen through the eyes and mouth into their neighbours, which ``relight_subject`` leaves out (its face
+    mean rose 9 % with them under uniform light).  Direct light only (``max_depth`` 2): ``relight_subject`` has no
+    interreflections.  Measured ratios 1.005-1.008 (studio) and 1.008-1.009 (side light), 2026-12-08; the residual lies
+    where the light grazes the face (under the side light +7 % on the far half, 0.1 % on the lit half), where
+    facestats' shadow maps at the vertices and V-cavity G meet Mitsuba's traced shadows and Smith's G.  Tolerance
+    2 %.  The export of before (Lambertian α/π) measured 1.091-1.094 and 1.089-1.100."""
+    from scipy.ndimage import binary_erosion
+
+    from facestats.io.mitsuba import render_scene, write_mitsuba_scene
+    from facestats.io.probes import studio_probe, write_light_probe
+    from facestats.relight import stage_camera
+    from facestats.relight.stage import relight_subject
+
+    cam = stage_camera(size=64)
+    side = np.array([np.sin(np.radians(60)) * np.cos(np.radians(20)), np.sin(np.radians(20)),
+                     np.cos(np.radians(60)) * np.cos(np.radians(20))])  # fmt: skip
+    for name, probe in (("studio", studio_probe(32)), ("side", studio_probe(32, key=side, ambient=0.0))):
+        out = tmp_path / name
+        out.mkdir()
+        path = write_light_probe(tmp_path / f"{name}.exr", probe)
+        spec = write_mitsuba_scene(subject, out, probe=path, mesh=mesh, origin=cam.position, target=cam.target,
+                                   fov=cam.fov_deg, width=cam.size, height=cam.size, spp=64, max_depth=2)  # fmt: skip
+        img = render_scene(spec, base_dir=out)
+        ref, mask = relight_subject(subject, probe, camera=cam, lights=(32, 64))
+        inner = binary_erosion(mask, iterations=2)
+        assert inner.sum() > 600, name
+        np.testing.assert_allclose(img[inner].mean(0), ref[inner].mean(0), rtol=0.02, err_msg=name)
 
 
 def test_mitsuba_sees_the_probe_in_facestats_lat_long_convention(mitsuba, tmp_path, subject, mesh):
@@ -518,7 +617,7 @@ def test_without_mitsuba_only_the_mitsuba_tests_skip(tmp_path):
     hidden.mkdir()
     (hidden / "__init__.py").write_text("raise ModuleNotFoundError('mitsuba hidden by the test', name='mitsuba')\n")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (str(tmp_path), os.environ.get("PYTHONPATH")) if p))
-    select = "missing_mitsuba or beckmann_to_ggx or renders_albedo"
+    select = "missing_mitsuba or beckmann_to_ggx or renders_eq_10s_diffuse"
     args = [sys.executable, "-m", "pytest", __file__, "-q", "-rs", "-p", "no:cacheprovider", "-k", select]
     res = subprocess.run(args, capture_output=True, text=True, env=env, timeout=300, cwd=tmp_path)
     assert "2 passed, 1 skipped" in res.stdout, res.stdout + res.stderr
@@ -560,15 +659,25 @@ LOBE_ANGLES = [(0, 0, 0, 0), (10, 0, 10, 180), (20, 0, 30, 180), (30, 0, 30, 180
                (30, 0, 20, 90), (40, 0, 10, 0), (35, 30, 20, 250), (25, 0, 40, 120)]  # fmt: skip
 
 
-@pytest.mark.parametrize("rho_s, m", [(0.1, 0.2), (0.18, 0.35), (0.25, 0.5)])
-def test_mitsuba_surface_bsdf_is_lambert_plus_weyrich_eq_12(mitsuba, tmp_path, subject, mesh, rho_s, m):
-    """The exported material evaluated by Mitsuba equals α/π + facestats' own Torrance-Sparrow (eq. 12-13).
+def _diffuse_eq_10(albedo, wi, wo, eta=1.38):
+    """Weyrich eq. 9-10's diffuse BRDF α/π F_t(ωi) F_t(ωo) on a surface facing +z (sr⁻¹)."""
+    from facestats.model.fresnel import fresnel_transmittance
 
-    Tolerance 1e-4 relative: at θ ≤ 40° and m ≤ 0.5, a = 1/(m tan θ) ≥ 2.4, where Mitsuba's Beckmann Smith
+    return albedo / np.pi * float(fresnel_transmittance(wi[2], eta) * fresnel_transmittance(wo[2], eta))
+
+
+@pytest.mark.parametrize("rho_s, m", [(0.1, 0.2), (0.18, 0.35), (0.25, 0.5)])
+def test_mitsuba_surface_bsdf_is_weyrich_eq_10_plus_eq_12(mitsuba, tmp_path, subject, mesh, rho_s, m):
+    """The exported material evaluated by Mitsuba equals α/π F_t(ωi) F_t(ωo) (eq. 9-10) + facestats' own
+    Torrance-Sparrow (eq. 12-13).
+
+    Tolerance 3e-4 relative: at θ ≤ 40° and m ≤ 0.5, a = 1/(m tan θ) ≥ 2.4, where Mitsuba's Beckmann Smith
     G1 (Walter et al. 2007's rational fit) is exactly 1, and so is the V-cavity G of eq. 13; what remains is
-    float32 texture and arithmetic rounding (measured |ratio − 1| ≤ 3e-5).  At θi = θo = 60° Smith shadows
-    once a < 1.6 (m = 0.5: measured ratio 0.979) and the V-cavity G is still 1: the difference the module
-    docstring states, checked here too."""
+    float32 texture and arithmetic rounding (3e-5) and the diffuse part's F_dr, Egan & Hilgeman's fit, which
+    Mitsuba's ``plastic`` evaluates with constants rounded otherwise than facestats' (1 − F_dr 1.6e-4 apart;
+    measured |ratio − 1| ≤ 1.7e-4).  The diffuse of the export until 2026-12-08, α/π, is 5.3 % above eq. 10 at
+    normal incidence and view.  At θi = θo = 60° Smith shadows once a < 1.6 (m = 0.5: measured ratio 0.979) and
+    the V-cavity G is still 1: the difference the module docstring states, checked here too."""
     from facestats.io.mitsuba import spec_to_dict, write_mitsuba_scene
     from facestats.model.brdf import torrance_sparrow
 
@@ -582,13 +691,14 @@ def test_mitsuba_surface_bsdf_is_lambert_plus_weyrich_eq_12(mitsuba, tmp_path, s
     for angles in LOBE_ANGLES:
         wi, wo = _local(*angles[:2]), _local(*angles[2:])
         ts = float(torrance_sparrow([0.0, 0.0, 1.0], wi, wo, rho_s, m))
-        np.testing.assert_allclose(_eval_bsdf(mitsuba, bsdf, wi, wo), albedo / np.pi + ts, rtol=1e-4, err_msg=angles)
+        want = _diffuse_eq_10(albedo, wi, wo) + ts
+        np.testing.assert_allclose(_eval_bsdf(mitsuba, bsdf, wi, wo), want, rtol=3e-4, err_msg=angles)
     wi, wo = _local(60, 0), _local(60, 180)
-    ratio = (_eval_bsdf(mitsuba, bsdf, wi, wo) - albedo / np.pi) / float(
+    ratio = (_eval_bsdf(mitsuba, bsdf, wi, wo) - _diffuse_eq_10(albedo, wi, wo)) / float(
         torrance_sparrow([0, 0, 1.0], wi, wo, rho_s, m)
     )
     if 1 / (m * np.tan(np.radians(60))) >= 1.6:
-        np.testing.assert_allclose(ratio, 1, rtol=1e-4)
+        np.testing.assert_allclose(ratio, 1, rtol=3e-3)  # the diffuse's 1.6e-4, relative to a smaller specular
     else:
         assert np.all((ratio > 0.95) & (ratio < 0.99)), ratio
 
@@ -733,7 +843,7 @@ def test_the_mitsuba_diffuse_map_stays_within_what_spectral_variants_take(tmp_pa
     variants clamp: S141's red rendered x0.77 (a red team).  The weight is now min(0.5, 1 − max α)
     and the maps α/(1 − w), 4ρs/w, so the blend still sums to α + 4ρs f."""
     import facestats
-    from facestats.io.mitsuba import blend_weight, write_mitsuba_scene
+    from facestats.io.mitsuba import blend_weight, plastic_reflectance_scale, write_mitsuba_scene
 
     with facestats.open_store() as st:
         ds = st.subject("S141").load()
@@ -747,7 +857,8 @@ def test_the_mitsuba_diffuse_map_stays_within_what_spectral_variants_take(tmp_pa
     assert alb.max() > 0.5 and w == pytest.approx(1 - alb.max(), rel=1e-6) and w == blend_weight(alb)
     d = np.stack([diffuse[c] for c in "RGB"], -1)[face]
     assert d.max() <= 1 + 1e-6
-    np.testing.assert_allclose((1 - w) * d, alb, rtol=1e-6)  # the blend's diffuse part is alpha
+    # the blend's diffuse part is c alpha, which Mitsuba's plastic evaluates as alpha F_t F_t / pi
+    np.testing.assert_allclose((1 - w) * d, plastic_reflectance_scale() * alb, rtol=1e-6)
     np.testing.assert_allclose(w * specular["Y"][face], 4 * rho, rtol=1e-6)  # and its specular part 4 rho_s
     assert blend_weight(np.full(3, 0.3)) == 0.5  # no change for darker skin
 

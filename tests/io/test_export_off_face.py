@@ -92,13 +92,13 @@ def test_exr_set_normals_off_the_face_are_the_mesh_normal(tmp_path, subject, mes
 
 
 def test_mitsuba_textures_are_filled_off_the_face(tmp_path, subject, mesh):
-    from facestats.io.mitsuba import write_mitsuba_scene
+    from facestats.io.mitsuba import plastic_reflectance_scale, write_mitsuba_scene
 
     write_mitsuba_scene(subject, tmp_path, mesh=mesh)
     face = subject["region"].values > 0
     under = _texels_under_mesh(mesh, 48)
-    for name, want in (
-        ("mitsuba_diffuse", 2 * subject["albedo"].values.astype(np.float32)),
+    for name, want in (  # blend weight 0.5: c α/(1 − w), 4ρs/w
+        ("mitsuba_diffuse", subject["albedo"].values.astype(np.float32) * np.float32(2 * plastic_reflectance_scale())),
         ("mitsuba_specular", 8 * subject["ts_rho_s"].values.astype(np.float32)),
         ("ts_m", subject["ts_m"].values.astype(np.float32)),  # the lobe's alpha texture
     ):

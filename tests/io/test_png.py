@@ -81,3 +81,29 @@ def test_big_endian_samples_are_encoded_and_a_str_chunk_type_is_named():
     assert out.dtype == np.uint16 and out.tolist() == codes.tolist()
     with pytest.raises(ValidationError, match="a PNG chunk type has 4 bytes, got 'IHDR'"):  # a TypeError before
         png_chunk("IHDR", b"")
+
+
+def test_text_chunks_read_back_with_pillow_latin_1_as_text_and_the_rest_as_itxt(rng):
+    """Text chunks (the scale of the web app's map images) inserted after IHDR of another encoder's file: Pillow reads
+    every key back; Latin-1 values are tEXt, others (σ) iTXt; the samples are untouched."""
+    import io
+
+    from PIL import Image
+
+    from facestats.io.png import add_chunks, text_chunks
+
+    img = rng.integers(0, 256, (5, 7, 3), dtype=np.uint8)
+    ok, buf = cv2.imencode(".png", img[..., ::-1])
+    text = {"facestats:vmin": "0.25", "Description": "ts_m (Beckmann m): viridis, é", "facestats:units": "σ mm-1"}
+    chunks = text_chunks(text)
+    assert [tag for tag, _ in chunks] == [b"tEXt", b"tEXt", b"iTXt"]
+    data = add_chunks(buf.tobytes(), chunks)
+    png = Image.open(io.BytesIO(data))
+    assert png.text == text
+    np.testing.assert_array_equal(np.asarray(png), img)
+    assert data.index(b"IHDR") < data.index(b"tEXt") < data.index(b"IDAT")
+    for bad in ({"": "x"}, {" lead": "x"}, {"a" * 80: "x"}, {"σ": "x"}, {"ok": "a\0b"}):
+        with pytest.raises(ValidationError, match="PNG text"):
+            text_chunks(bad)
+    with pytest.raises(ValidationError, match="png must be a PNG file"):
+        add_chunks(b"GIF89a" + bytes(40), chunks)

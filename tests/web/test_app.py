@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import zipfile
 
 import numpy as np
@@ -105,6 +106,68 @@ def test_subject_pages_maps_and_exr_download(client):
     assert all(i.compress_type == zipfile.ZIP_STORED for i in z.infolist())  # EXR files are compressed already
     r = client.get("/subject/S002/exr.zip")
     assert r.headers["Content-Disposition"] == "attachment; filename=S002-exr.zip"
+
+
+def test_the_gltf_asset_downloads_as_export_subject_writes_it(client, store_path, tmp_path):
+    """The subject page offers the glTF 2.0 asset beside the EXR set: the files of ``facestats export-subject
+    --format gltf`` (the same code), zipped; the buffer and textures read back as the exporter's."""
+    from facestats.io.gltf import read_gltf_summary
+    from facestats.io.subject_export import export_subject
+
+    assert 'id="dl-gltf"' in client.get("/subject/S002").data.decode()
+    r = client.get("/subject/S002/gltf.zip")
+    assert r.status_code == 200 and r.mimetype == "application/zip"
+    assert r.headers["Content-Disposition"] == "attachment; filename=S002-gltf.zip"
+    assert int(r.headers["Content-Length"]) == len(r.data)
+    z = zipfile.ZipFile(io.BytesIO(r.data))
+    assert all(i.compress_type == zipfile.ZIP_STORED for i in z.infolist())
+    z.extractall(tmp_path / "web")
+    export_subject("S002", tmp_path / "cli", "gltf", store=store_path)
+    assert sorted(z.namelist()) == sorted(os.listdir(tmp_path / "cli"))
+    for name in z.namelist():  # byte for byte the exporter's files
+        assert (tmp_path / "web" / name).read_bytes() == (tmp_path / "cli" / name).read_bytes(), name
+    summary = read_gltf_summary(tmp_path / "web" / "face.gltf")
+    assert summary["n_vertices"] > 0 and "skin S002" in z.read("face.gltf").decode()
+    head = client.head("/subject/S002/gltf.zip")
+    assert head.status_code == 200 and head.data == b"" and "Content-Length" not in head.headers
+    assert client.head("/subject/S999/gltf.zip").status_code == 404
+
+
+def test_map_images_carry_their_scale_in_text_chunks_as_the_edit_images_do(client):
+    """Each map PNG says what it shows and on which scale (the ``edit`` PNGs' :data:`SCALE_KEYS`), so the colours
+    can be read back as values: the viridis ends are the face's 2nd and 98th percentiles of the map."""
+    from PIL import Image
+
+    from facestats.io.png import SCALE_KEYS
+
+    ds = client.application.config["FACESTATS"]["subjects"].get("S002")
+    face = np.asarray(ds["region"].values) > 0
+    want = {
+        "albedo": ("sRGB", 0.0, 1.0, "1"),
+        "modulation": ("sRGB", 0.0, 2.0, "1"),
+        "normal": ("(n + 1) / 2", -1.0, 1.0, "1"),
+        "region": ("tab10", 1.0, 10.0, "1"),
+        "ts_error": ("viridis", *np.percentile(np.asarray(ds["ts_error"].values)[face], [2, 98]), "sr-1"),
+        "ts_m": ("viridis", *np.percentile(np.asarray(ds["ts_m"].values)[face], [2, 98]), "1"),
+    }
+    for name, (cmap, lo, hi, units) in want.items():
+        png = Image.open(io.BytesIO(client.get(f"/subject/S002/map/{name}.png").data))
+        text = png.text
+        assert set(SCALE_KEYS) <= set(text), name
+        assert (text["facestats:variable"], text["facestats:colormap"], text["facestats:units"]) == (name, cmap, units)
+        np.testing.assert_allclose([float(text["facestats:vmin"]), float(text["facestats:vmax"])], [lo, hi], rtol=1e-12)
+        assert text["facestats:texel_pixels"] == "4" and png.size == (4 * 48, 4 * 48)  # a 48² map shown 4×
+        assert text["facestats:subject_id"] == "S002" and text["facestats:texel_step"] == "1"
+        assert text["Description"].startswith(f"{name} (") and "black outside the face" in text["Description"]
+    # a texel's colour reads back as its value: viridis at (value − lo) / (hi − lo)
+    from matplotlib import colormaps
+
+    png = np.asarray(Image.open(io.BytesIO(client.get("/subject/S002/map/ts_m.png").data)).convert("RGB"))
+    v, u = np.argwhere(face)[len(np.argwhere(face)) // 2]
+    _, lo, hi, _ = want["ts_m"]
+    value = float(ds["ts_m"].values[v, u])
+    expected = np.round(255 * np.asarray(colormaps["viridis"](np.clip((value - lo) / (hi - lo), 0, 1))[:3]))
+    np.testing.assert_allclose(png[4 * v + 1, 4 * u + 1], expected, atol=1)
 
 
 def test_head_of_the_exr_set_answers_without_building_it(client, monkeypatch):

@@ -32,16 +32,19 @@ def test_sample_subject_page_has_no_preview_maps_or_exr_link(client):
     assert page.status_code == 200
     text = page.data.decode()
     assert 'id="preview"' not in text and 'id="dl-exr"' not in text and "/exr.zip" not in text
+    assert 'id="dl-gltf"' not in text and "/gltf.zip" not in text
     assert 'id="samples-note"' in text and "holds region samples" in text
     doc = client.get("/api/subject/merl-001").get_json()
     assert doc["kind"] == "samples" and doc["maps"] == []
     maps_page = client.get("/subject/S001").data.decode()  # a map subject keeps them
     assert 'id="preview"' in maps_page and 'id="dl-exr"' in maps_page and 'id="samples-note"' not in maps_page
+    assert 'id="dl-gltf"' in maps_page
     assert client.get("/api/subject/S001").get_json()["kind"] == "maps"
 
 
 @pytest.mark.parametrize(
-    "path, what", [("preview.png", "the relit preview"), ("exr.zip", "an EXR texture set")]
+    "path, what",
+    [("preview.png", "the relit preview"), ("exr.zip", "an EXR texture set"), ("gltf.zip", "a glTF asset")],
 )  # fmt: skip
 def test_sample_subject_preview_and_exr_set_are_400_with_a_message(client, path, what):
     r = client.get(f"/subject/merl-001/{path}")

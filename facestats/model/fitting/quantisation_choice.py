@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from facestats.errors import ValidationError
 from facestats.model.fitting.quantised import (
     NormalEquations,
     QuantisedSystem,
@@ -103,9 +104,22 @@ def auto_width(points, weights, rows, *, spacing=None, min_pairs=30) -> list:
     -------
     list of float
         Acceptable candidate widths, finest first (at least one: the coarsest tried).
+
+    Raises
+    ------
+    ValidationError
+        Without ``spacing``: fewer than two visible or lit patches, or patches whose median nearest distance is 0
+        (no spacing to build the ladder on; give the width in mm).
     """
     if spacing is None:
-        spacing = patch_spacing(points[np.union1d(rows, np.nonzero(weights > 0)[0])])
+        used = np.union1d(rows, np.nonzero(weights > 0)[0])
+        spacing = patch_spacing(points[used])
+        if not spacing > 0:  # NaN for one patch (no neighbour), 0 for patches stacked at one place
+            where = "" if used.size < 2 else f" at a median nearest distance of {spacing:g} mm"
+            raise ValidationError(
+                f"width='auto' needs the spacing of at least two patches (visible or lit), got {used.size}{where}: "
+                "give the width in mm (--width on the command line)"
+            )
     d, scale = _pair_distances_sample(points, weights, rows)
     median_d = float(np.median(d))
     out = []

@@ -107,3 +107,23 @@ def test_a_collapsed_fit_range_says_what_it_means_and_which_options_change_it():
     message = str(info.value)
     assert message.startswith("max_distance='auto': the image determines R' to 25 % ")
     assert "eq. 36 needs 3" in message and "--method exitance, --max-distance" in message
+
+
+@pytest.mark.parametrize("method", ["exitance", "monotone"])
+def test_width_auto_with_a_single_patch_is_refused_by_name(method):
+    """width='auto' measures the patches' spacing from their nearest neighbours; with one patch there is none, and
+    the NaN spacing raised a bare ValueError ("cannot convert float NaN to integer"; before 2026-12-08 the spacing
+    was inf and the error named a width the caller never gave)."""
+    from facestats.model.fitting import fit_scattering_image
+
+    p = np.zeros((1, 3))
+    with pytest.raises((ValidationError, FitError)) as info:
+        fit_scattering_image(p, np.ones(1), np.ones(1), np.ones(1), width="auto", method=method)
+    if method == "exitance":
+        assert info.type is ValidationError
+        assert "width='auto' needs the spacing of at least two patches (visible or lit), got 1" in str(info.value)
+    twin = np.zeros((2, 3))  # two patches at one place: spacing 0
+    with pytest.raises(ValidationError, match=r"width='auto' needs .* got 2 at a median nearest distance of 0 mm"):
+        from facestats.model.fitting.quantisation_choice import auto_width
+
+        auto_width(twin, np.ones(2), np.arange(2))

@@ -18,7 +18,9 @@ A visible patch is **evenly lit** when the irradiance c_k of eq. 16 of its
 about three patch spacings on a regular mesh) is > 0 and within
 ``EVEN_CONTRAST`` = 2 : 1 (min c > max c / 2).  A scene with fewer than
 ``UNEVEN_ROWS`` = 30 visible patches that are not evenly lit is under nearly
-uniform light for the solve.  Measured (2026-12-08, ``plate_scene``,
+uniform light for the solve; a scene that shows fewer than 30 patches at all
+is when any of them is evenly lit (until 2026-12-08 it always was: 25 patches
+seen, every one beside a shadow edge, were refused as under uniform light).  Measured (2026-12-08, ``plate_scene``,
 ``pyramid_scene`` and ``face_site_scene`` of
 :mod:`facestats.acquire.synthetic.scenes`): every visible patch is evenly lit
 on the 40 mm plate lit all over by a point light 300 mm above (irradiance
@@ -52,7 +54,8 @@ __all__ = ["EVEN_NEIGHBOURS", "EVEN_CONTRAST", "UNEVEN_ROWS", "evenly_lit_rows"]
 EVEN_NEIGHBOURS = 32
 #: Irradiance ratio (max / min among those neighbours) below which a visible patch is evenly lit.
 EVEN_CONTRAST = 2.0
-#: Fewer visible patches than this not evenly lit: the light is nearly uniform for the solve (module docstring).
+#: Fewer visible patches than this not evenly lit (all of them, when fewer are seen): the light is nearly uniform for
+#: the solve (module docstring).
 UNEVEN_ROWS = 30
 #: Visible patches per block of the neighbour query (bounds memory to block × neighbours × 16 bytes).
 _BLOCK = 16384

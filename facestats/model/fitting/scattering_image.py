@@ -712,14 +712,18 @@ def _even_light(points, irradiance, rows, method):
     """
     even = evenly_lit_rows(points, irradiance, rows)
     n = int(rows.size - even.sum())
-    if n >= UNEVEN_ROWS:
+    if n >= min(UNEVEN_ROWS, rows.size):  # a scene of fewer visible patches: every one of them
         return None
     lit = irradiance[irradiance > 0]
+    rule = (
+        f"at least {UNEVEN_ROWS} must not be"
+        if rows.size >= UNEVEN_ROWS
+        else f"every one of them must not be, fewer than {UNEVEN_ROWS} being seen"
+    )
     found = (
         f"the light is nearly uniform where the camera sees: {rows.size - n} of {rows.size} visible patches are lit "
-        f"within {EVEN_CONTRAST:g}:1 over their {EVEN_NEIGHBOURS} nearest patches (at least {UNEVEN_ROWS} must not "
-        f"be: near a shadow edge or in the dark); {lit.size} of {irradiance.size} patches are lit, at "
-        f"{lit.min():.4g} to {lit.max():.4g}"
+        f"within {EVEN_CONTRAST:g}:1 over their {EVEN_NEIGHBOURS} nearest patches ({rule}: near a shadow edge or in "
+        f"the dark); {lit.size} of {irradiance.size} patches are lit, at {lit.min():.4g} to {lit.max():.4g}"
     )
     remedy = "light the object so that a shadow edge, a spot or a stripe falls where the camera sees it"
     if method == "exitance":

@@ -109,6 +109,37 @@ def test_a_collapsed_fit_range_says_what_it_means_and_which_options_change_it():
     assert "eq. 36 needs 3" in message and "--method exitance, --max-distance" in message
 
 
+def test_a_scene_of_fewer_visible_patches_than_the_minimum_all_unevenly_lit_is_not_called_uniform():
+    """25 patches seen, half of them lit: every one is unevenly lit (a shadow edge crosses the scene), yet the check
+    asked for 30 unevenly lit patches and refused eq. 36 saying the light was "nearly uniform" ("0 of 25 visible
+    patches are lit within 2:1"). With fewer visible patches than UNEVEN_ROWS all of them must be unevenly lit; a
+    small scene that has an evenly lit patch is refused naming that rule, and a single patch is never enough."""
+    from facestats.model.fitting import fit_scattering_image
+    from facestats.model.fitting.even_light import UNEVEN_ROWS
+
+    x, y = np.meshgrid(np.arange(5.0), np.arange(5.0))
+    p = np.c_[x.ravel(), y.ravel(), np.zeros(25)]
+    assert p.shape[0] < UNEVEN_ROWS
+    c = np.where(p[:, 0] < 2, 1.0, 0.0)
+    l = np.exp(-np.abs(p[:, 0] - 1.5))
+    assert not evenly_lit_rows(p, c, np.arange(25)).any()
+    try:  # whatever the solve makes of 25 patches, it is not refused for its light
+        fit_scattering_image(p, np.ones(25), c, l, width=1.0)
+    except FitError as exc:
+        assert "nearly uniform" not in str(exc), str(exc)
+    gx, gy = np.meshgrid(np.arange(7.0), np.arange(7.0))
+    far = np.c_[gx.ravel(), gy.ravel() + 60.0, np.zeros(49)]  # lit all over, far away: its patches evenly lit
+    big, c_big, l_big = np.r_[p, far], np.r_[c, np.ones(49)], np.r_[l, np.ones(49)]
+    assert evenly_lit_rows(big, c_big, np.arange(25, 74)).all()
+    with pytest.raises(FitError, match=r"nearly uniform where the camera sees: 49 of 74 visible patches .*at least 30"):
+        fit_scattering_image(big, np.ones(74), c_big, l_big, width=1.0)
+    seen = np.r_[np.ones(28, bool), np.zeros(46, bool)]  # 28 seen: the 25 by the edge and 3 of the far ones
+    with pytest.raises(FitError, match=r"3 of 28 visible patches .*every one of them must not be"):
+        fit_scattering_image(big, np.ones(74), c_big, l_big, width=1.0, visible=seen)
+    with pytest.raises(FitError, match=r"1 of 1 visible patches .*every one of them must not be"):
+        fit_scattering_image(p[:1], np.ones(1), np.ones(1), np.ones(1), width=1.0)
+
+
 @pytest.mark.parametrize("method", ["exitance", "monotone"])
 def test_width_auto_with_a_single_patch_is_refused_by_name(method):
     """width='auto' measures the patches' spacing from their nearest neighbours; with one patch there is none, and

@@ -235,7 +235,8 @@ def reference_radiance_scale(image, mask, reflectance, lights, point, normal) ->
     ------
     ValidationError
         A mask of another shape or selecting no pixel, target pixels not finite or ≤ 0, a reflectance outside
-        (0, 1], a normal not of unit length, or a target the lights do not reach (E = 0).
+        (0, 1], a normal not of unit length, an image of other than 1 or 3 channels, or a target the lights do not
+        reach (E = 0: in any channel of an RGB image, in the channels' mean for a grey one).
     """
     from facestats.acquire.lights import patch_irradiance
     from facestats.acquire.patches import Patches
@@ -268,15 +269,17 @@ def reference_radiance_scale(image, mask, reflectance, lights, point, normal) ->
         check_shape(as_finite(normal, "normal", dtype=np.float64), "normal", (3,))[None],
         np.ones(1),
     )
-    e = patch_irradiance(target, lights, eta=1.0, shadows=False)[0]
-    if not np.all(e > 0):
-        raise ValidationError(
-            f"point must be lit by the lights (irradiance > 0 in every channel at the target), got {e.tolist()}: "
-            "the target outside a spot or a cut, or its normal facing away from the lights"
-        )
-    radiance = rho * e / np.pi  # a Lambertian reflector's radiance, per R, G, B
-    if img.shape[2] == 1:
-        radiance = radiance.mean(keepdims=True)
-    elif img.shape[2] != 3:
+    if img.shape[2] not in (1, 3):
         raise ValidationError(f"image must have 1 or 3 channels, got {img.shape[2]}")
+    e = patch_irradiance(target, lights, eta=1.0, shadows=False)[0]
+    radiance = rho * e / np.pi  # a Lambertian reflector's radiance, per R, G, B
+    if img.shape[2] == 1:  # a grey camera: the mean of the channels, as the fit takes the lights' (a colour may be 0)
+        radiance = radiance.mean(keepdims=True)
+    if not np.all(radiance > 0):
+        which = "in every channel of an RGB image" if img.shape[2] == 3 else "in the mean of R, G and B"
+        raise ValidationError(
+            f"point must be lit by the lights (irradiance > 0 {which} at the target), got {e.tolist()}: the target "
+            "outside a spot or a cut, or its normal facing away from the lights"
+            + ("; a light without a colour gives that channel nothing to scale" if np.any(e > 0) else "")
+        )
     return radiance / pixels.mean(axis=0)

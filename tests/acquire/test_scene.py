@@ -494,3 +494,23 @@ def test_reference_radiance_scale_is_the_lambertian_targets_radiance_over_its_pi
     ):
         with pytest.raises(ValidationError, match=message):
             reference_radiance_scale(*args)
+
+
+def test_reference_radiance_scale_of_a_grey_image_under_a_light_without_one_colour():
+    """A grey image is fitted against the mean of the lights' R, G and B irradiance, so a light with no green (a
+    magenta lamp) still gives its target a radiance, mean(ρ E) / π; the scale was refused ("irradiance > 0 in every
+    channel"). An RGB image under that light has no green to scale and is refused, naming the channel."""
+    from facestats.acquire.scene import reference_radiance_scale
+
+    intensity = np.array([1e4, 0.0, 5e3])
+    lights = [PointLight(np.array([0.0, 0.0, 200.0]), intensity)]
+    point, normal = np.zeros(3), np.array([0.0, 0.0, 1.0])
+    rho = np.array([0.5, 0.4, 0.6])
+    mask = np.ones((4, 6), bool)
+    radiance = rho * intensity / (np.pi * 200.0**2)  # facing the light at 200 mm
+    grey = np.full((4, 6), 2.0)
+    np.testing.assert_allclose(reference_radiance_scale(grey, mask, rho, lights, point, normal), [radiance.mean() / 2])
+    with pytest.raises(
+        ValidationError, match=r"irradiance > 0 in every channel of an RGB image .* got \[.*, 0\.0, .*\]"
+    ):
+        reference_radiance_scale(np.ones((4, 6, 3)), mask, rho, lights, point, normal)

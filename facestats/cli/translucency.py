@@ -219,8 +219,8 @@ def add_translucency(sub):
         "--max-distance",
         default="auto",
         metavar="auto|all|MM",
-        help="levels eq. 36 fits: 'auto' (default: up to where the image determines R' to 25 %%), 'all' (the "
-        "paper's), or up to a distance in mm; not with --method exitance",
+        help="levels eq. 36 fits: 'auto' (default: up to where the image determines R' to 25 %%; with --method "
+        "pinv every level), 'all' (the paper's), or up to a distance in mm; not with --method exitance",
     )
     p.add_argument(
         "--radiance-scale",

@@ -429,3 +429,16 @@ def test_max_distance_is_an_option(scene_files, tmp_path):
                             "--max-distance selects the levels of eq. 36 (--method monotone or pinv)")):  # fmt: skip
         r = run_main(*_scene_args(scene_files), "--quiet", *extra)
         assert r.returncode == 2 and message in r.stderr, r.stderr
+
+
+def test_max_distance_help_says_what_auto_means_for_each_method(capsys):
+    """``--max-distance auto`` is the 25 % rule for ``--method monotone`` only; ``pinv`` fits every level
+    (``fit_scattering_image``: "all levels for pinv, the paper's method unchanged"), which the help did not say."""
+    from facestats.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["translucency", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    start = help_text.index("--max-distance auto|all|MM levels")
+    text = help_text[start : help_text.index("--radiance-scale K", start)]
+    assert "with --method pinv every level" in text and "not with --method exitance" in text, text

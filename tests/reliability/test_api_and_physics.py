@@ -459,7 +459,8 @@ def test_sizes_that_would_exhaust_memory_are_refused_by_name():
     assert kernel_taps(0.5, MAX_RADIUS / 3.0, 1.0).size == 2 * MAX_RADIUS + 1  # the largest allowed
     p = np.random.default_rng(0).random((40, 3)) * 100
     with pytest.raises(ValidationError, match=r"width must be at least .* mm, got 1e-09 mm: it gives .* levels"):
-        fit_scattering_image(p, np.ones(40), np.ones(40), np.ones(40), width=1e-9)
+        # Half the patches lit: not a scene under uniform light, which is refused first (even_light).
+        fit_scattering_image(p, np.ones(40), np.arange(40) % 2, np.ones(40), width=1e-9)
     assert uniform_levels(1.0, MAX_LEVELS - 2).size == MAX_LEVELS
     from facestats.acquire.patches import MAX_PATCHES, mesh_patches
 

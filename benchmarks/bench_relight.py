@@ -777,6 +777,89 @@ def bench_relight_memory(cases=((512, 64, 32), (256, 128, 64))):
     return out
 
 
+_TURNTABLE_CHILD = r"""
+import json, resource, sys, time
+from facestats.cli import main
+t0 = time.perf_counter()
+code = main(sys.argv[1:])
+wall = time.perf_counter() - t0
+peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+print(json.dumps({"code": code, "wall_s": wall, "peak_rss_mb": peak}))
+"""
+
+
+def _turntable_probe(name):
+    """The path of probe ``name``: Probulator's in ``$FACESTATS_TEST_DATA/probulator``, else the committed studio."""
+    for path in (PROBE_DIR / f"{name}.hdr", COMMITTED / f"{name}.hdr"):
+        if path.is_file():
+            return path
+    return COMMITTED / "studio.hdr"
+
+
+def bench_turntable(sizes=(64, 256), frames=36, ratio=20.0, probe="grace", n_theta=64, n_phi=32, direct=True):
+    """``facestats relight S001 --turntable frames`` as the command runs it, dense (the default) and with ``--ratio``,
+    each in a fresh process: wall time, peak RSS, and the compressed frames' error against the dense ones (relative
+    error of the face's pixel channels, the EXR's alpha; face mean, 99th percentile, worst over all frames).
+    ``direct``: the dense frame 1 against a single ``facestats relight --rotate`` at its angle too."""
+    import json
+    import subprocess
+    import sys
+    import tempfile
+
+    from facestats.io.images import read_exr
+    from facestats.relight.compression import relative_errors
+
+    path = _turntable_probe(probe)
+    out = {"probe": str(path), "frames": frames}
+
+    def run(args):
+        res = subprocess.run([sys.executable, "-c", _TURNTABLE_CHILD, *map(str, args)], capture_output=True,
+                             text=True, check=True)  # fmt: skip
+        got = json.loads(res.stdout.strip().splitlines()[-1])
+        assert got["code"] == 0, res.stderr
+        return got
+
+    def image(name):  # RGB and the face mask (alpha) of a relight's EXR
+        ch, _ = read_exr(name)
+        return np.stack([ch[c] for c in "RGB"], -1), ch["A"] > 0
+
+    print(f"{'size':>5} {'mode':>9} {'wall s':>7} {'peak MB':>8} {'mean %':>7} {'p99 %':>7} {'worst %':>8}")
+    with tempfile.TemporaryDirectory(prefix="facestats-bench-turntable-") as tmp:
+        for size in sizes:
+            common = ["relight", "S001", "--probe", path, "--size", size, "--lights", f"{n_theta}x{n_phi}",
+                      "--turntable", frames, "--quiet"]  # fmt: skip
+            dense = run(common + ["--out", f"{tmp}/d{size}.exr"])
+            comp = run(common + ["--ratio", ratio, "--out", f"{tmp}/c{size}.exr"])
+            rel, means = [], []
+            for k in range(frames):
+                ref, mask = image(f"{tmp}/d{size}_{k:03d}.exr")
+                img, _ = image(f"{tmp}/c{size}_{k:03d}.exr")
+                rel.append(relative_errors(img, ref, mask))
+                means.append(abs(float(img[mask].mean() / ref[mask].mean()) - 1))
+            rel = np.concatenate(rel)
+            err = {"face_mean_pct": 100 * max(means), "p99_pct": 100 * float(np.percentile(rel, 99)),
+                   "worst_pct": 100 * float(rel.max())}  # fmt: skip
+            out[f"{size}/dense"] = {**dense, "frame_mb": 12 * size * size / 2**20}
+            out[f"{size}/ratio {ratio:g}"] = {**comp, **err}
+            for mode, got in (("dense", dense), (f"{ratio:g}x", comp)):
+                figures = (
+                    "" if got is dense else f"{err['face_mean_pct']:7.2f} {err['p99_pct']:7.2f} {err['worst_pct']:8.2f}"
+                )
+                print(f"{size:5d} {mode:>9} {got['wall_s']:7.1f} {got['peak_rss_mb']:8.0f} {figures}")
+            if direct:  # a single relight at frame 1's angle: the dense frame must be the same image
+                one = run(["relight", "S001", "--probe", path, "--size", size, "--lights", f"{n_theta}x{n_phi}",
+                           "--rotate", 360 / frames, "--quiet", "--out", f"{tmp}/one{size}.exr"])  # fmt: skip
+                ref, mask = image(f"{tmp}/one{size}.exr")
+                img, _ = image(f"{tmp}/d{size}_001.exr")
+                out[f"{size}/dense_vs_single_max_rel"] = float(relative_errors(img, ref, mask).max())
+                out[f"{size}/single_wall_s"] = one["wall_s"]
+                print(
+                    f"{size:5d} single relight {one['wall_s']:.1f} s; dense frame 1 against it: worst "
+                    f"{out[f'{size}/dense_vs_single_max_rel']:.2g} (relative)"
+                )
+    return out
+
+
 BENCHMARKS = [
     ("relight", bench_relight),
     ("stage", bench_stage),
@@ -795,6 +878,7 @@ BENCHMARKS = [
     ("separation", bench_separation),
     ("separation_by_tilt", bench_separation_by_tilt),
     ("relight_memory", bench_relight_memory),
+    ("turntable", bench_turntable),
 ]
 
 #: The tiny field, ratio and lightings of the sweeps' smoke runs.
@@ -819,4 +903,5 @@ SMOKE = {
     "separation": {"size": 4, "lobes": (0.35,), "views": ((0, 0, 1),), "noises": (0.02,)},
     "separation_by_tilt": {"size": 5, "lobes": (0.35,), "edges": (0, 45, 90)},
     "relight_memory": {"cases": ((16, 8, 4),)},
+    "turntable": {"sizes": (12,), "frames": 2, "ratio": 2.0, "n_theta": 8, "n_phi": 4},
 }

@@ -17,6 +17,7 @@ import pathlib
 
 from facestats.cli.options import (
     add_store_option,
+    ascii_float,
     ascii_int,
     check_apart_from_store,
     named_options,
@@ -59,6 +60,10 @@ def _check_options(args) -> None:
         )
     if args.mesh is not None and not pathlib.Path(args.mesh).is_file():
         raise ValidationError(f"--mesh must be an OBJ/PLY file with UVs, got {args.mesh!r} (not a file)")
+    from facestats.io.mesh import check_mesh_scale
+
+    with named_options(mesh_scale="--mesh-scale"):  # as export-subject and relight check it
+        args.mesh_scale = check_mesh_scale(args.mesh_scale, args.mesh)
     if args.seed is not None and args.seed < 0:
         raise ValidationError(f"--seed must be a population seed >= 0, got {args.seed}")
     if args.probe_lights is not None and not args.probe:
@@ -167,8 +172,8 @@ def _cmd_render(args) -> int:
         samples="--probe-lights", camera="--camera", light="--light", size="--size", **{"light probe": "--probe"}
     ):
         if args.probe:
-            res = render_probe(ds, cap, args.camera, args.probe, mesh=args.mesh, samples=args.probe_lights,
-                               micro_normals=args.micro_normals, size=args.size)  # fmt: skip
+            res = render_probe(ds, cap, args.camera, args.probe, mesh=args.mesh, scale=args.mesh_scale,
+                               samples=args.probe_lights, micro_normals=args.micro_normals, size=args.size)  # fmt: skip
         else:
             # a pair that sees too little of the face is refused (check_led_view), naming the options
             res = render_led(ds, cap, args.camera, args.light, micro_normals=args.micro_normals, size=args.size,
@@ -263,6 +268,13 @@ def add_render(sub):
         metavar="PATH",
         help="with --probe: the OBJ/PLY scan (with UVs) of a subject ingested from photographs, which shadows the "
         "render and, without --capture, gives the lumitexels (default: the face the subject's provenance records)",
+    )
+    p.add_argument(
+        "--mesh-scale",
+        type=ascii_float,
+        default=None,
+        metavar="FACTOR",
+        help="factor from the --mesh file's unit to mm (10 for cm, 1000 for m; default 1)",
     )
     p.add_argument(
         "--seed",

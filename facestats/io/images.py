@@ -51,6 +51,7 @@ import os
 import pathlib
 import re
 import struct
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -686,8 +687,10 @@ def write_exr(path, channels: dict, *, half: bool = False, attributes=None):
     path : str or path-like
         The file to write (its extension is not checked here).
     channels : dict of str to array_like, shape (H, W)
-        At least one channel.  Float channels must be finite; integer (and bool) channels are stored as uint32
-        and must hold values in [0, 4294967295].
+        At least one channel, named by a non-empty string.  Float channels must be finite; integer (and bool)
+        channels are stored as uint32 and must hold values in [0, 4294967295].  An image array (H, W[, C]) is
+        refused (its channels have no names here): write it with :func:`write_image`, which names 1, 3 or 4
+        channels Y or R, G, B[, A].
     half : bool
         Store float channels as half floats instead of float32.
     attributes : dict, optional
@@ -701,12 +704,22 @@ def write_exr(path, channels: dict, *, half: bool = False, attributes=None):
     Raises
     ------
     ValidationError
-        No channel, channels that are not 2-D of one shape, a float channel with NaN or inf, a finite value
+        ``channels`` not a dict of named channels (an array, a list), no channel, a name that is not a non-empty
+        string, channels that are not 2-D of one shape, a float channel with NaN or inf, a finite value
         beyond the range of the stored float type, or an integer channel with a value outside [0, 4294967295]
         (the message names the channel and the value).
     DependencyError
         The OpenEXR package is not installed.
     """
+    if not isinstance(channels, Mapping):  # an ndarray raised numpy's "truth value ... is ambiguous"
+        shape = f" of shape {np.shape(channels)}" if isinstance(channels, np.ndarray) else ""
+        raise ValidationError(
+            f"channels must be a dict of channel name to (H, W) array, e.g. {{'R': r, 'G': g, 'B': b}}, got "
+            f"{type(channels).__name__}{shape}; write an (H, W[, C]) image with write_image"
+        )
+    bad = [k for k in channels if not isinstance(k, str) or not k]
+    if bad:
+        raise ValidationError(f"channels must be named by non-empty strings, got {bad[0]!r}")
     OpenEXR = require_openexr()
 
     p = _path(path, must_exist=False)

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facestats.core.raster import triangle_coverage
-from facestats.core.validate import as_finite, check_integer, check_shape
+from facestats.core.validate import as_finite, as_scalar, check_integer, check_shape
 from facestats.errors import FormatError, ValidationError
 from facestats.face.geometry import FaceGeometry, uv_to_texel
 from facestats.face.named import face_geometry, parse_face_name
@@ -47,6 +47,10 @@ __all__ = [
     "FaceMesh",
     "subject_mesh",
     "recorded_geometry",
+    "FACE_SIZE_MM",
+    "MAX_MESH_SCALE",
+    "check_mesh_scale",
+    "face_extent_problem",
 ]
 
 
@@ -624,8 +628,90 @@ def recorded_geometry(ds) -> str | None:
     return None
 
 
-#: Extent (largest side of the bounding box, mm) of a face or head scan outside which :func:`subject_mesh` warns.
+#: Extent (largest side of the bounding box, mm) of a face or head scan: outside it, :func:`subject_mesh` warns and
+#: relighting refuses (:func:`face_extent_problem`).
 FACE_SIZE_MM = (50.0, 1000.0)
+
+#: Largest mesh ``scale`` (mm per unit of the file): a mesh in km; beyond, positions overflow in the maps' frames.
+MAX_MESH_SCALE = 1e6
+
+#: Units a suggested scale names (:func:`face_extent_problem`): mm per unit.
+_UNITS = {1e-3: "µm", 0.1: "0.1 mm", 10.0: "cm", 100.0: "dm", 1000.0: "m"}
+
+
+def check_mesh_scale(scale, mesh, name: str = "mesh_scale") -> float:
+    """A mesh scale checked: the factor from a mesh file's unit to mm, given only with a mesh.
+
+    The one check of ``facestats export-subject``, ``relight`` and ``render``'s ``--mesh-scale``
+    (:func:`facestats.cli.options.named_options` renames ``mesh_scale`` to the option) and of
+    :func:`facestats.relight.camera.subject_geometry`'s ``scale``.
+
+    Parameters
+    ----------
+    scale : float or None
+        mm per unit of the mesh file, in (0, :data:`MAX_MESH_SCALE`]; None: not given (1).
+    mesh : str, os.PathLike or None
+        The mesh it scales; None when no mesh is given.
+    name : str
+        The parameter's name in messages.
+
+    Returns
+    -------
+    float
+        The scale, 1.0 when not given.
+
+    Raises
+    ------
+    ValidationError
+        A scale without a mesh, or one that is not a finite number in (0, :data:`MAX_MESH_SCALE`].
+    """
+    if scale is None:
+        return 1.0
+    if mesh is None:
+        raise ValidationError(f"{name} applies to a mesh given with mesh= (--mesh), and none is given")
+    return as_scalar(scale, name, 0, MAX_MESH_SCALE, low_inclusive=False)
+
+
+def face_extent_problem(vertices, mesh, scale: float = 1.0) -> str | None:
+    """Why a face mesh read with ``scale`` has not a face's size in mm, or None when it has.
+
+    The extent is the largest side of the vertices' bounding box; a face or head scan spans
+    :data:`FACE_SIZE_MM`.  Outside it the message gives the extent and the scale, and suggests the power of ten
+    that brings the extent nearest to 224 mm (the range's geometric middle) with the unit it stands for: a scan in
+    m read as mm is 0.2 mm across, and ``scale`` 1000 makes it 200 mm.
+
+    Parameters
+    ----------
+    vertices : array_like, shape (V, 3)
+        The mesh's vertices after ``scale`` (mm if the scale is right).
+    mesh : str or os.PathLike
+        The mesh file (named in the message).
+    scale : float
+        The factor the vertices were read with.
+
+    Returns
+    -------
+    str or None
+        A message starting with ``mesh <path> is … mm across``, or None.
+    """
+    v = np.asarray(vertices, np.float64)
+    across = float(np.ptp(v, axis=0).max()) if len(v) else 0.0
+    if FACE_SIZE_MM[0] <= across <= FACE_SIZE_MM[1]:
+        return None
+    said = (
+        f"mesh {os.fspath(mesh)} is {across:.4g} mm across with scale {scale:g}, outside a face's "
+        f"{FACE_SIZE_MM[0]:g}-{FACE_SIZE_MM[1]:g} mm"
+    )
+    if not across > 0:  # all vertices at one point: no scale helps
+        return f"{said}: its vertices are all at one point"
+    factor = 10.0 ** round(np.log10(np.sqrt(FACE_SIZE_MM[0] * FACE_SIZE_MM[1]) / across))
+    unit = _UNITS.get(factor)
+    if unit is None or not 0 < scale * factor <= MAX_MESH_SCALE:
+        return f"{said}: pass the factor from its unit to mm as scale (--mesh-scale on the command line)"
+    return (
+        f"{said}: if the file is in {unit}, pass scale {scale * factor:g} (--mesh-scale {scale * factor:g} on the "
+        "command line, the factor from its unit to mm)"
+    )
 
 
 def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = None) -> FaceMesh:
@@ -647,7 +733,7 @@ def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = N
         the subject's maps follow.
     scale : float
         Factor from the mesh file's unit to mm (with ``mesh``).  A mesh whose extent after it lies
-        outside :data:`FACE_SIZE_MM` is warned about (a scan in cm or m read as mm).
+        outside :data:`FACE_SIZE_MM` is warned about (a scan in cm or m read as mm; :func:`face_extent_problem`).
     mesh_grid : int, optional
         Grid of the procedural mesh (default 128: 2 × 127² triangles over the head).
 
@@ -657,15 +743,9 @@ def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = N
     """
     if mesh is not None:
         verts, faces, stored = read_triangle_mesh(mesh, scale=scale, uv=True)
-        across = float(np.ptp(verts, axis=0).max()) if len(verts) else 0.0
-        if not FACE_SIZE_MM[0] <= across <= FACE_SIZE_MM[1]:  # a scan in cm or m taken as mm (a user's run)
-            unit = "in cm or m, pass scale 10 or 1000" if across < FACE_SIZE_MM[0] else "in µm, pass scale 0.001"
-            warnings.warn(
-                f"the mesh {os.fspath(mesh)} is {across:.6g} mm across with scale {scale:g}, outside a face's "
-                f"{FACE_SIZE_MM[0]:g}-{FACE_SIZE_MM[1]:g} mm: if the file is {unit} (--mesh-scale, the factor from "
-                "its unit to mm); the σ maps are per mm",
-                stacklevel=2,
-            )
+        problem = face_extent_problem(verts, mesh, scale)
+        if problem is not None:  # a scan in cm or m taken as mm (a user's run)
+            warnings.warn(f"the {problem}; the σ maps are per mm", stacklevel=2)
         path = os.path.abspath(os.fspath(mesh))  # recorded in every export: absolute, so it says which file
         geometry = {"kind": "mesh", "name": os.path.basename(path), "path": path, "scale": scale}
         return _face_mesh(verts, faces, _checked_uv(stored, len(verts), mesh, True), geometry)

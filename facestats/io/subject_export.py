@@ -18,10 +18,11 @@ import stat
 
 from facestats.core.outputs import check_apart, check_output_dir, missing_folders
 from facestats.core.processes import process_gone
-from facestats.core.validate import as_scalar, check_choice
+from facestats.core.validate import check_choice
 from facestats.errors import StoreError, ValidationError
 from facestats.io.gltf import write_gltf
 from facestats.io.ids import check_subject_id
+from facestats.io.mesh import check_mesh_scale
 from facestats.io.store import Store, open_store
 
 __all__ = ["EXPORT_FORMATS", "EXPORT_OPTIONS", "UnknownSubjectError", "export_subject", "store_subject"]
@@ -39,8 +40,6 @@ EXPORT_OPTIONS = {
     "spp": ("mitsuba",),
     "fov": ("mitsuba",),
 }
-#: Largest ``mesh_scale`` (mm per unit of the file): a mesh in km; beyond, positions overflow in the maps' frames.
-MAX_MESH_SCALE = 1e6
 #: Options that name input files (refused inside ``out``, which an export may replace).
 _INPUTS = ("mesh", "probe")
 
@@ -144,9 +143,7 @@ def export_subject(subject, out, format="exr", *, store=None, overwrite=False, *
     check_choice(format, "format", EXPORT_FORMATS)
     options = _check_options(format, options)
     if "mesh_scale" in options:
-        if "mesh" not in options:
-            raise ValidationError("mesh_scale applies to a mesh given with mesh= (--mesh), and none is given")
-        options["mesh_scale"] = as_scalar(options["mesh_scale"], "mesh_scale", 0, MAX_MESH_SCALE, low_inclusive=False)
+        options["mesh_scale"] = check_mesh_scale(options["mesh_scale"], options.get("mesh"))
     out = _check_out(out, overwrite)
     for name in _INPUTS:
         if isinstance(options.get(name), (str, os.PathLike)):

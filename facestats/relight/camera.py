@@ -142,7 +142,8 @@ def subject_geometry(subject, mesh=None, *, scale: float = 1.0, mesh_grid: int =
     mesh : str or os.PathLike, optional
         The scan the maps belong to (OBJ/PLY with per-vertex UVs); None: the face the provenance names.
     scale : float
-        Factor from the mesh file's units to mm (``mesh`` only).
+        Factor from the mesh file's units to mm (``mesh`` only), in (0, 1e6]
+        (:func:`facestats.io.mesh.check_mesh_scale`).
     mesh_grid : int
         Side of the rendering mesh of a procedural head, in [8, 1024] (checked even when unused).
 
@@ -155,19 +156,27 @@ def subject_geometry(subject, mesh=None, *, scale: float = 1.0, mesh_grid: int =
     ValidationError
         A subject of region samples (``facestats import-merl``: no maps to render), or one whose recorded face
         cannot be rebuilt and no ``mesh`` (the message names ``--mesh``, the command line's option), or
-        ``mesh_grid`` out of range.
+        ``mesh_grid`` out of range; a ``scale`` out of range, or a ``mesh`` that after ``scale`` is not a face's
+        size in mm (:data:`facestats.io.mesh.FACE_SIZE_MM`: the stage camera, placed in mm, would see nothing or
+        a part of it; the message starts with ``mesh``, gives the extent and suggests a scale,
+        :func:`facestats.io.mesh.face_extent_problem`).
     FormatError
         A ``mesh`` that cannot be read, has no valid UVs or no vertex in the face regions
         (:func:`facestats.io.mesh.load_face_mesh`).
     """
     # local imports: keep facestats.io (21 modules) out of this module's import
     from facestats.io.exr_set import check_map_subject
-    from facestats.io.mesh import load_face_mesh, recorded_geometry
+    from facestats.io.mesh import check_mesh_scale, face_extent_problem, load_face_mesh, recorded_geometry
 
     check_map_subject(subject, "relighting")
     mesh_grid = check_integer(mesh_grid, "mesh_grid", 8, 1024)
     if mesh is not None:
-        return load_face_mesh(mesh, np.asarray(subject["region"].values), scale=scale)
+        scale = check_mesh_scale(scale, mesh, "scale")
+        geometry = load_face_mesh(mesh, np.asarray(subject["region"].values), scale=scale)
+        problem = face_extent_problem(geometry.mesh_vertices, mesh, scale)
+        if problem is not None:  # a scan in m read as mm: the camera would see nothing (a black image, exit 0)
+            raise ValidationError(problem)
+        return geometry
     name = recorded_geometry(subject)
     try:
         return named_face(str(name), mesh_grid=mesh_grid if str(name).startswith("procedural-") else None)

@@ -144,6 +144,7 @@ __all__ = [
     "light_regions",
     "per_pixel_values",
     "ratio_bound",
+    "relative_errors",
 ]
 
 #: Target pixels per cluster of the default clustering.  Smaller clusters fit their pixels better but spend more
@@ -1013,6 +1014,37 @@ class CompressedField:
         out = np.zeros((self.n_lights, self.image_shape[0] * self.image_shape[1], 3), np.float32)
         out[:, self.pixels] = channels / self.sqrt_solid_angle[:, None, None].astype(np.float32)
         return out.reshape((self.n_lights,) + self.image_shape + (3,))
+
+
+def relative_errors(image, reference, mask=None) -> np.ndarray:
+    """Relative errors |image − reference| / reference of the pixel channels in ``mask``, flat (the accuracy of a
+    compressed relight against the dense one; a reference of 0 counts as 1e-30, so an error there is huge).
+
+    Parameters
+    ----------
+    image, reference : array_like, shape (H, W, 3)
+        A relit image and the reference it approximates (:func:`facestats.relight.relighting.relight`).
+    mask : array_like of bool, shape (H, W), optional
+        The pixels to compare (default all).
+
+    Returns
+    -------
+    numpy.ndarray of float64, shape (n · 3,)
+        One value per compared pixel channel.
+
+    Raises
+    ------
+    ValidationError
+        Images of different shapes or not (H, W, 3), non-finite values, or a mask of another (H, W).
+    """
+    img = as_finite(image, "image", dtype=np.float64)
+    ref = as_finite(reference, "reference", dtype=np.float64)
+    if img.shape != ref.shape or img.ndim != 3 or img.shape[-1] != 3:
+        raise ValidationError(f"image and reference must be (H, W, 3) of one shape, got {img.shape} and {ref.shape}")
+    m = np.ones(img.shape[:2], bool) if mask is None else np.asarray(mask, bool)
+    if m.shape != img.shape[:2]:
+        raise ValidationError(f"mask must have the images' shape {img.shape[:2]}, got {m.shape}")
+    return (np.abs(img[m] - ref[m]) / np.maximum(np.abs(ref[m]), 1e-30)).reshape(-1)
 
 
 def _budget(n_lights, n_pix, ratio, n_parts):

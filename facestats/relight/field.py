@@ -379,7 +379,7 @@ def write_field(path, field, *, dtype="float32", tile: int = 64, overwrite: bool
     chunks = tuple(f.sizes[d] for d in ldims) + (min(t, f.sizes["y"]), min(t, f.sizes["x"]), 3)
     out = _strings_as_objects(f.copy())
     out["reflectance"] = out["reflectance"].astype(dtype).chunk(dict(zip(ldims + ("y", "x", "channel"), chunks)))
-    encoding = {"reflectance": {"chunks": chunks}}
+    encoding = {"reflectance": {"chunks": chunks, "fill_value": 0.0}}
     for name in out.data_vars:
         if name != "reflectance":
             encoding[name] = {"chunks": tuple(out[name].shape)}
@@ -449,7 +449,9 @@ class FieldStore:
         ds = _strings_as_objects(ds)
         self._dtype = np.dtype(dtype)
         self._tmp = self.path.with_name(f".{self.path.name}.tmp-{uuid.uuid4().hex[:8]}")
-        encoding = {"reflectance": {"chunks": chunks}}
+        # fill 0: the stage writes only the tiles that hold face pixels, and the rest read as the fill value (NaN by
+        # default, so a relight of the whole image failed on them)
+        encoding = {"reflectance": {"chunks": chunks, "fill_value": 0.0}}
         ds.to_zarr(self._tmp, mode="w", compute=False, encoding=encoding, consolidated=False, zarr_format=3)
         import zarr
 

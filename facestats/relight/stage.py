@@ -428,10 +428,32 @@ def _prepare(subject, geometry, camera, directions, *, specular, eta, shadows, s
         raise ValidationError(f"camera must be a StageCamera (facestats.relight.stage_camera), got {camera!r}")
     surface = view_surface(geometry, camera)
     shading, on_face = SubjectShading.from_subject(subject, surface, specular=specular, eta=eta)
+    if not on_face.any():  # an image with nothing on it is an error, not a black file with a NaN mean
+        raise ValidationError(_no_face_seen(subject, geometry, camera, surface.pixel.size))
     surface, shading = surface.subset(on_face), shading.subset(on_face)
     res = check_integer(shadow_resolution, "shadow_resolution", 8, 4096)
     vis_v, active, vidx = _visibility_setup(geometry, surface, shading.normal, directions, res, shadows, progress)
     return surface, shading, vis_v, active, vidx
+
+
+def _no_face_seen(subject, geometry, camera, covered) -> str:
+    """Why ``camera`` sees no face pixel: the mesh's extent and distance against the camera's view, or (``covered``
+    pixels on the mesh) a mesh whose UVs miss the maps' face texels."""
+    sid = subject.attrs.get("subject_id", "?")
+    verts = np.asarray(geometry.mesh_vertices, np.float64)
+    if covered:
+        return (
+            f"camera sees {covered} pixels of the mesh of {geometry.name!r} but none on a face texel of subject "
+            f"{sid!r}: the mesh's UV layout is not the one the subject's maps follow"
+        )
+    across = float(np.ptp(verts, axis=0).max())
+    dist = float(np.linalg.norm(verts.mean(0) - camera.position))
+    width = 2 * dist * np.tan(np.radians(camera.fov_deg) / 2)
+    return (
+        f"camera sees no pixel of the face of subject {sid!r}: its mesh {geometry.name!r} is {across:.4g} mm across, "
+        f"{dist:.4g} mm from the camera, whose {camera.fov_deg:g}° view is {width:.4g} mm wide there (a mesh in "
+        "another unit than mm, or a camera aimed away from the face)"
+    )
 
 
 def _pixel_visibility(vis_v, vidx, bary, rows):

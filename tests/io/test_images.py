@@ -82,6 +82,26 @@ def test_exr_integer_channels_out_of_the_uint32_range_are_refused(tmp_path):
         assert not (tmp_path / "bad.exr").exists()
 
 
+def test_write_exr_takes_named_channels_and_refuses_an_image_array_by_name(tmp_path):
+    """write_exr(path, ndarray) raised numpy's "truth value of an array ... is ambiguous" (a user's run): an image
+    array is refused naming the argument and what it takes, and write_image writes it as Y or R, G, B[, A]."""
+    rgba = np.random.default_rng(1).random((3, 5, 4)).astype(np.float32)
+    for bad, said in ((rgba, r"got ndarray of shape \(3, 5, 4\); write an \(H, W\[, C\]\) image with write_image"),
+                      ([rgba[..., 0]], "got list"), (None, "got NoneType")):  # fmt: skip
+        with pytest.raises(
+            ValidationError, match=r"^channels must be a dict of channel name to \(H, W\) array.*" + said
+        ):
+            images.write_exr(tmp_path / "a.exr", bad)
+    for name in ("", 3):
+        with pytest.raises(ValidationError, match=f"channels must be named by non-empty strings, got {name!r}"):
+            images.write_exr(tmp_path / "a.exr", {name: rgba[..., 0]})
+    assert not (tmp_path / "a.exr").exists()
+    images.write_image(tmp_path / "rgba.exr", rgba)  # the array form: channels named R, G, B, A
+    back, _ = images.read_exr(tmp_path / "rgba.exr")
+    assert sorted(back) == ["A", "B", "G", "R"] and np.array_equal(back["A"], rgba[..., 3])
+    assert np.array_equal(images.read_image(tmp_path / "rgba.exr"), rgba)
+
+
 def test_pfm_is_stored_bottom_up_little_endian(tmp_path):
     img = _bright(c=1)[..., 0]
     raw = images.write_pfm(tmp_path / "g.pfm", img).read_bytes()

@@ -234,3 +234,25 @@ def test_synthetic_probes_cameras_plots_and_angles_check_their_arguments():
         plot_relit({})
     with pytest.raises(ValidationError, match="ncols"):
         plot_relit({"a": np.ones((2, 2, 3))}, ncols=0)
+
+
+def test_the_preview_exposure_refuses_a_mask_that_selects_nothing_or_does_not_fit():
+    """An empty mask (a mesh the camera missed) gave "PNG exposure x1" beside a NaN mean; a mask of another shape
+    raised numpy's IndexError (a one-row mask was broadcast)."""
+    from facestats.relight.display import exposure_scale
+
+    img = np.zeros((4, 5, 3))
+    img[1, 2] = (0.2, 0.4, 0.6)
+    mask = np.zeros((4, 5), bool)
+    mask[1, 2] = True
+    assert exposure_scale(img, mask) == pytest.approx(0.9 / 0.4)
+    assert exposure_scale(np.zeros((4, 5, 3)), mask) == 1.0  # a black subject: documented
+    with pytest.raises(ValidationError, match="mask must select at least one pixel to choose an exposure over"):
+        exposure_scale(img, np.zeros((4, 5), bool))
+    for bad in (np.ones((5, 4), bool), np.ones((1, 5), bool)):
+        with pytest.raises(ValidationError, match=r"mask must have the image's pixel shape \(4, 5\), got"):
+            exposure_scale(img, bad)
+    with pytest.raises(ValidationError, match="image must have at least 3 channels"):
+        exposure_scale(np.ones((4, 5, 2)))
+    with pytest.raises(ValidationError, match="too small for a finite exposure scale"):
+        exposure_scale(np.full((2, 2, 3), 5e-324))

@@ -81,6 +81,22 @@ def test_tile_writer_matches_the_whole_write(tmp_path):
     assert not (tmp_path / "u.zarr").exists() and len(list(tmp_path.iterdir())) == 1
 
 
+@pytest.mark.parametrize("dtype", ["float32", "float16"])
+def test_tiles_never_written_read_as_zero_and_relight(tmp_path, dtype):
+    """The stage writes only the tiles that hold face pixels; the others read as the zarr fill value, which was NaN:
+    relighting a 256² stage field from its store failed ("the relit value at pixel (y=0, x=0) ... is nan")."""
+    from facestats.relight.lighting import uniform_probe
+    from facestats.relight.relighting import relight
+
+    f = _bright_field()
+    store = fld.FieldStore(tmp_path / "t.zarr", f["direction"].values, (5, 7), tile=4, dtype=dtype)
+    store.write(slice(0, 4), slice(0, 4), f["reflectance"].values[:, :, :4, :4])  # the one tile with the texel
+    g = store.close()
+    assert np.array_equal(g["reflectance"].values, f["reflectance"].values)  # zeros elsewhere, not NaN
+    img = relight(g, probe=uniform_probe(8))
+    assert np.all(img[4:] == 0) and np.all(img[:, 4:] == 0) and img[3, 1, 2] > 0
+
+
 def test_bad_fields_are_refused():
     d, _ = light_stage_directions(8, 4)
     with pytest.raises(ValidationError, match="values must have shape"):

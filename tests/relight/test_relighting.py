@@ -6,7 +6,7 @@ import pytest
 from facestats.errors import ValidationError
 from facestats.relight import field as fld
 from facestats.relight.lighting import resample_probe, rotate_probe, sky_probe, uniform_probe
-from facestats.relight.relighting import indirect_field, lighting_for, relight, tint_indirect
+from facestats.relight.relighting import indirect_field, lighting_for, relight, relight_frames, tint_indirect
 from tests.relight.fields import lambertian_field
 
 
@@ -49,6 +49,36 @@ def test_fields_on_disk_are_relit_tile_by_tile_identically(tmp_path):
     # Same sums over the lights in float32; the BLAS kernel's order depends on the block width, so tiles and
     # the whole agree to rounding (≤ L·u ≈ 1e-4 relative in the worst case; 2e-6 observed), not bit for bit.
     assert np.allclose(relight(g, lw), relight(f, lw), rtol=1e-5, atol=1e-9)
+
+
+def test_frames_relit_in_one_pass_equal_single_relights(tmp_path, monkeypatch):
+    """relight_frames (a turntable's frames in one pass over the field) gives each lighting's relight: in memory, on
+    disk tile by tile, and an in-memory field cut into tiles when the frames' product would be large."""
+    import facestats.relight.relighting as relighting
+
+    f, _, _ = lambertian_field(9, 7, albedo=(0.7, 0.2, 0.4))
+    g = fld.open_field(fld.write_field(tmp_path / "f.zarr", f, tile=4))
+    probe = sky_probe(16, sun_direction=(0.6, 0.3, 0.7))
+    lights = [lighting_for(f, probe, rotate=a) for a in (0.0, 1.1, 2.5, 4.0)] + [np.ones((32, 64))]  # grey too
+    for field in (f, g):
+        frames = relight_frames(field, lights)
+        assert frames.shape == (5, 9, 7, 3) and frames.dtype == np.float32
+        for k, lw in enumerate(lights):
+            assert np.allclose(frames[k], relight(field, lw), rtol=1e-5, atol=1e-9)
+        assert not np.allclose(frames[0], frames[2])  # the frames differ: not one lighting repeated
+    monkeypatch.setattr(relighting, "_PRODUCT_BYTES", 36 * 4 * 12)  # 4 frames: tiles of 3 x 3 pixels
+    tiled = relight_frames(f, np.stack(lights[:4]))  # an (F, light dims..., 3) array
+    assert np.allclose(tiled, frames[:4], rtol=1e-5, atol=1e-9)
+    with pytest.raises(ValidationError, match="lightings must hold at least one lighting, got none"):
+        relight_frames(f, [])
+    with pytest.raises(ValidationError, match=r"lightings must hold one lighting per frame, shape \(F, L, 3\)"):
+        relight_frames(f, np.ones(3))
+    with pytest.raises(ValidationError, match="lighting must hold L·δA per light of the field"):
+        relight_frames(f, [lights[0], np.ones((10, 3))])
+    bad = np.array(lights[:2])
+    bad[1, 3, 4, 0] = np.inf
+    with pytest.raises(ValidationError, match="finite"):
+        relight_frames(f, bad)
 
 
 def test_clothing_tint_is_an_additive_linear_term():

@@ -483,3 +483,40 @@ def test_the_boundary_band_holds_blocks_not_the_field_in_float64():
         tracemalloc.stop()
     assert agreement["agreement"] == 1.0 and 0 < agreement["excluded"] < visible.size
     assert peak < 10 * visible.nbytes, (peak, visible.nbytes)
+
+
+def test_a_scan_in_another_unit_is_refused_naming_its_size_and_the_scale_to_pass(subject, geometry, tmp_path):
+    """The ICT face saved in metres and passed as the scan rendered an all-black image and exited 0 with "mean
+    radiance nan" (a walkthrough): the stage camera, placed in mm, saw nothing.  subject_geometry refuses a mesh of
+    no face's size with the scale to pass; a geometry the camera does not see is refused by the stage itself."""
+    from facestats.io.mesh import load_face_mesh, subject_mesh, write_mesh
+
+    fm = subject_mesh(subject)  # the face S001's maps belong to, in mm
+    for unit, factor in (("m", 1000), ("cm", 10)):
+        path = tmp_path / f"face_{unit}.obj"
+        write_mesh(path, fm.vertices / factor, fm.faces, fm.uv)
+        across = np.ptp(fm.vertices, axis=0).max() / factor
+        with pytest.raises(ValidationError) as err:
+            stage.subject_geometry(subject, path)
+        assert str(err.value) == (
+            f"mesh {path} is {across:.4g} mm across with scale 1, outside a face's 50-1000 mm: if the file is in "
+            f"{unit}, pass scale {factor} (--mesh-scale {factor} on the command line, the factor from its unit to mm)"
+        )
+        g = stage.subject_geometry(subject, path, scale=factor)
+        assert np.allclose(g.mesh_vertices, fm.vertices, atol=1e-5 * factor)
+    for bad in (0, -2, np.nan, 1e7):
+        with pytest.raises(ValidationError, match=r"^scale must (lie in|be)"):
+            stage.subject_geometry(subject, tmp_path / "face_m.obj", scale=bad)
+    tiny = load_face_mesh(tmp_path / "face_m.obj", subject["region"].values)  # past the check: metres as mm
+    cam = stage.stage_camera(size=16)
+    said = (r"camera sees no pixel of the face of subject 'S001': its mesh 'face_m.obj' is 0\.\d+ mm across, 12\d\d mm "
+            r"from the camera, whose 13° view is [\d.]+ mm wide there \(a mesh in another unit than mm")  # fmt: skip
+    with pytest.raises(ValidationError, match=said):
+        stage.light_stage_field(subject, cam, geometry=tiny, directions=light_stage_directions(8, 4)[0])
+    with pytest.raises(ValidationError, match=said):
+        stage.relight_subject(subject, sky_probe(16), camera=cam, lights=(8, 4), geometry=tiny)
+    import dataclasses
+
+    corner = dataclasses.replace(geometry, mesh_uv=np.full((len(geometry.mesh_vertices), 2), 0.001))  # off the face
+    with pytest.raises(ValidationError, match=r"^camera sees \d+ pixels of the mesh of '.*' but none on a face texel"):
+        stage.render_subject(subject, np.ones((32, 3)), light_stage_directions(8, 4)[0], cam, geometry=corner)

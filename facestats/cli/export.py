@@ -5,7 +5,13 @@ Parses, calls :func:`facestats.io.subject_export.export_subject` and prints what
 
 from __future__ import annotations
 
-from facestats.cli.options import add_store_option, ascii_float, ascii_int, named_options, store_path_option
+from facestats.cli.options import (
+    add_mesh_scale_option,
+    add_store_option,
+    ascii_int,
+    named_options,
+    store_path_option,
+)
 
 __all__ = ["add_export_subject"]
 
@@ -89,13 +95,7 @@ def add_export_subject(sub):
         help="OBJ/PLY scan the maps belong to (default: the face the subject's provenance records; an edit's: its "
         "source's)",
     )
-    p.add_argument(
-        "--mesh-scale",
-        type=ascii_float,
-        default=None,
-        metavar="FACTOR",
-        help="factor from the --mesh file's unit to mm (10 for cm, 1000 for m; default 1)",
-    )
+    add_mesh_scale_option(p)
     p.add_argument(
         "--mesh-format", choices=("obj", "ply"), default=None, help="EXR set: mesh file (default obj; Mitsuba: obj)"
     )

@@ -259,6 +259,28 @@ def add_store_option(
     parser.add_argument("--store", default=None, metavar="PATH", help=help)
 
 
+def add_mesh_scale_option(parser):
+    """``--mesh-scale FACTOR`` (default None: 1), the unit of a ``--mesh`` file to mm, checked by the command through
+    :func:`facestats.io.mesh.check_mesh_scale`.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The command's parser, to which the option is added.
+
+    Returns
+    -------
+    None
+    """
+    parser.add_argument(
+        "--mesh-scale",
+        type=ascii_float,
+        default=None,
+        metavar="FACTOR",
+        help="factor from the --mesh file's unit to mm (10 for cm, 1000 for m; default 1)",
+    )
+
+
 def store_path_option(value):
     """The store a ``--store`` value names: None (the embedded default) for None or ``default``, the texture
     sample's zip (built into the cache on first use) for ``texture-sample``, else ``value`` itself.

@@ -38,6 +38,7 @@ import math
 import pathlib
 
 from facestats.cli.options import (
+    add_mesh_scale_option,
     add_store_option,
     ascii_float,
     ascii_int,
@@ -473,8 +474,7 @@ def add_relight(sub):
     p.add_argument("--mesh", metavar="PATH",
                    help="OBJ/PLY scan (with UVs) a subject's maps belong to, for a subject ingested from photographs "
                         "(default: the face its provenance records)")  # fmt: skip
-    p.add_argument("--mesh-scale", type=ascii_float, default=None, metavar="FACTOR",
-                   help="factor from the --mesh file's unit to mm (10 for cm, 1000 for m; default 1)")  # fmt: skip
+    add_mesh_scale_option(p)
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_store_option(p)

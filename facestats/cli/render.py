@@ -16,8 +16,8 @@ import math
 import pathlib
 
 from facestats.cli.options import (
+    add_mesh_scale_option,
     add_store_option,
-    ascii_float,
     ascii_int,
     check_apart_from_store,
     named_options,
@@ -269,13 +269,7 @@ def add_render(sub):
         help="with --probe: the OBJ/PLY scan (with UVs) of a subject ingested from photographs, which shadows the "
         "render and, without --capture, gives the lumitexels (default: the face the subject's provenance records)",
     )
-    p.add_argument(
-        "--mesh-scale",
-        type=ascii_float,
-        default=None,
-        metavar="FACTOR",
-        help="factor from the --mesh file's unit to mm (10 for cm, 1000 for m; default 1)",
-    )
+    add_mesh_scale_option(p)
     p.add_argument(
         "--seed",
         type=ascii_int,

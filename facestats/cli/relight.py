@@ -230,6 +230,15 @@ def _face_mean(image, mask) -> str:
 
 
 def _cmd_relight(args) -> int:
+    """``facestats relight``; SIGTERM (``kill``) is Ctrl-C here, so that a turntable's temporary stage field and the
+    outputs' temporary files are removed then too (:func:`facestats.core.processes.sigterm_as_interrupt`)."""
+    from facestats.core.processes import sigterm_as_interrupt
+
+    with sigterm_as_interrupt():
+        return _relight(args)
+
+
+def _relight(args) -> int:
     from facestats.core.outputs import check_output_file
     from facestats.io.probes import read_light_probe
 

@@ -510,3 +510,36 @@ def test_a_lights_grid_larger_than_the_memory_holds_is_refused_before_any_array_
     assert "more than the 100 MiB available" in io.err and not any(tmp_path.glob("o.*"))
     code, io = _relight(main, capsys, *args, "--lights", "64x32")
     assert code == 0 and made == [(64, 32)] and (tmp_path / "o.exr").is_file(), io.err
+
+
+def test_a_turntable_stopped_by_sigterm_leaves_no_stage_field_and_no_frame(tmp_path):
+    """The subject's stage field is streamed to a temporary store under the system's temporary folder (165 MB at
+    256² and 64 x 32 lights); Ctrl-C removed it, but ``kill`` (SIGTERM: a job scheduler, a closed terminal's
+    session) ended the process at once and left it, with the output folder's half-written frames.  SIGTERM is now
+    Ctrl-C for the command (facestats.core.processes.sigterm_as_interrupt): exit 130, nothing left."""
+    import os
+    import subprocess
+    import sys
+
+    write_light_probe(tmp_path / "sky.hdr", sky_probe(16))
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    script = (
+        "import os, signal, sys\n"
+        "import facestats.relight.stage as stage\n"
+        "rendered = stage.light_stage_field\n"
+        "def light_stage_field(*args, **kwargs):\n"
+        "    field = rendered(*args, **kwargs)\n"
+        "    assert any(os.scandir(os.environ['TMPDIR']))  # the store is there\n"
+        "    os.kill(os.getpid(), signal.SIGTERM)\n"
+        "    return field\n"
+        "stage.light_stage_field = light_stage_field\n"
+        "from facestats.cli import main\n"
+        "sys.exit(main(sys.argv[1:]))\n"
+    )
+    args = ["relight", "S001", "--probe", str(tmp_path / "sky.hdr"), "--size", "12", "--lights", "8x4",
+            "--turntable", "3", "--out", str(tmp_path / "out" / "t.exr"), "--quiet"]  # fmt: skip
+    env = dict(os.environ, TMPDIR=str(tmp), PYTHONWARNINGS="ignore")
+    r = subprocess.run([sys.executable, "-c", script, *args], capture_output=True, text=True, env=env, timeout=600)
+    assert r.returncode == 130 and "facestats: interrupted" in r.stderr, (r.returncode, r.stderr)
+    assert not list(tmp.iterdir()) and not (tmp_path / "out").exists()

@@ -217,6 +217,49 @@ def test_turntable_with_ratio_relights_the_compressed_field_and_reports_its_erro
     assert read_image(tmp_path / "s_001.exr").shape == (12, 12, 4) and "compressed" in r.stdout
 
 
+def test_the_ratio_error_report_measures_shadows_against_the_frames_face_mean(tmp_path, capsys):
+    """Under one small bright source the dense frames are black where the face turns away: with each pixel channel's
+    error relative to its own dense value (0 there, counted as 1e-30) it printed "99th percentile of its pixel
+    channels 4.28e+30 %, worst 1.05e+31 %", and "face mean within 1e+02 %" for a frame black both ways (the source
+    behind the face).  A pixel channel darker than RATIO_FLOOR of the frame's face mean (of that channel) is measured
+    against that fraction instead, and a frame black both ways is exact."""
+    import re
+
+    from facestats.cli import main
+    from facestats.cli.relight import RATIO_FLOOR
+    from facestats.io.probes import read_light_probe
+    from facestats.relight.compression import compress
+    from tests.relight.fields import ts_lambert_field
+
+    f, _, _ = ts_lambert_field(10, 10, n_theta=16, n_phi=8)
+    write_field(tmp_path / "f.zarr", f)
+    sun = np.zeros((16, 32, 3), np.float32)
+    sun[8, 16] = 1000.0  # one pixel on the horizon, in front of the face at 180°
+    write_light_probe(tmp_path / "sun.hdr", sun)
+    probe = read_light_probe(tmp_path / "sun.hdr")
+    with pytest.warns(UserWarning, match="the compressed turntable"):
+        code = main(["relight", str(tmp_path / "f.zarr"), "--probe", str(tmp_path / "sun.hdr"), "--turntable", "4",
+                     "--ratio", "3", "--out", str(tmp_path / "t.exr"), "--quiet"])  # fmt: skip
+    assert code == 0
+    comp, m = compress(f, ratio=3), f["mask"].values
+    rel, mean = [], []
+    for k in range(4):
+        dense = relight(f, probe=probe, rotate=np.radians(90 * k))[m]
+        img = comp.relight(probe=probe, rotate=np.radians(90 * k))[m]
+        floor = RATIO_FLOOR * dense.mean(0)
+        rel.append((np.abs(img - dense) / np.maximum(np.maximum(dense, floor), 1e-30)).reshape(-1))
+        mean.append(0.0 if img.mean() == dense.mean() else abs(img.mean() / dense.mean() - 1))
+    assert np.all(relight(f, probe=probe)[m] == 0) and mean[0] == 0  # the source behind the face: black both ways
+    rel = np.concatenate(rel)
+    said = (f"face mean within {100 * max(mean):.2g} %, 99th percentile of its pixel channels "
+            f"{100 * np.percentile(rel, 99):.3g} %, worst {100 * rel.max():.3g} % against the dense relight at 0°, "
+            "90°, 180°, 270°")  # fmt: skip
+    out = capsys.readouterr().out
+    assert said in out, out
+    got = re.search(r"face mean within (\S+) %, 99th percentile of its pixel channels (\S+) %, worst (\S+) %", out)
+    assert all(float(x) < 1e4 for x in got.groups()), got[0]  # percent: finite figures of the errors
+
+
 # -- subjects whose face is found by following their provenance, or given as --mesh ------------------------------------
 def _copy_of_s001(path, subject_id, provenance):
     """S001 of the default store, written to the store ``path`` as ``subject_id`` with ``provenance`` (same maps)."""

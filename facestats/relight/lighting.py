@@ -333,7 +333,12 @@ def latlong_to_angular(probe, size: int | None = None, *, supersample: int | Non
     with prescribed row and column sums; :data:`SINKHORN_STEPS`,
     :data:`SINKHORN_TOLERANCE`), ending on the columns.  ``supersample`` thus only sets how finely each probe pixel's
     power is shared among output pixels.  The default is the smallest in [4, 16] with ``size`` · ``supersample`` ≥
-    8 H (sub-cells a quarter of a probe pixel along the radius).  Figures in docs/relighting.md.
+    8 H (sub-cells a quarter of a probe pixel along the radius), and at least ⌈4 H / ``size``⌉ (beyond 16 for an
+    image coarser than H / 4): with at most 16, a uniform 256-row probe came out 0.9968-1.0036 at 16² and 4² (probe
+    pixels no sub-cell reaches, each given whole to one output pixel) and within 7.1e-4 at 32² (the scaling, 300
+    steps, not converged with sub-cells half a probe row high); now within 2.2e-4, 1e-4 and 1e-4 at 4², 16², 32²
+    (``size`` · ``supersample`` = 4 H: at most (4 H)² sub-cells, fewer than the (8 H)² at ``size`` H).  Figures
+    in docs/relighting.md.
 
     Parameters
     ----------
@@ -342,7 +347,7 @@ def latlong_to_angular(probe, size: int | None = None, *, supersample: int | Non
     size : int, optional
         Side of the angular image, ≥ 1 (default H).
     supersample : int, optional
-        Sub-cells per output pixel side, 1-16 (default: automatic, above).
+        Sub-cells per output pixel side, 1-16 (default: automatic, above, which may exceed 16).
 
     Returns
     -------
@@ -357,8 +362,8 @@ def latlong_to_angular(probe, size: int | None = None, *, supersample: int | Non
     p = check_probe(probe, "latlong")
     h, w = p.shape[:2]
     n = h if size is None else check_integer(size, "size", 1)
-    if supersample is None:
-        s = min(16, max(4, -(-8 * h // n)))
+    if supersample is None:  # sub-cells at most a quarter of a probe row high: else lumps, or a slow scaling
+        s = max(min(16, max(4, -(-8 * h // n))), -(-4 * h // n))
     else:
         s = check_integer(supersample, "supersample", 1, 16)
     transport, area = _angular_transport(h, w, n, s)

@@ -318,7 +318,8 @@ def _turntable(args, probe, targets) -> int:
     from facestats.relight.relighting import lighting_for, relight_frames
 
     step = 360.0 / len(targets)
-    angles = [math.fmod(args.rotate + k * step, 360.0) for k in range(len(targets))]
+    start = math.fmod(args.rotate, 360.0)  # first, as a single relight: 1e20 + 90 == 1e20
+    angles = [math.fmod(start + k * step, 360.0) for k in range(len(targets))]
     with tempfile.TemporaryDirectory(prefix="facestats-stage-") as tmp:
         field = _turntable_field(args, tmp)
         mask = field["mask"].values if "mask" in field.data_vars else None

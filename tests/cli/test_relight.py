@@ -162,6 +162,24 @@ def test_turntable_frames_are_dense_relights_by_default(tmp_path):
     assert frame.shape == (12, 12, 4) and np.allclose(frame, one, rtol=1e-5, atol=1e-6 * one.max())
 
 
+def test_turntable_frames_turn_from_any_finite_rotate(tmp_path):
+    """A single relight reduces --rotate modulo 360° first (exact for any finite angle), but the turntable added
+    k · 360°/N before reducing: with --rotate 1e20 every frame was the same image at 280° (1e20 + 90 == 1e20)."""
+    from facestats.io.probes import read_light_probe
+
+    f, _, _ = lambertian_field(6, 6)
+    write_field(tmp_path / "f.zarr", f)
+    write_light_probe(tmp_path / "sky.hdr", sky_probe(16))
+    probe = read_light_probe(tmp_path / "sky.hdr")
+    r = run_main("relight", tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", "--turntable", "4", "--rotate",
+                 "1e20", "--out", tmp_path / "t.exr", "--quiet")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    for k, angle in enumerate((280.0, 10.0, 100.0, 190.0)):  # 1e20 mod 360 = 280
+        assert read_exr(tmp_path / f"t_{k:03d}.exr")[1]["rotate_deg"] == repr(angle)
+        img = read_image(tmp_path / f"t_{k:03d}.exr")[..., :3]
+        assert np.allclose(img, relight(f, probe=probe, rotate=np.radians(angle)), rtol=1e-5, atol=1e-7)
+
+
 def test_turntable_with_ratio_relights_the_compressed_field_and_reports_its_error(tmp_path, capsys):
     """--ratio keeps the compressed path, and says what it costs: the face's error against dense relights of four
     frames spread over the turn (it printed "compressed 20.1x" alone), with a warning above 3 % at the 99th

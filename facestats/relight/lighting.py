@@ -333,12 +333,12 @@ def latlong_to_angular(probe, size: int | None = None, *, supersample: int | Non
     with prescribed row and column sums; :data:`SINKHORN_STEPS`,
     :data:`SINKHORN_TOLERANCE`), ending on the columns.  ``supersample`` thus only sets how finely each probe pixel's
     power is shared among output pixels.  The default is the smallest in [4, 16] with ``size`` · ``supersample`` ≥
-    8 H (sub-cells a quarter of a probe pixel along the radius), and at least ⌈4 H / ``size``⌉ (beyond 16 for an
-    image coarser than H / 4): with at most 16, a uniform 256-row probe came out 0.9968-1.0036 at 16² and 4² (probe
-    pixels no sub-cell reaches, each given whole to one output pixel) and within 7.1e-4 at 32² (the scaling, 300
-    steps, not converged with sub-cells half a probe row high); now within 2.2e-4, 1e-4 and 1e-4 at 4², 16², 32²
-    (``size`` · ``supersample`` = 4 H: at most (4 H)² sub-cells, fewer than the (8 H)² at ``size`` H).  Figures
-    in docs/relighting.md.
+    8 H (sub-cells a quarter of a probe pixel along the radius); where 16 falls short (``size`` < H / 2) the probe
+    is first merged into blocks of k × k pixels, k the largest divisor of H up to 8 H / (16 ``size``), each of
+    their mean radiance weighted by solid angle (Σ L·ΔΩ unchanged), so that the sub-cells again stay finer than
+    the pixels.  Without the merge a uniform 1024-row probe came out 0.987-1.010 at 64² and 0.995-1.0014 at 256²,
+    a 256-row one 0.9968-1.0036 at 16² and 4² (pixels no sub-cell reaches, each given whole to one output pixel,
+    and the scaling far from converged in its steps).  Figures in docs/relighting.md.
 
     Parameters
     ----------
@@ -347,7 +347,7 @@ def latlong_to_angular(probe, size: int | None = None, *, supersample: int | Non
     size : int, optional
         Side of the angular image, ≥ 1 (default H).
     supersample : int, optional
-        Sub-cells per output pixel side, 1-16 (default: automatic, above, which may exceed 16).
+        Sub-cells per output pixel side, 1-16 (default: automatic, above; given, the probe is never merged).
 
     Returns
     -------
@@ -362,8 +362,10 @@ def latlong_to_angular(probe, size: int | None = None, *, supersample: int | Non
     p = check_probe(probe, "latlong")
     h, w = p.shape[:2]
     n = h if size is None else check_integer(size, "size", 1)
-    if supersample is None:  # sub-cells at most a quarter of a probe row high: else lumps, or a slow scaling
-        s = max(min(16, max(4, -(-8 * h // n))), -(-4 * h // n))
+    if supersample is None:
+        s = min(16, max(4, -(-8 * h // n)))
+        p = _merge_rows(p, 8 * h // (n * s))  # a probe finer than 16 sub-cells per output pixel: blocks of pixels
+        h, w = p.shape[:2]
     else:
         s = check_integer(supersample, "supersample", 1, 16)
     transport, area = _angular_transport(h, w, n, s)
@@ -374,6 +376,20 @@ def latlong_to_angular(probe, size: int | None = None, *, supersample: int | Non
     power = a[:, None] * (transport @ (g[:, None] * flat))
     out = np.divide(power, area[:, None], out=np.zeros_like(power), where=area[:, None] > 0)
     return out.reshape(n, n, 3).astype(np.float32)
+
+
+def _merge_rows(p, most):
+    """A lat-long probe (H, W, 3) as blocks of k × k pixels, k the largest divisor of H (and so of W = 2 H) up to
+    ``most`` (≥ 1; 1: unchanged): each block's radiance is its pixels' mean weighted by their exact solid angles
+    (:func:`facestats.model.sphere.latlong_solid_angles`), so Σ L·ΔΩ is unchanged (a block's solid angle is the sum
+    of its pixels': the rows are equally spaced in polar angle)."""
+    h, w = p.shape[:2]
+    k = max((d for d in range(1, max(1, most) + 1) if h % d == 0), default=1)
+    if k == 1:
+        return p
+    sa = latlong_solid_angles(h, w)[..., None]
+    power = (p.astype(np.float64) * sa).reshape(h // k, k, w // k, k, 3).sum((1, 3))
+    return power / sa.reshape(h // k, k, w // k, k, 1).sum((1, 3))
 
 
 #: Largest relative deviation of the rows of :func:`latlong_to_angular`'s transport from the output pixels' solid

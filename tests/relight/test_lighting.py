@@ -223,13 +223,12 @@ def test_latlong_to_angular_keeps_a_smooth_probe_and_a_constant():
     assert np.allclose(flat[seen], 2.0, rtol=5e-4) and np.all(flat[~seen] == 0)
 
 
-@pytest.mark.parametrize("rows, size", [(256, 32), (256, 16), (256, 4)])
+@pytest.mark.parametrize("rows, size", [(512, 128), (256, 32), (256, 16), (256, 4)])
 def test_a_constant_probe_stays_constant_on_an_angular_image_much_coarser_than_it(rows, size):
-    """A probe finer than the sub-cells (supersample capped at 16) sent its unreached pixels whole to the output
-    pixel of their centre: a uniform 256 x 512 probe came out 0.9968-1.0015 at 16² and up to 1.0036 at 4², more than
-    seven times the 4.4e-4 the scaling's stop allows, and 0.9993 at 32² (sub-cells half a probe row high: the
-    scaling had not converged in its 300 steps).  The automatic supersample now makes the sub-cells at most a
-    quarter of a probe row high (size · supersample ≥ 4 H)."""
+    """With supersample capped at 16, a probe finer than the sub-cells sent its unreached pixels whole to the output
+    pixel of their centre, and the scaling was far from converged in its 300 steps: a uniform 256 x 512 probe came
+    out 0.9968-1.0015 at 16², up to 1.0036 at 4², 0.9993 at 32², a 512-row one 0.9988 at 128² (1024 rows: 0.987 at
+    64²), against the 4.4e-4 the docstring states.  The probe is now merged into blocks (power kept) first."""
     flat = lighting.latlong_to_angular(lighting.uniform_probe(rows, 2.0), size)
     seen = sphere.angular_solid_angles(size) > 0
     assert np.allclose(flat[seen], 2.0, rtol=4.4e-4, atol=0), (flat[seen].min() / 2 - 1, flat[seen].max() / 2 - 1)

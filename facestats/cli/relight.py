@@ -18,7 +18,8 @@ compressing the field for any number of frames the option takes (docs/relighting
 With ``--ratio`` the frames go through the compressed field instead (:func:`facestats.relight.compression.compress`;
 Debevec et al. 2000 §3.3): the field is compressed once and each frame is one compressed relight, and the error this
 incurs is measured and printed: up to four frames spread over the turn are relit densely as well, in one pass, and
-compared over the face (:func:`facestats.relight.compression.relative_errors`); above :data:`RATIO_WARN` at the 99th
+compared over the face (:func:`facestats.relight.compression.relative_errors`, against at least
+:data:`RATIO_FLOOR` of the frame's face mean); above :data:`RATIO_WARN` at the 99th
 percentile of the face's pixel channels a warning says so.  Frames are written as ``OUT_000.exr`` … with their PNGs
 (one exposure for all frames, from the first), all or none.
 
@@ -67,6 +68,11 @@ RATIO_WARN = 0.03
 
 #: Frames of a compressed turntable checked against the dense relight (spread over the turn; one pass over the field).
 RATIO_CHECKS = 4
+
+#: Fraction of a checked frame's face mean (per channel) below which a pixel channel's error is measured against
+#: that fraction, not its own dense value: 0 where the face turns away from a small source, which made the figures
+#: 1e30 % (:func:`facestats.relight.compression.relative_errors`' ``floor``).
+RATIO_FLOOR = 0.01
 
 
 def _check_subject_options(args):
@@ -231,6 +237,15 @@ def _face_mean(image, mask) -> str:
 
 
 def _cmd_relight(args) -> int:
+    """``facestats relight``; SIGTERM (``kill``) is Ctrl-C here, so that a turntable's temporary stage field and the
+    outputs' temporary files are removed then too (:func:`facestats.core.processes.sigterm_as_interrupt`)."""
+    from facestats.core.processes import sigterm_as_interrupt
+
+    with sigterm_as_interrupt():
+        return _relight(args)
+
+
+def _relight(args) -> int:
     from facestats.core.outputs import check_output_file
     from facestats.io.probes import read_light_probe
 
@@ -304,7 +319,8 @@ def _turntable(args, probe, targets) -> int:
     from facestats.relight.relighting import lighting_for, relight_frames
 
     step = 360.0 / len(targets)
-    angles = [math.fmod(args.rotate + k * step, 360.0) for k in range(len(targets))]
+    start = math.fmod(args.rotate, 360.0)  # first, as a single relight: 1e20 + 90 == 1e20
+    angles = [math.fmod(start + k * step, 360.0) for k in range(len(targets))]
     with tempfile.TemporaryDirectory(prefix="facestats-stage-") as tmp:
         field = _turntable_field(args, tmp)
         mask = field["mask"].values if "mask" in field.data_vars else None
@@ -355,8 +371,9 @@ def _compressed(args, field, mask, angles, lightings):
     rel, mean = [], []
     for k, ref in zip(checks, dense):
         img = comp.relight(lightings([k])[0])
-        rel.append(relative_errors(img, ref, face))
-        mean.append(abs(float(img[face].mean() / max(float(ref[face].mean()), 1e-30)) - 1))
+        rel.append(relative_errors(img, ref, face, floor=RATIO_FLOOR * ref[face].mean(0, dtype=np.float64)))
+        got, want = float(img[face].mean()), float(ref[face].mean())
+        mean.append(0.0 if got == want else abs(got - want) / want if want > 0 else math.inf)  # black both ways: 0
     rel = np.concatenate(rel)
     p99, worst = float(np.percentile(rel, 99)), float(rel.max())
     at = ", ".join(f"{angles[k]:g}°" for k in checks)

@@ -636,7 +636,7 @@ FACE_SIZE_MM = (50.0, 1000.0)
 MAX_MESH_SCALE = 1e6
 
 #: Units a suggested scale names (:func:`face_extent_problem`): mm per unit.
-_UNITS = {1e-3: "µm", 0.1: "0.1 mm", 10.0: "cm", 100.0: "dm", 1000.0: "m"}
+_UNITS = {1e-3: "µm", 0.1: "0.1 mm", 1.0: "mm", 10.0: "cm", 100.0: "dm", 1000.0: "m"}
 
 
 def check_mesh_scale(scale, mesh, name: str = "mesh_scale") -> float:
@@ -676,9 +676,10 @@ def face_extent_problem(vertices, mesh, scale: float = 1.0) -> str | None:
     """Why a face mesh read with ``scale`` has not a face's size in mm, or None when it has.
 
     The extent is the largest side of the vertices' bounding box; a face or head scan spans
-    :data:`FACE_SIZE_MM`.  Outside it the message gives the extent and the scale, and suggests the power of ten
-    that brings the extent nearest to 224 mm (the range's geometric middle) with the unit it stands for: a scan in
-    m read as mm is 0.2 mm across, and ``scale`` 1000 makes it 200 mm.
+    :data:`FACE_SIZE_MM`.  Outside it the message gives the extent and the scale, and suggests the scale, a power
+    of ten, that brings the file's own extent (the extent over ``scale``) nearest to 224 mm (the range's geometric
+    middle), with the unit it stands for: a scan in m read as mm is 0.2 mm across, and ``scale`` 1000 makes it
+    200 mm, whatever ``scale`` it was read with.
 
     Parameters
     ----------
@@ -704,12 +705,16 @@ def face_extent_problem(vertices, mesh, scale: float = 1.0) -> str | None:
     )
     if not across > 0:  # all vertices at one point: no scale helps
         return f"{said}: its vertices are all at one point"
-    factor = 10.0 ** round(np.log10(np.sqrt(FACE_SIZE_MM[0] * FACE_SIZE_MM[1]) / across))
-    unit = _UNITS.get(factor)
-    if unit is None or not 0 < scale * factor <= MAX_MESH_SCALE:
+    # the scale for the file's own extent (across / scale, in its unit), not a factor on the scale given: with scale
+    # 1e6 a 0.25-unit scan was told "if the file is in µm, pass scale 1000"
+    with np.errstate(over="ignore", divide="ignore"):
+        decades = float(np.log10(np.sqrt(FACE_SIZE_MM[0] * FACE_SIZE_MM[1]) * scale / across))
+    suggest = 10.0 ** round(decades) if np.isfinite(decades) else None
+    unit = _UNITS.get(suggest)
+    if unit is None:
         return f"{said}: pass the factor from its unit to mm as scale (--mesh-scale on the command line)"
     return (
-        f"{said}: if the file is in {unit}, pass scale {scale * factor:g} (--mesh-scale {scale * factor:g} on the "
+        f"{said}: if the file is in {unit}, pass scale {suggest:g} (--mesh-scale {suggest:g} on the "
         "command line, the factor from its unit to mm)"
     )
 

@@ -1016,9 +1016,10 @@ class CompressedField:
         return out.reshape((self.n_lights,) + self.image_shape + (3,))
 
 
-def relative_errors(image, reference, mask=None) -> np.ndarray:
-    """Relative errors |image − reference| / reference of the pixel channels in ``mask``, flat (the accuracy of a
-    compressed relight against the dense one; a reference of 0 counts as 1e-30, so an error there is huge).
+def relative_errors(image, reference, mask=None, *, floor=0.0) -> np.ndarray:
+    """Relative errors |image − reference| / max(reference, ``floor``) of the pixel channels in ``mask``, flat (the
+    accuracy of a compressed relight against the dense one; a denominator below 1e-30 counts as 1e-30, so with no
+    ``floor`` an error where the reference is 0 is huge).
 
     Parameters
     ----------
@@ -1026,6 +1027,9 @@ def relative_errors(image, reference, mask=None) -> np.ndarray:
         A relit image and the reference it approximates (:func:`facestats.relight.relighting.relight`).
     mask : array_like of bool, shape (H, W), optional
         The pixels to compare (default all).
+    floor : float or array_like, shape (3,)
+        Smallest denominator (per channel), ≥ 0: a reference darker than it (in shadow, where a relative error has
+        no meaning) is measured against it, e.g. a fraction of the image's mean (``facestats relight --ratio``).
 
     Returns
     -------
@@ -1035,7 +1039,8 @@ def relative_errors(image, reference, mask=None) -> np.ndarray:
     Raises
     ------
     ValidationError
-        Images of different shapes or not (H, W, 3), non-finite values, or a mask of another (H, W).
+        Images of different shapes or not (H, W, 3), non-finite values, a mask of another (H, W), or a ``floor``
+        that is negative, not finite or not one value or three.
     """
     img = as_finite(image, "image", dtype=np.float64)
     ref = as_finite(reference, "reference", dtype=np.float64)
@@ -1044,7 +1049,10 @@ def relative_errors(image, reference, mask=None) -> np.ndarray:
     m = np.ones(img.shape[:2], bool) if mask is None else np.asarray(mask, bool)
     if m.shape != img.shape[:2]:
         raise ValidationError(f"mask must have the images' shape {img.shape[:2]}, got {m.shape}")
-    return (np.abs(img[m] - ref[m]) / np.maximum(np.abs(ref[m]), 1e-30)).reshape(-1)
+    low = as_finite(floor, "floor", 0, None, dtype=np.float64)
+    if low.shape not in ((), (3,)):
+        raise ValidationError(f"floor must be one value or one per channel (3,), got shape {low.shape}")
+    return (np.abs(img[m] - ref[m]) / np.maximum(np.maximum(np.abs(ref[m]), low), 1e-30)).reshape(-1)
 
 
 def _budget(n_lights, n_pix, ratio, n_parts):

@@ -162,6 +162,24 @@ def test_turntable_frames_are_dense_relights_by_default(tmp_path):
     assert frame.shape == (12, 12, 4) and np.allclose(frame, one, rtol=1e-5, atol=1e-6 * one.max())
 
 
+def test_turntable_frames_turn_from_any_finite_rotate(tmp_path):
+    """A single relight reduces --rotate modulo 360° first (exact for any finite angle), but the turntable added
+    k · 360°/N before reducing: with --rotate 1e20 every frame was the same image at 280° (1e20 + 90 == 1e20)."""
+    from facestats.io.probes import read_light_probe
+
+    f, _, _ = lambertian_field(6, 6)
+    write_field(tmp_path / "f.zarr", f)
+    write_light_probe(tmp_path / "sky.hdr", sky_probe(16))
+    probe = read_light_probe(tmp_path / "sky.hdr")
+    r = run_main("relight", tmp_path / "f.zarr", "--probe", tmp_path / "sky.hdr", "--turntable", "4", "--rotate",
+                 "1e20", "--out", tmp_path / "t.exr", "--quiet")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    for k, angle in enumerate((280.0, 10.0, 100.0, 190.0)):  # 1e20 mod 360 = 280
+        assert read_exr(tmp_path / f"t_{k:03d}.exr")[1]["rotate_deg"] == repr(angle)
+        img = read_image(tmp_path / f"t_{k:03d}.exr")[..., :3]
+        assert np.allclose(img, relight(f, probe=probe, rotate=np.radians(angle)), rtol=1e-5, atol=1e-7)
+
+
 def test_turntable_with_ratio_relights_the_compressed_field_and_reports_its_error(tmp_path, capsys):
     """--ratio keeps the compressed path, and says what it costs: the face's error against dense relights of four
     frames spread over the turn (it printed "compressed 20.1x" alone), with a warning above 3 % at the 99th
@@ -215,6 +233,49 @@ def test_turntable_with_ratio_relights_the_compressed_field_and_reports_its_erro
                  "--turntable", "2", "--ratio", "2", "--out", tmp_path / "s.exr")  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert read_image(tmp_path / "s_001.exr").shape == (12, 12, 4) and "compressed" in r.stdout
+
+
+def test_the_ratio_error_report_measures_shadows_against_the_frames_face_mean(tmp_path, capsys):
+    """Under one small bright source the dense frames are black where the face turns away: with each pixel channel's
+    error relative to its own dense value (0 there, counted as 1e-30) it printed "99th percentile of its pixel
+    channels 4.28e+30 %, worst 1.05e+31 %", and "face mean within 1e+02 %" for a frame black both ways (the source
+    behind the face).  A pixel channel darker than RATIO_FLOOR of the frame's face mean (of that channel) is measured
+    against that fraction instead, and a frame black both ways is exact."""
+    import re
+
+    from facestats.cli import main
+    from facestats.cli.relight import RATIO_FLOOR
+    from facestats.io.probes import read_light_probe
+    from facestats.relight.compression import compress
+    from tests.relight.fields import ts_lambert_field
+
+    f, _, _ = ts_lambert_field(10, 10, n_theta=16, n_phi=8)
+    write_field(tmp_path / "f.zarr", f)
+    sun = np.zeros((16, 32, 3), np.float32)
+    sun[8, 16] = 1000.0  # one pixel on the horizon, in front of the face at 180°
+    write_light_probe(tmp_path / "sun.hdr", sun)
+    probe = read_light_probe(tmp_path / "sun.hdr")
+    with pytest.warns(UserWarning, match="the compressed turntable"):
+        code = main(["relight", str(tmp_path / "f.zarr"), "--probe", str(tmp_path / "sun.hdr"), "--turntable", "4",
+                     "--ratio", "3", "--out", str(tmp_path / "t.exr"), "--quiet"])  # fmt: skip
+    assert code == 0
+    comp, m = compress(f, ratio=3), f["mask"].values
+    rel, mean = [], []
+    for k in range(4):
+        dense = relight(f, probe=probe, rotate=np.radians(90 * k))[m]
+        img = comp.relight(probe=probe, rotate=np.radians(90 * k))[m]
+        floor = RATIO_FLOOR * dense.mean(0)
+        rel.append((np.abs(img - dense) / np.maximum(np.maximum(dense, floor), 1e-30)).reshape(-1))
+        mean.append(0.0 if img.mean() == dense.mean() else abs(img.mean() / dense.mean() - 1))
+    assert np.all(relight(f, probe=probe)[m] == 0) and mean[0] == 0  # the source behind the face: black both ways
+    rel = np.concatenate(rel)
+    said = (f"face mean within {100 * max(mean):.2g} %, 99th percentile of its pixel channels "
+            f"{100 * np.percentile(rel, 99):.3g} %, worst {100 * rel.max():.3g} % against the dense relight at 0°, "
+            "90°, 180°, 270°")  # fmt: skip
+    out = capsys.readouterr().out
+    assert said in out, out
+    got = re.search(r"face mean within (\S+) %, 99th percentile of its pixel channels (\S+) %, worst (\S+) %", out)
+    assert all(float(x) < 1e4 for x in got.groups()), got[0]  # percent: finite figures of the errors
 
 
 # -- subjects whose face is found by following their provenance, or given as --mesh ------------------------------------
@@ -510,3 +571,36 @@ def test_a_lights_grid_larger_than_the_memory_holds_is_refused_before_any_array_
     assert "more than the 100 MiB available" in io.err and not any(tmp_path.glob("o.*"))
     code, io = _relight(main, capsys, *args, "--lights", "64x32")
     assert code == 0 and made == [(64, 32)] and (tmp_path / "o.exr").is_file(), io.err
+
+
+def test_a_turntable_stopped_by_sigterm_leaves_no_stage_field_and_no_frame(tmp_path):
+    """The subject's stage field is streamed to a temporary store under the system's temporary folder (165 MB at
+    256² and 64 x 32 lights); Ctrl-C removed it, but ``kill`` (SIGTERM: a job scheduler, a closed terminal's
+    session) ended the process at once and left it, with the output folder's half-written frames.  SIGTERM is now
+    Ctrl-C for the command (facestats.core.processes.sigterm_as_interrupt): exit 130, nothing left."""
+    import os
+    import subprocess
+    import sys
+
+    write_light_probe(tmp_path / "sky.hdr", sky_probe(16))
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    script = (
+        "import os, signal, sys\n"
+        "import facestats.relight.stage as stage\n"
+        "rendered = stage.light_stage_field\n"
+        "def light_stage_field(*args, **kwargs):\n"
+        "    field = rendered(*args, **kwargs)\n"
+        "    assert any(os.scandir(os.environ['TMPDIR']))  # the store is there\n"
+        "    os.kill(os.getpid(), signal.SIGTERM)\n"
+        "    return field\n"
+        "stage.light_stage_field = light_stage_field\n"
+        "from facestats.cli import main\n"
+        "sys.exit(main(sys.argv[1:]))\n"
+    )
+    args = ["relight", "S001", "--probe", str(tmp_path / "sky.hdr"), "--size", "12", "--lights", "8x4",
+            "--turntable", "3", "--out", str(tmp_path / "out" / "t.exr"), "--quiet"]  # fmt: skip
+    env = dict(os.environ, TMPDIR=str(tmp), PYTHONWARNINGS="ignore")
+    r = subprocess.run([sys.executable, "-c", script, *args], capture_output=True, text=True, env=env, timeout=600)
+    assert r.returncode == 130 and "facestats: interrupted" in r.stderr, (r.returncode, r.stderr)
+    assert not list(tmp.iterdir()) and not (tmp_path / "out").exists()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 
+import numpy as np
 import pytest
 
 from facestats.errors import FormatError, ValidationError
@@ -212,3 +213,30 @@ def test_an_empty_out_folder_keeps_its_permissions_and_long_names_work(tmp_path,
     long = tmp_path / ("é" * 120)  # 240 bytes in UTF-8
     res = export_subject(subject, long, "gltf")
     assert res["out"] == str(long) and sorted(os.listdir(tmp_path)) == sorted(["private", "é" * 120])
+
+
+@pytest.mark.parametrize(
+    "raw, scale, unit, want",
+    [
+        (0.25, 1.0, "m", 1000),  # a scan in m read as mm
+        (0.25, 0.5, "m", 1000),  # said "in m, pass scale 500"
+        (0.25, 1e6, "m", 1000),  # said "in µm, pass scale 1000"
+        (0.25, 1e-30, "m", 1000),  # said only "pass the factor from its unit to mm"
+        (250.0, 1000.0, "mm", 1),  # a scan in mm given --mesh-scale 1000: said only "pass the factor ..."
+        (25.0, 1.0, "cm", 10),
+        (2.5e5, 1.0, "µm", 0.001),
+    ],
+)
+def test_the_scale_a_misfit_mesh_is_told_to_pass_is_for_the_unit_it_names(raw, scale, unit, want):
+    """The suggestion is the power of ten (mm per unit of the file) that brings the file's extent to a face's size,
+    and the unit named is that scale's, whatever scale the mesh was read with: with scale 1e6 on a 0.25-unit scan it
+    said "if the file is in µm, pass scale 1000" (1000 is m's scale)."""
+    from facestats.io.mesh import face_extent_problem
+
+    verts = np.array([[0.0, 0.0, 0.0], [raw, 0.4 * raw, 0.3 * raw]]) * scale
+    said = face_extent_problem(verts, "scan.obj", scale)
+    assert said.endswith(
+        f"outside a face's 50-1000 mm: if the file is in {unit}, pass scale {want:g} (--mesh-scale {want:g} on the "
+        "command line, the factor from its unit to mm)"
+    ), said
+    assert face_extent_problem(verts / scale * want, "scan.obj", want) is None  # the suggestion fits

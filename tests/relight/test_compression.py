@@ -305,3 +305,17 @@ def test_a_field_of_differences_keeps_its_negative_relights():
     assert cmp.compress(noisy, ratio=1.0, clusters=1).nonnegative
     noisy.attrs["signed"] = True
     assert not cmp.compress(noisy, ratio=1.0, clusters=1).nonnegative
+
+
+def test_relative_errors_measure_a_reference_darker_than_the_floor_against_the_floor():
+    """|image − reference| / max(reference, floor) per channel; with no floor a 0 reference counts as 1e-30."""
+    from facestats.relight.compression import relative_errors
+
+    ref = np.array([[[2.0, 0.0, 1.0], [0.5, 4.0, 0.0]]])
+    img = np.array([[[2.2, 0.1, 1.0], [0.5, 3.0, 0.0]]])
+    got = relative_errors(img, ref, floor=[1.0, 0.5, 2.0])
+    assert np.allclose(got, [0.1, 0.2, 0.0, 0.0, 0.25, 0.0])
+    assert np.isclose(relative_errors(img, ref)[1], 0.1 / 1e-30)
+    for bad in (-1.0, np.nan, [1.0, 2.0]):
+        with pytest.raises(ValidationError, match="floor"):
+            relative_errors(img, ref, floor=bad)

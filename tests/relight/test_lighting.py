@@ -223,6 +223,27 @@ def test_latlong_to_angular_keeps_a_smooth_probe_and_a_constant():
     assert np.allclose(flat[seen], 2.0, rtol=5e-4) and np.all(flat[~seen] == 0)
 
 
+@pytest.mark.parametrize("rows, size", [(512, 128), (256, 32), (256, 16), (256, 4)])
+def test_a_constant_probe_stays_constant_on_an_angular_image_much_coarser_than_it(rows, size):
+    """With supersample capped at 16, a probe finer than the sub-cells sent its unreached pixels whole to the output
+    pixel of their centre, and the scaling was far from converged in its 300 steps: a uniform 256 x 512 probe came
+    out 0.9968-1.0015 at 16², up to 1.0036 at 4², 0.9993 at 32², a 512-row one 0.9988 at 128² (1024 rows: 0.987 at
+    64²), against the 4.4e-4 the docstring states.  The probe is now merged into blocks (power kept) first."""
+    flat = lighting.latlong_to_angular(lighting.uniform_probe(rows, 2.0), size)
+    seen = sphere.angular_solid_angles(size) > 0
+    assert np.allclose(flat[seen], 2.0, rtol=4.4e-4, atol=0), (flat[seen].min() / 2 - 1, flat[seen].max() / 2 - 1)
+
+
+def test_probe_pixels_no_sub_cell_reaches_are_shared_with_the_neighbours_of_their_pixel():
+    """Near the poles a lat-long pixel is narrower than any sub-cell: those no sub-cell reached went whole to the one
+    output pixel of their centre, lumps the scaling cannot even out.  A uniform 1024-row probe came out 0.965-1.0038
+    at its default 1024² (72 pixels around the poles), a 256-row one 0.944-1.066 at 128² with supersample 4.  Each
+    such pixel's power is now shared (by the scaling) among that pixel and its four neighbours."""
+    flat = lighting.latlong_to_angular(lighting.uniform_probe(256, 2.0), 128, supersample=4)
+    seen = sphere.angular_solid_angles(128) > 0
+    assert np.allclose(flat[seen], 2.0, rtol=2e-3, atol=0), (flat[seen].min() / 2 - 1, flat[seen].max() / 2 - 1)
+
+
 def test_bad_probes_are_refused_with_the_field_and_value():
     good = lighting.uniform_probe(8)
     bad = good.copy()

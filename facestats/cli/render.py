@@ -169,7 +169,12 @@ def _cmd_render(args) -> int:
         cap = default_capture(ds, seed=DEFAULT_SEED if args.seed is None else args.seed)
     # the options, not the API's names ("light probe 'x' ..." is --probe's, not --light's)
     with named_options(
-        samples="--probe-lights", camera="--camera", light="--light", size="--size", **{"light probe": "--probe"}
+        samples="--probe-lights",
+        camera="--camera",
+        light="--light",
+        size="--size",
+        mesh="--mesh",
+        **{"light probe": "--probe"},
     ):
         if args.probe:
             res = render_probe(ds, cap, args.camera, args.probe, mesh=args.mesh, scale=args.mesh_scale,

@@ -50,6 +50,7 @@ __all__ = [
     "FACE_SIZE_MM",
     "MAX_MESH_SCALE",
     "check_mesh_scale",
+    "check_face_extent",
     "face_extent_problem",
 ]
 
@@ -668,7 +669,9 @@ def check_mesh_scale(scale, mesh, name: str = "mesh_scale") -> float:
     if scale is None:
         return 1.0
     if mesh is None:
-        raise ValidationError(f"{name} applies to a mesh given with mesh= (--mesh), and none is given")
+        raise ValidationError(
+            f"{name} applies only with a mesh (mesh=PATH; --mesh PATH on the command line), and none is given"
+        )
     return as_scalar(scale, name, 0, MAX_MESH_SCALE, low_inclusive=False)
 
 
@@ -717,6 +720,31 @@ def face_extent_problem(vertices, mesh, scale: float = 1.0) -> str | None:
         f"{said}: if the file is in {unit}, pass scale {suggest:g} (--mesh-scale {suggest:g} on the "
         "command line, the factor from its unit to mm)"
     )
+
+
+def check_face_extent(vertices, mesh, scale: float = 1.0) -> None:
+    """Refuse a face mesh that, read with ``scale``, has not a face's size in mm (:func:`face_extent_problem`).
+
+    What renders and relights check: a scan in m read as mm is a fraction of a mm across, and a camera placed in mm
+    would see nothing or a part of it.  (Exports only warn: :func:`subject_mesh`.)
+
+    Parameters
+    ----------
+    vertices : array_like, shape (V, 3)
+        The mesh's vertices after ``scale``.
+    mesh : str or os.PathLike
+        The mesh file (named in the message).
+    scale : float
+        The factor the vertices were read with.
+
+    Raises
+    ------
+    ValidationError
+        The message of :func:`face_extent_problem`: the extent, the scale given and the scale to pass.
+    """
+    problem = face_extent_problem(vertices, mesh, scale)
+    if problem is not None:
+        raise ValidationError(problem)
 
 
 def subject_mesh(ds, mesh=None, *, scale: float = 1.0, mesh_grid: int | None = None) -> FaceMesh:

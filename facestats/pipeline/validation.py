@@ -51,7 +51,7 @@ from facestats.core.validate import check_choice, check_integer
 from facestats.errors import ValidationError
 from facestats.face.geometry import uv_to_texel
 from facestats.face.named import named_face, parse_face_name
-from facestats.io.mesh import load_face_mesh, recorded_geometry, subject_mesh
+from facestats.io.mesh import check_face_extent, load_face_mesh, recorded_geometry, subject_mesh
 from facestats.io.probes import read_light_probe
 from facestats.io.schema import modulation, provenance
 from facestats.model.skin import SPECULAR_MODELS, SubsurfaceTransport, skin_radiance
@@ -455,11 +455,14 @@ def face_view(subject, mesh=None, *, scale: float = 1.0) -> FaceView:
     ------
     ValidationError
         A face facestats cannot rebuild and no ``mesh`` (a subject fitted on a scan: pass the scan, or its capture
-        to :func:`render_probe`).
+        to :func:`render_probe`); a ``mesh`` that after ``scale`` is not a face's size in mm
+        (:func:`facestats.io.mesh.check_face_extent`).
     """
     sid = str(subject.attrs.get("subject_id", "?"))
     if mesh is not None:
-        return FaceView(load_face_mesh(mesh, np.asarray(subject["region"].values), scale=scale), sid)
+        geometry = load_face_mesh(mesh, np.asarray(subject["region"].values), scale=scale)
+        check_face_extent(geometry.mesh_vertices, mesh, scale)  # a scan in m read as mm: the dome would miss it
+        return FaceView(geometry, sid)
     name = recorded_geometry(subject)
     try:
         geometry = named_face(str(name))

@@ -166,16 +166,14 @@ def subject_geometry(subject, mesh=None, *, scale: float = 1.0, mesh_grid: int =
     """
     # local imports: keep facestats.io (21 modules) out of this module's import
     from facestats.io.exr_set import check_map_subject
-    from facestats.io.mesh import check_mesh_scale, face_extent_problem, load_face_mesh, recorded_geometry
+    from facestats.io.mesh import check_face_extent, check_mesh_scale, load_face_mesh, recorded_geometry
 
     check_map_subject(subject, "relighting")
     mesh_grid = check_integer(mesh_grid, "mesh_grid", 8, 1024)
     if mesh is not None:
         scale = check_mesh_scale(scale, mesh, "scale")
         geometry = load_face_mesh(mesh, np.asarray(subject["region"].values), scale=scale)
-        problem = face_extent_problem(geometry.mesh_vertices, mesh, scale)
-        if problem is not None:  # a scan in m read as mm: the camera would see nothing (a black image, exit 0)
-            raise ValidationError(problem)
+        check_face_extent(geometry.mesh_vertices, mesh, scale)  # a scan in m read as mm: a black image, exit 0
         return geometry
     name = recorded_geometry(subject)
     try:

@@ -1,6 +1,7 @@
 """``facestats export-subject``, ``render`` and ``serve`` on the command line."""
 
 import os
+import shutil
 import sys
 
 import numpy as np
@@ -44,7 +45,7 @@ def test_a_scan_in_cm_is_warned_about_and_scaled_with_mesh_scale(tmp_path):
     manifest = json.loads((tmp_path / "cm" / "manifest.json").read_text())
     assert '"scale": 10.0' in json.dumps(manifest)
     bad = run_main("export-subject", "S001", "--out", tmp_path / "x", "--mesh-scale", "10")
-    assert bad.returncode == 2 and "--mesh-scale applies to a mesh given with mesh= (--mesh)" in bad.stderr
+    assert bad.returncode == 2 and "--mesh-scale applies only with a mesh (mesh=PATH; --mesh PATH" in bad.stderr
     for value in ("-10", "nan", "1e300"):  # named by the flag; 1e300 overflowed into a temporary file's name
         bad = run_main("export-subject", "S001", "--out", tmp_path / "x", "--mesh", quad, "--mesh-scale", value)
         assert bad.returncode == 2 and bad.stderr.startswith("facestats: error: --mesh-scale must"), bad.stderr
@@ -298,6 +299,7 @@ def test_render_under_a_probe_takes_the_scan_of_an_ingested_subject_as_mesh(tmp_
         fm = subject_mesh(st.subject("S003").load())  # the scan: the ICT face the maps belong to
     write_mesh(tmp_path / "face.obj", fm.vertices, fm.faces, fm.uv)
     write_mesh(tmp_path / "far.obj", fm.vertices + [0.0, 0.0, 5000.0], fm.faces, fm.uv)  # 5 m behind the dome
+    write_mesh(tmp_path / "metres.obj", fm.vertices / 1000, fm.faces, fm.uv)  # the scan in m
     write_light_probe(tmp_path / "sky.hdr", sky_probe(8))  # 8 x 16: lit by 8 x 16 lights, fast
     out, args = tmp_path / "images", ["render", "S003", "--store", store, "--probe", str(tmp_path / "sky.hdr")]
     args += ["--camera", "5"]
@@ -307,6 +309,12 @@ def test_render_under_a_probe_takes_the_scan_of_an_ingested_subject_as_mesh(tmp_
     )
     assert main(args + ["--out", str(out), "--mesh", str(tmp_path / "far.obj")]) == 2
     assert "--camera 5 sees none of the 4819 lumitexels of subject 'S003'" in capsys.readouterr().err
+    # A scan in m read as mm was only warned about ("the σ maps are per mm"), and rendered: refused as relight does.
+    assert main(args + ["--out", str(out), "--mesh", str(tmp_path / "metres.obj")]) == 2
+    err = capsys.readouterr().err
+    assert f"facestats: error: --mesh {tmp_path / 'metres.obj'} is 0." in err and "pass scale 1000" in err, err
+    assert main(args + ["--out", str(out), "--mesh", str(tmp_path / "metres.obj"), "--mesh-scale", "1000"]) == 0
+    shutil.rmtree(out)
     assert main(args[:4] + ["--out", str(out), "--mesh", str(tmp_path / "face.obj")]) == 2
     assert "--mesh applies to a render under a light probe (--probe FILE)" in capsys.readouterr().err
     assert not out.exists()

@@ -399,8 +399,8 @@ def test_a_scan_in_metres_is_refused_naming_mesh_and_its_size_and_mesh_scale_rel
     assert code == 0, io.err
     m, ref = read_image(tmp_path / "m.exr"), read_image(tmp_path / "s.exr")
     assert np.allclose(m, ref, rtol=1e-3, atol=1e-5 * ref.max())  # the same face, to the OBJ's digits
-    for extra, said in ((("--mesh-scale", "10"), "--mesh-scale applies to a mesh given with mesh= (--mesh), and none "
-                                                 "is given"),
+    for extra, said in ((("--mesh-scale", "10"), "--mesh-scale applies only with a mesh (mesh=PATH; --mesh PATH on "
+                                                 "the command line), and none is given"),
                         (("--mesh", metres, "--mesh-scale", "-1"), "--mesh-scale must lie in (0, 1e+06], got -1"),
                         (("--mesh", metres, "--mesh-scale", "nan"), "--mesh-scale must")):  # fmt: skip
         code, io = _relight(main, capsys, *common, *extra, "--out", tmp_path / "x.exr")
@@ -423,7 +423,7 @@ def test_a_scan_in_metres_is_refused_naming_mesh_and_its_size_and_mesh_scale_rel
     monkeypatch.setattr(validation, "render_probe", render_probe)
     out = ("--out", tmp_path / "r")
     assert main(["render", "S001", "--probe", str(tmp_path / "sky.hdr"), "--mesh-scale", "10", *map(str, out)]) == 2
-    assert "--mesh-scale applies to a mesh given with mesh= (--mesh)" in capsys.readouterr().err
+    assert "--mesh-scale applies only with a mesh (mesh=PATH; --mesh PATH" in capsys.readouterr().err
     code = main(["render", "S001", "--probe", str(tmp_path / "sky.hdr"), "--mesh", str(metres), "--mesh-scale", "1000",
                  *map(str, out)])  # fmt: skip
     assert code == 2 and "stopped here by the test" in capsys.readouterr().err
